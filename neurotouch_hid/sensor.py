@@ -1,0 +1,186 @@
+"""Sensor geometry: the gel's place in the image, image <-> user frame, px <-> mm.
+
+The geometry is the ``sensor.yaml`` of DATASET.md. The *image frame* is pixels, x right, y down,
+origin at the top-left pixel's centre. The *user frame* is the gel seen from outside and above,
+millimetres, x right, y up, origin at the gel's centre. The camera looks at the gel from inside
+(paper, section "System Overview"), so the image is the mirror of what the user sees::
+
+    d = ((u - cx), -(v - cy)) / px_per_mm          # image as displayed, y up, mm
+    d = (-d.x, d.y)            if mirror            # the camera looks from inside
+    user = rotate(d, rotation_deg)                  # counter-clockwise, degrees
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from neurotouch_hid.errors import SensorError
+
+#: DAVIS-346 resolution (px).
+DAVIS346_WIDTH = 346
+DAVIS346_HEIGHT = 260
+
+
+@dataclass(frozen=True)
+class SensorGeometry:
+    """The sensor's geometry as written in ``sensor.yaml`` (DATASET.md).
+
+    Attributes:
+        width, height: image size in px (346 x 260 for a DAVIS-346).
+        px_per_mm: image scale at the gel's centre (px/mm); 2.5 means r = 30 px ~ 12 mm.
+        gel_center_px: (cx, cy), the gel's centre in the image frame (px).
+        gel_radius_px: radius of the gel's visible disc in the image (px).
+        mirror: True when the camera sees the gel from inside (the image is mirrored).
+        rotation_deg: counter-clockwise rotation from mirrored image to user frame (degrees).
+    """
+
+    width: int = DAVIS346_WIDTH
+    height: int = DAVIS346_HEIGHT
+    px_per_mm: float = 2.5
+    gel_center_px: tuple[float, float] = (173.0, 130.0)
+    gel_radius_px: float = 75.0
+    mirror: bool = True
+    rotation_deg: float = 0.0
+    extra: dict = field(default_factory=dict, compare=False, repr=False)
+
+    # --- loading and saving -------------------------------------------------------------
+    @classmethod
+    def load(cls, path: str | Path) -> "SensorGeometry":
+        """Read a ``sensor.yaml`` (DATASET.md).
+
+        Keys other than the DATASET.md ones are kept in ``extra`` (the simulator writes its
+        marker layout there). Raises :class:`SensorError` naming the file and the field when
+        the file is missing, is not YAML, or a field has the wrong type.
+        """
+        path = Path(path)
+        try:
+            text = path.read_text()
+        except FileNotFoundError:
+            raise SensorError(f"{path}: no such sensor file (expected a sensor.yaml, see DATASET.md)") from None
+        except OSError as exc:
+            raise SensorError(f"{path}: cannot read the sensor file: {exc.strerror}") from None
+        try:
+            data = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise SensorError(f"{path}: not valid YAML: {exc}") from None
+        if not isinstance(data, dict):
+            raise SensorError(f"{path}: expected a mapping of sensor fields (DATASET.md), found {type(data).__name__}")
+        known = {"width", "height", "px_per_mm", "gel_center_px", "gel_radius_px", "mirror", "rotation_deg"}
+        kwargs: dict = {}
+        try:
+            for key in ("width", "height"):
+                if key in data:
+                    kwargs[key] = int(data[key])
+            for key in ("px_per_mm", "gel_radius_px", "rotation_deg"):
+                if key in data:
+                    kwargs[key] = float(data[key])
+            if "gel_center_px" in data:
+                cx, cy = data["gel_center_px"]
+                kwargs["gel_center_px"] = (float(cx), float(cy))
+            if "mirror" in data:
+                if not isinstance(data["mirror"], bool):
+                    raise TypeError("mirror must be true or false")
+                kwargs["mirror"] = data["mirror"]
+        except (TypeError, ValueError) as exc:
+            raise SensorError(f"{path}: field {key!r}: {exc} (found {data.get(key)!r})") from None
+        extra = {k: v for k, v in data.items() if k not in known}
+        geometry = cls(**kwargs, extra=extra)
+        if geometry.px_per_mm <= 0 or geometry.gel_radius_px <= 0:
+            raise SensorError(f"{path}: px_per_mm and gel_radius_px must be positive")
+        return geometry
+
+    def to_dict(self) -> dict:
+        """The DATASET.md fields (plus ``extra``) as plain YAML-able values."""
+        data = asdict(self)
+        extra = data.pop("extra")
+        data["gel_center_px"] = [float(c) for c in self.gel_center_px]
+        data.update(extra)
+        return data
+
+    def save(self, path: str | Path) -> None:
+        """Write this geometry as ``sensor.yaml`` (DATASET.md field order)."""
+        Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=False))
+
+    # --- conversions --------------------------------------------------------------------
+    @property
+    def gel_radius_mm(self) -> float:
+        """Radius of the gel's visible disc in mm (at the centre's scale)."""
+        return self.gel_radius_px / self.px_per_mm
+
+    def _rotation(self) -> np.ndarray:
+        a = math.radians(self.rotation_deg)
+        return np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+
+    def vectors_image_to_user(self, vectors_px: np.ndarray) -> np.ndarray:
+        """Convert displacement vectors from image px to user-frame mm.
+
+        Args:
+            vectors_px: (..., 2) float, image frame (x right, y down), px.
+        Returns:
+            (..., 2) float64, user frame (x right, y up), mm.
+        """
+        v = np.asarray(vectors_px, dtype=np.float64)
+        d = np.stack([v[..., 0], -v[..., 1]], axis=-1) / self.px_per_mm
+        if self.mirror:
+            d[..., 0] = -d[..., 0]
+        if self.rotation_deg:
+            d = d @ self._rotation().T
+        return d
+
+    def vectors_user_to_image(self, vectors_mm: np.ndarray) -> np.ndarray:
+        """Inverse of :meth:`vectors_image_to_user`: (..., 2) user mm -> (..., 2) image px."""
+        d = np.asarray(vectors_mm, dtype=np.float64)
+        if self.rotation_deg:
+            d = d @ self._rotation()  # inverse rotation (orthogonal matrix)
+        d = d.copy()
+        if self.mirror:
+            d[..., 0] = -d[..., 0]
+        return np.stack([d[..., 0], -d[..., 1]], axis=-1) * self.px_per_mm
+
+    def image_to_user(self, points_px: np.ndarray) -> np.ndarray:
+        """Convert points from the image frame (px) to the user frame (mm), DATASET.md formula.
+
+        Args:
+            points_px: (..., 2) float, (u, v) image px.
+        Returns:
+            (..., 2) float64, user frame mm, origin at the gel's centre.
+        """
+        p = np.asarray(points_px, dtype=np.float64) - np.asarray(self.gel_center_px)
+        return self.vectors_image_to_user(p)
+
+    def user_to_image(self, points_mm: np.ndarray) -> np.ndarray:
+        """Inverse of :meth:`image_to_user`: (..., 2) user mm -> (..., 2) image px."""
+        return self.vectors_user_to_image(points_mm) + np.asarray(self.gel_center_px)
+
+    def rotation_image_to_user(self, angle_rad: float) -> float:
+        """A rotation angle measured in the image frame (counter-clockwise as displayed, i.e.
+        with y up) expressed in the user frame: the mirror flips its sign, a rotation keeps it.
+        """
+        return -angle_rad if self.mirror else angle_rad
+
+    def inside_gel(self, points_px: np.ndarray, margin_px: float = 0.0) -> np.ndarray:
+        """Boolean mask (...,) of image points (..., 2) px inside the gel circle (+ margin px)."""
+        p = np.asarray(points_px, dtype=np.float64) - np.asarray(self.gel_center_px)
+        return np.hypot(p[..., 0], p[..., 1]) <= self.gel_radius_px + margin_px
+
+    def gel_mask(self, margin_px: float = 0.0) -> np.ndarray:
+        """uint8 mask (height, width): 255 inside the gel circle (+ margin px), 0 outside."""
+        yy, xx = np.mgrid[0 : self.height, 0 : self.width]
+        inside = np.hypot(xx - self.gel_center_px[0], yy - self.gel_center_px[1]) <= self.gel_radius_px + margin_px
+        return inside.astype(np.uint8) * 255
+
+
+def find_sensor_file(recording: str | Path, sensor: str | Path | None = None) -> SensorGeometry:
+    """The geometry for a recording: ``sensor`` if given, else ``sensor.yaml`` beside it, else
+    the default DAVIS-346 NeuroTouch geometry of DATASET.md."""
+    if sensor is not None:
+        return SensorGeometry.load(sensor)
+    beside = Path(recording).with_name("sensor.yaml")
+    if beside.exists():
+        return SensorGeometry.load(beside)
+    return SensorGeometry()

@@ -1,0 +1,39 @@
+"""Where events and APS frames come from: a live DAVIS-346, an AEDAT4 recording, the simulated gel.
+
+Every source yields the same stream: event batches (numpy structured arrays of
+:data:`EVENT_DTYPE`) and :class:`Frame` values, merged in time order.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterator, Union
+
+import numpy as np
+
+#: dv-processing's ``EventStore.numpy()`` dtype: timestamp us (int64), x, y px (int16),
+#: polarity (int8, 1 = ON brighter, 0 = OFF darker).
+EVENT_DTYPE = np.dtype([("timestamp", "<i8"), ("x", "<i2"), ("y", "<i2"), ("polarity", "i1")])
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One APS frame.
+
+    Attributes:
+        t_us: timestamp (int microseconds, camera clock; the exposure's start as DV records it).
+        image: uint8 array of shape (260, 346) for a DAVIS-346, grey levels.
+    """
+
+    t_us: int
+    image: np.ndarray
+
+
+#: One item of a source's stream: an event batch (EVENT_DTYPE array, time-ordered) or a frame.
+StreamItem = Union[np.ndarray, Frame]
+Stream = Iterator[StreamItem]
+
+
+def empty_events(n: int = 0) -> np.ndarray:
+    """A zeroed event array of ``n`` events, dtype :data:`EVENT_DTYPE`."""
+    return np.zeros(n, dtype=EVENT_DTYPE)
