@@ -1,0 +1,60 @@
+"""What the mapping hands to the outputs: the state of a standard (Xbox 360 layout) gamepad.
+
+The layout is ARCHITECTURE.md's: sticks ABS_X/Y/RX/RY in -32768..32767 (evdev convention: +x
+right, +y *down*), triggers ABS_Z/RZ in 0..255, d-pad ABS_HAT0X/Y in -1..1, and 11 buttons.
+A :class:`ControllerState` is a plain value; the neutral state (:meth:`ControllerState.neutral`)
+is what every output writes before it stops.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+#: Axis name -> (minimum, maximum, neutral value), evdev names.
+AXES: dict[str, tuple[int, int, int]] = {
+    "ABS_X": (-32768, 32767, 0),
+    "ABS_Y": (-32768, 32767, 0),
+    "ABS_RX": (-32768, 32767, 0),
+    "ABS_RY": (-32768, 32767, 0),
+    "ABS_Z": (0, 255, 0),
+    "ABS_RZ": (0, 255, 0),
+    "ABS_HAT0X": (-1, 1, 0),
+    "ABS_HAT0Y": (-1, 1, 0),
+}
+
+#: The 11 buttons of the Xbox 360 layout, evdev names, in SDL's usual order.
+BUTTONS: tuple[str, ...] = (
+    "BTN_SOUTH", "BTN_EAST", "BTN_NORTH", "BTN_WEST", "BTN_TL", "BTN_TR",
+    "BTN_SELECT", "BTN_START", "BTN_MODE", "BTN_THUMBL", "BTN_THUMBR",
+)
+
+
+def _neutral_axes() -> dict[str, int]:
+    return {name: neutral for name, (_, _, neutral) in AXES.items()}
+
+
+def _released_buttons() -> dict[str, bool]:
+    return {name: False for name in BUTTONS}
+
+
+@dataclass
+class ControllerState:
+    """Axes (evdev name -> int in the axis' range) and buttons (evdev name -> pressed)."""
+
+    t_us: int = 0
+    axes: dict[str, int] = field(default_factory=_neutral_axes)
+    buttons: dict[str, bool] = field(default_factory=_released_buttons)
+
+    @classmethod
+    def neutral(cls, t_us: int = 0) -> "ControllerState":
+        """All axes centred (triggers at 0), all buttons released."""
+        return cls(t_us=t_us)
+
+    def is_neutral(self) -> bool:
+        """True when every axis is at its neutral value and no button is pressed."""
+        return all(self.axes[n] == AXES[n][2] for n in AXES) and not any(self.buttons.values())
+
+    def clamped(self) -> "ControllerState":
+        """A copy with every axis clamped to its range."""
+        axes = {n: int(min(max(v, AXES[n][0]), AXES[n][1])) for n, v in self.axes.items()}
+        return ControllerState(t_us=self.t_us, axes=axes, buttons=dict(self.buttons))

@@ -1,0 +1,143 @@
+"""The labelled dataset format of DATASET.md: folders of sequences, labels CSV, predictions.
+
+A dataset is a folder with ``sensor.yaml`` and, per sequence, ``SEQUENCE.aedat4`` and
+``SEQUENCE.labels.csv`` (paper, section "Creation of the Gesture Detection Dataset").
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from neurotouch_hid.errors import DatasetError
+from neurotouch_hid.estimate import GestureType
+
+#: The columns of ``SEQUENCE.labels.csv``, in DATASET.md's order.
+LABEL_COLUMNS: tuple[str, ...] = (
+    "t_us", "gesture", "resting", "intensity_mm", "n_contacts",
+    "x1_px", "y1_px", "x2_px", "y2_px", "x3_px", "y3_px",
+)
+MAX_CONTACTS = 3
+
+
+@dataclass(frozen=True)
+class LabelRow:
+    """One labelled APS frame (DATASET.md).
+
+    Attributes:
+        t_us: the frame's timestamp, int microseconds, recording clock.
+        gesture: the labelled gesture type.
+        resting: True when the gel is undeformed.
+        intensity_mm: mean displacement of the labelled contact points since the gesture's
+            start (mm); 0 for ``none``.
+        contacts_px: (K, 2) float64 contact points, image frame px, K in 0..3.
+    """
+
+    t_us: int
+    gesture: GestureType
+    resting: bool
+    intensity_mm: float
+    contacts_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+
+    @property
+    def n_contacts(self) -> int:
+        return int(len(self.contacts_px))
+
+
+def write_labels(path: str | Path, rows: list[LabelRow]) -> None:
+    """Write ``SEQUENCE.labels.csv`` exactly as DATASET.md defines it (rows ordered by time).
+
+    Raises ValueError when rows are not time-ordered or have more than 3 contacts.
+    """
+    last = -math.inf
+    with open(path, "w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(LABEL_COLUMNS)
+        for row in rows:
+            if row.t_us < last:
+                raise ValueError(f"labels are not ordered by time at t_us={row.t_us}")
+            last = row.t_us
+            if row.n_contacts > MAX_CONTACTS:
+                raise ValueError(f"at most {MAX_CONTACTS} contacts per label, got {row.n_contacts}")
+            cells: list[str] = [
+                str(int(row.t_us)), row.gesture.value, "1" if row.resting else "0",
+                f"{row.intensity_mm:.4f}", str(row.n_contacts),
+            ]
+            for k in range(MAX_CONTACTS):
+                if k < row.n_contacts:
+                    cells += [f"{row.contacts_px[k, 0]:.3f}", f"{row.contacts_px[k, 1]:.3f}"]
+                else:
+                    cells += ["", ""]
+            writer.writerow(cells)
+
+
+def read_labels(path: str | Path) -> list[LabelRow]:
+    """Read a ``SEQUENCE.labels.csv``.
+
+    Raises:
+        DatasetError: naming the file, the line and the column, when the header differs from
+            DATASET.md's, a value has the wrong type, or rows are not ordered by time.
+    """
+    path = Path(path)
+    rows: list[LabelRow] = []
+    try:
+        fh = open(path, newline="")
+    except OSError as exc:
+        raise DatasetError(f"{path}: cannot read labels: {exc.strerror}") from None
+    with fh:
+        reader = csv.reader(fh)
+        header = next(reader, None)
+        if header is None or tuple(h.strip() for h in header) != LABEL_COLUMNS:
+            raise DatasetError(f"{path}:1: header must be {','.join(LABEL_COLUMNS)} (DATASET.md), found {header}")
+        last = -math.inf
+        for line_no, cells in enumerate(reader, start=2):
+            if not cells:
+                continue
+            if len(cells) != len(LABEL_COLUMNS):
+                raise DatasetError(f"{path}:{line_no}: expected {len(LABEL_COLUMNS)} columns, found {len(cells)}")
+            col = "t_us"
+            try:
+                t_us = int(cells[0])
+                col = "gesture"
+                gesture = GestureType(cells[1])
+                col = "resting"
+                if cells[2] not in ("0", "1"):
+                    raise ValueError("expected 0 or 1")
+                col = "intensity_mm"
+                intensity = float(cells[3])
+                col = "n_contacts"
+                n = int(cells[4])
+                if not 0 <= n <= MAX_CONTACTS:
+                    raise ValueError(f"expected 0 to {MAX_CONTACTS}")
+                col = "contacts"
+                contacts = np.array(
+                    [[float(cells[5 + 2 * k]), float(cells[6 + 2 * k])] for k in range(n)], dtype=np.float64
+                ).reshape(n, 2)
+            except ValueError as exc:
+                raise DatasetError(f"{path}:{line_no}: column {col!r}: {exc}") from None
+            if t_us < last:
+                raise DatasetError(f"{path}:{line_no}: rows must be ordered by time (t_us {t_us} < {last})")
+            last = t_us
+            rows.append(LabelRow(t_us, gesture, cells[2] == "1", intensity, contacts))
+    return rows
+
+
+def list_sequences(dataset: str | Path) -> list[str]:
+    """Names of the sequences in a dataset folder (those with both .aedat4 and .labels.csv), sorted.
+
+    Raises DatasetError when the folder does not exist, has no sensor.yaml or no sequence.
+    """
+    dataset = Path(dataset)
+    if not dataset.is_dir():
+        raise DatasetError(f"{dataset}: not a dataset folder (DATASET.md)")
+    if not (dataset / "sensor.yaml").exists():
+        raise DatasetError(f"{dataset}: no sensor.yaml (DATASET.md)")
+    names = sorted(p.name[: -len(".aedat4")] for p in dataset.glob("*.aedat4"))
+    names = [n for n in names if (dataset / f"{n}.labels.csv").exists()]
+    if not names:
+        raise DatasetError(f"{dataset}: no SEQUENCE.aedat4 with its SEQUENCE.labels.csv")
+    return names
