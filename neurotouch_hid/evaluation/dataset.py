@@ -10,6 +10,7 @@ import csv
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -141,3 +142,46 @@ def list_sequences(dataset: str | Path) -> list[str]:
     if not names:
         raise DatasetError(f"{dataset}: no SEQUENCE.aedat4 with its SEQUENCE.labels.csv")
     return names
+
+
+def labels_at(labels: Sequence[LabelRow], t_us: np.ndarray) -> list[LabelRow | None]:
+    """The ground truth at each prediction time, as DATASET.md's "Predictions" section defines it.
+
+    Paper, section "Creation of the Gesture Detection Dataset": "we use the most recent labeled
+    gesture type and linearly interpolate the contact points localizations and intensities based
+    on the preceding and subsequent labeled data". At time t, with the most recent labelled frame
+    L0 (t0 <= t) and the next one L1 (t1 > t), w = (t - t0) / (t1 - t0):
+
+    - gesture type, resting flag and contact count: those of L0;
+    - intensity (mm): (1 - w) * L0 + w * L1;
+    - contact points (px, image frame): interpolated the same way, point k with point k, only
+      when L0 and L1 have the same count; otherwise those of L0.
+
+    At or after the last labelled frame there is no L1: the last frame's values are used as they
+    are. Prediction times before the first labelled frame get ``None`` (they are skipped).
+
+    Args:
+        labels: rows of a ``SEQUENCE.labels.csv`` (:func:`read_labels`), ordered by time.
+        t_us: (M,) int64 prediction times, microseconds, the recording's clock.
+    Returns:
+        M entries: a :class:`LabelRow` whose ``t_us`` is the prediction time, or ``None``.
+    """
+    times = np.asarray([row.t_us for row in labels], dtype=np.int64)
+    t_us = np.asarray(t_us, dtype=np.int64).reshape(-1)
+    before = np.searchsorted(times, t_us, side="right") - 1
+    out: list[LabelRow | None] = []
+    for t, i in zip(t_us.tolist(), before.tolist()):
+        if i < 0:
+            out.append(None)
+            continue
+        row = labels[i]
+        intensity, contacts = row.intensity_mm, row.contacts_px
+        if i + 1 < len(labels):
+            nxt = labels[i + 1]
+            span = nxt.t_us - row.t_us
+            w = (t - row.t_us) / span if span > 0 else 0.0
+            intensity = (1.0 - w) * row.intensity_mm + w * nxt.intensity_mm
+            if nxt.n_contacts == row.n_contacts:
+                contacts = (1.0 - w) * row.contacts_px + w * nxt.contacts_px
+        out.append(LabelRow(int(t), row.gesture, row.resting, float(intensity), np.asarray(contacts, dtype=np.float64)))
+    return out

@@ -1,0 +1,190 @@
+"""The evaluation metrics and the label interpolation, on hand-computed cases."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from neurotouch_hid.estimate import GESTURE_ORDER, GestureEstimate, GestureType
+from neurotouch_hid.evaluation.dataset import LabelRow, labels_at
+from neurotouch_hid.evaluation.metrics import (
+    Observations,
+    accuracy,
+    accuracy_by_bin,
+    align,
+    balanced_confusion_matrix,
+    confusion_matrix,
+    contact_distances,
+    evaluate,
+    mean_absolute_error,
+    precision_recall_f1,
+)
+from neurotouch_hid.sensor import SensorGeometry
+
+PUSH, NONE, PINCH = GestureType.PUSH, GestureType.NONE, GestureType.PINCH
+
+
+def _pts(*xy):
+    return np.array(xy, dtype=np.float64).reshape(-1, 2)
+
+
+# --- labels at prediction times ---------------------------------------------------------
+def test_labels_at_interpolates_contacts_and_intensity_between_frames():
+    labels = [
+        LabelRow(0, PUSH, False, 1.0, _pts((10, 20))),
+        LabelRow(100, PUSH, False, 3.0, _pts((20, 40))),
+    ]
+    before, quarter, at_second, after = labels_at(labels, np.array([-5, 25, 100, 150]))
+    assert before is None
+    assert quarter.t_us == 25 and quarter.gesture is PUSH and not quarter.resting
+    assert quarter.intensity_mm == pytest.approx(1.5)
+    np.testing.assert_allclose(quarter.contacts_px, [[12.5, 25.0]])
+    assert at_second.intensity_mm == pytest.approx(3.0)
+    np.testing.assert_allclose(at_second.contacts_px, [[20, 40]])
+    # after the last label: its values as they are
+    assert after.intensity_mm == pytest.approx(3.0)
+    np.testing.assert_allclose(after.contacts_px, [[20, 40]])
+
+
+def test_labels_at_takes_type_flag_count_from_most_recent_and_points_only_when_counts_match():
+    labels = [
+        LabelRow(0, NONE, True, 0.0, _pts()),
+        LabelRow(100, PINCH, False, 2.0, _pts((10, 10))),
+        LabelRow(200, PINCH, False, 4.0, _pts((10, 10), (50, 50))),
+    ]
+    (a, b) = labels_at(labels, np.array([60, 150]))
+    # none -> pinch: type, flag, count of the earlier frame; intensity still interpolated
+    assert a.gesture is NONE and a.resting and a.n_contacts == 0
+    assert a.intensity_mm == pytest.approx(1.2)
+    # 1 contact -> 2 contacts: the most recent frame's points, not interpolated
+    assert b.gesture is PINCH and b.n_contacts == 1
+    np.testing.assert_allclose(b.contacts_px, [[10, 10]])
+    assert b.intensity_mm == pytest.approx(3.0)
+
+
+# --- classification -------------------------------------------------------------------------
+def test_confusion_precision_recall_f1_by_hand():
+    y_true = np.array([0, 0, 0, 1, 1, 2])
+    y_pred = np.array([0, 0, 1, 1, 2, 2])
+    counts = confusion_matrix(y_true, y_pred, 3)
+    np.testing.assert_array_equal(counts, [[2, 1, 0], [0, 1, 1], [0, 0, 1]])
+    p, r, f1 = precision_recall_f1(counts)
+    np.testing.assert_allclose(p, [1.0, 0.5, 0.5])
+    np.testing.assert_allclose(r, [2 / 3, 0.5, 1.0])
+    np.testing.assert_allclose(f1, [0.8, 0.5, 2 / 3])
+    assert accuracy(y_true, y_pred) == pytest.approx(4 / 6)
+
+
+def test_precision_undefined_for_never_predicted_class_and_f1_zero_when_all_wrong():
+    counts = confusion_matrix(np.array([0, 1]), np.array([1, 0]), 3)
+    p, r, f1 = precision_recall_f1(counts)
+    np.testing.assert_allclose(p[:2], [0, 0])
+    np.testing.assert_allclose(f1[:2], [0, 0])
+    assert math.isnan(p[2]) and math.isnan(r[2]) and math.isnan(f1[2])
+
+
+def test_confusion_matrix_rejects_unknown_class():
+    with pytest.raises(ValueError):
+        confusion_matrix(np.array([0, 3]), np.array([0, 0]), 3)
+
+
+def test_balanced_confusion_matrix_by_hand_with_empty_row_and_column():
+    counts = np.array([[2, 1, 0, 0], [0, 1, 1, 0], [0, 0, 1, 0], [0, 0, 0, 0]])
+    balanced = balanced_confusion_matrix(counts)
+    expected = np.array(
+        [[5 / 6, 5 / 12, 0, 0], [0, 0.5, 0.5, 0], [0, 0, 0.75, 0], [0, 0, 0, 0]]
+    )
+    np.testing.assert_allclose(balanced, expected)
+    assert np.isfinite(balanced).all()
+
+
+# --- contact distance, intensity, bins ------------------------------------------------------
+def test_contact_distances_drop_the_furthest_surplus_predictions():
+    predicted = _pts((0, 0), (10, 0), (0, 3))
+    truth = _pts((0, 4), (1, 0))
+    # nearest: (0,0)->1, (10,0)->9, (0,3)->1; two ground-truth points keep the two nearest
+    np.testing.assert_allclose(contact_distances(predicted, truth), [1.0, 1.0])
+
+
+def test_contact_distances_fewer_predictions_and_empty_sides():
+    np.testing.assert_allclose(contact_distances(_pts((3, 4)), _pts((0, 0), (10, 10))), [5.0])
+    assert contact_distances(_pts(), _pts((0, 0))).size == 0
+    assert contact_distances(_pts((0, 0)), _pts()).size == 0
+
+
+def test_mean_absolute_error_and_empty():
+    assert mean_absolute_error(np.array([1.0, 2.0]), np.array([2.0, 0.0])) == pytest.approx(1.5)
+    assert math.isnan(mean_absolute_error(np.array([]), np.array([])))
+
+
+def test_accuracy_by_bin_uses_06_mm_bins_and_marks_empty_bins():
+    edges, acc, count = accuracy_by_bin(np.array([0.1, 0.5, 0.7, 1.9]), np.array([True, False, True, True]))
+    np.testing.assert_allclose(edges, [0, 0.6, 1.2, 1.8, 2.4])
+    np.testing.assert_array_equal(count, [2, 1, 0, 1])
+    np.testing.assert_allclose(acc[[0, 1, 3]], [0.5, 1.0, 1.0])
+    assert math.isnan(acc[2])
+
+
+# --- align + evaluate -----------------------------------------------------------------------
+@pytest.fixture()
+def small_case():
+    sensor = SensorGeometry(px_per_mm=2.5)
+    labels = [
+        LabelRow(0, NONE, True, 0.0, _pts()),
+        LabelRow(100, PUSH, False, 2.0, _pts((173, 130))),
+        LabelRow(200, PUSH, False, 4.0, _pts((183, 130))),
+    ]
+    predictions = [
+        GestureEstimate(t_us=-10),
+        GestureEstimate(t_us=50, gesture=NONE, resting=True),
+        # truth at 150: push, contact (178, 130), intensity 3.0
+        GestureEstimate(t_us=150, gesture=PUSH, resting=False, intensity_mm=2.5,
+                        contacts_px=_pts((178, 135), (300, 130))),
+        # truth at 250: push, contact (183, 130), intensity 4.0
+        GestureEstimate(t_us=250, gesture=PINCH, resting=True, intensity_mm=5.0,
+                        contacts_px=_pts((183, 137.5))),
+    ]
+    return sensor, labels, predictions
+
+
+def test_evaluate_small_sequence_by_hand(small_case):
+    result = evaluate(align(small_case[1], small_case[2], small_case[0]))
+    assert (result.n_predictions, result.n_skipped, result.n_observations) == (4, 1, 3)
+    assert result.n_gesture_observations == 2
+    assert result.gesture_accuracy == pytest.approx(2 / 3)
+    assert result.contact_count_accuracy == pytest.approx(2 / 3)
+    # 5 px = 2 mm and 7.5 px = 3 mm; the 122 px surplus prediction is dropped
+    assert result.n_contact_pairs == 2
+    assert result.contact_distance_mm == pytest.approx(2.5)
+    assert result.intensity_mae_mm == pytest.approx(0.75)
+    # resting truth [T, F, F], predicted [T, F, T]
+    assert result.resting_precision == pytest.approx(0.5)
+    assert result.resting_recall == pytest.approx(1.0)
+    assert result.resting_f1 == pytest.approx(2 / 3)
+    push = GESTURE_ORDER.index(PUSH)
+    none = GESTURE_ORDER.index(NONE)
+    assert result.contact_distance_by_gesture_mm[push] == pytest.approx(2.5)
+    assert result.intensity_mae_by_gesture_mm[push] == pytest.approx(0.75)
+    assert math.isnan(result.intensity_mae_by_gesture_mm[none])
+    assert result.confusion[push, GESTURE_ORDER.index(PINCH)] == 1
+    # intensities 3.0 (type right, count wrong) and 4.0 (type wrong, count right)
+    assert result.n_by_intensity.sum() == 2
+    assert result.gesture_accuracy_by_intensity[5] == 1.0 and result.gesture_accuracy_by_intensity[6] == 0.0
+    assert result.contact_count_accuracy_by_intensity[5] == 0.0 and result.contact_count_accuracy_by_intensity[6] == 1.0
+
+
+def test_observations_concatenate_and_result_is_json(small_case):
+    sensor, labels, predictions = small_case
+    one = align(labels, predictions, sensor)
+    both = Observations.concatenate([one, one])
+    assert len(both) == 6 and both.n_skipped == 2 and both.n_sequences == 2
+    result = evaluate(both)
+    assert result.gesture_accuracy == pytest.approx(2 / 3)
+    data = json.loads(json.dumps(result.to_dict(), allow_nan=False))
+    assert data["classes"] == [g.value for g in GESTURE_ORDER]
+    assert data["intensity_mae_by_gesture_mm"][0] is None
+    assert len(data["balanced_confusion"]) == len(GESTURE_ORDER)
+    assert Observations.concatenate([]).n_sequences == 0
