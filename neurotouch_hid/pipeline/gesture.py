@@ -1,0 +1,205 @@
+"""Gesture type and intensity (paper, section "Gesture Classification and Intensity Prediction").
+
+The markers within r of a contact point form the set A. A 4-DoF similarity (scale s, rotation
+theta, translation t) is fitted with RANSAC to their motion from rest to now, about the contact
+points' mean (the paper's transformation origin): both point sets have that mean subtracted
+before the fit, so a rotation or a scale is "about the contacts", not about the image origin.
+The dominant term gives the type: a translation is a push, a scale below 1 a pinch, above 1 a
+zoom, a rotation a twist.
+
+Units: the paper compares |s - 1|, |theta| and ||t|| directly although they differ (1, rad,
+px). Here each term is made a length: the displacement it causes at distance r from the origin,
+``|s - 1| * r`` (px), ``|theta| * r`` (px, the arc; ~ the chord 2 r sin(theta/2) for small
+angles) and ``||t||`` (px). The argmax of those three is the type.
+
+Orientation: OpenCV's angle is measured in the image frame, whose y axis points down, so a
+positive cv2 angle turns clockwise *as displayed*. Its counter-clockwise-as-displayed angle is
+``-theta``, and :meth:`SensorGeometry.rotation_image_to_user` turns that into the user frame
+(the mirror flips it). Clockwise/counter-clockwise are decided in the user frame.
+
+Intensity (paper, eq. "Gesture Intensity") is the mean ||v_i|| over A, converted to mm with
+``sensor.px_per_mm``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.sensor import SensorGeometry
+
+
+@dataclass(frozen=True)
+class Similarity:
+    """A 4-DoF similarity p' = s R(theta) p + t about an origin, image frame.
+
+    Attributes:
+        scale: s (1 = unchanged).
+        rotation_rad: theta as OpenCV reports it in the image frame (y down): > 0 turns
+            clockwise as displayed.
+        translation_px: (2,) float64, t in image px (x right, y down).
+    """
+
+    scale: float = 1.0
+    rotation_rad: float = 0.0
+    translation_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
+
+    def terms_px(self, r_px: float) -> tuple[float, float, float]:
+        """(scale, rotation, translation) as displacements at distance r (px): the quantities
+        compared to pick the gesture type (see the module docstring)."""
+        return (
+            abs(self.scale - 1.0) * r_px,
+            abs(self.rotation_rad) * r_px,
+            float(np.hypot(*self.translation_px)),
+        )
+
+
+@dataclass(frozen=True)
+class GestureResult:
+    """One window's gesture.
+
+    Attributes:
+        gesture: the dominant type (``NONE`` when nothing moves or there is no contact).
+        intensity_px: mean ||v_i|| over A (px); 0 when there is no A.
+        intensity_mm: the same in mm (px / sensor.px_per_mm).
+        similarity: the fitted similarity (image frame).
+        area: (N,) bool, the markers of A.
+        translation_mm: (2,) float64, the translation in the user frame (mm).
+        rotation_rad: the rotation in the user frame (rad, counter-clockwise > 0).
+    """
+
+    gesture: GestureType
+    intensity_px: float
+    intensity_mm: float
+    similarity: Similarity
+    area: np.ndarray
+    translation_mm: np.ndarray
+    rotation_rad: float
+
+
+def markers_near(points_px: np.ndarray, centres_px: np.ndarray, r_px: float) -> np.ndarray:
+    """The set A: markers whose distance to at least one centre is < r (paper).
+
+    Args:
+        points_px: (N, 2) float, marker positions (px); NaN rows are never in A.
+        centres_px: (K, 2) float, contact points (px).
+        r_px: radius r (px).
+    Returns:
+        (N,) bool.
+    """
+    p = np.asarray(points_px, dtype=np.float64)
+    c = np.asarray(centres_px, dtype=np.float64).reshape(-1, 2)
+    if len(c) == 0 or len(p) == 0:
+        return np.zeros(len(p), dtype=bool)
+    diff = p[:, None, :] - c[None, :, :]
+    with np.errstate(invalid="ignore"):
+        return (np.einsum("ijk,ijk->ij", diff, diff) < r_px * r_px).any(axis=1)
+
+
+def fit_similarity(rest_px: np.ndarray, current_px: np.ndarray, origin_px: np.ndarray, reproj_threshold_px: float) -> Similarity:
+    """Fit a 4-DoF similarity rest -> current about ``origin_px`` with RANSAC.
+
+    Args:
+        rest_px: (M, 2) float, rest positions of A (px).
+        current_px: (M, 2) float, current positions of A (px).
+        origin_px: (2,) float, the transformation origin (px), subtracted from both sets.
+        reproj_threshold_px: RANSAC reprojection threshold (px), > 0.
+    Returns:
+        :class:`Similarity`. With fewer than 2 markers, or when OpenCV finds no model, the
+        least-squares translation (mean displacement) with s = 1 and theta = 0.
+    Source: ``cv2.estimateAffinePartial2D(..., method=cv2.RANSAC)``.
+    """
+    o = np.asarray(origin_px, dtype=np.float64)
+    src = np.ascontiguousarray(np.asarray(rest_px, dtype=np.float64) - o, dtype=np.float32)
+    dst = np.ascontiguousarray(np.asarray(current_px, dtype=np.float64) - o, dtype=np.float32)
+    matrix = None
+    if len(src) >= 2:
+        matrix, _ = cv2.estimateAffinePartial2D(src, dst, method=cv2.RANSAC, ransacReprojThreshold=float(reproj_threshold_px))
+    if matrix is None:
+        mean = (dst.astype(np.float64) - src).mean(axis=0) if len(src) else np.zeros(2)
+        return Similarity(translation_px=mean)
+    scale = math.hypot(matrix[0, 0], matrix[1, 0])
+    theta = math.atan2(matrix[1, 0], matrix[0, 0])
+    return Similarity(scale=scale, rotation_rad=theta, translation_px=np.array([matrix[0, 2], matrix[1, 2]], dtype=np.float64))
+
+
+def classify(similarity: Similarity, r_px: float, sensor: SensorGeometry) -> GestureType:
+    """The dominant term of the similarity (paper, eq. "Gesture Type"), terms in px at radius r.
+
+    A rotation's direction is taken in the user frame (see the module docstring): user angle
+    > 0 is counter-clockwise (``TWIST_CCW``), < 0 clockwise (``TWIST_CW``).
+    """
+    scale_px, rotation_px, translation_px = similarity.terms_px(r_px)
+    dominant = int(np.argmax([scale_px, rotation_px, translation_px]))
+    if dominant == 0:
+        return GestureType.ZOOM if similarity.scale > 1.0 else GestureType.PINCH
+    if dominant == 1:
+        user = user_rotation(similarity.rotation_rad, sensor)
+        return GestureType.TWIST_CCW if user > 0 else GestureType.TWIST_CW
+    return GestureType.PUSH
+
+
+def user_rotation(image_rotation_rad: float, sensor: SensorGeometry) -> float:
+    """An OpenCV angle in the image frame (y down, > 0 clockwise as displayed) in the user
+    frame (rad, counter-clockwise > 0)."""
+    return float(sensor.rotation_image_to_user(-image_rotation_rad))
+
+
+def estimate_gesture(
+    rest_px: np.ndarray,
+    current_px: np.ndarray,
+    valid: np.ndarray | None,
+    contacts_px: np.ndarray,
+    sensor: SensorGeometry,
+    *,
+    r_px: float = 30.0,
+    reproj_factor: float = 0.6,
+    min_reproj_px: float = 0.5,
+    min_intensity_px: float = 0.5,
+) -> GestureResult:
+    """Gesture type and intensity from the markers around the contact points.
+
+    Args:
+        rest_px: (N, 2) float, rest positions (px, image frame).
+        current_px: (N, 2) float, tracked positions (px, image frame).
+        valid: (N,) bool or None, markers the tracker still follows.
+        contacts_px: (K, 2) float, contact points (px, image frame).
+        sensor: the geometry (px/mm, image -> user frame).
+        r_px: radius r defining A (px).
+        reproj_factor: the similarity's RANSAC threshold is ``reproj_factor * intensity_px``
+            (dynamic, like the contact stage's), at least ``min_reproj_px``.
+        min_reproj_px: floor of that threshold (px).
+        min_intensity_px: below this mean displacement over A (px), nothing moves: ``NONE``.
+    Returns:
+        :class:`GestureResult`; ``NONE`` with zero intensity when there is no contact, A is
+        empty or its mean displacement is below ``min_intensity_px``.
+    """
+    rest = np.asarray(rest_px, dtype=np.float64)
+    cur = np.asarray(current_px, dtype=np.float64)
+    contacts = np.asarray(contacts_px, dtype=np.float64).reshape(-1, 2)
+    ok = np.isfinite(cur).all(axis=1)
+    if valid is not None:
+        ok &= np.asarray(valid, dtype=bool)
+    area = markers_near(np.where(ok[:, None], cur, np.nan), contacts, r_px)
+    nothing = GestureResult(GestureType.NONE, 0.0, 0.0, Similarity(), area, np.zeros(2), 0.0)
+    if not area.any():
+        return nothing
+    magnitudes = np.linalg.norm(cur[area] - rest[area], axis=1)
+    intensity_px = float(magnitudes.mean())
+    if intensity_px < min_intensity_px:
+        return nothing
+    threshold = max(reproj_factor * intensity_px, min_reproj_px)
+    similarity = fit_similarity(rest[area], cur[area], contacts.mean(axis=0), threshold)
+    return GestureResult(
+        gesture=classify(similarity, r_px, sensor),
+        intensity_px=intensity_px,
+        intensity_mm=intensity_px / sensor.px_per_mm,
+        similarity=similarity,
+        area=area,
+        translation_mm=sensor.vectors_image_to_user(similarity.translation_px),
+        rotation_rad=user_rotation(similarity.rotation_rad, sensor),
+    )

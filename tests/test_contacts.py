@@ -1,0 +1,105 @@
+"""Contact point detection on hand-made displacement fields (paper, "Contact Point Detection")."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from neurotouch_hid.pipeline.contacts import detect_contacts, local_maxima
+from neurotouch_hid.sensor import SensorGeometry
+
+SENSOR = SensorGeometry()
+
+
+def grid(spacing: float = 10.0) -> np.ndarray:
+    """Markers on a square grid (4 mm at 2.5 px/mm) inside the gel disc, image px."""
+    k = np.arange(-8, 9) * spacing
+    pts = np.stack(np.meshgrid(k, k), axis=-1).reshape(-1, 2) + np.asarray(SENSOR.gel_center_px)
+    return pts[SENSOR.inside_gel(pts, margin_px=-3.0)]
+
+
+def bump(rest: np.ndarray, centre, direction, sigma: float = 12.0) -> np.ndarray:
+    """A finger's local deformation: a Gaussian displacement centred on ``centre``."""
+    w = np.exp(-np.sum((rest - np.asarray(centre)) ** 2, axis=1) / (2 * sigma**2))
+    return w[:, None] * np.asarray(direction, dtype=float)
+
+
+def test_one_finger_push_gives_one_contact_at_the_peak():
+    rest = grid()
+    centre = rest[np.argmin(np.sum((rest - [183.0, 120.0]) ** 2, axis=1))]
+    cur = rest + bump(rest, centre, (6.0, -3.0))
+    contacts = detect_contacts(rest, cur)
+    assert contacts.count == 1
+    np.testing.assert_allclose(contacts.points_px[0], centre + [6.0, -3.0], atol=1e-6)
+    assert contacts.candidates.sum() >= 4
+    assert contacts.reproj_threshold_px == pytest.approx(0.6 * np.linalg.norm(cur - rest, axis=1).mean())
+
+
+def test_two_fingers_far_apart_give_two_contacts():
+    rest = grid()
+    c1, c2 = np.array([143.0, 130.0]), np.array([203.0, 130.0])
+    cur = rest + bump(rest, c1, (5.0, 0.0)) + bump(rest, c2, (-5.0, 0.0))
+    contacts = detect_contacts(rest, cur)
+    assert contacts.count == 2
+    found = sorted(contacts.points_px[:, 0])
+    assert found[0] == pytest.approx(148.0, abs=1e-3)
+    assert found[1] == pytest.approx(198.0, abs=1e-3)
+
+
+def test_a_global_motion_is_not_a_contact():
+    """A pure global translation fits the homography: no outlier, no contact."""
+    rest = grid()
+    contacts = detect_contacts(rest, rest + [4.0, 2.0])
+    assert contacts.count == 0
+
+
+def test_lost_markers_take_no_part():
+    rest = grid()
+    centre = np.array([173.0, 130.0])
+    cur = rest + bump(rest, centre, (6.0, 0.0))
+    valid = np.ones(len(rest), dtype=bool)
+    peak = int(np.argmin(np.sum((rest - centre) ** 2, axis=1)))
+    valid[peak] = False
+    cur[peak] = np.nan  # a lost marker may have any position
+    contacts = detect_contacts(rest, cur, valid)
+    assert contacts.count >= 1
+    assert peak not in contacts.indices
+    assert not contacts.candidates[peak]
+
+
+@pytest.mark.parametrize("n", [0, 1, 3])
+def test_fewer_than_four_valid_markers_give_no_contact(n):
+    rest = grid()[:n]
+    contacts = detect_contacts(rest, rest + 5.0)
+    assert contacts.count == 0
+    assert contacts.candidates.shape == (n,)
+
+
+def test_all_zero_displacement_gives_no_contact():
+    rest = grid()
+    contacts = detect_contacts(rest, rest.copy())
+    assert contacts.count == 0 and not contacts.candidates.any()
+
+
+def test_degenerate_homography_falls_back_to_all_markers():
+    """Collinear markers: OpenCV finds no homography; the displacement maxima still count."""
+    rest = np.stack([np.arange(10) * 10.0 + 100.0, np.full(10, 130.0)], axis=1)
+    disp = np.zeros_like(rest)
+    disp[:, 1] = [0, 1, 2, 3, 6, 3, 2, 1, 0, 0]
+    contacts = detect_contacts(rest, rest + disp, r_px=30.0, n_min=4)
+    assert contacts.candidates.all()
+    assert list(contacts.indices) == [4]
+
+
+def test_local_maxima_need_n_min_neighbours():
+    pts = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [100.0, 0.0]])
+    mags = np.array([5.0, 1.0, 1.0, 9.0])
+    assert list(local_maxima(pts, mags, r_px=30.0, n_min=3)) == [0]
+    assert list(local_maxima(pts, mags, r_px=30.0, n_min=1)) == [3, 0]
+
+
+def test_equal_maxima_keep_one_per_neighbourhood():
+    pts = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0]])
+    mags = np.array([1.0, 5.0, 5.0, 1.0])
+    kept = local_maxima(pts, mags, r_px=30.0, n_min=4)
+    assert list(kept) == [1]

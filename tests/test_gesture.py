@@ -1,0 +1,116 @@
+"""Gesture type and intensity on hand-made marker motions (paper, "Gesture Classification and
+Intensity Prediction"). Motions are built in the USER frame with SensorGeometry's own
+conversions, so the expected directions do not depend on the code under test."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.pipeline.gesture import estimate_gesture, fit_similarity, markers_near
+from neurotouch_hid.sensor import SensorGeometry
+
+SENSORS = {
+    "mirrored": SensorGeometry(),
+    "not-mirrored-rotated": SensorGeometry(mirror=False, rotation_deg=90.0),
+}
+
+
+def grid(sensor) -> np.ndarray:
+    k = np.arange(-8, 9) * 10.0
+    pts = np.stack(np.meshgrid(k, k), axis=-1).reshape(-1, 2) + np.asarray(sensor.gel_center_px)
+    return pts[sensor.inside_gel(pts, margin_px=-3.0)]
+
+
+def move_in_user_frame(sensor, rest_px, centre_px, *, angle=0.0, scale=1.0, shift_mm=(0.0, 0.0)):
+    """Apply p' = c + scale * R(angle) (p - c) + shift in the user frame (angle CCW > 0)."""
+    user = sensor.image_to_user(rest_px)
+    c = sensor.image_to_user(np.asarray(centre_px, dtype=float))
+    rot = np.array([[math.cos(angle), -math.sin(angle)], [math.sin(angle), math.cos(angle)]])
+    moved = c + scale * (user - c) @ rot.T + np.asarray(shift_mm)
+    return sensor.user_to_image(moved)
+
+
+CENTRE = np.array([173.0, 130.0])
+
+
+@pytest.mark.parametrize("name", list(SENSORS))
+def test_pure_translation_is_a_push_in_the_user_direction(name):
+    sensor = SENSORS[name]
+    rest = grid(sensor)
+    cur = move_in_user_frame(sensor, rest, CENTRE, shift_mm=(2.0, 1.0))
+    result = estimate_gesture(rest, cur, None, CENTRE[None], sensor)
+    assert result.gesture is GestureType.PUSH
+    np.testing.assert_allclose(result.translation_mm, [2.0, 1.0], atol=1e-3)
+    assert result.intensity_mm == pytest.approx(math.hypot(2.0, 1.0), rel=1e-4)
+    assert result.similarity.scale == pytest.approx(1.0, abs=1e-4)
+
+
+@pytest.mark.parametrize("name", list(SENSORS))
+@pytest.mark.parametrize("angle, expected", [(0.15, GestureType.TWIST_CCW), (-0.15, GestureType.TWIST_CW)])
+def test_pure_rotation_is_a_twist_of_the_user_frame_sign(name, angle, expected):
+    sensor = SENSORS[name]
+    rest = grid(sensor)
+    contacts = np.array([[158.0, 130.0], [188.0, 130.0]])  # two fingers about the centre
+    cur = move_in_user_frame(sensor, rest, CENTRE, angle=angle)
+    result = estimate_gesture(rest, cur, None, contacts, sensor)
+    assert result.gesture is expected
+    assert result.rotation_rad == pytest.approx(angle, abs=1e-4)
+    assert result.similarity.scale == pytest.approx(1.0, abs=1e-4)
+
+
+@pytest.mark.parametrize("scale, expected", [(0.85, GestureType.PINCH), (1.15, GestureType.ZOOM)])
+def test_pure_scale_is_a_pinch_or_a_zoom(scale, expected):
+    sensor = SENSORS["mirrored"]
+    rest = grid(sensor)
+    contacts = np.array([[153.0, 130.0], [193.0, 130.0]])
+    cur = move_in_user_frame(sensor, rest, CENTRE, scale=scale)
+    result = estimate_gesture(rest, cur, None, contacts, sensor)
+    assert result.gesture is expected
+    assert result.similarity.scale == pytest.approx(scale, abs=1e-4)
+    np.testing.assert_allclose(result.translation_mm, [0.0, 0.0], atol=1e-3)
+
+
+def test_intensity_is_the_mean_displacement_of_a_in_mm():
+    sensor = SENSORS["mirrored"]
+    rest = grid(sensor)
+    disp = np.zeros_like(rest)
+    near = markers_near(rest, CENTRE[None], 30.0)
+    disp[near] = [5.0, 0.0]
+    away = rest[~near] - CENTRE
+    disp[~near] = 20.0 * away / np.linalg.norm(away, axis=1, keepdims=True)  # outside A: not counted
+    result = estimate_gesture(rest, rest + disp, None, CENTRE[None], sensor, r_px=30.0)
+    assert result.gesture is GestureType.PUSH
+    assert result.intensity_mm == pytest.approx(5.0 / sensor.px_per_mm)
+    # A is taken at the current positions (paper: distance at t_k)
+    assert np.array_equal(result.area, markers_near(rest + disp, CENTRE[None], 30.0))
+
+
+def test_nothing_moves_gives_none():
+    sensor = SENSORS["mirrored"]
+    rest = grid(sensor)
+    result = estimate_gesture(rest, rest + 0.2, None, CENTRE[None], sensor, min_intensity_px=0.5)
+    assert result.gesture is GestureType.NONE and result.intensity_mm == 0.0
+
+
+def test_no_contact_gives_none():
+    sensor = SENSORS["mirrored"]
+    rest = grid(sensor)
+    result = estimate_gesture(rest, rest + 3.0, None, np.zeros((0, 2)), sensor)
+    assert result.gesture is GestureType.NONE and not result.area.any()
+
+
+def test_markers_near_is_strictly_within_r():
+    pts = np.array([[0.0, 0.0], [29.9, 0.0], [30.0, 0.0], [np.nan, np.nan]])
+    assert list(markers_near(pts, np.zeros((1, 2)), 30.0)) == [True, True, False, False]
+
+
+def test_similarity_is_fitted_about_the_origin():
+    rest = np.array([[10.0, 0.0], [0.0, 10.0], [-10.0, 0.0], [0.0, -10.0]]) + 100.0
+    cur = (rest - 100.0) * 1.2 + 100.0  # scaled about (100, 100): no translation about there
+    sim = fit_similarity(rest, cur, np.array([100.0, 100.0]), 1.0)
+    assert sim.scale == pytest.approx(1.2, abs=1e-5)
+    np.testing.assert_allclose(sim.translation_px, 0.0, atol=1e-4)
