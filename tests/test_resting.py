@@ -1,0 +1,73 @@
+"""Resting detection by Chamfer distance (paper, "Resting Position Detection") on hand-drawn frames."""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import pytest
+
+from neurotouch_hid.errors import SensorError
+from neurotouch_hid.pipeline.resting import RestingDetector
+from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.sources import Frame
+
+SENSOR = SensorGeometry()
+
+
+def dots(shift=(0, 0), region=None, value=220) -> np.ndarray:
+    """Single-pixel markers every 10 px inside the gel; ``shift`` (dx, dy) px applied to the
+    markers inside ``region`` (a radius around the centre) or to all of them."""
+    img = np.full((SENSOR.height, SENSOR.width), 10, dtype=np.uint8)
+    cx, cy = (int(c) for c in SENSOR.gel_center_px)
+    for y in range(cy - 60, cy + 61, 10):
+        for x in range(cx - 60, cx + 61, 10):
+            if np.hypot(x - cx, y - cy) > 60:
+                continue
+            inside = region is None or np.hypot(x - cx, y - cy) <= region
+            dx, dy = shift if inside else (0, 0)
+            img[y + dy, x + dx] = value
+    return img
+
+
+@pytest.fixture(scope="module")
+def detector() -> RestingDetector:
+    return RestingDetector(dots(), SENSOR)
+
+
+def test_identical_frame_rests_with_zero_distance(detector):
+    result = detector.update(Frame(40_000, dots()))
+    assert result.resting and result.distance == 0.0
+
+
+@pytest.mark.parametrize("shift, expected", [((1, 0), 2.0), ((0, 3), 18.0), ((2, 2), 16.0)])
+def test_a_global_shift_gives_twice_the_squared_shift(detector, shift, expected):
+    """Every marker pixel is |shift| from its nearest match, both ways: d = 2 |shift|^2."""
+    result = detector.update(dots(shift))
+    assert result.distance == pytest.approx(expected, rel=0.05)
+    assert result.resting is (expected <= 2.5)
+
+
+def test_a_local_deformation_is_not_rest(detector):
+    result = detector.update(dots(shift=(4, 0), region=30))
+    assert not result.resting and result.distance > 2.5
+
+
+def test_a_frame_without_markers_is_not_rest(detector):
+    result = detector.update(np.zeros((SENSOR.height, SENSOR.width), np.uint8))
+    assert not result.resting and result.distance == float("inf")
+
+
+def test_bad_frames_raise_sensor_error(detector):
+    with pytest.raises(SensorError, match="260, 346"):
+        detector.update(np.zeros((10, 10), np.uint8))
+    with pytest.raises(SensorError, match="no marker pixel"):
+        RestingDetector(np.zeros((SENSOR.height, SENSOR.width), np.uint8), SENSOR)
+
+
+def test_update_is_safe_from_several_threads(detector):
+    frames = [dots((k % 3, 0)) for k in range(24)]
+    serial = [detector.update(f) for f in frames]
+    with ThreadPoolExecutor(4) as pool:
+        parallel = list(pool.map(detector.update, frames))
+    assert parallel == serial
