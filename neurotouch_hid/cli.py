@@ -75,9 +75,39 @@ def eval_cmd(
     dataset: Path = typer.Argument(..., help="dataset folder (DATASET.md)"),
     report: Optional[Path] = typer.Option(None, "--report", help="write PNG figures and a Markdown summary here"),
     json_out: Optional[Path] = typer.Option(None, "--json", help="write the metrics as JSON"),
+    window_us: Optional[int] = typer.Option(None, "--window-us", help="window length in microseconds (default: PipelineConfig's)"),
+    settings: list[str] = typer.Option([], "--set", help="pipeline hyperparameter NAME=VALUE (a PipelineConfig field), repeatable"),
+    jobs: int = typer.Option(1, "--jobs", min=1, help="sequences run in parallel processes"),
+    predictions: Optional[Path] = typer.Option(None, "--predictions", help="keep each sequence's predictions here (JSON lines)"),
 ) -> None:
     """Run the pipeline over a labelled dataset and print the paper's metrics."""
-    _todo("eval")
+    import dataclasses
+    import json
+    import shlex
+
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    from neurotouch_hid.evaluation.report import print_tables, write_report
+    from neurotouch_hid.evaluation.runner import evaluate_dataset, pipeline_config
+
+    config = pipeline_config(settings, **({} if window_us is None else {"window_us": window_us}))
+    columns = (TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed:.1f}/{task.total:.1f} s recorded"),
+               TimeElapsedColumn(), TimeRemainingColumn())
+    with Progress(*columns, console=err_console, transient=True) as progress:
+        result = evaluate_dataset(dataset, config, jobs=jobs, predictions_dir=predictions, progress=progress)
+    print_tables(result, console)
+    argv = ["eval", str(dataset)] + [f"--set={item}" for item in settings] + [
+        f"{flag}={value}" for flag, value in (("--window-us", window_us), ("--jobs", jobs if jobs > 1 else None),
+                                              ("--report", report), ("--json", json_out)) if value is not None]
+    command = "neurotouch-hid " + shlex.join(argv)
+    hyper = dataclasses.asdict(config)
+    if json_out is not None:
+        data = {"dataset": str(dataset), "command": command, "config": hyper, **result.to_dict()}
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(data, indent=1, allow_nan=False, default=str) + "\n")
+    if report is not None:
+        summary = write_report(result, report, command=command, config=hyper)
+        console.print(f"report: {summary}")
 
 
 @app.command()

@@ -1,0 +1,252 @@
+"""Presenting an :class:`~neurotouch_hid.evaluation.metrics.EvaluationResult`: rich tables for the
+terminal, PNG figures like the paper's (matplotlib, Agg backend) and a Markdown summary.
+
+The figures follow the paper's section "Results": the balanced gesture type confusion matrix,
+precision/recall/F1 per gesture type with the contact count accuracy, gesture type and contact
+count accuracy against ground-truth intensity (0.6 mm bins), contact distance error and
+intensity MAE per gesture type.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from neurotouch_hid.evaluation.metrics import EvaluationResult
+
+#: The paper's results (section "Results"), to print beside ours.
+PAPER_RESULTS: dict[str, float] = {
+    "gesture_accuracy": 0.9112,
+    "contact_count_accuracy": 0.8322,
+    "contact_distance_mm": 3.41,
+    "intensity_mae_mm": 0.96,
+    "resting_f1": 0.9403,
+}
+
+#: Display names of the gesture types, as the paper's figures write them.
+DISPLAY_NAMES: dict[str, str] = {
+    "none": "No Gesture", "push": "Push", "pinch": "Pinch", "zoom": "Zoom",
+    "twist_cw": "CW Twist", "twist_ccw": "CCW Twist",
+}
+
+#: The figures :func:`write_figures` writes, file name -> caption.
+FIGURES: dict[str, str] = {
+    "confusion.png": "Balanced gesture type confusion matrix, mean of row- and column-normalised values",
+    "metrics_per_class.png": "Gesture type precision, recall, F1 and contact count accuracy per gesture type",
+    "accuracy_vs_intensity.png": "Gesture type and contact count accuracy against ground-truth intensity (0.6 mm bins)",
+    "error_per_gesture.png": "Contact distance error and intensity MAE per gesture type",
+}
+
+
+def _pct(value: float) -> str:
+    return "-" if value is None or math.isnan(value) else f"{100 * value:.2f} %"
+
+
+def _mm(value: float) -> str:
+    return "-" if value is None or math.isnan(value) else f"{value:.2f} mm"
+
+
+def summary_rows(result: EvaluationResult) -> list[tuple[str, str, str]]:
+    """(metric, ours, paper) rows of the headline metrics, formatted."""
+    paper = PAPER_RESULTS
+    return [
+        ("Gesture type accuracy", _pct(result.gesture_accuracy), _pct(paper["gesture_accuracy"])),
+        ("Contact count accuracy", _pct(result.contact_count_accuracy), _pct(paper["contact_count_accuracy"])),
+        ("Contact distance error", _mm(result.contact_distance_mm), _mm(paper["contact_distance_mm"])),
+        ("Intensity MAE", _mm(result.intensity_mae_mm), _mm(paper["intensity_mae_mm"])),
+        ("Resting precision", _pct(result.resting_precision), "-"),
+        ("Resting recall", _pct(result.resting_recall), "-"),
+        ("Resting F1", _pct(result.resting_f1), _pct(paper["resting_f1"])),
+    ]
+
+
+def per_class_rows(result: EvaluationResult) -> list[list[str]]:
+    """Per gesture type: name, precision, recall, F1, support, contact count accuracy, contact
+    distance error, intensity MAE (formatted)."""
+    return [
+        [
+            DISPLAY_NAMES.get(name, name), _pct(result.precision[k]), _pct(result.recall[k]), _pct(result.f1[k]),
+            str(int(result.support[k])), _pct(result.contact_count_accuracy_by_gesture[k]),
+            _mm(result.contact_distance_by_gesture_mm[k]), _mm(result.intensity_mae_by_gesture_mm[k]),
+        ]
+        for k, name in enumerate(result.classes)
+    ]
+
+
+PER_CLASS_HEADER = ["Gesture", "Precision", "Recall", "F1", "Support", "Count acc.", "Contact dist.", "Intensity MAE"]
+
+
+def intensity_rows(result: EvaluationResult) -> list[list[str]]:
+    """Per non-empty ground-truth intensity bin: range (mm), observations, gesture type accuracy,
+    contact count accuracy (formatted)."""
+    edges = result.intensity_bin_edges_mm
+    return [
+        [f"{edges[b]:.1f}-{edges[b + 1]:.1f}", str(int(n)), _pct(result.gesture_accuracy_by_intensity[b]),
+         _pct(result.contact_count_accuracy_by_intensity[b])]
+        for b, n in enumerate(result.n_by_intensity)
+        if n > 0
+    ]
+
+
+def print_tables(result: EvaluationResult, console: Console) -> None:
+    """Print the paper's metrics as rich tables: headline metrics beside the paper's, per gesture
+    type metrics, the balanced confusion matrix, and accuracy against intensity."""
+    head = Table(title=f"NeuroTouch evaluation: {result.n_sequences} sequences, {result.n_observations} observations "
+                       f"({result.n_skipped} predictions before the first label skipped)")
+    for col in ("Metric", "Ours", "Paper"):
+        head.add_column(col, justify="left" if col == "Metric" else "right")
+    for row in summary_rows(result):
+        head.add_row(*row)
+    console.print(head)
+
+    per_class = Table(title="Per gesture type (precision, recall, F1 of the gesture type; errors on labelled type)")
+    for col in PER_CLASS_HEADER:
+        per_class.add_column(col, justify="left" if col == "Gesture" else "right")
+    for row in per_class_rows(result):
+        per_class.add_row(*row)
+    console.print(per_class)
+
+    confusion = Table(title="Balanced confusion matrix (rows: ground truth, columns: prediction)")
+    confusion.add_column("")
+    for name in result.classes:
+        confusion.add_column(DISPLAY_NAMES.get(name, name), justify="right")
+    for k, name in enumerate(result.classes):
+        confusion.add_row(DISPLAY_NAMES.get(name, name), *(f"{v:.2f}" for v in result.balanced_confusion[k]))
+    console.print(confusion)
+
+    by_intensity = Table(title="Accuracy against ground-truth intensity (gesture observations)")
+    for col in ("Intensity (mm)", "Observations", "Gesture type acc.", "Contact count acc."):
+        by_intensity.add_column(col, justify="right")
+    for row in intensity_rows(result):
+        by_intensity.add_row(*row)
+    console.print(by_intensity)
+
+
+def write_figures(result: EvaluationResult, out_dir: str | Path) -> list[Path]:
+    """Write the PNG figures of :data:`FIGURES` into ``out_dir`` (created if missing).
+
+    Uses matplotlib's Agg backend (no display needed). Returns the paths written.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    names = [DISPLAY_NAMES.get(n, n) for n in result.classes]
+    x = np.arange(len(names))
+    written: list[Path] = []
+
+    def save(fig, name: str) -> None:
+        fig.tight_layout()
+        fig.savefig(out_dir / name, dpi=120)
+        plt.close(fig)
+        written.append(out_dir / name)
+
+    fig, ax = plt.subplots(figsize=(7, 6))
+    image = ax.imshow(result.balanced_confusion, vmin=0, vmax=1, cmap="Blues")
+    for i in range(len(names)):
+        for j in range(len(names)):
+            v = result.balanced_confusion[i, j]
+            ax.text(j, i, f"{v:.2f}", ha="center", va="center", color="white" if v > 0.5 else "black", fontsize=9)
+    ax.set_xticks(x, names, rotation=30, ha="right")
+    ax.set_yticks(x, names)
+    ax.set_xlabel("Predicted gesture type")
+    ax.set_ylabel("Ground-truth gesture type")
+    ax.set_title("Balanced confusion matrix")
+    fig.colorbar(image, ax=ax, fraction=0.046)
+    save(fig, "confusion.png")
+
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    series = [("Precision", result.precision), ("Recall", result.recall), ("F1", result.f1),
+              ("Contact count acc.", result.contact_count_accuracy_by_gesture)]
+    width = 0.2
+    for s, (label, values) in enumerate(series):
+        ax.bar(x + (s - 1.5) * width, np.nan_to_num(np.asarray(values, dtype=float)) * 100, width, label=label)
+    ax.set_xticks(x, names)
+    ax.set_ylabel("%")
+    ax.set_ylim(0, 105)
+    ax.legend(loc="lower right", fontsize=8)
+    ax.set_title(f"Gesture type accuracy {_pct(result.gesture_accuracy)}, "
+                 f"contact count accuracy {_pct(result.contact_count_accuracy)}")
+    save(fig, "metrics_per_class.png")
+
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    edges = result.intensity_bin_edges_mm
+    centres = (edges[:-1] + edges[1:]) / 2 if len(edges) > 1 else np.zeros(0)
+    bar = (edges[1] - edges[0]) * 0.42 if len(edges) > 1 else 0.25
+    ax.bar(centres - bar / 2, np.nan_to_num(result.gesture_accuracy_by_intensity) * 100, bar, label="Gesture type")
+    ax.bar(centres + bar / 2, np.nan_to_num(result.contact_count_accuracy_by_intensity) * 100, bar,
+           label="Contact count")
+    ax.set_xlabel("Ground-truth intensity (mm), 0.6 mm bins")
+    ax.set_ylabel("Accuracy (%)")
+    ax.set_ylim(0, 115)
+    ax.legend(loc="upper right", ncol=2)
+    ax.set_title("Accuracy against ground-truth intensity (gesture observations)")
+    save(fig, "accuracy_vs_intensity.png")
+
+    gestures = [k for k, n in enumerate(result.classes) if n != "none"]
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
+    gx = np.arange(len(gestures))
+    left.bar(gx, np.nan_to_num(result.contact_distance_by_gesture_mm[gestures]), color="tab:purple")
+    left.axhline(result.contact_distance_mm, color="black", ls="--", lw=1, label=f"all: {_mm(result.contact_distance_mm)}")
+    left.set_xticks(gx, [names[k] for k in gestures])
+    left.set_ylabel("mm")
+    left.set_title("Contact distance error")
+    left.legend(fontsize=8)
+    right.bar(gx, np.nan_to_num(result.intensity_mae_by_gesture_mm[gestures]), color="tab:orange")
+    right.axhline(result.intensity_mae_mm, color="black", ls="--", lw=1, label=f"all: {_mm(result.intensity_mae_mm)}")
+    right.set_xticks(gx, [names[k] for k in gestures])
+    right.set_ylabel("mm")
+    right.set_title("Intensity MAE")
+    right.legend(fontsize=8)
+    save(fig, "error_per_gesture.png")
+    return written
+
+
+def _md_table(header: list[str], rows: list[list[str]] | list[tuple[str, ...]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def write_report(result: EvaluationResult, out_dir: str | Path, *, title: str = "NeuroTouch evaluation",
+                 command: str | None = None, config: dict | None = None) -> Path:
+    """Write the figures and ``out_dir/summary.md`` (Markdown tables and the embedded figures).
+
+    Args:
+        result: the metrics.
+        out_dir: folder to write (created if missing).
+        title: the summary's heading.
+        command: the command line that produced the result, quoted in the summary.
+        config: the pipeline hyperparameters used, listed in the summary.
+    Returns:
+        The path of ``summary.md``.
+    """
+    out_dir = Path(out_dir)
+    write_figures(result, out_dir)
+    parts = [f"# {title}", ""]
+    if command:
+        parts += ["```sh", command, "```", ""]
+    parts += [f"{result.n_sequences} sequences, {result.n_observations} evaluated predictions "
+              f"({result.n_gesture_observations} during a gesture, {result.n_skipped} before the first label "
+              f"skipped), {result.n_contact_pairs} contact pairs.", ""]
+    parts += [_md_table(["Metric", "Ours", "Paper"], summary_rows(result)), ""]
+    parts += ["## Per gesture type", "", _md_table(PER_CLASS_HEADER, per_class_rows(result)), ""]
+    parts += ["## Accuracy against ground-truth intensity", "",
+              _md_table(["Intensity (mm)", "Observations", "Gesture type acc.", "Contact count acc."],
+                        intensity_rows(result)), ""]
+    if config:
+        parts += ["## Pipeline hyperparameters", "",
+                  _md_table(["Parameter", "Value"], [[k, str(v)] for k, v in config.items()]), ""]
+    parts += ["## Figures", ""]
+    for name, caption in FIGURES.items():
+        parts += [f"![{caption}]({name})", "", f"*{caption}.*", ""]
+    summary = out_dir / "summary.md"
+    summary.write_text("\n".join(parts))
+    return summary
