@@ -1,0 +1,293 @@
+"""The gesture detection pipeline (paper, section "Methodology", Figure "Complete gesture
+detection framework"): events and APS frames in, one :class:`GestureEstimate` per window out.
+
+Stages, one module each:
+
+1. markers (``markers.py``): the first APS frame is the rest reference (the paper's t0 is a
+   resting timestep); its markers are detected and checked to look like the gel's grid;
+2. tracker (``tracker.py``): event-by-event blob tracking gives p_i(t_k), v_i = p_i(t_k) - p_i(t0);
+3. contacts (``contacts.py``): RANSAC homography outliers, local displacement maxima;
+4. gesture (``gesture.py``): 4-DoF similarity about the contacts -> type, intensity;
+5. resting (``resting.py``): Chamfer distance of each APS frame to the reference; at rest the
+   gesture is ``none`` and the tracker is reset to the rest positions.
+
+Windows: ``window_us`` long (10 ms default, paper, section "Runtime Performance"; anything
+down to 1 ms), aligned on multiples of ``window_us`` from the first event after the reference
+frame. An estimate is emitted for every window end crossed, even by a window without events,
+with ``t_us`` = the window's end; events at ``t`` belong to the window ending after ``t``.
+Events before the reference frame are dropped (there is nothing to track them against).
+
+Threads: the resting detector may run in another thread on the frames (paper: "operating in
+parallel to the main pipeline"); set ``PipelineConfig.detect_resting = False`` and hand its
+results to :meth:`GesturePipeline.set_resting`, which is thread-safe (the result is applied by
+the pipeline's own thread at its next item, so the tracker is never reset mid-batch).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from neurotouch_hid.errors import SensorError
+from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.pipeline.contacts import detect_contacts
+from neurotouch_hid.pipeline.gesture import estimate_gesture
+from neurotouch_hid.pipeline.markers import detect_markers, looks_like_marker_grid
+from neurotouch_hid.pipeline.resting import RestingDetector, RestingResult
+from neurotouch_hid.pipeline.tracker import BlobTracker, TrackerConfig
+from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.sources import Frame, StreamItem
+
+#: Shortest window accepted (us).
+MIN_WINDOW_US = 1_000
+
+#: The stages :attr:`GesturePipeline.timings` measures.
+STAGES = ("tracker", "contacts", "gesture", "resting")
+
+
+@dataclass
+class PipelineConfig:
+    """Every threshold of the pipeline (paper, section "Results" for the paper's values).
+
+    Attributes:
+        window_us: window length (us), >= 1000; paper: 10 ms.
+        r_px: radius r of the contact neighbourhoods and of the set A (px); paper: 30 px.
+        a: dynamic reprojection threshold coefficient of the contact homography; paper: 0.6.
+        n_min: minimum number of candidates in a contact's neighbourhood; paper: 4.
+        chamfer_threshold: Chamfer distance (px^2, see ``resting.py``) at or below which the
+            gel rests; paper: 2.5.
+        min_intensity_px: below this mean displacement of A (px), nothing moves: ``none``.
+        gesture_reproj_factor: the similarity's RANSAC threshold, as a fraction of A's mean
+            displacement.
+        min_gesture_reproj_px: floor of that threshold (px).
+        marker_threshold: grey level of marker pixels for marker detection and resting
+            detection (0..255); None = Otsu's threshold on the reference frame.
+        detect_resting: True: :meth:`GesturePipeline.process` runs the resting detector on
+            every frame itself; False: the caller does, via :meth:`GesturePipeline.set_resting`.
+        tracker: the blob tracker's parameters.
+    """
+
+    window_us: int = 10_000
+    r_px: float = 30.0
+    a: float = 0.6
+    n_min: int = 4
+    chamfer_threshold: float = 2.5
+    min_intensity_px: float = 0.5
+    gesture_reproj_factor: float = 0.6
+    min_gesture_reproj_px: float = 0.5
+    marker_threshold: int | None = None
+    detect_resting: bool = True
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+
+    def __post_init__(self) -> None:
+        if int(self.window_us) < MIN_WINDOW_US:
+            raise ValueError(f"window_us must be at least {MIN_WINDOW_US} us, got {self.window_us}")
+        self.window_us = int(self.window_us)
+        if self.r_px <= 0 or self.a <= 0 or self.n_min < 1:
+            raise ValueError(f"r_px and a must be positive and n_min >= 1, got r_px={self.r_px}, a={self.a}, n_min={self.n_min}")
+
+
+class GesturePipeline:
+    """Events and APS frames -> one :class:`GestureEstimate` per window (paper, "Methodology").
+
+    Args:
+        sensor: the geometry (image size, gel disc, px/mm, image -> user frame).
+        config: thresholds (defaults: the paper's).
+        on_window: called with each estimate right after its window closes, while the tracker
+            holds that window's end positions (e.g. to record :meth:`marker_positions`).
+        profile: record per-stage processing times (ns) in :attr:`timings`.
+
+    Attributes:
+        rest_px: (N, 2) float64, rest marker positions (image px), None before the first frame.
+        tracker: the :class:`BlobTracker`, None before the first frame.
+        resting_detector: the :class:`RestingDetector`, None before the first frame.
+        timings: stage name -> list of durations (ns) when ``profile`` is set: "tracker" and
+            "contacts", "gesture" per window, "resting" per frame.
+    """
+
+    def __init__(
+        self,
+        sensor: SensorGeometry,
+        config: PipelineConfig | None = None,
+        *,
+        on_window: Callable[[GestureEstimate], None] | None = None,
+        profile: bool = False,
+    ) -> None:
+        self.sensor = sensor
+        self.config = config or PipelineConfig()
+        self.on_window = on_window
+        self.rest_px: np.ndarray | None = None
+        self.tracker: BlobTracker | None = None
+        self.resting_detector: RestingDetector | None = None
+        self.timings: dict[str, list[int]] | None = {s: [] for s in STAGES} if profile else None
+        self._resting = RestingResult(True, 0.0)
+        self._pending: RestingResult | None = None
+        self._lock = threading.Lock()
+        self._next_end: int | None = None
+
+    # --- inputs -----------------------------------------------------------------------------
+    def process(self, item: StreamItem) -> list[GestureEstimate]:
+        """Feed one stream item (an EVENT_DTYPE batch, time-ordered, or a :class:`Frame`).
+
+        Returns:
+            the estimates of the windows whose end this item crossed (possibly none), in time
+            order.
+        Raises:
+            SensorError: the first APS frame shows no marker grid ("no gel found"), or a frame
+                has the wrong size.
+        """
+        self._apply_pending()
+        if isinstance(item, Frame):
+            return self._process_frame(item)
+        return self._process_events(item)
+
+    def run(self, stream: Iterable[StreamItem]) -> Iterator[GestureEstimate]:
+        """Process a whole stream, yielding each window's estimate as it closes.
+
+        Raises:
+            SensorError: no gel found on the first frame, or the stream had no APS frame.
+        """
+        for item in stream:
+            yield from self.process(item)
+        if self.rest_px is None:
+            raise SensorError("the stream has no APS frame: the pipeline needs one to find the gel's markers at rest")
+
+    def set_resting(self, result: RestingResult, t_us: int) -> None:
+        """Hand over a resting verdict computed elsewhere (e.g. another thread) for the frame at
+        ``t_us``. Thread-safe; applied before the pipeline's next item: at rest the tracker is
+        reset to the rest positions, and estimates say ``resting`` until a verdict says not."""
+        with self._lock:
+            self._pending = result
+
+    # --- outputs ----------------------------------------------------------------------------
+    def marker_positions(self) -> np.ndarray:
+        """(N, 2) float32 current tracked positions (image px), NaN rows for lost markers;
+        (0, 2) before the first frame."""
+        if self.tracker is None:
+            return np.zeros((0, 2), dtype=np.float32)
+        positions = self.tracker.positions_px.astype(np.float32)
+        positions[~self.tracker.valid] = np.nan
+        return positions
+
+    @property
+    def resting(self) -> RestingResult:
+        """The resting verdict currently in force."""
+        return self._resting
+
+    # --- internals --------------------------------------------------------------------------
+    def _apply_pending(self) -> None:
+        with self._lock:
+            pending, self._pending = self._pending, None
+        if pending is not None:
+            self._apply_resting(pending)
+
+    def _apply_resting(self, result: RestingResult) -> None:
+        self._resting = result
+        if result.resting and self.tracker is not None:
+            self.tracker.reset(self.rest_px)
+
+    def _initialise(self, frame: Frame) -> None:
+        markers = detect_markers(frame.image, self.sensor, self.config.marker_threshold)
+        if not looks_like_marker_grid(markers, self.sensor):
+            raise SensorError(
+                f"no gel found: the first APS frame (t = {frame.t_us} us) shows {len(markers)} bright blobs that do not "
+                "look like NeuroTouch's marker grid (1 mm dots, 4 mm apart, inside the gel disc of sensor.yaml); "
+                "is this a NeuroTouch recording, and does sensor.yaml match it?"
+            )
+        self.rest_px = markers.centroids_px.astype(np.float64)
+        self.tracker = BlobTracker(
+            self.rest_px, self.sensor.width, self.sensor.height, self.config.tracker, sensor=self.sensor
+        )
+        self.resting_detector = RestingDetector(
+            frame.image, self.sensor, self.config.chamfer_threshold, self.config.marker_threshold
+        )
+        self._resting = RestingResult(True, 0.0)
+
+    def _process_frame(self, frame: Frame) -> list[GestureEstimate]:
+        if self.rest_px is None:
+            self._initialise(frame)
+            return []
+        out = self._close_windows_until(frame.t_us)
+        if self.config.detect_resting:
+            start = time.perf_counter_ns()
+            result = self.resting_detector.update(frame)
+            self._record("resting", start)
+            self._apply_resting(result)
+        return out
+
+    def _close_windows_until(self, t_us: int) -> list[GestureEstimate]:
+        out = []
+        while self._next_end is not None and self._next_end <= t_us:
+            out.append(self._close_window())
+        return out
+
+    def _process_events(self, events: np.ndarray) -> list[GestureEstimate]:
+        if self.rest_px is None or len(events) == 0:
+            return []
+        ts = events["timestamp"]
+        if self._next_end is None:
+            self._next_end = int(ts[0]) + self.config.window_us
+        out: list[GestureEstimate] = []
+        start = 0
+        while True:
+            cut = start + int(np.searchsorted(ts[start:], self._next_end, side="left"))
+            if cut > start:
+                begin = time.perf_counter_ns()
+                self.tracker.update(events[start:cut])
+                self._record("tracker", begin)
+            if cut >= len(events):
+                return out
+            out.append(self._close_window())
+            start = cut
+
+    def _close_window(self) -> GestureEstimate:
+        t_us = self._next_end
+        self._next_end += self.config.window_us
+        estimate = self._estimate(t_us)
+        if self.on_window is not None:
+            self.on_window(estimate)
+        return estimate
+
+    def _estimate(self, t_us: int) -> GestureEstimate:
+        if self._resting.resting:
+            return GestureEstimate(t_us=t_us, gesture=GestureType.NONE, resting=True)
+        c = self.config
+        current = self.tracker.positions_px
+        valid = self.tracker.valid
+        begin = time.perf_counter_ns()
+        contacts = detect_contacts(self.rest_px, current, valid, r_px=c.r_px, a=c.a, n_min=c.n_min)
+        self._record("contacts", begin)
+        begin = time.perf_counter_ns()
+        result = estimate_gesture(
+            self.rest_px,
+            current,
+            valid,
+            contacts.points_px,
+            self.sensor,
+            r_px=c.r_px,
+            reproj_factor=c.gesture_reproj_factor,
+            min_reproj_px=c.min_gesture_reproj_px,
+            min_intensity_px=c.min_intensity_px,
+        )
+        self._record("gesture", begin)
+        if result.gesture is GestureType.NONE:
+            return GestureEstimate(t_us=t_us, gesture=GestureType.NONE, resting=False)
+        return GestureEstimate(
+            t_us=t_us,
+            gesture=result.gesture,
+            resting=False,
+            intensity_mm=result.intensity_mm,
+            contacts_px=contacts.points_px,
+            contacts_mm=self.sensor.image_to_user(contacts.points_px),
+            translation_mm=result.translation_mm,
+            rotation_rad=result.rotation_rad,
+            scale=result.similarity.scale,
+        )
+
+    def _record(self, stage: str, start_ns: int) -> None:
+        if self.timings is not None:
+            self.timings[stage].append(time.perf_counter_ns() - start_ns)

@@ -1,0 +1,170 @@
+"""GesturePipeline: windows, reference frame, resting, errors; predictions JSON lines; and the
+whole pipeline on a simulated dataset (paper, section "Methodology")."""
+
+from __future__ import annotations
+
+import json
+import threading
+
+import numpy as np
+import pytest
+
+from neurotouch_hid.errors import DatasetError, SensorError
+from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.output.jsonl import read_predictions, write_predictions
+from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
+from neurotouch_hid.pipeline.resting import RestingResult
+from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.sources import EVENT_DTYPE, Frame
+
+SENSOR = SensorGeometry()
+
+
+def gel_image(shift_px=(0.0, 0.0), region_px: float | None = None) -> np.ndarray:
+    """A gel at rest as the camera sees it: 1 mm white dots on a 4 mm grid (10 px), Gaussian
+    profile; markers within ``region_px`` of the centre (or all) moved by ``shift_px``."""
+    k = np.arange(-7, 8) * 10.0
+    pts = np.stack(np.meshgrid(k, k), axis=-1).reshape(-1, 2) + np.asarray(SENSOR.gel_center_px)
+    pts = pts[SENSOR.inside_gel(pts, margin_px=-4.0)]
+    if region_px is not None:
+        near = np.hypot(*(pts - SENSOR.gel_center_px).T) <= region_px
+        pts[near] += shift_px
+    else:
+        pts += shift_px
+    img = np.full((SENSOR.height, SENSOR.width), 20.0)
+    yy, xx = np.mgrid[-4:5, -4:5]
+    for x, y in pts:
+        ix, iy = int(round(x)), int(round(y))
+        img[iy - 4 : iy + 5, ix - 4 : ix + 5] += 220 * np.exp(-((xx + ix - x) ** 2 + (yy + iy - y) ** 2) / (2 * 0.8**2))
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def events_at(*timestamps: int) -> np.ndarray:
+    """Noise events (far from any marker) at the given times."""
+    ev = np.zeros(len(timestamps), dtype=EVENT_DTYPE)
+    ev["timestamp"] = timestamps
+    ev["x"], ev["y"] = 2, 2
+    return ev
+
+
+@pytest.fixture(scope="module")
+def rest_image() -> np.ndarray:
+    return gel_image()
+
+
+# --- windows -----------------------------------------------------------------------------------
+def test_windows_are_aligned_on_the_first_event_and_none_is_skipped(rest_image):
+    pipeline = GesturePipeline(SENSOR)
+    assert pipeline.process(events_at(100, 200)) == []  # before the reference frame: dropped
+    assert pipeline.process(Frame(500, rest_image)) == []
+    out = pipeline.process(events_at(1234, 5000, 12000))
+    assert [e.t_us for e in out] == [11234]
+    out = pipeline.process(events_at(45000))  # crosses three window ends, two without events
+    assert [e.t_us for e in out] == [21234, 31234, 41234]
+    out = pipeline.process(Frame(60000, rest_image))  # a frame closes the windows before it
+    assert [e.t_us for e in out] == [51234]
+    assert pipeline.process(events_at(60001)) == []
+
+
+def test_one_millisecond_windows(rest_image):
+    pipeline = GesturePipeline(SENSOR, PipelineConfig(window_us=1000))
+    pipeline.process(Frame(0, rest_image))
+    out = pipeline.process(events_at(10, 20, 3500))
+    assert [e.t_us for e in out] == [1010, 2010, 3010]
+    assert all(e.resting and e.gesture is GestureType.NONE for e in out)
+
+
+def test_windows_shorter_than_one_millisecond_are_refused():
+    with pytest.raises(ValueError, match="1000"):
+        PipelineConfig(window_us=999)
+
+
+def test_on_window_sees_each_estimate_with_the_tracked_positions(rest_image):
+    seen = []
+    pipeline = GesturePipeline(SENSOR, on_window=lambda e: seen.append((e.t_us, pipeline.marker_positions())))
+    pipeline.process(Frame(0, rest_image))
+    out = pipeline.process(events_at(0, 25000))
+    assert [t for t, _ in seen] == [e.t_us for e in out] == [10000, 20000]
+    for _, positions in seen:
+        np.testing.assert_allclose(positions, pipeline.rest_px, atol=1e-4)
+
+
+# --- reference frame and errors ----------------------------------------------------------------
+def test_the_first_frame_is_the_rest_reference(rest_image):
+    pipeline = GesturePipeline(SENSOR)
+    pipeline.process(Frame(0, rest_image))
+    assert pipeline.rest_px.shape[1] == 2 and len(pipeline.rest_px) > 100
+    assert pipeline.marker_positions().dtype == np.float32
+    assert pipeline.resting.resting
+
+
+def test_a_scene_without_gel_raises_no_gel_found():
+    noise = np.random.default_rng(0).integers(0, 256, (SENSOR.height, SENSOR.width), dtype=np.uint8)
+    with pytest.raises(SensorError, match="no gel found"):
+        GesturePipeline(SENSOR).process(Frame(0, noise))
+
+
+def test_a_stream_without_frames_raises():
+    with pytest.raises(SensorError, match="no APS frame"):
+        list(GesturePipeline(SENSOR).run([events_at(0, 50000)]))
+
+
+# --- resting -----------------------------------------------------------------------------------
+def test_frames_decide_resting_and_rest_resets_the_tracker(rest_image):
+    pipeline = GesturePipeline(SENSOR)
+    pipeline.process(Frame(0, rest_image))
+    pipeline.process(Frame(40000, gel_image((4.0, 0.0), region_px=30)))
+    assert not pipeline.resting.resting and pipeline.resting.distance > 2.5
+    out = pipeline.process(events_at(40001, 55000))
+    assert [(e.resting, e.gesture) for e in out] == [(False, GestureType.NONE)]  # nothing tracked moved
+    pipeline.tracker.reset(pipeline.rest_px + 3.0)  # tracker drift
+    pipeline.process(Frame(80000, rest_image))
+    assert pipeline.resting.resting
+    np.testing.assert_allclose(pipeline.marker_positions(), pipeline.rest_px, atol=1e-4)
+
+
+def test_set_resting_from_another_thread_is_applied_at_the_next_item(rest_image):
+    pipeline = GesturePipeline(SENSOR, PipelineConfig(detect_resting=False))
+    pipeline.process(Frame(0, rest_image))
+    result = pipeline.resting_detector.update(gel_image((4.0, 0.0), region_px=30))
+    worker = threading.Thread(target=pipeline.set_resting, args=(result, 40000))
+    worker.start()
+    worker.join()
+    pipeline.process(Frame(40000, rest_image))  # detect_resting=False: this frame is not judged
+    out = pipeline.process(events_at(40001, 55000))
+    assert [e.resting for e in out] == [False]
+
+
+# --- predictions JSON lines --------------------------------------------------------------------
+def test_predictions_round_trip(tmp_path):
+    estimates = [
+        GestureEstimate(t_us=10000),
+        GestureEstimate(t_us=20000, gesture=GestureType.TWIST_CW, resting=False, intensity_mm=2.5,
+                        contacts_px=np.array([[150.0, 120.0], [190.0, 125.0]]),
+                        contacts_mm=np.array([[-9.2, 4.0], [6.8, 2.0]]), rotation_rad=-0.2, scale=1.01),
+    ]
+    path = tmp_path / "pred.jsonl"
+    assert write_predictions(path, estimates) == 2
+    lines = path.read_text().splitlines()
+    assert json.loads(lines[1])["contacts_mm"] == [[-9.2, 4.0], [6.8, 2.0]]
+    back = read_predictions(path)
+    assert [(e.t_us, e.gesture, e.resting, e.n_contacts) for e in back] == [
+        (10000, GestureType.NONE, True, 0), (20000, GestureType.TWIST_CW, False, 2)]
+    assert back[1].rotation_rad == pytest.approx(-0.2)
+
+
+@pytest.mark.parametrize(
+    "line, message",
+    [
+        ("{not json", "pred.jsonl:2: not a JSON object"),
+        ('{"t_us": 5, "gesture": "none", "resting": true}', "pred.jsonl:2: missing field(s) intensity_mm"),
+        ('{"t_us": 5, "gesture": "wave", "resting": true, "intensity_mm": 0}', "pred.jsonl:2: bad value"),
+        ('{"t_us": 1, "gesture": "none", "resting": true, "intensity_mm": 0}', "pred.jsonl:2: t_us 1 goes back"),
+    ],
+)
+def test_bad_prediction_lines_name_file_and_line(tmp_path, line, message):
+    path = tmp_path / "pred.jsonl"
+    path.write_text('{"t_us": 2, "gesture": "none", "resting": true, "intensity_mm": 0}\n' + line + "\n")
+    with pytest.raises(DatasetError) as err:
+        read_predictions(path)
+    assert message in str(err.value)
