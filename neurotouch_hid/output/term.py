@@ -1,0 +1,203 @@
+"""A live terminal view of the gamepad: sticks, triggers, d-pad, buttons, gesture, dropped data.
+
+The same ``write(state[, estimate])`` / ``neutralise()`` / ``close()`` shape as the virtual gamepad,
+so ``neurotouch-hid run --output term`` and ``demo`` (without a writable /dev/uinput) show what a
+game would get. On a terminal it redraws in place with :class:`rich.live.Live`; without one (CI,
+a pipe, a log file) it prints one plain state line at most every ``line_period_s`` seconds, and a
+last one when it is neutralised or closed.
+
+Buttons are labelled as the Xbox 360 pad (and Linux' xpad driver) names them: BTN_SOUTH A,
+BTN_EAST B, BTN_NORTH X, BTN_WEST Y.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import TYPE_CHECKING, Optional
+
+from rich.console import Console, Group
+from rich.live import Live
+from rich.panel import Panel
+from rich.progress_bar import ProgressBar
+from rich.table import Table
+from rich.text import Text
+
+from neurotouch_hid.controller import AXES, ControllerState
+from neurotouch_hid.estimate import GestureEstimate
+
+if TYPE_CHECKING:  # the runtime hands its live counters; no import at run time (no cycle)
+    from neurotouch_hid.runtime import RunStats
+
+#: evdev button -> label on the pad.
+BUTTON_LABELS: dict[str, str] = {
+    "BTN_SOUTH": "A", "BTN_EAST": "B", "BTN_NORTH": "X", "BTN_WEST": "Y",
+    "BTN_TL": "LB", "BTN_TR": "RB", "BTN_SELECT": "Back", "BTN_START": "Start",
+    "BTN_MODE": "Guide", "BTN_THUMBL": "LS", "BTN_THUMBR": "RS",
+}
+
+STICK_COLUMNS = 11
+STICK_ROWS = 5
+
+
+def axis_fraction(name: str, value: int) -> float:
+    """An axis value as a fraction of its range: sticks and d-pad in -1..1, triggers in 0..1."""
+    lo, hi, neutral = AXES[name]
+    if neutral == lo:
+        return (value - lo) / (hi - lo)
+    return max(-1.0, min(1.0, (value - neutral) / ((hi - lo) / 2)))
+
+
+def stick_cell(x: int, y: int, columns: int = STICK_COLUMNS, rows: int = STICK_ROWS) -> tuple[int, int]:
+    """The (column, row) of a stick position in a ``columns`` x ``rows`` grid, row 0 at the top
+    (evdev sticks: +x right, +y down; -32768..32767)."""
+    lo, hi, _ = AXES["ABS_X"]
+    col = round((min(max(x, lo), hi) - lo) / (hi - lo) * (columns - 1))
+    row = round((min(max(y, lo), hi) - lo) / (hi - lo) * (rows - 1))
+    return col, row
+
+
+def stick_grid(x: int, y: int, columns: int = STICK_COLUMNS, rows: int = STICK_ROWS) -> Text:
+    """A small grid of dots with the stick's position as a filled circle (centre marked +)."""
+    col, row = stick_cell(x, y, columns, rows)
+    text = Text()
+    for r in range(rows):
+        for c in range(columns):
+            if (c, r) == (col, row):
+                text.append("●", style="bold green")
+            elif (c, r) == (columns // 2, rows // 2):
+                text.append("+", style="dim")
+            else:
+                text.append("·", style="dim")
+        if r < rows - 1:
+            text.append("\n")
+    return text
+
+
+def dpad_text(hat_x: int, hat_y: int) -> Text:
+    """The d-pad as four arrows, the pressed ones lit (ABS_HAT0Y -1 is up)."""
+    text = Text()
+    for label, lit in (("←", hat_x < 0), ("↑", hat_y < 0), ("↓", hat_y > 0), ("→", hat_x > 0)):
+        text.append(f" {label} ", style="bold reverse yellow" if lit else "dim")
+    return text
+
+
+def buttons_text(buttons: dict[str, bool]) -> Text:
+    """Every button's label, pressed ones lit."""
+    text = Text()
+    for name, label in BUTTON_LABELS.items():
+        text.append(f" {label} ", style="bold reverse cyan" if buttons.get(name) else "dim")
+        text.append(" ")
+    return text
+
+
+def state_line(state: ControllerState, estimate: GestureEstimate | None, stats: Optional["RunStats"]) -> str:
+    """One plain line: time, gesture and intensity, sticks (-1..1), triggers (0..255), d-pad,
+    pressed buttons, windows and dropped data."""
+    a = state.axes
+    pressed = ",".join(BUTTON_LABELS[n] for n in BUTTON_LABELS if state.buttons.get(n)) or "-"
+    gesture = f"{estimate.gesture.value} {estimate.intensity_mm:.2f} mm" if estimate is not None else "none"
+    line = (f"t {state.t_us / 1e6:8.3f} s | {gesture:<16} | "
+            f"L({axis_fraction('ABS_X', a['ABS_X']):+.2f},{axis_fraction('ABS_Y', a['ABS_Y']):+.2f}) "
+            f"R({axis_fraction('ABS_RX', a['ABS_RX']):+.2f},{axis_fraction('ABS_RY', a['ABS_RY']):+.2f}) "
+            f"LT {a['ABS_Z']:3d} RT {a['ABS_RZ']:3d} hat({a['ABS_HAT0X']:+d},{a['ABS_HAT0Y']:+d}) "
+            f"buttons {pressed}")
+    if stats is not None:
+        line += f" | windows {stats.windows} dropped {stats.dropped_items}"
+    return line
+
+
+class TermView:
+    """The gamepad state drawn in the terminal.
+
+    Args:
+        console: where to draw (default: a new stdout :class:`rich.console.Console`).
+        stats: the runtime's live :class:`~neurotouch_hid.runtime.RunStats` (windows, dropped
+            data), shown under the pad; may be set after construction.
+        line_period_s: without a terminal, the shortest time (s) between two printed lines.
+        refresh_per_second: redraw rate on a terminal.
+    """
+
+    #: The runtime hands this output each window's estimate too (gesture and intensity line).
+    accepts_estimate = True
+
+    def __init__(self, console: Console | None = None, *, stats: Optional["RunStats"] = None,
+                 line_period_s: float = 1.0, refresh_per_second: float = 20.0):
+        self.console = console or Console()
+        self.stats = stats
+        self._state = ControllerState.neutral()
+        self._estimate: GestureEstimate | None = None
+        self._line_period_s = line_period_s
+        self._last_line = float("-inf")
+        self._lock = threading.Lock()
+        self._live: Live | None = None
+        if self.console.is_terminal:
+            self._live = Live(self, console=self.console, refresh_per_second=refresh_per_second, transient=False)
+            self._live.start()
+
+    def write(self, state: ControllerState, estimate: GestureEstimate | None = None) -> None:
+        """Show ``state`` (and the estimate's gesture and intensity)."""
+        with self._lock:
+            self._state = state
+            if estimate is not None:
+                self._estimate = estimate
+        if self._live is None and time.monotonic() - self._last_line >= self._line_period_s:
+            self._print_line()
+
+    def neutralise(self) -> None:
+        """Show all axes centred and all buttons released (and, without a terminal, print it)."""
+        with self._lock:
+            self._state = ControllerState.neutral(self._state.t_us)
+            self._estimate = None
+        if self._live is None:
+            self._print_line()
+        else:
+            self._live.refresh()
+
+    def close(self) -> None:
+        """Stop redrawing (the last picture stays on screen)."""
+        if self._live is not None:
+            self._live.stop()
+            self._live = None
+
+    def __enter__(self) -> "TermView":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _print_line(self) -> None:
+        self._last_line = time.monotonic()
+        with self._lock:
+            line = state_line(self._state, self._estimate, self.stats)
+        self.console.print(line, highlight=False, markup=False, soft_wrap=True)
+
+    def __rich__(self) -> Panel:
+        with self._lock:
+            state, estimate = self._state, self._estimate
+        a = state.axes
+        pad = Table.grid(padding=(0, 3))
+        pad.add_row(Text("left stick", style="bold"), Text("right stick", style="bold"), Text("triggers", style="bold"))
+        triggers = Table.grid(padding=(0, 1))
+        for label, name in (("LT", "ABS_Z"), ("RT", "ABS_RZ")):
+            lo, hi, _ = AXES[name]
+            triggers.add_row(label, ProgressBar(total=hi - lo, completed=a[name] - lo, width=16), f"{a[name]:3d}")
+        pad.add_row(stick_grid(a["ABS_X"], a["ABS_Y"]), stick_grid(a["ABS_RX"], a["ABS_RY"]), triggers)
+        pad.add_row(
+            Text(f"{axis_fraction('ABS_X', a['ABS_X']):+.2f} {axis_fraction('ABS_Y', a['ABS_Y']):+.2f}"),
+            Text(f"{axis_fraction('ABS_RX', a['ABS_RX']):+.2f} {axis_fraction('ABS_RY', a['ABS_RY']):+.2f}"),
+            Text.assemble("d-pad ", dpad_text(a["ABS_HAT0X"], a["ABS_HAT0Y"])),
+        )
+        if estimate is None:
+            gesture = Text("gesture none", style="dim")
+        else:
+            gesture = Text(f"gesture {estimate.gesture.value:<10} intensity {estimate.intensity_mm:5.2f} mm"
+                           f"  contacts {estimate.n_contacts}  {'resting' if estimate.resting else 'deformed'}")
+        counters = Text(f"t {state.t_us / 1e6:.3f} s", style="dim")
+        if self.stats is not None:
+            s = self.stats
+            counters.append(f"   windows {s.windows}   dropped {s.dropped_items} items"
+                            f" ({s.dropped_events} events, {s.dropped_frames} frames)",
+                            style="bold red" if s.dropped_items else "dim")
+        return Panel(Group(pad, Text(""), buttons_text(state.buttons), gesture, counters),
+                     title="NeuroTouch gamepad", expand=False)

@@ -1,0 +1,580 @@
+"""The runtime: source -> gesture pipeline -> mapping -> output, in threads, with clean shutdown.
+
+Following the paper (section "Runtime Performance"), the event path and the resting detection run
+beside each other: one thread reads the source (pacing recordings and the simulated gel in real
+time), one runs the gesture pipeline and the mapping and writes the output, and one runs the
+resting detector (Chamfer distance on APS frames, paper, section "Resting Position Detection") and
+hands its results to the pipeline (``pipeline.set_resting``). numpy, OpenCV and numba release the
+GIL in their heavy parts, so on two cores the resting detection does not hold up the event path.
+
+Between the threads sit bounded queues. When the pipeline falls behind a live or paced source, the
+queue drops its OLDEST items (counted in :class:`RunStats`) instead of letting the controller lag;
+with ``pace=False`` (``--fast``) nothing is dropped: the source waits for the pipeline instead.
+
+Every way out of :meth:`Runtime.run` (end of the source, :meth:`Runtime.stop`, SIGTERM, Ctrl-C, an
+exception in any stage, a lost camera) first centres all axes and releases all buttons
+(``output.neutralise()``). SIGTERM is a clean stop (``run`` returns normally, the CLI exits 0);
+SIGHUP reloads the profile from its file (a bad profile on reload keeps the old one and logs why).
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import logging
+import os
+import signal
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, Iterator, Optional
+
+import numpy as np
+
+from neurotouch_hid.controller import ControllerState
+from neurotouch_hid.errors import DeviceError, NeurotouchError, ProfileError
+from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.sources import Frame, StreamItem
+
+log = logging.getLogger(__name__)
+
+#: Source batch length (us): 1 ms batches keep the event-to-output latency well under a window.
+DEFAULT_BATCH_US = 1_000
+#: Input queue bound (items); with 1 ms batches about 0.2 s of data before the oldest is dropped.
+DEFAULT_QUEUE_ITEMS = 200
+#: Frame queue bound for the resting detector (APS frames, 25 Hz).
+DEFAULT_FRAME_QUEUE = 2
+#: How many latency samples are kept (a ring: memory stays flat over long sessions).
+LATENCY_SAMPLES = 65_536
+
+_POLL_S = 0.05
+_JOIN_S = 2.0
+
+
+def item_end_us(item: StreamItem) -> Optional[int]:
+    """The time (us, camera clock) at which a stream item is complete: a frame's timestamp, an event
+    batch's last event timestamp; None for an empty batch."""
+    if isinstance(item, Frame):
+        return int(item.t_us)
+    if len(item) == 0:
+        return None
+    return int(item["timestamp"][-1])
+
+
+class LatencyRing:
+    """The last ``capacity`` event-to-output latencies (ns, int64), in a fixed numpy ring."""
+
+    def __init__(self, capacity: int = LATENCY_SAMPLES):
+        self._buf = np.zeros(capacity, dtype=np.int64)
+        self._n = 0
+
+    def add(self, latency_ns: int) -> None:
+        self._buf[self._n % len(self._buf)] = latency_ns
+        self._n += 1
+
+    def __len__(self) -> int:
+        return min(self._n, len(self._buf))
+
+    def values_us(self) -> np.ndarray:
+        """The kept samples in microseconds (float64, unordered)."""
+        return self._buf[: len(self)] / 1e3
+
+    def percentile_us(self, q: float) -> float:
+        """The q-th percentile (0..100) of the kept samples in us; NaN without samples."""
+        return float(np.percentile(self.values_us(), q)) if len(self) else float("nan")
+
+
+@dataclass
+class RunStats:
+    """What a run did. Counters are updated live (the terminal view shows them).
+
+    Attributes:
+        windows: gesture estimates produced (one per window).
+        events: events handed to the pipeline.
+        frames: APS frames handed to the pipeline.
+        states_written: controller states written to the output (state changes only).
+        dropped_items, dropped_events, dropped_frames: input data dropped, oldest first, because the
+            pipeline fell behind a live or paced source (items = event batches + frames).
+        resting_updates: resting detector results handed to the pipeline.
+        resting_dropped_frames: APS frames the resting detector skipped (it was still busy).
+        wall_s: wall time of the run (s).
+        stream_us: camera time covered by the processed data (us).
+        latency: event-to-output latencies: from the moment the item completing a window was
+            available (read from the source, after pacing) to the output being up to date.
+    """
+
+    windows: int = 0
+    events: int = 0
+    frames: int = 0
+    states_written: int = 0
+    dropped_items: int = 0
+    dropped_events: int = 0
+    dropped_frames: int = 0
+    resting_updates: int = 0
+    resting_dropped_frames: int = 0
+    wall_s: float = 0.0
+    stream_us: int = 0
+    latency: LatencyRing = field(default_factory=LatencyRing, repr=False)
+
+    def summary(self) -> str:
+        """One line for the end of a run."""
+        lat = ""
+        if len(self.latency):
+            lat = (f", latency p50 {self.latency.percentile_us(50) / 1e3:.2f} ms"
+                   f" p99 {self.latency.percentile_us(99) / 1e3:.2f} ms")
+        return (f"{self.windows} windows, {self.events} events, {self.frames} frames in {self.wall_s:.1f} s"
+                f" ({self.stream_us / 1e6:.1f} s of data); dropped {self.dropped_items} items"
+                f" ({self.dropped_events} events, {self.dropped_frames} frames),"
+                f" resting detector skipped {self.resting_dropped_frames} frames{lat}")
+
+
+class DropOldestQueue:
+    """A bounded FIFO between two threads.
+
+    ``put`` on a full queue drops the oldest item (counted in ``stats``) when ``drop_oldest``, else
+    waits for room. ``close`` ends the stream: ``get`` returns None once a closed queue is empty.
+    Items are ``(arrival_ns, StreamItem)`` pairs.
+    """
+
+    def __init__(self, maxlen: int, *, drop_oldest: bool = True, on_drop: Callable[[StreamItem], None] | None = None):
+        if maxlen < 1:
+            raise ValueError("a queue needs room for at least one item")
+        self._items: collections.deque = collections.deque()
+        self._maxlen = maxlen
+        self._drop_oldest = drop_oldest
+        self._on_drop = on_drop
+        self._cond = threading.Condition()
+        self._closed = False
+
+    def put(self, entry: tuple[int, StreamItem]) -> None:
+        with self._cond:
+            while len(self._items) >= self._maxlen and not self._closed:
+                if self._drop_oldest:
+                    _, old = self._items.popleft()
+                    if self._on_drop is not None:
+                        self._on_drop(old)
+                else:
+                    self._cond.wait(_POLL_S)
+            if self._closed:
+                return
+            self._items.append(entry)
+            self._cond.notify_all()
+
+    def get(self, timeout: float = _POLL_S) -> tuple[int, StreamItem] | None:
+        """The oldest entry; None when closed and empty or when ``timeout`` (s) passed."""
+        with self._cond:
+            if not self._items and not self._closed:
+                self._cond.wait(timeout)
+            if not self._items:
+                return None
+            entry = self._items.popleft()
+            self._cond.notify_all()
+            return entry
+
+    def close(self) -> None:
+        """No more puts; wakes every waiting thread."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+    @property
+    def finished(self) -> bool:
+        """Closed and empty."""
+        with self._cond:
+            return self._closed and not self._items
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+
+def _load_profile(ref: str | Path):
+    from neurotouch_hid.mapping.profile import load_profile
+
+    return load_profile(ref)
+
+
+def _make_mapper(profile):
+    from neurotouch_hid.mapping.mapper import Mapper
+
+    return Mapper(profile)
+
+
+class Runtime:
+    """Source -> pipeline -> mapper -> output, with a resting detector beside the event path.
+
+    Args:
+        source: an iterable of stream items (event batches of EVENT_DTYPE and :class:`Frame`, in
+            time order), e.g. ``RecordingReader.stream()``, ``SimulatedSource.stream()``.
+        pipeline: a ``GesturePipeline`` (``process(item) -> list[GestureEstimate]``,
+            ``set_resting(result, t_us)``).
+        profile: the loaded profile; the mapper is ``mapper_factory(profile)``.
+        output: ``write(state[, estimate])``, ``neutralise()``; outputs with a true
+            ``accepts_estimate`` attribute also get the window's estimate (gesture, intensity).
+            The runtime does not close the output (its owner does; the gamepad device outlives
+            profile switches).
+        resting: a resting detector (``update(frame) -> result``) run in its own thread on APS
+            frames; None when the pipeline does its own resting detection.
+        pace: sleep so that item timestamps follow wall time (recordings, the simulated gel).
+        live: the source is real time by itself (the camera): not paced, but like a paced source
+            its data is dropped, oldest first, when the pipeline falls behind. With neither
+            ``pace`` nor ``live`` (``--fast``) everything is processed as fast as possible and
+            nothing is dropped: the source waits for the pipeline.
+        profile_ref: name or path the profile came from, reloaded on SIGHUP.
+        queue_items: bound of the input queue (items).
+        mapper_factory, profile_loader: the mapping's ``Mapper`` and ``load_profile`` (replaceable
+            in tests).
+    """
+
+    def __init__(
+        self,
+        source: Iterable[StreamItem],
+        pipeline: Any,
+        profile: Any,
+        output: Any,
+        *,
+        resting: Any = None,
+        pace: bool = True,
+        live: bool = False,
+        profile_ref: str | Path | None = None,
+        queue_items: int = DEFAULT_QUEUE_ITEMS,
+        mapper_factory: Callable[[Any], Any] = _make_mapper,
+        profile_loader: Callable[[str | Path], Any] = _load_profile,
+    ):
+        self._source = source
+        self._pipeline = pipeline
+        self.profile = profile
+        self._mapper_factory = mapper_factory
+        self._mapper = mapper_factory(profile)
+        self._output = output
+        self._takes_estimate = bool(getattr(output, "accepts_estimate", False))
+        self._resting = resting
+        self._pace = pace and not live
+        self._realtime = pace or live
+        self._profile_ref = profile_ref
+        self._profile_loader = profile_loader
+        self.stats = RunStats()
+        self._items = DropOldestQueue(queue_items, drop_oldest=self._realtime, on_drop=self._count_drop)
+        self._frames = DropOldestQueue(DEFAULT_FRAME_QUEUE, drop_oldest=self._realtime, on_drop=self._count_resting_drop)
+        self._resting_results: collections.deque = collections.deque()
+        self._stop = threading.Event()
+        self._reload = threading.Event()
+        self._lock = threading.Lock()  # mapper + output: the worker vs. profile switches
+        self._errors: list[BaseException] = []
+        self._last_state = ControllerState.neutral()
+        self._last_gesture: GestureType | None = None
+        self._limit_us: int | None = None
+        self._ran = False
+
+    # --- control ----------------------------------------------------------------------------
+    def stop(self) -> None:
+        """Ask every thread to stop; :meth:`run` then neutralises the output and returns.
+        Safe from any thread and from a signal handler."""
+        self._stop.set()
+        self._items.close()
+        self._frames.close()
+
+    def switch_profile(self, profile: Any) -> None:
+        """Neutralise the output, then map with ``profile`` from the next window on.
+        The output device is kept (its name and ids stay those it was created with)."""
+        with self._lock:
+            self._output.neutralise()
+            self._mapper = self._mapper_factory(profile)
+            self.profile = profile
+            self._last_state = ControllerState.neutral(self._last_state.t_us)
+            self._last_gesture = None
+
+    def reload_profile(self) -> bool:
+        """Load the profile again from ``profile_ref`` (the user edited it) and switch to it.
+        A bad profile keeps the current one and logs every problem; returns whether it switched."""
+        if self._profile_ref is None:
+            log.warning("no profile file to reload")
+            return False
+        try:
+            profile = self._profile_loader(self._profile_ref)
+        except ProfileError as exc:
+            log.error("profile not reloaded, keeping the current one: %s", exc)
+            return False
+        self.switch_profile(profile)
+        log.warning("profile reloaded from %s", self._profile_ref)
+        return True
+
+    # --- the run ----------------------------------------------------------------------------
+    def run(self, seconds: float | None = None) -> RunStats:
+        """Run until the source ends, ``seconds`` of camera time have been read, :meth:`stop`,
+        SIGTERM or Ctrl-C; neutralise the output on every way out.
+
+        Returns the :class:`RunStats`. Re-raises the first exception of any stage (after
+        neutralising); a KeyboardInterrupt is re-raised too. SIGTERM returns normally. Installs
+        SIGTERM and SIGHUP handlers while running when called from the main thread.
+        """
+        if self._ran:
+            raise RuntimeError("a Runtime runs once")
+        self._ran = True
+        self._limit_us = None if seconds is None else int(round(seconds * 1e6))
+        threads = [threading.Thread(target=self._read_source, name="nt-source", daemon=True),
+                   threading.Thread(target=self._work, name="nt-pipeline", daemon=True)]
+        if self._resting is not None:
+            threads.append(threading.Thread(target=self._rest, name="nt-resting", daemon=True))
+        interrupted = False
+        start = time.perf_counter()
+        with self._signal_handlers():
+            try:
+                for t in threads:
+                    t.start()
+                deadline = None if seconds is None or not self._realtime else start + seconds + 2.0
+                worker = threads[1]
+                while worker.is_alive():
+                    worker.join(_POLL_S)
+                    if self._reload.is_set():
+                        self._reload.clear()
+                        self.reload_profile()
+                    if deadline is not None and time.perf_counter() > deadline:
+                        self.stop()
+            except KeyboardInterrupt:
+                interrupted = True
+            finally:
+                self.stop()
+                for t in threads:
+                    t.join(_JOIN_S)
+                self.stats.wall_s = time.perf_counter() - start
+                with self._lock:
+                    self._output.neutralise()
+        if self._errors:
+            raise self._errors[0]
+        if interrupted:
+            raise KeyboardInterrupt
+        return self.stats
+
+    @contextlib.contextmanager
+    def _signal_handlers(self) -> Iterator[None]:
+        if threading.current_thread() is not threading.main_thread():
+            yield
+            return
+        previous = {signal.SIGTERM: signal.signal(signal.SIGTERM, lambda *_: self.stop())}
+        if hasattr(signal, "SIGHUP"):
+            previous[signal.SIGHUP] = signal.signal(signal.SIGHUP, lambda *_: self._reload.set())
+        try:
+            yield
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+    # --- threads ----------------------------------------------------------------------------
+    def _count_drop(self, item: StreamItem) -> None:
+        self.stats.dropped_items += 1
+        if isinstance(item, Frame):
+            self.stats.dropped_frames += 1
+        else:
+            self.stats.dropped_events += len(item)
+
+    def _count_resting_drop(self, item: StreamItem) -> None:
+        self.stats.resting_dropped_frames += 1
+
+    def _read_source(self) -> None:
+        """Source thread: read, pace, stamp the arrival time, enqueue."""
+        iterator = iter(self._source)
+        first_us: int | None = None
+        first_ns = 0
+        try:
+            for item in iterator:
+                if self._stop.is_set():
+                    break
+                t_us = item_end_us(item)
+                if t_us is not None:
+                    if first_us is None:
+                        first_us, first_ns = t_us, time.perf_counter_ns()
+                    if self._limit_us is not None and t_us - first_us >= self._limit_us:
+                        break
+                    if self._pace:
+                        delay_ns = first_ns + (t_us - first_us) * 1000 - time.perf_counter_ns()
+                        if delay_ns > 0 and self._stop.wait(delay_ns / 1e9):
+                            break
+                entry = (time.perf_counter_ns(), item)
+                if isinstance(item, Frame) and self._resting is not None:
+                    self._frames.put(entry)
+                self._items.put(entry)
+        except BaseException as exc:  # a truncated recording, a lost camera: what was read is
+            self._errors.append(exc)    # still processed, then run() neutralises and re-raises
+        finally:
+            close = getattr(iterator, "close", None)
+            if close is not None:
+                with contextlib.suppress(Exception):
+                    close()
+            self._items.close()
+            self._frames.close()
+
+    def _rest(self) -> None:
+        """Resting thread: run the detector on APS frames, queue (result, t_us) for the pipeline."""
+        try:
+            while not self._stop.is_set():
+                entry = self._frames.get()
+                if entry is None:
+                    if self._frames.finished:
+                        break
+                    continue
+                frame = entry[1]
+                self._resting_results.append((self._resting.update(frame), int(frame.t_us)))
+        except BaseException as exc:
+            self._errors.append(exc)
+            self.stop()
+
+    def _work(self) -> None:
+        """Pipeline thread: items -> estimates -> controller states -> output."""
+        stats = self.stats
+        first_us: int | None = None
+        try:
+            while not self._stop.is_set():
+                entry = self._items.get()
+                if entry is None:
+                    if self._items.finished:
+                        break
+                    continue
+                arrival_ns, item = entry
+                while self._resting_results:
+                    result, t_us = self._resting_results.popleft()
+                    self._pipeline.set_resting(result, t_us)
+                    stats.resting_updates += 1
+                estimates = self._pipeline.process(item)
+                if isinstance(item, Frame):
+                    stats.frames += 1
+                else:
+                    stats.events += len(item)
+                t_us = item_end_us(item)
+                if t_us is not None:
+                    first_us = t_us if first_us is None else first_us
+                    stats.stream_us = t_us - first_us
+                for estimate in estimates:
+                    self._emit(estimate)
+                    stats.windows += 1
+                if estimates:
+                    stats.latency.add(time.perf_counter_ns() - arrival_ns)
+        except BaseException as exc:
+            self._errors.append(exc)
+            self.stop()
+
+    def _emit(self, estimate: GestureEstimate) -> None:
+        with self._lock:
+            state = self._mapper.update(estimate)
+            last = self._last_state
+            changed = state.axes != last.axes or state.buttons != last.buttons
+            if self._takes_estimate:
+                changed = changed or estimate.gesture != self._last_gesture
+                if changed:
+                    self._output.write(state, estimate)
+            elif changed:
+                self._output.write(state)
+            if changed:
+                self.stats.states_written += 1
+            self._last_state = state
+            self._last_gesture = estimate.gesture
+
+
+# --- wiring the concrete stages (the `run` and `demo` commands) ------------------------------
+OUTPUT_KINDS = ("gamepad", "jsonl", "term")
+
+
+def open_source(spec: str, stack: contextlib.ExitStack, *, seconds: float | None = None,
+                batch_us: int = DEFAULT_BATCH_US, sensor: str | Path | None = None,
+                seed: int = 0) -> tuple[Iterable[StreamItem], Any, bool]:
+    """Open ``davis`` (the live camera), ``sim`` (the simulated gel) or an AEDAT4 recording path.
+
+    Returns ``(stream, sensor_geometry, live)``; ``live`` is True for the camera (never paced by
+    the runtime). Resources (camera, file) are closed by ``stack``. Raises RecordingError for a
+    missing or unreadable recording, DeviceError when the camera cannot be opened.
+    """
+    from neurotouch_hid.sensor import SensorGeometry, find_sensor_file
+
+    if spec == "davis":
+        from neurotouch_hid.sources.davis import DavisSource
+
+        camera = stack.enter_context(DavisSource())
+        geometry = SensorGeometry.load(sensor) if sensor is not None else SensorGeometry()
+        return camera.stream(batch_us=batch_us), geometry, True
+    if spec == "sim":
+        from neurotouch_hid.sources.simulator import SimulatedSource
+
+        sim = SimulatedSource(seed=seed) if sensor is None else SimulatedSource(SensorGeometry.load(sensor), seed=seed)
+        return sim.stream(seconds=seconds, batch_us=batch_us), sim.sensor, False
+    from neurotouch_hid.errors import RecordingError
+    from neurotouch_hid.sources.recording import RecordingReader
+
+    path = Path(spec)
+    if not path.is_file():
+        raise RecordingError(f"{path}: no such recording (--source takes davis, sim or an AEDAT4 file)")
+    reader = stack.enter_context(RecordingReader(path))
+    return reader.stream(batch_us=batch_us), find_sensor_file(path, sensor), False
+
+
+def open_output(kind: str, profile: Any, stack: contextlib.ExitStack, *, out: str | Path | None = None,
+                console: Any = None) -> Any:
+    """Create the output: ``gamepad`` (uinput device with the profile's name and ids), ``jsonl``
+    (one state line per change to ``out`` or stdout) or ``term`` (the terminal view).
+    Closed by ``stack``. Raises DeviceError when /dev/uinput cannot be used."""
+    if kind == "gamepad":
+        from neurotouch_hid.output.gamepad import GamepadIdentity, VirtualGamepad
+
+        dev = profile.device
+        identity = GamepadIdentity(name=dev.name, vendor=dev.vendor, product=dev.product, version=dev.version)
+        return stack.enter_context(VirtualGamepad(identity))
+    if kind == "jsonl":
+        from neurotouch_hid.output.jsonl import StateJsonlWriter
+
+        return stack.enter_context(StateJsonlWriter(out))
+    from neurotouch_hid.output.term import TermView
+
+    return stack.enter_context(TermView(console))
+
+
+def run_driver(source: str = "davis", profile: str | Path = "default", output: str = "gamepad", *,
+               seconds: float | None = None, fast: bool = False, out: str | Path | None = None,
+               window_us: int = 10_000, sensor: str | Path | None = None, seed: int = 0,
+               console: Any = None, output_obj: Any = None) -> RunStats:
+    """``neurotouch-hid run``: load the profile (a bad one raises ProfileError before any device
+    exists), open the source, build the pipeline, open the output, run until the end.
+
+    ``output_obj`` replaces the output named by ``output`` (the demo's fallback, benchmarks).
+    Raises NeurotouchError subclasses for bad input (ProfileError, RecordingError, DeviceError,
+    SensorError).
+    """
+    if output not in OUTPUT_KINDS:
+        raise NeurotouchError(f"unknown output '{output}' (expected one of: {', '.join(OUTPUT_KINDS)})")
+    if window_us < 1000:
+        raise NeurotouchError(f"--window-us {window_us}: windows must be at least 1000 us")
+    loaded = _load_profile(profile)
+    with contextlib.ExitStack() as stack:
+        stream, geometry, live = open_source(source, stack, seconds=seconds,
+                                             batch_us=min(DEFAULT_BATCH_US, window_us), sensor=sensor, seed=seed)
+        pipeline, resting = build_pipeline(geometry, window_us)
+        out_obj = output_obj if output_obj is not None else open_output(output, loaded, stack, out=out, console=console)
+        runtime = Runtime(stream, pipeline, loaded, out_obj, resting=resting, pace=not fast, live=live,
+                          profile_ref=profile)
+        if hasattr(out_obj, "stats"):
+            out_obj.stats = runtime.stats
+        return runtime.run(seconds)
+
+
+def gamepad_or_terminal(profile: Any, stack: contextlib.ExitStack, *, console: Any = None,
+                        say: Callable[[str], None] = print) -> Any:
+    """The virtual gamepad where /dev/uinput is writable; else the terminal view, after saying
+    why in one line (``say``)."""
+    from neurotouch_hid.output.gamepad import uinput_help
+
+    try:
+        return open_output("gamepad", profile, stack)
+    except DeviceError as exc:
+        reason = str(exc).replace(": " + uinput_help(), "").strip()
+        say(f"no writable /dev/uinput ({reason}): showing the gamepad in the terminal instead; "
+            "see `neurotouch-hid doctor`")
+        return open_output("term", profile, stack, console=console)
+
+
+def run_demo(seconds: float | None = 30.0, *, console: Any = None,
+             say: Callable[[str], None] = print) -> RunStats:
+    """``neurotouch-hid demo``: the simulated gel performing every gesture, paced in real time,
+    through the default profile, to the virtual gamepad (or the terminal view, see
+    :func:`gamepad_or_terminal`)."""
+    profile = _load_profile("default")
+    with contextlib.ExitStack() as stack:
+        out = gamepad_or_terminal(profile, stack, console=console, say=say)
+        return run_driver("sim", "default", "gamepad", seconds=seconds, console=console, output_obj=out)

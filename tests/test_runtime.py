@@ -1,0 +1,290 @@
+"""The runtime: threads, queues, pacing, shutdown (unit tests with small fakes for the stages),
+then the real stages end to end (simulated gel -> pipeline -> default profile -> JSON lines)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+
+import numpy as np
+import pytest
+
+from neurotouch_hid.controller import ControllerState
+from neurotouch_hid.errors import ProfileError
+from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.runtime import DropOldestQueue, Runtime, item_end_us
+from neurotouch_hid.sources import EVENT_DTYPE, Frame
+
+
+# --- small fakes (unit tests only) --------------------------------------------------------------
+def batch(t0_us: int, n: int = 3, step_us: int = 100) -> np.ndarray:
+    ev = np.zeros(n, dtype=EVENT_DTYPE)
+    ev["timestamp"] = t0_us + np.arange(n) * step_us
+    return ev
+
+
+class FakePipeline:
+    """One estimate per event batch: a push whose intensity is the batch's index, then rest."""
+
+    def __init__(self, push_batches: int = 5, fail_at: int | None = None, gate: threading.Event | None = None):
+        self.started = threading.Event()
+        self.seen: list[int] = []
+        self.resting: list[tuple[object, int]] = []
+        self.push_batches = push_batches
+        self.fail_at = fail_at
+        self.gate = gate
+
+    def process(self, item):
+        self.started.set()
+        if self.gate is not None:
+            self.gate.wait(5)
+        if isinstance(item, Frame):
+            return []
+        self.seen.append(item_end_us(item))
+        if self.fail_at is not None and len(self.seen) == self.fail_at:
+            raise RuntimeError("pipeline failure")
+        k = len(self.seen)
+        if k <= self.push_batches:
+            return [GestureEstimate(t_us=item_end_us(item), gesture=GestureType.PUSH, resting=False, intensity_mm=float(k))]
+        return [GestureEstimate(t_us=item_end_us(item))]
+
+    def set_resting(self, result, t_us):
+        self.resting.append((result, t_us))
+
+
+class FakeMapper:
+    """ABS_X follows the intensity (x1000), BTN_SOUTH pressed during a push."""
+
+    def __init__(self, profile):
+        self.profile = profile
+
+    def update(self, est: GestureEstimate) -> ControllerState:
+        state = ControllerState.neutral(est.t_us)
+        state.axes["ABS_X"] = int(est.intensity_mm * 1000) * self.profile.get("sign", 1)
+        state.buttons["BTN_SOUTH"] = est.gesture is GestureType.PUSH
+        return state
+
+
+class RecordingOutput:
+    """Remembers every call, in order."""
+
+    def __init__(self):
+        self.calls: list[tuple[str, ControllerState | None]] = []
+
+    def write(self, state):
+        self.calls.append(("write", state))
+
+    def neutralise(self):
+        self.calls.append(("neutralise", None))
+
+
+def make_runtime(source, pipeline=None, output=None, **kw) -> tuple[Runtime, FakePipeline, RecordingOutput]:
+    pipeline = pipeline or FakePipeline()
+    output = output or RecordingOutput()
+    kw.setdefault("pace", False)
+    rt = Runtime(source, pipeline, {"sign": 1}, output, mapper_factory=FakeMapper, **kw)
+    return rt, pipeline, output
+
+
+def writes(output: RecordingOutput) -> list[ControllerState]:
+    return [s for kind, s in output.calls if kind == "write"]
+
+
+# --- the queue ----------------------------------------------------------------------------------
+def test_queue_drops_oldest_and_reports_them():
+    dropped = []
+    q = DropOldestQueue(3, drop_oldest=True, on_drop=dropped.append)
+    for i in range(5):
+        q.put((0, i))
+    q.close()
+    got = []
+    while (entry := q.get()) is not None:
+        got.append(entry[1])
+    assert got == [2, 3, 4]
+    assert dropped == [0, 1]
+    assert q.finished
+
+
+def test_runtime_counts_dropped_oldest_batches_when_the_pipeline_falls_behind():
+    gate = threading.Event()
+    n, size = 40, 5
+    pipeline = FakePipeline(gate=gate)
+
+    def source():
+        yield batch(0)
+        pipeline.started.wait(5)  # the pipeline holds the first batch ...
+        for i in range(1, n):
+            yield batch(i * 1000)
+        gate.set()  # ... until the source has handed over everything
+
+    rt, pipeline, _ = make_runtime(source(), pipeline=pipeline, live=True, queue_items=size)
+    stats = rt.run()
+    # the pipeline held the first batch while the source filled the queue: all but the
+    # newest `size` of the rest were dropped, oldest first
+    assert pipeline.seen == [item_end_us(batch(0))] + [item_end_us(batch(i * 1000)) for i in range(n - size, n)]
+    assert stats.dropped_items == n - 1 - size
+    assert stats.dropped_events == (n - 1 - size) * 3
+    assert stats.windows == 1 + size
+
+
+def test_fast_mode_drops_nothing():
+    rt, pipeline, _ = make_runtime((batch(i * 1000) for i in range(300)), queue_items=4)
+    stats = rt.run()
+    assert stats.dropped_items == 0
+    assert len(pipeline.seen) == 300 and stats.events == 900
+
+
+# --- states, shutdown ---------------------------------------------------------------------------
+def test_states_follow_the_estimates_and_end_neutral():
+    rt, _, out = make_runtime(batch(i * 1000) for i in range(10))
+    stats = rt.run()
+    states = writes(out)
+    xs = [s.axes["ABS_X"] for s in states]
+    assert xs[:5] == [1000, 2000, 3000, 4000, 5000]  # one write per change
+    assert states[5].is_neutral()
+    assert len(states) == 6 == stats.states_written  # unchanged states are not written again
+    assert out.calls[-1] == ("neutralise", None)
+    assert stats.windows == 10 and len(stats.latency) == 10
+
+
+def test_exception_in_the_pipeline_still_neutralises_the_output():
+    rt, _, out = make_runtime((batch(i * 1000) for i in range(10)), pipeline=FakePipeline(fail_at=3))
+    with pytest.raises(RuntimeError, match="pipeline failure"):
+        rt.run()
+    assert any(not s.is_neutral() for s in writes(out))  # a button was held when it failed
+    assert out.calls[-1] == ("neutralise", None)
+
+
+def test_error_in_the_source_processes_what_was_read_then_neutralises_and_raises():
+    from neurotouch_hid.errors import RecordingError
+
+    def truncated():
+        for i in range(4):
+            yield batch(i * 1000)
+        raise RecordingError("rec.aedat4: truncated")
+
+    rt, pipeline, out = make_runtime(truncated())
+    with pytest.raises(RecordingError, match="truncated"):
+        rt.run()
+    assert len(pipeline.seen) == 4
+    assert out.calls[-1] == ("neutralise", None)
+
+
+def endless(step_us: int = 1000):
+    t = 0
+    while True:
+        yield batch(t)
+        t += step_us
+
+
+def test_stop_from_another_thread_ends_a_paced_endless_source_neutral():
+    rt, pipeline, out = make_runtime(endless(), pace=True, pipeline=FakePipeline(push_batches=10**9))
+    threading.Timer(0.3, rt.stop).start()
+    rt.run()
+    assert pipeline.seen and out.calls[-1] == ("neutralise", None)
+    assert writes(out) and not writes(out)[-1].is_neutral()  # stopped in the middle of a push
+
+
+def test_sigterm_is_a_clean_stop():
+    rt, pipeline, out = make_runtime(endless(), pace=True, pipeline=FakePipeline(push_batches=10**9))
+    previous = signal.getsignal(signal.SIGTERM)
+    threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGTERM)).start()
+    stats = rt.run()  # returns normally
+    assert stats.windows > 0 and out.calls[-1] == ("neutralise", None)
+    assert signal.getsignal(signal.SIGTERM) is previous  # handler restored
+
+
+def test_pacing_follows_the_timestamps():
+    import time
+
+    rt, pipeline, _ = make_runtime((batch(i * 50_000, n=1) for i in range(5)), pace=True)
+    t0 = time.perf_counter()
+    rt.run()
+    # 5 batches 50 ms apart in camera time cannot be through in less than 200 ms of wall time
+    assert time.perf_counter() - t0 >= 0.2
+    assert len(pipeline.seen) == 5
+
+
+def test_seconds_limits_the_camera_time_read():
+    rt, pipeline, _ = make_runtime(endless(1000))
+    rt.run(seconds=0.05)
+    assert len(pipeline.seen) == 50
+
+
+# --- profiles -----------------------------------------------------------------------------------
+def test_switch_profile_neutralises_then_maps_with_the_new_profile():
+    rt, pipeline, out = make_runtime(endless(), pace=True, pipeline=FakePipeline(push_batches=10**9))
+    seen_switch = threading.Event()
+
+    def switch():
+        rt.switch_profile({"sign": -1})
+        seen_switch.set()
+
+    threading.Timer(0.2, switch).start()
+    threading.Timer(0.5, rt.stop).start()
+    rt.run()
+    assert seen_switch.is_set()
+    kinds = [k for k, _ in out.calls]
+    i = kinds.index("neutralise")
+    before, after = writes_of(out.calls[:i]), writes_of(out.calls[i + 1:])
+    assert before and after
+    assert all(s.axes["ABS_X"] > 0 for s in before)
+    assert all(s.axes["ABS_X"] < 0 for s in after)
+
+
+def writes_of(calls):
+    return [s for k, s in calls if k == "write"]
+
+
+def test_reload_keeps_the_old_profile_when_the_new_one_is_bad():
+    def bad_loader(ref):
+        raise ProfileError(f"profile {ref} is invalid (1 problem): ...")
+
+    rt, _, out = make_runtime([], profile_ref="mine.yaml", profile_loader=bad_loader)
+    assert rt.reload_profile() is False
+    assert rt.profile == {"sign": 1} and out.calls == []
+
+
+def test_sighup_reloads_the_profile():
+    loads = []
+
+    def loader(ref):
+        loads.append(ref)
+        return {"sign": -1}
+
+    rt, _, out = make_runtime(endless(), pace=True, pipeline=FakePipeline(push_batches=10**9),
+                              profile_ref="mine.yaml", profile_loader=loader)
+    threading.Timer(0.2, os.kill, (os.getpid(), signal.SIGHUP)).start()
+    threading.Timer(0.6, rt.stop).start()
+    rt.run()
+    assert loads == ["mine.yaml"] and rt.profile == {"sign": -1}
+    assert writes(out)[-1].axes["ABS_X"] < 0
+
+
+# --- the resting detector beside the event path ------------------------------------------------
+class FakeResting:
+    def __init__(self):
+        self.thread_names = set()
+
+    def update(self, frame):
+        self.thread_names.add(threading.current_thread().name)
+        return ("rest", frame.t_us)
+
+
+def test_resting_results_reach_the_pipeline_from_their_own_thread():
+    def source():
+        for i in range(10):
+            yield Frame(i * 40_000, np.zeros((260, 346), np.uint8))
+            for k in range(40):
+                yield batch(i * 40_000 + k * 1000 + 1)
+
+    resting = FakeResting()
+    rt, pipeline, _ = make_runtime(source(), resting=resting)
+    stats = rt.run()
+    assert resting.thread_names == {"nt-resting"}
+    # every frame's verdict reaches the pipeline (set_resting) with its frame's time, in order,
+    # except possibly the last ones if the stream ended before the resting thread was done
+    ts = [t for _, t in pipeline.resting]
+    assert ts == sorted(ts) and set(ts) <= {i * 40_000 for i in range(10)}
+    assert stats.frames == 10 and stats.resting_updates == len(ts) > 0
