@@ -145,6 +145,181 @@ def doctor() -> None:
     _todo("doctor")
 
 
+# --- profiles (mapping/) ----------------------------------------------------------------------
+@profile_app.command("list")
+def profile_list() -> None:
+    """List the profiles: shipped ones and the user's (a user copy shadows a shipped one)."""
+    from rich.table import Table
+
+    from neurotouch_hid.errors import ProfileError
+    from neurotouch_hid.mapping.profile import available_profiles, load_profile, shipped_profiles_dir
+
+    table = Table("name", "where", "description", "status")
+    shipped = {p.stem for p in shipped_profiles_dir().glob("*.yaml")}
+    for name, path in available_profiles().items():
+        user = path.parent != shipped_profiles_dir()
+        where = ("user (shadows shipped)" if name in shipped else "user") if user else "shipped"
+        try:
+            loaded = load_profile(path)
+            table.add_row(name, where, loaded.description, "[green]ok[/]")
+        except ProfileError as exc:
+            table.add_row(name, where, "", f"[red]invalid[/] ({str(exc).count(chr(10))} problems)")
+    console.print(table)
+
+
+@profile_app.command("show")
+def profile_show(name: str = typer.Argument(..., help="profile name or path")) -> None:
+    """Print a profile's file (with its comments) and where it is."""
+    from rich.syntax import Syntax
+
+    from neurotouch_hid.mapping.profile import find_profile
+
+    path = find_profile(name)
+    console.print(f"# {path}", highlight=False)
+    console.print(Syntax(path.read_text(encoding="utf-8"), "yaml", background_color="default"))
+
+
+@profile_app.command("new")
+def profile_new(
+    name: str = typer.Argument(..., help="name of the new user profile"),
+    from_name: str = typer.Option("default", "--from", help="profile (name or path) to copy"),
+) -> None:
+    """Create a user profile as a copy of another one."""
+    from neurotouch_hid.mapping.editor import new_profile
+
+    console.print(f"created {new_profile(name, from_name)} (a copy of {from_name})", highlight=False)
+
+
+@profile_app.command("set")
+def profile_set(
+    name: str = typer.Argument(..., help="profile name (a shipped one is copied to the user folder)"),
+    key: str = typer.Argument(..., help="dotted key, e.g. mappings.push.deadzone_mm"),
+    value: str = typer.Argument(..., help="YAML value, e.g. 1.5, true, ABS_RX"),
+) -> None:
+    """Set one value; the profile is validated first and left unchanged if the result is invalid."""
+    from neurotouch_hid.mapping.editor import parse_value, set_values
+
+    path, previous = set_values(name, {key: parse_value(value)})
+    console.print(f"{path}: {key}: {previous[key]!r} -> {value}", highlight=False)
+
+
+@profile_app.command("unset")
+def profile_unset(
+    name: str = typer.Argument(..., help="profile name"),
+    key: str = typer.Argument(..., help="dotted key to remove (its default applies again)"),
+) -> None:
+    """Remove one key; the profile is validated first and left unchanged if the result is invalid."""
+    from neurotouch_hid.mapping.editor import unset_value
+
+    path, removed = unset_value(name, key)
+    console.print(f"{path}: removed {key} (was {removed!r})", highlight=False)
+
+
+@profile_app.command("validate")
+def profile_validate(path: str = typer.Argument(..., help="profile file (or name)")) -> None:
+    """Check a profile; every problem is listed with its file, line, field, value and expectation."""
+    from neurotouch_hid.mapping.profile import find_profile, load_profile
+
+    loaded = load_profile(path)
+    console.print(f"{find_profile(path)}: ok ({len(loaded.mappings)} mappings)", highlight=False)
+
+
+@profile_app.command("edit")
+def profile_edit(name: str = typer.Argument(..., help="profile name (a shipped one is copied first)")) -> None:
+    """Open the user's copy of a profile in $EDITOR, then validate it."""
+    from neurotouch_hid.errors import ProfileError
+    from neurotouch_hid.mapping.editor import run_editor, user_copy
+    from neurotouch_hid.mapping.profile import load_profile
+
+    path = user_copy(name)
+    while True:
+        run_editor(path)
+        try:
+            load_profile(path)
+        except ProfileError as exc:
+            if sys.stdin.isatty() and typer.confirm(f"{exc}\nre-open the editor?", default=True):
+                continue
+            raise ProfileError(f"{path} was saved but is not valid (the driver will refuse it): {exc}") from None
+        console.print(f"{path}: ok", highlight=False)
+        return
+
+
+@profile_app.command("path")
+def profile_path(name: str = typer.Argument(..., help="profile name")) -> None:
+    """Print the file a profile name resolves to (the user's copy, else the shipped one)."""
+    from neurotouch_hid.mapping.profile import find_profile
+
+    typer.echo(str(find_profile(name)))
+
+
+@profile_app.command("test")
+def profile_test(
+    name: str = typer.Argument(..., help="profile name or path"),
+    source: str = typer.Option("sim", "--source", help="sim, an AEDAT4 recording, or predictions PRED.jsonl"),
+    plot: Optional[Path] = typer.Option(None, "--plot", help="also draw the timeline to this PNG"),
+    seconds: Optional[float] = typer.Option(None, "--seconds", help="only the first N seconds (sim: 20 s by default)"),
+    every_ms: int = typer.Option(100, "--every-ms", help="timeline sampling period (ms)"),
+    json_out: bool = typer.Option(False, "--json", help="print the summary as JSON instead of tables"),
+) -> None:
+    """Replay a source through the pipeline and the profile; print the axis and button timeline."""
+    import json
+
+    from rich.table import Table
+
+    from neurotouch_hid.controller import AXES, BUTTONS
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.mapping.replay import deflection, estimates_from_source, plot_timeline, replay, sample_timeline, summarise
+
+    loaded = load_profile(name)
+    estimates = list(estimates_from_source(source, seconds))
+    states = replay(loaded, estimates)
+    summary = summarise(states)
+    if plot is not None:
+        plot_timeline(estimates, states, plot)
+    if json_out:
+        typer.echo(json.dumps({"estimates": len(estimates), "max_deflection": summary.max_deflection, "presses": summary.presses}))
+        return
+    moved = [a for a in AXES if summary.max_deflection[a] > 0]
+    table = Table("t (s)", "gesture", "mm", *moved, "buttons", title=f"{name} on {source} ({len(estimates)} windows)")
+    t0 = estimates[0].t_us if estimates else 0
+    for row in sample_timeline(estimates, states, every_ms * 1000):
+        pressed = " ".join(b.removeprefix("BTN_") for b in BUTTONS if row.state.buttons[b])
+        table.add_row(f"{(row.t_us - t0) / 1e6:.1f}", row.estimate.gesture.value, f"{row.estimate.intensity_mm:.1f}",
+                      *(f"{deflection(a, row.state.axes[a]):+.2f}" for a in moved), pressed)
+    console.print(table)
+    totals = Table("axis / button", "max deflection / presses", title="summary")
+    for axis in AXES:
+        totals.add_row(axis, f"{summary.max_deflection[axis]:.0%}")
+    for button, count in summary.presses.items():
+        if count:
+            totals.add_row(button, str(count))
+    console.print(totals)
+    if plot is not None:
+        console.print(f"plot: {plot}", highlight=False)
+
+
+@profile_app.command("tune")
+def profile_tune(
+    name: str = typer.Argument(..., help="profile name (written to the user's copy)"),
+    from_source: str = typer.Option(..., "--from", help="AEDAT4 recording or predictions PRED.jsonl of this user"),
+    percentile: float = typer.Option(95.0, "--percentile", help="intensity percentile that gives full deflection"),
+) -> None:
+    """Set each analogue mapping's saturation to what this user reaches (e.g. weak fingers)."""
+    from neurotouch_hid.mapping.editor import set_values
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.mapping.replay import estimates_from_source, tuned_saturations
+
+    if not 0 < percentile <= 100:
+        raise NeurotouchError(f"--percentile {percentile}: expected a value in (0, 100]")
+    tuned = tuned_saturations(load_profile(name), estimates_from_source(from_source), percentile)
+    if not tuned:
+        raise NeurotouchError(f"{from_source}: no gesture there exercises an analogue mapping of '{name}'; nothing tuned")
+    path, _ = set_values(name, {f"mappings.{m}.saturation_mm": new for m, (_, new) in tuned.items()})
+    for mapping, (old, new) in tuned.items():
+        console.print(f"{mapping}: saturation_mm {old:g} -> {new:g}", highlight=False)
+    console.print(f"written to {path}", highlight=False)
+
+
 def main() -> None:
     """Console-script entry point: user errors become one line on stderr and exit code 2."""
     try:

@@ -1,0 +1,73 @@
+"""The mapping's signal shaping: the 1-euro filter and the analogue response curve.
+
+Both act on the profile's input quantities (mm, user frame) before they become axis values.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+class OneEuroFilter:
+    """The 1-euro filter (Casiez, Roussel, Vogel: "1 Euro Filter: A Simple Speed-based Low-pass
+    Filter for Noisy Input in Interactive Systems", CHI 2012), element-wise on a scalar or an
+    array (e.g. a (2,) push vector, mm).
+
+    An exponential low-pass whose cut-off rises with the (low-passed) speed:
+    ``fc = min_cutoff_hz + beta * |dx/dt|`` with dx/dt in units/s, so ``beta`` is in Hz per
+    (mm/s) for inputs in mm. Time is int64 microseconds (the camera clock).
+    """
+
+    def __init__(self, min_cutoff_hz: float = 1.0, beta: float = 0.0, d_cutoff_hz: float = 1.0) -> None:
+        self.min_cutoff_hz = float(min_cutoff_hz)
+        self.beta = float(beta)
+        self.d_cutoff_hz = float(d_cutoff_hz)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the history: the next sample passes through unchanged."""
+        self._x: np.ndarray | None = None
+        self._dx: np.ndarray | None = None
+        self._t_us: int | None = None
+
+    @staticmethod
+    def _alpha(cutoff_hz: np.ndarray | float, dt_s: float) -> np.ndarray | float:
+        tau = 1.0 / (2.0 * math.pi * cutoff_hz)
+        return 1.0 / (1.0 + tau / dt_s)
+
+    def __call__(self, value: np.ndarray | float, t_us: int) -> np.ndarray:
+        """Filter one sample taken at ``t_us``; returns the filtered value (float64, same shape).
+
+        A sample not later than the previous one is treated as 1 us later.
+        """
+        x = np.asarray(value, dtype=np.float64)
+        if self._x is None or self._dx is None or self._t_us is None:
+            self._x, self._dx, self._t_us = x.copy(), np.zeros_like(x), int(t_us)
+            return x.copy()
+        dt_s = max(int(t_us) - self._t_us, 1) * 1e-6
+        self._t_us = max(int(t_us), self._t_us + 1)
+        dx = (x - self._x) / dt_s
+        self._dx = self._dx + self._alpha(self.d_cutoff_hz, dt_s) * (dx - self._dx)
+        cutoff = self.min_cutoff_hz + self.beta * np.abs(self._dx)
+        self._x = self._x + self._alpha(cutoff, dt_s) * (x - self._x)
+        return self._x.copy()
+
+
+def response(magnitude_mm: float, deadzone_mm: float, saturation_mm: float, exponent: float = 1.0,
+             expo: float = 0.0, gain: float = 1.0) -> float:
+    """The analogue response in [0, 1] to an input magnitude (mm, >= 0).
+
+    0 up to the dead zone, 1 from the saturation on, in between
+    ``t = (m - deadzone) / (saturation - deadzone)`` shaped by ``t ** exponent``, then the expo
+    ``(1 - expo) t + expo t^3`` (finer control near the centre), then ``min(gain * t, 1)``
+    (the paper, section "Gesture Classification and Intensity Prediction", suggests non-linear
+    intensity profiles for applications). Non-finite magnitudes give 0.
+    """
+    if not math.isfinite(magnitude_mm) or magnitude_mm <= deadzone_mm:
+        return 0.0
+    t = min((magnitude_mm - deadzone_mm) / (saturation_mm - deadzone_mm), 1.0)
+    t = t**exponent
+    t = (1.0 - expo) * t + expo * t**3
+    return min(gain * t, 1.0)

@@ -1,0 +1,193 @@
+"""Trying a profile offline: replay estimates through a :class:`Mapper`, sample the axis and
+button timeline, summarise and plot it, and tune saturations from what a user actually reaches
+(the ``profile test`` and ``profile tune`` commands).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
+from neurotouch_hid.errors import DatasetError
+from neurotouch_hid.estimate import GestureEstimate
+from neurotouch_hid.mapping.mapper import Mapper, gesture_inputs
+from neurotouch_hid.mapping.profile import ButtonMapping, Profile
+
+
+def replay(profile: Profile, estimates: Iterable[GestureEstimate]) -> list[ControllerState]:
+    """Map every estimate, in order, with a fresh :class:`Mapper`; one state per estimate."""
+    mapper = Mapper(profile)
+    return [mapper.update(e) for e in estimates]
+
+
+def read_predictions(path: str | os.PathLike) -> list[GestureEstimate]:
+    """Read a predictions file (JSON lines, DATASET.md "Predictions"; blank lines skipped).
+
+    Raises:
+        DatasetError: missing file, or a line that is not a valid prediction (names file and line).
+    """
+    path = Path(path)
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DatasetError(f"cannot read predictions {path}: {exc}") from None
+    estimates = []
+    for number, line in enumerate(lines, start=1):
+        if not line.strip():
+            continue
+        try:
+            estimates.append(GestureEstimate.from_json_dict(json.loads(line)))
+        except (ValueError, KeyError, TypeError) as exc:
+            raise DatasetError(f"{path}:{number}: not a prediction line (DATASET.md): {type(exc).__name__}: {exc}") from None
+    return estimates
+
+
+def estimates_from_source(source: str, seconds: float | None = None) -> Iterator[GestureEstimate]:
+    """Estimates from ``PRED.jsonl`` (predictions), ``sim`` (the simulated gel through the
+    pipeline, 20 s unless ``seconds``) or an AEDAT4 recording (through the pipeline, with the
+    sensor.yaml beside it). Only the first ``seconds`` (from the first estimate) when given.
+
+    Raises:
+        DatasetError, RecordingError, SensorError: unreadable source.
+    """
+    if source.endswith(".jsonl"):
+        yield from _first_seconds(iter(read_predictions(source)), seconds)
+        return
+    from neurotouch_hid.pipeline.pipeline import GesturePipeline
+    from neurotouch_hid.runtime import open_source
+
+    with contextlib.ExitStack() as stack:
+        stream, sensor, _ = open_source(source, stack, seconds=seconds if seconds is not None or source != "sim" else 20.0)
+        yield from _first_seconds(GesturePipeline(sensor).run(stream), seconds)
+
+
+def _first_seconds(estimates: Iterator[GestureEstimate], seconds: float | None) -> Iterator[GestureEstimate]:
+    start = None
+    for e in estimates:
+        start = e.t_us if start is None else start
+        if seconds is not None and e.t_us - start > seconds * 1e6:
+            return
+        yield e
+
+
+@dataclass(frozen=True)
+class TimelineRow:
+    """One sample of the timeline: the latest estimate and state at or before ``t_us``."""
+
+    t_us: int
+    estimate: GestureEstimate
+    state: ControllerState
+
+
+def sample_timeline(estimates: list[GestureEstimate], states: list[ControllerState], every_us: int = 100_000) -> list[TimelineRow]:
+    """Rows every ``every_us`` (us) from the first estimate, each with the latest estimate/state
+    at or before that time (``estimates`` and ``states`` aligned, as :func:`replay` returns)."""
+    if not estimates:
+        return []
+    times = np.array([e.t_us for e in estimates], dtype=np.int64)
+    samples = np.arange(times[0], times[-1] + 1, every_us, dtype=np.int64)
+    index = np.searchsorted(times, samples, side="right") - 1
+    return [TimelineRow(int(t), estimates[i], states[i]) for t, i in zip(samples, index)]
+
+
+@dataclass(frozen=True)
+class Summary:
+    """Per axis the largest deflection (fraction of the half range for sticks, of the range for
+    triggers and hats: 0..1) and per button the number of presses (rising edges)."""
+
+    max_deflection: dict[str, float]
+    presses: dict[str, int]
+
+
+def deflection(name: str, value: int) -> float:
+    """An axis value as a signed fraction of full deflection (-1..1; triggers 0..1)."""
+    low, high, neutral = AXES[name]
+    if value >= neutral:
+        return (value - neutral) / (high - neutral) if high > neutral else 0.0
+    return -(value - neutral) / (low - neutral)
+
+
+def summarise(states: list[ControllerState]) -> Summary:
+    """The largest |deflection| per axis and the press count per button over ``states``."""
+    max_deflection = {name: 0.0 for name in AXES}
+    presses = {name: 0 for name in BUTTONS}
+    previous = {name: False for name in BUTTONS}
+    for state in states:
+        for name, value in state.axes.items():
+            max_deflection[name] = max(max_deflection[name], abs(deflection(name, value)))
+        for name, pressed in state.buttons.items():
+            presses[name] += int(pressed and not previous[name])
+            previous[name] = pressed
+    return Summary(max_deflection, presses)
+
+
+def plot_timeline(estimates: list[GestureEstimate], states: list[ControllerState], path: str | os.PathLike) -> None:
+    """Draw the gesture intensity, every axis (as deflection -1..1) and every button over time
+    (s from the first estimate) to a PNG (matplotlib, Agg backend)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t0 = estimates[0].t_us if estimates else 0
+    t = np.array([(e.t_us - t0) * 1e-6 for e in estimates])
+    fig, (ax_in, ax_axes, ax_btn) = plt.subplots(3, 1, sharex=True, figsize=(10, 7))
+    ax_in.plot(t, [e.intensity_mm for e in estimates], color="black", lw=1)
+    ax_in.set_ylabel("intensity (mm)")
+    gestures = sorted({e.gesture.value for e in estimates})
+    for g in gestures:
+        mask = np.array([e.gesture.value == g for e in estimates])
+        ax_in.scatter(t[mask], np.zeros(mask.sum()), s=4, label=g)
+    ax_in.legend(loc="upper right", fontsize=7, ncol=len(gestures) or 1)
+    for name in AXES:
+        values = [deflection(name, s.axes[name]) for s in states]
+        if any(values):
+            ax_axes.plot(t, values, lw=1, label=name)
+    ax_axes.set_ylabel("axis deflection")
+    ax_axes.set_ylim(-1.05, 1.05)
+    if ax_axes.lines:
+        ax_axes.legend(loc="upper right", fontsize=7)
+    used = [name for name in BUTTONS if any(s.buttons[name] for s in states)]
+    for k, name in enumerate(used):
+        ax_btn.step(t, [k + 0.8 * s.buttons[name] for s in states], where="post", lw=1)
+    ax_btn.set_yticks(range(len(used)), used)
+    ax_btn.set_ylabel("buttons")
+    ax_btn.set_xlabel("time (s)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def tuned_saturations(profile: Profile, estimates: Iterable[GestureEstimate], percentile: float = 95.0) -> dict[str, tuple[float, float]]:
+    """Saturations that give full deflection at what this user reaches.
+
+    For every analogue mapping (stick or axis) whose input is an intensity (not ``contact``), the
+    ``percentile`` of the input's magnitude (mm) over the estimates where it is non-zero. A value
+    not above the mapping's dead zone is raised to 1.25 x the dead zone (the stick must move).
+
+    Returns:
+        mapping name -> (current saturation mm, suggested saturation mm), only for mappings the
+        estimates exercise.
+    """
+    samples: dict[str, list[float]] = {}
+    analog = {name: m for name, m in profile.mappings.items()
+              if not isinstance(m, ButtonMapping) and not m.input.startswith("contact")}
+    for estimate in estimates:
+        inputs = gesture_inputs(estimate)
+        for name, m in analog.items():
+            magnitude = float(np.linalg.norm(inputs[m.input]))
+            if magnitude > 0:
+                samples.setdefault(name, []).append(magnitude)
+    result = {}
+    for name, values in samples.items():
+        m = analog[name]
+        reached = float(np.percentile(values, percentile))
+        result[name] = (m.saturation, round(max(reached, 1.25 * m.deadzone_mm, m.deadzone_mm + 0.01), 2))
+    return result
