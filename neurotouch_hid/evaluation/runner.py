@@ -12,7 +12,6 @@ executed on the complete dataset").
 from __future__ import annotations
 
 import dataclasses
-import json
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
@@ -21,51 +20,83 @@ from typing import Callable, Sequence
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.evaluation.dataset import list_sequences, read_labels
 from neurotouch_hid.evaluation.metrics import EvaluationResult, Observations, align, evaluate
+from neurotouch_hid.output.jsonl import write_predictions
 from neurotouch_hid.sensor import SensorGeometry
 
 _TRUE = {"1", "true", "yes", "on"}
 _FALSE = {"0", "false", "no", "off"}
 
 
+def _convert(text: str, default, annotation: str):
+    """``text`` as the type of a dataclass field whose default is ``default`` (bool, int, float,
+    str; ``none`` for an optional field; int/float from the annotation when the default is None)."""
+    optional = default is None or "None" in annotation
+    if optional and text.lower() in ("none", "null"):
+        return None
+    if isinstance(default, bool):
+        if text.lower() not in _TRUE | _FALSE:
+            raise ValueError("expected true or false")
+        return text.lower() in _TRUE
+    if isinstance(default, (int, float, str)):
+        return type(default)(text)
+    for kind in (int, float):
+        if default is None and kind.__name__ in annotation:
+            return kind(text)
+    raise ValueError(f"a field of type {annotation} cannot be set from the command line")
+
+
 def pipeline_config(settings: Sequence[str] = (), **values):
     """A :class:`~neurotouch_hid.pipeline.pipeline.PipelineConfig` from ``NAME=VALUE`` strings
     (the CLI's ``--set``) and keyword values.
 
-    Each value is converted to the type of the field's default (int, float, bool, str).
+    NAME is a field of PipelineConfig, or ``tracker.FIELD`` for a field of its nested
+    TrackerConfig (any nested dataclass field works the same way). Each value is converted to
+    the type of the field's default (bool, int, float, str; ``none`` for optional fields).
 
     Raises:
         NeurotouchError: naming the setting, when it is not ``NAME=VALUE``, NAME is not a field
-            of PipelineConfig (the message lists the fields), the value does not convert, or
-            PipelineConfig rejects it.
+            (the message lists the fields), the value does not convert, or PipelineConfig
+            rejects it.
     """
     from neurotouch_hid.pipeline.pipeline import PipelineConfig
 
-    fields = {f.name: f for f in dataclasses.fields(PipelineConfig)}
-    defaults = PipelineConfig()
+    config = PipelineConfig()
+    nested: dict[str, dict] = {}
     for item in settings:
         name, sep, text = item.partition("=")
         name, text = name.strip(), text.strip()
         if not sep or not name:
             raise NeurotouchError(f"--set {item!r}: expected NAME=VALUE, e.g. --set r_px=30")
-        if name not in fields:
-            raise NeurotouchError(f"--set {item!r}: PipelineConfig has no field {name!r}; fields: {', '.join(fields)}")
-        kind = type(getattr(defaults, name))
+        owner, path = config, name.split(".")
+        for part in path[:-1]:
+            owner = getattr(owner, part, None) if part in {f.name for f in dataclasses.fields(owner)} else None
+            if not dataclasses.is_dataclass(owner):
+                raise NeurotouchError(f"--set {item!r}: {part!r} is not a group of PipelineConfig")
+        fields = {f.name: f for f in dataclasses.fields(owner)}
+        if path[-1] not in fields or dataclasses.is_dataclass(getattr(owner, path[-1])):
+            names = [f for f in fields if not dataclasses.is_dataclass(getattr(owner, f))]
+            raise NeurotouchError(f"--set {item!r}: {type(owner).__name__} has no field {path[-1]!r}; fields: {', '.join(names)}")
         try:
-            if kind is bool:
-                if text.lower() not in _TRUE | _FALSE:
-                    raise ValueError("expected true or false")
-                value = text.lower() in _TRUE
-            elif kind in (int, float, str):
-                value = kind(text)
-            else:
-                raise ValueError(f"field of type {kind.__name__} cannot be set from the command line")
+            value = _convert(text, getattr(owner, path[-1]), str(fields[path[-1]].type))
         except ValueError as exc:
             raise NeurotouchError(f"--set {item!r}: {exc}") from None
-        values[name] = value
+        nested.setdefault(".".join(path[:-1]), {})[path[-1]] = value
+    nested.setdefault("", {}).update(values)
     try:
-        return dataclasses.replace(defaults, **values)
+        return _replace(config, "", nested)
     except (TypeError, ValueError) as exc:
-        raise NeurotouchError(f"invalid pipeline hyperparameters {values}: {exc}") from None
+        raise NeurotouchError(f"invalid pipeline hyperparameters {settings or values}: {exc}") from None
+
+
+def _replace(obj, prefix: str, nested: dict[str, dict]):
+    """``obj`` (a dataclass) with the values of ``nested[prefix]`` and of its nested groups."""
+    changes = dict(nested.get(prefix, {}))
+    for f in dataclasses.fields(obj):
+        child = getattr(obj, f.name)
+        key = f"{prefix}.{f.name}" if prefix else f.name
+        if dataclasses.is_dataclass(child) and any(k == key or k.startswith(key + ".") for k in nested):
+            changes[f.name] = _replace(child, key, nested)
+    return dataclasses.replace(obj, **changes)
 
 
 def run_sequence(
@@ -101,11 +132,8 @@ def run_sequence(
             if on_time is not None and len(predictions) % 50 == 0:
                 on_time(estimate.t_us - start)
     if predictions_dir is not None:
-        out = Path(predictions_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        with open(out / f"{name}.jsonl", "w") as fh:
-            for estimate in predictions:
-                fh.write(json.dumps(estimate.to_json_dict()) + "\n")
+        Path(predictions_dir).mkdir(parents=True, exist_ok=True)
+        write_predictions(Path(predictions_dir) / f"{name}.jsonl", predictions)
     return align(labels, predictions, sensor)
 
 
