@@ -1,0 +1,562 @@
+"""The simulated NeuroTouch gel: dome, markers, fingers, gestures, camera, labels.
+
+What is simulated (paper, sections "System Overview", "Problem Statement" and "Creation of the
+Gesture Detection Dataset"):
+
+* **The gel** -- a 60 mm silicone dome (a spherical cap of radius :data:`DOME_SPHERE_MM` over a
+  30 mm base) with white 1 mm markers on a 4 mm grid laid on its surface (the grid is centred on
+  the apex and kept where the arc length from the apex is below :data:`MARKER_ARC_MM`: exactly
+  177 markers). The camera inside looks up through the base: a marker at arc length s from the
+  apex is seen at base-plane radius ``R sin(s / R)`` (orthographic), i.e. 2.5 px/mm at the
+  centre and foreshortened towards the rim. All markers lie inside the gel circle of
+  ``sensor.yaml`` (the base, 30 mm = 75 px). Deformations are modelled in the base plane, which
+  is the user frame of DATASET.md (mm, x right, y up, seen from outside); image positions come
+  from :meth:`SensorGeometry.user_to_image` (the mirror included).
+* **Fingers and gestures** -- push, pinch, zoom, twist_cw, twist_ccw with 1-3 fingers, each
+  with attack (cosine ramp up), hold (the maximum, with a small tremor) and release (cosine ramp
+  down), then the gel creeps back (exponential, tau ~ 0.1 s) from a small residual. A finger
+  drags the markers under it with it; the others follow with a Gaussian falloff whose width is
+  the finger's footprint, widened for large displacements so that the gel never folds. Pressing
+  also spreads the markers under a finger radially (<= 0.35 mm) and dims them (<= 25 %); the whole
+  gel moves a little with the gesture (<= 0.35 mm translation, <= 0.35 deg rotation). The rim is
+  clamped (the displacement fades out near the edge).
+* **Users** -- :data:`USERS` defines 10 simulated users with their own finger size, speed,
+  intensity and hold/rest habits. Users 0-4 (:data:`TEST_USERS`) are the test users, users
+  5-9 (:data:`TUNING_USERS`) are for tuning; the ``paper`` preset takes the test users for an
+  even seed and the tuning users for an odd seed (:func:`preset_users`), so tuning never sees a
+  test user. Contacts are drawn around the gel's centre with a slight bias to the right of the
+  image, as the paper's contact distribution shows.
+* **The camera** -- a DAVIS-346 (346x260): APS frames at 25 Hz (exposure 4 ms, averaged over
+  several renders, read noise and shot noise, uint8, background ~20, markers ~220) and events
+  from ESIM (:mod:`neurotouch_hid.sources.esim`).
+
+Labels (DATASET.md) per APS frame: a gesture is labelled from its attack's start (the first
+instant its fingers move the gel) up to, not including, the end of its release (the fingers have
+left the gel); everything else is ``none`` with no contact. ``resting`` is 0 during a gesture
+and after it until every marker is back within :data:`REST_TOLERANCE_MM` of its rest position.
+The contact points are the surface points that were under the finger centres when the gesture
+began, where they are now (the gel's largest deformation under each finger); ``intensity_mm``
+is their mean displacement since the gesture began, in the user frame (mm).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Iterator, Sequence
+
+import numpy as np
+
+from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.evaluation.dataset import LabelRow
+from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.sources import EVENT_DTYPE, Frame, StreamItem
+from neurotouch_hid.sources.esim import EventCamera, render_frame
+
+#: Gesture types that the simulated users perform (paper, section "Problem Statement").
+SIM_GESTURES: tuple[GestureType, ...] = (
+    GestureType.PUSH, GestureType.PINCH, GestureType.ZOOM, GestureType.TWIST_CW, GestureType.TWIST_CCW,
+)
+#: Marker grid spacing on the gel surface (mm) and the marker diameter (mm).
+MARKER_PITCH_MM = 4.0
+MARKER_DIAMETER_MM = 1.0
+#: Radius of the sphere the dome is a cap of (mm): 13.5 mm high over the 30 mm base radius.
+DOME_SPHERE_MM = 40.0
+#: Markers are printed where the arc length from the apex is below this (mm): 177 markers.
+MARKER_ARC_MM = 29.8
+#: APS frame period and exposure (us); the DAVIS-346 frames at 25 Hz.
+FRAME_PERIOD_US = 40_000
+EXPOSURE_US = 4_000
+#: Time of a sequence's first APS frame (us, camera clock).
+START_US = 1_000_000
+#: The gel is at rest when every marker is within this of its rest position (mm).
+REST_TOLERANCE_MM = 0.1
+#: Grey levels: gel background (at the centre), outside the gel, marker peak above background.
+BACKGROUND_GREY = 20.0
+OUTSIDE_GREY = 6.0
+MARKER_GREY = 200.0
+#: APS noise: read noise sigma (grey levels) and shot noise sigma at grey level 1 (~ sqrt(level)).
+READ_NOISE = 1.5
+SHOT_NOISE = 0.22
+#: Fastest intensity change a simulated user makes (mm/s; paper: up to 210 mm/s).
+MAX_SPEED_MM_S = 205.0
+#: Largest hold intensity (mm; paper: local deformations up to 18 mm).
+MAX_INTENSITY_MM = 18.0
+#: How long after its release a gesture still deforms the gel, in creep time constants.
+CREEP_SPAN_TAUS = 7.0
+
+
+# --- users ------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SimUser:
+    """One simulated user's habits.
+
+    Attributes:
+        user_id: 0..9; sequences are named ``u{user_id}_{gesture}``.
+        finger_mm: footprint of a fingertip on the gel, the sigma of the displacement falloff (mm).
+        speed: multiplies the speed of attacks and releases (1 = median user).
+        intensity_mm: median hold intensity of a push (mm); other gestures are weaker.
+        hold: multiplies the hold duration; rest: multiplies the rests between gestures.
+        bias_mm: how far right of the gel's centre, in the image, the user's contacts centre (mm).
+    """
+
+    user_id: int
+    finger_mm: float
+    speed: float
+    intensity_mm: float
+    hold: float
+    rest: float
+    bias_mm: float
+
+
+#: The simulated users (ids 0-9).
+USERS: tuple[SimUser, ...] = (
+    SimUser(0, 7.0, 1.00, 5.0, 1.0, 1.0, 1.5),
+    SimUser(1, 6.2, 1.35, 4.0, 0.8, 0.9, 2.5),
+    SimUser(2, 7.8, 0.80, 6.5, 1.3, 1.2, 1.0),
+    SimUser(3, 6.6, 1.15, 3.5, 0.9, 1.0, 3.0),
+    SimUser(4, 7.4, 0.90, 7.0, 1.1, 1.1, 0.5),
+    SimUser(5, 6.4, 1.25, 4.5, 0.9, 0.9, 2.0),
+    SimUser(6, 7.6, 0.85, 5.5, 1.2, 1.1, 1.2),
+    SimUser(7, 6.8, 1.05, 6.0, 1.0, 1.0, 2.8),
+    SimUser(8, 7.2, 0.95, 3.8, 1.1, 1.2, 0.8),
+    SimUser(9, 6.0, 1.20, 5.2, 0.8, 0.9, 1.8),
+)
+#: Users of evaluations (paper preset, even seeds) and of tuning (paper preset, odd seeds).
+TEST_USERS: tuple[int, ...] = (0, 1, 2, 3, 4)
+TUNING_USERS: tuple[int, ...] = (5, 6, 7, 8, 9)
+#: Dataset presets: simulated seconds per sequence (one sequence per user and gesture type).
+PRESET_SECONDS: dict[str, float] = {"quick": 3.5, "paper": 60.0}
+
+
+def preset_users(preset: str, seed: int) -> tuple[int, ...]:
+    """The user ids a preset simulates for a seed.
+
+    ``paper``: the 5 test users (0-4) for an even seed, the 5 tuning users (5-9) for an odd seed.
+    ``quick``: one user, ``seed % 10``. Raises NeurotouchError for an unknown preset.
+    """
+    if preset == "paper":
+        return TEST_USERS if seed % 2 == 0 else TUNING_USERS
+    if preset == "quick":
+        return (seed % len(USERS),)
+    raise NeurotouchError(f"unknown simulation preset {preset!r}: expected one of {', '.join(PRESET_SECONDS)}")
+
+
+# --- the gel ----------------------------------------------------------------------------------
+class Gel:
+    """The dome and its markers as the camera sees them at rest.
+
+    Attributes:
+        sensor: the geometry (image <-> user frame).
+        rest_mm: (N, 2) float64 marker rest positions, user frame (mm).
+        rest_px: (N, 2) float64 the same in the image (px).
+        sigma_px: (N,) float64 blob sigma of each marker's image (px).
+        brightness: (N,) float64 peak grey level of each marker above the background.
+        background: (H, W) float64 the gel's image without markers (grey levels).
+    """
+
+    def __init__(self, sensor: SensorGeometry, rng: np.random.Generator) -> None:
+        self.sensor = sensor
+        half = int(MARKER_ARC_MM // MARKER_PITCH_MM) + 1
+        g = np.arange(-half, half + 1) * MARKER_PITCH_MM
+        gx, gy = np.meshgrid(g, g)
+        arc = np.stack([gx.ravel(), gy.ravel()], axis=1)
+        s = np.hypot(arc[:, 0], arc[:, 1])
+        keep = s < MARKER_ARC_MM
+        arc, s = arc[keep], s[keep]
+        radial = np.where(s > 0, DOME_SPHERE_MM * np.sin(s / DOME_SPHERE_MM) / np.maximum(s, 1e-12), 1.0)
+        self.rest_mm = arc * radial[:, None]
+        self.rest_px = sensor.user_to_image(self.rest_mm)
+        tilt = np.cos(s / DOME_SPHERE_MM)  # foreshortening of the 1 mm dots towards the rim
+        marker_px = MARKER_DIAMETER_MM * sensor.px_per_mm
+        self.sigma_px = marker_px * 0.38 * (0.8 + 0.2 * tilt)
+        r_rel = np.hypot(self.rest_mm[:, 0], self.rest_mm[:, 1]) / sensor.gel_radius_mm
+        self.brightness = MARKER_GREY * (1.0 - 0.12 * r_rel**2) * (1.0 + rng.normal(0.0, 0.03, len(s)))
+        yy, xx = np.mgrid[0 : sensor.height, 0 : sensor.width]
+        r_img = np.hypot(xx - sensor.gel_center_px[0], yy - sensor.gel_center_px[1]) / sensor.gel_radius_px
+        self.background = np.where(r_img <= 1.0, BACKGROUND_GREY * (1.0 - 0.2 * r_img**2), OUTSIDE_GREY)
+
+    @property
+    def n_markers(self) -> int:
+        return len(self.rest_mm)
+
+
+# --- gestures ---------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SimGesture:
+    """One gesture instance: its timing, fingers and motion, user frame.
+
+    Attributes:
+        gesture: the gesture type.
+        t_start_us, attack_us, hold_us, release_us: attack start and phase durations (us).
+        fingers_mm: (K, 2) where the finger centres touch the gel at the start (user mm).
+        amplitude_mm: displacement of each finger at the hold (push, pinch, zoom) or the chord
+            a twist's fingers travel (mm).
+        direction: (2,) unit vector of a push (user frame).
+        finger_mm: footprint sigma (mm). press: 0..1, how hard the fingers press (indentation).
+        tremor: (relative amplitude, frequency Hz, phase rad) of the hold's tremor.
+        global_mm: (2,) whole-gel translation at full deformation (mm); global_rad: rotation (rad).
+        residual: deformation left when the release ends (fraction); creep_us: its time constant.
+    """
+
+    gesture: GestureType
+    t_start_us: int
+    attack_us: int
+    hold_us: int
+    release_us: int
+    fingers_mm: np.ndarray
+    amplitude_mm: float
+    direction: np.ndarray
+    finger_mm: float
+    press: float
+    tremor: tuple[float, float, float]
+    global_mm: np.ndarray
+    global_rad: float
+    residual: float
+    creep_us: int
+
+    @property
+    def t_end_us(self) -> int:
+        """End of the release: the fingers have left the gel (us)."""
+        return self.t_start_us + self.attack_us + self.hold_us + self.release_us
+
+    @property
+    def t_settled_us(self) -> int:
+        """After this the gesture no longer deforms the gel at all (us)."""
+        return self.t_end_us + int(CREEP_SPAN_TAUS * self.creep_us)
+
+    def profile(self, t_us: np.ndarray) -> np.ndarray:
+        """(T,) float64 deformation level in 0..~1 at times t_us (T,) int64 us: attack ramp, hold
+        (1 + tremor), release ramp down to ``residual``, then exponential creep to 0."""
+        t = np.asarray(t_us, dtype=np.float64) - self.t_start_us
+        a, h, r = self.attack_us, self.hold_us, self.release_us
+        amp, freq, phase = self.tremor
+        out = np.zeros_like(t)
+        m = (t >= 0) & (t < a)
+        out[m] = 0.5 - 0.5 * np.cos(math.pi * t[m] / a)
+        m = (t >= a) & (t < a + h)
+        th = (t[m] - a) * 1e-6
+        out[m] = 1.0 + amp * np.sin(2 * math.pi * freq * th + phase) * np.sin(math.pi * (t[m] - a) / h)
+        m = (t >= a + h) & (t < a + h + r)
+        tr = (t[m] - a - h) / r
+        out[m] = self.residual + (1.0 - self.residual) * (0.5 + 0.5 * np.cos(math.pi * tr))
+        m = (t >= a + h + r) & (t < self.t_settled_us - self.t_start_us)
+        out[m] = self.residual * np.exp(-(t[m] - a - h - r) / self.creep_us)
+        return out
+
+    def finger_displacements(self, level: np.ndarray) -> np.ndarray:
+        """(T, K, 2) float64 displacement of each finger (user mm) at deformation levels (T,)."""
+        level = np.asarray(level, dtype=np.float64)
+        centre = self.fingers_mm.mean(axis=0)
+        rel = self.fingers_mm - centre
+        if self.gesture is GestureType.PUSH:
+            return level[:, None, None] * self.amplitude_mm * self.direction[None, None, :] * np.ones((1, len(rel), 1))
+        if self.gesture in (GestureType.PINCH, GestureType.ZOOM):
+            unit = rel / np.linalg.norm(rel, axis=1, keepdims=True)
+            sign = -1.0 if self.gesture is GestureType.PINCH else 1.0
+            return sign * level[:, None, None] * self.amplitude_mm * unit[None]
+        # twist: rotate about the fingers' centroid; counter-clockwise (user frame, y up) is > 0
+        radius = float(np.linalg.norm(rel, axis=1).mean())
+        theta_max = 2.0 * math.asin(min(1.0, self.amplitude_mm / (2.0 * radius)))
+        theta = level * theta_max * (1.0 if self.gesture is GestureType.TWIST_CCW else -1.0)
+        c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
+        rx = c * rel[None, :, 0] - s * rel[None, :, 1]
+        ry = s * rel[None, :, 0] + c * rel[None, :, 1]
+        return np.stack([rx - rel[None, :, 0], ry - rel[None, :, 1]], axis=-1)
+
+
+def deform(gestures: Sequence[SimGesture], points_mm: np.ndarray, t_us: np.ndarray, gel_radius_mm: float
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """Where material points of the gel are at times t_us, and how much they are dimmed.
+
+    Args:
+        gestures: the gestures that may deform the gel in this time span.
+        points_mm: (M, 2) float64 rest positions, user frame (mm).
+        t_us: (T,) int64 times (us).
+        gel_radius_mm: the clamped rim's radius (mm).
+    Returns:
+        positions (T, M, 2) float64 user frame (mm); dimming (T, M) float64 in 0..1 (0 = none).
+    """
+    pts = np.asarray(points_mm, dtype=np.float64)
+    n_t = len(t_us)
+    r_rel = np.hypot(pts[:, 0], pts[:, 1]) / gel_radius_mm
+    rim = np.clip(1.0 - r_rel**8, 0.0, 1.0)
+    disp = np.zeros((n_t, len(pts), 2))
+    dim = np.zeros((n_t, len(pts)))
+    levels = []
+    for g in gestures:
+        level = g.profile(t_us)
+        levels.append(level)
+        if not level.any():
+            continue
+        d_f = g.finger_displacements(level)  # (T, K, 2)
+        for k in range(len(g.fingers_mm)):
+            rel = pts - g.fingers_mm[k]  # (M, 2)
+            dist2 = (rel**2).sum(axis=1)
+            sig2 = g.finger_mm**2 + (0.8 * np.linalg.norm(d_f[:, k], axis=1)) ** 2  # (T,)
+            w = np.exp(-dist2[None, :] / (2.0 * sig2[:, None]))  # (T, M)
+            disp += w[:, :, None] * d_f[:, k][:, None, :]
+            under = np.exp(-dist2 / (2.0 * g.finger_mm**2))  # (M,)
+            press = g.press * level[:, None] * under[None, :]
+            disp += 0.35 * press[:, :, None] * (rel / g.finger_mm)[None]
+            dim = np.maximum(dim, 0.25 * press)
+    out = pts[None] + disp * rim[None, :, None]
+    for g, level in zip(gestures, levels):
+        if not level.any():
+            continue
+        phi = level * g.global_rad
+        c, s = np.cos(phi)[:, None], np.sin(phi)[:, None]
+        x = c * out[..., 0] - s * out[..., 1] + level[:, None] * g.global_mm[0]
+        y = s * out[..., 0] + c * out[..., 1] + level[:, None] * g.global_mm[1]
+        out = np.stack([x, y], axis=-1)
+    return out, dim
+
+
+def draw_gesture(rng: np.random.Generator, user: SimUser, gesture: GestureType, t_start_us: int,
+                 sensor: SensorGeometry) -> SimGesture:
+    """Draw one gesture of ``user`` starting at ``t_start_us`` (us): fingers, intensity, speed.
+
+    The distributions follow the paper's dataset statistics (appendix figures): hold intensities
+    mostly 0-6 mm with a tail to 18 mm, zoom the weakest and push the strongest; intensity
+    speeds up to ~210 mm/s; push mostly with 1 finger, the others with 2-3; contacts anywhere on
+    the gel but the rim, with a slight rightward bias in the image.
+    """
+    if gesture is GestureType.PUSH:
+        n_fingers = int(rng.choice([1, 2, 3], p=[0.75, 0.18, 0.07]))
+    else:
+        n_fingers = int(rng.choice([2, 3], p=[0.65, 0.35]))
+    finger = user.finger_mm * rng.uniform(0.9, 1.1)
+    factor = {GestureType.PUSH: 1.2, GestureType.ZOOM: 0.55}.get(gesture, 0.85)
+    amplitude = float(np.clip(rng.lognormal(math.log(user.intensity_mm * factor), 0.55), 0.8, MAX_INTENSITY_MM))
+    bias = sensor.vectors_image_to_user(np.array([user.bias_mm * sensor.px_per_mm, 0.0]))
+    limit = 0.8 * sensor.gel_radius_mm  # fingers stay off the rim
+
+    if gesture is GestureType.PUSH:
+        angle = rng.uniform(0, 2 * math.pi)
+        direction = np.array([math.cos(angle), math.sin(angle)])
+        across = np.array([-direction[1], direction[0]])
+        offsets = (np.arange(n_fingers) - (n_fingers - 1) / 2)[:, None] * across * rng.uniform(14.0, 18.0)
+    else:
+        direction = np.zeros(2)
+        spread = rng.uniform(9.0, 15.0)
+        angles = rng.uniform(0, 2 * math.pi) + 2 * math.pi * np.arange(n_fingers) / n_fingers
+        angles += rng.normal(0.0, 0.15, n_fingers)
+        offsets = spread * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+        cap = {GestureType.PINCH: 0.55, GestureType.ZOOM: 0.5}.get(gesture, 1.2) * spread
+        amplitude = min(amplitude, cap)
+    reach = float(np.linalg.norm(offsets, axis=1).max())
+    # the centre: Gaussian about the (biased) gel centre, kept so that fingers stay off the rim
+    room = max(0.0, limit - reach - (amplitude if gesture in (GestureType.PUSH, GestureType.ZOOM) else 0.0))
+    if room == 0.0 and gesture is GestureType.PUSH:
+        amplitude = max(0.8, limit - reach)
+        room = max(0.0, limit - reach - amplitude)
+    centre = rng.normal(0.0, 7.0, 2) + bias
+    norm = float(np.linalg.norm(centre))
+    if norm > room:
+        centre *= room / max(norm, 1e-9)
+    fingers = centre + offsets
+
+    speed = user.speed * rng.lognormal(0.0, 0.35)
+    min_ramp_us = math.pi * amplitude / (2 * MAX_SPEED_MM_S) * 1e6  # cosine ramp peak speed
+    attack = int(max(min_ramp_us, 0.45e6 * rng.lognormal(0.0, 0.4) / speed))
+    release = int(max(min_ramp_us, 0.35e6 * rng.lognormal(0.0, 0.4) / speed))
+    hold = int(1.0e6 * user.hold * rng.lognormal(0.0, 0.5))
+    return SimGesture(
+        gesture=gesture, t_start_us=int(t_start_us), attack_us=attack, hold_us=hold, release_us=release,
+        fingers_mm=fingers, amplitude_mm=amplitude, direction=direction, finger_mm=finger,
+        press=float(rng.uniform(0.3, 1.0)),
+        tremor=(float(rng.uniform(0.01, 0.04)), float(rng.uniform(3.0, 8.0)), float(rng.uniform(0, 2 * math.pi))),
+        global_mm=rng.normal(0.0, 0.15, 2).clip(-0.3, 0.3), global_rad=float(rng.normal(0.0, 0.003)),
+        residual=float(rng.uniform(0.02, 0.05)), creep_us=int(rng.uniform(60e3, 120e3)),
+    )
+
+
+def draw_rest_us(rng: np.random.Generator, user: SimUser) -> int:
+    """A rest (us) between a gesture's settling (creep done) and the next gesture's attack."""
+    return int(max(0.3e6, 0.9e6 * user.rest * rng.lognormal(0.0, 0.35)))
+
+
+def gesture_script(rng: np.random.Generator, user: SimUser, gestures: Iterable[GestureType], start_us: int,
+                   sensor: SensorGeometry, first_rest_us: int = 600_000) -> Iterator[SimGesture]:
+    """An endless succession of gestures of ``user``, cycling through ``gestures``, separated by
+    rests (the first starts ``first_rest_us`` after ``start_us``)."""
+    order = list(gestures)
+    t = start_us + first_rest_us
+    k = 0
+    while True:
+        g = draw_gesture(rng, user, order[k % len(order)], t, sensor)
+        yield g
+        t = g.t_settled_us + draw_rest_us(rng, user)
+        k += 1
+
+
+# --- the simulation engine --------------------------------------------------------------------
+@dataclass(frozen=True)
+class SimChunk:
+    """One APS frame period of simulation.
+
+    Attributes:
+        frame: the APS frame at the period's start.
+        events: EVENT_DTYPE events with frame.t_us <= timestamp < next frame's t_us, time-ordered.
+        label: the frame's label (DATASET.md).
+        t_us: (T,) int64 1 ms grid from frame.t_us (T = 40 at 25 Hz).
+        positions_px: (T, N, 2) float32 true marker positions (image px) at t_us.
+    """
+
+    frame: Frame
+    events: np.ndarray
+    label: LabelRow
+    t_us: np.ndarray
+    positions_px: np.ndarray
+
+
+class GelSimulator:
+    """Runs a gesture script through the gel and the camera, one APS frame period at a time.
+
+    Args:
+        sensor: geometry (default: DATASET.md's DAVIS-346 NeuroTouch).
+        user: the simulated user.
+        gestures: gesture types to cycle through.
+        seed: the camera's and gel's seed (thresholds, hot pixels, marker brightness).
+        stream_seed: the script's and noise's seed.
+        start_us: time of the first APS frame (us).
+    """
+
+    def __init__(self, sensor: SensorGeometry | None = None, user: SimUser = USERS[0],
+                 gestures: Iterable[GestureType] = SIM_GESTURES, seed: int = 0,
+                 stream_seed: Sequence[int] = (0,), start_us: int = START_US) -> None:
+        self.sensor = sensor or SensorGeometry()
+        camera_rng = np.random.default_rng(np.random.SeedSequence([seed, 0xCA3E]))
+        script_ss, noise_ss = np.random.SeedSequence([seed, *stream_seed]).spawn(2)
+        self.gel = Gel(self.sensor, camera_rng)
+        self.camera = EventCamera(self.gel.background, self.gel.rest_px, self.gel.brightness, self.gel.sigma_px,
+                                  camera_rng)
+        self._noise_rng = np.random.default_rng(noise_ss)
+        self._noise_bank = camera_rng.standard_normal(1 << 20, dtype=np.float32)
+        self._script = gesture_script(np.random.default_rng(script_ss), user, gestures, start_us, self.sensor)
+        self._known: list[SimGesture] = []
+        self._carry = np.zeros(0, dtype=EVENT_DTYPE)
+        self.t_us = int(start_us)
+        self.user = user
+
+    def _gestures_between(self, t0_us: int, t1_us: int) -> list[SimGesture]:
+        while not self._known or self._known[-1].t_start_us <= t1_us:
+            self._known.append(next(self._script))
+        self._known = [g for g in self._known if g.t_settled_us >= t0_us]
+        return [g for g in self._known if g.t_start_us <= t1_us and g.t_settled_us >= t0_us]
+
+    def marker_state(self, t_us: np.ndarray, gestures: Sequence[SimGesture]) -> tuple[np.ndarray, np.ndarray]:
+        """True marker positions (T, N, 2) float64 image px and brightness (T, N) at t_us (T,)."""
+        pos_mm, dim = deform(gestures, self.gel.rest_mm, t_us, self.sensor.gel_radius_mm)
+        return self.sensor.user_to_image(pos_mm), self.gel.brightness[None] * (1.0 - dim)
+
+    def _label(self, t_us: int, gestures: Sequence[SimGesture], pos_px: np.ndarray) -> LabelRow:
+        active = [g for g in gestures if g.t_start_us <= t_us < g.t_end_us]
+        if not active:
+            moved_mm = np.linalg.norm(self.sensor.vectors_image_to_user(pos_px - self.gel.rest_px), axis=-1)
+            return LabelRow(t_us, GestureType.NONE, bool(moved_mm.max() < REST_TOLERANCE_MM), 0.0, np.zeros((0, 2)))
+        g = active[0]
+        times = np.array([g.t_start_us, t_us], dtype=np.int64)
+        pts_mm, _ = deform(gestures, g.fingers_mm, times, self.sensor.gel_radius_mm)
+        contacts_px = self.sensor.user_to_image(pts_mm)  # (2, K, 2)
+        moved = self.sensor.vectors_image_to_user(contacts_px[1] - contacts_px[0])
+        intensity = float(np.linalg.norm(moved, axis=-1).mean())
+        return LabelRow(t_us, g.gesture, False, intensity, contacts_px[1])
+
+    def _frame(self, grid_us: np.ndarray, grid_pos: np.ndarray, grid_amp: np.ndarray) -> Frame:
+        """The APS frame exposed from grid_us[0] for EXPOSURE_US: the average of renders at
+        instants spaced so that no marker moves more than 0.3 px between them (positions
+        interpolated linearly in the 1 ms grid), plus read and shot noise, as uint8."""
+        t_us = int(grid_us[0])
+        last = int(np.searchsorted(grid_us, t_us + EXPOSURE_US))
+        travel = float(np.abs(grid_pos[last] - grid_pos[0]).max())
+        n = 1 if travel == 0.0 else int(np.clip(math.ceil(travel / 0.3) + 1, 2, 24))
+        times = t_us + np.linspace(0, EXPOSURE_US, n)
+        k = np.clip(np.searchsorted(grid_us, times, side="right") - 1, 0, last - 1)
+        a = ((times - grid_us[k]) / (grid_us[k + 1] - grid_us[k]))[:, None]
+        pos = grid_pos[k] + a[..., None] * (grid_pos[k + 1] - grid_pos[k])
+        amp = grid_amp[k] + a * (grid_amp[k + 1] - grid_amp[k])
+        offset = int(self._noise_rng.integers(0, len(self._noise_bank)))
+        return Frame(t_us, render_frame(self.gel.background, pos, amp, self.gel.sigma_px, READ_NOISE, SHOT_NOISE,
+                                        self._noise_bank, offset))
+
+    def step(self) -> SimChunk:
+        """Simulate the next APS frame period."""
+        t0 = self.t_us
+        t1 = t0 + FRAME_PERIOD_US
+        grid = np.arange(t0, t1 + 1, 1000, dtype=np.int64)
+        gestures = self._gestures_between(t0, t1)
+        pos, amp = self.marker_state(grid, gestures)
+        events = self.camera.events(grid, pos, amp, self._noise_rng)
+        if len(self._carry):
+            events = np.concatenate([self._carry, events])
+        cut = int(np.searchsorted(events["timestamp"], t1, side="left"))
+        self._carry = events[cut:]
+        chunk = SimChunk(
+            frame=self._frame(grid, pos, amp), events=events[:cut], label=self._label(t0, gestures, pos[0]),
+            t_us=grid[:-1], positions_px=pos[:-1].astype(np.float32),
+        )
+        self.t_us = t1
+        return chunk
+
+    def run(self, seconds: float | None = None) -> Iterator[SimChunk]:
+        """Successive chunks for ``seconds`` of simulated time (endless when None)."""
+        end = None if seconds is None else self.t_us + int(round(seconds * 1e6))
+        while end is None or self.t_us < end:
+            yield self.step()
+
+
+# --- the live source --------------------------------------------------------------------------
+class SimulatedSource:
+    """A live stream from the simulated gel, for the runtime and the demo.
+
+    Cycles through every gesture type (or ``gestures``) with rests in between, performed by user
+    ``seed % 10``. Same item kinds and order as ``RecordingReader.stream``: an APS
+    :class:`Frame` every 40 ms, yielded before the events with timestamp >= its t_us, and event
+    batches (EVENT_DTYPE, time-ordered) cut at the frame timestamps and every ``batch_us``.
+
+    Args:
+        sensor: geometry (default DATASET.md's); seed: simulation seed;
+        gestures: sequence of GestureType or their names ("push", ...).
+    """
+
+    def __init__(self, sensor: SensorGeometry | None = None, seed: int = 0, gestures: Sequence | None = None) -> None:
+        self.sensor = sensor or SensorGeometry()
+        order = [GestureType(g) for g in gestures] if gestures else list(SIM_GESTURES)
+        if any(g is GestureType.NONE for g in order) or not order:
+            raise NeurotouchError("the simulated gel needs gesture types among push, pinch, zoom, twist_cw, twist_ccw")
+        self.seed = seed
+        self._sim = GelSimulator(self.sensor, USERS[seed % len(USERS)], order, seed=seed, stream_seed=(0xC0FFEE,))
+
+    @property
+    def rest_px(self) -> np.ndarray:
+        """(N, 2) float64 true marker rest positions (image px)."""
+        return self._sim.gel.rest_px
+
+    def chunks(self, seconds: float | None = None) -> Iterator[SimChunk]:
+        """The simulation's frame periods with their labels and true marker positions."""
+        return self._sim.run(seconds)
+
+    def stream(self, seconds: float | None = None, batch_us: int = 1000) -> Iterator[StreamItem]:
+        """Frames and event batches for ``seconds`` of simulated time (endless when None).
+
+        Raises ValueError when batch_us < 1.
+        """
+        if batch_us < 1:
+            raise ValueError("batch_us must be >= 1")
+        for chunk in self._sim.run(seconds):
+            yield chunk.frame
+            yield from split_batches(chunk.events, chunk.frame.t_us, batch_us)
+
+
+def split_batches(events: np.ndarray, t0_us: int, batch_us: int) -> Iterator[np.ndarray]:
+    """Cut time-ordered events into the non-empty batches [t0 + k batch_us, t0 + (k+1) batch_us)."""
+    if not len(events):
+        return
+    edges = np.arange(t0_us + batch_us, int(events["timestamp"][-1]) + 1, batch_us)
+    bounds = np.concatenate([[0], np.searchsorted(events["timestamp"], edges, side="left"), [len(events)]])
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        if b > a:
+            yield events[a:b]
