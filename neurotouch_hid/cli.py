@@ -128,15 +128,33 @@ def run(
     output: str = typer.Option("gamepad", "--output", help="gamepad, jsonl or term"),
     seconds: Optional[float] = typer.Option(None, "--seconds", help="stop after this many seconds"),
     fast: bool = typer.Option(False, "--fast", help="do not pace recordings in real time"),
+    out: Optional[Path] = typer.Option(None, "--out", help="with --output jsonl: write the states here instead of stdout"),
+    window_us: int = typer.Option(10_000, "--window-us", help="window length in microseconds (>= 1000)"),
+    sensor: Optional[Path] = typer.Option(None, "--sensor", help="sensor.yaml (default: beside the recording, or the built-in one)"),
+    seed: int = typer.Option(0, "--seed", help="with --source sim: the simulation's seed"),
 ) -> None:
-    """Run the driver: source -> pipeline -> profile -> virtual gamepad."""
-    _todo("run")
+    """Run the driver: source -> pipeline -> profile -> virtual gamepad.
+
+    Stops at the end of the source, after --seconds, on Ctrl-C (exit 130) or SIGTERM (a clean
+    stop, exit 0), always leaving the gamepad neutral. SIGHUP reloads the profile."""
+    from neurotouch_hid.runtime import run_driver
+
+    stats = run_driver(source, profile, output, seconds=seconds, fast=fast, out=out, window_us=window_us,
+                       sensor=sensor, seed=seed, console=console)
+    err_console.print(stats.summary(), highlight=False, soft_wrap=True)
 
 
 @app.command()
 def demo(seconds: Optional[float] = typer.Option(30.0, "--seconds", help="how long to run")) -> None:
-    """A simulated gel performing every gesture, through the default profile, to the gamepad."""
-    _todo("demo")
+    """A simulated gel performing every gesture, through the default profile, to the gamepad.
+
+    Without a writable /dev/uinput the gamepad is shown in the terminal instead (one line says
+    why); without a terminal, one state line a second."""
+    from neurotouch_hid.runtime import run_demo
+
+    stats = run_demo(seconds, console=console,
+                     say=lambda line: err_console.print(line, markup=False, highlight=False, soft_wrap=True))
+    err_console.print(stats.summary(), highlight=False, soft_wrap=True)
 
 
 @app.command()
@@ -190,7 +208,7 @@ def profile_new(
     console.print(f"created {new_profile(name, from_name)} (a copy of {from_name})", highlight=False)
 
 
-@profile_app.command("set")
+@profile_app.command("set", context_settings={"ignore_unknown_options": True})  # VALUE may be -1
 def profile_set(
     name: str = typer.Argument(..., help="profile name (a shipped one is copied to the user folder)"),
     key: str = typer.Argument(..., help="dotted key, e.g. mappings.push.deadzone_mm"),

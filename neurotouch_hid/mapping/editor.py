@@ -123,7 +123,10 @@ def parse_value(text: str) -> Any:
 def _save_validated(name: str, document: Any) -> Path:
     target = user_profile_path(name)
     text = _dump(document)
-    parse_profile(text, target)  # raises ProfileError listing every problem; nothing written
+    try:
+        parse_profile(text, target)
+    except ProfileError as exc:
+        raise ProfileError(f"{exc}\n  nothing was changed ({target if target.exists() else 'no user copy'} kept as it was)") from None
     _write(target, text)
     return target
 

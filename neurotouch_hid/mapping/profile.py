@@ -46,7 +46,9 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError, ValidationInfo, field_validator
+from pydantic import (
+    BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError, ValidationInfo, create_model, field_validator,
+)
 
 from neurotouch_hid.controller import BUTTONS
 from neurotouch_hid.errors import ProfileError
@@ -170,12 +172,14 @@ class ButtonMapping(_Strict):
         return value
 
 
-class _UnknownOutput(BaseModel):
-    """Chosen only when ``output`` names no known output: reports it with the valid names."""
-
-    model_config = ConfigDict(extra="allow")
-    input: Literal[VECTOR_INPUTS + SCALAR_INPUTS]
-    output: Literal[ALL_OUTPUTS]
+_ANY_MAPPING_FIELDS = {**ButtonMapping.model_fields, **AxisMapping.model_fields, **StickMapping.model_fields}
+#: Chosen only when ``output`` names no known output: reports it with the valid names, and still
+#: checks every other field (known name, type, range) so that all problems show at once.
+_UnknownOutput = create_model(
+    "_UnknownOutput", __base__=_Strict,
+    input=(Literal[VECTOR_INPUTS + SCALAR_INPUTS], ...), output=(Literal[ALL_OUTPUTS], ...),
+    **{name: (f.annotation, f) for name, f in _ANY_MAPPING_FIELDS.items() if name not in ("input", "output")},
+)
 
 
 def _output_kind(value: Any) -> str:
@@ -198,7 +202,9 @@ Mapping = Annotated[
     ],
     Discriminator(_output_kind),
 ]
-_TAG_MODELS: dict[str, type[BaseModel]] = {"stick": StickMapping, "axis": AxisMapping, "button": ButtonMapping}
+_TAG_MODELS: dict[str, type[BaseModel]] = {
+    "stick": StickMapping, "axis": AxisMapping, "button": ButtonMapping, "unknown": _UnknownOutput,
+}
 
 
 class DeviceSpec(_Strict):
@@ -314,7 +320,7 @@ def _line_of(root: yaml.Node | None, loc: tuple) -> tuple[int, tuple]:
                 line, node = match[0].start_mark.line + 1, match[1]
                 path.append(part)
                 continue
-            if part in _TAG_MODELS or part == "unknown":
+            if part in _TAG_MODELS:
                 continue
         elif isinstance(node, yaml.SequenceNode) and isinstance(part, int) and 0 <= part < len(node.value):
             node = node.value[part]

@@ -1,0 +1,214 @@
+"""The ``neurotouch-hid profile`` commands, run as a user would (subprocess, XDG_CONFIG_HOME in tmp)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+from ruamel.yaml import YAML
+
+from neurotouch_hid.cli import main
+from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.mapping.profile import shipped_profiles_dir
+
+
+@pytest.fixture()
+def cli(tmp_path, monkeypatch, capsys):
+    """``neurotouch-hid profile ARGS`` in this process (cli.main: errors -> exit 2), XDG in tmp."""
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
+    monkeypatch.delenv("VISUAL", raising=False)
+
+    def run(*args: str, editor: str | None = None) -> subprocess.CompletedProcess:
+        if editor is not None:
+            monkeypatch.setenv("EDITOR", editor)
+        monkeypatch.setattr(sys, "argv", ["neurotouch-hid", "profile", *args])
+        capsys.readouterr()
+        try:
+            main()
+            code = 0
+        except SystemExit as exc:
+            code = exc.code or 0
+        out, err = capsys.readouterr()
+        return subprocess.CompletedProcess(args, code, out, err)
+
+    run.user_dir = tmp_path / "config" / "neurotouch-hid" / "profiles"
+    return run
+
+
+@pytest.fixture()
+def pushes(tmp_path):
+    """A hand-written predictions file: rest, a 3 mm push up for 1 s, rest."""
+    path = tmp_path / "pushes.jsonl"
+    lines = []
+    for i in range(300):
+        t = i * 10_000
+        pushing = 50 <= i < 150
+        e = GestureEstimate(t_us=t, gesture=GestureType.PUSH if pushing else GestureType.NONE, resting=not pushing,
+                            intensity_mm=3.0 if pushing else 0.0, translation_mm=[0.0, 1.2] if pushing else [0.0, 0.0])
+        lines.append(json.dumps(e.to_json_dict()))
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def summary(result: subprocess.CompletedProcess) -> dict:
+    assert result.returncode == 0, result.stderr
+    return json.loads(result.stdout)
+
+
+def test_new_set_and_test_show_the_effect(cli, pushes):
+    assert cli("new", "mine", "--from", "default").returncode == 0
+    mine = cli.user_dir / "mine.yaml"
+    assert mine.is_file()
+    assert cli("path", "mine").stdout.strip() == str(mine)
+
+    before = summary(cli("test", "mine", "--source", str(pushes), "--json"))
+    assert before["max_deflection"]["ABS_Y"] > 0.05       # the 3 mm push moves the left stick up
+    assert before["max_deflection"]["ABS_RY"] == 0
+
+    result = cli("set", "mine", "mappings.push.output", "right_stick")
+    assert result.returncode == 0, result.stderr
+    moved = summary(cli("test", "mine", "--source", str(pushes), "--json"))
+    assert moved["max_deflection"]["ABS_Y"] == 0 and moved["max_deflection"]["ABS_RY"] == before["max_deflection"]["ABS_Y"]
+
+    assert cli("set", "mine", "mappings.push.deadzone_mm", "3.5").returncode == 0
+    dead = summary(cli("test", "mine", "--source", str(pushes), "--json"))
+    assert dead["max_deflection"]["ABS_RY"] == 0               # now inside the dead zone
+
+    assert cli("set", "mine", "mappings.push.saturation_mm", "4.0").returncode == 0
+    assert cli("unset", "mine", "mappings.push.deadzone_mm").returncode == 0  # back to the 0.5 mm default
+    full = summary(cli("test", "mine", "--source", str(pushes), "--json"))
+    assert full["max_deflection"]["ABS_RY"] > before["max_deflection"]["ABS_Y"]
+
+    text = mine.read_text()
+    assert "# neurotouch-hid profile" in text and "# an 8 mm push gives full deflection" in text  # comments kept
+    assert "0x045e" in text                                                                      # hex kept
+    assert "deadzone_mm" not in YAML().load(text)["mappings"]["push"]
+
+
+def test_set_on_a_shipped_profile_writes_a_user_copy(cli):
+    shipped = (shipped_profiles_dir() / "spacecraft.yaml").read_text()
+    result = cli("set", "spacecraft", "mappings.roll.gain", "1.5")
+    assert result.returncode == 0, result.stderr
+    assert (shipped_profiles_dir() / "spacecraft.yaml").read_text() == shipped
+    copy = cli.user_dir / "spacecraft.yaml"
+    assert YAML().load(copy.read_text())["mappings"]["roll"]["gain"] == 1.5
+    assert cli("path", "spacecraft").stdout.strip() == str(copy)
+    listing = cli("list").stdout
+    assert "user (shadows shipped)" in listing
+
+
+@pytest.mark.parametrize("key, value, words", [
+    ("mappings.push.deadzone_mm", "lots", ["mappings.push.deadzone_mm", "found 'lots'", "number"]),
+    ("mappings.push.deadzone_mm", "-1", ["found -1", "greater than or equal to 0"]),
+    ("mappings.push.output", "ABS_FOO", ["found 'ABS_FOO'", "'left_stick'"]),
+    ("mappings.push.wobble", "2", ["mappings.push.wobble", "unknown field"]),
+    ("mappings.push.deadzone_mm.x", "2", ["is a value"]),
+])
+def test_a_bad_set_changes_nothing(cli, key, value, words):
+    assert cli("new", "mine").returncode == 0
+    mine = cli.user_dir / "mine.yaml"
+    original = mine.read_text()
+    result = cli("set", "mine", key, value)
+    assert result.returncode == 2
+    for w in words:
+        assert w in result.stderr, result.stderr
+    assert mine.read_text() == original
+    assert sorted(p.name for p in cli.user_dir.iterdir()) == ["mine.yaml"]  # no temporary left
+
+
+def test_a_bad_set_on_a_shipped_profile_creates_no_copy(cli):
+    assert cli("set", "default", "mappings.push.exponent", "0").returncode == 2
+    assert not (cli.user_dir / "default.yaml").exists()
+
+
+def test_validate_reports_every_problem_with_file_and_line(cli, tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(textwrap.dedent("""\
+        device:
+          vendor: -3
+        mappings:
+          push:
+            input: push
+            output: middle_stick
+            gain: "2"
+            colour: red
+    """))
+    result = cli("validate", str(bad))
+    assert result.returncode == 2
+    err = " ".join(result.stderr.split())  # rich may wrap long lines
+    for line, field in [(2, "device.vendor"), (6, "mappings.push.output"), (7, "mappings.push.gain"), (8, "mappings.push.colour")]:
+        assert f"{bad}:{line}: {field}:" in err, err
+    assert "4 problems" in err
+    good = cli("validate", str(shipped_profiles_dir() / "default.yaml"))
+    assert good.returncode == 0 and "ok" in good.stdout
+
+
+def test_new_refuses_an_existing_or_bad_name(cli):
+    assert cli("new", "mine").returncode == 0
+    again = cli("new", "mine")
+    assert again.returncode == 2 and "already exists" in again.stderr
+    assert cli("new", "../escape").returncode == 2
+    assert cli("new", "x", "--from", "nope").returncode == 2
+
+
+def test_edit_validates_and_reports_non_interactively(cli, tmp_path):
+    fix = cli("edit", "default", editor="sed -i s/deadzone_mm:\\ 0.8/deadzone_mm:\\ 1.2/")
+    assert fix.returncode == 0, fix.stderr
+    copy = cli.user_dir / "default.yaml"
+    assert "deadzone_mm: 1.2" in copy.read_text()
+    broken = cli("edit", "default", editor="sed -i s/deadzone_mm:\\ 1.2/deadzone_mm:\\ -2/")
+    assert broken.returncode == 2
+    assert "not valid" in broken.stderr and "deadzone_mm" in broken.stderr
+    assert "deadzone_mm: -2" in copy.read_text()  # the user's text is kept
+    missing = cli("edit", "default", editor="no-such-editor-here")
+    assert missing.returncode == 2 and "EDITOR" in missing.stderr
+
+
+def test_test_prints_a_timeline_and_plots(cli, pushes, tmp_path):
+    png = tmp_path / "t.png"
+    result = cli("test", "default", "--source", str(pushes), "--plot", str(png))
+    assert result.returncode == 0, result.stderr
+    assert "push" in result.stdout and "ABS_Y" in result.stdout and "summary" in result.stdout
+    rows = [l for l in result.stdout.splitlines() if l.strip().startswith("│") and ("none" in l or "push" in l)]
+    assert len(rows) >= 20  # ~30 rows at 100 ms over 3 s
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_tune_sets_saturation_from_what_the_user_reaches(cli, pushes):
+    result = cli("tune", "default", "--from", str(pushes))
+    assert result.returncode == 0, result.stderr
+    assert "push: saturation_mm 8 -> 3" in result.stdout
+    tuned = YAML().load((cli.user_dir / "default.yaml").read_text())
+    assert tuned["mappings"]["push"]["saturation_mm"] == 3.0
+    assert tuned["mappings"]["twist"]["saturation_mm"] == 6.0  # not exercised: unchanged
+    after = summary(cli("test", "default", "--source", str(pushes), "--json"))
+    assert after["max_deflection"]["ABS_Y"] == 1.0  # the weak push now reaches full travel
+
+
+def test_bad_predictions_file_names_its_line(cli, tmp_path):
+    bad = tmp_path / "bad.jsonl"
+    bad.write_text('{"t_us": 0, "gesture": "none", "resting": true, "intensity_mm": 0}\n{"t_us": 1, "gesture": "wave"}\n')
+    result = cli("test", "default", "--source", str(bad))
+    assert result.returncode == 2 and f"{bad}:2:" in " ".join(result.stderr.split())
+
+
+def test_the_installed_command_runs_as_a_user_would(tmp_path, pushes):
+    """The console script's module in a fresh process: copy, change, test."""
+    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "config")}
+
+    def run(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "neurotouch_hid.cli", "profile", *args],
+                              capture_output=True, text=True, env=env, stdin=subprocess.DEVNULL, timeout=120)
+
+    assert run("new", "mine", "--from", "spacecraft").returncode == 0
+    assert run("set", "mine", "mappings.push.output", "right_stick").returncode == 0
+    result = run("test", "mine", "--source", str(pushes), "--json")
+    assert result.returncode == 0, result.stderr
+    moved = json.loads(result.stdout)["max_deflection"]
+    assert moved["ABS_RY"] > 0 and moved["ABS_Y"] == 0
+    bad = run("set", "mine", "mappings.push.gain", "-1")
+    assert bad.returncode == 2 and "mappings.push.gain" in bad.stderr and "nothing was changed" in bad.stderr
