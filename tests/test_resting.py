@@ -48,6 +48,18 @@ def test_a_global_shift_gives_twice_the_squared_shift(detector, shift, expected)
     assert result.resting is (expected <= 2.5)
 
 
+def test_the_distance_is_per_reference_marker():
+    """Markers of 3 pixels (a vertical bar) shifted 2 px sideways: every pixel is 2 px from its
+    match both ways, so d = (3 * 4 + 3 * 4) / 1 marker = 24, whatever the marker count."""
+    def bars(dx):
+        img = np.zeros((SENSOR.height, SENSOR.width), np.uint8)
+        for x in (150, 170, 190):
+            img[129:132, x + dx] = 200
+        return img
+    result = RestingDetector(bars(0), SENSOR).update(bars(2))
+    assert result.distance == pytest.approx(24.0, rel=0.02)
+
+
 def test_a_local_deformation_is_not_rest(detector):
     result = detector.update(dots(shift=(4, 0), region=30))
     assert not result.resting and result.distance > 2.5
