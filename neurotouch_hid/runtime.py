@@ -50,6 +50,7 @@ LATENCY_SAMPLES = 65_536
 
 _POLL_S = 0.05
 _JOIN_S = 2.0
+_GRACE_S = 2.0
 
 
 def item_end_us(item: StreamItem) -> Optional[int]:
@@ -213,8 +214,9 @@ class Runtime:
             ``accepts_estimate`` attribute also get the window's estimate (gesture, intensity).
             The runtime does not close the output (its owner does; the gamepad device outlives
             profile switches).
-        resting: a resting detector (``update(frame) -> result``) run in its own thread on APS
-            frames; None when the pipeline does its own resting detection.
+        resting: a resting detector (``update(frame) -> result``, None = no verdict yet) run in
+            its own thread on APS frames; its results go to ``pipeline.set_resting(result,
+            frame.t_us)`` (thread-safe). None when the pipeline does its own resting detection.
         pace: sleep so that item timestamps follow wall time (recordings, the simulated gel).
         live: the source is real time by itself (the camera): not paced, but like a paced source
             its data is dropped, oldest first, when the pipeline falls behind. With neither
@@ -256,7 +258,6 @@ class Runtime:
         self.stats = RunStats()
         self._items = DropOldestQueue(queue_items, drop_oldest=self._realtime, on_drop=self._count_drop)
         self._frames = DropOldestQueue(DEFAULT_FRAME_QUEUE, drop_oldest=self._realtime, on_drop=self._count_resting_drop)
-        self._resting_results: collections.deque = collections.deque()
         self._stop = threading.Event()
         self._reload = threading.Event()
         self._lock = threading.Lock()  # mapper + output: the worker vs. profile switches
@@ -264,6 +265,7 @@ class Runtime:
         self._last_state = ControllerState.neutral()
         self._last_gesture: GestureType | None = None
         self._limit_us: int | None = None
+        self._first_ns = 0  # perf_counter_ns of the first item read
         self._ran = False
 
     # --- control ----------------------------------------------------------------------------
@@ -322,15 +324,17 @@ class Runtime:
             try:
                 for t in threads:
                     t.start()
-                deadline = None if seconds is None or not self._realtime else start + seconds + 2.0
                 worker = threads[1]
                 while worker.is_alive():
                     worker.join(_POLL_S)
                     if self._reload.is_set():
                         self._reload.clear()
                         self.reload_profile()
-                    if deadline is not None and time.perf_counter() > deadline:
-                        self.stop()
+                    if seconds is not None and self._realtime:
+                        # a real-time source that stalls still ends: wall deadline from its first item
+                        first = self._first_ns / 1e9 if self._first_ns else start
+                        if time.perf_counter() > first + seconds + _GRACE_S:
+                            self.stop()
             except KeyboardInterrupt:
                 interrupted = True
             finally:
@@ -384,6 +388,7 @@ class Runtime:
                 if t_us is not None:
                     if first_us is None:
                         first_us, first_ns = t_us, time.perf_counter_ns()
+                        self._first_ns = first_ns
                     if self._limit_us is not None and t_us - first_us >= self._limit_us:
                         break
                     if self._pace:
@@ -405,7 +410,7 @@ class Runtime:
             self._frames.close()
 
     def _rest(self) -> None:
-        """Resting thread: run the detector on APS frames, queue (result, t_us) for the pipeline."""
+        """Resting thread: run the detector on APS frames, hand each verdict to the pipeline."""
         try:
             while not self._stop.is_set():
                 entry = self._frames.get()
@@ -414,7 +419,10 @@ class Runtime:
                         break
                     continue
                 frame = entry[1]
-                self._resting_results.append((self._resting.update(frame), int(frame.t_us)))
+                result = self._resting.update(frame)
+                if result is not None:
+                    self._pipeline.set_resting(result, int(frame.t_us))
+                    self.stats.resting_updates += 1
         except BaseException as exc:
             self._errors.append(exc)
             self.stop()
@@ -431,10 +439,6 @@ class Runtime:
                         break
                     continue
                 arrival_ns, item = entry
-                while self._resting_results:
-                    result, t_us = self._resting_results.popleft()
-                    self._pipeline.set_resting(result, t_us)
-                    stats.resting_updates += 1
                 estimates = self._pipeline.process(item)
                 if isinstance(item, Frame):
                     stats.frames += 1
@@ -455,6 +459,8 @@ class Runtime:
 
     def _emit(self, estimate: GestureEstimate) -> None:
         with self._lock:
+            if self._stop.is_set():  # run() neutralises (under this lock): nothing after that
+                return
             state = self._mapper.update(estimate)
             last = self._last_state
             changed = state.axes != last.axes or state.buttons != last.buttons
@@ -524,6 +530,30 @@ def open_output(kind: str, profile: Any, stack: contextlib.ExitStack, *, out: st
     from neurotouch_hid.output.term import TermView
 
     return stack.enter_context(TermView(console))
+
+
+class PipelineResting:
+    """The pipeline's own resting detector, run from the runtime's resting thread.
+
+    ``GesturePipeline`` creates its :class:`~neurotouch_hid.pipeline.resting.RestingDetector` at
+    its reference (first) APS frame; until then :meth:`update` has no verdict (None)."""
+
+    def __init__(self, pipeline: Any):
+        self._pipeline = pipeline
+
+    def update(self, frame: Frame) -> Any:
+        """The Chamfer-distance verdict for ``frame`` (``RestingResult``), or None."""
+        detector = self._pipeline.resting_detector
+        return None if detector is None else detector.update(frame)
+
+
+def build_pipeline(geometry: Any, window_us: int) -> tuple[Any, PipelineResting]:
+    """A ``GesturePipeline`` with ``window_us`` windows whose resting detection runs beside it
+    (``detect_resting=False``; paper, section "Runtime Performance"), and that detector."""
+    from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
+
+    pipeline = GesturePipeline(geometry, PipelineConfig(window_us=window_us, detect_resting=False))
+    return pipeline, PipelineResting(pipeline)
 
 
 def run_driver(source: str = "davis", profile: str | Path = "default", output: str = "gamepad", *,

@@ -288,3 +288,106 @@ def test_resting_results_reach_the_pipeline_from_their_own_thread():
     ts = [t for _, t in pipeline.resting]
     assert ts == sorted(ts) and set(ts) <= {i * 40_000 for i in range(10)}
     assert stats.frames == 10 and stats.resting_updates == len(ts) > 0
+
+
+# --- the real stages, through the CLI -----------------------------------------------------------
+import json  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+
+CLI = [sys.executable, "-c", "from neurotouch_hid.cli import main; main()"]
+ENV = dict(os.environ, PYTHONUNBUFFERED="1", COLUMNS="160")
+
+
+def read_states(text: str) -> list[dict]:
+    return [json.loads(line) for line in text.splitlines() if line.strip()]
+
+
+def is_neutral(line: dict) -> bool:
+    from neurotouch_hid.controller import AXES
+
+    return all(line["axes"][n] == AXES[n][2] for n in AXES) and not any(line["buttons"].values())
+
+
+@pytest.fixture(scope="module")
+def push_recording(tmp_path_factory) -> "os.PathLike":
+    """4.5 s of the simulated gel (rest, one push, release, rest) written as an AEDAT4 recording
+    with its sensor.yaml, the way `neurotouch-hid simulate` stores sequences."""
+    from neurotouch_hid.sources.recording import RecordingWriter
+    from neurotouch_hid.sources.simulator import SimulatedSource
+
+    folder = tmp_path_factory.mktemp("push")
+    sim = SimulatedSource(seed=0, gestures=["push"])
+    sim.sensor.save(folder / "sensor.yaml")
+    path = folder / "push.aedat4"
+    labels = []
+    with RecordingWriter(path) as writer:
+        for chunk in sim.chunks(4.5):
+            writer.write_frame(chunk.frame)
+            writer.write_events(chunk.events)
+            labels.append((chunk.frame.t_us, chunk.label.gesture))
+    assert any(g == GestureType.PUSH for _, g in labels) and labels[-1][1] == GestureType.NONE
+    return path
+
+
+def test_run_on_a_recording_moves_the_stick_during_the_push_and_ends_neutral(push_recording, tmp_path):
+    out = tmp_path / "states.jsonl"
+    proc = subprocess.run([*CLI, "run", "--source", str(push_recording), "--output", "jsonl", "--fast",
+                           "--out", str(out)], capture_output=True, text=True, env=ENV, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    states = read_states(out.read_text())
+    pushes = [s for s in states if s["gesture"] == "push"]
+    assert pushes, "no push recognised"
+    # the default profile puts a push on the left stick
+    assert any(abs(s["axes"]["ABS_X"]) + abs(s["axes"]["ABS_Y"]) > 3000 for s in pushes)
+    # after the release the pipeline itself brings the stick back (before the final neutralise)
+    assert is_neutral(states[-2]) and is_neutral(states[-1])
+    assert [s["t_us"] for s in states] == sorted(s["t_us"] for s in states)
+    assert "dropped 0 items" in proc.stderr  # --fast drops nothing
+
+
+def test_sigterm_ends_a_live_run_with_a_neutral_state_and_exit_0():
+    proc = subprocess.Popen([*CLI, "run", "--source", "sim", "--output", "jsonl"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=ENV)
+    try:
+        lines = []
+        for line in proc.stdout:  # wait for the first gesture moving the pad
+            lines.append(json.loads(line))
+            if not is_neutral(lines[-1]):
+                break
+        assert lines and not is_neutral(lines[-1]), proc.stderr.read() if proc.poll() is not None else ""
+        proc.send_signal(signal.SIGTERM)
+        rest, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    final = read_states(rest)
+    assert final and is_neutral(final[-1])
+
+
+def test_demo_without_uinput_shows_the_terminal_view_and_says_why(tmp_path):
+    if os.access("/dev/uinput", os.W_OK):
+        pytest.skip(reason="/dev/uinput is writable here: the demo uses the real gamepad")
+    proc = subprocess.run([*CLI, "demo", "--seconds", "3"], capture_output=True, text=True, env=ENV,
+                          timeout=300, stdin=subprocess.DEVNULL)
+    assert proc.returncode == 0, proc.stderr
+    assert "no writable /dev/uinput (" in proc.stderr
+    assert "showing the gamepad in the terminal instead; see `neurotouch-hid doctor`" in proc.stderr
+    # no TTY: plain state lines, not escape codes
+    assert "\x1b[" not in proc.stdout
+    lines = [line for line in proc.stdout.splitlines() if line.strip()]
+    assert lines and all(line.startswith("t ") and "L(" in line for line in lines)
+
+
+def test_a_bad_profile_raises_before_any_output_or_source_exists(tmp_path, monkeypatch):
+    import neurotouch_hid.runtime as runtime
+
+    opened = []
+    monkeypatch.setattr(runtime, "open_output", lambda *a, **k: opened.append("output"))
+    monkeypatch.setattr(runtime, "open_source", lambda *a, **k: opened.append("source"))
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("mappings:\n  push: {input: nonsense, output: left_stick}\n")
+    with pytest.raises(ProfileError, match="bad.yaml"):
+        runtime.run_driver("sim", bad, "gamepad")
+    assert opened == []

@@ -13,8 +13,9 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import IO
 
+from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.errors import DatasetError
-from neurotouch_hid.estimate import GestureEstimate
+from neurotouch_hid.estimate import GestureEstimate, GestureType
 
 
 class JsonlWriter:
@@ -115,3 +116,41 @@ def read_predictions(path: str | Path) -> list[GestureEstimate]:
             raise DatasetError(f"{path}:{number}: t_us {estimate.t_us} goes back in time (previous line: {estimates[-1].t_us})")
         estimates.append(estimate)
     return estimates
+
+
+class StateJsonlWriter(JsonlWriter):
+    """Controller states as JSON lines (``neurotouch-hid run --output jsonl``), one per change.
+
+    Each line: ``{"t_us": int, "gesture": str, "intensity_mm": float, "axes": {evdev name: int},
+    "buttons": {evdev name: bool}}``, every axis and button of :mod:`neurotouch_hid.controller`;
+    ``gesture`` and ``intensity_mm`` are those of the window's estimate. :meth:`neutralise`
+    writes a neutral line (gesture ``none``), so a stopped run always ends on one. Lines are
+    flushed as written (another process reads them live).
+
+    Args:
+        out: a file path, ``"-"`` or None for stdout, or an open text stream.
+    Raises:
+        DatasetError: the file cannot be opened for writing.
+    """
+
+    #: The runtime hands this output each window's estimate too (its gesture and intensity).
+    accepts_estimate = True
+
+    def __init__(self, out: str | Path | IO[str] | None = None) -> None:
+        super().__init__("-" if out is None else out, flush=True)
+        self._t_us = 0
+
+    def write(self, state: ControllerState, estimate: GestureEstimate | None = None) -> None:
+        """Write ``state`` (with the estimate's gesture and intensity) as one line."""
+        self._t_us = int(state.t_us)
+        self.write_dict({
+            "t_us": int(state.t_us),
+            "gesture": (estimate.gesture if estimate is not None else GestureType.NONE).value,
+            "intensity_mm": round(float(estimate.intensity_mm), 4) if estimate is not None else 0.0,
+            "axes": {name: int(v) for name, v in state.axes.items()},
+            "buttons": {name: bool(v) for name, v in state.buttons.items()},
+        })
+
+    def neutralise(self) -> None:
+        """Write the neutral state (all axes centred, all buttons released) at the last time."""
+        self.write(ControllerState.neutral(self._t_us))
