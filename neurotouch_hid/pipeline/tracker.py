@@ -1,0 +1,444 @@
+"""Event-by-event blob tracking of the gel's markers (paper, section Marker Tracking).
+
+The paper tracks its markers with the asynchronous event-blob tracker of Wang et al.
+("Asynchronous Blob Tracker for Event Cameras", IEEE T-RO 2024, AEB-Tracker), restricted to
+circular blobs of one fixed size Lambda, which makes that tracker's EKF linear. This module is
+that linear filter, per blob and per event:
+
+* state per blob and per image axis: position p, velocity v and the polarity offset q of
+  AEB-Tracker (white markers on black: ON events lead the true centre along the motion, OFF events
+  trail it, so an ON event measures p + q and an OFF event p - q);
+* prediction over the time dt since the blob's last update: a constant-velocity model whose
+  velocity decays with time constant ``velocity_tau_us`` (a blob that stops producing events has
+  stopped moving), process noise scaled by dt;
+* measurement: the event's pixel, H = [1, 0, +-1], noise Lambda^2 = ``sigma_px``^2.
+
+The x and y axes share one 3x3 covariance: the model is isotropic and both axes see the same
+measurements, so their covariances are equal at all times (half the arithmetic).
+
+Association: each event goes to the blob that owns its pixel in a label image (per-pixel lookup,
+O(1) per event, no scan of the blobs). A blob owns the pixels within ``assoc_px`` of its integer
+position, nearest blob first; the label image is repainted when a blob moves to another integer
+pixel. Events on pixels no blob owns are noise and are skipped. A per-blob event-rate gate skips
+isolated events (background-activity noise near a blob at rest): an event updates its blob only
+when the blob's leaky event count (time constant ``rate_tau_us``) reaches ``min_rate_count``.
+A blob is lost (``valid`` False, no longer updated) when it leaves the gel circle or comes within
+``merge_px`` of another blob. The pipeline re-initialises the tracker at rest with
+:meth:`BlobTracker.reset` (paper, section Resting Position Detection).
+
+Displacements v_i = p_i(t) - p_i(t0) are computed downstream from ``positions_px`` and the rest
+positions.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.sources import EVENT_DTYPE
+
+#: Number of neighbours per blob remembered for ownership hand-over and merge detection.
+_N_NEIGHBOURS = 12
+
+
+@dataclass
+class TrackerConfig:
+    """Parameters of :class:`BlobTracker` (units: px, microseconds; velocities px/ms).
+
+    Attributes:
+        sigma_px: fixed blob size Lambda (px); the measurement noise is sigma_px^2.
+        assoc_px: association threshold (px): an event can update a blob only within this distance
+            of the blob's integer position. Below half the marker spacing (~10 px).
+        q_pos: position process noise (px^2 per ms).
+        q_vel: velocity process noise ((px/ms)^2 per ms).
+        q_offset: polarity-offset process noise (px^2 per ms).
+        p0_pos, p0_vel, p0_offset: initial variances (px^2, (px/ms)^2, px^2) at init/reset.
+        velocity_tau_us: time constant of the velocity's decay between a blob's events (us).
+        rate_tau_us: time constant of the per-blob leaky event count (us).
+        min_rate_count: leaky event count a blob needs for an event to update it (1 = no gate).
+        refractory_us: a same-polarity event at a pixel within this time (us) of the last one
+            used there is skipped (one edge crossing makes a burst of events at a pixel).
+        merge_px: two blobs closer than this are both lost.
+        gel_margin_px: a blob farther than gel radius + margin from the gel centre is lost.
+    """
+
+    sigma_px: float = 1.0
+    assoc_px: float = 4.0
+    q_pos: float = 1e-3
+    q_vel: float = 2e-3
+    q_offset: float = 1e-2
+    p0_pos: float = 0.1
+    p0_vel: float = 1e-2
+    p0_offset: float = 0.5
+    velocity_tau_us: float = 8_000.0
+    rate_tau_us: float = 1_000.0
+    min_rate_count: float = 2.0
+    refractory_us: float = 0.0
+    merge_px: float = 2.0
+    gel_margin_px: float = 4.0
+
+
+# Indices into the float parameter vector handed to the numba kernel.
+_P_SIGMA2, _P_QPOS, _P_QVEL, _P_QOFF, _P_TAUV, _P_TAUR, _P_MINRATE, _P_MERGE2, _P_CX, _P_CY, _P_R2, _P_ASSOC2, _P_REFRACTORY = range(13)
+# Columns of the per-blob state: position, velocity (px/ms), polarity offset (px).
+_PX, _PY, _VX, _VY, _QX, _QY = range(6)
+# Columns of the shared per-axis covariance [p, v, q]: P00 P01 P02 P11 P12 P22.
+_C00, _C01, _C02, _C11, _C12, _C22 = range(6)
+# Counters: events applied, gated out by the rate gate, noise (no owner), within a pixel's refractory period.
+_N_APPLIED, _N_GATED, _N_NOISE, _N_REFRACTORY = range(4)
+
+
+@numba.njit(cache=True)
+def _release(i, cell, label, disc, neigh, valid, state, assoc2):
+    """Hand the pixels blob ``i`` owns around its cell to the nearest valid neighbour owning them."""
+    h, w = label.shape
+    cx, cy = cell[i, 0], cell[i, 1]
+    for k in range(disc.shape[0]):
+        x = cx + disc[k, 0]
+        y = cy + disc[k, 1]
+        if x < 0 or y < 0 or x >= w or y >= h or label[y, x] != i:
+            continue
+        best = -1
+        best_d = 1e30
+        for m in range(neigh.shape[1]):
+            j = neigh[i, m]
+            if j < 0 or not valid[j]:
+                continue
+            ddx = x - cell[j, 0]
+            ddy = y - cell[j, 1]
+            if ddx * ddx + ddy * ddy > assoc2:
+                continue
+            fx = x - state[j, _PX]
+            fy = y - state[j, _PY]
+            d = fx * fx + fy * fy
+            if d < best_d:
+                best_d = d
+                best = j
+        label[y, x] = best
+
+
+@numba.njit(cache=True)
+def _claim(i, cell, label, disc, state):
+    """Give blob ``i`` the pixels of its disc that no blob owns or that it is nearer to."""
+    h, w = label.shape
+    cx, cy = cell[i, 0], cell[i, 1]
+    px, py = state[i, _PX], state[i, _PY]
+    for k in range(disc.shape[0]):
+        x = cx + disc[k, 0]
+        y = cy + disc[k, 1]
+        if x < 0 or y < 0 or x >= w or y >= h:
+            continue
+        o = label[y, x]
+        if o >= 0 and o != i:
+            fx = x - px
+            fy = y - py
+            gx = x - state[o, _PX]
+            gy = y - state[o, _PY]
+            if fx * fx + fy * fy >= gx * gx + gy * gy:
+                continue
+        label[y, x] = i
+
+
+@numba.njit(cache=True)
+def _paint_all(state, valid, cell, label, disc):
+    """Reset the label image and let every valid blob claim its disc (nearest blob wins)."""
+    label[:, :] = -1
+    for i in range(state.shape[0]):
+        cell[i, 0] = int(math.floor(state[i, _PX] + 0.5))
+        cell[i, 1] = int(math.floor(state[i, _PY] + 0.5))
+        if valid[i]:
+            _claim(i, cell, label, disc, state)
+
+
+@numba.njit(cache=True)
+def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, last_t, last_pol, disc, neigh, prm, counts):
+    """The event loop: per-pixel association, rate gate, linear Kalman predict + update, repaint."""
+    sigma2 = prm[_P_SIGMA2]
+    q_pos = prm[_P_QPOS]
+    q_vel = prm[_P_QVEL]
+    q_off = prm[_P_QOFF]
+    tau_v = prm[_P_TAUV]
+    tau_r = prm[_P_TAUR]
+    min_rate = prm[_P_MINRATE]
+    merge2 = prm[_P_MERGE2]
+    gcx = prm[_P_CX]
+    gcy = prm[_P_CY]
+    gr2 = prm[_P_R2]
+    assoc2 = prm[_P_ASSOC2]
+    refractory = np.int64(prm[_P_REFRACTORY])
+    h, w = label.shape
+    for k in range(ts.shape[0]):
+        x = np.int64(xs[k])
+        y = np.int64(ys[k])
+        if x < 0 or y < 0 or x >= w or y >= h:
+            counts[_N_NOISE] += 1
+            continue
+        i = label[y, x]
+        if i < 0:
+            counts[_N_NOISE] += 1
+            continue
+        t = ts[k]
+        # Per-blob event-rate gate: leaky count of the events this blob owned.
+        if t_seen[i] >= 0:
+            dts = max(t - t_seen[i], 0) * 1.0
+            rate[i] = rate[i] / (1.0 + dts / tau_r) + 1.0
+        else:
+            rate[i] = 1.0
+        t_seen[i] = t
+        if rate[i] < min_rate:
+            counts[_N_GATED] += 1
+            continue
+        # Per-pixel refractory period: a burst of same-polarity events at one pixel is one edge
+        # crossing, not independent measurements.
+        pol = np.int8(1 if ps[k] > 0 else 0)
+        if last_pol[y, x] == pol and t - last_t[y, x] < refractory:
+            counts[_N_REFRACTORY] += 1
+            continue
+        last_t[y, x] = t
+        last_pol[y, x] = pol
+        counts[_N_APPLIED] += 1
+        # Predict over dt (ms) with the damped constant-velocity model.
+        dt = 0.0
+        if t_upd[i] >= 0:
+            dt = max(t - t_upd[i], 0) * 1e-3
+        t_upd[i] = t
+        d = 1.0 / (1.0 + dt / tau_v)
+        a = dt * d
+        state[i, _PX] += a * state[i, _VX]
+        state[i, _PY] += a * state[i, _VY]
+        state[i, _VX] *= d
+        state[i, _VY] *= d
+        c00 = cov[i, _C00]
+        c01 = cov[i, _C01]
+        c02 = cov[i, _C02]
+        c11 = cov[i, _C11]
+        c12 = cov[i, _C12]
+        c22 = cov[i, _C22]
+        c00 = c00 + 2.0 * a * c01 + a * a * c11 + q_pos * dt
+        c01 = d * (c01 + a * c11)
+        c02 = c02 + a * c12
+        c11 = d * d * c11 + q_vel * dt
+        c12 = d * c12
+        c22 = c22 + q_off * dt
+        # Update with the event: z = p + s*q, s = +1 for ON, -1 for OFF.
+        s = 1.0 if ps[k] > 0 else -1.0
+        h0 = c00 + s * c02
+        h1 = c01 + s * c12
+        h2 = c02 + s * c22
+        inv_s = 1.0 / (h0 + s * h2 + sigma2)
+        k0 = h0 * inv_s
+        k1 = h1 * inv_s
+        k2 = h2 * inv_s
+        rx = x - (state[i, _PX] + s * state[i, _QX])
+        ry = y - (state[i, _PY] + s * state[i, _QY])
+        state[i, _PX] += k0 * rx
+        state[i, _PY] += k0 * ry
+        state[i, _VX] += k1 * rx
+        state[i, _VY] += k1 * ry
+        state[i, _QX] += k2 * rx
+        state[i, _QY] += k2 * ry
+        cov[i, _C00] = c00 - k0 * h0
+        cov[i, _C01] = c01 - k0 * h1
+        cov[i, _C02] = c02 - k0 * h2
+        cov[i, _C11] = c11 - k1 * h1
+        cov[i, _C12] = c12 - k1 * h2
+        cov[i, _C22] = c22 - k2 * h2
+        # Moved to another integer pixel: check lost / merged, then repaint its ownership.
+        nx = int(math.floor(state[i, _PX] + 0.5))
+        ny = int(math.floor(state[i, _PY] + 0.5))
+        if nx == cell[i, 0] and ny == cell[i, 1]:
+            continue
+        gx = state[i, _PX] - gcx
+        gy = state[i, _PY] - gcy
+        lost = gx * gx + gy * gy > gr2
+        for m in range(neigh.shape[1]):
+            j = neigh[i, m]
+            if j < 0 or not valid[j]:
+                continue
+            fx = state[i, _PX] - state[j, _PX]
+            fy = state[i, _PY] - state[j, _PY]
+            if fx * fx + fy * fy < merge2:
+                valid[j] = False
+                _release(j, cell, label, disc, neigh, valid, state, assoc2)
+                lost = True
+        if lost:
+            valid[i] = False
+            _release(i, cell, label, disc, neigh, valid, state, assoc2)
+            continue
+        _release(i, cell, label, disc, neigh, valid, state, assoc2)
+        cell[i, 0] = nx
+        cell[i, 1] = ny
+        _claim(i, cell, label, disc, state)
+
+
+def _disc_offsets(radius_px: float) -> np.ndarray:
+    """(K, 2) int64 pixel offsets (dx, dy) within ``radius_px`` of a pixel centre."""
+    r = int(math.ceil(radius_px))
+    dy, dx = np.mgrid[-r : r + 1, -r : r + 1]
+    inside = dx * dx + dy * dy <= radius_px * radius_px
+    return np.stack([dx[inside], dy[inside]], axis=1).astype(np.int64)
+
+
+def _neighbours(positions: np.ndarray, k: int) -> np.ndarray:
+    """(N, k) int64 indices of each point's k nearest other points (-1 pads when N - 1 < k)."""
+    n = len(positions)
+    out = np.full((n, k), -1, dtype=np.int64)
+    if n < 2:
+        return out
+    d = np.hypot(positions[:, None, 0] - positions[None, :, 0], positions[:, None, 1] - positions[None, :, 1])
+    np.fill_diagonal(d, np.inf)
+    m = min(k, n - 1)
+    out[:, :m] = np.argsort(d, axis=1)[:, :m]
+    return out
+
+
+class BlobTracker:
+    """Asynchronous event-blob tracker of the gel's markers (paper, section Marker Tracking).
+
+    Args:
+        initial_px: (N, 2) float, initial marker positions (x, y), image frame, px (from
+            :func:`neurotouch_hid.pipeline.markers.detect_markers` on an APS frame at rest).
+        width, height: image size (px).
+        config: :class:`TrackerConfig` (defaults if None).
+        sensor: when given, a blob farther than the gel radius + ``config.gel_margin_px`` from the
+            gel centre is lost; without it, a blob leaving the image is.
+
+    Attributes:
+        positions_px: (N, 2) float64 current positions, image frame, px (a copy).
+        valid: (N,) bool, False for a lost marker (a copy).
+        velocities_px_per_s: (N, 2) float64 current velocity estimates, px/s (a copy).
+        counts: dict of event counters since construction: applied, gated (rate gate), noise.
+    """
+
+    def __init__(
+        self,
+        initial_px: np.ndarray,
+        width: int = 346,
+        height: int = 260,
+        config: TrackerConfig | None = None,
+        *,
+        sensor: SensorGeometry | None = None,
+    ) -> None:
+        self.config = config or TrackerConfig()
+        self.width = int(width)
+        self.height = int(height)
+        c = self.config
+        if not 0 < c.assoc_px:
+            raise ValueError(f"assoc_px must be positive, got {c.assoc_px}")
+        if sensor is not None:
+            cx, cy = sensor.gel_center_px
+            r = sensor.gel_radius_px + c.gel_margin_px
+        else:  # the image's circumscribed circle: blobs are lost only when leaving the image
+            cx, cy = (self.width - 1) / 2.0, (self.height - 1) / 2.0
+            r = math.hypot(self.width, self.height) / 2.0
+        self._sensor = sensor
+        self._params = np.array(
+            [
+                c.sigma_px**2,
+                c.q_pos,
+                c.q_vel,
+                c.q_offset,
+                c.velocity_tau_us * 1e-3,
+                float(c.rate_tau_us),
+                c.min_rate_count,
+                c.merge_px**2,
+                cx,
+                cy,
+                r * r,
+                c.assoc_px**2,
+                float(c.refractory_us),
+            ],
+            dtype=np.float64,
+        )
+        self._disc = _disc_offsets(c.assoc_px)
+        self._label = np.full((self.height, self.width), -1, dtype=np.int32)
+        self._last_t = np.full((self.height, self.width), np.iinfo(np.int64).min // 2, dtype=np.int64)
+        self._last_pol = np.full((self.height, self.width), -1, dtype=np.int8)
+        self._counts = np.zeros(4, dtype=np.int64)
+        self.reset(initial_px)
+
+    def reset(self, positions_px: np.ndarray) -> None:
+        """Re-initialise every blob at ``positions_px`` (N, 2) float px, image frame, at rest
+        (paper, section Resting Position Detection): zero velocity and offset, initial covariance,
+        ownership repainted. N may differ from the previous N. Blobs outside the gel (or image)
+        start lost. Raises ValueError when ``positions_px`` is not (N, 2) finite."""
+        p = np.asarray(positions_px, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 2 or not np.all(np.isfinite(p)):
+            raise ValueError(f"positions_px must be a finite (N, 2) array, got shape {p.shape}")
+        n = len(p)
+        c = self.config
+        self._state = np.zeros((n, 6), dtype=np.float64)
+        self._state[:, :2] = p
+        self._cov = np.zeros((n, 6), dtype=np.float64)
+        self._cov[:, _C00] = c.p0_pos
+        self._cov[:, _C11] = c.p0_vel
+        self._cov[:, _C22] = c.p0_offset
+        self._t_upd = np.full(n, -1, dtype=np.int64)
+        self._t_seen = np.full(n, -1, dtype=np.int64)
+        self._rate = np.zeros(n, dtype=np.float64)
+        cx, cy, r2 = self._params[_P_CX], self._params[_P_CY], self._params[_P_R2]
+        in_image = (p[:, 0] >= 0) & (p[:, 1] >= 0) & (p[:, 0] <= self.width - 1) & (p[:, 1] <= self.height - 1)
+        self._valid = in_image & ((p[:, 0] - cx) ** 2 + (p[:, 1] - cy) ** 2 <= r2)
+        self._cell = np.zeros((n, 2), dtype=np.int64)
+        self._neigh = _neighbours(p, _N_NEIGHBOURS)
+        _paint_all(self._state, self._valid, self._cell, self._label, self._disc)
+
+    def update(self, events: np.ndarray) -> None:
+        """Track through a batch of events, event by event (numba).
+
+        Args:
+            events: structured array of :data:`neurotouch_hid.sources.EVENT_DTYPE`, time-ordered
+                (timestamp int64 us, x/y int16 px image frame, polarity 1 = ON, 0 = OFF).
+        Raises:
+            ValueError: ``events`` lacks the EVENT_DTYPE fields.
+        """
+        if events.dtype.names is None or not set(EVENT_DTYPE.names) <= set(events.dtype.names):
+            raise ValueError(f"events must have the EVENT_DTYPE fields {EVENT_DTYPE.names}, got {events.dtype}")
+        if len(events) == 0 or len(self._state) == 0:
+            return
+        _track(
+            events["timestamp"],
+            events["x"],
+            events["y"],
+            events["polarity"],
+            self._state,
+            self._cov,
+            self._t_upd,
+            self._t_seen,
+            self._rate,
+            self._valid,
+            self._cell,
+            self._label,
+            self._last_t,
+            self._last_pol,
+            self._disc,
+            self._neigh,
+            self._params,
+            self._counts,
+        )
+
+    @property
+    def positions_px(self) -> np.ndarray:
+        return self._state[:, :2].copy()
+
+    @property
+    def velocities_px_per_s(self) -> np.ndarray:
+        return self._state[:, 2:4] * 1e3
+
+    @property
+    def valid(self) -> np.ndarray:
+        return self._valid.copy()
+
+    @property
+    def counts(self) -> dict[str, int]:
+        names = {"applied": _N_APPLIED, "gated": _N_GATED, "noise": _N_NOISE, "refractory": _N_REFRACTORY}
+        return {name: int(self._counts[k]) for name, k in names.items()}
+
+    def owner_image(self) -> np.ndarray:
+        """(height, width) int32 copy of the label image: index of the blob owning each pixel, -1
+        for none (for drawing and tests)."""
+        return self._label.copy()

@@ -1,0 +1,214 @@
+"""The event-blob tracker (paper, section Marker Tracking) on hand-made event streams whose true
+blob positions are known: a tiny ESIM-like generator renders white dots on black and emits an
+event each time a pixel's log intensity crosses a contrast threshold."""
+
+import numpy as np
+import pytest
+
+from neurotouch_hid.pipeline.tracker import BlobTracker, TrackerConfig
+from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.sources import EVENT_DTYPE
+
+SENSOR = SensorGeometry()
+
+
+def render(centres, xs, ys, radius=1.25, background=0.05):
+    """Intensity (0..1) of white discs with a 1 px linear edge on a dark background."""
+    img = np.full(xs.shape, background)
+    for cx, cy in centres:
+        d = np.hypot(xs - cx, ys - cy)
+        img = np.maximum(img, background + (1 - background) * np.clip(radius + 0.5 - d, 0, 1))
+    return img
+
+
+def esim(trajectory, t_end_us, box, step_us=20, contrast=0.25, seed=0):
+    """Events (EVENT_DTYPE, time-ordered) of dots at ``trajectory(t_us) -> (N, 2)`` px, in the
+    pixel box (x0, y0, x1, y1), from t = 0 to ``t_end_us``."""
+    x0, y0, x1, y1 = box
+    ys, xs = np.mgrid[y0:y1, x0:x1].astype(float)
+    ref = np.log(render(trajectory(0), xs, ys))
+    rng = np.random.default_rng(seed)
+    out = []
+    for t in range(step_us, t_end_us + 1, step_us):
+        diff = np.log(render(trajectory(t), xs, ys)) - ref
+        n = np.floor(np.abs(diff) / contrast).astype(int)
+        iy, ix = np.nonzero(n)
+        if not len(iy):
+            continue
+        cnt = n[iy, ix]
+        ev = np.zeros(cnt.sum(), EVENT_DTYPE)
+        ev["x"] = np.repeat(ix, cnt) + x0
+        ev["y"] = np.repeat(iy, cnt) + y0
+        ev["polarity"] = np.repeat(diff[iy, ix] > 0, cnt)
+        ev["timestamp"] = t - step_us + rng.integers(0, step_us, len(ev))
+        ref[iy, ix] += np.sign(diff[iy, ix]) * cnt * contrast
+        out.append(ev)
+    ev = np.concatenate(out)
+    return ev[np.argsort(ev["timestamp"], kind="stable")]
+
+
+def run(tracker, events, t_end_us, step_us=1000):
+    """Feed events in ``step_us`` batches; positions (T, N, 2) after each batch and batch end times."""
+    ends = np.arange(step_us, t_end_us + 1, step_us)
+    cuts = np.searchsorted(events["timestamp"], ends)
+    out, start = [], 0
+    for cut in cuts:
+        tracker.update(events[start:cut])
+        start = cut
+        out.append(tracker.positions_px)
+    return np.array(out), ends
+
+
+def linear(p0, v_px_per_ms):
+    p0 = np.atleast_2d(np.asarray(p0, float))
+    v = np.atleast_2d(np.asarray(v_px_per_ms, float))
+    return lambda t: p0 + v * (t / 1000.0)
+
+
+@pytest.mark.parametrize("velocity", [(0.1, 0.05), (-0.3, 0.2)])
+def test_dot_at_constant_velocity_is_tracked_within_half_a_pixel(velocity):
+    p0 = (150.3, 120.6)
+    truth = linear(p0, velocity)
+    t_end = 100_000
+    events = esim(truth, t_end, (110, 85, 190, 155))
+    tracker = BlobTracker(np.array([p0]))
+    positions, ends = run(tracker, events, t_end)
+    err = np.linalg.norm(positions[:, 0] - np.array([truth(t)[0] for t in ends]), axis=1)
+    moved = np.linalg.norm(truth(t_end)[0] - p0)
+    assert moved > 10  # it really moved
+    assert np.percentile(err, 95) < 0.5
+    assert err[-1] < 0.5
+    assert tracker.valid.all()
+    v = tracker.velocities_px_per_s[0] / 1000.0
+    assert np.dot(v, velocity) > 0  # the velocity estimate points along the motion
+
+
+def test_neighbouring_blobs_do_not_swap():
+    # Two markers 9 px apart; the left one moves 4 px towards the right one and back, the right
+    # one drifts down; a third stays still 9 px below the left one.
+    a0, b0, c0 = np.array([150.2, 120.4]), np.array([159.1, 120.7]), np.array([150.6, 129.5])
+
+    def truth(t):
+        s = t / 1000.0
+        a = a0 + np.array([4.0 * np.sin(np.pi * s / 100.0), 0.0])
+        b = b0 + np.array([0.0, 0.04 * s])
+        return np.array([a, b, c0])
+
+    t_end = 100_000
+    events = esim(truth, t_end, (135, 105, 175, 145))
+    tracker = BlobTracker(truth(0))
+    positions, ends = run(tracker, events, t_end)
+    true = np.array([truth(t) for t in ends])
+    err = np.linalg.norm(positions - true, axis=2)
+    # Each blob stays with its own marker: nearer to it than half the spacing, every millisecond.
+    assert err.max() < 2.0
+    assert np.median(err) < 0.5
+    assert tracker.valid.all()
+
+
+def test_noise_far_from_blobs_does_not_move_them():
+    rng = np.random.default_rng(1)
+    start = np.array([[150.3, 120.6], [160.2, 120.1], [155.0, 131.4]])
+    tracker = BlobTracker(start)
+    n = 200_000
+    noise = np.zeros(n, EVENT_DTYPE)
+    noise["timestamp"] = np.sort(rng.integers(0, 1_000_000, n))
+    noise["x"] = rng.integers(0, 346, n)
+    noise["y"] = rng.integers(0, 260, n)
+    noise["polarity"] = rng.integers(0, 2, n)
+    d = np.min(np.hypot(noise["x"][:, None] - start[None, :, 0], noise["y"][:, None] - start[None, :, 1]), axis=1)
+    far = noise[d > 6.0]
+    tracker.update(far)
+    assert np.array_equal(tracker.positions_px, start)
+    assert tracker.counts["noise"] == len(far)
+    assert tracker.counts["applied"] == 0
+
+
+def test_isolated_noise_events_near_a_resting_blob_are_gated():
+    # Background activity at ~20 Hz per pixel around a blob at rest: isolated in time per blob.
+    start = np.array([[150.3, 120.6]])
+    tracker = BlobTracker(start)
+    rng = np.random.default_rng(2)
+    n = 400
+    ev = np.zeros(n, EVENT_DTYPE)
+    ev["timestamp"] = np.arange(n) * 20_000 + rng.integers(0, 100, n)  # one every 20 ms
+    ev["x"] = 150 + rng.integers(-3, 4, n)
+    ev["y"] = 121 + rng.integers(-3, 4, n)
+    ev["polarity"] = rng.integers(0, 2, n)
+    tracker.update(ev)
+    counts = tracker.counts
+    assert counts["applied"] == 0 and counts["gated"] > 0.8 * n
+    assert counts["gated"] + counts["noise"] == n
+    assert np.array_equal(tracker.positions_px, start)
+
+
+def test_each_event_goes_to_the_nearest_blob_through_the_owner_image():
+    start = np.array([[100.0, 100.0], [108.0, 100.0]])
+    tracker = BlobTracker(start, config=TrackerConfig(assoc_px=3.5))
+    owner = tracker.owner_image()
+    assert owner[100, 103] == 0 and owner[100, 105] == 1  # each pixel to its nearest blob
+    assert owner[100, 97] == 0 and owner[100, 111] == 1
+    assert owner[100, 112] == -1 and owner[96, 100] == -1  # beyond the association threshold
+    # A burst of events at (103, 100) pulls blob 0 only.
+    ev = np.zeros(20, EVENT_DTYPE)
+    ev["timestamp"] = np.arange(20) * 10
+    ev["x"], ev["y"], ev["polarity"] = 103, 100, 1
+    tracker.update(ev)
+    pos = tracker.positions_px
+    assert pos[0, 0] > 100.0
+    assert np.array_equal(pos[1], start[1])
+
+
+def test_reset_reinitialises_positions_and_count():
+    start = np.array([[150.3, 120.6]])
+    truth = linear(start[0], (0.2, 0.0))
+    events = esim(truth, 50_000, (130, 100, 180, 140))
+    tracker = BlobTracker(start)
+    tracker.update(events)
+    assert tracker.positions_px[0, 0] > 155
+    new = np.array([[100.5, 100.5], [110.5, 100.5], [120.5, 100.5]])
+    tracker.reset(new)
+    assert np.array_equal(tracker.positions_px, new)
+    assert tracker.valid.all() and tracker.valid.shape == (3,)
+    assert np.all(tracker.velocities_px_per_s == 0)
+    owner = tracker.owner_image()
+    assert owner[100, 110] == 1 and owner[120, 160] == -1  # old blob's pixels released
+    # Tracking works after the reset: the middle dot moves right.
+    truth2 = lambda t: new + np.array([[0.0, 0.0], [0.05 * t / 1000.0, 0.0], [0.0, 0.0]])
+    events2 = esim(truth2, 40_000, (90, 90, 135, 112))
+    events2["timestamp"] += 60_000
+    tracker.update(events2)
+    assert abs(tracker.positions_px[1, 0] - truth2(40_000)[1, 0]) < 0.5
+
+
+def test_blob_leaving_the_gel_is_lost():
+    cx, cy = SENSOR.gel_center_px
+    start = np.array([[cx + SENSOR.gel_radius_px - 3.0, cy + 0.3], [cx, cy]])
+    truth = lambda t: start + np.array([[0.3 * t / 1000.0, 0.0], [0.0, 0.0]])
+    events = esim(truth, 50_000, (int(cx) - 5, int(cy) - 10, 346, int(cy) + 10))
+    tracker = BlobTracker(start, sensor=SENSOR)
+    tracker.update(events)
+    assert not tracker.valid[0]
+    assert tracker.valid[1]
+    assert np.all(tracker.owner_image() != 0)
+    assert tracker.positions_px[0, 0] < cx + SENSOR.gel_radius_px + TrackerConfig().gel_margin_px + 1.5
+
+
+def test_blobs_that_merge_are_lost():
+    # Two dots 7 px apart slide onto each other: both blobs are lost, a third one is not.
+    start = np.array([[150.2, 120.3], [157.2, 120.3], [150.2, 130.3]])
+    truth = lambda t: start + min(t / 30_000.0, 1.0) * np.array([[3.5, 0.0], [-3.5, 0.0], [0.0, 0.0]])
+    events = esim(truth, 40_000, (140, 110, 168, 140))
+    tracker = BlobTracker(start)
+    tracker.update(events)
+    assert not tracker.valid[:2].any()
+    assert tracker.valid[2]
+
+
+def test_update_rejects_wrong_dtype_and_accepts_empty():
+    tracker = BlobTracker(np.array([[10.0, 10.0]]))
+    tracker.update(np.zeros(0, EVENT_DTYPE))
+    with pytest.raises(ValueError, match="EVENT_DTYPE"):
+        tracker.update(np.zeros((5, 4)))
+    with pytest.raises(ValueError, match="finite"):
+        tracker.reset(np.array([[np.nan, 1.0]]))
