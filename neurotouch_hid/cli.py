@@ -42,7 +42,26 @@ def info(
     json_out: bool = typer.Option(False, "--json", help="print JSON instead of a table"),
 ) -> None:
     """Print a recording's camera name, resolution, duration, event count and frame count."""
-    _todo("info")
+    import json
+
+    from rich.table import Table
+
+    from neurotouch_hid.sources.recording import read_info
+
+    rec = read_info(recording)
+    if json_out:
+        print(json.dumps(rec.to_json()))
+        return
+    table = Table(title=str(rec.path), show_header=False)
+    table.add_column("field", style="bold")
+    table.add_column("value")
+    table.add_row("camera", rec.camera_name)
+    table.add_row("resolution", f"{rec.width}x{rec.height} px")
+    table.add_row("duration", f"{rec.duration_s:.2f} s ({rec.duration_us:,} us)")
+    table.add_row("events", f"{rec.n_events:,}")
+    table.add_row("APS frames", f"{rec.n_frames:,}")
+    table.add_row("time range", f"{rec.start_us} .. {rec.end_us} us")
+    console.print(table)
 
 
 # --- the simulated gel (sources/simulator.py) ----------------------------------------------

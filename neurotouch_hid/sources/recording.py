@@ -1,0 +1,623 @@
+"""AEDAT4 recordings: read and write events and APS frames through dv-processing.
+
+Reading goes through ``dv_processing.io.MonoCameraRecording`` and writing through
+``dv_processing.io.MonoCameraWriter`` (iniVation's own library, the format DV records; DATASET.md,
+section SEQUENCE.aedat4). This module only adds what the library does not do:
+
+- one clear :class:`~neurotouch_hid.errors.RecordingError` per bad file (missing, not AEDAT4,
+  truncated, no frame stream, wrong resolution) instead of C++ exception text;
+- reading what is left of a truncated file: dv-processing refuses to open a file whose index
+  table (the FileDataTable at the end) is cut off, but rebuilds the index by scanning the
+  packets when the header says there is no table. :func:`_open` therefore opens a copy whose
+  header says so, reads every complete packet, and the reader raises after yielding them;
+- the merged, time-ordered stream of event batches and :class:`Frame` values every source yields
+  (ARCHITECTURE.md, sources);
+- conversion between dv-processing's containers and numpy arrays of :data:`EVENT_DTYPE`.
+
+Time is int64 microseconds of the camera clock everywhere.
+"""
+
+from __future__ import annotations
+
+import collections
+import itertools
+import os
+import shutil
+import struct
+import tempfile
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from typing import TYPE_CHECKING, Iterable, Iterator
+
+import numpy as np
+
+from neurotouch_hid.errors import RecordingError
+from neurotouch_hid.sources import EVENT_DTYPE, Frame, StreamItem
+
+if TYPE_CHECKING:  # pragma: no cover
+    import dv_processing as dv
+
+#: The first bytes of every AEDAT4 file (the format's version line).
+AEDAT4_MAGIC = b"#!AER-DAT4.0\r\n"
+#: dv-processing refuses other file name endings (and its writer aborts the process on them).
+AEDAT4_SUFFIX = ".aedat4"
+#: Events per AEDAT4 packet written by :class:`RecordingWriter` (dv-processing writes one packet
+#: per ``writeEvents`` call; this keeps packets few and truncation losses small).
+PACKET_EVENTS = 10_000
+#: The DAVIS-346's pixel array, (width, height) px.
+DAVIS346_RESOLUTION = (346, 260)
+
+
+@dataclass(frozen=True)
+class RecordingInfo:
+    """What a recording holds (``neurotouch-hid info``).
+
+    Attributes:
+        path: the file.
+        camera_name: the camera (source) name stored in the file, e.g. ``DAVIS346_00000002``.
+        width, height: the event stream's resolution, px.
+        start_us, end_us: first and last timestamp over the event and frame streams, us.
+        duration_us: ``end_us - start_us``, us (0 for an empty recording).
+        n_events: exact number of events.
+        n_frames: exact number of APS frames (0 without a frame stream).
+    """
+
+    path: Path
+    camera_name: str
+    width: int
+    height: int
+    start_us: int
+    end_us: int
+    duration_us: int
+    n_events: int
+    n_frames: int
+
+    @property
+    def duration_s(self) -> float:
+        """``duration_us`` in seconds (for display only)."""
+        return self.duration_us / 1e6
+
+    def to_json(self) -> dict:
+        """The JSON object ``neurotouch-hid info --json`` prints (all keys of this record)."""
+        return {
+            "path": str(self.path),
+            "camera_name": self.camera_name,
+            "width": self.width,
+            "height": self.height,
+            "duration_s": round(self.duration_s, 6),
+            "duration_us": self.duration_us,
+            "n_events": self.n_events,
+            "n_frames": self.n_frames,
+            "start_us": self.start_us,
+            "end_us": self.end_us,
+        }
+
+
+# --- conversion between dv-processing and numpy ----------------------------------------------
+def events_from_store(store: "dv.EventStore") -> np.ndarray:
+    """A dv-processing ``EventStore`` as an array of :data:`EVENT_DTYPE` (a copy).
+
+    dv-processing's ``EventStore.numpy()`` has the same fields, padded to 16 bytes per event;
+    this packs them into EVENT_DTYPE.
+    """
+    return store.numpy().astype(EVENT_DTYPE, copy=False)
+
+
+def store_from_events(events: np.ndarray) -> "dv.EventStore":
+    """Build a dv-processing ``EventStore`` from time-ordered events (fields of EVENT_DTYPE).
+
+    dv-processing 2.0.4 has no constructor from numpy, and ``EventStore.numpy()`` returns a
+    copy (no writable view), so events go in one ``push_back`` call each, driven by ``map`` over
+    column lists: about 3 M events/s (docs/performance.md, Recording I/O).
+    """
+    import dv_processing as dv
+
+    store = dv.EventStore()
+    columns = (
+        events["timestamp"].tolist(),
+        events["x"].tolist(),
+        events["y"].tolist(),
+        events["polarity"].astype(bool).tolist(),
+    )
+    collections.deque(map(store.push_back, zip(*columns)), maxlen=0)  # consume in C
+    return store
+
+
+def split_batches(events: np.ndarray, batch_us: int) -> list[np.ndarray]:
+    """Cut time-ordered events at every multiple of ``batch_us`` (us); empty pieces are dropped.
+
+    Returns views of ``events``. Used for the batches every source yields.
+    """
+    if len(events) == 0:
+        return []
+    ts = np.ascontiguousarray(events["timestamp"])
+    first, last = int(ts[0]) // batch_us + 1, int(ts[-1]) // batch_us
+    if last < first:
+        return [events]
+    cuts = np.searchsorted(ts, np.arange(first, last + 1, dtype=np.int64) * batch_us, side="left")
+    return [piece for piece in np.split(events, cuts) if len(piece)]
+
+
+def _image_u8(image: np.ndarray) -> np.ndarray:
+    """An APS frame's image as a 2-D uint8 array (colour DAVIS frames become grey, OpenCV)."""
+    if image.ndim == 3:
+        import cv2
+
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY if image.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
+    return image
+
+
+# --- opening a file ---------------------------------------------------------------------------
+def _check_path(path: Path) -> None:
+    """Raise RecordingError unless ``path`` is an existing, readable file named ``*.aedat4``."""
+    if not path.exists():
+        raise RecordingError(f"{path}: no such file")
+    if path.is_dir():
+        raise RecordingError(f"{path}: is a directory, not an AEDAT4 recording")
+    if not os.access(path, os.R_OK):
+        raise RecordingError(f"{path}: cannot read the file (permission denied)")
+    if path.suffix != AEDAT4_SUFFIX:
+        raise RecordingError(
+            f"{path}: not an AEDAT4 recording (its name must end in '{AEDAT4_SUFFIX}', "
+            f"which dv-processing requires)"
+        )
+
+
+def _header_table_position(path: Path) -> tuple[int, int]:
+    """Read the AEDAT4 header: ``(byte offset of its dataTablePosition field, its value)``.
+
+    The header is the version line, a little-endian uint32 size and an ``IOHeader`` flatbuffer
+    (fields: compression, dataTablePosition int64 default -1, infoNode). The offset is -1 when the
+    field is absent (the default, -1: no table). Raises RecordingError when the file is not
+    AEDAT4 or its header is incomplete.
+    """
+    with open(path, "rb") as fh:
+        head = fh.read(len(AEDAT4_MAGIC) + 4)
+        if not head.startswith(AEDAT4_MAGIC):
+            if head.startswith(b"#!AER-DAT") and not AEDAT4_MAGIC.startswith(head):
+                version = head.split(b"\r")[0].decode("ascii", "replace")[2:]
+                raise RecordingError(f"{path}: is {version}, only AEDAT4 is supported")
+            if not head or not AEDAT4_MAGIC.startswith(head):
+                raise RecordingError(f"{path}: not an AEDAT4 recording (it does not start with '#!AER-DAT4.0')")
+        if len(head) < len(AEDAT4_MAGIC) + 4:
+            raise RecordingError(f"{path}: truncated: the file ends inside its AEDAT4 header ({len(head)} bytes)")
+        (size,) = struct.unpack_from("<I", head, len(AEDAT4_MAGIC))
+        header = fh.read(size)
+    if len(header) < size:
+        raise RecordingError(f"{path}: truncated: the file ends inside its AEDAT4 header")
+    try:
+        (root,) = struct.unpack_from("<I", header, 0)
+        (vtable_back,) = struct.unpack_from("<i", header, root)
+        vtable = root - vtable_back
+        (vtable_size,) = struct.unpack_from("<H", header, vtable)
+        field_offset = struct.unpack_from("<H", header, vtable + 6)[0] if vtable_size >= 8 else 0
+        if field_offset == 0:
+            return -1, -1
+        offset = len(AEDAT4_MAGIC) + 4 + root + field_offset
+        (position,) = struct.unpack_from("<q", header, root + field_offset)
+    except struct.error:
+        raise RecordingError(f"{path}: corrupt AEDAT4 header") from None
+    return offset, position
+
+
+def _open(path: Path) -> tuple["dv.io.MonoCameraRecording", str | None, tempfile.TemporaryDirectory | None]:
+    """Open ``path`` with dv-processing: ``(recording, why it is truncated or None, temp dir)``.
+
+    A file whose index table lies past its end (cut short) is opened through a copy whose header
+    says "no table", so dv-processing indexes every complete packet by scanning; the copy lives
+    in the returned temporary directory, which must stay alive as long as the recording.
+    """
+    import dv_processing as dv
+
+    _check_path(path)
+    offset, table_position = _header_table_position(path)
+    size = path.stat().st_size
+    try:
+        return dv.io.MonoCameraRecording(str(path)), None, None
+    except RuntimeError as exc:
+        first_error = str(exc)
+    if offset < 0:  # no table to blame: the packets themselves are broken
+        raise RecordingError(f"{path}: corrupt AEDAT4 data ({_short(first_error)})")
+    if table_position >= size:
+        why = (f"truncated: the file is {size} bytes but its index table starts at byte "
+               f"{table_position}; the rest of the recording is missing")
+    else:
+        why = f"corrupt index table at byte {table_position} ({_short(first_error)})"
+    tmp = tempfile.TemporaryDirectory(prefix="neurotouch-recording-")
+    copy = Path(tmp.name) / path.name
+    shutil.copyfile(path, copy)
+    with open(copy, "r+b") as fh:
+        fh.seek(offset)
+        fh.write(struct.pack("<q", -1))
+    try:
+        return dv.io.MonoCameraRecording(str(copy)), why, tmp
+    except RuntimeError as exc:
+        tmp.cleanup()
+        raise RecordingError(f"{path}: {why}, and no data could be read ({_short(str(exc))})") from None
+
+
+def _short(message: str) -> str:
+    """The useful line of a dv-processing exception text (it carries source paths and a stack)."""
+    lines = [line for line in message.splitlines() if line.strip() and not line.startswith("/")]
+    text = lines[0] if lines else message.splitlines()[0] if message else "unknown error"
+    return text.split(" - Error info")[0].strip()
+
+
+# --- reading ------------------------------------------------------------------------------------
+class RecordingReader:
+    """Reads an AEDAT4 recording's events and APS frames (dv-processing ``MonoCameraRecording``).
+
+    Args:
+        path: the ``.aedat4`` file.
+        require_frames: raise RecordingError when the file has no APS frame stream (the pipeline
+            finds the markers on APS frames; paper, section Marker Tracking).
+        require_resolution: (width, height) px the event (and frame) stream must have, e.g.
+            ``(346, 260)`` for a DAVIS-346, or None for any.
+
+    Raises:
+        RecordingError: missing file, not AEDAT4, no event stream, a requirement not met, or no
+            readable data at all. A truncated file opens; :meth:`stream` raises after the data.
+
+    Use as a context manager or call :meth:`close`. :meth:`stream` may be called more than once;
+    each call reads the file from the start.
+    """
+
+    def __init__(self, path: str | os.PathLike, *, require_frames: bool = False,
+                 require_resolution: tuple[int, int] | None = None) -> None:
+        self.path = Path(path)
+        self._recording, self._truncated, self._tmp = _open(self.path)
+        rec = self._recording
+        self.camera_name: str = rec.getCameraName()
+        resolution = rec.getEventResolution()
+        if resolution is None or not rec.isEventStreamAvailable():
+            streams = ", ".join(rec.getStreamNames()) or "none"
+            raise RecordingError(f"{self.path}: has no event stream (streams: {streams})")
+        self.width, self.height = int(resolution[0]), int(resolution[1])
+        self.has_frames: bool = bool(rec.isFrameStreamAvailable())
+        if require_frames and not self.has_frames:
+            streams = ", ".join(rec.getStreamNames())
+            raise RecordingError(
+                f"{self.path}: has no APS frame stream (streams: {streams}); frames are needed to "
+                f"find the markers: record with the DAVIS frame output enabled"
+            )
+        if require_resolution is not None:
+            want = (int(require_resolution[0]), int(require_resolution[1]))
+            found = [("event", (self.width, self.height))]
+            if self.has_frames and rec.getFrameResolution() is not None:
+                found.append(("frame", tuple(int(v) for v in rec.getFrameResolution())))
+            for kind, got in found:
+                if got != want:
+                    raise RecordingError(
+                        f"{self.path}: {kind} stream is {got[0]}x{got[1]} px but {want[0]}x{want[1]} "
+                        f"is required (a DAVIS-346 records 346x260)"
+                    )
+
+    # context manager
+    def __enter__(self) -> "RecordingReader":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Release the file (and the repaired copy of a truncated file)."""
+        self._recording = None
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
+
+    @property
+    def truncated(self) -> str | None:
+        """Why the file is truncated or its index is damaged, or None for a whole file."""
+        return self._truncated
+
+    def _reopen(self) -> "dv.io.MonoCameraRecording":
+        """A fresh reader on the same (possibly repaired) file, so reads never share a position."""
+        import dv_processing as dv
+
+        if self._recording is None:
+            raise RecordingError(f"{self.path}: the reader is closed")
+        source = Path(self._tmp.name) / self.path.name if self._tmp is not None else self.path
+        return dv.io.MonoCameraRecording(str(source))
+
+    def _error(self, what: str, exc: Exception) -> RecordingError:
+        return RecordingError(f"{self.path}: {what} ({_short(str(exc))})")
+
+    def _event_packets(self, rec: "dv.io.MonoCameraRecording") -> Iterator["dv.EventStore"]:
+        """The event stream's packets in file order; corrupt data becomes RecordingError."""
+        while True:
+            try:
+                store = rec.getNextEventBatch()
+            except RuntimeError as exc:
+                raise self._error("corrupt event data", exc) from None
+            if store is None:
+                return
+            yield store
+
+    def _frames(self, rec: "dv.io.MonoCameraRecording") -> Iterator[Frame]:
+        """The APS frames in time order (none without a frame stream)."""
+        if not self.has_frames:
+            return
+        while True:
+            try:
+                frame = rec.getNextFrame()
+            except RuntimeError as exc:
+                raise self._error("corrupt APS frame data", exc) from None
+            if frame is None:
+                return
+            yield Frame(int(frame.timestamp), _image_u8(frame.image))
+
+    def _raise_if_truncated(self, n_events: int, n_frames: int, last_us: int | None) -> None:
+        if self._truncated is not None:
+            upto = f" up to t={last_us} us" if last_us is not None else ""
+            raise RecordingError(f"{self.path}: {self._truncated} (read {n_events} events and "
+                                 f"{n_frames} frames{upto})")
+
+    @cached_property
+    def info(self) -> RecordingInfo:
+        """Exact counts and time span, from one pass over the file (cached).
+
+        Events are counted per packet without conversion; frames are decoded one at a time.
+        Raises RecordingError for a truncated file (counts would not be the recording's).
+        """
+        rec = self._reopen()
+        n_events, first, last = 0, None, None
+        for store in self._event_packets(rec):
+            if len(store):
+                n_events += len(store)
+                first = store.getLowestTime() if first is None else first
+                last = store.getHighestTime()
+        n_frames = 0
+        for frame in self._frames(rec):
+            n_frames += 1
+            first = frame.t_us if first is None else min(first, frame.t_us)
+            last = frame.t_us if last is None else max(last, frame.t_us)
+        self._raise_if_truncated(n_events, n_frames, last)
+        start, end = (int(first), int(last)) if first is not None else (0, 0)
+        return RecordingInfo(self.path, self.camera_name, self.width, self.height, start, end,
+                             end - start, n_events, n_frames)
+
+    def stream(self, batch_us: int = 10_000) -> Iterator[StreamItem]:
+        """Events and APS frames merged in time order, as every source yields them.
+
+        Yields:
+            event batches (arrays of :data:`EVENT_DTYPE`, time-ordered, never empty) cut at every
+            multiple of ``batch_us`` (us) and at every frame's timestamp, and :class:`Frame` values;
+            a frame comes before the events whose timestamp is >= its ``t_us``.
+
+        Raises:
+            RecordingError: after yielding everything readable, when the file is truncated or
+                corrupt.
+        """
+        if batch_us <= 0:
+            raise ValueError(f"batch_us must be positive, got {batch_us}")
+        rec = self._reopen()
+        frames = self._frames(rec)
+        events = (events_from_store(store) for store in self._event_packets(rec))
+        n_events = n_frames = 0
+        last_us = None
+        for item in merge_stream(events, frames, batch_us):
+            if isinstance(item, Frame):
+                n_frames += 1
+                last_us = item.t_us if last_us is None else max(last_us, item.t_us)
+            else:
+                n_events += len(item)
+                last_us = int(item["timestamp"][-1]) if last_us is None else max(last_us, int(item["timestamp"][-1]))
+            yield item
+        self._raise_if_truncated(n_events, n_frames, last_us)
+
+    def read_all(self) -> tuple[np.ndarray, list[Frame]]:
+        """All events (one EVENT_DTYPE array, time-ordered) and all APS frames (time-ordered).
+
+        Raises RecordingError for a truncated or corrupt file.
+        """
+        rec = self._reopen()
+        chunks = [events_from_store(store) for store in self._event_packets(rec)]
+        frames = list(self._frames(rec))
+        events = np.concatenate(chunks) if chunks else np.zeros(0, EVENT_DTYPE)
+        last = max([int(t) for t in events["timestamp"][-1:]] + [f.t_us for f in frames[-1:]], default=None)
+        self._raise_if_truncated(len(events), len(frames), last)
+        return events, frames
+
+
+def merge_stream(event_chunks: Iterable[np.ndarray], frames: Iterable[Frame],
+                 batch_us: int) -> Iterator[StreamItem]:
+    """Merge time-ordered event chunks and frames into the stream every source yields.
+
+    Args:
+        event_chunks: time-ordered EVENT_DTYPE arrays of any size (e.g. one per file packet).
+        frames: time-ordered :class:`Frame` values.
+        batch_us: batch length, us: batches are cut at multiples of it and at frame timestamps.
+
+    Yields event batches (non-empty EVENT_DTYPE arrays, views of the chunks) and frames; a frame
+    comes before the events with timestamp >= its ``t_us``. The last batch of a chunk is held
+    back until a later chunk shows it is complete, or the events end. Cut positions are found
+    for a whole chunk at once (numpy), so a batch costs about a microsecond.
+    """
+    frame_iter = iter(frames)
+    pending = next(frame_iter, None)
+    leftover = np.zeros(0, EVENT_DTYPE)
+    for chunk in itertools.chain(event_chunks, [None]):
+        final = chunk is None
+        if not final and len(chunk) == 0:
+            continue
+        if final or not len(leftover):
+            ev = leftover if final else chunk
+        else:
+            ev = np.concatenate((leftover, chunk))
+        ts = np.ascontiguousarray(ev["timestamp"])
+        n = len(ev)
+        # Frames whose preceding events are all here: the events are time-ordered, so every
+        # event before a frame at t <= ts[-1] is in this chunk or before.
+        taken: list[Frame] = []
+        while pending is not None and (final or pending.t_us <= ts[-1]):
+            taken.append(pending)
+            pending = next(frame_iter, None)
+        frame_at = np.searchsorted(ts, np.array([f.t_us for f in taken], dtype=np.int64), side="left")
+        batch = ts // batch_us
+        batch_starts = np.flatnonzero(batch[1:] != batch[:-1]) + 1
+        if final:
+            stop = n
+        else:  # hold back the last, maybe incomplete batch (except what precedes a frame)
+            stop = int(batch_starts[-1]) if len(batch_starts) else 0
+            stop = max(stop, int(frame_at[-1])) if len(taken) else stop
+        cuts = np.unique(np.concatenate((batch_starts[batch_starts < stop], frame_at, [stop])))
+        prev = fi = 0
+        for cut in cuts.tolist():
+            if cut > prev:
+                yield ev[prev:cut]
+                prev = cut
+            while fi < len(taken) and frame_at[fi] == cut:
+                yield taken[fi]
+                fi += 1
+        leftover = ev[stop:]
+
+
+def read_info(path: str | os.PathLike) -> RecordingInfo:
+    """Camera name, resolution, exact event and frame counts and time span of a recording.
+
+    Raises RecordingError for a missing, non-AEDAT4, truncated or corrupt file.
+    """
+    with RecordingReader(path) as reader:
+        return reader.info
+
+
+# --- writing ------------------------------------------------------------------------------------
+class RecordingWriter:
+    """Writes an AEDAT4 recording with dv-processing's ``MonoCameraWriter`` (LZ4-compressed).
+
+    Args:
+        path: the file to create (must end in ``.aedat4``; its folder must exist).
+        width, height: the sensor resolution, px.
+        camera_name: the camera (source) name stored in the file.
+        frames: also create an APS frame stream (``DAVISConfig``); False writes events only.
+
+    Events are buffered and written in packets of :data:`PACKET_EVENTS`. The file is complete
+    (index table written) once :meth:`close` returns; use as a context manager.
+
+    Raises:
+        RecordingError: bad path, or data that is not time-ordered / out of the sensor / of the
+            wrong shape.
+    """
+
+    def __init__(self, path: str | os.PathLike, *, width: int = 346, height: int = 260,
+                 camera_name: str = "NeuroTouch-sim_DAVIS346", frames: bool = True) -> None:
+        import dv_processing as dv
+
+        self.path = Path(path)
+        self.width, self.height = int(width), int(height)
+        if self.path.suffix != AEDAT4_SUFFIX:
+            raise RecordingError(f"{self.path}: an AEDAT4 recording's name must end in '{AEDAT4_SUFFIX}'")
+        if not self.path.parent.is_dir():
+            raise RecordingError(f"{self.path}: cannot write, folder {self.path.parent} does not exist")
+        if self.path.is_dir():
+            raise RecordingError(f"{self.path}: cannot write, it is a directory")
+        make = dv.io.MonoCameraWriter.DAVISConfig if frames else dv.io.MonoCameraWriter.EventOnlyConfig
+        config = make(camera_name, (self.width, self.height))
+        try:
+            self._writer = dv.io.MonoCameraWriter(str(self.path), config)
+        except RuntimeError as exc:
+            raise RecordingError(f"{self.path}: cannot write ({_short(str(exc))})") from None
+        self.frames = frames
+        self._pending: list[np.ndarray] = []
+        self._n_pending = 0
+        self._last_event_us = np.iinfo(np.int64).min
+        self._last_frame_us = np.iinfo(np.int64).min
+
+    def __enter__(self) -> "RecordingWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def write_events(self, events: np.ndarray) -> None:
+        """Append events: an array with EVENT_DTYPE's fields, time-ordered, after those already
+        written; x in [0, width), y in [0, height) px, polarity 0 or 1.
+
+        Raises RecordingError otherwise (nothing of this call is written then).
+        """
+        self._check_open()
+        if events.dtype.names is None or not set(EVENT_DTYPE.names) <= set(events.dtype.names):
+            raise RecordingError(f"{self.path}: events must have the fields {EVENT_DTYPE.names}, got {events.dtype}")
+        if len(events) == 0:
+            return
+        ts = events["timestamp"]
+        if ts[0] < self._last_event_us or (len(ts) > 1 and np.any(np.diff(ts) < 0)):
+            raise RecordingError(f"{self.path}: events are not in time order (from t={int(ts[0])} us)")
+        x, y, p = events["x"], events["y"], events["polarity"]
+        if x.min() < 0 or x.max() >= self.width or y.min() < 0 or y.max() >= self.height:
+            raise RecordingError(f"{self.path}: events outside the {self.width}x{self.height} px sensor")
+        if p.min() < 0 or p.max() > 1:
+            raise RecordingError(f"{self.path}: polarity must be 0 (OFF) or 1 (ON)")
+        self._last_event_us = int(ts[-1])
+        self._pending.append(events)
+        self._n_pending += len(events)
+        if self._n_pending >= PACKET_EVENTS:
+            self._flush(final=False)
+
+    def write_frame(self, frame: Frame) -> None:
+        """Append an APS frame: uint8 image of shape (height, width), ``t_us`` after the last frame's.
+
+        The timestamp is stored as is (dv-processing ``Frame.timestamp``). Raises RecordingError
+        for a wrong shape or dtype, a frame out of time order, or a writer without frame stream.
+        """
+        import dv_processing as dv
+
+        self._check_open()
+        if not self.frames:
+            raise RecordingError(f"{self.path}: this writer has no frame stream (frames=False)")
+        image = np.asarray(frame.image)
+        if image.dtype != np.uint8 or image.shape != (self.height, self.width):
+            raise RecordingError(f"{self.path}: an APS frame must be uint8 of shape ({self.height}, "
+                                 f"{self.width}), got {image.dtype} {image.shape}")
+        if frame.t_us < self._last_frame_us:
+            raise RecordingError(f"{self.path}: frames are not in time order (t={frame.t_us} us)")
+        # Keep event packets interleaved with frames in time, as DV records them.
+        self._flush(final=True)
+        self._last_frame_us = int(frame.t_us)
+        self._writer.writeFrame(dv.Frame(int(frame.t_us), np.ascontiguousarray(image)))
+
+    def _flush(self, final: bool) -> None:
+        """Write pending events in packets of PACKET_EVENTS (all of them when ``final``)."""
+        if not self._pending:
+            return
+        events = np.concatenate(self._pending) if len(self._pending) > 1 else self._pending[0]
+        stop = len(events) if final else len(events) - len(events) % PACKET_EVENTS
+        for start in range(0, stop, PACKET_EVENTS):
+            self._writer.writeEvents(store_from_events(events[start:min(start + PACKET_EVENTS, stop)]))
+        rest = events[stop:]
+        self._pending = [rest] if len(rest) else []
+        self._n_pending = len(rest)
+
+    def _check_open(self) -> None:
+        if self._writer is None:
+            raise RecordingError(f"{self.path}: the writer is closed")
+
+    def close(self) -> None:
+        """Write pending events and finish the file (index table); idempotent."""
+        if self._writer is None:
+            return
+        try:
+            self._flush(final=True)
+        finally:
+            self._writer = None  # dv-processing finishes the file when the writer is destroyed
+
+
+def write_recording(path: str | os.PathLike, events: np.ndarray, frames: Iterable[Frame], **kw) -> None:
+    """Write events and APS frames to an AEDAT4 file in one call (keywords: RecordingWriter's).
+
+    Events and frames are interleaved in time order, as a camera delivers them.
+    Raises RecordingError (see :class:`RecordingWriter`).
+    """
+    with RecordingWriter(path, **kw) as writer:
+        ts = np.ascontiguousarray(events["timestamp"])
+        start = 0
+        for frame in frames:
+            k = int(np.searchsorted(ts, frame.t_us, side="left"))
+            if k > start:
+                writer.write_events(events[start:k])
+            start = max(start, k)
+            writer.write_frame(frame)
+        if start < len(events):
+            writer.write_events(events[start:])

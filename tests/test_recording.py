@@ -1,0 +1,287 @@
+"""AEDAT4 read/write through dv-processing, `neurotouch-hid info`, and bad recordings.
+
+The expected figures of the real DAVIS-346 recording come from its dataset README (an
+independent source), not from this code.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from neurotouch_hid.errors import RecordingError
+from neurotouch_hid.sources import EVENT_DTYPE, Frame
+from neurotouch_hid.sources.recording import (
+    RecordingReader,
+    RecordingWriter,
+    merge_stream,
+    read_info,
+    split_batches,
+    write_recording,
+)
+
+REPO = Path(__file__).parents[1]
+STREET = REPO.parent / "shared" / "data" / "davis346-street" / "recording.aedat4"
+needs_street = pytest.mark.skipif(not STREET.exists(), reason=f"shared dataset not beside the repo: {STREET}")
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "neurotouch_hid.cli", *args], capture_output=True,
+                          text=True, cwd=REPO, timeout=120)
+
+
+def synthetic(n: int = 20_000, duration_us: int = 400_000, seed: int = 1, t0: int = 1_000_000):
+    rng = np.random.default_rng(seed)
+    events = np.zeros(n, EVENT_DTYPE)
+    events["timestamp"] = np.sort(rng.integers(t0, t0 + duration_us, n))
+    events["x"] = rng.integers(0, 346, n)
+    events["y"] = rng.integers(0, 260, n)
+    events["polarity"] = rng.integers(0, 2, n)
+    frames = [Frame(t, rng.integers(0, 256, (260, 346), dtype=np.uint8))
+              for t in range(t0 + 5, t0 + duration_us, 40_000)]
+    return events, frames
+
+
+@pytest.fixture(scope="module")
+def written(tmp_path_factory):
+    """A synthetic recording written through RecordingWriter, and what was written."""
+    events, frames = synthetic()
+    path = tmp_path_factory.mktemp("rec") / "synthetic.aedat4"
+    write_recording(path, events, frames, camera_name="test-camera")
+    return path, events, frames
+
+
+@pytest.fixture(scope="module")
+def street_half(tmp_path_factory):
+    """A copy of the real recording cut to half its bytes."""
+    data = STREET.read_bytes()
+    path = tmp_path_factory.mktemp("half") / "half.aedat4"
+    path.write_bytes(data[: len(data) // 2])
+    return path
+
+
+# --- the real DAVIS-346 recording ---------------------------------------------------------------
+@needs_street
+def test_info_of_real_recording_matches_dataset_readme():
+    info = read_info(STREET)
+    assert info.camera_name == "DAVIS346_00000002"
+    assert (info.width, info.height) == (346, 260)
+    assert info.n_events == 78_830
+    assert info.n_frames == 59
+    assert round(info.duration_us / 1e6, 2) == 2.36
+    assert info.duration_us == info.end_us - info.start_us
+
+
+@needs_street
+def test_cli_info_json_and_table():
+    result = run_cli("info", str(STREET), "--json")
+    assert result.returncode == 0, result.stderr
+    data = json.loads(result.stdout)
+    assert data["camera_name"] == "DAVIS346_00000002"
+    assert (data["width"], data["height"], data["n_events"], data["n_frames"]) == (346, 260, 78_830, 59)
+    assert round(data["duration_s"], 2) == 2.36
+    assert data["duration_us"] == data["end_us"] - data["start_us"]
+    table = run_cli("info", str(STREET))
+    assert table.returncode == 0, table.stderr
+    for text in ("DAVIS346_00000002", "346", "260", "78,830", "59", "2.36 s"):
+        assert text in table.stdout
+
+
+@needs_street
+def test_stream_of_real_recording_is_merged_in_time_order():
+    with RecordingReader(STREET, require_frames=True, require_resolution=(346, 260)) as reader:
+        items = list(reader.stream(batch_us=1000))
+        all_events, all_frames = reader.read_all()
+    frames = [item for item in items if isinstance(item, Frame)]
+    batches = [item for item in items if not isinstance(item, Frame)]
+    assert len(frames) == 59 and all(f.image.shape == (260, 346) and f.image.dtype == np.uint8 for f in frames)
+    events = np.concatenate(batches)
+    assert events.dtype == EVENT_DTYPE and len(events) == 78_830
+    assert np.array_equal(events, all_events)
+    assert [f.t_us for f in frames] == [f.t_us for f in all_frames]
+    assert np.all(np.diff(events["timestamp"]) >= 0)
+    last_frame_us = None
+    for item in items:
+        if isinstance(item, Frame):
+            last_frame_us = item.t_us
+            continue
+        ts = item["timestamp"]
+        assert len(item) > 0
+        assert ts[0] // 1000 == ts[-1] // 1000  # one 1 ms batch
+        if last_frame_us is not None:
+            assert ts[0] >= last_frame_us  # no event before the frame yielded ahead of it
+    # every frame precedes all events at or after its timestamp, and follows all before it
+    seen = np.zeros(0, np.int64)
+    for item in items:
+        if isinstance(item, Frame):
+            assert np.all(seen < item.t_us)
+            assert not np.any(events["timestamp"][len(seen):] < item.t_us)
+        else:
+            seen = np.concatenate((seen, item["timestamp"]))
+
+
+# --- round trip -----------------------------------------------------------------------------------
+def test_write_read_round_trip_is_exact(written):
+    path, events, frames = written
+    with RecordingReader(path, require_frames=True, require_resolution=(346, 260)) as reader:
+        got_events, got_frames = reader.read_all()
+        assert reader.camera_name == "test-camera"
+    assert got_events.dtype == EVENT_DTYPE
+    for name in EVENT_DTYPE.names:
+        assert np.array_equal(got_events[name], events[name]), name
+    assert [f.t_us for f in got_frames] == [f.t_us for f in frames]
+    assert all(np.array_equal(a.image, b.image) for a, b in zip(got_frames, frames))
+
+
+def test_info_of_written_recording(written):
+    path, events, frames = written
+    info = read_info(path)
+    assert (info.n_events, info.n_frames) == (len(events), len(frames))
+    assert info.start_us == min(int(events["timestamp"][0]), frames[0].t_us)
+    assert info.end_us == max(int(events["timestamp"][-1]), frames[-1].t_us)
+
+
+def test_writer_buffers_small_writes_and_reader_restarts(tmp_path):
+    events, _ = synthetic(n=5_000)
+    path = tmp_path / "small.aedat4"
+    with RecordingWriter(path, frames=False) as writer:
+        for batch in np.array_split(events, 500):
+            writer.write_events(batch)
+    with RecordingReader(path) as reader:
+        first = np.concatenate([b for b in reader.stream(batch_us=5_000)])
+        second, frames = reader.read_all()
+    assert np.array_equal(first, events) and np.array_equal(second, events) and frames == []
+
+
+def test_writer_rejects_bad_data(tmp_path):
+    events, frames = synthetic(n=100)
+    with RecordingWriter(tmp_path / "bad.aedat4") as writer:
+        with pytest.raises(RecordingError, match="time order"):
+            writer.write_events(events[::-1])
+        off = events.copy()
+        off["x"][3] = 346
+        with pytest.raises(RecordingError, match="outside"):
+            writer.write_events(off)
+        with pytest.raises(RecordingError, match=r"uint8 of shape \(260, 346\)"):
+            writer.write_frame(Frame(0, np.zeros((100, 100), np.uint8)))
+        writer.write_frame(frames[1])
+        with pytest.raises(RecordingError, match="time order"):
+            writer.write_frame(frames[0])
+    with pytest.raises(RecordingError, match=r"\.aedat4"):
+        RecordingWriter(tmp_path / "bad.txt")
+    with pytest.raises(RecordingError, match="does not exist"):
+        RecordingWriter(tmp_path / "no" / "such.aedat4")
+
+
+# --- the merged stream ------------------------------------------------------------------------------
+def test_merge_stream_cuts_at_batches_and_frames():
+    events = np.zeros(8, EVENT_DTYPE)
+    events["timestamp"] = [5, 12, 15, 15, 31, 40, 41, 95]
+    frames = [Frame(0, np.zeros((2, 2), np.uint8)), Frame(15, np.zeros((2, 2), np.uint8)),
+              Frame(41, np.zeros((2, 2), np.uint8)), Frame(200, np.zeros((2, 2), np.uint8))]
+    # chunks split unevenly, as file packets are
+    chunks = [events[:2], events[2:3], events[3:7], events[7:]]
+    out = [("F", item.t_us) if isinstance(item, Frame) else item["timestamp"].tolist()
+           for item in merge_stream(chunks, frames, batch_us=10)]
+    assert out == [("F", 0), [5], [12], ("F", 15), [15, 15], [31], [40], ("F", 41), [41], [95], ("F", 200)]
+
+
+def test_split_batches():
+    events = np.zeros(5, EVENT_DTYPE)
+    events["timestamp"] = [0, 999, 1000, 2500, 2999]
+    assert [b["timestamp"].tolist() for b in split_batches(events, 1000)] == [[0, 999], [1000], [2500, 2999]]
+    assert split_batches(events[:0], 1000) == []
+
+
+# --- bad recordings: one clear RecordingError, exit code 2 ------------------------------------------
+def _bad_files(tmp: Path, written_path: Path) -> dict[str, tuple[Path, str]]:
+    text = tmp / "notes.aedat4"
+    text.write_text("these are notes, not events\n")
+    png = tmp / "image.aedat4"
+    import cv2
+
+    cv2.imwrite(str(tmp / "image.png"), np.zeros((4, 4), np.uint8))
+    shutil.copy(tmp / "image.png", png)
+    empty = tmp / "empty.aedat4"
+    empty.write_bytes(b"")
+    head = tmp / "head.aedat4"
+    head.write_bytes(written_path.read_bytes()[:20])
+    return {
+        "missing": (tmp / "missing.aedat4", "no such file"),
+        "text": (text, "not an AEDAT4 recording"),
+        "png": (png, "not an AEDAT4 recording"),
+        "png name": (tmp / "image.png", "not an AEDAT4 recording"),
+        "empty": (empty, "not an AEDAT4 recording"),
+        "header cut": (head, "truncated"),
+        "directory": (tmp, "directory"),
+    }
+
+
+def test_bad_files_raise_one_clear_error(tmp_path, written):
+    for name, (path, what) in _bad_files(tmp_path, written[0]).items():
+        with pytest.raises(RecordingError) as caught:
+            read_info(path)
+        message = str(caught.value)
+        assert str(path) in message and what in message, (name, message)
+        assert "Stacktrace" not in message and ".hpp" not in message, (name, message)
+
+
+def test_cli_bad_files_exit_2(tmp_path, written):
+    bad = _bad_files(tmp_path, written[0])
+    for name in ("missing", "png name", "header cut"):  # the rest as read_info above: same path
+        path, what = bad[name]
+        result = run_cli("info", str(path))
+        assert result.returncode == 2, (name, result.stdout, result.stderr)
+        assert what in result.stderr and "Traceback" not in result.stderr, (name, result.stderr)
+        assert len(result.stderr.strip().splitlines()) <= 3, (name, result.stderr)
+
+
+@needs_street
+def test_truncated_file_yields_what_was_read_then_raises(street_half):
+    with RecordingReader(STREET) as reader:
+        full_events, full_frames = reader.read_all()
+    got = []
+    with RecordingReader(street_half) as reader:
+        with pytest.raises(RecordingError) as caught:
+            for item in reader.stream(batch_us=10_000):
+                got.append(item)
+    assert str(street_half) in str(caught.value) and "truncated" in str(caught.value)
+    frames = [item for item in got if isinstance(item, Frame)]
+    events = np.concatenate([item for item in got if not isinstance(item, Frame)])
+    assert len(events) > 0.3 * len(full_events) and len(frames) > 0.3 * len(full_frames)
+    assert np.all(np.diff(events["timestamp"]) >= 0)
+    assert np.array_equal(events, full_events[: len(events)])
+    assert all(np.array_equal(a.image, b.image) and a.t_us == b.t_us for a, b in zip(frames, full_frames))
+
+
+@needs_street
+def test_truncated_file_info_and_cli(street_half):
+    with pytest.raises(RecordingError, match="truncated"):
+        read_info(street_half)
+    result = run_cli("info", str(street_half))
+    assert result.returncode == 2 and "truncated" in result.stderr and str(street_half.name) in result.stderr
+
+
+def test_missing_frame_stream_and_wrong_resolution(tmp_path):
+    events, _ = synthetic(n=200)
+    no_frames = tmp_path / "events-only.aedat4"
+    with RecordingWriter(no_frames, frames=False) as writer:
+        writer.write_events(events)
+    with pytest.raises(RecordingError, match="no APS frame stream") as caught:
+        RecordingReader(no_frames, require_frames=True)
+    assert str(no_frames) in str(caught.value)
+    with RecordingReader(no_frames) as reader:  # allowed when frames are not required
+        assert reader.info.n_frames == 0 and reader.info.n_events == 200
+
+    big = tmp_path / "vga.aedat4"
+    with RecordingWriter(big, width=640, height=480) as writer:
+        writer.write_events(events)
+    with pytest.raises(RecordingError, match="640x480 px but 346x260 is required") as caught:
+        RecordingReader(big, require_resolution=(346, 260))
+    assert str(big) in str(caught.value)
