@@ -139,12 +139,13 @@ def plot_timeline(estimates: list[GestureEstimate], states: list[ControllerState
     t0 = estimates[0].t_us if estimates else 0
     t = np.array([(e.t_us - t0) * 1e-6 for e in estimates])
     fig, (ax_in, ax_axes, ax_btn) = plt.subplots(3, 1, sharex=True, figsize=(10, 7))
-    ax_in.plot(t, [e.intensity_mm for e in estimates], color="black", lw=1)
+    intensity = np.array([e.intensity_mm for e in estimates])
+    ax_in.plot(t, intensity, color="lightgray", lw=1)
     ax_in.set_ylabel("intensity (mm)")
     gestures = sorted({e.gesture.value for e in estimates})
-    for g in gestures:
+    for g in gestures:  # each window's gesture type as the dot's colour
         mask = np.array([e.gesture.value == g for e in estimates])
-        ax_in.scatter(t[mask], np.zeros(mask.sum()), s=4, label=g)
+        ax_in.scatter(t[mask], intensity[mask], s=4, label=g)
     ax_in.legend(loc="upper right", fontsize=7, ncol=len(gestures) or 1)
     for name in AXES:
         values = [deflection(name, s.axes[name]) for s in states]
