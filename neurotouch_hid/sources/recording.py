@@ -139,7 +139,7 @@ def split_batches(events: np.ndarray, batch_us: int) -> list[np.ndarray]:
     return [piece for piece in np.split(events, cuts) if len(piece)]
 
 
-def _image_u8(image: np.ndarray) -> np.ndarray:
+def grey_image(image: np.ndarray) -> np.ndarray:
     """An APS frame's image as a 2-D uint8 array (colour DAVIS frames become grey, OpenCV)."""
     if image.ndim == 3:
         import cv2
@@ -218,12 +218,12 @@ def _open(path: Path) -> tuple["dv.io.MonoCameraRecording", str | None, tempfile
     except RuntimeError as exc:
         first_error = str(exc)
     if offset < 0:  # no table to blame: the packets themselves are broken
-        raise RecordingError(f"{path}: corrupt AEDAT4 data ({_short(first_error)})")
+        raise RecordingError(f"{path}: corrupt AEDAT4 data ({dv_error_text(first_error)})")
     if table_position >= size:
         why = (f"truncated: the file is {size} bytes but its index table starts at byte "
                f"{table_position}; the rest of the recording is missing")
     else:
-        why = f"corrupt index table at byte {table_position} ({_short(first_error)})"
+        why = f"corrupt index table at byte {table_position} ({dv_error_text(first_error)})"
     tmp = tempfile.TemporaryDirectory(prefix="neurotouch-recording-")
     copy = Path(tmp.name) / path.name
     shutil.copyfile(path, copy)
@@ -234,10 +234,10 @@ def _open(path: Path) -> tuple["dv.io.MonoCameraRecording", str | None, tempfile
         return dv.io.MonoCameraRecording(str(copy)), why, tmp
     except RuntimeError as exc:
         tmp.cleanup()
-        raise RecordingError(f"{path}: {why}, and no data could be read ({_short(str(exc))})") from None
+        raise RecordingError(f"{path}: {why}, and no data could be read ({dv_error_text(str(exc))})") from None
 
 
-def _short(message: str) -> str:
+def dv_error_text(message: str) -> str:
     """The useful line of a dv-processing exception text (it carries source paths and a stack)."""
     lines = [line for line in message.splitlines() if line.strip() and not line.startswith("/")]
     text = lines[0] if lines else message.splitlines()[0] if message else "unknown error"
@@ -322,7 +322,7 @@ class RecordingReader:
         return dv.io.MonoCameraRecording(str(source))
 
     def _error(self, what: str, exc: Exception) -> RecordingError:
-        return RecordingError(f"{self.path}: {what} ({_short(str(exc))})")
+        return RecordingError(f"{self.path}: {what} ({dv_error_text(str(exc))})")
 
     def _event_packets(self, rec: "dv.io.MonoCameraRecording") -> Iterator["dv.EventStore"]:
         """The event stream's packets in file order; corrupt data becomes RecordingError."""
@@ -346,7 +346,7 @@ class RecordingReader:
                 raise self._error("corrupt APS frame data", exc) from None
             if frame is None:
                 return
-            yield Frame(int(frame.timestamp), _image_u8(frame.image))
+            yield Frame(int(frame.timestamp), grey_image(frame.image))
 
     def _raise_if_truncated(self, n_events: int, n_frames: int, last_us: int | None) -> None:
         if self._truncated is not None:
@@ -518,7 +518,7 @@ class RecordingWriter:
         try:
             self._writer = dv.io.MonoCameraWriter(str(self.path), config)
         except RuntimeError as exc:
-            raise RecordingError(f"{self.path}: cannot write ({_short(str(exc))})") from None
+            raise RecordingError(f"{self.path}: cannot write ({dv_error_text(str(exc))})") from None
         self.frames = frames
         self._pending: list[np.ndarray] = []
         self._n_pending = 0
