@@ -244,7 +244,7 @@ class EventCamera:
     def __init__(self, background: np.ndarray, rest_px: np.ndarray, amp: np.ndarray, sigma: np.ndarray,
                  rng: np.random.Generator, *, contrast: float = 0.25, contrast_sigma: float = 0.03,
                  refractory_us: int = 100, noise_rate_hz: float = 0.1, n_hot: int = 4,
-                 hot_rate_hz: float = 40.0, max_step_px: float = 0.25, eps_px: float = 0.02) -> None:
+                 hot_rate_hz: float = 40.0, max_step_px: float = 0.25, eps_px: float = 0.05) -> None:
         h, w = background.shape
         self.height, self.width = h, w
         self.sigma = np.ascontiguousarray(sigma, dtype=np.float64)

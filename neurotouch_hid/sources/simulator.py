@@ -46,14 +46,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Iterator, Sequence
 
+import numba
 import numpy as np
 
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.evaluation.dataset import LabelRow
+from neurotouch_hid.evaluation.dataset import LabelRow, write_labels
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame, StreamItem
 from neurotouch_hid.sources.esim import EventCamera, render_frame
+from neurotouch_hid.sources.recording import RecordingWriter, split_batches
 
 #: Gesture types that the simulated users perform (paper, section "Problem Statement").
 SIM_GESTURES: tuple[GestureType, ...] = (
@@ -267,6 +269,32 @@ class SimGesture:
         return np.stack([rx - rel[None, :, 0], ry - rel[None, :, 1]], axis=-1)
 
 
+@numba.njit(cache=True)
+def _finger_field(pts: np.ndarray, finger: np.ndarray, d: np.ndarray, finger_mm: float, press: float,
+                  level: np.ndarray, disp: np.ndarray, dim: np.ndarray) -> None:
+    """Add one finger's displacement field to ``disp`` (T, M, 2) mm and its dimming to ``dim``
+    (T, M): the finger (rest centre ``finger`` (2,) mm, displacement ``d`` (T, 2) mm) drags the
+    points ``pts`` (M, 2) with a Gaussian falloff of sigma sqrt(finger_mm^2 + (0.8 |d|)^2)
+    (wider for large displacements: the gel never folds), and its pressure ``press * level``
+    spreads the points under it radially (<= 0.35 mm) and dims them (<= 25 %)."""
+    inv_f2 = 1.0 / (2.0 * finger_mm * finger_mm)
+    for t in range(d.shape[0]):
+        if level[t] == 0.0:
+            continue
+        dn2 = d[t, 0] * d[t, 0] + d[t, 1] * d[t, 1]
+        inv_s2 = 1.0 / (2.0 * (finger_mm * finger_mm + 0.64 * dn2))
+        for m in range(pts.shape[0]):
+            rx = pts[m, 0] - finger[0]
+            ry = pts[m, 1] - finger[1]
+            dist2 = rx * rx + ry * ry
+            w = math.exp(-dist2 * inv_s2)
+            p = press * level[t] * math.exp(-dist2 * inv_f2)
+            disp[t, m, 0] += w * d[t, 0] + 0.35 * p * rx / finger_mm
+            disp[t, m, 1] += w * d[t, 1] + 0.35 * p * ry / finger_mm
+            if 0.25 * p > dim[t, m]:
+                dim[t, m] = 0.25 * p
+
+
 def deform(gestures: Sequence[SimGesture], points_mm: np.ndarray, t_us: np.ndarray, gel_radius_mm: float
            ) -> tuple[np.ndarray, np.ndarray]:
     """Where material points of the gel are at times t_us, and how much they are dimmed.
@@ -293,15 +321,7 @@ def deform(gestures: Sequence[SimGesture], points_mm: np.ndarray, t_us: np.ndarr
             continue
         d_f = g.finger_displacements(level)  # (T, K, 2)
         for k in range(len(g.fingers_mm)):
-            rel = pts - g.fingers_mm[k]  # (M, 2)
-            dist2 = (rel**2).sum(axis=1)
-            sig2 = g.finger_mm**2 + (0.8 * np.linalg.norm(d_f[:, k], axis=1)) ** 2  # (T,)
-            w = np.exp(-dist2[None, :] / (2.0 * sig2[:, None]))  # (T, M)
-            disp += w[:, :, None] * d_f[:, k][:, None, :]
-            under = np.exp(-dist2 / (2.0 * g.finger_mm**2))  # (M,)
-            press = g.press * level[:, None] * under[None, :]
-            disp += 0.35 * press[:, :, None] * (rel / g.finger_mm)[None]
-            dim = np.maximum(dim, 0.25 * press)
+            _finger_field(pts, g.fingers_mm[k], np.ascontiguousarray(d_f[:, k]), g.finger_mm, g.press, level, disp, dim)
     out = pts[None] + disp * rim[None, :, None]
     for g, level in zip(gestures, levels):
         if not level.any():
@@ -422,28 +442,36 @@ class GelSimulator:
         seed: the camera's and gel's seed (thresholds, hot pixels, marker brightness).
         stream_seed: the script's and noise's seed.
         start_us: time of the first APS frame (us).
+        script: the gestures to perform (time-ordered, not overlapping: each starts after the
+            previous one's ``t_settled_us``) instead of drawing them for ``user``; may be finite.
     """
 
     def __init__(self, sensor: SensorGeometry | None = None, user: SimUser = USERS[0],
                  gestures: Iterable[GestureType] = SIM_GESTURES, seed: int = 0,
-                 stream_seed: Sequence[int] = (0,), start_us: int = START_US) -> None:
+                 stream_seed: Sequence[int] = (0,), start_us: int = START_US,
+                 script: Iterable[SimGesture] | None = None) -> None:
         self.sensor = sensor or SensorGeometry()
         camera_rng = np.random.default_rng(np.random.SeedSequence([seed, 0xCA3E]))
         script_ss, noise_ss = np.random.SeedSequence([seed, *stream_seed]).spawn(2)
         self.gel = Gel(self.sensor, camera_rng)
         self.camera = EventCamera(self.gel.background, self.gel.rest_px, self.gel.brightness, self.gel.sigma_px,
-                                  camera_rng)
+                                  camera_rng, eps_px=0.05)
         self._noise_rng = np.random.default_rng(noise_ss)
         self._noise_bank = camera_rng.standard_normal(1 << 20, dtype=np.float32)
-        self._script = gesture_script(np.random.default_rng(script_ss), user, gestures, start_us, self.sensor)
+        self._script = iter(script) if script is not None else gesture_script(
+            np.random.default_rng(script_ss), user, gestures, start_us, self.sensor)
         self._known: list[SimGesture] = []
         self._carry = np.zeros(0, dtype=EVENT_DTYPE)
         self.t_us = int(start_us)
         self.user = user
 
     def _gestures_between(self, t0_us: int, t1_us: int) -> list[SimGesture]:
-        while not self._known or self._known[-1].t_start_us <= t1_us:
-            self._known.append(next(self._script))
+        while self._script is not None and (not self._known or self._known[-1].t_start_us <= t1_us):
+            nxt = next(self._script, None)
+            if nxt is None:
+                self._script = None
+            else:
+                self._known.append(nxt)
         self._known = [g for g in self._known if g.t_settled_us >= t0_us]
         return [g for g in self._known if g.t_start_us <= t1_us and g.t_settled_us >= t0_us]
 
@@ -548,15 +576,118 @@ class SimulatedSource:
             raise ValueError("batch_us must be >= 1")
         for chunk in self._sim.run(seconds):
             yield chunk.frame
-            yield from split_batches(chunk.events, chunk.frame.t_us, batch_us)
+            yield from split_batches(chunk.events, batch_us)
 
 
-def split_batches(events: np.ndarray, t0_us: int, batch_us: int) -> Iterator[np.ndarray]:
-    """Cut time-ordered events into the non-empty batches [t0 + k batch_us, t0 + (k+1) batch_us)."""
-    if not len(events):
-        return
-    edges = np.arange(t0_us + batch_us, int(events["timestamp"][-1]) + 1, batch_us)
-    bounds = np.concatenate([[0], np.searchsorted(events["timestamp"], edges, side="left"), [len(events)]])
-    for a, b in zip(bounds[:-1], bounds[1:]):
-        if b > a:
-            yield events[a:b]
+
+
+# --- datasets ---------------------------------------------------------------------------------
+def sequence_name(user_id: int, gesture: GestureType) -> str:
+    """Name of the sequence of one user and gesture type, e.g. ``u3_push``."""
+    return f"u{user_id}_{gesture.value}"
+
+
+def write_sequence(out_dir: Path, name: str, sim: GelSimulator, seconds: float,
+                   on_chunk=None) -> None:
+    """Simulate ``seconds`` (then on until the gel rests again) and write ``NAME.aedat4``,
+    ``NAME.labels.csv`` and ``NAME.markers.npz`` into ``out_dir``.
+
+    ``NAME.markers.npz`` holds the true marker positions: ``t_us`` (T,) int64 (every 1 ms, which
+    includes every APS frame), ``positions_px`` (T, N, 2) float32 image px and ``rest_px`` (N, 2)
+    float32. ``on_chunk(elapsed_us)`` is called after every frame period with the simulated
+    time so far (progress).
+    """
+    start_us = sim.t_us
+    end_us = start_us + int(round(seconds * 1e6))
+    labels: list[LabelRow] = []
+    times: list[np.ndarray] = []
+    positions: list[np.ndarray] = []
+    with RecordingWriter(out_dir / f"{name}.aedat4", width=sim.sensor.width, height=sim.sensor.height) as writer:
+        while True:
+            chunk = sim.step()
+            writer.write_frame(chunk.frame)
+            writer.write_events(chunk.events)
+            labels.append(chunk.label)
+            times.append(chunk.t_us)
+            positions.append(chunk.positions_px)
+            if on_chunk is not None:
+                on_chunk(sim.t_us - start_us)
+            if sim.t_us >= end_us and chunk.label.resting:
+                break
+    write_labels(out_dir / f"{name}.labels.csv", labels)
+    save_npz(out_dir / f"{name}.markers.npz", t_us=np.concatenate(times), positions_px=np.concatenate(positions),
+             rest_px=sim.gel.rest_px.astype(np.float32))
+
+
+def save_npz(path: Path, **arrays: np.ndarray) -> None:
+    """``numpy.savez_compressed`` with the fastest deflate level (the 1 ms marker positions of
+    a minute are ~85 MB raw; level 1 keeps the paper preset's writing time small)."""
+    import zipfile
+
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
+        for key, value in arrays.items():
+            with zf.open(f"{key}.npy", "w", force_zip64=True) as fh:
+                np.lib.format.write_array(fh, np.asanyarray(value), allow_pickle=False)
+
+
+def write_dataset(out_dir: str | Path, preset: str = "quick", seed: int = 0, minutes: float | None = None,
+                  progress: bool = True, users: Sequence[int] | None = None,
+                  gestures: Sequence[GestureType | str] | None = None,
+                  sensor: SensorGeometry | None = None) -> Path:
+    """Simulate and write a labelled dataset (DATASET.md): ``sensor.yaml`` and, per user and
+    gesture type, ``u{user}_{gesture}.aedat4``, ``.labels.csv`` and ``.markers.npz``.
+
+    Args:
+        out_dir: the dataset folder (created if missing).
+        preset: ``quick`` (1 user x 5 gestures x 3.5 s, for tests) or ``paper`` (5 users x 5
+            gestures x 60 s: the paper's 25 minutes; section "Creation of the Gesture Detection
+            Dataset").
+        seed: the same seed writes the same files; it also picks the users (:func:`preset_users`).
+        minutes: total simulated minutes instead of the preset's (split over the sequences).
+        progress: show a rich progress bar on stderr.
+        users: user ids (0-9) instead of the preset's, e.g. ``TUNING_USERS``.
+        gestures: gesture types instead of all five.
+        sensor: geometry (default DATASET.md's).
+    Returns:
+        the dataset folder.
+    Raises:
+        NeurotouchError: unknown preset, user id or gesture, or minutes <= 0.
+        RecordingError: the folder cannot be written.
+    """
+    if preset not in PRESET_SECONDS:
+        raise NeurotouchError(f"unknown simulation preset {preset!r}: expected one of {', '.join(PRESET_SECONDS)}")
+    user_ids = tuple(users) if users is not None else preset_users(preset, seed)
+    bad = [u for u in user_ids if not 0 <= int(u) < len(USERS)]
+    if bad or not user_ids:
+        raise NeurotouchError(f"simulated users are 0 to {len(USERS) - 1}, got {list(user_ids)}")
+    try:
+        kinds = [GestureType(g) for g in gestures] if gestures is not None else list(SIM_GESTURES)
+    except ValueError as exc:
+        raise NeurotouchError(f"unknown gesture type: {exc}") from None
+    if not kinds or GestureType.NONE in kinds:
+        raise NeurotouchError("gestures must be among push, pinch, zoom, twist_cw, twist_ccw")
+    n_seq = len(user_ids) * len(kinds)
+    if minutes is not None and not minutes > 0:
+        raise NeurotouchError(f"--minutes must be positive, got {minutes}")
+    seconds = PRESET_SECONDS[preset] if minutes is None else minutes * 60.0 / n_seq
+    sensor = sensor or SensorGeometry()
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise NeurotouchError(f"{out}: cannot create the dataset folder: {exc.strerror}") from None
+    sensor.save(out / "sensor.yaml")
+
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    columns = (TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
+               TimeElapsedColumn(), TimeRemainingColumn())
+    with Progress(*columns, disable=not progress, transient=False) as bar:
+        task = bar.add_task("simulating", total=n_seq * seconds)
+        for k, (uid, kind) in enumerate((int(u), g) for u in user_ids for g in kinds):
+            name = sequence_name(uid, kind)
+            bar.update(task, description=name)
+            sim = GelSimulator(sensor, USERS[uid], [kind], seed=seed, stream_seed=(uid, SIM_GESTURES.index(kind)))
+            write_sequence(out, name, sim, seconds,
+                           on_chunk=lambda us, k=k: bar.update(task, completed=k * seconds + min(us * 1e-6, seconds)))
+    return out

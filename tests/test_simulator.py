@@ -1,0 +1,309 @@
+"""The simulated NeuroTouch gel (sources/simulator.py, sources/esim.py).
+
+The quick dataset is written once per session through the CLI and read back with csv, PyYAML,
+numpy and dv-processing directly (not with our own readers), against DATASET.md.
+"""
+
+from __future__ import annotations
+
+import csv
+import filecmp
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from neurotouch_hid.cli import app
+from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.sources import EVENT_DTYPE, Frame
+from neurotouch_hid.sources.esim import EventCamera
+from neurotouch_hid.sources.simulator import (
+    SIM_GESTURES, START_US, USERS, GelSimulator, SimGesture, SimulatedSource, preset_users, write_dataset,
+)
+
+# DATASET.md, written out here from the spec (not taken from the code under test)
+DATASET_COLUMNS = ["t_us", "gesture", "resting", "intensity_mm", "n_contacts",
+                   "x1_px", "y1_px", "x2_px", "y2_px", "x3_px", "y3_px"]
+DATASET_GESTURES = {"none", "push", "pinch", "zoom", "twist_cw", "twist_ccw"}
+SENSOR_KEYS = {"width", "height", "px_per_mm", "gel_center_px", "gel_radius_px", "mirror", "rotation_deg"}
+
+
+@pytest.fixture(scope="session")
+def quick_dataset(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("sim") / "quick"
+    result = CliRunner().invoke(app, ["simulate", "--out", str(out), "--preset", "quick", "--seed", "0"])
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def _read_dv(path: Path) -> tuple[np.ndarray, list[tuple[int, np.ndarray]], tuple[int, int]]:
+    import dv_processing as dv
+
+    rec = dv.io.MonoCameraRecording(str(path))
+    assert rec.isEventStreamAvailable() and rec.isFrameStreamAvailable()
+    resolution = tuple(rec.getEventResolution())
+    parts = []
+    while rec.isRunning():
+        batch = rec.getNextEventBatch()
+        if batch is None:
+            break
+        parts.append(batch.numpy())
+    rec = dv.io.MonoCameraRecording(str(path))
+    frames = []
+    while True:
+        frame = rec.getNextFrame()
+        if frame is None:
+            break
+        frames.append((int(frame.timestamp), frame.image))
+    events = np.concatenate(parts) if parts else np.zeros(0, dtype=EVENT_DTYPE)
+    return events, frames, resolution
+
+
+def _components(image: np.ndarray) -> np.ndarray:
+    """Centroids (K, 2) px of the white blobs of an APS frame: connected components of the Otsu
+    threshold (OpenCV), each centroid weighted by the grey levels above the background in the
+    blob's box grown by 2 px (markers are >= 8 px apart, so no neighbour enters it)."""
+    _, binary = cv2.threshold(image, 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
+    n, _, stats, _ = cv2.connectedComponentsWithStats(binary)
+    out = np.zeros((n - 1, 2))
+    for k in range(1, n):
+        x, y, w, h = stats[k, :4]
+        x0, y0 = max(x - 2, 0), max(y - 2, 0)
+        roi = np.clip(image[y0 : y + h + 2, x0 : x + w + 2].astype(float) - 30.0, 0.0, None)
+        m = cv2.moments(roi)
+        out[k - 1] = (x0 + m["m10"] / m["m00"], y0 + m["m01"] / m["m00"])
+    return out
+
+
+def _signed_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Counter-clockwise angle (rad) from vectors a to b (..., 2), y up."""
+    return np.arctan2(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0], (a * b).sum(axis=-1))
+
+
+# --- the gel at rest --------------------------------------------------------------------------
+def test_rest_frame_shows_177_markers_inside_the_gel_circle(quick_dataset):
+    sensor_file = quick_dataset / "sensor.yaml"
+    data = yaml.safe_load(sensor_file.read_text())
+    cx, cy = data["gel_center_px"]
+    _, frames, _ = _read_dv(quick_dataset / "u0_push.aedat4")
+    t0, image = frames[0]
+    centroids = _components(image)
+    assert len(centroids) == 177
+    r = np.hypot(centroids[:, 0] - cx, centroids[:, 1] - cy)
+    assert r.max() < data["gel_radius_px"]
+    # sub-pixel rendering: weighted blob centroids agree with the true rest positions of
+    # markers.npz (the read noise moves a centroid by a few hundredths of a pixel)
+    rest = np.load(quick_dataset / "u0_push.markers.npz")["rest_px"]
+    d = np.linalg.norm(centroids[:, None, :] - rest[None], axis=-1)
+    assert np.all(d.min(axis=1) < 0.1)
+    assert len(set(d.argmin(axis=1))) == 177
+
+
+# --- events -----------------------------------------------------------------------------------
+def test_moving_bright_marker_makes_on_events_ahead_and_off_events_behind():
+    h, w = 40, 60
+    background = np.full((h, w), 20.0)
+    cam = EventCamera(background, np.array([[20.0, 20.0]]), np.array([200.0]), np.array([1.0]),
+                      np.random.default_rng(3), noise_rate_hz=0.0, n_hot=0)
+    t = np.arange(0, 20_001, 1000, dtype=np.int64)
+    x = 20.0 + 1e-3 * t  # 1000 px/s to the right
+    pos = np.stack([x, np.full_like(x, 20.0)], axis=1)[:, None, :]
+    events = cam.events(t, pos, np.full((len(t), 1), 200.0), np.random.default_rng(4))
+    assert len(events) > 100
+    assert np.all(np.diff(events["timestamp"]) >= 0)
+    centre_at_event = 20.0 + 1e-3 * events["timestamp"]
+    ahead = events["x"] > centre_at_event
+    on = events["polarity"] == 1
+    assert np.mean(ahead[on]) > 0.95
+    assert np.mean(~ahead[~on]) > 0.95
+    assert 0.3 < on.mean() < 0.7
+
+
+def test_gel_at_rest_makes_only_sparse_noise_events():
+    sim = GelSimulator(seed=5)
+    chunk = sim.step()  # the first 40 ms are a rest
+    assert chunk.label.resting
+    rate_per_pixel = len(chunk.events) / (346 * 260) / 0.04
+    assert rate_per_pixel < 2.0  # Hz per pixel: background activity and hot pixels only
+
+
+# --- motion and labels ------------------------------------------------------------------------
+def _single_gesture(kind: GestureType, fingers_mm, amplitude_mm: float, direction=(0.0, 0.0)) -> SimGesture:
+    return SimGesture(
+        gesture=kind, t_start_us=START_US + 200_000, attack_us=300_000, hold_us=200_000, release_us=200_000,
+        fingers_mm=np.asarray(fingers_mm, dtype=float), amplitude_mm=amplitude_mm,
+        direction=np.asarray(direction, dtype=float), finger_mm=7.0, press=0.8, tremor=(0.0, 5.0, 0.0),
+        global_mm=np.array([0.2, -0.1]), global_rad=0.002, residual=0.03, creep_us=80_000,
+    )
+
+
+def _run(gesture: SimGesture, seconds: float):
+    sim = GelSimulator(seed=1, script=[gesture])
+    return sim, list(sim.run(seconds))
+
+
+def test_ccw_twist_in_user_frame_is_clockwise_in_the_image():
+    sensor = SensorGeometry()
+    twist = _single_gesture(GestureType.TWIST_CCW, [[-8.0, 3.0], [8.0, -3.0]], 8.0)
+    _, chunks = _run(twist, 0.8)
+    rows = [c.label for c in chunks if c.label.gesture is GestureType.TWIST_CCW]
+    first, hold = rows[0], max(rows, key=lambda r: r.intensity_mm)
+    assert first.n_contacts == hold.n_contacts == 2
+
+    def rotation(points_a, points_b, y_up_flip):
+        a = points_a - points_a.mean(axis=0)
+        b = points_b - points_b.mean(axis=0)
+        if y_up_flip:  # image as displayed: v grows downwards, so use (u, -v) to measure y up
+            a, b = a * [1, -1], b * [1, -1]
+        return float(np.mean(_signed_angle(a, b)))
+
+    # as displayed, the contacts turn clockwise (negative angle, y up) ...
+    assert rotation(first.contacts_px, hold.contacts_px, y_up_flip=True) < -0.2
+    # ... and converted with DATASET.md's formula they turn counter-clockwise for the user
+    user_a, user_b = sensor.image_to_user(first.contacts_px), sensor.image_to_user(hold.contacts_px)
+    assert rotation(user_a, user_b, y_up_flip=False) > 0.2
+    # the true markers near the fingers turn the same way as the labels
+    pos0 = chunks[0].positions_px[0]
+    hold_chunk = next(c for c in chunks if c.label.t_us == hold.t_us)
+    pos1 = hold_chunk.positions_px[0]
+    near = np.linalg.norm(pos0[:, None] - first.contacts_px[None], axis=-1).min(axis=1) < 8.0
+    um0, um1 = sensor.image_to_user(pos0[near]), sensor.image_to_user(pos1[near])
+    assert np.mean(_signed_angle(um0, um1)) > 0.05
+
+
+def test_push_intensity_equals_contact_displacement_from_true_markers_and_aps_frames():
+    sensor = SensorGeometry()
+    rest_mm = GelSimulator(seed=1).gel.rest_mm
+    marker = int(np.argmin(np.linalg.norm(rest_mm - [4.0, -8.0], axis=1)))
+    finger = rest_mm[marker] + [0.6, 0.8]  # the finger centre 1 mm off a marker
+    push = _single_gesture(GestureType.PUSH, finger[None], 9.0, direction=(0.6, -0.8))
+    sim, chunks = _run(push, 1.6)
+    rest_px = sim.gel.rest_px
+    rows = [(c, c.label) for c in chunks if c.label.gesture is GestureType.PUSH]
+    assert max(r.intensity_mm for _, r in rows) > 7.0
+    for chunk, row in rows:
+        moved_px = chunk.positions_px[0, marker] - rest_px[marker]
+        moved_mm = float(np.linalg.norm(moved_px)) / sensor.px_per_mm
+        # The marker sits 1 mm from the finger centre: the Gaussian falloff (sigma >= 7 mm)
+        # keeps exp(-1 / 98) > 99 % of the finger's motion there, and pressing spreads it
+        # radially by <= 0.35 mm * press * 1 mm / 7 mm = 0.04 mm.
+        assert abs(row.intensity_mm - moved_mm) < 0.01 * row.intensity_mm + 0.06
+        # the labelled contact point is where the surface under the finger is: ~1 mm from it
+        gap_mm = np.linalg.norm(row.contacts_px[0] - chunk.positions_px[0, marker]) / sensor.px_per_mm
+        assert gap_mm < 1.0 + 0.01 * row.intensity_mm + 0.06
+    # independently of the simulator's state: the marker's blob centroid in the APS frames
+    rest_blobs = _components(chunks[0].frame.image)
+    chunk, row = max(rows, key=lambda cr: cr[1].intensity_mm)
+    blobs = _components(chunk.frame.image)
+    b0 = rest_blobs[np.argmin(np.linalg.norm(rest_blobs - rest_px[marker], axis=1))]
+    b1 = blobs[np.argmin(np.linalg.norm(blobs - chunk.positions_px[0, marker], axis=1))]
+    # at the hold (no tremor here) the 4 ms exposure is still, so only the falloff above and
+    # the blob centroid error (< 0.3 px = 0.12 mm) separate the two
+    blob_mm = float(np.linalg.norm(b1 - b0)) / sensor.px_per_mm
+    assert abs(blob_mm - row.intensity_mm) < 0.01 * row.intensity_mm + 0.2
+    # after the release the gel creeps back and the labels say resting again
+    last = chunks[-1].label
+    assert last.gesture is GestureType.NONE and last.resting
+
+
+def test_simulated_source_streams_frames_then_events_cycling_gestures():
+    source = SimulatedSource(seed=2, gestures=["pinch", "zoom"])
+    last_frame_us = None
+    last_ts = -1
+    n_frames = 0
+    for item in source.stream(seconds=0.4, batch_us=1000):
+        if isinstance(item, Frame):
+            assert item.image.shape == (260, 346) and item.image.dtype == np.uint8
+            last_frame_us = item.t_us
+            n_frames += 1
+        else:
+            assert item.dtype == EVENT_DTYPE and len(item)
+            ts = item["timestamp"]
+            assert ts[0] >= last_frame_us and ts[-1] < last_frame_us + 40_000
+            assert ts[-1] // 1000 == ts[0] // 1000  # 1 ms batches
+            assert ts[0] >= last_ts
+            last_ts = ts[-1]
+    assert n_frames == 10
+    kinds = [c.label.gesture for c in SimulatedSource(seed=2, gestures=["pinch", "zoom"]).chunks(9.0)]
+    assert GestureType.PINCH in kinds and GestureType.ZOOM in kinds
+
+
+def test_paper_preset_users_keep_tuning_apart_from_testing():
+    assert set(preset_users("paper", 0)).isdisjoint(preset_users("paper", 1))
+    assert len(preset_users("paper", 4)) == 5
+
+
+# --- the written dataset ----------------------------------------------------------------------
+def test_quick_dataset_follows_dataset_md(quick_dataset):
+    data = yaml.safe_load((quick_dataset / "sensor.yaml").read_text())
+    assert SENSOR_KEYS <= set(data)
+    assert (data["width"], data["height"]) == (346, 260) and data["mirror"] is True
+    names = sorted(p.name[: -len(".aedat4")] for p in quick_dataset.glob("*.aedat4"))
+    assert names == sorted(f"u0_{g.value}" for g in SIM_GESTURES)
+    cx, cy = data["gel_center_px"]
+    for name in names:
+        with open(quick_dataset / f"{name}.labels.csv", newline="") as fh:
+            reader = csv.reader(fh)
+            assert next(reader) == DATASET_COLUMNS
+            rows = list(reader)
+        events, frames, resolution = _read_dv(quick_dataset / f"{name}.aedat4")
+        assert resolution == (346, 260)
+        assert [t for t, _ in frames] == [int(r[0]) for r in rows]  # one label per APS frame
+        assert all(img.shape[:2] == (260, 346) and img.dtype == np.uint8 for _, img in frames)
+        ts = events["timestamp"]
+        assert len(events) and np.all(np.diff(ts) >= 0)
+        assert set(np.unique(events["polarity"]).astype(int)) <= {0, 1}
+        assert events["x"].min() >= 0 and events["x"].max() < 346 and events["y"].max() < 260
+        gestures = set()
+        for r in rows:
+            gesture, resting, intensity, n = r[1], r[2], float(r[3]), int(r[4])
+            assert gesture in DATASET_GESTURES and resting in ("0", "1") and 0 <= n <= 3
+            gestures.add(gesture)
+            cells = r[5:]
+            assert all(c != "" for c in cells[: 2 * n]) and all(c == "" for c in cells[2 * n :])
+            pts = np.array([float(c) for c in cells[: 2 * n]]).reshape(n, 2)
+            assert np.all(np.hypot(pts[:, 0] - cx, pts[:, 1] - cy) < data["gel_radius_px"])
+            if gesture == "none":
+                assert intensity == 0.0 and n == 0
+            else:
+                assert resting == "0" and n >= 1 and intensity >= 0.0
+        assert gestures == {"none", name.split("_", 1)[1]}
+        assert rows[0][1:3] == ["none", "1"] and rows[-1][1:3] == ["none", "1"]
+        markers = np.load(quick_dataset / f"{name}.markers.npz")
+        assert markers["t_us"].dtype == np.int64 and markers["positions_px"].dtype == np.float32
+        assert markers["positions_px"].shape == (len(markers["t_us"]), 177, 2)
+        assert markers["rest_px"].shape == (177, 2)
+        assert set(int(r[0]) for r in rows) <= set(markers["t_us"].tolist())
+        assert np.all(np.diff(markers["t_us"]) == 1000)
+
+
+def test_same_seed_same_files_other_seed_other_files(quick_dataset, tmp_path):
+    again = write_dataset(tmp_path / "again", preset="quick", seed=0, gestures=["push"], progress=False)
+    assert filecmp.cmp(again / "u0_push.labels.csv", quick_dataset / "u0_push.labels.csv", shallow=False)
+    ev_a, fr_a, _ = _read_dv(again / "u0_push.aedat4")
+    ev_b, fr_b, _ = _read_dv(quick_dataset / "u0_push.aedat4")
+    assert np.array_equal(ev_a, ev_b)
+    assert all(ta == tb and np.array_equal(a, b) for (ta, a), (tb, b) in zip(fr_a, fr_b))
+    other = write_dataset(tmp_path / "other", preset="quick", seed=1, users=[0], gestures=["push"], progress=False)
+    assert not filecmp.cmp(other / "u0_push.labels.csv", quick_dataset / "u0_push.labels.csv", shallow=False)
+    ev_c, _, _ = _read_dv(other / "u0_push.aedat4")
+    assert len(ev_c) != len(ev_b) or not np.array_equal(ev_c, ev_b)
+
+
+def test_bad_preset_is_one_clear_error(tmp_path):
+    from neurotouch_hid.cli import main
+    import sys
+
+    argv = sys.argv
+    sys.argv = ["neurotouch-hid", "simulate", "--out", str(tmp_path / "x"), "--preset", "huge"]
+    try:
+        with pytest.raises(SystemExit) as exc:
+            main()
+    finally:
+        sys.argv = argv
+    assert exc.value.code == 2
