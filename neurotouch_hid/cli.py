@@ -71,9 +71,21 @@ def simulate(
     preset: str = typer.Option("quick", "--preset", help="quick (small, for tests) or paper (5 users x 5 gestures x ~1 min)"),
     seed: int = typer.Option(0, "--seed", help="random seed: the same seed gives the same files"),
     minutes: Optional[float] = typer.Option(None, "--minutes", help="override the total simulated duration (minutes)"),
+    users: Optional[str] = typer.Option(
+        None, "--users",
+        help="comma-separated user ids 0-9 (default: the preset's; paper: even seed -> test users 0-4, odd seed -> tuning users 5-9)"),
 ) -> None:
     """Simulate the NeuroTouch gel and write a labelled dataset (DATASET.md)."""
-    _todo("simulate")
+    from neurotouch_hid.sources.simulator import write_dataset
+
+    user_ids = None
+    if users is not None:
+        try:
+            user_ids = [int(u) for u in users.split(",") if u.strip()]
+        except ValueError:
+            raise NeurotouchError(f"--users: expected comma-separated user ids 0-9, got {users!r}") from None
+    folder = write_dataset(out, preset=preset, seed=seed, minutes=minutes, users=user_ids, progress=True)
+    console.print(f"wrote {folder}")
 
 
 # --- the pipeline (pipeline/) ---------------------------------------------------------------
@@ -199,8 +211,8 @@ def profile_list() -> None:
         try:
             loaded = load_profile(path)
             table.add_row(name, where, loaded.description, "[green]ok[/]")
-        except ProfileError as exc:
-            table.add_row(name, where, "", f"[red]invalid[/] ({str(exc).count(chr(10))} problems)")
+        except ProfileError:
+            table.add_row(name, where, "", f"[red]invalid[/] (neurotouch-hid profile validate {path})")
     console.print(table)
 
 
