@@ -250,3 +250,17 @@ def test_test_and_tune_on_a_recording(cli, sim_recording):
 def test_test_on_the_simulated_gel(cli):
     result = summary(cli("test", "spacecraft", "--source", "sim", "--seconds", "1.5", "--json"))
     assert result["estimates"] >= 100
+
+
+def test_list_and_show(cli):
+    assert cli("new", "mine").returncode == 0
+    (cli.user_dir / "broken.yaml").write_text("mappings: [\n")
+    listing = cli("list")
+    assert listing.returncode == 0
+    rows = {l.split("│")[1].strip(): l for l in listing.stdout.splitlines() if l.count("│") >= 4}
+    assert {"default", "spacecraft", "accessibility", "mine", "broken"} <= set(rows)
+    assert "shipped" in rows["default"] and "user" in rows["mine"] and "invalid" in rows["broken"]
+    shown = cli("show", "spacecraft")
+    assert shown.returncode == 0
+    assert str(shipped_profiles_dir() / "spacecraft.yaml") in shown.stdout
+    assert "# pitch (y: push up = nose down" in shown.stdout  # the file, comments included

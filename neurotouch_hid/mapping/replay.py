@@ -6,16 +6,13 @@ button timeline, summarise and plot it, and tune saturations from what a user ac
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Iterable, Iterator
 
 import numpy as np
 
 from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
-from neurotouch_hid.errors import DatasetError
 from neurotouch_hid.estimate import GestureEstimate
 from neurotouch_hid.mapping.mapper import Mapper, gesture_inputs
 from neurotouch_hid.mapping.profile import ButtonMapping, Profile
@@ -27,28 +24,6 @@ def replay(profile: Profile, estimates: Iterable[GestureEstimate]) -> list[Contr
     return [mapper.update(e) for e in estimates]
 
 
-def read_predictions(path: str | os.PathLike) -> list[GestureEstimate]:
-    """Read a predictions file (JSON lines, DATASET.md "Predictions"; blank lines skipped).
-
-    Raises:
-        DatasetError: missing file, or a line that is not a valid prediction (names file and line).
-    """
-    path = Path(path)
-    try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DatasetError(f"cannot read predictions {path}: {exc}") from None
-    estimates = []
-    for number, line in enumerate(lines, start=1):
-        if not line.strip():
-            continue
-        try:
-            estimates.append(GestureEstimate.from_json_dict(json.loads(line)))
-        except (ValueError, KeyError, TypeError) as exc:
-            raise DatasetError(f"{path}:{number}: not a prediction line (DATASET.md): {type(exc).__name__}: {exc}") from None
-    return estimates
-
-
 def estimates_from_source(source: str, seconds: float | None = None) -> Iterator[GestureEstimate]:
     """Estimates from ``PRED.jsonl`` (predictions), ``sim`` (the simulated gel through the
     pipeline, 20 s unless ``seconds``) or an AEDAT4 recording (through the pipeline, with the
@@ -58,6 +33,8 @@ def estimates_from_source(source: str, seconds: float | None = None) -> Iterator
         DatasetError, RecordingError, SensorError: unreadable source.
     """
     if source.endswith(".jsonl"):
+        from neurotouch_hid.output.jsonl import read_predictions
+
         yield from _first_seconds(iter(read_predictions(source)), seconds)
         return
     from neurotouch_hid.pipeline.pipeline import GesturePipeline
