@@ -52,3 +52,52 @@ def test_write_report_writes_figures_and_summary_embedding_them(result, tmp_path
         assert f"]({name})" in text
     assert "neurotouch-hid eval X" in text and "r_px" in text
     assert "Contact distance error" in text
+
+
+# --- `neurotouch-hid eval` end to end on a tiny simulated dataset ----------------------------
+@pytest.fixture(scope="module")
+def quick_dataset(tmp_path_factory):
+    simulator = pytest.importorskip("neurotouch_hid.sources.simulator", reason="needs the gel simulator")
+    return simulator.write_dataset(tmp_path_factory.mktemp("quick"), preset="quick", seed=3, progress=False,
+                                   gestures=["push", "zoom"], minutes=0.05)
+
+
+def test_eval_command_writes_report_json_and_predictions(quick_dataset, tmp_path):
+    from typer.testing import CliRunner
+
+    from neurotouch_hid.cli import app
+    from neurotouch_hid.evaluation.dataset import list_sequences
+    from neurotouch_hid.evaluation.metrics import EvaluationResult
+
+    out_json = tmp_path / "metrics.json"
+    res = CliRunner().invoke(app, [
+        "eval", str(quick_dataset), "--report", str(tmp_path / "report"), "--json", str(out_json),
+        "--predictions", str(tmp_path / "pred"), "--set", "a=0.6", "--jobs", "2",
+    ])
+    assert res.exit_code == 0, res.output
+    assert "Gesture type accuracy" in res.output
+    data = json.loads(out_json.read_text())
+    for name in EvaluationResult.__dataclass_fields__:
+        assert name in data, name
+    assert data["config"]["a"] == 0.6
+    for name in FIGURES:
+        assert (tmp_path / "report" / name).stat().st_size > 0
+    assert (tmp_path / "report" / "summary.md").exists()
+    for seq in list_sequences(quick_dataset):
+        lines = (tmp_path / "pred" / f"{seq}.jsonl").read_text().splitlines()
+        assert lines and {"t_us", "gesture", "resting", "intensity_mm", "contacts_px"} <= json.loads(lines[0]).keys()
+
+
+def test_pipeline_config_rejects_unknown_or_bad_hyperparameter():
+    from neurotouch_hid.errors import NeurotouchError
+    from neurotouch_hid.evaluation.runner import pipeline_config
+
+    with pytest.raises(NeurotouchError, match="no field 'radius'"):
+        pipeline_config(["radius=3"])
+    with pytest.raises(NeurotouchError, match="r_px"):
+        pipeline_config(["r_px=big"])
+    with pytest.raises(NeurotouchError, match="TrackerConfig has no field 'nope'"):
+        pipeline_config(["tracker.nope=1"])
+    config = pipeline_config(["r_px=25", "n_min=3", "detect_resting=false", "tracker.assoc_px=5"], window_us=5000)
+    assert (config.r_px, config.n_min, config.detect_resting, config.tracker.assoc_px, config.window_us) == (
+        25.0, 3, False, 5.0, 5000)

@@ -65,19 +65,23 @@ def summary_rows(result: EvaluationResult) -> list[tuple[str, str, str]]:
 
 
 def per_class_rows(result: EvaluationResult) -> list[list[str]]:
-    """Per gesture type: name, precision, recall, F1, support, contact count accuracy, contact
-    distance error, intensity MAE (formatted)."""
+    """Per gesture type: name, precision, recall, F1 (%), support, contact count accuracy (%),
+    contact distance error (mm), intensity MAE (mm), formatted without units ("-": undefined)."""
+
+    def num(value: float, scale: float = 1.0) -> str:
+        return "-" if math.isnan(value) else f"{scale * value:.1f}" if scale != 1.0 else f"{value:.2f}"
+
     return [
         [
-            DISPLAY_NAMES.get(name, name), _pct(result.precision[k]), _pct(result.recall[k]), _pct(result.f1[k]),
-            str(int(result.support[k])), _pct(result.contact_count_accuracy_by_gesture[k]),
-            _mm(result.contact_distance_by_gesture_mm[k]), _mm(result.intensity_mae_by_gesture_mm[k]),
+            DISPLAY_NAMES.get(name, name), num(result.precision[k], 100), num(result.recall[k], 100),
+            num(result.f1[k], 100), str(int(result.support[k])), num(result.contact_count_accuracy_by_gesture[k], 100),
+            num(result.contact_distance_by_gesture_mm[k]), num(result.intensity_mae_by_gesture_mm[k]),
         ]
         for k, name in enumerate(result.classes)
     ]
 
 
-PER_CLASS_HEADER = ["Gesture", "Precision", "Recall", "F1", "Support", "Count acc.", "Contact dist.", "Intensity MAE"]
+PER_CLASS_HEADER = ["Gesture", "Prec. %", "Recall %", "F1 %", "Support", "Count acc. %", "Dist. mm", "MAE mm"]
 
 
 def intensity_rows(result: EvaluationResult) -> list[list[str]]:
