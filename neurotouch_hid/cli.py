@@ -315,9 +315,11 @@ def profile_test(
 
     from rich.table import Table
 
-    from neurotouch_hid.controller import AXES, BUTTONS
+    from neurotouch_hid.controller import AXES
     from neurotouch_hid.mapping.profile import load_profile
-    from neurotouch_hid.mapping.replay import deflection, estimates_from_source, plot_timeline, replay, sample_timeline, summarise
+    from neurotouch_hid.mapping.replay import (
+        deflection, estimates_from_source, plot_timeline, pressed, replay, sample_timeline, summarise,
+    )
 
     loaded = load_profile(name)
     estimates = list(estimates_from_source(source, seconds))
@@ -332,9 +334,9 @@ def profile_test(
     table = Table("t (s)", "gesture", "mm", *moved, "buttons", title=f"{name} on {source} ({len(estimates)} windows)")
     t0 = estimates[0].t_us if estimates else 0
     for row in sample_timeline(estimates, states, every_ms * 1000):
-        pressed = " ".join(b.removeprefix("BTN_") for b in BUTTONS if row.state.buttons[b])
+        down = " ".join(b.removeprefix("BTN_") for b in pressed(row.state))
         table.add_row(f"{(row.t_us - t0) / 1e6:.1f}", row.estimate.gesture.value, f"{row.estimate.intensity_mm:.1f}",
-                      *(f"{deflection(a, row.state.axes[a]):+.2f}" for a in moved), pressed)
+                      *(f"{deflection(a, row.state.axes[a]):+.2f}" for a in moved), down)
     console.print(table)
     totals = Table("axis / button", "max deflection / presses", title="summary")
     for axis in AXES:

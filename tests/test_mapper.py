@@ -228,3 +228,12 @@ def test_tuned_saturation_is_the_percentile_of_reached_intensity():
     # a weak user's 95th-percentile push now gives full deflection
     tuned_profile = profile(push={**PUSH_STICK, "saturation_mm": new})
     assert Mapper(tuned_profile).update(est(G.PUSH, 2.9)).axes["ABS_X"] == STICK_MAX
+
+
+def test_summary_counts_dpad_presses():
+    p = profile(up=dict(input="push_up", output="dpad_up", press_mm=2.0, release_mm=1.0),
+                right=dict(input="push_right", output="dpad_right", press_mm=2.0, release_mm=1.0))
+    pushes = [((0, 1), 3.0), ((0, 0), 0.0), ((0, 1), 3.0), ((1, 0), 3.0), ((0, 0), 0.0)]
+    stream = [est(G.PUSH if mm else G.NONE, mm, t_us=10_000 * i, direction=d) for i, (d, mm) in enumerate(pushes)]
+    presses = summarise(replay(p, stream)).presses
+    assert presses["dpad_up"] == 2 and presses["dpad_right"] == 1 and presses["dpad_down"] == 0

@@ -12,10 +12,10 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
+from neurotouch_hid.controller import AXES, ControllerState
 from neurotouch_hid.estimate import GestureEstimate
 from neurotouch_hid.mapping.mapper import Mapper, gesture_inputs
-from neurotouch_hid.mapping.profile import ButtonMapping, Profile
+from neurotouch_hid.mapping.profile import DIGITAL_OUTPUTS, DPAD, ButtonMapping, Profile
 
 
 def replay(profile: Profile, estimates: Iterable[GestureEstimate]) -> list[ControllerState]:
@@ -74,10 +74,17 @@ def sample_timeline(estimates: list[GestureEstimate], states: list[ControllerSta
     return [TimelineRow(int(t), estimates[i], states[i]) for t, i in zip(samples, index)]
 
 
+def pressed(state: ControllerState) -> list[str]:
+    """The buttons and d-pad directions (``dpad_up`` ...) pressed in ``state``, in DIGITAL_OUTPUTS order."""
+    return [name for name in DIGITAL_OUTPUTS
+            if (state.axes[DPAD[name][0]] == DPAD[name][1] if name in DPAD else state.buttons[name])]
+
+
 @dataclass(frozen=True)
 class Summary:
     """Per axis the largest deflection (fraction of the half range for sticks, of the range for
-    triggers and hats: 0..1) and per button the number of presses (rising edges)."""
+    triggers and hats: 0..1) and per button and d-pad direction the number of presses (rising
+    edges)."""
 
     max_deflection: dict[str, float]
     presses: dict[str, int]
@@ -94,14 +101,15 @@ def deflection(name: str, value: int) -> float:
 def summarise(states: list[ControllerState]) -> Summary:
     """The largest |deflection| per axis and the press count per button over ``states``."""
     max_deflection = {name: 0.0 for name in AXES}
-    presses = {name: 0 for name in BUTTONS}
-    previous = {name: False for name in BUTTONS}
+    presses = {name: 0 for name in DIGITAL_OUTPUTS}
+    previous: set[str] = set()
     for state in states:
         for name, value in state.axes.items():
             max_deflection[name] = max(max_deflection[name], abs(deflection(name, value)))
-        for name, pressed in state.buttons.items():
-            presses[name] += int(pressed and not previous[name])
-            previous[name] = pressed
+        now = set(pressed(state))
+        for name in now - previous:
+            presses[name] += 1
+        previous = now
     return Summary(max_deflection, presses)
 
 
@@ -132,9 +140,10 @@ def plot_timeline(estimates: list[GestureEstimate], states: list[ControllerState
     ax_axes.set_ylim(-1.05, 1.05)
     if ax_axes.lines:
         ax_axes.legend(loc="upper right", fontsize=7)
-    used = [name for name in BUTTONS if any(s.buttons[name] for s in states)]
+    down = [set(pressed(s)) for s in states]
+    used = [name for name in DIGITAL_OUTPUTS if any(name in d for d in down)]
     for k, name in enumerate(used):
-        ax_btn.step(t, [k + 0.8 * s.buttons[name] for s in states], where="post", lw=1)
+        ax_btn.step(t, [k + 0.8 * (name in d) for d in down], where="post", lw=1)
     ax_btn.set_yticks(range(len(used)), used)
     ax_btn.set_ylabel("buttons")
     ax_btn.set_xlabel("time (s)")
