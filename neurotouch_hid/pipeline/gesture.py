@@ -157,7 +157,7 @@ def estimate_gesture(
     sensor: SensorGeometry,
     *,
     r_px: float = 30.0,
-    reproj_factor: float = 0.6,
+    reproj_factor: float = 2.0,
     min_reproj_px: float = 0.5,
     min_intensity_px: float = 0.5,
 ) -> GestureResult:
