@@ -184,3 +184,16 @@ def test_shipped_profiles_are_package_data():
     names = {p.name for p in shipped_profiles_dir().glob("*.yaml")}
     assert names >= {"default.yaml", "spacecraft.yaml", "accessibility.yaml"}
     assert shipped_profiles_dir().parent.name == "neurotouch_hid"
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("mappings:\n  m: 5\n", "q.yaml:2: mappings.m: found 5; expected a mapping"),
+    ("device: x\nmappings: {}\n", "q.yaml:1: device: found 'x'; expected a mapping"),
+    ("mappings:\n  m: {input: zoom, output: [1]}\n", "q.yaml:2: mappings.m.output: found [1]; expected 'left_stick'"),
+    ("mappings:\n  bad key: {input: zoom, output: ABS_Z}\n", "q.yaml:2: mappings.bad key: found the name 'bad key'"),
+])
+def test_wrong_shapes_are_reported_in_plain_words(text, expected):
+    with pytest.raises(ProfileError) as info:
+        parse_profile(text, "q.yaml")
+    assert expected in str(info.value)
+    assert "_UnknownOutput" not in str(info.value) and "[key]" not in str(info.value)

@@ -184,6 +184,8 @@ _UnknownOutput = create_model(
 
 def _output_kind(value: Any) -> str:
     output = value.get("output") if isinstance(value, dict) else getattr(value, "output", None)
+    if not isinstance(output, str):
+        return "unknown"
     if output in STICKS:
         return "stick"
     if output in ANALOG_AXES:
@@ -314,21 +316,15 @@ def _line_of(root: yaml.Node | None, loc: tuple) -> tuple[int, tuple]:
     """
     node, line, path = root, (root.start_mark.line + 1 if root is not None else 1), []
     for part in loc:
+        match = None
         if isinstance(node, yaml.MappingNode):
             match = next(((k, v) for k, v in node.value if isinstance(k, yaml.ScalarNode) and k.value == str(part)), None)
-            if match is not None:
-                line, node = match[0].start_mark.line + 1, match[1]
-                path.append(part)
-                continue
-            if part in _TAG_MODELS:
-                continue
-        elif isinstance(node, yaml.SequenceNode) and isinstance(part, int) and 0 <= part < len(node.value):
-            node = node.value[part]
-            line = node.start_mark.line + 1
+        if match is not None:
+            line, node = match[0].start_mark.line + 1, match[1]
             path.append(part)
-            continue
-        path.append(part)
-        node = None
+        elif part not in _TAG_MODELS:
+            path.append(part)
+            node = None
     return line, tuple(path)
 
 
@@ -358,6 +354,12 @@ def _describe(err: dict, root: yaml.Node | None, source: str | os.PathLike) -> t
         model = _model_at(tuple(err["loc"]))
         allowed = f": one of {', '.join(model.model_fields)}" if model is not None else ""
         return line, f"{source}:{line}: {field}: unknown field (found {_short(err['input'])}); expected a known field{allowed}"
+    if kind == "string_pattern_mismatch" and path[-1:] == ("[key]",):
+        field = ".".join(str(p) for p in path[:-1])
+        return line, (f"{source}:{line}: {field}: found the name {_short(err['input'])}; expected a name of letters, "
+                      "digits and '_' that does not start with a digit")
+    if kind in ("model_type", "model_attributes_type", "dict_type"):
+        return line, f"{source}:{line}: {field}: found {_short(err['input'])}; expected a mapping (key: value lines)"
     message = err["msg"].removeprefix("Value error, ")
     expected = message[0].lower() + message[1:] if message else message
     if expected.startswith("input should be "):
