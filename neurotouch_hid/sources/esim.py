@@ -53,17 +53,16 @@ def _pixel_weights(center: float, sigma: float, first: int, out: np.ndarray) -> 
 
 @numba.njit(cache=True)
 def splat(img: np.ndarray, x: float, y: float, amp: float, sigma: float,
-          dirty: np.ndarray, dirty_list: np.ndarray, n_dirty: int) -> int:
+          dirty: np.ndarray, dirty_list: np.ndarray, n_dirty: int, gx: np.ndarray, gy: np.ndarray) -> int:
     """Add one marker (pixel-integrated Gaussian, peak ``amp`` grey levels when centred on a
     pixel, ``sigma`` px) to ``img`` (H, W) float32 at image position (x, y) px. Pixels touched
     are appended once to ``dirty_list`` (flat indices) when ``dirty`` is given (size > 0).
-    Returns the new number of dirty pixels."""
+    ``gx``, ``gy``: scratch arrays of 2 * PATCH_RADIUS + 1 float64. Returns the new number of
+    dirty pixels."""
     h, w = img.shape
     cx = int(math.floor(x + 0.5))
     cy = int(math.floor(y + 0.5))
     size = 2 * PATCH_RADIUS + 1
-    gx = np.empty(size)
-    gy = np.empty(size)
     _pixel_weights(x, sigma, cx - PATCH_RADIUS, gx)
     _pixel_weights(y, sigma, cy - PATCH_RADIUS, gy)
     track = dirty.shape[0] > 0
@@ -97,25 +96,27 @@ def render_frame(background: np.ndarray, pos: np.ndarray, amp: np.ndarray, sigma
         sigma: (N,) float64 marker blob sigma (px).
         read_noise: sigma of the read noise (grey levels); shot_noise: sigma of the shot noise
             at grey level 1 (it grows with the square root of the grey level).
-        noise_bank: (B,) float32 standard normal values, B >= H * W; offset: where this frame's
-            noise starts in the bank (wrapping around), drawn per frame by the caller.
+        noise_bank: (B,) float32 standard normal values; offset: where this frame's noise starts
+            in the bank (0 <= offset <= B - H * W), drawn per frame by the caller.
     Returns:
         (H, W) uint8 image.
     """
     img = background.copy()
     no_dirty = np.zeros(0, dtype=np.uint8)
     no_list = np.zeros(0, dtype=np.int32)
+    gx = np.empty(2 * PATCH_RADIUS + 1)
+    gy = np.empty(2 * PATCH_RADIUS + 1)
     s_count = pos.shape[0]
     for s in range(s_count):
         for n in range(pos.shape[1]):
-            splat(img, pos[s, n, 0], pos[s, n, 1], amp[s, n] / s_count, sigma[n], no_dirty, no_list, 0)
+            splat(img, pos[s, n, 0], pos[s, n, 1], amp[s, n] / s_count, sigma[n], no_dirty, no_list, 0, gx, gy)
     out = np.empty(img.shape, dtype=np.uint8)
     h, w = img.shape
-    bank = noise_bank.shape[0]
+    noise = noise_bank[offset : offset + h * w]
     for y in range(h):
         for x in range(w):
             v = img[y, x]
-            z = noise_bank[(offset + y * w + x) % bank]
+            z = noise[y * w + x]
             v += math.sqrt(read_noise * read_noise + shot_noise * shot_noise * max(v, 0.0)) * z
             out[y, x] = min(255, max(0, int(math.floor(v + 0.5))))
     return out
@@ -152,6 +153,8 @@ def esim_chunk(t_us: np.ndarray, pos: np.ndarray, amp: np.ndarray, sigma: np.nda
     """
     h, w = img.shape
     n_markers = pos.shape[1]
+    gx = np.empty(2 * PATCH_RADIUS + 1)
+    gy = np.empty(2 * PATCH_RADIUS + 1)
     n_out = 0
     cap = out_t.shape[0]
     k = start
@@ -179,8 +182,9 @@ def esim_chunk(t_us: np.ndarray, pos: np.ndarray, amp: np.ndarray, sigma: np.nda
                 if (abs(x - rend_pos[n, 0]) < eps_px and abs(y - rend_pos[n, 1]) < eps_px
                         and abs(b - rend_amp[n]) < 0.002 * rend_amp[n]):
                     continue
-                n_dirty = splat(img, rend_pos[n, 0], rend_pos[n, 1], -rend_amp[n], sigma[n], dirty, dirty_list, n_dirty)
-                n_dirty = splat(img, x, y, b, sigma[n], dirty, dirty_list, n_dirty)
+                n_dirty = splat(img, rend_pos[n, 0], rend_pos[n, 1], -rend_amp[n], sigma[n], dirty, dirty_list,
+                                n_dirty, gx, gy)
+                n_dirty = splat(img, x, y, b, sigma[n], dirty, dirty_list, n_dirty, gx, gy)
                 rend_pos[n, 0] = x
                 rend_pos[n, 1] = y
                 rend_amp[n] = b
@@ -253,8 +257,10 @@ class EventCamera:
         self.rend_amp = np.array(amp, dtype=np.float64)
         no_dirty = np.zeros(0, dtype=np.uint8)
         no_list = np.zeros(0, dtype=np.int32)
+        gx, gy = np.empty(2 * PATCH_RADIUS + 1), np.empty(2 * PATCH_RADIUS + 1)
         for n in range(len(self.rend_pos)):
-            splat(self.img, self.rend_pos[n, 0], self.rend_pos[n, 1], self.rend_amp[n], self.sigma[n], no_dirty, no_list, 0)
+            splat(self.img, self.rend_pos[n, 0], self.rend_pos[n, 1], self.rend_amp[n], self.sigma[n], no_dirty, no_list,
+                  0, gx, gy)
         self.c_on = np.clip(rng.normal(contrast, contrast_sigma, (h, w)), 0.5 * contrast, None).astype(np.float32)
         self.c_off = np.clip(rng.normal(contrast, contrast_sigma, (h, w)), 0.5 * contrast, None).astype(np.float32)
         self.lin_prev = self.img.copy()

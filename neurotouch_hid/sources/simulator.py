@@ -505,8 +505,9 @@ class GelSimulator:
         k = np.clip(np.searchsorted(grid_us, times, side="right") - 1, 0, last - 1)
         a = ((times - grid_us[k]) / (grid_us[k + 1] - grid_us[k]))[:, None]
         pos = grid_pos[k] + a[..., None] * (grid_pos[k + 1] - grid_pos[k])
+        img_size = self.sensor.width * self.sensor.height
         amp = grid_amp[k] + a * (grid_amp[k + 1] - grid_amp[k])
-        offset = int(self._noise_rng.integers(0, len(self._noise_bank)))
+        offset = int(self._noise_rng.integers(0, len(self._noise_bank) - img_size))
         return Frame(t_us, render_frame(self.gel.background, pos, amp, self.gel.sigma_px, READ_NOISE, SHOT_NOISE,
                                         self._noise_bank, offset))
 
