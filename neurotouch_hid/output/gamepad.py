@@ -1,0 +1,213 @@
+"""The virtual gamepad: a uinput device with the Xbox 360 layout that SDL, Steam and browsers know.
+
+Layout (ARCHITECTURE.md, :mod:`neurotouch_hid.controller`): sticks ABS_X/Y/RX/RY in
+-32768..32767 (flat 128 like the kernel's xpad driver, but fuzz 0, see :data:`STICK_FUZZ`), triggers ABS_Z/RZ in 0..255,
+d-pad ABS_HAT0X/Y in -1..1, and the 11 buttons BTN_SOUTH .. BTN_THUMBR. Nothing mouse- or
+touch-like, so udev classes it as a joystick (ID_INPUT_JOYSTICK=1) and SDL as a GameController.
+By default it presents itself as "Microsoft X-Box 360 pad", USB 045e:028e version 0x0114: the ids
+SDL's controller database maps without configuration.
+
+The device is created once and kept for the whole run (a profile switch calls
+:meth:`VirtualGamepad.neutralise`, not a new device: games keep their handle). The runtime owns
+signal handling; on SIGTERM/SIGINT it must call :meth:`VirtualGamepad.close`, which centres every
+axis and releases every button before the device disappears, so no button stays pressed.
+
+Library: python-evdev's :class:`evdev.UInput` (kernel uinput, Documentation/input/uinput.rst).
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+import threading
+import time
+from dataclasses import dataclass
+
+from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
+from neurotouch_hid.errors import DeviceError
+
+#: The udev rule that gives the seated user access to /dev/uinput (udev/60-neurotouch.rules
+#: carries the same line; tests/test_packaging.py checks they agree).
+UINPUT_RULE = 'KERNEL=="uinput", SUBSYSTEM=="misc", TAG+="uaccess", OPTIONS+="static_node=uinput"'
+#: How to install the rules from a source checkout (packaging/install.sh does the same).
+RULES_INSTALL = ("sudo install -m644 udev/60-neurotouch.rules /etc/udev/rules.d/ && "
+                 "sudo udevadm control --reload && sudo udevadm trigger "
+                 "(or: sudo packaging/install.sh --system)")
+#: ``phys`` of every device we create; the udev rule tags devices with it ID_NEUROTOUCH_VIRTUAL=1.
+PHYS = "neurotouch-hid/gamepad"
+#: Stick noise filter: 0, unlike xpad's 16. The input core "defuzzes" every value closer than
+#: ``fuzz`` to the last one (input_defuzz_abs_event: within fuzz/2 it is dropped), so with 16 a
+#: stick at 5 could never be centred to 0. Our values are computed, not noisy: the profile's dead
+#: zone and hysteresis do the filtering.
+STICK_FUZZ = 0
+#: Stick dead band hint for games (what xpad reports).
+STICK_FLAT = 128
+#: Pause between the neutral report and destroying the device in :meth:`VirtualGamepad.close`:
+#: once a device is gone, evdev answers a reader's read() with ENODEV and drops what it had not
+#: read yet, so a game polling every frame must get the chance to read the release.
+RELEASE_GRACE_S = 0.05
+_STICKS = ("ABS_X", "ABS_Y", "ABS_RX", "ABS_RY")
+_NAME_MAX = 79  # UINPUT_MAX_NAME_SIZE (80) minus the terminating NUL
+
+
+@dataclass(frozen=True)
+class GamepadIdentity:
+    """What the device tells the system it is (uinput_setup): name, USB ids, version, bus.
+
+    Defaults are the wired Xbox 360 pad's, which SDL's controller database knows as
+    ``030000005e0400008e02000014010000``."""
+
+    name: str = "Microsoft X-Box 360 pad"
+    vendor: int = 0x045E
+    product: int = 0x028E
+    version: int = 0x0114
+    bustype: int = 0x03  # BUS_USB
+
+
+def uinput_help(devnode: str = "/dev/uinput") -> str:
+    """The fix for a missing or unwritable uinput node: module, udev rule, install command."""
+    return (f"load the uinput module: sudo modprobe uinput (at every boot: "
+            f"echo uinput | sudo tee /etc/modules-load.d/neurotouch-hid.conf); give the seated user "
+            f"access with the udev rule `{UINPUT_RULE}`: {RULES_INSTALL}; then log out and in. "
+            f"Check with: neurotouch-hid doctor")
+
+
+def uinput_problem(devnode: str = "/dev/uinput") -> str | None:
+    """Why ``devnode`` cannot be used to create a gamepad (missing, not a character device, not
+    readable and writable by this process), or None when it can."""
+    try:
+        mode = os.stat(devnode).st_mode
+    except FileNotFoundError:
+        return f"{devnode} does not exist (the kernel's uinput module is not loaded)"
+    except OSError as exc:
+        return f"cannot stat {devnode}: {exc.strerror}"
+    if not stat.S_ISCHR(mode):
+        return f"{devnode} is not a character device, so not the uinput device"
+    if not os.access(devnode, os.R_OK | os.W_OK):
+        return f"no permission to open {devnode} for reading and writing (uid {os.getuid()})"
+    return None
+
+
+def capabilities() -> dict[int, list]:
+    """python-evdev capability dict of the gamepad: EV_KEY with the 11 buttons, EV_ABS with the 8
+    axes and their AbsInfo (range, fuzz, flat). No EV_REL, no BTN_TOUCH/BTN_LEFT, no properties."""
+    from evdev import AbsInfo, ecodes
+
+    absinfo = []
+    for name, (lo, hi, _neutral) in AXES.items():
+        fuzz, flat = (STICK_FUZZ, STICK_FLAT) if name in _STICKS else (0, 0)
+        absinfo.append((ecodes.ecodes[name], AbsInfo(value=0, min=lo, max=hi, fuzz=fuzz,
+                                                            flat=flat, resolution=0)))
+    return {ecodes.EV_KEY: [ecodes.ecodes[name] for name in BUTTONS], ecodes.EV_ABS: absinfo}
+
+
+def normalised(state: ControllerState) -> ControllerState:
+    """A full copy of ``state``: every axis of AXES clamped to its range (missing = neutral), every
+    button of BUTTONS as a bool (missing = released); names outside the layout are dropped."""
+    axes = {name: min(max(int(state.axes.get(name, neutral)), lo), hi)
+            for name, (lo, hi, neutral) in AXES.items()}
+    buttons = {name: bool(state.buttons.get(name, False)) for name in BUTTONS}
+    return ControllerState(t_us=state.t_us, axes=axes, buttons=buttons)
+
+
+def changed_events(previous: ControllerState | None, state: ControllerState) -> list[tuple[str, int]]:
+    """The (evdev name, value) pairs to write to go from ``previous`` to ``state``.
+
+    Both are taken :func:`normalised`. With ``previous=None`` every axis and button is listed (the
+    first write). Axes come first, in AXES order, then buttons in BUTTONS order, as 0/1."""
+    new = normalised(state)
+    old = normalised(previous) if previous is not None else None
+    out = [(n, v) for n, v in new.axes.items() if old is None or old.axes[n] != v]
+    out += [(n, int(v)) for n, v in new.buttons.items() if old is None or old.buttons[n] != v]
+    return out
+
+
+class VirtualGamepad:
+    """A uinput gamepad (Xbox 360 layout) that mirrors :class:`ControllerState` values.
+
+    Use as a context manager, or call :meth:`close`. Thread-safe: :meth:`close` may be called
+    from a signal handler or another thread while :meth:`write` runs.
+
+    Raises:
+        DeviceError: ``devnode`` (default /dev/uinput) is missing, not a character device or not
+            writable, or the kernel refuses the device; the message names the udev rule and the
+            commands that fix it.
+    """
+
+    def __init__(self, identity: GamepadIdentity | None = None, devnode: str = "/dev/uinput") -> None:
+        self.identity = identity or GamepadIdentity()
+        if not 0 < len(self.identity.name.encode()) <= _NAME_MAX:
+            raise DeviceError(f"gamepad name {self.identity.name!r} must be 1..{_NAME_MAX} bytes long")
+        problem = uinput_problem(devnode)
+        if problem:
+            raise DeviceError(f"{problem}: {uinput_help(devnode)}")
+        from evdev import UInput, UInputError, ecodes
+
+        self._ecodes = ecodes.ecodes
+        try:
+            self._ui = UInput(capabilities(), name=self.identity.name,
+                              vendor=self.identity.vendor, product=self.identity.product,
+                              version=self.identity.version, bustype=self.identity.bustype,
+                              devnode=devnode, phys=PHYS)
+        except (OSError, UInputError) as exc:
+            raise DeviceError(f"the kernel refused to create the virtual gamepad on {devnode}: "
+                              f"{exc}: " + uinput_help(devnode)) from None
+        self._lock = threading.RLock()
+        self._last: ControllerState | None = None
+        self._closed = False
+        self.write(ControllerState.neutral())
+
+    @property
+    def device_path(self) -> str | None:
+        """The event node games read, e.g. ``/dev/input/event5`` (None if it could not be opened)."""
+        device = self._ui.device
+        return device.path if device is not None else None
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def write(self, state: ControllerState) -> None:
+        """Write the axes and buttons that changed since the last write, then one SYN_REPORT.
+
+        Values are clamped to each axis' range. Nothing is written when nothing changed (the kernel
+        would drop an empty report anyway). Writing to a closed gamepad raises DeviceError."""
+        with self._lock:
+            if self._closed:
+                raise DeviceError("the virtual gamepad is closed")
+            events = changed_events(self._last, state)
+            if not events:
+                return
+            ev_abs, ev_key = self._ecodes["EV_ABS"], self._ecodes["EV_KEY"]
+            try:
+                for name, value in events:
+                    self._ui.write(ev_abs if name.startswith("ABS_") else ev_key,
+                                   self._ecodes[name], value)
+                self._ui.syn()
+            except OSError as exc:
+                raise DeviceError(f"writing to the virtual gamepad failed: {exc}") from None
+            self._last = normalised(state)
+
+    def neutralise(self) -> None:
+        """Centre every axis (triggers to 0) and release every button, then SYN_REPORT."""
+        self.write(ControllerState.neutral())
+
+    def close(self) -> None:
+        """Neutralise, wait :data:`RELEASE_GRACE_S` so readers see it, then destroy the device.
+
+        Idempotent; never leaves a button pressed."""
+        with self._lock:
+            if self._closed:
+                return
+            try:
+                self.neutralise()
+                time.sleep(RELEASE_GRACE_S)
+            finally:
+                self._closed = True
+                self._ui.close()
+
+    def __enter__(self) -> "VirtualGamepad":
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()

@@ -1,0 +1,77 @@
+#!/bin/sh
+# Install neurotouch-hid's udev rules (system-wide, root) and its systemd user unit (per user).
+#
+# usage: packaging/install.sh [--system] [--user] [--bin PATH]
+#   --system  udev/60-neurotouch.rules -> /etc/udev/rules.d/, "uinput" -> /etc/modules-load.d/
+#             (loaded at every boot), then reload udev, re-trigger devices and load uinput now.
+#             Needs root.
+#   --user    packaging/neurotouch-hid.service -> ~/.config/systemd/user/ with ExecStart set to the
+#             neurotouch-hid on PATH (or --bin PATH), a ~/.config/neurotouch-hid/service.env to
+#             pick the profile, and `systemctl --user daemon-reload`. Run as yourself, not root.
+#   neither   both: the system part through sudo, the user part as you.
+# DESTDIR=DIR stages the system files under DIR and touches nothing live (packagers, tests).
+set -eu
+
+here=$(cd "$(dirname "$0")" && pwd)
+src=$(dirname "$here")
+do_system=0 do_user=0 bin=""
+while [ $# -gt 0 ]; do
+    case "$1" in
+        --system) do_system=1 ;;
+        --user) do_user=1 ;;
+        --bin) shift; bin=${1:?--bin needs a path} ;;
+        -h|--help) sed -n '2,15p' "$0"; exit 0 ;;
+        *) echo "install.sh: unknown option $1 (see --help)" >&2; exit 2 ;;
+    esac
+    shift
+done
+if [ $do_system = 0 ] && [ $do_user = 0 ]; then
+    if [ "$(id -u)" = 0 ]; then
+        do_system=1
+        echo "install.sh: running as root: system part only; run 'packaging/install.sh --user' as your own user" >&2
+    else
+        sudo "$0" --system
+        do_user=1
+    fi
+fi
+
+if [ $do_system = 1 ]; then
+    dest=${DESTDIR:-}
+    if [ -z "$dest" ] && [ "$(id -u)" != 0 ]; then
+        echo "install.sh: --system needs root: sudo $0 --system" >&2; exit 1
+    fi
+    install -D -m 644 "$src/udev/60-neurotouch.rules" "$dest/etc/udev/rules.d/60-neurotouch.rules"
+    install -d -m 755 "$dest/etc/modules-load.d"
+    echo uinput > "$dest/etc/modules-load.d/neurotouch-hid.conf"
+    chmod 644 "$dest/etc/modules-load.d/neurotouch-hid.conf"
+    if [ -z "$dest" ]; then
+        modprobe uinput || echo "install.sh: modprobe uinput failed (is uinput built into this kernel?)" >&2
+        udevadm control --reload
+        udevadm trigger --subsystem-match=misc --subsystem-match=usb --subsystem-match=input
+    fi
+    echo "installed the udev rules; replug the camera, then log out and in (uaccess ACLs)"
+fi
+
+if [ $do_user = 1 ]; then
+    if [ -z "$bin" ]; then
+        bin=$(command -v neurotouch-hid || true)
+    fi
+    case "$bin" in
+        /*) [ -x "$bin" ] || { echo "install.sh: $bin is not executable" >&2; exit 1; } ;;
+        *) echo "install.sh: neurotouch-hid is not on PATH; install it (python3 -m pip install --user .) or pass --bin /path/to/neurotouch-hid" >&2; exit 1 ;;
+    esac
+    config=${XDG_CONFIG_HOME:-$HOME/.config}
+    units="$config/systemd/user"
+    install -d -m 755 "$units" "$config/neurotouch-hid"
+    sed "s|^ExecStart=/usr/bin/env neurotouch-hid |ExecStart=$bin |" \
+        "$here/neurotouch-hid.service" > "$units/neurotouch-hid.service"
+    chmod 644 "$units/neurotouch-hid.service"
+    env_file="$config/neurotouch-hid/service.env"
+    if [ ! -e "$env_file" ]; then
+        printf '%s\n' "# The profile neurotouch-hid.service runs: a name (default, accessibility, ...) or a path." \
+            "NEUROTOUCH_PROFILE=default" > "$env_file"
+    fi
+    systemctl --user daemon-reload 2>/dev/null \
+        || echo "install.sh: no systemd user manager reachable; it reads the unit at your next login" >&2
+    echo "installed $units/neurotouch-hid.service (ExecStart: $bin); it starts when the camera is plugged in"
+fi

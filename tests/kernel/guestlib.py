@@ -1,0 +1,113 @@
+"""Helpers for guest checks (run inside the qemu guest): shell, udev, reading evdev devices."""
+
+from __future__ import annotations
+
+import errno
+import os
+import select
+import shutil
+import subprocess
+import time
+
+
+def sh(cmd: list[str], timeout: float = 60, **kw) -> subprocess.CompletedProcess:
+    """Run a command, capture text output, never raise on a non-zero exit."""
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, **kw)
+
+
+def _udevd_binary() -> str | None:
+    for path in ("/lib/systemd/systemd-udevd", "/usr/lib/systemd/systemd-udevd"):
+        if os.access(path, os.X_OK):
+            return path
+    return shutil.which("systemd-udevd")
+
+
+def start_udevd() -> dict:
+    """Start systemd-udevd (unless running), reload rules, coldplug (trigger) and settle."""
+    running = sh(["pgrep", "-x", "systemd-udevd"]).returncode == 0
+    started = False
+    if not running:
+        binary = _udevd_binary()
+        if binary is None:
+            raise RuntimeError("systemd-udevd not found on the host root (apt-get install udev)")
+        started = sh([binary, "--daemon"]).returncode == 0
+    sh(["udevadm", "control", "--reload"])
+    sh(["udevadm", "trigger", "--action=add"])
+    sh(["udevadm", "settle", "--timeout=30"])
+    return {"was_running": running, "started": started}
+
+
+def settle() -> None:
+    sh(["udevadm", "settle", "--timeout=30"])
+
+
+def udev_properties(devnode: str) -> dict[str, str]:
+    """``udevadm info --query=property`` of a device node, as a dict."""
+    out = sh(["udevadm", "info", "--query=property", f"--name={devnode}"]).stdout
+    return dict(line.split("=", 1) for line in out.splitlines() if "=" in line)
+
+
+def udev_info(devnode: str) -> str:
+    """``udevadm info`` of a node: properties (E:), symlinks (S:), tags (G:/Q:)."""
+    return sh(["udevadm", "info", f"--name={devnode}"]).stdout
+
+
+def wait_for(predicate, timeout_s: float = 10.0, interval_s: float = 0.05):
+    """Poll ``predicate()`` until it returns a truthy value (returned) or the timeout (None)."""
+    end = time.monotonic() + timeout_s
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > end:
+            return None
+        time.sleep(interval_s)
+
+
+class EventReader:
+    """Reads an event node like a game: tracks key and axis state from the events themselves.
+
+    ``keys``: set of codes pressed; ``axes``: code -> last value; ``reports``: list of reports,
+    each a list of (type, code, value) up to its SYN_REPORT; ``gone``: the device disappeared."""
+
+    def __init__(self, path: str):
+        from evdev import InputDevice
+
+        self.device = InputDevice(path)
+        self.keys: set[int] = set(self.device.active_keys())
+        self.axes: dict[int, int] = {code: info.value for code, info in
+                                     self.device.capabilities().get(3, [])}
+        self.reports: list[list[tuple[int, int, int]]] = []
+        self._pending: list[tuple[int, int, int]] = []
+        self.gone = False
+
+    def pump(self, timeout_s: float = 0.5, until=None) -> None:
+        """Read events until ``until(self)`` is true, the device is gone or ``timeout_s`` passes
+        without any event."""
+        while not self.gone and not (until and until(self)):
+            ready, _, _ = select.select([self.device.fd], [], [], timeout_s)
+            if not ready:
+                return
+            try:
+                events = list(self.device.read())
+            except OSError as exc:
+                if exc.errno in (errno.ENODEV, errno.EBADF):
+                    self.gone = True
+                    return
+                raise
+            for ev in events:
+                if ev.type == 0 and ev.code == 0:  # SYN_REPORT
+                    self.reports.append(self._pending)
+                    self._pending = []
+                    continue
+                self._pending.append((ev.type, ev.code, ev.value))
+                if ev.type == 1:
+                    (self.keys.add if ev.value else self.keys.discard)(ev.code)
+                elif ev.type == 3:
+                    self.axes[ev.code] = ev.value
+
+    def close(self) -> None:
+        try:
+            self.device.close()
+        except OSError:
+            pass

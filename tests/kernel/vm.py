@@ -1,0 +1,183 @@
+"""Host side of the real-kernel tests: get qemu and Debian's generic kernel, boot it once.
+
+This machine's own kernel has no uinput (see /work/shared/kernel-tests.md), so the tests boot
+Debian's generic ``linux-image-*-amd64`` under qemu with virtme-ng (``vng``), sharing the host's
+root file system read-only, and run ``tests/kernel/guest.py`` inside. The guest script runs every
+guest check (``tests/kernel/checks_*.py``) in that one boot and writes a JSON file into a
+``--rwdir`` folder; the tests assert on it.
+
+Everything is owned by the tests: host packages are apt-installed when qemu is missing (as root),
+the kernel is downloaded with ``apt-get download`` and extracted into a cache folder
+(``$NEUROTOUCH_KERNEL_CACHE`` or ``~/.cache/neurotouch-hid/kernel``) that later runs reuse.
+:func:`guest_results` boots at most once per Python process, whichever test file asks first.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import functools
+import json
+import os
+import shlex
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+GUEST_SCRIPT = HERE / "guest.py"
+HOST_PACKAGES = ("qemu-system-x86", "busybox-static", "kmod", "udev")
+#: Commands the boot needs, and the apt package that brings each.
+HOST_COMMANDS = {"qemu-system-x86_64": "qemu-system-x86", "busybox": "busybox-static",
+                 "depmod": "kmod", "udevadm": "udev"}
+BOOT_TIMEOUT_S = 900
+#: Modules udev's coldplug would load for qemu's emulated q35 hardware (disk, CD, KVM, crypto,
+#: watchdog, PS/2): none is used (the root is 9p), and loading them under software emulation costs
+#: about a quarter of the boot's CPU time. ``module_blacklist=`` makes the kernel refuse them.
+GUEST_MODULE_BLACKLIST = (
+    "kvm_amd,kvm_intel,kvm,ccp,irqbypass,crct10dif_pclmul,crc32_pclmul,crc32c_intel,"
+    "ghash_clmulni_intel,sha512_ssse3,sha256_ssse3,sha1_ssse3,sr_mod,cdrom,sg,iTCO_wdt,"
+    "intel_pmc_bxt,iTCO_vendor_support,aesni_intel,crypto_simd,cryptd,ahci,libahci,libata,psmouse,"
+    "i2c_i801,serio_raw,i2c_smbus,pcspkr,lpc_ich,i6300esb,watchdog,scsi_mod")
+
+
+class KernelUnavailable(Exception):
+    """qemu (or the kernel) cannot be had on this machine at all: the tests skip with this reason."""
+
+
+def cache_dir() -> Path:
+    """The folder the tests own for the extracted kernel (created)."""
+    root = os.environ.get("NEUROTOUCH_KERNEL_CACHE")
+    if root:
+        path = Path(root)
+    else:
+        xdg = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+        path = Path(xdg) / "neurotouch-hid" / "kernel"
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def _run(cmd: list[str], **kw) -> subprocess.CompletedProcess:
+    return subprocess.run(cmd, capture_output=True, text=True, **kw)
+
+
+def _which(cmd: str) -> str | None:
+    return shutil.which(cmd) or shutil.which(cmd, path="/usr/sbin:/sbin:/usr/bin:/bin")
+
+
+def ensure_host_packages() -> None:
+    """apt-get install qemu, busybox, kmod and udev when one of their commands is missing.
+
+    Raises KernelUnavailable when they are missing and cannot be installed (not root, no apt,
+    apt fails)."""
+    missing = sorted({pkg for cmd, pkg in HOST_COMMANDS.items() if _which(cmd) is None})
+    if not missing:
+        return
+    if os.geteuid() != 0 or _which("apt-get") is None:
+        raise KernelUnavailable(f"{', '.join(missing)} not installed and cannot be apt-installed here "
+                                f"(needs root and apt-get)")
+    env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
+    update = _run(["apt-get", "update"], env=env)
+    install = _run(["apt-get", "install", "-y", "--no-install-recommends", *HOST_PACKAGES], env=env)
+    if install.returncode != 0 or _which("qemu-system-x86_64") is None:
+        raise KernelUnavailable("apt-get install of qemu failed: "
+                                + (install.stderr or update.stderr).strip()[-500:])
+
+
+def _kernel_package_name() -> str:
+    """The generic (not cloud) kernel package that linux-image-amd64 depends on right now."""
+    for attempt in range(2):
+        out = _run(["apt-cache", "depends", "linux-image-amd64"])
+        for line in out.stdout.splitlines():
+            word = line.split(":", 1)[-1].strip()
+            if line.strip().startswith("Depends:") and word.startswith("linux-image-") \
+                    and word.endswith("-amd64") and "cloud" not in word:
+                return word
+        if attempt == 0:
+            _run(["apt-get", "update"])
+    raise KernelUnavailable("apt-cache cannot name Debian's generic kernel package "
+                            "(linux-image-amd64 has no linux-image-*-amd64 dependency)")
+
+
+def _cached_kernel(root: Path) -> tuple[Path, str] | None:
+    done = sorted(root.glob("linux-image-*/.complete"), key=lambda p: p.stat().st_mtime)
+    if not done:
+        return None
+    kdir = done[-1].parent
+    return kdir, kdir.name.removeprefix("linux-image-")
+
+
+def ensure_kernel() -> tuple[Path, str]:
+    """(extracted kernel folder, kernel release); downloads and extracts on the first call.
+
+    Reuses any complete extraction in :func:`cache_dir` (no apt access then). A file lock keeps
+    parallel test sessions from extracting twice."""
+    root = cache_dir()
+    with open(root / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        cached = _cached_kernel(root)
+        if cached:
+            return cached
+        pkg = _kernel_package_name()
+        kver = pkg.removeprefix("linux-image-")
+        kdir = root / pkg
+        with tempfile.TemporaryDirectory(dir=root) as tmp:
+            dl = _run(["apt-get", "download", pkg], cwd=tmp)
+            debs = list(Path(tmp).glob(f"{pkg}_*.deb"))
+            if dl.returncode != 0 or not debs:
+                raise RuntimeError(f"apt-get download {pkg} failed: {dl.stderr.strip()[-500:]}")
+            shutil.rmtree(kdir, ignore_errors=True)
+            subprocess.run(["dpkg-deb", "-x", str(debs[0]), str(kdir)], check=True)
+        subprocess.run([_which("depmod") or "depmod", "-b", str(kdir), kver], check=True)
+        (kdir / ".complete").write_text(pkg + "\n")
+        return kdir, kver
+
+
+def _vng() -> str:
+    bindir = Path(sys.executable).parent
+    found = shutil.which("vng", path=str(bindir)) or shutil.which("vng")
+    if not found:
+        raise RuntimeError("vng not found: pip install virtme-ng (it is in the [test] extras)")
+    return found
+
+
+def boot(guest_script: Path = GUEST_SCRIPT, timeout_s: int = BOOT_TIMEOUT_S) -> dict:
+    """Boot the kernel once under qemu (no KVM), run ``guest_script`` in it, return its JSON.
+
+    The JSON maps each check's name to ``{"ok": bool, "seconds": float, ...details}``, plus
+    ``"_boot"`` with the boot's wall time and kernel release. Raises KernelUnavailable when qemu
+    cannot be installed, RuntimeError (with vng's output) when the guest wrote no result."""
+    ensure_host_packages()
+    kdir, kver = ensure_kernel()
+    vmlinuz = kdir / "boot" / f"vmlinuz-{kver}"
+    out = Path(tempfile.mkdtemp(prefix="boot-", dir=cache_dir()))
+    result = out / "result.json"
+    env = dict(os.environ)
+    env["PATH"] = f"{Path(sys.executable).parent}:{env.get('PATH', '/usr/bin:/bin')}"
+    inner = " ".join(shlex.quote(s) for s in (sys.executable, str(guest_script), str(result)))
+    cmd = [_vng(), "--disable-kvm", "--run", str(vmlinuz), "--memory", "1G",
+           "--append", f"module_blacklist={GUEST_MODULE_BLACKLIST}", f"--rwdir={out}", "--exec", inner]
+    t0 = time.monotonic()
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout_s,
+                              stdin=subprocess.DEVNULL, cwd=str(HERE.parent.parent))
+        log = proc.stdout + proc.stderr
+    except subprocess.TimeoutExpired as exc:
+        log = f"vng timed out after {timeout_s} s\n{exc.stdout or ''}{exc.stderr or ''}"
+    seconds = time.monotonic() - t0
+    (out / "vng.log").write_text(log if isinstance(log, str) else log.decode(errors="replace"))
+    if not result.exists():
+        raise RuntimeError(f"the guest wrote no {result.name}; vng said:\n{str(log)[-3000:]}")
+    data = json.loads(result.read_text())
+    data["_boot"] = {"seconds": round(seconds, 1), "kernel": kver, "out_dir": str(out)}
+    return data
+
+
+@functools.cache
+def guest_results() -> dict:
+    """:func:`boot` once per Python process (one pytest session); later calls get the same dict.
+
+    Raises KernelUnavailable (tests skip with its message) or RuntimeError (tests fail)."""
+    return boot()
