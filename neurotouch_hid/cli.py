@@ -191,7 +191,11 @@ def demo(seconds: Optional[float] = typer.Option(30.0, "--seconds", help="how lo
 @app.command()
 def doctor() -> None:
     """Check the camera, permissions, /dev/uinput and libraries; print the fix for each failure."""
-    _todo("doctor")
+    from neurotouch_hid.doctor import report, run_checks
+
+    code = report(run_checks(), console)
+    if code:
+        sys.exit(code)
 
 
 # --- profiles (mapping/) ----------------------------------------------------------------------
