@@ -98,7 +98,31 @@ def track(
     markers: Optional[Path] = typer.Option(None, "--markers", help="also write tracked marker positions (.npz)"),
 ) -> None:
     """Run the gesture pipeline on a recording and write one prediction per window."""
-    _todo("track")
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from neurotouch_hid.pipeline.pipeline import PipelineConfig
+    from neurotouch_hid.pipeline.track import track_recording
+    from neurotouch_hid.sensor import find_sensor_file
+
+    try:
+        config = PipelineConfig(window_us=window_us)
+    except ValueError as exc:
+        raise NeurotouchError(f"--window-us: {exc}") from None
+    geometry = find_sensor_file(recording, sensor)
+    columns = (TextColumn("tracking"), BarColumn(), TextColumn("{task.completed:.1f} s of recording"), TimeRemainingColumn())
+    with Progress(*columns, console=err_console, transient=True) as progress:
+        task = progress.add_task("track", total=1.0)
+
+        def report(done_us: int, total_us: int) -> None:
+            progress.update(task, completed=done_us * 1e-6, total=max(total_us, done_us) * 1e-6)
+
+        summary = track_recording(recording, out, geometry, config, markers_out=markers, on_progress=report)
+    console.print(
+        f"{summary.windows} windows of {config.window_us} us over {summary.duration_us * 1e-6:.2f} s "
+        f"({summary.events} events, {summary.frames} frames) in {summary.elapsed_s:.2f} s, "
+        f"{summary.realtime_factor:.1f}x real time -> {out}" + (f", markers -> {markers}" if markers else ""),
+        highlight=False,
+    )
 
 
 @app.command("eval")

@@ -1,0 +1,157 @@
+"""Running the gesture pipeline over a recording: the ``track`` command's work.
+
+Reads an AEDAT4 recording (``sources/recording.py``), runs :class:`GesturePipeline` on it and
+writes one prediction a window (DATASET.md, "Predictions (JSON lines)"), optionally the tracked
+marker positions at every window's end (``.npz``, the simulator's ``SEQUENCE.markers.npz``
+format: ``t_us`` int64 (T,), ``positions_px`` float32 (T, N, 2) with NaN for a lost marker,
+``rest_px`` float32 (N, 2)).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from neurotouch_hid.errors import RecordingError, SensorError
+from neurotouch_hid.estimate import GestureEstimate
+from neurotouch_hid.output.jsonl import PredictionsWriter
+from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
+from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.sources import Frame, StreamItem
+
+
+@dataclass(frozen=True)
+class TrackSummary:
+    """What a ``track`` run did.
+
+    Attributes:
+        windows: estimates written.
+        events: events read.
+        frames: APS frames read.
+        duration_us: recording time covered (us).
+        elapsed_s: wall-clock time of the whole run, file reading included (s).
+    """
+
+    windows: int
+    events: int
+    frames: int
+    duration_us: int
+    elapsed_s: float
+
+    @property
+    def realtime_factor(self) -> float:
+        """Recording time / wall-clock time (> 1: faster than real time)."""
+        return self.duration_us * 1e-6 / self.elapsed_s if self.elapsed_s > 0 else float("inf")
+
+
+def pipeline_over(
+    recording: str | Path,
+    pipeline: GesturePipeline,
+    *,
+    on_progress: Callable[[int, int], None] | None = None,
+) -> Iterator[tuple[StreamItem, list[GestureEstimate]]]:
+    """Feed a recording through ``pipeline``, yielding each stream item with the estimates it
+    closed (shared by ``track`` and ``view``).
+
+    Args:
+        recording: AEDAT4 file with events and APS frames of the pipeline sensor's resolution.
+        pipeline: a fresh :class:`GesturePipeline`.
+        on_progress: called every 0.1 s of recording time and at the end with (recording time
+            done, total) in us (the total costs one extra pass over the file's packets).
+    Raises:
+        RecordingError: the file is missing, not AEDAT4, has no APS frames or the wrong
+            resolution, or is truncated (after everything readable was yielded).
+        SensorError: no gel found on the first APS frame (the message names the file).
+    """
+    from neurotouch_hid.sources.recording import RecordingReader  # dv-processing: imported on use
+
+    recording = Path(recording)
+    sensor = pipeline.sensor
+    with RecordingReader(recording, require_frames=True, require_resolution=(sensor.width, sensor.height)) as reader:
+        total_us = int(reader.info.duration_us) if on_progress is not None else 0
+        first_us = last_us = None
+        next_report = 0
+        for item in reader.stream(batch_us=pipeline.config.window_us):
+            last_us = item.t_us if isinstance(item, Frame) else int(item["timestamp"][-1])
+            first_us = last_us if first_us is None else first_us
+            try:
+                estimates = pipeline.process(item)
+            except SensorError as exc:
+                raise SensorError(f"{recording}: {exc}") from None
+            yield item, estimates
+            if on_progress is not None and last_us - first_us >= next_report:
+                on_progress(last_us - first_us, total_us)
+                next_report = last_us - first_us + 100_000
+    if pipeline.rest_px is None:
+        raise RecordingError(f"{recording}: no APS frame found: the pipeline needs one to find the gel's markers")
+    if on_progress is not None and first_us is not None:
+        on_progress(last_us - first_us, max(total_us, last_us - first_us))
+
+
+def track_recording(
+    recording: str | Path,
+    out: str | Path,
+    sensor: SensorGeometry,
+    config: PipelineConfig | None = None,
+    *,
+    markers_out: str | Path | None = None,
+    on_progress: Callable[[int, int], None] | None = None,
+) -> TrackSummary:
+    """Run the pipeline over ``recording`` and write its predictions to ``out`` (JSON lines).
+
+    Args:
+        recording: AEDAT4 file with events and APS frames of ``sensor``'s resolution.
+        out: predictions file to write (DATASET.md).
+        sensor: the geometry (e.g. :func:`neurotouch_hid.sensor.find_sensor_file`).
+        config: pipeline thresholds (window length included); None = the paper's.
+        markers_out: if given, also write the tracked marker positions at each window's end
+            (``.npz``, see the module docstring).
+        on_progress: see :func:`pipeline_over`.
+    Returns:
+        :class:`TrackSummary`.
+    Raises:
+        RecordingError, SensorError: see :func:`pipeline_over`; when no gel is found, ``out``
+            is not left behind.
+    """
+    start = time.perf_counter()
+    times: list[int] = []
+    positions: list[np.ndarray] = []
+
+    def keep_markers(estimate: GestureEstimate) -> None:
+        times.append(estimate.t_us)
+        positions.append(pipeline.marker_positions())
+
+    pipeline = GesturePipeline(sensor, config, on_window=keep_markers if markers_out is not None else None)
+    windows = events = frames = 0
+    first_us = last_us = None
+    try:
+        with PredictionsWriter(out) as writer:
+            for item, estimates in pipeline_over(recording, pipeline, on_progress=on_progress):
+                if isinstance(item, Frame):
+                    frames += 1
+                    last_us = item.t_us
+                else:
+                    events += len(item)
+                    last_us = int(item["timestamp"][-1])
+                first_us = last_us if first_us is None else first_us
+                for estimate in estimates:
+                    writer.write(estimate)
+                windows += len(estimates)
+    except SensorError:
+        if windows == 0:  # nothing was predicted: leave no empty file behind
+            Path(out).unlink(missing_ok=True)
+        raise
+    if markers_out is not None:
+        n = len(pipeline.rest_px)
+        np.savez_compressed(
+            markers_out,
+            t_us=np.asarray(times, dtype=np.int64),
+            positions_px=np.asarray(positions, dtype=np.float32).reshape(len(times), n, 2),
+            rest_px=pipeline.rest_px.astype(np.float32),
+        )
+    duration = 0 if first_us is None else last_us - first_us
+    return TrackSummary(windows, events, frames, duration, time.perf_counter() - start)
