@@ -84,8 +84,8 @@ READ_NOISE = 1.5
 SHOT_NOISE = 0.22
 #: Fastest intensity change a simulated user makes (mm/s; paper: up to 210 mm/s).
 MAX_SPEED_MM_S = 205.0
-#: Largest hold intensity (mm; paper: local deformations up to 18 mm).
-MAX_INTENSITY_MM = 18.0
+#: Largest hold intensity (mm; paper: local deformations up to 18 mm, with the tremor).
+MAX_INTENSITY_MM = 17.3
 #: How long after its release a gesture still deforms the gel, in creep time constants.
 CREEP_SPAN_TAUS = 7.0
 
@@ -130,7 +130,7 @@ USERS: tuple[SimUser, ...] = (
 TEST_USERS: tuple[int, ...] = (0, 1, 2, 3, 4)
 TUNING_USERS: tuple[int, ...] = (5, 6, 7, 8, 9)
 #: Dataset presets: simulated seconds per sequence (one sequence per user and gesture type).
-PRESET_SECONDS: dict[str, float] = {"quick": 3.5, "paper": 60.0}
+PRESET_SECONDS: dict[str, float] = {"quick": 3.0, "paper": 60.0}
 
 
 def preset_users(preset: str, seed: int) -> tuple[int, ...]:
@@ -271,12 +271,15 @@ class SimGesture:
 
 @numba.njit(cache=True)
 def _finger_field(pts: np.ndarray, finger: np.ndarray, d: np.ndarray, finger_mm: float, press: float,
-                  level: np.ndarray, disp: np.ndarray, dim: np.ndarray) -> None:
-    """Add one finger's displacement field to ``disp`` (T, M, 2) mm and its dimming to ``dim``
-    (T, M): the finger (rest centre ``finger`` (2,) mm, displacement ``d`` (T, 2) mm) drags the
-    points ``pts`` (M, 2) with a Gaussian falloff of sigma sqrt(finger_mm^2 + (0.8 |d|)^2)
-    (wider for large displacements: the gel never folds), and its pressure ``press * level``
-    spreads the points under it radially (<= 0.35 mm) and dims them (<= 25 %)."""
+                  level: np.ndarray, drag: np.ndarray, weight: np.ndarray, disp: np.ndarray, dim: np.ndarray) -> None:
+    """Add one finger's field at the points ``pts`` (M, 2) mm, for times T.
+
+    The finger (rest centre ``finger`` (2,) mm, displacement ``d`` (T, 2) mm) drags the points
+    with a Gaussian falloff of sigma sqrt(finger_mm^2 + (0.8 |d|)^2), wider for large
+    displacements so that the gel never folds: adds w * d to ``drag`` (T, M, 2) and w to
+    ``weight`` (T, M). Its pressure ``press * level`` spreads the points under it radially
+    (<= 0.35 mm, added to ``disp`` (T, M, 2)) and dims them (<= 25 %, max into ``dim`` (T, M)).
+    """
     inv_f2 = 1.0 / (2.0 * finger_mm * finger_mm)
     for t in range(d.shape[0]):
         if level[t] == 0.0:
@@ -288,9 +291,12 @@ def _finger_field(pts: np.ndarray, finger: np.ndarray, d: np.ndarray, finger_mm:
             ry = pts[m, 1] - finger[1]
             dist2 = rx * rx + ry * ry
             w = math.exp(-dist2 * inv_s2)
+            drag[t, m, 0] += w * d[t, 0]
+            drag[t, m, 1] += w * d[t, 1]
+            weight[t, m] += w
             p = press * level[t] * math.exp(-dist2 * inv_f2)
-            disp[t, m, 0] += w * d[t, 0] + 0.35 * p * rx / finger_mm
-            disp[t, m, 1] += w * d[t, 1] + 0.35 * p * ry / finger_mm
+            disp[t, m, 0] += 0.35 * p * rx / finger_mm
+            disp[t, m, 1] += 0.35 * p * ry / finger_mm
             if 0.25 * p > dim[t, m]:
                 dim[t, m] = 0.25 * p
 
@@ -320,8 +326,14 @@ def deform(gestures: Sequence[SimGesture], points_mm: np.ndarray, t_us: np.ndarr
         if not level.any():
             continue
         d_f = g.finger_displacements(level)  # (T, K, 2)
+        drag = np.zeros_like(disp)
+        weight = np.zeros_like(dim)
         for k in range(len(g.fingers_mm)):
-            _finger_field(pts, g.fingers_mm[k], np.ascontiguousarray(d_f[:, k]), g.finger_mm, g.press, level, disp, dim)
+            _finger_field(pts, g.fingers_mm[k], np.ascontiguousarray(d_f[:, k]), g.finger_mm, g.press, level,
+                          drag, weight, disp, dim)
+        # where fingers' falloffs overlap, blend their motions instead of adding them (the
+        # surface under a finger moves with that finger, whatever the others do)
+        disp += drag / np.maximum(weight, 1.0)[..., None]
     out = pts[None] + disp * rim[None, :, None]
     for g, level in zip(gestures, levels):
         if not level.any():
@@ -348,7 +360,7 @@ def draw_gesture(rng: np.random.Generator, user: SimUser, gesture: GestureType, 
     else:
         n_fingers = int(rng.choice([2, 3], p=[0.65, 0.35]))
     finger = user.finger_mm * rng.uniform(0.9, 1.1)
-    factor = {GestureType.PUSH: 1.2, GestureType.ZOOM: 0.55}.get(gesture, 0.85)
+    factor = {GestureType.PUSH: 1.2, GestureType.ZOOM: 0.7}.get(gesture, 0.85)
     amplitude = float(np.clip(rng.lognormal(math.log(user.intensity_mm * factor), 0.55), 0.8, MAX_INTENSITY_MM))
     bias = sensor.vectors_image_to_user(np.array([user.bias_mm * sensor.px_per_mm, 0.0]))
     limit = 0.8 * sensor.gel_radius_mm  # fingers stay off the rim
@@ -378,10 +390,10 @@ def draw_gesture(rng: np.random.Generator, user: SimUser, gesture: GestureType, 
         centre *= room / max(norm, 1e-9)
     fingers = centre + offsets
 
-    speed = user.speed * rng.lognormal(0.0, 0.35)
+    speed = user.speed * rng.lognormal(0.0, 0.45)
     min_ramp_us = math.pi * amplitude / (2 * MAX_SPEED_MM_S) * 1e6  # cosine ramp peak speed
-    attack = int(max(min_ramp_us, 0.45e6 * rng.lognormal(0.0, 0.4) / speed))
-    release = int(max(min_ramp_us, 0.35e6 * rng.lognormal(0.0, 0.4) / speed))
+    attack = int(max(min_ramp_us, 0.4e6 * rng.lognormal(0.0, 0.45) / speed))
+    release = int(max(min_ramp_us, 0.3e6 * rng.lognormal(0.0, 0.45) / speed))
     hold = int(1.0e6 * user.hold * rng.lognormal(0.0, 0.5))
     return SimGesture(
         gesture=gesture, t_start_us=int(t_start_us), attack_us=attack, hold_us=hold, release_us=release,
@@ -640,7 +652,7 @@ def write_dataset(out_dir: str | Path, preset: str = "quick", seed: int = 0, min
 
     Args:
         out_dir: the dataset folder (created if missing).
-        preset: ``quick`` (1 user x 5 gestures x 3.5 s, for tests) or ``paper`` (5 users x 5
+        preset: ``quick`` (1 user x 5 gestures x 3 s, for tests) or ``paper`` (5 users x 5
             gestures x 60 s: the paper's 25 minutes; section "Creation of the Gesture Detection
             Dataset").
         seed: the same seed writes the same files; it also picks the users (:func:`preset_users`).
