@@ -172,7 +172,22 @@ def view(
     sensor: Optional[Path] = typer.Option(None, "--sensor", help="sensor.yaml (default: the one beside the recording)"),
 ) -> None:
     """Draw what the pipeline sees: APS frame, events, markers, displacements, contacts, gesture."""
-    _todo("view")
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from neurotouch_hid.pipeline.view import render_view
+    from neurotouch_hid.sensor import find_sensor_file
+
+    geometry = find_sensor_file(recording, sensor)
+    columns = (TextColumn("drawing"), BarColumn(), TextColumn("{task.completed:.1f} s of recording"), TimeRemainingColumn())
+    with Progress(*columns, console=err_console, transient=True) as progress:
+        task = progress.add_task("view", total=1.0)
+
+        def report(done_us: int, total_us: int) -> None:
+            progress.update(task, completed=done_us * 1e-6, total=max(total_us, done_us) * 1e-6)
+
+        drawn = render_view(recording, out, geometry, on_progress=report)
+    what = "the most intense of " if out.suffix.lower() == ".png" else ""
+    console.print(f"{what}{drawn} pictures -> {out}", highlight=False)
 
 
 # --- the controller (runtime.py, mapping/, output/) -----------------------------------------

@@ -1,0 +1,166 @@
+"""Pictures of what the pipeline sees: the ``view`` command's work.
+
+One picture per APS frame: the frame (grey), the events of the last 10 ms (ON green, OFF red,
+as the paper's Figure "APS frame and EVS events"), the tracked markers, their displacement
+from rest as arrows (scaled up to be visible), the contact points, and the gesture type and
+intensity. Drawing is OpenCV's; writing is imageio's (mp4 through ffmpeg, gif through Pillow,
+png for one picture: the frame with the largest gesture intensity).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.estimate import GestureEstimate
+from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
+from neurotouch_hid.pipeline.track import pipeline_over
+from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.sources import EVENT_DTYPE, Frame
+
+#: Output kinds by file suffix.
+VIEW_SUFFIXES = (".mp4", ".gif", ".png")
+
+#: Colours (RGB).
+ON_RGB, OFF_RGB = (0, 220, 0), (230, 0, 0)
+MARKER_RGB, ARROW_RGB, CONTACT_RGB, TEXT_RGB = (255, 230, 0), (0, 200, 255), (255, 0, 255), (255, 255, 255)
+
+
+def draw_view(
+    image: np.ndarray,
+    events: np.ndarray,
+    markers_px: np.ndarray,
+    rest_px: np.ndarray,
+    estimate: GestureEstimate | None,
+    *,
+    scale: int = 2,
+    arrow_gain: float = 3.0,
+) -> np.ndarray:
+    """Draw one picture.
+
+    Args:
+        image: uint8 (H, W) APS frame, image frame.
+        events: EVENT_DTYPE array, the events to show (e.g. the last 10 ms).
+        markers_px: (N, 2) float, tracked positions (px), NaN rows for lost markers.
+        rest_px: (N, 2) float, rest positions (px).
+        estimate: the latest window's estimate, or None.
+        scale: integer upscaling of the picture (so text and arrows are readable).
+        arrow_gain: displacement arrows are drawn this many times longer than the displacement.
+    Returns:
+        uint8 (H*scale, W*scale, 3) RGB picture.
+    """
+    h, w = image.shape
+    rgb = cv2.cvtColor(image, cv2.COLOR_GRAY2RGB)
+    if len(events):
+        x, y = events["x"].astype(np.intp), events["y"].astype(np.intp)
+        inside = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+        on = events["polarity"] == 1
+        rgb[y[inside & ~on], x[inside & ~on]] = OFF_RGB
+        rgb[y[inside & on], x[inside & on]] = ON_RGB
+    pic = cv2.resize(rgb, (w * scale, h * scale), interpolation=cv2.INTER_NEAREST)
+    shift = 4  # sub-pixel drawing: coordinates in 1/16 px
+    k = scale * (1 << shift)
+
+    def at(p: np.ndarray) -> tuple[int, int]:
+        return int(round((p[0] + 0.5) * k - k / (2 * scale))), int(round((p[1] + 0.5) * k - k / (2 * scale)))
+
+    for cur, rest in zip(markers_px, rest_px):
+        if not np.all(np.isfinite(cur)):
+            continue
+        tip = rest + arrow_gain * (cur - rest)
+        if np.hypot(*(cur - rest)) >= 0.3:
+            cv2.arrowedLine(pic, at(rest), at(tip), ARROW_RGB, 1, cv2.LINE_AA, shift, tipLength=0.3)
+        cv2.circle(pic, at(cur), 2 * (1 << shift), MARKER_RGB, -1, cv2.LINE_AA, shift)
+    lines = ["no estimate yet"]
+    if estimate is not None:
+        for c in estimate.contacts_px:
+            cv2.circle(pic, at(c), 9 * (1 << shift), CONTACT_RGB, 2, cv2.LINE_AA, shift)
+        lines = [
+            f"{estimate.gesture.value}  {estimate.intensity_mm:.1f} mm",
+            f"{'resting' if estimate.resting else 'moving'}  t={estimate.t_us / 1e6:.2f} s",
+        ]
+    for i, text in enumerate(lines):
+        org = (8, 22 + 22 * i)
+        cv2.putText(pic, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 3, cv2.LINE_AA)
+        cv2.putText(pic, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.6, TEXT_RGB, 1, cv2.LINE_AA)
+    return pic
+
+
+def render_view(
+    recording: str | Path,
+    out: str | Path,
+    sensor: SensorGeometry,
+    config: PipelineConfig | None = None,
+    *,
+    scale: int = 2,
+    fps: float = 25.0,
+    event_span_us: int = 10_000,
+    on_progress: Callable[[int, int], None] | None = None,
+) -> int:
+    """Run the pipeline over ``recording`` and write pictures of it to ``out``.
+
+    Args:
+        recording: AEDAT4 file (events + APS frames).
+        out: ``.mp4`` or ``.gif`` (one picture per APS frame, at ``fps``) or ``.png`` (the
+            picture with the largest gesture intensity, else the last).
+        sensor: the geometry.
+        config: pipeline thresholds.
+        scale: integer upscaling; pictures are (height*scale, width*scale).
+        fps: frame rate of mp4/gif.
+        event_span_us: how much recent event history each picture shows (us).
+        on_progress: see :func:`neurotouch_hid.pipeline.track.pipeline_over`.
+    Returns:
+        the number of pictures drawn.
+    Raises:
+        NeurotouchError: ``out`` has another suffix or cannot be written.
+        RecordingError, SensorError: see :func:`neurotouch_hid.pipeline.track.pipeline_over`.
+    """
+    import imageio.v2 as imageio
+
+    out = Path(out)
+    suffix = out.suffix.lower()
+    if suffix not in VIEW_SUFFIXES:
+        raise NeurotouchError(f"{out}: the view is written as {', '.join(VIEW_SUFFIXES)}, not {out.suffix or 'no suffix'!r}")
+    pipeline = GesturePipeline(sensor, config)
+    recent: deque[np.ndarray] = deque()
+    latest: GestureEstimate | None = None
+    best: tuple[float, np.ndarray] | None = None
+    drawn = 0
+    writer = None
+    try:
+        if suffix != ".png":
+            kwargs = {"fps": fps, "macro_block_size": 1} if suffix == ".mp4" else {"duration": 1000.0 / fps, "loop": 0}
+            writer = imageio.get_writer(out, **kwargs)
+        for item, estimates in pipeline_over(recording, pipeline, on_progress=on_progress):
+            if estimates:
+                latest = estimates[-1]
+            if not isinstance(item, Frame):
+                recent.append(item)
+                while recent and recent[0]["timestamp"][-1] < item["timestamp"][-1] - event_span_us:
+                    recent.popleft()
+                continue
+            if pipeline.rest_px is None:
+                continue
+            events = np.concatenate(list(recent)) if recent else np.zeros(0, dtype=EVENT_DTYPE)
+            events = events[events["timestamp"] >= item.t_us - event_span_us]
+            pic = draw_view(item.image, events, pipeline.marker_positions(), pipeline.rest_px, latest, scale=scale)
+            drawn += 1
+            if writer is not None:
+                writer.append_data(pic)
+            else:
+                intensity = latest.intensity_mm if latest is not None else 0.0
+                if best is None or intensity > best[0] or intensity == best[0] == 0.0:
+                    best = (intensity, pic)
+        if best is not None:
+            imageio.imwrite(out, best[1])
+    except OSError as exc:
+        raise NeurotouchError(f"{out}: cannot write the view: {exc}") from None
+    finally:
+        if writer is not None:
+            writer.close()
+    return drawn
