@@ -200,28 +200,18 @@ def esim_chunk(t_us: np.ndarray, pos: np.ndarray, amp: np.ndarray, sigma: np.nda
                 l_new = math.log(max(img[yy, xx], 0.0) + LOG_EPS)
                 l_old = log_prev[yy, xx]
                 dl = l_new - l_old
-                if dl > 0.0:
-                    c = c_on[yy, xx]
-                    while l_new - log_ref[yy, xx] >= c:
-                        log_ref[yy, xx] += c
+                if dl != 0.0:
+                    up = dl > 0.0
+                    sign = 1.0 if up else -1.0
+                    c = c_on[yy, xx] if up else c_off[yy, xx]
+                    while sign * (l_new - log_ref[yy, xx]) >= c:
+                        log_ref[yy, xx] += sign * c
                         te = int(t_prev + (log_ref[yy, xx] - l_old) / dl * dt)
                         if te - last_t[yy, xx] >= refractory_us:
                             out_t[n_out] = te
                             out_x[n_out] = xx
                             out_y[n_out] = yy
-                            out_p[n_out] = 1
-                            n_out += 1
-                            last_t[yy, xx] = te
-                elif dl < 0.0:
-                    c = c_off[yy, xx]
-                    while log_ref[yy, xx] - l_new >= c:
-                        log_ref[yy, xx] -= c
-                        te = int(t_prev + (log_ref[yy, xx] - l_old) / dl * dt)
-                        if te - last_t[yy, xx] >= refractory_us:
-                            out_t[n_out] = te
-                            out_x[n_out] = xx
-                            out_y[n_out] = yy
-                            out_p[n_out] = 0
+                            out_p[n_out] = 1 if up else 0
                             n_out += 1
                             last_t[yy, xx] = te
                 log_prev[yy, xx] = l_new
