@@ -168,3 +168,103 @@ def test_bad_prediction_lines_name_file_and_line(tmp_path, line, message):
     with pytest.raises(DatasetError) as err:
         read_predictions(path)
     assert message in str(err.value)
+
+
+# --- end to end on a simulated recording ------------------------------------------------------
+@pytest.fixture(scope="module")
+def push_dataset(tmp_path_factory):
+    """A quick simulated push sequence (sources/simulator.py): AEDAT4 + labels + true markers."""
+    from neurotouch_hid.sources.simulator import write_dataset
+
+    folder = write_dataset(tmp_path_factory.mktemp("sim") / "ds", preset="quick", gestures=["push"], progress=False)
+    (recording,) = sorted(folder.glob("*.aedat4"))
+    return recording
+
+
+@pytest.fixture(scope="module")
+def push_tracked(push_dataset, tmp_path_factory):
+    from neurotouch_hid.pipeline.track import track_recording
+    from neurotouch_hid.sensor import find_sensor_file
+
+    out = tmp_path_factory.mktemp("track")
+    summary = track_recording(push_dataset, out / "pred.jsonl", find_sensor_file(push_dataset), markers_out=out / "m.npz")
+    return summary, read_predictions(out / "pred.jsonl"), np.load(out / "m.npz")
+
+
+def test_track_finds_the_push_on_most_windows(push_dataset, push_tracked):
+    from neurotouch_hid.evaluation.dataset import read_labels
+
+    summary, predictions, _ = push_tracked
+    labels = read_labels(push_dataset.with_name(push_dataset.name.replace(".aedat4", ".labels.csv")))
+    times = np.array([row.t_us for row in labels])
+    assert summary.windows == len(predictions) > 100
+    assert np.all(np.diff([p.t_us for p in predictions]) == 10_000)
+    pushed, rested = [], []
+    for p in predictions:
+        i = np.searchsorted(times, p.t_us, side="right") - 1
+        if i < 0:
+            continue
+        row = labels[i]
+        if row.gesture is GestureType.PUSH and row.intensity_mm > 2.0:
+            pushed.append(p.gesture is GestureType.PUSH and p.n_contacts >= 1)
+        elif row.resting:
+            rested.append(p.gesture is GestureType.NONE)
+    assert len(pushed) > 30 and np.mean(pushed) >= 0.8
+    assert len(rested) > 30 and np.mean(rested) >= 0.9
+
+
+def test_track_markers_npz_follow_the_true_markers(push_dataset, push_tracked):
+    _, predictions, markers = push_tracked
+    truth = np.load(push_dataset.with_name(push_dataset.name.replace(".aedat4", ".markers.npz")))
+    assert markers["t_us"].dtype == np.int64 and markers["positions_px"].dtype == np.float32
+    np.testing.assert_array_equal(markers["t_us"], [p.t_us for p in predictions])
+    n = len(markers["rest_px"])
+    assert markers["positions_px"].shape == (len(predictions), n, 2)
+    # every detected rest marker is a true marker (within 0.5 px)
+    d = np.linalg.norm(markers["rest_px"][:, None] - truth["rest_px"][None], axis=2)
+    assert d.min(axis=1).max() < 0.5
+    # tracked positions stay near the true ones (nearest true marker at the same time)
+    k = len(predictions) // 2
+    j = int(np.argmin(np.abs(truth["t_us"] - markers["t_us"][k])))
+    tracked = markers["positions_px"][k]
+    tracked = tracked[np.isfinite(tracked).all(axis=1)]
+    err = np.linalg.norm(tracked[:, None] - truth["positions_px"][j][None], axis=2).min(axis=1)
+    assert np.median(err) < 1.0
+
+
+def _cli(*args: str):
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-m", "neurotouch_hid.cli", *args], capture_output=True, text=True, timeout=300)
+
+
+STREET = "/work/shared/data/davis346-street/recording.aedat4"
+
+
+def test_track_on_a_street_recording_says_no_gel_and_exits_2(tmp_path):
+    import os
+
+    if not os.path.exists(STREET):
+        pytest.skip(reason="the shared real DAVIS-346 street recording is not on this machine")
+    done = _cli("track", STREET, "--out", str(tmp_path / "p.jsonl"))
+    assert done.returncode == 2
+    assert "no gel found" in done.stderr and "Traceback" not in done.stderr
+    assert not (tmp_path / "p.jsonl").exists()
+
+
+@pytest.mark.parametrize("suffix, scale", [(".png", 2), (".gif", 1)])
+def test_view_writes_a_picture_of_the_right_size(push_dataset, tmp_path, suffix, scale):
+    import imageio.v3 as iio
+
+    from neurotouch_hid.pipeline.view import render_view
+    from neurotouch_hid.sensor import find_sensor_file
+
+    sensor = find_sensor_file(push_dataset)
+    out = tmp_path / f"view{suffix}"
+    drawn = render_view(push_dataset, out, sensor, scale=scale)
+    assert drawn > 10 and out.stat().st_size > 1000
+    pictures = iio.imread(out, index=None) if suffix == ".gif" else iio.imread(out)[None]
+    assert pictures.shape[1:3] == (scale * sensor.height, scale * sensor.width)
+    assert len(pictures) == (drawn if suffix == ".gif" else 1)
+    assert pictures[..., :3].std() > 5  # not a blank picture
