@@ -36,7 +36,9 @@ left the gel); everything else is ``none`` with no contact. ``resting`` is 0 dur
 and after it until every marker is back within :data:`REST_TOLERANCE_MM` of its rest position.
 The contact points are the surface points that were under the finger centres when the gesture
 began, where they are now (the gel's largest deformation under each finger); ``intensity_mm``
-is their mean displacement since the gesture began, in the user frame (mm).
+is their mean displacement since the gesture began, in the user frame (mm). A frame's
+timestamp is the start of its 4 ms exposure (as DV records it) and its label describes the gel
+at that instant.
 """
 
 from __future__ import annotations
