@@ -36,7 +36,7 @@ sys.path[:0] = [str(HERE), str(REPO)]  # guestlib, and the checkout's neurotouch
 
 import guestlib  # noqa: E402
 
-CHECK_TIMEOUT_S = 90
+CHECK_TIMEOUT_S = 300  # per check; generous, a loaded host under software emulation is slow
 
 
 class CheckTimeout(Exception):

@@ -37,6 +37,9 @@ def main() -> dict:
     with VirtualGamepad() as pad:
         subprocess.run(["udevadm", "settle", "--timeout=10"])
         t0 = time.monotonic()
+        # pygame imports numpy (surfarray) and pkg_resources when present; the probe needs
+        # neither, and under software emulation they cost ~40 s. Blocked, pygame skips them.
+        sys.modules["numpy"] = sys.modules["pkg_resources"] = None
         import pygame
         from pygame._sdl2 import controller
 

@@ -1,0 +1,71 @@
+"""neurotouch-hid doctor: each check's verdict and fix, the table, the exit code (real USB scan)."""
+
+from __future__ import annotations
+
+import importlib.metadata
+import os
+import subprocess
+import sys
+
+from rich.console import Console
+
+from neurotouch_hid import doctor
+from neurotouch_hid.doctor import FAIL, OK, SKIP, WARN, Check
+
+
+def test_no_camera_on_this_machine_is_a_failure_with_a_fix():
+    cameras = doctor.find_cameras()  # the real pyusb + libusb-package scan
+    assert cameras == []
+    check = doctor.check_camera(cameras)
+    assert check.status == FAIL and "152a:841a" in check.detail and "plug" in check.fix
+    assert doctor.check_camera_access(cameras).status == SKIP
+
+
+def test_uinput_missing(tmp_path):
+    check = doctor.check_uinput(str(tmp_path / "uinput"))
+    assert check.status == FAIL and "does not exist" in check.detail
+    assert "modprobe uinput" in check.fix and "60-neurotouch.rules" in check.fix
+
+
+def test_uinput_ok_for_a_writable_character_device():
+    assert doctor.check_uinput("/dev/null").status == OK  # the check only looks at the node
+
+
+def test_rules_found_only_where_udev_reads_them(tmp_path):
+    assert doctor.check_rules((str(tmp_path),)).status == FAIL
+    (tmp_path / doctor.RULES_NAME).write_text("# rules\n")
+    check = doctor.check_rules((str(tmp_path),))
+    assert check.status == OK and str(tmp_path) in check.detail
+
+
+def test_libraries_report_versions_or_the_pip_command():
+    ok = doctor.check_library("numba", "numba")
+    assert ok.status == OK and ok.detail == importlib.metadata.version("numba")
+    bad = doctor.check_library("neurotouch_no_such_module", "no-such-dist")
+    assert bad.status == FAIL and "pip install --upgrade no-such-dist" in bad.fix
+
+
+def test_missing_service_is_only_a_warning(tmp_path):
+    assert doctor.check_service(tmp_path).status == WARN
+    unit = tmp_path / ".config/systemd/user" / doctor.SERVICE_NAME
+    unit.parent.mkdir(parents=True)
+    unit.write_text("[Service]\n")
+    assert doctor.check_service(tmp_path).status == OK
+
+
+def test_exit_code_counts_failures_only():
+    console = Console(record=True, width=200)
+    assert doctor.report([Check("a", OK, ""), Check("b", WARN, ""), Check("c", SKIP, "")], console) == 0
+    assert doctor.report([Check("a", OK, ""), Check("d", FAIL, "broken", "do this")], console) == 1
+    text = console.export_text()
+    assert "do this" in text and "1 problem(s): d" in text
+
+
+def test_cli_doctor_on_this_machine_reports_no_camera_and_exits_1():
+    env = dict(os.environ, COLUMNS="200")
+    proc = subprocess.run([sys.executable, "-m", "neurotouch_hid.cli", "doctor"], capture_output=True,
+                          text=True, env=env, timeout=120)
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    assert "no DAVIS-346 (152a:841a) on USB" in proc.stdout
+    if not os.path.exists("/dev/uinput"):
+        assert "/dev/uinput does not exist" in proc.stdout and "modprobe uinput" in proc.stdout

@@ -1,0 +1,118 @@
+"""VirtualGamepad without a kernel device: the DeviceError paths, the event diff, the layout.
+
+The device itself (uinput, udev, SDL, SIGTERM) is tested in a real kernel: tests/test_kernel.py.
+"""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+from evdev import ecodes
+from hypothesis import given
+from hypothesis import strategies as st
+
+from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
+from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.output import gamepad
+from neurotouch_hid.output.gamepad import (UINPUT_RULE, GamepadIdentity, VirtualGamepad, capabilities,
+                                           changed_events, normalised)
+
+
+def _assert_says_how_to_fix(message: str) -> None:
+    assert "modprobe uinput" in message
+    assert UINPUT_RULE in message
+    assert "udevadm control --reload" in message
+
+
+@pytest.mark.skipif(os.path.exists("/dev/uinput"), reason="this machine has /dev/uinput (the kernel tests cover the device)")
+def test_missing_dev_uinput_raises_device_error_with_the_fix():
+    with pytest.raises(DeviceError) as info:
+        VirtualGamepad()
+    assert "/dev/uinput does not exist" in str(info.value)
+    _assert_says_how_to_fix(str(info.value))
+
+
+def test_missing_node_names_it(tmp_path):
+    node = tmp_path / "uinput"
+    with pytest.raises(DeviceError, match=f"{node} does not exist") as info:
+        VirtualGamepad(devnode=str(node))
+    _assert_says_how_to_fix(str(info.value))
+
+
+def test_regular_file_is_not_taken_for_uinput(tmp_path):
+    node = tmp_path / "uinput"
+    node.write_bytes(b"")
+    with pytest.raises(DeviceError, match="not a character device"):
+        VirtualGamepad(devnode=str(node))
+
+
+def test_a_character_device_that_is_not_uinput_is_refused_by_the_kernel():
+    # /dev/null accepts the open but not uinput's ioctls (ENOTTY): a real kernel refusal.
+    with pytest.raises(DeviceError, match="refused") as info:
+        VirtualGamepad(devnode="/dev/null")
+    _assert_says_how_to_fix(str(info.value))
+
+
+def test_no_permission_says_so(monkeypatch):
+    monkeypatch.setattr(gamepad.os, "access", lambda path, mode: False)  # root may open anything
+    with pytest.raises(DeviceError, match="no permission to open /dev/null") as info:
+        VirtualGamepad(devnode="/dev/null")
+    _assert_says_how_to_fix(str(info.value))
+
+
+def test_overlong_name_is_a_device_error():
+    with pytest.raises(DeviceError, match="must be 1..79 bytes"):
+        VirtualGamepad(GamepadIdentity(name="x" * 80), devnode="/dev/null")
+
+
+def test_capabilities_are_the_xbox360_layout_and_nothing_mouse_like():
+    caps = capabilities()
+    assert set(caps) == {ecodes.EV_KEY, ecodes.EV_ABS}
+    assert caps[ecodes.EV_KEY] == [ecodes.ecodes[b] for b in BUTTONS]
+    assert ecodes.BTN_LEFT not in caps[ecodes.EV_KEY] and ecodes.BTN_TOUCH not in caps[ecodes.EV_KEY]
+    ranges = {code: (info.min, info.max) for code, info in caps[ecodes.EV_ABS]}
+    assert ranges == {ecodes.ecodes[n]: (lo, hi) for n, (lo, hi, _) in AXES.items()}
+    flats = {code: info.flat for code, info in caps[ecodes.EV_ABS]}
+    assert flats[ecodes.ABS_X] == gamepad.STICK_FLAT and flats[ecodes.ABS_Z] == 0
+
+
+def test_first_write_sends_everything_then_only_changes():
+    neutral = ControllerState.neutral()
+    first = changed_events(None, neutral)
+    assert [n for n, _ in first] == list(AXES) + list(BUTTONS)
+    assert changed_events(neutral, ControllerState.neutral(t_us=5)) == []
+    pressed = ControllerState.neutral()
+    pressed.buttons["BTN_SOUTH"] = True
+    pressed.axes["ABS_RZ"] = 200
+    assert changed_events(neutral, pressed) == [("ABS_RZ", 200), ("BTN_SOUTH", 1)]
+    assert changed_events(pressed, neutral) == [("ABS_RZ", 0), ("BTN_SOUTH", 0)]
+
+
+def test_out_of_range_missing_and_unknown_names():
+    state = ControllerState(axes={"ABS_X": 10**6, "ABS_Z": -4, "ABS_HAT0Y": 3, "ABS_BOGUS": 1},
+                            buttons={"BTN_START": True, "BTN_BOGUS": True})
+    full = normalised(state)
+    assert full.axes["ABS_X"] == 32767 and full.axes["ABS_Z"] == 0 and full.axes["ABS_HAT0Y"] == 1
+    assert full.axes["ABS_RX"] == 0  # missing = neutral
+    assert set(full.axes) == set(AXES) and set(full.buttons) == set(BUTTONS)
+    assert full.buttons["BTN_START"] and not full.buttons["BTN_SOUTH"]
+
+
+_axis_values = st.fixed_dictionaries({n: st.integers(lo - 1000, hi + 1000) for n, (lo, hi, _) in AXES.items()})
+_button_values = st.fixed_dictionaries({b: st.booleans() for b in BUTTONS})
+_states = st.builds(lambda a, b: ControllerState(axes=a, buttons=b), _axis_values, _button_values)
+
+
+@given(_states, _states)
+def test_applying_the_changes_reaches_the_new_state(old, new):
+    events = changed_events(old, new)
+    reached = normalised(old)
+    for name, value in events:
+        if name in AXES:
+            reached.axes[name] = value
+        else:
+            reached.buttons[name] = bool(value)
+    assert reached.axes == normalised(new).axes and reached.buttons == normalised(new).buttons
+    names = [n for n, _ in events]
+    assert len(names) == len(set(names))  # each changed name once

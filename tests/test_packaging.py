@@ -1,0 +1,131 @@
+"""udev rules, the systemd user unit and install.sh, checked with udev's and systemd's own tools."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import stat
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from neurotouch_hid.output.gamepad import PHYS, UINPUT_RULE
+
+ROOT = Path(__file__).resolve().parent.parent
+RULES = ROOT / "udev" / "60-neurotouch.rules"
+UNIT = ROOT / "packaging" / "neurotouch-hid.service"
+INSTALL = ROOT / "packaging" / "install.sh"
+
+
+def _rule_lines(text: str) -> list[str]:
+    return [line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")]
+
+
+@pytest.fixture(scope="module")
+def systemd_analyze() -> str:
+    found = shutil.which("systemd-analyze")
+    if found is None and os.geteuid() == 0 and shutil.which("apt-get"):
+        subprocess.run(["apt-get", "install", "-y", "--no-install-recommends", "systemd"], capture_output=True)
+        found = shutil.which("systemd-analyze")
+    if found is None:
+        pytest.skip(reason="systemd-analyze not found and systemd cannot be apt-installed here")
+    return found
+
+
+def _verify(tool: str, unit: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([tool, "verify", str(unit)], capture_output=True, text=True, timeout=60)
+
+
+def test_shipped_unit_verifies_cleanly(systemd_analyze):
+    proc = _verify(systemd_analyze, UNIT)
+    assert proc.returncode == 0 and not proc.stderr.strip(), proc.stderr
+
+
+def test_verify_catches_a_broken_unit(systemd_analyze, tmp_path):
+    broken = tmp_path / "neurotouch-hid.service"
+    broken.write_text(UNIT.read_text().replace("/usr/bin/env neurotouch-hid", "/nonexistent/neurotouch-hid"))
+    assert _verify(systemd_analyze, broken).returncode != 0
+
+
+def test_unit_binds_to_the_device_unit_the_rules_create():
+    unit = UNIT.read_text()
+    symlink = re.search(r'SYMLINK\+="([^"]+)"', RULES.read_text()).group(1)
+    escape = shutil.which("systemd-escape")
+    device_unit = (subprocess.run([escape, "--path", "--suffix=device", f"/dev/{symlink}"], capture_output=True,
+                                  text=True).stdout.strip() if escape else f"dev-{symlink}.device")
+    assert f"BindsTo={device_unit}" in unit and f"After={device_unit}" in unit
+    assert "Restart=on-failure" in unit and re.search(r"^ExecStart=.* run --source davis", unit, re.M)
+
+
+def test_install_user_writes_a_verifiable_unit_with_an_absolute_execstart(systemd_analyze, tmp_path):
+    shim = tmp_path / "bin" / "neurotouch-hid"
+    shim.parent.mkdir()
+    shim.write_text("#!/bin/sh\nexit 0\n")
+    shim.chmod(0o755)
+    env = dict(os.environ, HOME=str(tmp_path / "home"), XDG_CONFIG_HOME="", PATH=f"{shim.parent}:{os.environ['PATH']}")
+    proc = subprocess.run(["sh", str(INSTALL), "--user"], capture_output=True, text=True, env=env, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    unit = tmp_path / "home/.config/systemd/user/neurotouch-hid.service"
+    assert f"ExecStart={shim} run --source davis" in unit.read_text()
+    assert "NEUROTOUCH_PROFILE=default" in (tmp_path / "home/.config/neurotouch-hid/service.env").read_text()
+    verify = _verify(systemd_analyze, unit)
+    assert verify.returncode == 0 and not verify.stderr.strip(), verify.stderr
+
+
+def test_install_user_without_neurotouch_hid_on_path_fails_clearly(tmp_path):
+    env = dict(os.environ, HOME=str(tmp_path), XDG_CONFIG_HOME="", PATH="/usr/bin:/bin")
+    proc = subprocess.run(["sh", str(INSTALL), "--user"], capture_output=True, text=True, env=env, timeout=60)
+    assert proc.returncode == 1 and "not on PATH" in proc.stderr
+
+
+def test_install_system_into_destdir(tmp_path):
+    env = dict(os.environ, DESTDIR=str(tmp_path))
+    proc = subprocess.run(["sh", str(INSTALL), "--system"], capture_output=True, text=True, env=env, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    rules = tmp_path / "etc/udev/rules.d/60-neurotouch.rules"
+    assert rules.read_text() == RULES.read_text()
+    assert stat.S_IMODE(rules.stat().st_mode) == 0o644
+    assert (tmp_path / "etc/modules-load.d/neurotouch-hid.conf").read_text().split() == ["uinput"]
+
+
+def test_rules_give_access_only_to_the_seated_user():
+    text = RULES.read_text()
+    lines = _rule_lines(text)
+    assert UINPUT_RULE in lines  # the line gamepad.py's DeviceError tells users about
+    for line in lines:
+        for mode in re.findall(r'MODE\s*[:+]?=\s*"(\d+)"', line):
+            assert not int(mode, 8) & 0o002, f"world-writable: {line}"
+    camera = [line for line in lines if 'ATTR{idVendor}=="152a"' in line]
+    assert len(camera) == 1 and 'ATTR{idProduct}=="841a"' in camera[0]
+    for needed in ('TAG+="uaccess"', 'TAG+="systemd"', f'ENV{{SYSTEMD_USER_WANTS}}+="{UNIT.name}"'):
+        assert needed in camera[0]
+    virtual = [line for line in lines if "ID_NEUROTOUCH_VIRTUAL" in line]
+    assert len(virtual) == 1
+    pattern = re.search(r'ATTRS\{phys\}=="([^"]+)"', virtual[0]).group(1)
+    assert re.fullmatch(pattern.replace("*", ".*"), PHYS)  # matches the phys VirtualGamepad sets
+
+
+def _udevadm_test(rules_text: str, tmp_path: Path) -> str:
+    """Run the real udev rules parser (`udevadm test`) on ``rules_text`` in a private mount namespace
+    whose /run is a fresh tmpfs, so nothing on this machine changes. Returns the lines about it."""
+    src = tmp_path / "60-neurotouch.rules"
+    src.write_text(rules_text)
+    script = (f"mount -t tmpfs tmpfs /run && mkdir -p /run/udev/rules.d && cp {src} /run/udev/rules.d/ && "
+              "udevadm test --action=add /sys/class/mem/null 2>&1")
+    proc = subprocess.run(["unshare", "--mount", "--propagation", "private", "sh", "-c", script],
+                          capture_output=True, text=True, timeout=60)
+    if "Reading rules file: /run/udev/rules.d/60-neurotouch.rules" not in proc.stdout:
+        pytest.skip(reason=f"cannot run udevadm test in a private mount namespace here: {proc.stderr.strip()[:200]}")
+    return "\n".join(line for line in proc.stdout.splitlines() if "60-neurotouch.rules" in line)
+
+
+@pytest.mark.skipif(os.geteuid() != 0 or not shutil.which("unshare") or not shutil.which("udevadm")
+                    or not os.path.exists("/sys/class/mem/null"),
+                    reason="needs root, unshare and udevadm to run udev's parser in a private namespace")
+def test_udev_parses_the_rules_without_complaint(tmp_path):
+    said = _udevadm_test(RULES.read_text(), tmp_path)
+    assert said.strip() == "Reading rules file: /run/udev/rules.d/60-neurotouch.rules", said
+    broken = _udevadm_test(RULES.read_text() + 'SUBSYSTEM=="usb", ATTRR{x}=="1", TAG+="uaccess"\n', tmp_path)
+    assert "Invalid key 'ATTRR'" in broken  # the same check does catch a bad line
