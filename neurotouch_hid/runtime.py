@@ -101,8 +101,11 @@ class RunStats:
         resting_dropped_frames: APS frames the resting detector skipped (it was still busy).
         wall_s: wall time of the run (s).
         stream_us: camera time covered by the processed data (us).
-        latency: event-to-output latencies: from the moment the item completing a window was
-            available (read from the source, after pacing) to the output being up to date.
+        latency: processing latencies: from the moment the item that closed a window was read
+            from the source (after pacing) to the output being up to date.
+        window_latency: paced sources only: from the window's end in wall time (the camera clock
+            mapped to wall time by the pacing) to the output being up to date; adds the wait for
+            the source batch that shows the window is over (up to one batch).
     """
 
     windows: int = 0
@@ -117,6 +120,7 @@ class RunStats:
     wall_s: float = 0.0
     stream_us: int = 0
     latency: LatencyRing = field(default_factory=LatencyRing, repr=False)
+    window_latency: LatencyRing = field(default_factory=LatencyRing, repr=False)
 
     def summary(self) -> str:
         """One line for the end of a run."""
@@ -265,7 +269,8 @@ class Runtime:
         self._last_state = ControllerState.neutral()
         self._last_gesture: GestureType | None = None
         self._limit_us: int | None = None
-        self._first_ns = 0  # perf_counter_ns of the first item read
+        self._first_ns = 0  # perf_counter_ns of the first item read ...
+        self._first_us = 0  # ... and its time (us, camera clock): the pacing anchor
         self._ran = False
 
     # --- control ----------------------------------------------------------------------------
@@ -388,7 +393,7 @@ class Runtime:
                 if t_us is not None:
                     if first_us is None:
                         first_us, first_ns = t_us, time.perf_counter_ns()
-                        self._first_ns = first_ns
+                        self._first_ns, self._first_us = first_ns, first_us
                     if self._limit_us is not None and t_us - first_us >= self._limit_us:
                         break
                     if self._pace:
@@ -452,7 +457,12 @@ class Runtime:
                     self._emit(estimate)
                     stats.windows += 1
                 if estimates:
-                    stats.latency.add(time.perf_counter_ns() - arrival_ns)
+                    done_ns = time.perf_counter_ns()
+                    stats.latency.add(done_ns - arrival_ns)
+                    if self._pace:
+                        for estimate in estimates:
+                            end_ns = self._first_ns + (estimate.t_us - self._first_us) * 1000
+                            stats.window_latency.add(done_ns - end_ns)
         except BaseException as exc:
             self._errors.append(exc)
             self.stop()
@@ -547,13 +557,19 @@ class PipelineResting:
         return None if detector is None else detector.update(frame)
 
 
-def build_pipeline(geometry: Any, window_us: int) -> tuple[Any, PipelineResting]:
-    """A ``GesturePipeline`` with ``window_us`` windows whose resting detection runs beside it
-    (``detect_resting=False``; paper, section "Runtime Performance"), and that detector."""
+def build_pipeline(geometry: Any, window_us: int, *, resting_beside: bool = True) -> tuple[Any, PipelineResting | None]:
+    """A ``GesturePipeline`` with ``window_us`` windows, and the resting detector to run beside it.
+
+    ``resting_beside``: the resting detection runs in the runtime's own thread (paper, section
+    "Runtime Performance": one core for it, one for the gesture detection) and the pipeline does
+    not run it (``detect_resting=False``). False: the pipeline runs it inline on each frame, and
+    the run is deterministic (the same input gives the same estimates): what ``--fast`` replays
+    use, as nothing there needs to keep up with the camera.
+    """
     from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 
-    pipeline = GesturePipeline(geometry, PipelineConfig(window_us=window_us, detect_resting=False))
-    return pipeline, PipelineResting(pipeline)
+    pipeline = GesturePipeline(geometry, PipelineConfig(window_us=window_us, detect_resting=not resting_beside))
+    return pipeline, (PipelineResting(pipeline) if resting_beside else None)
 
 
 def run_driver(source: str = "davis", profile: str | Path = "default", output: str = "gamepad", *,
@@ -562,6 +578,11 @@ def run_driver(source: str = "davis", profile: str | Path = "default", output: s
                console: Any = None, output_obj: Any = None) -> RunStats:
     """``neurotouch-hid run``: load the profile (a bad one raises ProfileError before any device
     exists), open the source, build the pipeline, open the output, run until the end.
+
+    Real time (the camera, or paced replays): the resting detector runs in its own thread and
+    data is dropped, oldest first, if the pipeline falls behind. ``fast`` (recordings and the
+    simulated gel only): as fast as possible, nothing dropped, resting detection inline, so the
+    same input always gives the same states.
 
     ``output_obj`` replaces the output named by ``output`` (the demo's fallback, benchmarks).
     Raises NeurotouchError subclasses for bad input (ProfileError, RecordingError, DeviceError,
@@ -575,7 +596,7 @@ def run_driver(source: str = "davis", profile: str | Path = "default", output: s
     with contextlib.ExitStack() as stack:
         stream, geometry, live = open_source(source, stack, seconds=seconds,
                                              batch_us=min(DEFAULT_BATCH_US, window_us), sensor=sensor, seed=seed)
-        pipeline, resting = build_pipeline(geometry, window_us)
+        pipeline, resting = build_pipeline(geometry, window_us, resting_beside=live or not fast)
         out_obj = output_obj if output_obj is not None else open_output(output, loaded, stack, out=out, console=console)
         runtime = Runtime(stream, pipeline, loaded, out_obj, resting=resting, pace=not fast, live=live,
                           profile_ref=profile)

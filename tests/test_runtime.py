@@ -391,3 +391,15 @@ def test_a_bad_profile_raises_before_any_output_or_source_exists(tmp_path, monke
     with pytest.raises(ProfileError, match="bad.yaml"):
         runtime.run_driver("sim", bad, "gamepad")
     assert opened == []
+
+
+def test_fast_replays_are_deterministic(push_recording, tmp_path):
+    from neurotouch_hid.runtime import run_driver
+
+    runs = []
+    for k in range(2):
+        out = tmp_path / f"states{k}.jsonl"
+        stats = run_driver(str(push_recording), "default", "jsonl", fast=True, out=out)
+        assert stats.dropped_items == 0 and stats.windows > 0
+        runs.append(out.read_text())
+    assert runs[0] == runs[1] and runs[0]

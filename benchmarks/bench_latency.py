@@ -1,0 +1,190 @@
+"""Runtime latency, sustained event rate and memory: the figures of docs/performance.md
+("## Runtime latency").
+
+    python3 benchmarks/bench_latency.py [--seconds 30] [--rss-minutes 30] [--workdir DIR]
+
+1. Event-to-output latency with 10 ms windows while a simulated-gel recording is replayed in
+   real time (``Runtime(pace=True)``, 1 ms source batches, the default profile, the JSON-lines
+   state writer into /dev/null; the uinput gamepad too where /dev/uinput is writable):
+   p50/p99 of (a) processing latency: the item closing a window is read -> output up to date, and
+   (b) window latency: the window's end in paced wall time -> output up to date.
+2. 1 ms windows at 2 M events/s: the same recording time-compressed so its mean event rate is
+   2 M events/s, replayed in real time; reports dropped data (must be 0) and the rate achieved.
+3. Resident memory over a 30-minute simulated session at --fast speed (the recording looped
+   with shifted timestamps), sampled from /proc/self/statm every second.
+
+The recording is made once by the simulator (``SimulatedSource``, every gesture) and kept in
+``--workdir`` (default: a fresh temporary folder).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import threading
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from neurotouch_hid.mapping.profile import load_profile
+from neurotouch_hid.output.jsonl import StateJsonlWriter
+from neurotouch_hid.runtime import Runtime, RunStats, build_pipeline
+from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.sources import Frame
+from neurotouch_hid.sources.recording import RecordingReader, RecordingWriter, merge_stream
+from neurotouch_hid.sources.simulator import SimulatedSource
+
+PAGE = os.sysconf("SC_PAGE_SIZE")
+
+
+def make_recording(folder: Path, seconds: float, seed: int = 0) -> Path:
+    """A simulated-gel recording performing every gesture (AEDAT4 + sensor.yaml)."""
+    path = folder / f"sim-{seconds:g}s-seed{seed}.aedat4"
+    if path.exists():
+        return path
+    sim = SimulatedSource(seed=seed)
+    sim.sensor.save(folder / "sensor.yaml")
+    with RecordingWriter(path) as writer:
+        for chunk in sim.chunks(seconds):
+            writer.write_frame(chunk.frame)
+            writer.write_events(chunk.events)
+    return path
+
+
+def load(path: Path) -> tuple[np.ndarray, list[Frame]]:
+    with RecordingReader(path) as reader:
+        return reader.read_all()
+
+
+def compressed(events: np.ndarray, frames: list[Frame], factor: float) -> tuple[np.ndarray, list[Frame]]:
+    """Time divided by ``factor`` around the first frame (a ``factor`` times faster replay)."""
+    t0 = frames[0].t_us
+    ev = events.copy()
+    ev["timestamp"] = t0 + ((events["timestamp"] - t0) / factor).astype(np.int64)
+    return ev, [replace(f, t_us=t0 + int((f.t_us - t0) / factor)) for f in frames]
+
+
+def items(events: np.ndarray, frames: list[Frame], batch_us: int) -> list:
+    return list(merge_stream([events], frames, batch_us))
+
+
+def looped(events: np.ndarray, frames: list[Frame], batch_us: int, total_us: int):
+    """The recording again and again, timestamps shifted by its length, for ``total_us``."""
+    span = int(events["timestamp"][-1]) - frames[0].t_us + 40_000
+    base = items(events, frames, batch_us)
+    shift = 0
+    while shift < total_us:
+        for item in base:
+            if isinstance(item, Frame):
+                yield Frame(item.t_us + shift, item.image)
+            else:
+                moved = item.copy()
+                moved["timestamp"] += shift
+                yield moved
+        shift += span
+
+
+class RssSampler(threading.Thread):
+    """Resident set size (bytes) from /proc/self/statm every ``period_s``."""
+
+    def __init__(self, period_s: float = 1.0):
+        super().__init__(daemon=True)
+        self.period_s = period_s
+        self.samples: list[tuple[float, int]] = []
+        self._halt = threading.Event()
+
+    @staticmethod
+    def rss() -> int:
+        with open("/proc/self/statm") as fh:
+            return int(fh.read().split()[1]) * PAGE
+
+    def run(self) -> None:
+        t0 = time.perf_counter()
+        while not self._halt.wait(self.period_s):
+            self.samples.append((time.perf_counter() - t0, self.rss()))
+
+    def stop(self) -> None:
+        self._halt.set()
+        self.join()
+
+
+def run(stream, sensor: SensorGeometry, window_us: int, *, pace: bool, output=None) -> RunStats:
+    profile = load_profile("default")
+    pipeline, resting = build_pipeline(sensor, window_us, resting_beside=pace)
+    with StateJsonlWriter(os.devnull) as null:
+        out = output if output is not None else null
+        return Runtime(stream, pipeline, profile, out, resting=resting, pace=pace).run()
+
+
+def show(name: str, stats: RunStats) -> None:
+    rate = stats.events / stats.wall_s if stats.wall_s else 0.0
+    line = (f"{name}: {stats.windows} windows, {stats.events} events in {stats.wall_s:.1f} s wall "
+            f"({rate / 1e6:.2f} M events/s), dropped {stats.dropped_items} items ({stats.dropped_events} events), "
+            f"resting detector skipped {stats.resting_dropped_frames} frames; "
+            f"processing latency p50 {stats.latency.percentile_us(50):.0f} us p99 {stats.latency.percentile_us(99):.0f} us")
+    if len(stats.window_latency):
+        line += (f"; window latency p50 {stats.window_latency.percentile_us(50):.0f} us "
+                 f"p99 {stats.window_latency.percentile_us(99):.0f} us")
+    print(line, flush=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seconds", type=float, default=30.0, help="length of the simulated recording (s)")
+    ap.add_argument("--rate", type=float, default=2e6, help="event rate of the 1 ms window case (events/s)")
+    ap.add_argument("--rss-minutes", type=float, default=30.0, help="simulated session length of the memory case")
+    ap.add_argument("--workdir", type=Path, default=None, help="keep the recording here")
+    ap.add_argument("--skip", nargs="*", default=[], choices=["latency", "rate", "rss"])
+    args = ap.parse_args()
+    folder = args.workdir or Path(tempfile.mkdtemp(prefix="bench-latency-"))
+    folder.mkdir(parents=True, exist_ok=True)
+    t = time.perf_counter()
+    path = make_recording(folder, args.seconds)
+    sensor = SensorGeometry.load(folder / "sensor.yaml")
+    events, frames = load(path)
+    print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores", flush=True)
+    span_s = (int(events["timestamp"][-1]) - frames[0].t_us) / 1e6
+    print(f"recording {path}: {len(events)} events, {len(frames)} frames, {span_s:.1f} s, "
+          f"mean {len(events) / span_s / 1e3:.0f} k events/s (made/read in {time.perf_counter() - t:.1f} s)", flush=True)
+    base10 = items(events, frames, 1000)
+    run(iter(base10[:200]), sensor, 10_000, pace=False)  # warm-up: numba compiles, caches load
+
+    if "latency" not in args.skip:
+        show("real time, 10 ms windows, JSON lines -> /dev/null", run(iter(base10), sensor, 10_000, pace=True))
+        if os.access("/dev/uinput", os.W_OK):
+            from neurotouch_hid.output.gamepad import VirtualGamepad
+
+            with VirtualGamepad() as pad:
+                show("real time, 10 ms windows, uinput gamepad", run(iter(base10), sensor, 10_000, pace=True, output=pad))
+        else:
+            print("uinput gamepad: skipped, /dev/uinput is not writable here", flush=True)
+
+    if "rate" not in args.skip:
+        factor = args.rate * span_s / len(events)
+        ev, fr = compressed(events, frames, factor)
+        fast_items = items(ev, fr, 1000)
+        print(f"time compressed x{factor:.1f}: {len(ev)} events over {(int(ev['timestamp'][-1]) - fr[0].t_us) / 1e6:.2f} s "
+              f"= {args.rate / 1e6:.1f} M events/s, {len(fr)} frames", flush=True)
+        show(f"real time, 1 ms windows, {args.rate / 1e6:.1f} M events/s", run(iter(fast_items), sensor, 1000, pace=True))
+
+    if "rss" not in args.skip:
+        total_us = int(args.rss_minutes * 60e6)
+        sampler = RssSampler()
+        sampler.start()
+        stats = run(looped(events, frames, 1000, total_us), sensor, 10_000, pace=False)
+        sampler.stop()
+        show(f"--fast, {args.rss_minutes:g} simulated minutes (recording looped)", stats)
+        rss = np.array([r for _, r in sampler.samples]) / 2**20
+        n = len(rss)
+        if n:
+            q = [rss[: max(1, n // 10)].mean(), rss[n // 2 - n // 20: n // 2 + n // 20 + 1].mean(), rss[-max(1, n // 10):].mean()]
+            print(f"RSS over {stats.wall_s:.0f} s ({stats.stream_us / 60e6:.1f} simulated minutes): first tenth {q[0]:.1f} MiB, "
+                  f"middle {q[1]:.1f} MiB, last tenth {q[2]:.1f} MiB, max {rss.max():.1f} MiB, "
+                  f"min {rss.min():.1f} MiB", flush=True)
+
+
+if __name__ == "__main__":
+    main()
