@@ -24,32 +24,35 @@ def bump(rest: np.ndarray, centre, direction, sigma: float = 12.0) -> np.ndarray
     return w[:, None] * np.asarray(direction, dtype=float)
 
 
-def test_one_finger_push_gives_one_contact_at_the_peak():
+@pytest.mark.parametrize("method", ["usac_fast", "ransac"])
+def test_one_finger_push_gives_one_contact_at_the_peak(method):
     rest = grid()
     centre = rest[np.argmin(np.sum((rest - [183.0, 120.0]) ** 2, axis=1))]
     cur = rest + bump(rest, centre, (6.0, -3.0))
-    contacts = detect_contacts(rest, cur)
+    contacts = detect_contacts(rest, cur, method=method)
     assert contacts.count == 1
     np.testing.assert_allclose(contacts.points_px[0], centre + [6.0, -3.0], atol=1e-6)
     assert contacts.candidates.sum() >= 4
     assert contacts.reproj_threshold_px == pytest.approx(0.6 * np.linalg.norm(cur - rest, axis=1).mean())
 
 
-def test_two_fingers_far_apart_give_two_contacts():
+@pytest.mark.parametrize("method", ["usac_fast", "ransac"])
+def test_two_fingers_far_apart_give_two_contacts(method):
     rest = grid()
     c1, c2 = np.array([143.0, 130.0]), np.array([203.0, 130.0])
     cur = rest + bump(rest, c1, (5.0, 0.0)) + bump(rest, c2, (-5.0, 0.0))
-    contacts = detect_contacts(rest, cur)
+    contacts = detect_contacts(rest, cur, method=method)
     assert contacts.count == 2
     found = sorted(contacts.points_px[:, 0])
     assert found[0] == pytest.approx(148.0, abs=1e-3)
     assert found[1] == pytest.approx(198.0, abs=1e-3)
 
 
-def test_a_global_motion_is_not_a_contact():
+@pytest.mark.parametrize("method", ["usac_fast", "ransac"])
+def test_a_global_motion_is_not_a_contact(method):
     """A pure global translation fits the homography: no outlier, no contact."""
     rest = grid()
-    contacts = detect_contacts(rest, rest + [4.0, 2.0])
+    contacts = detect_contacts(rest, rest + [4.0, 2.0], method=method)
     assert contacts.count == 0
 
 
