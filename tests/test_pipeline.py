@@ -135,6 +135,19 @@ def test_set_resting_from_another_thread_is_applied_at_the_next_item(rest_image)
     assert [e.resting for e in out] == [False]
 
 
+def test_set_resting_ignores_no_verdict_and_stale_verdicts(rest_image):
+    pipeline = GesturePipeline(SENSOR, PipelineConfig(detect_resting=False))
+    pipeline.process(Frame(0, rest_image))
+    pipeline.set_resting(RestingResult(False, 9.0), 80000)
+    pipeline.set_resting(RestingResult(True, 0.1), 40000)  # older frame, computed late
+    pipeline.set_resting(None, 120000)  # the detector had no verdict
+    pipeline.process(events_at(1))
+    assert not pipeline.resting.resting and pipeline.resting.distance == 9.0
+    pipeline.set_resting(RestingResult(True, 0.2), 60000)  # older than the verdict in force
+    pipeline.process(events_at(2))
+    assert not pipeline.resting.resting
+
+
 # --- predictions JSON lines --------------------------------------------------------------------
 def test_predictions_round_trip(tmp_path):
     estimates = [

@@ -139,7 +139,8 @@ class GesturePipeline:
         self.timings: dict[str, list[int]] | None = {s: [] for s in STAGES} if profile else None
         self.cpu_timings: dict[str, list[int]] | None = {s: [] for s in STAGES} if profile else None
         self._resting = RestingResult(True, 0.0)
-        self._pending: RestingResult | None = None
+        self._pending: tuple[RestingResult, int] | None = None
+        self._resting_t_us = -(2**62)
         self._lock = threading.Lock()
         self._next_end: int | None = None
 
@@ -170,12 +171,16 @@ class GesturePipeline:
         if self.rest_px is None:
             raise SensorError("the stream has no APS frame: the pipeline needs one to find the gel's markers at rest")
 
-    def set_resting(self, result: RestingResult, t_us: int) -> None:
+    def set_resting(self, result: RestingResult | None, t_us: int) -> None:
         """Hand over a resting verdict computed elsewhere (e.g. another thread) for the frame at
         ``t_us``. Thread-safe; applied before the pipeline's next item: at rest the tracker is
-        reset to the rest positions, and estimates say ``resting`` until a verdict says not."""
+        reset to the rest positions, and estimates say ``resting`` until a verdict says not.
+        ``None`` (no verdict yet) and verdicts older than one already handed over are ignored."""
+        if result is None:
+            return
         with self._lock:
-            self._pending = result
+            if self._pending is None or t_us >= self._pending[1]:
+                self._pending = (result, int(t_us))
 
     # --- outputs ----------------------------------------------------------------------------
     def marker_positions(self) -> np.ndarray:
@@ -196,8 +201,9 @@ class GesturePipeline:
     def _apply_pending(self) -> None:
         with self._lock:
             pending, self._pending = self._pending, None
-        if pending is not None:
-            self._apply_resting(pending)
+        if pending is not None and pending[1] >= self._resting_t_us:
+            self._resting_t_us = pending[1]
+            self._apply_resting(pending[0])
 
     def _apply_resting(self, result: RestingResult) -> None:
         self._resting = result
@@ -230,6 +236,7 @@ class GesturePipeline:
             start = self._clock()
             result = self.resting_detector.update(frame)
             self._record("resting", start)
+            self._resting_t_us = frame.t_us
             self._apply_resting(result)
         return out
 
