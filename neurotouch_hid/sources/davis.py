@@ -15,6 +15,7 @@ from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.sources import Frame, StreamItem
 from neurotouch_hid.sources.recording import (
     DAVIS346_RESOLUTION,
+    DV_ERRORS,
     dv_error_text,
     events_from_store,
     grey_image,
@@ -39,6 +40,8 @@ class DavisSource:
     Raises:
         DeviceError: no camera found, the camera cannot be opened (permissions: the udev rule),
             or it has another resolution. The message says how to fix it.
+
+    Use as a context manager (or call :meth:`close`) to release the camera.
     """
 
     def __init__(self, serial: str | None = None,
@@ -47,7 +50,7 @@ class DavisSource:
 
         try:
             found = dv.io.camera.discover()
-        except RuntimeError as exc:
+        except DV_ERRORS as exc:
             raise DeviceError(f"cannot search for a DAVIS camera ({dv_error_text(str(exc))}): {_FIX}") from None
         if serial is not None:
             found = [d for d in found if d.serialNumber == serial]
@@ -56,7 +59,7 @@ class DavisSource:
             raise DeviceError(f"no DAVIS camera {which}found: {_FIX}")
         try:
             self._camera = dv.io.camera.open(found[0])
-        except RuntimeError as exc:
+        except DV_ERRORS as exc:
             raise DeviceError(f"cannot open the DAVIS camera {found[0].serialNumber} "
                               f"({dv_error_text(str(exc))}): {_FIX}") from None
         self.camera_name: str = self._camera.getCameraName()
@@ -66,6 +69,16 @@ class DavisSource:
             raise DeviceError(f"camera {self.camera_name} is {self.width}x{self.height} px, but NeuroTouch "
                               f"needs a DAVIS-346 ({require_resolution[0]}x{require_resolution[1]})")
         self.has_frames: bool = bool(self._camera.isFrameStreamAvailable())
+
+    def __enter__(self) -> "DavisSource":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Stop the camera and release its USB device (dv-processing does so when it is dropped)."""
+        self._camera = None
 
     def stream(self, seconds: float | None = None, batch_us: int = 1000) -> Iterator[StreamItem]:
         """Event batches and APS frames as the camera delivers them, until ``seconds`` have passed.
@@ -80,6 +93,8 @@ class DavisSource:
             DeviceError: the camera stops (unplugged) before ``seconds`` are over.
         """
         camera = self._camera
+        if camera is None:
+            raise DeviceError(f"the DAVIS camera {self.camera_name} was closed")
         deadline = None if seconds is None else time.monotonic() + seconds
         while deadline is None or time.monotonic() < deadline:
             if not camera.isRunning():

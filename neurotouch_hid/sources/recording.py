@@ -47,6 +47,8 @@ AEDAT4_SUFFIX = ".aedat4"
 PACKET_EVENTS = 10_000
 #: The DAVIS-346's pixel array, (width, height) px.
 DAVIS346_RESOLUTION = (346, 260)
+#: What pybind11 turns dv-processing's C++ exceptions into (std::exception and its kinds).
+DV_ERRORS = (RuntimeError, ValueError, IndexError, MemoryError)
 
 
 @dataclass(frozen=True)
@@ -215,7 +217,7 @@ def _open(path: Path) -> tuple["dv.io.MonoCameraRecording", str | None, tempfile
     size = path.stat().st_size
     try:
         return dv.io.MonoCameraRecording(str(path)), None, None
-    except RuntimeError as exc:
+    except DV_ERRORS as exc:
         first_error = str(exc)
     if offset < 0:  # no table to blame: the packets themselves are broken
         raise RecordingError(f"{path}: corrupt AEDAT4 data ({dv_error_text(first_error)})")
@@ -224,7 +226,7 @@ def _open(path: Path) -> tuple["dv.io.MonoCameraRecording", str | None, tempfile
                f"{table_position}; the rest of the recording is missing")
     else:
         why = f"corrupt index table at byte {table_position} ({dv_error_text(first_error)})"
-    tmp = tempfile.TemporaryDirectory(prefix="neurotouch-recording-")
+    tmp = tempfile.TemporaryDirectory(prefix="nthid-aedat4-repair-")
     copy = Path(tmp.name) / path.name
     shutil.copyfile(path, copy)
     with open(copy, "r+b") as fh:
@@ -232,7 +234,7 @@ def _open(path: Path) -> tuple["dv.io.MonoCameraRecording", str | None, tempfile
         fh.write(struct.pack("<q", -1))
     try:
         return dv.io.MonoCameraRecording(str(copy)), why, tmp
-    except RuntimeError as exc:
+    except DV_ERRORS as exc:
         tmp.cleanup()
         raise RecordingError(f"{path}: {why}, and no data could be read ({dv_error_text(str(exc))})") from None
 
@@ -329,7 +331,7 @@ class RecordingReader:
         while True:
             try:
                 store = rec.getNextEventBatch()
-            except RuntimeError as exc:
+            except DV_ERRORS as exc:
                 raise self._error("corrupt event data", exc) from None
             if store is None:
                 return
@@ -342,7 +344,7 @@ class RecordingReader:
         while True:
             try:
                 frame = rec.getNextFrame()
-            except RuntimeError as exc:
+            except DV_ERRORS as exc:
                 raise self._error("corrupt APS frame data", exc) from None
             if frame is None:
                 return
@@ -517,7 +519,7 @@ class RecordingWriter:
         config = make(camera_name, (self.width, self.height))
         try:
             self._writer = dv.io.MonoCameraWriter(str(self.path), config)
-        except RuntimeError as exc:
+        except DV_ERRORS as exc:
             raise RecordingError(f"{self.path}: cannot write ({dv_error_text(str(exc))})") from None
         self.frames = frames
         self._pending: list[np.ndarray] = []
@@ -576,7 +578,10 @@ class RecordingWriter:
         # Keep event packets interleaved with frames in time, as DV records them.
         self._flush(final=True)
         self._last_frame_us = int(frame.t_us)
-        self._writer.writeFrame(dv.Frame(int(frame.t_us), np.ascontiguousarray(image)))
+        try:
+            self._writer.writeFrame(dv.Frame(int(frame.t_us), np.ascontiguousarray(image)))
+        except DV_ERRORS as exc:
+            raise RecordingError(f"{self.path}: cannot write an APS frame ({dv_error_text(str(exc))})") from None
 
     def _flush(self, final: bool) -> None:
         """Write pending events in packets of PACKET_EVENTS (all of them when ``final``)."""
@@ -584,8 +589,11 @@ class RecordingWriter:
             return
         events = np.concatenate(self._pending) if len(self._pending) > 1 else self._pending[0]
         stop = len(events) if final else len(events) - len(events) % PACKET_EVENTS
-        for start in range(0, stop, PACKET_EVENTS):
-            self._writer.writeEvents(store_from_events(events[start:min(start + PACKET_EVENTS, stop)]))
+        try:
+            for start in range(0, stop, PACKET_EVENTS):
+                self._writer.writeEvents(store_from_events(events[start:min(start + PACKET_EVENTS, stop)]))
+        except DV_ERRORS as exc:
+            raise RecordingError(f"{self.path}: cannot write events ({dv_error_text(str(exc))})") from None
         rest = events[stop:]
         self._pending = [rest] if len(rest) else []
         self._n_pending = len(rest)
