@@ -138,8 +138,9 @@ def detect_contacts(
     """The contact points of one window (paper, section "Contact Point Detection").
 
     Args:
-        rest_px: (N, 2) float, rest positions p_i(t0), image frame (px).
-        current_px: (N, 2) float, tracked positions p_i(t_k), image frame (px).
+        rest_px: (N, 2) float, rest positions p_i(t0), image frame (px), finite.
+        current_px: (N, 2) float, tracked positions p_i(t_k), image frame (px); NaN rows count
+            as lost.
         valid: (N,) bool, False for markers the tracker lost (they take no part); None = all.
         r_px: neighbourhood radius r (px); paper: 30 px.
         a: dynamic reprojection threshold coefficient; paper: 0.6.
@@ -156,20 +157,21 @@ def detect_contacts(
     rest = np.asarray(rest_px, dtype=np.float64)
     cur = np.asarray(current_px, dtype=np.float64)
     n = len(rest)
-    ok = np.isfinite(cur).all(axis=1) & np.isfinite(rest).all(axis=1)
+    ok = np.isfinite(cur[:, 0]) & np.isfinite(cur[:, 1])
     if valid is not None:
         ok &= np.asarray(valid, dtype=bool)
     idx = np.flatnonzero(ok)
     if len(idx) < 4:
         return _no_contacts(n)
-    magnitudes = np.linalg.norm(cur[idx] - rest[idx], axis=1)
+    rest_ok, cur_ok = rest[idx], cur[idx]
+    magnitudes = np.hypot(cur_ok[:, 0] - rest_ok[:, 0], cur_ok[:, 1] - rest_ok[:, 1])
     mean = float(magnitudes.mean())
     if mean < min_mean_displacement_px:
         return _no_contacts(n)
     threshold = a * mean
-    outliers = homography_outliers(rest[idx], cur[idx], threshold, max_iters, method)
+    outliers = homography_outliers(rest_ok, cur_ok, threshold, max_iters, method)
     cand = idx[outliers]
     candidates = np.zeros(n, dtype=bool)
     candidates[cand] = True
-    maxima = cand[local_maxima(cur[cand], magnitudes[outliers], r_px, n_min)]
+    maxima = cand[local_maxima(cur_ok[outliers], magnitudes[outliers], r_px, n_min)]
     return Contacts(indices=maxima, points_px=cur[maxima].copy(), candidates=candidates, reproj_threshold_px=threshold)

@@ -95,9 +95,10 @@ def markers_near(points_px: np.ndarray, centres_px: np.ndarray, r_px: float) -> 
     c = np.asarray(centres_px, dtype=np.float64).reshape(-1, 2)
     if len(c) == 0 or len(p) == 0:
         return np.zeros(len(p), dtype=bool)
-    diff = p[:, None, :] - c[None, :, :]
+    dx = p[:, 0, None] - c[None, :, 0]
+    dy = p[:, 1, None] - c[None, :, 1]
     with np.errstate(invalid="ignore"):
-        return (np.einsum("ijk,ijk->ij", diff, diff) < r_px * r_px).any(axis=1)
+        return (dx * dx + dy * dy < r_px * r_px).any(axis=1)
 
 
 def fit_similarity(rest_px: np.ndarray, current_px: np.ndarray, origin_px: np.ndarray, reproj_threshold_px: float) -> Similarity:
@@ -181,19 +182,18 @@ def estimate_gesture(
     rest = np.asarray(rest_px, dtype=np.float64)
     cur = np.asarray(current_px, dtype=np.float64)
     contacts = np.asarray(contacts_px, dtype=np.float64).reshape(-1, 2)
-    ok = np.isfinite(cur).all(axis=1)
+    area = markers_near(cur, contacts, r_px)  # NaN rows (lost markers) are never near
     if valid is not None:
-        ok &= np.asarray(valid, dtype=bool)
-    area = markers_near(np.where(ok[:, None], cur, np.nan), contacts, r_px)
+        area &= np.asarray(valid, dtype=bool)
     nothing = GestureResult(GestureType.NONE, 0.0, 0.0, Similarity(), area, np.zeros(2), 0.0)
     if not area.any():
         return nothing
-    magnitudes = np.linalg.norm(cur[area] - rest[area], axis=1)
-    intensity_px = float(magnitudes.mean())
+    rest_a, cur_a = rest[area], cur[area]
+    intensity_px = float(np.hypot(cur_a[:, 0] - rest_a[:, 0], cur_a[:, 1] - rest_a[:, 1]).mean())
     if intensity_px < min_intensity_px:
         return nothing
     threshold = max(reproj_factor * intensity_px, min_reproj_px)
-    similarity = fit_similarity(rest[area], cur[area], contacts.mean(axis=0), threshold)
+    similarity = fit_similarity(rest_a, cur_a, contacts.mean(axis=0), threshold)
     return GestureResult(
         gesture=classify(similarity, r_px, sensor),
         intensity_px=intensity_px,
