@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from neurotouch_hid.errors import RecordingError
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
@@ -190,6 +192,31 @@ def test_merge_stream_cuts_at_batches_and_frames():
     out = [("F", item.t_us) if isinstance(item, Frame) else item["timestamp"].tolist()
            for item in merge_stream(chunks, frames, batch_us=10)]
     assert out == [("F", 0), [5], [12], ("F", 15), [15, 15], [31], [40], ("F", 41), [41], [95], ("F", 200)]
+
+
+@settings(max_examples=60, deadline=None)
+@given(times=st.lists(st.integers(0, 300), max_size=60), frame_times=st.lists(st.integers(-10, 320), max_size=6),
+       cuts=st.lists(st.integers(0, 60), max_size=5), batch_us=st.integers(1, 50))
+def test_merge_stream_invariants(times, frame_times, cuts, batch_us):
+    events = np.zeros(len(times), EVENT_DTYPE)
+    events["timestamp"] = sorted(times)
+    events["x"] = np.arange(len(times))  # identifies each event
+    frames = [Frame(t, np.zeros((1, 1), np.uint8)) for t in sorted(frame_times)]
+    chunks = np.split(events, sorted(c for c in cuts if c <= len(events)))
+    items = list(merge_stream(chunks, frames, batch_us))
+    got_frames = [item for item in items if isinstance(item, Frame)]
+    batches = [item for item in items if not isinstance(item, Frame)]
+    assert got_frames == frames
+    assert np.array_equal(np.concatenate(batches) if batches else events[:0], events)
+    emitted: list[int] = []
+    for item in items:
+        if isinstance(item, Frame):
+            assert all(t < item.t_us for t in emitted)
+            assert all(t >= item.t_us for t in events["timestamp"][len(emitted):])
+        else:
+            ts = item["timestamp"]
+            assert len(ts) and ts[0] // batch_us == ts[-1] // batch_us
+            emitted.extend(ts.tolist())
 
 
 def test_split_batches():
