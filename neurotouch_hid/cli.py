@@ -98,10 +98,8 @@ def track(
     markers: Optional[Path] = typer.Option(None, "--markers", help="also write tracked marker positions (.npz)"),
 ) -> None:
     """Run the gesture pipeline on a recording and write one prediction per window."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
     from neurotouch_hid.pipeline.pipeline import PipelineConfig
-    from neurotouch_hid.pipeline.track import track_recording
+    from neurotouch_hid.pipeline.track import recording_progress, track_recording
     from neurotouch_hid.sensor import find_sensor_file
 
     try:
@@ -109,13 +107,7 @@ def track(
     except ValueError as exc:
         raise NeurotouchError(f"--window-us: {exc}") from None
     geometry = find_sensor_file(recording, sensor)
-    columns = (TextColumn("tracking"), BarColumn(), TextColumn("{task.completed:.1f} s of recording"), TimeRemainingColumn())
-    with Progress(*columns, console=err_console, transient=True) as progress:
-        task = progress.add_task("track", total=1.0)
-
-        def report(done_us: int, total_us: int) -> None:
-            progress.update(task, completed=done_us * 1e-6, total=max(total_us, done_us) * 1e-6)
-
+    with recording_progress(err_console, "tracking") as report:
         summary = track_recording(recording, out, geometry, config, markers_out=markers, on_progress=report)
     console.print(
         f"{summary.windows} windows of {config.window_us} us over {summary.duration_us * 1e-6:.2f} s "
@@ -172,19 +164,12 @@ def view(
     sensor: Optional[Path] = typer.Option(None, "--sensor", help="sensor.yaml (default: the one beside the recording)"),
 ) -> None:
     """Draw what the pipeline sees: APS frame, events, markers, displacements, contacts, gesture."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
+    from neurotouch_hid.pipeline.track import recording_progress
     from neurotouch_hid.pipeline.view import render_view
     from neurotouch_hid.sensor import find_sensor_file
 
     geometry = find_sensor_file(recording, sensor)
-    columns = (TextColumn("drawing"), BarColumn(), TextColumn("{task.completed:.1f} s of recording"), TimeRemainingColumn())
-    with Progress(*columns, console=err_console, transient=True) as progress:
-        task = progress.add_task("view", total=1.0)
-
-        def report(done_us: int, total_us: int) -> None:
-            progress.update(task, completed=done_us * 1e-6, total=max(total_us, done_us) * 1e-6)
-
+    with recording_progress(err_console, "drawing") as report:
         drawn = render_view(recording, out, geometry, on_progress=report)
     what = "the most intense of " if out.suffix.lower() == ".png" else ""
     console.print(f"{what}{drawn} pictures -> {out}", highlight=False)

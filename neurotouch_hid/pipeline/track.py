@@ -9,6 +9,7 @@ format: ``t_us`` int64 (T,), ``positions_px`` float32 (T, N, 2) with NaN for a l
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -46,6 +47,22 @@ class TrackSummary:
     def realtime_factor(self) -> float:
         """Recording time / wall-clock time (> 1: faster than real time)."""
         return self.duration_us * 1e-6 / self.elapsed_s if self.elapsed_s > 0 else float("inf")
+
+
+@contextlib.contextmanager
+def recording_progress(console, label: str) -> Iterator[Callable[[int, int], None]]:
+    """A rich progress bar over recording time; yields the ``on_progress(done_us, total_us)``
+    callback of :func:`pipeline_over`. The bar disappears when done."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    columns = (TextColumn(label), BarColumn(), TextColumn("{task.completed:.1f} s of recording"), TimeRemainingColumn())
+    with Progress(*columns, console=console, transient=True) as progress:
+        task = progress.add_task(label, total=1.0)
+
+        def report(done_us: int, total_us: int) -> None:
+            progress.update(task, completed=done_us * 1e-6, total=max(total_us, done_us) * 1e-6)
+
+        yield report
 
 
 def pipeline_over(
