@@ -11,8 +11,10 @@ from typing import Iterator, Union
 
 import numpy as np
 
-#: dv-processing's ``EventStore.numpy()`` dtype: timestamp us (int64), x, y px (int16),
-#: polarity (int8, 1 = ON brighter, 0 = OFF darker).
+#: dv-processing's ``EventStore.numpy()`` fields: timestamp us (int64), x, y px (int16),
+#: polarity (int8, 1 = ON brighter, 0 = OFF darker). dv-processing pads each record to 16 bytes;
+#: this is the packed (13-byte) form, which is what numpy itself makes of that dtype whenever
+#: arrays are concatenated or promoted, so every array in the project has one dtype.
 EVENT_DTYPE = np.dtype([("timestamp", "<i8"), ("x", "<i2"), ("y", "<i2"), ("polarity", "i1")])
 
 
