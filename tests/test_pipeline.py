@@ -100,8 +100,18 @@ def test_the_first_frame_is_the_rest_reference(rest_image):
 
 def test_a_scene_without_gel_raises_no_gel_found():
     noise = np.random.default_rng(0).integers(0, 256, (SENSOR.height, SENSOR.width), dtype=np.uint8)
-    with pytest.raises(SensorError, match="no gel found"):
-        GesturePipeline(SENSOR).process(Frame(0, noise))
+    pipeline = GesturePipeline(SENSOR, PipelineConfig(reference_attempts=2))
+    assert pipeline.process(Frame(0, noise)) == []  # one bad first frame is tolerated
+    with pytest.raises(SensorError, match="no gel found: the first 2 APS frame"):
+        pipeline.process(Frame(40000, noise))
+
+
+def test_an_under_exposed_first_frame_is_skipped(rest_image):
+    pipeline = GesturePipeline(SENSOR)
+    pipeline.process(Frame(0, np.zeros((SENSOR.height, SENSOR.width), np.uint8)))
+    assert pipeline.rest_px is None
+    pipeline.process(Frame(40000, rest_image))
+    assert pipeline.rest_px is not None and len(pipeline.rest_px) > 100
 
 
 def test_a_stream_without_frames_raises():

@@ -4,7 +4,8 @@ detection framework"): events and APS frames in, one :class:`GestureEstimate` pe
 Stages, one module each:
 
 1. markers (``markers.py``): the first APS frame is the rest reference (the paper's t0 is a
-   resting timestep); its markers are detected and checked to look like the gel's grid;
+   resting timestep); its markers are detected and checked to look like the gel's grid (a few
+   first frames may fail, e.g. under-exposed, before "no gel found" is raised);
 2. tracker (``tracker.py``): event-by-event blob tracking gives p_i(t_k), v_i = p_i(t_k) - p_i(t0);
 3. contacts (``contacts.py``): RANSAC homography outliers, local displacement maxima;
 4. gesture (``gesture.py``): 4-DoF similarity about the contacts -> type, intensity;
@@ -73,6 +74,9 @@ class PipelineConfig:
         min_gesture_reproj_px: floor of that threshold (px).
         marker_threshold: grey level of marker pixels for marker detection and resting
             detection (0..255); None = Otsu's threshold on the reference frame.
+        reference_attempts: how many first APS frames may fail to show a marker grid (e.g. an
+            under-exposed first frame) before the pipeline says "no gel found"; the first frame
+            that shows one is the rest reference.
         detect_resting: True: :meth:`GesturePipeline.process` runs the resting detector on
             every frame itself; False: the caller does, via :meth:`GesturePipeline.set_resting`.
         tracker: the blob tracker's parameters.
@@ -89,6 +93,7 @@ class PipelineConfig:
     gesture_reproj_factor: float = 2.0
     min_gesture_reproj_px: float = 0.5
     marker_threshold: int | None = None
+    reference_attempts: int = 3
     detect_resting: bool = True
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
 
@@ -143,6 +148,7 @@ class GesturePipeline:
         self._resting_t_us = -(2**62)
         self._lock = threading.Lock()
         self._next_end: int | None = None
+        self._rejected_frames = 0
 
     # --- inputs -----------------------------------------------------------------------------
     def process(self, item: StreamItem) -> list[GestureEstimate]:
@@ -152,8 +158,8 @@ class GesturePipeline:
             the estimates of the windows whose end this item crossed (possibly none), in time
             order.
         Raises:
-            SensorError: the first APS frame shows no marker grid ("no gel found"), or a frame
-                has the wrong size.
+            SensorError: none of the first ``reference_attempts`` APS frames shows a marker grid
+                ("no gel found"), or a frame has the wrong size.
         """
         self._apply_pending()
         if isinstance(item, Frame):
@@ -213,10 +219,13 @@ class GesturePipeline:
     def _initialise(self, frame: Frame) -> None:
         markers = detect_markers(frame.image, self.sensor, self.config.marker_threshold)
         if not looks_like_marker_grid(markers, self.sensor):
+            self._rejected_frames += 1
+            if self._rejected_frames < self.config.reference_attempts:
+                return  # e.g. an under-exposed first frame: try the next one
             raise SensorError(
-                f"no gel found: the first APS frame (t = {frame.t_us} us) shows {len(markers)} bright blobs that do not "
-                "look like NeuroTouch's marker grid (1 mm dots, 4 mm apart, inside the gel disc of sensor.yaml); "
-                "is this a NeuroTouch recording, and does sensor.yaml match it?"
+                f"no gel found: the first {self._rejected_frames} APS frame(s) (the last at t = {frame.t_us} us, "
+                f"{len(markers)} bright blobs) do not look like NeuroTouch's marker grid (1 mm dots, 4 mm apart, "
+                "inside the gel disc of sensor.yaml); is this a NeuroTouch recording, and does sensor.yaml match it?"
             )
         self.rest_px = markers.centroids_px.astype(np.float64)
         self.tracker = BlobTracker(
