@@ -32,7 +32,7 @@ def passed(guest: dict, name: str) -> dict:
     """The details of guest check ``name``, failing the test with the guest's error if it failed."""
     entry = guest.get(name)
     assert entry is not None, f"the guest did not run {name} (setup: {guest.get('setup')})"
-    assert entry["ok"], f"{name}: {entry.get('error')}\n{entry.get('traceback', '')}"
+    assert entry["ok"], f"{name}: {entry.get('error')}\n{entry.get('traceback', '')}\nboot: {guest.get('_boot')}"
     return entry["details"]
 
 

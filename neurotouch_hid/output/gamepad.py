@@ -171,10 +171,12 @@ class VirtualGamepad:
         """Write the axes and buttons that changed since the last write, then one SYN_REPORT.
 
         Values are clamped to each axis' range. Nothing is written when nothing changed (the kernel
-        would drop an empty report anyway). Writing to a closed gamepad raises DeviceError."""
+        would drop an empty report anyway). After :meth:`close` a write does nothing: during
+        shutdown another thread may still deliver one last state, and the device must stay gone.
+        Raises DeviceError when the kernel rejects the write."""
         with self._lock:
             if self._closed:
-                raise DeviceError("the virtual gamepad is closed")
+                return
             events = changed_events(self._last, state)
             if not events:
                 return

@@ -17,7 +17,6 @@ import guestlib
 from evdev import ecodes
 
 from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
-from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.output.gamepad import PHYS, GamepadIdentity, VirtualGamepad, changed_events
 
 HERE = Path(__file__).resolve().parent
@@ -141,12 +140,8 @@ def check_close_releases() -> dict:
     reader.close()
     assert held, "the button press was not seen"
     assert released, f"after close(): keys {reader.keys}, axes {reader.axes}"
-    try:
-        pad.write(PRESSED)
-    except DeviceError:
-        pass
-    else:
-        raise AssertionError("write() after close() did not raise DeviceError")
+    pad.write(PRESSED)  # a late write from another thread during shutdown: ignored
+    assert not os.path.exists(reader.device.path), "write() after close() brought the device back"
     return {"held_before_close": held, "device_gone": reader.gone}
 
 

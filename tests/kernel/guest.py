@@ -48,10 +48,8 @@ def _on_alarm(signum, frame):
 
 
 def setup() -> dict:
-    """Modules, udev rules, udevd; returns what was done (the ``setup`` entry of the result)."""
+    """Our udev rules, udevd, modules; returns what was done (the ``setup`` entry of the result)."""
     details: dict = {"kernel": platform.release(), "python": sys.version.split()[0]}
-    details["modprobe"] = {m: guestlib.sh(["modprobe", m]).returncode == 0
-                           for m in ("uinput", "evdev", "joydev")}
     rules = Path("/run/udev/rules.d")
     rules.mkdir(parents=True, exist_ok=True)
     installed = []
@@ -59,7 +57,11 @@ def setup() -> dict:
         (rules / src.name).write_text(src.read_text())
         installed.append(src.name)
     details["rules"] = installed
-    details["udevd"] = guestlib.start_udevd()
+    details["udevd"] = guestlib.start_udevd()  # rules loaded before the modules' devices appear
+    details["modprobe"] = {m: guestlib.sh(["modprobe", m]).returncode == 0
+                           for m in ("uinput", "evdev", "joydev")}
+    guestlib.sh(["udevadm", "trigger", "--action=add", "--subsystem-match=misc", "--sysname-match=uinput"])
+    guestlib.settle()
     return details
 
 

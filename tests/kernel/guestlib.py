@@ -23,18 +23,20 @@ def _udevd_binary() -> str | None:
 
 
 def start_udevd() -> dict:
-    """Start systemd-udevd (unless running), reload rules, coldplug (trigger) and settle."""
+    """Make sure systemd-udevd runs with the current rules (virtme-ng's init normally started it and
+    did the coldplug; if not, start it and coldplug everything), then settle."""
     running = sh(["pgrep", "-x", "systemd-udevd"]).returncode == 0
-    started = False
-    if not running:
+    if running:
+        sh(["udevadm", "control", "--reload"])
+    else:
         binary = _udevd_binary()
         if binary is None:
             raise RuntimeError("systemd-udevd not found on the host root (apt-get install udev)")
-        started = sh([binary, "--daemon"]).returncode == 0
-    sh(["udevadm", "control", "--reload"])
-    sh(["udevadm", "trigger", "--action=add"])
-    sh(["udevadm", "settle", "--timeout=30"])
-    return {"was_running": running, "started": started}
+        if sh([binary, "--daemon"]).returncode != 0:
+            raise RuntimeError(f"{binary} --daemon failed")
+        sh(["udevadm", "trigger", "--action=add"])
+    settle()
+    return {"was_running": running}
 
 
 def settle() -> None:

@@ -171,7 +171,11 @@ def boot(guest_script: Path = GUEST_SCRIPT, timeout_s: int = BOOT_TIMEOUT_S) -> 
     if not result.exists():
         raise RuntimeError(f"the guest wrote no {result.name}; vng said:\n{str(log)[-3000:]}")
     data = json.loads(result.read_text())
-    data["_boot"] = {"seconds": round(seconds, 1), "kernel": kver, "out_dir": str(out)}
+    data["_boot"] = {"seconds": round(seconds, 1), "kernel": kver}
+    if all(entry.get("ok", True) for entry in data.values()):
+        shutil.rmtree(out, ignore_errors=True)
+    else:
+        data["_boot"]["out_dir"] = str(out)  # kept: result.json and vng.log, to look at
     return data
 
 
