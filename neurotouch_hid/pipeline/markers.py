@@ -11,6 +11,7 @@ Nothing here assumes a number of markers: the count is whatever the frame shows.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -92,40 +93,44 @@ def detect_markers(
     lo = max(1.0, 0.2 * area) if min_area_px is None else float(min_area_px)
     hi = max(4.0, 6.0 * area) if max_area_px is None else float(max_area_px)
 
-    gel = sensor.gel_mask() > 0
+    gel = _gel_mask(sensor)
     if threshold is None:
-        inside = img[gel].reshape(-1, 1)
-        level, _ = cv2.threshold(inside, 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
+        level, _ = cv2.threshold(img[gel > 0].reshape(-1, 1), 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
     else:
         level = float(threshold)
-    binary = (img > level).astype(np.uint8)
+    _, binary = cv2.threshold(img, level, 1, cv2.THRESH_BINARY)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8, ltype=cv2.CV_32S)
     if n <= 1:
         return Markers(np.zeros((0, 2), np.float32), np.zeros(0, np.float32))
 
-    # Background: the median grey level of the dark pixels of the gel.
-    dark = img[gel & (binary == 0)]
-    background = float(np.median(dark)) if dark.size else 0.0
+    # Background: the mean grey level of the dark pixels of the gel.
+    background = cv2.mean(img, mask=cv2.bitwise_and(gel, 1 - binary))[0]
 
     # Grow each blob by one pixel (labels are far apart: markers are ~10 px apart) and take the
     # background-subtracted intensity-weighted centroid over the grown region.
-    grown = cv2.dilate(labels.astype(np.float32), np.ones((3, 3), np.uint8)).astype(np.int32)
-    grown = np.where(labels > 0, labels, grown)
-    weights = np.clip(img.astype(np.float64) - background, 0.0, None).ravel()
-    flat = grown.ravel()
-    yy, xx = np.indices(img.shape)
-    w_sum = np.bincount(flat, weights, minlength=n)
-    wx = np.bincount(flat, weights * xx.ravel(), minlength=n)
-    wy = np.bincount(flat, weights * yy.ravel(), minlength=n)
+    grown = cv2.dilate(labels.astype(np.float32), np.ones((3, 3), np.uint8))
+    grown = np.where(labels > 0, labels, grown.astype(np.int32)).ravel()
+    pixels = np.flatnonzero(grown)
+    owner = grown[pixels]
+    ys, xs = np.divmod(pixels, img.shape[1])
+    weights = np.clip(img.ravel()[pixels] - background, 0.0, None)
+    w_sum = np.bincount(owner, weights, minlength=n)[1:]
+    wx = np.bincount(owner, weights * xs, minlength=n)[1:]
+    wy = np.bincount(owner, weights * ys, minlength=n)[1:]
 
     sizes = stats[1:, cv2.CC_STAT_AREA].astype(np.float32)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cx = wx[1:] / w_sum[1:]
-        cy = wy[1:] / w_sum[1:]
-    centroids = np.stack([cx, cy], axis=1)
-    keep = (sizes >= lo) & (sizes <= hi) & (w_sum[1:] > 0)
-    keep &= sensor.inside_gel(np.nan_to_num(centroids, nan=-1e9))
+    ok = w_sum > 0
+    centroids = np.stack([wx, wy], axis=1) / np.where(ok, w_sum, 1.0)[:, None]
+    keep = (sizes >= lo) & (sizes <= hi) & ok & sensor.inside_gel(centroids)
     return Markers(centroids[keep].astype(np.float32), sizes[keep])
+
+
+@functools.lru_cache(maxsize=8)
+def _gel_mask(sensor: SensorGeometry) -> np.ndarray:
+    """uint8 (height, width) mask of the gel disc, 1 inside (cached per geometry)."""
+    mask = (sensor.gel_mask() > 0).astype(np.uint8)
+    mask.setflags(write=False)
+    return mask
 
 
 def nearest_neighbour_distances(points_px: np.ndarray) -> np.ndarray:

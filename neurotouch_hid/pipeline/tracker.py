@@ -13,18 +13,25 @@ that linear filter, per blob and per event:
   stopped moving), process noise scaled by dt;
 * measurement: the event's pixel, H = [1, 0, +-1], noise Lambda^2 = ``sigma_px``^2.
 
+The prediction's advance between two events of a blob is capped at ``max_step_px`` (a marker moves
+a fraction of a pixel between two of its events), which keeps the filter linear in practice.
+
 The x and y axes share one 3x3 covariance: the model is isotropic and both axes see the same
 measurements, so their covariances are equal at all times (half the arithmetic).
 
 Association: each event goes to the blob that owns its pixel in a label image (per-pixel lookup,
-O(1) per event, no scan of the blobs). A blob owns the pixels within ``assoc_px`` of its integer
-position, nearest blob first; the label image is repainted when a blob moves to another integer
-pixel. Events on pixels no blob owns are noise and are skipped. A per-blob event-rate gate skips
-isolated events (background-activity noise near a blob at rest): an event updates its blob only
-when the blob's leaky event count (time constant ``rate_tau_us``) reaches ``min_rate_count``.
-A blob is lost (``valid`` False, no longer updated) when it leaves the gel circle or comes within
-``merge_px`` of another blob. The pipeline re-initialises the tracker at rest with
-:meth:`BlobTracker.reset` (paper, section Resting Position Detection).
+O(1) per event, no scan of the blobs). There is one label image per polarity: a blob owns the
+pixels within ``assoc_px`` of where it expects its events of that polarity (p + q for ON, p - q
+for OFF), nearest blob first, so a neighbour's leading edge does not steal a blob's trailing
+events when markers are squeezed together under a finger. A blob's ownership is repainted when
+p +- q has moved 0.75 px from where it was painted. Events on pixels no blob owns are noise and
+are skipped. A per-blob event-rate gate skips isolated events (background-activity noise near a
+blob at rest): an event updates its blob only when the blob's leaky event count (time constant
+``rate_tau_us``) reaches ``min_rate_count``. After each batch, a blob is lost (``valid`` False,
+no longer updated) when it has left the gel circle or come within ``merge_px`` of another blob
+(then both are). The pipeline re-initialises the tracker at rest with :meth:`BlobTracker.reset`
+(paper, section Resting Position Detection). Optionally, :meth:`BlobTracker.correct` fuses the
+markers detected on an APS frame (not in the paper; see docs/performance.md, Tracker).
 
 Displacements v_i = p_i(t) - p_i(t0) are computed downstream from ``positions_px`` and the rest
 positions.
@@ -41,6 +48,11 @@ import numpy as np
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE
 
+#: A blob's ownership is repainted when its expected event position is this far (px, in x or y)
+#: from the pixel it was painted around.
+_HYSTERESIS_PX = 0.75
+#: A pixel coordinate far outside any image (releasing every pixel of a lost blob).
+_FAR = 1 << 30
 #: Number of neighbours per blob remembered for ownership hand-over and merge detection.
 _N_NEIGHBOURS = 12
 
@@ -58,49 +70,63 @@ class TrackerConfig:
         q_offset: polarity-offset process noise (px^2 per ms).
         p0_pos, p0_vel, p0_offset: initial variances (px^2, (px/ms)^2, px^2) at init/reset.
         velocity_tau_us: time constant of the velocity's decay between a blob's events (us).
+        max_step_px: largest move (px) the velocity may predict between two events of a blob.
         rate_tau_us: time constant of the per-blob leaky event count (us).
         min_rate_count: leaky event count a blob needs for an event to update it (1 = no gate).
-        refractory_us: a same-polarity event at a pixel within this time (us) of the last one
-            used there is skipped (one edge crossing makes a burst of events at a pixel).
+        frame_gate_px: :meth:`BlobTracker.correct` matches a blob to an APS-frame detection only
+            within this distance (px).
+        frame_sigma_px: noise of an APS-frame detection (px) in :meth:`BlobTracker.correct`.
+        frame_motion_us: time over which an APS frame integrates motion (its exposure, us): a
+            blob moving at v px/us adds (v * frame_motion_us)^2 to the detection's noise.
         merge_px: two blobs closer than this are both lost.
         gel_margin_px: a blob farther than gel radius + margin from the gel centre is lost.
     """
 
     sigma_px: float = 1.0
     assoc_px: float = 4.0
-    q_pos: float = 1e-3
-    q_vel: float = 2e-3
-    q_offset: float = 1e-2
+    q_pos: float = 3e-4
+    q_vel: float = 1e-4
+    q_offset: float = 3e-2
     p0_pos: float = 0.1
     p0_vel: float = 1e-2
     p0_offset: float = 0.5
-    velocity_tau_us: float = 8_000.0
+    velocity_tau_us: float = 10_000.0
+    max_step_px: float = 0.25
     rate_tau_us: float = 1_000.0
     min_rate_count: float = 2.0
-    refractory_us: float = 0.0
+    frame_gate_px: float = 1.5
+    frame_sigma_px: float = 0.1
+    frame_motion_us: float = 4_000.0
     merge_px: float = 2.0
     gel_margin_px: float = 4.0
 
 
 # Indices into the float parameter vector handed to the numba kernel.
-_P_SIGMA2, _P_QPOS, _P_QVEL, _P_QOFF, _P_TAUV, _P_TAUR, _P_MINRATE, _P_MERGE2, _P_CX, _P_CY, _P_R2, _P_ASSOC2, _P_REFRACTORY = range(13)
+_P_SIGMA2, _P_QPOS, _P_QVEL, _P_QOFF, _P_TAUV, _P_TAUR, _P_MINRATE, _P_MERGE2, _P_CX, _P_CY, _P_R2, _P_ASSOC2, _P_MAXSTEP = range(13)
 # Columns of the per-blob state: position, velocity (px/ms), polarity offset (px).
 _PX, _PY, _VX, _VY, _QX, _QY = range(6)
 # Columns of the shared per-axis covariance [p, v, q]: P00 P01 P02 P11 P12 P22.
 _C00, _C01, _C02, _C11, _C12, _C22 = range(6)
-# Counters: events applied, gated out by the rate gate, noise (no owner), within a pixel's refractory period.
-_N_APPLIED, _N_GATED, _N_NOISE, _N_REFRACTORY = range(4)
+# Counters: events applied, gated out by the rate gate, noise (no blob owns the pixel).
+_N_APPLIED, _N_GATED, _N_NOISE = range(3)
 
 
-@numba.njit(cache=True)
-def _release(i, cell, label, disc, neigh, valid, state, assoc2):
-    """Hand the pixels blob ``i`` owns around its cell to the nearest valid neighbour owning them."""
-    h, w = label.shape
-    cx, cy = cell[i, 0], cell[i, 1]
+@numba.njit(cache=True, error_model="numpy")
+def _release(i, pol, keep_x, keep_y, cell, label, disc, neigh, valid, state, assoc2):
+    """Hand the pixels blob ``i`` owns for polarity ``pol`` around its cell, except those within
+    the association threshold of (keep_x, keep_y) (its new cell), to the valid neighbour whose
+    expected event position (p +- q) is nearest and within the association threshold."""
+    h, w = label.shape[1], label.shape[2]
+    s = 1.0 if pol == 1 else -1.0
+    cx, cy = cell[i, pol, 0], cell[i, pol, 1]
     for k in range(disc.shape[0]):
         x = cx + disc[k, 0]
         y = cy + disc[k, 1]
-        if x < 0 or y < 0 or x >= w or y >= h or label[y, x] != i:
+        if x < 0 or y < 0 or x >= w or y >= h or label[pol, y, x] != i:
+            continue
+        kx = x - keep_x
+        ky = y - keep_y
+        if kx * kx + ky * ky <= assoc2:
             continue
         best = -1
         best_d = 1e30
@@ -108,54 +134,85 @@ def _release(i, cell, label, disc, neigh, valid, state, assoc2):
             j = neigh[i, m]
             if j < 0 or not valid[j]:
                 continue
-            ddx = x - cell[j, 0]
-            ddy = y - cell[j, 1]
+            ddx = x - cell[j, pol, 0]
+            ddy = y - cell[j, pol, 1]
             if ddx * ddx + ddy * ddy > assoc2:
                 continue
-            fx = x - state[j, _PX]
-            fy = y - state[j, _PY]
+            fx = x - (state[j, _PX] + s * state[j, _QX])
+            fy = y - (state[j, _PY] + s * state[j, _QY])
             d = fx * fx + fy * fy
             if d < best_d:
                 best_d = d
                 best = j
-        label[y, x] = best
+        label[pol, y, x] = best
 
 
-@numba.njit(cache=True)
-def _claim(i, cell, label, disc, state):
-    """Give blob ``i`` the pixels of its disc that no blob owns or that it is nearer to."""
-    h, w = label.shape
-    cx, cy = cell[i, 0], cell[i, 1]
-    px, py = state[i, _PX], state[i, _PY]
+@numba.njit(cache=True, error_model="numpy")
+def _claim(i, pol, cell, label, disc, state):
+    """Give blob ``i`` the pixels of its polarity-``pol`` disc that no blob owns or whose owner's
+    expected event position (p +- q) is farther than its own."""
+    h, w = label.shape[1], label.shape[2]
+    s = 1.0 if pol == 1 else -1.0
+    cx, cy = cell[i, pol, 0], cell[i, pol, 1]
+    px = state[i, _PX] + s * state[i, _QX]
+    py = state[i, _PY] + s * state[i, _QY]
     for k in range(disc.shape[0]):
         x = cx + disc[k, 0]
         y = cy + disc[k, 1]
         if x < 0 or y < 0 or x >= w or y >= h:
             continue
-        o = label[y, x]
+        o = label[pol, y, x]
         if o >= 0 and o != i:
             fx = x - px
             fy = y - py
-            gx = x - state[o, _PX]
-            gy = y - state[o, _PY]
+            gx = x - (state[o, _PX] + s * state[o, _QX])
+            gy = y - (state[o, _PY] + s * state[o, _QY])
             if fx * fx + fy * fy >= gx * gx + gy * gy:
                 continue
-        label[y, x] = i
+        label[pol, y, x] = i
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
+def _repaint(i, cell, label, disc, neigh, valid, state, assoc2):
+    """Move blob ``i``'s ownership (both polarities) to its current expected event positions p +- q
+    once one is more than 0.75 px (in x or y) from the pixel it was painted around (hysteresis:
+    no repainting back and forth across a pixel border)."""
+    for pol in range(2):
+        s = 1.0 if pol == 1 else -1.0
+        ex = state[i, _PX] + s * state[i, _QX]
+        ey = state[i, _PY] + s * state[i, _QY]
+        if abs(ex - cell[i, pol, 0]) > _HYSTERESIS_PX or abs(ey - cell[i, pol, 1]) > _HYSTERESIS_PX:
+            nx = int(math.floor(ex + 0.5))
+            ny = int(math.floor(ey + 0.5))
+            _release(i, pol, nx, ny, cell, label, disc, neigh, valid, state, assoc2)
+            cell[i, pol, 0] = nx
+            cell[i, pol, 1] = ny
+            _claim(i, pol, cell, label, disc, state)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _lose(i, cell, label, disc, neigh, valid, state, assoc2):
+    """Mark blob ``i`` lost and hand its pixels to its neighbours."""
+    valid[i] = False
+    for pol in range(2):
+        _release(i, pol, _FAR, _FAR, cell, label, disc, neigh, valid, state, assoc2)
+
+
+@numba.njit(cache=True, error_model="numpy")
 def _paint_all(state, valid, cell, label, disc):
-    """Reset the label image and let every valid blob claim its disc (nearest blob wins)."""
-    label[:, :] = -1
+    """Reset the label images and let every valid blob claim its discs (nearest blob wins)."""
+    label[:, :, :] = -1
     for i in range(state.shape[0]):
-        cell[i, 0] = int(math.floor(state[i, _PX] + 0.5))
-        cell[i, 1] = int(math.floor(state[i, _PY] + 0.5))
-        if valid[i]:
-            _claim(i, cell, label, disc, state)
+        for pol in range(2):
+            s = 1.0 if pol == 1 else -1.0
+            cell[i, pol, 0] = int(math.floor(state[i, _PX] + s * state[i, _QX] + 0.5))
+            cell[i, pol, 1] = int(math.floor(state[i, _PY] + s * state[i, _QY] + 0.5))
+            if valid[i]:
+                _claim(i, pol, cell, label, disc, state)
 
 
-@numba.njit(cache=True)
-def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, last_t, last_pol, disc, neigh, prm, counts):
+@numba.njit(cache=True, error_model="numpy")
+def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, disc, neigh, prm, counts):
     """The event loop: per-pixel association, rate gate, linear Kalman predict + update, repaint."""
     sigma2 = prm[_P_SIGMA2]
     q_pos = prm[_P_QPOS]
@@ -164,20 +221,17 @@ def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, 
     tau_v = prm[_P_TAUV]
     tau_r = prm[_P_TAUR]
     min_rate = prm[_P_MINRATE]
-    merge2 = prm[_P_MERGE2]
-    gcx = prm[_P_CX]
-    gcy = prm[_P_CY]
-    gr2 = prm[_P_R2]
     assoc2 = prm[_P_ASSOC2]
-    refractory = np.int64(prm[_P_REFRACTORY])
-    h, w = label.shape
+    max_step = prm[_P_MAXSTEP]
+    h, w = label.shape[1], label.shape[2]
     for k in range(ts.shape[0]):
         x = np.int64(xs[k])
         y = np.int64(ys[k])
         if x < 0 or y < 0 or x >= w or y >= h:
             counts[_N_NOISE] += 1
             continue
-        i = label[y, x]
+        pol = 1 if ps[k] > 0 else 0
+        i = label[pol, y, x]
         if i < 0:
             counts[_N_NOISE] += 1
             continue
@@ -192,14 +246,6 @@ def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, 
         if rate[i] < min_rate:
             counts[_N_GATED] += 1
             continue
-        # Per-pixel refractory period: a burst of same-polarity events at one pixel is one edge
-        # crossing, not independent measurements.
-        pol = np.int8(1 if ps[k] > 0 else 0)
-        if last_pol[y, x] == pol and t - last_t[y, x] < refractory:
-            counts[_N_REFRACTORY] += 1
-            continue
-        last_t[y, x] = t
-        last_pol[y, x] = pol
         counts[_N_APPLIED] += 1
         # Predict over dt (ms) with the damped constant-velocity model.
         dt = 0.0
@@ -208,6 +254,11 @@ def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, 
         t_upd[i] = t
         d = 1.0 / (1.0 + dt / tau_v)
         a = dt * d
+        # A moving marker makes tens of events per pixel it moves: between two of its events it
+        # moves a fraction of a pixel, however long the gap (a long gap means it stopped).
+        speed = math.sqrt(state[i, _VX] * state[i, _VX] + state[i, _VY] * state[i, _VY])
+        if a * speed > max_step:
+            a = max_step / speed
         state[i, _PX] += a * state[i, _VX]
         state[i, _PY] += a * state[i, _VY]
         state[i, _VX] *= d
@@ -225,7 +276,7 @@ def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, 
         c12 = d * c12
         c22 = c22 + q_off * dt
         # Update with the event: z = p + s*q, s = +1 for ON, -1 for OFF.
-        s = 1.0 if ps[k] > 0 else -1.0
+        s = 1.0 if pol == 1 else -1.0
         h0 = c00 + s * c02
         h1 = c01 + s * c12
         h2 = c02 + s * c22
@@ -247,10 +298,32 @@ def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, 
         cov[i, _C11] = c11 - k1 * h1
         cov[i, _C12] = c12 - k1 * h2
         cov[i, _C22] = c22 - k2 * h2
-        # Moved to another integer pixel: check lost / merged, then repaint its ownership.
-        nx = int(math.floor(state[i, _PX] + 0.5))
-        ny = int(math.floor(state[i, _PY] + 0.5))
-        if nx == cell[i, 0] and ny == cell[i, 1]:
+        # Repaint only when needed (checked inline: a call passing the arrays costs more than the
+        # whole Kalman update).
+        px = state[i, _PX]
+        py = state[i, _PY]
+        qx = state[i, _QX]
+        qy = state[i, _QY]
+        if (
+            abs(px + qx - cell[i, 1, 0]) > _HYSTERESIS_PX
+            or abs(py + qy - cell[i, 1, 1]) > _HYSTERESIS_PX
+            or abs(px - qx - cell[i, 0, 0]) > _HYSTERESIS_PX
+            or abs(py - qy - cell[i, 0, 1]) > _HYSTERESIS_PX
+        ):
+            _repaint(i, cell, label, disc, neigh, valid, state, assoc2)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _check_lost(cell, label, disc, neigh, valid, state, prm):
+    """Lose every valid blob that left the gel circle, and both blobs of every pair of valid
+    neighbours closer than the merge distance (they now follow the same marker)."""
+    gcx = prm[_P_CX]
+    gcy = prm[_P_CY]
+    gr2 = prm[_P_R2]
+    merge2 = prm[_P_MERGE2]
+    assoc2 = prm[_P_ASSOC2]
+    for i in range(state.shape[0]):
+        if not valid[i]:
             continue
         gx = state[i, _PX] - gcx
         gy = state[i, _PY] - gcy
@@ -262,17 +335,46 @@ def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, 
             fx = state[i, _PX] - state[j, _PX]
             fy = state[i, _PY] - state[j, _PY]
             if fx * fx + fy * fy < merge2:
-                valid[j] = False
-                _release(j, cell, label, disc, neigh, valid, state, assoc2)
+                _lose(j, cell, label, disc, neigh, valid, state, assoc2)
                 lost = True
         if lost:
-            valid[i] = False
-            _release(i, cell, label, disc, neigh, valid, state, assoc2)
+            _lose(i, cell, label, disc, neigh, valid, state, assoc2)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _correct(det, match, state, cov, valid, cell, label, disc, neigh, prm, sigma2_frame, motion_ms):
+    """Fuse APS-frame detections into the blobs: a Kalman update of the position (H = [1, 0, 0])
+    with noise sigma2_frame + (speed * motion_ms)^2 (a moving marker is blurred on the frame)."""
+    for i in range(state.shape[0]):
+        m = match[i]
+        if m < 0 or not valid[i]:
             continue
-        _release(i, cell, label, disc, neigh, valid, state, assoc2)
-        cell[i, 0] = nx
-        cell[i, 1] = ny
-        _claim(i, cell, label, disc, state)
+        vx = state[i, _VX]
+        vy = state[i, _VY]
+        r = sigma2_frame + (vx * vx + vy * vy) * motion_ms * motion_ms
+        c00 = cov[i, _C00]
+        c01 = cov[i, _C01]
+        c02 = cov[i, _C02]
+        inv_s = 1.0 / (c00 + r)
+        k0 = c00 * inv_s
+        k1 = c01 * inv_s
+        k2 = c02 * inv_s
+        rx = det[m, 0] - state[i, _PX]
+        ry = det[m, 1] - state[i, _PY]
+        state[i, _PX] += k0 * rx
+        state[i, _PY] += k0 * ry
+        state[i, _VX] += k1 * rx
+        state[i, _VY] += k1 * ry
+        state[i, _QX] += k2 * rx
+        state[i, _QY] += k2 * ry
+        cov[i, _C11] -= k1 * c01
+        cov[i, _C12] -= k1 * c02
+        cov[i, _C22] -= k2 * c02
+        cov[i, _C00] = c00 - k0 * c00
+        cov[i, _C01] = c01 - k0 * c01
+        cov[i, _C02] = c02 - k0 * c02
+        _repaint(i, cell, label, disc, neigh, valid, state, prm[_P_ASSOC2])
+    _check_lost(cell, label, disc, neigh, valid, state, prm)
 
 
 def _disc_offsets(radius_px: float) -> np.ndarray:
@@ -350,15 +452,13 @@ class BlobTracker:
                 cy,
                 r * r,
                 c.assoc_px**2,
-                float(c.refractory_us),
+                c.max_step_px,
             ],
             dtype=np.float64,
         )
         self._disc = _disc_offsets(c.assoc_px)
-        self._label = np.full((self.height, self.width), -1, dtype=np.int32)
-        self._last_t = np.full((self.height, self.width), np.iinfo(np.int64).min // 2, dtype=np.int64)
-        self._last_pol = np.full((self.height, self.width), -1, dtype=np.int8)
-        self._counts = np.zeros(4, dtype=np.int64)
+        self._label = np.full((2, self.height, self.width), -1, dtype=np.int32)
+        self._counts = np.zeros(3, dtype=np.int64)
         self.reset(initial_px)
 
     def reset(self, positions_px: np.ndarray) -> None:
@@ -383,9 +483,49 @@ class BlobTracker:
         cx, cy, r2 = self._params[_P_CX], self._params[_P_CY], self._params[_P_R2]
         in_image = (p[:, 0] >= 0) & (p[:, 1] >= 0) & (p[:, 0] <= self.width - 1) & (p[:, 1] <= self.height - 1)
         self._valid = in_image & ((p[:, 0] - cx) ** 2 + (p[:, 1] - cy) ** 2 <= r2)
-        self._cell = np.zeros((n, 2), dtype=np.int64)
+        self._cell = np.zeros((n, 2, 2), dtype=np.int64)
         self._neigh = _neighbours(p, _N_NEIGHBOURS)
         _paint_all(self._state, self._valid, self._cell, self._label, self._disc)
+
+    def correct(self, detections_px: np.ndarray) -> int:
+        """Fuse marker detections of an APS frame into the blobs (optional; not in the paper).
+
+        Between events a blob's position is a running average of its recent events, which lags
+        a little behind a marker that has just stopped, and a held gesture makes no more events
+        to correct it. The APS frame shows the markers where they are: each valid blob whose
+        nearest detection is within ``config.frame_gate_px``, is nearest to no other blob and has
+        no other blob within twice that distance (two squeezed markers seen as one), gets a Kalman
+        position update from it, with noise ``config.frame_sigma_px``^2 plus the blur of its
+        motion over ``config.frame_motion_us``. Call it with the frame's
+        :func:`~neurotouch_hid.pipeline.markers.detect_markers` centroids when the frame arrives
+        (the stream yields it before the events at or after its timestamp).
+
+        Args:
+            detections_px: (M, 2) float marker centroids on the frame, image frame, px.
+        Returns:
+            the number of blobs corrected.
+        """
+        det = np.asarray(detections_px, dtype=np.float64).reshape(-1, 2)
+        n = len(self._state)
+        if n == 0 or len(det) == 0:
+            return 0
+        pos = self._state[:, :2]
+        d2 = (pos[:, None, 0] - det[None, :, 0]) ** 2 + (pos[:, None, 1] - det[None, :, 1]) ** 2
+        d2[~self._valid] = np.inf
+        rows = np.arange(n)
+        nearest = d2.argmin(axis=1)
+        gate2 = self.config.frame_gate_px**2
+        ok = self._valid & (d2[rows, nearest] <= gate2) & (d2.argmin(axis=0)[nearest] == rows)
+        if n > 1:
+            # A detection with a second blob within twice the gate may be two markers seen as one
+            # (markers squeezed together under a finger): skip it.
+            second = np.partition(d2, 1, axis=0)[1]
+            ok &= second[nearest] > 4.0 * gate2
+        match = np.where(ok, nearest, -1).astype(np.int64)
+        c = self.config
+        _correct(det, match, self._state, self._cov, self._valid, self._cell, self._label, self._disc, self._neigh,
+                 self._params, c.frame_sigma_px**2, c.frame_motion_us * 1e-3)
+        return int(ok.sum())
 
     def update(self, events: np.ndarray) -> None:
         """Track through a batch of events, event by event (numba).
@@ -413,13 +553,12 @@ class BlobTracker:
             self._valid,
             self._cell,
             self._label,
-            self._last_t,
-            self._last_pol,
             self._disc,
             self._neigh,
             self._params,
             self._counts,
         )
+        _check_lost(self._cell, self._label, self._disc, self._neigh, self._valid, self._state, self._params)
 
     @property
     def positions_px(self) -> np.ndarray:
@@ -435,10 +574,10 @@ class BlobTracker:
 
     @property
     def counts(self) -> dict[str, int]:
-        names = {"applied": _N_APPLIED, "gated": _N_GATED, "noise": _N_NOISE, "refractory": _N_REFRACTORY}
+        names = {"applied": _N_APPLIED, "gated": _N_GATED, "noise": _N_NOISE}
         return {name: int(self._counts[k]) for name, k in names.items()}
 
-    def owner_image(self) -> np.ndarray:
-        """(height, width) int32 copy of the label image: index of the blob owning each pixel, -1
-        for none (for drawing and tests)."""
-        return self._label.copy()
+    def owner_image(self, polarity: int = 1) -> np.ndarray:
+        """(height, width) int32 copy of the label image of ``polarity`` (1 = ON, 0 = OFF): index
+        of the blob that owns each pixel's events of that polarity, -1 for none."""
+        return self._label[1 if polarity else 0].copy()
