@@ -114,6 +114,7 @@ def track(
         f"({summary.events} events, {summary.frames} frames) in {summary.elapsed_s:.2f} s, "
         f"{summary.realtime_factor:.1f}x real time -> {out}" + (f", markers -> {markers}" if markers else ""),
         highlight=False,
+        soft_wrap=True,
     )
 
 
@@ -172,7 +173,7 @@ def view(
     with recording_progress(err_console, "drawing") as report:
         drawn = render_view(recording, out, geometry, on_progress=report)
     what = "the most intense of " if out.suffix.lower() == ".png" else ""
-    console.print(f"{what}{drawn} pictures -> {out}", highlight=False)
+    console.print(f"{what}{drawn} pictures -> {out}", highlight=False, soft_wrap=True)
 
 
 # --- the controller (runtime.py, mapping/, output/) -----------------------------------------

@@ -276,6 +276,17 @@ def test_track_on_a_street_recording_says_no_gel_and_exits_2(tmp_path):
     assert not (tmp_path / "p.jsonl").exists()
 
 
+def test_track_command_writes_predictions_and_markers(push_dataset, push_tracked, tmp_path):
+    done = _cli("track", str(push_dataset), "--out", str(tmp_path / "p.jsonl"), "--window-us", "5000",
+                "--markers", str(tmp_path / "m.npz"))
+    assert done.returncode == 0, done.stderr
+    predictions = read_predictions(tmp_path / "p.jsonl")
+    assert np.all(np.diff([p.t_us for p in predictions]) == 5000)
+    assert abs(len(predictions) - 2 * push_tracked[0].windows) <= 2  # twice the 10 ms windows
+    assert len(np.load(tmp_path / "m.npz")["t_us"]) == len(predictions)
+    assert "x real time" in done.stdout
+
+
 @pytest.mark.parametrize("suffix, scale", [(".png", 2), (".gif", 1)])
 def test_view_writes_a_picture_of_the_right_size(push_dataset, tmp_path, suffix, scale):
     import imageio.v3 as iio
