@@ -60,6 +60,11 @@ def check_device_appears() -> dict:
         assert (dev.info.bustype, dev.info.vendor, dev.info.product, dev.info.version) == \
             (ident.bustype, ident.vendor, ident.product, ident.version), str(dev.info)
         assert dev.name == ident.name and dev.phys == PHYS, (dev.name, dev.phys)
+        custom = GamepadIdentity(name="NeuroTouch test pad", vendor=0x1234, product=0x5678, version=0x0042)
+        with VirtualGamepad(custom) as other:
+            info = other._ui.device.info
+            assert (other._ui.device.name, info.vendor, info.product, info.version) == \
+                (custom.name, custom.vendor, custom.product, custom.version), str(info)
         return {"path": path, "name": dev.name, "phys": dev.phys, "event_types": types,
                 "info": f"{dev.info.bustype:04x}:{dev.info.vendor:04x}:{dev.info.product:04x}:"
                         f"{dev.info.version:04x}",
