@@ -75,7 +75,7 @@ def draw_view(
         tip = rest + arrow_gain * (cur - rest)
         if np.hypot(*(cur - rest)) >= 0.3:
             cv2.arrowedLine(pic, at(rest), at(tip), ARROW_RGB, 1, cv2.LINE_AA, shift, tipLength=0.3)
-        cv2.circle(pic, at(cur), 2 * (1 << shift), MARKER_RGB, -1, cv2.LINE_AA, shift)
+        cv2.circle(pic, at(cur), 3 * (1 << shift), MARKER_RGB, 1, cv2.LINE_AA, shift)  # hollow: events show
     lines = ["no estimate yet"]
     if estimate is not None:
         for c in estimate.contacts_px:
