@@ -103,6 +103,8 @@ class PipelineConfig:
         self.window_us = int(self.window_us)
         if self.homography_method not in HOMOGRAPHY_METHODS:
             raise ValueError(f"homography_method must be one of {', '.join(HOMOGRAPHY_METHODS)}, got {self.homography_method!r}")
+        if self.reference_attempts < 1:
+            raise ValueError(f"reference_attempts must be >= 1, got {self.reference_attempts}")
         if self.r_px <= 0 or self.a <= 0 or self.n_min < 1:
             raise ValueError(f"r_px and a must be positive and n_min >= 1, got r_px={self.r_px}, a={self.a}, n_min={self.n_min}")
 
