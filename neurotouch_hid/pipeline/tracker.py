@@ -24,7 +24,7 @@ O(1) per event, no scan of the blobs). There is one label image per polarity: a 
 pixels within ``assoc_px`` of where it expects its events of that polarity (p + q for ON, p - q
 for OFF), nearest blob first, so a neighbour's leading edge does not steal a blob's trailing
 events when markers are squeezed together under a finger. A blob's ownership is repainted when
-p +- q has moved 0.75 px from where it was painted. Events on pixels no blob owns are noise and
+p +- q has moved 1 px from where it was painted. Events on pixels no blob owns are noise and
 are skipped. A per-blob event-rate gate skips isolated events (background-activity noise near a
 blob at rest): an event updates its blob only when the blob's leaky event count (time constant
 ``rate_tau_us``) reaches ``min_rate_count``. After each batch, a blob is lost (``valid`` False,
@@ -50,7 +50,7 @@ from neurotouch_hid.sources import EVENT_DTYPE
 
 #: A blob's ownership is repainted when its expected event position is this far (px, in x or y)
 #: from the pixel it was painted around.
-_HYSTERESIS_PX = 0.75
+_HYSTERESIS_PX = 1.0
 #: A pixel coordinate far outside any image (releasing every pixel of a lost blob).
 _FAR = 1 << 30
 #: Number of neighbours per blob remembered for ownership hand-over and merge detection.
@@ -112,16 +112,15 @@ _N_APPLIED, _N_GATED, _N_NOISE = range(3)
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _release(i, pol, keep_x, keep_y, cell, label, disc, neigh, valid, state, assoc2):
-    """Hand the pixels blob ``i`` owns for polarity ``pol`` around its cell, except those within
-    the association threshold of (keep_x, keep_y) (its new cell), to the valid neighbour whose
-    expected event position (p +- q) is nearest and within the association threshold."""
+def _release(i, pol, cx, cy, offs, n, keep_x, keep_y, cell, label, neigh, valid, state, assoc2):
+    """Hand the pixels (cx, cy) + offs[:n] that blob ``i`` owns for polarity ``pol``, except those
+    within the association threshold of (keep_x, keep_y), to the valid neighbour whose expected
+    event position (p +- q) is nearest and within the association threshold (else to no one)."""
     h, w = label.shape[1], label.shape[2]
     s = 1.0 if pol == 1 else -1.0
-    cx, cy = cell[i, pol, 0], cell[i, pol, 1]
-    for k in range(disc.shape[0]):
-        x = cx + disc[k, 0]
-        y = cy + disc[k, 1]
+    for k in range(n):
+        x = cx + offs[k, 0]
+        y = cy + offs[k, 1]
         if x < 0 or y < 0 or x >= w or y >= h or label[pol, y, x] != i:
             continue
         kx = x - keep_x
@@ -148,17 +147,16 @@ def _release(i, pol, keep_x, keep_y, cell, label, disc, neigh, valid, state, ass
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _claim(i, pol, cell, label, disc, state):
-    """Give blob ``i`` the pixels of its polarity-``pol`` disc that no blob owns or whose owner's
-    expected event position (p +- q) is farther than its own."""
+def _claim(i, pol, cx, cy, offs, n, label, state):
+    """Give blob ``i`` the pixels (cx, cy) + offs[:n] of polarity ``pol`` that no blob owns or
+    whose owner's expected event position (p +- q) is farther than its own."""
     h, w = label.shape[1], label.shape[2]
     s = 1.0 if pol == 1 else -1.0
-    cx, cy = cell[i, pol, 0], cell[i, pol, 1]
     px = state[i, _PX] + s * state[i, _QX]
     py = state[i, _PY] + s * state[i, _QY]
-    for k in range(disc.shape[0]):
-        x = cx + disc[k, 0]
-        y = cy + disc[k, 1]
+    for k in range(n):
+        x = cx + offs[k, 0]
+        y = cy + offs[k, 1]
         if x < 0 or y < 0 or x >= w or y >= h:
             continue
         o = label[pol, y, x]
@@ -173,33 +171,45 @@ def _claim(i, pol, cell, label, disc, state):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _repaint(i, cell, label, disc, neigh, valid, state, assoc2):
+def _repaint(i, cell, label, offs, n_offs, neigh, valid, state, assoc2):
     """Move blob ``i``'s ownership (both polarities) to its current expected event positions p +- q
-    once one is more than 0.75 px (in x or y) from the pixel it was painted around (hysteresis:
-    no repainting back and forth across a pixel border)."""
+    once one is more than 1 px (in x or y) from the pixel it was painted around (hysteresis:
+    no repainting back and forth across a pixel border). A one-pixel move releases only the
+    pixels that leave the disc (the precomputed rings of :func:`_disc_shapes`); the whole new
+    disc is claimed (a blob that came nearer takes pixels from its neighbour)."""
     for pol in range(2):
         s = 1.0 if pol == 1 else -1.0
         ex = state[i, _PX] + s * state[i, _QX]
         ey = state[i, _PY] + s * state[i, _QY]
-        if abs(ex - cell[i, pol, 0]) > _HYSTERESIS_PX or abs(ey - cell[i, pol, 1]) > _HYSTERESIS_PX:
+        ox = cell[i, pol, 0]
+        oy = cell[i, pol, 1]
+        if abs(ex - ox) > _HYSTERESIS_PX or abs(ey - oy) > _HYSTERESIS_PX:
             nx = int(math.floor(ex + 0.5))
             ny = int(math.floor(ey + 0.5))
-            _release(i, pol, nx, ny, cell, label, disc, neigh, valid, state, assoc2)
+            sx = nx - ox
+            sy = ny - oy
             cell[i, pol, 0] = nx
             cell[i, pol, 1] = ny
-            _claim(i, pol, cell, label, disc, state)
+            if -1 <= sx <= 1 and -1 <= sy <= 1:
+                r = (sx + 1) * 3 + (sy + 1)
+                _release(i, pol, ox, oy, offs[1 + r], n_offs[1 + r], _FAR, _FAR, cell, label, neigh, valid, state,
+                         assoc2)
+            else:
+                _release(i, pol, ox, oy, offs[0], n_offs[0], nx, ny, cell, label, neigh, valid, state, assoc2)
+            _claim(i, pol, nx, ny, offs[0], n_offs[0], label, state)
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _lose(i, cell, label, disc, neigh, valid, state, assoc2):
+def _lose(i, cell, label, offs, n_offs, neigh, valid, state, assoc2):
     """Mark blob ``i`` lost and hand its pixels to its neighbours."""
     valid[i] = False
     for pol in range(2):
-        _release(i, pol, _FAR, _FAR, cell, label, disc, neigh, valid, state, assoc2)
+        _release(i, pol, cell[i, pol, 0], cell[i, pol, 1], offs[0], n_offs[0], _FAR, _FAR, cell, label, neigh, valid,
+                 state, assoc2)
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _paint_all(state, valid, cell, label, disc):
+def _paint_all(state, valid, cell, label, offs, n_offs):
     """Reset the label images and let every valid blob claim its discs (nearest blob wins)."""
     label[:, :, :] = -1
     for i in range(state.shape[0]):
@@ -208,11 +218,11 @@ def _paint_all(state, valid, cell, label, disc):
             cell[i, pol, 0] = int(math.floor(state[i, _PX] + s * state[i, _QX] + 0.5))
             cell[i, pol, 1] = int(math.floor(state[i, _PY] + s * state[i, _QY] + 0.5))
             if valid[i]:
-                _claim(i, pol, cell, label, disc, state)
+                _claim(i, pol, cell[i, pol, 0], cell[i, pol, 1], offs[0], n_offs[0], label, state)
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, disc, neigh, prm, counts):
+def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, offs, n_offs, neigh, prm, counts):
     """The event loop: per-pixel association, rate gate, linear Kalman predict + update, repaint."""
     sigma2 = prm[_P_SIGMA2]
     q_pos = prm[_P_QPOS]
@@ -310,11 +320,11 @@ def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, 
             or abs(px - qx - cell[i, 0, 0]) > _HYSTERESIS_PX
             or abs(py - qy - cell[i, 0, 1]) > _HYSTERESIS_PX
         ):
-            _repaint(i, cell, label, disc, neigh, valid, state, assoc2)
+            _repaint(i, cell, label, offs, n_offs, neigh, valid, state, assoc2)
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _check_lost(cell, label, disc, neigh, valid, state, prm):
+def _check_lost(cell, label, offs, n_offs, neigh, valid, state, prm):
     """Lose every valid blob that left the gel circle, and both blobs of every pair of valid
     neighbours closer than the merge distance (they now follow the same marker)."""
     gcx = prm[_P_CX]
@@ -335,14 +345,14 @@ def _check_lost(cell, label, disc, neigh, valid, state, prm):
             fx = state[i, _PX] - state[j, _PX]
             fy = state[i, _PY] - state[j, _PY]
             if fx * fx + fy * fy < merge2:
-                _lose(j, cell, label, disc, neigh, valid, state, assoc2)
+                _lose(j, cell, label, offs, n_offs, neigh, valid, state, assoc2)
                 lost = True
         if lost:
-            _lose(i, cell, label, disc, neigh, valid, state, assoc2)
+            _lose(i, cell, label, offs, n_offs, neigh, valid, state, assoc2)
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _correct(det, match, state, cov, valid, cell, label, disc, neigh, prm, sigma2_frame, motion_ms):
+def _correct(det, match, state, cov, valid, cell, label, offs, n_offs, neigh, prm, sigma2_frame, motion_ms):
     """Fuse APS-frame detections into the blobs: a Kalman update of the position (H = [1, 0, 0])
     with noise sigma2_frame + (speed * motion_ms)^2 (a moving marker is blurred on the frame)."""
     for i in range(state.shape[0]):
@@ -373,16 +383,34 @@ def _correct(det, match, state, cov, valid, cell, label, disc, neigh, prm, sigma
         cov[i, _C00] = c00 - k0 * c00
         cov[i, _C01] = c01 - k0 * c01
         cov[i, _C02] = c02 - k0 * c02
-        _repaint(i, cell, label, disc, neigh, valid, state, prm[_P_ASSOC2])
-    _check_lost(cell, label, disc, neigh, valid, state, prm)
+        _repaint(i, cell, label, offs, n_offs, neigh, valid, state, prm[_P_ASSOC2])
+    _check_lost(cell, label, offs, n_offs, neigh, valid, state, prm)
 
 
-def _disc_offsets(radius_px: float) -> np.ndarray:
-    """(K, 2) int64 pixel offsets (dx, dy) within ``radius_px`` of a pixel centre."""
+def _disc_shapes(radius_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel offsets of a blob's ownership disc and of the rings a one-pixel move leaves.
+
+    Returns ``offs`` (10, K, 2) int64 and ``n_offs`` (10,) int64: row 0 is the disc (the K pixel
+    offsets within ``radius_px`` of a pixel centre); for a move by (sx, sy) in {-1, 0, 1}^2,
+    row 1 + (sx + 1) * 3 + (sy + 1) lists the disc pixels that leave it (offsets from the old
+    centre).
+    """
     r = int(math.ceil(radius_px))
     dy, dx = np.mgrid[-r : r + 1, -r : r + 1]
     inside = dx * dx + dy * dy <= radius_px * radius_px
-    return np.stack([dx[inside], dy[inside]], axis=1).astype(np.int64)
+    disc = np.stack([dx[inside], dy[inside]], axis=1).astype(np.int64)
+    members = {tuple(d) for d in disc.tolist()}
+    offs = np.zeros((10, len(disc), 2), dtype=np.int64)
+    n_offs = np.zeros(10, dtype=np.int64)
+    offs[0], n_offs[0] = disc, len(disc)
+    for sx in (-1, 0, 1):
+        for sy in (-1, 0, 1):
+            k = (sx + 1) * 3 + (sy + 1)
+            leave = [d for d in disc.tolist() if (d[0] - sx, d[1] - sy) not in members]
+            n_offs[1 + k] = len(leave)
+            if leave:
+                offs[1 + k, : len(leave)] = leave
+    return offs, n_offs
 
 
 def _neighbours(positions: np.ndarray, k: int) -> np.ndarray:
@@ -456,7 +484,7 @@ class BlobTracker:
             ],
             dtype=np.float64,
         )
-        self._disc = _disc_offsets(c.assoc_px)
+        self._offs, self._n_offs = _disc_shapes(c.assoc_px)
         self._label = np.full((2, self.height, self.width), -1, dtype=np.int32)
         self._counts = np.zeros(3, dtype=np.int64)
         self.reset(initial_px)
@@ -485,7 +513,7 @@ class BlobTracker:
         self._valid = in_image & ((p[:, 0] - cx) ** 2 + (p[:, 1] - cy) ** 2 <= r2)
         self._cell = np.zeros((n, 2, 2), dtype=np.int64)
         self._neigh = _neighbours(p, _N_NEIGHBOURS)
-        _paint_all(self._state, self._valid, self._cell, self._label, self._disc)
+        _paint_all(self._state, self._valid, self._cell, self._label, self._offs, self._n_offs)
 
     def correct(self, detections_px: np.ndarray) -> int:
         """Fuse marker detections of an APS frame into the blobs (optional; not in the paper).
@@ -523,8 +551,8 @@ class BlobTracker:
             ok &= second[nearest] > 4.0 * gate2
         match = np.where(ok, nearest, -1).astype(np.int64)
         c = self.config
-        _correct(det, match, self._state, self._cov, self._valid, self._cell, self._label, self._disc, self._neigh,
-                 self._params, c.frame_sigma_px**2, c.frame_motion_us * 1e-3)
+        _correct(det, match, self._state, self._cov, self._valid, self._cell, self._label, self._offs, self._n_offs,
+                 self._neigh, self._params, c.frame_sigma_px**2, c.frame_motion_us * 1e-3)
         return int(ok.sum())
 
     def update(self, events: np.ndarray) -> None:
@@ -553,27 +581,33 @@ class BlobTracker:
             self._valid,
             self._cell,
             self._label,
-            self._disc,
+            self._offs,
+            self._n_offs,
             self._neigh,
             self._params,
             self._counts,
         )
-        _check_lost(self._cell, self._label, self._disc, self._neigh, self._valid, self._state, self._params)
+        _check_lost(self._cell, self._label, self._offs, self._n_offs, self._neigh, self._valid, self._state, self._params)
 
     @property
     def positions_px(self) -> np.ndarray:
+        """(N, 2) float64 copy of the blobs' positions (x, y), image frame, px."""
         return self._state[:, :2].copy()
 
     @property
     def velocities_px_per_s(self) -> np.ndarray:
+        """(N, 2) float64 velocity estimates, image frame, px/s."""
         return self._state[:, 2:4] * 1e3
 
     @property
     def valid(self) -> np.ndarray:
+        """(N,) bool copy: False for a lost blob (left the gel, or merged with another)."""
         return self._valid.copy()
 
     @property
     def counts(self) -> dict[str, int]:
+        """Events since construction: ``applied`` (updated a blob), ``gated`` (owned by a blob but
+        isolated: the rate gate), ``noise`` (on a pixel no blob owns, or outside the image)."""
         names = {"applied": _N_APPLIED, "gated": _N_GATED, "noise": _N_NOISE}
         return {name: int(self._counts[k]) for name, k in names.items()}
 
