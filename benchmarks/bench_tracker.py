@@ -143,36 +143,48 @@ def seed_image(points_px: np.ndarray, shape: tuple[int, int], radius_px: float =
     return img
 
 
-def run_meanshift(run: Run, seq, sensor: SensorGeometry) -> None:
+def meanshift(seeds_px: np.ndarray, width: int, height: int):
+    """dv-processing's background-activity filter and MeanShiftTracker, the tracker seeded with
+    ``seeds_px`` (drawn as dots for its ``EventFeatureBlobDetector``, never redetected)."""
     import dv_processing as dv
 
-    events, frames, t_grid, positions, rest = seq
-    start = detect_markers(frames[0].image, sensor).centroids_px
-    seeds = seed_image(start, (sensor.height, sensor.width))
-    resolution = (sensor.width, sensor.height)
+    seeds = seed_image(seeds_px, (height, width))
+    resolution = (width, height)
     noise = dv.noise.BackgroundActivityNoiseFilter(resolution, datetime.timedelta(milliseconds=2))
     tracker = dv.features.MeanShiftTracker(resolution, 4, datetime.timedelta(milliseconds=10))
     tracker.setDetector(dv.features.EventFeatureBlobDetector(resolution, 0, lambda _img: seeds))
-    tracker.setMaxTracks(4 * len(start) + 10)
+    tracker.setMaxTracks(4 * len(seeds_px) + 10)
     tracker.setRedetectionStrategy(dv.features.NoRedetection())
+    return noise, tracker
+
+
+def meanshift_window(noise, tracker, batch: np.ndarray, run: Run, who: dict, rest_px: np.ndarray):
+    """Filter and track one window (timed); returns (track ids (M,), positions (M, 2), their true
+    marker (M,)). A track's marker is fixed at its first appearance (nearest at rest)."""
+    store = store_from_events(batch)  # conversion not timed: it is our numpy <-> dv glue
+    t, c = time.perf_counter(), time.thread_time()
+    noise.accept(store)
+    tracker.accept(noise.generateEvents())
+    result = tracker.runTracking()
+    run.add(time.thread_time() - c, time.perf_counter() - t, len(batch))
+    kps = result.keypoints if result is not None else []
+    ids = np.array([kp.class_id for kp in kps], dtype=np.int64)
+    pts = np.array([kp.pt for kp in kps], dtype=np.float64).reshape(-1, 2)
+    for cid, p in zip(ids, pts):
+        if int(cid) not in who:
+            who[int(cid)] = int(identity(p[None], rest_px)[0])
+    return pts, np.array([who[int(c)] for c in ids], dtype=np.int64)
+
+
+def run_meanshift(run: Run, seq, sensor: SensorGeometry) -> None:
+    events, frames, t_grid, positions, rest = seq
+    noise, tracker = meanshift(detect_markers(frames[0].image, sensor).centroids_px, sensor.width, sensor.height)
     who: dict[int, int] = {}
     for end, batch in windows(events, int(frames[0].t_us), int(t_grid[-1])):
-        store = store_from_events(batch)  # conversion not timed: it is our numpy <-> dv glue
-        t, c = time.perf_counter(), time.thread_time()
-        noise.accept(store)
-        tracker.accept(noise.generateEvents())
-        result = tracker.runTracking()
-        run.add(time.thread_time() - c, time.perf_counter() - t, len(batch))
-        kps = result.keypoints if result is not None else []
-        ids = np.array([kp.class_id for kp in kps], dtype=np.int64)
-        pts = np.array([kp.pt for kp in kps], dtype=np.float64).reshape(-1, 2)
-        for cid, p in zip(ids, pts):  # identity fixed at a track's first appearance
-            if int(cid) not in who:
-                who[int(cid)] = int(identity(p[None], rest)[0])
+        pts, idx = meanshift_window(noise, tracker, batch, run, who, rest)
         k = int(np.searchsorted(t_grid, end))
         if k < len(t_grid) and t_grid[k] == end:
-            idx = np.array([who[int(c)] for c in ids], dtype=np.int64)
-            score(run, pts, np.ones(len(ids), bool), positions[k], rest, idx)
+            score(run, pts, np.ones(len(idx), bool), positions[k], rest, idx)
 
 
 def stress_stream(rest_px: np.ndarray, n_windows: int, per_window: int, noise_frac: float, seed: int,
@@ -237,35 +249,15 @@ def run_stress(rest_px: np.ndarray, n_windows: int, seed: int, config: TrackerCo
     return run, events, truth
 
 
-def run_stress_meanshift(rest_px: np.ndarray, events: np.ndarray, truth, n_windows: int) -> Run:
-    import dv_processing as dv
-
-    resolution = (346, 260)
-    seeds = seed_image(truth(0)[0], (260, 346))
-    noise = dv.noise.BackgroundActivityNoiseFilter(resolution, datetime.timedelta(milliseconds=2))
-    tracker = dv.features.MeanShiftTracker(resolution, 4, datetime.timedelta(milliseconds=10))
-    tracker.setDetector(dv.features.EventFeatureBlobDetector(resolution, 0, lambda _img: seeds))
-    tracker.setMaxTracks(4 * len(rest_px) + 10)
-    tracker.setRedetectionStrategy(dv.features.NoRedetection())
+def run_stress_meanshift(events: np.ndarray, truth, n_windows: int) -> Run:
+    rest0 = truth(0)[0]
+    noise, tracker = meanshift(rest0, 346, 260)
     run = Run("MeanShift + BA filter, stress")
     who: dict[int, int] = {}
-    rest0 = truth(0)[0]
     for end, batch in windows(events, 0, n_windows * WINDOW_US):
-        store = store_from_events(batch)
-        t, c = time.perf_counter(), time.thread_time()
-        noise.accept(store)
-        tracker.accept(noise.generateEvents())
-        result = tracker.runTracking()
-        run.add(time.thread_time() - c, time.perf_counter() - t, len(batch))
-        kps = result.keypoints if result is not None else []
-        ids = np.array([kp.class_id for kp in kps], dtype=np.int64)
-        pts = np.array([kp.pt for kp in kps], dtype=np.float64).reshape(-1, 2)
-        for cid, p in zip(ids, pts):
-            if int(cid) not in who:
-                who[int(cid)] = int(identity(p[None], rest0)[0])
+        pts, idx = meanshift_window(noise, tracker, batch, run, who, rest0)
         true = truth(end)[0]
         run.samples += len(true)
-        idx = np.array([who[int(c)] for c in ids], dtype=np.int64)
         ok = idx >= 0
         _, first = np.unique(idx[ok], return_index=True)
         keep = np.flatnonzero(ok)[first]
@@ -322,7 +314,7 @@ def main() -> None:
     seconds = sum((s[2][-1] - s[2][0]) / 1e6 for s in seqs)
 
     stress, events, truth = run_stress(seqs[0][4], args.stress_windows, args.seed, config)
-    stress_ms = run_stress_meanshift(seqs[0][4], events, truth, args.meanshift_stress_windows)
+    stress_ms = run_stress_meanshift(events, truth, args.meanshift_stress_windows)
 
     table = Table(title=f"Tracker: {len(seqs)} simulated sequences ({n_events:,} events, {seconds:.1f} s), "
                         f"then the stress stream ({args.stress_windows} x 120 k events)")

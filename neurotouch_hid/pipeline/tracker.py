@@ -221,6 +221,17 @@ def _paint_all(state, valid, cell, label, offs, n_offs):
                 _claim(i, pol, cell[i, pol, 0], cell[i, pol, 1], offs[0], n_offs[0], label, state)
 
 
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _gain(state, i, k0, k1, k2, rx, ry):
+    """Kalman state update of blob ``i`` with gains (k0, k1, k2) on [p, v, q] and innovation (rx, ry)."""
+    state[i, _PX] += k0 * rx
+    state[i, _PY] += k0 * ry
+    state[i, _VX] += k1 * rx
+    state[i, _VY] += k1 * ry
+    state[i, _QX] += k2 * rx
+    state[i, _QY] += k2 * ry
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, offs, n_offs, neigh, prm, counts):
     """The event loop: per-pixel association, rate gate, linear Kalman predict + update, repaint."""
@@ -228,11 +239,12 @@ def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, 
     q_pos = prm[_P_QPOS]
     q_vel = prm[_P_QVEL]
     q_off = prm[_P_QOFF]
-    tau_v = prm[_P_TAUV]
-    tau_r = prm[_P_TAUR]
+    inv_tau_v = 1.0 / prm[_P_TAUV]
+    inv_tau_r = 1.0 / prm[_P_TAUR]
     min_rate = prm[_P_MINRATE]
     assoc2 = prm[_P_ASSOC2]
     max_step = prm[_P_MAXSTEP]
+    max_step2 = max_step * max_step
     h, w = label.shape[1], label.shape[2]
     for k in range(ts.shape[0]):
         x = np.int64(xs[k])
@@ -249,7 +261,7 @@ def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, 
         # Per-blob event-rate gate: leaky count of the events this blob owned.
         if t_seen[i] >= 0:
             dts = max(t - t_seen[i], 0) * 1.0
-            rate[i] = rate[i] / (1.0 + dts / tau_r) + 1.0
+            rate[i] = rate[i] / (1.0 + dts * inv_tau_r) + 1.0
         else:
             rate[i] = 1.0
         t_seen[i] = t
@@ -262,13 +274,13 @@ def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, 
         if t_upd[i] >= 0:
             dt = max(t - t_upd[i], 0) * 1e-3
         t_upd[i] = t
-        d = 1.0 / (1.0 + dt / tau_v)
+        d = 1.0 / (1.0 + dt * inv_tau_v)
         a = dt * d
         # A moving marker makes tens of events per pixel it moves: between two of its events it
         # moves a fraction of a pixel, however long the gap (a long gap means it stopped).
-        speed = math.sqrt(state[i, _VX] * state[i, _VX] + state[i, _VY] * state[i, _VY])
-        if a * speed > max_step:
-            a = max_step / speed
+        speed2 = state[i, _VX] * state[i, _VX] + state[i, _VY] * state[i, _VY]
+        if a * a * speed2 > max_step2:
+            a = max_step / math.sqrt(speed2)
         state[i, _PX] += a * state[i, _VX]
         state[i, _PY] += a * state[i, _VY]
         state[i, _VX] *= d
@@ -294,14 +306,7 @@ def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, 
         k0 = h0 * inv_s
         k1 = h1 * inv_s
         k2 = h2 * inv_s
-        rx = x - (state[i, _PX] + s * state[i, _QX])
-        ry = y - (state[i, _PY] + s * state[i, _QY])
-        state[i, _PX] += k0 * rx
-        state[i, _PY] += k0 * ry
-        state[i, _VX] += k1 * rx
-        state[i, _VY] += k1 * ry
-        state[i, _QX] += k2 * rx
-        state[i, _QY] += k2 * ry
+        _gain(state, i, k0, k1, k2, x - (state[i, _PX] + s * state[i, _QX]), y - (state[i, _PY] + s * state[i, _QY]))
         cov[i, _C00] = c00 - k0 * h0
         cov[i, _C01] = c01 - k0 * h1
         cov[i, _C02] = c02 - k0 * h2
@@ -369,14 +374,7 @@ def _correct(det, match, state, cov, valid, cell, label, offs, n_offs, neigh, pr
         k0 = c00 * inv_s
         k1 = c01 * inv_s
         k2 = c02 * inv_s
-        rx = det[m, 0] - state[i, _PX]
-        ry = det[m, 1] - state[i, _PY]
-        state[i, _PX] += k0 * rx
-        state[i, _PY] += k0 * ry
-        state[i, _VX] += k1 * rx
-        state[i, _VY] += k1 * ry
-        state[i, _QX] += k2 * rx
-        state[i, _QY] += k2 * ry
+        _gain(state, i, k0, k1, k2, det[m, 0] - state[i, _PX], det[m, 1] - state[i, _PY])
         cov[i, _C11] -= k1 * c01
         cov[i, _C12] -= k1 * c02
         cov[i, _C22] -= k2 * c02
