@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import csv
 import filecmp
-import math
 from pathlib import Path
 
 import cv2
@@ -23,7 +22,7 @@ from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
 from neurotouch_hid.sources.esim import EventCamera
 from neurotouch_hid.sources.simulator import (
-    SIM_GESTURES, START_US, USERS, GelSimulator, SimGesture, SimulatedSource, preset_users, write_dataset,
+    SIM_GESTURES, START_US, GelSimulator, SimGesture, SimulatedSource, preset_users, write_dataset,
 )
 
 # DATASET.md, written out here from the spec (not taken from the code under test)
@@ -295,15 +294,17 @@ def test_same_seed_same_files_other_seed_other_files(quick_dataset, tmp_path):
     assert len(ev_c) != len(ev_b) or not np.array_equal(ev_c, ev_b)
 
 
-def test_bad_preset_is_one_clear_error(tmp_path):
+@pytest.mark.parametrize("args, message", [
+    (["--preset", "huge"], "unknown simulation preset 'huge'"),
+    (["--users", "3,12"], "simulated users are 0 to 9"),
+    (["--minutes", "-1"], "--minutes must be positive"),
+])
+def test_bad_simulate_options_are_one_clear_error(tmp_path, monkeypatch, capsys, args, message):
     from neurotouch_hid.cli import main
-    import sys
 
-    argv = sys.argv
-    sys.argv = ["neurotouch-hid", "simulate", "--out", str(tmp_path / "x"), "--preset", "huge"]
-    try:
-        with pytest.raises(SystemExit) as exc:
-            main()
-    finally:
-        sys.argv = argv
+    monkeypatch.setattr("sys.argv", ["neurotouch-hid", "simulate", "--out", str(tmp_path / "x"), *args])
+    with pytest.raises(SystemExit) as exc:
+        main()
     assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
