@@ -16,10 +16,11 @@ Gesture Detection Dataset"):
   with attack (cosine ramp up), hold (the maximum, with a small tremor) and release (cosine ramp
   down), then the gel creeps back (exponential, tau ~ 0.1 s) from a small residual. A finger
   drags the markers under it with it; the others follow with a Gaussian falloff whose width is
-  the finger's footprint, widened for large displacements so that the gel never folds. Pressing
+  the finger's footprint, widened for large displacements (and for fingers pushing together)
+  so that the gel never folds; where fingers' falloffs overlap their motions blend. Pressing
   also spreads the markers under a finger radially (<= 0.35 mm) and dims them (<= 25 %); the whole
   gel moves a little with the gesture (<= 0.35 mm translation, <= 0.35 deg rotation). The rim is
-  clamped (the displacement fades out near the edge).
+  clamped: the displacement fades out towards it and nothing is pushed past 98 % of the radius.
 * **Users** -- :data:`USERS` defines 10 simulated users with their own finger size, speed,
   intensity and hold/rest habits. Users 0-4 (:data:`TEST_USERS`) are the test users, users
   5-9 (:data:`TUNING_USERS`) are for tuning; the ``paper`` preset takes the test users for an
@@ -88,6 +89,8 @@ SHOT_NOISE = 0.22
 MAX_SPEED_MM_S = 205.0
 #: Largest hold intensity (mm; paper: local deformations up to 18 mm, with the tremor).
 MAX_INTENSITY_MM = 17.3
+#: The displacement fades out towards this multiple of the gel radius (the clamped base).
+RIM_CLAMP = 1.1
 #: How long after its release a gesture still deforms the gel, in creep time constants.
 CREEP_SPAN_TAUS = 7.0
 
@@ -272,13 +275,14 @@ class SimGesture:
 
 
 @numba.njit(cache=True)
-def _finger_field(pts: np.ndarray, finger: np.ndarray, d: np.ndarray, finger_mm: float, press: float,
-                  level: np.ndarray, drag: np.ndarray, weight: np.ndarray, disp: np.ndarray, dim: np.ndarray) -> None:
+def _finger_field(pts: np.ndarray, finger: np.ndarray, d: np.ndarray, finger_mm: float, widen: float,
+                  press: float, level: np.ndarray, drag: np.ndarray, weight: np.ndarray, disp: np.ndarray, dim: np.ndarray) -> None:
     """Add one finger's field at the points ``pts`` (M, 2) mm, for times T.
 
     The finger (rest centre ``finger`` (2,) mm, displacement ``d`` (T, 2) mm) drags the points
-    with a Gaussian falloff of sigma sqrt(finger_mm^2 + (0.8 |d|)^2), wider for large
-    displacements so that the gel never folds: adds w * d to ``drag`` (T, M, 2) and w to
+    with a Gaussian falloff of sigma sqrt(finger_mm^2 + (widen |d|)^2), wider for large
+    displacements so that the gel never folds (the strain of a Gaussian drag peaks at
+    |d| / (sigma sqrt(e))): adds w * d to ``drag`` (T, M, 2) and w to
     ``weight`` (T, M). Its pressure ``press * level`` spreads the points under it radially
     (<= 0.35 mm, added to ``disp`` (T, M, 2)) and dims them (<= 25 %, max into ``dim`` (T, M)).
     """
@@ -287,7 +291,7 @@ def _finger_field(pts: np.ndarray, finger: np.ndarray, d: np.ndarray, finger_mm:
         if level[t] == 0.0:
             continue
         dn2 = d[t, 0] * d[t, 0] + d[t, 1] * d[t, 1]
-        inv_s2 = 1.0 / (2.0 * (finger_mm * finger_mm + 0.64 * dn2))
+        inv_s2 = 1.0 / (2.0 * (finger_mm * finger_mm + widen * widen * dn2))
         for m in range(pts.shape[0]):
             rx = pts[m, 0] - finger[0]
             ry = pts[m, 1] - finger[1]
@@ -301,6 +305,19 @@ def _finger_field(pts: np.ndarray, finger: np.ndarray, d: np.ndarray, finger_mm:
             disp[t, m, 1] += 0.35 * p * ry / finger_mm
             if 0.25 * p > dim[t, m]:
                 dim[t, m] = 0.25 * p
+
+
+def _keep_inside(points_mm: np.ndarray, gel_radius_mm: float) -> np.ndarray:
+    """Pull points (..., 2) mm pushed beyond 90 % of the gel radius smoothly back under 98 % of
+    it (r -> r0 + (R - r0) tanh((r - r0) / (R - r0)): monotonic, so nothing folds)."""
+    r0, r_max = 0.9 * gel_radius_mm, 0.98 * gel_radius_mm
+    r = np.hypot(points_mm[..., 0], points_mm[..., 1])
+    far = r > r0
+    if not far.any():
+        return points_mm
+    scale = np.ones_like(r)
+    scale[far] = (r0 + (r_max - r0) * np.tanh((r[far] - r0) / (r_max - r0))) / r[far]
+    return points_mm * scale[..., None]
 
 
 def deform(gestures: Sequence[SimGesture], points_mm: np.ndarray, t_us: np.ndarray, gel_radius_mm: float
@@ -317,8 +334,8 @@ def deform(gestures: Sequence[SimGesture], points_mm: np.ndarray, t_us: np.ndarr
     """
     pts = np.asarray(points_mm, dtype=np.float64)
     n_t = len(t_us)
-    r_rel = np.hypot(pts[:, 0], pts[:, 1]) / gel_radius_mm
-    rim = np.clip(1.0 - r_rel**8, 0.0, 1.0)
+    r_rel = np.hypot(pts[:, 0], pts[:, 1]) / (RIM_CLAMP * gel_radius_mm)
+    rim = np.clip(1.0 - r_rel**6, 0.0, 1.0)
     disp = np.zeros((n_t, len(pts), 2))
     dim = np.zeros((n_t, len(pts)))
     levels = []
@@ -330,13 +347,15 @@ def deform(gestures: Sequence[SimGesture], points_mm: np.ndarray, t_us: np.ndarr
         d_f = g.finger_displacements(level)  # (T, K, 2)
         drag = np.zeros_like(disp)
         weight = np.zeros_like(dim)
+        # fingers pushing together add their strains: widen their falloff with their number
+        widen = 0.8 * (len(g.fingers_mm) if g.gesture is GestureType.PUSH else 1)
         for k in range(len(g.fingers_mm)):
-            _finger_field(pts, g.fingers_mm[k], np.ascontiguousarray(d_f[:, k]), g.finger_mm, g.press, level,
-                          drag, weight, disp, dim)
+            _finger_field(pts, g.fingers_mm[k], np.ascontiguousarray(d_f[:, k]), g.finger_mm, widen, g.press,
+                          level, drag, weight, disp, dim)
         # where fingers' falloffs overlap, blend their motions instead of adding them (the
         # surface under a finger moves with that finger, whatever the others do)
         disp += drag / np.maximum(weight, 1.0)[..., None]
-    out = pts[None] + disp * rim[None, :, None]
+    out = _keep_inside(pts[None] + disp * rim[None, :, None], gel_radius_mm)
     for g, level in zip(gestures, levels):
         if not level.any():
             continue
