@@ -70,7 +70,7 @@ class Run:
             stat(e, 50),
             stat(e, 90),
             stat(e, 99),
-            f"{100.0 * self.tracked / max(self.samples, 1):.1f}",
+            f"{100.0 * self.tracked / self.samples:.1f}" if self.samples else "-",
             f"{self.events / max(self.seconds, 1e-12) / 1e6:.2f}",
             stat(w, 50),
             stat(w, 99),
