@@ -127,7 +127,7 @@ def run_ours(run: Run, seq, sensor: SensorGeometry, config: TrackerConfig, with_
         t, c = time.perf_counter(), time.thread_time()
         for k, piece in enumerate(pieces):
             if k > 0:
-                tracker.correct(frame_dets[cuts[k - 1]][1])
+                tracker.correct(frame_dets[cuts[k - 1]][1], frame_dets[cuts[k - 1]][0])
             tracker.update(piece)
         run.add(time.thread_time() - c, time.perf_counter() - t, len(batch))
         k = int(np.searchsorted(t_grid, end))

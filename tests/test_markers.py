@@ -118,3 +118,18 @@ def test_bad_image_raises_sensor_error():
         detect_markers(np.zeros((100, 100), np.uint8), SENSOR)
     with pytest.raises(SensorError, match="uint8"):
         detect_markers(np.zeros((260, 346), np.float32), SENSOR)
+
+
+def test_simulated_gel_frame_is_a_grid_with_its_markers_found():
+    from neurotouch_hid.sources import Frame
+    from neurotouch_hid.sources.simulator import SimulatedSource
+
+    source = SimulatedSource(seed=0)
+    frame = next(item for item in source.stream(0.04) if isinstance(item, Frame))
+    markers = detect_markers(frame.image, source.sensor)
+    truth = source.rest_px
+    assert len(markers) == len(truth)
+    err, idx = match(markers.centroids_px, truth)
+    assert len(set(idx.tolist())) == len(truth)
+    assert err.max() < 0.2
+    assert looks_like_marker_grid(markers, source.sensor)

@@ -227,3 +227,33 @@ def test_update_rejects_wrong_dtype_and_accepts_empty():
         tracker.update(np.zeros((5, 4)))
     with pytest.raises(ValueError, match="finite"):
         tracker.reset(np.array([[np.nan, 1.0]]))
+
+
+def test_aps_frame_correction_pulls_blobs_to_unambiguous_detections():
+    start = np.array([[100.0, 100.0], [120.0, 100.0], [140.0, 100.0], [142.5, 100.0]])
+    tracker = BlobTracker(start)
+    detections = np.array([
+        [100.6, 100.3],  # blob 0: within the gate -> corrected towards it
+        [122.0, 100.0],  # blob 1: 2 px away, beyond the 1.5 px gate -> ignored
+        [141.2, 100.0],  # blobs 2 and 3 both within 3 px: two markers seen as one -> ignored
+    ])
+    assert tracker.correct(detections) == 1
+    pos = tracker.positions_px
+    assert np.linalg.norm(pos[0] - detections[0]) < 0.1  # the frame is far more precise
+    assert np.array_equal(pos[1:], start[1:])
+    assert tracker.correct(np.zeros((0, 2))) == 0
+
+
+def test_aps_frame_correction_removes_the_lag_of_a_stopped_marker():
+    # A dot moves 6 px and stops; the events leave the blob a little behind; the APS frame shows
+    # where the dot is.
+    p0 = np.array([150.3, 120.6])
+    truth = lambda t: np.array([p0 + np.array([0.1, 0.0]) * min(t, 60_000) / 1000.0])
+    events = esim(truth, 80_000, (140, 110, 165, 132))
+    tracker = BlobTracker(p0[None])
+    tracker.update(events)
+    before = np.linalg.norm(tracker.positions_px[0] - truth(80_000)[0])
+    tracker.correct(truth(80_000) + 0.02, t_us=80_000)
+    after = np.linalg.norm(tracker.positions_px[0] - truth(80_000)[0])
+    assert after < 0.15
+    assert after < before

@@ -222,6 +222,32 @@ def _paint_all(state, valid, cell, label, offs, n_offs):
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
+def _predict(state, cov, i, dt, inv_tau_v, max_step2, q_pos, q_vel, q_off):
+    """Predict blob ``i`` over ``dt`` ms with the damped constant-velocity model (state and
+    covariance in place)."""
+    d = 1.0 / (1.0 + dt * inv_tau_v)
+    a = dt * d
+    # A moving marker makes tens of events per pixel it moves: between two of its events it
+    # moves a fraction of a pixel, however long the gap (a long gap means it stopped).
+    speed2 = state[i, _VX] * state[i, _VX] + state[i, _VY] * state[i, _VY]
+    if a * a * speed2 > max_step2:
+        a = math.sqrt(max_step2 / speed2)
+    state[i, _PX] += a * state[i, _VX]
+    state[i, _PY] += a * state[i, _VY]
+    state[i, _VX] *= d
+    state[i, _VY] *= d
+    c01 = cov[i, _C01]
+    c11 = cov[i, _C11]
+    c12 = cov[i, _C12]
+    cov[i, _C00] += 2.0 * a * c01 + a * a * c11 + q_pos * dt
+    cov[i, _C01] = d * (c01 + a * c11)
+    cov[i, _C02] += a * c12
+    cov[i, _C11] = d * d * c11 + q_vel * dt
+    cov[i, _C12] = d * c12
+    cov[i, _C22] += q_off * dt
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _gain(state, i, k0, k1, k2, rx, ry):
     """Kalman state update of blob ``i`` with gains (k0, k1, k2) on [p, v, q] and innovation (rx, ry)."""
     state[i, _PX] += k0 * rx
@@ -243,8 +269,7 @@ def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, 
     inv_tau_r = 1.0 / prm[_P_TAUR]
     min_rate = prm[_P_MINRATE]
     assoc2 = prm[_P_ASSOC2]
-    max_step = prm[_P_MAXSTEP]
-    max_step2 = max_step * max_step
+    max_step2 = prm[_P_MAXSTEP] ** 2
     h, w = label.shape[1], label.shape[2]
     for k in range(ts.shape[0]):
         x = np.int64(xs[k])
@@ -269,34 +294,17 @@ def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, 
             counts[_N_GATED] += 1
             continue
         counts[_N_APPLIED] += 1
-        # Predict over dt (ms) with the damped constant-velocity model.
         dt = 0.0
         if t_upd[i] >= 0:
             dt = max(t - t_upd[i], 0) * 1e-3
         t_upd[i] = t
-        d = 1.0 / (1.0 + dt * inv_tau_v)
-        a = dt * d
-        # A moving marker makes tens of events per pixel it moves: between two of its events it
-        # moves a fraction of a pixel, however long the gap (a long gap means it stopped).
-        speed2 = state[i, _VX] * state[i, _VX] + state[i, _VY] * state[i, _VY]
-        if a * a * speed2 > max_step2:
-            a = max_step / math.sqrt(speed2)
-        state[i, _PX] += a * state[i, _VX]
-        state[i, _PY] += a * state[i, _VY]
-        state[i, _VX] *= d
-        state[i, _VY] *= d
+        _predict(state, cov, i, dt, inv_tau_v, max_step2, q_pos, q_vel, q_off)
         c00 = cov[i, _C00]
         c01 = cov[i, _C01]
         c02 = cov[i, _C02]
         c11 = cov[i, _C11]
         c12 = cov[i, _C12]
         c22 = cov[i, _C22]
-        c00 = c00 + 2.0 * a * c01 + a * a * c11 + q_pos * dt
-        c01 = d * (c01 + a * c11)
-        c02 = c02 + a * c12
-        c11 = d * d * c11 + q_vel * dt
-        c12 = d * c12
-        c22 = c22 + q_off * dt
         # Update with the event: z = p + s*q, s = +1 for ON, -1 for OFF.
         s = 1.0 if pol == 1 else -1.0
         h0 = c00 + s * c02
@@ -357,13 +365,18 @@ def _check_lost(cell, label, offs, n_offs, neigh, valid, state, prm):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _correct(det, match, state, cov, valid, cell, label, offs, n_offs, neigh, prm, sigma2_frame, motion_ms):
-    """Fuse APS-frame detections into the blobs: a Kalman update of the position (H = [1, 0, 0])
-    with noise sigma2_frame + (speed * motion_ms)^2 (a moving marker is blurred on the frame)."""
+def _correct(det, match, t, state, cov, t_upd, valid, cell, label, offs, n_offs, neigh, prm, sigma2_frame, motion_ms):
+    """Fuse APS-frame detections into the blobs: predict each matched blob to the frame's time t
+    (us; none when t < 0), then a Kalman update of its position (H = [1, 0, 0]) with noise
+    sigma2_frame + (speed * motion_ms)^2 (a moving marker is blurred on the frame)."""
     for i in range(state.shape[0]):
         m = match[i]
         if m < 0 or not valid[i]:
             continue
+        if t >= 0 and t_upd[i] >= 0:
+            _predict(state, cov, i, max(t - t_upd[i], 0) * 1e-3, 1.0 / prm[_P_TAUV], prm[_P_MAXSTEP] ** 2,
+                     prm[_P_QPOS], prm[_P_QVEL], prm[_P_QOFF])
+            t_upd[i] = t
         vx = state[i, _VX]
         vy = state[i, _VY]
         r = sigma2_frame + (vx * vx + vy * vy) * motion_ms * motion_ms
@@ -513,7 +526,7 @@ class BlobTracker:
         self._neigh = _neighbours(p, _N_NEIGHBOURS)
         _paint_all(self._state, self._valid, self._cell, self._label, self._offs, self._n_offs)
 
-    def correct(self, detections_px: np.ndarray) -> int:
+    def correct(self, detections_px: np.ndarray, t_us: int | None = None) -> int:
         """Fuse marker detections of an APS frame into the blobs (optional; not in the paper).
 
         Between events a blob's position is a running average of its recent events, which lags
@@ -528,6 +541,8 @@ class BlobTracker:
 
         Args:
             detections_px: (M, 2) float marker centroids on the frame, image frame, px.
+            t_us: the frame's timestamp (us): each matched blob is first predicted to it (its
+                velocity fades over a pause in its events). None: no prediction.
         Returns:
             the number of blobs corrected.
         """
@@ -549,8 +564,9 @@ class BlobTracker:
             ok &= second[nearest] > 4.0 * gate2
         match = np.where(ok, nearest, -1).astype(np.int64)
         c = self.config
-        _correct(det, match, self._state, self._cov, self._valid, self._cell, self._label, self._offs, self._n_offs,
-                 self._neigh, self._params, c.frame_sigma_px**2, c.frame_motion_us * 1e-3)
+        t = -1 if t_us is None else int(t_us)
+        _correct(det, match, t, self._state, self._cov, self._t_upd, self._valid, self._cell, self._label, self._offs,
+                 self._n_offs, self._neigh, self._params, c.frame_sigma_px**2, c.frame_motion_us * 1e-3)
         return int(ok.sum())
 
     def update(self, events: np.ndarray) -> None:
