@@ -22,7 +22,8 @@ from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
 from neurotouch_hid.sources.esim import EventCamera
 from neurotouch_hid.sources.simulator import (
-    SIM_GESTURES, START_US, GelSimulator, SimGesture, SimulatedSource, preset_users, write_dataset,
+    SIM_GESTURES, START_US, USERS, GelSimulator, SimGesture, SimulatedSource, deform, draw_gesture, preset_users,
+    write_dataset,
 )
 
 # DATASET.md, written out here from the spec (not taken from the code under test)
@@ -208,6 +209,26 @@ def test_push_intensity_equals_contact_displacement_from_true_markers_and_aps_fr
     # after the release the gel creeps back and the labels say resting again
     last = chunks[-1].label
     assert last.gesture is GestureType.NONE and last.resting
+
+
+def test_gel_never_folds_and_markers_stay_apart_and_inside():
+    sensor = SensorGeometry()
+    rest = GelSimulator(seed=0).gel.rest_mm
+    h = 0.2  # mm, finite-difference step of the Jacobian
+    for uid, user in enumerate(USERS):
+        rng = np.random.default_rng(100 + uid)
+        for kind in SIM_GESTURES:
+            g = draw_gesture(rng, user, kind, 0, sensor)
+            t = np.array([g.attack_us + g.hold_us // 2])  # the hold: the largest deformation
+            pos = deform([g], rest, t, sensor.gel_radius_mm)[0][0]
+            gaps = np.linalg.norm(pos[:, None] - pos[None], axis=-1) + np.eye(len(pos)) * 1e9
+            assert gaps.min() > 0.5, (kind, uid)  # 1.25 px: two blobs never merge into one
+            assert np.hypot(pos[:, 0], pos[:, 1]).max() < sensor.gel_radius_mm
+            jac = [(deform([g], rest + dx, t, sensor.gel_radius_mm)[0][0]
+                    - deform([g], rest - dx, t, sensor.gel_radius_mm)[0][0]) / (2 * h)
+                   for dx in (np.array([h, 0.0]), np.array([0.0, h]))]
+            det = jac[0][:, 0] * jac[1][:, 1] - jac[1][:, 0] * jac[0][:, 1]
+            assert det.min() > 0.0, (kind, uid)  # orientation kept: no fold
 
 
 def test_simulated_source_streams_frames_then_events_cycling_gestures():

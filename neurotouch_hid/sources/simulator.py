@@ -87,10 +87,13 @@ READ_NOISE = 1.5
 SHOT_NOISE = 0.22
 #: Fastest intensity change a simulated user makes (mm/s; paper: up to 210 mm/s).
 MAX_SPEED_MM_S = 205.0
-#: Largest hold intensity (mm; paper: local deformations up to 18 mm, with the tremor).
-MAX_INTENSITY_MM = 17.3
-#: The displacement fades out towards this multiple of the gel radius (the clamped base).
-RIM_CLAMP = 1.1
+#: Largest finger displacement at the hold (mm): with the clamped rim holding the gel back, the
+#: contacts move up to ~18 mm (paper: local deformations up to 18 mm).
+MAX_INTENSITY_MM = 23.0
+#: The displacement fades out towards this multiple of the gel radius (the clamped base), over
+#: at least RIM_EASE_MM (mm).
+RIM_CLAMP = 1.0
+RIM_EASE_MM = 6.0
 #: How long after its release a gesture still deforms the gel, in creep time constants.
 CREEP_SPAN_TAUS = 7.0
 
@@ -334,8 +337,7 @@ def deform(gestures: Sequence[SimGesture], points_mm: np.ndarray, t_us: np.ndarr
     """
     pts = np.asarray(points_mm, dtype=np.float64)
     n_t = len(t_us)
-    r_rel = np.hypot(pts[:, 0], pts[:, 1]) / (RIM_CLAMP * gel_radius_mm)
-    rim = np.clip(1.0 - r_rel**6, 0.0, 1.0)
+    to_rim = RIM_CLAMP * gel_radius_mm - np.hypot(pts[:, 0], pts[:, 1])  # (M,) mm
     disp = np.zeros((n_t, len(pts), 2))
     dim = np.zeros((n_t, len(pts)))
     levels = []
@@ -345,17 +347,23 @@ def deform(gestures: Sequence[SimGesture], points_mm: np.ndarray, t_us: np.ndarr
         if not level.any():
             continue
         d_f = g.finger_displacements(level)  # (T, K, 2)
+        local = np.zeros_like(disp)
         drag = np.zeros_like(disp)
         weight = np.zeros_like(dim)
         # fingers pushing together add their strains: widen their falloff with their number
         widen = 0.8 * (len(g.fingers_mm) if g.gesture is GestureType.PUSH else 1)
         for k in range(len(g.fingers_mm)):
             _finger_field(pts, g.fingers_mm[k], np.ascontiguousarray(d_f[:, k]), g.finger_mm, widen, g.press,
-                          level, drag, weight, disp, dim)
+                          level, drag, weight, local, dim)
         # where fingers' falloffs overlap, blend their motions instead of adding them (the
         # surface under a finger moves with that finger, whatever the others do)
-        disp += drag / np.maximum(weight, 1.0)[..., None]
-    out = _keep_inside(pts[None] + disp * rim[None, :, None], gel_radius_mm)
+        local += drag / np.maximum(weight, 1.0)[..., None]
+        # the clamped rim holds the gel: the displacement eases out over a length that grows
+        # with the fingers' displacement (strain <= 2 |u| / length <= 0.8 at the rim)
+        length = np.maximum(RIM_EASE_MM, 2.5 * np.linalg.norm(d_f, axis=-1).max(axis=1))  # (T,)
+        x = np.clip(to_rim[None, :] / length[:, None], 0.0, 1.0)
+        disp += local * (1.0 - (1.0 - x) ** 2)[..., None]
+    out = _keep_inside(pts[None] + disp, gel_radius_mm)
     for g, level in zip(gestures, levels):
         if not level.any():
             continue
