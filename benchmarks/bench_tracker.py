@@ -292,6 +292,15 @@ def main() -> None:
             seqs.append((events, frames, truth["t_us"], truth["positions_px"].astype(np.float64),
                          truth["rest_px"].astype(np.float64)))
 
+    det_err = []
+    for events, frames, t_grid, positions, rest in seqs:
+        found = detect_markers(frames[0].image, sensor).centroids_px
+        d = np.hypot(found[:, None, 0] - rest[None, :, 0], found[:, None, 1] - rest[None, :, 1])
+        det_err.append(d.min(axis=1))
+        console.print(f"detect_markers on the first APS frame: {len(found)} found of {len(rest)} markers")
+    det_err = np.concatenate(det_err)
+    console.print(f"detection error at rest: median {np.median(det_err):.3f} px, max {det_err.max():.3f} px")
+
     # Compile the numba kernels outside the timings.
     warm = BlobTracker(seqs[0][4][:5], config=config)
     warm.update(seqs[0][0][:1000])
