@@ -179,7 +179,7 @@ def view(
 # --- the controller (runtime.py, mapping/, output/) -----------------------------------------
 @app.command()
 def run(
-    source: str = typer.Option("davis", "--source", help="davis (live camera), sim (simulated gel) or a recording path"),
+    source: str = typer.Option("davis", "--source", help="davis (live camera), sim (simulated gel), a recording path, or predictions PRED.jsonl (replayed without the pipeline)"),
     profile: str = typer.Option("default", "--profile", help="profile name or path"),
     output: str = typer.Option("gamepad", "--output", help="gamepad, jsonl or term"),
     seconds: Optional[float] = typer.Option(None, "--seconds", help="stop after this many seconds"),

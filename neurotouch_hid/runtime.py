@@ -53,10 +53,10 @@ _JOIN_S = 2.0
 _GRACE_S = 2.0
 
 
-def item_end_us(item: StreamItem) -> Optional[int]:
+def item_end_us(item: StreamItem | GestureEstimate) -> Optional[int]:
     """The time (us, camera clock) at which a stream item is complete: a frame's timestamp, an event
-    batch's last event timestamp; None for an empty batch."""
-    if isinstance(item, Frame):
+    batch's last event timestamp, a replayed estimate's window end; None for an empty batch."""
+    if isinstance(item, (Frame, GestureEstimate)):
         return int(item.t_us)
     if len(item) == 0:
         return None
@@ -374,7 +374,7 @@ class Runtime:
         self.stats.dropped_items += 1
         if isinstance(item, Frame):
             self.stats.dropped_frames += 1
-        else:
+        elif isinstance(item, np.ndarray):
             self.stats.dropped_events += len(item)
 
     def _count_resting_drop(self, item: StreamItem) -> None:
@@ -447,7 +447,7 @@ class Runtime:
                 estimates = self._pipeline.process(item)
                 if isinstance(item, Frame):
                     stats.frames += 1
-                else:
+                elif isinstance(item, np.ndarray):
                     stats.events += len(item)
                 t_us = item_end_us(item)
                 if t_us is not None:
@@ -490,16 +490,34 @@ class Runtime:
 OUTPUT_KINDS = ("gamepad", "jsonl", "term")
 
 
+class EstimateReplay:
+    """Stands in for the pipeline when the source is a predictions file: its items already are
+    the windows' :class:`GestureEstimate` values (DATASET.md "Predictions"), handed on as they are."""
+
+    def process(self, item: GestureEstimate) -> list[GestureEstimate]:
+        return [item]
+
+    def set_resting(self, result: Any, t_us: int) -> None:  # pragma: no cover - no frames here
+        pass
+
+
 def open_source(spec: str, stack: contextlib.ExitStack, *, seconds: float | None = None,
                 batch_us: int = DEFAULT_BATCH_US, sensor: str | Path | None = None,
-                seed: int = 0) -> tuple[Iterable[StreamItem], Any, bool]:
-    """Open ``davis`` (the live camera), ``sim`` (the simulated gel) or an AEDAT4 recording path.
+                seed: int = 0) -> tuple[Iterable[Any], Any, bool]:
+    """Open ``davis`` (the live camera), ``sim`` (the simulated gel), an AEDAT4 recording path, or
+    a predictions file (``*.jsonl``, DATASET.md: the pipeline's estimates, replayed as they are).
 
     Returns ``(stream, sensor_geometry, live)``; ``live`` is True for the camera (never paced by
-    the runtime). Resources (camera, file) are closed by ``stack``. Raises RecordingError for a
-    missing or unreadable recording, DeviceError when the camera cannot be opened.
+    the runtime); the geometry is None for a predictions file. Resources (camera, file) are
+    closed by ``stack``. Raises RecordingError for a missing or unreadable recording,
+    DatasetError for a bad predictions file, DeviceError when the camera cannot be opened.
     """
     from neurotouch_hid.sensor import SensorGeometry, find_sensor_file
+
+    if spec.endswith(".jsonl"):
+        from neurotouch_hid.output.jsonl import read_predictions
+
+        return iter(read_predictions(spec)), None, False
 
     if spec == "davis":
         from neurotouch_hid.sources.davis import DavisSource
@@ -596,7 +614,10 @@ def run_driver(source: str = "davis", profile: str | Path = "default", output: s
     with contextlib.ExitStack() as stack:
         stream, geometry, live = open_source(source, stack, seconds=seconds,
                                              batch_us=min(DEFAULT_BATCH_US, window_us), sensor=sensor, seed=seed)
-        pipeline, resting = build_pipeline(geometry, window_us, resting_beside=live or not fast)
+        if geometry is None:  # a predictions file: the estimates are already there
+            pipeline, resting = EstimateReplay(), None
+        else:
+            pipeline, resting = build_pipeline(geometry, window_us, resting_beside=live or not fast)
         out_obj = output_obj if output_obj is not None else open_output(output, loaded, stack, out=out, console=console)
         runtime = Runtime(stream, pipeline, loaded, out_obj, resting=resting, pace=not fast, live=live,
                           profile_ref=profile)

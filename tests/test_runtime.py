@@ -403,3 +403,38 @@ def test_fast_replays_are_deterministic(push_recording, tmp_path):
         assert stats.dropped_items == 0 and stats.windows > 0
         runs.append(out.read_text())
     assert runs[0] == runs[1] and runs[0]
+
+
+def test_a_predictions_file_replays_through_the_mapper_state_for_state(tmp_path):
+    """``--source FILE.jsonl`` (no pipeline): the states written are the Mapper's for the same
+    estimates, one line per change, ending neutral."""
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.mapping.replay import replay
+    from neurotouch_hid.output.jsonl import read_predictions, write_predictions
+    from neurotouch_hid.runtime import run_driver
+
+    estimates = []
+    for k in range(120):
+        level = 6.0 * np.sin(np.pi * k / 119)  # a push ramping up and back down
+        estimates.append(GestureEstimate(t_us=1_000_000 + 10_000 * k, gesture=GestureType.PUSH, resting=False,
+                                         intensity_mm=level, translation_mm=np.array([level, 0.0])))
+    estimates += [GestureEstimate(t_us=2_200_000 + 10_000 * k) for k in range(20)]
+    preds = tmp_path / "p.jsonl"
+    write_predictions(preds, estimates)
+    out = tmp_path / "states.jsonl"
+    stats = run_driver(str(preds), "default", "jsonl", fast=True, out=out)
+    got = [(d["axes"], d["buttons"]) for d in read_states(out.read_text())]
+    neutral = (ControllerState.neutral().axes, ControllerState.neutral().buttons)
+    expected = [neutral]  # the runtime starts from the neutral state and writes changes only
+    for s in replay(load_profile("default"), read_predictions(preds)):  # as stored (rounded)
+        if expected[-1] != (s.axes, s.buttons):
+            expected.append((s.axes, s.buttons))
+    assert got[-1] == neutral  # the final neutralise
+    # JSON lines are also written when only the gesture changes: compare the state changes
+    changes = [neutral]
+    for g in got:
+        if changes[-1] != g:
+            changes.append(g)
+    assert changes == expected
+    assert stats.windows == len(estimates) and stats.events == 0
+    assert any(a["ABS_X"] > 0 for a, _ in got)
