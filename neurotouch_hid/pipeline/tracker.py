@@ -64,7 +64,8 @@ class TrackerConfig:
     Attributes:
         sigma_px: fixed blob size Lambda (px); the measurement noise is sigma_px^2.
         assoc_px: association threshold (px): an event can update a blob only within this distance
-            of the blob's integer position. Below half the marker spacing (~10 px).
+            of the pixel where the blob expects events of its polarity (p +- q, repainted with a
+            1 px hysteresis). Below half the marker spacing (~10 px).
         q_pos: position process noise (px^2 per ms).
         q_vel: velocity process noise ((px/ms)^2 per ms).
         q_offset: polarity-offset process noise (px^2 per ms).
@@ -446,7 +447,8 @@ class BlobTracker:
         width, height: image size (px).
         config: :class:`TrackerConfig` (defaults if None).
         sensor: when given, a blob farther than the gel radius + ``config.gel_margin_px`` from the
-            gel centre is lost; without it, a blob leaving the image is.
+            gel centre is lost; without it, only a blob beyond the image's circumscribed circle is
+            (a blob outside the image owns no pixel and gets no events).
 
     Attributes:
         positions_px: (N, 2) float64 current positions, image frame, px (a copy).
@@ -469,14 +471,13 @@ class BlobTracker:
         self.height = int(height)
         c = self.config
         if not 0 < c.assoc_px:
-            raise ValueError(f"assoc_px must be positive, got {c.assoc_px}")
+            raise ValueError(f"TrackerConfig.assoc_px must be positive, got {c.assoc_px}")
         if sensor is not None:
             cx, cy = sensor.gel_center_px
             r = sensor.gel_radius_px + c.gel_margin_px
         else:  # the image's circumscribed circle: blobs are lost only when leaving the image
             cx, cy = (self.width - 1) / 2.0, (self.height - 1) / 2.0
             r = math.hypot(self.width, self.height) / 2.0
-        self._sensor = sensor
         self._params = np.array(
             [
                 c.sigma_px**2,
