@@ -131,10 +131,24 @@ def show(name: str, stats: RunStats) -> None:
     print(line, flush=True)
 
 
+def stages(events: np.ndarray, frames: list[Frame], sensor: SensorGeometry, window_us: int) -> None:
+    """Where the pipeline's time goes on this data (GesturePipeline's own per-stage timings)."""
+    from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
+
+    pipeline = GesturePipeline(sensor, PipelineConfig(window_us=window_us), profile=True)
+    t0 = time.process_time()
+    windows = sum(len(pipeline.process(item)) for item in items(events, frames, 1000))
+    cpu = time.process_time() - t0
+    parts = ", ".join(f"{name} {sum(v) / 1e9:.2f} s" for name, v in pipeline.timings.items())
+    print(f"pipeline alone, {window_us} us windows: {len(events)} events, {windows} windows in {cpu:.2f} s CPU "
+          f"({len(events) / cpu / 1e6:.2f} M events/s); {parts}", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seconds", type=float, default=30.0, help="length of the simulated recording (s)")
     ap.add_argument("--rate", type=float, default=2e6, help="event rate of the 1 ms window case (events/s)")
+    ap.add_argument("--rate-seconds", type=float, default=10.0, help="how long the 1 ms window case runs (s)")
     ap.add_argument("--rss-minutes", type=float, default=30.0, help="simulated session length of the memory case")
     ap.add_argument("--workdir", type=Path, default=None, help="keep the recording here")
     ap.add_argument("--skip", nargs="*", default=[], choices=["latency", "rate", "rss"])
@@ -165,10 +179,11 @@ def main() -> None:
     if "rate" not in args.skip:
         factor = args.rate * span_s / len(events)
         ev, fr = compressed(events, frames, factor)
-        fast_items = items(ev, fr, 1000)
         print(f"time compressed x{factor:.1f}: {len(ev)} events over {(int(ev['timestamp'][-1]) - fr[0].t_us) / 1e6:.2f} s "
-              f"= {args.rate / 1e6:.1f} M events/s, {len(fr)} frames", flush=True)
-        show(f"real time, 1 ms windows, {args.rate / 1e6:.1f} M events/s", run(iter(fast_items), sensor, 1000, pace=True))
+              f"= {args.rate / 1e6:.1f} M events/s, {len(fr)} frames; looped for {args.rate_seconds:g} s", flush=True)
+        show(f"real time, 1 ms windows, {args.rate / 1e6:.1f} M events/s",
+             run(looped(ev, fr, 1000, int(args.rate_seconds * 1e6)), sensor, 1000, pace=True))
+        stages(ev, fr, sensor, 1000)
 
     if "rss" not in args.skip:
         total_us = int(args.rss_minutes * 60e6)
