@@ -9,7 +9,11 @@ GIL in their heavy parts, so on two cores the resting detection does not hold up
 
 Between the threads sit bounded queues. When the pipeline falls behind a live or paced source, the
 queue drops its OLDEST items (counted in :class:`RunStats`) instead of letting the controller lag;
-with ``pace=False`` (``--fast``) nothing is dropped: the source waits for the pipeline instead.
+with ``pace=False`` (``--fast``) nothing is dropped: the source waits for the pipeline instead,
+and the pipeline runs the resting detection inline so that a replay is deterministic.
+
+Sources (:func:`open_source`): the live camera, the simulated gel, an AEDAT4 recording, or a
+predictions file (the pipeline's estimates, DATASET.md, replayed without the pipeline).
 
 Every way out of :meth:`Runtime.run` (end of the source, :meth:`Runtime.stop`, SIGTERM, Ctrl-C, an
 exception in any stage, a lost camera) first centres all axes and releases all buttons
