@@ -542,7 +542,7 @@ def open_source(spec: str, stack: contextlib.ExitStack, *, seconds: float | None
 
         camera = stack.enter_context(DavisSource())
         geometry = SensorGeometry.load(sensor) if sensor is not None else SensorGeometry()
-        return camera.stream(batch_us=batch_us), geometry, True
+        return camera.stream(seconds=seconds, batch_us=batch_us), geometry, True
     if spec == "sim":
         from neurotouch_hid.sources.simulator import SimulatedSource
 
@@ -553,7 +553,7 @@ def open_source(spec: str, stack: contextlib.ExitStack, *, seconds: float | None
 
     path = Path(spec)
     if not path.is_file():
-        raise RecordingError(f"{path}: no such recording (--source takes davis, sim or an AEDAT4 file)")
+        raise RecordingError(f"{path}: no such recording (--source takes davis, sim, an AEDAT4 file or a predictions .jsonl)")
     reader = stack.enter_context(RecordingReader(path))
     return reader.stream(batch_us=batch_us), find_sensor_file(path, sensor), False
 
