@@ -195,20 +195,19 @@ def write_figures(result: EvaluationResult, out_dir: str | Path) -> list[Path]:
     save(fig, "accuracy_vs_intensity.png")
 
     gestures = [k for k, n in enumerate(result.classes) if n != "none"]
-    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     gx = np.arange(len(gestures))
-    left.bar(gx, np.nan_to_num(result.contact_distance_by_gesture_mm[gestures]), color="tab:purple")
-    left.axhline(result.contact_distance_mm, color="black", ls="--", lw=1, label=f"all: {_mm(result.contact_distance_mm)}")
-    left.set_xticks(gx, [names[k] for k in gestures])
-    left.set_ylabel("mm")
-    left.set_title("Contact distance error")
-    left.legend(fontsize=8)
-    right.bar(gx, np.nan_to_num(result.intensity_mae_by_gesture_mm[gestures]), color="tab:orange")
-    right.axhline(result.intensity_mae_mm, color="black", ls="--", lw=1, label=f"all: {_mm(result.intensity_mae_mm)}")
-    right.set_xticks(gx, [names[k] for k in gestures])
-    right.set_ylabel("mm")
-    right.set_title("Intensity MAE")
-    right.legend(fontsize=8)
+    panels = (
+        ("Contact distance error", result.contact_distance_by_gesture_mm, result.contact_distance_mm, "tab:purple"),
+        ("Intensity MAE", result.intensity_mae_by_gesture_mm, result.intensity_mae_mm, "tab:orange"),
+    )
+    for ax, (title, per_gesture, overall, colour) in zip(axes, panels):
+        ax.bar(gx, np.nan_to_num(per_gesture[gestures]), color=colour)
+        ax.axhline(overall, color="black", ls="--", lw=1, label=f"all: {_mm(overall)}")
+        ax.set_xticks(gx, [names[k] for k in gestures])
+        ax.set_ylabel("mm")
+        ax.set_title(title)
+        ax.legend(fontsize=8)
     save(fig, "error_per_gesture.png")
     return written
 
