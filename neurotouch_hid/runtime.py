@@ -605,7 +605,24 @@ def build_pipeline(geometry: Any, window_us: int, *, resting_beside: bool = True
     from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 
     pipeline = GesturePipeline(geometry, PipelineConfig(window_us=window_us, detect_resting=not resting_beside))
+    warm_up_tracker(geometry)
     return pipeline, (PipelineResting(pipeline) if resting_beside else None)
+
+
+def warm_up_tracker(geometry: Any) -> None:
+    """Compile the tracker's numba code before the source starts.
+
+    The first ``BlobTracker.update`` of a fresh install compiles the event loop (seconds; later
+    runs load it from numba's cache): done on the first real events, a real-time run would drop
+    those seconds of data. One blob and one event are enough to trigger it.
+    """
+    from neurotouch_hid.pipeline.tracker import BlobTracker
+    from neurotouch_hid.sources import EVENT_DTYPE
+
+    centre = np.array([geometry.gel_center_px], dtype=np.float64)
+    event = np.zeros(1, dtype=EVENT_DTYPE)
+    event["x"], event["y"], event["polarity"] = int(centre[0, 0]), int(centre[0, 1]), 1
+    BlobTracker(centre, geometry.width, geometry.height, sensor=geometry).update(event)
 
 
 def run_driver(source: str = "davis", profile: str | Path = "default", output: str = "gamepad", *,
