@@ -9,31 +9,11 @@ only where qemu cannot be installed at all.
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from kernel.vm import KernelUnavailable, guest_results  # noqa: E402
+from conftest import passed
 
 pytestmark = pytest.mark.kernel
-
-
-@pytest.fixture(scope="session")
-def guest() -> dict:
-    try:
-        return guest_results()
-    except KernelUnavailable as exc:
-        pytest.skip(f"cannot boot a real kernel here: {exc}")
-
-
-def passed(guest: dict, name: str) -> dict:
-    """The details of guest check ``name``, failing the test with the guest's error if it failed."""
-    entry = guest.get(name)
-    assert entry is not None, f"the guest did not run {name} (setup: {guest.get('setup')})"
-    assert entry["ok"], f"{name}: {entry.get('error')}\n{entry.get('traceback', '')}\nboot: {guest.get('_boot')}"
-    return entry["details"]
 
 
 def test_guest_loads_uinput_and_our_rules(guest):

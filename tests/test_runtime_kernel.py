@@ -4,30 +4,11 @@ the reason, only where qemu cannot be installed at all."""
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from kernel.vm import KernelUnavailable, guest_results  # noqa: E402
+from conftest import passed
 
 pytestmark = pytest.mark.kernel
-
-
-@pytest.fixture(scope="session")
-def guest() -> dict:
-    try:
-        return guest_results()
-    except KernelUnavailable as exc:
-        pytest.skip(reason=f"cannot boot a real kernel here: {exc}")
-
-
-def passed(guest: dict, name: str) -> dict:
-    entry = guest.get(name)
-    assert entry is not None, f"the guest did not run {name} (setup: {guest.get('setup')})"
-    assert entry["ok"], f"{name}: {entry.get('error')}\n{entry.get('traceback', '')}\nboot: {guest.get('_boot')}"
-    return entry["details"]
 
 
 def test_run_drives_the_gamepad_exactly_as_the_profile_says(guest):

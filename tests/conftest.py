@@ -1,0 +1,29 @@
+"""Shared fixtures: the one real-kernel boot per test session (tests/kernel/vm.py)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from kernel.vm import KernelUnavailable, guest_results  # noqa: E402
+
+
+@pytest.fixture(scope="session")
+def guest() -> dict:
+    """The JSON results of every guest check (tests/kernel/checks_*.py), from one boot of Debian's
+    kernel under qemu. Skips, with the reason, only where qemu cannot be installed at all."""
+    try:
+        return guest_results()
+    except KernelUnavailable as exc:
+        pytest.skip(reason=f"cannot boot a real kernel here: {exc}")
+
+
+def passed(guest: dict, name: str) -> dict:
+    """The details of guest check ``name``, failing the test with the guest's error if it failed."""
+    entry = guest.get(name)
+    assert entry is not None, f"the guest did not run {name} (setup: {guest.get('setup')})"
+    assert entry["ok"], f"{name}: {entry.get('error')}\n{entry.get('traceback', '')}\nboot: {guest.get('_boot')}"
+    return entry["details"]
