@@ -106,3 +106,23 @@ def test_equal_maxima_keep_one_per_neighbourhood():
     mags = np.array([1.0, 5.0, 5.0, 1.0])
     kept = local_maxima(pts, mags, r_px=30.0, n_min=4)
     assert list(kept) == [1]
+
+
+def test_a_wide_push_the_homography_absorbs_falls_back_to_the_field_peak():
+    # a displacement falloff far wider than r (a multi-finger push dragging most of the gel):
+    # a homography models it, so no outlier is left to carry a contact
+    rest = grid()
+    centre = rest[np.argmin(np.sum((rest - [173.0, 130.0]) ** 2, axis=1))]
+    cur = rest + bump(rest, centre, (15.0, -5.0), sigma=60.0)
+    assert detect_contacts(rest, cur).count == 0
+    contacts = detect_contacts(rest, cur, field_fallback=True)
+    assert contacts.count == 1
+    np.testing.assert_allclose(contacts.points_px[0], centre + [15.0, -5.0], atol=1e-6)
+
+
+def test_the_field_fallback_leaves_found_contacts_alone():
+    rest = grid()
+    centre = rest[np.argmin(np.sum((rest - [183.0, 120.0]) ** 2, axis=1))]
+    cur = rest + bump(rest, centre, (6.0, -3.0))
+    a, b = detect_contacts(rest, cur), detect_contacts(rest, cur, field_fallback=True)
+    np.testing.assert_array_equal(a.indices, b.indices)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.pipeline.gesture import estimate_gesture, fit_similarity, markers_near
+from neurotouch_hid.pipeline.gesture import estimate_gesture, fit_similarity, markers_near, weighted_intensity
 from neurotouch_hid.sensor import SensorGeometry
 
 SENSORS = {
@@ -114,3 +114,28 @@ def test_similarity_is_fitted_about_the_origin():
     sim = fit_similarity(rest, cur, np.array([100.0, 100.0]), 1.0)
     assert sim.scale == pytest.approx(1.2, abs=1e-5)
     np.testing.assert_allclose(sim.translation_px, 0.0, atol=1e-4)
+
+
+def test_proximity_weighted_intensity_reads_the_contact_points_displacement():
+    # a finger's Gaussian field: the contact marker moves 8 px, its neighbours less
+    sensor = SENSORS["mirrored"]
+    rest = grid(sensor)
+    centre = rest[np.argmin(np.sum((rest - CENTRE) ** 2, axis=1))]
+    w = np.exp(-np.sum((rest - centre) ** 2, axis=1) / (2 * 12.0**2))
+    cur = rest + w[:, None] * np.array([8.0, 0.0])
+    contact = (centre + [8.0, 0.0])[None]
+    paper = estimate_gesture(rest, cur, None, contact, sensor, r_px=30.0)
+    peak = estimate_gesture(rest, cur, None, contact, sensor, r_px=30.0, intensity_sigma_px=0.5)
+    assert peak.intensity_mm == pytest.approx(8.0 / sensor.px_per_mm, rel=1e-6)
+    assert paper.intensity_mm < 0.8 * peak.intensity_mm  # the uniform mean reads the falloff too
+    assert peak.gesture is paper.gesture is GestureType.PUSH
+
+
+def test_weighted_intensity_is_the_paper_mean_without_sigma_and_weights_by_distance():
+    rest = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]])
+    cur = rest + [[4.0, 0.0], [0.0, 2.0], [1.0, 0.0]]
+    contacts = np.array([[4.0, 0.0]])
+    assert weighted_intensity(rest, cur, contacts, None) == pytest.approx(7.0 / 3.0)
+    d2 = np.array([0.0, 6.0**2 + 2.0**2, 17.0**2])
+    weights = np.exp(-d2 / (2 * 5.0**2))
+    assert weighted_intensity(rest, cur, contacts, 5.0) == pytest.approx((weights * [4, 2, 1]).sum() / weights.sum())

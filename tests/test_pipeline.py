@@ -133,6 +133,30 @@ def test_frames_decide_resting_and_rest_resets_the_tracker(rest_image):
     np.testing.assert_allclose(pipeline.marker_positions(), pipeline.rest_px, atol=1e-4)
 
 
+def test_moving_markers_overrule_a_stale_resting_verdict(rest_image):
+    pipeline = GesturePipeline(SENSOR, PipelineConfig(motion_override_px=1.0))
+    pipeline.process(Frame(0, rest_image))
+    assert pipeline.resting.resting
+    assert [e.resting for e in pipeline.process(events_at(1, 15000))] == [True]  # nothing moved
+    # a finger pushed after the resting frame (a Gaussian field): the events moved the blobs
+    w = np.exp(-np.sum((pipeline.rest_px - SENSOR.gel_center_px) ** 2, axis=1) / (2 * 12.0**2))
+    moved = pipeline.rest_px + w[:, None] * [5.0, 0.0]
+    pipeline.tracker.reset(moved)
+    (estimate,) = pipeline.process(events_at(25000))
+    assert not estimate.resting and estimate.gesture is GestureType.PUSH and estimate.n_contacts >= 1
+    assert pipeline.resting.resting  # the APS verdict itself is unchanged ...
+    pipeline.process(Frame(40000, rest_image))  # ... until the next frame judges (and resets)
+    assert [e.resting for e in pipeline.process(events_at(45000))] == [True]
+
+
+def test_without_motion_override_a_resting_verdict_holds_until_the_next_frame(rest_image):
+    pipeline = GesturePipeline(SENSOR, PipelineConfig(motion_override_px=None))
+    pipeline.process(Frame(0, rest_image))
+    pipeline.process(events_at(1))
+    pipeline.tracker.reset(pipeline.rest_px + [4.0, 0.0])
+    assert [(e.resting, e.gesture) for e in pipeline.process(events_at(15000))] == [(True, GestureType.NONE)]
+
+
 def test_set_resting_from_another_thread_is_applied_at_the_next_item(rest_image):
     pipeline = GesturePipeline(SENSOR, PipelineConfig(detect_resting=False))
     pipeline.process(Frame(0, rest_image))

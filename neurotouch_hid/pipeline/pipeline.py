@@ -12,6 +12,16 @@ Stages, one module each:
 5. resting (``resting.py``): Chamfer distance of each APS frame to the reference; at rest the
    gesture is ``none`` and the tracker is reset to the rest positions.
 
+Stale resting verdicts (``PipelineConfig.motion_override_px``, not in the paper): a verdict
+comes from an APS frame, i.e. is up to 40 ms old at 25 Hz, so a gesture starting after a
+resting frame would be answered ``none``/resting for up to four 10 ms windows. The paper
+(section "Resting Position Detection") uses the APS frames because the scene is static at rest,
+and the events for dynamics; so the event path may overrule a resting verdict: the tracker was
+reset to the rest positions with that verdict, and when, at a window's end, at least ``n_min``
+tracked markers have moved more than ``motion_override_px`` from rest, the window is processed
+as a gesture window (``resting`` False). The verdict itself stays in force (no further tracker
+reset); the next APS frame's verdict decides again.
+
 Windows: ``window_us`` long (10 ms default, paper, section "Runtime Performance"; anything
 down to 1 ms), aligned on multiples of ``window_us`` from the first event after the reference
 frame. An estimate is emitted for every window end crossed, even by a window without events,
@@ -72,6 +82,14 @@ class PipelineConfig:
             markers): on the simulated gel 0.6 let one finger's markers win the consensus, so
             pinch, zoom and twists read as push on ~45 % of their windows, against ~10 % at 2.0.
         min_gesture_reproj_px: floor of that threshold (px).
+        intensity_sigma_px: the intensity profile (``gesture.weighted_intensity``): None = the
+            paper's mean ||v_i|| over A; > 0 = a mean weighted by proximity to the contacts
+            (Gaussian of this sigma, px), which estimates the contact points' own displacement.
+        field_fallback: when the homography's outliers give no contact, look for the local
+            maxima over the whole displacement field (``contacts.py``; not in the paper).
+        motion_override_px: None, or the displacement from rest (px) beyond which at least
+            ``n_min`` tracked markers overrule a resting verdict (module docstring; not in the
+            paper).
         marker_threshold: grey level of marker pixels for marker detection and resting
             detection (0..255); None = Otsu's threshold on the reference frame.
         reference_attempts: how many first APS frames may fail to show a marker grid (e.g. an
@@ -98,6 +116,9 @@ class PipelineConfig:
     min_intensity_px: float = 0.5
     gesture_reproj_factor: float = 2.0
     min_gesture_reproj_px: float = 0.5
+    intensity_sigma_px: float | None = None
+    field_fallback: bool = False
+    motion_override_px: float | None = None
     marker_threshold: int | None = None
     reference_attempts: int = 3
     detect_resting: bool = True
@@ -297,16 +318,25 @@ class GesturePipeline:
             self.on_window(estimate)
         return estimate
 
+    def _moving(self, current: np.ndarray, valid: np.ndarray) -> bool:
+        """True when ``motion_override_px`` is set and at least ``n_min`` valid markers are
+        further than it from rest (the event path sees a gesture the APS verdict missed)."""
+        threshold = self.config.motion_override_px
+        if threshold is None:
+            return False
+        d = current[valid] - self.rest_px[valid]
+        return int(np.count_nonzero(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] > threshold * threshold)) >= self.config.n_min
+
     def _estimate(self, t_us: int) -> GestureEstimate:
-        if self._resting.resting:
-            return GestureEstimate(t_us=t_us, gesture=GestureType.NONE, resting=True)
         c = self.config
         current = self.tracker.positions_px
         valid = self.tracker.valid
+        if self._resting.resting and not self._moving(current, valid):
+            return GestureEstimate(t_us=t_us, gesture=GestureType.NONE, resting=True)
         begin = self._clock()
         contacts = detect_contacts(
             self.rest_px, current, valid, r_px=c.r_px, a=c.a, n_min=c.n_min, max_iters=c.homography_max_iters,
-            method=c.homography_method,
+            method=c.homography_method, field_fallback=c.field_fallback,
         )
         self._record("contacts", begin)
         begin = self._clock()
@@ -320,6 +350,7 @@ class GesturePipeline:
             reproj_factor=c.gesture_reproj_factor,
             min_reproj_px=c.min_gesture_reproj_px,
             min_intensity_px=c.min_intensity_px,
+            intensity_sigma_px=c.intensity_sigma_px,
         )
         self._record("gesture", begin)
         if result.gesture is GestureType.NONE:
