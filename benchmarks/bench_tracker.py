@@ -20,6 +20,7 @@ Run: ``python3 benchmarks/bench_tracker.py`` (``--help`` for options).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import tempfile
 import time
@@ -273,9 +274,20 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--stress-windows", type=int, default=100, help="10 ms windows of 120 k events")
     parser.add_argument("--meanshift-stress-windows", type=int, default=20)
+    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                        help="a TrackerConfig field (float), e.g. --set max_offset_px=0 (repeatable)")
     args = parser.parse_args()
     console = Console()
-    config = TrackerConfig()
+    fields = {f.name for f in dataclasses.fields(TrackerConfig)}
+    overrides = {}
+    for item in args.set:
+        name, _, value = item.partition("=")
+        if name not in fields:
+            parser.error(f"--set {item}: {name!r} is not a TrackerConfig field ({', '.join(sorted(fields))})")
+        overrides[name] = float(value)
+    config = TrackerConfig(**overrides)
+    if overrides:
+        console.print(f"TrackerConfig overrides: {overrides}")
 
     with tempfile.TemporaryDirectory(prefix="bench-tracker-") as tmp:
         folder = args.dataset

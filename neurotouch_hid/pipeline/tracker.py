@@ -10,8 +10,11 @@ that linear filter, per blob and per event:
   trail it, so an ON event measures p + q and an OFF event p - q);
 * prediction over the time dt since the blob's last update: a constant-velocity model whose
   velocity decays with time constant ``velocity_tau_us`` (a blob that stops producing events has
-  stopped moving), process noise scaled by dt;
-* measurement: the event's pixel, H = [1, 0, +-1], noise Lambda^2 = ``sigma_px``^2.
+  stopped moving), process noise scaled by dt, at most ``max_gap_us`` (a pause in a blob's
+  events is evidence that it stands still, not growing uncertainty);
+* measurement: the event's pixel, H = [1, 0, +-1], noise Lambda^2 = ``sigma_px``^2;
+* constraint: |q| <= ``max_offset_px`` (about the marker's radius), enforced by projection after
+  each update.
 
 The prediction's advance between two events of a blob is capped at ``max_step_px`` (a marker moves
 a fraction of a pixel between two of its events), which keeps the filter linear in practice.
@@ -81,6 +84,18 @@ class TrackerConfig:
             blob moving at v px/us adds (v * frame_motion_us)^2 to the detection's noise.
         merge_px: two blobs closer than this are both lost.
         gel_margin_px: a blob farther than gel radius + margin from the gel centre is lost.
+        max_offset_px: largest length (px) of the polarity offset q: an ON event cannot lead a
+            marker's centre by more than its radius (1 mm marker, 1.25 px at 2.5 px/mm) plus its
+            blurred edge. After each update a longer q is shortened to this length (projection
+            onto the constraint). Without it (0 = no bound), q and p drift apart along their
+            weakly observed directions during a held gesture (few events, mostly of one
+            polarity), and a blob squeezed ~4 px from its neighbours slides onto a neighbour's
+            marker (docs/performance.md, Tracker).
+        max_gap_us: the process noise of a prediction over a longer pause in a blob's events is
+            that of this pause (us; 0 = no bound). A marker that moves makes events: a pause says
+            it did not move, so its uncertainty must not keep growing. Without the bound, the
+            first events after a long pause of a held marker (its tremor, a squeezed
+            neighbour's edge) meet a large covariance and throw the blob px away.
     """
 
     sigma_px: float = 1.0
@@ -100,10 +115,13 @@ class TrackerConfig:
     frame_motion_us: float = 4_000.0
     merge_px: float = 2.0
     gel_margin_px: float = 4.0
+    max_offset_px: float = 1.5
+    max_gap_us: float = 10_000.0
 
 
 # Indices into the float parameter vector handed to the numba kernel.
-_P_SIGMA2, _P_QPOS, _P_QVEL, _P_QOFF, _P_TAUV, _P_TAUR, _P_MINRATE, _P_MERGE2, _P_CX, _P_CY, _P_R2, _P_ASSOC2, _P_MAXSTEP = range(13)
+(_P_SIGMA2, _P_QPOS, _P_QVEL, _P_QOFF, _P_TAUV, _P_TAUR, _P_MINRATE, _P_MERGE2, _P_CX, _P_CY, _P_R2, _P_ASSOC2, _P_MAXSTEP,
+ _P_MAXOFF2, _P_MAXGAP) = range(15)
 # Columns of the per-blob state: position, velocity (px/ms), polarity offset (px).
 _PX, _PY, _VX, _VY, _QX, _QY = range(6)
 # Columns of the shared per-axis covariance [p, v, q]: P00 P01 P02 P11 P12 P22.
@@ -223,7 +241,7 @@ def _paint_all(state, valid, cell, label, offs, n_offs):
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _predict(state, cov, i, dt, inv_tau_v, max_step2, q_pos, q_vel, q_off):
+def _predict(state, cov, i, dt, inv_tau_v, max_step2, q_pos, q_vel, q_off, max_gap):
     """Predict blob ``i`` over ``dt`` ms with the damped constant-velocity model (state and
     covariance in place)."""
     d = 1.0 / (1.0 + dt * inv_tau_v)
@@ -240,12 +258,13 @@ def _predict(state, cov, i, dt, inv_tau_v, max_step2, q_pos, q_vel, q_off):
     c01 = cov[i, _C01]
     c11 = cov[i, _C11]
     c12 = cov[i, _C12]
-    cov[i, _C00] += 2.0 * a * c01 + a * a * c11 + q_pos * dt
+    dn = min(dt, max_gap)
+    cov[i, _C00] += 2.0 * a * c01 + a * a * c11 + q_pos * dn
     cov[i, _C01] = d * (c01 + a * c11)
     cov[i, _C02] += a * c12
-    cov[i, _C11] = d * d * c11 + q_vel * dt
+    cov[i, _C11] = d * d * c11 + q_vel * dn
     cov[i, _C12] = d * c12
-    cov[i, _C22] += q_off * dt
+    cov[i, _C22] += q_off * dn
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -271,6 +290,8 @@ def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, 
     min_rate = prm[_P_MINRATE]
     assoc2 = prm[_P_ASSOC2]
     max_step2 = prm[_P_MAXSTEP] ** 2
+    max_off2 = prm[_P_MAXOFF2]
+    max_gap = prm[_P_MAXGAP]
     h, w = label.shape[1], label.shape[2]
     for k in range(ts.shape[0]):
         x = np.int64(xs[k])
@@ -299,7 +320,7 @@ def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, 
         if t_upd[i] >= 0:
             dt = max(t - t_upd[i], 0) * 1e-3
         t_upd[i] = t
-        _predict(state, cov, i, dt, inv_tau_v, max_step2, q_pos, q_vel, q_off)
+        _predict(state, cov, i, dt, inv_tau_v, max_step2, q_pos, q_vel, q_off, max_gap)
         c00 = cov[i, _C00]
         c01 = cov[i, _C01]
         c02 = cov[i, _C02]
@@ -322,6 +343,13 @@ def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, 
         cov[i, _C11] = c11 - k1 * h1
         cov[i, _C12] = c12 - k1 * h2
         cov[i, _C22] = c22 - k2 * h2
+        qx = state[i, _QX]
+        qy = state[i, _QY]
+        q2 = qx * qx + qy * qy
+        if q2 > max_off2:
+            f = math.sqrt(max_off2 / q2)
+            state[i, _QX] = qx * f
+            state[i, _QY] = qy * f
         # Repaint only when needed (checked inline: a call passing the arrays costs more than the
         # whole Kalman update).
         px = state[i, _PX]
@@ -376,7 +404,7 @@ def _correct(det, match, t, state, cov, t_upd, valid, cell, label, offs, n_offs,
             continue
         if t >= 0 and t_upd[i] >= 0:
             _predict(state, cov, i, max(t - t_upd[i], 0) * 1e-3, 1.0 / prm[_P_TAUV], prm[_P_MAXSTEP] ** 2,
-                     prm[_P_QPOS], prm[_P_QVEL], prm[_P_QOFF])
+                     prm[_P_QPOS], prm[_P_QVEL], prm[_P_QOFF], prm[_P_MAXGAP])
             t_upd[i] = t
         vx = state[i, _VX]
         vy = state[i, _VY]
@@ -493,6 +521,8 @@ class BlobTracker:
                 r * r,
                 c.assoc_px**2,
                 c.max_step_px,
+                c.max_offset_px**2 if c.max_offset_px > 0 else np.inf,
+                c.max_gap_us * 1e-3 if c.max_gap_us > 0 else np.inf,
             ],
             dtype=np.float64,
         )
