@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from neurotouch_hid.pipeline.contacts import detect_contacts, local_maxima
+from neurotouch_hid.pipeline.contacts import detect_contacts, local_maxima, refine_peak
 from neurotouch_hid.sensor import SensorGeometry
 
 SENSOR = SensorGeometry()
@@ -126,3 +126,27 @@ def test_the_field_fallback_leaves_found_contacts_alone():
     cur = rest + bump(rest, centre, (6.0, -3.0))
     a, b = detect_contacts(rest, cur), detect_contacts(rest, cur, field_fallback=True)
     np.testing.assert_array_equal(a.indices, b.indices)
+
+
+def test_refinement_finds_a_finger_between_markers():
+    # the finger's centre lies between grid markers (pitch 10 px, one on the gel's centre)
+    rest = grid()
+    centre = np.asarray(SENSOR.gel_center_px, dtype=float) + [3.0, -3.0]
+    direction = np.array([6.0, -3.0])
+    cur = rest + bump(rest, centre, direction)
+    truth = centre + direction
+    paper = detect_contacts(rest, cur)
+    refined = detect_contacts(rest, cur, refine_px=15.0)
+    assert refined.count == paper.count == 1
+    np.testing.assert_array_equal(refined.indices, paper.indices)
+    assert np.linalg.norm(paper.points_px[0] - truth) > 2.0
+    assert np.linalg.norm(refined.points_px[0] - truth) < 1.0
+
+
+def test_refinement_keeps_the_marker_without_a_maximum_or_enough_markers():
+    rest = grid()
+    peak = int(np.argmin(np.sum((rest - SENSOR.gel_center_px) ** 2, axis=1)))
+    flat = np.tile([3.0, 0.0], (len(rest), 1))  # a plane: no maximum
+    np.testing.assert_allclose(refine_peak(rest, flat, peak, 15.0), rest[peak] + [3.0, 0.0])
+    few = bump(rest, rest[peak], (3.0, 0.0))
+    np.testing.assert_allclose(refine_peak(rest, few, peak, 9.0), rest[peak] + few[peak])  # 5 markers only

@@ -111,7 +111,7 @@ def run_sequence(
     Args:
         dataset: the dataset folder (DATASET.md).
         name: the sequence (``name.aedat4`` and ``name.labels.csv``).
-        config: PipelineConfig (None: the defaults, the paper's hyperparameters).
+        config: PipelineConfig (None: the defaults, tuned; see PipelineConfig).
         predictions_dir: if given, write ``name.jsonl`` there (DATASET.md "Predictions").
         on_time: called now and then with the microseconds processed since the recording's start.
     Raises:

@@ -13,9 +13,18 @@ part of the gel almost rigidly; the homography then models the fingers' motion i
 dynamic threshold (``a`` x the large mean displacement) is loose, and the few outliers left are
 scattered, so no neighbourhood holds ``n_min`` of them and no contact is found although the gel
 is strongly deformed (measured on the quick preset's 3-finger push, seed 0: ``none`` on ~65 %
-of its windows above 2 mm). When the outliers give no contact, the local maxima are taken over
-the whole displacement field (every valid marker is a candidate): the contact point is, by the
-paper's definition, "the location where the silicone gel experiences the greatest deformation".
+of its windows above 2 mm). When the outliers give no contact, the rest model (no motion, the
+identity) takes the homography's place: the candidates are the markers it rejects with the same
+dynamic threshold, ``||v_i|| > a * mean_i ||v_i||``, and their local maxima are the contacts --
+the contact point is, by the paper's definition, "the location where the silicone gel
+experiences the greatest deformation".
+
+Sub-marker refinement (not in the paper, ``refine_px``): the paper's contact point is the
+position of the marker of peak displacement, so it is quantised to the 4 mm marker grid (the
+paper's labels share that 4 mm uncertainty). :func:`refine_peak` instead fits a quadratic
+surface to ||v|| and to v over the markers within ``refine_px`` of the peak marker (rest
+positions), takes the surface's maximum (when it is one, near the peak marker) and returns where
+that gel point is now (its rest position plus the fitted v there).
 
 Everything here is in the image frame (px).
 """
@@ -35,7 +44,8 @@ class Contacts:
     Attributes:
         indices: (K,) int64, indices of the markers that are contact points (ordered by
             decreasing displacement).
-        points_px: (K, 2) float64, their current positions, image frame (px).
+        points_px: (K, 2) float64, their current positions, image frame (px) (sub-marker
+            refined ones with ``refine_px``, see :func:`refine_peak`).
         candidates: (N,) bool, the RANSAC outliers S (False for markers not valid).
         reproj_threshold_px: the dynamic reprojection threshold used (px); 0 when RANSAC did
             not run.
@@ -132,6 +142,43 @@ def local_maxima(points_px: np.ndarray, magnitudes: np.ndarray, r_px: float, n_m
     return np.asarray(kept, dtype=np.int64)
 
 
+def refine_peak(rest_px: np.ndarray, displacement_px: np.ndarray, peak: int, radius_px: float) -> np.ndarray:
+    """Sub-marker position of a displacement peak (see the module docstring).
+
+    Args:
+        rest_px: (M, 2) float, rest positions of valid markers (px, image frame).
+        displacement_px: (M, 2) float, their displacements v (px).
+        peak: index (into the M markers) of the peak marker.
+        radius_px: markers whose rest position is within this of the peak's take part (px).
+    Returns:
+        (2,) float64, the current position (px) of the gel point of maximum ||v||: from the
+        least-squares quadratic surfaces ``f(x, y) = c0 + c1 x + c2 y + c3 x^2 + c4 y^2 + c5 x y``
+        of ||v|| and of v about the peak's rest position. The peak marker's own current position
+        when fewer than 6 markers take part, the surface has no maximum, or its maximum lies
+        further than half the radius from the peak marker.
+    """
+    rest = np.asarray(rest_px, dtype=np.float64)
+    v = np.asarray(displacement_px, dtype=np.float64)
+    fallback = rest[peak] + v[peak]
+    rel = rest - rest[peak]
+    near = rel[:, 0] * rel[:, 0] + rel[:, 1] * rel[:, 1] <= radius_px * radius_px
+    if np.count_nonzero(near) < 6:
+        return fallback
+    x, y = rel[near, 0], rel[near, 1]
+    design = np.stack([np.ones_like(x), x, y, x * x, y * y, x * y], axis=1)
+    values = np.column_stack([np.hypot(v[near, 0], v[near, 1]), v[near]])
+    coef, *_ = np.linalg.lstsq(design, values, rcond=None)
+    c = coef[:, 0]
+    hessian = np.array([[2 * c[3], c[5]], [c[5], 2 * c[4]]])
+    if hessian[0, 0] >= 0 or np.linalg.det(hessian) <= 0:  # not a maximum
+        return fallback
+    top = np.linalg.solve(hessian, -c[1:3])
+    if top @ top > (0.5 * radius_px) ** 2:
+        return fallback
+    basis = np.array([1.0, top[0], top[1], top[0] ** 2, top[1] ** 2, top[0] * top[1]])
+    return rest[peak] + top + basis @ coef[:, 1:]
+
+
 def detect_contacts(
     rest_px: np.ndarray,
     current_px: np.ndarray,
@@ -144,6 +191,7 @@ def detect_contacts(
     max_iters: int = 2000,
     method: str = "usac_fast",
     field_fallback: bool = False,
+    refine_px: float | None = None,
 ) -> Contacts:
     """The contact points of one window (paper, section "Contact Point Detection").
 
@@ -158,8 +206,11 @@ def detect_contacts(
         min_mean_displacement_px: below this mean displacement (px) nothing moves and there is
             no contact (RANSAC needs a positive threshold).
         max_iters, method: RANSAC's iteration cap and variant (see :func:`homography_outliers`).
-        field_fallback: when the outliers give no contact, take the local maxima over all valid
-            markers (see the module docstring); ``candidates`` then still holds the outliers.
+        field_fallback: when the outliers give no contact, take the local maxima among the
+            markers displaced by more than the threshold (the rest model's outliers, see the
+            module docstring); ``candidates`` still holds the homography's outliers.
+        refine_px: None: a contact point is its marker's position (paper); > 0: refined below
+            the marker pitch with the markers within this radius (:func:`refine_peak`).
     Returns:
         :class:`Contacts`. Degenerate inputs give no contact: fewer than 4 valid markers (a
         homography needs 4), or a mean displacement below ``min_mean_displacement_px``
@@ -189,4 +240,10 @@ def detect_contacts(
     if len(maxima) == 0 and field_fallback:
         moved = magnitudes > threshold  # outliers of the rest model (identity), same threshold
         maxima = idx[moved][local_maxima(cur_ok[moved], magnitudes[moved], r_px, n_min)]
-    return Contacts(indices=maxima, points_px=cur[maxima].copy(), candidates=candidates, reproj_threshold_px=threshold)
+    points = cur[maxima].copy()
+    if refine_px is not None and len(maxima):
+        position = np.full(n, -1, dtype=np.int64)
+        position[idx] = np.arange(len(idx))
+        v_ok = cur_ok - rest_ok
+        points = np.array([refine_peak(rest_ok, v_ok, int(position[i]), refine_px) for i in maxima])
+    return Contacts(indices=maxima, points_px=points, candidates=candidates, reproj_threshold_px=threshold)
