@@ -17,6 +17,20 @@ def test_run_drives_the_gamepad_exactly_as_the_profile_says(guest):
     assert details["states"] > 20 and details["with_button"] > 0
 
 
+def test_sdl_reads_the_run_as_a_gamecontroller_exactly_as_the_profile_says(guest):
+    details = passed(guest, "checks_runtime.check_sdl_reads_run_like_the_profile")
+    assert details["ID_INPUT_JOYSTICK"] == "1"
+    assert details["evdev_name"] == details["profile_device_name"]
+    assert details["guid"][8:12] == "5e04" and details["guid"][16:20] == "8e02"  # 045e:028e, little-endian
+    assert details["mapping"]["a"] and details["mapping"]["lefttrigger"]  # SDL has a GameController mapping
+    assert details["evdev_states"] == details["expected_states"] > 20
+    assert details["sdl_moving_states"] > 1 and details["sdl_saw_unplug"]
+    held = details["sdl_held_raw"]
+    assert held["a"] and held["start"] and not held["b"]
+    assert held["leftx"] == details["held_evdev"]["ABS_X"] and held["lefty"] == details["held_evdev"]["ABS_Y"]
+    assert round(held["triggerleft"] * 255 / 32767) == details["held_evdev"]["ABS_Z"] > 0
+
+
 def test_sigterm_ends_run_with_exit_0_and_nothing_pressed(guest):
     details = passed(guest, "checks_runtime.check_run_sigterm_releases_everything")
     assert details["exit_code"] == 0 and details["ID_INPUT_JOYSTICK"] == "1"

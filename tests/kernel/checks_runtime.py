@@ -60,8 +60,13 @@ def _gesture(t_us: int, gesture: GestureType, level_mm: float) -> GestureEstimat
     return GestureEstimate(t_us=t_us, gesture=gesture, resting=False, intensity_mm=level_mm, **kw)
 
 
-def gesture_sequence(hold_s: float = 0.4, lead_in_s: float = 0.5) -> list[GestureEstimate]:
-    """Rest, then each gesture: ramp up to 6 mm in 0.3 s, hold, ramp down in 0.2 s, rest 0.3 s."""
+ALL_GESTURES = (GestureType.PUSH, GestureType.TWIST_CCW, GestureType.ZOOM, GestureType.PINCH, GestureType.TWIST_CW)
+
+
+def gesture_sequence(hold_s: float = 0.4, lead_in_s: float = 0.5, gestures: tuple[GestureType, ...] = ALL_GESTURES,
+                     last_hold_s: float | None = None) -> list[GestureEstimate]:
+    """Rest, then each gesture: ramp up to 6 mm in 0.3 s, hold (the last one ``last_hold_s`` if
+    given), ramp down in 0.2 s, rest 0.3 s."""
     out: list[GestureEstimate] = []
     t = 1_000_000
 
@@ -73,21 +78,21 @@ def gesture_sequence(hold_s: float = 0.4, lead_in_s: float = 0.5) -> list[Gestur
             t += STEP_US
 
     add(lead_in_s, GestureType.NONE, lambda f: 0.0)
-    for gesture in (GestureType.PUSH, GestureType.TWIST_CCW, GestureType.ZOOM, GestureType.PINCH, GestureType.TWIST_CW):
+    for i, gesture in enumerate(gestures):
         add(0.3, gesture, lambda f: 6.0 * f)
-        add(hold_s, gesture, lambda f: 6.0)
+        add(last_hold_s if last_hold_s is not None and i == len(gestures) - 1 else hold_s, gesture, lambda f: 6.0)
         add(0.2, gesture, lambda f: 6.0 * (1 - f))
         add(0.3, GestureType.NONE, lambda f: 0.0)
     return out
 
 
-def _write(folder: Path, estimates: list[GestureEstimate]) -> tuple[Path, Path]:
+def _write(folder: Path, estimates: list[GestureEstimate], profile_text: str = PROFILE) -> tuple[Path, Path]:
     from neurotouch_hid.output.jsonl import write_predictions
 
     preds = folder / "gestures.jsonl"
     write_predictions(preds, estimates)
     profile = folder / "guestcheck.yaml"
-    profile.write_text(PROFILE)
+    profile.write_text(profile_text)
     return preds, profile
 
 
@@ -116,14 +121,18 @@ def _changes(keys: list[tuple]) -> list[tuple]:
     return out
 
 
-def _expected_states(preds: Path, profile: Path, folder: Path) -> list[tuple]:
-    """The same estimates through ``neurotouch-hid run --output jsonl --fast``."""
+def _expected_lines(preds: Path, profile: Path, folder: Path) -> list[dict]:
+    """The same estimates through ``neurotouch-hid run --output jsonl --fast``: its state lines."""
     out = folder / "expected.jsonl"
     proc = guestlib.sh(_cli("run", "--source", str(preds), "--profile", str(profile), "--output", "jsonl",
                             "--fast", "--out", str(out)), timeout=TIMEOUT_S, env=_env(), cwd=str(REPO))
     assert proc.returncode == 0, f"run --output jsonl failed: {proc.stderr[-2000:]}"
-    lines = [json.loads(line) for line in out.read_text().splitlines() if line.strip()]
-    return [_state_key(d["axes"], d["buttons"]) for d in lines]
+    return [json.loads(line) for line in out.read_text().splitlines() if line.strip()]
+
+
+def _expected_states(preds: Path, profile: Path, folder: Path) -> list[tuple]:
+    """:func:`_expected_lines` as state keys."""
+    return [_state_key(d["axes"], d["buttons"]) for d in _expected_lines(preds, profile, folder)]
 
 
 class PadWatcher:
@@ -242,6 +251,219 @@ def check_run_sigterm_releases_everything() -> dict:
     assert not set(_our_devices()) - before, "the device outlived the process"
     return {"exit_code": proc.returncode, "ID_INPUT_JOYSTICK": props.get("ID_INPUT_JOYSTICK"),
             "states_seen": len(watcher.states), "stderr_tail": err.strip().splitlines()[-1:] if err.strip() else []}
+
+
+#: PROFILE plus push mappings onto the other axes and a second button, so that one held push shows
+#: a value on every output SDL reads (sticks, both triggers at part deflection, A and START), and a
+#: device name of the profile's own with the Xbox 360 ids.
+SDL_PROFILE = PROFILE + """\
+  push_rx: {input: push_x, output: ABS_RX, deadzone_mm: 0.3, saturation_mm: 8.0}
+  push_ry: {input: push_y, output: ABS_RY, deadzone_mm: 0.3, saturation_mm: 4.0}
+  push_lt: {input: push_intensity, output: ABS_Z, deadzone_mm: 0.3, saturation_mm: 9.0}
+  push_rt: {input: push_intensity, output: ABS_RZ, deadzone_mm: 0.3, saturation_mm: 12.0}
+  start: {input: push_intensity, output: BTN_START, press_mm: 4.0, release_mm: 3.0}
+device: {name: NeuroTouch guest check pad, vendor: 0x045e, product: 0x028e, version: 0x0114}
+"""
+#: SDL GameController axis (sdl_probe.py --watch names) of each evdev axis, Xbox 360 layout.
+SDL_AXES = {"ABS_X": "leftx", "ABS_Y": "lefty", "ABS_RX": "rightx", "ABS_RY": "righty",
+            "ABS_Z": "triggerleft", "ABS_RZ": "triggerright"}
+#: SDL GameController button of each evdev button the SDL check's profile drives.
+SDL_BUTTONS = {"BTN_SOUTH": "a", "BTN_START": "start"}
+_AXIS_INDEX = {name: i for i, name in enumerate(AXES)}
+_BUTTON_INDEX = {name: len(AXES) + i for i, name in enumerate(BUTTONS)}
+
+
+def _sdl_view(key: tuple) -> tuple:
+    """What SDL should read for an evdev state key: the six analogue axes, A, START, and whether
+    any other button or d-pad direction is pressed (the check's profile drives none)."""
+    others = any(key[i] for n, i in _BUTTON_INDEX.items() if n not in SDL_BUTTONS) \
+        or key[_AXIS_INDEX["ABS_HAT0X"]] != 0 or key[_AXIS_INDEX["ABS_HAT0Y"]] != 0
+    return (tuple(key[_AXIS_INDEX[n]] for n in SDL_AXES) + tuple(bool(key[_BUTTON_INDEX[n]]) for n in SDL_BUTTONS)
+            + (bool(others),))
+
+
+#: SDL ignores an axis until its first move of more than this (SDL_joystick.c, SDL_PrivateJoystickAxis:
+#: "don't send motion until there's real activity on this axis"), in SDL's raw -32768..32767 units.
+SDL_MAX_ALLOWED_JITTER = 32767 // 80
+
+
+def _sdl_raw(name: str, value: int) -> int:
+    """An evdev axis value in SDL's joystick units: a -32768..32767 stick as it is, a 0..255
+    trigger scaled onto -32768..32767 (SDL_sysjoystick.c AxisCorrect: 65535 / 255 = 257 per step)."""
+    return 257 * value - 32768 if name in ("ABS_Z", "ABS_RZ") else value
+
+
+def _sdl_expected(keys: list[tuple]) -> list[tuple]:
+    """What SDL reads (:func:`_sdl_view` layout) after each of ``keys`` (one evdev report each,
+    starting from a neutral pad SDL has opened): the state, except that an axis stays at its
+    neutral value until its first move of more than SDL_MAX_ALLOWED_JITTER. (SDL's other rule for
+    an axis at rest at its minimum, a trigger, whose first new value is within a quarter of the
+    centre, is not modelled: an AssertionError says when a sequence reaches it.)"""
+    neutral = _sdl_view(NEUTRAL)
+    moved: set[str] = set()
+    seen: set[str] = set()
+    out = [neutral]
+    for key in keys:
+        view = list(_sdl_view(key))
+        for i, name in enumerate(SDL_AXES):
+            raw = _sdl_raw(name, view[i])
+            if name not in seen and view[i] != neutral[i]:
+                seen.add(name)
+                assert not (raw != _sdl_raw(name, neutral[i]) and neutral[i] == 0 and name in ("ABS_Z", "ABS_RZ")
+                            and abs(raw) < 32767 // 4), f"{name} first moves to {view[i]}: SDL's initial-value rule"
+            if abs(raw - _sdl_raw(name, neutral[i])) > SDL_MAX_ALLOWED_JITTER:
+                moved.add(name)
+            if name not in moved:
+                view[i] = neutral[i]
+        out.append(tuple(view))
+    return out
+
+
+def _from_sdl(values: dict) -> tuple:
+    """An SDL GameController reading back in evdev units (the :func:`_sdl_view` layout).
+
+    SDL maps a -32768..32767 stick 1:1 and a 0..255 trigger onto 0..32767 (SDL_joystick.c
+    AxisCorrect, then SDL_gamecontroller.c's trigger range): rounding ``value * 255 / 32767``
+    gives the evdev trigger value back exactly."""
+    axes = tuple(round(values[s] * 255 / 32767) if n in ("ABS_Z", "ABS_RZ") else values[s] for n, s in SDL_AXES.items())
+    others = any(v for name, v in values.items() if name not in SDL_AXES.values() and name not in SDL_BUTTONS.values())
+    return axes + tuple(bool(values[s]) for s in SDL_BUTTONS.values()) + (others,)
+
+
+def _first_not_in_order(samples: list[tuple], expected: list[tuple]) -> int | None:
+    """Index of the first of ``samples`` that does not follow, in ``expected``, the ones before it
+    (a sample may repeat the expected state the previous one matched), or None: the samples are
+    a subsequence of the expected states, as a reader polling now and then sees them."""
+    j = 0
+    for i, sample in enumerate(samples):
+        while j < len(expected) and expected[j] != sample:
+            j += 1
+        if j == len(expected):
+            return i
+    return None
+
+
+class ProbeLines:
+    """Reads ``sdl_probe.py --watch``'s JSON lines in a thread."""
+
+    def __init__(self, proc: subprocess.Popen):
+        self.proc = proc
+        self.lines: list[dict] = []
+        self.thread = threading.Thread(target=self._loop, daemon=True)
+        self.thread.start()
+
+    def _loop(self) -> None:
+        for line in self.proc.stdout:
+            if line.startswith("{"):
+                self.lines.append(json.loads(line))
+
+    def first(self, key: str) -> dict | None:
+        return next((d for d in self.lines if key in d), None)
+
+    def samples(self) -> list[dict]:
+        return [d for d in list(self.lines) if "v" in d]
+
+
+def check_sdl_reads_run_like_the_profile() -> dict:
+    """A game's view of ``neurotouch-hid run --output gamepad``: SDL2 (pygame), started before the
+    run, sees the device the run creates appear as a GameController with the profile's USB ids,
+    and what it reads while the run replays a sequence (zoom, twist, then a push held with A and
+    START pressed and every axis deflected, until SIGTERM) is, sample by sample and in order, one
+    of the states the same sequence gives through ``--output jsonl``; evdev at the same time
+    reads exactly those states."""
+    from neurotouch_hid.mapping.profile import load_profile
+
+    folder = Path(tempfile.mkdtemp(prefix="runtime-sdl-"))
+    estimates = gesture_sequence(hold_s=0.4, lead_in_s=2.0, last_hold_s=30.0,
+                                 gestures=(GestureType.ZOOM, GestureType.TWIST_CCW, GestureType.PUSH))
+    preds, profile_path = _write(folder, estimates, SDL_PROFILE)
+    hold_t = next(e.t_us for e in estimates if e.gesture is GestureType.PUSH and e.intensity_mm == 6.0)
+    env = dict(os.environ, SDL_VIDEODRIVER="dummy", SDL_AUDIODRIVER="dummy",
+               PYGAME_HIDE_SUPPORT_PROMPT="1", PYTHONPATH=os.pathsep.join(sys.path))
+    probe = subprocess.Popen([sys.executable, str(Path(__file__).resolve().parent / "sdl_probe.py"), "--watch", "200"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    probe_lines = ProbeLines(probe)  # SDL starts (~5 s) while the expected states are computed
+    try:
+        lines = _expected_lines(preds, profile_path, folder)
+    except BaseException:
+        probe.kill()
+        raise
+    expected_keys = [_state_key(d["axes"], d["buttons"]) for d in lines if d["t_us"] <= hold_t]
+    held = expected_keys[-1]
+    expected = _changes(expected_keys) + [NEUTRAL]  # SIGTERM in the held push: neutral
+    sdl_expected = _sdl_expected(expected_keys + [NEUTRAL])
+    assert all(v != n for v, n in zip(_sdl_view(held)[:-1], _sdl_view(NEUTRAL))), \
+        f"the held push does not move every output SDL reads: {_sdl_view(held)}"
+    dev = load_profile(profile_path).device
+    run = watcher = None
+    timings: dict = {}
+    try:
+        ready = guestlib.wait_for(lambda: probe_lines.first("ready") or probe_lines.first("done") or probe.poll() is not None, 150.0)
+        assert isinstance(ready, dict) and ready.get("ready"), f"SDL did not start: {probe_lines.lines} {probe.stderr.read()[-2000:] if probe.poll() is not None else ''}"
+        before = set(_our_devices())
+        t_run = time.monotonic()
+        run = subprocess.Popen(_cli("run", "--source", str(preds), "--profile", str(profile_path), "--output", "gamepad"),
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=str(REPO))
+        found = guestlib.wait_for(lambda: (set(_our_devices()) - before) or run.poll() is not None, 150.0, 0.05)
+        assert found and run.poll() is None, f"no gamepad appeared: {run.stderr.read()[-2000:] if run.poll() is not None else 'timeout'}"
+        node = sorted(set(_our_devices()) - before)[0]
+        watcher = PadWatcher(node)
+        t_device = time.monotonic()
+        evdev_name = watcher.reader.device.name
+        opened = guestlib.wait_for(lambda: probe_lines.first("opened") or probe_lines.first("done"), 60.0)
+        assert opened and "opened" in opened, f"SDL saw no GameController: {probe_lines.lines[-3:]}"
+        timings = {"sdl_init_s": ready["init_seconds"], "run_to_device_s": round(t_device - t_run, 2),
+                   "device_to_sdl_open_s": round(opened["opened"] - t_device, 2)}
+        guestlib.settle()
+        props = guestlib.udev_properties(node)
+        sdl_held = sdl_expected[-2]
+        reached = guestlib.wait_for(lambda: watcher.states[-1] == held and probe_lines.samples()
+                                    and _from_sdl(probe_lines.samples()[-1]["v"]) == sdl_held, 25.0)
+        sdl_last = probe_lines.samples()[-1]["v"] if probe_lines.samples() else None
+        assert reached, (f"the held push was not read back: evdev {watcher.states[-1]}, SDL {sdl_last} "
+                         f"(in evdev units {_from_sdl(sdl_last) if sdl_last else None}), expected {held} / {sdl_held}")
+        run.send_signal(signal.SIGTERM)
+        _, err = run.communicate(timeout=60)
+        probe.wait(timeout=60)
+        probe_lines.thread.join(10)
+        guestlib.wait_for(lambda: watcher.reader.gone or watcher.states[-1] == NEUTRAL, 10.0)
+        watcher.stop()
+    finally:
+        for proc in (run, probe):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+    done = probe_lines.first("done") or {}
+    assert done.get("error") is None, f"sdl_probe: {done}"
+    assert run.returncode == 0, f"run exit code {run.returncode}: {err[-2000:]}"
+    assert done.get("removed"), f"SDL did not see the pad unplugged after the run ended: {done}"
+    assert not set(_our_devices()) - before, "the device outlived the process"
+    assert props.get("ID_INPUT_JOYSTICK") == "1", f"udev does not class the pad as a joystick: {props}"
+    assert evdev_name == dev.name, f"the device is called {evdev_name!r}, the profile says {dev.name!r}"
+
+    guid = bytes.fromhex(opened["guid"])
+    bus, vendor, product, version = (int.from_bytes(guid[i:i + 2], "little") for i in (0, 4, 8, 12))
+    assert (bus, vendor, product, version) == (0x03, dev.vendor, dev.product, dev.version), \
+        f"SDL's GUID {opened['guid']} says bus {bus:04x} {vendor:04x}:{product:04x} v{version:04x}, the profile {dev}"
+
+    got = _changes(watcher.states)
+    first_diff = next((i for i, (a, b) in enumerate(zip(got, expected)) if a != b), None)
+    assert got == expected, (f"evdev read back {len(got)} states, expected {len(expected)}; first difference at "
+                             f"{first_diff}: {got[first_diff] if first_diff is not None else None} vs "
+                             f"{expected[first_diff] if first_diff is not None else None}")
+
+    sdl_states = [_from_sdl(d["v"]) for d in probe_lines.samples()]  # one per change SDL saw
+    assert sdl_states[0] == _sdl_view(NEUTRAL), \
+        f"SDL opened the pad after the sequence had started moving it (lead-in too short?): {sdl_states[0]}, {timings}"
+    bad = _first_not_in_order(sdl_states, sdl_expected)
+    assert bad is None, (f"SDL read {sdl_states[bad]} (evdev units) at its change {bad}: not a state the profile "
+                         f"gives there; SDL so far: {sdl_states[max(0, bad - 3):bad]}; {timings}")
+    moving = [s for s in sdl_states if s != _sdl_view(NEUTRAL)]
+    return {"sdl_controller_name": opened["controller_name"], "sdl_joystick_name": opened["joystick_name"],
+            "profile_device_name": dev.name, "evdev_name": evdev_name, "guid": opened["guid"], "mapping": opened["mapping"],
+            "sdl": ready.get("sdl"), "sdl_states": len(sdl_states), "sdl_moving_states": len(moving),
+            "sdl_held_raw": sdl_last, "held_evdev": dict(zip([*AXES, *BUTTONS], held)),
+            "evdev_states": len(got), "expected_states": len(expected), "sdl_saw_unplug": done.get("removed"),
+            "ID_INPUT_JOYSTICK": props.get("ID_INPUT_JOYSTICK"), **timings}
 
 
 def check_bad_profile_starts_no_device() -> dict:

@@ -1,7 +1,15 @@
-"""Guest helper: create the virtual gamepad, open it with SDL2 (pygame) as a GameController.
+"""Guest helper: open a gamepad with SDL2 (pygame) as a GameController, like a game does.
 
-Prints one JSON line: is_controller, SDL's name/GUID/mapping for it, and the values SDL reads
-after a press (button A, START, left stick right, right trigger) and after neutralise().
+Without arguments: create the virtual gamepad itself and print one JSON line: is_controller,
+SDL's name/GUID/mapping for it, and the values SDL reads after a press (button A, START, left
+stick right, right trigger) and after neutralise().
+
+``--watch SECONDS``: start SDL with no gamepad, print ``{"ready": ...}``, wait for a GameController
+to be plugged in (another process creates it, e.g. ``neurotouch-hid run --output gamepad``), print
+``{"opened": ...}`` (names, GUID, mapping), then one ``{"t": s, "v": {...}}`` line per change of
+what SDL reads (every controller axis and button, SDL's scale), until the controller is unplugged
+or SECONDS pass; last ``{"done": ...}``.
+
 Run with SDL_VIDEODRIVER=dummy.
 """
 
@@ -31,20 +39,27 @@ def poll(pygame, pad_ctl, wanted, timeout_s=10.0):
         time.sleep(0.02)
 
 
+def start_sdl():
+    """Import pygame and start SDL's video (dummy), joystick and game controller subsystems;
+    returns (pygame, pygame._sdl2.controller)."""
+    # pygame imports numpy (surfarray) and pkg_resources when present; the probe needs
+    # neither, and under software emulation they cost ~40 s. Blocked, pygame skips them.
+    sys.modules["numpy"] = sys.modules["pkg_resources"] = None
+    import pygame
+    from pygame._sdl2 import controller
+
+    pygame.display.init()
+    controller.init()
+    return pygame, controller
+
+
 def main() -> dict:
     import subprocess
 
     with VirtualGamepad() as pad:
         subprocess.run(["udevadm", "settle", "--timeout=10"])
         t0 = time.monotonic()
-        # pygame imports numpy (surfarray) and pkg_resources when present; the probe needs
-        # neither, and under software emulation they cost ~40 s. Blocked, pygame skips them.
-        sys.modules["numpy"] = sys.modules["pkg_resources"] = None
-        import pygame
-        from pygame._sdl2 import controller
-
-        pygame.display.init()
-        controller.init()
+        pygame, controller = start_sdl()
         result = {"sdl": ".".join(map(str, pygame.get_sdl_version())), "pygame": pygame.version.ver}
         count = controller.get_count()
         found = [i for i in range(count) if controller.is_controller(i)]
@@ -68,7 +83,61 @@ def main() -> dict:
         return result
 
 
+#: SDL GameController axis and button names (pygame constant suffixes) read by ``--watch``.
+WATCH_AXES = ("LEFTX", "LEFTY", "RIGHTX", "RIGHTY", "TRIGGERLEFT", "TRIGGERRIGHT")
+WATCH_BUTTONS = ("A", "B", "X", "Y", "BACK", "GUIDE", "START", "LEFTSTICK", "RIGHTSTICK",
+                 "LEFTSHOULDER", "RIGHTSHOULDER", "DPAD_UP", "DPAD_DOWN", "DPAD_LEFT", "DPAD_RIGHT")
+
+
+def say(line: dict) -> None:
+    print(json.dumps(line, default=str), flush=True)
+
+
+def watch(seconds: float) -> dict:
+    """``--watch``: see the module docstring. Returns the ``done`` line."""
+    t0 = time.monotonic()
+    pygame, controller = start_sdl()
+    pygame.joystick.init()
+    say({"ready": True, "init_seconds": round(time.monotonic() - t0, 1),
+         "sdl": ".".join(map(str, pygame.get_sdl_version())), "pygame": pygame.version.ver})
+    end = time.monotonic() + seconds
+    index = None
+    while index is None and time.monotonic() < end:
+        pygame.event.pump()
+        index = next((i for i in range(controller.get_count()) if controller.is_controller(i)), None)
+        time.sleep(0.01)
+    if index is None:
+        return {"done": True, "error": f"no GameController appeared within {seconds} s"}
+    ctl = controller.Controller(index)
+    joy = pygame.joystick.Joystick(index)
+    say({"opened": round(time.monotonic(), 3), "controller_name": controller.name_forindex(index),
+         "joystick_name": joy.get_name(), "guid": joy.get_guid(), "mapping": ctl.get_mapping()})
+    axes = [(name.lower(), getattr(pygame, "CONTROLLER_AXIS_" + name)) for name in WATCH_AXES]
+    buttons = [(name.lower(), getattr(pygame, "CONTROLLER_BUTTON_" + name)) for name in WATCH_BUTTONS]
+    last, samples, removed = None, 0, False
+    while time.monotonic() < end:
+        events = pygame.event.get()  # pumps; SDL updates the controller's values from evdev
+        removed = removed or any(e.type == pygame.CONTROLLERDEVICEREMOVED for e in events)
+        if removed or not ctl.attached():
+            removed = True
+            break
+        values = {name: ctl.get_axis(code) for name, code in axes}
+        values.update((name, ctl.get_button(code)) for name, code in buttons)
+        if values != last:
+            say({"t": round(time.monotonic(), 3), "v": values})
+            last, samples = values, samples + 1
+        time.sleep(0.005)
+    return {"done": True, "removed": removed, "changes": samples, "error": None}
+
+
 if __name__ == "__main__":
+    if sys.argv[1:2] == ["--watch"]:
+        try:
+            out = watch(float(sys.argv[2]))
+        except Exception as exc:
+            out = {"done": True, "error": f"{type(exc).__name__}: {exc}"}
+        say(out)
+        sys.exit(0)
     try:
         out = main()
         out.setdefault("error", None)
