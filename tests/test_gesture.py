@@ -139,3 +139,29 @@ def test_weighted_intensity_is_the_paper_mean_without_sigma_and_weights_by_dista
     d2 = np.array([0.0, 6.0**2 + 2.0**2, 17.0**2])
     weights = np.exp(-d2 / (2 * 5.0**2))
     assert weighted_intensity(rest, cur, contacts, 5.0) == pytest.approx((weights * [4, 2, 1]).sum() / weights.sum())
+
+
+def test_a_twist_about_a_missed_centre_is_still_a_twist_with_the_origin_radius():
+    # a twist about CENTRE, but the only contact found lies 13 px off it (a finger missed):
+    # about that wrong origin the rotation shows as a translation of ~ theta * 13 px, more than
+    # the rotation term theta * r (r = 12 px)
+    sensor = SENSORS["mirrored"]
+    rest = grid(sensor)
+    cur = move_in_user_frame(sensor, rest, CENTRE, angle=0.15)
+    contact = (CENTRE + [13.0, 0.0])[None]
+    kwargs = dict(r_px=12.0, min_intensity_px=0.1)
+    paper = estimate_gesture(rest, cur, None, contact, sensor, **kwargs)
+    ours = estimate_gesture(rest, cur, None, contact, sensor, origin_radius_px=10.0, **kwargs)
+    assert paper.gesture is GestureType.PUSH
+    assert ours.gesture is GestureType.TWIST_CCW
+
+
+def test_the_origin_radius_leaves_a_push_a_push():
+    sensor = SENSORS["mirrored"]
+    rest = grid(sensor)
+    cur = move_in_user_frame(sensor, rest, CENTRE, angle=0.02, shift_mm=(2.0, 1.0))
+    result = estimate_gesture(rest, cur, None, CENTRE[None], sensor, r_px=30.0, origin_radius_px=10.0)
+    assert result.gesture is GestureType.PUSH
+    s = result.similarity
+    m = math.hypot(s.scale * math.cos(s.rotation_rad) - 1, s.scale * math.sin(s.rotation_rad))
+    assert s.terms_px(30.0, 10.0)[2] == pytest.approx(np.hypot(*s.translation_px) - 10.0 * m)

@@ -12,6 +12,16 @@ px). Here each term is made a length: the displacement it causes at distance r f
 ``|s - 1| * r`` (px), ``|theta| * r`` (px, the arc; ~ the chord 2 r sin(theta/2) for small
 angles) and ``||t||`` (px). The argmax of those three is the type.
 
+Origin (not in the paper, ``origin_radius_px``): the paper approximates the transformation
+origin by the contact points' mean. When a finger of a twist, pinch or zoom is missed (fingers
+closer than r, one finger dominating), that mean is off the gesture's true centre by some
+distance d, and a rotation or scaling about the true centre reads, about the wrong origin, as
+the same rotation or scaling plus a translation of about m d (m = |s e^{i theta} - 1|), often
+the largest term: such windows read as push. The scale and the angle do not depend on the
+origin; only the translation does. So the translation term may be taken at the best origin
+within ``origin_radius_px`` of the contacts' mean, which has the closed form
+``max(0, ||t|| - m * origin_radius_px)``; a push (m ~ 0) keeps its whole translation.
+
 Orientation: OpenCV's angle is measured in the image frame, whose y axis points down, so a
 positive cv2 angle turns clockwise *as displayed*. Its counter-clockwise-as-displayed angle is
 ``-theta``, and :meth:`SensorGeometry.rotation_image_to_user` turns that into the user frame
@@ -56,14 +66,19 @@ class Similarity:
     rotation_rad: float = 0.0
     translation_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
 
-    def terms_px(self, r_px: float) -> tuple[float, float, float]:
+    def terms_px(self, r_px: float, origin_radius_px: float | None = None) -> tuple[float, float, float]:
         """(scale, rotation, translation) as displacements at distance r (px): the quantities
-        compared to pick the gesture type (see the module docstring)."""
-        return (
-            abs(self.scale - 1.0) * r_px,
-            abs(self.rotation_rad) * r_px,
-            float(np.hypot(*self.translation_px)),
-        )
+        compared to pick the gesture type (see the module docstring).
+
+        ``origin_radius_px``: None = the translation about the fitted origin (paper); else the
+        smallest translation over origins within that distance of it, ``max(0, ||t|| - m rho)``
+        with ``m = |s e^{i theta} - 1|`` (moving the origin by o changes t by (sR - I) o, a
+        scaled rotation of norm m): see the module docstring, "Origin"."""
+        translation = float(np.hypot(*self.translation_px))
+        if origin_radius_px is not None:
+            m = math.hypot(self.scale * math.cos(self.rotation_rad) - 1.0, self.scale * math.sin(self.rotation_rad))
+            translation = max(0.0, translation - m * origin_radius_px)
+        return abs(self.scale - 1.0) * r_px, abs(self.rotation_rad) * r_px, translation
 
 
 @dataclass(frozen=True)
@@ -165,13 +180,16 @@ def fit_similarity(rest_px: np.ndarray, current_px: np.ndarray, origin_px: np.nd
     return Similarity(scale=scale, rotation_rad=theta, translation_px=np.array([matrix[0, 2], matrix[1, 2]], dtype=np.float64))
 
 
-def classify(similarity: Similarity, r_px: float, sensor: SensorGeometry) -> GestureType:
-    """The dominant term of the similarity (paper, eq. "Gesture Type"), terms in px at radius r.
+def classify(
+    similarity: Similarity, r_px: float, sensor: SensorGeometry, origin_radius_px: float | None = None
+) -> GestureType:
+    """The dominant term of the similarity (paper, eq. "Gesture Type"), terms in px at radius r
+    (``origin_radius_px``: see :meth:`Similarity.terms_px`).
 
     A rotation's direction is taken in the user frame (see the module docstring): user angle
     > 0 is counter-clockwise (``TWIST_CCW``), < 0 clockwise (``TWIST_CW``).
     """
-    scale_px, rotation_px, translation_px = similarity.terms_px(r_px)
+    scale_px, rotation_px, translation_px = similarity.terms_px(r_px, origin_radius_px)
     dominant = int(np.argmax([scale_px, rotation_px, translation_px]))
     if dominant == 0:
         return GestureType.ZOOM if similarity.scale > 1.0 else GestureType.PINCH
@@ -199,6 +217,7 @@ def estimate_gesture(
     min_reproj_px: float = 0.5,
     min_intensity_px: float = 0.5,
     intensity_sigma_px: float | None = None,
+    origin_radius_px: float | None = None,
 ) -> GestureResult:
     """Gesture type and intensity from the markers around the contact points.
 
@@ -215,6 +234,8 @@ def estimate_gesture(
         min_intensity_px: below this intensity (px), nothing moves: ``NONE``.
         intensity_sigma_px: the intensity profile (:func:`weighted_intensity`): None = the
             paper's mean ||v_i|| over A; > 0 = weighted by proximity to the contacts.
+        origin_radius_px: None = the translation term about the contacts' mean (paper); else
+            the smallest over origins within this distance of it (module docstring, "Origin").
     Returns:
         :class:`GestureResult`; ``NONE`` with zero intensity when there is no contact, A is
         empty or the intensity is below ``min_intensity_px``.
@@ -236,7 +257,7 @@ def estimate_gesture(
     threshold = max(reproj_factor * mean_px, min_reproj_px)
     similarity = fit_similarity(rest_a, cur_a, contacts.mean(axis=0), threshold)
     return GestureResult(
-        gesture=classify(similarity, r_px, sensor),
+        gesture=classify(similarity, r_px, sensor, origin_radius_px),
         intensity_px=intensity_px,
         intensity_mm=intensity_px / sensor.px_per_mm,
         similarity=similarity,
