@@ -121,13 +121,24 @@ def _changes(keys: list[tuple]) -> list[tuple]:
     return out
 
 
-def _expected_lines(preds: Path, profile: Path, folder: Path) -> list[dict]:
-    """The same estimates through ``neurotouch-hid run --output jsonl --fast``: its state lines."""
-    out = folder / "expected.jsonl"
-    proc = guestlib.sh(_cli("run", "--source", str(preds), "--profile", str(profile), "--output", "jsonl",
-                            "--fast", "--out", str(out)), timeout=TIMEOUT_S, env=_env(), cwd=str(REPO))
-    assert proc.returncode == 0, f"run --output jsonl failed: {proc.stderr[-2000:]}"
-    return [json.loads(line) for line in out.read_text().splitlines() if line.strip()]
+def _start_expected(preds: Path, profile: Path, folder: Path) -> subprocess.Popen:
+    """Start the same estimates through ``neurotouch-hid run --output jsonl --fast`` (into
+    ``folder/expected.jsonl``); :func:`_expected_lines` waits for it and reads the state lines."""
+    return subprocess.Popen(_cli("run", "--source", str(preds), "--profile", str(profile), "--output", "jsonl",
+                                 "--fast", "--out", str(folder / "expected.jsonl")),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=str(REPO))
+
+
+def _expected_lines(preds: Path, profile: Path, folder: Path, proc: subprocess.Popen | None = None) -> list[dict]:
+    """The state lines of :func:`_start_expected` (started here unless ``proc`` is given)."""
+    proc = proc or _start_expected(preds, profile, folder)
+    try:
+        _, err = proc.communicate(timeout=TIMEOUT_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, f"run --output jsonl failed: {err[-2000:]}"
+    return [json.loads(line) for line in (folder / "expected.jsonl").read_text().splitlines() if line.strip()]
 
 
 def _expected_states(preds: Path, profile: Path, folder: Path) -> list[tuple]:
@@ -365,7 +376,7 @@ class ProbeLines:
 
 
 def check_sdl_reads_run_like_the_profile() -> dict:
-    """A game's view of ``neurotouch-hid run --output gamepad``: SDL2 (pygame), started before the
+    """A game's view of ``neurotouch-hid run --output gamepad``: SDL2 (pygame), started beside the
     run, sees the device the run creates appear as a GameController with the profile's USB ids,
     and what it reads while the run replays a sequence (zoom, twist, then a push held with A and
     START pressed and every axis deflected, until SIGTERM) is, sample by sample and in order, one
@@ -374,7 +385,7 @@ def check_sdl_reads_run_like_the_profile() -> dict:
     from neurotouch_hid.mapping.profile import load_profile
 
     folder = Path(tempfile.mkdtemp(prefix="runtime-sdl-"))
-    estimates = gesture_sequence(hold_s=0.4, lead_in_s=2.0, last_hold_s=30.0,
+    estimates = gesture_sequence(hold_s=0.4, lead_in_s=3.0, last_hold_s=30.0,
                                  gestures=(GestureType.ZOOM, GestureType.TWIST_CCW, GestureType.PUSH))
     preds, profile_path = _write(folder, estimates, SDL_PROFILE)
     hold_t = next(e.t_us for e in estimates if e.gesture is GestureType.PUSH and e.intensity_mm == 6.0)
@@ -382,28 +393,20 @@ def check_sdl_reads_run_like_the_profile() -> dict:
                PYGAME_HIDE_SUPPORT_PROMPT="1", PYTHONPATH=os.pathsep.join(sys.path))
     probe = subprocess.Popen([sys.executable, str(Path(__file__).resolve().parent / "sdl_probe.py"), "--watch", "200"],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    probe_lines = ProbeLines(probe)  # SDL starts (~5 s) while the expected states are computed
-    try:
-        lines = _expected_lines(preds, profile_path, folder)
-    except BaseException:
-        probe.kill()
-        raise
-    expected_keys = [_state_key(d["axes"], d["buttons"]) for d in lines if d["t_us"] <= hold_t]
-    held = expected_keys[-1]
-    expected = _changes(expected_keys) + [NEUTRAL]  # SIGTERM in the held push: neutral
-    sdl_expected = _sdl_expected(expected_keys + [NEUTRAL])
-    assert all(v != n for v, n in zip(_sdl_view(held)[:-1], _sdl_view(NEUTRAL))), \
-        f"the held push does not move every output SDL reads: {_sdl_view(held)}"
+    probe_lines = ProbeLines(probe)
     dev = load_profile(profile_path).device
-    run = watcher = None
+    before = set(_our_devices())
+    # SDL (~5 s), the expected states and the run start side by side (each CLI start costs ~30 s
+    # here); the run's 3 s of rest at first leave SDL time to open the pad before it moves.
+    t_run = time.monotonic()
+    expecting = _start_expected(preds, profile_path, folder)
+    run = subprocess.Popen(_cli("run", "--source", str(preds), "--profile", str(profile_path), "--output", "gamepad"),
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=str(REPO))
+    watcher = None
     timings: dict = {}
     try:
         ready = guestlib.wait_for(lambda: probe_lines.first("ready") or probe_lines.first("done") or probe.poll() is not None, 150.0)
         assert isinstance(ready, dict) and ready.get("ready"), f"SDL did not start: {probe_lines.lines} {probe.stderr.read()[-2000:] if probe.poll() is not None else ''}"
-        before = set(_our_devices())
-        t_run = time.monotonic()
-        run = subprocess.Popen(_cli("run", "--source", str(preds), "--profile", str(profile_path), "--output", "gamepad"),
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=str(REPO))
         found = guestlib.wait_for(lambda: (set(_our_devices()) - before) or run.poll() is not None, 150.0, 0.05)
         assert found and run.poll() is None, f"no gamepad appeared: {run.stderr.read()[-2000:] if run.poll() is not None else 'timeout'}"
         node = sorted(set(_our_devices()) - before)[0]
@@ -414,6 +417,13 @@ def check_sdl_reads_run_like_the_profile() -> dict:
         assert opened and "opened" in opened, f"SDL saw no GameController: {probe_lines.lines[-3:]}"
         timings = {"sdl_init_s": ready["init_seconds"], "run_to_device_s": round(t_device - t_run, 2),
                    "device_to_sdl_open_s": round(opened["opened"] - t_device, 2)}
+        lines = _expected_lines(preds, profile_path, folder, expecting)
+        expected_keys = [_state_key(d["axes"], d["buttons"]) for d in lines if d["t_us"] <= hold_t]
+        held = expected_keys[-1]
+        expected = _changes(expected_keys) + [NEUTRAL]  # SIGTERM in the held push: neutral
+        sdl_expected = _sdl_expected(expected_keys + [NEUTRAL])
+        assert all(v != n for v, n in zip(_sdl_view(held)[:-1], _sdl_view(NEUTRAL))), \
+            f"the held push does not move every output SDL reads: {_sdl_view(held)}"
         guestlib.settle()
         props = guestlib.udev_properties(node)
         sdl_held = sdl_expected[-2]
@@ -429,8 +439,8 @@ def check_sdl_reads_run_like_the_profile() -> dict:
         guestlib.wait_for(lambda: watcher.reader.gone or watcher.states[-1] == NEUTRAL, 10.0)
         watcher.stop()
     finally:
-        for proc in (run, probe):
-            if proc is not None and proc.poll() is None:
+        for proc in (run, probe, expecting):
+            if proc.poll() is None:
                 proc.kill()
     done = probe_lines.first("done") or {}
     assert done.get("error") is None, f"sdl_probe: {done}"
