@@ -34,6 +34,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import cv2
+import numba
 import numpy as np
 
 
@@ -124,22 +125,50 @@ def local_maxima(points_px: np.ndarray, magnitudes: np.ndarray, r_px: float, n_m
     Returns:
         (K,) int64 indices into the M candidates, by decreasing magnitude.
     """
-    points_px = np.asarray(points_px, dtype=np.float64)
-    magnitudes = np.asarray(magnitudes, dtype=np.float64)
+    points_px = np.ascontiguousarray(points_px, dtype=np.float64)
+    magnitudes = np.ascontiguousarray(magnitudes, dtype=np.float64)
     if len(points_px) == 0:
         return np.zeros(0, dtype=np.int64)
-    x, y = points_px[:, 0], points_px[:, 1]
-    dx, dy = x[:, None] - x[None, :], y[:, None] - y[None, :]
-    near = dx * dx + dy * dy <= r_px * r_px  # (M, M), diagonal True
-    enough = np.count_nonzero(near, axis=1) >= n_min
-    neighbour_max = np.where(near, magnitudes[None, :], -np.inf).max(axis=1)
-    maxima = np.flatnonzero(enough & (magnitudes >= neighbour_max))
-    maxima = maxima[np.lexsort((maxima, -magnitudes[maxima]))]
-    kept: list[int] = []
+    return _local_maxima(points_px, magnitudes, float(r_px) * float(r_px), int(n_min))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _local_maxima(points_px: np.ndarray, magnitudes: np.ndarray, r2: float, n_min: int) -> np.ndarray:
+    """:func:`local_maxima` with ``r2`` = r^2 (px^2): one O(M^2) pass without NumPy's (M, M)
+    temporaries."""
+    m = len(points_px)
+    maxima = np.empty(m, dtype=np.int64)
+    k = 0
+    for i in range(m):
+        count = 0
+        is_max = True
+        for j in range(m):
+            dx = points_px[i, 0] - points_px[j, 0]
+            dy = points_px[i, 1] - points_px[j, 1]
+            if dx * dx + dy * dy <= r2:
+                count += 1
+                if magnitudes[j] > magnitudes[i]:
+                    is_max = False
+                    break
+        if is_max and count >= n_min:
+            maxima[k] = i
+            k += 1
+    maxima = maxima[:k]
+    maxima = maxima[np.argsort(-magnitudes[maxima], kind="mergesort")]  # stable: ties by index
+    kept = np.empty(k, dtype=np.int64)
+    n_kept = 0
     for i in maxima:  # tie-breaking: at most one maximum per neighbourhood
-        if not near[i, kept].any():
-            kept.append(int(i))
-    return np.asarray(kept, dtype=np.int64)
+        alone = True
+        for q in range(n_kept):
+            dx = points_px[i, 0] - points_px[kept[q], 0]
+            dy = points_px[i, 1] - points_px[kept[q], 1]
+            if dx * dx + dy * dy <= r2:
+                alone = False
+                break
+        if alone:
+            kept[n_kept] = i
+            n_kept += 1
+    return kept[:n_kept].copy()
 
 
 def refine_peak(rest_px: np.ndarray, displacement_px: np.ndarray, peak: int, radius_px: float) -> np.ndarray:
@@ -157,26 +186,56 @@ def refine_peak(rest_px: np.ndarray, displacement_px: np.ndarray, peak: int, rad
         when fewer than 6 markers take part, the surface has no maximum, or its maximum lies
         further than half the radius from the peak marker.
     """
-    rest = np.asarray(rest_px, dtype=np.float64)
-    v = np.asarray(displacement_px, dtype=np.float64)
-    fallback = rest[peak] + v[peak]
-    rel = rest - rest[peak]
-    near = rel[:, 0] * rel[:, 0] + rel[:, 1] * rel[:, 1] <= radius_px * radius_px
-    if np.count_nonzero(near) < 6:
-        return fallback
-    x, y = rel[near, 0], rel[near, 1]
-    design = np.stack([np.ones_like(x), x, y, x * x, y * y, x * y], axis=1)
-    values = np.column_stack([np.hypot(v[near, 0], v[near, 1]), v[near]])
-    coef, *_ = np.linalg.lstsq(design, values, rcond=None)
-    c = coef[:, 0]
-    hessian = np.array([[2 * c[3], c[5]], [c[5], 2 * c[4]]])
-    if hessian[0, 0] >= 0 or np.linalg.det(hessian) <= 0:  # not a maximum
-        return fallback
-    top = np.linalg.solve(hessian, -c[1:3])
-    if top @ top > (0.5 * radius_px) ** 2:
-        return fallback
-    basis = np.array([1.0, top[0], top[1], top[0] ** 2, top[1] ** 2, top[0] * top[1]])
-    return rest[peak] + top + basis @ coef[:, 1:]
+    rest = np.ascontiguousarray(rest_px, dtype=np.float64)
+    v = np.ascontiguousarray(displacement_px, dtype=np.float64)
+    return _refine_peak(rest, v, np.hypot(v[:, 0], v[:, 1]), peak, radius_px)
+
+
+def _refine_peak(rest: np.ndarray, v: np.ndarray, norms: np.ndarray, peak: int, radius_px: float) -> np.ndarray:
+    """:func:`refine_peak` on float64 arrays with the norms ||v|| (M,) computed once per window.
+    The least-squares fit is ``cv2.solve(..., cv2.DECOMP_SVD)`` (minimum-norm like
+    ``np.linalg.lstsq``, without its Python overhead); the 2x2 Hessian is solved in closed form."""
+    design, values = _fit_inputs(rest, v, norms, peak, radius_px * radius_px)
+    if len(design) < 6:
+        return rest[peak] + v[peak]
+    _, coef = cv2.solve(design, values, flags=cv2.DECOMP_SVD)
+    c1, c2, c3, c4, c5 = coef[1:, 0]
+    det = 4.0 * c3 * c4 - c5 * c5  # Hessian [[2 c3, c5], [c5, 2 c4]]
+    if 2.0 * c3 >= 0 or det <= 0:  # not a maximum
+        return rest[peak] + v[peak]
+    tx = -(2.0 * c4 * c1 - c5 * c2) / det  # Hessian^-1 (-gradient at 0)
+    ty = -(2.0 * c3 * c2 - c5 * c1) / det
+    if tx * tx + ty * ty > (0.5 * radius_px) ** 2:
+        return rest[peak] + v[peak]
+    basis = np.array([1.0, tx, ty, tx * tx, ty * ty, tx * ty])
+    return rest[peak] + (tx, ty) + basis @ coef[:, 1:]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _fit_inputs(rest: np.ndarray, v: np.ndarray, norms: np.ndarray, peak: int, r2: float) -> tuple[np.ndarray, np.ndarray]:
+    """The least-squares system of :func:`_refine_peak`: for the markers whose rest position is
+    within squared distance ``r2`` (px^2) of the peak's (in index order), the design rows
+    ``(1, x, y, x^2, y^2, x y)`` (x, y relative to the peak's rest position, px) and the values
+    ``(||v||, v_x, v_y)`` (px); (m, 6) and (m, 3) float64."""
+    m = len(rest)
+    design = np.empty((m, 6))
+    values = np.empty((m, 3))
+    k = 0
+    for i in range(m):
+        x = rest[i, 0] - rest[peak, 0]
+        y = rest[i, 1] - rest[peak, 1]
+        if x * x + y * y <= r2:
+            design[k, 0] = 1.0
+            design[k, 1] = x
+            design[k, 2] = y
+            design[k, 3] = x * x
+            design[k, 4] = y * y
+            design[k, 5] = x * y
+            values[k, 0] = norms[i]
+            values[k, 1] = v[i, 0]
+            values[k, 2] = v[i, 1]
+            k += 1
+    return design[:k].copy(), values[:k].copy()
 
 
 def detect_contacts(
@@ -220,14 +279,15 @@ def detect_contacts(
     rest = np.asarray(rest_px, dtype=np.float64)
     cur = np.asarray(current_px, dtype=np.float64)
     n = len(rest)
-    ok = np.isfinite(cur[:, 0]) & np.isfinite(cur[:, 1])
+    ok = np.isfinite(cur).all(axis=1)
     if valid is not None:
         ok &= np.asarray(valid, dtype=bool)
     idx = np.flatnonzero(ok)
     if len(idx) < 4:
         return _no_contacts(n)
     rest_ok, cur_ok = rest[idx], cur[idx]
-    magnitudes = np.hypot(cur_ok[:, 0] - rest_ok[:, 0], cur_ok[:, 1] - rest_ok[:, 1])
+    v_ok = cur_ok - rest_ok
+    magnitudes = np.hypot(v_ok[:, 0], v_ok[:, 1])
     mean = float(magnitudes.mean())
     if mean < min_mean_displacement_px:
         return _no_contacts(n)
@@ -236,14 +296,14 @@ def detect_contacts(
     cand = idx[outliers]
     candidates = np.zeros(n, dtype=bool)
     candidates[cand] = True
-    maxima = cand[local_maxima(cur_ok[outliers], magnitudes[outliers], r_px, n_min)]
-    if len(maxima) == 0 and field_fallback:
-        moved = magnitudes > threshold  # outliers of the rest model (identity), same threshold
-        maxima = idx[moved][local_maxima(cur_ok[moved], magnitudes[moved], r_px, n_min)]
-    points = cur[maxima].copy()
-    if refine_px is not None and len(maxima):
-        position = np.full(n, -1, dtype=np.int64)
-        position[idx] = np.arange(len(idx))
-        v_ok = cur_ok - rest_ok
-        points = np.array([refine_peak(rest_ok, v_ok, int(position[i]), refine_px) for i in maxima])
+    found = local_maxima(cur_ok[outliers], magnitudes[outliers], r_px, n_min)
+    peaks = np.flatnonzero(outliers)[found]  # positions among the valid markers
+    if len(peaks) == 0 and field_fallback:
+        moved = np.flatnonzero(magnitudes > threshold)  # outliers of the rest model (identity), same threshold
+        peaks = moved[local_maxima(cur_ok[moved], magnitudes[moved], r_px, n_min)]
+    maxima = idx[peaks]
+    if refine_px is not None and len(peaks):
+        points = np.array([_refine_peak(rest_ok, v_ok, magnitudes, int(i), refine_px) for i in peaks])
+    else:
+        points = cur_ok[peaks]
     return Contacts(indices=maxima, points_px=points, candidates=candidates, reproj_threshold_px=threshold)

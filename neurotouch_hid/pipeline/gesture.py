@@ -45,6 +45,7 @@ import math
 from dataclasses import dataclass, field
 
 import cv2
+import numba
 import numpy as np
 
 from neurotouch_hid.estimate import GestureType
@@ -74,7 +75,7 @@ class Similarity:
         smallest translation over origins within that distance of it, ``max(0, ||t|| - m rho)``
         with ``m = |s e^{i theta} - 1|`` (moving the origin by o changes t by (sR - I) o, a
         scaled rotation of norm m): see the module docstring, "Origin"."""
-        translation = float(np.hypot(*self.translation_px))
+        translation = math.hypot(self.translation_px[0], self.translation_px[1])
         if origin_radius_px is not None:
             m = math.hypot(self.scale * math.cos(self.rotation_rad) - 1.0, self.scale * math.sin(self.rotation_rad))
             translation = max(0.0, translation - m * origin_radius_px)
@@ -115,14 +116,23 @@ def markers_near(points_px: np.ndarray, centres_px: np.ndarray, r_px: float) -> 
     Returns:
         (N,) bool.
     """
-    p = np.asarray(points_px, dtype=np.float64)
-    c = np.asarray(centres_px, dtype=np.float64).reshape(-1, 2)
-    if len(c) == 0 or len(p) == 0:
-        return np.zeros(len(p), dtype=bool)
-    dx = p[:, 0, None] - c[None, :, 0]
-    dy = p[:, 1, None] - c[None, :, 1]
-    with np.errstate(invalid="ignore"):
-        return (dx * dx + dy * dy < r_px * r_px).any(axis=1)
+    p = np.ascontiguousarray(points_px, dtype=np.float64)
+    c = np.ascontiguousarray(centres_px, dtype=np.float64).reshape(-1, 2)
+    return _near(p, c, float(r_px) * float(r_px))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _near(points_px: np.ndarray, centres_px: np.ndarray, r2: float) -> np.ndarray:
+    """:func:`markers_near` with r2 = r^2 (px^2), without NumPy's (N, K) temporaries."""
+    near = np.zeros(len(points_px), dtype=np.bool_)
+    for i in range(len(points_px)):
+        for k in range(len(centres_px)):
+            dx = points_px[i, 0] - centres_px[k, 0]
+            dy = points_px[i, 1] - centres_px[k, 1]
+            if dx * dx + dy * dy < r2:  # False for NaN rows
+                near[i] = True
+                break
+    return near
 
 
 def weighted_intensity(
@@ -145,12 +155,36 @@ def weighted_intensity(
     if len(cur) == 0:
         return 0.0
     norms = np.hypot(cur[:, 0] - rest[:, 0], cur[:, 1] - rest[:, 1])
+    return _intensity(norms, cur, np.asarray(contacts_px, dtype=np.float64).reshape(-1, 2), sigma_px)
+
+
+def _intensity(norms: np.ndarray, current_px: np.ndarray, contacts_px: np.ndarray, sigma_px: float | None) -> float:
+    """:func:`weighted_intensity` from the norms ||v_i|| (M,) >= 1 computed once per window."""
     if sigma_px is None:
         return float(norms.mean())
-    c = np.asarray(contacts_px, dtype=np.float64).reshape(-1, 2)
-    d2 = ((cur[:, None, :] - c[None, :, :]) ** 2).sum(axis=2).min(axis=1)
-    weights = np.exp(-(d2 - d2.min()) / (2.0 * sigma_px * sigma_px))  # shifted: never all 0
-    return float((weights * norms).sum() / weights.sum())
+    return _weighted_mean(norms, current_px, contacts_px, float(sigma_px))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _weighted_mean(norms: np.ndarray, current_px: np.ndarray, contacts_px: np.ndarray, sigma_px: float) -> float:
+    """The proximity-weighted mean of :func:`weighted_intensity` in one pass over the markers."""
+    m = len(norms)
+    d2 = np.empty(m)
+    for i in range(m):
+        best = np.inf
+        for k in range(len(contacts_px)):
+            dx = current_px[i, 0] - contacts_px[k, 0]
+            dy = current_px[i, 1] - contacts_px[k, 1]
+            best = min(best, dx * dx + dy * dy)
+        d2[i] = best
+    lowest = d2.min()
+    total = 0.0
+    weight_sum = 0.0
+    for i in range(m):
+        weight = np.exp(-(d2[i] - lowest) / (2.0 * sigma_px * sigma_px))  # shifted: never all 0
+        total += weight * norms[i]
+        weight_sum += weight
+    return total / weight_sum
 
 
 def fit_similarity(rest_px: np.ndarray, current_px: np.ndarray, origin_px: np.ndarray, reproj_threshold_px: float) -> Similarity:
@@ -190,10 +224,9 @@ def classify(
     > 0 is counter-clockwise (``TWIST_CCW``), < 0 clockwise (``TWIST_CW``).
     """
     scale_px, rotation_px, translation_px = similarity.terms_px(r_px, origin_radius_px)
-    dominant = int(np.argmax([scale_px, rotation_px, translation_px]))
-    if dominant == 0:
+    if scale_px >= rotation_px and scale_px >= translation_px:  # the first maximum wins ties
         return GestureType.ZOOM if similarity.scale > 1.0 else GestureType.PINCH
-    if dominant == 1:
+    if rotation_px >= translation_px:
         user = user_rotation(similarity.rotation_rad, sensor)
         return GestureType.TWIST_CCW if user > 0 else GestureType.TWIST_CW
     return GestureType.PUSH
@@ -203,6 +236,10 @@ def user_rotation(image_rotation_rad: float, sensor: SensorGeometry) -> float:
     """An OpenCV angle in the image frame (y down, > 0 clockwise as displayed) in the user
     frame (rad, counter-clockwise > 0)."""
     return float(sensor.rotation_image_to_user(-image_rotation_rad))
+
+
+def _nothing(area: np.ndarray) -> GestureResult:
+    return GestureResult(GestureType.NONE, 0.0, 0.0, Similarity(), area, np.zeros(2), 0.0)
 
 
 def estimate_gesture(
@@ -246,14 +283,14 @@ def estimate_gesture(
     area = markers_near(cur, contacts, r_px)  # NaN rows (lost markers) are never near
     if valid is not None:
         area &= np.asarray(valid, dtype=bool)
-    nothing = GestureResult(GestureType.NONE, 0.0, 0.0, Similarity(), area, np.zeros(2), 0.0)
     if not area.any():
-        return nothing
+        return _nothing(area)
     rest_a, cur_a = rest[area], cur[area]
-    intensity_px = weighted_intensity(rest_a, cur_a, contacts, intensity_sigma_px)
+    norms = np.hypot(cur_a[:, 0] - rest_a[:, 0], cur_a[:, 1] - rest_a[:, 1])
+    intensity_px = _intensity(norms, cur_a, contacts, intensity_sigma_px)
     if intensity_px < min_intensity_px:
-        return nothing
-    mean_px = intensity_px if intensity_sigma_px is None else weighted_intensity(rest_a, cur_a, contacts, None)
+        return _nothing(area)
+    mean_px = intensity_px if intensity_sigma_px is None else float(norms.mean())
     threshold = max(reproj_factor * mean_px, min_reproj_px)
     similarity = fit_similarity(rest_a, cur_a, contacts.mean(axis=0), threshold)
     return GestureResult(
