@@ -57,7 +57,7 @@ from neurotouch_hid.sources import Frame, StreamItem
 MIN_WINDOW_US = 1_000
 
 #: The stages :attr:`GesturePipeline.timings` measures.
-STAGES = ("tracker", "contacts", "gesture", "resting", "frame_correction")
+STAGES = ("tracker", "contacts", "gesture", "resting")
 
 
 @dataclass
@@ -131,12 +131,6 @@ class PipelineConfig:
             that shows one is the rest reference.
         detect_resting: True: :meth:`GesturePipeline.process` runs the resting detector on
             every frame itself; False: the caller does, via :meth:`GesturePipeline.set_resting`.
-        frame_correction: fuse each APS frame's marker detections into the blobs
-            (:meth:`BlobTracker.correct`; not in the paper; ~1 ms per frame). It brings the
-            median per-marker error on the simulated gel from ~0.47 px to ~0.04 px
-            (docs/performance.md), but measured end to end (quick preset, seed 7) it lowered
-            gesture accuracy from 90.9 % to 87.7 % with the other metrics unchanged, so it is
-            off by default until that is understood.
         tracker: the blob tracker's parameters.
     """
 
@@ -158,7 +152,6 @@ class PipelineConfig:
     marker_threshold: int | None = None
     reference_attempts: int = 3
     detect_resting: bool = True
-    frame_correction: bool = False
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
 
     def __post_init__(self) -> None:
@@ -192,8 +185,7 @@ class GesturePipeline:
         tracker: the :class:`BlobTracker`, None before the first frame.
         resting_detector: the :class:`RestingDetector`, None before the first frame.
         timings: stage name -> list of wall-clock durations (ns) when ``profile`` is set:
-            "tracker" per event batch, "contacts" and "gesture" per window, "resting" and
-            "frame_correction" per frame.
+            "tracker" per event batch, "contacts" and "gesture" per window, "resting" per frame.
         cpu_timings: the same stages' CPU time of the calling thread (ns), which a machine
             shared with other work does not inflate.
     """
@@ -318,11 +310,6 @@ class GesturePipeline:
             self._record("resting", start)
             self._resting_t_us = frame.t_us
             self._apply_resting(result)
-        if self.config.frame_correction and not self._resting.resting:
-            start = self._clock()
-            markers = detect_markers(frame.image, self.sensor, self.config.marker_threshold)
-            self.tracker.correct(markers.centroids_px, frame.t_us)
-            self._record("frame_correction", start)
         return out
 
     def _close_windows_until(self, t_us: int) -> list[GestureEstimate]:
