@@ -214,6 +214,53 @@ def demo(seconds: Optional[float] = typer.Option(30.0, "--seconds", help="how lo
 
 
 @app.command()
+def devices(json_out: bool = typer.Option(False, "--json", help="print JSON (for scripts) instead of a table")) -> None:
+    """List the DAVIS-346 cameras: every USB 152a:841a device (pyusb) and what dv-processing sees.
+
+    For each: where it is, whether this user can open it and, if not, why and what to do (the
+    udev rule, another program holding it, firmware). Exit code 0 when a camera is ready to use,
+    1 otherwise."""
+    import json
+
+    from rich.markup import escape
+    from rich.table import Table
+
+    from neurotouch_hid.sources.discovery import discover, explain
+
+    found = discover()
+    if json_out:
+        typer.echo(json.dumps(found.to_json(), indent=1))
+    elif not found.cameras:
+        console.print(escape(explain(found)), style="bold red", highlight=False, soft_wrap=True)
+    else:
+        style = {"ready": "green", "other-camera": "yellow"}
+        table = Table("device", "serial", "USB (pyusb)", "dv-processing", "status",
+                      title="DAVIS-346 cameras (USB 152a:841a)", show_lines=True)
+        for c in found.cameras:
+            usb = "not seen"
+            if c.usb is not None:
+                speed = f", {c.usb.speed_mbps:g} Mb/s" if c.usb.speed_mbps else ""
+                usb = f"{c.usb.product or '?'}{speed}\naccess: {c.usb.access}"
+            dv = f"{c.dv.model} ({c.dv.device_type}), firmware {c.dv.firmware}" if c.dv else "not listed"
+            table.add_row(f"bus {c.bus} device {c.address}\n{c.node}", c.serial or "?", escape(usb), escape(dv),
+                          f"[{style.get(c.status, 'bold red')}]{c.status}[/]")
+        console.print(table)
+        for c in found.cameras:
+            if c.ready:
+                console.print(f"[green]ready:[/] {escape(c.label())}", highlight=False, soft_wrap=True)
+            else:
+                console.print(f"[bold red]{escape(c.problem)}[/]\n  fix: {escape(c.fix)}", highlight=False, soft_wrap=True)
+    if not json_out:
+        for line in found.dv_log:
+            console.print(f"[dim]dv-processing said: {escape(line)}[/]", highlight=False, soft_wrap=True)
+        for what, error in (("pyusb", found.usb_error), ("dv-processing", found.dv_error)):
+            if error:
+                console.print(f"[yellow]{what}: {escape(error)}[/]", highlight=False, soft_wrap=True)
+    if not found.ready:
+        sys.exit(1)
+
+
+@app.command()
 def doctor() -> None:
     """Check the camera, permissions, /dev/uinput and libraries; print the fix for each failure."""
     from neurotouch_hid.doctor import report, run_checks

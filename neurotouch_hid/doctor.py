@@ -1,30 +1,39 @@
 """``neurotouch-hid doctor``: is this machine ready to run the driver? Each failure comes with its fix.
 
-Checks: the DAVIS-346 is on USB (pyusb with libusb-package's bundled libusb), its
-/dev/bus/usb node is readable and writable, /dev/uinput exists and is writable, the udev rules are
-installed, dv-processing / numba / evdev import (with versions), and (a warning only) the
-plug-and-play systemd user unit is installed.
+Checks: the DAVIS-346 is on USB, each camera's /dev/bus/usb node is readable and writable and not
+held by another program, dv-processing lists the camera (all three from one
+:func:`neurotouch_hid.sources.discovery.discover`, the same look-up as ``neurotouch-hid devices``),
+/dev/uinput exists and is writable, the udev rules are installed, dv-processing / numba / evdev
+import (with versions), and (a warning only) the plug-and-play systemd user unit is installed.
 """
 
 from __future__ import annotations
 
 import importlib
 import importlib.metadata
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
 from rich.console import Console
 from rich.table import Table
 
-from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.output.gamepad import RULES_INSTALL, uinput_help, uinput_problem
+from neurotouch_hid.sources.discovery import (
+    BUSY,
+    CAMERA_USB_ID,
+    DV_UNAVAILABLE,
+    ERROR,
+    GONE,
+    NO_ACCESS,
+    NOT_IN_DV,
+    READY,
+    RULES_DIRS,
+    RULES_NAME,
+    Discovery,
+    discover,
+    installed_rules,
+)
 
-#: USB ids of the DAVIS-346 (iniVation).
-CAMERA_VID, CAMERA_PID = 0x152A, 0x841A
-RULES_NAME = "60-neurotouch.rules"
-#: Where udev reads rules from (udev(7)), most specific first.
-RULES_DIRS = ("/etc/udev/rules.d", "/run/udev/rules.d", "/usr/lib/udev/rules.d", "/lib/udev/rules.d")
 SERVICE_NAME = "neurotouch-hid.service"
 #: (import name, distribution name) of the libraries the driver needs at run time.
 LIBRARIES = (("dv_processing", "dv-processing"), ("numba", "numba"), ("evdev", "evdev"))
@@ -42,49 +51,46 @@ class Check:
     fix: str = ""
 
 
-def find_cameras() -> list:
-    """The DAVIS-346 devices on USB (pyusb ``usb.core.Device`` objects; empty list if none).
-
-    Raises DeviceError when pyusb has no usable libusb backend."""
-    import libusb_package
-    import usb.core
-
-    backend = libusb_package.get_libusb1_backend()
-    if backend is None:
-        raise DeviceError("libusb-package has no libusb for this platform: pip install --force-reinstall libusb-package")
-    try:
-        return list(usb.core.find(idVendor=CAMERA_VID, idProduct=CAMERA_PID, find_all=True, backend=backend))
-    except usb.core.USBError as exc:
-        raise DeviceError(f"cannot list USB devices: {exc}") from None
-
-
-def usb_node(device) -> str:
-    """The /dev/bus/usb/BBB/DDD node of a pyusb device (what libusb opens)."""
-    return f"/dev/bus/usb/{device.bus:03d}/{device.address:03d}"
-
-
-def check_camera(cameras: list | None) -> Check:
-    """``cameras`` from :func:`find_cameras`, or None when listing failed."""
-    if cameras is None:
-        return Check("camera on USB", FAIL, "pyusb cannot list USB devices",
-                     "python3 -m pip install --force-reinstall pyusb libusb-package")
+def check_camera(found: Discovery) -> Check:
+    """A DAVIS-346 (USB 152a:841a) is on USB: fail when there is none, or pyusb cannot list USB devices."""
+    cameras = found.davis346
     if not cameras:
-        return Check("camera on USB", FAIL, f"no DAVIS-346 ({CAMERA_VID:04x}:{CAMERA_PID:04x}) on USB",
-                     f"plug the NeuroTouch's USB cable in (a USB 3 port); `lsusb -d "
-                     f"{CAMERA_VID:04x}:{CAMERA_PID:04x}` must list it")
-    where = ", ".join(f"bus {d.bus} device {d.address}" for d in cameras)
+        others = [c.label() for c in found.cameras if not c.is_davis346]
+        seen = f" (dv-processing sees only: {', '.join(others)})" if others else ""
+        if found.usb_error is not None:
+            return Check("camera on USB", FAIL, f"pyusb cannot list USB devices ({found.usb_error}){seen}",
+                         "python3 -m pip install --force-reinstall pyusb libusb-package")
+        return Check("camera on USB", FAIL, f"no DAVIS-346 ({CAMERA_USB_ID}) on USB{seen}",
+                     f"plug the NeuroTouch's USB cable in (a USB 3 port); `lsusb -d {CAMERA_USB_ID}` must list it")
+    where = ", ".join(f"bus {c.bus} device {c.address}" + (f" (serial {c.serial})" if c.serial else "")
+                      for c in cameras)
     return Check("camera on USB", OK, f"DAVIS-346 at {where}")
 
 
-def check_camera_access(cameras: list | None) -> Check:
-    """Read/write permission on each camera's /dev/bus/usb node (skip when there is no camera)."""
-    if not cameras:
+def check_camera_access(found: Discovery) -> Check:
+    """Each camera's /dev/bus/usb node is readable and writable by this user and no other program
+    holds it (skip when there is no camera, or pyusb could not look)."""
+    usb = [c for c in found.cameras if c.usb is not None]
+    if not usb:
         return Check("camera permissions", SKIP, "no camera to check")
-    denied = [usb_node(d) for d in cameras if not os.access(usb_node(d), os.R_OK | os.W_OK)]
-    if denied:
-        return Check("camera permissions", FAIL, f"no read/write access to {', '.join(denied)} (uid {os.getuid()})",
-                     f"install the udev rules ({RULES_INSTALL}), then unplug and replug the camera")
-    return Check("camera permissions", OK, ", ".join(usb_node(d) for d in cameras) + " readable and writable")
+    bad = [c for c in usb if c.status in (NO_ACCESS, BUSY, ERROR, GONE)]
+    if bad:
+        fixes = list(dict.fromkeys(c.fix for c in bad))
+        return Check("camera permissions", FAIL, "; ".join(c.problem for c in bad), "; or ".join(fixes))
+    return Check("camera permissions", OK, ", ".join(c.node for c in usb) + " readable and writable")
+
+
+def check_camera_dv(found: Discovery) -> Check:
+    """dv-processing lists every accessible camera (the live source opens cameras through it);
+    skip when no camera is accessible."""
+    usable = [c for c in found.cameras if c.status in (READY, NOT_IN_DV, DV_UNAVAILABLE)]
+    if not usable:
+        return Check("dv-processing sees the camera", SKIP, "no accessible camera to look for")
+    missing = [c for c in usable if not c.ready]
+    if missing:
+        return Check("dv-processing sees the camera", FAIL, "; ".join(c.problem for c in missing), missing[0].fix)
+    return Check("dv-processing sees the camera", OK, ", ".join(
+        f"{c.dv.model} serial {c.dv.serial} firmware {c.dv.firmware}" if c.dv else c.label() for c in usable))
 
 
 def check_uinput(devnode: str = "/dev/uinput") -> Check:
@@ -97,9 +103,9 @@ def check_uinput(devnode: str = "/dev/uinput") -> Check:
 
 def check_rules(dirs: tuple[str, ...] = RULES_DIRS) -> Check:
     """The project's udev rules file is in one of udev's rules folders."""
-    found = [str(Path(d) / RULES_NAME) for d in dirs if (Path(d) / RULES_NAME).is_file()]
+    found = installed_rules(dirs)
     if found:
-        return Check("udev rules", OK, found[0])
+        return Check("udev rules", OK, found)
     return Check("udev rules", FAIL, f"{RULES_NAME} is not in {', '.join(dirs)}", RULES_INSTALL)
 
 
@@ -130,11 +136,8 @@ def check_service(home: Path | None = None) -> Check:
 
 def run_checks() -> list[Check]:
     """Every check, in the order the report shows them."""
-    try:
-        cameras: list | None = find_cameras()
-    except DeviceError:
-        cameras = None
-    return [check_camera(cameras), check_camera_access(cameras), check_uinput(), check_rules(),
+    found = discover()
+    return [check_camera(found), check_camera_access(found), check_camera_dv(found), check_uinput(), check_rules(),
             *(check_library(m, d) for m, d in LIBRARIES), check_service()]
 
 

@@ -1,4 +1,5 @@
-"""neurotouch-hid doctor: each check's verdict and fix, the table, the exit code (real USB scan)."""
+"""neurotouch-hid doctor: each check's verdict and fix, the table, the exit code (real USB scan; the
+camera checks also on small records of sources/discovery.py)."""
 
 from __future__ import annotations
 
@@ -11,14 +12,39 @@ from rich.console import Console
 
 from neurotouch_hid import doctor
 from neurotouch_hid.doctor import FAIL, OK, SKIP, WARN, Check
+from neurotouch_hid.sources.discovery import ACCESS_DENIED, ACCESS_OK, DvCamera, UsbCamera, discover, merge
 
 
 def test_no_camera_on_this_machine_is_a_failure_with_a_fix():
-    cameras = doctor.find_cameras()  # the real pyusb + libusb-package scan
-    assert cameras == []
-    check = doctor.check_camera(cameras)
+    found = discover()  # the real pyusb + libusb-package scan and dv-processing's discover()
+    assert found.cameras == () and found.usb_error is None and found.dv_error is None
+    check = doctor.check_camera(found)
     assert check.status == FAIL and "152a:841a" in check.detail and "plug" in check.fix
-    assert doctor.check_camera_access(cameras).status == SKIP
+    assert doctor.check_camera_access(found).status == SKIP
+    assert doctor.check_camera_dv(found).status == SKIP
+
+
+def _camera(access: str = ACCESS_OK, dv: bool = True):
+    usb = UsbCamera(bus=2, address=7, node="/dev/bus/usb/002/007", serial="00000042", access=access,
+                    reason="" if access == ACCESS_OK else "permission denied: ...")
+    listed = [DvCamera("00000042", "DAVIS", "FX3_MB", 6, 2, 7)] if dv else []
+    return merge([usb], listed)
+
+
+def test_camera_checks_share_the_discovery_verdicts():
+    ready = _camera()
+    assert [c.status for c in (doctor.check_camera(ready), doctor.check_camera_access(ready),
+                               doctor.check_camera_dv(ready))] == [OK, OK, OK]
+    assert "serial 00000042" in doctor.check_camera(ready).detail
+    assert "firmware 6" in doctor.check_camera_dv(ready).detail
+    denied = _camera(ACCESS_DENIED)
+    access = doctor.check_camera_access(denied)
+    assert access.status == FAIL and "bus 2 device 7" in access.detail and "60-neurotouch.rules" in access.fix
+    assert doctor.check_camera_dv(denied).status == SKIP
+    unlisted = _camera(dv=False)
+    dv = doctor.check_camera_dv(unlisted)
+    assert doctor.check_camera_access(unlisted).status == OK
+    assert dv.status == FAIL and "dv-processing does not list it" in dv.detail and "firmware" in dv.fix
 
 
 def test_uinput_missing(tmp_path):

@@ -54,3 +54,30 @@ def test_sdl_sees_a_gamecontroller_and_reads_what_was_written(guest):
 def test_camera_plug_in_starts_the_service_and_doctor_sees_it(guest):
     details = passed(guest, "checks_packaging.check_camera_plug_and_play")
     assert "neurotouch-hid.service" in details["SYSTEMD_USER_WANTS"]
+
+
+def devices_part(guest: dict, part: str) -> dict:
+    """One part of the guest's checks_devices.check_devices (the camera is plugged in once for all)."""
+    entry = passed(guest, "checks_devices.check_devices")[part]
+    assert entry["ok"], f"{part}: {entry.get('error')}\n{entry.get('traceback', '')}"
+    return entry["details"]
+
+
+def test_devices_as_root_lists_the_emulated_camera_as_accessible(guest):
+    details = devices_part(guest, "as_root")
+    assert details["camera"]["usb"]["access"] == "ok" and details["camera"]["serial"] == "00000001"
+
+
+def test_dv_processing_refusing_to_open_is_explained_in_one_line(guest):
+    details = devices_part(guest, "dv_open")
+    assert "EXPLAIN" in details["dv_open"] or "OPENED" in details["dv_open"]
+
+
+def test_devices_says_which_program_holds_a_busy_camera(guest):
+    details = devices_part(guest, "busy")
+    assert details["camera"]["status"] == "busy"
+
+
+def test_devices_as_unprivileged_user_says_not_accessible_with_the_udev_rule_fix(guest):
+    details = devices_part(guest, "unprivileged")
+    assert details["camera"]["status"] == "no-access" and "udev rule" in details["camera"]["fix"]

@@ -15,30 +15,23 @@ from pathlib import Path
 import guestlib
 
 from neurotouch_hid import doctor
+from neurotouch_hid.sources.discovery import discover
 
 TIMEOUT_S = 300
 GADGET = Path("/sys/kernel/config/usb_gadget/neurotouch")
 
 
 def _plug_camera() -> str:
-    """Create and bind the emulated camera; return its /sys/bus/usb/devices path."""
+    """Create (the first time) and bind the emulated camera; return its /sys/bus/usb/devices path.
+
+    Also used by checks_devices.py: plugging again after :func:`_unplug_camera` rebinds the same
+    gadget."""
     for module in ("dummy_hcd", "libcomposite", "usb_f_ss_lb"):
         assert guestlib.sh(["modprobe", module]).returncode == 0, f"modprobe {module} failed"
     if not Path("/sys/kernel/config/usb_gadget").exists():
         guestlib.sh(["mount", "-t", "configfs", "none", "/sys/kernel/config"])
-    GADGET.mkdir()
-    (GADGET / "idVendor").write_text("0x152a")
-    (GADGET / "idProduct").write_text("0x841a")
-    strings = GADGET / "strings" / "0x409"
-    strings.mkdir()
-    (strings / "manufacturer").write_text("iniVation")
-    (strings / "product").write_text("DAVIS346 (emulated by dummy_hcd)")
-    (strings / "serialnumber").write_text("00000001")
-    config = GADGET / "configs" / "c.1"
-    config.mkdir()
-    function = GADGET / "functions" / "SourceSink.0"
-    function.mkdir()
-    (config / "SourceSink.0").symlink_to(function)
+    if not GADGET.exists():
+        _make_gadget()
     udc = sorted(os.listdir("/sys/class/udc"))
     assert udc, "no USB device controller (dummy_udc) to bind the gadget to"
     (GADGET / "UDC").write_text(udc[0])
@@ -54,6 +47,23 @@ def _plug_camera() -> str:
     assert path, "the emulated camera never appeared on the USB bus"
     guestlib.settle()
     return path
+
+
+def _make_gadget() -> None:
+    """The configfs gadget: ids 152a:841a, DAVIS-like strings, one SourceSink function."""
+    GADGET.mkdir()
+    (GADGET / "idVendor").write_text("0x152a")
+    (GADGET / "idProduct").write_text("0x841a")
+    strings = GADGET / "strings" / "0x409"
+    strings.mkdir()
+    (strings / "manufacturer").write_text("iniVation")
+    (strings / "product").write_text("DAVIS346 (emulated by dummy_hcd)")
+    (strings / "serialnumber").write_text("00000001")
+    config = GADGET / "configs" / "c.1"
+    config.mkdir()
+    function = GADGET / "functions" / "SourceSink.0"
+    function.mkdir()
+    (config / "SourceSink.0").symlink_to(function)
 
 
 def _unplug_camera() -> None:
@@ -77,8 +87,8 @@ def check_camera_plug_and_play() -> dict:
             f"/dev/neurotouch -> {os.path.realpath('/dev/neurotouch')}, camera is {node}"
         mode = os.stat(node).st_mode & 0o777
         assert not mode & 0o002, f"{node} is world-writable: {oct(mode)}"
-        cameras = doctor.find_cameras()
-        checks = [doctor.check_camera(cameras), doctor.check_camera_access(cameras),
+        found = discover(dv=False)  # dv-processing's view: checks_devices.py
+        checks = [doctor.check_camera(found), doctor.check_camera_access(found),
                   doctor.check_uinput(), doctor.check_rules()]
         assert all(c.status == doctor.OK for c in checks), checks
         plugged = {"node": node, "mode": oct(mode), "tags": tags,
@@ -88,6 +98,6 @@ def check_camera_plug_and_play() -> dict:
         _unplug_camera()
     gone = guestlib.wait_for(lambda: not os.path.lexists("/dev/neurotouch"), timeout_s=10)
     assert gone, "/dev/neurotouch still there after unplugging"
-    after = doctor.check_camera(doctor.find_cameras())
+    after = doctor.check_camera(discover(dv=False))
     assert after.status == doctor.FAIL, after
     return {**plugged, "after_unplug": f"{after.status}: {after.detail}"}

@@ -1,0 +1,200 @@
+"""Guest checks of ``neurotouch-hid devices`` (sources/discovery.py) against a real kernel's USB stack.
+
+The camera is the emulated one of checks_packaging.py (dummy_hcd + a configfs gadget with the
+DAVIS-346's ids 152a:841a; it speaks the kernel's SourceSink test protocol, not the DAVIS one).
+The camera is plugged in once, and the command runs as a separate process, as a user would run
+it, with a timeout: as root (present and accessible) and as the unprivileged user nobody (present
+but not accessible: the udev-rule fix). While this process holds the camera's interface, the
+discovery finds it busy, and who holds it. What dv-processing makes of the emulated device, and
+of being asked to open it, is recorded. Under software emulation every Python process takes tens
+of seconds to start, so there are only three; each part's verdict is kept on its own.
+Run by tests/kernel/guest.py; asserted on by tests/test_kernel.py.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import guestlib
+from checks_packaging import _plug_camera, _unplug_camera
+
+from neurotouch_hid.sources.discovery import CAMERA_PID, CAMERA_VID
+
+TIMEOUT_S = 600
+#: Per command: python and dv-processing take ~20 s to start under software emulation, minutes on
+#: a loaded host.
+COMMAND_TIMEOUT_S = 300
+CLI = str(Path(sys.executable).parent / "neurotouch-hid")
+NOBODY = ("setpriv", "--reuid=65534", "--regid=65534", "--clear-groups")
+RULES = Path("/run/udev/rules.d/60-neurotouch.rules")  # where guest.py's setup installs them
+#: What dv-processing says when it is asked to open the emulated camera, through explain_no_camera.
+OPEN = """
+import dv_processing as dv
+from neurotouch_hid.sources.discovery import explain_no_camera
+from neurotouch_hid.sources.recording import DV_ERRORS, dv_error_text
+found = dv.io.camera.discover()
+try:
+    camera = dv.io.camera.open(found[0])
+    print("OPENED", camera.getCameraName())
+except DV_ERRORS as exc:
+    print("ERROR", dv_error_text(str(exc)))
+    print("EXPLAIN", explain_no_camera(error=dv_error_text(str(exc))))
+"""
+
+
+def _run(cmd: list[str], as_nobody: bool = False) -> subprocess.CompletedProcess:
+    prefix = list(NOBODY) if as_nobody else []
+    env = dict(os.environ, HOME="/tmp", COLUMNS="200")
+    try:
+        return subprocess.run(prefix + cmd, capture_output=True, text=True, timeout=COMMAND_TIMEOUT_S,
+                              cwd="/tmp", env=env, stdin=subprocess.DEVNULL)
+    except subprocess.TimeoutExpired as exc:
+        raise AssertionError(f"{' '.join(cmd)} did not finish in {COMMAND_TIMEOUT_S} s: {exc.stdout!r} {exc.stderr!r}")
+
+
+@contextlib.contextmanager
+def _python_for_nobody():
+    """Let the user nobody run this Python: when it lives under a /root that others may not
+    traverse (0700, as on the host whose root the guest shares read-only), lay a throw-away overlay
+    over /root for the block and make it 0711."""
+    root = Path("/root")
+    if not str(Path(sys.executable).resolve()).startswith("/root/") or root.stat().st_mode & 0o001:
+        yield
+        return
+    scratch = Path("/run/neurotouch-rootov")
+    scratch.mkdir(exist_ok=True)
+    assert guestlib.sh(["mount", "-t", "tmpfs", "none", str(scratch)]).returncode == 0
+    (scratch / "up").mkdir()
+    (scratch / "work").mkdir()
+    mount = guestlib.sh(["mount", "-t", "overlay", "overlay", "-o",
+                         f"lowerdir=/root,upperdir={scratch}/up,workdir={scratch}/work", "/root"])
+    assert mount.returncode == 0, f"overlay on /root: {mount.stderr}"
+    try:
+        os.chmod("/root", 0o711)
+        yield
+    finally:
+        guestlib.sh(["umount", "-l", "/root"])
+        guestlib.sh(["umount", "-l", str(scratch)])
+
+
+def _devices_json(as_nobody: bool = False) -> tuple[int, dict]:
+    proc = _run([CLI, "devices", "--json"], as_nobody)
+    try:
+        return proc.returncode, json.loads(proc.stdout)
+    except ValueError:
+        raise AssertionError(f"devices --json printed no JSON (exit {proc.returncode}): "
+                             f"{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}") from None
+
+
+def _node(sysdev: str) -> tuple[int, int, str]:
+    bus, dev = (int(Path(sysdev, n).read_text()) for n in ("busnum", "devnum"))
+    return bus, dev, f"/dev/bus/usb/{bus:03d}/{dev:03d}"
+
+
+def _only_camera(data: dict, node: str) -> dict:
+    assert len(data["cameras"]) == 1, data
+    camera = data["cameras"][0]
+    assert camera["node"] == node and camera["usb"] is not None, camera
+    assert camera["usb"]["serial"] == "00000001" and "DAVIS346" in camera["usb"]["product"], camera
+    return camera
+
+
+def _as_root(bus: int, address: int, node: str) -> dict:
+    """As root: the emulated camera is present and accessible; what dv-processing lists for it."""
+    code, data = _devices_json()
+    camera = _only_camera(data, node)
+    assert (camera["bus"], camera["address"]) == (bus, address), camera
+    assert camera["usb"]["access"] == "ok" and camera["usb"]["reason"] == "", camera
+    # dv-processing lists the gadget (matched by bus/address) or not; either way the verdict agrees
+    if camera["dv"] is not None:
+        assert camera["status"] == "ready" and code == 0 and data["ready"] == 1, data
+        assert data["message"] == f"ready: DAVIS-346 at bus {bus} device {address} ({node}), serial 00000001", data
+    else:
+        assert camera["status"] == "not-in-dv" and code == 1 and "dv-processing" in camera["problem"], data
+    return {"exit_code": code, "camera": camera, "message": data["message"], "dv_log": data["dv_log"]}
+
+
+def _dv_open(bus: int, address: int, node: str) -> dict:
+    """dv-processing asked to open the emulated camera (it is no DAVIS: it refuses it) and the line
+    explain_no_camera(error=...) makes of its error; in a process of its own, with a timeout."""
+    opened = _run([sys.executable, "-c", OPEN])
+    lines = {line.split(" ", 1)[0]: line.split(" ", 1)[-1] for line in opened.stdout.splitlines() if line}
+    assert opened.returncode == 0 and ("OPENED" in lines or "EXPLAIN" in lines), opened.stdout + opened.stderr
+    if "EXPLAIN" in lines:
+        assert lines["EXPLAIN"].startswith(f"DAVIS-346 at bus {bus} device {address} ({node})"), lines
+        assert f"opening it failed: {lines['ERROR']}" in lines["EXPLAIN"], lines
+    return {"dv_open": lines}
+
+
+def _busy(bus: int, address: int, node: str) -> dict:
+    """While this process holds the camera's interface 0 (usbfs claims are per open file, so the
+    discovery's own probe is refused like another program's): busy, and which process."""
+    import libusb_package
+    import usb.core
+    import usb.util
+
+    from neurotouch_hid.sources.discovery import discover
+
+    held = usb.core.find(idVendor=CAMERA_VID, idProduct=CAMERA_PID, backend=libusb_package.get_libusb1_backend())
+    assert held is not None, "pyusb does not find the emulated camera"
+    try:
+        usb.util.claim_interface(held, 0)
+        found = discover(dv=False)
+    finally:
+        usb.util.dispose_resources(held)
+    assert len(found.cameras) == 1, found.to_json()
+    camera = found.cameras[0].to_json()
+    assert camera["node"] == node and camera["status"] == "busy" and camera["usb"]["access"] == "busy", camera
+    assert f"PID {os.getpid()} " in camera["problem"], camera
+    assert "neurotouch-hid.service" in camera["fix"], camera
+    return {"camera": camera}
+
+
+def _unprivileged(bus: int, address: int, node: str) -> dict:
+    """As the user nobody, without the rules file installed: present but not accessible, and the fix
+    is to install the udev rule (with the rule installed the fix explains uaccess instead: a
+    unit test on the host covers that wording)."""
+    aside = RULES.with_name(RULES.name + ".aside")
+    with _python_for_nobody():
+        RULES.rename(aside)
+        try:
+            code, data = _devices_json(as_nobody=True)
+        finally:
+            aside.rename(RULES)
+    camera = _only_camera(data, node)
+    assert code == 1 and data["ready"] == 0, data
+    assert camera["status"] == "no-access" and camera["usb"]["access"] == "denied", camera
+    assert "permission denied" in camera["problem"] and "uid 65534" in camera["problem"], camera
+    assert camera["fix"].startswith("install the udev rule: sudo install -m644 udev/60-neurotouch.rules "
+                                    "/etc/udev/rules.d/"), camera
+    assert data["message"].startswith(f"DAVIS-346 at bus {bus} device {address}"), data
+    return {"exit_code": code, "camera": camera, "message": data["message"], "dv_log": data["dv_log"]}
+
+
+PARTS = {"as_root": _as_root, "dv_open": _dv_open, "busy": _busy, "unprivileged": _unprivileged}
+
+
+def check_devices() -> dict:
+    """The emulated camera plugged in once; every part of PARTS on it. Returns, per part,
+    ``{"ok": True, "details": ...}`` or ``{"ok": False, "error": ...}`` (a failing part does not hide
+    the others); fails only when the camera cannot be plugged in."""
+    import traceback
+
+    sysdev = _plug_camera()
+    results = {}
+    try:
+        bus, address, node = _node(sysdev)
+        for name, part in PARTS.items():
+            try:
+                results[name] = {"ok": True, "details": part(bus, address, node)}
+            except Exception as exc:  # noqa: BLE001 - recorded for the host-side test of that part
+                results[name] = {"ok": False, "error": f"{type(exc).__name__}: {exc}",
+                                 "traceback": traceback.format_exc()[-3000:]}
+    finally:
+        _unplug_camera()
+    return results
