@@ -270,6 +270,81 @@ def doctor() -> None:
         sys.exit(code)
 
 
+# --- calibration (calibration.py) -------------------------------------------------------------
+@app.command()
+def calibrate(
+    source: str = typer.Option("davis", "--source", help="davis (live camera) or an AEDAT4 recording that starts with the gel at rest"),
+    out: Optional[Path] = typer.Option(None, "--out", help="sensor.yaml (or folder) to write (default: your config folder, where run, track and eval find it)"),
+    markers: int = typer.Option(177, "--markers", min=1, help="the gel's marker count (the paper's gel: 177)"),
+    mirror: Optional[bool] = typer.Option(None, "--mirror/--no-mirror", help="the camera sees the gel from inside (default: ask on a terminal, else yes)"),
+    rotation: Optional[float] = typer.Option(None, "--rotation", help="counter-clockwise degrees from the mirrored image to your view (default: ask on a terminal, else 0)"),
+    frames: int = typer.Option(10, "--frames", min=3, help="rest frames to check and average (25 a second)"),
+) -> None:
+    """Measure the gel's circle and scale on rest frames and save sensor.yaml (DATASET.md).
+
+    Keep your hands off the gel while it runs."""
+    import dataclasses
+    import math
+
+    from neurotouch_hid import calibration
+    from neurotouch_hid.errors import SensorError
+    from neurotouch_hid.sensor import SensorGeometry, user_sensor_path
+
+    def say(line: str) -> None:
+        console.print(line, highlight=False, markup=False, soft_wrap=True)
+
+    if source == "davis":
+        err_console.print("reading rest frames from the camera: keep your hands off the gel", highlight=False)
+    result = calibration.calibrate(calibration.read_rest_frames(source, frames), expected_markers=markers, n_frames=frames)
+    geometry = result.sensor
+    span_s = (result.frames_t_us[-1] - result.frames_t_us[0]) / 1e6
+    say(f"{len(result.frames_t_us)} rest frames of {source} over {span_s:.2f} s: the gel did not move")
+    offset = math.hypot(geometry.gel_center_px[0] - result.grid_center_px[0], geometry.gel_center_px[1] - result.grid_center_px[1])
+    circle = (f"fitted to the gel's edge, {offset:.1f} px from the marker grid's centre" if result.edge_found
+              else "the marker grid's extent + 4 mm")
+    say(f"gel circle: centre ({geometry.gel_center_px[0]:.2f}, {geometry.gel_center_px[1]:.2f}) px, "
+        f"radius {geometry.gel_radius_px:.2f} px ({circle})")
+    say(f"scale: {geometry.px_per_mm:.4f} px/mm at the centre (neighbouring markers there {result.spacing_px:.2f} px = 4 mm apart)")
+    say(f"markers: {result.n_markers} found, {markers} expected")
+    interactive = sys.stdin.isatty()
+    if mirror is None and interactive:
+        mirror = typer.confirm("Does the camera look at the gel from inside (the image is a mirror of your view)?", default=True)
+    elif mirror is None:
+        say("mirror: true (the default: the camera looks from inside; not asked without a terminal; --no-mirror to change)")
+        mirror = True
+    if rotation is None and interactive:
+        seen = "mirrored image" if mirror else "image"
+        rotation = typer.prompt(f"Rotation from the {seen} to your view (counter-clockwise degrees)", default=0.0, type=float)
+    elif rotation is None:
+        say("rotation: 0 deg (the default; not asked without a terminal; --rotation DEG to change)")
+        rotation = 0.0
+    geometry = dataclasses.replace(geometry, mirror=mirror, rotation_deg=float(rotation))
+    for note in result.notes:
+        say(f"note: {note}")
+
+    path = user_sensor_path() if out is None else (out / "sensor.yaml" if out.is_dir() else out)
+    if path.exists():
+        try:
+            changes = calibration.sensor_changes(SensorGeometry.load(path), geometry)
+            say(f"replacing {path}: " + ("; ".join(changes) if changes else "the same values"))
+        except SensorError as exc:
+            say(f"replacing {path}, which was not a valid sensor.yaml ({exc})")
+        if interactive and not typer.confirm(f"Replace {path}?", default=True):
+            say("nothing written")
+            return
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        geometry.save(path)
+    except OSError as exc:
+        raise SensorError(f"{path}: cannot write the sensor file: {exc.strerror}") from None
+    say(f"wrote {path}")
+    if path == user_sensor_path():
+        say("run, track, view and eval use it when no --sensor is given and no sensor.yaml is beside the recording "
+            "or in the dataset")
+    else:
+        say(f"use it with --sensor {path}, or calibrate without --out to make it your default")
+
+
 # --- profiles (mapping/) ----------------------------------------------------------------------
 @profile_app.command("list")
 def profile_list() -> None:

@@ -175,12 +175,35 @@ class SensorGeometry:
         return inside.astype(np.uint8) * 255
 
 
+def user_sensor_path() -> Path:
+    """Where ``neurotouch-hid calibrate`` saves the user's sensor.yaml by default:
+    ``platformdirs.user_config_dir("neurotouch-hid")/sensor.yaml`` (``$XDG_CONFIG_HOME/neurotouch-hid``
+    on Linux, beside the user's ``profiles``). The file may not exist; nothing is created here."""
+    import platformdirs
+
+    return Path(platformdirs.user_config_dir("neurotouch-hid")) / "sensor.yaml"
+
+
+def default_sensor() -> SensorGeometry:
+    """The geometry when nothing more specific is known (the live camera; a recording without a
+    sensor.yaml beside it): the user's calibration (:func:`user_sensor_path`) if there is one,
+    else the default DAVIS-346 NeuroTouch geometry of DATASET.md.
+
+    Raises :class:`SensorError` naming the file when the user's sensor.yaml is invalid.
+    """
+    path = user_sensor_path()
+    return SensorGeometry.load(path) if path.exists() else SensorGeometry()
+
+
 def find_sensor_file(recording: str | Path, sensor: str | Path | None = None) -> SensorGeometry:
-    """The geometry for a recording: ``sensor`` if given, else ``sensor.yaml`` beside it, else
-    the default DAVIS-346 NeuroTouch geometry of DATASET.md."""
+    """The geometry for a recording: ``sensor`` if given, else ``sensor.yaml`` beside the
+    recording, else the user's calibration, else the default geometry (:func:`default_sensor`).
+
+    Raises :class:`SensorError` naming the file when the chosen sensor.yaml is missing or invalid.
+    """
     if sensor is not None:
         return SensorGeometry.load(sensor)
     beside = Path(recording).with_name("sensor.yaml")
     if beside.exists():
         return SensorGeometry.load(beside)
-    return SensorGeometry()
+    return default_sensor()

@@ -1,4 +1,5 @@
-"""Shared fixtures: the one real-kernel boot per test session (tests/kernel/vm.py)."""
+"""Shared fixtures: the one real-kernel boot per test session (tests/kernel/vm.py), and a user
+config folder in tmp for every other test."""
 
 from __future__ import annotations
 
@@ -9,6 +10,18 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from kernel.vm import KernelUnavailable, guest_results  # noqa: E402
+
+
+@pytest.fixture(autouse=True)
+def user_config_in_tmp(request, tmp_path, monkeypatch) -> Path | None:
+    """Every test's user config folder (profiles, calibrated sensor.yaml) is an empty folder in
+    tmp, so that tests never read or write the real one (platformdirs follows XDG_CONFIG_HOME).
+    Not for the kernel tests: the guest boots with the environment it always had."""
+    if request.node.get_closest_marker("kernel"):
+        return None
+    folder = tmp_path / "config"
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(folder))
+    return folder
 
 
 @pytest.fixture(scope="session")

@@ -1,7 +1,8 @@
 """The labelled dataset format of DATASET.md: folders of sequences, labels CSV, predictions.
 
 A dataset is a folder with ``sensor.yaml`` and, per sequence, ``SEQUENCE.aedat4`` and
-``SEQUENCE.labels.csv`` (paper, section "Creation of the Gesture Detection Dataset").
+``SEQUENCE.labels.csv`` (paper, section "Creation of the Gesture Detection Dataset"). A folder
+without ``sensor.yaml`` takes the user's calibration (``neurotouch-hid calibrate``) instead.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import numpy as np
 
 from neurotouch_hid.errors import DatasetError
 from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.sensor import user_sensor_path
 
 #: The columns of ``SEQUENCE.labels.csv``, in DATASET.md's order.
 LABEL_COLUMNS: tuple[str, ...] = (
@@ -127,16 +129,32 @@ def read_labels(path: str | Path) -> list[LabelRow]:
     return rows
 
 
+def dataset_sensor_file(dataset: str | Path) -> Path:
+    """The sensor.yaml that applies to a dataset folder: its own (DATASET.md), else the user's
+    calibration (``neurotouch-hid calibrate``; :func:`~neurotouch_hid.sensor.user_sensor_path`).
+
+    Raises DatasetError when there is neither.
+    """
+    own = Path(dataset) / "sensor.yaml"
+    if own.exists():
+        return own
+    calibrated = user_sensor_path()
+    if calibrated.exists():
+        return calibrated
+    raise DatasetError(f"{dataset}: no sensor.yaml (DATASET.md), and no calibrated sensor at {calibrated}: add the "
+                       f"sensor.yaml the dataset was recorded with, or calibrate with `neurotouch-hid calibrate`")
+
+
 def list_sequences(dataset: str | Path) -> list[str]:
     """Names of the sequences in a dataset folder (those with both .aedat4 and .labels.csv), sorted.
 
-    Raises DatasetError when the folder does not exist, has no sensor.yaml or no sequence.
+    Raises DatasetError when the folder does not exist, has no sequence, or has no sensor.yaml
+    while the user has no calibration either (:func:`dataset_sensor_file`).
     """
     dataset = Path(dataset)
     if not dataset.is_dir():
         raise DatasetError(f"{dataset}: not a dataset folder (DATASET.md)")
-    if not (dataset / "sensor.yaml").exists():
-        raise DatasetError(f"{dataset}: no sensor.yaml (DATASET.md)")
+    dataset_sensor_file(dataset)
     names = sorted(p.name[: -len(".aedat4")] for p in dataset.glob("*.aedat4"))
     names = [n for n in names if (dataset / f"{n}.labels.csv").exists()]
     if not names:

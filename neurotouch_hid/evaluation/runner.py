@@ -12,16 +12,19 @@ executed on the complete dataset").
 from __future__ import annotations
 
 import dataclasses
+import logging
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Callable, Sequence
 
 from neurotouch_hid.errors import NeurotouchError
-from neurotouch_hid.evaluation.dataset import list_sequences, read_labels
+from neurotouch_hid.evaluation.dataset import dataset_sensor_file, list_sequences, read_labels
 from neurotouch_hid.evaluation.metrics import EvaluationResult, Observations, align, evaluate
 from neurotouch_hid.output.jsonl import write_predictions
 from neurotouch_hid.sensor import SensorGeometry
+
+log = logging.getLogger(__name__)
 
 _TRUE = {"1", "true", "yes", "on"}
 _FALSE = {"0", "false", "no", "off"}
@@ -121,7 +124,7 @@ def run_sequence(
     from neurotouch_hid.sources.recording import RecordingReader
 
     dataset = Path(dataset)
-    sensor = SensorGeometry.load(dataset / "sensor.yaml")
+    sensor = SensorGeometry.load(dataset_sensor_file(dataset))
     labels = read_labels(dataset / f"{name}.labels.csv")
     pipeline = GesturePipeline(sensor, config)
     predictions = []
@@ -147,6 +150,9 @@ def evaluate_dataset(
 ) -> EvaluationResult:
     """Run the pipeline over every sequence of a dataset and compute the paper's metrics.
 
+    A dataset folder without sensor.yaml is run with the user's calibration
+    (:func:`~neurotouch_hid.evaluation.dataset.dataset_sensor_file`), which a logged warning says.
+
     Args:
         dataset: the dataset folder (DATASET.md).
         config: PipelineConfig (None: defaults).
@@ -161,6 +167,9 @@ def evaluate_dataset(
 
     dataset = Path(dataset)
     names = list_sequences(dataset)
+    sensor_file = dataset_sensor_file(dataset)
+    if sensor_file.parent != dataset:
+        log.warning("note: %s has no sensor.yaml; using your calibration %s", dataset, sensor_file)
     durations = {n: max(read_info(dataset / f"{n}.aedat4").duration_us, 1) for n in names}
     task = None
     if progress is not None:
