@@ -74,6 +74,9 @@ def simulate(
     users: Optional[str] = typer.Option(
         None, "--users",
         help="comma-separated user ids 0-9 (default: the preset's; paper: even seed -> test users 0-4, odd seed -> tuning users 5-9)"),
+    noise_hz: float = typer.Option(
+        0.1, "--noise-hz",
+        help="background-activity noise per pixel (Hz): 0.1 a DAVIS-346 in good light, a few Hz in dim light"),
 ) -> None:
     """Simulate the NeuroTouch gel and write a labelled dataset (DATASET.md)."""
     from neurotouch_hid.sources.simulator import write_dataset
@@ -84,7 +87,8 @@ def simulate(
             user_ids = [int(u) for u in users.split(",") if u.strip()]
         except ValueError:
             raise NeurotouchError(f"--users: expected comma-separated user ids 0-9, got {users!r}") from None
-    folder = write_dataset(out, preset=preset, seed=seed, minutes=minutes, users=user_ids, progress=True)
+    folder = write_dataset(out, preset=preset, seed=seed, minutes=minutes, users=user_ids, progress=True,
+                           noise_hz=noise_hz)
     console.print(f"wrote {folder}")
 
 

@@ -32,7 +32,8 @@ _FALSE = {"0", "false", "no", "off"}
 
 def _convert(text: str, default, annotation: str):
     """``text`` as the type of a dataclass field whose default is ``default`` (bool, int, float,
-    str; ``none`` for an optional field; int/float from the annotation when the default is None)."""
+    str; ``none`` for an optional field; int/float/str from the annotation when the default is
+    None, e.g. ``noise_filter: str | None``)."""
     optional = default is None or "None" in annotation
     if optional and text.lower() in ("none", "null"):
         return None
@@ -45,6 +46,8 @@ def _convert(text: str, default, annotation: str):
     for kind in (int, float):
         if default is None and kind.__name__ in annotation:
             return kind(text)
+    if default is None and "str" in annotation:
+        return text
     raise ValueError(f"a field of type {annotation} cannot be set from the command line")
 
 

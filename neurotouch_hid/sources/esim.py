@@ -30,6 +30,9 @@ from neurotouch_hid.sources import EVENT_DTYPE
 PATCH_RADIUS = 4
 #: Added to grey levels before the log (ESIM's log(I + eps)), grey levels.
 LOG_EPS = 1.0
+#: Background-activity rate per pixel (Hz) of the simulated camera by default: the low end of a
+#: DAVIS-346 in good light (the rate grows as the light dims, to a few Hz per pixel).
+NOISE_RATE_HZ = 0.1
 #: A pixel whose intensity changed by less than this fraction since its last log evaluation is
 #: not evaluated (the change is kept and counted once it adds up): 1 % is ~ C / 25.
 SKIP_REL = 0.01
@@ -230,14 +233,17 @@ class EventCamera:
         rng: numpy Generator (thresholds, reference phases, hot pixels, noise).
         contrast: mean contrast threshold C (log units); contrast_sigma: its per-pixel spread.
         refractory_us: refractory period (us).
-        noise_rate_hz: background-activity rate per pixel (Hz).
+        noise_rate_hz: background-activity rate per pixel (Hz, >= 0; default
+            :data:`NOISE_RATE_HZ`).
         n_hot: number of hot pixels; hot_rate_hz: their event rate (Hz).
         max_step_px: largest marker motion between two renders (px).
+    Raises:
+        ValueError: ``noise_rate_hz`` is negative (or NaN).
     """
 
     def __init__(self, background: np.ndarray, rest_px: np.ndarray, amp: np.ndarray, sigma: np.ndarray,
                  rng: np.random.Generator, *, contrast: float = 0.25, contrast_sigma: float = 0.03,
-                 refractory_us: int = 100, noise_rate_hz: float = 0.1, n_hot: int = 4,
+                 refractory_us: int = 100, noise_rate_hz: float = NOISE_RATE_HZ, n_hot: int = 4,
                  hot_rate_hz: float = 40.0, max_step_px: float = 0.25, eps_px: float = 0.05) -> None:
         h, w = background.shape
         self.height, self.width = h, w
@@ -259,6 +265,8 @@ class EventCamera:
         self.log_ref = self.log_prev + (rng.random((h, w)) - 0.5) * self.c_on
         self.last_t = np.full((h, w), np.iinfo(np.int64).min // 2, dtype=np.int64)
         self.refractory_us = int(refractory_us)
+        if not float(noise_rate_hz) >= 0.0:
+            raise ValueError(f"noise_rate_hz must be >= 0 Hz per pixel, got {noise_rate_hz}")
         self.noise_rate_hz = float(noise_rate_hz)
         hot = rng.choice(h * w, size=n_hot, replace=False) if n_hot else np.zeros(0, dtype=np.int64)
         self.hot_x = (hot % w).astype(np.int16)

@@ -57,7 +57,7 @@ from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.evaluation.dataset import LabelRow, write_labels
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame, StreamItem
-from neurotouch_hid.sources.esim import EventCamera, render_frame
+from neurotouch_hid.sources.esim import NOISE_RATE_HZ, EventCamera, render_frame
 from neurotouch_hid.sources.recording import RecordingWriter, split_batches
 
 #: Gesture types that the simulated users perform (paper, section "Problem Statement").
@@ -485,18 +485,23 @@ class GelSimulator:
         start_us: time of the first APS frame (us).
         script: the gestures to perform (time-ordered, not overlapping: each starts after the
             previous one's ``t_settled_us``) instead of drawing them for ``user``; may be finite.
+        noise_rate_hz: the event camera's background-activity rate per pixel (Hz, >= 0;
+            ``EventCamera``). The gestures do not depend on it; the noise's random stream (shared
+            with the APS frames' noise) does.
+    Raises:
+        ValueError: ``noise_rate_hz`` < 0.
     """
 
     def __init__(self, sensor: SensorGeometry | None = None, user: SimUser = USERS[0],
                  gestures: Iterable[GestureType] = SIM_GESTURES, seed: int = 0,
                  stream_seed: Sequence[int] = (0,), start_us: int = START_US,
-                 script: Iterable[SimGesture] | None = None) -> None:
+                 script: Iterable[SimGesture] | None = None, noise_rate_hz: float = NOISE_RATE_HZ) -> None:
         self.sensor = sensor or SensorGeometry()
         camera_rng = np.random.default_rng(np.random.SeedSequence([seed, 0xCA3E]))
         script_ss, noise_ss = np.random.SeedSequence([seed, *stream_seed]).spawn(2)
         self.gel = Gel(self.sensor, camera_rng)
         self.camera = EventCamera(self.gel.background, self.gel.rest_px, self.gel.brightness, self.gel.sigma_px,
-                                  camera_rng, eps_px=0.05)
+                                  camera_rng, eps_px=0.05, noise_rate_hz=noise_rate_hz)
         self._noise_rng = np.random.default_rng(noise_ss)
         self._noise_bank = camera_rng.standard_normal(1 << 20, dtype=np.float32)
         self._script = iter(script) if script is not None else gesture_script(
@@ -675,7 +680,7 @@ def save_npz(path: Path, **arrays: np.ndarray) -> None:
 def write_dataset(out_dir: str | Path, preset: str = "quick", seed: int = 0, minutes: float | None = None,
                   progress: bool = True, users: Sequence[int] | None = None,
                   gestures: Sequence[GestureType | str] | None = None,
-                  sensor: SensorGeometry | None = None) -> Path:
+                  sensor: SensorGeometry | None = None, noise_hz: float = NOISE_RATE_HZ) -> Path:
     """Simulate and write a labelled dataset (DATASET.md): ``sensor.yaml`` and, per user and
     gesture type, ``u{user}_{gesture}.aedat4``, ``.labels.csv`` and ``.markers.npz``.
 
@@ -690,10 +695,13 @@ def write_dataset(out_dir: str | Path, preset: str = "quick", seed: int = 0, min
         users: user ids (0-9) instead of the preset's, e.g. ``TUNING_USERS``.
         gestures: gesture types instead of all five.
         sensor: geometry (default DATASET.md's).
+        noise_hz: background-activity noise rate per pixel (Hz, >= 0) of the simulated event
+            camera (default 0.1, a DAVIS-346 in good light; real sensors reach a few Hz in dim
+            light). The gesture scripts and labels do not depend on it.
     Returns:
         the dataset folder.
     Raises:
-        NeurotouchError: unknown preset, user id or gesture, or minutes <= 0.
+        NeurotouchError: unknown preset, user id or gesture, minutes <= 0 or noise_hz < 0.
         RecordingError: the folder cannot be written.
     """
     if preset not in PRESET_SECONDS:
@@ -711,6 +719,8 @@ def write_dataset(out_dir: str | Path, preset: str = "quick", seed: int = 0, min
     n_seq = len(user_ids) * len(kinds)
     if minutes is not None and not minutes > 0:
         raise NeurotouchError(f"--minutes must be positive, got {minutes}")
+    if not noise_hz >= 0:
+        raise NeurotouchError(f"--noise-hz must be >= 0 (events per pixel per second), got {noise_hz}")
     seconds = PRESET_SECONDS[preset] if minutes is None else minutes * 60.0 / n_seq
     sensor = sensor or SensorGeometry()
     out = Path(out_dir)
@@ -729,7 +739,8 @@ def write_dataset(out_dir: str | Path, preset: str = "quick", seed: int = 0, min
         for k, (uid, kind) in enumerate((int(u), g) for u in user_ids for g in kinds):
             name = sequence_name(uid, kind)
             bar.update(task, description=name)
-            sim = GelSimulator(sensor, USERS[uid], [kind], seed=seed, stream_seed=(uid, SIM_GESTURES.index(kind)))
+            sim = GelSimulator(sensor, USERS[uid], [kind], seed=seed, stream_seed=(uid, SIM_GESTURES.index(kind)),
+                               noise_rate_hz=noise_hz)
             write_sequence(out, name, sim, seconds,
                            on_chunk=lambda us, k=k: bar.update(task, completed=k * seconds + min(us * 1e-6, seconds)))
     return out

@@ -1,0 +1,135 @@
+"""Optional event noise filtering before the tracker, with dv-processing's noise filters.
+
+A DAVIS-346 adds background activity (BA) to the events of the markers: isolated events at
+random pixels and times, about 0.1 Hz per pixel in good light and up to a few Hz per pixel in
+dim light (~9 k to ~300 k events/s over the 346 x 260 array), plus a few hot pixels. The blob
+tracker (``tracker.py``) already ignores events far from every blob and gates isolated events
+near a resting blob; a filter in front of it removes most of the noise before it gets there,
+at the price of some marker events (a slowly moving marker's events are sparse too).
+
+The filters are dv-processing's (iniVation's library, ``dv_processing.noise``, version 2.0.4),
+each with its time parameter in microseconds:
+
+- ``BackgroundActivityNoiseFilter`` (``backgroundActivityDuration``, library default 2000 us):
+  an event is kept when one of its 8 neighbouring pixels had an event within that time;
+- ``FastDecayNoiseFilter`` (``halfLife``, library default 10 000 us): an exponentially decaying
+  event count per 4 x 4 pixel cell (the library's ``subdivisionFactor`` 4); an event is kept
+  when its cell's count is above the library's ``noiseThreshold`` (6);
+- ``KNoiseFilter`` (``timeDelta``, library default 1000 us): Khodamoradi's O(N)-memory
+  filter (Khodamoradi and Kastner, "O(N)-space spatiotemporal filter for reducing noise in
+  neuromorphic vision sensors", 2018): it stores the last event per row and per column only
+  and keeps an event that has enough supporting neighbours within that time (library docs).
+
+Which one (or none) the pipeline uses is ``PipelineConfig.noise_filter``; by default the
+background-activity filter with 20 ms (docs/accuracy.md, "Noise filter": on the simulated test
+set at 0.1 Hz per pixel it moves no metric by more than 0.08 point or 0.06 mm, and at 3 Hz per
+pixel it keeps the contact count accuracy at ~86-87 % where the tracker alone falls to ~80 %,
+the contact distance at ~2.1 mm instead of ~2.8 mm). Its cost is mostly
+the conversion to and from dv-processing's ``EventStore`` (docs/performance.md, "Noise
+filter").
+"""
+
+from __future__ import annotations
+
+import datetime
+
+import numpy as np
+
+#: The supported ``dv_processing.noise`` filters and the time parameter (us) each gets when
+#: ``PipelineConfig.noise_filter_us`` is None: the best of each on the simulated tuning set over
+#: 0.1-3 Hz per pixel of background activity (docs/accuracy.md, "Noise filter"; the library's
+#: defaults, 2000 and 10 000 us, drop too many marker events); ``KNoiseFilter``: the library's
+#: 1000 us (it keeps about a third of the marker events at any time tried).
+NOISE_FILTERS: dict[str, int] = {
+    "BackgroundActivityNoiseFilter": 20_000,
+    "FastDecayNoiseFilter": 50_000,
+    "KNoiseFilter": 1_000,
+}
+
+
+def check_noise_filter(name: str | None, time_us: int | None) -> None:
+    """Validate a filter choice (``PipelineConfig.noise_filter`` / ``noise_filter_us``).
+
+    Args:
+        name: None (no filter) or a key of :data:`NOISE_FILTERS`.
+        time_us: None (that filter's time in :data:`NOISE_FILTERS`) or the filter's time
+            parameter (us, >= 1).
+    Raises:
+        ValueError: unknown name (the message lists the supported ones), a time parameter that
+            is not a positive whole number of microseconds, or a time parameter without a filter.
+    """
+    if name is not None and name not in NOISE_FILTERS:
+        raise ValueError(f"noise_filter must be None or one of {', '.join(NOISE_FILTERS)}, got {name!r}")
+    if time_us is None:
+        return
+    if name is None:
+        raise ValueError(f"noise_filter_us={time_us} is set but noise_filter is None (no filter to apply it to)")
+    if isinstance(time_us, bool) or not isinstance(time_us, (int, np.integer)) or time_us < 1:
+        raise ValueError(f"noise_filter_us must be a whole number of microseconds >= 1 or None, got {time_us!r}")
+
+
+class EventNoiseFilter:
+    """One dv-processing noise filter over numpy event batches, its state kept across calls.
+
+    Args:
+        name: a key of :data:`NOISE_FILTERS`.
+        width, height: the sensor's pixel array (px), e.g. 346 x 260.
+        time_us: the filter's time parameter (us); None = the filter's time in
+            :data:`NOISE_FILTERS`.
+    Raises:
+        ValueError: as :func:`check_noise_filter`, or width/height < 1.
+
+    Attributes:
+        name, width, height, time_us: as given (``time_us`` None resolved from
+            :data:`NOISE_FILTERS`).
+        n_in, n_out: events offered and kept so far (since construction or the last reset).
+    """
+
+    def __init__(self, name: str, width: int, height: int, time_us: int | None = None) -> None:
+        check_noise_filter(name, time_us)
+        if width < 1 or height < 1:
+            raise ValueError(f"the pixel array must be at least 1 x 1 px, got {width} x {height}")
+        self.name = name
+        self.width, self.height = int(width), int(height)
+        self.time_us = int(NOISE_FILTERS[name] if time_us is None else time_us)
+        self.n_in = 0
+        self.n_out = 0
+        self._last_us: int | None = None
+        self._filter = self._make()
+
+    def _make(self):
+        import dv_processing as dv
+
+        return getattr(dv.noise, self.name)((self.width, self.height), datetime.timedelta(microseconds=self.time_us))
+
+    def reset(self) -> None:
+        """Forget every event seen (a new stream, e.g. whose clock restarts) and the counts."""
+        self._filter = self._make()
+        self._last_us = None
+        self.n_in = self.n_out = 0
+
+    def __call__(self, events: np.ndarray) -> np.ndarray:
+        """Filter one batch.
+
+        Args:
+            events: (E,) EVENT_DTYPE (``timestamp`` int64 us, ``x``/``y`` int16 px inside the
+                array, ``polarity``), time-ordered. A batch that starts before the previous
+                batch's last event (the camera's clock restarted, a recording looped) resets the
+                filter first (:meth:`reset`): the library's filters compare time differences,
+                which would let every event of the new clock through for a while.
+        Returns:
+            (K,) EVENT_DTYPE, K <= E: the kept events, in their order (a new array; ``events``
+            itself when it is empty).
+        """
+        from neurotouch_hid.sources.recording import events_from_store, store_from_events
+
+        if len(events) == 0:
+            return events
+        if self._last_us is not None and int(events["timestamp"][0]) < self._last_us:
+            self.reset()
+        self._last_us = int(events["timestamp"][-1])
+        self._filter.accept(store_from_events(events))
+        kept = events_from_store(self._filter.generateEvents())
+        self.n_in += len(events)
+        self.n_out += len(kept)
+        return kept
