@@ -181,6 +181,19 @@ def view(
 
 
 # --- the controller (runtime.py, mapping/, output/) -----------------------------------------
+def _davis_config(serial: Optional[str], exposure_us: str, stall_timeout: float):
+    """The live camera's settings from the command line (sources/davis.py DavisConfig)."""
+    from neurotouch_hid.sources.davis import DavisConfig
+
+    if exposure_us != "auto" and not exposure_us.isdigit():
+        raise NeurotouchError(f"--exposure-us {exposure_us!r}: expected a whole number of microseconds or 'auto'")
+    try:
+        return DavisConfig(serial=serial, exposure_us=None if exposure_us == "auto" else int(exposure_us),
+                           stall_timeout_s=stall_timeout)
+    except ValueError as exc:
+        raise NeurotouchError(f"camera settings: {exc}") from None
+
+
 @app.command()
 def run(
     source: str = typer.Option("davis", "--source", help="davis (live camera), sim (simulated gel), a recording path, or predictions PRED.jsonl (replayed without the pipeline)"),
@@ -192,15 +205,22 @@ def run(
     window_us: int = typer.Option(10_000, "--window-us", help="window length in microseconds (>= 1000)"),
     sensor: Optional[Path] = typer.Option(None, "--sensor", help="sensor.yaml (default: beside the recording, or the built-in one)"),
     seed: int = typer.Option(0, "--seed", help="with --source sim: the simulation's seed"),
+    wait: bool = typer.Option(False, "--wait", help="with --source davis: wait for a camera to be plugged in instead of failing"),
+    serial: Optional[str] = typer.Option(None, "--serial", help="with --source davis: the camera's serial number (default: the first DAVIS-346)"),
+    exposure_us: str = typer.Option("4000", "--exposure-us", help="with --source davis: APS exposure in microseconds, or 'auto'"),
+    stall_timeout: float = typer.Option(1.0, "--stall-timeout", help="with --source davis: seconds without data that count as a lost camera"),
 ) -> None:
     """Run the driver: source -> pipeline -> profile -> virtual gamepad.
 
     Stops at the end of the source, after --seconds, on Ctrl-C (exit 130) or SIGTERM (a clean
-    stop, exit 0), always leaving the gamepad neutral. SIGHUP reloads the profile."""
+    stop, exit 0), always leaving the gamepad neutral. SIGHUP reloads the profile. A camera that
+    is unplugged or stalls centres the gamepad at once; the driver reconnects when it is back."""
     from neurotouch_hid.runtime import run_driver
 
     stats = run_driver(source, profile, output, seconds=seconds, fast=fast, out=out, window_us=window_us,
-                       sensor=sensor, seed=seed, console=console)
+                       sensor=sensor, seed=seed, console=console, wait=wait,
+                       davis=_davis_config(serial, exposure_us, stall_timeout),
+                       say=lambda line: err_console.print(line, markup=False, highlight=False, soft_wrap=True))
     err_console.print(stats.summary(), highlight=False, soft_wrap=True)
 
 

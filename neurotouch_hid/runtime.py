@@ -16,8 +16,14 @@ Sources (:func:`open_source`): the live camera, the simulated gel, an AEDAT4 rec
 predictions file (the pipeline's estimates, DATASET.md, replayed without the pipeline).
 
 Every way out of :meth:`Runtime.run` (end of the source, :meth:`Runtime.stop`, SIGTERM, Ctrl-C, an
-exception in any stage, a lost camera) first centres all axes and releases all buttons
-(``output.neutralise()``). SIGTERM is a clean stop (``run`` returns normally, the CLI exits 0);
+exception in any stage) first centres all axes and releases all buttons (``output.neutralise()``).
+
+A live camera that is unplugged, fails or stalls does not end the run: its stream says so
+(:class:`~neurotouch_hid.sources.SourceStatus`, see ``sources/davis.py``). On ``"lost"`` the source
+thread neutralises the output at once, drops the data still queued and says why; nothing is
+written until the camera is back. On ``"resumed"`` the pipeline restarts (``pipeline.restart()``:
+the markers are re-initialised on the first APS frame at rest) with a fresh mapper (its filters
+and hysteresis start neutral). SIGTERM is a clean stop (``run`` returns normally, the CLI exits 0);
 SIGHUP reloads the profile from its file (a bad profile on reload keeps the old one and logs why).
 """
 
@@ -39,7 +45,7 @@ import numpy as np
 from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.errors import DeviceError, NeurotouchError, ProfileError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.sources import Frame, StreamItem
+from neurotouch_hid.sources import Frame, SourceStatus, StreamItem
 
 log = logging.getLogger(__name__)
 
@@ -107,6 +113,7 @@ class RunStats:
             pipeline fell behind a live or paced source (items = event batches + frames).
         resting_updates: resting detector results handed to the pipeline.
         resting_dropped_frames: APS frames the resting detector skipped (it was still busy).
+        camera_losses: times the live camera was lost (unplugged, failing, stalled).
         wall_s: wall time of the run (s).
         stream_us: camera time covered by the processed data (us).
         latency: processing latencies: from the moment the item that closed a window was read
@@ -125,6 +132,7 @@ class RunStats:
     dropped_frames: int = 0
     resting_updates: int = 0
     resting_dropped_frames: int = 0
+    camera_losses: int = 0
     wall_s: float = 0.0
     stream_us: int = 0
     latency: LatencyRing = field(default_factory=LatencyRing, repr=False)
@@ -139,7 +147,8 @@ class RunStats:
         return (f"{self.windows} windows, {self.events} events, {self.frames} frames in {self.wall_s:.1f} s"
                 f" ({self.stream_us / 1e6:.1f} s of data); dropped {self.dropped_items} items"
                 f" ({self.dropped_events} events, {self.dropped_frames} frames),"
-                f" resting detector skipped {self.resting_dropped_frames} frames{lat}")
+                f" resting detector skipped {self.resting_dropped_frames} frames"
+                + (f", camera lost {self.camera_losses} time(s)" if self.camera_losses else "") + lat)
 
 
 class DropOldestQueue:
@@ -184,6 +193,15 @@ class DropOldestQueue:
             entry = self._items.popleft()
             self._cond.notify_all()
             return entry
+
+    def clear(self) -> None:
+        """Drop every queued item (each counted like a drop-oldest one)."""
+        with self._cond:
+            while self._items:
+                _, old = self._items.popleft()
+                if self._on_drop is not None:
+                    self._on_drop(old)
+            self._cond.notify_all()
 
     def close(self) -> None:
         """No more puts; wakes every waiting thread."""
@@ -238,6 +256,7 @@ class Runtime:
         queue_items: bound of the input queue (items).
         mapper_factory, profile_loader: the mapping's ``Mapper`` and ``load_profile`` (replaceable
             in tests).
+        say: tells the user what happens to a live source (camera lost, back; one line each).
     """
 
     def __init__(
@@ -254,6 +273,7 @@ class Runtime:
         queue_items: int = DEFAULT_QUEUE_ITEMS,
         mapper_factory: Callable[[Any], Any] = _make_mapper,
         profile_loader: Callable[[str | Path], Any] = _load_profile,
+        say: Callable[[str], None] = log.warning,
     ):
         self._source = source
         self._pipeline = pipeline
@@ -280,6 +300,9 @@ class Runtime:
         self._first_ns = 0  # perf_counter_ns of the first item read ...
         self._first_us = 0  # ... and its time (us, camera clock): the pacing anchor
         self._ran = False
+        self._say = say
+        self._paused = False  # the live camera is lost: write nothing (under self._lock)
+        self._restart = threading.Event()  # it is back: restart the pipeline before its data
 
     # --- control ----------------------------------------------------------------------------
     def stop(self) -> None:
@@ -407,6 +430,9 @@ class Runtime:
             for item in iterator:
                 if self._stop.is_set():
                     break
+                if isinstance(item, SourceStatus):
+                    self._source_status(item)
+                    continue
                 t_us = item_end_us(item)
                 if t_us is not None:
                     if first_us is None:
@@ -431,6 +457,21 @@ class Runtime:
                     close()
             self._items.close()
             self._frames.close()
+
+    def _source_status(self, status: SourceStatus) -> None:
+        """Source thread: the live camera was lost (neutralise now, drop the stale queue) or is
+        back (the worker restarts the pipeline before its data); tell the user."""
+        if status.kind == "lost":
+            with self._lock:
+                self._paused = True
+                self._output.neutralise()
+                self._last_state = ControllerState.neutral(self._last_state.t_us)
+                self._last_gesture = None
+            self._items.clear()
+            self.stats.camera_losses += 1
+        elif status.kind == "resumed":
+            self._restart.set()
+        self._say(status.message)
 
     def _rest(self) -> None:
         """Resting thread: run the detector on APS frames, hand each verdict to the pipeline."""
@@ -462,6 +503,8 @@ class Runtime:
                         break
                     continue
                 arrival_ns, item = entry
+                if self._restart.is_set():
+                    self._resume()
                 estimates = self._pipeline.process(item)
                 if isinstance(item, Frame):
                     stats.frames += 1
@@ -485,10 +528,21 @@ class Runtime:
             self._errors.append(exc)
             self.stop()
 
+    def _resume(self) -> None:
+        """Worker thread, first item after the camera came back: a new session of the pipeline
+        and the mapper; writing resumes."""
+        self._restart.clear()
+        self._pipeline.restart()
+        with self._lock:
+            self._mapper = self._mapper_factory(self.profile)
+            self._last_state = ControllerState.neutral(self._last_state.t_us)
+            self._last_gesture = None
+            self._paused = False
+
     def _emit(self, estimate: GestureEstimate) -> None:
         with self._lock:
-            if self._stop.is_set():  # run() neutralises (under this lock): nothing after that
-                return
+            if self._stop.is_set() or self._paused:  # run() neutralises (under this lock): nothing
+                return                                # after that; a lost camera: nothing until back
             state = self._mapper.update(estimate)
             last = self._last_state
             changed = state.axes != last.axes or state.buttons != last.buttons
@@ -515,22 +569,33 @@ class EstimateReplay:
     def process(self, item: GestureEstimate) -> list[GestureEstimate]:
         return [item]
 
+    def restart(self) -> None:  # pragma: no cover - a predictions file is never interrupted
+        pass
+
     def set_resting(self, result: Any, t_us: int) -> None:  # pragma: no cover - no frames here
         pass
 
 
 def open_source(spec: str, stack: contextlib.ExitStack, *, seconds: float | None = None,
                 batch_us: int = DEFAULT_BATCH_US, sensor: str | Path | None = None,
-                seed: int = 0) -> tuple[Iterable[Any], Any, bool]:
+                seed: int = 0, davis: Any = None, wait: bool = False,
+                capture: Any = None) -> tuple[Iterable[Any], Any, bool]:
     """Open ``davis`` (the live camera), ``sim`` (the simulated gel), an AEDAT4 recording path, or
     a predictions file (``*.jsonl``, DATASET.md: the pipeline's estimates, replayed as they are).
+
+    The camera's stream survives unplugs and stalls (it yields
+    :class:`~neurotouch_hid.sources.SourceStatus` items); ``davis`` is its
+    :class:`~neurotouch_hid.sources.davis.DavisConfig`, ``wait`` waits for a camera instead of
+    failing, ``capture`` replaces dv-processing's camera backend (tests replay recordings through
+    it). Its geometry is ``sensor``, else the user's calibration, else the built-in one.
 
     Returns ``(stream, sensor_geometry, live)``; ``live`` is True for the camera (never paced by
     the runtime); the geometry is None for a predictions file. Resources (camera, file) are
     closed by ``stack``. Raises RecordingError for a missing or unreadable recording,
-    DatasetError for a bad predictions file, DeviceError when the camera cannot be opened.
+    DatasetError for a bad predictions file, DeviceError when the camera cannot be opened (and
+    ``wait`` is off).
     """
-    from neurotouch_hid.sensor import SensorGeometry, find_sensor_file
+    from neurotouch_hid.sensor import SensorGeometry, default_sensor, find_sensor_file
 
     if spec.endswith(".jsonl"):
         from neurotouch_hid.output.jsonl import read_predictions
@@ -540,9 +605,12 @@ def open_source(spec: str, stack: contextlib.ExitStack, *, seconds: float | None
     if spec == "davis":
         from neurotouch_hid.sources.davis import DavisSource
 
-        camera = stack.enter_context(DavisSource())
-        geometry = SensorGeometry.load(sensor) if sensor is not None else SensorGeometry()
-        return camera.stream(seconds=seconds, batch_us=batch_us), geometry, True
+        try:
+            camera = stack.enter_context(DavisSource(davis, wait=wait, backend=capture))
+        except DeviceError as exc:
+            raise DeviceError(f"{exc}; or start with --wait to wait for a camera") from None
+        geometry = SensorGeometry.load(sensor) if sensor is not None else default_sensor()
+        return camera.stream(seconds=seconds, batch_us=batch_us, reconnect=True), geometry, True
     if spec == "sim":
         from neurotouch_hid.sources.simulator import SimulatedSource
 
@@ -628,7 +696,8 @@ def warm_up_tracker(geometry: Any) -> None:
 def run_driver(source: str = "davis", profile: str | Path = "default", output: str = "gamepad", *,
                seconds: float | None = None, fast: bool = False, out: str | Path | None = None,
                window_us: int = 10_000, sensor: str | Path | None = None, seed: int = 0,
-               console: Any = None, output_obj: Any = None) -> RunStats:
+               console: Any = None, output_obj: Any = None, davis: Any = None, wait: bool = False,
+               capture: Any = None, say: Callable[[str], None] = log.warning) -> RunStats:
     """``neurotouch-hid run``: load the profile (a bad one raises ProfileError before any device
     exists), open the source, build the pipeline, open the output, run until the end.
 
@@ -638,6 +707,8 @@ def run_driver(source: str = "davis", profile: str | Path = "default", output: s
     same input always gives the same states.
 
     ``output_obj`` replaces the output named by ``output`` (the demo's fallback, benchmarks).
+    ``davis``, ``wait``, ``capture``: the live camera's settings (:func:`open_source`); ``say``
+    tells the user when it is lost and back.
     Raises NeurotouchError subclasses for bad input (ProfileError, RecordingError, DeviceError,
     SensorError).
     """
@@ -648,14 +719,15 @@ def run_driver(source: str = "davis", profile: str | Path = "default", output: s
     loaded = _load_profile(profile)
     with contextlib.ExitStack() as stack:
         stream, geometry, live = open_source(source, stack, seconds=seconds,
-                                             batch_us=min(DEFAULT_BATCH_US, window_us), sensor=sensor, seed=seed)
+                                             batch_us=min(DEFAULT_BATCH_US, window_us), sensor=sensor, seed=seed,
+                                             davis=davis, wait=wait, capture=capture)
         if geometry is None:  # a predictions file: the estimates are already there
             pipeline, resting = EstimateReplay(), None
         else:
             pipeline, resting = build_pipeline(geometry, window_us, resting_beside=live or not fast)
         out_obj = output_obj if output_obj is not None else open_output(output, loaded, stack, out=out, console=console)
         runtime = Runtime(stream, pipeline, loaded, out_obj, resting=resting, pace=not fast, live=live,
-                          profile_ref=profile)
+                          profile_ref=profile, say=say)
         if hasattr(out_obj, "stats"):
             out_obj.stats = runtime.stats
         return runtime.run(seconds)

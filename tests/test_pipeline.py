@@ -326,3 +326,54 @@ def test_view_writes_a_picture_of_the_right_size(push_dataset, tmp_path, suffix,
     assert pictures.shape[1:3] == (scale * sensor.height, scale * sensor.width)
     assert len(pictures) == (drawn if suffix == ".gif" else 1)
     assert pictures[..., :3].std() > 5  # not a blank picture
+
+
+# --- a new session after the camera was lost (GesturePipeline.restart) -----------------------------
+def some_events(t0_us: int, n: int = 50) -> np.ndarray:
+    events = np.zeros(n, dtype=EVENT_DTYPE)
+    events["timestamp"] = t0_us + np.arange(n) * 500
+    events["x"], events["y"], events["polarity"] = 173, 130, 1
+    return events
+
+
+def test_restart_waits_for_a_frame_at_rest_then_initialises_on_it():
+    pipeline = GesturePipeline(SENSOR)
+    pipeline.process(Frame(0, gel_image()))
+    rest = pipeline.rest_px.copy()
+    assert pipeline.process(some_events(1_000))  # windows close: a running session
+    pipeline.restart()
+    pressed = gel_image(shift_px=(4.0, 0.0), region_px=30.0)  # the user still presses when the camera returns
+    for k in range(3):
+        assert pipeline.process(Frame(100_000 + 40_000 * k, pressed)) == []
+        assert pipeline.tracker is None
+        assert pipeline.process(some_events(110_000 + 40_000 * k)) == [], "no estimate before the markers are back"
+    pipeline.process(Frame(300_000, gel_image()))  # released: at rest against the kept reference
+    assert pipeline.tracker is not None
+    np.testing.assert_allclose(pipeline.rest_px, rest, atol=0.05)
+    estimates = pipeline.process(some_events(310_000))
+    assert estimates and all(e.t_us > 310_000 for e in estimates)
+
+
+def test_restart_falls_back_to_a_still_frame_when_the_old_reference_never_matches():
+    from neurotouch_hid.pipeline.pipeline import RESUME_MATCH_FRAMES
+
+    pipeline = GesturePipeline(SENSOR)
+    pipeline.process(Frame(0, gel_image()))
+    rest = pipeline.rest_px.copy()
+    pipeline.restart()
+    moved = gel_image(shift_px=(5.0, 5.0))  # e.g. the gel was re-seated while the camera was away
+    for k in range(RESUME_MATCH_FRAMES):
+        pipeline.process(Frame(40_000 * (k + 1), moved))
+        assert pipeline.tracker is None, f"initialised on frame {k} before giving up on the reference"
+    pipeline.process(Frame(40_000 * (RESUME_MATCH_FRAMES + 1), moved))  # still: unchanged from the frame before
+    assert pipeline.tracker is not None
+    # the new rest positions are the moved grid's (a few markers left the gel disc or entered it)
+    to_moved = np.hypot(*(pipeline.rest_px[:, None, :] - (rest[None, :, :] + 5.0)).transpose(2, 0, 1)).min(axis=1)
+    assert np.median(to_moved) < 0.1
+
+
+def test_restart_before_any_reference_is_a_plain_start():
+    pipeline = GesturePipeline(SENSOR)
+    pipeline.restart()
+    pipeline.process(Frame(0, gel_image(shift_px=(2.0, 0.0))))
+    assert pipeline.tracker is not None

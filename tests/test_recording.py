@@ -312,23 +312,3 @@ def test_missing_frame_stream_and_wrong_resolution(tmp_path):
     with pytest.raises(RecordingError, match="640x480 px but 346x260 is required") as caught:
         RecordingReader(big, require_resolution=(346, 260))
     assert str(big) in str(caught.value)
-
-
-# --- the live camera (none on the test machines) -------------------------------------------------
-def _camera_present() -> bool:
-    import dv_processing as dv
-
-    return bool(dv.io.camera.discover())
-
-
-@pytest.mark.skipif(_camera_present(), reason="a DAVIS camera is plugged in: the no-camera error cannot occur")
-def test_davis_source_without_camera_says_how_to_fix():
-    from neurotouch_hid.errors import DeviceError
-    from neurotouch_hid.sources.davis import DavisSource
-
-    with pytest.raises(DeviceError) as caught:
-        DavisSource()
-    message = str(caught.value)
-    assert "no DAVIS camera found" in message
-    for fix in ("lsusb", "152a:841a", "neurotouch-hid doctor"):
-        assert fix in message

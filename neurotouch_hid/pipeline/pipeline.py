@@ -56,6 +56,11 @@ from neurotouch_hid.sources import Frame, StreamItem
 
 #: Shortest window accepted (us).
 MIN_WINDOW_US = 1_000
+#: After :meth:`GesturePipeline.restart`, how many APS frames may fail to match the kept rest
+#: reference (2 s at 25 Hz) before a frame that is merely still (unchanged from the frame before)
+#: re-initialises the markers instead: the gel or the light may have changed while the camera was
+#: away, and the driver must not wait for ever.
+RESUME_MATCH_FRAMES = 50
 
 #: The stages :attr:`GesturePipeline.timings` measures.
 STAGES = ("noise_filter", "tracker", "contacts", "gesture", "resting")
@@ -235,6 +240,8 @@ class GesturePipeline:
         self._lock = threading.Lock()
         self._next_end: int | None = None
         self._rejected_frames = 0
+        self._resume_waited = 0
+        self._previous_frame: Frame | None = None
         #: the optional noise filter in front of the tracker (one per pipeline, its state kept
         #: across batches; it starts afresh by itself when the clock goes back, ``noise.py``)
         self.noise_filter: EventNoiseFilter | None = None
@@ -280,6 +287,28 @@ class GesturePipeline:
         with self._lock:
             if self._pending is None or t_us >= self._pending[1]:
                 self._pending = (result, int(t_us))
+
+    def restart(self) -> None:
+        """Start a new session after the source was interrupted (the camera was unplugged or
+        stalled). A DAVIS stamps Unix time (us), so the new session's clock carries on.
+
+        The tracked markers and open windows are dropped, but the rest reference is kept: the
+        first APS frame that the resting detector finds at rest against it (paper, section
+        "Resting Position Detection") re-initialises the markers, as the first frame did at the
+        start (paper, section "Marker Tracking": t0 is a resting timestep). Until then events are
+        dropped and no window closes. If :data:`RESUME_MATCH_FRAMES` frames in a row do not match
+        the reference, the first frame unchanged from the one before it is taken instead. Before
+        any reference exists this is a plain start again.
+        """
+        self.tracker = None
+        self._next_end = None
+        with self._lock:
+            self._pending = None
+        self._resting_t_us = -(2**62)
+        self._resting = RestingResult(True, 0.0)
+        self._rejected_frames = 0
+        self._resume_waited = 0
+        self._previous_frame = None
 
     # --- outputs ----------------------------------------------------------------------------
     def marker_positions(self) -> np.ndarray:
@@ -329,9 +358,25 @@ class GesturePipeline:
         )
         self._resting = RestingResult(True, 0.0)
 
+    def _at_rest_after_restart(self, frame: Frame) -> bool:
+        """After :meth:`restart`: whether ``frame`` may re-initialise the markers (see there)."""
+        if self.resting_detector.update(frame).resting:
+            return True
+        self._resume_waited += 1
+        previous, self._previous_frame = self._previous_frame, frame
+        if self._resume_waited <= RESUME_MATCH_FRAMES or previous is None:
+            return False
+        try:
+            still = RestingDetector(previous.image, self.sensor, self.config.chamfer_threshold,
+                                    self.config.marker_threshold)
+        except SensorError:  # the frame before shows no marker at all
+            return False
+        return still.update(frame).resting
+
     def _process_frame(self, frame: Frame) -> list[GestureEstimate]:
-        if self.rest_px is None:
-            self._initialise(frame)
+        if self.tracker is None:
+            if self.rest_px is None or self._at_rest_after_restart(frame):
+                self._initialise(frame)
             return []
         out = self._close_windows_until(frame.t_us)
         if self.config.detect_resting:
@@ -349,7 +394,7 @@ class GesturePipeline:
         return out
 
     def _process_events(self, events: np.ndarray, *, filtered: bool = False) -> list[GestureEstimate]:
-        if self.rest_px is None or len(events) == 0:
+        if self.tracker is None or len(events) == 0:
             return []
         if self.noise_filter is not None and not filtered:
             # the tracker gets the kept events; the windows start and close on the unfiltered

@@ -31,8 +31,25 @@ class Frame:
     image: np.ndarray
 
 
-#: One item of a source's stream: an event batch (EVENT_DTYPE array, time-ordered) or a frame.
-StreamItem = Union[np.ndarray, Frame]
+@dataclass(frozen=True)
+class SourceStatus:
+    """A change in a live source's state, in its stream between the data (only from a live camera
+    asked to survive faults: :meth:`DavisSource.stream` with ``reconnect=True``).
+
+    Attributes:
+        kind: ``"waiting"`` (no camera yet, waiting for one), ``"lost"`` (unplugged, stalled or
+            failing: no data follows until ``"resumed"``), ``"resumed"`` (a camera delivers data
+            again; the data that follows is a new session, its clock may have restarted).
+        message: one line for the user: what happened and what the driver does about it.
+    """
+
+    kind: str
+    message: str
+
+
+#: One item of a source's stream: an event batch (EVENT_DTYPE array, time-ordered), a frame, or
+#: (live camera only) a :class:`SourceStatus`.
+StreamItem = Union[np.ndarray, Frame, SourceStatus]
 Stream = Iterator[StreamItem]
 
 

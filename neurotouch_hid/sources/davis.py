@@ -1,18 +1,46 @@
 """The live DAVIS-346 event camera inside the NeuroTouch gel, through dv-processing.
 
 dv-processing 2.0.4 opens cameras with ``dv_processing.io.camera.discover()`` and
-``dv_processing.io.camera.open()`` (its libusb-based DAVIS driver; the ``CameraCapture`` class of
-older releases became this module). This module turns the camera's event batches and APS frames
-into the stream every source yields (ARCHITECTURE.md, sources).
+``dv_processing.io.camera.open(descriptor)`` (its libusb-based DAVIS driver; the ``CameraCapture``
+class of older releases became this module). This module turns the camera's event batches and APS
+frames into the stream every source yields (ARCHITECTURE.md, sources), and keeps that stream
+alive through faults:
+
+* **No camera at start**: :class:`DavisSource` raises :class:`~neurotouch_hid.errors.DeviceError`
+  with what to do (``sources/discovery.py`` says whether a 152a:841a device is on USB at all, or
+  present but not accessible and which udev rule to install). dv-processing's own ``open()`` with
+  no camera raises a raw IndexError; we never call it without a descriptor from ``discover()``.
+  ``wait=True`` waits for a camera instead.
+* **Unplugged, failing or stalled mid-run** (``stream(reconnect=True)``): the stream yields a
+  :class:`~neurotouch_hid.sources.SourceStatus` ``"lost"`` at once, retries with exponential
+  back-off (:func:`backoff_delays`), and yields ``"resumed"`` before the first data of the camera
+  that came back. A stream without data for ``stall_timeout_s`` is treated like an unplug (the
+  camera is closed and opened again). Without ``reconnect`` a fault raises DeviceError.
+
+The capture interface
+---------------------
+The source uses a small part of dv-processing's camera API, so that tests can drive it with a
+replay of AEDAT4 recordings (tests/camera_replay.py) instead of a camera:
+
+* a *backend* with ``discover() -> list[descriptor]`` and ``open(descriptor) -> camera``
+  (``dv_processing.io.camera`` itself is the real one); a descriptor has ``serialNumber`` (str)
+  and ``cameraModel`` (``dv_processing.io.camera.CameraModel``);
+* a *camera* with ``getCameraName()``, ``getEventResolution()`` ((width, height) or None),
+  ``isFrameStreamAvailable()``, ``isRunning()``, ``getNextEventBatch()`` (None or an event store
+  with ``len()`` and ``numpy()``), ``getNextFrame()`` (None or a frame with ``timestamp`` (us) and
+  ``image`` (uint8)) and, on a DAVIS, ``setFrameInterval``, ``setExposureDuration`` and
+  ``setAutoExposure`` (dv-processing ``io.camera.DAVIS``, durations as ``datetime.timedelta``).
 """
 
 from __future__ import annotations
 
+import datetime
 import time
-from typing import Iterator
+from dataclasses import dataclass
+from typing import Any, Iterator
 
 from neurotouch_hid.errors import DeviceError
-from neurotouch_hid.sources import Frame, StreamItem
+from neurotouch_hid.sources import Frame, SourceStatus, StreamItem
 from neurotouch_hid.sources.recording import (
     DAVIS346_RESOLUTION,
     DV_ERRORS,
@@ -22,53 +50,98 @@ from neurotouch_hid.sources.recording import (
     split_batches,
 )
 
-#: USB vendor:product of a DAVIS-346 (iniVation FX3 boards).
-DAVIS_USB_ID = "152a:841a"
-_FIX = (f"plug the DAVIS-346 in, check that `lsusb` lists {DAVIS_USB_ID}, and see "
-        f"`neurotouch-hid doctor` for the udev rule that gives your user access to it")
 #: Pause between polls when the camera has nothing new, s (well under one 1 ms batch).
 _IDLE_SLEEP_S = 0.0002
+#: dv-processing camera models that are DAVIS cameras (events + APS frames).
+_DAVIS_MODELS = ("DAVIS", "DAVIS_GEN2")
+
+
+@dataclass(frozen=True)
+class DavisConfig:
+    """How the live camera is opened, set up and watched.
+
+    Attributes:
+        serial: the camera's serial number, or None for the first DAVIS-346 found.
+        frame_interval_us: APS frame interval (us); 40,000 = 25 Hz, the paper's frame rate
+            (section "System Overview").
+        exposure_us: APS exposure (us), fixed so that every frame is thresholded alike (resting
+            detection compares frames with the rest reference, paper section "Resting Position
+            Detection"); None = the camera's auto-exposure.
+        stall_timeout_s: no data (events or frames) for this long (s) counts as a lost camera. A
+            DAVIS-346 watching the gel sends APS frames every ``frame_interval_us`` and noise
+            events even at rest, so silence means a fault.
+        retry_initial_s, retry_max_s: back-off between attempts to open the camera again (s):
+            the first wait, doubled after each failure up to the maximum.
+    """
+
+    serial: str | None = None
+    frame_interval_us: int = 40_000
+    exposure_us: int | None = 4_000
+    stall_timeout_s: float = 1.0
+    retry_initial_s: float = 0.25
+    retry_max_s: float = 4.0
+
+    def __post_init__(self) -> None:
+        if self.frame_interval_us <= 0:
+            raise ValueError(f"frame interval must be positive, got {self.frame_interval_us} us")
+        if self.exposure_us is not None and not 0 < self.exposure_us <= self.frame_interval_us:
+            raise ValueError(f"exposure must be positive and at most the frame interval "
+                             f"({self.frame_interval_us} us), got {self.exposure_us} us")
+        if self.stall_timeout_s <= 0:
+            raise ValueError(f"stall timeout must be positive, got {self.stall_timeout_s} s")
+        if not 0 < self.retry_initial_s <= self.retry_max_s:
+            raise ValueError(f"retry back-off needs 0 < initial <= maximum, got {self.retry_initial_s} s "
+                             f"and {self.retry_max_s} s")
+
+
+def backoff_delays(initial_s: float, maximum_s: float) -> Iterator[float]:
+    """The waits (s) between reconnection attempts: ``initial_s``, doubled each time, capped at
+    ``maximum_s``; endless."""
+    delay = initial_s
+    while True:
+        yield delay
+        delay = min(delay * 2.0, maximum_s)
+
+
+def _fix_hint(serial: str | None, problems: str | None = None) -> str:
+    """What to do when no usable camera is found (sources/discovery.py looks at the USB bus):
+    one line that also carries ``problems`` (why the cameras that were tried could not be used)."""
+    from neurotouch_hid.sources.discovery import explain_no_camera
+
+    hint = explain_no_camera(serial, error=problems)
+    if problems and problems not in hint:
+        hint = f"{problems}: {hint}"
+    return f"{hint}; `neurotouch-hid devices` lists what is plugged in"
 
 
 class DavisSource:
-    """A live DAVIS-346: events and APS frames as they arrive.
+    """A live DAVIS-346: events and APS frames as they arrive, through unplugs and stalls.
 
     Args:
-        serial: the camera's serial number, or None for the first DAVIS found.
-        require_resolution: (width, height) px the camera must have (a DAVIS-346: 346x260).
+        config: which camera, its frame interval and exposure, the stall timeout and back-off.
+        wait: do not fail when no camera can be opened now: :meth:`stream` (with
+            ``reconnect=True``) waits for one.
+        backend: the capture backend (module docstring); None = ``dv_processing.io.camera``.
 
     Raises:
-        DeviceError: no camera found, the camera cannot be opened (permissions: the udev rule),
-            or it has another resolution. The message says how to fix it.
+        DeviceError: (unless ``wait``) no DAVIS camera can be opened: none on USB, no permission
+            (the udev rule), another resolution than 346x260. The message says how to fix it.
 
     Use as a context manager (or call :meth:`close`) to release the camera.
     """
 
-    def __init__(self, serial: str | None = None,
-                 require_resolution: tuple[int, int] | None = DAVIS346_RESOLUTION) -> None:
-        import dv_processing as dv
+    def __init__(self, config: DavisConfig | None = None, *, wait: bool = False, backend: Any = None) -> None:
+        if backend is None:
+            import dv_processing as dv
 
-        try:
-            found = dv.io.camera.discover()
-        except DV_ERRORS as exc:
-            raise DeviceError(f"cannot search for a DAVIS camera ({dv_error_text(str(exc))}): {_FIX}") from None
-        if serial is not None:
-            found = [d for d in found if d.serialNumber == serial]
-        if not found:
-            which = f"with serial number {serial} " if serial is not None else ""
-            raise DeviceError(f"no DAVIS camera {which}found: {_FIX}")
-        try:
-            self._camera = dv.io.camera.open(found[0])
-        except DV_ERRORS as exc:
-            raise DeviceError(f"cannot open the DAVIS camera {found[0].serialNumber} "
-                              f"({dv_error_text(str(exc))}): {_FIX}") from None
-        self.camera_name: str = self._camera.getCameraName()
-        resolution = self._camera.getEventResolution()
-        self.width, self.height = (int(resolution[0]), int(resolution[1])) if resolution else (0, 0)
-        if require_resolution is not None and (self.width, self.height) != tuple(require_resolution):
-            raise DeviceError(f"camera {self.camera_name} is {self.width}x{self.height} px, but NeuroTouch "
-                              f"needs a DAVIS-346 ({require_resolution[0]}x{require_resolution[1]})")
-        self.has_frames: bool = bool(self._camera.isFrameStreamAvailable())
+            backend = dv.io.camera
+        self.config = config or DavisConfig()
+        self._backend = backend
+        self._camera: Any = None
+        self.camera_name: str | None = None
+        self.has_frames = False
+        if not wait:
+            self._open_or_raise()
 
     def __enter__(self) -> "DavisSource":
         return self
@@ -80,7 +153,71 @@ class DavisSource:
         """Stop the camera and release its USB device (dv-processing does so when it is dropped)."""
         self._camera = None
 
-    def stream(self, seconds: float | None = None, batch_us: int = 1000) -> Iterator[StreamItem]:
+    # --- opening ------------------------------------------------------------------------------
+    def _open_or_raise(self) -> None:
+        """Open the first usable DAVIS-346 (or the one with ``config.serial``) and set it up.
+
+        Raises DeviceError (with the fix) when none can be opened."""
+        try:
+            found = self._backend.discover()
+        except DV_ERRORS as exc:
+            raise DeviceError(f"cannot search for a DAVIS camera ({dv_error_text(str(exc))}): "
+                              f"{_fix_hint(self.config.serial)}") from None
+        found = [d for d in found if getattr(d.cameraModel, "name", "") in _DAVIS_MODELS]
+        if self.config.serial is not None:
+            found = [d for d in found if d.serialNumber == self.config.serial]
+        problems = []
+        for descriptor in found:
+            try:
+                camera = self._backend.open(descriptor)
+            except DV_ERRORS as exc:
+                problems.append(f"cannot open {descriptor.serialNumber} ({dv_error_text(str(exc))})")
+                continue
+            resolution = camera.getEventResolution()
+            size = (int(resolution[0]), int(resolution[1])) if resolution else (0, 0)
+            if size != DAVIS346_RESOLUTION:
+                problems.append(f"{camera.getCameraName()} is {size[0]}x{size[1]} px, not a DAVIS-346 "
+                                f"({DAVIS346_RESOLUTION[0]}x{DAVIS346_RESOLUTION[1]})")
+                continue
+            self._configure(camera)
+            self._camera = camera
+            self.camera_name = camera.getCameraName()
+            self.has_frames = bool(camera.isFrameStreamAvailable())
+            return
+        raise DeviceError(_fix_hint(self.config.serial, "; ".join(problems) or None))
+
+    def _configure(self, camera: Any) -> None:
+        """APS frame interval and exposure (dv-processing ``io.camera.DAVIS`` setters)."""
+        if not hasattr(camera, "setFrameInterval"):
+            return
+        cfg = self.config
+        camera.setFrameInterval(datetime.timedelta(microseconds=cfg.frame_interval_us))
+        if cfg.exposure_us is None:
+            camera.setAutoExposure(True)
+        else:
+            camera.setAutoExposure(False)
+            camera.setExposureDuration(datetime.timedelta(microseconds=cfg.exposure_us))
+
+    # --- reading ------------------------------------------------------------------------------
+    def _read(self) -> tuple[list[StreamItem], str | None]:
+        """One poll of the camera: ``(items, failure)``; ``failure`` says why the camera is lost."""
+        camera = self._camera
+        try:
+            if not camera.isRunning():
+                return [], "stopped (unplugged?)"
+            items: list[StreamItem] = []
+            frame = camera.getNextFrame() if self.has_frames else None
+            if frame is not None:
+                items.append(Frame(int(frame.timestamp), grey_image(frame.image)))
+            store = camera.getNextEventBatch()
+        except DV_ERRORS as exc:
+            return [], f"failed ({dv_error_text(str(exc))})"
+        if store is not None and len(store):
+            items.append(events_from_store(store))
+        return items, None
+
+    def stream(self, seconds: float | None = None, batch_us: int = 1000, *,
+               reconnect: bool = False) -> Iterator[StreamItem]:
         """Event batches and APS frames as the camera delivers them, until ``seconds`` have passed.
 
         Yields the same kinds of items as :meth:`RecordingReader.stream`: event batches (EVENT_DTYPE,
@@ -89,24 +226,68 @@ class DavisSource:
         held back to keep latency low: a frame is yielded when its readout completes, so events
         stamped during its exposure may have been yielded before it.
 
+        With ``reconnect``, faults do not end the stream: it yields
+        :class:`~neurotouch_hid.sources.SourceStatus` items (``"waiting"`` when started without a
+        camera, ``"lost"`` as soon as the camera stops, fails or stalls, ``"resumed"`` before the
+        first data of a camera that is back), retrying with :func:`backoff_delays` in between.
+
         Raises:
-            DeviceError: the camera stops (unplugged) before ``seconds`` are over.
+            DeviceError: without ``reconnect``, the camera is missing, stops (unplugged), fails or
+                stalls before ``seconds`` are over.
         """
-        camera = self._camera
-        if camera is None:
-            raise DeviceError(f"the DAVIS camera {self.camera_name} was closed")
+        cfg = self.config
         deadline = None if seconds is None else time.monotonic() + seconds
-        while deadline is None or time.monotonic() < deadline:
-            if not camera.isRunning():
-                raise DeviceError(f"the DAVIS camera {self.camera_name} stopped (unplugged?): {_FIX}")
-            idle = True
-            frame = camera.getNextFrame() if self.has_frames else None
-            if frame is not None:
-                idle = False
-                yield Frame(int(frame.timestamp), grey_image(frame.image))
-            store = camera.getNextEventBatch()
-            if store is not None and len(store):
-                idle = False
-                yield from split_batches(events_from_store(store), batch_us)
-            if idle:
+
+        def remaining() -> float:
+            return float("inf") if deadline is None else deadline - time.monotonic()
+
+        delays = backoff_delays(cfg.retry_initial_s, cfg.retry_max_s)
+        lost_since: float | None = None  # monotonic time the current outage began
+        never_opened = self._camera is None
+        if self._camera is None:
+            if not reconnect:
+                self._open_or_raise()
+            else:
+                lost_since = time.monotonic()
+                yield SourceStatus("waiting", f"waiting for a DAVIS-346 ({_fix_hint(cfg.serial)}); Ctrl-C stops")
+        last_data = time.monotonic()
+        while remaining() > 0:
+            if self._camera is None:  # in an outage: try again after the back-off
+                try:
+                    self._open_or_raise()
+                except DeviceError:
+                    time.sleep(max(0.0, min(next(delays), remaining())))
+                    continue
+                last_data = time.monotonic()
+            items, failure = self._read()
+            now = time.monotonic()
+            if items:
+                if lost_since is not None:
+                    what = "found" if never_opened else "is back"
+                    yield SourceStatus("resumed", f"camera {self.camera_name} {what} after {now - lost_since:.1f} s; "
+                                                  "the markers are initialised on the first APS frame at rest")
+                    never_opened = False
+                    lost_since = None
+                    delays = backoff_delays(cfg.retry_initial_s, cfg.retry_max_s)
+                last_data = now
+                for item in items:
+                    if isinstance(item, Frame):
+                        yield item
+                    else:
+                        yield from split_batches(item, batch_us)
+                continue
+            if failure is None and now - last_data > cfg.stall_timeout_s:
+                failure = f"sent no data for {now - last_data:.1f} s (stalled)"
+            if failure is None:
                 time.sleep(_IDLE_SLEEP_S)
+                continue
+            name = self.camera_name
+            self.close()
+            if not reconnect:
+                raise DeviceError(f"the DAVIS camera {name} {failure}: check its USB cable, then "
+                                  f"`neurotouch-hid devices`")
+            if lost_since is None:  # a new outage (not a camera that stalled again right after reopening)
+                lost_since = now
+                yield SourceStatus("lost", f"camera {name} {failure}: gamepad centred and released; "
+                                           f"trying to reopen it (back-off up to {cfg.retry_max_s:g} s)")
+            time.sleep(max(0.0, min(next(delays), remaining())))

@@ -1,0 +1,193 @@
+"""A replay of an AEDAT4 recording behind dv-processing's camera interface, with faults.
+
+The live source (``neurotouch_hid/sources/davis.py``) is written against a small capture
+interface: ``discover()`` and ``open(descriptor)`` of ``dv_processing.io.camera``, and a handful of
+the camera's methods. :class:`ReplayWorld` offers the same calls, answering them from a real
+recording (the real DAVIS-346 street recording, or a simulated gel) played in wall time, as a
+camera watching that scene would: a camera opened at wall time w delivers what the scene shows
+from w on, in small packets as time passes, with the recording's own (Unix-time) timestamps.
+
+Faults are scripted in wall seconds from the world's start:
+
+* ``unplug``: from ``start_s`` the camera is gone: every camera opened before reports
+  ``isRunning() == False`` for good and delivers nothing; ``discover()`` lists nothing and
+  ``open()`` raises until ``end_s``, when the camera can be found and opened again.
+* ``stall``: from ``start_s`` to ``end_s`` the open camera keeps running but delivers nothing;
+  what the scene showed meanwhile is lost.
+
+This is a fake for tests, standing in for the USB camera only: the code under test is the real
+DavisSource, pipeline, runtime and mapper.
+"""
+
+from __future__ import annotations
+
+import datetime
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import dv_processing as dv
+import numpy as np
+
+from neurotouch_hid.sources.recording import RecordingReader
+
+
+@dataclass(frozen=True)
+class Fault:
+    """``kind`` ("unplug" or "stall") between ``start_s`` and ``end_s`` wall seconds (end may be inf)."""
+
+    kind: str
+    start_s: float
+    end_s: float = math.inf
+
+
+@dataclass(frozen=True)
+class ReplayDescriptor:
+    """What ``discover()`` lists (the fields of dv-processing's DeviceDescriptor that are used)."""
+
+    serialNumber: str
+    cameraModel: dv.io.camera.CameraModel = dv.io.camera.CameraModel.DAVIS
+
+
+class _Store:
+    """An event batch as the camera hands it: ``len()`` and ``numpy()`` like dv.EventStore."""
+
+    def __init__(self, events: np.ndarray):
+        self._events = events
+
+    def __len__(self) -> int:
+        return len(self._events)
+
+    def numpy(self) -> np.ndarray:
+        return self._events.copy()
+
+
+@dataclass(frozen=True)
+class _Frame:
+    timestamp: int
+    image: np.ndarray
+
+
+@dataclass
+class ReplayWorld:
+    """The scene of ``recording`` played in wall time from construction, and the camera on it.
+
+    Attributes:
+        searches: wall seconds (from the start) of every ``discover()`` call: the source's attempts
+            to find the camera.
+        settings: the DAVIS settings the source applied, as (method name, value) pairs.
+    """
+
+    recording: Path
+    faults: tuple[Fault, ...] = ()
+    serial: str = "00000499"
+    searches: list[float] = field(default_factory=list)
+    settings: list[tuple[str, object]] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        with RecordingReader(self.recording) as reader:
+            self.events, self.frames = reader.read_all()
+        self.t0_us = min(int(self.events["timestamp"][0]), self.frames[0].t_us)
+        self.event_ts = np.ascontiguousarray(self.events["timestamp"])
+        self.frame_ts = np.array([f.t_us for f in self.frames], dtype=np.int64)
+        self._start = time.monotonic()
+        self._lock = threading.Lock()
+
+    # --- the clock -------------------------------------------------------------------------
+    def now_s(self) -> float:
+        """Wall seconds since the world started."""
+        return time.monotonic() - self._start
+
+    def t_us(self, wall_s: float) -> int:
+        """The recording's timestamp (us) the scene shows at ``wall_s``."""
+        return self.t0_us + int(wall_s * 1e6)
+
+    def _in(self, kind: str, wall_s: float) -> bool:
+        return any(f.kind == kind and f.start_s <= wall_s < f.end_s for f in self.faults)
+
+    def stalled_mask(self, ts_us: np.ndarray) -> np.ndarray:
+        """True for timestamps the scene showed during a stall (never delivered)."""
+        mask = np.zeros(len(ts_us), dtype=bool)
+        for f in self.faults:
+            if f.kind == "stall":
+                mask |= (ts_us >= self.t_us(f.start_s)) & (ts_us < self.t_us(min(f.end_s, 1e9)))
+        return mask
+
+    # --- dv_processing.io.camera's calls ---------------------------------------------------
+    def discover(self) -> list[ReplayDescriptor]:
+        now = self.now_s()
+        with self._lock:
+            self.searches.append(now)
+        return [] if self._in("unplug", now) else [ReplayDescriptor(self.serial)]
+
+    def open(self, descriptor: ReplayDescriptor) -> "ReplayCamera":
+        now = self.now_s()
+        if self._in("unplug", now) or descriptor.serialNumber != self.serial:
+            raise RuntimeError(f"Failed to open device {descriptor.serialNumber}: device not found")
+        return ReplayCamera(self, now)
+
+
+class ReplayCamera:
+    """One opened camera of a :class:`ReplayWorld` (the dv-processing camera calls DavisSource makes)."""
+
+    def __init__(self, world: ReplayWorld, opened_s: float):
+        self._world = world
+        self._opened_s = opened_s
+        start = world.t_us(opened_s)
+        self._event_at = int(np.searchsorted(world.event_ts, start, side="right"))
+        self._frame_at = int(np.searchsorted(world.frame_ts, start, side="right"))
+
+    def getCameraName(self) -> str:
+        return f"DAVIS346_{self._world.serial}"
+
+    def getEventResolution(self) -> tuple[int, int]:
+        return (346, 260)
+
+    def isFrameStreamAvailable(self) -> bool:
+        return True
+
+    def _unplugged(self) -> bool:
+        now = self._world.now_s()
+        return any(f.kind == "unplug" and self._opened_s < f.start_s <= now for f in self._world.faults)
+
+    def isRunning(self) -> bool:
+        return not self._unplugged()
+
+    def _deliverable(self) -> bool:
+        return not self._unplugged() and not self._world._in("stall", self._world.now_s())
+
+    def getNextEventBatch(self) -> _Store | None:
+        if not self._deliverable():
+            return None
+        w = self._world
+        stop = int(np.searchsorted(w.event_ts, w.t_us(w.now_s()), side="right"))
+        if stop <= self._event_at:
+            return None
+        events = w.events[self._event_at:stop]
+        self._event_at = stop
+        events = events[~w.stalled_mask(events["timestamp"])]
+        return _Store(events) if len(events) else None
+
+    def getNextFrame(self) -> _Frame | None:
+        if not self._deliverable():
+            return None
+        w = self._world
+        now_us = w.t_us(w.now_s())
+        while self._frame_at < len(w.frames) and w.frame_ts[self._frame_at] <= now_us:
+            frame = w.frames[self._frame_at]
+            self._frame_at += 1
+            if not w.stalled_mask(np.array([frame.t_us]))[0]:
+                return _Frame(frame.t_us, frame.image)
+        return None
+
+    # DAVIS settings (dv_processing.io.camera.DAVIS): recorded for the tests to check
+    def setFrameInterval(self, interval: datetime.timedelta) -> None:
+        self._world.settings.append(("setFrameInterval", interval))
+
+    def setAutoExposure(self, enabled: bool) -> None:
+        self._world.settings.append(("setAutoExposure", enabled))
+
+    def setExposureDuration(self, duration: datetime.timedelta) -> None:
+        self._world.settings.append(("setExposureDuration", duration))

@@ -1,0 +1,298 @@
+"""The live DAVIS-346 source and the runtime through camera faults.
+
+DavisSource is driven through its capture interface by a replay of real AEDAT4 files
+(tests/camera_replay.py): the real DAVIS-346 street recording and a simulated gel, played in wall
+time, with scripted unplugs and stalls. Everything else is the real code: DavisSource, the
+pipeline, the runtime, the mapper and the default profile. Without a camera on this machine, the
+real dv-processing backend is also checked for the no-camera message.
+"""
+
+from __future__ import annotations
+
+import datetime
+import os
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from camera_replay import Fault, ReplayWorld
+from neurotouch_hid.controller import ControllerState
+from neurotouch_hid.errors import DeviceError, SensorError
+from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.sources import EVENT_DTYPE, Frame, SourceStatus
+from neurotouch_hid.sources.davis import DavisConfig, DavisSource, backoff_delays
+
+STREET = Path(__file__).resolve().parents[2] / "shared" / "data" / "davis346-street" / "recording.aedat4"
+#: Short stall timeout and back-off so that faults play out in a few seconds.
+QUICK = DavisConfig(stall_timeout_s=0.3, retry_initial_s=0.1, retry_max_s=0.4)
+
+
+@pytest.fixture(scope="module")
+def street() -> Path:
+    if not STREET.exists():
+        pytest.skip(reason=f"{STREET} (the real DAVIS-346 street recording in shared/) is not on this machine")
+    return STREET
+
+
+@pytest.fixture(scope="module")
+def gel_recording(tmp_path_factory) -> tuple[Path, list[tuple[float, GestureType, bool]]]:
+    """7 s of the simulated gel (seed 0: rest, a push held from 0.6 to 2.8 s, rest from 3.0 s, a
+    pinch from 4.6 s) as an AEDAT4 recording, with its labels as (seconds, gesture, resting)."""
+    from neurotouch_hid.sources.recording import RecordingWriter
+    from neurotouch_hid.sources.simulator import SimulatedSource
+
+    path = tmp_path_factory.mktemp("gel") / "gel.aedat4"
+    labels = []
+    with RecordingWriter(path) as writer:
+        for chunk in SimulatedSource(seed=0).chunks(7.0):
+            writer.write_frame(chunk.frame)
+            writer.write_events(chunk.events)
+            labels.append((chunk.label.t_us, chunk.label.gesture, chunk.label.resting))
+    t0 = labels[0][0]
+    return path, [((t - t0) / 1e6, g, r) for t, g, r in labels]
+
+
+# --- opening ------------------------------------------------------------------------------------
+def test_backoff_doubles_up_to_the_maximum():
+    delays = backoff_delays(0.25, 4.0)
+    assert [next(delays) for _ in range(7)] == [0.25, 0.5, 1.0, 2.0, 4.0, 4.0, 4.0]
+
+
+def test_config_rejects_what_a_camera_cannot_do():
+    with pytest.raises(ValueError, match="exposure"):
+        DavisConfig(exposure_us=50_000)  # longer than the 40 ms frame interval
+    with pytest.raises(ValueError, match="back-off"):
+        DavisConfig(retry_initial_s=2.0, retry_max_s=1.0)
+
+
+def test_no_camera_says_what_to_do(street):
+    world = ReplayWorld(street, faults=(Fault("unplug", 0.0),))
+    with pytest.raises(DeviceError) as err:
+        DavisSource(backend=world)
+    message = str(err.value)
+    assert "plug" in message and "lsusb -d 152a:841a" in message and "neurotouch-hid devices" in message
+
+
+def test_the_real_library_without_a_camera_gives_the_same_clear_error():
+    """dv-processing's own open() raises a raw IndexError without a camera; the source must not."""
+    import dv_processing as dv
+
+    if dv.io.camera.discover():
+        pytest.skip(reason="a camera is plugged in: the no-camera error cannot occur")
+    with pytest.raises(DeviceError, match="no DAVIS-346 .* found: plug"):
+        DavisSource()
+
+
+def test_a_camera_of_another_resolution_is_refused(street):
+    class SmallCamera(ReplayWorld):
+        def open(self, descriptor):
+            camera = super().open(descriptor)
+            camera.getEventResolution = lambda: (240, 180)
+            return camera
+
+    with pytest.raises(DeviceError, match="240x180 px, not a DAVIS-346"):
+        DavisSource(backend=SmallCamera(street))
+
+
+def test_frame_interval_and_exposure_are_set(street):
+    world = ReplayWorld(street)
+    DavisSource(DavisConfig(frame_interval_us=20_000, exposure_us=3_000), backend=world).close()
+    assert world.settings == [("setFrameInterval", datetime.timedelta(microseconds=20_000)),
+                              ("setAutoExposure", False),
+                              ("setExposureDuration", datetime.timedelta(microseconds=3_000))]
+    world = ReplayWorld(street)
+    DavisSource(DavisConfig(exposure_us=None), backend=world).close()
+    assert ("setAutoExposure", True) in world.settings
+
+
+# --- reading --------------------------------------------------------------------------------------
+def test_street_camera_delivers_the_scene_as_batches_and_frames(street):
+    world = ReplayWorld(street)
+    with DavisSource(backend=world) as camera:
+        items = list(camera.stream(seconds=1.2, batch_us=1000))
+    frames = [i for i in items if isinstance(i, Frame)]
+    batches = [i for i in items if isinstance(i, np.ndarray)]
+    assert not any(isinstance(i, SourceStatus) for i in items)
+    assert 20 <= len(frames) <= 32  # 25 Hz for ~1.2 s
+    assert all(f.image.dtype == np.uint8 and f.image.shape == (260, 346) for f in frames)
+    events = np.concatenate(batches)
+    assert events.dtype == EVENT_DTYPE
+    # every batch lies within one 1 ms slot, and the events are the recording's own, in order
+    assert all(b["timestamp"][0] // 1000 == b["timestamp"][-1] // 1000 for b in batches)
+    first = int(np.searchsorted(world.events["timestamp"], events["timestamp"][0]))
+    assert np.array_equal(events, world.events[first:first + len(events)])
+
+
+def test_unplug_without_reconnect_raises_after_the_data(street):
+    world = ReplayWorld(street, faults=(Fault("unplug", 0.5),))
+    received = []
+    with pytest.raises(DeviceError, match=r"stopped \(unplugged\?\)"):
+        for item in DavisSource(QUICK, backend=world).stream(seconds=3):
+            received.append(item)
+    assert any(isinstance(i, Frame) for i in received)
+
+
+def test_unplug_with_reconnect_reports_lost_then_resumed_and_backs_off(street):
+    world = ReplayWorld(street, faults=(Fault("unplug", 0.4, 1.2),))
+    items = list(DavisSource(QUICK, backend=world).stream(seconds=1.9, reconnect=True))
+    kinds = [i.kind for i in items if isinstance(i, SourceStatus)]
+    assert kinds == ["lost", "resumed"]
+    lost = next(k for k, i in enumerate(items) if isinstance(i, SourceStatus) and i.kind == "lost")
+    back = next(k for k, i in enumerate(items) if isinstance(i, SourceStatus) and i.kind == "resumed")
+    assert "unplugged" in items[lost].message and "centred" in items[lost].message
+    assert any(isinstance(i, Frame) for i in items[:lost]) and any(isinstance(i, Frame) for i in items[back:])
+    # nothing arrives while the camera is away, and the scene of the outage is lost for good
+    assert all(isinstance(i, SourceStatus) for i in items[lost:back + 1])
+    # the reopening backs off instead of hammering USB: ~0.8 s of outage at 0.1, 0.2, 0.4, 0.4 s
+    failed = [t for t in world.searches if 0.4 <= t < 1.2]
+    assert 1 <= len(failed) <= 6
+
+
+def test_a_stalled_camera_is_treated_like_an_unplug(street):
+    world = ReplayWorld(street, faults=(Fault("stall", 0.4, 1.1),))
+    items = list(DavisSource(QUICK, backend=world).stream(seconds=1.8, reconnect=True))
+    statuses = [i for i in items if isinstance(i, SourceStatus)]
+    assert [s.kind for s in statuses] == ["lost", "resumed"]
+    assert "stalled" in statuses[0].message
+    assert len(world.searches) >= 2  # it closed the silent camera and looked for it again
+
+
+def test_wait_for_a_camera_that_is_plugged_in_later(street):
+    world = ReplayWorld(street, faults=(Fault("unplug", 0.0, 0.5),))
+    source = DavisSource(QUICK, wait=True, backend=world)  # no error although nothing is plugged in
+    items = list(source.stream(seconds=1.2, reconnect=True))
+    assert isinstance(items[0], SourceStatus) and items[0].kind == "waiting" and "plug" in items[0].message
+    assert isinstance(items[1], SourceStatus) and items[1].kind == "resumed" and "found" in items[1].message
+    assert any(isinstance(i, Frame) for i in items[2:])
+
+
+# --- the runtime through faults ----------------------------------------------------------------
+class Log:
+    """Everything the run did, in order: outputs' writes and neutralises, and what it said."""
+
+    def __init__(self):
+        self.entries: list[tuple[str, object]] = []
+        self._lock = threading.Lock()
+
+    def add(self, kind: str, what: object = None) -> None:
+        with self._lock:
+            self.entries.append((kind, what))
+
+    def index(self, kind: str, contains: str) -> int:
+        return next(k for k, (w, m) in enumerate(self.entries) if w == kind and contains in str(m))
+
+
+class LoggedOutput:
+    def __init__(self, log: Log):
+        self.log = log
+
+    def write(self, state: ControllerState) -> None:
+        self.log.add("write", state)
+
+    def neutralise(self) -> None:
+        self.log.add("neutralise")
+
+
+def moved(state: ControllerState) -> bool:
+    neutral = ControllerState.neutral()
+    return state.axes != neutral.axes or state.buttons != neutral.buttons
+
+
+def run_davis(world: ReplayWorld, seconds: float, log: Log):
+    from neurotouch_hid.runtime import run_driver
+
+    return run_driver("davis", "default", "gamepad", seconds=seconds, capture=world, davis=QUICK,
+                      output_obj=LoggedOutput(log), say=lambda line: log.add("say", line))
+
+
+def test_an_unplug_mid_gesture_centres_at_once_and_the_run_resumes_at_rest(gel_recording):
+    path, labels = gel_recording
+    unplug, back = 1.6, 2.3
+    assert all(g is GestureType.PUSH for t, g, _ in labels if unplug - 0.5 <= t <= unplug)  # a held push
+    world = ReplayWorld(path, faults=(Fault("unplug", unplug, back),))
+    log = Log()
+    stats = run_davis(world, 6.6, log)
+
+    lost = log.index("say", "unplugged")
+    resumed = log.index("say", "is back")
+    assert lost < resumed and stats.camera_losses == 1
+    writes_before = [s for w, s in log.entries[:lost] if w == "write"]
+    assert writes_before and moved(writes_before[-1]), "the push should hold the stick when the camera goes"
+    assert log.entries[lost - 1] == ("neutralise", None), "centred and released before anything else"
+    assert not [w for w, _ in log.entries[lost:resumed] if w == "write"], "nothing written while the camera is away"
+    # after the camera is back the markers are re-initialised at rest (the push ends at 2.8 s) and
+    # the pinch from 4.6 s moves the pad again
+    after = [s for w, s in log.entries[resumed:] if w == "write"]
+    assert any(moved(s) for s in after)
+    assert log.entries[-1] == ("neutralise", None)
+
+
+def test_a_stall_centres_the_pad_and_the_run_carries_on(gel_recording):
+    path, _ = gel_recording
+    world = ReplayWorld(path, faults=(Fault("stall", 1.6, 2.3),))
+    log = Log()
+    stats = run_davis(world, 6.6, log)
+    lost = log.index("say", "stalled")
+    resumed = log.index("say", "is back")
+    assert stats.camera_losses == 1 and lost < resumed
+    assert log.entries[lost - 1] == ("neutralise", None)
+    assert any(moved(s) for w, s in log.entries[resumed:] if w == "write")
+    assert log.entries[-1] == ("neutralise", None)
+
+
+def test_a_camera_that_never_comes_back_still_ends_the_run_neutral(gel_recording):
+    path, _ = gel_recording
+    world = ReplayWorld(path, faults=(Fault("unplug", 1.6),))
+    log = Log()
+    stats = run_davis(world, 2.5, log)
+    assert stats.camera_losses == 1
+    assert not [w for w, _ in log.entries[log.index("say", "unplugged"):] if w == "write"]
+    assert log.entries[-1] == ("neutralise", None)
+    assert len([t for t in world.searches if t >= 1.6]) >= 2  # it kept trying
+
+
+def test_run_with_wait_starts_when_the_camera_is_plugged_in(gel_recording):
+    from neurotouch_hid.runtime import run_driver
+
+    path, labels = gel_recording
+    plugged = 3.2  # the gel rests from 3.0 s, a pinch follows from 4.6 s
+    assert [r for t, _, r in labels if plugged <= t <= plugged + 0.3] == [True] * 8
+    world = ReplayWorld(path, faults=(Fault("unplug", 0.0, plugged),))
+    log = Log()
+    stats = run_driver("davis", "default", "gamepad", seconds=6.6, capture=world, davis=QUICK, wait=True,
+                       output_obj=LoggedOutput(log), say=lambda line: log.add("say", line))
+    waiting = log.index("say", "waiting for a DAVIS-346")
+    found = log.index("say", "found after")
+    assert waiting < found and stats.camera_losses == 0
+    assert not [w for w, _ in log.entries[:found] if w == "write"]
+    assert any(moved(s) for w, s in log.entries[found:] if w == "write")
+    assert log.entries[-1] == ("neutralise", None)
+
+
+def test_the_street_in_view_is_no_gel(street):
+    world = ReplayWorld(street)
+    log = Log()
+    with pytest.raises(SensorError, match="no gel found"):
+        run_davis(world, 2.0, log)
+    assert log.entries[-1] == ("neutralise", None)
+    assert not [w for w, _ in log.entries if w == "write"]
+
+
+def test_run_source_davis_without_camera_tells_what_to_do(tmp_path):
+    import dv_processing as dv
+
+    if dv.io.camera.discover():
+        pytest.skip(reason="a camera is plugged in: the no-camera error cannot occur")
+    env = dict(os.environ, COLUMNS="400", XDG_CONFIG_HOME=str(tmp_path))
+    proc = subprocess.run([sys.executable, "-m", "neurotouch_hid.cli", "run", "--source", "davis", "--output", "jsonl"],
+                          capture_output=True, text=True, env=env, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stdout == ""  # no state was written: nothing started
+    error = " ".join(proc.stderr.split())
+    for hint in ("no DAVIS-346", "plug", "lsusb", "neurotouch-hid devices", "--wait"):
+        assert hint in error, error
+    assert "Traceback" not in proc.stderr
