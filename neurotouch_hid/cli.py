@@ -64,6 +64,73 @@ def info(
     console.print(table)
 
 
+@app.command()
+def record(
+    out: Path = typer.Argument(..., help="AEDAT4 file to write"),
+    seconds: Optional[float] = typer.Option(None, "--seconds", help="stop after this many seconds (default: at Ctrl-C)"),
+    source: str = typer.Option("davis", "--source", help="davis (the live camera) or sim (the simulated gel)"),
+    force: bool = typer.Option(False, "--force", help="overwrite OUT if it exists"),
+    fast: bool = typer.Option(False, "--fast", help="with --source sim: as fast as it is simulated, not in real time (needs --seconds)"),
+    seed: int = typer.Option(0, "--seed", help="with --source sim: the simulation's seed"),
+    serial: Optional[str] = typer.Option(None, "--serial", help="with --source davis: the camera's serial number"),
+    exposure_us: str = typer.Option("4000", "--exposure-us", help="with --source davis: APS exposure in microseconds, or 'auto'"),
+) -> None:
+    """Record what the camera sees (events and APS frames) as AEDAT4, readable by DV and `info`.
+
+    Ctrl-C (or SIGTERM) ends the recording with a complete, readable file (exit 0); a camera that
+    is unplugged ends it too, keeping what was recorded (exit 2)."""
+    import contextlib
+    import signal
+    import threading
+
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from neurotouch_hid.errors import DeviceError
+    from neurotouch_hid.sources.recording import record_stream
+
+    if source not in ("davis", "sim"):
+        raise NeurotouchError(f"--source {source!r}: expected davis or sim (to replay a recording, copy the file)")
+    if out.exists() and not force:
+        raise NeurotouchError(f"{out} exists: choose another name, or add --force to overwrite it")
+    if fast and (source != "sim" or seconds is None):
+        raise NeurotouchError("--fast is for --source sim with --seconds (a camera cannot go faster than time)")
+    if seconds is not None and seconds <= 0:
+        raise NeurotouchError(f"--seconds {seconds}: expected a positive duration")
+    with contextlib.ExitStack() as stack:
+        if source == "davis":
+            from neurotouch_hid.sources.davis import DavisSource
+
+            camera = stack.enter_context(DavisSource(_davis_config(serial, exposure_us, 1.0)))
+            stream, name = camera.stream(seconds=seconds, batch_us=10_000), camera.camera_name
+        else:
+            from neurotouch_hid.sources.simulator import SimulatedSource
+
+            stream, name = SimulatedSource(seed=seed).stream(seconds=seconds, batch_us=10_000), "NeuroTouch-sim_DAVIS346"
+        stop = threading.Event()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            stack.callback(signal.signal, sig, signal.signal(sig, lambda *_: stop.set()))
+        columns = [TextColumn(f"recording {source} -> {out}"), *([BarColumn()] if seconds else []),
+                   TextColumn("{task.fields[what]}"), TimeElapsedColumn()]
+        done = {"us": 0, "events": 0, "frames": 0}
+        with Progress(*columns, console=err_console, transient=True) as progress:
+            task = progress.add_task("record", total=seconds, what="")
+
+            def report(duration_us: int, events: int, frames: int) -> None:
+                done.update(us=duration_us, events=events, frames=frames)
+                progress.update(task, completed=duration_us / 1e6,
+                                what=f"{duration_us / 1e6:.1f} s, {events:,} events, {frames} frames")
+
+            try:
+                summary = record_stream(stream, out, camera_name=name, pace=source == "sim" and not fast,
+                                        stop=stop, on_progress=report)
+            except DeviceError as exc:
+                raise DeviceError(f"{exc}; the {done['us'] / 1e6:.1f} s recorded until then ({done['events']:,} "
+                                  f"events, {done['frames']} frames) are complete in {out}") from None
+    how = " (stopped by Ctrl-C)" if summary.stopped else ""
+    console.print(f"wrote {out}: {summary.duration_us / 1e6:.2f} s, {summary.events:,} events, "
+                  f"{summary.frames} APS frames{how}", highlight=False, soft_wrap=True)
+
+
 # --- the simulated gel (sources/simulator.py) ----------------------------------------------
 @app.command()
 def simulate(

@@ -629,3 +629,76 @@ def write_recording(path: str | os.PathLike, events: np.ndarray, frames: Iterabl
             writer.write_frame(frame)
         if start < len(events):
             writer.write_events(events[start:])
+
+
+# --- recording a live source ----------------------------------------------------------------------
+@dataclass(frozen=True)
+class RecordSummary:
+    """What :func:`record_stream` wrote.
+
+    Attributes:
+        path: the AEDAT4 file (complete and readable, however the recording ended).
+        events, frames: numbers written.
+        duration_us: from the first to the last timestamp written (us, camera clock).
+        stopped: True when ``stop`` ended it (Ctrl-C), False when the source or ``seconds`` did.
+    """
+
+    path: Path
+    events: int
+    frames: int
+    duration_us: int
+    stopped: bool
+
+
+def record_stream(stream: Iterable[StreamItem], path: str | os.PathLike, *, camera_name: str,
+                  pace: bool = False, stop: "threading.Event | None" = None,
+                  on_progress=None) -> RecordSummary:
+    """Write a source's events and APS frames to an AEDAT4 file (``neurotouch-hid record``).
+
+    Args:
+        stream: time-ordered event batches (EVENT_DTYPE) and :class:`Frame` values, e.g.
+            ``DavisSource.stream(seconds)`` or ``SimulatedSource.stream(seconds)``; its end ends the
+            recording.
+        path: the ``.aedat4`` file to create (its folder must exist).
+        camera_name: the camera (source) name stored in the file.
+        pace: sleep so that the items' timestamps follow wall time (the simulated gel: a
+            recording of N s takes N s, as with a camera); a camera paces itself.
+        stop: set it (e.g. from a SIGINT handler) to end the recording after the current item.
+        on_progress: called as ``on_progress(duration_us, events, frames)`` after each item.
+
+    Returns:
+        :class:`RecordSummary`. Whatever ends the recording (the stream's end, ``stop``, an error
+        of the source such as a lost camera), the file is closed complete and readable first.
+
+    Raises:
+        RecordingError: the file cannot be written; the source's own errors (e.g. DeviceError)
+            after the file is closed.
+    """
+    import threading
+    import time
+
+    stop = stop or threading.Event()
+    events = frames = 0
+    first_us = last_us = None
+    start_ns = time.perf_counter_ns()
+    with RecordingWriter(path, camera_name=camera_name) as writer:
+        for item in stream:
+            if isinstance(item, Frame):
+                writer.write_frame(item)
+                frames += 1
+                t_us = item.t_us
+            else:
+                writer.write_events(item)
+                events += len(item)
+                t_us = int(item["timestamp"][-1])
+            first_us = t_us if first_us is None else min(first_us, t_us)
+            last_us = t_us if last_us is None else max(last_us, t_us)
+            if on_progress is not None:
+                on_progress(last_us - first_us, events, frames)
+            if pace:
+                delay_s = (last_us - first_us) / 1e6 - (time.perf_counter_ns() - start_ns) / 1e9
+                if delay_s > 0:
+                    stop.wait(delay_s)
+            if stop.is_set():
+                break
+    return RecordSummary(Path(path), events, frames, 0 if first_us is None else last_us - first_us, stop.is_set())
