@@ -31,10 +31,6 @@ console = Console()
 err_console = Console(stderr=True)
 
 
-def _todo(name: str) -> None:
-    raise NeurotouchError(f"'{name}' is not built yet")
-
-
 # --- recordings (sources/recording.py) ------------------------------------------------------
 @app.command()
 def info(
