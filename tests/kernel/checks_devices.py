@@ -131,28 +131,47 @@ def _dv_open(bus: int, address: int, node: str) -> dict:
     return {"dv_open": lines}
 
 
+#: usbfs ioctl USBDEVFS_CLAIMINTERFACE, _IOR('U', 15, unsigned int) (linux/usbdevice_fs.h).
+USBDEVFS_CLAIMINTERFACE = 0x8004550F
+
+
 def _busy(bus: int, address: int, node: str) -> dict:
-    """While this process holds the camera's interface 0 (usbfs claims are per open file, so the
-    discovery's own probe is refused like another program's): busy, and which process."""
-    import libusb_package
-    import usb.core
-    import usb.util
+    """While another process holds the camera's interface 0 (a forked child claims it through
+    usbfs, as libusb does; a fork, because a new interpreter takes tens of seconds to start under
+    emulation): busy, and which process."""
+    import fcntl
+    import struct
 
     from neurotouch_hid.sources.discovery import discover
 
-    held = usb.core.find(idVendor=CAMERA_VID, idProduct=CAMERA_PID, backend=libusb_package.get_libusb1_backend())
-    assert held is not None, "pyusb does not find the emulated camera"
+    ready_r, ready_w = os.pipe()
+    done_r, done_w = os.pipe()
+    child = os.fork()
+    if child == 0:  # the holder: claim, say so, wait until told (or the parent is gone), exit
+        try:
+            os.close(ready_r)
+            os.close(done_w)
+            fd = os.open(node, os.O_RDWR)
+            fcntl.ioctl(fd, USBDEVFS_CLAIMINTERFACE, struct.pack("I", 0))
+            os.write(ready_w, b"1")
+            os.read(done_r, 1)
+        finally:
+            os._exit(0)
+    os.close(ready_w)  # a child that fails closes its end: the read below then returns b""
+    os.close(done_r)
     try:
-        usb.util.claim_interface(held, 0)
+        assert os.read(ready_r, 1) == b"1", "the child could not claim the camera's interface"
         found = discover(dv=False)
     finally:
-        usb.util.dispose_resources(held)
+        os.close(done_w)  # tells the child to exit
+        os.close(ready_r)
+        os.waitpid(child, 0)
     assert len(found.cameras) == 1, found.to_json()
     camera = found.cameras[0].to_json()
     assert camera["node"] == node and camera["status"] == "busy" and camera["usb"]["access"] == "busy", camera
-    assert f"PID {os.getpid()} " in camera["problem"], camera
+    assert f"PID {child} " in camera["problem"], camera
     assert "neurotouch-hid.service" in camera["fix"], camera
-    return {"camera": camera}
+    return {"camera": camera, "holder_pid": child}
 
 
 def _unprivileged(bus: int, address: int, node: str) -> dict:
