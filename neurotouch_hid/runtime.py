@@ -587,7 +587,9 @@ def open_source(spec: str, stack: contextlib.ExitStack, *, seconds: float | None
     :class:`~neurotouch_hid.sources.SourceStatus` items); ``davis`` is its
     :class:`~neurotouch_hid.sources.davis.DavisConfig`, ``wait`` waits for a camera instead of
     failing, ``capture`` replaces dv-processing's camera backend (tests replay recordings through
-    it). Its geometry is ``sensor``, else the user's calibration, else the built-in one.
+    it). Its geometry is ``sensor``, else the user's calibration, else the built-in one. The
+    pipeline's default noise filter runs in the camera's source, on dv-processing's own event
+    stores (no copies; build the pipeline with ``filter_noise=False`` then).
 
     Returns ``(stream, sensor_geometry, live)``; ``live`` is True for the camera (never paced by
     the runtime); the geometry is None for a predictions file. Resources (camera, file) are
@@ -605,8 +607,15 @@ def open_source(spec: str, stack: contextlib.ExitStack, *, seconds: float | None
     if spec == "davis":
         from neurotouch_hid.sources.davis import DavisSource
 
+        from neurotouch_hid.pipeline.noise import EventNoiseFilter
+        from neurotouch_hid.pipeline.pipeline import PipelineConfig
+        from neurotouch_hid.sources.recording import DAVIS346_RESOLUTION
+
+        defaults = PipelineConfig()
+        noise = (EventNoiseFilter(defaults.noise_filter, *DAVIS346_RESOLUTION, defaults.noise_filter_us)
+                 if defaults.noise_filter is not None else None)
         try:
-            camera = stack.enter_context(DavisSource(davis, wait=wait, backend=capture))
+            camera = stack.enter_context(DavisSource(davis, wait=wait, backend=capture, noise_filter=noise))
         except DeviceError as exc:
             raise DeviceError(f"{exc}; or start with --wait to wait for a camera") from None
         geometry = SensorGeometry.load(sensor) if sensor is not None else default_sensor()
@@ -661,8 +670,12 @@ class PipelineResting:
         return None if detector is None else detector.update(frame)
 
 
-def build_pipeline(geometry: Any, window_us: int, *, resting_beside: bool = True) -> tuple[Any, PipelineResting | None]:
+def build_pipeline(geometry: Any, window_us: int, *, resting_beside: bool = True,
+                   filter_noise: bool = True) -> tuple[Any, PipelineResting | None]:
     """A ``GesturePipeline`` with ``window_us`` windows, and the resting detector to run beside it.
+
+    ``filter_noise``: the pipeline runs its default noise filter (``PipelineConfig.noise_filter``);
+    False when the source already did (the live camera, :func:`open_source`).
 
     ``resting_beside``: the resting detection runs in the runtime's own thread (paper, section
     "Runtime Performance": one core for it, one for the gesture detection) and the pipeline does
@@ -672,7 +685,10 @@ def build_pipeline(geometry: Any, window_us: int, *, resting_beside: bool = True
     """
     from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 
-    pipeline = GesturePipeline(geometry, PipelineConfig(window_us=window_us, detect_resting=not resting_beside))
+    config = PipelineConfig(window_us=window_us, detect_resting=not resting_beside)
+    if not filter_noise:
+        config.noise_filter = config.noise_filter_us = None
+    pipeline = GesturePipeline(geometry, config)
     warm_up_tracker(geometry)
     return pipeline, (PipelineResting(pipeline) if resting_beside else None)
 
@@ -724,7 +740,8 @@ def run_driver(source: str = "davis", profile: str | Path = "default", output: s
         if geometry is None:  # a predictions file: the estimates are already there
             pipeline, resting = EstimateReplay(), None
         else:
-            pipeline, resting = build_pipeline(geometry, window_us, resting_beside=live or not fast)
+            pipeline, resting = build_pipeline(geometry, window_us, resting_beside=live or not fast,
+                                               filter_noise=not live)
         out_obj = output_obj if output_obj is not None else open_output(output, loaded, stack, out=out, console=console)
         runtime = Runtime(stream, pipeline, loaded, out_obj, resting=resting, pace=not fast, live=live,
                           profile_ref=profile, say=say)

@@ -31,7 +31,7 @@ from pathlib import Path
 import dv_processing as dv
 import numpy as np
 
-from neurotouch_hid.sources.recording import RecordingReader
+from neurotouch_hid.sources.recording import RecordingReader, store_from_events
 
 
 @dataclass(frozen=True)
@@ -49,19 +49,6 @@ class ReplayDescriptor:
 
     serialNumber: str
     cameraModel: dv.io.camera.CameraModel = dv.io.camera.CameraModel.DAVIS
-
-
-class _Store:
-    """An event batch as the camera hands it: ``len()`` and ``numpy()`` like dv.EventStore."""
-
-    def __init__(self, events: np.ndarray):
-        self._events = events
-
-    def __len__(self) -> int:
-        return len(self._events)
-
-    def numpy(self) -> np.ndarray:
-        return self._events.copy()
 
 
 @dataclass(frozen=True)
@@ -158,7 +145,7 @@ class ReplayCamera:
     def _deliverable(self) -> bool:
         return not self._unplugged() and not self._world._in("stall", self._world.now_s())
 
-    def getNextEventBatch(self) -> _Store | None:
+    def getNextEventBatch(self) -> dv.EventStore | None:
         if not self._deliverable():
             return None
         w = self._world
@@ -168,7 +155,7 @@ class ReplayCamera:
         events = w.events[self._event_at:stop]
         self._event_at = stop
         events = events[~w.stalled_mask(events["timestamp"])]
-        return _Store(events) if len(events) else None
+        return store_from_events(events) if len(events) else None
 
     def getNextFrame(self) -> _Frame | None:
         if not self._deliverable():

@@ -296,3 +296,30 @@ def test_run_source_davis_without_camera_tells_what_to_do(tmp_path):
     for hint in ("no DAVIS-346", "plug", "lsusb", "neurotouch-hid devices", "--wait"):
         assert hint in error, error
     assert "Traceback" not in proc.stderr
+
+
+def test_the_noise_filter_runs_on_the_camera_s_own_event_stores(street):
+    """The live source filters dv-processing's EventStores before any copy: what it yields is the
+    recording's events less the isolated ones the library's filter drops."""
+    from neurotouch_hid.pipeline.noise import EventNoiseFilter
+
+    noise = EventNoiseFilter("BackgroundActivityNoiseFilter", 346, 260, 2_000)
+    world = ReplayWorld(street)
+    with DavisSource(backend=world, noise_filter=noise) as camera:
+        items = list(camera.stream(seconds=1.0))
+    events = np.concatenate([i for i in items if isinstance(i, np.ndarray)])
+    assert noise.n_in > 0 and len(events) == noise.n_out < noise.n_in  # some noise dropped
+    first = int(np.searchsorted(world.events["timestamp"], events["timestamp"][0]))
+    offered = world.events[first:first + noise.n_in]
+    kept = np.isin(offered["timestamp"] * 1_000_000 + offered["y"].astype(np.int64) * 346 + offered["x"],
+                   events["timestamp"] * 1_000_000 + events["y"].astype(np.int64) * 346 + events["x"])
+    assert kept.sum() == len(events)  # every event yielded is one the camera sent, in order
+
+
+def test_the_live_pipeline_leaves_the_noise_to_the_source(gel_recording):
+    from neurotouch_hid.runtime import build_pipeline
+    from neurotouch_hid.sensor import SensorGeometry
+
+    live, _ = build_pipeline(SensorGeometry(), 10_000, filter_noise=False)
+    replay, _ = build_pipeline(SensorGeometry(), 10_000)
+    assert live.noise_filter is None and replay.noise_filter is not None

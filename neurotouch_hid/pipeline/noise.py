@@ -26,14 +26,19 @@ set at 0.1 Hz per pixel it moves no metric by more than 0.08 point or 0.06 mm, a
 pixel it keeps the contact count accuracy at ~86-87 % where the tracker alone falls to ~80 %,
 the contact distance at ~2.1 mm instead of ~2.8 mm). Its cost is mostly
 the conversion to and from dv-processing's ``EventStore`` (docs/performance.md, "Noise
-filter").
+filter"); the live camera delivers ``EventStore`` values, so ``DavisSource`` runs the filter
+(:meth:`EventNoiseFilter.filter_store`) on them before any copy, and its pipeline has none.
 """
 
 from __future__ import annotations
 
 import datetime
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    import dv_processing as dv
 
 #: The supported ``dv_processing.noise`` filters and the time parameter (us) each gets when
 #: ``PipelineConfig.noise_filter_us`` is None: the best of each on the simulated tuning set over
@@ -108,15 +113,33 @@ class EventNoiseFilter:
         self._last_us = None
         self.n_in = self.n_out = 0
 
+    def filter_store(self, store: "dv.EventStore") -> "dv.EventStore":
+        """Filter one batch as dv-processing holds it (no copy: what the live camera delivers).
+
+        Args:
+            store: a non-empty, time-ordered ``dv_processing.EventStore``. A batch that starts
+                before the previous batch's last event (the camera's clock restarted, a recording
+                looped) resets the filter first (:meth:`reset`): the library's filters compare
+                time differences, and refuse events out of order.
+        Returns:
+            a ``dv_processing.EventStore`` of the kept events, in their order.
+        """
+        if self._last_us is not None and int(store.getLowestTime()) < self._last_us:
+            self.reset()
+        self._last_us = int(store.getHighestTime())
+        self._filter.accept(store)
+        kept = self._filter.generateEvents()
+        self.n_in += len(store)
+        self.n_out += len(kept)
+        return kept
+
     def __call__(self, events: np.ndarray) -> np.ndarray:
-        """Filter one batch.
+        """Filter one numpy batch: :meth:`filter_store` between two copies (``store_from_events``,
+        ``events_from_store``), which cost ~90 % of the time (docs/performance.md, "Noise filter").
 
         Args:
             events: (E,) EVENT_DTYPE (``timestamp`` int64 us, ``x``/``y`` int16 px inside the
-                array, ``polarity``), time-ordered. A batch that starts before the previous
-                batch's last event (the camera's clock restarted, a recording looped) resets the
-                filter first (:meth:`reset`): the library's filters compare time differences,
-                which would let every event of the new clock through for a while.
+                array, ``polarity``), time-ordered.
         Returns:
             (K,) EVENT_DTYPE, K <= E: the kept events, in their order (a new array; ``events``
             itself when it is empty).
@@ -125,11 +148,4 @@ class EventNoiseFilter:
 
         if len(events) == 0:
             return events
-        if self._last_us is not None and int(events["timestamp"][0]) < self._last_us:
-            self.reset()
-        self._last_us = int(events["timestamp"][-1])
-        self._filter.accept(store_from_events(events))
-        kept = events_from_store(self._filter.generateEvents())
-        self.n_in += len(events)
-        self.n_out += len(kept)
-        return kept
+        return events_from_store(self.filter_store(store_from_events(events)))

@@ -122,6 +122,9 @@ class DavisSource:
         wait: do not fail when no camera can be opened now: :meth:`stream` (with
             ``reconnect=True``) waits for one.
         backend: the capture backend (module docstring); None = ``dv_processing.io.camera``.
+        noise_filter: an :class:`~neurotouch_hid.pipeline.noise.EventNoiseFilter` run on the
+            camera's own event stores before they become numpy batches (no copy: the pipeline's
+            noise filter then stays off, ``runtime.build_pipeline``), or None.
 
     Raises:
         DeviceError: (unless ``wait``) no DAVIS camera can be opened: none on USB, no permission
@@ -130,13 +133,15 @@ class DavisSource:
     Use as a context manager (or call :meth:`close`) to release the camera.
     """
 
-    def __init__(self, config: DavisConfig | None = None, *, wait: bool = False, backend: Any = None) -> None:
+    def __init__(self, config: DavisConfig | None = None, *, wait: bool = False, backend: Any = None,
+                 noise_filter: Any = None) -> None:
         if backend is None:
             import dv_processing as dv
 
             backend = dv.io.camera
         self.config = config or DavisConfig()
         self._backend = backend
+        self._noise = noise_filter
         self._camera: Any = None
         self.camera_name: str | None = None
         self.has_frames = False
@@ -213,6 +218,10 @@ class DavisSource:
         except DV_ERRORS as exc:
             return [], f"failed ({dv_error_text(str(exc))})"
         if store is not None and len(store):
+            if self._noise is not None:
+                store = self._noise.filter_store(store)
+            # a batch of noise only still tells the stream is alive (the stall timer), but none is
+            # yielded: nothing would change downstream
             items.append(events_from_store(store))
         return items, None
 
