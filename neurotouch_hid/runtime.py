@@ -689,24 +689,17 @@ def build_pipeline(geometry: Any, window_us: int, *, resting_beside: bool = True
     if not filter_noise:
         config.noise_filter = config.noise_filter_us = None
     pipeline = GesturePipeline(geometry, config)
-    warm_up_tracker(geometry)
     return pipeline, (PipelineResting(pipeline) if resting_beside else None)
 
 
-def warm_up_tracker(geometry: Any) -> None:
-    """Compile the tracker's numba code before the source starts.
+def compile_pipeline() -> None:
+    """Compile the pipeline's numba code before any source is opened
+    (:meth:`GesturePipeline.compile_kernels`): on a fresh install that takes seconds, which a
+    real-time run would otherwise spend dropping data, and a camera buffering it."""
+    from neurotouch_hid.pipeline.pipeline import GesturePipeline
+    from neurotouch_hid.sensor import SensorGeometry
 
-    The first ``BlobTracker.update`` of a fresh install compiles the event loop (seconds; later
-    runs load it from numba's cache): done on the first real events, a real-time run would drop
-    those seconds of data. One blob and one event are enough to trigger it.
-    """
-    from neurotouch_hid.pipeline.tracker import BlobTracker
-    from neurotouch_hid.sources import EVENT_DTYPE
-
-    centre = np.array([geometry.gel_center_px], dtype=np.float64)
-    event = np.zeros(1, dtype=EVENT_DTYPE)
-    event["x"], event["y"], event["polarity"] = int(centre[0, 0]), int(centre[0, 1]), 1
-    BlobTracker(centre, geometry.width, geometry.height, sensor=geometry).update(event)
+    GesturePipeline(SensorGeometry()).compile_kernels()
 
 
 def run_driver(source: str = "davis", profile: str | Path = "default", output: str = "gamepad", *,
@@ -733,6 +726,8 @@ def run_driver(source: str = "davis", profile: str | Path = "default", output: s
     if window_us < 1000:
         raise NeurotouchError(f"--window-us {window_us}: windows must be at least 1000 us")
     loaded = _load_profile(profile)
+    if not source.endswith(".jsonl"):
+        compile_pipeline()
     with contextlib.ExitStack() as stack:
         stream, geometry, live = open_source(source, stack, seconds=seconds,
                                              batch_us=min(DEFAULT_BATCH_US, window_us), sensor=sensor, seed=seed,

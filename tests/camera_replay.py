@@ -5,7 +5,8 @@ interface: ``discover()`` and ``open(descriptor)`` of ``dv_processing.io.camera`
 the camera's methods. :class:`ReplayWorld` offers the same calls, answering them from a real
 recording (the real DAVIS-346 street recording, or a simulated gel) played in wall time, as a
 camera watching that scene would: a camera opened at wall time w delivers what the scene shows
-from w on, in small packets as time passes, with the recording's own (Unix-time) timestamps.
+from w on, in packets of at least :data:`PACKET_US` as time passes (a DAVIS sends a USB packet
+every few ms), with the recording's own (Unix-time) timestamps.
 
 Faults are scripted in wall seconds from the world's start:
 
@@ -34,6 +35,10 @@ import numpy as np
 from neurotouch_hid.sources.recording import RecordingReader, store_from_events
 
 
+#: The shortest span of events one ``getNextEventBatch`` hands out (us).
+PACKET_US = 2_000
+
+
 @dataclass(frozen=True)
 class Fault:
     """``kind`` ("unplug" or "stall") between ``start_s`` and ``end_s`` wall seconds (end may be inf)."""
@@ -59,7 +64,9 @@ class _Frame:
 
 @dataclass
 class ReplayWorld:
-    """The scene of ``recording`` played in wall time from construction, and the camera on it.
+    """The scene of ``recording`` played in wall time from the first ``discover()`` (when a source
+    first looks for a camera, so that setting up the code under test costs no scene time), and
+    the camera on it.
 
     Attributes:
         searches: wall seconds (from the start) of every ``discover()`` call: the source's attempts
@@ -79,13 +86,16 @@ class ReplayWorld:
         self.t0_us = min(int(self.events["timestamp"][0]), self.frames[0].t_us)
         self.event_ts = np.ascontiguousarray(self.events["timestamp"])
         self.frame_ts = np.array([f.t_us for f in self.frames], dtype=np.int64)
-        self._start = time.monotonic()
+        self._start: float | None = None
         self._lock = threading.Lock()
 
     # --- the clock -------------------------------------------------------------------------
     def now_s(self) -> float:
-        """Wall seconds since the world started."""
-        return time.monotonic() - self._start
+        """Wall seconds since the world started (the first ``discover()``)."""
+        with self._lock:
+            if self._start is None:
+                self._start = time.monotonic()
+            return time.monotonic() - self._start
 
     def t_us(self, wall_s: float) -> int:
         """The recording's timestamp (us) the scene shows at ``wall_s``."""
@@ -105,8 +115,7 @@ class ReplayWorld:
     # --- dv_processing.io.camera's calls ---------------------------------------------------
     def discover(self) -> list[ReplayDescriptor]:
         now = self.now_s()
-        with self._lock:
-            self.searches.append(now)
+        self.searches.append(now)
         return [] if self._in("unplug", now) else [ReplayDescriptor(self.serial)]
 
     def open(self, descriptor: ReplayDescriptor) -> "ReplayCamera":
@@ -149,7 +158,10 @@ class ReplayCamera:
         if not self._deliverable():
             return None
         w = self._world
-        stop = int(np.searchsorted(w.event_ts, w.t_us(w.now_s()), side="right"))
+        now_us = w.t_us(w.now_s())
+        if self._event_at < len(w.event_ts) and now_us - w.event_ts[self._event_at] < PACKET_US:
+            return None  # the packet is not full yet
+        stop = int(np.searchsorted(w.event_ts, now_us, side="right"))
         if stop <= self._event_at:
             return None
         events = w.events[self._event_at:stop]

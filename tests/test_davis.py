@@ -211,7 +211,7 @@ def run_davis(world: ReplayWorld, seconds: float, log: Log):
 
 def test_an_unplug_mid_gesture_centres_at_once_and_the_run_resumes_at_rest(gel_recording):
     path, labels = gel_recording
-    unplug, back = 1.6, 2.3
+    unplug, back = 2.0, 2.6
     assert all(g is GestureType.PUSH for t, g, _ in labels if unplug - 0.5 <= t <= unplug)  # a held push
     world = ReplayWorld(path, faults=(Fault("unplug", unplug, back),))
     log = Log()
@@ -233,7 +233,7 @@ def test_an_unplug_mid_gesture_centres_at_once_and_the_run_resumes_at_rest(gel_r
 
 def test_a_stall_centres_the_pad_and_the_run_carries_on(gel_recording):
     path, _ = gel_recording
-    world = ReplayWorld(path, faults=(Fault("stall", 1.6, 2.3),))
+    world = ReplayWorld(path, faults=(Fault("stall", 2.0, 2.6),))
     log = Log()
     stats = run_davis(world, 6.6, log)
     lost = log.index("say", "stalled")

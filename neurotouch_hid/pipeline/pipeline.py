@@ -52,7 +52,7 @@ from neurotouch_hid.pipeline.noise import EventNoiseFilter, check_noise_filter
 from neurotouch_hid.pipeline.resting import RestingDetector, RestingResult
 from neurotouch_hid.pipeline.tracker import BlobTracker, TrackerConfig
 from neurotouch_hid.sensor import SensorGeometry
-from neurotouch_hid.sources import Frame, StreamItem
+from neurotouch_hid.sources import EVENT_DTYPE, Frame, StreamItem
 
 #: Shortest window accepted (us).
 MIN_WINDOW_US = 1_000
@@ -288,6 +288,30 @@ class GesturePipeline:
             if self._pending is None or t_us >= self._pending[1]:
                 self._pending = (result, int(t_us))
 
+    def compile_kernels(self) -> None:
+        """Compile the pipeline's numba code (tracker, contacts, gesture) now, on a synthetic
+        marker grid with a finger-like bump of displacement, instead of on the first real events:
+        on a fresh install that takes seconds, which a real-time run would spend dropping data.
+        Later runs load the code from numba's cache. Leaves the pipeline as it was."""
+        cx, cy = self.sensor.gel_center_px
+        k = np.arange(-6, 7) * 10.0
+        rest = np.stack(np.meshgrid(k + cx, k + cy), axis=-1).reshape(-1, 2)
+        bump = np.exp(-((rest - (cx, cy)) ** 2).sum(axis=1) / (2 * 12.0**2))[:, None]
+        moved = rest + bump * np.array([4.0, 1.0])
+        events = np.zeros(4, dtype=EVENT_DTYPE)
+        events["timestamp"] = np.arange(4) * 100
+        events["x"], events["y"], events["polarity"] = int(cx), int(cy), 1
+        tracker = BlobTracker(rest, self.sensor.width, self.sensor.height, self.config.tracker, sensor=self.sensor)
+        # numba compiles one version per array layout: a one-event batch's fields count as
+        # contiguous, a longer batch's are strided views of the structured array; both occur
+        tracker.update(events[:1])
+        tracker.update(events[1:])
+        timings, self.timings = self.timings, None  # not a window: no stage time recorded
+        try:
+            self._contacts_and_gesture(rest, moved, np.ones(len(rest), dtype=bool))
+        finally:
+            self.timings = timings
+
     def restart(self) -> None:
         """Start a new session after the source was interrupted (the camera was unplugged or
         stalled). A DAVIS stamps Unix time (us), so the new session's clock carries on.
@@ -440,32 +464,11 @@ class GesturePipeline:
         return int(np.count_nonzero(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] > threshold * threshold)) >= self.config.n_min
 
     def _estimate(self, t_us: int) -> GestureEstimate:
-        c = self.config
         current = self.tracker.positions_px
         valid = self.tracker.valid
         if self._resting.resting and not self._moving(current, valid):
             return GestureEstimate(t_us=t_us, gesture=GestureType.NONE, resting=True)
-        begin = self._clock()
-        contacts = detect_contacts(
-            self.rest_px, current, valid, r_px=c.r_px, a=c.a, n_min=c.n_min, max_iters=c.homography_max_iters,
-            method=c.homography_method, field_fallback=c.field_fallback, refine_px=c.contact_refine_px,
-        )
-        self._record("contacts", begin)
-        begin = self._clock()
-        result = estimate_gesture(
-            self.rest_px,
-            current,
-            valid,
-            contacts.points_px,
-            self.sensor,
-            r_px=c.r_px,
-            reproj_factor=c.gesture_reproj_factor,
-            min_reproj_px=c.min_gesture_reproj_px,
-            min_intensity_px=c.min_intensity_px,
-            intensity_sigma_px=c.intensity_sigma_px,
-            origin_radius_px=c.origin_radius_px,
-        )
-        self._record("gesture", begin)
+        contacts, result = self._contacts_and_gesture(self.rest_px, current, valid)
         if result.gesture is GestureType.NONE:
             return GestureEstimate(t_us=t_us, gesture=GestureType.NONE, resting=False)
         return GestureEstimate(
@@ -479,6 +482,33 @@ class GesturePipeline:
             rotation_rad=result.rotation_rad,
             scale=result.similarity.scale,
         )
+
+    def _contacts_and_gesture(self, rest_px: np.ndarray, current: np.ndarray, valid: np.ndarray):
+        """Contact points (paper, "Contact Point Detection") and the gesture's similarity, type and
+        intensity (paper, "Gesture Classification and Intensity Prediction") of one window."""
+        c = self.config
+        begin = self._clock()
+        contacts = detect_contacts(
+            rest_px, current, valid, r_px=c.r_px, a=c.a, n_min=c.n_min, max_iters=c.homography_max_iters,
+            method=c.homography_method, field_fallback=c.field_fallback, refine_px=c.contact_refine_px,
+        )
+        self._record("contacts", begin)
+        begin = self._clock()
+        result = estimate_gesture(
+            rest_px,
+            current,
+            valid,
+            contacts.points_px,
+            self.sensor,
+            r_px=c.r_px,
+            reproj_factor=c.gesture_reproj_factor,
+            min_reproj_px=c.min_gesture_reproj_px,
+            min_intensity_px=c.min_intensity_px,
+            intensity_sigma_px=c.intensity_sigma_px,
+            origin_radius_px=c.origin_radius_px,
+        )
+        self._record("gesture", begin)
+        return contacts, result
 
     def _clock(self) -> tuple[int, int] | None:
         if self.timings is None:
