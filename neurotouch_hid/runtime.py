@@ -319,8 +319,13 @@ class Runtime:
             self._output.neutralise()
             self._mapper = self._mapper_factory(profile)
             self.profile = profile
-            self._last_state = ControllerState.neutral(self._last_state.t_us)
-            self._last_gesture = None
+            self._forget_state()
+
+    def _forget_state(self) -> None:
+        """The output was neutralised or the mapping starts afresh: the next state written is
+        compared with a neutral one (caller holds ``self._lock``)."""
+        self._last_state = ControllerState.neutral(self._last_state.t_us)
+        self._last_gesture = None
 
     def reload_profile(self) -> bool:
         """Load the profile again from ``profile_ref`` (the user edited it) and switch to it.
@@ -465,8 +470,7 @@ class Runtime:
             with self._lock:
                 self._paused = True
                 self._output.neutralise()
-                self._last_state = ControllerState.neutral(self._last_state.t_us)
-                self._last_gesture = None
+                self._forget_state()
             self._items.clear()
             self.stats.camera_losses += 1
         elif status.kind == "resumed":
@@ -535,8 +539,7 @@ class Runtime:
         self._pipeline.restart()
         with self._lock:
             self._mapper = self._mapper_factory(self.profile)
-            self._last_state = ControllerState.neutral(self._last_state.t_us)
-            self._last_gesture = None
+            self._forget_state()
             self._paused = False
 
     def _emit(self, estimate: GestureEstimate) -> None:

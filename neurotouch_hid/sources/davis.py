@@ -162,12 +162,19 @@ class DavisSource:
     def _open_or_raise(self) -> None:
         """Open the first usable DAVIS-346 (or the one with ``config.serial``) and set it up.
 
-        Raises DeviceError (with the fix) when none can be opened."""
+        Raises DeviceError (with the fix, from a look at the USB bus) when none can be opened."""
+        problems = self._try_open()
+        if problems is not None:
+            raise DeviceError(_fix_hint(self.config.serial, "; ".join(problems) or None))
+
+    def _try_open(self) -> list[str] | None:
+        """Open and set up the first usable DAVIS-346: None on success, else why each camera
+        dv-processing listed could not be used (empty: none was listed). Cheap enough to retry
+        in a loop: it explains nothing (:meth:`_open_or_raise` does, for the user)."""
         try:
             found = self._backend.discover()
         except DV_ERRORS as exc:
-            raise DeviceError(f"cannot search for a DAVIS camera ({dv_error_text(str(exc))}): "
-                              f"{_fix_hint(self.config.serial)}") from None
+            return [f"cannot search for a DAVIS camera ({dv_error_text(str(exc))})"]
         found = [d for d in found if getattr(d.cameraModel, "name", "") in _DAVIS_MODELS]
         if self.config.serial is not None:
             found = [d for d in found if d.serialNumber == self.config.serial]
@@ -188,8 +195,8 @@ class DavisSource:
             self._camera = camera
             self.camera_name = camera.getCameraName()
             self.has_frames = bool(camera.isFrameStreamAvailable())
-            return
-        raise DeviceError(_fix_hint(self.config.serial, "; ".join(problems) or None))
+            return None
+        return problems
 
     def _configure(self, camera: Any) -> None:
         """APS frame interval and exposure (dv-processing ``io.camera.DAVIS`` setters)."""
@@ -262,9 +269,7 @@ class DavisSource:
         last_data = time.monotonic()
         while remaining() > 0:
             if self._camera is None:  # in an outage: try again after the back-off
-                try:
-                    self._open_or_raise()
-                except DeviceError:
+                if self._try_open() is not None:
                     time.sleep(max(0.0, min(next(delays), remaining())))
                     continue
                 last_data = time.monotonic()

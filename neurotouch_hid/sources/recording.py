@@ -25,6 +25,8 @@ import os
 import shutil
 import struct
 import tempfile
+import threading
+import time
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -651,7 +653,7 @@ class RecordSummary:
 
 
 def record_stream(stream: Iterable[StreamItem], path: str | os.PathLike, *, camera_name: str,
-                  pace: bool = False, stop: "threading.Event | None" = None,
+                  pace: bool = False, stop: threading.Event | None = None,
                   on_progress=None) -> RecordSummary:
     """Write a source's events and APS frames to an AEDAT4 file (``neurotouch-hid record``).
 
@@ -674,9 +676,6 @@ def record_stream(stream: Iterable[StreamItem], path: str | os.PathLike, *, came
         RecordingError: the file cannot be written; the source's own errors (e.g. DeviceError)
             after the file is closed.
     """
-    import threading
-    import time
-
     stop = stop or threading.Event()
     events = frames = 0
     first_us = last_us = None
