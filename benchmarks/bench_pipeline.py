@@ -73,7 +73,7 @@ def profile_sequence(recording: Path, config: PipelineConfig) -> dict[str, list[
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--dataset", type=Path, help="dataset folder (DATASET.md); default: simulate one")
+    parser.add_argument("--dataset", type=Path, help="dataset folder (docs/dataset.md); default: simulate one")
     parser.add_argument("--minutes", type=float, default=1.0, help="simulated minutes when no --dataset (default 1)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--window-us", type=int, default=10_000)

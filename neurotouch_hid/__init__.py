@@ -1,7 +1,8 @@
 """neurotouch-hid: the NeuroTouch soft tactile sensor as a standard Linux game controller.
 
-The method is Hoffmann et al., "From Soft Materials to Controllers with NeuroTouch" (the paper,
-``shared/paper/neurotouch.tex``); section names cited in docstrings refer to it.
+The method is Hoffmann et al., "From Soft Materials to Controllers with NeuroTouch: A Neuromorphic
+Tactile Sensor for Real-Time Gesture Recognition" (the paper); section names cited in docstrings
+refer to it, and docs/architecture.md sums up what the code takes from each section.
 """
 
 __version__ = "0.1.0"

@@ -1,4 +1,4 @@
-"""Sensor calibration: a ``sensor.yaml`` (DATASET.md) measured from APS frames of the gel at rest.
+"""Sensor calibration: a ``sensor.yaml`` (docs/dataset.md) measured from APS frames of the gel at rest.
 
 The gel (paper, section "System Overview") is a black dome with white 1 mm dots on a 4 mm grid,
 seen from inside by the DAVIS-346. Nothing about the image scale is known in advance, so every
@@ -105,7 +105,7 @@ class Calibration:
     """What :func:`calibrate` measured.
 
     Attributes:
-        sensor: the geometry (DATASET.md): image size, px_per_mm at the gel's centre, gel circle
+        sensor: the geometry (docs/dataset.md): image size, px_per_mm at the gel's centre, gel circle
             (image frame, px); mirror and rotation_deg are SensorGeometry's defaults.
         markers_px: (N, 2) float64 marker centroids on the averaged rest frame, image frame, px.
         spacing_px: median distance between neighbouring markers near the centre (px; 4 mm).
@@ -334,7 +334,7 @@ def read_rest_frames(source: str | Path, n_frames: int = REST_FRAMES) -> list[Fr
 
 
 def sensor_changes(old: SensorGeometry, new: SensorGeometry) -> list[str]:
-    """The DATASET.md fields that differ, one ``"field: old -> new"`` string each (YAML values)."""
+    """The docs/dataset.md fields that differ, one ``"field: old -> new"`` string each (YAML values)."""
     def text(value) -> str:
         return yaml.safe_dump(value, default_flow_style=True).strip().removesuffix("...").strip()
 

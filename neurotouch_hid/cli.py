@@ -130,7 +130,7 @@ def record(
 # --- the simulated gel (sources/simulator.py) ----------------------------------------------
 @app.command()
 def simulate(
-    out: Path = typer.Option(..., "--out", help="dataset folder to write (DATASET.md)"),
+    out: Path = typer.Option(..., "--out", help="dataset folder to write (docs/dataset.md)"),
     preset: str = typer.Option("quick", "--preset", help="quick (small, for tests) or paper (5 users x 5 gestures x ~1 min)"),
     seed: int = typer.Option(0, "--seed", help="random seed: the same seed gives the same files"),
     minutes: Optional[float] = typer.Option(None, "--minutes", help="override the total simulated duration (minutes)"),
@@ -141,7 +141,7 @@ def simulate(
         0.1, "--noise-hz",
         help="background-activity noise per pixel (Hz): 0.1 a DAVIS-346 in good light, a few Hz in dim light"),
 ) -> None:
-    """Simulate the NeuroTouch gel and write a labelled dataset (DATASET.md)."""
+    """Simulate the NeuroTouch gel and write a labelled dataset (docs/dataset.md)."""
     from neurotouch_hid.sources.simulator import write_dataset
 
     user_ids = None
@@ -159,7 +159,7 @@ def simulate(
 @app.command()
 def track(
     recording: Path = typer.Argument(..., help="AEDAT4 recording"),
-    out: Path = typer.Option(..., "--out", help="predictions, JSON lines (DATASET.md)"),
+    out: Path = typer.Option(..., "--out", help="predictions, JSON lines (docs/dataset.md)"),
     sensor: Optional[Path] = typer.Option(None, "--sensor", help="sensor.yaml (default: the one beside the recording)"),
     window_us: int = typer.Option(10_000, "--window-us", help="window length in microseconds (>= 1000)"),
     markers: Optional[Path] = typer.Option(None, "--markers", help="also write tracked marker positions (.npz)"),
@@ -187,7 +187,7 @@ def track(
 
 @app.command("eval")
 def eval_cmd(
-    dataset: Path = typer.Argument(..., help="dataset folder (DATASET.md)"),
+    dataset: Path = typer.Argument(..., help="dataset folder (docs/dataset.md)"),
     report: Optional[Path] = typer.Option(None, "--report", help="write PNG figures and a Markdown summary here"),
     json_out: Optional[Path] = typer.Option(None, "--json", help="write the metrics as JSON"),
     window_us: Optional[int] = typer.Option(None, "--window-us", help="window length in microseconds (default: PipelineConfig's)"),
@@ -367,7 +367,7 @@ def calibrate(
     rotation: Optional[float] = typer.Option(None, "--rotation", help="counter-clockwise degrees from the mirrored image to your view (default: ask on a terminal, else 0)"),
     frames: int = typer.Option(10, "--frames", min=3, help="rest frames to check and average (25 a second)"),
 ) -> None:
-    """Measure the gel's circle and scale on rest frames and save sensor.yaml (DATASET.md).
+    """Measure the gel's circle and scale on rest frames and save sensor.yaml (docs/dataset.md).
 
     Keep your hands off the gel while it runs."""
     import dataclasses

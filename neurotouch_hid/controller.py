@@ -1,6 +1,6 @@
 """What the mapping hands to the outputs: the state of a standard (Xbox 360 layout) gamepad.
 
-The layout is ARCHITECTURE.md's: sticks ABS_X/Y/RX/RY in -32768..32767 (evdev convention: +x
+The layout is docs/architecture.md's: sticks ABS_X/Y/RX/RY in -32768..32767 (evdev convention: +x
 right, +y *down*), triggers ABS_Z/RZ in 0..255, d-pad ABS_HAT0X/Y in -1..1, and 11 buttons.
 A :class:`ControllerState` is a plain value; the neutral state (:meth:`ControllerState.neutral`)
 is what every output writes before it stops.

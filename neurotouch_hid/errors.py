@@ -19,7 +19,7 @@ class SensorError(NeurotouchError):
 
 
 class DatasetError(NeurotouchError):
-    """A dataset folder does not follow DATASET.md."""
+    """A dataset folder does not follow docs/dataset.md."""
 
 
 class ProfileError(NeurotouchError):

@@ -72,7 +72,7 @@ class GestureEstimate:
         return int(len(self.contacts_px))
 
     def to_json_dict(self) -> dict:
-        """The DATASET.md predictions line (plus the similarity's terms, which readers ignore)."""
+        """The docs/dataset.md predictions line (plus the similarity's terms, which readers ignore)."""
         return {
             "t_us": int(self.t_us),
             "gesture": self.gesture.value,

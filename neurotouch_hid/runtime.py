@@ -13,7 +13,7 @@ with ``pace=False`` (``--fast``) nothing is dropped: the source waits for the pi
 and the pipeline runs the resting detection inline so that a replay is deterministic.
 
 Sources (:func:`open_source`): the live camera, the simulated gel, an AEDAT4 recording, or a
-predictions file (the pipeline's estimates, DATASET.md, replayed without the pipeline).
+predictions file (the pipeline's estimates, docs/dataset.md, replayed without the pipeline).
 
 Every way out of :meth:`Runtime.run` (end of the source, :meth:`Runtime.stop`, SIGTERM, Ctrl-C, an
 exception in any stage) first centres all axes and releases all buttons (``output.neutralise()``).
@@ -567,7 +567,7 @@ OUTPUT_KINDS = ("gamepad", "jsonl", "term")
 
 class EstimateReplay:
     """Stands in for the pipeline when the source is a predictions file: its items already are
-    the windows' :class:`GestureEstimate` values (DATASET.md "Predictions"), handed on as they are."""
+    the windows' :class:`GestureEstimate` values (docs/dataset.md "Predictions"), handed on as they are."""
 
     def process(self, item: GestureEstimate) -> list[GestureEstimate]:
         return [item]
@@ -584,7 +584,7 @@ def open_source(spec: str, stack: contextlib.ExitStack, *, seconds: float | None
                 seed: int = 0, davis: Any = None, wait: bool = False,
                 capture: Any = None) -> tuple[Iterable[Any], Any, bool]:
     """Open ``davis`` (the live camera), ``sim`` (the simulated gel), an AEDAT4 recording path, or
-    a predictions file (``*.jsonl``, DATASET.md: the pipeline's estimates, replayed as they are).
+    a predictions file (``*.jsonl``, docs/dataset.md: the pipeline's estimates, replayed as they are).
 
     The camera's stream survives unplugs and stalls (it yields
     :class:`~neurotouch_hid.sources.SourceStatus` items); ``davis`` is its

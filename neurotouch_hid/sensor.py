@@ -1,6 +1,6 @@
 """Sensor geometry: the gel's place in the image, image <-> user frame, px <-> mm.
 
-The geometry is the ``sensor.yaml`` of DATASET.md. The *image frame* is pixels, x right, y down,
+The geometry is the ``sensor.yaml`` of docs/dataset.md. The *image frame* is pixels, x right, y down,
 origin at the top-left pixel's centre. The *user frame* is the gel seen from outside and above,
 millimetres, x right, y up, origin at the gel's centre. The camera looks at the gel from inside
 (paper, section "System Overview"), so the image is the mirror of what the user sees::
@@ -28,7 +28,7 @@ DAVIS346_HEIGHT = 260
 
 @dataclass(frozen=True)
 class SensorGeometry:
-    """The sensor's geometry as written in ``sensor.yaml`` (DATASET.md).
+    """The sensor's geometry as written in ``sensor.yaml`` (docs/dataset.md).
 
     Attributes:
         width, height: image size in px (346 x 260 for a DAVIS-346).
@@ -51,9 +51,9 @@ class SensorGeometry:
     # --- loading and saving -------------------------------------------------------------
     @classmethod
     def load(cls, path: str | Path) -> "SensorGeometry":
-        """Read a ``sensor.yaml`` (DATASET.md).
+        """Read a ``sensor.yaml`` (docs/dataset.md).
 
-        Keys other than the DATASET.md ones are kept in ``extra`` (the simulator writes its
+        Keys other than the docs/dataset.md ones are kept in ``extra`` (the simulator writes its
         marker layout there). Raises :class:`SensorError` naming the file and the field when
         the file is missing, is not YAML, or a field has the wrong type.
         """
@@ -61,7 +61,7 @@ class SensorGeometry:
         try:
             text = path.read_text()
         except FileNotFoundError:
-            raise SensorError(f"{path}: no such sensor file (expected a sensor.yaml, see DATASET.md)") from None
+            raise SensorError(f"{path}: no such sensor file (expected a sensor.yaml, see docs/dataset.md)") from None
         except OSError as exc:
             raise SensorError(f"{path}: cannot read the sensor file: {exc.strerror}") from None
         try:
@@ -69,7 +69,7 @@ class SensorGeometry:
         except yaml.YAMLError as exc:
             raise SensorError(f"{path}: not valid YAML: {exc}") from None
         if not isinstance(data, dict):
-            raise SensorError(f"{path}: expected a mapping of sensor fields (DATASET.md), found {type(data).__name__}")
+            raise SensorError(f"{path}: expected a mapping of sensor fields (docs/dataset.md), found {type(data).__name__}")
         known = {"width", "height", "px_per_mm", "gel_center_px", "gel_radius_px", "mirror", "rotation_deg"}
         kwargs: dict = {}
         try:
@@ -95,7 +95,7 @@ class SensorGeometry:
         return geometry
 
     def to_dict(self) -> dict:
-        """The DATASET.md fields (plus ``extra``) as plain YAML-able values."""
+        """The docs/dataset.md fields (plus ``extra``) as plain YAML-able values."""
         data = asdict(self)
         extra = data.pop("extra")
         data["gel_center_px"] = [float(c) for c in self.gel_center_px]
@@ -103,7 +103,7 @@ class SensorGeometry:
         return data
 
     def save(self, path: str | Path) -> None:
-        """Write this geometry as ``sensor.yaml`` (DATASET.md field order)."""
+        """Write this geometry as ``sensor.yaml`` (docs/dataset.md field order)."""
         Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=False))
 
     # --- conversions --------------------------------------------------------------------
@@ -143,7 +143,7 @@ class SensorGeometry:
         return np.stack([d[..., 0], -d[..., 1]], axis=-1) * self.px_per_mm
 
     def image_to_user(self, points_px: np.ndarray) -> np.ndarray:
-        """Convert points from the image frame (px) to the user frame (mm), DATASET.md formula.
+        """Convert points from the image frame (px) to the user frame (mm), docs/dataset.md formula.
 
         Args:
             points_px: (..., 2) float, (u, v) image px.
@@ -187,7 +187,7 @@ def user_sensor_path() -> Path:
 def default_sensor() -> SensorGeometry:
     """The geometry when nothing more specific is known (the live camera; a recording without a
     sensor.yaml beside it): the user's calibration (:func:`user_sensor_path`) if there is one,
-    else the default DAVIS-346 NeuroTouch geometry of DATASET.md.
+    else the default DAVIS-346 NeuroTouch geometry of docs/dataset.md.
 
     Raises :class:`SensorError` naming the file when the user's sensor.yaml is invalid.
     """

@@ -1,4 +1,4 @@
-"""DATASET.md labels CSV: exact columns, round trip, and errors that name file, line and column."""
+"""docs/dataset.md labels CSV: exact columns, round trip, and errors that name file, line and column."""
 
 import csv
 

@@ -1,4 +1,4 @@
-"""SensorGeometry: DATASET.md's image <-> user frame formula, sensor.yaml loading and its errors."""
+"""SensorGeometry: docs/dataset.md's image <-> user frame formula, sensor.yaml loading and its errors."""
 
 import math
 

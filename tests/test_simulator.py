@@ -1,7 +1,7 @@
 """The simulated NeuroTouch gel (sources/simulator.py, sources/esim.py).
 
 The quick dataset is written once per session through the CLI and read back with csv, PyYAML,
-numpy and dv-processing directly (not with our own readers), against DATASET.md.
+numpy and dv-processing directly (not with our own readers), against docs/dataset.md.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from neurotouch_hid.sources.simulator import (
     write_dataset,
 )
 
-# DATASET.md, written out here from the spec (not taken from the code under test)
+# docs/dataset.md, written out here from the spec (not taken from the code under test)
 DATASET_COLUMNS = ["t_us", "gesture", "resting", "intensity_mm", "n_contacts",
                    "x1_px", "y1_px", "x2_px", "y2_px", "x3_px", "y3_px"]
 DATASET_GESTURES = {"none", "push", "pinch", "zoom", "twist_cw", "twist_ccw"}
@@ -164,7 +164,7 @@ def test_ccw_twist_in_user_frame_is_clockwise_in_the_image():
 
     # as displayed, the contacts turn clockwise (negative angle, y up) ...
     assert rotation(first.contacts_px, hold.contacts_px, y_up_flip=True) < -0.2
-    # ... and converted with DATASET.md's formula they turn counter-clockwise for the user
+    # ... and converted with docs/dataset.md's formula they turn counter-clockwise for the user
     user_a, user_b = sensor.image_to_user(first.contacts_px), sensor.image_to_user(hold.contacts_px)
     assert rotation(user_a, user_b, y_up_flip=False) > 0.2
     # the true markers near the fingers turn the same way as the labels

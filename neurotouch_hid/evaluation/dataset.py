@@ -1,4 +1,4 @@
-"""The labelled dataset format of DATASET.md: folders of sequences, labels CSV, predictions.
+"""The labelled dataset format of docs/dataset.md: folders of sequences, labels CSV, predictions.
 
 A dataset is a folder with ``sensor.yaml`` and, per sequence, ``SEQUENCE.aedat4`` and
 ``SEQUENCE.labels.csv`` (paper, section "Creation of the Gesture Detection Dataset"). A folder
@@ -19,7 +19,7 @@ from neurotouch_hid.errors import DatasetError
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.sensor import user_sensor_path
 
-#: The columns of ``SEQUENCE.labels.csv``, in DATASET.md's order.
+#: The columns of ``SEQUENCE.labels.csv``, in docs/dataset.md's order.
 LABEL_COLUMNS: tuple[str, ...] = (
     "t_us", "gesture", "resting", "intensity_mm", "n_contacts",
     "x1_px", "y1_px", "x2_px", "y2_px", "x3_px", "y3_px",
@@ -29,7 +29,7 @@ MAX_CONTACTS = 3
 
 @dataclass(frozen=True)
 class LabelRow:
-    """One labelled APS frame (DATASET.md).
+    """One labelled APS frame (docs/dataset.md).
 
     Attributes:
         t_us: the frame's timestamp, int microseconds, recording clock.
@@ -52,7 +52,7 @@ class LabelRow:
 
 
 def write_labels(path: str | Path, rows: list[LabelRow]) -> None:
-    """Write ``SEQUENCE.labels.csv`` exactly as DATASET.md defines it (rows ordered by time).
+    """Write ``SEQUENCE.labels.csv`` exactly as docs/dataset.md defines it (rows ordered by time).
 
     Raises ValueError when rows are not time-ordered or have more than 3 contacts.
     """
@@ -83,7 +83,7 @@ def read_labels(path: str | Path) -> list[LabelRow]:
 
     Raises:
         DatasetError: naming the file, the line and the column, when the header differs from
-            DATASET.md's, a value has the wrong type, or rows are not ordered by time.
+            docs/dataset.md's, a value has the wrong type, or rows are not ordered by time.
     """
     path = Path(path)
     rows: list[LabelRow] = []
@@ -95,7 +95,7 @@ def read_labels(path: str | Path) -> list[LabelRow]:
         reader = csv.reader(fh)
         header = next(reader, None)
         if header is None or tuple(h.strip() for h in header) != LABEL_COLUMNS:
-            raise DatasetError(f"{path}:1: header must be {','.join(LABEL_COLUMNS)} (DATASET.md), found {header}")
+            raise DatasetError(f"{path}:1: header must be {','.join(LABEL_COLUMNS)} (docs/dataset.md), found {header}")
         last = -math.inf
         for line_no, cells in enumerate(reader, start=2):
             if not cells:
@@ -130,7 +130,7 @@ def read_labels(path: str | Path) -> list[LabelRow]:
 
 
 def dataset_sensor_file(dataset: str | Path) -> Path:
-    """The sensor.yaml that applies to a dataset folder: its own (DATASET.md), else the user's
+    """The sensor.yaml that applies to a dataset folder: its own (docs/dataset.md), else the user's
     calibration (``neurotouch-hid calibrate``; :func:`~neurotouch_hid.sensor.user_sensor_path`).
 
     Raises DatasetError when there is neither.
@@ -141,7 +141,7 @@ def dataset_sensor_file(dataset: str | Path) -> Path:
     calibrated = user_sensor_path()
     if calibrated.exists():
         return calibrated
-    raise DatasetError(f"{dataset}: no sensor.yaml (DATASET.md), and no calibrated sensor at {calibrated}: add the "
+    raise DatasetError(f"{dataset}: no sensor.yaml (docs/dataset.md), and no calibrated sensor at {calibrated}: add the "
                        f"sensor.yaml the dataset was recorded with, or calibrate with `neurotouch-hid calibrate`")
 
 
@@ -153,7 +153,7 @@ def list_sequences(dataset: str | Path) -> list[str]:
     """
     dataset = Path(dataset)
     if not dataset.is_dir():
-        raise DatasetError(f"{dataset}: not a dataset folder (DATASET.md)")
+        raise DatasetError(f"{dataset}: not a dataset folder (docs/dataset.md)")
     dataset_sensor_file(dataset)
     names = sorted(p.name[: -len(".aedat4")] for p in dataset.glob("*.aedat4"))
     names = [n for n in names if (dataset / f"{n}.labels.csv").exists()]
@@ -163,7 +163,7 @@ def list_sequences(dataset: str | Path) -> list[str]:
 
 
 def labels_at(labels: Sequence[LabelRow], t_us: np.ndarray) -> list[LabelRow | None]:
-    """The ground truth at each prediction time, as DATASET.md's "Predictions" section defines it.
+    """The ground truth at each prediction time, as docs/dataset.md's "Predictions" section defines it.
 
     Paper, section "Creation of the Gesture Detection Dataset": "we use the most recent labeled
     gesture type and linearly interpolate the contact points localizations and intensities based

@@ -1,8 +1,8 @@
-"""Running the gesture pipeline over a labelled dataset (DATASET.md) and scoring it.
+"""Running the gesture pipeline over a labelled dataset (docs/dataset.md) and scoring it.
 
 For each sequence: read ``SEQUENCE.labels.csv``, stream ``SEQUENCE.aedat4`` through
 :class:`~neurotouch_hid.pipeline.pipeline.GesturePipeline`, keep the predictions (optionally as
-JSON lines, DATASET.md "Predictions") and pair them with the labels
+JSON lines, docs/dataset.md "Predictions") and pair them with the labels
 (:func:`~neurotouch_hid.evaluation.metrics.align`). Sequences can run in parallel processes;
 their observations are concatenated and :func:`~neurotouch_hid.evaluation.metrics.evaluate`
 computes the paper's metrics over the whole dataset (paper, section "Results": "The pipeline is
@@ -115,10 +115,10 @@ def run_sequence(
     """Run the pipeline over one sequence and pair its predictions with the labels.
 
     Args:
-        dataset: the dataset folder (DATASET.md).
+        dataset: the dataset folder (docs/dataset.md).
         name: the sequence (``name.aedat4`` and ``name.labels.csv``).
         config: PipelineConfig (None: the defaults, tuned; see PipelineConfig).
-        predictions_dir: if given, write ``name.jsonl`` there (DATASET.md "Predictions").
+        predictions_dir: if given, write ``name.jsonl`` there (docs/dataset.md "Predictions").
         on_time: called now and then with the microseconds processed since the recording's start.
     Raises:
         DatasetError, RecordingError, SensorError: bad labels, recording or geometry.
@@ -157,7 +157,7 @@ def evaluate_dataset(
     (:func:`~neurotouch_hid.evaluation.dataset.dataset_sensor_file`), which a logged warning says.
 
     Args:
-        dataset: the dataset folder (DATASET.md).
+        dataset: the dataset folder (docs/dataset.md).
         config: PipelineConfig (None: defaults).
         jobs: sequences processed in parallel processes (1: in this process).
         predictions_dir: if given, each sequence's predictions are written there as JSON lines.

@@ -1,4 +1,4 @@
-"""GestureEstimate -> ControllerState through a profile (the mapping stage of ARCHITECTURE.md).
+"""GestureEstimate -> ControllerState through a profile (the mapping stage of docs/architecture.md).
 
 :class:`Mapper` is a pure function of the estimate and its own state (the 1-euro filters, the
 buttons' hysteresis and toggle states, the last time): the same estimates in give the same

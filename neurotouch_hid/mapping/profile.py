@@ -27,7 +27,7 @@ Scalar inputs (for an axis, a trigger, a button or a d-pad direction):
   ``-pinch``.
 - ``contact_x``, ``contact_y``: the first contact's coordinates (mm).
 
-Outputs (evdev names, the Xbox 360 layout of ARCHITECTURE.md): ``left_stick`` (ABS_X, ABS_Y),
+Outputs (evdev names, the Xbox 360 layout of docs/architecture.md): ``left_stick`` (ABS_X, ABS_Y),
 ``right_stick`` (ABS_RX, ABS_RY), the analogue axes ``ABS_X`` .. ``ABS_RY`` (-32768..32767) and
 the triggers ``ABS_Z``, ``ABS_RZ`` (0..255, only the positive side of the input), the 11 buttons
 ``BTN_SOUTH`` .. ``BTN_THUMBR`` and the d-pad directions ``dpad_up``, ``dpad_down``,

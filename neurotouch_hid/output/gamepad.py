@@ -1,6 +1,6 @@
 """The virtual gamepad: a uinput device with the Xbox 360 layout that SDL, Steam and browsers know.
 
-Layout (ARCHITECTURE.md, :mod:`neurotouch_hid.controller`): sticks ABS_X/Y/RX/RY in
+Layout (docs/architecture.md, :mod:`neurotouch_hid.controller`): sticks ABS_X/Y/RX/RY in
 -32768..32767 (flat 128 like the kernel's xpad driver, but fuzz 0, see :data:`STICK_FUZZ`), triggers ABS_Z/RZ in 0..255,
 d-pad ABS_HAT0X/Y in -1..1, and the 11 buttons BTN_SOUTH .. BTN_THUMBR. Nothing mouse- or
 touch-like, so udev classes it as a joystick (ID_INPUT_JOYSTICK=1) and SDL as a GameController.

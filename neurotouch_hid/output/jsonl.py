@@ -1,4 +1,4 @@
-"""JSON-lines files: the pipeline's predictions (DATASET.md, "Predictions (JSON lines)").
+"""JSON-lines files: the pipeline's predictions (docs/dataset.md, "Predictions (JSON lines)").
 
 One :meth:`GestureEstimate.to_json_dict` object a line, ordered by time. :class:`JsonlWriter`
 is the shared line writer (a path or an open text stream, ``-`` = stdout), so other JSON-lines
@@ -62,7 +62,7 @@ class JsonlWriter:
 
 
 class PredictionsWriter(JsonlWriter):
-    """Writes a predictions file (DATASET.md): one :class:`GestureEstimate` a line."""
+    """Writes a predictions file (docs/dataset.md): one :class:`GestureEstimate` a line."""
 
     def write(self, estimate: GestureEstimate) -> None:
         """Write ``estimate.to_json_dict()`` as one line."""
@@ -80,7 +80,7 @@ def write_predictions(path: str | Path, estimates: Iterable[GestureEstimate]) ->
 
 
 def read_predictions(path: str | Path) -> list[GestureEstimate]:
-    """Read a predictions file (DATASET.md) back into estimates.
+    """Read a predictions file (docs/dataset.md) back into estimates.
 
     Blank lines are skipped.
     Raises:
@@ -105,7 +105,7 @@ def read_predictions(path: str | Path) -> list[GestureEstimate]:
             raise DatasetError(f"{path}:{number}: expected a JSON object, found {type(data).__name__}")
         missing = [k for k in ("t_us", "gesture", "resting", "intensity_mm") if k not in data]
         if missing:
-            raise DatasetError(f"{path}:{number}: missing field(s) {', '.join(missing)} (DATASET.md, Predictions)")
+            raise DatasetError(f"{path}:{number}: missing field(s) {', '.join(missing)} (docs/dataset.md, Predictions)")
         try:
             estimate = GestureEstimate.from_json_dict(data)
         except (TypeError, ValueError, KeyError) as exc:

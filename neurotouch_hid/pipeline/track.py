@@ -1,7 +1,7 @@
 """Running the gesture pipeline over a recording: the ``track`` command's work.
 
 Reads an AEDAT4 recording (``sources/recording.py``), runs :class:`GesturePipeline` on it and
-writes one prediction a window (DATASET.md, "Predictions (JSON lines)"), optionally the tracked
+writes one prediction a window (docs/dataset.md, "Predictions (JSON lines)"), optionally the tracked
 marker positions at every window's end (``.npz``, the simulator's ``SEQUENCE.markers.npz``
 format: ``t_us`` int64 (T,), ``positions_px`` float32 (T, N, 2) with NaN for a lost marker,
 ``rest_px`` float32 (N, 2)).
@@ -122,7 +122,7 @@ def track_recording(
 
     Args:
         recording: AEDAT4 file with events and APS frames of ``sensor``'s resolution.
-        out: predictions file to write (DATASET.md).
+        out: predictions file to write (docs/dataset.md).
         sensor: the geometry (e.g. :func:`neurotouch_hid.sensor.find_sensor_file`).
         config: pipeline thresholds (window length included); None = the paper's.
         markers_out: if given, also write the tracked marker positions at each window's end

@@ -3,7 +3,7 @@
 dv-processing 2.0.4 opens cameras with ``dv_processing.io.camera.discover()`` and
 ``dv_processing.io.camera.open(descriptor)`` (its libusb-based DAVIS driver; the ``CameraCapture``
 class of older releases became this module). This module turns the camera's event batches and APS
-frames into the stream every source yields (ARCHITECTURE.md, sources), and keeps that stream
+frames into the stream every source yields (docs/architecture.md, sources), and keeps that stream
 alive through faults:
 
 * **No camera at start**: :class:`DavisSource` raises :class:`~neurotouch_hid.errors.DeviceError`

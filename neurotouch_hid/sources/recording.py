@@ -1,7 +1,7 @@
 """AEDAT4 recordings: read and write events and APS frames through dv-processing.
 
 Reading goes through ``dv_processing.io.MonoCameraRecording`` and writing through
-``dv_processing.io.MonoCameraWriter`` (iniVation's own library, the format DV records; DATASET.md,
+``dv_processing.io.MonoCameraWriter`` (iniVation's own library, the format DV records; docs/dataset.md,
 section SEQUENCE.aedat4). This module only adds what the library does not do:
 
 - one clear :class:`~neurotouch_hid.errors.RecordingError` per bad file (missing, not AEDAT4,
@@ -11,7 +11,7 @@ section SEQUENCE.aedat4). This module only adds what the library does not do:
   packets when the header says there is no table. :func:`_open` therefore opens a copy whose
   header says so, reads every complete packet, and the reader raises after yielding them;
 - the merged, time-ordered stream of event batches and :class:`Frame` values every source yields
-  (ARCHITECTURE.md, sources);
+  (docs/architecture.md, sources);
 - conversion between dv-processing's containers and numpy arrays of :data:`EVENT_DTYPE`.
 
 Time is int64 microseconds of the camera clock everywhere.

@@ -10,7 +10,7 @@ Gesture Detection Dataset"):
   apex is seen at base-plane radius ``R sin(s / R)`` (orthographic), i.e. 2.5 px/mm at the
   centre and foreshortened towards the rim. All markers lie inside the gel circle of
   ``sensor.yaml`` (the base, 30 mm = 75 px). Deformations are modelled in the base plane, which
-  is the user frame of DATASET.md (mm, x right, y up, seen from outside); image positions come
+  is the user frame of docs/dataset.md (mm, x right, y up, seen from outside); image positions come
   from :meth:`SensorGeometry.user_to_image` (the mirror included).
 * **Fingers and gestures** -- push, pinch, zoom, twist_cw, twist_ccw with 1-3 fingers, each
   with attack (cosine ramp up), hold (the maximum, with a small tremor) and release (cosine ramp
@@ -31,7 +31,7 @@ Gesture Detection Dataset"):
   several renders, read noise and shot noise, uint8, background ~20, markers ~220) and events
   from ESIM (:mod:`neurotouch_hid.sources.esim`).
 
-Labels (DATASET.md) per APS frame: a gesture is labelled from its attack's start (the first
+Labels (docs/dataset.md) per APS frame: a gesture is labelled from its attack's start (the first
 instant its fingers move the gel) up to, not including, the end of its release (the fingers have
 left the gel); everything else is ``none`` with no contact. ``resting`` is 0 during a gesture
 and after it until every marker is back within :data:`REST_TOLERANCE_MM` of its rest position.
@@ -461,7 +461,7 @@ class SimChunk:
     Attributes:
         frame: the APS frame at the period's start.
         events: EVENT_DTYPE events with frame.t_us <= timestamp < next frame's t_us, time-ordered.
-        label: the frame's label (DATASET.md).
+        label: the frame's label (docs/dataset.md).
         t_us: (T,) int64 1 ms grid from frame.t_us (T = 40 at 25 Hz).
         positions_px: (T, N, 2) float32 true marker positions (image px) at t_us.
     """
@@ -477,7 +477,7 @@ class GelSimulator:
     """Runs a gesture script through the gel and the camera, one APS frame period at a time.
 
     Args:
-        sensor: geometry (default: DATASET.md's DAVIS-346 NeuroTouch).
+        sensor: geometry (default: docs/dataset.md's DAVIS-346 NeuroTouch).
         user: the simulated user.
         gestures: gesture types to cycle through.
         seed: the camera's and gel's seed (thresholds, hot pixels, marker brightness).
@@ -593,7 +593,7 @@ class SimulatedSource:
     batches (EVENT_DTYPE, time-ordered) cut at the frame timestamps and every ``batch_us``.
 
     Args:
-        sensor: geometry (default DATASET.md's); seed: simulation seed;
+        sensor: geometry (default docs/dataset.md's); seed: simulation seed;
         gestures: sequence of GestureType or their names ("push", ...).
     """
 
@@ -681,7 +681,7 @@ def write_dataset(out_dir: str | Path, preset: str = "quick", seed: int = 0, min
                   progress: bool = True, users: Sequence[int] | None = None,
                   gestures: Sequence[GestureType | str] | None = None,
                   sensor: SensorGeometry | None = None, noise_hz: float = NOISE_RATE_HZ) -> Path:
-    """Simulate and write a labelled dataset (DATASET.md): ``sensor.yaml`` and, per user and
+    """Simulate and write a labelled dataset (docs/dataset.md): ``sensor.yaml`` and, per user and
     gesture type, ``u{user}_{gesture}.aedat4``, ``.labels.csv`` and ``.markers.npz``.
 
     Args:
@@ -694,7 +694,7 @@ def write_dataset(out_dir: str | Path, preset: str = "quick", seed: int = 0, min
         progress: show a rich progress bar on stderr.
         users: user ids (0-9) instead of the preset's, e.g. ``TUNING_USERS``.
         gestures: gesture types instead of all five.
-        sensor: geometry (default DATASET.md's).
+        sensor: geometry (default docs/dataset.md's).
         noise_hz: background-activity noise rate per pixel (Hz, >= 0) of the simulated event
             camera (default 0.1, a DAVIS-346 in good light; real sensors reach a few Hz in dim
             light). The gesture scripts and labels do not depend on it.

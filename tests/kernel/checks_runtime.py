@@ -5,7 +5,7 @@ Run by tests/kernel/guest.py inside qemu; asserted on by tests/test_runtime_kern
 The guest is software-emulated (no KVM), roughly a hundred times slower than the host: the gesture
 pipeline (numba tracker, OpenCV) cannot process even a second of events within a check's time
 there. These checks therefore feed the runtime a gesture sequence as the pipeline's own output, a
-predictions file (DATASET.md "Predictions", ``--source FILE.jsonl``): everything after the
+predictions file (docs/dataset.md "Predictions", ``--source FILE.jsonl``): everything after the
 pipeline is real -- the runtime's threads, pacing and shutdown, the profile and Mapper, the uinput
 device -- and the host tests (tests/test_runtime.py) run the same runtime with the pipeline on
 simulated recordings. Expected states come from the same estimates through ``--output jsonl``
