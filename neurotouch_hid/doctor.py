@@ -17,7 +17,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
-from neurotouch_hid.output.gamepad import RULES_INSTALL, uinput_help, uinput_problem
+from neurotouch_hid.output.gamepad import uinput_problem
 from neurotouch_hid.sources.discovery import (
     BUSY,
     CAMERA_USB_ID,
@@ -27,12 +27,10 @@ from neurotouch_hid.sources.discovery import (
     NO_ACCESS,
     NOT_IN_DV,
     READY,
-    RULES_DIRS,
-    RULES_NAME,
     Discovery,
     discover,
-    installed_rules,
 )
+from neurotouch_hid.udev import RULES_DIRS, RULES_INSTALL, RULES_NAME, installed_rules, uinput_help
 
 SERVICE_NAME = "neurotouch-hid.service"
 #: (import name, distribution name) of the libraries the driver needs at run time.
@@ -97,7 +95,7 @@ def check_uinput(devnode: str = "/dev/uinput") -> Check:
     """/dev/uinput exists, is a character device and is writable (see output/gamepad.py)."""
     problem = uinput_problem(devnode)
     if problem:
-        return Check("virtual gamepad (uinput)", FAIL, problem, uinput_help(devnode))
+        return Check("virtual gamepad (uinput)", FAIL, problem, uinput_help())
     return Check("virtual gamepad (uinput)", OK, f"{devnode} is writable")
 
 

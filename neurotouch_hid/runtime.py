@@ -752,7 +752,7 @@ def gamepad_or_terminal(profile: Any, stack: contextlib.ExitStack, *, console: A
                         say: Callable[[str], None] = print) -> Any:
     """The virtual gamepad where /dev/uinput is writable; else the terminal view, after saying
     why in one line (``say``)."""
-    from neurotouch_hid.output.gamepad import uinput_help
+    from neurotouch_hid.udev import uinput_help
 
     try:
         return open_output("gamepad", profile, stack)

@@ -21,7 +21,7 @@ import pytest
 import usb.core
 import usb.util
 
-from neurotouch_hid.output.gamepad import RULES_INSTALL
+from neurotouch_hid.udev import RULES_INSTALL
 from neurotouch_hid.sources import discovery
 from neurotouch_hid.sources.discovery import (
     ACCESS_BUSY,

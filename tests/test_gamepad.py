@@ -15,7 +15,8 @@ from hypothesis import strategies as st
 from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
 from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.output import gamepad
-from neurotouch_hid.output.gamepad import (UINPUT_RULE, GamepadIdentity, VirtualGamepad, capabilities,
+from neurotouch_hid.udev import UINPUT_RULE
+from neurotouch_hid.output.gamepad import (GamepadIdentity, VirtualGamepad, capabilities,
                                            changed_events, normalised)
 
 

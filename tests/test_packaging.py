@@ -11,7 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from neurotouch_hid.output.gamepad import PHYS, UINPUT_RULE
+from neurotouch_hid.output.gamepad import PHYS
+from neurotouch_hid.udev import UINPUT_RULE
 
 ROOT = Path(__file__).resolve().parent.parent
 RULES = ROOT / "udev" / "60-neurotouch.rules"

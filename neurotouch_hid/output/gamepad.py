@@ -25,14 +25,8 @@ from dataclasses import dataclass
 
 from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
 from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.udev import uinput_help
 
-#: The udev rule that gives the seated user access to /dev/uinput (udev/60-neurotouch.rules
-#: carries the same line; tests/test_packaging.py checks they agree).
-UINPUT_RULE = 'KERNEL=="uinput", SUBSYSTEM=="misc", TAG+="uaccess", OPTIONS+="static_node=uinput"'
-#: How to install the rules from a source checkout (packaging/install.sh does the same).
-RULES_INSTALL = ("sudo install -m644 udev/60-neurotouch.rules /etc/udev/rules.d/ && "
-                 "sudo udevadm control --reload && sudo udevadm trigger "
-                 "(or: sudo packaging/install.sh --system)")
 #: ``phys`` of every device we create; the udev rule tags devices with it ID_NEUROTOUCH_VIRTUAL=1.
 PHYS = "neurotouch-hid/gamepad"
 #: Stick noise filter: 0, unlike xpad's 16. The input core "defuzzes" every value closer than
@@ -62,14 +56,6 @@ class GamepadIdentity:
     product: int = 0x028E
     version: int = 0x0114
     bustype: int = 0x03  # BUS_USB
-
-
-def uinput_help(devnode: str = "/dev/uinput") -> str:
-    """The fix for a missing or unwritable uinput node: module, udev rule, install command."""
-    return (f"load the uinput module: sudo modprobe uinput (at every boot: "
-            f"echo uinput | sudo tee /etc/modules-load.d/neurotouch-hid.conf); give the seated user "
-            f"access with the udev rule `{UINPUT_RULE}`: {RULES_INSTALL}; then log out and in. "
-            f"Check with: neurotouch-hid doctor")
 
 
 def uinput_problem(devnode: str = "/dev/uinput") -> str | None:
@@ -140,7 +126,7 @@ class VirtualGamepad:
             raise DeviceError(f"gamepad name {self.identity.name!r} must be 1..{_NAME_MAX} bytes long")
         problem = uinput_problem(devnode)
         if problem:
-            raise DeviceError(f"{problem}: {uinput_help(devnode)}")
+            raise DeviceError(f"{problem}: {uinput_help()}")
         from evdev import UInput, UInputError, ecodes
 
         self._ecodes = ecodes.ecodes
@@ -151,7 +137,7 @@ class VirtualGamepad:
                               devnode=devnode, phys=PHYS)
         except (OSError, UInputError) as exc:
             raise DeviceError(f"the kernel refused to create the virtual gamepad on {devnode}: "
-                              f"{exc}: " + uinput_help(devnode)) from None
+                              f"{exc}: " + uinput_help()) from None
         self._lock = threading.RLock()
         self._last: ControllerState | None = None
         self._closed = False

@@ -32,19 +32,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from neurotouch_hid.errors import DeviceError
-from neurotouch_hid.output.gamepad import RULES_INSTALL
+from neurotouch_hid.udev import camera_access_fix, installed_rules
 
 #: USB ids of the DAVIS-346 (iniVation FX3 boards).
 CAMERA_VID, CAMERA_PID = 0x152A, 0x841A
 CAMERA_USB_ID = f"{CAMERA_VID:04x}:{CAMERA_PID:04x}"
-#: The project's udev rules file (udev/60-neurotouch.rules).
-RULES_NAME = "60-neurotouch.rules"
-#: Where udev reads rules from (udev(7)), most specific first.
-RULES_DIRS = ("/etc/udev/rules.d", "/run/udev/rules.d", "/usr/lib/udev/rules.d", "/lib/udev/rules.d")
-#: A rule for machines without a seated user (headless, over SSH): uaccess only serves the user
-#: logged in at the machine itself, so give a group access instead.
-GROUP_RULE = ('SUBSYSTEM=="usb", ATTR{idVendor}=="152a", ATTR{idProduct}=="841a", '
-              'GROUP="plugdev", MODE="0660"')
 _SYSFS_USB = Path("/sys/bus/usb/devices")
 #: dv-processing's logger prefix ("[ERROR] usb_discovery: ").
 _DV_LOG_PREFIX = re.compile(r"^\[[A-Z]+\] \w+: ")
@@ -486,26 +478,6 @@ def _enum_name(value) -> str:
 
 
 # --- both together ----------------------------------------------------------------------------
-def installed_rules(dirs: tuple[str, ...] = RULES_DIRS) -> str | None:
-    """The path of the project's udev rules file in the first of udev's rules folders that has it,
-    or None."""
-    for d in dirs:
-        path = Path(d) / RULES_NAME
-        if path.is_file():
-            return str(path)
-    return None
-
-
-def access_fix(rules: str | None = None) -> str:
-    """What to do when a camera's node is not readable and writable by this user: install the udev
-    rule, or (``rules``: where it is installed) log in at the seat or use a group rule."""
-    if rules is None:
-        return f"install the udev rule: {RULES_INSTALL}; then unplug and replug the camera"
-    return (f"the udev rule is installed ({rules}) but it gives access only to the user logged in at this "
-            f"computer itself (uaccess): log in there (not over SSH) and unplug and replug the camera; "
-            f"for headless use add a group rule to /etc/udev/rules.d/: {GROUP_RULE} (and join that group)")
-
-
 def _diagnose(usb: UsbCamera | None, dv: DvCamera | None, dv_error: str | None,
               rules: str | None) -> Camera:
     """One merged record with its status, problem and fix (pure: no I/O)."""
@@ -518,7 +490,7 @@ def _diagnose(usb: UsbCamera | None, dv: DvCamera | None, dv_error: str | None,
         return Camera(None, dv, READY)  # pyusb could not list devices
     where = Camera(usb, dv, READY).label()
     if usb.access == ACCESS_DENIED:
-        return Camera(usb, dv, NO_ACCESS, f"{where} is not accessible ({usb.reason})", access_fix(rules))
+        return Camera(usb, dv, NO_ACCESS, f"{where} is not accessible ({usb.reason})", camera_access_fix(rules))
     if usb.access == ACCESS_BUSY:
         fix = ("stop that program (the driver's own service: systemctl --user stop neurotouch-hid.service), "
                "or unplug and replug the camera")
