@@ -53,8 +53,3 @@ class ControllerState:
     def is_neutral(self) -> bool:
         """True when every axis is at its neutral value and no button is pressed."""
         return all(self.axes[n] == AXES[n][2] for n in AXES) and not any(self.buttons.values())
-
-    def clamped(self) -> "ControllerState":
-        """A copy with every axis clamped to its range."""
-        axes = {n: int(min(max(v, AXES[n][0]), AXES[n][1])) for n, v in self.axes.items()}
-        return ControllerState(t_us=self.t_us, axes=axes, buttons=dict(self.buttons))

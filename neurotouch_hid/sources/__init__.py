@@ -51,8 +51,3 @@ class SourceStatus:
 #: (live camera only) a :class:`SourceStatus`.
 StreamItem = Union[np.ndarray, Frame, SourceStatus]
 Stream = Iterator[StreamItem]
-
-
-def empty_events(n: int = 0) -> np.ndarray:
-    """A zeroed event array of ``n`` events, dtype :data:`EVENT_DTYPE`."""
-    return np.zeros(n, dtype=EVENT_DTYPE)

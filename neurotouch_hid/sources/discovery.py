@@ -232,11 +232,6 @@ def node_path(bus: int, address: int) -> str:
     return f"/dev/bus/usb/{bus:03d}/{address:03d}"
 
 
-def usb_node(device) -> str:
-    """The ``/dev/bus/usb/BBB/DDD`` node (str) of a pyusb ``usb.core.Device``."""
-    return node_path(device.bus, device.address)
-
-
 def find_cameras() -> list:
     """Every USB device 152a:841a, accessible or not (pyusb ``usb.core.Device`` objects, in
     libusb's order; an empty list when there is none).
