@@ -19,14 +19,8 @@ from rich.table import Table
 
 from neurotouch_hid.output.gamepad import uinput_problem
 from neurotouch_hid.sources.discovery import (
-    BUSY,
     CAMERA_USB_ID,
-    DV_UNAVAILABLE,
-    ERROR,
-    GONE,
-    NO_ACCESS,
-    NOT_IN_DV,
-    READY,
+    CameraStatus,
     Discovery,
     discover,
 )
@@ -71,7 +65,8 @@ def check_camera_access(found: Discovery) -> Check:
     usb = [c for c in found.cameras if c.usb is not None]
     if not usb:
         return Check("camera permissions", SKIP, "no camera to check")
-    bad = [c for c in usb if c.status in (NO_ACCESS, BUSY, ERROR, GONE)]
+    unusable = (CameraStatus.NO_ACCESS, CameraStatus.BUSY, CameraStatus.ERROR, CameraStatus.GONE)
+    bad = [c for c in usb if c.status in unusable]
     if bad:
         fixes = list(dict.fromkeys(c.fix for c in bad))
         return Check("camera permissions", FAIL, "; ".join(c.problem for c in bad), "; or ".join(fixes))
@@ -81,7 +76,8 @@ def check_camera_access(found: Discovery) -> Check:
 def check_camera_dv(found: Discovery) -> Check:
     """dv-processing lists every accessible camera (the live source opens cameras through it);
     skip when no camera is accessible."""
-    usable = [c for c in found.cameras if c.status in (READY, NOT_IN_DV, DV_UNAVAILABLE)]
+    accessible = (CameraStatus.READY, CameraStatus.NOT_IN_DV, CameraStatus.DV_UNAVAILABLE)
+    usable = [c for c in found.cameras if c.status in accessible]
     if not usable:
         return Check("dv-processing sees the camera", SKIP, "no accessible camera to look for")
     missing = [c for c in usable if not c.ready]

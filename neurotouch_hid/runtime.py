@@ -45,7 +45,7 @@ import numpy as np
 from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.errors import DeviceError, NeurotouchError, ProfileError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.sources import Frame, SourceStatus, StreamItem
+from neurotouch_hid.sources import Frame, SourceStatus, StatusKind, StreamItem
 
 log = logging.getLogger(__name__)
 
@@ -466,14 +466,14 @@ class Runtime:
     def _source_status(self, status: SourceStatus) -> None:
         """Source thread: the live camera was lost (neutralise now, drop the stale queue) or is
         back (the worker restarts the pipeline before its data); tell the user."""
-        if status.kind == "lost":
+        if status.kind == StatusKind.LOST:
             with self._lock:
                 self._paused = True
                 self._output.neutralise()
                 self._forget_state()
             self._items.clear()
             self.stats.camera_losses += 1
-        elif status.kind == "resumed":
+        elif status.kind == StatusKind.RESUMED:
             self._restart.set()
         self._say(status.message)
 

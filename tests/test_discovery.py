@@ -24,19 +24,8 @@ import usb.util
 from neurotouch_hid.udev import RULES_INSTALL
 from neurotouch_hid.sources import discovery
 from neurotouch_hid.sources.discovery import (
-    ACCESS_BUSY,
-    ACCESS_DENIED,
-    ACCESS_ERROR,
-    ACCESS_GONE,
-    ACCESS_OK,
-    BUSY,
-    DV_UNAVAILABLE,
-    ERROR,
-    GONE,
-    NO_ACCESS,
-    NOT_IN_DV,
-    OTHER_CAMERA,
-    READY,
+    CameraStatus,
+    UsbAccess,
     Discovery,
     DvCamera,
     UsbCamera,
@@ -47,7 +36,7 @@ from neurotouch_hid.sources.discovery import (
 CLI = [sys.executable, "-m", "neurotouch_hid.cli"]
 
 
-def usb_cam(bus=1, address=5, access=ACCESS_OK, reason="", serial="00000123", holders=()) -> UsbCamera:
+def usb_cam(bus=1, address=5, access=UsbAccess.OK, reason="", serial="00000123", holders=()) -> UsbCamera:
     return UsbCamera(bus=bus, address=address, node=discovery.node_path(bus, address), port=f"{bus}-1",
                      serial=serial, product="DAVIS346", manufacturer="iniVation", speed_mbps=5000.0,
                      access=access, reason=reason, holders=holders)
@@ -94,7 +83,7 @@ def test_cli_devices_json_without_a_camera():
 def test_accessible_and_listed_by_dv_is_ready():
     found = merge([usb_cam()], [dv_cam()])
     (camera,) = found.cameras
-    assert camera.status == READY and camera.ready and camera.problem == "" and found.ready == [camera]
+    assert camera.status == CameraStatus.READY and camera.ready and camera.problem == "" and found.ready == [camera]
     assert camera.dv.firmware == 6 and camera.node == "/dev/bus/usb/001/005"
     assert camera.label() == "DAVIS-346 at bus 1 device 5 (/dev/bus/usb/001/005), serial 00000123"
     assert found.summary() == found.to_json()["message"] == f"ready: {camera.label()}"
@@ -102,21 +91,21 @@ def test_accessible_and_listed_by_dv_is_ready():
 
 def test_records_are_matched_by_bus_and_address():
     found = merge([usb_cam(1, 5, serial="A"), usb_cam(3, 2, serial="B")], [dv_cam(3, 2, serial="B")])
-    assert [(c.bus, c.address, c.status) for c in found.cameras] == [(1, 5, NOT_IN_DV), (3, 2, READY)]
+    assert [(c.bus, c.address, c.status) for c in found.cameras] == [(1, 5, CameraStatus.NOT_IN_DV), (3, 2, CameraStatus.READY)]
 
 
 def test_permission_denied_without_rules_says_install_the_udev_rule():
     reason = "permission denied: /dev/bus/usb/001/005 is crw-rw-r-- root:root, this user is bob (uid 1000)"
-    found = merge([usb_cam(access=ACCESS_DENIED, reason=reason)], [dv_cam(serial="")], rules=None)
+    found = merge([usb_cam(access=UsbAccess.DENIED, reason=reason)], [dv_cam(serial="")], rules=None)
     (camera,) = found.cameras
-    assert camera.status == NO_ACCESS and not found.ready
+    assert camera.status == CameraStatus.NO_ACCESS and not found.ready
     assert camera.problem == f"DAVIS-346 at bus 1 device 5 (/dev/bus/usb/001/005), serial 00000123 is not accessible ({reason})"
     assert camera.fix == f"install the udev rule: {RULES_INSTALL}; then unplug and replug the camera"
     assert camera.serial == "00000123"  # dv-processing could not read it (empty): the USB string
 
 
 def test_permission_denied_with_rules_installed_explains_uaccess():
-    found = merge([usb_cam(access=ACCESS_DENIED, reason="permission denied")], [],
+    found = merge([usb_cam(access=UsbAccess.DENIED, reason="permission denied")], [],
                   rules="/etc/udev/rules.d/60-neurotouch.rules")
     fix = found.cameras[0].fix
     assert "(/etc/udev/rules.d/60-neurotouch.rules)" in fix and "uaccess" in fix and "not over SSH" in fix
@@ -124,16 +113,16 @@ def test_permission_denied_with_rules_installed_explains_uaccess():
 
 
 def test_busy_names_the_holder_and_the_service():
-    found = merge([usb_cam(access=ACCESS_BUSY, reason="in use by another program (PID 42 (neurotouch-hid))",
+    found = merge([usb_cam(access=UsbAccess.BUSY, reason="in use by another program (PID 42 (neurotouch-hid))",
                            holders=("PID 42 (neurotouch-hid)",))], [dv_cam()])
     camera = found.cameras[0]
-    assert camera.status == BUSY and "PID 42 (neurotouch-hid)" in camera.problem
+    assert camera.status == CameraStatus.BUSY and "PID 42 (neurotouch-hid)" in camera.problem
     assert "systemctl --user stop neurotouch-hid.service" in camera.fix
 
 
 @pytest.mark.parametrize("access,status,words", [
-    (ACCESS_GONE, GONE, "plug it in again"),
-    (ACCESS_ERROR, ERROR, "dmesg"),
+    (UsbAccess.GONE, CameraStatus.GONE, "plug it in again"),
+    (UsbAccess.ERROR, CameraStatus.ERROR, "dmesg"),
 ])
 def test_gone_and_error(access, status, words):
     camera = merge([usb_cam(access=access, reason="x")], None).cameras[0]
@@ -142,50 +131,50 @@ def test_gone_and_error(access, status, words):
 
 def test_accessible_but_not_listed_by_dv_points_at_firmware():
     camera = merge([usb_cam()], []).cameras[0]
-    assert camera.status == NOT_IN_DV and "dv-processing does not list it" in camera.problem
+    assert camera.status == CameraStatus.NOT_IN_DV and "dv-processing does not list it" in camera.problem
     assert "firmware" in camera.fix and "replug" in camera.fix
 
 
 def test_dv_processing_unavailable():
     camera = merge([usb_cam()], None, dv_error="dv-processing cannot be imported").cameras[0]
-    assert camera.status == DV_UNAVAILABLE and "cannot be imported" in camera.problem
+    assert camera.status == CameraStatus.DV_UNAVAILABLE and "cannot be imported" in camera.problem
     assert "pip install --upgrade dv-processing" in camera.fix
 
 
 def test_other_dv_cameras_are_listed_but_are_not_davis346():
     found = merge([], [dv_cam(4, 9, pid=0x8419, model="DVXPLORER")])
     (camera,) = found.cameras
-    assert camera.status == OTHER_CAMERA and not camera.is_davis346 and found.davis346 == []
+    assert camera.status == CameraStatus.OTHER_CAMERA and not camera.is_davis346 and found.davis346 == []
     assert camera.label().startswith("DVXPLORER camera at bus 4 device 9") and "152a:8419" in camera.problem
     assert "dv-processing sees only: DVXPLORER camera" in explain(found)
 
 
 def test_without_pyusb_dv_processing_alone_is_believed():
     found = merge(None, [dv_cam()], usb_error="cannot list USB devices: x")
-    assert [c.status for c in found.cameras] == [READY] and found.cameras[0].usb is None
+    assert [c.status for c in found.cameras] == [CameraStatus.READY] and found.cameras[0].usb is None
     assert merge(None, [], usb_error="x").to_json()["message"].startswith(
         "no DAVIS-346 found, and pyusb cannot list USB devices (x)")
 
 
 def test_to_json_is_json():
-    found = merge([usb_cam(access=ACCESS_BUSY, reason="r", holders=("PID 1 (a)",)), usb_cam(2, 3)],
+    found = merge([usb_cam(access=UsbAccess.BUSY, reason="r", holders=("PID 1 (a)",)), usb_cam(2, 3)],
                   [dv_cam(2, 3)], dv_log=["libusb: error"])
     data = json.loads(json.dumps(found.to_json()))
     assert data["ready"] == 1 and data["dv_log"] == ["libusb: error"]
     assert data["cameras"][0]["usb"]["holders"] == ["PID 1 (a)"] and data["cameras"][0]["dv"] is None
-    assert data["cameras"][1]["dv"]["firmware"] == 6 and data["cameras"][1]["status"] == READY
+    assert data["cameras"][1]["dv"]["firmware"] == 6 and data["cameras"][1]["status"] == CameraStatus.READY
 
 
 # --- explain: the one line for the live source --------------------------------------------------
 def test_explain_talks_about_the_most_usable_camera():
-    found = merge([usb_cam(1, 5, access=ACCESS_DENIED, reason="permission denied"), usb_cam(1, 6)], [])
+    found = merge([usb_cam(1, 5, access=UsbAccess.DENIED, reason="permission denied"), usb_cam(1, 6)], [])
     message = explain(found)
     assert message.startswith("DAVIS-346 at bus 1 device 6") and "dv-processing does not list it" in message
     assert message.endswith("(1 more found: see `neurotouch-hid devices`)")
 
 
 def test_explain_not_accessible_gives_the_udev_rule():
-    found = merge([usb_cam(access=ACCESS_DENIED, reason="permission denied")], [])
+    found = merge([usb_cam(access=UsbAccess.DENIED, reason="permission denied")], [])
     assert explain(found) == (f"DAVIS-346 at bus 1 device 5 (/dev/bus/usb/001/005), serial 00000123 is not "
                               f"accessible (permission denied): install the udev rule: {RULES_INSTALL}; then "
                               f"unplug and replug the camera")
@@ -244,14 +233,14 @@ def fake_usb(tmp_path, monkeypatch):
 def test_probe_ok_reads_sysfs_and_claims_then_releases(fake_usb):
     cam = discovery.probe_usb(fake_usb.device)
     assert cam == UsbCamera(bus=2, address=7, node=fake_usb.node, port="2-1", serial="00000042", product="DAVIS346",
-                            manufacturer="iniVation", speed_mbps=5000.0, access=ACCESS_OK)
+                            manufacturer="iniVation", speed_mbps=5000.0, access=UsbAccess.OK)
     assert fake_usb.calls == [("claim", 0), ("dispose",)]
 
 
 def test_probe_unreadable_node_is_denied_without_opening(fake_usb, monkeypatch):
     monkeypatch.setattr(discovery.os, "access", lambda path, mode: False)
     cam = discovery.probe_usb(fake_usb.device)
-    assert cam.access == ACCESS_DENIED and cam.serial == "00000042"  # strings from sysfs all the same
+    assert cam.access == UsbAccess.DENIED and cam.serial == "00000042"  # strings from sysfs all the same
     assert cam.reason.startswith(f"permission denied: {fake_usb.node} is -rw-") and f"uid {os.getuid()}" in cam.reason
     assert fake_usb.calls == []
 
@@ -259,7 +248,7 @@ def test_probe_unreadable_node_is_denied_without_opening(fake_usb, monkeypatch):
 def test_probe_libusb_access_error_is_denied(fake_usb):
     fake_usb.claim_error = usb.core.USBError("Access denied (insufficient permissions)", -3, errno.EACCES)
     cam = discovery.probe_usb(fake_usb.device)
-    assert cam.access == ACCESS_DENIED and "Access denied" in cam.reason
+    assert cam.access == UsbAccess.DENIED and "Access denied" in cam.reason
     assert fake_usb.calls[-1] == ("dispose",)
 
 
@@ -273,7 +262,7 @@ def test_probe_busy_names_the_process_holding_the_node(fake_usb):
     finally:
         holder.kill()
         holder.wait()
-    assert cam.access == ACCESS_BUSY and len(cam.holders) == 1, cam
+    assert cam.access == UsbAccess.BUSY and len(cam.holders) == 1, cam
     assert cam.holders[0].startswith(f"PID {holder.pid} (")
     assert cam.reason == f"in use by another program ({cam.holders[0]})"
 
@@ -284,14 +273,14 @@ def test_probe_busy_by_a_kernel_driver(fake_usb, tmp_path):
     (fake_usb.sysfs / "2-1:1.0").mkdir()
     (fake_usb.sysfs / "2-1:1.0" / "driver").symlink_to(tmp_path / "drivers" / "usbtest")
     cam = discovery.probe_usb(fake_usb.device)
-    assert cam.access == ACCESS_BUSY and cam.reason == "the kernel driver usbtest holds its interface 0"
+    assert cam.access == UsbAccess.BUSY and cam.reason == "the kernel driver usbtest holds its interface 0"
     assert "unbind that driver" in merge([cam], []).cameras[0].fix
 
 
 def test_probe_other_libusb_error(fake_usb):
     fake_usb.claim_error = usb.core.USBError("Input/Output Error", -1, errno.EIO)
     cam = discovery.probe_usb(fake_usb.device)
-    assert cam.access == ACCESS_ERROR and "Input/Output Error" in cam.reason
+    assert cam.access == UsbAccess.ERROR and "Input/Output Error" in cam.reason
 
 
 def test_probe_unplugged_meanwhile_is_gone(fake_usb, tmp_path):
@@ -300,7 +289,7 @@ def test_probe_unplugged_meanwhile_is_gone(fake_usb, tmp_path):
         f.unlink()
     fake_usb.sysfs.rmdir()
     cam = discovery.probe_usb(fake_usb.device)
-    assert cam.access == ACCESS_GONE and cam.port == "2-1"  # from pyusb's port numbers
+    assert cam.access == UsbAccess.GONE and cam.port == "2-1"  # from pyusb's port numbers
     assert cam.serial is None
 
 

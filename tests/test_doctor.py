@@ -12,7 +12,7 @@ from rich.console import Console
 
 from neurotouch_hid import doctor
 from neurotouch_hid.doctor import FAIL, OK, SKIP, WARN, Check
-from neurotouch_hid.sources.discovery import ACCESS_DENIED, ACCESS_OK, DvCamera, UsbCamera, discover, merge
+from neurotouch_hid.sources.discovery import DvCamera, UsbAccess, UsbCamera, discover, merge
 
 
 def test_no_camera_on_this_machine_is_a_failure_with_a_fix():
@@ -24,9 +24,9 @@ def test_no_camera_on_this_machine_is_a_failure_with_a_fix():
     assert doctor.check_camera_dv(found).status == SKIP
 
 
-def _camera(access: str = ACCESS_OK, dv: bool = True):
+def _camera(access: str = UsbAccess.OK, dv: bool = True):
     usb = UsbCamera(bus=2, address=7, node="/dev/bus/usb/002/007", serial="00000042", access=access,
-                    reason="" if access == ACCESS_OK else "permission denied: ...")
+                    reason="" if access == UsbAccess.OK else "permission denied: ...")
     listed = [DvCamera("00000042", "DAVIS", "FX3_MB", 6, 2, 7)] if dv else []
     return merge([usb], listed)
 
@@ -37,7 +37,7 @@ def test_camera_checks_share_the_discovery_verdicts():
                                doctor.check_camera_dv(ready))] == [OK, OK, OK]
     assert "serial 00000042" in doctor.check_camera(ready).detail
     assert "firmware 6" in doctor.check_camera_dv(ready).detail
-    denied = _camera(ACCESS_DENIED)
+    denied = _camera(UsbAccess.DENIED)
     access = doctor.check_camera_access(denied)
     assert access.status == FAIL and "bus 2 device 7" in access.detail and "60-neurotouch.rules" in access.fix
     assert doctor.check_camera_dv(denied).status == SKIP

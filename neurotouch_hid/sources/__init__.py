@@ -7,6 +7,7 @@ Every source yields the same stream: event batches (numpy structured arrays of
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import Iterator, Union
 
 import numpy as np
@@ -31,19 +32,25 @@ class Frame:
     image: np.ndarray
 
 
+class StatusKind(StrEnum):
+    """What changed in a live source (:class:`SourceStatus`)."""
+
+    WAITING = "waiting"  #: no camera yet, waiting for one
+    LOST = "lost"        #: unplugged, stalled or failing: no data follows until RESUMED
+    RESUMED = "resumed"  #: a camera delivers data again (a new session; its clock may have restarted)
+
+
 @dataclass(frozen=True)
 class SourceStatus:
     """A change in a live source's state, in its stream between the data (only from a live camera
     asked to survive faults: :meth:`DavisSource.stream` with ``reconnect=True``).
 
     Attributes:
-        kind: ``"waiting"`` (no camera yet, waiting for one), ``"lost"`` (unplugged, stalled or
-            failing: no data follows until ``"resumed"``), ``"resumed"`` (a camera delivers data
-            again; the data that follows is a new session, its clock may have restarted).
+        kind: a :class:`StatusKind`.
         message: one line for the user: what happened and what the driver does about it.
     """
 
-    kind: str
+    kind: StatusKind
     message: str
 
 

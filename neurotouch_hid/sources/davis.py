@@ -40,7 +40,7 @@ from dataclasses import dataclass
 from typing import Any, Iterator
 
 from neurotouch_hid.errors import DeviceError
-from neurotouch_hid.sources import Frame, SourceStatus, StreamItem
+from neurotouch_hid.sources import Frame, SourceStatus, StatusKind, StreamItem
 from neurotouch_hid.sources.recording import (
     DAVIS346_RESOLUTION,
     DV_ERRORS,
@@ -265,7 +265,7 @@ class DavisSource:
                 self._open_or_raise()
             else:
                 lost_since = time.monotonic()
-                yield SourceStatus("waiting", f"waiting for a DAVIS-346 ({_fix_hint(cfg.serial)}); Ctrl-C stops")
+                yield SourceStatus(StatusKind.WAITING, f"waiting for a DAVIS-346 ({_fix_hint(cfg.serial)}); Ctrl-C stops")
         last_data = time.monotonic()
         while remaining() > 0:
             if self._camera is None:  # in an outage: try again after the back-off
@@ -278,7 +278,7 @@ class DavisSource:
             if items:
                 if lost_since is not None:
                     what = "found" if never_opened else "is back"
-                    yield SourceStatus("resumed", f"camera {self.camera_name} {what} after {now - lost_since:.1f} s; "
+                    yield SourceStatus(StatusKind.RESUMED, f"camera {self.camera_name} {what} after {now - lost_since:.1f} s; "
                                                   "the markers are initialised on the first APS frame at rest")
                     never_opened = False
                     lost_since = None
@@ -302,6 +302,6 @@ class DavisSource:
                                   f"`neurotouch-hid devices`")
             if lost_since is None:  # a new outage (not a camera that stalled again right after reopening)
                 lost_since = now
-                yield SourceStatus("lost", f"camera {name} {failure}: gamepad centred and released; "
+                yield SourceStatus(StatusKind.LOST, f"camera {name} {failure}: gamepad centred and released; "
                                            f"trying to reopen it (back-off up to {cfg.retry_max_s:g} s)")
             time.sleep(max(0.0, min(next(delays), remaining())))

@@ -29,6 +29,7 @@ import stat
 import sys
 import tempfile
 from dataclasses import asdict, dataclass, field
+from enum import StrEnum
 from pathlib import Path
 
 from neurotouch_hid.errors import DeviceError
@@ -41,24 +42,32 @@ _SYSFS_USB = Path("/sys/bus/usb/devices")
 #: dv-processing's logger prefix ("[ERROR] usb_discovery: ").
 _DV_LOG_PREFIX = re.compile(r"^\[[A-Z]+\] \w+: ")
 
-# Access verdicts of the pyusb probe (UsbCamera.access).
-ACCESS_OK = "ok"
-ACCESS_DENIED = "denied"
-ACCESS_BUSY = "busy"
-ACCESS_GONE = "gone"
-ACCESS_ERROR = "error"
+class UsbAccess(StrEnum):
+    """The pyusb probe's verdict on one camera's USB node (:attr:`UsbCamera.access`)."""
 
-# Camera.status: both views together.
-READY = "ready"                    # accessible and listed by dv-processing: the live source can open it
-NO_ACCESS = "no-access"            # permission denied: the udev rule
-BUSY = "busy"                      # another program (or a kernel driver) holds it
-GONE = "gone"                      # unplugged while being checked
-ERROR = "error"                    # libusb could not open it for another reason
-NOT_IN_DV = "not-in-dv"            # accessible, but dv-processing does not list it
-DV_UNAVAILABLE = "dv-unavailable"  # accessible, but dv-processing could not list cameras at all
-OTHER_CAMERA = "other-camera"      # dv-processing lists it, but it is not a 152a:841a device
-#: Most usable first: :func:`explain` talks about the best camera there is.
-_STATUS_ORDER = (READY, NOT_IN_DV, DV_UNAVAILABLE, BUSY, NO_ACCESS, ERROR, GONE, OTHER_CAMERA)
+    OK = "ok"
+    DENIED = "denied"
+    BUSY = "busy"
+    GONE = "gone"
+    ERROR = "error"
+
+
+class CameraStatus(StrEnum):
+    """Both views together (:attr:`Camera.status`): what pyusb and dv-processing say of a camera,
+    most usable first."""
+
+    READY = "ready"                    #: accessible and listed by dv-processing: the live source can open it
+    NOT_IN_DV = "not-in-dv"            #: accessible, but dv-processing does not list it
+    DV_UNAVAILABLE = "dv-unavailable"  #: accessible, but dv-processing could not list cameras at all
+    BUSY = "busy"                      #: another program (or a kernel driver) holds it
+    NO_ACCESS = "no-access"            #: permission denied: the udev rule
+    ERROR = "error"                    #: libusb could not open it for another reason
+    GONE = "gone"                      #: unplugged while being checked
+    OTHER_CAMERA = "other-camera"      #: dv-processing lists it, but it is not a 152a:841a device
+
+
+#: Most usable first (the enum's order): :func:`explain` talks about the best camera there is.
+_STATUS_ORDER = tuple(CameraStatus)
 
 
 @dataclass(frozen=True)
@@ -71,8 +80,8 @@ class UsbCamera:
         port: the kernel's name for the device's port (sysfs, e.g. ``"2-1.3"``), or None.
         serial, product, manufacturer: the device's USB strings, or None when unreadable.
         speed_mbps: link speed (sysfs ``speed``: 480 = USB 2, 5000 = USB 3), or None.
-        access: ``"ok"``, ``"denied"``, ``"busy"``, ``"gone"`` or ``"error"`` (ACCESS_*).
-        reason: why it is not ``"ok"`` (empty when it is), for a person.
+        access: a :class:`UsbAccess` verdict.
+        reason: why it is not ``UsbAccess.OK`` (empty when it is), for a person.
         holders: other processes that have the node open (``"PID 123 (name)"``; only those this
             user may inspect), when busy.
     """
@@ -85,7 +94,7 @@ class UsbCamera:
     product: str | None = None
     manufacturer: str | None = None
     speed_mbps: float | None = None
-    access: str = ACCESS_OK
+    access: UsbAccess = UsbAccess.OK
     reason: str = ""
     holders: tuple[str, ...] = ()
 
@@ -123,14 +132,14 @@ class Camera:
     Attributes:
         usb: the pyusb view, or None when pyusb could not list devices.
         dv: the dv-processing view, or None when dv-processing does not list this device.
-        status: READY, NO_ACCESS, BUSY, GONE, ERROR, NOT_IN_DV, DV_UNAVAILABLE or OTHER_CAMERA.
-        problem: what is wrong, one clause naming the device (empty when READY).
-        fix: what to do about it (empty when READY).
+        status: a :class:`CameraStatus`.
+        problem: what is wrong, one clause naming the device (empty when CameraStatus.READY).
+        fix: what to do about it (empty when CameraStatus.READY).
     """
 
     usb: UsbCamera | None
     dv: DvCamera | None
-    status: str
+    status: CameraStatus
     problem: str = ""
     fix: str = ""
 
@@ -153,12 +162,12 @@ class Camera:
 
     @property
     def ready(self) -> bool:
-        return self.status == READY
+        return self.status == CameraStatus.READY
 
     @property
     def is_davis346(self) -> bool:
-        """A USB 152a:841a device (all records but OTHER_CAMERA ones)."""
-        return self.status != OTHER_CAMERA
+        """A USB 152a:841a device (all records but CameraStatus.OTHER_CAMERA ones)."""
+        return self.status != CameraStatus.OTHER_CAMERA
 
     def label(self) -> str:
         """``"DAVIS-346 at bus 1 device 5 (/dev/bus/usb/001/005), serial 00000123"``."""
@@ -360,19 +369,19 @@ def probe_usb(device) -> UsbCamera:
     base = dict(bus=bus, address=address, node=node, port=port,
                 speed_mbps=float(speed) if speed and speed.replace(".", "", 1).isdigit() else None)
 
-    def verdict(access: str, reason: str = "", holders: tuple[str, ...] = ()) -> UsbCamera:
+    def verdict(access: UsbAccess, reason: str = "", holders: tuple[str, ...] = ()) -> UsbCamera:
         return UsbCamera(**base, **strings, access=access, reason=reason, holders=holders)
 
     if not os.path.exists(node):
         if sysfs is None:
-            return verdict(ACCESS_GONE, "unplugged while being checked")
-        return verdict(ACCESS_ERROR, f"{node} does not exist (no devtmpfs on /dev?)")
+            return verdict(UsbAccess.GONE, "unplugged while being checked")
+        return verdict(UsbAccess.ERROR, f"{node} does not exist (no devtmpfs on /dev?)")
     if not os.access(node, os.R_OK | os.W_OK):
         try:
             owner = _node_owner(node)
         except OSError:
             owner = "?"
-        return verdict(ACCESS_DENIED, f"permission denied: {node} is {owner}, this user is {_whoami()}")
+        return verdict(UsbAccess.DENIED, f"permission denied: {node} is {owner}, this user is {_whoami()}")
     try:
         usb.util.claim_interface(device, 0)
         for key, index in (("serial", "iSerialNumber"), ("product", "iProduct"), ("manufacturer", "iManufacturer")):
@@ -384,26 +393,26 @@ def probe_usb(device) -> UsbCamera:
     except usb.core.USBError as exc:
         code = exc.errno
         if code == errno.EACCES:
-            return verdict(ACCESS_DENIED, f"permission denied by libusb on {node} ({exc.strerror}), "
+            return verdict(UsbAccess.DENIED, f"permission denied by libusb on {node} ({exc.strerror}), "
                            f"this user is {_whoami()}")
         if code == errno.EBUSY:
             driver = _kernel_driver(sysfs)
             if driver and driver != "usbfs":
-                return verdict(ACCESS_BUSY, f"the kernel driver {driver} holds its interface 0")
+                return verdict(UsbAccess.BUSY, f"the kernel driver {driver} holds its interface 0")
             holders = _holders(node)
             who = ", ".join(holders) if holders else "a process this user cannot see"
-            return verdict(ACCESS_BUSY, f"in use by another program ({who})", holders)
+            return verdict(UsbAccess.BUSY, f"in use by another program ({who})", holders)
         if code in (errno.ENODEV, errno.ENOENT) and _sysfs_device(bus, address) is None:
-            return verdict(ACCESS_GONE, "unplugged while being checked")
-        return verdict(ACCESS_ERROR, f"libusb cannot open or claim it: {exc}")
+            return verdict(UsbAccess.GONE, "unplugged while being checked")
+        return verdict(UsbAccess.ERROR, f"libusb cannot open or claim it: {exc}")
     except (NotImplementedError, ValueError) as exc:
-        return verdict(ACCESS_ERROR, f"libusb cannot open or claim it: {exc}")
+        return verdict(UsbAccess.ERROR, f"libusb cannot open or claim it: {exc}")
     finally:
         try:
             usb.util.dispose_resources(device)
         except usb.core.USBError:
             pass
-    return verdict(ACCESS_OK)
+    return verdict(UsbAccess.OK)
 
 
 def usb_cameras() -> list[UsbCamera]:
@@ -478,31 +487,31 @@ def _diagnose(usb: UsbCamera | None, dv: DvCamera | None, dv_error: str | None,
     """One merged record with its status, problem and fix (pure: no I/O)."""
     if usb is None:  # not a USB record: dv-processing's word alone
         if dv is not None and dv.pid != CAMERA_PID:
-            other = Camera(None, dv, OTHER_CAMERA)
-            return Camera(None, dv, OTHER_CAMERA, f"{other.label()} is not a DAVIS-346 "
+            other = Camera(None, dv, CameraStatus.OTHER_CAMERA)
+            return Camera(None, dv, CameraStatus.OTHER_CAMERA, f"{other.label()} is not a DAVIS-346 "
                           f"(USB 152a:{dv.pid:04x}, not {CAMERA_USB_ID})",
                           f"NeuroTouch's camera is a DAVIS-346 (USB {CAMERA_USB_ID}): plug that one in")
-        return Camera(None, dv, READY)  # pyusb could not list devices
-    where = Camera(usb, dv, READY).label()
-    if usb.access == ACCESS_DENIED:
-        return Camera(usb, dv, NO_ACCESS, f"{where} is not accessible ({usb.reason})", camera_access_fix(rules))
-    if usb.access == ACCESS_BUSY:
+        return Camera(None, dv, CameraStatus.READY)  # pyusb could not list devices
+    where = Camera(usb, dv, CameraStatus.READY).label()
+    if usb.access == UsbAccess.DENIED:
+        return Camera(usb, dv, CameraStatus.NO_ACCESS, f"{where} is not accessible ({usb.reason})", camera_access_fix(rules))
+    if usb.access == UsbAccess.BUSY:
         fix = ("stop that program (the driver's own service: systemctl --user stop neurotouch-hid.service), "
                "or unplug and replug the camera")
         if usb.reason.startswith("the kernel driver"):
             fix = "unbind that driver from the device, or unplug and replug the camera"
-        return Camera(usb, dv, BUSY, f"{where} is busy: {usb.reason}", fix)
-    if usb.access == ACCESS_GONE:
-        return Camera(usb, dv, GONE, f"{where} was unplugged while being checked", "plug it in again")
-    if usb.access == ACCESS_ERROR:
-        return Camera(usb, dv, ERROR, f"{where} cannot be opened: {usb.reason}",
+        return Camera(usb, dv, CameraStatus.BUSY, f"{where} is busy: {usb.reason}", fix)
+    if usb.access == UsbAccess.GONE:
+        return Camera(usb, dv, CameraStatus.GONE, f"{where} was unplugged while being checked", "plug it in again")
+    if usb.access == UsbAccess.ERROR:
+        return Camera(usb, dv, CameraStatus.ERROR, f"{where} cannot be opened: {usb.reason}",
                       "unplug and replug it (another USB port or cable); `dmesg` may say more")
     if dv is not None:
-        return Camera(usb, dv, READY)
+        return Camera(usb, dv, CameraStatus.READY)
     if dv_error is not None:
-        return Camera(usb, None, DV_UNAVAILABLE, f"{where} is accessible but dv-processing cannot list "
+        return Camera(usb, None, CameraStatus.DV_UNAVAILABLE, f"{where} is accessible but dv-processing cannot list "
                       f"cameras ({dv_error})", "python3 -m pip install --upgrade dv-processing")
-    return Camera(usb, None, NOT_IN_DV, f"{where} is accessible but dv-processing does not list it",
+    return Camera(usb, None, CameraStatus.NOT_IN_DV, f"{where} is accessible but dv-processing does not list it",
                   "unplug and replug it; if it stays unlisted, it does not answer as a DAVIS camera: "
                   "update its firmware with iniVation's DV software (Flashy)")
 
@@ -519,7 +528,7 @@ def merge(usb: list[UsbCamera] | None, dv: list[DvCamera] | None, *, usb_error: 
         dv_log: what dv-processing printed while listing (kept in the result).
 
     Returns a :class:`Discovery`, cameras sorted by (bus, address). Devices are matched by
-    (bus, address). A dv-processing camera without a USB record is another model (OTHER_CAMERA,
+    (bus, address). A dv-processing camera without a USB record is another model (CameraStatus.OTHER_CAMERA,
     e.g. a DVXplorer), or, when pyusb could not list devices, a DAVIS-346 known from dv-processing
     alone.
     """
@@ -540,7 +549,7 @@ def discover(dv: bool = True) -> Discovery:
     Returns a :class:`Discovery`: one merged :class:`Camera` per device, and the reasons either
     view was unavailable (``usb_error``, ``dv_error``). dv-processing's stderr chatter (libusb
     errors on devices it may not open) is captured into ``dv_log``. ``dv=False``: pyusb only (no
-    dv-processing import; ``dv_error`` says so and every accessible camera is DV_UNAVAILABLE)."""
+    dv-processing import; ``dv_error`` says so and every accessible camera is CameraStatus.DV_UNAVAILABLE)."""
     usb_error = dv_error = None
     try:
         usb: list[UsbCamera] | None = usb_cameras()
