@@ -20,7 +20,6 @@ Run: ``python3 benchmarks/bench_tracker.py`` (``--help`` for options).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import datetime
 import tempfile
 import time
@@ -278,7 +277,7 @@ def main() -> None:
                         help="a TrackerConfig field (float), e.g. --set max_offset_px=0 (repeatable)")
     args = parser.parse_args()
     console = Console()
-    fields = {f.name for f in dataclasses.fields(TrackerConfig)}
+    fields = set(TrackerConfig.model_fields)
     overrides = {}
     for item in args.set:
         name, _, value = item.partition("=")

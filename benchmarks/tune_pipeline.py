@@ -24,7 +24,6 @@ Combinations are ranked by :func:`score`; the tables are printed with rich and w
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import json
 import multiprocessing
@@ -240,7 +239,7 @@ def main(
     console.print(table)
     (out / "tuning.json").write_text(json.dumps({
         "tuning_users": users, "tuning_seed": TUNING_SEED, "minutes": minutes,
-        "defaults": dataclasses.asdict(defaults), "chamfer_f1": {str(k): v for k, v in f1s.items()},
+        "defaults": defaults.model_dump(), "chamfer_f1": {str(k): v for k, v in f1s.items()},
         "rows": rows}, indent=1, default=str))
     console.print("best: " + " ".join(f"--set {s}" for s in rows[0]["settings"]))
 

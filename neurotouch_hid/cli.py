@@ -196,7 +196,6 @@ def eval_cmd(
     predictions: Optional[Path] = typer.Option(None, "--predictions", help="keep each sequence's predictions here (JSON lines)"),
 ) -> None:
     """Run the pipeline over a labelled dataset and print the paper's metrics."""
-    import dataclasses
     import json
     import shlex
 
@@ -215,7 +214,7 @@ def eval_cmd(
         f"{flag}={value}" for flag, value in (("--window-us", window_us), ("--jobs", jobs if jobs > 1 else None),
                                               ("--report", report), ("--json", json_out)) if value is not None]
     command = "neurotouch-hid " + shlex.join(argv)
-    hyper = dataclasses.asdict(config)
+    hyper = config.model_dump()
     if json_out is not None:
         data = {"dataset": str(dataset), "command": command, "config": hyper, **result.to_dict()}
         json_out.parent.mkdir(parents=True, exist_ok=True)

@@ -15,15 +15,46 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 import yaml
+from pydantic import Field, StrictBool, TypeAdapter, ValidationError
+from typing_extensions import TypedDict  # pydantic needs typing_extensions' TypedDict before 3.12
 
 from neurotouch_hid.errors import SensorError
 
 #: DAVIS-346 resolution (px).
 DAVIS346_WIDTH = 346
 DAVIS346_HEIGHT = 260
+
+
+class SensorFile(TypedDict, total=False):
+    """The fields of a ``sensor.yaml`` as read from the file (docs/dataset.md), each optional (a
+    missing one takes :class:`SensorGeometry`'s default), checked by pydantic (:data:`_SENSOR_FILE`):
+    a whole number of px, a positive number, a pair of numbers, true/false."""
+
+    width: Annotated[int, Field(gt=0)]
+    height: Annotated[int, Field(gt=0)]
+    px_per_mm: Annotated[float, Field(gt=0)]
+    gel_center_px: tuple[float, float]
+    gel_radius_px: Annotated[float, Field(gt=0)]
+    mirror: StrictBool
+    rotation_deg: float
+
+
+_SENSOR_FILE = TypeAdapter(SensorFile)
+
+
+def _key_lines(text: str) -> dict[str, int]:
+    """The 1-based line of each top-level key of a YAML mapping (for error messages)."""
+    try:
+        root = yaml.compose(text)
+    except yaml.YAMLError:
+        return {}
+    if not isinstance(root, yaml.MappingNode):
+        return {}
+    return {str(k.value): k.start_mark.line + 1 for k, _ in root.value}
 
 
 @dataclass(frozen=True)
@@ -70,29 +101,19 @@ class SensorGeometry:
             raise SensorError(f"{path}: not valid YAML: {exc}") from None
         if not isinstance(data, dict):
             raise SensorError(f"{path}: expected a mapping of sensor fields (docs/dataset.md), found {type(data).__name__}")
-        known = {"width", "height", "px_per_mm", "gel_center_px", "gel_radius_px", "mirror", "rotation_deg"}
-        kwargs: dict = {}
         try:
-            for key in ("width", "height"):
-                if key in data:
-                    kwargs[key] = int(data[key])
-            for key in ("px_per_mm", "gel_radius_px", "rotation_deg"):
-                if key in data:
-                    kwargs[key] = float(data[key])
-            if "gel_center_px" in data:
-                cx, cy = data["gel_center_px"]
-                kwargs["gel_center_px"] = (float(cx), float(cy))
-            if "mirror" in data:
-                if not isinstance(data["mirror"], bool):
-                    raise TypeError("mirror must be true or false")
-                kwargs["mirror"] = data["mirror"]
-        except (TypeError, ValueError) as exc:
-            raise SensorError(f"{path}: field {key!r}: {exc} (found {data.get(key)!r})") from None
-        extra = {k: v for k, v in data.items() if k not in known}
-        geometry = cls(**kwargs, extra=extra)
-        if geometry.px_per_mm <= 0 or geometry.gel_radius_px <= 0:
-            raise SensorError(f"{path}: px_per_mm and gel_radius_px must be positive")
-        return geometry
+            fields = _SENSOR_FILE.validate_python({k: v for k, v in data.items() if k in SensorFile.__annotations__})
+        except ValidationError as exc:
+            lines = _key_lines(text)
+            problems = []
+            for err in exc.errors():
+                key = str(err["loc"][0]) if err["loc"] else ""
+                where = f"{path}:{lines[key]}" if key in lines else str(path)
+                message = err["msg"].removeprefix("Value error, ")
+                problems.append(f"{where}: field {key!r}: found {err['input']!r}; {message[:1].lower() + message[1:]}")
+            raise SensorError("; ".join(problems)) from None
+        extra = {k: v for k, v in data.items() if k not in SensorFile.__annotations__}
+        return cls(**fields, extra=extra)
 
     def to_dict(self) -> dict:
         """The docs/dataset.md fields (plus ``extra``) as plain YAML-able values."""

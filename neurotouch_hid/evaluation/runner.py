@@ -11,7 +11,6 @@ executed on the complete dataset").
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -26,83 +25,57 @@ from neurotouch_hid.sensor import SensorGeometry
 
 log = logging.getLogger(__name__)
 
-_TRUE = {"1", "true", "yes", "on"}
-_FALSE = {"0", "false", "no", "off"}
-
-
-def _convert(text: str, default, annotation: str):
-    """``text`` as the type of a dataclass field whose default is ``default`` (bool, int, float,
-    str; ``none`` for an optional field; int/float/str from the annotation when the default is
-    None, e.g. ``noise_filter: str | None``)."""
-    optional = default is None or "None" in annotation
-    if optional and text.lower() in ("none", "null"):
-        return None
-    if isinstance(default, bool):
-        if text.lower() not in _TRUE | _FALSE:
-            raise ValueError("expected true or false")
-        return text.lower() in _TRUE
-    if isinstance(default, (int, float, str)):
-        return type(default)(text)
-    for kind in (int, float):
-        if default is None and kind.__name__ in annotation:
-            return kind(text)
-    if default is None and "str" in annotation:
-        return text
-    raise ValueError(f"a field of type {annotation} cannot be set from the command line")
-
-
 def pipeline_config(settings: Sequence[str] = (), **values):
     """A :class:`~neurotouch_hid.pipeline.pipeline.PipelineConfig` from ``NAME=VALUE`` strings
-    (the CLI's ``--set``) and keyword values.
+    (the CLI's ``--set``) and keyword values, validated by the pydantic model itself.
 
     NAME is a field of PipelineConfig, or ``tracker.FIELD`` for a field of its nested
-    TrackerConfig (any nested dataclass field works the same way). Each value is converted to
-    the type of the field's default (bool, int, float, str; ``none`` for optional fields).
+    TrackerConfig (any nested model field works the same way). VALUE is converted by pydantic to
+    the field's type (``true``/``false`` for booleans; ``none`` or ``null`` for an optional field).
 
     Raises:
         NeurotouchError: naming the setting, when it is not ``NAME=VALUE``, NAME is not a field
-            (the message lists the fields), the value does not convert, or PipelineConfig
-            rejects it.
+            (the message lists the fields), or the model rejects the value (the field, the value
+            found and what was expected).
     """
+    from pydantic import BaseModel, ValidationError
+
     from neurotouch_hid.pipeline.pipeline import PipelineConfig
 
-    config = PipelineConfig()
-    nested: dict[str, dict] = {}
+    data: dict = {}
+    given: dict[tuple, str] = {}
     for item in settings:
         name, sep, text = item.partition("=")
         name, text = name.strip(), text.strip()
         if not sep or not name:
             raise NeurotouchError(f"--set {item!r}: expected NAME=VALUE, e.g. --set r_px=30")
-        owner, path = config, name.split(".")
+        model: type[BaseModel] = PipelineConfig
+        path = name.split(".")
+        group = data
         for part in path[:-1]:
-            owner = getattr(owner, part, None) if part in {f.name for f in dataclasses.fields(owner)} else None
-            if not dataclasses.is_dataclass(owner):
+            annotation = model.model_fields[part].annotation if part in model.model_fields else None
+            if not (isinstance(annotation, type) and issubclass(annotation, BaseModel)):
                 raise NeurotouchError(f"--set {item!r}: {part!r} is not a group of PipelineConfig")
-        fields = {f.name: f for f in dataclasses.fields(owner)}
-        if path[-1] not in fields or dataclasses.is_dataclass(getattr(owner, path[-1])):
-            names = [f for f in fields if not dataclasses.is_dataclass(getattr(owner, f))]
-            raise NeurotouchError(f"--set {item!r}: {type(owner).__name__} has no field {path[-1]!r}; fields: {', '.join(names)}")
-        try:
-            value = _convert(text, getattr(owner, path[-1]), str(fields[path[-1]].type))
-        except ValueError as exc:
-            raise NeurotouchError(f"--set {item!r}: {exc}") from None
-        nested.setdefault(".".join(path[:-1]), {})[path[-1]] = value
-    nested.setdefault("", {}).update(values)
+            model, group = annotation, group.setdefault(part, {})
+        leaves = [f for f, info in model.model_fields.items()
+                  if not (isinstance(info.annotation, type) and issubclass(info.annotation, BaseModel))]
+        if path[-1] not in leaves:
+            raise NeurotouchError(f"--set {item!r}: {model.__name__} has no field {path[-1]!r}; fields: {', '.join(leaves)}")
+        group[path[-1]] = None if text.lower() in ("none", "null") else text
+        given[tuple(path)] = item
+    data.update(values)
     try:
-        return _replace(config, "", nested)
-    except (TypeError, ValueError) as exc:
-        raise NeurotouchError(f"invalid pipeline hyperparameters {settings or values}: {exc}") from None
-
-
-def _replace(obj, prefix: str, nested: dict[str, dict]):
-    """``obj`` (a dataclass) with the values of ``nested[prefix]`` and of its nested groups."""
-    changes = dict(nested.get(prefix, {}))
-    for f in dataclasses.fields(obj):
-        child = getattr(obj, f.name)
-        key = f"{prefix}.{f.name}" if prefix else f.name
-        if dataclasses.is_dataclass(child) and any(k == key or k.startswith(key + ".") for k in nested):
-            changes[f.name] = _replace(child, key, nested)
-    return dataclasses.replace(obj, **changes)
+        return PipelineConfig.model_validate(data)
+    except ValidationError as exc:
+        problems = []
+        for err in exc.errors():
+            loc = tuple(str(p) for p in err["loc"])
+            where = f"--set {given[loc]!r}: " if loc in given else ""
+            field = ".".join(loc) or "the hyperparameters"
+            message = err["msg"].removeprefix("Value error, ")
+            message = message[:1].lower() + message[1:]
+            problems.append(f"{where}{field}: found {err['input']!r}; {message}" if loc else f"{where}{message}")
+        raise NeurotouchError("invalid pipeline hyperparameters: " + "; ".join(problems)) from None
 
 
 def run_sequence(

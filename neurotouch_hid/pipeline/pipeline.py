@@ -39,9 +39,9 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from neurotouch_hid.errors import SensorError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
@@ -66,9 +66,12 @@ RESUME_MATCH_FRAMES = 50
 STAGES = ("noise_filter", "tracker", "contacts", "gesture", "resting")
 
 
-@dataclass
-class PipelineConfig:
+class PipelineConfig(BaseModel):
     """Every threshold of the pipeline (paper, section "Results" for the paper's values).
+
+    A pydantic model: a value of the wrong type, out of range, or an unknown field raises
+    ``pydantic.ValidationError`` (a ValueError) naming the field and what was expected; the
+    CLI's ``--set NAME=VALUE`` is converted through it (``evaluation/runner.py``).
 
     The defaults are tuned on the simulator's tuning users (5-9, ``paper`` preset, odd seed 1,
     5 simulated minutes) with ``benchmarks/tune_pipeline.py``, never on the test users; each
@@ -178,12 +181,28 @@ class PipelineConfig:
     detect_resting: bool = True
     noise_filter: str | None = "BackgroundActivityNoiseFilter"
     noise_filter_us: int | None = None
-    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    tracker: TrackerConfig = Field(default_factory=TrackerConfig)
 
-    def __post_init__(self) -> None:
-        if int(self.window_us) < MIN_WINDOW_US:
+    model_config = ConfigDict(extra="forbid")
+
+    @field_validator("window_us", "noise_filter_us", mode="before")
+    @classmethod
+    def _as_given(cls, value, info: ValidationInfo):
+        """Numbers are checked as given, before pydantic converts them (text from ``--set`` is
+        converted first, then checked by :meth:`_consistent`)."""
+        if isinstance(value, str):
+            return value
+        if info.field_name == "window_us":
+            if value < MIN_WINDOW_US:
+                raise ValueError(f"window_us must be at least {MIN_WINDOW_US} us, got {value}")
+        else:
+            check_noise_filter(info.data.get("noise_filter"), value)
+        return value
+
+    @model_validator(mode="after")
+    def _consistent(self) -> "PipelineConfig":
+        if self.window_us < MIN_WINDOW_US:
             raise ValueError(f"window_us must be at least {MIN_WINDOW_US} us, got {self.window_us}")
-        self.window_us = int(self.window_us)
         if self.homography_method not in HOMOGRAPHY_METHODS:
             raise ValueError(f"homography_method must be one of {', '.join(HOMOGRAPHY_METHODS)}, got {self.homography_method!r}")
         check_noise_filter(self.noise_filter, self.noise_filter_us)
@@ -195,6 +214,7 @@ class PipelineConfig:
             raise ValueError(f"reference_attempts must be >= 1, got {self.reference_attempts}")
         if self.r_px <= 0 or self.a <= 0 or self.n_min < 1:
             raise ValueError(f"r_px and a must be positive and n_min >= 1, got r_px={self.r_px}, a={self.a}, n_min={self.n_min}")
+        return self
 
 
 class GesturePipeline:

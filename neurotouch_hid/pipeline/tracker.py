@@ -43,10 +43,10 @@ positions.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numba
 import numpy as np
+from pydantic import BaseModel, ConfigDict
 
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE
@@ -60,9 +60,10 @@ _FAR = 1 << 30
 _N_NEIGHBOURS = 12
 
 
-@dataclass
-class TrackerConfig:
-    """Parameters of :class:`BlobTracker` (units: px, microseconds; velocities px/ms).
+class TrackerConfig(BaseModel):
+    """Parameters of :class:`BlobTracker` (units: px, microseconds; velocities px/ms). A pydantic
+    model: a value of the wrong type, or an unknown field, raises ``pydantic.ValidationError``
+    (a ValueError) naming the field.
 
     Attributes:
         sigma_px: fixed blob size Lambda (px); the measurement noise is sigma_px^2.
@@ -97,6 +98,8 @@ class TrackerConfig:
             first events after a long pause of a held marker (its tremor, a squeezed
             neighbour's edge) meet a large covariance and throw the blob px away.
     """
+
+    model_config = ConfigDict(extra="forbid")
 
     sigma_px: float = 1.0
     assoc_px: float = 4.0
