@@ -101,3 +101,13 @@ def test_pipeline_config_rejects_unknown_or_bad_hyperparameter():
     config = pipeline_config(["r_px=25", "n_min=3", "detect_resting=false", "tracker.assoc_px=5"], window_us=5000)
     assert (config.r_px, config.n_min, config.detect_resting, config.tracker.assoc_px, config.window_us) == (
         25.0, 3, False, 5.0, 5000)
+
+
+def test_a_bad_set_value_names_the_setting_the_field_and_what_was_expected():
+    from neurotouch_hid.errors import NeurotouchError
+    from neurotouch_hid.evaluation.runner import pipeline_config
+
+    with pytest.raises(NeurotouchError) as info:
+        pipeline_config(["tracker.assoc_px=wide"])
+    assert "--set 'tracker.assoc_px=wide': tracker.assoc_px: found 'wide'; input should be a valid number" in str(info.value)
+    assert pipeline_config(["contact_refine_px=none", "field_fallback=off"]).model_dump()["contact_refine_px"] is None

@@ -67,3 +67,13 @@ def test_gel_mask_and_inside_gel_agree():
     assert mask.shape == (260, 346)
     assert mask[130, 173] == 255 and mask[0, 0] == 0
     assert g.inside_gel(np.array([[173.0 + 74, 130.0]]))[0] and not g.inside_gel(np.array([[173.0 + 76, 130.0]]))[0]
+
+
+def test_every_bad_field_is_named_with_its_line_and_what_was_expected(tmp_path):
+    bad = tmp_path / "sensor.yaml"
+    bad.write_text("width: 346\npx_per_mm: -2\nmirror: 1\nn_markers: 177\n")
+    with pytest.raises(SensorError) as info:
+        SensorGeometry.load(bad)
+    message = str(info.value)
+    assert f"{bad}:2: field 'px_per_mm': found -2; input should be greater than 0" in message
+    assert f"{bad}:3: field 'mirror': found 1" in message and "boolean" in message
