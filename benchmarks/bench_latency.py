@@ -142,9 +142,9 @@ def stages(events: np.ndarray, frames: list[Frame], sensor: SensorGeometry, wind
     t0 = time.process_time()
     windows = sum(len(pipeline.process(item)) for item in items(events, frames, 1000))
     cpu = time.process_time() - t0
-    parts = ", ".join(f"{name} {sum(v) / 1e9:.2f} s" for name, v in pipeline.timings.items())
+    parts = ", ".join(f"{name} {sum(v) / 1e9:.3f} s" for name, v in pipeline.cpu_timings.items())
     print(f"pipeline alone, {window_us} us windows: {len(events)} events, {windows} windows in {cpu:.2f} s CPU "
-          f"({len(events) / cpu / 1e6:.2f} M events/s); {parts}", flush=True)
+          f"({len(events) / cpu / 1e6:.2f} M events/s); CPU per stage: {parts}", flush=True)
 
 
 def main() -> None:
