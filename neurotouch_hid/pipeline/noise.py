@@ -31,10 +31,9 @@ live camera delivers ``EventStore`` values, so ``DavisSource`` runs the library'
 (:meth:`EventNoiseFilter.filter_store`) on them before any copy, and its pipeline has none.
 On numpy batches (recordings, the simulated gel, ``track``, ``eval``) the background-activity
 filter runs as a numba kernel instead (:func:`background_activity_keep`) that keeps exactly the
-events dv-processing's ``BackgroundActivityNoiseFilter`` keeps on the same input (its
-``doBackgroundActivityLookup`` and time surface, transcribed; ``tests/test_noise_filter.py``
-compares the two on the street recording and on simulated gels with noise), without the
-copies: 4-7x faster than the copies and the library (docs/performance.md, "Event path at the
+events dv-processing's ``BackgroundActivityNoiseFilter`` keeps on the same input (its rule
+and time surface, re-implemented; ``tests/test_noise_filter.py`` compares the two on the street
+recording and on simulated gels with noise), without the copies: 4-7x faster than the copies and the library (docs/performance.md, "Event path at the
 camera's full rate"). The other two filters still go through the library and its copies.
 """
 
