@@ -4,6 +4,7 @@ and the simulator's background-activity rate (``simulate --noise-hz``)."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,9 +18,16 @@ from neurotouch_hid.pipeline.noise import EventNoiseFilter
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
-from neurotouch_hid.sources.recording import read_info, split_batches
+from neurotouch_hid.sources.recording import (
+    RecordingReader,
+    events_from_store,
+    read_info,
+    split_batches,
+    store_from_events,
+)
 from neurotouch_hid.sources.simulator import START_US, GelSimulator, SimGesture
 
+STREET = Path("/work/shared/data/davis346-street/recording.aedat4")
 SENSOR = SensorGeometry()
 W, H = SENSOR.width, SENSOR.height
 PUSH_START_US = START_US + 200_000
@@ -154,6 +162,59 @@ def test_the_filter_starts_afresh_when_the_clock_goes_back():
     kept = f(isolated)  # the camera's clock restarted: earlier than everything seen
     assert len(kept) < 0.1 * len(isolated)
     assert f.n_in == len(isolated) and f.n_out == len(kept)
+
+
+# --- the numba background-activity filter against dv-processing's ----------------------------
+def _library_ba(events: np.ndarray, time_us: int, batch_us: int, width: int = W, height: int = H) -> np.ndarray:
+    """dv-processing's own BackgroundActivityNoiseFilter (accept + generateEvents on EventStores)."""
+    f = EventNoiseFilter("BackgroundActivityNoiseFilter", width, height, time_us)
+    return np.concatenate([events_from_store(f.filter_store(store_from_events(b))) for b in split_batches(events, batch_us)])
+
+
+def _numba_ba(events: np.ndarray, time_us: int, batch_us: int, width: int = W, height: int = H) -> np.ndarray:
+    f = EventNoiseFilter("BackgroundActivityNoiseFilter", width, height, time_us)
+    return np.concatenate([f(b) for b in split_batches(events, batch_us)])
+
+
+@pytest.mark.parametrize("time_us, batch_us", [(2000, 1000), (20_000, 1000), (20_000, 10_000), (500, 10_000)])
+def test_numba_filter_keeps_exactly_what_dv_processing_keeps_on_the_real_street_recording(time_us, batch_us):
+    if not STREET.exists():
+        pytest.skip(reason=f"the real DAVIS-346 street recording is not here ({STREET})")
+    with RecordingReader(STREET) as reader:
+        events, _ = reader.read_all()
+    library = _library_ba(events, time_us, batch_us)
+    assert 0 < len(library) < len(events)  # the filter decides something on real sensor noise
+    assert np.array_equal(_numba_ba(events, time_us, batch_us), library)
+
+
+@pytest.mark.parametrize("rate_hz", [0.1, 1.0, 3.0])
+@pytest.mark.parametrize("time_us", [2000, 20_000])
+def test_numba_filter_keeps_exactly_what_dv_processing_keeps_on_a_noisy_simulated_gel(marker_events, rate_hz, time_us):
+    events, _ = mix(marker_events, rate_hz)
+    library = _library_ba(events, time_us, 1000)
+    assert 0 < len(library) < len(events)
+    assert np.array_equal(_numba_ba(events, time_us, 1000), library)
+
+
+def test_numba_filter_matches_dv_processing_at_the_borders_early_times_and_clock_restarts():
+    # every pixel of a small array, corners and edges included, from t = 0 (the library's time
+    # surface starts at 0, so the first duration is "supported" everywhere), then a clock restart
+    rng = np.random.default_rng(3)
+    w, h = 7, 5
+    parts = []
+    for t0, n in ((0, 400), (50_000, 400), (10_000, 300)):  # the last batch goes back in time
+        ev = np.zeros(n, dtype=EVENT_DTYPE)
+        ev["timestamp"] = t0 + np.sort(rng.integers(0, 6000, n))
+        ev["x"], ev["y"], ev["polarity"] = rng.integers(0, w, n), rng.integers(0, h, n), rng.integers(0, 2, n)
+        parts.append(ev)
+    library_filter = EventNoiseFilter("BackgroundActivityNoiseFilter", w, h, 700)
+    numba_filter = EventNoiseFilter("BackgroundActivityNoiseFilter", w, h, 700)
+    for part in parts:
+        for batch in split_batches(part, 1000):
+            library = events_from_store(library_filter.filter_store(store_from_events(batch)))
+            assert np.array_equal(numba_filter(batch), library)
+    assert (numba_filter.n_in, numba_filter.n_out) == (library_filter.n_in, library_filter.n_out)
+    assert 0 < numba_filter.n_out < numba_filter.n_in
 
 
 def test_an_empty_batch_passes_through():

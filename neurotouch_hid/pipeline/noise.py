@@ -24,10 +24,17 @@ Which one (or none) the pipeline uses is ``PipelineConfig.noise_filter``; by def
 background-activity filter with 20 ms (docs/accuracy.md, "Noise filter": on the simulated test
 set at 0.1 Hz per pixel it moves no metric by more than 0.08 point or 0.06 mm, and at 3 Hz per
 pixel it keeps the contact count accuracy at ~86-87 % where the tracker alone falls to ~80 %,
-the contact distance at ~2.1 mm instead of ~2.8 mm). Its cost is mostly
+the contact distance at ~2.1 mm instead of ~2.8 mm). Through the library its cost is mostly
 the conversion to and from dv-processing's ``EventStore`` (docs/performance.md, "Noise
-filter"); the live camera delivers ``EventStore`` values, so ``DavisSource`` runs the filter
+filter"; dv-processing 2.0.4 has no bulk path from numpy: one ``push_back`` per event); the
+live camera delivers ``EventStore`` values, so ``DavisSource`` runs the library's filter
 (:meth:`EventNoiseFilter.filter_store`) on them before any copy, and its pipeline has none.
+On numpy batches (recordings, the simulated gel, ``track``, ``eval``) the background-activity
+filter runs as a numba kernel instead (:func:`background_activity_keep`) that keeps exactly the
+events dv-processing's ``BackgroundActivityNoiseFilter`` keeps on the same input (its rule
+and time surface, re-implemented; ``tests/test_noise_filter.py`` compares the two on the street
+recording and on simulated gels with noise), without the copies: 4-7x faster than the copies and the library (docs/performance.md, "Event path at the
+camera's full rate"). The other two filters still go through the library and its copies.
 """
 
 from __future__ import annotations
@@ -35,6 +42,7 @@ from __future__ import annotations
 import datetime
 from typing import TYPE_CHECKING
 
+import numba
 import numpy as np
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -73,6 +81,62 @@ def check_noise_filter(name: str | None, time_us: int | None) -> None:
         raise ValueError(f"noise_filter_us must be a whole number of microseconds >= 1 or None, got {time_us!r}")
 
 
+#: The time stamped on the border of the numba filter's padded time surface: so far in the past
+#: that a border cell never supports an event (the library skips the neighbours outside the array).
+_NEVER_US = -(2**62)
+
+
+def time_surface(width: int, height: int) -> np.ndarray:
+    """A fresh time surface for :func:`background_activity_keep`: (height + 2, width + 2) int64
+    us, 0 inside (as the library's ``TimeSurface``), :data:`_NEVER_US` on the one-pixel border."""
+    surface = np.zeros((height + 2, width + 2), dtype=np.int64)
+    surface[0, :] = surface[-1, :] = surface[:, 0] = surface[:, -1] = _NEVER_US
+    return surface
+
+
+@numba.njit(cache=True, nogil=True)
+def background_activity_keep(events, surface, duration_us, keep):
+    """dv-processing's ``BackgroundActivityNoiseFilter.retain`` over a batch, in numba.
+
+    An event is kept when one of its 8 neighbouring pixels had an event less than
+    ``duration_us`` before it: ``t - surface[y', x'] < duration_us``, the surface starting at 0
+    as the library's ``TimeSurface``, pixels outside the array never supporting; then the
+    event's own pixel gets its time, kept or not (dv-processing 2.0.4,
+    ``noise/background_activity_noise_filter.hpp``). The surface is padded by one pixel of
+    :data:`_NEVER_US` on every side, so the 8 neighbours are read without bounds checks (the
+    newest of them decides: twice as fast as testing them one by one with the library's
+    border cases).
+
+    Args:
+        events: (E,) EVENT_DTYPE structured array (``timestamp`` int64 us, ``x``/``y`` int16 px
+            inside the array), time-ordered.
+        surface: (H + 2, W + 2) int64 (:func:`time_surface`): the last event time (us) of pixel
+            (x, y) at [y + 1, x + 1]; updated in place.
+        duration_us: the background-activity duration (us).
+        keep: (E,) bool, written: which events are kept.
+    Returns:
+        the number of kept events.
+    """
+    ts = events["timestamp"]
+    xs = events["x"]
+    ys = events["y"]
+    n = 0
+    for i in range(ts.shape[0]):
+        t = ts[i]
+        x = np.int64(xs[i]) + 1
+        y = np.int64(ys[i]) + 1
+        up = surface[y - 1]
+        row = surface[y]
+        down = surface[y + 1]
+        newest = max(max(max(up[x - 1], up[x]), max(up[x + 1], row[x - 1])),
+                     max(max(row[x + 1], down[x - 1]), max(down[x], down[x + 1])))
+        supported = t - newest < duration_us
+        row[x] = t
+        keep[i] = supported
+        n += supported
+    return n
+
+
 class EventNoiseFilter:
     """One dv-processing noise filter over numpy event batches, its state kept across calls.
 
@@ -101,6 +165,8 @@ class EventNoiseFilter:
         self.n_out = 0
         self._last_us: int | None = None
         self._filter = self._make()
+        #: the numba background-activity filter's padded time surface (:func:`time_surface`)
+        self._surface = time_surface(self.width, self.height) if name == "BackgroundActivityNoiseFilter" else None
 
     def _make(self):
         import dv_processing as dv
@@ -110,6 +176,8 @@ class EventNoiseFilter:
     def reset(self) -> None:
         """Forget every event seen (a new stream, e.g. whose clock restarts) and the counts."""
         self._filter = self._make()
+        if self._surface is not None:
+            self._surface = time_surface(self.width, self.height)
         self._last_us = None
         self.n_in = self.n_out = 0
 
@@ -134,12 +202,16 @@ class EventNoiseFilter:
         return kept
 
     def __call__(self, events: np.ndarray) -> np.ndarray:
-        """Filter one numpy batch: :meth:`filter_store` between two copies (``store_from_events``,
-        ``events_from_store``), which cost ~90 % of the time (docs/performance.md, "Noise filter").
+        """Filter one numpy batch. The background-activity filter runs in numba
+        (:func:`background_activity_keep`: the library's decisions, no copies); the others run
+        :meth:`filter_store` between two copies (``store_from_events``, ``events_from_store``),
+        which cost ~90 % of their time (docs/performance.md, "Noise filter"). An instance is
+        meant for one kind of batch: the numba filter and the library's keep separate state.
 
         Args:
             events: (E,) EVENT_DTYPE (``timestamp`` int64 us, ``x``/``y`` int16 px inside the
-                array, ``polarity``), time-ordered.
+                array, ``polarity``), time-ordered. A batch that starts before the previous
+                batch's last event resets the filter first, as :meth:`filter_store`.
         Returns:
             (K,) EVENT_DTYPE, K <= E: the kept events, in their order (a new array; ``events``
             itself when it is empty).
@@ -148,4 +220,14 @@ class EventNoiseFilter:
 
         if len(events) == 0:
             return events
-        return events_from_store(self.filter_store(store_from_events(events)))
+        if self._surface is None:
+            return events_from_store(self.filter_store(store_from_events(events)))
+        ts = events["timestamp"]
+        if self._last_us is not None and int(ts[0]) < self._last_us:
+            self.reset()
+        self._last_us = int(ts[-1])
+        keep = np.empty(len(events), dtype=np.bool_)
+        n = background_activity_keep(events, self._surface, self.time_us, keep)
+        self.n_in += len(events)
+        self.n_out += n
+        return events[keep]

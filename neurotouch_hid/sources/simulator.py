@@ -277,7 +277,7 @@ class SimGesture:
         return np.stack([rx - rel[None, :, 0], ry - rel[None, :, 1]], axis=-1)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _finger_field(pts: np.ndarray, finger: np.ndarray, d: np.ndarray, finger_mm: float, widen: float,
                   press: float, level: np.ndarray, drag: np.ndarray, weight: np.ndarray, disp: np.ndarray, dim: np.ndarray) -> None:
     """Add one finger's field at the points ``pts`` (M, 2) mm, for times T.
