@@ -314,9 +314,13 @@ class Runtime:
 
     def switch_profile(self, profile: Any) -> None:
         """Neutralise the output, then map with ``profile`` from the next window on.
-        The output device is kept (its name and ids stay those it was created with)."""
+        The output devices are kept (the pad's name and ids stay those it was created with); a
+        keyboard or mouse the new profile needs is created (``output.prepare(profile)``)."""
         with self._lock:
             self._output.neutralise()
+            prepare = getattr(self._output, "prepare", None)
+            if prepare is not None:
+                prepare(profile)
             self._mapper = self._mapper_factory(profile)
             self.profile = profile
             self._forget_state()
@@ -548,7 +552,8 @@ class Runtime:
                 return                                # after that; a lost camera: nothing until back
             state = self._mapper.update(estimate)
             last = self._last_state
-            changed = state.axes != last.axes or state.buttons != last.buttons
+            changed = (state.axes != last.axes or state.buttons != last.buttons or state.keys != last.keys
+                       or bool(state.rel))  # motion is an impulse: always written
             if self._takes_estimate:
                 changed = changed or estimate.gesture != self._last_gesture
                 if changed:
@@ -640,15 +645,17 @@ def open_source(spec: str, stack: contextlib.ExitStack, *, seconds: float | None
 
 def open_output(kind: str, profile: Any, stack: contextlib.ExitStack, *, out: str | Path | None = None,
                 console: Any = None) -> Any:
-    """Create the output: ``gamepad`` (uinput device with the profile's name and ids), ``jsonl``
-    (one state line per change to ``out`` or stdout) or ``term`` (the terminal view).
+    """Create the output: ``gamepad`` (the uinput pad with the profile's name and ids, and the
+    keyboard and mouse if the profile uses them), ``jsonl`` (one state line per change to ``out``
+    or stdout) or ``term`` (the terminal view).
     Closed by ``stack``. Raises DeviceError when /dev/uinput cannot be used."""
     if kind == "gamepad":
+        from neurotouch_hid.output.desktop import UinputOutputs
         from neurotouch_hid.output.gamepad import GamepadIdentity, VirtualGamepad
 
         dev = profile.device
         identity = GamepadIdentity(name=dev.name, vendor=dev.vendor, product=dev.product, version=dev.version)
-        return stack.enter_context(VirtualGamepad(identity))
+        return stack.enter_context(UinputOutputs(VirtualGamepad(identity), profile))
     if kind == "jsonl":
         from neurotouch_hid.output.jsonl import StateJsonlWriter
 

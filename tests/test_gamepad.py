@@ -66,9 +66,10 @@ def test_overlong_name_is_a_device_error():
         VirtualGamepad(GamepadIdentity(name="x" * 80), devnode="/dev/null")
 
 
-def test_capabilities_are_the_xbox360_layout_and_nothing_mouse_like():
+def test_capabilities_are_the_xbox360_layout_with_rumble_and_nothing_mouse_like():
     caps = capabilities()
-    assert set(caps) == {ecodes.EV_KEY, ecodes.EV_ABS}
+    assert set(caps) == {ecodes.EV_KEY, ecodes.EV_ABS, ecodes.EV_FF}
+    assert caps[ecodes.EV_FF] == [ecodes.FF_RUMBLE]  # like xpad
     assert caps[ecodes.EV_KEY] == [ecodes.ecodes[b] for b in BUTTONS]
     assert ecodes.BTN_LEFT not in caps[ecodes.EV_KEY] and ecodes.BTN_TOUCH not in caps[ecodes.EV_KEY]
     ranges = {code: (info.min, info.max) for code, info in caps[ecodes.EV_ABS]}
