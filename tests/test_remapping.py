@@ -234,3 +234,41 @@ def test_devices_are_needed_only_when_used():
     assert profile(m={"input": "zoom", "output": "KEY_A"}).uses_keyboard
     assert profile(m={"input": "push", "output": "pointer"}).uses_mouse
     assert profile(m={"input": "zoom", "output": "BTN_RIGHT"}).uses_mouse
+
+
+# --- the shipped profiles -----------------------------------------------------------------------
+def hold_gesture(gesture: GestureType, mm: float, seconds: float, t0_ms: int = 0, direction=(1.0, 0.0)) -> list[GestureEstimate]:
+    """10 ms windows: ``seconds`` of the gesture at ``mm``, then 0.3 s of rest."""
+    n, rest = int(seconds * 100), 30
+    return ([est(gesture, mm, (t0_ms + 10 * k) * MS, direction) for k in range(n)]
+            + [est(G.NONE, 0.0, (t0_ms + 10 * (n + k)) * MS) for k in range(rest)])
+
+
+def test_shipped_mouse_profile_push_moves_the_pointer_pinch_zoom_click_twist_scrolls():
+    mapper = Mapper(load_profile("mouse"))
+    states = [mapper.update(e) for e in hold_gesture(G.PUSH, 6.0, 0.5, direction=(-0.6, 0.8))]  # up-left
+    dx, dy = (sum(s.rel.get(n, 0) for s in states) for n in ("REL_X", "REL_Y"))
+    assert dx < -50 and dy < -50 and abs(dx / dy - 0.75) < 0.1, (dx, dy)
+    assert states[-1].rel == {} and not states[-1].keys
+    for gesture, button in ((G.PINCH, "BTN_LEFT"), (G.ZOOM, "BTN_RIGHT")):
+        states = [mapper.update(e) for e in hold_gesture(gesture, 4.0, 0.2, t0_ms=10_000 * (1 + len(button)))]
+        assert any(s.keys == {button} for s in states) and not states[-1].keys
+    states = [mapper.update(e) for e in hold_gesture(G.TWIST_CCW, 6.0, 0.5, t0_ms=50_000)]
+    assert sum(s.rel.get("REL_WHEEL", 0) for s in states) >= 2
+    assert sum(s.rel.get("REL_WHEEL_HI_RES", 0) for s in states) >= 240
+
+
+@pytest.mark.parametrize("gesture, keys", [
+    (G.PUSH, {"KEY_SPACE"}), (G.TWIST_CW, {"KEY_TAB"}), (G.TWIST_CCW, {"KEY_LEFTSHIFT", "KEY_TAB"}),
+    (G.PINCH, {"KEY_ENTER"}), (G.ZOOM, {"KEY_ESC"}),
+])
+def test_shipped_switch_access_profile_needs_a_dwell_and_releases(gesture, keys):
+    profile = load_profile("switch-access")
+    tremor = Mapper(profile)
+    assert not any(tremor.update(e).keys for e in hold_gesture(gesture, 4.0, 0.25))  # shorter than the dwell
+    mapper = Mapper(profile)
+    states = [mapper.update(e) for e in hold_gesture(gesture, 4.0, 0.6)]
+    down = [s.t_us for s in states if s.keys]
+    assert all(s.keys == keys for s in states if s.keys)
+    assert down[0] == 300 * MS and down[-1] == 590 * MS and not states[-1].keys
+    assert not any(any(s.buttons.values()) for s in states)
