@@ -25,6 +25,8 @@ written until the camera is back. On ``"resumed"`` the pipeline restarts (``pipe
 the markers are re-initialised on the first APS frame at rest) with a fresh mapper (its filters
 and hysteresis start neutral). SIGTERM is a clean stop (``run`` returns normally, the CLI exits 0);
 SIGHUP reloads the profile from its file (a bad profile on reload keeps the old one and logs why).
+With ``control=True`` the run listens on the control socket (:mod:`neurotouch_hid.control`):
+``neurotouch-hid profile use NAME`` switches the profile while running, outputs neutral first.
 """
 
 from __future__ import annotations
@@ -257,6 +259,7 @@ class Runtime:
         mapper_factory, profile_loader: the mapping's ``Mapper`` and ``load_profile`` (replaceable
             in tests).
         say: tells the user what happens to a live source (camera lost, back; one line each).
+        control: serve the control socket while running (``profile use``, :meth:`use_profile`).
     """
 
     def __init__(
@@ -274,7 +277,9 @@ class Runtime:
         mapper_factory: Callable[[Any], Any] = _make_mapper,
         profile_loader: Callable[[str | Path], Any] = _load_profile,
         say: Callable[[str], None] = log.warning,
+        control: bool = False,
     ):
+        self._control = control
         self._source = source
         self._pipeline = pipeline
         self.profile = profile
@@ -346,6 +351,16 @@ class Runtime:
         log.warning("profile reloaded from %s", self._profile_ref)
         return True
 
+    def use_profile(self, ref: str) -> str:
+        """``profile use``: load ``ref`` (name or path), switch to it (:meth:`switch_profile`), and
+        reload it on SIGHUP from now on; returns a line saying so. Raises ProfileError (nothing
+        changes) for a missing or invalid profile."""
+        profile = self._profile_loader(ref)
+        self.switch_profile(profile)
+        self._profile_ref = ref
+        log.warning("switched to profile %s", ref)
+        return f"switched to profile {ref}"
+
     # --- the run ----------------------------------------------------------------------------
     def run(self, seconds: float | None = None) -> RunStats:
         """Run until the source ends, ``seconds`` of camera time have been read, :meth:`stop`,
@@ -365,7 +380,7 @@ class Runtime:
             threads.append(threading.Thread(target=self._rest, name="nt-resting", daemon=True))
         interrupted = False
         start = time.perf_counter()
-        with self._signal_handlers(), self._switch_interval():
+        with self._signal_handlers(), self._switch_interval(), self._control_socket():
             try:
                 for t in threads:
                     t.start()
@@ -394,6 +409,20 @@ class Runtime:
         if interrupted:
             raise KeyboardInterrupt
         return self.stats
+
+    @contextlib.contextmanager
+    def _control_socket(self) -> Iterator[None]:
+        if not self._control:
+            yield
+            return
+        from neurotouch_hid.control import ControlServer
+
+        server = ControlServer(self.use_profile)
+        server.start()
+        try:
+            yield
+        finally:
+            server.stop()
 
     @contextlib.contextmanager
     def _switch_interval(self) -> Iterator[None]:
@@ -749,7 +778,7 @@ def run_driver(source: str = "davis", profile: str | Path = "default", output: s
                                                filter_noise=not live)
         out_obj = output_obj if output_obj is not None else open_output(output, loaded, stack, out=out, console=console)
         runtime = Runtime(stream, pipeline, loaded, out_obj, resting=resting, pace=not fast, live=live,
-                          profile_ref=profile, say=say)
+                          profile_ref=profile, say=say, control=True)
         if hasattr(out_obj, "stats"):
             out_obj.stats = runtime.stats
         return runtime.run(seconds)
