@@ -673,10 +673,11 @@ def open_source(spec: str, stack: contextlib.ExitStack, *, seconds: float | None
 
 
 def open_output(kind: str, profile: Any, stack: contextlib.ExitStack, *, out: str | Path | None = None,
-                console: Any = None) -> Any:
+                console: Any = None, say: Callable[[str], None] | None = None) -> Any:
     """Create the output: ``gamepad`` (the uinput pad with the profile's name and ids, and the
     keyboard and mouse if the profile uses them), ``jsonl`` (one state line per change to ``out``
-    or stdout) or ``term`` (the terminal view).
+    or stdout) or ``term`` (the terminal view). ``say`` tells the user about rumble effects games
+    send to the pad (the gel has no motor; default: the log).
     Closed by ``stack``. Raises DeviceError when /dev/uinput cannot be used."""
     if kind == "gamepad":
         from neurotouch_hid.output.desktop import UinputOutputs
@@ -684,7 +685,8 @@ def open_output(kind: str, profile: Any, stack: contextlib.ExitStack, *, out: st
 
         dev = profile.device
         identity = GamepadIdentity(name=dev.name, vendor=dev.vendor, product=dev.product, version=dev.version)
-        return stack.enter_context(UinputOutputs(VirtualGamepad(identity), profile))
+        on_effect = None if say is None else (lambda line: say(f"rumble (the gel has no motor): {line}"))
+        return stack.enter_context(UinputOutputs(VirtualGamepad(identity, on_effect=on_effect), profile))
     if kind == "jsonl":
         from neurotouch_hid.output.jsonl import StateJsonlWriter
 
@@ -776,7 +778,8 @@ def run_driver(source: str = "davis", profile: str | Path = "default", output: s
         else:
             pipeline, resting = build_pipeline(geometry, window_us, resting_beside=live or not fast,
                                                filter_noise=not live)
-        out_obj = output_obj if output_obj is not None else open_output(output, loaded, stack, out=out, console=console)
+        out_obj = output_obj if output_obj is not None else open_output(output, loaded, stack, out=out, console=console,
+                                                                        say=say)
         runtime = Runtime(stream, pipeline, loaded, out_obj, resting=resting, pace=not fast, live=live,
                           profile_ref=profile, say=say, control=True)
         if hasattr(out_obj, "stats"):

@@ -52,6 +52,8 @@ STICK_FLAT = 128
 #: once a device is gone, evdev answers a reader's read() with ENODEV and drops what it had not
 #: read yet, so a game polling every frame must get the chance to read the release.
 RELEASE_GRACE_S = 0.05
+#: The same force-feedback report (e.g. "play effect 0") is passed to ``on_effect`` at most this often (s).
+EFFECT_REPEAT_S = 1.0
 #: Force-feedback effects the pad keeps at once (xpad's memless force feedback: FF_MEMLESS_EFFECTS).
 MAX_EFFECTS = 16
 _STICKS = ("ABS_X", "ABS_Y", "ABS_RX", "ABS_RY")
@@ -117,8 +119,9 @@ def describe_effect(effect) -> str:
     and, for a rumble, the strong and weak motors' magnitudes (0..65535) and length (ms)."""
     from evdev import ecodes
 
-    kind = ecodes.FF.get(effect.type, effect.type)
-    line = f"effect {effect.id}: {kind if isinstance(kind, str) else kind[0]}"
+    names = ecodes.FF.get(effect.type, f"type {effect.type}")
+    names = [names] if isinstance(names, str) else list(names)  # FF_RUMBLE is also FF_EFFECT_MIN
+    line = f"effect {effect.id}: {next((n for n in names if not n.startswith('FF_EFFECT_')), names[0])}"
     if effect.type == ecodes.FF_RUMBLE:
         rumble = effect.u.ff_rumble_effect
         line += f" strong {rumble.strong_magnitude} weak {rumble.weak_magnitude}"
@@ -214,6 +217,7 @@ class VirtualGamepad:
         from evdev import UInputError, ecodes
 
         fd = self._ui.fd
+        said, said_at = "", 0.0  # a game replaying one effect every frame is reported once a second
         while not self._ff_stop.is_set():
             try:
                 ready, _, _ = select.select([fd], [], [], 0.1)
@@ -242,7 +246,10 @@ class VirtualGamepad:
                     log.warning("could not answer a force-feedback request: %s", exc)
                     continue
                 self.effects += 1
-                self.on_effect(line)
+                now = time.monotonic()
+                if line != said or now - said_at >= EFFECT_REPEAT_S:
+                    said, said_at = line, now
+                    self.on_effect(line)
 
     @property
     def device_path(self) -> str | None:

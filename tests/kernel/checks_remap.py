@@ -1,0 +1,354 @@
+"""Guest checks of the keyboard and mouse outputs, layers, ``profile use`` and rumble in a real kernel.
+
+Run by tests/kernel/guest.py inside qemu; asserted on by tests/test_remap_kernel.py. As in
+checks_runtime.py, the runtime is fed the pipeline's output (a predictions file) because the
+software-emulated guest cannot run the pipeline in real time; everything after it is real: the
+runtime's threads and pacing, the shipped profiles and the Mapper, the uinput keyboard, mouse and
+pad, the control socket, SIGTERM. Expected values come from the same estimates through the
+Mapper (``mapping.replay``) in the check's own process.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import guestlib
+from evdev import InputDevice, ecodes, list_devices
+
+from checks_runtime import STEP_US, _cli, _env, _gesture
+from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.output.desktop import KEYBOARD_PHYS, MOUSE_PHYS
+from neurotouch_hid.output.gamepad import PHYS
+
+REPO = Path(__file__).resolve().parent.parent.parent
+HERE = Path(__file__).resolve().parent
+TIMEOUT_S = 300
+G = GestureType
+#: The names these checks use for the key codes they read (evdev gives several names per code).
+NAMES = {ecodes.ecodes[n]: n for n in ("KEY_SPACE", "KEY_TAB", "KEY_LEFTSHIFT", "KEY_ENTER", "KEY_ESC", "KEY_A", "KEY_B",
+                                        "KEY_LEFTCTRL", "BTN_LEFT", "BTN_RIGHT", "BTN_SOUTH")}
+
+
+def sequence(*steps: tuple[GestureType, float, float], lead_in_s: float = 1.0) -> list[GestureEstimate]:
+    """Rest ``lead_in_s``, then per step (gesture, level mm, hold s): ramp up 0.1 s, hold, ramp
+    down 0.1 s, rest 0.4 s; 10 ms windows."""
+    out: list[GestureEstimate] = []
+    t = 1_000_000
+
+    def add(seconds: float, gesture: GestureType, level) -> None:
+        nonlocal t
+        n = max(1, int(round(seconds * 1e6 / STEP_US)))
+        for k in range(n):
+            out.append(_gesture(t, gesture, level((k + 1) / n)))
+            t += STEP_US
+
+    add(lead_in_s, G.NONE, lambda f: 0.0)
+    for gesture, mm, hold_s in steps:
+        add(0.1, gesture, lambda f: mm * f)
+        add(hold_s, gesture, lambda f: mm)
+        add(0.1, gesture, lambda f: mm * (1 - f))
+        add(0.4, G.NONE, lambda f: 0.0)
+    return out
+
+
+def _write_preds(folder: Path, estimates: list[GestureEstimate]) -> Path:
+    from neurotouch_hid.output.jsonl import write_predictions
+
+    path = folder / "gestures.jsonl"
+    write_predictions(path, estimates)
+    return path
+
+
+class Watcher:
+    """Reads one of our devices in a thread: every (type, code, value) and its pressed keys."""
+
+    def __init__(self, path: str):
+        self.reader = guestlib.EventReader(path)
+        self.events: list[tuple[int, int, int]] = []
+        self.error: str | None = None
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self._loop, daemon=True)
+        self.thread.start()
+
+    def _loop(self) -> None:
+        seen = 0
+        while not self._stop.is_set() and not self.reader.gone:
+            self.reader.pump(timeout_s=0.2, until=lambda r: len(r.reports) > seen or self._stop.is_set())
+            for report in self.reader.reports[seen:]:
+                for event in report:
+                    if event[0] == ecodes.EV_SYN and event[1] == ecodes.SYN_DROPPED:
+                        self.error = "the reader lost events (SYN_DROPPED)"
+                    self.events.append(event)
+            seen = len(self.reader.reports)
+
+    def total(self, code: int) -> int:
+        return sum(v for t, c, v in self.events if t == ecodes.EV_REL and c == code)
+
+    def keys_log(self) -> list[tuple[str, int]]:
+        """Every key event as (evdev name, value), in order."""
+        return [(NAMES.get(c, str(c)), v) for t, c, v in self.events if t == ecodes.EV_KEY]
+
+    @property
+    def pressed(self) -> set[int]:
+        return set(self.reader.keys)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self.thread.join(10)
+        self.reader.close()
+        assert self.error is None, self.error
+
+
+def _devices(phys: str) -> list[str]:
+    found = []
+    for path in list_devices():
+        try:
+            if InputDevice(path).phys == phys:
+                found.append(path)
+        except OSError:
+            pass
+    return found
+
+
+def _expected(profile: str, estimates: list[GestureEstimate]):
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.mapping.replay import replay
+
+    return replay(load_profile(profile), estimates)
+
+
+def _run_in_process(profile: str, estimates: list[GestureEstimate], folder: Path) -> tuple[dict[str, Watcher], object, dict]:
+    """The runtime (paced, its threads) with the devices ``open_output`` makes for ``profile``;
+    a watcher on each device before the run starts."""
+    import contextlib
+
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.runtime import open_output, run_driver
+
+    preds = _write_preds(folder, estimates)
+    with contextlib.ExitStack() as stack:
+        outputs = open_output("gamepad", load_profile(profile), stack)
+        guestlib.settle()
+        props = {d.what: guestlib.udev_properties(d.device_path) for d in outputs.devices if hasattr(d, "what")}
+        watchers = {"pad": Watcher(outputs.pad.device_path)}
+        for device in (outputs.keyboard, outputs.mouse):
+            if device is not None:
+                watchers[device.what] = Watcher(device.device_path)
+        stats = run_driver(str(preds), profile, "gamepad", output_obj=outputs)
+    time.sleep(0.3)
+    for w in watchers.values():
+        w.stop()
+    return watchers, stats, props
+
+
+def check_mouse_profile_moves_the_pointer() -> dict:
+    """``run --profile mouse`` on a push up and to the right: the uinput mouse reports REL_X and
+    REL_Y motion, exactly the counts the Mapper gives for the same estimates; a pinch clicks
+    BTN_LEFT and releases it; a twist scrolls with hi-res and legacy wheel events; udev calls it a
+    mouse; the pad is there and no keyboard (the profile uses none)."""
+    folder = Path(tempfile.mkdtemp(prefix="remap-mouse-"))
+    estimates = sequence((G.PUSH, 6.0, 0.8), (G.PINCH, 4.0, 0.2), (G.TWIST_CCW, 6.0, 0.8))
+    watchers, stats, props = _run_in_process("mouse", estimates, folder)
+    assert set(watchers) == {"pad", "mouse"}, f"devices made: {sorted(watchers)}"
+    mouse = watchers["mouse"]
+    states = _expected("mouse", estimates)
+    want = {name: sum(s.rel.get(name, 0) for s in states) for name in ("REL_X", "REL_Y", "REL_WHEEL", "REL_WHEEL_HI_RES")}
+    got = {name: mouse.total(ecodes.ecodes[name]) for name in want}
+    assert stats.dropped_items == 0, f"the runtime dropped {stats.dropped_items} items"
+    assert got == want, f"read back {got}, the Mapper gives {want}"
+    assert got["REL_X"] > 50 and got["REL_Y"] < -10, got  # right and up (screen y grows downwards)
+    assert got["REL_WHEEL"] >= 1 and got["REL_WHEEL_HI_RES"] >= 120, got
+    clicks = mouse.keys_log()
+    assert clicks == [("BTN_LEFT", 1), ("BTN_LEFT", 0)], clicks
+    assert not mouse.pressed
+    assert props["mouse"].get("ID_INPUT_MOUSE") == "1", props["mouse"]
+    return {"rel": got, "clicks": clicks, "ID_INPUT_MOUSE": props["mouse"].get("ID_INPUT_MOUSE"),
+            "windows": stats.windows}
+
+
+def check_switch_access_presses_and_releases_keys() -> dict:
+    """``run --profile switch-access``: each held gesture presses its key after the dwell and
+    releases it (push Space, twist_cw Tab, twist_ccw Shift+Tab, pinch Enter, zoom Escape); a short
+    brush fires nothing; the key log is the Mapper's; udev calls the device a keyboard."""
+    folder = Path(tempfile.mkdtemp(prefix="remap-switch-"))
+    estimates = sequence((G.PUSH, 4.0, 0.1),  # shorter than the dwell: nothing
+                         (G.PUSH, 4.0, 0.6), (G.TWIST_CW, 4.0, 0.6), (G.TWIST_CCW, 4.0, 0.6),
+                         (G.PINCH, 4.0, 0.6), (G.ZOOM, 4.0, 0.6))
+    watchers, stats, props = _run_in_process("switch-access", estimates, folder)
+    assert set(watchers) == {"pad", "keyboard"}, f"devices made: {sorted(watchers)}"
+    keyboard = watchers["keyboard"]
+    log = keyboard.keys_log()
+    want = [("KEY_SPACE", 1), ("KEY_SPACE", 0), ("KEY_TAB", 1), ("KEY_TAB", 0),
+            ("KEY_LEFTSHIFT", 1), ("KEY_TAB", 1), ("KEY_TAB", 0), ("KEY_LEFTSHIFT", 0),
+            ("KEY_ENTER", 1), ("KEY_ENTER", 0), ("KEY_ESC", 1), ("KEY_ESC", 0)]
+    assert stats.dropped_items == 0, f"the runtime dropped {stats.dropped_items} items"
+    assert log == want, f"key log {log}"
+    assert not keyboard.pressed
+    assert props["keyboard"].get("ID_INPUT_KEYBOARD") == "1", props["keyboard"]
+    return {"keys": log, "ID_INPUT_KEYBOARD": props["keyboard"].get("ID_INPUT_KEYBOARD"), "windows": stats.windows}
+
+
+LAYERED = """\
+description: guest check of layers and profile use
+layers:
+  alt: {input: pinch, mode: toggle, press_mm: 2.0, release_mm: 1.0}
+mappings:
+  latch: {input: zoom, output: KEY_A, mode: toggle, press_mm: 2.0, release_mm: 1.0}
+  click: {input: zoom, output: BTN_RIGHT, mode: toggle, press_mm: 2.0, release_mm: 1.0}
+  enter: {input: push_intensity, output: KEY_ENTER, layer: alt, press_mm: 2.0, release_mm: 1.0}
+  fire: {input: push_intensity, output: BTN_SOUTH, layer: alt, press_mm: 2.0, release_mm: 1.0}
+"""
+
+
+def _start_run(folder: Path, preds: Path, profile: Path, env: dict) -> tuple[subprocess.Popen, dict[str, Watcher]]:
+    """``neurotouch-hid run --output gamepad`` in its own process; a watcher on each of its devices."""
+    before = {phys: set(_devices(phys)) for phys in (PHYS, KEYBOARD_PHYS, MOUSE_PHYS)}
+    proc = subprocess.Popen(_cli("run", "--source", str(preds), "--profile", str(profile), "--output", "gamepad"),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=str(REPO))
+    new = lambda phys: sorted(set(_devices(phys)) - before[phys])  # noqa: E731
+    found = guestlib.wait_for(lambda: (new(PHYS) and new(KEYBOARD_PHYS) and new(MOUSE_PHYS)) or proc.poll() is not None,
+                              150.0, 0.05)
+    assert found and proc.poll() is None, f"the devices did not appear: {proc.stderr.read()[-2000:] if proc.poll() is not None else 'timeout'}"
+    watchers = {"pad": Watcher(new(PHYS)[0]), "keyboard": Watcher(new(KEYBOARD_PHYS)[0]), "mouse": Watcher(new(MOUSE_PHYS)[0])}
+    return proc, watchers
+
+
+def check_layer_switch_and_profile_use_leave_nothing_pressed() -> dict:
+    """A zoom latches KEY_A and BTN_RIGHT (toggles) in the base layer; a pinch switches to layer
+    ``alt``: both are released first. In ``alt`` a held push presses KEY_ENTER and the pad's A;
+    ``neurotouch-hid profile use switch-access`` mid-push releases both at once, and the new
+    profile then presses KEY_SPACE after its dwell (the push is still held). SIGTERM: exit 0 and
+    nothing pressed on any device. ``profile use`` with no driver: exit 2, one line."""
+    folder = Path(tempfile.mkdtemp(prefix="remap-layers-"))
+    runtime_dir = folder / "xdg"
+    runtime_dir.mkdir(mode=0o700)
+    env = dict(_env(), XDG_RUNTIME_DIR=str(runtime_dir))
+    profile = folder / "layered.yaml"
+    profile.write_text(LAYERED)
+    preds = _write_preds(folder, sequence((G.ZOOM, 4.0, 0.3), (G.PINCH, 4.0, 0.3), (G.PUSH, 4.0, 120.0), lead_in_s=4.0))
+    proc, w = _start_run(folder, preds, profile, env)
+    codes = ecodes.ecodes
+    try:
+        latched = guestlib.wait_for(lambda: codes["KEY_A"] in w["keyboard"].pressed and codes["BTN_RIGHT"] in w["mouse"].pressed, 60.0)
+        assert latched, f"the zoom did not latch KEY_A and BTN_RIGHT: {w['keyboard'].keys_log()} {w['mouse'].keys_log()}"
+        held = guestlib.wait_for(lambda: codes["KEY_ENTER"] in w["keyboard"].pressed and codes["BTN_SOUTH"] in w["pad"].pressed, 60.0)
+        assert held, f"the push in layer alt pressed nothing: {w['keyboard'].keys_log()} {w['pad'].keys_log()}"
+        after_layer = {"keyboard": sorted(w["keyboard"].pressed), "mouse": sorted(w["mouse"].pressed)}
+        use = guestlib.sh(_cli("profile", "use", "switch-access"), timeout=120, env=env, cwd=str(REPO))
+        assert use.returncode == 0, f"profile use failed ({use.returncode}): {use.stderr[-1000:]}"
+        released = guestlib.wait_for(lambda: codes["KEY_ENTER"] not in w["keyboard"].pressed
+                                     and codes["BTN_SOUTH"] not in w["pad"].pressed, 10.0)
+        space = guestlib.wait_for(lambda: codes["KEY_SPACE"] in w["keyboard"].pressed, 30.0)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+        time.sleep(0.3)
+        for watcher in w.values():
+            watcher.stop()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    kb_log = w["keyboard"].keys_log()
+    # the layer switch released the latched key before the new layer pressed anything
+    assert kb_log.index(("KEY_A", 0)) < kb_log.index(("KEY_ENTER", 1)), kb_log
+    assert after_layer == {"keyboard": [codes["KEY_ENTER"]], "mouse": []}, after_layer
+    assert released, f"profile use left something pressed: {kb_log} {w['pad'].keys_log()}"
+    assert kb_log.index(("KEY_ENTER", 0)) < kb_log.index(("KEY_SPACE", 1)), kb_log
+    assert space, f"switch-access did not take over: {kb_log}"
+    assert proc.returncode == 0, f"exit code {proc.returncode}: {err[-2000:]}"
+    leftover = {name: sorted(watcher.pressed) for name, watcher in w.items() if watcher.pressed}
+    assert not leftover, f"after SIGTERM still pressed: {leftover}"
+    nobody = guestlib.sh(_cli("profile", "use", "mouse"), timeout=120, env=env, cwd=str(REPO))
+    lines = nobody.stderr.strip().splitlines()
+    assert nobody.returncode == 2 and len(lines) == 1 and "no neurotouch-hid driver is running" in lines[0], nobody.stderr
+    return {"keyboard": kb_log, "mouse": w["mouse"].keys_log(), "pad": w["pad"].keys_log(),
+            "profile_use": use.stdout.strip(), "no_driver": lines[0], "exit_code": proc.returncode}
+
+
+EVERYTHING = """\
+description: guest check - one push holds something on every device
+mappings:
+  key: {input: push_intensity, output: KEY_LEFTCTRL+KEY_B}
+  button: {input: push_intensity, output: BTN_LEFT}
+  pad: {input: push_intensity, output: A}
+  stick: {input: push, output: left_stick}
+  pointer: {input: push, output: pointer}
+"""
+
+
+def check_sigterm_leaves_nothing_pressed_on_any_device() -> dict:
+    """A held push presses a key chord, a mouse button and the pad's A and moves its stick;
+    SIGTERM: exit 0, every reader sees every key and button released and the stick centred,
+    and every device is gone."""
+    folder = Path(tempfile.mkdtemp(prefix="remap-sigterm-"))
+    profile = folder / "everything.yaml"
+    profile.write_text(EVERYTHING)
+    preds = _write_preds(folder, sequence((G.PUSH, 5.0, 120.0), lead_in_s=2.0))
+    env = dict(_env(), XDG_RUNTIME_DIR=str(folder))
+    proc, w = _start_run(folder, preds, profile, env)
+    codes = ecodes.ecodes
+    try:
+        held = guestlib.wait_for(lambda: {codes["KEY_LEFTCTRL"], codes["KEY_B"]} <= w["keyboard"].pressed
+                                 and codes["BTN_LEFT"] in w["mouse"].pressed and codes["BTN_SOUTH"] in w["pad"].pressed
+                                 and w["pad"].reader.axes.get(ecodes.ABS_X, 0) > 0, 60.0)
+        assert held, "the push did not hold something on every device"
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+        guestlib.wait_for(lambda: all(x.reader.gone for x in w.values()), 10.0)
+        time.sleep(0.2)
+        for watcher in w.values():
+            watcher.stop()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, f"exit code {proc.returncode}: {err[-2000:]}"
+    leftover = {name: sorted(watcher.pressed) for name, watcher in w.items() if watcher.pressed}
+    assert not leftover, f"after SIGTERM still pressed: {leftover}"
+    assert w["pad"].reader.axes.get(ecodes.ABS_X) == 0, w["pad"].reader.axes
+    kb = w["keyboard"].keys_log()
+    assert kb[-2:] == [("KEY_B", 0), ("KEY_LEFTCTRL", 0)], kb  # the chord's modifier goes up last
+    gone = [p for phys in (PHYS, KEYBOARD_PHYS, MOUSE_PHYS) for p in _devices(phys)]
+    assert not gone, f"devices outlived the process: {gone}"
+    return {"keyboard": kb, "mouse": w["mouse"].keys_log(), "pad": w["pad"].keys_log(), "exit_code": proc.returncode,
+            "motion_counts": w["mouse"].total(ecodes.REL_X)}
+
+
+def check_sdl_sees_a_gamecontroller_with_rumble() -> dict:
+    """With ``neurotouch-hid run --output gamepad`` running, SDL2 opens the pad as a
+    GameController, says it has rumble and plays one (the effect upload is answered at once);
+    the driver reports the effect on stderr."""
+    folder = Path(tempfile.mkdtemp(prefix="remap-rumble-"))
+    preds = _write_preds(folder, sequence(lead_in_s=120.0))
+    profile = folder / "pad.yaml"
+    profile.write_text("mappings:\n  push: {input: push, output: left_stick}\n")
+    sdl_env = dict(os.environ, SDL_VIDEODRIVER="dummy", SDL_AUDIODRIVER="dummy", PYGAME_HIDE_SUPPORT_PROMPT="1",
+                   PYTHONPATH=os.pathsep.join(sys.path))
+    probe = subprocess.Popen([sys.executable, str(HERE / "sdl_probe.py"), "--rumble", "200"], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True, env=sdl_env)
+    run = subprocess.Popen(_cli("run", "--source", str(preds), "--profile", str(profile), "--output", "gamepad"),
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(_env(), XDG_RUNTIME_DIR=str(folder)),
+                           cwd=str(REPO))
+    try:
+        out, probe_err = probe.communicate(timeout=250)
+        run.send_signal(signal.SIGTERM)
+        _, run_err = run.communicate(timeout=60)
+    finally:
+        for proc in (probe, run):
+            if proc.poll() is None:
+                proc.kill()
+    lines = [json.loads(line) for line in out.splitlines() if line.startswith("{")]
+    done = next((line for line in lines if line.get("done")), None)
+    assert done is not None, f"sdl_probe gave no result: {out[-1000:]} {probe_err[-2000:]}"
+    assert done.get("error") is None, done
+    assert done["is_controller"], done
+    assert done["rumble"], f"SDL could not rumble: {done}"
+    assert run.returncode == 0, f"run exit code {run.returncode}: {run_err[-2000:]}"
+    assert "rumble (the gel has no motor): uploaded effect" in run_err and "FF_RUMBLE" in run_err, run_err[-2000:]
+    return {**done, "driver_said": [l for l in run_err.splitlines() if "rumble" in l][:4]}
