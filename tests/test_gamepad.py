@@ -117,3 +117,14 @@ def test_applying_the_changes_reaches_the_new_state(old, new):
     assert reached.axes == normalised(new).axes and reached.buttons == normalised(new).buttons
     names = [n for n, _ in events]
     assert len(names) == len(set(names))  # each changed name once
+
+
+def test_a_rumble_effect_is_described_in_one_line():
+    from evdev import ff
+
+    from neurotouch_hid.output.gamepad import describe_effect
+
+    rumble = ff.Rumble(strong_magnitude=32767, weak_magnitude=65535)
+    effect = ff.Effect(ecodes.FF_RUMBLE, 3, 0, ff.Trigger(0, 0), ff.Replay(300, 0),
+                       ff.EffectType(ff_rumble_effect=rumble))
+    assert describe_effect(effect) == "effect 3: FF_RUMBLE strong 32767 weak 65535 for 300 ms"
