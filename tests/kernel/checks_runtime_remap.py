@@ -1,6 +1,7 @@
 """Guest checks of the keyboard and mouse outputs, layers, ``profile use`` and rumble in a real kernel.
 
-Run by tests/kernel/guest.py inside qemu; asserted on by tests/test_remap_kernel.py. As in
+Run by tests/kernel/guest.py inside qemu (after checks_runtime.py: the name sorts after it, so
+the older checks get the boot's time first); asserted on by tests/test_remap_kernel.py. As in
 checks_runtime.py, the runtime is fed the pipeline's output (a predictions file) because the
 software-emulated guest cannot run the pipeline in real time; everything after it is real: the
 runtime's threads and pacing, the shipped profiles and the Mapper, the uinput keyboard, mouse and
@@ -212,8 +213,19 @@ mappings:
   fire: {input: push_intensity, output: BTN_SOUTH, layer: alt, press_mm: 2.0, release_mm: 1.0}
 """
 
+#: The profile switched to mid-push: the same push then holds something on every device.
+EVERYTHING = """\
+description: guest check - one push holds something on every device
+mappings:
+  key: {input: push_intensity, output: KEY_LEFTCTRL+KEY_B, mode: long_press, dwell_ms: 200}
+  button: {input: push_intensity, output: BTN_LEFT}
+  pad: {input: push_intensity, output: A}
+  stick: {input: push, output: left_stick}
+  pointer: {input: push, output: pointer}
+"""
 
-def _start_run(folder: Path, preds: Path, profile: Path, env: dict) -> tuple[subprocess.Popen, dict[str, Watcher]]:
+
+def _start_run(preds: Path, profile: Path, env: dict) -> tuple[subprocess.Popen, dict[str, Watcher]]:
     """``neurotouch-hid run --output gamepad`` in its own process; a watcher on each of its devices."""
     before = {phys: set(_devices(phys)) for phys in (PHYS, KEYBOARD_PHYS, MOUSE_PHYS)}
     proc = subprocess.Popen(_cli("run", "--source", str(preds), "--profile", str(profile), "--output", "gamepad"),
@@ -226,84 +238,38 @@ def _start_run(folder: Path, preds: Path, profile: Path, env: dict) -> tuple[sub
     return proc, watchers
 
 
-def check_layer_switch_and_profile_use_leave_nothing_pressed() -> dict:
-    """A zoom latches KEY_A and BTN_RIGHT (toggles) in the base layer; a pinch switches to layer
-    ``alt``: both are released first. In ``alt`` a held push presses KEY_ENTER and the pad's A;
-    ``neurotouch-hid profile use switch-access`` mid-push releases both at once, and the new
-    profile then presses KEY_SPACE after its dwell (the push is still held). SIGTERM: exit 0 and
-    nothing pressed on any device. ``profile use`` with no driver: exit 2, one line."""
+def check_layer_switch_profile_use_and_sigterm_leave_nothing_pressed() -> dict:
+    """``neurotouch-hid run``: a zoom latches KEY_A and BTN_RIGHT (toggles) in the base layer; a
+    pinch switches to layer ``alt``: both are released before anything of ``alt`` is pressed. In
+    ``alt`` a held push presses KEY_ENTER and the pad's A; ``profile use`` (the control socket,
+    as the CLI sends it) switches to a profile file mid-push: both are released at once, then the
+    new profile holds a Ctrl+B chord, BTN_LEFT, A and the stick with the same push. SIGTERM:
+    exit 0, nothing pressed on any device, the stick centred, every device gone."""
+    from neurotouch_hid.control import SOCKET_NAME, request_use
+
     folder = Path(tempfile.mkdtemp(prefix="remap-layers-"))
     runtime_dir = folder / "xdg"
     runtime_dir.mkdir(mode=0o700)
     env = dict(_env(), XDG_RUNTIME_DIR=str(runtime_dir))
-    profile = folder / "layered.yaml"
+    profile, everything = folder / "layered.yaml", folder / "everything.yaml"
     profile.write_text(LAYERED)
+    everything.write_text(EVERYTHING)
     preds = _write_preds(folder, sequence((G.ZOOM, 4.0, 0.3), (G.PINCH, 4.0, 0.3), (G.PUSH, 4.0, 120.0), lead_in_s=4.0))
-    proc, w = _start_run(folder, preds, profile, env)
+    proc, w = _start_run(preds, profile, env)
     codes = ecodes.ecodes
+    chord = {codes["KEY_LEFTCTRL"], codes["KEY_B"]}
     try:
         latched = guestlib.wait_for(lambda: codes["KEY_A"] in w["keyboard"].pressed and codes["BTN_RIGHT"] in w["mouse"].pressed, 60.0)
         assert latched, f"the zoom did not latch KEY_A and BTN_RIGHT: {w['keyboard'].keys_log()} {w['mouse'].keys_log()}"
         held = guestlib.wait_for(lambda: codes["KEY_ENTER"] in w["keyboard"].pressed and codes["BTN_SOUTH"] in w["pad"].pressed, 60.0)
         assert held, f"the push in layer alt pressed nothing: {w['keyboard'].keys_log()} {w['pad'].keys_log()}"
         after_layer = {"keyboard": sorted(w["keyboard"].pressed), "mouse": sorted(w["mouse"].pressed)}
-        use = guestlib.sh(_cli("profile", "use", "switch-access"), timeout=120, env=env, cwd=str(REPO))
-        assert use.returncode == 0, f"profile use failed ({use.returncode}): {use.stderr[-1000:]}"
+        answer = request_use(str(everything), path=runtime_dir / SOCKET_NAME)  # what `profile use FILE` sends
         released = guestlib.wait_for(lambda: codes["KEY_ENTER"] not in w["keyboard"].pressed
                                      and codes["BTN_SOUTH"] not in w["pad"].pressed, 10.0)
-        space = guestlib.wait_for(lambda: codes["KEY_SPACE"] in w["keyboard"].pressed, 30.0)
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=60)
-        time.sleep(0.3)
-        for watcher in w.values():
-            watcher.stop()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    kb_log = w["keyboard"].keys_log()
-    # the layer switch released the latched key before the new layer pressed anything
-    assert kb_log.index(("KEY_A", 0)) < kb_log.index(("KEY_ENTER", 1)), kb_log
-    assert after_layer == {"keyboard": [codes["KEY_ENTER"]], "mouse": []}, after_layer
-    assert released, f"profile use left something pressed: {kb_log} {w['pad'].keys_log()}"
-    assert kb_log.index(("KEY_ENTER", 0)) < kb_log.index(("KEY_SPACE", 1)), kb_log
-    assert space, f"switch-access did not take over: {kb_log}"
-    assert proc.returncode == 0, f"exit code {proc.returncode}: {err[-2000:]}"
-    leftover = {name: sorted(watcher.pressed) for name, watcher in w.items() if watcher.pressed}
-    assert not leftover, f"after SIGTERM still pressed: {leftover}"
-    nobody = guestlib.sh(_cli("profile", "use", "mouse"), timeout=120, env=env, cwd=str(REPO))
-    lines = nobody.stderr.strip().splitlines()
-    assert nobody.returncode == 2 and len(lines) == 1 and "no neurotouch-hid driver is running" in lines[0], nobody.stderr
-    return {"keyboard": kb_log, "mouse": w["mouse"].keys_log(), "pad": w["pad"].keys_log(),
-            "profile_use": use.stdout.strip(), "no_driver": lines[0], "exit_code": proc.returncode}
-
-
-EVERYTHING = """\
-description: guest check - one push holds something on every device
-mappings:
-  key: {input: push_intensity, output: KEY_LEFTCTRL+KEY_B}
-  button: {input: push_intensity, output: BTN_LEFT}
-  pad: {input: push_intensity, output: A}
-  stick: {input: push, output: left_stick}
-  pointer: {input: push, output: pointer}
-"""
-
-
-def check_sigterm_leaves_nothing_pressed_on_any_device() -> dict:
-    """A held push presses a key chord, a mouse button and the pad's A and moves its stick;
-    SIGTERM: exit 0, every reader sees every key and button released and the stick centred,
-    and every device is gone."""
-    folder = Path(tempfile.mkdtemp(prefix="remap-sigterm-"))
-    profile = folder / "everything.yaml"
-    profile.write_text(EVERYTHING)
-    preds = _write_preds(folder, sequence((G.PUSH, 5.0, 120.0), lead_in_s=2.0))
-    env = dict(_env(), XDG_RUNTIME_DIR=str(folder))
-    proc, w = _start_run(folder, preds, profile, env)
-    codes = ecodes.ecodes
-    try:
-        held = guestlib.wait_for(lambda: {codes["KEY_LEFTCTRL"], codes["KEY_B"]} <= w["keyboard"].pressed
-                                 and codes["BTN_LEFT"] in w["mouse"].pressed and codes["BTN_SOUTH"] in w["pad"].pressed
-                                 and w["pad"].reader.axes.get(ecodes.ABS_X, 0) > 0, 60.0)
-        assert held, "the push did not hold something on every device"
+        all_held = guestlib.wait_for(lambda: chord <= w["keyboard"].pressed and codes["BTN_LEFT"] in w["mouse"].pressed
+                                     and codes["BTN_SOUTH"] in w["pad"].pressed
+                                     and w["pad"].reader.axes.get(ecodes.ABS_X, 0) > 0, 30.0)
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=60)
         guestlib.wait_for(lambda: all(x.reader.gone for x in w.values()), 10.0)
@@ -313,47 +279,44 @@ def check_sigterm_leaves_nothing_pressed_on_any_device() -> dict:
     finally:
         if proc.poll() is None:
             proc.kill()
+    kb_log, pad_log = w["keyboard"].keys_log(), w["pad"].keys_log()
+    assert kb_log.index(("KEY_A", 0)) < kb_log.index(("KEY_ENTER", 1)), kb_log  # the layer switch released first
+    assert after_layer == {"keyboard": [codes["KEY_ENTER"]], "mouse": []}, after_layer
+    assert released, f"profile use left something pressed: {kb_log} {pad_log}"
+    assert kb_log.index(("KEY_ENTER", 0)) < kb_log.index(("KEY_LEFTCTRL", 1)), kb_log
+    assert pad_log.count(("BTN_SOUTH", 1)) == 2, pad_log  # released by the switch, pressed again by the new profile
+    assert all_held, f"the new profile did not hold something on every device: {kb_log} {w['mouse'].keys_log()} {pad_log}"
     assert proc.returncode == 0, f"exit code {proc.returncode}: {err[-2000:]}"
     leftover = {name: sorted(watcher.pressed) for name, watcher in w.items() if watcher.pressed}
     assert not leftover, f"after SIGTERM still pressed: {leftover}"
     assert w["pad"].reader.axes.get(ecodes.ABS_X) == 0, w["pad"].reader.axes
-    kb = w["keyboard"].keys_log()
-    assert kb[-2:] == [("KEY_B", 0), ("KEY_LEFTCTRL", 0)], kb  # the chord's modifier goes up last
+    assert kb_log[-2:] == [("KEY_B", 0), ("KEY_LEFTCTRL", 0)], kb_log  # the chord's modifier goes up last
     gone = [p for phys in (PHYS, KEYBOARD_PHYS, MOUSE_PHYS) for p in _devices(phys)]
     assert not gone, f"devices outlived the process: {gone}"
-    return {"keyboard": kb, "mouse": w["mouse"].keys_log(), "pad": w["pad"].keys_log(), "exit_code": proc.returncode,
-            "motion_counts": w["mouse"].total(ecodes.REL_X)}
+    return {"keyboard": kb_log, "mouse": w["mouse"].keys_log(), "pad": pad_log, "profile_use": answer,
+            "exit_code": proc.returncode, "pointer_x": w["mouse"].total(ecodes.REL_X)}
 
 
 def check_sdl_sees_a_gamecontroller_with_rumble() -> dict:
-    """With ``neurotouch-hid run --output gamepad`` running, SDL2 opens the pad as a
-    GameController, says it has rumble and plays one (the effect upload is answered at once);
-    the driver reports the effect on stderr."""
-    folder = Path(tempfile.mkdtemp(prefix="remap-rumble-"))
-    preds = _write_preds(folder, sequence(lead_in_s=120.0))
-    profile = folder / "pad.yaml"
-    profile.write_text("mappings:\n  push: {input: push, output: left_stick}\n")
+    """SDL2 opens the virtual pad (made as ``run --output gamepad`` makes it, in this process) as a
+    GameController, says it has rumble and plays one: the pad answers the effect upload at once
+    and reports the upload and the play (``on_effect``, which ``run`` prints on stderr)."""
+    from neurotouch_hid.output.gamepad import GamepadIdentity, VirtualGamepad
+
+    said: list[str] = []
     sdl_env = dict(os.environ, SDL_VIDEODRIVER="dummy", SDL_AUDIODRIVER="dummy", PYGAME_HIDE_SUPPORT_PROMPT="1",
                    PYTHONPATH=os.pathsep.join(sys.path))
-    probe = subprocess.Popen([sys.executable, str(HERE / "sdl_probe.py"), "--rumble", "200"], stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True, env=sdl_env)
-    run = subprocess.Popen(_cli("run", "--source", str(preds), "--profile", str(profile), "--output", "gamepad"),
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(_env(), XDG_RUNTIME_DIR=str(folder)),
-                           cwd=str(REPO))
-    try:
-        out, probe_err = probe.communicate(timeout=250)
-        run.send_signal(signal.SIGTERM)
-        _, run_err = run.communicate(timeout=60)
-    finally:
-        for proc in (probe, run):
-            if proc.poll() is None:
-                proc.kill()
-    lines = [json.loads(line) for line in out.splitlines() if line.startswith("{")]
+    with VirtualGamepad(GamepadIdentity(), on_effect=said.append) as pad:
+        guestlib.settle()
+        probe = subprocess.run([sys.executable, str(HERE / "sdl_probe.py"), "--rumble", "120"], capture_output=True,
+                               text=True, env=sdl_env, timeout=250)
+        effects = pad.effects
+    lines = [json.loads(line) for line in probe.stdout.splitlines() if line.startswith("{")]
     done = next((line for line in lines if line.get("done")), None)
-    assert done is not None, f"sdl_probe gave no result: {out[-1000:]} {probe_err[-2000:]}"
+    assert done is not None, f"sdl_probe gave no result: {probe.stdout[-1000:]} {probe.stderr[-2000:]}"
     assert done.get("error") is None, done
     assert done["is_controller"], done
     assert done["rumble"], f"SDL could not rumble: {done}"
-    assert run.returncode == 0, f"run exit code {run.returncode}: {run_err[-2000:]}"
-    assert "rumble (the gel has no motor): uploaded effect" in run_err and "FF_RUMBLE" in run_err, run_err[-2000:]
-    return {**done, "driver_said": [l for l in run_err.splitlines() if "rumble" in l][:4]}
+    assert any(line.startswith("uploaded effect") and "FF_RUMBLE" in line for line in said), said
+    assert any(line.startswith("play effect") for line in said), said
+    return {**done, "pad_said": said[:6], "requests_answered": effects}
