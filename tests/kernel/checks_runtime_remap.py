@@ -259,14 +259,11 @@ def check_layer_switch_profile_use_and_sigterm_leave_nothing_pressed() -> dict:
     codes = ecodes.ecodes
     chord = {codes["KEY_LEFTCTRL"], codes["KEY_B"]}
     try:
-        latched = guestlib.wait_for(lambda: codes["KEY_A"] in w["keyboard"].pressed and codes["BTN_RIGHT"] in w["mouse"].pressed, 60.0)
-        assert latched, f"the zoom did not latch KEY_A and BTN_RIGHT: {w['keyboard'].keys_log()} {w['mouse'].keys_log()}"
-        held = guestlib.wait_for(lambda: codes["KEY_ENTER"] in w["keyboard"].pressed and codes["BTN_SOUTH"] in w["pad"].pressed, 60.0)
+        # the latch lasts well under a second of a slow guest: judged from the event logs, not polled
+        held = guestlib.wait_for(lambda: codes["KEY_ENTER"] in w["keyboard"].pressed and codes["BTN_SOUTH"] in w["pad"].pressed, 90.0)
         assert held, f"the push in layer alt pressed nothing: {w['keyboard'].keys_log()} {w['pad'].keys_log()}"
-        after_layer = {"keyboard": sorted(w["keyboard"].pressed), "mouse": sorted(w["mouse"].pressed)}
+        before_use = {"keyboard": w["keyboard"].keys_log(), "mouse": w["mouse"].keys_log()}
         answer = request_use(str(everything), path=runtime_dir / SOCKET_NAME)  # what `profile use FILE` sends
-        released = guestlib.wait_for(lambda: codes["KEY_ENTER"] not in w["keyboard"].pressed
-                                     and codes["BTN_SOUTH"] not in w["pad"].pressed, 10.0)
         all_held = guestlib.wait_for(lambda: chord <= w["keyboard"].pressed and codes["BTN_LEFT"] in w["mouse"].pressed
                                      and codes["BTN_SOUTH"] in w["pad"].pressed
                                      and w["pad"].reader.axes.get(ecodes.ABS_X, 0) > 0, 30.0)
@@ -280,11 +277,12 @@ def check_layer_switch_profile_use_and_sigterm_leave_nothing_pressed() -> dict:
         if proc.poll() is None:
             proc.kill()
     kb_log, pad_log = w["keyboard"].keys_log(), w["pad"].keys_log()
-    assert kb_log.index(("KEY_A", 0)) < kb_log.index(("KEY_ENTER", 1)), kb_log  # the layer switch released first
-    assert after_layer == {"keyboard": [codes["KEY_ENTER"]], "mouse": []}, after_layer
-    assert released, f"profile use left something pressed: {kb_log} {pad_log}"
-    assert kb_log.index(("KEY_ENTER", 0)) < kb_log.index(("KEY_LEFTCTRL", 1)), kb_log
-    assert pad_log.count(("BTN_SOUTH", 1)) == 2, pad_log  # released by the switch, pressed again by the new profile
+    # the zoom latched KEY_A and BTN_RIGHT; the layer switch released both before alt pressed KEY_ENTER
+    assert before_use == {"keyboard": [("KEY_A", 1), ("KEY_A", 0), ("KEY_ENTER", 1)],
+                          "mouse": [("BTN_RIGHT", 1), ("BTN_RIGHT", 0)]}, before_use
+    # profile use released KEY_ENTER and A before the new profile pressed anything (A again, the chord)
+    assert kb_log[3:6] == [("KEY_ENTER", 0), ("KEY_LEFTCTRL", 1), ("KEY_B", 1)], kb_log
+    assert pad_log[:3] == [("BTN_SOUTH", 1), ("BTN_SOUTH", 0), ("BTN_SOUTH", 1)], pad_log
     assert all_held, f"the new profile did not hold something on every device: {kb_log} {w['mouse'].keys_log()} {pad_log}"
     assert proc.returncode == 0, f"exit code {proc.returncode}: {err[-2000:]}"
     leftover = {name: sorted(watcher.pressed) for name, watcher in w.items() if watcher.pressed}
