@@ -313,13 +313,17 @@ class LayerSwitch(_Hysteresis):
 
 _ANY_MAPPING_FIELDS = {**ButtonMapping.model_fields, **AxisMapping.model_fields, **StickMapping.model_fields,
                        **PointerMapping.model_fields, **RelMapping.model_fields}
+def _no_such_output(cls, value: Any) -> Any:
+    raise ValueError(_expected_outputs())
+
+
 #: Chosen only when ``output`` names no known output: reports it with the valid names, and still
 #: checks every other field (known name, type, range) so that all problems show at once.
 _UnknownOutput = create_model(
     "_UnknownOutput", __base__=_Strict,
     input=(Literal[VECTOR_INPUTS + SCALAR_INPUTS], ...), output=(Any, ...),
     **{name: (f.annotation, f) for name, f in _ANY_MAPPING_FIELDS.items() if name not in ("input", "output")},
-    __validators__={"_unknown": field_validator("output")(lambda cls, v: (_ for _ in ()).throw(ValueError(_expected_outputs())))},
+    __validators__={"_unknown_output": field_validator("output")(_no_such_output)},
 )
 
 
