@@ -24,7 +24,7 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
-profile_app = typer.Typer(help="List, show, create, edit, validate, test and tune gamepad profiles.", no_args_is_help=True)
+profile_app = typer.Typer(help="List, show, create, edit, validate, test, tune and use (switch the running driver to) profiles.", no_args_is_help=True)
 app.add_typer(profile_app, name="profile")
 
 console = Console()
@@ -451,6 +451,17 @@ def profile_list() -> None:
         except ProfileError:
             table.add_row(name, where, "", f"[red]invalid[/] (neurotouch-hid profile validate {path})")
     console.print(table)
+
+
+@profile_app.command("use")
+def profile_use(name: str = typer.Argument(..., help="profile name or path")) -> None:
+    """Switch the running driver (`neurotouch-hid run`) to this profile, every output neutral first.
+
+    Talks to the driver over $XDG_RUNTIME_DIR/neurotouch-hid.sock; with no driver running, says so
+    (exit 2)."""
+    from neurotouch_hid.control import request_use
+
+    console.print(request_use(name), highlight=False, soft_wrap=True)
 
 
 @profile_app.command("show")

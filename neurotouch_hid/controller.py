@@ -2,6 +2,12 @@
 
 The layout is docs/architecture.md's: sticks ABS_X/Y/RX/RY in -32768..32767 (evdev convention: +x
 right, +y *down*), triggers ABS_Z/RZ in 0..255, d-pad ABS_HAT0X/Y in -1..1, and 11 buttons.
+Beside the pad, a profile may drive a keyboard and a mouse (uinput devices of their own):
+:attr:`ControllerState.keys` holds the keyboard keys and mouse buttons that are down (evdev names,
+``KEY_*`` and ``BTN_LEFT`` ...), :attr:`ControllerState.rel` the relative motion of this step
+(``REL_X``/``REL_Y`` in pointer counts, ``REL_WHEEL``/``REL_HWHEEL`` in detents and their
+``*_HI_RES`` twins in 1/120 detent). Motion is an impulse, not a level: a state with motion is
+always written, and the neutral state has none.
 A :class:`ControllerState` is a plain value; the neutral state (:meth:`ControllerState.neutral`)
 is what every output writes before it stops.
 """
@@ -22,6 +28,11 @@ AXES: dict[str, tuple[int, int, int]] = {
     "ABS_HAT0Y": (-1, 1, 0),
 }
 
+#: The mouse's buttons (evdev names); every other key-like output name is a keyboard key.
+MOUSE_BUTTONS: tuple[str, ...] = ("BTN_LEFT", "BTN_RIGHT", "BTN_MIDDLE", "BTN_SIDE", "BTN_EXTRA")
+#: The mouse's relative axes: pointer counts, wheel detents and the wheels' hi-res 1/120 detents.
+MOUSE_REL: tuple[str, ...] = ("REL_X", "REL_Y", "REL_WHEEL", "REL_HWHEEL", "REL_WHEEL_HI_RES", "REL_HWHEEL_HI_RES")
+
 #: The 11 buttons of the Xbox 360 layout, evdev names, in SDL's usual order.
 BUTTONS: tuple[str, ...] = (
     "BTN_SOUTH", "BTN_EAST", "BTN_NORTH", "BTN_WEST", "BTN_TL", "BTN_TR",
@@ -39,11 +50,15 @@ def _released_buttons() -> dict[str, bool]:
 
 @dataclass
 class ControllerState:
-    """Axes (evdev name -> int in the axis' range) and buttons (evdev name -> pressed)."""
+    """Axes (evdev name -> int in the axis' range) and buttons (evdev name -> pressed) of the pad;
+    ``keys``: keyboard keys and mouse buttons that are down (evdev names); ``rel``: this step's
+    relative motion (evdev name -> int counts, zero entries left out)."""
 
     t_us: int = 0
     axes: dict[str, int] = field(default_factory=_neutral_axes)
     buttons: dict[str, bool] = field(default_factory=_released_buttons)
+    keys: frozenset[str] = frozenset()
+    rel: dict[str, int] = field(default_factory=dict)
 
     @classmethod
     def neutral(cls, t_us: int = 0) -> "ControllerState":
@@ -51,5 +66,7 @@ class ControllerState:
         return cls(t_us=t_us)
 
     def is_neutral(self) -> bool:
-        """True when every axis is at its neutral value and no button is pressed."""
-        return all(self.axes[n] == AXES[n][2] for n in AXES) and not any(self.buttons.values())
+        """True when every axis is at its neutral value, no button or key is pressed and nothing moves."""
+        return (all(self.axes[n] == AXES[n][2] for n in AXES) and not any(self.buttons.values())
+                and not self.keys and not any(self.rel.values()))
+

@@ -25,6 +25,8 @@ written until the camera is back. On ``"resumed"`` the pipeline restarts (``pipe
 the markers are re-initialised on the first APS frame at rest) with a fresh mapper (its filters
 and hysteresis start neutral). SIGTERM is a clean stop (``run`` returns normally, the CLI exits 0);
 SIGHUP reloads the profile from its file (a bad profile on reload keeps the old one and logs why).
+With ``control=True`` the run listens on the control socket (:mod:`neurotouch_hid.control`):
+``neurotouch-hid profile use NAME`` switches the profile while running, outputs neutral first.
 """
 
 from __future__ import annotations
@@ -257,6 +259,7 @@ class Runtime:
         mapper_factory, profile_loader: the mapping's ``Mapper`` and ``load_profile`` (replaceable
             in tests).
         say: tells the user what happens to a live source (camera lost, back; one line each).
+        control: serve the control socket while running (``profile use``, :meth:`use_profile`).
     """
 
     def __init__(
@@ -274,7 +277,9 @@ class Runtime:
         mapper_factory: Callable[[Any], Any] = _make_mapper,
         profile_loader: Callable[[str | Path], Any] = _load_profile,
         say: Callable[[str], None] = log.warning,
+        control: bool = False,
     ):
+        self._control = control
         self._source = source
         self._pipeline = pipeline
         self.profile = profile
@@ -314,9 +319,13 @@ class Runtime:
 
     def switch_profile(self, profile: Any) -> None:
         """Neutralise the output, then map with ``profile`` from the next window on.
-        The output device is kept (its name and ids stay those it was created with)."""
+        The output devices are kept (the pad's name and ids stay those it was created with); a
+        keyboard or mouse the new profile needs is created (``output.prepare(profile)``)."""
         with self._lock:
             self._output.neutralise()
+            prepare = getattr(self._output, "prepare", None)
+            if prepare is not None:
+                prepare(profile)
             self._mapper = self._mapper_factory(profile)
             self.profile = profile
             self._forget_state()
@@ -342,6 +351,16 @@ class Runtime:
         log.warning("profile reloaded from %s", self._profile_ref)
         return True
 
+    def use_profile(self, ref: str) -> str:
+        """``profile use``: load ``ref`` (name or path), switch to it (:meth:`switch_profile`), and
+        reload it on SIGHUP from now on; returns a line saying so. Raises ProfileError (nothing
+        changes) for a missing or invalid profile."""
+        profile = self._profile_loader(ref)
+        self.switch_profile(profile)
+        self._profile_ref = ref
+        log.warning("switched to profile %s", ref)
+        return f"switched to profile {ref}"
+
     # --- the run ----------------------------------------------------------------------------
     def run(self, seconds: float | None = None) -> RunStats:
         """Run until the source ends, ``seconds`` of camera time have been read, :meth:`stop`,
@@ -361,7 +380,7 @@ class Runtime:
             threads.append(threading.Thread(target=self._rest, name="nt-resting", daemon=True))
         interrupted = False
         start = time.perf_counter()
-        with self._signal_handlers(), self._switch_interval():
+        with self._signal_handlers(), self._switch_interval(), self._control_socket():
             try:
                 for t in threads:
                     t.start()
@@ -390,6 +409,20 @@ class Runtime:
         if interrupted:
             raise KeyboardInterrupt
         return self.stats
+
+    @contextlib.contextmanager
+    def _control_socket(self) -> Iterator[None]:
+        if not self._control:
+            yield
+            return
+        from neurotouch_hid.control import ControlServer
+
+        server = ControlServer(self.use_profile)
+        server.start()
+        try:
+            yield
+        finally:
+            server.stop()
 
     @contextlib.contextmanager
     def _switch_interval(self) -> Iterator[None]:
@@ -548,7 +581,8 @@ class Runtime:
                 return                                # after that; a lost camera: nothing until back
             state = self._mapper.update(estimate)
             last = self._last_state
-            changed = state.axes != last.axes or state.buttons != last.buttons
+            changed = (state.axes != last.axes or state.buttons != last.buttons or state.keys != last.keys
+                       or bool(state.rel))  # motion is an impulse: always written
             if self._takes_estimate:
                 changed = changed or estimate.gesture != self._last_gesture
                 if changed:
@@ -639,16 +673,20 @@ def open_source(spec: str, stack: contextlib.ExitStack, *, seconds: float | None
 
 
 def open_output(kind: str, profile: Any, stack: contextlib.ExitStack, *, out: str | Path | None = None,
-                console: Any = None) -> Any:
-    """Create the output: ``gamepad`` (uinput device with the profile's name and ids), ``jsonl``
-    (one state line per change to ``out`` or stdout) or ``term`` (the terminal view).
+                console: Any = None, say: Callable[[str], None] | None = None) -> Any:
+    """Create the output: ``gamepad`` (the uinput pad with the profile's name and ids, and the
+    keyboard and mouse if the profile uses them), ``jsonl`` (one state line per change to ``out``
+    or stdout) or ``term`` (the terminal view). ``say`` tells the user about rumble effects games
+    send to the pad (the gel has no motor; default: the log).
     Closed by ``stack``. Raises DeviceError when /dev/uinput cannot be used."""
     if kind == "gamepad":
+        from neurotouch_hid.output.desktop import UinputOutputs
         from neurotouch_hid.output.gamepad import GamepadIdentity, VirtualGamepad
 
         dev = profile.device
         identity = GamepadIdentity(name=dev.name, vendor=dev.vendor, product=dev.product, version=dev.version)
-        return stack.enter_context(VirtualGamepad(identity))
+        on_effect = None if say is None else (lambda line: say(f"rumble (the gel has no motor): {line}"))
+        return stack.enter_context(UinputOutputs(VirtualGamepad(identity, on_effect=on_effect), profile))
     if kind == "jsonl":
         from neurotouch_hid.output.jsonl import StateJsonlWriter
 
@@ -740,9 +778,10 @@ def run_driver(source: str = "davis", profile: str | Path = "default", output: s
         else:
             pipeline, resting = build_pipeline(geometry, window_us, resting_beside=live or not fast,
                                                filter_noise=not live)
-        out_obj = output_obj if output_obj is not None else open_output(output, loaded, stack, out=out, console=console)
+        out_obj = output_obj if output_obj is not None else open_output(output, loaded, stack, out=out, console=console,
+                                                                        say=say)
         runtime = Runtime(stream, pipeline, loaded, out_obj, resting=resting, pace=not fast, live=live,
-                          profile_ref=profile, say=say)
+                          profile_ref=profile, say=say, control=True)
         if hasattr(out_obj, "stats"):
             out_obj.stats = runtime.stats
         return runtime.run(seconds)

@@ -5,7 +5,7 @@
 #   --system  udev/60-neurotouch.rules -> /etc/udev/rules.d/, "uinput" -> /etc/modules-load.d/
 #             (loaded at every boot), then reload udev, re-trigger devices and load uinput now.
 #             Needs root.
-#   --user    packaging/neurotouch-hid.service -> ~/.config/systemd/user/ with ExecStart set to the
+#   --user    packaging/neurotouch-hid.service -> ~/.config/systemd/user/ with ExecStart/ExecReload set to the
 #             neurotouch-hid on PATH (or --bin PATH), a ~/.config/neurotouch-hid/service.env to
 #             pick the profile, and `systemctl --user daemon-reload`. Run as yourself, not root.
 #   neither   both: the system part through sudo, the user part as you.
@@ -63,7 +63,7 @@ if [ $do_user = 1 ]; then
     config=${XDG_CONFIG_HOME:-$HOME/.config}
     units="$config/systemd/user"
     install -d -m 755 "$units" "$config/neurotouch-hid"
-    sed "s|^ExecStart=/usr/bin/env neurotouch-hid |ExecStart=$bin |" \
+    sed "s|^\(Exec[A-Za-z]*\)=/usr/bin/env neurotouch-hid |\1=$bin |" \
         "$here/neurotouch-hid.service" > "$units/neurotouch-hid.service"
     chmod 644 "$units/neurotouch-hid.service"
     env_file="$config/neurotouch-hid/service.env"

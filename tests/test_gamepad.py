@@ -67,9 +67,10 @@ def test_overlong_name_is_a_device_error():
         VirtualGamepad(GamepadIdentity(name="x" * 80), devnode="/dev/null")
 
 
-def test_capabilities_are_the_xbox360_layout_and_nothing_mouse_like():
+def test_capabilities_are_the_xbox360_layout_with_rumble_and_nothing_mouse_like():
     caps = capabilities()
-    assert set(caps) == {ecodes.EV_KEY, ecodes.EV_ABS}
+    assert set(caps) == {ecodes.EV_KEY, ecodes.EV_ABS, ecodes.EV_FF}
+    assert caps[ecodes.EV_FF] == [ecodes.FF_RUMBLE]  # like xpad
     assert caps[ecodes.EV_KEY] == [ecodes.ecodes[b] for b in BUTTONS]
     assert ecodes.BTN_LEFT not in caps[ecodes.EV_KEY] and ecodes.BTN_TOUCH not in caps[ecodes.EV_KEY]
     ranges = {code: (info.min, info.max) for code, info in caps[ecodes.EV_ABS]}
@@ -117,3 +118,14 @@ def test_applying_the_changes_reaches_the_new_state(old, new):
     assert reached.axes == normalised(new).axes and reached.buttons == normalised(new).buttons
     names = [n for n, _ in events]
     assert len(names) == len(set(names))  # each changed name once
+
+
+def test_a_rumble_effect_is_described_in_one_line():
+    from evdev import ff
+
+    from neurotouch_hid.output.gamepad import describe_effect
+
+    rumble = ff.Rumble(strong_magnitude=32767, weak_magnitude=65535)
+    effect = ff.Effect(ecodes.FF_RUMBLE, 3, 0, ff.Trigger(0, 0), ff.Replay(300, 0),
+                       ff.EffectType(ff_rumble_effect=rumble))
+    assert describe_effect(effect) == "effect 3: FF_RUMBLE strong 32767 weak 65535 for 300 ms"

@@ -70,6 +70,7 @@ def test_install_user_writes_a_verifiable_unit_with_an_absolute_execstart(system
     assert proc.returncode == 0, proc.stderr
     unit = tmp_path / "home/.config/systemd/user/neurotouch-hid.service"
     assert f"ExecStart={shim} run --source davis" in unit.read_text()
+    assert f"ExecReload={shim} profile use " in unit.read_text()  # systemctl reload switches the profile
     assert "NEUROTOUCH_PROFILE=default" in (tmp_path / "home/.config/neurotouch-hid/service.env").read_text()
     verify = _verify(systemd_analyze, unit)
     assert verify.returncode == 0 and not verify.stderr.strip(), verify.stderr

@@ -112,7 +112,7 @@ def test_a_bad_profile_lists_every_problem_with_file_line_field_value_and_expect
         "mappings.push.wobble": ("wobble:", "3", "known field"),
         "mappings.roll.output": ("ABS_ROLL", "'ABS_ROLL'", "'ABS_RX'"),
         "mappings.fire.release_mm": ("release_mm:", "2.0", "<= press_mm"),
-        "mappings.fire.mode": ("mode: sometimes", "'sometimes'", "'hold' or 'toggle'"),
+        "mappings.fire.mode": ("mode: sometimes", "'sometimes'", "'hold', 'toggle', 'long_press', 'double_press' or 'turbo'"),
     }
     for field, (needle, value, expectation) in expected.items():
         hits = [l for l in lines if f" {field}:" in l]

@@ -56,13 +56,14 @@ class OneEuroFilter:
 
 
 def response(magnitude_mm: float, deadzone_mm: float, saturation_mm: float, exponent: float = 1.0,
-             expo: float = 0.0, gain: float = 1.0) -> float:
+             expo: float = 0.0, gain: float = 1.0, anti_deadzone: float = 0.0) -> float:
     """The analogue response in [0, 1] to an input magnitude (mm, >= 0).
 
     0 up to the dead zone, 1 from the saturation on, in between
     ``t = (m - deadzone) / (saturation - deadzone)`` shaped by ``t ** exponent``, then the expo
-    ``(1 - expo) t + expo t^3`` (finer control near the centre), then ``min(gain * t, 1)``
-    (the paper, section "Gesture Classification and Intensity Prediction", suggests non-linear
+    ``(1 - expo) t + expo t^3`` (finer control near the centre), then ``min(gain * t, 1)``, then
+    the anti-deadzone ``a + (1 - a) t`` (any input past the dead zone gives at least ``a``, so a
+    game's own inner dead zone does not swallow it; 0 stays 0) (the paper, section "Gesture Classification and Intensity Prediction", suggests non-linear
     intensity profiles for applications). Non-finite magnitudes give 0.
     """
     if not math.isfinite(magnitude_mm) or magnitude_mm <= deadzone_mm:
@@ -70,4 +71,5 @@ def response(magnitude_mm: float, deadzone_mm: float, saturation_mm: float, expo
     t = min((magnitude_mm - deadzone_mm) / (saturation_mm - deadzone_mm), 1.0)
     t = t**exponent
     t = (1.0 - expo) * t + expo * t**3
-    return min(gain * t, 1.0)
+    t = min(gain * t, 1.0)
+    return anti_deadzone + (1.0 - anti_deadzone) * t if t > 0 else 0.0

@@ -1,8 +1,10 @@
 """GestureEstimate -> ControllerState through a profile (the mapping stage of docs/architecture.md).
 
 :class:`Mapper` is a pure function of the estimate and its own state (the 1-euro filters, the
-buttons' hysteresis and toggle states, the last time): the same estimates in give the same
-states out, whatever the clock. The input quantities are those of
+activators, the pointer's and wheels' sub-count remainders, the current layer): the same
+estimates in give the same states out, whatever the wall clock. Every time it uses is the
+estimates' camera clock (``t_us``, int64 us): a long press, a double press, turbo and the
+pointer's motion are table-testable. The input quantities are those of
 :mod:`neurotouch_hid.mapping.profile` (mm, user frame).
 """
 
@@ -12,11 +14,12 @@ import math
 
 import numpy as np
 
-from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
+from neurotouch_hid.controller import AXES, BUTTONS, MOUSE_REL, ControllerState
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.mapping.filters import OneEuroFilter, response
 from neurotouch_hid.mapping.profile import (
-    ANALOG_AXES, DPAD, STICKS, AxisMapping, ButtonMapping, OneEuroSmoothing, Profile, StickMapping,
+    ANALOG_AXES, BASE_LAYER, DPAD, STICKS, AxisMapping, ButtonMapping, LayerSwitch, OneEuroSmoothing, PointerMapping,
+    Profile, RelMapping, StickMapping,
 )
 
 _ZERO2 = np.zeros(2)
@@ -58,6 +61,13 @@ def gesture_inputs(estimate: GestureEstimate) -> dict[str, np.ndarray | float]:
     }
 
 
+#: Longest camera-time step (us) the pointer and wheels integrate over: a gap in the data (a
+#: dropped batch, a pause) must not turn into one long jump.
+MAX_MOTION_STEP_US = 100_000
+#: Hi-res wheel units per detent (the kernel's REL_WHEEL_HI_RES convention).
+HI_RES_PER_DETENT = 120
+
+
 def _filter_for(smoothing: OneEuroSmoothing | None) -> OneEuroFilter | None:
     if smoothing is None:
         return None
@@ -73,85 +83,225 @@ def _to_axis(name: str, value: float) -> int:
     return int(round(value * (high if value >= 0 else -low)))
 
 
-class _Digital:
-    """A button's hysteresis (press at >= press_mm, release at < release_mm) and toggle state."""
+class Activator:
+    """A button-like output's hysteresis and activator, on the camera clock.
 
-    def __init__(self, mapping: ButtonMapping) -> None:
-        self.mapping = mapping
-        self.pressed = False
-        self.toggled = False
+    The input is *held* from reaching ``press_mm`` (>=) until it falls below ``release_mm`` (<).
+    ``update(value_mm, t_us) -> bool`` is the output's state at ``t_us`` (int us, camera clock,
+    never decreasing) for the modes of :class:`~neurotouch_hid.mapping.profile.ButtonMapping`:
+    ``hold``, ``toggle``, ``long_press`` (down from ``dwell_ms`` after the hold began),
+    ``double_press`` (a second hold that starts within ``double_press_ms`` of the first one's
+    start is down while held), ``turbo`` (while held: down for the first half of each
+    ``1 / turbo_hz`` period, up for the second).
+    """
 
-    def update(self, value: float) -> bool:
-        was = self.pressed
-        if not self.pressed and value >= self.mapping.press_mm:
-            self.pressed = True
-        elif self.pressed and value < self.mapping.release_mm:
-            self.pressed = False
-        if self.mapping.mode == "toggle":
-            if self.pressed and not was:
-                self.toggled = not self.toggled
-            return self.toggled
-        return self.pressed
+    def __init__(self, mode: str = "hold", press_mm: float = 2.0, release_mm: float = 1.0, *,
+                 dwell_ms: float = 500.0, double_press_ms: float = 400.0, turbo_hz: float = 10.0) -> None:
+        self.mode = mode
+        self.press_mm, self.release_mm = press_mm, release_mm
+        self.dwell_us = int(round(dwell_ms * 1000))
+        self.double_us = int(round(double_press_ms * 1000))
+        self.half_period_us = 1e6 / (2.0 * turbo_hz)
+        self.held = False
+        self._since_us = 0          # start of the current hold
+        self._first_us: int | None = None  # start of a press that may be the first of a double
+        self._double = False        # the current hold is a double press's second
+        self._toggled = False
+
+    @classmethod
+    def of(cls, mapping: ButtonMapping | LayerSwitch) -> "Activator":
+        """The activator a mapping (or a layer switch) describes."""
+        if isinstance(mapping, LayerSwitch):
+            return cls(mapping.mode, mapping.press_mm, mapping.release_mm)
+        return cls(mapping.mode, mapping.press_mm, mapping.release_mm, dwell_ms=mapping.dwell_ms,
+                   double_press_ms=mapping.double_press_ms, turbo_hz=mapping.turbo_hz)
+
+    def update(self, value_mm: float, t_us: int) -> bool:
+        """The output's state for the input ``value_mm`` (mm) at ``t_us`` (us, camera clock)."""
+        t_us = int(t_us)
+        was = self.held
+        if not self.held and value_mm >= self.press_mm:
+            self.held, self._since_us = True, t_us
+        elif self.held and value_mm < self.release_mm:
+            self.held = False
+        pressed, released = self.held and not was, was and not self.held
+        mode = self.mode
+        if mode == "hold":
+            return self.held
+        if mode == "toggle":
+            if pressed:
+                self._toggled = not self._toggled
+            return self._toggled
+        if mode == "long_press":
+            return self.held and t_us - self._since_us >= self.dwell_us
+        if mode == "turbo":
+            return self.held and int((t_us - self._since_us) // self.half_period_us) % 2 == 0
+        # double_press
+        if pressed:
+            if self._first_us is not None and t_us - self._first_us <= self.double_us:
+                self._double, self._first_us = True, None
+            else:
+                self._first_us = t_us
+        if released:
+            self._double = False
+        return self.held and self._double
+
+
+class RelMotion:
+    """Velocity -> integer relative counts on the camera clock, keeping the fraction left over.
+
+    ``step(velocity, t_us)``: ``velocity`` in counts per second (pointer px/s, or wheel hi-res
+    1/120 detents per second); returns the whole counts moved since the previous step (the step
+    is capped at :data:`MAX_MOTION_STEP_US`; the first step moves nothing). A zero velocity
+    drops the remainder, so a stopped pointer never creeps.
+    """
+
+    def __init__(self) -> None:
+        self._t_us: int | None = None
+        self._rest = 0.0
+
+    def step(self, velocity: float, t_us: int) -> int:
+        t_us = int(t_us)
+        dt_us = 0 if self._t_us is None else min(max(t_us - self._t_us, 0), MAX_MOTION_STEP_US)
+        self._t_us = t_us
+        if velocity == 0 or not math.isfinite(velocity):
+            self._rest = 0.0
+            return 0
+        total = self._rest + velocity * dt_us * 1e-6
+        counts = int(total)  # towards zero
+        self._rest = total - counts
+        return counts
+
+
+class _Wheel:
+    """One wheel: hi-res counts (1/120 detent) and the legacy detents they cross."""
+
+    def __init__(self) -> None:
+        self.motion = RelMotion()
+        self._hi_res = 0  # hi-res units since the wheel started turning
+
+    def step(self, detents_per_s: float, t_us: int) -> tuple[int, int]:
+        """(hi-res units, whole detents) moved since the previous step."""
+        hi = self.motion.step(detents_per_s * HI_RES_PER_DETENT, t_us)
+        if detents_per_s == 0:
+            self._hi_res = 0
+            return 0, 0
+        before = self._hi_res
+        self._hi_res += hi
+        return hi, int(self._hi_res / HI_RES_PER_DETENT) - int(before / HI_RES_PER_DETENT)
 
 
 class Mapper:
     """Applies a profile to a stream of estimates.
 
-    ``update(estimate)`` returns the :class:`ControllerState` at ``estimate.t_us``: each mapping's
-    input (see :func:`gesture_inputs`) is smoothed (1-euro filter, if the mapping has one), then
-    shaped (dead zone, saturation, curve, gain, invert; :func:`~neurotouch_hid.mapping.filters.response`)
-    for sticks and axes, or passed through hysteresis and hold/toggle for buttons and d-pad
-    directions. Contributions to one axis add up and clamp; buttons are OR-ed; a stick's user
-    +y (up) becomes a negative evdev y.
+    ``update(estimate)`` returns the :class:`ControllerState` at ``estimate.t_us``: each mapping
+    of the current layer takes its input (see :func:`gesture_inputs`), smoothed (1-euro filter,
+    if the mapping has one), then shaped (dead zone, saturation, curve, gain, anti-deadzone,
+    invert; :func:`~neurotouch_hid.mapping.filters.response`) for sticks, axes, the pointer and
+    the wheels, or passed through its :class:`Activator` for button-like outputs. Contributions
+    to one axis add up and clamp; buttons and keys are OR-ed; a stick's user +y (up) becomes a
+    negative evdev y, the pointer's a negative REL_Y. Pointer and wheel velocities become counts
+    over the camera time since the last estimate (:class:`RelMotion`).
+
+    Layers: the profile's layer switches are evaluated first; the current layer is the first
+    (in file order) whose switch is on, else ``base``. When it changes, that update returns the
+    neutral state (everything of the old layer released, no motion) and every mapping starts
+    afresh; the new layer's mappings act from the next estimate on.
     """
 
     def __init__(self, profile: Profile) -> None:
         self.profile = profile
-        self._filters = {name: _filter_for(m.smoothing) for name, m in profile.mappings.items()}
-        self._digital = {name: _Digital(m) for name, m in profile.mappings.items() if isinstance(m, ButtonMapping)}
+        self._switches = {name: Activator.of(s) for name, s in profile.layers.items()}
+        self._switch_filters = {name: _filter_for(s.smoothing) for name, s in profile.layers.items()}
+        self.layer = BASE_LAYER
+        self._fresh_mappings()
+
+    def _fresh_mappings(self) -> None:
+        mappings = self.profile.mappings
+        self._filters = {name: _filter_for(m.smoothing) for name, m in mappings.items()}
+        self._activators = {name: Activator.of(m) for name, m in mappings.items() if isinstance(m, ButtonMapping)}
+        self._pointer = {"REL_X": RelMotion(), "REL_Y": RelMotion()}
+        self._wheels = {"REL_WHEEL": _Wheel(), "REL_HWHEEL": _Wheel()}
 
     def reset(self) -> None:
-        """Forget filters, hysteresis and toggles (the next update starts from scratch)."""
-        for f in self._filters.values():
-            if f is not None:
-                f.reset()
-        for name, d in self._digital.items():
-            self._digital[name] = _Digital(d.mapping)
+        """Forget filters, activators, motion remainders and layers (the next update starts from scratch)."""
+        self._switches = {name: Activator.of(s) for name, s in self.profile.layers.items()}
+        self._switch_filters = {name: _filter_for(s.smoothing) for name, s in self.profile.layers.items()}
+        self.layer = BASE_LAYER
+        self._fresh_mappings()
+
+    def _current_layer(self, inputs: dict, t_us: int) -> str:
+        layer = BASE_LAYER
+        for name, switch in self._switches.items():
+            value = inputs[self.profile.layers[name].input]
+            smoother = self._switch_filters[name]
+            if smoother is not None:
+                value = smoother(value, t_us)
+            if switch.update(float(value), t_us) and layer == BASE_LAYER:
+                layer = name
+        return layer
 
     def update(self, estimate: GestureEstimate) -> ControllerState:
         """The controller state for one estimate (axes clamped to their ranges)."""
+        t_us = int(estimate.t_us)
         inputs = gesture_inputs(estimate)
+        layer = self._current_layer(inputs, t_us)
+        if layer != self.layer:
+            self.layer = layer
+            self._fresh_mappings()
+            return ControllerState.neutral(t_us)
         analog = {name: 0.0 for name in ANALOG_AXES}
+        velocity = {name: 0.0 for name in ("REL_X", "REL_Y", "REL_WHEEL", "REL_HWHEEL")}
         hats = {"ABS_HAT0X": 0, "ABS_HAT0Y": 0}
         buttons = {name: False for name in BUTTONS}
+        keys: set[str] = set()
         for name, mapping in self.profile.mappings.items():
+            if mapping.layer != layer:
+                continue
             value = inputs[mapping.input]
             smoother = self._filters[name]
             if smoother is not None:
-                value = smoother(value, estimate.t_us)
-            if isinstance(mapping, StickMapping):
+                value = smoother(value, t_us)
+            if isinstance(mapping, (StickMapping, PointerMapping)):
                 vector = np.asarray(value, dtype=np.float64)
                 magnitude = float(np.hypot(*vector))
                 shaped = _shape(mapping, magnitude)
                 x, y = (vector / magnitude * shaped) if shaped > 0 else (0.0, 0.0)
-                axis_x, axis_y = STICKS[mapping.output]
-                analog[axis_x] += -x if mapping.invert_x else x
-                analog[axis_y] += y if mapping.invert_y else -y  # user +y (up) -> evdev -y
-            elif isinstance(mapping, AxisMapping):
+                x, y = (-x if mapping.invert_x else x), (-y if mapping.invert_y else y)
+                if isinstance(mapping, StickMapping):
+                    axis_x, axis_y = STICKS[mapping.output]
+                    analog[axis_x] += x
+                    analog[axis_y] += -y  # user +y (up) -> evdev -y
+                else:
+                    velocity["REL_X"] += x * mapping.speed
+                    velocity["REL_Y"] += -y * mapping.speed  # user +y (up) -> pointer up
+            elif isinstance(mapping, (AxisMapping, RelMapping)):
                 scalar = float(value)
                 shaped = math.copysign(_shape(mapping, abs(scalar)), scalar)
-                analog[mapping.output] += -shaped if mapping.invert else shaped
-            else:
-                if self._digital[name].update(float(value)):
-                    if mapping.output in DPAD:
-                        hat, direction = DPAD[mapping.output]
+                shaped = -shaped if mapping.invert else shaped
+                if isinstance(mapping, AxisMapping):
+                    analog[mapping.output] += shaped
+                else:
+                    up = -1.0 if mapping.output == "REL_Y" else 1.0  # user +y (up) -> pointer up
+                    velocity[mapping.output] += up * shaped * mapping.velocity_scale
+            elif self._activators[name].update(float(value), t_us):
+                for out in mapping.presses:
+                    if out in DPAD:
+                        hat, direction = DPAD[out]
                         hats[hat] += direction
+                    elif out in buttons:
+                        buttons[out] = True
                     else:
-                        buttons[mapping.output] = True
+                        keys.add(out)
         axes = {name: _to_axis(name, v) for name, v in analog.items()}
         axes.update({name: max(-1, min(1, v)) for name, v in hats.items()})
-        return ControllerState(t_us=int(estimate.t_us), axes=axes, buttons=buttons)
+        rel = {name: self._pointer[name].step(velocity[name], t_us) for name in ("REL_X", "REL_Y")}
+        for name, wheel in self._wheels.items():
+            rel[name + "_HI_RES"], rel[name] = wheel.step(velocity[name], t_us)
+        rel = {name: rel[name] for name in MOUSE_REL if rel[name]}
+        return ControllerState(t_us=t_us, axes=axes, buttons=buttons, keys=frozenset(keys), rel=rel)
 
 
-def _shape(mapping: StickMapping | AxisMapping, magnitude_mm: float) -> float:
-    return response(magnitude_mm, mapping.deadzone_mm, mapping.saturation, mapping.exponent, mapping.expo, mapping.gain)
+def _shape(mapping: StickMapping | AxisMapping | PointerMapping | RelMapping, magnitude_mm: float) -> float:
+    return response(magnitude_mm, mapping.deadzone_mm, mapping.saturation, mapping.exponent, mapping.expo,
+                    mapping.gain, mapping.anti_deadzone)

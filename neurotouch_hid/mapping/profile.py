@@ -33,6 +33,15 @@ the triggers ``ABS_Z``, ``ABS_RZ`` (0..255, only the positive side of the input)
 ``BTN_SOUTH`` .. ``BTN_THUMBR`` and the d-pad directions ``dpad_up``, ``dpad_down``,
 ``dpad_left``, ``dpad_right`` (ABS_HAT0X/Y). A stick's user +y (up) becomes evdev's negative y.
 Several mappings may drive one output: axis contributions add up (then clamp), buttons are OR-ed.
+``A``, ``B``, ``X``, ``Y`` are aliases of the face buttons (:data:`FACE_ALIASES`).
+
+Beside the pad (docs/profiles.md): keyboard keys (any evdev ``KEY_*`` name, or a chord such as
+``KEY_LEFTSHIFT+KEY_TAB``) and mouse buttons (``BTN_LEFT`` ...) are button-like outputs; the
+mouse's ``pointer`` (a vector input -> REL_X/REL_Y velocity), ``REL_X``, ``REL_Y``, ``REL_WHEEL``
+and ``REL_HWHEEL`` (a scalar -> velocity) are analogue ones. Every button-like output has an
+activator (``mode``: hold, toggle, long_press, double_press, turbo); every analogue output an
+anti-deadzone. A mapping may belong to a ``layer``; ``layers:`` says which gesture switches to
+each layer.
 
 The YAML is read with PyYAML's safe loader; the schema is pydantic v2 (``extra="forbid"``,
 strict types) and every problem is reported at once as one :class:`ProfileError`.
@@ -40,6 +49,7 @@ strict types) and every problem is reported at once as one :class:`ProfileError`
 
 from __future__ import annotations
 
+import functools
 import os
 from importlib import resources
 from pathlib import Path
@@ -48,9 +58,10 @@ from typing import Annotated, Any, Literal, Union
 import yaml
 from pydantic import (
     BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError, ValidationInfo, create_model, field_validator,
+    model_validator,
 )
 
-from neurotouch_hid.controller import BUTTONS
+from neurotouch_hid.controller import BUTTONS, MOUSE_BUTTONS
 from neurotouch_hid.errors import ProfileError
 
 #: The gel dome's radius (mm); the default saturation of the ``contact`` inputs.
@@ -74,7 +85,44 @@ DPAD: dict[str, tuple[str, int]] = {
     "dpad_left": ("ABS_HAT0X", -1), "dpad_right": ("ABS_HAT0X", 1),
 }
 DIGITAL_OUTPUTS: tuple[str, ...] = BUTTONS + tuple(DPAD)
-ALL_OUTPUTS: tuple[str, ...] = tuple(STICKS) + ANALOG_AXES + DIGITAL_OUTPUTS
+#: Face-button aliases -> evdev names (the kernel's gamepad.rst positions; xpad reports the Xbox
+#: pad's X button as BTN_X, which is the same code as BTN_NORTH, and Y as BTN_Y = BTN_WEST; SDL
+#: reads them as its x and y).
+FACE_ALIASES: dict[str, str] = {"A": "BTN_SOUTH", "B": "BTN_EAST", "X": "BTN_NORTH", "Y": "BTN_WEST"}
+#: The mouse's analogue outputs: ``pointer`` takes a vector input, the others a scalar.
+POINTER = "pointer"
+REL_OUTPUTS: tuple[str, ...] = ("REL_X", "REL_Y", "REL_WHEEL", "REL_HWHEEL")
+#: Default speeds at full deflection: pointer counts (px) per second, wheel detents per second.
+DEFAULT_POINTER_SPEED = 1000.0
+DEFAULT_WHEEL_SPEED = 8.0
+#: Button-like outputs with fixed names (keyboard keys, ``KEY_*``, come on top).
+BUTTON_LIKE: tuple[str, ...] = DIGITAL_OUTPUTS + tuple(FACE_ALIASES) + MOUSE_BUTTONS
+ALL_OUTPUTS: tuple[str, ...] = tuple(STICKS) + ANALOG_AXES + (POINTER,) + REL_OUTPUTS + BUTTON_LIKE
+#: The layer every mapping without ``layer:`` belongs to, active while no other layer is.
+BASE_LAYER = "base"
+#: Activators (``mode``) of button-like outputs.
+MODES: tuple[str, ...] = ("hold", "toggle", "long_press", "double_press", "turbo")
+#: Turbo's highest rate (Hz): one press and one release need two windows of 10 ms.
+MAX_TURBO_HZ = 50.0
+
+
+@functools.cache
+def keyboard_keys() -> frozenset[str]:
+    """Every evdev ``KEY_*`` name python-evdev knows (linux/input-event-codes.h)."""
+    from evdev import ecodes
+
+    return frozenset(name for name in ecodes.ecodes if name.startswith("KEY_") and name not in ("KEY_MAX", "KEY_CNT"))
+
+
+def key_chord(output: str) -> tuple[str, ...]:
+    """The evdev names a button-like output presses: a face alias resolved, a chord
+    (``KEY_LEFTSHIFT+KEY_TAB``) split in order."""
+    return tuple(FACE_ALIASES.get(part, part) for part in output.split("+"))
+
+
+def _expected_outputs() -> str:
+    return (", ".join(repr(o) for o in ALL_OUTPUTS)
+            + ", or an evdev key name such as 'KEY_SPACE' (several joined by '+': 'KEY_LEFTSHIFT+KEY_TAB')")
 
 #: The default virtual device: an Xbox 360 pad as SDL, Steam and browsers know it.
 DEFAULT_DEVICE_NAME = "Microsoft X-Box 360 pad"
@@ -98,13 +146,26 @@ class OneEuroSmoothing(_Strict):
     d_cutoff_hz: float = Field(1.0, gt=0, description="cut-off frequency of the speed estimate (Hz)")
 
 
-class _Analog(_Strict):
+class _Layered(_Strict):
+    layer: str = Field(BASE_LAYER, description="the layer this mapping belongs to (see layers:)")
+
+    @field_validator("layer")
+    @classmethod
+    def _known_layer(cls, value: str, info: ValidationInfo) -> str:
+        layers = (info.context or {}).get("layers")
+        if layers is not None and value != BASE_LAYER and value not in layers:
+            raise ValueError(f"'{BASE_LAYER}' or a layer named under layers: ({', '.join(layers) or 'none defined'})")
+        return value
+
+
+class _Analog(_Layered):
     """Response of an analogue output to an input's magnitude m (mm).
 
     ``t = clip((m - deadzone_mm) / (saturation_mm - deadzone_mm), 0, 1)`` (0 inside the dead zone,
     1 = full deflection from the saturation on), then the curve ``t ** exponent``, then the expo
-    ``(1 - expo) * t + expo * t ** 3``, then ``min(gain * t, 1)``; the sign (or a stick's
-    direction) is the input's. ``saturation_mm`` defaults to 30 mm (the gel radius) for the
+    ``(1 - expo) * t + expo * t ** 3``, then ``min(gain * t, 1)``, then the anti-deadzone
+    ``a + (1 - a) * t`` for t > 0 (a game's own inner dead zone then never swallows a gesture
+    past ours); the sign (or a stick's direction) is the input's. ``saturation_mm`` defaults to 30 mm (the gel radius) for the
     ``contact`` inputs and to 8 mm for the others.
     """
 
@@ -113,6 +174,7 @@ class _Analog(_Strict):
     exponent: float = Field(1.0, gt=0, le=10, description="response curve t ** exponent (1 = linear)")
     expo: float = Field(0.0, ge=0, le=1, description="expo blend (1 - e) t + e t^3 (0 = off)")
     gain: float = Field(1.0, gt=0, le=100, description="multiplies the shaped value (clipped to 1)")
+    anti_deadzone: float = Field(0.0, ge=0, lt=1, description="smallest non-zero output, as a fraction of full deflection")
     smoothing: OneEuroSmoothing | None = None
 
     @field_validator("saturation_mm")
@@ -148,19 +210,47 @@ class AxisMapping(_Analog):
     invert: bool = False
 
 
-class ButtonMapping(_Strict):
-    """A scalar input -> a button or d-pad direction, with hysteresis.
+class PointerMapping(_Analog):
+    """A vector input -> the mouse pointer's velocity (REL_X/REL_Y counts per second).
 
-    Pressed when the input reaches ``press_mm`` (>=), released when it falls below ``release_mm``
-    (<). ``mode: hold`` -> the output follows the pressed state; ``mode: toggle`` -> each press
-    flips the output.
+    The shaped magnitude (dead zone, curve, anti-deadzone acting radially, like a stick) times
+    ``speed`` is the pointer's speed in counts (px) per second at full deflection; user +y (up)
+    moves the pointer up (evdev's negative REL_Y).
     """
 
+    input: Literal[VECTOR_INPUTS]
+    output: Literal[(POINTER,)]
+    speed: float = Field(DEFAULT_POINTER_SPEED, gt=0, le=100_000, description="pointer counts per second at full deflection")
+    invert_x: bool = False
+    invert_y: bool = False
+
+
+class RelMapping(_Analog):
+    """A scalar input -> a relative axis' velocity: ``REL_X``/``REL_Y`` in pointer counts per
+    second, ``REL_WHEEL``/``REL_HWHEEL`` in wheel detents per second (written in hi-res 1/120
+    detents too). ``speed`` (default 1000 counts/s, 8 detents/s) is the velocity at full
+    deflection; +REL_WHEEL scrolls up, +REL_HWHEEL right, user +y of REL_Y moves up."""
+
     input: Literal[SCALAR_INPUTS]
-    output: Literal[DIGITAL_OUTPUTS]
+    output: Literal[REL_OUTPUTS]
+    speed: float | None = Field(None, gt=0, le=100_000, description="counts (px) or detents per second at full deflection")
+    invert: bool = False
+
+    @property
+    def velocity_scale(self) -> float:
+        """The effective speed: ``speed`` or the output's default."""
+        if self.speed is not None:
+            return self.speed
+        return DEFAULT_WHEEL_SPEED if "WHEEL" in self.output else DEFAULT_POINTER_SPEED
+
+
+class _Hysteresis(_Strict):
+    """Pressed when the input reaches ``press_mm`` (>=), released when it falls below
+    ``release_mm`` (<)."""
+
+    input: Literal[SCALAR_INPUTS]
     press_mm: float = Field(2.0, gt=0, description="input (mm) at or above which the button is pressed")
     release_mm: float = Field(1.0, gt=0, description="input (mm) below which it is released again")
-    mode: Literal["hold", "toggle"] = "hold"
     smoothing: OneEuroSmoothing | None = None
 
     @field_validator("release_mm")
@@ -172,13 +262,68 @@ class ButtonMapping(_Strict):
         return value
 
 
-_ANY_MAPPING_FIELDS = {**ButtonMapping.model_fields, **AxisMapping.model_fields, **StickMapping.model_fields}
+class ButtonMapping(_Hysteresis, _Layered):
+    """A scalar input -> a button-like output (pad button, d-pad direction, face alias A/B/X/Y,
+    mouse button, keyboard key or chord), through hysteresis and an activator.
+
+    The input is *held* from reaching ``press_mm`` (>=) until it falls below ``release_mm`` (<).
+    Activators (``mode``), all timed on the estimates' camera clock (us):
+
+    - ``hold``: the output is down while the input is held (a plain press);
+    - ``toggle``: each press flips the output;
+    - ``long_press``: down once the input has been held ``dwell_ms``, up when it is released
+      (a dwell: tremor shorter than that never fires);
+    - ``double_press``: down on a second press that starts within ``double_press_ms`` of the
+      first one's start, up when that press is released;
+    - ``turbo``: while held, down and up at ``turbo_hz`` (down first, half a period each).
+    """
+
+    output: Any
+    mode: Literal[MODES] = "hold"
+    dwell_ms: float = Field(500.0, gt=0, le=60_000, description="long_press: how long the input must be held (ms)")
+    double_press_ms: float = Field(400.0, gt=0, le=5_000, description="double_press: longest time between the two presses' starts (ms)")
+    turbo_hz: float = Field(10.0, gt=0, le=MAX_TURBO_HZ, description="turbo: presses per second")
+
+    @field_validator("output")
+    @classmethod
+    def _button_like(cls, value: Any) -> str:
+        if not isinstance(value, str):
+            raise ValueError(_expected_outputs())
+        parts = value.split("+")
+        for part in parts:
+            if part not in BUTTON_LIKE and part not in keyboard_keys():
+                raise ValueError(f"a pad button (BTN_SOUTH ... BTN_THUMBR, A, B, X, Y, dpad_*), a mouse button "
+                                 f"({', '.join(MOUSE_BUTTONS)}) or an evdev key name such as 'KEY_SPACE' "
+                                 f"(several joined by '+'); '{part}' is none of these")
+        if len(parts) > 1 and any(not p.startswith("KEY_") and p not in MOUSE_BUTTONS for p in parts):
+            raise ValueError("a chord of keyboard keys and mouse buttons only, such as 'KEY_LEFTSHIFT+KEY_TAB'")
+        return "+".join(FACE_ALIASES.get(p, p) for p in parts)
+
+    @property
+    def presses(self) -> tuple[str, ...]:
+        """The evdev names this mapping presses (:func:`key_chord`)."""
+        return key_chord(self.output)
+
+
+class LayerSwitch(_Hysteresis):
+    """The gesture that switches to a layer: ``mode: hold`` -> the layer is active while the input
+    is held (hysteresis as for buttons); ``mode: toggle`` -> each press turns it on or off."""
+
+    mode: Literal["hold", "toggle"] = "hold"
+
+_ANY_MAPPING_FIELDS = {**ButtonMapping.model_fields, **AxisMapping.model_fields, **StickMapping.model_fields,
+                       **PointerMapping.model_fields, **RelMapping.model_fields}
+def _no_such_output(cls, value: Any) -> Any:
+    raise ValueError(_expected_outputs())
+
+
 #: Chosen only when ``output`` names no known output: reports it with the valid names, and still
 #: checks every other field (known name, type, range) so that all problems show at once.
 _UnknownOutput = create_model(
     "_UnknownOutput", __base__=_Strict,
-    input=(Literal[VECTOR_INPUTS + SCALAR_INPUTS], ...), output=(Literal[ALL_OUTPUTS], ...),
+    input=(Literal[VECTOR_INPUTS + SCALAR_INPUTS], ...), output=(Any, ...),
     **{name: (f.annotation, f) for name, f in _ANY_MAPPING_FIELDS.items() if name not in ("input", "output")},
+    __validators__={"_unknown_output": field_validator("output")(_no_such_output)},
 )
 
 
@@ -190,7 +335,11 @@ def _output_kind(value: Any) -> str:
         return "stick"
     if output in ANALOG_AXES:
         return "axis"
-    if output in DIGITAL_OUTPUTS:
+    if output == POINTER:
+        return "pointer"
+    if output in REL_OUTPUTS:
+        return "rel"
+    if output in BUTTON_LIKE or output.startswith("KEY_") or "+" in output:
         return "button"
     return "unknown"
 
@@ -200,12 +349,15 @@ Mapping = Annotated[
         Annotated[StickMapping, Tag("stick")],
         Annotated[AxisMapping, Tag("axis")],
         Annotated[ButtonMapping, Tag("button")],
+        Annotated[PointerMapping, Tag("pointer")],
+        Annotated[RelMapping, Tag("rel")],
         Annotated[_UnknownOutput, Tag("unknown")],
     ],
     Discriminator(_output_kind),
 ]
 _TAG_MODELS: dict[str, type[BaseModel]] = {
-    "stick": StickMapping, "axis": AxisMapping, "button": ButtonMapping, "unknown": _UnknownOutput,
+    "stick": StickMapping, "axis": AxisMapping, "button": ButtonMapping, "pointer": PointerMapping,
+    "rel": RelMapping, "unknown": _UnknownOutput,
 }
 
 
@@ -218,12 +370,45 @@ class DeviceSpec(_Strict):
     version: int = Field(0x0114, ge=0, le=0xFFFF, description="device version")
 
 
+_Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")]
+
+
 class Profile(_Strict):
-    """A gamepad profile: the device to create and the named mappings (see the module doc)."""
+    """A profile: the pad to create, the layers and their switches, and the named mappings (see
+    the module doc). Keyboard and mouse devices exist only when a mapping uses them
+    (:attr:`uses_keyboard`, :attr:`uses_mouse`)."""
 
     description: str = ""
     device: DeviceSpec = DeviceSpec()
-    mappings: dict[Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")], Mapping] = Field(default_factory=dict)
+    layers: dict[_Name, LayerSwitch] = Field(default_factory=dict)
+    mappings: dict[_Name, Mapping] = Field(default_factory=dict)
+
+    @field_validator("layers")
+    @classmethod
+    def _not_base(cls, value: dict) -> dict:
+        if BASE_LAYER in value:
+            raise ValueError(f"layer names other than '{BASE_LAYER}' (the layer of mappings without layer:, always there)")
+        return value
+
+    @model_validator(mode="after")
+    def _layers_exist(self) -> "Profile":
+        unknown = sorted({m.layer for m in self.mappings.values() if m.layer != BASE_LAYER} - set(self.layers))
+        if unknown:
+            raise ValueError(f"every mapping's layer defined under layers: (missing: {', '.join(unknown)})")
+        return self
+
+    @property
+    def uses_keyboard(self) -> bool:
+        """A mapping presses a keyboard key."""
+        return any(isinstance(m, ButtonMapping) and any(p.startswith("KEY_") for p in m.presses)
+                   for m in self.mappings.values())
+
+    @property
+    def uses_mouse(self) -> bool:
+        """A mapping presses a mouse button or moves the pointer or a wheel."""
+        return any(isinstance(m, (PointerMapping, RelMapping))
+                   or (isinstance(m, ButtonMapping) and any(p in MOUSE_BUTTONS for p in m.presses))
+                   for m in self.mappings.values())
 
 
 # --- where profiles live ------------------------------------------------------------------------
@@ -300,8 +485,10 @@ def parse_profile(text: str, source: str | os.PathLike) -> Profile:
         raise ProfileError(f"{where}: not valid YAML: {problem}") from None
     if data is None:
         raise ProfileError(f"{source}:1: the profile is empty; expected a mapping with 'mappings:'")
+    layers = data.get("layers") if isinstance(data, dict) else None
+    context = {"layers": [str(k) for k in layers] if isinstance(layers, dict) else []}
     try:
-        return Profile.model_validate(data)
+        return Profile.model_validate(data, context=context)
     except ValidationError as exc:
         problems = [line for _, line in sorted((_describe(err, root, source) for err in exc.errors()), key=lambda p: p[0])]
         raise ProfileError(f"profile {source} is invalid ({len(problems)} problem{'s' * (len(problems) > 1)}):\n  " + "\n  ".join(problems)) from None
@@ -335,6 +522,8 @@ def _model_at(loc: tuple) -> type[BaseModel] | None:
         return Profile
     if parent[-1] in _TAG_MODELS:
         return _TAG_MODELS[parent[-1]]
+    if len(parent) == 2 and parent[0] == "layers":
+        return LayerSwitch
     return {"device": DeviceSpec, "smoothing": OneEuroSmoothing}.get(str(parent[-1]))
 
 

@@ -75,9 +75,10 @@ def sample_timeline(estimates: list[GestureEstimate], states: list[ControllerSta
 
 
 def pressed(state: ControllerState) -> list[str]:
-    """The buttons and d-pad directions (``dpad_up`` ...) pressed in ``state``, in DIGITAL_OUTPUTS order."""
+    """The buttons and d-pad directions (``dpad_up`` ...) pressed in ``state``, in DIGITAL_OUTPUTS
+    order, then the keyboard keys and mouse buttons that are down (sorted)."""
     return [name for name in DIGITAL_OUTPUTS
-            if (state.axes[DPAD[name][0]] == DPAD[name][1] if name in DPAD else state.buttons[name])]
+            if (state.axes[DPAD[name][0]] == DPAD[name][1] if name in DPAD else state.buttons[name])] + sorted(state.keys)
 
 
 @dataclass(frozen=True)
@@ -108,7 +109,7 @@ def summarise(states: list[ControllerState]) -> Summary:
             max_deflection[name] = max(max_deflection[name], abs(deflection(name, value)))
         now = set(pressed(state))
         for name in now - previous:
-            presses[name] += 1
+            presses[name] = presses.get(name, 0) + 1
         previous = now
     return Summary(max_deflection, presses)
 
@@ -142,6 +143,7 @@ def plot_timeline(estimates: list[GestureEstimate], states: list[ControllerState
         ax_axes.legend(loc="upper right", fontsize=7)
     down = [set(pressed(s)) for s in states]
     used = [name for name in DIGITAL_OUTPUTS if any(name in d for d in down)]
+    used += sorted(set().union(*down) - set(DIGITAL_OUTPUTS)) if down else []
     for k, name in enumerate(used):
         ax_btn.step(t, [k + 0.8 * (name in d) for d in down], where="post", lw=1)
     ax_btn.set_yticks(range(len(used)), used)

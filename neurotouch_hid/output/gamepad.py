@@ -4,6 +4,9 @@ Layout (docs/architecture.md, :mod:`neurotouch_hid.controller`): sticks ABS_X/Y/
 -32768..32767 (flat 128 like the kernel's xpad driver, but fuzz 0, see :data:`STICK_FUZZ`), triggers ABS_Z/RZ in 0..255,
 d-pad ABS_HAT0X/Y in -1..1, and the 11 buttons BTN_SOUTH .. BTN_THUMBR. Nothing mouse- or
 touch-like, so udev classes it as a joystick (ID_INPUT_JOYSTICK=1) and SDL as a GameController.
+Like xpad it advertises force feedback ``FF_RUMBLE`` (Wine and SDL offer rumble only then): a
+thread answers every effect upload and erase at once (the kernel blocks the game's EVIOCSFF
+until uinput answers) and reports uploads and plays to ``on_effect`` -- the gel has no motor.
 By default it presents itself as "Microsoft X-Box 360 pad", USB 045e:028e version 0x0114: the ids
 SDL's controller database maps without configuration.
 
@@ -17,11 +20,14 @@ Library: python-evdev's :class:`evdev.UInput` (kernel uinput, Documentation/inpu
 
 from __future__ import annotations
 
+import logging
 import os
+import select
 import stat
 import threading
 import time
 from dataclasses import dataclass
+from typing import Callable
 
 from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
 from neurotouch_hid.errors import DeviceError
@@ -40,7 +46,12 @@ STICK_FLAT = 128
 #: once a device is gone, evdev answers a reader's read() with ENODEV and drops what it had not
 #: read yet, so a game polling every frame must get the chance to read the release.
 RELEASE_GRACE_S = 0.05
+#: The same force-feedback report (e.g. "play effect 0") is passed to ``on_effect`` at most this often (s).
+EFFECT_REPEAT_S = 1.0
+#: Force-feedback effects the pad keeps at once (xpad's memless force feedback: FF_MEMLESS_EFFECTS).
+MAX_EFFECTS = 16
 _STICKS = ("ABS_X", "ABS_Y", "ABS_RX", "ABS_RY")
+log = logging.getLogger(__name__)
 _NAME_MAX = 79  # UINPUT_MAX_NAME_SIZE (80) minus the terminating NUL
 
 
@@ -76,7 +87,8 @@ def uinput_problem(devnode: str = "/dev/uinput") -> str | None:
 
 def capabilities() -> dict[int, list]:
     """python-evdev capability dict of the gamepad: EV_KEY with the 11 buttons, EV_ABS with the 8
-    axes and their AbsInfo (range, fuzz, flat). No EV_REL, no BTN_TOUCH/BTN_LEFT, no properties."""
+    axes and their AbsInfo (range, fuzz, flat), EV_FF with FF_RUMBLE (as xpad). No EV_REL, no
+    BTN_TOUCH/BTN_LEFT, no properties."""
     from evdev import AbsInfo, ecodes
 
     absinfo = []
@@ -84,7 +96,22 @@ def capabilities() -> dict[int, list]:
         fuzz, flat = (STICK_FUZZ, STICK_FLAT) if name in _STICKS else (0, 0)
         absinfo.append((ecodes.ecodes[name], AbsInfo(value=0, min=lo, max=hi, fuzz=fuzz,
                                                             flat=flat, resolution=0)))
-    return {ecodes.EV_KEY: [ecodes.ecodes[name] for name in BUTTONS], ecodes.EV_ABS: absinfo}
+    return {ecodes.EV_KEY: [ecodes.ecodes[name] for name in BUTTONS], ecodes.EV_ABS: absinfo,
+            ecodes.EV_FF: [ecodes.FF_RUMBLE]}
+
+
+def describe_effect(effect) -> str:
+    """One line for an uploaded force-feedback effect (python-evdev ``ff.Effect``): its id, type
+    and, for a rumble, the strong and weak motors' magnitudes (0..65535) and length (ms)."""
+    from evdev import ecodes
+
+    names = ecodes.FF.get(effect.type, f"type {effect.type}")
+    names = [names] if isinstance(names, str) else list(names)  # FF_RUMBLE is also FF_EFFECT_MIN
+    line = f"effect {effect.id}: {next((n for n in names if not n.startswith('FF_EFFECT_')), names[0])}"
+    if effect.type == ecodes.FF_RUMBLE:
+        rumble = effect.u.ff_rumble_effect
+        line += f" strong {rumble.strong_magnitude} weak {rumble.weak_magnitude}"
+    return line + f" for {effect.ff_replay.length} ms"
 
 
 def normalised(state: ControllerState) -> ControllerState:
@@ -108,6 +135,28 @@ def changed_events(previous: ControllerState | None, state: ControllerState) -> 
     return out
 
 
+def _begin_ff_request(ui, kind: str, request_id: int):
+    """UI_BEGIN_FF_UPLOAD / UI_BEGIN_FF_ERASE for the kernel's request ``request_id`` (the value of
+    its EV_UINPUT event); returns python-evdev's ``ff.UInputUpload`` / ``ff.UInputErase``, to be
+    answered with ``ui.end_upload`` / ``ui.end_erase``.
+
+    python-evdev 2.0's ``begin_upload(id)`` / ``begin_erase(id)`` store the id in ``effect_id``,
+    not ``request_id``, so they only work while the kernel's request is number 0; this fills
+    ``request_id`` and calls the same C helpers (``_uinput_begin_upload/erase``).
+    Raises UInputError when the kernel refuses."""
+    import ctypes
+
+    from evdev import UInputError, ff
+
+    request = ff.UInputUpload() if kind == "upload" else ff.UInputErase()
+    request.request_id = request_id
+    begin = ui.dll._uinput_begin_upload if kind == "upload" else ui.dll._uinput_begin_erase
+    ret = begin(ui.fd, ctypes.byref(request))
+    if ret:
+        raise UInputError(f"cannot begin the force-feedback {kind}: {os.strerror(ret)}")
+    return request
+
+
 class VirtualGamepad:
     """A uinput gamepad (Xbox 360 layout) that mirrors :class:`ControllerState` values.
 
@@ -120,8 +169,10 @@ class VirtualGamepad:
             commands that fix it.
     """
 
-    def __init__(self, identity: GamepadIdentity | None = None, devnode: str = "/dev/uinput") -> None:
+    def __init__(self, identity: GamepadIdentity | None = None, devnode: str = "/dev/uinput", *,
+                 on_effect: Callable[[str], None] | None = None) -> None:
         self.identity = identity or GamepadIdentity()
+        self.on_effect = on_effect or (lambda line: log.info("rumble (the gel has no motor): %s", line))
         if not 0 < len(self.identity.name.encode()) <= _NAME_MAX:
             raise DeviceError(f"gamepad name {self.identity.name!r} must be 1..{_NAME_MAX} bytes long")
         problem = uinput_problem(devnode)
@@ -134,14 +185,57 @@ class VirtualGamepad:
             self._ui = UInput(capabilities(), name=self.identity.name,
                               vendor=self.identity.vendor, product=self.identity.product,
                               version=self.identity.version, bustype=self.identity.bustype,
-                              devnode=devnode, phys=PHYS)
+                              devnode=devnode, phys=PHYS, max_effects=MAX_EFFECTS)
         except (OSError, UInputError) as exc:
             raise DeviceError(f"the kernel refused to create the virtual gamepad on {devnode}: "
                               f"{exc}: " + uinput_help()) from None
         self._lock = threading.RLock()
         self._last: ControllerState | None = None
         self._closed = False
+        self.effects = 0  # force-feedback requests answered (uploads, erases, plays)
+        self._ff_stop = threading.Event()
         self.write(ControllerState.neutral())
+        self._ff_thread = threading.Thread(target=self._answer_force_feedback, name="nt-rumble", daemon=True)
+        self._ff_thread.start()
+
+    def _answer_force_feedback(self) -> None:
+        """Thread: answer EV_UINPUT upload/erase requests at once (success), report plays."""
+        from evdev import UInputError, ecodes
+
+        fd = self._ui.fd
+        said, said_at = "", 0.0  # a game replaying one effect every frame is reported once a second
+        while not self._ff_stop.is_set():
+            try:
+                ready, _, _ = select.select([fd], [], [], 0.1)
+                if not ready:
+                    continue
+                events = list(self._ui.read())
+            except (OSError, ValueError):  # the device is being closed
+                return
+            for ev in events:
+                try:
+                    if ev.type == ecodes.EV_UINPUT and ev.code == ecodes.UI_FF_UPLOAD:
+                        upload = _begin_ff_request(self._ui, "upload", ev.value)
+                        upload.retval = 0
+                        line = "uploaded " + describe_effect(upload.effect)
+                        self._ui.end_upload(upload)
+                    elif ev.type == ecodes.EV_UINPUT and ev.code == ecodes.UI_FF_ERASE:
+                        erase = _begin_ff_request(self._ui, "erase", ev.value)
+                        erase.retval = 0
+                        line = f"erased effect {erase.effect_id}"
+                        self._ui.end_erase(erase)
+                    elif ev.type == ecodes.EV_FF and ev.code < MAX_EFFECTS:
+                        line = f"{'play' if ev.value else 'stop'} effect {ev.code}"
+                    else:
+                        continue
+                except (OSError, UInputError) as exc:
+                    log.warning("could not answer a force-feedback request: %s", exc)
+                    continue
+                self.effects += 1
+                now = time.monotonic()
+                if line != said or now - said_at >= EFFECT_REPEAT_S:
+                    said, said_at = line, now
+                    self.on_effect(line)
 
     @property
     def device_path(self) -> str | None:
@@ -192,6 +286,8 @@ class VirtualGamepad:
                 time.sleep(RELEASE_GRACE_S)
             finally:
                 self._closed = True
+                self._ff_stop.set()
+                self._ff_thread.join(1.0)
                 self._ui.close()
 
     def __enter__(self) -> "VirtualGamepad":

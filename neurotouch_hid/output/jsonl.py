@@ -122,7 +122,9 @@ class StateJsonlWriter(JsonlWriter):
     """Controller states as JSON lines (``neurotouch-hid run --output jsonl``), one per change.
 
     Each line: ``{"t_us": int, "gesture": str, "intensity_mm": float, "axes": {evdev name: int},
-    "buttons": {evdev name: bool}}``, every axis and button of :mod:`neurotouch_hid.controller`;
+    "buttons": {evdev name: bool}, "keys": [evdev name], "rel": {evdev name: int}}``, every axis
+    and button of the pad (:mod:`neurotouch_hid.controller`), the keyboard keys and mouse buttons
+    that are down (sorted) and the mouse motion of this step (non-zero codes only);
     ``gesture`` and ``intensity_mm`` are those of the window's estimate. :meth:`neutralise`
     writes a neutral line (gesture ``none``), so a stopped run always ends on one. Lines are
     flushed as written (another process reads them live).
@@ -149,6 +151,8 @@ class StateJsonlWriter(JsonlWriter):
             "intensity_mm": round(float(estimate.intensity_mm), 4) if estimate is not None else 0.0,
             "axes": {name: int(v) for name, v in state.axes.items()},
             "buttons": {name: bool(v) for name, v in state.buttons.items()},
+            "keys": sorted(state.keys),
+            "rel": {name: int(v) for name, v in state.rel.items()},
         })
 
     def neutralise(self) -> None:

@@ -102,6 +102,9 @@ def state_line(state: ControllerState, estimate: GestureEstimate | None, stats: 
             f"R({axis_fraction('ABS_RX', a['ABS_RX']):+.2f},{axis_fraction('ABS_RY', a['ABS_RY']):+.2f}) "
             f"LT {a['ABS_Z']:3d} RT {a['ABS_RZ']:3d} hat({a['ABS_HAT0X']:+d},{a['ABS_HAT0Y']:+d}) "
             f"buttons {pressed}")
+    if state.keys or state.rel:  # the keyboard and mouse, when the profile drives them
+        line += f" keys {','.join(sorted(state.keys)) or '-'}"
+        line += "".join(f" {name} {value:+d}" for name, value in state.rel.items())
     if stats is not None:
         line += f" | windows {stats.windows} dropped {stats.dropped_items}"
     return line
@@ -193,11 +196,19 @@ class TermView:
         else:
             gesture = Text(f"gesture {estimate.gesture.value:<10} intensity {estimate.intensity_mm:5.2f} mm"
                            f"  contacts {estimate.n_contacts}  {'resting' if estimate.resting else 'deformed'}")
+        desktop = Text()
+        if state.keys or state.rel:  # the keyboard and mouse, when the profile drives them
+            desktop.append("keys ", style="bold")
+            for key in sorted(state.keys):
+                desktop.append(f" {key.removeprefix('KEY_')} ", style="bold reverse magenta")
+                desktop.append(" ")
+            desktop.append("".join(f"  {name} {value:+d}" for name, value in state.rel.items()))
         counters = Text(f"t {state.t_us / 1e6:.3f} s", style="dim")
         if self.stats is not None:
             s = self.stats
             counters.append(f"   windows {s.windows}   dropped {s.dropped_items} items"
                             f" ({s.dropped_events} events, {s.dropped_frames} frames)",
                             style="bold red" if s.dropped_items else "dim")
-        return Panel(Group(pad, Text(""), buttons_text(state.buttons), gesture, counters),
+        rows = [pad, Text(""), buttons_text(state.buttons), *([desktop] if desktop else []), gesture, counters]
+        return Panel(Group(*rows),
                      title="NeuroTouch gamepad", expand=False)

@@ -10,6 +10,11 @@ to be plugged in (another process creates it, e.g. ``neurotouch-hid run --output
 what SDL reads (every controller axis and button, SDL's scale), until the controller is unplugged
 or SECONDS pass; last ``{"done": ...}``.
 
+``--rumble SECONDS``: like ``--watch``, but once the GameController is open, ask SDL whether it
+has rumble and play a rumble (SDL_GameControllerRumble: uploads an FF_RUMBLE effect and plays
+it); print one ``{"done": ...}`` line with ``has_rumble`` and ``rumble`` (True = SDL accepted
+it), SDL's error otherwise.
+
 Run with SDL_VIDEODRIVER=dummy.
 """
 
@@ -130,7 +135,39 @@ def watch(seconds: float) -> dict:
     return {"done": True, "removed": removed, "changes": samples, "error": None}
 
 
+def rumble(seconds: float) -> dict:
+    """``--rumble``: see the module docstring. Returns the ``done`` line."""
+    pygame, controller = start_sdl()
+    pygame.joystick.init()
+    say({"ready": True})
+    end = time.monotonic() + seconds
+    index = None
+    while index is None and time.monotonic() < end:
+        pygame.event.pump()
+        index = next((i for i in range(controller.get_count()) if controller.is_controller(i)), None)
+        time.sleep(0.01)
+    if index is None:
+        return {"done": True, "error": f"no GameController appeared within {seconds} s"}
+    ctl = controller.Controller(index)
+    joy = pygame.joystick.Joystick(index)
+    t0 = time.monotonic()
+    played = ctl.rumble(0.5, 1.0, 300)  # SDL_GameControllerRumble(ctl, 32767, 65535, 300 ms)
+    seconds_taken = round(time.monotonic() - t0, 2)
+    error = None if played else pygame.get_error()
+    ctl.stop_rumble()
+    return {"done": True, "is_controller": True, "controller_name": controller.name_forindex(index),
+            "joystick_name": joy.get_name(), "rumble": bool(played), "rumble_seconds": seconds_taken,
+            "sdl_error": error, "error": None}
+
+
 if __name__ == "__main__":
+    if sys.argv[1:2] == ["--rumble"]:
+        try:
+            out = rumble(float(sys.argv[2]))
+        except Exception as exc:
+            out = {"done": True, "error": f"{type(exc).__name__}: {exc}"}
+        say(out)
+        sys.exit(0)
     if sys.argv[1:2] == ["--watch"]:
         try:
             out = watch(float(sys.argv[2]))

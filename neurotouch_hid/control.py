@@ -1,0 +1,174 @@
+"""The running driver's control socket: ``neurotouch-hid profile use NAME`` switches its profile.
+
+The driver (:class:`~neurotouch_hid.runtime.Runtime`) listens on the Unix stream socket
+:func:`socket_path` (``$XDG_RUNTIME_DIR/neurotouch-hid.sock``: per user, on a tmpfs only that user
+can write). A request is one JSON line ``{"command": "use", "profile": NAME_OR_ABSOLUTE_PATH}``;
+the answer one JSON line ``{"ok": bool, "message": str}``. The driver loads the profile (a bad
+one is refused and nothing changes), neutralises every output, then maps with the new profile.
+
+Library: the standard library's :mod:`socket` (AF_UNIX); no D-Bus dependency.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import socket
+import threading
+from pathlib import Path
+from typing import Callable
+
+from neurotouch_hid.errors import NeurotouchError
+
+log = logging.getLogger(__name__)
+
+SOCKET_NAME = "neurotouch-hid.sock"
+#: Longest request or answer (bytes): a command and a profile path.
+MAX_MESSAGE = 8192
+#: How long the client waits for the driver's answer (s): loading a profile takes milliseconds.
+ANSWER_TIMEOUT_S = 10.0
+_ACCEPT_POLL_S = 0.2
+
+
+def socket_path() -> Path | None:
+    """``$XDG_RUNTIME_DIR/neurotouch-hid.sock``, or None when XDG_RUNTIME_DIR is not set."""
+    runtime_dir = os.environ.get("XDG_RUNTIME_DIR")
+    return Path(runtime_dir) / SOCKET_NAME if runtime_dir else None
+
+
+def _read_line(conn: socket.socket) -> bytes:
+    data = b""
+    while b"\n" not in data and len(data) < MAX_MESSAGE:
+        chunk = conn.recv(MAX_MESSAGE)
+        if not chunk:
+            break
+        data += chunk
+    return data.split(b"\n", 1)[0]
+
+
+class ControlServer:
+    """Serves :func:`socket_path` in a thread; ``use(profile) -> message`` does a switch and
+    raises NeurotouchError to refuse one (its message goes back to the client).
+
+    :meth:`start` returns False (and logs why) when there is no XDG_RUNTIME_DIR, the socket
+    cannot be made, or another running driver already serves it; the driver then runs without
+    a control socket. A stale socket file (nobody listening) is replaced.
+    """
+
+    def __init__(self, use: Callable[[str], str], path: Path | None = None) -> None:
+        self._use = use
+        self.path = path if path is not None else socket_path()
+        self._sock: socket.socket | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._inode: int | None = None
+
+    def start(self) -> bool:
+        if self.path is None:
+            log.info("XDG_RUNTIME_DIR is not set: no control socket, `profile use` cannot reach this driver")
+            return False
+        if self.path.exists():
+            with contextlib.suppress(OSError), socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as probe:
+                probe.connect(str(self.path))
+                log.warning("another neurotouch-hid driver serves %s: `profile use` switches that one", self.path)
+                return False
+            with contextlib.suppress(OSError):
+                self.path.unlink()
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            sock.bind(str(self.path))
+            os.chmod(self.path, 0o600)
+            sock.listen(4)
+        except OSError as exc:
+            sock.close()
+            log.warning("no control socket at %s (%s): `profile use` cannot reach this driver", self.path, exc.strerror)
+            return False
+        sock.settimeout(_ACCEPT_POLL_S)
+        self._sock, self._inode = sock, os.stat(self.path).st_ino
+        self._thread = threading.Thread(target=self._serve, name="nt-control", daemon=True)
+        self._thread.start()
+        return True
+
+    def _serve(self) -> None:
+        assert self._sock is not None
+        while not self._stop.is_set():
+            try:
+                conn, _ = self._sock.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            with conn:
+                try:
+                    conn.settimeout(ANSWER_TIMEOUT_S)
+                    answer = self._answer(_read_line(conn))
+                    conn.sendall(json.dumps(answer).encode() + b"\n")
+                except OSError as exc:
+                    log.warning("control socket: %s", exc)
+
+    def _answer(self, line: bytes) -> dict:
+        try:
+            request = json.loads(line)
+        except (ValueError, UnicodeDecodeError):
+            return {"ok": False, "message": "not a JSON request"}
+        if not isinstance(request, dict) or request.get("command") != "use" or not isinstance(request.get("profile"), str):
+            return {"ok": False, "message": 'expected {"command": "use", "profile": NAME}'}
+        try:
+            return {"ok": True, "message": self._use(request["profile"])}
+        except NeurotouchError as exc:
+            return {"ok": False, "message": str(exc)}
+        except Exception as exc:  # the driver keeps running; the client learns why
+            log.exception("profile switch failed")
+            return {"ok": False, "message": f"the driver could not switch: {type(exc).__name__}: {exc}"}
+
+    def stop(self) -> None:
+        """Stop serving and remove the socket file (if it is still ours)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(2.0)
+        if self._sock is not None:
+            self._sock.close()
+            with contextlib.suppress(OSError):
+                if self.path is not None and os.stat(self.path).st_ino == self._inode:
+                    self.path.unlink()
+            self._sock = None
+
+
+def request_use(profile: str, path: Path | None = None, timeout_s: float = ANSWER_TIMEOUT_S) -> str:
+    """Ask the running driver to switch to ``profile`` (a name, or a path made absolute here);
+    returns its one-line answer.
+
+    Raises:
+        NeurotouchError: no driver is running (no socket, or nobody listening), or the driver
+            refused (a missing or invalid profile: its message).
+    """
+    path = path if path is not None else socket_path()
+    if path is None:
+        raise NeurotouchError("no neurotouch-hid driver is running: XDG_RUNTIME_DIR is not set, so there is no "
+                              "control socket (start one with `neurotouch-hid run`)")
+    if os.sep in profile or profile.endswith((".yaml", ".yml")):
+        profile = str(Path(profile).resolve())
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
+        sock.settimeout(timeout_s)
+        try:
+            sock.connect(str(path))
+        except (FileNotFoundError, ConnectionRefusedError):
+            raise NeurotouchError(f"no neurotouch-hid driver is running (nothing listens on {path}); "
+                                  f"start one with `neurotouch-hid run --profile {profile}`") from None
+        except OSError as exc:
+            raise NeurotouchError(f"cannot reach the driver at {path}: {exc.strerror}") from None
+        try:
+            sock.sendall(json.dumps({"command": "use", "profile": profile}).encode() + b"\n")
+            line = _read_line(sock)
+        except OSError as exc:
+            raise NeurotouchError(f"the driver at {path} did not answer: {exc.strerror or exc}") from None
+    try:
+        answer = json.loads(line)
+        ok, message = bool(answer["ok"]), str(answer["message"])
+    except (ValueError, KeyError, TypeError):
+        raise NeurotouchError(f"the driver at {path} gave no valid answer") from None
+    if not ok:
+        raise NeurotouchError(message)
+    return message

@@ -1,0 +1,320 @@
+"""Guest checks of the keyboard and mouse outputs, layers, ``profile use`` and rumble in a real kernel.
+
+Run by tests/kernel/guest.py inside qemu (after checks_runtime.py: the name sorts after it, so
+the older checks get the boot's time first); asserted on by tests/test_remap_kernel.py. As in
+checks_runtime.py, the runtime is fed the pipeline's output (a predictions file) because the
+software-emulated guest cannot run the pipeline in real time; everything after it is real: the
+runtime's threads and pacing, the shipped profiles and the Mapper, the uinput keyboard, mouse and
+pad, the control socket, SIGTERM. Expected values come from the same estimates through the
+Mapper (``mapping.replay``) in the check's own process.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import guestlib
+from evdev import InputDevice, ecodes, list_devices
+
+from checks_runtime import _cli, _env, _gesture
+from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.output.desktop import KEYBOARD_PHYS, MOUSE_PHYS
+from neurotouch_hid.output.gamepad import PHYS
+
+REPO = Path(__file__).resolve().parent.parent.parent
+HERE = Path(__file__).resolve().parent
+TIMEOUT_S = 300
+G = GestureType
+#: Window length of the replayed estimates (us). 40 ms rather than the pipeline's 10: under
+#: software emulation, with other guests on the same two cores, the runtime's thread cannot map
+#: and write 100 windows a second and would drop data; the Mapper's timing (dwell, motion) is
+#: on the estimates' clock, so longer windows test the same behaviour.
+STEP_US = 40_000
+#: The names these checks use for the key codes they read (evdev gives several names per code).
+NAMES = {ecodes.ecodes[n]: n for n in ("KEY_SPACE", "KEY_TAB", "KEY_LEFTSHIFT", "KEY_ENTER", "KEY_ESC", "KEY_A", "KEY_B",
+                                        "KEY_LEFTCTRL", "BTN_LEFT", "BTN_RIGHT", "BTN_SOUTH")}
+
+
+def sequence(*steps: tuple[GestureType, float, float], lead_in_s: float = 1.0) -> list[GestureEstimate]:
+    """Rest ``lead_in_s``, then per step (gesture, level mm, hold s): ramp up 0.1 s, hold, ramp
+    down 0.1 s, rest 0.4 s; :data:`STEP_US` windows."""
+    out: list[GestureEstimate] = []
+    t = 1_000_000
+
+    def add(seconds: float, gesture: GestureType, level) -> None:
+        nonlocal t
+        n = max(1, int(round(seconds * 1e6 / STEP_US)))
+        for k in range(n):
+            out.append(_gesture(t, gesture, level((k + 1) / n)))
+            t += STEP_US
+
+    add(lead_in_s, G.NONE, lambda f: 0.0)
+    for gesture, mm, hold_s in steps:
+        add(0.1, gesture, lambda f: mm * f)
+        add(hold_s, gesture, lambda f: mm)
+        add(0.1, gesture, lambda f: mm * (1 - f))
+        add(0.4, G.NONE, lambda f: 0.0)
+    return out
+
+
+def _write_preds(folder: Path, estimates: list[GestureEstimate]) -> Path:
+    from neurotouch_hid.output.jsonl import write_predictions
+
+    path = folder / "gestures.jsonl"
+    write_predictions(path, estimates)
+    return path
+
+
+class Watcher:
+    """Reads one of our devices in a thread: every (type, code, value) and its pressed keys."""
+
+    def __init__(self, path: str):
+        self.reader = guestlib.EventReader(path)
+        self.events: list[tuple[int, int, int]] = []
+        self.error: str | None = None
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self._loop, daemon=True)
+        self.thread.start()
+
+    def _loop(self) -> None:
+        seen = 0
+        while not self._stop.is_set() and not self.reader.gone:
+            self.reader.pump(timeout_s=0.2, until=lambda r: len(r.reports) > seen or self._stop.is_set())
+            for report in self.reader.reports[seen:]:
+                for event in report:
+                    if event[0] == ecodes.EV_SYN and event[1] == ecodes.SYN_DROPPED:
+                        self.error = "the reader lost events (SYN_DROPPED)"
+                    self.events.append(event)
+            seen = len(self.reader.reports)
+
+    def total(self, code: int) -> int:
+        return sum(v for t, c, v in self.events if t == ecodes.EV_REL and c == code)
+
+    def keys_log(self) -> list[tuple[str, int]]:
+        """Every key event as (evdev name, value), in order."""
+        return [(NAMES.get(c, str(c)), v) for t, c, v in self.events if t == ecodes.EV_KEY]
+
+    @property
+    def pressed(self) -> set[int]:
+        return set(self.reader.keys)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self.thread.join(10)
+        self.reader.close()
+        assert self.error is None, self.error
+
+
+def _devices(phys: str) -> list[str]:
+    found = []
+    for path in list_devices():
+        try:
+            if InputDevice(path).phys == phys:
+                found.append(path)
+        except OSError:
+            pass
+    return found
+
+
+def _expected(profile: str, estimates: list[GestureEstimate]):
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.mapping.replay import replay
+
+    return replay(load_profile(profile), estimates)
+
+
+def _run_in_process(profile: str, estimates: list[GestureEstimate], folder: Path) -> tuple[dict[str, Watcher], object, dict]:
+    """The runtime (paced, its threads) with the devices ``open_output`` makes for ``profile``;
+    a watcher on each device before the run starts."""
+    import contextlib
+
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.runtime import open_output, run_driver
+
+    preds = _write_preds(folder, estimates)
+    with contextlib.ExitStack() as stack:
+        outputs = open_output("gamepad", load_profile(profile), stack)
+        guestlib.settle()
+        props = {d.what: guestlib.udev_properties(d.device_path) for d in outputs.devices if hasattr(d, "what")}
+        watchers = {"pad": Watcher(outputs.pad.device_path)}
+        for device in (outputs.keyboard, outputs.mouse):
+            if device is not None:
+                watchers[device.what] = Watcher(device.device_path)
+        stats = run_driver(str(preds), profile, "gamepad", output_obj=outputs)
+    time.sleep(0.3)
+    for w in watchers.values():
+        w.stop()
+    return watchers, stats, props
+
+
+def check_mouse_profile_moves_the_pointer() -> dict:
+    """``run --profile mouse`` on a push up and to the right: the uinput mouse reports REL_X and
+    REL_Y motion, exactly the counts the Mapper gives for the same estimates; a pinch clicks
+    BTN_LEFT and releases it; a twist scrolls with hi-res and legacy wheel events; udev calls it a
+    mouse; the pad is there and no keyboard (the profile uses none)."""
+    folder = Path(tempfile.mkdtemp(prefix="remap-mouse-"))
+    estimates = sequence((G.PUSH, 6.0, 0.8), (G.PINCH, 4.0, 0.2), (G.TWIST_CCW, 6.0, 0.8))
+    watchers, stats, props = _run_in_process("mouse", estimates, folder)
+    assert set(watchers) == {"pad", "mouse"}, f"devices made: {sorted(watchers)}"
+    mouse = watchers["mouse"]
+    states = _expected("mouse", estimates)
+    want = {name: sum(s.rel.get(name, 0) for s in states) for name in ("REL_X", "REL_Y", "REL_WHEEL", "REL_WHEEL_HI_RES")}
+    got = {name: mouse.total(ecodes.ecodes[name]) for name in want}
+    assert stats.dropped_items == 0, f"the runtime dropped {stats.dropped_items} items"
+    assert got == want, f"read back {got}, the Mapper gives {want}"
+    assert got["REL_X"] > 50 and got["REL_Y"] < -10, got  # right and up (screen y grows downwards)
+    assert got["REL_WHEEL"] >= 1 and got["REL_WHEEL_HI_RES"] >= 120, got
+    clicks = mouse.keys_log()
+    assert clicks == [("BTN_LEFT", 1), ("BTN_LEFT", 0)], clicks
+    assert not mouse.pressed
+    assert props["mouse"].get("ID_INPUT_MOUSE") == "1", props["mouse"]
+    return {"rel": got, "clicks": clicks, "ID_INPUT_MOUSE": props["mouse"].get("ID_INPUT_MOUSE"),
+            "windows": stats.windows}
+
+
+def check_switch_access_presses_and_releases_keys() -> dict:
+    """``run --profile switch-access``: each held gesture presses its key after the dwell and
+    releases it (push Space, twist_cw Tab, twist_ccw Shift+Tab, pinch Enter, zoom Escape); a short
+    brush fires nothing; the key log is the Mapper's; udev calls the device a keyboard."""
+    folder = Path(tempfile.mkdtemp(prefix="remap-switch-"))
+    estimates = sequence((G.PUSH, 4.0, 0.1),  # shorter than the dwell: nothing
+                         (G.PUSH, 4.0, 0.6), (G.TWIST_CW, 4.0, 0.6), (G.TWIST_CCW, 4.0, 0.6),
+                         (G.PINCH, 4.0, 0.6), (G.ZOOM, 4.0, 0.6))
+    watchers, stats, props = _run_in_process("switch-access", estimates, folder)
+    assert set(watchers) == {"pad", "keyboard"}, f"devices made: {sorted(watchers)}"
+    keyboard = watchers["keyboard"]
+    log = keyboard.keys_log()
+    want = [("KEY_SPACE", 1), ("KEY_SPACE", 0), ("KEY_TAB", 1), ("KEY_TAB", 0),
+            ("KEY_LEFTSHIFT", 1), ("KEY_TAB", 1), ("KEY_TAB", 0), ("KEY_LEFTSHIFT", 0),
+            ("KEY_ENTER", 1), ("KEY_ENTER", 0), ("KEY_ESC", 1), ("KEY_ESC", 0)]
+    assert stats.dropped_items == 0, f"the runtime dropped {stats.dropped_items} items"
+    assert log == want, f"key log {log}"
+    assert not keyboard.pressed
+    assert props["keyboard"].get("ID_INPUT_KEYBOARD") == "1", props["keyboard"]
+    return {"keys": log, "ID_INPUT_KEYBOARD": props["keyboard"].get("ID_INPUT_KEYBOARD"), "windows": stats.windows}
+
+
+LAYERED = """\
+description: guest check of layers and profile use
+layers:
+  alt: {input: pinch, mode: toggle, press_mm: 2.0, release_mm: 1.0}
+mappings:
+  latch: {input: zoom, output: KEY_A, mode: toggle, press_mm: 2.0, release_mm: 1.0}
+  click: {input: zoom, output: BTN_RIGHT, mode: toggle, press_mm: 2.0, release_mm: 1.0}
+  enter: {input: push_intensity, output: KEY_ENTER, layer: alt, press_mm: 2.0, release_mm: 1.0}
+  fire: {input: push_intensity, output: BTN_SOUTH, layer: alt, press_mm: 2.0, release_mm: 1.0}
+"""
+
+#: The profile switched to mid-push: the same push then holds something on every device.
+EVERYTHING = """\
+description: guest check - one push holds something on every device
+mappings:
+  key: {input: push_intensity, output: KEY_LEFTCTRL+KEY_B, mode: long_press, dwell_ms: 200}
+  button: {input: push_intensity, output: BTN_LEFT}
+  pad: {input: push_intensity, output: A}
+  stick: {input: push, output: left_stick}
+  pointer: {input: push, output: pointer}
+"""
+
+
+def _start_run(preds: Path, profile: Path, env: dict) -> tuple[subprocess.Popen, dict[str, Watcher]]:
+    """``neurotouch-hid run --output gamepad`` in its own process; a watcher on each of its devices."""
+    before = {phys: set(_devices(phys)) for phys in (PHYS, KEYBOARD_PHYS, MOUSE_PHYS)}
+    proc = subprocess.Popen(_cli("run", "--source", str(preds), "--profile", str(profile), "--output", "gamepad"),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=str(REPO))
+    new = lambda phys: sorted(set(_devices(phys)) - before[phys])  # noqa: E731
+    found = guestlib.wait_for(lambda: (new(PHYS) and new(KEYBOARD_PHYS) and new(MOUSE_PHYS)) or proc.poll() is not None,
+                              150.0, 0.05)
+    assert found and proc.poll() is None, f"the devices did not appear: {proc.stderr.read()[-2000:] if proc.poll() is not None else 'timeout'}"
+    watchers = {"pad": Watcher(new(PHYS)[0]), "keyboard": Watcher(new(KEYBOARD_PHYS)[0]), "mouse": Watcher(new(MOUSE_PHYS)[0])}
+    return proc, watchers
+
+
+def check_layer_switch_profile_use_and_sigterm_leave_nothing_pressed() -> dict:
+    """``neurotouch-hid run``: a zoom latches KEY_A and BTN_RIGHT (toggles) in the base layer; a
+    pinch switches to layer ``alt``: both are released before anything of ``alt`` is pressed. In
+    ``alt`` a held push presses KEY_ENTER and the pad's A; ``profile use`` (the control socket,
+    as the CLI sends it) switches to a profile file mid-push: both are released at once, then the
+    new profile holds a Ctrl+B chord, BTN_LEFT, A and the stick with the same push. SIGTERM:
+    exit 0, nothing pressed on any device, the stick centred, every device gone."""
+    from neurotouch_hid.control import SOCKET_NAME, request_use
+
+    folder = Path(tempfile.mkdtemp(prefix="remap-layers-"))
+    runtime_dir = folder / "xdg"
+    runtime_dir.mkdir(mode=0o700)
+    env = dict(_env(), XDG_RUNTIME_DIR=str(runtime_dir))
+    profile, everything = folder / "layered.yaml", folder / "everything.yaml"
+    profile.write_text(LAYERED)
+    everything.write_text(EVERYTHING)
+    preds = _write_preds(folder, sequence((G.ZOOM, 4.0, 0.3), (G.PINCH, 4.0, 0.3), (G.PUSH, 4.0, 120.0), lead_in_s=4.0))
+    proc, w = _start_run(preds, profile, env)
+    codes = ecodes.ecodes
+    chord = {codes["KEY_LEFTCTRL"], codes["KEY_B"]}
+    try:
+        # the latch lasts well under a second of a slow guest: judged from the event logs, not polled
+        held = guestlib.wait_for(lambda: codes["KEY_ENTER"] in w["keyboard"].pressed and codes["BTN_SOUTH"] in w["pad"].pressed, 90.0)
+        assert held, f"the push in layer alt pressed nothing: {w['keyboard'].keys_log()} {w['pad'].keys_log()}"
+        before_use = {"keyboard": w["keyboard"].keys_log(), "mouse": w["mouse"].keys_log()}
+        answer = request_use(str(everything), path=runtime_dir / SOCKET_NAME)  # what `profile use FILE` sends
+        all_held = guestlib.wait_for(lambda: chord <= w["keyboard"].pressed and codes["BTN_LEFT"] in w["mouse"].pressed
+                                     and codes["BTN_SOUTH"] in w["pad"].pressed
+                                     and w["pad"].reader.axes.get(ecodes.ABS_X, 0) > 0, 30.0)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+        guestlib.wait_for(lambda: all(x.reader.gone for x in w.values()), 10.0)
+        time.sleep(0.2)
+        for watcher in w.values():
+            watcher.stop()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    kb_log, pad_log = w["keyboard"].keys_log(), w["pad"].keys_log()
+    # the zoom latched KEY_A and BTN_RIGHT; the layer switch released both before alt pressed KEY_ENTER
+    assert before_use == {"keyboard": [("KEY_A", 1), ("KEY_A", 0), ("KEY_ENTER", 1)],
+                          "mouse": [("BTN_RIGHT", 1), ("BTN_RIGHT", 0)]}, before_use
+    # profile use released KEY_ENTER and A before the new profile pressed anything (A again, the chord)
+    assert kb_log[3:6] == [("KEY_ENTER", 0), ("KEY_LEFTCTRL", 1), ("KEY_B", 1)], kb_log
+    assert pad_log[:3] == [("BTN_SOUTH", 1), ("BTN_SOUTH", 0), ("BTN_SOUTH", 1)], pad_log
+    assert all_held, f"the new profile did not hold something on every device: {kb_log} {w['mouse'].keys_log()} {pad_log}"
+    assert proc.returncode == 0, f"exit code {proc.returncode}: {err[-2000:]}"
+    leftover = {name: sorted(watcher.pressed) for name, watcher in w.items() if watcher.pressed}
+    assert not leftover, f"after SIGTERM still pressed: {leftover}"
+    assert w["pad"].reader.axes.get(ecodes.ABS_X) == 0, w["pad"].reader.axes
+    assert kb_log[-2:] == [("KEY_B", 0), ("KEY_LEFTCTRL", 0)], kb_log  # the chord's modifier goes up last
+    gone = [p for phys in (PHYS, KEYBOARD_PHYS, MOUSE_PHYS) for p in _devices(phys)]
+    assert not gone, f"devices outlived the process: {gone}"
+    return {"keyboard": kb_log, "mouse": w["mouse"].keys_log(), "pad": pad_log, "profile_use": answer,
+            "exit_code": proc.returncode, "pointer_x": w["mouse"].total(ecodes.REL_X)}
+
+
+def check_sdl_sees_a_gamecontroller_with_rumble() -> dict:
+    """SDL2 opens the virtual pad (made as ``run --output gamepad`` makes it, in this process) as a
+    GameController, says it has rumble and plays one: the pad answers the effect upload at once
+    and reports the upload and the play (``on_effect``, which ``run`` prints on stderr)."""
+    from neurotouch_hid.output.gamepad import GamepadIdentity, VirtualGamepad
+
+    said: list[str] = []
+    sdl_env = dict(os.environ, SDL_VIDEODRIVER="dummy", SDL_AUDIODRIVER="dummy", PYGAME_HIDE_SUPPORT_PROMPT="1",
+                   PYTHONPATH=os.pathsep.join(sys.path))
+    with VirtualGamepad(GamepadIdentity(), on_effect=said.append) as pad:
+        guestlib.settle()
+        probe = subprocess.run([sys.executable, str(HERE / "sdl_probe.py"), "--rumble", "120"], capture_output=True,
+                               text=True, env=sdl_env, timeout=250)
+        effects = pad.effects
+    lines = [json.loads(line) for line in probe.stdout.splitlines() if line.startswith("{")]
+    done = next((line for line in lines if line.get("done")), None)
+    assert done is not None, f"sdl_probe gave no result: {probe.stdout[-1000:]} {probe.stderr[-2000:]}"
+    assert done.get("error") is None, done
+    assert done["is_controller"], done
+    assert done["rumble"], f"SDL could not rumble: {done}"
+    assert any(line.startswith("uploaded effect") and "FF_RUMBLE" in line for line in said), said
+    assert any(line.startswith("play effect") for line in said), said
+    return {**done, "pad_said": said[:6], "requests_answered": effects}

@@ -1,0 +1,138 @@
+"""``profile use``: the control socket between the CLI and a running driver (real Unix sockets,
+the real runtime with small fakes for the pipeline and the output), and the runtime's handling of
+the keyboard and mouse states (motion always written, keys compared)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from neurotouch_hid.control import ControlServer, request_use, socket_path
+from neurotouch_hid.errors import NeurotouchError, ProfileError
+from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.runtime import Runtime
+
+from test_runtime import FakeMapper, FakePipeline, RecordingOutput, endless, writes_of
+
+
+@pytest.fixture
+def runtime_dir(tmp_path, monkeypatch):
+    folder = tmp_path / "run"
+    folder.mkdir(mode=0o700)
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(folder))
+    return folder
+
+
+def _cli(*args, env=None):
+    return subprocess.run([sys.executable, "-m", "neurotouch_hid.cli", *args], capture_output=True, text=True,
+                          env=env, timeout=120)
+
+
+def test_profile_use_without_a_driver_says_so_in_one_line_exit_2(runtime_dir):
+    proc = _cli("profile", "use", "mouse", env=dict(os.environ))
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "no neurotouch-hid driver is running" in lines[0] and "Traceback" not in proc.stderr
+    env = {k: v for k, v in os.environ.items() if k != "XDG_RUNTIME_DIR"}
+    proc = _cli("profile", "use", "mouse", env=env)
+    assert proc.returncode == 2 and "XDG_RUNTIME_DIR is not set" in proc.stderr
+
+
+def test_a_stale_socket_file_counts_as_no_driver_and_is_replaced(runtime_dir):
+    import socket
+
+    stale = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    stale.bind(str(socket_path()))
+    stale.close()  # the file stays, nobody listens
+    with pytest.raises(NeurotouchError, match="no neurotouch-hid driver is running"):
+        request_use("mouse")
+    server = ControlServer(lambda ref: f"switched to {ref}")
+    assert server.start()
+    try:
+        assert request_use("mouse") == "switched to mouse"
+    finally:
+        server.stop()
+    assert not socket_path().exists()
+
+
+def test_a_second_driver_leaves_the_first_ones_socket_alone(runtime_dir):
+    first, second = ControlServer(lambda ref: "first"), ControlServer(lambda ref: "second")
+    assert first.start()
+    try:
+        assert not second.start()
+        assert request_use("x") == "first"
+    finally:
+        second.stop()
+        first.stop()
+
+
+def test_profile_use_switches_a_running_runtime_outputs_neutral_first(runtime_dir):
+    loads = []
+
+    def loader(ref):
+        loads.append(ref)
+        if ref == "broken":
+            raise ProfileError("profile broken.yaml is invalid (1 problem):\n  broken.yaml:2: ...")
+        return {"sign": -1}
+
+    out = RecordingOutput()
+    rt = Runtime(endless(), FakePipeline(push_batches=10**9), {"sign": 1}, out, mapper_factory=FakeMapper,
+                 pace=True, profile_loader=loader, control=True)
+    answers: dict = {}
+
+    def client():
+        assert wait_for_socket()
+        with pytest.raises(NeurotouchError) as bad:
+            request_use("broken")
+        answers["bad"] = str(bad.value)
+        answers["ok"] = request_use("mine")
+        time.sleep(0.2)
+        rt.stop()
+
+    thread = threading.Thread(target=client)
+    thread.start()
+    rt.run()
+    thread.join(10)
+    assert "broken.yaml:2" in answers["bad"] and answers["ok"] == "switched to profile mine"
+    assert loads == ["broken", "mine"] and rt.profile == {"sign": -1}
+    kinds = [k for k, _ in out.calls]
+    i = kinds.index("neutralise")
+    before, after = writes_of(out.calls[:i]), writes_of(out.calls[i + 1:])
+    assert before and after and all(s.axes["ABS_X"] > 0 for s in before) and all(s.axes["ABS_X"] < 0 for s in after)
+    assert not socket_path().exists()  # removed when the run ended
+
+
+def wait_for_socket(timeout_s: float = 5.0) -> bool:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if socket_path().exists():
+            return True
+        time.sleep(0.02)
+    return False
+
+
+def test_mouse_profile_run_writes_every_motion_and_ends_neutral(tmp_path, runtime_dir):
+    """``run --profile mouse --output jsonl`` on a push: one line per window with motion, the
+    pointer moving right and up, the last line neutral with no motion."""
+    from neurotouch_hid.output.jsonl import write_predictions
+    from neurotouch_hid.runtime import run_driver
+    from test_runtime import read_states
+
+    estimates = [GestureEstimate(t_us=1_000_000 + 10_000 * k, gesture=GestureType.PUSH, resting=False,
+                                 intensity_mm=6.0, translation_mm=np.array([3.0, 3.0])) for k in range(50)]
+    estimates += [GestureEstimate(t_us=1_500_000 + 10_000 * k) for k in range(10)]
+    preds = tmp_path / "p.jsonl"
+    write_predictions(preds, estimates)
+    out = tmp_path / "states.jsonl"
+    run_driver(str(preds), "mouse", "jsonl", fast=True, out=out)
+    lines = read_states(out.read_text())
+    moving = [d for d in lines if d["rel"]]
+    assert len(moving) > 30
+    assert sum(d["rel"].get("REL_X", 0) for d in lines) > 100 and sum(d["rel"].get("REL_Y", 0) for d in lines) < -100
+    assert lines[-1]["rel"] == {} and lines[-1]["keys"] == []
