@@ -140,6 +140,10 @@ def simulate(
     noise_hz: float = typer.Option(
         0.1, "--noise-hz",
         help="background-activity noise per pixel (Hz): 0.1 a DAVIS-346 in good light, a few Hz in dim light"),
+    physics: str = typer.Option(
+        "default", "--physics",
+        help="gel and camera family: default, powerlaw, stickslip, indent, camera, drift, fingers, strong, markers, "
+             "noise, flicker, or mix (one family per sequence); see docs/accuracy.md"),
 ) -> None:
     """Simulate the NeuroTouch gel and write a labelled dataset (DATASET.md)."""
     from neurotouch_hid.sources.simulator import write_dataset
@@ -151,7 +155,7 @@ def simulate(
         except ValueError:
             raise NeurotouchError(f"--users: expected comma-separated user ids 0-9, got {users!r}") from None
     folder = write_dataset(out, preset=preset, seed=seed, minutes=minutes, users=user_ids, progress=True,
-                           noise_hz=noise_hz)
+                           noise_hz=noise_hz, physics=physics)
     console.print(f"wrote {folder}")
 
 
