@@ -132,7 +132,7 @@ def local_maxima(points_px: np.ndarray, magnitudes: np.ndarray, r_px: float, n_m
     return _local_maxima(points_px, magnitudes, float(r_px) * float(r_px), int(n_min))
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _local_maxima(points_px: np.ndarray, magnitudes: np.ndarray, r2: float, n_min: int) -> np.ndarray:
     """:func:`local_maxima` with ``r2`` = r^2 (px^2): one O(M^2) pass without NumPy's (M, M)
     temporaries."""
@@ -211,7 +211,7 @@ def _refine_peak(rest: np.ndarray, v: np.ndarray, norms: np.ndarray, peak: int, 
     return rest[peak] + (tx, ty) + basis @ coef[:, 1:]
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _fit_inputs(rest: np.ndarray, v: np.ndarray, norms: np.ndarray, peak: int, r2: float) -> tuple[np.ndarray, np.ndarray]:
     """The least-squares system of :func:`_refine_peak`: for the markers whose rest position is
     within squared distance ``r2`` (px^2) of the peak's (in index order), the design rows

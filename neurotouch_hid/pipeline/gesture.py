@@ -121,7 +121,7 @@ def markers_near(points_px: np.ndarray, centres_px: np.ndarray, r_px: float) -> 
     return _near(p, c, float(r_px) * float(r_px))
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _near(points_px: np.ndarray, centres_px: np.ndarray, r2: float) -> np.ndarray:
     """:func:`markers_near` with r2 = r^2 (px^2), without NumPy's (N, K) temporaries."""
     near = np.zeros(len(points_px), dtype=np.bool_)
@@ -165,7 +165,7 @@ def _intensity(norms: np.ndarray, current_px: np.ndarray, contacts_px: np.ndarra
     return _weighted_mean(norms, current_px, contacts_px, float(sigma_px))
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _weighted_mean(norms: np.ndarray, current_px: np.ndarray, contacts_px: np.ndarray, sigma_px: float) -> float:
     """The proximity-weighted mean of :func:`weighted_intensity` in one pass over the markers."""
     m = len(norms)

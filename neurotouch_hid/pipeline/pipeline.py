@@ -289,7 +289,7 @@ class GesturePipeline:
                 self._pending = (result, int(t_us))
 
     def compile_kernels(self) -> None:
-        """Compile the pipeline's numba code (tracker, contacts, gesture) now, on a synthetic
+        """Compile the pipeline's numba code (noise filter, tracker, contacts, gesture) now, on a synthetic
         marker grid with a finger-like bump of displacement, instead of on the first real events:
         on a fresh install that takes seconds, which a real-time run would spend dropping data.
         Later runs load the code from numba's cache. Leaves the pipeline as it was."""
@@ -306,6 +306,9 @@ class GesturePipeline:
         # contiguous, a longer batch's are strided views of the structured array; both occur
         tracker.update(events[:1])
         tracker.update(events[1:])
+        if self.noise_filter is not None:  # a fresh one: this pipeline's keeps its state
+            c = self.config
+            EventNoiseFilter(c.noise_filter, self.sensor.width, self.sensor.height, c.noise_filter_us)(events)
         timings, self.timings = self.timings, None  # not a window: no stage time recorded
         try:
             self._contacts_and_gesture(rest, moved, np.ones(len(rest), dtype=bool))

@@ -38,12 +38,12 @@ NOISE_RATE_HZ = 0.1
 SKIP_REL = 0.01
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _phi(z: float) -> float:
     return 0.5 * (1.0 + math.erf(z * 0.7071067811865476))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _pixel_weights(center: float, sigma: float, first: int, out: np.ndarray) -> None:
     """Integral over pixels first..first+len(out)-1 of a unit-peak-normalised Gaussian (1-D)."""
     norm = 1.0 / (_phi(0.5 / sigma) - _phi(-0.5 / sigma))
@@ -54,7 +54,7 @@ def _pixel_weights(center: float, sigma: float, first: int, out: np.ndarray) -> 
         lo = hi
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def splat(img: np.ndarray, x: float, y: float, amp: float, sigma: float,
           dirty: np.ndarray, dirty_list: np.ndarray, n_dirty: int, gx: np.ndarray, gy: np.ndarray) -> int:
     """Add one marker (pixel-integrated Gaussian, peak ``amp`` grey levels when centred on a
@@ -87,7 +87,7 @@ def splat(img: np.ndarray, x: float, y: float, amp: float, sigma: float,
     return n_dirty
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def render_frame(background: np.ndarray, pos: np.ndarray, amp: np.ndarray, sigma: np.ndarray,
                  read_noise: float, shot_noise: float, noise_bank: np.ndarray, offset: int) -> np.ndarray:
     """An APS frame: the average of renders over the exposure, plus noise, as uint8.
@@ -125,7 +125,7 @@ def render_frame(background: np.ndarray, pos: np.ndarray, amp: np.ndarray, sigma
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def esim_chunk(t_us: np.ndarray, pos: np.ndarray, amp: np.ndarray, sigma: np.ndarray, start: int,
                img: np.ndarray, lin_prev: np.ndarray, log_prev: np.ndarray, log_ref: np.ndarray, last_t: np.ndarray,
                c_on: np.ndarray, c_off: np.ndarray, rend_pos: np.ndarray, rend_amp: np.ndarray,

@@ -321,7 +321,7 @@ class SimGesture:
         return np.stack([rx - rel[None, :, 0], ry - rel[None, :, 1]], axis=-1)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _finger_field(pts: np.ndarray, finger: np.ndarray, d: np.ndarray, finger_mm: float, widen: float,
                   press: float, level: np.ndarray, flevel: np.ndarray, falloff: int, squeeze: float, indent: float,
                   drag: np.ndarray, weight: np.ndarray, disp: np.ndarray, dim: np.ndarray, grow: np.ndarray) -> None:
