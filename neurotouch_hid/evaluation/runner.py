@@ -51,22 +51,26 @@ def _convert(text: str, default, annotation: str):
     raise ValueError(f"a field of type {annotation} cannot be set from the command line")
 
 
-def pipeline_config(settings: Sequence[str] = (), **values):
-    """A :class:`~neurotouch_hid.pipeline.pipeline.PipelineConfig` from ``NAME=VALUE`` strings
-    (the CLI's ``--set``) and keyword values.
+def pipeline_config(settings: Sequence[str] = (), preset: str = "default", **values):
+    """A :class:`~neurotouch_hid.pipeline.pipeline.PipelineConfig` from a preset
+    (:data:`~neurotouch_hid.pipeline.pipeline.PIPELINE_PRESETS`, the CLI's ``--preset``), then
+    ``NAME=VALUE`` strings (the CLI's ``--set``) and keyword values over it.
 
     NAME is a field of PipelineConfig, or ``tracker.FIELD`` for a field of its nested
     TrackerConfig (any nested dataclass field works the same way). Each value is converted to
     the type of the field's default (bool, int, float, str; ``none`` for optional fields).
 
     Raises:
-        NeurotouchError: naming the setting, when it is not ``NAME=VALUE``, NAME is not a field
+        NeurotouchError: an unknown preset (the message lists them); naming the setting, when
+            it is not ``NAME=VALUE``, NAME is not a field
             (the message lists the fields), the value does not convert, or PipelineConfig
             rejects it.
     """
-    from neurotouch_hid.pipeline.pipeline import PipelineConfig
+    from neurotouch_hid.pipeline.pipeline import PIPELINE_PRESETS, PipelineConfig
 
-    config = PipelineConfig()
+    if preset not in PIPELINE_PRESETS:
+        raise NeurotouchError(f"--preset {preset!r}: expected one of {', '.join(PIPELINE_PRESETS)}")
+    config = PipelineConfig(**PIPELINE_PRESETS[preset])
     nested: dict[str, dict] = {}
     for item in settings:
         name, sep, text = item.partition("=")
