@@ -149,6 +149,24 @@ def test_moving_markers_overrule_a_stale_resting_verdict(rest_image):
     assert [e.resting for e in pipeline.process(events_at(45000))] == [True]
 
 
+def test_motion_override_counts_its_own_markers_not_the_contact_n_min(rest_image):
+    """With the paper's N_min = 4, the old rule (n_min markers moved) let five markers' tracker
+    jitter overrule a resting verdict; the override's own count (12) does not, and a real
+    finger still does."""
+    pipeline = GesturePipeline(SENSOR, PipelineConfig(motion_override_px=0.3, n_min=4))
+    pipeline.process(Frame(0, rest_image))
+    pipeline.process(events_at(1))
+    jitter = pipeline.rest_px.copy()
+    jitter[:5] += [0.4, 0.0]  # five scattered markers, 0.4 px off: noise, not a gesture
+    pipeline.tracker.reset(jitter)
+    assert [e.resting for e in pipeline.process(events_at(15000))] == [True]
+    d = np.linalg.norm(jitter - pipeline.rest_px, axis=1)
+    assert np.count_nonzero(d > 0.3) >= pipeline.config.n_min  # the old rule would have overruled
+    w = np.exp(-np.sum((pipeline.rest_px - SENSOR.gel_center_px) ** 2, axis=1) / (2 * 12.0**2))
+    pipeline.tracker.reset(pipeline.rest_px + w[:, None] * [5.0, 0.0])
+    assert [e.resting for e in pipeline.process(events_at(25000))] == [False]
+
+
 def test_without_motion_override_a_resting_verdict_holds_until_the_next_frame(rest_image):
     pipeline = GesturePipeline(SENSOR, PipelineConfig(motion_override_px=None))
     pipeline.process(Frame(0, rest_image))

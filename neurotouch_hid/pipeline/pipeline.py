@@ -17,8 +17,8 @@ comes from an APS frame, i.e. is up to 40 ms old at 25 Hz, so a gesture starting
 resting frame would be answered ``none``/resting for up to four 10 ms windows. The paper
 (section "Resting Position Detection") uses the APS frames because the scene is static at rest,
 and the events for dynamics; so the event path may overrule a resting verdict: the tracker was
-reset to the rest positions with that verdict, and when, at a window's end, at least ``n_min``
-tracked markers have moved more than ``motion_override_px`` from rest, the window is processed
+reset to the rest positions with that verdict, and when, at a window's end, at least
+``override_min_markers`` tracked markers have moved more than ``motion_override_px`` from rest, the window is processed
 as a gesture window (``resting`` False). The verdict itself stays in force (no further tracker
 reset); the next APS frame's verdict decides again.
 
@@ -143,8 +143,11 @@ class PipelineConfig:
             contacts' mean (paper); > 0: at the best origin within this distance (px) of it
             (``gesture.py``, "Origin"; not in the paper).
         motion_override_px: None, or the displacement from rest (px) beyond which at least
-            ``n_min`` tracked markers overrule a resting verdict (module docstring; not in the
-            paper).
+            ``override_min_markers`` tracked markers overrule a resting verdict (module
+            docstring; not in the paper).
+        override_min_markers: how many markers must have moved for the motion override (>= 1).
+            It used to be ``n_min``, a contact-neighbourhood size with another meaning: with the
+            paper's N_min = 4, four markers' tracker noise overruled a resting verdict.
         marker_threshold: grey level of marker pixels for marker detection and resting
             detection (0..255); None = Otsu's threshold on the reference frame.
         reference_attempts: how many first APS frames may fail to show a marker grid (e.g. an
@@ -180,6 +183,7 @@ class PipelineConfig:
     contact_refine_px: float | None = 20.0
     origin_radius_px: float | None = 10.0
     motion_override_px: float | None = 0.3
+    override_min_markers: int = 12
     marker_threshold: int | None = None
     reference_attempts: int = 3
     detect_resting: bool = True
@@ -198,6 +202,8 @@ class PipelineConfig:
             value = getattr(self, name)
             if value is not None and not value > 0:
                 raise ValueError(f"{name} must be positive or None, got {value}")
+        if self.override_min_markers < 1:
+            raise ValueError(f"override_min_markers must be >= 1, got {self.override_min_markers}")
         if self.reference_attempts < 1:
             raise ValueError(f"reference_attempts must be >= 1, got {self.reference_attempts}")
         if self.r_px <= 0 or self.a <= 0 or self.n_min < 1:
@@ -484,13 +490,14 @@ class GesturePipeline:
         return estimate
 
     def _moving(self, current: np.ndarray, valid: np.ndarray) -> bool:
-        """True when ``motion_override_px`` is set and at least ``n_min`` valid markers are
+        """True when ``motion_override_px`` is set and at least ``override_min_markers`` valid markers are
         further than it from rest (the event path sees a gesture the APS verdict missed)."""
         threshold = self.config.motion_override_px
         if threshold is None:
             return False
         d = current[valid] - self.rest_px[valid]
-        return int(np.count_nonzero(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] > threshold * threshold)) >= self.config.n_min
+        moved = int(np.count_nonzero(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] > threshold * threshold))
+        return moved >= self.config.override_min_markers
 
     def _estimate(self, t_us: int) -> GestureEstimate:
         current = self.tracker.positions_px
