@@ -22,6 +22,16 @@ reset to the rest positions with that verdict, and when, at a window's end, at l
 as a gesture window (``resting`` False). The verdict itself stays in force (no further tracker
 reset); the next APS frame's verdict decides again.
 
+Gesture decision over one gesture (``PipelineConfig.episode_vote``, not in the paper): the
+paper decides the type window by window, so a pinch whose first finger leads reads as push in
+its first windows and again in its release. With the vote, the windows from a gesture's onset (the
+first window with a gesture) to its end (the next ``none`` or resting window) form one episode;
+each window adds its intensity (mm) to the votes of its own type, and every window of the
+episode reports the type with the most votes so far. The first window of an episode is answered
+as before (no added latency at onset); a later window changes the answer only once its type has
+outweighed the others' accumulated intensity (the latency of such a change is measured in
+docs/accuracy.md).
+
 Windows: ``window_us`` long (10 ms default, paper, section "Runtime Performance"; anything
 down to 1 ms), aligned on multiples of ``window_us`` from the first event after the reference
 frame. An estimate is emitted for every window end crossed, even by a window without events,
@@ -46,8 +56,8 @@ import numpy as np
 from neurotouch_hid.errors import SensorError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.pipeline.contacts import HOMOGRAPHY_METHODS, detect_contacts
-from neurotouch_hid.pipeline.gesture import estimate_gesture
-from neurotouch_hid.pipeline.markers import detect_markers, looks_like_marker_grid
+from neurotouch_hid.pipeline.gesture import EpisodeVote, estimate_gesture
+from neurotouch_hid.pipeline.markers import MARKER_SPACING_MM, detect_markers, looks_like_marker_grid
 from neurotouch_hid.pipeline.noise import EventNoiseFilter, check_noise_filter
 from neurotouch_hid.pipeline.resting import RestingDetector, RestingResult
 from neurotouch_hid.pipeline.tracker import BlobTracker, TrackerConfig
@@ -145,6 +155,13 @@ class PipelineConfig:
         motion_override_px: None, or the displacement from rest (px) beyond which at least
             ``override_min_markers`` tracked markers overrule a resting verdict (module
             docstring; not in the paper).
+        rest_match_pitch: a candidate rest reference (the first APS frame with a marker grid)
+            is refused while its markers are off the calibrated rest layout (sensor.yaml
+            ``rest_markers_px``) by more than this many marker pitches in the median
+            (``_matches_calibrated_rest``; not in the paper); None: any frame (paper).
+        episode_vote: the type of every window of a gesture episode is the intensity-weighted
+            vote of its windows so far (module docstring; not in the paper); False: each window's
+            own type (paper).
         override_min_markers: how many markers must have moved for the motion override (>= 1).
             It used to be ``n_min``, a contact-neighbourhood size with another meaning: with the
             paper's N_min = 4, four markers' tracker noise overruled a resting verdict.
@@ -184,6 +201,8 @@ class PipelineConfig:
     origin_radius_px: float | None = 10.0
     motion_override_px: float | None = 0.3
     override_min_markers: int = 12
+    episode_vote: bool = False
+    rest_match_pitch: float | None = 0.1
     marker_threshold: int | None = None
     reference_attempts: int = 3
     detect_resting: bool = True
@@ -223,9 +242,16 @@ PIPELINE_PRESETS: dict[str, dict[str, object]] = {
         "r_px": 30.0, "a": 0.6, "n_min": 4, "chamfer_threshold": 2.5, "chamfer_per_marker": False,
         "min_intensity_px": 0.0, "gesture_reproj_factor": 0.6, "intensity_sigma_px": None,
         "field_fallback": False, "contact_refine_px": None, "origin_radius_px": None,
-        "motion_override_px": None, "noise_filter": None,
+        "motion_override_px": None, "noise_filter": None, "rest_match_pitch": None,
     },
 }
+
+
+def _off_layout(layout_px: np.ndarray, points_px: np.ndarray, tol_px: float) -> float:
+    """Fraction of the layout's markers (N, 2) px without a point of ``points_px`` (M, 2) within
+    ``tol_px`` (all pairs: only candidate reference frames are checked)."""
+    d2 = ((layout_px[:, None, :] - points_px[None, :, :]) ** 2).sum(axis=-1).min(axis=1)
+    return float(np.mean(d2 > tol_px * tol_px))
 
 
 class GesturePipeline:
@@ -271,8 +297,13 @@ class GesturePipeline:
         self._lock = threading.Lock()
         self._next_end: int | None = None
         self._rejected_frames = 0
+        #: reference candidates refused because the gel was pressed (see rest_match_pitch)
+        self.pressed_frames = 0
+        self._previous_points: np.ndarray | None = None
         self._resume_waited = 0
         self._previous_frame: Frame | None = None
+        #: the current gesture episode's decision (episode_vote)
+        self._episode = EpisodeVote()
         #: the optional noise filter in front of the tracker (one per pipeline, its state kept
         #: across batches; it starts afresh by itself when the clock goes back, ``noise.py``)
         self.noise_filter: EventNoiseFilter | None = None
@@ -367,6 +398,7 @@ class GesturePipeline:
         self._rejected_frames = 0
         self._resume_waited = 0
         self._previous_frame = None
+        self._episode.reset()
 
     # --- outputs ----------------------------------------------------------------------------
     def marker_positions(self) -> np.ndarray:
@@ -396,6 +428,29 @@ class GesturePipeline:
         if result.resting and self.tracker is not None:
             self.tracker.reset(self.rest_px)
 
+    def _matches_calibrated_rest(self, points_px: np.ndarray) -> bool:
+        """Whether a candidate reference frame's markers (M, 2) px lie on the calibrated rest
+        layout (sensor.yaml's ``rest_markers_px``, written by ``calibrate``; not in the paper).
+
+        The paper takes the first frame as t0, "a timestep where the gel is in resting position";
+        a run that starts with the gel pressed would take a deformed layout as rest and read every
+        later rest as a gesture. The frame is rest when at most 5 % of the calibrated markers
+        have no detected marker within ``rest_match_pitch`` marker pitches. Without a calibrated
+        layout, or with ``rest_match_pitch`` None, every frame passes (paper). So that a gel
+        that moved since its calibration cannot stop the driver for good, after
+        :data:`RESUME_MATCH_FRAMES` refused frames a frame whose markers match the previous
+        frame's (the gel is still) is taken, as after a restart."""
+        layout = self.sensor.extra.get("rest_markers_px")
+        if layout is None or self.config.rest_match_pitch is None or len(points_px) == 0:
+            return True
+        tol = self.config.rest_match_pitch * MARKER_SPACING_MM * self.sensor.px_per_mm
+        points = np.asarray(points_px, dtype=np.float64)
+        previous, self._previous_points = self._previous_points, points
+        if _off_layout(np.asarray(layout, dtype=np.float64).reshape(-1, 2), points, tol) <= 0.05:
+            return True
+        return (self.pressed_frames >= RESUME_MATCH_FRAMES and previous is not None
+                and _off_layout(previous, points, tol) <= 0.05)
+
     def _initialise(self, frame: Frame) -> None:
         markers = detect_markers(frame.image, self.sensor, self.config.marker_threshold)
         if not looks_like_marker_grid(markers, self.sensor):
@@ -407,6 +462,9 @@ class GesturePipeline:
                 f"{len(markers)} bright blobs) do not look like NeuroTouch's marker grid (1 mm dots, 4 mm apart, "
                 "inside the gel disc of sensor.yaml); is this a NeuroTouch recording, and does sensor.yaml match it?"
             )
+        if not self._matches_calibrated_rest(markers.centroids_px):
+            self.pressed_frames += 1
+            return  # the gel is pressed: this frame is no rest reference; wait for one that is
         self.rest_px = markers.centroids_px.astype(np.float64)
         self.tracker = BlobTracker(
             self.rest_px, self.sensor.width, self.sensor.height, self.config.tracker, sensor=self.sensor
@@ -499,17 +557,25 @@ class GesturePipeline:
         moved = int(np.count_nonzero(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] > threshold * threshold))
         return moved >= self.config.override_min_markers
 
+    def _vote(self, gesture: GestureType, intensity_mm: float) -> GestureType:
+        """The window's type: its own, or the episode's decision with ``episode_vote``."""
+        if not self.config.episode_vote:
+            return gesture
+        return self._episode.update(gesture, intensity_mm)
+
     def _estimate(self, t_us: int) -> GestureEstimate:
         current = self.tracker.positions_px
         valid = self.tracker.valid
         if self._resting.resting and not self._moving(current, valid):
+            self._vote(GestureType.NONE, 0.0)
             return GestureEstimate(t_us=t_us, gesture=GestureType.NONE, resting=True)
         contacts, result = self._contacts_and_gesture(self.rest_px, current, valid)
         if result.gesture is GestureType.NONE:
+            self._vote(GestureType.NONE, 0.0)
             return GestureEstimate(t_us=t_us, gesture=GestureType.NONE, resting=False)
         return GestureEstimate(
             t_us=t_us,
-            gesture=result.gesture,
+            gesture=self._vote(result.gesture, result.intensity_mm),
             resting=False,
             intensity_mm=result.intensity_mm,
             contacts_px=contacts.points_px,
