@@ -469,3 +469,36 @@ def test_a_gel_still_off_its_calibration_is_taken_after_a_while(rest_image):
         pipeline.process(Frame(40_000 * k, rest_image))
         k += 1
     assert pipeline.rest_px is not None and k == RESUME_MATCH_FRAMES + 1 and pipeline.pressed_frames == RESUME_MATCH_FRAMES
+
+
+def test_pixel_settings_follow_px_per_mm_on_a_closer_camera():
+    """A camera at 4 px/mm (a 4 mm pitch is 16 px): the settings in fixed pixels (paper) give a
+    contact radius of 25 px = 6 mm, whose neighbourhood never holds n_min markers, so a clear
+    push is not found; following px_per_mm, r is 40 px = 10 mm on the gel again."""
+    from neurotouch_hid.pipeline.pipeline import scaled_to_sensor
+
+    sensor = SensorGeometry(px_per_mm=4.0, gel_radius_px=120.0)
+    c = np.asarray(sensor.gel_center_px)
+    k = np.arange(-7, 8) * 16.0
+    rest = np.stack(np.meshgrid(k, k), axis=-1).reshape(-1, 2) + c
+    rest = rest[np.hypot(*(rest - c).T) <= 7.2 * 16.0]
+    img = np.full((sensor.height, sensor.width), 20.0)
+    yy, xx = np.mgrid[-6:7, -6:7]
+    for x, y in rest:
+        ix, iy = int(round(x)), int(round(y))
+        img[iy - 6 : iy + 7, ix - 6 : ix + 7] += 220 * np.exp(-((xx + ix - x) ** 2 + (yy + iy - y) ** 2) / (2 * 1.4**2))
+    image = np.clip(img, 0, 255).astype(np.uint8)
+    results = {}
+    for follow in (False, True):
+        pipeline = GesturePipeline(sensor, PipelineConfig(follow_px_per_mm=follow, chamfer_threshold=-1.0))
+        pipeline.process(Frame(0, image))
+        pipeline.process(events_at(1))
+        assert len(pipeline.rest_px) == len(rest)
+        w = np.exp(-np.sum((pipeline.rest_px - c) ** 2, axis=1) / (2 * 28.0**2))  # a 7 mm finger, 5 mm push
+        pipeline.tracker.reset(pipeline.rest_px + (w * 20.0)[:, None] * [1.0, 0.0])
+        (estimate,) = pipeline.process(events_at(15000))
+        results[follow] = estimate
+    assert results[False].gesture is not GestureType.PUSH or results[False].n_contacts != 1
+    assert results[True].gesture is GestureType.PUSH and results[True].n_contacts == 1
+    assert scaled_to_sensor(PipelineConfig(), sensor).r_px == pytest.approx(25.0 * 4.0 / 2.5)
+    assert scaled_to_sensor(PipelineConfig(), SENSOR) == PipelineConfig()  # the reference scale: unchanged

@@ -49,7 +49,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -159,6 +159,9 @@ class PipelineConfig:
             is refused while its markers are off the calibrated rest layout (sensor.yaml
             ``rest_markers_px``) by more than this many marker pitches in the median
             (``_matches_calibrated_rest``; not in the paper); None: any frame (paper).
+        follow_px_per_mm: every pixel setting here and in ``tracker`` is given at 2.5 px/mm
+            (:data:`REFERENCE_PX_PER_MM`) and follows sensor.yaml's px_per_mm
+            (:func:`scaled_to_sensor`; not in the paper); False: fixed pixels (paper).
         episode_vote: the type of every window of a gesture episode is the intensity-weighted
             vote of its windows so far (module docstring; not in the paper); False: each window's
             own type (paper).
@@ -203,6 +206,7 @@ class PipelineConfig:
     override_min_markers: int = 12
     episode_vote: bool = False
     rest_match_pitch: float | None = 0.1
+    follow_px_per_mm: bool = True
     marker_threshold: int | None = None
     reference_attempts: int = 3
     detect_resting: bool = True
@@ -243,8 +247,40 @@ PIPELINE_PRESETS: dict[str, dict[str, object]] = {
         "min_intensity_px": 0.0, "gesture_reproj_factor": 0.6, "intensity_sigma_px": None,
         "field_fallback": False, "contact_refine_px": None, "origin_radius_px": None,
         "motion_override_px": None, "noise_filter": None, "rest_match_pitch": None,
+        "follow_px_per_mm": False,
     },
 }
+
+
+#: The image scale (px/mm) at which PipelineConfig's and TrackerConfig's pixel settings are
+#: given: the simulated DAVIS-346 NeuroTouch's (DATASET.md sensor.yaml), 4 mm marker pitch = 10 px.
+REFERENCE_PX_PER_MM = 2.5
+#: Pixel settings that are lengths (scale with px_per_mm), and tracker settings that are squared
+#: lengths or squared velocities (scale with its square).
+_PX_FIELDS = ("r_px", "min_intensity_px", "min_gesture_reproj_px", "intensity_sigma_px", "contact_refine_px",
+              "origin_radius_px", "motion_override_px")
+_TRACKER_PX = ("sigma_px", "assoc_px", "max_step_px", "frame_gate_px", "frame_sigma_px", "merge_px", "gel_margin_px",
+               "max_offset_px")
+_TRACKER_PX2 = ("q_pos", "q_vel", "q_offset", "p0_pos", "p0_vel", "p0_offset")
+
+
+def scaled_to_sensor(config: PipelineConfig, sensor: SensorGeometry) -> PipelineConfig:
+    """``config`` with its pixel settings following the sensor's scale (not in the paper).
+
+    Every pixel setting is given at :data:`REFERENCE_PX_PER_MM` (i.e. in mm, or marker pitches,
+    times that scale); with ``follow_px_per_mm`` they are multiplied by
+    ``sensor.px_per_mm / REFERENCE_PX_PER_MM`` (squared for the tracker's variances), so that a
+    camera nearer the gel or with more pixels keeps the same contact radius, tracker gates and
+    thresholds on the gel. The Chamfer threshold (px^2 per marker, growing with the marker's
+    pixel count too) is not scaled. Returns ``config`` itself at the reference scale or when
+    ``follow_px_per_mm`` is off (the paper's fixed pixels)."""
+    k = sensor.px_per_mm / REFERENCE_PX_PER_MM
+    if not config.follow_px_per_mm or k == 1.0:
+        return config
+    changes = {name: getattr(config, name) * k for name in _PX_FIELDS if getattr(config, name) is not None}
+    t = config.tracker
+    tracker = replace(t, **{n: getattr(t, n) * k for n in _TRACKER_PX}, **{n: getattr(t, n) * k * k for n in _TRACKER_PX2})
+    return replace(config, tracker=tracker, **changes)
 
 
 def _off_layout(layout_px: np.ndarray, points_px: np.ndarray, tol_px: float) -> float:
@@ -284,7 +320,9 @@ class GesturePipeline:
         profile: bool = False,
     ) -> None:
         self.sensor = sensor
-        self.config = config or PipelineConfig()
+        #: the settings as given; ``config`` is what runs (pixel settings scaled to the sensor)
+        self.settings = config or PipelineConfig()
+        self.config = scaled_to_sensor(self.settings, sensor)
         self.on_window = on_window
         self.rest_px: np.ndarray | None = None
         self.tracker: BlobTracker | None = None
