@@ -424,7 +424,7 @@ def test_episode_vote_keeps_one_type_over_a_gesture_where_windows_flip(rest_imag
     """The window-by-window rule (paper) reads the lingering finger at the end as push; the
     episode vote answers pinch once the pinch outweighs the push, and keeps it."""
     base = dict(motion_override_px=0.3, chamfer_threshold=-1.0)  # never resting: only the events decide
-    plain = _push_then_pinch(PipelineConfig(**base), rest_image)
+    plain = _push_then_pinch(PipelineConfig(episode_vote=False, **base), rest_image)
     voted = _push_then_pinch(PipelineConfig(episode_vote=True, **base), rest_image)
     P, Q = GestureType.PUSH, GestureType.PINCH
     assert plain[:2] == [P, P] and plain[2:8] == [Q] * 6 and plain[8] is P
