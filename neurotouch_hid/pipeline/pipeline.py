@@ -168,7 +168,7 @@ class PipelineConfig:
             run, docs/accuracy.md "Physics families"): gesture accuracy +0.6 to +3.6 points on 8
             of the 10 development families, -1.3 on ``fingers`` (lagging fingers: the first
             finger's push windows outvote the pinch) and -0.2 on ``strong``; type changes per
-            gesture 3-15 -> 0.6-3; median onset latency +0 to +15 ms.
+            gesture 2.4-14.7 -> 0.6-3.0; median onset latency -5 to +15 ms (mean +2.8 ms).
         override_min_markers: how many markers must have moved for the motion override (>= 1).
             It used to be ``n_min``, a contact-neighbourhood size with another meaning: with the
             paper's N_min = 4, four markers' tracker noise overruled a resting verdict.
