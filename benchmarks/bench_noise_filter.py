@@ -17,7 +17,8 @@ pipeline's call (``EventNoiseFilter.__call__``: for the background-activity filt
 kernel, checked to keep the same events batch by batch; for the others the library between the
 copies); then, for the pipeline's call: us per batch (median, p99), its share of one core in
 real time, and the ratios filter / tracker (the tracker on every event, as without a filter)
-and (filter + tracker on the kept events) / (tracker on every event).
+and (filter + tracker on the kept events) / (tracker on every event), and the event path's
+rate: events offered / CPU s of the pipeline's filter call plus the tracker on the kept events.
 
 Then what each filter keeps (``--selectivity``, on by default): the markers' own events of the
 same simulation without background activity (hot pixels dropped), with uniform Poisson noise
@@ -170,7 +171,8 @@ def main() -> None:
     table = Table(title=f"noise filter cost, {args.seconds:g} simulated s per rate (CPU time of one thread)")
     for col in ("noise Hz/px", "batch us", "filter", "time us", "M events in", "kept %", "M ev/s filter+conv",
                 "M ev/s filter alone", "conv share %", "M ev/s pipeline's call", "us/batch median", "us/batch p99",
-                "core % (real time)", "filter / tracker", "(filter + tracker kept) / tracker all"):
+                "core % (real time)", "filter / tracker", "(filter + tracker kept) / tracker all",
+                "M ev/s event path (filter + tracker)"):
         table.add_column(col, justify="left" if col == "filter" else "right")
     for noise_hz in args.noise_hz:
         events, rest = simulate(sensor, args.seconds, noise_hz, args.seed)
@@ -192,7 +194,7 @@ def main() -> None:
                     f"{100 * (t['to_store'].sum() + t['from_store'].sum()) / total:.0f}", f"{n_in / called / 1e6:.1f}",
                     f"{np.median(per_batch_us):.0f}", f"{np.percentile(per_batch_us, 99):.0f}",
                     f"{100 * called / span_s:.1f}", f"{called / tracker_all:.2f}",
-                    f"{(called + tracker_kept) / tracker_all:.2f}",
+                    f"{(called + tracker_kept) / tracker_all:.2f}", f"{n_in / (called + tracker_kept) / 1e6:.1f}",
                 )
             console.print(f"noise {noise_hz:g} Hz/px, {batch_us} us batches: tracker on every event "
                           f"{len(events) / tracker_all / 1e6:.1f} M events/s ({100 * tracker_all / span_s:.1f} % of a core)",

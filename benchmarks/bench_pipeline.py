@@ -78,7 +78,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--window-us", type=int, default=10_000)
     args = parser.parse_args()
-    console = Console()
+    console = Console(width=250)  # a pipe or a file gets whole rows, not 80 columns
     config = PipelineConfig(window_us=args.window_us)
 
     with tempfile.TemporaryDirectory() as tmp:

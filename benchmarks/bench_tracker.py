@@ -277,7 +277,7 @@ def main() -> None:
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                         help="a TrackerConfig field (float), e.g. --set max_offset_px=0 (repeatable)")
     args = parser.parse_args()
-    console = Console()
+    console = Console(width=250)  # a pipe or a file gets whole rows, not 80 columns
     fields = {f.name for f in dataclasses.fields(TrackerConfig)}
     overrides = {}
     for item in args.set:

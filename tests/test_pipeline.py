@@ -298,6 +298,39 @@ def test_track_markers_npz_follow_the_true_markers(push_dataset, push_tracked):
     assert np.median(err) < 1.0
 
 
+class _AlwaysFits(GesturePipeline):
+    """The pipeline computing contacts and gesture afresh for every window (no reuse)."""
+
+    fits = 0
+
+    def _contacts_and_gesture(self, rest_px, current, valid):
+        self.fits += 1
+        return self._fit(rest_px, current, valid)
+
+
+def test_windows_whose_markers_did_not_move_reuse_the_fit_with_identical_estimates(push_dataset):
+    from neurotouch_hid.sensor import find_sensor_file
+    from neurotouch_hid.sources.recording import RecordingReader
+
+    sensor = find_sensor_file(push_dataset)
+    with RecordingReader(push_dataset) as reader:
+        items = list(reader.stream(batch_us=1000))
+    fitted = []
+    reusing = GesturePipeline(sensor)
+    real_fit = reusing._fit
+
+    def counting_fit(*args):
+        fitted.append(1)
+        return real_fit(*args)
+
+    reusing._fit = counting_fit
+    fresh = _AlwaysFits(sensor)
+    a, b = list(reusing.run(items)), list(fresh.run(items))
+    assert [json.dumps(e.to_json_dict()) for e in a] == [json.dumps(e.to_json_dict()) for e in b]
+    assert fresh.fits > 100  # moving windows
+    assert 0 < len(fitted) < fresh.fits  # some windows had the same markers as the one before
+
+
 def _cli(*args: str):
     import subprocess
     import sys

@@ -83,47 +83,57 @@ def check_noise_filter(name: str | None, time_us: int | None) -> None:
         raise ValueError(f"noise_filter_us must be a whole number of microseconds >= 1 or None, got {time_us!r}")
 
 
+#: The time stamped on the border of the numba filter's padded time surface: so far in the past
+#: that a border cell never supports an event (the library skips the neighbours outside the array).
+_NEVER_US = -(2**62)
+
+
+def time_surface(width: int, height: int) -> np.ndarray:
+    """A fresh time surface for :func:`background_activity_keep`: (height + 2, width + 2) int64
+    us, 0 inside (as the library's ``TimeSurface``), :data:`_NEVER_US` on the one-pixel border."""
+    surface = np.zeros((height + 2, width + 2), dtype=np.int64)
+    surface[0, :] = surface[-1, :] = surface[:, 0] = surface[:, -1] = _NEVER_US
+    return surface
+
+
 @numba.njit(cache=True, nogil=True)
 def background_activity_keep(events, surface, duration_us, keep):
     """dv-processing's ``BackgroundActivityNoiseFilter.retain`` over a batch, in numba.
 
-    An event is kept when one of its 8 neighbouring pixels (those inside the array) had an
-    event less than ``duration_us`` before it: ``t - surface[y', x'] < duration_us``, the
-    surface starting at 0 as the library's ``TimeSurface``; then the event's own pixel gets
-    its time, kept or not (dv-processing 2.0.4, ``noise/background_activity_noise_filter.hpp``).
+    An event is kept when one of its 8 neighbouring pixels had an event less than
+    ``duration_us`` before it: ``t - surface[y', x'] < duration_us``, the surface starting at 0
+    as the library's ``TimeSurface``, pixels outside the array never supporting; then the
+    event's own pixel gets its time, kept or not (dv-processing 2.0.4,
+    ``noise/background_activity_noise_filter.hpp``). The surface is padded by one pixel of
+    :data:`_NEVER_US` on every side, so the 8 neighbours are read without bounds checks (the
+    newest of them decides: twice as fast as testing them one by one with the library's
+    border cases).
 
     Args:
         events: (E,) EVENT_DTYPE structured array (``timestamp`` int64 us, ``x``/``y`` int16 px
-            inside the array), time-ordered. Passed whole, not as field views: numba's dispatch
-            of strided field views costs ~10 us per array, more than the filter on a 1 ms batch.
-        surface: (H, W) int64, the last event time per pixel (us); updated in place.
+            inside the array), time-ordered.
+        surface: (H + 2, W + 2) int64 (:func:`time_surface`): the last event time (us) of pixel
+            (x, y) at [y + 1, x + 1]; updated in place.
         duration_us: the background-activity duration (us).
         keep: (E,) bool, written: which events are kept.
     Returns:
         the number of kept events.
     """
-    h, w = surface.shape
     ts = events["timestamp"]
     xs = events["x"]
     ys = events["y"]
     n = 0
     for i in range(ts.shape[0]):
         t = ts[i]
-        x = np.int64(xs[i])
-        y = np.int64(ys[i])
-        x0 = x - 1 if x > 0 else x
-        x1 = x + 1 if x < w - 1 else x
-        y0 = y - 1 if y > 0 else y
-        y1 = y + 1 if y < h - 1 else y
-        supported = False
-        for yy in range(y0, y1 + 1):
-            for xx in range(x0, x1 + 1):
-                if (yy != y or xx != x) and t - surface[yy, xx] < duration_us:
-                    supported = True
-                    break
-            if supported:
-                break
-        surface[y, x] = t
+        x = np.int64(xs[i]) + 1
+        y = np.int64(ys[i]) + 1
+        up = surface[y - 1]
+        row = surface[y]
+        down = surface[y + 1]
+        newest = max(max(max(up[x - 1], up[x]), max(up[x + 1], row[x - 1])),
+                     max(max(row[x + 1], down[x - 1]), max(down[x], down[x + 1])))
+        supported = t - newest < duration_us
+        row[x] = t
         keep[i] = supported
         n += supported
     return n
@@ -157,9 +167,8 @@ class EventNoiseFilter:
         self.n_out = 0
         self._last_us: int | None = None
         self._filter = self._make()
-        #: the numba background-activity filter's time surface (:meth:`__call__`), (H, W) int64 us
-        self._surface = (np.zeros((self.height, self.width), dtype=np.int64)
-                         if name == "BackgroundActivityNoiseFilter" else None)
+        #: the numba background-activity filter's padded time surface (:func:`time_surface`)
+        self._surface = time_surface(self.width, self.height) if name == "BackgroundActivityNoiseFilter" else None
 
     def _make(self):
         import dv_processing as dv
@@ -170,7 +179,7 @@ class EventNoiseFilter:
         """Forget every event seen (a new stream, e.g. whose clock restarts) and the counts."""
         self._filter = self._make()
         if self._surface is not None:
-            self._surface.fill(0)
+            self._surface = time_surface(self.width, self.height)
         self._last_us = None
         self.n_in = self.n_out = 0
 

@@ -78,7 +78,8 @@ def pipeline_over(
         recording: AEDAT4 file with events and APS frames of the pipeline sensor's resolution.
         pipeline: a fresh :class:`GesturePipeline`.
         on_progress: called every 0.1 s of recording time and at the end with (recording time
-            done, total) in us (the total costs one extra pass over the file's packets).
+            done, total) in us (the total from the file's index table,
+            :attr:`RecordingReader.indexed_duration_us`: no extra pass over the file).
     Raises:
         RecordingError: the file is missing, not AEDAT4, has no APS frames or the wrong
             resolution, or is truncated (after everything readable was yielded).
@@ -89,7 +90,7 @@ def pipeline_over(
     recording = Path(recording)
     sensor = pipeline.sensor
     with RecordingReader(recording, require_frames=True, require_resolution=(sensor.width, sensor.height)) as reader:
-        total_us = int(reader.info.duration_us) if on_progress is not None else 0
+        total_us = reader.indexed_duration_us if on_progress is not None else 0
         first_us = last_us = None
         next_report = 0
         for item in reader.stream(batch_us=pipeline.config.window_us):

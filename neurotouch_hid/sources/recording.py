@@ -312,6 +312,17 @@ class RecordingReader:
             self._tmp = None
 
     @property
+    def indexed_duration_us(self) -> int:
+        """The recording's time span (us) as its index table says (dv-processing
+        ``getTimeRange``): read without decoding any data, e.g. for a progress bar's total.
+        A repaired truncated file's index may say less than the data holds; :attr:`info`
+        gives the exact span at the price of a pass over the file."""
+        if self._recording is None:
+            raise RecordingError(f"{self.path}: the reader is closed")
+        start, end = self._recording.getTimeRange()
+        return max(0, int(end) - int(start))
+
+    @property
     def truncated(self) -> str | None:
         """Why the file is truncated or its index is damaged, or None for a whole file."""
         return self._truncated
