@@ -61,6 +61,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from neurotouch_hid.errors import NeurotouchError
@@ -243,13 +244,12 @@ class DomeCamera:
         return 1.0 / (1.0 + u * u) ** 2
 
 
-def hertz_deflection(r: np.ndarray, a: float) -> np.ndarray:
-    """(...) Hertz normal surface deflection of a spherical indenter, relative to the indentation
-    depth, at distances r (mm) from the contact's centre with contact radius a (mm):
-    ``1 - r^2 / 2a^2`` inside, ``[(2 - r^2/a^2) asin(a/r) + sqrt(r^2/a^2 - 1)] / pi`` outside
-    (Johnson, *Contact Mechanics*, 1985, eq. 3.42). 1 at the centre, 1/2 at the edge."""
-    q = np.asarray(r, dtype=np.float64) / a
-    inside = 1.0 - 0.5 * q * q
-    qo = np.maximum(q, 1.0)
-    outside = ((2.0 - qo * qo) * np.arcsin(1.0 / qo) + np.sqrt(qo * qo - 1.0)) / math.pi
-    return np.where(q <= 1.0, inside, outside)
+@numba.njit(cache=True)
+def hertz_deflection(q: float) -> float:
+    """Hertz normal surface deflection of a spherical indenter, relative to the indentation
+    depth, at q = r / a (distance from the contact's centre over the contact radius, >= 0):
+    ``1 - q^2 / 2`` inside, ``[(2 - q^2) asin(1/q) + sqrt(q^2 - 1)] / pi`` outside (Johnson,
+    *Contact Mechanics*, 1985, eq. 3.42). 1 at the centre, 1/2 at the edge, ~4 / (3 pi q) far out."""
+    if q <= 1.0:
+        return 1.0 - 0.5 * q * q
+    return ((2.0 - q * q) * math.asin(1.0 / q) + math.sqrt(q * q - 1.0)) / math.pi

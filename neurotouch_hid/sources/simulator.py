@@ -64,7 +64,7 @@ from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame, StreamItem
 from neurotouch_hid.sources.esim import NOISE_RATE_HZ, EventCamera, render_frame
 from neurotouch_hid.sources.physics import (
-    FALLOFF_GAUSSIAN, PHYSICS, DomeCamera, Physics, mix_families, physics_family,
+    PHYSICS, DomeCamera, Physics, hertz_deflection, mix_families, physics_family,
 )
 from neurotouch_hid.sources.recording import RecordingWriter, split_batches
 
@@ -376,12 +376,7 @@ def _finger_field(pts: np.ndarray, finger: np.ndarray, d: np.ndarray, finger_mm:
             if dim_max * p > dim[t, m]:
                 dim[t, m] = dim_max * p
             if indent > 0.0:
-                q = math.sqrt(dist2) / finger_mm
-                if q <= 1.0:
-                    h = 1.0 - 0.5 * q * q
-                else:
-                    h = ((2.0 - q * q) * math.asin(1.0 / q) + math.sqrt(q * q - 1.0)) / math.pi
-                gr = indent * press * level[t] * h
+                gr = indent * press * level[t] * hertz_deflection(math.sqrt(dist2) / finger_mm)
                 if gr > grow[t, m]:
                     grow[t, m] = gr
 
