@@ -24,19 +24,17 @@ Which one (or none) the pipeline uses is ``PipelineConfig.noise_filter``; by def
 background-activity filter with 20 ms (docs/accuracy.md, "Noise filter": on the simulated test
 set at 0.1 Hz per pixel it moves no metric by more than 0.08 point or 0.06 mm, and at 3 Hz per
 pixel it keeps the contact count accuracy at ~86-87 % where the tracker alone falls to ~80 %,
-the contact distance at ~2.1 mm instead of ~2.8 mm). Through the library
-its cost is mostly the conversion to and from dv-processing's ``EventStore`` (docs/performance.md,
-"Noise filter"; dv-processing 2.0.4 has no bulk path from numpy: one ``push_back`` per event); the live
-camera delivers ``EventStore`` values, so ``DavisSource`` runs the library's filter
+the contact distance at ~2.1 mm instead of ~2.8 mm). Through the library its cost is mostly
+the conversion to and from dv-processing's ``EventStore`` (docs/performance.md, "Noise
+filter"; dv-processing 2.0.4 has no bulk path from numpy: one ``push_back`` per event); the
+live camera delivers ``EventStore`` values, so ``DavisSource`` runs the library's filter
 (:meth:`EventNoiseFilter.filter_store`) on them before any copy, and its pipeline has none.
 On numpy batches (recordings, the simulated gel, ``track``, ``eval``) the background-activity
 filter runs as a numba kernel instead (:func:`background_activity_keep`) that keeps exactly the
-events dv-processing's ``BackgroundActivityNoiseFilter`` keeps on the same input (its
-``doBackgroundActivityLookup`` and time surface, transcribed; ``tests/test_noise_filter.py``
-compares the two on the street recording and on simulated gels with noise), without the
-copies: 4-7x faster than the copies and the library (docs/performance.md, "Event path at the
-camera's full rate"). The other two filters still go
-through the library and its copies.
+events dv-processing's ``BackgroundActivityNoiseFilter`` keeps on the same input (its rule
+and time surface, re-implemented; ``tests/test_noise_filter.py`` compares the two on the street
+recording and on simulated gels with noise), without the copies: 4-7x faster than the copies and the library (docs/performance.md, "Event path at the
+camera's full rate"). The other two filters still go through the library and its copies.
 """
 
 from __future__ import annotations
