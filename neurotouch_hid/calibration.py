@@ -25,7 +25,10 @@ step here is scale-free:
    towards the rim (in the simulator the median spacing over the whole grid is ~15 % short),
    so it is the median length of the :data:`CENTRE_PAIRS` neighbouring-marker pairs nearest the
    centre (the edges of the central 3x3 block of the grid), divided by 4 mm.
-5. **Marker count** -- refused below half the expected count (paper: 177), noted when off by
+5. **Rest layout** -- the markers of the averaged rest frame are written to sensor.yaml as
+   ``rest_markers_px`` (image px): the pipeline refuses a first frame whose markers are off this
+   layout (a run that starts with the gel pressed; ``PipelineConfig.rest_match_pitch``).
+6. **Marker count** -- refused below half the expected count (paper: 177), noted when off by
    more than :data:`COUNT_TOLERANCE`.
 
 Mirror and rotation cannot be seen on a rest frame: :func:`calibrate` leaves SensorGeometry's
@@ -192,6 +195,7 @@ def calibrate(frames: Iterable[Frame], *, expected_markers: int = EXPECTED_MARKE
     sensor = SensorGeometry(
         width=width, height=height, px_per_mm=round(spacing / MARKER_SPACING_MM, 4),
         gel_center_px=(round(float(center[0]), 2), round(float(center[1]), 2)), gel_radius_px=round(radius, 2),
+        extra={"rest_markers_px": [[round(float(x), 2), round(float(y), 2)] for x, y in points]},
     )
     return Calibration(sensor, points, spacing, (float(grid_center[0]), float(grid_center[1])),
                        not isinstance(edge, str), tuple(f.t_us for f in rest), tuple(notes))

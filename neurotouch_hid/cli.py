@@ -140,6 +140,10 @@ def simulate(
     noise_hz: float = typer.Option(
         0.1, "--noise-hz",
         help="background-activity noise per pixel (Hz): 0.1 a DAVIS-346 in good light, a few Hz in dim light"),
+    physics: str = typer.Option(
+        "default", "--physics",
+        help="gel and camera family: default, powerlaw, stickslip, indent, camera, drift, fingers, strong, markers, "
+             "noise, flicker, or mix (one family per sequence); see docs/accuracy.md"),
 ) -> None:
     """Simulate the NeuroTouch gel and write a labelled dataset (docs/dataset.md)."""
     from neurotouch_hid.sources.simulator import write_dataset
@@ -151,7 +155,7 @@ def simulate(
         except ValueError:
             raise NeurotouchError(f"--users: expected comma-separated user ids 0-9, got {users!r}") from None
     folder = write_dataset(out, preset=preset, seed=seed, minutes=minutes, users=user_ids, progress=True,
-                           noise_hz=noise_hz)
+                           noise_hz=noise_hz, physics=physics)
     console.print(f"wrote {folder}")
 
 
@@ -163,16 +167,14 @@ def track(
     sensor: Optional[Path] = typer.Option(None, "--sensor", help="sensor.yaml (default: the one beside the recording)"),
     window_us: int = typer.Option(10_000, "--window-us", help="window length in microseconds (>= 1000)"),
     markers: Optional[Path] = typer.Option(None, "--markers", help="also write tracked marker positions (.npz)"),
+    preset: str = typer.Option("default", "--preset", help="pipeline settings: default (tuned) or paper (the paper's method exactly)"),
 ) -> None:
     """Run the gesture pipeline on a recording and write one prediction per window."""
-    from neurotouch_hid.pipeline.pipeline import PipelineConfig
+    from neurotouch_hid.evaluation.runner import pipeline_config
     from neurotouch_hid.pipeline.track import recording_progress, track_recording
     from neurotouch_hid.sensor import find_sensor_file
 
-    try:
-        config = PipelineConfig(window_us=window_us)
-    except ValueError as exc:
-        raise NeurotouchError(f"--window-us: {exc}") from None
+    config = pipeline_config(preset=preset, window_us=window_us)
     geometry = find_sensor_file(recording, sensor)
     with recording_progress(err_console, "tracking") as report:
         summary = track_recording(recording, out, geometry, config, markers_out=markers, on_progress=report)
@@ -192,6 +194,7 @@ def eval_cmd(
     json_out: Optional[Path] = typer.Option(None, "--json", help="write the metrics as JSON"),
     window_us: Optional[int] = typer.Option(None, "--window-us", help="window length in microseconds (default: PipelineConfig's)"),
     settings: list[str] = typer.Option([], "--set", help="pipeline hyperparameter NAME=VALUE (a PipelineConfig field), repeatable"),
+    preset: str = typer.Option("default", "--preset", help="pipeline settings before --set: default (tuned) or paper (the paper's method exactly)"),
     jobs: int = typer.Option(1, "--jobs", min=1, help="sequences run in parallel processes"),
     predictions: Optional[Path] = typer.Option(None, "--predictions", help="keep each sequence's predictions here (JSON lines)"),
 ) -> None:
@@ -204,13 +207,13 @@ def eval_cmd(
     from neurotouch_hid.evaluation.report import print_tables, write_report
     from neurotouch_hid.evaluation.runner import evaluate_dataset, pipeline_config
 
-    config = pipeline_config(settings, **({} if window_us is None else {"window_us": window_us}))
+    config = pipeline_config(settings, preset, **({} if window_us is None else {"window_us": window_us}))
     columns = (TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed:.1f}/{task.total:.1f} s recorded"),
                TimeElapsedColumn(), TimeRemainingColumn())
     with Progress(*columns, console=err_console, transient=True) as progress:
         result = evaluate_dataset(dataset, config, jobs=jobs, predictions_dir=predictions, progress=progress)
     print_tables(result, console)
-    argv = ["eval", str(dataset)] + [f"--set={item}" for item in settings] + [
+    argv = ["eval", str(dataset)] + ([f"--preset={preset}"] if preset != "default" else []) + [f"--set={item}" for item in settings] + [
         f"{flag}={value}" for flag, value in (("--window-us", window_us), ("--jobs", jobs if jobs > 1 else None),
                                               ("--report", report), ("--json", json_out)) if value is not None]
     command = "neurotouch-hid " + shlex.join(argv)

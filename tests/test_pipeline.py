@@ -3,6 +3,7 @@ whole pipeline on a simulated dataset (paper, section "Methodology")."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import threading
 
@@ -147,6 +148,24 @@ def test_moving_markers_overrule_a_stale_resting_verdict(rest_image):
     assert pipeline.resting.resting  # the APS verdict itself is unchanged ...
     pipeline.process(Frame(40000, rest_image))  # ... until the next frame judges (and resets)
     assert [e.resting for e in pipeline.process(events_at(45000))] == [True]
+
+
+def test_motion_override_counts_its_own_markers_not_the_contact_n_min(rest_image):
+    """With the paper's N_min = 4, the old rule (n_min markers moved) let five markers' tracker
+    jitter overrule a resting verdict; the override's own count (12) does not, and a real
+    finger still does."""
+    pipeline = GesturePipeline(SENSOR, PipelineConfig(motion_override_px=0.3, n_min=4))
+    pipeline.process(Frame(0, rest_image))
+    pipeline.process(events_at(1))
+    jitter = pipeline.rest_px.copy()
+    jitter[:5] += [0.4, 0.0]  # five scattered markers, 0.4 px off: noise, not a gesture
+    pipeline.tracker.reset(jitter)
+    assert [e.resting for e in pipeline.process(events_at(15000))] == [True]
+    d = np.linalg.norm(jitter - pipeline.rest_px, axis=1)
+    assert np.count_nonzero(d > 0.3) >= pipeline.config.n_min  # the old rule would have overruled
+    w = np.exp(-np.sum((pipeline.rest_px - SENSOR.gel_center_px) ** 2, axis=1) / (2 * 12.0**2))
+    pipeline.tracker.reset(pipeline.rest_px + w[:, None] * [5.0, 0.0])
+    assert [e.resting for e in pipeline.process(events_at(25000))] == [False]
 
 
 def test_without_motion_override_a_resting_verdict_holds_until_the_next_frame(rest_image):
@@ -410,3 +429,109 @@ def test_restart_before_any_reference_is_a_plain_start():
     pipeline.restart()
     pipeline.process(Frame(0, gel_image(shift_px=(2.0, 0.0))))
     assert pipeline.tracker is not None
+
+
+def _push_then_pinch(config: PipelineConfig, rest_image) -> list[GestureType]:
+    """A two-finger pinch whose first finger leads: two weak windows where only one finger
+    moved (a push), then six strong pinch windows, then a last weak window in which one finger
+    lingers (a push again). Returns each window's gesture type."""
+    pipeline = GesturePipeline(SENSOR, config)
+    pipeline.process(Frame(0, rest_image))
+    pipeline.process(events_at(1))
+    rest = pipeline.rest_px
+    c = np.asarray(SENSOR.gel_center_px)
+    f1, f2 = c + [-15.0, 0.0], c + [15.0, 0.0]
+    w1 = np.exp(-np.sum((rest - f1) ** 2, axis=1) / (2 * 12.0**2))
+    w2 = np.exp(-np.sum((rest - f2) ** 2, axis=1) / (2 * 12.0**2))
+    frames = [rest + w1[:, None] * [3.0, 0.0]] * 2 + [rest + w1[:, None] * [8.0, 0.0] - w2[:, None] * [8.0, 0.0]] * 6
+    frames += [rest + w1[:, None] * [3.0, 0.0]]
+    types = []
+    for k, moved in enumerate(frames):
+        pipeline.tracker.reset(moved)
+        (estimate,) = pipeline.process(events_at(15000 + 10000 * k))
+        types.append(estimate.gesture)
+    return types
+
+
+def test_episode_vote_keeps_one_type_over_a_gesture_where_windows_flip(rest_image):
+    """The window-by-window rule (paper) reads the lingering finger at the end as push; the
+    episode vote answers pinch once the pinch outweighs the push, and keeps it."""
+    base = dict(motion_override_px=0.3, chamfer_threshold=-1.0)  # never resting: only the events decide
+    plain = _push_then_pinch(PipelineConfig(episode_vote=False, **base), rest_image)
+    voted = _push_then_pinch(PipelineConfig(episode_vote=True, **base), rest_image)
+    P, Q = GestureType.PUSH, GestureType.PINCH
+    assert plain[:2] == [P, P] and plain[2:8] == [Q] * 6 and plain[8] is P
+    assert voted[:2] == [P, P]  # no added latency at onset: the first windows answer as before
+    assert voted[2:] == [Q] * 7  # the strong pinch outweighs at once, the weak push at the end does not
+
+
+def _calibrated(points_px) -> SensorGeometry:
+    return dataclasses.replace(SENSOR, extra={"rest_markers_px": np.asarray(points_px).tolist()})
+
+
+def test_a_run_that_starts_pressed_waits_for_the_calibrated_rest_layout(rest_image):
+    """The paper's rule takes the first frame as rest even when the gel is pressed; then the real
+    rest reads as a gesture. With the calibrated layout the pressed frames are refused and the
+    first frame at rest becomes the reference."""
+    from neurotouch_hid.pipeline.markers import detect_markers
+
+    layout = detect_markers(rest_image, SENSOR, None).centroids_px
+    pressed = gel_image(shift_px=(4.0, 0.0), region_px=30.0)
+    old = GesturePipeline(_calibrated(layout), PipelineConfig(rest_match_pitch=None))
+    old.process(Frame(0, pressed))
+    assert old.rest_px is not None and np.abs(old.rest_px[:, None] - layout[None]).sum(-1).min(1).max() > 3.0
+    new = GesturePipeline(_calibrated(layout))
+    for k in range(3):
+        assert new.process(Frame(40_000 * k, pressed)) == [] and new.rest_px is None
+    assert new.pressed_frames == 3
+    new.process(Frame(120_000, rest_image))
+    assert new.rest_px is not None
+    np.testing.assert_allclose(np.sort(new.rest_px, axis=0), np.sort(layout, axis=0), atol=0.05)
+
+
+def test_a_gel_still_off_its_calibration_is_taken_after_a_while(rest_image):
+    """A gel that moved since calibration (every marker 3 px off) must not stop the driver: once
+    RESUME_MATCH_FRAMES frames were refused, an unchanged frame is taken."""
+    from neurotouch_hid.pipeline.markers import detect_markers
+    from neurotouch_hid.pipeline.pipeline import RESUME_MATCH_FRAMES
+
+    layout = detect_markers(rest_image, SENSOR, None).centroids_px + [3.0, 0.0]
+    pipeline = GesturePipeline(_calibrated(layout))
+    k = 0
+    while pipeline.rest_px is None and k < RESUME_MATCH_FRAMES + 5:
+        pipeline.process(Frame(40_000 * k, rest_image))
+        k += 1
+    assert pipeline.rest_px is not None and k == RESUME_MATCH_FRAMES + 1 and pipeline.pressed_frames == RESUME_MATCH_FRAMES
+
+
+def test_pixel_settings_follow_px_per_mm_on_a_closer_camera():
+    """A camera at 4 px/mm (a 4 mm pitch is 16 px): the settings in fixed pixels (paper) give a
+    contact radius of 25 px = 6 mm, whose neighbourhood never holds n_min markers, so a clear
+    push is not found; following px_per_mm, r is 40 px = 10 mm on the gel again."""
+    from neurotouch_hid.pipeline.pipeline import scaled_to_sensor
+
+    sensor = SensorGeometry(px_per_mm=4.0, gel_radius_px=120.0)
+    c = np.asarray(sensor.gel_center_px)
+    k = np.arange(-7, 8) * 16.0
+    rest = np.stack(np.meshgrid(k, k), axis=-1).reshape(-1, 2) + c
+    rest = rest[np.hypot(*(rest - c).T) <= 7.2 * 16.0]
+    img = np.full((sensor.height, sensor.width), 20.0)
+    yy, xx = np.mgrid[-6:7, -6:7]
+    for x, y in rest:
+        ix, iy = int(round(x)), int(round(y))
+        img[iy - 6 : iy + 7, ix - 6 : ix + 7] += 220 * np.exp(-((xx + ix - x) ** 2 + (yy + iy - y) ** 2) / (2 * 1.4**2))
+    image = np.clip(img, 0, 255).astype(np.uint8)
+    results = {}
+    for follow in (False, True):
+        pipeline = GesturePipeline(sensor, PipelineConfig(follow_px_per_mm=follow, chamfer_threshold=-1.0))
+        pipeline.process(Frame(0, image))
+        pipeline.process(events_at(1))
+        assert len(pipeline.rest_px) == len(rest)
+        w = np.exp(-np.sum((pipeline.rest_px - c) ** 2, axis=1) / (2 * 28.0**2))  # a 7 mm finger, 5 mm push
+        pipeline.tracker.reset(pipeline.rest_px + (w * 20.0)[:, None] * [1.0, 0.0])
+        (estimate,) = pipeline.process(events_at(15000))
+        results[follow] = estimate
+    assert results[False].gesture is not GestureType.PUSH or results[False].n_contacts != 1
+    assert results[True].gesture is GestureType.PUSH and results[True].n_contacts == 1
+    assert scaled_to_sensor(PipelineConfig(), sensor).r_px == pytest.approx(25.0 * 4.0 / 2.5)
+    assert scaled_to_sensor(PipelineConfig(), SENSOR) == PipelineConfig()  # the reference scale: unchanged

@@ -83,3 +83,16 @@ def test_update_is_safe_from_several_threads(detector):
     with ThreadPoolExecutor(4) as pool:
         parallel = list(pool.map(detector.update, frames))
     assert parallel == serial
+
+
+def test_the_paper_raw_sum_is_the_per_marker_distance_times_the_markers():
+    """The paper's equation sums over every marker pixel: with 3 bars of 3 pixels shifted 2 px,
+    3 * (3 * 4 + 3 * 4) = 72, so the paper's threshold 2.5 calls it moving; per marker it is 24."""
+    def bars(dx):
+        img = np.zeros((SENSOR.height, SENSOR.width), np.uint8)
+        for x in (150, 170, 190):
+            img[129:132, x + dx] = 200
+        return img
+    raw = RestingDetector(bars(0), SENSOR, threshold=2.5, per_marker=False)
+    assert raw.update(bars(2)).distance == pytest.approx(72.0, rel=0.02)
+    assert not raw.update(bars(2)).resting and raw.update(bars(0)).resting

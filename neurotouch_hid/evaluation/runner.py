@@ -25,24 +25,31 @@ from neurotouch_hid.sensor import SensorGeometry
 
 log = logging.getLogger(__name__)
 
-def pipeline_config(settings: Sequence[str] = (), **values):
-    """A :class:`~neurotouch_hid.pipeline.pipeline.PipelineConfig` from ``NAME=VALUE`` strings
-    (the CLI's ``--set``) and keyword values, validated by the pydantic model itself.
+
+def pipeline_config(settings: Sequence[str] = (), preset: str = "default", **values):
+    """A :class:`~neurotouch_hid.pipeline.pipeline.PipelineConfig` from a preset
+    (:data:`~neurotouch_hid.pipeline.pipeline.PIPELINE_PRESETS`, the CLI's ``--preset``), then
+    ``NAME=VALUE`` strings (the CLI's ``--set``) and keyword values over it, validated by the
+    pydantic model itself.
 
     NAME is a field of PipelineConfig, or ``tracker.FIELD`` for a field of its nested
     TrackerConfig (any nested model field works the same way). VALUE is converted by pydantic to
     the field's type (``true``/``false`` for booleans; ``none`` or ``null`` for an optional field).
 
     Raises:
-        NeurotouchError: naming the setting, when it is not ``NAME=VALUE``, NAME is not a field
-            (the message lists the fields), or the model rejects the value (the field, the value
-            found and what was expected).
+        NeurotouchError: an unknown preset (the message lists them); naming the setting, when
+            it is not ``NAME=VALUE``, NAME is not a field (the message lists the fields), or the
+            model rejects the value (the field, the value found and what was expected).
     """
+    import copy
+
     from pydantic import BaseModel, ValidationError
 
-    from neurotouch_hid.pipeline.pipeline import PipelineConfig
+    from neurotouch_hid.pipeline.pipeline import PIPELINE_PRESETS, PipelineConfig
 
-    data: dict = {}
+    if preset not in PIPELINE_PRESETS:
+        raise NeurotouchError(f"--preset {preset!r}: expected one of {', '.join(PIPELINE_PRESETS)}")
+    data: dict = copy.deepcopy(PIPELINE_PRESETS[preset])
     given: dict[tuple, str] = {}
     for item in settings:
         name, sep, text = item.partition("=")

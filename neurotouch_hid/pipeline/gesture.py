@@ -302,3 +302,31 @@ def estimate_gesture(
         translation_mm=sensor.vectors_image_to_user(similarity.translation_px),
         rotation_rad=user_rotation(similarity.rotation_rad, sensor),
     )
+
+
+class EpisodeVote:
+    """One gesture decision per gesture episode (not in the paper; ``PipelineConfig.episode_vote``).
+
+    The windows from a gesture's onset (the first window with a gesture) to its end (the next
+    ``none`` window) form an episode. Each window adds its intensity (mm) to the votes of its own
+    type; the episode's decision is the type with the most votes so far, the window's own type on
+    a tie. The first window of an episode is answered with its own type (no added latency at
+    onset); a later window changes the answer only once its type outweighs the others.
+    """
+
+    def __init__(self) -> None:
+        self._votes: dict[GestureType, float] = {}
+
+    def reset(self) -> None:
+        """End the episode (a ``none`` or resting window, or a restart)."""
+        self._votes = {}
+
+    def update(self, gesture: GestureType, intensity_mm: float) -> GestureType:
+        """The decision after one window of type ``gesture`` with intensity ``intensity_mm`` (mm,
+        >= 0); ``NONE`` ends the episode and is returned as is."""
+        if gesture is GestureType.NONE:
+            self.reset()
+            return gesture
+        self._votes[gesture] = self._votes.get(gesture, 0.0) + max(float(intensity_mm), 1e-6)
+        best = max(self._votes.values())
+        return gesture if self._votes[gesture] == best else max(self._votes, key=self._votes.get)

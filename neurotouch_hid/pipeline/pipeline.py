@@ -17,10 +17,20 @@ comes from an APS frame, i.e. is up to 40 ms old at 25 Hz, so a gesture starting
 resting frame would be answered ``none``/resting for up to four 10 ms windows. The paper
 (section "Resting Position Detection") uses the APS frames because the scene is static at rest,
 and the events for dynamics; so the event path may overrule a resting verdict: the tracker was
-reset to the rest positions with that verdict, and when, at a window's end, at least ``n_min``
-tracked markers have moved more than ``motion_override_px`` from rest, the window is processed
+reset to the rest positions with that verdict, and when, at a window's end, at least
+``override_min_markers`` tracked markers have moved more than ``motion_override_px`` from rest, the window is processed
 as a gesture window (``resting`` False). The verdict itself stays in force (no further tracker
 reset); the next APS frame's verdict decides again.
+
+Gesture decision over one gesture (``PipelineConfig.episode_vote``, not in the paper): the
+paper decides the type window by window, so a pinch whose first finger leads reads as push in
+its first windows and again in its release. With the vote, the windows from a gesture's onset (the
+first window with a gesture) to its end (the next ``none`` or resting window) form one episode;
+each window adds its intensity (mm) to the votes of its own type, and every window of the
+episode reports the type with the most votes so far. The first window of an episode is answered
+as before (no added latency at onset); a later window changes the answer only once its type has
+outweighed the others' accumulated intensity (the latency of such a change is measured in
+docs/accuracy.md).
 
 Windows: ``window_us`` long (10 ms default, paper, section "Runtime Performance"; anything
 down to 1 ms), aligned on multiples of ``window_us`` from the first event after the reference
@@ -46,8 +56,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validat
 from neurotouch_hid.errors import SensorError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.pipeline.contacts import HOMOGRAPHY_METHODS, detect_contacts
-from neurotouch_hid.pipeline.gesture import estimate_gesture
-from neurotouch_hid.pipeline.markers import detect_markers, looks_like_marker_grid
+from neurotouch_hid.pipeline.gesture import EpisodeVote, estimate_gesture
+from neurotouch_hid.pipeline.markers import MARKER_SPACING_MM, detect_markers, looks_like_marker_grid
 from neurotouch_hid.pipeline.noise import EventNoiseFilter, check_noise_filter
 from neurotouch_hid.pipeline.resting import RestingDetector, RestingResult
 from neurotouch_hid.pipeline.tracker import BlobTracker, TrackerConfig
@@ -67,7 +77,9 @@ STAGES = ("noise_filter", "tracker", "contacts", "gesture", "resting")
 
 
 class PipelineConfig(BaseModel):
-    """Every threshold of the pipeline (paper, section "Results" for the paper's values).
+    """Every threshold of the pipeline. The defaults are this project's tuned settings, not the
+    paper's; the paper's method and hyperparameters are the ``paper`` preset
+    (:data:`PIPELINE_PRESETS`, ``track/eval --preset paper``).
 
     A pydantic model: a value of the wrong type, out of range, or an unknown field raises
     ``pydantic.ValidationError`` (a ValueError) naming the field and what was expected; the
@@ -81,10 +93,10 @@ class PipelineConfig(BaseModel):
       multi-finger gestures as push more often (gesture accuracy 92.9-93.7 % against 95.2 %),
       and n_min < 8 let the noise of weakly deformed windows make extra contacts (contact
       count accuracy 85-89 % against 90.8 %). ``a`` stays the paper's 0.6.
-    - ``chamfer_threshold`` 0.4 (paper 2.5): our Chamfer distance is normalised per reference
-      marker (the sum of squared nearest distances over both marker-pixel sets divided by the
-      number of reference markers, px^2, ``resting.py``), not the paper's raw sum, so the
-      paper's 2.5 is on another scale; per APS frame, resting F1 97.5 % at 0.4 against 92.0 % at
+    - ``chamfer_threshold`` 0.4 (paper 2.5) with ``chamfer_per_marker`` on: our Chamfer
+      distance is normalised per reference marker (the sum of squared nearest distances over both
+      marker-pixel sets divided by the number of reference markers, px^2, ``resting.py``), not
+      the paper's raw sum, so the paper's 2.5 is on another scale; per APS frame, resting F1 97.5 % at 0.4 against 92.0 % at
       2.5; the detector's own rest noise is ~0.4, so 0.2 fails (51 %).
     - ``min_intensity_px`` 0.3 (was 0.5, not in the paper): gesture accuracy +0.1 point.
     - ``intensity_sigma_px`` 3 (paper: uniform mean over A): intensity MAE 1.36 -> 0.28 mm.
@@ -105,10 +117,12 @@ class PipelineConfig(BaseModel):
       half-lives let 3 Hz noise through. Cost: ~2 M events/s with its conversions
       (docs/performance.md, "Noise filter").
 
-    The paper's pipeline is ``--set r_px=30 --set n_min=4 --set chamfer_threshold=2.5 --set
-    min_intensity_px=0.5 --set intensity_sigma_px=none --set field_fallback=false --set
-    contact_refine_px=none --set motion_override_px=none --set origin_radius_px=none --set
-    noise_filter=none`` (``a`` is already 0.6).
+    The paper's pipeline is ``--preset paper`` (:data:`PIPELINE_PRESETS`): r 30 px, a 0.6 (for
+    both RANSAC fits: the paper states one dynamic threshold), N_min 4, the raw Chamfer sum of
+    the paper's equation with its threshold 2.5, no minimum intensity and none of the options
+    above. docs/accuracy.md's earlier "paper's pipeline" figures used a nearer variant
+    (``--set`` list there: per-marker Chamfer at 2.5, minimum intensity 0.5 px, the similarity's
+    threshold 2.0).
 
     Attributes:
         window_us: window length (us), >= 1000; paper: 10 ms.
@@ -121,7 +135,9 @@ class PipelineConfig(BaseModel):
             accurate as classic RANSAC on the simulated gel, ~2.5x faster) or ``ransac``
             (classic RANSAC), see ``contacts.HOMOGRAPHY_METHODS``.
         chamfer_threshold: Chamfer distance (px^2, see ``resting.py``) at or below which the
-            gel rests; paper: 2.5.
+            gel rests; paper: 2.5 (on its raw sum).
+        chamfer_per_marker: True: the Chamfer distance is divided by the reference's number of
+            markers (``resting.py``; not in the paper); False: the paper's raw sum.
         min_intensity_px: below this intensity (px), nothing moves: ``none``.
         gesture_reproj_factor: the similarity's RANSAC threshold, as a multiple of A's mean
             displacement. A loose 2.0 keeps most of A (RANSAC then only drops grossly mistracked
@@ -140,8 +156,25 @@ class PipelineConfig(BaseModel):
             contacts' mean (paper); > 0: at the best origin within this distance (px) of it
             (``gesture.py``, "Origin"; not in the paper).
         motion_override_px: None, or the displacement from rest (px) beyond which at least
-            ``n_min`` tracked markers overrule a resting verdict (module docstring; not in the
-            paper).
+            ``override_min_markers`` tracked markers overrule a resting verdict (module
+            docstring; not in the paper).
+        rest_match_pitch: a candidate rest reference (the first APS frame with a marker grid)
+            is refused while its markers are off the calibrated rest layout (sensor.yaml
+            ``rest_markers_px``) by more than this many marker pitches in the median
+            (``_matches_calibrated_rest``; not in the paper); None: any frame (paper).
+        follow_px_per_mm: every pixel setting here and in ``tracker`` is given at 2.5 px/mm
+            (:data:`REFERENCE_PX_PER_MM`) and follows sensor.yaml's px_per_mm
+            (:func:`scaled_to_sensor`; not in the paper); False: fixed pixels (paper).
+        episode_vote: the type of every window of a gesture episode is the intensity-weighted
+            vote of its windows so far (module docstring; not in the paper); False: each window's
+            own type (paper). On (decided on the development families before the final one was
+            run, docs/accuracy.md "Physics families"): gesture accuracy +0.6 to +3.6 points on 8
+            of the 10 development families, -1.3 on ``fingers`` (lagging fingers: the first
+            finger's push windows outvote the pinch) and -0.2 on ``strong``; type changes per
+            gesture 2.4-14.7 -> 0.6-3.0; median onset latency -5 to +15 ms (mean +2.8 ms).
+        override_min_markers: how many markers must have moved for the motion override (>= 1).
+            It used to be ``n_min``, a contact-neighbourhood size with another meaning: with the
+            paper's N_min = 4, four markers' tracker noise overruled a resting verdict.
         marker_threshold: grey level of marker pixels for marker detection and resting
             detection (0..255); None = Otsu's threshold on the reference frame.
         reference_attempts: how many first APS frames may fail to show a marker grid (e.g. an
@@ -168,6 +201,7 @@ class PipelineConfig(BaseModel):
     homography_max_iters: int = 2000
     homography_method: str = "usac_fast"
     chamfer_threshold: float = 0.4
+    chamfer_per_marker: bool = True
     min_intensity_px: float = 0.3
     gesture_reproj_factor: float = 2.0
     min_gesture_reproj_px: float = 0.5
@@ -176,6 +210,10 @@ class PipelineConfig(BaseModel):
     contact_refine_px: float | None = 20.0
     origin_radius_px: float | None = 10.0
     motion_override_px: float | None = 0.3
+    override_min_markers: int = 12
+    episode_vote: bool = True
+    rest_match_pitch: float | None = 0.1
+    follow_px_per_mm: bool = True
     marker_threshold: int | None = None
     reference_attempts: int = 3
     detect_resting: bool = True
@@ -210,6 +248,8 @@ class PipelineConfig(BaseModel):
             value = getattr(self, name)
             if value is not None and not value > 0:
                 raise ValueError(f"{name} must be positive or None, got {value}")
+        if self.override_min_markers < 1:
+            raise ValueError(f"override_min_markers must be >= 1, got {self.override_min_markers}")
         if self.reference_attempts < 1:
             raise ValueError(f"reference_attempts must be >= 1, got {self.reference_attempts}")
         if self.r_px <= 0 or self.a <= 0 or self.n_min < 1:
@@ -217,12 +257,69 @@ class PipelineConfig(BaseModel):
         return self
 
 
+#: Named sets of PipelineConfig values (``track/eval --preset NAME``; ``--set`` overrides them).
+#: ``paper``: the paper's method and hyperparameters exactly (paper, sections "Methodology" and
+#: "Results"): r = 30 px, a = 0.6, N_min = 4, Chamfer threshold 2.5 on the paper's raw sum,
+#: the uniform mean intensity over A, the translation about the contacts' mean, and no option the
+#: paper does not have (no minimum intensity, fallback, refinement, motion override or noise
+#: filter). The paper gives one RANSAC threshold rule (a times the mean displacement); it is used
+#: for the gesture's similarity too.
+PIPELINE_PRESETS: dict[str, dict[str, object]] = {
+    "default": {},
+    "paper": {
+        "r_px": 30.0, "a": 0.6, "n_min": 4, "chamfer_threshold": 2.5, "chamfer_per_marker": False,
+        "min_intensity_px": 0.0, "gesture_reproj_factor": 0.6, "intensity_sigma_px": None,
+        "field_fallback": False, "contact_refine_px": None, "origin_radius_px": None,
+        "motion_override_px": None, "noise_filter": None, "rest_match_pitch": None,
+        "follow_px_per_mm": False, "episode_vote": False,
+    },
+}
+
+
+#: The image scale (px/mm) at which PipelineConfig's and TrackerConfig's pixel settings are
+#: given: the simulated DAVIS-346 NeuroTouch's (docs/dataset.md sensor.yaml), 4 mm marker pitch = 10 px.
+REFERENCE_PX_PER_MM = 2.5
+#: Pixel settings that are lengths (scale with px_per_mm), and tracker settings that are squared
+#: lengths or squared velocities (scale with its square).
+_PX_FIELDS = ("r_px", "min_intensity_px", "min_gesture_reproj_px", "intensity_sigma_px", "contact_refine_px",
+              "origin_radius_px", "motion_override_px")
+_TRACKER_PX = ("sigma_px", "assoc_px", "max_step_px", "frame_gate_px", "frame_sigma_px", "merge_px", "gel_margin_px",
+               "max_offset_px")
+_TRACKER_PX2 = ("q_pos", "q_vel", "q_offset", "p0_pos", "p0_vel", "p0_offset")
+
+
+def scaled_to_sensor(config: PipelineConfig, sensor: SensorGeometry) -> PipelineConfig:
+    """``config`` with its pixel settings following the sensor's scale (not in the paper).
+
+    Every pixel setting is given at :data:`REFERENCE_PX_PER_MM` (i.e. in mm, or marker pitches,
+    times that scale); with ``follow_px_per_mm`` they are multiplied by
+    ``sensor.px_per_mm / REFERENCE_PX_PER_MM`` (squared for the tracker's variances), so that a
+    camera nearer the gel or with more pixels keeps the same contact radius, tracker gates and
+    thresholds on the gel. The Chamfer threshold (px^2 per marker, growing with the marker's
+    pixel count too) is not scaled. Returns ``config`` itself at the reference scale or when
+    ``follow_px_per_mm`` is off (the paper's fixed pixels)."""
+    k = sensor.px_per_mm / REFERENCE_PX_PER_MM
+    if not config.follow_px_per_mm or k == 1.0:
+        return config
+    changes = {name: getattr(config, name) * k for name in _PX_FIELDS if getattr(config, name) is not None}
+    t = config.tracker
+    tracker = t.model_copy(update={**{n: getattr(t, n) * k for n in _TRACKER_PX}, **{n: getattr(t, n) * k * k for n in _TRACKER_PX2}})
+    return config.model_copy(update={"tracker": tracker, **changes})
+
+
+def _off_layout(layout_px: np.ndarray, points_px: np.ndarray, tol_px: float) -> float:
+    """Fraction of the layout's markers (N, 2) px without a point of ``points_px`` (M, 2) within
+    ``tol_px`` (all pairs: only candidate reference frames are checked)."""
+    d2 = ((layout_px[:, None, :] - points_px[None, :, :]) ** 2).sum(axis=-1).min(axis=1)
+    return float(np.mean(d2 > tol_px * tol_px))
+
+
 class GesturePipeline:
     """Events and APS frames -> one :class:`GestureEstimate` per window (paper, "Methodology").
 
     Args:
         sensor: the geometry (image size, gel disc, px/mm, image -> user frame).
-        config: thresholds (defaults: the paper's).
+        config: thresholds (default: PipelineConfig()'s tuned defaults; the paper's are PIPELINE_PRESETS["paper"]).
         on_window: called with each estimate right after its window closes, while the tracker
             holds that window's end positions (e.g. to record :meth:`marker_positions`).
         profile: record per-stage processing times (ns) in :attr:`timings`.
@@ -247,7 +344,9 @@ class GesturePipeline:
         profile: bool = False,
     ) -> None:
         self.sensor = sensor
-        self.config = config or PipelineConfig()
+        #: the settings as given; ``config`` is what runs (pixel settings scaled to the sensor)
+        self.settings = config or PipelineConfig()
+        self.config = scaled_to_sensor(self.settings, sensor)
         self.on_window = on_window
         self.rest_px: np.ndarray | None = None
         self.tracker: BlobTracker | None = None
@@ -260,8 +359,13 @@ class GesturePipeline:
         self._lock = threading.Lock()
         self._next_end: int | None = None
         self._rejected_frames = 0
+        #: reference candidates refused because the gel was pressed (see rest_match_pitch)
+        self.pressed_frames = 0
+        self._previous_points: np.ndarray | None = None
         self._resume_waited = 0
         self._previous_frame: Frame | None = None
+        #: the current gesture episode's decision (episode_vote)
+        self._episode = EpisodeVote()
         #: the last window's fit: (rest_px, current, valid, contacts, gesture result)
         self._last_fit: tuple | None = None
         #: the optional noise filter in front of the tracker (one per pipeline, its state kept
@@ -358,6 +462,7 @@ class GesturePipeline:
         self._rejected_frames = 0
         self._resume_waited = 0
         self._previous_frame = None
+        self._episode.reset()
 
     # --- outputs ----------------------------------------------------------------------------
     def marker_positions(self) -> np.ndarray:
@@ -387,6 +492,29 @@ class GesturePipeline:
         if result.resting and self.tracker is not None:
             self.tracker.reset(self.rest_px)
 
+    def _matches_calibrated_rest(self, points_px: np.ndarray) -> bool:
+        """Whether a candidate reference frame's markers (M, 2) px lie on the calibrated rest
+        layout (sensor.yaml's ``rest_markers_px``, written by ``calibrate``; not in the paper).
+
+        The paper takes the first frame as t0, "a timestep where the gel is in resting position";
+        a run that starts with the gel pressed would take a deformed layout as rest and read every
+        later rest as a gesture. The frame is rest when at most 5 % of the calibrated markers
+        have no detected marker within ``rest_match_pitch`` marker pitches. Without a calibrated
+        layout, or with ``rest_match_pitch`` None, every frame passes (paper). So that a gel
+        that moved since its calibration cannot stop the driver for good, after
+        :data:`RESUME_MATCH_FRAMES` refused frames a frame whose markers match the previous
+        frame's (the gel is still) is taken, as after a restart."""
+        layout = self.sensor.extra.get("rest_markers_px")
+        if layout is None or self.config.rest_match_pitch is None or len(points_px) == 0:
+            return True
+        tol = self.config.rest_match_pitch * MARKER_SPACING_MM * self.sensor.px_per_mm
+        points = np.asarray(points_px, dtype=np.float64)
+        previous, self._previous_points = self._previous_points, points
+        if _off_layout(np.asarray(layout, dtype=np.float64).reshape(-1, 2), points, tol) <= 0.05:
+            return True
+        return (self.pressed_frames >= RESUME_MATCH_FRAMES and previous is not None
+                and _off_layout(previous, points, tol) <= 0.05)
+
     def _initialise(self, frame: Frame) -> None:
         markers = detect_markers(frame.image, self.sensor, self.config.marker_threshold)
         if not looks_like_marker_grid(markers, self.sensor):
@@ -398,12 +526,16 @@ class GesturePipeline:
                 f"{len(markers)} bright blobs) do not look like NeuroTouch's marker grid (1 mm dots, 4 mm apart, "
                 "inside the gel disc of sensor.yaml); is this a NeuroTouch recording, and does sensor.yaml match it?"
             )
+        if not self._matches_calibrated_rest(markers.centroids_px):
+            self.pressed_frames += 1
+            return  # the gel is pressed: this frame is no rest reference; wait for one that is
         self.rest_px = markers.centroids_px.astype(np.float64)
         self.tracker = BlobTracker(
             self.rest_px, self.sensor.width, self.sensor.height, self.config.tracker, sensor=self.sensor
         )
         self.resting_detector = RestingDetector(
-            frame.image, self.sensor, self.config.chamfer_threshold, self.config.marker_threshold
+            frame.image, self.sensor, self.config.chamfer_threshold, self.config.marker_threshold,
+            per_marker=self.config.chamfer_per_marker,
         )
         self._resting = RestingResult(True, 0.0)
 
@@ -417,7 +549,7 @@ class GesturePipeline:
             return False
         try:
             still = RestingDetector(previous.image, self.sensor, self.config.chamfer_threshold,
-                                    self.config.marker_threshold)
+                                    self.config.marker_threshold, per_marker=self.config.chamfer_per_marker)
         except SensorError:  # the frame before shows no marker at all
             return False
         return still.update(frame).resting
@@ -480,25 +612,34 @@ class GesturePipeline:
         return estimate
 
     def _moving(self, current: np.ndarray, valid: np.ndarray) -> bool:
-        """True when ``motion_override_px`` is set and at least ``n_min`` valid markers are
+        """True when ``motion_override_px`` is set and at least ``override_min_markers`` valid markers are
         further than it from rest (the event path sees a gesture the APS verdict missed)."""
         threshold = self.config.motion_override_px
         if threshold is None:
             return False
         d = current[valid] - self.rest_px[valid]
-        return int(np.count_nonzero(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] > threshold * threshold)) >= self.config.n_min
+        moved = int(np.count_nonzero(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] > threshold * threshold))
+        return moved >= self.config.override_min_markers
+
+    def _vote(self, gesture: GestureType, intensity_mm: float) -> GestureType:
+        """The window's type: its own, or the episode's decision with ``episode_vote``."""
+        if not self.config.episode_vote:
+            return gesture
+        return self._episode.update(gesture, intensity_mm)
 
     def _estimate(self, t_us: int) -> GestureEstimate:
         current = self.tracker.positions_px
         valid = self.tracker.valid
         if self._resting.resting and not self._moving(current, valid):
+            self._vote(GestureType.NONE, 0.0)
             return GestureEstimate(t_us=t_us, gesture=GestureType.NONE, resting=True)
         contacts, result = self._contacts_and_gesture(self.rest_px, current, valid)
         if result.gesture is GestureType.NONE:
+            self._vote(GestureType.NONE, 0.0)
             return GestureEstimate(t_us=t_us, gesture=GestureType.NONE, resting=False)
         return GestureEstimate(
             t_us=t_us,
-            gesture=result.gesture,
+            gesture=self._vote(result.gesture, result.intensity_mm),
             resting=False,
             intensity_mm=result.intensity_mm,
             contacts_px=contacts.points_px,

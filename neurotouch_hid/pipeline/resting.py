@@ -42,7 +42,8 @@ class RestingResult:
     Attributes:
         resting: True when ``distance`` <= the detector's threshold.
         distance: squared Chamfer distance per reference marker (px^2, see the module
-            docstring); inf when the current frame has no marker pixel.
+            docstring), or the raw sum when the detector is not ``per_marker``; inf when the
+            current frame has no marker pixel.
     """
 
     resting: bool
@@ -58,6 +59,8 @@ class RestingDetector:
         threshold: Chamfer distance at or below which the gel rests (px^2); paper: 2.5.
         binary_threshold: grey level above which a pixel is a marker pixel (0..255); None =
             Otsu's threshold over the reference's gel disc, computed once and kept.
+        per_marker: True: the distance is divided by the reference's number of markers (module
+            docstring); False: the paper's raw sum (px^2).
     Attributes:
         n_markers: number of markers (8-connected marker-pixel regions) of the reference.
     Raises:
@@ -71,9 +74,11 @@ class RestingDetector:
         sensor: SensorGeometry,
         threshold: float = 2.5,
         binary_threshold: int | None = None,
+        per_marker: bool = True,
     ) -> None:
         self.sensor = sensor
         self.threshold = float(threshold)
+        self.per_marker = bool(per_marker)
         # Work on the gel disc's bounding box only: every marker pixel lies inside it, so the
         # distances there are the whole image's (4x fewer pixels on a DAVIS-346).
         cx, cy = sensor.gel_center_px
@@ -135,5 +140,5 @@ class RestingDetector:
             return RestingResult(False, float("inf"))
         current_to_ref = float(self._ref_dt2[points].sum())
         ref_to_current = float(self._squared_distance_to(mask).ravel()[self._ref_points].sum())
-        distance = (current_to_ref + ref_to_current) / self.n_markers
+        distance = (current_to_ref + ref_to_current) / (self.n_markers if self.per_marker else 1)
         return RestingResult(distance <= self.threshold, distance)

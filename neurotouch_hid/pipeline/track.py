@@ -125,7 +125,7 @@ def track_recording(
         recording: AEDAT4 file with events and APS frames of ``sensor``'s resolution.
         out: predictions file to write (docs/dataset.md).
         sensor: the geometry (e.g. :func:`neurotouch_hid.sensor.find_sensor_file`).
-        config: pipeline thresholds (window length included); None = the paper's.
+        config: pipeline thresholds (window length included); None = PipelineConfig()'s tuned defaults (not the paper's: --preset paper).
         markers_out: if given, also write the tracked marker positions at each window's end
             (``.npz``, see the module docstring).
         on_progress: see :func:`pipeline_over`.

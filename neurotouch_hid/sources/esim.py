@@ -96,7 +96,7 @@ def render_frame(background: np.ndarray, pos: np.ndarray, amp: np.ndarray, sigma
         background: (H, W) float64 grey levels without markers.
         pos: (S, N, 2) float64 marker positions (image px) at S instants of the exposure.
         amp: (S, N) float64 marker peak brightness above the background (grey levels).
-        sigma: (N,) float64 marker blob sigma (px).
+        sigma: (S, N) float64 marker blob sigma (px) at those instants.
         read_noise: sigma of the read noise (grey levels); shot_noise: sigma of the shot noise
             at grey level 1 (it grows with the square root of the grey level).
         noise_bank: (B,) float32 standard normal values; offset: where this frame's noise starts
@@ -112,7 +112,7 @@ def render_frame(background: np.ndarray, pos: np.ndarray, amp: np.ndarray, sigma
     s_count = pos.shape[0]
     for s in range(s_count):
         for n in range(pos.shape[1]):
-            splat(img, pos[s, n, 0], pos[s, n, 1], amp[s, n] / s_count, sigma[n], no_dirty, no_list, 0, gx, gy)
+            splat(img, pos[s, n, 0], pos[s, n, 1], amp[s, n] / s_count, sigma[s, n], no_dirty, no_list, 0, gx, gy)
     out = np.empty(img.shape, dtype=np.uint8)
     h, w = img.shape
     noise = noise_bank[offset : offset + h * w]
@@ -129,7 +129,7 @@ def render_frame(background: np.ndarray, pos: np.ndarray, amp: np.ndarray, sigma
 def esim_chunk(t_us: np.ndarray, pos: np.ndarray, amp: np.ndarray, sigma: np.ndarray, start: int,
                img: np.ndarray, lin_prev: np.ndarray, log_prev: np.ndarray, log_ref: np.ndarray, last_t: np.ndarray,
                c_on: np.ndarray, c_off: np.ndarray, rend_pos: np.ndarray, rend_amp: np.ndarray,
-               max_step_px: float, eps_px: float, refractory_us: int,
+               rend_sigma: np.ndarray, max_step_px: float, eps_px: float, refractory_us: int,
                out_t: np.ndarray, out_x: np.ndarray, out_y: np.ndarray, out_p: np.ndarray,
                dirty: np.ndarray, dirty_list: np.ndarray) -> tuple:
     """Generate the events of consecutive intervals [t_us[k], t_us[k+1]] (ESIM).
@@ -137,14 +137,15 @@ def esim_chunk(t_us: np.ndarray, pos: np.ndarray, amp: np.ndarray, sigma: np.nda
     Args:
         t_us: (T,) int64 sample times (us), usually 1 ms apart.
         pos: (T, N, 2) float64 marker positions (image px) at those times; amp: (T, N) float64
-            marker brightness (grey levels above background); sigma: (N,) blob sigma (px).
+            marker brightness (grey levels above background); sigma: (T, N) float64 blob sigma (px).
         start: first interval to process.
         img, lin_prev, log_prev, log_ref: (H, W) float64 state: current rendered image (grey
             levels), its value and log when last evaluated, the reference log level of the last
             event.
         last_t: (H, W) int64 time of each pixel's last event (us), for the refractory period.
         c_on, c_off: (H, W) float32 per-pixel contrast thresholds (log units).
-        rend_pos (N, 2), rend_amp (N,): where/how bright each marker is currently rendered.
+        rend_pos (N, 2), rend_amp (N,), rend_sigma (N,): where/how bright/how large each marker is
+            currently rendered.
         max_step_px: largest marker motion between two renders (px).
         eps_px: smaller motions of a marker are deferred (not re-rendered yet).
         refractory_us: events of a pixel closer than this to its previous one are dropped.
@@ -182,15 +183,17 @@ def esim_chunk(t_us: np.ndarray, pos: np.ndarray, amp: np.ndarray, sigma: np.nda
                 x = pos[k, n, 0] + a * (pos[k + 1, n, 0] - pos[k, n, 0])
                 y = pos[k, n, 1] + a * (pos[k + 1, n, 1] - pos[k, n, 1])
                 b = amp[k, n] + a * (amp[k + 1, n] - amp[k, n])
+                sg = sigma[k, n] + a * (sigma[k + 1, n] - sigma[k, n])
                 if (abs(x - rend_pos[n, 0]) < eps_px and abs(y - rend_pos[n, 1]) < eps_px
-                        and abs(b - rend_amp[n]) < 0.002 * rend_amp[n]):
+                        and abs(b - rend_amp[n]) < 0.002 * rend_amp[n] and abs(sg - rend_sigma[n]) < 0.002 * rend_sigma[n]):
                     continue
-                n_dirty = splat(img, rend_pos[n, 0], rend_pos[n, 1], -rend_amp[n], sigma[n], dirty, dirty_list,
+                n_dirty = splat(img, rend_pos[n, 0], rend_pos[n, 1], -rend_amp[n], rend_sigma[n], dirty, dirty_list,
                                 n_dirty, gx, gy)
-                n_dirty = splat(img, x, y, b, sigma[n], dirty, dirty_list, n_dirty, gx, gy)
+                n_dirty = splat(img, x, y, b, sg, dirty, dirty_list, n_dirty, gx, gy)
                 rend_pos[n, 0] = x
                 rend_pos[n, 1] = y
                 rend_amp[n] = b
+                rend_sigma[n] = sg
             dt = t_now - t_prev
             for q in range(n_dirty):
                 flat = dirty_list[q]
@@ -251,6 +254,7 @@ class EventCamera:
         self.img = background.astype(np.float64).copy()
         self.rend_pos = np.array(rest_px, dtype=np.float64)
         self.rend_amp = np.array(amp, dtype=np.float64)
+        self.rend_sigma = self.sigma.copy()
         no_dirty = np.zeros(0, dtype=np.uint8)
         no_list = np.zeros(0, dtype=np.int32)
         gx, gy = np.empty(2 * PATCH_RADIUS + 1), np.empty(2 * PATCH_RADIUS + 1)
@@ -280,7 +284,8 @@ class EventCamera:
         self._buf = [np.empty(self._cap, dtype=np.int64), np.empty(self._cap, dtype=np.int16),
                      np.empty(self._cap, dtype=np.int16), np.empty(self._cap, dtype=np.int8)]
 
-    def events(self, t_us: np.ndarray, pos: np.ndarray, amp: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    def events(self, t_us: np.ndarray, pos: np.ndarray, amp: np.ndarray, rng: np.random.Generator,
+               sigma: np.ndarray | None = None) -> np.ndarray:
         """Events between t_us[0] (exclusive) and t_us[-1] (inclusive), time-ordered.
 
         Args:
@@ -288,17 +293,22 @@ class EventCamera:
                 positions (image px); amp: (T, N) float64 brightness (grey levels); pos[0] must
                 continue the previous call's last sample.
             rng: numpy Generator for the noise events.
+            sigma: (T, N) float64 blob sigma (px) at t_us (markers that grow); default the
+                constructor's sizes.
         Returns:
             EVENT_DTYPE array, stable-sorted by timestamp (polarity 1 = ON).
         """
         pos = np.ascontiguousarray(pos, dtype=np.float64)
         amp = np.ascontiguousarray(amp, dtype=np.float64)
         t_us = np.ascontiguousarray(t_us, dtype=np.int64)
+        if sigma is None:
+            sigma = np.broadcast_to(self.sigma, amp.shape)
+        sigma = np.ascontiguousarray(sigma, dtype=np.float64)
         parts = []
         k = 0
         while k < len(t_us) - 1:
-            n, k = esim_chunk(t_us, pos, amp, self.sigma, k, self.img, self.lin_prev, self.log_prev, self.log_ref, self.last_t,
-                              self.c_on, self.c_off, self.rend_pos, self.rend_amp, self.max_step_px, self.eps_px,
+            n, k = esim_chunk(t_us, pos, amp, sigma, k, self.img, self.lin_prev, self.log_prev, self.log_ref, self.last_t,
+                              self.c_on, self.c_off, self.rend_pos, self.rend_amp, self.rend_sigma, self.max_step_px, self.eps_px,
                               self.refractory_us, *self._buf, self._dirty, self._dirty_list)
             ev = np.empty(n, dtype=EVENT_DTYPE)
             for name, buf in zip(EVENT_DTYPE.names, self._buf):

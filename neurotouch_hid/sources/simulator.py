@@ -31,6 +31,11 @@ Gesture Detection Dataset"):
   several renders, read noise and shot noise, uint8, background ~20, markers ~220) and events
   from ESIM (:mod:`neurotouch_hid.sources.esim`).
 
+* **Physics families** -- everything above is the ``default`` family; other families
+  (:mod:`neurotouch_hid.sources.physics`, ``simulate --physics NAME|mix``) change one aspect of
+  it (displacement falloff, contact mechanics, indentation, camera model, global motion, finger
+  timing and strength, very strong presses, marker spread, sensor noise, light flicker).
+
 Labels (docs/dataset.md) per APS frame: a gesture is labelled from its attack's start (the first
 instant its fingers move the gel) up to, not including, the end of its release (the fingers have
 left the gel); everything else is ``none`` with no contact. ``resting`` is 0 during a gesture
@@ -58,6 +63,9 @@ from neurotouch_hid.evaluation.dataset import LabelRow, write_labels
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame, StreamItem
 from neurotouch_hid.sources.esim import NOISE_RATE_HZ, EventCamera, render_frame
+from neurotouch_hid.sources.physics import (
+    PHYSICS, DomeCamera, Physics, hertz_deflection, mix_families, physics_family,
+)
 from neurotouch_hid.sources.recording import RecordingWriter, split_batches
 
 #: Gesture types that the simulated users perform (paper, section "Problem Statement").
@@ -167,8 +175,10 @@ class Gel:
         background: (H, W) float64 the gel's image without markers (grey levels).
     """
 
-    def __init__(self, sensor: SensorGeometry, rng: np.random.Generator) -> None:
+    def __init__(self, sensor: SensorGeometry, rng: np.random.Generator,
+                 physics: Physics = PHYSICS["default"], physics_rng: np.random.Generator | None = None) -> None:
         self.sensor = sensor
+        self.camera = DomeCamera(sensor, physics)
         half = int(MARKER_ARC_MM // MARKER_PITCH_MM) + 1
         g = np.arange(-half, half + 1) * MARKER_PITCH_MM
         gx, gy = np.meshgrid(g, g)
@@ -178,15 +188,21 @@ class Gel:
         arc, s = arc[keep], s[keep]
         radial = np.where(s > 0, DOME_SPHERE_MM * np.sin(s / DOME_SPHERE_MM) / np.maximum(s, 1e-12), 1.0)
         self.rest_mm = arc * radial[:, None]
-        self.rest_px = sensor.user_to_image(self.rest_mm)
+        self.rest_px = self.camera.project(self.rest_mm)
         tilt = np.cos(s / DOME_SPHERE_MM)  # foreshortening of the 1 mm dots towards the rim
         marker_px = MARKER_DIAMETER_MM * sensor.px_per_mm
-        self.sigma_px = marker_px * 0.38 * (0.8 + 0.2 * tilt)
+        self.sigma_px = marker_px * 0.38 * (0.8 + 0.2 * tilt) * self.camera.size_gain(self.rest_mm)
         r_rel = np.hypot(self.rest_mm[:, 0], self.rest_mm[:, 1]) / sensor.gel_radius_mm
-        self.brightness = MARKER_GREY * (1.0 - 0.12 * r_rel**2) * (1.0 + rng.normal(0.0, 0.03, len(s)))
+        spread = rng.normal(0.0, physics.brightness_spread, len(s)).clip(-0.5, 0.4)
+        self.brightness = MARKER_GREY * (1.0 - 0.12 * r_rel**2) * (1.0 + spread) * self.camera.vignetting_mm(self.rest_mm)
+        if physics.size_spread > 0:
+            prng = physics_rng if physics_rng is not None else np.random.default_rng(0)
+            self.sigma_px = self.sigma_px * prng.lognormal(0.0, physics.size_spread, len(s)).clip(0.7, 1.5)
         yy, xx = np.mgrid[0 : sensor.height, 0 : sensor.width]
         r_img = np.hypot(xx - sensor.gel_center_px[0], yy - sensor.gel_center_px[1]) / sensor.gel_radius_px
         self.background = np.where(r_img <= 1.0, BACKGROUND_GREY * (1.0 - 0.2 * r_img**2), OUTSIDE_GREY)
+        if physics.perspective:
+            self.background = self.background * self.camera.vignetting_image()
 
     @property
     def n_markers(self) -> int:
@@ -209,6 +225,11 @@ class SimGesture:
         tremor: (relative amplitude, frequency Hz, phase rad) of the hold's tremor.
         global_mm: (2,) whole-gel translation at full deformation (mm); global_rad: rotation (rad).
         residual: deformation left when the release ends (fraction); creep_us: its time constant.
+        lags_us: per finger, how long after t_start_us it starts moving (us, each < attack_us;
+            empty: all at once); strengths: per finger, its share of the motion (0..1; empty:
+            all 1) -- the ``fingers`` family.
+        squeeze: radial contraction of the markers under a pressing finger (mm; 0: the default
+            spread) -- the ``strong`` family.
     """
 
     gesture: GestureType
@@ -226,6 +247,9 @@ class SimGesture:
     global_rad: float
     residual: float
     creep_us: int
+    lags_us: tuple[int, ...] = ()
+    strengths: tuple[float, ...] = ()
+    squeeze: float = 0.0
 
     @property
     def t_end_us(self) -> int:
@@ -256,22 +280,42 @@ class SimGesture:
         out[m] = self.residual * np.exp(-(t[m] - a - h - r) / self.creep_us)
         return out
 
+    def finger_levels(self, t_us: np.ndarray) -> np.ndarray:
+        """(T, K) float64 each finger's deformation level at t_us (T,) int64 us: the gesture's
+        :meth:`profile`, except that a lagging finger's attack ramp starts ``lags_us[k]`` late
+        (and ends with the others'), times the finger's strength."""
+        base = self.profile(t_us)
+        levels = np.repeat(base[:, None], len(self.fingers_mm), axis=1)
+        t = np.asarray(t_us, dtype=np.float64) - self.t_start_us
+        for k, lag in enumerate(self.lags_us):
+            if lag <= 0:
+                continue
+            m = (t >= 0) & (t < self.attack_us)
+            ramp = np.clip((t[m] - lag) / (self.attack_us - lag), 0.0, 1.0)
+            levels[m, k] = 0.5 - 0.5 * np.cos(math.pi * ramp)
+        if self.strengths:
+            levels = levels * np.asarray(self.strengths, dtype=np.float64)[None, :]
+        return levels
+
     def finger_displacements(self, level: np.ndarray) -> np.ndarray:
-        """(T, K, 2) float64 displacement of each finger (user mm) at deformation levels (T,)."""
+        """(T, K, 2) float64 displacement of each finger (user mm) at deformation levels (T,)
+        (the same for every finger) or (T, K) (:meth:`finger_levels`)."""
         level = np.asarray(level, dtype=np.float64)
         centre = self.fingers_mm.mean(axis=0)
         rel = self.fingers_mm - centre
+        if level.ndim == 1:
+            level = np.repeat(level[:, None], len(rel), axis=1)
         if self.gesture is GestureType.PUSH:
-            return level[:, None, None] * self.amplitude_mm * self.direction[None, None, :] * np.ones((1, len(rel), 1))
+            return level[:, :, None] * self.amplitude_mm * self.direction[None, None, :]
         if self.gesture in (GestureType.PINCH, GestureType.ZOOM):
             unit = rel / np.linalg.norm(rel, axis=1, keepdims=True)
             sign = -1.0 if self.gesture is GestureType.PINCH else 1.0
-            return sign * level[:, None, None] * self.amplitude_mm * unit[None]
+            return sign * level[:, :, None] * self.amplitude_mm * unit[None]
         # twist: rotate about the fingers' centroid; counter-clockwise (user frame, y up) is > 0
         radius = float(np.linalg.norm(rel, axis=1).mean())
         theta_max = 2.0 * math.asin(min(1.0, self.amplitude_mm / (2.0 * radius)))
         theta = level * theta_max * (1.0 if self.gesture is GestureType.TWIST_CCW else -1.0)
-        c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
+        c, s = np.cos(theta), np.sin(theta)
         rx = c * rel[None, :, 0] - s * rel[None, :, 1]
         ry = s * rel[None, :, 0] + c * rel[None, :, 1]
         return np.stack([rx - rel[None, :, 0], ry - rel[None, :, 1]], axis=-1)
@@ -279,35 +323,62 @@ class SimGesture:
 
 @numba.njit(cache=True, nogil=True)
 def _finger_field(pts: np.ndarray, finger: np.ndarray, d: np.ndarray, finger_mm: float, widen: float,
-                  press: float, level: np.ndarray, drag: np.ndarray, weight: np.ndarray, disp: np.ndarray, dim: np.ndarray) -> None:
+                  press: float, level: np.ndarray, flevel: np.ndarray, falloff: int, squeeze: float, indent: float,
+                  drag: np.ndarray, weight: np.ndarray, disp: np.ndarray, dim: np.ndarray, grow: np.ndarray) -> None:
     """Add one finger's field at the points ``pts`` (M, 2) mm, for times T.
 
-    The finger (rest centre ``finger`` (2,) mm, displacement ``d`` (T, 2) mm) drags the points
-    with a Gaussian falloff of sigma sqrt(finger_mm^2 + (widen |d|)^2), wider for large
-    displacements so that the gel never folds (the strain of a Gaussian drag peaks at
-    |d| / (sigma sqrt(e))): adds w * d to ``drag`` (T, M, 2) and w to
-    ``weight`` (T, M). Its pressure ``press * level`` spreads the points under it radially
-    (<= 0.35 mm, added to ``disp`` (T, M, 2)) and dims them (<= 25 %, max into ``dim`` (T, M)).
+    The finger (rest centre ``finger`` (2,) mm, displacement ``d`` (T, 2) mm, its own level
+    ``flevel`` (T,)) drags the points with a falloff w(r) that is 1 under the finger, of width
+    s = sqrt(finger_mm^2 + (widen |d|)^2), wider for large displacements so that the gel never
+    folds (the strain of a Gaussian drag peaks at |d| / (s sqrt(e))): adds w * d to ``drag``
+    (T, M, 2) and w to ``weight`` (T, M). ``falloff`` (physics.FALLOFF_*): Gaussian
+    exp(-r^2 / 2 s^2); power law (1 + r^2 / 2 s^2)^(-3/4); stick/slip: 1 in the stick disc
+    c = a (1 - min(level, 0.9))^(1/3), easing to 0.85 over the slip annulus up to the contact
+    radius a = sqrt(finger_mm^2 + (1.5 widen |d|)^2), then 0.85 a / r (Cattaneo-Mindlin).
+    The gesture's pressure ``press * level`` (T,) spreads the points under it radially
+    (<= 0.35 mm, or contracts them by <= ``squeeze`` mm when squeeze > 0; added to ``disp``
+    (T, M, 2)), dims them (<= 25 %, 40 % when squeezed; max into ``dim`` (T, M)) and, when
+    ``indent`` > 0, magnifies them by up to ``indent`` following the Hertz deflection with contact
+    radius finger_mm (max into ``grow`` (T, M)).
     """
     inv_f2 = 1.0 / (2.0 * finger_mm * finger_mm)
+    spread = 0.35 if squeeze <= 0.0 else -squeeze
+    dim_max = 0.25 if squeeze <= 0.0 else 0.4
     for t in range(d.shape[0]):
-        if level[t] == 0.0:
+        if level[t] == 0.0 and flevel[t] == 0.0:
             continue
         dn2 = d[t, 0] * d[t, 0] + d[t, 1] * d[t, 1]
         inv_s2 = 1.0 / (2.0 * (finger_mm * finger_mm + widen * widen * dn2))
+        a_c = math.sqrt(finger_mm * finger_mm + 2.25 * widen * widen * dn2)
+        c_s = a_c * (1.0 - min(flevel[t], 0.9)) ** (1.0 / 3.0)
         for m in range(pts.shape[0]):
             rx = pts[m, 0] - finger[0]
             ry = pts[m, 1] - finger[1]
             dist2 = rx * rx + ry * ry
-            w = math.exp(-dist2 * inv_s2)
+            if falloff == 0:
+                w = math.exp(-dist2 * inv_s2)
+            elif falloff == 1:
+                w = (1.0 + dist2 * inv_s2) ** -0.75
+            else:
+                r = math.sqrt(dist2)
+                if r <= c_s:
+                    w = 1.0
+                elif r <= a_c:
+                    w = 1.0 - 0.15 * (0.5 - 0.5 * math.cos(math.pi * (r - c_s) / max(a_c - c_s, 1e-9)))
+                else:
+                    w = 0.85 * a_c / r
             drag[t, m, 0] += w * d[t, 0]
             drag[t, m, 1] += w * d[t, 1]
             weight[t, m] += w
             p = press * level[t] * math.exp(-dist2 * inv_f2)
-            disp[t, m, 0] += 0.35 * p * rx / finger_mm
-            disp[t, m, 1] += 0.35 * p * ry / finger_mm
-            if 0.25 * p > dim[t, m]:
-                dim[t, m] = 0.25 * p
+            disp[t, m, 0] += spread * p * rx / finger_mm
+            disp[t, m, 1] += spread * p * ry / finger_mm
+            if dim_max * p > dim[t, m]:
+                dim[t, m] = dim_max * p
+            if indent > 0.0:
+                gr = indent * press * level[t] * hertz_deflection(math.sqrt(dist2) / finger_mm)
+                if gr > grow[t, m]:
+                    grow[t, m] = gr
 
 
 def _keep_inside(points_mm: np.ndarray, gel_radius_mm: float) -> np.ndarray:
@@ -323,30 +394,34 @@ def _keep_inside(points_mm: np.ndarray, gel_radius_mm: float) -> np.ndarray:
     return points_mm * scale[..., None]
 
 
-def deform(gestures: Sequence[SimGesture], points_mm: np.ndarray, t_us: np.ndarray, gel_radius_mm: float
-           ) -> tuple[np.ndarray, np.ndarray]:
-    """Where material points of the gel are at times t_us, and how much they are dimmed.
+def deform(gestures: Sequence[SimGesture], points_mm: np.ndarray, t_us: np.ndarray, gel_radius_mm: float,
+           physics: Physics = PHYSICS["default"]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where material points of the gel are at times t_us, how much they are dimmed and magnified.
 
     Args:
         gestures: the gestures that may deform the gel in this time span.
         points_mm: (M, 2) float64 rest positions, user frame (mm).
         t_us: (T,) int64 times (us).
         gel_radius_mm: the clamped rim's radius (mm).
+        physics: the family (its falloff and indentation; :mod:`neurotouch_hid.sources.physics`).
     Returns:
-        positions (T, M, 2) float64 user frame (mm); dimming (T, M) float64 in 0..1 (0 = none).
+        positions (T, M, 2) float64 user frame (mm); dimming (T, M) float64 in 0..1 (0 = none);
+        magnification (T, M) float64 >= 0 (relative growth of the marker's image, 0 = none).
     """
     pts = np.asarray(points_mm, dtype=np.float64)
     n_t = len(t_us)
     to_rim = RIM_CLAMP * gel_radius_mm - np.hypot(pts[:, 0], pts[:, 1])  # (M,) mm
     disp = np.zeros((n_t, len(pts), 2))
     dim = np.zeros((n_t, len(pts)))
+    grow = np.zeros((n_t, len(pts)))
     levels = []
     for g in gestures:
         level = g.profile(t_us)
         levels.append(level)
         if not level.any():
             continue
-        d_f = g.finger_displacements(level)  # (T, K, 2)
+        f_levels = g.finger_levels(t_us)  # (T, K)
+        d_f = g.finger_displacements(f_levels)  # (T, K, 2)
         local = np.zeros_like(disp)
         drag = np.zeros_like(disp)
         weight = np.zeros_like(dim)
@@ -354,7 +429,8 @@ def deform(gestures: Sequence[SimGesture], points_mm: np.ndarray, t_us: np.ndarr
         widen = 0.8 * (len(g.fingers_mm) if g.gesture is GestureType.PUSH else 1)
         for k in range(len(g.fingers_mm)):
             _finger_field(pts, g.fingers_mm[k], np.ascontiguousarray(d_f[:, k]), g.finger_mm, widen, g.press,
-                          level, drag, weight, local, dim)
+                          level, np.ascontiguousarray(f_levels[:, k]), physics.falloff, g.squeeze, physics.indent,
+                          drag, weight, local, dim, grow)
         # where fingers' falloffs overlap, blend their motions instead of adding them (the
         # surface under a finger moves with that finger, whatever the others do)
         local += drag / np.maximum(weight, 1.0)[..., None]
@@ -372,18 +448,24 @@ def deform(gestures: Sequence[SimGesture], points_mm: np.ndarray, t_us: np.ndarr
         x = c * out[..., 0] - s * out[..., 1] + level[:, None] * g.global_mm[0]
         y = s * out[..., 0] + c * out[..., 1] + level[:, None] * g.global_mm[1]
         out = np.stack([x, y], axis=-1)
-    return out, dim
+    return out, dim, grow
 
 
 def draw_gesture(rng: np.random.Generator, user: SimUser, gesture: GestureType, t_start_us: int,
-                 sensor: SensorGeometry) -> SimGesture:
+                 sensor: SensorGeometry, physics: Physics = PHYSICS["default"],
+                 physics_rng: np.random.Generator | None = None) -> SimGesture:
     """Draw one gesture of ``user`` starting at ``t_start_us`` (us): fingers, intensity, speed.
 
     The distributions follow the paper's dataset statistics (appendix figures): hold intensities
     mostly 0-6 mm with a tail to 18 mm, zoom the weakest and push the strongest; intensity
     speeds up to ~210 mm/s; push mostly with 1 finger, the others with 2-3; contacts anywhere on
     the gel but the rim, with a slight rightward bias in the image.
+
+    A family that changes the gestures (:attr:`Physics.changes_gestures`: ``strong``, ``drift``,
+    ``fingers``) draws its changes from ``physics_rng`` after the default draws from ``rng``, so
+    that the default family's gestures stay what they were.
     """
+    prng = physics_rng if physics_rng is not None else np.random.default_rng(0)
     if gesture is GestureType.PUSH:
         n_fingers = int(rng.choice([1, 2, 3], p=[0.75, 0.18, 0.07]))
     else:
@@ -391,6 +473,8 @@ def draw_gesture(rng: np.random.Generator, user: SimUser, gesture: GestureType, 
     finger = user.finger_mm * rng.uniform(0.9, 1.1)
     factor = {GestureType.PUSH: 1.2, GestureType.ZOOM: 0.7}.get(gesture, 0.85)
     amplitude = float(np.clip(rng.lognormal(math.log(user.intensity_mm * factor), 0.55), 0.8, MAX_INTENSITY_MM))
+    if physics.strong > 0 and prng.random() < physics.strong:
+        amplitude = float(prng.uniform(12.0, 20.0))
     bias = sensor.vectors_image_to_user(np.array([user.bias_mm * sensor.px_per_mm, 0.0]))
     limit = 0.8 * sensor.gel_radius_mm  # fingers stay off the rim
 
@@ -406,6 +490,8 @@ def draw_gesture(rng: np.random.Generator, user: SimUser, gesture: GestureType, 
         angles += rng.normal(0.0, 0.15, n_fingers)
         offsets = spread * np.stack([np.cos(angles), np.sin(angles)], axis=1)
         cap = {GestureType.PINCH: 0.55, GestureType.ZOOM: 0.5}.get(gesture, 1.2) * spread
+        if physics.strong > 0:  # very strong pinches and zooms: the fingers travel further
+            cap = {GestureType.PINCH: 0.7, GestureType.ZOOM: 0.65}.get(gesture, 1.2) * spread
         amplitude = min(amplitude, cap)
     reach = float(np.linalg.norm(offsets, axis=1).max())
     # the centre: Gaussian about the (biased) gel centre, kept so that fingers stay off the rim
@@ -424,13 +510,31 @@ def draw_gesture(rng: np.random.Generator, user: SimUser, gesture: GestureType, 
     attack = int(max(min_ramp_us, 0.4e6 * rng.lognormal(0.0, 0.45) / speed))
     release = int(max(min_ramp_us, 0.3e6 * rng.lognormal(0.0, 0.45) / speed))
     hold = int(1.0e6 * user.hold * rng.lognormal(0.0, 0.5))
+    extra: dict = {}
+    if physics.lag > 0:
+        lags = prng.uniform(0.0, physics.lag * attack, n_fingers)
+        lags[int(prng.integers(n_fingers))] = 0.0  # the first finger starts the gesture
+        extra["lags_us"] = tuple(int(v) for v in lags)
+    if physics.strength_min < 1:
+        strengths = prng.uniform(physics.strength_min, 1.0, n_fingers)
+        extra["strengths"] = tuple(float(v) for v in strengths / strengths.max())
+    if physics.squeeze > 0:
+        extra["squeeze"] = physics.squeeze
+    # the default stream's draws, in their historical order
+    press = float(rng.uniform(0.3, 1.0))
+    tremor = (float(rng.uniform(0.01, 0.04)), float(rng.uniform(3.0, 8.0)), float(rng.uniform(0, 2 * math.pi)))
+    global_mm = rng.normal(0.0, 0.15, 2).clip(-0.3, 0.3)
+    global_rad = float(rng.normal(0.0, 0.003))
+    residual = float(rng.uniform(0.02, 0.05))
+    creep_us = int(rng.uniform(60e3, 120e3))
+    if physics.global_mm != (0.15, 0.3) or physics.global_rad != (0.003, math.inf):
+        global_mm = prng.normal(0.0, physics.global_mm[0], 2).clip(-physics.global_mm[1], physics.global_mm[1])
+        global_rad = float(np.clip(prng.normal(0.0, physics.global_rad[0]), -physics.global_rad[1], physics.global_rad[1]))
     return SimGesture(
         gesture=gesture, t_start_us=int(t_start_us), attack_us=attack, hold_us=hold, release_us=release,
         fingers_mm=fingers, amplitude_mm=amplitude, direction=direction, finger_mm=finger,
-        press=float(rng.uniform(0.3, 1.0)),
-        tremor=(float(rng.uniform(0.01, 0.04)), float(rng.uniform(3.0, 8.0)), float(rng.uniform(0, 2 * math.pi))),
-        global_mm=rng.normal(0.0, 0.15, 2).clip(-0.3, 0.3), global_rad=float(rng.normal(0.0, 0.003)),
-        residual=float(rng.uniform(0.02, 0.05)), creep_us=int(rng.uniform(60e3, 120e3)),
+        press=press, tremor=tremor, global_mm=global_mm, global_rad=global_rad, residual=residual, creep_us=creep_us,
+        **extra,
     )
 
 
@@ -440,14 +544,16 @@ def draw_rest_us(rng: np.random.Generator, user: SimUser) -> int:
 
 
 def gesture_script(rng: np.random.Generator, user: SimUser, gestures: Iterable[GestureType], start_us: int,
-                   sensor: SensorGeometry, first_rest_us: int = 600_000) -> Iterator[SimGesture]:
+                   sensor: SensorGeometry, first_rest_us: int = 600_000, physics: Physics = PHYSICS["default"],
+                   physics_rng: np.random.Generator | None = None) -> Iterator[SimGesture]:
     """An endless succession of gestures of ``user``, cycling through ``gestures``, separated by
-    rests (the first starts ``first_rest_us`` after ``start_us``)."""
+    rests (the first starts ``first_rest_us`` after ``start_us``), drawn for the family
+    ``physics`` (:func:`draw_gesture`)."""
     order = list(gestures)
     t = start_us + first_rest_us
     k = 0
     while True:
-        g = draw_gesture(rng, user, order[k % len(order)], t, sensor)
+        g = draw_gesture(rng, user, order[k % len(order)], t, sensor, physics, physics_rng)
         yield g
         t = g.t_settled_us + draw_rest_us(rng, user)
         k += 1
@@ -487,7 +593,10 @@ class GelSimulator:
             previous one's ``t_settled_us``) instead of drawing them for ``user``; may be finite.
         noise_rate_hz: the event camera's background-activity rate per pixel (Hz, >= 0;
             ``EventCamera``). The gestures do not depend on it; the noise's random stream (shared
-            with the APS frames' noise) does.
+            with the APS frames' noise) does. A family with its own rate (``noise``) overrides it.
+        physics: the gel and camera family (:mod:`neurotouch_hid.sources.physics`; default
+            today's model). Its own draws come from a separate random stream, so the default
+            family's files do not change.
     Raises:
         ValueError: ``noise_rate_hz`` < 0.
     """
@@ -495,17 +604,26 @@ class GelSimulator:
     def __init__(self, sensor: SensorGeometry | None = None, user: SimUser = USERS[0],
                  gestures: Iterable[GestureType] = SIM_GESTURES, seed: int = 0,
                  stream_seed: Sequence[int] = (0,), start_us: int = START_US,
-                 script: Iterable[SimGesture] | None = None, noise_rate_hz: float = NOISE_RATE_HZ) -> None:
+                 script: Iterable[SimGesture] | None = None, noise_rate_hz: float = NOISE_RATE_HZ,
+                 physics: Physics = PHYSICS["default"]) -> None:
         self.sensor = sensor or SensorGeometry()
+        self.physics = physics
         camera_rng = np.random.default_rng(np.random.SeedSequence([seed, 0xCA3E]))
         script_ss, noise_ss = np.random.SeedSequence([seed, *stream_seed]).spawn(2)
-        self.gel = Gel(self.sensor, camera_rng)
+        gel_ss, gesture_ss = np.random.SeedSequence([seed, *stream_seed, 0xFA3]).spawn(2)
+        self.gel = Gel(self.sensor, camera_rng, physics, np.random.default_rng(gel_ss))
+        rate = noise_rate_hz if physics.noise_hz is None else physics.noise_hz
+        if not float(noise_rate_hz) >= 0.0:
+            raise ValueError(f"noise_rate_hz must be >= 0 Hz per pixel, got {noise_rate_hz}")
         self.camera = EventCamera(self.gel.background, self.gel.rest_px, self.gel.brightness, self.gel.sigma_px,
-                                  camera_rng, eps_px=0.05, noise_rate_hz=noise_rate_hz)
+                                  camera_rng, eps_px=0.05, noise_rate_hz=rate, n_hot=physics.n_hot,
+                                  hot_rate_hz=physics.hot_rate_hz)
         self._noise_rng = np.random.default_rng(noise_ss)
         self._noise_bank = camera_rng.standard_normal(1 << 20, dtype=np.float32)
         self._script = iter(script) if script is not None else gesture_script(
-            np.random.default_rng(script_ss), user, gestures, start_us, self.sensor)
+            np.random.default_rng(script_ss), user, gestures, start_us, self.sensor, physics=physics,
+            physics_rng=np.random.default_rng(gesture_ss))
+        self._flicker_phase = float(np.random.default_rng(gel_ss).uniform(0, 2 * math.pi))
         self._known: list[SimGesture] = []
         self._carry = np.zeros(0, dtype=EVENT_DTYPE)
         self.t_us = int(start_us)
@@ -521,25 +639,36 @@ class GelSimulator:
         self._known = [g for g in self._known if g.t_settled_us >= t0_us]
         return [g for g in self._known if g.t_start_us <= t1_us and g.t_settled_us >= t0_us]
 
-    def marker_state(self, t_us: np.ndarray, gestures: Sequence[SimGesture]) -> tuple[np.ndarray, np.ndarray]:
-        """True marker positions (T, N, 2) float64 image px and brightness (T, N) at t_us (T,)."""
-        pos_mm, dim = deform(gestures, self.gel.rest_mm, t_us, self.sensor.gel_radius_mm)
-        return self.sensor.user_to_image(pos_mm), self.gel.brightness[None] * (1.0 - dim)
+    def light(self, t_us: np.ndarray) -> np.ndarray:
+        """(T,) float64 relative brightness of the LED ring at t_us (1 unless the family flickers)."""
+        t = np.asarray(t_us, dtype=np.float64)
+        if self.physics.flicker <= 0:
+            return np.ones_like(t)
+        return 1.0 + self.physics.flicker * np.sin(2 * math.pi * self.physics.flicker_hz * t * 1e-6 + self._flicker_phase)
 
-    def _label(self, t_us: int, gestures: Sequence[SimGesture], pos_px: np.ndarray) -> LabelRow:
+    def marker_state(self, t_us: np.ndarray, gestures: Sequence[SimGesture]
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """True marker positions at t_us (T,): (T, N, 2) float64 image px (the family's camera),
+        brightness (T, N) grey levels, blob sigma (T, N) px and positions (T, N, 2) user mm."""
+        pos_mm, dim, grow = deform(gestures, self.gel.rest_mm, t_us, self.sensor.gel_radius_mm, self.physics)
+        amp = self.gel.brightness[None] * (1.0 - dim)
+        if self.physics.flicker > 0:
+            amp = amp * self.light(t_us)[:, None]
+        sigma = self.gel.sigma_px[None] * (1.0 + grow)
+        return self.gel.camera.project(pos_mm), amp, sigma, pos_mm
+
+    def _label(self, t_us: int, gestures: Sequence[SimGesture], pos_mm: np.ndarray) -> LabelRow:
         active = [g for g in gestures if g.t_start_us <= t_us < g.t_end_us]
         if not active:
-            moved_mm = np.linalg.norm(self.sensor.vectors_image_to_user(pos_px - self.gel.rest_px), axis=-1)
+            moved_mm = np.linalg.norm(pos_mm - self.gel.rest_mm, axis=-1)
             return LabelRow(t_us, GestureType.NONE, bool(moved_mm.max() < REST_TOLERANCE_MM), 0.0, np.zeros((0, 2)))
         g = active[0]
         times = np.array([g.t_start_us, t_us], dtype=np.int64)
-        pts_mm, _ = deform(gestures, g.fingers_mm, times, self.sensor.gel_radius_mm)
-        contacts_px = self.sensor.user_to_image(pts_mm)  # (2, K, 2)
-        moved = self.sensor.vectors_image_to_user(contacts_px[1] - contacts_px[0])
-        intensity = float(np.linalg.norm(moved, axis=-1).mean())
-        return LabelRow(t_us, g.gesture, False, intensity, contacts_px[1])
+        pts_mm = deform(gestures, g.fingers_mm, times, self.sensor.gel_radius_mm, self.physics)[0]  # (2, K, 2)
+        intensity = float(np.linalg.norm(pts_mm[1] - pts_mm[0], axis=-1).mean())
+        return LabelRow(t_us, g.gesture, False, intensity, self.gel.camera.project(pts_mm[1]))
 
-    def _frame(self, grid_us: np.ndarray, grid_pos: np.ndarray, grid_amp: np.ndarray) -> Frame:
+    def _frame(self, grid_us: np.ndarray, grid_pos: np.ndarray, grid_amp: np.ndarray, grid_sigma: np.ndarray) -> Frame:
         """The APS frame exposed from grid_us[0] for EXPOSURE_US: the average of renders at
         instants spaced so that no marker moves more than 0.3 px between them (positions
         interpolated linearly in the 1 ms grid), plus read and shot noise, as uint8."""
@@ -553,9 +682,12 @@ class GelSimulator:
         pos = grid_pos[k] + a[..., None] * (grid_pos[k + 1] - grid_pos[k])
         img_size = self.sensor.width * self.sensor.height
         amp = grid_amp[k] + a * (grid_amp[k + 1] - grid_amp[k])
+        sigma = grid_sigma[k] + a * (grid_sigma[k + 1] - grid_sigma[k])
         offset = int(self._noise_rng.integers(0, len(self._noise_bank) - img_size))
-        return Frame(t_us, render_frame(self.gel.background, pos, amp, self.gel.sigma_px, READ_NOISE, SHOT_NOISE,
-                                        self._noise_bank, offset))
+        background = self.gel.background
+        if self.physics.flicker > 0:  # the exposure integrates the light over its 4 ms
+            background = background * float(self.light(np.linspace(t_us, t_us + EXPOSURE_US, 9)).mean())
+        return Frame(t_us, render_frame(background, pos, amp, sigma, READ_NOISE, SHOT_NOISE, self._noise_bank, offset))
 
     def step(self) -> SimChunk:
         """Simulate the next APS frame period."""
@@ -563,14 +695,14 @@ class GelSimulator:
         t1 = t0 + FRAME_PERIOD_US
         grid = np.arange(t0, t1 + 1, 1000, dtype=np.int64)
         gestures = self._gestures_between(t0, t1)
-        pos, amp = self.marker_state(grid, gestures)
-        events = self.camera.events(grid, pos, amp, self._noise_rng)
+        pos, amp, sigma, pos_mm = self.marker_state(grid, gestures)
+        events = self.camera.events(grid, pos, amp, self._noise_rng, sigma)
         if len(self._carry):
             events = np.concatenate([self._carry, events])
         cut = int(np.searchsorted(events["timestamp"], t1, side="left"))
         self._carry = events[cut:]
         chunk = SimChunk(
-            frame=self._frame(grid, pos, amp), events=events[:cut], label=self._label(t0, gestures, pos[0]),
+            frame=self._frame(grid, pos, amp, sigma), events=events[:cut], label=self._label(t0, gestures, pos_mm[0]),
             t_us=grid[:-1], positions_px=pos[:-1].astype(np.float32),
         )
         self.t_us = t1
@@ -680,7 +812,8 @@ def save_npz(path: Path, **arrays: np.ndarray) -> None:
 def write_dataset(out_dir: str | Path, preset: str = "quick", seed: int = 0, minutes: float | None = None,
                   progress: bool = True, users: Sequence[int] | None = None,
                   gestures: Sequence[GestureType | str] | None = None,
-                  sensor: SensorGeometry | None = None, noise_hz: float = NOISE_RATE_HZ) -> Path:
+                  sensor: SensorGeometry | None = None, noise_hz: float = NOISE_RATE_HZ,
+                  physics: str = "default") -> Path:
     """Simulate and write a labelled dataset (docs/dataset.md): ``sensor.yaml`` and, per user and
     gesture type, ``u{user}_{gesture}.aedat4``, ``.labels.csv`` and ``.markers.npz``.
 
@@ -698,10 +831,14 @@ def write_dataset(out_dir: str | Path, preset: str = "quick", seed: int = 0, min
         noise_hz: background-activity noise rate per pixel (Hz, >= 0) of the simulated event
             camera (default 0.1, a DAVIS-346 in good light; real sensors reach a few Hz in dim
             light). The gesture scripts and labels do not depend on it.
+        physics: a family of :data:`~neurotouch_hid.sources.physics.PHYSICS` for every sequence,
+            or ``mix`` (one family per sequence, :func:`~neurotouch_hid.sources.physics.mix_families`).
+            ``physics.json`` in the folder maps each sequence to its family.
     Returns:
         the dataset folder.
     Raises:
-        NeurotouchError: unknown preset, user id or gesture, minutes <= 0 or noise_hz < 0.
+        NeurotouchError: unknown preset, user id, gesture or physics family, minutes <= 0 or
+            noise_hz < 0.
         RecordingError: the folder cannot be written.
     """
     if preset not in PRESET_SECONDS:
@@ -717,6 +854,7 @@ def write_dataset(out_dir: str | Path, preset: str = "quick", seed: int = 0, min
     if not kinds or GestureType.NONE in kinds:
         raise NeurotouchError("gestures must be among push, pinch, zoom, twist_cw, twist_ccw")
     n_seq = len(user_ids) * len(kinds)
+    families = mix_families(n_seq, seed) if physics == "mix" else [physics_family(physics)] * n_seq
     if minutes is not None and not minutes > 0:
         raise NeurotouchError(f"--minutes must be positive, got {minutes}")
     if not noise_hz >= 0:
@@ -729,6 +867,12 @@ def write_dataset(out_dir: str | Path, preset: str = "quick", seed: int = 0, min
     except OSError as exc:
         raise NeurotouchError(f"{out}: cannot create the dataset folder: {exc.strerror}") from None
     sensor.save(out / "sensor.yaml")
+    import json
+
+    pairs = [(int(u), g) for u in user_ids for g in kinds]
+    (out / "physics.json").write_text(json.dumps(
+        {"physics": physics, "sequences": {sequence_name(u, g): f.name for (u, g), f in zip(pairs, families)}},
+        indent=1) + "\n")
 
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
@@ -736,11 +880,11 @@ def write_dataset(out_dir: str | Path, preset: str = "quick", seed: int = 0, min
                TimeElapsedColumn(), TimeRemainingColumn())
     with Progress(*columns, disable=not progress, transient=False) as bar:
         task = bar.add_task("simulating", total=n_seq * seconds)
-        for k, (uid, kind) in enumerate((int(u), g) for u in user_ids for g in kinds):
+        for k, (uid, kind) in enumerate(pairs):
             name = sequence_name(uid, kind)
             bar.update(task, description=name)
             sim = GelSimulator(sensor, USERS[uid], [kind], seed=seed, stream_seed=(uid, SIM_GESTURES.index(kind)),
-                               noise_rate_hz=noise_hz)
+                               noise_rate_hz=noise_hz, physics=families[k])
             write_sequence(out, name, sim, seconds,
                            on_chunk=lambda us, k=k: bar.update(task, completed=k * seconds + min(us * 1e-6, seconds)))
     return out

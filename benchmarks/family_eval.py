@@ -1,0 +1,232 @@
+"""Leave-one-family-out evaluation: the pipeline on simulated gels it was not tuned on (docs/accuracy.md).
+
+    python3 benchmarks/family_eval.py --out DIR [--families powerlaw,camera,...] [--users 0,3]
+        [--seconds 4] [--seed 2] [--jobs 2] [--method NAME=PRESET[:NAME=VALUE;...]] [--final-run]
+
+Protocol (docs/accuracy.md, "Physics families"):
+
+* The pipeline's defaults were tuned on the ``default`` family only (benchmarks/tune_pipeline.py,
+  tuning users 5-9), so every other family is held out for them. A method change is tuned (if at
+  all) on the families it names in docs/accuracy.md and judged on the others.
+* :data:`FINAL_FAMILY` is kept untouched: it and ``mix`` (which draws it too) are evaluated only
+  with ``--final-run``, once, when the method changes are done.
+* Each family's dataset is small for a 2-core machine: the test users ``--users`` (default 0
+  and 3) x the five gesture types x ``--seconds`` (default 4 s, then on until the gel rests), an
+  even ``--seed`` (test users, never the tuning seed). ``mix`` is one family per sequence.
+
+Every family's dataset is written once under ``DIR/FAMILY`` (``simulate --physics FAMILY``) and
+each method's metrics are cached in ``DIR/results.json``; the table per held-out family, the
+worst family per metric and the paper's figures are printed (rich) and written to
+``DIR/families.md``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+import numpy as np
+
+from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.evaluation.dataset import list_sequences, read_labels
+from neurotouch_hid.evaluation.runner import evaluate_dataset, pipeline_config
+from neurotouch_hid.evaluation.metrics import Observations, align, evaluate
+from neurotouch_hid.output.jsonl import read_predictions, write_predictions
+from neurotouch_hid.pipeline.gesture import EpisodeVote
+from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.sources.physics import PHYSICS
+from neurotouch_hid.sources.simulator import write_dataset
+
+#: Kept untouched until the final run (docs/accuracy.md).
+FINAL_FAMILY = "stickslip"
+#: The five metrics: key, label, paper's figure, target, higher is better, unit scale.
+METRICS = (
+    ("gesture_accuracy", "gesture", 0.9112, 0.95, True, 100.0),
+    ("contact_count_accuracy", "count", 0.8322, 0.90, True, 100.0),
+    ("contact_distance_mm", "dist mm", 3.41, 2.5, False, 1.0),
+    ("intensity_mae_mm", "MAE mm", 0.96, 0.7, False, 1.0),
+    ("resting_f1", "resting F1", 0.9403, 0.97, True, 100.0),
+)
+#: ``ours`` is the tuned pipeline without the episode vote (its predictions are replayed through
+#: the vote as ``ours+vote``, which is the default now).
+DEFAULT_METHODS = ("ours=default:episode_vote=false", "paper=paper")
+
+app = typer.Typer(add_completion=False)
+
+
+def parse_method(text: str) -> tuple[str, str, list[str]]:
+    """``NAME=PRESET[:SET;SET...]`` -> (name, preset, ["k=v", ...])."""
+    name, _, rest = text.partition("=")
+    preset, _, sets = rest.partition(":")
+    return name.strip(), (preset.strip() or "default"), [s for s in sets.split(";") if s.strip()]
+
+
+def fmt(key: str, value: Optional[float], scale: float) -> str:
+    if value is None:
+        return "-"
+    return f"{value * scale:.2f} %" if scale != 1.0 else f"{value:.2f}"
+
+
+def meets(value: Optional[float], ref: float, higher: bool) -> bool:
+    return value is not None and (value >= ref if higher else value <= ref)
+
+
+@app.command()
+def main(
+    out: Path = typer.Option(..., "--out", help="working folder: datasets and results.json"),
+    families: str = typer.Option(",".join(f for f in PHYSICS if f != FINAL_FAMILY), "--families",
+                                 help=f"comma-separated families; {FINAL_FAMILY} and mix (which holds it) need --final-run"),
+    users: str = typer.Option("0,3", "--users", help="test users (0-4)"),
+    seconds: float = typer.Option(4.0, "--seconds", help="simulated seconds per sequence"),
+    seed: int = typer.Option(2, "--seed", help="even: test users' seed"),
+    jobs: int = typer.Option(2, "--jobs", min=1),
+    method: list[str] = typer.Option(list(DEFAULT_METHODS), "--method", help="NAME=PRESET[:NAME=VALUE;...], repeatable"),
+    final_run: bool = typer.Option(False, "--final-run", help=f"also evaluate the untouched family {FINAL_FAMILY}"),
+    rerun: bool = typer.Option(False, "--rerun", help="recompute cached results of these methods"),
+    vote_of: Optional[str] = typer.Option("ours", "--vote-of", help="also score METHOD+vote: METHOD's predictions "
+                                          "replayed through the episode vote (gesture.EpisodeVote, as episode_vote=true does)"),
+) -> None:
+    console = Console(soft_wrap=True)
+    names = [f.strip() for f in families.split(",") if f.strip()]
+    if {FINAL_FAMILY, "mix"} & set(names) and not final_run:
+        raise typer.BadParameter(f"{FINAL_FAMILY} (and mix, which holds it) is kept untouched until the final run: add --final-run")
+    if final_run and FINAL_FAMILY not in names:
+        names.append(FINAL_FAMILY)
+    user_ids = [int(u) for u in users.split(",")]
+    out.mkdir(parents=True, exist_ok=True)
+    cache_path = out / "results.json"
+    cache = json.loads(cache_path.read_text()) if cache_path.exists() else {}
+    methods = [parse_method(m) for m in method]
+    for fam in names:
+        folder = out / fam
+        if not (folder / "done").exists():
+            n_seq = len(user_ids) * 5
+            write_dataset(folder, seed=seed, users=user_ids, minutes=seconds * n_seq / 60.0, physics=fam, progress=False)
+            (folder / "done").write_text("")
+        for name, preset, sets in methods:
+            key = f"{fam}/{name}"
+            if key in cache and not rerun and cache[key].get("settings") == [preset, *sets]:
+                continue
+            console.print(f"{fam}: {name} ({preset} {' '.join(sets)})", highlight=False)
+            preds = out / "predictions" / fam / name
+            result = evaluate_dataset(folder, pipeline_config(sets, preset), jobs=jobs, predictions_dir=preds).to_dict()
+            cache[key] = {"settings": [preset, *sets], **{m[0]: result[m[0]] for m in METRICS},
+                          "observations": result.get("n_observations"), **onset_latency(folder, preds)}
+            cache_path.write_text(json.dumps(cache, indent=1) + "\n")
+        if vote_of and (out / "predictions" / fam / vote_of).is_dir():
+            key = f"{fam}/{vote_of}+vote"
+            if key not in cache or rerun:
+                cache[key] = {"settings": [*cache[f"{fam}/{vote_of}"]["settings"], "episode_vote=true"],
+                              **replay_vote(folder, out / "predictions" / fam, vote_of)}
+                cache_path.write_text(json.dumps(cache, indent=1) + "\n")
+    if vote_of:
+        methods.append((f"{vote_of}+vote", "", []))
+    lines = report(cache, names, [m[0] for m in methods])
+    (out / "families.md").write_text("\n".join(lines) + "\n")
+    table = Table(title="per held-out family")
+    for col in lines[0].strip("|").split("|"):
+        table.add_column(col.strip())
+    for line in lines[2:]:
+        if line.startswith("|"):
+            table.add_row(*[c.strip() for c in line.strip("|").split("|")])
+    console.print(table)
+    console.print(f"-> {out / 'families.md'}")
+
+
+def replay_vote(dataset: Path, predictions: Path, method: str) -> dict:
+    """METHOD's predictions (``predictions/METHOD``) through :class:`EpisodeVote`, written to
+    ``predictions/METHOD+vote`` and scored: the same per-window estimates as the pipeline with
+    ``episode_vote=true`` (the vote only reads each window's type and intensity, in order)."""
+    sensor = SensorGeometry.load(dataset / "sensor.yaml")
+    dst = predictions / f"{method}+vote"
+    dst.mkdir(parents=True, exist_ok=True)
+    parts = []
+    for name in list_sequences(dataset):
+        vote = EpisodeVote()
+        voted = [replace(p, gesture=vote.update(p.gesture, p.intensity_mm))
+                 for p in read_predictions(predictions / method / f"{name}.jsonl")]
+        write_predictions(dst / f"{name}.jsonl", voted)
+        parts.append(align(read_labels(dataset / f"{name}.labels.csv"), voted, sensor))
+    result = evaluate(Observations.concatenate(parts)).to_dict()
+    return {**{m[0]: result[m[0]] for m in METRICS}, "observations": result.get("n_observations"),
+            **onset_latency(dataset, dst)}
+
+
+def onset_latency(dataset: Path, predictions: Path) -> dict:
+    """How soon each labelled gesture is first answered with its type: per gesture (a run of
+    labelled frames of one type), the time from its first labelled frame to the first prediction
+    of that type before it ends. Returns the median latency (ms, over the gestures answered), the
+    fraction never answered, and the mean number of type changes of the predictions per gesture
+    (how consistent the answer is from onset to end)."""
+    latencies, missed, flips, total = [], 0, [], 0
+    for name in list_sequences(dataset):
+        labels = read_labels(dataset / f"{name}.labels.csv")
+        preds = read_predictions(predictions / f"{name}.jsonl")
+        t_pred = np.array([p.t_us for p in preds], dtype=np.int64)
+        g_pred = [p.gesture for p in preds]
+        k = 0
+        while k < len(labels):
+            if labels[k].gesture is GestureType.NONE:
+                k += 1
+                continue
+            j = k
+            while j + 1 < len(labels) and labels[j + 1].gesture is labels[k].gesture:
+                j += 1
+            t0 = labels[k].t_us
+            t1 = labels[j + 1].t_us if j + 1 < len(labels) else labels[j].t_us + 40_000
+            inside = [g for t, g in zip(t_pred, g_pred) if t0 <= t < t1]
+            total += 1
+            hit = [t for t, g in zip(t_pred, g_pred) if t0 <= t < t1 and g is labels[k].gesture]
+            if hit:
+                latencies.append((hit[0] - t0) / 1000.0)
+            else:
+                missed += 1
+            answered = [g for g in inside if g is not GestureType.NONE]
+            flips.append(sum(1 for a, b in zip(answered, answered[1:]) if a is not b))
+            k = j + 1
+    return {"onset_latency_ms": float(np.median(latencies)) if latencies else None,
+            "never_answered": missed / total if total else None,
+            "type_changes_per_gesture": float(np.mean(flips)) if flips else None}
+
+
+def report(cache: dict, families: list[str], methods: list[str]) -> list[str]:
+    """Markdown table: one row per family and method, the five metrics (a * marks a metric below
+    the paper's figure), then the worst family per metric and method."""
+    head = "| family | method | " + " | ".join(m[1] for m in METRICS) + " | onset latency ms | type changes / gesture |"
+    lines = [head, "| --- | --- |" + " ---: |" * (len(METRICS) + 2)]
+    for fam in families:
+        for meth in methods:
+            row = cache.get(f"{fam}/{meth}")
+            if row is None:
+                continue
+            cells = []
+            for key, _, paper, _, higher, scale in METRICS:
+                mark = "" if meets(row[key], paper, higher) else " *"
+                cells.append(fmt(key, row[key], scale) + mark)
+            lat, chg = row.get("onset_latency_ms"), row.get("type_changes_per_gesture")
+            cells += ["-" if lat is None else f"{lat:.0f}", "-" if chg is None else f"{chg:.2f}"]
+            lines.append(f"| {fam} | {meth} | " + " | ".join(cells) + " |")
+    lines.append("| paper (its own data) | | " + " | ".join(fmt(k, p, s) for k, _, p, _, _, s in METRICS) + " | | |")
+    lines.append("| target (mix) | | " + " | ".join(fmt(k, t, s) for k, _, _, t, _, s in METRICS) + " | | |")
+    held = [f for f in families if f not in ("default", "mix")]
+    for meth in methods:
+        cells = []
+        for key, _, _, _, higher, scale in METRICS:
+            vals = [(cache[f"{f}/{meth}"][key], f) for f in held if f"{f}/{meth}" in cache and cache[f"{f}/{meth}"][key] is not None]
+            if not vals:
+                cells.append("-")
+                continue
+            v, f = (min if higher else max)(vals)
+            cells.append(f"{fmt(key, v, scale)} ({f})")
+        lines.append(f"| worst held-out family | {meth} | " + " | ".join(cells) + " | | |")
+    return lines
+
+
+if __name__ == "__main__":
+    app()

@@ -1,0 +1,255 @@
+"""Physics families of the simulated gel and camera (``simulate --physics NAME|mix``).
+
+One simulated gel is one model; a real gel is another. To measure how the pipeline generalises,
+the simulator draws its gel and camera from named *families*, each changing one aspect of the
+default model (:mod:`neurotouch_hid.sources.simulator`) to another published model of it:
+
+============  ==================================================================================
+family        what changes, and the model it follows
+============  ==================================================================================
+default       today's model: Gaussian drag falloff, orthographic camera with one px/mm scale.
+powerlaw      long displacement tails: the drag falls off as ``(1 + r^2 / 2 s^2)^(-3/4)``
+              (~ r^-1.5) instead of a Gaussian -- between the Gaussian and the 1/r far field of a
+              tangential point load on an elastic half-space (Cerruti; Johnson, *Contact
+              Mechanics*, 1985, section 3.2).
+stickslip     stick/slip contact discs: the surface inside a stick disc of radius ``c`` moves
+              rigidly with the finger, a slip annulus ``c < r < a`` lags behind it, and the gel
+              outside the contact disc ``a`` follows as ``a / r`` (Cattaneo-Mindlin partial slip,
+              ``c = a (1 - Q / mu P)^(1/3)``; Johnson 1985, section 7.2).
+indent        normal indentation magnifies markers: the Hertz surface deflection under a
+              spherical fingertip (Johnson 1985, section 4.2; ``u_z = delta (1 - r^2 / 2a^2)``
+              inside the contact, ``delta/pi [(2 - r^2/a^2) asin(a/r) + sqrt(r^2/a^2 - 1)]``
+              outside) brings the markers nearer the camera: their image grows by up to 35 %
+              (the positions are unchanged: the pinhole is far compared with the blob size).
+camera        a perspective camera under the dome: a pinhole ``CAMERA_MM`` below the base sees a
+              surface point at base radius ``rho`` and height ``z`` (the spherical cap) at the
+              ray slope ``rho / (D + z)`` -- the rim, nearer the camera, is magnified -- then
+              Brown-Conrady radial lens distortion (Brown, "Decentering distortion of lenses",
+              1966; ``k1`` barrel) and cos^4 vignetting (natural illumination fall-off, Slama,
+              *Manual of Photogrammetry*, 1980). px/mm is no longer uniform: 2.27 px/mm at the
+              centre, more towards the rim; the gel's rim still images onto sensor.yaml's circle.
+drift         the whole gel moves with the gestures (the dome slides in its mount): up to 1.2 mm
+              and 1.2 degrees instead of 0.3 mm and 0.3 degrees.
+fingers       finger onset lags (each finger of a gesture starts up to 60 % of the attack after
+              the first) and unequal finger strength (each finger 45-100 % of the strongest).
+strong        very strong presses: most hold intensities drawn >= 12 mm, and the pressure
+              squeezes the markers under a finger together (radial contraction <= 0.6 mm, dimming
+              <= 40 %) instead of spreading them.
+markers       marker size and brightness spread: blob sigma x lognormal(0, 0.2) and brightness
+              x N(1, 0.2) per marker (moulding and paint thickness), clipped to sensible ranges.
+noise         a noisy event sensor: background activity 2 Hz per pixel (a DAVIS-346 in dim
+              light; Delbruck, Hu, He, "V2E", 2021) and 40 hot pixels at 300 Hz.
+flicker       light flicker: the LED ring's brightness follows ``1 + 0.25 sin(2 pi 120 Hz t)``
+              (a driver rectifying 60 Hz mains; not locked to the 25 Hz frames, so each APS
+              frame's 4 ms exposure sees another phase), in the APS frames and in the markers'
+              events (the dark background's flicker stays below the contrast threshold and is
+              not rendered as events).
+============  ==================================================================================
+
+``mix`` draws one family per sequence (round robin over a seeded permutation, so that every family
+appears) and writes which one in the dataset's ``physics.json``.
+
+The labels stay the truth of each family: contact points are where the surface points that were
+under the finger centres at the gesture's start are now (the largest deformation under each finger
+in every family, since every falloff is 1 at the finger), projected by the family's camera into
+image px; intensity is their mean displacement in the base plane (mm on the gel, user frame),
+whatever the camera.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.sensor import SensorGeometry
+
+#: Radius of the sphere the dome is a cap of (mm), as in the simulator.
+DOME_SPHERE_MM = 40.0
+#: Distance of the ``camera`` family's pinhole below the dome's base plane (mm).
+CAMERA_MM = 60.0
+#: Falloff kinds of the finger drag (simulator._finger_field).
+FALLOFF_GAUSSIAN, FALLOFF_POWERLAW, FALLOFF_STICKSLIP = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class Physics:
+    """One family of gel and camera models. Defaults are the default family (today's model).
+
+    Attributes:
+        name: the family's name (``simulate --physics NAME``).
+        falloff: FALLOFF_GAUSSIAN, FALLOFF_POWERLAW or FALLOFF_STICKSLIP.
+        indent: relative growth of a marker's image at the centre of a full Hertz indentation.
+        perspective: the camera is a pinhole CAMERA_MM below the base, with lens distortion
+            ``k1`` (Brown-Conrady, on the ray slope normalised to the rim's) and cos^4 vignetting.
+        k1: radial distortion coefficient (negative: barrel).
+        global_mm: sigma and clip of the whole gel's translation per gesture (mm);
+            global_rad: sigma and clip of its rotation (rad).
+        lag: largest onset lag of a finger as a fraction of the attack; strength_min: weakest
+            finger's strength relative to the strongest (1 = equal fingers).
+        strong: fraction of gestures drawn with a hold intensity of 12-20 mm.
+        squeeze: radial contraction of the markers under a pressing finger (mm; 0 = the default
+            radial spread of 0.35 mm).
+        size_spread: sigma of the log-normal spread of marker blob sizes; brightness_spread: sigma
+            of the relative brightness spread (default 0.03).
+        noise_hz: background activity per pixel (Hz), or None for the caller's rate.
+        n_hot, hot_rate_hz: hot pixels and their rate (Hz).
+        flicker: relative amplitude of the light's flicker (0 = steady light); flicker_hz: its frequency.
+    """
+
+    name: str = "default"
+    falloff: int = FALLOFF_GAUSSIAN
+    indent: float = 0.0
+    perspective: bool = False
+    k1: float = 0.0
+    global_mm: tuple[float, float] = (0.15, 0.3)
+    global_rad: tuple[float, float] = (0.003, math.inf)
+    lag: float = 0.0
+    strength_min: float = 1.0
+    strong: float = 0.0
+    squeeze: float = 0.0
+    size_spread: float = 0.0
+    brightness_spread: float = 0.03
+    noise_hz: float | None = None
+    n_hot: int = 4
+    hot_rate_hz: float = 40.0
+    flicker: float = 0.0
+    flicker_hz: float = 120.0
+
+    @property
+    def changes_gestures(self) -> bool:
+        """Whether the family draws gestures differently from the default (its own random stream)."""
+        return self.lag > 0 or self.strength_min < 1 or self.strong > 0 or self.global_mm != (0.15, 0.3) \
+            or self.global_rad != (0.003, math.inf)
+
+
+#: The named families (module docstring).
+PHYSICS: dict[str, Physics] = {p.name: p for p in (
+    Physics(),
+    Physics("powerlaw", falloff=FALLOFF_POWERLAW),
+    Physics("stickslip", falloff=FALLOFF_STICKSLIP),
+    Physics("indent", indent=0.35),
+    Physics("camera", perspective=True, k1=-0.10),
+    Physics("drift", global_mm=(0.6, 1.2), global_rad=(0.01, 0.021)),
+    Physics("fingers", lag=0.6, strength_min=0.45),
+    Physics("strong", strong=0.7, squeeze=0.6),
+    Physics("markers", size_spread=0.2, brightness_spread=0.2),
+    Physics("noise", noise_hz=2.0, n_hot=40, hot_rate_hz=300.0),
+    Physics("flicker", flicker=0.25),
+)}
+#: ``--physics`` names: every family, and ``mix`` (one family per sequence).
+PHYSICS_CHOICES: tuple[str, ...] = (*PHYSICS, "mix")
+
+
+def physics_family(name: str) -> Physics:
+    """The family called ``name``. Raises NeurotouchError (with the choices) for another name."""
+    try:
+        return PHYSICS[name]
+    except KeyError:
+        raise NeurotouchError(f"unknown physics family {name!r}: expected one of {', '.join(PHYSICS_CHOICES)}") from None
+
+
+def mix_families(n_sequences: int, seed: int) -> list[Physics]:
+    """One family per sequence for ``--physics mix``: a seeded permutation of every family,
+    repeated, so that ``n_sequences >= len(PHYSICS)`` covers each family."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x9A15]))
+    names = list(PHYSICS)
+    order: list[str] = []
+    while len(order) < n_sequences:
+        order += [names[i] for i in rng.permutation(len(names))]
+    return [PHYSICS[n] for n in order[:n_sequences]]
+
+
+class DomeCamera:
+    """How a family's camera images the gel: user-frame mm (base plane) -> image px.
+
+    The default family is orthographic with one scale (:meth:`SensorGeometry.user_to_image`). The
+    ``camera`` family is a pinhole ``CAMERA_MM`` below the base looking up the dome's axis: a
+    point at base radius rho and height z(rho) on the spherical cap has the ray slope
+    u = rho / (D + z), Brown-Conrady distortion makes it u (1 + k1 (u / u_rim)^2), and the image
+    radius is scaled so that the base's rim (rho = gel radius, z = 0) lands on sensor.yaml's gel
+    circle. Both are radial about the gel centre, so the camera is a radial gain g(rho) applied
+    in the user frame before sensor.user_to_image.
+
+    Args:
+        sensor: the nominal geometry (sensor.yaml); physics: the family.
+    """
+
+    def __init__(self, sensor: SensorGeometry, physics: Physics) -> None:
+        self.sensor = sensor
+        self.physics = physics
+        rb = sensor.gel_radius_mm
+        self._rim_u = self._slope(np.array(rb))
+
+    def _height(self, rho: np.ndarray) -> np.ndarray:
+        rb = self.sensor.gel_radius_mm
+        r = np.minimum(rho, rb)
+        return np.sqrt(DOME_SPHERE_MM**2 - r**2) - math.sqrt(DOME_SPHERE_MM**2 - rb**2)
+
+    def _slope(self, rho: np.ndarray) -> np.ndarray:
+        """Distorted ray slope (unitless) of base radius rho (mm)."""
+        u = rho / (CAMERA_MM + self._height(rho))
+        u_rim = self.sensor.gel_radius_mm / CAMERA_MM
+        return u * (1.0 + self.physics.k1 * (u / u_rim) ** 2)
+
+    def gain(self, rho: np.ndarray) -> np.ndarray:
+        """(...) radial gain g: image radius = g(rho) rho px_per_mm (1 for the default camera)."""
+        rho = np.asarray(rho, dtype=np.float64)
+        if not self.physics.perspective:
+            return np.ones_like(rho)
+        small = rho < 1e-9
+        safe = np.where(small, 1e-9, rho)
+        return self.sensor.gel_radius_mm * self._slope(safe) / self._rim_u / safe
+
+    def project(self, pts_mm: np.ndarray) -> np.ndarray:
+        """(..., 2) float64 image px of user-frame points (..., 2) mm."""
+        pts_mm = np.asarray(pts_mm, dtype=np.float64)
+        if not self.physics.perspective:
+            return self.sensor.user_to_image(pts_mm)
+        g = self.gain(np.hypot(pts_mm[..., 0], pts_mm[..., 1]))
+        return self.sensor.user_to_image(pts_mm * g[..., None])
+
+    def size_gain(self, pts_mm: np.ndarray) -> np.ndarray:
+        """(...) how much larger than at the default scale a small dot at pts_mm images: the
+        geometric mean of the tangential (g) and radial (d(g rho)/d rho) magnifications."""
+        pts_mm = np.asarray(pts_mm, dtype=np.float64)
+        rho = np.hypot(pts_mm[..., 0], pts_mm[..., 1])
+        if not self.physics.perspective:
+            return np.ones_like(rho)
+        h = 1e-3
+        radial = ((rho + h) * self.gain(rho + h) - np.maximum(rho - h, 0.0) * self.gain(np.maximum(rho - h, 0.0))) \
+            / (rho + h - np.maximum(rho - h, 0.0))
+        return np.sqrt(self.gain(rho) * radial)
+
+    def vignetting_mm(self, pts_mm: np.ndarray) -> np.ndarray:
+        """(...) cos^4 of the ray angle of user-frame points (..., 2) mm (1 on the axis)."""
+        pts_mm = np.asarray(pts_mm, dtype=np.float64)
+        rho = np.hypot(pts_mm[..., 0], pts_mm[..., 1])
+        if not self.physics.perspective:
+            return np.ones_like(rho)
+        u = rho / (CAMERA_MM + self._height(rho))
+        return 1.0 / (1.0 + u * u) ** 2
+
+    def vignetting_image(self) -> np.ndarray:
+        """(H, W) cos^4 fall-off over the image (1 where the axis meets it), for the background."""
+        s = self.sensor
+        yy, xx = np.mgrid[0 : s.height, 0 : s.width]
+        if not self.physics.perspective:
+            return np.ones(xx.shape)
+        r_img = np.hypot(xx - s.gel_center_px[0], yy - s.gel_center_px[1]) / s.gel_radius_px
+        u = r_img * self._rim_u  # the slope is ~linear in the image radius (distortion aside)
+        return 1.0 / (1.0 + u * u) ** 2
+
+
+@numba.njit(cache=True)
+def hertz_deflection(q: float) -> float:
+    """Hertz normal surface deflection of a spherical indenter, relative to the indentation
+    depth, at q = r / a (distance from the contact's centre over the contact radius, >= 0):
+    ``1 - q^2 / 2`` inside, ``[(2 - q^2) asin(1/q) + sqrt(q^2 - 1)] / pi`` outside (Johnson,
+    *Contact Mechanics*, 1985, eq. 3.42). 1 at the centre, 1/2 at the edge, ~4 / (3 pi q) far out."""
+    if q <= 1.0:
+        return 1.0 - 0.5 * q * q
+    return ((2.0 - q * q) * math.asin(1.0 / q) + math.sqrt(q * q - 1.0)) / math.pi

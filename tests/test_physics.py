@@ -1,0 +1,232 @@
+"""Physics families of the simulated gel and camera (sources/physics.py, ``simulate --physics``).
+
+Each family renders (its APS frames show the markers where its own camera puts them) and its labels
+are its own truth (the contact points are the largest deformation under each finger, the intensity
+the mean displacement of the contacts in mm), checked against the true marker positions the
+simulator also returns -- not against the labelling code's own formula.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from neurotouch_hid.cli import app
+from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.sources.physics import PHYSICS, DomeCamera, hertz_deflection, mix_families
+from neurotouch_hid.sources.simulator import START_US, USERS, GelSimulator, draw_gesture
+
+SENSOR = SensorGeometry()
+
+
+def _gesture(kind: GestureType, fingers_mm, amplitude=6.0, **extra):
+    g = draw_gesture(np.random.default_rng(1), USERS[0], kind, START_US + 80_000, SENSOR)
+    fingers = np.asarray(fingers_mm, dtype=np.float64)
+    return dataclasses.replace(
+        g, fingers_mm=fingers, amplitude_mm=amplitude, direction=np.array([1.0, 0.0]), attack_us=200_000,
+        hold_us=600_000, release_us=200_000, press=0.8, tremor=(0.0, 5.0, 0.0), global_mm=np.zeros(2), global_rad=0.0,
+        **extra)
+
+
+def _blobs(frame: np.ndarray) -> np.ndarray:
+    """(M, 2) intensity-weighted centroids (px) of the bright blobs of an APS frame (OpenCV)."""
+    mask = (frame > 55).astype(np.uint8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    img = frame.astype(np.float64) - 20.0
+    out = []
+    yy, xx = np.mgrid[0 : frame.shape[0], 0 : frame.shape[1]]
+    for k in range(1, n):
+        if stats[k, cv2.CC_STAT_AREA] < 2:
+            continue
+        m = lab == k
+        w = np.clip(img[m], 0, None)
+        out.append([(xx[m] * w).sum() / w.sum(), (yy[m] * w).sum() / w.sum()])
+    return np.array(out)
+
+
+def _run(sim: GelSimulator, frames: int):
+    return [sim.step() for _ in range(frames)]
+
+
+@pytest.mark.parametrize("name", list(PHYSICS))
+def test_family_renders_markers_where_its_camera_puts_them(name):
+    sim = GelSimulator(SENSOR, USERS[0], seed=3, script=[], physics=PHYSICS[name])
+    chunk = sim.step()
+    blobs = _blobs(chunk.frame.image)
+    rest = sim.gel.rest_px
+    assert len(rest) == 177
+    d = np.linalg.norm(rest[:, None] - blobs[None], axis=-1).min(axis=1)
+    assert np.mean(d < 0.5) > 0.95, (name, np.percentile(d, [50, 90, 100]))
+
+
+@pytest.mark.parametrize("name", list(PHYSICS))
+def test_family_labels_are_the_largest_deformation_under_each_finger(name):
+    physics = PHYSICS[name]
+    extra = {"lags_us": (0, 120_000), "strengths": (1.0, 0.5)} if name == "fingers" else {}
+    if name == "strong":
+        extra["squeeze"] = physics.squeeze
+    g = _gesture(GestureType.PINCH, [[-7.0, 2.0], [7.0, 2.0]], amplitude=4.0, **extra)
+    sim = GelSimulator(SENSOR, USERS[0], seed=3, script=[g], physics=physics)
+    chunks = _run(sim, 14)  # rest, attack, into the hold (START_US + 80 ms + 200 ms attack)
+    checked = 0
+    for chunk in chunks:
+        label = chunk.label
+        if label.gesture is not GestureType.PINCH:
+            continue
+        t = np.array([label.t_us], dtype=np.int64)
+        pos_px, _, _, pos_mm = sim.marker_state(t, [g])
+        moved_mm = np.linalg.norm(pos_mm[0] - sim.gel.rest_mm, axis=-1)
+        assert np.allclose(pos_px[0], chunk.positions_px[0], atol=1e-3)  # the same truth the files hold
+        per_finger = []
+        for k, contact in enumerate(label.contacts_px):
+            # markers that rested under finger k (within its footprint)
+            near = np.linalg.norm(sim.gel.rest_mm - g.fingers_mm[k], axis=-1) < 4.0
+            best = np.flatnonzero(near)[np.argmax(moved_mm[near])]
+            per_finger.append(moved_mm[best])
+            if moved_mm[best] > 0.5:
+                # the label sits on the largest deformation: within a marker pitch of that marker
+                pitch_px = 4.0 * SENSOR.px_per_mm * float(sim.gel.camera.size_gain(sim.gel.rest_mm[best]))
+                assert np.linalg.norm(contact - pos_px[0, best]) < pitch_px, (name, k)
+        truth = float(np.mean(per_finger))
+        assert abs(label.intensity_mm - truth) <= 0.2 * truth + 0.15, (name, label.intensity_mm, truth)
+        checked += 1
+    assert checked >= 5
+
+
+def test_camera_family_has_non_uniform_px_per_mm_and_keeps_the_gel_circle():
+    cam = DomeCamera(SENSOR, PHYSICS["camera"])
+    flat = DomeCamera(SENSOR, PHYSICS["default"])
+    # local scale (px per mm) at the centre and near the rim, radially
+    def scale(c, rho):
+        a, b = c.project(np.array([[rho, 0.0]])), c.project(np.array([[rho + 0.5, 0.0]]))
+        return float(np.linalg.norm(b - a)) / 0.5
+    assert scale(flat, 0.0) == pytest.approx(SENSOR.px_per_mm)
+    assert scale(flat, 25.0) == pytest.approx(SENSOR.px_per_mm)
+    assert scale(cam, 0.0) < 0.95 * SENSOR.px_per_mm
+    assert scale(cam, 25.0) > 1.2 * scale(cam, 0.0)
+    rim = cam.project(np.array([[SENSOR.gel_radius_mm, 0.0]]))[0]
+    assert np.linalg.norm(rim - np.asarray(SENSOR.gel_center_px)) == pytest.approx(SENSOR.gel_radius_px)
+    # cos^4 vignetting: markers fade towards the rim
+    assert cam.vignetting_mm(np.array([[0.0, 0.0]]))[0] == 1.0
+    assert 0.6 < cam.vignetting_mm(np.array([[27.0, 0.0]]))[0] < 0.8
+
+
+def test_hertz_deflection_is_continuous_at_the_contact_edge():
+    assert hertz_deflection(0.0) == 1.0
+    assert hertz_deflection(1.0 - 1e-9) == pytest.approx(0.5) and hertz_deflection(1.0 + 1e-9) == pytest.approx(0.5, abs=1e-4)
+    assert hertz_deflection(10.0) == pytest.approx(4.0 / (3.0 * math.pi * 10.0), rel=0.02)  # the far field
+
+
+def test_indent_family_magnifies_markers_under_the_finger_only():
+    g = _gesture(GestureType.PUSH, [[0.0, 0.0]], amplitude=3.0)
+    sim = GelSimulator(SENSOR, USERS[0], seed=3, script=[g], physics=PHYSICS["indent"])
+    t = np.array([g.t_start_us + g.attack_us + 100_000], dtype=np.int64)
+    _, _, sigma, _ = sim.marker_state(t, [g])
+    grow = sigma[0] / sim.gel.sigma_px
+    r = np.linalg.norm(sim.gel.rest_mm, axis=-1)
+    assert grow[r < 2.0].min() > 1.2
+    # Hertz's deflection outside the contact falls off ~ a / r: a fifth of the centre's at 20 mm
+    assert grow[r > 20.0].max() - 1.0 < 0.25 * (grow[r < 2.0].min() - 1.0)
+    default = GelSimulator(SENSOR, USERS[0], seed=3, script=[g])
+    assert np.allclose(default.marker_state(t, [g])[2][0], default.gel.sigma_px)
+
+
+def test_falloff_families_differ_in_their_tails_and_stick_disc():
+    g = _gesture(GestureType.PUSH, [[0.0, 0.0]], amplitude=4.0)
+    t = np.array([g.t_start_us + g.attack_us + 100_000], dtype=np.int64)
+    moved = {}
+    for name in ("default", "powerlaw", "stickslip"):
+        sim = GelSimulator(SENSOR, USERS[0], seed=3, script=[g], physics=PHYSICS[name])
+        pos_mm = sim.marker_state(t, [g])[3][0]
+        moved[name] = np.linalg.norm(pos_mm - sim.gel.rest_mm, axis=-1)
+    r = np.linalg.norm(GelSimulator(SENSOR, script=[]).gel.rest_mm, axis=-1)
+    far = (r > 16.0) & (r < 20.0)
+    assert moved["powerlaw"][far].mean() > 2.0 * moved["default"][far].mean()
+    assert moved["stickslip"][far].mean() > 2.0 * moved["default"][far].mean()
+    # the stick disc moves rigidly with the finger (the Gaussian already lags 4 mm away)
+    ring = (r > 3.5) & (r < 4.5)
+    assert np.allclose(moved["stickslip"][ring], 4.0, atol=0.4)
+    assert moved["default"][ring].max() < 3.8
+
+
+def test_gesture_families_draw_strong_presses_lags_unequal_fingers_and_drift():
+    def draws(name, kind=GestureType.PUSH):
+        rng, prng = np.random.default_rng(5), np.random.default_rng(6)
+        return [draw_gesture(rng, USERS[0], kind, 0, SENSOR, PHYSICS[name], prng) for _ in range(40)]
+    strong = [g.amplitude_mm for g in draws("strong")]
+    assert np.mean(np.array(strong) >= 12.0) > 0.5
+    assert np.mean(np.array(strong) >= 12.0) > 3 * np.mean(np.array([g.amplitude_mm for g in draws("default")]) >= 12.0)
+    fingers = draws("fingers", GestureType.PINCH)
+    assert all(len(g.lags_us) == len(g.fingers_mm) and min(g.lags_us) == 0 for g in fingers)
+    assert max(max(g.lags_us) for g in fingers) > 0.3 * max(g.attack_us for g in fingers) * 0.5
+    assert min(min(g.strengths) for g in fingers) < 0.6
+    drift = [np.linalg.norm(g.global_mm) for g in draws("drift")]
+    assert max(drift) > 0.6 >= max(np.linalg.norm(g.global_mm) for g in draws("default"))
+    # a lagging finger has not moved yet while the first one has
+    g = fingers[int(np.argmax([max(f.lags_us) for f in fingers]))]
+    late = int(np.argmax(g.lags_us))
+    levels = g.finger_levels(np.array([g.t_start_us + g.lags_us[late] // 2], dtype=np.int64))[0]
+    assert levels[late] == 0.0 and levels.max() > 0.0
+
+
+def test_default_family_draws_do_not_change_when_other_families_exist():
+    a = draw_gesture(np.random.default_rng(9), USERS[2], GestureType.ZOOM, 0, SENSOR)
+    b = draw_gesture(np.random.default_rng(9), USERS[2], GestureType.ZOOM, 0, SENSOR, PHYSICS["markers"],
+                     np.random.default_rng(1))
+    assert a.amplitude_mm == b.amplitude_mm and np.array_equal(a.fingers_mm, b.fingers_mm)
+    assert a.press == b.press and a.creep_us == b.creep_us and np.array_equal(a.global_mm, b.global_mm)
+
+
+def _rest_events(name: str) -> int:
+    sim = GelSimulator(SENSOR, USERS[0], seed=3, script=[], physics=PHYSICS[name])
+    return sum(len(c.events) for c in _run(sim, 5))
+
+
+def test_noise_and_flicker_families_add_events_at_rest():
+    quiet = _rest_events("default")
+    assert _rest_events("noise") > 10 * max(quiet, 1)
+    assert _rest_events("flicker") > 10 * max(quiet, 1)
+
+
+def test_flicker_changes_aps_brightness_and_markers_family_spreads_marker_sizes():
+    sim = GelSimulator(SENSOR, USERS[0], seed=3, script=[], physics=PHYSICS["flicker"])
+    means = [float(c.frame.image[sim.gel.rest_px[:, 1].astype(int), sim.gel.rest_px[:, 0].astype(int)].mean())
+             for c in _run(sim, 8)]
+    assert max(means) - min(means) > 5.0
+    spread = GelSimulator(SENSOR, USERS[0], seed=3, script=[], physics=PHYSICS["markers"]).gel
+    plain = GelSimulator(SENSOR, USERS[0], seed=3, script=[]).gel
+    assert np.std(spread.sigma_px / plain.sigma_px) > 0.1
+    assert np.std(spread.brightness / plain.brightness) > 0.1
+
+
+def test_mix_covers_every_family_and_simulate_writes_physics_json(tmp_path):
+    fams = mix_families(len(PHYSICS), seed=4)
+    assert sorted(f.name for f in fams) == sorted(PHYSICS)
+    out = tmp_path / "mix"
+    result = CliRunner().invoke(app, ["simulate", "--out", str(out), "--physics", "mix", "--minutes", "0.05",
+                                      "--users", "0"])
+    assert result.exit_code == 0, result.output
+    data = json.loads((out / "physics.json").read_text())
+    assert data["physics"] == "mix"
+    assert set(data["sequences"]) == {f"u0_{g}" for g in ("push", "pinch", "zoom", "twist_cw", "twist_ccw")}
+    assert set(data["sequences"].values()) <= set(PHYSICS)
+    assert all((out / f"{name}.labels.csv").exists() for name in data["sequences"])
+
+
+def test_unknown_physics_family_is_one_clear_error(tmp_path, monkeypatch, capsys):
+    from neurotouch_hid.cli import main
+
+    monkeypatch.setattr("sys.argv", ["neurotouch-hid", "simulate", "--out", str(tmp_path / "x"), "--physics", "jelly"])
+    with pytest.raises(SystemExit) as exc:
+        main()
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "unknown physics family 'jelly'" in err and "mix" in err and "Traceback" not in err
+    assert not (tmp_path / "x").exists()
