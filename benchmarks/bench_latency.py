@@ -37,7 +37,9 @@ import numpy as np
 
 from neurotouch_hid.mapping.profile import load_profile
 from neurotouch_hid.output.jsonl import StateJsonlWriter
-from neurotouch_hid.runtime import Runtime, RunStats, build_pipeline
+from neurotouch_hid.driver import build_pipeline
+from neurotouch_hid.runtime import Runtime
+from neurotouch_hid.stats import RunStats
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.recording import RecordingReader, RecordingWriter, merge_stream

@@ -245,7 +245,7 @@ def view(
     console.print(f"{what}{drawn} pictures -> {out}", highlight=False, soft_wrap=True)
 
 
-# --- the controller (runtime.py, mapping/, output/) -----------------------------------------
+# --- the controller (driver.py, runtime.py, mapping/, output/) ------------------------------
 def _davis_config(serial: Optional[str], exposure_us: str, stall_timeout: float):
     """The live camera's settings from the command line (sources/davis.py DavisConfig)."""
     from neurotouch_hid.sources.davis import DavisConfig
@@ -280,7 +280,7 @@ def run(
     Stops at the end of the source, after --seconds, on Ctrl-C (exit 130) or SIGTERM (a clean
     stop, exit 0), always leaving the gamepad neutral. SIGHUP reloads the profile. A camera that
     is unplugged or stalls centres the gamepad at once; the driver reconnects when it is back."""
-    from neurotouch_hid.runtime import run_driver
+    from neurotouch_hid.driver import run_driver
 
     stats = run_driver(source, profile, output, seconds=seconds, fast=fast, out=out, window_us=window_us,
                        sensor=sensor, seed=seed, console=console, wait=wait,
@@ -295,7 +295,7 @@ def demo(seconds: Optional[float] = typer.Option(30.0, "--seconds", help="how lo
 
     Without a writable /dev/uinput the gamepad is shown in the terminal instead (one line says
     why); without a terminal, one state line a second."""
-    from neurotouch_hid.runtime import run_demo
+    from neurotouch_hid.driver import run_demo
 
     stats = run_demo(seconds, console=console,
                      say=lambda line: err_console.print(line, markup=False, highlight=False, soft_wrap=True))
@@ -568,8 +568,9 @@ def profile_test(
 
     from neurotouch_hid.controller import AXES
     from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.driver import estimates_from_source
     from neurotouch_hid.mapping.replay import (
-        deflection, estimates_from_source, plot_timeline, pressed, replay, sample_timeline, summarise,
+        deflection, plot_timeline, pressed, replay, sample_timeline, summarise,
     )
 
     loaded = load_profile(name)
@@ -609,7 +610,8 @@ def profile_tune(
     """Set each analogue mapping's saturation to what this user reaches (e.g. weak fingers)."""
     from neurotouch_hid.mapping.editor import set_values
     from neurotouch_hid.mapping.profile import load_profile
-    from neurotouch_hid.mapping.replay import estimates_from_source, tuned_saturations
+    from neurotouch_hid.driver import estimates_from_source
+    from neurotouch_hid.mapping.replay import tuned_saturations
 
     if not 0 < percentile <= 100:
         raise NeurotouchError(f"--percentile {percentile}: expected a value in (0, 100]")

@@ -1,4 +1,4 @@
-"""The runtime: source -> gesture pipeline -> mapping -> output, in threads, with clean shutdown.
+"""The engine: source -> gesture pipeline -> mapping -> output, in threads, with clean shutdown.
 
 Following the paper (section "Runtime Performance"), the event path and the resting detection run
 beside each other: one thread reads the source (pacing recordings and the simulated gel in real
@@ -12,8 +12,10 @@ queue drops its OLDEST items (counted in :class:`RunStats`) instead of letting t
 with ``pace=False`` (``--fast``) nothing is dropped: the source waits for the pipeline instead,
 and the pipeline runs the resting detection inline so that a replay is deterministic.
 
-Sources (:func:`open_source`): the live camera, the simulated gel, an AEDAT4 recording, or a
-predictions file (the pipeline's estimates, docs/dataset.md, replayed without the pipeline).
+The engine knows its stages only through their seams (:mod:`neurotouch_hid.stages`); which
+concrete source, pipeline and output a command uses is wired in :mod:`neurotouch_hid.driver`
+(the live camera, the simulated gel, an AEDAT4 recording, or a predictions file replayed
+without the pipeline).
 
 Every way out of :meth:`Runtime.run` (end of the source, :meth:`Runtime.stop`, SIGTERM, Ctrl-C, an
 exception in any stage) first centres all axes and releases all buttons (``output.neutralise()``).
@@ -38,16 +40,20 @@ import signal
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator, Optional
+from typing import Callable, Iterator, Optional
 
 import numpy as np
 
 from neurotouch_hid.controller import ControllerState
-from neurotouch_hid.errors import DeviceError, NeurotouchError, ProfileError
+from neurotouch_hid.errors import ProfileError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.mapping.mapper import Mapper
+from neurotouch_hid.mapping.profile import Profile, load_profile
 from neurotouch_hid.sources import Frame, SourceStatus, StatusKind, StreamItem
+from neurotouch_hid.stages import Mapper as MapperStage
+from neurotouch_hid.stages import Output, Pipeline, RestingDetection, SourceStream
+from neurotouch_hid.stats import RunStats
 
 log = logging.getLogger(__name__)
 
@@ -57,8 +63,6 @@ DEFAULT_BATCH_US = 1_000
 DEFAULT_QUEUE_ITEMS = 200
 #: Frame queue bound for the resting detector (APS frames, 25 Hz).
 DEFAULT_FRAME_QUEUE = 2
-#: How many latency samples are kept (a ring: memory stays flat over long sessions).
-LATENCY_SAMPLES = 65_536
 #: The interpreter's thread switch interval (s) during real-time runs, instead of Python's 5 ms:
 #: a thread waiting for the GIL (the pipeline, while the resting thread runs Python code) gets it
 #: within 0.5 ms. Measured (benchmarks/bench_latency.py): p99 processing latency 3.4 -> 1.7 ms.
@@ -77,80 +81,6 @@ def item_end_us(item: StreamItem | GestureEstimate) -> Optional[int]:
     if len(item) == 0:
         return None
     return int(item["timestamp"][-1])
-
-
-class LatencyRing:
-    """The last ``capacity`` event-to-output latencies (ns, int64), in a fixed numpy ring."""
-
-    def __init__(self, capacity: int = LATENCY_SAMPLES):
-        self._buf = np.zeros(capacity, dtype=np.int64)
-        self._n = 0
-
-    def add(self, latency_ns: int) -> None:
-        self._buf[self._n % len(self._buf)] = latency_ns
-        self._n += 1
-
-    def __len__(self) -> int:
-        return min(self._n, len(self._buf))
-
-    def values_us(self) -> np.ndarray:
-        """The kept samples in microseconds (float64, unordered)."""
-        return self._buf[: len(self)] / 1e3
-
-    def percentile_us(self, q: float) -> float:
-        """The q-th percentile (0..100) of the kept samples in us; NaN without samples."""
-        return float(np.percentile(self.values_us(), q)) if len(self) else float("nan")
-
-
-@dataclass
-class RunStats:
-    """What a run did. Counters are updated live (the terminal view shows them).
-
-    Attributes:
-        windows: gesture estimates produced (one per window).
-        events: events handed to the pipeline.
-        frames: APS frames handed to the pipeline.
-        states_written: controller states written to the output (state changes only).
-        dropped_items, dropped_events, dropped_frames: input data dropped, oldest first, because the
-            pipeline fell behind a live or paced source (items = event batches + frames).
-        resting_updates: resting detector results handed to the pipeline.
-        resting_dropped_frames: APS frames the resting detector skipped (it was still busy).
-        camera_losses: times the live camera was lost (unplugged, failing, stalled).
-        wall_s: wall time of the run (s).
-        stream_us: camera time covered by the processed data (us).
-        latency: processing latencies: from the moment the item that closed a window was read
-            from the source (after pacing) to the output being up to date.
-        window_latency: paced sources only: from the window's end in wall time (the camera clock
-            mapped to wall time by the pacing) to the output being up to date; adds the wait for
-            the source batch that shows the window is over (up to one batch).
-    """
-
-    windows: int = 0
-    events: int = 0
-    frames: int = 0
-    states_written: int = 0
-    dropped_items: int = 0
-    dropped_events: int = 0
-    dropped_frames: int = 0
-    resting_updates: int = 0
-    resting_dropped_frames: int = 0
-    camera_losses: int = 0
-    wall_s: float = 0.0
-    stream_us: int = 0
-    latency: LatencyRing = field(default_factory=LatencyRing, repr=False)
-    window_latency: LatencyRing = field(default_factory=LatencyRing, repr=False)
-
-    def summary(self) -> str:
-        """One line for the end of a run."""
-        lat = ""
-        if len(self.latency):
-            lat = (f", latency p50 {self.latency.percentile_us(50) / 1e3:.2f} ms"
-                   f" p99 {self.latency.percentile_us(99) / 1e3:.2f} ms")
-        return (f"{self.windows} windows, {self.events} events, {self.frames} frames in {self.wall_s:.1f} s"
-                f" ({self.stream_us / 1e6:.1f} s of data); dropped {self.dropped_items} items"
-                f" ({self.dropped_events} events, {self.dropped_frames} frames),"
-                f" resting detector skipped {self.resting_dropped_frames} frames"
-                + (f", camera lost {self.camera_losses} time(s)" if self.camera_losses else "") + lat)
 
 
 class DropOldestQueue:
@@ -221,34 +151,22 @@ class DropOldestQueue:
         return len(self._items)
 
 
-def _load_profile(ref: str | Path):
-    from neurotouch_hid.mapping.profile import load_profile
-
-    return load_profile(ref)
-
-
-def _make_mapper(profile):
-    from neurotouch_hid.mapping.mapper import Mapper
-
-    return Mapper(profile)
-
-
 class Runtime:
     """Source -> pipeline -> mapper -> output, with a resting detector beside the event path.
 
+    The stages are known only through their seams (:mod:`neurotouch_hid.stages`).
+
     Args:
-        source: an iterable of stream items (event batches of EVENT_DTYPE and :class:`Frame`, in
-            time order), e.g. ``RecordingReader.stream()``, ``SimulatedSource.stream()``.
-        pipeline: a ``GesturePipeline`` (``process(item) -> list[GestureEstimate]``,
-            ``set_resting(result, t_us)``).
+        source: the stream items in time order (:data:`~neurotouch_hid.stages.SourceStream`),
+            e.g. ``RecordingReader.stream()``, ``SimulatedSource.stream()``.
+        pipeline: a :class:`~neurotouch_hid.stages.Pipeline` (``GesturePipeline``).
         profile: the loaded profile; the mapper is ``mapper_factory(profile)``.
-        output: ``write(state[, estimate])``, ``neutralise()``; outputs with a true
-            ``accepts_estimate`` attribute also get the window's estimate (gesture, intensity).
-            The runtime does not close the output (its owner does; the gamepad device outlives
-            profile switches).
-        resting: a resting detector (``update(frame) -> result``, None = no verdict yet) run in
-            its own thread on APS frames; its results go to ``pipeline.set_resting(result,
-            frame.t_us)`` (thread-safe). None when the pipeline does its own resting detection.
+        output: an :class:`~neurotouch_hid.stages.Output`; one whose ``accepts_estimate`` is
+            true also gets the window's estimate (gesture, intensity). The runtime does not
+            close the output (its owner does; the gamepad device outlives profile switches).
+        resting: a :class:`~neurotouch_hid.stages.RestingDetection` run in its own thread on
+            APS frames; its results go to ``pipeline.set_resting(result, frame.t_us)``
+            (thread-safe). None when the pipeline does its own resting detection.
         pace: sleep so that item timestamps follow wall time (recordings, the simulated gel).
         live: the source is real time by itself (the camera): not paced, but like a paced source
             its data is dropped, oldest first, when the pipeline falls behind. With neither
@@ -260,24 +178,27 @@ class Runtime:
             in tests).
         say: tells the user what happens to a live source (camera lost, back; one line each).
         control: serve the control socket while running (``profile use``, :meth:`use_profile`).
+        stats: where the run is counted (:class:`RunStats`; e.g. shared with the terminal view
+            that shows it); a new one by default.
     """
 
     def __init__(
         self,
-        source: Iterable[StreamItem],
-        pipeline: Any,
-        profile: Any,
-        output: Any,
+        source: SourceStream,
+        pipeline: Pipeline,
+        profile: Profile,
+        output: Output,
         *,
-        resting: Any = None,
+        resting: RestingDetection | None = None,
         pace: bool = True,
         live: bool = False,
         profile_ref: str | Path | None = None,
         queue_items: int = DEFAULT_QUEUE_ITEMS,
-        mapper_factory: Callable[[Any], Any] = _make_mapper,
-        profile_loader: Callable[[str | Path], Any] = _load_profile,
+        mapper_factory: Callable[[Profile], MapperStage] = Mapper,
+        profile_loader: Callable[[str | Path], Profile] = load_profile,
         say: Callable[[str], None] = log.warning,
         control: bool = False,
+        stats: RunStats | None = None,
     ):
         self._control = control
         self._source = source
@@ -286,13 +207,13 @@ class Runtime:
         self._mapper_factory = mapper_factory
         self._mapper = mapper_factory(profile)
         self._output = output
-        self._takes_estimate = bool(getattr(output, "accepts_estimate", False))
+        self._takes_estimate = output.accepts_estimate
         self._resting = resting
         self._pace = pace and not live
         self._realtime = pace or live
         self._profile_ref = profile_ref
         self._profile_loader = profile_loader
-        self.stats = RunStats()
+        self.stats = stats if stats is not None else RunStats()
         self._items = DropOldestQueue(queue_items, drop_oldest=self._realtime, on_drop=self._count_drop)
         self._frames = DropOldestQueue(DEFAULT_FRAME_QUEUE, drop_oldest=self._realtime, on_drop=self._count_resting_drop)
         self._stop = threading.Event()
@@ -317,15 +238,13 @@ class Runtime:
         self._items.close()
         self._frames.close()
 
-    def switch_profile(self, profile: Any) -> None:
+    def switch_profile(self, profile: Profile) -> None:
         """Neutralise the output, then map with ``profile`` from the next window on.
         The output devices are kept (the pad's name and ids stay those it was created with); a
         keyboard or mouse the new profile needs is created (``output.prepare(profile)``)."""
         with self._lock:
             self._output.neutralise()
-            prepare = getattr(self._output, "prepare", None)
-            if prepare is not None:
-                prepare(profile)
+            self._output.prepare(profile)
             self._mapper = self._mapper_factory(profile)
             self.profile = profile
             self._forget_state()
@@ -593,221 +512,3 @@ class Runtime:
                 self.stats.states_written += 1
             self._last_state = state
             self._last_gesture = estimate.gesture
-
-
-# --- wiring the concrete stages (the `run` and `demo` commands) ------------------------------
-OUTPUT_KINDS = ("gamepad", "jsonl", "term")
-
-
-class EstimateReplay:
-    """Stands in for the pipeline when the source is a predictions file: its items already are
-    the windows' :class:`GestureEstimate` values (docs/dataset.md "Predictions"), handed on as they are."""
-
-    def process(self, item: GestureEstimate) -> list[GestureEstimate]:
-        return [item]
-
-    def restart(self) -> None:  # pragma: no cover - a predictions file is never interrupted
-        pass
-
-    def set_resting(self, result: Any, t_us: int) -> None:  # pragma: no cover - no frames here
-        pass
-
-
-def open_source(spec: str, stack: contextlib.ExitStack, *, seconds: float | None = None,
-                batch_us: int = DEFAULT_BATCH_US, sensor: str | Path | None = None,
-                seed: int = 0, davis: Any = None, wait: bool = False,
-                capture: Any = None) -> tuple[Iterable[Any], Any, bool]:
-    """Open ``davis`` (the live camera), ``sim`` (the simulated gel), an AEDAT4 recording path, or
-    a predictions file (``*.jsonl``, docs/dataset.md: the pipeline's estimates, replayed as they are).
-
-    The camera's stream survives unplugs and stalls (it yields
-    :class:`~neurotouch_hid.sources.SourceStatus` items); ``davis`` is its
-    :class:`~neurotouch_hid.sources.davis.DavisConfig`, ``wait`` waits for a camera instead of
-    failing, ``capture`` replaces dv-processing's camera backend (tests replay recordings through
-    it). Its geometry is ``sensor``, else the user's calibration, else the built-in one. The
-    pipeline's default noise filter runs in the camera's source, on dv-processing's own event
-    stores (no copies; build the pipeline with ``filter_noise=False`` then).
-
-    Returns ``(stream, sensor_geometry, live)``; ``live`` is True for the camera (never paced by
-    the runtime); the geometry is None for a predictions file. Resources (camera, file) are
-    closed by ``stack``. Raises RecordingError for a missing or unreadable recording,
-    DatasetError for a bad predictions file, DeviceError when the camera cannot be opened (and
-    ``wait`` is off).
-    """
-    from neurotouch_hid.sensor import SensorGeometry, default_sensor, find_sensor_file
-
-    if spec.endswith(".jsonl"):
-        from neurotouch_hid.output.jsonl import read_predictions
-
-        return iter(read_predictions(spec)), None, False
-
-    if spec == "davis":
-        from neurotouch_hid.sources.davis import DavisSource
-
-        from neurotouch_hid.pipeline.noise import EventNoiseFilter
-        from neurotouch_hid.pipeline.pipeline import PipelineConfig
-        from neurotouch_hid.sources.recording import DAVIS346_RESOLUTION
-
-        defaults = PipelineConfig()
-        noise = (EventNoiseFilter(defaults.noise_filter, *DAVIS346_RESOLUTION, defaults.noise_filter_us)
-                 if defaults.noise_filter is not None else None)
-        try:
-            camera = stack.enter_context(DavisSource(davis, wait=wait, backend=capture, noise_filter=noise))
-        except DeviceError as exc:
-            raise DeviceError(f"{exc}; or start with --wait to wait for a camera") from None
-        geometry = SensorGeometry.load(sensor) if sensor is not None else default_sensor()
-        return camera.stream(seconds=seconds, batch_us=batch_us, reconnect=True), geometry, True
-    if spec == "sim":
-        from neurotouch_hid.sources.simulator import SimulatedSource
-
-        sim = SimulatedSource(seed=seed) if sensor is None else SimulatedSource(SensorGeometry.load(sensor), seed=seed)
-        return sim.stream(seconds=seconds, batch_us=batch_us), sim.sensor, False
-    from neurotouch_hid.errors import RecordingError
-    from neurotouch_hid.sources.recording import RecordingReader
-
-    path = Path(spec)
-    if not path.is_file():
-        raise RecordingError(f"{path}: no such recording (--source takes davis, sim, an AEDAT4 file or a predictions .jsonl)")
-    reader = stack.enter_context(RecordingReader(path))
-    return reader.stream(batch_us=batch_us), find_sensor_file(path, sensor), False
-
-
-def open_output(kind: str, profile: Any, stack: contextlib.ExitStack, *, out: str | Path | None = None,
-                console: Any = None, say: Callable[[str], None] | None = None) -> Any:
-    """Create the output: ``gamepad`` (the uinput pad with the profile's name and ids, and the
-    keyboard and mouse if the profile uses them), ``jsonl`` (one state line per change to ``out``
-    or stdout) or ``term`` (the terminal view). ``say`` tells the user about rumble effects games
-    send to the pad (the gel has no motor; default: the log).
-    Closed by ``stack``. Raises DeviceError when /dev/uinput cannot be used."""
-    if kind == "gamepad":
-        from neurotouch_hid.output.desktop import UinputOutputs
-        from neurotouch_hid.output.gamepad import GamepadIdentity, VirtualGamepad
-
-        dev = profile.device
-        identity = GamepadIdentity(name=dev.name, vendor=dev.vendor, product=dev.product, version=dev.version)
-        on_effect = None if say is None else (lambda line: say(f"rumble (the gel has no motor): {line}"))
-        return stack.enter_context(UinputOutputs(VirtualGamepad(identity, on_effect=on_effect), profile))
-    if kind == "jsonl":
-        from neurotouch_hid.output.jsonl import StateJsonlWriter
-
-        return stack.enter_context(StateJsonlWriter(out))
-    from neurotouch_hid.output.term import TermView
-
-    return stack.enter_context(TermView(console))
-
-
-class PipelineResting:
-    """The pipeline's own resting detector, run from the runtime's resting thread.
-
-    ``GesturePipeline`` creates its :class:`~neurotouch_hid.pipeline.resting.RestingDetector` at
-    its reference (first) APS frame; until then :meth:`update` has no verdict (None)."""
-
-    def __init__(self, pipeline: Any):
-        self._pipeline = pipeline
-
-    def update(self, frame: Frame) -> Any:
-        """The Chamfer-distance verdict for ``frame`` (``RestingResult``), or None."""
-        detector = self._pipeline.resting_detector
-        return None if detector is None else detector.update(frame)
-
-
-def build_pipeline(geometry: Any, window_us: int, *, resting_beside: bool = True,
-                   filter_noise: bool = True) -> tuple[Any, PipelineResting | None]:
-    """A ``GesturePipeline`` with ``window_us`` windows, and the resting detector to run beside it.
-
-    ``filter_noise``: the pipeline runs its default noise filter (``PipelineConfig.noise_filter``);
-    False when the source already did (the live camera, :func:`open_source`).
-
-    ``resting_beside``: the resting detection runs in the runtime's own thread (paper, section
-    "Runtime Performance": one core for it, one for the gesture detection) and the pipeline does
-    not run it (``detect_resting=False``). False: the pipeline runs it inline on each frame, and
-    the run is deterministic (the same input gives the same estimates): what ``--fast`` replays
-    use, as nothing there needs to keep up with the camera.
-    """
-    from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
-
-    config = PipelineConfig(window_us=window_us, detect_resting=not resting_beside)
-    if not filter_noise:
-        config.noise_filter = config.noise_filter_us = None
-    pipeline = GesturePipeline(geometry, config)
-    return pipeline, (PipelineResting(pipeline) if resting_beside else None)
-
-
-def compile_pipeline() -> None:
-    """Compile the pipeline's numba code before any source is opened
-    (:meth:`GesturePipeline.compile_kernels`): on a fresh install that takes seconds, which a
-    real-time run would otherwise spend dropping data, and a camera buffering it."""
-    from neurotouch_hid.pipeline.pipeline import GesturePipeline
-    from neurotouch_hid.sensor import SensorGeometry
-
-    GesturePipeline(SensorGeometry()).compile_kernels()
-
-
-def run_driver(source: str = "davis", profile: str | Path = "default", output: str = "gamepad", *,
-               seconds: float | None = None, fast: bool = False, out: str | Path | None = None,
-               window_us: int = 10_000, sensor: str | Path | None = None, seed: int = 0,
-               console: Any = None, output_obj: Any = None, davis: Any = None, wait: bool = False,
-               capture: Any = None, say: Callable[[str], None] = log.warning) -> RunStats:
-    """``neurotouch-hid run``: load the profile (a bad one raises ProfileError before any device
-    exists), open the source, build the pipeline, open the output, run until the end.
-
-    Real time (the camera, or paced replays): the resting detector runs in its own thread and
-    data is dropped, oldest first, if the pipeline falls behind. ``fast`` (recordings and the
-    simulated gel only): as fast as possible, nothing dropped, resting detection inline, so the
-    same input always gives the same states.
-
-    ``output_obj`` replaces the output named by ``output`` (the demo's fallback, benchmarks).
-    ``davis``, ``wait``, ``capture``: the live camera's settings (:func:`open_source`); ``say``
-    tells the user when it is lost and back.
-    Raises NeurotouchError subclasses for bad input (ProfileError, RecordingError, DeviceError,
-    SensorError).
-    """
-    if output not in OUTPUT_KINDS:
-        raise NeurotouchError(f"unknown output '{output}' (expected one of: {', '.join(OUTPUT_KINDS)})")
-    if window_us < 1000:
-        raise NeurotouchError(f"--window-us {window_us}: windows must be at least 1000 us")
-    loaded = _load_profile(profile)
-    if not source.endswith(".jsonl"):
-        compile_pipeline()
-    with contextlib.ExitStack() as stack:
-        stream, geometry, live = open_source(source, stack, seconds=seconds,
-                                             batch_us=min(DEFAULT_BATCH_US, window_us), sensor=sensor, seed=seed,
-                                             davis=davis, wait=wait, capture=capture)
-        if geometry is None:  # a predictions file: the estimates are already there
-            pipeline, resting = EstimateReplay(), None
-        else:
-            pipeline, resting = build_pipeline(geometry, window_us, resting_beside=live or not fast,
-                                               filter_noise=not live)
-        out_obj = output_obj if output_obj is not None else open_output(output, loaded, stack, out=out, console=console,
-                                                                        say=say)
-        runtime = Runtime(stream, pipeline, loaded, out_obj, resting=resting, pace=not fast, live=live,
-                          profile_ref=profile, say=say, control=True)
-        if hasattr(out_obj, "stats"):
-            out_obj.stats = runtime.stats
-        return runtime.run(seconds)
-
-
-def gamepad_or_terminal(profile: Any, stack: contextlib.ExitStack, *, console: Any = None,
-                        say: Callable[[str], None] = print) -> Any:
-    """The virtual gamepad where /dev/uinput is writable; else the terminal view, after saying
-    why in one line (``say``)."""
-    from neurotouch_hid.udev import uinput_help
-
-    try:
-        return open_output("gamepad", profile, stack)
-    except DeviceError as exc:
-        reason = str(exc).replace(": " + uinput_help(), "").strip()
-        say(f"no writable /dev/uinput ({reason}): showing the gamepad in the terminal instead; "
-            "see `neurotouch-hid doctor`")
-        return open_output("term", profile, stack, console=console)
-
-
-def run_demo(seconds: float | None = 30.0, *, console: Any = None,
-             say: Callable[[str], None] = print) -> RunStats:
-    """``neurotouch-hid demo``: the simulated gel performing every gesture, paced in real time,
-    through the default profile, to the virtual gamepad (or the terminal view, see
-    :func:`gamepad_or_terminal`)."""
-    profile = _load_profile("default")
-    with contextlib.ExitStack() as stack:
-        out = gamepad_or_terminal(profile, stack, console=console, say=say)
-        return run_driver("sim", "default", "gamepad", seconds=seconds, console=console, output_obj=out)

@@ -121,7 +121,7 @@ def test_mouse_profile_run_writes_every_motion_and_ends_neutral(tmp_path, runtim
     """``run --profile mouse --output jsonl`` on a push: one line per window with motion, the
     pointer moving right and up, the last line neutral with no motion."""
     from neurotouch_hid.output.jsonl import write_predictions
-    from neurotouch_hid.runtime import run_driver
+    from neurotouch_hid.driver import run_driver
     from test_runtime import read_states
 
     estimates = [GestureEstimate(t_us=1_000_000 + 10_000 * k, gesture=GestureType.PUSH, resting=False,

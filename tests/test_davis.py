@@ -187,6 +187,8 @@ class Log:
 
 
 class LoggedOutput:
+    accepts_estimate = False
+
     def __init__(self, log: Log):
         self.log = log
 
@@ -196,6 +198,9 @@ class LoggedOutput:
     def neutralise(self) -> None:
         self.log.add("neutralise")
 
+    def prepare(self, profile) -> None:
+        pass
+
 
 def moved(state: ControllerState) -> bool:
     neutral = ControllerState.neutral()
@@ -203,7 +208,7 @@ def moved(state: ControllerState) -> bool:
 
 
 def run_davis(world: ReplayWorld, seconds: float, log: Log):
-    from neurotouch_hid.runtime import run_driver
+    from neurotouch_hid.driver import run_driver
 
     return run_driver("davis", "default", "gamepad", seconds=seconds, capture=world, davis=QUICK,
                       output_obj=LoggedOutput(log), say=lambda line: log.add("say", line))
@@ -256,7 +261,7 @@ def test_a_camera_that_never_comes_back_still_ends_the_run_neutral(gel_recording
 
 
 def test_run_with_wait_starts_when_the_camera_is_plugged_in(gel_recording):
-    from neurotouch_hid.runtime import run_driver
+    from neurotouch_hid.driver import run_driver
 
     path, labels = gel_recording
     plugged = 3.2  # the gel rests from 3.0 s, a pinch follows from 4.6 s
@@ -317,7 +322,7 @@ def test_the_noise_filter_runs_on_the_camera_s_own_event_stores(street):
 
 
 def test_the_live_pipeline_leaves_the_noise_to_the_source(gel_recording):
-    from neurotouch_hid.runtime import build_pipeline
+    from neurotouch_hid.driver import build_pipeline
     from neurotouch_hid.sensor import SensorGeometry
 
     live, _ = build_pipeline(SensorGeometry(), 10_000, filter_noise=False)

@@ -69,6 +69,8 @@ class FakeMapper:
 class RecordingOutput:
     """Remembers every call, in order."""
 
+    accepts_estimate = False
+
     def __init__(self):
         self.calls: list[tuple[str, ControllerState | None]] = []
 
@@ -77,6 +79,9 @@ class RecordingOutput:
 
     def neutralise(self):
         self.calls.append(("neutralise", None))
+
+    def prepare(self, profile):
+        pass
 
 
 def make_runtime(source, pipeline=None, output=None, **kw) -> tuple[Runtime, FakePipeline, RecordingOutput]:
@@ -381,20 +386,20 @@ def test_demo_without_uinput_shows_the_terminal_view_and_says_why(tmp_path):
 
 
 def test_a_bad_profile_raises_before_any_output_or_source_exists(tmp_path, monkeypatch):
-    import neurotouch_hid.runtime as runtime
+    import neurotouch_hid.driver as driver
 
     opened = []
-    monkeypatch.setattr(runtime, "open_output", lambda *a, **k: opened.append("output"))
-    monkeypatch.setattr(runtime, "open_source", lambda *a, **k: opened.append("source"))
+    monkeypatch.setattr(driver, "open_output", lambda *a, **k: opened.append("output"))
+    monkeypatch.setattr(driver, "open_source", lambda *a, **k: opened.append("source"))
     bad = tmp_path / "bad.yaml"
     bad.write_text("mappings:\n  push: {input: nonsense, output: left_stick}\n")
     with pytest.raises(ProfileError, match="bad.yaml"):
-        runtime.run_driver("sim", bad, "gamepad")
+        driver.run_driver("sim", bad, "gamepad")
     assert opened == []
 
 
 def test_fast_replays_are_deterministic(push_recording, tmp_path):
-    from neurotouch_hid.runtime import run_driver
+    from neurotouch_hid.driver import run_driver
 
     runs = []
     for k in range(2):
@@ -411,7 +416,7 @@ def test_a_predictions_file_replays_through_the_mapper_state_for_state(tmp_path)
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.mapping.replay import replay
     from neurotouch_hid.output.jsonl import read_predictions, write_predictions
-    from neurotouch_hid.runtime import run_driver
+    from neurotouch_hid.driver import run_driver
 
     estimates = []
     for k in range(120):

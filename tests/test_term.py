@@ -13,7 +13,7 @@ from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.output.term import (
     BUTTON_LABELS, STICK_COLUMNS, STICK_ROWS, TermView, axis_fraction, buttons_text, dpad_text, stick_cell, stick_grid,
 )
-from neurotouch_hid.runtime import RunStats
+from neurotouch_hid.stats import RunStats
 
 LO, HI, _ = AXES["ABS_X"]
 

@@ -5,10 +5,9 @@ button timeline, summarise and plot it, and tune saturations from what a user ac
 
 from __future__ import annotations
 
-import contextlib
 import os
 from dataclasses import dataclass
-from typing import Iterable, Iterator
+from typing import Iterable
 
 import numpy as np
 
@@ -22,36 +21,6 @@ def replay(profile: Profile, estimates: Iterable[GestureEstimate]) -> list[Contr
     """Map every estimate, in order, with a fresh :class:`Mapper`; one state per estimate."""
     mapper = Mapper(profile)
     return [mapper.update(e) for e in estimates]
-
-
-def estimates_from_source(source: str, seconds: float | None = None) -> Iterator[GestureEstimate]:
-    """Estimates from ``PRED.jsonl`` (predictions), ``sim`` (the simulated gel through the
-    pipeline, 20 s unless ``seconds``) or an AEDAT4 recording (through the pipeline, with the
-    sensor.yaml beside it). Only the first ``seconds`` (from the first estimate) when given.
-
-    Raises:
-        DatasetError, RecordingError, SensorError: unreadable source.
-    """
-    if source.endswith(".jsonl"):
-        from neurotouch_hid.output.jsonl import read_predictions
-
-        yield from _first_seconds(iter(read_predictions(source)), seconds)
-        return
-    from neurotouch_hid.pipeline.pipeline import GesturePipeline
-    from neurotouch_hid.runtime import open_source
-
-    with contextlib.ExitStack() as stack:
-        stream, sensor, _ = open_source(source, stack, seconds=seconds if seconds is not None or source != "sim" else 20.0)
-        yield from _first_seconds(GesturePipeline(sensor).run(stream), seconds)
-
-
-def _first_seconds(estimates: Iterator[GestureEstimate], seconds: float | None) -> Iterator[GestureEstimate]:
-    start = None
-    for e in estimates:
-        start = e.t_us if start is None else start
-        if seconds is not None and e.t_us - start > seconds * 1e6:
-            return
-        yield e
 
 
 @dataclass(frozen=True)

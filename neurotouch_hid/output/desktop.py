@@ -153,6 +153,9 @@ class UinputOutputs:
     removed while running, so programs keep their handles.
     """
 
+    #: uinput devices show states only (:class:`~neurotouch_hid.stages.Output`).
+    accepts_estimate = False
+
     def __init__(self, pad: VirtualGamepad, profile: Any = None, devnode: str = "/dev/uinput") -> None:
         self.pad = pad
         self.keyboard: VirtualKeyboard | None = None
@@ -181,7 +184,7 @@ class UinputOutputs:
         if profile.uses_mouse and self.mouse is None:
             self.mouse = VirtualMouse(self._devnode)
 
-    def write(self, state: ControllerState) -> None:
+    def write(self, state: ControllerState, estimate: Any = None) -> None:
         for device in self.devices:
             device.write(state)
 

@@ -27,7 +27,7 @@ import stat
 import threading
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
 from neurotouch_hid.errors import DeviceError
@@ -243,11 +243,18 @@ class VirtualGamepad:
         device = self._ui.device
         return device.path if device is not None else None
 
+    #: A pad shows states only (:class:`~neurotouch_hid.stages.Output`).
+    accepts_estimate = False
+
     @property
     def closed(self) -> bool:
         return self._closed
 
-    def write(self, state: ControllerState) -> None:
+    def prepare(self, profile: Any) -> None:
+        """Nothing to get ready: the pad's layout is the same for every profile, and its name and ids
+        stay those it was created with (games keep their handle) (:class:`~neurotouch_hid.stages.Output`)."""
+
+    def write(self, state: ControllerState, estimate: Any = None) -> None:
         """Write the axes and buttons that changed since the last write, then one SYN_REPORT.
 
         Values are clamped to each axis' range. Nothing is written when nothing changed (the kernel

@@ -11,7 +11,7 @@ import json
 import sys
 from collections.abc import Iterable
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.errors import DatasetError
@@ -154,6 +154,10 @@ class StateJsonlWriter(JsonlWriter):
             "keys": sorted(state.keys),
             "rel": {name: int(v) for name, v in state.rel.items()},
         })
+
+    def prepare(self, profile: Any) -> None:
+        """Nothing to get ready: every profile's states are written alike
+        (:class:`~neurotouch_hid.stages.Output`)."""
 
     def neutralise(self) -> None:
         """Write the neutral state (all axes centred, all buttons released) at the last time."""

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import TYPE_CHECKING, Optional
+from typing import TYPE_CHECKING, Any, Optional
 
 from rich.console import Console, Group
 from rich.live import Live
@@ -27,7 +27,7 @@ from neurotouch_hid.controller import AXES, ControllerState
 from neurotouch_hid.estimate import GestureEstimate
 
 if TYPE_CHECKING:  # the runtime hands its live counters; no import at run time (no cycle)
-    from neurotouch_hid.runtime import RunStats
+    from neurotouch_hid.stats import RunStats
 
 #: evdev button -> label on the pad.
 BUTTON_LABELS: dict[str, str] = {
@@ -115,7 +115,7 @@ class TermView:
 
     Args:
         console: where to draw (default: a new stdout :class:`rich.console.Console`).
-        stats: the runtime's live :class:`~neurotouch_hid.runtime.RunStats` (windows, dropped
+        stats: the runtime's live :class:`~neurotouch_hid.stats.RunStats` (windows, dropped
             data), shown under the pad; may be set after construction.
         line_period_s: without a terminal, the shortest time (s) between two printed lines.
         refresh_per_second: redraw rate on a terminal.
@@ -146,6 +146,9 @@ class TermView:
                 self._estimate = estimate
         if self._live is None and time.monotonic() - self._last_line >= self._line_period_s:
             self._print_line()
+
+    def prepare(self, profile: Any) -> None:
+        """Nothing to get ready: every profile's states draw alike (:class:`~neurotouch_hid.stages.Output`)."""
 
     def neutralise(self) -> None:
         """Show all axes centred and all buttons released (and, without a terminal, print it)."""

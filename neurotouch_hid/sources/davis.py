@@ -124,7 +124,7 @@ class DavisSource:
         backend: the capture backend (module docstring); None = ``dv_processing.io.camera``.
         noise_filter: an :class:`~neurotouch_hid.pipeline.noise.EventNoiseFilter` run on the
             camera's own event stores before they become numpy batches (no copy: the pipeline's
-            noise filter then stays off, ``runtime.build_pipeline``), or None.
+            noise filter then stays off, ``driver.build_pipeline``), or None.
 
     Raises:
         DeviceError: (unless ``wait``) no DAVIS camera can be opened: none on USB, no permission

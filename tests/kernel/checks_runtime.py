@@ -203,7 +203,7 @@ def check_run_gamepad_matches_the_profile() -> dict:
     state, is what the same estimates give through ``--output jsonl``; the pad ends neutral."""
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.output.gamepad import GamepadIdentity, VirtualGamepad
-    from neurotouch_hid.runtime import run_driver
+    from neurotouch_hid.driver import run_driver
 
     folder = Path(tempfile.mkdtemp(prefix="runtime-check-"))
     preds, profile_path = _write(folder, gesture_sequence())

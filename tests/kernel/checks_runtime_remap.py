@@ -137,7 +137,7 @@ def _run_in_process(profile: str, estimates: list[GestureEstimate], folder: Path
     import contextlib
 
     from neurotouch_hid.mapping.profile import load_profile
-    from neurotouch_hid.runtime import open_output, run_driver
+    from neurotouch_hid.driver import open_output, run_driver
 
     preds = _write_preds(folder, estimates)
     with contextlib.ExitStack() as stack:

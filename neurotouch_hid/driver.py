@@ -1,0 +1,275 @@
+"""The driver's start-up wiring: the ``run`` and ``demo`` commands put the concrete stages together.
+
+:func:`run_driver` loads the profile (a bad one fails before any device exists), opens the source
+(:func:`open_source`: the live camera, the simulated gel, an AEDAT4 recording or a predictions
+file), builds the pipeline and its resting detector (:func:`build_pipeline`), opens the output
+(:func:`open_output`: the uinput devices, JSON lines or the terminal view) and hands them to the
+engine, :class:`~neurotouch_hid.runtime.Runtime`, which owns threads, pacing and shutdown.
+The engine knows the stages only through the seams of :mod:`neurotouch_hid.stages`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from pathlib import Path
+from typing import Any, Callable, Iterable, Iterator
+
+from neurotouch_hid.errors import DeviceError, NeurotouchError
+from neurotouch_hid.estimate import GestureEstimate
+from neurotouch_hid.mapping.profile import Profile, load_profile
+from neurotouch_hid.runtime import DEFAULT_BATCH_US, Runtime
+from neurotouch_hid.sources import Frame
+from neurotouch_hid.stages import Output
+from neurotouch_hid.stats import RunStats
+
+log = logging.getLogger(__name__)
+
+OUTPUT_KINDS = ("gamepad", "jsonl", "term")
+
+
+class EstimateReplay:
+    """Stands in for the pipeline when the source is a predictions file: its items already are
+    the windows' :class:`GestureEstimate` values (docs/dataset.md "Predictions"), handed on as they are."""
+
+    def process(self, item: GestureEstimate) -> list[GestureEstimate]:
+        return [item]
+
+    def restart(self) -> None:  # pragma: no cover - a predictions file is never interrupted
+        pass
+
+    def set_resting(self, result: Any, t_us: int) -> None:  # pragma: no cover - no frames here
+        pass
+
+
+def open_source(spec: str, stack: contextlib.ExitStack, *, seconds: float | None = None,
+                batch_us: int = DEFAULT_BATCH_US, sensor: str | Path | None = None,
+                seed: int = 0, davis: Any = None, wait: bool = False,
+                capture: Any = None) -> tuple[Iterable[Any], Any, bool]:
+    """Open ``davis`` (the live camera), ``sim`` (the simulated gel), an AEDAT4 recording path, or
+    a predictions file (``*.jsonl``, docs/dataset.md: the pipeline's estimates, replayed as they are).
+
+    The camera's stream survives unplugs and stalls (it yields
+    :class:`~neurotouch_hid.sources.SourceStatus` items); ``davis`` is its
+    :class:`~neurotouch_hid.sources.davis.DavisConfig`, ``wait`` waits for a camera instead of
+    failing, ``capture`` replaces dv-processing's camera backend (tests replay recordings through
+    it). Its geometry is ``sensor``, else the user's calibration, else the built-in one. The
+    pipeline's default noise filter runs in the camera's source, on dv-processing's own event
+    stores (no copies; build the pipeline with ``filter_noise=False`` then).
+
+    Returns ``(stream, sensor_geometry, live)``; ``live`` is True for the camera (never paced by
+    the runtime); the geometry is None for a predictions file. Resources (camera, file) are
+    closed by ``stack``. Raises RecordingError for a missing or unreadable recording,
+    DatasetError for a bad predictions file, DeviceError when the camera cannot be opened (and
+    ``wait`` is off).
+    """
+    from neurotouch_hid.sensor import SensorGeometry, default_sensor, find_sensor_file
+
+    if spec.endswith(".jsonl"):
+        from neurotouch_hid.output.jsonl import read_predictions
+
+        return iter(read_predictions(spec)), None, False
+
+    if spec == "davis":
+        from neurotouch_hid.sources.davis import DavisSource
+
+        from neurotouch_hid.pipeline.noise import EventNoiseFilter
+        from neurotouch_hid.pipeline.pipeline import PipelineConfig
+        from neurotouch_hid.sources.recording import DAVIS346_RESOLUTION
+
+        defaults = PipelineConfig()
+        noise = (EventNoiseFilter(defaults.noise_filter, *DAVIS346_RESOLUTION, defaults.noise_filter_us)
+                 if defaults.noise_filter is not None else None)
+        try:
+            camera = stack.enter_context(DavisSource(davis, wait=wait, backend=capture, noise_filter=noise))
+        except DeviceError as exc:
+            raise DeviceError(f"{exc}; or start with --wait to wait for a camera") from None
+        geometry = SensorGeometry.load(sensor) if sensor is not None else default_sensor()
+        return camera.stream(seconds=seconds, batch_us=batch_us, reconnect=True), geometry, True
+    if spec == "sim":
+        from neurotouch_hid.sources.simulator import SimulatedSource
+
+        sim = SimulatedSource(seed=seed) if sensor is None else SimulatedSource(SensorGeometry.load(sensor), seed=seed)
+        return sim.stream(seconds=seconds, batch_us=batch_us), sim.sensor, False
+    from neurotouch_hid.errors import RecordingError
+    from neurotouch_hid.sources.recording import RecordingReader
+
+    path = Path(spec)
+    if not path.is_file():
+        raise RecordingError(f"{path}: no such recording (--source takes davis, sim, an AEDAT4 file or a predictions .jsonl)")
+    reader = stack.enter_context(RecordingReader(path))
+    return reader.stream(batch_us=batch_us), find_sensor_file(path, sensor), False
+
+
+def open_output(kind: str, profile: Profile, stack: contextlib.ExitStack, *, out: str | Path | None = None,
+                console: Any = None, say: Callable[[str], None] | None = None,
+                stats: RunStats | None = None) -> Output:
+    """Create the output: ``gamepad`` (the uinput pad with the profile's name and ids, and the
+    keyboard and mouse if the profile uses them), ``jsonl`` (one state line per change to ``out``
+    or stdout) or ``term`` (the terminal view, showing ``stats`` under the pad). ``say`` tells the
+    user about rumble effects games send to the pad (the gel has no motor; default: the log).
+    Closed by ``stack``. Raises DeviceError when /dev/uinput cannot be used."""
+    if kind == "gamepad":
+        from neurotouch_hid.output.desktop import UinputOutputs
+        from neurotouch_hid.output.gamepad import GamepadIdentity, VirtualGamepad
+
+        dev = profile.device
+        identity = GamepadIdentity(name=dev.name, vendor=dev.vendor, product=dev.product, version=dev.version)
+        on_effect = None if say is None else (lambda line: say(f"rumble (the gel has no motor): {line}"))
+        return stack.enter_context(UinputOutputs(VirtualGamepad(identity, on_effect=on_effect), profile))
+    if kind == "jsonl":
+        from neurotouch_hid.output.jsonl import StateJsonlWriter
+
+        return stack.enter_context(StateJsonlWriter(out))
+    from neurotouch_hid.output.term import TermView
+
+    return stack.enter_context(TermView(console, stats=stats))
+
+
+class PipelineResting:
+    """The pipeline's own resting detector, run from the runtime's resting thread.
+
+    ``GesturePipeline`` creates its :class:`~neurotouch_hid.pipeline.resting.RestingDetector` at
+    its reference (first) APS frame; until then :meth:`update` has no verdict (None)."""
+
+    def __init__(self, pipeline: Any):
+        self._pipeline = pipeline
+
+    def update(self, frame: Frame) -> Any:
+        """The Chamfer-distance verdict for ``frame`` (``RestingResult``), or None."""
+        detector = self._pipeline.resting_detector
+        return None if detector is None else detector.update(frame)
+
+
+def build_pipeline(geometry: Any, window_us: int, *, resting_beside: bool = True,
+                   filter_noise: bool = True) -> tuple[Any, PipelineResting | None]:
+    """A ``GesturePipeline`` with ``window_us`` windows, and the resting detector to run beside it.
+
+    ``filter_noise``: the pipeline runs its default noise filter (``PipelineConfig.noise_filter``);
+    False when the source already did (the live camera, :func:`open_source`).
+
+    ``resting_beside``: the resting detection runs in the runtime's own thread (paper, section
+    "Runtime Performance": one core for it, one for the gesture detection) and the pipeline does
+    not run it (``detect_resting=False``). False: the pipeline runs it inline on each frame, and
+    the run is deterministic (the same input gives the same estimates): what ``--fast`` replays
+    use, as nothing there needs to keep up with the camera.
+    """
+    from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
+
+    config = PipelineConfig(window_us=window_us, detect_resting=not resting_beside)
+    if not filter_noise:
+        config.noise_filter = config.noise_filter_us = None
+    pipeline = GesturePipeline(geometry, config)
+    return pipeline, (PipelineResting(pipeline) if resting_beside else None)
+
+
+def compile_pipeline() -> None:
+    """Compile the pipeline's numba code before any source is opened
+    (:meth:`GesturePipeline.compile_kernels`): on a fresh install that takes seconds, which a
+    real-time run would otherwise spend dropping data, and a camera buffering it."""
+    from neurotouch_hid.pipeline.pipeline import GesturePipeline
+    from neurotouch_hid.sensor import SensorGeometry
+
+    GesturePipeline(SensorGeometry()).compile_kernels()
+
+
+def run_driver(source: str = "davis", profile: str | Path = "default", output: str = "gamepad", *,
+               seconds: float | None = None, fast: bool = False, out: str | Path | None = None,
+               window_us: int = 10_000, sensor: str | Path | None = None, seed: int = 0,
+               console: Any = None, output_obj: Output | None = None, davis: Any = None, wait: bool = False,
+               capture: Any = None, say: Callable[[str], None] = log.warning,
+               stats: RunStats | None = None) -> RunStats:
+    """``neurotouch-hid run``: load the profile (a bad one raises ProfileError before any device
+    exists), open the source, build the pipeline, open the output, run until the end.
+
+    Real time (the camera, or paced replays): the resting detector runs in its own thread and
+    data is dropped, oldest first, if the pipeline falls behind. ``fast`` (recordings and the
+    simulated gel only): as fast as possible, nothing dropped, resting detection inline, so the
+    same input always gives the same states.
+
+    ``output_obj`` replaces the output named by ``output`` (the demo's fallback, benchmarks);
+    ``stats`` is where the run is counted (the one a given terminal view shows).
+    ``davis``, ``wait``, ``capture``: the live camera's settings (:func:`open_source`); ``say``
+    tells the user when it is lost and back.
+    Raises NeurotouchError subclasses for bad input (ProfileError, RecordingError, DeviceError,
+    SensorError).
+    """
+    if output not in OUTPUT_KINDS:
+        raise NeurotouchError(f"unknown output '{output}' (expected one of: {', '.join(OUTPUT_KINDS)})")
+    if window_us < 1000:
+        raise NeurotouchError(f"--window-us {window_us}: windows must be at least 1000 us")
+    loaded = load_profile(profile)
+    if not source.endswith(".jsonl"):
+        compile_pipeline()
+    stats = stats if stats is not None else RunStats()
+    with contextlib.ExitStack() as stack:
+        stream, geometry, live = open_source(source, stack, seconds=seconds,
+                                             batch_us=min(DEFAULT_BATCH_US, window_us), sensor=sensor, seed=seed,
+                                             davis=davis, wait=wait, capture=capture)
+        if geometry is None:  # a predictions file: the estimates are already there
+            pipeline, resting = EstimateReplay(), None
+        else:
+            pipeline, resting = build_pipeline(geometry, window_us, resting_beside=live or not fast,
+                                               filter_noise=not live)
+        out_obj = output_obj if output_obj is not None else open_output(output, loaded, stack, out=out, console=console,
+                                                                        say=say, stats=stats)
+        runtime = Runtime(stream, pipeline, loaded, out_obj, resting=resting, pace=not fast, live=live,
+                          profile_ref=profile, say=say, control=True, stats=stats)
+        return runtime.run(seconds)
+
+
+def gamepad_or_terminal(profile: Profile, stack: contextlib.ExitStack, *, console: Any = None,
+                        say: Callable[[str], None] = print, stats: RunStats | None = None) -> Output:
+    """The virtual gamepad where /dev/uinput is writable; else the terminal view (showing
+    ``stats``), after saying why in one line (``say``)."""
+    from neurotouch_hid.udev import uinput_help
+
+    try:
+        return open_output("gamepad", profile, stack)
+    except DeviceError as exc:
+        reason = str(exc).replace(": " + uinput_help(), "").strip()
+        say(f"no writable /dev/uinput ({reason}): showing the gamepad in the terminal instead; "
+            "see `neurotouch-hid doctor`")
+        return open_output("term", profile, stack, console=console, stats=stats)
+
+
+def run_demo(seconds: float | None = 30.0, *, console: Any = None,
+             say: Callable[[str], None] = print) -> RunStats:
+    """``neurotouch-hid demo``: the simulated gel performing every gesture, paced in real time,
+    through the default profile, to the virtual gamepad (or the terminal view, see
+    :func:`gamepad_or_terminal`)."""
+    profile = load_profile("default")
+    stats = RunStats()
+    with contextlib.ExitStack() as stack:
+        out = gamepad_or_terminal(profile, stack, console=console, say=say, stats=stats)
+        return run_driver("sim", "default", "gamepad", seconds=seconds, console=console, output_obj=out,
+                          stats=stats)
+
+
+def estimates_from_source(source: str, seconds: float | None = None) -> Iterator[GestureEstimate]:
+    """Estimates from ``PRED.jsonl`` (predictions), ``sim`` (the simulated gel through the
+    pipeline, 20 s unless ``seconds``) or an AEDAT4 recording (through the pipeline, with the
+    sensor.yaml beside it). Only the first ``seconds`` (from the first estimate) when given.
+
+    Raises:
+        DatasetError, RecordingError, SensorError: unreadable source.
+    """
+    if source.endswith(".jsonl"):
+        from neurotouch_hid.output.jsonl import read_predictions
+
+        yield from _first_seconds(iter(read_predictions(source)), seconds)
+        return
+    from neurotouch_hid.pipeline.pipeline import GesturePipeline
+
+    with contextlib.ExitStack() as stack:
+        stream, sensor, _ = open_source(source, stack, seconds=seconds if seconds is not None or source != "sim" else 20.0)
+        yield from _first_seconds(GesturePipeline(sensor).run(stream), seconds)
+
+
+def _first_seconds(estimates: Iterator[GestureEstimate], seconds: float | None) -> Iterator[GestureEstimate]:
+    start = None
+    for e in estimates:
+        start = e.t_us if start is None else start
+        if seconds is not None and e.t_us - start > seconds * 1e6:
+            return
+        yield e

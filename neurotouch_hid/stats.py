@@ -1,0 +1,88 @@
+"""What a run did: :class:`RunStats`, counted live by the runtime and shown by the terminal view.
+
+Its own module so that the engine (:mod:`neurotouch_hid.runtime`) and the outputs that show it
+(:mod:`neurotouch_hid.output.term`) both import it without importing each other.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: How many latency samples are kept (a ring: memory stays flat over long sessions).
+LATENCY_SAMPLES = 65_536
+
+
+class LatencyRing:
+    """The last ``capacity`` event-to-output latencies (ns, int64), in a fixed numpy ring."""
+
+    def __init__(self, capacity: int = LATENCY_SAMPLES):
+        self._buf = np.zeros(capacity, dtype=np.int64)
+        self._n = 0
+
+    def add(self, latency_ns: int) -> None:
+        self._buf[self._n % len(self._buf)] = latency_ns
+        self._n += 1
+
+    def __len__(self) -> int:
+        return min(self._n, len(self._buf))
+
+    def values_us(self) -> np.ndarray:
+        """The kept samples in microseconds (float64, unordered)."""
+        return self._buf[: len(self)] / 1e3
+
+    def percentile_us(self, q: float) -> float:
+        """The q-th percentile (0..100) of the kept samples in us; NaN without samples."""
+        return float(np.percentile(self.values_us(), q)) if len(self) else float("nan")
+
+
+@dataclass
+class RunStats:
+    """What a run did. Counters are updated live (the terminal view shows them).
+
+    Attributes:
+        windows: gesture estimates produced (one per window).
+        events: events handed to the pipeline.
+        frames: APS frames handed to the pipeline.
+        states_written: controller states written to the output (state changes only).
+        dropped_items, dropped_events, dropped_frames: input data dropped, oldest first, because the
+            pipeline fell behind a live or paced source (items = event batches + frames).
+        resting_updates: resting detector results handed to the pipeline.
+        resting_dropped_frames: APS frames the resting detector skipped (it was still busy).
+        camera_losses: times the live camera was lost (unplugged, failing, stalled).
+        wall_s: wall time of the run (s).
+        stream_us: camera time covered by the processed data (us).
+        latency: processing latencies: from the moment the item that closed a window was read
+            from the source (after pacing) to the output being up to date.
+        window_latency: paced sources only: from the window's end in wall time (the camera clock
+            mapped to wall time by the pacing) to the output being up to date; adds the wait for
+            the source batch that shows the window is over (up to one batch).
+    """
+
+    windows: int = 0
+    events: int = 0
+    frames: int = 0
+    states_written: int = 0
+    dropped_items: int = 0
+    dropped_events: int = 0
+    dropped_frames: int = 0
+    resting_updates: int = 0
+    resting_dropped_frames: int = 0
+    camera_losses: int = 0
+    wall_s: float = 0.0
+    stream_us: int = 0
+    latency: LatencyRing = field(default_factory=LatencyRing, repr=False)
+    window_latency: LatencyRing = field(default_factory=LatencyRing, repr=False)
+
+    def summary(self) -> str:
+        """One line for the end of a run."""
+        lat = ""
+        if len(self.latency):
+            lat = (f", latency p50 {self.latency.percentile_us(50) / 1e3:.2f} ms"
+                   f" p99 {self.latency.percentile_us(99) / 1e3:.2f} ms")
+        return (f"{self.windows} windows, {self.events} events, {self.frames} frames in {self.wall_s:.1f} s"
+                f" ({self.stream_us / 1e6:.1f} s of data); dropped {self.dropped_items} items"
+                f" ({self.dropped_events} events, {self.dropped_frames} frames),"
+                f" resting detector skipped {self.resting_dropped_frames} frames"
+                + (f", camera lost {self.camera_losses} time(s)" if self.camera_losses else "") + lat)
