@@ -27,7 +27,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from neurotouch_hid.evaluation.dataset import list_sequences
+from neurotouch_hid.dataset import list_sequences
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 from neurotouch_hid.pipeline.track import track_recording
 from neurotouch_hid.sensor import find_sensor_file

@@ -34,10 +34,10 @@ from rich.table import Table
 import numpy as np
 
 from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.evaluation.dataset import list_sequences, read_labels
+from neurotouch_hid.dataset import list_sequences, read_labels
 from neurotouch_hid.evaluation.runner import evaluate_dataset, pipeline_config
 from neurotouch_hid.evaluation.metrics import Observations, align, evaluate
-from neurotouch_hid.output.jsonl import read_predictions, write_predictions
+from neurotouch_hid.dataset import read_predictions, write_predictions
 from neurotouch_hid.pipeline.gesture import EpisodeVote
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import PHYSICS

@@ -37,7 +37,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from neurotouch_hid.evaluation.dataset import labels_at, list_sequences, read_labels
+from neurotouch_hid.dataset import labels_at, list_sequences, read_labels
 from neurotouch_hid.evaluation.metrics import EvaluationResult, Observations, align, evaluate, precision_recall_f1
 from neurotouch_hid.evaluation.metrics import confusion_matrix
 from neurotouch_hid.evaluation.runner import pipeline_config

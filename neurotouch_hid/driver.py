@@ -66,7 +66,7 @@ def open_source(spec: str, stack: contextlib.ExitStack, *, seconds: float | None
     from neurotouch_hid.sensor import SensorGeometry, default_sensor, find_sensor_file
 
     if spec.endswith(".jsonl"):
-        from neurotouch_hid.output.jsonl import read_predictions
+        from neurotouch_hid.dataset import read_predictions
 
         return iter(read_predictions(spec)), None, False
 
@@ -255,7 +255,7 @@ def estimates_from_source(source: str, seconds: float | None = None) -> Iterator
         DatasetError, RecordingError, SensorError: unreadable source.
     """
     if source.endswith(".jsonl"):
-        from neurotouch_hid.output.jsonl import read_predictions
+        from neurotouch_hid.dataset import read_predictions
 
         yield from _first_seconds(iter(read_predictions(source)), seconds)
         return

@@ -17,7 +17,7 @@ import pytest
 from neurotouch_hid.calibration import calibrate, read_rest_frames
 from neurotouch_hid.errors import DatasetError, SensorError
 from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.evaluation.dataset import dataset_sensor_file
+from neurotouch_hid.dataset import dataset_sensor_file
 from neurotouch_hid.sensor import SensorGeometry, default_sensor, find_sensor_file, user_sensor_path
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.simulator import START_US, USERS, GelSimulator, gesture_script, write_dataset

@@ -120,7 +120,7 @@ def wait_for_socket(timeout_s: float = 5.0) -> bool:
 def test_mouse_profile_run_writes_every_motion_and_ends_neutral(tmp_path, runtime_dir):
     """``run --profile mouse --output jsonl`` on a push: one line per window with motion, the
     pointer moving right and up, the last line neutral with no motion."""
-    from neurotouch_hid.output.jsonl import write_predictions
+    from neurotouch_hid.dataset import write_predictions
     from neurotouch_hid.driver import run_driver
     from test_runtime import read_states
 

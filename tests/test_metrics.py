@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from neurotouch_hid.estimate import GESTURE_ORDER, GestureEstimate, GestureType
-from neurotouch_hid.evaluation.dataset import LabelRow, labels_at
+from neurotouch_hid.dataset import LabelRow, labels_at
 from neurotouch_hid.evaluation.metrics import (
     Observations,
     accuracy,

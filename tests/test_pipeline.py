@@ -12,7 +12,7 @@ import pytest
 
 from neurotouch_hid.errors import DatasetError, SensorError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.output.jsonl import read_predictions, write_predictions
+from neurotouch_hid.dataset import read_predictions, write_predictions
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 from neurotouch_hid.pipeline.resting import RestingResult
 from neurotouch_hid.sensor import SensorGeometry
@@ -258,7 +258,7 @@ def push_tracked(push_dataset, tmp_path_factory):
 
 
 def test_track_finds_the_push_on_most_windows(push_dataset, push_tracked):
-    from neurotouch_hid.evaluation.dataset import read_labels
+    from neurotouch_hid.dataset import read_labels
 
     summary, predictions, _ = push_tracked
     labels = read_labels(push_dataset.with_name(push_dataset.name.replace(".aedat4", ".labels.csv")))

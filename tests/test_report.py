@@ -9,7 +9,7 @@ import pytest
 from rich.console import Console
 
 from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.evaluation.dataset import LabelRow
+from neurotouch_hid.dataset import LabelRow
 from neurotouch_hid.evaluation.metrics import align, evaluate
 from neurotouch_hid.evaluation.report import FIGURES, print_tables, write_report
 from neurotouch_hid.sensor import SensorGeometry
@@ -66,7 +66,7 @@ def test_eval_command_writes_report_json_and_predictions(quick_dataset, tmp_path
     from typer.testing import CliRunner
 
     from neurotouch_hid.cli import app
-    from neurotouch_hid.evaluation.dataset import list_sequences
+    from neurotouch_hid.dataset import list_sequences
     from neurotouch_hid.evaluation.metrics import EvaluationResult
 
     out_json = tmp_path / "metrics.json"

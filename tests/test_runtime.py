@@ -415,7 +415,7 @@ def test_a_predictions_file_replays_through_the_mapper_state_for_state(tmp_path)
     estimates, one line per change, ending neutral."""
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.mapping.replay import replay
-    from neurotouch_hid.output.jsonl import read_predictions, write_predictions
+    from neurotouch_hid.dataset import read_predictions, write_predictions
     from neurotouch_hid.driver import run_driver
 
     estimates = []

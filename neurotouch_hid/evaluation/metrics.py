@@ -1,7 +1,7 @@
 """The paper's evaluation metrics (paper, sections "Metrics" and "Results").
 
 Predictions (:class:`~neurotouch_hid.estimate.GestureEstimate`, one per window) are compared
-with the ground truth at each prediction's time (:func:`~neurotouch_hid.evaluation.dataset.labels_at`,
+with the ground truth at each prediction's time (:func:`~neurotouch_hid.dataset.labels_at`,
 docs/dataset.md "Predictions"). :func:`align` turns one sequence into :class:`Observations`: plain
 aligned arrays, one entry per evaluated prediction, that concatenate across sequences and cross
 process boundaries. :func:`evaluate` computes every metric into an :class:`EvaluationResult`.
@@ -27,7 +27,7 @@ from typing import Sequence
 import numpy as np
 
 from neurotouch_hid.estimate import GESTURE_ORDER, GestureEstimate, GestureType
-from neurotouch_hid.evaluation.dataset import LabelRow, labels_at
+from neurotouch_hid.dataset import LabelRow, labels_at
 from neurotouch_hid.sensor import SensorGeometry
 
 #: Width of the ground-truth intensity bins of the accuracy-vs-intensity analysis (mm), as the
@@ -241,7 +241,7 @@ def align(labels: Sequence[LabelRow], predictions: Sequence[GestureEstimate], se
     """Pair one sequence's predictions with its labels (docs/dataset.md "Predictions").
 
     The ground truth at each prediction time comes from
-    :func:`~neurotouch_hid.evaluation.dataset.labels_at`; predictions before the first label are
+    :func:`~neurotouch_hid.dataset.labels_at`; predictions before the first label are
     skipped (counted in ``n_skipped``). Contact points of both sides are converted from the image
     frame (px) to the user frame (mm) with :meth:`SensorGeometry.image_to_user`, so distance
     errors are in mm (with the linear model of sensor.yaml this is the px distance divided by

@@ -18,9 +18,9 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from neurotouch_hid.errors import NeurotouchError
-from neurotouch_hid.evaluation.dataset import dataset_sensor_file, list_sequences, read_labels
+from neurotouch_hid.dataset import dataset_sensor_file, list_sequences, read_labels
 from neurotouch_hid.evaluation.metrics import EvaluationResult, Observations, align, evaluate
-from neurotouch_hid.output.jsonl import write_predictions
+from neurotouch_hid.dataset import write_predictions
 from neurotouch_hid.sensor import SensorGeometry
 
 log = logging.getLogger(__name__)
@@ -134,7 +134,7 @@ def evaluate_dataset(
     """Run the pipeline over every sequence of a dataset and compute the paper's metrics.
 
     A dataset folder without sensor.yaml is run with the user's calibration
-    (:func:`~neurotouch_hid.evaluation.dataset.dataset_sensor_file`), which a logged warning says.
+    (:func:`~neurotouch_hid.dataset.dataset_sensor_file`), which a logged warning says.
 
     Args:
         dataset: the dataset folder (docs/dataset.md).

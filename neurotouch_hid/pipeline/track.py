@@ -19,7 +19,7 @@ import numpy as np
 
 from neurotouch_hid.errors import RecordingError, SensorError
 from neurotouch_hid.estimate import GestureEstimate
-from neurotouch_hid.output.jsonl import PredictionsWriter
+from neurotouch_hid.dataset import PredictionsWriter
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import Frame, StreamItem

@@ -59,7 +59,7 @@ import numpy as np
 
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.evaluation.dataset import LabelRow, write_labels
+from neurotouch_hid.dataset import LabelRow, write_labels
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame, StreamItem
 from neurotouch_hid.sources.esim import NOISE_RATE_HZ, EventCamera, render_frame

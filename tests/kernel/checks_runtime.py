@@ -87,7 +87,7 @@ def gesture_sequence(hold_s: float = 0.4, lead_in_s: float = 0.5, gestures: tupl
 
 
 def _write(folder: Path, estimates: list[GestureEstimate], profile_text: str = PROFILE) -> tuple[Path, Path]:
-    from neurotouch_hid.output.jsonl import write_predictions
+    from neurotouch_hid.dataset import write_predictions
 
     preds = folder / "gestures.jsonl"
     write_predictions(preds, estimates)

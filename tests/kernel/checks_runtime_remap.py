@@ -66,7 +66,7 @@ def sequence(*steps: tuple[GestureType, float, float], lead_in_s: float = 1.0) -
 
 
 def _write_preds(folder: Path, estimates: list[GestureEstimate]) -> Path:
-    from neurotouch_hid.output.jsonl import write_predictions
+    from neurotouch_hid.dataset import write_predictions
 
     path = folder / "gestures.jsonl"
     write_predictions(path, estimates)

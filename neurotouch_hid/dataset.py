@@ -3,20 +3,29 @@
 A dataset is a folder with ``sensor.yaml`` and, per sequence, ``SEQUENCE.aedat4`` and
 ``SEQUENCE.labels.csv`` (paper, section "Creation of the Gesture Detection Dataset"). A folder
 without ``sensor.yaml`` takes the user's calibration (``neurotouch-hid calibrate``) instead.
+Predictions are JSON lines, one :meth:`GestureEstimate.to_json_dict` object a line, ordered by
+time; :class:`JsonlWriter` is the shared line writer (a path or an open text stream, ``-`` =
+stdout), so other JSON-lines outputs write the same way.
+
+A format module beneath every stage: the simulator writes datasets, ``track`` and ``eval`` write
+predictions, ``run`` replays them, evaluation reads all of them.
 """
 
 from __future__ import annotations
 
 import csv
+import json
 import math
+import sys
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import IO, Sequence
 
 import numpy as np
 
 from neurotouch_hid.errors import DatasetError
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.sensor import user_sensor_path
 
 #: The columns of ``SEQUENCE.labels.csv``, in docs/dataset.md's order.
@@ -203,3 +212,104 @@ def labels_at(labels: Sequence[LabelRow], t_us: np.ndarray) -> list[LabelRow | N
                 contacts = (1.0 - w) * row.contacts_px + w * nxt.contacts_px
         out.append(LabelRow(int(t), row.gesture, row.resting, float(intensity), np.asarray(contacts, dtype=np.float64)))
     return out
+
+
+# --- predictions (JSON lines) ---------------------------------------------------------------
+class JsonlWriter:
+    """Writes one JSON object a line. Context manager.
+
+    Args:
+        out: a file path (created or truncated), ``"-"`` for stdout, or an open text stream
+            (not closed by :meth:`close`).
+        flush: flush after every line (for live outputs read by another process).
+    Raises:
+        DatasetError: the file cannot be opened for writing (names it and why).
+    """
+
+    def __init__(self, out: str | Path | IO[str], *, flush: bool = False) -> None:
+        self._flush = flush
+        if isinstance(out, (str, Path)) and str(out) == "-":
+            self._fh, self._owned = sys.stdout, False
+        elif isinstance(out, (str, Path)):
+            try:
+                self._fh, self._owned = open(out, "w"), True
+            except OSError as exc:
+                raise DatasetError(f"{out}: cannot write JSON lines: {exc.strerror}") from None
+        else:
+            self._fh, self._owned = out, False
+
+    def write_dict(self, data: dict) -> None:
+        """Write ``data`` as one compact JSON line."""
+        self._fh.write(json.dumps(data, separators=(", ", ": ")) + "\n")
+        if self._flush:
+            self._fh.flush()
+
+    def close(self) -> None:
+        """Flush, and close the file if this writer opened it."""
+        if self._owned:
+            self._fh.close()
+        else:
+            self._fh.flush()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class PredictionsWriter(JsonlWriter):
+    """Writes a predictions file (docs/dataset.md): one :class:`GestureEstimate` a line."""
+
+    def write(self, estimate: GestureEstimate) -> None:
+        """Write ``estimate.to_json_dict()`` as one line."""
+        self.write_dict(estimate.to_json_dict())
+
+
+def write_predictions(path: str | Path, estimates: Iterable[GestureEstimate]) -> int:
+    """Write a whole predictions file; returns the number of lines written."""
+    n = 0
+    with PredictionsWriter(path) as writer:
+        for estimate in estimates:
+            writer.write(estimate)
+            n += 1
+    return n
+
+
+def read_predictions(path: str | Path) -> list[GestureEstimate]:
+    """Read a predictions file (docs/dataset.md) back into estimates.
+
+    Blank lines are skipped.
+    Raises:
+        DatasetError: the file cannot be read, a line is not JSON, lacks a field or has a bad
+            value (the message names the file, the line number and the problem), or the lines
+            are not ordered by time.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise DatasetError(f"{path}: cannot read the predictions file: {exc.strerror}") from None
+    estimates: list[GestureEstimate] = []
+    for number, line in enumerate(text.splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            data = json.loads(line)
+        except json.JSONDecodeError as exc:
+            raise DatasetError(f"{path}:{number}: not a JSON object: {exc.msg}") from None
+        if not isinstance(data, dict):
+            raise DatasetError(f"{path}:{number}: expected a JSON object, found {type(data).__name__}")
+        missing = [k for k in ("t_us", "gesture", "resting", "intensity_mm") if k not in data]
+        if missing:
+            raise DatasetError(f"{path}:{number}: missing field(s) {', '.join(missing)} (docs/dataset.md, Predictions)")
+        try:
+            estimate = GestureEstimate.from_json_dict(data)
+        except (TypeError, ValueError, KeyError) as exc:
+            raise DatasetError(f"{path}:{number}: bad value: {exc}") from None
+        if estimate.contacts_px.shape != estimate.contacts_mm.shape:
+            raise DatasetError(f"{path}:{number}: contacts_px and contacts_mm have different numbers of points")
+        if estimates and estimate.t_us < estimates[-1].t_us:
+            raise DatasetError(f"{path}:{number}: t_us {estimate.t_us} goes back in time (previous line: {estimates[-1].t_us})")
+        estimates.append(estimate)
+    return estimates
