@@ -106,3 +106,22 @@ def test_idle_wraps_keep_the_decoder_on_device_time(t_us):
                                                                 np.array([0]), np.array([0]))])
     events, _ = decode(words)
     assert events[0][0] == t_us + 70_001
+
+
+def test_no_timestamp_is_sent_twice_in_a_row():
+    """dv-processing's parser stops on a timestamp equal to the last (a wrap sets the current one)."""
+    enc = WordEncoder()
+    t = np.array([0x8000 - 1, 0x8000, 0x8000, 2 * 0x8000, 2 * 0x8000 + 5], np.int64)
+    words = np.concatenate([enc.events(t[:3], np.zeros(3, int), np.zeros(3, int), np.zeros(3, int)),
+                            enc.idle(2 * 0x8000), enc.frame_start(2 * 0x8000),
+                            enc.events(t[4:], np.zeros(1, int), np.zeros(1, int), np.zeros(1, int))])
+    current, seen = 0, []
+    for w in (int(v) for v in words):
+        if w & 0x8000:
+            current = (current // 0x8000) * 0x8000 + (w & 0x7FFF)
+            seen.append(current)
+        elif w >> 12 == 7:
+            current = (current // 0x8000 + (w & 0xFFF)) * 0x8000
+            seen.append(current)
+    assert all(b > a for a, b in zip(seen, seen[1:])), seen
+    assert [e[0] for e in decode(words)[0]] == [0x8000 - 1, 0x8000, 0x8000, 2 * 0x8000 + 5]

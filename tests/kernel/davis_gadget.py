@@ -3,7 +3,8 @@
 Usage (as root, in a kernel with dummy_hcd, libcomposite and usb_f_fs, e.g. the test kernel that
 tests/kernel/vm.py boots)::
 
-    python3 tests/kernel/davis_gadget.py RECORDING.aedat4 [--loop] [--serial 00000001] [--verbose]
+    python3 tests/kernel/davis_gadget.py RECORDING.aedat4 [--loop] [--from-s S] [--to-s S]
+        [--frame-every N] [--serial 00000001] [--verbose]
 
 It loads dummy_hcd, libcomposite and usb_f_fs, mounts configfs, and makes a USB device appear on
 the dummy host controller with the ids and descriptors of an iniVation DAVIS FX3 board
@@ -32,9 +33,11 @@ is enumerated.
   "run" (1/3) is set, APS frames while APS "run" (2/4) is set. The recording starts over each
   time the host starts the stream, and with ``--loop`` it repeats (timestamps keep increasing).
 * **Frames.** An APS frame of the recording (uint8 grey levels g) is sent as a rolling-shutter
-  readout of 346 columns x 260 rows: reset samples R = 1100 for every pixel, then signal samples
+  readout of 346 columns x 260 rows: reset samples R = 1023 for every pixel, then signal samples
   R - (4 g + 2); the driver's correlated double sampling gives (4 g + 2) << 6 on 16 bits, i.e.
-  exactly g again on 8 bits. Exposure start is the frame's own timestamp, exposure end that plus
+  exactly g again on 8 bits. The samples stay within 10 bits: libcaer reads 12 bits of a sample
+  word, but dv-processing 2.0.4 keeps only 10 (seen: a reset level of 1100 made every pixel white,
+  1100 & 0x3FF being below the driver's 384 "over-exposed" threshold). Exposure start is the frame's own timestamp, exposure end that plus
   its exposure (or 4 ms when the recording says none).
 * **Signals.** SIGTERM or SIGINT: unplug (the gadget is unbound from the controller) and exit.
   SIGUSR1: unplug and stay; SIGUSR2: plug in again (a new enumeration, like a re-plugged cable).
@@ -126,13 +129,13 @@ W_TS, W_WRAP, W_Y, W_X_OFF, W_X_ON, W_ADC, W_MISC8 = 0x8000, 0x7000, 0x1000, 0x2
 SP_TS_RESET, SP_FRAME_START_RS, SP_FRAME_END = 1, 9, 10
 SP_RESET_COL, SP_SIGNAL_COL, SP_COL_END, SP_EXPOSURE_START, SP_EXPOSURE_END = 11, 12, 13, 14, 15
 #: ADC reset level of every pixel; signal = RESET_LEVEL - (4 g + 2) (module docstring, "Frames").
-RESET_LEVEL = 1100
+RESET_LEVEL = 1023
 DEFAULT_EXPOSURE_US = 4000
 #: Bytes per IN transfer and transfers in flight (the FX3 sends what the host asks for).
 CHUNK_BYTES = 16384
 MAX_IN_FLIGHT = 16
 #: Pending data beyond this (bytes) is dropped, like an FX3 whose host does not read.
-MAX_BACKLOG_BYTES = 32 << 20
+MAX_BACKLOG_BYTES = 4 << 20
 
 
 def log(msg: str) -> None:
@@ -170,13 +173,17 @@ class WordEncoder:
         self.last_y = -1
 
     def _wrap_words(self, t: int) -> list[int]:
-        """Wrap words that bring the wrap count up to device time ``t`` (12 bits of count each)."""
+        """Wrap words that bring the wrap count up to device time ``t`` (12 bits of count each).
+
+        A wrap sets the driver's current timestamp to the wrap's start; a timestamp word equal to
+        it would then be a repeated timestamp, which dv-processing's parser rejects."""
         words = []
         wrap = t // TS_WRAP_US
         while wrap > self.wrap:
             step = min(wrap - self.wrap, 0xFFF)
             words.append(W_WRAP | step)
             self.wrap += step
+            self.last_t = self.wrap * TS_WRAP_US
         return words
 
     def _time_words(self, t: int) -> list[int]:
@@ -211,7 +218,7 @@ class WordEncoder:
         slots[:, 0] = W_WRAP | dwrap.astype(np.uint16)
         mask[:, 0] = dwrap > 0
         slots[:, 1] = W_TS | (t % TS_WRAP_US).astype(np.uint16)
-        mask[:, 1] = t != prev_t
+        mask[:, 1] = np.where(dwrap > 0, t != wrap * TS_WRAP_US, t != prev_t)
         slots[:, 2] = W_Y | y.astype(np.uint16)
         mask[:, 2] = y != prev_y
         slots[:, 3] = np.where(p > 0, W_X_ON, W_X_OFF).astype(np.uint16) | x.astype(np.uint16)
@@ -242,21 +249,29 @@ class WordEncoder:
 class Replay:
     """The recording as a schedule: what to send up to a given time since the stream started."""
 
-    def __init__(self, path: Path, loop: bool) -> None:
+    def __init__(self, path: Path, loop: bool, frame_every: int = 1, from_s: float = 0.0,
+                 to_s: float | None = None) -> None:
         from neurotouch_hid.sources.recording import RecordingReader
 
         with RecordingReader(path, require_resolution=(WIDTH, HEIGHT)) as reader:
             events, frames = reader.read_all()
             exposures = self._exposures(path) if reader.has_frames else {}
-        if len(events) == 0 and not frames:
-            raise SystemExit(f"{path}: no events and no frames to replay")
         starts = [int(events["timestamp"][0])] if len(events) else []
-        self.t0 = min(starts + [f.t_us for f in frames])
+        first = min(starts + [f.t_us for f in frames], default=0)
+        lo = first + int(from_s * 1e6)
+        hi = None if to_s is None else first + int(to_s * 1e6)
+        events = events[(events["timestamp"] >= lo) & ((events["timestamp"] < hi) if hi is not None else True)]
+        frames = [f for f in frames if f.t_us >= lo and (hi is None or f.t_us < hi)]
+        if len(events) == 0 and not frames:
+            raise SystemExit(f"{path}: no events and no frames to replay (between {from_s} s and {to_s} s)")
+        self.t0 = lo
         self.t = events["timestamp"] - self.t0
         self.x, self.y, self.p = events["x"], events["y"], events["polarity"]
         # frame marks: (time since start, 0 = exposure start / 1 = readout, frame index)
         marks = []
         for i, f in enumerate(frames):
+            if i % frame_every:
+                continue
             exposure = exposures.get(f.t_us, DEFAULT_EXPOSURE_US)
             marks += [(f.t_us - self.t0, 0, i), (f.t_us - self.t0 + exposure, 1, i)]
         self.marks = sorted(marks)
@@ -451,7 +466,9 @@ class DavisDevice:
             log(f"write module {module} param {param} = {value}")
         if (module, param) == (MUX, 2) and value:  # timestamp reset
             self.clock0 = time.monotonic()
-            if self.stream is not None:
+            if self.stream is not None:  # what is due goes out before; device time restarts at 0
+                self.pump(submit=False)
+                self.stream.t_dev0 = -int((self.clock0 - self.stream_wall0) * 1e6)
                 self.stream.encoder.reset(0)
             self._queue(np.asarray([SP_TS_RESET], np.uint16))
         elif (module, param) == (USB, 0):
@@ -473,6 +490,10 @@ class DavisDevice:
         self.stream = None
         self.backlog.clear()
         self.backlog_bytes = 0
+        if self.function is not None and self.in_flight:
+            # what the host has not read yet must not reach its next session (an FX3 flushes too);
+            # functionfs has no public call for this, its AIO context has
+            self.function._in_aio_context.cancelAll()
 
     def enabled(self) -> None:
         log("enabled by the host (configuration set)")
@@ -492,7 +513,7 @@ class DavisDevice:
             self.backlog.append(view[start:start + CHUNK_BYTES])
         self.backlog_bytes += len(data)
 
-    def pump(self) -> None:
+    def pump(self, submit: bool = True) -> None:
         """Queue what is due now; submit queued data while transfers are free."""
         stream = self.stream
         if stream is not None:
@@ -501,7 +522,7 @@ class DavisDevice:
             words = stream.until(t_rel, dvs=bool(regs.read(DVS, 3)), aps=bool(regs.read(APS, 4)))
             if words:
                 self._queue(np.concatenate(words))
-        if self.function is None:
+        if self.function is None or not submit:
             return
         endpoint = self.function.getEndpointByAddress(DATA_ENDPOINT)
         while self.backlog and self.in_flight < MAX_IN_FLIGHT:
@@ -544,12 +565,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("recording", type=Path, help="AEDAT4 file (346x260 events, APS frames optional)")
     parser.add_argument("--loop", action="store_true", help="replay the recording again and again")
     parser.add_argument("--serial", default="00000001", help="USB serial number (8 characters)")
+    parser.add_argument("--from-s", type=float, default=0.0, metavar="S",
+                        help="replay from S seconds after the recording's first event or frame")
+    parser.add_argument("--to-s", type=float, default=None, metavar="S",
+                        help="replay up to S seconds after the recording's first event or frame")
+    parser.add_argument("--frame-every", type=int, default=1, metavar="N",
+                        help="send only every N-th APS frame (a slow, emulated host cannot read 9 MB/s)")
     parser.add_argument("--verbose", action="store_true", help="log every register read and write")
     args = parser.parse_args(argv)
     if os.geteuid() != 0:
         print("davis_gadget.py must run as root (configfs, FunctionFS)", file=sys.stderr)
         return 2
-    replay = Replay(args.recording, args.loop)
+    if args.frame_every < 1:
+        parser.error("--frame-every must be at least 1")
+    replay = Replay(args.recording, args.loop, args.frame_every, args.from_s, args.to_s)
     load_modules()
     from functionfs.gadget import ConfigFunctionFFS, Gadget
 
