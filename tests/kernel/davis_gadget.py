@@ -493,7 +493,10 @@ class DavisDevice:
         if self.function is not None and self.in_flight:
             # what the host has not read yet must not reach its next session (an FX3 flushes too);
             # functionfs has no public call for this, its AIO context has
-            self.function._in_aio_context.cancelAll()
+            try:
+                self.function._in_aio_context.cancelAll()
+            except OSError as exc:  # unbound meanwhile: the kernel ends them itself
+                self.note(f"cannot cancel queued data ({exc})")
 
     def enabled(self) -> None:
         log("enabled by the host (configuration set)")

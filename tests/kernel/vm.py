@@ -143,6 +143,27 @@ def _vng() -> str:
     return found
 
 
+#: The recording checks_davis.py replays as an emulated DAVIS-346: the simulated gel at rest, 2 s
+#: (made once on the host with the project's own simulator, then cached).
+REPLAY_RECORDING = "replay-gel-rest-2s-seed0.aedat4"
+
+
+def ensure_replay_recording() -> Path:
+    """The cached gel recording for the emulated camera, made by ``neurotouch-hid record --source
+    sim --fast`` on the first call. Raises RuntimeError (with the command's output) if that fails."""
+    path = cache_dir() / REPLAY_RECORDING
+    if path.exists():
+        return path
+    cli = Path(sys.executable).parent / "neurotouch-hid"
+    tmp = path.with_suffix(".part.aedat4")
+    proc = _run([str(cli), "record", "--source", "sim", "--fast", "--seconds", "2", "--seed", "0", "--force",
+                 str(tmp)], cwd=str(HERE.parent.parent))
+    if proc.returncode != 0 or not tmp.exists():
+        raise RuntimeError(f"making the replay recording failed: {proc.stdout[-1000:]}{proc.stderr[-1000:]}")
+    tmp.rename(path)
+    return path
+
+
 def boot(guest_script: Path = GUEST_SCRIPT, timeout_s: int = BOOT_TIMEOUT_S) -> dict:
     """Boot the kernel once under qemu (no KVM), run ``guest_script`` in it, return its JSON.
 
@@ -153,6 +174,7 @@ def boot(guest_script: Path = GUEST_SCRIPT, timeout_s: int = BOOT_TIMEOUT_S) -> 
     kdir, kver = ensure_kernel()
     vmlinuz = kdir / "boot" / f"vmlinuz-{kver}"
     out = Path(tempfile.mkdtemp(prefix="boot-", dir=cache_dir()))
+    shutil.copyfile(ensure_replay_recording(), out / "davis_replay.aedat4")  # checks_davis.py's camera
     result = out / "result.json"
     env = dict(os.environ)
     env["PATH"] = f"{Path(sys.executable).parent}:{env.get('PATH', '/usr/bin:/bin')}"

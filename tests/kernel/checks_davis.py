@@ -1,0 +1,264 @@
+"""Guest checks of the live camera path against an emulated DAVIS-346 on USB (davis_gadget.py).
+
+The gadget replays a simulated gel recording at rest (vm.py makes it on the host and puts it in
+the boot's shared folder) as a DAVIS-346 on dummy_hcd; dv-processing's own camera driver opens it
+through libusb as it would open the real camera. The gadget is started once, then every part of
+PARTS runs against it, each with its own verdict (a failing part does not hide the others):
+``neurotouch-hid devices``, ``record --source davis``, ``calibrate --source davis``, ``run
+--source davis --output jsonl`` with the camera unplugged and plugged in again mid-run, and
+finally SIGTERM, which must unplug it.
+
+The guest is emulated and slow: the gadget sends every 5th APS frame (5 a second instead of 25;
+``--frame-every 5``), which an emulated host can read in real time, and each command is one
+Python process (tens of seconds to start here). Run by tests/kernel/guest.py; asserted on by
+tests/test_davis_kernel.py.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import select
+import signal
+import subprocess
+import sys
+import time
+import traceback
+from pathlib import Path
+
+import guestlib
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+GADGET = HERE / "davis_gadget.py"
+TIMEOUT_S = 1200
+COMMAND_TIMEOUT_S = 300
+CLI = str(Path(sys.executable).parent / "neurotouch-hid")
+#: The part of the replay recording sent, again and again (s from its start): the gel at rest
+#: (the simulated session's first gesture starts at 0.6 s).
+REST_TO_S = 0.55
+#: Frames sent: the first of every 14, i.e. one per pass of the 0.55 s (14 frames) above.
+FRAME_EVERY = 14
+#: The issue's promise: the camera is on USB this soon after the gadget is started (s).
+READY_WITHIN_S = 30.0
+#: Name of the replayed recording in the boot's shared folder (vm.py puts it there).
+REPLAY_NAME = "davis_replay.aedat4"
+
+
+def replay_path() -> Path:
+    """The recording to replay: beside the result file guest.py was given (the shared folder)."""
+    return Path(sys.argv[1]).resolve().parent / REPLAY_NAME
+
+
+class EmulatedCamera:
+    """davis_gadget.py as a child process: started, signalled, stopped; its log kept in a file."""
+
+    def __init__(self, recording: Path) -> None:
+        self.log_path = Path("/tmp/davis_gadget.log")
+        self._log = open(self.log_path, "w")
+        self.t0 = time.monotonic()
+        self.proc = subprocess.Popen([sys.executable, str(GADGET), str(recording), "--loop",
+                                      "--to-s", str(REST_TO_S), "--frame-every", str(FRAME_EVERY)],
+                                     stdout=subprocess.PIPE, stderr=self._log, text=True)
+
+    def wait_ready(self, timeout_s: float = 120.0) -> tuple[str, float]:
+        """The gadget's ``READY bus B device D`` line and the seconds it took; raises if it never comes."""
+        ready, _, _ = select.select([self.proc.stdout], [], [], timeout_s)
+        line = self.proc.stdout.readline().strip() if ready else ""
+        assert line.startswith("READY"), f"no READY line in {timeout_s} s: {line!r}; log: {self.log()[-2000:]}"
+        return line, time.monotonic() - self.t0
+
+    def log(self) -> str:
+        if not self._log.closed:
+            self._log.flush()
+        return self.log_path.read_text(errors="replace")
+
+    def stop(self) -> int | None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(60)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self._log.close()
+        return self.proc.returncode
+
+
+def _env() -> dict:
+    # numba caches compiled code beside the sources, read-only in the guest: give it a folder
+    return dict(os.environ, HOME="/tmp", COLUMNS="200", XDG_CONFIG_HOME="/tmp/davis-config",
+                NUMBA_CACHE_DIR="/tmp/numba-cache")
+
+
+def _run(cmd: list[str], timeout: float = COMMAND_TIMEOUT_S) -> subprocess.CompletedProcess:
+    try:
+        return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd="/tmp", env=_env(),
+                              stdin=subprocess.DEVNULL)
+    except subprocess.TimeoutExpired as exc:
+        raise AssertionError(f"{' '.join(cmd)} did not finish in {timeout} s: {exc.stdout!r} {exc.stderr!r}")
+
+
+def _camera_on_usb() -> Path | None:
+    for dev in Path("/sys/bus/usb/devices").iterdir():
+        try:
+            if (dev / "idVendor").read_text().strip() == "152a" and (dev / "idProduct").read_text().strip() == "841a":
+                return dev
+        except OSError:
+            continue
+    return None
+
+
+# --- the parts ---------------------------------------------------------------------------------
+def _descriptors(camera: EmulatedCamera) -> dict:
+    """What the host sees: ids, firmware version in bcdDevice, the endpoints libcaer uses."""
+    dev = _camera_on_usb()
+    assert dev is not None, "no 152a:841a device in sysfs"
+    attrs = {name: (dev / name).read_text().strip() for name in
+             ("idVendor", "idProduct", "bcdDevice", "manufacturer", "product", "serial", "speed")}
+    interface = dev / f"{dev.name}:1.0"
+    endpoints = {p.name: (p / "type").read_text().strip() for p in sorted(interface.glob("ep_*"))}
+    assert attrs["bcdDevice"].endswith("06"), attrs
+    assert endpoints.get("ep_82") == "Bulk" and endpoints.get("ep_81") == "Interrupt", endpoints
+    return {"attrs": attrs, "endpoints": endpoints}
+
+
+def _devices(camera: EmulatedCamera) -> dict:
+    """``neurotouch-hid devices --json``: the emulated camera is ready, and dv-processing lists it."""
+    proc = _run([CLI, "devices", "--json"])
+    data = json.loads(proc.stdout)
+    assert proc.returncode == 0 and data["ready"] == 1, data
+    cam, = data["cameras"]
+    assert cam["status"] == "ready" and cam["dv"]["model"] == "DAVIS" and cam["dv"]["firmware"] == 6, cam
+    return {"message": data["message"], "dv": cam["dv"]}
+
+
+def _match(source: tuple, recorded: tuple) -> dict:
+    """Where the recorded events start in the replayed part of the source and how well everything
+    after matches: x, y, polarity exactly and time offsets (the wire's resolution is 1 us), up to
+    the end of that part (the gadget then starts it over); every recorded frame against the
+    replayed frames (pixel for pixel)."""
+    a, fa = source
+    b, fb = recorded
+    first = min(int(a["timestamp"][0]), fa[0].t_us)
+    end = first + int(REST_TO_S * 1e6)
+    a = a[a["timestamp"] < end]
+    fa = [f for f in fa if f.t_us < end][::FRAME_EVERY]
+    assert len(b) > 1000, f"only {len(b)} events recorded"
+    key_a = np.stack([a["x"], a["y"], a["polarity"]], axis=1).astype(np.int64)
+    key_b = np.stack([b["x"], b["y"], b["polarity"]], axis=1).astype(np.int64)
+    head = key_b[:32]
+    candidates = np.flatnonzero((key_a[:len(a) - 32] == head[0]).all(axis=1))
+    start = next((int(j) for j in candidates if (key_a[j:j + 32] == head).all()), None)
+    assert start is not None, "the recorded events are not found in the replayed recording"
+    n = min(len(b), len(a) - start)
+    same = (key_a[start:start + n] == key_b[:n]).all(axis=1)
+    dt = (a["timestamp"][start:start + n] - a["timestamp"][start]) - (b["timestamp"][:n] - b["timestamp"][0])
+    frames = [min(int(np.abs(src.image.astype(int) - f.image.astype(int)).max()) for src in fa) for f in fb]
+    return {"source_events": len(a), "recorded_events": len(b), "start_index": start, "compared": n,
+            "same_xyp": int(same.sum()), "max_dt_us": int(np.abs(dt).max()), "recorded_frames": len(fb),
+            "frame_shapes": sorted({tuple(f.image.shape) for f in fb}), "frame_max_diff": frames}
+
+
+def _record(camera: EmulatedCamera) -> dict:
+    """``record --source davis --seconds 3``: the events and frames the replay sent, as sent."""
+    from neurotouch_hid.sources.recording import RecordingReader
+
+    out = Path("/tmp/davis-record.aedat4")
+    out.unlink(missing_ok=True)
+    proc = _run([CLI, "record", "--source", "davis", "--seconds", "3", str(out)])
+    assert proc.returncode == 0 and out.exists(), f"exit {proc.returncode}: {proc.stderr[-2000:]}"
+    with RecordingReader(replay_path()) as src, RecordingReader(out) as rec:
+        source, recorded = src.read_all(), rec.read_all()
+    match = _match(source, recorded)
+    assert match["same_xyp"] == match["compared"] and match["max_dt_us"] == 0, match
+    assert match["frame_shapes"] == [(260, 346)], match
+    # one frame per 0.55 s pass for 3 s: every recorded frame is a replayed one, pixel for pixel
+    assert match["recorded_frames"] >= 3 and all(d == 0 for d in match["frame_max_diff"]), match
+    return {**match, "stderr": proc.stderr[-500:]}
+
+
+def _calibrate(camera: EmulatedCamera) -> dict:
+    """``calibrate --source davis`` on the gel at rest: sensor.yaml with all 177 markers."""
+    out = Path("/tmp/davis-sensor.yaml")
+    out.unlink(missing_ok=True)
+    proc = _run([CLI, "calibrate", "--source", "davis", "--out", str(out), "--mirror", "--rotation", "0"])
+    assert proc.returncode == 0 and out.exists(), f"exit {proc.returncode}: {proc.stdout[-1500:]} {proc.stderr[-1500:]}"
+    text = proc.stdout + proc.stderr
+    assert "markers: 177 found, 177 expected" in text, text[-2000:]
+    return {"output": text[-800:]}
+
+
+def _run_with_unplug(camera: EmulatedCamera) -> dict:
+    """``run --source davis --output jsonl``: estimates come; the camera unplugged mid-run is
+    reported lost at once, the run goes on, and estimates come again once it is plugged back."""
+    out = Path("/tmp/davis-run.jsonl")
+    out.unlink(missing_ok=True)
+    err_path = Path("/tmp/davis-run.err")
+    with open(err_path, "w") as err:
+        proc = subprocess.Popen([CLI, "run", "--source", "davis", "--output", "jsonl", "--out", str(out),
+                                 "--sensor", "/tmp/davis-sensor.yaml", "--stall-timeout", "2"],
+                                stdout=subprocess.DEVNULL, stderr=err, cwd="/tmp", env=_env(),
+                                stdin=subprocess.DEVNULL)
+    try:
+        def lines() -> list[str]:
+            return out.read_text().splitlines() if out.exists() else []
+
+        first = guestlib.wait_for(lambda: len(lines()) >= 5, timeout_s=COMMAND_TIMEOUT_S, interval_s=0.5)
+        assert first, f"no estimates from run: {err_path.read_text()[-2000:]}"
+        before = len(lines())
+        camera.proc.send_signal(signal.SIGUSR1)  # unplug
+        t_unplug = time.monotonic()
+        lost = guestlib.wait_for(lambda: "lost" in err_path.read_text() or "stopped" in err_path.read_text(),
+                                 timeout_s=60, interval_s=0.2)
+        lost_after_s = time.monotonic() - t_unplug
+        assert lost, f"run did not notice the unplug: {err_path.read_text()[-2000:]}"
+        time.sleep(2)
+        at_replug = len(lines())
+        camera.proc.send_signal(signal.SIGUSR2)  # plug in again
+        back = guestlib.wait_for(lambda: len(lines()) >= at_replug + 5, timeout_s=COMMAND_TIMEOUT_S, interval_s=0.5)
+        assert back, f"no estimates after the camera came back: {err_path.read_text()[-2000:]}"
+        assert proc.poll() is None, f"run ended (exit {proc.returncode}): {err_path.read_text()[-2000:]}"
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(120)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    estimates = [json.loads(line) for line in lines()]
+    return {"estimates": len(estimates), "before_unplug": before, "at_replug": at_replug,
+            "lost_after_s": round(lost_after_s, 2), "exit_code": proc.returncode,
+            "first": estimates[0], "stderr": err_path.read_text()[-1500:]}
+
+
+PARTS = {"descriptors": _descriptors, "devices": _devices, "record": _record, "calibrate": _calibrate,
+         "run_unplug": _run_with_unplug}
+
+
+def check_emulated_davis() -> dict:
+    """The gadget started once, every part of PARTS against it, then SIGTERM: it must unplug.
+
+    Returns ``{"ready": ..., "<part>": {"ok": bool, "details" or "error"}, "sigterm": ...}``; fails
+    only when the camera never appears."""
+    recording = replay_path()
+    assert recording.exists(), f"{recording} is missing (vm.py copies the replay recording there)"
+    camera = EmulatedCamera(recording)
+    results: dict = {}
+    try:
+        line, seconds = camera.wait_ready()
+        results["ready"] = {"line": line, "seconds": round(seconds, 1), "within_s": READY_WITHIN_S}
+        for name, part in PARTS.items():
+            t0 = time.monotonic()
+            try:
+                results[name] = {"ok": True, "details": part(camera)}
+            except Exception as exc:  # noqa: BLE001 - recorded for the host-side test of that part
+                results[name] = {"ok": False, "error": f"{type(exc).__name__}: {exc}",
+                                 "traceback": traceback.format_exc()[-3000:]}
+            results[name]["seconds"] = round(time.monotonic() - t0, 1)
+    finally:
+        code = camera.stop()
+        gone = guestlib.wait_for(lambda: _camera_on_usb() is None, timeout_s=20)
+        results["sigterm"] = {"ok": code == 0 and bool(gone), "exit_code": code, "unplugged": bool(gone),
+                              "log_tail": camera.log()[-3000:]}
+    return results
