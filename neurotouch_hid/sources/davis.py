@@ -39,6 +39,8 @@ import time
 from dataclasses import dataclass
 from typing import Any, Iterator
 
+import numpy as np
+
 from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.sources import Frame, SourceStatus, StreamItem
 from neurotouch_hid.sources.recording import (
@@ -52,6 +54,10 @@ from neurotouch_hid.sources.recording import (
 
 #: Pause between polls when the camera has nothing new, s (well under one 1 ms batch).
 _IDLE_SLEEP_S = 0.0002
+#: Event batches read in one poll at most: everything the camera has queued, so that a slow
+#: consumer catches up instead of letting dv-processing's queue overflow, bounded so that APS
+#: frames are still looked at in between.
+_MAX_BATCHES_PER_POLL = 64
 #: dv-processing camera models that are DAVIS cameras (events + APS frames).
 _DAVIS_MODELS = ("DAVIS", "DAVIS_GEN2")
 
@@ -220,11 +226,18 @@ class DavisSource:
             items: list[StreamItem] = []
             frame = camera.getNextFrame() if self.has_frames else None
             if frame is not None:
-                items.append(Frame(int(frame.timestamp), grey_image(frame.image)))
-            store = camera.getNextEventBatch()
+                # a copy: the image of a live camera's frame is not kept alive by the array (seen
+                # in the test kernel: frames kept for calibration crashed numpy once reused)
+                items.append(Frame(int(frame.timestamp), np.array(grey_image(frame.image))))
+            stores = []
+            for _ in range(_MAX_BATCHES_PER_POLL):  # all the camera has: one a poll falls behind
+                store = camera.getNextEventBatch()
+                if store is None or not len(store):
+                    break
+                stores.append(store)
         except DV_ERRORS as exc:
             return [], f"failed ({dv_error_text(str(exc))})"
-        if store is not None and len(store):
+        for store in stores:
             if self._noise is not None:
                 store = self._noise.filter_store(store)
             # a batch of noise only still tells the stream is alive (the stall timer), but none is

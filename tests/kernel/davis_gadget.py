@@ -139,7 +139,7 @@ MAX_BACKLOG_BYTES = 4 << 20
 
 
 def log(msg: str) -> None:
-    print(f"davis_gadget: {msg}", file=sys.stderr, flush=True)
+    print(f"davis_gadget: {time.monotonic():.3f} {msg}", file=sys.stderr, flush=True)
 
 
 class Registers:
@@ -482,7 +482,7 @@ class DavisDevice:
         self.stream_wall0 = time.monotonic()
         self.stream = Stream(self.replay, self.device_time())
         log(f"stream started ({self.replay.duration_s:.2f} s of recording"
-            f"{', looped' if self.replay.loop else ''})")
+            f"{f', looped every {self.replay.period} us' if self.replay.loop else ''})")
 
     def _stop_stream(self, why: str) -> None:
         if self.stream is not None:
