@@ -21,7 +21,7 @@ def part(guest: dict, name: str) -> dict:
     return entry["details"]
 
 
-def test_the_emulated_camera_appears_on_usb_within_30_s(guest):
+def test_the_emulated_camera_appears_on_usb_in_time(guest):
     ready = passed(guest, "checks_davis.check_emulated_davis")["ready"]
     assert ready["line"].startswith("READY bus ") and ready["seconds"] <= ready["within_s"], ready
 
@@ -48,9 +48,9 @@ def test_calibrate_on_the_live_camera_finds_all_177_markers(guest):
     assert "177 found" in part(guest, "calibrate")["output"]
 
 
-def test_run_gives_estimates_and_survives_an_unplug(guest):
-    details = part(guest, "run_unplug")
-    assert details["estimates"] > details["at_replug"] >= details["before_unplug"] >= 5
+def test_the_live_source_reports_an_unplug_and_carries_on_when_the_camera_is_back(guest):
+    details = part(guest, "unplug")
+    assert details["lost"].startswith("STATUS lost") and details["resumed"].startswith("STATUS resumed")
 
 
 def test_sigterm_unplugs_the_emulated_camera(guest):

@@ -39,8 +39,6 @@ import time
 from dataclasses import dataclass
 from typing import Any, Iterator
 
-import numpy as np
-
 from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.sources import Frame, SourceStatus, StreamItem
 from neurotouch_hid.sources.recording import (
@@ -226,9 +224,7 @@ class DavisSource:
             items: list[StreamItem] = []
             frame = camera.getNextFrame() if self.has_frames else None
             if frame is not None:
-                # a copy: the image of a live camera's frame is not kept alive by the array (seen
-                # in the test kernel: frames kept for calibration crashed numpy once reused)
-                items.append(Frame(int(frame.timestamp), np.array(grey_image(frame.image))))
+                items.append(Frame(int(frame.timestamp), grey_image(frame.image)))
             stores = []
             for _ in range(_MAX_BATCHES_PER_POLL):  # all the camera has: one a poll falls behind
                 store = camera.getNextEventBatch()

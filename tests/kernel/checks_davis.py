@@ -4,12 +4,17 @@ The gadget replays a simulated gel recording at rest (vm.py makes it on the host
 the boot's shared folder) as a DAVIS-346 on dummy_hcd; dv-processing's own camera driver opens it
 through libusb as it would open the real camera. The gadget is started once, then every part of
 PARTS runs against it, each with its own verdict (a failing part does not hide the others):
-``neurotouch-hid devices``, ``record --source davis``, ``calibrate --source davis``, ``run
---source davis --output jsonl`` with the camera unplugged and plugged in again mid-run, and
-finally SIGTERM, which must unplug it.
+``neurotouch-hid devices``, ``record --source davis``, the live source (``DavisSource``, what
+``run`` reads) with the camera unplugged and plugged in again mid-stream, ``calibrate --source
+davis``, and finally SIGTERM, which must unplug it.
 
-The guest is emulated and slow: the gadget sends every 5th APS frame (5 a second instead of 25;
-``--frame-every 5``), which an emulated host can read in real time, and each command is one
+Not here: ``run --source davis`` itself. It compiles the gesture pipeline (numba) before opening
+the camera, and under software emulation that did not finish within 600 s (seen twice); the
+runtime's reaction to a lost camera (pad neutral at once, pipeline restarted when it is back) is
+tested on the host with a replayed camera (tests/test_davis.py).
+
+The guest is emulated and slow: the gadget replays the recording's first 0.55 s (the gel at rest)
+in a loop with one APS frame per pass (``--to-s 0.55 --frame-every 14``), and each command is one
 Python process (tens of seconds to start here). Run by tests/kernel/guest.py; asserted on by
 tests/test_davis_kernel.py.
 """
@@ -34,8 +39,6 @@ HERE = Path(__file__).resolve().parent
 GADGET = HERE / "davis_gadget.py"
 TIMEOUT_S = 1200
 COMMAND_TIMEOUT_S = 300
-#: ``run`` compiles the pipeline (numba) before it opens the camera: minutes under emulation.
-RUN_START_TIMEOUT_S = 600
 CLI = str(Path(sys.executable).parent / "neurotouch-hid")
 #: The part of the replay recording sent, again and again (s from its start): the gel at rest
 #: (the simulated session's first gesture starts at 0.6 s).
@@ -183,8 +186,11 @@ def _record(camera: EmulatedCamera) -> dict:
     match = _match(source, recorded, int(period.group(1)))
     assert match["found_in_source"] == match["recorded_events"], match
     assert match["frame_shapes"] == [(260, 346)], match
-    # one frame per 0.55 s pass for 3 s: every recorded frame is a replayed one, pixel for pixel
-    assert match["recorded_frames"] >= 3 and all(d == 0 for d in match["frame_max_diff"]), match
+    # nothing lost: what the replay sent over the recorded span (the emulated host reads slower than
+    # real time, so 3 s of recording hold less than 3 s of camera time)
+    assert match["recorded_events"] >= 0.95 * match["sent_in_span_about"], match
+    # one frame per 0.55 s pass: every recorded frame is a replayed one, pixel for pixel
+    assert match["recorded_frames"] >= 1 and all(d == 0 for d in match["frame_max_diff"]), match
     return {**match, "stderr": proc.stderr[-500:]}
 
 
@@ -192,58 +198,77 @@ def _calibrate(camera: EmulatedCamera) -> dict:
     """``calibrate --source davis`` on the gel at rest: sensor.yaml with all 177 markers."""
     out = Path("/tmp/davis-sensor.yaml")
     out.unlink(missing_ok=True)
-    proc = _run([CLI, "calibrate", "--source", "davis", "--out", str(out), "--mirror", "--rotation", "0"])
+    proc = _run([CLI, "calibrate", "--source", "davis", "--out", str(out), "--mirror", "--rotation", "0",
+                 "--frames", "3"])
     assert proc.returncode == 0 and out.exists(), f"exit {proc.returncode}: {proc.stdout[-1500:]} {proc.stderr[-1500:]}"
     text = proc.stdout + proc.stderr
     assert "markers: 177 found, 177 expected" in text, text[-2000:]
     return {"output": text[-800:]}
 
 
-def _run_with_unplug(camera: EmulatedCamera) -> dict:
-    """``run --source davis --output jsonl``: estimates come; the camera unplugged mid-run is
-    reported lost at once, the run goes on, and estimates come again once it is plugged back."""
-    out = Path("/tmp/davis-run.jsonl")
-    out.unlink(missing_ok=True)
-    err_path = Path("/tmp/davis-run.err")
-    with open(err_path, "w") as err:
-        proc = subprocess.Popen([CLI, "run", "--source", "davis", "--output", "jsonl", "--out", str(out),
-                                 "--sensor", "/tmp/davis-sensor.yaml", "--stall-timeout", "2"],
-                                stdout=subprocess.DEVNULL, stderr=err, cwd="/tmp", env=_env(),
-                                stdin=subprocess.DEVNULL)
+#: The live source as the runtime uses it (``stream(reconnect=True)``), printing what it yields.
+SOURCE = r"""
+import sys, time
+from neurotouch_hid.sources import Frame, SourceStatus
+from neurotouch_hid.sources.davis import DavisConfig, DavisSource
+source = DavisSource(DavisConfig(stall_timeout_s=2.0, retry_initial_s=0.25, retry_max_s=1.0))
+print("OPEN", source.camera_name, flush=True)
+for item in source.stream(seconds=float(sys.argv[1]), reconnect=True):
+    if isinstance(item, SourceStatus):
+        print("STATUS", item.kind, f"{time.monotonic():.2f}", item.message, flush=True)
+    elif isinstance(item, Frame):
+        print("FRAME", f"{time.monotonic():.2f}", item.t_us, flush=True)
+    else:
+        print("EVENTS", f"{time.monotonic():.2f}", len(item), flush=True)
+print("END", flush=True)
+"""
+
+
+def _unplug(camera: EmulatedCamera) -> dict:
+    """The live source (``DavisSource.stream(reconnect=True)``, what ``run`` reads) on dv-processing:
+    the camera unplugged mid-stream (SIGUSR1: the gadget unbinds) is reported lost at once, and
+    once it is plugged in again (SIGUSR2) the source opens it again and data flows."""
+    proc = subprocess.Popen([sys.executable, "-c", SOURCE, "240"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, cwd="/tmp", env=_env())
+    seen: list[str] = []
+
+    def until(pred, timeout_s: float) -> str | None:
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            ready, _, _ = select.select([proc.stdout], [], [], 1.0)
+            if ready:
+                line = proc.stdout.readline()
+                if not line:
+                    return None
+                seen.append(line.strip())
+                if pred(line):
+                    return line.strip()
+        return None
+
     try:
-        def lines() -> list[str]:
-            return out.read_text().splitlines() if out.exists() else []
-
-        first = guestlib.wait_for(lambda: len(lines()) >= 5, timeout_s=RUN_START_TIMEOUT_S, interval_s=0.5)
-        assert first, f"no estimates from run: {err_path.read_text()[-2000:]}"
-        before = len(lines())
-        camera.proc.send_signal(signal.SIGUSR1)  # unplug
+        assert until(lambda l: l.startswith("FRAME"), COMMAND_TIMEOUT_S), f"no frame: {seen[-5:]}"
+        assert until(lambda l: l.startswith("EVENTS"), 30), f"no events: {seen[-5:]}"
         t_unplug = time.monotonic()
-        lost = guestlib.wait_for(lambda: "lost" in err_path.read_text() or "stopped" in err_path.read_text(),
-                                 timeout_s=60, interval_s=0.2)
-        lost_after_s = time.monotonic() - t_unplug
-        assert lost, f"run did not notice the unplug: {err_path.read_text()[-2000:]}"
+        camera.proc.send_signal(signal.SIGUSR1)
+        lost = until(lambda l: l.startswith("STATUS lost"), 60)
+        assert lost, f"the unplug was not reported: {seen[-5:]}"
+        lost_after_s = float(lost.split()[2]) - t_unplug
         time.sleep(2)
-        at_replug = len(lines())
-        camera.proc.send_signal(signal.SIGUSR2)  # plug in again
-        back = guestlib.wait_for(lambda: len(lines()) >= at_replug + 5, timeout_s=COMMAND_TIMEOUT_S, interval_s=0.5)
-        assert back, f"no estimates after the camera came back: {err_path.read_text()[-2000:]}"
-        assert proc.poll() is None, f"run ended (exit {proc.returncode}): {err_path.read_text()[-2000:]}"
+        camera.proc.send_signal(signal.SIGUSR2)
+        t_replug = time.monotonic()
+        resumed = until(lambda l: l.startswith("STATUS resumed"), 120)
+        assert resumed, f"not resumed after the re-plug: {seen[-5:]}"
+        data_after = until(lambda l: l.startswith(("FRAME", "EVENTS")), 60)
+        assert data_after, f"no data after resuming: {seen[-5:]}"
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(120)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-    estimates = [json.loads(line) for line in lines()]
-    return {"estimates": len(estimates), "before_unplug": before, "at_replug": at_replug,
-            "lost_after_s": round(lost_after_s, 2), "exit_code": proc.returncode,
-            "first": estimates[0], "stderr": err_path.read_text()[-1500:]}
+        proc.kill()
+        _, err = proc.communicate()
+    return {"lost_after_unplug_s": round(lost_after_s, 2), "resumed_after_replug_s": round(float(resumed.split()[2]) - t_replug, 2),
+            "lost": lost, "resumed": resumed, "stderr": err[-1000:]}
 
 
-PARTS = {"descriptors": _descriptors, "devices": _devices, "record": _record, "calibrate": _calibrate,
-         "run_unplug": _run_with_unplug}
+PARTS = {"descriptors": _descriptors, "devices": _devices, "record": _record, "unplug": _unplug,
+         "calibrate": _calibrate}
 
 
 def check_emulated_davis() -> dict:
