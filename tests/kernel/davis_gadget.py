@@ -43,7 +43,9 @@ is enumerated.
   SIGUSR1: unplug and stay; SIGUSR2: plug in again (a new enumeration, like a re-plugged cable).
 
 Assumptions where libcaer's source does not say (each checked only against dv-processing's own
-driver in the test kernel, never against a camera):
+driver in the test kernel, never against a camera; tests/kernel/README.md has them all, with what
+dv-processing 2.0.4 was seen to do beyond libcaer: the requests 0xB1 and 0xC6, its strict
+timestamps, 10-bit samples; and why the interface has two unused bulk endpoints):
 
 * Strings: manufacturer "iniVation", product "DAVIS346 (emulated)"; only the ids, the serial
   number and bcdDevice are read by the driver. bcdDevice's low byte is the firmware version
