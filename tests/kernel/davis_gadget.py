@@ -632,6 +632,7 @@ def main(argv: list[str] | None = None) -> int:
                         print(f"READY bus {bus} device {dev}", flush=True)
                         announced = True
                 device.pump()
+        device.disabled("exit")  # cancels queued transfers: they would keep FunctionFS busy
         log(f"{stop[0]}: unplugging; requests seen: {device.requests}")
     return 0
 
