@@ -328,3 +328,53 @@ def test_the_live_pipeline_leaves_the_noise_to_the_source(gel_recording):
     live, _ = build_pipeline(SensorGeometry(), 10_000, filter_noise=False)
     replay, _ = build_pipeline(SensorGeometry(), 10_000)
     assert live.noise_filter is None and replay.noise_filter is not None
+
+
+class _BurstCamera:
+    """A DAVIS-346 that has queued several event batches and one frame since the last poll (a
+    consumer slower than the camera), then nothing more."""
+
+    def __init__(self, batches: list[np.ndarray]) -> None:
+        import dv_processing as dv
+
+        from neurotouch_hid.sources.recording import store_from_events
+
+        self._stores = [store_from_events(b) for b in batches]
+        frame = dv.Frame(0, np.full((260, 346), 7, np.uint8))
+        self._frames = [frame]
+
+    def getCameraName(self): return "DAVIS346_burst"  # noqa: E704
+    def getEventResolution(self): return (346, 260)  # noqa: E704
+    def isFrameStreamAvailable(self): return True  # noqa: E704
+    def isRunning(self): return True  # noqa: E704
+    def getNextFrame(self): return self._frames.pop(0) if self._frames else None  # noqa: E704
+    def getNextEventBatch(self): return self._stores.pop(0) if self._stores else None  # noqa: E704
+
+
+class _BurstBackend:
+    def __init__(self, camera):
+        self.camera = camera
+
+    def discover(self):
+        import dv_processing as dv
+
+        return [type("D", (), {"serialNumber": "1", "cameraModel": dv.io.camera.CameraModel.DAVIS})()]
+
+    def open(self, descriptor):
+        return self.camera
+
+
+def test_one_poll_takes_every_batch_the_camera_has_queued_and_the_frame():
+    batches = []
+    for k in range(10):
+        b = np.zeros(20, EVENT_DTYPE)
+        b["timestamp"] = 1000 * k + np.arange(20)
+        b["x"], b["y"] = k, 3
+        batches.append(b)
+    source = DavisSource(DavisConfig(exposure_us=None), backend=_BurstBackend(_BurstCamera(batches)))
+    items, failure = source._read()
+    assert failure is None
+    frame, *event_items = items
+    assert isinstance(frame, Frame) and (frame.image == 7).all()
+    got = np.concatenate(event_items)
+    np.testing.assert_array_equal(got["timestamp"], np.concatenate([b["timestamp"] for b in batches]))

@@ -52,6 +52,10 @@ from neurotouch_hid.sources.recording import (
 
 #: Pause between polls when the camera has nothing new, s (well under one 1 ms batch).
 _IDLE_SLEEP_S = 0.0002
+#: Event batches read in one poll at most: everything the camera has queued, so that a slow
+#: consumer catches up instead of letting dv-processing's queue overflow, bounded so that APS
+#: frames are still looked at in between.
+_MAX_BATCHES_PER_POLL = 64
 #: dv-processing camera models that are DAVIS cameras (events + APS frames).
 _DAVIS_MODELS = ("DAVIS", "DAVIS_GEN2")
 
@@ -221,10 +225,15 @@ class DavisSource:
             frame = camera.getNextFrame() if self.has_frames else None
             if frame is not None:
                 items.append(Frame(int(frame.timestamp), grey_image(frame.image)))
-            store = camera.getNextEventBatch()
+            stores = []
+            for _ in range(_MAX_BATCHES_PER_POLL):  # all the camera has: one a poll falls behind
+                store = camera.getNextEventBatch()
+                if store is None or not len(store):
+                    break
+                stores.append(store)
         except DV_ERRORS as exc:
             return [], f"failed ({dv_error_text(str(exc))})"
-        if store is not None and len(store):
+        for store in stores:
             if self._noise is not None:
                 store = self._noise.filter_store(store)
             # a batch of noise only still tells the stream is alive (the stall timer), but none is

@@ -14,6 +14,7 @@ the kernel is downloaded with ``apt-get download`` and extracted into a cache fo
 
 from __future__ import annotations
 
+import ctypes.util
 import fcntl
 import functools
 import json
@@ -32,7 +33,8 @@ HOST_PACKAGES = ("qemu-system-x86", "busybox-static", "kmod", "udev")
 #: Commands the boot needs, and the apt package that brings each.
 HOST_COMMANDS = {"qemu-system-x86_64": "qemu-system-x86", "busybox": "busybox-static",
                  "depmod": "kmod", "udevadm": "udev"}
-BOOT_TIMEOUT_S = 900
+#: The whole guest run; checks_davis.py alone takes 4-8 minutes under emulation on a loaded host.
+BOOT_TIMEOUT_S = 1500
 #: Modules udev's coldplug would load for qemu's emulated q35 hardware (disk, CD, KVM, crypto,
 #: watchdog, PS/2): none is used (the root is 9p), and loading them under software emulation costs
 #: about a quarter of the boot's CPU time. ``module_blacklist=`` makes the kernel refuse them.
@@ -68,11 +70,14 @@ def _which(cmd: str) -> str | None:
 
 
 def ensure_host_packages() -> None:
-    """apt-get install qemu, busybox, kmod and udev when one of their commands is missing.
+    """apt-get install qemu, busybox, kmod and udev when one of their commands is missing, and
+    libaio1 when the library is (functionfs, which davis_gadget.py uses, loads it).
 
     Raises KernelUnavailable when they are missing and cannot be installed (not root, no apt,
     apt fails)."""
     missing = sorted({pkg for cmd, pkg in HOST_COMMANDS.items() if _which(cmd) is None})
+    if ctypes.util.find_library("aio") is None:  # functionfs (davis_gadget.py) loads libaio
+        missing.append("libaio1")
     if not missing:
         return
     if os.geteuid() != 0 or _which("apt-get") is None:
@@ -80,7 +85,8 @@ def ensure_host_packages() -> None:
                                 f"(needs root and apt-get)")
     env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
     update = _run(["apt-get", "update"], env=env)
-    install = _run(["apt-get", "install", "-y", "--no-install-recommends", *HOST_PACKAGES], env=env)
+    install = _run(["apt-get", "install", "-y", "--no-install-recommends", *HOST_PACKAGES,
+                    *(["libaio1"] if "libaio1" in missing else [])], env=env)
     if install.returncode != 0 or _which("qemu-system-x86_64") is None:
         raise KernelUnavailable("apt-get install of qemu failed: "
                                 + (install.stderr or update.stderr).strip()[-500:])
@@ -143,6 +149,27 @@ def _vng() -> str:
     return found
 
 
+#: The recording checks_davis.py replays as an emulated DAVIS-346: the simulated gel at rest, 2 s
+#: (made once on the host with the project's own simulator, then cached).
+REPLAY_RECORDING = "replay-gel-rest-2s-seed0.aedat4"
+
+
+def ensure_replay_recording() -> Path:
+    """The cached gel recording for the emulated camera, made by ``neurotouch-hid record --source
+    sim --fast`` on the first call. Raises RuntimeError (with the command's output) if that fails."""
+    path = cache_dir() / REPLAY_RECORDING
+    if path.exists():
+        return path
+    cli = Path(sys.executable).parent / "neurotouch-hid"
+    tmp = path.with_suffix(".part.aedat4")
+    proc = _run([str(cli), "record", "--source", "sim", "--fast", "--seconds", "2", "--seed", "0", "--force",
+                 str(tmp)], cwd=str(HERE.parent.parent))
+    if proc.returncode != 0 or not tmp.exists():
+        raise RuntimeError(f"making the replay recording failed: {proc.stdout[-1000:]}{proc.stderr[-1000:]}")
+    tmp.rename(path)
+    return path
+
+
 def boot(guest_script: Path = GUEST_SCRIPT, timeout_s: int = BOOT_TIMEOUT_S) -> dict:
     """Boot the kernel once under qemu (no KVM), run ``guest_script`` in it, return its JSON.
 
@@ -153,6 +180,7 @@ def boot(guest_script: Path = GUEST_SCRIPT, timeout_s: int = BOOT_TIMEOUT_S) -> 
     kdir, kver = ensure_kernel()
     vmlinuz = kdir / "boot" / f"vmlinuz-{kver}"
     out = Path(tempfile.mkdtemp(prefix="boot-", dir=cache_dir()))
+    shutil.copyfile(ensure_replay_recording(), out / "davis_replay.aedat4")  # checks_davis.py's camera
     result = out / "result.json"
     env = dict(os.environ)
     env["PATH"] = f"{Path(sys.executable).parent}:{env.get('PATH', '/usr/bin:/bin')}"

@@ -1,0 +1,127 @@
+"""The emulated DAVIS-346's word encoder (tests/kernel/davis_gadget.py), decoded the way libcaer's
+``davisCommonEventTranslator`` reads the bulk data words; the kernel tests (checks_davis.py) then
+check the same stream through dv-processing's own driver over USB."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent / "kernel"))
+
+from davis_gadget import HEIGHT, WIDTH, WordEncoder  # noqa: E402
+
+
+def decode(words: np.ndarray) -> tuple[list[tuple[int, int, int, int]], list[tuple[int, int, int, np.ndarray]]]:
+    """(events as (t, x, y, polarity), frames as (start-of-exposure t, end t, frame-end t, uint8 image))."""
+    wrap_add, current, last_y = 0, 0, 0
+    events, frames = [], []
+    counts = {0: 0, 1: 0}
+    kind = 0
+    frame = None
+    for w in (int(v) for v in words):
+        if w & 0x8000:
+            current = wrap_add + (w & 0x7FFF)
+            continue
+        code, data = (w >> 12) & 7, w & 0xFFF
+        if code == 7:
+            wrap_add += 0x8000 * data
+            current = wrap_add
+        elif code == 1:
+            last_y = data
+        elif code in (2, 3):
+            events.append((current, data, last_y, code & 1))
+        elif code == 0:
+            if data == 9:
+                frame = {"reset": np.zeros((HEIGHT, WIDTH), int), "signal": np.zeros((HEIGHT, WIDTH), int),
+                         "cols": {0: 0, 1: 0}, "roi": []}
+                counts = {0: 0, 1: 0}
+            elif data == 14:
+                frame["start"] = current
+            elif data == 15:
+                frame["end"] = current
+            elif data in (11, 12):
+                kind = data - 11
+                counts[kind] = 0
+            elif data == 13:
+                frame["cols"][kind] += 1
+            elif data == 10:
+                assert frame["cols"] == {0: WIDTH, 1: WIDTH}
+                value = np.clip(frame["reset"] - frame["signal"], 0, 1023) << 6
+                frames.append((frame["start"], frame["end"], current, (value >> 8).astype(np.uint8)))
+        elif code == 4:
+            col, row = frame["cols"][kind], counts[kind]
+            frame["signal" if kind else "reset"][row, col] = data
+            counts[kind] += 1
+        elif code == 5:
+            frame["roi"].append(data)
+    return events, frames
+
+
+def test_events_round_trip_with_wraps_and_repeated_rows():
+    rng = np.random.default_rng(1)
+    t = np.sort(rng.integers(0, 200_000, 500)).astype(np.int64)
+    t[10:20] = t[10]  # several events on one timestamp
+    x = rng.integers(0, WIDTH, 500)
+    y = rng.integers(0, HEIGHT, 500)
+    y[30:40] = 7  # one row, several columns
+    p = rng.integers(0, 2, 500)
+    enc = WordEncoder()
+    words = np.concatenate([enc.events(t[:250], x[:250], y[:250], p[:250]),
+                            enc.idle(int(t[250]) - 1),
+                            enc.events(t[250:], x[250:], y[250:], p[250:])])
+    events, _ = decode(words)
+    assert events == list(zip(t.tolist(), x.tolist(), y.tolist(), p.tolist()))
+
+
+def test_a_frame_decodes_to_the_same_grey_levels_and_times():
+    rng = np.random.default_rng(2)
+    image = rng.integers(0, 256, (HEIGHT, WIDTH)).astype(np.uint8)
+    image[0, 0], image[-1, -1] = 0, 255
+    enc = WordEncoder()
+    words = np.concatenate([enc.frame_start(40_000), enc.events(np.array([41_000]), np.array([3]), np.array([4]),
+                                                                 np.array([1])),
+                            enc.frame_end(44_000, image)])
+    events, frames = decode(words)
+    assert events == [(41_000, 3, 4, 1)]
+    (start, end, _, decoded), = frames
+    assert (start, end) == (40_000, 44_000)
+    np.testing.assert_array_equal(decoded, image)
+
+
+def test_a_silence_longer_than_the_wrap_field_still_counts_every_wrap():
+    enc = WordEncoder()
+    t = np.array([5, 5 + 0x8000 * 5000 + 17], np.int64)  # more wraps than one word's 12 bits hold
+    events, _ = decode(enc.events(t, np.array([1, 2]), np.array([3, 3]), np.array([0, 1])))
+    assert [e[0] for e in events] == t.tolist()
+
+
+@pytest.mark.parametrize("t_us", [0, 0x8000, 3 * 0x8000 + 1])
+def test_idle_wraps_keep_the_decoder_on_device_time(t_us):
+    enc = WordEncoder()
+    words = np.concatenate([enc.idle(t_us + 70_000), enc.events(np.array([t_us + 70_001]), np.array([0]),
+                                                                np.array([0]), np.array([0]))])
+    events, _ = decode(words)
+    assert events[0][0] == t_us + 70_001
+
+
+def test_no_timestamp_is_sent_twice_in_a_row():
+    """dv-processing's parser stops on a timestamp equal to the last (a wrap sets the current one)."""
+    enc = WordEncoder()
+    t = np.array([0x8000 - 1, 0x8000, 0x8000, 2 * 0x8000, 2 * 0x8000 + 5], np.int64)
+    words = np.concatenate([enc.events(t[:3], np.zeros(3, int), np.zeros(3, int), np.zeros(3, int)),
+                            enc.idle(2 * 0x8000), enc.frame_start(2 * 0x8000),
+                            enc.events(t[4:], np.zeros(1, int), np.zeros(1, int), np.zeros(1, int))])
+    current, seen = 0, []
+    for w in (int(v) for v in words):
+        if w & 0x8000:
+            current = (current // 0x8000) * 0x8000 + (w & 0x7FFF)
+            seen.append(current)
+        elif w >> 12 == 7:
+            current = (current // 0x8000 + (w & 0xFFF)) * 0x8000
+            seen.append(current)
+    assert all(b > a for a, b in zip(seen, seen[1:])), seen
+    assert [e[0] for e in decode(words)[0]] == [0x8000 - 1, 0x8000, 0x8000, 2 * 0x8000 + 5]
