@@ -610,25 +610,19 @@ def profile_tune(
 
 
 def main() -> None:
-    """Console-script entry point: user errors become one line on stderr and exit code 2."""
+    """Console-script entry point: user errors become one line on stderr and exit code 2.
+
+    typer runs in its standalone mode, so a mistyped command line (missing argument, unknown
+    option or command, bad value) is printed by typer itself (usage, the error, exit code 2)
+    whichever click it uses (typer 0.29 carries its own copy and no longer installs click).
+    """
     try:
-        app(standalone_mode=False)
+        app()
     except NeurotouchError as exc:
         err_console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
         sys.exit(2)
     except KeyboardInterrupt:
         sys.exit(130)
-    except typer.Exit as exc:  # pragma: no cover - typer's own exits
-        sys.exit(exc.exit_code)
-    except SystemExit:
-        raise
-    except Exception as exc:  # click's usage errors
-        import click
-
-        if isinstance(exc, click.ClickException):
-            exc.show()
-            sys.exit(exc.exit_code)
-        raise
 
 
 if __name__ == "__main__":  # pragma: no cover
