@@ -13,9 +13,8 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.console import Console
-
 from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.output.console import make_console
 
 app = typer.Typer(
     name="neurotouch-hid",
@@ -27,8 +26,8 @@ app = typer.Typer(
 profile_app = typer.Typer(help="List, show, create, edit, validate, test and tune gamepad profiles.", no_args_is_help=True)
 app.add_typer(profile_app, name="profile")
 
-console = Console()
-err_console = Console(stderr=True)
+console = make_console()
+err_console = make_console(stderr=True)
 
 
 # --- recordings (sources/recording.py) ------------------------------------------------------
@@ -456,12 +455,21 @@ def profile_list() -> None:
 
 @profile_app.command("show")
 def profile_show(name: str = typer.Argument(..., help="profile name or path")) -> None:
-    """Print a profile's file (with its comments) and where it is."""
+    """Print a profile's file (with its comments) and where it is.
+
+    To a pipe or a file (``profile show NAME > mine.yaml``) it writes the file's exact bytes, and
+    where it is to stderr."""
     from rich.syntax import Syntax
 
     from neurotouch_hid.mapping.profile import find_profile
 
     path = find_profile(name)
+    if not console.is_terminal:
+        err_console.print(f"# {path}", highlight=False, markup=False, soft_wrap=True)
+        sys.stdout.flush()
+        sys.stdout.buffer.write(path.read_bytes())
+        sys.stdout.buffer.flush()
+        return
     console.print(f"# {path}", highlight=False)
     console.print(Syntax(path.read_text(encoding="utf-8"), "yaml", background_color="default"))
 
