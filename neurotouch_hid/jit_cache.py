@@ -9,13 +9,15 @@ with jitted code is imported, and picks the first of:
 
 1. ``$NUMBA_CACHE_DIR`` when the user set it and it is writable (numba's own setting);
 2. the package's folders (numba's default, next to the source) when they are writable;
-3. the user's XDG cache folder, ``platformdirs.user_cache_dir("neurotouch-hid")/numba``
-   (``$XDG_CACHE_HOME/neurotouch-hid/numba``; a systemd unit's ``CacheDirectory=`` sets it);
-4. ``$XDG_RUNTIME_DIR/neurotouch-hid/numba`` (a tmpfs: kept until the user logs out);
-5. none: numba compiles in memory at every start (a few seconds more), said in one line on stderr.
+3. the cache folder systemd gives the service (``$CACHE_DIRECTORY``, the unit's
+   ``CacheDirectory=``; packaging/neurotouch-hid.service);
+4. the user's XDG cache folder, ``platformdirs.user_cache_dir("neurotouch-hid")/numba``
+   (``$XDG_CACHE_HOME/neurotouch-hid/numba``);
+5. ``$XDG_RUNTIME_DIR/neurotouch-hid/numba`` (a tmpfs: kept until the user logs out);
+6. none: numba compiles in memory at every start (seconds more each time), said in one line on stderr.
 
-Cases 3 and 4 point numba's documented ``NUMBA_CACHE_DIR`` setting (``numba.config.CACHE_DIR``)
-at the folder; case 5 turns off caching for the dispatchers created afterwards (numba's
+Cases 3 to 5 point numba's documented ``NUMBA_CACHE_DIR`` setting (``numba.config.CACHE_DIR``)
+at the folder; case 6 turns off caching for the dispatchers created afterwards (numba's
 ``Dispatcher.enable_caching`` becomes a no-op, so they keep their in-memory ``NullCache``).
 ``neurotouch-hid doctor`` reports the choice (:func:`chosen`).
 """
@@ -34,13 +36,14 @@ CACHE_ENV = "NUMBA_CACHE_DIR"
 #: ``__pycache__`` by default).
 JIT_PACKAGES = ("pipeline", "sources")
 
-ENV, PACKAGE, USER_CACHE, RUNTIME_DIR, MEMORY = "NUMBA_CACHE_DIR", "package", "user cache", "runtime dir", "memory"
+ENV, PACKAGE, SERVICE_CACHE, USER_CACHE, RUNTIME_DIR, MEMORY = (
+    "NUMBA_CACHE_DIR", "package", "service cache", "user cache", "runtime dir", "memory")
 
 
 @dataclass(frozen=True)
 class JitCache:
-    """Where compiled code is cached: ``kind`` (one of ENV, PACKAGE, USER_CACHE, RUNTIME_DIR,
-    MEMORY) and ``folder`` (None for MEMORY; for PACKAGE, the package folder)."""
+    """Where compiled code is cached: ``kind`` (one of ENV, PACKAGE, SERVICE_CACHE, USER_CACHE,
+    RUNTIME_DIR, MEMORY) and ``folder`` (None for MEMORY; for PACKAGE, the package folder)."""
 
     kind: str
     folder: Path | None
@@ -72,6 +75,8 @@ def _candidates() -> list[JitCache]:
     if os.environ.get(CACHE_ENV):
         found.append(JitCache(ENV, Path(os.environ[CACHE_ENV])))
     found.append(JitCache(PACKAGE, package))
+    if os.environ.get("CACHE_DIRECTORY"):  # systemd: one or more folders, colon-separated
+        found.append(JitCache(SERVICE_CACHE, Path(os.environ["CACHE_DIRECTORY"].split(":")[0]) / "numba"))
     try:
         import platformdirs
 
@@ -99,7 +104,7 @@ def configure() -> JitCache:
     if _chosen is not None:
         return _chosen
     choice = next((c for c in _candidates() if _usable(c)), JitCache(MEMORY, None))
-    if choice.kind in (USER_CACHE, RUNTIME_DIR):
+    if choice.kind in (SERVICE_CACHE, USER_CACHE, RUNTIME_DIR):
         os.environ[CACHE_ENV] = str(choice.folder)  # read by numba when it is first imported
         if "numba" in sys.modules:  # imported already: its config was read
             sys.modules["numba"].config.CACHE_DIR = str(choice.folder)

@@ -103,12 +103,15 @@ def test_runtime_dir_caches_track_and_run(tmp_path, recording):
     assert f"runtime dir: {cache}" in doctor.stdout, doctor.stdout
 
 
-@pytest.mark.parametrize("writable", ["xdg-cache", "runtime", "none"])
+@pytest.mark.parametrize("writable", ["service", "xdg-cache", "runtime", "none"])
 def test_cache_folder_choice(tmp_path, writable):
-    """The choice's order: the user's XDG cache folder, then $XDG_RUNTIME_DIR, then memory."""
+    """The choice's order: systemd's CacheDirectory, the user's XDG cache folder, then
+    $XDG_RUNTIME_DIR, then memory."""
     env = {"XDG_RUNTIME_DIR": str(tmp_path / "run-user")} if writable != "none" else {}
-    if writable == "xdg-cache":
+    if writable in ("service", "xdg-cache"):
         env["XDG_CACHE_HOME"] = str(tmp_path / "cache")
+    if writable == "service":
+        env["CACHE_DIRECTORY"] = str(tmp_path / "unit-cache")
     code = "from neurotouch_hid.jit_cache import chosen; c = chosen(); print(c.kind, c.folder)"
     home = tmp_path / "home"
     home.mkdir()
@@ -118,7 +121,8 @@ def test_cache_folder_choice(tmp_path, writable):
                              f"{shlex.quote(code)}"], capture_output=True, text=True, timeout=120,
                             env={"PATH": "/usr/bin:/bin", "HOME": str(home), **env})
     assert result.returncode == 0, result.stderr
-    expected = {"xdg-cache": f"user cache {tmp_path / 'cache' / 'neurotouch-hid' / 'numba'}",
+    expected = {"service": f"service cache {tmp_path / 'unit-cache' / 'numba'}",
+                "xdg-cache": f"user cache {tmp_path / 'cache' / 'neurotouch-hid' / 'numba'}",
                 "runtime": f"runtime dir {tmp_path / 'run-user' / 'neurotouch-hid' / 'numba'}",
                 "none": "memory None"}[writable]
     assert result.stdout.strip() == expected
