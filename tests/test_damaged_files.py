@@ -11,8 +11,6 @@ and load_profile: one error naming the file, the line and the field, never a tra
 
 from __future__ import annotations
 
-import random
-import struct
 import subprocess
 import sys
 import tempfile
@@ -26,8 +24,9 @@ from hypothesis import strategies as st
 from neurotouch_hid.errors import ProfileError, RecordingError
 from neurotouch_hid.mapping.profile import load_profile, shipped_profiles_dir
 from neurotouch_hid.sources import Frame
-from neurotouch_hid.sources.recording import AEDAT4_MAGIC, RecordingReader, RecordingWriter
+from neurotouch_hid.sources.recording import RecordingReader, RecordingWriter
 from neurotouch_hid.sources.simulator import SimulatedSource
+from recording_damage import damage
 
 REPO = Path(__file__).parents[1]
 STREET = REPO.parent / "shared" / "data" / "davis346-street" / "recording.aedat4"
@@ -45,38 +44,6 @@ def originals(tmp_path_factory) -> dict[str, bytes]:
     if STREET.exists():
         found["street"] = STREET.read_bytes()
     return found
-
-
-def packets(data: bytes) -> list[tuple[int, int]]:
-    """(offset, length) of each complete packet (int32 stream id, uint32 size, payload) before
-    the index table: the AEDAT4 layout after the header."""
-    (size,) = struct.unpack_from("<I", data, len(AEDAT4_MAGIC))
-    pos, found = len(AEDAT4_MAGIC) + 4 + size, []
-    while pos + 8 <= len(data):
-        length = 8 + struct.unpack_from("<I", data, pos + 4)[0]
-        if pos + length > len(data):
-            break
-        found.append((pos, length))
-        pos += length
-    return found[:-1]  # the last one is the index table
-
-
-def damage(data: bytes, kind: str, seed: int) -> bytes:
-    """``data`` with ``kind`` of damage: "flip" (1-32 bits anywhere after the version line),
-    "cut" (at a random byte), "swap" (two neighbouring packets exchanged)."""
-    rng = random.Random(seed)
-    if kind == "flip":
-        out = bytearray(data)
-        for _ in range(rng.randint(1, 32)):
-            i = rng.randrange(len(AEDAT4_MAGIC), len(out))
-            out[i] ^= 1 << rng.randrange(8)
-        return bytes(out)
-    if kind == "cut":
-        return data[:rng.randrange(len(AEDAT4_MAGIC), len(data))]
-    found = packets(data)
-    i = rng.randrange(len(found) - 1)
-    (p1, l1), (p2, l2) = found[i], found[i + 1]
-    return data[:p1] + data[p2:p2 + l2] + data[p1:p1 + l1] + data[p2 + l2:]
 
 
 damages = st.tuples(st.sampled_from(["flip", "flip", "cut", "swap"]), st.integers(0, 2**32))
@@ -107,7 +74,7 @@ def test_damaged_recording_cli_ends_cleanly(originals, base, command, what):
         assert len(errors) == 1 and str(path) in errors[0], result.stderr
 
 
-@settings(max_examples=200, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=100, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(base=st.sampled_from(["street", "gel"]), what=damages)
 def test_damaged_recording_reader_gives_valid_data_or_recording_error(originals, base, what):
     """In this process: RecordingReader raises nothing but RecordingError, and everything it

@@ -126,3 +126,4 @@ def test_cache_folder_choice(tmp_path, writable):
                 "runtime": f"runtime dir {tmp_path / 'run-user' / 'neurotouch-hid' / 'numba'}",
                 "none": "memory None"}[writable]
     assert result.stdout.strip() == expected
+
