@@ -49,6 +49,8 @@ AEDAT4_SUFFIX = ".aedat4"
 PACKET_EVENTS = 10_000
 #: The DAVIS-346's pixel array, (width, height) px.
 DAVIS346_RESOLUTION = (346, 260)
+#: The ``aedat`` decoder's event record: EVENT_DTYPE's layout (same offsets and sizes).
+AEDAT_EVENT_DTYPE = np.dtype([("t", "<u8"), ("x", "<u2"), ("y", "<u2"), (("p", "on"), "?")])
 #: The largest AEDAT4 header read (a real one is a few kB; a damaged size field must not make
 #: the reader allocate gigabytes).
 MAX_HEADER_BYTES = 16 << 20
@@ -233,6 +235,13 @@ def _camera_name(xml: str) -> str:
     return "unknown"
 
 
+def _converted(raw: np.ndarray) -> np.ndarray:
+    """aedat's events (fields t, x, y, on) copied into EVENT_DTYPE, for a layout other than 13 bytes."""
+    events = np.empty(len(raw), EVENT_DTYPE)
+    events["timestamp"], events["x"], events["y"], events["polarity"] = raw["t"], raw["x"], raw["y"], raw["on"]
+    return events
+
+
 def _is_decoder_error(exc: BaseException) -> bool:
     """Whether aedat raised ``exc`` about the file: its errors are Exceptions, a panic of its Rust
     code is pyo3's ``PanicException`` (a BaseException); Ctrl-C and exits are not."""
@@ -358,17 +367,19 @@ class RecordingReader:
                 raw = packet["events"]
                 if not len(raw):
                     continue
-                t = raw["t"]
+                # aedat's event record (t u64, x u16, y u16, on bool; 13 bytes) has EVENT_DTYPE's
+                # layout: a view, no copy; checked before anything downstream indexes with it.
+                events = raw.view(EVENT_DTYPE) if raw.dtype == AEDAT_EVENT_DTYPE else _converted(raw)
+                t = events["timestamp"]
                 problem = (
                     "events outside the sensor" if int(raw["x"].max()) >= self.width or int(raw["y"].max()) >= self.height
-                    else "events out of time order" if t[0] < last_event_us or t[-1] > MAX_TIMESTAMP_US
+                    or int(events["polarity"].view(np.uint8).max()) > 1
+                    else "events out of time order" if t[0] < last_event_us or int(raw["t"][-1]) > MAX_TIMESTAMP_US
                     or bool(np.any(t[1:] < t[:-1])) else None
                 )
                 if problem:
                     damage.add(problem)
                     continue
-                events = np.empty(len(raw), EVENT_DTYPE)
-                events["timestamp"], events["x"], events["y"], events["polarity"] = t, raw["x"], raw["y"], raw["on"]
                 last_event_us = int(t[-1])
                 yield events
             elif "frame" in packet:
