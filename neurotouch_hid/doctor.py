@@ -126,11 +126,11 @@ def check_library(module: str, dist: str) -> Check:
 
 def check_jit_cache() -> Check:
     """Where numba caches the pipeline's compiled code (jit_cache.py); a warning when it cannot
-    cache anywhere and compiles in memory at every start."""
-    from neurotouch_hid.jit_cache import MEMORY, chosen
+    cache anywhere lasting and compiles at every start."""
+    from neurotouch_hid.jit_cache import MEMORY, TEMPORARY, chosen
 
     cache = chosen()
-    if cache.kind == MEMORY:
+    if cache.kind in (MEMORY, TEMPORARY):
         return Check("compiled-code cache (numba)", WARN, cache.describe(),
                      "make ~/.cache writable, or set XDG_CACHE_HOME (or NUMBA_CACHE_DIR) to a writable folder")
     return Check("compiled-code cache (numba)", OK, cache.describe())

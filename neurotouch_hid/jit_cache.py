@@ -14,17 +14,22 @@ with jitted code is imported, and picks the first of:
 4. the user's XDG cache folder, ``platformdirs.user_cache_dir("neurotouch-hid")/numba``
    (``$XDG_CACHE_HOME/neurotouch-hid/numba``);
 5. ``$XDG_RUNTIME_DIR/neurotouch-hid/numba`` (a tmpfs: kept until the user logs out);
-6. none: numba compiles in memory at every start (seconds more each time), said in one line on stderr.
+6. none: numba compiles the pipeline at every start (seconds more each time), said in one line
+   on stderr, into a temporary folder removed at exit, or, when not even that can be made, in
+   memory.
 
-Cases 3 to 5 point numba's documented ``NUMBA_CACHE_DIR`` setting (``numba.config.CACHE_DIR``)
-at the folder; case 6 turns off caching for the dispatchers created afterwards (numba's
+Cases 3 to 6 point numba's documented ``NUMBA_CACHE_DIR`` setting (``numba.config.CACHE_DIR``)
+at the folder, without importing numba (a command that needs no compiled code stays fast); in
+memory, caching is turned off for the dispatchers created afterwards (numba's
 ``Dispatcher.enable_caching`` becomes a no-op, so they keep their in-memory ``NullCache``).
 ``neurotouch-hid doctor`` reports the choice (:func:`chosen`).
 """
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import sys
 import tempfile
 from dataclasses import dataclass
@@ -36,14 +41,17 @@ CACHE_ENV = "NUMBA_CACHE_DIR"
 #: ``__pycache__`` by default).
 JIT_PACKAGES = ("pipeline", "sources")
 
-ENV, PACKAGE, SERVICE_CACHE, USER_CACHE, RUNTIME_DIR, MEMORY = (
-    "NUMBA_CACHE_DIR", "package", "service cache", "user cache", "runtime dir", "memory")
+ENV, PACKAGE, SERVICE_CACHE, USER_CACHE, RUNTIME_DIR, TEMPORARY, MEMORY = (
+    "NUMBA_CACHE_DIR", "package", "service cache", "user cache", "runtime dir", "temporary", "memory")
+#: What the user is told (stderr, doctor) when no cache folder of theirs is writable.
+NO_FOLDER = "no writable cache folder (package, XDG cache, $XDG_RUNTIME_DIR): numba compiles the pipeline"
 
 
 @dataclass(frozen=True)
 class JitCache:
     """Where compiled code is cached: ``kind`` (one of ENV, PACKAGE, SERVICE_CACHE, USER_CACHE,
-    RUNTIME_DIR, MEMORY) and ``folder`` (None for MEMORY; for PACKAGE, the package folder)."""
+    RUNTIME_DIR, TEMPORARY, MEMORY) and ``folder`` (None for MEMORY; for PACKAGE, the package
+    folder)."""
 
     kind: str
     folder: Path | None
@@ -51,8 +59,9 @@ class JitCache:
     def describe(self) -> str:
         """One line for the user, e.g. ``user cache: /home/me/.cache/neurotouch-hid/numba``."""
         if self.kind == MEMORY:
-            return ("no writable cache folder (package, XDG cache, $XDG_RUNTIME_DIR): numba compiles "
-                    "the pipeline in memory at every start")
+            return f"{NO_FOLDER} in memory at every start"
+        if self.kind == TEMPORARY:
+            return f"{NO_FOLDER} at every start (temporary folder {self.folder}, removed at exit)"
         return f"{self.kind}: {self.folder}"
 
 
@@ -103,8 +112,15 @@ def configure() -> JitCache:
     global _chosen
     if _chosen is not None:
         return _chosen
-    choice = next((c for c in _candidates() if _usable(c)), JitCache(MEMORY, None))
-    if choice.kind in (SERVICE_CACHE, USER_CACHE, RUNTIME_DIR):
+    choice = next((c for c in _candidates() if _usable(c)), None)
+    if choice is None:
+        try:
+            choice = JitCache(TEMPORARY, Path(tempfile.mkdtemp(prefix="neurotouch-hid-numba-")))
+            atexit.register(shutil.rmtree, choice.folder, ignore_errors=True)
+        except OSError:
+            choice = JitCache(MEMORY, None)
+        print(f"neurotouch-hid: {choice.describe()}", file=sys.stderr, flush=True)
+    if choice.kind in (SERVICE_CACHE, USER_CACHE, RUNTIME_DIR, TEMPORARY):
         os.environ[CACHE_ENV] = str(choice.folder)  # read by numba when it is first imported
         if "numba" in sys.modules:  # imported already: its config was read
             sys.modules["numba"].config.CACHE_DIR = str(choice.folder)
@@ -115,7 +131,6 @@ def configure() -> JitCache:
 
         config.CACHE_DIR = ""
         Dispatcher.enable_caching = _compile_in_memory
-        print(f"neurotouch-hid: {choice.describe()}", file=sys.stderr, flush=True)
     _chosen = choice
     return choice
 
