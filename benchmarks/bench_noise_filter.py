@@ -40,6 +40,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from neurotouch_hid.output.console import make_console
 from neurotouch_hid.pipeline.noise import NOISE_FILTERS, EventNoiseFilter
 from neurotouch_hid.pipeline.tracker import BlobTracker
 from neurotouch_hid.sensor import SensorGeometry
@@ -158,7 +159,7 @@ def main() -> None:
                         help="noise rates (Hz/px) of the selectivity table; none: skip it (default 0.1 1 3 5 10)")
     parser.add_argument("--cost", action=argparse.BooleanOptionalAction, default=True, help="the cost table (default on)")
     args = parser.parse_args()
-    console = Console(width=250)
+    console = make_console()
     sensor = SensorGeometry()
 
     warm, rest = simulate(sensor, 0.2, 1.0, args.seed)  # numba JIT of the simulator and tracker

@@ -24,10 +24,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-from rich.console import Console
 from rich.table import Table
 
 from neurotouch_hid.dataset import list_sequences
+from neurotouch_hid.output.console import make_console
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 from neurotouch_hid.pipeline.track import track_recording
 from neurotouch_hid.sensor import find_sensor_file
@@ -78,7 +78,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--window-us", type=int, default=10_000)
     args = parser.parse_args()
-    console = Console(width=250)  # a pipe or a file gets whole rows, not 80 columns
+    console = make_console()
     config = PipelineConfig(window_us=args.window_us)
 
     with tempfile.TemporaryDirectory() as tmp:

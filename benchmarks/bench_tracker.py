@@ -28,9 +28,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from rich.console import Console
 from rich.table import Table
 
+from neurotouch_hid.output.console import make_console
 from neurotouch_hid.pipeline.markers import detect_markers
 from neurotouch_hid.pipeline.tracker import BlobTracker, TrackerConfig
 from neurotouch_hid.sensor import SensorGeometry
@@ -276,7 +276,7 @@ def main() -> None:
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                         help="a TrackerConfig field (float), e.g. --set max_offset_px=0 (repeatable)")
     args = parser.parse_args()
-    console = Console(width=250)  # a pipe or a file gets whole rows, not 80 columns
+    console = make_console()
     fields = set(TrackerConfig.model_fields)
     overrides = {}
     for item in args.set:

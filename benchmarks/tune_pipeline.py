@@ -34,13 +34,13 @@ from typing import Optional
 
 import numpy as np
 import typer
-from rich.console import Console
 from rich.table import Table
 
 from neurotouch_hid.dataset import labels_at, list_sequences, read_labels
 from neurotouch_hid.evaluation.metrics import EvaluationResult, Observations, align, evaluate, precision_recall_f1
 from neurotouch_hid.evaluation.metrics import confusion_matrix
 from neurotouch_hid.evaluation.runner import pipeline_config
+from neurotouch_hid.output.console import make_console
 from neurotouch_hid.sensor import SensorGeometry
 
 #: Seeds of the tuning and test sets: the ``paper`` preset simulates its tuning users (5-9) for
@@ -64,7 +64,7 @@ TARGETS = (
 DEFAULT_GRID = ("r_px=20,25,30", "a=0.4,0.6,0.9", "n_min=3,4")
 DEFAULT_CHAMFER = "0.5,1,1.5,2,2.5,3,4"
 
-console = Console()
+console = make_console()
 
 
 def score(result: EvaluationResult) -> float:

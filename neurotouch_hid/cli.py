@@ -13,9 +13,8 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.console import Console
-
 from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.output.console import make_console
 
 app = typer.Typer(
     name="neurotouch-hid",
@@ -27,8 +26,8 @@ app = typer.Typer(
 profile_app = typer.Typer(help="List, show, create, edit, validate, test, tune and use (switch the running driver to) profiles.", no_args_is_help=True)
 app.add_typer(profile_app, name="profile")
 
-console = Console()
-err_console = Console(stderr=True)
+console = make_console()
+err_console = make_console(stderr=True)
 
 
 # --- recordings (sources/recording.py) ------------------------------------------------------
@@ -469,12 +468,21 @@ def profile_use(name: str = typer.Argument(..., help="profile name or path")) ->
 
 @profile_app.command("show")
 def profile_show(name: str = typer.Argument(..., help="profile name or path")) -> None:
-    """Print a profile's file (with its comments) and where it is."""
+    """Print a profile's file (with its comments) and where it is.
+
+    To a pipe or a file (``profile show NAME > mine.yaml``) it writes the file's exact bytes, and
+    where it is to stderr."""
     from rich.syntax import Syntax
 
     from neurotouch_hid.mapping.profile import find_profile
 
     path = find_profile(name)
+    if not console.is_terminal:
+        err_console.print(f"# {path}", highlight=False, markup=False, soft_wrap=True)
+        sys.stdout.flush()
+        sys.stdout.buffer.write(path.read_bytes())
+        sys.stdout.buffer.flush()
+        return
     console.print(f"# {path}", highlight=False)
     console.print(Syntax(path.read_text(encoding="utf-8"), "yaml", background_color="default"))
 
@@ -625,25 +633,19 @@ def profile_tune(
 
 
 def main() -> None:
-    """Console-script entry point: user errors become one line on stderr and exit code 2."""
+    """Console-script entry point: user errors become one line on stderr and exit code 2.
+
+    typer runs in its standalone mode, so a mistyped command line (missing argument, unknown
+    option or command, bad value) is printed by typer itself (usage, the error, exit code 2)
+    whichever click it uses (typer 0.29 carries its own copy and no longer installs click).
+    """
     try:
-        app(standalone_mode=False)
+        app()
     except NeurotouchError as exc:
         err_console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
         sys.exit(2)
     except KeyboardInterrupt:
         sys.exit(130)
-    except typer.Exit as exc:  # pragma: no cover - typer's own exits
-        sys.exit(exc.exit_code)
-    except SystemExit:
-        raise
-    except Exception as exc:  # click's usage errors
-        import click
-
-        if isinstance(exc, click.ClickException):
-            exc.show()
-            sys.exit(exc.exit_code)
-        raise
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -4,7 +4,8 @@ Checks: the DAVIS-346 is on USB, each camera's /dev/bus/usb node is readable and
 held by another program, dv-processing lists the camera (all three from one
 :func:`neurotouch_hid.sources.discovery.discover`, the same look-up as ``neurotouch-hid devices``),
 /dev/uinput exists and is writable, the udev rules are installed, dv-processing / numba / evdev
-import (with versions), and (a warning only) the plug-and-play systemd user unit is installed.
+import (with versions), where numba caches the compiled pipeline (a warning when nowhere: it compiles
+in memory at every start), and (a warning only) the plug-and-play systemd user unit is installed.
 """
 
 from __future__ import annotations
@@ -117,6 +118,18 @@ def check_library(module: str, dist: str) -> Check:
     return Check(dist, OK, version)
 
 
+def check_jit_cache() -> Check:
+    """Where numba caches the pipeline's compiled code (jit_cache.py); a warning when it cannot
+    cache anywhere lasting and compiles at every start."""
+    from neurotouch_hid.jit_cache import MEMORY, TEMPORARY, chosen
+
+    cache = chosen()
+    if cache.kind in (MEMORY, TEMPORARY):
+        return Check("compiled-code cache (numba)", WARN, cache.describe(),
+                     "make ~/.cache writable, or set XDG_CACHE_HOME (or NUMBA_CACHE_DIR) to a writable folder")
+    return Check("compiled-code cache (numba)", OK, cache.describe())
+
+
 def check_service(home: Path | None = None) -> Check:
     """The plug-and-play systemd user unit is installed (a warning only: `run` works without)."""
     home = home or Path.home()
@@ -132,7 +145,7 @@ def run_checks() -> list[Check]:
     """Every check, in the order the report shows them."""
     found = discover()
     return [check_camera(found), check_camera_access(found), check_camera_dv(found), check_uinput(), check_rules(),
-            *(check_library(m, d) for m, d in LIBRARIES), check_service()]
+            *(check_library(m, d) for m, d in LIBRARIES), check_jit_cache(), check_service()]
 
 
 def report(checks: list[Check], console: Console) -> int:

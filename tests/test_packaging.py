@@ -60,6 +60,34 @@ def test_unit_binds_to_the_device_unit_the_rules_create():
     assert "Restart=on-failure" in unit and re.search(r"^ExecStart=.* run --source davis", unit, re.M)
 
 
+HARDENING = ("NoNewPrivileges=yes", "ProtectSystem=strict", "ProtectHome=read-only", "PrivateTmp=yes",
+             "DevicePolicy=closed", "DeviceAllow=/dev/uinput rw", "DeviceAllow=/dev/neurotouch rw",
+             "StateDirectory=neurotouch-hid", "CacheDirectory=neurotouch-hid")
+
+
+def test_unit_is_hardened():
+    """The sandbox: read-only system and home, private /tmp, only uinput and the camera, its own
+    state and cache folders; no other device is allowed."""
+    lines = set(_rule_lines(UNIT.read_text()))
+    assert set(HARDENING) <= lines
+    assert {line for line in lines if line.startswith("DeviceAllow=")} == {
+        "DeviceAllow=/dev/uinput rw", "DeviceAllow=/dev/neurotouch rw"}
+
+
+def test_security_exposure_is_low_and_documented(systemd_analyze, tmp_path):
+    """`systemd-analyze security` rates the user unit OK (< 3), the figure packaging/README.md gives."""
+    runtime = tmp_path / "runtime"
+    runtime.mkdir(mode=0o700)
+    proc = subprocess.run([systemd_analyze, "--user", "security", "--offline=yes", str(UNIT)], capture_output=True,
+                          text=True, timeout=60, env=dict(os.environ, XDG_RUNTIME_DIR=str(runtime)))
+    found = re.search(r"Overall exposure level for neurotouch-hid.service: (\d+\.\d) (\w+)", proc.stdout)
+    assert found, proc.stdout + proc.stderr
+    level = float(found.group(1))
+    assert level < 3.0, proc.stdout
+    readme = (ROOT / "packaging" / "README.md").read_text()
+    assert f"overall exposure level {found.group(1)} {found.group(2)}" in readme
+
+
 def test_install_user_writes_a_verifiable_unit_with_an_absolute_execstart(systemd_analyze, tmp_path):
     shim = tmp_path / "bin" / "neurotouch-hid"
     shim.parent.mkdir()

@@ -262,5 +262,5 @@ def test_list_and_show(cli):
     assert "shipped" in rows["default"] and "user" in rows["mine"] and "invalid" in rows["broken"]
     shown = cli("show", "spacecraft")
     assert shown.returncode == 0
-    assert str(shipped_profiles_dir() / "spacecraft.yaml") in shown.stdout
+    assert str(shipped_profiles_dir() / "spacecraft.yaml") in shown.stderr  # stdout is the file itself
     assert "# pitch (y: push up = nose down" in shown.stdout  # the file, comments included

@@ -480,8 +480,13 @@ def parse_profile(text: str, source: str | os.PathLike) -> Profile:
         root = yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
-        where = f"{source}:{mark.line + 1}" if mark is not None else str(source)
-        problem = getattr(exc, "problem", None) or str(exc)
+        if isinstance(exc, yaml.reader.ReaderError):  # a character YAML forbids: no mark, a position
+            line = text.count("\n", 0, exc.position) + 1
+            where = f"{source}:{line}"
+            problem = f"character #x{ord(exc.character) if isinstance(exc.character, str) else exc.character:04x} is not allowed in YAML"
+        else:
+            where = f"{source}:{mark.line + 1}" if mark is not None else str(source)
+            problem = " ".join((getattr(exc, "problem", None) or str(exc)).split())  # one line
         raise ProfileError(f"{where}: not valid YAML: {problem}") from None
     if data is None:
         raise ProfileError(f"{source}:1: the profile is empty; expected a mapping with 'mappings:'")

@@ -78,8 +78,9 @@ def pipeline_over(
         recording: AEDAT4 file with events and APS frames of the pipeline sensor's resolution.
         pipeline: a fresh :class:`GesturePipeline`.
         on_progress: called every 0.1 s of recording time and at the end with (recording time
-            done, total) in us (the total from the file's index table,
-            :attr:`RecordingReader.indexed_duration_us`: no extra pass over the file).
+            done, total) in us (the total costs one pass over the file's packets with the
+            ``aedat`` decoder; 0 when that pass finds the file damaged: what is readable is
+            still tracked and written before the error).
     Raises:
         RecordingError: the file is missing, not AEDAT4, has no APS frames or the wrong
             resolution, or is truncated (after everything readable was yielded).
@@ -90,7 +91,12 @@ def pipeline_over(
     recording = Path(recording)
     sensor = pipeline.sensor
     with RecordingReader(recording, require_frames=True, require_resolution=(sensor.width, sensor.height)) as reader:
-        total_us = reader.indexed_duration_us if on_progress is not None else 0
+        total_us = 0
+        if on_progress is not None:
+            try:
+                total_us = int(reader.info.duration_us)
+            except RecordingError:  # damaged: track what is readable, the stream raises at its end
+                total_us = 0
         first_us = last_us = None
         next_report = 0
         for item in reader.stream(batch_us=pipeline.config.window_us):

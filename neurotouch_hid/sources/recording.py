@@ -1,15 +1,17 @@
-"""AEDAT4 recordings: read and write events and APS frames through dv-processing.
+"""AEDAT4 recordings: read with the ``aedat`` decoder, write with dv-processing.
 
-Reading goes through ``dv_processing.io.MonoCameraRecording`` and writing through
-``dv_processing.io.MonoCameraWriter`` (iniVation's own library, the format DV records; docs/dataset.md,
-section SEQUENCE.aedat4). This module only adds what the library does not do:
+Reading goes through the ``aedat`` package (a decoder written in Rust, memory-safe: a damaged
+file gives an error, never a hang or a crash) and writing through dv-processing's
+``MonoCameraWriter`` (iniVation's own library, the format DV records; docs/dataset.md, section
+SEQUENCE.aedat4). dv-processing 2.0's reader can hang for ever in LZ4 decompression or crash on
+a damaged file (docs/performance.md, Damaged recordings, has the measurements and the choice).
+This module adds:
 
 - one clear :class:`~neurotouch_hid.errors.RecordingError` per bad file (missing, not AEDAT4,
-  truncated, no frame stream, wrong resolution) instead of C++ exception text;
-- reading what is left of a truncated file: dv-processing refuses to open a file whose index
-  table (the FileDataTable at the end) is cut off, but rebuilds the index by scanning the
-  packets when the header says there is no table. :func:`_open` therefore opens a copy whose
-  header says so, reads every complete packet, and the reader raises after yielding them;
+  truncated, damaged, no frame stream, wrong resolution);
+- reading what is readable of a cut or damaged file: packets that do not decode, or whose events
+  lie outside the sensor or go back in time, are skipped (the numba pipeline does not check
+  bounds), and the reader raises once after yielding the rest;
 - the merged, time-ordered stream of event batches and :class:`Frame` values every source yields
   (docs/architecture.md, sources);
 - conversion between dv-processing's containers and numpy arrays of :data:`EVENT_DTYPE`.
@@ -22,9 +24,7 @@ from __future__ import annotations
 import collections
 import itertools
 import os
-import shutil
 import struct
-import tempfile
 import threading
 import time
 from dataclasses import dataclass
@@ -49,6 +49,15 @@ AEDAT4_SUFFIX = ".aedat4"
 PACKET_EVENTS = 10_000
 #: The DAVIS-346's pixel array, (width, height) px.
 DAVIS346_RESOLUTION = (346, 260)
+#: The ``aedat`` decoder's event record: EVENT_DTYPE's layout (same offsets and sizes).
+AEDAT_EVENT_DTYPE = np.dtype([("t", "<u8"), ("x", "<u2"), ("y", "<u2"), (("p", "on"), "?")])
+#: The largest AEDAT4 header read (a real one is a few kB; a damaged size field must not make
+#: the reader allocate gigabytes).
+MAX_HEADER_BYTES = 16 << 20
+#: Timestamps above this (us, ~146 000 years) are damaged data: they would overflow int64 maths.
+MAX_TIMESTAMP_US = 1 << 62
+#: A pass over a file ends after this many damaged packets in a row (nothing left to read).
+MAX_CONSECUTIVE_ERRORS = 64
 #: What pybind11 turns dv-processing's C++ exceptions into (std::exception and its kinds).
 DV_ERRORS = (RuntimeError, ValueError, IndexError, MemoryError)
 
@@ -168,13 +177,13 @@ def _check_path(path: Path) -> None:
         )
 
 
-def _header_table_position(path: Path) -> tuple[int, int]:
-    """Read the AEDAT4 header: ``(byte offset of its dataTablePosition field, its value)``.
+def _read_header(path: Path) -> tuple[int, str]:
+    """Read the AEDAT4 header: ``(dataTablePosition, infoNode XML)``.
 
     The header is the version line, a little-endian uint32 size and an ``IOHeader`` flatbuffer
-    (fields: compression, dataTablePosition int64 default -1, infoNode). The offset is -1 when the
-    field is absent (the default, -1: no table). Raises RecordingError when the file is not
-    AEDAT4 or its header is incomplete.
+    (fields: compression, dataTablePosition int64 default -1 = no table, infoNode string, the
+    streams' description as XML). Raises RecordingError when the file is not AEDAT4 or its
+    header is incomplete or corrupt.
     """
     with open(path, "rb") as fh:
         head = fh.read(len(AEDAT4_MAGIC) + 4)
@@ -187,58 +196,56 @@ def _header_table_position(path: Path) -> tuple[int, int]:
         if len(head) < len(AEDAT4_MAGIC) + 4:
             raise RecordingError(f"{path}: truncated: the file ends inside its AEDAT4 header ({len(head)} bytes)")
         (size,) = struct.unpack_from("<I", head, len(AEDAT4_MAGIC))
-        header = fh.read(size)
+        header = fh.read(min(size, MAX_HEADER_BYTES))
     if len(header) < size:
-        raise RecordingError(f"{path}: truncated: the file ends inside its AEDAT4 header")
+        raise RecordingError(f"{path}: truncated or corrupt: the file ends inside its AEDAT4 header")
     try:
         (root,) = struct.unpack_from("<I", header, 0)
         (vtable_back,) = struct.unpack_from("<i", header, root)
         vtable = root - vtable_back
         (vtable_size,) = struct.unpack_from("<H", header, vtable)
-        field_offset = struct.unpack_from("<H", header, vtable + 6)[0] if vtable_size >= 8 else 0
-        if field_offset == 0:
-            return -1, -1
-        offset = len(AEDAT4_MAGIC) + 4 + root + field_offset
-        (position,) = struct.unpack_from("<q", header, root + field_offset)
+        fields = [struct.unpack_from("<H", header, vtable + 4 + 2 * i)[0] if vtable_size >= 6 + 2 * i else 0
+                  for i in range(3)]
+        position = struct.unpack_from("<q", header, root + fields[1])[0] if fields[1] else -1
+        xml = ""
+        if fields[2]:
+            start = root + fields[2] + struct.unpack_from("<I", header, root + fields[2])[0]
+            (length,) = struct.unpack_from("<I", header, start)
+            xml = header[start + 4:start + 4 + length].decode("utf-8", "replace")
     except struct.error:
         raise RecordingError(f"{path}: corrupt AEDAT4 header") from None
-    return offset, position
+    return position, xml
 
 
-def _open(path: Path) -> tuple["dv.io.MonoCameraRecording", str | None, tempfile.TemporaryDirectory | None]:
-    """Open ``path`` with dv-processing: ``(recording, why it is truncated or None, temp dir)``.
+def _camera_name(xml: str) -> str:
+    """The event stream's ``source`` (the camera name) in the header's XML, or "unknown"."""
+    import xml.etree.ElementTree as ElementTree
 
-    A file whose index table lies past its end (cut short) is opened through a copy whose header
-    says "no table", so dv-processing indexes every complete packet by scanning; the copy lives
-    in the returned temporary directory, which must stay alive as long as the recording.
-    """
-    import dv_processing as dv
-
-    _check_path(path)
-    offset, table_position = _header_table_position(path)
-    size = path.stat().st_size
     try:
-        return dv.io.MonoCameraRecording(str(path)), None, None
-    except DV_ERRORS as exc:
-        first_error = str(exc)
-    if offset < 0:  # no table to blame: the packets themselves are broken
-        raise RecordingError(f"{path}: corrupt AEDAT4 data ({dv_error_text(first_error)})")
-    if table_position >= size:
-        why = (f"truncated: the file is {size} bytes but its index table starts at byte "
-               f"{table_position}; the rest of the recording is missing")
-    else:
-        why = f"corrupt index table at byte {table_position} ({dv_error_text(first_error)})"
-    tmp = tempfile.TemporaryDirectory(prefix="nthid-aedat4-repair-")
-    copy = Path(tmp.name) / path.name
-    shutil.copyfile(path, copy)
-    with open(copy, "r+b") as fh:
-        fh.seek(offset)
-        fh.write(struct.pack("<q", -1))
-    try:
-        return dv.io.MonoCameraRecording(str(copy)), why, tmp
-    except DV_ERRORS as exc:
-        tmp.cleanup()
-        raise RecordingError(f"{path}: {why}, and no data could be read ({dv_error_text(str(exc))})") from None
+        root = ElementTree.fromstring(xml)
+    except ElementTree.ParseError:
+        return "unknown"
+    for node in root.iter("node"):
+        attrs = {a.get("key"): a.text for a in node.findall("attr")}
+        if attrs.get("typeIdentifier") == "EVTS":
+            for info in node.iter("node"):
+                source = {a.get("key"): a.text for a in info.findall("attr")}.get("source")
+                if source:
+                    return source
+    return "unknown"
+
+
+def _converted(raw: np.ndarray) -> np.ndarray:
+    """aedat's events (fields t, x, y, on) copied into EVENT_DTYPE, for a layout other than 13 bytes."""
+    events = np.empty(len(raw), EVENT_DTYPE)
+    events["timestamp"], events["x"], events["y"], events["polarity"] = raw["t"], raw["x"], raw["y"], raw["on"]
+    return events
+
+
+def _is_decoder_error(exc: BaseException) -> bool:
+    """Whether aedat raised ``exc`` about the file: its errors are Exceptions, a panic of its Rust
+    code is pyo3's ``PanicException`` (a BaseException); Ctrl-C and exits are not."""
+    return isinstance(exc, Exception) or type(exc).__name__ == "PanicException"
 
 
 def dv_error_text(message: str) -> str:
@@ -250,7 +257,13 @@ def dv_error_text(message: str) -> str:
 
 # --- reading ------------------------------------------------------------------------------------
 class RecordingReader:
-    """Reads an AEDAT4 recording's events and APS frames (dv-processing ``MonoCameraRecording``).
+    """Reads an AEDAT4 recording's events and APS frames (the ``aedat`` decoder, Rust).
+
+    The decoder reads the file's packets in order (it needs no index table) and cannot crash
+    or hang on damaged data: a packet that does not decompress, or whose events are out of the
+    sensor or out of time order, is skipped (numba's pipeline must never index with them), the
+    rest is read, and :meth:`stream` raises one RecordingError after yielding everything
+    readable. A file cut short is read up to the cut (docs/performance.md, Damaged recordings).
 
     Args:
         path: the ``.aedat4`` file.
@@ -260,8 +273,8 @@ class RecordingReader:
             ``(346, 260)`` for a DAVIS-346, or None for any.
 
     Raises:
-        RecordingError: missing file, not AEDAT4, no event stream, a requirement not met, or no
-            readable data at all. A truncated file opens; :meth:`stream` raises after the data.
+        RecordingError: missing file, not AEDAT4, corrupt header, no event stream, a requirement
+            not met. Damaged or cut data: from :meth:`stream`, :meth:`read_all` and :attr:`info`.
 
     Use as a context manager or call :meth:`close`. :meth:`stream` may be called more than once;
     each call reads the file from the start.
@@ -270,26 +283,31 @@ class RecordingReader:
     def __init__(self, path: str | os.PathLike, *, require_frames: bool = False,
                  require_resolution: tuple[int, int] | None = None) -> None:
         self.path = Path(path)
-        self._recording, self._truncated, self._tmp = _open(self.path)
-        rec = self._recording
-        self.camera_name: str = rec.getCameraName()
-        resolution = rec.getEventResolution()
-        if resolution is None or not rec.isEventStreamAvailable():
-            streams = ", ".join(rec.getStreamNames()) or "none"
-            raise RecordingError(f"{self.path}: has no event stream (streams: {streams})")
-        self.width, self.height = int(resolution[0]), int(resolution[1])
-        self.has_frames: bool = bool(rec.isFrameStreamAvailable())
+        _check_path(self.path)
+        table_position, xml = _read_header(self.path)
+        size = self.path.stat().st_size
+        self._truncated = (f"truncated: the file is {size} bytes but its index table starts at byte "
+                           f"{table_position}; the rest of the recording is missing") if table_position >= size else None
+        self._open = True
+        self.camera_name: str = _camera_name(xml)
+        streams = self._decoder().id_to_stream()
+        kinds = {info.get("type"): info for info in streams.values()}
+        if "events" not in kinds:
+            names = ", ".join(sorted(str(k) for k in kinds)) or "none"
+            raise RecordingError(f"{self.path}: has no event stream (streams: {names})")
+        self.width, self.height = int(kinds["events"]["width"]), int(kinds["events"]["height"])
+        self.has_frames: bool = "frame" in kinds
+        self._frame_size = ((int(kinds["frame"]["width"]), int(kinds["frame"]["height"]))
+                            if self.has_frames else None)
         if require_frames and not self.has_frames:
-            streams = ", ".join(rec.getStreamNames())
+            names = ", ".join(sorted(str(k) for k in kinds))
             raise RecordingError(
-                f"{self.path}: has no APS frame stream (streams: {streams}); frames are needed to "
+                f"{self.path}: has no APS frame stream (streams: {names}); frames are needed to "
                 f"find the markers: record with the DAVIS frame output enabled"
             )
         if require_resolution is not None:
             want = (int(require_resolution[0]), int(require_resolution[1]))
-            found = [("event", (self.width, self.height))]
-            if self.has_frames and rec.getFrameResolution() is not None:
-                found.append(("frame", tuple(int(v) for v in rec.getFrameResolution())))
+            found = [("event", (self.width, self.height))] + ([("frame", self._frame_size)] if self.has_frames else [])
             for kind, got in found:
                 if got != want:
                     raise RecordingError(
@@ -305,91 +323,104 @@ class RecordingReader:
         self.close()
 
     def close(self) -> None:
-        """Release the file (and the repaired copy of a truncated file)."""
-        self._recording = None
-        if self._tmp is not None:
-            self._tmp.cleanup()
-            self._tmp = None
-
-    @property
-    def indexed_duration_us(self) -> int:
-        """The recording's time span (us) as its index table says (dv-processing
-        ``getTimeRange``): read without decoding any data, e.g. for a progress bar's total.
-        A repaired truncated file's index may say less than the data holds; :attr:`info`
-        gives the exact span at the price of a pass over the file."""
-        if self._recording is None:
-            raise RecordingError(f"{self.path}: the reader is closed")
-        start, end = self._recording.getTimeRange()
-        return max(0, int(end) - int(start))
+        """Mark the reader closed (each read opens its own decoder and closes it at its end)."""
+        self._open = False
 
     @property
     def truncated(self) -> str | None:
-        """Why the file is truncated or its index is damaged, or None for a whole file."""
+        """Why the file is truncated, as its header tells (index table past the end), or None."""
         return self._truncated
 
-    def _reopen(self) -> "dv.io.MonoCameraRecording":
-        """A fresh reader on the same (possibly repaired) file, so reads never share a position."""
-        import dv_processing as dv
+    def _decoder(self):
+        """A fresh ``aedat.Decoder`` on the file, so reads never share a position."""
+        import aedat
 
-        if self._recording is None:
+        if not self._open:
             raise RecordingError(f"{self.path}: the reader is closed")
-        source = Path(self._tmp.name) / self.path.name if self._tmp is not None else self.path
-        return dv.io.MonoCameraRecording(str(source))
+        try:
+            return aedat.Decoder(str(self.path))
+        except BaseException as exc:
+            if not _is_decoder_error(exc):
+                raise
+            raise RecordingError(f"{self.path}: corrupt AEDAT4 file ({exc})") from None
 
-    def _error(self, what: str, exc: Exception) -> RecordingError:
-        return RecordingError(f"{self.path}: {what} ({dv_error_text(str(exc))})")
+    def _packets(self, damage: "_Damage") -> Iterator[np.ndarray | Frame]:
+        """The file's event arrays (EVENT_DTYPE) and Frames in file order, each checked.
 
-    def _event_packets(self, rec: "dv.io.MonoCameraRecording") -> Iterator["dv.EventStore"]:
-        """The event stream's packets in file order; corrupt data becomes RecordingError."""
+        Damaged packets are skipped and counted in ``damage``; a cut ends the pass.
+        """
+        decoder = iter(self._decoder())
+        last_event_us = last_frame_us = 0
         while True:
             try:
-                store = rec.getNextEventBatch()
-            except DV_ERRORS as exc:
-                raise self._error("corrupt event data", exc) from None
-            if store is None:
+                packet = next(decoder)
+            except StopIteration:
                 return
-            yield store
+            except BaseException as exc:
+                if not _is_decoder_error(exc):
+                    raise
+                if damage.add(str(exc)):
+                    return
+                continue
+            damage.consecutive = 0
+            if "events" in packet:
+                raw = packet["events"]
+                if not len(raw):
+                    continue
+                # aedat's event record (t u64, x u16, y u16, on bool; 13 bytes) has EVENT_DTYPE's
+                # layout: a view, no copy; checked before anything downstream indexes with it.
+                events = raw.view(EVENT_DTYPE) if raw.dtype == AEDAT_EVENT_DTYPE else _converted(raw)
+                t = events["timestamp"]
+                problem = (
+                    "events outside the sensor" if int(raw["x"].max()) >= self.width or int(raw["y"].max()) >= self.height
+                    or int(events["polarity"].view(np.uint8).max()) > 1
+                    else "events out of time order" if t[0] < last_event_us or int(raw["t"][-1]) > MAX_TIMESTAMP_US
+                    or bool(np.any(t[1:] < t[:-1])) else None
+                )
+                if problem:
+                    damage.add(problem)
+                    continue
+                last_event_us = int(t[-1])
+                yield events
+            elif "frame" in packet:
+                frame = packet["frame"]
+                pixels, t_us = frame["pixels"], int(frame["t"])
+                width, height = self._frame_size or (-1, -1)
+                if pixels.dtype != np.uint8 or pixels.shape[:2] != (height, width) or pixels.ndim not in (2, 3):
+                    damage.add(f"an APS frame of {pixels.dtype} {pixels.shape}, not {height}x{width} uint8")
+                    continue
+                if t_us < last_frame_us or t_us > MAX_TIMESTAMP_US:
+                    damage.add("APS frames out of time order")
+                    continue
+                last_frame_us = t_us
+                yield Frame(t_us, grey_image(pixels))
 
-    def _frames(self, rec: "dv.io.MonoCameraRecording") -> Iterator[Frame]:
-        """The APS frames in time order (none without a frame stream)."""
-        if not self.has_frames:
-            return
-        while True:
-            try:
-                frame = rec.getNextFrame()
-            except DV_ERRORS as exc:
-                raise self._error("corrupt APS frame data", exc) from None
-            if frame is None:
-                return
-            yield Frame(int(frame.timestamp), grey_image(frame.image))
-
-    def _raise_if_truncated(self, n_events: int, n_frames: int, last_us: int | None) -> None:
-        if self._truncated is not None:
+    def _raise_if_damaged(self, damage: "_Damage", n_events: int, n_frames: int, last_us: int | None) -> None:
+        why = damage.describe() or self._truncated
+        if why is not None:
             upto = f" up to t={last_us} us" if last_us is not None else ""
-            raise RecordingError(f"{self.path}: {self._truncated} (read {n_events} events and "
-                                 f"{n_frames} frames{upto})")
+            raise RecordingError(f"{self.path}: {why} (read {n_events} events and {n_frames} frames{upto})")
 
     @cached_property
     def info(self) -> RecordingInfo:
         """Exact counts and time span, from one pass over the file (cached).
 
-        Events are counted per packet without conversion; frames are decoded one at a time.
-        Raises RecordingError for a truncated file (counts would not be the recording's).
+        Raises RecordingError for a truncated or damaged file (counts would not be the recording's).
         """
-        rec = self._reopen()
-        n_events, first, last = 0, None, None
-        for store in self._event_packets(rec):
-            if len(store):
-                n_events += len(store)
-                first = store.getLowestTime() if first is None else first
-                last = store.getHighestTime()
-        n_frames = 0
-        for frame in self._frames(rec):
-            n_frames += 1
-            first = frame.t_us if first is None else min(first, frame.t_us)
-            last = frame.t_us if last is None else max(last, frame.t_us)
-        self._raise_if_truncated(n_events, n_frames, last)
-        start, end = (int(first), int(last)) if first is not None else (0, 0)
+        damage = _Damage()
+        n_events = n_frames = 0
+        first = last = None
+        for item in self._packets(damage):
+            if isinstance(item, Frame):
+                n_frames += 1
+                lo = hi = item.t_us
+            else:
+                n_events += len(item)
+                lo, hi = int(item["timestamp"][0]), int(item["timestamp"][-1])
+            first = lo if first is None else min(first, lo)
+            last = hi if last is None else max(last, hi)
+        self._raise_if_damaged(damage, n_events, n_frames, last)
+        start, end = (first, last) if first is not None else (0, 0)
         return RecordingInfo(self.path, self.camera_name, self.width, self.height, start, end,
                              end - start, n_events, n_frames)
 
@@ -403,13 +434,12 @@ class RecordingReader:
 
         Raises:
             RecordingError: after yielding everything readable, when the file is truncated or
-                corrupt.
+                damaged.
         """
         if batch_us <= 0:
             raise ValueError(f"batch_us must be positive, got {batch_us}")
-        rec = self._reopen()
-        frames = self._frames(rec)
-        events = (events_from_store(store) for store in self._event_packets(rec))
+        damage = _Damage()
+        events, frames = _by_kind(self._packets(damage), with_frames=self.has_frames)
         n_events = n_frames = 0
         last_us = None
         for item in merge_stream(events, frames, batch_us):
@@ -420,20 +450,69 @@ class RecordingReader:
                 n_events += len(item)
                 last_us = int(item["timestamp"][-1]) if last_us is None else max(last_us, int(item["timestamp"][-1]))
             yield item
-        self._raise_if_truncated(n_events, n_frames, last_us)
+        self._raise_if_damaged(damage, n_events, n_frames, last_us)
 
     def read_all(self) -> tuple[np.ndarray, list[Frame]]:
         """All events (one EVENT_DTYPE array, time-ordered) and all APS frames (time-ordered).
 
-        Raises RecordingError for a truncated or corrupt file.
+        Raises RecordingError for a truncated or damaged file.
         """
-        rec = self._reopen()
-        chunks = [events_from_store(store) for store in self._event_packets(rec)]
-        frames = list(self._frames(rec))
+        damage = _Damage()
+        chunks, frames = [], []
+        for item in self._packets(damage):
+            (frames if isinstance(item, Frame) else chunks).append(item)
         events = np.concatenate(chunks) if chunks else np.zeros(0, EVENT_DTYPE)
         last = max([int(t) for t in events["timestamp"][-1:]] + [f.t_us for f in frames[-1:]], default=None)
-        self._raise_if_truncated(len(events), len(frames), last)
+        self._raise_if_damaged(damage, len(events), len(frames), last)
         return events, frames
+
+
+class _Damage:
+    """What one pass over a file found wrong: skipped packets, and whether the file was cut."""
+
+    def __init__(self) -> None:
+        self.skipped = 0
+        self.first: str | None = None
+        self.cut = False
+        self.consecutive = 0
+
+    def add(self, problem: str) -> bool:
+        """Count a damaged packet; True when the pass must end (the file ends inside a packet, or
+        :data:`MAX_CONSECUTIVE_ERRORS` packets in a row are damaged)."""
+        if "fill whole buffer" in problem:  # Rust's UnexpectedEof: the file ends inside a packet
+            self.cut = True
+            return True
+        self.skipped += 1
+        self.first = self.first or problem
+        self.consecutive += 1
+        return self.consecutive >= MAX_CONSECUTIVE_ERRORS
+
+    def describe(self) -> str | None:
+        parts = []
+        if self.skipped:
+            parts.append(f"corrupt: {self.skipped} damaged packet(s) skipped (the first: {self.first})")
+        if self.cut:
+            parts.append("truncated: the file ends inside a packet (cut short, or a damaged packet size); "
+                         "the rest of the recording is missing")
+        return "; ".join(parts) or None
+
+
+def _by_kind(items: Iterator[np.ndarray | Frame], *, with_frames: bool) -> tuple[Iterator[np.ndarray], Iterator[Frame]]:
+    """Split one pass of event arrays and Frames into an event iterator and a frame iterator,
+    each reading ahead in the shared pass only as far as it needs (merge_stream's two inputs)."""
+    queues: dict[bool, collections.deque] = {True: collections.deque(), False: collections.deque()}
+
+    def side(frames: bool) -> Iterator:
+        own = queues[frames]
+        while True:
+            while not own:
+                item = next(items, None)
+                if item is None:
+                    return
+                queues[isinstance(item, Frame)].append(item)
+            yield own.popleft()
+
+    return side(False), side(True) if with_frames else iter(())
 
 
 def merge_stream(event_chunks: Iterable[np.ndarray], frames: Iterable[Frame],
@@ -500,13 +579,15 @@ def read_info(path: str | os.PathLike) -> RecordingInfo:
 
 # --- writing ------------------------------------------------------------------------------------
 class RecordingWriter:
-    """Writes an AEDAT4 recording with dv-processing's ``MonoCameraWriter`` (LZ4-compressed).
+    """Writes an AEDAT4 recording with dv-processing's ``MonoCameraWriter`` (LZ4 by default).
 
     Args:
         path: the file to create (must end in ``.aedat4``; its folder must exist).
         width, height: the sensor resolution, px.
         camera_name: the camera (source) name stored in the file.
         frames: also create an APS frame stream (``DAVISConfig``); False writes events only.
+        compression: the packets' compression, a ``dv_processing.CompressionType`` name: NONE,
+            LZ4, LZ4_HIGH, ZSTD or ZSTD_HIGH.
 
     Events are buffered and written in packets of :data:`PACKET_EVENTS`. The file is complete
     (index table written) once :meth:`close` returns; use as a context manager.
@@ -517,7 +598,8 @@ class RecordingWriter:
     """
 
     def __init__(self, path: str | os.PathLike, *, width: int = 346, height: int = 260,
-                 camera_name: str = "NeuroTouch-sim_DAVIS346", frames: bool = True) -> None:
+                 camera_name: str = "NeuroTouch-sim_DAVIS346", frames: bool = True,
+                 compression: str = "LZ4") -> None:
         import dv_processing as dv
 
         self.path = Path(path)
@@ -530,6 +612,9 @@ class RecordingWriter:
             raise RecordingError(f"{self.path}: cannot write, it is a directory")
         make = dv.io.MonoCameraWriter.DAVISConfig if frames else dv.io.MonoCameraWriter.EventOnlyConfig
         config = make(camera_name, (self.width, self.height))
+        if compression not in dv.CompressionType.__members__:
+            raise RecordingError(f"compression {compression!r}: expected one of {', '.join(dv.CompressionType.__members__)}")
+        config.compression = dv.CompressionType.__members__[compression]
         try:
             self._writer = dv.io.MonoCameraWriter(str(self.path), config)
         except DV_ERRORS as exc:

@@ -1,0 +1,129 @@
+"""A read-only install: the package, its Python environment and the home folder cannot be written.
+
+Each test runs the real command in a mount namespace (``unshare -rm``, util-linux) where the
+package's folder, ``sys.prefix`` and a fresh HOME are read-only bind mounts: a system package
+and a kiosk account, or a service with ProtectSystem=strict and ProtectHome=read-only. numba's
+``cache=True`` finds no folder of its own there; the driver must start anyway (jit_cache.py).
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import neurotouch_hid
+
+PACKAGE = Path(neurotouch_hid.__file__).resolve().parent
+MEMORY_LINE = "no writable cache folder (package, XDG cache, $XDG_RUNTIME_DIR): numba compiles the pipeline"
+
+
+def _namespaces_work() -> str | None:
+    if shutil.which("unshare") is None:
+        return "util-linux's unshare is not installed"
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as folder:
+        probe = subprocess.run(["unshare", "-rm", "sh", "-c", 'mount --bind "$0" "$0" && mount -o remount,bind,ro "$0"'
+                                ' && ! touch "$0/x" 2>/dev/null', folder], capture_output=True, text=True)
+    return None if probe.returncode == 0 else f"no mount namespaces here: {probe.stderr.strip()}"
+
+
+pytestmark = pytest.mark.skipif(_namespaces_work() is not None, reason=str(_namespaces_work()))
+
+
+def run_read_only(tmp_path: Path, *args: str, env: dict[str, str]) -> subprocess.CompletedProcess:
+    """``python -m neurotouch_hid.cli ARGS`` with the package, sys.prefix and HOME mounted read-only."""
+    home = tmp_path / "home"
+    home.mkdir(exist_ok=True)
+    read_only = [PACKAGE.parent if (PACKAGE.parent / "pyproject.toml").exists() else PACKAGE,
+                 Path(sys.prefix).resolve(), home]
+    mounts = " && ".join(f"mount --bind {shlex.quote(str(d))} {shlex.quote(str(d))} && "
+                         f"mount -o remount,bind,ro {shlex.quote(str(d))}" for d in read_only)
+    command = " ".join(shlex.quote(a) for a in (sys.executable, "-m", "neurotouch_hid.cli", *args))
+    full_env = {"PATH": "/usr/bin:/bin", "HOME": str(home), "LANG": "C.UTF-8", **env}
+    return subprocess.run(["unshare", "-rm", "sh", "-c", f"{mounts} && exec {command}"], capture_output=True,
+                          text=True, env=full_env, cwd=tmp_path, stdin=subprocess.DEVNULL, timeout=600)
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory) -> Path:
+    """One second of the simulated gel, recorded as a user would (AEDAT4, APS frames)."""
+    path = tmp_path_factory.mktemp("rec") / "gel.aedat4"
+    subprocess.run([sys.executable, "-m", "neurotouch_hid.cli", "record", str(path), "--source", "sim", "--fast",
+                    "--seconds", "1"], check=True, capture_output=True, timeout=600)
+    return path
+
+
+def assert_clean(result: subprocess.CompletedProcess) -> None:
+    assert "Traceback" not in result.stderr and result.returncode == 0, result.stderr
+
+
+def assert_states(path: Path) -> None:
+    """``run --output jsonl`` wrote gamepad states (one JSON object a line, with the axes)."""
+    lines = path.read_text().splitlines()
+    assert lines and all("axes" in json.loads(line) for line in lines), path
+
+
+def test_no_writable_folder_compiles_at_start_and_runs(tmp_path, recording):
+    """Nothing writable but the output's folder: `run` starts, says so in one line, and works."""
+    out = tmp_path / "states.jsonl"
+    result = run_read_only(tmp_path, "run", "--source", str(recording), "--output", "jsonl", "--fast",
+                           "--out", str(out), env={})
+    assert_clean(result)
+    assert result.stderr.count(MEMORY_LINE) == 1, result.stderr
+    assert_states(out)
+    doctor = run_read_only(tmp_path, "doctor", env={})
+    assert MEMORY_LINE in doctor.stdout and "removed at exit" in doctor.stdout, doctor.stdout
+
+
+def test_runtime_dir_caches_track_and_run(tmp_path, recording):
+    """With $XDG_RUNTIME_DIR writable, `track` compiles once into it, and `run` reuses that."""
+    runtime = tmp_path / "run-user"
+    runtime.mkdir()
+    env = {"XDG_RUNTIME_DIR": str(runtime)}
+    predictions = tmp_path / "pred.jsonl"
+    track = run_read_only(tmp_path, "track", str(recording), "--out", str(predictions), env=env)
+    assert_clean(track)
+    assert MEMORY_LINE not in track.stderr
+    assert len(predictions.read_text().splitlines()) > 50
+    cache = runtime / "neurotouch-hid" / "numba"
+    assert list(cache.rglob("*.nbi")), f"nothing cached in {cache}"
+    states = tmp_path / "states.jsonl"
+    run = run_read_only(tmp_path, "run", "--source", str(recording), "--output", "jsonl", "--fast", "--out",
+                        str(states), env=env)
+    assert_clean(run)
+    assert_states(states)
+    doctor = run_read_only(tmp_path, "doctor", env=env)
+    assert f"runtime dir: {cache}" in doctor.stdout, doctor.stdout
+
+
+@pytest.mark.parametrize("writable", ["service", "xdg-cache", "runtime", "none"])
+def test_cache_folder_choice(tmp_path, writable):
+    """The choice's order: systemd's CacheDirectory, the user's XDG cache folder, then
+    $XDG_RUNTIME_DIR, then a temporary folder (removed at exit)."""
+    env = {"XDG_RUNTIME_DIR": str(tmp_path / "run-user")} if writable != "none" else {}
+    if writable in ("service", "xdg-cache"):
+        env["XDG_CACHE_HOME"] = str(tmp_path / "cache")
+    if writable == "service":
+        env["CACHE_DIRECTORY"] = str(tmp_path / "unit-cache")
+    code = "from neurotouch_hid.jit_cache import chosen; c = chosen(); print(c.kind, c.folder)"
+    home = tmp_path / "home"
+    home.mkdir()
+    mounts = " && ".join(f"mount --bind {d} {d} && mount -o remount,bind,ro {d}"
+                         for d in (shlex.quote(str(PACKAGE)), shlex.quote(str(home))))
+    result = subprocess.run(["unshare", "-rm", "sh", "-c", f"{mounts} && exec {shlex.quote(sys.executable)} -c "
+                             f"{shlex.quote(code)}"], capture_output=True, text=True, timeout=120,
+                            env={"PATH": "/usr/bin:/bin", "HOME": str(home), **env})
+    assert result.returncode == 0, result.stderr
+    expected = {"service": f"service cache {tmp_path / 'unit-cache' / 'numba'}",
+                "xdg-cache": f"user cache {tmp_path / 'cache' / 'neurotouch-hid' / 'numba'}",
+                "runtime": f"runtime dir {tmp_path / 'run-user' / 'neurotouch-hid' / 'numba'}",
+                "none": "temporary"}[writable]
+    assert result.stdout.strip().startswith(expected), result.stdout
+
