@@ -1,6 +1,6 @@
 """Host side of the real-kernel tests: get qemu and Debian's generic kernel, boot it once.
 
-This machine's own kernel has no uinput (see /work/shared/kernel-tests.md), so the tests boot
+This machine's own kernel has no uinput (tests/kernel/README.md, "Why a kernel under qemu"), so the tests boot
 Debian's generic ``linux-image-*-amd64`` under qemu with virtme-ng (``vng``), sharing the host's
 root file system read-only, and run ``tests/kernel/guest.py`` inside. The guest script runs every
 guest check (``tests/kernel/checks_*.py``) in that one boot and writes a JSON file into a
