@@ -140,12 +140,18 @@ def main() -> None:
         bases = {"gel (ZSTD)": gel_recording(tmp / "gel.aedat4", args.gel_seconds)}
         if STREET.exists():
             bases["street (LZ4)"] = STREET
-        print("\n| file | damage | copies | dv-processing: read / error / hang / crash | aedat: read / error / hang / crash |")
+        print(
+            "\n| file | damage | copies | dv-processing: read / error / hang / crash "
+            "| aedat: read / error / hang / crash |"
+        )
         print("| --- | --- | ---: | --- | --- |")
         for name, base in bases.items():
             data = base.read_bytes()
-            for label, kind, copies, seed0 in (("1-32 flipped bits", "flip", 10, 0), ("cut", "cut", 5, 100),
-                                               ("2 packets swapped", "swap", 5, 200)):
+            for label, kind, copies, seed0 in (
+                ("1-32 flipped bits", "flip", 10, 0),
+                ("cut", "cut", 5, 100),
+                ("2 packets swapped", "swap", 5, 200),
+            ):
                 tally = {"dv": Counter(), "aedat": Counter()}
                 for seed in range(seed0, seed0 + copies):
                     path = tmp / "damaged.aedat4"
@@ -156,8 +162,10 @@ def main() -> None:
                 print(f"| {name} | {label} | {copies} | {cells[0]} | {cells[1]} |", flush=True)
 
         print("\nM events/s by CPU time (process and children, all threads) and, in brackets, by wall time")
-        print("\n| synthetic recording | dv-processing in the process | dv-processing in a child (pipe) "
-              "| aedat (RecordingReader.read_all) | aedat, time-ordered batches (RecordingReader.stream) |")
+        print(
+            "\n| synthetic recording | dv-processing in the process | dv-processing in a child (pipe) "
+            "| aedat (RecordingReader.read_all) | aedat, time-ordered batches (RecordingReader.stream) |"
+        )
         print("| --- | ---: | ---: | ---: | ---: |")
         import dv_processing as dv
 
@@ -189,8 +197,12 @@ def main() -> None:
                 wall, after = time.perf_counter() - wall, os.times()
                 cpu = sum(after[:4]) - sum(before[:4])
                 cells.append(f"{n / cpu / 1e6:.1f} ({n / wall / 1e6:.1f})")
-            print(f"| {args.events / 1e6:g} M events, 60 s, APS frames at 25 Hz, {compression} | "
-                  + " | ".join(cells) + " |", flush=True)
+            print(
+                f"| {args.events / 1e6:g} M events, 60 s, APS frames at 25 Hz, {compression} | "
+                + " | ".join(cells)
+                + " |",
+                flush=True,
+            )
     print(f"\nload average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
 
 

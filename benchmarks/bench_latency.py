@@ -35,15 +35,15 @@ from pathlib import Path
 
 import numpy as np
 
+from neurotouch_hid.driver import build_pipeline
 from neurotouch_hid.mapping.profile import load_profile
 from neurotouch_hid.output.jsonl import StateJsonlWriter
-from neurotouch_hid.driver import build_pipeline
 from neurotouch_hid.runtime import Runtime
-from neurotouch_hid.stats import RunStats
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.recording import RecordingReader, RecordingWriter, merge_stream
 from neurotouch_hid.sources.simulator import SimulatedSource
+from neurotouch_hid.stats import RunStats
 
 PAGE = os.sysconf("SC_PAGE_SIZE")
 
@@ -132,13 +132,17 @@ def run(stream, sensor: SensorGeometry, window_us: int, *, pace: bool, output=No
 
 def show(name: str, stats: RunStats) -> None:
     rate = stats.events / stats.wall_s if stats.wall_s else 0.0
-    line = (f"{name}: {stats.windows} windows, {stats.events} events in {stats.wall_s:.1f} s wall "
-            f"({rate / 1e6:.2f} M events/s), dropped {stats.dropped_items} items ({stats.dropped_events} events), "
-            f"resting detector skipped {stats.resting_dropped_frames} frames; "
-            f"processing latency p50 {stats.latency.percentile_us(50):.0f} us p99 {stats.latency.percentile_us(99):.0f} us")
+    line = (
+        f"{name}: {stats.windows} windows, {stats.events} events in {stats.wall_s:.1f} s wall "
+        f"({rate / 1e6:.2f} M events/s), dropped {stats.dropped_items} items ({stats.dropped_events} events), "
+        f"resting detector skipped {stats.resting_dropped_frames} frames; "
+        f"processing latency p50 {stats.latency.percentile_us(50):.0f} us p99 {stats.latency.percentile_us(99):.0f} us"
+    )
     if len(stats.window_latency):
-        line += (f"; window latency p50 {stats.window_latency.percentile_us(50):.0f} us "
-                 f"p99 {stats.window_latency.percentile_us(99):.0f} us")
+        line += (
+            f"; window latency p50 {stats.window_latency.percentile_us(50):.0f} us "
+            f"p99 {stats.window_latency.percentile_us(99):.0f} us"
+        )
     print(line, flush=True)
 
 
@@ -175,9 +179,12 @@ def stages(events: np.ndarray, frames: list[Frame], sensor: SensorGeometry, wind
     cpu = time.process_time() - t0
     parts = ", ".join(f"{name} {sum(v) / 1e9:.3f} s" for name, v in pipeline.cpu_timings.items())
     per = np.array(closing) / 1e3
-    print(f"pipeline alone, {window_us} us windows: {len(events)} events, {windows} windows in {cpu:.2f} s CPU "
-          f"({len(events) / cpu / 1e6:.2f} M events/s); CPU per stage: {parts}; CPU per item closing a window "
-          f"p50 {np.percentile(per, 50):.0f} us p99 {np.percentile(per, 99):.0f} us", flush=True)
+    print(
+        f"pipeline alone, {window_us} us windows: {len(events)} events, {windows} windows in {cpu:.2f} s CPU "
+        f"({len(events) / cpu / 1e6:.2f} M events/s); CPU per stage: {parts}; CPU per item closing a window "
+        f"p50 {np.percentile(per, 50):.0f} us p99 {np.percentile(per, 99):.0f} us",
+        flush=True,
+    )
 
 
 def main() -> None:
@@ -188,8 +195,12 @@ def main() -> None:
     ap.add_argument("--rss-minutes", type=float, default=30.0, help="simulated session length of the memory case")
     ap.add_argument("--workdir", type=Path, default=None, help="keep the recording here")
     ap.add_argument("--skip", nargs="*", default=[], choices=["latency", "rate", "rss"])
-    ap.add_argument("--busy", action=argparse.BooleanOptionalAction, default=True,
-                    help="also run the 10 ms latency case with a CPU-bound process beside the driver (default on)")
+    ap.add_argument(
+        "--busy",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="also run the 10 ms latency case with a CPU-bound process beside the driver (default on)",
+    )
     args = ap.parse_args()
     folder = args.workdir or Path(tempfile.mkdtemp(prefix="bench-latency-"))
     folder.mkdir(parents=True, exist_ok=True)
@@ -199,8 +210,11 @@ def main() -> None:
     events, frames = load(path)
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores", flush=True)
     span_s = (int(events["timestamp"][-1]) - frames[0].t_us) / 1e6
-    print(f"recording {path}: {len(events)} events, {len(frames)} frames, {span_s:.1f} s, "
-          f"mean {len(events) / span_s / 1e3:.0f} k events/s (made/read in {time.perf_counter() - t:.1f} s)", flush=True)
+    print(
+        f"recording {path}: {len(events)} events, {len(frames)} frames, {span_s:.1f} s, "
+        f"mean {len(events) / span_s / 1e3:.0f} k events/s (made/read in {time.perf_counter() - t:.1f} s)",
+        flush=True,
+    )
     base10 = items(events, frames, 1000)
     run(iter(base10[:200]), sensor, 10_000, pace=False)  # warm-up: numba compiles, caches load
 
@@ -220,17 +234,25 @@ def main() -> None:
             from neurotouch_hid.output.gamepad import VirtualGamepad
 
             with VirtualGamepad() as pad:
-                show("real time, 10 ms windows, uinput gamepad", run(iter(base10), sensor, 10_000, pace=True, output=pad))
+                show(
+                    "real time, 10 ms windows, uinput gamepad", run(iter(base10), sensor, 10_000, pace=True, output=pad)
+                )
         else:
             print("uinput gamepad: skipped, /dev/uinput is not writable here", flush=True)
 
     if "rate" not in args.skip:
         factor = args.rate * span_s / len(events)
         ev, fr = compressed(events, frames, factor)
-        print(f"time compressed x{factor:.1f}: {len(ev)} events over {(int(ev['timestamp'][-1]) - fr[0].t_us) / 1e6:.2f} s "
-              f"= {args.rate / 1e6:.1f} M events/s, {len(fr)} frames; looped for {args.rate_seconds:g} s", flush=True)
-        show(f"real time, 1 ms windows, {args.rate / 1e6:.1f} M events/s",
-             run(looped(ev, fr, 1000, int(args.rate_seconds * 1e6)), sensor, 1000, pace=True))
+        print(
+            f"time compressed x{factor:.1f}: {len(ev)} events over "
+            f"{(int(ev['timestamp'][-1]) - fr[0].t_us) / 1e6:.2f} s "
+            f"= {args.rate / 1e6:.1f} M events/s, {len(fr)} frames; looped for {args.rate_seconds:g} s",
+            flush=True,
+        )
+        show(
+            f"real time, 1 ms windows, {args.rate / 1e6:.1f} M events/s",
+            run(looped(ev, fr, 1000, int(args.rate_seconds * 1e6)), sensor, 1000, pace=True),
+        )
         stages(ev, fr, sensor, 1000)
 
     if "latency" not in args.skip:
@@ -248,10 +270,18 @@ def main() -> None:
         rss = np.array([r for _, r in sampler.samples]) / 2**20
         n = len(rss)
         if n:
-            q = [rss[: max(1, n // 10)].mean(), rss[n // 2 - n // 20: n // 2 + n // 20 + 1].mean(), rss[-max(1, n // 10):].mean()]
-            print(f"RSS over {stats.wall_s:.0f} s ({stats.stream_us / 60e6:.1f} simulated minutes): first tenth {q[0]:.1f} MiB, "
-                  f"middle {q[1]:.1f} MiB, last tenth {q[2]:.1f} MiB, max {rss.max():.1f} MiB, "
-                  f"min {rss.min():.1f} MiB", flush=True)
+            q = [
+                rss[: max(1, n // 10)].mean(),
+                rss[n // 2 - n // 20 : n // 2 + n // 20 + 1].mean(),
+                rss[-max(1, n // 10) :].mean(),
+            ]
+            print(
+                f"RSS over {stats.wall_s:.0f} s ({stats.stream_us / 60e6:.1f} simulated minutes): "
+                f"first tenth {q[0]:.1f} MiB, "
+                f"middle {q[1]:.1f} MiB, last tenth {q[2]:.1f} MiB, max {rss.max():.1f} MiB, "
+                f"min {rss.min():.1f} MiB",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

@@ -29,10 +29,17 @@ def estimates(n: int) -> list[GestureEstimate]:
         phase = (i // 50) % (2 * len(cycle))
         gesture = cycle[phase // 2] if phase % 2 == 0 else GestureType.NONE
         active = gesture is not GestureType.NONE
-        out.append(GestureEstimate(
-            t_us=10_000 * i, gesture=gesture, resting=not active, intensity_mm=float(rng.uniform(1, 9)) if active else 0.0,
-            contacts_px=np.zeros((1, 2)), contacts_mm=rng.uniform(-20, 20, (1, 2)),
-            translation_mm=rng.normal(size=2)))
+        out.append(
+            GestureEstimate(
+                t_us=10_000 * i,
+                gesture=gesture,
+                resting=not active,
+                intensity_mm=float(rng.uniform(1, 9)) if active else 0.0,
+                contacts_px=np.zeros((1, 2)),
+                contacts_mm=rng.uniform(-20, 20, (1, 2)),
+                translation_mm=rng.normal(size=2),
+            )
+        )
     return out
 
 
@@ -51,8 +58,10 @@ def main() -> None:
             mapper.update(e)
         wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
         per_cpu = cpu / len(stream)
-        print(f"| {path.stem} | {len(profile.mappings)} | {wall / len(stream) * 1e6:.1f} | {per_cpu * 1e6:.1f} | "
-              f"{1 / per_cpu:,.0f} | {1e-3 / per_cpu:.0f} |")
+        print(
+            f"| {path.stem} | {len(profile.mappings)} | {wall / len(stream) * 1e6:.1f} | {per_cpu * 1e6:.1f} | "
+            f"{1 / per_cpu:,.0f} | {1e-3 / per_cpu:.0f} |"
+        )
 
 
 if __name__ == "__main__":

@@ -98,20 +98,36 @@ def time_filter(name: str, time_us: int, batches: list[np.ndarray], sensor: Sens
         got = again(batch)
         pipeline.append(time.thread_time() - c0)
         assert np.array_equal(got, k)
-    return {"to_store": np.array(to_store), "core": np.array(core), "from_store": np.array(from_store),
-            "total": np.array(total), "pipeline": np.array(pipeline), "kept": kept}
+    return {
+        "to_store": np.array(to_store),
+        "core": np.array(core),
+        "from_store": np.array(from_store),
+        "total": np.array(total),
+        "pipeline": np.array(pipeline),
+        "kept": kept,
+    }
 
 
-def selectivity(sensor: SensorGeometry, seconds: float, rates: list[float], filters: list[tuple[str, int]],
-                seed: int, console: Console) -> None:
+def selectivity(
+    sensor: SensorGeometry,
+    seconds: float,
+    rates: list[float],
+    filters: list[tuple[str, int]],
+    seed: int,
+    console: Console,
+) -> None:
     """% of marker events and of injected noise each filter keeps (module docstring)."""
     sim = GelSimulator(sensor, USERS[0], SIM_GESTURES, seed=seed, stream_seed=(seed,), noise_rate_hz=0.0)
     markers = np.concatenate([chunk.events for chunk in sim.run(seconds)])
-    hot = np.isin(markers["y"].astype(np.int64) * sensor.width + markers["x"],
-                  sim.camera.hot_y.astype(np.int64) * sensor.width + sim.camera.hot_x)
+    hot = np.isin(
+        markers["y"].astype(np.int64) * sensor.width + markers["x"],
+        sim.camera.hot_y.astype(np.int64) * sensor.width + sim.camera.hot_x,
+    )
     markers = markers[~hot]
     t0, t1 = int(markers["timestamp"][0]), int(markers["timestamp"][-1]) + 1
-    table = Table(title=f"what the filters keep: {len(markers):,} marker events over {(t1 - t0) / 1e6:.1f} s + injected noise")
+    table = Table(
+        title=f"what the filters keep: {len(markers):,} marker events over {(t1 - t0) / 1e6:.1f} s + injected noise"
+    )
     for col in ("noise Hz/px", "filter", "time us", "marker events kept %", "noise kept %", "1 - exp(-8 r T) %"):
         table.add_column(col, justify="left" if col == "filter" else "right")
     rng = np.random.default_rng(seed + 1)
@@ -125,15 +141,29 @@ def selectivity(sensor: SensorGeometry, seconds: float, rates: list[float], filt
         is_marker = np.r_[np.ones(len(markers), bool), np.zeros(n, bool)]
         order = np.argsort(events["timestamp"], kind="stable")
         events, is_marker = events[order], is_marker[order]
-        key = ((events["timestamp"].astype(np.int64) * sensor.width + events["x"]) * sensor.height + events["y"]) * 2 + events["polarity"]
+        key = (
+            (events["timestamp"].astype(np.int64) * sensor.width + events["x"]) * sensor.height + events["y"]
+        ) * 2 + events["polarity"]
         for name, time_us in filters:
             f = EventNoiseFilter(name, sensor.width, sensor.height, time_us)
             out = np.concatenate([f(b) for b in split_batches(events, 1000)])
-            out_key = ((out["timestamp"].astype(np.int64) * sensor.width + out["x"]) * sensor.height + out["y"]) * 2 + out["polarity"]
+            out_key = (
+                (out["timestamp"].astype(np.int64) * sensor.width + out["x"]) * sensor.height + out["y"]
+            ) * 2 + out["polarity"]
             kept = np.isin(key, out_key)
-            rule = f"{100 * (1 - np.exp(-8 * rate * time_us * 1e-6)):.1f}" if name == "BackgroundActivityNoiseFilter" else "-"
-            table.add_row(f"{rate:g}", name.removesuffix("NoiseFilter"), str(time_us), f"{100 * kept[is_marker].mean():.1f}",
-                          f"{100 * kept[~is_marker].mean():.1f}", rule)
+            rule = (
+                f"{100 * (1 - np.exp(-8 * rate * time_us * 1e-6)):.1f}"
+                if name == "BackgroundActivityNoiseFilter"
+                else "-"
+            )
+            table.add_row(
+                f"{rate:g}",
+                name.removesuffix("NoiseFilter"),
+                str(time_us),
+                f"{100 * kept[is_marker].mean():.1f}",
+                f"{100 * kept[~is_marker].mean():.1f}",
+                rule,
+            )
     console.print(table)
 
 
@@ -148,16 +178,35 @@ def parse_filter(text: str) -> tuple[str, int]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=20.0, help="simulated seconds per noise rate (default 20)")
-    parser.add_argument("--noise-hz", type=float, nargs="+", default=[0.1, 1.0, 3.0],
-                        help="background activity per pixel, Hz (default 0.1 1 3)")
-    parser.add_argument("--batch-us", type=int, nargs="+", default=[1000, 10_000], help="batch lengths, us (default 1000 10000)")
-    parser.add_argument("--filter", type=parse_filter, nargs="+", dest="filters",
-                        default=[(name, us) for name, us in NOISE_FILTERS.items()],
-                        help="NAME or NAME:US (default: each filter with the library's default time)")
+    parser.add_argument(
+        "--noise-hz",
+        type=float,
+        nargs="+",
+        default=[0.1, 1.0, 3.0],
+        help="background activity per pixel, Hz (default 0.1 1 3)",
+    )
+    parser.add_argument(
+        "--batch-us", type=int, nargs="+", default=[1000, 10_000], help="batch lengths, us (default 1000 10000)"
+    )
+    parser.add_argument(
+        "--filter",
+        type=parse_filter,
+        nargs="+",
+        dest="filters",
+        default=[(name, us) for name, us in NOISE_FILTERS.items()],
+        help="NAME or NAME:US (default: each filter with the library's default time)",
+    )
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--selectivity-rates", type=float, nargs="*", default=[0.1, 1.0, 3.0, 5.0, 10.0],
-                        help="noise rates (Hz/px) of the selectivity table; none: skip it (default 0.1 1 3 5 10)")
-    parser.add_argument("--cost", action=argparse.BooleanOptionalAction, default=True, help="the cost table (default on)")
+    parser.add_argument(
+        "--selectivity-rates",
+        type=float,
+        nargs="*",
+        default=[0.1, 1.0, 3.0, 5.0, 10.0],
+        help="noise rates (Hz/px) of the selectivity table; none: skip it (default 0.1 1 3 5 10)",
+    )
+    parser.add_argument(
+        "--cost", action=argparse.BooleanOptionalAction, default=True, help="the cost table (default on)"
+    )
     args = parser.parse_args()
     console = make_console()
     sensor = SensorGeometry()
@@ -170,10 +219,24 @@ def main() -> None:
     if not args.cost:
         return
     table = Table(title=f"noise filter cost, {args.seconds:g} simulated s per rate (CPU time of one thread)")
-    for col in ("noise Hz/px", "batch us", "filter", "time us", "M events in", "kept %", "M ev/s filter+conv",
-                "M ev/s filter alone", "conv share %", "M ev/s pipeline's call", "us/batch median", "us/batch p99",
-                "core % (real time)", "filter / tracker", "(filter + tracker kept) / tracker all",
-                "M ev/s event path (filter + tracker)"):
+    for col in (
+        "noise Hz/px",
+        "batch us",
+        "filter",
+        "time us",
+        "M events in",
+        "kept %",
+        "M ev/s filter+conv",
+        "M ev/s filter alone",
+        "conv share %",
+        "M ev/s pipeline's call",
+        "us/batch median",
+        "us/batch p99",
+        "core % (real time)",
+        "filter / tracker",
+        "(filter + tracker kept) / tracker all",
+        "M ev/s event path (filter + tracker)",
+    ):
         table.add_column(col, justify="left" if col == "filter" else "right")
     for noise_hz in args.noise_hz:
         events, rest = simulate(sensor, args.seconds, noise_hz, args.seed)
@@ -190,16 +253,28 @@ def main() -> None:
                 called = float(t["pipeline"].sum())  # the pipeline's call: what the rest of the row is about
                 per_batch_us = t["pipeline"] * 1e6
                 table.add_row(
-                    f"{noise_hz:g}", str(batch_us), name.removesuffix("NoiseFilter"), str(time_us), f"{n_in / 1e6:.2f}", f"{100 * n_kept / n_in:.1f}",
-                    f"{n_in / total / 1e6:.2f}", f"{n_in / float(t['core'].sum()) / 1e6:.1f}",
-                    f"{100 * (t['to_store'].sum() + t['from_store'].sum()) / total:.0f}", f"{n_in / called / 1e6:.1f}",
-                    f"{np.median(per_batch_us):.0f}", f"{np.percentile(per_batch_us, 99):.0f}",
-                    f"{100 * called / span_s:.1f}", f"{called / tracker_all:.2f}",
-                    f"{(called + tracker_kept) / tracker_all:.2f}", f"{n_in / (called + tracker_kept) / 1e6:.1f}",
+                    f"{noise_hz:g}",
+                    str(batch_us),
+                    name.removesuffix("NoiseFilter"),
+                    str(time_us),
+                    f"{n_in / 1e6:.2f}",
+                    f"{100 * n_kept / n_in:.1f}",
+                    f"{n_in / total / 1e6:.2f}",
+                    f"{n_in / float(t['core'].sum()) / 1e6:.1f}",
+                    f"{100 * (t['to_store'].sum() + t['from_store'].sum()) / total:.0f}",
+                    f"{n_in / called / 1e6:.1f}",
+                    f"{np.median(per_batch_us):.0f}",
+                    f"{np.percentile(per_batch_us, 99):.0f}",
+                    f"{100 * called / span_s:.1f}",
+                    f"{called / tracker_all:.2f}",
+                    f"{(called + tracker_kept) / tracker_all:.2f}",
+                    f"{n_in / (called + tracker_kept) / 1e6:.1f}",
                 )
-            console.print(f"noise {noise_hz:g} Hz/px, {batch_us} us batches: tracker on every event "
-                          f"{len(events) / tracker_all / 1e6:.1f} M events/s ({100 * tracker_all / span_s:.1f} % of a core)",
-                          highlight=False)
+            console.print(
+                f"noise {noise_hz:g} Hz/px, {batch_us} us batches: tracker on every event "
+                f"{len(events) / tracker_all / 1e6:.1f} M events/s ({100 * tracker_all / span_s:.1f} % of a core)",
+                highlight=False,
+            )
     console.print(table)
     console.print(f"load average during the run: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
 

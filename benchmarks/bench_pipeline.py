@@ -46,8 +46,8 @@ def profile_sequence(recording: Path, config: PipelineConfig) -> dict[str, list[
     marks = {"tracker": 0, "contacts": 0, "gesture": 0}
 
     def take(stage: str) -> tuple[float, float]:
-        wall = pipeline.timings[stage][marks[stage]:]
-        cpu = pipeline.cpu_timings[stage][marks[stage]:]
+        wall = pipeline.timings[stage][marks[stage] :]
+        cpu = pipeline.cpu_timings[stage][marks[stage] :]
         marks[stage] = len(pipeline.timings[stage])
         return sum(wall) / 1e3, sum(cpu) / 1e3
 
@@ -67,7 +67,9 @@ def profile_sequence(recording: Path, config: PipelineConfig) -> dict[str, list[
     pipeline = GesturePipeline(sensor, config, on_window=on_window, profile=True)
     for item in items:
         pipeline.process(item)
-    samples["resting"] = [(w / 1e3, c / 1e3) for w, c in zip(pipeline.timings["resting"], pipeline.cpu_timings["resting"])]
+    samples["resting"] = [
+        (w / 1e3, c / 1e3) for w, c in zip(pipeline.timings["resting"], pipeline.cpu_timings["resting"])
+    ]
     return samples
 
 
@@ -85,7 +87,9 @@ def main() -> None:
         folder = args.dataset
         if folder is None:
             console.print(f"simulating {args.minutes} min (preset quick, seed {args.seed}) ...")
-            folder = write_dataset(Path(tmp) / "ds", preset="quick", seed=args.seed, minutes=args.minutes, progress=False)
+            folder = write_dataset(
+                Path(tmp) / "ds", preset="quick", seed=args.seed, minutes=args.minutes, progress=False
+            )
         recordings = [Path(folder) / f"{name}.aedat4" for name in list_sequences(folder)]
 
         warm = GesturePipeline(find_sensor_file(recordings[0]), config)  # numba JIT, OpenCV first calls
@@ -105,9 +109,24 @@ def main() -> None:
             table.add_column(col, justify="left" if col in ("stage", "per") else "right")
         for stage, values in samples.items():
             a = np.array(values)
-            per = "frame" if stage == "resting" else ("moving window" if stage in ("contacts", "gesture", "contacts+gesture", "total (moving)") else "window")
-            table.add_row(stage, per, str(len(a)), f"{np.median(a[:, 0]):.0f}", f"{np.percentile(a[:, 0], 99):.0f}",
-                          f"{np.median(a[:, 1]):.0f}", f"{np.percentile(a[:, 1], 99):.0f}")
+            per = (
+                "frame"
+                if stage == "resting"
+                else (
+                    "moving window"
+                    if stage in ("contacts", "gesture", "contacts+gesture", "total (moving)")
+                    else "window"
+                )
+            )
+            table.add_row(
+                stage,
+                per,
+                str(len(a)),
+                f"{np.median(a[:, 0]):.0f}",
+                f"{np.percentile(a[:, 0], 99):.0f}",
+                f"{np.median(a[:, 1]):.0f}",
+                f"{np.percentile(a[:, 1], 99):.0f}",
+            )
         console.print(table)
 
         track = Table(title="track end to end (AEDAT4 reading + pipeline + predictions JSON lines)")
@@ -120,10 +139,24 @@ def main() -> None:
             cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
             rec_s = summary.duration_us * 1e-6
             totals += (rec_s, summary.events, wall, cpu)
-            track.add_row(recording.name, f"{rec_s:.2f}", str(summary.events), f"{wall:.2f}", f"{rec_s / wall:.1f}",
-                          f"{cpu:.2f}", f"{rec_s / cpu:.1f}")
-        track.add_row("all", f"{totals[0]:.2f}", str(int(totals[1])), f"{totals[2]:.2f}", f"{totals[0] / totals[2]:.1f}",
-                      f"{totals[3]:.2f}", f"{totals[0] / totals[3]:.1f}")
+            track.add_row(
+                recording.name,
+                f"{rec_s:.2f}",
+                str(summary.events),
+                f"{wall:.2f}",
+                f"{rec_s / wall:.1f}",
+                f"{cpu:.2f}",
+                f"{rec_s / cpu:.1f}",
+            )
+        track.add_row(
+            "all",
+            f"{totals[0]:.2f}",
+            str(int(totals[1])),
+            f"{totals[2]:.2f}",
+            f"{totals[0] / totals[2]:.1f}",
+            f"{totals[3]:.2f}",
+            f"{totals[0] / totals[3]:.1f}",
+        )
         console.print(track)
         console.print(f"load average during the run: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
 

@@ -60,15 +60,19 @@ def main() -> None:
         with RecordingReader(path) as reader:
             got, _ = timed("read_all", reader.read_all)
             assert np.array_equal(got, events)
-            count = timed("stream, 1 ms batches", lambda: sum(
-                len(item) for item in reader.stream(batch_us=1000) if not isinstance(item, Frame)))
+            count = timed(
+                "stream, 1 ms batches",
+                lambda: sum(len(item) for item in reader.stream(batch_us=1000) if not isinstance(item, Frame)),
+            )
             assert count == n
 
     print(f"recording: {n:,} events, {len(frames)} APS frames, {args.seconds:.0f} s, {size_mb:.1f} MB (LZ4)")
     print(f"{'':26s} {'wall s':>7s} {'M ev/s':>7s} {'x real':>7s} | {'CPU s':>7s} {'M ev/s':>7s} {'x real':>7s}")
     for name, wall, cpu in timings:
-        print(f"{name:26s} {wall:7.2f} {n / wall / 1e6:7.1f} {args.seconds / wall:7.1f} | "
-              f"{cpu:7.2f} {n / cpu / 1e6:7.1f} {args.seconds / cpu:7.1f}")
+        print(
+            f"{name:26s} {wall:7.2f} {n / wall / 1e6:7.1f} {args.seconds / wall:7.1f} | "
+            f"{cpu:7.2f} {n / cpu / 1e6:7.1f} {args.seconds / cpu:7.1f}"
+        )
 
 
 if __name__ == "__main__":

@@ -46,8 +46,10 @@ def _timed(fn):
 
 def _row(name: str, sim_s: float, wall: float, cpu: float, events: int, size: int | None) -> str:
     mb = f"{size / 1e6:.0f}" if size is not None else "-"
-    return (f"| {name} | {sim_s:.1f} | {wall:.1f} | {sim_s / wall:.2f} | {cpu:.1f} | {sim_s / cpu:.2f} | "
-            f"{events / 1e6:.2f} | {events / wall / 1e6:.3f} | {events / cpu / 1e6:.3f} | {mb} |")
+    return (
+        f"| {name} | {sim_s:.1f} | {wall:.1f} | {sim_s / wall:.2f} | {cpu:.1f} | {sim_s / cpu:.2f} | "
+        f"{events / 1e6:.2f} | {events / wall / 1e6:.3f} | {events / cpu / 1e6:.3f} | {mb} |"
+    )
 
 
 def main() -> None:
@@ -64,8 +66,11 @@ def main() -> None:
         n, sim_s, size = _count_events(out)
         rows.append(_row("write `quick` (1 user x 5 gestures)", sim_s, wall, cpu, n, size))
 
-        out, wall, cpu = _timed(lambda: write_dataset(tmp / "paper1", preset="paper", seed=0, users=[0],
-                                                      minutes=args.minutes, progress=False))
+        out, wall, cpu = _timed(
+            lambda: write_dataset(
+                tmp / "paper1", preset="paper", seed=0, users=[0], minutes=args.minutes, progress=False
+            )
+        )
         n, sim_s, size = _count_events(out)
         rows.append(_row(f"write paper-like {args.minutes:g} min (user 0 x 5 gestures)", sim_s, wall, cpu, n, size))
 
@@ -86,8 +91,10 @@ def main() -> None:
             n, sim_s, size = _count_events(out)
             rows.append(_row("write `paper` (5 users x 5 gestures x 60 s)", sim_s, wall, cpu, n, size))
 
-    print("| case | simulated s | wall s | x real time | CPU s | x real time (CPU) | M events | M events/s (wall) "
-          "| M events/s (CPU) | MB written |")
+    print(
+        "| case | simulated s | wall s | x real time | CPU s | x real time (CPU) | M events | M events/s (wall) "
+        "| M events/s (CPU) | MB written |"
+    )
     print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
     for row in rows:
         print(row)

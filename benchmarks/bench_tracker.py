@@ -64,7 +64,10 @@ class Run:
         e = np.concatenate(self.errors) if self.errors else np.zeros(0)
         w = np.array(self.window_s) * 1e3
         wall = np.array(self.wall_s) * 1e3
-        stat = lambda a, q: f"{np.percentile(a, q):.3f}" if len(a) else "-"
+
+        def stat(a, q):
+            return f"{np.percentile(a, q):.3f}" if len(a) else "-"
+
         return [
             self.name,
             stat(e, 50),
@@ -139,7 +142,9 @@ def seed_image(points_px: np.ndarray, shape: tuple[int, int], radius_px: float =
     """uint8 image with a white dot at each point (the MeanShiftTracker's detector finds them)."""
     img = np.zeros(shape, np.uint8)
     for x, y in points_px:
-        cv2.circle(img, (int(round(x * 16)), int(round(y * 16))), int(radius_px * 16), 255, -1, lineType=cv2.LINE_AA, shift=4)
+        cv2.circle(
+            img, (int(round(x * 16)), int(round(y * 16))), int(radius_px * 16), 255, -1, lineType=cv2.LINE_AA, shift=4
+        )
     return img
 
 
@@ -187,8 +192,15 @@ def run_meanshift(run: Run, seq, sensor: SensorGeometry) -> None:
             score(run, pts, np.ones(len(idx), bool), positions[k], rest, idx)
 
 
-def stress_stream(rest_px: np.ndarray, n_windows: int, per_window: int, noise_frac: float, seed: int,
-                  speed_px_per_ms: float = 0.5, amplitude_px: float = 6.0):
+def stress_stream(
+    rest_px: np.ndarray,
+    n_windows: int,
+    per_window: int,
+    noise_frac: float,
+    seed: int,
+    speed_px_per_ms: float = 0.5,
+    amplitude_px: float = 6.0,
+):
     """Synthetic fast stream: the gel swings back and forth (a common translation of
     ``amplitude_px`` plus a rotation about the gel's centre, sinusoidal, peak marker speed about
     ``speed_px_per_ms``); each marker's events fall around p +- 1.2 px along its motion (ON ahead,
@@ -273,8 +285,13 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--stress-windows", type=int, default=100, help="10 ms windows of 120 k events")
     parser.add_argument("--meanshift-stress-windows", type=int, default=20)
-    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
-                        help="a TrackerConfig field (float), e.g. --set max_offset_px=0 (repeatable)")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="a TrackerConfig field (float), e.g. --set max_offset_px=0 (repeatable)",
+    )
     args = parser.parse_args()
     console = make_console()
     fields = set(TrackerConfig.model_fields)
@@ -300,11 +317,18 @@ def main() -> None:
             with RecordingReader(path) as reader:
                 events, frames = reader.read_all()
             truth = np.load(path.with_name(path.name.replace(".aedat4", ".markers.npz")))
-            seqs.append((events, frames, truth["t_us"], truth["positions_px"].astype(np.float64),
-                         truth["rest_px"].astype(np.float64)))
+            seqs.append(
+                (
+                    events,
+                    frames,
+                    truth["t_us"],
+                    truth["positions_px"].astype(np.float64),
+                    truth["rest_px"].astype(np.float64),
+                )
+            )
 
     det_err = []
-    for events, frames, t_grid, positions, rest in seqs:
+    for _events, frames, _t_grid, _positions, rest in seqs:
         found = detect_markers(frames[0].image, sensor).centroids_px
         d = np.hypot(found[:, None, 0] - rest[None, :, 0], found[:, None, 1] - rest[None, :, 1])
         det_err.append(d.min(axis=1))
@@ -336,16 +360,30 @@ def main() -> None:
     stress, events, truth = run_stress(seqs[0][4], args.stress_windows, args.seed, config)
     stress_ms = run_stress_meanshift(events, truth, args.meanshift_stress_windows)
 
-    table = Table(title=f"Tracker: {len(seqs)} simulated sequences ({n_events:,} events, {seconds:.1f} s), "
-                        f"then the stress stream ({args.stress_windows} x 120 k events)")
-    for col in ("tracker", "err median px", "err p90 px", "err p99 px", "tracked %", "M events/s (CPU)",
-                "window median ms (CPU)", "window p99 ms (CPU)", "window median ms (wall)", "window p99 ms (wall)"):
+    table = Table(
+        title=f"Tracker: {len(seqs)} simulated sequences ({n_events:,} events, {seconds:.1f} s), "
+        f"then the stress stream ({args.stress_windows} x 120 k events)"
+    )
+    for col in (
+        "tracker",
+        "err median px",
+        "err p90 px",
+        "err p99 px",
+        "tracked %",
+        "M events/s (CPU)",
+        "window median ms (CPU)",
+        "window p99 ms (CPU)",
+        "window median ms (wall)",
+        "window p99 ms (wall)",
+    ):
         table.add_column(col, justify="left" if col == "tracker" else "right")
     for run in [*runs, stress, stress_ms]:
         table.add_row(*run.row())
     console.print(table)
-    console.print("errors: per marker against its own true position, on markers > 1 px from rest, at every "
-                  "10 ms window end; tracked %: moved-marker samples with a live track")
+    console.print(
+        "errors: per marker against its own true position, on markers > 1 px from rest, at every "
+        "10 ms window end; tracked %: moved-marker samples with a live track"
+    )
 
 
 if __name__ == "__main__":

@@ -27,17 +27,15 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Optional
 
+import numpy as np
 import typer
 from rich.console import Console
 from rich.table import Table
 
-import numpy as np
-
+from neurotouch_hid.dataset import list_sequences, read_labels, read_predictions, write_predictions
 from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.dataset import list_sequences, read_labels
-from neurotouch_hid.evaluation.runner import evaluate_dataset, pipeline_config
 from neurotouch_hid.evaluation.metrics import Observations, align, evaluate
-from neurotouch_hid.dataset import read_predictions, write_predictions
+from neurotouch_hid.evaluation.runner import evaluate_dataset, pipeline_config
 from neurotouch_hid.pipeline.gesture import EpisodeVote
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import PHYSICS
@@ -80,22 +78,33 @@ def meets(value: Optional[float], ref: float, higher: bool) -> bool:
 @app.command()
 def main(
     out: Path = typer.Option(..., "--out", help="working folder: datasets and results.json"),
-    families: str = typer.Option(",".join(f for f in PHYSICS if f != FINAL_FAMILY), "--families",
-                                 help=f"comma-separated families; {FINAL_FAMILY} and mix (which holds it) need --final-run"),
+    families: str = typer.Option(
+        ",".join(f for f in PHYSICS if f != FINAL_FAMILY),
+        "--families",
+        help=f"comma-separated families; {FINAL_FAMILY} and mix (which holds it) need --final-run",
+    ),
     users: str = typer.Option("0,3", "--users", help="test users (0-4)"),
     seconds: float = typer.Option(4.0, "--seconds", help="simulated seconds per sequence"),
     seed: int = typer.Option(2, "--seed", help="even: test users' seed"),
     jobs: int = typer.Option(2, "--jobs", min=1),
-    method: list[str] = typer.Option(list(DEFAULT_METHODS), "--method", help="NAME=PRESET[:NAME=VALUE;...], repeatable"),
+    method: list[str] = typer.Option(
+        list(DEFAULT_METHODS), "--method", help="NAME=PRESET[:NAME=VALUE;...], repeatable"
+    ),
     final_run: bool = typer.Option(False, "--final-run", help=f"also evaluate the untouched family {FINAL_FAMILY}"),
     rerun: bool = typer.Option(False, "--rerun", help="recompute cached results of these methods"),
-    vote_of: Optional[str] = typer.Option("ours", "--vote-of", help="also score METHOD+vote: METHOD's predictions "
-                                          "replayed through the episode vote (gesture.EpisodeVote, as episode_vote=true does)"),
+    vote_of: Optional[str] = typer.Option(
+        "ours",
+        "--vote-of",
+        help="also score METHOD+vote: METHOD's predictions "
+        "replayed through the episode vote (gesture.EpisodeVote, as episode_vote=true does)",
+    ),
 ) -> None:
     console = Console(soft_wrap=True)
     names = [f.strip() for f in families.split(",") if f.strip()]
     if {FINAL_FAMILY, "mix"} & set(names) and not final_run:
-        raise typer.BadParameter(f"{FINAL_FAMILY} (and mix, which holds it) is kept untouched until the final run: add --final-run")
+        raise typer.BadParameter(
+            f"{FINAL_FAMILY} (and mix, which holds it) is kept untouched until the final run: add --final-run"
+        )
     if final_run and FINAL_FAMILY not in names:
         names.append(FINAL_FAMILY)
     user_ids = [int(u) for u in users.split(",")]
@@ -107,7 +116,9 @@ def main(
         folder = out / fam
         if not (folder / "done").exists():
             n_seq = len(user_ids) * 5
-            write_dataset(folder, seed=seed, users=user_ids, minutes=seconds * n_seq / 60.0, physics=fam, progress=False)
+            write_dataset(
+                folder, seed=seed, users=user_ids, minutes=seconds * n_seq / 60.0, physics=fam, progress=False
+            )
             (folder / "done").write_text("")
         for name, preset, sets in methods:
             key = f"{fam}/{name}"
@@ -116,14 +127,20 @@ def main(
             console.print(f"{fam}: {name} ({preset} {' '.join(sets)})", highlight=False)
             preds = out / "predictions" / fam / name
             result = evaluate_dataset(folder, pipeline_config(sets, preset), jobs=jobs, predictions_dir=preds).to_dict()
-            cache[key] = {"settings": [preset, *sets], **{m[0]: result[m[0]] for m in METRICS},
-                          "observations": result.get("n_observations"), **onset_latency(folder, preds)}
+            cache[key] = {
+                "settings": [preset, *sets],
+                **{m[0]: result[m[0]] for m in METRICS},
+                "observations": result.get("n_observations"),
+                **onset_latency(folder, preds),
+            }
             cache_path.write_text(json.dumps(cache, indent=1) + "\n")
         if vote_of and (out / "predictions" / fam / vote_of).is_dir():
             key = f"{fam}/{vote_of}+vote"
             if key not in cache or rerun:
-                cache[key] = {"settings": [*cache[f"{fam}/{vote_of}"]["settings"], "episode_vote=true"],
-                              **replay_vote(folder, out / "predictions" / fam, vote_of)}
+                cache[key] = {
+                    "settings": [*cache[f"{fam}/{vote_of}"]["settings"], "episode_vote=true"],
+                    **replay_vote(folder, out / "predictions" / fam, vote_of),
+                }
                 cache_path.write_text(json.dumps(cache, indent=1) + "\n")
     if vote_of:
         methods.append((f"{vote_of}+vote", "", []))
@@ -149,13 +166,18 @@ def replay_vote(dataset: Path, predictions: Path, method: str) -> dict:
     parts = []
     for name in list_sequences(dataset):
         vote = EpisodeVote()
-        voted = [replace(p, gesture=vote.update(p.gesture, p.intensity_mm))
-                 for p in read_predictions(predictions / method / f"{name}.jsonl")]
+        voted = [
+            replace(p, gesture=vote.update(p.gesture, p.intensity_mm))
+            for p in read_predictions(predictions / method / f"{name}.jsonl")
+        ]
         write_predictions(dst / f"{name}.jsonl", voted)
         parts.append(align(read_labels(dataset / f"{name}.labels.csv"), voted, sensor))
     result = evaluate(Observations.concatenate(parts)).to_dict()
-    return {**{m[0]: result[m[0]] for m in METRICS}, "observations": result.get("n_observations"),
-            **onset_latency(dataset, dst)}
+    return {
+        **{m[0]: result[m[0]] for m in METRICS},
+        "observations": result.get("n_observations"),
+        **onset_latency(dataset, dst),
+    }
 
 
 def onset_latency(dataset: Path, predictions: Path) -> dict:
@@ -190,9 +212,11 @@ def onset_latency(dataset: Path, predictions: Path) -> dict:
             answered = [g for g in inside if g is not GestureType.NONE]
             flips.append(sum(1 for a, b in zip(answered, answered[1:]) if a is not b))
             k = j + 1
-    return {"onset_latency_ms": float(np.median(latencies)) if latencies else None,
-            "never_answered": missed / total if total else None,
-            "type_changes_per_gesture": float(np.mean(flips)) if flips else None}
+    return {
+        "onset_latency_ms": float(np.median(latencies)) if latencies else None,
+        "never_answered": missed / total if total else None,
+        "type_changes_per_gesture": float(np.mean(flips)) if flips else None,
+    }
 
 
 def report(cache: dict, families: list[str], methods: list[str]) -> list[str]:
@@ -218,7 +242,11 @@ def report(cache: dict, families: list[str], methods: list[str]) -> list[str]:
     for meth in methods:
         cells = []
         for key, _, _, _, higher, scale in METRICS:
-            vals = [(cache[f"{f}/{meth}"][key], f) for f in held if f"{f}/{meth}" in cache and cache[f"{f}/{meth}"][key] is not None]
+            vals = [
+                (cache[f"{f}/{meth}"][key], f)
+                for f in held
+                if f"{f}/{meth}" in cache and cache[f"{f}/{meth}"][key] is not None
+            ]
             if not vals:
                 cells.append("-")
                 continue

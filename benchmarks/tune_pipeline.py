@@ -37,8 +37,14 @@ import typer
 from rich.table import Table
 
 from neurotouch_hid.dataset import labels_at, list_sequences, read_labels
-from neurotouch_hid.evaluation.metrics import EvaluationResult, Observations, align, evaluate, precision_recall_f1
-from neurotouch_hid.evaluation.metrics import confusion_matrix
+from neurotouch_hid.evaluation.metrics import (
+    EvaluationResult,
+    Observations,
+    align,
+    confusion_matrix,
+    evaluate,
+    precision_recall_f1,
+)
 from neurotouch_hid.evaluation.runner import pipeline_config
 from neurotouch_hid.output.console import make_console
 from neurotouch_hid.sensor import SensorGeometry
@@ -49,8 +55,13 @@ TUNING_SEED = 1
 TEST_SEED = 2
 
 #: Short column names of the grid table.
-SHORT = {"gesture_accuracy": "gesture acc", "contact_count_accuracy": "count acc", "contact_distance_mm": "dist mm",
-         "intensity_mae_mm": "MAE mm", "resting_f1": "resting F1"}
+SHORT = {
+    "gesture_accuracy": "gesture acc",
+    "contact_count_accuracy": "count acc",
+    "contact_distance_mm": "dist mm",
+    "intensity_mae_mm": "MAE mm",
+    "resting_f1": "resting F1",
+}
 
 #: Targets of docs/accuracy.md: (metric, target, higher is better).
 TARGETS = (
@@ -144,8 +155,15 @@ def record_sequence(dataset: Path, name: str, config, out: Path) -> Path:
         for _ in pipeline.run(reader.stream()):
             pass
     path = out / f"{name}.npz"
-    np.savez(path, t_us=np.array(times, dtype=np.int64), positions_px=np.array(positions), valid=np.array(valid),
-             resting=np.array(resting), rest_px=pipeline.rest_px, chamfer_threshold=config.chamfer_threshold)
+    np.savez(
+        path,
+        t_us=np.array(times, dtype=np.int64),
+        positions_px=np.array(positions),
+        valid=np.array(valid),
+        resting=np.array(resting),
+        rest_px=pipeline.rest_px,
+        chamfer_threshold=config.chamfer_threshold,
+    )
     return path
 
 
@@ -226,8 +244,10 @@ def main(
     config = pipeline_config([f"chamfer_threshold={best_chamfer}"])
     stale = [n for n in names if not recorded_with(snapshots / f"{n}.npz", best_chamfer)]
     list(pool.map(record_sequence, [tuning] * len(stale), stale, [config] * len(stale), [snapshots] * len(stale)))
-    combos = [[f"chamfer_threshold={best_chamfer}"] + [f"{k}={v}" for k, v in zip(axes, combo)]
-              for combo in itertools.product(*axes.values())]
+    combos = [
+        [f"chamfer_threshold={best_chamfer}"] + [f"{k}={v}" for k, v in zip(axes, combo)]
+        for combo in itertools.product(*axes.values())
+    ]
     rows = list(pool.map(replay, [tuning] * len(combos), [snapshots] * len(combos), [names] * len(combos), combos))
     pool.shutdown()
     rows.sort(key=lambda r: -r["score"])
@@ -237,10 +257,20 @@ def main(
     for r in rows:
         table.add_row(" ".join(r["settings"][1:]), f"{r['score']:.3f}", *(f"{r[name]:.4f}" for name, _, _ in TARGETS))
     console.print(table)
-    (out / "tuning.json").write_text(json.dumps({
-        "tuning_users": users, "tuning_seed": TUNING_SEED, "minutes": minutes,
-        "defaults": defaults.model_dump(), "chamfer_f1": {str(k): v for k, v in f1s.items()},
-        "rows": rows}, indent=1, default=str))
+    (out / "tuning.json").write_text(
+        json.dumps(
+            {
+                "tuning_users": users,
+                "tuning_seed": TUNING_SEED,
+                "minutes": minutes,
+                "defaults": defaults.model_dump(),
+                "chamfer_f1": {str(k): v for k, v in f1s.items()},
+                "rows": rows,
+            },
+            indent=1,
+            default=str,
+        )
+    )
     console.print("best: " + " ".join(f"--set {s}" for s in rows[0]["settings"]))
 
 

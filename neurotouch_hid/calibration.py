@@ -99,8 +99,10 @@ EDGE_INSIDE = 0.98
 MIN_COUNT_FRACTION = 0.5
 COUNT_TOLERANCE = 0.1
 
-_CHECK = ("check that the camera looks at the NeuroTouch gel from inside, that the gel is lit "
-          "(LED ring on) and that the APS frames are neither black nor saturated")
+_CHECK = (
+    "check that the camera looks at the NeuroTouch gel from inside, that the gel is lit "
+    "(LED ring on) and that the APS frames are neither black nor saturated"
+)
 
 
 @dataclass(frozen=True)
@@ -133,8 +135,9 @@ class Calibration:
         return int(len(self.markers_px))
 
 
-def calibrate(frames: Iterable[Frame], *, expected_markers: int = EXPECTED_MARKERS,
-              n_frames: int = REST_FRAMES) -> Calibration:
+def calibrate(
+    frames: Iterable[Frame], *, expected_markers: int = EXPECTED_MARKERS, n_frames: int = REST_FRAMES
+) -> Calibration:
     """Measure the sensor geometry from APS frames of the gel at rest (module docstring).
 
     Args:
@@ -156,8 +159,9 @@ def calibrate(frames: Iterable[Frame], *, expected_markers: int = EXPECTED_MARKE
         raise ValueError(f"expected_markers must be >= 1, got {expected_markers}")
     rest = list(itertools.islice(frames, n_frames))
     if len(rest) < MIN_REST_FRAMES:
-        raise SensorError(f"calibration needs at least {MIN_REST_FRAMES} APS frames of the gel at rest, "
-                          f"the source gave {len(rest)}")
+        raise SensorError(
+            f"calibration needs at least {MIN_REST_FRAMES} APS frames of the gel at rest, the source gave {len(rest)}"
+        )
     shapes = {np.shape(f.image) for f in rest}
     if len(shapes) > 1:
         raise SensorError(f"the APS frames change size during calibration ({sorted(shapes)})")
@@ -174,8 +178,10 @@ def calibrate(frames: Iterable[Frame], *, expected_markers: int = EXPECTED_MARKE
     notes: list[str] = []
     edge = _gel_edge(mean, points, grid_center, rough_spacing)
     if isinstance(edge, str):
-        notes.append(f"the gel's edge is not visible ({edge}): the gel circle is the marker grid's extent "
-                     f"plus one marker spacing ({MARKER_SPACING_MM:g} mm)")
+        notes.append(
+            f"the gel's edge is not visible ({edge}): the gel circle is the marker grid's extent "
+            f"plus one marker spacing ({MARKER_SPACING_MM:g} mm)"
+        )
     center = grid_center if isinstance(edge, str) else edge[0]
     spacing = _centre_spacing(points, nn, center)
     if isinstance(edge, str):
@@ -186,19 +192,33 @@ def calibrate(frames: Iterable[Frame], *, expected_markers: int = EXPECTED_MARKE
 
     n = len(points)
     if n < MIN_COUNT_FRACTION * expected_markers:
-        raise SensorError(f"only {n} markers found on the gel, fewer than half the {expected_markers} expected "
-                          f"(--markers): {_CHECK}, and that the whole gel is in view")
+        raise SensorError(
+            f"only {n} markers found on the gel, fewer than half the {expected_markers} expected "
+            f"(--markers): {_CHECK}, and that the whole gel is in view"
+        )
     if abs(n - expected_markers) > COUNT_TOLERANCE * expected_markers:
-        notes.append(f"{n} markers found, {expected_markers} expected (--markers): off by more than "
-                     f"{COUNT_TOLERANCE:.0%}; check that the whole gel is in view and lit evenly")
+        notes.append(
+            f"{n} markers found, {expected_markers} expected (--markers): off by more than "
+            f"{COUNT_TOLERANCE:.0%}; check that the whole gel is in view and lit evenly"
+        )
     height, width = mean.shape
     sensor = SensorGeometry(
-        width=width, height=height, px_per_mm=round(spacing / MARKER_SPACING_MM, 4),
-        gel_center_px=(round(float(center[0]), 2), round(float(center[1]), 2)), gel_radius_px=round(radius, 2),
+        width=width,
+        height=height,
+        px_per_mm=round(spacing / MARKER_SPACING_MM, 4),
+        gel_center_px=(round(float(center[0]), 2), round(float(center[1]), 2)),
+        gel_radius_px=round(radius, 2),
         extra={"rest_markers_px": [[round(float(x), 2), round(float(y), 2)] for x, y in points]},
     )
-    return Calibration(sensor, points, spacing, (float(grid_center[0]), float(grid_center[1])),
-                       not isinstance(edge, str), tuple(f.t_us for f in rest), tuple(notes))
+    return Calibration(
+        sensor,
+        points,
+        spacing,
+        (float(grid_center[0]), float(grid_center[1])),
+        not isinstance(edge, str),
+        tuple(f.t_us for f in rest),
+        tuple(notes),
+    )
 
 
 def _blobs(image: np.ndarray) -> Markers:
@@ -210,8 +230,12 @@ def _blobs(image: np.ndarray) -> Markers:
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * MAX_MARKER_PX + 1,) * 2)
     tophat = cv2.morphologyEx(img, cv2.MORPH_TOPHAT, kernel)
     height, width = img.shape
-    whole = SensorGeometry(width=width, height=height, gel_center_px=(width / 2, height / 2),
-                           gel_radius_px=float(math.hypot(width, height)))
+    whole = SensorGeometry(
+        width=width,
+        height=height,
+        gel_center_px=(width / 2, height / 2),
+        gel_radius_px=float(math.hypot(width, height)),
+    )
     return detect_markers(tophat, whole, min_area_px=2, max_area_px=2 * math.pi * (MAX_MARKER_PX / 2) ** 2)
 
 
@@ -232,16 +256,22 @@ def _grid(image: np.ndarray) -> Markers:
         low, high = points.min(axis=0), points.max(axis=0)
         # a grid spreads in 2-D: its bounding box must be at least a quarter as high as wide and
         # vice versa (looks_like_marker_grid wants it gel_radius_px wide and high)
-        rough = SensorGeometry(width=image.shape[1], height=image.shape[0],
-                               px_per_mm=float(np.median(nn)) / MARKER_SPACING_MM,
-                               gel_center_px=tuple((low + high) / 2), gel_radius_px=float((high - low).max() / 4))
+        rough = SensorGeometry(
+            width=image.shape[1],
+            height=image.shape[0],
+            px_per_mm=float(np.median(nn)) / MARKER_SPACING_MM,
+            gel_center_px=tuple((low + high) / 2),
+            gel_radius_px=float((high - low).max() / 4),
+        )
         i, j = _neighbour_pairs(points, nn)
         angles = np.arctan2(*(points[j] - points[i]).T[::-1])
         order = max(abs(np.mean(np.exp(4j * angles))), abs(np.mean(np.exp(6j * angles)))) if len(i) else 0.0
         if looks_like_marker_grid(blobs, rough) and 2 * len(i) >= GRID_NEIGHBOURS * len(points) and order >= GRID_ORDER:
             return blobs
-    raise SensorError(f"no gel in view: the APS frames show no grid of markers {MARKER_SPACING_MM:g} mm apart "
-                      f"({len(blobs)} small bright spots, brightest grey level {int(np.max(image))}); {_CHECK}")
+    raise SensorError(
+        f"no gel in view: the APS frames show no grid of markers {MARKER_SPACING_MM:g} mm apart "
+        f"({len(blobs)} small bright spots, brightest grey level {int(np.max(image))}); {_CHECK}"
+    )
 
 
 def _check_still(reference: Markers, frames: list[Frame]) -> None:
@@ -259,13 +289,16 @@ def _check_still(reference: Markers, frames: list[Frame]) -> None:
         shift = np.hypot(ref[:, None, 0] - found[None, :, 0], ref[:, None, 1] - found[None, :, 1]).min(axis=1)
         moved = int(np.sum((shift > tolerance) & (shift < spacing / 2)))
         if moved > allowed:
-            raise SensorError(f"the gel moved during calibration ({moved} of {len(ref)} markers moved more than "
-                              f"{STILL_MM:g} mm between rest frames 1 and {k + 1}): keep your hands off the gel "
-                              f"and calibrate again")
+            raise SensorError(
+                f"the gel moved during calibration ({moved} of {len(ref)} markers moved more than "
+                f"{STILL_MM:g} mm between rest frames 1 and {k + 1}): keep your hands off the gel "
+                f"and calibrate again"
+            )
 
 
-def _gel_edge(image: np.ndarray, points: np.ndarray, grid_center: np.ndarray,
-              spacing: float) -> tuple[np.ndarray, float] | str:
+def _gel_edge(
+    image: np.ndarray, points: np.ndarray, grid_center: np.ndarray, spacing: float
+) -> tuple[np.ndarray, float] | str:
     """The gel circle fitted to the disc's visible edge: ((cx, cy) px, radius px), or the reason
     it was not accepted (str). ``points`` (N, 2) are the markers (px), ``spacing`` their median
     nearest-neighbour distance (px)."""
@@ -339,9 +372,11 @@ def read_rest_frames(source: str | Path, n_frames: int = REST_FRAMES) -> list[Fr
 
 def sensor_changes(old: SensorGeometry, new: SensorGeometry) -> list[str]:
     """The docs/dataset.md fields that differ, one ``"field: old -> new"`` string each (YAML values)."""
+
     def text(value) -> str:
         return yaml.safe_dump(value, default_flow_style=True).strip().removesuffix("...").strip()
 
     before, after = old.to_dict(), new.to_dict()
-    return [f"{key}: {text(before.get(key))} -> {text(value)}"
-            for key, value in after.items() if before.get(key) != value]
+    return [
+        f"{key}: {text(before.get(key))} -> {text(value)}" for key, value in after.items() if before.get(key) != value
+    ]

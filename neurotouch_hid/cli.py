@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Optional
 
 import typer
+
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.output.console import make_console
 
@@ -23,7 +24,10 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
-profile_app = typer.Typer(help="List, show, create, edit, validate, test, tune and use (switch the running driver to) profiles.", no_args_is_help=True)
+profile_app = typer.Typer(
+    help="List, show, create, edit, validate, test, tune and use (switch the running driver to) profiles.",
+    no_args_is_help=True,
+)
 app.add_typer(profile_app, name="profile")
 
 console = make_console()
@@ -62,13 +66,19 @@ def info(
 @app.command()
 def record(
     out: Path = typer.Argument(..., help="AEDAT4 file to write"),
-    seconds: Optional[float] = typer.Option(None, "--seconds", help="stop after this many seconds (default: at Ctrl-C)"),
+    seconds: Optional[float] = typer.Option(
+        None, "--seconds", help="stop after this many seconds (default: at Ctrl-C)"
+    ),
     source: str = typer.Option("davis", "--source", help="davis (the live camera) or sim (the simulated gel)"),
     force: bool = typer.Option(False, "--force", help="overwrite OUT if it exists"),
-    fast: bool = typer.Option(False, "--fast", help="with --source sim: as fast as it is simulated, not in real time (needs --seconds)"),
+    fast: bool = typer.Option(
+        False, "--fast", help="with --source sim: as fast as it is simulated, not in real time (needs --seconds)"
+    ),
     seed: int = typer.Option(0, "--seed", help="with --source sim: the simulation's seed"),
     serial: Optional[str] = typer.Option(None, "--serial", help="with --source davis: the camera's serial number"),
-    exposure_us: str = typer.Option("4000", "--exposure-us", help="with --source davis: APS exposure in microseconds, or 'auto'"),
+    exposure_us: str = typer.Option(
+        "4000", "--exposure-us", help="with --source davis: APS exposure in microseconds, or 'auto'"
+    ),
 ) -> None:
     """Record what the camera sees (events and APS frames) as AEDAT4, readable by DV and `info`.
 
@@ -100,49 +110,74 @@ def record(
         else:
             from neurotouch_hid.sources.simulator import SimulatedSource
 
-            stream, name = SimulatedSource(seed=seed).stream(seconds=seconds, batch_us=10_000), "NeuroTouch-sim_DAVIS346"
+            stream, name = (
+                SimulatedSource(seed=seed).stream(seconds=seconds, batch_us=10_000),
+                "NeuroTouch-sim_DAVIS346",
+            )
         stop = threading.Event()
         for sig in (signal.SIGINT, signal.SIGTERM):
             stack.callback(signal.signal, sig, signal.signal(sig, lambda *_: stop.set()))
-        columns = [TextColumn(f"recording {source} -> {out}"), *([BarColumn()] if seconds else []),
-                   TextColumn("{task.fields[what]}"), TimeElapsedColumn()]
+        columns = [
+            TextColumn(f"recording {source} -> {out}"),
+            *([BarColumn()] if seconds else []),
+            TextColumn("{task.fields[what]}"),
+            TimeElapsedColumn(),
+        ]
         done = {"us": 0, "events": 0, "frames": 0}
         with Progress(*columns, console=err_console, transient=True) as progress:
             task = progress.add_task("record", total=seconds, what="")
 
             def report(duration_us: int, events: int, frames: int) -> None:
                 done.update(us=duration_us, events=events, frames=frames)
-                progress.update(task, completed=duration_us / 1e6,
-                                what=f"{duration_us / 1e6:.1f} s, {events:,} events, {frames} frames")
+                progress.update(
+                    task,
+                    completed=duration_us / 1e6,
+                    what=f"{duration_us / 1e6:.1f} s, {events:,} events, {frames} frames",
+                )
 
             try:
-                summary = record_stream(stream, out, camera_name=name, pace=source == "sim" and not fast,
-                                        stop=stop, on_progress=report)
+                summary = record_stream(
+                    stream, out, camera_name=name, pace=source == "sim" and not fast, stop=stop, on_progress=report
+                )
             except DeviceError as exc:
-                raise DeviceError(f"{exc}; the {done['us'] / 1e6:.1f} s recorded until then ({done['events']:,} "
-                                  f"events, {done['frames']} frames) are complete in {out}") from None
+                raise DeviceError(
+                    f"{exc}; the {done['us'] / 1e6:.1f} s recorded until then ({done['events']:,} "
+                    f"events, {done['frames']} frames) are complete in {out}"
+                ) from None
     how = " (stopped by Ctrl-C)" if summary.stopped else ""
-    console.print(f"wrote {out}: {summary.duration_us / 1e6:.2f} s, {summary.events:,} events, "
-                  f"{summary.frames} APS frames{how}", highlight=False, soft_wrap=True)
+    console.print(
+        f"wrote {out}: {summary.duration_us / 1e6:.2f} s, {summary.events:,} events, {summary.frames} APS frames{how}",
+        highlight=False,
+        soft_wrap=True,
+    )
 
 
 # --- the simulated gel (sources/simulator.py) ----------------------------------------------
 @app.command()
 def simulate(
     out: Path = typer.Option(..., "--out", help="dataset folder to write (docs/dataset.md)"),
-    preset: str = typer.Option("quick", "--preset", help="quick (small, for tests) or paper (5 users x 5 gestures x ~1 min)"),
+    preset: str = typer.Option(
+        "quick", "--preset", help="quick (small, for tests) or paper (5 users x 5 gestures x ~1 min)"
+    ),
     seed: int = typer.Option(0, "--seed", help="random seed: the same seed gives the same files"),
     minutes: Optional[float] = typer.Option(None, "--minutes", help="override the total simulated duration (minutes)"),
     users: Optional[str] = typer.Option(
-        None, "--users",
-        help="comma-separated user ids 0-9 (default: the preset's; paper: even seed -> test users 0-4, odd seed -> tuning users 5-9)"),
+        None,
+        "--users",
+        help="comma-separated user ids 0-9 (default: the preset's; paper: even seed -> test users 0-4, "
+        "odd seed -> tuning users 5-9)",
+    ),
     noise_hz: float = typer.Option(
-        0.1, "--noise-hz",
-        help="background-activity noise per pixel (Hz): 0.1 a DAVIS-346 in good light, a few Hz in dim light"),
+        0.1,
+        "--noise-hz",
+        help="background-activity noise per pixel (Hz): 0.1 a DAVIS-346 in good light, a few Hz in dim light",
+    ),
     physics: str = typer.Option(
-        "default", "--physics",
+        "default",
+        "--physics",
         help="gel and camera family: default, powerlaw, stickslip, indent, camera, drift, fingers, strong, markers, "
-             "noise, flicker, or mix (one family per sequence); see docs/accuracy.md"),
+        "noise, flicker, or mix (one family per sequence); see docs/accuracy.md",
+    ),
 ) -> None:
     """Simulate the NeuroTouch gel and write a labelled dataset (docs/dataset.md)."""
     from neurotouch_hid.sources.simulator import write_dataset
@@ -153,8 +188,16 @@ def simulate(
             user_ids = [int(u) for u in users.split(",") if u.strip()]
         except ValueError:
             raise NeurotouchError(f"--users: expected comma-separated user ids 0-9, got {users!r}") from None
-    folder = write_dataset(out, preset=preset, seed=seed, minutes=minutes, users=user_ids, progress=True,
-                           noise_hz=noise_hz, physics=physics)
+    folder = write_dataset(
+        out,
+        preset=preset,
+        seed=seed,
+        minutes=minutes,
+        users=user_ids,
+        progress=True,
+        noise_hz=noise_hz,
+        physics=physics,
+    )
     console.print(f"wrote {folder}")
 
 
@@ -166,7 +209,9 @@ def track(
     sensor: Optional[Path] = typer.Option(None, "--sensor", help="sensor.yaml (default: the one beside the recording)"),
     window_us: int = typer.Option(10_000, "--window-us", help="window length in microseconds (>= 1000)"),
     markers: Optional[Path] = typer.Option(None, "--markers", help="also write tracked marker positions (.npz)"),
-    preset: str = typer.Option("default", "--preset", help="pipeline settings: default (tuned) or paper (the paper's method exactly)"),
+    preset: str = typer.Option(
+        "default", "--preset", help="pipeline settings: default (tuned) or paper (the paper's method exactly)"
+    ),
 ) -> None:
     """Run the gesture pipeline on a recording and write one prediction per window."""
     from neurotouch_hid.evaluation.runner import pipeline_config
@@ -191,11 +236,21 @@ def eval_cmd(
     dataset: Path = typer.Argument(..., help="dataset folder (docs/dataset.md)"),
     report: Optional[Path] = typer.Option(None, "--report", help="write PNG figures and a Markdown summary here"),
     json_out: Optional[Path] = typer.Option(None, "--json", help="write the metrics as JSON"),
-    window_us: Optional[int] = typer.Option(None, "--window-us", help="window length in microseconds (default: PipelineConfig's)"),
-    settings: list[str] = typer.Option([], "--set", help="pipeline hyperparameter NAME=VALUE (a PipelineConfig field), repeatable"),
-    preset: str = typer.Option("default", "--preset", help="pipeline settings before --set: default (tuned) or paper (the paper's method exactly)"),
+    window_us: Optional[int] = typer.Option(
+        None, "--window-us", help="window length in microseconds (default: PipelineConfig's)"
+    ),
+    settings: list[str] = typer.Option(
+        [], "--set", help="pipeline hyperparameter NAME=VALUE (a PipelineConfig field), repeatable"
+    ),
+    preset: str = typer.Option(
+        "default",
+        "--preset",
+        help="pipeline settings before --set: default (tuned) or paper (the paper's method exactly)",
+    ),
     jobs: int = typer.Option(1, "--jobs", min=1, help="sequences run in parallel processes"),
-    predictions: Optional[Path] = typer.Option(None, "--predictions", help="keep each sequence's predictions here (JSON lines)"),
+    predictions: Optional[Path] = typer.Option(
+        None, "--predictions", help="keep each sequence's predictions here (JSON lines)"
+    ),
 ) -> None:
     """Run the pipeline over a labelled dataset and print the paper's metrics."""
     import json
@@ -207,14 +262,31 @@ def eval_cmd(
     from neurotouch_hid.evaluation.runner import evaluate_dataset, pipeline_config
 
     config = pipeline_config(settings, preset, **({} if window_us is None else {"window_us": window_us}))
-    columns = (TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed:.1f}/{task.total:.1f} s recorded"),
-               TimeElapsedColumn(), TimeRemainingColumn())
+    columns = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed:.1f}/{task.total:.1f} s recorded"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+    )
     with Progress(*columns, console=err_console, transient=True) as progress:
         result = evaluate_dataset(dataset, config, jobs=jobs, predictions_dir=predictions, progress=progress)
     print_tables(result, console)
-    argv = ["eval", str(dataset)] + ([f"--preset={preset}"] if preset != "default" else []) + [f"--set={item}" for item in settings] + [
-        f"{flag}={value}" for flag, value in (("--window-us", window_us), ("--jobs", jobs if jobs > 1 else None),
-                                              ("--report", report), ("--json", json_out)) if value is not None]
+    argv = (
+        ["eval", str(dataset)]
+        + ([f"--preset={preset}"] if preset != "default" else [])
+        + [f"--set={item}" for item in settings]
+        + [
+            f"{flag}={value}"
+            for flag, value in (
+                ("--window-us", window_us),
+                ("--jobs", jobs if jobs > 1 else None),
+                ("--report", report),
+                ("--json", json_out),
+            )
+            if value is not None
+        ]
+    )
     command = "neurotouch-hid " + shlex.join(argv)
     hyper = config.model_dump()
     if json_out is not None:
@@ -252,27 +324,47 @@ def _davis_config(serial: Optional[str], exposure_us: str, stall_timeout: float)
     if exposure_us != "auto" and not exposure_us.isdigit():
         raise NeurotouchError(f"--exposure-us {exposure_us!r}: expected a whole number of microseconds or 'auto'")
     try:
-        return DavisConfig(serial=serial, exposure_us=None if exposure_us == "auto" else int(exposure_us),
-                           stall_timeout_s=stall_timeout)
+        return DavisConfig(
+            serial=serial,
+            exposure_us=None if exposure_us == "auto" else int(exposure_us),
+            stall_timeout_s=stall_timeout,
+        )
     except ValueError as exc:
         raise NeurotouchError(f"camera settings: {exc}") from None
 
 
 @app.command()
 def run(
-    source: str = typer.Option("davis", "--source", help="davis (live camera), sim (simulated gel), a recording path, or predictions PRED.jsonl (replayed without the pipeline)"),
+    source: str = typer.Option(
+        "davis",
+        "--source",
+        help="davis (live camera), sim (simulated gel), a recording path, or predictions PRED.jsonl "
+        "(replayed without the pipeline)",
+    ),
     profile: str = typer.Option("default", "--profile", help="profile name or path"),
     output: str = typer.Option("gamepad", "--output", help="gamepad, jsonl or term"),
     seconds: Optional[float] = typer.Option(None, "--seconds", help="stop after this many seconds"),
     fast: bool = typer.Option(False, "--fast", help="do not pace recordings in real time"),
-    out: Optional[Path] = typer.Option(None, "--out", help="with --output jsonl: write the states here instead of stdout"),
+    out: Optional[Path] = typer.Option(
+        None, "--out", help="with --output jsonl: write the states here instead of stdout"
+    ),
     window_us: int = typer.Option(10_000, "--window-us", help="window length in microseconds (>= 1000)"),
-    sensor: Optional[Path] = typer.Option(None, "--sensor", help="sensor.yaml (default: beside the recording, or the built-in one)"),
+    sensor: Optional[Path] = typer.Option(
+        None, "--sensor", help="sensor.yaml (default: beside the recording, or the built-in one)"
+    ),
     seed: int = typer.Option(0, "--seed", help="with --source sim: the simulation's seed"),
-    wait: bool = typer.Option(False, "--wait", help="with --source davis: wait for a camera to be plugged in instead of failing"),
-    serial: Optional[str] = typer.Option(None, "--serial", help="with --source davis: the camera's serial number (default: the first DAVIS-346)"),
-    exposure_us: str = typer.Option("4000", "--exposure-us", help="with --source davis: APS exposure in microseconds, or 'auto'"),
-    stall_timeout: float = typer.Option(1.0, "--stall-timeout", help="with --source davis: seconds without data that count as a lost camera"),
+    wait: bool = typer.Option(
+        False, "--wait", help="with --source davis: wait for a camera to be plugged in instead of failing"
+    ),
+    serial: Optional[str] = typer.Option(
+        None, "--serial", help="with --source davis: the camera's serial number (default: the first DAVIS-346)"
+    ),
+    exposure_us: str = typer.Option(
+        "4000", "--exposure-us", help="with --source davis: APS exposure in microseconds, or 'auto'"
+    ),
+    stall_timeout: float = typer.Option(
+        1.0, "--stall-timeout", help="with --source davis: seconds without data that count as a lost camera"
+    ),
 ) -> None:
     """Run the driver: source -> pipeline -> profile -> virtual gamepad.
 
@@ -281,10 +373,21 @@ def run(
     is unplugged or stalls centres the gamepad at once; the driver reconnects when it is back."""
     from neurotouch_hid.driver import run_driver
 
-    stats = run_driver(source, profile, output, seconds=seconds, fast=fast, out=out, window_us=window_us,
-                       sensor=sensor, seed=seed, console=console, wait=wait,
-                       davis=_davis_config(serial, exposure_us, stall_timeout),
-                       say=lambda line: err_console.print(line, markup=False, highlight=False, soft_wrap=True))
+    stats = run_driver(
+        source,
+        profile,
+        output,
+        seconds=seconds,
+        fast=fast,
+        out=out,
+        window_us=window_us,
+        sensor=sensor,
+        seed=seed,
+        console=console,
+        wait=wait,
+        davis=_davis_config(serial, exposure_us, stall_timeout),
+        say=lambda line: err_console.print(line, markup=False, highlight=False, soft_wrap=True),
+    )
     err_console.print(stats.summary(), highlight=False, soft_wrap=True)
 
 
@@ -296,8 +399,11 @@ def demo(seconds: Optional[float] = typer.Option(30.0, "--seconds", help="how lo
     why); without a terminal, one state line a second."""
     from neurotouch_hid.driver import run_demo
 
-    stats = run_demo(seconds, console=console,
-                     say=lambda line: err_console.print(line, markup=False, highlight=False, soft_wrap=True))
+    stats = run_demo(
+        seconds,
+        console=console,
+        say=lambda line: err_console.print(line, markup=False, highlight=False, soft_wrap=True),
+    )
     err_console.print(stats.summary(), highlight=False, soft_wrap=True)
 
 
@@ -322,22 +428,36 @@ def devices(json_out: bool = typer.Option(False, "--json", help="print JSON (for
         console.print(escape(explain(found)), style="bold red", highlight=False, soft_wrap=True)
     else:
         style = {"ready": "green", "other-camera": "yellow"}
-        table = Table("device", "serial", "USB (pyusb)", "dv-processing", "status",
-                      title="DAVIS-346 cameras (USB 152a:841a)", show_lines=True)
+        table = Table(
+            "device",
+            "serial",
+            "USB (pyusb)",
+            "dv-processing",
+            "status",
+            title="DAVIS-346 cameras (USB 152a:841a)",
+            show_lines=True,
+        )
         for c in found.cameras:
             usb = "not seen"
             if c.usb is not None:
                 speed = f", {c.usb.speed_mbps:g} Mb/s" if c.usb.speed_mbps else ""
                 usb = f"{c.usb.product or '?'}{speed}\naccess: {c.usb.access}"
             dv = f"{c.dv.model} ({c.dv.device_type}), firmware {c.dv.firmware}" if c.dv else "not listed"
-            table.add_row(f"bus {c.bus} device {c.address}\n{c.node}", c.serial or "?", escape(usb), escape(dv),
-                          f"[{style.get(c.status, 'bold red')}]{c.status}[/]")
+            table.add_row(
+                f"bus {c.bus} device {c.address}\n{c.node}",
+                c.serial or "?",
+                escape(usb),
+                escape(dv),
+                f"[{style.get(c.status, 'bold red')}]{c.status}[/]",
+            )
         console.print(table)
         for c in found.cameras:
             if c.ready:
                 console.print(f"[green]ready:[/] {escape(c.label())}", highlight=False, soft_wrap=True)
             else:
-                console.print(f"[bold red]{escape(c.problem)}[/]\n  fix: {escape(c.fix)}", highlight=False, soft_wrap=True)
+                console.print(
+                    f"[bold red]{escape(c.problem)}[/]\n  fix: {escape(c.fix)}", highlight=False, soft_wrap=True
+                )
     if not json_out:
         for line in found.dv_log:
             console.print(f"[dim]dv-processing said: {escape(line)}[/]", highlight=False, soft_wrap=True)
@@ -361,11 +481,23 @@ def doctor() -> None:
 # --- calibration (calibration.py) -------------------------------------------------------------
 @app.command()
 def calibrate(
-    source: str = typer.Option("davis", "--source", help="davis (live camera) or an AEDAT4 recording that starts with the gel at rest"),
-    out: Optional[Path] = typer.Option(None, "--out", help="sensor.yaml (or folder) to write (default: your config folder, where run, track and eval find it)"),
+    source: str = typer.Option(
+        "davis", "--source", help="davis (live camera) or an AEDAT4 recording that starts with the gel at rest"
+    ),
+    out: Optional[Path] = typer.Option(
+        None,
+        "--out",
+        help="sensor.yaml (or folder) to write (default: your config folder, where run, track and eval find it)",
+    ),
     markers: int = typer.Option(177, "--markers", min=1, help="the gel's marker count (the paper's gel: 177)"),
-    mirror: Optional[bool] = typer.Option(None, "--mirror/--no-mirror", help="the camera sees the gel from inside (default: ask on a terminal, else yes)"),
-    rotation: Optional[float] = typer.Option(None, "--rotation", help="counter-clockwise degrees from the mirrored image to your view (default: ask on a terminal, else 0)"),
+    mirror: Optional[bool] = typer.Option(
+        None, "--mirror/--no-mirror", help="the camera sees the gel from inside (default: ask on a terminal, else yes)"
+    ),
+    rotation: Optional[float] = typer.Option(
+        None,
+        "--rotation",
+        help="counter-clockwise degrees from the mirrored image to your view (default: ask on a terminal, else 0)",
+    ),
     frames: int = typer.Option(10, "--frames", min=3, help="rest frames to check and average (25 a second)"),
 ) -> None:
     """Measure the gel's circle and scale on rest frames and save sensor.yaml (docs/dataset.md).
@@ -383,26 +515,45 @@ def calibrate(
 
     if source == "davis":
         err_console.print("reading rest frames from the camera: keep your hands off the gel", highlight=False)
-    result = calibration.calibrate(calibration.read_rest_frames(source, frames), expected_markers=markers, n_frames=frames)
+    result = calibration.calibrate(
+        calibration.read_rest_frames(source, frames), expected_markers=markers, n_frames=frames
+    )
     geometry = result.sensor
     span_s = (result.frames_t_us[-1] - result.frames_t_us[0]) / 1e6
     say(f"{len(result.frames_t_us)} rest frames of {source} over {span_s:.2f} s: the gel did not move")
-    offset = math.hypot(geometry.gel_center_px[0] - result.grid_center_px[0], geometry.gel_center_px[1] - result.grid_center_px[1])
-    circle = (f"fitted to the gel's edge, {offset:.1f} px from the marker grid's centre" if result.edge_found
-              else "the marker grid's extent + 4 mm")
-    say(f"gel circle: centre ({geometry.gel_center_px[0]:.2f}, {geometry.gel_center_px[1]:.2f}) px, "
-        f"radius {geometry.gel_radius_px:.2f} px ({circle})")
-    say(f"scale: {geometry.px_per_mm:.4f} px/mm at the centre (neighbouring markers there {result.spacing_px:.2f} px = 4 mm apart)")
+    offset = math.hypot(
+        geometry.gel_center_px[0] - result.grid_center_px[0], geometry.gel_center_px[1] - result.grid_center_px[1]
+    )
+    circle = (
+        f"fitted to the gel's edge, {offset:.1f} px from the marker grid's centre"
+        if result.edge_found
+        else "the marker grid's extent + 4 mm"
+    )
+    say(
+        f"gel circle: centre ({geometry.gel_center_px[0]:.2f}, {geometry.gel_center_px[1]:.2f}) px, "
+        f"radius {geometry.gel_radius_px:.2f} px ({circle})"
+    )
+    say(
+        f"scale: {geometry.px_per_mm:.4f} px/mm at the centre "
+        f"(neighbouring markers there {result.spacing_px:.2f} px = 4 mm apart)"
+    )
     say(f"markers: {result.n_markers} found, {markers} expected")
     interactive = sys.stdin.isatty()
     if mirror is None and interactive:
-        mirror = typer.confirm("Does the camera look at the gel from inside (the image is a mirror of your view)?", default=True)
+        mirror = typer.confirm(
+            "Does the camera look at the gel from inside (the image is a mirror of your view)?", default=True
+        )
     elif mirror is None:
-        say("mirror: true (the default: the camera looks from inside; not asked without a terminal; --no-mirror to change)")
+        say(
+            "mirror: true (the default: the camera looks from inside; not asked without a terminal; "
+            "--no-mirror to change)"
+        )
         mirror = True
     if rotation is None and interactive:
         seen = "mirrored image" if mirror else "image"
-        rotation = typer.prompt(f"Rotation from the {seen} to your view (counter-clockwise degrees)", default=0.0, type=float)
+        rotation = typer.prompt(
+            f"Rotation from the {seen} to your view (counter-clockwise degrees)", default=0.0, type=float
+        )
     elif rotation is None:
         say("rotation: 0 deg (the default; not asked without a terminal; --rotation DEG to change)")
         rotation = 0.0
@@ -427,8 +578,10 @@ def calibrate(
         raise SensorError(f"{path}: cannot write the sensor file: {exc.strerror}") from None
     say(f"wrote {path}")
     if path == user_sensor_path():
-        say("run, track, view and eval use it when no --sensor is given and no sensor.yaml is beside the recording "
-            "or in the dataset")
+        say(
+            "run, track, view and eval use it when no --sensor is given and no sensor.yaml is beside the recording "
+            "or in the dataset"
+        )
     else:
         say(f"use it with --sensor {path}, or calibrate without --out to make it your default")
 
@@ -575,10 +728,15 @@ def profile_test(
     from rich.table import Table
 
     from neurotouch_hid.controller import AXES
-    from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.driver import estimates_from_source
+    from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.mapping.replay import (
-        deflection, plot_timeline, pressed, replay, sample_timeline, summarise,
+        deflection,
+        plot_timeline,
+        pressed,
+        replay,
+        sample_timeline,
+        summarise,
     )
 
     loaded = load_profile(name)
@@ -588,15 +746,24 @@ def profile_test(
     if plot is not None:
         plot_timeline(estimates, states, plot)
     if json_out:
-        typer.echo(json.dumps({"estimates": len(estimates), "max_deflection": summary.max_deflection, "presses": summary.presses}))
+        typer.echo(
+            json.dumps(
+                {"estimates": len(estimates), "max_deflection": summary.max_deflection, "presses": summary.presses}
+            )
+        )
         return
     moved = [a for a in AXES if summary.max_deflection[a] > 0]
     table = Table("t (s)", "gesture", "mm", *moved, "buttons", title=f"{name} on {source} ({len(estimates)} windows)")
     t0 = estimates[0].t_us if estimates else 0
     for row in sample_timeline(estimates, states, every_ms * 1000):
         down = " ".join(b.removeprefix("BTN_") for b in pressed(row.state))
-        table.add_row(f"{(row.t_us - t0) / 1e6:.1f}", row.estimate.gesture.value, f"{row.estimate.intensity_mm:.1f}",
-                      *(f"{deflection(a, row.state.axes[a]):+.2f}" for a in moved), down)
+        table.add_row(
+            f"{(row.t_us - t0) / 1e6:.1f}",
+            row.estimate.gesture.value,
+            f"{row.estimate.intensity_mm:.1f}",
+            *(f"{deflection(a, row.state.axes[a]):+.2f}" for a in moved),
+            down,
+        )
     console.print(table)
     totals = Table("axis / button", "max deflection / presses", title="summary")
     for axis in AXES:
@@ -616,16 +783,18 @@ def profile_tune(
     percentile: float = typer.Option(95.0, "--percentile", help="intensity percentile that gives full deflection"),
 ) -> None:
     """Set each analogue mapping's saturation to what this user reaches (e.g. weak fingers)."""
+    from neurotouch_hid.driver import estimates_from_source
     from neurotouch_hid.mapping.editor import set_values
     from neurotouch_hid.mapping.profile import load_profile
-    from neurotouch_hid.driver import estimates_from_source
     from neurotouch_hid.mapping.replay import tuned_saturations
 
     if not 0 < percentile <= 100:
         raise NeurotouchError(f"--percentile {percentile}: expected a value in (0, 100]")
     tuned = tuned_saturations(load_profile(name), estimates_from_source(from_source), percentile)
     if not tuned:
-        raise NeurotouchError(f"{from_source}: no gesture there exercises an analogue mapping of '{name}'; nothing tuned")
+        raise NeurotouchError(
+            f"{from_source}: no gesture there exercises an analogue mapping of '{name}'; nothing tuned"
+        )
     path, _ = set_values(name, {f"mappings.{m}.saturation_mm": new for m, (_, new) in tuned.items()})
     for mapping, (old, new) in tuned.items():
         console.print(f"{mapping}: saturation_mm {old:g} -> {new:g}", highlight=False)

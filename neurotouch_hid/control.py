@@ -113,7 +113,11 @@ class ControlServer:
             request = json.loads(line)
         except (ValueError, UnicodeDecodeError):
             return {"ok": False, "message": "not a JSON request"}
-        if not isinstance(request, dict) or request.get("command") != "use" or not isinstance(request.get("profile"), str):
+        if (
+            not isinstance(request, dict)
+            or request.get("command") != "use"
+            or not isinstance(request.get("profile"), str)
+        ):
             return {"ok": False, "message": 'expected {"command": "use", "profile": NAME}'}
         try:
             return {"ok": True, "message": self._use(request["profile"])}
@@ -146,8 +150,10 @@ def request_use(profile: str, path: Path | None = None, timeout_s: float = ANSWE
     """
     path = path if path is not None else socket_path()
     if path is None:
-        raise NeurotouchError("no neurotouch-hid driver is running: XDG_RUNTIME_DIR is not set, so there is no "
-                              "control socket (start one with `neurotouch-hid run`)")
+        raise NeurotouchError(
+            "no neurotouch-hid driver is running: XDG_RUNTIME_DIR is not set, so there is no "
+            "control socket (start one with `neurotouch-hid run`)"
+        )
     if os.sep in profile or profile.endswith((".yaml", ".yml")):
         profile = str(Path(profile).resolve())
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
@@ -155,8 +161,10 @@ def request_use(profile: str, path: Path | None = None, timeout_s: float = ANSWE
         try:
             sock.connect(str(path))
         except (FileNotFoundError, ConnectionRefusedError):
-            raise NeurotouchError(f"no neurotouch-hid driver is running (nothing listens on {path}); "
-                                  f"start one with `neurotouch-hid run --profile {profile}`") from None
+            raise NeurotouchError(
+                f"no neurotouch-hid driver is running (nothing listens on {path}); "
+                f"start one with `neurotouch-hid run --profile {profile}`"
+            ) from None
         except OSError as exc:
             raise NeurotouchError(f"cannot reach the driver at {path}: {exc.strerror}") from None
         try:

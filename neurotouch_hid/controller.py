@@ -35,8 +35,17 @@ MOUSE_REL: tuple[str, ...] = ("REL_X", "REL_Y", "REL_WHEEL", "REL_HWHEEL", "REL_
 
 #: The 11 buttons of the Xbox 360 layout, evdev names, in SDL's usual order.
 BUTTONS: tuple[str, ...] = (
-    "BTN_SOUTH", "BTN_EAST", "BTN_NORTH", "BTN_WEST", "BTN_TL", "BTN_TR",
-    "BTN_SELECT", "BTN_START", "BTN_MODE", "BTN_THUMBL", "BTN_THUMBR",
+    "BTN_SOUTH",
+    "BTN_EAST",
+    "BTN_NORTH",
+    "BTN_WEST",
+    "BTN_TL",
+    "BTN_TR",
+    "BTN_SELECT",
+    "BTN_START",
+    "BTN_MODE",
+    "BTN_THUMBL",
+    "BTN_THUMBR",
 )
 
 
@@ -67,6 +76,9 @@ class ControllerState:
 
     def is_neutral(self) -> bool:
         """True when every axis is at its neutral value, no button or key is pressed and nothing moves."""
-        return (all(self.axes[n] == AXES[n][2] for n in AXES) and not any(self.buttons.values())
-                and not self.keys and not any(self.rel.values()))
-
+        return (
+            all(self.axes[n] == AXES[n][2] for n in AXES)
+            and not any(self.buttons.values())
+            and not self.keys
+            and not any(self.rel.values())
+        )

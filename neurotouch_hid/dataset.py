@@ -30,8 +30,17 @@ from neurotouch_hid.sensor import user_sensor_path
 
 #: The columns of ``SEQUENCE.labels.csv``, in docs/dataset.md's order.
 LABEL_COLUMNS: tuple[str, ...] = (
-    "t_us", "gesture", "resting", "intensity_mm", "n_contacts",
-    "x1_px", "y1_px", "x2_px", "y2_px", "x3_px", "y3_px",
+    "t_us",
+    "gesture",
+    "resting",
+    "intensity_mm",
+    "n_contacts",
+    "x1_px",
+    "y1_px",
+    "x2_px",
+    "y2_px",
+    "x3_px",
+    "y3_px",
 )
 MAX_CONTACTS = 3
 
@@ -76,8 +85,11 @@ def write_labels(path: str | Path, rows: list[LabelRow]) -> None:
             if row.n_contacts > MAX_CONTACTS:
                 raise ValueError(f"at most {MAX_CONTACTS} contacts per label, got {row.n_contacts}")
             cells: list[str] = [
-                str(int(row.t_us)), row.gesture.value, "1" if row.resting else "0",
-                f"{row.intensity_mm:.4f}", str(row.n_contacts),
+                str(int(row.t_us)),
+                row.gesture.value,
+                "1" if row.resting else "0",
+                f"{row.intensity_mm:.4f}",
+                str(row.n_contacts),
             ]
             for k in range(MAX_CONTACTS):
                 if k < row.n_contacts:
@@ -150,8 +162,10 @@ def dataset_sensor_file(dataset: str | Path) -> Path:
     calibrated = user_sensor_path()
     if calibrated.exists():
         return calibrated
-    raise DatasetError(f"{dataset}: no sensor.yaml (docs/dataset.md), and no calibrated sensor at {calibrated}: add the "
-                       f"sensor.yaml the dataset was recorded with, or calibrate with `neurotouch-hid calibrate`")
+    raise DatasetError(
+        f"{dataset}: no sensor.yaml (docs/dataset.md), and no calibrated sensor at {calibrated}: add the "
+        f"sensor.yaml the dataset was recorded with, or calibrate with `neurotouch-hid calibrate`"
+    )
 
 
 def list_sequences(dataset: str | Path) -> list[str]:
@@ -310,6 +324,8 @@ def read_predictions(path: str | Path) -> list[GestureEstimate]:
         if estimate.contacts_px.shape != estimate.contacts_mm.shape:
             raise DatasetError(f"{path}:{number}: contacts_px and contacts_mm have different numbers of points")
         if estimates and estimate.t_us < estimates[-1].t_us:
-            raise DatasetError(f"{path}:{number}: t_us {estimate.t_us} goes back in time (previous line: {estimates[-1].t_us})")
+            raise DatasetError(
+                f"{path}:{number}: t_us {estimate.t_us} goes back in time (previous line: {estimates[-1].t_us})"
+            )
         estimates.append(estimate)
     return estimates

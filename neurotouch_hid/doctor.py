@@ -51,12 +51,21 @@ def check_camera(found: Discovery) -> Check:
         others = [c.label() for c in found.cameras if not c.is_davis346]
         seen = f" (dv-processing sees only: {', '.join(others)})" if others else ""
         if found.usb_error is not None:
-            return Check("camera on USB", FAIL, f"pyusb cannot list USB devices ({found.usb_error}){seen}",
-                         "python3 -m pip install --force-reinstall pyusb libusb-package")
-        return Check("camera on USB", FAIL, f"no DAVIS-346 ({CAMERA_USB_ID}) on USB{seen}",
-                     f"plug the NeuroTouch's USB cable in (a USB 3 port); `lsusb -d {CAMERA_USB_ID}` must list it")
-    where = ", ".join(f"bus {c.bus} device {c.address}" + (f" (serial {c.serial})" if c.serial else "")
-                      for c in cameras)
+            return Check(
+                "camera on USB",
+                FAIL,
+                f"pyusb cannot list USB devices ({found.usb_error}){seen}",
+                "python3 -m pip install --force-reinstall pyusb libusb-package",
+            )
+        return Check(
+            "camera on USB",
+            FAIL,
+            f"no DAVIS-346 ({CAMERA_USB_ID}) on USB{seen}",
+            f"plug the NeuroTouch's USB cable in (a USB 3 port); `lsusb -d {CAMERA_USB_ID}` must list it",
+        )
+    where = ", ".join(
+        f"bus {c.bus} device {c.address}" + (f" (serial {c.serial})" if c.serial else "") for c in cameras
+    )
     return Check("camera on USB", OK, f"DAVIS-346 at {where}")
 
 
@@ -84,8 +93,11 @@ def check_camera_dv(found: Discovery) -> Check:
     missing = [c for c in usable if not c.ready]
     if missing:
         return Check("dv-processing sees the camera", FAIL, "; ".join(c.problem for c in missing), missing[0].fix)
-    return Check("dv-processing sees the camera", OK, ", ".join(
-        f"{c.dv.model} serial {c.dv.serial} firmware {c.dv.firmware}" if c.dv else c.label() for c in usable))
+    return Check(
+        "dv-processing sees the camera",
+        OK,
+        ", ".join(f"{c.dv.model} serial {c.dv.serial} firmware {c.dv.firmware}" if c.dv else c.label() for c in usable),
+    )
 
 
 def check_uinput(devnode: str = "/dev/uinput") -> Check:
@@ -109,8 +121,12 @@ def check_library(module: str, dist: str) -> Check:
     try:
         importlib.import_module(module)
     except Exception as exc:  # an ImportError, or a broken native library underneath
-        return Check(dist, FAIL, f"import {module} failed: {type(exc).__name__}: {exc}",
-                     f"python3 -m pip install --upgrade {dist}")
+        return Check(
+            dist,
+            FAIL,
+            f"import {module} failed: {type(exc).__name__}: {exc}",
+            f"python3 -m pip install --upgrade {dist}",
+        )
     try:
         version = importlib.metadata.version(dist)
     except importlib.metadata.PackageNotFoundError:
@@ -125,8 +141,12 @@ def check_jit_cache() -> Check:
 
     cache = chosen()
     if cache.kind in (MEMORY, TEMPORARY):
-        return Check("compiled-code cache (numba)", WARN, cache.describe(),
-                     "make ~/.cache writable, or set XDG_CACHE_HOME (or NUMBA_CACHE_DIR) to a writable folder")
+        return Check(
+            "compiled-code cache (numba)",
+            WARN,
+            cache.describe(),
+            "make ~/.cache writable, or set XDG_CACHE_HOME (or NUMBA_CACHE_DIR) to a writable folder",
+        )
     return Check("compiled-code cache (numba)", OK, cache.describe())
 
 
@@ -137,15 +157,27 @@ def check_service(home: Path | None = None) -> Check:
     found = [str(d / SERVICE_NAME) for d in dirs if (d / SERVICE_NAME).is_file()]
     if found:
         return Check("plug-and-play service", OK, found[0])
-    return Check("plug-and-play service", WARN, f"{SERVICE_NAME} is not installed (start by hand with "
-                 "`neurotouch-hid run`)", "packaging/install.sh --user")
+    return Check(
+        "plug-and-play service",
+        WARN,
+        f"{SERVICE_NAME} is not installed (start by hand with `neurotouch-hid run`)",
+        "packaging/install.sh --user",
+    )
 
 
 def run_checks() -> list[Check]:
     """Every check, in the order the report shows them."""
     found = discover()
-    return [check_camera(found), check_camera_access(found), check_camera_dv(found), check_uinput(), check_rules(),
-            *(check_library(m, d) for m, d in LIBRARIES), check_jit_cache(), check_service()]
+    return [
+        check_camera(found),
+        check_camera_access(found),
+        check_camera_dv(found),
+        check_uinput(),
+        check_rules(),
+        *(check_library(m, d) for m, d in LIBRARIES),
+        check_jit_cache(),
+        check_service(),
+    ]
 
 
 def report(checks: list[Check], console: Console) -> int:
@@ -158,6 +190,7 @@ def report(checks: list[Check], console: Console) -> int:
         table.add_row(c.name, f"[{style[c.status]}]{c.status}[/]", c.detail, c.fix)
     console.print(table)
     failed = [c.name for c in checks if c.status == FAIL]
-    console.print(f"[bold red]{len(failed)} problem(s):[/] {', '.join(failed)}" if failed
-                  else "[green]all checks passed[/]")
+    console.print(
+        f"[bold red]{len(failed)} problem(s):[/] {', '.join(failed)}" if failed else "[green]all checks passed[/]"
+    )
     return 1 if failed else 0

@@ -42,10 +42,18 @@ class EstimateReplay:
         pass
 
 
-def open_source(spec: str, stack: contextlib.ExitStack, *, seconds: float | None = None,
-                batch_us: int = DEFAULT_BATCH_US, sensor: str | Path | None = None,
-                seed: int = 0, davis: Any = None, wait: bool = False,
-                capture: Any = None) -> tuple[Iterable[Any], Any, bool]:
+def open_source(
+    spec: str,
+    stack: contextlib.ExitStack,
+    *,
+    seconds: float | None = None,
+    batch_us: int = DEFAULT_BATCH_US,
+    sensor: str | Path | None = None,
+    seed: int = 0,
+    davis: Any = None,
+    wait: bool = False,
+    capture: Any = None,
+) -> tuple[Iterable[Any], Any, bool]:
     """Open ``davis`` (the live camera), ``sim`` (the simulated gel), an AEDAT4 recording path, or
     a predictions file (``*.jsonl``, docs/dataset.md: the pipeline's estimates, replayed as they are).
 
@@ -71,15 +79,17 @@ def open_source(spec: str, stack: contextlib.ExitStack, *, seconds: float | None
         return iter(read_predictions(spec)), None, False
 
     if spec == "davis":
-        from neurotouch_hid.sources.davis import DavisSource
-
         from neurotouch_hid.pipeline.noise import EventNoiseFilter
         from neurotouch_hid.pipeline.pipeline import PipelineConfig
+        from neurotouch_hid.sources.davis import DavisSource
         from neurotouch_hid.sources.recording import DAVIS346_RESOLUTION
 
         defaults = PipelineConfig()
-        noise = (EventNoiseFilter(defaults.noise_filter, *DAVIS346_RESOLUTION, defaults.noise_filter_us)
-                 if defaults.noise_filter is not None else None)
+        noise = (
+            EventNoiseFilter(defaults.noise_filter, *DAVIS346_RESOLUTION, defaults.noise_filter_us)
+            if defaults.noise_filter is not None
+            else None
+        )
         try:
             camera = stack.enter_context(DavisSource(davis, wait=wait, backend=capture, noise_filter=noise))
         except DeviceError as exc:
@@ -96,14 +106,23 @@ def open_source(spec: str, stack: contextlib.ExitStack, *, seconds: float | None
 
     path = Path(spec)
     if not path.is_file():
-        raise RecordingError(f"{path}: no such recording (--source takes davis, sim, an AEDAT4 file or a predictions .jsonl)")
+        raise RecordingError(
+            f"{path}: no such recording (--source takes davis, sim, an AEDAT4 file or a predictions .jsonl)"
+        )
     reader = stack.enter_context(RecordingReader(path))
     return reader.stream(batch_us=batch_us), find_sensor_file(path, sensor), False
 
 
-def open_output(kind: str, profile: Profile, stack: contextlib.ExitStack, *, out: str | Path | None = None,
-                console: Any = None, say: Callable[[str], None] | None = None,
-                stats: RunStats | None = None) -> Output:
+def open_output(
+    kind: str,
+    profile: Profile,
+    stack: contextlib.ExitStack,
+    *,
+    out: str | Path | None = None,
+    console: Any = None,
+    say: Callable[[str], None] | None = None,
+    stats: RunStats | None = None,
+) -> Output:
     """Create the output: ``gamepad`` (the uinput pad with the profile's name and ids, and the
     keyboard and mouse if the profile uses them), ``jsonl`` (one state line per change to ``out``
     or stdout) or ``term`` (the terminal view, showing ``stats`` under the pad). ``say`` tells the
@@ -141,8 +160,9 @@ class PipelineResting:
         return None if detector is None else detector.update(frame)
 
 
-def build_pipeline(geometry: Any, window_us: int, *, resting_beside: bool = True,
-                   filter_noise: bool = True) -> tuple[Any, PipelineResting | None]:
+def build_pipeline(
+    geometry: Any, window_us: int, *, resting_beside: bool = True, filter_noise: bool = True
+) -> tuple[Any, PipelineResting | None]:
     """A ``GesturePipeline`` with ``window_us`` windows, and the resting detector to run beside it.
 
     ``filter_noise``: the pipeline runs its default noise filter (``PipelineConfig.noise_filter``);
@@ -173,12 +193,25 @@ def compile_pipeline() -> None:
     GesturePipeline(SensorGeometry()).compile_kernels()
 
 
-def run_driver(source: str = "davis", profile: str | Path = "default", output: str = "gamepad", *,
-               seconds: float | None = None, fast: bool = False, out: str | Path | None = None,
-               window_us: int = 10_000, sensor: str | Path | None = None, seed: int = 0,
-               console: Any = None, output_obj: Output | None = None, davis: Any = None, wait: bool = False,
-               capture: Any = None, say: Callable[[str], None] = log.warning,
-               stats: RunStats | None = None) -> RunStats:
+def run_driver(
+    source: str = "davis",
+    profile: str | Path = "default",
+    output: str = "gamepad",
+    *,
+    seconds: float | None = None,
+    fast: bool = False,
+    out: str | Path | None = None,
+    window_us: int = 10_000,
+    sensor: str | Path | None = None,
+    seed: int = 0,
+    console: Any = None,
+    output_obj: Output | None = None,
+    davis: Any = None,
+    wait: bool = False,
+    capture: Any = None,
+    say: Callable[[str], None] = log.warning,
+    stats: RunStats | None = None,
+) -> RunStats:
     """``neurotouch-hid run``: load the profile (a bad one raises ProfileError before any device
     exists), open the source, build the pipeline, open the output, run until the end.
 
@@ -203,23 +236,52 @@ def run_driver(source: str = "davis", profile: str | Path = "default", output: s
         compile_pipeline()
     stats = stats if stats is not None else RunStats()
     with contextlib.ExitStack() as stack:
-        stream, geometry, live = open_source(source, stack, seconds=seconds,
-                                             batch_us=min(DEFAULT_BATCH_US, window_us), sensor=sensor, seed=seed,
-                                             davis=davis, wait=wait, capture=capture)
+        stream, geometry, live = open_source(
+            source,
+            stack,
+            seconds=seconds,
+            batch_us=min(DEFAULT_BATCH_US, window_us),
+            sensor=sensor,
+            seed=seed,
+            davis=davis,
+            wait=wait,
+            capture=capture,
+        )
         if geometry is None:  # a predictions file: the estimates are already there
             pipeline, resting = EstimateReplay(), None
         else:
-            pipeline, resting = build_pipeline(geometry, window_us, resting_beside=live or not fast,
-                                               filter_noise=not live)
-        out_obj = output_obj if output_obj is not None else open_output(output, loaded, stack, out=out, console=console,
-                                                                        say=say, stats=stats)
-        runtime = Runtime(stream, pipeline, loaded, out_obj, resting=resting, pace=not fast, live=live,
-                          profile_ref=profile, say=say, control=True, stats=stats)
+            pipeline, resting = build_pipeline(
+                geometry, window_us, resting_beside=live or not fast, filter_noise=not live
+            )
+        out_obj = (
+            output_obj
+            if output_obj is not None
+            else open_output(output, loaded, stack, out=out, console=console, say=say, stats=stats)
+        )
+        runtime = Runtime(
+            stream,
+            pipeline,
+            loaded,
+            out_obj,
+            resting=resting,
+            pace=not fast,
+            live=live,
+            profile_ref=profile,
+            say=say,
+            control=True,
+            stats=stats,
+        )
         return runtime.run(seconds)
 
 
-def gamepad_or_terminal(profile: Profile, stack: contextlib.ExitStack, *, console: Any = None,
-                        say: Callable[[str], None] = print, stats: RunStats | None = None) -> Output:
+def gamepad_or_terminal(
+    profile: Profile,
+    stack: contextlib.ExitStack,
+    *,
+    console: Any = None,
+    say: Callable[[str], None] = print,
+    stats: RunStats | None = None,
+) -> Output:
     """The virtual gamepad where /dev/uinput is writable; else the terminal view (showing
     ``stats``), after saying why in one line (``say``)."""
     from neurotouch_hid.udev import uinput_help
@@ -228,13 +290,14 @@ def gamepad_or_terminal(profile: Profile, stack: contextlib.ExitStack, *, consol
         return open_output("gamepad", profile, stack)
     except DeviceError as exc:
         reason = str(exc).replace(": " + uinput_help(), "").strip()
-        say(f"no writable /dev/uinput ({reason}): showing the gamepad in the terminal instead; "
-            "see `neurotouch-hid doctor`")
+        say(
+            f"no writable /dev/uinput ({reason}): showing the gamepad in the terminal instead; "
+            "see `neurotouch-hid doctor`"
+        )
         return open_output("term", profile, stack, console=console, stats=stats)
 
 
-def run_demo(seconds: float | None = 30.0, *, console: Any = None,
-             say: Callable[[str], None] = print) -> RunStats:
+def run_demo(seconds: float | None = 30.0, *, console: Any = None, say: Callable[[str], None] = print) -> RunStats:
     """``neurotouch-hid demo``: the simulated gel performing every gesture, paced in real time,
     through the default profile, to the virtual gamepad (or the terminal view, see
     :func:`gamepad_or_terminal`)."""
@@ -242,8 +305,7 @@ def run_demo(seconds: float | None = 30.0, *, console: Any = None,
     stats = RunStats()
     with contextlib.ExitStack() as stack:
         out = gamepad_or_terminal(profile, stack, console=console, say=say, stats=stats)
-        return run_driver("sim", "default", "gamepad", seconds=seconds, console=console, output_obj=out,
-                          stats=stats)
+        return run_driver("sim", "default", "gamepad", seconds=seconds, console=console, output_obj=out, stats=stats)
 
 
 def estimates_from_source(source: str, seconds: float | None = None) -> Iterator[GestureEstimate]:
@@ -262,7 +324,9 @@ def estimates_from_source(source: str, seconds: float | None = None) -> Iterator
     from neurotouch_hid.pipeline.pipeline import GesturePipeline
 
     with contextlib.ExitStack() as stack:
-        stream, sensor, _ = open_source(source, stack, seconds=seconds if seconds is not None or source != "sim" else 20.0)
+        stream, sensor, _ = open_source(
+            source, stack, seconds=seconds if seconds is not None or source != "sim" else 20.0
+        )
         yield from _first_seconds(GesturePipeline(sensor).run(stream), seconds)
 
 

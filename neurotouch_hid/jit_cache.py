@@ -42,7 +42,14 @@ CACHE_ENV = "NUMBA_CACHE_DIR"
 JIT_PACKAGES = ("pipeline", "sources")
 
 ENV, PACKAGE, SERVICE_CACHE, USER_CACHE, RUNTIME_DIR, TEMPORARY, MEMORY = (
-    "NUMBA_CACHE_DIR", "package", "service cache", "user cache", "runtime dir", "temporary", "memory")
+    "NUMBA_CACHE_DIR",
+    "package",
+    "service cache",
+    "user cache",
+    "runtime dir",
+    "temporary",
+    "memory",
+)
 #: What the user is told (stderr, doctor) when no cache folder of theirs is writable.
 NO_FOLDER = "no writable cache folder (package, XDG cache, $XDG_RUNTIME_DIR): numba compiles the pipeline"
 

@@ -215,7 +215,9 @@ class Runtime:
         self._profile_loader = profile_loader
         self.stats = stats if stats is not None else RunStats()
         self._items = DropOldestQueue(queue_items, drop_oldest=self._realtime, on_drop=self._count_drop)
-        self._frames = DropOldestQueue(DEFAULT_FRAME_QUEUE, drop_oldest=self._realtime, on_drop=self._count_resting_drop)
+        self._frames = DropOldestQueue(
+            DEFAULT_FRAME_QUEUE, drop_oldest=self._realtime, on_drop=self._count_resting_drop
+        )
         self._stop = threading.Event()
         self._reload = threading.Event()
         self._lock = threading.Lock()  # mapper + output: the worker vs. profile switches
@@ -293,8 +295,10 @@ class Runtime:
             raise RuntimeError("a Runtime runs once")
         self._ran = True
         self._limit_us = None if seconds is None else int(round(seconds * 1e6))
-        threads = [threading.Thread(target=self._read_source, name="nt-source", daemon=True),
-                   threading.Thread(target=self._work, name="nt-pipeline", daemon=True)]
+        threads = [
+            threading.Thread(target=self._read_source, name="nt-source", daemon=True),
+            threading.Thread(target=self._work, name="nt-pipeline", daemon=True),
+        ]
         if self._resting is not None:
             threads.append(threading.Thread(target=self._rest, name="nt-resting", daemon=True))
         interrupted = False
@@ -406,7 +410,7 @@ class Runtime:
                     self._frames.put(entry)
                 self._items.put(entry)
         except BaseException as exc:  # a truncated recording, a lost camera: what was read is
-            self._errors.append(exc)    # still processed, then run() neutralises and re-raises
+            self._errors.append(exc)  # still processed, then run() neutralises and re-raises
         finally:
             close = getattr(iterator, "close", None)
             if close is not None:
@@ -497,11 +501,12 @@ class Runtime:
     def _emit(self, estimate: GestureEstimate) -> None:
         with self._lock:
             if self._stop.is_set() or self._paused:  # run() neutralises (under this lock): nothing
-                return                                # after that; a lost camera: nothing until back
+                return  # after that; a lost camera: nothing until back
             state = self._mapper.update(estimate)
             last = self._last_state
-            changed = (state.axes != last.axes or state.buttons != last.buttons or state.keys != last.keys
-                       or bool(state.rel))  # motion is an impulse: always written
+            changed = (
+                state.axes != last.axes or state.buttons != last.buttons or state.keys != last.keys or bool(state.rel)
+            )  # motion is an impulse: always written
             if self._takes_estimate:
                 changed = changed or estimate.gesture != self._last_gesture
                 if changed:

@@ -100,7 +100,9 @@ class SensorGeometry:
         except yaml.YAMLError as exc:
             raise SensorError(f"{path}: not valid YAML: {exc}") from None
         if not isinstance(data, dict):
-            raise SensorError(f"{path}: expected a mapping of sensor fields (docs/dataset.md), found {type(data).__name__}")
+            raise SensorError(
+                f"{path}: expected a mapping of sensor fields (docs/dataset.md), found {type(data).__name__}"
+            )
         try:
             fields = _SENSOR_FILE.validate_python({k: v for k, v in data.items() if k in SensorFile.__annotations__})
         except ValidationError as exc:

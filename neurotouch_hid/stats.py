@@ -79,10 +79,15 @@ class RunStats:
         """One line for the end of a run."""
         lat = ""
         if len(self.latency):
-            lat = (f", latency p50 {self.latency.percentile_us(50) / 1e3:.2f} ms"
-                   f" p99 {self.latency.percentile_us(99) / 1e3:.2f} ms")
-        return (f"{self.windows} windows, {self.events} events, {self.frames} frames in {self.wall_s:.1f} s"
-                f" ({self.stream_us / 1e6:.1f} s of data); dropped {self.dropped_items} items"
-                f" ({self.dropped_events} events, {self.dropped_frames} frames),"
-                f" resting detector skipped {self.resting_dropped_frames} frames"
-                + (f", camera lost {self.camera_losses} time(s)" if self.camera_losses else "") + lat)
+            lat = (
+                f", latency p50 {self.latency.percentile_us(50) / 1e3:.2f} ms"
+                f" p99 {self.latency.percentile_us(99) / 1e3:.2f} ms"
+            )
+        return (
+            f"{self.windows} windows, {self.events} events, {self.frames} frames in {self.wall_s:.1f} s"
+            f" ({self.stream_us / 1e6:.1f} s of data); dropped {self.dropped_items} items"
+            f" ({self.dropped_events} events, {self.dropped_frames} frames),"
+            f" resting detector skipped {self.resting_dropped_frames} frames"
+            + (f", camera lost {self.camera_losses} time(s)" if self.camera_losses else "")
+            + lat
+        )

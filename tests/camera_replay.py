@@ -34,7 +34,6 @@ import numpy as np
 
 from neurotouch_hid.sources.recording import RecordingReader, store_from_events
 
-
 #: The shortest span of events one ``getNextEventBatch`` hands out (us).
 PACKET_US = 2_000
 
@@ -164,7 +163,7 @@ class ReplayCamera:
         stop = int(np.searchsorted(w.event_ts, now_us, side="right"))
         if stop <= self._event_at:
             return None
-        events = w.events[self._event_at:stop]
+        events = w.events[self._event_at : stop]
         self._event_at = stop
         events = events[~w.stalled_mask(events["timestamp"])]
         return store_from_events(events) if len(events) else None

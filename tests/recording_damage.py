@@ -34,8 +34,8 @@ def damage(data: bytes, kind: str, seed: int) -> bytes:
             out[i] ^= 1 << rng.randrange(8)
         return bytes(out)
     if kind == "cut":
-        return data[:rng.randrange(len(AEDAT4_MAGIC), len(data))]
+        return data[: rng.randrange(len(AEDAT4_MAGIC), len(data))]
     found = packets(data)
     i = rng.randrange(len(found) - 1)
     (p1, l1), (p2, l2) = found[i], found[i + 1]
-    return data[:p1] + data[p2:p2 + l2] + data[p1:p1 + l1] + data[p2 + l2:]
+    return data[:p1] + data[p2 : p2 + l2] + data[p1 : p1 + l1] + data[p2 + l2 :]

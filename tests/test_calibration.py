@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from neurotouch_hid.calibration import calibrate, read_rest_frames
+from neurotouch_hid.dataset import dataset_sensor_file
 from neurotouch_hid.errors import DatasetError, SensorError
 from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.dataset import dataset_sensor_file
 from neurotouch_hid.sensor import SensorGeometry, default_sensor, find_sensor_file, user_sensor_path
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.simulator import START_US, USERS, GelSimulator, gesture_script, write_dataset
@@ -51,8 +51,9 @@ def write_rest_dataset(folder: Path, sensor: SensorGeometry) -> Path:
 
 @pytest.fixture(scope="module", params=["default", "shifted"])
 def sim_dataset(request, tmp_path_factory) -> Path:
-    return write_rest_dataset(tmp_path_factory.mktemp(request.param),
-                              SensorGeometry() if request.param == "default" else SHIFTED)
+    return write_rest_dataset(
+        tmp_path_factory.mktemp(request.param), SensorGeometry() if request.param == "default" else SHIFTED
+    )
 
 
 @pytest.fixture(scope="module")
@@ -85,11 +86,15 @@ def test_refuses_the_real_street_recording():
     assert "\n" not in str(caught.value)
 
 
-@pytest.mark.parametrize("image", [
-    np.zeros((260, 346), np.uint8),  # camera covered / LEDs off
-    np.full((260, 346), 255, np.uint8),  # saturated
-    np.random.default_rng(0).integers(0, 30, (260, 346)).astype(np.uint8),  # dark noise
-], ids=["black", "white", "noise"])
+@pytest.mark.parametrize(
+    "image",
+    [
+        np.zeros((260, 346), np.uint8),  # camera covered / LEDs off
+        np.full((260, 346), 255, np.uint8),  # saturated
+        np.random.default_rng(0).integers(0, 30, (260, 346)).astype(np.uint8),  # dark noise
+    ],
+    ids=["black", "white", "noise"],
+)
 def test_refuses_frames_without_a_gel(image):
     with pytest.raises(SensorError, match="no gel in view"):
         calibrate(Frame(40_000 * k, image) for k in range(10))
@@ -97,8 +102,9 @@ def test_refuses_frames_without_a_gel(image):
 
 def test_refuses_when_the_gel_moves_during_calibration():
     """A push starting 80 ms into the rest frames: the user touched the gel."""
-    script = gesture_script(np.random.default_rng(1), USERS[0], [GestureType.PUSH], START_US, SHIFTED,
-                            first_rest_us=80_000)
+    script = gesture_script(
+        np.random.default_rng(1), USERS[0], [GestureType.PUSH], START_US, SHIFTED, first_rest_us=80_000
+    )
     sim = GelSimulator(SHIFTED, USERS[0], script=script)
     frames = [sim.step().frame for _ in range(10)]
     with pytest.raises(SensorError, match="keep your hands off the gel"):
@@ -176,8 +182,14 @@ def test_eval_says_it_uses_the_users_calibration(shifted_dataset, tmp_path, capl
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:
     """``neurotouch-hid ARGS`` in a fresh process without a terminal (the tmp user config folder)."""
-    return subprocess.run([sys.executable, "-m", "neurotouch_hid.cli", *args], capture_output=True, text=True,
-                          env=dict(os.environ, COLUMNS="200"), stdin=subprocess.DEVNULL, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "neurotouch_hid.cli", *args],
+        capture_output=True,
+        text=True,
+        env=dict(os.environ, COLUMNS="200"),
+        stdin=subprocess.DEVNULL,
+        timeout=300,
+    )
 
 
 def test_calibrate_command_writes_sensor_yaml_where_track_finds_it(shifted_dataset, tmp_path):

@@ -12,13 +12,12 @@ import time
 
 import numpy as np
 import pytest
+from test_runtime import FakeMapper, FakePipeline, RecordingOutput, endless, writes_of
 
 from neurotouch_hid.control import ControlServer, request_use, socket_path
 from neurotouch_hid.errors import NeurotouchError, ProfileError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.runtime import Runtime
-
-from test_runtime import FakeMapper, FakePipeline, RecordingOutput, endless, writes_of
 
 
 @pytest.fixture
@@ -30,8 +29,9 @@ def runtime_dir(tmp_path, monkeypatch):
 
 
 def _cli(*args, env=None):
-    return subprocess.run([sys.executable, "-m", "neurotouch_hid.cli", *args], capture_output=True, text=True,
-                          env=env, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "neurotouch_hid.cli", *args], capture_output=True, text=True, env=env, timeout=120
+    )
 
 
 def test_profile_use_without_a_driver_says_so_in_one_line_exit_2(runtime_dir):
@@ -82,8 +82,16 @@ def test_profile_use_switches_a_running_runtime_outputs_neutral_first(runtime_di
         return {"sign": -1}
 
     out = RecordingOutput()
-    rt = Runtime(endless(), FakePipeline(push_batches=10**9), {"sign": 1}, out, mapper_factory=FakeMapper,
-                 pace=True, profile_loader=loader, control=True)
+    rt = Runtime(
+        endless(),
+        FakePipeline(push_batches=10**9),
+        {"sign": 1},
+        out,
+        mapper_factory=FakeMapper,
+        pace=True,
+        profile_loader=loader,
+        control=True,
+    )
     answers: dict = {}
 
     def client():
@@ -103,7 +111,7 @@ def test_profile_use_switches_a_running_runtime_outputs_neutral_first(runtime_di
     assert loads == ["broken", "mine"] and rt.profile == {"sign": -1}
     kinds = [k for k, _ in out.calls]
     i = kinds.index("neutralise")
-    before, after = writes_of(out.calls[:i]), writes_of(out.calls[i + 1:])
+    before, after = writes_of(out.calls[:i]), writes_of(out.calls[i + 1 :])
     assert before and after and all(s.axes["ABS_X"] > 0 for s in before) and all(s.axes["ABS_X"] < 0 for s in after)
     assert not socket_path().exists()  # removed when the run ended
 
@@ -120,12 +128,21 @@ def wait_for_socket(timeout_s: float = 5.0) -> bool:
 def test_mouse_profile_run_writes_every_motion_and_ends_neutral(tmp_path, runtime_dir):
     """``run --profile mouse --output jsonl`` on a push: one line per window with motion, the
     pointer moving right and up, the last line neutral with no motion."""
-    from neurotouch_hid.dataset import write_predictions
-    from neurotouch_hid.driver import run_driver
     from test_runtime import read_states
 
-    estimates = [GestureEstimate(t_us=1_000_000 + 10_000 * k, gesture=GestureType.PUSH, resting=False,
-                                 intensity_mm=6.0, translation_mm=np.array([3.0, 3.0])) for k in range(50)]
+    from neurotouch_hid.dataset import write_predictions
+    from neurotouch_hid.driver import run_driver
+
+    estimates = [
+        GestureEstimate(
+            t_us=1_000_000 + 10_000 * k,
+            gesture=GestureType.PUSH,
+            resting=False,
+            intensity_mm=6.0,
+            translation_mm=np.array([3.0, 3.0]),
+        )
+        for k in range(50)
+    ]
     estimates += [GestureEstimate(t_us=1_500_000 + 10_000 * k) for k in range(10)]
     preds = tmp_path / "p.jsonl"
     write_predictions(preds, estimates)

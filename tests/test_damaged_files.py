@@ -20,13 +20,13 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from recording_damage import damage
 
 from neurotouch_hid.errors import ProfileError, RecordingError
 from neurotouch_hid.mapping.profile import load_profile, shipped_profiles_dir
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.recording import RecordingReader, RecordingWriter
 from neurotouch_hid.sources.simulator import SimulatedSource
-from recording_damage import damage
 
 REPO = Path(__file__).parents[1]
 STREET = REPO.parent / "shared" / "data" / "davis346-street" / "recording.aedat4"
@@ -47,8 +47,9 @@ def originals(tmp_path_factory) -> dict[str, bytes]:
 
 
 damages = st.tuples(st.sampled_from(["flip", "flip", "cut", "swap"]), st.integers(0, 2**32))
-settings_subprocess = settings(max_examples=12, deadline=None, derandomize=True,
-                               suppress_health_check=[HealthCheck.function_scoped_fixture])
+settings_subprocess = settings(
+    max_examples=12, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 
 
 @settings_subprocess
@@ -63,8 +64,13 @@ def test_damaged_recording_cli_ends_cleanly(originals, base, command, what):
         path.write_bytes(damage(originals[base], *what))
         args = [command, str(path)] + (["--out", str(Path(tmp) / "pred.jsonl")] if command == "track" else [])
         try:
-            result = subprocess.run([sys.executable, "-m", "neurotouch_hid.cli", *args], capture_output=True,
-                                    text=True, timeout=TIME_LIMIT_S, stdin=subprocess.DEVNULL)
+            result = subprocess.run(
+                [sys.executable, "-m", "neurotouch_hid.cli", *args],
+                capture_output=True,
+                text=True,
+                timeout=TIME_LIMIT_S,
+                stdin=subprocess.DEVNULL,
+            )
         except subprocess.TimeoutExpired:
             pytest.fail(f"{command} hung on {base} with damage {what}")
     assert result.returncode in (0, 2), f"{command} {base} {what}: exit {result.returncode}\n{result.stderr}"
@@ -74,7 +80,9 @@ def test_damaged_recording_cli_ends_cleanly(originals, base, command, what):
         assert len(errors) == 1 and str(path) in errors[0], result.stderr
 
 
-@settings(max_examples=100, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=100, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 @given(base=st.sampled_from(["street", "gel"]), what=damages)
 def test_damaged_recording_reader_gives_valid_data_or_recording_error(originals, base, what):
     """In this process: RecordingReader raises nothing but RecordingError, and everything it
@@ -111,21 +119,23 @@ def mutate(text: str, edits: list[tuple[int, int, int]]) -> str:
         lines = text.splitlines(keepends=True)
         if kind == 0 and text:
             i = pos % len(text)
-            text = text[:i] + chr(value % 0x250 or 10) + text[i + 1:]
+            text = text[:i] + chr(value % 0x250 or 10) + text[i + 1 :]
         elif kind == 1 and lines:
             del lines[pos % len(lines)]
             text = "".join(lines)
         elif kind == 2 and lines:
             i = pos % len(lines)
-            text = "".join(lines[:i + 1] + lines[i:])
+            text = "".join(lines[: i + 1] + lines[i:])
         elif kind == 3 and lines:
             i = pos % len(lines)
             key, colon, _ = lines[i].partition(":")
-            replacement = ["-1", "1e309", "[]", "{}", "yes", "null", "'x'", "0x10", "&a [*a]", "!!binary 00"][value % 10]
+            replacement = ["-1", "1e309", "[]", "{}", "yes", "null", "'x'", "0x10", "&a [*a]", "!!binary 00"][
+                value % 10
+            ]
             lines[i] = f"{key}{colon} {replacement}\n" if colon else lines[i]
             text = "".join(lines)
         elif kind == 4:
-            text = text[:pos % (len(text) + 1)]
+            text = text[: pos % (len(text) + 1)]
     return text
 
 
@@ -138,7 +148,9 @@ def assert_clear(message: str, path: Path) -> None:
         assert line.strip().startswith(f"{path}:") or line.strip().startswith(f"{path.name}:"), message
 
 
-@settings(max_examples=150, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=150, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 @given(name=st.sampled_from(SHIPPED), changes=edits)
 def test_mutated_profile_loads_or_gives_a_clear_error(tmp_path, name, changes):
     path = tmp_path / "mutated.yaml"
@@ -153,9 +165,16 @@ def test_mutated_profile_loads_or_gives_a_clear_error(tmp_path, name, changes):
 @given(name=st.sampled_from(SHIPPED), changes=edits)
 def test_mutated_profile_validate_cli(tmp_path, name, changes):
     path = tmp_path / "mutated.yaml"
-    path.write_bytes(mutate((shipped_profiles_dir() / name).read_text(encoding="utf-8"), changes).encode("utf-8", "replace"))
-    result = subprocess.run([sys.executable, "-m", "neurotouch_hid.cli", "profile", "validate", str(path)],
-                            capture_output=True, text=True, timeout=TIME_LIMIT_S, stdin=subprocess.DEVNULL)
+    path.write_bytes(
+        mutate((shipped_profiles_dir() / name).read_text(encoding="utf-8"), changes).encode("utf-8", "replace")
+    )
+    result = subprocess.run(
+        [sys.executable, "-m", "neurotouch_hid.cli", "profile", "validate", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=TIME_LIMIT_S,
+        stdin=subprocess.DEVNULL,
+    )
     assert result.returncode in (0, 2) and "Traceback" not in result.stderr, result.stderr
     if result.returncode == 2:
         assert result.stderr.startswith("error:") and str(path.name) in result.stderr, result.stderr
@@ -169,15 +188,20 @@ def test_track_writes_what_is_readable_of_a_cut_recording_before_its_error(tmp_p
 
     from neurotouch_hid.sources.simulator import write_dataset
 
-    folder = write_dataset(tmp_path / "ds", preset="quick", seed=5, minutes=0.05, progress=False,
-                           users=[0], gestures=["push"])
+    folder = write_dataset(
+        tmp_path / "ds", preset="quick", seed=5, minutes=0.05, progress=False, users=[0], gestures=["push"]
+    )
     whole = next(folder.glob("*.aedat4"))
     cut = tmp_path / "cut.aedat4"
     cut.write_bytes(whole.read_bytes()[: int(whole.stat().st_size * 0.7)])
     (tmp_path / "sensor.yaml").write_bytes((folder / "sensor.yaml").read_bytes())
     out = tmp_path / "pred.jsonl"
-    proc = subprocess.run([sys.executable, "-m", "neurotouch_hid.cli", "track", str(cut), "--out", str(out)],
-                          capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, "-m", "neurotouch_hid.cli", "track", str(cut), "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert str(cut) in proc.stderr
     assert out.exists() and len(out.read_text().splitlines()) > 10

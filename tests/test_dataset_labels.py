@@ -5,9 +5,9 @@ import csv
 import numpy as np
 import pytest
 
+from neurotouch_hid.dataset import LabelRow, list_sequences, read_labels, write_labels
 from neurotouch_hid.errors import DatasetError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.dataset import LabelRow, list_sequences, read_labels, write_labels
 
 DATASET_MD_HEADER = "t_us,gesture,resting,intensity_mm,n_contacts,x1_px,y1_px,x2_px,y2_px,x3_px,y3_px"
 
@@ -67,8 +67,12 @@ def test_list_sequences_needs_sensor_yaml_and_pairs(tmp_path):
 
 def test_prediction_json_line_round_trip():
     est = GestureEstimate(
-        t_us=1234567, gesture=GestureType.PINCH, resting=False, intensity_mm=2.7,
-        contacts_px=np.array([[150.2, 120.4], [190.1, 125.0]]), contacts_mm=np.array([[-9.2, 4.0], [6.8, 2.0]]),
+        t_us=1234567,
+        gesture=GestureType.PINCH,
+        resting=False,
+        intensity_mm=2.7,
+        contacts_px=np.array([[150.2, 120.4], [190.1, 125.0]]),
+        contacts_mm=np.array([[-9.2, 4.0], [6.8, 2.0]]),
     )
     d = est.to_json_dict()
     assert {"t_us", "gesture", "resting", "intensity_mm", "contacts_px", "contacts_mm"} <= d.keys()

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from camera_replay import Fault, ReplayWorld
+
 from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.errors import DeviceError, SensorError
 from neurotouch_hid.estimate import GestureType
@@ -101,9 +101,11 @@ def test_a_camera_of_another_resolution_is_refused(street):
 def test_frame_interval_and_exposure_are_set(street):
     world = ReplayWorld(street)
     DavisSource(DavisConfig(frame_interval_us=20_000, exposure_us=3_000), backend=world).close()
-    assert world.settings == [("setFrameInterval", datetime.timedelta(microseconds=20_000)),
-                              ("setAutoExposure", False),
-                              ("setExposureDuration", datetime.timedelta(microseconds=3_000))]
+    assert world.settings == [
+        ("setFrameInterval", datetime.timedelta(microseconds=20_000)),
+        ("setAutoExposure", False),
+        ("setExposureDuration", datetime.timedelta(microseconds=3_000)),
+    ]
     world = ReplayWorld(street)
     DavisSource(DavisConfig(exposure_us=None), backend=world).close()
     assert ("setAutoExposure", True) in world.settings
@@ -124,7 +126,7 @@ def test_street_camera_delivers_the_scene_as_batches_and_frames(street):
     # every batch lies within one 1 ms slot, and the events are the recording's own, in order
     assert all(b["timestamp"][0] // 1000 == b["timestamp"][-1] // 1000 for b in batches)
     first = int(np.searchsorted(world.events["timestamp"], events["timestamp"][0]))
-    assert np.array_equal(events, world.events[first:first + len(events)])
+    assert np.array_equal(events, world.events[first : first + len(events)])
 
 
 def test_unplug_without_reconnect_raises_after_the_data(street):
@@ -146,7 +148,7 @@ def test_unplug_with_reconnect_reports_lost_then_resumed_and_backs_off(street):
     assert "unplugged" in items[lost].message and "centred" in items[lost].message
     assert any(isinstance(i, Frame) for i in items[:lost]) and any(isinstance(i, Frame) for i in items[back:])
     # nothing arrives while the camera is away, and the scene of the outage is lost for good
-    assert all(isinstance(i, SourceStatus) for i in items[lost:back + 1])
+    assert all(isinstance(i, SourceStatus) for i in items[lost : back + 1])
     # the reopening backs off instead of hammering USB: ~0.8 s of outage at 0.1, 0.2, 0.4, 0.4 s
     failed = [t for t in world.searches if 0.4 <= t < 1.2]
     assert 1 <= len(failed) <= 6
@@ -210,8 +212,16 @@ def moved(state: ControllerState) -> bool:
 def run_davis(world: ReplayWorld, seconds: float, log: Log):
     from neurotouch_hid.driver import run_driver
 
-    return run_driver("davis", "default", "gamepad", seconds=seconds, capture=world, davis=QUICK,
-                      output_obj=LoggedOutput(log), say=lambda line: log.add("say", line))
+    return run_driver(
+        "davis",
+        "default",
+        "gamepad",
+        seconds=seconds,
+        capture=world,
+        davis=QUICK,
+        output_obj=LoggedOutput(log),
+        say=lambda line: log.add("say", line),
+    )
 
 
 def test_an_unplug_mid_gesture_centres_at_once_and_the_run_resumes_at_rest(gel_recording):
@@ -255,7 +265,7 @@ def test_a_camera_that_never_comes_back_still_ends_the_run_neutral(gel_recording
     log = Log()
     stats = run_davis(world, 2.5, log)
     assert stats.camera_losses == 1
-    assert not [w for w, _ in log.entries[log.index("say", "unplugged"):] if w == "write"]
+    assert not [w for w, _ in log.entries[log.index("say", "unplugged") :] if w == "write"]
     assert log.entries[-1] == ("neutralise", None)
     assert len([t for t in world.searches if t >= 1.6]) >= 2  # it kept trying
 
@@ -268,8 +278,17 @@ def test_run_with_wait_starts_when_the_camera_is_plugged_in(gel_recording):
     assert [r for t, _, r in labels if plugged <= t <= plugged + 0.3] == [True] * 8
     world = ReplayWorld(path, faults=(Fault("unplug", 0.0, plugged),))
     log = Log()
-    stats = run_driver("davis", "default", "gamepad", seconds=6.6, capture=world, davis=QUICK, wait=True,
-                       output_obj=LoggedOutput(log), say=lambda line: log.add("say", line))
+    stats = run_driver(
+        "davis",
+        "default",
+        "gamepad",
+        seconds=6.6,
+        capture=world,
+        davis=QUICK,
+        wait=True,
+        output_obj=LoggedOutput(log),
+        say=lambda line: log.add("say", line),
+    )
     waiting = log.index("say", "waiting for a DAVIS-346")
     found = log.index("say", "found after")
     assert waiting < found and stats.camera_losses == 0
@@ -293,8 +312,13 @@ def test_run_source_davis_without_camera_tells_what_to_do(tmp_path):
     if dv.io.camera.discover():
         pytest.skip(reason="a camera is plugged in: the no-camera error cannot occur")
     env = dict(os.environ, COLUMNS="400", XDG_CONFIG_HOME=str(tmp_path))
-    proc = subprocess.run([sys.executable, "-m", "neurotouch_hid.cli", "run", "--source", "davis", "--output", "jsonl"],
-                          capture_output=True, text=True, env=env, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-m", "neurotouch_hid.cli", "run", "--source", "davis", "--output", "jsonl"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+    )
     assert proc.returncode == 2, proc.stderr
     assert proc.stdout == ""  # no state was written: nothing started
     error = " ".join(proc.stderr.split())
@@ -315,9 +339,11 @@ def test_the_noise_filter_runs_on_the_camera_s_own_event_stores(street):
     events = np.concatenate([i for i in items if isinstance(i, np.ndarray)])
     assert noise.n_in > 0 and len(events) == noise.n_out < noise.n_in  # some noise dropped
     first = int(np.searchsorted(world.events["timestamp"], events["timestamp"][0]))
-    offered = world.events[first:first + noise.n_in]
-    kept = np.isin(offered["timestamp"] * 1_000_000 + offered["y"].astype(np.int64) * 346 + offered["x"],
-                   events["timestamp"] * 1_000_000 + events["y"].astype(np.int64) * 346 + events["x"])
+    offered = world.events[first : first + noise.n_in]
+    kept = np.isin(
+        offered["timestamp"] * 1_000_000 + offered["y"].astype(np.int64) * 346 + offered["x"],
+        events["timestamp"] * 1_000_000 + events["y"].astype(np.int64) * 346 + events["x"],
+    )
     assert kept.sum() == len(events)  # every event yielded is one the camera sent, in order
 
 
@@ -343,12 +369,23 @@ class _BurstCamera:
         frame = dv.Frame(0, np.full((260, 346), 7, np.uint8))
         self._frames = [frame]
 
-    def getCameraName(self): return "DAVIS346_burst"  # noqa: E704
-    def getEventResolution(self): return (346, 260)  # noqa: E704
-    def isFrameStreamAvailable(self): return True  # noqa: E704
-    def isRunning(self): return True  # noqa: E704
-    def getNextFrame(self): return self._frames.pop(0) if self._frames else None  # noqa: E704
-    def getNextEventBatch(self): return self._stores.pop(0) if self._stores else None  # noqa: E704
+    def getCameraName(self):
+        return "DAVIS346_burst"  # noqa: E704
+
+    def getEventResolution(self):
+        return (346, 260)  # noqa: E704
+
+    def isFrameStreamAvailable(self):
+        return True  # noqa: E704
+
+    def isRunning(self):
+        return True  # noqa: E704
+
+    def getNextFrame(self):
+        return self._frames.pop(0) if self._frames else None  # noqa: E704
+
+    def getNextEventBatch(self):
+        return self._stores.pop(0) if self._stores else None  # noqa: E704
 
 
 class _BurstBackend:

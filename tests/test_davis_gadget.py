@@ -36,8 +36,12 @@ def decode(words: np.ndarray) -> tuple[list[tuple[int, int, int, int]], list[tup
             events.append((current, data, last_y, code & 1))
         elif code == 0:
             if data == 9:
-                frame = {"reset": np.zeros((HEIGHT, WIDTH), int), "signal": np.zeros((HEIGHT, WIDTH), int),
-                         "cols": {0: 0, 1: 0}, "roi": []}
+                frame = {
+                    "reset": np.zeros((HEIGHT, WIDTH), int),
+                    "signal": np.zeros((HEIGHT, WIDTH), int),
+                    "cols": {0: 0, 1: 0},
+                    "roi": [],
+                }
                 counts = {0: 0, 1: 0}
             elif data == 14:
                 frame["start"] = current
@@ -70,9 +74,13 @@ def test_events_round_trip_with_wraps_and_repeated_rows():
     y[30:40] = 7  # one row, several columns
     p = rng.integers(0, 2, 500)
     enc = WordEncoder()
-    words = np.concatenate([enc.events(t[:250], x[:250], y[:250], p[:250]),
-                            enc.idle(int(t[250]) - 1),
-                            enc.events(t[250:], x[250:], y[250:], p[250:])])
+    words = np.concatenate(
+        [
+            enc.events(t[:250], x[:250], y[:250], p[:250]),
+            enc.idle(int(t[250]) - 1),
+            enc.events(t[250:], x[250:], y[250:], p[250:]),
+        ]
+    )
     events, _ = decode(words)
     assert events == list(zip(t.tolist(), x.tolist(), y.tolist(), p.tolist()))
 
@@ -82,12 +90,16 @@ def test_a_frame_decodes_to_the_same_grey_levels_and_times():
     image = rng.integers(0, 256, (HEIGHT, WIDTH)).astype(np.uint8)
     image[0, 0], image[-1, -1] = 0, 255
     enc = WordEncoder()
-    words = np.concatenate([enc.frame_start(40_000), enc.events(np.array([41_000]), np.array([3]), np.array([4]),
-                                                                 np.array([1])),
-                            enc.frame_end(44_000, image)])
+    words = np.concatenate(
+        [
+            enc.frame_start(40_000),
+            enc.events(np.array([41_000]), np.array([3]), np.array([4]), np.array([1])),
+            enc.frame_end(44_000, image),
+        ]
+    )
     events, frames = decode(words)
     assert events == [(41_000, 3, 4, 1)]
-    (start, end, _, decoded), = frames
+    ((start, end, _, decoded),) = frames
     assert (start, end) == (40_000, 44_000)
     np.testing.assert_array_equal(decoded, image)
 
@@ -102,8 +114,9 @@ def test_a_silence_longer_than_the_wrap_field_still_counts_every_wrap():
 @pytest.mark.parametrize("t_us", [0, 0x8000, 3 * 0x8000 + 1])
 def test_idle_wraps_keep_the_decoder_on_device_time(t_us):
     enc = WordEncoder()
-    words = np.concatenate([enc.idle(t_us + 70_000), enc.events(np.array([t_us + 70_001]), np.array([0]),
-                                                                np.array([0]), np.array([0]))])
+    words = np.concatenate(
+        [enc.idle(t_us + 70_000), enc.events(np.array([t_us + 70_001]), np.array([0]), np.array([0]), np.array([0]))]
+    )
     events, _ = decode(words)
     assert events[0][0] == t_us + 70_001
 
@@ -112,9 +125,14 @@ def test_no_timestamp_is_sent_twice_in_a_row():
     """dv-processing's parser stops on a timestamp equal to the last (a wrap sets the current one)."""
     enc = WordEncoder()
     t = np.array([0x8000 - 1, 0x8000, 0x8000, 2 * 0x8000, 2 * 0x8000 + 5], np.int64)
-    words = np.concatenate([enc.events(t[:3], np.zeros(3, int), np.zeros(3, int), np.zeros(3, int)),
-                            enc.idle(2 * 0x8000), enc.frame_start(2 * 0x8000),
-                            enc.events(t[4:], np.zeros(1, int), np.zeros(1, int), np.zeros(1, int))])
+    words = np.concatenate(
+        [
+            enc.events(t[:3], np.zeros(3, int), np.zeros(3, int), np.zeros(3, int)),
+            enc.idle(2 * 0x8000),
+            enc.frame_start(2 * 0x8000),
+            enc.events(t[4:], np.zeros(1, int), np.zeros(1, int), np.zeros(1, int)),
+        ]
+    )
     current, seen = 0, []
     for w in (int(v) for v in words):
         if w & 0x8000:

@@ -9,7 +9,6 @@ assert on the guest's checks_davis.check_emulated_davis (one gadget, every part 
 from __future__ import annotations
 
 import pytest
-
 from conftest import passed
 
 pytestmark = pytest.mark.kernel

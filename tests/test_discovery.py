@@ -21,25 +21,35 @@ import pytest
 import usb.core
 import usb.util
 
-from neurotouch_hid.udev import RULES_INSTALL
 from neurotouch_hid.sources import discovery
 from neurotouch_hid.sources.discovery import (
     CameraStatus,
-    UsbAccess,
     Discovery,
     DvCamera,
+    UsbAccess,
     UsbCamera,
     explain,
     merge,
 )
+from neurotouch_hid.udev import RULES_INSTALL
 
 CLI = [sys.executable, "-m", "neurotouch_hid.cli"]
 
 
 def usb_cam(bus=1, address=5, access=UsbAccess.OK, reason="", serial="00000123", holders=()) -> UsbCamera:
-    return UsbCamera(bus=bus, address=address, node=discovery.node_path(bus, address), port=f"{bus}-1",
-                     serial=serial, product="DAVIS346", manufacturer="iniVation", speed_mbps=5000.0,
-                     access=access, reason=reason, holders=holders)
+    return UsbCamera(
+        bus=bus,
+        address=address,
+        node=discovery.node_path(bus, address),
+        port=f"{bus}-1",
+        serial=serial,
+        product="DAVIS346",
+        manufacturer="iniVation",
+        speed_mbps=5000.0,
+        access=access,
+        reason=reason,
+        holders=holders,
+    )
 
 
 def dv_cam(bus=1, address=5, serial="00000123", pid=0x841A, model="DAVIS") -> DvCamera:
@@ -63,8 +73,9 @@ def test_explain_no_camera_here_says_plug_it_in_and_lsusb():
 
 
 def test_cli_devices_without_a_camera_says_so_and_exits_1():
-    proc = subprocess.run([*CLI, "devices"], capture_output=True, text=True, timeout=120,
-                          env=dict(os.environ, COLUMNS="200"))
+    proc = subprocess.run(
+        [*CLI, "devices"], capture_output=True, text=True, timeout=120, env=dict(os.environ, COLUMNS="200")
+    )
     assert proc.returncode == 1, proc.stdout + proc.stderr
     assert "no DAVIS-346 (USB 152a:841a) found" in proc.stdout and "lsusb -d 152a:841a" in proc.stdout
     assert "Traceback" not in proc.stderr
@@ -91,7 +102,10 @@ def test_accessible_and_listed_by_dv_is_ready():
 
 def test_records_are_matched_by_bus_and_address():
     found = merge([usb_cam(1, 5, serial="A"), usb_cam(3, 2, serial="B")], [dv_cam(3, 2, serial="B")])
-    assert [(c.bus, c.address, c.status) for c in found.cameras] == [(1, 5, CameraStatus.NOT_IN_DV), (3, 2, CameraStatus.READY)]
+    assert [(c.bus, c.address, c.status) for c in found.cameras] == [
+        (1, 5, CameraStatus.NOT_IN_DV),
+        (3, 2, CameraStatus.READY),
+    ]
 
 
 def test_permission_denied_without_rules_says_install_the_udev_rule():
@@ -99,31 +113,48 @@ def test_permission_denied_without_rules_says_install_the_udev_rule():
     found = merge([usb_cam(access=UsbAccess.DENIED, reason=reason)], [dv_cam(serial="")], rules=None)
     (camera,) = found.cameras
     assert camera.status == CameraStatus.NO_ACCESS and not found.ready
-    assert camera.problem == f"DAVIS-346 at bus 1 device 5 (/dev/bus/usb/001/005), serial 00000123 is not accessible ({reason})"
+    assert (
+        camera.problem
+        == f"DAVIS-346 at bus 1 device 5 (/dev/bus/usb/001/005), serial 00000123 is not accessible ({reason})"
+    )
     assert camera.fix == f"install the udev rule: {RULES_INSTALL}; then unplug and replug the camera"
     assert camera.serial == "00000123"  # dv-processing could not read it (empty): the USB string
 
 
 def test_permission_denied_with_rules_installed_explains_uaccess():
-    found = merge([usb_cam(access=UsbAccess.DENIED, reason="permission denied")], [],
-                  rules="/etc/udev/rules.d/60-neurotouch.rules")
+    found = merge(
+        [usb_cam(access=UsbAccess.DENIED, reason="permission denied")],
+        [],
+        rules="/etc/udev/rules.d/60-neurotouch.rules",
+    )
     fix = found.cameras[0].fix
     assert "(/etc/udev/rules.d/60-neurotouch.rules)" in fix and "uaccess" in fix and "not over SSH" in fix
     assert 'GROUP="plugdev", MODE="0660"' in fix
 
 
 def test_busy_names_the_holder_and_the_service():
-    found = merge([usb_cam(access=UsbAccess.BUSY, reason="in use by another program (PID 42 (neurotouch-hid))",
-                           holders=("PID 42 (neurotouch-hid)",))], [dv_cam()])
+    found = merge(
+        [
+            usb_cam(
+                access=UsbAccess.BUSY,
+                reason="in use by another program (PID 42 (neurotouch-hid))",
+                holders=("PID 42 (neurotouch-hid)",),
+            )
+        ],
+        [dv_cam()],
+    )
     camera = found.cameras[0]
     assert camera.status == CameraStatus.BUSY and "PID 42 (neurotouch-hid)" in camera.problem
     assert "systemctl --user stop neurotouch-hid.service" in camera.fix
 
 
-@pytest.mark.parametrize("access,status,words", [
-    (UsbAccess.GONE, CameraStatus.GONE, "plug it in again"),
-    (UsbAccess.ERROR, CameraStatus.ERROR, "dmesg"),
-])
+@pytest.mark.parametrize(
+    "access,status,words",
+    [
+        (UsbAccess.GONE, CameraStatus.GONE, "plug it in again"),
+        (UsbAccess.ERROR, CameraStatus.ERROR, "dmesg"),
+    ],
+)
 def test_gone_and_error(access, status, words):
     camera = merge([usb_cam(access=access, reason="x")], None).cameras[0]
     assert camera.status == status and words in camera.fix
@@ -152,13 +183,19 @@ def test_other_dv_cameras_are_listed_but_are_not_davis346():
 def test_without_pyusb_dv_processing_alone_is_believed():
     found = merge(None, [dv_cam()], usb_error="cannot list USB devices: x")
     assert [c.status for c in found.cameras] == [CameraStatus.READY] and found.cameras[0].usb is None
-    assert merge(None, [], usb_error="x").to_json()["message"].startswith(
-        "no DAVIS-346 found, and pyusb cannot list USB devices (x)")
+    assert (
+        merge(None, [], usb_error="x")
+        .to_json()["message"]
+        .startswith("no DAVIS-346 found, and pyusb cannot list USB devices (x)")
+    )
 
 
 def test_to_json_is_json():
-    found = merge([usb_cam(access=UsbAccess.BUSY, reason="r", holders=("PID 1 (a)",)), usb_cam(2, 3)],
-                  [dv_cam(2, 3)], dv_log=["libusb: error"])
+    found = merge(
+        [usb_cam(access=UsbAccess.BUSY, reason="r", holders=("PID 1 (a)",)), usb_cam(2, 3)],
+        [dv_cam(2, 3)],
+        dv_log=["libusb: error"],
+    )
     data = json.loads(json.dumps(found.to_json()))
     assert data["ready"] == 1 and data["dv_log"] == ["libusb: error"]
     assert data["cameras"][0]["usb"]["holders"] == ["PID 1 (a)"] and data["cameras"][0]["dv"] is None
@@ -175,9 +212,11 @@ def test_explain_talks_about_the_most_usable_camera():
 
 def test_explain_not_accessible_gives_the_udev_rule():
     found = merge([usb_cam(access=UsbAccess.DENIED, reason="permission denied")], [])
-    assert explain(found) == (f"DAVIS-346 at bus 1 device 5 (/dev/bus/usb/001/005), serial 00000123 is not "
-                              f"accessible (permission denied): install the udev rule: {RULES_INSTALL}; then "
-                              f"unplug and replug the camera")
+    assert explain(found) == (
+        f"DAVIS-346 at bus 1 device 5 (/dev/bus/usb/001/005), serial 00000123 is not "
+        f"accessible (permission denied): install the udev rule: {RULES_INSTALL}; then "
+        f"unplug and replug the camera"
+    )
 
 
 def test_explain_ready_camera_with_the_open_error():
@@ -210,8 +249,14 @@ def fake_usb(tmp_path, monkeypatch):
     sysfs = tmp_path / "sys"
     dev = sysfs / "2-1"
     dev.mkdir(parents=True)
-    for name, value in (("busnum", "2"), ("devnum", "7"), ("serial", "00000042"), ("product", "DAVIS346"),
-                        ("manufacturer", "iniVation"), ("speed", "5000")):
+    for name, value in (
+        ("busnum", "2"),
+        ("devnum", "7"),
+        ("serial", "00000042"),
+        ("product", "DAVIS346"),
+        ("manufacturer", "iniVation"),
+        ("speed", "5000"),
+    ):
         (dev / name).write_text(value + "\n")
     node = tmp_path / "node"
     node.write_text("")
@@ -232,8 +277,17 @@ def fake_usb(tmp_path, monkeypatch):
 
 def test_probe_ok_reads_sysfs_and_claims_then_releases(fake_usb):
     cam = discovery.probe_usb(fake_usb.device)
-    assert cam == UsbCamera(bus=2, address=7, node=fake_usb.node, port="2-1", serial="00000042", product="DAVIS346",
-                            manufacturer="iniVation", speed_mbps=5000.0, access=UsbAccess.OK)
+    assert cam == UsbCamera(
+        bus=2,
+        address=7,
+        node=fake_usb.node,
+        port="2-1",
+        serial="00000042",
+        product="DAVIS346",
+        manufacturer="iniVation",
+        speed_mbps=5000.0,
+        access=UsbAccess.OK,
+    )
     assert fake_usb.calls == [("claim", 0), ("dispose",)]
 
 
@@ -254,8 +308,11 @@ def test_probe_libusb_access_error_is_denied(fake_usb):
 
 def test_probe_busy_names_the_process_holding_the_node(fake_usb):
     fake_usb.claim_error = usb.core.USBError("Resource busy", -6, errno.EBUSY)
-    holder = subprocess.Popen([sys.executable, "-c", f"import time; f = open({fake_usb.node!r}); print(1, flush=True); "
-                               f"time.sleep(60)"], stdout=subprocess.PIPE, text=True)
+    holder = subprocess.Popen(
+        [sys.executable, "-c", f"import time; f = open({fake_usb.node!r}); print(1, flush=True); time.sleep(60)"],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert holder.stdout.readline().strip() == "1"
         cam = discovery.probe_usb(fake_usb.device)
@@ -300,8 +357,10 @@ def test_native_stderr_is_captured_once_per_line():
         os.write(2, b"libusb: error [get_usbfs_fd] libusb couldn't open USB device\n")
         os.write(2, b"libusb: error [get_usbfs_fd] libusb couldn't open USB device\n\n")
         os.write(2, b"libusb requires write access to USB device nodes\n")
-    assert lines == ["libusb: error [get_usbfs_fd] libusb couldn't open USB device",
-                     "libusb requires write access to USB device nodes"]
+    assert lines == [
+        "libusb: error [get_usbfs_fd] libusb couldn't open USB device",
+        "libusb requires write access to USB device nodes",
+    ]
 
 
 def test_dv_cameras_converts_descriptors_and_captures_its_log(monkeypatch):
@@ -309,10 +368,20 @@ def test_dv_cameras_converts_descriptors_and_captures_its_log(monkeypatch):
 
     def fake_discover():
         os.write(2, b"libusb: error [get_usbfs_fd] libusb requires write access to USB device nodes\n")
-        os.write(2, b"[ERROR] usb_discovery: libusb: error [get_usbfs_fd] libusb requires write access to USB device nodes\n")
-        return [SimpleNamespace(serialNumber="", cameraModel=dv.io.camera.CameraModel.DAVIS,
-                                deviceType=dv.io.camera.USBDeviceType.FX3_MB, firmwareVersion=6, busNumber=1,
-                                devAddress=5, pid=0x841A)]
+        os.write(
+            2, b"[ERROR] usb_discovery: libusb: error [get_usbfs_fd] libusb requires write access to USB device nodes\n"
+        )
+        return [
+            SimpleNamespace(
+                serialNumber="",
+                cameraModel=dv.io.camera.CameraModel.DAVIS,
+                deviceType=dv.io.camera.USBDeviceType.FX3_MB,
+                firmwareVersion=6,
+                busNumber=1,
+                devAddress=5,
+                pid=0x841A,
+            )
+        ]
 
     monkeypatch.setattr(dv.io.camera, "discover", fake_discover)
     log: list[str] = []

@@ -25,16 +25,23 @@ def test_no_camera_on_this_machine_is_a_failure_with_a_fix():
 
 
 def _camera(access: str = UsbAccess.OK, dv: bool = True):
-    usb = UsbCamera(bus=2, address=7, node="/dev/bus/usb/002/007", serial="00000042", access=access,
-                    reason="" if access == UsbAccess.OK else "permission denied: ...")
+    usb = UsbCamera(
+        bus=2,
+        address=7,
+        node="/dev/bus/usb/002/007",
+        serial="00000042",
+        access=access,
+        reason="" if access == UsbAccess.OK else "permission denied: ...",
+    )
     listed = [DvCamera("00000042", "DAVIS", "FX3_MB", 6, 2, 7)] if dv else []
     return merge([usb], listed)
 
 
 def test_camera_checks_share_the_discovery_verdicts():
     ready = _camera()
-    assert [c.status for c in (doctor.check_camera(ready), doctor.check_camera_access(ready),
-                               doctor.check_camera_dv(ready))] == [OK, OK, OK]
+    assert [
+        c.status for c in (doctor.check_camera(ready), doctor.check_camera_access(ready), doctor.check_camera_dv(ready))
+    ] == [OK, OK, OK]
     assert "serial 00000042" in doctor.check_camera(ready).detail
     assert "firmware 6" in doctor.check_camera_dv(ready).detail
     denied = _camera(UsbAccess.DENIED)
@@ -89,8 +96,9 @@ def test_exit_code_counts_failures_only():
 
 def test_cli_doctor_on_this_machine_reports_no_camera_and_exits_1():
     env = dict(os.environ, COLUMNS="200")
-    proc = subprocess.run([sys.executable, "-m", "neurotouch_hid.cli", "doctor"], capture_output=True,
-                          text=True, env=env, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-m", "neurotouch_hid.cli", "doctor"], capture_output=True, text=True, env=env, timeout=120
+    )
     assert proc.returncode == 1, proc.stdout + proc.stderr
     assert "no DAVIS-346 (152a:841a) on USB" in proc.stdout
     if not os.path.exists("/dev/uinput"):

@@ -15,9 +15,8 @@ from hypothesis import strategies as st
 from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
 from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.output import gamepad
+from neurotouch_hid.output.gamepad import GamepadIdentity, VirtualGamepad, capabilities, changed_events, normalised
 from neurotouch_hid.udev import UINPUT_RULE
-from neurotouch_hid.output.gamepad import (GamepadIdentity, VirtualGamepad, capabilities,
-                                           changed_events, normalised)
 
 
 def _assert_says_how_to_fix(message: str) -> None:
@@ -26,7 +25,9 @@ def _assert_says_how_to_fix(message: str) -> None:
     assert "udevadm control --reload" in message
 
 
-@pytest.mark.skipif(os.path.exists("/dev/uinput"), reason="this machine has /dev/uinput (the kernel tests cover the device)")
+@pytest.mark.skipif(
+    os.path.exists("/dev/uinput"), reason="this machine has /dev/uinput (the kernel tests cover the device)"
+)
 def test_missing_dev_uinput_raises_device_error_with_the_fix():
     with pytest.raises(DeviceError) as info:
         VirtualGamepad()
@@ -92,8 +93,10 @@ def test_first_write_sends_everything_then_only_changes():
 
 
 def test_out_of_range_missing_and_unknown_names():
-    state = ControllerState(axes={"ABS_X": 10**6, "ABS_Z": -4, "ABS_HAT0Y": 3, "ABS_BOGUS": 1},
-                            buttons={"BTN_START": True, "BTN_BOGUS": True})
+    state = ControllerState(
+        axes={"ABS_X": 10**6, "ABS_Z": -4, "ABS_HAT0Y": 3, "ABS_BOGUS": 1},
+        buttons={"BTN_START": True, "BTN_BOGUS": True},
+    )
     full = normalised(state)
     assert full.axes["ABS_X"] == 32767 and full.axes["ABS_Z"] == 0 and full.axes["ABS_HAT0Y"] == 1
     assert full.axes["ABS_RX"] == 0  # missing = neutral
@@ -126,6 +129,7 @@ def test_a_rumble_effect_is_described_in_one_line():
     from neurotouch_hid.output.gamepad import describe_effect
 
     rumble = ff.Rumble(strong_magnitude=32767, weak_magnitude=65535)
-    effect = ff.Effect(ecodes.FF_RUMBLE, 3, 0, ff.Trigger(0, 0), ff.Replay(300, 0),
-                       ff.EffectType(ff_rumble_effect=rumble))
+    effect = ff.Effect(
+        ecodes.FF_RUMBLE, 3, 0, ff.Trigger(0, 0), ff.Replay(300, 0), ff.EffectType(ff_rumble_effect=rumble)
+    )
     assert describe_effect(effect) == "effect 3: FF_RUMBLE strong 32767 weak 65535 for 300 ms"

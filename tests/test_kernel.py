@@ -10,7 +10,6 @@ only where qemu cannot be installed at all.
 from __future__ import annotations
 
 import pytest
-
 from conftest import passed
 
 pytestmark = pytest.mark.kernel

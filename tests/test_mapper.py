@@ -24,9 +24,15 @@ def profile(**mappings) -> Profile:
 
 def est(gesture=G.NONE, mm=0.0, t_us=0, direction=(1.0, 0.0), contact=None, resting=None) -> GestureEstimate:
     contacts = np.zeros((0, 2)) if contact is None else np.array([contact], dtype=float)
-    return GestureEstimate(t_us=t_us, gesture=gesture, resting=(gesture == G.NONE) if resting is None else resting,
-                           intensity_mm=mm, contacts_px=contacts.copy(), contacts_mm=contacts,
-                           translation_mm=np.array(direction, dtype=float))
+    return GestureEstimate(
+        t_us=t_us,
+        gesture=gesture,
+        resting=(gesture == G.NONE) if resting is None else resting,
+        intensity_mm=mm,
+        contacts_px=contacts.copy(),
+        contacts_mm=contacts,
+        translation_mm=np.array(direction, dtype=float),
+    )
 
 
 def stick_value(fraction: float) -> int:
@@ -37,40 +43,46 @@ def stick_value(fraction: float) -> int:
 TWIST_AXIS = dict(input="twist", output="ABS_RX", deadzone_mm=1.0, saturation_mm=5.0)
 
 
-@pytest.mark.parametrize("extra, gesture, mm, fraction", [
-    ({}, G.TWIST_CCW, 0.5, 0.0),            # inside the dead zone
-    ({}, G.TWIST_CCW, 1.0, 0.0),            # at the dead zone
-    ({}, G.TWIST_CCW, 3.0, 0.5),            # halfway between dead zone and saturation
-    ({}, G.TWIST_CCW, 5.0, 1.0),            # saturation: full deflection
-    ({}, G.TWIST_CCW, 12.0, 1.0),           # beyond saturation: still full
-    ({}, G.TWIST_CW, 5.0, -1.0),            # clockwise: the other side, full
-    ({}, G.TWIST_CW, 2.0, -0.25),
-    ({"exponent": 2.0}, G.TWIST_CCW, 3.0, 0.25),
-    ({"exponent": 0.5}, G.TWIST_CCW, 2.0, 0.5),
-    ({"expo": 0.5}, G.TWIST_CCW, 3.0, 0.5 * 0.5 + 0.5 * 0.125),
-    ({"gain": 2.0}, G.TWIST_CCW, 2.0, 0.5),
-    ({"gain": 2.0}, G.TWIST_CCW, 4.0, 1.0),  # gain clips at full deflection
-    ({"invert": True}, G.TWIST_CCW, 3.0, -0.5),
-    ({"invert": True}, G.TWIST_CW, 5.0, 1.0),
-    ({}, G.PUSH, 5.0, 0.0),                 # another gesture does not move a twist axis
-    ({}, G.NONE, 5.0, 0.0),
-])
+@pytest.mark.parametrize(
+    "extra, gesture, mm, fraction",
+    [
+        ({}, G.TWIST_CCW, 0.5, 0.0),  # inside the dead zone
+        ({}, G.TWIST_CCW, 1.0, 0.0),  # at the dead zone
+        ({}, G.TWIST_CCW, 3.0, 0.5),  # halfway between dead zone and saturation
+        ({}, G.TWIST_CCW, 5.0, 1.0),  # saturation: full deflection
+        ({}, G.TWIST_CCW, 12.0, 1.0),  # beyond saturation: still full
+        ({}, G.TWIST_CW, 5.0, -1.0),  # clockwise: the other side, full
+        ({}, G.TWIST_CW, 2.0, -0.25),
+        ({"exponent": 2.0}, G.TWIST_CCW, 3.0, 0.25),
+        ({"exponent": 0.5}, G.TWIST_CCW, 2.0, 0.5),
+        ({"expo": 0.5}, G.TWIST_CCW, 3.0, 0.5 * 0.5 + 0.5 * 0.125),
+        ({"gain": 2.0}, G.TWIST_CCW, 2.0, 0.5),
+        ({"gain": 2.0}, G.TWIST_CCW, 4.0, 1.0),  # gain clips at full deflection
+        ({"invert": True}, G.TWIST_CCW, 3.0, -0.5),
+        ({"invert": True}, G.TWIST_CW, 5.0, 1.0),
+        ({}, G.PUSH, 5.0, 0.0),  # another gesture does not move a twist axis
+        ({}, G.NONE, 5.0, 0.0),
+    ],
+)
 def test_axis_response(extra, gesture, mm, fraction):
     state = Mapper(profile(m={**TWIST_AXIS, **extra})).update(est(gesture, mm))
     assert state.axes["ABS_RX"] == stick_value(fraction)
     assert all(v == 0 for k, v in state.axes.items() if k != "ABS_RX")
 
 
-@pytest.mark.parametrize("input_name, output, gesture, mm, expected", [
-    ("zoom", "ABS_RZ", G.ZOOM, 0.0, 0),
-    ("zoom", "ABS_RZ", G.ZOOM, 2.5, round(0.5 * 255)),   # dead zone 0, saturation 5
-    ("zoom", "ABS_RZ", G.ZOOM, 9.0, 255),
-    ("pinch", "ABS_Z", G.PINCH, 5.0, 255),
-    ("pinch", "ABS_Z", G.ZOOM, 5.0, 0),
-    ("pinch_zoom", "ABS_RZ", G.PINCH, 5.0, 0),           # a trigger only takes the positive side
-    ("pinch_zoom", "ABS_RZ", G.ZOOM, 5.0, 255),
-    ("pinch_zoom", "ABS_RY", G.PINCH, 5.0, STICK_MIN),   # a stick axis takes both
-])
+@pytest.mark.parametrize(
+    "input_name, output, gesture, mm, expected",
+    [
+        ("zoom", "ABS_RZ", G.ZOOM, 0.0, 0),
+        ("zoom", "ABS_RZ", G.ZOOM, 2.5, round(0.5 * 255)),  # dead zone 0, saturation 5
+        ("zoom", "ABS_RZ", G.ZOOM, 9.0, 255),
+        ("pinch", "ABS_Z", G.PINCH, 5.0, 255),
+        ("pinch", "ABS_Z", G.ZOOM, 5.0, 0),
+        ("pinch_zoom", "ABS_RZ", G.PINCH, 5.0, 0),  # a trigger only takes the positive side
+        ("pinch_zoom", "ABS_RZ", G.ZOOM, 5.0, 255),
+        ("pinch_zoom", "ABS_RY", G.PINCH, 5.0, STICK_MIN),  # a stick axis takes both
+    ],
+)
 def test_triggers_and_signed_scalars(input_name, output, gesture, mm, expected):
     m = dict(input=input_name, output=output, deadzone_mm=0.0, saturation_mm=5.0)
     assert Mapper(profile(m=m)).update(est(gesture, mm)).axes[output] == expected
@@ -80,28 +92,34 @@ def test_triggers_and_signed_scalars(input_name, output, gesture, mm, expected):
 PUSH_STICK = dict(input="push", output="left_stick", deadzone_mm=1.0, saturation_mm=5.0)
 
 
-@pytest.mark.parametrize("extra, direction, mm, x, y", [
-    ({}, (0, 1), 5.0, 0.0, -1.0),      # push up (user +y) -> evdev ABS_Y negative (up)
-    ({}, (0, -1), 5.0, 0.0, 1.0),
-    ({}, (1, 0), 5.0, 1.0, 0.0),
-    ({}, (-3, 0), 5.0, -1.0, 0.0),     # only the direction of translation_mm counts
-    ({}, (1, 1), 3.0, 0.5 / math.sqrt(2), -0.5 / math.sqrt(2)),  # radial: direction kept
-    ({}, (0, 1), 0.9, 0.0, 0.0),       # dead zone
-    ({"invert_y": True}, (0, 1), 5.0, 0.0, 1.0),
-    ({"invert_x": True}, (1, 0), 3.0, -0.5, 0.0),
-    ({}, (0, 0), 5.0, 0.0, 0.0),       # no direction: no deflection
-])
+@pytest.mark.parametrize(
+    "extra, direction, mm, x, y",
+    [
+        ({}, (0, 1), 5.0, 0.0, -1.0),  # push up (user +y) -> evdev ABS_Y negative (up)
+        ({}, (0, -1), 5.0, 0.0, 1.0),
+        ({}, (1, 0), 5.0, 1.0, 0.0),
+        ({}, (-3, 0), 5.0, -1.0, 0.0),  # only the direction of translation_mm counts
+        ({}, (1, 1), 3.0, 0.5 / math.sqrt(2), -0.5 / math.sqrt(2)),  # radial: direction kept
+        ({}, (0, 1), 0.9, 0.0, 0.0),  # dead zone
+        ({"invert_y": True}, (0, 1), 5.0, 0.0, 1.0),
+        ({"invert_x": True}, (1, 0), 3.0, -0.5, 0.0),
+        ({}, (0, 0), 5.0, 0.0, 0.0),  # no direction: no deflection
+    ],
+)
 def test_push_to_stick(extra, direction, mm, x, y):
     state = Mapper(profile(m={**PUSH_STICK, **extra})).update(est(G.PUSH, mm, direction=direction))
     assert state.axes["ABS_X"] == stick_value(x) and state.axes["ABS_Y"] == stick_value(y)
 
 
-@pytest.mark.parametrize("contact, gesture, x, y", [
-    ((15.0, 0.0), G.PUSH, 0.5, 0.0),     # position / gel radius (30 mm)
-    ((0.0, 30.0), G.ZOOM, 0.0, -1.0),    # at the rim, up -> full evdev up
-    ((-45.0, 0.0), G.PINCH, -1.0, 0.0),  # beyond the rim clips
-    ((15.0, 0.0), G.NONE, 0.0, 0.0),     # no gesture: centred
-])
+@pytest.mark.parametrize(
+    "contact, gesture, x, y",
+    [
+        ((15.0, 0.0), G.PUSH, 0.5, 0.0),  # position / gel radius (30 mm)
+        ((0.0, 30.0), G.ZOOM, 0.0, -1.0),  # at the rim, up -> full evdev up
+        ((-45.0, 0.0), G.PINCH, -1.0, 0.0),  # beyond the rim clips
+        ((15.0, 0.0), G.NONE, 0.0, 0.0),  # no gesture: centred
+    ],
+)
 def test_contact_to_stick(contact, gesture, x, y):
     m = dict(input="contact", output="right_stick", deadzone_mm=0.0)
     state = Mapper(profile(m=m)).update(est(gesture, 3.0, contact=contact))
@@ -109,8 +127,10 @@ def test_contact_to_stick(contact, gesture, x, y):
 
 
 def test_contributions_to_one_axis_add_up_and_clamp():
-    p = profile(a=dict(input="push_x", output="ABS_X", deadzone_mm=0.0, saturation_mm=10.0),
-                b=dict(input="push_x", output="ABS_X", deadzone_mm=0.0, saturation_mm=10.0))
+    p = profile(
+        a=dict(input="push_x", output="ABS_X", deadzone_mm=0.0, saturation_mm=10.0),
+        b=dict(input="push_x", output="ABS_X", deadzone_mm=0.0, saturation_mm=10.0),
+    )
     assert Mapper(p).update(est(G.PUSH, 3.0)).axes["ABS_X"] == stick_value(0.6)
     assert Mapper(p).update(est(G.PUSH, 8.0)).axes["ABS_X"] == STICK_MAX
 
@@ -119,25 +139,38 @@ def test_contributions_to_one_axis_add_up_and_clamp():
 BUTTON = dict(input="zoom", output="BTN_SOUTH", press_mm=2.0, release_mm=1.0)
 
 
-@pytest.mark.parametrize("mode, intensities, expected", [
-    ("hold", [0, 1.9, 2.0, 1.5, 1.0, 0.99, 1.5, 2.5, 0], [0, 0, 1, 1, 1, 0, 0, 1, 0]),
-    ("toggle", [0, 2.0, 1.5, 0.5, 1.5, 3.0, 0.0, 0.0, 2.2], [0, 1, 1, 1, 1, 0, 0, 0, 1]),
-])
+@pytest.mark.parametrize(
+    "mode, intensities, expected",
+    [
+        ("hold", [0, 1.9, 2.0, 1.5, 1.0, 0.99, 1.5, 2.5, 0], [0, 0, 1, 1, 1, 0, 0, 1, 0]),
+        ("toggle", [0, 2.0, 1.5, 0.5, 1.5, 3.0, 0.0, 0.0, 2.2], [0, 1, 1, 1, 1, 0, 0, 0, 1]),
+    ],
+)
 def test_button_hysteresis_and_modes(mode, intensities, expected):
     mapper = Mapper(profile(b={**BUTTON, "mode": mode}))
-    pressed = [mapper.update(est(G.ZOOM if mm else G.NONE, mm, t_us=10_000 * i)).buttons["BTN_SOUTH"]
-               for i, mm in enumerate(intensities)]
+    pressed = [
+        mapper.update(est(G.ZOOM if mm else G.NONE, mm, t_us=10_000 * i)).buttons["BTN_SOUTH"]
+        for i, mm in enumerate(intensities)
+    ]
     assert pressed == [bool(e) for e in expected]
 
 
-@pytest.mark.parametrize("direction, hat_x, hat_y", [
-    ((0, 1), 0, -1), ((0, -1), 0, 1), ((-1, 0), -1, 0), ((1, 0), 1, 0),
-    ((1, 1), 1, -1),      # a diagonal push presses both neighbours (8-way d-pad)
-    ((1, 0.1), 1, 0),     # a slight slant does not reach the other threshold
-])
+@pytest.mark.parametrize(
+    "direction, hat_x, hat_y",
+    [
+        ((0, 1), 0, -1),
+        ((0, -1), 0, 1),
+        ((-1, 0), -1, 0),
+        ((1, 0), 1, 0),
+        ((1, 1), 1, -1),  # a diagonal push presses both neighbours (8-way d-pad)
+        ((1, 0.1), 1, 0),  # a slight slant does not reach the other threshold
+    ],
+)
 def test_push_directions_to_dpad(direction, hat_x, hat_y):
-    maps = {d: dict(input=f"push_{d}", output=f"dpad_{d}", press_mm=2.0, release_mm=1.0)
-            for d in ("up", "down", "left", "right")}
+    maps = {
+        d: dict(input=f"push_{d}", output=f"dpad_{d}", press_mm=2.0, release_mm=1.0)
+        for d in ("up", "down", "left", "right")
+    }
     state = Mapper(profile(**maps)).update(est(G.PUSH, 4.0, direction=direction))
     assert (state.axes["ABS_HAT0X"], state.axes["ABS_HAT0Y"]) == (hat_x, hat_y)
     assert not any(state.buttons.values())
@@ -168,18 +201,26 @@ def test_one_euro_beta_cuts_lag_on_fast_moves():
 
 def test_smoothing_converges_and_lags():
     m = {**TWIST_AXIS, "smoothing": {"filter": "one_euro", "min_cutoff_hz": 1.0, "beta": 0.0}}
-    states = replay(profile(m=m), [est(G.NONE, 0.0, t_us=0)] + [est(G.TWIST_CCW, 5.0, t_us=10_000 * i) for i in range(1, 300)])
+    states = replay(
+        profile(m=m), [est(G.NONE, 0.0, t_us=0)] + [est(G.TWIST_CCW, 5.0, t_us=10_000 * i) for i in range(1, 300)]
+    )
     values = [s.axes["ABS_RX"] for s in states]
-    assert 0 < values[5] < STICK_MAX // 2   # smoothed: not at once
-    assert values == sorted(values)          # no overshoot
-    assert values[-1] >= stick_value(0.99)   # converges to the unsmoothed value
+    assert 0 < values[5] < STICK_MAX // 2  # smoothed: not at once
+    assert values == sorted(values)  # no overshoot
+    assert values[-1] >= stick_value(0.99)  # converges to the unsmoothed value
 
 
 @pytest.mark.parametrize("name", ["default", "spacecraft", "accessibility"])
 def test_rest_gives_neutral_after_smoothing_settles(name):
     p = load_profile(shipped_profiles_dir() / f"{name}.yaml")
-    gestures = [(G.PUSH, (0, 1)), (G.TWIST_CCW, (1, 0)), (G.TWIST_CW, (1, 0)), (G.ZOOM, (1, 0)), (G.PINCH, (1, 0)),
-                (G.PUSH, (-1, 0))]
+    gestures = [
+        (G.PUSH, (0, 1)),
+        (G.TWIST_CCW, (1, 0)),
+        (G.TWIST_CW, (1, 0)),
+        (G.ZOOM, (1, 0)),
+        (G.PINCH, (1, 0)),
+        (G.PUSH, (-1, 0)),
+    ]
     stream, t = [], 0
     for gesture, direction in gestures:
         for _ in range(100):  # 1 s of a firm gesture
@@ -216,8 +257,11 @@ def test_summary_counts_presses_and_max_deflection():
 
 
 def test_tuned_saturation_is_the_percentile_of_reached_intensity():
-    p = profile(push=PUSH_STICK, zoom=dict(input="zoom", output="ABS_RZ", deadzone_mm=0.5, saturation_mm=6.0),
-                where=dict(input="contact", output="right_stick"))
+    p = profile(
+        push=PUSH_STICK,
+        zoom=dict(input="zoom", output="ABS_RZ", deadzone_mm=0.5, saturation_mm=6.0),
+        where=dict(input="contact", output="right_stick"),
+    )
     pushes = [1.0 + 0.02 * i for i in range(101)]  # 1.0 .. 3.0 mm: a weak user
     stream = [est(G.PUSH, mm, t_us=10_000 * i, contact=(3.0, 0.0)) for i, mm in enumerate(pushes)]
     stream += [est(G.NONE, 0.0, t_us=2_000_000)]
@@ -231,8 +275,10 @@ def test_tuned_saturation_is_the_percentile_of_reached_intensity():
 
 
 def test_summary_counts_dpad_presses():
-    p = profile(up=dict(input="push_up", output="dpad_up", press_mm=2.0, release_mm=1.0),
-                right=dict(input="push_right", output="dpad_right", press_mm=2.0, release_mm=1.0))
+    p = profile(
+        up=dict(input="push_up", output="dpad_up", press_mm=2.0, release_mm=1.0),
+        right=dict(input="push_right", output="dpad_right", press_mm=2.0, release_mm=1.0),
+    )
     pushes = [((0, 1), 3.0), ((0, 0), 0.0), ((0, 1), 3.0), ((1, 0), 3.0), ((0, 0), 0.0)]
     stream = [est(G.PUSH if mm else G.NONE, mm, t_us=10_000 * i, direction=d) for i, (d, mm) in enumerate(pushes)]
     presses = summarise(replay(p, stream)).presses

@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from neurotouch_hid.estimate import GESTURE_ORDER, GestureEstimate, GestureType
 from neurotouch_hid.dataset import LabelRow, labels_at
+from neurotouch_hid.estimate import GESTURE_ORDER, GestureEstimate, GestureType
 from neurotouch_hid.evaluation.metrics import (
     Observations,
     accuracy,
@@ -94,9 +94,7 @@ def test_confusion_matrix_rejects_unknown_class():
 def test_balanced_confusion_matrix_by_hand_with_empty_row_and_column():
     counts = np.array([[2, 1, 0, 0], [0, 1, 1, 0], [0, 0, 1, 0], [0, 0, 0, 0]])
     balanced = balanced_confusion_matrix(counts)
-    expected = np.array(
-        [[5 / 6, 5 / 12, 0, 0], [0, 0.5, 0.5, 0], [0, 0, 0.75, 0], [0, 0, 0, 0]]
-    )
+    expected = np.array([[5 / 6, 5 / 12, 0, 0], [0, 0.5, 0.5, 0], [0, 0, 0.75, 0], [0, 0, 0, 0]])
     np.testing.assert_allclose(balanced, expected)
     assert np.isfinite(balanced).all()
 
@@ -141,11 +139,11 @@ def small_case():
         GestureEstimate(t_us=-10),
         GestureEstimate(t_us=50, gesture=NONE, resting=True),
         # truth at 150: push, contact (178, 130), intensity 3.0
-        GestureEstimate(t_us=150, gesture=PUSH, resting=False, intensity_mm=2.5,
-                        contacts_px=_pts((178, 135), (300, 130))),
+        GestureEstimate(
+            t_us=150, gesture=PUSH, resting=False, intensity_mm=2.5, contacts_px=_pts((178, 135), (300, 130))
+        ),
         # truth at 250: push, contact (183, 130), intensity 4.0
-        GestureEstimate(t_us=250, gesture=PINCH, resting=True, intensity_mm=5.0,
-                        contacts_px=_pts((183, 137.5))),
+        GestureEstimate(t_us=250, gesture=PINCH, resting=True, intensity_mm=5.0, contacts_px=_pts((183, 137.5))),
     ]
     return sensor, labels, predictions
 

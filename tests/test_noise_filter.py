@@ -37,9 +37,20 @@ ATTACK_US, HOLD_US = 300_000, 300_000
 def _push() -> SimGesture:
     """A one-finger push of 4 mm, held, released: 0.2 s rest, then ~1 s of motion."""
     return SimGesture(
-        gesture=GestureType.PUSH, t_start_us=PUSH_START_US, attack_us=ATTACK_US, hold_us=HOLD_US, release_us=200_000,
-        fingers_mm=np.array([[3.0, -2.0]]), amplitude_mm=4.0, direction=np.array([0.6, -0.8]), finger_mm=7.0,
-        press=0.8, tremor=(0.0, 5.0, 0.0), global_mm=np.array([0.2, -0.1]), global_rad=0.002, residual=0.03,
+        gesture=GestureType.PUSH,
+        t_start_us=PUSH_START_US,
+        attack_us=ATTACK_US,
+        hold_us=HOLD_US,
+        release_us=200_000,
+        fingers_mm=np.array([[3.0, -2.0]]),
+        amplitude_mm=4.0,
+        direction=np.array([0.6, -0.8]),
+        finger_mm=7.0,
+        press=0.8,
+        tremor=(0.0, 5.0, 0.0),
+        global_mm=np.array([0.2, -0.1]),
+        global_rad=0.002,
+        residual=0.03,
         creep_us=80_000,
     )
 
@@ -67,7 +78,9 @@ def marker_events() -> np.ndarray:
     """The markers' own events during the push (no background activity, hot pixels removed)."""
     sim = GelSimulator(SENSOR, seed=1, script=[_push()], noise_rate_hz=0.0)
     events = np.concatenate([chunk.events for chunk in sim.run(1.2)])
-    hot = np.isin(events["y"].astype(np.int64) * W + events["x"], sim.camera.hot_y.astype(np.int64) * W + sim.camera.hot_x)
+    hot = np.isin(
+        events["y"].astype(np.int64) * W + events["x"], sim.camera.hot_y.astype(np.int64) * W + sim.camera.hot_x
+    )
     events = events[~hot]
     assert len(events) > 20_000  # the push makes the markers fire
     return events
@@ -103,14 +116,18 @@ def _kept(name: str, time_us: int | None, events: np.ndarray) -> np.ndarray:
 
 
 # --- the filter on simulated noise ------------------------------------------------------------
-@pytest.mark.parametrize("name, time_us, min_removed, min_marker_kept", [
-    ("BackgroundActivityNoiseFilter", None, 0.55, 0.9),  # the default: 20 ms
-    ("BackgroundActivityNoiseFilter", 2000, 0.9, 0.45),  # the library's default time
-    ("FastDecayNoiseFilter", None, 0.8, 0.8),  # 50 ms
-    ("KNoiseFilter", None, 0.95, 0.2),  # 1 ms: clean, but loses most marker events
-])
-def test_filters_remove_injected_background_activity_and_keep_marker_events(noisy, name, time_us, min_removed,
-                                                                            min_marker_kept):
+@pytest.mark.parametrize(
+    "name, time_us, min_removed, min_marker_kept",
+    [
+        ("BackgroundActivityNoiseFilter", None, 0.55, 0.9),  # the default: 20 ms
+        ("BackgroundActivityNoiseFilter", 2000, 0.9, 0.45),  # the library's default time
+        ("FastDecayNoiseFilter", None, 0.8, 0.8),  # 50 ms
+        ("KNoiseFilter", None, 0.95, 0.2),  # 1 ms: clean, but loses most marker events
+    ],
+)
+def test_filters_remove_injected_background_activity_and_keep_marker_events(
+    noisy, name, time_us, min_removed, min_marker_kept
+):
     events, is_marker = noisy
     kept = _kept(name, time_us, events)
     removed, marker_kept = 1.0 - kept[~is_marker].mean(), kept[is_marker].mean()
@@ -147,8 +164,9 @@ def test_the_filter_keeps_its_state_across_batches(noisy):
     events = events[:200_000]
     whole = EventNoiseFilter("BackgroundActivityNoiseFilter", W, H)(events)
     assert np.array_equal(_filter_in_batches("BackgroundActivityNoiseFilter", None, events, batch_us=1000), whole)
-    fresh_each_batch = np.concatenate([EventNoiseFilter("BackgroundActivityNoiseFilter", W, H)(b)
-                                       for b in split_batches(events, 1000)])
+    fresh_each_batch = np.concatenate(
+        [EventNoiseFilter("BackgroundActivityNoiseFilter", W, H)(b) for b in split_batches(events, 1000)]
+    )
     assert len(fresh_each_batch) < len(whole)  # what forgetting between batches would lose
 
 
@@ -168,7 +186,9 @@ def test_the_filter_starts_afresh_when_the_clock_goes_back():
 def _library_ba(events: np.ndarray, time_us: int, batch_us: int, width: int = W, height: int = H) -> np.ndarray:
     """dv-processing's own BackgroundActivityNoiseFilter (accept + generateEvents on EventStores)."""
     f = EventNoiseFilter("BackgroundActivityNoiseFilter", width, height, time_us)
-    return np.concatenate([events_from_store(f.filter_store(store_from_events(b))) for b in split_batches(events, batch_us)])
+    return np.concatenate(
+        [events_from_store(f.filter_store(store_from_events(b))) for b in split_batches(events, batch_us)]
+    )
 
 
 def _numba_ba(events: np.ndarray, time_us: int, batch_us: int, width: int = W, height: int = H) -> np.ndarray:
@@ -223,12 +243,18 @@ def test_an_empty_batch_passes_through():
 
 
 # --- configuration ----------------------------------------------------------------------------
-@pytest.mark.parametrize("kwargs, message", [
-    ({"noise_filter": "MedianFilter"}, "noise_filter must be None or one of BackgroundActivityNoiseFilter"),
-    ({"noise_filter": "KNoiseFilter", "noise_filter_us": 0}, "noise_filter_us must be a whole number of microseconds >= 1"),
-    ({"noise_filter": "KNoiseFilter", "noise_filter_us": 2.5}, "noise_filter_us must be a whole number"),
-    ({"noise_filter": None, "noise_filter_us": 2000}, "noise_filter_us=2000 is set but noise_filter is None"),
-])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"noise_filter": "MedianFilter"}, "noise_filter must be None or one of BackgroundActivityNoiseFilter"),
+        (
+            {"noise_filter": "KNoiseFilter", "noise_filter_us": 0},
+            "noise_filter_us must be a whole number of microseconds >= 1",
+        ),
+        ({"noise_filter": "KNoiseFilter", "noise_filter_us": 2.5}, "noise_filter_us must be a whole number"),
+        ({"noise_filter": None, "noise_filter_us": 2000}, "noise_filter_us=2000 is set but noise_filter is None"),
+    ],
+)
 def test_bad_noise_filter_settings_are_clear_errors(kwargs, message):
     with pytest.raises(ValueError, match=message):
         PipelineConfig(**kwargs)
@@ -374,8 +400,19 @@ def test_noise_hz_makes_a_noisier_recording_and_eval_runs_the_filter_on_it(tmp_p
     assert 0.1 <= default < 0.2  # 0.1 Hz background activity + 4 hot pixels (the gel rests)
     assert 2.8 < noisy < 3.3
     out = tmp_path / "m.json"
-    result = runner.invoke(app, ["eval", str(tmp_path / "noisy"), "--set", "noise_filter=BackgroundActivityNoiseFilter",
-                                 "--set", "noise_filter_us=5000", "--json", str(out)])
+    result = runner.invoke(
+        app,
+        [
+            "eval",
+            str(tmp_path / "noisy"),
+            "--set",
+            "noise_filter=BackgroundActivityNoiseFilter",
+            "--set",
+            "noise_filter_us=5000",
+            "--json",
+            str(out),
+        ],
+    )
     assert result.exit_code == 0, result.output
     config = json.loads(out.read_text())["config"]
     assert (config["noise_filter"], config["noise_filter_us"]) == ("BackgroundActivityNoiseFilter", 5000)

@@ -54,15 +54,28 @@ def test_unit_binds_to_the_device_unit_the_rules_create():
     unit = UNIT.read_text()
     symlink = re.search(r'SYMLINK\+="([^"]+)"', RULES.read_text()).group(1)
     escape = shutil.which("systemd-escape")
-    device_unit = (subprocess.run([escape, "--path", "--suffix=device", f"/dev/{symlink}"], capture_output=True,
-                                  text=True).stdout.strip() if escape else f"dev-{symlink}.device")
+    device_unit = (
+        subprocess.run(
+            [escape, "--path", "--suffix=device", f"/dev/{symlink}"], capture_output=True, text=True
+        ).stdout.strip()
+        if escape
+        else f"dev-{symlink}.device"
+    )
     assert f"BindsTo={device_unit}" in unit and f"After={device_unit}" in unit
     assert "Restart=on-failure" in unit and re.search(r"^ExecStart=.* run --source davis", unit, re.M)
 
 
-HARDENING = ("NoNewPrivileges=yes", "ProtectSystem=strict", "ProtectHome=read-only", "PrivateTmp=yes",
-             "DevicePolicy=closed", "DeviceAllow=/dev/uinput rw", "DeviceAllow=/dev/neurotouch rw",
-             "StateDirectory=neurotouch-hid", "CacheDirectory=neurotouch-hid")
+HARDENING = (
+    "NoNewPrivileges=yes",
+    "ProtectSystem=strict",
+    "ProtectHome=read-only",
+    "PrivateTmp=yes",
+    "DevicePolicy=closed",
+    "DeviceAllow=/dev/uinput rw",
+    "DeviceAllow=/dev/neurotouch rw",
+    "StateDirectory=neurotouch-hid",
+    "CacheDirectory=neurotouch-hid",
+)
 
 
 def test_unit_is_hardened():
@@ -71,15 +84,22 @@ def test_unit_is_hardened():
     lines = set(_rule_lines(UNIT.read_text()))
     assert set(HARDENING) <= lines
     assert {line for line in lines if line.startswith("DeviceAllow=")} == {
-        "DeviceAllow=/dev/uinput rw", "DeviceAllow=/dev/neurotouch rw"}
+        "DeviceAllow=/dev/uinput rw",
+        "DeviceAllow=/dev/neurotouch rw",
+    }
 
 
 def test_security_exposure_is_low_and_documented(systemd_analyze, tmp_path):
     """`systemd-analyze security` rates the user unit OK (< 3), the figure packaging/README.md gives."""
     runtime = tmp_path / "runtime"
     runtime.mkdir(mode=0o700)
-    proc = subprocess.run([systemd_analyze, "--user", "security", "--offline=yes", str(UNIT)], capture_output=True,
-                          text=True, timeout=60, env=dict(os.environ, XDG_RUNTIME_DIR=str(runtime)))
+    proc = subprocess.run(
+        [systemd_analyze, "--user", "security", "--offline=yes", str(UNIT)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=dict(os.environ, XDG_RUNTIME_DIR=str(runtime)),
+    )
     found = re.search(r"Overall exposure level for neurotouch-hid.service: (\d+\.\d) (\w+)", proc.stdout)
     assert found, proc.stdout + proc.stderr
     level = float(found.group(1))
@@ -142,18 +162,28 @@ def _udevadm_test(rules_text: str, tmp_path: Path) -> str:
     whose /run is a fresh tmpfs, so nothing on this machine changes. Returns the lines about it."""
     src = tmp_path / "60-neurotouch.rules"
     src.write_text(rules_text)
-    script = (f"mount -t tmpfs tmpfs /run && mkdir -p /run/udev/rules.d && cp {src} /run/udev/rules.d/ && "
-              "udevadm test --action=add /sys/class/mem/null 2>&1")
-    proc = subprocess.run(["unshare", "--mount", "--propagation", "private", "sh", "-c", script],
-                          capture_output=True, text=True, timeout=60)
+    script = (
+        f"mount -t tmpfs tmpfs /run && mkdir -p /run/udev/rules.d && cp {src} /run/udev/rules.d/ && "
+        "udevadm test --action=add /sys/class/mem/null 2>&1"
+    )
+    proc = subprocess.run(
+        ["unshare", "--mount", "--propagation", "private", "sh", "-c", script],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     if "Reading rules file: /run/udev/rules.d/60-neurotouch.rules" not in proc.stdout:
         pytest.skip(reason=f"cannot run udevadm test in a private mount namespace here: {proc.stderr.strip()[:200]}")
     return "\n".join(line for line in proc.stdout.splitlines() if "60-neurotouch.rules" in line)
 
 
-@pytest.mark.skipif(os.geteuid() != 0 or not shutil.which("unshare") or not shutil.which("udevadm")
-                    or not os.path.exists("/sys/class/mem/null"),
-                    reason="needs root, unshare and udevadm to run udev's parser in a private namespace")
+@pytest.mark.skipif(
+    os.geteuid() != 0
+    or not shutil.which("unshare")
+    or not shutil.which("udevadm")
+    or not os.path.exists("/sys/class/mem/null"),
+    reason="needs root, unshare and udevadm to run udev's parser in a private namespace",
+)
 def test_udev_parses_the_rules_without_complaint(tmp_path):
     said = _udevadm_test(RULES.read_text(), tmp_path)
     assert said.strip() == "Reading rules file: /run/udev/rules.d/60-neurotouch.rules", said

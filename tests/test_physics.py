@@ -30,9 +30,19 @@ def _gesture(kind: GestureType, fingers_mm, amplitude=6.0, **extra):
     g = draw_gesture(np.random.default_rng(1), USERS[0], kind, START_US + 80_000, SENSOR)
     fingers = np.asarray(fingers_mm, dtype=np.float64)
     return dataclasses.replace(
-        g, fingers_mm=fingers, amplitude_mm=amplitude, direction=np.array([1.0, 0.0]), attack_us=200_000,
-        hold_us=600_000, release_us=200_000, press=0.8, tremor=(0.0, 5.0, 0.0), global_mm=np.zeros(2), global_rad=0.0,
-        **extra)
+        g,
+        fingers_mm=fingers,
+        amplitude_mm=amplitude,
+        direction=np.array([1.0, 0.0]),
+        attack_us=200_000,
+        hold_us=600_000,
+        release_us=200_000,
+        press=0.8,
+        tremor=(0.0, 5.0, 0.0),
+        global_mm=np.zeros(2),
+        global_rad=0.0,
+        **extra,
+    )
 
 
 def _blobs(frame: np.ndarray) -> np.ndarray:
@@ -103,10 +113,12 @@ def test_family_labels_are_the_largest_deformation_under_each_finger(name):
 def test_camera_family_has_non_uniform_px_per_mm_and_keeps_the_gel_circle():
     cam = DomeCamera(SENSOR, PHYSICS["camera"])
     flat = DomeCamera(SENSOR, PHYSICS["default"])
+
     # local scale (px per mm) at the centre and near the rim, radially
     def scale(c, rho):
         a, b = c.project(np.array([[rho, 0.0]])), c.project(np.array([[rho + 0.5, 0.0]]))
         return float(np.linalg.norm(b - a)) / 0.5
+
     assert scale(flat, 0.0) == pytest.approx(SENSOR.px_per_mm)
     assert scale(flat, 25.0) == pytest.approx(SENSOR.px_per_mm)
     assert scale(cam, 0.0) < 0.95 * SENSOR.px_per_mm
@@ -120,7 +132,9 @@ def test_camera_family_has_non_uniform_px_per_mm_and_keeps_the_gel_circle():
 
 def test_hertz_deflection_is_continuous_at_the_contact_edge():
     assert hertz_deflection(0.0) == 1.0
-    assert hertz_deflection(1.0 - 1e-9) == pytest.approx(0.5) and hertz_deflection(1.0 + 1e-9) == pytest.approx(0.5, abs=1e-4)
+    assert hertz_deflection(1.0 - 1e-9) == pytest.approx(0.5) and hertz_deflection(1.0 + 1e-9) == pytest.approx(
+        0.5, abs=1e-4
+    )
     assert hertz_deflection(10.0) == pytest.approx(4.0 / (3.0 * math.pi * 10.0), rel=0.02)  # the far field
 
 
@@ -160,6 +174,7 @@ def test_gesture_families_draw_strong_presses_lags_unequal_fingers_and_drift():
     def draws(name, kind=GestureType.PUSH):
         rng, prng = np.random.default_rng(5), np.random.default_rng(6)
         return [draw_gesture(rng, USERS[0], kind, 0, SENSOR, PHYSICS[name], prng) for _ in range(40)]
+
     strong = [g.amplitude_mm for g in draws("strong")]
     assert np.mean(np.array(strong) >= 12.0) > 0.5
     assert np.mean(np.array(strong) >= 12.0) > 3 * np.mean(np.array([g.amplitude_mm for g in draws("default")]) >= 12.0)
@@ -178,8 +193,9 @@ def test_gesture_families_draw_strong_presses_lags_unequal_fingers_and_drift():
 
 def test_default_family_draws_do_not_change_when_other_families_exist():
     a = draw_gesture(np.random.default_rng(9), USERS[2], GestureType.ZOOM, 0, SENSOR)
-    b = draw_gesture(np.random.default_rng(9), USERS[2], GestureType.ZOOM, 0, SENSOR, PHYSICS["markers"],
-                     np.random.default_rng(1))
+    b = draw_gesture(
+        np.random.default_rng(9), USERS[2], GestureType.ZOOM, 0, SENSOR, PHYSICS["markers"], np.random.default_rng(1)
+    )
     assert a.amplitude_mm == b.amplitude_mm and np.array_equal(a.fingers_mm, b.fingers_mm)
     assert a.press == b.press and a.creep_us == b.creep_us and np.array_equal(a.global_mm, b.global_mm)
 
@@ -197,8 +213,10 @@ def test_noise_and_flicker_families_add_events_at_rest():
 
 def test_flicker_changes_aps_brightness_and_markers_family_spreads_marker_sizes():
     sim = GelSimulator(SENSOR, USERS[0], seed=3, script=[], physics=PHYSICS["flicker"])
-    means = [float(c.frame.image[sim.gel.rest_px[:, 1].astype(int), sim.gel.rest_px[:, 0].astype(int)].mean())
-             for c in _run(sim, 8)]
+    means = [
+        float(c.frame.image[sim.gel.rest_px[:, 1].astype(int), sim.gel.rest_px[:, 0].astype(int)].mean())
+        for c in _run(sim, 8)
+    ]
     assert max(means) - min(means) > 5.0
     spread = GelSimulator(SENSOR, USERS[0], seed=3, script=[], physics=PHYSICS["markers"]).gel
     plain = GelSimulator(SENSOR, USERS[0], seed=3, script=[]).gel
@@ -210,8 +228,9 @@ def test_mix_covers_every_family_and_simulate_writes_physics_json(tmp_path):
     fams = mix_families(len(PHYSICS), seed=4)
     assert sorted(f.name for f in fams) == sorted(PHYSICS)
     out = tmp_path / "mix"
-    result = CliRunner().invoke(app, ["simulate", "--out", str(out), "--physics", "mix", "--minutes", "0.05",
-                                      "--users", "0"])
+    result = CliRunner().invoke(
+        app, ["simulate", "--out", str(out), "--physics", "mix", "--minutes", "0.05", "--users", "0"]
+    )
     assert result.exit_code == 0, result.output
     data = json.loads((out / "physics.json").read_text())
     assert data["physics"] == "mix"

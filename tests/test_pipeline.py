@@ -10,9 +10,9 @@ import threading
 import numpy as np
 import pytest
 
+from neurotouch_hid.dataset import read_predictions, write_predictions
 from neurotouch_hid.errors import DatasetError, SensorError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.dataset import read_predictions, write_predictions
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 from neurotouch_hid.pipeline.resting import RestingResult
 from neurotouch_hid.sensor import SensorGeometry
@@ -205,9 +205,16 @@ def test_set_resting_ignores_no_verdict_and_stale_verdicts(rest_image):
 def test_predictions_round_trip(tmp_path):
     estimates = [
         GestureEstimate(t_us=10000),
-        GestureEstimate(t_us=20000, gesture=GestureType.TWIST_CW, resting=False, intensity_mm=2.5,
-                        contacts_px=np.array([[150.0, 120.0], [190.0, 125.0]]),
-                        contacts_mm=np.array([[-9.2, 4.0], [6.8, 2.0]]), rotation_rad=-0.2, scale=1.01),
+        GestureEstimate(
+            t_us=20000,
+            gesture=GestureType.TWIST_CW,
+            resting=False,
+            intensity_mm=2.5,
+            contacts_px=np.array([[150.0, 120.0], [190.0, 125.0]]),
+            contacts_mm=np.array([[-9.2, 4.0], [6.8, 2.0]]),
+            rotation_rad=-0.2,
+            scale=1.01,
+        ),
     ]
     path = tmp_path / "pred.jsonl"
     assert write_predictions(path, estimates) == 2
@@ -215,7 +222,9 @@ def test_predictions_round_trip(tmp_path):
     assert json.loads(lines[1])["contacts_mm"] == [[-9.2, 4.0], [6.8, 2.0]]
     back = read_predictions(path)
     assert [(e.t_us, e.gesture, e.resting, e.n_contacts) for e in back] == [
-        (10000, GestureType.NONE, True, 0), (20000, GestureType.TWIST_CW, False, 2)]
+        (10000, GestureType.NONE, True, 0),
+        (20000, GestureType.TWIST_CW, False, 2),
+    ]
     assert back[1].rotation_rad == pytest.approx(-0.2)
 
 
@@ -253,7 +262,9 @@ def push_tracked(push_dataset, tmp_path_factory):
     from neurotouch_hid.sensor import find_sensor_file
 
     out = tmp_path_factory.mktemp("track")
-    summary = track_recording(push_dataset, out / "pred.jsonl", find_sensor_file(push_dataset), markers_out=out / "m.npz")
+    summary = track_recording(
+        push_dataset, out / "pred.jsonl", find_sensor_file(push_dataset), markers_out=out / "m.npz"
+    )
     return summary, read_predictions(out / "pred.jsonl"), np.load(out / "m.npz")
 
 
@@ -335,7 +346,9 @@ def _cli(*args: str):
     import subprocess
     import sys
 
-    return subprocess.run([sys.executable, "-m", "neurotouch_hid.cli", *args], capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "neurotouch_hid.cli", *args], capture_output=True, text=True, timeout=300
+    )
 
 
 STREET = "/work/shared/data/davis346-street/recording.aedat4"
@@ -353,8 +366,16 @@ def test_track_on_a_street_recording_says_no_gel_and_exits_2(tmp_path):
 
 
 def test_track_command_writes_predictions_and_markers(push_dataset, push_tracked, tmp_path):
-    done = _cli("track", str(push_dataset), "--out", str(tmp_path / "p.jsonl"), "--window-us", "5000",
-                "--markers", str(tmp_path / "m.npz"))
+    done = _cli(
+        "track",
+        str(push_dataset),
+        "--out",
+        str(tmp_path / "p.jsonl"),
+        "--window-us",
+        "5000",
+        "--markers",
+        str(tmp_path / "m.npz"),
+    )
     assert done.returncode == 0, done.stderr
     predictions = read_predictions(tmp_path / "p.jsonl")
     assert np.all(np.diff([p.t_us for p in predictions]) == 5000)
@@ -501,7 +522,9 @@ def test_a_gel_still_off_its_calibration_is_taken_after_a_while(rest_image):
     while pipeline.rest_px is None and k < RESUME_MATCH_FRAMES + 5:
         pipeline.process(Frame(40_000 * k, rest_image))
         k += 1
-    assert pipeline.rest_px is not None and k == RESUME_MATCH_FRAMES + 1 and pipeline.pressed_frames == RESUME_MATCH_FRAMES
+    assert (
+        pipeline.rest_px is not None and k == RESUME_MATCH_FRAMES + 1 and pipeline.pressed_frames == RESUME_MATCH_FRAMES
+    )
 
 
 def test_pixel_settings_follow_px_per_mm_on_a_closer_camera():

@@ -13,10 +13,16 @@ from neurotouch_hid.mapping.profile import load_profile, shipped_profiles_dir
 
 
 def run_cli(*args: str, tmp_path, stdout=subprocess.PIPE) -> subprocess.CompletedProcess:
-    env = {"PATH": "/usr/bin:/bin", "HOME": str(tmp_path), "XDG_CONFIG_HOME": str(tmp_path / "config"),
-           "COLUMNS": "80"}
-    return subprocess.run([sys.executable, "-m", "neurotouch_hid.cli", *args], stdout=stdout,
-                          stderr=subprocess.PIPE, env=env, stdin=subprocess.DEVNULL, timeout=120, cwd=tmp_path)
+    env = {"PATH": "/usr/bin:/bin", "HOME": str(tmp_path), "XDG_CONFIG_HOME": str(tmp_path / "config"), "COLUMNS": "80"}
+    return subprocess.run(
+        [sys.executable, "-m", "neurotouch_hid.cli", *args],
+        stdout=stdout,
+        stderr=subprocess.PIPE,
+        env=env,
+        stdin=subprocess.DEVNULL,
+        timeout=120,
+        cwd=tmp_path,
+    )
 
 
 def test_profile_show_piped_is_the_file(tmp_path):

@@ -9,10 +9,23 @@ from neurotouch_hid.evaluation.runner import pipeline_config
 from neurotouch_hid.pipeline.pipeline import PipelineConfig
 
 # the paper, section "Results" (r, a, N_min, Chamfer threshold) and "Methodology" (nothing else)
-PAPER = {"r_px": 30.0, "a": 0.6, "n_min": 4, "chamfer_threshold": 2.5, "chamfer_per_marker": False,
-         "min_intensity_px": 0.0, "intensity_sigma_px": None, "field_fallback": False, "contact_refine_px": None,
-         "origin_radius_px": None, "motion_override_px": None, "noise_filter": None, "rest_match_pitch": None,
-         "follow_px_per_mm": False, "episode_vote": False}
+PAPER = {
+    "r_px": 30.0,
+    "a": 0.6,
+    "n_min": 4,
+    "chamfer_threshold": 2.5,
+    "chamfer_per_marker": False,
+    "min_intensity_px": 0.0,
+    "intensity_sigma_px": None,
+    "field_fallback": False,
+    "contact_refine_px": None,
+    "origin_radius_px": None,
+    "motion_override_px": None,
+    "noise_filter": None,
+    "rest_match_pitch": None,
+    "follow_px_per_mm": False,
+    "episode_vote": False,
+}
 
 
 def test_paper_preset_has_the_papers_hyperparameters_and_no_extra_option():

@@ -10,8 +10,15 @@ import pytest
 from neurotouch_hid.controller import AXES, BUTTONS
 from neurotouch_hid.errors import ProfileError
 from neurotouch_hid.mapping.profile import (
-    AxisMapping, ButtonMapping, StickMapping, available_profiles, find_profile, load_profile, parse_profile,
-    shipped_profiles_dir, user_profiles_dir,
+    AxisMapping,
+    ButtonMapping,
+    StickMapping,
+    available_profiles,
+    find_profile,
+    load_profile,
+    parse_profile,
+    shipped_profiles_dir,
+    user_profiles_dir,
 )
 
 
@@ -55,7 +62,11 @@ def test_shipped_profiles_follow_the_issue():
     assert by_input["zoom"].output == "ABS_RZ" and by_input["pinch"].output == "ABS_Z"
     space = load_profile(shipped_profiles_dir() / "spacecraft.yaml")
     assert {(m.input, m.output) for m in space.mappings.values()} >= {
-        ("push", "left_stick"), ("twist", "ABS_RX"), ("zoom", "ABS_RZ"), ("pinch", "ABS_Z")}
+        ("push", "left_stick"),
+        ("twist", "ABS_RX"),
+        ("zoom", "ABS_RZ"),
+        ("pinch", "ABS_Z"),
+    }
     access = load_profile(shipped_profiles_dir() / "accessibility.yaml")
     digital = [m for m in access.mappings.values() if isinstance(m, ButtonMapping)]
     assert {m.output for m in digital} >= {"dpad_up", "dpad_down", "dpad_left", "dpad_right"}
@@ -112,15 +123,19 @@ def test_a_bad_profile_lists_every_problem_with_file_line_field_value_and_expect
         "mappings.push.wobble": ("wobble:", "3", "known field"),
         "mappings.roll.output": ("ABS_ROLL", "'ABS_ROLL'", "'ABS_RX'"),
         "mappings.fire.release_mm": ("release_mm:", "2.0", "<= press_mm"),
-        "mappings.fire.mode": ("mode: sometimes", "'sometimes'", "'hold', 'toggle', 'long_press', 'double_press' or 'turbo'"),
+        "mappings.fire.mode": (
+            "mode: sometimes",
+            "'sometimes'",
+            "'hold', 'toggle', 'long_press', 'double_press' or 'turbo'",
+        ),
     }
     for field, (needle, value, expectation) in expected.items():
-        hits = [l for l in lines if f" {field}:" in l]
+        hits = [ln for ln in lines if f" {field}:" in ln]
         assert len(hits) == 1, (field, message)
         hit = hits[0]
         assert hit.strip().startswith(f"{path}:{line_of(BAD, needle)}:"), (hit, line_of(BAD, needle))
         assert value in hit and expectation in hit, hit
-    assert "deadzone_mm" in next(l for l in lines if "wobble" in l)  # lists the known fields
+    assert "deadzone_mm" in next(ln for ln in lines if "wobble" in ln)  # lists the known fields
 
 
 def test_unknown_top_level_field_and_missing_field(tmp_path):
@@ -133,8 +148,12 @@ def test_unknown_top_level_field_and_missing_field(tmp_path):
 
 
 def test_saturation_must_exceed_dead_zone():
-    with pytest.raises(ProfileError, match=r"x\.yaml:3: mappings\.m\.saturation_mm: found 1\.0; expected a value > deadzone_mm"):
-        parse_profile("mappings:\n  m: {input: zoom, output: ABS_RZ, deadzone_mm: 2.0,\n       saturation_mm: 1.0}\n", "x.yaml")
+    with pytest.raises(
+        ProfileError, match=r"x\.yaml:3: mappings\.m\.saturation_mm: found 1\.0; expected a value > deadzone_mm"
+    ):
+        parse_profile(
+            "mappings:\n  m: {input: zoom, output: ABS_RZ, deadzone_mm: 2.0,\n       saturation_mm: 1.0}\n", "x.yaml"
+        )
 
 
 def test_wrong_input_kind_for_the_output():
@@ -143,13 +162,16 @@ def test_wrong_input_kind_for_the_output():
         parse_profile(text, "y.yaml")
 
 
-@pytest.mark.parametrize("text, needle", [
-    ("mappings:\n  m: [unclosed\n", "not valid YAML"),
-    ("", "empty"),
-    ("- a list\n", "(top level)"),
-    ("mappings:\n  m: {input: zoom, output: ABS_RZ, invert: 1}\n", "valid boolean"),
-    ("mappings:\n  m: {input: zoom, output: ABS_RZ, gain: '2'}\n", "valid number"),
-])
+@pytest.mark.parametrize(
+    "text, needle",
+    [
+        ("mappings:\n  m: [unclosed\n", "not valid YAML"),
+        ("", "empty"),
+        ("- a list\n", "(top level)"),
+        ("mappings:\n  m: {input: zoom, output: ABS_RZ, invert: 1}\n", "valid boolean"),
+        ("mappings:\n  m: {input: zoom, output: ABS_RZ, gain: '2'}\n", "valid number"),
+    ],
+)
 def test_other_bad_files_give_one_profile_error(text, needle):
     with pytest.raises(ProfileError, match=re.escape(needle)) as info:
         parse_profile(text, "z.yaml")
@@ -186,12 +208,21 @@ def test_shipped_profiles_are_package_data():
     assert shipped_profiles_dir().parent.name == "neurotouch_hid"
 
 
-@pytest.mark.parametrize("text, expected", [
-    ("mappings:\n  m: 5\n", "q.yaml:2: mappings.m: found 5; expected a mapping"),
-    ("device: x\nmappings: {}\n", "q.yaml:1: device: found 'x'; expected a mapping"),
-    ("mappings:\n  m: {input: zoom, output: [1]}\n", "q.yaml:2: mappings.m.output: found [1]; expected 'left_stick'"),
-    ("mappings:\n  bad key: {input: zoom, output: ABS_Z}\n", "q.yaml:2: mappings.bad key: found the name 'bad key'"),
-])
+@pytest.mark.parametrize(
+    "text, expected",
+    [
+        ("mappings:\n  m: 5\n", "q.yaml:2: mappings.m: found 5; expected a mapping"),
+        ("device: x\nmappings: {}\n", "q.yaml:1: device: found 'x'; expected a mapping"),
+        (
+            "mappings:\n  m: {input: zoom, output: [1]}\n",
+            "q.yaml:2: mappings.m.output: found [1]; expected 'left_stick'",
+        ),
+        (
+            "mappings:\n  bad key: {input: zoom, output: ABS_Z}\n",
+            "q.yaml:2: mappings.bad key: found the name 'bad key'",
+        ),
+    ],
+)
 def test_wrong_shapes_are_reported_in_plain_words(text, expected):
     with pytest.raises(ProfileError) as info:
         parse_profile(text, "q.yaml")

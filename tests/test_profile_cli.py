@@ -48,8 +48,13 @@ def pushes(tmp_path):
     for i in range(300):
         t = i * 10_000
         pushing = 50 <= i < 150
-        e = GestureEstimate(t_us=t, gesture=GestureType.PUSH if pushing else GestureType.NONE, resting=not pushing,
-                            intensity_mm=3.0 if pushing else 0.0, translation_mm=[0.0, 1.2] if pushing else [0.0, 0.0])
+        e = GestureEstimate(
+            t_us=t,
+            gesture=GestureType.PUSH if pushing else GestureType.NONE,
+            resting=not pushing,
+            intensity_mm=3.0 if pushing else 0.0,
+            translation_mm=[0.0, 1.2] if pushing else [0.0, 0.0],
+        )
         lines.append(json.dumps(e.to_json_dict()))
     path.write_text("\n".join(lines) + "\n")
     return path
@@ -67,17 +72,19 @@ def test_new_set_and_test_show_the_effect(cli, pushes):
     assert cli("path", "mine").stdout.strip() == str(mine)
 
     before = summary(cli("test", "mine", "--source", str(pushes), "--json"))
-    assert before["max_deflection"]["ABS_Y"] > 0.05       # the 3 mm push moves the left stick up
+    assert before["max_deflection"]["ABS_Y"] > 0.05  # the 3 mm push moves the left stick up
     assert before["max_deflection"]["ABS_RY"] == 0
 
     result = cli("set", "mine", "mappings.push.output", "right_stick")
     assert result.returncode == 0, result.stderr
     moved = summary(cli("test", "mine", "--source", str(pushes), "--json"))
-    assert moved["max_deflection"]["ABS_Y"] == 0 and moved["max_deflection"]["ABS_RY"] == before["max_deflection"]["ABS_Y"]
+    assert (
+        moved["max_deflection"]["ABS_Y"] == 0 and moved["max_deflection"]["ABS_RY"] == before["max_deflection"]["ABS_Y"]
+    )
 
     assert cli("set", "mine", "mappings.push.deadzone_mm", "3.5").returncode == 0
     dead = summary(cli("test", "mine", "--source", str(pushes), "--json"))
-    assert dead["max_deflection"]["ABS_RY"] == 0               # now inside the dead zone
+    assert dead["max_deflection"]["ABS_RY"] == 0  # now inside the dead zone
 
     assert cli("set", "mine", "mappings.push.saturation_mm", "4.0").returncode == 0
     assert cli("unset", "mine", "mappings.push.deadzone_mm").returncode == 0  # back to the 0.5 mm default
@@ -86,7 +93,7 @@ def test_new_set_and_test_show_the_effect(cli, pushes):
 
     text = mine.read_text()
     assert "# neurotouch-hid profile" in text and "# an 8 mm push gives full deflection" in text  # comments kept
-    assert "0x045e" in text                                                                      # hex kept
+    assert "0x045e" in text  # hex kept
     assert "deadzone_mm" not in YAML().load(text)["mappings"]["push"]
 
 
@@ -102,13 +109,16 @@ def test_set_on_a_shipped_profile_writes_a_user_copy(cli):
     assert "user (shadows shipped)" in listing
 
 
-@pytest.mark.parametrize("key, value, words", [
-    ("mappings.push.deadzone_mm", "lots", ["mappings.push.deadzone_mm", "found 'lots'", "number"]),
-    ("mappings.push.deadzone_mm", "-1", ["found -1", "greater than or equal to 0"]),
-    ("mappings.push.output", "ABS_FOO", ["found 'ABS_FOO'", "'left_stick'"]),
-    ("mappings.push.wobble", "2", ["mappings.push.wobble", "unknown field"]),
-    ("mappings.push.deadzone_mm.x", "2", ["is a value"]),
-])
+@pytest.mark.parametrize(
+    "key, value, words",
+    [
+        ("mappings.push.deadzone_mm", "lots", ["mappings.push.deadzone_mm", "found 'lots'", "number"]),
+        ("mappings.push.deadzone_mm", "-1", ["found -1", "greater than or equal to 0"]),
+        ("mappings.push.output", "ABS_FOO", ["found 'ABS_FOO'", "'left_stick'"]),
+        ("mappings.push.wobble", "2", ["mappings.push.wobble", "unknown field"]),
+        ("mappings.push.deadzone_mm.x", "2", ["is a value"]),
+    ],
+)
 def test_a_bad_set_changes_nothing(cli, key, value, words):
     assert cli("new", "mine").returncode == 0
     mine = cli.user_dir / "mine.yaml"
@@ -128,7 +138,8 @@ def test_a_bad_set_on_a_shipped_profile_creates_no_copy(cli):
 
 def test_validate_reports_every_problem_with_file_and_line(cli, tmp_path):
     bad = tmp_path / "bad.yaml"
-    bad.write_text(textwrap.dedent("""\
+    bad.write_text(
+        textwrap.dedent("""\
         device:
           vendor: -3
         mappings:
@@ -137,11 +148,17 @@ def test_validate_reports_every_problem_with_file_and_line(cli, tmp_path):
             output: middle_stick
             gain: "2"
             colour: red
-    """))
+    """)
+    )
     result = cli("validate", str(bad))
     assert result.returncode == 2
     err = " ".join(result.stderr.split())  # rich may wrap long lines
-    for line, field in [(2, "device.vendor"), (6, "mappings.push.output"), (7, "mappings.push.gain"), (8, "mappings.push.colour")]:
+    for line, field in [
+        (2, "device.vendor"),
+        (6, "mappings.push.output"),
+        (7, "mappings.push.gain"),
+        (8, "mappings.push.colour"),
+    ]:
         assert f"{bad}:{line}: {field}:" in err, err
     assert "4 problems" in err
     good = cli("validate", str(shipped_profiles_dir() / "default.yaml"))
@@ -174,7 +191,7 @@ def test_test_prints_a_timeline_and_plots(cli, pushes, tmp_path):
     result = cli("test", "default", "--source", str(pushes), "--plot", str(png))
     assert result.returncode == 0, result.stderr
     assert "push" in result.stdout and "ABS_Y" in result.stdout and "summary" in result.stdout
-    rows = [l for l in result.stdout.splitlines() if l.strip().startswith("│") and ("none" in l or "push" in l)]
+    rows = [ln for ln in result.stdout.splitlines() if ln.strip().startswith("│") and ("none" in ln or "push" in ln)]
     assert len(rows) >= 20  # ~30 rows at 100 ms over 3 s
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
@@ -192,7 +209,9 @@ def test_tune_sets_saturation_from_what_the_user_reaches(cli, pushes):
 
 def test_bad_predictions_file_names_its_line(cli, tmp_path):
     bad = tmp_path / "bad.jsonl"
-    bad.write_text('{"t_us": 0, "gesture": "none", "resting": true, "intensity_mm": 0}\n{"t_us": 1, "gesture": "wave"}\n')
+    bad.write_text(
+        '{"t_us": 0, "gesture": "none", "resting": true, "intensity_mm": 0}\n{"t_us": 1, "gesture": "wave"}\n'
+    )
     result = cli("test", "default", "--source", str(bad))
     assert result.returncode == 2 and f"{bad}:2:" in " ".join(result.stderr.split())
 
@@ -202,8 +221,14 @@ def test_the_installed_command_runs_as_a_user_would(tmp_path, pushes):
     env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "config")}
 
     def run(*args: str) -> subprocess.CompletedProcess:
-        return subprocess.run([sys.executable, "-m", "neurotouch_hid.cli", "profile", *args],
-                              capture_output=True, text=True, env=env, stdin=subprocess.DEVNULL, timeout=120)
+        return subprocess.run(
+            [sys.executable, "-m", "neurotouch_hid.cli", "profile", *args],
+            capture_output=True,
+            text=True,
+            env=env,
+            stdin=subprocess.DEVNULL,
+            timeout=120,
+        )
 
     assert run("new", "mine", "--from", "spacecraft").returncode == 0
     assert run("set", "mine", "mappings.push.output", "right_stick").returncode == 0
@@ -257,7 +282,7 @@ def test_list_and_show(cli):
     (cli.user_dir / "broken.yaml").write_text("mappings: [\n")
     listing = cli("list")
     assert listing.returncode == 0
-    rows = {l.split("│")[1].strip(): l for l in listing.stdout.splitlines() if l.count("│") >= 4}
+    rows = {ln.split("│")[1].strip(): ln for ln in listing.stdout.splitlines() if ln.count("│") >= 4}
     assert {"default", "spacecraft", "accessibility", "mine", "broken"} <= set(rows)
     assert "shipped" in rows["default"] and "user" in rows["mine"] and "invalid" in rows["broken"]
     shown = cli("show", "spacecraft")

@@ -29,8 +29,18 @@ def _namespaces_work() -> str | None:
     import tempfile
 
     with tempfile.TemporaryDirectory() as folder:
-        probe = subprocess.run(["unshare", "-rm", "sh", "-c", 'mount --bind "$0" "$0" && mount -o remount,bind,ro "$0"'
-                                ' && ! touch "$0/x" 2>/dev/null', folder], capture_output=True, text=True)
+        probe = subprocess.run(
+            [
+                "unshare",
+                "-rm",
+                "sh",
+                "-c",
+                'mount --bind "$0" "$0" && mount -o remount,bind,ro "$0" && ! touch "$0/x" 2>/dev/null',
+                folder,
+            ],
+            capture_output=True,
+            text=True,
+        )
     return None if probe.returncode == 0 else f"no mount namespaces here: {probe.stderr.strip()}"
 
 
@@ -41,22 +51,49 @@ def run_read_only(tmp_path: Path, *args: str, env: dict[str, str]) -> subprocess
     """``python -m neurotouch_hid.cli ARGS`` with the package, sys.prefix and HOME mounted read-only."""
     home = tmp_path / "home"
     home.mkdir(exist_ok=True)
-    read_only = [PACKAGE.parent if (PACKAGE.parent / "pyproject.toml").exists() else PACKAGE,
-                 Path(sys.prefix).resolve(), home]
-    mounts = " && ".join(f"mount --bind {shlex.quote(str(d))} {shlex.quote(str(d))} && "
-                         f"mount -o remount,bind,ro {shlex.quote(str(d))}" for d in read_only)
+    read_only = [
+        PACKAGE.parent if (PACKAGE.parent / "pyproject.toml").exists() else PACKAGE,
+        Path(sys.prefix).resolve(),
+        home,
+    ]
+    mounts = " && ".join(
+        f"mount --bind {shlex.quote(str(d))} {shlex.quote(str(d))} && mount -o remount,bind,ro {shlex.quote(str(d))}"
+        for d in read_only
+    )
     command = " ".join(shlex.quote(a) for a in (sys.executable, "-m", "neurotouch_hid.cli", *args))
     full_env = {"PATH": "/usr/bin:/bin", "HOME": str(home), "LANG": "C.UTF-8", **env}
-    return subprocess.run(["unshare", "-rm", "sh", "-c", f"{mounts} && exec {command}"], capture_output=True,
-                          text=True, env=full_env, cwd=tmp_path, stdin=subprocess.DEVNULL, timeout=600)
+    return subprocess.run(
+        ["unshare", "-rm", "sh", "-c", f"{mounts} && exec {command}"],
+        capture_output=True,
+        text=True,
+        env=full_env,
+        cwd=tmp_path,
+        stdin=subprocess.DEVNULL,
+        timeout=600,
+    )
 
 
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory) -> Path:
     """One second of the simulated gel, recorded as a user would (AEDAT4, APS frames)."""
     path = tmp_path_factory.mktemp("rec") / "gel.aedat4"
-    subprocess.run([sys.executable, "-m", "neurotouch_hid.cli", "record", str(path), "--source", "sim", "--fast",
-                    "--seconds", "1"], check=True, capture_output=True, timeout=600)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "neurotouch_hid.cli",
+            "record",
+            str(path),
+            "--source",
+            "sim",
+            "--fast",
+            "--seconds",
+            "1",
+        ],
+        check=True,
+        capture_output=True,
+        timeout=600,
+    )
     return path
 
 
@@ -73,8 +110,9 @@ def assert_states(path: Path) -> None:
 def test_no_writable_folder_compiles_at_start_and_runs(tmp_path, recording):
     """Nothing writable but the output's folder: `run` starts, says so in one line, and works."""
     out = tmp_path / "states.jsonl"
-    result = run_read_only(tmp_path, "run", "--source", str(recording), "--output", "jsonl", "--fast",
-                           "--out", str(out), env={})
+    result = run_read_only(
+        tmp_path, "run", "--source", str(recording), "--output", "jsonl", "--fast", "--out", str(out), env={}
+    )
     assert_clean(result)
     assert result.stderr.count(MEMORY_LINE) == 1, result.stderr
     assert_states(out)
@@ -95,8 +133,9 @@ def test_runtime_dir_caches_track_and_run(tmp_path, recording):
     cache = runtime / "neurotouch-hid" / "numba"
     assert list(cache.rglob("*.nbi")), f"nothing cached in {cache}"
     states = tmp_path / "states.jsonl"
-    run = run_read_only(tmp_path, "run", "--source", str(recording), "--output", "jsonl", "--fast", "--out",
-                        str(states), env=env)
+    run = run_read_only(
+        tmp_path, "run", "--source", str(recording), "--output", "jsonl", "--fast", "--out", str(states), env=env
+    )
     assert_clean(run)
     assert_states(states)
     doctor = run_read_only(tmp_path, "doctor", env=env)
@@ -115,15 +154,22 @@ def test_cache_folder_choice(tmp_path, writable):
     code = "from neurotouch_hid.jit_cache import chosen; c = chosen(); print(c.kind, c.folder)"
     home = tmp_path / "home"
     home.mkdir()
-    mounts = " && ".join(f"mount --bind {d} {d} && mount -o remount,bind,ro {d}"
-                         for d in (shlex.quote(str(PACKAGE)), shlex.quote(str(home))))
-    result = subprocess.run(["unshare", "-rm", "sh", "-c", f"{mounts} && exec {shlex.quote(sys.executable)} -c "
-                             f"{shlex.quote(code)}"], capture_output=True, text=True, timeout=120,
-                            env={"PATH": "/usr/bin:/bin", "HOME": str(home), **env})
+    mounts = " && ".join(
+        f"mount --bind {d} {d} && mount -o remount,bind,ro {d}"
+        for d in (shlex.quote(str(PACKAGE)), shlex.quote(str(home)))
+    )
+    result = subprocess.run(
+        ["unshare", "-rm", "sh", "-c", f"{mounts} && exec {shlex.quote(sys.executable)} -c {shlex.quote(code)}"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={"PATH": "/usr/bin:/bin", "HOME": str(home), **env},
+    )
     assert result.returncode == 0, result.stderr
-    expected = {"service": f"service cache {tmp_path / 'unit-cache' / 'numba'}",
-                "xdg-cache": f"user cache {tmp_path / 'cache' / 'neurotouch-hid' / 'numba'}",
-                "runtime": f"runtime dir {tmp_path / 'run-user' / 'neurotouch-hid' / 'numba'}",
-                "none": "temporary"}[writable]
+    expected = {
+        "service": f"service cache {tmp_path / 'unit-cache' / 'numba'}",
+        "xdg-cache": f"user cache {tmp_path / 'cache' / 'neurotouch-hid' / 'numba'}",
+        "runtime": f"runtime dir {tmp_path / 'run-user' / 'neurotouch-hid' / 'numba'}",
+        "none": "temporary",
+    }[writable]
     assert result.stdout.strip().startswith(expected), result.stdout
-

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from camera_replay import Fault, ReplayWorld
+
 from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.davis import DavisConfig, DavisSource
@@ -30,8 +30,13 @@ STREET = Path(__file__).resolve().parents[2] / "shared" / "data" / "davis346-str
 
 def test_record_sim_writes_exactly_what_the_source_gave(tmp_path):
     out = tmp_path / "sim.aedat4"
-    proc = subprocess.run([*CLI, "record", str(out), "--source", "sim", "--seconds", "1.5", "--fast", "--seed", "3"],
-                          capture_output=True, text=True, env=ENV, timeout=300)
+    proc = subprocess.run(
+        [*CLI, "record", str(out), "--source", "sim", "--seconds", "1.5", "--fast", "--seed", "3"],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr
     items = list(SimulatedSource(seed=3).stream(seconds=1.5))
     want_events = np.concatenate([i for i in items if not isinstance(i, Frame)])
@@ -48,8 +53,13 @@ def test_record_sim_writes_exactly_what_the_source_gave(tmp_path):
 
 def test_ctrl_c_ends_a_recording_with_a_complete_file(tmp_path):
     out = tmp_path / "stopped.aedat4"
-    proc = subprocess.Popen([*CLI, "record", str(out), "--source", "sim"], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=ENV)
+    proc = subprocess.Popen(
+        [*CLI, "record", str(out), "--source", "sim"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=ENV,
+    )
     try:
         deadline = time.monotonic() + 120
         while not out.exists() and time.monotonic() < deadline and proc.poll() is None:
@@ -73,21 +83,29 @@ def test_a_lost_camera_ends_the_recording_but_keeps_the_file_whole(tmp_path):
     seen = []
     with DavisSource(DavisConfig(stall_timeout_s=0.3), backend=world) as camera:
         with pytest.raises(DeviceError, match="unplugged"):
-            record_stream(camera.stream(seconds=5, batch_us=10_000), out, camera_name=camera.camera_name,
-                          on_progress=lambda us, events, frames: seen.append((events, frames)))
+            record_stream(
+                camera.stream(seconds=5, batch_us=10_000),
+                out,
+                camera_name=camera.camera_name,
+                on_progress=lambda us, events, frames: seen.append((events, frames)),
+            )
     info = read_info(out)
     assert (info.n_events, info.n_frames) == seen[-1] and info.n_frames >= 10
     assert info.camera_name == "DAVIS346_00000499"
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--source", "sim", "--fast"], "--fast is for --source sim with --seconds"),
-    (["--source", "street"], "expected davis or sim"),
-    (["--source", "sim", "--seconds", "-1"], "expected a positive duration"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--source", "sim", "--fast"], "--fast is for --source sim with --seconds"),
+        (["--source", "street"], "expected davis or sim"),
+        (["--source", "sim", "--seconds", "-1"], "expected a positive duration"),
+    ],
+)
 def test_bad_options_say_what_is_expected(tmp_path, args, message):
-    proc = subprocess.run([*CLI, "record", str(tmp_path / "x.aedat4"), *args], capture_output=True, text=True,
-                          env=ENV, timeout=120)
+    proc = subprocess.run(
+        [*CLI, "record", str(tmp_path / "x.aedat4"), *args], capture_output=True, text=True, env=ENV, timeout=120
+    )
     assert proc.returncode == 2 and message in proc.stderr, proc.stderr
     assert not (tmp_path / "x.aedat4").exists()
 
@@ -95,11 +113,21 @@ def test_bad_options_say_what_is_expected(tmp_path, args, message):
 def test_an_existing_file_is_kept_unless_forced(tmp_path):
     out = tmp_path / "keep.aedat4"
     out.write_bytes(b"precious")
-    proc = subprocess.run([*CLI, "record", str(out), "--source", "sim", "--seconds", "0.2", "--fast"],
-                          capture_output=True, text=True, env=ENV, timeout=120)
+    proc = subprocess.run(
+        [*CLI, "record", str(out), "--source", "sim", "--seconds", "0.2", "--fast"],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        timeout=120,
+    )
     assert proc.returncode == 2 and "--force" in proc.stderr
     assert out.read_bytes() == b"precious"
-    proc = subprocess.run([*CLI, "record", str(out), "--source", "sim", "--seconds", "0.2", "--fast", "--force"],
-                          capture_output=True, text=True, env=ENV, timeout=120)
+    proc = subprocess.run(
+        [*CLI, "record", str(out), "--source", "sim", "--seconds", "0.2", "--fast", "--force"],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        timeout=120,
+    )
     assert proc.returncode == 0, proc.stderr
     assert read_info(out).n_frames == 5

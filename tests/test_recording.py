@@ -34,8 +34,9 @@ needs_street = pytest.mark.skipif(not STREET.exists(), reason=f"shared dataset n
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "neurotouch_hid.cli", *args], capture_output=True,
-                          text=True, cwd=REPO, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "neurotouch_hid.cli", *args], capture_output=True, text=True, cwd=REPO, timeout=120
+    )
 
 
 def synthetic(n: int = 20_000, duration_us: int = 400_000, seed: int = 1, t0: int = 1_000_000):
@@ -45,8 +46,9 @@ def synthetic(n: int = 20_000, duration_us: int = 400_000, seed: int = 1, t0: in
     events["x"] = rng.integers(0, 346, n)
     events["y"] = rng.integers(0, 260, n)
     events["polarity"] = rng.integers(0, 2, n)
-    frames = [Frame(t, rng.integers(0, 256, (260, 346), dtype=np.uint8))
-              for t in range(t0 + 5, t0 + duration_us, 40_000)]
+    frames = [
+        Frame(t, rng.integers(0, 256, (260, 346), dtype=np.uint8)) for t in range(t0 + 5, t0 + duration_us, 40_000)
+    ]
     return events, frames
 
 
@@ -123,7 +125,7 @@ def test_stream_of_real_recording_is_merged_in_time_order():
     for item in items:
         if isinstance(item, Frame):
             assert np.all(seen < item.t_us)
-            assert not np.any(events["timestamp"][len(seen):] < item.t_us)
+            assert not np.any(events["timestamp"][len(seen) :] < item.t_us)
         else:
             seen = np.concatenate((seen, item["timestamp"]))
 
@@ -185,18 +187,28 @@ def test_writer_rejects_bad_data(tmp_path):
 def test_merge_stream_cuts_at_batches_and_frames():
     events = np.zeros(8, EVENT_DTYPE)
     events["timestamp"] = [5, 12, 15, 15, 31, 40, 41, 95]
-    frames = [Frame(0, np.zeros((2, 2), np.uint8)), Frame(15, np.zeros((2, 2), np.uint8)),
-              Frame(41, np.zeros((2, 2), np.uint8)), Frame(200, np.zeros((2, 2), np.uint8))]
+    frames = [
+        Frame(0, np.zeros((2, 2), np.uint8)),
+        Frame(15, np.zeros((2, 2), np.uint8)),
+        Frame(41, np.zeros((2, 2), np.uint8)),
+        Frame(200, np.zeros((2, 2), np.uint8)),
+    ]
     # chunks split unevenly, as file packets are
     chunks = [events[:2], events[2:3], events[3:7], events[7:]]
-    out = [("F", item.t_us) if isinstance(item, Frame) else item["timestamp"].tolist()
-           for item in merge_stream(chunks, frames, batch_us=10)]
+    out = [
+        ("F", item.t_us) if isinstance(item, Frame) else item["timestamp"].tolist()
+        for item in merge_stream(chunks, frames, batch_us=10)
+    ]
     assert out == [("F", 0), [5], [12], ("F", 15), [15, 15], [31], [40], ("F", 41), [41], [95], ("F", 200)]
 
 
 @settings(max_examples=60, deadline=None)
-@given(times=st.lists(st.integers(0, 300), max_size=60), frame_times=st.lists(st.integers(-10, 320), max_size=6),
-       cuts=st.lists(st.integers(0, 60), max_size=5), batch_us=st.integers(1, 50))
+@given(
+    times=st.lists(st.integers(0, 300), max_size=60),
+    frame_times=st.lists(st.integers(-10, 320), max_size=6),
+    cuts=st.lists(st.integers(0, 60), max_size=5),
+    batch_us=st.integers(1, 50),
+)
 def test_merge_stream_invariants(times, frame_times, cuts, batch_us):
     events = np.zeros(len(times), EVENT_DTYPE)
     events["timestamp"] = sorted(times)
@@ -212,7 +224,7 @@ def test_merge_stream_invariants(times, frame_times, cuts, batch_us):
     for item in items:
         if isinstance(item, Frame):
             assert all(t < item.t_us for t in emitted)
-            assert all(t >= item.t_us for t in events["timestamp"][len(emitted):])
+            assert all(t >= item.t_us for t in events["timestamp"][len(emitted) :])
         else:
             ts = item["timestamp"]
             assert len(ts) and ts[0] // batch_us == ts[-1] // batch_us

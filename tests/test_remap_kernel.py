@@ -5,7 +5,6 @@ tests/kernel/checks_runtime_remap.py. Skips, with the reason, only where qemu ca
 from __future__ import annotations
 
 import pytest
-
 from conftest import passed
 
 pytestmark = pytest.mark.kernel

@@ -32,30 +32,39 @@ def times_down(samples, outputs) -> list[int]:
 
 
 # --- activators ---------------------------------------------------------------------------------
-@pytest.mark.parametrize("values, expected", [
-    ([0, 1.9, 2.0, 1.5, 1.0, 0.9, 0], [0, 0, 1, 1, 1, 0, 0]),      # hysteresis: press at >= 2, release at < 1
-    ([3, 0, 3, 0], [1, 0, 1, 0]),
-    ([1.5, 1.5, 1.5], [0, 0, 0]),                                     # between the thresholds, never pressed
-])
+@pytest.mark.parametrize(
+    "values, expected",
+    [
+        ([0, 1.9, 2.0, 1.5, 1.0, 0.9, 0], [0, 0, 1, 1, 1, 0, 0]),  # hysteresis: press at >= 2, release at < 1
+        ([3, 0, 3, 0], [1, 0, 1, 0]),
+        ([1.5, 1.5, 1.5], [0, 0, 0]),  # between the thresholds, never pressed
+    ],
+)
 def test_hold_follows_the_input_with_hysteresis(values, expected):
     assert run_activator("hold", [(10 * i, v) for i, v in enumerate(values)]) == expected
 
 
-@pytest.mark.parametrize("values, expected", [
-    ([3, 3, 0, 0, 3, 0, 3], [1, 1, 1, 1, 0, 0, 1]),                  # each press flips
-    ([3, 1.5, 3, 0], [1, 1, 1, 1]),                                   # no release in between: one press
-])
+@pytest.mark.parametrize(
+    "values, expected",
+    [
+        ([3, 3, 0, 0, 3, 0, 3], [1, 1, 1, 1, 0, 0, 1]),  # each press flips
+        ([3, 1.5, 3, 0], [1, 1, 1, 1]),  # no release in between: one press
+    ],
+)
 def test_toggle_flips_on_each_press(values, expected):
     assert run_activator("toggle", [(10 * i, v) for i, v in enumerate(values)]) == expected
 
 
-@pytest.mark.parametrize("dwell_ms, spans, down", [
-    (100, [(0, 50)], []),                                             # tremor shorter than the dwell: nothing
-    (100, [(0, 100)], []),                                            # released at the dwell: nothing
-    (100, [(0, 200)], [100, 110, 120, 130, 140, 150, 160, 170, 180, 190]),  # down from dwell on, up at release
-    (100, [(0, 60), (100, 260)], list(range(200, 260, 10))),         # the dwell restarts with each hold
-    (30, [(50, 100)], [80, 90]),
-])
+@pytest.mark.parametrize(
+    "dwell_ms, spans, down",
+    [
+        (100, [(0, 50)], []),  # tremor shorter than the dwell: nothing
+        (100, [(0, 100)], []),  # released at the dwell: nothing
+        (100, [(0, 200)], [100, 110, 120, 130, 140, 150, 160, 170, 180, 190]),  # down from dwell on, up at release
+        (100, [(0, 60), (100, 260)], list(range(200, 260, 10))),  # the dwell restarts with each hold
+        (30, [(50, 100)], [80, 90]),
+    ],
+)
 def test_long_press_needs_the_dwell_time_on_the_camera_clock(dwell_ms, spans, down):
     samples = held(*spans, until=300)
     assert times_down(samples, run_activator("long_press", samples, dwell_ms=dwell_ms)) == down
@@ -69,26 +78,32 @@ def test_long_press_uses_estimate_time_not_sample_count():
     assert times_down(coarse, run_activator("long_press", coarse, dwell_ms=150))[0] == 150
 
 
-@pytest.mark.parametrize("spans, down", [
-    ([(0, 50)], []),                                                  # a single press: nothing
-    ([(0, 50), (100, 150)], [100, 110, 120, 130, 140]),              # second press within 400 ms: down while held
-    ([(0, 50), (400, 450)], [400, 410, 420, 430, 440]),              # second press starts exactly 400 ms later
-    ([(0, 50), (500, 550)], []),                                      # too late: a new first press
-    ([(0, 50), (500, 550), (600, 650)], [600, 610, 620, 630, 640]),  # ... whose second press counts
-    ([(0, 50), (100, 150), (200, 250)], [100, 110, 120, 130, 140]),  # a third press starts a new pair
-    ([(0, 50), (100, 150), (200, 250), (300, 350)], [100, 110, 120, 130, 140, 300, 310, 320, 330, 340]),
-])
+@pytest.mark.parametrize(
+    "spans, down",
+    [
+        ([(0, 50)], []),  # a single press: nothing
+        ([(0, 50), (100, 150)], [100, 110, 120, 130, 140]),  # second press within 400 ms: down while held
+        ([(0, 50), (400, 450)], [400, 410, 420, 430, 440]),  # second press starts exactly 400 ms later
+        ([(0, 50), (500, 550)], []),  # too late: a new first press
+        ([(0, 50), (500, 550), (600, 650)], [600, 610, 620, 630, 640]),  # ... whose second press counts
+        ([(0, 50), (100, 150), (200, 250)], [100, 110, 120, 130, 140]),  # a third press starts a new pair
+        ([(0, 50), (100, 150), (200, 250), (300, 350)], [100, 110, 120, 130, 140, 300, 310, 320, 330, 340]),
+    ],
+)
 def test_double_press_fires_on_a_quick_second_press(spans, down):
     samples = held(*spans, until=800)
     assert times_down(samples, run_activator("double_press", samples, double_press_ms=400)) == down
 
 
-@pytest.mark.parametrize("hz, spans, down", [
-    (10, [(0, 300)], [0, 10, 20, 30, 40, 100, 110, 120, 130, 140, 200, 210, 220, 230, 240]),  # 50 ms down, 50 up
-    (25, [(0, 100)], [0, 10, 40, 50, 80, 90]),                         # 20 ms down, 20 up
-    (10, [(0, 70), (200, 260)], [0, 10, 20, 30, 40, 200, 210, 220, 230, 240]),  # each hold starts down
-    (10, [], []),
-])
+@pytest.mark.parametrize(
+    "hz, spans, down",
+    [
+        (10, [(0, 300)], [0, 10, 20, 30, 40, 100, 110, 120, 130, 140, 200, 210, 220, 230, 240]),  # 50 ms down, 50 up
+        (25, [(0, 100)], [0, 10, 40, 50, 80, 90]),  # 20 ms down, 20 up
+        (10, [(0, 70), (200, 260)], [0, 10, 20, 30, 40, 200, 210, 220, 230, 240]),  # each hold starts down
+        (10, [], []),
+    ],
+)
 def test_turbo_repeats_at_its_rate_while_held(hz, spans, down):
     samples = held(*spans, until=400)
     assert times_down(samples, run_activator("turbo", samples, turbo_hz=hz)) == down
@@ -96,8 +111,13 @@ def test_turbo_repeats_at_its_rate_while_held(hz, spans, down):
 
 # --- the mapper: keys, aliases, anti-deadzone, pointer, wheels -----------------------------------
 def est(gesture=G.NONE, mm=0.0, t_us=0, direction=(1.0, 0.0)) -> GestureEstimate:
-    return GestureEstimate(t_us=t_us, gesture=gesture, resting=gesture == G.NONE, intensity_mm=mm,
-                           translation_mm=np.array(direction, dtype=float))
+    return GestureEstimate(
+        t_us=t_us,
+        gesture=gesture,
+        resting=gesture == G.NONE,
+        intensity_mm=mm,
+        translation_mm=np.array(direction, dtype=float),
+    )
 
 
 def profile(layers=None, **mappings) -> Profile:
@@ -116,11 +136,14 @@ def test_xpad_x_is_btn_north():
     assert ecodes.BTN_X == ecodes.BTN_NORTH and ecodes.BTN_Y == ecodes.BTN_WEST
 
 
-@pytest.mark.parametrize("output, keys", [
-    ("KEY_SPACE", {"KEY_SPACE"}),
-    ("KEY_LEFTSHIFT+KEY_TAB", {"KEY_LEFTSHIFT", "KEY_TAB"}),
-    ("BTN_LEFT", {"BTN_LEFT"}),
-])
+@pytest.mark.parametrize(
+    "output, keys",
+    [
+        ("KEY_SPACE", {"KEY_SPACE"}),
+        ("KEY_LEFTSHIFT+KEY_TAB", {"KEY_LEFTSHIFT", "KEY_TAB"}),
+        ("BTN_LEFT", {"BTN_LEFT"}),
+    ],
+)
 def test_keys_and_mouse_buttons_go_to_state_keys(output, keys):
     mapper = Mapper(profile(m={"input": "zoom", "output": output}))
     down = mapper.update(est(G.ZOOM, 3.0))
@@ -128,12 +151,17 @@ def test_keys_and_mouse_buttons_go_to_state_keys(output, keys):
     assert mapper.update(est(G.NONE, 0.0, 10 * MS)).keys == frozenset()
 
 
-@pytest.mark.parametrize("anti, mm, fraction", [
-    (0.0, 1.0, 0.0), (0.2, 1.0, 0.0),           # inside the dead zone: still 0
-    (0.2, 1.5, 0.2 + 0.8 * 0.125),              # just past it: at least the anti-deadzone
-    (0.2, 5.0, 1.0),
-    (0.0, 3.0, 0.5), (0.3, 3.0, 0.3 + 0.7 * 0.5),
-])
+@pytest.mark.parametrize(
+    "anti, mm, fraction",
+    [
+        (0.0, 1.0, 0.0),
+        (0.2, 1.0, 0.0),  # inside the dead zone: still 0
+        (0.2, 1.5, 0.2 + 0.8 * 0.125),  # just past it: at least the anti-deadzone
+        (0.2, 5.0, 1.0),
+        (0.0, 3.0, 0.5),
+        (0.3, 3.0, 0.3 + 0.7 * 0.5),
+    ],
+)
 def test_anti_deadzone_lifts_every_non_zero_output(anti, mm, fraction):
     m = {"input": "twist", "output": "ABS_RX", "deadzone_mm": 1.0, "saturation_mm": 5.0, "anti_deadzone": anti}
     state = Mapper(profile(m=m)).update(est(G.TWIST_CCW, mm))
@@ -190,9 +218,9 @@ LAYERED = dict(
 
 def test_a_layer_switch_releases_everything_of_the_old_layer_first():
     mapper = Mapper(profile(**LAYERED))
-    assert mapper.update(est(G.ZOOM, 3.0, 0)).buttons["BTN_SOUTH"]          # toggled on in base
-    assert mapper.update(est(G.NONE, 0.0, 10 * MS)).buttons["BTN_SOUTH"]    # stays on
-    switch = mapper.update(est(G.PINCH, 3.0, 20 * MS))                      # pinch: to nav
+    assert mapper.update(est(G.ZOOM, 3.0, 0)).buttons["BTN_SOUTH"]  # toggled on in base
+    assert mapper.update(est(G.NONE, 0.0, 10 * MS)).buttons["BTN_SOUTH"]  # stays on
+    switch = mapper.update(est(G.PINCH, 3.0, 20 * MS))  # pinch: to nav
     assert mapper.layer == "nav" and switch.is_neutral()
     assert not mapper.update(est(G.PINCH, 3.0, 30 * MS)).buttons["BTN_SOUTH"]  # base's mappings are off in nav
     assert mapper.update(est(G.NONE, 0.0, 40 * MS)).is_neutral() and mapper.layer == "base"  # pinch let go
@@ -202,26 +230,53 @@ def test_toggled_layer_maps_the_same_gesture_to_another_key_and_back():
     spec = dict(LAYERED, layers={"nav": {"input": "pinch", "mode": "toggle"}})
     mapper = Mapper(profile(**spec))
     assert mapper.update(est(G.PUSH, 3.0, 0)).keys == {"KEY_SPACE"}
-    assert mapper.update(est(G.PINCH, 3.0, 10 * MS)).is_neutral()          # switch: KEY_SPACE released first
+    assert mapper.update(est(G.PINCH, 3.0, 10 * MS)).is_neutral()  # switch: KEY_SPACE released first
     assert mapper.layer == "nav"
     assert mapper.update(est(G.NONE, 0.0, 20 * MS)).is_neutral()
     assert mapper.update(est(G.PUSH, 3.0, 30 * MS)).keys == {"KEY_ENTER"}
-    assert mapper.update(est(G.PINCH, 3.0, 40 * MS)).is_neutral()          # back to base: KEY_ENTER released
+    assert mapper.update(est(G.PINCH, 3.0, 40 * MS)).is_neutral()  # back to base: KEY_ENTER released
     assert mapper.layer == "base"
     assert not mapper.update(est(G.NONE, 0.0, 50 * MS)).buttons["BTN_SOUTH"]
 
 
 # --- validation ---------------------------------------------------------------------------------
-@pytest.mark.parametrize("text, expected", [
-    ("mappings:\n  m: {input: zoom, output: KEY_SPACEE}\n", "q.yaml:2: mappings.m.output: found 'KEY_SPACEE'; expected a pad button"),
-    ("mappings:\n  m: {input: zoom, output: A+KEY_A}\n", "q.yaml:2: mappings.m.output: found 'A+KEY_A'; expected a chord"),
-    ("mappings:\n  m:\n    input: zoom\n    output: KEY_A\n    layer: fn\n", "q.yaml:5: mappings.m.layer: found 'fn'; expected 'base' or a layer"),
-    ("mappings:\n  m:\n    input: zoom\n    output: KEY_A\n    mode: turbo\n    turbo_hz: 80\n", "q.yaml:6: mappings.m.turbo_hz: found 80; expected less than or equal to 50"),
-    ("mappings:\n  m:\n    input: zoom\n    output: ABS_RX\n    anti_deadzone: 1.0\n", "q.yaml:5: mappings.m.anti_deadzone: found 1.0; expected less than 1"),
-    ("mappings:\n  m:\n    input: twist\n    output: pointer\n", "q.yaml:3: mappings.m.input: found 'twist'; expected 'push' or 'contact'"),
-    ("layers:\n  nav:\n    input: pinch\n    dwell_ms: 3\n", "q.yaml:4: layers.nav.dwell_ms: unknown field (found 3); expected a known field: one of input"),
-    ("mappings:\n  m: {input: zoom, output: KEY_A, dwel_ms: 300}\n", "q.yaml:2: mappings.m.dwel_ms: unknown field (found 300); expected a known field: one of"),
-])
+@pytest.mark.parametrize(
+    "text, expected",
+    [
+        (
+            "mappings:\n  m: {input: zoom, output: KEY_SPACEE}\n",
+            "q.yaml:2: mappings.m.output: found 'KEY_SPACEE'; expected a pad button",
+        ),
+        (
+            "mappings:\n  m: {input: zoom, output: A+KEY_A}\n",
+            "q.yaml:2: mappings.m.output: found 'A+KEY_A'; expected a chord",
+        ),
+        (
+            "mappings:\n  m:\n    input: zoom\n    output: KEY_A\n    layer: fn\n",
+            "q.yaml:5: mappings.m.layer: found 'fn'; expected 'base' or a layer",
+        ),
+        (
+            "mappings:\n  m:\n    input: zoom\n    output: KEY_A\n    mode: turbo\n    turbo_hz: 80\n",
+            "q.yaml:6: mappings.m.turbo_hz: found 80; expected less than or equal to 50",
+        ),
+        (
+            "mappings:\n  m:\n    input: zoom\n    output: ABS_RX\n    anti_deadzone: 1.0\n",
+            "q.yaml:5: mappings.m.anti_deadzone: found 1.0; expected less than 1",
+        ),
+        (
+            "mappings:\n  m:\n    input: twist\n    output: pointer\n",
+            "q.yaml:3: mappings.m.input: found 'twist'; expected 'push' or 'contact'",
+        ),
+        (
+            "layers:\n  nav:\n    input: pinch\n    dwell_ms: 3\n",
+            "q.yaml:4: layers.nav.dwell_ms: unknown field (found 3); expected a known field: one of input",
+        ),
+        (
+            "mappings:\n  m: {input: zoom, output: KEY_A, dwel_ms: 300}\n",
+            "q.yaml:2: mappings.m.dwel_ms: unknown field (found 300); expected a known field: one of",
+        ),
+    ],
+)
 def test_remapping_errors_name_file_line_field_and_expectation(text, expected):
     with pytest.raises(ProfileError) as info:
         parse_profile(text, "q.yaml")
@@ -237,11 +292,14 @@ def test_devices_are_needed_only_when_used():
 
 
 # --- the shipped profiles -----------------------------------------------------------------------
-def hold_gesture(gesture: GestureType, mm: float, seconds: float, t0_ms: int = 0, direction=(1.0, 0.0)) -> list[GestureEstimate]:
+def hold_gesture(
+    gesture: GestureType, mm: float, seconds: float, t0_ms: int = 0, direction=(1.0, 0.0)
+) -> list[GestureEstimate]:
     """10 ms windows: ``seconds`` of the gesture at ``mm``, then 0.3 s of rest."""
     n, rest = int(seconds * 100), 30
-    return ([est(gesture, mm, (t0_ms + 10 * k) * MS, direction) for k in range(n)]
-            + [est(G.NONE, 0.0, (t0_ms + 10 * (n + k)) * MS) for k in range(rest)])
+    return [est(gesture, mm, (t0_ms + 10 * k) * MS, direction) for k in range(n)] + [
+        est(G.NONE, 0.0, (t0_ms + 10 * (n + k)) * MS) for k in range(rest)
+    ]
 
 
 def test_shipped_mouse_profile_push_moves_the_pointer_pinch_zoom_click_twist_scrolls():
@@ -258,10 +316,16 @@ def test_shipped_mouse_profile_push_moves_the_pointer_pinch_zoom_click_twist_scr
     assert sum(s.rel.get("REL_WHEEL_HI_RES", 0) for s in states) >= 240
 
 
-@pytest.mark.parametrize("gesture, keys", [
-    (G.PUSH, {"KEY_SPACE"}), (G.TWIST_CW, {"KEY_TAB"}), (G.TWIST_CCW, {"KEY_LEFTSHIFT", "KEY_TAB"}),
-    (G.PINCH, {"KEY_ENTER"}), (G.ZOOM, {"KEY_ESC"}),
-])
+@pytest.mark.parametrize(
+    "gesture, keys",
+    [
+        (G.PUSH, {"KEY_SPACE"}),
+        (G.TWIST_CW, {"KEY_TAB"}),
+        (G.TWIST_CCW, {"KEY_LEFTSHIFT", "KEY_TAB"}),
+        (G.PINCH, {"KEY_ENTER"}),
+        (G.ZOOM, {"KEY_ESC"}),
+    ],
+)
 def test_shipped_switch_access_profile_needs_a_dwell_and_releases(gesture, keys):
     profile = load_profile("switch-access")
     tremor = Mapper(profile)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.dataset import LabelRow
+from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.evaluation.metrics import align, evaluate
 from neurotouch_hid.evaluation.report import FIGURES, print_tables, write_report
 from neurotouch_hid.sensor import SensorGeometry
@@ -25,10 +25,16 @@ def result():
     ]
     predictions = [
         GestureEstimate(t_us=50),
-        GestureEstimate(t_us=150, gesture=GestureType.PUSH, resting=False, intensity_mm=1.0,
-                        contacts_px=np.array([[171.0, 131.0]])),
-        GestureEstimate(t_us=210, gesture=GestureType.ZOOM, resting=False, intensity_mm=2.5,
-                        contacts_px=np.array([[168.0, 131.0], [191.0, 130.0]])),
+        GestureEstimate(
+            t_us=150, gesture=GestureType.PUSH, resting=False, intensity_mm=1.0, contacts_px=np.array([[171.0, 131.0]])
+        ),
+        GestureEstimate(
+            t_us=210,
+            gesture=GestureType.ZOOM,
+            resting=False,
+            intensity_mm=2.5,
+            contacts_px=np.array([[168.0, 131.0], [191.0, 130.0]]),
+        ),
     ]
     return evaluate(align(labels, predictions, sensor))
 
@@ -58,8 +64,14 @@ def test_write_report_writes_figures_and_summary_embedding_them(result, tmp_path
 @pytest.fixture(scope="module")
 def quick_dataset(tmp_path_factory):
     simulator = pytest.importorskip("neurotouch_hid.sources.simulator", reason="needs the gel simulator")
-    return simulator.write_dataset(tmp_path_factory.mktemp("quick"), preset="quick", seed=3, progress=False,
-                                   gestures=["push", "zoom"], minutes=0.05)
+    return simulator.write_dataset(
+        tmp_path_factory.mktemp("quick"),
+        preset="quick",
+        seed=3,
+        progress=False,
+        gestures=["push", "zoom"],
+        minutes=0.05,
+    )
 
 
 def test_eval_command_writes_report_json_and_predictions(quick_dataset, tmp_path):
@@ -70,10 +82,23 @@ def test_eval_command_writes_report_json_and_predictions(quick_dataset, tmp_path
     from neurotouch_hid.evaluation.metrics import EvaluationResult
 
     out_json = tmp_path / "metrics.json"
-    res = CliRunner().invoke(app, [
-        "eval", str(quick_dataset), "--report", str(tmp_path / "report"), "--json", str(out_json),
-        "--predictions", str(tmp_path / "pred"), "--set", "a=0.6", "--jobs", "2",
-    ])
+    res = CliRunner().invoke(
+        app,
+        [
+            "eval",
+            str(quick_dataset),
+            "--report",
+            str(tmp_path / "report"),
+            "--json",
+            str(out_json),
+            "--predictions",
+            str(tmp_path / "pred"),
+            "--set",
+            "a=0.6",
+            "--jobs",
+            "2",
+        ],
+    )
     assert res.exit_code == 0, res.output
     assert "Gesture type accuracy" in res.output
     data = json.loads(out_json.read_text())
@@ -100,7 +125,12 @@ def test_pipeline_config_rejects_unknown_or_bad_hyperparameter():
         pipeline_config(["tracker.nope=1"])
     config = pipeline_config(["r_px=25", "n_min=3", "detect_resting=false", "tracker.assoc_px=5"], window_us=5000)
     assert (config.r_px, config.n_min, config.detect_resting, config.tracker.assoc_px, config.window_us) == (
-        25.0, 3, False, 5.0, 5000)
+        25.0,
+        3,
+        False,
+        5.0,
+        5000,
+    )
 
 
 def test_a_bad_set_value_names_the_setting_the_field_and_what_was_expected():
@@ -109,5 +139,7 @@ def test_a_bad_set_value_names_the_setting_the_field_and_what_was_expected():
 
     with pytest.raises(NeurotouchError) as info:
         pipeline_config(["tracker.assoc_px=wide"])
-    assert "--set 'tracker.assoc_px=wide': tracker.assoc_px: found 'wide'; input should be a valid number" in str(info.value)
+    assert "--set 'tracker.assoc_px=wide': tracker.assoc_px: found 'wide'; input should be a valid number" in str(
+        info.value
+    )
     assert pipeline_config(["contact_refine_px=none", "field_fallback=off"]).model_dump()["contact_refine_px"] is None

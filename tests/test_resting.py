@@ -51,11 +51,13 @@ def test_a_global_shift_gives_twice_the_squared_shift(detector, shift, expected)
 def test_the_distance_is_per_reference_marker():
     """Markers of 3 pixels (a vertical bar) shifted 2 px sideways: every pixel is 2 px from its
     match both ways, so d = (3 * 4 + 3 * 4) / 1 marker = 24, whatever the marker count."""
+
     def bars(dx):
         img = np.zeros((SENSOR.height, SENSOR.width), np.uint8)
         for x in (150, 170, 190):
             img[129:132, x + dx] = 200
         return img
+
     result = RestingDetector(bars(0), SENSOR).update(bars(2))
     assert result.distance == pytest.approx(24.0, rel=0.02)
 
@@ -88,11 +90,13 @@ def test_update_is_safe_from_several_threads(detector):
 def test_the_paper_raw_sum_is_the_per_marker_distance_times_the_markers():
     """The paper's equation sums over every marker pixel: with 3 bars of 3 pixels shifted 2 px,
     3 * (3 * 4 + 3 * 4) = 72, so the paper's threshold 2.5 calls it moving; per marker it is 24."""
+
     def bars(dx):
         img = np.zeros((SENSOR.height, SENSOR.width), np.uint8)
         for x in (150, 170, 190):
             img[129:132, x + dx] = 200
         return img
+
     raw = RestingDetector(bars(0), SENSOR, threshold=2.5, per_marker=False)
     assert raw.update(bars(2)).distance == pytest.approx(72.0, rel=0.02)
     assert not raw.update(bars(2)).resting and raw.update(bars(0)).resting

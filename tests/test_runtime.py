@@ -46,7 +46,9 @@ class FakePipeline:
             raise RuntimeError("pipeline failure")
         k = len(self.seen)
         if k <= self.push_batches:
-            return [GestureEstimate(t_us=item_end_us(item), gesture=GestureType.PUSH, resting=False, intensity_mm=float(k))]
+            return [
+                GestureEstimate(t_us=item_end_us(item), gesture=GestureType.PUSH, resting=False, intensity_mm=float(k))
+            ]
         return [GestureEstimate(t_us=item_end_us(item))]
 
     def set_resting(self, result, t_us):
@@ -232,7 +234,7 @@ def test_switch_profile_neutralises_then_maps_with_the_new_profile():
     assert seen_switch.is_set()
     kinds = [k for k, _ in out.calls]
     i = kinds.index("neutralise")
-    before, after = writes_of(out.calls[:i]), writes_of(out.calls[i + 1:])
+    before, after = writes_of(out.calls[:i]), writes_of(out.calls[i + 1 :])
     assert before and after
     assert all(s.axes["ABS_X"] > 0 for s in before)
     assert all(s.axes["ABS_X"] < 0 for s in after)
@@ -258,8 +260,9 @@ def test_sighup_reloads_the_profile():
         loads.append(ref)
         return {"sign": -1}
 
-    rt, _, out = make_runtime(endless(), pace=True, pipeline=FakePipeline(push_batches=10**9),
-                              profile_ref="mine.yaml", profile_loader=loader)
+    rt, _, out = make_runtime(
+        endless(), pace=True, pipeline=FakePipeline(push_batches=10**9), profile_ref="mine.yaml", profile_loader=loader
+    )
     threading.Timer(0.2, os.kill, (os.getpid(), signal.SIGHUP)).start()
     threading.Timer(0.6, rt.stop).start()
     rt.run()
@@ -337,8 +340,13 @@ def push_recording(tmp_path_factory) -> "os.PathLike":
 
 def test_run_on_a_recording_moves_the_stick_during_the_push_and_ends_neutral(push_recording, tmp_path):
     out = tmp_path / "states.jsonl"
-    proc = subprocess.run([*CLI, "run", "--source", str(push_recording), "--output", "jsonl", "--fast",
-                           "--out", str(out)], capture_output=True, text=True, env=ENV, timeout=300)
+    proc = subprocess.run(
+        [*CLI, "run", "--source", str(push_recording), "--output", "jsonl", "--fast", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr
     states = read_states(out.read_text())
     pushes = [s for s in states if s["gesture"] == "push"]
@@ -352,8 +360,13 @@ def test_run_on_a_recording_moves_the_stick_during_the_push_and_ends_neutral(pus
 
 
 def test_sigterm_ends_a_live_run_with_a_neutral_state_and_exit_0():
-    proc = subprocess.Popen([*CLI, "run", "--source", "sim", "--output", "jsonl"], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=ENV)
+    proc = subprocess.Popen(
+        [*CLI, "run", "--source", "sim", "--output", "jsonl"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=ENV,
+    )
     try:
         lines = []
         for line in proc.stdout:  # wait for the first gesture moving the pad
@@ -374,8 +387,9 @@ def test_sigterm_ends_a_live_run_with_a_neutral_state_and_exit_0():
 def test_demo_without_uinput_shows_the_terminal_view_and_says_why(tmp_path):
     if os.access("/dev/uinput", os.W_OK):
         pytest.skip(reason="/dev/uinput is writable here: the demo uses the real gamepad")
-    proc = subprocess.run([*CLI, "demo", "--seconds", "3"], capture_output=True, text=True, env=ENV,
-                          timeout=300, stdin=subprocess.DEVNULL)
+    proc = subprocess.run(
+        [*CLI, "demo", "--seconds", "3"], capture_output=True, text=True, env=ENV, timeout=300, stdin=subprocess.DEVNULL
+    )
     assert proc.returncode == 0, proc.stderr
     assert "no writable /dev/uinput (" in proc.stderr
     assert "showing the gamepad in the terminal instead; see `neurotouch-hid doctor`" in proc.stderr
@@ -413,16 +427,23 @@ def test_fast_replays_are_deterministic(push_recording, tmp_path):
 def test_a_predictions_file_replays_through_the_mapper_state_for_state(tmp_path):
     """``--source FILE.jsonl`` (no pipeline): the states written are the Mapper's for the same
     estimates, one line per change, ending neutral."""
-    from neurotouch_hid.mapping.profile import load_profile
-    from neurotouch_hid.mapping.replay import replay
     from neurotouch_hid.dataset import read_predictions, write_predictions
     from neurotouch_hid.driver import run_driver
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.mapping.replay import replay
 
     estimates = []
     for k in range(120):
         level = 6.0 * np.sin(np.pi * k / 119)  # a push ramping up and back down
-        estimates.append(GestureEstimate(t_us=1_000_000 + 10_000 * k, gesture=GestureType.PUSH, resting=False,
-                                         intensity_mm=level, translation_mm=np.array([level, 0.0])))
+        estimates.append(
+            GestureEstimate(
+                t_us=1_000_000 + 10_000 * k,
+                gesture=GestureType.PUSH,
+                resting=False,
+                intensity_mm=level,
+                translation_mm=np.array([level, 0.0]),
+            )
+        )
     estimates += [GestureEstimate(t_us=2_200_000 + 10_000 * k) for k in range(20)]
     preds = tmp_path / "p.jsonl"
     write_predictions(preds, estimates)

@@ -35,7 +35,10 @@ def test_a_rotation_in_the_image_is_the_opposite_rotation_for_the_user():
     g = SensorGeometry()
     # a point on a circle moving counter-clockwise as displayed (y up) in the image ...
     a0, a1 = 0.0, 0.2
-    img = [g.gel_center_px[0] + 20 * math.cos(a) for a in (a0, a1)], [g.gel_center_px[1] - 20 * math.sin(a) for a in (a0, a1)]
+    img = (
+        [g.gel_center_px[0] + 20 * math.cos(a) for a in (a0, a1)],
+        [g.gel_center_px[1] - 20 * math.sin(a) for a in (a0, a1)],
+    )
     user = g.image_to_user(np.stack(img, axis=1))
     cross = user[0, 0] * user[1, 1] - user[0, 1] * user[1, 0]
     assert cross < 0  # ... moves clockwise for the user (negative cross product)

@@ -22,13 +22,32 @@ from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
 from neurotouch_hid.sources.esim import EventCamera
 from neurotouch_hid.sources.simulator import (
-    SIM_GESTURES, START_US, USERS, GelSimulator, SimGesture, SimulatedSource, deform, draw_gesture, preset_users,
+    SIM_GESTURES,
+    START_US,
+    USERS,
+    GelSimulator,
+    SimGesture,
+    SimulatedSource,
+    deform,
+    draw_gesture,
+    preset_users,
     write_dataset,
 )
 
 # docs/dataset.md, written out here from the spec (not taken from the code under test)
-DATASET_COLUMNS = ["t_us", "gesture", "resting", "intensity_mm", "n_contacts",
-                   "x1_px", "y1_px", "x2_px", "y2_px", "x3_px", "y3_px"]
+DATASET_COLUMNS = [
+    "t_us",
+    "gesture",
+    "resting",
+    "intensity_mm",
+    "n_contacts",
+    "x1_px",
+    "y1_px",
+    "x2_px",
+    "y2_px",
+    "x3_px",
+    "y3_px",
+]
 DATASET_GESTURES = {"none", "push", "pinch", "zoom", "twist_cw", "twist_ccw"}
 SENSOR_KEYS = {"width", "height", "px_per_mm", "gel_center_px", "gel_radius_px", "mirror", "rotation_deg"}
 
@@ -108,8 +127,15 @@ def test_rest_frame_shows_177_markers_inside_the_gel_circle(quick_dataset):
 def test_moving_bright_marker_makes_on_events_ahead_and_off_events_behind():
     h, w = 40, 60
     background = np.full((h, w), 20.0)
-    cam = EventCamera(background, np.array([[20.0, 20.0]]), np.array([200.0]), np.array([1.0]),
-                      np.random.default_rng(3), noise_rate_hz=0.0, n_hot=0)
+    cam = EventCamera(
+        background,
+        np.array([[20.0, 20.0]]),
+        np.array([200.0]),
+        np.array([1.0]),
+        np.random.default_rng(3),
+        noise_rate_hz=0.0,
+        n_hot=0,
+    )
     t = np.arange(0, 20_001, 1000, dtype=np.int64)
     x = 20.0 + 1e-3 * t  # 1000 px/s to the right
     pos = np.stack([x, np.full_like(x, 20.0)], axis=1)[:, None, :]
@@ -135,10 +161,21 @@ def test_gel_at_rest_makes_only_sparse_noise_events():
 # --- motion and labels ------------------------------------------------------------------------
 def _single_gesture(kind: GestureType, fingers_mm, amplitude_mm: float, direction=(0.0, 0.0)) -> SimGesture:
     return SimGesture(
-        gesture=kind, t_start_us=START_US + 200_000, attack_us=300_000, hold_us=200_000, release_us=200_000,
-        fingers_mm=np.asarray(fingers_mm, dtype=float), amplitude_mm=amplitude_mm,
-        direction=np.asarray(direction, dtype=float), finger_mm=7.0, press=0.8, tremor=(0.0, 5.0, 0.0),
-        global_mm=np.array([0.2, -0.1]), global_rad=0.002, residual=0.03, creep_us=80_000,
+        gesture=kind,
+        t_start_us=START_US + 200_000,
+        attack_us=300_000,
+        hold_us=200_000,
+        release_us=200_000,
+        fingers_mm=np.asarray(fingers_mm, dtype=float),
+        amplitude_mm=amplitude_mm,
+        direction=np.asarray(direction, dtype=float),
+        finger_mm=7.0,
+        press=0.8,
+        tremor=(0.0, 5.0, 0.0),
+        global_mm=np.array([0.2, -0.1]),
+        global_rad=0.002,
+        residual=0.03,
+        creep_us=80_000,
     )
 
 
@@ -224,9 +261,14 @@ def test_gel_never_folds_and_markers_stay_apart_and_inside():
             gaps = np.linalg.norm(pos[:, None] - pos[None], axis=-1) + np.eye(len(pos)) * 1e9
             assert gaps.min() > 0.5, (kind, uid)  # 1.25 px: two blobs never merge into one
             assert np.hypot(pos[:, 0], pos[:, 1]).max() < sensor.gel_radius_mm
-            jac = [(deform([g], rest + dx, t, sensor.gel_radius_mm)[0][0]
-                    - deform([g], rest - dx, t, sensor.gel_radius_mm)[0][0]) / (2 * h)
-                   for dx in (np.array([h, 0.0]), np.array([0.0, h]))]
+            jac = [
+                (
+                    deform([g], rest + dx, t, sensor.gel_radius_mm)[0][0]
+                    - deform([g], rest - dx, t, sensor.gel_radius_mm)[0][0]
+                )
+                / (2 * h)
+                for dx in (np.array([h, 0.0]), np.array([0.0, h]))
+            ]
             det = jac[0][:, 0] * jac[1][:, 1] - jac[1][:, 0] * jac[0][:, 1]
             assert det.min() > 0.0, (kind, uid)  # orientation kept: no fold
 
@@ -315,11 +357,14 @@ def test_same_seed_same_files_other_seed_other_files(quick_dataset, tmp_path):
     assert len(ev_c) != len(ev_b) or not np.array_equal(ev_c, ev_b)
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--preset", "huge"], "unknown simulation preset 'huge'"),
-    (["--users", "3,12"], "simulated users are 0 to 9"),
-    (["--minutes", "-1"], "--minutes must be positive"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--preset", "huge"], "unknown simulation preset 'huge'"),
+        (["--users", "3,12"], "simulated users are 0 to 9"),
+        (["--minutes", "-1"], "--minutes must be positive"),
+    ],
+)
 def test_bad_simulate_options_are_one_clear_error(tmp_path, monkeypatch, capsys, args, message):
     from neurotouch_hid.cli import main
 

@@ -5,13 +5,20 @@ from __future__ import annotations
 import io
 
 import pytest
-
 from rich.console import Console
 
 from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.output.term import (
-    BUTTON_LABELS, STICK_COLUMNS, STICK_ROWS, TermView, axis_fraction, buttons_text, dpad_text, stick_cell, stick_grid,
+    BUTTON_LABELS,
+    STICK_COLUMNS,
+    STICK_ROWS,
+    TermView,
+    axis_fraction,
+    buttons_text,
+    dpad_text,
+    stick_cell,
+    stick_grid,
 )
 from neurotouch_hid.stats import RunStats
 
@@ -46,7 +53,7 @@ def test_axis_fractions_of_sticks_triggers_and_dpad():
 
 def lit(text) -> set[str]:
     """The labels of the spans drawn reversed (lit)."""
-    return {text.plain[s.start:s.end].strip() for s in text.spans if "reverse" in str(s.style)}
+    return {text.plain[s.start : s.end].strip() for s in text.spans if "reverse" in str(s.style)}
 
 
 def test_pressed_buttons_and_dpad_directions_are_lit():
@@ -97,7 +104,9 @@ def test_on_a_terminal_it_draws_the_pad_live():
 def test_the_view_keeps_the_last_estimate_for_states_written_without_one():
     console = plain_console()
     view = TermView(console, line_period_s=0)
-    view.write(ControllerState.neutral(1), GestureEstimate(t_us=1, gesture=GestureType.ZOOM, resting=False, intensity_mm=1.5))
+    view.write(
+        ControllerState.neutral(1), GestureEstimate(t_us=1, gesture=GestureType.ZOOM, resting=False, intensity_mm=1.5)
+    )
     view.write(ControllerState.neutral(2))
     lines = console.file.getvalue().splitlines()
     assert all("zoom 1.50 mm" in line for line in lines) and len(lines) == 2

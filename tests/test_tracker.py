@@ -187,8 +187,11 @@ def test_reset_reinitialises_positions_and_count():
     assert np.all(tracker.velocities_px_per_s == 0)
     owner = tracker.owner_image()
     assert owner[100, 110] == 1 and owner[120, 160] == -1  # old blob's pixels released
+
     # Tracking works after the reset: the middle dot moves right.
-    truth2 = lambda t: new + np.array([[0.0, 0.0], [0.05 * t / 1000.0, 0.0], [0.0, 0.0]])
+    def truth2(t):
+        return new + np.array([[0.0, 0.0], [0.05 * t / 1000.0, 0.0], [0.0, 0.0]])
+
     events2 = esim(truth2, 40_000, (90, 90, 135, 112))
     events2["timestamp"] += 60_000
     tracker.update(events2)
@@ -198,7 +201,10 @@ def test_reset_reinitialises_positions_and_count():
 def test_blob_leaving_the_gel_is_lost():
     cx, cy = SENSOR.gel_center_px
     start = np.array([[cx + SENSOR.gel_radius_px - 3.0, cy + 0.3], [cx, cy]])
-    truth = lambda t: start + np.array([[0.3 * t / 1000.0, 0.0], [0.0, 0.0]])
+
+    def truth(t):
+        return start + np.array([[0.3 * t / 1000.0, 0.0], [0.0, 0.0]])
+
     events = esim(truth, 50_000, (int(cx) - 5, int(cy) - 10, 346, int(cy) + 10))
     tracker = BlobTracker(start, sensor=SENSOR)
     run(tracker, events, 50_000)  # lost is decided at the end of each (1 ms) batch
@@ -212,7 +218,10 @@ def test_blobs_that_merge_are_lost():
     # Two dots 7 px apart slide onto each other: both blobs are lost, a third one is not. (The
     # last ~2 px of an exact overlap make few distinguishable events: merge_px 3 here.)
     start = np.array([[150.2, 120.3], [157.2, 120.3], [150.2, 130.3]])
-    truth = lambda t: start + min(t / 30_000.0, 1.0) * np.array([[3.5, 0.0], [-3.5, 0.0], [0.0, 0.0]])
+
+    def truth(t):
+        return start + min(t / 30_000.0, 1.0) * np.array([[3.5, 0.0], [-3.5, 0.0], [0.0, 0.0]])
+
     events = esim(truth, 40_000, (140, 110, 168, 140))
     tracker = BlobTracker(start, config=TrackerConfig(merge_px=3.0))
     tracker.update(events)
@@ -232,11 +241,13 @@ def test_update_rejects_wrong_dtype_and_accepts_empty():
 def test_aps_frame_correction_pulls_blobs_to_unambiguous_detections():
     start = np.array([[100.0, 100.0], [120.0, 100.0], [140.0, 100.0], [142.5, 100.0]])
     tracker = BlobTracker(start)
-    detections = np.array([
-        [100.6, 100.3],  # blob 0: within the gate -> corrected towards it
-        [122.0, 100.0],  # blob 1: 2 px away, beyond the 1.5 px gate -> ignored
-        [141.2, 100.0],  # blobs 2 and 3 both within 3 px: two markers seen as one -> ignored
-    ])
+    detections = np.array(
+        [
+            [100.6, 100.3],  # blob 0: within the gate -> corrected towards it
+            [122.0, 100.0],  # blob 1: 2 px away, beyond the 1.5 px gate -> ignored
+            [141.2, 100.0],  # blobs 2 and 3 both within 3 px: two markers seen as one -> ignored
+        ]
+    )
     assert tracker.correct(detections) == 1
     pos = tracker.positions_px
     assert np.linalg.norm(pos[0] - detections[0]) < 0.1  # the frame is far more precise
@@ -248,7 +259,10 @@ def test_aps_frame_correction_removes_the_lag_of_a_stopped_marker():
     # A dot moves 6 px and stops; the events leave the blob a little behind; the APS frame shows
     # where the dot is.
     p0 = np.array([150.3, 120.6])
-    truth = lambda t: np.array([p0 + np.array([0.1, 0.0]) * min(t, 60_000) / 1000.0])
+
+    def truth(t):
+        return np.array([p0 + np.array([0.1, 0.0]) * min(t, 60_000) / 1000.0])
+
     events = esim(truth, 80_000, (140, 110, 165, 132))
     tracker = BlobTracker(p0[None])
     tracker.update(events)
@@ -262,18 +276,29 @@ def test_aps_frame_correction_removes_the_lag_of_a_stopped_marker():
 @pytest.fixture(scope="module")
 def held_large_twist():
     """A simulated large fast twist held 1.2 s (the gesture of the test set's u1_twist_cw,
-    9.2-11.4 s, with a shorter hold: markers squeezed together, then a tremor of a few Hz): events, the 1 ms truth grid, true
-    marker positions (T, N, 2) image px, the markers detected on the first APS frame, and the
-    attack's and hold's end (us)."""
+    9.2-11.4 s, with a shorter hold: markers squeezed together, then a tremor of a few Hz):
+    events, the 1 ms truth grid, true marker positions (T, N, 2) image px, the markers detected
+    on the first APS frame, and the attack's and hold's end (us)."""
     from neurotouch_hid.estimate import GestureType
     from neurotouch_hid.pipeline.markers import detect_markers
     from neurotouch_hid.sources.simulator import USERS, GelSimulator, SimGesture
 
     twist = SimGesture(
-        gesture=GestureType.TWIST_CW, t_start_us=1_100_000, attack_us=380_000, hold_us=1_200_000, release_us=150_000,
-        fingers_mm=np.array([[-6.73, 12.21], [-1.84, -11.42]]), amplitude_mm=14.5, direction=np.zeros(2),
-        finger_mm=5.7, press=0.67, tremor=(0.04, 6.0, 0.2), global_mm=np.array([0.02, 0.16]), global_rad=-0.004,
-        residual=0.03, creep_us=100_000,
+        gesture=GestureType.TWIST_CW,
+        t_start_us=1_100_000,
+        attack_us=380_000,
+        hold_us=1_200_000,
+        release_us=150_000,
+        fingers_mm=np.array([[-6.73, 12.21], [-1.84, -11.42]]),
+        amplitude_mm=14.5,
+        direction=np.zeros(2),
+        finger_mm=5.7,
+        press=0.67,
+        tremor=(0.04, 6.0, 0.2),
+        global_mm=np.array([0.02, 0.16]),
+        global_rad=-0.004,
+        residual=0.03,
+        creep_us=100_000,
     )
     sim = GelSimulator(SENSOR, USERS[1], seed=0, script=[twist])
     hold_end = twist.t_start_us + twist.attack_us + twist.hold_us

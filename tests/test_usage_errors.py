@@ -35,10 +35,16 @@ COMMANDS = _commands()
 
 
 def run_cli(*args: str, tmp_path) -> subprocess.CompletedProcess:
-    env = {"PATH": "/usr/bin:/bin", "HOME": str(tmp_path), "XDG_CONFIG_HOME": str(tmp_path / "config"),
-           "COLUMNS": "80"}
-    return subprocess.run([sys.executable, "-m", "neurotouch_hid.cli", *args], capture_output=True, text=True,
-                          env=env, stdin=subprocess.DEVNULL, timeout=120, cwd=tmp_path)
+    env = {"PATH": "/usr/bin:/bin", "HOME": str(tmp_path), "XDG_CONFIG_HOME": str(tmp_path / "config"), "COLUMNS": "80"}
+    return subprocess.run(
+        [sys.executable, "-m", "neurotouch_hid.cli", *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        stdin=subprocess.DEVNULL,
+        timeout=120,
+        cwd=tmp_path,
+    )
 
 
 def assert_usage_error(result: subprocess.CompletedProcess, message: str) -> None:
@@ -59,17 +65,39 @@ def test_unknown_option(words, tmp_path):
     assert_usage_error(run_cli(*words, "--no-such-option", tmp_path=tmp_path), "No such option")
 
 
-@pytest.mark.parametrize("words", [("track",), ("info",), ("view",), ("record",), ("eval",), ("profile", "show"),
-                                   ("profile", "new"), ("profile", "set"), ("profile", "unset"),
-                                   ("profile", "validate"), ("profile", "tune")], ids=" ".join)
+@pytest.mark.parametrize(
+    "words",
+    [
+        ("track",),
+        ("info",),
+        ("view",),
+        ("record",),
+        ("eval",),
+        ("profile", "show"),
+        ("profile", "new"),
+        ("profile", "set"),
+        ("profile", "unset"),
+        ("profile", "validate"),
+        ("profile", "tune"),
+    ],
+    ids=" ".join,
+)
 def test_missing_argument(words, tmp_path):
     assert_usage_error(run_cli(*words, tmp_path=tmp_path), "Missing argument")
 
 
-@pytest.mark.parametrize("args", [("run", "--seed", "abc"), ("run", "--window-us", "1.5x"),
-                                  ("record", "out.aedat4", "--seed", "x"),
-                                  ("simulate", "--seed", "many"), ("profile", "test", "default", "--every-ms", "often"),
-                                  ("calibrate", "--frames", "1")], ids=" ".join)
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("run", "--seed", "abc"),
+        ("run", "--window-us", "1.5x"),
+        ("record", "out.aedat4", "--seed", "x"),
+        ("simulate", "--seed", "many"),
+        ("profile", "test", "default", "--every-ms", "often"),
+        ("calibrate", "--frames", "1"),
+    ],
+    ids=" ".join,
+)
 def test_bad_value(args, tmp_path):
     assert_usage_error(run_cli(*args, tmp_path=tmp_path), "Invalid value")
 

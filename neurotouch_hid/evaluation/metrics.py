@@ -26,8 +26,8 @@ from typing import Sequence
 
 import numpy as np
 
-from neurotouch_hid.estimate import GESTURE_ORDER, GestureEstimate, GestureType
 from neurotouch_hid.dataset import LabelRow, labels_at
+from neurotouch_hid.estimate import GESTURE_ORDER, GestureEstimate, GestureType
 from neurotouch_hid.sensor import SensorGeometry
 
 #: Width of the ground-truth intensity bins of the accuracy-vs-intensity analysis (mm), as the
@@ -215,8 +215,16 @@ class Observations:
     n_sequences: int = 1
 
     _ARRAYS = (
-        "gesture_true", "gesture_pred", "resting_true", "resting_pred", "count_true", "count_pred",
-        "intensity_true", "intensity_pred", "distance_sum_mm", "distance_n",
+        "gesture_true",
+        "gesture_pred",
+        "resting_true",
+        "resting_pred",
+        "count_true",
+        "count_pred",
+        "intensity_true",
+        "intensity_pred",
+        "distance_sum_mm",
+        "distance_n",
     )
 
     def __len__(self) -> int:
@@ -252,15 +260,24 @@ def align(labels: Sequence[LabelRow], predictions: Sequence[GestureEstimate], se
         predictions: the pipeline's estimates for the sequence, ordered by time.
         sensor: the dataset's geometry.
     """
-    truth = labels_at(labels, np.array([p.t_us for p in predictions], dtype=np.int64)) if labels else [None] * len(predictions)
+    truth = (
+        labels_at(labels, np.array([p.t_us for p in predictions], dtype=np.int64))
+        if labels
+        else [None] * len(predictions)
+    )
     kept = [(p, t) for p, t in zip(predictions, truth) if t is not None]
     m = len(kept)
     obs = Observations(
-        gesture_true=np.empty(m, np.int64), gesture_pred=np.empty(m, np.int64),
-        resting_true=np.empty(m, bool), resting_pred=np.empty(m, bool),
-        count_true=np.empty(m, np.int64), count_pred=np.empty(m, np.int64),
-        intensity_true=np.empty(m, np.float64), intensity_pred=np.empty(m, np.float64),
-        distance_sum_mm=np.zeros(m, np.float64), distance_n=np.zeros(m, np.int64),
+        gesture_true=np.empty(m, np.int64),
+        gesture_pred=np.empty(m, np.int64),
+        resting_true=np.empty(m, bool),
+        resting_pred=np.empty(m, bool),
+        count_true=np.empty(m, np.int64),
+        count_pred=np.empty(m, np.int64),
+        intensity_true=np.empty(m, np.float64),
+        intensity_pred=np.empty(m, np.float64),
+        distance_sum_mm=np.zeros(m, np.float64),
+        distance_n=np.zeros(m, np.int64),
         n_skipped=len(predictions) - m,
     )
     for k, (pred, true) in enumerate(kept):

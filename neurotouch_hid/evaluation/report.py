@@ -29,8 +29,12 @@ PAPER_RESULTS: dict[str, float] = {
 
 #: Display names of the gesture types, as the paper's figures write them.
 DISPLAY_NAMES: dict[str, str] = {
-    "none": "No Gesture", "push": "Push", "pinch": "Pinch", "zoom": "Zoom",
-    "twist_cw": "CW Twist", "twist_ccw": "CCW Twist",
+    "none": "No Gesture",
+    "push": "Push",
+    "pinch": "Pinch",
+    "zoom": "Zoom",
+    "twist_cw": "CW Twist",
+    "twist_ccw": "CCW Twist",
 }
 
 #: The figures :func:`write_figures` writes, file name -> caption.
@@ -73,9 +77,14 @@ def per_class_rows(result: EvaluationResult) -> list[list[str]]:
 
     return [
         [
-            DISPLAY_NAMES.get(name, name), num(result.precision[k], 100), num(result.recall[k], 100),
-            num(result.f1[k], 100), str(int(result.support[k])), num(result.contact_count_accuracy_by_gesture[k], 100),
-            num(result.contact_distance_by_gesture_mm[k]), num(result.intensity_mae_by_gesture_mm[k]),
+            DISPLAY_NAMES.get(name, name),
+            num(result.precision[k], 100),
+            num(result.recall[k], 100),
+            num(result.f1[k], 100),
+            str(int(result.support[k])),
+            num(result.contact_count_accuracy_by_gesture[k], 100),
+            num(result.contact_distance_by_gesture_mm[k]),
+            num(result.intensity_mae_by_gesture_mm[k]),
         ]
         for k, name in enumerate(result.classes)
     ]
@@ -89,8 +98,12 @@ def intensity_rows(result: EvaluationResult) -> list[list[str]]:
     contact count accuracy (formatted)."""
     edges = result.intensity_bin_edges_mm
     return [
-        [f"{edges[b]:.1f}-{edges[b + 1]:.1f}", str(int(n)), _pct(result.gesture_accuracy_by_intensity[b]),
-         _pct(result.contact_count_accuracy_by_intensity[b])]
+        [
+            f"{edges[b]:.1f}-{edges[b + 1]:.1f}",
+            str(int(n)),
+            _pct(result.gesture_accuracy_by_intensity[b]),
+            _pct(result.contact_count_accuracy_by_intensity[b]),
+        ]
         for b, n in enumerate(result.n_by_intensity)
         if n > 0
     ]
@@ -99,8 +112,10 @@ def intensity_rows(result: EvaluationResult) -> list[list[str]]:
 def print_tables(result: EvaluationResult, console: Console) -> None:
     """Print the paper's metrics as rich tables: headline metrics beside the paper's, per gesture
     type metrics, the balanced confusion matrix, and accuracy against intensity."""
-    head = Table(title=f"NeuroTouch evaluation: {result.n_sequences} sequences, {result.n_observations} observations "
-                       f"({result.n_skipped} predictions before the first label skipped)")
+    head = Table(
+        title=f"NeuroTouch evaluation: {result.n_sequences} sequences, {result.n_observations} observations "
+        f"({result.n_skipped} predictions before the first label skipped)"
+    )
     for col in ("Metric", "Ours", "Paper"):
         head.add_column(col, justify="left" if col == "Metric" else "right")
     for row in summary_rows(result):
@@ -167,8 +182,12 @@ def write_figures(result: EvaluationResult, out_dir: str | Path) -> list[Path]:
     save(fig, "confusion.png")
 
     fig, ax = plt.subplots(figsize=(9, 4.5))
-    series = [("Precision", result.precision), ("Recall", result.recall), ("F1", result.f1),
-              ("Contact count acc.", result.contact_count_accuracy_by_gesture)]
+    series = [
+        ("Precision", result.precision),
+        ("Recall", result.recall),
+        ("F1", result.f1),
+        ("Contact count acc.", result.contact_count_accuracy_by_gesture),
+    ]
     width = 0.2
     for s, (label, values) in enumerate(series):
         ax.bar(x + (s - 1.5) * width, np.nan_to_num(np.asarray(values, dtype=float)) * 100, width, label=label)
@@ -176,8 +195,10 @@ def write_figures(result: EvaluationResult, out_dir: str | Path) -> list[Path]:
     ax.set_ylabel("%")
     ax.set_ylim(0, 105)
     ax.legend(loc="lower right", fontsize=8)
-    ax.set_title(f"Gesture type accuracy {_pct(result.gesture_accuracy)}, "
-                 f"contact count accuracy {_pct(result.contact_count_accuracy)}")
+    ax.set_title(
+        f"Gesture type accuracy {_pct(result.gesture_accuracy)}, "
+        f"contact count accuracy {_pct(result.contact_count_accuracy)}"
+    )
     save(fig, "metrics_per_class.png")
 
     fig, ax = plt.subplots(figsize=(10, 4.5))
@@ -185,8 +206,9 @@ def write_figures(result: EvaluationResult, out_dir: str | Path) -> list[Path]:
     centres = (edges[:-1] + edges[1:]) / 2 if len(edges) > 1 else np.zeros(0)
     bar = (edges[1] - edges[0]) * 0.42 if len(edges) > 1 else 0.25
     ax.bar(centres - bar / 2, np.nan_to_num(result.gesture_accuracy_by_intensity) * 100, bar, label="Gesture type")
-    ax.bar(centres + bar / 2, np.nan_to_num(result.contact_count_accuracy_by_intensity) * 100, bar,
-           label="Contact count")
+    ax.bar(
+        centres + bar / 2, np.nan_to_num(result.contact_count_accuracy_by_intensity) * 100, bar, label="Contact count"
+    )
     ax.set_xlabel("Ground-truth intensity (mm), 0.6 mm bins")
     ax.set_ylabel("Accuracy (%)")
     ax.set_ylim(0, 115)
@@ -218,8 +240,14 @@ def _md_table(header: list[str], rows: list[list[str]] | list[tuple[str, ...]]) 
     return "\n".join(lines)
 
 
-def write_report(result: EvaluationResult, out_dir: str | Path, *, title: str = "NeuroTouch evaluation",
-                 command: str | None = None, config: dict | None = None) -> Path:
+def write_report(
+    result: EvaluationResult,
+    out_dir: str | Path,
+    *,
+    title: str = "NeuroTouch evaluation",
+    command: str | None = None,
+    config: dict | None = None,
+) -> Path:
     """Write the figures and ``out_dir/summary.md`` (Markdown tables and the embedded figures).
 
     Args:
@@ -236,17 +264,29 @@ def write_report(result: EvaluationResult, out_dir: str | Path, *, title: str = 
     parts = [f"# {title}", ""]
     if command:
         parts += ["```sh", command, "```", ""]
-    parts += [f"{result.n_sequences} sequences, {result.n_observations} evaluated predictions "
-              f"({result.n_gesture_observations} during a gesture, {result.n_skipped} before the first label "
-              f"skipped), {result.n_contact_pairs} contact pairs.", ""]
+    parts += [
+        f"{result.n_sequences} sequences, {result.n_observations} evaluated predictions "
+        f"({result.n_gesture_observations} during a gesture, {result.n_skipped} before the first label "
+        f"skipped), {result.n_contact_pairs} contact pairs.",
+        "",
+    ]
     parts += [_md_table(["Metric", "Ours", "Paper"], summary_rows(result)), ""]
     parts += ["## Per gesture type", "", _md_table(PER_CLASS_HEADER, per_class_rows(result)), ""]
-    parts += ["## Accuracy against ground-truth intensity", "",
-              _md_table(["Intensity (mm)", "Observations", "Gesture type acc.", "Contact count acc."],
-                        intensity_rows(result)), ""]
+    parts += [
+        "## Accuracy against ground-truth intensity",
+        "",
+        _md_table(
+            ["Intensity (mm)", "Observations", "Gesture type acc.", "Contact count acc."], intensity_rows(result)
+        ),
+        "",
+    ]
     if config:
-        parts += ["## Pipeline hyperparameters", "",
-                  _md_table(["Parameter", "Value"], [[k, str(v)] for k, v in config.items()]), ""]
+        parts += [
+            "## Pipeline hyperparameters",
+            "",
+            _md_table(["Parameter", "Value"], [[k, str(v)] for k, v in config.items()]),
+            "",
+        ]
     parts += ["## Figures", ""]
     for name, caption in FIGURES.items():
         parts += [f"![{caption}]({name})", "", f"*{caption}.*", ""]

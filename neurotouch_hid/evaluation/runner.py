@@ -17,10 +17,9 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Callable, Sequence
 
+from neurotouch_hid.dataset import dataset_sensor_file, list_sequences, read_labels, write_predictions
 from neurotouch_hid.errors import NeurotouchError
-from neurotouch_hid.dataset import dataset_sensor_file, list_sequences, read_labels
 from neurotouch_hid.evaluation.metrics import EvaluationResult, Observations, align, evaluate
-from neurotouch_hid.dataset import write_predictions
 from neurotouch_hid.sensor import SensorGeometry
 
 log = logging.getLogger(__name__)
@@ -64,10 +63,15 @@ def pipeline_config(settings: Sequence[str] = (), preset: str = "default", **val
             if not (isinstance(annotation, type) and issubclass(annotation, BaseModel)):
                 raise NeurotouchError(f"--set {item!r}: {part!r} is not a group of PipelineConfig")
             model, group = annotation, group.setdefault(part, {})
-        leaves = [f for f, info in model.model_fields.items()
-                  if not (isinstance(info.annotation, type) and issubclass(info.annotation, BaseModel))]
+        leaves = [
+            f
+            for f, info in model.model_fields.items()
+            if not (isinstance(info.annotation, type) and issubclass(info.annotation, BaseModel))
+        ]
         if path[-1] not in leaves:
-            raise NeurotouchError(f"--set {item!r}: {model.__name__} has no field {path[-1]!r}; fields: {', '.join(leaves)}")
+            raise NeurotouchError(
+                f"--set {item!r}: {model.__name__} has no field {path[-1]!r}; fields: {', '.join(leaves)}"
+            )
         group[path[-1]] = None if text.lower() in ("none", "null") else text
         given[tuple(path)] = item
     data.update(values)

@@ -111,6 +111,7 @@ def _parent(document: Any, key: str, create: bool) -> tuple[CommentedMap, str]:
             node = node[part]
     return node, parts[-1]
 
+
 def parse_value(text: str) -> Any:
     """A command-line VALUE parsed as YAML (``1.5`` -> float, ``true`` -> bool, ``ABS_RX`` -> str,
     ``0x045e`` -> int, ``{beta: 0.1}`` -> mapping). Raises ProfileError if it is not YAML."""
@@ -126,7 +127,9 @@ def _save_validated(name: str, document: Any) -> Path:
     try:
         parse_profile(text, target)
     except ProfileError as exc:
-        raise ProfileError(f"{exc}\n  nothing was changed ({target if target.exists() else 'no user copy'} kept as it was)") from None
+        raise ProfileError(
+            f"{exc}\n  nothing was changed ({target if target.exists() else 'no user copy'} kept as it was)"
+        ) from None
     _write(target, text)
     return target
 

@@ -55,16 +55,24 @@ class OneEuroFilter:
         return self._x.copy()
 
 
-def response(magnitude_mm: float, deadzone_mm: float, saturation_mm: float, exponent: float = 1.0,
-             expo: float = 0.0, gain: float = 1.0, anti_deadzone: float = 0.0) -> float:
+def response(
+    magnitude_mm: float,
+    deadzone_mm: float,
+    saturation_mm: float,
+    exponent: float = 1.0,
+    expo: float = 0.0,
+    gain: float = 1.0,
+    anti_deadzone: float = 0.0,
+) -> float:
     """The analogue response in [0, 1] to an input magnitude (mm, >= 0).
 
     0 up to the dead zone, 1 from the saturation on, in between
     ``t = (m - deadzone) / (saturation - deadzone)`` shaped by ``t ** exponent``, then the expo
     ``(1 - expo) t + expo t^3`` (finer control near the centre), then ``min(gain * t, 1)``, then
     the anti-deadzone ``a + (1 - a) t`` (any input past the dead zone gives at least ``a``, so a
-    game's own inner dead zone does not swallow it; 0 stays 0) (the paper, section "Gesture Classification and Intensity Prediction", suggests non-linear
-    intensity profiles for applications). Non-finite magnitudes give 0.
+    game's own inner dead zone does not swallow it; 0 stays 0) (the paper, section "Gesture
+    Classification and Intensity Prediction", suggests non-linear intensity profiles for
+    applications). Non-finite magnitudes give 0.
     """
     if not math.isfinite(magnitude_mm) or magnitude_mm <= deadzone_mm:
         return 0.0

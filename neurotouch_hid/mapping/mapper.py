@@ -18,8 +18,18 @@ from neurotouch_hid.controller import AXES, BUTTONS, MOUSE_REL, ControllerState
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.mapping.filters import OneEuroFilter, response
 from neurotouch_hid.mapping.profile import (
-    ANALOG_AXES, BASE_LAYER, DPAD, STICKS, AxisMapping, ButtonMapping, LayerSwitch, OneEuroSmoothing, PointerMapping,
-    Profile, RelMapping, StickMapping,
+    ANALOG_AXES,
+    BASE_LAYER,
+    DPAD,
+    STICKS,
+    AxisMapping,
+    ButtonMapping,
+    LayerSwitch,
+    OneEuroSmoothing,
+    PointerMapping,
+    Profile,
+    RelMapping,
+    StickMapping,
 )
 
 _ZERO2 = np.zeros(2)
@@ -49,15 +59,24 @@ def gesture_inputs(estimate: GestureEstimate) -> dict[str, np.ndarray | float]:
     pinch = intensity if gesture == GestureType.PINCH else 0.0
     zoom = intensity if gesture == GestureType.ZOOM else 0.0
     return {
-        "push": push, "contact": contact,
+        "push": push,
+        "contact": contact,
         "intensity": intensity,
         "push_intensity": intensity if gesture == GestureType.PUSH else 0.0,
-        "push_x": float(push[0]), "push_y": float(push[1]),
-        "push_up": max(float(push[1]), 0.0), "push_down": max(-float(push[1]), 0.0),
-        "push_left": max(-float(push[0]), 0.0), "push_right": max(float(push[0]), 0.0),
-        "twist": twist, "twist_ccw": max(twist, 0.0), "twist_cw": max(-twist, 0.0),
-        "pinch": pinch, "zoom": zoom, "pinch_zoom": zoom - pinch,
-        "contact_x": float(contact[0]), "contact_y": float(contact[1]),
+        "push_x": float(push[0]),
+        "push_y": float(push[1]),
+        "push_up": max(float(push[1]), 0.0),
+        "push_down": max(-float(push[1]), 0.0),
+        "push_left": max(-float(push[0]), 0.0),
+        "push_right": max(float(push[0]), 0.0),
+        "twist": twist,
+        "twist_ccw": max(twist, 0.0),
+        "twist_cw": max(-twist, 0.0),
+        "pinch": pinch,
+        "zoom": zoom,
+        "pinch_zoom": zoom - pinch,
+        "contact_x": float(contact[0]),
+        "contact_y": float(contact[1]),
     }
 
 
@@ -95,17 +114,25 @@ class Activator:
     ``1 / turbo_hz`` period, up for the second).
     """
 
-    def __init__(self, mode: str = "hold", press_mm: float = 2.0, release_mm: float = 1.0, *,
-                 dwell_ms: float = 500.0, double_press_ms: float = 400.0, turbo_hz: float = 10.0) -> None:
+    def __init__(
+        self,
+        mode: str = "hold",
+        press_mm: float = 2.0,
+        release_mm: float = 1.0,
+        *,
+        dwell_ms: float = 500.0,
+        double_press_ms: float = 400.0,
+        turbo_hz: float = 10.0,
+    ) -> None:
         self.mode = mode
         self.press_mm, self.release_mm = press_mm, release_mm
         self.dwell_us = int(round(dwell_ms * 1000))
         self.double_us = int(round(double_press_ms * 1000))
         self.half_period_us = 1e6 / (2.0 * turbo_hz)
         self.held = False
-        self._since_us = 0          # start of the current hold
+        self._since_us = 0  # start of the current hold
         self._first_us: int | None = None  # start of a press that may be the first of a double
-        self._double = False        # the current hold is a double press's second
+        self._double = False  # the current hold is a double press's second
         self._toggled = False
 
     @classmethod
@@ -113,8 +140,14 @@ class Activator:
         """The activator a mapping (or a layer switch) describes."""
         if isinstance(mapping, LayerSwitch):
             return cls(mapping.mode, mapping.press_mm, mapping.release_mm)
-        return cls(mapping.mode, mapping.press_mm, mapping.release_mm, dwell_ms=mapping.dwell_ms,
-                   double_press_ms=mapping.double_press_ms, turbo_hz=mapping.turbo_hz)
+        return cls(
+            mapping.mode,
+            mapping.press_mm,
+            mapping.release_mm,
+            dwell_ms=mapping.dwell_ms,
+            double_press_ms=mapping.double_press_ms,
+            turbo_hz=mapping.turbo_hz,
+        )
 
     def update(self, value_mm: float, t_us: int) -> bool:
         """The output's state for the input ``value_mm`` (mm) at ``t_us`` (us, camera clock)."""
@@ -303,5 +336,12 @@ class Mapper:
 
 
 def _shape(mapping: StickMapping | AxisMapping | PointerMapping | RelMapping, magnitude_mm: float) -> float:
-    return response(magnitude_mm, mapping.deadzone_mm, mapping.saturation, mapping.exponent, mapping.expo,
-                    mapping.gain, mapping.anti_deadzone)
+    return response(
+        magnitude_mm,
+        mapping.deadzone_mm,
+        mapping.saturation,
+        mapping.exponent,
+        mapping.expo,
+        mapping.gain,
+        mapping.anti_deadzone,
+    )

@@ -57,7 +57,15 @@ from typing import Annotated, Any, Literal, Union
 
 import yaml
 from pydantic import (
-    BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError, ValidationInfo, create_model, field_validator,
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    Tag,
+    ValidationError,
+    ValidationInfo,
+    create_model,
+    field_validator,
     model_validator,
 )
 
@@ -72,8 +80,22 @@ DEFAULT_SATURATION_MM = 8.0
 
 VECTOR_INPUTS: tuple[str, ...] = ("push", "contact")
 SCALAR_INPUTS: tuple[str, ...] = (
-    "intensity", "push_intensity", "push_x", "push_y", "push_up", "push_down", "push_left", "push_right",
-    "twist", "twist_ccw", "twist_cw", "pinch", "zoom", "pinch_zoom", "contact_x", "contact_y",
+    "intensity",
+    "push_intensity",
+    "push_x",
+    "push_y",
+    "push_up",
+    "push_down",
+    "push_left",
+    "push_right",
+    "twist",
+    "twist_ccw",
+    "twist_cw",
+    "pinch",
+    "zoom",
+    "pinch_zoom",
+    "contact_x",
+    "contact_y",
 )
 #: Stick output name -> its (x axis, y axis).
 STICKS: dict[str, tuple[str, str]] = {"left_stick": ("ABS_X", "ABS_Y"), "right_stick": ("ABS_RX", "ABS_RY")}
@@ -81,8 +103,10 @@ STICKS: dict[str, tuple[str, str]] = {"left_stick": ("ABS_X", "ABS_Y"), "right_s
 ANALOG_AXES: tuple[str, ...] = ("ABS_X", "ABS_Y", "ABS_RX", "ABS_RY", "ABS_Z", "ABS_RZ")
 #: d-pad direction -> (hat axis, value when pressed).
 DPAD: dict[str, tuple[str, int]] = {
-    "dpad_up": ("ABS_HAT0Y", -1), "dpad_down": ("ABS_HAT0Y", 1),
-    "dpad_left": ("ABS_HAT0X", -1), "dpad_right": ("ABS_HAT0X", 1),
+    "dpad_up": ("ABS_HAT0Y", -1),
+    "dpad_down": ("ABS_HAT0Y", 1),
+    "dpad_left": ("ABS_HAT0X", -1),
+    "dpad_right": ("ABS_HAT0X", 1),
 }
 DIGITAL_OUTPUTS: tuple[str, ...] = BUTTONS + tuple(DPAD)
 #: Face-button aliases -> evdev names (the kernel's gamepad.rst positions; xpad reports the Xbox
@@ -121,8 +145,11 @@ def key_chord(output: str) -> tuple[str, ...]:
 
 
 def _expected_outputs() -> str:
-    return (", ".join(repr(o) for o in ALL_OUTPUTS)
-            + ", or an evdev key name such as 'KEY_SPACE' (several joined by '+': 'KEY_LEFTSHIFT+KEY_TAB')")
+    return (
+        ", ".join(repr(o) for o in ALL_OUTPUTS)
+        + ", or an evdev key name such as 'KEY_SPACE' (several joined by '+': 'KEY_LEFTSHIFT+KEY_TAB')"
+    )
+
 
 #: The default virtual device: an Xbox 360 pad as SDL, Steam and browsers know it.
 DEFAULT_DEVICE_NAME = "Microsoft X-Box 360 pad"
@@ -165,8 +192,8 @@ class _Analog(_Layered):
     1 = full deflection from the saturation on), then the curve ``t ** exponent``, then the expo
     ``(1 - expo) * t + expo * t ** 3``, then ``min(gain * t, 1)``, then the anti-deadzone
     ``a + (1 - a) * t`` for t > 0 (a game's own inner dead zone then never swallows a gesture
-    past ours); the sign (or a stick's direction) is the input's. ``saturation_mm`` defaults to 30 mm (the gel radius) for the
-    ``contact`` inputs and to 8 mm for the others.
+    past ours); the sign (or a stick's direction) is the input's. ``saturation_mm`` defaults to
+    30 mm (the gel radius) for the ``contact`` inputs and to 8 mm for the others.
     """
 
     deadzone_mm: float = Field(0.5, ge=0, description="inputs with magnitude <= this give 0 (mm)")
@@ -174,7 +201,9 @@ class _Analog(_Layered):
     exponent: float = Field(1.0, gt=0, le=10, description="response curve t ** exponent (1 = linear)")
     expo: float = Field(0.0, ge=0, le=1, description="expo blend (1 - e) t + e t^3 (0 = off)")
     gain: float = Field(1.0, gt=0, le=100, description="multiplies the shaped value (clipped to 1)")
-    anti_deadzone: float = Field(0.0, ge=0, lt=1, description="smallest non-zero output, as a fraction of full deflection")
+    anti_deadzone: float = Field(
+        0.0, ge=0, lt=1, description="smallest non-zero output, as a fraction of full deflection"
+    )
     smoothing: OneEuroSmoothing | None = None
 
     @field_validator("saturation_mm")
@@ -220,7 +249,9 @@ class PointerMapping(_Analog):
 
     input: Literal[VECTOR_INPUTS]
     output: Literal[(POINTER,)]
-    speed: float = Field(DEFAULT_POINTER_SPEED, gt=0, le=100_000, description="pointer counts per second at full deflection")
+    speed: float = Field(
+        DEFAULT_POINTER_SPEED, gt=0, le=100_000, description="pointer counts per second at full deflection"
+    )
     invert_x: bool = False
     invert_y: bool = False
 
@@ -233,7 +264,9 @@ class RelMapping(_Analog):
 
     input: Literal[SCALAR_INPUTS]
     output: Literal[REL_OUTPUTS]
-    speed: float | None = Field(None, gt=0, le=100_000, description="counts (px) or detents per second at full deflection")
+    speed: float | None = Field(
+        None, gt=0, le=100_000, description="counts (px) or detents per second at full deflection"
+    )
     invert: bool = False
 
     @property
@@ -281,7 +314,9 @@ class ButtonMapping(_Hysteresis, _Layered):
     output: Any
     mode: Literal[MODES] = "hold"
     dwell_ms: float = Field(500.0, gt=0, le=60_000, description="long_press: how long the input must be held (ms)")
-    double_press_ms: float = Field(400.0, gt=0, le=5_000, description="double_press: longest time between the two presses' starts (ms)")
+    double_press_ms: float = Field(
+        400.0, gt=0, le=5_000, description="double_press: longest time between the two presses' starts (ms)"
+    )
     turbo_hz: float = Field(10.0, gt=0, le=MAX_TURBO_HZ, description="turbo: presses per second")
 
     @field_validator("output")
@@ -292,9 +327,11 @@ class ButtonMapping(_Hysteresis, _Layered):
         parts = value.split("+")
         for part in parts:
             if part not in BUTTON_LIKE and part not in keyboard_keys():
-                raise ValueError(f"a pad button (BTN_SOUTH ... BTN_THUMBR, A, B, X, Y, dpad_*), a mouse button "
-                                 f"({', '.join(MOUSE_BUTTONS)}) or an evdev key name such as 'KEY_SPACE' "
-                                 f"(several joined by '+'); '{part}' is none of these")
+                raise ValueError(
+                    f"a pad button (BTN_SOUTH ... BTN_THUMBR, A, B, X, Y, dpad_*), a mouse button "
+                    f"({', '.join(MOUSE_BUTTONS)}) or an evdev key name such as 'KEY_SPACE' "
+                    f"(several joined by '+'); '{part}' is none of these"
+                )
         if len(parts) > 1 and any(not p.startswith("KEY_") and p not in MOUSE_BUTTONS for p in parts):
             raise ValueError("a chord of keyboard keys and mouse buttons only, such as 'KEY_LEFTSHIFT+KEY_TAB'")
         return "+".join(FACE_ALIASES.get(p, p) for p in parts)
@@ -311,8 +348,16 @@ class LayerSwitch(_Hysteresis):
 
     mode: Literal["hold", "toggle"] = "hold"
 
-_ANY_MAPPING_FIELDS = {**ButtonMapping.model_fields, **AxisMapping.model_fields, **StickMapping.model_fields,
-                       **PointerMapping.model_fields, **RelMapping.model_fields}
+
+_ANY_MAPPING_FIELDS = {
+    **ButtonMapping.model_fields,
+    **AxisMapping.model_fields,
+    **StickMapping.model_fields,
+    **PointerMapping.model_fields,
+    **RelMapping.model_fields,
+}
+
+
 def _no_such_output(cls, value: Any) -> Any:
     raise ValueError(_expected_outputs())
 
@@ -320,8 +365,10 @@ def _no_such_output(cls, value: Any) -> Any:
 #: Chosen only when ``output`` names no known output: reports it with the valid names, and still
 #: checks every other field (known name, type, range) so that all problems show at once.
 _UnknownOutput = create_model(
-    "_UnknownOutput", __base__=_Strict,
-    input=(Literal[VECTOR_INPUTS + SCALAR_INPUTS], ...), output=(Any, ...),
+    "_UnknownOutput",
+    __base__=_Strict,
+    input=(Literal[VECTOR_INPUTS + SCALAR_INPUTS], ...),
+    output=(Any, ...),
     **{name: (f.annotation, f) for name, f in _ANY_MAPPING_FIELDS.items() if name not in ("input", "output")},
     __validators__={"_unknown_output": field_validator("output")(_no_such_output)},
 )
@@ -356,8 +403,12 @@ Mapping = Annotated[
     Discriminator(_output_kind),
 ]
 _TAG_MODELS: dict[str, type[BaseModel]] = {
-    "stick": StickMapping, "axis": AxisMapping, "button": ButtonMapping, "pointer": PointerMapping,
-    "rel": RelMapping, "unknown": _UnknownOutput,
+    "stick": StickMapping,
+    "axis": AxisMapping,
+    "button": ButtonMapping,
+    "pointer": PointerMapping,
+    "rel": RelMapping,
+    "unknown": _UnknownOutput,
 }
 
 
@@ -387,7 +438,9 @@ class Profile(_Strict):
     @classmethod
     def _not_base(cls, value: dict) -> dict:
         if BASE_LAYER in value:
-            raise ValueError(f"layer names other than '{BASE_LAYER}' (the layer of mappings without layer:, always there)")
+            raise ValueError(
+                f"layer names other than '{BASE_LAYER}' (the layer of mappings without layer:, always there)"
+            )
         return value
 
     @model_validator(mode="after")
@@ -400,15 +453,19 @@ class Profile(_Strict):
     @property
     def uses_keyboard(self) -> bool:
         """A mapping presses a keyboard key."""
-        return any(isinstance(m, ButtonMapping) and any(p.startswith("KEY_") for p in m.presses)
-                   for m in self.mappings.values())
+        return any(
+            isinstance(m, ButtonMapping) and any(p.startswith("KEY_") for p in m.presses)
+            for m in self.mappings.values()
+        )
 
     @property
     def uses_mouse(self) -> bool:
         """A mapping presses a mouse button or moves the pointer or a wheel."""
-        return any(isinstance(m, (PointerMapping, RelMapping))
-                   or (isinstance(m, ButtonMapping) and any(p in MOUSE_BUTTONS for p in m.presses))
-                   for m in self.mappings.values())
+        return any(
+            isinstance(m, (PointerMapping, RelMapping))
+            or (isinstance(m, ButtonMapping) and any(p in MOUSE_BUTTONS for p in m.presses))
+            for m in self.mappings.values()
+        )
 
 
 # --- where profiles live ------------------------------------------------------------------------
@@ -450,7 +507,9 @@ def find_profile(name_or_path: str | os.PathLike) -> Path:
     found = available_profiles().get(str(name_or_path))
     if found is None:
         names = ", ".join(available_profiles()) or "none"
-        raise ProfileError(f"no profile named '{name_or_path}' (available: {names}; user folder: {user_profiles_dir()})")
+        raise ProfileError(
+            f"no profile named '{name_or_path}' (available: {names}; user folder: {user_profiles_dir()})"
+        )
     return found
 
 
@@ -483,7 +542,8 @@ def parse_profile(text: str, source: str | os.PathLike) -> Profile:
         if isinstance(exc, yaml.reader.ReaderError):  # a character YAML forbids: no mark, a position
             line = text.count("\n", 0, exc.position) + 1
             where = f"{source}:{line}"
-            problem = f"character #x{ord(exc.character) if isinstance(exc.character, str) else exc.character:04x} is not allowed in YAML"
+            code = ord(exc.character) if isinstance(exc.character, str) else exc.character
+            problem = f"character #x{code:04x} is not allowed in YAML"
         else:
             where = f"{source}:{mark.line + 1}" if mark is not None else str(source)
             problem = " ".join((getattr(exc, "problem", None) or str(exc)).split())  # one line
@@ -495,8 +555,13 @@ def parse_profile(text: str, source: str | os.PathLike) -> Profile:
     try:
         return Profile.model_validate(data, context=context)
     except ValidationError as exc:
-        problems = [line for _, line in sorted((_describe(err, root, source) for err in exc.errors()), key=lambda p: p[0])]
-        raise ProfileError(f"profile {source} is invalid ({len(problems)} problem{'s' * (len(problems) > 1)}):\n  " + "\n  ".join(problems)) from None
+        problems = [
+            line for _, line in sorted((_describe(err, root, source) for err in exc.errors()), key=lambda p: p[0])
+        ]
+        raise ProfileError(
+            f"profile {source} is invalid ({len(problems)} problem{'s' * (len(problems) > 1)}):\n  "
+            + "\n  ".join(problems)
+        ) from None
 
 
 # --- error messages -----------------------------------------------------------------------------
@@ -510,7 +575,9 @@ def _line_of(root: yaml.Node | None, loc: tuple) -> tuple[int, tuple]:
     for part in loc:
         match = None
         if isinstance(node, yaml.MappingNode):
-            match = next(((k, v) for k, v in node.value if isinstance(k, yaml.ScalarNode) and k.value == str(part)), None)
+            match = next(
+                ((k, v) for k, v in node.value if isinstance(k, yaml.ScalarNode) and k.value == str(part)), None
+            )
         if match is not None:
             line, node = match[0].start_mark.line + 1, match[1]
             path.append(part)
@@ -547,11 +614,16 @@ def _describe(err: dict, root: yaml.Node | None, source: str | os.PathLike) -> t
     if kind == "extra_forbidden":
         model = _model_at(tuple(err["loc"]))
         allowed = f": one of {', '.join(model.model_fields)}" if model is not None else ""
-        return line, f"{source}:{line}: {field}: unknown field (found {_short(err['input'])}); expected a known field{allowed}"
+        return (
+            line,
+            f"{source}:{line}: {field}: unknown field (found {_short(err['input'])}); expected a known field{allowed}",
+        )
     if kind == "string_pattern_mismatch" and path[-1:] == ("[key]",):
         field = ".".join(str(p) for p in path[:-1])
-        return line, (f"{source}:{line}: {field}: found the name {_short(err['input'])}; expected a name of letters, "
-                      "digits and '_' that does not start with a digit")
+        return line, (
+            f"{source}:{line}: {field}: found the name {_short(err['input'])}; expected a name of letters, "
+            "digits and '_' that does not start with a digit"
+        )
     if kind in ("model_type", "model_attributes_type", "dict_type"):
         return line, f"{source}:{line}: {field}: found {_short(err['input'])}; expected a mapping (key: value lines)"
     message = err["msg"].removeprefix("Value error, ")
@@ -559,4 +631,3 @@ def _describe(err: dict, root: yaml.Node | None, source: str | os.PathLike) -> t
     if expected.startswith("input should be "):
         expected = expected.removeprefix("input should be ")
     return line, f"{source}:{line}: {field}: found {_short(err['input'])}; expected {expected}"
-

@@ -32,7 +32,9 @@ class TimelineRow:
     state: ControllerState
 
 
-def sample_timeline(estimates: list[GestureEstimate], states: list[ControllerState], every_us: int = 100_000) -> list[TimelineRow]:
+def sample_timeline(
+    estimates: list[GestureEstimate], states: list[ControllerState], every_us: int = 100_000
+) -> list[TimelineRow]:
     """Rows every ``every_us`` (us) from the first estimate, each with the latest estimate/state
     at or before that time (``estimates`` and ``states`` aligned, as :func:`replay` returns)."""
     if not estimates:
@@ -46,8 +48,11 @@ def sample_timeline(estimates: list[GestureEstimate], states: list[ControllerSta
 def pressed(state: ControllerState) -> list[str]:
     """The buttons and d-pad directions (``dpad_up`` ...) pressed in ``state``, in DIGITAL_OUTPUTS
     order, then the keyboard keys and mouse buttons that are down (sorted)."""
-    return [name for name in DIGITAL_OUTPUTS
-            if (state.axes[DPAD[name][0]] == DPAD[name][1] if name in DPAD else state.buttons[name])] + sorted(state.keys)
+    return [
+        name
+        for name in DIGITAL_OUTPUTS
+        if (state.axes[DPAD[name][0]] == DPAD[name][1] if name in DPAD else state.buttons[name])
+    ] + sorted(state.keys)
 
 
 @dataclass(frozen=True)
@@ -123,7 +128,9 @@ def plot_timeline(estimates: list[GestureEstimate], states: list[ControllerState
     plt.close(fig)
 
 
-def tuned_saturations(profile: Profile, estimates: Iterable[GestureEstimate], percentile: float = 95.0) -> dict[str, tuple[float, float]]:
+def tuned_saturations(
+    profile: Profile, estimates: Iterable[GestureEstimate], percentile: float = 95.0
+) -> dict[str, tuple[float, float]]:
     """Saturations that give full deflection at what this user reaches.
 
     For every analogue mapping (stick or axis) whose input is an intensity (not ``contact``), the
@@ -135,8 +142,11 @@ def tuned_saturations(profile: Profile, estimates: Iterable[GestureEstimate], pe
         estimates exercise.
     """
     samples: dict[str, list[float]] = {}
-    analog = {name: m for name, m in profile.mappings.items()
-              if not isinstance(m, ButtonMapping) and not m.input.startswith("contact")}
+    analog = {
+        name: m
+        for name, m in profile.mappings.items()
+        if not isinstance(m, ButtonMapping) and not m.input.startswith("contact")
+    }
     for estimate in estimates:
         inputs = gesture_inputs(estimate)
         for name, m in analog.items():

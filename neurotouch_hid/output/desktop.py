@@ -33,8 +33,18 @@ MOUSE_PHYS = "neurotouch-hid/mouse"
 KEYBOARD_NAME = "NeuroTouch keyboard"
 MOUSE_NAME = "NeuroTouch mouse"
 #: Modifiers go down before, and up after, the other keys of a chord written in one report.
-MODIFIERS = frozenset({"KEY_LEFTSHIFT", "KEY_RIGHTSHIFT", "KEY_LEFTCTRL", "KEY_RIGHTCTRL", "KEY_LEFTALT",
-                       "KEY_RIGHTALT", "KEY_LEFTMETA", "KEY_RIGHTMETA"})
+MODIFIERS = frozenset(
+    {
+        "KEY_LEFTSHIFT",
+        "KEY_RIGHTSHIFT",
+        "KEY_LEFTCTRL",
+        "KEY_RIGHTCTRL",
+        "KEY_LEFTALT",
+        "KEY_RIGHTALT",
+        "KEY_LEFTMETA",
+        "KEY_RIGHTMETA",
+    }
+)
 
 
 @functools.cache
@@ -59,11 +69,20 @@ class _UinputDevice:
 
         self._ecodes = ecodes.ecodes
         try:
-            self._ui = UInput(capabilities, name=name, vendor=0, product=0,
-                              version=1, bustype=ecodes.BUS_VIRTUAL, devnode=devnode, phys=phys)
+            self._ui = UInput(
+                capabilities,
+                name=name,
+                vendor=0,
+                product=0,
+                version=1,
+                bustype=ecodes.BUS_VIRTUAL,
+                devnode=devnode,
+                phys=phys,
+            )
         except (OSError, UInputError) as exc:
-            raise DeviceError(f"the kernel refused to create the virtual {what} on {devnode}: {exc}: "
-                              + uinput_help()) from None
+            raise DeviceError(
+                f"the kernel refused to create the virtual {what} on {devnode}: {exc}: " + uinput_help()
+            ) from None
         self.what = what
         self._down: frozenset[str] = frozenset()
         self._lock = threading.RLock()
@@ -136,8 +155,10 @@ class VirtualMouse(_UinputDevice):
     def __init__(self, devnode: str = "/dev/uinput") -> None:
         from evdev import ecodes
 
-        caps = {ecodes.EV_KEY: [ecodes.ecodes[b] for b in MOUSE_BUTTONS],
-                ecodes.EV_REL: [ecodes.ecodes[r] for r in MOUSE_REL]}
+        caps = {
+            ecodes.EV_KEY: [ecodes.ecodes[b] for b in MOUSE_BUTTONS],
+            ecodes.EV_REL: [ecodes.ecodes[r] for r in MOUSE_REL],
+        }
         super().__init__("mouse", caps, MOUSE_NAME, MOUSE_PHYS, devnode)
 
     def write(self, state: ControllerState) -> None:

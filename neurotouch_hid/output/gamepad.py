@@ -94,10 +94,12 @@ def capabilities() -> dict[int, list]:
     absinfo = []
     for name, (lo, hi, _neutral) in AXES.items():
         fuzz, flat = (STICK_FUZZ, STICK_FLAT) if name in _STICKS else (0, 0)
-        absinfo.append((ecodes.ecodes[name], AbsInfo(value=0, min=lo, max=hi, fuzz=fuzz,
-                                                            flat=flat, resolution=0)))
-    return {ecodes.EV_KEY: [ecodes.ecodes[name] for name in BUTTONS], ecodes.EV_ABS: absinfo,
-            ecodes.EV_FF: [ecodes.FF_RUMBLE]}
+        absinfo.append((ecodes.ecodes[name], AbsInfo(value=0, min=lo, max=hi, fuzz=fuzz, flat=flat, resolution=0)))
+    return {
+        ecodes.EV_KEY: [ecodes.ecodes[name] for name in BUTTONS],
+        ecodes.EV_ABS: absinfo,
+        ecodes.EV_FF: [ecodes.FF_RUMBLE],
+    }
 
 
 def describe_effect(effect) -> str:
@@ -117,8 +119,7 @@ def describe_effect(effect) -> str:
 def normalised(state: ControllerState) -> ControllerState:
     """A full copy of ``state``: every axis of AXES clamped to its range (missing = neutral), every
     button of BUTTONS as a bool (missing = released); names outside the layout are dropped."""
-    axes = {name: min(max(int(state.axes.get(name, neutral)), lo), hi)
-            for name, (lo, hi, neutral) in AXES.items()}
+    axes = {name: min(max(int(state.axes.get(name, neutral)), lo), hi) for name, (lo, hi, neutral) in AXES.items()}
     buttons = {name: bool(state.buttons.get(name, False)) for name in BUTTONS}
     return ControllerState(t_us=state.t_us, axes=axes, buttons=buttons)
 
@@ -169,8 +170,13 @@ class VirtualGamepad:
             commands that fix it.
     """
 
-    def __init__(self, identity: GamepadIdentity | None = None, devnode: str = "/dev/uinput", *,
-                 on_effect: Callable[[str], None] | None = None) -> None:
+    def __init__(
+        self,
+        identity: GamepadIdentity | None = None,
+        devnode: str = "/dev/uinput",
+        *,
+        on_effect: Callable[[str], None] | None = None,
+    ) -> None:
         self.identity = identity or GamepadIdentity()
         self.on_effect = on_effect or (lambda line: log.info("rumble (the gel has no motor): %s", line))
         if not 0 < len(self.identity.name.encode()) <= _NAME_MAX:
@@ -182,13 +188,21 @@ class VirtualGamepad:
 
         self._ecodes = ecodes.ecodes
         try:
-            self._ui = UInput(capabilities(), name=self.identity.name,
-                              vendor=self.identity.vendor, product=self.identity.product,
-                              version=self.identity.version, bustype=self.identity.bustype,
-                              devnode=devnode, phys=PHYS, max_effects=MAX_EFFECTS)
+            self._ui = UInput(
+                capabilities(),
+                name=self.identity.name,
+                vendor=self.identity.vendor,
+                product=self.identity.product,
+                version=self.identity.version,
+                bustype=self.identity.bustype,
+                devnode=devnode,
+                phys=PHYS,
+                max_effects=MAX_EFFECTS,
+            )
         except (OSError, UInputError) as exc:
-            raise DeviceError(f"the kernel refused to create the virtual gamepad on {devnode}: "
-                              f"{exc}: " + uinput_help()) from None
+            raise DeviceError(
+                f"the kernel refused to create the virtual gamepad on {devnode}: {exc}: " + uinput_help()
+            ) from None
         self._lock = threading.RLock()
         self._last: ControllerState | None = None
         self._closed = False
@@ -270,8 +284,7 @@ class VirtualGamepad:
             ev_abs, ev_key = self._ecodes["EV_ABS"], self._ecodes["EV_KEY"]
             try:
                 for name, value in events:
-                    self._ui.write(ev_abs if name.startswith("ABS_") else ev_key,
-                                   self._ecodes[name], value)
+                    self._ui.write(ev_abs if name.startswith("ABS_") else ev_key, self._ecodes[name], value)
                 self._ui.syn()
             except OSError as exc:
                 raise DeviceError(f"writing to the virtual gamepad failed: {exc}") from None

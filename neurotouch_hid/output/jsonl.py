@@ -40,15 +40,17 @@ class StateJsonlWriter(JsonlWriter):
     def write(self, state: ControllerState, estimate: GestureEstimate | None = None) -> None:
         """Write ``state`` (with the estimate's gesture and intensity) as one line."""
         self._t_us = int(state.t_us)
-        self.write_dict({
-            "t_us": int(state.t_us),
-            "gesture": (estimate.gesture if estimate is not None else GestureType.NONE).value,
-            "intensity_mm": round(float(estimate.intensity_mm), 4) if estimate is not None else 0.0,
-            "axes": {name: int(v) for name, v in state.axes.items()},
-            "buttons": {name: bool(v) for name, v in state.buttons.items()},
-            "keys": sorted(state.keys),
-            "rel": {name: int(v) for name, v in state.rel.items()},
-        })
+        self.write_dict(
+            {
+                "t_us": int(state.t_us),
+                "gesture": (estimate.gesture if estimate is not None else GestureType.NONE).value,
+                "intensity_mm": round(float(estimate.intensity_mm), 4) if estimate is not None else 0.0,
+                "axes": {name: int(v) for name, v in state.axes.items()},
+                "buttons": {name: bool(v) for name, v in state.buttons.items()},
+                "keys": sorted(state.keys),
+                "rel": {name: int(v) for name, v in state.rel.items()},
+            }
+        )
 
     def prepare(self, profile: Any) -> None:
         """Nothing to get ready: every profile's states are written alike

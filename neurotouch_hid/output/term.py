@@ -31,9 +31,17 @@ if TYPE_CHECKING:  # the runtime hands its live counters; no import at run time 
 
 #: evdev button -> label on the pad.
 BUTTON_LABELS: dict[str, str] = {
-    "BTN_SOUTH": "A", "BTN_EAST": "B", "BTN_NORTH": "X", "BTN_WEST": "Y",
-    "BTN_TL": "LB", "BTN_TR": "RB", "BTN_SELECT": "Back", "BTN_START": "Start",
-    "BTN_MODE": "Guide", "BTN_THUMBL": "LS", "BTN_THUMBR": "RS",
+    "BTN_SOUTH": "A",
+    "BTN_EAST": "B",
+    "BTN_NORTH": "X",
+    "BTN_WEST": "Y",
+    "BTN_TL": "LB",
+    "BTN_TR": "RB",
+    "BTN_SELECT": "Back",
+    "BTN_START": "Start",
+    "BTN_MODE": "Guide",
+    "BTN_THUMBL": "LS",
+    "BTN_THUMBR": "RS",
 }
 
 STICK_COLUMNS = 11
@@ -97,11 +105,13 @@ def state_line(state: ControllerState, estimate: GestureEstimate | None, stats: 
     a = state.axes
     pressed = ",".join(BUTTON_LABELS[n] for n in BUTTON_LABELS if state.buttons.get(n)) or "-"
     gesture = f"{estimate.gesture.value} {estimate.intensity_mm:.2f} mm" if estimate is not None else "none"
-    line = (f"t {state.t_us / 1e6:8.3f} s | {gesture:<16} | "
-            f"L({axis_fraction('ABS_X', a['ABS_X']):+.2f},{axis_fraction('ABS_Y', a['ABS_Y']):+.2f}) "
-            f"R({axis_fraction('ABS_RX', a['ABS_RX']):+.2f},{axis_fraction('ABS_RY', a['ABS_RY']):+.2f}) "
-            f"LT {a['ABS_Z']:3d} RT {a['ABS_RZ']:3d} hat({a['ABS_HAT0X']:+d},{a['ABS_HAT0Y']:+d}) "
-            f"buttons {pressed}")
+    line = (
+        f"t {state.t_us / 1e6:8.3f} s | {gesture:<16} | "
+        f"L({axis_fraction('ABS_X', a['ABS_X']):+.2f},{axis_fraction('ABS_Y', a['ABS_Y']):+.2f}) "
+        f"R({axis_fraction('ABS_RX', a['ABS_RX']):+.2f},{axis_fraction('ABS_RY', a['ABS_RY']):+.2f}) "
+        f"LT {a['ABS_Z']:3d} RT {a['ABS_RZ']:3d} hat({a['ABS_HAT0X']:+d},{a['ABS_HAT0Y']:+d}) "
+        f"buttons {pressed}"
+    )
     if state.keys or state.rel:  # the keyboard and mouse, when the profile drives them
         line += f" keys {','.join(sorted(state.keys)) or '-'}"
         line += "".join(f" {name} {value:+d}" for name, value in state.rel.items())
@@ -124,8 +134,14 @@ class TermView:
     #: The runtime hands this output each window's estimate too (gesture and intensity line).
     accepts_estimate = True
 
-    def __init__(self, console: Console | None = None, *, stats: Optional["RunStats"] = None,
-                 line_period_s: float = 1.0, refresh_per_second: float = 20.0):
+    def __init__(
+        self,
+        console: Console | None = None,
+        *,
+        stats: Optional["RunStats"] = None,
+        line_period_s: float = 1.0,
+        refresh_per_second: float = 20.0,
+    ):
         self.console = console or Console()
         self.stats = stats
         self._state = ControllerState.neutral()
@@ -197,8 +213,10 @@ class TermView:
         if estimate is None:
             gesture = Text("gesture none", style="dim")
         else:
-            gesture = Text(f"gesture {estimate.gesture.value:<10} intensity {estimate.intensity_mm:5.2f} mm"
-                           f"  contacts {estimate.n_contacts}  {'resting' if estimate.resting else 'deformed'}")
+            gesture = Text(
+                f"gesture {estimate.gesture.value:<10} intensity {estimate.intensity_mm:5.2f} mm"
+                f"  contacts {estimate.n_contacts}  {'resting' if estimate.resting else 'deformed'}"
+            )
         desktop = Text()
         if state.keys or state.rel:  # the keyboard and mouse, when the profile drives them
             desktop.append("keys ", style="bold")
@@ -209,9 +227,10 @@ class TermView:
         counters = Text(f"t {state.t_us / 1e6:.3f} s", style="dim")
         if self.stats is not None:
             s = self.stats
-            counters.append(f"   windows {s.windows}   dropped {s.dropped_items} items"
-                            f" ({s.dropped_events} events, {s.dropped_frames} frames)",
-                            style="bold red" if s.dropped_items else "dim")
+            counters.append(
+                f"   windows {s.windows}   dropped {s.dropped_items} items"
+                f" ({s.dropped_events} events, {s.dropped_frames} frames)",
+                style="bold red" if s.dropped_items else "dim",
+            )
         rows = [pad, Text(""), buttons_text(state.buttons), *([desktop] if desktop else []), gesture, counters]
-        return Panel(Group(*rows),
-                     title="NeuroTouch gamepad", expand=False)
+        return Panel(Group(*rows), title="NeuroTouch gamepad", expand=False)

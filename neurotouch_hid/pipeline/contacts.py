@@ -81,7 +81,10 @@ HOMOGRAPHY_METHODS = {"ransac": cv2.RANSAC, "usac_fast": cv2.USAC_FAST}
 
 
 def homography_outliers(
-    rest_px: np.ndarray, current_px: np.ndarray, reproj_threshold_px: float, max_iters: int = 2000,
+    rest_px: np.ndarray,
+    current_px: np.ndarray,
+    reproj_threshold_px: float,
+    max_iters: int = 2000,
     method: str = "usac_fast",
 ) -> np.ndarray:
     """RANSAC homography rest -> current; the markers it rejects (paper, "Contact Point Detection").
@@ -212,7 +215,9 @@ def _refine_peak(rest: np.ndarray, v: np.ndarray, norms: np.ndarray, peak: int, 
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _fit_inputs(rest: np.ndarray, v: np.ndarray, norms: np.ndarray, peak: int, r2: float) -> tuple[np.ndarray, np.ndarray]:
+def _fit_inputs(
+    rest: np.ndarray, v: np.ndarray, norms: np.ndarray, peak: int, r2: float
+) -> tuple[np.ndarray, np.ndarray]:
     """The least-squares system of :func:`_refine_peak`: for the markers whose rest position is
     within squared distance ``r2`` (px^2) of the peak's (in index order), the design rows
     ``(1, x, y, x^2, y^2, x y)`` (x, y relative to the peak's rest position, px) and the values

@@ -187,7 +187,9 @@ def _weighted_mean(norms: np.ndarray, current_px: np.ndarray, contacts_px: np.nd
     return total / weight_sum
 
 
-def fit_similarity(rest_px: np.ndarray, current_px: np.ndarray, origin_px: np.ndarray, reproj_threshold_px: float) -> Similarity:
+def fit_similarity(
+    rest_px: np.ndarray, current_px: np.ndarray, origin_px: np.ndarray, reproj_threshold_px: float
+) -> Similarity:
     """Fit a 4-DoF similarity rest -> current about ``origin_px`` with RANSAC.
 
     Args:
@@ -205,13 +207,17 @@ def fit_similarity(rest_px: np.ndarray, current_px: np.ndarray, origin_px: np.nd
     dst = np.ascontiguousarray(np.asarray(current_px, dtype=np.float64) - o, dtype=np.float32)
     matrix = None
     if len(src) >= 2:
-        matrix, _ = cv2.estimateAffinePartial2D(src, dst, method=cv2.RANSAC, ransacReprojThreshold=float(reproj_threshold_px))
+        matrix, _ = cv2.estimateAffinePartial2D(
+            src, dst, method=cv2.RANSAC, ransacReprojThreshold=float(reproj_threshold_px)
+        )
     if matrix is None:
         mean = (dst.astype(np.float64) - src).mean(axis=0) if len(src) else np.zeros(2)
         return Similarity(translation_px=mean)
     scale = math.hypot(matrix[0, 0], matrix[1, 0])
     theta = math.atan2(matrix[1, 0], matrix[0, 0])
-    return Similarity(scale=scale, rotation_rad=theta, translation_px=np.array([matrix[0, 2], matrix[1, 2]], dtype=np.float64))
+    return Similarity(
+        scale=scale, rotation_rad=theta, translation_px=np.array([matrix[0, 2], matrix[1, 2]], dtype=np.float64)
+    )
 
 
 def classify(

@@ -33,8 +33,9 @@ On numpy batches (recordings, the simulated gel, ``track``, ``eval``) the backgr
 filter runs as a numba kernel instead (:func:`background_activity_keep`) that keeps exactly the
 events dv-processing's ``BackgroundActivityNoiseFilter`` keeps on the same input (its rule
 and time surface, re-implemented; ``tests/test_noise_filter.py`` compares the two on the street
-recording and on simulated gels with noise), without the copies: 4-7x faster than the copies and the library (docs/performance.md, "Event path at the
-camera's full rate"). The other two filters still go through the library and its copies.
+recording and on simulated gels with noise), without the copies: 4-7x faster than the copies
+and the library (docs/performance.md, "Event path at the camera's full rate"). The other two
+filters still go through the library and its copies.
 """
 
 from __future__ import annotations
@@ -128,8 +129,10 @@ def background_activity_keep(events, surface, duration_us, keep):
         up = surface[y - 1]
         row = surface[y]
         down = surface[y + 1]
-        newest = max(max(max(up[x - 1], up[x]), max(up[x + 1], row[x - 1])),
-                     max(max(row[x + 1], down[x - 1]), max(down[x], down[x + 1])))
+        newest = max(
+            max(max(up[x - 1], up[x]), max(up[x + 1], row[x - 1])),
+            max(max(row[x + 1], down[x - 1]), max(down[x], down[x + 1])),
+        )
         supported = t - newest < duration_us
         row[x] = t
         keep[i] = supported

@@ -96,8 +96,8 @@ class PipelineConfig(BaseModel):
     - ``chamfer_threshold`` 0.4 (paper 2.5) with ``chamfer_per_marker`` on: our Chamfer
       distance is normalised per reference marker (the sum of squared nearest distances over both
       marker-pixel sets divided by the number of reference markers, px^2, ``resting.py``), not
-      the paper's raw sum, so the paper's 2.5 is on another scale; per APS frame, resting F1 97.5 % at 0.4 against 92.0 % at
-      2.5; the detector's own rest noise is ~0.4, so 0.2 fails (51 %).
+      the paper's raw sum, so the paper's 2.5 is on another scale; per APS frame, resting F1
+      97.5 % at 0.4 against 92.0 % at 2.5; the detector's own rest noise is ~0.4, so 0.2 fails (51 %).
     - ``min_intensity_px`` 0.3 (was 0.5, not in the paper): gesture accuracy +0.1 point.
     - ``intensity_sigma_px`` 3 (paper: uniform mean over A): intensity MAE 1.36 -> 0.28 mm.
     - ``field_fallback`` on: gesture accuracy +1.8 points (wide multi-finger pushes).
@@ -242,7 +242,9 @@ class PipelineConfig(BaseModel):
         if self.window_us < MIN_WINDOW_US:
             raise ValueError(f"window_us must be at least {MIN_WINDOW_US} us, got {self.window_us}")
         if self.homography_method not in HOMOGRAPHY_METHODS:
-            raise ValueError(f"homography_method must be one of {', '.join(HOMOGRAPHY_METHODS)}, got {self.homography_method!r}")
+            raise ValueError(
+                f"homography_method must be one of {', '.join(HOMOGRAPHY_METHODS)}, got {self.homography_method!r}"
+            )
         check_noise_filter(self.noise_filter, self.noise_filter_us)
         for name in ("intensity_sigma_px", "contact_refine_px", "motion_override_px", "origin_radius_px"):
             value = getattr(self, name)
@@ -253,7 +255,9 @@ class PipelineConfig(BaseModel):
         if self.reference_attempts < 1:
             raise ValueError(f"reference_attempts must be >= 1, got {self.reference_attempts}")
         if self.r_px <= 0 or self.a <= 0 or self.n_min < 1:
-            raise ValueError(f"r_px and a must be positive and n_min >= 1, got r_px={self.r_px}, a={self.a}, n_min={self.n_min}")
+            raise ValueError(
+                f"r_px and a must be positive and n_min >= 1, got r_px={self.r_px}, a={self.a}, n_min={self.n_min}"
+            )
         return self
 
 
@@ -267,11 +271,22 @@ class PipelineConfig(BaseModel):
 PIPELINE_PRESETS: dict[str, dict[str, object]] = {
     "default": {},
     "paper": {
-        "r_px": 30.0, "a": 0.6, "n_min": 4, "chamfer_threshold": 2.5, "chamfer_per_marker": False,
-        "min_intensity_px": 0.0, "gesture_reproj_factor": 0.6, "intensity_sigma_px": None,
-        "field_fallback": False, "contact_refine_px": None, "origin_radius_px": None,
-        "motion_override_px": None, "noise_filter": None, "rest_match_pitch": None,
-        "follow_px_per_mm": False, "episode_vote": False,
+        "r_px": 30.0,
+        "a": 0.6,
+        "n_min": 4,
+        "chamfer_threshold": 2.5,
+        "chamfer_per_marker": False,
+        "min_intensity_px": 0.0,
+        "gesture_reproj_factor": 0.6,
+        "intensity_sigma_px": None,
+        "field_fallback": False,
+        "contact_refine_px": None,
+        "origin_radius_px": None,
+        "motion_override_px": None,
+        "noise_filter": None,
+        "rest_match_pitch": None,
+        "follow_px_per_mm": False,
+        "episode_vote": False,
     },
 }
 
@@ -281,10 +296,25 @@ PIPELINE_PRESETS: dict[str, dict[str, object]] = {
 REFERENCE_PX_PER_MM = 2.5
 #: Pixel settings that are lengths (scale with px_per_mm), and tracker settings that are squared
 #: lengths or squared velocities (scale with its square).
-_PX_FIELDS = ("r_px", "min_intensity_px", "min_gesture_reproj_px", "intensity_sigma_px", "contact_refine_px",
-              "origin_radius_px", "motion_override_px")
-_TRACKER_PX = ("sigma_px", "assoc_px", "max_step_px", "frame_gate_px", "frame_sigma_px", "merge_px", "gel_margin_px",
-               "max_offset_px")
+_PX_FIELDS = (
+    "r_px",
+    "min_intensity_px",
+    "min_gesture_reproj_px",
+    "intensity_sigma_px",
+    "contact_refine_px",
+    "origin_radius_px",
+    "motion_override_px",
+)
+_TRACKER_PX = (
+    "sigma_px",
+    "assoc_px",
+    "max_step_px",
+    "frame_gate_px",
+    "frame_sigma_px",
+    "merge_px",
+    "gel_margin_px",
+    "max_offset_px",
+)
 _TRACKER_PX2 = ("q_pos", "q_vel", "q_offset", "p0_pos", "p0_vel", "p0_offset")
 
 
@@ -303,7 +333,9 @@ def scaled_to_sensor(config: PipelineConfig, sensor: SensorGeometry) -> Pipeline
         return config
     changes = {name: getattr(config, name) * k for name in _PX_FIELDS if getattr(config, name) is not None}
     t = config.tracker
-    tracker = t.model_copy(update={**{n: getattr(t, n) * k for n in _TRACKER_PX}, **{n: getattr(t, n) * k * k for n in _TRACKER_PX2}})
+    tracker = t.model_copy(
+        update={**{n: getattr(t, n) * k for n in _TRACKER_PX}, **{n: getattr(t, n) * k * k for n in _TRACKER_PX2}}
+    )
     return config.model_copy(update={"tracker": tracker, **changes})
 
 
@@ -512,8 +544,11 @@ class GesturePipeline:
         previous, self._previous_points = self._previous_points, points
         if _off_layout(np.asarray(layout, dtype=np.float64).reshape(-1, 2), points, tol) <= 0.05:
             return True
-        return (self.pressed_frames >= RESUME_MATCH_FRAMES and previous is not None
-                and _off_layout(previous, points, tol) <= 0.05)
+        return (
+            self.pressed_frames >= RESUME_MATCH_FRAMES
+            and previous is not None
+            and _off_layout(previous, points, tol) <= 0.05
+        )
 
     def _initialise(self, frame: Frame) -> None:
         markers = detect_markers(frame.image, self.sensor, self.config.marker_threshold)
@@ -534,7 +569,10 @@ class GesturePipeline:
             self.rest_px, self.sensor.width, self.sensor.height, self.config.tracker, sensor=self.sensor
         )
         self.resting_detector = RestingDetector(
-            frame.image, self.sensor, self.config.chamfer_threshold, self.config.marker_threshold,
+            frame.image,
+            self.sensor,
+            self.config.chamfer_threshold,
+            self.config.marker_threshold,
             per_marker=self.config.chamfer_per_marker,
         )
         self._resting = RestingResult(True, 0.0)
@@ -548,8 +586,13 @@ class GesturePipeline:
         if self._resume_waited <= RESUME_MATCH_FRAMES or previous is None:
             return False
         try:
-            still = RestingDetector(previous.image, self.sensor, self.config.chamfer_threshold,
-                                    self.config.marker_threshold, per_marker=self.config.chamfer_per_marker)
+            still = RestingDetector(
+                previous.image,
+                self.sensor,
+                self.config.chamfer_threshold,
+                self.config.marker_threshold,
+                per_marker=self.config.chamfer_per_marker,
+            )
         except SensorError:  # the frame before shows no marker at all
             return False
         return still.update(frame).resting
@@ -660,8 +703,12 @@ class GesturePipeline:
         homography (both stages are deterministic functions of these inputs; OpenCV's RANSAC
         and USAC draw from fixed seeds, so the predictions are byte-identical)."""
         last = self._last_fit
-        if (last is not None and last[0] is rest_px and np.array_equal(last[1], current)
-                and np.array_equal(last[2], valid)):
+        if (
+            last is not None
+            and last[0] is rest_px
+            and np.array_equal(last[1], current)
+            and np.array_equal(last[2], valid)
+        ):
             begin = self._clock()
             self._record("contacts", begin)
             self._record("gesture", begin)
@@ -675,8 +722,16 @@ class GesturePipeline:
         c = self.config
         begin = self._clock()
         contacts = detect_contacts(
-            rest_px, current, valid, r_px=c.r_px, a=c.a, n_min=c.n_min, max_iters=c.homography_max_iters,
-            method=c.homography_method, field_fallback=c.field_fallback, refine_px=c.contact_refine_px,
+            rest_px,
+            current,
+            valid,
+            r_px=c.r_px,
+            a=c.a,
+            n_min=c.n_min,
+            max_iters=c.homography_max_iters,
+            method=c.homography_method,
+            field_fallback=c.field_fallback,
+            refine_px=c.contact_refine_px,
         )
         self._record("contacts", begin)
         begin = self._clock()

@@ -90,7 +90,9 @@ class RestingDetector:
         self._gel = np.ascontiguousarray(sensor.gel_mask()[self._roi])
         ref = self._check(reference)
         if binary_threshold is None:
-            level, _ = cv2.threshold(ref[self._roi][self._gel > 0].reshape(-1, 1), 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
+            level, _ = cv2.threshold(
+                ref[self._roi][self._gel > 0].reshape(-1, 1), 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU
+            )
             binary_threshold = int(level)
         self.binary_threshold = int(binary_threshold)
         ref_mask = self.marker_mask(ref)

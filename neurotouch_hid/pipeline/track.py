@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
+from neurotouch_hid.dataset import PredictionsWriter
 from neurotouch_hid.errors import RecordingError, SensorError
 from neurotouch_hid.estimate import GestureEstimate
-from neurotouch_hid.dataset import PredictionsWriter
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import Frame, StreamItem
@@ -131,7 +131,8 @@ def track_recording(
         recording: AEDAT4 file with events and APS frames of ``sensor``'s resolution.
         out: predictions file to write (docs/dataset.md).
         sensor: the geometry (e.g. :func:`neurotouch_hid.sensor.find_sensor_file`).
-        config: pipeline thresholds (window length included); None = PipelineConfig()'s tuned defaults (not the paper's: --preset paper).
+        config: pipeline thresholds (window length included); None = PipelineConfig()'s tuned
+            defaults (not the paper's: --preset paper).
         markers_out: if given, also write the tracked marker positions at each window's end
             (``.npz``, see the module docstring).
         on_progress: see :func:`pipeline_over`.

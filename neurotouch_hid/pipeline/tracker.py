@@ -123,8 +123,23 @@ class TrackerConfig(BaseModel):
 
 
 # Indices into the float parameter vector handed to the numba kernel.
-(_P_SIGMA2, _P_QPOS, _P_QVEL, _P_QOFF, _P_TAUV, _P_TAUR, _P_MINRATE, _P_MERGE2, _P_CX, _P_CY, _P_R2, _P_ASSOC2, _P_MAXSTEP,
- _P_MAXOFF2, _P_MAXGAP) = range(15)
+(
+    _P_SIGMA2,
+    _P_QPOS,
+    _P_QVEL,
+    _P_QOFF,
+    _P_TAUV,
+    _P_TAUR,
+    _P_MINRATE,
+    _P_MERGE2,
+    _P_CX,
+    _P_CY,
+    _P_R2,
+    _P_ASSOC2,
+    _P_MAXSTEP,
+    _P_MAXOFF2,
+    _P_MAXGAP,
+) = range(15)
 # Columns of the per-blob state: position, velocity (px/ms), polarity offset (px).
 _PX, _PY, _VX, _VY, _QX, _QY = range(6)
 # Columns of the shared per-axis covariance [p, v, q]: P00 P01 P02 P11 P12 P22.
@@ -214,8 +229,9 @@ def _repaint(i, cell, label, offs, n_offs, neigh, valid, state, assoc2):
             cell[i, pol, 1] = ny
             if -1 <= sx <= 1 and -1 <= sy <= 1:
                 r = (sx + 1) * 3 + (sy + 1)
-                _release(i, pol, ox, oy, offs[1 + r], n_offs[1 + r], _FAR, _FAR, cell, label, neigh, valid, state,
-                         assoc2)
+                _release(
+                    i, pol, ox, oy, offs[1 + r], n_offs[1 + r], _FAR, _FAR, cell, label, neigh, valid, state, assoc2
+                )
             else:
                 _release(i, pol, ox, oy, offs[0], n_offs[0], nx, ny, cell, label, neigh, valid, state, assoc2)
             _claim(i, pol, nx, ny, offs[0], n_offs[0], label, state)
@@ -226,8 +242,22 @@ def _lose(i, cell, label, offs, n_offs, neigh, valid, state, assoc2):
     """Mark blob ``i`` lost and hand its pixels to its neighbours."""
     valid[i] = False
     for pol in range(2):
-        _release(i, pol, cell[i, pol, 0], cell[i, pol, 1], offs[0], n_offs[0], _FAR, _FAR, cell, label, neigh, valid,
-                 state, assoc2)
+        _release(
+            i,
+            pol,
+            cell[i, pol, 0],
+            cell[i, pol, 1],
+            offs[0],
+            n_offs[0],
+            _FAR,
+            _FAR,
+            cell,
+            label,
+            neigh,
+            valid,
+            state,
+            assoc2,
+        )
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -406,8 +436,18 @@ def _correct(det, match, t, state, cov, t_upd, valid, cell, label, offs, n_offs,
         if m < 0 or not valid[i]:
             continue
         if t >= 0 and t_upd[i] >= 0:
-            _predict(state, cov, i, max(t - t_upd[i], 0) * 1e-3, 1.0 / prm[_P_TAUV], prm[_P_MAXSTEP] ** 2,
-                     prm[_P_QPOS], prm[_P_QVEL], prm[_P_QOFF], prm[_P_MAXGAP])
+            _predict(
+                state,
+                cov,
+                i,
+                max(t - t_upd[i], 0) * 1e-3,
+                1.0 / prm[_P_TAUV],
+                prm[_P_MAXSTEP] ** 2,
+                prm[_P_QPOS],
+                prm[_P_QVEL],
+                prm[_P_QOFF],
+                prm[_P_MAXGAP],
+            )
             t_upd[i] = t
         vx = state[i, _VX]
         vy = state[i, _VY]
@@ -604,8 +644,23 @@ class BlobTracker:
         match = np.where(ok, nearest, -1).astype(np.int64)
         c = self.config
         t = -1 if t_us is None else int(t_us)
-        _correct(det, match, t, self._state, self._cov, self._t_upd, self._valid, self._cell, self._label, self._offs,
-                 self._n_offs, self._neigh, self._params, c.frame_sigma_px**2, c.frame_motion_us * 1e-3)
+        _correct(
+            det,
+            match,
+            t,
+            self._state,
+            self._cov,
+            self._t_upd,
+            self._valid,
+            self._cell,
+            self._label,
+            self._offs,
+            self._n_offs,
+            self._neigh,
+            self._params,
+            c.frame_sigma_px**2,
+            c.frame_motion_us * 1e-3,
+        )
         return int(ok.sum())
 
     def update(self, events: np.ndarray) -> None:
@@ -640,7 +695,9 @@ class BlobTracker:
             self._params,
             self._counts,
         )
-        _check_lost(self._cell, self._label, self._offs, self._n_offs, self._neigh, self._valid, self._state, self._params)
+        _check_lost(
+            self._cell, self._label, self._offs, self._n_offs, self._neigh, self._valid, self._state, self._params
+        )
 
     @property
     def positions_px(self) -> np.ndarray:

@@ -125,7 +125,9 @@ def render_view(
     out = Path(out)
     suffix = out.suffix.lower()
     if suffix not in VIEW_SUFFIXES:
-        raise NeurotouchError(f"{out}: the view is written as {', '.join(VIEW_SUFFIXES)}, not {out.suffix or 'no suffix'!r}")
+        raise NeurotouchError(
+            f"{out}: the view is written as {', '.join(VIEW_SUFFIXES)}, not {out.suffix or 'no suffix'!r}"
+        )
     pipeline = GesturePipeline(sensor, config)
     recent: deque[np.ndarray] = deque()
     latest: GestureEstimate | None = None

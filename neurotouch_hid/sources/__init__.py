@@ -36,7 +36,7 @@ class StatusKind(StrEnum):
     """What changed in a live source (:class:`SourceStatus`)."""
 
     WAITING = "waiting"  #: no camera yet, waiting for one
-    LOST = "lost"        #: unplugged, stalled or failing: no data follows until RESUMED
+    LOST = "lost"  #: unplugged, stalled or failing: no data follows until RESUMED
     RESUMED = "resumed"  #: a camera delivers data again (a new session; its clock may have restarted)
 
 

@@ -89,13 +89,16 @@ class DavisConfig:
         if self.frame_interval_us <= 0:
             raise ValueError(f"frame interval must be positive, got {self.frame_interval_us} us")
         if self.exposure_us is not None and not 0 < self.exposure_us <= self.frame_interval_us:
-            raise ValueError(f"exposure must be positive and at most the frame interval "
-                             f"({self.frame_interval_us} us), got {self.exposure_us} us")
+            raise ValueError(
+                f"exposure must be positive and at most the frame interval "
+                f"({self.frame_interval_us} us), got {self.exposure_us} us"
+            )
         if self.stall_timeout_s <= 0:
             raise ValueError(f"stall timeout must be positive, got {self.stall_timeout_s} s")
         if not 0 < self.retry_initial_s <= self.retry_max_s:
-            raise ValueError(f"retry back-off needs 0 < initial <= maximum, got {self.retry_initial_s} s "
-                             f"and {self.retry_max_s} s")
+            raise ValueError(
+                f"retry back-off needs 0 < initial <= maximum, got {self.retry_initial_s} s and {self.retry_max_s} s"
+            )
 
 
 def backoff_delays(initial_s: float, maximum_s: float) -> Iterator[float]:
@@ -137,8 +140,9 @@ class DavisSource:
     Use as a context manager (or call :meth:`close`) to release the camera.
     """
 
-    def __init__(self, config: DavisConfig | None = None, *, wait: bool = False, backend: Any = None,
-                 noise_filter: Any = None) -> None:
+    def __init__(
+        self, config: DavisConfig | None = None, *, wait: bool = False, backend: Any = None, noise_filter: Any = None
+    ) -> None:
         if backend is None:
             import dv_processing as dv
 
@@ -192,8 +196,10 @@ class DavisSource:
             resolution = camera.getEventResolution()
             size = (int(resolution[0]), int(resolution[1])) if resolution else (0, 0)
             if size != DAVIS346_RESOLUTION:
-                problems.append(f"{camera.getCameraName()} is {size[0]}x{size[1]} px, not a DAVIS-346 "
-                                f"({DAVIS346_RESOLUTION[0]}x{DAVIS346_RESOLUTION[1]})")
+                problems.append(
+                    f"{camera.getCameraName()} is {size[0]}x{size[1]} px, not a DAVIS-346 "
+                    f"({DAVIS346_RESOLUTION[0]}x{DAVIS346_RESOLUTION[1]})"
+                )
                 continue
             self._configure(camera)
             self._camera = camera
@@ -241,8 +247,9 @@ class DavisSource:
             items.append(events_from_store(store))
         return items, None
 
-    def stream(self, seconds: float | None = None, batch_us: int = 1000, *,
-               reconnect: bool = False) -> Iterator[StreamItem]:
+    def stream(
+        self, seconds: float | None = None, batch_us: int = 1000, *, reconnect: bool = False
+    ) -> Iterator[StreamItem]:
         """Event batches and APS frames as the camera delivers them, until ``seconds`` have passed.
 
         Yields the same kinds of items as :meth:`RecordingReader.stream`: event batches (EVENT_DTYPE,
@@ -274,7 +281,9 @@ class DavisSource:
                 self._open_or_raise()
             else:
                 lost_since = time.monotonic()
-                yield SourceStatus(StatusKind.WAITING, f"waiting for a DAVIS-346 ({_fix_hint(cfg.serial)}); Ctrl-C stops")
+                yield SourceStatus(
+                    StatusKind.WAITING, f"waiting for a DAVIS-346 ({_fix_hint(cfg.serial)}); Ctrl-C stops"
+                )
         last_data = time.monotonic()
         while remaining() > 0:
             if self._camera is None:  # in an outage: try again after the back-off
@@ -287,8 +296,11 @@ class DavisSource:
             if items:
                 if lost_since is not None:
                     what = "found" if never_opened else "is back"
-                    yield SourceStatus(StatusKind.RESUMED, f"camera {self.camera_name} {what} after {now - lost_since:.1f} s; "
-                                                  "the markers are initialised on the first APS frame at rest")
+                    yield SourceStatus(
+                        StatusKind.RESUMED,
+                        f"camera {self.camera_name} {what} after {now - lost_since:.1f} s; "
+                        "the markers are initialised on the first APS frame at rest",
+                    )
                     never_opened = False
                     lost_since = None
                     delays = backoff_delays(cfg.retry_initial_s, cfg.retry_max_s)
@@ -307,10 +319,14 @@ class DavisSource:
             name = self.camera_name
             self.close()
             if not reconnect:
-                raise DeviceError(f"the DAVIS camera {name} {failure}: check its USB cable, then "
-                                  f"`neurotouch-hid devices`")
+                raise DeviceError(
+                    f"the DAVIS camera {name} {failure}: check its USB cable, then `neurotouch-hid devices`"
+                )
             if lost_since is None:  # a new outage (not a camera that stalled again right after reopening)
                 lost_since = now
-                yield SourceStatus(StatusKind.LOST, f"camera {name} {failure}: gamepad centred and released; "
-                                           f"trying to reopen it (back-off up to {cfg.retry_max_s:g} s)")
+                yield SourceStatus(
+                    StatusKind.LOST,
+                    f"camera {name} {failure}: gamepad centred and released; "
+                    f"trying to reopen it (back-off up to {cfg.retry_max_s:g} s)",
+                )
             time.sleep(max(0.0, min(next(delays), remaining())))

@@ -42,6 +42,7 @@ _SYSFS_USB = Path("/sys/bus/usb/devices")
 #: dv-processing's logger prefix ("[ERROR] usb_discovery: ").
 _DV_LOG_PREFIX = re.compile(r"^\[[A-Z]+\] \w+: ")
 
+
 class UsbAccess(StrEnum):
     """The pyusb probe's verdict on one camera's USB node (:attr:`UsbCamera.access`)."""
 
@@ -56,14 +57,14 @@ class CameraStatus(StrEnum):
     """Both views together (:attr:`Camera.status`): what pyusb and dv-processing say of a camera,
     most usable first."""
 
-    READY = "ready"                    #: accessible and listed by dv-processing: the live source can open it
-    NOT_IN_DV = "not-in-dv"            #: accessible, but dv-processing does not list it
+    READY = "ready"  #: accessible and listed by dv-processing: the live source can open it
+    NOT_IN_DV = "not-in-dv"  #: accessible, but dv-processing does not list it
     DV_UNAVAILABLE = "dv-unavailable"  #: accessible, but dv-processing could not list cameras at all
-    BUSY = "busy"                      #: another program (or a kernel driver) holds it
-    NO_ACCESS = "no-access"            #: permission denied: the udev rule
-    ERROR = "error"                    #: libusb could not open it for another reason
-    GONE = "gone"                      #: unplugged while being checked
-    OTHER_CAMERA = "other-camera"      #: dv-processing lists it, but it is not a 152a:841a device
+    BUSY = "busy"  #: another program (or a kernel driver) holds it
+    NO_ACCESS = "no-access"  #: permission denied: the udev rule
+    ERROR = "error"  #: libusb could not open it for another reason
+    GONE = "gone"  #: unplugged while being checked
+    OTHER_CAMERA = "other-camera"  #: dv-processing lists it, but it is not a 152a:841a device
 
 
 #: Most usable first (the enum's order): :func:`explain` talks about the best camera there is.
@@ -177,9 +178,18 @@ class Camera:
 
     def to_json(self) -> dict:
         """A JSON-able dict: bus, address, node, serial, status, ready, problem, fix, usb, dv."""
-        return {"bus": self.bus, "address": self.address, "node": self.node, "serial": self.serial,
-                "status": self.status, "ready": self.ready, "problem": self.problem, "fix": self.fix,
-                "usb": _json_usb(self.usb), "dv": asdict(self.dv) if self.dv else None}
+        return {
+            "bus": self.bus,
+            "address": self.address,
+            "node": self.node,
+            "serial": self.serial,
+            "status": self.status,
+            "ready": self.ready,
+            "problem": self.problem,
+            "fix": self.fix,
+            "usb": _json_usb(self.usb),
+            "dv": asdict(self.dv) if self.dv else None,
+        }
 
 
 @dataclass(frozen=True)
@@ -222,9 +232,14 @@ class Discovery:
     def to_json(self) -> dict:
         """``{"cameras": [...], "ready": N, "usb_error": ..., "dv_error": ..., "dv_log": [...],
         "message": ...}``; ``message`` is :meth:`summary`."""
-        return {"cameras": [c.to_json() for c in self.cameras], "ready": len(self.ready),
-                "usb_error": self.usb_error, "dv_error": self.dv_error, "dv_log": list(self.dv_log),
-                "message": self.summary()}
+        return {
+            "cameras": [c.to_json() for c in self.cameras],
+            "ready": len(self.ready),
+            "usb_error": self.usb_error,
+            "dv_error": self.dv_error,
+            "dv_log": list(self.dv_log),
+            "message": self.summary(),
+        }
 
 
 def _json_usb(usb: UsbCamera | None) -> dict | None:
@@ -255,8 +270,9 @@ def find_cameras() -> list:
 
     backend = libusb_package.get_libusb1_backend()
     if backend is None:
-        raise DeviceError("libusb-package has no libusb for this platform: "
-                          "python3 -m pip install --force-reinstall libusb-package")
+        raise DeviceError(
+            "libusb-package has no libusb for this platform: python3 -m pip install --force-reinstall libusb-package"
+        )
     try:
         return list(usb.core.find(idVendor=CAMERA_VID, idProduct=CAMERA_PID, find_all=True, backend=backend))
     except usb.core.USBError as exc:
@@ -366,8 +382,13 @@ def probe_usb(device) -> UsbCamera:
             port = f"{bus}-{'.'.join(str(p) for p in ports)}" if ports else None
         except (usb.core.USBError, NotImplementedError, AttributeError):
             port = None
-    base = dict(bus=bus, address=address, node=node, port=port,
-                speed_mbps=float(speed) if speed and speed.replace(".", "", 1).isdigit() else None)
+    base = dict(
+        bus=bus,
+        address=address,
+        node=node,
+        port=port,
+        speed_mbps=float(speed) if speed and speed.replace(".", "", 1).isdigit() else None,
+    )
 
     def verdict(access: UsbAccess, reason: str = "", holders: tuple[str, ...] = ()) -> UsbCamera:
         return UsbCamera(**base, **strings, access=access, reason=reason, holders=holders)
@@ -393,8 +414,9 @@ def probe_usb(device) -> UsbCamera:
     except usb.core.USBError as exc:
         code = exc.errno
         if code == errno.EACCES:
-            return verdict(UsbAccess.DENIED, f"permission denied by libusb on {node} ({exc.strerror}), "
-                           f"this user is {_whoami()}")
+            return verdict(
+                UsbAccess.DENIED, f"permission denied by libusb on {node} ({exc.strerror}), this user is {_whoami()}"
+            )
         if code == errno.EBUSY:
             driver = _kernel_driver(sysfs)
             if driver and driver != "usbfs":
@@ -459,8 +481,10 @@ def dv_cameras(log: list[str] | None = None) -> list[DvCamera]:
     try:
         import dv_processing as dv
     except Exception as exc:  # ImportError, or its native library failing to load
-        raise DeviceError(f"dv-processing cannot be imported ({type(exc).__name__}: {exc}): "
-                          f"python3 -m pip install --upgrade dv-processing") from None
+        raise DeviceError(
+            f"dv-processing cannot be imported ({type(exc).__name__}: {exc}): "
+            f"python3 -m pip install --upgrade dv-processing"
+        ) from None
     from neurotouch_hid.sources.recording import DV_ERRORS, dv_error_text
 
     captured: list[str] = []
@@ -472,9 +496,18 @@ def dv_cameras(log: list[str] | None = None) -> list[DvCamera]:
     finally:
         if log is not None:  # its logger repeats each libusb line as "[ERROR] usb_discovery: <line>"
             log.extend(dict.fromkeys(_DV_LOG_PREFIX.sub("", line) for line in captured))
-    return [DvCamera(serial=str(d.serialNumber), model=_enum_name(d.cameraModel),
-                     device_type=_enum_name(d.deviceType), firmware=int(d.firmwareVersion),
-                     bus=int(d.busNumber), address=int(d.devAddress), pid=int(d.pid)) for d in found]
+    return [
+        DvCamera(
+            serial=str(d.serialNumber),
+            model=_enum_name(d.cameraModel),
+            device_type=_enum_name(d.deviceType),
+            firmware=int(d.firmwareVersion),
+            bus=int(d.busNumber),
+            address=int(d.devAddress),
+            pid=int(d.pid),
+        )
+        for d in found
+    ]
 
 
 def _enum_name(value) -> str:
@@ -482,42 +515,71 @@ def _enum_name(value) -> str:
 
 
 # --- both together ----------------------------------------------------------------------------
-def _diagnose(usb: UsbCamera | None, dv: DvCamera | None, dv_error: str | None,
-              rules: str | None) -> Camera:
+def _diagnose(usb: UsbCamera | None, dv: DvCamera | None, dv_error: str | None, rules: str | None) -> Camera:
     """One merged record with its status, problem and fix (pure: no I/O)."""
     if usb is None:  # not a USB record: dv-processing's word alone
         if dv is not None and dv.pid != CAMERA_PID:
             other = Camera(None, dv, CameraStatus.OTHER_CAMERA)
-            return Camera(None, dv, CameraStatus.OTHER_CAMERA, f"{other.label()} is not a DAVIS-346 "
-                          f"(USB 152a:{dv.pid:04x}, not {CAMERA_USB_ID})",
-                          f"NeuroTouch's camera is a DAVIS-346 (USB {CAMERA_USB_ID}): plug that one in")
+            return Camera(
+                None,
+                dv,
+                CameraStatus.OTHER_CAMERA,
+                f"{other.label()} is not a DAVIS-346 (USB 152a:{dv.pid:04x}, not {CAMERA_USB_ID})",
+                f"NeuroTouch's camera is a DAVIS-346 (USB {CAMERA_USB_ID}): plug that one in",
+            )
         return Camera(None, dv, CameraStatus.READY)  # pyusb could not list devices
     where = Camera(usb, dv, CameraStatus.READY).label()
     if usb.access == UsbAccess.DENIED:
-        return Camera(usb, dv, CameraStatus.NO_ACCESS, f"{where} is not accessible ({usb.reason})", camera_access_fix(rules))
+        return Camera(
+            usb, dv, CameraStatus.NO_ACCESS, f"{where} is not accessible ({usb.reason})", camera_access_fix(rules)
+        )
     if usb.access == UsbAccess.BUSY:
-        fix = ("stop that program (the driver's own service: systemctl --user stop neurotouch-hid.service), "
-               "or unplug and replug the camera")
+        fix = (
+            "stop that program (the driver's own service: systemctl --user stop neurotouch-hid.service), "
+            "or unplug and replug the camera"
+        )
         if usb.reason.startswith("the kernel driver"):
             fix = "unbind that driver from the device, or unplug and replug the camera"
         return Camera(usb, dv, CameraStatus.BUSY, f"{where} is busy: {usb.reason}", fix)
     if usb.access == UsbAccess.GONE:
         return Camera(usb, dv, CameraStatus.GONE, f"{where} was unplugged while being checked", "plug it in again")
     if usb.access == UsbAccess.ERROR:
-        return Camera(usb, dv, CameraStatus.ERROR, f"{where} cannot be opened: {usb.reason}",
-                      "unplug and replug it (another USB port or cable); `dmesg` may say more")
+        return Camera(
+            usb,
+            dv,
+            CameraStatus.ERROR,
+            f"{where} cannot be opened: {usb.reason}",
+            "unplug and replug it (another USB port or cable); `dmesg` may say more",
+        )
     if dv is not None:
         return Camera(usb, dv, CameraStatus.READY)
     if dv_error is not None:
-        return Camera(usb, None, CameraStatus.DV_UNAVAILABLE, f"{where} is accessible but dv-processing cannot list "
-                      f"cameras ({dv_error})", "python3 -m pip install --upgrade dv-processing")
-    return Camera(usb, None, CameraStatus.NOT_IN_DV, f"{where} is accessible but dv-processing does not list it",
-                  "unplug and replug it; if it stays unlisted, it does not answer as a DAVIS camera: "
-                  "update its firmware with iniVation's DV software (Flashy)")
+        return Camera(
+            usb,
+            None,
+            CameraStatus.DV_UNAVAILABLE,
+            f"{where} is accessible but dv-processing cannot list cameras ({dv_error})",
+            "python3 -m pip install --upgrade dv-processing",
+        )
+    return Camera(
+        usb,
+        None,
+        CameraStatus.NOT_IN_DV,
+        f"{where} is accessible but dv-processing does not list it",
+        "unplug and replug it; if it stays unlisted, it does not answer as a DAVIS camera: "
+        "update its firmware with iniVation's DV software (Flashy)",
+    )
 
 
-def merge(usb: list[UsbCamera] | None, dv: list[DvCamera] | None, *, usb_error: str | None = None,
-          dv_error: str | None = None, rules: str | None = None, dv_log: tuple[str, ...] | list[str] = ()) -> Discovery:
+def merge(
+    usb: list[UsbCamera] | None,
+    dv: list[DvCamera] | None,
+    *,
+    usb_error: str | None = None,
+    dv_error: str | None = None,
+    rules: str | None = None,
+    dv_log: tuple[str, ...] | list[str] = (),
+) -> Discovery:
     """Merge the pyusb and dv-processing views into one :class:`Camera` per device (pure).
 
     Args:
@@ -579,28 +641,40 @@ def explain(found: Discovery, serial: str | None = None, error: str | None = Non
     """
     cameras = found.davis346
     if serial is not None:
-        matching = [c for c in cameras if serial in ((c.dv.serial if c.dv else None), (c.usb.serial if c.usb else None))]
+        matching = [
+            c for c in cameras if serial in ((c.dv.serial if c.dv else None), (c.usb.serial if c.usb else None))
+        ]
         if not matching and cameras:
             others = ", ".join(c.label() for c in cameras)
-            return (f"no DAVIS-346 with serial number {serial}; found {others}: "
-                    f"leave out the serial number, or plug in the camera {serial}")
+            return (
+                f"no DAVIS-346 with serial number {serial}; found {others}: "
+                f"leave out the serial number, or plug in the camera {serial}"
+            )
         cameras = matching
     if not cameras:
         others = [c for c in found.cameras if not c.is_davis346]
         seen = f"; dv-processing sees only: {', '.join(c.label() for c in others)}" if others else ""
         if found.usb_error is not None:
-            return (f"no DAVIS-346 found, and pyusb cannot list USB devices ({found.usb_error}){seen}: "
-                    f"python3 -m pip install --force-reinstall pyusb libusb-package")
-        return (f"no DAVIS-346 (USB {CAMERA_USB_ID}) found{seen}: plug the NeuroTouch's USB cable in "
-                f"(a USB 3 port) and check that `lsusb -d {CAMERA_USB_ID}` lists it")
+            return (
+                f"no DAVIS-346 found, and pyusb cannot list USB devices ({found.usb_error}){seen}: "
+                f"python3 -m pip install --force-reinstall pyusb libusb-package"
+            )
+        return (
+            f"no DAVIS-346 (USB {CAMERA_USB_ID}) found{seen}: plug the NeuroTouch's USB cable in "
+            f"(a USB 3 port) and check that `lsusb -d {CAMERA_USB_ID}` lists it"
+        )
     best = min(cameras, key=lambda c: _STATUS_ORDER.index(c.status))
     more = f" ({len(cameras) - 1} more found: see `neurotouch-hid devices`)" if len(cameras) > 1 else ""
     if best.ready:
         if error:
-            return (f"{best.label()} is accessible and listed by dv-processing, but opening it failed: {error} "
-                    f"(if that does not say what to do: close other programs using it, unplug and replug it){more}")
-        return (f"{best.label()} is accessible and listed by dv-processing, but could not be used: is another "
-                f"program using it? unplug and replug it, then see `neurotouch-hid doctor`{more}")
+            return (
+                f"{best.label()} is accessible and listed by dv-processing, but opening it failed: {error} "
+                f"(if that does not say what to do: close other programs using it, unplug and replug it){more}"
+            )
+        return (
+            f"{best.label()} is accessible and listed by dv-processing, but could not be used: is another "
+            f"program using it? unplug and replug it, then see `neurotouch-hid doctor`{more}"
+        )
     return f"{best.problem}: {best.fix}{more}"
 
 
@@ -614,5 +688,7 @@ def explain_no_camera(serial: str | None = None, error: str | None = None) -> st
     try:
         return explain(discover(), serial, error)
     except Exception as exc:  # the explanation must never be the thing that crashes
-        return (f"no usable DAVIS-346 ({type(exc).__name__} while looking: {exc}): plug it in, check that "
-                f"`lsusb -d {CAMERA_USB_ID}` lists it, and run `neurotouch-hid doctor`")
+        return (
+            f"no usable DAVIS-346 ({type(exc).__name__} while looking: {exc}): plug it in, check that "
+            f"`lsusb -d {CAMERA_USB_ID}` lists it, and run `neurotouch-hid doctor`"
+        )

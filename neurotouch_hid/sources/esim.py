@@ -55,8 +55,18 @@ def _pixel_weights(center: float, sigma: float, first: int, out: np.ndarray) -> 
 
 
 @numba.njit(cache=True, nogil=True)
-def splat(img: np.ndarray, x: float, y: float, amp: float, sigma: float,
-          dirty: np.ndarray, dirty_list: np.ndarray, n_dirty: int, gx: np.ndarray, gy: np.ndarray) -> int:
+def splat(
+    img: np.ndarray,
+    x: float,
+    y: float,
+    amp: float,
+    sigma: float,
+    dirty: np.ndarray,
+    dirty_list: np.ndarray,
+    n_dirty: int,
+    gx: np.ndarray,
+    gy: np.ndarray,
+) -> int:
     """Add one marker (pixel-integrated Gaussian, peak ``amp`` grey levels when centred on a
     pixel, ``sigma`` px) to ``img`` (H, W) float32 at image position (x, y) px. Pixels touched
     are appended once to ``dirty_list`` (flat indices) when ``dirty`` is given (size > 0).
@@ -88,8 +98,16 @@ def splat(img: np.ndarray, x: float, y: float, amp: float, sigma: float,
 
 
 @numba.njit(cache=True, nogil=True)
-def render_frame(background: np.ndarray, pos: np.ndarray, amp: np.ndarray, sigma: np.ndarray,
-                 read_noise: float, shot_noise: float, noise_bank: np.ndarray, offset: int) -> np.ndarray:
+def render_frame(
+    background: np.ndarray,
+    pos: np.ndarray,
+    amp: np.ndarray,
+    sigma: np.ndarray,
+    read_noise: float,
+    shot_noise: float,
+    noise_bank: np.ndarray,
+    offset: int,
+) -> np.ndarray:
     """An APS frame: the average of renders over the exposure, plus noise, as uint8.
 
     Args:
@@ -126,12 +144,32 @@ def render_frame(background: np.ndarray, pos: np.ndarray, amp: np.ndarray, sigma
 
 
 @numba.njit(cache=True, nogil=True)
-def esim_chunk(t_us: np.ndarray, pos: np.ndarray, amp: np.ndarray, sigma: np.ndarray, start: int,
-               img: np.ndarray, lin_prev: np.ndarray, log_prev: np.ndarray, log_ref: np.ndarray, last_t: np.ndarray,
-               c_on: np.ndarray, c_off: np.ndarray, rend_pos: np.ndarray, rend_amp: np.ndarray,
-               rend_sigma: np.ndarray, max_step_px: float, eps_px: float, refractory_us: int,
-               out_t: np.ndarray, out_x: np.ndarray, out_y: np.ndarray, out_p: np.ndarray,
-               dirty: np.ndarray, dirty_list: np.ndarray) -> tuple:
+def esim_chunk(
+    t_us: np.ndarray,
+    pos: np.ndarray,
+    amp: np.ndarray,
+    sigma: np.ndarray,
+    start: int,
+    img: np.ndarray,
+    lin_prev: np.ndarray,
+    log_prev: np.ndarray,
+    log_ref: np.ndarray,
+    last_t: np.ndarray,
+    c_on: np.ndarray,
+    c_off: np.ndarray,
+    rend_pos: np.ndarray,
+    rend_amp: np.ndarray,
+    rend_sigma: np.ndarray,
+    max_step_px: float,
+    eps_px: float,
+    refractory_us: int,
+    out_t: np.ndarray,
+    out_x: np.ndarray,
+    out_y: np.ndarray,
+    out_p: np.ndarray,
+    dirty: np.ndarray,
+    dirty_list: np.ndarray,
+) -> tuple:
     """Generate the events of consecutive intervals [t_us[k], t_us[k+1]] (ESIM).
 
     Args:
@@ -184,11 +222,16 @@ def esim_chunk(t_us: np.ndarray, pos: np.ndarray, amp: np.ndarray, sigma: np.nda
                 y = pos[k, n, 1] + a * (pos[k + 1, n, 1] - pos[k, n, 1])
                 b = amp[k, n] + a * (amp[k + 1, n] - amp[k, n])
                 sg = sigma[k, n] + a * (sigma[k + 1, n] - sigma[k, n])
-                if (abs(x - rend_pos[n, 0]) < eps_px and abs(y - rend_pos[n, 1]) < eps_px
-                        and abs(b - rend_amp[n]) < 0.002 * rend_amp[n] and abs(sg - rend_sigma[n]) < 0.002 * rend_sigma[n]):
+                if (
+                    abs(x - rend_pos[n, 0]) < eps_px
+                    and abs(y - rend_pos[n, 1]) < eps_px
+                    and abs(b - rend_amp[n]) < 0.002 * rend_amp[n]
+                    and abs(sg - rend_sigma[n]) < 0.002 * rend_sigma[n]
+                ):
                     continue
-                n_dirty = splat(img, rend_pos[n, 0], rend_pos[n, 1], -rend_amp[n], rend_sigma[n], dirty, dirty_list,
-                                n_dirty, gx, gy)
+                n_dirty = splat(
+                    img, rend_pos[n, 0], rend_pos[n, 1], -rend_amp[n], rend_sigma[n], dirty, dirty_list, n_dirty, gx, gy
+                )
                 n_dirty = splat(img, x, y, b, sg, dirty, dirty_list, n_dirty, gx, gy)
                 rend_pos[n, 0] = x
                 rend_pos[n, 1] = y
@@ -244,10 +287,23 @@ class EventCamera:
         ValueError: ``noise_rate_hz`` is negative (or NaN).
     """
 
-    def __init__(self, background: np.ndarray, rest_px: np.ndarray, amp: np.ndarray, sigma: np.ndarray,
-                 rng: np.random.Generator, *, contrast: float = 0.25, contrast_sigma: float = 0.03,
-                 refractory_us: int = 100, noise_rate_hz: float = NOISE_RATE_HZ, n_hot: int = 4,
-                 hot_rate_hz: float = 40.0, max_step_px: float = 0.25, eps_px: float = 0.05) -> None:
+    def __init__(
+        self,
+        background: np.ndarray,
+        rest_px: np.ndarray,
+        amp: np.ndarray,
+        sigma: np.ndarray,
+        rng: np.random.Generator,
+        *,
+        contrast: float = 0.25,
+        contrast_sigma: float = 0.03,
+        refractory_us: int = 100,
+        noise_rate_hz: float = NOISE_RATE_HZ,
+        n_hot: int = 4,
+        hot_rate_hz: float = 40.0,
+        max_step_px: float = 0.25,
+        eps_px: float = 0.05,
+    ) -> None:
         h, w = background.shape
         self.height, self.width = h, w
         self.sigma = np.ascontiguousarray(sigma, dtype=np.float64)
@@ -259,8 +315,18 @@ class EventCamera:
         no_list = np.zeros(0, dtype=np.int32)
         gx, gy = np.empty(2 * PATCH_RADIUS + 1), np.empty(2 * PATCH_RADIUS + 1)
         for n in range(len(self.rend_pos)):
-            splat(self.img, self.rend_pos[n, 0], self.rend_pos[n, 1], self.rend_amp[n], self.sigma[n], no_dirty, no_list,
-                  0, gx, gy)
+            splat(
+                self.img,
+                self.rend_pos[n, 0],
+                self.rend_pos[n, 1],
+                self.rend_amp[n],
+                self.sigma[n],
+                no_dirty,
+                no_list,
+                0,
+                gx,
+                gy,
+            )
         self.c_on = np.clip(rng.normal(contrast, contrast_sigma, (h, w)), 0.5 * contrast, None).astype(np.float32)
         self.c_off = np.clip(rng.normal(contrast, contrast_sigma, (h, w)), 0.5 * contrast, None).astype(np.float32)
         self.lin_prev = self.img.copy()
@@ -281,11 +347,21 @@ class EventCamera:
         self._dirty = np.zeros(h * w, dtype=np.uint8)
         self._dirty_list = np.zeros(h * w, dtype=np.int32)
         self._cap = 1 << 20
-        self._buf = [np.empty(self._cap, dtype=np.int64), np.empty(self._cap, dtype=np.int16),
-                     np.empty(self._cap, dtype=np.int16), np.empty(self._cap, dtype=np.int8)]
+        self._buf = [
+            np.empty(self._cap, dtype=np.int64),
+            np.empty(self._cap, dtype=np.int16),
+            np.empty(self._cap, dtype=np.int16),
+            np.empty(self._cap, dtype=np.int8),
+        ]
 
-    def events(self, t_us: np.ndarray, pos: np.ndarray, amp: np.ndarray, rng: np.random.Generator,
-               sigma: np.ndarray | None = None) -> np.ndarray:
+    def events(
+        self,
+        t_us: np.ndarray,
+        pos: np.ndarray,
+        amp: np.ndarray,
+        rng: np.random.Generator,
+        sigma: np.ndarray | None = None,
+    ) -> np.ndarray:
         """Events between t_us[0] (exclusive) and t_us[-1] (inclusive), time-ordered.
 
         Args:
@@ -307,9 +383,29 @@ class EventCamera:
         parts = []
         k = 0
         while k < len(t_us) - 1:
-            n, k = esim_chunk(t_us, pos, amp, sigma, k, self.img, self.lin_prev, self.log_prev, self.log_ref, self.last_t,
-                              self.c_on, self.c_off, self.rend_pos, self.rend_amp, self.rend_sigma, self.max_step_px, self.eps_px,
-                              self.refractory_us, *self._buf, self._dirty, self._dirty_list)
+            n, k = esim_chunk(
+                t_us,
+                pos,
+                amp,
+                sigma,
+                k,
+                self.img,
+                self.lin_prev,
+                self.log_prev,
+                self.log_ref,
+                self.last_t,
+                self.c_on,
+                self.c_off,
+                self.rend_pos,
+                self.rend_amp,
+                self.rend_sigma,
+                self.max_step_px,
+                self.eps_px,
+                self.refractory_us,
+                *self._buf,
+                self._dirty,
+                self._dirty_list,
+            )
             ev = np.empty(n, dtype=EVENT_DTYPE)
             for name, buf in zip(EVENT_DTYPE.names, self._buf):
                 ev[name] = buf[:n]

@@ -122,24 +122,32 @@ class Physics:
     @property
     def changes_gestures(self) -> bool:
         """Whether the family draws gestures differently from the default (its own random stream)."""
-        return self.lag > 0 or self.strength_min < 1 or self.strong > 0 or self.global_mm != (0.15, 0.3) \
+        return (
+            self.lag > 0
+            or self.strength_min < 1
+            or self.strong > 0
+            or self.global_mm != (0.15, 0.3)
             or self.global_rad != (0.003, math.inf)
+        )
 
 
 #: The named families (module docstring).
-PHYSICS: dict[str, Physics] = {p.name: p for p in (
-    Physics(),
-    Physics("powerlaw", falloff=FALLOFF_POWERLAW),
-    Physics("stickslip", falloff=FALLOFF_STICKSLIP),
-    Physics("indent", indent=0.35),
-    Physics("camera", perspective=True, k1=-0.10),
-    Physics("drift", global_mm=(0.6, 1.2), global_rad=(0.01, 0.021)),
-    Physics("fingers", lag=0.6, strength_min=0.45),
-    Physics("strong", strong=0.7, squeeze=0.6),
-    Physics("markers", size_spread=0.2, brightness_spread=0.2),
-    Physics("noise", noise_hz=2.0, n_hot=40, hot_rate_hz=300.0),
-    Physics("flicker", flicker=0.25),
-)}
+PHYSICS: dict[str, Physics] = {
+    p.name: p
+    for p in (
+        Physics(),
+        Physics("powerlaw", falloff=FALLOFF_POWERLAW),
+        Physics("stickslip", falloff=FALLOFF_STICKSLIP),
+        Physics("indent", indent=0.35),
+        Physics("camera", perspective=True, k1=-0.10),
+        Physics("drift", global_mm=(0.6, 1.2), global_rad=(0.01, 0.021)),
+        Physics("fingers", lag=0.6, strength_min=0.45),
+        Physics("strong", strong=0.7, squeeze=0.6),
+        Physics("markers", size_spread=0.2, brightness_spread=0.2),
+        Physics("noise", noise_hz=2.0, n_hot=40, hot_rate_hz=300.0),
+        Physics("flicker", flicker=0.25),
+    )
+}
 #: ``--physics`` names: every family, and ``mix`` (one family per sequence).
 PHYSICS_CHOICES: tuple[str, ...] = (*PHYSICS, "mix")
 
@@ -149,7 +157,9 @@ def physics_family(name: str) -> Physics:
     try:
         return PHYSICS[name]
     except KeyError:
-        raise NeurotouchError(f"unknown physics family {name!r}: expected one of {', '.join(PHYSICS_CHOICES)}") from None
+        raise NeurotouchError(
+            f"unknown physics family {name!r}: expected one of {', '.join(PHYSICS_CHOICES)}"
+        ) from None
 
 
 def mix_families(n_sequences: int, seed: int) -> list[Physics]:
@@ -220,8 +230,9 @@ class DomeCamera:
         if not self.physics.perspective:
             return np.ones_like(rho)
         h = 1e-3
-        radial = ((rho + h) * self.gain(rho + h) - np.maximum(rho - h, 0.0) * self.gain(np.maximum(rho - h, 0.0))) \
-            / (rho + h - np.maximum(rho - h, 0.0))
+        radial = ((rho + h) * self.gain(rho + h) - np.maximum(rho - h, 0.0) * self.gain(np.maximum(rho - h, 0.0))) / (
+            rho + h - np.maximum(rho - h, 0.0)
+        )
         return np.sqrt(self.gain(rho) * radial)
 
     def vignetting_mm(self, pts_mm: np.ndarray) -> np.ndarray:

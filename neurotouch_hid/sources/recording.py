@@ -172,8 +172,7 @@ def _check_path(path: Path) -> None:
         raise RecordingError(f"{path}: cannot read the file (permission denied)")
     if path.suffix != AEDAT4_SUFFIX:
         raise RecordingError(
-            f"{path}: not an AEDAT4 recording (its name must end in '{AEDAT4_SUFFIX}', "
-            f"which dv-processing requires)"
+            f"{path}: not an AEDAT4 recording (its name must end in '{AEDAT4_SUFFIX}', which dv-processing requires)"
         )
 
 
@@ -204,14 +203,15 @@ def _read_header(path: Path) -> tuple[int, str]:
         (vtable_back,) = struct.unpack_from("<i", header, root)
         vtable = root - vtable_back
         (vtable_size,) = struct.unpack_from("<H", header, vtable)
-        fields = [struct.unpack_from("<H", header, vtable + 4 + 2 * i)[0] if vtable_size >= 6 + 2 * i else 0
-                  for i in range(3)]
+        fields = [
+            struct.unpack_from("<H", header, vtable + 4 + 2 * i)[0] if vtable_size >= 6 + 2 * i else 0 for i in range(3)
+        ]
         position = struct.unpack_from("<q", header, root + fields[1])[0] if fields[1] else -1
         xml = ""
         if fields[2]:
             start = root + fields[2] + struct.unpack_from("<I", header, root + fields[2])[0]
             (length,) = struct.unpack_from("<I", header, start)
-            xml = header[start + 4:start + 4 + length].decode("utf-8", "replace")
+            xml = header[start + 4 : start + 4 + length].decode("utf-8", "replace")
     except struct.error:
         raise RecordingError(f"{path}: corrupt AEDAT4 header") from None
     return position, xml
@@ -280,14 +280,25 @@ class RecordingReader:
     each call reads the file from the start.
     """
 
-    def __init__(self, path: str | os.PathLike, *, require_frames: bool = False,
-                 require_resolution: tuple[int, int] | None = None) -> None:
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        require_frames: bool = False,
+        require_resolution: tuple[int, int] | None = None,
+    ) -> None:
         self.path = Path(path)
         _check_path(self.path)
         table_position, xml = _read_header(self.path)
         size = self.path.stat().st_size
-        self._truncated = (f"truncated: the file is {size} bytes but its index table starts at byte "
-                           f"{table_position}; the rest of the recording is missing") if table_position >= size else None
+        self._truncated = (
+            (
+                f"truncated: the file is {size} bytes but its index table starts at byte "
+                f"{table_position}; the rest of the recording is missing"
+            )
+            if table_position >= size
+            else None
+        )
         self._open = True
         self.camera_name: str = _camera_name(xml)
         streams = self._decoder().id_to_stream()
@@ -297,8 +308,7 @@ class RecordingReader:
             raise RecordingError(f"{self.path}: has no event stream (streams: {names})")
         self.width, self.height = int(kinds["events"]["width"]), int(kinds["events"]["height"])
         self.has_frames: bool = "frame" in kinds
-        self._frame_size = ((int(kinds["frame"]["width"]), int(kinds["frame"]["height"]))
-                            if self.has_frames else None)
+        self._frame_size = (int(kinds["frame"]["width"]), int(kinds["frame"]["height"])) if self.has_frames else None
         if require_frames and not self.has_frames:
             names = ", ".join(sorted(str(k) for k in kinds))
             raise RecordingError(
@@ -372,10 +382,13 @@ class RecordingReader:
                 events = raw.view(EVENT_DTYPE) if raw.dtype == AEDAT_EVENT_DTYPE else _converted(raw)
                 t = events["timestamp"]
                 problem = (
-                    "events outside the sensor" if int(raw["x"].max()) >= self.width or int(raw["y"].max()) >= self.height
+                    "events outside the sensor"
+                    if int(raw["x"].max()) >= self.width
+                    or int(raw["y"].max()) >= self.height
                     or int(events["polarity"].view(np.uint8).max()) > 1
-                    else "events out of time order" if t[0] < last_event_us or int(raw["t"][-1]) > MAX_TIMESTAMP_US
-                    or bool(np.any(t[1:] < t[:-1])) else None
+                    else "events out of time order"
+                    if t[0] < last_event_us or int(raw["t"][-1]) > MAX_TIMESTAMP_US or bool(np.any(t[1:] < t[:-1]))
+                    else None
                 )
                 if problem:
                     damage.add(problem)
@@ -421,8 +434,9 @@ class RecordingReader:
             last = hi if last is None else max(last, hi)
         self._raise_if_damaged(damage, n_events, n_frames, last)
         start, end = (first, last) if first is not None else (0, 0)
-        return RecordingInfo(self.path, self.camera_name, self.width, self.height, start, end,
-                             end - start, n_events, n_frames)
+        return RecordingInfo(
+            self.path, self.camera_name, self.width, self.height, start, end, end - start, n_events, n_frames
+        )
 
     def stream(self, batch_us: int = 10_000) -> Iterator[StreamItem]:
         """Events and APS frames merged in time order, as every source yields them.
@@ -492,8 +506,10 @@ class _Damage:
         if self.skipped:
             parts.append(f"corrupt: {self.skipped} damaged packet(s) skipped (the first: {self.first})")
         if self.cut:
-            parts.append("truncated: the file ends inside a packet (cut short, or a damaged packet size); "
-                         "the rest of the recording is missing")
+            parts.append(
+                "truncated: the file ends inside a packet (cut short, or a damaged packet size); "
+                "the rest of the recording is missing"
+            )
         return "; ".join(parts) or None
 
 
@@ -515,8 +531,7 @@ def _by_kind(items: Iterator[np.ndarray | Frame], *, with_frames: bool) -> tuple
     return side(False), side(True) if with_frames else iter(())
 
 
-def merge_stream(event_chunks: Iterable[np.ndarray], frames: Iterable[Frame],
-                 batch_us: int) -> Iterator[StreamItem]:
+def merge_stream(event_chunks: Iterable[np.ndarray], frames: Iterable[Frame], batch_us: int) -> Iterator[StreamItem]:
     """Merge time-ordered event chunks and frames into the stream every source yields.
 
     Args:
@@ -597,9 +612,16 @@ class RecordingWriter:
             wrong shape.
     """
 
-    def __init__(self, path: str | os.PathLike, *, width: int = 346, height: int = 260,
-                 camera_name: str = "NeuroTouch-sim_DAVIS346", frames: bool = True,
-                 compression: str = "LZ4") -> None:
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        width: int = 346,
+        height: int = 260,
+        camera_name: str = "NeuroTouch-sim_DAVIS346",
+        frames: bool = True,
+        compression: str = "LZ4",
+    ) -> None:
         import dv_processing as dv
 
         self.path = Path(path)
@@ -613,7 +635,9 @@ class RecordingWriter:
         make = dv.io.MonoCameraWriter.DAVISConfig if frames else dv.io.MonoCameraWriter.EventOnlyConfig
         config = make(camera_name, (self.width, self.height))
         if compression not in dv.CompressionType.__members__:
-            raise RecordingError(f"compression {compression!r}: expected one of {', '.join(dv.CompressionType.__members__)}")
+            raise RecordingError(
+                f"compression {compression!r}: expected one of {', '.join(dv.CompressionType.__members__)}"
+            )
         config.compression = dv.CompressionType.__members__[compression]
         try:
             self._writer = dv.io.MonoCameraWriter(str(self.path), config)
@@ -669,8 +693,10 @@ class RecordingWriter:
             raise RecordingError(f"{self.path}: this writer has no frame stream (frames=False)")
         image = np.asarray(frame.image)
         if image.dtype != np.uint8 or image.shape != (self.height, self.width):
-            raise RecordingError(f"{self.path}: an APS frame must be uint8 of shape ({self.height}, "
-                                 f"{self.width}), got {image.dtype} {image.shape}")
+            raise RecordingError(
+                f"{self.path}: an APS frame must be uint8 of shape ({self.height}, "
+                f"{self.width}), got {image.dtype} {image.shape}"
+            )
         if frame.t_us < self._last_frame_us:
             raise RecordingError(f"{self.path}: frames are not in time order (t={frame.t_us} us)")
         # Keep event packets interleaved with frames in time, as DV records them.
@@ -689,7 +715,7 @@ class RecordingWriter:
         stop = len(events) if final else len(events) - len(events) % PACKET_EVENTS
         try:
             for start in range(0, stop, PACKET_EVENTS):
-                self._writer.writeEvents(store_from_events(events[start:min(start + PACKET_EVENTS, stop)]))
+                self._writer.writeEvents(store_from_events(events[start : min(start + PACKET_EVENTS, stop)]))
         except DV_ERRORS as exc:
             raise RecordingError(f"{self.path}: cannot write events ({dv_error_text(str(exc))})") from None
         rest = events[stop:]
@@ -748,9 +774,15 @@ class RecordSummary:
     stopped: bool
 
 
-def record_stream(stream: Iterable[StreamItem], path: str | os.PathLike, *, camera_name: str,
-                  pace: bool = False, stop: threading.Event | None = None,
-                  on_progress=None) -> RecordSummary:
+def record_stream(
+    stream: Iterable[StreamItem],
+    path: str | os.PathLike,
+    *,
+    camera_name: str,
+    pace: bool = False,
+    stop: threading.Event | None = None,
+    on_progress=None,
+) -> RecordSummary:
     """Write a source's events and APS frames to an AEDAT4 file (``neurotouch-hid record``).
 
     Args:

@@ -57,20 +57,29 @@ from typing import Iterable, Iterator, Sequence
 import numba
 import numpy as np
 
+from neurotouch_hid.dataset import LabelRow, write_labels
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.dataset import LabelRow, write_labels
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame, StreamItem
 from neurotouch_hid.sources.esim import NOISE_RATE_HZ, EventCamera, render_frame
 from neurotouch_hid.sources.physics import (
-    PHYSICS, DomeCamera, Physics, hertz_deflection, mix_families, physics_family,
+    PHYSICS,
+    DomeCamera,
+    Physics,
+    hertz_deflection,
+    mix_families,
+    physics_family,
 )
 from neurotouch_hid.sources.recording import RecordingWriter, split_batches
 
 #: Gesture types that the simulated users perform (paper, section "Problem Statement").
 SIM_GESTURES: tuple[GestureType, ...] = (
-    GestureType.PUSH, GestureType.PINCH, GestureType.ZOOM, GestureType.TWIST_CW, GestureType.TWIST_CCW,
+    GestureType.PUSH,
+    GestureType.PINCH,
+    GestureType.ZOOM,
+    GestureType.TWIST_CW,
+    GestureType.TWIST_CCW,
 )
 #: Marker grid spacing on the gel surface (mm) and the marker diameter (mm).
 MARKER_PITCH_MM = 4.0
@@ -175,8 +184,13 @@ class Gel:
         background: (H, W) float64 the gel's image without markers (grey levels).
     """
 
-    def __init__(self, sensor: SensorGeometry, rng: np.random.Generator,
-                 physics: Physics = PHYSICS["default"], physics_rng: np.random.Generator | None = None) -> None:
+    def __init__(
+        self,
+        sensor: SensorGeometry,
+        rng: np.random.Generator,
+        physics: Physics = PHYSICS["default"],
+        physics_rng: np.random.Generator | None = None,
+    ) -> None:
         self.sensor = sensor
         self.camera = DomeCamera(sensor, physics)
         half = int(MARKER_ARC_MM // MARKER_PITCH_MM) + 1
@@ -194,7 +208,9 @@ class Gel:
         self.sigma_px = marker_px * 0.38 * (0.8 + 0.2 * tilt) * self.camera.size_gain(self.rest_mm)
         r_rel = np.hypot(self.rest_mm[:, 0], self.rest_mm[:, 1]) / sensor.gel_radius_mm
         spread = rng.normal(0.0, physics.brightness_spread, len(s)).clip(-0.5, 0.4)
-        self.brightness = MARKER_GREY * (1.0 - 0.12 * r_rel**2) * (1.0 + spread) * self.camera.vignetting_mm(self.rest_mm)
+        self.brightness = (
+            MARKER_GREY * (1.0 - 0.12 * r_rel**2) * (1.0 + spread) * self.camera.vignetting_mm(self.rest_mm)
+        )
         if physics.size_spread > 0:
             prng = physics_rng if physics_rng is not None else np.random.default_rng(0)
             self.sigma_px = self.sigma_px * prng.lognormal(0.0, physics.size_spread, len(s)).clip(0.7, 1.5)
@@ -322,9 +338,24 @@ class SimGesture:
 
 
 @numba.njit(cache=True, nogil=True)
-def _finger_field(pts: np.ndarray, finger: np.ndarray, d: np.ndarray, finger_mm: float, widen: float,
-                  press: float, level: np.ndarray, flevel: np.ndarray, falloff: int, squeeze: float, indent: float,
-                  drag: np.ndarray, weight: np.ndarray, disp: np.ndarray, dim: np.ndarray, grow: np.ndarray) -> None:
+def _finger_field(
+    pts: np.ndarray,
+    finger: np.ndarray,
+    d: np.ndarray,
+    finger_mm: float,
+    widen: float,
+    press: float,
+    level: np.ndarray,
+    flevel: np.ndarray,
+    falloff: int,
+    squeeze: float,
+    indent: float,
+    drag: np.ndarray,
+    weight: np.ndarray,
+    disp: np.ndarray,
+    dim: np.ndarray,
+    grow: np.ndarray,
+) -> None:
     """Add one finger's field at the points ``pts`` (M, 2) mm, for times T.
 
     The finger (rest centre ``finger`` (2,) mm, displacement ``d`` (T, 2) mm, its own level
@@ -394,8 +425,13 @@ def _keep_inside(points_mm: np.ndarray, gel_radius_mm: float) -> np.ndarray:
     return points_mm * scale[..., None]
 
 
-def deform(gestures: Sequence[SimGesture], points_mm: np.ndarray, t_us: np.ndarray, gel_radius_mm: float,
-           physics: Physics = PHYSICS["default"]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def deform(
+    gestures: Sequence[SimGesture],
+    points_mm: np.ndarray,
+    t_us: np.ndarray,
+    gel_radius_mm: float,
+    physics: Physics = PHYSICS["default"],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where material points of the gel are at times t_us, how much they are dimmed and magnified.
 
     Args:
@@ -428,9 +464,24 @@ def deform(gestures: Sequence[SimGesture], points_mm: np.ndarray, t_us: np.ndarr
         # fingers pushing together add their strains: widen their falloff with their number
         widen = 0.8 * (len(g.fingers_mm) if g.gesture is GestureType.PUSH else 1)
         for k in range(len(g.fingers_mm)):
-            _finger_field(pts, g.fingers_mm[k], np.ascontiguousarray(d_f[:, k]), g.finger_mm, widen, g.press,
-                          level, np.ascontiguousarray(f_levels[:, k]), physics.falloff, g.squeeze, physics.indent,
-                          drag, weight, local, dim, grow)
+            _finger_field(
+                pts,
+                g.fingers_mm[k],
+                np.ascontiguousarray(d_f[:, k]),
+                g.finger_mm,
+                widen,
+                g.press,
+                level,
+                np.ascontiguousarray(f_levels[:, k]),
+                physics.falloff,
+                g.squeeze,
+                physics.indent,
+                drag,
+                weight,
+                local,
+                dim,
+                grow,
+            )
         # where fingers' falloffs overlap, blend their motions instead of adding them (the
         # surface under a finger moves with that finger, whatever the others do)
         local += drag / np.maximum(weight, 1.0)[..., None]
@@ -451,9 +502,15 @@ def deform(gestures: Sequence[SimGesture], points_mm: np.ndarray, t_us: np.ndarr
     return out, dim, grow
 
 
-def draw_gesture(rng: np.random.Generator, user: SimUser, gesture: GestureType, t_start_us: int,
-                 sensor: SensorGeometry, physics: Physics = PHYSICS["default"],
-                 physics_rng: np.random.Generator | None = None) -> SimGesture:
+def draw_gesture(
+    rng: np.random.Generator,
+    user: SimUser,
+    gesture: GestureType,
+    t_start_us: int,
+    sensor: SensorGeometry,
+    physics: Physics = PHYSICS["default"],
+    physics_rng: np.random.Generator | None = None,
+) -> SimGesture:
     """Draw one gesture of ``user`` starting at ``t_start_us`` (us): fingers, intensity, speed.
 
     The distributions follow the paper's dataset statistics (appendix figures): hold intensities
@@ -529,11 +586,25 @@ def draw_gesture(rng: np.random.Generator, user: SimUser, gesture: GestureType, 
     creep_us = int(rng.uniform(60e3, 120e3))
     if physics.global_mm != (0.15, 0.3) or physics.global_rad != (0.003, math.inf):
         global_mm = prng.normal(0.0, physics.global_mm[0], 2).clip(-physics.global_mm[1], physics.global_mm[1])
-        global_rad = float(np.clip(prng.normal(0.0, physics.global_rad[0]), -physics.global_rad[1], physics.global_rad[1]))
+        global_rad = float(
+            np.clip(prng.normal(0.0, physics.global_rad[0]), -physics.global_rad[1], physics.global_rad[1])
+        )
     return SimGesture(
-        gesture=gesture, t_start_us=int(t_start_us), attack_us=attack, hold_us=hold, release_us=release,
-        fingers_mm=fingers, amplitude_mm=amplitude, direction=direction, finger_mm=finger,
-        press=press, tremor=tremor, global_mm=global_mm, global_rad=global_rad, residual=residual, creep_us=creep_us,
+        gesture=gesture,
+        t_start_us=int(t_start_us),
+        attack_us=attack,
+        hold_us=hold,
+        release_us=release,
+        fingers_mm=fingers,
+        amplitude_mm=amplitude,
+        direction=direction,
+        finger_mm=finger,
+        press=press,
+        tremor=tremor,
+        global_mm=global_mm,
+        global_rad=global_rad,
+        residual=residual,
+        creep_us=creep_us,
         **extra,
     )
 
@@ -543,9 +614,16 @@ def draw_rest_us(rng: np.random.Generator, user: SimUser) -> int:
     return int(max(0.3e6, 0.9e6 * user.rest * rng.lognormal(0.0, 0.35)))
 
 
-def gesture_script(rng: np.random.Generator, user: SimUser, gestures: Iterable[GestureType], start_us: int,
-                   sensor: SensorGeometry, first_rest_us: int = 600_000, physics: Physics = PHYSICS["default"],
-                   physics_rng: np.random.Generator | None = None) -> Iterator[SimGesture]:
+def gesture_script(
+    rng: np.random.Generator,
+    user: SimUser,
+    gestures: Iterable[GestureType],
+    start_us: int,
+    sensor: SensorGeometry,
+    first_rest_us: int = 600_000,
+    physics: Physics = PHYSICS["default"],
+    physics_rng: np.random.Generator | None = None,
+) -> Iterator[SimGesture]:
     """An endless succession of gestures of ``user``, cycling through ``gestures``, separated by
     rests (the first starts ``first_rest_us`` after ``start_us``), drawn for the family
     ``physics`` (:func:`draw_gesture`)."""
@@ -601,11 +679,18 @@ class GelSimulator:
         ValueError: ``noise_rate_hz`` < 0.
     """
 
-    def __init__(self, sensor: SensorGeometry | None = None, user: SimUser = USERS[0],
-                 gestures: Iterable[GestureType] = SIM_GESTURES, seed: int = 0,
-                 stream_seed: Sequence[int] = (0,), start_us: int = START_US,
-                 script: Iterable[SimGesture] | None = None, noise_rate_hz: float = NOISE_RATE_HZ,
-                 physics: Physics = PHYSICS["default"]) -> None:
+    def __init__(
+        self,
+        sensor: SensorGeometry | None = None,
+        user: SimUser = USERS[0],
+        gestures: Iterable[GestureType] = SIM_GESTURES,
+        seed: int = 0,
+        stream_seed: Sequence[int] = (0,),
+        start_us: int = START_US,
+        script: Iterable[SimGesture] | None = None,
+        noise_rate_hz: float = NOISE_RATE_HZ,
+        physics: Physics = PHYSICS["default"],
+    ) -> None:
         self.sensor = sensor or SensorGeometry()
         self.physics = physics
         camera_rng = np.random.default_rng(np.random.SeedSequence([seed, 0xCA3E]))
@@ -615,14 +700,32 @@ class GelSimulator:
         rate = noise_rate_hz if physics.noise_hz is None else physics.noise_hz
         if not float(noise_rate_hz) >= 0.0:
             raise ValueError(f"noise_rate_hz must be >= 0 Hz per pixel, got {noise_rate_hz}")
-        self.camera = EventCamera(self.gel.background, self.gel.rest_px, self.gel.brightness, self.gel.sigma_px,
-                                  camera_rng, eps_px=0.05, noise_rate_hz=rate, n_hot=physics.n_hot,
-                                  hot_rate_hz=physics.hot_rate_hz)
+        self.camera = EventCamera(
+            self.gel.background,
+            self.gel.rest_px,
+            self.gel.brightness,
+            self.gel.sigma_px,
+            camera_rng,
+            eps_px=0.05,
+            noise_rate_hz=rate,
+            n_hot=physics.n_hot,
+            hot_rate_hz=physics.hot_rate_hz,
+        )
         self._noise_rng = np.random.default_rng(noise_ss)
         self._noise_bank = camera_rng.standard_normal(1 << 20, dtype=np.float32)
-        self._script = iter(script) if script is not None else gesture_script(
-            np.random.default_rng(script_ss), user, gestures, start_us, self.sensor, physics=physics,
-            physics_rng=np.random.default_rng(gesture_ss))
+        self._script = (
+            iter(script)
+            if script is not None
+            else gesture_script(
+                np.random.default_rng(script_ss),
+                user,
+                gestures,
+                start_us,
+                self.sensor,
+                physics=physics,
+                physics_rng=np.random.default_rng(gesture_ss),
+            )
+        )
         self._flicker_phase = float(np.random.default_rng(gel_ss).uniform(0, 2 * math.pi))
         self._known: list[SimGesture] = []
         self._carry = np.zeros(0, dtype=EVENT_DTYPE)
@@ -644,10 +747,13 @@ class GelSimulator:
         t = np.asarray(t_us, dtype=np.float64)
         if self.physics.flicker <= 0:
             return np.ones_like(t)
-        return 1.0 + self.physics.flicker * np.sin(2 * math.pi * self.physics.flicker_hz * t * 1e-6 + self._flicker_phase)
+        return 1.0 + self.physics.flicker * np.sin(
+            2 * math.pi * self.physics.flicker_hz * t * 1e-6 + self._flicker_phase
+        )
 
-    def marker_state(self, t_us: np.ndarray, gestures: Sequence[SimGesture]
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def marker_state(
+        self, t_us: np.ndarray, gestures: Sequence[SimGesture]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """True marker positions at t_us (T,): (T, N, 2) float64 image px (the family's camera),
         brightness (T, N) grey levels, blob sigma (T, N) px and positions (T, N, 2) user mm."""
         pos_mm, dim, grow = deform(gestures, self.gel.rest_mm, t_us, self.sensor.gel_radius_mm, self.physics)
@@ -702,8 +808,11 @@ class GelSimulator:
         cut = int(np.searchsorted(events["timestamp"], t1, side="left"))
         self._carry = events[cut:]
         chunk = SimChunk(
-            frame=self._frame(grid, pos, amp, sigma), events=events[:cut], label=self._label(t0, gestures, pos_mm[0]),
-            t_us=grid[:-1], positions_px=pos[:-1].astype(np.float32),
+            frame=self._frame(grid, pos, amp, sigma),
+            events=events[:cut],
+            label=self._label(t0, gestures, pos_mm[0]),
+            t_us=grid[:-1],
+            positions_px=pos[:-1].astype(np.float32),
         )
         self.t_us = t1
         return chunk
@@ -758,16 +867,13 @@ class SimulatedSource:
             yield from split_batches(chunk.events, batch_us)
 
 
-
-
 # --- datasets ---------------------------------------------------------------------------------
 def sequence_name(user_id: int, gesture: GestureType) -> str:
     """Name of the sequence of one user and gesture type, e.g. ``u3_push``."""
     return f"u{user_id}_{gesture.value}"
 
 
-def write_sequence(out_dir: Path, name: str, sim: GelSimulator, seconds: float,
-                   on_chunk=None) -> None:
+def write_sequence(out_dir: Path, name: str, sim: GelSimulator, seconds: float, on_chunk=None) -> None:
     """Simulate ``seconds`` (then on until the gel rests again) and write ``NAME.aedat4``,
     ``NAME.labels.csv`` and ``NAME.markers.npz`` into ``out_dir``.
 
@@ -794,8 +900,12 @@ def write_sequence(out_dir: Path, name: str, sim: GelSimulator, seconds: float,
             if sim.t_us >= end_us and chunk.label.resting:
                 break
     write_labels(out_dir / f"{name}.labels.csv", labels)
-    save_npz(out_dir / f"{name}.markers.npz", t_us=np.concatenate(times), positions_px=np.concatenate(positions),
-             rest_px=sim.gel.rest_px.astype(np.float32))
+    save_npz(
+        out_dir / f"{name}.markers.npz",
+        t_us=np.concatenate(times),
+        positions_px=np.concatenate(positions),
+        rest_px=sim.gel.rest_px.astype(np.float32),
+    )
 
 
 def save_npz(path: Path, **arrays: np.ndarray) -> None:
@@ -809,11 +919,18 @@ def save_npz(path: Path, **arrays: np.ndarray) -> None:
                 np.lib.format.write_array(fh, np.asanyarray(value), allow_pickle=False)
 
 
-def write_dataset(out_dir: str | Path, preset: str = "quick", seed: int = 0, minutes: float | None = None,
-                  progress: bool = True, users: Sequence[int] | None = None,
-                  gestures: Sequence[GestureType | str] | None = None,
-                  sensor: SensorGeometry | None = None, noise_hz: float = NOISE_RATE_HZ,
-                  physics: str = "default") -> Path:
+def write_dataset(
+    out_dir: str | Path,
+    preset: str = "quick",
+    seed: int = 0,
+    minutes: float | None = None,
+    progress: bool = True,
+    users: Sequence[int] | None = None,
+    gestures: Sequence[GestureType | str] | None = None,
+    sensor: SensorGeometry | None = None,
+    noise_hz: float = NOISE_RATE_HZ,
+    physics: str = "default",
+) -> Path:
     """Simulate and write a labelled dataset (docs/dataset.md): ``sensor.yaml`` and, per user and
     gesture type, ``u{user}_{gesture}.aedat4``, ``.labels.csv`` and ``.markers.npz``.
 
@@ -870,21 +987,42 @@ def write_dataset(out_dir: str | Path, preset: str = "quick", seed: int = 0, min
     import json
 
     pairs = [(int(u), g) for u in user_ids for g in kinds]
-    (out / "physics.json").write_text(json.dumps(
-        {"physics": physics, "sequences": {sequence_name(u, g): f.name for (u, g), f in zip(pairs, families)}},
-        indent=1) + "\n")
+    (out / "physics.json").write_text(
+        json.dumps(
+            {"physics": physics, "sequences": {sequence_name(u, g): f.name for (u, g), f in zip(pairs, families)}},
+            indent=1,
+        )
+        + "\n"
+    )
 
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-    columns = (TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
-               TimeElapsedColumn(), TimeRemainingColumn())
+    columns = (
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+    )
     with Progress(*columns, disable=not progress, transient=False) as bar:
         task = bar.add_task("simulating", total=n_seq * seconds)
         for k, (uid, kind) in enumerate(pairs):
             name = sequence_name(uid, kind)
             bar.update(task, description=name)
-            sim = GelSimulator(sensor, USERS[uid], [kind], seed=seed, stream_seed=(uid, SIM_GESTURES.index(kind)),
-                               noise_rate_hz=noise_hz, physics=families[k])
-            write_sequence(out, name, sim, seconds,
-                           on_chunk=lambda us, k=k: bar.update(task, completed=k * seconds + min(us * 1e-6, seconds)))
+            sim = GelSimulator(
+                sensor,
+                USERS[uid],
+                [kind],
+                seed=seed,
+                stream_seed=(uid, SIM_GESTURES.index(kind)),
+                noise_rate_hz=noise_hz,
+                physics=families[k],
+            )
+            write_sequence(
+                out,
+                name,
+                sim,
+                seconds,
+                on_chunk=lambda us, k=k: bar.update(task, completed=k * seconds + min(us * 1e-6, seconds)),
+            )
     return out

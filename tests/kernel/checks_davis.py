@@ -64,9 +64,21 @@ class EmulatedCamera:
         self.log_path = Path("/tmp/davis_gadget.log")
         self._log = open(self.log_path, "w")
         self.t0 = time.monotonic()
-        self.proc = subprocess.Popen([sys.executable, str(GADGET), str(recording), "--loop",
-                                      "--to-s", str(REST_TO_S), "--frame-every", str(FRAME_EVERY)],
-                                     stdout=subprocess.PIPE, stderr=self._log, text=True)
+        self.proc = subprocess.Popen(
+            [
+                sys.executable,
+                str(GADGET),
+                str(recording),
+                "--loop",
+                "--to-s",
+                str(REST_TO_S),
+                "--frame-every",
+                str(FRAME_EVERY),
+            ],
+            stdout=subprocess.PIPE,
+            stderr=self._log,
+            text=True,
+        )
 
     def wait_ready(self, timeout_s: float = 120.0) -> tuple[str, float]:
         """The gadget's ``READY bus B device D`` line and the seconds it took; raises if it never comes."""
@@ -94,16 +106,18 @@ class EmulatedCamera:
 
 def _env() -> dict:
     # numba caches compiled code beside the sources, read-only in the guest: give it a folder
-    return dict(os.environ, HOME="/tmp", COLUMNS="200", XDG_CONFIG_HOME="/tmp/davis-config",
-                NUMBA_CACHE_DIR="/tmp/numba-cache")
+    return dict(
+        os.environ, HOME="/tmp", COLUMNS="200", XDG_CONFIG_HOME="/tmp/davis-config", NUMBA_CACHE_DIR="/tmp/numba-cache"
+    )
 
 
 def _run(cmd: list[str], timeout: float = COMMAND_TIMEOUT_S) -> subprocess.CompletedProcess:
     try:
-        return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd="/tmp", env=_env(),
-                              stdin=subprocess.DEVNULL)
+        return subprocess.run(
+            cmd, capture_output=True, text=True, timeout=timeout, cwd="/tmp", env=_env(), stdin=subprocess.DEVNULL
+        )
     except subprocess.TimeoutExpired as exc:
-        raise AssertionError(f"{' '.join(cmd)} did not finish in {timeout} s: {exc.stdout!r} {exc.stderr!r}")
+        raise AssertionError(f"{' '.join(cmd)} did not finish in {timeout} s: {exc.stdout!r} {exc.stderr!r}") from None
 
 
 def _camera_on_usb() -> Path | None:
@@ -121,8 +135,10 @@ def _descriptors(camera: EmulatedCamera) -> dict:
     """What the host sees: ids, firmware version in bcdDevice, the endpoints libcaer uses."""
     dev = _camera_on_usb()
     assert dev is not None, "no 152a:841a device in sysfs"
-    attrs = {name: (dev / name).read_text().strip() for name in
-             ("idVendor", "idProduct", "bcdDevice", "manufacturer", "product", "serial", "speed")}
+    attrs = {
+        name: (dev / name).read_text().strip()
+        for name in ("idVendor", "idProduct", "bcdDevice", "manufacturer", "product", "serial", "speed")
+    }
     interface = dev / f"{dev.name}:1.0"
     endpoints = {p.name: (p / "type").read_text().strip() for p in sorted(interface.glob("ep_*"))}
     assert attrs["bcdDevice"].endswith("06"), attrs
@@ -135,7 +151,7 @@ def _devices(camera: EmulatedCamera) -> dict:
     proc = _run([CLI, "devices", "--json"])
     data = json.loads(proc.stdout)
     assert proc.returncode == 0 and data["ready"] == 1, data
-    cam, = data["cameras"]
+    (cam,) = data["cameras"]
     assert cam["status"] == "ready" and cam["dv"]["model"] == "DAVIS" and cam["dv"]["firmware"] == 6, cam
     return {"message": data["message"], "dv": cam["dv"]}
 
@@ -155,8 +171,8 @@ def _match(source: tuple, recorded: tuple, period_us: int) -> dict:
     key_a = np.stack([a["x"], a["y"], a["polarity"]], axis=1).astype(np.int64)
     key_b = np.stack([b["x"], b["y"], b["polarity"]], axis=1).astype(np.int64)
     head = key_b[:32]
-    candidates = np.flatnonzero((key_a[:len(a) - 32] == head[0]).all(axis=1))
-    start = next((int(j) for j in candidates if (key_a[j:j + 32] == head).all()), None)
+    candidates = np.flatnonzero((key_a[: len(a) - 32] == head[0]).all(axis=1))
+    start = next((int(j) for j in candidates if (key_a[j : j + 32] == head).all()), None)
     assert start is not None, "the recorded events are not found in the replayed recording"
     rel_a = a["timestamp"] - first
     rel_b = (b["timestamp"] - b["timestamp"][0] + rel_a[start]) % period_us
@@ -165,10 +181,19 @@ def _match(source: tuple, recorded: tuple, period_us: int) -> dict:
     span_us = int(b["timestamp"][-1] - b["timestamp"][0])
     expected = len(a) * span_us / period_us  # events the replay sent in that span, about
     frames = [min(int(np.abs(src.image.astype(int) - f.image.astype(int)).max()) for src in fa) for f in fb]
-    return {"source_events": len(a), "period_us": period_us, "recorded_events": len(b), "start_index": start,
-            "span_us": span_us, "found_in_source": int(found.sum()), "first_not_found": int(np.argmin(found)) if not found.all() else None,
-            "sent_in_span_about": round(expected), "recorded_frames": len(fb),
-            "frame_shapes": sorted({tuple(f.image.shape) for f in fb}), "frame_max_diff": frames}
+    return {
+        "source_events": len(a),
+        "period_us": period_us,
+        "recorded_events": len(b),
+        "start_index": start,
+        "span_us": span_us,
+        "found_in_source": int(found.sum()),
+        "first_not_found": int(np.argmin(found)) if not found.all() else None,
+        "sent_in_span_about": round(expected),
+        "recorded_frames": len(fb),
+        "frame_shapes": sorted({tuple(f.image.shape) for f in fb}),
+        "frame_max_diff": frames,
+    }
 
 
 def _record(camera: EmulatedCamera) -> dict:
@@ -218,8 +243,14 @@ def _unplug(camera: EmulatedCamera) -> dict:
     """The live source (``DavisSource.stream(reconnect=True)``, what ``run`` reads) on dv-processing:
     the camera unplugged mid-stream (SIGUSR1: the gadget unbinds) is reported lost at once, and
     once it is plugged in again (SIGUSR2) the source opens it again and data flows."""
-    proc = subprocess.Popen([sys.executable, "-c", SOURCE, "240"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, cwd="/tmp", env=_env())
+    proc = subprocess.Popen(
+        [sys.executable, "-c", SOURCE, "240"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd="/tmp",
+        env=_env(),
+    )
     seen: list[str] = []
 
     def until(pred, timeout_s: float) -> str | None:
@@ -236,25 +267,30 @@ def _unplug(camera: EmulatedCamera) -> dict:
         return None
 
     try:
-        assert until(lambda l: l.startswith("FRAME"), COMMAND_TIMEOUT_S), f"no frame: {seen[-5:]}"
-        assert until(lambda l: l.startswith("EVENTS"), 30), f"no events: {seen[-5:]}"
+        assert until(lambda ln: ln.startswith("FRAME"), COMMAND_TIMEOUT_S), f"no frame: {seen[-5:]}"
+        assert until(lambda ln: ln.startswith("EVENTS"), 30), f"no events: {seen[-5:]}"
         t_unplug = time.monotonic()
         camera.proc.send_signal(signal.SIGUSR1)
-        lost = until(lambda l: l.startswith("STATUS lost"), 60)
+        lost = until(lambda ln: ln.startswith("STATUS lost"), 60)
         assert lost, f"the unplug was not reported: {seen[-5:]}"
         lost_after_s = float(lost.split()[2]) - t_unplug
         time.sleep(2)
         camera.proc.send_signal(signal.SIGUSR2)
         t_replug = time.monotonic()
-        resumed = until(lambda l: l.startswith("STATUS resumed"), 120)
+        resumed = until(lambda ln: ln.startswith("STATUS resumed"), 120)
         assert resumed, f"not resumed after the re-plug: {seen[-5:]}"
-        data_after = until(lambda l: l.startswith(("FRAME", "EVENTS")), 60)
+        data_after = until(lambda ln: ln.startswith(("FRAME", "EVENTS")), 60)
         assert data_after, f"no data after resuming: {seen[-5:]}"
     finally:
         proc.kill()
         _, err = proc.communicate()
-    return {"lost_after_unplug_s": round(lost_after_s, 2), "resumed_after_replug_s": round(float(resumed.split()[2]) - t_replug, 2),
-            "lost": lost, "resumed": resumed, "stderr": err[-1000:]}
+    return {
+        "lost_after_unplug_s": round(lost_after_s, 2),
+        "resumed_after_replug_s": round(float(resumed.split()[2]) - t_replug, 2),
+        "lost": lost,
+        "resumed": resumed,
+        "stderr": err[-1000:],
+    }
 
 
 PARTS = {"descriptors": _descriptors, "devices": _devices, "record": _record, "unplug": _unplug}
@@ -277,12 +313,19 @@ def check_emulated_davis() -> dict:
             try:
                 results[name] = {"ok": True, "details": part(camera)}
             except Exception as exc:  # noqa: BLE001 - recorded for the host-side test of that part
-                results[name] = {"ok": False, "error": f"{type(exc).__name__}: {exc}",
-                                 "traceback": traceback.format_exc()[-3000:]}
+                results[name] = {
+                    "ok": False,
+                    "error": f"{type(exc).__name__}: {exc}",
+                    "traceback": traceback.format_exc()[-3000:],
+                }
             results[name]["seconds"] = round(time.monotonic() - t0, 1)
     finally:
         code = camera.stop()
         gone = guestlib.wait_for(lambda: _camera_on_usb() is None, timeout_s=20)
-        results["sigterm"] = {"ok": code == 0 and bool(gone), "exit_code": code, "unplugged": bool(gone),
-                              "log_tail": camera.log()[-3000:]}
+        results["sigterm"] = {
+            "ok": code == 0 and bool(gone),
+            "exit_code": code,
+            "unplugged": bool(gone),
+            "log_tail": camera.log()[-3000:],
+        }
     return results

@@ -23,8 +23,6 @@ from pathlib import Path
 import guestlib
 from checks_packaging import _plug_camera, _unplug_camera
 
-from neurotouch_hid.sources.discovery import CAMERA_PID, CAMERA_VID
-
 TIMEOUT_S = 600
 #: Per command: python and dv-processing take ~20 s to start under software emulation, minutes on
 #: a loaded host.
@@ -51,10 +49,19 @@ def _run(cmd: list[str], as_nobody: bool = False) -> subprocess.CompletedProcess
     prefix = list(NOBODY) if as_nobody else []
     env = dict(os.environ, HOME="/tmp", COLUMNS="200")
     try:
-        return subprocess.run(prefix + cmd, capture_output=True, text=True, timeout=COMMAND_TIMEOUT_S,
-                              cwd="/tmp", env=env, stdin=subprocess.DEVNULL)
+        return subprocess.run(
+            prefix + cmd,
+            capture_output=True,
+            text=True,
+            timeout=COMMAND_TIMEOUT_S,
+            cwd="/tmp",
+            env=env,
+            stdin=subprocess.DEVNULL,
+        )
     except subprocess.TimeoutExpired as exc:
-        raise AssertionError(f"{' '.join(cmd)} did not finish in {COMMAND_TIMEOUT_S} s: {exc.stdout!r} {exc.stderr!r}")
+        raise AssertionError(
+            f"{' '.join(cmd)} did not finish in {COMMAND_TIMEOUT_S} s: {exc.stdout!r} {exc.stderr!r}"
+        ) from None
 
 
 @contextlib.contextmanager
@@ -71,8 +78,17 @@ def _python_for_nobody():
     assert guestlib.sh(["mount", "-t", "tmpfs", "none", str(scratch)]).returncode == 0
     (scratch / "up").mkdir()
     (scratch / "work").mkdir()
-    mount = guestlib.sh(["mount", "-t", "overlay", "overlay", "-o",
-                         f"lowerdir=/root,upperdir={scratch}/up,workdir={scratch}/work", "/root"])
+    mount = guestlib.sh(
+        [
+            "mount",
+            "-t",
+            "overlay",
+            "overlay",
+            "-o",
+            f"lowerdir=/root,upperdir={scratch}/up,workdir={scratch}/work",
+            "/root",
+        ]
+    )
     assert mount.returncode == 0, f"overlay on /root: {mount.stderr}"
     try:
         os.chmod("/root", 0o711)
@@ -87,8 +103,9 @@ def _devices_json(as_nobody: bool = False) -> tuple[int, dict]:
     try:
         return proc.returncode, json.loads(proc.stdout)
     except ValueError:
-        raise AssertionError(f"devices --json printed no JSON (exit {proc.returncode}): "
-                             f"{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}") from None
+        raise AssertionError(
+            f"devices --json printed no JSON (exit {proc.returncode}): {proc.stdout[-2000:]}\n{proc.stderr[-2000:]}"
+        ) from None
 
 
 def _node(sysdev: str) -> tuple[int, int, str]:
@@ -189,8 +206,9 @@ def _unprivileged(bus: int, address: int, node: str) -> dict:
     assert code == 1 and data["ready"] == 0, data
     assert camera["status"] == "no-access" and camera["usb"]["access"] == "denied", camera
     assert "permission denied" in camera["problem"] and "uid 65534" in camera["problem"], camera
-    assert camera["fix"].startswith("install the udev rule: sudo install -m644 udev/60-neurotouch.rules "
-                                    "/etc/udev/rules.d/"), camera
+    assert camera["fix"].startswith(
+        "install the udev rule: sudo install -m644 udev/60-neurotouch.rules /etc/udev/rules.d/"
+    ), camera
     assert data["message"].startswith(f"DAVIS-346 at bus {bus} device {address}"), data
     return {"exit_code": code, "camera": camera, "message": data["message"], "dv_log": data["dv_log"]}
 
@@ -212,8 +230,11 @@ def check_devices() -> dict:
             try:
                 results[name] = {"ok": True, "details": part(bus, address, node)}
             except Exception as exc:  # noqa: BLE001 - recorded for the host-side test of that part
-                results[name] = {"ok": False, "error": f"{type(exc).__name__}: {exc}",
-                                 "traceback": traceback.format_exc()[-3000:]}
+                results[name] = {
+                    "ok": False,
+                    "error": f"{type(exc).__name__}: {exc}",
+                    "traceback": traceback.format_exc()[-3000:],
+                }
     finally:
         _unplug_camera()
     return results

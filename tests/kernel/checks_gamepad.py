@@ -25,8 +25,16 @@ TIMEOUT_S = 300  # generous: a loaded host under software emulation is slow
 #: A state with every kind of value away from neutral.
 PRESSED = ControllerState(
     t_us=1,
-    axes={"ABS_X": 32767, "ABS_Y": -32768, "ABS_RX": 12345, "ABS_RY": -20000,
-          "ABS_Z": 255, "ABS_RZ": 128, "ABS_HAT0X": -1, "ABS_HAT0Y": 1},
+    axes={
+        "ABS_X": 32767,
+        "ABS_Y": -32768,
+        "ABS_RX": 12345,
+        "ABS_RY": -20000,
+        "ABS_Z": 255,
+        "ABS_RZ": 128,
+        "ABS_HAT0X": -1,
+        "ABS_HAT0Y": 1,
+    },
     buttons={**{b: False for b in BUTTONS}, "BTN_SOUTH": True, "BTN_START": True, "BTN_THUMBR": True},
 )
 
@@ -57,18 +65,30 @@ def check_device_appears() -> dict:
         assert ecodes.EV_REL not in caps, "a gamepad must not have relative (mouse) axes"
         assert not dev.input_props(), f"input properties set: {dev.input_props()}"
         ident = GamepadIdentity()
-        assert (dev.info.bustype, dev.info.vendor, dev.info.product, dev.info.version) == \
-            (ident.bustype, ident.vendor, ident.product, ident.version), str(dev.info)
+        assert (dev.info.bustype, dev.info.vendor, dev.info.product, dev.info.version) == (
+            ident.bustype,
+            ident.vendor,
+            ident.product,
+            ident.version,
+        ), str(dev.info)
         assert dev.name == ident.name and dev.phys == PHYS, (dev.name, dev.phys)
         custom = GamepadIdentity(name="NeuroTouch test pad", vendor=0x1234, product=0x5678, version=0x0042)
         with VirtualGamepad(custom) as other:
             info = other._ui.device.info
-            assert (other._ui.device.name, info.vendor, info.product, info.version) == \
-                (custom.name, custom.vendor, custom.product, custom.version), str(info)
-        return {"path": path, "name": dev.name, "phys": dev.phys, "event_types": types,
-                "info": f"{dev.info.bustype:04x}:{dev.info.vendor:04x}:{dev.info.product:04x}:"
-                        f"{dev.info.version:04x}",
-                "stick_absinfo": str(absinfo[ecodes.ABS_X])}
+            assert (other._ui.device.name, info.vendor, info.product, info.version) == (
+                custom.name,
+                custom.vendor,
+                custom.product,
+                custom.version,
+            ), str(info)
+        return {
+            "path": path,
+            "name": dev.name,
+            "phys": dev.phys,
+            "event_types": types,
+            "info": f"{dev.info.bustype:04x}:{dev.info.vendor:04x}:{dev.info.product:04x}:{dev.info.version:04x}",
+            "stick_absinfo": str(absinfo[ecodes.ABS_X]),
+        }
 
 
 def check_udev_classifies_joystick() -> dict:
@@ -86,9 +106,13 @@ def check_udev_classifies_joystick() -> dict:
         mode = os.stat("/dev/uinput").st_mode
         assert not mode & 0o002, f"/dev/uinput is world-writable: {oct(mode)}"
         js = sorted(p.name for p in Path("/sys/class/input").glob("js*"))
-        return {"ID_INPUT_JOYSTICK": props["ID_INPUT_JOYSTICK"],
-                "ID_NEUROTOUCH_VIRTUAL": props["ID_NEUROTOUCH_VIRTUAL"],
-                "uinput_tags": tags, "uinput_mode": oct(mode & 0o777), "joydev_nodes": js}
+        return {
+            "ID_INPUT_JOYSTICK": props["ID_INPUT_JOYSTICK"],
+            "ID_NEUROTOUCH_VIRTUAL": props["ID_NEUROTOUCH_VIRTUAL"],
+            "uinput_tags": tags,
+            "uinput_mode": oct(mode & 0o777),
+            "joydev_nodes": js,
+        }
 
 
 def check_evdev_roundtrip() -> dict:
@@ -103,12 +127,14 @@ def check_evdev_roundtrip() -> dict:
         first = len(reader.reports[0])
         assert first == len(changed_events(ControllerState.neutral(), PRESSED)), reader.reports
 
-        moved = ControllerState(t_us=2, axes={**PRESSED.axes, "ABS_X": -1000},
-                                buttons={**PRESSED.buttons, "BTN_SOUTH": False})
+        moved = ControllerState(
+            t_us=2, axes={**PRESSED.axes, "ABS_X": -1000}, buttons={**PRESSED.buttons, "BTN_SOUTH": False}
+        )
         pad.write(moved)
         reader.pump(until=lambda r: len(r.reports) >= 2)
         assert sorted(reader.reports[1]) == sorted(
-            [(ecodes.EV_ABS, ecodes.ABS_X, -1000), (ecodes.EV_KEY, ecodes.BTN_SOUTH, 0)]), reader.reports[1]
+            [(ecodes.EV_ABS, ecodes.ABS_X, -1000), (ecodes.EV_KEY, ecodes.BTN_SOUTH, 0)]
+        ), reader.reports[1]
 
         pad.write(moved)  # nothing changed: no report at all
         reader.pump(timeout_s=0.3)
@@ -124,8 +150,7 @@ def check_evdev_roundtrip() -> dict:
         kernel_state = {c: pad._ui.device.absinfo(c).value for c in reader.axes}
         assert not any(kernel_state.values()) and not pad._ui.device.active_keys(), kernel_state
         reader.close()
-        return {"reports": len(reader.reports), "first_report_events": first,
-                "second_report": reader.reports[1]}
+        return {"reports": len(reader.reports), "first_report_events": first, "second_report": reader.reports[1]}
 
 
 def check_close_releases() -> dict:
@@ -153,11 +178,18 @@ def check_close_releases() -> dict:
 def check_sigterm_releases() -> dict:
     """A process holding the pad with a button pressed is SIGTERMed: its handler calls close(),
     no button stays pressed."""
-    holder = subprocess.Popen([sys.executable, str(HERE / "holder.py")], stdout=subprocess.PIPE,
-                              stderr=subprocess.PIPE, text=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    holder = subprocess.Popen(
+        [sys.executable, str(HERE / "holder.py")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=dict(os.environ, PYTHONUNBUFFERED="1"),
+    )
     try:
         line = holder.stdout.readline()
-        assert line.startswith("ready "), f"holder said {line!r}; stderr: {holder.stderr.read() if holder.poll() is not None else ''}"
+        assert line.startswith("ready "), (
+            f"holder said {line!r}; stderr: {holder.stderr.read() if holder.poll() is not None else ''}"
+        )
         path = line.split()[1]
         reader = guestlib.EventReader(path)
         held = sorted(reader.keys)
@@ -178,11 +210,17 @@ def check_sigterm_releases() -> dict:
 
 def check_sdl_gamecontroller() -> dict:
     """SDL2 (pygame) sees a GameController and reads the button, stick and trigger written."""
-    env = dict(os.environ, SDL_VIDEODRIVER="dummy", SDL_AUDIODRIVER="dummy",
-               PYGAME_HIDE_SUPPORT_PROMPT="1", PYTHONPATH=os.pathsep.join(sys.path))
-    proc = subprocess.run([sys.executable, str(HERE / "sdl_probe.py")], capture_output=True,
-                          text=True, env=env, timeout=280)
-    lines = [l for l in proc.stdout.splitlines() if l.startswith("{")]
+    env = dict(
+        os.environ,
+        SDL_VIDEODRIVER="dummy",
+        SDL_AUDIODRIVER="dummy",
+        PYGAME_HIDE_SUPPORT_PROMPT="1",
+        PYTHONPATH=os.pathsep.join(sys.path),
+    )
+    proc = subprocess.run(
+        [sys.executable, str(HERE / "sdl_probe.py")], capture_output=True, text=True, env=env, timeout=280
+    )
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
     assert lines, f"sdl_probe gave no result (exit {proc.returncode}): {proc.stderr[-2000:]}"
     result = json.loads(lines[-1])
     assert result.get("error") is None, result

@@ -83,17 +83,26 @@ def check_camera_plug_and_play() -> dict:
         assert "uaccess" in tags and "systemd" in tags, f"tags {tags}: {props}"
         assert "neurotouch-hid.service" in props.get("SYSTEMD_USER_WANTS", "").split(), props
         assert props.get("ID_NEUROTOUCH_CAMERA") == "1", props
-        assert os.path.realpath("/dev/neurotouch") == node, \
+        assert os.path.realpath("/dev/neurotouch") == node, (
             f"/dev/neurotouch -> {os.path.realpath('/dev/neurotouch')}, camera is {node}"
+        )
         mode = os.stat(node).st_mode & 0o777
         assert not mode & 0o002, f"{node} is world-writable: {oct(mode)}"
         found = discover(dv=False)  # dv-processing's view: checks_devices.py
-        checks = [doctor.check_camera(found), doctor.check_camera_access(found),
-                  doctor.check_uinput(), doctor.check_rules()]
+        checks = [
+            doctor.check_camera(found),
+            doctor.check_camera_access(found),
+            doctor.check_uinput(),
+            doctor.check_rules(),
+        ]
         assert all(c.status == doctor.OK for c in checks), checks
-        plugged = {"node": node, "mode": oct(mode), "tags": tags,
-                   "SYSTEMD_USER_WANTS": props["SYSTEMD_USER_WANTS"],
-                   "doctor": {c.name: f"{c.status}: {c.detail}" for c in checks}}
+        plugged = {
+            "node": node,
+            "mode": oct(mode),
+            "tags": tags,
+            "SYSTEMD_USER_WANTS": props["SYSTEMD_USER_WANTS"],
+            "doctor": {c.name: f"{c.status}: {c.detail}" for c in checks},
+        }
     finally:
         _unplug_camera()
     gone = guestlib.wait_for(lambda: not os.path.lexists("/dev/neurotouch"), timeout_s=10)

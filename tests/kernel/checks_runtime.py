@@ -63,8 +63,12 @@ def _gesture(t_us: int, gesture: GestureType, level_mm: float) -> GestureEstimat
 ALL_GESTURES = (GestureType.PUSH, GestureType.TWIST_CCW, GestureType.ZOOM, GestureType.PINCH, GestureType.TWIST_CW)
 
 
-def gesture_sequence(hold_s: float = 0.4, lead_in_s: float = 0.5, gestures: tuple[GestureType, ...] = ALL_GESTURES,
-                     last_hold_s: float | None = None) -> list[GestureEstimate]:
+def gesture_sequence(
+    hold_s: float = 0.4,
+    lead_in_s: float = 0.5,
+    gestures: tuple[GestureType, ...] = ALL_GESTURES,
+    last_hold_s: float | None = None,
+) -> list[GestureEstimate]:
     """Rest, then each gesture: ramp up to 6 mm in 0.3 s, hold (the last one ``last_hold_s`` if
     given), ramp down in 0.2 s, rest 0.3 s."""
     out: list[GestureEstimate] = []
@@ -124,9 +128,25 @@ def _changes(keys: list[tuple]) -> list[tuple]:
 def _start_expected(preds: Path, profile: Path, folder: Path) -> subprocess.Popen:
     """Start the same estimates through ``neurotouch-hid run --output jsonl --fast`` (into
     ``folder/expected.jsonl``); :func:`_expected_lines` waits for it and reads the state lines."""
-    return subprocess.Popen(_cli("run", "--source", str(preds), "--profile", str(profile), "--output", "jsonl",
-                                 "--fast", "--out", str(folder / "expected.jsonl")),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=str(REPO))
+    return subprocess.Popen(
+        _cli(
+            "run",
+            "--source",
+            str(preds),
+            "--profile",
+            str(profile),
+            "--output",
+            "jsonl",
+            "--fast",
+            "--out",
+            str(folder / "expected.jsonl"),
+        ),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=_env(),
+        cwd=str(REPO),
+    )
 
 
 def _expected_lines(preds: Path, profile: Path, folder: Path, proc: subprocess.Popen | None = None) -> list[dict]:
@@ -166,7 +186,7 @@ class PadWatcher:
         seen = 0
         axes, keys = dict(self.reader.axes), set(self.reader.keys)
         while not self._stop.is_set() and not self.reader.gone:
-            self.reader.pump(timeout_s=0.2, until=lambda r: len(r.reports) > seen or self._stop.is_set())
+            self.reader.pump(timeout_s=0.2, until=lambda r, seen=seen: len(r.reports) > seen or self._stop.is_set())
             for report in self.reader.reports[seen:]:
                 for etype, code, value in report:
                     if etype == ecodes.EV_ABS:
@@ -201,16 +221,18 @@ def _our_devices() -> list[str]:
 def check_run_gamepad_matches_the_profile() -> dict:
     """The runtime (paced, real threads) drives the uinput pad; what evdev reads back, state by
     state, is what the same estimates give through ``--output jsonl``; the pad ends neutral."""
+    from neurotouch_hid.driver import run_driver
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.output.gamepad import GamepadIdentity, VirtualGamepad
-    from neurotouch_hid.driver import run_driver
 
     folder = Path(tempfile.mkdtemp(prefix="runtime-check-"))
     preds, profile_path = _write(folder, gesture_sequence())
     expected = _changes(_expected_states(preds, profile_path, folder))
     assert len(expected) > 20, f"the sequence moves the pad too little: {len(expected)} states"
     dev = load_profile(profile_path).device
-    with VirtualGamepad(GamepadIdentity(name=dev.name, vendor=dev.vendor, product=dev.product, version=dev.version)) as pad:
+    with VirtualGamepad(
+        GamepadIdentity(name=dev.name, vendor=dev.vendor, product=dev.product, version=dev.version)
+    ) as pad:
         guestlib.settle()
         props = guestlib.udev_properties(pad.device_path)
         watcher = PadWatcher(pad.device_path)
@@ -221,13 +243,20 @@ def check_run_gamepad_matches_the_profile() -> dict:
     assert props.get("ID_INPUT_JOYSTICK") == "1", f"udev does not class the pad as a joystick: {props}"
     assert stats.dropped_items == 0, f"the runtime dropped {stats.dropped_items} items: the guest is too slow"
     first_diff = next((i for i, (a, b) in enumerate(zip(got, expected)) if a != b), None)
-    assert got == expected, (f"read back {len(got)} states, expected {len(expected)}; first difference at "
-                             f"{first_diff}: {got[first_diff] if first_diff is not None else None} vs "
-                             f"{expected[first_diff] if first_diff is not None else None}")
+    assert got == expected, (
+        f"read back {len(got)} states, expected {len(expected)}; first difference at "
+        f"{first_diff}: {got[first_diff] if first_diff is not None else None} vs "
+        f"{expected[first_diff] if first_diff is not None else None}"
+    )
     assert watcher.states[-1] == NEUTRAL
-    pressed = sum(1 for s in got if any(s[len(AXES):]))
-    return {"states": len(got), "with_button": pressed, "windows": stats.windows,
-            "latency_p99_us": round(stats.latency.percentile_us(99)), "ID_INPUT_JOYSTICK": props.get("ID_INPUT_JOYSTICK")}
+    pressed = sum(1 for s in got if any(s[len(AXES) :]))
+    return {
+        "states": len(got),
+        "with_button": pressed,
+        "windows": stats.windows,
+        "latency_p99_us": round(stats.latency.percentile_us(99)),
+        "ID_INPUT_JOYSTICK": props.get("ID_INPUT_JOYSTICK"),
+    }
 
 
 def check_run_sigterm_releases_everything() -> dict:
@@ -236,18 +265,28 @@ def check_run_sigterm_releases_everything() -> dict:
     folder = Path(tempfile.mkdtemp(prefix="runtime-sigterm-"))
     preds, profile_path = _write(folder, gesture_sequence(hold_s=30.0, lead_in_s=0.2))
     before = set(_our_devices())
-    proc = subprocess.Popen(_cli("run", "--source", str(preds), "--profile", str(profile_path), "--output", "gamepad"),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=str(REPO))
+    proc = subprocess.Popen(
+        _cli("run", "--source", str(preds), "--profile", str(profile_path), "--output", "gamepad"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=_env(),
+        cwd=str(REPO),
+    )
     watcher = None
     try:
         path = guestlib.wait_for(lambda: (set(_our_devices()) - before) or proc.poll() is not None, 150.0, 0.1)
-        assert path and proc.poll() is None, f"no gamepad appeared: {proc.stderr.read()[-2000:] if proc.poll() is not None else 'timeout'}"
+        assert path and proc.poll() is None, (
+            f"no gamepad appeared: {proc.stderr.read()[-2000:] if proc.poll() is not None else 'timeout'}"
+        )
         node = sorted(set(_our_devices()) - before)[0]
         guestlib.settle()
         props = guestlib.udev_properties(node)
         watcher = PadWatcher(node)
         btn = ecodes.ecodes["BTN_SOUTH"]
-        held = guestlib.wait_for(lambda: btn in watcher.reader.keys and watcher.reader.axes.get(ecodes.ABS_X, 0) > 0, 30.0)
+        held = guestlib.wait_for(
+            lambda: btn in watcher.reader.keys and watcher.reader.axes.get(ecodes.ABS_X, 0) > 0, 30.0
+        )
         assert held, f"the push never pressed the button: {watcher.states[-3:]}"
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=60)
@@ -260,14 +299,20 @@ def check_run_sigterm_releases_everything() -> dict:
     assert proc.returncode == 0, f"exit code {proc.returncode}: {err[-2000:]}"
     assert watcher.states[-1] == NEUTRAL, f"after SIGTERM the pad reads {watcher.states[-1]}"
     assert not set(_our_devices()) - before, "the device outlived the process"
-    return {"exit_code": proc.returncode, "ID_INPUT_JOYSTICK": props.get("ID_INPUT_JOYSTICK"),
-            "states_seen": len(watcher.states), "stderr_tail": err.strip().splitlines()[-1:] if err.strip() else []}
+    return {
+        "exit_code": proc.returncode,
+        "ID_INPUT_JOYSTICK": props.get("ID_INPUT_JOYSTICK"),
+        "states_seen": len(watcher.states),
+        "stderr_tail": err.strip().splitlines()[-1:] if err.strip() else [],
+    }
 
 
 #: PROFILE plus push mappings onto the other axes and a second button, so that one held push shows
 #: a value on every output SDL reads (sticks, both triggers at part deflection, A and START), and a
 #: device name of the profile's own with the Xbox 360 ids.
-SDL_PROFILE = PROFILE + """\
+SDL_PROFILE = (
+    PROFILE
+    + """\
   push_rx: {input: push_x, output: ABS_RX, deadzone_mm: 0.3, saturation_mm: 8.0}
   push_ry: {input: push_y, output: ABS_RY, deadzone_mm: 0.3, saturation_mm: 4.0}
   push_lt: {input: push_intensity, output: ABS_Z, deadzone_mm: 0.3, saturation_mm: 9.0}
@@ -275,9 +320,16 @@ SDL_PROFILE = PROFILE + """\
   start: {input: push_intensity, output: BTN_START, press_mm: 4.0, release_mm: 3.0}
 device: {name: NeuroTouch guest check pad, vendor: 0x045e, product: 0x028e, version: 0x0114}
 """
+)
 #: SDL GameController axis (sdl_probe.py --watch names) of each evdev axis, Xbox 360 layout.
-SDL_AXES = {"ABS_X": "leftx", "ABS_Y": "lefty", "ABS_RX": "rightx", "ABS_RY": "righty",
-            "ABS_Z": "triggerleft", "ABS_RZ": "triggerright"}
+SDL_AXES = {
+    "ABS_X": "leftx",
+    "ABS_Y": "lefty",
+    "ABS_RX": "rightx",
+    "ABS_RY": "righty",
+    "ABS_Z": "triggerleft",
+    "ABS_RZ": "triggerright",
+}
 #: SDL GameController button of each evdev button the SDL check's profile drives.
 SDL_BUTTONS = {"BTN_SOUTH": "a", "BTN_START": "start"}
 _AXIS_INDEX = {name: i for i, name in enumerate(AXES)}
@@ -287,10 +339,16 @@ _BUTTON_INDEX = {name: len(AXES) + i for i, name in enumerate(BUTTONS)}
 def _sdl_view(key: tuple) -> tuple:
     """What SDL should read for an evdev state key: the six analogue axes, A, START, and whether
     any other button or d-pad direction is pressed (the check's profile drives none)."""
-    others = any(key[i] for n, i in _BUTTON_INDEX.items() if n not in SDL_BUTTONS) \
-        or key[_AXIS_INDEX["ABS_HAT0X"]] != 0 or key[_AXIS_INDEX["ABS_HAT0Y"]] != 0
-    return (tuple(key[_AXIS_INDEX[n]] for n in SDL_AXES) + tuple(bool(key[_BUTTON_INDEX[n]]) for n in SDL_BUTTONS)
-            + (bool(others),))
+    others = (
+        any(key[i] for n, i in _BUTTON_INDEX.items() if n not in SDL_BUTTONS)
+        or key[_AXIS_INDEX["ABS_HAT0X"]] != 0
+        or key[_AXIS_INDEX["ABS_HAT0Y"]] != 0
+    )
+    return (
+        tuple(key[_AXIS_INDEX[n]] for n in SDL_AXES)
+        + tuple(bool(key[_BUTTON_INDEX[n]]) for n in SDL_BUTTONS)
+        + (bool(others),)
+    )
 
 
 #: SDL ignores an axis until its first move of more than this (SDL_joystick.c, SDL_PrivateJoystickAxis:
@@ -320,8 +378,12 @@ def _sdl_expected(keys: list[tuple]) -> list[tuple]:
             raw = _sdl_raw(name, view[i])
             if name not in seen and view[i] != neutral[i]:
                 seen.add(name)
-                assert not (raw != _sdl_raw(name, neutral[i]) and neutral[i] == 0 and name in ("ABS_Z", "ABS_RZ")
-                            and abs(raw) < 32767 // 4), f"{name} first moves to {view[i]}: SDL's initial-value rule"
+                assert not (
+                    raw != _sdl_raw(name, neutral[i])
+                    and neutral[i] == 0
+                    and name in ("ABS_Z", "ABS_RZ")
+                    and abs(raw) < 32767 // 4
+                ), f"{name} first moves to {view[i]}: SDL's initial-value rule"
             if abs(raw - _sdl_raw(name, neutral[i])) > SDL_MAX_ALLOWED_JITTER:
                 moved.add(name)
             if name not in moved:
@@ -385,14 +447,28 @@ def check_sdl_reads_run_like_the_profile() -> dict:
     from neurotouch_hid.mapping.profile import load_profile
 
     folder = Path(tempfile.mkdtemp(prefix="runtime-sdl-"))
-    estimates = gesture_sequence(hold_s=0.4, lead_in_s=3.0, last_hold_s=30.0,
-                                 gestures=(GestureType.ZOOM, GestureType.TWIST_CCW, GestureType.PUSH))
+    estimates = gesture_sequence(
+        hold_s=0.4,
+        lead_in_s=3.0,
+        last_hold_s=30.0,
+        gestures=(GestureType.ZOOM, GestureType.TWIST_CCW, GestureType.PUSH),
+    )
     preds, profile_path = _write(folder, estimates, SDL_PROFILE)
     hold_t = next(e.t_us for e in estimates if e.gesture is GestureType.PUSH and e.intensity_mm == 6.0)
-    env = dict(os.environ, SDL_VIDEODRIVER="dummy", SDL_AUDIODRIVER="dummy",
-               PYGAME_HIDE_SUPPORT_PROMPT="1", PYTHONPATH=os.pathsep.join(sys.path))
-    probe = subprocess.Popen([sys.executable, str(Path(__file__).resolve().parent / "sdl_probe.py"), "--watch", "200"],
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    env = dict(
+        os.environ,
+        SDL_VIDEODRIVER="dummy",
+        SDL_AUDIODRIVER="dummy",
+        PYGAME_HIDE_SUPPORT_PROMPT="1",
+        PYTHONPATH=os.pathsep.join(sys.path),
+    )
+    probe = subprocess.Popen(
+        [sys.executable, str(Path(__file__).resolve().parent / "sdl_probe.py"), "--watch", "200"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
     probe_lines = ProbeLines(probe)
     dev = load_profile(profile_path).device
     before = set(_our_devices())
@@ -400,38 +476,62 @@ def check_sdl_reads_run_like_the_profile() -> dict:
     # here); the run's 3 s of rest at first leave SDL time to open the pad before it moves.
     t_run = time.monotonic()
     expecting = _start_expected(preds, profile_path, folder)
-    run = subprocess.Popen(_cli("run", "--source", str(preds), "--profile", str(profile_path), "--output", "gamepad"),
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=str(REPO))
+    run = subprocess.Popen(
+        _cli("run", "--source", str(preds), "--profile", str(profile_path), "--output", "gamepad"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=_env(),
+        cwd=str(REPO),
+    )
     watcher = None
     timings: dict = {}
     try:
-        ready = guestlib.wait_for(lambda: probe_lines.first("ready") or probe_lines.first("done") or probe.poll() is not None, 150.0)
-        assert isinstance(ready, dict) and ready.get("ready"), f"SDL did not start: {probe_lines.lines} {probe.stderr.read()[-2000:] if probe.poll() is not None else ''}"
+        ready = guestlib.wait_for(
+            lambda: probe_lines.first("ready") or probe_lines.first("done") or probe.poll() is not None, 150.0
+        )
+        assert isinstance(ready, dict) and ready.get("ready"), (
+            f"SDL did not start: {probe_lines.lines} {probe.stderr.read()[-2000:] if probe.poll() is not None else ''}"
+        )
         found = guestlib.wait_for(lambda: (set(_our_devices()) - before) or run.poll() is not None, 150.0, 0.05)
-        assert found and run.poll() is None, f"no gamepad appeared: {run.stderr.read()[-2000:] if run.poll() is not None else 'timeout'}"
+        assert found and run.poll() is None, (
+            f"no gamepad appeared: {run.stderr.read()[-2000:] if run.poll() is not None else 'timeout'}"
+        )
         node = sorted(set(_our_devices()) - before)[0]
         watcher = PadWatcher(node)
         t_device = time.monotonic()
         evdev_name = watcher.reader.device.name
         opened = guestlib.wait_for(lambda: probe_lines.first("opened") or probe_lines.first("done"), 60.0)
         assert opened and "opened" in opened, f"SDL saw no GameController: {probe_lines.lines[-3:]}"
-        timings = {"sdl_init_s": ready["init_seconds"], "run_to_device_s": round(t_device - t_run, 2),
-                   "device_to_sdl_open_s": round(opened["opened"] - t_device, 2)}
+        timings = {
+            "sdl_init_s": ready["init_seconds"],
+            "run_to_device_s": round(t_device - t_run, 2),
+            "device_to_sdl_open_s": round(opened["opened"] - t_device, 2),
+        }
         lines = _expected_lines(preds, profile_path, folder, expecting)
         expected_keys = [_state_key(d["axes"], d["buttons"]) for d in lines if d["t_us"] <= hold_t]
         held = expected_keys[-1]
         expected = _changes(expected_keys) + [NEUTRAL]  # SIGTERM in the held push: neutral
         sdl_expected = _sdl_expected(expected_keys + [NEUTRAL])
-        assert all(v != n for v, n in zip(_sdl_view(held)[:-1], _sdl_view(NEUTRAL))), \
+        assert all(v != n for v, n in zip(_sdl_view(held)[:-1], _sdl_view(NEUTRAL))), (
             f"the held push does not move every output SDL reads: {_sdl_view(held)}"
+        )
         guestlib.settle()
         props = guestlib.udev_properties(node)
         sdl_held = sdl_expected[-2]
-        reached = guestlib.wait_for(lambda: watcher.states[-1] == held and probe_lines.samples()
-                                    and _from_sdl(probe_lines.samples()[-1]["v"]) == sdl_held, 25.0)
+        reached = guestlib.wait_for(
+            lambda: (
+                watcher.states[-1] == held
+                and probe_lines.samples()
+                and _from_sdl(probe_lines.samples()[-1]["v"]) == sdl_held
+            ),
+            25.0,
+        )
         sdl_last = probe_lines.samples()[-1]["v"] if probe_lines.samples() else None
-        assert reached, (f"the held push was not read back: evdev {watcher.states[-1]}, SDL {sdl_last} "
-                         f"(in evdev units {_from_sdl(sdl_last) if sdl_last else None}), expected {held} / {sdl_held}")
+        assert reached, (
+            f"the held push was not read back: evdev {watcher.states[-1]}, SDL {sdl_last} "
+            f"(in evdev units {_from_sdl(sdl_last) if sdl_last else None}), expected {held} / {sdl_held}"
+        )
         run.send_signal(signal.SIGTERM)
         _, err = run.communicate(timeout=60)
         probe.wait(timeout=60)
@@ -451,29 +551,47 @@ def check_sdl_reads_run_like_the_profile() -> dict:
     assert evdev_name == dev.name, f"the device is called {evdev_name!r}, the profile says {dev.name!r}"
 
     guid = bytes.fromhex(opened["guid"])
-    bus, vendor, product, version = (int.from_bytes(guid[i:i + 2], "little") for i in (0, 4, 8, 12))
-    assert (bus, vendor, product, version) == (0x03, dev.vendor, dev.product, dev.version), \
+    bus, vendor, product, version = (int.from_bytes(guid[i : i + 2], "little") for i in (0, 4, 8, 12))
+    assert (bus, vendor, product, version) == (0x03, dev.vendor, dev.product, dev.version), (
         f"SDL's GUID {opened['guid']} says bus {bus:04x} {vendor:04x}:{product:04x} v{version:04x}, the profile {dev}"
+    )
 
     got = _changes(watcher.states)
     first_diff = next((i for i, (a, b) in enumerate(zip(got, expected)) if a != b), None)
-    assert got == expected, (f"evdev read back {len(got)} states, expected {len(expected)}; first difference at "
-                             f"{first_diff}: {got[first_diff] if first_diff is not None else None} vs "
-                             f"{expected[first_diff] if first_diff is not None else None}")
+    assert got == expected, (
+        f"evdev read back {len(got)} states, expected {len(expected)}; first difference at "
+        f"{first_diff}: {got[first_diff] if first_diff is not None else None} vs "
+        f"{expected[first_diff] if first_diff is not None else None}"
+    )
 
     sdl_states = [_from_sdl(d["v"]) for d in probe_lines.samples()]  # one per change SDL saw
-    assert sdl_states[0] == _sdl_view(NEUTRAL), \
+    assert sdl_states[0] == _sdl_view(NEUTRAL), (
         f"SDL opened the pad after the sequence had started moving it (lead-in too short?): {sdl_states[0]}, {timings}"
+    )
     bad = _first_not_in_order(sdl_states, sdl_expected)
-    assert bad is None, (f"SDL read {sdl_states[bad]} (evdev units) at its change {bad}: not a state the profile "
-                         f"gives there; SDL so far: {sdl_states[max(0, bad - 3):bad]}; {timings}")
+    assert bad is None, (
+        f"SDL read {sdl_states[bad]} (evdev units) at its change {bad}: not a state the profile "
+        f"gives there; SDL so far: {sdl_states[max(0, bad - 3) : bad]}; {timings}"
+    )
     moving = [s for s in sdl_states if s != _sdl_view(NEUTRAL)]
-    return {"sdl_controller_name": opened["controller_name"], "sdl_joystick_name": opened["joystick_name"],
-            "profile_device_name": dev.name, "evdev_name": evdev_name, "guid": opened["guid"], "mapping": opened["mapping"],
-            "sdl": ready.get("sdl"), "sdl_states": len(sdl_states), "sdl_moving_states": len(moving),
-            "sdl_held_raw": sdl_last, "held_evdev": dict(zip([*AXES, *BUTTONS], held)),
-            "evdev_states": len(got), "expected_states": len(expected), "sdl_saw_unplug": done.get("removed"),
-            "ID_INPUT_JOYSTICK": props.get("ID_INPUT_JOYSTICK"), **timings}
+    return {
+        "sdl_controller_name": opened["controller_name"],
+        "sdl_joystick_name": opened["joystick_name"],
+        "profile_device_name": dev.name,
+        "evdev_name": evdev_name,
+        "guid": opened["guid"],
+        "mapping": opened["mapping"],
+        "sdl": ready.get("sdl"),
+        "sdl_states": len(sdl_states),
+        "sdl_moving_states": len(moving),
+        "sdl_held_raw": sdl_last,
+        "held_evdev": dict(zip([*AXES, *BUTTONS], held)),
+        "evdev_states": len(got),
+        "expected_states": len(expected),
+        "sdl_saw_unplug": done.get("removed"),
+        "ID_INPUT_JOYSTICK": props.get("ID_INPUT_JOYSTICK"),
+        **timings,
+    }
 
 
 def check_bad_profile_starts_no_device() -> dict:
@@ -483,8 +601,12 @@ def check_bad_profile_starts_no_device() -> dict:
     bad = folder / "broken.yaml"
     bad.write_text("mappings:\n  push: {input: push, output: left_stik}\n")
     inputs_before = sorted(p.name for p in Path("/sys/class/input").iterdir())
-    proc = guestlib.sh(_cli("run", "--source", str(preds), "--profile", str(bad), "--output", "gamepad"),
-                       timeout=TIMEOUT_S, env=_env(), cwd=str(REPO))
+    proc = guestlib.sh(
+        _cli("run", "--source", str(preds), "--profile", str(bad), "--output", "gamepad"),
+        timeout=TIMEOUT_S,
+        env=_env(),
+        cwd=str(REPO),
+    )
     guestlib.settle()
     inputs_after = sorted(p.name for p in Path("/sys/class/input").iterdir())
     assert proc.returncode == 2, f"exit code {proc.returncode}: {proc.stderr[-2000:]}"

@@ -22,9 +22,9 @@ import time
 from pathlib import Path
 
 import guestlib
+from checks_runtime import _cli, _env, _gesture
 from evdev import InputDevice, ecodes, list_devices
 
-from checks_runtime import _cli, _env, _gesture
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.output.desktop import KEYBOARD_PHYS, MOUSE_PHYS
 from neurotouch_hid.output.gamepad import PHYS
@@ -39,8 +39,22 @@ G = GestureType
 #: on the estimates' clock, so longer windows test the same behaviour.
 STEP_US = 40_000
 #: The names these checks use for the key codes they read (evdev gives several names per code).
-NAMES = {ecodes.ecodes[n]: n for n in ("KEY_SPACE", "KEY_TAB", "KEY_LEFTSHIFT", "KEY_ENTER", "KEY_ESC", "KEY_A", "KEY_B",
-                                        "KEY_LEFTCTRL", "BTN_LEFT", "BTN_RIGHT", "BTN_SOUTH")}
+NAMES = {
+    ecodes.ecodes[n]: n
+    for n in (
+        "KEY_SPACE",
+        "KEY_TAB",
+        "KEY_LEFTSHIFT",
+        "KEY_ENTER",
+        "KEY_ESC",
+        "KEY_A",
+        "KEY_B",
+        "KEY_LEFTCTRL",
+        "BTN_LEFT",
+        "BTN_RIGHT",
+        "BTN_SOUTH",
+    )
+}
 
 
 def sequence(*steps: tuple[GestureType, float, float], lead_in_s: float = 1.0) -> list[GestureEstimate]:
@@ -58,9 +72,9 @@ def sequence(*steps: tuple[GestureType, float, float], lead_in_s: float = 1.0) -
 
     add(lead_in_s, G.NONE, lambda f: 0.0)
     for gesture, mm, hold_s in steps:
-        add(0.1, gesture, lambda f: mm * f)
-        add(hold_s, gesture, lambda f: mm)
-        add(0.1, gesture, lambda f: mm * (1 - f))
+        add(0.1, gesture, lambda f, mm=mm: mm * f)
+        add(hold_s, gesture, lambda f, mm=mm: mm)
+        add(0.1, gesture, lambda f, mm=mm: mm * (1 - f))
         add(0.4, G.NONE, lambda f: 0.0)
     return out
 
@@ -87,7 +101,7 @@ class Watcher:
     def _loop(self) -> None:
         seen = 0
         while not self._stop.is_set() and not self.reader.gone:
-            self.reader.pump(timeout_s=0.2, until=lambda r: len(r.reports) > seen or self._stop.is_set())
+            self.reader.pump(timeout_s=0.2, until=lambda r, seen=seen: len(r.reports) > seen or self._stop.is_set())
             for report in self.reader.reports[seen:]:
                 for event in report:
                     if event[0] == ecodes.EV_SYN and event[1] == ecodes.SYN_DROPPED:
@@ -131,13 +145,15 @@ def _expected(profile: str, estimates: list[GestureEstimate]):
     return replay(load_profile(profile), estimates)
 
 
-def _run_in_process(profile: str, estimates: list[GestureEstimate], folder: Path) -> tuple[dict[str, Watcher], object, dict]:
+def _run_in_process(
+    profile: str, estimates: list[GestureEstimate], folder: Path
+) -> tuple[dict[str, Watcher], object, dict]:
     """The runtime (paced, its threads) with the devices ``open_output`` makes for ``profile``;
     a watcher on each device before the run starts."""
     import contextlib
 
-    from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.driver import open_output, run_driver
+    from neurotouch_hid.mapping.profile import load_profile
 
     preds = _write_preds(folder, estimates)
     with contextlib.ExitStack() as stack:
@@ -166,7 +182,9 @@ def check_mouse_profile_moves_the_pointer() -> dict:
     assert set(watchers) == {"pad", "mouse"}, f"devices made: {sorted(watchers)}"
     mouse = watchers["mouse"]
     states = _expected("mouse", estimates)
-    want = {name: sum(s.rel.get(name, 0) for s in states) for name in ("REL_X", "REL_Y", "REL_WHEEL", "REL_WHEEL_HI_RES")}
+    want = {
+        name: sum(s.rel.get(name, 0) for s in states) for name in ("REL_X", "REL_Y", "REL_WHEEL", "REL_WHEEL_HI_RES")
+    }
     got = {name: mouse.total(ecodes.ecodes[name]) for name in want}
     assert stats.dropped_items == 0, f"the runtime dropped {stats.dropped_items} items"
     assert got == want, f"read back {got}, the Mapper gives {want}"
@@ -176,8 +194,12 @@ def check_mouse_profile_moves_the_pointer() -> dict:
     assert clicks == [("BTN_LEFT", 1), ("BTN_LEFT", 0)], clicks
     assert not mouse.pressed
     assert props["mouse"].get("ID_INPUT_MOUSE") == "1", props["mouse"]
-    return {"rel": got, "clicks": clicks, "ID_INPUT_MOUSE": props["mouse"].get("ID_INPUT_MOUSE"),
-            "windows": stats.windows}
+    return {
+        "rel": got,
+        "clicks": clicks,
+        "ID_INPUT_MOUSE": props["mouse"].get("ID_INPUT_MOUSE"),
+        "windows": stats.windows,
+    }
 
 
 def check_switch_access_presses_and_releases_keys() -> dict:
@@ -185,16 +207,32 @@ def check_switch_access_presses_and_releases_keys() -> dict:
     releases it (push Space, twist_cw Tab, twist_ccw Shift+Tab, pinch Enter, zoom Escape); a short
     brush fires nothing; the key log is the Mapper's; udev calls the device a keyboard."""
     folder = Path(tempfile.mkdtemp(prefix="remap-switch-"))
-    estimates = sequence((G.PUSH, 4.0, 0.1),  # shorter than the dwell: nothing
-                         (G.PUSH, 4.0, 0.6), (G.TWIST_CW, 4.0, 0.6), (G.TWIST_CCW, 4.0, 0.6),
-                         (G.PINCH, 4.0, 0.6), (G.ZOOM, 4.0, 0.6))
+    estimates = sequence(
+        (G.PUSH, 4.0, 0.1),  # shorter than the dwell: nothing
+        (G.PUSH, 4.0, 0.6),
+        (G.TWIST_CW, 4.0, 0.6),
+        (G.TWIST_CCW, 4.0, 0.6),
+        (G.PINCH, 4.0, 0.6),
+        (G.ZOOM, 4.0, 0.6),
+    )
     watchers, stats, props = _run_in_process("switch-access", estimates, folder)
     assert set(watchers) == {"pad", "keyboard"}, f"devices made: {sorted(watchers)}"
     keyboard = watchers["keyboard"]
     log = keyboard.keys_log()
-    want = [("KEY_SPACE", 1), ("KEY_SPACE", 0), ("KEY_TAB", 1), ("KEY_TAB", 0),
-            ("KEY_LEFTSHIFT", 1), ("KEY_TAB", 1), ("KEY_TAB", 0), ("KEY_LEFTSHIFT", 0),
-            ("KEY_ENTER", 1), ("KEY_ENTER", 0), ("KEY_ESC", 1), ("KEY_ESC", 0)]
+    want = [
+        ("KEY_SPACE", 1),
+        ("KEY_SPACE", 0),
+        ("KEY_TAB", 1),
+        ("KEY_TAB", 0),
+        ("KEY_LEFTSHIFT", 1),
+        ("KEY_TAB", 1),
+        ("KEY_TAB", 0),
+        ("KEY_LEFTSHIFT", 0),
+        ("KEY_ENTER", 1),
+        ("KEY_ENTER", 0),
+        ("KEY_ESC", 1),
+        ("KEY_ESC", 0),
+    ]
     assert stats.dropped_items == 0, f"the runtime dropped {stats.dropped_items} items"
     assert log == want, f"key log {log}"
     assert not keyboard.pressed
@@ -228,13 +266,26 @@ mappings:
 def _start_run(preds: Path, profile: Path, env: dict) -> tuple[subprocess.Popen, dict[str, Watcher]]:
     """``neurotouch-hid run --output gamepad`` in its own process; a watcher on each of its devices."""
     before = {phys: set(_devices(phys)) for phys in (PHYS, KEYBOARD_PHYS, MOUSE_PHYS)}
-    proc = subprocess.Popen(_cli("run", "--source", str(preds), "--profile", str(profile), "--output", "gamepad"),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=str(REPO))
+    proc = subprocess.Popen(
+        _cli("run", "--source", str(preds), "--profile", str(profile), "--output", "gamepad"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        cwd=str(REPO),
+    )
     new = lambda phys: sorted(set(_devices(phys)) - before[phys])  # noqa: E731
-    found = guestlib.wait_for(lambda: (new(PHYS) and new(KEYBOARD_PHYS) and new(MOUSE_PHYS)) or proc.poll() is not None,
-                              150.0, 0.05)
-    assert found and proc.poll() is None, f"the devices did not appear: {proc.stderr.read()[-2000:] if proc.poll() is not None else 'timeout'}"
-    watchers = {"pad": Watcher(new(PHYS)[0]), "keyboard": Watcher(new(KEYBOARD_PHYS)[0]), "mouse": Watcher(new(MOUSE_PHYS)[0])}
+    found = guestlib.wait_for(
+        lambda: (new(PHYS) and new(KEYBOARD_PHYS) and new(MOUSE_PHYS)) or proc.poll() is not None, 150.0, 0.05
+    )
+    assert found and proc.poll() is None, (
+        f"the devices did not appear: {proc.stderr.read()[-2000:] if proc.poll() is not None else 'timeout'}"
+    )
+    watchers = {
+        "pad": Watcher(new(PHYS)[0]),
+        "keyboard": Watcher(new(KEYBOARD_PHYS)[0]),
+        "mouse": Watcher(new(MOUSE_PHYS)[0]),
+    }
     return proc, watchers
 
 
@@ -260,13 +311,21 @@ def check_layer_switch_profile_use_and_sigterm_leave_nothing_pressed() -> dict:
     chord = {codes["KEY_LEFTCTRL"], codes["KEY_B"]}
     try:
         # the latch lasts well under a second of a slow guest: judged from the event logs, not polled
-        held = guestlib.wait_for(lambda: codes["KEY_ENTER"] in w["keyboard"].pressed and codes["BTN_SOUTH"] in w["pad"].pressed, 90.0)
+        held = guestlib.wait_for(
+            lambda: codes["KEY_ENTER"] in w["keyboard"].pressed and codes["BTN_SOUTH"] in w["pad"].pressed, 90.0
+        )
         assert held, f"the push in layer alt pressed nothing: {w['keyboard'].keys_log()} {w['pad'].keys_log()}"
         before_use = {"keyboard": w["keyboard"].keys_log(), "mouse": w["mouse"].keys_log()}
         answer = request_use(str(everything), path=runtime_dir / SOCKET_NAME)  # what `profile use FILE` sends
-        all_held = guestlib.wait_for(lambda: chord <= w["keyboard"].pressed and codes["BTN_LEFT"] in w["mouse"].pressed
-                                     and codes["BTN_SOUTH"] in w["pad"].pressed
-                                     and w["pad"].reader.axes.get(ecodes.ABS_X, 0) > 0, 30.0)
+        all_held = guestlib.wait_for(
+            lambda: (
+                chord <= w["keyboard"].pressed
+                and codes["BTN_LEFT"] in w["mouse"].pressed
+                and codes["BTN_SOUTH"] in w["pad"].pressed
+                and w["pad"].reader.axes.get(ecodes.ABS_X, 0) > 0
+            ),
+            30.0,
+        )
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=60)
         guestlib.wait_for(lambda: all(x.reader.gone for x in w.values()), 10.0)
@@ -278,12 +337,16 @@ def check_layer_switch_profile_use_and_sigterm_leave_nothing_pressed() -> dict:
             proc.kill()
     kb_log, pad_log = w["keyboard"].keys_log(), w["pad"].keys_log()
     # the zoom latched KEY_A and BTN_RIGHT; the layer switch released both before alt pressed KEY_ENTER
-    assert before_use == {"keyboard": [("KEY_A", 1), ("KEY_A", 0), ("KEY_ENTER", 1)],
-                          "mouse": [("BTN_RIGHT", 1), ("BTN_RIGHT", 0)]}, before_use
+    assert before_use == {
+        "keyboard": [("KEY_A", 1), ("KEY_A", 0), ("KEY_ENTER", 1)],
+        "mouse": [("BTN_RIGHT", 1), ("BTN_RIGHT", 0)],
+    }, before_use
     # profile use released KEY_ENTER and A before the new profile pressed anything (A again, the chord)
     assert kb_log[3:6] == [("KEY_ENTER", 0), ("KEY_LEFTCTRL", 1), ("KEY_B", 1)], kb_log
     assert pad_log[:3] == [("BTN_SOUTH", 1), ("BTN_SOUTH", 0), ("BTN_SOUTH", 1)], pad_log
-    assert all_held, f"the new profile did not hold something on every device: {kb_log} {w['mouse'].keys_log()} {pad_log}"
+    assert all_held, (
+        f"the new profile did not hold something on every device: {kb_log} {w['mouse'].keys_log()} {pad_log}"
+    )
     assert proc.returncode == 0, f"exit code {proc.returncode}: {err[-2000:]}"
     leftover = {name: sorted(watcher.pressed) for name, watcher in w.items() if watcher.pressed}
     assert not leftover, f"after SIGTERM still pressed: {leftover}"
@@ -291,8 +354,14 @@ def check_layer_switch_profile_use_and_sigterm_leave_nothing_pressed() -> dict:
     assert kb_log[-2:] == [("KEY_B", 0), ("KEY_LEFTCTRL", 0)], kb_log  # the chord's modifier goes up last
     gone = [p for phys in (PHYS, KEYBOARD_PHYS, MOUSE_PHYS) for p in _devices(phys)]
     assert not gone, f"devices outlived the process: {gone}"
-    return {"keyboard": kb_log, "mouse": w["mouse"].keys_log(), "pad": pad_log, "profile_use": answer,
-            "exit_code": proc.returncode, "pointer_x": w["mouse"].total(ecodes.REL_X)}
+    return {
+        "keyboard": kb_log,
+        "mouse": w["mouse"].keys_log(),
+        "pad": pad_log,
+        "profile_use": answer,
+        "exit_code": proc.returncode,
+        "pointer_x": w["mouse"].total(ecodes.REL_X),
+    }
 
 
 def check_sdl_sees_a_gamecontroller_with_rumble() -> dict:
@@ -302,12 +371,22 @@ def check_sdl_sees_a_gamecontroller_with_rumble() -> dict:
     from neurotouch_hid.output.gamepad import GamepadIdentity, VirtualGamepad
 
     said: list[str] = []
-    sdl_env = dict(os.environ, SDL_VIDEODRIVER="dummy", SDL_AUDIODRIVER="dummy", PYGAME_HIDE_SUPPORT_PROMPT="1",
-                   PYTHONPATH=os.pathsep.join(sys.path))
+    sdl_env = dict(
+        os.environ,
+        SDL_VIDEODRIVER="dummy",
+        SDL_AUDIODRIVER="dummy",
+        PYGAME_HIDE_SUPPORT_PROMPT="1",
+        PYTHONPATH=os.pathsep.join(sys.path),
+    )
     with VirtualGamepad(GamepadIdentity(), on_effect=said.append) as pad:
         guestlib.settle()
-        probe = subprocess.run([sys.executable, str(HERE / "sdl_probe.py"), "--rumble", "120"], capture_output=True,
-                               text=True, env=sdl_env, timeout=250)
+        probe = subprocess.run(
+            [sys.executable, str(HERE / "sdl_probe.py"), "--rumble", "120"],
+            capture_output=True,
+            text=True,
+            env=sdl_env,
+            timeout=250,
+        )
         effects = pad.effects
     lines = [json.loads(line) for line in probe.stdout.splitlines() if line.startswith("{")]
     done = next((line for line in lines if line.get("done")), None)

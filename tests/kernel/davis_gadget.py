@@ -37,8 +37,8 @@ is enumerated.
   R - (4 g + 2); the driver's correlated double sampling gives (4 g + 2) << 6 on 16 bits, i.e.
   exactly g again on 8 bits. The samples stay within 10 bits: libcaer reads 12 bits of a sample
   word, but dv-processing 2.0.4 keeps only 10 (seen: a reset level of 1100 made every pixel white,
-  1100 & 0x3FF being below the driver's 384 "over-exposed" threshold). Exposure start is the frame's own timestamp, exposure end that plus
-  its exposure (or 4 ms when the recording says none).
+  1100 & 0x3FF being below the driver's 384 "over-exposed" threshold). Exposure start is the
+  frame's own timestamp, exposure end that plus its exposure (or 4 ms when the recording says none).
 * **Signals.** SIGTERM or SIGINT: unplug (the gadget is unbound from the controller) and exit.
   SIGUSR1: unplug and stay; SIGUSR2: plug in again (a new enumeration, like a re-plugged cable).
 
@@ -115,14 +115,32 @@ WIDTH, HEIGHT = 346, 260
 
 #: (module, parameter) -> value of the read-only registers the driver reads on open.
 READ_ONLY = {
-    (SYSINFO, 0): LOGIC_VERSION, (SYSINFO, 1): 5, (SYSINFO, 2): 1,   # logic version, DAVIS346B, master
-    (SYSINFO, 3): 104, (SYSINFO, 4): 64, (SYSINFO, 5): 80, (SYSINFO, 6): 1000,  # clocks (MHz), deviation
+    (SYSINFO, 0): LOGIC_VERSION,
+    (SYSINFO, 1): 5,
+    (SYSINFO, 2): 1,  # logic version, DAVIS346B, master
+    (SYSINFO, 3): 104,
+    (SYSINFO, 4): 64,
+    (SYSINFO, 5): 80,
+    (SYSINFO, 6): 1000,  # clocks (MHz), deviation
     (SYSINFO, 7): LOGIC_PATCH,
-    (DVS, 0): WIDTH, (DVS, 1): HEIGHT, (DVS, 2): 0,                  # size, orientation
-    (DVS, 10): 1, (DVS, 30): 1, (DVS, 40): 1, (DVS, 50): 1, (DVS, 60): 1, (DVS, 80): 0,  # filters, stats
-    (APS, 0): WIDTH, (APS, 1): HEIGHT, (APS, 2): 0, (APS, 3): 0, (APS, 6): 1,  # size, orient., mono, GS
-    (IMU, 0): 0, (IMU, 1): 0,                                         # no IMU
-    (EXTINPUT, 10): 0, (MUX, 80): 0,                                  # no generator, no statistics
+    (DVS, 0): WIDTH,
+    (DVS, 1): HEIGHT,
+    (DVS, 2): 0,  # size, orientation
+    (DVS, 10): 1,
+    (DVS, 30): 1,
+    (DVS, 40): 1,
+    (DVS, 50): 1,
+    (DVS, 60): 1,
+    (DVS, 80): 0,  # filters, stats
+    (APS, 0): WIDTH,
+    (APS, 1): HEIGHT,
+    (APS, 2): 0,
+    (APS, 3): 0,
+    (APS, 6): 1,  # size, orient., mono, GS
+    (IMU, 0): 0,
+    (IMU, 1): 0,  # no IMU
+    (EXTINPUT, 10): 0,
+    (MUX, 80): 0,  # no generator, no statistics
 }
 
 # data words (libcaer davisCommonEventTranslator)
@@ -251,8 +269,9 @@ class WordEncoder:
 class Replay:
     """The recording as a schedule: what to send up to a given time since the stream started."""
 
-    def __init__(self, path: Path, loop: bool, frame_every: int = 1, from_s: float = 0.0,
-                 to_s: float | None = None) -> None:
+    def __init__(
+        self, path: Path, loop: bool, frame_every: int = 1, from_s: float = 0.0, to_s: float | None = None
+    ) -> None:
         from neurotouch_hid.sources.recording import RecordingReader
 
         with RecordingReader(path, require_resolution=(WIDTH, HEIGHT)) as reader:
@@ -305,7 +324,7 @@ class Stream:
 
     def __init__(self, replay: Replay, t_dev0: int) -> None:
         self.replay = replay
-        self.t_dev0 = t_dev0       # device time at which the replay's t = 0 is sent
+        self.t_dev0 = t_dev0  # device time at which the replay's t = 0 is sent
         self.encoder = WordEncoder()
         self.encoder.reset(t_dev0)
         self.lap = 0
@@ -334,8 +353,9 @@ class Stream:
                 self.mark_pos += 1
                 if aps:
                     t_dev = t_mark + base + self.t_dev0
-                    out.append(self.encoder.frame_start(t_dev) if kind == 0
-                               else self.encoder.frame_end(t_dev, r.images[index]))
+                    out.append(
+                        self.encoder.frame_start(t_dev) if kind == 0 else self.encoder.frame_end(t_dev, r.images[index])
+                    )
             if limit < r.period:
                 break
             if not r.loop:
@@ -359,16 +379,29 @@ def _make_function_class():
             fs_list, hs_list, ss_list = functionfs.getInterfaceInAllSpeeds(
                 interface={"bInterfaceClass": ch9.USB_CLASS_VENDOR_SPEC, "iInterface": 1},
                 endpoint_list=[
-                    {"endpoint": {"bEndpointAddress": DEBUG_ENDPOINT, "bmAttributes": ch9.USB_ENDPOINT_XFER_INT,
-                                  "bInterval": 1}},
-                    *({"endpoint": {"bEndpointAddress": address, "bmAttributes": ch9.USB_ENDPOINT_XFER_BULK}}
-                      for address in PLACEHOLDER_ENDPOINTS),
+                    {
+                        "endpoint": {
+                            "bEndpointAddress": DEBUG_ENDPOINT,
+                            "bmAttributes": ch9.USB_ENDPOINT_XFER_INT,
+                            "bInterval": 1,
+                        }
+                    },
+                    *(
+                        {"endpoint": {"bEndpointAddress": address, "bmAttributes": ch9.USB_ENDPOINT_XFER_BULK}}
+                        for address in PLACEHOLDER_ENDPOINTS
+                    ),
                     {"endpoint": {"bEndpointAddress": DATA_ENDPOINT, "bmAttributes": ch9.USB_ENDPOINT_XFER_BULK}},
                 ],
             )
-            super().__init__(path, fs_list=fs_list, hs_list=hs_list, ss_list=ss_list,
-                             lang_dict={0x0409: ["DAVIS data"]}, all_ctrl_recip=True,
-                             in_aio_blocks_max=MAX_IN_FLIGHT + 2)
+            super().__init__(
+                path,
+                fs_list=fs_list,
+                hs_list=hs_list,
+                ss_list=ss_list,
+                lang_dict={0x0409: ["DAVIS data"]},
+                all_ctrl_recip=True,
+                in_aio_blocks_max=MAX_IN_FLIGHT + 2,
+            )
 
         def getEndpointClass(self, is_in, descriptor):
             device = self.device
@@ -456,7 +489,7 @@ class DavisDevice:
             return
         if request == VR_FPGA_CONFIG_MULTIPLE and len(data) == 6 * value:
             for k in range(value):
-                chunk = data[6 * k:6 * k + 6]
+                chunk = data[6 * k : 6 * k + 6]
                 self.registers.write(chunk[0], chunk[1], int.from_bytes(chunk[2:], "big"))
             return
         self._count(f"out 0x{request:02x}")
@@ -483,8 +516,10 @@ class DavisDevice:
     def _start_stream(self) -> None:
         self.stream_wall0 = time.monotonic()
         self.stream = Stream(self.replay, self.device_time())
-        log(f"stream started ({self.replay.duration_s:.2f} s of recording"
-            f"{f', looped every {self.replay.period} us' if self.replay.loop else ''})")
+        log(
+            f"stream started ({self.replay.duration_s:.2f} s of recording"
+            f"{f', looped every {self.replay.period} us' if self.replay.loop else ''})"
+        )
 
     def _stop_stream(self, why: str) -> None:
         if self.stream is not None:
@@ -515,7 +550,7 @@ class DavisDevice:
             return
         view = memoryview(bytearray(data))
         for start in range(0, len(view), CHUNK_BYTES):
-            self.backlog.append(view[start:start + CHUNK_BYTES])
+            self.backlog.append(view[start : start + CHUNK_BYTES])
         self.backlog_bytes += len(data)
 
     def pump(self, submit: bool = True) -> None:
@@ -556,9 +591,11 @@ def find_device(serial: str) -> Path | None:
     """The emulated camera in sysfs (host side), once enumerated."""
     for dev in Path("/sys/bus/usb/devices").iterdir():
         try:
-            if (dev / "idVendor").read_text().strip() == f"{VENDOR_ID:04x}" \
-                    and (dev / "idProduct").read_text().strip() == f"{PRODUCT_ID:04x}" \
-                    and (dev / "serial").read_text().strip() == serial:
+            if (
+                (dev / "idVendor").read_text().strip() == f"{VENDOR_ID:04x}"
+                and (dev / "idProduct").read_text().strip() == f"{PRODUCT_ID:04x}"
+                and (dev / "serial").read_text().strip() == serial
+            ):
                 return dev
         except OSError:
             continue
@@ -570,12 +607,27 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("recording", type=Path, help="AEDAT4 file (346x260 events, APS frames optional)")
     parser.add_argument("--loop", action="store_true", help="replay the recording again and again")
     parser.add_argument("--serial", default="00000001", help="USB serial number (8 characters)")
-    parser.add_argument("--from-s", type=float, default=0.0, metavar="S",
-                        help="replay from S seconds after the recording's first event or frame")
-    parser.add_argument("--to-s", type=float, default=None, metavar="S",
-                        help="replay up to S seconds after the recording's first event or frame")
-    parser.add_argument("--frame-every", type=int, default=1, metavar="N",
-                        help="send only every N-th APS frame (a slow, emulated host cannot read 9 MB/s)")
+    parser.add_argument(
+        "--from-s",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="replay from S seconds after the recording's first event or frame",
+    )
+    parser.add_argument(
+        "--to-s",
+        type=float,
+        default=None,
+        metavar="S",
+        help="replay up to S seconds after the recording's first event or frame",
+    )
+    parser.add_argument(
+        "--frame-every",
+        type=int,
+        default=1,
+        metavar="N",
+        help="send only every N-th APS frame (a slow, emulated host cannot read 9 MB/s)",
+    )
     parser.add_argument("--verbose", action="store_true", help="log every register read and write")
     args = parser.parse_args(argv)
     if os.geteuid() != 0:
@@ -594,12 +646,14 @@ def main(argv: list[str] | None = None) -> int:
     if not udcs:
         raise SystemExit("no USB device controller (dummy_hcd did not load?)")
     gadget = Gadget(
-        config_list=[{"function_list": [ffs], "MaxPower": 500,
-                      "lang_dict": {0x409: {"configuration": "DAVIS"}}}],
-        idVendor=VENDOR_ID, idProduct=PRODUCT_ID, bcdDevice=FIRMWARE_VERSION, bcdUSB=0x0200,
-        lang_dict={0x409: {"manufacturer": "iniVation", "product": "DAVIS346 (emulated)",
-                           "serialnumber": args.serial}},
-        name=GADGET_NAME, udc=udcs[0],
+        config_list=[{"function_list": [ffs], "MaxPower": 500, "lang_dict": {0x409: {"configuration": "DAVIS"}}}],
+        idVendor=VENDOR_ID,
+        idProduct=PRODUCT_ID,
+        bcdDevice=FIRMWARE_VERSION,
+        bcdUSB=0x0200,
+        lang_dict={0x409: {"manufacturer": "iniVation", "product": "DAVIS346 (emulated)", "serialnumber": args.serial}},
+        name=GADGET_NAME,
+        udc=udcs[0],
     )
     stop = []
     plug_requests: deque[bool] = deque()

@@ -58,8 +58,7 @@ def setup() -> dict:
         installed.append(src.name)
     details["rules"] = installed
     details["udevd"] = guestlib.start_udevd()  # rules loaded before the modules' devices appear
-    details["modprobe"] = {m: guestlib.sh(["modprobe", m]).returncode == 0
-                           for m in ("uinput", "evdev", "joydev")}
+    details["modprobe"] = {m: guestlib.sh(["modprobe", m]).returncode == 0 for m in ("uinput", "evdev", "joydev")}
     guestlib.sh(["udevadm", "trigger", "--action=add", "--subsystem-match=misc", "--sysname-match=uinput"])
     guestlib.settle()
     return details
@@ -76,8 +75,11 @@ def load_check_modules() -> list:
 
 
 def _checks(module) -> list:
-    funcs = [f for name, f in vars(module).items()
-             if name.startswith("check_") and inspect.isfunction(f) and f.__module__ == module.__name__]
+    funcs = [
+        f
+        for name, f in vars(module).items()
+        if name.startswith("check_") and inspect.isfunction(f) and f.__module__ == module.__name__
+    ]
     return sorted(funcs, key=lambda f: f.__code__.co_firstlineno)
 
 
@@ -89,8 +91,7 @@ def run_one(func, timeout_s: int) -> dict:
         details = func() or {}
         entry = {"ok": True, "details": details}
     except BaseException as exc:  # a check must never take the other checks down
-        entry = {"ok": False, "error": f"{type(exc).__name__}: {exc}",
-                 "traceback": traceback.format_exc()[-4000:]}
+        entry = {"ok": False, "error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()[-4000:]}
     finally:
         signal.alarm(0)
     entry["seconds"] = round(time.monotonic() - t0, 2)
@@ -114,8 +115,7 @@ def main(out: Path) -> int:
         return 1
     for module in modules:
         for func in _checks(module):
-            results[f"{module.__name__}.{func.__name__}"] = run_one(
-                func, getattr(module, "TIMEOUT_S", CHECK_TIMEOUT_S))
+            results[f"{module.__name__}.{func.__name__}"] = run_one(func, getattr(module, "TIMEOUT_S", CHECK_TIMEOUT_S))
             save()
     results["_guest"] = {"seconds": round(time.monotonic() - t0, 1)}
     save()

@@ -77,8 +77,7 @@ class EventReader:
 
         self.device = InputDevice(path)
         self.keys: set[int] = set(self.device.active_keys())
-        self.axes: dict[int, int] = {code: info.value for code, info in
-                                     self.device.capabilities().get(3, [])}
+        self.axes: dict[int, int] = {code: info.value for code, info in self.device.capabilities().get(3, [])}
         self.reports: list[list[tuple[int, int, int]]] = []
         self._pending: list[tuple[int, int, int]] = []
         self.gone = False

@@ -80,8 +80,9 @@ def main() -> dict:
         state.buttons.update(BTN_SOUTH=True, BTN_START=True)
         state.axes.update(ABS_X=32767, ABS_RZ=255)
         pad.write(state)
-        result["pressed"] = poll(pygame, ctl, lambda v: v["a"] and v["start"] and v["leftx"] > 30000
-                                 and v["triggerright"] > 30000)
+        result["pressed"] = poll(
+            pygame, ctl, lambda v: v["a"] and v["start"] and v["leftx"] > 30000 and v["triggerright"] > 30000
+        )
         pad.neutralise()
         result["released"] = poll(pygame, ctl, lambda v: not v["a"] and abs(v["leftx"]) < 2)
         ctl.quit()
@@ -90,8 +91,23 @@ def main() -> dict:
 
 #: SDL GameController axis and button names (pygame constant suffixes) read by ``--watch``.
 WATCH_AXES = ("LEFTX", "LEFTY", "RIGHTX", "RIGHTY", "TRIGGERLEFT", "TRIGGERRIGHT")
-WATCH_BUTTONS = ("A", "B", "X", "Y", "BACK", "GUIDE", "START", "LEFTSTICK", "RIGHTSTICK",
-                 "LEFTSHOULDER", "RIGHTSHOULDER", "DPAD_UP", "DPAD_DOWN", "DPAD_LEFT", "DPAD_RIGHT")
+WATCH_BUTTONS = (
+    "A",
+    "B",
+    "X",
+    "Y",
+    "BACK",
+    "GUIDE",
+    "START",
+    "LEFTSTICK",
+    "RIGHTSTICK",
+    "LEFTSHOULDER",
+    "RIGHTSHOULDER",
+    "DPAD_UP",
+    "DPAD_DOWN",
+    "DPAD_LEFT",
+    "DPAD_RIGHT",
+)
 
 
 def say(line: dict) -> None:
@@ -103,8 +119,14 @@ def watch(seconds: float) -> dict:
     t0 = time.monotonic()
     pygame, controller = start_sdl()
     pygame.joystick.init()
-    say({"ready": True, "init_seconds": round(time.monotonic() - t0, 1),
-         "sdl": ".".join(map(str, pygame.get_sdl_version())), "pygame": pygame.version.ver})
+    say(
+        {
+            "ready": True,
+            "init_seconds": round(time.monotonic() - t0, 1),
+            "sdl": ".".join(map(str, pygame.get_sdl_version())),
+            "pygame": pygame.version.ver,
+        }
+    )
     end = time.monotonic() + seconds
     index = None
     while index is None and time.monotonic() < end:
@@ -115,8 +137,15 @@ def watch(seconds: float) -> dict:
         return {"done": True, "error": f"no GameController appeared within {seconds} s"}
     ctl = controller.Controller(index)
     joy = pygame.joystick.Joystick(index)
-    say({"opened": round(time.monotonic(), 3), "controller_name": controller.name_forindex(index),
-         "joystick_name": joy.get_name(), "guid": joy.get_guid(), "mapping": ctl.get_mapping()})
+    say(
+        {
+            "opened": round(time.monotonic(), 3),
+            "controller_name": controller.name_forindex(index),
+            "joystick_name": joy.get_name(),
+            "guid": joy.get_guid(),
+            "mapping": ctl.get_mapping(),
+        }
+    )
     axes = [(name.lower(), getattr(pygame, "CONTROLLER_AXIS_" + name)) for name in WATCH_AXES]
     buttons = [(name.lower(), getattr(pygame, "CONTROLLER_BUTTON_" + name)) for name in WATCH_BUTTONS]
     last, samples, removed = None, 0, False
@@ -155,9 +184,16 @@ def rumble(seconds: float) -> dict:
     seconds_taken = round(time.monotonic() - t0, 2)
     error = None if played else pygame.get_error()
     ctl.stop_rumble()
-    return {"done": True, "is_controller": True, "controller_name": controller.name_forindex(index),
-            "joystick_name": joy.get_name(), "rumble": bool(played), "rumble_seconds": seconds_taken,
-            "sdl_error": error, "error": None}
+    return {
+        "done": True,
+        "is_controller": True,
+        "controller_name": controller.name_forindex(index),
+        "joystick_name": joy.get_name(),
+        "rumble": bool(played),
+        "rumble_seconds": seconds_taken,
+        "sdl_error": error,
+        "error": None,
+    }
 
 
 if __name__ == "__main__":

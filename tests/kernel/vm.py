@@ -31,8 +31,12 @@ HERE = Path(__file__).resolve().parent
 GUEST_SCRIPT = HERE / "guest.py"
 HOST_PACKAGES = ("qemu-system-x86", "busybox-static", "kmod", "udev")
 #: Commands the boot needs, and the apt package that brings each.
-HOST_COMMANDS = {"qemu-system-x86_64": "qemu-system-x86", "busybox": "busybox-static",
-                 "depmod": "kmod", "udevadm": "udev"}
+HOST_COMMANDS = {
+    "qemu-system-x86_64": "qemu-system-x86",
+    "busybox": "busybox-static",
+    "depmod": "kmod",
+    "udevadm": "udev",
+}
 #: The whole guest run; checks_davis.py alone takes 4-8 minutes under emulation on a loaded host.
 BOOT_TIMEOUT_S = 1500
 #: Modules udev's coldplug would load for qemu's emulated q35 hardware (disk, CD, KVM, crypto,
@@ -42,7 +46,8 @@ GUEST_MODULE_BLACKLIST = (
     "kvm_amd,kvm_intel,kvm,ccp,irqbypass,crct10dif_pclmul,crc32_pclmul,crc32c_intel,"
     "ghash_clmulni_intel,sha512_ssse3,sha256_ssse3,sha1_ssse3,sr_mod,cdrom,sg,iTCO_wdt,"
     "intel_pmc_bxt,iTCO_vendor_support,aesni_intel,crypto_simd,cryptd,ahci,libahci,libata,psmouse,"
-    "i2c_i801,serio_raw,i2c_smbus,pcspkr,lpc_ich,i6300esb,watchdog,scsi_mod")
+    "i2c_i801,serio_raw,i2c_smbus,pcspkr,lpc_ich,i6300esb,watchdog,scsi_mod"
+)
 
 
 class KernelUnavailable(Exception):
@@ -81,15 +86,24 @@ def ensure_host_packages() -> None:
     if not missing:
         return
     if os.geteuid() != 0 or _which("apt-get") is None:
-        raise KernelUnavailable(f"{', '.join(missing)} not installed and cannot be apt-installed here "
-                                f"(needs root and apt-get)")
+        raise KernelUnavailable(
+            f"{', '.join(missing)} not installed and cannot be apt-installed here (needs root and apt-get)"
+        )
     env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
     update = _run(["apt-get", "update"], env=env)
-    install = _run(["apt-get", "install", "-y", "--no-install-recommends", *HOST_PACKAGES,
-                    *(["libaio1"] if "libaio1" in missing else [])], env=env)
+    install = _run(
+        [
+            "apt-get",
+            "install",
+            "-y",
+            "--no-install-recommends",
+            *HOST_PACKAGES,
+            *(["libaio1"] if "libaio1" in missing else []),
+        ],
+        env=env,
+    )
     if install.returncode != 0 or _which("qemu-system-x86_64") is None:
-        raise KernelUnavailable("apt-get install of qemu failed: "
-                                + (install.stderr or update.stderr).strip()[-500:])
+        raise KernelUnavailable("apt-get install of qemu failed: " + (install.stderr or update.stderr).strip()[-500:])
 
 
 def _kernel_package_name() -> str:
@@ -98,13 +112,19 @@ def _kernel_package_name() -> str:
         out = _run(["apt-cache", "depends", "linux-image-amd64"])
         for line in out.stdout.splitlines():
             word = line.split(":", 1)[-1].strip()
-            if line.strip().startswith("Depends:") and word.startswith("linux-image-") \
-                    and word.endswith("-amd64") and "cloud" not in word:
+            if (
+                line.strip().startswith("Depends:")
+                and word.startswith("linux-image-")
+                and word.endswith("-amd64")
+                and "cloud" not in word
+            ):
                 return word
         if attempt == 0:
             _run(["apt-get", "update"])
-    raise KernelUnavailable("apt-cache cannot name Debian's generic kernel package "
-                            "(linux-image-amd64 has no linux-image-*-amd64 dependency)")
+    raise KernelUnavailable(
+        "apt-cache cannot name Debian's generic kernel package "
+        "(linux-image-amd64 has no linux-image-*-amd64 dependency)"
+    )
 
 
 def _cached_kernel(root: Path) -> tuple[Path, str] | None:
@@ -162,8 +182,10 @@ def ensure_replay_recording() -> Path:
         return path
     cli = Path(sys.executable).parent / "neurotouch-hid"
     tmp = path.with_suffix(".part.aedat4")
-    proc = _run([str(cli), "record", "--source", "sim", "--fast", "--seconds", "2", "--seed", "0", "--force",
-                 str(tmp)], cwd=str(HERE.parent.parent))
+    proc = _run(
+        [str(cli), "record", "--source", "sim", "--fast", "--seconds", "2", "--seed", "0", "--force", str(tmp)],
+        cwd=str(HERE.parent.parent),
+    )
     if proc.returncode != 0 or not tmp.exists():
         raise RuntimeError(f"making the replay recording failed: {proc.stdout[-1000:]}{proc.stderr[-1000:]}")
     tmp.rename(path)
@@ -185,12 +207,30 @@ def boot(guest_script: Path = GUEST_SCRIPT, timeout_s: int = BOOT_TIMEOUT_S) -> 
     env = dict(os.environ)
     env["PATH"] = f"{Path(sys.executable).parent}:{env.get('PATH', '/usr/bin:/bin')}"
     inner = " ".join(shlex.quote(s) for s in (sys.executable, str(guest_script), str(result)))
-    cmd = [_vng(), "--disable-kvm", "--run", str(vmlinuz), "--memory", "1G",
-           "--append", f"module_blacklist={GUEST_MODULE_BLACKLIST}", f"--rwdir={out}", "--exec", inner]
+    cmd = [
+        _vng(),
+        "--disable-kvm",
+        "--run",
+        str(vmlinuz),
+        "--memory",
+        "1G",
+        "--append",
+        f"module_blacklist={GUEST_MODULE_BLACKLIST}",
+        f"--rwdir={out}",
+        "--exec",
+        inner,
+    ]
     t0 = time.monotonic()
     try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout_s,
-                              stdin=subprocess.DEVNULL, cwd=str(HERE.parent.parent))
+        proc = subprocess.run(
+            cmd,
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=timeout_s,
+            stdin=subprocess.DEVNULL,
+            cwd=str(HERE.parent.parent),
+        )
         log = proc.stdout + proc.stderr
     except subprocess.TimeoutExpired as exc:
         log = f"vng timed out after {timeout_s} s\n{exc.stdout or ''}{exc.stderr or ''}"
