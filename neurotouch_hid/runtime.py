@@ -50,7 +50,7 @@ from neurotouch_hid.errors import ProfileError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.mapping.mapper import Mapper
 from neurotouch_hid.mapping.profile import Profile, load_profile
-from neurotouch_hid.sources import Frame, SourceStatus, StatusKind, StreamItem
+from neurotouch_hid.sources import Frame, Pacer, SourceStatus, StatusKind, StreamItem
 from neurotouch_hid.stages import Mapper as MapperStage
 from neurotouch_hid.stages import Output, Pipeline, RestingDetection, SourceStream
 from neurotouch_hid.stats import RunStats
@@ -225,8 +225,7 @@ class Runtime:
         self._last_state = ControllerState.neutral()
         self._last_gesture: GestureType | None = None
         self._limit_us: int | None = None
-        self._first_ns = 0  # perf_counter_ns of the first item read ...
-        self._first_us = 0  # ... and its time (us, camera clock): the pacing anchor
+        self._clock = Pacer()  # the first item read anchors pacing, limits and latencies
         self._ran = False
         self._say = say
         self._paused = False  # the live camera is lost: write nothing (under self._lock)
@@ -315,7 +314,7 @@ class Runtime:
                         self.reload_profile()
                     if seconds is not None and self._realtime:
                         # a real-time source that stalls still ends: wall deadline from its first item
-                        first = self._first_ns / 1e9 if self._first_ns else start
+                        first = self._clock.first_ns / 1e9 if self._clock.first_ns else start
                         if time.perf_counter() > first + seconds + _GRACE_S:
                             self.stop()
             except KeyboardInterrupt:
@@ -385,8 +384,6 @@ class Runtime:
     def _read_source(self) -> None:
         """Source thread: read, pace, stamp the arrival time, enqueue."""
         iterator = iter(self._source)
-        first_us: int | None = None
-        first_ns = 0
         try:
             for item in iterator:
                 if self._stop.is_set():
@@ -396,15 +393,11 @@ class Runtime:
                     continue
                 t_us = item_end_us(item)
                 if t_us is not None:
-                    if first_us is None:
-                        first_us, first_ns = t_us, time.perf_counter_ns()
-                        self._first_ns, self._first_us = first_ns, first_us
-                    if self._limit_us is not None and t_us - first_us >= self._limit_us:
+                    self._clock.due_ns(t_us)  # the first item anchors the clock
+                    if self._limit_us is not None and t_us - self._clock.first_us >= self._limit_us:
                         break
-                    if self._pace:
-                        delay_ns = first_ns + (t_us - first_us) * 1000 - time.perf_counter_ns()
-                        if delay_ns > 0 and self._stop.wait(delay_ns / 1e9):
-                            break
+                    if self._pace and self._clock.wait(t_us, self._stop):
+                        break
                 entry = (time.perf_counter_ns(), item)
                 if isinstance(item, Frame) and self._resting is not None:
                     self._frames.put(entry)
@@ -482,7 +475,7 @@ class Runtime:
                     stats.latency.add(done_ns - arrival_ns)
                     if self._pace:
                         for estimate in estimates:
-                            end_ns = self._first_ns + (estimate.t_us - self._first_us) * 1000
+                            end_ns = self._clock.due_ns(estimate.t_us)
                             stats.window_latency.add(done_ns - end_ns)
         except BaseException as exc:
             self._errors.append(exc)

@@ -464,3 +464,18 @@ def test_a_predictions_file_replays_through_the_mapper_state_for_state(tmp_path)
     assert changes == expected
     assert stats.windows == len(estimates) and stats.events == 0
     assert any(a["ABS_X"] > 0 for a, _ in got)
+
+
+def test_the_pacer_maps_camera_time_onto_wall_time_from_its_first_item():
+    import threading
+
+    from neurotouch_hid.sources import Pacer
+
+    clock = Pacer()
+    first = clock.due_ns(5_000_000)  # the first item anchors the clock: due now
+    assert clock.first_us == 5_000_000 and clock.first_ns == first
+    assert clock.due_ns(5_002_500) - first == 2_500_000  # 2.5 ms of camera time later, in ns
+    stop = threading.Event()
+    assert clock.wait(4_000_000, stop) is False  # already due: no wait, not stopped
+    stop.set()
+    assert clock.wait(5_000_000 + 3_600_000_000, stop) is True  # an hour ahead: the stop ends the wait

@@ -6,6 +6,8 @@ Every source yields the same stream: event batches (numpy structured arrays of
 
 from __future__ import annotations
 
+import threading
+import time
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import Iterator, Union
@@ -58,3 +60,31 @@ class SourceStatus:
 #: (live camera only) a :class:`SourceStatus`.
 StreamItem = Union[np.ndarray, Frame, SourceStatus]
 Stream = Iterator[StreamItem]
+
+
+class Pacer:
+    """Keeps a stream on time: item timestamps (us, camera clock) follow wall time
+    (``time.perf_counter_ns``) from the first item on, as a camera delivers them. One pacing
+    rule for the runtime (recordings and the simulated gel, ``run``) and for ``record``.
+
+    Attributes:
+        first_us: the first item's timestamp (us), the anchor; None before the first item.
+        first_ns: ``perf_counter_ns`` when the first item was seen (0 before).
+    """
+
+    def __init__(self) -> None:
+        self.first_us: int | None = None
+        self.first_ns = 0
+
+    def due_ns(self, t_us: int) -> int:
+        """The ``perf_counter_ns`` at which an item stamped ``t_us`` is due; the first call
+        anchors the clock at ``t_us`` = now."""
+        if self.first_us is None:
+            self.first_us, self.first_ns = t_us, time.perf_counter_ns()
+        return self.first_ns + (t_us - self.first_us) * 1000
+
+    def wait(self, t_us: int, stop: threading.Event) -> bool:
+        """Sleep until an item stamped ``t_us`` is due, or until ``stop`` is set; returns
+        whether ``stop`` was set (the caller then stops)."""
+        delay_ns = self.due_ns(t_us) - time.perf_counter_ns()
+        return delay_ns > 0 and stop.wait(delay_ns / 1e9)

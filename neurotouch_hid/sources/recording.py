@@ -26,7 +26,6 @@ import itertools
 import os
 import struct
 import threading
-import time
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -35,7 +34,7 @@ from typing import TYPE_CHECKING, Iterable, Iterator
 import numpy as np
 
 from neurotouch_hid.errors import RecordingError
-from neurotouch_hid.sources import EVENT_DTYPE, Frame, StreamItem
+from neurotouch_hid.sources import EVENT_DTYPE, Frame, Pacer, StreamItem
 
 if TYPE_CHECKING:  # pragma: no cover
     import dv_processing as dv
@@ -807,7 +806,7 @@ def record_stream(
     stop = stop or threading.Event()
     events = frames = 0
     first_us = last_us = None
-    start_ns = time.perf_counter_ns()
+    clock = Pacer()
     with RecordingWriter(path, camera_name=camera_name) as writer:
         for item in stream:
             if isinstance(item, Frame):
@@ -823,9 +822,7 @@ def record_stream(
             if on_progress is not None:
                 on_progress(last_us - first_us, events, frames)
             if pace:
-                delay_s = (last_us - first_us) / 1e6 - (time.perf_counter_ns() - start_ns) / 1e9
-                if delay_s > 0:
-                    stop.wait(delay_s)
+                clock.wait(last_us, stop)
             if stop.is_set():
                 break
     return RecordSummary(Path(path), events, frames, 0 if first_us is None else last_us - first_us, stop.is_set())
