@@ -44,7 +44,8 @@ from neurotouch_hid.output.console import make_console
 from neurotouch_hid.pipeline.noise import NOISE_FILTERS, EventNoiseFilter
 from neurotouch_hid.pipeline.tracker import BlobTracker
 from neurotouch_hid.sensor import SensorGeometry
-from neurotouch_hid.sources.recording import events_from_store, split_batches, store_from_events
+from neurotouch_hid.sources.dv import events_from_store, store_from_events
+from neurotouch_hid.sources.recording import split_batches
 from neurotouch_hid.sources.simulator import SIM_GESTURES, USERS, GelSimulator
 
 

@@ -35,7 +35,8 @@ from neurotouch_hid.pipeline.markers import detect_markers
 from neurotouch_hid.pipeline.tracker import BlobTracker, TrackerConfig
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE
-from neurotouch_hid.sources.recording import RecordingReader, store_from_events
+from neurotouch_hid.sources.dv import store_from_events
+from neurotouch_hid.sources.recording import RecordingReader
 from neurotouch_hid.sources.simulator import write_dataset
 
 WINDOW_US = 10_000

@@ -32,7 +32,8 @@ from pathlib import Path
 import dv_processing as dv
 import numpy as np
 
-from neurotouch_hid.sources.recording import RecordingReader, store_from_events
+from neurotouch_hid.sources.dv import store_from_events
+from neurotouch_hid.sources.recording import RecordingReader
 
 #: The shortest span of events one ``getNextEventBatch`` hands out (us).
 PACKET_US = 2_000

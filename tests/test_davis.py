@@ -363,7 +363,7 @@ class _BurstCamera:
     def __init__(self, batches: list[np.ndarray]) -> None:
         import dv_processing as dv
 
-        from neurotouch_hid.sources.recording import store_from_events
+        from neurotouch_hid.sources.dv import store_from_events
 
         self._stores = [store_from_events(b) for b in batches]
         frame = dv.Frame(0, np.full((260, 346), 7, np.uint8))

@@ -18,13 +18,8 @@ from neurotouch_hid.pipeline.noise import EventNoiseFilter
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
-from neurotouch_hid.sources.recording import (
-    RecordingReader,
-    events_from_store,
-    read_info,
-    split_batches,
-    store_from_events,
-)
+from neurotouch_hid.sources.dv import events_from_store, store_from_events
+from neurotouch_hid.sources.recording import RecordingReader, read_info, split_batches
 from neurotouch_hid.sources.simulator import START_US, GelSimulator, SimGesture
 
 STREET = Path("/work/shared/data/davis346-street/recording.aedat4")

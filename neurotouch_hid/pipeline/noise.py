@@ -219,7 +219,7 @@ class EventNoiseFilter:
             (K,) EVENT_DTYPE, K <= E: the kept events, in their order (a new array; ``events``
             itself when it is empty).
         """
-        from neurotouch_hid.sources.recording import events_from_store, store_from_events
+        from neurotouch_hid.sources.dv import events_from_store, store_from_events
 
         if len(events) == 0:
             return events

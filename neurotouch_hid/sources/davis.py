@@ -41,14 +41,8 @@ from typing import Any, Iterator
 
 from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.sources import Frame, SourceStatus, StatusKind, StreamItem
-from neurotouch_hid.sources.recording import (
-    DAVIS346_RESOLUTION,
-    DV_ERRORS,
-    dv_error_text,
-    events_from_store,
-    grey_image,
-    split_batches,
-)
+from neurotouch_hid.sources.dv import DV_ERRORS, dv_error_text, events_from_store
+from neurotouch_hid.sources.recording import DAVIS346_RESOLUTION, grey_image, split_batches
 
 #: Pause between polls when the camera has nothing new, s (well under one 1 ms batch).
 _IDLE_SLEEP_S = 0.0002

@@ -485,7 +485,7 @@ def dv_cameras(log: list[str] | None = None) -> list[DvCamera]:
             f"dv-processing cannot be imported ({type(exc).__name__}: {exc}): "
             f"python3 -m pip install --upgrade dv-processing"
         ) from None
-    from neurotouch_hid.sources.recording import DV_ERRORS, dv_error_text
+    from neurotouch_hid.sources.dv import DV_ERRORS, dv_error_text
 
     captured: list[str] = []
     try:

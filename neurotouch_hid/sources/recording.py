@@ -35,9 +35,10 @@ import numpy as np
 
 from neurotouch_hid.errors import RecordingError
 from neurotouch_hid.sources import EVENT_DTYPE, Frame, Pacer, StreamItem
+from neurotouch_hid.sources.dv import DV_ERRORS, dv_error_text, store_from_events
 
 if TYPE_CHECKING:  # pragma: no cover
-    import dv_processing as dv
+    pass
 
 #: The first bytes of every AEDAT4 file (the format's version line).
 AEDAT4_MAGIC = b"#!AER-DAT4.0\r\n"
@@ -57,8 +58,6 @@ MAX_HEADER_BYTES = 16 << 20
 MAX_TIMESTAMP_US = 1 << 62
 #: A pass over a file ends after this many damaged packets in a row (nothing left to read).
 MAX_CONSECUTIVE_ERRORS = 64
-#: What pybind11 turns dv-processing's C++ exceptions into (std::exception and its kinds).
-DV_ERRORS = (RuntimeError, ValueError, IndexError, MemoryError)
 
 
 @dataclass(frozen=True)
@@ -104,36 +103,6 @@ class RecordingInfo:
             "start_us": self.start_us,
             "end_us": self.end_us,
         }
-
-
-# --- conversion between dv-processing and numpy ----------------------------------------------
-def events_from_store(store: "dv.EventStore") -> np.ndarray:
-    """A dv-processing ``EventStore`` as an array of :data:`EVENT_DTYPE` (a copy).
-
-    dv-processing's ``EventStore.numpy()`` has the same fields, padded to 16 bytes per event;
-    this packs them into EVENT_DTYPE.
-    """
-    return store.numpy().astype(EVENT_DTYPE, copy=False)
-
-
-def store_from_events(events: np.ndarray) -> "dv.EventStore":
-    """Build a dv-processing ``EventStore`` from time-ordered events (fields of EVENT_DTYPE).
-
-    dv-processing 2.0.4 has no constructor from numpy, and ``EventStore.numpy()`` returns a
-    copy (no writable view), so events go in one ``push_back`` call each, driven by ``map`` over
-    column lists: about 3 M events/s (docs/performance.md, Recording I/O).
-    """
-    import dv_processing as dv
-
-    store = dv.EventStore()
-    columns = (
-        events["timestamp"].tolist(),
-        events["x"].tolist(),
-        events["y"].tolist(),
-        events["polarity"].astype(bool).tolist(),
-    )
-    collections.deque(map(store.push_back, zip(*columns)), maxlen=0)  # consume in C
-    return store
 
 
 def split_batches(events: np.ndarray, batch_us: int) -> list[np.ndarray]:
@@ -245,13 +214,6 @@ def _is_decoder_error(exc: BaseException) -> bool:
     """Whether aedat raised ``exc`` about the file: its errors are Exceptions, a panic of its Rust
     code is pyo3's ``PanicException`` (a BaseException); Ctrl-C and exits are not."""
     return isinstance(exc, Exception) or type(exc).__name__ == "PanicException"
-
-
-def dv_error_text(message: str) -> str:
-    """The useful line of a dv-processing exception text (it carries source paths and a stack)."""
-    lines = [line for line in message.splitlines() if line.strip() and not line.startswith("/")]
-    text = lines[0] if lines else message.splitlines()[0] if message else "unknown error"
-    return text.split(" - Error info")[0].strip()
 
 
 # --- reading ------------------------------------------------------------------------------------

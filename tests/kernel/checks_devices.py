@@ -34,7 +34,7 @@ RULES = Path("/run/udev/rules.d/60-neurotouch.rules")  # where guest.py's setup 
 OPEN = """
 import dv_processing as dv
 from neurotouch_hid.sources.discovery import explain_no_camera
-from neurotouch_hid.sources.recording import DV_ERRORS, dv_error_text
+from neurotouch_hid.sources.dv import DV_ERRORS, dv_error_text
 found = dv.io.camera.discover()
 try:
     camera = dv.io.camera.open(found[0])
