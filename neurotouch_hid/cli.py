@@ -15,6 +15,7 @@ from typing import Optional
 import typer
 
 from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.kinds import OutputKind, SourceKind
 from neurotouch_hid.output.console import make_console
 
 app = typer.Typer(
@@ -93,16 +94,16 @@ def record(
     from neurotouch_hid.errors import DeviceError
     from neurotouch_hid.sources.recording import record_stream
 
-    if source not in ("davis", "sim"):
+    if source not in tuple(SourceKind):
         raise NeurotouchError(f"--source {source!r}: expected davis or sim (to replay a recording, copy the file)")
     if out.exists() and not force:
         raise NeurotouchError(f"{out} exists: choose another name, or add --force to overwrite it")
-    if fast and (source != "sim" or seconds is None):
+    if fast and (source != SourceKind.SIM or seconds is None):
         raise NeurotouchError("--fast is for --source sim with --seconds (a camera cannot go faster than time)")
     if seconds is not None and seconds <= 0:
         raise NeurotouchError(f"--seconds {seconds}: expected a positive duration")
     with contextlib.ExitStack() as stack:
-        if source == "davis":
+        if source == SourceKind.DAVIS:
             from neurotouch_hid.sources.davis import DavisSource
 
             camera = stack.enter_context(DavisSource(_davis_config(serial, exposure_us, 1.0)))
@@ -137,7 +138,12 @@ def record(
 
             try:
                 summary = record_stream(
-                    stream, out, camera_name=name, pace=source == "sim" and not fast, stop=stop, on_progress=report
+                    stream,
+                    out,
+                    camera_name=name,
+                    pace=source == SourceKind.SIM and not fast,
+                    stop=stop,
+                    on_progress=report,
                 )
             except DeviceError as exc:
                 raise DeviceError(
@@ -342,7 +348,7 @@ def run(
         "(replayed without the pipeline)",
     ),
     profile: str = typer.Option("default", "--profile", help="profile name or path"),
-    output: str = typer.Option("gamepad", "--output", help="gamepad, jsonl or term"),
+    output: OutputKind = typer.Option(OutputKind.GAMEPAD, "--output", help="where the states go"),
     seconds: Optional[float] = typer.Option(None, "--seconds", help="stop after this many seconds"),
     fast: bool = typer.Option(False, "--fast", help="do not pace recordings in real time"),
     out: Optional[Path] = typer.Option(
@@ -513,7 +519,7 @@ def calibrate(
     def say(line: str) -> None:
         console.print(line, highlight=False, markup=False, soft_wrap=True)
 
-    if source == "davis":
+    if source == SourceKind.DAVIS:
         err_console.print("reading rest frames from the camera: keep your hands off the gel", highlight=False)
     result = calibration.calibrate(
         calibration.read_rest_frames(source, frames), expected_markers=markers, n_frames=frames

@@ -17,6 +17,7 @@ from typing import Any, Callable, Iterable, Iterator
 
 from neurotouch_hid.errors import DeviceError, NeurotouchError
 from neurotouch_hid.estimate import GestureEstimate
+from neurotouch_hid.kinds import OutputKind, SourceKind
 from neurotouch_hid.mapping.profile import Profile, load_profile
 from neurotouch_hid.runtime import DEFAULT_BATCH_US, Runtime
 from neurotouch_hid.sources import Frame
@@ -24,8 +25,6 @@ from neurotouch_hid.stages import Output
 from neurotouch_hid.stats import RunStats
 
 log = logging.getLogger(__name__)
-
-OUTPUT_KINDS = ("gamepad", "jsonl", "term")
 
 
 class EstimateReplay:
@@ -78,7 +77,7 @@ def open_source(
 
         return iter(read_predictions(spec)), None, False
 
-    if spec == "davis":
+    if spec == SourceKind.DAVIS:
         from neurotouch_hid.pipeline.noise import EventNoiseFilter
         from neurotouch_hid.pipeline.pipeline import PipelineConfig
         from neurotouch_hid.sources.davis import DavisSource
@@ -96,7 +95,7 @@ def open_source(
             raise DeviceError(f"{exc}; or start with --wait to wait for a camera") from None
         geometry = SensorGeometry.load(sensor) if sensor is not None else default_sensor()
         return camera.stream(seconds=seconds, batch_us=batch_us, reconnect=True), geometry, True
-    if spec == "sim":
+    if spec == SourceKind.SIM:
         from neurotouch_hid.sources.simulator import SimulatedSource
 
         sim = SimulatedSource(seed=seed) if sensor is None else SimulatedSource(SensorGeometry.load(sensor), seed=seed)
@@ -128,7 +127,7 @@ def open_output(
     or stdout) or ``term`` (the terminal view, showing ``stats`` under the pad). ``say`` tells the
     user about rumble effects games send to the pad (the gel has no motor; default: the log).
     Closed by ``stack``. Raises DeviceError when /dev/uinput cannot be used."""
-    if kind == "gamepad":
+    if kind == OutputKind.GAMEPAD:
         from neurotouch_hid.output.desktop import UinputOutputs
         from neurotouch_hid.output.gamepad import GamepadIdentity, VirtualGamepad
 
@@ -136,7 +135,7 @@ def open_output(
         identity = GamepadIdentity(name=dev.name, vendor=dev.vendor, product=dev.product, version=dev.version)
         on_effect = None if say is None else (lambda line: say(f"rumble (the gel has no motor): {line}"))
         return stack.enter_context(UinputOutputs(VirtualGamepad(identity, on_effect=on_effect), profile))
-    if kind == "jsonl":
+    if kind == OutputKind.JSONL:
         from neurotouch_hid.output.jsonl import StateJsonlWriter
 
         return stack.enter_context(StateJsonlWriter(out))
@@ -227,8 +226,8 @@ def run_driver(
     Raises NeurotouchError subclasses for bad input (ProfileError, RecordingError, DeviceError,
     SensorError).
     """
-    if output not in OUTPUT_KINDS:
-        raise NeurotouchError(f"unknown output '{output}' (expected one of: {', '.join(OUTPUT_KINDS)})")
+    if output not in tuple(OutputKind):
+        raise NeurotouchError(f"unknown output '{output}' (expected one of: {', '.join(OutputKind)})")
     if window_us < 1000:
         raise NeurotouchError(f"--window-us {window_us}: windows must be at least 1000 us")
     loaded = load_profile(profile)

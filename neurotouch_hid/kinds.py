@@ -1,0 +1,23 @@
+"""The closed sets of choices the command line offers, as ``str`` enums (typer makes its choices
+from them; the driver compares against them). A module of its own, with nothing to import, so
+that the CLI can name them without loading the driver's stages.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+
+class OutputKind(StrEnum):
+    """Where ``run`` sends the controller states (``--output``)."""
+
+    GAMEPAD = "gamepad"  #: the uinput pad (and the keyboard and mouse a profile uses)
+    JSONL = "jsonl"  #: one JSON line per state change (``--out`` or stdout)
+    TERM = "term"  #: the terminal view
+
+
+class SourceKind(StrEnum):
+    """The named sources of ``--source``; any other value is a file (AEDAT4 or predictions)."""
+
+    DAVIS = "davis"  #: the live DAVIS-346
+    SIM = "sim"  #: the simulated gel
