@@ -23,8 +23,7 @@ from typing import Any
 
 from neurotouch_hid.controller import MOUSE_BUTTONS, MOUSE_REL, ControllerState
 from neurotouch_hid.errors import DeviceError
-from neurotouch_hid.output.gamepad import RELEASE_GRACE_S, VirtualGamepad, uinput_problem
-from neurotouch_hid.udev import uinput_help
+from neurotouch_hid.output.gamepad import RELEASE_GRACE_S, VirtualGamepad, create_uinput
 
 #: ``phys`` of the keyboard and the mouse (the udev rule's ``neurotouch-hid/*`` tags them
 #: ID_NEUROTOUCH_VIRTUAL=1 like the pad).
@@ -62,27 +61,20 @@ class _UinputDevice:
     """A uinput device whose keys are tracked, so that it can always be released."""
 
     def __init__(self, what: str, capabilities: dict, name: str, phys: str, devnode: str) -> None:
-        problem = uinput_problem(devnode)
-        if problem:
-            raise DeviceError(f"{problem}: {uinput_help()}")
-        from evdev import UInput, UInputError, ecodes
+        from evdev import ecodes
 
         self._ecodes = ecodes.ecodes
-        try:
-            self._ui = UInput(
-                capabilities,
-                name=name,
-                vendor=0,
-                product=0,
-                version=1,
-                bustype=ecodes.BUS_VIRTUAL,
-                devnode=devnode,
-                phys=phys,
-            )
-        except (OSError, UInputError) as exc:
-            raise DeviceError(
-                f"the kernel refused to create the virtual {what} on {devnode}: {exc}: " + uinput_help()
-            ) from None
+        self._ui = create_uinput(
+            what,
+            capabilities,
+            devnode,
+            name=name,
+            vendor=0,
+            product=0,
+            version=1,
+            bustype=ecodes.BUS_VIRTUAL,
+            phys=phys,
+        )
         self.what = what
         self._down: frozenset[str] = frozenset()
         self._lock = threading.RLock()

@@ -69,6 +69,27 @@ class GamepadIdentity:
     bustype: int = 0x03  # BUS_USB
 
 
+def create_uinput(what: str, capabilities: dict, devnode: str = "/dev/uinput", **setup: Any) -> Any:
+    """A python-evdev :class:`evdev.UInput` device (the virtual ``what``: gamepad, keyboard, mouse)
+    with ``capabilities`` and ``setup`` (name, ids, bus, phys, ... of ``UInput``).
+
+    Raises:
+        DeviceError: ``devnode`` cannot be used (:func:`uinput_problem`) or the kernel refuses the
+            device; the message ends with the fix (:func:`neurotouch_hid.udev.uinput_help`).
+    """
+    problem = uinput_problem(devnode)
+    if problem:
+        raise DeviceError(f"{problem}: {uinput_help()}")
+    from evdev import UInput, UInputError
+
+    try:
+        return UInput(capabilities, devnode=devnode, **setup)
+    except (OSError, UInputError) as exc:
+        raise DeviceError(
+            f"the kernel refused to create the virtual {what} on {devnode}: {exc}: " + uinput_help()
+        ) from None
+
+
 def uinput_problem(devnode: str = "/dev/uinput") -> str | None:
     """Why ``devnode`` cannot be used to create a gamepad (missing, not a character device, not
     readable and writable by this process), or None when it can."""
@@ -181,28 +202,21 @@ class VirtualGamepad:
         self.on_effect = on_effect or (lambda line: log.info("rumble (the gel has no motor): %s", line))
         if not 0 < len(self.identity.name.encode()) <= _NAME_MAX:
             raise DeviceError(f"gamepad name {self.identity.name!r} must be 1..{_NAME_MAX} bytes long")
-        problem = uinput_problem(devnode)
-        if problem:
-            raise DeviceError(f"{problem}: {uinput_help()}")
-        from evdev import UInput, UInputError, ecodes
+        from evdev import ecodes
 
         self._ecodes = ecodes.ecodes
-        try:
-            self._ui = UInput(
-                capabilities(),
-                name=self.identity.name,
-                vendor=self.identity.vendor,
-                product=self.identity.product,
-                version=self.identity.version,
-                bustype=self.identity.bustype,
-                devnode=devnode,
-                phys=PHYS,
-                max_effects=MAX_EFFECTS,
-            )
-        except (OSError, UInputError) as exc:
-            raise DeviceError(
-                f"the kernel refused to create the virtual gamepad on {devnode}: {exc}: " + uinput_help()
-            ) from None
+        self._ui = create_uinput(
+            "gamepad",
+            capabilities(),
+            devnode,
+            name=self.identity.name,
+            vendor=self.identity.vendor,
+            product=self.identity.product,
+            version=self.identity.version,
+            bustype=self.identity.bustype,
+            phys=PHYS,
+            max_effects=MAX_EFFECTS,
+        )
         self._lock = threading.RLock()
         self._last: ControllerState | None = None
         self._closed = False
