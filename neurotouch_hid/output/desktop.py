@@ -18,12 +18,11 @@ from __future__ import annotations
 
 import functools
 import threading
-import time
 from typing import Any
 
 from neurotouch_hid.controller import MOUSE_BUTTONS, MOUSE_REL, ControllerState
 from neurotouch_hid.errors import DeviceError
-from neurotouch_hid.output.gamepad import RELEASE_GRACE_S, VirtualGamepad, create_uinput
+from neurotouch_hid.output.gamepad import NeutralOnClose, VirtualGamepad, create_uinput
 
 #: ``phys`` of the keyboard and the mouse (the udev rule's ``neurotouch-hid/*`` tags them
 #: ID_NEUROTOUCH_VIRTUAL=1 like the pad).
@@ -57,7 +56,7 @@ def keyboard_codes() -> tuple[int, ...]:
     return tuple(sorted(c for c in codes if 0 < c and not ecodes.BTN_MISC <= c < ecodes.KEY_OK))
 
 
-class _UinputDevice:
+class _UinputDevice(NeutralOnClose):
     """A uinput device whose keys are tracked, so that it can always be released."""
 
     def __init__(self, what: str, capabilities: dict, name: str, phys: str, devnode: str) -> None:
@@ -113,17 +112,8 @@ class _UinputDevice:
         """Release every key and button."""
         self._emit(frozenset(), {})
 
-    def close(self) -> None:
-        """Neutralise, wait :data:`RELEASE_GRACE_S` so readers see it, then destroy the device. Idempotent."""
-        with self._lock:
-            if self._closed:
-                return
-            try:
-                self.neutralise()
-                time.sleep(RELEASE_GRACE_S)
-            finally:
-                self._closed = True
-                self._ui.close()
+    def _destroy(self) -> None:
+        self._ui.close()
 
 
 class VirtualKeyboard(_UinputDevice):

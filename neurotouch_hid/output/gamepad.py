@@ -179,7 +179,28 @@ def _begin_ff_request(ui, kind: str, request_id: int):
     return request
 
 
-class VirtualGamepad:
+class NeutralOnClose:
+    """``close()`` for a uinput device: neutralise it, wait :data:`RELEASE_GRACE_S` so readers
+    see the release, then ``_destroy()`` it. Idempotent; never leaves a key, button or axis held,
+    even if neutralising fails. Subclasses set ``_lock`` (an RLock) and ``_closed`` and define ``neutralise()`` and
+    ``_destroy()``."""
+
+    _lock: threading.RLock
+    _closed: bool
+
+    def close(self) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            try:
+                self.neutralise()
+                time.sleep(RELEASE_GRACE_S)
+            finally:
+                self._closed = True
+                self._destroy()
+
+
+class VirtualGamepad(NeutralOnClose):
     """A uinput gamepad (Xbox 360 layout) that mirrors :class:`ControllerState` values.
 
     Use as a context manager, or call :meth:`close`. Thread-safe: :meth:`close` may be called
@@ -308,21 +329,11 @@ class VirtualGamepad:
         """Centre every axis (triggers to 0) and release every button, then SYN_REPORT."""
         self.write(ControllerState.neutral())
 
-    def close(self) -> None:
-        """Neutralise, wait :data:`RELEASE_GRACE_S` so readers see it, then destroy the device.
-
-        Idempotent; never leaves a button pressed."""
-        with self._lock:
-            if self._closed:
-                return
-            try:
-                self.neutralise()
-                time.sleep(RELEASE_GRACE_S)
-            finally:
-                self._closed = True
-                self._ff_stop.set()
-                self._ff_thread.join(1.0)
-                self._ui.close()
+    def _destroy(self) -> None:
+        """Stop the force-feedback thread, then destroy the uinput device."""
+        self._ff_stop.set()
+        self._ff_thread.join(1.0)
+        self._ui.close()
 
     def __enter__(self) -> "VirtualGamepad":
         return self
