@@ -133,3 +133,53 @@ def test_a_rumble_effect_is_described_in_one_line():
         ecodes.FF_RUMBLE, 3, 0, ff.Trigger(0, 0), ff.Replay(300, 0), ff.EffectType(ff_rumble_effect=rumble)
     )
     assert describe_effect(effect) == "effect 3: FF_RUMBLE strong 32767 weak 65535 for 300 ms"
+
+
+class _RecordingUinput:
+    """Stands in for evdev.UInput (unit test only; tests/kernel/ checks the real device)."""
+
+    def __init__(self, fail_writes: bool = False) -> None:
+        self.events: list[tuple[int, int, int]] = []
+        self.closed = 0
+        self.fail_writes = fail_writes
+        self.device = None
+
+    def write(self, etype: int, code: int, value: int) -> None:
+        if self.fail_writes:
+            raise OSError(19, "No such device")
+        self.events.append((etype, code, value))
+
+    def syn(self) -> None:
+        self.events.append((0, 0, 0))
+
+    def close(self) -> None:
+        self.closed += 1
+
+
+@pytest.mark.parametrize("fail_release", [False, True])
+def test_keyboard_close_releases_held_keys_once_and_destroys_even_if_release_fails(monkeypatch, fail_release):
+    from evdev import ecodes
+
+    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.errors import DeviceError
+    from neurotouch_hid.output import desktop
+
+    fake = _RecordingUinput()
+    monkeypatch.setattr(desktop, "create_uinput", lambda *a, **k: fake)
+    keyboard = desktop.VirtualKeyboard()
+    held = ControllerState(keys=frozenset({"KEY_LEFTSHIFT", "KEY_A"}))
+    keyboard.write(held)
+    assert (ecodes.EV_KEY, ecodes.KEY_A, 1) in fake.events
+    fake.events.clear()
+    fake.fail_writes = fail_release
+    if fail_release:
+        with pytest.raises(DeviceError):
+            keyboard.close()
+    else:
+        keyboard.close()
+        # modifiers are released last, so no shifted key is left for a reader
+        assert fake.events == [(ecodes.EV_KEY, ecodes.KEY_A, 0), (ecodes.EV_KEY, ecodes.KEY_LEFTSHIFT, 0), (0, 0, 0)]
+    assert fake.closed == 1
+    keyboard.close()  # idempotent
+    keyboard.write(held)  # a write after close is ignored
+    assert fake.closed == 1
