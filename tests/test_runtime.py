@@ -228,8 +228,14 @@ def test_switch_profile_neutralises_then_maps_with_the_new_profile():
         rt.switch_profile({"sign": -1})
         seen_switch.set()
 
-    threading.Timer(0.2, switch).start()
-    threading.Timer(0.5, rt.stop).start()
+    once(lambda: len(writes_of(out.calls)) >= 3, switch)
+
+    def written_after_switch() -> int:
+        calls = list(out.calls)
+        kinds = [k for k, _ in calls]
+        return len(writes_of(calls[kinds.index("neutralise") + 1 :])) if "neutralise" in kinds else 0
+
+    once(lambda: seen_switch.is_set() and written_after_switch() >= 3, rt.stop)
     rt.run()
     assert seen_switch.is_set()
     kinds = [k for k, _ in out.calls]
@@ -242,6 +248,22 @@ def test_switch_profile_neutralises_then_maps_with_the_new_profile():
 
 def writes_of(calls):
     return [s for k, s in calls if k == "write"]
+
+
+def once(condition, action, timeout_s: float = 60.0) -> threading.Thread:
+    """Run ``action`` in a thread as soon as ``condition()`` holds (polled every 10 ms), so a test
+    waits for what the runtime did, not for a wall-clock delay a loaded machine can overrun."""
+
+    def wait_then_act():
+        for _ in range(int(timeout_s / 0.01)):
+            if condition():
+                break
+            threading.Event().wait(0.01)
+        action()
+
+    thread = threading.Thread(target=wait_then_act, daemon=True)
+    thread.start()
+    return thread
 
 
 def test_reload_keeps_the_old_profile_when_the_new_one_is_bad():
@@ -263,8 +285,8 @@ def test_sighup_reloads_the_profile():
     rt, _, out = make_runtime(
         endless(), pace=True, pipeline=FakePipeline(push_batches=10**9), profile_ref="mine.yaml", profile_loader=loader
     )
-    threading.Timer(0.2, os.kill, (os.getpid(), signal.SIGHUP)).start()
-    threading.Timer(0.6, rt.stop).start()
+    once(lambda: len(writes(out)) >= 3, lambda: os.kill(os.getpid(), signal.SIGHUP))
+    once(lambda: loads and len(writes(out)) >= 3 and writes(out)[-1].axes["ABS_X"] < 0, rt.stop)
     rt.run()
     assert loads == ["mine.yaml"] and rt.profile == {"sign": -1}
     assert writes(out)[-1].axes["ABS_X"] < 0
