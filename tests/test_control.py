@@ -94,14 +94,23 @@ def test_profile_use_switches_a_running_runtime_outputs_neutral_first(runtime_di
     )
     answers: dict = {}
 
+    def written_after_switch() -> int:
+        calls = list(out.calls)
+        kinds = [k for k, _ in calls]
+        return len(writes_of(calls[kinds.index("neutralise") + 1 :])) if "neutralise" in kinds else 0
+
     def client():
-        assert wait_for_socket()
-        with pytest.raises(NeurotouchError) as bad:
-            request_use("broken")
-        answers["bad"] = str(bad.value)
-        answers["ok"] = request_use("mine")
-        time.sleep(0.2)
-        rt.stop()
+        try:
+            assert wait_for_socket(30.0)
+            # act on what the runtime did, not after fixed delays a loaded machine can overrun
+            assert wait_until(lambda: writes_of(list(out.calls)))
+            with pytest.raises(NeurotouchError) as bad:
+                request_use("broken")
+            answers["bad"] = str(bad.value)
+            answers["ok"] = request_use("mine")
+            assert wait_until(lambda: written_after_switch() >= 3)
+        finally:
+            rt.stop()
 
     thread = threading.Thread(target=client)
     thread.start()
@@ -116,13 +125,18 @@ def test_profile_use_switches_a_running_runtime_outputs_neutral_first(runtime_di
     assert not socket_path().exists()  # removed when the run ended
 
 
-def wait_for_socket(timeout_s: float = 5.0) -> bool:
+def wait_until(condition, timeout_s: float = 60.0) -> bool:
+    """Poll ``condition()`` every 10 ms until it holds (True) or ``timeout_s`` passes (False)."""
     end = time.monotonic() + timeout_s
     while time.monotonic() < end:
-        if socket_path().exists():
+        if condition():
             return True
-        time.sleep(0.02)
+        time.sleep(0.01)
     return False
+
+
+def wait_for_socket(timeout_s: float = 5.0) -> bool:
+    return wait_until(lambda: socket_path().exists(), timeout_s)
 
 
 def test_mouse_profile_run_writes_every_motion_and_ends_neutral(tmp_path, runtime_dir):
