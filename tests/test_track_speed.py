@@ -1,7 +1,8 @@
-"""What ``track`` does to start fast (issue 11, docs/performance.md "track at 20x real time"):
-no progress bar and no pass over the file for its total when nothing shows it, the start-up's
-objects kept out of the garbage collector's passes, the library noise filter made only when used.
-Behaviour only: the same predictions, the same progress figures; no timing."""
+"""What makes ``track`` fast (issue 11, docs/performance.md "track at 20x real time"): no
+progress bar and no pass over the file for its total when nothing shows it, the start-up's
+objects kept out of the garbage collector's passes, the library noise filter made only when
+used, the resting detector stopping once its verdict is certain. Behaviour only: the same
+predictions, progress figures and verdicts; no timing."""
 
 from __future__ import annotations
 
@@ -14,8 +15,10 @@ import pytest
 from rich.console import Console
 
 from neurotouch_hid.cli import long_lived_start_up
+from neurotouch_hid.pipeline.pipeline import GesturePipeline
 from neurotouch_hid.pipeline.track import recording_progress, track_recording
 from neurotouch_hid.sensor import find_sensor_file
+from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.recording import RecordingReader
 
 
@@ -137,3 +140,35 @@ def test_the_numba_noise_filter_never_loads_dv_processing():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert done.stdout.split() == ["2", "False", "2", "False"]
+
+
+# --- the resting detector's early verdict --------------------------------------------------------
+def _gel_frames(recording, n: int = 400):
+    """The recording's first ``n`` APS frames (rest, presses and releases) and its detector."""
+    pipeline = GesturePipeline(find_sensor_file(recording))
+    frames = []
+    with RecordingReader(recording) as reader:
+        for item in reader.stream(batch_us=10_000):
+            if isinstance(item, Frame):
+                frames.append(item)
+                if pipeline.resting_detector is None:
+                    pipeline.process(item)
+            if len(frames) >= n:
+                break
+    assert pipeline.resting_detector is not None
+    return pipeline.resting_detector, frames
+
+
+def test_verdict_only_gives_every_verdict_and_the_exact_distance_at_rest(push_recording):
+    detector, frames = _gel_frames(push_recording)
+    full = [detector.update(f) for f in frames]
+    quick = [detector.update(f, verdict_only=True) for f in frames]
+    assert [q.resting for q in quick] == [f.resting for f in full]
+    assert sum(f.resting for f in full) > 10 and sum(not f.resting for f in full) > 10  # both kinds seen
+    early = [q for q, f in zip(quick, full) if q.distance != f.distance]
+    assert early  # some frames were decided by the first term alone
+    for q, f in zip(quick, full):
+        if f.resting:  # a resting verdict always needs, and reports, the whole distance
+            assert q.distance == f.distance
+        else:
+            assert detector.threshold < q.distance <= f.distance
