@@ -227,11 +227,11 @@ class EventNoiseFilter:
             (K,) EVENT_DTYPE, K <= E: the kept events, in their order (a new array; ``events``
             itself when it is empty).
         """
-        from neurotouch_hid.sources.dv import events_from_store, store_from_events
-
         if len(events) == 0:
             return events
         if self._surface is None:
+            from neurotouch_hid.sources.dv import events_from_store, store_from_events
+
             return events_from_store(self.filter_store(store_from_events(events)))
         ts = events["timestamp"]
         if self._last_us is not None and int(ts[0]) < self._last_us:
