@@ -72,7 +72,7 @@ def time_filter(name: str, time_us: int, batches: list[np.ndarray], sensor: Sens
     """Per-batch CPU times (s) of the three parts of one filter over ``batches``, and the kept
     batches."""
     noise = EventNoiseFilter(name, sensor.width, sensor.height, time_us)
-    lib = noise._filter  # the dv-processing object, to time its parts one by one
+    lib = noise._library_filter()  # the dv-processing object, to time its parts one by one
     to_store, core, from_store, total, kept = [], [], [], [], []
     for batch in batches:
         c0 = time.thread_time()

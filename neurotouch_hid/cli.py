@@ -8,7 +8,10 @@ line on stderr and exit code 2 (see :func:`main`).
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Optional
 
@@ -33,6 +36,24 @@ app.add_typer(profile_app, name="profile")
 
 console = make_console()
 err_console = make_console(stderr=True)
+
+
+@contextlib.contextmanager
+def long_lived_start_up() -> Iterator[None]:
+    """A command's start-up: what is made inside (imports, numba's loaded code: ~130 k objects
+    for ``track``) lives as long as the process. The garbage collector is off meanwhile and
+    those objects are frozen at the end (``gc.freeze``), so that none of its passes walks them
+    again: its full passes over them were ~0.5 s of CPU of a 40 s ``track`` (docs/performance.md,
+    "track at 20x real time"). Cyclic garbage made inside is never freed: keep the block to
+    imports and set-up."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.freeze()
+        if enabled:
+            gc.enable()
 
 
 # --- recordings (sources/recording.py) ------------------------------------------------------
@@ -220,12 +241,15 @@ def track(
     ),
 ) -> None:
     """Run the gesture pipeline on a recording and write one prediction per window."""
-    from neurotouch_hid.evaluation.runner import pipeline_config
-    from neurotouch_hid.pipeline.track import recording_progress, track_recording
-    from neurotouch_hid.sensor import find_sensor_file
+    with long_lived_start_up():
+        from neurotouch_hid.evaluation.runner import pipeline_config
+        from neurotouch_hid.pipeline.pipeline import GesturePipeline
+        from neurotouch_hid.pipeline.track import recording_progress, track_recording
+        from neurotouch_hid.sensor import find_sensor_file
 
-    config = pipeline_config(preset=preset, window_us=window_us)
-    geometry = find_sensor_file(recording, sensor)
+        config = pipeline_config(preset=preset, window_us=window_us)
+        geometry = find_sensor_file(recording, sensor)
+        GesturePipeline(geometry, config).compile_kernels()  # numba's cached code, loaded now
     with recording_progress(err_console, "tracking") as report:
         summary = track_recording(recording, out, geometry, config, markers_out=markers, on_progress=report)
     console.print(

@@ -156,7 +156,7 @@ class PipelineResting:
     def update(self, frame: Frame) -> Any:
         """The Chamfer-distance verdict for ``frame`` (``RestingResult``), or None."""
         detector = self._pipeline.resting_detector
-        return None if detector is None else detector.update(frame)
+        return None if detector is None else detector.update(frame, verdict_only=True)
 
 
 def build_pipeline(

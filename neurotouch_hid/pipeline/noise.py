@@ -167,18 +167,25 @@ class EventNoiseFilter:
         self.n_in = 0
         self.n_out = 0
         self._last_us: int | None = None
-        self._filter = self._make()
+        #: the library's filter, made on first use: numpy batches of the background-activity
+        #: filter never need it (the numba kernel), and importing dv-processing costs ~25 ms
+        self._filter = None
         #: the numba background-activity filter's padded time surface (:func:`time_surface`)
         self._surface = time_surface(self.width, self.height) if name == "BackgroundActivityNoiseFilter" else None
 
-    def _make(self):
-        import dv_processing as dv
+    def _library_filter(self):
+        """The dv-processing filter (made now if not yet)."""
+        if self._filter is None:
+            import dv_processing as dv
 
-        return getattr(dv.noise, self.name)((self.width, self.height), datetime.timedelta(microseconds=self.time_us))
+            self._filter = getattr(dv.noise, self.name)(
+                (self.width, self.height), datetime.timedelta(microseconds=self.time_us)
+            )
+        return self._filter
 
     def reset(self) -> None:
         """Forget every event seen (a new stream, e.g. whose clock restarts) and the counts."""
-        self._filter = self._make()
+        self._filter = None
         if self._surface is not None:
             self._surface = time_surface(self.width, self.height)
         self._last_us = None
@@ -198,8 +205,9 @@ class EventNoiseFilter:
         if self._last_us is not None and int(store.getLowestTime()) < self._last_us:
             self.reset()
         self._last_us = int(store.getHighestTime())
-        self._filter.accept(store)
-        kept = self._filter.generateEvents()
+        library = self._library_filter()
+        library.accept(store)
+        kept = library.generateEvents()
         self.n_in += len(store)
         self.n_out += len(kept)
         return kept
@@ -219,11 +227,11 @@ class EventNoiseFilter:
             (K,) EVENT_DTYPE, K <= E: the kept events, in their order (a new array; ``events``
             itself when it is empty).
         """
-        from neurotouch_hid.sources.dv import events_from_store, store_from_events
-
         if len(events) == 0:
             return events
         if self._surface is None:
+            from neurotouch_hid.sources.dv import events_from_store, store_from_events
+
             return events_from_store(self.filter_store(store_from_events(events)))
         ts = events["timestamp"]
         if self._last_us is not None and int(ts[0]) < self._last_us:

@@ -579,7 +579,7 @@ class GesturePipeline:
 
     def _at_rest_after_restart(self, frame: Frame) -> bool:
         """After :meth:`restart`: whether ``frame`` may re-initialise the markers (see there)."""
-        if self.resting_detector.update(frame).resting:
+        if self.resting_detector.update(frame, verdict_only=True).resting:
             return True
         self._resume_waited += 1
         previous, self._previous_frame = self._previous_frame, frame
@@ -595,7 +595,7 @@ class GesturePipeline:
             )
         except SensorError:  # the frame before shows no marker at all
             return False
-        return still.update(frame).resting
+        return still.update(frame, verdict_only=True).resting
 
     def _process_frame(self, frame: Frame) -> list[GestureEstimate]:
         if self.tracker is None:
@@ -605,7 +605,7 @@ class GesturePipeline:
         out = self._close_windows_until(frame.t_us)
         if self.config.detect_resting:
             start = self._clock()
-            result = self.resting_detector.update(frame)
+            result = self.resting_detector.update(frame, verdict_only=True)
             self._record("resting", start)
             self._resting_t_us = frame.t_us
             self._apply_resting(result)

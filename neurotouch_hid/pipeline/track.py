@@ -50,9 +50,15 @@ class TrackSummary:
 
 
 @contextlib.contextmanager
-def recording_progress(console, label: str) -> Iterator[Callable[[int, int], None]]:
-    """A rich progress bar over recording time; yields the ``on_progress(done_us, total_us)``
-    callback of :func:`pipeline_over`. The bar disappears when done."""
+def recording_progress(console, label: str) -> Iterator[Callable[[int, int], None] | None]:
+    """A rich progress bar over recording time on ``console`` (a ``rich.console.Console``);
+    yields the ``on_progress(done_us, total_us)`` callback of :func:`pipeline_over`. The bar
+    disappears when done. When ``console`` is not a terminal (a pipe, a file, CI) rich would
+    draw nothing of a transient bar, so there is none and None is yielded: no callback, and no
+    pass over the file for the bar's total (~5 % of ``track``; docs/performance.md)."""
+    if not console.is_terminal:
+        yield None
+        return
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     columns = (TextColumn(label), BarColumn(), TextColumn("{task.completed:.1f} s of recording"), TimeRemainingColumn())

@@ -672,7 +672,9 @@ class BlobTracker:
         Raises:
             ValueError: ``events`` lacks the EVENT_DTYPE fields.
         """
-        if events.dtype.names is None or not set(EVENT_DTYPE.names) <= set(events.dtype.names):
+        if events.dtype != EVENT_DTYPE and (
+            events.dtype.names is None or not set(EVENT_DTYPE.names) <= set(events.dtype.names)
+        ):  # (the sets only for another dtype: ~1.5 us a batch)
             raise ValueError(f"events must have the EVENT_DTYPE fields {EVENT_DTYPE.names}, got {events.dtype}")
         if len(events) == 0 or len(self._state) == 0:
             return
