@@ -15,6 +15,7 @@ PAPER = {
     "n_min": 4,
     "chamfer_threshold": 2.5,
     "chamfer_per_marker": False,
+    "resting_centroids": False,
     "min_intensity_px": 0.0,
     "intensity_sigma_px": None,
     "field_fallback": False,

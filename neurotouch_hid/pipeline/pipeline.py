@@ -22,6 +22,15 @@ reset to the rest positions with that verdict, and when, at a window's end, at l
 as a gesture window (``resting`` False). The verdict itself stays in force (no further tracker
 reset); the next APS frame's verdict decides again.
 
+Smooth override (``PipelineConfig.override_smooth``, not in the paper): a gel's displacement
+field is smooth, a finger moves a marker's neighbours with it; tracker noise is not. Under a
+flickering light (the ``flicker`` family) every marker's edges fire events at rest, the tracker
+jitters by up to ~0.8 px in random directions between two frames, and 12 jittering markers
+overruled the resting verdict on ~9 % of the resting windows (docs/accuracy.md, "Round 3").
+With the option, the override counts markers whose displacement *median-filtered over the
+marker and its nearest neighbours at rest* (:func:`grid_neighbours`, per component) exceeds
+``motion_override_px``: a coherent bump passes unchanged, scattered jitter is voted down.
+
 Gesture decision over one gesture (``PipelineConfig.episode_vote``, not in the paper): the
 paper decides the type window by window, so a pinch whose first finger leads reads as push in
 its first windows and again in its release. With the vote, the windows from a gesture's onset (the
@@ -46,8 +55,10 @@ the pipeline's own thread at its next item, so the tracker is never reset mid-ba
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
+import warnings
 from collections.abc import Callable, Iterable, Iterator
 
 import numpy as np
@@ -56,6 +67,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validat
 from neurotouch_hid.errors import SensorError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.pipeline.contacts import HOMOGRAPHY_METHODS, detect_contacts
+from neurotouch_hid.pipeline.gel_motion import estimate_gel_motion, rim_markers
 from neurotouch_hid.pipeline.gesture import EpisodeVote, estimate_gesture
 from neurotouch_hid.pipeline.markers import MARKER_SPACING_MM, detect_markers, looks_like_marker_grid
 from neurotouch_hid.pipeline.noise import EventNoiseFilter, check_noise_filter
@@ -138,6 +150,13 @@ class PipelineConfig(BaseModel):
             gel rests; paper: 2.5 (on its raw sum).
         chamfer_per_marker: True: the Chamfer distance is divided by the reference's number of
             markers (``resting.py``; not in the paper); False: the paper's raw sum.
+        resting_centroids: True: the resting detector's Chamfer distance is taken over the
+            markers' weighted centroids instead of their pixels (``resting.py``, "Marker
+            centroids"; not in the paper), so that a flickering or dimming light does not read
+            as motion, with ``centroid_threshold`` in place of ``chamfer_threshold``; False: over
+            the marker pixels (paper). Measured per physics family in docs/accuracy.md, "Round 3".
+        centroid_threshold: the centroid distance (px^2 per reference marker) at or below which
+            the gel rests, with ``resting_centroids``.
         min_intensity_px: below this intensity (px), nothing moves: ``none``.
         gesture_reproj_factor: the similarity's RANSAC threshold, as a multiple of A's mean
             displacement. A loose 2.0 keeps most of A (RANSAC then only drops grossly mistracked
@@ -172,6 +191,12 @@ class PipelineConfig(BaseModel):
             of the 10 development families, -1.3 on ``fingers`` (lagging fingers: the first
             finger's push windows outvote the pinch) and -0.2 on ``strong``; type changes per
             gesture 2.4-14.7 -> 0.6-3.0; median onset latency -5 to +15 ms (mean +2.8 ms).
+        override_smooth: the motion override counts a marker as moved by the median of its and
+            its nearest neighbours' displacements (module docstring, "Smooth override"; not in
+            the paper); False: by its own displacement.
+        gel_motion: the whole gel's rigid motion in its mount, read off the rim markers, is
+            removed before the contact homography and the gesture's similarity and put back on
+            the contact points (``gel_motion.py``; not in the paper); False: none (paper).
         override_min_markers: how many markers must have moved for the motion override (>= 1).
             It used to be ``n_min``, a contact-neighbourhood size with another meaning: with the
             paper's N_min = 4, four markers' tracker noise overruled a resting verdict.
@@ -202,6 +227,8 @@ class PipelineConfig(BaseModel):
     homography_method: str = "usac_fast"
     chamfer_threshold: float = 0.4
     chamfer_per_marker: bool = True
+    resting_centroids: bool = True
+    centroid_threshold: float = 0.02
     min_intensity_px: float = 0.3
     gesture_reproj_factor: float = 2.0
     min_gesture_reproj_px: float = 0.5
@@ -211,6 +238,8 @@ class PipelineConfig(BaseModel):
     origin_radius_px: float | None = 10.0
     motion_override_px: float | None = 0.3
     override_min_markers: int = 12
+    override_smooth: bool = True
+    gel_motion: bool = True
     episode_vote: bool = True
     rest_match_pitch: float | None = 0.1
     follow_px_per_mm: bool = True
@@ -261,6 +290,28 @@ class PipelineConfig(BaseModel):
         return self
 
 
+#: The smooth override's neighbours of a marker: the markers within this many times the median
+#: nearest-neighbour distance at rest (on the square 4 mm grid: its four nearest, not the diagonals).
+OVERRIDE_NEIGHBOUR_GAP = 1.25
+
+
+def grid_neighbours(rest_px: np.ndarray) -> np.ndarray:
+    """(N, k) int64: each marker of ``rest_px`` (N, 2) px, then its neighbours at rest (within
+    :data:`OVERRIDE_NEIGHBOUR_GAP` times the median nearest-neighbour distance), padded with N
+    (a row of NaN is appended to the displacements it indexes)."""
+    n = len(rest_px)
+    gap = np.sqrt(((rest_px[:, None, :] - rest_px[None, :, :]) ** 2).sum(axis=-1))
+    np.fill_diagonal(gap, np.inf)
+    near = gap <= OVERRIDE_NEIGHBOUR_GAP * np.median(gap.min(axis=1)) if n > 1 else np.zeros((n, n), bool)
+    k = int(near.sum(axis=1).max()) if n else 0
+    out = np.full((n, k + 1), n, dtype=np.int64)
+    out[:, 0] = np.arange(n)
+    for i in range(n):
+        idx = np.flatnonzero(near[i])
+        out[i, 1 : 1 + len(idx)] = idx
+    return out
+
+
 #: Named sets of PipelineConfig values (``track/eval --preset NAME``; ``--set`` overrides them).
 #: ``paper``: the paper's method and hyperparameters exactly (paper, sections "Methodology" and
 #: "Results"): r = 30 px, a = 0.6, N_min = 4, Chamfer threshold 2.5 on the paper's raw sum,
@@ -276,6 +327,7 @@ PIPELINE_PRESETS: dict[str, dict[str, object]] = {
         "n_min": 4,
         "chamfer_threshold": 2.5,
         "chamfer_per_marker": False,
+        "resting_centroids": False,
         "min_intensity_px": 0.0,
         "gesture_reproj_factor": 0.6,
         "intensity_sigma_px": None,
@@ -283,6 +335,8 @@ PIPELINE_PRESETS: dict[str, dict[str, object]] = {
         "contact_refine_px": None,
         "origin_radius_px": None,
         "motion_override_px": None,
+        "override_smooth": False,
+        "gel_motion": False,
         "noise_filter": None,
         "rest_match_pitch": None,
         "follow_px_per_mm": False,
@@ -326,12 +380,14 @@ def scaled_to_sensor(config: PipelineConfig, sensor: SensorGeometry) -> Pipeline
     ``sensor.px_per_mm / REFERENCE_PX_PER_MM`` (squared for the tracker's variances), so that a
     camera nearer the gel or with more pixels keeps the same contact radius, tracker gates and
     thresholds on the gel. The Chamfer threshold (px^2 per marker, growing with the marker's
-    pixel count too) is not scaled. Returns ``config`` itself at the reference scale or when
+    pixel count too) is not scaled; the centroid threshold (px^2 between centroids) is, with the
+    square of the scale. Returns ``config`` itself at the reference scale or when
     ``follow_px_per_mm`` is off (the paper's fixed pixels)."""
     k = sensor.px_per_mm / REFERENCE_PX_PER_MM
     if not config.follow_px_per_mm or k == 1.0:
         return config
     changes = {name: getattr(config, name) * k for name in _PX_FIELDS if getattr(config, name) is not None}
+    changes["centroid_threshold"] = config.centroid_threshold * k * k  # px^2 between centroids
     t = config.tracker
     tracker = t.model_copy(
         update={**{n: getattr(t, n) * k for n in _TRACKER_PX}, **{n: getattr(t, n) * k * k for n in _TRACKER_PX2}}
@@ -381,6 +437,8 @@ class GesturePipeline:
         self.config = scaled_to_sensor(self.settings, sensor)
         self.on_window = on_window
         self.rest_px: np.ndarray | None = None
+        self._neighbours: np.ndarray | None = None
+        self._rim: np.ndarray | None = None
         self.tracker: BlobTracker | None = None
         self.resting_detector: RestingDetector | None = None
         self.timings: dict[str, list[int]] | None = {s: [] for s in STAGES} if profile else None
@@ -565,15 +623,19 @@ class GesturePipeline:
             self.pressed_frames += 1
             return  # the gel is pressed: this frame is no rest reference; wait for one that is
         self.rest_px = markers.centroids_px.astype(np.float64)
+        self._neighbours = grid_neighbours(self.rest_px)
+        #: (N,) bool the outer ring of markers, whose motion is the gel's in its mount (gel_motion)
+        self._rim = rim_markers(self.rest_px, self.sensor.gel_center_px)
         self.tracker = BlobTracker(
             self.rest_px, self.sensor.width, self.sensor.height, self.config.tracker, sensor=self.sensor
         )
         self.resting_detector = RestingDetector(
             frame.image,
             self.sensor,
-            self.config.chamfer_threshold,
+            self.config.centroid_threshold if self.config.resting_centroids else self.config.chamfer_threshold,
             self.config.marker_threshold,
             per_marker=self.config.chamfer_per_marker,
+            centroids=self.config.resting_centroids,
         )
         self._resting = RestingResult(True, 0.0)
 
@@ -589,9 +651,10 @@ class GesturePipeline:
             still = RestingDetector(
                 previous.image,
                 self.sensor,
-                self.config.chamfer_threshold,
+                self.config.centroid_threshold if self.config.resting_centroids else self.config.chamfer_threshold,
                 self.config.marker_threshold,
                 per_marker=self.config.chamfer_per_marker,
+                centroids=self.config.resting_centroids,
             )
         except SensorError:  # the frame before shows no marker at all
             return False
@@ -660,7 +723,14 @@ class GesturePipeline:
         threshold = self.config.motion_override_px
         if threshold is None:
             return False
-        d = current[valid] - self.rest_px[valid]
+        if self.config.override_smooth:
+            d = np.where(valid[:, None], current - self.rest_px, np.nan)
+            d = np.concatenate([d, np.full((1, 2), np.nan)])[self._neighbours]  # (N, k, 2)
+            with warnings.catch_warnings():  # a marker whose neighbours are all lost: NaN, not moved
+                warnings.simplefilter("ignore", RuntimeWarning)
+                d = np.nanmedian(d, axis=1)
+        else:
+            d = current[valid] - self.rest_px[valid]
         moved = int(np.count_nonzero(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] > threshold * threshold))
         return moved >= self.config.override_min_markers
 
@@ -721,9 +791,14 @@ class GesturePipeline:
         """:meth:`_contacts_and_gesture` computed afresh."""
         c = self.config
         begin = self._clock()
+        motion = None
+        if c.gel_motion:
+            centre = self.sensor.gel_center_px
+            rim = self._rim if rest_px is self.rest_px else rim_markers(rest_px, centre)
+            motion = estimate_gel_motion(rest_px, current, valid, rim, centre)
         contacts = detect_contacts(
             rest_px,
-            current,
+            current if motion is None else motion.remove(current),
             valid,
             r_px=c.r_px,
             a=c.a,
@@ -733,6 +808,8 @@ class GesturePipeline:
             field_fallback=c.field_fallback,
             refine_px=c.contact_refine_px,
         )
+        if motion is not None:  # the contact points where they are, the gel's motion included
+            contacts = dataclasses.replace(contacts, points_px=motion.apply(contacts.points_px))
         self._record("contacts", begin)
         begin = self._clock()
         result = estimate_gesture(
@@ -747,6 +824,7 @@ class GesturePipeline:
             min_intensity_px=c.min_intensity_px,
             intensity_sigma_px=c.intensity_sigma_px,
             origin_radius_px=c.origin_radius_px,
+            gel_motion=motion,
         )
         self._record("gesture", begin)
         return contacts, result

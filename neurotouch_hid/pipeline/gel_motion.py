@@ -1,0 +1,106 @@
+"""The whole gel's motion in its mount, read off the rim markers (not in the paper).
+
+The paper's gesture step fits one similarity to the markers around the contacts and calls its
+dominant term the gesture. When the whole dome slides or turns a little in its mount while a
+finger presses (the ``drift`` physics family: up to 1.2 mm and 1.2 degrees), that rigid motion
+adds to every marker's displacement: a pinch or a zoom, whose scale term at r is only a few
+px, then reads as a push (on ``drift``: 151 of 772 pinch and 379 of 616 zoom windows,
+docs/accuracy.md "Round 3"), and the contact homography's dynamic threshold (a times the mean
+displacement) loosens.
+
+The dome's rim is clamped in its mount, so a finger's deformation fades out towards it
+(simulator: over >= 6 mm; a real gel likewise), while the mount's slip moves the rim with the
+rest. The markers of the outer ring (rest distance from the gel centre >= ``rim_fraction`` of
+the farthest marker's) therefore show the gel's rigid motion: a rotation theta about the gel
+centre c and a translation t, fitted to them with least median of squares (robust to the few
+rim markers a finger near the rim drags along; ``cv2.estimateAffinePartial2D`` with
+``cv2.LMEDS``, whose scale is dropped: a rim that contracts or stretches is a pinch or a zoom,
+not the mount)::
+
+    current = c + R(theta) (p - c) + t        p: where the marker would be without the slip
+
+With ``PipelineConfig.gel_motion`` the pipeline removes that motion (``remove``) before the
+contact homography and the gesture's similarity, and puts it back on the contact points
+(``apply``): the labels, like a user, see the contact points where they are. The intensity stays
+the displacement of the markers as tracked (the labels' intensity includes the slip).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+#: The outer ring: markers whose rest distance from the gel centre is at least this fraction of
+#: the farthest marker's (on the simulated 177-marker gel: the outer ~60 markers).
+RIM_FRACTION = 0.8
+#: Fewer valid rim markers than this: no estimate (no motion).
+MIN_RIM_MARKERS = 8
+
+
+@dataclass(frozen=True)
+class GelMotion:
+    """A rigid motion of the whole gel, image frame.
+
+    Attributes:
+        centre_px: (2,) float64, the gel centre c (px), the rotation's origin.
+        rotation_rad: theta (rad, as OpenCV measures it in the image: > 0 clockwise as displayed).
+        translation_px: (2,) float64, t (px).
+    """
+
+    centre_px: np.ndarray
+    rotation_rad: float = 0.0
+    translation_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
+
+    def _matrix(self) -> np.ndarray:
+        c, s = math.cos(self.rotation_rad), math.sin(self.rotation_rad)
+        return np.array([[c, -s], [s, c]])
+
+    def apply(self, points_px: np.ndarray) -> np.ndarray:
+        """(..., 2) float64: ``points_px`` (..., 2) px moved with the gel, c + R (p - c) + t."""
+        p = np.asarray(points_px, dtype=np.float64) - self.centre_px
+        return p @ self._matrix().T + self.centre_px + self.translation_px
+
+    def remove(self, points_px: np.ndarray) -> np.ndarray:
+        """(..., 2) float64: the inverse of :meth:`apply` (NaN rows stay NaN)."""
+        p = np.asarray(points_px, dtype=np.float64) - self.centre_px - self.translation_px
+        return p @ self._matrix() + self.centre_px
+
+
+def rim_markers(rest_px: np.ndarray, centre_px, rim_fraction: float = RIM_FRACTION) -> np.ndarray:
+    """(N,) bool: the markers of the outer ring, from their rest positions (N, 2) px."""
+    r = np.hypot(rest_px[:, 0] - centre_px[0], rest_px[:, 1] - centre_px[1])
+    return r >= rim_fraction * r.max() if len(r) else np.zeros(0, dtype=bool)
+
+
+def estimate_gel_motion(
+    rest_px: np.ndarray, current_px: np.ndarray, valid: np.ndarray | None, rim: np.ndarray, centre_px
+) -> GelMotion:
+    """The gel's rigid motion from its rim markers (module docstring).
+
+    Args:
+        rest_px: (N, 2) float, rest positions (px, image frame).
+        current_px: (N, 2) float, tracked positions (px); NaN rows are ignored.
+        valid: (N,) bool or None, markers the tracker still follows.
+        rim: (N,) bool, the rim markers (:func:`rim_markers`).
+        centre_px: (2,) the gel centre (px).
+    Returns:
+        :class:`GelMotion`; no motion when fewer than :data:`MIN_RIM_MARKERS` valid rim markers
+        or when OpenCV finds no model.
+    Source: ``cv2.estimateAffinePartial2D(..., method=cv2.LMEDS)``.
+    """
+    centre = np.asarray(centre_px, dtype=np.float64)
+    use = rim & np.isfinite(current_px).all(axis=1)
+    if valid is not None:
+        use &= np.asarray(valid, dtype=bool)
+    if int(use.sum()) < MIN_RIM_MARKERS:
+        return GelMotion(centre)
+    src = np.ascontiguousarray(rest_px[use] - centre, dtype=np.float32)
+    dst = np.ascontiguousarray(current_px[use] - centre, dtype=np.float32)
+    matrix, _ = cv2.estimateAffinePartial2D(src, dst, method=cv2.LMEDS)
+    if matrix is None:
+        return GelMotion(centre)
+    # about the gel centre, so dropping the scale leaves the translation as it is
+    return GelMotion(centre, math.atan2(matrix[1, 0], matrix[0, 0]), matrix[:, 2].astype(np.float64))
