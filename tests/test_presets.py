@@ -22,6 +22,8 @@ PAPER = {
     "contact_refine_px": None,
     "origin_radius_px": None,
     "motion_override_px": None,
+    "override_smooth": False,
+    "gel_motion": False,
     "noise_filter": None,
     "rest_match_pitch": None,
     "follow_px_per_mm": False,
