@@ -638,3 +638,23 @@ def test_gel_motion_is_read_off_the_rim_and_undone():
     # far from the fingers, the gel is back at rest once the slide is removed
     far = np.hypot(*(rest - SENSOR.gel_center_px).T) > 50
     np.testing.assert_allclose(motion.remove(moved)[far], rest[far], atol=0.15)
+
+
+def test_a_push_whose_field_reaches_the_rim_is_not_taken_for_a_slip():
+    """A wide push (sigma 30 px) drags the near rim by ~1.2 px and the far rim by ~0.1 px: the
+    rim's fitted motion is mostly the push's own tail, of which only the part every rim marker
+    shares is removed; a slip moves every rim marker alike and is removed whole."""
+    from neurotouch_hid.pipeline.gel_motion import estimate_gel_motion, rim_markers
+
+    k = np.arange(-7, 8) * 10.0
+    rest = np.stack(np.meshgrid(k, k), axis=-1).reshape(-1, 2) + SENSOR.gel_center_px
+    rest = rest[SENSOR.inside_gel(rest, margin_px=-4.0)]
+    finger = np.asarray(SENSOR.gel_center_px) + [20.0, 0.0]
+    w = np.exp(-np.sum((rest - finger) ** 2, axis=1) / (2 * 30.0**2))
+    pushed = rest + w[:, None] * [6.0, 0.0]
+    rim = rim_markers(rest, SENSOR.gel_center_px)
+    assert np.ptp(np.hypot(*(pushed - rest)[rim].T)) > 1.0  # the rim moves unevenly
+    motion = estimate_gel_motion(rest, pushed, None, rim, SENSOR.gel_center_px)
+    assert np.hypot(*motion.translation_px) <= 0.3 and abs(motion.rotation_rad) < 2e-3  # <= 5 % of the push
+    slid = estimate_gel_motion(rest, pushed + [0.0, 2.0], None, rim, SENSOR.gel_center_px)
+    assert slid.translation_px[1] == pytest.approx(2.0, abs=0.1)
