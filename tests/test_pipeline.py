@@ -658,3 +658,24 @@ def test_a_push_whose_field_reaches_the_rim_is_not_taken_for_a_slip():
     assert np.hypot(*motion.translation_px) <= 0.3 and abs(motion.rotation_rad) < 2e-3  # <= 5 % of the push
     slid = estimate_gel_motion(rest, pushed + [0.0, 2.0], None, rim, SENSOR.gel_center_px)
     assert slid.translation_px[1] == pytest.approx(2.0, abs=0.1)
+
+
+def test_a_frame_near_rest_re_anchors_a_drifted_tracker_without_calling_it_rest(rest_image):
+    """After a long gesture the tracker carries its own error (here a bump of up to 2 px round
+    the centre) while the gel creeps back: a frame 0.5 px off rest on a few markers
+    (centroid distance 0.03: above the resting threshold 0.02, so not at rest, as the labels say)
+    left that error standing and the windows after it read a gesture; re-anchoring the tracker
+    near rest (centroid_reset_threshold 0.05) reads them as none, still not resting."""
+    near = gel_image((0.5, 0.0), region_px=15)
+    answers = {}
+    for reset in (None, 0.05):
+        pipeline = GesturePipeline(SENSOR, PipelineConfig(centroid_reset_threshold=reset))
+        pipeline.process(Frame(0, rest_image))
+        pipeline.process(events_at(1))
+        w = np.exp(-np.sum((pipeline.rest_px - SENSOR.gel_center_px) ** 2, axis=1) / (2 * 12.0**2))
+        pipeline.tracker.reset(pipeline.rest_px + w[:, None] * [2.0, 0.0])
+        pipeline.process(Frame(40_000, near))
+        assert not pipeline.resting.resting and 0.02 < pipeline.resting.distance <= 0.05
+        answers[reset] = pipeline.process(events_at(45_000))
+    assert [(e.resting, e.gesture) for e in answers[0.05]] == [(False, GestureType.NONE)]
+    assert answers[None][0].gesture is not GestureType.NONE and not answers[None][0].resting

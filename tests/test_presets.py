@@ -16,6 +16,7 @@ PAPER = {
     "chamfer_threshold": 2.5,
     "chamfer_per_marker": False,
     "resting_centroids": False,
+    "centroid_reset_threshold": None,
     "min_intensity_px": 0.0,
     "intensity_sigma_px": None,
     "field_fallback": False,

@@ -31,6 +31,15 @@ With the option, the override counts markers whose displacement *median-filtered
 marker and its nearest neighbours at rest* (:func:`grid_neighbours`, per component) exceeds
 ``motion_override_px``: a coherent bump passes unchanged, scattered jitter is voted down.
 
+Near rest (``PipelineConfig.centroid_reset_threshold``, not in the paper): the centroid
+distance (``resting_centroids``) sees the last tenth of a millimetre of a gel creeping back after
+a release, which the pixel-set distance did not: such frames are rightly not at rest (the labels'
+rest is every marker within 0.1 mm), but the tracker, not reset since the gesture began, then
+reports its own accumulated error (~0.4-0.5 mm on the ``camera`` family) as a gesture. A frame
+whose centroids are within ``centroid_reset_threshold`` of the reference's (about the pixel-set
+rule's old sensitivity) re-anchors the tracker at rest without being called resting: the windows
+after it read ``none``, not resting, until the gel moves again.
+
 Gesture decision over one gesture (``PipelineConfig.episode_vote``, not in the paper): the
 paper decides the type window by window, so a pinch whose first finger leads reads as push in
 its first windows and again in its release. With the vote, the windows from a gesture's onset (the
@@ -157,6 +166,9 @@ class PipelineConfig(BaseModel):
             the marker pixels (paper). Measured per physics family in docs/accuracy.md, "Round 3".
         centroid_threshold: the centroid distance (px^2 per reference marker) at or below which
             the gel rests, with ``resting_centroids``.
+        centroid_reset_threshold: None, or a centroid distance (px^2 per reference marker, >=
+            ``centroid_threshold``) at or below which a frame that is not at rest still re-anchors
+            the tracker at the rest positions (module docstring, "Near rest"; not in the paper).
         min_intensity_px: below this intensity (px), nothing moves: ``none``.
         gesture_reproj_factor: the similarity's RANSAC threshold, as a multiple of A's mean
             displacement. A loose 2.0 keeps most of A (RANSAC then only drops grossly mistracked
@@ -229,6 +241,7 @@ class PipelineConfig(BaseModel):
     chamfer_per_marker: bool = True
     resting_centroids: bool = True
     centroid_threshold: float = 0.02
+    centroid_reset_threshold: float | None = 0.05
     min_intensity_px: float = 0.3
     gesture_reproj_factor: float = 2.0
     min_gesture_reproj_px: float = 0.5
@@ -279,6 +292,11 @@ class PipelineConfig(BaseModel):
             value = getattr(self, name)
             if value is not None and not value > 0:
                 raise ValueError(f"{name} must be positive or None, got {value}")
+        if self.centroid_reset_threshold is not None and self.centroid_reset_threshold < self.centroid_threshold:
+            raise ValueError(
+                f"centroid_reset_threshold ({self.centroid_reset_threshold}) must be at least centroid_threshold "
+                f"({self.centroid_threshold}) or None"
+            )
         if self.override_min_markers < 1:
             raise ValueError(f"override_min_markers must be >= 1, got {self.override_min_markers}")
         if self.reference_attempts < 1:
@@ -328,6 +346,7 @@ PIPELINE_PRESETS: dict[str, dict[str, object]] = {
         "chamfer_threshold": 2.5,
         "chamfer_per_marker": False,
         "resting_centroids": False,
+        "centroid_reset_threshold": None,
         "min_intensity_px": 0.0,
         "gesture_reproj_factor": 0.6,
         "intensity_sigma_px": None,
@@ -380,7 +399,7 @@ def scaled_to_sensor(config: PipelineConfig, sensor: SensorGeometry) -> Pipeline
     ``sensor.px_per_mm / REFERENCE_PX_PER_MM`` (squared for the tracker's variances), so that a
     camera nearer the gel or with more pixels keeps the same contact radius, tracker gates and
     thresholds on the gel. The Chamfer threshold (px^2 per marker, growing with the marker's
-    pixel count too) is not scaled; the centroid threshold (px^2 between centroids) is, with the
+    pixel count too) is not scaled; the centroid thresholds (px^2 between centroids) are, with the
     square of the scale. Returns ``config`` itself at the reference scale or when
     ``follow_px_per_mm`` is off (the paper's fixed pixels)."""
     k = sensor.px_per_mm / REFERENCE_PX_PER_MM
@@ -388,6 +407,8 @@ def scaled_to_sensor(config: PipelineConfig, sensor: SensorGeometry) -> Pipeline
         return config
     changes = {name: getattr(config, name) * k for name in _PX_FIELDS if getattr(config, name) is not None}
     changes["centroid_threshold"] = config.centroid_threshold * k * k  # px^2 between centroids
+    if config.centroid_reset_threshold is not None:
+        changes["centroid_reset_threshold"] = config.centroid_reset_threshold * k * k
     t = config.tracker
     tracker = t.model_copy(
         update={**{n: getattr(t, n) * k for n in _TRACKER_PX}, **{n: getattr(t, n) * k * k for n in _TRACKER_PX2}}
@@ -579,8 +600,18 @@ class GesturePipeline:
 
     def _apply_resting(self, result: RestingResult) -> None:
         self._resting = result
-        if result.resting and self.tracker is not None:
+        if self.tracker is not None and (result.resting or self._near_rest(result)):
             self.tracker.reset(self.rest_px)
+
+    def _near_rest(self, result: RestingResult) -> bool:
+        """Whether a frame not at rest is still near enough to re-anchor the tracker (with
+        ``resting_centroids`` and ``centroid_reset_threshold``; module docstring, "Near rest")."""
+        c = self.config
+        return (
+            c.resting_centroids
+            and c.centroid_reset_threshold is not None
+            and (result.distance <= c.centroid_reset_threshold)
+        )
 
     def _matches_calibrated_rest(self, points_px: np.ndarray) -> bool:
         """Whether a candidate reference frame's markers (M, 2) px lie on the calibrated rest
