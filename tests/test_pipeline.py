@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import threading
+import warnings
 
 import numpy as np
 import pytest
@@ -679,3 +680,16 @@ def test_a_frame_near_rest_re_anchors_a_drifted_tracker_without_calling_it_rest(
         answers[reset] = pipeline.process(events_at(45_000))
     assert [(e.resting, e.gesture) for e in answers[0.05]] == [(False, GestureType.NONE)]
     assert answers[None][0].gesture is not GestureType.NONE and not answers[None][0].resting
+
+
+def test_the_smooth_override_median_ignores_lost_markers_as_nanmedian_does():
+    from neurotouch_hid.pipeline.pipeline import _median_of_sorted
+
+    rng = np.random.default_rng(7)
+    values = rng.normal(size=(60, 5, 2))
+    values[rng.random(values.shape) < 0.3] = np.nan
+    values[4] = np.nan  # every neighbour lost: not moved
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        expected = np.nan_to_num(np.nanmedian(values, axis=1))
+    np.testing.assert_allclose(_median_of_sorted(np.sort(values, axis=1)), expected)

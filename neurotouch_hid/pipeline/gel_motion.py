@@ -82,6 +82,13 @@ class GelMotion:
         return p @ self._matrix() + self.centre_px
 
 
+def _low_quantile(values: np.ndarray) -> float:
+    """The :data:`SHARED_QUANTILE` quantile of ``values`` (M,), M >= 1, as the order statistic
+    below it (``np.partition``: ~10x cheaper than ``np.quantile`` on ~60 values)."""
+    k = int(SHARED_QUANTILE * (len(values) - 1))
+    return float(np.partition(values, k)[k])
+
+
 def rim_markers(rest_px: np.ndarray, centre_px, rim_fraction: float = RIM_FRACTION) -> np.ndarray:
     """(N,) bool: the markers of the outer ring, from their rest positions (N, 2) px."""
     r = np.hypot(rest_px[:, 0] - centre_px[0], rest_px[:, 1] - centre_px[1])
@@ -125,10 +132,10 @@ def estimate_gel_motion(
     norm = float(np.hypot(t[0], t[1]))
     if norm > 0:
         u = t / norm
-        t = u * max(0.0, min(norm, float(np.quantile((d - turned) @ u, SHARED_QUANTILE))))
+        t = u * max(0.0, min(norm, _low_quantile((d - turned) @ u)))
     if theta != 0.0:
         sign = math.copysign(1.0, theta)
         rest = d - matrix[:, 2]  # without the fitted translation
         turn = (src64[:, 0] * rest[:, 1] - src64[:, 1] * rest[:, 0]) / np.maximum((src64 * src64).sum(axis=1), 1e-9)
-        theta = sign * max(0.0, min(abs(theta), float(np.quantile(sign * turn, SHARED_QUANTILE))))
+        theta = sign * max(0.0, min(abs(theta), _low_quantile(sign * turn)))
     return GelMotion(centre, theta, t)

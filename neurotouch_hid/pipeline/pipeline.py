@@ -67,7 +67,6 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
-import warnings
 from collections.abc import Callable, Iterable, Iterator
 
 import numpy as np
@@ -311,6 +310,16 @@ class PipelineConfig(BaseModel):
 #: The smooth override's neighbours of a marker: the markers within this many times the median
 #: nearest-neighbour distance at rest (on the square 4 mm grid: its four nearest, not the diagonals).
 OVERRIDE_NEIGHBOUR_GAP = 1.25
+
+
+def _median_of_sorted(values: np.ndarray) -> np.ndarray:
+    """(N, 2) the median over axis 1 of ``values`` (N, k, 2) sorted along it with NaN last
+    (NaN ignored, as ``np.nanmedian``, ~7x faster here); 0 where a row has no finite value (a
+    marker whose neighbours are all lost has not moved)."""
+    n = np.isfinite(values).sum(axis=1)  # (N, 2)
+    lo = np.take_along_axis(values, np.maximum((n - 1) // 2, 0)[:, None, :], axis=1)[:, 0]
+    hi = np.take_along_axis(values, np.maximum(n // 2, 0)[:, None, :], axis=1)[:, 0]
+    return np.where(n > 0, 0.5 * (lo + hi), 0.0)
 
 
 def grid_neighbours(rest_px: np.ndarray) -> np.ndarray:
@@ -756,10 +765,8 @@ class GesturePipeline:
             return False
         if self.config.override_smooth:
             d = np.where(valid[:, None], current - self.rest_px, np.nan)
-            d = np.concatenate([d, np.full((1, 2), np.nan)])[self._neighbours]  # (N, k, 2)
-            with warnings.catch_warnings():  # a marker whose neighbours are all lost: NaN, not moved
-                warnings.simplefilter("ignore", RuntimeWarning)
-                d = np.nanmedian(d, axis=1)
+            d = np.sort(np.concatenate([d, np.full((1, 2), np.nan)])[self._neighbours], axis=1)  # NaN last
+            d = _median_of_sorted(d)
         else:
             d = current[valid] - self.rest_px[valid]
         moved = int(np.count_nonzero(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] > threshold * threshold))

@@ -128,12 +128,9 @@ class RestingDetector:
         self._ref_dt2 = self._squared_distance_to(ref_mask).ravel()
         n_labels, _ = cv2.connectedComponents(ref_mask, connectivity=8)
         self.n_markers = n_labels - 1
-        h, w = ref_mask.shape
-        self._xy = np.stack(np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)), -1).reshape(
-            -1, 2
-        )
         #: (n_markers, 2) float64 the reference's marker centroids (px, gel bounding box)
         self.reference_centroids = self.marker_centroids(ref)
+        self._q2 = (self.reference_centroids**2).sum(axis=1)
 
     def _check(self, image: np.ndarray) -> np.ndarray:
         img = np.asarray(image)
@@ -152,17 +149,21 @@ class RestingDetector:
 
     def marker_centroids(self, image: np.ndarray) -> np.ndarray:
         """(M, 2) float64 grey-level-weighted centroids (x, y px, relative to the gel's bounding
-        box) of the 8-connected regions of marker pixels of ``image`` (uint8 (height, width))."""
+        box) of the 8-connected regions of marker pixels of ``image`` (uint8 (height, width));
+        each pixel weighs its grey level above ``binary_threshold``."""
         mask = self.marker_mask(image)
         n, labels = cv2.connectedComponents(mask, connectivity=8)
-        flat = labels.ravel()
-        on = np.flatnonzero(flat)
-        idx = flat[on]
-        wgt = image[self._roi].ravel()[on].astype(np.float64) - self.binary_threshold
-        total = np.bincount(idx, wgt, minlength=n)[1:]
-        cx = np.bincount(idx, wgt * self._xy[on, 0], minlength=n)[1:]
-        cy = np.bincount(idx, wgt * self._xy[on, 1], minlength=n)[1:]
-        return np.stack([cx, cy], axis=1) / np.maximum(total, 1e-9)[:, None]
+        on = cv2.findNonZero(mask)
+        if on is None:
+            return np.zeros((0, 2))
+        x, y = on[:, 0, 0], on[:, 0, 1]
+        idx = labels[y, x]
+        wgt = image[self._roi][y, x].astype(np.float64) - self.binary_threshold
+        total = np.maximum(np.bincount(idx, wgt, minlength=n)[1:], 1e-9)
+        return (
+            np.stack([np.bincount(idx, wgt * x, minlength=n)[1:], np.bincount(idx, wgt * y, minlength=n)[1:]], 1)
+            / (total[:, None])
+        )
 
     def _centroid_distance(self, image: np.ndarray) -> float:
         """Chamfer distance between the centroids of ``image`` and the reference's (px^2)."""
@@ -170,7 +171,8 @@ class RestingDetector:
         if len(p) == 0:
             return float("inf")
         q = self.reference_centroids
-        d2 = ((p[:, None, :] - q[None, :, :]) ** 2).sum(axis=-1)
+        # squared distances of every pair as |p|^2 + |q|^2 - 2 p.q (one small matrix product)
+        d2 = np.maximum((p * p).sum(axis=1)[:, None] + self._q2[None, :] - 2.0 * (p @ q.T), 0.0)
         return float(d2.min(axis=1).sum() + d2.min(axis=0).sum()) / (self.n_markers if self.per_marker else 1)
 
     @staticmethod
