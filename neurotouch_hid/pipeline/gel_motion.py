@@ -49,6 +49,9 @@ RIM_FRACTION = 0.8
 #: fitted translation (and of their turns about the centre), capped by the fit (chosen, not
 #: tuned: a fifth of the rim may lag behind the slip, e.g. where a finger pulls the other way).
 SHARED_QUANTILE = 0.2
+#: A rim whose markers' displacements are at most this (px) at the :data:`SHARED_QUANTILE` shares
+#: no more motion than that (the tracker's noise): no motion, without a fit.
+STILL_RIM_PX = 0.1
 #: Fewer valid rim markers than this: no estimate (no motion).
 MIN_RIM_MARKERS = 8
 
@@ -117,6 +120,9 @@ def estimate_gel_motion(
         use &= np.asarray(valid, dtype=bool)
     if int(use.sum()) < MIN_RIM_MARKERS:
         return GelMotion(centre)
+    moved = current_px[use] - rest_px[use]
+    if _low_quantile(np.hypot(moved[:, 0], moved[:, 1])) <= STILL_RIM_PX:
+        return GelMotion(centre)  # the shared part of the rim's motion is below the tracker's noise
     src = np.ascontiguousarray(rest_px[use] - centre, dtype=np.float32)
     dst = np.ascontiguousarray(current_px[use] - centre, dtype=np.float32)
     matrix, _ = cv2.estimateAffinePartial2D(src, dst, method=cv2.LMEDS)

@@ -29,7 +29,8 @@ jitters by up to ~0.8 px in random directions between two frames, and 12 jitteri
 overruled the resting verdict on ~9 % of the resting windows (docs/accuracy.md, "Round 3").
 With the option, the override counts markers whose displacement *median-filtered over the
 marker and its nearest neighbours at rest* (:func:`grid_neighbours`, per component) exceeds
-``motion_override_px``: a coherent bump passes unchanged, scattered jitter is voted down.
+``motion_override_px``: a coherent bump passes unchanged, scattered jitter is voted down. It is
+asked only when the markers' own displacements would overrule (so it never overrules more).
 
 Near rest (``PipelineConfig.centroid_reset_threshold``, not in the paper): the centroid
 distance (``resting_centroids``) sees the last tenth of a millimetre of a gel creeping back after
@@ -763,12 +764,14 @@ class GesturePipeline:
         threshold = self.config.motion_override_px
         if threshold is None:
             return False
-        if self.config.override_smooth:
-            d = np.where(valid[:, None], current - self.rest_px, np.nan)
-            d = np.sort(np.concatenate([d, np.full((1, 2), np.nan)])[self._neighbours], axis=1)  # NaN last
-            d = _median_of_sorted(d)
-        else:
-            d = current[valid] - self.rest_px[valid]
+        d = current[valid] - self.rest_px[valid]
+        moved = int(np.count_nonzero(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] > threshold * threshold))
+        if moved < self.config.override_min_markers or not self.config.override_smooth:
+            return moved >= self.config.override_min_markers
+        # the smooth override only when the markers' own displacements would overrule (at rest,
+        # nearly always not: the median filter's cost is spent on the few windows that need it)
+        d = np.where(valid[:, None], current - self.rest_px, np.nan)
+        d = _median_of_sorted(np.sort(np.concatenate([d, np.full((1, 2), np.nan)])[self._neighbours], axis=1))
         moved = int(np.count_nonzero(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] > threshold * threshold))
         return moved >= self.config.override_min_markers
 
