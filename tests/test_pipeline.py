@@ -664,7 +664,7 @@ def test_a_push_whose_field_reaches_the_rim_is_not_taken_for_a_slip():
 def test_a_frame_near_rest_re_anchors_a_drifted_tracker_without_calling_it_rest(rest_image):
     """After a long gesture the tracker carries its own error (here a bump of up to 2 px round
     the centre) while the gel creeps back: a frame 0.5 px off rest on a few markers
-    (centroid distance 0.03: above the resting threshold 0.02, so not at rest, as the labels say)
+    (centroid distance 0.03: above the resting threshold 0.01, so not at rest, as the labels say)
     left that error standing and the windows after it read a gesture; re-anchoring the tracker
     near rest (centroid_reset_threshold 0.05) reads them as none, still not resting."""
     near = gel_image((0.5, 0.0), region_px=15)

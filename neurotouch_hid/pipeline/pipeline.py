@@ -165,10 +165,16 @@ class PipelineConfig(BaseModel):
             as motion, with ``centroid_threshold`` in place of ``chamfer_threshold``; False: over
             the marker pixels (paper). Measured per physics family in docs/accuracy.md, "Round 3".
         centroid_threshold: the centroid distance (px^2 per reference marker) at or below which
-            the gel rests, with ``resting_centroids``.
+            the gel rests, with ``resting_centroids``. 0.01 (decided on the development families,
+            docs/accuracy.md "Round 3"): a gel at rest gives 0.002-0.01 under a steady or a
+            flickering light; with the near-rest re-anchoring at 0.05, 0.01 against 0.02 gave
+            resting F1 +0.1 to +1.6 points on six families and gesture accuracy within 0.05
+            point (flicker -0.4).
         centroid_reset_threshold: None, or a centroid distance (px^2 per reference marker, >=
             ``centroid_threshold``) at or below which a frame that is not at rest still re-anchors
             the tracker at the rest positions (module docstring, "Near rest"; not in the paper).
+            0.05: the loosest resting threshold tried (there resting F1 fell ~2 points: such
+            frames are not rest, but near enough that the tracker's own error exceeds the gel's).
         min_intensity_px: below this intensity (px), nothing moves: ``none``.
         gesture_reproj_factor: the similarity's RANSAC threshold, as a multiple of A's mean
             displacement. A loose 2.0 keeps most of A (RANSAC then only drops grossly mistracked
@@ -240,7 +246,7 @@ class PipelineConfig(BaseModel):
     chamfer_threshold: float = 0.4
     chamfer_per_marker: bool = True
     resting_centroids: bool = True
-    centroid_threshold: float = 0.02
+    centroid_threshold: float = 0.01
     centroid_reset_threshold: float | None = 0.05
     min_intensity_px: float = 0.3
     gesture_reproj_factor: float = 2.0
