@@ -138,6 +138,19 @@ class PipelineConfig(BaseModel):
       half-lives let 3 Hz noise through. Cost: ~2 M events/s with its conversions
       (docs/performance.md, "Noise filter").
 
+    Issue 9, round 3 (decided on the physics families other than the final ones, per family in
+    docs/accuracy.md "Round 3: resting detection and gel drift"; not in the paper):
+
+    - ``resting_centroids`` with ``centroid_threshold`` 0.01 (``chamfer_threshold`` then unused):
+      the Chamfer distance over the markers' centroids, which a flickering light does not move
+      (``flicker``: resting F1 32.7 -> 85.8 %, gesture 82.9 -> 92.8 %).
+    - ``override_smooth``: tracker jitter under flicker no longer overrules a resting verdict
+      (``flicker``: resting F1 85.8 -> 95.0 %).
+    - ``centroid_reset_threshold`` 0.05: a frame near rest re-anchors the tracker (``camera``
+      gesture +0.6, ``strong`` +1.0, ``flicker`` -0.6 points).
+    - ``gel_motion``: the rim's shared rigid motion (the gel sliding in its mount) is removed
+      before the contact and gesture steps (``drift``: gesture 83.8 -> 94.6 %).
+
     The paper's pipeline is ``--preset paper`` (:data:`PIPELINE_PRESETS`): r 30 px, a 0.6 (for
     both RANSAC fits: the paper states one dynamic threshold), N_min 4, the raw Chamfer sum of
     the paper's equation with its threshold 2.5, no minimum intensity and none of the options
