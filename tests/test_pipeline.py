@@ -693,3 +693,21 @@ def test_the_smooth_override_median_ignores_lost_markers_as_nanmedian_does():
         warnings.simplefilter("ignore", RuntimeWarning)
         expected = np.nan_to_num(np.nanmedian(values, axis=1))
     np.testing.assert_allclose(_median_of_sorted(np.sort(values, axis=1)), expected)
+
+
+def test_a_window_where_nothing_moved_min_intensity_skips_the_fits(rest_image):
+    """Not at rest, but no tracked marker 0.3 px (min_intensity_px) from rest: the intensity is
+    below the minimum whatever the contacts, so the window answers none (not resting) without a
+    homography; once a finger moves the markers the fits run again."""
+    pipeline = GesturePipeline(SENSOR)
+    pipeline.process(Frame(0, rest_image))
+    pipeline.process(Frame(40_000, gel_image((4.0, 0.0), region_px=30)))
+    assert not pipeline.resting.resting
+    pipeline.process(events_at(41_000))  # the windows start
+    pipeline.tracker.reset(pipeline.rest_px + [0.2, 0.0])
+    assert [(e.resting, e.gesture) for e in pipeline.process(events_at(51_000))] == [(False, GestureType.NONE)]
+    assert pipeline._last_fit is None  # no contact or gesture fit was made
+    w = np.exp(-np.sum((pipeline.rest_px - SENSOR.gel_center_px) ** 2, axis=1) / (2 * 12.0**2))
+    pipeline.tracker.reset(pipeline.rest_px + w[:, None] * [5.0, 0.0])
+    (estimate,) = pipeline.process(events_at(61_000))
+    assert estimate.gesture is GestureType.PUSH and pipeline._last_fit is not None

@@ -794,6 +794,15 @@ class GesturePipeline:
         moved = int(np.count_nonzero(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] > threshold * threshold))
         return moved >= self.config.override_min_markers
 
+    def _still(self, current: np.ndarray, valid: np.ndarray) -> bool:
+        """True when no valid marker is ``min_intensity_px`` or more from rest: the intensity (a
+        mean of displacements) is then below it and the gesture step answers ``none`` whatever
+        the contacts, so the window skips the homography and the similarity (same estimate;
+        e.g. a gel near rest after the tracker was re-anchored, ``centroid_reset_threshold``)."""
+        d = current[valid] - self.rest_px[valid]
+        limit = self.config.min_intensity_px
+        return len(d) == 0 or float((d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]).max()) < limit * limit
+
     def _vote(self, gesture: GestureType, intensity_mm: float) -> GestureType:
         """The window's type: its own, or the episode's decision with ``episode_vote``."""
         if not self.config.episode_vote:
@@ -806,6 +815,9 @@ class GesturePipeline:
         if self._resting.resting and not self._moving(current, valid):
             self._vote(GestureType.NONE, 0.0)
             return GestureEstimate(t_us=t_us, gesture=GestureType.NONE, resting=True)
+        if self._still(current, valid):  # what the gesture step would answer, without its fits
+            self._vote(GestureType.NONE, 0.0)
+            return GestureEstimate(t_us=t_us, gesture=GestureType.NONE, resting=False)
         contacts, result = self._contacts_and_gesture(self.rest_px, current, valid)
         if result.gesture is GestureType.NONE:
             self._vote(GestureType.NONE, 0.0)
