@@ -656,7 +656,9 @@ def test_a_push_whose_field_reaches_the_rim_is_not_taken_for_a_slip():
     rim = rim_markers(rest, SENSOR.gel_center_px)
     assert np.ptp(np.hypot(*(pushed - rest)[rim].T)) > 1.0  # the rim moves unevenly
     motion = estimate_gel_motion(rest, pushed, None, rim, SENSOR.gel_center_px)
+    assert motion is not None  # the rim moved: a fit, of which little is shared
     assert np.hypot(*motion.translation_px) <= 0.3 and abs(motion.rotation_rad) < 2e-3  # <= 5 % of the push
+    assert estimate_gel_motion(rest, rest + 0.05, None, rim, SENSOR.gel_center_px) is None  # below the noise
     slid = estimate_gel_motion(rest, pushed + [0.0, 2.0], None, rim, SENSOR.gel_center_px)
     assert slid.translation_px[1] == pytest.approx(2.0, abs=0.1)
 

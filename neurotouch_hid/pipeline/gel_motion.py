@@ -100,7 +100,7 @@ def rim_markers(rest_px: np.ndarray, centre_px, rim_fraction: float = RIM_FRACTI
 
 def estimate_gel_motion(
     rest_px: np.ndarray, current_px: np.ndarray, valid: np.ndarray | None, rim: np.ndarray, centre_px
-) -> GelMotion:
+) -> GelMotion | None:
     """The gel's rigid motion from its rim markers (module docstring).
 
     Args:
@@ -110,8 +110,9 @@ def estimate_gel_motion(
         rim: (N,) bool, the rim markers (:func:`rim_markers`).
         centre_px: (2,) the gel centre (px).
     Returns:
-        :class:`GelMotion`; no motion when fewer than :data:`MIN_RIM_MARKERS` valid rim markers
-        or when OpenCV finds no model.
+        :class:`GelMotion`, or None (no motion: nothing to remove) when fewer than
+        :data:`MIN_RIM_MARKERS` rim markers are valid, when the rim's shared displacement is at
+        most :data:`STILL_RIM_PX` or when OpenCV finds no model.
     Source: ``cv2.estimateAffinePartial2D(..., method=cv2.LMEDS)``.
     """
     centre = np.asarray(centre_px, dtype=np.float64)
@@ -119,15 +120,15 @@ def estimate_gel_motion(
     if valid is not None:
         use &= np.asarray(valid, dtype=bool)
     if int(use.sum()) < MIN_RIM_MARKERS:
-        return GelMotion(centre)
+        return None
     moved = current_px[use] - rest_px[use]
     if _low_quantile(np.hypot(moved[:, 0], moved[:, 1])) <= STILL_RIM_PX:
-        return GelMotion(centre)  # the shared part of the rim's motion is below the tracker's noise
+        return None  # the shared part of the rim's motion is below the tracker's noise
     src = np.ascontiguousarray(rest_px[use] - centre, dtype=np.float32)
     dst = np.ascontiguousarray(current_px[use] - centre, dtype=np.float32)
     matrix, _ = cv2.estimateAffinePartial2D(src, dst, method=cv2.LMEDS)
     if matrix is None:
-        return GelMotion(centre)
+        return None
     theta = math.atan2(matrix[1, 0], matrix[0, 0])
     t = matrix[:, 2].astype(np.float64)  # about the gel centre: dropping the scale leaves it as it is
     # only what every rim marker shares: a mount's slip moves the whole rim alike, a finger's
