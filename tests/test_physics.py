@@ -82,6 +82,8 @@ def test_family_labels_are_the_largest_deformation_under_each_finger(name):
     extra = {"lags_us": (0, 120_000), "strengths": (1.0, 0.5)} if name == "fingers" else {}
     if name == "strong":
         extra["squeeze"] = physics.squeeze
+    if name == "viscoelastic":
+        extra["sls"] = (physics.creep, int(physics.creep_s * 1e6))
     g = _gesture(GestureType.PINCH, [[-7.0, 2.0], [7.0, 2.0]], amplitude=4.0, **extra)
     sim = GelSimulator(SENSOR, USERS[0], seed=3, script=[g], physics=physics)
     chunks = _run(sim, 14)  # rest, attack, into the hold (START_US + 80 ms + 200 ms attack)
@@ -191,6 +193,31 @@ def test_gesture_families_draw_strong_presses_lags_unequal_fingers_and_drift():
     assert levels[late] == 0.0 and levels.max() > 0.0
 
 
+def test_viscoelastic_gel_creeps_under_a_hold_and_relaxes_slowly_after_release():
+    """The standard linear solid: 70 % of the load's deformation at once, the rest with tau = 0.3 s;
+    after the release the gel is still deformed (labelled none, not resting, until every marker is
+    back within 0.1 mm) long after the elastic gel has settled."""
+    physics = PHYSICS["viscoelastic"]
+    assert draw_gesture(np.random.default_rng(5), USERS[0], GestureType.PUSH, 0, SENSOR, physics).sls == (0.3, 300_000)
+    g = _gesture(GestureType.PUSH, [[0.0, 0.0]], amplitude=5.0, sls=(physics.creep, int(physics.creep_s * 1e6)))
+    elastic = dataclasses.replace(g, sls=())
+    hold0, hold1 = g.t_start_us + g.attack_us, g.t_start_us + g.attack_us + g.hold_us
+    t = np.array([hold0, hold1 - 1000, g.t_end_us + 300_000], dtype=np.int64)
+    creep, flat = g.profile(t), elastic.profile(t)
+    assert flat[0] == pytest.approx(1.0, abs=0.01) and flat[1] == pytest.approx(1.0, abs=0.01)
+    assert 0.75 < creep[0] < 0.9 and creep[1] > max(0.95, creep[0] + 0.15)  # grows through the hold (2 tau)
+    assert flat[2] < 0.01 and creep[2] > 0.05  # 300 ms after the release: still deformed
+    assert g.t_settled_us - g.t_end_us >= 7 * 300_000  # the simulator keeps the gesture until it relaxed
+    # the labels: none after the release, not resting while the slow relaxation is above 0.1 mm
+    sim = GelSimulator(SENSOR, USERS[0], seed=3, script=[g], physics=physics)
+    after = [c.label for c in _run(sim, 60) if c.label.t_us >= g.t_end_us]
+    assert all(lab.gesture is GestureType.NONE for lab in after)
+    assert not after[0].resting and not after[5].resting  # 200 ms after the release
+    assert after[-1].resting  # ~1.2 s after: back within 0.1 mm
+    pos = sim.marker_state(np.array([g.t_end_us + 200_000], dtype=np.int64), [g])[3][0]
+    assert np.linalg.norm(pos - sim.gel.rest_mm, axis=-1).max() > 0.3
+
+
 def test_default_family_draws_do_not_change_when_other_families_exist():
     a = draw_gesture(np.random.default_rng(9), USERS[2], GestureType.ZOOM, 0, SENSOR)
     b = draw_gesture(
@@ -249,3 +276,24 @@ def test_unknown_physics_family_is_one_clear_error(tmp_path, monkeypatch, capsys
     err = capsys.readouterr().err
     assert "unknown physics family 'jelly'" in err and "mix" in err and "Traceback" not in err
     assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.parametrize("families", ["viscoelastic", "stickslip", "powerlaw,mix"])
+def test_family_eval_refuses_the_final_families_without_final_run(tmp_path, families):
+    """The protocol (docs/accuracy.md): the final family (and the earlier one, and the mix holding
+    them) are evaluated only with --final-run; nothing is simulated or written before the refusal."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "family_eval.py"
+    out = tmp_path / "families"
+    run = subprocess.run(
+        [sys.executable, str(script), "--out", str(out), "--families", families],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert run.returncode == 2
+    assert "add --final-run" in " ".join(run.stderr.split())
+    assert not out.exists()

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import threading
+import warnings
 
 import numpy as np
 import pytest
@@ -135,7 +136,7 @@ def test_frames_decide_resting_and_rest_resets_the_tracker(rest_image):
 
 
 def test_moving_markers_overrule_a_stale_resting_verdict(rest_image):
-    pipeline = GesturePipeline(SENSOR, PipelineConfig(motion_override_px=1.0))
+    pipeline = GesturePipeline(SENSOR, PipelineConfig(motion_override_px=1.0, override_smooth=False))
     pipeline.process(Frame(0, rest_image))
     assert pipeline.resting.resting
     assert [e.resting for e in pipeline.process(events_at(1, 15000))] == [True]  # nothing moved
@@ -166,6 +167,27 @@ def test_motion_override_counts_its_own_markers_not_the_contact_n_min(rest_image
     w = np.exp(-np.sum((pipeline.rest_px - SENSOR.gel_center_px) ** 2, axis=1) / (2 * 12.0**2))
     pipeline.tracker.reset(pipeline.rest_px + w[:, None] * [5.0, 0.0])
     assert [e.resting for e in pipeline.process(events_at(25000))] == [False]
+
+
+def test_smooth_override_ignores_scattered_jitter_but_not_a_finger(rest_image):
+    """Under a flickering light every marker's edges fire events at rest and the tracker jitters
+    in random directions: 60 scattered markers 0.5 px off overrule a resting verdict by their own
+    displacements (the old rule), not once median-filtered over their grid neighbours (the new
+    one); a finger's smooth bump of 2 px (0.8 mm) still overrules it."""
+    rng = np.random.default_rng(4)
+    for smooth, jitter_rests in ((False, False), (True, True)):
+        pipeline = GesturePipeline(SENSOR, PipelineConfig(motion_override_px=0.3, override_smooth=smooth))
+        pipeline.process(Frame(0, rest_image))
+        pipeline.process(events_at(1))
+        jitter = pipeline.rest_px.copy()
+        pick = rng.choice(len(jitter), 60, replace=False)
+        angle = rng.uniform(0, 2 * np.pi, 60)
+        jitter[pick] += 0.5 * np.stack([np.cos(angle), np.sin(angle)], axis=1)
+        pipeline.tracker.reset(jitter)
+        assert [e.resting for e in pipeline.process(events_at(15000))] == [jitter_rests]
+        w = np.exp(-np.sum((pipeline.rest_px - SENSOR.gel_center_px) ** 2, axis=1) / (2 * 12.0**2))
+        pipeline.tracker.reset(pipeline.rest_px + w[:, None] * [2.0, 0.0])
+        assert [e.resting for e in pipeline.process(events_at(25000))] == [False]
 
 
 def test_without_motion_override_a_resting_verdict_holds_until_the_next_frame(rest_image):
@@ -558,3 +580,136 @@ def test_pixel_settings_follow_px_per_mm_on_a_closer_camera():
     assert results[True].gesture is GestureType.PUSH and results[True].n_contacts == 1
     assert scaled_to_sensor(PipelineConfig(), sensor).r_px == pytest.approx(25.0 * 4.0 / 2.5)
     assert scaled_to_sensor(PipelineConfig(), SENSOR) == PipelineConfig()  # the reference scale: unchanged
+
+
+def pinch_with_slip(rest_px: np.ndarray, slip_px=(3.0, 0.0), turn_rad=0.0) -> np.ndarray:
+    """Two fingers 16 px either side of the gel centre closing by 2.5 px each (Gaussian falloff,
+    sigma 8 px: the rim stays), then the whole gel slid by ``slip_px`` and turned by
+    ``turn_rad`` about its centre in its mount."""
+    c = np.asarray(SENSOR.gel_center_px)
+    moved = rest_px.copy()
+    for side in (-1.0, 1.0):
+        finger = c + [side * 16.0, 0.0]
+        w = np.exp(-np.sum((rest_px - finger) ** 2, axis=1) / (2 * 8.0**2))
+        moved += w[:, None] * [-side * 2.5, 0.0]
+    cos, sin = np.cos(turn_rad), np.sin(turn_rad)
+    return (moved - c) @ np.array([[cos, -sin], [sin, cos]]).T + c + slip_px
+
+
+@pytest.mark.parametrize("slip, turn", [((3.0, 0.0), 0.0), ((-2.0, 2.0), 0.02)])
+def test_a_pinch_on_a_gel_that_slid_in_its_mount_stays_a_pinch(rest_image, slip, turn):
+    """The ``drift`` family: the whole gel slides 1.2 mm (3 px) with a pinch. The paper's rule
+    fits one similarity to the markers round the contacts: the slide is its largest term, a
+    push. With the rim's rigid motion removed first (gel_motion) the pinch is what is left; the
+    contact points stay where the markers are (the slide included) and the intensity is their
+    tracked displacement (the slide included, as the labels count it)."""
+    answers = {}
+    for on in (False, True):
+        pipeline = GesturePipeline(SENSOR, PipelineConfig(gel_motion=on, episode_vote=False))
+        pipeline.process(Frame(0, rest_image))
+        pipeline.process(events_at(1))
+        pipeline.tracker.reset(pinch_with_slip(pipeline.rest_px, slip, turn))
+        (estimate,) = pipeline.process(events_at(15000))
+        answers[on] = estimate
+    assert answers[False].gesture is GestureType.PUSH
+    assert answers[True].gesture is GestureType.PINCH
+    c = np.asarray(SENSOR.gel_center_px)
+    rest_fingers = np.array([c - [16.0, 0.0], c + [16.0, 0.0]])
+    truth = pinch_with_slip(rest_fingers, slip, turn)  # the fingers' markers, the slide included
+    label_mm = np.hypot(*(truth - rest_fingers).T).mean() / SENSOR.px_per_mm  # as the labels count it
+    assert answers[True].intensity_mm == pytest.approx(label_mm, abs=0.1)
+    assert answers[True].n_contacts == 2
+    for point in answers[True].contacts_px:  # the fingers lie between markers: within 0.4 pitch
+        assert min(np.hypot(*(point - t)) for t in truth) < 4.0
+
+
+def test_gel_motion_is_read_off_the_rim_and_undone():
+    from neurotouch_hid.pipeline.gel_motion import estimate_gel_motion, rim_markers
+
+    k = np.arange(-7, 8) * 10.0
+    rest = np.stack(np.meshgrid(k, k), axis=-1).reshape(-1, 2) + SENSOR.gel_center_px
+    rest = rest[SENSOR.inside_gel(rest, margin_px=-4.0)]
+    moved = pinch_with_slip(rest, (2.0, -1.0), 0.015)
+    rim = rim_markers(rest, SENSOR.gel_center_px)
+    assert 30 <= rim.sum() <= 90
+    motion = estimate_gel_motion(rest, moved, None, rim, SENSOR.gel_center_px)
+    assert motion.rotation_rad == pytest.approx(0.015, abs=2e-3)
+    np.testing.assert_allclose(motion.translation_px, [2.0, -1.0], atol=0.1)
+    np.testing.assert_allclose(motion.apply(motion.remove(moved)), moved, atol=1e-9)
+    # far from the fingers, the gel is back at rest once the slide is removed
+    far = np.hypot(*(rest - SENSOR.gel_center_px).T) > 50
+    np.testing.assert_allclose(motion.remove(moved)[far], rest[far], atol=0.15)
+
+
+def test_a_push_whose_field_reaches_the_rim_is_not_taken_for_a_slip():
+    """A wide push (sigma 30 px) drags the near rim by ~1.2 px and the far rim by ~0.1 px: the
+    rim's fitted motion is mostly the push's own tail, of which only the part every rim marker
+    shares is removed; a slip moves every rim marker alike and is removed whole."""
+    from neurotouch_hid.pipeline.gel_motion import estimate_gel_motion, rim_markers
+
+    k = np.arange(-7, 8) * 10.0
+    rest = np.stack(np.meshgrid(k, k), axis=-1).reshape(-1, 2) + SENSOR.gel_center_px
+    rest = rest[SENSOR.inside_gel(rest, margin_px=-4.0)]
+    finger = np.asarray(SENSOR.gel_center_px) + [20.0, 0.0]
+    w = np.exp(-np.sum((rest - finger) ** 2, axis=1) / (2 * 30.0**2))
+    pushed = rest + w[:, None] * [6.0, 0.0]
+    rim = rim_markers(rest, SENSOR.gel_center_px)
+    assert np.ptp(np.hypot(*(pushed - rest)[rim].T)) > 1.0  # the rim moves unevenly
+    motion = estimate_gel_motion(rest, pushed, None, rim, SENSOR.gel_center_px)
+    assert motion is not None  # the rim moved: a fit, of which little is shared
+    assert np.hypot(*motion.translation_px) <= 0.3 and abs(motion.rotation_rad) < 2e-3  # <= 5 % of the push
+    assert estimate_gel_motion(rest, rest + 0.05, None, rim, SENSOR.gel_center_px) is None  # below the noise
+    slid = estimate_gel_motion(rest, pushed + [0.0, 2.0], None, rim, SENSOR.gel_center_px)
+    assert slid.translation_px[1] == pytest.approx(2.0, abs=0.1)
+
+
+def test_a_frame_near_rest_re_anchors_a_drifted_tracker_without_calling_it_rest(rest_image):
+    """After a long gesture the tracker carries its own error (here a bump of up to 2 px round
+    the centre) while the gel creeps back: a frame 0.5 px off rest on a few markers
+    (centroid distance 0.03: above the resting threshold 0.01, so not at rest, as the labels say)
+    left that error standing and the windows after it read a gesture; re-anchoring the tracker
+    near rest (centroid_reset_threshold 0.05) reads them as none, still not resting."""
+    near = gel_image((0.5, 0.0), region_px=15)
+    answers = {}
+    for reset in (None, 0.05):
+        pipeline = GesturePipeline(SENSOR, PipelineConfig(centroid_reset_threshold=reset))
+        pipeline.process(Frame(0, rest_image))
+        pipeline.process(events_at(1))
+        w = np.exp(-np.sum((pipeline.rest_px - SENSOR.gel_center_px) ** 2, axis=1) / (2 * 12.0**2))
+        pipeline.tracker.reset(pipeline.rest_px + w[:, None] * [2.0, 0.0])
+        pipeline.process(Frame(40_000, near))
+        assert not pipeline.resting.resting and 0.02 < pipeline.resting.distance <= 0.05
+        answers[reset] = pipeline.process(events_at(45_000))
+    assert [(e.resting, e.gesture) for e in answers[0.05]] == [(False, GestureType.NONE)]
+    assert answers[None][0].gesture is not GestureType.NONE and not answers[None][0].resting
+
+
+def test_the_smooth_override_median_ignores_lost_markers_as_nanmedian_does():
+    from neurotouch_hid.pipeline.pipeline import _median_of_sorted
+
+    rng = np.random.default_rng(7)
+    values = rng.normal(size=(60, 5, 2))
+    values[rng.random(values.shape) < 0.3] = np.nan
+    values[4] = np.nan  # every neighbour lost: not moved
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        expected = np.nan_to_num(np.nanmedian(values, axis=1))
+    np.testing.assert_allclose(_median_of_sorted(np.sort(values, axis=1)), expected)
+
+
+def test_a_window_where_nothing_moved_min_intensity_skips_the_fits(rest_image):
+    """Not at rest, but no tracked marker 0.3 px (min_intensity_px) from rest: the intensity is
+    below the minimum whatever the contacts, so the window answers none (not resting) without a
+    homography; once a finger moves the markers the fits run again."""
+    pipeline = GesturePipeline(SENSOR)
+    pipeline.process(Frame(0, rest_image))
+    pipeline.process(Frame(40_000, gel_image((4.0, 0.0), region_px=30)))
+    assert not pipeline.resting.resting
+    pipeline.process(events_at(41_000))  # the windows start
+    pipeline.tracker.reset(pipeline.rest_px + [0.2, 0.0])
+    assert [(e.resting, e.gesture) for e in pipeline.process(events_at(51_000))] == [(False, GestureType.NONE)]
+    assert pipeline._last_fit is None  # no contact or gesture fit was made
+    w = np.exp(-np.sum((pipeline.rest_px - SENSOR.gel_center_px) ** 2, axis=1) / (2 * 12.0**2))
+    pipeline.tracker.reset(pipeline.rest_px + w[:, None] * [5.0, 0.0])
+    (estimate,) = pipeline.process(events_at(61_000))
+    assert estimate.gesture is GestureType.PUSH and pipeline._last_fit is not None

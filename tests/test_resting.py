@@ -100,3 +100,51 @@ def test_the_paper_raw_sum_is_the_per_marker_distance_times_the_markers():
     raw = RestingDetector(bars(0), SENSOR, threshold=2.5, per_marker=False)
     assert raw.update(bars(2)).distance == pytest.approx(72.0, rel=0.02)
     assert not raw.update(bars(2)).resting and raw.update(bars(0)).resting
+
+
+def blobs(gain=1.0, shift=(0.0, 0.0), region=None) -> np.ndarray:
+    """Gaussian markers (sigma 1.2 px, peak 200 over a background of 20) every 10 px inside the
+    gel, the whole image times ``gain`` (a brighter or darker light); ``shift`` (dx, dy) px moves
+    the markers within ``region`` px of the centre (all when None)."""
+    yy, xx = np.mgrid[0 : SENSOR.height, 0 : SENSOR.width].astype(np.float64)
+    img = np.full(xx.shape, 20.0)
+    cx, cy = SENSOR.gel_center_px
+    for y in np.arange(cy - 60, cy + 61, 10):
+        for x in np.arange(cx - 60, cx + 61, 10):
+            if np.hypot(x - cx, y - cy) > 60:
+                continue
+            inside = region is None or np.hypot(x - cx, y - cy) <= region
+            dx, dy = shift if inside else (0.0, 0.0)
+            img += 180.0 * np.exp(-((xx - x - dx) ** 2 + (yy - y - dy) ** 2) / (2 * 1.2**2))
+    return np.clip(img * gain, 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("gain", [0.75, 1.25])
+def test_a_flickering_light_is_not_motion_when_centroids_are_compared(gain):
+    """A gel at rest under a light 25 % brighter or darker (the ``flicker`` family's extremes):
+    over marker pixels (paper) a ring of pixels round every marker passes or fails the fixed
+    grey level and the Chamfer distance is far above the threshold (moving); over the markers'
+    weighted centroids nothing moved and the gel rests. (Grey level 120: between the blobs'
+    pixel values at every gain, so that rounding to uint8 decides nothing.)"""
+    pixels = RestingDetector(blobs(), SENSOR, threshold=0.4, binary_threshold=120)
+    centroids = RestingDetector(blobs(), SENSOR, threshold=0.02, binary_threshold=120, centroids=True)
+    assert not pixels.update(blobs(gain)).resting
+    assert pixels.update(blobs(gain)).distance > 2.0
+    result = centroids.update(blobs(gain))
+    assert result.resting and result.distance <= 0.001
+
+
+def test_centroids_still_see_a_local_deformation_under_any_light():
+    centroids = RestingDetector(blobs(), SENSOR, threshold=0.02, binary_threshold=120, centroids=True)
+    assert centroids.update(blobs()).distance == pytest.approx(0.0, abs=1e-9)
+    assert len(centroids.reference_centroids) == centroids.n_markers
+    for gain in (0.8, 1.0, 1.2):
+        result = centroids.update(blobs(gain, shift=(0.5, 0.0), region=30))
+        assert not result.resting and result.distance > 0.05
+
+
+def test_the_centroid_distance_of_a_global_shift_is_twice_its_square():
+    """Every centroid is |shift| from its match both ways: d = 2 |shift|^2 per marker, however
+    many pixels a marker has (the pixel-set distance grows with them)."""
+    centroids = RestingDetector(blobs(), SENSOR, threshold=0.02, binary_threshold=120, centroids=True)
+    assert centroids.update(blobs(shift=(1.0, 1.0))).distance == pytest.approx(4.0, rel=0.01)

@@ -49,6 +49,7 @@ import numba
 import numpy as np
 
 from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.pipeline.gel_motion import GelMotion
 from neurotouch_hid.sensor import SensorGeometry
 
 
@@ -261,6 +262,7 @@ def estimate_gesture(
     min_intensity_px: float = 0.5,
     intensity_sigma_px: float | None = None,
     origin_radius_px: float | None = None,
+    gel_motion: GelMotion | None = None,
 ) -> GestureResult:
     """Gesture type and intensity from the markers around the contact points.
 
@@ -279,6 +281,10 @@ def estimate_gesture(
             paper's mean ||v_i|| over A; > 0 = weighted by proximity to the contacts.
         origin_radius_px: None = the translation term about the contacts' mean (paper); else
             the smallest over origins within this distance of it (module docstring, "Origin").
+        gel_motion: None (paper), or the whole gel's rigid motion in its mount
+            (:mod:`~neurotouch_hid.pipeline.gel_motion`): removed from A's current positions and
+            from the origin before the similarity is fitted, so that the type and the
+            similarity's terms are the fingers' own; A and the intensity stay as tracked.
     Returns:
         :class:`GestureResult`; ``NONE`` with zero intensity when there is no contact, A is
         empty or the intensity is below ``min_intensity_px``.
@@ -298,7 +304,11 @@ def estimate_gesture(
         return _nothing(area)
     mean_px = intensity_px if intensity_sigma_px is None else float(norms.mean())
     threshold = max(reproj_factor * mean_px, min_reproj_px)
-    similarity = fit_similarity(rest_a, cur_a, contacts.mean(axis=0), threshold)
+    if gel_motion is None:
+        similarity = fit_similarity(rest_a, cur_a, contacts.mean(axis=0), threshold)
+    else:
+        origin = gel_motion.remove(contacts.mean(axis=0))
+        similarity = fit_similarity(rest_a, gel_motion.remove(cur_a), origin, threshold)
     return GestureResult(
         gesture=classify(similarity, r_px, sensor, origin_radius_px),
         intensity_px=intensity_px,

@@ -21,6 +21,27 @@ Nearest distances come from distance transforms (``cv2.distanceTransform`` of th
 marker mask, linear in pixels): the reference's is computed once, the current frame's once per
 frame. :meth:`RestingDetector.update` only reads the detector's precomputed state, so it may
 run in its own thread beside the event path (OpenCV releases the GIL).
+
+Marker centroids (``centroids``, not in the paper): the marker pixels are those above a fixed
+grey level, so a global change of the light (a flickering LED driver whose phase each 4 ms
+exposure samples anew: the ``flicker`` physics family, +-25 % at 120 Hz) adds or removes a ring
+of pixels round every marker and the pixel-set distance of a gel at rest jumps far above the
+threshold (docs/accuracy.md: resting F1 33 % on ``flicker``). Scaling the grey level with the
+frame's mean brightness does not undo it (on the simulated frames the background and the
+markers do not brighten in proportion, and bright markers saturate at 255; measured: resting
+F1 50 %). With ``centroids`` the same Chamfer formula is taken over the markers' centroids
+instead of their pixels: each 8-connected region of marker pixels gives its grey-level-weighted
+centroid, and::
+
+    d = ( sum_{p in P} min_q ||p - q||^2  +  sum_{q in Q} min_p ||p - q||^2 ) / n_markers   (px^2)
+
+over the current centroids P and the reference's Q. A symmetric blob's weighted centroid does
+not move when the light scales it, saturates it or when the threshold takes one ring of pixels
+more or less, so a resting gel gives d ~ 0 under any light; a marker shifted by delta px adds
+2 delta^2 (not ~2 k delta^2 as with its k pixels), so the threshold is on another scale
+(``PipelineConfig.centroid_threshold``). A marker lost or split adds about its distance to the
+nearest centroid squared (a pitch, ~100 px^2 at 2.5 px/mm) over n_markers. Cost per frame: one
+connected-components pass over the gel's bounding box and a (P x Q) distance matrix (~177^2).
 """
 
 from __future__ import annotations
@@ -62,6 +83,9 @@ class RestingDetector:
             Otsu's threshold over the reference's gel disc, computed once and kept.
         per_marker: True: the distance is divided by the reference's number of markers (module
             docstring); False: the paper's raw sum (px^2).
+        centroids: True: the distance is taken over the markers' weighted centroids instead of
+            their pixels (module docstring, "Marker centroids"; not in the paper); per marker
+            whatever ``per_marker`` says.
     Attributes:
         n_markers: number of markers (8-connected marker-pixel regions) of the reference.
     Raises:
@@ -76,10 +100,12 @@ class RestingDetector:
         threshold: float = 2.5,
         binary_threshold: int | None = None,
         per_marker: bool = True,
+        centroids: bool = False,
     ) -> None:
         self.sensor = sensor
         self.threshold = float(threshold)
         self.per_marker = bool(per_marker)
+        self.centroids = bool(centroids)
         # Work on the gel disc's bounding box only: every marker pixel lies inside it, so the
         # distances there are the whole image's (4x fewer pixels on a DAVIS-346).
         cx, cy = sensor.gel_center_px
@@ -103,6 +129,9 @@ class RestingDetector:
         self._ref_dt2 = self._squared_distance_to(ref_mask).ravel()
         n_labels, _ = cv2.connectedComponents(ref_mask, connectivity=8)
         self.n_markers = n_labels - 1
+        #: (n_markers, 2) float64 the reference's marker centroids (px, gel bounding box)
+        self.reference_centroids = self.marker_centroids(ref)
+        self._q2 = (self.reference_centroids**2).sum(axis=1)
 
     def _check(self, image: np.ndarray) -> np.ndarray:
         img = np.asarray(image)
@@ -118,6 +147,34 @@ class RestingDetector:
         marker pixels (grey > ``binary_threshold``) inside the gel disc, 0 elsewhere."""
         _, mask = cv2.threshold(image[self._roi], self.binary_threshold, 255, cv2.THRESH_BINARY)
         return cv2.bitwise_and(mask, self._gel)
+
+    def marker_centroids(self, image: np.ndarray) -> np.ndarray:
+        """(M, 2) float64 grey-level-weighted centroids (x, y px, relative to the gel's bounding
+        box) of the 8-connected regions of marker pixels of ``image`` (uint8 (height, width));
+        each pixel weighs its grey level above ``binary_threshold``."""
+        mask = self.marker_mask(image)
+        n, labels = cv2.connectedComponents(mask, connectivity=8)
+        on = cv2.findNonZero(mask)
+        if on is None:
+            return np.zeros((0, 2))
+        x, y = on[:, 0, 0], on[:, 0, 1]
+        idx = labels[y, x]
+        wgt = image[self._roi][y, x].astype(np.float64) - self.binary_threshold
+        total = np.maximum(np.bincount(idx, wgt, minlength=n)[1:], 1e-9)
+        return (
+            np.stack([np.bincount(idx, wgt * x, minlength=n)[1:], np.bincount(idx, wgt * y, minlength=n)[1:]], 1)
+            / (total[:, None])
+        )
+
+    def _centroid_distance(self, image: np.ndarray) -> float:
+        """Chamfer distance between the centroids of ``image`` and the reference's (px^2)."""
+        p = self.marker_centroids(image)
+        if len(p) == 0:
+            return float("inf")
+        q = self.reference_centroids
+        # squared distances of every pair as |p|^2 + |q|^2 - 2 p.q (one small matrix product)
+        d2 = np.maximum((p * p).sum(axis=1)[:, None] + self._q2[None, :] - 2.0 * (p @ q.T), 0.0)
+        return float(d2.min(axis=1).sum() + d2.min(axis=0).sum()) / (self.n_markers if self.per_marker else 1)
 
     @staticmethod
     def _squared_distance_to(mask: np.ndarray) -> np.ndarray:
@@ -142,6 +199,9 @@ class RestingDetector:
             SensorError: the image is not uint8 of the sensor's size.
         """
         image = self._check(frame.image if isinstance(frame, Frame) else frame)
+        if self.centroids:
+            distance = self._centroid_distance(image)
+            return RestingResult(distance <= self.threshold, distance)
         mask = self.marker_mask(image)
         points = np.flatnonzero(mask)
         if len(points) == 0:

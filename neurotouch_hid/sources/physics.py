@@ -44,6 +44,15 @@ flicker       light flicker: the LED ring's brightness follows ``1 + 0.25 sin(2 
               frame's 4 ms exposure sees another phase), in the APS frames and in the markers'
               events (the dark background's flicker stays below the contrast threshold and is
               not rendered as events).
+viscoelastic  the gel creeps: a standard linear solid (Zener; a spring in parallel with a Maxwell
+              element) under the fingers' load. A finger's pull f(t) (attack, hold, release)
+              deforms the gel at once by ``(1 - q) f`` and by a delayed ``q y`` with
+              ``tau dy/dt = f - y`` (the SLS's creep compliance ``J(t) = J0 + (J_inf - J0)(1 -
+              exp(-t / tau))`` convolved with the load; Findley, Lai & Onaran, *Creep and Relaxation
+              of Nonlinear Viscoelastic Materials*, 1976, ch. 5): the deformation keeps growing
+              through the hold and, once the fingers have left (the gesture's label ends there),
+              relaxes slowly back to rest. q = 0.3, tau = 0.3 s: chosen as a soft silicone's fast
+              relaxation, not fitted to a measured gel. The final family (``benchmarks/family_eval.py``).
 ============  ==================================================================================
 
 ``mix`` draws one family per sequence (round robin over a seeded permutation, so that every family
@@ -98,6 +107,8 @@ class Physics:
         noise_hz: background activity per pixel (Hz), or None for the caller's rate.
         n_hot, hot_rate_hz: hot pixels and their rate (Hz).
         flicker: relative amplitude of the light's flicker (0 = steady light); flicker_hz: its frequency.
+        creep: the delayed share q of a standard linear solid's deformation (0 = elastic);
+            creep_s: its retardation time tau (s).
     """
 
     name: str = "default"
@@ -118,6 +129,8 @@ class Physics:
     hot_rate_hz: float = 40.0
     flicker: float = 0.0
     flicker_hz: float = 120.0
+    creep: float = 0.0
+    creep_s: float = 0.3
 
     @property
     def changes_gestures(self) -> bool:
@@ -146,6 +159,7 @@ PHYSICS: dict[str, Physics] = {
         Physics("markers", size_spread=0.2, brightness_spread=0.2),
         Physics("noise", noise_hz=2.0, n_hot=40, hot_rate_hz=300.0),
         Physics("flicker", flicker=0.25),
+        Physics("viscoelastic", creep=0.3, creep_s=0.3),
     )
 }
 #: ``--physics`` names: every family, and ``mix`` (one family per sequence).
@@ -264,3 +278,25 @@ def hertz_deflection(q: float) -> float:
     if q <= 1.0:
         return 1.0 - 0.5 * q * q
     return ((2.0 - q * q) * math.asin(1.0 / q) + math.sqrt(q * q - 1.0)) / math.pi
+
+
+@numba.njit(cache=True)
+def sls_deformation(force: np.ndarray, dt_us: float, creep: float, tau_us: float) -> np.ndarray:
+    """A standard linear solid's deformation under a load history (module docstring, ``viscoelastic``).
+
+    Args:
+        force: (T,) float64 the load (the elastic deformation level it would cause), sampled every
+            ``dt_us`` (us) from before the load starts (force[0] = 0 there).
+        creep: the delayed share q in [0, 1]; tau_us: the retardation time (us, > 0).
+    Returns:
+        (T,) float64 ``(1 - q) f + q y`` with ``tau dy/dt = f - y``, y(0) = 0 (exact for a load
+        constant over each step). Equal to ``force`` for q = 0; the same steady state as it.
+    """
+    out = np.empty_like(force)
+    decay = math.exp(-dt_us / tau_us)
+    y = 0.0
+    for k in range(force.shape[0]):
+        if k > 0:
+            y = y * decay + force[k - 1] * (1.0 - decay)
+        out[k] = (1.0 - creep) * force[k] + creep * y
+    return out

@@ -34,7 +34,8 @@ Gesture Detection Dataset"):
 * **Physics families** -- everything above is the ``default`` family; other families
   (:mod:`neurotouch_hid.sources.physics`, ``simulate --physics NAME|mix``) change one aspect of
   it (displacement falloff, contact mechanics, indentation, camera model, global motion, finger
-  timing and strength, very strong presses, marker spread, sensor noise, light flicker).
+  timing and strength, very strong presses, marker spread, sensor noise, light flicker, a
+  viscoelastic gel that creeps and relaxes slowly).
 
 Labels (docs/dataset.md) per APS frame: a gesture is labelled from its attack's start (the first
 instant its fingers move the gel) up to, not including, the end of its release (the fingers have
@@ -49,6 +50,7 @@ at that instant.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -70,6 +72,7 @@ from neurotouch_hid.sources.physics import (
     hertz_deflection,
     mix_families,
     physics_family,
+    sls_deformation,
 )
 from neurotouch_hid.sources.recording import RecordingWriter, split_batches
 
@@ -113,6 +116,8 @@ RIM_CLAMP = 1.0
 RIM_EASE_MM = 6.0
 #: How long after its release a gesture still deforms the gel, in creep time constants.
 CREEP_SPAN_TAUS = 7.0
+#: Time step (us) of a viscoelastic gel's deformation history (SimGesture.profile).
+SLS_STEP_US = 1000
 
 
 # --- users ------------------------------------------------------------------------------------
@@ -246,6 +251,8 @@ class SimGesture:
             all 1) -- the ``fingers`` family.
         squeeze: radial contraction of the markers under a pressing finger (mm; 0: the default
             spread) -- the ``strong`` family.
+        sls: (delayed share q, retardation time tau us) of the gel's standard linear solid, or
+            empty for an elastic gel -- the ``viscoelastic`` family (:func:`physics.sls_deformation`).
     """
 
     gesture: GestureType
@@ -266,6 +273,7 @@ class SimGesture:
     lags_us: tuple[int, ...] = ()
     strengths: tuple[float, ...] = ()
     squeeze: float = 0.0
+    sls: tuple[float, int] = ()
 
     @property
     def t_end_us(self) -> int:
@@ -275,11 +283,30 @@ class SimGesture:
     @property
     def t_settled_us(self) -> int:
         """After this the gesture no longer deforms the gel at all (us)."""
-        return self.t_end_us + int(CREEP_SPAN_TAUS * self.creep_us)
+        tau = max(self.creep_us, self.sls[1]) if self.sls else self.creep_us
+        return self.t_end_us + int(CREEP_SPAN_TAUS * tau)
 
     def profile(self, t_us: np.ndarray) -> np.ndarray:
         """(T,) float64 deformation level in 0..~1 at times t_us (T,) int64 us: attack ramp, hold
-        (1 + tremor), release ramp down to ``residual``, then exponential creep to 0."""
+        (1 + tremor), release ramp down to ``residual``, then exponential creep to 0; on a
+        viscoelastic gel (``sls``) that is the load, and the level is the standard linear solid's
+        response to it (sampled every ms, interpolated)."""
+        if not self.sls:
+            return self._load(t_us)
+        t = np.asarray(t_us, dtype=np.float64) - self.t_start_us
+        return np.interp(t, self._sls_grid_us, self._sls_levels, left=0.0, right=0.0)
+
+    @functools.cached_property
+    def _sls_grid_us(self) -> np.ndarray:
+        return np.arange(-SLS_STEP_US, self.t_settled_us - self.t_start_us + SLS_STEP_US, SLS_STEP_US, dtype=np.float64)
+
+    @functools.cached_property
+    def _sls_levels(self) -> np.ndarray:
+        load = self._load(self._sls_grid_us.astype(np.int64) + self.t_start_us)
+        return sls_deformation(load, float(SLS_STEP_US), self.sls[0], float(self.sls[1]))
+
+    def _load(self, t_us: np.ndarray) -> np.ndarray:
+        """The elastic gel's deformation level (:meth:`profile` without ``sls``)."""
         t = np.asarray(t_us, dtype=np.float64) - self.t_start_us
         a, h, r = self.attack_us, self.hold_us, self.release_us
         amp, freq, phase = self.tremor
@@ -577,6 +604,8 @@ def draw_gesture(
         extra["strengths"] = tuple(float(v) for v in strengths / strengths.max())
     if physics.squeeze > 0:
         extra["squeeze"] = physics.squeeze
+    if physics.creep > 0:
+        extra["sls"] = (physics.creep, int(physics.creep_s * 1e6))
     # the default stream's draws, in their historical order
     press = float(rng.uniform(0.3, 1.0))
     tremor = (float(rng.uniform(0.01, 0.04)), float(rng.uniform(3.0, 8.0)), float(rng.uniform(0, 2 * math.pi)))

@@ -1,0 +1,87 @@
+"""Where the resting errors are: against the labels, and against the offset's rule at the onset too.
+
+    python3 benchmarks/resting_errors.py --out DIR --method NAME [--families default,drift,...]
+
+DIR is a ``family_eval.py`` working folder (each family's dataset under ``DIR/FAMILY``, a
+method's predictions under ``DIR/predictions/FAMILY/NAME``). Per family it prints the resting F1
+against the labels, the windows called resting while the labels say not (false positives), how
+many of those lie in a gesture before any marker has moved ``REST_TOLERANCE_MM`` (0.1 mm), the
+missed rests (false negatives), and the resting F1 when a window also counts as at rest whenever
+every true marker (the simulator's 1 ms ``SEQUENCE.markers.npz``) is within 0.1 mm of its rest
+position -- the rule the labels apply after a gesture, applied at the onset too
+(docs/accuracy.md, "Round 3: resting detection and gel drift").
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import typer
+
+from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions
+from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.sources.simulator import REST_TOLERANCE_MM
+
+app = typer.Typer(add_completion=False)
+
+
+def f1(truth: np.ndarray, predicted: np.ndarray) -> float:
+    """F1 of the positive class (resting) of two (M,) bool arrays."""
+    tp = int(np.sum(truth & predicted))
+    wrong = int(np.sum(truth != predicted))
+    return 2 * tp / max(2 * tp + wrong, 1)
+
+
+def family_errors(dataset: Path, predictions: Path) -> dict:
+    """The figures of one family (module docstring)."""
+    sensor = SensorGeometry.load(dataset / "sensor.yaml")
+    truth, said, still, gesture = [], [], [], []
+    for name in list_sequences(dataset):
+        labels = read_labels(dataset / f"{name}.labels.csv")
+        preds = read_predictions(predictions / f"{name}.jsonl")
+        at = labels_at(labels, np.array([p.t_us for p in preds], dtype=np.int64))
+        keep = [k for k, label in enumerate(at) if label is not None]
+        markers = np.load(dataset / f"{name}.markers.npz")
+        t_us = np.array([preds[k].t_us for k in keep], dtype=np.int64)
+        row = np.clip(np.searchsorted(markers["t_us"], t_us), 0, len(markers["t_us"]) - 1)
+        moved = markers["positions_px"][row] - markers["rest_px"][None]
+        moved_mm = np.hypot(moved[..., 0], moved[..., 1]).max(axis=1) / sensor.px_per_mm
+        truth += [at[k].resting for k in keep]
+        said += [preds[k].resting for k in keep]
+        still += list(moved_mm < REST_TOLERANCE_MM)
+        gesture += [at[k].gesture is not GestureType.NONE for k in keep]
+    truth, said, still, gesture = (np.array(v, dtype=bool) for v in (truth, said, still, gesture))
+    false_rest = ~truth & said
+    return {
+        "f1": f1(truth, said),
+        "f1_offset_rule": f1(truth | still, said),
+        "false_rest": int(false_rest.sum()),
+        "false_rest_at_onset_below_tolerance": int(np.sum(false_rest & gesture & still)),
+        "missed_rest": int(np.sum(truth & ~said)),
+    }
+
+
+@app.command()
+def main(
+    out: Path = typer.Option(..., "--out", help="family_eval.py working folder"),
+    method: str = typer.Option(..., "--method", help="the method's name in family_eval.py"),
+    families: str = typer.Option(
+        "default,powerlaw,indent,camera,drift,fingers,strong,markers,noise,flicker", "--families"
+    ),
+) -> None:
+    print(
+        "| family | resting F1 | F1, offset rule at onset too | false rest | of which at onset < 0.1 mm | missed rest |"
+    )
+    print("| --- | ---: | ---: | ---: | ---: | ---: |")
+    for fam in (f.strip() for f in families.split(",") if f.strip()):
+        r = family_errors(out / fam, out / "predictions" / fam / method)
+        print(
+            f"| {fam} | {100 * r['f1']:.2f} % | {100 * r['f1_offset_rule']:.2f} % | {r['false_rest']} | "
+            f"{r['false_rest_at_onset_below_tolerance']} | {r['missed_rest']} |"
+        )
+
+
+if __name__ == "__main__":
+    app()
