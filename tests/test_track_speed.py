@@ -15,7 +15,7 @@ import pytest
 from rich.console import Console
 
 from neurotouch_hid.cli import long_lived_start_up
-from neurotouch_hid.pipeline.pipeline import GesturePipeline
+from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 from neurotouch_hid.pipeline.track import recording_progress, track_recording
 from neurotouch_hid.sensor import find_sensor_file
 from neurotouch_hid.sources import Frame
@@ -144,8 +144,9 @@ def test_the_numba_noise_filter_never_loads_dv_processing():
 
 # --- the resting detector's early verdict --------------------------------------------------------
 def _gel_frames(recording, n: int = 400):
-    """The recording's first ``n`` APS frames (rest, presses and releases) and its detector."""
-    pipeline = GesturePipeline(find_sensor_file(recording))
+    """The recording's first ``n`` APS frames (rest, presses and releases) and its pixel-set
+    (paper) detector: ``verdict_only`` shortens the pixel-set distance only."""
+    pipeline = GesturePipeline(find_sensor_file(recording), PipelineConfig(resting_centroids=False))
     frames = []
     with RecordingReader(recording) as reader:
         for item in reader.stream(batch_us=10_000):

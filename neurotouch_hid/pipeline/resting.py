@@ -192,7 +192,8 @@ class RestingDetector:
                 are >= 0, so when the current-to-reference term alone is above the threshold
                 the gel is not at rest, and the frame's own distance transform (~2/3 of the
                 cost; about half the frames of a session) is skipped. The verdict is the same
-                as without; ``distance`` is then that term (a lower bound).
+                as without; ``distance`` is then that term (a lower bound). Pixel sets only:
+                with ``centroids`` the whole (cheaper) distance is always taken.
         Returns:
             :class:`RestingResult`. Thread-safe: reads only state fixed at construction.
         Raises:
