@@ -150,3 +150,70 @@ def test_refinement_keeps_the_marker_without_a_maximum_or_enough_markers():
     np.testing.assert_allclose(refine_peak(rest, flat, peak, 15.0), rest[peak] + [3.0, 0.0])
     few = bump(rest, rest[peak], (3.0, 0.0))
     np.testing.assert_allclose(refine_peak(rest, few, peak, 9.0), rest[peak] + few[peak])  # 5 markers only
+
+
+def three_finger_push(noise_px: float = 0.15, seed: int = 0):
+    """Three fingers on a line, 35 px (14 mm) apart, pushing together: their blended falloffs
+    carry the gel between them as one flat top (the displacement saturates at the fingers'),
+    with tracker noise on it. Returns rest, current, the fingers' current positions."""
+    rest = grid()
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    fingers = c + np.array([[-25.0, -25.0], [0.0, 0.0], [25.0, 25.0]])
+    reach = sum(np.exp(-np.sum((rest - f) ** 2, axis=1) / (2 * 22.0**2)) for f in fingers)
+    direction = np.array([8.0, -6.0])
+    rng = np.random.default_rng(seed)
+    cur = rest + np.minimum(reach, 1.0)[:, None] * direction + rng.normal(0.0, noise_px, rest.shape)
+    return rest, cur, fingers + direction
+
+
+def test_a_flat_top_of_three_fingers_gives_three_contacts_on_them_not_random_maxima():
+    # the paper's rule (and the fallback): any marker of the plateau may be the largest within r
+    # in the noise, so the flat top yields maxima at random places, not three contacts on the fingers
+    old_counts, old_errors = [], []
+    for seed in range(5):
+        rest, cur, fingers = three_finger_push(seed=seed)
+        old = detect_contacts(rest, cur, r_px=25.0, n_min=12, field_fallback=True, refine_px=20.0)
+        new = detect_contacts(rest, cur, r_px=25.0, n_min=12, field_fallback=True, refine_px=20.0, plateau_fraction=0.8)
+        old_counts.append(old.count)
+        if old.count:
+            old_errors.append(np.mean([np.min(np.linalg.norm(fingers - p, axis=1)) for p in old.points_px]))
+        assert new.count == 3
+        error = [np.min(np.linalg.norm(fingers - p, axis=1)) for p in new.points_px]
+        assert max(error) < 10.0  # within one marker pitch of a finger
+        assert sorted(np.argmin(np.linalg.norm(fingers[None] - new.points_px[:, None], axis=2), axis=1)) == [0, 1, 2]
+    assert sum(n != 3 for n in old_counts) >= 3  # the old rule miscounts most of them
+    assert np.mean(old_errors) > 10.0
+
+
+def test_maxima_on_one_stuck_disc_merge_into_its_centre():
+    # a stuck contact disc (Cattaneo-Mindlin) carries the gel under it rigidly: a plateau of
+    # radius 16 px, falling off outside; two maxima (tracker noise) on its rim, more than r apart,
+    # are one contact, at its centre
+    rest = grid()
+    centre = np.asarray(SENSOR.gel_center_px, dtype=float) + [5.0, 0.0]
+    d = np.linalg.norm(rest - centre, axis=1)
+    fall = np.where(d <= 16.0, 1.0, np.exp(-((d - 16.0) ** 2) / (2 * 10.0**2)))
+    cur = rest + fall[:, None] * [6.0, 0.0]
+    on_disc = np.flatnonzero(d <= 16.0)
+    far = [on_disc[np.argmin(rest[on_disc, 0])], on_disc[np.argmax(rest[on_disc, 0])]]  # its left and right ends
+    assert np.linalg.norm(rest[far[0]] - rest[far[1]]) > 25.0
+    cur[far] += [0.2, 0.0]
+    old = detect_contacts(rest, cur, r_px=25.0, n_min=4, refine_px=20.0)
+    new = detect_contacts(rest, cur, r_px=25.0, n_min=4, refine_px=20.0, plateau_fraction=0.8)
+    assert old.count >= 2 or np.linalg.norm(old.points_px[0] - (centre + [6.0, 0.0])) > 5.0
+    assert new.count == 1
+    assert np.linalg.norm(new.points_px[0] - (centre + [6.0, 0.0])) < 3.0
+
+
+def test_a_plateau_rule_leaves_a_finger_peak_and_two_separate_fingers_alone():
+    rest = grid()
+    centre = np.asarray(SENSOR.gel_center_px, dtype=float) + [3.0, -3.0]
+    cur = rest + bump(rest, centre, (6.0, -3.0))
+    a = detect_contacts(rest, cur, refine_px=15.0)
+    b = detect_contacts(rest, cur, refine_px=15.0, plateau_fraction=0.8)
+    np.testing.assert_array_equal(a.points_px, b.points_px)
+    c1, c2 = np.array([143.0, 130.0]), np.array([203.0, 130.0])
+    cur = rest + bump(rest, c1, (5.0, 0.0)) + bump(rest, c2, (-5.0, 0.0))
+    np.testing.assert_array_equal(
+        detect_contacts(rest, cur).points_px, detect_contacts(rest, cur, plateau_fraction=0.8).points_px
+    )

@@ -19,6 +19,7 @@ PAPER = {
     "intensity_sigma_px": None,
     "field_fallback": False,
     "contact_refine_px": None,
+    "plateau_fraction": None,
     "origin_radius_px": None,
     "motion_override_px": None,
     "noise_filter": None,

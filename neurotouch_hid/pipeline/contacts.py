@@ -26,11 +26,27 @@ surface to ||v|| and to v over the markers within ``refine_px`` of the peak mark
 positions), takes the surface's maximum (when it is one, near the peak marker) and returns where
 that gel point is now (its rest position plus the fitted v there).
 
+Flat tops (not in the paper, ``plateau_fraction``): the paper's contact is a marker whose
+displacement is the largest within r. Where several fingers push together, or a stuck contact
+disc carries the gel under it rigidly (Cattaneo-Mindlin partial slip), the field's maximum is a
+plateau several markers wide, flat to within the tracker's noise: any of its markers may be
+the largest within r, so one plateau yields maxima at random places on it (measured on the
+development families: a 3-finger push reads as 4-6 contacts, its contact distance 5-6.5 mm).
+:func:`plateau_contacts` merges the maxima that lie on one plateau -- the markers connected to
+the strongest maximum (neighbours within 1.5 marker pitches at rest) whose displacement is at
+least ``plateau_fraction`` x its own, i.e. maxima whose topographic prominence is below
+``1 - plateau_fraction`` of the peak. A plateau of more than :data:`PLATEAU_MARKERS` markers is
+a flat top: it holds one finger per fingertip footprint (pi r^2, the paper's r being "the
+typical radius of a fingertip") of its area, at most 3, placed at the weighted centroids of
+equal parts of the plateau along its principal axis (weights: how far each marker rises above
+the plateau's level); a smaller plateau is a finger's peak and keeps its contact as before.
+
 Everything here is in the image frame (px).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -44,7 +60,7 @@ class Contacts:
 
     Attributes:
         indices: (K,) int64, indices of the markers that are contact points (ordered by
-            decreasing displacement).
+            decreasing displacement; the contacts of one plateau all give its maximum's marker).
         points_px: (K, 2) float64, their current positions, image frame (px) (sub-marker
             refined ones with ``refine_px``, see :func:`refine_peak`).
         candidates: (N,) bool, the RANSAC outliers S (False for markers not valid).
@@ -243,6 +259,106 @@ def _fit_inputs(
     return design[:k].copy(), values[:k].copy()
 
 
+#: A plateau of more markers than this is a flat top: its contact is its centroid (a finger's
+#: Gaussian-like peak holds 2-5 markers above 90 % of its maximum on the development families).
+PLATEAU_MARKERS = 6
+#: Most fingers one plateau is read as (paper, "Creation of the Gesture Detection Dataset":
+#: gestures with up to 3 fingers).
+MAX_FINGERS = 3
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _plateau(rest: np.ndarray, magnitudes: np.ndarray, seed: int, level: float, link2: float) -> np.ndarray:
+    """(M,) bool: the markers connected to ``seed`` through markers whose magnitude is at least
+    ``level``, neighbours being closer than sqrt(``link2``) (px) at rest (breadth-first)."""
+    m = len(rest)
+    inside = np.zeros(m, dtype=np.bool_)
+    queue = np.empty(m, dtype=np.int64)
+    inside[seed] = True
+    queue[0] = seed
+    head, tail = 0, 1
+    while head < tail:
+        i = queue[head]
+        head += 1
+        for j in range(m):
+            if inside[j] or magnitudes[j] < level:
+                continue
+            dx = rest[i, 0] - rest[j, 0]
+            dy = rest[i, 1] - rest[j, 1]
+            if dx * dx + dy * dy <= link2:
+                inside[j] = True
+                queue[tail] = j
+                tail += 1
+    return inside
+
+
+def _split_along_axis(points: np.ndarray, weights: np.ndarray, n: int) -> np.ndarray:
+    """(n, 2) weighted centroids of ``n`` groups of equal weight of ``points`` (M, 2) taken in
+    order along their weighted principal axis."""
+    mean = (points * weights[:, None]).sum(axis=0) / weights.sum()
+    if n == 1:
+        return mean[None]
+    d = points - mean
+    cov = (d * weights[:, None]).T @ d
+    axis = np.linalg.eigh(cov)[1][:, -1]
+    order = np.argsort(d @ axis, kind="mergesort")
+    cumulative = np.cumsum(weights[order]) / weights.sum()
+    group = np.minimum((cumulative * n - 1e-9).astype(np.int64), n - 1)
+    out = np.empty((n, 2))
+    for g in range(n):
+        members = order[group == g]
+        w = weights[members]
+        out[g] = (points[members] * w[:, None]).sum(axis=0) / w.sum()
+    return out
+
+
+def plateau_contacts(
+    rest_px: np.ndarray,
+    current_px: np.ndarray,
+    magnitudes: np.ndarray,
+    peaks: np.ndarray,
+    fraction: float,
+    pitch_px: float,
+    finger_radius_px: float,
+) -> tuple[np.ndarray, list[np.ndarray | None]]:
+    """Merge the displacement maxima that lie on one plateau; a wide plateau's contacts (see the
+    module docstring, "Flat tops").
+
+    Args:
+        rest_px: (M, 2) float64, rest positions of the valid markers (px, image frame).
+        current_px: (M, 2) float64, their current positions (px).
+        magnitudes: (M,) float64, their displacement norms ||v|| (px).
+        peaks: (K,) int64, the maxima (indices into the M markers) by decreasing magnitude.
+        fraction: plateau level as a fraction of its maximum's magnitude, in (0, 1).
+        pitch_px: the marker pitch (px): markers closer than 1.5 pitches at rest are neighbours,
+            and each marker stands for pitch^2 of gel.
+        finger_radius_px: a fingertip's radius (px, the paper's r): a plateau of area A holds
+            ``min(3, ceil(A / (pi r^2)))`` fingers (the paper's gestures have up to 3).
+    Returns:
+        (kept, points): the kept maxima (K' <= K, int64, by decreasing magnitude) and, for each,
+        None (a plateau of at most :data:`PLATEAU_MARKERS` markers: the caller places its
+        contact) or (n, 2) float64 contact points (px, current positions): the weighted
+        centroids of n equal-weight parts of the plateau along its principal axis.
+    """
+    covered = np.zeros(len(magnitudes), dtype=bool)
+    link2 = (1.5 * pitch_px) ** 2
+    kept, points = [], []
+    for p in peaks:
+        if covered[p]:
+            continue  # on a stronger maximum's plateau: the same flat top
+        level = fraction * magnitudes[p]
+        mask = _plateau(rest_px, magnitudes, int(p), level, link2)
+        covered |= mask
+        kept.append(int(p))
+        size = int(np.count_nonzero(mask))
+        if size > PLATEAU_MARKERS:
+            fingers = min(MAX_FINGERS, max(1, math.ceil(size * pitch_px**2 / (math.pi * finger_radius_px**2))))
+            points.append(_split_along_axis(current_px[mask], magnitudes[mask] - level + 1e-9, fingers))
+        else:
+            points.append(None)
+    return np.array(kept, dtype=np.int64), points
+
+
 def detect_contacts(
     rest_px: np.ndarray,
     current_px: np.ndarray,
@@ -256,6 +372,8 @@ def detect_contacts(
     method: str = "usac_fast",
     field_fallback: bool = False,
     refine_px: float | None = None,
+    plateau_fraction: float | None = None,
+    pitch_px: float = 10.0,
 ) -> Contacts:
     """The contact points of one window (paper, section "Contact Point Detection").
 
@@ -275,6 +393,11 @@ def detect_contacts(
             module docstring); ``candidates`` still holds the homography's outliers.
         refine_px: None: a contact point is its marker's position (paper); > 0: refined below
             the marker pitch with the markers within this radius (:func:`refine_peak`).
+        plateau_fraction: None: every local maximum is a contact (paper); in (0, 1): maxima on
+            one plateau at this fraction of the strongest are merged, and a wide plateau's
+            contacts are read off its area and shape (:func:`plateau_contacts`, with ``r_px`` as
+            the fingertip's radius).
+        pitch_px: the marker pitch (px), for the plateaus.
     Returns:
         :class:`Contacts`. Degenerate inputs give no contact: fewer than 4 valid markers (a
         homography needs 4), or a mean displacement below ``min_mean_displacement_px``
@@ -306,9 +429,17 @@ def detect_contacts(
     if len(peaks) == 0 and field_fallback:
         moved = np.flatnonzero(magnitudes > threshold)  # outliers of the rest model (identity), same threshold
         peaks = moved[local_maxima(cur_ok[moved], magnitudes[moved], r_px, n_min)]
-    maxima = idx[peaks]
-    if refine_px is not None and len(peaks):
-        points = np.array([_refine_peak(rest_ok, v_ok, magnitudes, int(i), refine_px) for i in peaks])
-    else:
-        points = cur_ok[peaks]
+    flat: list[np.ndarray | None] = [None] * len(peaks)
+    if plateau_fraction is not None and len(peaks):
+        peaks, flat = plateau_contacts(rest_ok, cur_ok, magnitudes, peaks, plateau_fraction, pitch_px, r_px)
+    rows, points = [], []
+    for i, f in zip(peaks, flat):
+        if f is not None:  # a flat top: its contacts, all on its maximum's marker
+            rows += [i] * len(f)
+            points += list(f)
+        else:
+            rows.append(i)
+            points.append(_refine_peak(rest_ok, v_ok, magnitudes, int(i), refine_px) if refine_px else cur_ok[i])
+    maxima = idx[np.array(rows, dtype=np.int64)]
+    points = np.array(points, dtype=np.float64).reshape(-1, 2)
     return Contacts(indices=maxima, points_px=points, candidates=candidates, reproj_threshold_px=threshold)

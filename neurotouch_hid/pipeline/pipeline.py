@@ -152,6 +152,14 @@ class PipelineConfig(BaseModel):
         contact_refine_px: None: a contact point is the position of its peak marker (paper);
             > 0: refined below the marker pitch by quadratic fits over the markers within this
             radius (px) (``contacts.refine_peak``; not in the paper).
+        plateau_fraction: None: every local maximum is a contact (paper); in (0, 1): maxima on
+            one plateau of the field at this fraction of its peak are one flat top, whose
+            contacts are read off its area (one per fingertip footprint pi r^2, at most 3) and
+            placed along its principal axis (``contacts.plateau_contacts``; not in the paper).
+            0.8, decided on the development families (docs/accuracy.md, "Round 3"): contact
+            count +2.7 to +6.2 points, distance 2.26 -> 1.49 mm on ``default``; 0.7 and 0.85
+            within 1.6 points of count and 0.15 mm of it.
+        marker_pitch_px: the marker pitch (px; 4 mm at 2.5 px/mm), for the plateaus.
         origin_radius_px: None: the translation term of the gesture type is taken about the
             contacts' mean (paper); > 0: at the best origin within this distance (px) of it
             (``gesture.py``, "Origin"; not in the paper).
@@ -208,6 +216,8 @@ class PipelineConfig(BaseModel):
     intensity_sigma_px: float | None = 3.0
     field_fallback: bool = True
     contact_refine_px: float | None = 20.0
+    plateau_fraction: float | None = 0.8
+    marker_pitch_px: float = 10.0
     origin_radius_px: float | None = 10.0
     motion_override_px: float | None = 0.3
     override_min_markers: int = 12
@@ -250,6 +260,10 @@ class PipelineConfig(BaseModel):
             value = getattr(self, name)
             if value is not None and not value > 0:
                 raise ValueError(f"{name} must be positive or None, got {value}")
+        if self.plateau_fraction is not None and not 0.0 < self.plateau_fraction < 1.0:
+            raise ValueError(f"plateau_fraction must be in (0, 1) or None, got {self.plateau_fraction}")
+        if not self.marker_pitch_px > 0:
+            raise ValueError(f"marker_pitch_px must be positive, got {self.marker_pitch_px}")
         if self.override_min_markers < 1:
             raise ValueError(f"override_min_markers must be >= 1, got {self.override_min_markers}")
         if self.reference_attempts < 1:
@@ -281,6 +295,7 @@ PIPELINE_PRESETS: dict[str, dict[str, object]] = {
         "intensity_sigma_px": None,
         "field_fallback": False,
         "contact_refine_px": None,
+        "plateau_fraction": None,
         "origin_radius_px": None,
         "motion_override_px": None,
         "noise_filter": None,
@@ -302,6 +317,7 @@ _PX_FIELDS = (
     "min_gesture_reproj_px",
     "intensity_sigma_px",
     "contact_refine_px",
+    "marker_pitch_px",
     "origin_radius_px",
     "motion_override_px",
 )
@@ -732,6 +748,8 @@ class GesturePipeline:
             method=c.homography_method,
             field_fallback=c.field_fallback,
             refine_px=c.contact_refine_px,
+            plateau_fraction=c.plateau_fraction,
+            pitch_px=c.marker_pitch_px,
         )
         self._record("contacts", begin)
         begin = self._clock()
