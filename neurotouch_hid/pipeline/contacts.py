@@ -293,8 +293,9 @@ def _plateau(rest: np.ndarray, magnitudes: np.ndarray, seed: int, level: float, 
 
 
 def _split_along_axis(points: np.ndarray, weights: np.ndarray, n: int) -> np.ndarray:
-    """(n, 2) weighted centroids of ``n`` groups of equal weight of ``points`` (M, 2) taken in
-    order along their weighted principal axis."""
+    """(n, 2) weighted centroids of ``n`` parts of equal weight of ``points`` (M, 2), M >= n,
+    taken in order along their weighted principal axis (equal numbers of points when one point
+    outweighs a part)."""
     mean = (points * weights[:, None]).sum(axis=0) / weights.sum()
     if n == 1:
         return mean[None]
@@ -302,8 +303,11 @@ def _split_along_axis(points: np.ndarray, weights: np.ndarray, n: int) -> np.nda
     cov = (d * weights[:, None]).T @ d
     axis = np.linalg.eigh(cov)[1][:, -1]
     order = np.argsort(d @ axis, kind="mergesort")
-    cumulative = np.cumsum(weights[order]) / weights.sum()
-    group = np.minimum((cumulative * n - 1e-9).astype(np.int64), n - 1)
+    w = weights[order]
+    middle = (np.cumsum(w) - 0.5 * w) / w.sum()  # each marker's place along the axis, by weight
+    group = np.minimum((middle * n).astype(np.int64), n - 1)
+    if len(np.unique(group)) < n:  # a marker outweighs a part: parts of equal marker counts
+        group = np.arange(len(order)) * n // len(order)
     out = np.empty((n, 2))
     for g in range(n):
         members = order[group == g]
