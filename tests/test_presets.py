@@ -25,6 +25,7 @@ PAPER = {
     "noise_filter": None,
     "rest_match_pitch": None,
     "follow_px_per_mm": False,
+    "camera_model": False,
     "episode_vote": False,
 }
 

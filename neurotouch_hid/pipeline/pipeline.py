@@ -53,6 +53,7 @@ from collections.abc import Callable, Iterable, Iterator
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
+from neurotouch_hid.camera_model import fit_camera_model
 from neurotouch_hid.errors import SensorError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.pipeline.contacts import HOMOGRAPHY_METHODS, detect_contacts
@@ -173,6 +174,12 @@ class PipelineConfig(BaseModel):
         follow_px_per_mm: every pixel setting here and in ``tracker`` is given at 2.5 px/mm
             (:data:`REFERENCE_PX_PER_MM`) and follows sensor.yaml's px_per_mm
             (:func:`scaled_to_sensor`; not in the paper); False: fixed pixels (paper).
+        camera_model: when sensor.yaml has no camera model (``radial_k``, written by
+            ``calibrate``), fit one to the rest reference's markers, the 4 mm grid at rest
+            (``camera_model.fit_camera_model``; not in the paper): its px_per_mm at the centre
+            replaces sensor.yaml's for the pixel settings, and every mm figure (intensity,
+            contact points, translation) is converted through it. False: sensor.yaml as it is
+            (the paper's one scale when it has no model).
         episode_vote: the type of every window of a gesture episode is the intensity-weighted
             vote of its windows so far (module docstring; not in the paper); False: each window's
             own type (paper). On (decided on the development families before the final one was
@@ -224,6 +231,7 @@ class PipelineConfig(BaseModel):
     episode_vote: bool = True
     rest_match_pitch: float | None = 0.1
     follow_px_per_mm: bool = True
+    camera_model: bool = True
     marker_threshold: int | None = None
     reference_attempts: int = 3
     detect_resting: bool = True
@@ -301,6 +309,7 @@ PIPELINE_PRESETS: dict[str, dict[str, object]] = {
         "noise_filter": None,
         "rest_match_pitch": None,
         "follow_px_per_mm": False,
+        "camera_model": False,
         "episode_vote": False,
     },
 }
@@ -581,6 +590,7 @@ class GesturePipeline:
             self.pressed_frames += 1
             return  # the gel is pressed: this frame is no rest reference; wait for one that is
         self.rest_px = markers.centroids_px.astype(np.float64)
+        self._use_camera_model()
         self.tracker = BlobTracker(
             self.rest_px, self.sensor.width, self.sensor.height, self.config.tracker, sensor=self.sensor
         )
@@ -592,6 +602,17 @@ class GesturePipeline:
             per_marker=self.config.chamfer_per_marker,
         )
         self._resting = RestingResult(True, 0.0)
+
+    def _use_camera_model(self) -> None:
+        """With ``camera_model``, and no model in sensor.yaml: the sensor as fitted to the rest
+        reference's markers (:func:`fit_camera_model`), and the pixel settings following its
+        px_per_mm. Unchanged when the markers do not index as the 4 mm grid."""
+        if not self.settings.camera_model or self.sensor.radial_k is not None:
+            return
+        fitted = fit_camera_model(self.rest_px, self.sensor)
+        if fitted is not None:
+            self.sensor = fitted
+            self.config = scaled_to_sensor(self.settings, fitted)
 
     def _at_rest_after_restart(self, frame: Frame) -> bool:
         """After :meth:`restart`: whether ``frame`` may re-initialise the markers (see there)."""
