@@ -217,3 +217,20 @@ def test_a_plateau_rule_leaves_a_finger_peak_and_two_separate_fingers_alone():
     np.testing.assert_array_equal(
         detect_contacts(rest, cur).points_px, detect_contacts(rest, cur, plateau_fraction=0.8).points_px
     )
+
+
+def test_a_pinch_that_brings_two_fingers_within_r_keeps_two_contacts_with_neighbourhoods_at_rest():
+    # two fingers 60 px apart on the gel pinch 20 px each: their contact markers end 20 px apart
+    # in the image, closer than r = 25 px, so the paper's N(i) (current positions) holds both and
+    # only the stronger is a maximum; on the gel (rest positions) they stay 60 px apart
+    rest = grid()
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    left, right = c + [-30.0, 0.0], c + [30.0, 0.0]
+    cur = rest + bump(rest, left, (20.0, 0.0), sigma=10.0) + bump(rest, right, (-19.0, 0.0), sigma=10.0)
+    options = dict(r_px=25.0, n_min=4, field_fallback=True)
+    paper = detect_contacts(rest, cur, **options)
+    on_gel = detect_contacts(rest, cur, **options, maxima_at_rest=True)
+    assert paper.count == 1
+    assert on_gel.count == 2
+    found = sorted(on_gel.points_px[:, 0])
+    np.testing.assert_allclose(found, [c[0] - 10.0, c[0] + 11.0], atol=1e-6)

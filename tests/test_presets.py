@@ -20,6 +20,7 @@ PAPER = {
     "field_fallback": False,
     "contact_refine_px": None,
     "plateau_fraction": None,
+    "maxima_at_rest": False,
     "origin_radius_px": None,
     "motion_override_px": None,
     "noise_filter": None,

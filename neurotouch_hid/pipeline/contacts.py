@@ -41,6 +41,14 @@ typical radius of a fingertip") of its area, at most 3, placed at the weighted c
 equal parts of the plateau along its principal axis (weights: how far each marker rises above
 the plateau's level); a smaller plateau is a finger's peak and keeps its contact as before.
 
+Neighbourhoods on the gel (not in the paper, ``maxima_at_rest``): the paper's N(i) holds the
+candidates within r of marker i's *current* position. A pinch brings two fingers, and the gel
+under them, together: when their contact markers come within r of each other in the image,
+the weaker one is no maximum any more and the pinch reads as one contact (measured on the
+development families: most of the 2 -> 1 errors of ``strong`` and ``drift`` pinches, where the
+markers between the fingers are squeezed together). With ``maxima_at_rest`` N(i) is taken over
+the rest positions: markers within r on the gel, which a deformation does not bring together.
+
 Everything here is in the image frame (px).
 """
 
@@ -378,6 +386,7 @@ def detect_contacts(
     refine_px: float | None = None,
     plateau_fraction: float | None = None,
     pitch_px: float = 10.0,
+    maxima_at_rest: bool = False,
 ) -> Contacts:
     """The contact points of one window (paper, section "Contact Point Detection").
 
@@ -402,6 +411,8 @@ def detect_contacts(
             contacts are read off its area and shape (:func:`plateau_contacts`, with ``r_px`` as
             the fingertip's radius).
         pitch_px: the marker pitch (px), for the plateaus.
+        maxima_at_rest: False: N(i) = the candidates within r of marker i now (paper); True:
+            within r at rest (module docstring, "Neighbourhoods on the gel").
     Returns:
         :class:`Contacts`. Degenerate inputs give no contact: fewer than 4 valid markers (a
         homography needs 4), or a mean displacement below ``min_mean_displacement_px``
@@ -428,11 +439,12 @@ def detect_contacts(
     cand = idx[outliers]
     candidates = np.zeros(n, dtype=bool)
     candidates[cand] = True
-    found = local_maxima(cur_ok[outliers], magnitudes[outliers], r_px, n_min)
+    where = rest_ok if maxima_at_rest else cur_ok  # the neighbourhoods N(i): now (paper) or on the gel at rest
+    found = local_maxima(where[outliers], magnitudes[outliers], r_px, n_min)
     peaks = np.flatnonzero(outliers)[found]  # positions among the valid markers
     if len(peaks) == 0 and field_fallback:
         moved = np.flatnonzero(magnitudes > threshold)  # outliers of the rest model (identity), same threshold
-        peaks = moved[local_maxima(cur_ok[moved], magnitudes[moved], r_px, n_min)]
+        peaks = moved[local_maxima(where[moved], magnitudes[moved], r_px, n_min)]
     flat: list[np.ndarray | None] = [None] * len(peaks)
     if plateau_fraction is not None and len(peaks):
         peaks, flat = plateau_contacts(rest_ok, cur_ok, magnitudes, peaks, plateau_fraction, pitch_px, r_px)

@@ -161,6 +161,12 @@ class PipelineConfig(BaseModel):
             count +2.7 to +6.2 points, distance 2.26 -> 1.49 mm on ``default``; 0.7 and 0.85
             within 1.6 points of count and 0.15 mm of it.
         marker_pitch_px: the marker pitch (px; 4 mm at 2.5 px/mm), for the plateaus.
+        maxima_at_rest: False: a contact's neighbourhood N(i) is the candidates within r of its
+            current position (paper); True: within r of its rest position, i.e. on the gel
+            (``contacts.py``, "Neighbourhoods on the gel"; not in the paper). On (development
+            families, docs/accuracy.md "Round 3"): contact count +0.05 to +3.1 points (``drift``
+            +3.1, ``strong`` +2.5, ``markers`` +2.2), gesture ``drift`` +3.0; no family loses more
+            than 0.05 point.
         origin_radius_px: None: the translation term of the gesture type is taken about the
             contacts' mean (paper); > 0: at the best origin within this distance (px) of it
             (``gesture.py``, "Origin"; not in the paper).
@@ -225,6 +231,7 @@ class PipelineConfig(BaseModel):
     contact_refine_px: float | None = 20.0
     plateau_fraction: float | None = 0.8
     marker_pitch_px: float = 10.0
+    maxima_at_rest: bool = True
     origin_radius_px: float | None = 10.0
     motion_override_px: float | None = 0.3
     override_min_markers: int = 12
@@ -304,6 +311,7 @@ PIPELINE_PRESETS: dict[str, dict[str, object]] = {
         "field_fallback": False,
         "contact_refine_px": None,
         "plateau_fraction": None,
+        "maxima_at_rest": False,
         "origin_radius_px": None,
         "motion_override_px": None,
         "noise_filter": None,
@@ -771,6 +779,7 @@ class GesturePipeline:
             refine_px=c.contact_refine_px,
             plateau_fraction=c.plateau_fraction,
             pitch_px=c.marker_pitch_px,
+            maxima_at_rest=c.maxima_at_rest,
         )
         self._record("contacts", begin)
         begin = self._clock()
