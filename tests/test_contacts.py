@@ -234,3 +234,21 @@ def test_a_pinch_that_brings_two_fingers_within_r_keeps_two_contacts_with_neighb
     assert on_gel.count == 2
     found = sorted(on_gel.points_px[:, 0])
     np.testing.assert_allclose(found, [c[0] - 10.0, c[0] + 11.0], atol=1e-6)
+
+
+def test_a_lone_mistracked_marker_is_no_contact_and_hides_no_finger():
+    # one finger (5 px) and, 20 px from it (within r), a marker the tracker pulled 7 px (a hot
+    # pixel): the paper's rule takes the lone marker as the contact, which also suppresses the
+    # finger's peak; with its neighbours' median instead, the finger is the contact
+    rest = grid()
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    cur = rest + bump(rest, c, (5.0, 0.0))
+    lone = int(np.argmin(np.linalg.norm(rest - (c + [20.0, 0.0]), axis=1)))
+    cur[lone] += [0.0, 7.0]
+    options = dict(r_px=25.0, n_min=4, field_fallback=True)
+    paper = detect_contacts(rest, cur, **options)
+    despiked = detect_contacts(rest, cur, **options, spike_fraction=0.6)
+    assert lone in paper.indices.tolist()
+    assert np.min(np.linalg.norm(paper.points_px - (c + [5.0, 0.0]), axis=1)) > 5.0
+    assert despiked.count == 1
+    np.testing.assert_allclose(despiked.points_px[0], c + [5.0, 0.0], atol=1e-6)

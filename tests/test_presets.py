@@ -21,6 +21,7 @@ PAPER = {
     "contact_refine_px": None,
     "plateau_fraction": None,
     "maxima_at_rest": False,
+    "spike_fraction": None,
     "origin_radius_px": None,
     "motion_override_px": None,
     "noise_filter": None,

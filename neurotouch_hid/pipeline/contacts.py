@@ -49,6 +49,14 @@ development families: most of the 2 -> 1 errors of ``strong`` and ``drift`` pinc
 markers between the fingers are squeezed together). With ``maxima_at_rest`` N(i) is taken over
 the rest positions: markers within r on the gel, which a deformation does not bring together.
 
+Lone markers (not in the paper, ``spike_fraction``): a finger's footprint is wider than the
+4 mm marker pitch, so the markers next to a contact move nearly as much as it does. A single
+marker far above all its neighbours is the tracker's error (a hot pixel or background activity
+pulled its blob: the ``noise`` family), and the paper's rule makes it a contact, or lets it
+suppress a real one within r. With ``spike_fraction`` a marker displaced more than
+1 / spike_fraction times the median of its neighbours (rest positions within 1.5 pitches) takes
+that median in this stage (maxima, plateaus, refinement; the intensity still reads its own).
+
 Everything here is in the image frame (px).
 """
 
@@ -300,6 +308,31 @@ def _plateau(rest: np.ndarray, magnitudes: np.ndarray, seed: int, level: float, 
     return inside
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _despiked(rest: np.ndarray, magnitudes: np.ndarray, link2: float, fraction: float) -> np.ndarray:
+    """(M,) magnitudes where a marker displaced more than 1 / ``fraction`` times the median of its
+    neighbours (rest positions closer than sqrt(``link2``) px, itself excluded, at least 2 of
+    them) takes that median instead."""
+    m = len(rest)
+    out = magnitudes.copy()
+    near = np.empty(m)
+    for i in range(m):
+        k = 0
+        for j in range(m):
+            if j == i:
+                continue
+            dx = rest[i, 0] - rest[j, 0]
+            dy = rest[i, 1] - rest[j, 1]
+            if dx * dx + dy * dy <= link2:
+                near[k] = magnitudes[j]
+                k += 1
+        if k >= 2:
+            median = np.median(near[:k])
+            if magnitudes[i] * fraction > median:
+                out[i] = median
+    return out
+
+
 def _split_along_axis(points: np.ndarray, weights: np.ndarray, n: int) -> np.ndarray:
     """(n, 2) weighted centroids of ``n`` parts of equal weight of ``points`` (M, 2), M >= n,
     taken in order along their weighted principal axis (equal numbers of points when one point
@@ -387,6 +420,7 @@ def detect_contacts(
     plateau_fraction: float | None = None,
     pitch_px: float = 10.0,
     maxima_at_rest: bool = False,
+    spike_fraction: float | None = None,
 ) -> Contacts:
     """The contact points of one window (paper, section "Contact Point Detection").
 
@@ -413,6 +447,8 @@ def detect_contacts(
         pitch_px: the marker pitch (px), for the plateaus.
         maxima_at_rest: False: N(i) = the candidates within r of marker i now (paper); True:
             within r at rest (module docstring, "Neighbourhoods on the gel").
+        spike_fraction: None: the tracked ||v|| (paper); in (0, 1]: lone markers take their
+            neighbours' median (module docstring, "Lone markers").
     Returns:
         :class:`Contacts`. Degenerate inputs give no contact: fewer than 4 valid markers (a
         homography needs 4), or a mean displacement below ``min_mean_displacement_px``
@@ -439,6 +475,8 @@ def detect_contacts(
     cand = idx[outliers]
     candidates = np.zeros(n, dtype=bool)
     candidates[cand] = True
+    if spike_fraction is not None:  # a lone marker far above its neighbours is no contact
+        magnitudes = _despiked(rest_ok, magnitudes, (1.5 * pitch_px) ** 2, spike_fraction)
     where = rest_ok if maxima_at_rest else cur_ok  # the neighbourhoods N(i): now (paper) or on the gel at rest
     found = local_maxima(where[outliers], magnitudes[outliers], r_px, n_min)
     peaks = np.flatnonzero(outliers)[found]  # positions among the valid markers

@@ -167,6 +167,12 @@ class PipelineConfig(BaseModel):
             families, docs/accuracy.md "Round 3"): contact count +0.05 to +3.1 points (``drift``
             +3.1, ``strong`` +2.5, ``markers`` +2.2), gesture ``drift`` +3.0; no family loses more
             than 0.05 point.
+        spike_fraction: None: every marker's ||v|| as tracked (paper); in (0, 1]: a marker displaced
+            more than 1 / spike_fraction times the median of its neighbours on the gel (within 1.5
+            pitches at rest) counts with that median in the contact stage (``contacts.py``, "Lone
+            markers"; not in the paper). 0.6, decided on the development families
+            (docs/accuracy.md "Round 3"; 0.3, 0.5 and 0.7 measured): contact count +0.2 to +5.3
+            points (``noise`` +5.3), distance -0.03 to -0.21 mm, gesture -0.3 to +0.4 points.
         origin_radius_px: None: the translation term of the gesture type is taken about the
             contacts' mean (paper); > 0: at the best origin within this distance (px) of it
             (``gesture.py``, "Origin"; not in the paper).
@@ -232,6 +238,7 @@ class PipelineConfig(BaseModel):
     plateau_fraction: float | None = 0.8
     marker_pitch_px: float = 10.0
     maxima_at_rest: bool = True
+    spike_fraction: float | None = 0.6
     origin_radius_px: float | None = 10.0
     motion_override_px: float | None = 0.3
     override_min_markers: int = 12
@@ -275,6 +282,8 @@ class PipelineConfig(BaseModel):
             value = getattr(self, name)
             if value is not None and not value > 0:
                 raise ValueError(f"{name} must be positive or None, got {value}")
+        if self.spike_fraction is not None and not 0.0 < self.spike_fraction <= 1.0:
+            raise ValueError(f"spike_fraction must be in (0, 1] or None, got {self.spike_fraction}")
         if self.plateau_fraction is not None and not 0.0 < self.plateau_fraction < 1.0:
             raise ValueError(f"plateau_fraction must be in (0, 1) or None, got {self.plateau_fraction}")
         if not self.marker_pitch_px > 0:
@@ -312,6 +321,7 @@ PIPELINE_PRESETS: dict[str, dict[str, object]] = {
         "contact_refine_px": None,
         "plateau_fraction": None,
         "maxima_at_rest": False,
+        "spike_fraction": None,
         "origin_radius_px": None,
         "motion_override_px": None,
         "noise_filter": None,
@@ -780,6 +790,7 @@ class GesturePipeline:
             plateau_fraction=c.plateau_fraction,
             pitch_px=c.marker_pitch_px,
             maxima_at_rest=c.maxima_at_rest,
+            spike_fraction=c.spike_fraction,
         )
         self._record("contacts", begin)
         begin = self._clock()
