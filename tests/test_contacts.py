@@ -252,3 +252,18 @@ def test_a_lone_mistracked_marker_is_no_contact_and_hides_no_finger():
     assert np.min(np.linalg.norm(paper.points_px - (c + [5.0, 0.0]), axis=1)) > 5.0
     assert despiked.count == 1
     np.testing.assert_allclose(despiked.points_px[0], c + [5.0, 0.0], atol=1e-6)
+
+
+def test_neighbours_given_once_per_reference_match_those_computed_per_window_with_lost_markers():
+    from neurotouch_hid.pipeline.contacts import rest_neighbours
+
+    rest, cur, _ = three_finger_push(seed=3)
+    valid = np.ones(len(rest), dtype=bool)
+    valid[::7] = False  # lost markers: their rows and entries drop out
+    options = dict(r_px=25.0, n_min=12, field_fallback=True, refine_px=20.0, plateau_fraction=0.8, spike_fraction=0.6)
+    table = rest_neighbours(rest, 10.0)
+    assert table.shape == (len(rest), 8)  # a square grid's 8 nearest within 1.5 pitches
+    given = detect_contacts(rest, cur, valid, **options, neighbours=table)
+    computed = detect_contacts(rest, cur, valid, **options)
+    np.testing.assert_array_equal(given.points_px, computed.points_px)
+    assert given.count >= 2  # the lost markers take part of the plateau's area

@@ -283,11 +283,60 @@ PLATEAU_MARKERS = 6
 MAX_FINGERS = 3
 
 
+def rest_neighbours(rest_px: np.ndarray, pitch_px: float) -> np.ndarray:
+    """Each marker's neighbours on the gel: the markers whose rest positions are closer than 1.5
+    marker pitches (a square grid's 8 nearest), for the plateaus and the lone markers.
+
+    Args:
+        rest_px: (M, 2) float, rest positions (px, image frame).
+        pitch_px: the marker pitch (px).
+    Returns:
+        (M, K) int64, row i the indices of marker i's neighbours (itself excluded), padded
+        with -1; K is the largest neighbour count (at least 1).
+    """
+    rest = np.ascontiguousarray(rest_px, dtype=np.float64)
+    return _neighbour_table(rest, (1.5 * float(pitch_px)) ** 2)
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _plateau(rest: np.ndarray, magnitudes: np.ndarray, seed: int, level: float, link2: float) -> np.ndarray:
-    """(M,) bool: the markers connected to ``seed`` through markers whose magnitude is at least
-    ``level``, neighbours being closer than sqrt(``link2``) (px) at rest (breadth-first)."""
+def _neighbour_table(rest: np.ndarray, link2: float) -> np.ndarray:
+    """:func:`rest_neighbours` with ``link2`` = (1.5 pitch)^2 (px^2)."""
     m = len(rest)
+    counts = np.zeros(m, dtype=np.int64)
+    for i in range(m):
+        for j in range(m):
+            if j != i:
+                dx = rest[i, 0] - rest[j, 0]
+                dy = rest[i, 1] - rest[j, 1]
+                if dx * dx + dy * dy <= link2:
+                    counts[i] += 1
+    width = max(1, counts.max()) if m else 1
+    table = np.full((m, width), -1, dtype=np.int64)
+    for i in range(m):
+        k = 0
+        for j in range(m):
+            if j != i:
+                dx = rest[i, 0] - rest[j, 0]
+                dy = rest[i, 1] - rest[j, 1]
+                if dx * dx + dy * dy <= link2:
+                    table[i, k] = j
+                    k += 1
+    return table
+
+
+def _valid_table(neighbours: np.ndarray, idx: np.ndarray, n: int) -> np.ndarray:
+    """``neighbours`` (N, K) over all N markers restricted to the valid ones ``idx``: rows of the
+    valid markers, entries renumbered among them, lost neighbours -1."""
+    position = np.full(n + 1, -1, dtype=np.int64)  # position[-1] = -1 keeps the padding
+    position[idx] = np.arange(len(idx))
+    return position[neighbours[idx]]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _plateau(table: np.ndarray, magnitudes: np.ndarray, seed: int, level: float) -> np.ndarray:
+    """(M,) bool: the markers connected to ``seed`` through neighbours (``table``, see
+    :func:`rest_neighbours`) whose magnitude is at least ``level`` (breadth-first)."""
+    m = len(magnitudes)
     inside = np.zeros(m, dtype=np.bool_)
     queue = np.empty(m, dtype=np.int64)
     inside[seed] = True
@@ -296,69 +345,86 @@ def _plateau(rest: np.ndarray, magnitudes: np.ndarray, seed: int, level: float, 
     while head < tail:
         i = queue[head]
         head += 1
-        for j in range(m):
-            if inside[j] or magnitudes[j] < level:
+        for j in table[i]:
+            if j < 0 or inside[j] or magnitudes[j] < level:
                 continue
-            dx = rest[i, 0] - rest[j, 0]
-            dy = rest[i, 1] - rest[j, 1]
-            if dx * dx + dy * dy <= link2:
-                inside[j] = True
-                queue[tail] = j
-                tail += 1
+            inside[j] = True
+            queue[tail] = j
+            tail += 1
     return inside
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _despiked(rest: np.ndarray, magnitudes: np.ndarray, link2: float, fraction: float) -> np.ndarray:
+def _despiked(table: np.ndarray, magnitudes: np.ndarray, fraction: float) -> np.ndarray:
     """(M,) magnitudes where a marker displaced more than 1 / ``fraction`` times the median of its
-    neighbours (rest positions closer than sqrt(``link2``) px, itself excluded, at least 2 of
-    them) takes that median instead."""
-    m = len(rest)
+    neighbours (``table``, see :func:`rest_neighbours`; at least 2 of them) takes that median."""
     out = magnitudes.copy()
-    near = np.empty(m)
-    for i in range(m):
+    near = np.empty(table.shape[1])
+    for i in range(len(magnitudes)):
         k = 0
-        for j in range(m):
-            if j == i:
-                continue
-            dx = rest[i, 0] - rest[j, 0]
-            dy = rest[i, 1] - rest[j, 1]
-            if dx * dx + dy * dy <= link2:
+        for j in table[i]:
+            if j >= 0:
                 near[k] = magnitudes[j]
                 k += 1
         if k >= 2:
-            median = np.median(near[:k])
+            for q in range(1, k):  # insertion sort of the (<= 8) neighbours
+                x = near[q]
+                r = q - 1
+                while r >= 0 and near[r] > x:
+                    near[r + 1] = near[r]
+                    r -= 1
+                near[r + 1] = x
+            median = near[k // 2] if k % 2 else 0.5 * (near[k // 2 - 1] + near[k // 2])
             if magnitudes[i] * fraction > median:
                 out[i] = median
     return out
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _split_along_axis(points: np.ndarray, weights: np.ndarray, n: int) -> np.ndarray:
     """(n, 2) weighted centroids of ``n`` parts of equal weight of ``points`` (M, 2), M >= n,
     taken in order along their weighted principal axis (equal numbers of points when one point
-    outweighs a part)."""
-    mean = (points * weights[:, None]).sum(axis=0) / weights.sum()
+    outweighs a part). The axis is the 2x2 weighted covariance's leading eigenvector, in closed
+    form."""
+    total = weights.sum()
+    mx = (points[:, 0] * weights).sum() / total
+    my = (points[:, 1] * weights).sum() / total
+    out = np.empty((n, 2))
     if n == 1:
-        return mean[None]
-    d = points - mean
-    cov = (d * weights[:, None]).T @ d
-    axis = np.linalg.eigh(cov)[1][:, -1]
-    order = np.argsort(d @ axis, kind="mergesort")
+        out[0, 0], out[0, 1] = mx, my
+        return out
+    dx = points[:, 0] - mx
+    dy = points[:, 1] - my
+    a = (weights * dx * dx).sum()
+    b = (weights * dx * dy).sum()
+    c = (weights * dy * dy).sum()
+    top = 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b * b)
+    if abs(b) > 1e-12 * (a + c + 1e-300):
+        ax, ay = top - c, b
+    elif a >= c:
+        ax, ay = 1.0, 0.0
+    else:
+        ax, ay = 0.0, 1.0
+    order = np.argsort(dx * ax + dy * ay, kind="mergesort")
     w = weights[order]
-    middle = (np.cumsum(w) - 0.5 * w) / w.sum()  # each marker's place along the axis, by weight
+    middle = (np.cumsum(w) - 0.5 * w) / total  # each marker's place along the axis, by weight
     group = np.minimum((middle * n).astype(np.int64), n - 1)
     if len(np.unique(group)) < n:  # a marker outweighs a part: parts of equal marker counts
         group = np.arange(len(order)) * n // len(order)
-    out = np.empty((n, 2))
     for g in range(n):
-        members = order[group == g]
-        w = weights[members]
-        out[g] = (points[members] * w[:, None]).sum(axis=0) / w.sum()
+        sx = sy = sw = 0.0
+        for q in range(len(order)):
+            if group[q] == g:
+                i = order[q]
+                sx += points[i, 0] * weights[i]
+                sy += points[i, 1] * weights[i]
+                sw += weights[i]
+        out[g, 0], out[g, 1] = sx / sw, sy / sw
     return out
 
 
 def plateau_contacts(
-    rest_px: np.ndarray,
+    neighbours: np.ndarray,
     current_px: np.ndarray,
     magnitudes: np.ndarray,
     peaks: np.ndarray,
@@ -370,13 +436,13 @@ def plateau_contacts(
     module docstring, "Flat tops").
 
     Args:
-        rest_px: (M, 2) float64, rest positions of the valid markers (px, image frame).
+        neighbours: (M, K) int64, the valid markers' neighbours on the gel
+            (:func:`rest_neighbours`, -1 padded).
         current_px: (M, 2) float64, their current positions (px).
         magnitudes: (M,) float64, their displacement norms ||v|| (px).
         peaks: (K,) int64, the maxima (indices into the M markers) by decreasing magnitude.
         fraction: plateau level as a fraction of its maximum's magnitude, in (0, 1).
-        pitch_px: the marker pitch (px): markers closer than 1.5 pitches at rest are neighbours,
-            and each marker stands for pitch^2 of gel.
+        pitch_px: the marker pitch (px): each marker stands for pitch^2 of gel.
         finger_radius_px: a fingertip's radius (px, the paper's r): a plateau of area A holds
             ``min(3, ceil(A / (pi r^2)))`` fingers (the paper's gestures have up to 3).
     Returns:
@@ -386,13 +452,12 @@ def plateau_contacts(
         centroids of n equal-weight parts of the plateau along its principal axis.
     """
     covered = np.zeros(len(magnitudes), dtype=bool)
-    link2 = (1.5 * pitch_px) ** 2
     kept, points = [], []
     for p in peaks:
         if covered[p]:
             continue  # on a stronger maximum's plateau: the same flat top
         level = fraction * magnitudes[p]
-        mask = _plateau(rest_px, magnitudes, int(p), level, link2)
+        mask = _plateau(neighbours, magnitudes, int(p), level)
         covered |= mask
         kept.append(int(p))
         size = int(np.count_nonzero(mask))
@@ -421,6 +486,7 @@ def detect_contacts(
     pitch_px: float = 10.0,
     maxima_at_rest: bool = False,
     spike_fraction: float | None = None,
+    neighbours: np.ndarray | None = None,
 ) -> Contacts:
     """The contact points of one window (paper, section "Contact Point Detection").
 
@@ -449,6 +515,8 @@ def detect_contacts(
             within r at rest (module docstring, "Neighbourhoods on the gel").
         spike_fraction: None: the tracked ||v|| (paper); in (0, 1]: lone markers take their
             neighbours' median (module docstring, "Lone markers").
+        neighbours: (N, K) int64, :func:`rest_neighbours` of ``rest_px`` with ``pitch_px``
+            (computed once per rest reference by the pipeline); None: computed here when needed.
     Returns:
         :class:`Contacts`. Degenerate inputs give no contact: fewer than 4 valid markers (a
         homography needs 4), or a mean displacement below ``min_mean_displacement_px``
@@ -475,8 +543,14 @@ def detect_contacts(
     cand = idx[outliers]
     candidates = np.zeros(n, dtype=bool)
     candidates[cand] = True
+    table = None
+    if spike_fraction is not None or plateau_fraction is not None:
+        if neighbours is None:
+            table = rest_neighbours(rest_ok, pitch_px)
+        else:
+            table = _valid_table(np.asarray(neighbours, dtype=np.int64), idx, n)
     if spike_fraction is not None:  # a lone marker far above its neighbours is no contact
-        magnitudes = _despiked(rest_ok, magnitudes, (1.5 * pitch_px) ** 2, spike_fraction)
+        magnitudes = _despiked(table, magnitudes, spike_fraction)
     where = rest_ok if maxima_at_rest else cur_ok  # the neighbourhoods N(i): now (paper) or on the gel at rest
     found = local_maxima(where[outliers], magnitudes[outliers], r_px, n_min)
     peaks = np.flatnonzero(outliers)[found]  # positions among the valid markers
@@ -485,7 +559,7 @@ def detect_contacts(
         peaks = moved[local_maxima(where[moved], magnitudes[moved], r_px, n_min)]
     flat: list[np.ndarray | None] = [None] * len(peaks)
     if plateau_fraction is not None and len(peaks):
-        peaks, flat = plateau_contacts(rest_ok, cur_ok, magnitudes, peaks, plateau_fraction, pitch_px, r_px)
+        peaks, flat = plateau_contacts(table, cur_ok, magnitudes, peaks, plateau_fraction, pitch_px, r_px)
     rows, points = [], []
     for i, f in zip(peaks, flat):
         if f is not None:  # a flat top: its contacts, all on its maximum's marker

@@ -307,9 +307,11 @@ def estimate_gesture(
         intensity_mm = intensity_px / sensor.px_per_mm
         translation_mm = sensor.vectors_image_to_user(similarity.translation_px)
     else:  # the camera model: each displacement and the translation in mm where they are
-        v_mm = sensor.image_to_user(cur_a) - sensor.image_to_user(rest_a)
+        k = len(cur_a)
+        mm = sensor.image_to_user(np.vstack([cur_a, rest_a, origin, origin + similarity.translation_px]))
+        v_mm = mm[:k] - mm[k : 2 * k]
         intensity_mm = _intensity(np.hypot(v_mm[:, 0], v_mm[:, 1]), cur_a, contacts, intensity_sigma_px)
-        translation_mm = sensor.image_to_user(origin + similarity.translation_px) - sensor.image_to_user(origin)
+        translation_mm = mm[-1] - mm[-2]
     return GestureResult(
         gesture=classify(similarity, r_px, sensor, origin_radius_px),
         intensity_px=intensity_px,

@@ -56,7 +56,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validat
 from neurotouch_hid.camera_model import fit_camera_model
 from neurotouch_hid.errors import SensorError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.pipeline.contacts import HOMOGRAPHY_METHODS, detect_contacts
+from neurotouch_hid.pipeline.contacts import HOMOGRAPHY_METHODS, detect_contacts, rest_neighbours
 from neurotouch_hid.pipeline.gesture import EpisodeVote, estimate_gesture
 from neurotouch_hid.pipeline.markers import MARKER_SPACING_MM, detect_markers, looks_like_marker_grid
 from neurotouch_hid.pipeline.noise import EventNoiseFilter, check_noise_filter
@@ -441,6 +441,8 @@ class GesturePipeline:
         self._previous_frame: Frame | None = None
         #: the current gesture episode's decision (episode_vote)
         self._episode = EpisodeVote()
+        #: (rest_px, its contacts.rest_neighbours), computed on first use
+        self._neighbours: tuple[np.ndarray, np.ndarray] | None = None
         #: the last window's fit: (rest_px, current, valid, contacts, gesture result)
         self._last_fit: tuple | None = None
         #: the optional noise filter in front of the tracker (one per pipeline, its state kept
@@ -791,6 +793,7 @@ class GesturePipeline:
             pitch_px=c.marker_pitch_px,
             maxima_at_rest=c.maxima_at_rest,
             spike_fraction=c.spike_fraction,
+            neighbours=self._rest_neighbours(rest_px),
         )
         self._record("contacts", begin)
         begin = self._clock()
@@ -809,6 +812,16 @@ class GesturePipeline:
         )
         self._record("gesture", begin)
         return contacts, result
+
+    def _rest_neighbours(self, rest_px: np.ndarray) -> np.ndarray | None:
+        """The markers' neighbours on the gel (``contacts.rest_neighbours``), once per rest
+        reference; None when no contact option needs them."""
+        c = self.config
+        if c.plateau_fraction is None and c.spike_fraction is None:
+            return None
+        if self._neighbours is None or self._neighbours[0] is not rest_px:
+            self._neighbours = (rest_px, rest_neighbours(rest_px, c.marker_pitch_px))
+        return self._neighbours[1]
 
     def _clock(self) -> tuple[int, int] | None:
         if self.timings is None:
