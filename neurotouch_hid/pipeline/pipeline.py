@@ -103,6 +103,9 @@ class PipelineConfig(BaseModel):
     - ``intensity_sigma_px`` 3 (paper: uniform mean over A): intensity MAE 1.36 -> 0.28 mm.
     - ``field_fallback`` on: gesture accuracy +1.8 points (wide multi-finger pushes).
     - ``contact_refine_px`` 20: contact distance error 2.76 -> 1.82 mm.
+    - ``plateau_fraction`` 0.8, ``maxima_at_rest``, ``spike_fraction`` 0.6 and ``camera_model``
+      (issue 9, round 3) were decided on the development physics families instead
+      (docs/accuracy.md, "Round 3: contact points and the camera model"), each below.
     - ``origin_radius_px`` 10 (one marker pitch): gesture accuracy 95.24 -> 95.62 % (5 px:
       95.51, 15: 95.37, 25: 94.87 -- larger radii let a push's rotation noise cancel its
       translation).
