@@ -22,6 +22,7 @@ PAPER = {
     "plateau_fraction": None,
     "maxima_at_rest": False,
     "spike_fraction": None,
+    "gesture_classifier": False,
     "origin_radius_px": None,
     "motion_override_px": None,
     "noise_filter": None,
