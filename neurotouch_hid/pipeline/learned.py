@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 
 from neurotouch_hid.estimate import GestureType
@@ -71,21 +72,13 @@ def gesture_features(
     total = s_t + r_t + t_t + 1e-9
     rotation = sensor.rotation_image_to_user(-sim.rotation_rad)
     contacts = np.asarray(contacts_px, dtype=np.float64).reshape(-1, 2)
-    radial = tangential = 0.0
-    if len(contacts) > 1:
-        moved = np.where(valid[:, None], current_px, np.inf)
-        nearest = [int(np.argmin(np.hypot(moved[:, 0] - q[0], moved[:, 1] - q[1]))) for q in contacts]
-        at_rest = rest_px[nearest]
-        motion = current_px[nearest] - at_rest
-        motion = motion - motion.mean(axis=0)  # relative to the contacts' common motion
-        out = at_rest - at_rest.mean(axis=0)
-        for u, v in zip(out, motion):
-            nu, nv = math.hypot(u[0], u[1]) + 1e-9, math.hypot(v[0], v[1]) + 1e-9
-            radial += (v[0] * u[0] + v[1] * u[1]) / (nu * nv)
-            # counter-clockwise as displayed (y down): the tangent (u_y, -u_x) / |u|
-            tangential += sensor.rotation_image_to_user((v[0] * u[1] - v[1] * u[0]) / (nu * nv))
-        radial /= len(contacts)
-        tangential /= len(contacts)
+    radial, turning = _relative_motion(
+        contacts,
+        np.ascontiguousarray(rest_px, dtype=np.float64),
+        np.ascontiguousarray(current_px, dtype=np.float64),
+        np.ascontiguousarray(valid, dtype=np.bool_),
+    )
+    tangential = sensor.rotation_image_to_user(turning)
     return np.array(
         [
             s_t / total,
@@ -99,6 +92,48 @@ def gesture_features(
             math.log1p(result.intensity_px),
         ]
     )
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _relative_motion(contacts: np.ndarray, rest: np.ndarray, current: np.ndarray, valid: np.ndarray):
+    """(radial, tangential) of :func:`gesture_features`, the tangential one counter-clockwise as
+    displayed (image frame); (0, 0) for fewer than 2 contacts. For each contact (K, 2) px, the
+    valid marker nearest to it now; its displacement less the mean of those displacements,
+    against its rest position less the mean of those rest positions."""
+    k = len(contacts)
+    if k < 2:
+        return 0.0, 0.0
+    nearest = np.empty(k, dtype=np.int64)
+    for c in range(k):
+        best, best_d = -1, np.inf
+        for i in range(len(current)):
+            if valid[i]:
+                dx = current[i, 0] - contacts[c, 0]
+                dy = current[i, 1] - contacts[c, 1]
+                d = dx * dx + dy * dy
+                if d < best_d:
+                    best, best_d = i, d
+        nearest[c] = best
+    if nearest.min() < 0:
+        return 0.0, 0.0
+    mu = np.zeros(2)
+    mv = np.zeros(2)
+    for c in range(k):
+        i = nearest[c]
+        mu += rest[i]
+        mv += current[i] - rest[i]
+    mu /= k
+    mv /= k
+    radial = turning = 0.0
+    for c in range(k):
+        i = nearest[c]
+        ux, uy = rest[i, 0] - mu[0], rest[i, 1] - mu[1]
+        vx, vy = current[i, 0] - rest[i, 0] - mv[0], current[i, 1] - rest[i, 1] - mv[1]
+        nu = np.sqrt(ux * ux + uy * uy) + 1e-9
+        nv = np.sqrt(vx * vx + vy * vy) + 1e-9
+        radial += (vx * ux + vy * uy) / (nu * nv)
+        turning += (vx * uy - vy * ux) / (nu * nv)  # along the tangent (u_y, -u_x): counter-clockwise as displayed
+    return radial / k, turning / k
 
 
 #: The classes of :mod:`gesture_model`'s rows, in order.
