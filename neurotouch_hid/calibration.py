@@ -25,6 +25,11 @@ step here is scale-free:
    towards the rim (in the simulator the median spacing over the whole grid is ~15 % short),
    so it is the median length of the :data:`CENTRE_PAIRS` neighbouring-marker pairs nearest the
    centre (the edges of the central 3x3 block of the grid), divided by 4 mm.
+   **Camera model** -- then the radial camera model of :mod:`neurotouch_hid.camera_model` is
+   fitted to the grid (each marker's index on the 4 mm grid laid on the dome, against its image
+   radius): sensor.yaml gets its px_per_mm at the centre and ``radial_k``, which map image px to
+   gel mm over the whole gel (not in the paper; a note says so when the markers do not index
+   as the grid, and the linear scale stays).
 5. **Rest layout** -- the markers of the averaged rest frame are written to sensor.yaml as
    ``rest_markers_px`` (image px): the pipeline refuses a first frame whose markers are off this
    layout (a run that starts with the gel pressed; ``PipelineConfig.rest_match_pitch``).
@@ -48,6 +53,7 @@ import cv2
 import numpy as np
 import yaml
 
+from neurotouch_hid.camera_model import fit_camera_model
 from neurotouch_hid.errors import SensorError
 from neurotouch_hid.pipeline.markers import (
     MARKER_SPACING_MM,
@@ -210,6 +216,14 @@ def calibrate(
         gel_radius_px=round(radius, 2),
         extra={"rest_markers_px": [[round(float(x), 2), round(float(y), 2)] for x, y in points]},
     )
+    fitted = fit_camera_model(points, sensor)
+    if fitted is None:
+        notes.append(
+            f"the markers do not index as a {MARKER_SPACING_MM:g} mm grid on the dome: no camera model "
+            "(radial_k), one px_per_mm over the whole gel"
+        )
+    else:
+        sensor = fitted
     return Calibration(
         sensor,
         points,

@@ -567,6 +567,14 @@ def calibrate(
         f"scale: {geometry.px_per_mm:.4f} px/mm at the centre "
         f"(neighbouring markers there {result.spacing_px:.2f} px = 4 mm apart)"
     )
+    if geometry.radial_k is not None:
+        edge = geometry.gel_radius_px
+        rim = geometry.image_to_user([[geometry.gel_center_px[0] + edge, geometry.gel_center_px[1]]])[0]
+        say(
+            f"camera model: radial_k {geometry.radial_k[0]:g}, {geometry.radial_k[1]:g} "
+            f"(fitted to the 4 mm grid on the dome; the gel circle's rim at {math.hypot(*rim):.2f} mm "
+            f"from the centre, {edge / geometry.px_per_mm:.2f} mm at the centre's scale)"
+        )
     say(f"markers: {result.n_markers} found, {markers} expected")
     interactive = sys.stdin.isatty()
     if mirror is None and interactive:

@@ -6,8 +6,16 @@ millimetres, x right, y up, origin at the gel's centre. The camera looks at the 
 (paper, section "System Overview"), so the image is the mirror of what the user sees::
 
     d = ((u - cx), -(v - cy)) / px_per_mm          # image as displayed, y up, mm
+    d = d (1 + k1 x^2 + k2 x^4)   with radial_k     # the camera model, x = image radius / gel radius
     d = (-d.x, d.y)            if mirror            # the camera looks from inside
     user = rotate(d, rotation_deg)                  # counter-clockwise, degrees
+
+The camera model (``radial_k`` = (k1, k2), not in the paper): the dome's rim is nearer the
+camera than its apex and the lens distorts, so px/mm is not one number over the image. A
+radial polynomial about the gel's centre (Brown-Conrady's radial terms, Brown 1966, here from
+image to gel) maps the image radius to the user frame's radius; ``calibrate`` (and the pipeline,
+from its rest frame, when sensor.yaml has none) fits it to the 4 mm marker grid at rest
+(:mod:`neurotouch_hid.camera_model`). Without it (None) the mapping is the linear one above.
 """
 
 from __future__ import annotations
@@ -41,6 +49,7 @@ class SensorFile(TypedDict, total=False):
     gel_radius_px: Annotated[float, Field(gt=0)]
     mirror: StrictBool
     rotation_deg: float
+    radial_k: tuple[float, float]
 
 
 _SENSOR_FILE = TypeAdapter(SensorFile)
@@ -68,6 +77,8 @@ class SensorGeometry:
         gel_radius_px: radius of the gel's visible disc in the image (px).
         mirror: True when the camera sees the gel from inside (the image is mirrored).
         rotation_deg: counter-clockwise rotation from mirrored image to user frame (degrees).
+        radial_k: (k1, k2), the camera model's radial terms (module docstring), or None: the
+            linear mapping (one px_per_mm).
     """
 
     width: int = DAVIS346_WIDTH
@@ -77,6 +88,7 @@ class SensorGeometry:
     gel_radius_px: float = 75.0
     mirror: bool = True
     rotation_deg: float = 0.0
+    radial_k: tuple[float, float] | None = None
     extra: dict = field(default_factory=dict, compare=False, repr=False)
 
     # --- loading and saving -------------------------------------------------------------
@@ -122,6 +134,10 @@ class SensorGeometry:
         data = asdict(self)
         extra = data.pop("extra")
         data["gel_center_px"] = [float(c) for c in self.gel_center_px]
+        if self.radial_k is None:
+            del data["radial_k"]  # the linear mapping: the file stays as docs/dataset.md's
+        else:
+            data["radial_k"] = [float(k) for k in self.radial_k]
         data.update(extra)
         return data
 
@@ -165,8 +181,18 @@ class SensorGeometry:
             d[..., 0] = -d[..., 0]
         return np.stack([d[..., 0], -d[..., 1]], axis=-1) * self.px_per_mm
 
+    def radial_gain(self, radius_px: np.ndarray) -> np.ndarray:
+        """(...) float64, the camera model's factor ``1 + k1 x^2 + k2 x^4`` at image radii (...)
+        px from the gel's centre (x = radius / gel_radius_px); 1 without a camera model."""
+        x2 = (np.asarray(radius_px, dtype=np.float64) / self.gel_radius_px) ** 2
+        if self.radial_k is None:
+            return np.ones_like(x2)
+        k1, k2 = self.radial_k
+        return 1.0 + k1 * x2 + k2 * x2 * x2
+
     def image_to_user(self, points_px: np.ndarray) -> np.ndarray:
-        """Convert points from the image frame (px) to the user frame (mm), docs/dataset.md formula.
+        """Convert points from the image frame (px) to the user frame (mm), docs/dataset.md formula
+        (with the camera model, ``radial_k``, when there is one).
 
         Args:
             points_px: (..., 2) float, (u, v) image px.
@@ -174,11 +200,26 @@ class SensorGeometry:
             (..., 2) float64, user frame mm, origin at the gel's centre.
         """
         p = np.asarray(points_px, dtype=np.float64) - np.asarray(self.gel_center_px)
+        if self.radial_k is not None:
+            p = p * self.radial_gain(np.hypot(p[..., 0], p[..., 1]))[..., None]
         return self.vectors_image_to_user(p)
 
     def user_to_image(self, points_mm: np.ndarray) -> np.ndarray:
-        """Inverse of :meth:`image_to_user`: (..., 2) user mm -> (..., 2) image px."""
-        return self.vectors_user_to_image(points_mm) + np.asarray(self.gel_center_px)
+        """Inverse of :meth:`image_to_user`: (..., 2) user mm -> (..., 2) image px (the camera
+        model inverted by Newton's method on the radius: 8 steps, far below 1e-6 px)."""
+        p = self.vectors_user_to_image(points_mm)
+        if self.radial_k is not None:
+            target = np.hypot(p[..., 0], p[..., 1])  # = r g(r), solved for the image radius r
+            r = target.copy()
+            k1, k2 = self.radial_k
+            x = 1.0 / self.gel_radius_px
+            for _ in range(8):
+                f = r * self.radial_gain(r) - target
+                df = 1.0 + 3.0 * k1 * (r * x) ** 2 + 5.0 * k2 * (r * x) ** 4
+                r = r - f / df
+            scale = np.where(target > 0, r / np.where(target > 0, target, 1.0), 1.0)
+            p = p * scale[..., None]
+        return p + np.asarray(self.gel_center_px)
 
     def rotation_image_to_user(self, angle_rad: float) -> float:
         """A rotation angle measured in the image frame (counter-clockwise as displayed, i.e.

@@ -3,6 +3,7 @@ recording, frames without a gel), and where run, track and eval then find it."""
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import os
@@ -227,3 +228,25 @@ def test_calibrate_command_refuses_a_scene_without_gel_in_one_line():
     assert done.returncode == 2
     assert "no gel in view" in done.stderr and len(done.stderr.strip().splitlines()) == 1
     assert not user_sensor_path().exists()
+
+
+def test_calibrate_fits_the_camera_model_that_the_perspective_camera_needs(tmp_path):
+    """The ``camera`` physics family (a pinhole under the dome, barrel distortion): one px_per_mm
+    misplaces gel points by up to ~1 mm; the camera model fitted to the rest grid puts them
+    within 0.1 mm, and sensor.yaml keeps it."""
+    from neurotouch_hid.sources.physics import PHYSICS, DomeCamera
+
+    dataset = write_dataset(
+        tmp_path / "camera", users=[0], gestures=[GestureType.PUSH], minutes=0.01, progress=False, physics="camera"
+    )
+    nominal = SensorGeometry.load(dataset / "sensor.yaml")
+    result = calibrate(read_rest_frames(dataset / "u0_push.aedat4"))
+    camera = DomeCamera(nominal, PHYSICS["camera"])
+    gel_mm = np.array([[0.5, 0.0], [0.0, 10.0], [-20.0, 0.0], [15.0, 20.0], [0.0, -28.0]])
+    image = camera.project(gel_mm)
+    linear = dataclasses.replace(result.sensor, radial_k=None)
+    assert np.abs(linear.image_to_user(image) - gel_mm).max() > 0.8
+    assert np.abs(result.sensor.image_to_user(image) - gel_mm).max() < 0.1
+    np.testing.assert_allclose(result.sensor.user_to_image(result.sensor.image_to_user(image)), image, atol=1e-6)
+    result.sensor.save(tmp_path / "sensor.yaml")
+    assert SensorGeometry.load(tmp_path / "sensor.yaml").radial_k == result.sensor.radial_k

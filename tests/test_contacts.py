@@ -150,3 +150,120 @@ def test_refinement_keeps_the_marker_without_a_maximum_or_enough_markers():
     np.testing.assert_allclose(refine_peak(rest, flat, peak, 15.0), rest[peak] + [3.0, 0.0])
     few = bump(rest, rest[peak], (3.0, 0.0))
     np.testing.assert_allclose(refine_peak(rest, few, peak, 9.0), rest[peak] + few[peak])  # 5 markers only
+
+
+def three_finger_push(noise_px: float = 0.15, seed: int = 0):
+    """Three fingers on a line, 35 px (14 mm) apart, pushing together: their blended falloffs
+    carry the gel between them as one flat top (the displacement saturates at the fingers'),
+    with tracker noise on it. Returns rest, current, the fingers' current positions."""
+    rest = grid()
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    fingers = c + np.array([[-25.0, -25.0], [0.0, 0.0], [25.0, 25.0]])
+    reach = sum(np.exp(-np.sum((rest - f) ** 2, axis=1) / (2 * 22.0**2)) for f in fingers)
+    direction = np.array([8.0, -6.0])
+    rng = np.random.default_rng(seed)
+    cur = rest + np.minimum(reach, 1.0)[:, None] * direction + rng.normal(0.0, noise_px, rest.shape)
+    return rest, cur, fingers + direction
+
+
+def test_a_flat_top_of_three_fingers_gives_three_contacts_on_them_not_random_maxima():
+    # the paper's rule (and the fallback): any marker of the plateau may be the largest within r
+    # in the noise, so the flat top yields maxima at random places, not three contacts on the fingers
+    old_counts, old_errors = [], []
+    for seed in range(5):
+        rest, cur, fingers = three_finger_push(seed=seed)
+        old = detect_contacts(rest, cur, r_px=25.0, n_min=12, field_fallback=True, refine_px=20.0)
+        new = detect_contacts(rest, cur, r_px=25.0, n_min=12, field_fallback=True, refine_px=20.0, plateau_fraction=0.8)
+        old_counts.append(old.count)
+        if old.count:
+            old_errors.append(np.mean([np.min(np.linalg.norm(fingers - p, axis=1)) for p in old.points_px]))
+        assert new.count == 3
+        error = [np.min(np.linalg.norm(fingers - p, axis=1)) for p in new.points_px]
+        assert max(error) < 10.0  # within one marker pitch of a finger
+        assert sorted(np.argmin(np.linalg.norm(fingers[None] - new.points_px[:, None], axis=2), axis=1)) == [0, 1, 2]
+    assert sum(n != 3 for n in old_counts) >= 3  # the old rule miscounts most of them
+    assert np.mean(old_errors) > 10.0
+
+
+def test_maxima_on_one_stuck_disc_merge_into_its_centre():
+    # a stuck contact disc (Cattaneo-Mindlin) carries the gel under it rigidly: a plateau of
+    # radius 16 px, falling off outside; two maxima (tracker noise) on its rim, more than r apart,
+    # are one contact, at its centre
+    rest = grid()
+    centre = np.asarray(SENSOR.gel_center_px, dtype=float) + [5.0, 0.0]
+    d = np.linalg.norm(rest - centre, axis=1)
+    fall = np.where(d <= 16.0, 1.0, np.exp(-((d - 16.0) ** 2) / (2 * 10.0**2)))
+    cur = rest + fall[:, None] * [6.0, 0.0]
+    on_disc = np.flatnonzero(d <= 16.0)
+    far = [on_disc[np.argmin(rest[on_disc, 0])], on_disc[np.argmax(rest[on_disc, 0])]]  # its left and right ends
+    assert np.linalg.norm(rest[far[0]] - rest[far[1]]) > 25.0
+    cur[far] += [0.2, 0.0]
+    old = detect_contacts(rest, cur, r_px=25.0, n_min=4, refine_px=20.0)
+    new = detect_contacts(rest, cur, r_px=25.0, n_min=4, refine_px=20.0, plateau_fraction=0.8)
+    assert old.count >= 2 or np.linalg.norm(old.points_px[0] - (centre + [6.0, 0.0])) > 5.0
+    assert new.count == 1
+    assert np.linalg.norm(new.points_px[0] - (centre + [6.0, 0.0])) < 3.0
+
+
+def test_a_plateau_rule_leaves_a_finger_peak_and_two_separate_fingers_alone():
+    rest = grid()
+    centre = np.asarray(SENSOR.gel_center_px, dtype=float) + [3.0, -3.0]
+    cur = rest + bump(rest, centre, (6.0, -3.0))
+    a = detect_contacts(rest, cur, refine_px=15.0)
+    b = detect_contacts(rest, cur, refine_px=15.0, plateau_fraction=0.8)
+    np.testing.assert_array_equal(a.points_px, b.points_px)
+    c1, c2 = np.array([143.0, 130.0]), np.array([203.0, 130.0])
+    cur = rest + bump(rest, c1, (5.0, 0.0)) + bump(rest, c2, (-5.0, 0.0))
+    np.testing.assert_array_equal(
+        detect_contacts(rest, cur).points_px, detect_contacts(rest, cur, plateau_fraction=0.8).points_px
+    )
+
+
+def test_a_pinch_that_brings_two_fingers_within_r_keeps_two_contacts_with_neighbourhoods_at_rest():
+    # two fingers 60 px apart on the gel pinch 20 px each: their contact markers end 20 px apart
+    # in the image, closer than r = 25 px, so the paper's N(i) (current positions) holds both and
+    # only the stronger is a maximum; on the gel (rest positions) they stay 60 px apart
+    rest = grid()
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    left, right = c + [-30.0, 0.0], c + [30.0, 0.0]
+    cur = rest + bump(rest, left, (20.0, 0.0), sigma=10.0) + bump(rest, right, (-19.0, 0.0), sigma=10.0)
+    options = dict(r_px=25.0, n_min=4, field_fallback=True)
+    paper = detect_contacts(rest, cur, **options)
+    on_gel = detect_contacts(rest, cur, **options, maxima_at_rest=True)
+    assert paper.count == 1
+    assert on_gel.count == 2
+    found = sorted(on_gel.points_px[:, 0])
+    np.testing.assert_allclose(found, [c[0] - 10.0, c[0] + 11.0], atol=1e-6)
+
+
+def test_a_lone_mistracked_marker_is_no_contact_and_hides_no_finger():
+    # one finger (5 px) and, 20 px from it (within r), a marker the tracker pulled 7 px (a hot
+    # pixel): the paper's rule takes the lone marker as the contact, which also suppresses the
+    # finger's peak; with its neighbours' median instead, the finger is the contact
+    rest = grid()
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    cur = rest + bump(rest, c, (5.0, 0.0))
+    lone = int(np.argmin(np.linalg.norm(rest - (c + [20.0, 0.0]), axis=1)))
+    cur[lone] += [0.0, 7.0]
+    options = dict(r_px=25.0, n_min=4, field_fallback=True)
+    paper = detect_contacts(rest, cur, **options)
+    despiked = detect_contacts(rest, cur, **options, spike_fraction=0.6)
+    assert lone in paper.indices.tolist()
+    assert np.min(np.linalg.norm(paper.points_px - (c + [5.0, 0.0]), axis=1)) > 5.0
+    assert despiked.count == 1
+    np.testing.assert_allclose(despiked.points_px[0], c + [5.0, 0.0], atol=1e-6)
+
+
+def test_neighbours_given_once_per_reference_match_those_computed_per_window_with_lost_markers():
+    from neurotouch_hid.pipeline.contacts import rest_neighbours
+
+    rest, cur, _ = three_finger_push(seed=3)
+    valid = np.ones(len(rest), dtype=bool)
+    valid[::7] = False  # lost markers: their rows and entries drop out
+    options = dict(r_px=25.0, n_min=12, field_fallback=True, refine_px=20.0, plateau_fraction=0.8, spike_fraction=0.6)
+    table = rest_neighbours(rest, 10.0)
+    assert table.shape == (len(rest), 8)  # a square grid's 8 nearest within 1.5 pitches
+    given = detect_contacts(rest, cur, valid, **options, neighbours=table)
+    computed = detect_contacts(rest, cur, valid, **options)
+    np.testing.assert_array_equal(given.points_px, computed.points_px)
+    assert given.count >= 2  # the lost markers take part of the plateau's area

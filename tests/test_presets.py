@@ -21,6 +21,10 @@ PAPER = {
     "intensity_sigma_px": None,
     "field_fallback": False,
     "contact_refine_px": None,
+    "plateau_fraction": None,
+    "maxima_at_rest": False,
+    "spike_fraction": None,
+    "gesture_classifier": False,
     "origin_radius_px": None,
     "motion_override_px": None,
     "override_smooth": False,
@@ -28,6 +32,7 @@ PAPER = {
     "noise_filter": None,
     "rest_match_pitch": None,
     "follow_px_per_mm": False,
+    "camera_model": False,
     "episode_vote": False,
 }
 

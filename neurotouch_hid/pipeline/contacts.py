@@ -26,11 +26,43 @@ surface to ||v|| and to v over the markers within ``refine_px`` of the peak mark
 positions), takes the surface's maximum (when it is one, near the peak marker) and returns where
 that gel point is now (its rest position plus the fitted v there).
 
+Flat tops (not in the paper, ``plateau_fraction``): the paper's contact is a marker whose
+displacement is the largest within r. Where several fingers push together, or a stuck contact
+disc carries the gel under it rigidly (Cattaneo-Mindlin partial slip), the field's maximum is a
+plateau several markers wide, flat to within the tracker's noise: any of its markers may be
+the largest within r, so one plateau yields maxima at random places on it (measured on the
+development families: a 3-finger push reads as 4-6 contacts, its contact distance 5-6.5 mm).
+:func:`plateau_contacts` merges the maxima that lie on one plateau -- the markers connected to
+the strongest maximum (neighbours within 1.5 marker pitches at rest) whose displacement is at
+least ``plateau_fraction`` x its own, i.e. maxima whose topographic prominence is below
+``1 - plateau_fraction`` of the peak. A plateau of more than :data:`PLATEAU_MARKERS` markers is
+a flat top: it holds one finger per fingertip footprint (pi r^2, the paper's r being "the
+typical radius of a fingertip") of its area, at most 3, placed at the weighted centroids of
+equal parts of the plateau along its principal axis (weights: how far each marker rises above
+the plateau's level); a smaller plateau is a finger's peak and keeps its contact as before.
+
+Neighbourhoods on the gel (not in the paper, ``maxima_at_rest``): the paper's N(i) holds the
+candidates within r of marker i's *current* position. A pinch brings two fingers, and the gel
+under them, together: when their contact markers come within r of each other in the image,
+the weaker one is no maximum any more and the pinch reads as one contact (measured on the
+development families: most of the 2 -> 1 errors of ``strong`` and ``drift`` pinches, where the
+markers between the fingers are squeezed together). With ``maxima_at_rest`` N(i) is taken over
+the rest positions: markers within r on the gel, which a deformation does not bring together.
+
+Lone markers (not in the paper, ``spike_fraction``): a finger's footprint is wider than the
+4 mm marker pitch, so the markers next to a contact move nearly as much as it does. A single
+marker far above all its neighbours is the tracker's error (a hot pixel or background activity
+pulled its blob: the ``noise`` family), and the paper's rule makes it a contact, or lets it
+suppress a real one within r. With ``spike_fraction`` a marker displaced more than
+1 / spike_fraction times the median of its neighbours (rest positions within 1.5 pitches) takes
+that median in this stage (maxima, plateaus, refinement; the intensity still reads its own).
+
 Everything here is in the image frame (px).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -44,7 +76,7 @@ class Contacts:
 
     Attributes:
         indices: (K,) int64, indices of the markers that are contact points (ordered by
-            decreasing displacement).
+            decreasing displacement; the contacts of one plateau all give its maximum's marker).
         points_px: (K, 2) float64, their current positions, image frame (px) (sub-marker
             refined ones with ``refine_px``, see :func:`refine_peak`).
         candidates: (N,) bool, the RANSAC outliers S (False for markers not valid).
@@ -243,6 +275,200 @@ def _fit_inputs(
     return design[:k].copy(), values[:k].copy()
 
 
+#: A plateau of more markers than this is a flat top: its contact is its centroid (a finger's
+#: Gaussian-like peak holds 2-5 markers above 90 % of its maximum on the development families).
+PLATEAU_MARKERS = 6
+#: Most fingers one plateau is read as (paper, "Creation of the Gesture Detection Dataset":
+#: gestures with up to 3 fingers).
+MAX_FINGERS = 3
+
+
+def rest_neighbours(rest_px: np.ndarray, pitch_px: float) -> np.ndarray:
+    """Each marker's neighbours on the gel: the markers whose rest positions are closer than 1.5
+    marker pitches (a square grid's 8 nearest), for the plateaus and the lone markers.
+
+    Args:
+        rest_px: (M, 2) float, rest positions (px, image frame).
+        pitch_px: the marker pitch (px).
+    Returns:
+        (M, K) int64, row i the indices of marker i's neighbours (itself excluded), padded
+        with -1; K is the largest neighbour count (at least 1).
+    """
+    rest = np.ascontiguousarray(rest_px, dtype=np.float64)
+    return _neighbour_table(rest, (1.5 * float(pitch_px)) ** 2)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _neighbour_table(rest: np.ndarray, link2: float) -> np.ndarray:
+    """:func:`rest_neighbours` with ``link2`` = (1.5 pitch)^2 (px^2)."""
+    m = len(rest)
+    counts = np.zeros(m, dtype=np.int64)
+    for i in range(m):
+        for j in range(m):
+            if j != i:
+                dx = rest[i, 0] - rest[j, 0]
+                dy = rest[i, 1] - rest[j, 1]
+                if dx * dx + dy * dy <= link2:
+                    counts[i] += 1
+    width = max(1, counts.max()) if m else 1
+    table = np.full((m, width), -1, dtype=np.int64)
+    for i in range(m):
+        k = 0
+        for j in range(m):
+            if j != i:
+                dx = rest[i, 0] - rest[j, 0]
+                dy = rest[i, 1] - rest[j, 1]
+                if dx * dx + dy * dy <= link2:
+                    table[i, k] = j
+                    k += 1
+    return table
+
+
+def _valid_table(neighbours: np.ndarray, idx: np.ndarray, n: int) -> np.ndarray:
+    """``neighbours`` (N, K) over all N markers restricted to the valid ones ``idx``: rows of the
+    valid markers, entries renumbered among them, lost neighbours -1."""
+    position = np.full(n + 1, -1, dtype=np.int64)  # position[-1] = -1 keeps the padding
+    position[idx] = np.arange(len(idx))
+    return position[neighbours[idx]]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _plateau(table: np.ndarray, magnitudes: np.ndarray, seed: int, level: float) -> np.ndarray:
+    """(M,) bool: the markers connected to ``seed`` through neighbours (``table``, see
+    :func:`rest_neighbours`) whose magnitude is at least ``level`` (breadth-first)."""
+    m = len(magnitudes)
+    inside = np.zeros(m, dtype=np.bool_)
+    queue = np.empty(m, dtype=np.int64)
+    inside[seed] = True
+    queue[0] = seed
+    head, tail = 0, 1
+    while head < tail:
+        i = queue[head]
+        head += 1
+        for j in table[i]:
+            if j < 0 or inside[j] or magnitudes[j] < level:
+                continue
+            inside[j] = True
+            queue[tail] = j
+            tail += 1
+    return inside
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _despiked(table: np.ndarray, magnitudes: np.ndarray, fraction: float) -> np.ndarray:
+    """(M,) magnitudes where a marker displaced more than 1 / ``fraction`` times the median of its
+    neighbours (``table``, see :func:`rest_neighbours`; at least 2 of them) takes that median."""
+    out = magnitudes.copy()
+    near = np.empty(table.shape[1])
+    for i in range(len(magnitudes)):
+        k = 0
+        for j in table[i]:
+            if j >= 0:
+                near[k] = magnitudes[j]
+                k += 1
+        if k >= 2:
+            for q in range(1, k):  # insertion sort of the (<= 8) neighbours
+                x = near[q]
+                r = q - 1
+                while r >= 0 and near[r] > x:
+                    near[r + 1] = near[r]
+                    r -= 1
+                near[r + 1] = x
+            median = near[k // 2] if k % 2 else 0.5 * (near[k // 2 - 1] + near[k // 2])
+            if magnitudes[i] * fraction > median:
+                out[i] = median
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _split_along_axis(points: np.ndarray, weights: np.ndarray, n: int) -> np.ndarray:
+    """(n, 2) weighted centroids of ``n`` parts of equal weight of ``points`` (M, 2), M >= n,
+    taken in order along their weighted principal axis (equal numbers of points when one point
+    outweighs a part). The axis is the 2x2 weighted covariance's leading eigenvector, in closed
+    form."""
+    total = weights.sum()
+    mx = (points[:, 0] * weights).sum() / total
+    my = (points[:, 1] * weights).sum() / total
+    out = np.empty((n, 2))
+    if n == 1:
+        out[0, 0], out[0, 1] = mx, my
+        return out
+    dx = points[:, 0] - mx
+    dy = points[:, 1] - my
+    a = (weights * dx * dx).sum()
+    b = (weights * dx * dy).sum()
+    c = (weights * dy * dy).sum()
+    top = 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b * b)
+    if abs(b) > 1e-12 * (a + c + 1e-300):
+        ax, ay = top - c, b
+    elif a >= c:
+        ax, ay = 1.0, 0.0
+    else:
+        ax, ay = 0.0, 1.0
+    order = np.argsort(dx * ax + dy * ay, kind="mergesort")
+    w = weights[order]
+    middle = (np.cumsum(w) - 0.5 * w) / total  # each marker's place along the axis, by weight
+    group = np.minimum((middle * n).astype(np.int64), n - 1)
+    if len(np.unique(group)) < n:  # a marker outweighs a part: parts of equal marker counts
+        group = np.arange(len(order)) * n // len(order)
+    for g in range(n):
+        sx = sy = sw = 0.0
+        for q in range(len(order)):
+            if group[q] == g:
+                i = order[q]
+                sx += points[i, 0] * weights[i]
+                sy += points[i, 1] * weights[i]
+                sw += weights[i]
+        out[g, 0], out[g, 1] = sx / sw, sy / sw
+    return out
+
+
+def plateau_contacts(
+    neighbours: np.ndarray,
+    current_px: np.ndarray,
+    magnitudes: np.ndarray,
+    peaks: np.ndarray,
+    fraction: float,
+    pitch_px: float,
+    finger_radius_px: float,
+) -> tuple[np.ndarray, list[np.ndarray | None]]:
+    """Merge the displacement maxima that lie on one plateau; a wide plateau's contacts (see the
+    module docstring, "Flat tops").
+
+    Args:
+        neighbours: (M, K) int64, the valid markers' neighbours on the gel
+            (:func:`rest_neighbours`, -1 padded).
+        current_px: (M, 2) float64, their current positions (px).
+        magnitudes: (M,) float64, their displacement norms ||v|| (px).
+        peaks: (K,) int64, the maxima (indices into the M markers) by decreasing magnitude.
+        fraction: plateau level as a fraction of its maximum's magnitude, in (0, 1).
+        pitch_px: the marker pitch (px): each marker stands for pitch^2 of gel.
+        finger_radius_px: a fingertip's radius (px, the paper's r): a plateau of area A holds
+            ``min(3, ceil(A / (pi r^2)))`` fingers (the paper's gestures have up to 3).
+    Returns:
+        (kept, points): the kept maxima (K' <= K, int64, by decreasing magnitude) and, for each,
+        None (a plateau of at most :data:`PLATEAU_MARKERS` markers: the caller places its
+        contact) or (n, 2) float64 contact points (px, current positions): the weighted
+        centroids of n equal-weight parts of the plateau along its principal axis.
+    """
+    covered = np.zeros(len(magnitudes), dtype=bool)
+    kept, points = [], []
+    for p in peaks:
+        if covered[p]:
+            continue  # on a stronger maximum's plateau: the same flat top
+        level = fraction * magnitudes[p]
+        mask = _plateau(neighbours, magnitudes, int(p), level)
+        covered |= mask
+        kept.append(int(p))
+        size = int(np.count_nonzero(mask))
+        if size > PLATEAU_MARKERS:
+            fingers = min(MAX_FINGERS, max(1, math.ceil(size * pitch_px**2 / (math.pi * finger_radius_px**2))))
+            points.append(_split_along_axis(current_px[mask], magnitudes[mask] - level + 1e-9, fingers))
+        else:
+            points.append(None)
+    return np.array(kept, dtype=np.int64), points
+
+
 def detect_contacts(
     rest_px: np.ndarray,
     current_px: np.ndarray,
@@ -256,6 +482,11 @@ def detect_contacts(
     method: str = "usac_fast",
     field_fallback: bool = False,
     refine_px: float | None = None,
+    plateau_fraction: float | None = None,
+    pitch_px: float = 10.0,
+    maxima_at_rest: bool = False,
+    spike_fraction: float | None = None,
+    neighbours: np.ndarray | None = None,
 ) -> Contacts:
     """The contact points of one window (paper, section "Contact Point Detection").
 
@@ -275,6 +506,17 @@ def detect_contacts(
             module docstring); ``candidates`` still holds the homography's outliers.
         refine_px: None: a contact point is its marker's position (paper); > 0: refined below
             the marker pitch with the markers within this radius (:func:`refine_peak`).
+        plateau_fraction: None: every local maximum is a contact (paper); in (0, 1): maxima on
+            one plateau at this fraction of the strongest are merged, and a wide plateau's
+            contacts are read off its area and shape (:func:`plateau_contacts`, with ``r_px`` as
+            the fingertip's radius).
+        pitch_px: the marker pitch (px), for the plateaus.
+        maxima_at_rest: False: N(i) = the candidates within r of marker i now (paper); True:
+            within r at rest (module docstring, "Neighbourhoods on the gel").
+        spike_fraction: None: the tracked ||v|| (paper); in (0, 1]: lone markers take their
+            neighbours' median (module docstring, "Lone markers").
+        neighbours: (N, K) int64, :func:`rest_neighbours` of ``rest_px`` with ``pitch_px``
+            (computed once per rest reference by the pipeline); None: computed here when needed.
     Returns:
         :class:`Contacts`. Degenerate inputs give no contact: fewer than 4 valid markers (a
         homography needs 4), or a mean displacement below ``min_mean_displacement_px``
@@ -301,14 +543,31 @@ def detect_contacts(
     cand = idx[outliers]
     candidates = np.zeros(n, dtype=bool)
     candidates[cand] = True
-    found = local_maxima(cur_ok[outliers], magnitudes[outliers], r_px, n_min)
+    table = None
+    if spike_fraction is not None or plateau_fraction is not None:
+        if neighbours is None:
+            table = rest_neighbours(rest_ok, pitch_px)
+        else:
+            table = _valid_table(np.asarray(neighbours, dtype=np.int64), idx, n)
+    if spike_fraction is not None:  # a lone marker far above its neighbours is no contact
+        magnitudes = _despiked(table, magnitudes, spike_fraction)
+    where = rest_ok if maxima_at_rest else cur_ok  # the neighbourhoods N(i): now (paper) or on the gel at rest
+    found = local_maxima(where[outliers], magnitudes[outliers], r_px, n_min)
     peaks = np.flatnonzero(outliers)[found]  # positions among the valid markers
     if len(peaks) == 0 and field_fallback:
         moved = np.flatnonzero(magnitudes > threshold)  # outliers of the rest model (identity), same threshold
-        peaks = moved[local_maxima(cur_ok[moved], magnitudes[moved], r_px, n_min)]
-    maxima = idx[peaks]
-    if refine_px is not None and len(peaks):
-        points = np.array([_refine_peak(rest_ok, v_ok, magnitudes, int(i), refine_px) for i in peaks])
-    else:
-        points = cur_ok[peaks]
+        peaks = moved[local_maxima(where[moved], magnitudes[moved], r_px, n_min)]
+    flat: list[np.ndarray | None] = [None] * len(peaks)
+    if plateau_fraction is not None and len(peaks):
+        peaks, flat = plateau_contacts(table, cur_ok, magnitudes, peaks, plateau_fraction, pitch_px, r_px)
+    rows, points = [], []
+    for i, f in zip(peaks, flat):
+        if f is not None:  # a flat top: its contacts, all on its maximum's marker
+            rows += [i] * len(f)
+            points += list(f)
+        else:
+            rows.append(i)
+            points.append(_refine_peak(rest_ok, v_ok, magnitudes, int(i), refine_px) if refine_px else cur_ok[i])
+    maxima = idx[np.array(rows, dtype=np.int64)]
+    points = np.array(points, dtype=np.float64).reshape(-1, 2)
     return Contacts(indices=maxima, points_px=points, candidates=candidates, reproj_threshold_px=threshold)

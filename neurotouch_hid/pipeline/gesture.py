@@ -28,7 +28,8 @@ positive cv2 angle turns clockwise *as displayed*. Its counter-clockwise-as-disp
 (the mirror flips it). Clockwise/counter-clockwise are decided in the user frame.
 
 Intensity (paper, eq. "Gesture Intensity") is the mean ||v_i|| over A, converted to mm with
-``sensor.px_per_mm``. The paper allows other intensity profiles; ``intensity_sigma_px`` selects a
+``sensor.px_per_mm`` (with a camera model, ``SensorGeometry.radial_k``, each v_i is converted to
+mm where it lies on the gel instead). The paper allows other intensity profiles; ``intensity_sigma_px`` selects a
 proximity-weighted mean instead (:func:`weighted_intensity`): marker i of A weighs
 ``exp(-d_i^2 / (2 sigma^2))`` with d_i its distance to the nearest contact point. The uniform
 mean averages the peak under a finger with its falloff and so reads only a fraction of the
@@ -91,10 +92,12 @@ class GestureResult:
         gesture: the dominant type (``NONE`` when nothing moves or there is no contact).
         intensity_px: the intensity (px): mean ||v_i|| over A, or its proximity-weighted
             profile (:func:`weighted_intensity`); 0 when there is no A.
-        intensity_mm: the same in mm (px / sensor.px_per_mm).
+        intensity_mm: the same in mm: px / sensor.px_per_mm, or, with the sensor's camera model
+            (``radial_k``), the same profile of the displacements converted to mm where they are.
         similarity: the fitted similarity (image frame).
         area: (N,) bool, the markers of A.
-        translation_mm: (2,) float64, the translation in the user frame (mm).
+        translation_mm: (2,) float64, the translation in the user frame (mm; with the camera
+            model, as moved at the contacts' mean).
         rotation_rad: the rotation in the user frame (rad, counter-clockwise > 0).
     """
 
@@ -304,18 +307,28 @@ def estimate_gesture(
         return _nothing(area)
     mean_px = intensity_px if intensity_sigma_px is None else float(norms.mean())
     threshold = max(reproj_factor * mean_px, min_reproj_px)
+    origin = contacts.mean(axis=0)
     if gel_motion is None:
-        similarity = fit_similarity(rest_a, cur_a, contacts.mean(axis=0), threshold)
+        similarity = fit_similarity(rest_a, cur_a, origin, threshold)
     else:
-        origin = gel_motion.remove(contacts.mean(axis=0))
+        origin = gel_motion.remove(origin)
         similarity = fit_similarity(rest_a, gel_motion.remove(cur_a), origin, threshold)
+    if sensor.radial_k is None:
+        intensity_mm = intensity_px / sensor.px_per_mm
+        translation_mm = sensor.vectors_image_to_user(similarity.translation_px)
+    else:  # the camera model: each displacement and the translation in mm where they are
+        k = len(cur_a)
+        mm = sensor.image_to_user(np.vstack([cur_a, rest_a, origin, origin + similarity.translation_px]))
+        v_mm = mm[:k] - mm[k : 2 * k]
+        intensity_mm = _intensity(np.hypot(v_mm[:, 0], v_mm[:, 1]), cur_a, contacts, intensity_sigma_px)
+        translation_mm = mm[-1] - mm[-2]
     return GestureResult(
         gesture=classify(similarity, r_px, sensor, origin_radius_px),
         intensity_px=intensity_px,
-        intensity_mm=intensity_px / sensor.px_per_mm,
+        intensity_mm=intensity_mm,
         similarity=similarity,
         area=area,
-        translation_mm=sensor.vectors_image_to_user(similarity.translation_px),
+        translation_mm=translation_mm,
         rotation_rad=user_rotation(similarity.rotation_rad, sensor),
     )
 

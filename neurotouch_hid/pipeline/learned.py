@@ -1,0 +1,148 @@
+"""A learned gesture type (not in the paper; ``PipelineConfig.gesture_classifier``).
+
+The paper's type is the largest of three similarity terms (``gesture.classify``). On gels the
+rule was not tuned on it breaks where the terms mislead: a whole-gel drift adds a translation
+to every pinch or zoom (``drift`` family), long-tailed fields let a twist's fingers drag each
+other (``powerlaw``). Issue 9 allows "a small learned classifier (scikit-learn) on the
+similarity terms and per-contact motion, trained on the family mix, kept only if it wins on
+held-out families". This is a multinomial logistic regression over :func:`gesture_features`,
+trained by ``benchmarks/train_gesture_classifier.py`` (scikit-learn's ``LogisticRegression``)
+on the tuning users of the development families; its coefficients are the constants of
+:mod:`neurotouch_hid.pipeline.gesture_model`, evaluated here with NumPy (no scikit-learn at run
+time). It only relabels windows the rule already calls a gesture (``none`` stays the rule's).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.pipeline import gesture_model
+from neurotouch_hid.pipeline.gesture import GestureResult
+from neurotouch_hid.sensor import SensorGeometry
+
+#: The feature names, in order (:func:`gesture_features`).
+FEATURES = (
+    "scale_share",
+    "rotation_share",
+    "translation_share",
+    "signed_scale_share",
+    "signed_rotation_share",
+    "contact_radial",
+    "contact_tangential",
+    "contact_count",
+    "log_intensity_px",
+)
+
+
+def gesture_features(
+    result: GestureResult,
+    contacts_px: np.ndarray,
+    rest_px: np.ndarray,
+    current_px: np.ndarray,
+    valid: np.ndarray,
+    sensor: SensorGeometry,
+    r_px: float,
+    origin_radius_px: float | None,
+) -> np.ndarray:
+    """(9,) float64 features of one window (:data:`FEATURES`).
+
+    The similarity's three terms (``Similarity.terms_px``: lengths at distance r, px) as shares
+    of their sum, the scale's and the rotation's shares signed (scale up, rotation
+    counter-clockwise in the user frame: positive); per contact, the displacement of the marker
+    nearest to it less the mean of those displacements (the contacts' common motion, e.g. a
+    drift of the whole gel), as the cosine of its angle with the outward direction from the
+    contacts' mean at rest (radial: zoom > 0, pinch < 0) and with the counter-clockwise tangent
+    (user frame), averaged over the contacts (0 for one contact); the contact count (at most
+    4); log(1 + intensity px).
+
+    Args:
+        result: the rule's :class:`GestureResult` of the window (not ``NONE``).
+        contacts_px: (K, 2) float, contact points (px, image frame), K >= 1.
+        rest_px, current_px: (N, 2) float, marker positions at rest and now (px).
+        valid: (N,) bool, markers the tracker still follows.
+        sensor: the geometry (mirror and rotation: the user frame's orientation).
+        r_px, origin_radius_px: as for ``gesture.classify``.
+    """
+    sim = result.similarity
+    s_t, r_t, t_t = sim.terms_px(r_px, origin_radius_px)
+    total = s_t + r_t + t_t + 1e-9
+    rotation = sensor.rotation_image_to_user(-sim.rotation_rad)
+    contacts = np.asarray(contacts_px, dtype=np.float64).reshape(-1, 2)
+    radial, turning = _relative_motion(
+        contacts,
+        np.ascontiguousarray(rest_px, dtype=np.float64),
+        np.ascontiguousarray(current_px, dtype=np.float64),
+        np.ascontiguousarray(valid, dtype=np.bool_),
+    )
+    tangential = sensor.rotation_image_to_user(turning)
+    return np.array(
+        [
+            s_t / total,
+            r_t / total,
+            t_t / total,
+            math.copysign(s_t / total, sim.scale - 1.0),
+            math.copysign(r_t / total, rotation),
+            radial,
+            tangential,
+            float(min(len(contacts), 4)),
+            math.log1p(result.intensity_px),
+        ]
+    )
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _relative_motion(contacts: np.ndarray, rest: np.ndarray, current: np.ndarray, valid: np.ndarray):
+    """(radial, tangential) of :func:`gesture_features`, the tangential one counter-clockwise as
+    displayed (image frame); (0, 0) for fewer than 2 contacts. For each contact (K, 2) px, the
+    valid marker nearest to it now; its displacement less the mean of those displacements,
+    against its rest position less the mean of those rest positions."""
+    k = len(contacts)
+    if k < 2:
+        return 0.0, 0.0
+    nearest = np.empty(k, dtype=np.int64)
+    for c in range(k):
+        best, best_d = -1, np.inf
+        for i in range(len(current)):
+            if valid[i]:
+                dx = current[i, 0] - contacts[c, 0]
+                dy = current[i, 1] - contacts[c, 1]
+                d = dx * dx + dy * dy
+                if d < best_d:
+                    best, best_d = i, d
+        nearest[c] = best
+    if nearest.min() < 0:
+        return 0.0, 0.0
+    mu = np.zeros(2)
+    mv = np.zeros(2)
+    for c in range(k):
+        i = nearest[c]
+        mu += rest[i]
+        mv += current[i] - rest[i]
+    mu /= k
+    mv /= k
+    radial = turning = 0.0
+    for c in range(k):
+        i = nearest[c]
+        ux, uy = rest[i, 0] - mu[0], rest[i, 1] - mu[1]
+        vx, vy = current[i, 0] - rest[i, 0] - mv[0], current[i, 1] - rest[i, 1] - mv[1]
+        nu = np.sqrt(ux * ux + uy * uy) + 1e-9
+        nv = np.sqrt(vx * vx + vy * vy) + 1e-9
+        radial += (vx * ux + vy * uy) / (nu * nv)
+        turning += (vx * uy - vy * ux) / (nu * nv)  # along the tangent (u_y, -u_x): counter-clockwise as displayed
+    return radial / k, turning / k
+
+
+#: The classes of :mod:`gesture_model`'s rows, in order.
+CLASSES = (GestureType.PUSH, GestureType.PINCH, GestureType.ZOOM, GestureType.TWIST_CW, GestureType.TWIST_CCW)
+
+
+def learned_gesture(features: np.ndarray) -> GestureType:
+    """The logistic regression's type for (9,) features: argmax of ``W (x - mean) / scale + b``
+    with :mod:`gesture_model`'s constants."""
+    x = (np.asarray(features, dtype=np.float64) - gesture_model.MEAN) / gesture_model.SCALE
+    logits = gesture_model.WEIGHTS @ x + gesture_model.INTERCEPT
+    return CLASSES[int(np.argmax(logits))]
