@@ -749,15 +749,22 @@ class GesturePipeline:
         self.tracker = BlobTracker(
             self.rest_px, self.sensor.width, self.sensor.height, self.config.tracker, sensor=self.sensor
         )
-        self.resting_detector = RestingDetector(
-            frame.image,
-            self.sensor,
-            self.config.centroid_threshold if self.config.resting_centroids else self.config.chamfer_threshold,
-            self.config.marker_threshold,
-            per_marker=self.config.chamfer_per_marker,
-            centroids=self.config.resting_centroids,
-        )
+        self.resting_detector = self._resting_detector(frame.image)
         self._resting = RestingResult(True, 0.0)
+
+    def _resting_detector(self, reference: np.ndarray) -> RestingDetector:
+        """A resting detector (paper, "Resting Position Detection") with ``reference`` as its rest
+        image and this pipeline's settings. Raises SensorError when it shows no marker."""
+        c = self.config
+        threshold = c.centroid_threshold if c.resting_centroids else c.chamfer_threshold
+        return RestingDetector(
+            reference,
+            self.sensor,
+            threshold,
+            c.marker_threshold,
+            per_marker=c.chamfer_per_marker,
+            centroids=c.resting_centroids,
+        )
 
     def _use_camera_model(self) -> None:
         """With ``camera_model``, and no model in sensor.yaml: the sensor as fitted to the rest
@@ -779,14 +786,7 @@ class GesturePipeline:
         if self._resume_waited <= RESUME_MATCH_FRAMES or previous is None:
             return False
         try:
-            still = RestingDetector(
-                previous.image,
-                self.sensor,
-                self.config.centroid_threshold if self.config.resting_centroids else self.config.chamfer_threshold,
-                self.config.marker_threshold,
-                per_marker=self.config.chamfer_per_marker,
-                centroids=self.config.resting_centroids,
-            )
+            still = self._resting_detector(previous.image)
         except SensorError:  # the frame before shows no marker at all
             return False
         return still.update(frame, verdict_only=True).resting
