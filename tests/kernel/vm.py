@@ -192,6 +192,30 @@ def ensure_replay_recording() -> Path:
     return path
 
 
+#: numba's settings for the pipeline's code compiled on the host for the guest (checks_davis.py
+#: runs ``run --source davis``): compiling it under emulation takes longer than 600 s, so the host
+#: compiles it before the boot into the shared folder. numba keys a cached function on the target
+#: CPU's name and features (``CPUCodegen.magic_tuple``): the host's CPU name (e.g. znver4) and the
+#: guest's (qemu's "max" model under TCG: k8-sse3 with AVX2) differ, so both use LLVM's "generic"
+#: x86-64 CPU, whose feature string numba then leaves empty: the same key on both sides.
+GUEST_NUMBA_ENV = {"NUMBA_CPU_NAME": "generic"}
+#: Name of that cache folder in the boot's shared folder.
+GUEST_NUMBA_CACHE = "numba-cache"
+
+
+def compile_guest_numba_cache(folder: Path) -> None:
+    """Compile the gesture pipeline's numba code (``driver.compile_pipeline``) into ``folder`` for
+    the guest (GUEST_NUMBA_ENV). Raises RuntimeError with the output if that fails."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(folder), **GUEST_NUMBA_ENV)
+    proc = _run(
+        [sys.executable, "-c", "from neurotouch_hid.driver import compile_pipeline; compile_pipeline()"],
+        env=env,
+        cwd=str(HERE.parent.parent),
+    )
+    if proc.returncode != 0:
+        raise RuntimeError(f"compiling the pipeline for the guest failed: {proc.stdout[-1000:]}{proc.stderr[-1000:]}")
+
+
 def boot(guest_script: Path = GUEST_SCRIPT, timeout_s: int = BOOT_TIMEOUT_S) -> dict:
     """Boot the kernel once under qemu (no KVM), run ``guest_script`` in it, return its JSON.
 
@@ -203,6 +227,7 @@ def boot(guest_script: Path = GUEST_SCRIPT, timeout_s: int = BOOT_TIMEOUT_S) -> 
     vmlinuz = kdir / "boot" / f"vmlinuz-{kver}"
     out = Path(tempfile.mkdtemp(prefix="boot-", dir=cache_dir()))
     shutil.copyfile(ensure_replay_recording(), out / "davis_replay.aedat4")  # checks_davis.py's camera
+    compile_guest_numba_cache(out / GUEST_NUMBA_CACHE)  # and the pipeline's code for its runs
     result = out / "result.json"
     env = dict(os.environ)
     env["PATH"] = f"{Path(sys.executable).parent}:{env.get('PATH', '/usr/bin:/bin')}"
