@@ -39,7 +39,7 @@ HOST_COMMANDS = {
 }
 #: The whole guest run (a limit, not a duration): checks_davis.py alone took 8 minutes under
 #: emulation at load 7 (it runs seven commands, each a Python start of tens of seconds there), the
-#: whole test file 19 minutes (boot included) at load 6-9 on 2 cores.
+#: whole guest run with the boot 19 minutes at load 6-9 on 2 cores.
 BOOT_TIMEOUT_S = 2400
 #: Modules udev's coldplug would load for qemu's emulated q35 hardware (disk, CD, KVM, crypto,
 #: watchdog, PS/2): none is used (the root is 9p), and loading them under software emulation costs
