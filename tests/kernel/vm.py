@@ -197,7 +197,7 @@ def ensure_replay_recording() -> Path:
 #: numba's settings for the pipeline's code compiled on the host for the guest (checks_davis.py
 #: runs ``run --source davis``): compiling it under emulation takes longer than 600 s, so the host
 #: compiles it before the boot into the shared folder. numba keys a cached function on the target
-#: CPU's name and features (``CPUCodegen.magic_tuple``): the host's CPU name (e.g. znver4) and the
+#: CPU's name and features (``CPUCodegen.magic_tuple``): the host's CPU name (znver5 here) and the
 #: guest's (qemu's "max" model under TCG: k8-sse3 with AVX2) differ, so both use LLVM's "generic"
 #: x86-64 CPU, whose feature string numba then leaves empty: the same key on both sides.
 GUEST_NUMBA_ENV = {"NUMBA_CPU_NAME": "generic"}
