@@ -221,6 +221,8 @@ def compile_guest_numba_cache(folder: Path) -> None:
 def boot(guest_script: Path = GUEST_SCRIPT, timeout_s: int = BOOT_TIMEOUT_S) -> dict:
     """Boot the kernel once under qemu (no KVM), run ``guest_script`` in it, return its JSON.
 
+    The boot's shared folder holds, beside the result, what checks_davis.py needs: the replay
+    recording and the pipeline's numba code compiled here (:func:`compile_guest_numba_cache`).
     The JSON maps each check's name to ``{"ok": bool, "seconds": float, ...details}``, plus
     ``"_boot"`` with the boot's wall time and kernel release. Raises KernelUnavailable when qemu
     cannot be installed, RuntimeError (with vng's output) when the guest wrote no result."""
