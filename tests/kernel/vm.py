@@ -37,8 +37,10 @@ HOST_COMMANDS = {
     "depmod": "kmod",
     "udevadm": "udev",
 }
-#: The whole guest run; checks_davis.py alone takes 4-8 minutes under emulation on a loaded host.
-BOOT_TIMEOUT_S = 1500
+#: The whole guest run (a limit, not a duration): checks_davis.py alone took 8 minutes under
+#: emulation at load 7 (it runs seven commands, each a Python start of tens of seconds there), the
+#: whole guest run with the boot 19 minutes at load 6-9 on 2 cores.
+BOOT_TIMEOUT_S = 2400
 #: Modules udev's coldplug would load for qemu's emulated q35 hardware (disk, CD, KVM, crypto,
 #: watchdog, PS/2): none is used (the root is 9p), and loading them under software emulation costs
 #: about a quarter of the boot's CPU time. ``module_blacklist=`` makes the kernel refuse them.
@@ -192,9 +194,35 @@ def ensure_replay_recording() -> Path:
     return path
 
 
+#: numba's settings for the pipeline's code compiled on the host for the guest (checks_davis.py
+#: runs ``run --source davis``): compiling it under emulation takes longer than 600 s, so the host
+#: compiles it before the boot into the shared folder. numba keys a cached function on the target
+#: CPU's name and features (``CPUCodegen.magic_tuple``): the host's CPU name (znver5 here) and the
+#: guest's (qemu's "max" model under TCG: k8-sse3 with AVX2) differ, so both use LLVM's "generic"
+#: x86-64 CPU, whose feature string numba then leaves empty: the same key on both sides.
+GUEST_NUMBA_ENV = {"NUMBA_CPU_NAME": "generic"}
+#: Name of that cache folder in the boot's shared folder.
+GUEST_NUMBA_CACHE = "numba-cache"
+
+
+def compile_guest_numba_cache(folder: Path) -> None:
+    """Compile the gesture pipeline's numba code (``driver.compile_pipeline``) into ``folder`` for
+    the guest (GUEST_NUMBA_ENV). Raises RuntimeError with the output if that fails."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(folder), **GUEST_NUMBA_ENV)
+    proc = _run(
+        [sys.executable, "-c", "from neurotouch_hid.driver import compile_pipeline; compile_pipeline()"],
+        env=env,
+        cwd=str(HERE.parent.parent),
+    )
+    if proc.returncode != 0:
+        raise RuntimeError(f"compiling the pipeline for the guest failed: {proc.stdout[-1000:]}{proc.stderr[-1000:]}")
+
+
 def boot(guest_script: Path = GUEST_SCRIPT, timeout_s: int = BOOT_TIMEOUT_S) -> dict:
     """Boot the kernel once under qemu (no KVM), run ``guest_script`` in it, return its JSON.
 
+    The boot's shared folder holds, beside the result, what checks_davis.py needs: the replay
+    recording and the pipeline's numba code compiled here (:func:`compile_guest_numba_cache`).
     The JSON maps each check's name to ``{"ok": bool, "seconds": float, ...details}``, plus
     ``"_boot"`` with the boot's wall time and kernel release. Raises KernelUnavailable when qemu
     cannot be installed, RuntimeError (with vng's output) when the guest wrote no result."""
@@ -203,6 +231,7 @@ def boot(guest_script: Path = GUEST_SCRIPT, timeout_s: int = BOOT_TIMEOUT_S) -> 
     vmlinuz = kdir / "boot" / f"vmlinuz-{kver}"
     out = Path(tempfile.mkdtemp(prefix="boot-", dir=cache_dir()))
     shutil.copyfile(ensure_replay_recording(), out / "davis_replay.aedat4")  # checks_davis.py's camera
+    compile_guest_numba_cache(out / GUEST_NUMBA_CACHE)  # and the pipeline's code for its runs
     result = out / "result.json"
     env = dict(os.environ)
     env["PATH"] = f"{Path(sys.executable).parent}:{env.get('PATH', '/usr/bin:/bin')}"
