@@ -717,3 +717,36 @@ def test_a_window_where_nothing_moved_min_intensity_skips_the_fits(rest_image):
     pipeline.tracker.reset(pipeline.rest_px + w[:, None] * [5.0, 0.0])
     (estimate,) = pipeline.process(events_at(61_000))
     assert estimate.gesture is GestureType.PUSH and pipeline._last_fit is not None
+
+
+def _numba_signatures() -> dict[str, int]:
+    """Compiled signatures per numba function of the pipeline's modules."""
+    import numba
+
+    from neurotouch_hid.pipeline import contacts, gesture, learned, noise, tracker
+
+    return {
+        f"{m.__name__}.{name}": len(f.signatures)
+        for m in (contacts, gesture, learned, noise, tracker)
+        for name, f in vars(m).items()
+        if isinstance(f, numba.core.registry.CPUDispatcher)
+    }
+
+
+def test_compile_kernels_leaves_nothing_to_compile_on_real_gestures(rest_image):
+    """A run compiles while it starts, not mid-gesture (where it would drop events): after
+    compile_kernels, a push, a wide flat top and a lone mistracked marker compile nothing."""
+    pipeline = GesturePipeline(SENSOR)
+    pipeline.compile_kernels()
+    compiled = _numba_signatures()
+    pipeline.process(Frame(0, rest_image))
+    pipeline.process(events_at(1))
+    rest = pipeline.rest_px
+    c = np.asarray(SENSOR.gel_center_px)
+    for width_px, peak_px in ((8.0, 3.0), (30.0, 4.0), (12.0, 5.0)):
+        w = np.exp(-np.sum((rest - c) ** 2, axis=1) / (2 * width_px**2))
+        moved = rest + np.minimum(1.0, 1.5 * w)[:, None] * [peak_px, 1.0]
+        moved[7] += (6.0, 0.0)
+        pipeline.tracker.reset(moved)
+        pipeline.process(events_at(15000 * int(peak_px)))
+    assert _numba_signatures() == compiled

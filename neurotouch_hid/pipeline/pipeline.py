@@ -615,7 +615,7 @@ class GesturePipeline:
 
     def compile_kernels(self) -> None:
         """Compile the pipeline's numba code (noise filter, tracker, contacts, gesture) now, on a synthetic
-        marker grid with a finger-like bump of displacement, instead of on the first real events:
+        marker grid with a finger-like bump of displacement and a flat top, instead of on the first real events:
         on a fresh install that takes seconds, which a real-time run would spend dropping data.
         Later runs load the code from numba's cache. Leaves the pipeline as it was."""
         cx, cy = self.sensor.gel_center_px
@@ -634,9 +634,16 @@ class GesturePipeline:
         if self.noise_filter is not None:  # a fresh one: this pipeline's keeps its state
             c = self.config
             EventNoiseFilter(c.noise_filter, self.sensor.width, self.sensor.height, c.noise_filter_us)(events)
+        # a flat top several fingers wide (the contacts' plateau split) and a lone marker far
+        # above its neighbours (the lone-marker median): the other paths of the contact step
+        wide = np.exp(-((rest - (cx, cy)) ** 2).sum(axis=1) / (2 * 25.0**2))
+        flat = rest + np.minimum(1.0, 2.0 * wide)[:, None] * np.array([3.0, 0.0])
+        flat[len(rest) // 3] += (6.0, 0.0)
+        all_valid = np.ones(len(rest), dtype=bool)
         timings, self.timings = self.timings, None  # not a window: no stage time recorded
         try:
-            self._fit(rest, moved, np.ones(len(rest), dtype=bool))
+            self._fit(rest, moved, all_valid)
+            self._fit(rest, flat, all_valid)
         finally:
             self.timings = timings
 
