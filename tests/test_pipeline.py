@@ -723,11 +723,11 @@ def _numba_signatures() -> dict[str, int]:
     """Compiled signatures per numba function of the pipeline's modules."""
     import numba
 
-    from neurotouch_hid.pipeline import contacts, gesture, learned, noise, tracker
+    from neurotouch_hid.pipeline import contacts, gesture, learned, noise, resting, tracker
 
     return {
         f"{m.__name__}.{name}": len(f.signatures)
-        for m in (contacts, gesture, learned, noise, tracker)
+        for m in (contacts, gesture, learned, noise, resting, tracker)
         for name, f in vars(m).items()
         if isinstance(f, numba.core.registry.CPUDispatcher)
     }
@@ -749,4 +749,5 @@ def test_compile_kernels_leaves_nothing_to_compile_on_real_gestures(rest_image):
         moved[7] += (6.0, 0.0)
         pipeline.tracker.reset(moved)
         pipeline.process(events_at(15000 * int(peak_px)))
+    pipeline.process(Frame(100_000, rest_image))  # the resting detector's kernels
     assert _numba_signatures() == compiled

@@ -148,3 +148,25 @@ def test_the_centroid_distance_of_a_global_shift_is_twice_its_square():
     many pixels a marker has (the pixel-set distance grows with them)."""
     centroids = RestingDetector(blobs(), SENSOR, threshold=0.02, binary_threshold=120, centroids=True)
     assert centroids.update(blobs(shift=(1.0, 1.0))).distance == pytest.approx(4.0, rel=0.01)
+
+
+def test_the_centroid_kernels_give_the_weighted_means_of_each_marker():
+    """The numba sums (row-major, without the GIL) equal each region's grey-weighted mean
+    position computed directly with numpy, and the Chamfer sum the brute-force one."""
+    import cv2
+
+    detector = RestingDetector(blobs(), SENSOR, threshold=0.02, binary_threshold=120, centroids=True)
+    image = blobs(1.1, shift=(0.4, -0.3), region=30)
+    got = detector.marker_centroids(image)
+    _, labels = cv2.connectedComponents(detector.marker_mask(image), connectivity=8)
+    roi = image[detector._roi].astype(np.float64) - 120.0
+    expected = []
+    for k in range(1, labels.max() + 1):
+        y, x = np.nonzero(labels == k)
+        w = roi[y, x]
+        expected.append(((w * x).sum() / w.sum(), (w * y).sum() / w.sum()))
+    assert got == pytest.approx(np.array(expected), abs=1e-9)
+    q = detector.reference_centroids
+    d2 = ((got[:, None, :] - q[None, :, :]) ** 2).sum(axis=2)
+    brute = (d2.min(axis=1).sum() + d2.min(axis=0).sum()) / detector.n_markers
+    assert detector.update(image).distance == pytest.approx(brute, rel=1e-12)

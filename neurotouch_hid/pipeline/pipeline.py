@@ -82,7 +82,7 @@ from neurotouch_hid.pipeline.gesture import EpisodeVote, estimate_gesture
 from neurotouch_hid.pipeline.learned import gesture_features, learned_gesture
 from neurotouch_hid.pipeline.markers import MARKER_SPACING_MM, detect_markers, looks_like_marker_grid
 from neurotouch_hid.pipeline.noise import EventNoiseFilter, check_noise_filter
-from neurotouch_hid.pipeline.resting import RestingDetector, RestingResult
+from neurotouch_hid.pipeline.resting import RestingDetector, RestingResult, compile_resting_kernels
 from neurotouch_hid.pipeline.tracker import BlobTracker, TrackerConfig
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame, StreamItem
@@ -640,6 +640,7 @@ class GesturePipeline:
         flat = rest + np.minimum(1.0, 2.0 * wide)[:, None] * np.array([3.0, 0.0])
         flat[len(rest) // 3] += (6.0, 0.0)
         all_valid = np.ones(len(rest), dtype=bool)
+        compile_resting_kernels()  # its frames come later, possibly in the runtime's thread
         timings, self.timings = self.timings, None  # not a window: no stage time recorded
         try:
             self._fit(rest, moved, all_valid)

@@ -41,7 +41,9 @@ more or less, so a resting gel gives d ~ 0 under any light; a marker shifted by 
 2 delta^2 (not ~2 k delta^2 as with its k pixels), so the threshold is on another scale
 (``PipelineConfig.centroid_threshold``). A marker lost or split adds about its distance to the
 nearest centroid squared (a pitch, ~100 px^2 at 2.5 px/mm) over n_markers. Cost per frame: one
-connected-components pass over the gel's bounding box and a (P x Q) distance matrix (~177^2).
+connected-components pass over the gel's bounding box (OpenCV) and the centroid sums and the
+(P x Q) nearest distances (~177^2) in numba, all without the GIL, so a resting thread does not
+hold up the event path.
 """
 
 from __future__ import annotations
@@ -49,6 +51,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import cv2
+import numba
 import numpy as np
 
 from neurotouch_hid.errors import SensorError
@@ -131,7 +134,6 @@ class RestingDetector:
         self.n_markers = n_labels - 1
         #: (n_markers, 2) float64 the reference's marker centroids (px, gel bounding box)
         self.reference_centroids = self.marker_centroids(ref)
-        self._q2 = (self.reference_centroids**2).sum(axis=1)
 
     def _check(self, image: np.ndarray) -> np.ndarray:
         img = np.asarray(image)
@@ -151,30 +153,18 @@ class RestingDetector:
     def marker_centroids(self, image: np.ndarray) -> np.ndarray:
         """(M, 2) float64 grey-level-weighted centroids (x, y px, relative to the gel's bounding
         box) of the 8-connected regions of marker pixels of ``image`` (uint8 (height, width));
-        each pixel weighs its grey level above ``binary_threshold``."""
+        each pixel weighs its grey level above ``binary_threshold``. OpenCV labels the regions
+        and a numba kernel sums them (both without the GIL)."""
         mask = self.marker_mask(image)
-        n, labels = cv2.connectedComponents(mask, connectivity=8)
-        on = cv2.findNonZero(mask)
-        if on is None:
-            return np.zeros((0, 2))
-        x, y = on[:, 0, 0], on[:, 0, 1]
-        idx = labels[y, x]
-        wgt = image[self._roi][y, x].astype(np.float64) - self.binary_threshold
-        total = np.maximum(np.bincount(idx, wgt, minlength=n)[1:], 1e-9)
-        return (
-            np.stack([np.bincount(idx, wgt * x, minlength=n)[1:], np.bincount(idx, wgt * y, minlength=n)[1:]], 1)
-            / (total[:, None])
-        )
+        n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
+        return _weighted_centroids(labels, np.ascontiguousarray(image[self._roi]), n, float(self.binary_threshold))
 
     def _centroid_distance(self, image: np.ndarray) -> float:
         """Chamfer distance between the centroids of ``image`` and the reference's (px^2)."""
         p = self.marker_centroids(image)
         if len(p) == 0:
             return float("inf")
-        q = self.reference_centroids
-        # squared distances of every pair as |p|^2 + |q|^2 - 2 p.q (one small matrix product)
-        d2 = np.maximum((p * p).sum(axis=1)[:, None] + self._q2[None, :] - 2.0 * (p @ q.T), 0.0)
-        return float(d2.min(axis=1).sum() + d2.min(axis=0).sum()) / (self.n_markers if self.per_marker else 1)
+        return _chamfer_sum(p, self.reference_centroids) / (self.n_markers if self.per_marker else 1)
 
     @staticmethod
     def _squared_distance_to(mask: np.ndarray) -> np.ndarray:
@@ -214,3 +204,52 @@ class RestingDetector:
         ref_to_current = float(self._squared_distance_to(mask).ravel()[self._ref_points].sum())
         distance = (current_to_ref + ref_to_current) / scale
         return RestingResult(distance <= self.threshold, distance)
+
+
+def compile_resting_kernels() -> None:
+    """Compile (or load from numba's cache) the centroid kernels now, for the array types
+    :meth:`RestingDetector.marker_centroids` passes them, instead of at the first APS frame."""
+    centroids = _weighted_centroids(np.zeros((2, 2), np.int32), np.zeros((2, 2), np.uint8), 2, 0.0)
+    _chamfer_sum(centroids, centroids)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _weighted_centroids(labels: np.ndarray, image: np.ndarray, n: int, level: float) -> np.ndarray:
+    """(n - 1, 2) float64: the centroids (x, y px) of regions 1 .. n-1 of ``labels`` (int32
+    (h, w), 0 = background), each pixel weighted by its grey level in ``image`` (uint8 (h, w))
+    minus ``level``; summed in row-major order."""
+    total = np.zeros(n)
+    sx = np.zeros(n)
+    sy = np.zeros(n)
+    for y in range(labels.shape[0]):
+        for x in range(labels.shape[1]):
+            k = labels[y, x]
+            if k > 0:
+                w = np.float64(image[y, x]) - level
+                total[k] += w
+                sx[k] += w * x
+                sy[k] += w * y
+    out = np.empty((max(n - 1, 0), 2))
+    for k in range(1, n):
+        t = max(total[k], 1e-9)
+        out[k - 1, 0] = sx[k] / t
+        out[k - 1, 1] = sy[k] / t
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _chamfer_sum(p: np.ndarray, q: np.ndarray) -> float:
+    """sum over p of min_q ||p - q||^2 + sum over q of min_p ||p - q||^2 (px^2) for (P, 2) and
+    (Q, 2) float64 point sets (the paper's Chamfer distance, section "Resting Position Detection")."""
+    to_q = np.full(len(p), np.inf)
+    to_p = np.full(len(q), np.inf)
+    for i in range(len(p)):
+        for j in range(len(q)):
+            dx = p[i, 0] - q[j, 0]
+            dy = p[i, 1] - q[j, 1]
+            d2 = dx * dx + dy * dy
+            if d2 < to_q[i]:
+                to_q[i] = d2
+            if d2 < to_p[j]:
+                to_p[j] = d2
+    return to_q.sum() + to_p.sum()
