@@ -426,6 +426,18 @@ def _make_function_class():
             self.device.disabled("unbind")
 
         def onSetup(self, request_type, request, value, index, length):
+            try:
+                self._answer(request_type, request, value, index, length)
+            except OSError as exc:
+                # FunctionFS says EIDRM when the host gave up on this control transfer before it
+                # was answered (a new SETUP came: libusb's timeout on a slow, emulated machine),
+                # ESHUTDOWN when the gadget was unbound meanwhile; a real camera just takes the
+                # next request
+                if exc.errno not in (errno.EIDRM, errno.ESHUTDOWN):
+                    raise
+                self.device.note(f"control request 0x{request:02x} cancelled by the host ({exc.strerror})")
+
+        def _answer(self, request_type, request, value, index, length):
             if request_type & ch9.USB_TYPE_MASK != ch9.USB_TYPE_VENDOR:
                 return super().onSetup(request_type, request, value, index, length)
             if request_type & ch9.USB_DIR_IN:
