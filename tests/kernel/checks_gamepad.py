@@ -210,13 +210,7 @@ def check_sigterm_releases() -> dict:
 
 def check_sdl_gamecontroller() -> dict:
     """SDL2 (pygame) sees a GameController and reads the button, stick and trigger written."""
-    env = dict(
-        os.environ,
-        SDL_VIDEODRIVER="dummy",
-        SDL_AUDIODRIVER="dummy",
-        PYGAME_HIDE_SUPPORT_PROMPT="1",
-        PYTHONPATH=os.pathsep.join(sys.path),
-    )
+    env = guestlib.sdl_env()
     proc = subprocess.run(
         [sys.executable, str(HERE / "sdl_probe.py")], capture_output=True, text=True, env=env, timeout=280
     )

@@ -23,6 +23,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import guestlib
@@ -71,22 +72,30 @@ def gesture_sequence(
 ) -> list[GestureEstimate]:
     """Rest, then each gesture: ramp up to 6 mm in 0.3 s, hold (the last one ``last_hold_s`` if
     given), ramp down in 0.2 s, rest 0.3 s."""
+    segments: list[tuple[float, GestureType, Callable[[float], float]]] = [(lead_in_s, GestureType.NONE, lambda f: 0.0)]
+    for i, gesture in enumerate(gestures):
+        hold = last_hold_s if last_hold_s is not None and i == len(gestures) - 1 else hold_s
+        segments += [
+            (0.3, gesture, lambda f: 6.0 * f),
+            (hold, gesture, lambda f: 6.0),
+            (0.2, gesture, lambda f: 6.0 * (1 - f)),
+            (0.3, GestureType.NONE, lambda f: 0.0),
+        ]
+    return timeline(segments)
+
+
+def timeline(
+    segments: list[tuple[float, GestureType, Callable[[float], float]]], step_us: int = STEP_US
+) -> list[GestureEstimate]:
+    """One estimate per ``step_us`` window from t = 1 s through ``segments`` (seconds, gesture,
+    level(f) mm with f the fraction of the segment done, in (0, 1])."""
     out: list[GestureEstimate] = []
     t = 1_000_000
-
-    def add(seconds: float, gesture: GestureType, level) -> None:
-        nonlocal t
-        n = max(1, int(round(seconds * 1e6 / STEP_US)))
+    for seconds, gesture, level in segments:
+        n = max(1, int(round(seconds * 1e6 / step_us)))
         for k in range(n):
             out.append(_gesture(t, gesture, level((k + 1) / n)))
-            t += STEP_US
-
-    add(lead_in_s, GestureType.NONE, lambda f: 0.0)
-    for i, gesture in enumerate(gestures):
-        add(0.3, gesture, lambda f: 6.0 * f)
-        add(last_hold_s if last_hold_s is not None and i == len(gestures) - 1 else hold_s, gesture, lambda f: 6.0)
-        add(0.2, gesture, lambda f: 6.0 * (1 - f))
-        add(0.3, GestureType.NONE, lambda f: 0.0)
+            t += step_us
     return out
 
 
@@ -106,6 +115,19 @@ def _cli(*args: str) -> list[str]:
 
 def _env() -> dict:
     return dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED="1")
+
+
+def _start_run_on_pad(preds: Path, profile: Path, env: dict | None = None) -> subprocess.Popen:
+    """``neurotouch-hid run --source PREDS --profile PROFILE --output gamepad`` in its own
+    process (text pipes for stdout and stderr)."""
+    return subprocess.Popen(
+        _cli("run", "--source", str(preds), "--profile", str(profile), "--output", "gamepad"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env or _env(),
+        cwd=str(REPO),
+    )
 
 
 def _state_key(axes: dict[str, int], buttons: dict[str, bool]) -> tuple:
@@ -265,14 +287,7 @@ def check_run_sigterm_releases_everything() -> dict:
     folder = Path(tempfile.mkdtemp(prefix="runtime-sigterm-"))
     preds, profile_path = _write(folder, gesture_sequence(hold_s=30.0, lead_in_s=0.2))
     before = set(_our_devices())
-    proc = subprocess.Popen(
-        _cli("run", "--source", str(preds), "--profile", str(profile_path), "--output", "gamepad"),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=_env(),
-        cwd=str(REPO),
-    )
+    proc = _start_run_on_pad(preds, profile_path)
     watcher = None
     try:
         path = guestlib.wait_for(lambda: (set(_our_devices()) - before) or proc.poll() is not None, 150.0, 0.1)
@@ -455,13 +470,7 @@ def check_sdl_reads_run_like_the_profile() -> dict:
     )
     preds, profile_path = _write(folder, estimates, SDL_PROFILE)
     hold_t = next(e.t_us for e in estimates if e.gesture is GestureType.PUSH and e.intensity_mm == 6.0)
-    env = dict(
-        os.environ,
-        SDL_VIDEODRIVER="dummy",
-        SDL_AUDIODRIVER="dummy",
-        PYGAME_HIDE_SUPPORT_PROMPT="1",
-        PYTHONPATH=os.pathsep.join(sys.path),
-    )
+    env = guestlib.sdl_env()
     probe = subprocess.Popen(
         [sys.executable, str(Path(__file__).resolve().parent / "sdl_probe.py"), "--watch", "200"],
         stdout=subprocess.PIPE,
@@ -476,14 +485,7 @@ def check_sdl_reads_run_like_the_profile() -> dict:
     # here); the run's 3 s of rest at first leave SDL time to open the pad before it moves.
     t_run = time.monotonic()
     expecting = _start_expected(preds, profile_path, folder)
-    run = subprocess.Popen(
-        _cli("run", "--source", str(preds), "--profile", str(profile_path), "--output", "gamepad"),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=_env(),
-        cwd=str(REPO),
-    )
+    run = _start_run_on_pad(preds, profile_path)
     watcher = None
     timings: dict = {}
     try:

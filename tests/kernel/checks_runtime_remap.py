@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 
 import guestlib
-from checks_runtime import _cli, _env, _gesture
+from checks_runtime import _env, _start_run_on_pad, timeline
 from evdev import InputDevice, ecodes, list_devices
 
 from neurotouch_hid.estimate import GestureEstimate, GestureType
@@ -60,23 +60,15 @@ NAMES = {
 def sequence(*steps: tuple[GestureType, float, float], lead_in_s: float = 1.0) -> list[GestureEstimate]:
     """Rest ``lead_in_s``, then per step (gesture, level mm, hold s): ramp up 0.1 s, hold, ramp
     down 0.1 s, rest 0.4 s; :data:`STEP_US` windows."""
-    out: list[GestureEstimate] = []
-    t = 1_000_000
-
-    def add(seconds: float, gesture: GestureType, level) -> None:
-        nonlocal t
-        n = max(1, int(round(seconds * 1e6 / STEP_US)))
-        for k in range(n):
-            out.append(_gesture(t, gesture, level((k + 1) / n)))
-            t += STEP_US
-
-    add(lead_in_s, G.NONE, lambda f: 0.0)
+    segments = [(lead_in_s, G.NONE, lambda f: 0.0)]
     for gesture, mm, hold_s in steps:
-        add(0.1, gesture, lambda f, mm=mm: mm * f)
-        add(hold_s, gesture, lambda f, mm=mm: mm)
-        add(0.1, gesture, lambda f, mm=mm: mm * (1 - f))
-        add(0.4, G.NONE, lambda f: 0.0)
-    return out
+        segments += [
+            (0.1, gesture, lambda f, mm=mm: mm * f),
+            (hold_s, gesture, lambda f, mm=mm: mm),
+            (0.1, gesture, lambda f, mm=mm: mm * (1 - f)),
+            (0.4, G.NONE, lambda f: 0.0),
+        ]
+    return timeline(segments, STEP_US)
 
 
 def _write_preds(folder: Path, estimates: list[GestureEstimate]) -> Path:
@@ -266,14 +258,7 @@ mappings:
 def _start_run(preds: Path, profile: Path, env: dict) -> tuple[subprocess.Popen, dict[str, Watcher]]:
     """``neurotouch-hid run --output gamepad`` in its own process; a watcher on each of its devices."""
     before = {phys: set(_devices(phys)) for phys in (PHYS, KEYBOARD_PHYS, MOUSE_PHYS)}
-    proc = subprocess.Popen(
-        _cli("run", "--source", str(preds), "--profile", str(profile), "--output", "gamepad"),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=env,
-        cwd=str(REPO),
-    )
+    proc = _start_run_on_pad(preds, profile, env)
     new = lambda phys: sorted(set(_devices(phys)) - before[phys])  # noqa: E731
     found = guestlib.wait_for(
         lambda: (new(PHYS) and new(KEYBOARD_PHYS) and new(MOUSE_PHYS)) or proc.poll() is not None, 150.0, 0.05

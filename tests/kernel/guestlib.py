@@ -7,6 +7,7 @@ import os
 import select
 import shutil
 import subprocess
+import sys
 import time
 
 
@@ -112,3 +113,15 @@ class EventReader:
             self.device.close()
         except OSError:
             pass
+
+
+def sdl_env() -> dict[str, str]:
+    """The environment for an SDL2 (pygame) probe in the guest: no display, no audio, no
+    banner, and this interpreter's import path."""
+    return dict(
+        os.environ,
+        SDL_VIDEODRIVER="dummy",
+        SDL_AUDIODRIVER="dummy",
+        PYGAME_HIDE_SUPPORT_PROMPT="1",
+        PYTHONPATH=os.pathsep.join(sys.path),
+    )
