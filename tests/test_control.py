@@ -8,11 +8,10 @@ import os
 import subprocess
 import sys
 import threading
-import time
 
 import numpy as np
 import pytest
-from test_runtime import FakeMapper, FakePipeline, RecordingOutput, endless, writes_of
+from test_runtime import FakeMapper, FakePipeline, RecordingOutput, endless, wait_until, writes_of
 
 from neurotouch_hid.control import ControlServer, request_use, socket_path
 from neurotouch_hid.errors import NeurotouchError, ProfileError
@@ -123,16 +122,6 @@ def test_profile_use_switches_a_running_runtime_outputs_neutral_first(runtime_di
     before, after = writes_of(out.calls[:i]), writes_of(out.calls[i + 1 :])
     assert before and after and all(s.axes["ABS_X"] > 0 for s in before) and all(s.axes["ABS_X"] < 0 for s in after)
     assert not socket_path().exists()  # removed when the run ended
-
-
-def wait_until(condition, timeout_s: float = 60.0) -> bool:
-    """Poll ``condition()`` every 10 ms until it holds (True) or ``timeout_s`` passes (False)."""
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if condition():
-            return True
-        time.sleep(0.01)
-    return False
 
 
 def wait_for_socket(timeout_s: float = 5.0) -> bool:

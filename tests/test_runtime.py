@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import signal
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -250,18 +251,20 @@ def writes_of(calls):
     return [s for k, s in calls if k == "write"]
 
 
+def wait_until(condition, timeout_s: float = 60.0) -> bool:
+    """Poll ``condition()`` every 10 ms until it holds (True) or ``timeout_s`` passes (False)."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if condition():
+            return True
+        time.sleep(0.01)
+    return False
+
+
 def once(condition, action, timeout_s: float = 60.0) -> threading.Thread:
-    """Run ``action`` in a thread as soon as ``condition()`` holds (polled every 10 ms), so a test
+    """Run ``action`` in a thread as soon as ``condition()`` holds (:func:`wait_until`), so a test
     waits for what the runtime did, not for a wall-clock delay a loaded machine can overrun."""
-
-    def wait_then_act():
-        for _ in range(int(timeout_s / 0.01)):
-            if condition():
-                break
-            threading.Event().wait(0.01)
-        action()
-
-    thread = threading.Thread(target=wait_then_act, daemon=True)
+    thread = threading.Thread(target=lambda: (wait_until(condition, timeout_s), action()), daemon=True)
     thread.start()
     return thread
 
