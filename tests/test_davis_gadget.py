@@ -4,6 +4,8 @@ check the same stream through dv-processing's own driver over USB."""
 
 from __future__ import annotations
 
+import errno
+import os
 import sys
 from pathlib import Path
 
@@ -12,7 +14,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent / "kernel"))
 
-from davis_gadget import HEIGHT, WIDTH, WordEncoder  # noqa: E402
+from davis_gadget import HEIGHT, WIDTH, WordEncoder, process_events  # noqa: E402
 
 
 def decode(words: np.ndarray) -> tuple[list[tuple[int, int, int, int]], list[tuple[int, int, int, np.ndarray]]]:
@@ -143,3 +145,46 @@ def test_no_timestamp_is_sent_twice_in_a_row():
             seen.append(current)
     assert all(b > a for a, b in zip(seen, seen[1:])), seen
     assert [e[0] for e in decode(words)[0]] == [0x8000 - 1, 0x8000, 0x8000, 2 * 0x8000 + 5]
+
+
+class _Function:
+    """FunctionFS's function as process_events sees it: each call to processEvents takes the next
+    outcome (an OSError errno to raise, or None for events read)."""
+
+    def __init__(self, outcomes: list[int | None]) -> None:
+        self.outcomes = list(outcomes)
+        self.calls = 0
+
+    def processEvents(self) -> None:  # noqa: N802 - python-functionfs's name
+        self.calls += 1
+        outcome = self.outcomes.pop(0)
+        if outcome is not None:
+            raise OSError(outcome, os.strerror(outcome))
+
+
+class _Device:
+    def __init__(self) -> None:
+        self.notes: list[str] = []
+
+    def note(self, msg: str) -> None:
+        self.notes.append(msg)
+
+
+@pytest.mark.parametrize("code", [errno.EIDRM, errno.ESHUTDOWN])
+def test_a_cancelled_control_transfer_is_noted_and_the_events_read_again(code):
+    """FunctionFS fails one ep0 event read with EIDRM after the host gave up on a control transfer
+    (seen in CI: it ended the gadget); the events behind it are read at once, not left queued."""
+    function, device = _Function([code, None]), _Device()
+    process_events(function, device)
+    assert function.calls == 2
+    assert len(device.notes) == 1 and "cancelled by the host" in device.notes[0]
+
+
+def test_other_errors_and_a_read_that_keeps_failing_still_end_the_gadget():
+    with pytest.raises(OSError) as exc:
+        process_events(_Function([errno.EIO]), _Device())
+    assert exc.value.errno == errno.EIO
+    function = _Function([errno.EIDRM] * 3)
+    with pytest.raises(OSError) as exc:
+        process_events(function, _Device(), attempts=3)
+    assert exc.value.errno == errno.EIDRM and function.calls == 3

@@ -156,6 +156,8 @@ CHUNK_BYTES = 16384
 MAX_IN_FLIGHT = 16
 #: Pending data beyond this (bytes) is dropped, like an FX3 whose host does not read.
 MAX_BACKLOG_BYTES = 4 << 20
+#: FunctionFS's errors for a control transfer the host gave up on, or for a gadget unbound meanwhile
+CANCELLED = (errno.EIDRM, errno.ESHUTDOWN)
 
 
 def log(msg: str) -> None:
@@ -433,7 +435,7 @@ def _make_function_class():
                 # was answered (a new SETUP came: libusb's timeout on a slow, emulated machine),
                 # ESHUTDOWN when the gadget was unbound meanwhile; a real camera just takes the
                 # next request
-                if exc.errno not in (errno.EIDRM, errno.ESHUTDOWN):
+                if exc.errno not in CANCELLED:
                     raise
                 self.device.note(f"control request 0x{request:02x} cancelled by the host ({exc.strerror})")
 
@@ -590,6 +592,25 @@ class DavisDevice:
 
 
 # --- the gadget in configfs --------------------------------------------------------------------
+def process_events(function, device: "DavisDevice", attempts: int = 3) -> None:
+    """FunctionFS's ep0 events and data completions (``function.processEvents()``), taking a
+    cancelled control transfer in its stride.
+
+    When the host gives up on a control transfer (libusb's timeout on the slow, emulated guest)
+    while its SETUP event is still queued, FunctionFS fails the gadget's next ep0 *event read*
+    with EIDRM once, clearing the cancelled state; the events behind it are still queued and the
+    eventfd that announced them is already consumed, so they are read again at once. Raises
+    OSError for anything else, or when the read keeps failing ``attempts`` times."""
+    for attempt in range(attempts):
+        try:
+            function.processEvents()
+            return
+        except OSError as exc:
+            if exc.errno not in CANCELLED or attempt == attempts - 1:
+                raise
+            device.note(f"ep0 events: a control transfer cancelled by the host ({exc.strerror}); reading on")
+
+
 def load_modules() -> None:
     for module in ("dummy_hcd", "libcomposite", "usb_f_fs"):
         proc = subprocess.run(["modprobe", module], capture_output=True, text=True)
@@ -682,7 +703,7 @@ def main(argv: list[str] | None = None) -> int:
             while not stop:
                 try:
                     if epoll.poll(0.001):
-                        ffs.function.processEvents()
+                        process_events(ffs.function, device)
                 except InterruptedError:
                     pass
                 while plug_requests:
