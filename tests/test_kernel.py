@@ -62,11 +62,6 @@ def devices_part(guest: dict, part: str) -> dict:
     return entry["details"]
 
 
-def test_devices_as_root_lists_the_emulated_camera_as_accessible(guest):
-    details = devices_part(guest, "as_root")
-    assert details["camera"]["usb"]["access"] == "ok" and details["camera"]["serial"] == "00000001"
-
-
 def test_dv_processing_refusing_to_open_is_explained_in_one_line(guest):
     details = devices_part(guest, "dv_open")
     assert "EXPLAIN" in details["dv_open"] or "OPENED" in details["dv_open"]

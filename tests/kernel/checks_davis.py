@@ -176,13 +176,15 @@ def _descriptors(camera: EmulatedCamera) -> dict:
 
 
 def _devices(camera: EmulatedCamera) -> dict:
-    """``neurotouch-hid devices --json``: the emulated camera is ready, and dv-processing lists it."""
+    """``neurotouch-hid devices --json`` as root: the emulated camera is present, accessible and ready, and
+    dv-processing lists it."""
     proc = _run([CLI, "devices", "--json"])
     data = json.loads(proc.stdout)
     assert proc.returncode == 0 and data["ready"] == 1, data
     (cam,) = data["cameras"]
     assert cam["status"] == "ready" and cam["dv"]["model"] == "DAVIS" and cam["dv"]["firmware"] == 6, cam
-    return {"message": data["message"], "dv": cam["dv"]}
+    assert cam["usb"]["access"] == "ok" and cam["usb"]["reason"] == "" and cam["serial"] == "00000001", cam
+    return {"message": data["message"], "dv": cam["dv"], "usb": cam["usb"]}
 
 
 def _match(source: tuple, recorded: tuple, period_us: int) -> dict:

@@ -3,11 +3,13 @@
 The camera is the emulated one of checks_packaging.py (dummy_hcd + a configfs gadget with the
 DAVIS-346's ids 152a:841a; it speaks the kernel's SourceSink test protocol, not the DAVIS one).
 The camera is plugged in once, and the command runs as a separate process, as a user would run
-it, with a timeout: as root (present and accessible) and as the unprivileged user nobody (present
-but not accessible: the udev-rule fix). While this process holds the camera's interface, the
-discovery finds it busy, and who holds it. What dv-processing makes of the emulated device, and
-of being asked to open it, is recorded. Under software emulation every Python process takes tens
-of seconds to start, so there are only three; each part's verdict is kept on its own.
+it, with a timeout, as the unprivileged user nobody (present but not accessible: the udev-rule
+fix). While this process holds the camera's interface, the discovery finds it busy, and who holds
+it. What dv-processing makes of a device with the camera's ids that is no DAVIS, asked to open
+it, is recorded. ``devices`` as root on a camera that dv-processing opens is checked on the
+emulated DAVIS-346 (checks_davis.py, part "devices"). Under software emulation every Python
+process takes tens of seconds to start, so there are only two; each part's verdict is kept on its
+own.
 Run by tests/kernel/guest.py; asserted on by tests/test_kernel.py.
 """
 
@@ -121,21 +123,6 @@ def _only_camera(data: dict, node: str) -> dict:
     return camera
 
 
-def _as_root(bus: int, address: int, node: str) -> dict:
-    """As root: the emulated camera is present and accessible; what dv-processing lists for it."""
-    code, data = _devices_json()
-    camera = _only_camera(data, node)
-    assert (camera["bus"], camera["address"]) == (bus, address), camera
-    assert camera["usb"]["access"] == "ok" and camera["usb"]["reason"] == "", camera
-    # dv-processing lists the gadget (matched by bus/address) or not; either way the verdict agrees
-    if camera["dv"] is not None:
-        assert camera["status"] == "ready" and code == 0 and data["ready"] == 1, data
-        assert data["message"] == f"ready: DAVIS-346 at bus {bus} device {address} ({node}), serial 00000001", data
-    else:
-        assert camera["status"] == "not-in-dv" and code == 1 and "dv-processing" in camera["problem"], data
-    return {"exit_code": code, "camera": camera, "message": data["message"], "dv_log": data["dv_log"]}
-
-
 def _dv_open(bus: int, address: int, node: str) -> dict:
     """dv-processing asked to open the emulated camera (it is no DAVIS: it refuses it) and the line
     explain_no_camera(error=...) makes of its error; in a process of its own, with a timeout."""
@@ -213,7 +200,7 @@ def _unprivileged(bus: int, address: int, node: str) -> dict:
     return {"exit_code": code, "camera": camera, "message": data["message"], "dv_log": data["dv_log"]}
 
 
-PARTS = {"as_root": _as_root, "dv_open": _dv_open, "busy": _busy, "unprivileged": _unprivileged}
+PARTS = {"dv_open": _dv_open, "busy": _busy, "unprivileged": _unprivileged}
 
 
 def check_devices() -> dict:
