@@ -1,5 +1,8 @@
 """Shared fixtures: the one real-kernel boot per test session (tests/kernel/vm.py), and a user
-config folder in tmp for every other test."""
+config folder in tmp for every other test.
+
+The boot starts in the background as soon as the tests are collected, when any of them needs it,
+and the tests that need it run last: the host's tests run while the guest boots and checks."""
 
 from __future__ import annotations
 
@@ -9,7 +12,31 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from kernel.vm import KernelUnavailable, guest_results  # noqa: E402
+from kernel.vm import (  # noqa: E402
+    KernelUnavailable,
+    cancel_background_boot,
+    guest_results,
+    start_background_boot,
+)
+
+
+def _needs_guest(item: pytest.Item) -> bool:
+    return "guest" in getattr(item, "fixturenames", ())
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The tests on the guest's results last (in their own order), so that the boot overlaps the
+    host's tests."""
+    items.sort(key=_needs_guest)  # stable: the order within each group is kept
+
+
+def pytest_collection_finish(session: pytest.Session) -> None:
+    if not session.config.option.collectonly and any(_needs_guest(item) for item in session.items):
+        start_background_boot()
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    cancel_background_boot()  # an interrupted or -x session leaves no qemu behind
 
 
 @pytest.fixture(autouse=True)

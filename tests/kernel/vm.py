@@ -14,6 +14,7 @@ the kernel is downloaded with ``apt-get download`` and extracted into a cache fo
 
 from __future__ import annotations
 
+import contextlib
 import ctypes.util
 import fcntl
 import functools
@@ -21,9 +22,11 @@ import json
 import os
 import shlex
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -218,14 +221,19 @@ def compile_guest_numba_cache(folder: Path) -> None:
         raise RuntimeError(f"compiling the pipeline for the guest failed: {proc.stdout[-1000:]}{proc.stderr[-1000:]}")
 
 
-def boot(guest_script: Path = GUEST_SCRIPT, timeout_s: int = BOOT_TIMEOUT_S) -> dict:
+def boot(
+    guest_script: Path = GUEST_SCRIPT, timeout_s: int = BOOT_TIMEOUT_S, cancelled: threading.Event | None = None
+) -> dict:
     """Boot the kernel once under qemu (no KVM), run ``guest_script`` in it, return its JSON.
 
     The boot's shared folder holds, beside the result, what checks_davis.py needs: the replay
     recording and the pipeline's numba code compiled here (:func:`compile_guest_numba_cache`).
     The JSON maps each check's name to ``{"ok": bool, "seconds": float, ...details}``, plus
     ``"_boot"`` with the boot's wall time and kernel release. Raises KernelUnavailable when qemu
-    cannot be installed, RuntimeError (with vng's output) when the guest wrote no result."""
+    cannot be installed, RuntimeError (with vng's output) when the guest wrote no result.
+
+    ``cancelled`` (set from another thread, :func:`cancel_background_boot`) stops qemu early: the
+    boot then raises RuntimeError."""
     ensure_host_packages()
     kdir, kver = ensure_kernel()
     vmlinuz = kdir / "boot" / f"vmlinuz-{kver}"
@@ -250,21 +258,33 @@ def boot(guest_script: Path = GUEST_SCRIPT, timeout_s: int = BOOT_TIMEOUT_S) -> 
         inner,
     ]
     t0 = time.monotonic()
-    try:
-        proc = subprocess.run(
+    with (
+        tempfile.TemporaryFile("w+") as log_file,
+        subprocess.Popen(
             cmd,
-            capture_output=True,
+            stdout=log_file,
+            stderr=subprocess.STDOUT,
             text=True,
             env=env,
-            timeout=timeout_s,
             stdin=subprocess.DEVNULL,
             cwd=str(HERE.parent.parent),
-        )
-        log = proc.stdout + proc.stderr
-    except subprocess.TimeoutExpired as exc:
-        log = f"vng timed out after {timeout_s} s\n{exc.stdout or ''}{exc.stderr or ''}"
+            start_new_session=True,  # vng, qemu and all: one process group, to stop them together
+        ) as proc,
+    ):
+        stopped = ""
+        while proc.poll() is None and not stopped:
+            if cancelled is not None and cancelled.wait(1.0):
+                stopped = "the test session ended first"
+            elif time.monotonic() - t0 > timeout_s:
+                stopped = f"vng timed out after {timeout_s} s"
+        if stopped:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+        log_file.seek(0)
+        log = (f"{stopped}\n" if stopped else "") + log_file.read()
     seconds = time.monotonic() - t0
-    (out / "vng.log").write_text(log if isinstance(log, str) else log.decode(errors="replace"))
+    (out / "vng.log").write_text(log)
     if not result.exists():
         raise RuntimeError(f"the guest wrote no {result.name}; vng said:\n{str(log)[-3000:]}")
     data = json.loads(result.read_text())
@@ -276,9 +296,57 @@ def boot(guest_script: Path = GUEST_SCRIPT, timeout_s: int = BOOT_TIMEOUT_S) -> 
     return data
 
 
+class BackgroundBoot:
+    """:func:`boot` in a thread of its own, started as the test session starts so that the host's
+    tests run while the guest does (the boot takes minutes under software emulation)."""
+
+    def __init__(self) -> None:
+        self._cancelled = threading.Event()
+        self._result: dict | None = None
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._boot, name="kernel-boot", daemon=True)
+        self._thread.start()
+
+    def _boot(self) -> None:
+        try:
+            self._result = boot(cancelled=self._cancelled)
+        except BaseException as exc:  # noqa: BLE001 - handed to the thread that asks for the result
+            self._error = exc
+
+    def result(self) -> dict:
+        """The boot's JSON once it is done; raises what :func:`boot` raised."""
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        assert self._result is not None
+        return self._result
+
+    def cancel(self) -> None:
+        """Stop qemu if it still runs (the session ended before any test asked for the result)."""
+        self._cancelled.set()
+        self._thread.join(timeout=30)
+
+
+_background: BackgroundBoot | None = None
+
+
+def start_background_boot() -> None:
+    """Start the one boot of this process now, in the background (:class:`BackgroundBoot`)."""
+    global _background
+    if _background is None:
+        _background = BackgroundBoot()
+
+
+def cancel_background_boot() -> None:
+    """Stop a background boot that is still running (nothing when none was started)."""
+    if _background is not None:
+        _background.cancel()
+
+
 @functools.cache
 def guest_results() -> dict:
-    """:func:`boot` once per Python process (one pytest session); later calls get the same dict.
+    """The results of the one boot per Python process (one pytest session): the background boot's
+    when one was started, else :func:`boot` now; later calls get the same dict.
 
     Raises KernelUnavailable (tests skip with its message) or RuntimeError (tests fail)."""
-    return boot()
+    return _background.result() if _background is not None else boot()
