@@ -14,7 +14,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent / "kernel"))
 
-from davis_gadget import HEIGHT, WIDTH, WordEncoder, process_events  # noqa: E402
+from davis_gadget import HEIGHT, WIDTH, Replay, Stream, WordEncoder, process_events  # noqa: E402
 
 
 def decode(words: np.ndarray) -> tuple[list[tuple[int, int, int, int]], list[tuple[int, int, int, np.ndarray]]]:
@@ -145,6 +145,43 @@ def test_no_timestamp_is_sent_twice_in_a_row():
             seen.append(current)
     assert all(b > a for a, b in zip(seen, seen[1:])), seen
     assert [e[0] for e in decode(words)[0]] == [0x8000 - 1, 0x8000, 0x8000, 2 * 0x8000 + 5]
+
+
+def _recording(path: Path) -> Path:
+    """Events at 0, 100, ..., 9900 us (x = t / 100, so each says when it was recorded), no frames."""
+    from neurotouch_hid.sources.recording import EVENT_DTYPE, RecordingWriter
+
+    events = np.zeros(100, EVENT_DTYPE)
+    events["timestamp"] = 1_000_000 + 100 * np.arange(100)
+    events["x"] = np.arange(100)
+    events["y"] = 5
+    events["polarity"] = 1
+    with RecordingWriter(path, frames=False) as writer:
+        writer.write_events(events)
+    return path
+
+
+def test_a_cued_gesture_plays_slowed_once_then_its_hold_loops(tmp_path):
+    """SIGHUP's cue (--gesture, --hold, --slow): the looped rest stops at the cue, the gesture part
+    follows at once N times slower, then the hold part repeats; device time never goes back."""
+    path = _recording(tmp_path / "r.aedat4")
+    rest = Replay(path, loop=True, to_s=0.002)  # events x = 0..19, looped every 2.9 ms
+    gesture = Replay(path, loop=False, from_s=0.005, to_s=0.006, slow=10)  # x = 50..59, 1 ms apart
+    hold = Replay(path, loop=True, from_s=0.009, to_s=0.01)  # x = 90..99
+    stream = Stream(rest, t_dev0=0)
+    words = stream.until(5_000, dvs=True, aps=False)
+    stream.cue(5_000, [gesture, hold])
+    words += stream.until(40_000, dvs=True, aps=False)
+    events, _ = decode(np.concatenate(words))
+    t = [e[0] for e in events]
+    x = [e[1] for e in events]
+    assert t == sorted(t)
+    cue = x.index(50)
+    assert set(x[:cue]) == set(range(20)) and t[cue - 1] <= 5_000  # the rest loop, up to the cue
+    assert x[cue : cue + 10] == list(range(50, 60))  # the gesture, once, 10 times slower
+    assert [b - a for a, b in zip(t[cue : cue + 10], t[cue + 1 : cue + 10])] == [1_000] * 9
+    assert t[cue] == 5_000 and set(x[cue + 10 :]) == set(range(90, 100))  # then the hold, looped
+    assert x.count(90) >= 2
 
 
 class _Function:

@@ -4,7 +4,8 @@ Usage (as root, in a kernel with dummy_hcd, libcomposite and usb_f_fs, e.g. the 
 tests/kernel/vm.py boots)::
 
     python3 tests/kernel/davis_gadget.py RECORDING.aedat4 [--loop] [--from-s S] [--to-s S]
-        [--frame-every N] [--serial 00000001] [--verbose]
+        [--frame-every N] [--gesture FROM:TO [--hold FROM:TO] [--gesture-slow N]]
+        [--serial 00000001] [--verbose]
 
 It loads dummy_hcd, libcomposite and usb_f_fs, mounts configfs, and makes a USB device appear on
 the dummy host controller with the ids and descriptors of an iniVation DAVIS FX3 board
@@ -41,6 +42,11 @@ is enumerated.
   frame's own timestamp, exposure end that plus its exposure (or 4 ms when the recording says none).
 * **Signals.** SIGTERM or SIGINT: unplug (the gadget is unbound from the controller) and exit.
   SIGUSR1: unplug and stay; SIGUSR2: plug in again (a new enumeration, like a re-plugged cable).
+  SIGHUP: leave the replay now for ``--gesture FROM:TO`` (that part of the recording, once), then
+  ``--hold FROM:TO`` again and again (the gesture held), until the host starts the stream again:
+  a gesture on cue, e.g. once the program under test is ready for it. ``--gesture-slow N`` plays
+  both N times slower (every time offset, exposures included, times N): the same motion, slower,
+  for a host too slow to keep up with it in real time (the emulated test kernel).
 
 Assumptions where libcaer's source does not say (each checked only against dv-processing's own
 driver in the test kernel, never against a camera; tests/kernel/README.md has them all, with what
@@ -272,8 +278,17 @@ class Replay:
     """The recording as a schedule: what to send up to a given time since the stream started."""
 
     def __init__(
-        self, path: Path, loop: bool, frame_every: int = 1, from_s: float = 0.0, to_s: float | None = None
+        self,
+        path: Path,
+        loop: bool,
+        frame_every: int = 1,
+        from_s: float = 0.0,
+        to_s: float | None = None,
+        slow: float = 1.0,
     ) -> None:
+        """The part of ``path`` from ``from_s`` to ``to_s`` (s after its first event or frame),
+        every ``frame_every``-th APS frame, ``slow`` times slower than recorded (each time
+        offset, exposures included, multiplied by ``slow``), repeated when ``loop``."""
         from neurotouch_hid.sources.recording import RecordingReader
 
         with RecordingReader(path, require_resolution=(WIDTH, HEIGHT)) as reader:
@@ -288,15 +303,15 @@ class Replay:
         if len(events) == 0 and not frames:
             raise SystemExit(f"{path}: no events and no frames to replay (between {from_s} s and {to_s} s)")
         self.t0 = lo
-        self.t = events["timestamp"] - self.t0
+        self.t = ((events["timestamp"] - self.t0) * slow).astype(np.int64)
         self.x, self.y, self.p = events["x"], events["y"], events["polarity"]
         # frame marks: (time since start, 0 = exposure start / 1 = readout, frame index)
         marks = []
         for i, f in enumerate(frames):
             if i % frame_every:
                 continue
-            exposure = exposures.get(f.t_us, DEFAULT_EXPOSURE_US)
-            marks += [(f.t_us - self.t0, 0, i), (f.t_us - self.t0 + exposure, 1, i)]
+            start = int((f.t_us - self.t0) * slow)
+            marks += [(start, 0, i), (start + int(exposures.get(f.t_us, DEFAULT_EXPOSURE_US) * slow), 1, i)]
         self.marks = sorted(marks)
         self.images = [f.image for f in frames]
         last = max(([int(self.t[-1])] if len(self.t) else []) + [m[0] for m in self.marks[-1:]])
@@ -326,20 +341,33 @@ class Stream:
 
     def __init__(self, replay: Replay, t_dev0: int) -> None:
         self.replay = replay
-        self.t_dev0 = t_dev0  # device time at which the replay's t = 0 is sent
+        self.t_dev0 = t_dev0  # device time at which the stream's t_rel = 0 is sent
         self.encoder = WordEncoder()
         self.encoder.reset(t_dev0)
+        self.offset = 0  # t_rel (us) at which the current replay's t = 0 is sent
         self.lap = 0
         self.event_pos = 0
         self.mark_pos = 0
         self.done = False
+        self.following: list[Replay] = []  # played in turn once the current one is done
+
+    def cue(self, t_rel: int, replays: list[Replay]) -> None:
+        """Leave the current replay at ``t_rel`` (us after the stream start; what is due before
+        it has been sent) for ``replays[0]``, then each of the others in turn."""
+        self._switch(t_rel, replays[0])
+        self.following = list(replays[1:])
+
+    def _switch(self, t_rel: int, replay: Replay) -> None:
+        self.replay, self.offset = replay, t_rel
+        self.lap = self.event_pos = self.mark_pos = 0
+        self.done = False
 
     def until(self, t_rel: int, dvs: bool, aps: bool) -> list[np.ndarray]:
         """Words for everything due up to ``t_rel`` us after the stream start."""
-        r = self.replay
         out: list[np.ndarray] = []
         while not self.done:
-            base = self.lap * r.period
+            r = self.replay
+            base = self.offset + self.lap * r.period
             limit = t_rel - base
             end = int(np.searchsorted(r.t, limit, side="right"))
             while self.event_pos < end or (self.mark_pos < len(r.marks) and r.marks[self.mark_pos][0] <= limit):
@@ -361,6 +389,9 @@ class Stream:
             if limit < r.period:
                 break
             if not r.loop:
+                if self.following:
+                    self._switch(base + r.period, self.following.pop(0))
+                    continue
                 self.done = True
                 break
             self.lap += 1
@@ -460,8 +491,9 @@ def _make_function_class():
 class DavisDevice:
     """Register file, stream state and the data endpoint's queue of the emulated camera."""
 
-    def __init__(self, replay: Replay, verbose: bool) -> None:
+    def __init__(self, replay: Replay, verbose: bool, cued: list[Replay] | None = None) -> None:
         self.replay = replay
+        self.cued = cued or []  # what SIGHUP plays: --gesture once, then --hold looped
         self.verbose = verbose
         self.registers = Registers()
         self.registers.on_write = self._on_write
@@ -534,6 +566,15 @@ class DavisDevice:
             f"stream started ({self.replay.duration_s:.2f} s of recording"
             f"{f', looped every {self.replay.period} us' if self.replay.loop else ''})"
         )
+
+    def play_cued(self) -> None:
+        """SIGHUP: the stream leaves the replay now for the cued ones (--gesture, then --hold), until
+        the host starts the stream again (which starts over from the first replay)."""
+        if self.stream is None or not self.cued:
+            log("SIGHUP: nothing cued (no --gesture) or no stream running; ignored")
+            return
+        self.stream.cue(int((time.monotonic() - self.stream_wall0) * 1e6), self.cued)
+        log(f"SIGHUP: playing the cued gesture ({', '.join(f'{r.duration_s:.2f} s' for r in self.cued)})")
 
     def _stop_stream(self, why: str) -> None:
         if self.stream is not None:
@@ -635,6 +676,17 @@ def find_device(serial: str) -> Path | None:
     return None
 
 
+def _span(text: str) -> tuple[float, float]:
+    """``FROM:TO`` (s) -> (from_s, to_s), for argparse."""
+    try:
+        lo, hi = (float(v) for v in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected FROM:TO in seconds, e.g. 0.55:2.0, got {text!r}") from None
+    if not 0 <= lo < hi:
+        raise argparse.ArgumentTypeError(f"expected 0 <= FROM < TO, got {text!r}")
+    return lo, hi
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("recording", type=Path, help="AEDAT4 file (346x260 events, APS frames optional)")
@@ -661,6 +713,27 @@ def main(argv: list[str] | None = None) -> int:
         metavar="N",
         help="send only every N-th APS frame (a slow, emulated host cannot read 9 MB/s)",
     )
+    parser.add_argument(
+        "--gesture-slow",
+        type=float,
+        default=1.0,
+        metavar="N",
+        help="play --gesture and --hold N times slower than recorded (an emulated host is slow)",
+    )
+    parser.add_argument(
+        "--gesture",
+        type=_span,
+        default=None,
+        metavar="FROM:TO",
+        help="on SIGHUP, leave the replay for this part of the recording (s), played once",
+    )
+    parser.add_argument(
+        "--hold",
+        type=_span,
+        default=None,
+        metavar="FROM:TO",
+        help="after --gesture, this part of the recording (s) again and again (a gesture held)",
+    )
     parser.add_argument("--verbose", action="store_true", help="log every register read and write")
     args = parser.parse_args(argv)
     if os.geteuid() != 0:
@@ -668,11 +741,20 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.frame_every < 1:
         parser.error("--frame-every must be at least 1")
+    if args.gesture_slow <= 0:
+        parser.error("--gesture-slow must be positive")
+    if args.hold and not args.gesture:
+        parser.error("--hold follows a --gesture")
     replay = Replay(args.recording, args.loop, args.frame_every, args.from_s, args.to_s)
+    cued = [
+        Replay(args.recording, loop, args.frame_every, *span, args.gesture_slow)
+        for loop, span in ((False, args.gesture), (True, args.hold))
+        if span is not None
+    ]
     load_modules()
     from functionfs.gadget import ConfigFunctionFFS, Gadget
 
-    device = DavisDevice(replay, args.verbose)
+    device = DavisDevice(replay, args.verbose, cued)
     function_class = _make_function_class()
     ffs = ConfigFunctionFFS(getFunction=lambda path: function_class(path, device))
     udcs = sorted(os.listdir("/sys/class/udc"))
@@ -694,6 +776,8 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGINT, lambda *_: stop.append("SIGINT"))
     signal.signal(signal.SIGUSR1, lambda *_: plug_requests.append(False))
     signal.signal(signal.SIGUSR2, lambda *_: plug_requests.append(True))
+    cues: deque[bool] = deque()
+    signal.signal(signal.SIGHUP, lambda *_: cues.append(True))
     udc_file = CONFIGFS / "usb_gadget" / GADGET_NAME / "UDC"
     with gadget:
         device.function = ffs.function
@@ -712,6 +796,9 @@ def main(argv: list[str] | None = None) -> int:
                     udc_file.write_text(udcs[0] if plug else "\n")
                     log("plugged in again" if plug else "unplugged (SIGUSR1)")
                     announced = announced and not plug
+                while cues:
+                    cues.popleft()
+                    device.play_cued()
                 if not announced:
                     sysdev = find_device(args.serial)
                     if sysdev is not None:
