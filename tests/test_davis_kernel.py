@@ -86,10 +86,12 @@ def test_run_on_the_camera_gives_estimates_from_the_hosts_compiled_pipeline(gues
     assert details["cache_loads"] > 0, details
 
 
-def test_run_unplugged_centres_the_pad_and_carries_on_when_the_camera_is_back(guest):
-    """``run --source davis`` on the gamepad: unplugged, the driver reported the loss with the pad
-    neutral and wrote nothing while the camera was away; plugged in again, it said the camera is
-    back and kept running until SIGTERM (exit 0)."""
+def test_run_unplugged_mid_push_centres_the_pad_and_carries_on_when_the_camera_is_back(guest):
+    """``run --source davis`` on the gamepad: the camera's push (the gadget's cue) moved the left
+    stick; unplugged mid-push, the driver reported the loss with the pad neutral and wrote nothing
+    while the camera was away; plugged in again, it said the camera is back and kept running until
+    SIGTERM (exit 0)."""
     details = part(guest, "run_gamepad_unplug")
+    assert details["pushed_axes"].get("ABS_X", 0) <= -16_000, details
     assert "gamepad centred" in details["lost"] and "is back" in details["back"], details
     assert details["exit_code"] == 0

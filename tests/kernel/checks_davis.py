@@ -36,6 +36,7 @@ from pathlib import Path
 import guestlib
 import numpy as np
 import vm
+from evdev import ecodes
 
 HERE = Path(__file__).resolve().parent
 GADGET = HERE / "davis_gadget.py"
@@ -47,6 +48,17 @@ CLI = str(Path(sys.executable).parent / "neurotouch-hid")
 REST_TO_S = 0.55
 #: Frames sent: the first of every 14, i.e. one per pass of the 0.55 s (14 frames) above.
 FRAME_EVERY = 14
+#: The push the gadget plays on SIGHUP (s of the recording: the simulated session's push, from
+#: the rest before it to its end), then the part of it held, again and again; both GESTURE_SLOW
+#: times slower than recorded (the gel's ~70k events/s at real speed are more than the emulated
+#: guest's pipeline processes: tests/kernel/README.md).
+PUSH_S, HELD_S, GESTURE_SLOW = (REST_TO_S, 2.0), (1.6, 2.0), 10
+#: ``run``'s window on the gamepad (us): under emulation each window's estimate takes ~15 ms, so
+#: the paper's 10 ms windows fall behind the camera; 50 ms ones keep up.
+RUN_WINDOW_US = 50_000
+#: The push counts as on the pad once the left stick is this far left (of 32767: the default
+#: profile maps a push's intensity to ABS_X), at most this many seconds after the cue.
+PUSHED_X, PUSH_WAIT_S = 16_000, 120
 #: Name of the replayed recording in the boot's shared folder (vm.py puts it there).
 REPLAY_NAME = "davis_replay.aedat4"
 
@@ -73,6 +85,12 @@ class EmulatedCamera:
                 str(REST_TO_S),
                 "--frame-every",
                 str(FRAME_EVERY),
+                "--gesture",
+                "{}:{}".format(*PUSH_S),
+                "--hold",
+                "{}:{}".format(*HELD_S),
+                "--gesture-slow",
+                str(GESTURE_SLOW),
             ],
             stdout=subprocess.PIPE,
             stderr=self._log,
@@ -344,18 +362,20 @@ def _neutral(reader: guestlib.EventReader) -> bool:
 
 
 def _run_gamepad_unplug(camera: EmulatedCamera) -> dict:
-    """``run --source davis`` on the gamepad, the camera unplugged (SIGUSR1) mid-run: the driver
-    reports it lost ("gamepad centred and released"), the pad (read back through evdev) is neutral
-    then and nothing is written while the camera is away; plugged in again (SIGUSR2): the driver
-    says it is back (it has read data again) and keeps running until SIGTERM (exit 0).
+    """``run --source davis`` on the gamepad with the gel pushed, the camera then unplugged
+    (SIGUSR1) mid-push: the pad (read back through evdev) showed the push (the default profile's
+    full left stick) and is neutral by the time the driver reports the camera lost ("gamepad
+    centred and released"); nothing is written while the camera is away; plugged in again
+    (SIGUSR2), the driver says it is back (it has read data again) and keeps running until SIGTERM
+    (exit 0).
 
-    The gel is at rest, so the pad is neutral before the unplug too: under emulation the pipeline
-    drops nearly every event (tests/kernel/README.md), so a replayed push does not reach the pad
-    here; centring a pushed pad on a lost camera is tested on the host (tests/test_davis.py)."""
+    The push is the gadget's cue (SIGHUP: PUSH_S, then HELD_S looped, GESTURE_SLOW times slower),
+    given once the pad exists, i.e. once the pipeline has its markers from a frame at rest; ``run``
+    uses RUN_WINDOW_US windows so that the emulated pipeline keeps up."""
     out_path = Path("/tmp/davis-run-gamepad.out")
     with open(out_path, "w") as out:
         proc = subprocess.Popen(
-            [CLI, "run", "--source", "davis", "--output", "gamepad"],
+            [CLI, "run", "--source", "davis", "--output", "gamepad", "--window-us", str(RUN_WINDOW_US)],
             stdout=out,
             stderr=subprocess.PIPE,
             text=True,
@@ -369,7 +389,8 @@ def _run_gamepad_unplug(camera: EmulatedCamera) -> dict:
     def pump_until(pred, timeout_s: float) -> bool:
         end = time.monotonic() + timeout_s
         while time.monotonic() < end:
-            reader.pump(0.2)
+            stop = time.monotonic() + 0.2  # a pad that keeps moving must not keep the reader forever
+            reader.pump(0.2, until=lambda _, stop=stop: time.monotonic() > stop)
             err.poll()
             if pred():
                 return True
@@ -381,7 +402,14 @@ def _run_gamepad_unplug(camera: EmulatedCamera) -> dict:
         reader = guestlib.EventReader(_pad_path(proc, RUN_START_S))
         pad_after_s = time.monotonic() - t_start
         # the camera is open and data reached the pipeline: the pad was made after both
-        time.sleep(5)
+        reader.pump(1.0)
+        assert _neutral(reader), f"not neutral at rest: {reader.axes} {reader.keys}"
+        t_cue = time.monotonic()
+        camera.proc.send_signal(signal.SIGHUP)
+        pushed = pump_until(lambda: reader.axes.get(ecodes.ABS_X, 0) <= -PUSHED_X, PUSH_WAIT_S)
+        assert pushed, f"no push on the pad {PUSH_WAIT_S} s after the cue: {reader.axes}; {err.lines[-5:]}"
+        pushed_after_s = time.monotonic() - t_cue
+        pushed_axes = dict(reader.axes)
         t_unplug = time.monotonic()
         camera.proc.send_signal(signal.SIGUSR1)
         assert pump_until(lambda: err.find("gamepad centred", t_unplug), 120), f"no loss reported: {err.lines[-5:]}"
@@ -411,6 +439,8 @@ def _run_gamepad_unplug(camera: EmulatedCamera) -> dict:
     assert not compiled, f"numba compiled in the guest (the host's cache was not used): {compiled}"
     return {
         "pad_after_s": round(pad_after_s, 1),
+        "pushed_after_cue_s": round(pushed_after_s, 1),
+        "pushed_axes": {ecodes.ABS[code]: value for code, value in pushed_axes.items() if value},
         "lost": lost,
         "lost_reported_after_unplug_s": round(t_lost - t_unplug, 1),
         "back": back,
