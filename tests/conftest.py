@@ -14,6 +14,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from kernel.vm import (  # noqa: E402
     KernelUnavailable,
+    boot_summary,
     cancel_background_boot,
     guest_results,
     start_background_boot,
@@ -33,6 +34,12 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 def pytest_collection_finish(session: pytest.Session) -> None:
     if not session.config.option.collectonly and any(_needs_guest(item) for item in session.items):
         start_background_boot()
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus: int, config: pytest.Config) -> None:
+    line = boot_summary()
+    if line:
+        terminalreporter.write_line(line)
 
 
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:

@@ -272,8 +272,9 @@ def boot(
         ) as proc,
     ):
         stopped = ""
+        cancelled = cancelled or threading.Event()
         while proc.poll() is None and not stopped:
-            if cancelled is not None and cancelled.wait(1.0):
+            if cancelled.wait(1.0):  # a 1 s tick, not a spin: qemu needs both cores
                 stopped = "the test session ended first"
             elif time.monotonic() - t0 > timeout_s:
                 stopped = f"vng timed out after {timeout_s} s"
@@ -335,6 +336,21 @@ def start_background_boot() -> None:
     global _background
     if _background is None:
         _background = BackgroundBoot()
+
+
+def boot_summary() -> str | None:
+    """One line on the finished background boot: its wall time and each guest check's seconds,
+    slowest first (None when no boot finished). For the test session's summary: CI shows where the
+    guest's minutes go."""
+    result = _background._result if _background is not None else None
+    if result is None:
+        return None
+    checks = sorted(
+        ((name, entry["seconds"]) for name, entry in result.items() if isinstance(entry, dict) and "seconds" in entry),
+        key=lambda item: -item[1],
+    )
+    listed = ", ".join(f"{name.split('.')[-1]} {seconds:.0f} s" for name, seconds in checks)
+    return f"kernel boot {result.get('_boot', {}).get('seconds', '?')} s; guest checks: {listed}"
 
 
 def cancel_background_boot() -> None:
