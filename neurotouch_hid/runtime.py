@@ -7,8 +7,10 @@ resting detector (Chamfer distance on APS frames, paper, section "Resting Positi
 hands its results to the pipeline (``pipeline.set_resting``). numpy, OpenCV and numba release the
 GIL in their heavy parts, so on two cores the resting detection does not hold up the event path.
 
-Between the threads sit bounded queues. When the pipeline falls behind a live or paced source, the
-queue drops its OLDEST items (counted in :class:`RunStats`) instead of letting the controller lag;
+Between the threads sit bounded queues. When the pipeline falls behind a live or paced source, it
+takes the event batches queued meanwhile in one call (the same events, its per-call cost paid
+once: :meth:`DropOldestQueue.get_joined`); when the queue is full all the same, it drops its
+OLDEST items (counted in :class:`RunStats`) instead of letting the controller lag;
 with ``pace=False`` (``--fast``) nothing is dropped: the source waits for the pipeline instead,
 and the pipeline runs the resting detection inline so that a replay is deterministic.
 
@@ -61,6 +63,9 @@ log = logging.getLogger(__name__)
 DEFAULT_BATCH_US = 1_000
 #: Input queue bound (items); with 1 ms batches about 0.2 s of data before the oldest is dropped.
 DEFAULT_QUEUE_ITEMS = 200
+#: At most this many events in one pipeline call when the pipeline catches up on queued batches
+#: (:meth:`DropOldestQueue.get_joined`): about 0.1 s at the camera's 12 M events/s USB maximum.
+MAX_JOINED_EVENTS = 1_000_000
 #: Frame queue bound for the resting detector (APS frames, 25 Hz).
 DEFAULT_FRAME_QUEUE = 2
 #: The interpreter's thread switch interval (s) during real-time runs, instead of Python's 5 ms:
@@ -125,6 +130,31 @@ class DropOldestQueue:
             entry = self._items.popleft()
             self._cond.notify_all()
             return entry
+
+    def get_joined(self, timeout: float = _POLL_S, max_events: int = 0) -> tuple[int, StreamItem] | None:
+        """Like :meth:`get`, but an event batch comes with the event batches queued right behind it
+        joined on (one EVENT_DTYPE array, in order, at most ``max_events`` events; APS frames and
+        other items are never joined, nor passed), and the first one's arrival time.
+
+        So a consumer that fell behind pays its per-call cost once for all it missed, instead of
+        the queue dropping data: the same events in the same order (a slow machine, e.g. the
+        emulated test kernel, then tracks everything at a coarser pace)."""
+        with self._cond:
+            if not self._items and not self._closed:
+                self._cond.wait(timeout)
+            if not self._items:
+                return None
+            arrival_ns, item = self._items.popleft()
+            parts = [item]
+            if isinstance(item, np.ndarray):
+                n = len(item)
+                while self._items and isinstance(self._items[0][1], np.ndarray):
+                    if n + len(self._items[0][1]) > max_events:
+                        break
+                    parts.append(self._items.popleft()[1])
+                    n += len(parts[-1])
+            self._cond.notify_all()
+        return arrival_ns, (np.concatenate(parts) if len(parts) > 1 else item)
 
     def clear(self) -> None:
         """Drop every queued item (each counted like a drop-oldest one)."""
@@ -448,9 +478,12 @@ class Runtime:
         """Pipeline thread: items -> estimates -> controller states -> output."""
         stats = self.stats
         first_us: int | None = None
+        # real time only: there the alternative is dropping data; a --fast run waits for the
+        # pipeline and keeps its batches as the source made them
+        joined_max = MAX_JOINED_EVENTS if self._realtime else 0
         try:
             while not self._stop.is_set():
-                entry = self._items.get()
+                entry = self._items.get_joined(max_events=joined_max)
                 if entry is None:
                     if self._items.finished:
                         break

@@ -31,6 +31,7 @@ class FakePipeline:
     def __init__(self, push_batches: int = 5, fail_at: int | None = None, gate: threading.Event | None = None):
         self.started = threading.Event()
         self.seen: list[int] = []
+        self.sizes: list[int] = []  # events per call
         self.resting: list[tuple[object, int]] = []
         self.push_batches = push_batches
         self.fail_at = fail_at
@@ -43,6 +44,7 @@ class FakePipeline:
         if isinstance(item, Frame):
             return []
         self.seen.append(item_end_us(item))
+        self.sizes.append(len(item))
         if self.fail_at is not None and len(self.seen) == self.fail_at:
             raise RuntimeError("pipeline failure")
         k = len(self.seen)
@@ -129,11 +131,46 @@ def test_runtime_counts_dropped_oldest_batches_when_the_pipeline_falls_behind():
     rt, pipeline, _ = make_runtime(source(), pipeline=pipeline, live=True, queue_items=size)
     stats = rt.run()
     # the pipeline held the first batch while the source filled the queue: all but the
-    # newest `size` of the rest were dropped, oldest first
-    assert pipeline.seen == [item_end_us(batch(0))] + [item_end_us(batch(i * 1000)) for i in range(n - size, n)]
+    # newest `size` of the rest were dropped, oldest first; those `size` came in one call
+    assert pipeline.seen == [item_end_us(batch(0)), item_end_us(batch((n - 1) * 1000))]
+    assert pipeline.sizes == [3, 3 * size]
     assert stats.dropped_items == n - 1 - size
     assert stats.dropped_events == (n - 1 - size) * 3
-    assert stats.windows == 1 + size
+    assert stats.events == 3 * (1 + size) and stats.windows == 2
+
+
+def test_queue_joins_the_event_batches_behind_one_but_never_a_frame():
+    q = DropOldestQueue(10)
+    frame = Frame(t_us=2_500, image=np.zeros((2, 2), np.uint8))
+    for entry in [(1, batch(0)), (2, batch(1_000)), (3, frame), (4, batch(3_000)), (5, batch(4_000, n=5))]:
+        q.put(entry)
+    q.close()
+    arrival, joined = q.get_joined(max_events=100)
+    assert arrival == 1 and joined["timestamp"].tolist() == [0, 100, 200, 1_000, 1_100, 1_200]
+    assert q.get_joined(max_events=100) == (3, frame)  # a frame alone, in its place
+    arrival, first = q.get_joined(max_events=4)  # 3 + 5 > 4: not joined
+    assert arrival == 4 and len(first) == 3
+    assert len(q.get_joined(max_events=4)[1]) == 5 and q.get_joined() is None and q.finished
+
+
+def test_a_slow_pipeline_behind_a_live_source_gets_every_event_in_fewer_calls():
+    """A pipeline whose every call takes longer than a batch lasts (as on a slow machine) catches
+    up by taking what was queued meanwhile in one call: nothing is dropped."""
+    gate = threading.Event()
+    n, size = 40, 50
+    pipeline = FakePipeline(gate=gate)
+
+    def source():
+        yield batch(0)
+        pipeline.started.wait(5)
+        for i in range(1, n):
+            yield batch(i * 1000)
+        gate.set()
+
+    rt, pipeline, _ = make_runtime(source(), pipeline=pipeline, live=True, queue_items=size)
+    stats = rt.run()
+    assert stats.dropped_items == 0 and stats.events == 3 * n == sum(pipeline.sizes)
+    assert len(pipeline.sizes) < n and pipeline.seen[-1] == item_end_us(batch((n - 1) * 1000))
 
 
 def test_fast_mode_drops_nothing():
