@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import gc
+import math
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -36,6 +37,14 @@ app.add_typer(profile_app, name="profile")
 
 console = make_console()
 err_console = make_console(stderr=True)
+
+
+def _finite(value: Optional[float]) -> Optional[float]:
+    """Every float option: ``nan`` and ``inf`` are usage errors (exit 2, the option named), not a
+    traceback later on."""
+    if value is not None and not math.isfinite(value):
+        raise typer.BadParameter(f"expected a finite number, got {value}")
+    return value
 
 
 @contextlib.contextmanager
@@ -89,7 +98,10 @@ def info(
 def record(
     out: Path = typer.Argument(..., help="AEDAT4 file to write"),
     seconds: Optional[float] = typer.Option(
-        None, "--seconds", help="stop after this many seconds (default: at Ctrl-C)"
+        None,
+        "--seconds",
+        help="stop after this many seconds (default: at Ctrl-C)",
+        callback=_finite,
     ),
     source: str = typer.Option("davis", "--source", help="davis (the live camera) or sim (the simulated gel)"),
     force: bool = typer.Option(False, "--force", help="overwrite OUT if it exists"),
@@ -187,7 +199,9 @@ def simulate(
         "quick", "--preset", help="quick (small, for tests) or paper (5 users x 5 gestures x ~1 min)"
     ),
     seed: int = typer.Option(0, "--seed", help="random seed: the same seed gives the same files"),
-    minutes: Optional[float] = typer.Option(None, "--minutes", help="override the total simulated duration (minutes)"),
+    minutes: Optional[float] = typer.Option(
+        None, "--minutes", help="override the total simulated duration (minutes)", callback=_finite
+    ),
     users: Optional[str] = typer.Option(
         None,
         "--users",
@@ -198,6 +212,7 @@ def simulate(
         0.1,
         "--noise-hz",
         help="background-activity noise per pixel (Hz): 0.1 a DAVIS-346 in good light, a few Hz in dim light",
+        callback=_finite,
     ),
     physics: str = typer.Option(
         "default",
@@ -373,7 +388,7 @@ def run(
     ),
     profile: str = typer.Option("default", "--profile", help="profile name or path"),
     output: OutputKind = typer.Option(OutputKind.GAMEPAD, "--output", help="where the states go"),
-    seconds: Optional[float] = typer.Option(None, "--seconds", help="stop after this many seconds"),
+    seconds: Optional[float] = typer.Option(None, "--seconds", help="stop after this many seconds", callback=_finite),
     fast: bool = typer.Option(False, "--fast", help="do not pace recordings in real time"),
     out: Optional[Path] = typer.Option(
         None, "--out", help="with --output jsonl: write the states here instead of stdout"
@@ -393,7 +408,17 @@ def run(
         "4000", "--exposure-us", help="with --source davis: APS exposure in microseconds, or 'auto'"
     ),
     stall_timeout: float = typer.Option(
-        1.0, "--stall-timeout", help="with --source davis: seconds without data that count as a lost camera"
+        1.0,
+        "--stall-timeout",
+        help="with --source davis: seconds without data that count as a lost camera",
+        callback=_finite,
+    ),
+    max_lag_ms: float = typer.Option(
+        200.0,
+        "--max-lag-ms",
+        help="how far the pipeline may fall behind the camera (or a paced replay) before the oldest "
+        "data is dropped; more lets a slow machine track every event, later",
+        callback=_finite,
     ),
 ) -> None:
     """Run the driver: source -> pipeline -> profile -> virtual gamepad.
@@ -417,12 +442,13 @@ def run(
         wait=wait,
         davis=_davis_config(serial, exposure_us, stall_timeout),
         say=lambda line: err_console.print(line, markup=False, highlight=False, soft_wrap=True),
+        max_lag_us=round(max_lag_ms * 1000),
     )
     err_console.print(stats.summary(), highlight=False, soft_wrap=True)
 
 
 @app.command()
-def demo(seconds: Optional[float] = typer.Option(30.0, "--seconds", help="how long to run")) -> None:
+def demo(seconds: Optional[float] = typer.Option(30.0, "--seconds", help="how long to run", callback=_finite)) -> None:
     """A simulated gel performing every gesture, through the default profile, to the gamepad.
 
     Without a writable /dev/uinput the gamepad is shown in the terminal instead (one line says
@@ -527,6 +553,7 @@ def calibrate(
         None,
         "--rotation",
         help="counter-clockwise degrees from the mirrored image to your view (default: ask on a terminal, else 0)",
+        callback=_finite,
     ),
     frames: int = typer.Option(10, "--frames", min=3, help="rest frames to check and average (25 a second)"),
 ) -> None:
@@ -756,7 +783,9 @@ def profile_test(
     name: str = typer.Argument(..., help="profile name or path"),
     source: str = typer.Option("sim", "--source", help="sim, an AEDAT4 recording, or predictions PRED.jsonl"),
     plot: Optional[Path] = typer.Option(None, "--plot", help="also draw the timeline to this PNG"),
-    seconds: Optional[float] = typer.Option(None, "--seconds", help="only the first N seconds (sim: 20 s by default)"),
+    seconds: Optional[float] = typer.Option(
+        None, "--seconds", help="only the first N seconds (sim: 20 s by default)", callback=_finite
+    ),
     every_ms: int = typer.Option(100, "--every-ms", help="timeline sampling period (ms)"),
     json_out: bool = typer.Option(False, "--json", help="print the summary as JSON instead of tables"),
 ) -> None:
@@ -818,7 +847,9 @@ def profile_test(
 def profile_tune(
     name: str = typer.Argument(..., help="profile name (written to the user's copy)"),
     from_source: str = typer.Option(..., "--from", help="AEDAT4 recording or predictions PRED.jsonl of this user"),
-    percentile: float = typer.Option(95.0, "--percentile", help="intensity percentile that gives full deflection"),
+    percentile: float = typer.Option(
+        95.0, "--percentile", help="intensity percentile that gives full deflection", callback=_finite
+    ),
 ) -> None:
     """Set each analogue mapping's saturation to what this user reaches (e.g. weak fingers)."""
     from neurotouch_hid.driver import estimates_from_source

@@ -19,7 +19,7 @@ from neurotouch_hid.errors import DeviceError, NeurotouchError
 from neurotouch_hid.estimate import GestureEstimate
 from neurotouch_hid.kinds import OutputKind, SourceKind
 from neurotouch_hid.mapping.profile import Profile, load_profile
-from neurotouch_hid.runtime import DEFAULT_BATCH_US, Runtime
+from neurotouch_hid.runtime import DEFAULT_BATCH_US, DEFAULT_MAX_LAG_US, Runtime
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.stages import Output
 from neurotouch_hid.stats import RunStats
@@ -210,12 +210,14 @@ def run_driver(
     capture: Any = None,
     say: Callable[[str], None] = log.warning,
     stats: RunStats | None = None,
+    max_lag_us: int = DEFAULT_MAX_LAG_US,
 ) -> RunStats:
     """``neurotouch-hid run``: load the profile (a bad one raises ProfileError before any device
     exists), open the source, build the pipeline, open the output, run until the end.
 
     Real time (the camera, or paced replays): the resting detector runs in its own thread and
-    data is dropped, oldest first, if the pipeline falls behind. ``fast`` (recordings and the
+    data is dropped, oldest first, if the pipeline falls more than ``max_lag_us`` (us of camera
+    time) behind. ``fast`` (recordings and the
     simulated gel only): as fast as possible, nothing dropped, resting detection inline, so the
     same input always gives the same states.
 
@@ -230,6 +232,8 @@ def run_driver(
         raise NeurotouchError(f"unknown output '{output}' (expected one of: {', '.join(OutputKind)})")
     if window_us < 1000:
         raise NeurotouchError(f"--window-us {window_us}: windows must be at least 1000 us")
+    if max_lag_us < 1000:
+        raise NeurotouchError(f"--max-lag-ms {max_lag_us / 1000:g}: the lag allowed must be at least 1 ms")
     loaded = load_profile(profile)
     if not source.endswith(".jsonl"):
         compile_pipeline()
@@ -269,6 +273,7 @@ def run_driver(
             say=say,
             control=True,
             stats=stats,
+            max_lag_us=max_lag_us,
         )
         return runtime.run(seconds)
 

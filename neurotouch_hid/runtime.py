@@ -61,8 +61,11 @@ log = logging.getLogger(__name__)
 
 #: Source batch length (us): 1 ms batches keep the event-to-output latency well under a window.
 DEFAULT_BATCH_US = 1_000
-#: Input queue bound (items); with 1 ms batches about 0.2 s of data before the oldest is dropped.
-DEFAULT_QUEUE_ITEMS = 200
+#: How far (us of camera time) the pipeline may fall behind a live or paced source before the
+#: oldest queued data is dropped: the controller lags by at most about this much.
+DEFAULT_MAX_LAG_US = 200_000
+#: Input queue bound (items): a memory guard only; ``max_lag_us`` is the bound that acts.
+DEFAULT_QUEUE_ITEMS = 100_000
 #: At most this many events in one pipeline call when the pipeline catches up on queued batches
 #: (:meth:`DropOldestQueue.get_joined`): about 0.1 s at the camera's 12 M events/s USB maximum.
 MAX_JOINED_EVENTS = 1_000_000
@@ -76,6 +79,16 @@ REALTIME_SWITCH_INTERVAL_S = 0.0005
 _POLL_S = 0.05
 _JOIN_S = 2.0
 _GRACE_S = 2.0
+
+
+def item_start_us(item: StreamItem | GestureEstimate) -> Optional[int]:
+    """The time (us, camera clock) at which a stream item starts: a frame's or estimate's
+    timestamp, an event batch's first event timestamp; None for an empty batch."""
+    if isinstance(item, (Frame, GestureEstimate)):
+        return int(item.t_us)
+    if len(item) == 0:
+        return None
+    return int(item["timestamp"][0])
 
 
 def item_end_us(item: StreamItem | GestureEstimate) -> Optional[int]:
@@ -92,23 +105,39 @@ class DropOldestQueue:
     """A bounded FIFO between two threads.
 
     ``put`` on a full queue drops the oldest item (counted in ``stats``) when ``drop_oldest``, else
-    waits for room. ``close`` ends the stream: ``get`` returns None once a closed queue is empty.
-    Items are ``(arrival_ns, StreamItem)`` pairs.
+    waits for room. With ``drop_oldest`` the queue is also full when it would span more than
+    ``max_span_us`` of camera time (from the oldest item's start to the new one's end). ``close``
+    ends the stream: ``get`` returns None once a closed queue is empty. Items are
+    ``(arrival_ns, StreamItem)`` pairs.
     """
 
-    def __init__(self, maxlen: int, *, drop_oldest: bool = True, on_drop: Callable[[StreamItem], None] | None = None):
+    def __init__(
+        self,
+        maxlen: int,
+        *,
+        drop_oldest: bool = True,
+        on_drop: Callable[[StreamItem], None] | None = None,
+        max_span_us: int | None = None,
+    ):
         if maxlen < 1:
             raise ValueError("a queue needs room for at least one item")
         self._items: collections.deque = collections.deque()
         self._maxlen = maxlen
         self._drop_oldest = drop_oldest
         self._on_drop = on_drop
+        self._max_span_us = max_span_us
         self._cond = threading.Condition()
         self._closed = False
 
+    def _too_long(self, item: StreamItem) -> bool:
+        if self._max_span_us is None or not self._drop_oldest or not self._items:
+            return False
+        start, end = item_start_us(self._items[0][1]), item_end_us(item)
+        return start is not None and end is not None and end - start > self._max_span_us
+
     def put(self, entry: tuple[int, StreamItem]) -> None:
         with self._cond:
-            while len(self._items) >= self._maxlen and not self._closed:
+            while (len(self._items) >= self._maxlen or self._too_long(entry[1])) and not self._closed:
                 if self._drop_oldest:
                     _, old = self._items.popleft()
                     if self._on_drop is not None:
@@ -203,7 +232,9 @@ class Runtime:
             ``pace`` nor ``live`` (``--fast``) everything is processed as fast as possible and
             nothing is dropped: the source waits for the pipeline.
         profile_ref: name or path the profile came from, reloaded on SIGHUP.
-        queue_items: bound of the input queue (items).
+        queue_items: bound of the input queue (items; a memory guard).
+        max_lag_us: real time only: how far (us of camera time) the queued data may reach back
+            before the oldest is dropped (the controller's lag behind the camera, at most).
         mapper_factory, profile_loader: the mapping's ``Mapper`` and ``load_profile`` (replaceable
             in tests).
         say: tells the user what happens to a live source (camera lost, back; one line each).
@@ -224,6 +255,7 @@ class Runtime:
         live: bool = False,
         profile_ref: str | Path | None = None,
         queue_items: int = DEFAULT_QUEUE_ITEMS,
+        max_lag_us: int = DEFAULT_MAX_LAG_US,
         mapper_factory: Callable[[Profile], MapperStage] = Mapper,
         profile_loader: Callable[[str | Path], Profile] = load_profile,
         say: Callable[[str], None] = log.warning,
@@ -244,7 +276,9 @@ class Runtime:
         self._profile_ref = profile_ref
         self._profile_loader = profile_loader
         self.stats = stats if stats is not None else RunStats()
-        self._items = DropOldestQueue(queue_items, drop_oldest=self._realtime, on_drop=self._count_drop)
+        self._items = DropOldestQueue(
+            queue_items, drop_oldest=self._realtime, on_drop=self._count_drop, max_span_us=max_lag_us
+        )
         self._frames = DropOldestQueue(
             DEFAULT_FRAME_QUEUE, drop_oldest=self._realtime, on_drop=self._count_resting_drop
         )

@@ -139,6 +139,21 @@ def test_runtime_counts_dropped_oldest_batches_when_the_pipeline_falls_behind():
     assert stats.events == 3 * (1 + size) and stats.windows == 2
 
 
+def test_queue_bounded_in_camera_time_drops_what_reaches_back_too_far():
+    """max_span_us: the queued data reaches back at most that far (oldest start to newest end);
+    older batches are dropped, oldest first; a queue that waits (--fast) ignores the bound."""
+    dropped = []
+    q = DropOldestQueue(1000, on_drop=dropped.append, max_span_us=2_500)
+    for i in range(6):
+        q.put((i, batch(i * 1000)))  # 0..200, 1000..1200, ...: each 200 us long
+    assert [item_end_us(b) for b in dropped] == [200, 1_200, 2_200]
+    assert [q.get()[0] for _ in range(3)] == [3, 4, 5]
+    waiting = DropOldestQueue(1000, drop_oldest=False, max_span_us=2_500)
+    for i in range(6):
+        waiting.put((i, batch(i * 1000)))
+    assert [waiting.get()[0] for _ in range(6)] == list(range(6))
+
+
 def test_queue_joins_the_event_batches_behind_one_but_never_a_frame():
     q = DropOldestQueue(10)
     frame = Frame(t_us=2_500, image=np.zeros((2, 2), np.uint8))

@@ -95,6 +95,10 @@ def test_missing_argument(words, tmp_path):
         ("simulate", "--seed", "many"),
         ("profile", "test", "default", "--every-ms", "often"),
         ("calibrate", "--frames", "1"),
+        ("run", "--seconds", "nan"),  # a float that is no number: it crashed later on
+        ("run", "--max-lag-ms", "inf"),
+        ("demo", "--seconds", "-inf"),
+        ("simulate", "--noise-hz", "nan"),
     ],
     ids=" ".join,
 )
