@@ -346,7 +346,11 @@ def boot_summary() -> str | None:
     if result is None:
         return None
     checks = sorted(
-        ((name, entry["seconds"]) for name, entry in result.items() if isinstance(entry, dict) and "seconds" in entry),
+        (
+            (name, entry["seconds"])
+            for name, entry in result.items()
+            if isinstance(entry, dict) and "seconds" in entry and not name.startswith("_")
+        ),
         key=lambda item: -item[1],
     )
     listed = ", ".join(f"{name.split('.')[-1]} {seconds:.0f} s" for name, seconds in checks)
