@@ -215,11 +215,10 @@ def run_driver(
     """``neurotouch-hid run``: load the profile (a bad one raises ProfileError before any device
     exists), open the source, build the pipeline, open the output, run until the end.
 
-    Real time (the camera, or paced replays): the resting detector runs in its own thread and
+    Real time (the camera, or paced replays): the resting detector runs in its own thread, and
     data is dropped, oldest first, if the pipeline falls more than ``max_lag_us`` (us of camera
-    time) behind. ``fast`` (recordings and the
-    simulated gel only): as fast as possible, nothing dropped, resting detection inline, so the
-    same input always gives the same states.
+    time) behind. ``fast`` (recordings and the simulated gel only): as fast as possible, nothing
+    dropped, resting detection inline, so the same input always gives the same states.
 
     ``output_obj`` replaces the output named by ``output`` (the demo's fallback, benchmarks);
     ``stats`` is where the run is counted (the one a given terminal view shows).
