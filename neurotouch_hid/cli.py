@@ -47,6 +47,13 @@ def _finite(value: Optional[float]) -> Optional[float]:
     return value
 
 
+def _duration(value: Optional[float]) -> Optional[float]:
+    """``--seconds``: a finite, positive duration (0 or less ran nothing and said nothing)."""
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise typer.BadParameter(f"expected a positive duration (seconds), got {value}")
+    return value
+
+
 @contextlib.contextmanager
 def long_lived_start_up() -> Iterator[None]:
     """A command's start-up: what is made inside (imports, numba's loaded code: ~130 k objects
@@ -101,14 +108,14 @@ def record(
         None,
         "--seconds",
         help="stop after this many seconds (default: at Ctrl-C)",
-        callback=_finite,
+        callback=_duration,
     ),
     source: str = typer.Option("davis", "--source", help="davis (the live camera) or sim (the simulated gel)"),
     force: bool = typer.Option(False, "--force", help="overwrite OUT if it exists"),
     fast: bool = typer.Option(
         False, "--fast", help="with --source sim: as fast as it is simulated, not in real time (needs --seconds)"
     ),
-    seed: int = typer.Option(0, "--seed", help="with --source sim: the simulation's seed"),
+    seed: int = typer.Option(0, "--seed", min=0, help="with --source sim: the simulation's seed"),
     serial: Optional[str] = typer.Option(None, "--serial", help="with --source davis: the camera's serial number"),
     exposure_us: str = typer.Option(
         "4000", "--exposure-us", help="with --source davis: APS exposure in microseconds, or 'auto'"
@@ -133,8 +140,6 @@ def record(
         raise NeurotouchError(f"{out} exists: choose another name, or add --force to overwrite it")
     if fast and (source != SourceKind.SIM or seconds is None):
         raise NeurotouchError("--fast is for --source sim with --seconds (a camera cannot go faster than time)")
-    if seconds is not None and seconds <= 0:
-        raise NeurotouchError(f"--seconds {seconds}: expected a positive duration")
     with contextlib.ExitStack() as stack:
         if source == SourceKind.DAVIS:
             from neurotouch_hid.sources.davis import DavisSource
@@ -198,7 +203,7 @@ def simulate(
     preset: str = typer.Option(
         "quick", "--preset", help="quick (small, for tests) or paper (5 users x 5 gestures x ~1 min)"
     ),
-    seed: int = typer.Option(0, "--seed", help="random seed: the same seed gives the same files"),
+    seed: int = typer.Option(0, "--seed", min=0, help="random seed: the same seed gives the same files"),
     minutes: Optional[float] = typer.Option(
         None, "--minutes", help="override the total simulated duration (minutes)", callback=_finite
     ),
@@ -388,7 +393,7 @@ def run(
     ),
     profile: str = typer.Option("default", "--profile", help="profile name or path"),
     output: OutputKind = typer.Option(OutputKind.GAMEPAD, "--output", help="where the states go"),
-    seconds: Optional[float] = typer.Option(None, "--seconds", help="stop after this many seconds", callback=_finite),
+    seconds: Optional[float] = typer.Option(None, "--seconds", help="stop after this many seconds", callback=_duration),
     fast: bool = typer.Option(False, "--fast", help="do not pace recordings in real time"),
     out: Optional[Path] = typer.Option(
         None, "--out", help="with --output jsonl: write the states here instead of stdout"
@@ -397,7 +402,7 @@ def run(
     sensor: Optional[Path] = typer.Option(
         None, "--sensor", help="sensor.yaml (default: beside the recording, or the built-in one)"
     ),
-    seed: int = typer.Option(0, "--seed", help="with --source sim: the simulation's seed"),
+    seed: int = typer.Option(0, "--seed", min=0, help="with --source sim: the simulation's seed"),
     wait: bool = typer.Option(
         False, "--wait", help="with --source davis: wait for a camera to be plugged in instead of failing"
     ),
@@ -448,7 +453,9 @@ def run(
 
 
 @app.command()
-def demo(seconds: Optional[float] = typer.Option(30.0, "--seconds", help="how long to run", callback=_finite)) -> None:
+def demo(
+    seconds: Optional[float] = typer.Option(30.0, "--seconds", help="how long to run", callback=_duration),
+) -> None:
     """A simulated gel performing every gesture, through the default profile, to the gamepad.
 
     Without a writable /dev/uinput the gamepad is shown in the terminal instead (one line says
@@ -784,7 +791,7 @@ def profile_test(
     source: str = typer.Option("sim", "--source", help="sim, an AEDAT4 recording, or predictions PRED.jsonl"),
     plot: Optional[Path] = typer.Option(None, "--plot", help="also draw the timeline to this PNG"),
     seconds: Optional[float] = typer.Option(
-        None, "--seconds", help="only the first N seconds (sim: 20 s by default)", callback=_finite
+        None, "--seconds", help="only the first N seconds (sim: 20 s by default)", callback=_duration
     ),
     every_ms: int = typer.Option(100, "--every-ms", help="timeline sampling period (ms)"),
     json_out: bool = typer.Option(False, "--json", help="print the summary as JSON instead of tables"),

@@ -99,6 +99,10 @@ def test_missing_argument(words, tmp_path):
         ("run", "--max-lag-ms", "inf"),
         ("demo", "--seconds", "-inf"),
         ("simulate", "--noise-hz", "nan"),
+        ("run", "--seconds", "0"),  # ran nothing and said nothing
+        ("profile", "test", "default", "--seconds", "-2"),
+        ("simulate", "--seed", "-5"),  # numpy's seeding raised a traceback
+        ("run", "--seed", "-1"),
     ],
     ids=" ".join,
 )
