@@ -32,13 +32,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.sensor import DOME_SPHERE_MM, MARKER_SPACING_MM, SensorGeometry
 
-#: The gel's marker pitch on its surface (mm; paper, "System Overview": 4 mm).
-MARKER_PITCH_MM = 4.0
-#: Radius of the sphere the NeuroTouch dome is a cap of (mm): 13.5 mm high over a 30 mm base
-#: radius (the simulator's gel, ``sources.simulator.DOME_SPHERE_MM``).
-DOME_SPHERE_MM = 40.0
 #: Largest RMS residual (mm) of an accepted fit: a tenth of the pitch.
 MAX_RESIDUAL_MM = 0.4
 #: Fewest markers a fit needs (3 unknowns, and the grid's orientation).
@@ -60,7 +55,7 @@ def grid_orientation(points_px: np.ndarray) -> float:
 def _expected_radius_mm(index: np.ndarray) -> np.ndarray:
     """(M,) base-plane radius (mm) of grid points (M, 2) int: the arc length from the apex
     ``s = pitch |(i, j)|`` on the dome seen from below, ``R sin(s / R)``."""
-    s = MARKER_PITCH_MM * np.hypot(index[:, 0], index[:, 1])
+    s = MARKER_SPACING_MM * np.hypot(index[:, 0], index[:, 1])
     return DOME_SPHERE_MM * np.sin(np.minimum(s / DOME_SPHERE_MM, math.pi / 2))
 
 
@@ -91,7 +86,7 @@ def fit_camera_model(points_px: np.ndarray, sensor: SensorGeometry) -> SensorGeo
         rho = design @ coef  # the current model's base-plane radius (mm)
         arc = DOME_SPHERE_MM * np.arcsin(np.minimum(rho / DOME_SPHERE_MM, 1.0))
         unit = d / np.where(r > 0, r, 1.0)[:, None]
-        index = np.rint((unit * arc[:, None]) @ rotate.T / MARKER_PITCH_MM).astype(np.int64)
+        index = np.rint((unit * arc[:, None]) @ rotate.T / MARKER_SPACING_MM).astype(np.int64)
         use = x2 <= 0.36 if inner else np.ones(len(points), dtype=bool)
         if np.count_nonzero(use) < MIN_MARKERS:
             return None

@@ -151,14 +151,7 @@ class DropOldestQueue:
 
     def get(self, timeout: float = _POLL_S) -> tuple[int, StreamItem] | None:
         """The oldest entry; None when closed and empty or when ``timeout`` (s) passed."""
-        with self._cond:
-            if not self._items and not self._closed:
-                self._cond.wait(timeout)
-            if not self._items:
-                return None
-            entry = self._items.popleft()
-            self._cond.notify_all()
-            return entry
+        return self.get_joined(timeout)
 
     def get_joined(self, timeout: float = _POLL_S, max_events: int = 0) -> tuple[int, StreamItem] | None:
         """Like :meth:`get`, but an event batch comes with the event batches queued right behind it

@@ -35,6 +35,11 @@ from neurotouch_hid.errors import SensorError
 #: DAVIS-346 resolution (px).
 DAVIS346_WIDTH = 346
 DAVIS346_HEIGHT = 260
+#: Radius of the sphere the NeuroTouch dome is a cap of (mm): 13.5 mm high over its 30 mm base
+#: radius. The simulator's gel and the camera model (``camera_model.py``) both lie on it.
+DOME_SPHERE_MM = 40.0
+#: The pitch of the gel's marker grid on its surface (mm; paper, section "System Overview").
+MARKER_SPACING_MM = 4.0
 
 
 class SensorFile(TypedDict, total=False):

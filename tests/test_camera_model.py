@@ -8,9 +8,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from neurotouch_hid.camera_model import DOME_SPHERE_MM, MARKER_PITCH_MM, fit_camera_model, grid_orientation
+from neurotouch_hid.camera_model import DOME_SPHERE_MM, MARKER_SPACING_MM, fit_camera_model, grid_orientation
 from neurotouch_hid.pipeline.gesture import estimate_gesture
-from neurotouch_hid.pipeline.markers import MARKER_SPACING_MM
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import simulator
 from neurotouch_hid.sources.physics import PHYSICS, DomeCamera
@@ -21,7 +20,7 @@ SENSOR = SensorGeometry()
 
 def test_the_gel_constants_are_the_simulators_and_the_trackers():
     assert DOME_SPHERE_MM == simulator.DOME_SPHERE_MM
-    assert MARKER_PITCH_MM == simulator.MARKER_PITCH_MM == MARKER_SPACING_MM
+    assert MARKER_SPACING_MM == simulator.MARKER_PITCH_MM
 
 
 def gel(family: str, sensor: SensorGeometry = SENSOR) -> Gel:

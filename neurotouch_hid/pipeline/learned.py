@@ -70,7 +70,6 @@ def gesture_features(
     sim = result.similarity
     s_t, r_t, t_t = sim.terms_px(r_px, origin_radius_px)
     total = s_t + r_t + t_t + 1e-9
-    rotation = sensor.rotation_image_to_user(-sim.rotation_rad)
     contacts = np.asarray(contacts_px, dtype=np.float64).reshape(-1, 2)
     radial, turning = _relative_motion(
         contacts,
@@ -85,7 +84,7 @@ def gesture_features(
             r_t / total,
             t_t / total,
             math.copysign(s_t / total, sim.scale - 1.0),
-            math.copysign(r_t / total, rotation),
+            math.copysign(r_t / total, result.rotation_rad),  # user frame, counter-clockwise > 0
             radial,
             tangential,
             float(min(len(contacts), 4)),

@@ -19,11 +19,11 @@ import cv2
 import numpy as np
 
 from neurotouch_hid.errors import SensorError
-from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.sensor import MARKER_SPACING_MM, SensorGeometry
 
-#: The gel's markers (paper, section System Overview): 1 mm white dots on a 4 mm grid.
+#: The gel's markers (paper, section System Overview): 1 mm white dots on a 4 mm grid
+#: (``sensor.MARKER_SPACING_MM``, imported here for the pipeline and calibrate).
 MARKER_DIAMETER_MM = 1.0
-MARKER_SPACING_MM = 4.0
 
 
 @dataclass

@@ -545,7 +545,6 @@ class GesturePipeline:
         self.on_window = on_window
         self.rest_px: np.ndarray | None = None
         self._grid_neighbours: np.ndarray | None = None
-        self._rim: np.ndarray | None = None
         self.tracker: BlobTracker | None = None
         self.resting_detector: RestingDetector | None = None
         self.timings: dict[str, list[int]] | None = {s: [] for s in STAGES} if profile else None
@@ -563,8 +562,8 @@ class GesturePipeline:
         self._previous_frame: Frame | None = None
         #: the current gesture episode's decision (episode_vote)
         self._episode = EpisodeVote()
-        #: (rest_px, its contacts.rest_neighbours), computed on first use
-        self._contact_neighbours: tuple[np.ndarray, np.ndarray] | None = None
+        #: what the fits derive from a rest reference, by name: (that reference, the value)
+        self._of_rest_kept: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         #: the last window's fit: (rest_px, current, valid, contacts, gesture result)
         self._last_fit: tuple | None = None
         #: the optional noise filter in front of the tracker (one per pipeline, its state kept
@@ -752,8 +751,6 @@ class GesturePipeline:
         self.rest_px = markers.centroids_px.astype(np.float64)
         self._use_camera_model()
         self._grid_neighbours = grid_neighbours(self.rest_px)
-        #: (N,) bool the outer ring of markers, whose motion is the gel's in its mount (gel_motion)
-        self._rim = rim_markers(self.rest_px, self.sensor.gel_center_px)
         self.tracker = BlobTracker(
             self.rest_px, self.sensor.width, self.sensor.height, self.config.tracker, sensor=self.sensor
         )
@@ -862,8 +859,7 @@ class GesturePipeline:
         threshold = self.config.motion_override_px
         if threshold is None:
             return False
-        d = current[valid] - self.rest_px[valid]
-        moved = int(np.count_nonzero(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] > threshold * threshold))
+        moved = int(np.count_nonzero(self._moved_sq(current, valid) > threshold * threshold))
         if moved < self.config.override_min_markers or not self.config.override_smooth:
             return moved >= self.config.override_min_markers
         # the smooth override only when the markers' own displacements would overrule (at rest,
@@ -878,9 +874,14 @@ class GesturePipeline:
         mean of displacements) is then below it and the gesture step answers ``none`` whatever
         the contacts, so the window skips the homography and the similarity (same estimate;
         e.g. a gel near rest after the tracker was re-anchored, ``centroid_reset_threshold``)."""
-        d = current[valid] - self.rest_px[valid]
+        moved_sq = self._moved_sq(current, valid)
         limit = self.config.min_intensity_px
-        return len(d) == 0 or float((d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]).max()) < limit * limit
+        return len(moved_sq) == 0 or float(moved_sq.max()) < limit * limit
+
+    def _moved_sq(self, current: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        """(V,) float64 the valid markers' squared displacements from rest (px^2)."""
+        d = current[valid] - self.rest_px[valid]
+        return d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]
 
     def _vote(self, gesture: GestureType, intensity_mm: float) -> GestureType:
         """The window's type: its own, or the episode's decision with ``episode_vote``."""
@@ -945,7 +946,7 @@ class GesturePipeline:
         motion = None
         if c.gel_motion:
             centre = self.sensor.gel_center_px
-            rim = self._rim if rest_px is self.rest_px else rim_markers(rest_px, centre)
+            rim = self._of_rest("rim", rest_px, lambda rest: rim_markers(rest, centre))
             motion = estimate_gel_motion(rest_px, current, valid, rim, centre)
         contacts = detect_contacts(
             rest_px,
@@ -996,9 +997,16 @@ class GesturePipeline:
         c = self.config
         if c.plateau_fraction is None and c.spike_fraction is None:
             return None
-        if self._contact_neighbours is None or self._contact_neighbours[0] is not rest_px:
-            self._contact_neighbours = (rest_px, rest_neighbours(rest_px, c.marker_pitch_px))
-        return self._contact_neighbours[1]
+        return self._of_rest("contacts", rest_px, lambda rest: rest_neighbours(rest, c.marker_pitch_px))
+
+    def _of_rest(self, name: str, rest_px: np.ndarray, make: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+        """``make(rest_px)``, computed once per rest reference (the pipeline's own, or
+        :meth:`compile_kernels`' synthetic grid) and kept under ``name``: the gel's rim markers
+        (gel_motion) and the contacts' neighbour table."""
+        kept = self._of_rest_kept.get(name)
+        if kept is None or kept[0] is not rest_px:
+            kept = self._of_rest_kept[name] = (rest_px, make(rest_px))
+        return kept[1]
 
     def _clock(self) -> tuple[int, int] | None:
         if self.timings is None:

@@ -74,10 +74,8 @@ import numba
 import numpy as np
 
 from neurotouch_hid.errors import NeurotouchError
-from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.sensor import DOME_SPHERE_MM, SensorGeometry
 
-#: Radius of the sphere the dome is a cap of (mm), as in the simulator.
-DOME_SPHERE_MM = 40.0
 #: Distance of the ``camera`` family's pinhole below the dome's base plane (mm).
 CAMERA_MM = 60.0
 #: Falloff kinds of the finger drag (simulator._finger_field).

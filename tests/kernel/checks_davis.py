@@ -406,8 +406,7 @@ def _run_gamepad_unplug(camera: EmulatedCamera) -> dict:
     def pump_until(pred, timeout_s: float) -> bool:
         end = time.monotonic() + timeout_s
         while time.monotonic() < end:
-            stop = time.monotonic() + 0.2  # a pad that keeps moving must not keep the reader forever
-            reader.pump(0.2, until=lambda _, stop=stop: time.monotonic() > stop)
+            reader.pump(0.2, max_s=0.2)
             err.poll()
             if pred():
                 return True

@@ -83,10 +83,11 @@ class EventReader:
         self._pending: list[tuple[int, int, int]] = []
         self.gone = False
 
-    def pump(self, timeout_s: float = 0.5, until=None) -> None:
-        """Read events until ``until(self)`` is true, the device is gone or ``timeout_s`` passes
-        without any event."""
-        while not self.gone and not (until and until(self)):
+    def pump(self, timeout_s: float = 0.5, until=None, max_s: float | None = None) -> None:
+        """Read events until ``until(self)`` is true, the device is gone, ``timeout_s`` passes
+        without any event or, when given, ``max_s`` passes (a pad that keeps moving)."""
+        end = None if max_s is None else time.monotonic() + max_s
+        while not self.gone and not (until and until(self)) and not (end and time.monotonic() > end):
             ready, _, _ = select.select([self.device.fd], [], [], timeout_s)
             if not ready:
                 return

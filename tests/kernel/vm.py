@@ -287,7 +287,7 @@ def boot(
     seconds = time.monotonic() - t0
     (out / "vng.log").write_text(log)
     if not result.exists():
-        raise RuntimeError(f"the guest wrote no {result.name}; vng said:\n{str(log)[-3000:]}")
+        raise RuntimeError(f"the guest wrote no {result.name}; vng said:\n{log[-3000:]}")
     data = json.loads(result.read_text())
     data["_boot"] = {"seconds": round(seconds, 1), "kernel": kver}
     if all(entry.get("ok", True) for entry in data.values()):
@@ -322,6 +322,11 @@ class BackgroundBoot:
         assert self._result is not None
         return self._result
 
+    @property
+    def finished(self) -> dict | None:
+        """The boot's JSON if it finished with one, else None (without waiting)."""
+        return self._result
+
     def cancel(self) -> None:
         """Stop qemu if it still runs (the session ended before any test asked for the result)."""
         self._cancelled.set()
@@ -342,7 +347,7 @@ def boot_summary() -> str | None:
     """One line on the finished background boot: its wall time and each guest check's seconds,
     slowest first (None when no boot finished). For the test session's summary: CI shows where the
     guest's minutes go."""
-    result = _background._result if _background is not None else None
+    result = _background.finished if _background is not None else None
     if result is None:
         return None
     checks = sorted(
