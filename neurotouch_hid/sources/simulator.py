@@ -62,7 +62,7 @@ import numpy as np
 from neurotouch_hid.dataset import LabelRow, write_labels
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.sensor import DOME_SPHERE_MM, SensorGeometry
+from neurotouch_hid.sensor import DOME_SPHERE_MM, MARKER_SPACING_MM, SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame, StreamItem
 from neurotouch_hid.sources.esim import NOISE_RATE_HZ, EventCamera, render_frame
 from neurotouch_hid.sources.physics import (
@@ -84,8 +84,8 @@ SIM_GESTURES: tuple[GestureType, ...] = (
     GestureType.TWIST_CW,
     GestureType.TWIST_CCW,
 )
-#: Marker grid spacing on the gel surface (mm) and the marker diameter (mm).
-MARKER_PITCH_MM = 4.0
+#: Marker grid spacing on the gel surface (mm: the sensor's) and the marker diameter (mm).
+MARKER_PITCH_MM = MARKER_SPACING_MM
 MARKER_DIAMETER_MM = 1.0
 #: Markers are printed where the arc length from the apex is below this (mm): 177 markers.
 MARKER_ARC_MM = 29.8
