@@ -267,3 +267,38 @@ def test_neighbours_given_once_per_reference_match_those_computed_per_window_wit
     computed = detect_contacts(rest, cur, valid, **options)
     np.testing.assert_array_equal(given.points_px, computed.points_px)
     assert given.count >= 2  # the lost markers take part of the plateau's area
+
+
+def test_the_valid_markers_neighbour_table_matches_one_built_from_the_valid_markers_alone():
+    from neurotouch_hid.pipeline.contacts import _valid_table, rest_neighbours
+
+    rest = grid()
+    rng = np.random.default_rng(5)
+    for lost_share in (0.0, 0.1, 0.5, 0.95):
+        valid = rng.random(len(rest)) >= lost_share
+        idx = np.flatnonzero(valid)
+        table = _valid_table(rest_neighbours(rest, 10.0), idx, len(rest))
+        alone = rest_neighbours(rest[idx], 10.0)  # numbered among the valid markers from the start
+        assert table.shape[0] == len(idx)
+        for row, reference in zip(table, alone):
+            assert list(row[row >= 0]) == list(reference[reference >= 0])
+
+
+def test_the_usable_markers_and_their_displacements_match_numpy():
+    from neurotouch_hid.pipeline.contacts import _usable
+
+    rng = np.random.default_rng(6)
+    rest = grid()
+    for trial in range(4):
+        cur = rest + rng.normal(scale=[0.01, 1.0, 5.0, 30.0][trial], size=rest.shape)
+        cur[rng.random(len(rest)) < 0.1, rng.integers(0, 2)] = np.nan  # lost in one coordinate
+        valid = rng.random(len(rest)) > 0.2
+        idx, rest_ok, cur_ok, v, norms = _usable(rest, cur, valid)
+        expected = np.flatnonzero(valid & np.isfinite(cur).all(axis=1))
+        np.testing.assert_array_equal(idx, expected)
+        np.testing.assert_array_equal(rest_ok, rest[expected])
+        np.testing.assert_array_equal(cur_ok, cur[expected])
+        np.testing.assert_array_equal(v, cur[expected] - rest[expected])
+        np.testing.assert_array_equal(norms, np.hypot(v[:, 0], v[:, 1]))
+    idx, *_ = _usable(rest, np.full_like(rest, np.nan), np.ones(len(rest), dtype=bool))
+    assert len(idx) == 0

@@ -324,12 +324,19 @@ def _neighbour_table(rest: np.ndarray, link2: float) -> np.ndarray:
     return table
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _valid_table(neighbours: np.ndarray, idx: np.ndarray, n: int) -> np.ndarray:
-    """``neighbours`` (N, K) over all N markers restricted to the valid ones ``idx``: rows of the
-    valid markers, entries renumbered among them, lost neighbours -1."""
-    position = np.full(n + 1, -1, dtype=np.int64)  # position[-1] = -1 keeps the padding
-    position[idx] = np.arange(len(idx))
-    return position[neighbours[idx]]
+    """``neighbours`` (N, K) int64 over all N markers restricted to the valid ones ``idx`` (M,):
+    (M, K) int64, rows of the valid markers, entries renumbered among them, lost neighbours -1."""
+    position = np.full(n, -1, dtype=np.int64)
+    for q in range(len(idx)):
+        position[idx[q]] = q
+    table = np.empty((len(idx), neighbours.shape[1]), dtype=np.int64)
+    for q in range(len(idx)):
+        for k in range(neighbours.shape[1]):
+            j = neighbours[idx[q], k]
+            table[q, k] = position[j] if j >= 0 else -1
+    return table
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -423,22 +430,23 @@ def _split_along_axis(points: np.ndarray, weights: np.ndarray, n: int) -> np.nda
     return out
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def plateau_contacts(
-    neighbours: np.ndarray,
+    table: np.ndarray,
     current_px: np.ndarray,
     magnitudes: np.ndarray,
     peaks: np.ndarray,
     fraction: float,
     pitch_px: float,
     finger_radius_px: float,
-) -> tuple[np.ndarray, list[np.ndarray | None]]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Merge the displacement maxima that lie on one plateau; a wide plateau's contacts (see the
     module docstring, "Flat tops").
 
     Args:
-        neighbours: (M, K) int64, the valid markers' neighbours on the gel
-            (:func:`rest_neighbours`, -1 padded).
-        current_px: (M, 2) float64, their current positions (px).
+        table: (M, K) int64, the valid markers' neighbours on the gel (:func:`rest_neighbours`
+            renumbered among them, -1 padded).
+        current_px: (M, 2) float64, their current positions (px, image frame).
         magnitudes: (M,) float64, their displacement norms ||v|| (px).
         peaks: (K,) int64, the maxima (indices into the M markers) by decreasing magnitude.
         fraction: plateau level as a fraction of its maximum's magnitude, in (0, 1).
@@ -446,27 +454,90 @@ def plateau_contacts(
         finger_radius_px: a fingertip's radius (px, the paper's r): a plateau of area A holds
             ``min(3, ceil(A / (pi r^2)))`` fingers (the paper's gestures have up to 3).
     Returns:
-        (kept, points): the kept maxima (K' <= K, int64, by decreasing magnitude) and, for each,
-        None (a plateau of at most :data:`PLATEAU_MARKERS` markers: the caller places its
-        contact) or (n, 2) float64 contact points (px, current positions): the weighted
-        centroids of n equal-weight parts of the plateau along its principal axis.
+        (kept, fingers, points): the kept maxima (K' <= K, int64, by decreasing magnitude); for
+        each, 0 (a plateau of at most :data:`PLATEAU_MARKERS` markers: the caller places its
+        contact) or its number of fingers n (int64, K'); and the fingers' contact points, (sum
+        of n, 2) float64 (px, current positions) in the order of ``kept``: the weighted
+        centroids of n equal-weight parts of each wide plateau along its principal axis.
     """
-    covered = np.zeros(len(magnitudes), dtype=bool)
-    kept, points = [], []
+    covered = np.zeros(len(magnitudes), dtype=np.bool_)
+    kept = np.empty(len(peaks), dtype=np.int64)
+    fingers = np.zeros(len(peaks), dtype=np.int64)
+    points = np.empty((MAX_FINGERS * len(peaks), 2))
+    n_kept = n_points = 0
     for p in peaks:
         if covered[p]:
             continue  # on a stronger maximum's plateau: the same flat top
         level = fraction * magnitudes[p]
-        mask = _plateau(neighbours, magnitudes, int(p), level)
+        mask = _plateau(table, magnitudes, p, level)
         covered |= mask
-        kept.append(int(p))
-        size = int(np.count_nonzero(mask))
+        kept[n_kept] = p
+        size = np.count_nonzero(mask)
         if size > PLATEAU_MARKERS:
-            fingers = min(MAX_FINGERS, max(1, math.ceil(size * pitch_px**2 / (math.pi * finger_radius_px**2))))
-            points.append(_split_along_axis(current_px[mask], magnitudes[mask] - level + 1e-9, fingers))
-        else:
-            points.append(None)
-    return np.array(kept, dtype=np.int64), points
+            n = min(MAX_FINGERS, max(1, math.ceil(size * pitch_px**2 / (math.pi * finger_radius_px**2))))
+            points[n_points : n_points + n] = _split_along_axis(current_px[mask], magnitudes[mask] - level + 1e-9, n)
+            fingers[n_kept] = n
+            n_points += n
+        n_kept += 1
+    return kept[:n_kept].copy(), fingers[:n_kept].copy(), points[:n_points].copy()
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _usable(
+    rest: np.ndarray, current: np.ndarray, valid: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The markers that take part in one window: valid and finite. ``rest``, ``current`` (N, 2)
+    float64 px, ``valid`` (N,) bool. Returns their indices idx (M,) int64, rest and current
+    positions (M, 2), displacements v (M, 2) (px) and norms ||v|| (M,) float64."""
+    idx = np.empty(len(rest), dtype=np.int64)
+    m = 0
+    for i in range(len(rest)):
+        if valid[i] and np.isfinite(current[i, 0]) and np.isfinite(current[i, 1]):
+            idx[m] = i
+            m += 1
+    idx = idx[:m].copy()
+    rest_ok = np.empty((m, 2))
+    cur_ok = np.empty((m, 2))
+    v = np.empty((m, 2))
+    norms = np.empty(m)
+    for q in range(m):
+        for d in range(2):
+            rest_ok[q, d] = rest[idx[q], d]
+            cur_ok[q, d] = current[idx[q], d]
+            v[q, d] = cur_ok[q, d] - rest_ok[q, d]
+        norms[q] = np.hypot(v[q, 0], v[q, 1])
+    return idx, rest_ok, cur_ok, v, norms
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _maxima(
+    where: np.ndarray,
+    magnitudes: np.ndarray,
+    outliers: np.ndarray,
+    table: np.ndarray,
+    spike_fraction: float,
+    r2: float,
+    n_min: int,
+    fallback_threshold: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The contact step after RANSAC, up to the plateaus (:func:`detect_contacts`).
+
+    ``where`` (M, 2) float64 px: the positions whose neighbourhoods N(i) count (current, or rest
+    with ``maxima_at_rest``); ``magnitudes`` (M,) ||v|| px; ``outliers`` (M,) bool, RANSAC's;
+    ``table`` (M, K) int64, the valid markers' neighbour table (used when ``spike_fraction`` > 0);
+    ``spike_fraction`` <= 0: no lone-marker median; ``r2`` = r^2 (px^2);
+    ``fallback_threshold`` < 0: no field fallback, else the rest model's threshold (px).
+    Returns the maxima (K,) int64 (indices into the M markers, by decreasing magnitude) and the
+    magnitudes the later steps read (M,) float64 (lone markers at their neighbours' median)."""
+    if spike_fraction > 0:
+        magnitudes = _despiked(table, magnitudes, spike_fraction)
+    chosen = np.flatnonzero(outliers)
+    found = _local_maxima(where[chosen], magnitudes[chosen], r2, n_min)
+    peaks = chosen[found]
+    if len(peaks) == 0 and fallback_threshold >= 0:
+        moved = np.flatnonzero(magnitudes > fallback_threshold)  # the rest model's outliers
+        peaks = moved[_local_maxima(where[moved], magnitudes[moved], r2, n_min)]
+    return peaks, magnitudes
 
 
 def detect_contacts(
@@ -523,51 +594,51 @@ def detect_contacts(
         (e.g. all-zero). When ``cv2.findHomography`` returns None, all valid markers are
         candidates (see :func:`homography_outliers`).
     """
-    rest = np.asarray(rest_px, dtype=np.float64)
-    cur = np.asarray(current_px, dtype=np.float64)
+    rest = np.ascontiguousarray(rest_px, dtype=np.float64)
+    cur = np.ascontiguousarray(current_px, dtype=np.float64)
     n = len(rest)
-    ok = np.isfinite(cur).all(axis=1)
-    if valid is not None:
-        ok &= np.asarray(valid, dtype=bool)
-    idx = np.flatnonzero(ok)
+    usable = np.ones(n, dtype=bool) if valid is None else np.ascontiguousarray(valid, dtype=bool)
+    idx, rest_ok, cur_ok, v_ok, magnitudes = _usable(rest, cur, usable)
     if len(idx) < 4:
         return _no_contacts(n)
-    rest_ok, cur_ok = rest[idx], cur[idx]
-    v_ok = cur_ok - rest_ok
-    magnitudes = np.hypot(v_ok[:, 0], v_ok[:, 1])
     mean = float(magnitudes.mean())
     if mean < min_mean_displacement_px:
         return _no_contacts(n)
     threshold = a * mean
     outliers = homography_outliers(rest_ok, cur_ok, threshold, max_iters, method)
-    cand = idx[outliers]
     candidates = np.zeros(n, dtype=bool)
-    candidates[cand] = True
-    table = None
-    if spike_fraction is not None or plateau_fraction is not None:
+    candidates[idx[outliers]] = True
+    if spike_fraction is None and plateau_fraction is None:
+        table = np.zeros((len(idx), 1), dtype=np.int64)  # not read
+    else:
         if neighbours is None:
-            table = rest_neighbours(rest_ok, pitch_px)
-        else:
-            table = _valid_table(np.asarray(neighbours, dtype=np.int64), idx, n)
-    if spike_fraction is not None:  # a lone marker far above its neighbours is no contact
-        magnitudes = _despiked(table, magnitudes, spike_fraction)
-    where = rest_ok if maxima_at_rest else cur_ok  # the neighbourhoods N(i): now (paper) or on the gel at rest
-    found = local_maxima(where[outliers], magnitudes[outliers], r_px, n_min)
-    peaks = np.flatnonzero(outliers)[found]  # positions among the valid markers
-    if len(peaks) == 0 and field_fallback:
-        moved = np.flatnonzero(magnitudes > threshold)  # outliers of the rest model (identity), same threshold
-        peaks = moved[local_maxima(where[moved], magnitudes[moved], r_px, n_min)]
-    flat: list[np.ndarray | None] = [None] * len(peaks)
+            neighbours = rest_neighbours(rest, pitch_px)
+        table = _valid_table(np.ascontiguousarray(neighbours, dtype=np.int64), idx, n)
+    peaks, magnitudes = _maxima(
+        rest_ok if maxima_at_rest else cur_ok,  # the neighbourhoods N(i): on the gel at rest, or now (paper)
+        magnitudes,
+        outliers,
+        table,
+        -1.0 if spike_fraction is None else float(spike_fraction),
+        float(r_px) * float(r_px),
+        int(n_min),
+        threshold if field_fallback else -1.0,
+    )
     if plateau_fraction is not None and len(peaks):
-        peaks, flat = plateau_contacts(table, cur_ok, magnitudes, peaks, plateau_fraction, pitch_px, r_px)
-    rows, points = [], []
-    for i, f in zip(peaks, flat):
-        if f is not None:  # a flat top: its contacts, all on its maximum's marker
-            rows += [i] * len(f)
-            points += list(f)
+        peaks, fingers, flat = plateau_contacts(
+            table, cur_ok, magnitudes, peaks, float(plateau_fraction), float(pitch_px), float(r_px)
+        )
+    else:
+        fingers, flat = np.zeros(len(peaks), dtype=np.int64), np.zeros((0, 2))
+    rows, points, used = [], [], 0
+    for i, f in zip(peaks.tolist(), fingers.tolist()):
+        if f:  # a flat top: its contacts, all on its maximum's marker
+            rows += [i] * f
+            points += list(flat[used : used + f])
+            used += f
         else:
             rows.append(i)
-            points.append(_refine_peak(rest_ok, v_ok, magnitudes, int(i), refine_px) if refine_px else cur_ok[i])
+            points.append(_refine_peak(rest_ok, v_ok, magnitudes, i, refine_px) if refine_px else cur_ok[i])
     maxima = idx[np.array(rows, dtype=np.int64)]
     points = np.array(points, dtype=np.float64).reshape(-1, 2)
     return Contacts(indices=maxima, points_px=points, candidates=candidates, reproj_threshold_px=threshold)
