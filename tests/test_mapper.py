@@ -192,6 +192,19 @@ def test_one_euro_is_an_exponential_low_pass_at_low_speed():
     assert f(1.0, 20_000) == pytest.approx(alpha + alpha * (1 - alpha))
 
 
+def test_one_euro_filters_a_vector_element_by_element():
+    rng = np.random.default_rng(2)
+    both, xs, ys = OneEuroFilter(2.0, beta=0.05), OneEuroFilter(2.0, beta=0.05), OneEuroFilter(2.0, beta=0.05)
+    t = 0
+    for _ in range(200):
+        t += int(rng.integers(0, 30_000))  # repeated timestamps too
+        value = rng.normal(scale=5.0, size=2)
+        out = both(value, t)
+        assert out.shape == (2,) and out.dtype == np.float64
+        assert out[0] == xs(float(value[0]), t) and out[1] == ys(float(value[1]), t)
+    assert isinstance(xs(1.0, t + 1), float)
+
+
 def test_one_euro_beta_cuts_lag_on_fast_moves():
     slow, fast = OneEuroFilter(1.0, beta=0.0), OneEuroFilter(1.0, beta=1.0)
     for f in (slow, fast):

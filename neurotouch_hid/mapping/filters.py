@@ -12,12 +12,17 @@ import numpy as np
 
 class OneEuroFilter:
     """The 1-euro filter (Casiez, Roussel, Vogel: "1 Euro Filter: A Simple Speed-based Low-pass
-    Filter for Noisy Input in Interactive Systems", CHI 2012), element-wise on a scalar or an
-    array (e.g. a (2,) push vector, mm).
+    Filter for Noisy Input in Interactive Systems", CHI 2012), element-wise on a scalar or a short
+    vector (e.g. a (2,) push vector, mm).
 
     An exponential low-pass whose cut-off rises with the (low-passed) speed:
     ``fc = min_cutoff_hz + beta * |dx/dt|`` with dx/dt in units/s, so ``beta`` is in Hz per
     (mm/s) for inputs in mm. Time is int64 microseconds (the camera clock).
+
+    The arithmetic is Python's, element by element (the same IEEE double operations as NumPy's
+    element-wise ones): the mapper runs once per window right after the pipeline's fit, on a
+    core that slept since the last window, where each NumPy call on a 1- or 2-element array
+    costs several microseconds (benchmarks/bench_mapper.py).
     """
 
     def __init__(self, min_cutoff_hz: float = 1.0, beta: float = 0.0, d_cutoff_hz: float = 1.0) -> None:
@@ -28,31 +33,36 @@ class OneEuroFilter:
 
     def reset(self) -> None:
         """Forget the history: the next sample passes through unchanged."""
-        self._x: np.ndarray | None = None
-        self._dx: np.ndarray | None = None
+        self._x: list[float] | None = None
+        self._dx: list[float] = []
         self._t_us: int | None = None
 
     @staticmethod
-    def _alpha(cutoff_hz: np.ndarray | float, dt_s: float) -> np.ndarray | float:
+    def _alpha(cutoff_hz: float, dt_s: float) -> float:
         tau = 1.0 / (2.0 * math.pi * cutoff_hz)
         return 1.0 / (1.0 + tau / dt_s)
 
-    def __call__(self, value: np.ndarray | float, t_us: int) -> np.ndarray:
-        """Filter one sample taken at ``t_us``; returns the filtered value (float64, same shape).
-
-        A sample not later than the previous one is treated as 1 us later.
+    def __call__(self, value: np.ndarray | float, t_us: int) -> np.ndarray | float:
+        """Filter one sample taken at ``t_us`` (us); returns the filtered value: a float for a
+        scalar, a float64 array of the same shape for an array. A sample not later than the
+        previous one is treated as 1 us later.
         """
-        x = np.asarray(value, dtype=np.float64)
-        if self._x is None or self._dx is None or self._t_us is None:
-            self._x, self._dx, self._t_us = x.copy(), np.zeros_like(x), int(t_us)
-            return x.copy()
-        dt_s = max(int(t_us) - self._t_us, 1) * 1e-6
-        self._t_us = max(int(t_us), self._t_us + 1)
-        dx = (x - self._x) / dt_s
-        self._dx = self._dx + self._alpha(self.d_cutoff_hz, dt_s) * (dx - self._dx)
-        cutoff = self.min_cutoff_hz + self.beta * np.abs(self._dx)
-        self._x = self._x + self._alpha(cutoff, dt_s) * (x - self._x)
-        return self._x.copy()
+        scalar = np.ndim(value) == 0
+        x = [float(value)] if scalar else np.asarray(value, dtype=np.float64).ravel().tolist()
+        if self._x is None or self._t_us is None:
+            self._x, self._dx, self._t_us = x, [0.0] * len(x), int(t_us)
+        else:
+            dt_s = max(int(t_us) - self._t_us, 1) * 1e-6
+            self._t_us = max(int(t_us), self._t_us + 1)
+            alpha_d = self._alpha(self.d_cutoff_hz, dt_s)
+            for i, (xi, last, dx_last) in enumerate(zip(x, self._x, self._dx)):
+                dx = dx_last + alpha_d * ((xi - last) / dt_s - dx_last)
+                cutoff = self.min_cutoff_hz + self.beta * abs(dx)
+                self._dx[i] = dx
+                self._x[i] = last + self._alpha(cutoff, dt_s) * (xi - last)
+        if scalar:
+            return self._x[0]
+        return np.array(self._x, dtype=np.float64).reshape(np.shape(value))
 
 
 def response(

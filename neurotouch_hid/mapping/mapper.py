@@ -47,14 +47,14 @@ def gesture_inputs(estimate: GestureEstimate) -> dict[str, np.ndarray | float]:
     intensity = float(estimate.intensity_mm) if active and math.isfinite(estimate.intensity_mm) else 0.0
     push = _ZERO2
     if gesture == GestureType.PUSH and intensity > 0:
-        direction = np.asarray(estimate.translation_mm, dtype=np.float64)
-        norm = float(np.hypot(*direction)) if np.all(np.isfinite(direction)) else 0.0
+        dx, dy = float(estimate.translation_mm[0]), float(estimate.translation_mm[1])
+        norm = float(np.hypot(dx, dy)) if math.isfinite(dx) and math.isfinite(dy) else 0.0
         if norm > 0:
-            push = direction / norm * intensity
+            push = np.array((dx / norm * intensity, dy / norm * intensity))
     contact = _ZERO2
     if active and estimate.n_contacts > 0 and len(estimate.contacts_mm) > 0:
-        first = np.asarray(estimate.contacts_mm[0], dtype=np.float64)
-        contact = first if np.all(np.isfinite(first)) else _ZERO2
+        cx, cy = float(estimate.contacts_mm[0][0]), float(estimate.contacts_mm[0][1])
+        contact = np.array((cx, cy)) if math.isfinite(cx) and math.isfinite(cy) else _ZERO2
     twist = {GestureType.TWIST_CCW: intensity, GestureType.TWIST_CW: -intensity}.get(gesture, 0.0)
     pinch = intensity if gesture == GestureType.PINCH else 0.0
     zoom = intensity if gesture == GestureType.ZOOM else 0.0
@@ -296,10 +296,10 @@ class Mapper:
             if smoother is not None:
                 value = smoother(value, t_us)
             if isinstance(mapping, (StickMapping, PointerMapping)):
-                vector = np.asarray(value, dtype=np.float64)
-                magnitude = float(np.hypot(*vector))
+                vx, vy = float(value[0]), float(value[1])
+                magnitude = float(np.hypot(vx, vy))
                 shaped = _shape(mapping, magnitude)
-                x, y = (vector / magnitude * shaped) if shaped > 0 else (0.0, 0.0)
+                x, y = (vx / magnitude * shaped, vy / magnitude * shaped) if shaped > 0 else (0.0, 0.0)
                 x, y = (-x if mapping.invert_x else x), (-y if mapping.invert_y else y)
                 if isinstance(mapping, StickMapping):
                     axis_x, axis_y = STICKS[mapping.output]
