@@ -99,10 +99,10 @@ def _fma(typingctx, x, y, z):
     return signature, codegen
 
 
-# The 2-vector products below are rounded as NumPy's ``@`` rounds them with the OpenBLAS it
-# ships (x86-64: FMA kernels), which this code replaced: the predictions stay byte-identical.
-# Several rows (matrix products, dgemm): fma(x1, y1, x0 * y0); one row (dgemv):
-# x . y = x0 * y0 + x1 * y1 for p @ R, fma(x0, y0, x1 * y1) for p @ R^T and for (M, 2) @ (2,).
+# The 2-vector products below are rounded as NumPy's ``@``, which these kernels replaced, rounds
+# them with the OpenBLAS it ships (x86-64: FMA kernels), so that the predictions stay
+# byte-identical: over several rows (dgemm) x . y = fma(x1, y1, x0 * y0); over one row (dgemv)
+# x0 * y0 + x1 * y1 for p @ R, fma(x0, y0, x1 * y1) for p @ R^T and for (M, 2) @ (2,).
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")

@@ -613,7 +613,7 @@ class GesturePipeline:
                 self._pending = (result, int(t_us))
 
     def compile_kernels(self) -> None:
-        """Compile the pipeline's numba code (noise filter, tracker, contacts, gesture) now, on a synthetic
+        """Compile the pipeline's numba code (noise filter, tracker, gel motion, contacts, gesture) now, on a synthetic
         marker grid with a finger-like bump of displacement and a flat top, instead of on the first real events:
         on a fresh install that takes seconds, which a real-time run would spend dropping data.
         Later runs load the code from numba's cache. Leaves the pipeline as it was."""
