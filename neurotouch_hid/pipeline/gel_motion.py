@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 import cv2
 import numba
 import numpy as np
-from numba.core import types
+from numba import types
 from numba.extending import intrinsic
 
 #: The outer ring: markers whose rest distance from the gel centre is at least this fraction of
