@@ -188,19 +188,22 @@ def _rim_pairs(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _shared_part(src: np.ndarray, dst: np.ndarray, theta: float, tx: float, ty: float) -> tuple[float, float, float]:
+def _shared_part(src: np.ndarray, dst: np.ndarray, matrix: np.ndarray) -> tuple[float, np.ndarray]:
     """The part of the fitted motion that every rim marker shares (module docstring).
 
     Args:
         src, dst: (M, 2) float32, M >= 2, the rim markers' rest and current positions about the
             gel centre (px, image frame), as fitted.
-        theta: the fitted rotation (rad); tx, ty: the fitted translation (px).
+        matrix: (2, 3) float64, OpenCV's fit src -> dst: a rotation theta, a scale (dropped)
+            and a translation (px).
     Returns:
-        (theta, tx, ty): the rotation (rad) and translation (px) capped at the
+        (theta, t): the rotation (rad) and the translation ((2,) float64 px) capped at the
         :data:`SHARED_QUANTILE` quantile of the markers' turns about the centre (the fitted
         translation removed) and of their displacements along the translation (the fitted
         rotation's share removed).
     """
+    theta = math.atan2(matrix[1, 0], matrix[0, 0])
+    tx, ty = matrix[0, 2], matrix[1, 2]  # about the gel centre: dropping the scale leaves it as it is
     c, s = math.cos(theta), math.sin(theta)
     norm = math.hypot(tx, ty)
     ux, uy = (tx / norm, ty / norm) if norm > 0 else (0.0, 0.0)
@@ -227,7 +230,7 @@ def _shared_part(src: np.ndarray, dst: np.ndarray, theta: float, tx: float, ty: 
         shared = _low_quantile(turns)
         angle = abs(theta) if shared >= abs(theta) else shared
         theta = sign * (0.0 if not angle > 0.0 else angle)
-    return theta, tx, ty
+    return theta, np.array([tx, ty])
 
 
 def estimate_gel_motion(
@@ -256,12 +259,10 @@ def estimate_gel_motion(
     matrix, _ = cv2.estimateAffinePartial2D(src, dst, method=cv2.LMEDS)
     if matrix is None:
         return None
-    # about the gel centre: dropping the scale leaves the translation as it is; only what every
-    # rim marker shares: a mount's slip moves the whole rim alike, a finger's deformation
-    # reaching the rim moves its near side more than its far side
-    theta = math.atan2(matrix[1, 0], matrix[0, 0])
-    theta, tx, ty = _shared_part(src, dst, theta, float(matrix[0, 2]), float(matrix[1, 2]))
-    return GelMotion(centre, theta, np.array([tx, ty]))
+    # only what every rim marker shares: a mount's slip moves the whole rim alike, a finger's
+    # deformation reaching the rim moves its near side more than its far side
+    theta, translation = _shared_part(src, dst, matrix)
+    return GelMotion(centre, theta, translation)
 
 
 def compile_gel_motion_kernels() -> None:
@@ -271,6 +272,6 @@ def compile_gel_motion_kernels() -> None:
     rest = np.zeros((MIN_RIM_MARKERS, 2))
     markers = np.ones(MIN_RIM_MARKERS, dtype=bool)
     src, dst, _ = _rim_pairs(rest, rest, markers, markers, np.zeros(2))
-    _shared_part(src, dst, 0.1, 1.0, 0.0)
+    _shared_part(src, dst, np.eye(2, 3))
     motion = GelMotion(np.zeros(2), 0.1, np.ones(2))
     motion.apply(motion.remove(rest))
