@@ -5,7 +5,6 @@ markers, a still rim). The behaviour on whole gestures is tested in test_pipelin
 from __future__ import annotations
 
 import math
-from fractions import Fraction
 
 import cv2
 import numpy as np
@@ -141,34 +140,3 @@ def test_remove_and_apply_are_the_rigid_motion_and_its_inverse(shape):
         np.testing.assert_allclose(moved, reference_apply(motion, points), rtol=0, atol=1e-12)
         np.testing.assert_allclose(motion.remove(moved), points, rtol=0, atol=1e-9)  # NaN rows stay NaN
         np.testing.assert_array_equal(np.isnan(motion.remove(points)), np.isnan(points))
-
-
-def fused(x: float, y: float, z: float) -> float:
-    """x * y + z rounded once (exact rationals, then the nearest float64)."""
-    return float(Fraction(x) * Fraction(y) + Fraction(z))
-
-
-def test_products_are_rounded_as_numpys_openblas_rounds_them():
-    """Several rows: each 2-vector product is fma(x1, y1, x0 * y0), as NumPy's ``@`` computed
-    it with the OpenBLAS it ships (x86-64) before these kernels: the predictions stay
-    byte-identical. One row: x0 * y0 + x1 * y1 for remove, fma(x0, y0, x1 * y1) for apply."""
-    rng = np.random.default_rng(5)
-    motion = GelMotion(np.asarray(CENTRE), 0.0137, np.array([1.25, -0.5]))
-    c, s = math.cos(motion.rotation_rad), math.sin(motion.rotation_rad)
-    (cx, cy), (tx, ty) = CENTRE, motion.translation_px
-    points = rng.uniform(80.0, 260.0, (200, 2))
-    removed, applied = motion.remove(points), motion.apply(points)
-    differs = 0  # rows whose result the plain rounding would change
-    for (px, py), r, a in zip(points, removed, applied):
-        x, y = px - cx - tx, py - cy - ty
-        assert tuple(r) == (fused(y, s, x * c) + cx, fused(y, c, x * -s) + cy)
-        differs += r[0] != x * c + y * s + cx or r[1] != x * -s + y * c + cy
-        x, y = px - cx, py - cy
-        assert tuple(a) == (fused(y, -s, x * c) + cx + tx, fused(y, c, x * s) + cy + ty)
-    assert differs > 0  # the fused rounding is what is checked: it differs on some rows
-    for px, py in points[:5]:
-        (r,), (a,) = motion.remove(np.array([[px, py]])), motion.apply(np.array([[px, py]]))
-        x, y = px - cx - tx, py - cy - ty
-        assert tuple(r) == (x * c + y * s + cx, x * -s + y * c + cy)
-        x, y = px - cx, py - cy
-        assert tuple(a) == (fused(x, c, y * -s) + cx + tx, fused(x, s, y * c) + cy + ty)

@@ -42,8 +42,6 @@ from dataclasses import dataclass, field
 import cv2
 import numba
 import numpy as np
-from numba import types
-from numba.extending import intrinsic
 
 #: The outer ring: markers whose rest distance from the gel centre is at least this fraction of
 #: the farthest marker's (on the simulated 177-marker gel: the outer ~60 markers).
@@ -87,24 +85,6 @@ class GelMotion:
         return moved.reshape(p.shape)
 
 
-@intrinsic
-def _fma(typingctx, x, y, z):
-    """x * y + z (float64) rounded once (LLVM's ``llvm.fma``)."""
-    signature = types.float64(types.float64, types.float64, types.float64)
-
-    def codegen(context, builder, sig, args):
-        double = context.get_value_type(types.float64)
-        return builder.call(builder.module.declare_intrinsic("llvm.fma", [double] * 3), args)
-
-    return signature, codegen
-
-
-# The 2-vector products below are rounded as NumPy's ``@``, which these kernels replaced, rounds
-# them with the OpenBLAS it ships (x86-64: FMA kernels), so that the predictions stay
-# byte-identical: over several rows (dgemm) x . y = fma(x1, y1, x0 * y0); over one row (dgemv)
-# x0 * y0 + x1 * y1 for p @ R, fma(x0, y0, x1 * y1) for p @ R^T and for (M, 2) @ (2,).
-
-
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _rigid_motion(
     points_px: np.ndarray, centre_px: np.ndarray, theta: float, translation_px: np.ndarray, inverse: bool
@@ -118,22 +98,14 @@ def _rigid_motion(
     m = len(points_px)
     out = np.empty((m, 2))
     for i in range(m):
-        if inverse:  # (p - c - t) @ R + c
+        if inverse:  # R^T (p - c - t) + c
             x, y = points_px[i, 0] - cx - tx, points_px[i, 1] - cy - ty
-            if m == 1:
-                out[i, 0] = x * c + y * s + cx
-                out[i, 1] = x * -s + y * c + cy
-            else:
-                out[i, 0] = _fma(y, s, x * c) + cx
-                out[i, 1] = _fma(y, c, x * -s) + cy
-        else:  # (p - c) @ R^T + c + t
+            out[i, 0] = x * c + y * s + cx
+            out[i, 1] = y * c - x * s + cy
+        else:  # R (p - c) + c + t
             x, y = points_px[i, 0] - cx, points_px[i, 1] - cy
-            if m == 1:
-                out[i, 0] = _fma(x, c, y * -s) + cx + tx
-                out[i, 1] = _fma(x, s, y * c) + cy + ty
-            else:
-                out[i, 0] = _fma(y, -s, x * c) + cx + tx
-                out[i, 1] = _fma(y, c, x * s) + cy + ty
+            out[i, 0] = x * c - y * s + cx + tx
+            out[i, 1] = x * s + y * c + cy + ty
     return out
 
 
@@ -215,9 +187,9 @@ def _shared_part(src: np.ndarray, dst: np.ndarray, matrix: np.ndarray) -> tuple[
         x, y = np.float64(src[i, 0]), np.float64(src[i, 1])
         dx, dy = np.float64(dst[i, 0] - src[i, 0]), np.float64(dst[i, 1] - src[i, 1])
         # the displacement d without the fitted rotation's share, (R - I) src
-        ex = dx - _fma(y, -s, x * (c - 1.0))
-        ey = dy - _fma(y, c - 1.0, x * s)
-        along[i] = _fma(ex, ux, ey * uy)
+        ex = dx - (x * (c - 1.0) - y * s)
+        ey = dy - (x * s + y * (c - 1.0))
+        along[i] = ex * ux + ey * uy
         # without the fitted translation, its turn about the centre: cross(src, d - t) / |src|^2
         rx, ry = dx - tx, dy - ty
         turns[i] = sign * ((x * ry - y * rx) / max(x * x + y * y, 1e-9))
