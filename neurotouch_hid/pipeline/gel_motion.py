@@ -40,6 +40,7 @@ import math
 from dataclasses import dataclass, field
 
 import cv2
+import numba
 import numpy as np
 
 #: The outer ring: markers whose rest distance from the gel centre is at least this fraction of
@@ -70,32 +71,138 @@ class GelMotion:
     rotation_rad: float = 0.0
     translation_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
 
-    def _matrix(self) -> np.ndarray:
-        c, s = math.cos(self.rotation_rad), math.sin(self.rotation_rad)
-        return np.array([[c, -s], [s, c]])
-
     def apply(self, points_px: np.ndarray) -> np.ndarray:
         """(..., 2) float64: ``points_px`` (..., 2) px moved with the gel, c + R (p - c) + t."""
-        p = np.asarray(points_px, dtype=np.float64) - self.centre_px
-        return p @ self._matrix().T + self.centre_px + self.translation_px
+        return self._moved(points_px, False)
 
     def remove(self, points_px: np.ndarray) -> np.ndarray:
         """(..., 2) float64: the inverse of :meth:`apply` (NaN rows stay NaN)."""
-        p = np.asarray(points_px, dtype=np.float64) - self.centre_px - self.translation_px
-        return p @ self._matrix() + self.centre_px
+        return self._moved(points_px, True)
+
+    def _moved(self, points_px: np.ndarray, inverse: bool) -> np.ndarray:
+        p = np.ascontiguousarray(points_px, dtype=np.float64)
+        moved = _rigid_motion(p.reshape(-1, 2), self.centre_px, self.rotation_rad, self.translation_px, inverse)
+        return moved.reshape(p.shape)
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _rigid_motion(
+    points_px: np.ndarray, centre_px: np.ndarray, theta: float, translation_px: np.ndarray, inverse: bool
+) -> np.ndarray:
+    """(M, 2) float64: :meth:`GelMotion.apply` (c + R (p - c) + t) or, with ``inverse``,
+    :meth:`GelMotion.remove` (c + R^T (p - c - t)) of ``points_px`` (M, 2) float64 px, image
+    frame; ``centre_px`` c and ``translation_px`` t (2,) float64 px, ``theta`` rad."""
+    c, s = math.cos(theta), math.sin(theta)
+    cx, cy = centre_px[0], centre_px[1]
+    tx, ty = translation_px[0], translation_px[1]
+    m = len(points_px)
+    out = np.empty((m, 2))
+    for i in range(m):
+        if inverse:  # R^T (p - c - t) + c
+            x, y = points_px[i, 0] - cx - tx, points_px[i, 1] - cy - ty
+            out[i, 0] = x * c + y * s + cx
+            out[i, 1] = y * c - x * s + cy
+        else:  # R (p - c) + c + t
+            x, y = points_px[i, 0] - cx, points_px[i, 1] - cy
+            out[i, 0] = x * c - y * s + cx + tx
+            out[i, 1] = x * s + y * c + cy + ty
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _low_quantile(values: np.ndarray) -> float:
-    """The :data:`SHARED_QUANTILE` quantile of ``values`` (M,), M >= 1, as the order statistic
-    below it (``np.partition``: ~10x cheaper than ``np.quantile`` on ~60 values)."""
+    """The :data:`SHARED_QUANTILE` quantile of ``values`` (M,) float64, M >= 1, as the order
+    statistic below it (the k-th smallest, k = floor(SHARED_QUANTILE (M - 1)))."""
     k = int(SHARED_QUANTILE * (len(values) - 1))
-    return float(np.partition(values, k)[k])
+    return np.partition(values, k)[k]
 
 
 def rim_markers(rest_px: np.ndarray, centre_px, rim_fraction: float = RIM_FRACTION) -> np.ndarray:
     """(N,) bool: the markers of the outer ring, from their rest positions (N, 2) px."""
     r = np.hypot(rest_px[:, 0] - centre_px[0], rest_px[:, 1] - centre_px[1])
     return r >= rim_fraction * r.max() if len(r) else np.zeros(0, dtype=bool)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _rim_pairs(
+    rest_px: np.ndarray, current_px: np.ndarray, valid: np.ndarray | None, rim: np.ndarray, centre_px: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """The rim markers to fit: those of ``rim`` that are ``valid`` and have a finite position.
+
+    Args:
+        rest_px, current_px, valid, rim: as :func:`estimate_gel_motion` takes them.
+        centre_px: (2,) float64 px, the gel centre c.
+    Returns:
+        (src, dst, shared_px): the M markers' rest and current positions about c, (M, 2)
+        float32 px (OpenCV's input), and the :data:`SHARED_QUANTILE` quantile of their
+        displacements' lengths (px), or -1.0 when M < :data:`MIN_RIM_MARKERS`.
+    """
+    n = len(rest_px)
+    rows = np.empty(n, dtype=np.int64)
+    m = 0
+    for i in range(n):
+        if rim[i] and (valid is None or valid[i]) and np.isfinite(current_px[i, 0]) and np.isfinite(current_px[i, 1]):
+            rows[m] = i
+            m += 1
+    src = np.empty((m, 2), dtype=np.float32)
+    dst = np.empty((m, 2), dtype=np.float32)
+    if m < MIN_RIM_MARKERS:
+        return src, dst, -1.0
+    lengths = np.empty(m)
+    for j in range(m):
+        i = rows[j]
+        lengths[j] = math.hypot(current_px[i, 0] - rest_px[i, 0], current_px[i, 1] - rest_px[i, 1])
+        src[j, 0] = rest_px[i, 0] - centre_px[0]
+        src[j, 1] = rest_px[i, 1] - centre_px[1]
+        dst[j, 0] = current_px[i, 0] - centre_px[0]
+        dst[j, 1] = current_px[i, 1] - centre_px[1]
+    return src, dst, _low_quantile(lengths)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _shared_part(src: np.ndarray, dst: np.ndarray, matrix: np.ndarray) -> tuple[float, np.ndarray]:
+    """The part of the fitted motion that every rim marker shares (module docstring).
+
+    Args:
+        src, dst: (M, 2) float32, M >= 2, the rim markers' rest and current positions about the
+            gel centre (px, image frame), as fitted.
+        matrix: (2, 3) float64, OpenCV's fit src -> dst: a rotation theta, a scale (dropped)
+            and a translation (px).
+    Returns:
+        (theta, t): the rotation (rad) and the translation ((2,) float64 px) capped at the
+        :data:`SHARED_QUANTILE` quantile of the markers' turns about the centre (the fitted
+        translation removed) and of their displacements along the translation (the fitted
+        rotation's share removed).
+    """
+    theta = math.atan2(matrix[1, 0], matrix[0, 0])
+    tx, ty = matrix[0, 2], matrix[1, 2]  # about the gel centre: dropping the scale leaves it as it is
+    c, s = math.cos(theta), math.sin(theta)
+    norm = math.hypot(tx, ty)
+    ux, uy = (tx / norm, ty / norm) if norm > 0 else (0.0, 0.0)
+    sign = math.copysign(1.0, theta)
+    m = len(src)
+    along = np.empty(m)
+    turns = np.empty(m)
+    for i in range(m):
+        x, y = np.float64(src[i, 0]), np.float64(src[i, 1])
+        dx, dy = np.float64(dst[i, 0] - src[i, 0]), np.float64(dst[i, 1] - src[i, 1])
+        # the displacement d without the fitted rotation's share, (R - I) src
+        ex = dx - (x * (c - 1.0) - y * s)
+        ey = dy - (x * s + y * (c - 1.0))
+        along[i] = ex * ux + ey * uy
+        # without the fitted translation, its turn about the centre: cross(src, d - t) / |src|^2
+        rx, ry = dx - tx, dy - ty
+        turns[i] = sign * ((x * ry - y * rx) / max(x * x + y * y, 1e-9))
+    if norm > 0:
+        shared = _low_quantile(along)
+        length = norm if shared >= norm else shared  # min(norm, shared), as Python takes it
+        length = 0.0 if not length > 0.0 else length  # max(0.0, length)
+        tx, ty = ux * length, uy * length
+    if theta != 0.0:
+        shared = _low_quantile(turns)
+        angle = abs(theta) if shared >= abs(theta) else shared
+        theta = sign * (0.0 if not angle > 0.0 else angle)
+    return theta, np.array([tx, ty])
 
 
 def estimate_gel_motion(
@@ -116,33 +223,27 @@ def estimate_gel_motion(
     Source: ``cv2.estimateAffinePartial2D(..., method=cv2.LMEDS)``.
     """
     centre = np.asarray(centre_px, dtype=np.float64)
-    use = rim & np.isfinite(current_px).all(axis=1)
-    if valid is not None:
-        use &= np.asarray(valid, dtype=bool)
-    if int(use.sum()) < MIN_RIM_MARKERS:
-        return None
-    moved = current_px[use] - rest_px[use]
-    if _low_quantile(np.hypot(moved[:, 0], moved[:, 1])) <= STILL_RIM_PX:
+    src, dst, shared_px = _rim_pairs(rest_px, current_px, valid, rim, centre)
+    if shared_px < 0.0:
+        return None  # too few rim markers
+    if shared_px <= STILL_RIM_PX:
         return None  # the shared part of the rim's motion is below the tracker's noise
-    src = np.ascontiguousarray(rest_px[use] - centre, dtype=np.float32)
-    dst = np.ascontiguousarray(current_px[use] - centre, dtype=np.float32)
     matrix, _ = cv2.estimateAffinePartial2D(src, dst, method=cv2.LMEDS)
     if matrix is None:
         return None
-    theta = math.atan2(matrix[1, 0], matrix[0, 0])
-    t = matrix[:, 2].astype(np.float64)  # about the gel centre: dropping the scale leaves it as it is
     # only what every rim marker shares: a mount's slip moves the whole rim alike, a finger's
     # deformation reaching the rim moves its near side more than its far side
-    src64, d = src.astype(np.float64), (dst - src).astype(np.float64)
-    c, s = math.cos(theta), math.sin(theta)
-    turned = src64 @ np.array([[c - 1.0, -s], [s, c - 1.0]]).T  # the fitted rotation's share of d
-    norm = float(np.hypot(t[0], t[1]))
-    if norm > 0:
-        u = t / norm
-        t = u * max(0.0, min(norm, _low_quantile((d - turned) @ u)))
-    if theta != 0.0:
-        sign = math.copysign(1.0, theta)
-        rest = d - matrix[:, 2]  # without the fitted translation
-        turn = (src64[:, 0] * rest[:, 1] - src64[:, 1] * rest[:, 0]) / np.maximum((src64 * src64).sum(axis=1), 1e-9)
-        theta = sign * max(0.0, min(abs(theta), _low_quantile(sign * turn)))
-    return GelMotion(centre, theta, t)
+    theta, translation = _shared_part(src, dst, matrix)
+    return GelMotion(centre, theta, translation)
+
+
+def compile_gel_motion_kernels() -> None:
+    """Compile (or load from numba's cache) the kernels of :func:`estimate_gel_motion` and
+    :class:`GelMotion` now, for the array types the pipeline passes them, instead of at the
+    first window whose rim moves."""
+    rest = np.zeros((MIN_RIM_MARKERS, 2))
+    markers = np.ones(MIN_RIM_MARKERS, dtype=bool)
+    src, dst, _ = _rim_pairs(rest, rest, markers, markers, np.zeros(2))
+    _shared_part(src, dst, np.eye(2, 3))
+    motion = GelMotion(np.zeros(2), 0.1, np.ones(2))
+    motion.apply(motion.remove(rest))

@@ -77,7 +77,7 @@ from neurotouch_hid.camera_model import fit_camera_model
 from neurotouch_hid.errors import SensorError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.pipeline.contacts import HOMOGRAPHY_METHODS, detect_contacts, rest_neighbours
-from neurotouch_hid.pipeline.gel_motion import estimate_gel_motion, rim_markers
+from neurotouch_hid.pipeline.gel_motion import compile_gel_motion_kernels, estimate_gel_motion, rim_markers
 from neurotouch_hid.pipeline.gesture import EpisodeVote, estimate_gesture
 from neurotouch_hid.pipeline.learned import gesture_features, learned_gesture
 from neurotouch_hid.pipeline.markers import MARKER_SPACING_MM, detect_markers, looks_like_marker_grid
@@ -613,7 +613,7 @@ class GesturePipeline:
                 self._pending = (result, int(t_us))
 
     def compile_kernels(self) -> None:
-        """Compile the pipeline's numba code (noise filter, tracker, contacts, gesture) now, on a synthetic
+        """Compile the pipeline's numba code (noise filter, tracker, gel motion, contacts, gesture) now, on a synthetic
         marker grid with a finger-like bump of displacement and a flat top, instead of on the first real events:
         on a fresh install that takes seconds, which a real-time run would spend dropping data.
         Later runs load the code from numba's cache. Leaves the pipeline as it was."""
@@ -640,6 +640,7 @@ class GesturePipeline:
         flat[len(rest) // 3] += (6.0, 0.0)
         all_valid = np.ones(len(rest), dtype=bool)
         compile_resting_kernels()  # its frames come later, possibly in the runtime's thread
+        compile_gel_motion_kernels()  # the grid's rim barely moves: its fits stop before them
         timings, self.timings = self.timings, None  # not a window: no stage time recorded
         try:
             self._fit(rest, moved, all_valid)
