@@ -160,7 +160,7 @@ def weighted_intensity(
         return 0.0
     norms = np.hypot(cur[:, 0] - rest[:, 0], cur[:, 1] - rest[:, 1])
     contacts = np.ascontiguousarray(contacts_px, dtype=np.float64).reshape(-1, 2)
-    return float(_profile(norms, cur, contacts, _sigma(sigma_px)))
+    return _profile(norms, cur, contacts, _sigma(sigma_px))
 
 
 def _sigma(sigma_px: float | None) -> float:
