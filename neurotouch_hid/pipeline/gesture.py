@@ -171,73 +171,10 @@ def _sigma(sigma_px: float | None) -> float:
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _profile(norms: np.ndarray, current_px: np.ndarray, contacts_px: np.ndarray, sigma_px: float) -> float:
     """:func:`weighted_intensity` from the norms ||v_i|| (M,) float64, M >= 1, of the markers at
-    ``current_px`` (M, 2) px; ``sigma_px`` 0.0 = the uniform mean (as NumPy's ``mean``)."""
+    ``current_px`` (M, 2) px; ``sigma_px`` 0.0 = the uniform mean."""
     if sigma_px == 0.0:
-        return _pairwise_sum(norms, 0, len(norms)) / len(norms)
+        return norms.sum() / len(norms)
     return _weighted_mean(norms, current_px, contacts_px, sigma_px)
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _pairwise_sum(values: np.ndarray, start: int, n: int) -> float:
-    """The sum of ``values[start : start + n]`` (float64) in NumPy's order (``np.add.reduce`` on a
-    contiguous float64 array, numpy/_core/src/umath/loops_utils.h.src ``pairwise_sum``): blocks
-    of up to 128 values (:func:`_block_sum`), a longer run split in two halves (the first a
-    multiple of 8) summed alike and added; so that a mean is bit for bit NumPy's. NumPy's
-    recursion runs here on an explicit stack: numba cannot load a self-recursive function from
-    its cache."""
-    if n <= 128:
-        return _block_sum(values, start, n)
-    starts = np.empty(64, dtype=np.int64)  # the halves' depth is log2(n) < 64
-    sizes = np.empty(64, dtype=np.int64)
-    lefts = np.empty(64)  # a half's left sum, once known
-    left_done = np.zeros(64, dtype=np.bool_)
-    depth = 0
-    starts[0], sizes[0] = start, n
-    while True:
-        if sizes[depth] > 128:  # split: the left half first
-            half = sizes[depth] // 2
-            half -= half % 8
-            left_done[depth] = False
-            starts[depth + 1], sizes[depth + 1] = starts[depth], half
-            depth += 1
-            continue
-        total = _block_sum(values, starts[depth], sizes[depth])
-        while True:  # hand the sum up to the first parent whose right half is still to do
-            depth -= 1
-            if depth < 0:
-                return total
-            if left_done[depth]:
-                total = lefts[depth] + total
-                continue
-            left_done[depth] = True
-            lefts[depth] = total
-            half = sizes[depth] // 2
-            half -= half % 8
-            starts[depth + 1], sizes[depth + 1] = starts[depth] + half, sizes[depth] - half
-            depth += 1
-            break
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _block_sum(values: np.ndarray, start: int, n: int) -> float:
-    """NumPy's ``pairwise_sum`` of ``values[start : start + n]``, n <= 128: one after the other
-    below 8 values, else 8 accumulators over the blocks of 8, added in pairs, then the rest."""
-    if n < 8:
-        total = 0.0
-        for i in range(start, start + n):
-            total += values[i]
-        return total
-    r = values[start : start + 8].copy()
-    i = 8
-    while i < n - n % 8:
-        for j in range(8):
-            r[j] += values[start + i + j]
-        i += 8
-    total = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
-    while i < n:
-        total += values[start + i]
-        i += 1
-    return total
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -416,8 +353,8 @@ def estimate_gesture(
             float(sensor.px_per_mm),
             bool(sensor.mirror),
         )
-        if sensor.rotation_deg:  # SensorGeometry.vectors_image_to_user's own product (BLAS): bit for bit
-            mm = mm @ sensor._rotation().T
+        if sensor.rotation_deg:  # the last step of SensorGeometry.vectors_image_to_user
+            mm = mm @ sensor.rotation_matrix().T
         intensity_mm, translation_mm = _mm_figures(mm, cur_a, contacts, sigma)
     return GestureResult(
         gesture=classify(similarity, r_px, sensor, origin_radius_px),
@@ -445,7 +382,7 @@ def _area_motion(
     Returns:
         area (N,) bool; A's rest and current positions, each (M, 2) float64 px; the intensity
         (px) and the uniform mean ||v_i|| (px), both 0.0 when M = 0; the contacts' mean (2,)
-        float64 px (the transformation origin), each as NumPy's ``mean`` computes it.
+        float64 px (the transformation origin).
     """
     area = _near(current_px, contacts_px, r2)  # NaN rows (lost markers) are never near
     m = 0
@@ -468,7 +405,7 @@ def _area_motion(
     origin /= len(contacts_px)
     if m == 0:
         return area, rest_a, cur_a, 0.0, 0.0, origin
-    mean = _pairwise_sum(norms, 0, m) / m
+    mean = norms.sum() / m
     intensity = mean if sigma_px == 0.0 else _weighted_mean(norms, cur_a, contacts_px, sigma_px)
     return area, rest_a, cur_a, intensity, mean, origin
 
