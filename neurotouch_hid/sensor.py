@@ -156,7 +156,9 @@ class SensorGeometry:
         """Radius of the gel's visible disc in mm (at the centre's scale)."""
         return self.gel_radius_px / self.px_per_mm
 
-    def _rotation(self) -> np.ndarray:
+    def rotation_matrix(self) -> np.ndarray:
+        """(2, 2) float64, the user frame's rotation by ``rotation_deg`` (counter-clockwise): the
+        last step of :meth:`vectors_image_to_user` (row vectors times its transpose)."""
         a = math.radians(self.rotation_deg)
         return np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
 
@@ -173,14 +175,14 @@ class SensorGeometry:
         if self.mirror:
             d[..., 0] = -d[..., 0]
         if self.rotation_deg:
-            d = d @ self._rotation().T
+            d = d @ self.rotation_matrix().T
         return d
 
     def vectors_user_to_image(self, vectors_mm: np.ndarray) -> np.ndarray:
         """Inverse of :meth:`vectors_image_to_user`: (..., 2) user mm -> (..., 2) image px."""
         d = np.asarray(vectors_mm, dtype=np.float64)
         if self.rotation_deg:
-            d = d @ self._rotation()  # inverse rotation (orthogonal matrix)
+            d = d @ self.rotation_matrix()  # inverse rotation (orthogonal matrix)
         d = d.copy()
         if self.mirror:
             d[..., 0] = -d[..., 0]

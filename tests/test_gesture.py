@@ -10,7 +10,16 @@ import numpy as np
 import pytest
 
 from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.pipeline.gesture import estimate_gesture, fit_similarity, markers_near, weighted_intensity
+from neurotouch_hid.pipeline.gesture import (
+    _area_motion,
+    _centred,
+    _mirrored_mm,
+    _mm_figures,
+    estimate_gesture,
+    fit_similarity,
+    markers_near,
+    weighted_intensity,
+)
 from neurotouch_hid.sensor import SensorGeometry
 
 SENSORS = {
@@ -165,3 +174,76 @@ def test_the_origin_radius_leaves_a_push_a_push():
     s = result.similarity
     m = math.hypot(s.scale * math.cos(s.rotation_rad) - 1, s.scale * math.sin(s.rotation_rad))
     assert s.terms_px(30.0, 10.0)[2] == pytest.approx(np.hypot(*s.translation_px) - 10.0 * m)
+
+
+# --- the numba kernels against NumPy written out (bit for bit where the kernel promises it) ---
+
+
+def random_window(rng, n: int, k: int):
+    """n markers (some lost: NaN rows, some not valid), k contacts, moved a few px."""
+    rest = rng.uniform(100.0, 250.0, size=(n, 2))
+    cur = rest + rng.normal(scale=3.0, size=(n, 2))
+    cur[rng.random(n) < 0.1] = np.nan
+    valid = rng.random(n) > 0.1
+    contacts = rng.uniform(120.0, 230.0, size=(k, 2))
+    return rest, cur, valid, contacts
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_area_motion_is_the_selection_its_means_and_the_centred_sets(seed):
+    rng = np.random.default_rng(seed)
+    n, k = [(0, 1), (1, 1), (3, 2), (40, 1), (177, 3), (177, 12)][seed % 6]
+    rest, cur, valid, contacts = random_window(rng, n, k)
+    r = 25.0
+    sigma = 0.0 if seed % 2 else 3.0
+    area, rest_a, cur_a, intensity, mean, origin = _area_motion(rest, cur, valid, contacts, r * r, sigma)
+    d2 = ((cur[:, None, :] - contacts[None, :, :]) ** 2).sum(axis=2)
+    expected = (d2 < r * r).any(axis=1) & valid  # NaN rows compare False
+    assert np.array_equal(area, expected)
+    assert np.array_equal(rest_a, rest[expected]) and np.array_equal(cur_a, cur[expected])
+    assert np.array_equal(origin, contacts.mean(axis=0))
+    if not expected.any():
+        assert intensity == mean == 0.0
+        return
+    norms = np.hypot(cur_a[:, 0] - rest_a[:, 0], cur_a[:, 1] - rest_a[:, 1])
+    assert mean == pytest.approx(norms.mean(), rel=1e-12)
+    if sigma == 0.0:
+        assert intensity == mean
+    else:
+        nearest = ((cur_a[:, None, :] - contacts[None, :, :]) ** 2).sum(axis=2).min(axis=1)
+        weights = np.exp(-nearest / (2 * sigma**2))
+        assert intensity == pytest.approx((weights * norms).sum() / weights.sum(), rel=1e-12)
+    src, dst = _centred(rest_a, cur_a, origin)
+    assert src.dtype == dst.dtype == np.float32
+    assert np.array_equal(src, (rest_a - origin).astype(np.float32))
+    assert np.array_equal(dst, (cur_a - origin).astype(np.float32))
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_camera_model_kernels_are_image_to_user_bit_for_bit(seed):
+    rng = np.random.default_rng(100 + seed)
+    sensor = SensorGeometry(
+        gel_center_px=tuple(rng.uniform(160.0, 190.0, size=2)),
+        px_per_mm=float(rng.uniform(2.0, 3.0)),
+        mirror=bool(seed % 2),
+        rotation_deg=[0.0, 0.0, 37.0, -90.0][seed % 4],
+        radial_k=(float(rng.uniform(-0.3, 0.3)), float(rng.uniform(-0.1, 0.1))),
+    )
+    m = [1, 2, 5, 40, 177][seed % 5]
+    cur_a = rng.uniform(100.0, 250.0, size=(m, 2))
+    rest_a = cur_a + rng.normal(scale=2.0, size=(m, 2))
+    origin, translation = rng.uniform(150.0, 200.0, size=2), rng.normal(size=2)
+    contacts = rng.uniform(120.0, 230.0, size=(2, 2))
+    cx, cy = sensor.gel_center_px
+    k1, k2 = sensor.radial_k
+    mm = _mirrored_mm(
+        cur_a, rest_a, origin, translation, cx, cy, sensor.gel_radius_px, k1, k2, sensor.px_per_mm, sensor.mirror
+    )
+    if sensor.rotation_deg:
+        mm = mm @ sensor.rotation_matrix().T
+    expected = sensor.image_to_user(np.vstack([cur_a, rest_a, origin, origin + translation]))
+    assert np.array_equal(mm, expected)
+    v = expected[:m] - expected[m : 2 * m]
+    intensity, translation_mm = _mm_figures(mm, cur_a, contacts, 0.0)
+    assert intensity == pytest.approx(np.hypot(v[:, 0], v[:, 1]).mean(), rel=1e-12)
+    assert np.array_equal(translation_mm, expected[-1] - expected[-2])

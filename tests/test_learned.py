@@ -3,12 +3,14 @@ trained model (``gesture_model.py``) reads where the paper's rule misreads."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.pipeline.gesture import estimate_gesture
-from neurotouch_hid.pipeline.learned import FEATURES, gesture_features, learned_gesture
+from neurotouch_hid.pipeline.learned import FEATURES, _relative_motion, gesture_features, learned_gesture
 from neurotouch_hid.sensor import SensorGeometry
 
 SENSOR = SensorGeometry()
@@ -72,3 +74,33 @@ def test_clean_two_finger_gestures_read_the_same_learned(radial, tangential, exp
     result, x = features(*two_finger_window(radial, tangential))
     assert result.gesture is expected
     assert learned_gesture(x) is expected
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_the_features_kernel_is_the_formula_written_out(seed):
+    # gesture_features' numba kernel against its formula in Python (bit for bit), on random
+    # windows: one or several contacts, lost markers, mirrored or not
+    rng = np.random.default_rng(seed)
+    rest, cur, contacts = two_finger_window(*rng.normal(scale=4.0, size=2), drift_px=tuple(rng.normal(size=2)))
+    contacts = contacts[: 1 + seed % 2]
+    valid = rng.random(len(rest)) > 0.2
+    sensor = SensorGeometry(mirror=bool(seed % 3))
+    result = estimate_gesture(rest, cur, valid, contacts, sensor, **OPTIONS)
+    got = gesture_features(result, contacts, rest, cur, valid, sensor, 25.0, 10.0)
+    s_t, r_t, t_t = result.similarity.terms_px(25.0, 10.0)
+    total = s_t + r_t + t_t + 1e-9
+    radial, turning = _relative_motion(contacts, rest, cur, valid)
+    if len(contacts) == 1:
+        assert radial == turning == 0.0
+    expected = [
+        s_t / total,
+        r_t / total,
+        t_t / total,
+        math.copysign(s_t / total, result.similarity.scale - 1.0),
+        math.copysign(r_t / total, result.rotation_rad),
+        radial,
+        -turning if sensor.mirror else turning,
+        float(len(contacts)),
+        math.log1p(result.intensity_px),
+    ]
+    assert got.dtype == np.float64 and got.tobytes() == np.array(expected).tobytes()

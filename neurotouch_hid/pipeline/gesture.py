@@ -155,18 +155,26 @@ def weighted_intensity(
         the intensity (px); 0 when M = 0.
     """
     rest = np.asarray(rest_px, dtype=np.float64)
-    cur = np.asarray(current_px, dtype=np.float64)
+    cur = np.ascontiguousarray(current_px, dtype=np.float64)
     if len(cur) == 0:
         return 0.0
     norms = np.hypot(cur[:, 0] - rest[:, 0], cur[:, 1] - rest[:, 1])
-    return _intensity(norms, cur, np.asarray(contacts_px, dtype=np.float64).reshape(-1, 2), sigma_px)
+    contacts = np.ascontiguousarray(contacts_px, dtype=np.float64).reshape(-1, 2)
+    return _profile(norms, cur, contacts, _sigma(sigma_px))
 
 
-def _intensity(norms: np.ndarray, current_px: np.ndarray, contacts_px: np.ndarray, sigma_px: float | None) -> float:
-    """:func:`weighted_intensity` from the norms ||v_i|| (M,) >= 1 computed once per window."""
-    if sigma_px is None:
-        return float(norms.mean())
-    return _weighted_mean(norms, current_px, contacts_px, float(sigma_px))
+def _sigma(sigma_px: float | None) -> float:
+    """``intensity_sigma_px`` as the kernels take it: 0.0 for None (the uniform mean), else > 0."""
+    return 0.0 if sigma_px is None else float(sigma_px)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _profile(norms: np.ndarray, current_px: np.ndarray, contacts_px: np.ndarray, sigma_px: float) -> float:
+    """:func:`weighted_intensity` from the norms ||v_i|| (M,) float64, M >= 1, of the markers at
+    ``current_px`` (M, 2) px; ``sigma_px`` 0.0 = the uniform mean."""
+    if sigma_px == 0.0:
+        return norms.sum() / len(norms)
+    return _weighted_mean(norms, current_px, contacts_px, sigma_px)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -206,9 +214,29 @@ def fit_similarity(
         least-squares translation (mean displacement) with s = 1 and theta = 0.
     Source: ``cv2.estimateAffinePartial2D(..., method=cv2.RANSAC)``.
     """
-    o = np.asarray(origin_px, dtype=np.float64)
-    src = np.ascontiguousarray(np.asarray(rest_px, dtype=np.float64) - o, dtype=np.float32)
-    dst = np.ascontiguousarray(np.asarray(current_px, dtype=np.float64) - o, dtype=np.float32)
+    src, dst = _centred(
+        np.ascontiguousarray(rest_px, dtype=np.float64),
+        np.ascontiguousarray(current_px, dtype=np.float64),
+        np.ascontiguousarray(origin_px, dtype=np.float64),
+    )
+    return _ransac_similarity(src, dst, reproj_threshold_px)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _centred(rest_px: np.ndarray, current_px: np.ndarray, origin_px: np.ndarray):
+    """(src, dst), each (M, 2) float32: ``rest_px`` and ``current_px`` (M, 2) float64 px less
+    ``origin_px`` (2,) px, subtracted in float64 and then rounded, as OpenCV takes them."""
+    src = np.empty(rest_px.shape, dtype=np.float32)
+    dst = np.empty(current_px.shape, dtype=np.float32)
+    for i in range(len(rest_px)):
+        for j in range(2):
+            src[i, j] = rest_px[i, j] - origin_px[j]
+            dst[i, j] = current_px[i, j] - origin_px[j]
+    return src, dst
+
+
+def _ransac_similarity(src: np.ndarray, dst: np.ndarray, reproj_threshold_px: float) -> Similarity:
+    """:func:`fit_similarity` on the centred (M, 2) float32 point sets of :func:`_centred`."""
     matrix = None
     if len(src) >= 2:
         matrix, _ = cv2.estimateAffinePartial2D(
@@ -219,9 +247,7 @@ def fit_similarity(
         return Similarity(translation_px=mean)
     scale = math.hypot(matrix[0, 0], matrix[1, 0])
     theta = math.atan2(matrix[1, 0], matrix[0, 0])
-    return Similarity(
-        scale=scale, rotation_rad=theta, translation_px=np.array([matrix[0, 2], matrix[1, 2]], dtype=np.float64)
-    )
+    return Similarity(scale=scale, rotation_rad=theta, translation_px=matrix[:, 2].copy())
 
 
 def classify(
@@ -292,36 +318,44 @@ def estimate_gesture(
         :class:`GestureResult`; ``NONE`` with zero intensity when there is no contact, A is
         empty or the intensity is below ``min_intensity_px``.
     """
-    rest = np.asarray(rest_px, dtype=np.float64)
-    cur = np.asarray(current_px, dtype=np.float64)
-    contacts = np.asarray(contacts_px, dtype=np.float64).reshape(-1, 2)
-    area = markers_near(cur, contacts, r_px)  # NaN rows (lost markers) are never near
-    if valid is not None:
-        area &= np.asarray(valid, dtype=bool)
-    if not area.any():
+    cur = np.ascontiguousarray(current_px, dtype=np.float64)
+    valid = np.ones(len(cur), dtype=np.bool_) if valid is None else np.ascontiguousarray(valid, dtype=np.bool_)
+    contacts = np.ascontiguousarray(contacts_px, dtype=np.float64).reshape(-1, 2)
+    sigma = _sigma(intensity_sigma_px)
+    area, rest_a, cur_a, intensity_px, mean_px, origin = _area_motion(
+        np.ascontiguousarray(rest_px, dtype=np.float64), cur, valid, contacts, float(r_px) * float(r_px), sigma
+    )
+    if len(cur_a) == 0 or intensity_px < min_intensity_px:
         return _nothing(area)
-    rest_a, cur_a = rest[area], cur[area]
-    norms = np.hypot(cur_a[:, 0] - rest_a[:, 0], cur_a[:, 1] - rest_a[:, 1])
-    intensity_px = _intensity(norms, cur_a, contacts, intensity_sigma_px)
-    if intensity_px < min_intensity_px:
-        return _nothing(area)
-    mean_px = intensity_px if intensity_sigma_px is None else float(norms.mean())
     threshold = max(reproj_factor * mean_px, min_reproj_px)
-    origin = contacts.mean(axis=0)
     if gel_motion is None:
-        similarity = fit_similarity(rest_a, cur_a, origin, threshold)
+        src, dst = _centred(rest_a, cur_a, origin)
     else:
         origin = gel_motion.remove(origin)
-        similarity = fit_similarity(rest_a, gel_motion.remove(cur_a), origin, threshold)
+        src, dst = _centred(rest_a, gel_motion.remove(cur_a), origin)
+    similarity = _ransac_similarity(src, dst, threshold)
     if sensor.radial_k is None:
         intensity_mm = intensity_px / sensor.px_per_mm
         translation_mm = sensor.vectors_image_to_user(similarity.translation_px)
     else:  # the camera model: each displacement and the translation in mm where they are
-        k = len(cur_a)
-        mm = sensor.image_to_user(np.vstack([cur_a, rest_a, origin, origin + similarity.translation_px]))
-        v_mm = mm[:k] - mm[k : 2 * k]
-        intensity_mm = _intensity(np.hypot(v_mm[:, 0], v_mm[:, 1]), cur_a, contacts, intensity_sigma_px)
-        translation_mm = mm[-1] - mm[-2]
+        k1, k2 = sensor.radial_k
+        cx, cy = sensor.gel_center_px
+        mm = _mirrored_mm(
+            cur_a,
+            rest_a,
+            origin,
+            similarity.translation_px,
+            float(cx),
+            float(cy),
+            float(sensor.gel_radius_px),
+            float(k1),
+            float(k2),
+            float(sensor.px_per_mm),
+            bool(sensor.mirror),
+        )
+        if sensor.rotation_deg:  # the last step of SensorGeometry.vectors_image_to_user
+            mm = mm @ sensor.rotation_matrix().T
+        intensity_mm, translation_mm = _mm_figures(mm, cur_a, contacts, sigma)
     return GestureResult(
         gesture=classify(similarity, r_px, sensor, origin_radius_px),
         intensity_px=intensity_px,
@@ -331,6 +365,110 @@ def estimate_gesture(
         translation_mm=translation_mm,
         rotation_rad=user_rotation(similarity.rotation_rad, sensor),
     )
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _area_motion(
+    rest_px: np.ndarray, current_px: np.ndarray, valid: np.ndarray, contacts_px: np.ndarray, r2: float, sigma_px: float
+):
+    """The set A and its motion, for :func:`estimate_gesture`.
+
+    Args:
+        rest_px, current_px: (N, 2) float64, marker positions at rest and now (px, image frame).
+        valid: (N,) bool, markers the tracker still follows.
+        contacts_px: (K, 2) float64, contact points (px).
+        r2: r^2 (px^2) of :func:`markers_near`.
+        sigma_px: the intensity profile (:func:`_profile`; 0.0 = the paper's uniform mean).
+    Returns:
+        area (N,) bool; A's rest and current positions, each (M, 2) float64 px; the intensity
+        (px) and the uniform mean ||v_i|| (px), both 0.0 when M = 0; the contacts' mean (2,)
+        float64 px (the transformation origin).
+    """
+    area = _near(current_px, contacts_px, r2)  # NaN rows (lost markers) are never near
+    m = 0
+    for i in range(len(area)):
+        area[i] = area[i] and valid[i]
+        m += area[i]
+    rest_a = np.empty((m, 2))
+    cur_a = np.empty((m, 2))
+    norms = np.empty(m)
+    j = 0
+    for i in range(len(area)):
+        if area[i]:
+            rest_a[j] = rest_px[i]
+            cur_a[j] = current_px[i]
+            norms[j] = np.hypot(current_px[i, 0] - rest_px[i, 0], current_px[i, 1] - rest_px[i, 1])
+            j += 1
+    origin = np.zeros(2)
+    for k in range(len(contacts_px)):  # NumPy's mean over axis 0: row after row
+        origin += contacts_px[k]
+    origin /= len(contacts_px)
+    if m == 0:
+        return area, rest_a, cur_a, 0.0, 0.0, origin
+    mean = norms.sum() / m
+    intensity = mean if sigma_px == 0.0 else _weighted_mean(norms, cur_a, contacts_px, sigma_px)
+    return area, rest_a, cur_a, intensity, mean, origin
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _mirrored_mm(
+    current_px: np.ndarray,
+    rest_px: np.ndarray,
+    origin_px: np.ndarray,
+    translation_px: np.ndarray,
+    centre_x: float,
+    centre_y: float,
+    gel_radius_px: float,
+    k1: float,
+    k2: float,
+    px_per_mm: float,
+    mirror: bool,
+) -> np.ndarray:
+    """(2M + 2, 2) float64: the points ``current_px``, ``rest_px`` (each (M, 2) px), ``origin_px``
+    and ``origin_px + translation_px`` ((2,) px) in mm by the camera model of
+    :meth:`SensorGeometry.image_to_user` (sensor.py's module docstring), all but its final
+    rotation (``rotation_deg``), in the same operations as there, so bit for bit."""
+    m = len(current_px)
+    mm = np.empty((2 * m + 2, 2))
+    for row in range(2 * m + 2):
+        if row < m:
+            u, v = current_px[row, 0], current_px[row, 1]
+        elif row < 2 * m:
+            u, v = rest_px[row - m, 0], rest_px[row - m, 1]
+        elif row == 2 * m:
+            u, v = origin_px[0], origin_px[1]
+        else:
+            u, v = origin_px[0] + translation_px[0], origin_px[1] + translation_px[1]
+        x, y = u - centre_x, v - centre_y
+        x2 = np.hypot(x, y) / gel_radius_px
+        x2 = x2 * x2
+        gain = 1.0 + k1 * x2 + k2 * x2 * x2
+        x, y = x * gain, y * gain
+        mm[row, 0] = -(x / px_per_mm) if mirror else x / px_per_mm
+        mm[row, 1] = -y / px_per_mm
+    return mm
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _mm_figures(mm: np.ndarray, current_px: np.ndarray, contacts_px: np.ndarray, sigma_px: float):
+    """(intensity_mm, translation_mm (2,) float64) from the user-frame points of
+    :func:`_mirrored_mm` (rotated): the profile (:func:`_profile`) of A's displacements in mm,
+    at A's markers ``current_px`` (M, 2) px, M >= 1; and the translation as moved at the origin."""
+    m = len(current_px)
+    norms = np.empty(m)
+    for i in range(m):
+        norms[i] = np.hypot(mm[i, 0] - mm[m + i, 0], mm[i, 1] - mm[m + i, 1])
+    translation = mm[2 * m + 1] - mm[2 * m]
+    return _profile(norms, current_px, contacts_px, sigma_px), translation
+
+
+def compile_camera_model_kernels() -> None:
+    """Compile (or load from numba's cache) the camera model's kernels of :func:`estimate_gesture`
+    now, for the types it passes them: a pipeline's sensor gets its camera model at the first
+    rest frame (``PipelineConfig.camera_model``), after ``GesturePipeline.compile_kernels``."""
+    points = np.zeros((1, 2))
+    mm = _mirrored_mm(points, points, np.zeros(2), np.zeros(2), 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, True)
+    _mm_figures(mm, points, points, 1.0)
 
 
 class EpisodeVote:

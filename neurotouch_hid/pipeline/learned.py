@@ -69,28 +69,52 @@ def gesture_features(
     """
     sim = result.similarity
     s_t, r_t, t_t = sim.terms_px(r_px, origin_radius_px)
-    total = s_t + r_t + t_t + 1e-9
-    contacts = np.asarray(contacts_px, dtype=np.float64).reshape(-1, 2)
-    radial, turning = _relative_motion(
-        contacts,
+    return _features(
+        s_t,
+        r_t,
+        t_t,
+        sim.scale,
+        result.rotation_rad,
+        result.intensity_px,
+        np.ascontiguousarray(contacts_px, dtype=np.float64).reshape(-1, 2),
         np.ascontiguousarray(rest_px, dtype=np.float64),
         np.ascontiguousarray(current_px, dtype=np.float64),
         np.ascontiguousarray(valid, dtype=np.bool_),
+        sensor.rotation_image_to_user(1.0),  # the user frame's sense of a turn: -1 mirrored, else 1
     )
-    tangential = sensor.rotation_image_to_user(turning)
-    return np.array(
-        [
-            s_t / total,
-            r_t / total,
-            t_t / total,
-            math.copysign(s_t / total, sim.scale - 1.0),
-            math.copysign(r_t / total, result.rotation_rad),  # user frame, counter-clockwise > 0
-            radial,
-            tangential,
-            float(min(len(contacts), 4)),
-            math.log1p(result.intensity_px),
-        ]
-    )
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _features(
+    scale_px: float,
+    rotation_px: float,
+    translation_px: float,
+    scale: float,
+    user_rotation_rad: float,
+    intensity_px: float,
+    contacts: np.ndarray,
+    rest: np.ndarray,
+    current: np.ndarray,
+    valid: np.ndarray,
+    sense: float,
+) -> np.ndarray:
+    """(9,) float64, :func:`gesture_features` from the similarity's terms (px), its scale, its
+    user-frame rotation (rad) and the intensity (px); contacts (K, 2), rest and current (N, 2)
+    px float64, valid (N,) bool; ``sense`` = +-1, a counter-clockwise turn as displayed in the
+    user frame."""
+    total = scale_px + rotation_px + translation_px + 1e-9
+    radial, turning = _relative_motion(contacts, rest, current, valid)
+    features = np.empty(9)
+    features[0] = scale_px / total
+    features[1] = rotation_px / total
+    features[2] = translation_px / total
+    features[3] = math.copysign(scale_px / total, scale - 1.0)
+    features[4] = math.copysign(rotation_px / total, user_rotation_rad)  # counter-clockwise > 0
+    features[5] = radial
+    features[6] = turning * sense
+    features[7] = float(min(len(contacts), 4))
+    features[8] = math.log1p(intensity_px)
+    return features
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")

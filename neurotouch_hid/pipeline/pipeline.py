@@ -78,7 +78,7 @@ from neurotouch_hid.errors import SensorError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.pipeline.contacts import HOMOGRAPHY_METHODS, detect_contacts, rest_neighbours
 from neurotouch_hid.pipeline.gel_motion import compile_gel_motion_kernels, estimate_gel_motion, rim_markers
-from neurotouch_hid.pipeline.gesture import EpisodeVote, estimate_gesture
+from neurotouch_hid.pipeline.gesture import EpisodeVote, compile_camera_model_kernels, estimate_gesture
 from neurotouch_hid.pipeline.learned import gesture_features, learned_gesture
 from neurotouch_hid.pipeline.markers import MARKER_SPACING_MM, detect_markers, looks_like_marker_grid
 from neurotouch_hid.pipeline.noise import EventNoiseFilter, check_noise_filter
@@ -641,6 +641,7 @@ class GesturePipeline:
         all_valid = np.ones(len(rest), dtype=bool)
         compile_resting_kernels()  # its frames come later, possibly in the runtime's thread
         compile_gel_motion_kernels()  # the grid's rim barely moves: its fits stop before them
+        compile_camera_model_kernels()  # the sensor gets its camera model at the rest frame
         timings, self.timings = self.timings, None  # not a window: no stage time recorded
         try:
             self._fit(rest, moved, all_valid)
