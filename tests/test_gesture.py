@@ -18,6 +18,7 @@ from neurotouch_hid.pipeline.gesture import (
     estimate_gesture,
     fit_similarity,
     markers_near,
+    points_to_user,
     weighted_intensity,
 )
 from neurotouch_hid.sensor import SensorGeometry
@@ -247,3 +248,20 @@ def test_camera_model_kernels_are_image_to_user_bit_for_bit(seed):
     intensity, translation_mm = _mm_figures(mm, cur_a, contacts, 0.0)
     assert intensity == pytest.approx(np.hypot(v[:, 0], v[:, 1]).mean(), rel=1e-12)
     assert np.array_equal(translation_mm, expected[-1] - expected[-2])
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_contact_points_in_mm_are_image_to_user_bit_for_bit(seed):
+    rng = np.random.default_rng(200 + seed)
+    radial_k = None if seed == 0 else (float(rng.uniform(-0.3, 0.3)), float(rng.uniform(-0.1, 0.1)))
+    sensor = SensorGeometry(
+        px_per_mm=float(rng.uniform(2.0, 3.0)),
+        mirror=bool(seed % 2),
+        rotation_deg=[0.0, 0.0, 37.0, -90.0][seed % 4],
+        radial_k=radial_k,
+    )
+    for k in (0, 1, 3):
+        points = rng.uniform(60.0, 290.0, size=(k, 2))
+        converted = points_to_user(points, sensor)
+        assert converted.shape == (k, 2) and converted.dtype == np.float64
+        assert np.array_equal(converted, sensor.image_to_user(points))

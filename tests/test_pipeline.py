@@ -751,3 +751,31 @@ def test_compile_kernels_leaves_nothing_to_compile_on_real_gestures(rest_image):
         pipeline.process(events_at(15000 * int(peak_px)))
     pipeline.process(Frame(100_000, rest_image))  # the resting detector's kernels
     assert _numba_signatures() == compiled
+
+
+def test_the_window_checks_before_a_fit_match_numpy():
+    from neurotouch_hid.pipeline.pipeline import _largest_move_sq, _unchanged
+
+    rng = np.random.default_rng(9)
+    rest = rng.uniform(50.0, 300.0, size=(177, 2))
+    for trial in range(20):
+        current = rest + rng.normal(scale=[0.01, 0.3, 3.0, 30.0][trial % 4], size=rest.shape)
+        valid = rng.random(177) > [0.0, 0.2, 0.9, 1.0][trial % 4]
+        if trial % 5 == 4:
+            current[rng.integers(177)] = np.nan
+        d = current[valid] - rest[valid]
+        moved_sq = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]
+        largest = _largest_move_sq(current, valid, rest)
+        if not valid.any():
+            assert largest == -1.0
+        elif np.isnan(moved_sq).any():
+            assert np.isnan(largest)
+        else:
+            assert largest == moved_sq.max()
+        same = current.copy()
+        assert _unchanged(same, current, valid.copy(), valid) == (not np.isnan(current).any())
+        same[trial % 177, trial % 2] += 1e-9
+        assert not _unchanged(same, current, valid, valid)
+        flipped = valid.copy()
+        flipped[0] = not flipped[0]
+        assert not _unchanged(current.copy(), current, flipped, valid)  # a marker lost or found

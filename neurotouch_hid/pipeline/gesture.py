@@ -411,6 +411,71 @@ def _area_motion(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def _point_mm(
+    u: float,
+    v: float,
+    centre_x: float,
+    centre_y: float,
+    gel_radius_px: float,
+    k1: float,
+    k2: float,
+    px_per_mm: float,
+    mirror: bool,
+) -> tuple[float, float]:
+    """One image point (u, v) px in user-frame mm by the camera model of
+    :meth:`SensorGeometry.image_to_user` (``radial_k`` = (k1, k2)), all but its final rotation
+    (``rotation_deg``), in the same operations as there, so bit for bit."""
+    x, y = u - centre_x, v - centre_y
+    x2 = np.hypot(x, y) / gel_radius_px
+    x2 = x2 * x2
+    gain = 1.0 + k1 * x2 + k2 * x2 * x2
+    x, y = x * gain, y * gain
+    return (-(x / px_per_mm) if mirror else x / px_per_mm), -y / px_per_mm
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _points_mm(
+    points_px: np.ndarray,
+    centre_x: float,
+    centre_y: float,
+    gel_radius_px: float,
+    k1: float,
+    k2: float,
+    px_per_mm: float,
+    mirror: bool,
+) -> np.ndarray:
+    """(K, 2) float64: :func:`_point_mm` of each row of ``points_px`` (K, 2) float64 px."""
+    mm = np.empty((len(points_px), 2))
+    for row in range(len(points_px)):
+        mm[row, 0], mm[row, 1] = _point_mm(
+            points_px[row, 0], points_px[row, 1], centre_x, centre_y, gel_radius_px, k1, k2, px_per_mm, mirror
+        )
+    return mm
+
+
+def points_to_user(points_px: np.ndarray, sensor: SensorGeometry) -> np.ndarray:
+    """(K, 2) float64 user-frame mm of the image points ``points_px`` (K, 2) px: exactly
+    :meth:`SensorGeometry.image_to_user`, whose camera model (``radial_k``) runs here in one
+    numba kernel instead of a dozen NumPy calls (the pipeline converts each window's contact
+    points right after its fit, on a core that slept since the window before)."""
+    if sensor.radial_k is None:
+        return sensor.image_to_user(points_px)
+    k1, k2 = sensor.radial_k
+    cx, cy = sensor.gel_center_px
+    mm = _points_mm(
+        np.ascontiguousarray(points_px, dtype=np.float64).reshape(-1, 2),
+        float(cx),
+        float(cy),
+        float(sensor.gel_radius_px),
+        float(k1),
+        float(k2),
+        float(sensor.px_per_mm),
+        bool(sensor.mirror),
+    )
+    return mm @ sensor.rotation_matrix().T if sensor.rotation_deg else mm
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _mirrored_mm(
     current_px: np.ndarray,
     rest_px: np.ndarray,
@@ -439,13 +504,7 @@ def _mirrored_mm(
             u, v = origin_px[0], origin_px[1]
         else:
             u, v = origin_px[0] + translation_px[0], origin_px[1] + translation_px[1]
-        x, y = u - centre_x, v - centre_y
-        x2 = np.hypot(x, y) / gel_radius_px
-        x2 = x2 * x2
-        gain = 1.0 + k1 * x2 + k2 * x2 * x2
-        x, y = x * gain, y * gain
-        mm[row, 0] = -(x / px_per_mm) if mirror else x / px_per_mm
-        mm[row, 1] = -y / px_per_mm
+        mm[row, 0], mm[row, 1] = _point_mm(u, v, centre_x, centre_y, gel_radius_px, k1, k2, px_per_mm, mirror)
     return mm
 
 
@@ -464,11 +523,12 @@ def _mm_figures(mm: np.ndarray, current_px: np.ndarray, contacts_px: np.ndarray,
 
 def compile_camera_model_kernels() -> None:
     """Compile (or load from numba's cache) the camera model's kernels of :func:`estimate_gesture`
-    now, for the types it passes them: a pipeline's sensor gets its camera model at the first
+    and :func:`points_to_user` now, for the types it passes them: a pipeline's sensor gets its camera model at the first
     rest frame (``PipelineConfig.camera_model``), after ``GesturePipeline.compile_kernels``."""
     points = np.zeros((1, 2))
     mm = _mirrored_mm(points, points, np.zeros(2), np.zeros(2), 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, True)
     _mm_figures(mm, points, points, 1.0)
+    _points_mm(points, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, True)
 
 
 class EpisodeVote:

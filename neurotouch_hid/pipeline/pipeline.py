@@ -70,6 +70,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
 
+import numba
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
@@ -78,7 +79,7 @@ from neurotouch_hid.errors import SensorError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.pipeline.contacts import HOMOGRAPHY_METHODS, detect_contacts, rest_neighbours
 from neurotouch_hid.pipeline.gel_motion import compile_gel_motion_kernels, estimate_gel_motion, rim_markers
-from neurotouch_hid.pipeline.gesture import EpisodeVote, compile_camera_model_kernels, estimate_gesture
+from neurotouch_hid.pipeline.gesture import EpisodeVote, compile_camera_model_kernels, estimate_gesture, points_to_user
 from neurotouch_hid.pipeline.learned import gesture_features, learned_gesture
 from neurotouch_hid.pipeline.markers import MARKER_SPACING_MM, detect_markers, looks_like_marker_grid
 from neurotouch_hid.pipeline.noise import EventNoiseFilter, check_noise_filter
@@ -642,6 +643,8 @@ class GesturePipeline:
         compile_resting_kernels()  # its frames come later, possibly in the runtime's thread
         compile_gel_motion_kernels()  # the grid's rim barely moves: its fits stop before them
         compile_camera_model_kernels()  # the sensor gets its camera model at the rest frame
+        _largest_move_sq(moved, all_valid, rest)  # every window's checks before a fit
+        _unchanged(moved, flat, all_valid, all_valid)
         timings, self.timings = self.timings, None  # not a window: no stage time recorded
         try:
             self._fit(rest, moved, all_valid)
@@ -876,9 +879,9 @@ class GesturePipeline:
         mean of displacements) is then below it and the gesture step answers ``none`` whatever
         the contacts, so the window skips the homography and the similarity (same estimate;
         e.g. a gel near rest after the tracker was re-anchored, ``centroid_reset_threshold``)."""
-        moved_sq = self._moved_sq(current, valid)
+        largest = _largest_move_sq(current, valid, self.rest_px)  # < 0: no valid marker; NaN: not still
         limit = self.config.min_intensity_px
-        return len(moved_sq) == 0 or float(moved_sq.max()) < limit * limit
+        return largest < 0.0 or largest < limit * limit
 
     def _moved_sq(self, current: np.ndarray, valid: np.ndarray) -> np.ndarray:
         """(V,) float64 the valid markers' squared displacements from rest (px^2)."""
@@ -910,7 +913,7 @@ class GesturePipeline:
             resting=False,
             intensity_mm=result.intensity_mm,
             contacts_px=contacts.points_px,
-            contacts_mm=self.sensor.image_to_user(contacts.points_px),
+            contacts_mm=points_to_user(contacts.points_px, self.sensor),
             translation_mm=result.translation_mm,
             rotation_rad=result.rotation_rad,
             scale=result.similarity.scale,
@@ -927,12 +930,7 @@ class GesturePipeline:
         homography (both stages are deterministic functions of these inputs; OpenCV's RANSAC
         and USAC draw from fixed seeds, so the predictions are byte-identical)."""
         last = self._last_fit
-        if (
-            last is not None
-            and last[0] is rest_px
-            and np.array_equal(last[1], current)
-            and np.array_equal(last[2], valid)
-        ):
+        if last is not None and last[0] is rest_px and _unchanged(last[1], current, last[2], valid):
             begin = self._clock()
             self._record("contacts", begin)
             self._record("gesture", begin)
@@ -1019,3 +1017,27 @@ class GesturePipeline:
         if start is not None:
             self.timings[stage].append(time.perf_counter_ns() - start[0])
             self.cpu_timings[stage].append(time.thread_time_ns() - start[1])
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _largest_move_sq(current: np.ndarray, valid: np.ndarray, rest: np.ndarray) -> float:
+    """The largest squared displacement from rest (px^2) among the ``valid`` (N,) bool markers,
+    ``current`` and ``rest`` (N, 2) float64 px: -1.0 when none is valid, NaN when one of theirs
+    is NaN (as NumPy's ``max`` propagates it). One pass, no temporaries: every window runs it."""
+    largest = -1.0
+    for i in range(len(current)):
+        if valid[i]:
+            dx = current[i, 0] - rest[i, 0]
+            dy = current[i, 1] - rest[i, 1]
+            d2 = dx * dx + dy * dy
+            if d2 != d2:
+                return d2
+            largest = max(largest, d2)
+    return largest
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _unchanged(last_current: np.ndarray, current: np.ndarray, last_valid: np.ndarray, valid: np.ndarray) -> bool:
+    """Whether the window's tracked positions (N, 2) float64 px and lost markers (N,) bool are
+    those of the last fit, bit for bit (``np.array_equal``: a NaN position never equals)."""
+    return np.array_equal(last_current, current) and np.array_equal(last_valid, valid)
