@@ -2,6 +2,7 @@
 ("## Runtime latency").
 
     python3 benchmarks/bench_latency.py [--seconds 30] [--rss-minutes 30] [--workdir DIR] [--no-busy]
+        [--idle-ms 0.8]
 
 1. Event-to-output latency with 10 ms windows while a simulated-gel recording is replayed in
    real time (``Runtime(pace=True)``, 1 ms source batches, the default pipeline (noise filter
@@ -11,6 +12,9 @@
    output up to date. Then the same with a game beside the driver (``--busy``, on by default):
    a CPU-bound process (a busy loop, its own interpreter) runs for the whole case, so the
    driver's threads share the cores with it; both cases' p99 are printed together at the end.
+   Then the pipeline alone on the same items, without threads: its CPU per window-closing item
+   back to back, and with ``--idle-ms`` of sleep after each 1 ms batch (a core that idled
+   between the camera's batches, as the driver's does: cold caches).
 2. 1 ms windows at 2 M events/s: the same recording time-compressed so its mean event rate is
    2 M events/s, replayed in real time; reports dropped data (must be 0) and the rate achieved.
 3. Resident memory over a 30-minute simulated session at --fast speed (the recording looped
@@ -159,11 +163,17 @@ def busy_process():
         proc.wait()
 
 
-def stages(events: np.ndarray, frames: list[Frame], sensor: SensorGeometry, window_us: int) -> None:
+def stages(
+    events: np.ndarray, frames: list[Frame], sensor: SensorGeometry, window_us: int, idle_s: float = 0.0
+) -> None:
     """Where the pipeline's time goes on this data (GesturePipeline's own per-stage CPU timings),
     and the CPU time of each ``process`` call that closes a window (p50/p99): the processing
     latency the pipeline's thread would have with a core to itself, which a machine shared with
-    other work does not inflate (resting detection inline here, as ``--fast`` runs it)."""
+    other work does not inflate (resting detection inline here, as ``--fast`` runs it).
+
+    ``idle_s`` > 0: the thread sleeps that long after each 1 ms batch, as the running driver
+    waits for the camera's next one. Its caches are then cold when a window closes: on this
+    machine class every step costs 2-4x its back-to-back CPU time (docs/performance.md)."""
     from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 
     pipeline = GesturePipeline(sensor, PipelineConfig(window_us=window_us), profile=True)
@@ -176,11 +186,14 @@ def stages(events: np.ndarray, frames: list[Frame], sensor: SensorGeometry, wind
         if n:
             closing.append(time.thread_time_ns() - c)
             windows += n
+        if idle_s:
+            time.sleep(idle_s)
     cpu = time.process_time() - t0
     parts = ", ".join(f"{name} {sum(v) / 1e9:.3f} s" for name, v in pipeline.cpu_timings.items())
     per = np.array(closing) / 1e3
     print(
-        f"pipeline alone, {window_us} us windows: {len(events)} events, {windows} windows in {cpu:.2f} s CPU "
+        f"pipeline alone, {window_us} us windows{f', idle {idle_s * 1e3:g} ms after each batch' if idle_s else ''}: "
+        f"{len(events)} events, {windows} windows in {cpu:.2f} s CPU "
         f"({len(events) / cpu / 1e6:.2f} M events/s); CPU per stage: {parts}; CPU per item closing a window "
         f"p50 {np.percentile(per, 50):.0f} us p99 {np.percentile(per, 99):.0f} us",
         flush=True,
@@ -200,6 +213,13 @@ def main() -> None:
         action=argparse.BooleanOptionalAction,
         default=True,
         help="also run the 10 ms latency case with a CPU-bound process beside the driver (default on)",
+    )
+    ap.add_argument(
+        "--idle-ms",
+        type=float,
+        default=0.8,
+        help="also time the pipeline alone (10 ms windows) sleeping this long after each 1 ms batch, as the "
+        "driver idles between the camera's batches: the window's CPU on a cold core (0: skip)",
     )
     args = ap.parse_args()
     folder = args.workdir or Path(tempfile.mkdtemp(prefix="bench-latency-"))
@@ -261,6 +281,8 @@ def main() -> None:
 
     if "latency" not in args.skip:
         stages(events, frames, sensor, 10_000)
+        if args.idle_ms:
+            stages(events, frames, sensor, 10_000, idle_s=args.idle_ms / 1e3)
     if p99:
         print("p99 processing latency: " + "; ".join(f"{k}: {v / 1e3:.2f} ms" for k, v in p99.items()), flush=True)
 
