@@ -237,9 +237,8 @@ def test_camera_model_kernels_are_image_to_user_bit_for_bit(seed):
     contacts = rng.uniform(120.0, 230.0, size=(2, 2))
     cx, cy = sensor.gel_center_px
     k1, k2 = sensor.radial_k
-    mm = _mirrored_mm(
-        cur_a, rest_a, origin, translation, cx, cy, sensor.gel_radius_px, k1, k2, sensor.px_per_mm, sensor.mirror
-    )
+    camera = (cx, cy, sensor.gel_radius_px, k1, k2, sensor.px_per_mm, sensor.mirror)
+    mm = _mirrored_mm(cur_a, rest_a, origin, translation, camera)
     if sensor.rotation_deg:
         mm = mm @ sensor.rotation_matrix().T
     expected = sensor.image_to_user(np.vstack([cur_a, rest_a, origin, origin + translation]))

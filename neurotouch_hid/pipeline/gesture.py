@@ -338,23 +338,7 @@ def estimate_gesture(
         intensity_mm = intensity_px / sensor.px_per_mm
         translation_mm = sensor.vectors_image_to_user(similarity.translation_px)
     else:  # the camera model: each displacement and the translation in mm where they are
-        k1, k2 = sensor.radial_k
-        cx, cy = sensor.gel_center_px
-        mm = _mirrored_mm(
-            cur_a,
-            rest_a,
-            origin,
-            similarity.translation_px,
-            float(cx),
-            float(cy),
-            float(sensor.gel_radius_px),
-            float(k1),
-            float(k2),
-            float(sensor.px_per_mm),
-            bool(sensor.mirror),
-        )
-        if sensor.rotation_deg:  # the last step of SensorGeometry.vectors_image_to_user
-            mm = mm @ sensor.rotation_matrix().T
+        mm = _rotated(_mirrored_mm(cur_a, rest_a, origin, similarity.translation_px, _camera(sensor)), sensor)
         intensity_mm, translation_mm = _mm_figures(mm, cur_a, contacts, sigma)
     return GestureResult(
         gesture=classify(similarity, r_px, sensor, origin_radius_px),
@@ -411,20 +395,12 @@ def _area_motion(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _point_mm(
-    u: float,
-    v: float,
-    centre_x: float,
-    centre_y: float,
-    gel_radius_px: float,
-    k1: float,
-    k2: float,
-    px_per_mm: float,
-    mirror: bool,
-) -> tuple[float, float]:
+def _point_mm(u: float, v: float, camera: tuple) -> tuple[float, float]:
     """One image point (u, v) px in user-frame mm by the camera model of
     :meth:`SensorGeometry.image_to_user` (``radial_k`` = (k1, k2)), all but its final rotation
-    (``rotation_deg``), in the same operations as there, so bit for bit."""
+    (``rotation_deg``), in the same operations as there, so bit for bit. ``camera``: the
+    sensor's numbers (:func:`_camera`)."""
+    centre_x, centre_y, gel_radius_px, k1, k2, px_per_mm, mirror = camera
     x, y = u - centre_x, v - centre_y
     x2 = np.hypot(x, y) / gel_radius_px
     x2 = x2 * x2
@@ -434,22 +410,11 @@ def _point_mm(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _points_mm(
-    points_px: np.ndarray,
-    centre_x: float,
-    centre_y: float,
-    gel_radius_px: float,
-    k1: float,
-    k2: float,
-    px_per_mm: float,
-    mirror: bool,
-) -> np.ndarray:
+def _points_mm(points_px: np.ndarray, camera: tuple) -> np.ndarray:
     """(K, 2) float64: :func:`_point_mm` of each row of ``points_px`` (K, 2) float64 px."""
     mm = np.empty((len(points_px), 2))
     for row in range(len(points_px)):
-        mm[row, 0], mm[row, 1] = _point_mm(
-            points_px[row, 0], points_px[row, 1], centre_x, centre_y, gel_radius_px, k1, k2, px_per_mm, mirror
-        )
+        mm[row, 0], mm[row, 1] = _point_mm(points_px[row, 0], points_px[row, 1], camera)
     return mm
 
 
@@ -460,10 +425,17 @@ def points_to_user(points_px: np.ndarray, sensor: SensorGeometry) -> np.ndarray:
     points right after its fit, on a core that slept since the window before)."""
     if sensor.radial_k is None:
         return sensor.image_to_user(points_px)
+    return _rotated(
+        _points_mm(np.ascontiguousarray(points_px, dtype=np.float64).reshape(-1, 2), _camera(sensor)), sensor
+    )
+
+
+def _camera(sensor: SensorGeometry) -> tuple[float, float, float, float, float, float, bool]:
+    """The sensor's camera model (``radial_k`` set) as the kernels take it: (centre_x, centre_y,
+    gel_radius_px, k1, k2, px_per_mm, mirror)."""
     k1, k2 = sensor.radial_k
     cx, cy = sensor.gel_center_px
-    mm = _points_mm(
-        np.ascontiguousarray(points_px, dtype=np.float64).reshape(-1, 2),
+    return (
         float(cx),
         float(cy),
         float(sensor.gel_radius_px),
@@ -472,6 +444,11 @@ def points_to_user(points_px: np.ndarray, sensor: SensorGeometry) -> np.ndarray:
         float(sensor.px_per_mm),
         bool(sensor.mirror),
     )
+
+
+def _rotated(mm: np.ndarray, sensor: SensorGeometry) -> np.ndarray:
+    """(K, 2) user mm of the kernels, turned by the sensor's ``rotation_deg``: the last step of
+    :meth:`SensorGeometry.vectors_image_to_user`."""
     return mm @ sensor.rotation_matrix().T if sensor.rotation_deg else mm
 
 
@@ -481,18 +458,11 @@ def _mirrored_mm(
     rest_px: np.ndarray,
     origin_px: np.ndarray,
     translation_px: np.ndarray,
-    centre_x: float,
-    centre_y: float,
-    gel_radius_px: float,
-    k1: float,
-    k2: float,
-    px_per_mm: float,
-    mirror: bool,
+    camera: tuple,
 ) -> np.ndarray:
     """(2M + 2, 2) float64: the points ``current_px``, ``rest_px`` (each (M, 2) px), ``origin_px``
-    and ``origin_px + translation_px`` ((2,) px) in mm by the camera model of
-    :meth:`SensorGeometry.image_to_user` (sensor.py's module docstring), all but its final
-    rotation (``rotation_deg``), in the same operations as there, so bit for bit."""
+    and ``origin_px + translation_px`` ((2,) px) in mm by :func:`_point_mm` (the camera model of
+    :meth:`SensorGeometry.image_to_user` but its final rotation); ``camera`` of :func:`_camera`."""
     m = len(current_px)
     mm = np.empty((2 * m + 2, 2))
     for row in range(2 * m + 2):
@@ -504,7 +474,7 @@ def _mirrored_mm(
             u, v = origin_px[0], origin_px[1]
         else:
             u, v = origin_px[0] + translation_px[0], origin_px[1] + translation_px[1]
-        mm[row, 0], mm[row, 1] = _point_mm(u, v, centre_x, centre_y, gel_radius_px, k1, k2, px_per_mm, mirror)
+        mm[row, 0], mm[row, 1] = _point_mm(u, v, camera)
     return mm
 
 
@@ -526,9 +496,10 @@ def compile_camera_model_kernels() -> None:
     and :func:`points_to_user` now, for the types it passes them: a pipeline's sensor gets its camera model at the first
     rest frame (``PipelineConfig.camera_model``), after ``GesturePipeline.compile_kernels``."""
     points = np.zeros((1, 2))
-    mm = _mirrored_mm(points, points, np.zeros(2), np.zeros(2), 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, True)
+    camera = (0.0, 0.0, 1.0, 0.0, 0.0, 1.0, True)
+    mm = _mirrored_mm(points, points, np.zeros(2), np.zeros(2), camera)
     _mm_figures(mm, points, points, 1.0)
-    _points_mm(points, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, True)
+    _points_mm(points, camera)
 
 
 class EpisodeVote:
