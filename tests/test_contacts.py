@@ -302,3 +302,22 @@ def test_the_usable_markers_and_their_displacements_match_numpy():
         np.testing.assert_array_equal(norms, np.hypot(v[:, 0], v[:, 1]))
     idx, *_ = _usable(rest, np.full_like(rest, np.nan), np.ones(len(rest), dtype=bool))
     assert len(idx) == 0
+
+
+def test_arrays_of_different_marker_counts_are_an_error_not_a_read_past_the_end():
+    from neurotouch_hid.pipeline.gel_motion import estimate_gel_motion
+    from neurotouch_hid.pipeline.gesture import estimate_gesture
+
+    rest = grid()
+    cur = rest + bump(rest, SENSOR.gel_center_px, (4.0, 0.0))
+    valid = np.ones(len(rest), dtype=bool)
+    rim = np.ones(len(rest), dtype=bool)
+    for bad in [(rest, cur[:-1], valid), (rest, cur, valid[:-1]), (rest[:, :1], cur, valid)]:
+        with pytest.raises(ValueError, match="same N markers"):
+            detect_contacts(*bad)
+        with pytest.raises(ValueError, match="same N markers"):
+            estimate_gesture(*bad, SENSOR.gel_center_px, SENSOR)
+        with pytest.raises(ValueError, match="same N markers"):
+            estimate_gel_motion(*bad, rim, SENSOR.gel_center_px)
+    with pytest.raises(ValueError, match="rim"):
+        estimate_gel_motion(rest, cur, valid, rim[:-1], SENSOR.gel_center_px)

@@ -69,6 +69,8 @@ import cv2
 import numba
 import numpy as np
 
+from neurotouch_hid.pipeline.markers import marker_arrays
+
 
 @dataclass(frozen=True)
 class Contacts:
@@ -593,11 +595,11 @@ def detect_contacts(
         homography needs 4), or a mean displacement below ``min_mean_displacement_px``
         (e.g. all-zero). When ``cv2.findHomography`` returns None, all valid markers are
         candidates (see :func:`homography_outliers`).
+    Raises:
+        ValueError: the arrays do not describe the same N markers (:func:`marker_arrays`).
     """
-    rest = np.ascontiguousarray(rest_px, dtype=np.float64)
-    cur = np.ascontiguousarray(current_px, dtype=np.float64)
+    rest, cur, usable = marker_arrays(rest_px, current_px, valid)
     n = len(rest)
-    usable = np.ones(n, dtype=bool) if valid is None else np.ascontiguousarray(valid, dtype=bool)
     idx, rest_ok, cur_ok, v_ok, magnitudes = _usable(rest, cur, usable)
     if len(idx) < 4:
         return _no_contacts(n)

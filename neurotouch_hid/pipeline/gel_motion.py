@@ -43,6 +43,8 @@ import cv2
 import numba
 import numpy as np
 
+from neurotouch_hid.pipeline.markers import marker_arrays
+
 #: The outer ring: markers whose rest distance from the gel centre is at least this fraction of
 #: the farthest marker's (on the simulated 177-marker gel: the outer ~60 markers).
 RIM_FRACTION = 0.8
@@ -125,12 +127,12 @@ def rim_markers(rest_px: np.ndarray, centre_px, rim_fraction: float = RIM_FRACTI
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _rim_pairs(
-    rest_px: np.ndarray, current_px: np.ndarray, valid: np.ndarray | None, rim: np.ndarray, centre_px: np.ndarray
+    rest_px: np.ndarray, current_px: np.ndarray, valid: np.ndarray, rim: np.ndarray, centre_px: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """The rim markers to fit: those of ``rim`` that are ``valid`` and have a finite position.
 
     Args:
-        rest_px, current_px, valid, rim: as :func:`estimate_gel_motion` takes them.
+        rest_px, current_px: (N, 2) float64 px; valid, rim: (N,) bool (:func:`marker_arrays`).
         centre_px: (2,) float64 px, the gel centre c.
     Returns:
         (src, dst, shared_px): the M markers' rest and current positions about c, (M, 2)
@@ -141,7 +143,7 @@ def _rim_pairs(
     rows = np.empty(n, dtype=np.int64)
     m = 0
     for i in range(n):
-        if rim[i] and (valid is None or valid[i]) and np.isfinite(current_px[i, 0]) and np.isfinite(current_px[i, 1]):
+        if rim[i] and valid[i] and np.isfinite(current_px[i, 0]) and np.isfinite(current_px[i, 1]):
             rows[m] = i
             m += 1
     src = np.empty((m, 2), dtype=np.float32)
@@ -220,10 +222,15 @@ def estimate_gel_motion(
         :class:`GelMotion`, or None (no motion: nothing to remove) when fewer than
         :data:`MIN_RIM_MARKERS` rim markers are valid, when the rim's shared displacement is at
         most :data:`STILL_RIM_PX` or when OpenCV finds no model.
+    Raises:
+        ValueError: the arrays do not describe the same N markers.
     Source: ``cv2.estimateAffinePartial2D(..., method=cv2.LMEDS)``.
     """
     centre = np.asarray(centre_px, dtype=np.float64)
-    src, dst, shared_px = _rim_pairs(rest_px, current_px, valid, rim, centre)
+    rest, current, valid = marker_arrays(rest_px, current_px, valid)
+    if len(rim) != len(rest):
+        raise ValueError(f"rim ({len(rim)},) must flag the same {len(rest)} markers as rest_px")
+    src, dst, shared_px = _rim_pairs(rest, current, valid, np.ascontiguousarray(rim, dtype=bool), centre)
     if shared_px < 0.0:
         return None  # too few rim markers
     if shared_px <= STILL_RIM_PX:

@@ -51,6 +51,7 @@ import numpy as np
 
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.pipeline.gel_motion import GelMotion
+from neurotouch_hid.pipeline.markers import marker_arrays
 from neurotouch_hid.sensor import SensorGeometry
 
 
@@ -317,13 +318,14 @@ def estimate_gesture(
     Returns:
         :class:`GestureResult`; ``NONE`` with zero intensity when there is no contact, A is
         empty or the intensity is below ``min_intensity_px``.
+    Raises:
+        ValueError: the arrays do not describe the same N markers (:func:`marker_arrays`).
     """
-    cur = np.ascontiguousarray(current_px, dtype=np.float64)
-    valid = np.ones(len(cur), dtype=np.bool_) if valid is None else np.ascontiguousarray(valid, dtype=np.bool_)
+    rest, cur, valid = marker_arrays(rest_px, current_px, valid)
     contacts = np.ascontiguousarray(contacts_px, dtype=np.float64).reshape(-1, 2)
     sigma = _sigma(intensity_sigma_px)
     area, rest_a, cur_a, intensity_px, mean_px, origin = _area_motion(
-        np.ascontiguousarray(rest_px, dtype=np.float64), cur, valid, contacts, float(r_px) * float(r_px), sigma
+        rest, cur, valid, contacts, float(r_px) * float(r_px), sigma
     )
     if len(cur_a) == 0 or intensity_px < min_intensity_px:
         return _nothing(area)

@@ -180,3 +180,24 @@ def looks_like_marker_grid(markers: Markers, sensor: SensorGeometry, *, min_mark
         return False
     extent = markers.centroids_px.max(axis=0) - markers.centroids_px.min(axis=0)
     return bool(np.all(extent >= sensor.gel_radius_px))
+
+
+def marker_arrays(
+    rest_px: np.ndarray, current_px: np.ndarray, valid: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One window's markers as the pipeline's numba kernels take them: rest and current positions
+    (N, 2) float64 px (image frame, C order) and the markers the tracker follows (N,) bool (all
+    when ``valid`` is None). The kernels index the three arrays together without bounds checks.
+
+    Raises:
+        ValueError: the arrays do not describe the same N markers (shapes (N, 2), (N, 2), (N,)).
+    """
+    rest = np.ascontiguousarray(rest_px, dtype=np.float64)
+    current = np.ascontiguousarray(current_px, dtype=np.float64)
+    followed = np.ones(len(current), dtype=bool) if valid is None else np.ascontiguousarray(valid, dtype=bool)
+    if rest.ndim != 2 or rest.shape[1:] != (2,) or current.shape != rest.shape or followed.shape != rest.shape[:1]:
+        raise ValueError(
+            f"rest_px {rest.shape}, current_px {current.shape} and valid {followed.shape} must describe the same "
+            "N markers: (N, 2), (N, 2) and (N,)"
+        )
+    return rest, current, followed
