@@ -47,7 +47,7 @@ class OneEuroFilter:
         scalar, a float64 array of the same shape for an array. A sample not later than the
         previous one is treated as 1 us later.
         """
-        scalar = np.ndim(value) == 0
+        scalar = isinstance(value, (float, int)) or np.ndim(value) == 0  # the mapper's scalars are floats
         x = [float(value)] if scalar else np.asarray(value, dtype=np.float64).ravel().tolist()
         if self._x is None or self._t_us is None:
             self._x, self._dx, self._t_us = x, [0.0] * len(x), int(t_us)

@@ -283,10 +283,10 @@ class Mapper:
             self.layer = layer
             self._fresh_mappings()
             return ControllerState.neutral(t_us)
-        analog = {name: 0.0 for name in ANALOG_AXES}
-        velocity = {name: 0.0 for name in ("REL_X", "REL_Y", "REL_WHEEL", "REL_HWHEEL")}
+        analog = dict.fromkeys(ANALOG_AXES, 0.0)
+        velocity = dict.fromkeys(("REL_X", "REL_Y", "REL_WHEEL", "REL_HWHEEL"), 0.0)
         hats = {"ABS_HAT0X": 0, "ABS_HAT0Y": 0}
-        buttons = {name: False for name in BUTTONS}
+        buttons = dict.fromkeys(BUTTONS, False)
         keys: set[str] = set()
         for name, mapping in self.profile.mappings.items():
             if mapping.layer != layer:
