@@ -11,9 +11,9 @@ import pytest
 
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.pipeline.gesture import (
+    _area_mm,
     _area_motion,
     _centred,
-    _mirrored_mm,
     _mm_figures,
     estimate_gesture,
     fit_similarity,
@@ -238,7 +238,7 @@ def test_camera_model_kernels_are_image_to_user_bit_for_bit(seed):
     cx, cy = sensor.gel_center_px
     k1, k2 = sensor.radial_k
     camera = (cx, cy, sensor.gel_radius_px, k1, k2, sensor.px_per_mm, sensor.mirror)
-    mm = _mirrored_mm(cur_a, rest_a, origin, translation, camera)
+    mm = _area_mm(cur_a, rest_a, origin, translation, camera)
     if sensor.rotation_deg:
         mm = mm @ sensor.rotation_matrix().T
     expected = sensor.image_to_user(np.vstack([cur_a, rest_a, origin, origin + translation]))

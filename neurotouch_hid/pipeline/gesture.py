@@ -340,7 +340,7 @@ def estimate_gesture(
         intensity_mm = intensity_px / sensor.px_per_mm
         translation_mm = sensor.vectors_image_to_user(similarity.translation_px)
     else:  # the camera model: each displacement and the translation in mm where they are
-        mm = _rotated(_mirrored_mm(cur_a, rest_a, origin, similarity.translation_px, _camera(sensor)), sensor)
+        mm = _rotated(_area_mm(cur_a, rest_a, origin, similarity.translation_px, _camera(sensor)), sensor)
         intensity_mm, translation_mm = _mm_figures(mm, cur_a, contacts, sigma)
     return GestureResult(
         gesture=classify(similarity, r_px, sensor, origin_radius_px),
@@ -455,7 +455,7 @@ def _rotated(mm: np.ndarray, sensor: SensorGeometry) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _mirrored_mm(
+def _area_mm(
     current_px: np.ndarray,
     rest_px: np.ndarray,
     origin_px: np.ndarray,
@@ -483,7 +483,7 @@ def _mirrored_mm(
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _mm_figures(mm: np.ndarray, current_px: np.ndarray, contacts_px: np.ndarray, sigma_px: float):
     """(intensity_mm, translation_mm (2,) float64) from the user-frame points of
-    :func:`_mirrored_mm` (rotated): the profile (:func:`_profile`) of A's displacements in mm,
+    :func:`_area_mm` (rotated): the profile (:func:`_profile`) of A's displacements in mm,
     at A's markers ``current_px`` (M, 2) px, M >= 1; and the translation as moved at the origin."""
     m = len(current_px)
     norms = np.empty(m)
@@ -495,11 +495,12 @@ def _mm_figures(mm: np.ndarray, current_px: np.ndarray, contacts_px: np.ndarray,
 
 def compile_camera_model_kernels() -> None:
     """Compile (or load from numba's cache) the camera model's kernels of :func:`estimate_gesture`
-    and :func:`points_to_user` now, for the types it passes them: a pipeline's sensor gets its camera model at the first
-    rest frame (``PipelineConfig.camera_model``), after ``GesturePipeline.compile_kernels``."""
+    and :func:`points_to_user` now, for the types they are passed: a pipeline's sensor gets its
+    camera model at the first rest frame (``PipelineConfig.camera_model``), after
+    ``GesturePipeline.compile_kernels``."""
     points = np.zeros((1, 2))
     camera = (0.0, 0.0, 1.0, 0.0, 0.0, 1.0, True)
-    mm = _mirrored_mm(points, points, np.zeros(2), np.zeros(2), camera)
+    mm = _area_mm(points, points, np.zeros(2), np.zeros(2), camera)
     _mm_figures(mm, points, points, 1.0)
     _points_mm(points, camera)
 
