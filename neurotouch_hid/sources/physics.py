@@ -52,7 +52,24 @@ viscoelastic  the gel creeps: a standard linear solid (Zener; a spring in parall
               of Nonlinear Viscoelastic Materials*, 1976, ch. 5): the deformation keeps growing
               through the hold and, once the fingers have left (the gesture's label ends there),
               relaxes slowly back to rest. q = 0.3, tau = 0.3 s: chosen as a soft silicone's fast
-              relaxation, not fitted to a measured gel. The final family (``benchmarks/family_eval.py``).
+              relaxation, not fitted to a measured gel. The final family of round 3.
+pasternak     a gel on a shear-coupled foundation, creeping a little, with unequal fingers -- three
+              changes at once. (1) The drag falls off as the surface deflection of a membrane on a
+              Pasternak foundation (Winkler springs coupled by a shear layer) under a point load,
+              ``K0(r / lambda)`` (modified Bessel function of the second kind, order 0; Kerr,
+              "Elastic and viscoelastic foundation models", J. Appl. Mech. 31, 1964, 491-498),
+              regularised over the finger's footprint s (the falloffs' width, widened with the
+              displacement as theirs): ``K0(sqrt(r^2 + s^2) / lambda) / K0(s / lambda)``, exactly 1
+              at the finger (:func:`pasternak_falloff`). lambda = :data:`PASTERNAK_LAMBDA` s =
+              1.25 s, chosen, not fitted: its half-width at half maximum is 1.26 s, 7 % wider than
+              the Gaussian's 1.18 s (the power law's: 1.74 s), and its tail lies between the two
+              (at 2 s / 3 s / 4 s: 0.26 / 0.11 / 0.044 against the Gaussian's 0.14 / 0.011 /
+              0.0003 and the power law's 0.44 / 0.28 / 0.19; far out ~ exp(-r / lambda) /
+              sqrt(r)); its steepest slope, 0.51 / s, is below the Gaussian's 0.61 / s, so the gel
+              folds no more than the default's. (2) A smaller, slower creep than
+              ``viscoelastic``: the same standard linear solid with q = 0.2, tau = 0.6 s. (3)
+              Unequal finger strength (each finger 60-100 % of the strongest) with no onset lags.
+              The final family from round 4 on (``benchmarks/family_eval.py``).
 ============  ==================================================================================
 
 ``mix`` draws one family per sequence (round robin over a seeded permutation, so that every family
@@ -79,7 +96,9 @@ from neurotouch_hid.sensor import DOME_SPHERE_MM, SensorGeometry
 #: Distance of the ``camera`` family's pinhole below the dome's base plane (mm).
 CAMERA_MM = 60.0
 #: Falloff kinds of the finger drag (simulator._finger_field).
-FALLOFF_GAUSSIAN, FALLOFF_POWERLAW, FALLOFF_STICKSLIP = 0, 1, 2
+FALLOFF_GAUSSIAN, FALLOFF_POWERLAW, FALLOFF_STICKSLIP, FALLOFF_PASTERNAK = 0, 1, 2, 3
+#: The ``pasternak`` family's foundation length lambda, in finger footprints s (module docstring).
+PASTERNAK_LAMBDA = 1.25
 
 
 @dataclass(frozen=True)
@@ -88,7 +107,7 @@ class Physics:
 
     Attributes:
         name: the family's name (``simulate --physics NAME``).
-        falloff: FALLOFF_GAUSSIAN, FALLOFF_POWERLAW or FALLOFF_STICKSLIP.
+        falloff: FALLOFF_GAUSSIAN, FALLOFF_POWERLAW, FALLOFF_STICKSLIP or FALLOFF_PASTERNAK.
         indent: relative growth of a marker's image at the centre of a full Hertz indentation.
         perspective: the camera is a pinhole CAMERA_MM below the base, with lens distortion
             ``k1`` (Brown-Conrady, on the ray slope normalised to the rim's) and cos^4 vignetting.
@@ -158,6 +177,7 @@ PHYSICS: dict[str, Physics] = {
         Physics("noise", noise_hz=2.0, n_hot=40, hot_rate_hz=300.0),
         Physics("flicker", flicker=0.25),
         Physics("viscoelastic", creep=0.3, creep_s=0.3),
+        Physics("pasternak", falloff=FALLOFF_PASTERNAK, creep=0.2, creep_s=0.6, strength_min=0.6),
     )
 }
 #: ``--physics`` names: every family, and ``mix`` (one family per sequence).
@@ -276,6 +296,50 @@ def hertz_deflection(q: float) -> float:
     if q <= 1.0:
         return 1.0 - 0.5 * q * q
     return ((2.0 - q * q) * math.asin(1.0 / q) + math.sqrt(q * q - 1.0)) / math.pi
+
+
+@numba.njit(cache=True)
+def bessel_k0(x: float) -> float:
+    """The modified Bessel function of the second kind, order 0, K0(x) for x > 0 (float64).
+
+    The polynomial approximations of Abramowitz & Stegun, *Handbook of Mathematical Functions*,
+    1964: for x <= 2, eq. 9.8.5 (absolute error < 1e-8) with I0(x) from eq. 9.8.1 (relative
+    error < 1.6e-7); for x > 2, eq. 9.8.6 (``sqrt(x) e^x K0(x)``, error < 1.9e-7). No SciPy at run
+    time. x <= 0 is outside the domain (K0 diverges at 0): the result is not meaningful there.
+    """
+    if x <= 2.0:
+        t = x / 3.75
+        t2 = t * t
+        i0 = 1.0 + t2 * (
+            3.5156229 + t2 * (3.0899424 + t2 * (1.2067492 + t2 * (0.2659732 + t2 * (0.0360768 + t2 * 0.0045813))))
+        )
+        h2 = 0.25 * x * x
+        return -math.log(0.5 * x) * i0 + (
+            -0.57721566
+            + h2
+            * (
+                0.42278420
+                + h2 * (0.23069756 + h2 * (0.03488590 + h2 * (0.00262698 + h2 * (0.00010750 + h2 * 0.00000740))))
+            )
+        )
+    u = 2.0 / x
+    poly = 1.25331414 + u * (
+        -0.07832358 + u * (0.02189568 + u * (-0.01062446 + u * (0.00587872 + u * (-0.00251540 + u * 0.00053208))))
+    )
+    return poly * math.exp(-x) / math.sqrt(x)
+
+
+#: K0 at the finger (r = 0) of the ``pasternak`` falloff: its normalisation.
+_K0_AT_FINGER = bessel_k0.py_func(1.0 / PASTERNAK_LAMBDA)
+
+
+@numba.njit(cache=True)
+def pasternak_falloff(dist2: float, s2: float) -> float:
+    """The ``pasternak`` family's drag falloff (module docstring): the regularised surface
+    deflection of a Pasternak foundation, ``K0(sqrt(r^2 + s^2) / lambda) / K0(s / lambda)`` with
+    lambda = PASTERNAK_LAMBDA s, at squared distance ``dist2`` = r^2 (mm^2) from the finger, for
+    the squared footprint ``s2`` = s^2 (mm^2, > 0). 1 at r = 0 (to rounding), decreasing, > 0."""
+    return bessel_k0(math.sqrt(dist2 / s2 + 1.0) / PASTERNAK_LAMBDA) / _K0_AT_FINGER
 
 
 @numba.njit(cache=True)

@@ -35,7 +35,8 @@ Gesture Detection Dataset"):
   (:mod:`neurotouch_hid.sources.physics`, ``simulate --physics NAME|mix``) change one aspect of
   it (displacement falloff, contact mechanics, indentation, camera model, global motion, finger
   timing and strength, very strong presses, marker spread, sensor noise, light flicker, a
-  viscoelastic gel that creeps and relaxes slowly).
+  viscoelastic gel that creeps and relaxes slowly; ``pasternak`` changes three at once: a
+  shear-coupled foundation's falloff, a small slow creep and unequal fingers).
 
 Labels (docs/dataset.md) per APS frame: a gesture is labelled from its attack's start (the first
 instant its fingers move the gel) up to, not including, the end of its release (the fingers have
@@ -71,6 +72,7 @@ from neurotouch_hid.sources.physics import (
     Physics,
     hertz_deflection,
     mix_families,
+    pasternak_falloff,
     physics_family,
     sls_deformation,
 )
@@ -246,11 +248,12 @@ class SimGesture:
         residual: deformation left when the release ends (fraction); creep_us: its time constant.
         lags_us: per finger, how long after t_start_us it starts moving (us, each < attack_us;
             empty: all at once); strengths: per finger, its share of the motion (0..1; empty:
-            all 1) -- the ``fingers`` family.
+            all 1) -- the ``fingers`` and ``pasternak`` families.
         squeeze: radial contraction of the markers under a pressing finger (mm; 0: the default
             spread) -- the ``strong`` family.
         sls: (delayed share q, retardation time tau us) of the gel's standard linear solid, or
-            empty for an elastic gel -- the ``viscoelastic`` family (:func:`physics.sls_deformation`).
+            empty for an elastic gel -- the ``viscoelastic`` and ``pasternak`` families
+            (:func:`physics.sls_deformation`).
     """
 
     gesture: GestureType
@@ -390,7 +393,9 @@ def _finger_field(
     (T, M, 2) and w to ``weight`` (T, M). ``falloff`` (physics.FALLOFF_*): Gaussian
     exp(-r^2 / 2 s^2); power law (1 + r^2 / 2 s^2)^(-3/4); stick/slip: 1 in the stick disc
     c = a (1 - min(level, 0.9))^(1/3), easing to 0.85 over the slip annulus up to the contact
-    radius a = sqrt(finger_mm^2 + (1.5 widen |d|)^2), then 0.85 a / r (Cattaneo-Mindlin).
+    radius a = sqrt(finger_mm^2 + (1.5 widen |d|)^2), then 0.85 a / r (Cattaneo-Mindlin);
+    Pasternak foundation K0(sqrt(r^2 + s^2) / lambda) / K0(s / lambda), lambda = 1.25 s
+    (:func:`physics.pasternak_falloff`).
     The gesture's pressure ``press * level`` (T,) spreads the points under it radially
     (<= 0.35 mm, or contracts them by <= ``squeeze`` mm when squeeze > 0; added to ``disp``
     (T, M, 2)), dims them (<= 25 %, 40 % when squeezed; max into ``dim`` (T, M)) and, when
@@ -404,7 +409,8 @@ def _finger_field(
         if level[t] == 0.0 and flevel[t] == 0.0:
             continue
         dn2 = d[t, 0] * d[t, 0] + d[t, 1] * d[t, 1]
-        inv_s2 = 1.0 / (2.0 * (finger_mm * finger_mm + widen * widen * dn2))
+        s2 = finger_mm * finger_mm + widen * widen * dn2
+        inv_s2 = 1.0 / (2.0 * s2)
         a_c = math.sqrt(finger_mm * finger_mm + 2.25 * widen * widen * dn2)
         c_s = a_c * (1.0 - min(flevel[t], 0.9)) ** (1.0 / 3.0)
         for m in range(pts.shape[0]):
@@ -415,6 +421,8 @@ def _finger_field(
                 w = math.exp(-dist2 * inv_s2)
             elif falloff == 1:
                 w = (1.0 + dist2 * inv_s2) ** -0.75
+            elif falloff == 3:
+                w = pasternak_falloff(dist2, s2)
             else:
                 r = math.sqrt(dist2)
                 if r <= c_s:
