@@ -20,7 +20,15 @@ from typer.testing import CliRunner
 from neurotouch_hid.cli import app
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.sensor import SensorGeometry
-from neurotouch_hid.sources.physics import PHYSICS, DomeCamera, hertz_deflection, mix_families
+from neurotouch_hid.sources.physics import (
+    PASTERNAK_LAMBDA,
+    PHYSICS,
+    DomeCamera,
+    bessel_k0,
+    hertz_deflection,
+    mix_families,
+    pasternak_falloff,
+)
 from neurotouch_hid.sources.simulator import START_US, USERS, GelSimulator, draw_gesture
 
 SENSOR = SensorGeometry()
@@ -220,6 +228,100 @@ def test_viscoelastic_gel_creeps_under_a_hold_and_relaxes_slowly_after_release()
     assert after[-1].resting  # ~1.2 s after: back within 0.1 mm
     pos = sim.marker_state(np.array([g.t_end_us + 200_000], dtype=np.int64), [g])[3][0]
     assert np.linalg.norm(pos - sim.gel.rest_mm, axis=-1).max() > 0.3
+
+
+def _k0_integral(x: float) -> float:
+    """K0(x) from its integral representation int_0^inf exp(-x cosh t) dt (Abramowitz & Stegun
+    9.6.24), by NumPy's trapezoid rule: another route than the polynomial approximations."""
+    t = np.linspace(0.0, 12.0, 40_001)  # x cosh(12) > 4000 for x >= 0.05: the rest is negligible
+    return float(np.trapezoid(np.exp(-x * np.cosh(t)), t))
+
+
+@pytest.mark.parametrize("x", [0.05, 0.3, 0.8, 1.5, 1.999, 2.0, 2.001, 3.5, 6.0, 10.0])
+def test_bessel_k0_matches_its_integral_representation(x):
+    assert bessel_k0(x) == pytest.approx(_k0_integral(x), rel=1e-6)
+
+
+def test_pasternak_falloff_is_one_at_the_finger_and_lies_between_the_gaussian_and_the_power_law():
+    for s in (6.0, 7.0, 11.5):
+        assert pasternak_falloff(0.0, s * s) == pytest.approx(1.0, abs=1e-12)
+    s = 7.0
+    lam = PASTERNAK_LAMBDA * s
+    for q in (0.5, 1.0, 2.0, 3.0, 5.0, 8.0):  # the K0 ratio of the regularised point load
+        expected = _k0_integral(math.hypot(q * s, s) / lam) / _k0_integral(s / lam)
+        assert pasternak_falloff((q * s) ** 2, s * s) == pytest.approx(expected, rel=1e-5)
+    radii = np.linspace(0.0, 40.0, 401)
+    w = np.array([pasternak_falloff(r * r, s * s) for r in radii])
+    assert np.all(np.diff(w) < 0) and w[-1] > 0
+    # its half-width at half maximum within 30 % of the Gaussian's (s sqrt(2 ln 2)) ...
+    lo, hi = 0.0, 40.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if pasternak_falloff(mid * mid, s * s) > 0.5 else (lo, mid)
+    assert 0.7 < lo / (s * math.sqrt(2.0 * math.log(2.0))) < 1.3
+    # ... and its tail between the Gaussian's and the power law's
+    for q in (2.0, 3.0, 4.0, 5.0):
+        gaussian, power = math.exp(-q * q / 2.0), (1.0 + q * q / 2.0) ** -0.75
+        assert 1.5 * gaussian < pasternak_falloff((q * s) ** 2, s * s) < power / 1.5, q
+
+
+def test_pasternak_gel_drags_between_the_gaussian_and_the_power_law():
+    g = _gesture(GestureType.PUSH, [[0.0, 0.0]], amplitude=4.0)
+    t = np.array([g.t_start_us + g.attack_us + 100_000], dtype=np.int64)
+    moved = {}
+    for name in ("default", "powerlaw", "pasternak"):
+        sim = GelSimulator(SENSOR, USERS[0], seed=3, script=[g], physics=PHYSICS[name])
+        pos_mm = sim.marker_state(t, [g])[3][0]
+        moved[name] = np.linalg.norm(pos_mm - sim.gel.rest_mm, axis=-1)
+    r = np.linalg.norm(GelSimulator(SENSOR, script=[]).gel.rest_mm, axis=-1)
+    assert moved["pasternak"][r < 0.5] == pytest.approx(4.0, abs=0.05)  # the finger's own marker
+    for band in ((12.0, 16.0), (16.0, 20.0)):
+        far = (r > band[0]) & (r < band[1])
+        assert 1.3 * moved["default"][far].mean() < moved["pasternak"][far].mean(), band
+        assert moved["pasternak"][far].mean() < moved["powerlaw"][far].mean() / 1.3, band
+
+
+def test_pasternak_gel_creeps_by_a_fifth_and_relaxes_with_tau_0_6_s():
+    """The standard linear solid with q = 0.2, tau = 0.6 s: after a hold long enough to load the
+    delayed part (5 tau) and a quick release, a fifth of the deformation is left and it relaxes as
+    exp(-t / 0.6 s) -- in the level and in the marker under the finger."""
+    physics = PHYSICS["pasternak"]
+    drawn = draw_gesture(np.random.default_rng(5), USERS[0], GestureType.PUSH, 0, SENSOR, physics)
+    assert drawn.sls == (0.2, 600_000)
+    g = dataclasses.replace(
+        _gesture(GestureType.PUSH, [[0.0, 0.0]], amplitude=5.0, sls=drawn.sls),
+        hold_us=3_000_000,
+        release_us=10_000,
+        residual=0.0,
+    )
+    hold_end, end = g.t_start_us + g.attack_us + g.hold_us, g.t_end_us
+    sim = GelSimulator(SENSOR, USERS[0], seed=3, script=[g], physics=physics)
+    centre = int(np.argmin(np.linalg.norm(sim.gel.rest_mm, axis=-1)))
+    times = np.array([hold_end - 1000, end, end + 600_000, end + 1_200_000], dtype=np.int64)
+    level = g.profile(times)
+    pos_mm = sim.marker_state(times, [g])[3][:, centre]
+    moved = np.linalg.norm(pos_mm - sim.gel.rest_mm[centre], axis=-1)
+    for x in (level, moved / g.amplitude_mm):
+        assert x[0] == pytest.approx(1.0, abs=0.01)  # the delayed part has caught up with the load
+        assert x[1] / x[0] == pytest.approx(0.2, abs=0.005)  # the release leaves the delayed share
+        assert x[2] / x[1] == pytest.approx(math.exp(-1.0), rel=0.01)  # one tau later
+        assert x[3] / x[1] == pytest.approx(math.exp(-2.0), rel=0.01)
+    assert g.t_settled_us - g.t_end_us >= 7 * 600_000  # the simulator keeps it until it relaxed
+
+
+def test_pasternak_fingers_differ_in_strength_between_60_and_100_percent_and_start_together():
+    physics = PHYSICS["pasternak"]
+    rng, prng = np.random.default_rng(5), np.random.default_rng(6)
+    draws = [draw_gesture(rng, USERS[0], GestureType.PINCH, 0, SENSOR, physics, prng) for _ in range(40)]
+    strengths = np.concatenate([g.strengths for g in draws])
+    assert all(len(g.strengths) == len(g.fingers_mm) and max(g.strengths) == 1.0 for g in draws)
+    assert strengths.min() >= 0.6 and strengths.min() < 0.7  # unequal, never below 60 %
+    assert all(g.lags_us == () for g in draws)  # no onset lags
+    levels = draws[0].finger_levels(np.array([draws[0].t_start_us + draws[0].attack_us // 4], dtype=np.int64))[0]
+    assert np.all(levels > 0)  # every finger moves from the start
+    # the default stream's draws are the default family's
+    plain = draw_gesture(np.random.default_rng(5), USERS[0], GestureType.PINCH, 0, SENSOR)
+    assert np.array_equal(plain.fingers_mm, draws[0].fingers_mm) and plain.amplitude_mm == draws[0].amplitude_mm
 
 
 def test_default_family_draws_do_not_change_when_other_families_exist():
