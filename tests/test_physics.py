@@ -384,10 +384,11 @@ def test_unknown_physics_family_is_one_clear_error(tmp_path, monkeypatch, capsys
     assert not (tmp_path / "x").exists()
 
 
-@pytest.mark.parametrize("families", ["viscoelastic", "stickslip", "powerlaw,mix"])
+@pytest.mark.parametrize("families", ["pasternak", "default,pasternak", "powerlaw,mix"])
 def test_family_eval_refuses_the_final_families_without_final_run(tmp_path, families):
-    """The protocol (docs/accuracy.md): the final family (and the earlier one, and the mix holding
-    them) are evaluated only with --final-run; nothing is simulated or written before the refusal."""
+    """The protocol (docs/accuracy.md): the final family (round 4: pasternak) and the mix, which
+    draws it, are evaluated only with --final-run; nothing is simulated or written before the
+    refusal."""
     import subprocess
     import sys
     from pathlib import Path
@@ -401,5 +402,5 @@ def test_family_eval_refuses_the_final_families_without_final_run(tmp_path, fami
         timeout=120,
     )
     assert run.returncode == 2
-    assert "add --final-run" in " ".join(run.stderr.split())
+    assert "add --final-run" in " ".join(run.stderr.split()) and "pasternak" in run.stderr
     assert not out.exists()
