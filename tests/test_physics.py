@@ -309,6 +309,26 @@ def test_pasternak_gel_creeps_by_a_fifth_and_relaxes_with_tau_0_6_s():
     assert g.t_settled_us - g.t_end_us >= 7 * 600_000  # the simulator keeps it until it relaxed
 
 
+def test_pasternak_labels_stay_not_resting_while_the_creep_relaxes():
+    """After the release the gesture's label ends (none), and the gel is not resting until the
+    slow relaxation (tau 0.6 s) has brought every marker back within 0.1 mm."""
+    physics = PHYSICS["pasternak"]
+    g = dataclasses.replace(
+        _gesture(GestureType.PUSH, [[0.0, 0.0]], amplitude=5.0, sls=(physics.creep, int(physics.creep_s * 1e6))),
+        hold_us=1_200_000,
+        release_us=10_000,
+        residual=0.0,
+    )
+    sim = GelSimulator(SENSOR, USERS[0], seed=3, script=[g], physics=physics)
+    chunks = _run(sim, 90)
+    after = [c for c in chunks if c.label.t_us >= g.t_end_us]
+    assert all(c.label.gesture is GestureType.NONE for c in after)
+    for c in after:
+        moved = np.linalg.norm(sim.marker_state(np.array([c.label.t_us]), [g])[3][0] - sim.gel.rest_mm, axis=-1)
+        assert c.label.resting == bool(moved.max() <= 0.1), (c.label.t_us - g.t_end_us, moved.max())
+    assert not after[12].label.resting and after[-1].label.resting  # ~0.5 s after the release; ~2 s after
+
+
 def test_pasternak_fingers_differ_in_strength_between_60_and_100_percent_and_start_together():
     physics = PHYSICS["pasternak"]
     rng, prng = np.random.default_rng(5), np.random.default_rng(6)
