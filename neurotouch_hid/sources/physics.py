@@ -2,8 +2,7 @@
 
 One simulated gel is one model; a real gel is another. To measure how the pipeline generalises,
 the simulator draws its gel and camera from named *families*, each changing one aspect of the
-default model (:mod:`neurotouch_hid.sources.simulator`) to another published model of it
-(``pasternak`` changes three):
+default model (:mod:`neurotouch_hid.sources.simulator`) to another published model of it:
 
 ============  ==================================================================================
 family        what changes, and the model it follows
@@ -54,23 +53,19 @@ viscoelastic  the gel creeps: a standard linear solid (Zener; a spring in parall
               through the hold and, once the fingers have left (the gesture's label ends there),
               relaxes slowly back to rest. q = 0.3, tau = 0.3 s: chosen as a soft silicone's fast
               relaxation, not fitted to a measured gel. The final family of round 3.
-pasternak     a gel on a shear-coupled foundation, creeping a little, with unequal fingers -- three
-              changes at once. (1) The drag falls off as the surface deflection of a membrane on a
-              Pasternak foundation (Winkler springs coupled by a shear layer) under a point load,
-              ``K0(r / lambda)`` (modified Bessel function of the second kind, order 0; Kerr,
-              "Elastic and viscoelastic foundation models", J. Appl. Mech. 31, 1964, 491-498),
+pasternak     a gel on a shear-coupled foundation: the drag falls off as the surface deflection of a
+              membrane on a Pasternak foundation (Winkler springs coupled by a shear layer) under a
+              point load, ``K0(r / lambda)`` (modified Bessel function of the second kind, order 0;
+              Kerr, "Elastic and viscoelastic foundation models", J. Appl. Mech. 31, 1964, 491-498),
               regularised over the finger's footprint s (the falloffs' width, widened with the
               displacement as theirs): ``K0(sqrt(r^2 + s^2) / lambda) / K0(s / lambda)``, exactly 1
-              at the finger (:func:`pasternak_falloff`). lambda = :data:`PASTERNAK_LAMBDA` s =
-              1.25 s, chosen, not fitted: its half-width at half maximum is 1.26 s, 7 % wider than
-              the Gaussian's 1.18 s (the power law's: 1.74 s), and its tail lies between the two
-              (at 2 s / 3 s / 4 s: 0.26 / 0.11 / 0.044 against the Gaussian's 0.14 / 0.011 /
-              0.0003 and the power law's 0.44 / 0.28 / 0.19; far out ~ exp(-r / lambda) /
-              sqrt(r)); its steepest slope, 0.51 / s, is below the Gaussian's 0.61 / s, so the gel
-              folds no more than the default's. (2) A smaller, slower creep than
-              ``viscoelastic``: the same standard linear solid with q = 0.2, tau = 0.6 s. (3)
-              Unequal finger strength (each finger 60-100 % of the strongest) with no onset lags.
-              The final family from round 4 on (``benchmarks/family_eval.py``).
+              at the finger (:func:`pasternak_falloff`). lambda = :data:`PASTERNAK_LAMBDA` s = 1.25
+              s, chosen, not fitted: its half-width at half maximum is 1.26 s, 7 % wider than the
+              Gaussian's 1.18 s (the power law's: 1.74 s), and its tail lies between the two (at 2 s
+              / 3 s / 4 s: 0.26 / 0.11 / 0.044 against the Gaussian's 0.14 / 0.011 / 0.0003 and the
+              power law's 0.44 / 0.28 / 0.19; far out ~ exp(-r / lambda) / sqrt(r)); its steepest
+              slope, 0.51 / s, is below the Gaussian's 0.61 / s, so the gel folds no more than the
+              default's. The final family from round 4 on (``benchmarks/family_eval.py``).
 ============  ==================================================================================
 
 ``mix`` draws one family per sequence (round robin over a seeded permutation, so that every family
@@ -178,7 +173,7 @@ PHYSICS: dict[str, Physics] = {
         Physics("noise", noise_hz=2.0, n_hot=40, hot_rate_hz=300.0),
         Physics("flicker", flicker=0.25),
         Physics("viscoelastic", creep=0.3, creep_s=0.3),
-        Physics("pasternak", falloff=FALLOFF_PASTERNAK, creep=0.2, creep_s=0.6, strength_min=0.6),
+        Physics("pasternak", falloff=FALLOFF_PASTERNAK),
     )
 }
 #: ``--physics`` names: every family, and ``mix`` (one family per sequence).
