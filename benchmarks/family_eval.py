@@ -41,6 +41,7 @@ from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.evaluation.metrics import Observations, align, evaluate
 from neurotouch_hid.evaluation.runner import evaluate_dataset, pipeline_config
 from neurotouch_hid.pipeline.gesture import EpisodeVote
+from neurotouch_hid.pipeline.pipeline import PipelineConfig
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import PHYSICS
 from neurotouch_hid.sources.simulator import write_dataset
@@ -173,15 +174,16 @@ def main(
 def replay_vote(dataset: Path, predictions: Path, method: str) -> dict:
     """METHOD's predictions (``predictions/METHOD``) through :class:`EpisodeVote`, written to
     ``predictions/METHOD+vote`` and scored: the same per-window estimates as the pipeline with
-    ``episode_vote=true`` (the vote only reads each window's type and intensity, in order)."""
+    ``episode_vote=true`` and the default ``vote_restart`` (the vote only reads each window's
+    type, intensity and contact count, in order)."""
     sensor = SensorGeometry.load(dataset / "sensor.yaml")
     dst = predictions / f"{method}+vote"
     dst.mkdir(parents=True, exist_ok=True)
     parts = []
     for name in list_sequences(dataset):
-        vote = EpisodeVote()
+        vote = EpisodeVote(restart_on_contacts=PipelineConfig().vote_restart)
         voted = [
-            replace(p, gesture=vote.update(p.gesture, p.intensity_mm))
+            replace(p, gesture=vote.update(p.gesture, p.intensity_mm, p.n_contacts))
             for p in read_predictions(predictions / method / f"{name}.jsonl")
         ]
         write_predictions(dst / f"{name}.jsonl", voted)

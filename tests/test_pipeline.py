@@ -14,6 +14,7 @@ import pytest
 from neurotouch_hid.dataset import read_predictions, write_predictions
 from neurotouch_hid.errors import DatasetError, SensorError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.pipeline.gesture import EpisodeVote
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 from neurotouch_hid.pipeline.resting import RestingResult
 from neurotouch_hid.sensor import SensorGeometry
@@ -506,6 +507,55 @@ def test_episode_vote_keeps_one_type_over_a_gesture_where_windows_flip(rest_imag
     assert plain[:2] == [P, P] and plain[2:8] == [Q] * 6 and plain[8] is P
     assert voted[:2] == [P, P]  # no added latency at onset: the first windows answer as before
     assert voted[2:] == [Q] * 7  # the strong pinch outweighs at once, the weak push at the end does not
+
+
+def _lagging_pinch(config: PipelineConfig, rest_image: np.ndarray) -> list[tuple[GestureType, int]]:
+    """A pinch whose first finger leads: six windows of that finger alone (a one-contact push),
+    then the second finger moves towards it for five. Returns each window's (type, contacts)."""
+    pipeline = GesturePipeline(SENSOR, config)
+    pipeline.process(Frame(0, rest_image))
+    pipeline.process(events_at(1))
+    rest = pipeline.rest_px
+    c = np.asarray(SENSOR.gel_center_px)
+    w1 = np.exp(-np.sum((rest - (c + [-15.0, 0.0])) ** 2, axis=1) / (2 * 12.0**2))[:, None]
+    w2 = np.exp(-np.sum((rest - (c + [15.0, 0.0])) ** 2, axis=1) / (2 * 12.0**2))[:, None]
+    frames = [rest + w1 * [k, 0.0] for k in (2.0, 4.0, 6.0, 8.0, 8.0)]
+    frames += [rest + w1 * [8.0, 0.0] - w2 * [m, 0.0] for m in (4.0, 6.0, 8.0, 8.0, 8.0, 8.0)]
+    out = []
+    for k, moved in enumerate(frames):
+        pipeline.tracker.reset(moved)
+        (estimate,) = pipeline.process(events_at(15000 + 10000 * k))
+        out.append((estimate.gesture, len(estimate.contacts_px)))
+    return out
+
+
+def test_a_lagging_fingers_push_gives_way_to_the_pinch_once_its_second_contact_is_seen(rest_image):
+    """The plain episode vote keeps the leading finger's one-contact push until the pinch has
+    outweighed it (four windows late); with ``vote_restart`` the pinch is answered from the first
+    window that sees its second contact."""
+    base = dict(motion_override_px=0.3, chamfer_threshold=-1.0)
+    plain = _lagging_pinch(PipelineConfig(episode_vote=False, **base), rest_image)
+    first_pinch = next(k for k, (g, _) in enumerate(plain) if g is GestureType.PINCH)
+    assert {g for g, _ in plain[:first_pinch]} == {GestureType.PUSH}
+    assert {n for _, n in plain[:first_pinch]} == {1} and plain[first_pinch][1] == 2
+    assert {g for g, _ in plain[first_pinch:]} == {GestureType.PINCH}
+    old = _lagging_pinch(PipelineConfig(vote_restart=False, **base), rest_image)
+    new = _lagging_pinch(PipelineConfig(**base), rest_image)
+    assert [g for g, _ in old[first_pinch : first_pinch + 3]] == [GestureType.PUSH] * 3
+    assert [g for g, _ in new] == [g for g, _ in plain]
+
+
+def test_the_vote_restarts_only_for_a_push_and_only_on_more_contacts_than_before():
+    """Restart rule of ``EpisodeVote``: a push decided on two contacts is kept against a pinch
+    window with two; a third contact restarts the votes; a decided zoom is never restarted."""
+    P, Q, Z, T = GestureType.PUSH, GestureType.PINCH, GestureType.ZOOM, GestureType.TWIST_CW
+    vote = EpisodeVote(restart_on_contacts=True)
+    assert [vote.update(P, 5.0, 2), vote.update(P, 5.0, 2), vote.update(Q, 1.0, 2)] == [P, P, P]
+    assert vote.update(Q, 1.0, 3) is Q and vote.update(P, 0.5, 3) is Q  # the earlier 10 mm of push are gone
+    vote.update(GestureType.NONE, 0.0)
+    assert [vote.update(Z, 5.0, 1), vote.update(T, 1.0, 3)] == [Z, Z]
+    plain = EpisodeVote()
+    assert [plain.update(P, 5.0, 1), plain.update(Q, 1.0, 3)] == [P, P]
 
 
 def _calibrated(points_px) -> SensorGeometry:

@@ -34,6 +34,7 @@ PAPER = {
     "follow_px_per_mm": False,
     "camera_model": False,
     "episode_vote": False,
+    "vote_restart": False,
 }
 
 

@@ -49,7 +49,9 @@ each window adds its intensity (mm) to the votes of its own type, and every wind
 episode reports the type with the most votes so far. The first window of an episode is answered
 as before (no added latency at onset); a later window changes the answer only once its type has
 outweighed the others' accumulated intensity (the latency of such a change is measured in
-docs/accuracy.md).
+docs/accuracy.md). With ``vote_restart``, a push decided on fewer contacts than
+a later window sees restarts the votes at that window (a leading finger's push gives way to the
+pinch, zoom or twist once its other fingers are seen; ``gesture.EpisodeVote``).
 
 Windows: ``window_us`` long (10 ms default, paper, section "Runtime Performance"; anything
 down to 1 ms), aligned on multiples of ``window_us`` from the first event after the reference
@@ -262,6 +264,12 @@ class PipelineConfig(BaseModel):
             of the 10 development families, -1.3 on ``fingers`` (lagging fingers: the first
             finger's push windows outvote the pinch) and -0.2 on ``strong``; type changes per
             gesture 2.4-14.7 -> 0.6-3.0; median onset latency -5 to +15 ms (mean +2.8 ms).
+        vote_restart: with ``episode_vote``, a push decided on fewer contacts than a later
+            window of the episode sees gives way: that window (another type) restarts the votes
+            (``gesture.EpisodeVote``; not in the paper). Decided on the twelve development
+            families of round 4 (docs/accuracy.md "Round 4"): ``fingers`` +1.8 points (a
+            leading finger's push outvoted the pinch, zoom or twist that followed), every other
+            family within -0.11 to +0.24 points.
         override_smooth: the motion override counts a marker as moved by the median of its and
             its nearest neighbours' displacements (module docstring, "Smooth override"; not in
             the paper); False: by its own displacement.
@@ -318,6 +326,7 @@ class PipelineConfig(BaseModel):
     override_smooth: bool = True
     gel_motion: bool = True
     episode_vote: bool = True
+    vote_restart: bool = True
     rest_match_pitch: float | None = 0.1
     follow_px_per_mm: bool = True
     camera_model: bool = True
@@ -446,6 +455,7 @@ PIPELINE_PRESETS: dict[str, dict[str, object]] = {
         "follow_px_per_mm": False,
         "camera_model": False,
         "episode_vote": False,
+        "vote_restart": False,
     },
 }
 
@@ -562,7 +572,7 @@ class GesturePipeline:
         self._resume_waited = 0
         self._previous_frame: Frame | None = None
         #: the current gesture episode's decision (episode_vote)
-        self._episode = EpisodeVote()
+        self._episode = EpisodeVote(restart_on_contacts=self.config.vote_restart)
         #: what the fits derive from a rest reference, by name: (that reference, the value)
         self._of_rest_kept: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         #: the last window's fit: (rest_px, current, valid, contacts, gesture result)
@@ -888,11 +898,11 @@ class GesturePipeline:
         d = current[valid] - self.rest_px[valid]
         return d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]
 
-    def _vote(self, gesture: GestureType, intensity_mm: float) -> GestureType:
+    def _vote(self, gesture: GestureType, intensity_mm: float, n_contacts: int = 0) -> GestureType:
         """The window's type: its own, or the episode's decision with ``episode_vote``."""
         if not self.config.episode_vote:
             return gesture
-        return self._episode.update(gesture, intensity_mm)
+        return self._episode.update(gesture, intensity_mm, n_contacts)
 
     def _estimate(self, t_us: int) -> GestureEstimate:
         current = self.tracker.positions_px
@@ -909,7 +919,7 @@ class GesturePipeline:
             return GestureEstimate(t_us=t_us, gesture=GestureType.NONE, resting=False)
         return GestureEstimate(
             t_us=t_us,
-            gesture=self._vote(result.gesture, result.intensity_mm),
+            gesture=self._vote(result.gesture, result.intensity_mm, len(contacts.points_px)),
             resting=False,
             intensity_mm=result.intensity_mm,
             contacts_px=contacts.points_px,
