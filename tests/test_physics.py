@@ -341,9 +341,9 @@ def test_unknown_physics_family_is_one_clear_error(tmp_path, monkeypatch, capsys
     assert not (tmp_path / "x").exists()
 
 
-@pytest.mark.parametrize("families", ["pasternak", "default,pasternak", "powerlaw,mix"])
+@pytest.mark.parametrize("families", ["exposure", "default,exposure", "powerlaw,mix"])
 def test_family_eval_refuses_the_final_families_without_final_run(tmp_path, families):
-    """The protocol (docs/accuracy.md): the final family (round 4: pasternak) and the mix, which
+    """The protocol (docs/accuracy.md): the final family (round 4: exposure) and the mix, which
     draws it, are evaluated only with --final-run; nothing is simulated or written before the
     refusal."""
     import subprocess
@@ -359,5 +359,32 @@ def test_family_eval_refuses_the_final_families_without_final_run(tmp_path, fami
         timeout=120,
     )
     assert run.returncode == 2
-    assert "add --final-run" in " ".join(run.stderr.split()) and "pasternak" in run.stderr
+    assert "add --final-run" in " ".join(run.stderr.split()) and "exposure" in run.stderr
     assert not out.exists()
+
+
+def test_exposure_family_blurs_a_moving_marker_over_15_ms_and_keeps_the_events():
+    """Dim light (``exposure``): a frame shows a moving marker at its mean position over the 15 ms
+    exposure (the default: over 4 ms), ahead of where it was at the frame's timestamp (the
+    exposure's start); the events are the default family's."""
+    g = _gesture(GestureType.PUSH, [[0.0, 0.0]], amplitude=6.0)
+    sims = {
+        name: GelSimulator(SENSOR, USERS[0], seed=3, script=[g], physics=PHYSICS[name])
+        for name in ("default", "exposure")
+    }
+    chunks = {name: _run(sim, 8) for name, sim in sims.items()}
+    for a, b in zip(chunks["default"], chunks["exposure"]):
+        assert np.array_equal(a.events, b.events)
+    mid = g.t_start_us + g.attack_us // 2
+    k = int(np.argmin([abs(c.frame.t_us - mid) for c in chunks["default"]]))
+    t0 = chunks["default"][k].frame.t_us
+    centre = int(np.argmin(np.linalg.norm(sims["default"].gel.rest_mm, axis=-1)))
+    ahead = {}
+    for name, exposure_us in (("default", 4_000), ("exposure", 15_000)):
+        times = np.arange(t0, t0 + exposure_us + 1, 100, dtype=np.int64)
+        path = sims[name].marker_state(times, [g])[0][:, centre]
+        blobs = _blobs(chunks[name][k].frame.image)
+        seen = blobs[np.argmin(np.linalg.norm(blobs - path.mean(axis=0), axis=1))]
+        assert np.linalg.norm(seen - path.mean(axis=0)) < 0.1, name  # the exposure's mean position
+        ahead[name] = float(np.linalg.norm(seen - path[0]))
+    assert ahead["exposure"] > 0.6 and ahead["exposure"] > 3.0 * ahead["default"]

@@ -810,14 +810,16 @@ class GelSimulator:
         return LabelRow(t_us, g.gesture, False, intensity, self.gel.camera.project(pts_mm[1]))
 
     def _frame(self, grid_us: np.ndarray, grid_pos: np.ndarray, grid_amp: np.ndarray, grid_sigma: np.ndarray) -> Frame:
-        """The APS frame exposed from grid_us[0] for EXPOSURE_US: the average of renders at
-        instants spaced so that no marker moves more than 0.3 px between them (positions
-        interpolated linearly in the 1 ms grid), plus read and shot noise, as uint8."""
+        """The APS frame exposed from grid_us[0] for the family's exposure (EXPOSURE_US unless
+        ``physics.exposure_us``): the average of renders at instants spaced so that no marker
+        moves more than 0.3 px between them (positions interpolated linearly in the 1 ms grid;
+        at most 6 renders per ms of exposure), plus read and shot noise, as uint8."""
         t_us = int(grid_us[0])
-        last = int(np.searchsorted(grid_us, t_us + EXPOSURE_US))
+        exposure = EXPOSURE_US if self.physics.exposure_us is None else self.physics.exposure_us
+        last = int(np.searchsorted(grid_us, t_us + exposure))
         travel = float(np.abs(grid_pos[last] - grid_pos[0]).max())
-        n = 1 if travel == 0.0 else int(np.clip(math.ceil(travel / 0.3) + 1, 2, 24))
-        times = t_us + np.linspace(0, EXPOSURE_US, n)
+        n = 1 if travel == 0.0 else int(np.clip(math.ceil(travel / 0.3) + 1, 2, 6 * exposure // 1000))
+        times = t_us + np.linspace(0, exposure, n)
         k = np.clip(np.searchsorted(grid_us, times, side="right") - 1, 0, last - 1)
         a = ((times - grid_us[k]) / (grid_us[k + 1] - grid_us[k]))[:, None]
         pos = grid_pos[k] + a[..., None] * (grid_pos[k + 1] - grid_pos[k])
@@ -826,8 +828,8 @@ class GelSimulator:
         sigma = grid_sigma[k] + a * (grid_sigma[k + 1] - grid_sigma[k])
         offset = int(self._noise_rng.integers(0, len(self._noise_bank) - img_size))
         background = self.gel.background
-        if self.physics.flicker > 0:  # the exposure integrates the light over its 4 ms
-            background = background * float(self.light(np.linspace(t_us, t_us + EXPOSURE_US, 9)).mean())
+        if self.physics.flicker > 0:  # the exposure integrates the light over its duration
+            background = background * float(self.light(np.linspace(t_us, t_us + exposure, 9)).mean())
         return Frame(t_us, render_frame(background, pos, amp, sigma, READ_NOISE, SHOT_NOISE, self._noise_bank, offset))
 
     def step(self) -> SimChunk:
