@@ -829,3 +829,53 @@ def test_the_window_checks_before_a_fit_match_numpy():
         flipped = valid.copy()
         flipped[0] = not flipped[0]
         assert not _unchanged(current.copy(), current, flipped, valid)  # a marker lost or found
+
+
+def _held_and_lagging(config: PipelineConfig, rest_image: np.ndarray, frame_image: np.ndarray) -> tuple:
+    """A pipeline whose blobs lag: the markers within 30 px of the centre are held 3 px right,
+    the blobs still 0.6 px short of them (a held gesture makes no events that would move them
+    on); then the APS frame ``frame_image`` arrives. Returns (rest, blobs after the frame)."""
+    pipeline = GesturePipeline(SENSOR, config)
+    pipeline.process(Frame(0, rest_image))
+    pipeline.process(events_at(1))
+    rest = pipeline.rest_px
+    near = np.hypot(*(rest - SENSOR.gel_center_px).T) <= 30.0
+    pipeline.tracker.reset(rest + near[:, None] * [2.4, 0.0])
+    pipeline.process(events_at(30_000))
+    pipeline.process(Frame(40_000, frame_image))
+    return rest, near, pipeline.tracker.positions_px.copy()
+
+
+def test_frame_correction_brings_lagging_blobs_onto_the_markers_the_frame_shows(rest_image):
+    """Events only (paper), a held marker's blob stays where its last events left it; with
+    ``frame_correction`` the APS frame's centroids (the resting detector's) pull it onto the
+    marker: the error falls from 0.6 px to under 0.2 px, and the still markers stay put."""
+    held = gel_image(shift_px=(3.0, 0.0), region_px=30.0)
+    rest, near, plain = _held_and_lagging(PipelineConfig(frame_correction=False), rest_image, held)
+    _, _, fused = _held_and_lagging(PipelineConfig(), rest_image, held)
+    truth = rest + near[:, None] * [3.0, 0.0]
+    assert np.abs(plain[near] - truth[near]).max() == pytest.approx(0.6, abs=0.01)
+    assert np.abs(fused[near] - truth[near]).max() < 0.2
+    assert np.abs(fused[~near] - rest[~near]).max() < 0.05
+
+
+def test_a_frame_near_rest_re_anchors_the_blobs_and_is_not_fused_back(rest_image):
+    """A frame near rest (``centroid_reset_threshold``) re-anchors the tracker at the rest
+    positions; its own centroids, a few hundredths of a pixel off, must not then pull the blobs
+    away again (the frame correction is for frames that are not near rest)."""
+    almost = gel_image(shift_px=(0.3, 0.0), region_px=30.0)  # Chamfer ~0.03 px^2: not resting, near rest
+    rest, _, after = _held_and_lagging(PipelineConfig(), rest_image, almost)
+    assert np.array_equal(after, rest)
+
+
+def test_the_resting_verdict_carries_the_frames_marker_centroids_in_the_image_frame(rest_image):
+    from neurotouch_hid.pipeline.markers import detect_markers
+    from neurotouch_hid.pipeline.resting import RestingDetector
+
+    moved = gel_image(shift_px=(2.0, 1.0), region_px=30.0)
+    verdict = RestingDetector(rest_image, SENSOR, 0.01, centroids=True).update(moved)
+    markers = detect_markers(moved, SENSOR).centroids_px
+    assert not verdict.resting and len(verdict.centroids_px) == len(markers)
+    d = np.hypot(*(verdict.centroids_px[:, None] - markers[None]).transpose(2, 0, 1)).min(axis=1)
+    assert d.max() < 0.1
+    assert RestingDetector(rest_image, SENSOR, 2.5).update(moved).centroids_px is None  # pixel sets: none

@@ -48,7 +48,7 @@ hold up the event path.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numba
@@ -69,10 +69,14 @@ class RestingResult:
             docstring), or the raw sum when the detector is not ``per_marker``; inf when the
             current frame has no marker pixel. From ``update(..., verdict_only=True)`` on a
             frame not at rest it may be the current-to-reference term alone (a lower bound).
+        centroids_px: (M, 2) float64 the frame's marker centroids (x, y px, image frame) when
+            the detector compared centroids (``centroids``), else None. The pipeline's
+            ``frame_correction`` fuses them into the tracker's blobs.
     """
 
     resting: bool
     distance: float
+    centroids_px: np.ndarray | None = field(default=None, compare=False, repr=False)
 
 
 class RestingDetector:
@@ -159,12 +163,16 @@ class RestingDetector:
         n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
         return _weighted_centroids(labels, np.ascontiguousarray(image[self._roi]), n, float(self.binary_threshold))
 
-    def _centroid_distance(self, image: np.ndarray) -> float:
-        """Chamfer distance between the centroids of ``image`` and the reference's (px^2)."""
+    def _centroid_verdict(self, image: np.ndarray) -> RestingResult:
+        """The verdict from the Chamfer distance between the centroids of ``image`` and the
+        reference's (px^2), with the centroids in the image frame."""
         p = self.marker_centroids(image)
         if len(p) == 0:
-            return float("inf")
-        return _chamfer_sum(p, self.reference_centroids) / (self.n_markers if self.per_marker else 1)
+            return RestingResult(False, float("inf"), p)
+        distance = _chamfer_sum(p, self.reference_centroids) / (self.n_markers if self.per_marker else 1)
+        p[:, 0] += self._roi[1].start
+        p[:, 1] += self._roi[0].start
+        return RestingResult(distance <= self.threshold, distance, p)
 
     @staticmethod
     def _squared_distance_to(mask: np.ndarray) -> np.ndarray:
@@ -191,8 +199,7 @@ class RestingDetector:
         """
         image = self._check(frame.image if isinstance(frame, Frame) else frame)
         if self.centroids:
-            distance = self._centroid_distance(image)
-            return RestingResult(distance <= self.threshold, distance)
+            return self._centroid_verdict(image)
         mask = self.marker_mask(image)
         points = np.flatnonzero(mask)
         if len(points) == 0:
