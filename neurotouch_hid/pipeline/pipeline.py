@@ -667,6 +667,7 @@ class GesturePipeline:
         # contiguous, a longer batch's are strided views of the structured array; both occur
         tracker.update(events[:1])
         tracker.update(events[1:])
+        tracker.correct(rest + 0.5, int(events["timestamp"][-1]))  # frame_correction's fusion
         if self.noise_filter is not None:  # a fresh one: this pipeline's keeps its state
             c = self.config
             EventNoiseFilter(c.noise_filter, self.sensor.width, self.sensor.height, c.noise_filter_us)(events)
