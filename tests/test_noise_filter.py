@@ -333,8 +333,10 @@ def _tracking_errors(chunks: list, config: PipelineConfig) -> np.ndarray:
 
 
 def test_under_3_hz_noise_the_default_filter_keeps_the_markers_tracked(noisy_push_chunks):
-    on = _tracking_errors(noisy_push_chunks, PipelineConfig())
-    off = _tracking_errors(noisy_push_chunks, PipelineConfig(noise_filter=None))
+    # the event path alone: the APS-frame correction (on by default) pulls held blobs onto the
+    # frame's markers whatever the events did (p90 0.36 px with or without the filter)
+    on = _tracking_errors(noisy_push_chunks, PipelineConfig(frame_correction=False))
+    off = _tracking_errors(noisy_push_chunks, PipelineConfig(noise_filter=None, frame_correction=False))
     assert len(on) == len(off) > 1000
     # measured: p90 0.71 px with the filter, 1.07 px without; p99 1.06 against 1.85 px
     assert np.percentile(on, 90) < 0.8 * np.percentile(off, 90)
@@ -343,8 +345,8 @@ def test_under_3_hz_noise_the_default_filter_keeps_the_markers_tracked(noisy_pus
 
 def test_at_the_default_noise_the_filter_costs_no_tracking_accuracy():
     chunks = _push_chunks(0.1)
-    on = _tracking_errors(chunks, PipelineConfig())
-    off = _tracking_errors(chunks, PipelineConfig(noise_filter=None))
+    on = _tracking_errors(chunks, PipelineConfig(frame_correction=False))
+    off = _tracking_errors(chunks, PipelineConfig(noise_filter=None, frame_correction=False))
     # measured: p90 0.63 px either way
     assert np.percentile(on, 90) < 1.1 * np.percentile(off, 90)
     assert np.median(on) < 1.1 * np.median(off)
