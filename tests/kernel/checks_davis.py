@@ -193,7 +193,14 @@ def _descriptors(camera: EmulatedCamera) -> dict:
         for name in ("idVendor", "idProduct", "bcdDevice", "manufacturer", "product", "serial", "speed")
     }
     interface = dev / f"{dev.name}:1.0"
-    endpoints = {p.name: (p / "type").read_text().strip() for p in sorted(interface.glob("ep_*"))}
+
+    def enumerated() -> dict | None:
+        found = {p.name: (p / "type").read_text().strip() for p in sorted(interface.glob("ep_*"))}
+        return found if len(found) >= 2 else None
+
+    # the interface's endpoints appear once the host has set the configuration, which under
+    # emulation on a loaded machine can come a few seconds after the device itself
+    endpoints = guestlib.wait_for(enumerated, timeout_s=30) or {}
     assert attrs["bcdDevice"].endswith("06"), attrs
     assert endpoints.get("ep_82") == "Bulk" and endpoints.get("ep_81") == "Interrupt", endpoints
     return {"attrs": attrs, "endpoints": endpoints}
