@@ -311,6 +311,7 @@ class PipelineConfig(BaseModel):
     marker_pitch_px: float = 10.0
     maxima_at_rest: bool = True
     spike_fraction: float | None = 0.6
+    bump_fit: bool = True
     gesture_classifier: bool = True
     origin_radius_px: float | None = 10.0
     motion_override_px: float | None = 0.3
@@ -436,6 +437,7 @@ PIPELINE_PRESETS: dict[str, dict[str, object]] = {
         "plateau_fraction": None,
         "maxima_at_rest": False,
         "spike_fraction": None,
+        "bump_fit": False,
         "gesture_classifier": False,
         "origin_radius_px": None,
         "motion_override_px": None,
@@ -964,16 +966,19 @@ class GesturePipeline:
             maxima_at_rest=c.maxima_at_rest,
             spike_fraction=c.spike_fraction,
             neighbours=self._rest_neighbours(rest_px),
+            bump_span_px=self.sensor.gel_radius_px if c.bump_fit else None,
         )
         if motion is not None:  # the contact points where they are, the gel's motion included
-            contacts = dataclasses.replace(contacts, points_px=motion.apply(contacts.points_px))
+            points = motion.apply(contacts.points_px)
+            peaks = points if contacts.peaks_px is contacts.points_px else motion.apply(contacts.peaks_px)
+            contacts = dataclasses.replace(contacts, points_px=points, peaks_px=peaks)
         self._record("contacts", begin)
         begin = self._clock()
         result = estimate_gesture(
             rest_px,
             current,
             valid,
-            contacts.points_px,
+            contacts.peaks_px,  # A and the intensity about the largest deformation (paper)
             self.sensor,
             r_px=c.r_px,
             reproj_factor=c.gesture_reproj_factor,
@@ -985,7 +990,7 @@ class GesturePipeline:
         )
         if c.gesture_classifier and result.gesture is not GestureType.NONE:
             features = gesture_features(
-                result, contacts.points_px, rest_px, current, valid, self.sensor, c.r_px, c.origin_radius_px
+                result, contacts.peaks_px, rest_px, current, valid, self.sensor, c.r_px, c.origin_radius_px
             )
             result = dataclasses.replace(result, gesture=learned_gesture(features))
         self._record("gesture", begin)
