@@ -617,7 +617,7 @@ class GesturePipeline:
 
     def compile_kernels(self) -> None:
         """Compile the pipeline's numba code (noise filter, tracker, gel motion, contacts, gesture) now, on a synthetic
-        marker grid with a finger-like bump of displacement and a flat top, instead of on the first real events:
+        marker grid with a finger-like bump of displacement, a flat top and a pinch, instead of on the first real events:
         on a fresh install that takes seconds, which a real-time run would spend dropping data.
         Later runs load the code from numba's cache. Leaves the pipeline as it was."""
         cx, cy = self.sensor.gel_center_px
@@ -641,6 +641,9 @@ class GesturePipeline:
         wide = np.exp(-((rest - (cx, cy)) ** 2).sum(axis=1) / (2 * 25.0**2))
         flat = rest + np.minimum(1.0, 2.0 * wide)[:, None] * np.array([3.0, 0.0])
         flat[len(rest) // 3] += (6.0, 0.0)
+        # two fingers pinching: the fit of their centres (contacts.bump_fit)
+        sides = [np.exp(-((rest - (cx + dx, cy)) ** 2).sum(axis=1) / (2 * 12.0**2))[:, None] for dx in (-30.0, 30.0)]
+        pinch = rest + sides[0] * np.array([4.0, 0.0]) - sides[1] * np.array([4.0, 0.0])
         all_valid = np.ones(len(rest), dtype=bool)
         compile_resting_kernels()  # its frames come later, possibly in the runtime's thread
         compile_gel_motion_kernels()  # the grid's rim barely moves: its fits stop before them
@@ -651,6 +654,7 @@ class GesturePipeline:
         try:
             self._fit(rest, moved, all_valid)
             self._fit(rest, flat, all_valid)
+            self._fit(rest, pinch, all_valid)
         finally:
             self.timings = timings
 
