@@ -625,8 +625,19 @@ def bump_fit(rest: np.ndarray, v: np.ndarray, centres: np.ndarray, knot: float, 
                         rhs[p, 0] += row[p] * v[i, d]
                         for q in range(n_knots):
                             normal[p, q] += row[p] * row[q]
+        # a faint curvature penalty and ridge (1e-6 of the mean diagonal): a knot no marker's
+        # distance reaches follows its neighbours, and when the fingers' displacements cancel
+        # (sum_k u_k = 0, a pinch) a constant added to g, which changes no model value, is 0
+        level = 0.0
         for p in range(n_knots):
-            normal[p, p] += 1e-9 * (normal[p, p] + 1e-12)
+            level += normal[p, p]
+        level *= 1e-6 / n_knots
+        for p in range(n_knots):
+            normal[p, p] += level
+        for p in range(1, n_knots - 1):
+            for a_, wa in ((p - 1, 1.0), (p, -2.0), (p + 1, 1.0)):
+                for b_, wb in ((p - 1, 1.0), (p, -2.0), (p + 1, 1.0)):
+                    normal[a_, b_] += level * wa * wb
         sol, ok = _solve(normal, rhs)
         if not ok or not abs(sol[0, 0]) > 1e-9:
             return centres.copy()
