@@ -348,7 +348,7 @@ def test_a_long_tailed_pinch_puts_the_maxima_outside_the_fingers_and_the_bump_fi
     old_error = np.linalg.norm(old.points_px[np.argsort(old.points_px[:, 0])] - truth, axis=1)
     new_error = np.linalg.norm(new.points_px[np.argsort(new.points_px[:, 0])] - truth, axis=1)
     assert old_error.min() > 3.5  # 1.4-1.8 mm outward
-    assert new_error.max() < 1.5  # 0.6 mm
+    assert new_error.max() < 2.0  # 0.8 mm, after BUMP_ITERATIONS (3) rounds
     np.testing.assert_array_equal(new.peaks_px, old.points_px)  # the gesture step's maxima stay
 
 
@@ -448,7 +448,7 @@ def test_bump_fit_keeps_the_start_on_a_field_it_cannot_fit():
     c = np.asarray(SENSOR.gel_center_px, dtype=float)
     two = c + np.array([[-15.0, 0.0], [15.0, 0.0]])
     v = sum(np.exp(-np.sum((rest_small - f) ** 2, axis=1) / 200.0)[:, None] * d for f, d in zip(two, [[3.0, 0.0], [-3.0, 0.0]]))
-    np.testing.assert_allclose(bump_fit(rest_small, v, two + [[4.0, 2.0], [-3.0, 2.0]], 10.0, 30), two, atol=1.0)
+    np.testing.assert_allclose(bump_fit(rest_small, v, two + [[4.0, 2.0], [-3.0, 2.0]], 10.0, 30, 8), two, atol=0.5)
 
 
 def test_the_small_solver_matches_numpy():

@@ -570,9 +570,9 @@ def _hat(r: float, knot: float, n_knots: int) -> tuple[int, float]:
 
 
 #: Rounds of the bump fit (:func:`bump_fit`): its centres move by at most half a knot per round.
-#: 4: on the development families' windows, 2-8 rounds are within 0.08 mm of each other on every
-#: family, 4 within 0.03 mm of the best; each round costs ~15 us (K = 2, 177 markers).
-BUMP_ITERATIONS = 4
+#: 3: on the development families' windows, 2-8 rounds are within 0.1 mm of each other on every
+#: family, 3 within 0.04 mm of the best; each round costs ~15 us (K = 2, 177 markers, hot).
+BUMP_ITERATIONS = 3
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
