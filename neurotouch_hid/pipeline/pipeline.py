@@ -236,7 +236,7 @@ class PipelineConfig(BaseModel):
             not in the paper). The gesture step still reads A and the intensity about the
             maxima. On (issue 9, round 4, docs/accuracy.md "Round 4: contact points on
             long-tailed fields"): contact distance lower on all twelve families (``powerlaw``
-            4.42 -> 3.64 mm, ``stickslip`` 4.69 -> 3.28 mm, ``default`` 1.39 -> 1.14 mm), the
+            4.42 -> 3.71 mm, ``stickslip`` 4.69 -> 3.41 mm, ``default`` 1.39 -> 1.15 mm), the
             other metrics unchanged.
         gesture_classifier: False: the gesture type is the largest similarity term (paper);
             True: a window the rule calls a gesture gets the type of a logistic regression on the
