@@ -585,9 +585,11 @@ def bump_fit(
     Model: v(x) = sum_k g(||x - c_k||) u_k, one radial profile g shared by the K fingers (g(0) = 1,
     piecewise linear with ``n_knots`` knots ``knot`` px apart, constant beyond the last), each
     finger's displacement u_k (2,) and centre c_k (2,). Least squares over the M markers, by
-    :data:`BUMP_ITERATIONS` rounds of: u given g and c (K x K normal equations), g given u and c
-    (n_knots x n_knots), one Gauss-Newton step of c given g and u (2K x 2K; each centre moves
-    by at most knot / 2 a round). No profile is assumed: g is measured on the window's field.
+    ``rounds`` rounds of: u given g and c (K x K normal equations), g given u and c (n_knots x
+    n_knots, with a curvature penalty and ridge of 1e-6 of its mean diagonal), one Gauss-Newton
+    step of c given g and u (2K x 2K; each centre moves by at most knot / 2 a round). No
+    profile is assumed: g starts as a Gaussian over the knots' span and is measured on the
+    window's field. The systems are solved by :func:`_solve` (no LAPACK at run time).
 
     Args:
         rest: (M, 2) float64, the markers' rest positions (px, image frame).
@@ -595,10 +597,12 @@ def bump_fit(
         centres: (K, 2) float64, K >= 1, initial centres at rest (px), e.g. the maxima's markers.
         knot: the profile's knot spacing (px), > 0.
         n_knots: its number of knots, >= 2.
+        rounds: the number of rounds (:data:`BUMP_ITERATIONS`).
     Returns:
         (K, 2) float64, the fitted centres at rest (px); a centre whose fit is not finite or
-        moved further than 2 knots is its initial one, and all are when a system is singular
-        or the profile's g(0) vanishes.
+        moved further than 2 knots is its initial one; all are when the u or g system is
+        singular or the profile's g(0) vanishes (e.g. no displacement), and a singular
+        Gauss-Newton system ends the rounds where they are.
     """
     m = len(rest)
     k_n = len(centres)
