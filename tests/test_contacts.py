@@ -429,7 +429,9 @@ def test_bump_fit_matches_its_algorithm_written_with_numpy():
             bump_fit(rest, v, start, 10.0, 9), numpy_bump_fit(rest, v, start, 10.0, 9, BUMP_ITERATIONS), atol=1e-8
         )
     three = c + np.array([[-30.0, -20.0], [30.0, -20.0], [0.0, 30.0]])
-    v3 = sum(np.exp(-np.sum((rest - f) ** 2, axis=1) / 300.0)[:, None] * d for f, d in zip(three, [[3, 4], [-4, 2], [1, -5]]))
+    v3 = sum(
+        np.exp(-np.sum((rest - f) ** 2, axis=1) / 300.0)[:, None] * d for f, d in zip(three, [[3, 4], [-4, 2], [1, -5]])
+    )
     start = three + [[4.0, -3.0], [-2.0, 5.0], [3.0, 3.0]]
     np.testing.assert_allclose(
         bump_fit(rest, v3, start, 10.0, 9), numpy_bump_fit(rest, v3, start, 10.0, 9, BUMP_ITERATIONS), atol=1e-8
@@ -447,7 +449,10 @@ def test_bump_fit_keeps_the_start_on_a_field_it_cannot_fit():
     rest_small = rest[np.linalg.norm(rest - SENSOR.gel_center_px, axis=1) < 40.0]
     c = np.asarray(SENSOR.gel_center_px, dtype=float)
     two = c + np.array([[-15.0, 0.0], [15.0, 0.0]])
-    v = sum(np.exp(-np.sum((rest_small - f) ** 2, axis=1) / 200.0)[:, None] * d for f, d in zip(two, [[3.0, 0.0], [-3.0, 0.0]]))
+    v = sum(
+        np.exp(-np.sum((rest_small - f) ** 2, axis=1) / 200.0)[:, None] * d
+        for f, d in zip(two, [[3.0, 0.0], [-3.0, 0.0]])
+    )
     np.testing.assert_allclose(bump_fit(rest_small, v, two + [[4.0, 2.0], [-3.0, 2.0]], 10.0, 30, 8), two, atol=0.5)
 
 

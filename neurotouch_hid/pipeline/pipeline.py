@@ -627,8 +627,8 @@ class GesturePipeline:
 
     def compile_kernels(self) -> None:
         """Compile the pipeline's numba code (noise filter, tracker, gel motion, contacts, gesture) now, on a synthetic
-        marker grid with a finger-like bump of displacement, a flat top and a pinch, instead of on the first real events:
-        on a fresh install that takes seconds, which a real-time run would spend dropping data.
+        marker grid with a finger-like bump of displacement, a flat top and a pinch, instead of on the first real
+        events: on a fresh install that takes seconds, which a real-time run would spend dropping data.
         Later runs load the code from numba's cache. Leaves the pipeline as it was."""
         cx, cy = self.sensor.gel_center_px
         k = np.arange(-6, 7) * 10.0
