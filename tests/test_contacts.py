@@ -321,3 +321,170 @@ def test_arrays_of_different_marker_counts_are_an_error_not_a_read_past_the_end(
             estimate_gel_motion(*bad, rim, SENSOR.gel_center_px)
     with pytest.raises(ValueError, match="rim"):
         estimate_gel_motion(rest, cur, valid, rim[:-1], SENSOR.gel_center_px)
+
+
+# --- long tails: the fingers' centres fitted as radial bumps (bump_fit) ----------------------
+def long_tailed_pinch(spread: float = 20.0, amount: float = 6.0, tail=lambda r: (1.0 + r**2 / 288.0) ** -0.75):
+    """Two fingers ``2 spread`` px apart moving ``amount`` px towards each other, each dragging
+    the gel with a long-tailed radial falloff (default ~r^-1.5 past 12 px); their fields add.
+    Returns rest, current and the fingers' true points now (image px)."""
+    rest = grid()
+    c = np.asarray(SENSOR.gel_center_px, dtype=float) + [2.0, 3.0]
+    fingers = c + np.array([[-spread, 0.0], [spread, 0.0]])
+    moves = np.array([[amount, 0.0], [-amount, 0.0]])
+    v = sum(tail(np.linalg.norm(rest - f, axis=1))[:, None] * d for f, d in zip(fingers, moves))
+    return rest, rest + v, fingers + moves + [[-tail(2 * spread) * amount, 0.0], [tail(2 * spread) * amount, 0.0]]
+
+
+def test_a_long_tailed_pinch_puts_the_maxima_outside_the_fingers_and_the_bump_fit_on_them():
+    # the other finger's tail opposes each finger's field on the inner side: the largest
+    # displacement lies a pitch or more outside each finger (the paper's contact point), where the
+    # fitted bumps' centres, with their profile measured on this field, are the fingers'
+    rest, cur, truth = long_tailed_pinch()
+    options = dict(r_px=25.0, n_min=12, field_fallback=True, refine_px=20.0, plateau_fraction=0.8, maxima_at_rest=True)
+    old = detect_contacts(rest, cur, **options)
+    new = detect_contacts(rest, cur, **options, bump_span_px=SENSOR.gel_radius_px)
+    assert old.count == new.count == 2
+    old_error = np.linalg.norm(old.points_px[np.argsort(old.points_px[:, 0])] - truth, axis=1)
+    new_error = np.linalg.norm(new.points_px[np.argsort(new.points_px[:, 0])] - truth, axis=1)
+    assert old_error.min() > 3.5  # 1.4-1.8 mm outward
+    assert new_error.max() < 2.0  # 0.8 mm, after BUMP_ITERATIONS (3) rounds
+    np.testing.assert_array_equal(new.peaks_px, old.points_px)  # the gesture step's maxima stay
+
+
+@pytest.mark.parametrize("tail", [lambda r: np.exp(-(r**2) / 288.0), lambda r: 1.0 / (1.0 + r / 12.0)])
+def test_the_bump_fit_measures_the_profile_so_another_falloff_gains_too(tail):
+    # no falloff is assumed: a Gaussian (short tails) and a 1/r tail (longer than the profile's
+    # span), neither of which the fit's start is, also come nearer the fingers
+    rest, cur, truth = long_tailed_pinch(tail=tail)
+    options = dict(r_px=25.0, n_min=12, field_fallback=True, refine_px=20.0, plateau_fraction=0.8, maxima_at_rest=True)
+    old = detect_contacts(rest, cur, **options)
+    new = detect_contacts(rest, cur, **options, bump_span_px=SENSOR.gel_radius_px)
+    assert old.count == new.count == 2
+    old_error = np.linalg.norm(old.points_px[np.argsort(old.points_px[:, 0])] - truth, axis=1)
+    new_error = np.linalg.norm(new.points_px[np.argsort(new.points_px[:, 0])] - truth, axis=1)
+    assert new_error.max() < 2.5
+    assert new_error.max() < 0.5 * old_error.max()
+
+
+def test_the_bump_fit_leaves_one_finger_and_a_split_flat_top_alone():
+    rest = grid()
+    centre = np.asarray(SENSOR.gel_center_px, dtype=float) + [3.0, -3.0]
+    cur = rest + bump(rest, centre, (6.0, -3.0))
+    options = dict(refine_px=15.0, plateau_fraction=0.8)
+    one = detect_contacts(rest, cur, **options)
+    np.testing.assert_array_equal(one.points_px, detect_contacts(rest, cur, **options, bump_span_px=75.0).points_px)
+    rest, cur, _ = three_finger_push(seed=0)
+    options = dict(r_px=25.0, n_min=12, field_fallback=True, refine_px=20.0, plateau_fraction=0.8)
+    flat = detect_contacts(rest, cur, **options)
+    assert flat.count == 3
+    np.testing.assert_array_equal(flat.points_px, detect_contacts(rest, cur, **options, bump_span_px=75.0).points_px)
+
+
+def numpy_bump_fit(rest, v, centres, knot, n_knots, rounds):
+    """bump_fit's algorithm written with NumPy: the same rounds, normal equations with the same
+    small ridges and curvature penalty, step limit and final guard."""
+
+    def solve(a, b, ridge):
+        return np.linalg.solve(a + ridge * np.diag(np.diag(a) + 1e-12), b)
+
+    c = centres.copy()
+    g = np.exp(-4.5 * (np.arange(n_knots) / (n_knots - 1.0)) ** 2)
+    for _ in range(rounds):
+        diff = rest[:, None, :] - c[None]
+        r = np.linalg.norm(diff, axis=2)
+        t = np.minimum(r / knot, n_knots - 1.0)
+        j = np.minimum(np.floor(t).astype(int), n_knots - 2)
+        f = t - j
+        basis = np.zeros(r.shape + (n_knots,))
+        np.put_along_axis(basis, j[..., None], (1 - f)[..., None], axis=2)
+        np.put_along_axis(basis, (j + 1)[..., None], f[..., None], axis=2)
+        a = basis @ g
+        u = solve(a.T @ a, a.T @ v, 1e-9)
+        rows = np.einsum("ikl,kd->idl", basis, u).reshape(-1, n_knots)
+        normal = rows.T @ rows
+        second = np.diff(np.eye(n_knots), n=2, axis=0)  # the faint curvature penalty
+        normal = normal + 1e-6 * np.trace(normal) / n_knots * (np.eye(n_knots) + second.T @ second)
+        g = np.linalg.solve(normal, rows.T @ v.reshape(-1))
+        u, g = u * g[0], g / g[0]
+        slope = np.where((r < (n_knots - 1) * knot) & (r > 1e-9), (g[j + 1] - g[j]) / knot, 0.0)
+        jac = -(slope / np.maximum(r, 1e-9))[:, :, None, None] * diff[:, :, None, :] * u[None, :, :, None]
+        jac = jac.transpose(0, 2, 1, 3).reshape(2 * len(rest), 2 * len(c))  # rows (i, d), columns (k, e)
+        step = solve(jac.T @ jac, jac.T @ (v - (basis @ g) @ u).reshape(-1), 1e-6).reshape(-1, 2)
+        n = np.linalg.norm(step, axis=1, keepdims=True)
+        c = c + step * np.minimum(1.0, 0.5 * knot / np.maximum(n, 1e-300))
+    far = np.linalg.norm(c - centres, axis=1) > 2 * knot
+    c[far] = centres[far]
+    return c
+
+
+def test_bump_fit_matches_its_algorithm_written_with_numpy():
+    from neurotouch_hid.pipeline.contacts import BUMP_ITERATIONS, bump_fit
+
+    rest, cur, _ = long_tailed_pinch()
+    v = cur - rest
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    for start in (c + [[-28.0, 0.0], [28.0, 0.0]], c + [[-60.0, 10.0], [28.0, 0.0]]):  # the second: one too far
+        np.testing.assert_allclose(
+            bump_fit(rest, v, start, 10.0, 9), numpy_bump_fit(rest, v, start, 10.0, 9, BUMP_ITERATIONS), atol=1e-8
+        )
+    three = c + np.array([[-30.0, -20.0], [30.0, -20.0], [0.0, 30.0]])
+    v3 = sum(
+        np.exp(-np.sum((rest - f) ** 2, axis=1) / 300.0)[:, None] * d for f, d in zip(three, [[3, 4], [-4, 2], [1, -5]])
+    )
+    start = three + [[4.0, -3.0], [-2.0, 5.0], [3.0, 3.0]]
+    np.testing.assert_allclose(
+        bump_fit(rest, v3, start, 10.0, 9), numpy_bump_fit(rest, v3, start, 10.0, 9, BUMP_ITERATIONS), atol=1e-8
+    )
+    np.testing.assert_allclose(bump_fit(rest, v3, start, 10.0, 9), three, atol=0.5)
+
+
+def test_bump_fit_keeps_the_start_on_a_field_it_cannot_fit():
+    from neurotouch_hid.pipeline.contacts import bump_fit
+
+    rest = grid()
+    start = rest[[10, 50]].astype(float)
+    np.testing.assert_array_equal(bump_fit(rest, np.zeros_like(rest), start, 10.0, 9), start)  # no field: singular
+    # a profile longer than any marker's distance: its far knots follow the near ones, the fit still runs
+    rest_small = rest[np.linalg.norm(rest - SENSOR.gel_center_px, axis=1) < 40.0]
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    two = c + np.array([[-15.0, 0.0], [15.0, 0.0]])
+    v = sum(
+        np.exp(-np.sum((rest_small - f) ** 2, axis=1) / 200.0)[:, None] * d
+        for f, d in zip(two, [[3.0, 0.0], [-3.0, 0.0]])
+    )
+    np.testing.assert_allclose(bump_fit(rest_small, v, two + [[4.0, 2.0], [-3.0, 2.0]], 10.0, 30, 8), two, atol=0.5)
+
+
+def test_the_small_solver_matches_numpy():
+    from neurotouch_hid.pipeline.contacts import _solve
+
+    rng = np.random.default_rng(4)
+    for n in (1, 2, 6, 9):
+        a = rng.normal(size=(n, n)) + n * np.eye(n)
+        b = rng.normal(size=(n, 2))
+        x, ok = _solve(a, b)
+        assert ok
+        np.testing.assert_allclose(x, np.linalg.solve(a, b), rtol=1e-10, atol=1e-12)
+    a = np.array([[0.0, 1.0], [1.0, 0.0]])  # needs a row exchange
+    np.testing.assert_allclose(_solve(a, np.eye(2))[0], np.linalg.inv(a))
+    assert not _solve(np.ones((3, 3)), np.ones((3, 1)))[1]
+    assert not _solve(np.zeros((2, 2)), np.ones((2, 1)))[1]
+
+
+def test_field_at_and_at_rest_match_numpy():
+    from neurotouch_hid.pipeline.contacts import _at_rest, field_at
+
+    rng = np.random.default_rng(5)
+    rest = grid()
+    v = rng.normal(size=rest.shape)
+    points = rest[[3, 40]] + rng.uniform(-5, 5, (2, 2))
+    d2 = np.sum((rest[None] - points[:, None]) ** 2, axis=2)
+    near = np.argsort(d2, axis=1)[:, :4]
+    w = 1.0 / (np.take_along_axis(d2, near, axis=1) + 1e-6)
+    expected = points + np.sum(v[near] * w[..., None], axis=1) / w.sum(axis=1)[:, None]
+    np.testing.assert_allclose(field_at(rest, v, points), expected, rtol=1e-12)
+    np.testing.assert_allclose(field_at(rest, v, rest[[7]]), rest[[7]] + v[[7]], atol=1e-9)  # on a marker: its own
+    cur = rest + v
+    nearest = np.argmin(np.sum((cur[None] - points[:, None]) ** 2, axis=2), axis=1)
+    np.testing.assert_array_equal(_at_rest(cur, v, points), points - v[nearest])

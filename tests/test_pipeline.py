@@ -785,7 +785,7 @@ def _numba_signatures() -> dict[str, int]:
 
 def test_compile_kernels_leaves_nothing_to_compile_on_real_gestures(rest_image):
     """A run compiles while it starts, not mid-gesture (where it would drop events): after
-    compile_kernels, a push, a wide flat top and a lone mistracked marker compile nothing."""
+    compile_kernels, a push, a wide flat top, a lone mistracked marker and a pinch compile nothing."""
     pipeline = GesturePipeline(SENSOR)
     pipeline.compile_kernels()
     compiled = _numba_signatures()
@@ -799,6 +799,10 @@ def test_compile_kernels_leaves_nothing_to_compile_on_real_gestures(rest_image):
         moved[7] += (6.0, 0.0)
         pipeline.tracker.reset(moved)
         pipeline.process(events_at(15000 * int(peak_px)))
+    sides = [np.exp(-np.sum((rest - c - (dx, 0.0)) ** 2, axis=1) / (2 * 10.0**2))[:, None] for dx in (-25.0, 25.0)]
+    pipeline.tracker.reset(rest + (sides[0] - sides[1]) * [5.0, 1.0])  # a pinch: the bump fit of its centres
+    pipeline.process(events_at(90_000))
+    assert pipeline._last_fit[3].count == 2
     pipeline.process(Frame(100_000, rest_image))  # the resting detector's kernels
     assert _numba_signatures() == compiled
 

@@ -24,6 +24,7 @@ PAPER = {
     "plateau_fraction": None,
     "maxima_at_rest": False,
     "spike_fraction": None,
+    "bump_fit": False,
     "gesture_classifier": False,
     "origin_radius_px": None,
     "motion_override_px": None,
