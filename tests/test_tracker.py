@@ -341,3 +341,30 @@ def test_markers_squeezed_by_a_held_large_fast_twist_stay_on_their_own_marker(he
     # Every blob stays within 2 px of its own marker (half the squeezed spacing) all along.
     assert errors.max() < 2.0
     assert np.median(errors[ends > attack_end]) < 0.6
+
+
+def test_frame_matches_follow_the_gated_mutual_nearest_rule_written_with_numpy():
+    """``_frame_matches`` (numba) against the rule written out with NumPy: each valid blob takes
+    its nearest detection within the gate when it is that detection's nearest valid blob and no
+    second valid blob lies within twice the gate; on random blobs and detections, some squeezed
+    together, some invalid."""
+    from neurotouch_hid.pipeline.tracker import _frame_matches
+
+    rng = np.random.default_rng(11)
+    for _ in range(50):
+        n, m = int(rng.integers(1, 40)), int(rng.integers(1, 40))
+        state = np.zeros((n, 6))
+        state[:, :2] = rng.uniform(0, 30, (n, 2))
+        state[: n // 4, :2] = state[n // 4 : 2 * (n // 4), :2] + rng.normal(0, 0.8, (n // 4, 2))  # squeezed pairs
+        valid = rng.random(n) > 0.15
+        det = np.concatenate([state[:, :2] + rng.normal(0, 0.7, (n, 2)), rng.uniform(0, 30, (m, 2))])
+        gate2 = 1.5**2
+        d2 = (state[:, None, 0] - det[None, :, 0]) ** 2 + (state[:, None, 1] - det[None, :, 1]) ** 2
+        d2[~valid] = np.inf
+        nearest = d2.argmin(axis=1)
+        rows = np.arange(n)
+        ok = valid & (d2[rows, nearest] <= gate2) & (d2.argmin(axis=0)[nearest] == rows)
+        if n > 1:
+            ok &= np.partition(d2, 1, axis=0)[1][nearest] > 4.0 * gate2
+        expected = np.where(ok, nearest, -1)
+        np.testing.assert_array_equal(_frame_matches(state, valid, det, gate2), expected)

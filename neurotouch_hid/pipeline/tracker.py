@@ -427,6 +427,46 @@ def _check_lost(cell, label, offs, n_offs, neigh, valid, state, prm):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def _frame_matches(state: np.ndarray, valid: np.ndarray, det: np.ndarray, gate2: float) -> np.ndarray:
+    """(N,) int64: the APS-frame detection (row of det, (M, 2) float64 px) each blob is fused
+    with in :meth:`BlobTracker.correct`, or -1. Blob i (a valid row of state, position in columns
+    0-1, px) matches its nearest detection j when their squared distance is <= gate2 (px^2), i is
+    j's nearest valid blob too, and j has no second valid blob within twice the gate (two
+    markers squeezed together under a finger seen as one). Ties go to the lower index."""
+    n = state.shape[0]
+    m = det.shape[0]
+    first = np.full(m, -1, np.int64)  # each detection's nearest valid blob
+    best = np.full(m, np.inf)
+    second = np.full(m, np.inf)  # and the squared distance of its second nearest
+    nearest = np.full(n, -1, np.int64)  # each valid blob's nearest detection
+    near_d2 = np.full(n, np.inf)
+    for i in range(n):
+        if not valid[i]:
+            continue
+        x = state[i, 0]
+        y = state[i, 1]
+        for j in range(m):
+            dx = x - det[j, 0]
+            dy = y - det[j, 1]
+            d2 = dx * dx + dy * dy
+            if d2 < near_d2[i]:
+                near_d2[i] = d2
+                nearest[i] = j
+            if d2 < best[j]:
+                second[j] = best[j]
+                best[j] = d2
+                first[j] = i
+            elif d2 < second[j]:
+                second[j] = d2
+    match = np.full(n, -1, np.int64)
+    for i in range(n):
+        j = nearest[i]
+        if j >= 0 and near_d2[i] <= gate2 and first[j] == i and second[j] > 4.0 * gate2:
+            match[i] = j
+    return match
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _correct(det, match, t, state, cov, t_upd, valid, cell, label, offs, n_offs, neigh, prm, sigma2_frame, motion_ms):
     """Fuse APS-frame detections into the blobs: predict each matched blob to the frame's time t
     (us; none when t < 0), then a Kalman update of its position (H = [1, 0, 0]) with noise
@@ -629,19 +669,7 @@ class BlobTracker:
         n = len(self._state)
         if n == 0 or len(det) == 0:
             return 0
-        pos = self._state[:, :2]
-        d2 = (pos[:, None, 0] - det[None, :, 0]) ** 2 + (pos[:, None, 1] - det[None, :, 1]) ** 2
-        d2[~self._valid] = np.inf
-        rows = np.arange(n)
-        nearest = d2.argmin(axis=1)
-        gate2 = self.config.frame_gate_px**2
-        ok = self._valid & (d2[rows, nearest] <= gate2) & (d2.argmin(axis=0)[nearest] == rows)
-        if n > 1:
-            # A detection with a second blob within twice the gate may be two markers seen as one
-            # (markers squeezed together under a finger): skip it.
-            second = np.partition(d2, 1, axis=0)[1]
-            ok &= second[nearest] > 4.0 * gate2
-        match = np.where(ok, nearest, -1).astype(np.int64)
+        match = _frame_matches(self._state, self._valid, det, self.config.frame_gate_px**2)
         c = self.config
         t = -1 if t_us is None else int(t_us)
         _correct(
@@ -661,7 +689,7 @@ class BlobTracker:
             c.frame_sigma_px**2,
             c.frame_motion_us * 1e-3,
         )
-        return int(ok.sum())
+        return int(np.count_nonzero(match >= 0))
 
     def update(self, events: np.ndarray) -> None:
         """Track through a batch of events, event by event (numba).
