@@ -65,7 +65,7 @@ pasternak     a gel on a shear-coupled foundation: the drag falls off as the sur
               / 3 s / 4 s: 0.26 / 0.11 / 0.044 against the Gaussian's 0.14 / 0.011 / 0.0003 and the
               power law's 0.44 / 0.28 / 0.19; far out ~ exp(-r / lambda) / sqrt(r)); its steepest
               slope, 0.51 / s, is below the Gaussian's 0.61 / s, so the gel folds no more than the
-              default's. A development family of round 4 (seen before any round-4 decision was
+              default's. A development family of round 4 (seen before two of its three decisions were
               taken, so not the untouched one: docs/accuracy.md, "Round 4").
 exposure      dim light: the APS frames are exposed for 15 ms of their 40 ms period instead of 4 ms
               (the DAVIS-346's frame exposure is a camera setting, raised by DV's auto-exposure
