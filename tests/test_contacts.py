@@ -336,17 +336,24 @@ def long_tailed_pinch(spread: float = 20.0, amount: float = 6.0, tail=lambda r: 
     return rest, rest + v, fingers + moves + [[-tail(2 * spread) * amount, 0.0], [tail(2 * spread) * amount, 0.0]]
 
 
-def test_a_long_tailed_pinch_puts_the_maxima_outside_the_fingers_and_the_bump_fit_on_them():
-    # the other finger's tail opposes each finger's field on the inner side: the largest
-    # displacement lies a pitch or more outside each finger (the paper's contact point), where the
-    # fitted bumps' centres, with their profile measured on this field, are the fingers'
-    rest, cur, truth = long_tailed_pinch()
+def _pinch_without_and_with_the_bump_fit(tail=None):
+    """A two-finger pinch (:func:`long_tailed_pinch`) through the contact step without and with the
+    bump fit: both Contacts, and each one's distance (px) from the fingers' true points."""
+    rest, cur, truth = long_tailed_pinch() if tail is None else long_tailed_pinch(tail=tail)
     options = dict(r_px=25.0, n_min=12, field_fallback=True, refine_px=20.0, plateau_fraction=0.8, maxima_at_rest=True)
     old = detect_contacts(rest, cur, **options)
     new = detect_contacts(rest, cur, **options, bump_span_px=SENSOR.gel_radius_px)
     assert old.count == new.count == 2
     old_error = np.linalg.norm(old.points_px[np.argsort(old.points_px[:, 0])] - truth, axis=1)
     new_error = np.linalg.norm(new.points_px[np.argsort(new.points_px[:, 0])] - truth, axis=1)
+    return old, new, old_error, new_error
+
+
+def test_a_long_tailed_pinch_puts_the_maxima_outside_the_fingers_and_the_bump_fit_on_them():
+    # the other finger's tail opposes each finger's field on the inner side: the largest
+    # displacement lies a pitch or more outside each finger (the paper's contact point), where the
+    # fitted bumps' centres, with their profile measured on this field, are the fingers'
+    old, new, old_error, new_error = _pinch_without_and_with_the_bump_fit()
     assert old_error.min() > 3.5  # 1.4-1.8 mm outward
     assert new_error.max() < 2.0  # 0.8 mm, after BUMP_ITERATIONS (3) rounds
     np.testing.assert_array_equal(new.peaks_px, old.points_px)  # the gesture step's maxima stay
@@ -356,13 +363,7 @@ def test_a_long_tailed_pinch_puts_the_maxima_outside_the_fingers_and_the_bump_fi
 def test_the_bump_fit_measures_the_profile_so_another_falloff_gains_too(tail):
     # no falloff is assumed: a Gaussian (short tails) and a 1/r tail (longer than the profile's
     # span), neither of which the fit's start is, also come nearer the fingers
-    rest, cur, truth = long_tailed_pinch(tail=tail)
-    options = dict(r_px=25.0, n_min=12, field_fallback=True, refine_px=20.0, plateau_fraction=0.8, maxima_at_rest=True)
-    old = detect_contacts(rest, cur, **options)
-    new = detect_contacts(rest, cur, **options, bump_span_px=SENSOR.gel_radius_px)
-    assert old.count == new.count == 2
-    old_error = np.linalg.norm(old.points_px[np.argsort(old.points_px[:, 0])] - truth, axis=1)
-    new_error = np.linalg.norm(new.points_px[np.argsort(new.points_px[:, 0])] - truth, axis=1)
+    _, _, old_error, new_error = _pinch_without_and_with_the_bump_fit(tail)
     assert new_error.max() < 2.5
     assert new_error.max() < 0.5 * old_error.max()
 

@@ -166,15 +166,21 @@ def test_indent_family_magnifies_markers_under_the_finger_only():
     assert np.allclose(default.marker_state(t, [g])[2][0], default.gel.sigma_px)
 
 
-def test_falloff_families_differ_in_their_tails_and_stick_disc():
+def _one_finger_push_moves(names: tuple[str, ...]) -> tuple[dict, np.ndarray]:
+    """How far (mm) each marker moved under a 4 mm one-finger push at the gel's centre, per family
+    in ``names``, and each marker's distance (mm) from the centre at rest."""
     g = _gesture(GestureType.PUSH, [[0.0, 0.0]], amplitude=4.0)
     t = np.array([g.t_start_us + g.attack_us + 100_000], dtype=np.int64)
     moved = {}
-    for name in ("default", "powerlaw", "stickslip"):
+    for name in names:
         sim = GelSimulator(SENSOR, USERS[0], seed=3, script=[g], physics=PHYSICS[name])
         pos_mm = sim.marker_state(t, [g])[3][0]
         moved[name] = np.linalg.norm(pos_mm - sim.gel.rest_mm, axis=-1)
-    r = np.linalg.norm(GelSimulator(SENSOR, script=[]).gel.rest_mm, axis=-1)
+    return moved, np.linalg.norm(GelSimulator(SENSOR, script=[]).gel.rest_mm, axis=-1)
+
+
+def test_falloff_families_differ_in_their_tails_and_stick_disc():
+    moved, r = _one_finger_push_moves(("default", "powerlaw", "stickslip"))
     far = (r > 16.0) & (r < 20.0)
     assert moved["powerlaw"][far].mean() > 2.0 * moved["default"][far].mean()
     assert moved["stickslip"][far].mean() > 2.0 * moved["default"][far].mean()
@@ -266,14 +272,7 @@ def test_pasternak_falloff_is_one_at_the_finger_and_lies_between_the_gaussian_an
 
 
 def test_pasternak_gel_drags_between_the_gaussian_and_the_power_law():
-    g = _gesture(GestureType.PUSH, [[0.0, 0.0]], amplitude=4.0)
-    t = np.array([g.t_start_us + g.attack_us + 100_000], dtype=np.int64)
-    moved = {}
-    for name in ("default", "powerlaw", "pasternak"):
-        sim = GelSimulator(SENSOR, USERS[0], seed=3, script=[g], physics=PHYSICS[name])
-        pos_mm = sim.marker_state(t, [g])[3][0]
-        moved[name] = np.linalg.norm(pos_mm - sim.gel.rest_mm, axis=-1)
-    r = np.linalg.norm(GelSimulator(SENSOR, script=[]).gel.rest_mm, axis=-1)
+    moved, r = _one_finger_push_moves(("default", "powerlaw", "pasternak"))
     assert moved["pasternak"][r < 0.5] == pytest.approx(4.0, abs=0.05)  # the finger's own marker
     for band in ((12.0, 16.0), (16.0, 20.0)):
         far = (r > band[0]) & (r < band[1])
