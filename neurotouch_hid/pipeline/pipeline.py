@@ -295,15 +295,15 @@ class PipelineConfig(BaseModel):
             rest positions instead; fusing their centroids afterwards put back the few hundredths
             of a pixel that the re-anchoring removed and made release tails read as gestures). A
             held marker makes no events, so its blob stays where its last events left it; the
-            frame shows where it is. Its first version (commit a3ce67e, before the near-rest
-            rule) lowered gesture accuracy for another reason: on one held twist the corrected
-            blobs removed a spurious third contact, and the two contacts' similarity, rotated
-            about a point off their centre, carried a 1.9 mm translation that that version's
-            analytic rule read as push; today's gesture step reads that twist as twist either way
-            (docs/accuracy.md "Round 4"). Decided on the thirteen development families of round 4 (docs/accuracy.md
-            "Round 4"): count +0.6 to +6.0 points on every family, contact distance -0.13 to
-            -0.56 mm, intensity MAE about halved, gesture +0.3 to +0.9 points on 12 families
-            (``fingers`` -0.2).
+            frame shows where it is. Its first version (commit a3ce67e, before the near-rest rule)
+            lowered gesture accuracy for another reason: on one held twist the corrected blobs
+            removed a spurious third contact, and the two contacts' similarity, rotated about a
+            point off their centre, carried a 1.9 mm translation that that version's analytic rule
+            read as push; today's gesture step reads that twist as twist either way
+            (docs/accuracy.md "Round 4"). Decided on the thirteen development families of round 4
+            (docs/accuracy.md "Round 4"): count +0.6 to +6.0 points on every family, contact
+            distance -0.13 to -0.56 mm, intensity MAE about halved, gesture +0.3 to +0.9 points on
+            12 families (``fingers`` -0.2).
         override_smooth: the motion override counts a marker as moved by the median of its and
             its nearest neighbours' displacements (module docstring, "Smooth override"; not in
             the paper); False: by its own displacement.

@@ -654,9 +654,10 @@ class BlobTracker:
         nearest detection is within ``config.frame_gate_px``, is nearest to no other blob and has
         no other blob within twice that distance (two squeezed markers seen as one), gets a Kalman
         position update from it, with noise ``config.frame_sigma_px``^2 plus the blur of its
-        motion over ``config.frame_motion_us``. Call it with the frame's
-        :func:`~neurotouch_hid.pipeline.markers.detect_markers` centroids when the frame arrives
-        (the stream yields it before the events at or after its timestamp).
+        motion over ``config.frame_motion_us``. Call it with the frame's marker centroids when
+        the frame arrives (the stream yields it before the events at or after its timestamp):
+        :func:`~neurotouch_hid.pipeline.markers.detect_markers`'s, or the resting detector's
+        (``RestingResult.centroids_px``, what the pipeline's ``frame_correction`` passes).
 
         Args:
             detections_px: (M, 2) float marker centroids on the frame, image frame, px.

@@ -35,8 +35,8 @@ Gesture Detection Dataset"):
   (:mod:`neurotouch_hid.sources.physics`, ``simulate --physics NAME|mix``) change one aspect of
   it (displacement falloff, contact mechanics, indentation, camera model, global motion, finger
   timing and strength, very strong presses, marker spread, sensor noise, light flicker, a
-  viscoelastic gel that creeps and relaxes slowly; ``pasternak`` changes three at once: a
-  shear-coupled foundation's falloff, a small slow creep and unequal fingers).
+  viscoelastic gel that creeps and relaxes slowly, a gel on a shear-coupled foundation, a longer
+  APS exposure in dim light).
 
 Labels (docs/dataset.md) per APS frame: a gesture is labelled from its attack's start (the first
 instant its fingers move the gel) up to, not including, the end of its release (the fingers have
@@ -248,12 +248,11 @@ class SimGesture:
         residual: deformation left when the release ends (fraction); creep_us: its time constant.
         lags_us: per finger, how long after t_start_us it starts moving (us, each < attack_us;
             empty: all at once); strengths: per finger, its share of the motion (0..1; empty:
-            all 1) -- the ``fingers`` and ``pasternak`` families.
+            all 1) -- the ``fingers`` family.
         squeeze: radial contraction of the markers under a pressing finger (mm; 0: the default
             spread) -- the ``strong`` family.
         sls: (delayed share q, retardation time tau us) of the gel's standard linear solid, or
-            empty for an elastic gel -- the ``viscoelastic`` and ``pasternak`` families
-            (:func:`physics.sls_deformation`).
+            empty for an elastic gel -- the ``viscoelastic`` family (:func:`physics.sls_deformation`).
     """
 
     gesture: GestureType
