@@ -347,17 +347,21 @@ def test_frame_matches_follow_the_gated_mutual_nearest_rule_written_with_numpy()
     """``_frame_matches`` (numba) against the rule written out with NumPy: each valid blob takes
     its nearest detection within the gate when it is that detection's nearest valid blob and no
     second valid blob lies within twice the gate; on random blobs and detections, some squeezed
-    together, some invalid."""
+    together, some invalid; and on whole-pixel positions, where equal distances are common (the
+    kernel measures only the pairs near in x, so its ties must still go to the lower index)."""
     from neurotouch_hid.pipeline.tracker import _frame_matches
 
     rng = np.random.default_rng(11)
-    for _ in range(50):
+    for trial in range(100):
         n, m = int(rng.integers(1, 40)), int(rng.integers(1, 40))
         state = np.zeros((n, 6))
         state[:, :2] = rng.uniform(0, 30, (n, 2))
         state[: n // 4, :2] = state[n // 4 : 2 * (n // 4), :2] + rng.normal(0, 0.8, (n // 4, 2))  # squeezed pairs
         valid = rng.random(n) > 0.15
         det = np.concatenate([state[:, :2] + rng.normal(0, 0.7, (n, 2)), rng.uniform(0, 30, (m, 2))])
+        if trial % 2:  # ties
+            state[:, :2] = np.round(state[:, :2] / 2.0)
+            det = np.round(det / 2.0)
         gate2 = 1.5**2
         d2 = (state[:, None, 0] - det[None, :, 0]) ** 2 + (state[:, None, 1] - det[None, :, 1]) ** 2
         d2[~valid] = np.inf
