@@ -170,3 +170,23 @@ def test_the_centroid_kernels_give_the_weighted_means_of_each_marker():
     d2 = ((got[:, None, :] - q[None, :, :]) ** 2).sum(axis=2)
     brute = (d2.min(axis=1).sum() + d2.min(axis=0).sum()) / detector.n_markers
     assert detector.update(image).distance == pytest.approx(brute, rel=1e-12)
+
+
+def test_the_chamfer_sweep_finds_every_nearest_neighbour_of_the_brute_force():
+    """``_nearest_sq`` (a sweep in x that stops early) gives, for every point, exactly the minimum
+    over all pairs, and ``_chamfer_sum`` their two sums (to rounding: the order of a sum is
+    numba's, not NumPy's pairwise one): on random sets of different sizes, on
+    whole-pixel points with many equal x and distances, and with an empty set (inf)."""
+    from neurotouch_hid.pipeline.resting import _chamfer_sum, _nearest_sq
+
+    rng = np.random.default_rng(5)
+    for trial in range(60):
+        p = rng.uniform(0, 200, (int(rng.integers(1, 250)), 2))
+        q = rng.uniform(0, 200, (int(rng.integers(1, 250)), 2))
+        if trial % 2:
+            p, q = np.round(p / 8.0), np.round(q / 8.0)
+        d2 = ((p[:, None, :] - q[None, :, :]) ** 2).sum(axis=2)
+        np.testing.assert_array_equal(_nearest_sq(p, q), d2.min(axis=1))
+        np.testing.assert_array_equal(_nearest_sq(q, p), d2.min(axis=0))
+        assert _chamfer_sum(p, q) == pytest.approx(d2.min(axis=1).sum() + d2.min(axis=0).sum(), rel=1e-12)
+    assert np.all(np.isinf(_nearest_sq(np.ones((3, 2)), np.zeros((0, 2)))))
