@@ -696,6 +696,7 @@ class GesturePipeline:
         compile_gel_motion_kernels()  # the grid's rim barely moves: its fits stop before them
         compile_camera_model_kernels()  # the sensor gets its camera model at the rest frame
         _largest_move_sq(moved, all_valid, rest)  # every window's checks before a fit
+        _count_moved(moved, all_valid, rest, 1.0)  # and the motion override's, at rest
         _unchanged(moved, flat, all_valid, all_valid)
         timings, self.timings = self.timings, None  # not a window: no stage time recorded
         try:
@@ -926,7 +927,7 @@ class GesturePipeline:
         threshold = self.config.motion_override_px
         if threshold is None:
             return False
-        moved = int(np.count_nonzero(self._moved_sq(current, valid) > threshold * threshold))
+        moved = _count_moved(current, valid, self.rest_px, threshold * threshold)
         if moved < self.config.override_min_markers or not self.config.override_smooth:
             return moved >= self.config.override_min_markers
         # the smooth override only when the markers' own displacements would overrule (at rest,
@@ -944,11 +945,6 @@ class GesturePipeline:
         largest = _largest_move_sq(current, valid, self.rest_px)  # < 0: no valid marker; NaN: not still
         limit = self.config.min_intensity_px
         return largest < 0.0 or largest < limit * limit
-
-    def _moved_sq(self, current: np.ndarray, valid: np.ndarray) -> np.ndarray:
-        """(V,) float64 the valid markers' squared displacements from rest (px^2)."""
-        d = current[valid] - self.rest_px[valid]
-        return d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]
 
     def _vote(self, gesture: GestureType, intensity_mm: float, n_contacts: int = 0) -> GestureType:
         """The window's type: its own, or the episode's decision with ``episode_vote``."""
@@ -1099,6 +1095,21 @@ def _largest_move_sq(current: np.ndarray, valid: np.ndarray, rest: np.ndarray) -
                 return d2
             largest = max(largest, d2)
     return largest
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _count_moved(current: np.ndarray, valid: np.ndarray, rest: np.ndarray, threshold_sq: float) -> int:
+    """How many ``valid`` (N,) bool markers are more than sqrt(``threshold_sq``) (px^2) from rest,
+    ``current`` and ``rest`` (N, 2) float64 px (a NaN position is not). One pass, no
+    temporaries: every resting window runs it (the motion override)."""
+    moved = 0
+    for i in range(len(current)):
+        if valid[i]:
+            dx = current[i, 0] - rest[i, 0]
+            dy = current[i, 1] - rest[i, 1]
+            if dx * dx + dy * dy > threshold_sq:
+                moved += 1
+    return moved
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
