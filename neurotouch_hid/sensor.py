@@ -55,6 +55,7 @@ class SensorFile(TypedDict, total=False):
     mirror: StrictBool
     rotation_deg: float
     radial_k: tuple[float, float]
+    creep: tuple[Annotated[float, Field(ge=0, lt=1)], Annotated[float, Field(gt=0)]]
 
 
 _SENSOR_FILE = TypeAdapter(SensorFile)
@@ -84,6 +85,10 @@ class SensorGeometry:
         rotation_deg: counter-clockwise rotation from mirrored image to user frame (degrees).
         radial_k: (k1, k2), the camera model's radial terms (module docstring), or None: the
             linear mapping (one px_per_mm).
+        creep: (q, tau_s), the gel's creep as a standard linear solid: the delayed share q in
+            [0, 1) of its deformation and its retardation time (s), measured by ``calibrate
+            --press`` (:mod:`neurotouch_hid.pipeline.creep`), or None: not measured (the
+            pipeline then takes the gel as elastic).
     """
 
     width: int = DAVIS346_WIDTH
@@ -94,6 +99,7 @@ class SensorGeometry:
     mirror: bool = True
     rotation_deg: float = 0.0
     radial_k: tuple[float, float] | None = None
+    creep: tuple[float, float] | None = None
     extra: dict = field(default_factory=dict, compare=False, repr=False)
 
     # --- loading and saving -------------------------------------------------------------
@@ -143,6 +149,10 @@ class SensorGeometry:
             del data["radial_k"]  # the linear mapping: the file stays as docs/dataset.md's
         else:
             data["radial_k"] = [float(k) for k in self.radial_k]
+        if self.creep is None:
+            del data["creep"]
+        else:
+            data["creep"] = [float(c) for c in self.creep]
         data.update(extra)
         return data
 

@@ -1,0 +1,141 @@
+"""The fingers' load behind a creeping gel's deformation (not in the paper).
+
+A soft silicone gel creeps: under a held load its deformation keeps growing, and once the
+fingers leave it relaxes slowly back to rest. A standard linear solid (Zener: a spring in
+parallel with a Maxwell element; Findley, Lai & Onaran, *Creep and Relaxation of Nonlinear
+Viscoelastic Materials*, 1976, ch. 5) describes it with two numbers, the delayed share q of the
+deformation and its retardation time tau: under a load f (in px of the elastic deformation it
+would cause) the deformation is::
+
+    d = (1 - q) f + q y,        tau dy/dt = f - y
+
+Markers show d, and the gesture step reads a window as a gesture while d is above
+``min_intensity_px``: after a release, that is as long as the creep takes to relax (on the
+simulated ``viscoelastic`` gel, q = 0.3 and tau = 0.3 s, ~0.4 s after the fingers have left;
+docs/accuracy.md, "Round 5"). The load follows from d alone when q and tau are known: eliminating
+f gives ``(1 - q) tau dy/dt = d - y``, so y is d low-passed with the time constant (1 - q) tau,
+and ``f = (d - q y) / (1 - q)``. The pipeline (``PipelineConfig.creep_load``, with the gel's
+``creep`` in sensor.yaml) answers ``none`` in a window whose load is below ``min_intensity_px``:
+the fingers have left, whatever the gel still shows. Without a creep model (an elastic gel,
+q = 0) the load is the deformation and nothing changes.
+
+q and tau are the gel's: ``calibrate --press`` measures them on a recording of one press
+(:func:`fit_creep`): the tracked deformation's amplitude, and the (q, tau) whose load is flattest
+while the finger holds still and nearest zero after it left.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: The (q, tau) grid :func:`fit_creep` searches: q from 0 (elastic) to 0.6, tau 0.05-3 s.
+SHARES = np.arange(0.0, 0.61, 0.02)
+TIMES_S = np.geomspace(0.05, 3.0, 40)
+#: A press is the frames at or above this fraction of the recording's peak amplitude.
+PRESS_FRACTION = 0.5
+#: The hold: from this long after a press starts (the attack's end, us) ...
+HOLD_AFTER_US = 120_000
+#: ... to this long before it ends (the release's start, us).
+HOLD_BEFORE_US = 80_000
+#: After a release: from this long after the press ends (the release's end, us) for this long (us).
+RELEASED_AFTER_US = 120_000
+RELEASED_FOR_US = 1_500_000
+
+
+class CreepFilter:
+    """The load of :mod:`creep`'s module docstring, window after window.
+
+    Args:
+        share: q in [0, 1), the delayed share of the gel's deformation.
+        time_s: tau > 0, its retardation time (s).
+    Raises:
+        ValueError: q or tau out of range.
+    """
+
+    def __init__(self, share: float, time_s: float) -> None:
+        if not (0.0 <= share < 1.0) or not time_s > 0.0:
+            raise ValueError(f"a creep model needs 0 <= q < 1 and tau > 0 s, got q={share}, tau={time_s}")
+        self.share = float(share)
+        self.time_us = float(time_s) * 1e6 * (1.0 - self.share)  # y's time constant (1 - q) tau
+        self._y = 0.0
+        self._t_us: int | None = None
+
+    def reset(self) -> None:
+        """Forget the history (a new stream): the gel at rest."""
+        self._y = 0.0
+        self._t_us = None
+
+    def update(self, deformation: float, t_us: int) -> float:
+        """The load (same unit as ``deformation``, e.g. px) at ``t_us`` (us, non-decreasing),
+        given the deformation then; the first call takes the gel to have been at rest before."""
+        dt = 0.0 if self._t_us is None else max(t_us - self._t_us, 0)
+        self._t_us = t_us
+        self._y += (deformation - self._y) * -math.expm1(-dt / self.time_us)
+        return (deformation - self.share * self._y) / (1.0 - self.share)
+
+
+def load_estimate(deformation: np.ndarray, t_us: np.ndarray, share, time_s) -> np.ndarray:
+    """:class:`CreepFilter` over a whole series, for a grid of models at once.
+
+    Args:
+        deformation: (T,) float, the deformation (e.g. px) at each time.
+        t_us: (T,) int, non-decreasing times (us).
+        share, time_s: q and tau (s): scalars, or arrays of one shape S.
+    Returns:
+        (T, *S) float64 loads.
+    """
+    q = np.asarray(share, dtype=np.float64)
+    time_us = np.asarray(time_s, dtype=np.float64) * 1e6 * (1.0 - q)
+    y = np.zeros(np.broadcast(q, time_us).shape)
+    out = np.empty((len(deformation), *y.shape))
+    dt = np.diff(np.asarray(t_us, dtype=np.float64), prepend=float(t_us[0]) if len(t_us) else 0.0)
+    for k, d in enumerate(np.asarray(deformation, dtype=np.float64)):
+        y = y + (d - y) * -np.expm1(-dt[k] / time_us)
+        out[k] = (d - q * y) / (1.0 - q)
+    return out
+
+
+def fit_creep(t_us: np.ndarray, amplitude: np.ndarray) -> tuple[float, float]:
+    """The gel's creep (q, tau s) from a recording of presses (``calibrate --press``).
+
+    Args:
+        t_us: (T,) int64 window times (us), non-decreasing.
+        amplitude: (T,) float, the deformation's amplitude then (px; e.g. the mean of the
+            largest tracked marker displacements).
+    Returns:
+        (q, tau): of :data:`SHARES` x :data:`TIMES_S`, the model whose load (:func:`load_estimate`)
+        varies least about its median over the holds and stays nearest 0 after the releases
+        (least squares, px^2). A press is a run of windows at >= :data:`PRESS_FRACTION` of the
+        peak; its hold starts :data:`HOLD_AFTER_US` after it and ends :data:`HOLD_BEFORE_US`
+        before its end, its released part lasts :data:`RELEASED_FOR_US` from
+        :data:`RELEASED_AFTER_US` after it.
+    Raises:
+        ValueError: no press with a hold of at least 3 windows and a released part of at least
+            3 windows (nothing pressed, a press too short, or the recording stops too soon).
+    """
+    t = np.asarray(t_us, dtype=np.int64)
+    a = np.asarray(amplitude, dtype=np.float64)
+    if len(a) == 0 or not np.all(np.isfinite(a)) or a.max() <= 0.0:
+        raise ValueError("the recording shows no press (no marker moved)")
+    pressed = a >= PRESS_FRACTION * a.max()
+    hold = np.zeros(len(a), dtype=bool)
+    released = np.zeros(len(a), dtype=bool)
+    bounds = np.concatenate(([0], np.flatnonzero(np.diff(pressed.astype(np.int8))) + 1, [len(a)]))
+    for start, stop in zip(bounds[:-1], bounds[1:]):
+        if pressed[start]:
+            hold |= (t >= t[start] + HOLD_AFTER_US) & (t <= t[stop - 1] - HOLD_BEFORE_US)
+            end = t[stop - 1]
+            released |= (t > end + RELEASED_AFTER_US) & (t <= end + RELEASED_AFTER_US + RELEASED_FOR_US) & ~pressed
+    if hold.sum() < 3 or released.sum() < 3:
+        raise ValueError(
+            "no press held still and released: press one finger into the gel, hold it still ~2 s, "
+            "lift it quickly and leave the gel alone ~2 s"
+        )
+    q, tau = np.meshgrid(SHARES, TIMES_S, indexing="ij")
+    load = load_estimate(a, t, q, tau)
+    level = np.median(load[hold], axis=0)
+    cost = ((load[hold] - level) ** 2).sum(axis=0) + (load[released] ** 2).sum(axis=0)
+    i, j = np.unravel_index(np.argmin(cost), cost.shape)
+    return float(SHARES[i]), float(TIMES_S[j])
