@@ -36,6 +36,8 @@ PAPER = {
     "camera_model": False,
     "episode_vote": False,
     "vote_restart": False,
+    "frame_correction": False,
+    "creep_load": False,
 }
 
 
