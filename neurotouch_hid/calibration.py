@@ -35,6 +35,11 @@ step here is scale-free:
    layout (a run that starts with the gel pressed; ``PipelineConfig.rest_match_pitch``).
 6. **Marker count** -- refused below half the expected count (paper: 177), noted when off by
    more than :data:`COUNT_TOLERANCE`.
+7. **Creep** (``calibrate --press``, optional) -- a soft gel creeps under a held finger and
+   relaxes slowly after it: :func:`measure_creep` tracks a recorded press with the pipeline and
+   fits a standard linear solid to its amplitude (:mod:`neurotouch_hid.pipeline.creep`);
+   sensor.yaml gets ``creep`` (q, tau), with which the pipeline tells a release's relaxation
+   from a gesture (``PipelineConfig.creep_load``).
 
 Mirror and rotation cannot be seen on a rest frame: :func:`calibrate` leaves SensorGeometry's
 defaults (mirror, as the camera looks from inside; no rotation) for the caller to set.
@@ -67,6 +72,8 @@ from neurotouch_hid.sources import Frame
 
 #: Markers on the paper's gel (section "System Overview"): the default expected count.
 EXPECTED_MARKERS = 177
+#: A press's amplitude is the mean displacement of this many markers, the most displaced.
+PRESS_MARKERS = 10
 #: Rest frames averaged by default (0.4 s at the DAVIS-346's 25 Hz), and the fewest accepted.
 REST_FRAMES = 10
 MIN_REST_FRAMES = 3
@@ -394,3 +401,50 @@ def sensor_changes(old: SensorGeometry, new: SensorGeometry) -> list[str]:
     return [
         f"{key}: {text(before.get(key))} -> {text(value)}" for key, value in after.items() if before.get(key) != value
     ]
+
+
+def press_amplitude(recording: str | Path, sensor: SensorGeometry) -> tuple[np.ndarray, np.ndarray]:
+    """The deformation's amplitude over a recording: at each window's end (the pipeline's
+    defaults, 10 ms), the mean of the :data:`PRESS_MARKERS` largest tracked marker displacements
+    from rest (px, image frame; lost markers left out).
+
+    Returns:
+        (t_us (T,) int64 us, amplitude (T,) float64 px).
+    Raises:
+        RecordingError: the file cannot be read (see ``pipeline.track.pipeline_over``).
+        SensorError: no gel on its first APS frame.
+    """
+    from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
+    from neurotouch_hid.pipeline.track import pipeline_over
+
+    times: list[int] = []
+    amplitude: list[float] = []
+
+    def keep(estimate) -> None:
+        moved = np.hypot(*(pipeline.marker_positions() - pipeline.rest_px).T)
+        moved = moved[np.isfinite(moved)]
+        times.append(estimate.t_us)
+        amplitude.append(float(np.sort(moved)[-PRESS_MARKERS:].mean()) if len(moved) else 0.0)
+
+    pipeline = GesturePipeline(sensor, PipelineConfig(creep_load=False), on_window=keep)
+    for _ in pipeline_over(recording, pipeline):
+        pass
+    return np.array(times, dtype=np.int64), np.array(amplitude)
+
+
+def measure_creep(recording: str | Path, sensor: SensorGeometry) -> tuple[float, float]:
+    """The gel's creep (q, tau s), sensor.yaml's ``creep``, from a recording of a press: one
+    finger pressed into the gel, held still ~2 s, lifted quickly, then the gel left alone ~2 s
+    (:func:`neurotouch_hid.pipeline.creep.fit_creep` on :func:`press_amplitude`).
+
+    Raises:
+        SensorError: the recording shows no press held and released (what to do is said);
+            RecordingError / SensorError of :func:`press_amplitude`.
+    """
+    from neurotouch_hid.pipeline.creep import fit_creep
+
+    t_us, amplitude = press_amplitude(recording, sensor)
+    try:
+        return fit_creep(t_us, amplitude)
+    except ValueError as exc:
+        raise SensorError(f"{recording}: cannot measure the gel's creep: {exc}") from None

@@ -563,10 +563,18 @@ def calibrate(
         callback=_finite,
     ),
     frames: int = typer.Option(10, "--frames", min=3, help="rest frames to check and average (25 a second)"),
+    press: Optional[Path] = typer.Option(
+        None,
+        "--press",
+        help="an AEDAT4 recording of one press (a finger pressed in, held still ~2 s, lifted quickly, "
+        "then ~2 s alone): also measure how the gel creeps",
+    ),
 ) -> None:
     """Measure the gel's circle and scale on rest frames and save sensor.yaml (docs/dataset.md).
 
-    Keep your hands off the gel while it runs."""
+    Keep your hands off the gel while it runs. With --press, also measure the gel's creep (how
+    slowly it relaxes after a release) on a recorded press; without it, a creep already in the
+    sensor.yaml being replaced is kept."""
     import dataclasses
     import math
 
@@ -634,9 +642,20 @@ def calibrate(
         say(f"note: {note}")
 
     path = user_sensor_path() if out is None else (out / "sensor.yaml" if out.is_dir() else out)
+    if press is not None:
+        share, time_s = calibration.measure_creep(press, geometry)
+        geometry = dataclasses.replace(geometry, creep=(share, time_s))
+        say(
+            f"creep: q {share:.2f}, tau {time_s:.2f} s (a press in {press}: {share:.0%} of a held deformation "
+            f"comes with a delay of ~{time_s:.2f} s and relaxes as slowly after the release)"
+        )
     if path.exists():
         try:
-            changes = calibration.sensor_changes(SensorGeometry.load(path), geometry)
+            old = SensorGeometry.load(path)
+            if press is None and old.creep is not None:
+                geometry = dataclasses.replace(geometry, creep=old.creep)
+                say(f"creep: q {old.creep[0]:.2f}, tau {old.creep[1]:.2f} s, kept from {path} (--press to measure it)")
+            changes = calibration.sensor_changes(old, geometry)
             say(f"replacing {path}: " + ("; ".join(changes) if changes else "the same values"))
         except SensorError as exc:
             say(f"replacing {path}, which was not a valid sensor.yaml ({exc})")
