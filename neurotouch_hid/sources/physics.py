@@ -77,19 +77,19 @@ exposure      dim light: the APS frames are exposed for 15 ms of their 40 ms per
 contrast      an event sensor biased for fewer events: the contrast threshold of the event pixels
               raised from C = 0.25 to 0.45 (log units, ON and OFF alike) with a larger pixel-to-
               pixel mismatch, sigma 0.09 instead of 0.03 (20 % of C instead of 12 %). Users raise
-              the ON/OFF threshold biases (the DAVIS-346's ONBN/OFFBN in libcaer; iniVation,
-              "Biasing Dynamic Sensors") to cut background activity and the event rate (Delbruck
-              et al., "Feedback control of event cameras", CVPR Workshops 2021: the rate is
+              the ON and OFF event threshold biases (libcaer's bias settings; iniVation, "Biasing
+              Dynamic Sensors") to cut background activity and the event rate (Delbruck,
+              Graca, Paluch, "Feedback control of event cameras", CVPR Workshops 2021: the rate is
               regulated by threshold control). At nominal bias the mismatch is a few % of
               contrast (2.1 %: Lichtsteiner, Posch, Delbruck, "A 128x128 120 dB 15 us latency
-              asynchronous temporal contrast vision sensor", IEEE JSSC 43(2), 2008, 566-576); v2e's
-              "noisy" DVS parameters draw 25 % of C (0.05 at 0.2; Delbruck, Hu, He, "V2E: From
-              video frames to realistic DVS events", CVPR Workshops 2021). C and sigma chosen, not
-              fitted. A large change of log intensity makes ~0.25 / 0.45 = 0.56x the events, a
-              change below the pixel's threshold none (the faint flanks of the markers' blobs,
-              small motions), so the tracker sees fewer, sparser events per marker. The APS frames,
-              the noise events and the labels are the default family's. The final family from
-              round 5 on (``benchmarks/family_eval.py``).
+              asynchronous temporal contrast vision sensor", IEEE JSSC 43(2), 2008, 566-576); the
+              v2e toolbox's "noisy" DVS parameters draw 25 % of C (0.05 at 0.2; Delbruck, Hu, He,
+              "V2E: From video frames to realistic DVS event camera streams", 2020). C and sigma
+              chosen, not fitted. A large change of log intensity makes ~0.25 / 0.45 = 0.56x the
+              events, a change below the pixel's threshold none (the faint flanks of the markers'
+              blobs, small motions), so the tracker sees fewer, sparser events per marker. The
+              APS frames, the noise events and the labels are the default family's. The final
+              family from round 5 on (``benchmarks/family_eval.py``).
 ============  ==================================================================================
 
 ``mix`` draws one family per sequence (round robin over a seeded permutation, so that every family
