@@ -11,12 +11,12 @@ Protocol (docs/accuracy.md, "Physics families"):
 * :data:`FINAL_FAMILY` is kept untouched: it and ``mix`` (which draws it too) are evaluated only
   when named in ``--families`` together with ``--final-run``, once, when the method changes are
   done (``--final-run`` permits them; it adds no family of its own: in round 4 an earlier version
-  that did appended ``pasternak``, then the final family, to a development run). Round 4: the
-  method is developed on the thirteen other families, ``stickslip`` (round 2's final family),
-  ``viscoelastic`` (round 3's) and ``pasternak`` among them, since all three have been run and
-  looked at; ``exposure`` is untouched until the final run. An earlier final family still to be
-  kept out of decisions would go in :data:`SEEN_FINAL_FAMILIES` and be refused the same way
-  (none in round 4).
+  that did appended ``pasternak``, then the final family, to a development run). Round 5: the
+  method is developed on the fourteen other families, ``stickslip`` (round 2's final family),
+  ``viscoelastic`` (round 3's), ``pasternak`` and ``exposure`` (round 4's) among them, since all
+  of them have been run and looked at; ``contrast`` is untouched until the final run, and so is
+  ``mix``, which draws it. An earlier final family still to be kept out of decisions would go in
+  :data:`SEEN_FINAL_FAMILIES` and be refused the same way (none in round 5).
 * Each family's dataset is small for a 2-core machine: the test users ``--users`` (default 0
   and 3) x the five gesture types x ``--seconds`` (default 4 s, then on until the gel rests), an
   even ``--seed`` (test users, never the tuning seed). ``mix`` is one family per sequence.
@@ -55,8 +55,8 @@ from neurotouch_hid.sources.simulator import write_dataset
 PRESS_USER = 5
 PRESS_SEED = 1
 #: Kept untouched until the final run (docs/accuracy.md).
-FINAL_FAMILY = "exposure"
-#: Earlier final families kept out of tuning too (docs/accuracy.md); round 4 develops on them.
+FINAL_FAMILY = "contrast"
+#: Earlier final families kept out of tuning too (docs/accuracy.md); round 5 develops on them.
 SEEN_FINAL_FAMILIES: tuple[str, ...] = ()
 #: Evaluated only with --final-run.
 HELD_BACK = (*SEEN_FINAL_FAMILIES, FINAL_FAMILY)

@@ -223,7 +223,8 @@ def simulate(
         "default",
         "--physics",
         help="gel and camera family: default, powerlaw, stickslip, indent, camera, drift, fingers, strong, markers, "
-        "noise, flicker, viscoelastic, pasternak, exposure, or mix (one family per sequence); see docs/accuracy.md",
+        "noise, flicker, viscoelastic, pasternak, exposure, contrast, or mix (one family per sequence); "
+        "see docs/accuracy.md",
     ),
 ) -> None:
     """Simulate the NeuroTouch gel and write a labelled dataset (docs/dataset.md)."""

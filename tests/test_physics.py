@@ -340,9 +340,9 @@ def test_unknown_physics_family_is_one_clear_error(tmp_path, monkeypatch, capsys
     assert not (tmp_path / "x").exists()
 
 
-@pytest.mark.parametrize("families", ["exposure", "default,exposure", "powerlaw,mix"])
+@pytest.mark.parametrize("families", ["contrast", "default,contrast", "powerlaw,mix"])
 def test_family_eval_refuses_the_final_families_without_final_run(tmp_path, families):
-    """The protocol (docs/accuracy.md): the final family (round 4: exposure) and the mix, which
+    """The protocol (docs/accuracy.md): the final family (round 5: contrast) and the mix, which
     draws it, are evaluated only with --final-run; nothing is simulated or written before the
     refusal."""
     import subprocess
@@ -358,8 +358,29 @@ def test_family_eval_refuses_the_final_families_without_final_run(tmp_path, fami
         timeout=120,
     )
     assert run.returncode == 2
-    assert "add --final-run" in " ".join(run.stderr.split()) and "exposure" in run.stderr
+    assert "add --final-run" in " ".join(run.stderr.split()) and "contrast" in run.stderr
     assert not out.exists()
+
+
+@pytest.mark.parametrize("families", ["contrast", "default,mix"])
+def test_classifier_training_refuses_the_final_family_and_mix(tmp_path, families):
+    """train_gesture_classifier.py never trains on the final family (family_eval.FINAL_FAMILY,
+    round 5: contrast) nor on mix, which draws it: exit 2 before anything is simulated."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "train_gesture_classifier.py"
+    out, test = tmp_path / "train", tmp_path / "test"
+    run = subprocess.run(
+        [sys.executable, str(script), "--out", str(out), "--test", str(test), "--families", families],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert run.returncode == 2
+    assert "contrast is the final family" in " ".join(run.stderr.split())
+    assert not out.exists() and not test.exists()
 
 
 def test_exposure_family_blurs_a_moving_marker_over_15_ms_and_keeps_the_events():
@@ -387,3 +408,42 @@ def test_exposure_family_blurs_a_moving_marker_over_15_ms_and_keeps_the_events()
         assert np.linalg.norm(seen - path.mean(axis=0)) < 0.1, name  # the exposure's mean position
         ahead[name] = float(np.linalg.norm(seen - path[0]))
     assert ahead["exposure"] > 0.6 and ahead["exposure"] > 3.0 * ahead["default"]
+
+
+def test_contrast_family_makes_fewer_marker_events_and_keeps_frames_and_labels():
+    """An event sensor biased for fewer events (``contrast``): per-pixel ON and OFF thresholds of
+    mean 0.45 and spread 0.09 (log units; the default camera's 0.25 and 0.03). A pixel whose log
+    intensity moves by |dL| >> C makes ~|dL| / C events, so on the same gesture the markers make
+    at most ~E[1/c] at 0.45 over E[1/c] at 0.25 = 0.25 / 0.45 x (1 + 0.2^2) / (1 + 0.12^2) ~ 0.57
+    of the default's events, fewer where the change stays below the higher threshold (the blobs'
+    faint flanks, which then fire in no pixel at all). The APS frames, the true marker positions
+    and the labels are the default family's; so is the noise."""
+    g = _gesture(GestureType.PUSH, [[0.0, 0.0]], amplitude=6.0)
+    chosen = {"default": (0.25, 0.03), "contrast": (0.45, 0.09)}
+    chunks, marker_events, pixels = {}, {}, {}
+    for name, (mean, sigma) in chosen.items():
+        sim = GelSimulator(SENSOR, USERS[0], seed=3, script=[g], physics=PHYSICS[name])
+        for c in (sim.camera.c_on, sim.camera.c_off):  # 346 x 260 draws: within ~1 % of the chosen figures
+            assert float(c.mean()) == pytest.approx(mean, abs=0.005), name
+            assert float(c.std()) == pytest.approx(sigma, rel=0.05), name
+        chunks[name] = _run(sim, 8)  # rest, then the 200 ms attack
+        # the markers alone: no background activity; the hot pixels' events left out
+        quiet = GelSimulator(SENSOR, USERS[0], seed=3, script=[g], noise_rate_hz=0.0, physics=PHYSICS[name])
+        ev = np.concatenate([c.events for c in _run(quiet, 8)])
+        hot = set(zip(quiet.camera.hot_x.tolist(), quiet.camera.hot_y.tolist()))
+        marker = np.array([(x, y) not in hot for x, y in zip(ev["x"].tolist(), ev["y"].tolist())], dtype=bool)
+        marker_events[name] = int(marker.sum())
+        pixels[name] = len(set(zip(ev["x"][marker].tolist(), ev["y"][marker].tolist())))
+    assert marker_events["default"] > 5000  # the push moved the markers
+    ratio = marker_events["contrast"] / marker_events["default"]
+    assert 0.3 < ratio < 0.62, ratio
+    assert pixels["contrast"] < 0.95 * pixels["default"], pixels
+    for a, b in zip(chunks["default"], chunks["contrast"]):
+        assert a.frame.t_us == b.frame.t_us and np.array_equal(a.frame.image, b.frame.image)
+        assert np.array_equal(a.positions_px, b.positions_px)
+        la, lb = a.label, b.label
+        assert (la.t_us, la.gesture, la.resting, la.intensity_mm) == (lb.t_us, lb.gesture, lb.resting, lb.intensity_mm)
+        assert np.array_equal(la.contacts_px, lb.contacts_px)
+    rest = [k for k, c in enumerate(chunks["default"]) if c.frame.t_us + 40_000 <= g.t_start_us]
+    assert rest and all(np.array_equal(chunks["default"][k].events, chunks["contrast"][k].events) for k in rest)
+    assert sum(c.label.gesture is GestureType.PUSH for c in chunks["contrast"]) >= 5

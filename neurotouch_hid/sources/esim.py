@@ -33,6 +33,10 @@ LOG_EPS = 1.0
 #: Background-activity rate per pixel (Hz) of the simulated camera by default: the low end of a
 #: DAVIS-346 in good light (the rate grows as the light dims, to a few Hz per pixel).
 NOISE_RATE_HZ = 0.1
+#: Mean contrast threshold C of the simulated DAVIS's event pixels (log units), ON and OFF alike.
+CONTRAST = 0.25
+#: Pixel-to-pixel spread (sigma, log units) of the contrast thresholds (threshold mismatch).
+CONTRAST_SIGMA = 0.03
 #: A pixel whose intensity changed by less than this fraction since its last log evaluation is
 #: not evaluated (the change is kept and counted once it adds up): 1 % is ~ C / 25.
 SKIP_REL = 0.01
@@ -277,7 +281,9 @@ class EventCamera:
         rest_px: (N, 2) float64 marker positions (image px) at the start; amp: (N,) brightness;
             sigma: (N,) blob sigma (px).
         rng: numpy Generator (thresholds, reference phases, hot pixels, noise).
-        contrast: mean contrast threshold C (log units); contrast_sigma: its per-pixel spread.
+        contrast: mean contrast threshold C (log units, default :data:`CONTRAST`); contrast_sigma:
+            its per-pixel spread (sigma, log units, default :data:`CONTRAST_SIGMA`). The ON and OFF
+            thresholds are drawn per pixel from N(C, sigma), clipped below at C / 2.
         refractory_us: refractory period (us).
         noise_rate_hz: background-activity rate per pixel (Hz, >= 0; default
             :data:`NOISE_RATE_HZ`).
@@ -295,8 +301,8 @@ class EventCamera:
         sigma: np.ndarray,
         rng: np.random.Generator,
         *,
-        contrast: float = 0.25,
-        contrast_sigma: float = 0.03,
+        contrast: float = CONTRAST,
+        contrast_sigma: float = CONTRAST_SIGMA,
         refractory_us: int = 100,
         noise_rate_hz: float = NOISE_RATE_HZ,
         n_hot: int = 4,

@@ -36,7 +36,7 @@ Gesture Detection Dataset"):
   it (displacement falloff, contact mechanics, indentation, camera model, global motion, finger
   timing and strength, very strong presses, marker spread, sensor noise, light flicker, a
   viscoelastic gel that creeps and relaxes slowly, a gel on a shear-coupled foundation, a longer
-  APS exposure in dim light).
+  APS exposure in dim light, an event sensor biased for a higher contrast threshold).
 
 Labels (docs/dataset.md) per APS frame: a gesture is labelled from its attack's start (the first
 instant its fingers move the gel) up to, not including, the end of its release (the fingers have
@@ -65,7 +65,7 @@ from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.sensor import DOME_SPHERE_MM, MARKER_SPACING_MM, SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame, StreamItem
-from neurotouch_hid.sources.esim import NOISE_RATE_HZ, EventCamera, render_frame
+from neurotouch_hid.sources.esim import CONTRAST, CONTRAST_SIGMA, NOISE_RATE_HZ, EventCamera, render_frame
 from neurotouch_hid.sources.physics import (
     PHYSICS,
     DomeCamera,
@@ -741,6 +741,8 @@ class GelSimulator:
             self.gel.sigma_px,
             camera_rng,
             eps_px=0.05,
+            contrast=CONTRAST if physics.contrast is None else physics.contrast,
+            contrast_sigma=CONTRAST_SIGMA if physics.contrast_sigma is None else physics.contrast_sigma,
             noise_rate_hz=rate,
             n_hot=physics.n_hot,
             hot_rate_hz=physics.hot_rate_hz,
