@@ -150,6 +150,40 @@ def test_moving_bright_marker_makes_on_events_ahead_and_off_events_behind():
     assert 0.3 < on.mean() < 0.7
 
 
+def test_events_stay_in_their_interval_when_a_pixel_starts_beyond_its_off_threshold():
+    """Each pixel's reference starts at a random phase within its ON threshold; with a large
+    threshold spread (the ``contrast`` family's kind) some pixels' OFF threshold is below half
+    their ON threshold, so the first darkening fires at once. Those events must come at the
+    interval's start, not before it (they did: a recording's events out of time order)."""
+    h, w = 40, 60
+    background = np.full((h, w), 20.0)
+    cam = EventCamera(
+        background,
+        np.array([[20.0, 20.0]]),
+        np.array([200.0]),
+        np.array([2.0]),
+        np.random.default_rng(3),
+        contrast=0.45,
+        contrast_sigma=0.2,
+        noise_rate_hz=0.0,
+        n_hot=0,
+    )
+    assert np.any(cam.c_off < 0.5 * cam.c_on)  # such pixels exist; make every pixel one, its
+    # reference as high in its band as the constructor may draw it
+    cam.c_on[:], cam.c_off[:] = 0.6, 0.225
+    cam.log_ref[:] = cam.log_prev + 0.45 * cam.c_on
+    rng = np.random.default_rng(4)
+    last = -1
+    for start in range(0, 40_000, 10_000):
+        t = np.arange(start, start + 10_001, 1000, dtype=np.int64)
+        x = 20.0 + 1e-3 * t  # a bright marker passing at 1000 px/s
+        pos = np.stack([x, np.full_like(x, 20.0)], axis=1)[:, None, :]
+        events = cam.events(t, pos, np.full((len(t), 1), 200.0), rng)
+        assert len(events) and events["timestamp"].min() >= start and events["timestamp"].max() <= start + 10_000
+        assert events["timestamp"][0] >= last
+        last = events["timestamp"][-1]
+
+
 def test_gel_at_rest_makes_only_sparse_noise_events():
     sim = GelSimulator(seed=5)
     chunk = sim.step()  # the first 40 ms are a rest

@@ -259,7 +259,9 @@ def esim_chunk(
                     c = c_on[yy, xx] if up else c_off[yy, xx]
                     while sign * (l_new - log_ref[yy, xx]) >= c:
                         log_ref[yy, xx] += sign * c
-                        te = int(t_prev + (log_ref[yy, xx] - l_old) / dl * dt)
+                        # a reference already beyond the threshold (its random phase, drawn
+                        # within c_on, can lie more than c_off above the level) fires at once
+                        te = int(t_prev + max((log_ref[yy, xx] - l_old) / dl, 0.0) * dt)
                         if te - last_t[yy, xx] >= refractory_us:
                             out_t[n_out] = te
                             out_x[n_out] = xx
