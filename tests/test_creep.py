@@ -5,15 +5,21 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import importlib.util
 import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from neurotouch_hid.calibration import creep_at_search_edge
 from neurotouch_hid.cli import app
 from neurotouch_hid.errors import SensorError
-from neurotouch_hid.pipeline.creep import CreepFilter, fit_creep, load_estimate
+from neurotouch_hid.pipeline.creep import SHARES, TIMES_S, CreepFilter, fit_creep, load_estimate
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import sls_deformation
 from neurotouch_hid.sources.simulator import write_dataset
@@ -140,12 +146,19 @@ def test_a_measured_creep_ends_the_gesture_when_the_fingers_leave(viscoelastic_p
     assert new_held >= 0.95 * old_held
 
 
-def test_calibrate_press_measures_the_creep_and_keeps_it_when_recalibrated(tmp_path):
+@pytest.fixture(scope="module")
+def viscoelastic_press(tmp_path_factory):
+    """A press on the simulated viscoelastic gel: one push of tuning user 5, seed 1, 6 s (what
+    family_eval.py calibrates that family on)."""
+    folder = tmp_path_factory.mktemp("press")
+    write_dataset(folder, seed=1, users=[5], gestures=["push"], minutes=0.1, progress=False, physics="viscoelastic")
+    return folder
+
+
+def test_calibrate_press_measures_the_creep_and_keeps_it_when_recalibrated(viscoelastic_press, tmp_path):
     """``calibrate --press`` on a simulated press of the viscoelastic gel (q 0.3, tau 0.3 s)
     writes a creep near it; calibrating again without --press keeps it."""
-    press = tmp_path / "press"
-    write_dataset(press, seed=1, users=[5], gestures=["push"], minutes=0.1, progress=False, physics="viscoelastic")
-    recording = str(press / "u5_push.aedat4")
+    recording = str(viscoelastic_press / "u5_push.aedat4")
     out = tmp_path / "sensor.yaml"
     runner = CliRunner()
     args = ["calibrate", "--source", recording, "--out", str(out), "--mirror", "--rotation", "0"]
@@ -158,3 +171,61 @@ def test_calibrate_press_measures_the_creep_and_keeps_it_when_recalibrated(tmp_p
     assert result.exit_code == 0, result.output
     assert SensorGeometry.load(out).creep == (share, time_s)
     assert "kept from" in result.output
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess:
+    """``neurotouch-hid ARGS`` in a fresh process without a terminal."""
+    return subprocess.run(
+        [sys.executable, "-m", "neurotouch_hid.cli", *args],
+        capture_output=True,
+        text=True,
+        stdin=subprocess.DEVNULL,
+        timeout=300,
+    )
+
+
+def test_calibrate_press_refuses_a_recording_without_a_press_and_loses_nothing(tmp_path):
+    """A press recording that shows no press (the gel at rest throughout), or that does not
+    exist: one line saying what to do, no traceback, and the sensor.yaml already there is left
+    as it was."""
+    rest = write_dataset(tmp_path / "rest", users=[0], gestures=["push"], minutes=0.01, progress=False)
+    recording = str(rest / "u0_push.aedat4")  # 0.6 s: the gel rests until the push would start
+    out = tmp_path / "sensor.yaml"
+    SensorGeometry(creep=(0.1, 0.2)).save(out)
+    before = out.read_text()
+    args = ["calibrate", "--source", recording, "--out", str(out), "--mirror", "--rotation", "0"]
+    done = run_cli(*args, "--press", recording)
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert "cannot measure the gel's creep: the recording shows no press" in done.stderr
+    assert "Traceback" not in done.stderr and len(done.stderr.strip().splitlines()) == 1
+    done = run_cli(*args, "--press", str(tmp_path / "missing.aedat4"))
+    assert done.returncode == 2 and "missing.aedat4" in done.stderr and "Traceback" not in done.stderr
+    assert out.read_text() == before
+
+
+def test_a_creep_on_the_edge_of_the_search_is_flagged():
+    """The shortest or longest tau, or the largest q, searched: the press did not look like a
+    creeping gel's (e.g. the strong family's 32 px press: q 0.58, tau 0.05 s)."""
+    assert creep_at_search_edge(0.58, float(TIMES_S[0]))
+    assert creep_at_search_edge(float(SHARES[-1]), 0.3)
+    assert creep_at_search_edge(0.1, float(TIMES_S[-1]))
+    assert not creep_at_search_edge(0.28, 0.45)
+
+
+def test_family_eval_calibrates_a_familys_creep_on_its_press(viscoelastic_press, tmp_path):
+    """family_eval.py's ``press_creep`` (the press of tuning user 5, seed 1, here the fixture's
+    same simulation) writes the measured creep into the family's sensor.yaml, the rest of it
+    unchanged."""
+    spec = importlib.util.spec_from_file_location(
+        "family_eval", Path(__file__).resolve().parents[1] / "benchmarks" / "family_eval.py"
+    )
+    family_eval = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(family_eval)
+    press_dir = tmp_path / "presses" / "viscoelastic"
+    shutil.copytree(viscoelastic_press, press_dir)
+    sensor_file = tmp_path / "sensor.yaml"
+    shutil.copy(viscoelastic_press / "sensor.yaml", sensor_file)
+    share, time_s = family_eval.press_creep(press_dir, "viscoelastic", sensor_file)
+    written = SensorGeometry.load(sensor_file)
+    assert written.creep == (share, time_s) and 0.2 <= share <= 0.4
+    assert dataclasses.replace(written, creep=None) == SensorGeometry.load(viscoelastic_press / "sensor.yaml")

@@ -33,6 +33,8 @@ import numpy as np
 #: The (q, tau) grid :func:`fit_creep` searches: q from 0 (elastic) to 0.6, tau 0.05-3 s.
 SHARES = np.arange(0.0, 0.61, 0.02)
 TIMES_S = np.geomspace(0.05, 3.0, 40)
+#: A recording whose amplitude never reaches this (px) shows no press (tracking noise: ~0.1 px).
+MIN_PRESS_PX = 1.0
 #: A press is the frames at or above this fraction of the recording's peak amplitude.
 PRESS_FRACTION = 0.5
 #: The hold: from this long after a press starts (the attack's end, us) ...
@@ -112,13 +114,15 @@ def fit_creep(t_us: np.ndarray, amplitude: np.ndarray) -> tuple[float, float]:
         before its end, its released part lasts :data:`RELEASED_FOR_US` from
         :data:`RELEASED_AFTER_US` after it.
     Raises:
-        ValueError: no press with a hold of at least 3 windows and a released part of at least
-            3 windows (nothing pressed, a press too short, or the recording stops too soon).
+        ValueError: the amplitude never reaches :data:`MIN_PRESS_PX`, or no press has a hold of
+            at least 3 windows and a released part of at least 3 windows (a press too short, or
+            the recording stops too soon).
     """
     t = np.asarray(t_us, dtype=np.int64)
     a = np.asarray(amplitude, dtype=np.float64)
-    if len(a) == 0 or not np.all(np.isfinite(a)) or a.max() <= 0.0:
-        raise ValueError("the recording shows no press (no marker moved)")
+    if len(a) == 0 or not np.all(np.isfinite(a)) or a.max() < MIN_PRESS_PX:
+        peak = float(np.nanmax(a)) if len(a) and np.any(np.isfinite(a)) else 0.0
+        raise ValueError(f"the recording shows no press (the markers moved {peak:.2f} px at most, < {MIN_PRESS_PX:g})")
     pressed = a >= PRESS_FRACTION * a.max()
     hold = np.zeros(len(a), dtype=bool)
     released = np.zeros(len(a), dtype=bool)
