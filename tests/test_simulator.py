@@ -124,18 +124,23 @@ def test_rest_frame_shows_177_markers_inside_the_gel_circle(quick_dataset):
 
 
 # --- events -----------------------------------------------------------------------------------
-def test_moving_bright_marker_makes_on_events_ahead_and_off_events_behind():
-    h, w = 40, 60
-    background = np.full((h, w), 20.0)
-    cam = EventCamera(
-        background,
+def one_marker_camera(sigma_px: float = 1.0, **settings) -> EventCamera:
+    """An event camera over a 60 x 40 px dark background with one bright marker at (20, 20),
+    without noise events or hot pixels."""
+    return EventCamera(
+        np.full((40, 60), 20.0),
         np.array([[20.0, 20.0]]),
         np.array([200.0]),
-        np.array([1.0]),
+        np.array([sigma_px]),
         np.random.default_rng(3),
         noise_rate_hz=0.0,
         n_hot=0,
+        **settings,
     )
+
+
+def test_moving_bright_marker_makes_on_events_ahead_and_off_events_behind():
+    cam = one_marker_camera()
     t = np.arange(0, 20_001, 1000, dtype=np.int64)
     x = 20.0 + 1e-3 * t  # 1000 px/s to the right
     pos = np.stack([x, np.full_like(x, 20.0)], axis=1)[:, None, :]
@@ -155,19 +160,7 @@ def test_events_stay_in_their_interval_when_a_pixel_starts_beyond_its_off_thresh
     threshold spread (the ``contrast`` family's kind) some pixels' OFF threshold is below half
     their ON threshold, so the first darkening fires at once. Those events must come at the
     interval's start, not before it (they did: a recording's events out of time order)."""
-    h, w = 40, 60
-    background = np.full((h, w), 20.0)
-    cam = EventCamera(
-        background,
-        np.array([[20.0, 20.0]]),
-        np.array([200.0]),
-        np.array([2.0]),
-        np.random.default_rng(3),
-        contrast=0.45,
-        contrast_sigma=0.2,
-        noise_rate_hz=0.0,
-        n_hot=0,
-    )
+    cam = one_marker_camera(2.0, contrast=0.45, contrast_sigma=0.2)
     assert np.any(cam.c_off < 0.5 * cam.c_on)  # such pixels exist; make every pixel one, its
     # reference as high in its band as the constructor may draw it
     cam.c_on[:], cam.c_off[:] = 0.6, 0.225
