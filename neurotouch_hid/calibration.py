@@ -448,13 +448,3 @@ def measure_creep(recording: str | Path, sensor: SensorGeometry) -> tuple[float,
         return fit_creep(t_us, amplitude)
     except ValueError as exc:
         raise SensorError(f"{recording}: cannot measure the gel's creep: {exc}") from None
-
-
-def creep_at_search_edge(share: float, time_s: float) -> bool:
-    """Whether a measured creep lies on the edge of :func:`~neurotouch_hid.pipeline.creep.fit_creep`'s
-    grid (the largest q, or the shortest or longest tau): the press did not look like a standard
-    linear solid's (e.g. not held still, a very strong press whose markers were lost), and the
-    true creep may lie beyond."""
-    from neurotouch_hid.pipeline.creep import SHARES, TIMES_S
-
-    return share >= SHARES[-1] - 1e-9 or time_s <= TIMES_S[0] * (1 + 1e-9) or time_s >= TIMES_S[-1] * (1 - 1e-9)

@@ -581,6 +581,7 @@ def calibrate(
 
     from neurotouch_hid import calibration
     from neurotouch_hid.errors import SensorError
+    from neurotouch_hid.pipeline.creep import at_search_edge
     from neurotouch_hid.sensor import SensorGeometry, user_sensor_path
 
     def say(line: str) -> None:
@@ -650,7 +651,7 @@ def calibrate(
             f"creep: q {share:.2f}, tau {time_s:.2f} s (a press in {press}: {share:.0%} of a held deformation "
             f"comes with a delay of ~{time_s:.2f} s and relaxes as slowly after the release)"
         )
-        if calibration.creep_at_search_edge(share, time_s):
+        if at_search_edge(share, time_s):
             say(
                 "note: that is at the edge of what is searched (q up to 0.6, tau 0.05-3 s): the press may not "
                 "have been held still, or lifted quickly; record it again if gestures end too early or too late"

@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from neurotouch_hid.calibration import creep_at_search_edge
 from neurotouch_hid.cli import app
 from neurotouch_hid.errors import SensorError
 from neurotouch_hid.pipeline.creep import SHARES, TIMES_S, CreepFilter, fit_creep, load_estimate
+from neurotouch_hid.pipeline.creep import at_search_edge as creep_at_search_edge
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import sls_deformation
 from neurotouch_hid.sources.simulator import write_dataset

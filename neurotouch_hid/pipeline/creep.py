@@ -26,8 +26,6 @@ while the finger holds still and nearest zero after it left.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 #: The (q, tau) grid :func:`fit_creep` searches: q from 0 (elastic) to 0.6, tau 0.05-3 s.
@@ -74,8 +72,15 @@ class CreepFilter:
         given the deformation then; the first call takes the gel to have been at rest before."""
         dt = 0.0 if self._t_us is None else max(t_us - self._t_us, 0)
         self._t_us = t_us
-        self._y += (deformation - self._y) * -math.expm1(-dt / self.time_us)
-        return (deformation - self.share * self._y) / (1.0 - self.share)
+        self._y, load = _step(self._y, float(deformation), dt, self.share, self.time_us)
+        return float(load)
+
+
+def _step(y, deformation: float, dt_us: float, share, time_us):
+    """One step of the inverse: (y, load) after ``dt_us`` (us) with the deformation then, from
+    y before; ``share`` q and ``time_us`` = (1 - q) tau (us) scalars or arrays of one shape."""
+    y = y + (deformation - y) * -np.expm1(-dt_us / time_us)
+    return y, (deformation - share * y) / (1.0 - share)
 
 
 def load_estimate(deformation: np.ndarray, t_us: np.ndarray, share, time_s) -> np.ndarray:
@@ -94,9 +99,15 @@ def load_estimate(deformation: np.ndarray, t_us: np.ndarray, share, time_s) -> n
     out = np.empty((len(deformation), *y.shape))
     dt = np.diff(np.asarray(t_us, dtype=np.float64), prepend=float(t_us[0]) if len(t_us) else 0.0)
     for k, d in enumerate(np.asarray(deformation, dtype=np.float64)):
-        y = y + (d - y) * -np.expm1(-dt[k] / time_us)
-        out[k] = (d - q * y) / (1.0 - q)
+        y, out[k] = _step(y, d, dt[k], q, time_us)
     return out
+
+
+def at_search_edge(share: float, time_s: float) -> bool:
+    """Whether a creep from :func:`fit_creep` lies on the edge of its grid (the largest q, or the
+    shortest or longest tau): the press did not look like a standard linear solid's (e.g. not
+    held still, a very strong press whose markers were lost), and the true creep may lie beyond."""
+    return share >= SHARES[-1] - 1e-9 or time_s <= TIMES_S[0] * (1 + 1e-9) or time_s >= TIMES_S[-1] * (1 - 1e-9)
 
 
 def fit_creep(t_us: np.ndarray, amplitude: np.ndarray) -> tuple[float, float]:
