@@ -23,14 +23,25 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import numpy as np
 import yaml
-from pydantic import Field, StrictBool, TypeAdapter, ValidationError
+from pydantic import ConfigDict, Field, StrictBool, TypeAdapter, ValidationError, with_config
+from ruamel.yaml.nodes import MappingNode
 from typing_extensions import TypedDict  # pydantic needs typing_extensions' TypedDict before 3.12
 
 from neurotouch_hid.errors import SensorError
+from neurotouch_hid.limits import (
+    MAX_SENSOR_PX,
+    MAX_YAML_BYTES,
+    FileLimitError,
+    YamlError,
+    load_yaml,
+    read_text_file,
+    short,
+    where,
+)
 
 #: DAVIS-346 resolution (px).
 DAVIS346_WIDTH = 346
@@ -42,16 +53,18 @@ DOME_SPHERE_MM = 40.0
 MARKER_SPACING_MM = 4.0
 
 
+@with_config(ConfigDict(allow_inf_nan=False))
 class SensorFile(TypedDict, total=False):
     """The fields of a ``sensor.yaml`` as read from the file (docs/dataset.md), each optional (a
     missing one takes :class:`SensorGeometry`'s default), checked by pydantic (:data:`_SENSOR_FILE`):
-    a whole number of px, a positive number, a pair of numbers, true/false."""
+    a whole number of px, a positive number, a pair of numbers, true/false; every number finite
+    and sizes at most :data:`~neurotouch_hid.limits.MAX_SENSOR_PX` (docs/limits.md)."""
 
-    width: Annotated[int, Field(gt=0)]
-    height: Annotated[int, Field(gt=0)]
-    px_per_mm: Annotated[float, Field(gt=0)]
+    width: Annotated[int, Field(gt=0, le=MAX_SENSOR_PX)]
+    height: Annotated[int, Field(gt=0, le=MAX_SENSOR_PX)]
+    px_per_mm: Annotated[float, Field(gt=0, le=MAX_SENSOR_PX)]
     gel_center_px: tuple[float, float]
-    gel_radius_px: Annotated[float, Field(gt=0)]
+    gel_radius_px: Annotated[float, Field(gt=0, le=MAX_SENSOR_PX)]
     mirror: StrictBool
     rotation_deg: float
     radial_k: tuple[float, float]
@@ -61,13 +74,9 @@ class SensorFile(TypedDict, total=False):
 _SENSOR_FILE = TypeAdapter(SensorFile)
 
 
-def _key_lines(text: str) -> dict[str, int]:
-    """The 1-based line of each top-level key of a YAML mapping (for error messages)."""
-    try:
-        root = yaml.compose(text)
-    except yaml.YAMLError:
-        return {}
-    if not isinstance(root, yaml.MappingNode):
+def _key_lines(root: Any) -> dict[str, int]:
+    """The 1-based line of each top-level key of a YAML mapping node (for error messages)."""
+    if not isinstance(root, MappingNode):
         return {}
     return {str(k.value): k.start_mark.line + 1 for k, _ in root.value}
 
@@ -113,15 +122,19 @@ class SensorGeometry:
         """
         path = Path(path)
         try:
-            text = path.read_text()
+            text = read_text_file(path, MAX_YAML_BYTES, "sensor file")
         except FileNotFoundError:
             raise SensorError(f"{path}: no such sensor file (expected a sensor.yaml, see docs/dataset.md)") from None
+        except FileLimitError as exc:
+            raise SensorError(str(exc)) from None
         except OSError as exc:
-            raise SensorError(f"{path}: cannot read the sensor file: {exc.strerror}") from None
+            raise SensorError(f"{path}: cannot read the sensor file: {exc.strerror or exc}") from None
+        except UnicodeDecodeError:
+            raise SensorError(f"{path}: not a sensor.yaml (not UTF-8 text)") from None
         try:
-            data = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            raise SensorError(f"{path}: not valid YAML: {exc}") from None
+            data, root = load_yaml(text)
+        except YamlError as exc:
+            raise SensorError(f"{where(path, exc.line)}: not valid YAML: {exc.problem}") from None
         if not isinstance(data, dict):
             raise SensorError(
                 f"{path}: expected a mapping of sensor fields (docs/dataset.md), found {type(data).__name__}"
@@ -129,13 +142,15 @@ class SensorGeometry:
         try:
             fields = _SENSOR_FILE.validate_python({k: v for k, v in data.items() if k in SensorFile.__annotations__})
         except ValidationError as exc:
-            lines = _key_lines(text)
+            lines = _key_lines(root)
             problems = []
             for err in exc.errors():
                 key = str(err["loc"][0]) if err["loc"] else ""
-                where = f"{path}:{lines[key]}" if key in lines else str(path)
+                at = where(path, lines.get(key, 0))
                 message = err["msg"].removeprefix("Value error, ")
-                problems.append(f"{where}: field {key!r}: found {err['input']!r}; {message[:1].lower() + message[1:]}")
+                problems.append(
+                    f"{at}: field {key!r}: found {short(err['input'])}; {message[:1].lower() + message[1:]}"
+                )
             raise SensorError("; ".join(problems)) from None
         extra = {k: v for k, v in data.items() if k not in SensorFile.__annotations__}
         return cls(**fields, extra=extra)

@@ -43,8 +43,9 @@ activator (``mode``: hold, toggle, long_press, double_press, turbo); every analo
 anti-deadzone. A mapping may belong to a ``layer``; ``layers:`` says which gesture switches to
 each layer.
 
-The YAML is read with PyYAML's safe loader; the schema is pydantic v2 (``extra="forbid"``,
-strict types) and every problem is reported at once as one :class:`ProfileError`.
+The YAML is read within the bounds of :mod:`neurotouch_hid.limits` (size, depth, aliases, number
+length, duplicate keys; ruamel.yaml's safe loader); the schema is pydantic v2 (``extra="forbid"``,
+strict types, finite numbers) and every problem is reported at once as one :class:`ProfileError`.
 """
 
 from __future__ import annotations
@@ -55,7 +56,6 @@ from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
-import yaml
 from pydantic import (
     BaseModel,
     ConfigDict,
@@ -68,9 +68,11 @@ from pydantic import (
     field_validator,
     model_validator,
 )
+from ruamel.yaml.nodes import MappingNode, ScalarNode
 
 from neurotouch_hid.controller import BUTTONS, MOUSE_BUTTONS
 from neurotouch_hid.errors import ProfileError
+from neurotouch_hid.limits import MAX_YAML_BYTES, FileLimitError, YamlError, load_yaml, read_text_file, short, where
 
 #: The gel dome's radius (mm); the default saturation of the ``contact`` inputs.
 GEL_RADIUS_MM = 30.0
@@ -156,7 +158,7 @@ DEFAULT_DEVICE_NAME = "Microsoft X-Box 360 pad"
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True, allow_inf_nan=False)
 
 
 class OneEuroSmoothing(_Strict):
@@ -501,7 +503,7 @@ def find_profile(name_or_path: str | os.PathLike) -> Path:
     ``NAME.yaml``, else the shipped one. Raises ProfileError when there is none."""
     if _is_path(name_or_path):
         path = Path(name_or_path)
-        if not path.is_file():
+        if not path.exists():
             raise ProfileError(f"profile file {path} does not exist")
         return path
     found = available_profiles().get(str(name_or_path))
@@ -522,9 +524,13 @@ def load_profile(name_or_path: str | os.PathLike) -> Profile:
     """
     path = find_profile(name_or_path)
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ProfileError(f"cannot read profile {path}: {exc}") from exc
+        text = read_text_file(path, MAX_YAML_BYTES, "profile")
+    except UnicodeDecodeError:
+        raise ProfileError(f"cannot read profile {path}: not UTF-8 text") from None
+    except FileLimitError as exc:
+        raise ProfileError(f"cannot read profile {exc}") from None
+    except OSError as exc:
+        raise ProfileError(f"cannot read profile {path}: {exc.strerror or exc}") from None
     return parse_profile(text, path)
 
 
@@ -535,19 +541,9 @@ def parse_profile(text: str, source: str | os.PathLike) -> Profile:
         ProfileError: YAML syntax error (with its line) or every schema problem at once.
     """
     try:
-        data = yaml.safe_load(text)
-        root = yaml.compose(text, Loader=yaml.SafeLoader)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        if isinstance(exc, yaml.reader.ReaderError):  # a character YAML forbids: no mark, a position
-            line = text.count("\n", 0, exc.position) + 1
-            where = f"{source}:{line}"
-            code = ord(exc.character) if isinstance(exc.character, str) else exc.character
-            problem = f"character #x{code:04x} is not allowed in YAML"
-        else:
-            where = f"{source}:{mark.line + 1}" if mark is not None else str(source)
-            problem = " ".join((getattr(exc, "problem", None) or str(exc)).split())  # one line
-        raise ProfileError(f"{where}: not valid YAML: {problem}") from None
+        data, root = load_yaml(text)
+    except YamlError as exc:
+        raise ProfileError(f"{where(source, exc.line)}: not valid YAML: {exc.problem}") from None
     if data is None:
         raise ProfileError(f"{source}:1: the profile is empty; expected a mapping with 'mappings:'")
     layers = data.get("layers") if isinstance(data, dict) else None
@@ -565,7 +561,7 @@ def parse_profile(text: str, source: str | os.PathLike) -> Profile:
 
 
 # --- error messages -----------------------------------------------------------------------------
-def _line_of(root: yaml.Node | None, loc: tuple) -> tuple[int, tuple]:
+def _line_of(root: Any, loc: tuple) -> tuple[int, tuple]:
     """The 1-based line of the YAML node at pydantic's ``loc`` and the loc without union tags.
 
     A loc element that is no key of the current mapping (a union tag, a missing field) is skipped
@@ -574,10 +570,8 @@ def _line_of(root: yaml.Node | None, loc: tuple) -> tuple[int, tuple]:
     node, line, path = root, (root.start_mark.line + 1 if root is not None else 1), []
     for part in loc:
         match = None
-        if isinstance(node, yaml.MappingNode):
-            match = next(
-                ((k, v) for k, v in node.value if isinstance(k, yaml.ScalarNode) and k.value == str(part)), None
-            )
+        if isinstance(node, MappingNode):
+            match = next(((k, v) for k, v in node.value if isinstance(k, ScalarNode) and k.value == str(part)), None)
         if match is not None:
             line, node = match[0].start_mark.line + 1, match[1]
             path.append(part)
@@ -599,12 +593,7 @@ def _model_at(loc: tuple) -> type[BaseModel] | None:
     return {"device": DeviceSpec, "smoothing": OneEuroSmoothing}.get(str(parent[-1]))
 
 
-def _short(value: Any) -> str:
-    text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
-def _describe(err: dict, root: yaml.Node | None, source: str | os.PathLike) -> tuple[int, str]:
+def _describe(err: dict, root: Any, source: str | os.PathLike) -> tuple[int, str]:
     """(line, ``FILE:LINE: field: found VALUE; expected ...``) for one pydantic error."""
     line, path = _line_of(root, tuple(err["loc"]))
     field = ".".join(str(p) for p in path) or "(top level)"
@@ -616,18 +605,18 @@ def _describe(err: dict, root: yaml.Node | None, source: str | os.PathLike) -> t
         allowed = f": one of {', '.join(model.model_fields)}" if model is not None else ""
         return (
             line,
-            f"{source}:{line}: {field}: unknown field (found {_short(err['input'])}); expected a known field{allowed}",
+            f"{source}:{line}: {field}: unknown field (found {short(err['input'])}); expected a known field{allowed}",
         )
     if kind == "string_pattern_mismatch" and path[-1:] == ("[key]",):
         field = ".".join(str(p) for p in path[:-1])
         return line, (
-            f"{source}:{line}: {field}: found the name {_short(err['input'])}; expected a name of letters, "
+            f"{source}:{line}: {field}: found the name {short(err['input'])}; expected a name of letters, "
             "digits and '_' that does not start with a digit"
         )
     if kind in ("model_type", "model_attributes_type", "dict_type"):
-        return line, f"{source}:{line}: {field}: found {_short(err['input'])}; expected a mapping (key: value lines)"
+        return line, f"{source}:{line}: {field}: found {short(err['input'])}; expected a mapping (key: value lines)"
     message = err["msg"].removeprefix("Value error, ")
     expected = message[0].lower() + message[1:] if message else message
     if expected.startswith("input should be "):
         expected = expected.removeprefix("input should be ")
-    return line, f"{source}:{line}: {field}: found {_short(err['input'])}; expected {expected}"
+    return line, f"{source}:{line}: {field}: found {short(err['input'])}; expected {expected}"

@@ -1,0 +1,225 @@
+"""Bounds on what comes from outside: the small files the driver reads and the YAML in them.
+
+Profiles and ``sensor.yaml`` files are handed around, so they are read as if crafted to break
+the driver (docs/limits.md has every limit, its value and why it is there):
+
+- :func:`read_text_file` reads only a regular file (a FIFO or a device would block or never end)
+  of at most a given size, without following the read past it;
+- :func:`load_yaml` parses with ruamel.yaml's safe loader (pure Python, so its composer's
+  ``max_depth`` applies; duplicate keys refused, its default), plus two counts kept in the
+  composer's own hooks: nodes after alias expansion (a "billion laughs" of a few KB would make
+  a billion values for the schema to walk) and the length of a number (Python refuses ints of
+  more than 4300 digits with a ValueError; floats of thousands of digits are no number a person
+  writes). Every refusal is one :class:`YamlError` with the line, the problem and, for the
+  common slips (tabs, indentation), a hint.
+
+Library: ruamel.yaml (``YAML(typ="safe", pure=True)``, ``max_depth``, ``allow_duplicate_keys``).
+"""
+
+from __future__ import annotations
+
+import os
+import reprlib
+import stat
+from pathlib import Path
+from typing import Any
+
+#: Largest profile or sensor.yaml read (bytes). The shipped profiles are 1-4 KB; a profile with
+#: every possible mapping stays under 64 KB.
+MAX_YAML_BYTES = 256 * 1024
+#: Deepest nesting of lists and mappings in a profile or sensor.yaml. A profile's deepest value
+#: is 5 levels down (mappings -> item -> filter -> field); Python's recursion limit is 1000.
+MAX_YAML_DEPTH = 32
+#: Most values (scalars, lists, mappings) a YAML document may stand for once its aliases are
+#: expanded: 100x the largest profile's ~1000, and walked by the schema in milliseconds.
+MAX_YAML_NODES = 100_000
+#: Largest image size, gel radius and scale in a sensor.yaml (px, px/mm): a DAVIS-346 is
+#: 346x260 and the largest event cameras 1280x720; images of this side are allocated per frame.
+MAX_SENSOR_PX = 4096
+#: Longest number written in YAML (characters). A float has 17 significant digits; the rest
+#: is sign, point and exponent.
+MAX_NUMBER_CHARS = 64
+
+_SHORT = reprlib.Repr()  # keyword arguments only from Python 3.12
+_SHORT.maxlevel, _SHORT.maxlist, _SHORT.maxtuple, _SHORT.maxdict, _SHORT.maxstring = 2, 4, 4, 4, 40
+_NUMBER_TAGS = ("tag:yaml.org,2002:int", "tag:yaml.org,2002:float")
+
+
+class YamlError(ValueError):
+    """A YAML text is not valid or breaks a bound: ``line`` (1-based, 0 when unknown) and a
+    one-line ``problem`` that ends with a hint when one helps."""
+
+    def __init__(self, line: int, problem: str) -> None:
+        super().__init__(problem)
+        self.line = line
+        self.problem = problem
+
+
+class FileLimitError(OSError):
+    """A file is not a regular file, or is larger than allowed; the message says which."""
+
+
+def read_text_file(path: str | os.PathLike, max_bytes: int, what: str) -> str:
+    """The UTF-8 text of ``path``, a regular file of at most ``max_bytes`` bytes.
+
+    The file is opened without blocking (a FIFO given by mistake or malice would wait for a
+    writer for ever) and checked with ``fstat`` on the open descriptor (no race with a rename).
+
+    Raises:
+        FileNotFoundError, PermissionError, OSError: as ``open`` does.
+        FileLimitError: not a regular file, or larger than ``max_bytes`` (message names ``what``).
+        UnicodeDecodeError: the bytes are not UTF-8.
+    """
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    with os.fdopen(fd, "rb") as fh:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise FileLimitError(f"{path}: not a regular file (a {what} must be a file, not a pipe or a device)")
+        data = fh.read(max_bytes + 1)
+    if len(data) > max_bytes:
+        raise FileLimitError(f"{path}: larger than {max_bytes // 1024} KB, the most a {what} may be (docs/limits.md)")
+    return data.decode("utf-8")
+
+
+def _hint(problem: str) -> str:
+    """A plain-words hint for YAML's usual parser messages (empty when none fits)."""
+    if "'\\t'" in problem or "tab" in problem:
+        return " (hint: YAML indents with spaces, never tabs: replace the tabs on this line)"
+    if any(
+        s in problem for s in ("expected <block end>", "mapping values are not allowed", "could not find expected ':'")
+    ):
+        return (
+            " (hint: check this line's indentation against the lines above: keys of one mapping "
+            "start in the same column, and a value on its own line is indented more than its key)"
+        )
+    if "found undefined alias" in problem:
+        return " (hint: '*' starts an alias in YAML: quote a value that begins with '*')"
+    if "while scanning a quoted scalar" in problem or "found unexpected end of stream" in problem:
+        return " (hint: a quote is not closed)"
+    return ""
+
+
+def _composer_class():
+    from ruamel.yaml.composer import Composer
+    from ruamel.yaml.nodes import MappingNode, SequenceNode
+
+    class BoundedComposer(Composer):
+        """ruamel's composer counting expanded nodes and refusing long numbers."""
+
+        def __init__(self, loader: Any = None) -> None:
+            super().__init__(loader)
+            self.nodes = 0
+            self._sizes: dict[int, int] = {}
+
+        def _count(self, n: int, mark: Any) -> None:
+            self.nodes += n
+            if self.nodes > MAX_YAML_NODES:
+                raise YamlError(
+                    mark.line + 1,
+                    f"more than {MAX_YAML_NODES} values once its aliases ('*name') are expanded: "
+                    "a profile or sensor file is never that large (docs/limits.md)",
+                )
+
+        def _size(self, node: Any) -> int:
+            """Values ``node`` stands for, aliases expanded (memoised; depth is bounded)."""
+            known = self._sizes.get(id(node))
+            if known is None:
+                if isinstance(node, SequenceNode):
+                    known = 1 + sum(self._size(child) for child in node.value)
+                elif isinstance(node, MappingNode):
+                    known = 1 + sum(self._size(k) + self._size(v) for k, v in node.value)
+                else:
+                    known = 1
+                self._sizes[id(node)] = known = min(known, MAX_YAML_NODES + 1)
+            return known
+
+        def return_alias(self, a: Any) -> Any:
+            self._count(self._size(a), a.start_mark)
+            return a
+
+        def compose_scalar_node(self, anchor: Any) -> Any:
+            node = super().compose_scalar_node(anchor)
+            self._count(1, node.start_mark)
+            if str(node.tag) in _NUMBER_TAGS and len(node.value) > MAX_NUMBER_CHARS:
+                raise YamlError(
+                    node.start_mark.line + 1,
+                    f"a number of {len(node.value)} characters (at most {MAX_NUMBER_CHARS}); "
+                    "write it with fewer digits",
+                )
+            return node
+
+        def compose_sequence_node(self, anchor: Any) -> Any:
+            self._count(1, self.parser.peek_event().start_mark)
+            return super().compose_sequence_node(anchor)
+
+        def compose_mapping_node(self, anchor: Any) -> Any:
+            self._count(1, self.parser.peek_event().start_mark)
+            return super().compose_mapping_node(anchor)
+
+    return BoundedComposer
+
+
+def _loader():
+    """A fresh ruamel.yaml safe loader with the bounds (its depth count does not reset after an
+    error, so one loader parses one text)."""
+    from ruamel.yaml import YAML
+
+    yaml = YAML(typ="safe", pure=True)
+    yaml.max_depth = MAX_YAML_DEPTH
+    yaml.allow_duplicate_keys = False
+    yaml.Composer = _composer_class()
+    return yaml
+
+
+def load_yaml(text: str) -> tuple[Any, Any]:
+    """Parse one YAML document within the bounds: ``(data, root node)``.
+
+    ``data`` is plain Python (dict, list, str, int, float, bool, None); the root node (ruamel's
+    ``MappingNode``/``SequenceNode``/``ScalarNode``, None for an empty text) gives the line of
+    each key for error messages (``node.start_mark.line`` is 0-based).
+
+    Raises:
+        YamlError: not YAML, larger than :data:`MAX_YAML_BYTES`, deeper than
+            :data:`MAX_YAML_DEPTH`, more than :data:`MAX_YAML_NODES` values with aliases
+            expanded, a number longer than :data:`MAX_NUMBER_CHARS`, or a key given twice.
+    """
+    from ruamel.yaml.error import MarkedYAMLError, YAMLError
+    from ruamel.yaml.reader import ReaderError
+
+    if len(text) > MAX_YAML_BYTES:
+        raise YamlError(0, f"larger than {MAX_YAML_BYTES // 1024} KB (docs/limits.md)")
+    try:
+        root = _loader().compose(text)
+        data = _loader().load(text)
+    except YamlError:
+        raise
+    except ReaderError as exc:  # a character YAML forbids: a position, no mark
+        code = ord(exc.character) if isinstance(exc.character, str) else exc.character
+        raise YamlError(
+            text.count("\n", 0, exc.position) + 1, f"character #x{code:04x} is not allowed in YAML"
+        ) from None
+    except MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        problem = " ".join((exc.problem or exc.context or "not valid YAML").split())
+        if "duplicate key" in problem:
+            problem = problem.split(" with value")[0] + " (each key may appear once in a mapping)"
+        elif "maximum depth" in problem:
+            problem = f"nested more than {MAX_YAML_DEPTH} levels deep (docs/limits.md)"
+        raise YamlError(mark.line + 1 if mark is not None else 0, problem + _hint(problem)) from None
+    except YAMLError as exc:
+        raise YamlError(0, " ".join(str(exc).split())[:200]) from None
+    except (ValueError, OverflowError) as exc:  # a value the constructor cannot make
+        raise YamlError(0, " ".join(str(exc).split())[:200]) from None
+    return data, root
+
+
+def short(value: Any) -> str:
+    """``repr(value)`` cut to 60 characters: error messages never echo a file at length (a
+    value may be a list of a million items, or an alias to one)."""
+    text = _SHORT.repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def where(source: str | os.PathLike | Path, line: int) -> str:
+    """``FILE:LINE`` (or ``FILE`` when the line is unknown) for messages."""
+    return f"{source}:{line}" if line else str(source)
