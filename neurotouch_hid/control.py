@@ -29,6 +29,13 @@ SOCKET_NAME = "neurotouch-hid.sock"
 MAX_MESSAGE = 8192
 #: How long the client waits for the driver's answer (s): loading a profile takes milliseconds.
 ANSWER_TIMEOUT_S = 10.0
+#: How long the driver waits for a client's request line (s): a client sends it at once; a
+#: silent one is dropped after this, and never holds up the others (each has its own thread).
+REQUEST_TIMEOUT_S = 2.0
+#: Clients served at once; more are answered "busy" and closed (threads and memory bounded).
+MAX_CLIENTS = 8
+#: Deepest JSON nesting in a request (a request is a flat object).
+MAX_JSON_DEPTH = 4
 _ACCEPT_POLL_S = 0.2
 
 
@@ -38,14 +45,33 @@ def socket_path() -> Path | None:
     return Path(runtime_dir) / SOCKET_NAME if runtime_dir else None
 
 
-def _read_line(conn: socket.socket) -> bytes:
+def _read_line(conn: socket.socket) -> bytes | None:
+    """The first line (without its newline) of at most MAX_MESSAGE bytes, or None when the peer
+    sends more than that without a newline."""
     data = b""
-    while b"\n" not in data and len(data) < MAX_MESSAGE:
+    while b"\n" not in data:
         chunk = conn.recv(MAX_MESSAGE)
         if not chunk:
             break
         data += chunk
-    return data.split(b"\n", 1)[0]
+        if len(data) > MAX_MESSAGE and b"\n" not in data[: MAX_MESSAGE + 1]:
+            return None
+    line = data.split(b"\n", 1)[0]
+    return line if len(line) <= MAX_MESSAGE else None
+
+
+def _json_depth(value, limit: int) -> int:
+    """Nesting depth of a decoded JSON value, counted up to ``limit + 1`` at most."""
+    depth, level = 0, [value]
+    while level and depth <= limit:
+        depth += 1
+        level = [
+            child
+            for item in level
+            if isinstance(item, (list, dict))
+            for child in (item.values() if isinstance(item, dict) else item)
+        ]
+    return depth
 
 
 class ControlServer:
@@ -87,6 +113,8 @@ class ControlServer:
             return False
         sock.settimeout(_ACCEPT_POLL_S)
         self._sock, self._inode = sock, os.stat(self.path).st_ino
+        self._clients = threading.BoundedSemaphore(MAX_CLIENTS)
+        self._switch = threading.Lock()  # one profile switch at a time
         self._thread = threading.Thread(target=self._serve, name="nt-control", daemon=True)
         self._thread.start()
         return True
@@ -100,19 +128,43 @@ class ControlServer:
                 continue
             except OSError:
                 return
-            with conn:
-                try:
-                    conn.settimeout(ANSWER_TIMEOUT_S)
-                    answer = self._answer(_read_line(conn))
-                    conn.sendall(json.dumps(answer).encode() + b"\n")
-                except OSError as exc:
-                    log.warning("control socket: %s", exc)
+            if not self._clients.acquire(blocking=False):
+                log.warning("control socket: more than %d clients at once; one refused", MAX_CLIENTS)
+                with conn, contextlib.suppress(OSError):
+                    conn.settimeout(REQUEST_TIMEOUT_S)
+                    conn.sendall(json.dumps({"ok": False, "message": "the driver is busy; try again"}).encode() + b"\n")
+                continue
+            threading.Thread(target=self._client, args=(conn,), name="nt-control-client", daemon=True).start()
 
-    def _answer(self, line: bytes) -> dict:
+    def _client(self, conn: socket.socket) -> None:
+        """One client: read its request line (bounded in size and time), answer, close."""
+        try:
+            with conn:
+                conn.settimeout(REQUEST_TIMEOUT_S)
+                try:
+                    line = _read_line(conn)
+                except TimeoutError:
+                    log.warning("control socket: a client sent no request in %.0f s; dropped", REQUEST_TIMEOUT_S)
+                    return
+                answer = self._answer(line)
+                if not answer["ok"]:
+                    log.warning("control socket: request refused: %s", answer["message"][:200])
+                conn.settimeout(ANSWER_TIMEOUT_S)
+                conn.sendall(json.dumps(answer).encode() + b"\n")
+        except OSError as exc:
+            log.warning("control socket: %s", exc)
+        finally:
+            self._clients.release()
+
+    def _answer(self, line: bytes | None) -> dict:
+        if line is None:
+            return {"ok": False, "message": f"request longer than {MAX_MESSAGE} bytes"}
         try:
             request = json.loads(line)
-        except (ValueError, UnicodeDecodeError):
+        except (ValueError, UnicodeDecodeError, RecursionError):
             return {"ok": False, "message": "not a JSON request"}
+        if _json_depth(request, MAX_JSON_DEPTH) > MAX_JSON_DEPTH:
+            return {"ok": False, "message": f"request nested deeper than {MAX_JSON_DEPTH} levels"}
         if (
             not isinstance(request, dict)
             or request.get("command") != "use"
@@ -120,7 +172,8 @@ class ControlServer:
         ):
             return {"ok": False, "message": 'expected {"command": "use", "profile": NAME}'}
         try:
-            return {"ok": True, "message": self._use(request["profile"])}
+            with self._switch:
+                return {"ok": True, "message": self._use(request["profile"])}
         except NeurotouchError as exc:
             return {"ok": False, "message": str(exc)}
         except Exception as exc:  # the driver keeps running; the client learns why
@@ -169,7 +222,7 @@ def request_use(profile: str, path: Path | None = None, timeout_s: float = ANSWE
             raise NeurotouchError(f"cannot reach the driver at {path}: {exc.strerror}") from None
         try:
             sock.sendall(json.dumps({"command": "use", "profile": profile}).encode() + b"\n")
-            line = _read_line(sock)
+            line = _read_line(sock) or b""
         except OSError as exc:
             raise NeurotouchError(f"the driver at {path} did not answer: {exc.strerror or exc}") from None
     try:

@@ -48,7 +48,7 @@ from typing import Callable, Iterator, Optional
 import numpy as np
 
 from neurotouch_hid.controller import ControllerState
-from neurotouch_hid.errors import ProfileError
+from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.mapping.mapper import Mapper
 from neurotouch_hid.mapping.profile import Profile, load_profile
@@ -321,10 +321,13 @@ class Runtime:
             return False
         try:
             profile = self._profile_loader(self._profile_ref)
-        except ProfileError as exc:
+            self.switch_profile(profile)
+        except NeurotouchError as exc:
             log.error("profile not reloaded, keeping the current one: %s", exc)
             return False
-        self.switch_profile(profile)
+        except Exception as exc:  # the driver keeps running on its current profile, whatever the file
+            log.error("profile not reloaded, keeping the current one: %s: %s", type(exc).__name__, str(exc)[:200])
+            return False
         log.warning("profile reloaded from %s", self._profile_ref)
         return True
 
