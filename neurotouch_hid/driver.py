@@ -15,10 +15,10 @@ import logging
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
-from neurotouch_hid.errors import DeviceError, NeurotouchError
+from neurotouch_hid.errors import DeviceError, NeurotouchError, ProfileError
 from neurotouch_hid.estimate import GestureEstimate
 from neurotouch_hid.kinds import OutputKind, SourceKind
-from neurotouch_hid.mapping.profile import Profile, load_profile
+from neurotouch_hid.mapping.profile import Profile, available_profiles, load_profile
 from neurotouch_hid.runtime import DEFAULT_BATCH_US, DEFAULT_MAX_LAG_US, Runtime
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.stages import Output
@@ -134,7 +134,8 @@ def open_output(
         dev = profile.device
         identity = GamepadIdentity(name=dev.name, vendor=dev.vendor, product=dev.product, version=dev.version)
         on_effect = None if say is None else (lambda line: say(f"rumble (the gel has no motor): {line}"))
-        return stack.enter_context(UinputOutputs(VirtualGamepad(identity, on_effect=on_effect), profile))
+        pad = VirtualGamepad(identity, on_effect=on_effect)
+        return stack.enter_context(UinputOutputs(pad, profile, known=known_profiles()))
     if kind == OutputKind.JSONL:
         from neurotouch_hid.output.jsonl import StateJsonlWriter
 
@@ -142,6 +143,18 @@ def open_output(
     from neurotouch_hid.output.term import TermView
 
     return stack.enter_context(TermView(console, stats=stats))
+
+
+def known_profiles() -> list[Profile]:
+    """The shipped and the user's profiles that load (a broken one is left out: ``profile use``
+    refuses it anyway); the keyboard and mouse offer what they use from the start."""
+    known = []
+    for path in available_profiles().values():
+        try:
+            known.append(load_profile(path))
+        except ProfileError:
+            continue
+    return known
 
 
 class PipelineResting:

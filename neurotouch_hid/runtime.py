@@ -28,7 +28,9 @@ thread neutralises the output at once, drops the data still queued and says why;
 written until the camera is back. On ``"resumed"`` the pipeline restarts (``pipeline.restart()``:
 the markers are re-initialised on the first APS frame at rest) with a fresh mapper (its filters
 and hysteresis start neutral). SIGTERM is a clean stop (``run`` returns normally, the CLI exits 0);
-SIGHUP reloads the profile from its file (a bad profile on reload keeps the old one and logs why).
+SIGHUP reloads the profile from its file (a bad profile on reload, whatever is wrong with it, keeps
+the old one and logs why); SIGTSTP (Ctrl-Z) releases every output before the process stops, and
+SIGCONT resumes from a neutral state (:meth:`Runtime.suspend`).
 With ``control=True`` the run listens on the control socket (:mod:`neurotouch_hid.control`):
 ``neurotouch-hid profile use NAME`` switches the profile while running, outputs neutral first.
 """
@@ -38,6 +40,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import logging
+import os
 import signal
 import sys
 import threading
@@ -286,6 +289,8 @@ class Runtime:
         self._ran = False
         self._say = say
         self._paused = False  # the live camera is lost: write nothing (under self._lock)
+        self._suspend = threading.Event()  # SIGTSTP arrived: the main thread suspends the run
+        self._suspended = False  # stopped by SIGTSTP: write nothing (under self._lock)
         self._restart = threading.Event()  # it is back: restart the pipeline before its data
 
     # --- control ----------------------------------------------------------------------------
@@ -341,6 +346,28 @@ class Runtime:
         log.warning("switched to profile %s", ref)
         return f"switched to profile {ref}"
 
+    def suspend(self) -> None:
+        """SIGTSTP (Ctrl-Z): release every output, then stop the process as SIGTSTP's default
+        action does; after SIGCONT (``fg``) map again from a neutral state, pacing shifted by
+        the time stopped (a paced source does not rush to catch up). Main thread only."""
+        with self._lock:
+            self._suspended = True
+            self._output.neutralise()
+            self._forget_state()
+        log.warning("stopped: every output released (fg or SIGCONT resumes)")
+        stopped_ns = time.perf_counter_ns()
+        previous = signal.signal(signal.SIGTSTP, signal.SIG_DFL)
+        try:
+            os.kill(os.getpid(), signal.SIGTSTP)  # the process stops here until SIGCONT
+        finally:
+            signal.signal(signal.SIGTSTP, previous)
+        if self._clock.first_us is not None:
+            self._clock.first_ns += time.perf_counter_ns() - stopped_ns
+        with self._lock:
+            self._forget_state()
+            self._suspended = False
+        log.warning("resumed")
+
     # --- the run ----------------------------------------------------------------------------
     def run(self, seconds: float | None = None) -> RunStats:
         """Run until the source ends, ``seconds`` of camera time have been read, :meth:`stop`,
@@ -372,6 +399,9 @@ class Runtime:
                     if self._reload.is_set():
                         self._reload.clear()
                         self.reload_profile()
+                    if self._suspend.is_set():
+                        self._suspend.clear()
+                        self.suspend()
                     if seconds is not None and self._realtime:
                         # a real-time source that stalls still ends: wall deadline from its first item
                         first = self._clock.first_ns / 1e9 if self._clock.first_ns else start
@@ -424,6 +454,8 @@ class Runtime:
         previous = {signal.SIGTERM: signal.signal(signal.SIGTERM, lambda *_: self.stop())}
         if hasattr(signal, "SIGHUP"):
             previous[signal.SIGHUP] = signal.signal(signal.SIGHUP, lambda *_: self._reload.set())
+        if hasattr(signal, "SIGTSTP"):
+            previous[signal.SIGTSTP] = signal.signal(signal.SIGTSTP, lambda *_: self._suspend.set())
         try:
             yield
         finally:
@@ -556,8 +588,8 @@ class Runtime:
 
     def _emit(self, estimate: GestureEstimate) -> None:
         with self._lock:
-            if self._stop.is_set() or self._paused:  # run() neutralises (under this lock): nothing
-                return  # after that; a lost camera: nothing until back
+            if self._stop.is_set() or self._paused or self._suspended:  # run() neutralises (under this
+                return  # lock): nothing after that; a lost camera, Ctrl-Z: nothing until back
             state = self._mapper.update(estimate)
             last = self._last_state
             changed = (

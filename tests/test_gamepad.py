@@ -166,7 +166,7 @@ def test_keyboard_close_releases_held_keys_once_and_destroys_even_if_release_fai
 
     fake = _RecordingUinput()
     monkeypatch.setattr(desktop, "create_uinput", lambda *a, **k: fake)
-    keyboard = desktop.VirtualKeyboard()
+    keyboard = desktop.VirtualKeyboard({"KEY_LEFTSHIFT", "KEY_A"})
     held = ControllerState(keys=frozenset({"KEY_LEFTSHIFT", "KEY_A"}))
     keyboard.write(held)
     assert (ecodes.EV_KEY, ecodes.KEY_A, 1) in fake.events

@@ -130,6 +130,14 @@ BASE_LAYER = "base"
 MODES: tuple[str, ...] = ("hold", "toggle", "long_press", "double_press", "turbo")
 #: Turbo's highest rate (Hz): one press and one release need two windows of 10 ms.
 MAX_TURBO_HZ = 50.0
+#: Keys the kernel acts on itself: SysRq (Alt+SysRq+B reboots at once, Alt+SysRq+C crashes the
+#: kernel; Documentation/admin-guide/sysrq.rst). No profile may press it.
+KERNEL_COMMAND_KEYS = frozenset({"KEY_SYSRQ"})
+#: Ctrl+Alt+Delete (and its keypad form): the console keyboard driver reboots on it
+#: (drivers/tty/vt/keyboard.c, fn_boot_it). No profile may be able to press all three at once.
+_CTRL = frozenset({"KEY_LEFTCTRL", "KEY_RIGHTCTRL"})
+_ALT = frozenset({"KEY_LEFTALT", "KEY_RIGHTALT"})
+_DELETE = frozenset({"KEY_DELETE", "KEY_KPDOT"})
 
 
 @functools.cache
@@ -336,6 +344,11 @@ class ButtonMapping(_Hysteresis, _Layered):
                 )
         if len(parts) > 1 and any(not p.startswith("KEY_") and p not in MOUSE_BUTTONS for p in parts):
             raise ValueError("a chord of keyboard keys and mouse buttons only, such as 'KEY_LEFTSHIFT+KEY_TAB'")
+        if KERNEL_COMMAND_KEYS & set(parts):
+            raise ValueError(
+                "a key other than KEY_SYSRQ: the kernel runs SysRq chords as commands (Alt+SysRq+B "
+                "reboots the machine at once), so no profile may press it"
+            )
         return "+".join(FACE_ALIASES.get(p, p) for p in parts)
 
     @property
@@ -452,22 +465,45 @@ class Profile(_Strict):
             raise ValueError(f"every mapping's layer defined under layers: (missing: {', '.join(unknown)})")
         return self
 
+    @model_validator(mode="after")
+    def _no_ctrl_alt_delete(self) -> "Profile":
+        keys = self.keyboard_keys
+        if keys & _CTRL and keys & _ALT and keys & _DELETE:
+            raise ValueError(
+                "keys that cannot make Ctrl+Alt+Delete: the console reboots the machine on it; this "
+                f"profile presses {', '.join(sorted(keys & (_CTRL | _ALT | _DELETE)))}"
+            )
+        return self
+
+    @property
+    def keyboard_keys(self) -> frozenset[str]:
+        """The keyboard keys (``KEY_*``) its mappings press (the keyboard device offers these)."""
+        return frozenset(
+            p for m in self.mappings.values() if isinstance(m, ButtonMapping) for p in m.presses if p.startswith("KEY_")
+        )
+
+    @property
+    def mouse_outputs(self) -> frozenset[str]:
+        """The mouse buttons and motions (``REL_*``; ``pointer`` as REL_X, REL_Y) it drives."""
+        used: set[str] = set()
+        for m in self.mappings.values():
+            if isinstance(m, ButtonMapping):
+                used.update(p for p in m.presses if p in MOUSE_BUTTONS)
+            elif isinstance(m, PointerMapping):
+                used.update(("REL_X", "REL_Y"))
+            elif isinstance(m, RelMapping):
+                used.add(m.output)
+        return frozenset(used)
+
     @property
     def uses_keyboard(self) -> bool:
         """A mapping presses a keyboard key."""
-        return any(
-            isinstance(m, ButtonMapping) and any(p.startswith("KEY_") for p in m.presses)
-            for m in self.mappings.values()
-        )
+        return bool(self.keyboard_keys)
 
     @property
     def uses_mouse(self) -> bool:
         """A mapping presses a mouse button or moves the pointer or a wheel."""
-        return any(
-            isinstance(m, (PointerMapping, RelMapping))
-            or (isinstance(m, ButtonMapping) and any(p in MOUSE_BUTTONS for p in m.presses))
-            for m in self.mappings.values()
-        )
+        return bool(self.mouse_outputs)
 
 
 # --- where profiles live ------------------------------------------------------------------------

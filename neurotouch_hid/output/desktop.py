@@ -1,13 +1,20 @@
 """Keyboard and mouse beside the pad: one uinput device each, made only when a profile uses it.
 
-:class:`VirtualKeyboard` offers every evdev ``KEY_*`` key (so a later profile switch can press any
-of them on the same device) and writes :attr:`ControllerState.keys` that are keyboard keys;
-:class:`VirtualMouse` has the five mouse buttons, REL_X/REL_Y, and both wheels with their hi-res
-codes (REL_WHEEL_HI_RES/REL_HWHEEL_HI_RES, 120 per detent, kernel 5.0+), and writes the mouse
-buttons in :attr:`ControllerState.keys` and the motion in :attr:`ControllerState.rel`.
-:class:`UinputOutputs` puts the pad and these together behind the one ``write`` /
-``neutralise`` / ``close`` an output has; :meth:`UinputOutputs.prepare` makes a missing keyboard
-or mouse when a profile switch needs one. Neutral = every key and button released (motion is an
+Each device offers only what the profiles use (docs/limits.md, Devices): a profile that a
+crafted file or a bug made press something else cannot type it.
+
+:class:`VirtualKeyboard` offers the keys it is given plus keys 1..31 (Esc, digits, Q..P, A, S, D,
+Tab, Enter, Backspace, Left Ctrl: without all of them udev does not call a device a keyboard
+and desktops do not apply the keyboard layout to it), never KEY_SYSRQ, and writes the
+:attr:`ControllerState.keys` it offers; :class:`VirtualMouse` has BTN_LEFT and REL_X/REL_Y (what
+makes a mouse for udev) plus the buttons and wheels given (a wheel with its hi-res code, 120 per
+detent, kernel 5.0+), and writes its buttons in :attr:`ControllerState.keys` and the motion in
+:attr:`ControllerState.rel`. :class:`UinputOutputs` puts the pad and these together behind the
+one ``write`` / ``neutralise`` / ``close`` an output has. The devices offer the union of the
+profiles known at start (shipped and the user's: ``profile use NAME`` keeps the same devices);
+:meth:`UinputOutputs.prepare`, called after everything is released, makes a missing keyboard or
+mouse, or replaces one that lacks what a new profile needs (a profile file given by path, or
+edited since) by one offering both. Neutral = every key and button released (motion is an
 impulse and stops by itself); every device is neutral before it goes.
 
 Library: python-evdev's :class:`evdev.UInput` (kernel uinput, Documentation/input/uinput.rst);
@@ -16,13 +23,15 @@ the hi-res wheel convention is the kernel's (Documentation/input/event-codes.rst
 
 from __future__ import annotations
 
-import functools
+import logging
 import threading
-from typing import Any
+from typing import Any, Iterable
 
 from neurotouch_hid.controller import MOUSE_BUTTONS, MOUSE_REL, ControllerState
 from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.output.gamepad import NeutralOnClose, VirtualGamepad, create_uinput
+
+log = logging.getLogger(__name__)
 
 #: ``phys`` of the keyboard and the mouse (the udev rule's ``neurotouch-hid/*`` tags them
 #: ID_NEUROTOUCH_VIRTUAL=1 like the pad).
@@ -45,15 +54,33 @@ MODIFIERS = frozenset(
 )
 
 
-@functools.cache
-def keyboard_codes() -> tuple[int, ...]:
-    """Every ``KEY_*`` code (sorted, no duplicates, none of the BTN_* range 0x100..0x15f)."""
+#: Key codes 1..31 (KEY_ESC .. KEY_D): udev's input_id sets ID_INPUT_KEYBOARD only for a device
+#: that has all of them (systemd, src/udev/udev-builtin-input_id.c, test_key).
+UDEV_KEYBOARD_CODES = tuple(range(1, 32))
+#: The wheels' hi-res codes, offered and written with them.
+_HI_RES = {"REL_WHEEL": "REL_WHEEL_HI_RES", "REL_HWHEEL": "REL_HWHEEL_HI_RES"}
+
+
+def keyboard_codes(keys: Iterable[str]) -> tuple[int, ...]:
+    """The codes a keyboard offering ``keys`` (``KEY_*`` names) has: theirs and
+    :data:`UDEV_KEYBOARD_CODES`, sorted, without KEY_SYSRQ (profiles may not press it)."""
     from evdev import ecodes
 
-    from neurotouch_hid.mapping.profile import keyboard_keys
+    from neurotouch_hid.mapping.profile import KERNEL_COMMAND_KEYS
 
-    codes = {ecodes.ecodes[name] for name in keyboard_keys()}
-    return tuple(sorted(c for c in codes if 0 < c and not ecodes.BTN_MISC <= c < ecodes.KEY_OK))
+    codes = set(UDEV_KEYBOARD_CODES) | {ecodes.ecodes[name] for name in keys if name not in KERNEL_COMMAND_KEYS}
+    return tuple(sorted(codes - {ecodes.ecodes[name] for name in KERNEL_COMMAND_KEYS}))
+
+
+def mouse_capabilities(outputs: Iterable[str]) -> dict[int, list[int]]:
+    """EV_KEY and EV_REL codes of a mouse driving ``outputs`` (mouse button and REL_* names):
+    theirs (a wheel with its hi-res code) plus BTN_LEFT, REL_X and REL_Y."""
+    from evdev import ecodes
+
+    wanted = set(outputs) | {"BTN_LEFT", "REL_X", "REL_Y"}
+    buttons = [b for b in MOUSE_BUTTONS if b in wanted]
+    rels = [r for r in MOUSE_REL if r in wanted or any(_HI_RES.get(w) == r for w in wanted)]
+    return {ecodes.EV_KEY: [ecodes.ecodes[b] for b in buttons], ecodes.EV_REL: [ecodes.ecodes[r] for r in rels]}
 
 
 class _UinputDevice(NeutralOnClose):
@@ -117,34 +144,38 @@ class _UinputDevice(NeutralOnClose):
 
 
 class VirtualKeyboard(_UinputDevice):
-    """A uinput keyboard with every ``KEY_*`` key; :meth:`write` presses ``state.keys``' keyboard
-    keys. Raises DeviceError like :class:`VirtualGamepad`."""
+    """A uinput keyboard offering ``keys`` (``KEY_*`` names; :func:`keyboard_codes`);
+    :meth:`write` presses those of ``state.keys`` it offers (``self.keys``). Raises DeviceError
+    like :class:`VirtualGamepad`."""
 
-    def __init__(self, devnode: str = "/dev/uinput") -> None:
+    def __init__(self, keys: Iterable[str] = (), devnode: str = "/dev/uinput") -> None:
         from evdev import ecodes
 
-        super().__init__("keyboard", {ecodes.EV_KEY: list(keyboard_codes())}, KEYBOARD_NAME, KEYBOARD_PHYS, devnode)
+        codes = keyboard_codes(keys)
+        super().__init__("keyboard", {ecodes.EV_KEY: list(codes)}, KEYBOARD_NAME, KEYBOARD_PHYS, devnode)
+        offered = set(codes)
+        self.keys = frozenset(n for n, c in ecodes.ecodes.items() if n.startswith("KEY_") and c in offered)
 
     def write(self, state: ControllerState) -> None:
-        self._emit(frozenset(k for k in state.keys if k.startswith("KEY_")), {})
+        self._emit(state.keys & self.keys, {})
 
 
 class VirtualMouse(_UinputDevice):
-    """A uinput mouse: BTN_LEFT .. BTN_EXTRA, REL_X/REL_Y, REL_WHEEL/REL_HWHEEL and their hi-res
-    codes; :meth:`write` presses ``state.keys``' mouse buttons and moves by ``state.rel``.
-    Raises DeviceError like :class:`VirtualGamepad`."""
+    """A uinput mouse driving ``outputs`` (mouse buttons, REL_* names; :func:`mouse_capabilities`);
+    :meth:`write` presses the buttons of ``state.keys`` it offers and moves by ``state.rel``'s
+    codes it offers (``self.outputs``). Raises DeviceError like :class:`VirtualGamepad`."""
 
-    def __init__(self, devnode: str = "/dev/uinput") -> None:
+    def __init__(self, outputs: Iterable[str] = (), devnode: str = "/dev/uinput") -> None:
         from evdev import ecodes
 
-        caps = {
-            ecodes.EV_KEY: [ecodes.ecodes[b] for b in MOUSE_BUTTONS],
-            ecodes.EV_REL: [ecodes.ecodes[r] for r in MOUSE_REL],
-        }
+        caps = mouse_capabilities(outputs)
         super().__init__("mouse", caps, MOUSE_NAME, MOUSE_PHYS, devnode)
+        offered = {c for codes in caps.values() for c in codes}
+        self.outputs = frozenset(n for n in (*MOUSE_BUTTONS, *MOUSE_REL) if ecodes.ecodes[n] in offered)
 
     def write(self, state: ControllerState) -> None:
-        self._emit(frozenset(k for k in state.keys if k in MOUSE_BUTTONS), state.rel)
+        rel = {name: v for name, v in state.rel.items() if name in self.outputs}
+        self._emit(state.keys & self.outputs, rel)
 
 
 class UinputOutputs:
@@ -152,18 +183,25 @@ class UinputOutputs:
 
     ``write(state)`` writes each device's part; :meth:`neutralise` and :meth:`close` act on all
     (the pad last on close, so a game sees its release even if another device fails).
-    :meth:`prepare` creates the keyboard or mouse a (new) profile needs; devices are never
-    removed while running, so programs keep their handles.
+    :meth:`prepare` creates the keyboard or mouse a (new) profile needs, or replaces one that
+    lacks some of its keys or buttons; the pad is never replaced, and the keyboard and mouse
+    offer from the start what the ``known`` profiles use, so that switching between them keeps
+    every device (programs keep their handles).
     """
 
     #: uinput devices show states only (:class:`~neurotouch_hid.stages.Output`).
     accepts_estimate = False
 
-    def __init__(self, pad: VirtualGamepad, profile: Any = None, devnode: str = "/dev/uinput") -> None:
+    def __init__(
+        self, pad: VirtualGamepad, profile: Any = None, devnode: str = "/dev/uinput", known: Iterable[Any] = ()
+    ) -> None:
         self.pad = pad
         self.keyboard: VirtualKeyboard | None = None
         self.mouse: VirtualMouse | None = None
         self._devnode = devnode
+        known = list(known)
+        self._known_keys = frozenset().union(*(p.keyboard_keys for p in known))
+        self._known_mouse = frozenset().union(*(p.mouse_outputs for p in known))
         if profile is not None:
             try:
                 self.prepare(profile)
@@ -180,12 +218,25 @@ class UinputOutputs:
         return [d for d in (self.keyboard, self.mouse, self.pad) if d is not None]
 
     def prepare(self, profile: Any) -> None:
-        """Create the keyboard and/or mouse if ``profile`` uses them and they do not exist yet.
-        Raises DeviceError when the kernel refuses."""
-        if profile.uses_keyboard and self.keyboard is None:
-            self.keyboard = VirtualKeyboard(self._devnode)
-        if profile.uses_mouse and self.mouse is None:
-            self.mouse = VirtualMouse(self._devnode)
+        """Make the keyboard and/or mouse ``profile`` uses: create a missing one (offering what
+        the known profiles use too), or replace one lacking some of its keys or buttons by one
+        offering both (the old one is released and removed first: call this only after
+        :meth:`neutralise`). Raises DeviceError when the kernel refuses."""
+        keys, mouse = profile.keyboard_keys, profile.mouse_outputs
+        if keys and (self.keyboard is None or not keys <= self.keyboard.keys):
+            offered = self._known_keys if self.keyboard is None else self.keyboard.keys
+            if self.keyboard is not None:
+                log.warning("the profile uses keys the virtual keyboard lacks: it is made again with them")
+                self.keyboard.close()
+                self.keyboard = None
+            self.keyboard = VirtualKeyboard(offered | keys, self._devnode)
+        if mouse and (self.mouse is None or not mouse <= self.mouse.outputs):
+            offered = self._known_mouse if self.mouse is None else self.mouse.outputs
+            if self.mouse is not None:
+                log.warning("the profile uses mouse buttons or wheels the virtual mouse lacks: it is made again")
+                self.mouse.close()
+                self.mouse = None
+            self.mouse = VirtualMouse(offered | mouse, self._devnode)
 
     def write(self, state: ControllerState, estimate: Any = None) -> None:
         for device in self.devices:

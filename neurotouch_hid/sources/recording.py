@@ -36,6 +36,7 @@ import numpy as np
 from neurotouch_hid.errors import RecordingError
 from neurotouch_hid.sources import EVENT_DTYPE, Frame, Pacer, StreamItem
 from neurotouch_hid.sources.dv import DV_ERRORS, dv_error_text, store_from_events
+from neurotouch_hid.sources.packet_bounds import Unbounded, inflated_bound
 
 if TYPE_CHECKING:  # pragma: no cover
     pass
@@ -58,6 +59,15 @@ MAX_HEADER_BYTES = 16 << 20
 MAX_TIMESTAMP_US = 1 << 62
 #: A pass over a file ends after this many damaged packets in a row (nothing left to read).
 MAX_CONSECUTIVE_ERRORS = 64
+#: The most one packet may be, stored or inflated (bytes): the decoder holds a packet whole. A
+#: DAVIS-346 packet is 10-200 KB (a 10 ms batch, or a 90 KB APS frame); 64 MiB is 5 million events.
+MAX_PACKET_BYTES = 64 << 20
+#: Inflated bytes (bounded from the packets' framing, packet_bounds.py) per stored byte, over the
+#: file read so far, beyond :data:`MIN_INFLATE_BUDGET`: real event data compresses 3-10x, and the
+#: bound counts up to a block's maximum for a tiny block (single-event packets reach ~2000x).
+MAX_INFLATE_RATIO = 4096
+#: Inflated bytes any recording may reach before :data:`MAX_INFLATE_RATIO` applies.
+MIN_INFLATE_BUDGET = 1 << 30
 
 
 @dataclass(frozen=True)
@@ -144,8 +154,8 @@ def _check_path(path: Path) -> None:
         )
 
 
-def _read_header(path: Path) -> tuple[int, str]:
-    """Read the AEDAT4 header: ``(dataTablePosition, infoNode XML)``.
+def _read_header(path: Path) -> tuple[int, str, int, int]:
+    """Read the AEDAT4 header: ``(dataTablePosition, infoNode XML, compression, end of header)``.
 
     The header is the version line, a little-endian uint32 size and an ``IOHeader`` flatbuffer
     (fields: compression, dataTablePosition int64 default -1 = no table, infoNode string, the
@@ -175,6 +185,7 @@ def _read_header(path: Path) -> tuple[int, str]:
             struct.unpack_from("<H", header, vtable + 4 + 2 * i)[0] if vtable_size >= 6 + 2 * i else 0 for i in range(3)
         ]
         position = struct.unpack_from("<q", header, root + fields[1])[0] if fields[1] else -1
+        compression = struct.unpack_from("<i", header, root + fields[0])[0] if fields[0] else 0
         xml = ""
         if fields[2]:
             start = root + fields[2] + struct.unpack_from("<I", header, root + fields[2])[0]
@@ -182,7 +193,7 @@ def _read_header(path: Path) -> tuple[int, str]:
             xml = header[start + 4 : start + 4 + length].decode("utf-8", "replace")
     except struct.error:
         raise RecordingError(f"{path}: corrupt AEDAT4 header") from None
-    return position, xml
+    return position, xml, compression, len(AEDAT4_MAGIC) + 4 + size
 
 
 def _camera_name(xml: str) -> str:
@@ -250,7 +261,8 @@ class RecordingReader:
     ) -> None:
         self.path = Path(path)
         _check_path(self.path)
-        table_position, xml = _read_header(self.path)
+        table_position, xml, self._compression, self._data_start = _read_header(self.path)
+        self._table_position = table_position
         size = self.path.stat().st_size
         self._truncated = (
             (
@@ -321,8 +333,19 @@ class RecordingReader:
         Damaged packets are skipped and counted in ``damage``; a cut ends the pass.
         """
         decoder = iter(self._decoder())
+        guard = _InflateGuard(self.path, self._data_start, self._table_position, self._compression)
+        try:
+            yield from self._checked_packets(decoder, guard, damage)
+        finally:
+            guard.close()
+
+    def _checked_packets(self, decoder, guard: "_InflateGuard", damage: "_Damage") -> Iterator[np.ndarray | Frame]:
         last_event_us = last_frame_us = 0
         while True:
+            refused = guard.check_next()
+            if refused is not None:
+                damage.refuse(refused)
+                return
             try:
                 packet = next(decoder)
             except StopIteration:
@@ -442,14 +465,69 @@ class RecordingReader:
         return events, frames
 
 
+class _InflateGuard:
+    """Follows the decoder through the file (packets are int32 stream id, uint32 size, payload)
+    and bounds each packet before the decoder reads it: its stored size, its inflated size (from
+    its compression framing, :func:`~neurotouch_hid.sources.packet_bounds.inflated_bound`) and
+    the inflated total so far (:data:`MAX_INFLATE_RATIO`)."""
+
+    def __init__(self, path: Path, start: int, table_position: int, compression: int) -> None:
+        self.path, self.pos, self.table, self.compression = path, start, table_position, compression
+        self.fd = os.open(path, os.O_RDONLY | getattr(os, "O_CLOEXEC", 0))
+        self.size = os.fstat(self.fd).st_size
+        self.inflated = 0
+
+    def close(self) -> None:
+        os.close(self.fd)
+
+    def check_next(self) -> str | None:
+        """Why the next packet must not be read (the pass ends there), or None: read it. A packet
+        that runs past the end of the file is not read either ("cut"): the decoder would reserve
+        its declared size first."""
+        if 0 <= self.table <= self.pos or self.pos + 8 > self.size:
+            return None  # the decoder stops by itself here
+        (length,) = struct.unpack("<I", os.pread(self.fd, 4, self.pos + 4))
+        if self.pos + 8 + length > self.size:
+            return "cut"
+        if length > MAX_PACKET_BYTES:
+            return f"a packet at byte {self.pos} stores {length} bytes (at most {MAX_PACKET_BYTES >> 20} MiB)"
+        payload = os.pread(self.fd, length, self.pos + 8)
+        try:
+            bound = inflated_bound(payload, self.compression)
+        except Unbounded as exc:
+            return f"a packet at byte {self.pos} is {exc}, whose size cannot be bounded"
+        if bound > MAX_PACKET_BYTES:
+            return (
+                f"a packet at byte {self.pos} of {length} bytes would inflate to up to {bound} bytes "
+                f"(at most {MAX_PACKET_BYTES >> 20} MiB): a decompression bomb or a damaged file"
+            )
+        self.pos += 8 + length
+        self.inflated += bound
+        if self.inflated > max(MIN_INFLATE_BUDGET, MAX_INFLATE_RATIO * self.pos):
+            return (
+                f"its first {self.pos} bytes would inflate to up to {self.inflated} bytes (more than "
+                f"{MAX_INFLATE_RATIO}x): a decompression bomb or a damaged file"
+            )
+        return None
+
+
 class _Damage:
-    """What one pass over a file found wrong: skipped packets, and whether the file was cut."""
+    """What one pass over a file found wrong: skipped packets, whether the file was cut, and why
+    it was refused (a bound of :class:`_InflateGuard`)."""
 
     def __init__(self) -> None:
         self.skipped = 0
         self.first: str | None = None
         self.cut = False
         self.consecutive = 0
+        self.refused: str | None = None
+
+    def refuse(self, problem: str) -> None:
+        """End the pass: ``problem`` is "cut" or why a packet was not read."""
+        if problem == "cut":
+            self.cut = True
+        else:
+            self.refused = problem
 
     def add(self, problem: str) -> bool:
         """Count a damaged packet; True when the pass must end (the file ends inside a packet, or
@@ -463,7 +541,7 @@ class _Damage:
         return self.consecutive >= MAX_CONSECUTIVE_ERRORS
 
     def describe(self) -> str | None:
-        parts = []
+        parts = [f"refused: {self.refused} (docs/limits.md)"] if self.refused else []
         if self.skipped:
             parts.append(f"corrupt: {self.skipped} damaged packet(s) skipped (the first: {self.first})")
         if self.cut:

@@ -151,7 +151,14 @@ def _run_in_process(
     with contextlib.ExitStack() as stack:
         outputs = open_output("gamepad", load_profile(profile), stack)
         guestlib.settle()
-        props = {d.what: guestlib.udev_properties(d.device_path) for d in outputs.devices if hasattr(d, "what")}
+        props = {
+            d.what: dict(
+                guestlib.udev_properties(d.device_path),
+                KEY_CODES=set(InputDevice(d.device_path).capabilities().get(ecodes.EV_KEY, [])),
+            )
+            for d in outputs.devices
+            if hasattr(d, "what")
+        }
         watchers = {"pad": Watcher(outputs.pad.device_path)}
         for device in (outputs.keyboard, outputs.mouse):
             if device is not None:
@@ -186,6 +193,7 @@ def check_mouse_profile_moves_the_pointer() -> dict:
     assert clicks == [("BTN_LEFT", 1), ("BTN_LEFT", 0)], clicks
     assert not mouse.pressed
     assert props["mouse"].get("ID_INPUT_MOUSE") == "1", props["mouse"]
+    assert props["mouse"]["KEY_CODES"] == {ecodes.BTN_LEFT, ecodes.BTN_RIGHT}, props["mouse"]["KEY_CODES"]
     return {
         "rel": got,
         "clicks": clicks,
@@ -229,6 +237,9 @@ def check_switch_access_presses_and_releases_keys() -> dict:
     assert log == want, f"key log {log}"
     assert not keyboard.pressed
     assert props["keyboard"].get("ID_INPUT_KEYBOARD") == "1", props["keyboard"]
+    # the keys of the shipped profiles and udev's keyboard block (1..31), nothing else, no SysRq
+    shipped = {ecodes.ecodes[k] for k in ("KEY_SPACE", "KEY_TAB", "KEY_LEFTSHIFT", "KEY_ENTER", "KEY_ESC")}
+    assert props["keyboard"]["KEY_CODES"] == shipped | set(range(1, 32)), sorted(props["keyboard"]["KEY_CODES"])
     return {"keys": log, "ID_INPUT_KEYBOARD": props["keyboard"].get("ID_INPUT_KEYBOARD"), "windows": stats.windows}
 
 
@@ -279,15 +290,17 @@ def check_layer_switch_profile_use_and_sigterm_leave_nothing_pressed() -> dict:
     pinch switches to layer ``alt``: both are released before anything of ``alt`` is pressed. In
     ``alt`` a held push presses KEY_ENTER and the pad's A; ``profile use`` (the control socket,
     as the CLI sends it) switches to a profile file mid-push: both are released at once, then the
-    new profile holds a Ctrl+B chord, BTN_LEFT, A and the stick with the same push. SIGTERM:
+    new profile (in the user's folder at start, so the keyboard offers its keys: the same device)
+    holds a Ctrl+B chord, BTN_LEFT, A and the stick with the same push. SIGTERM:
     exit 0, nothing pressed on any device, the stick centred, every device gone."""
     from neurotouch_hid.control import SOCKET_NAME, request_use
 
     folder = Path(tempfile.mkdtemp(prefix="remap-layers-"))
     runtime_dir = folder / "xdg"
     runtime_dir.mkdir(mode=0o700)
-    env = dict(_env(), XDG_RUNTIME_DIR=str(runtime_dir))
-    profile, everything = folder / "layered.yaml", folder / "everything.yaml"
+    env = dict(_env(), XDG_RUNTIME_DIR=str(runtime_dir), XDG_CONFIG_HOME=str(folder / "config"))
+    profile, everything = folder / "layered.yaml", folder / "config" / "neurotouch-hid" / "profiles" / "everything.yaml"
+    everything.parent.mkdir(parents=True)
     profile.write_text(LAYERED)
     everything.write_text(EVERYTHING)
     preds = _write_preds(folder, sequence((G.ZOOM, 4.0, 0.3), (G.PINCH, 4.0, 0.3), (G.PUSH, 4.0, 120.0), lead_in_s=4.0))
