@@ -20,6 +20,7 @@ from typing import Callable, Sequence
 from neurotouch_hid.dataset import dataset_sensor_file, list_sequences, read_labels, write_predictions
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.evaluation.metrics import EvaluationResult, Observations, align, evaluate
+from neurotouch_hid.limits import short
 from neurotouch_hid.sensor import SensorGeometry
 
 log = logging.getLogger(__name__)
@@ -54,14 +55,14 @@ def pipeline_config(settings: Sequence[str] = (), preset: str = "default", **val
         name, sep, text = item.partition("=")
         name, text = name.strip(), text.strip()
         if not sep or not name:
-            raise NeurotouchError(f"--set {item!r}: expected NAME=VALUE, e.g. --set r_px=30")
+            raise NeurotouchError(f"--set {short(item)}: expected NAME=VALUE, e.g. --set r_px=30")
         model: type[BaseModel] = PipelineConfig
         path = name.split(".")
         group = data
         for part in path[:-1]:
             annotation = model.model_fields[part].annotation if part in model.model_fields else None
             if not (isinstance(annotation, type) and issubclass(annotation, BaseModel)):
-                raise NeurotouchError(f"--set {item!r}: {part!r} is not a group of PipelineConfig")
+                raise NeurotouchError(f"--set {short(item)}: {part!r} is not a group of PipelineConfig")
             model, group = annotation, group.setdefault(part, {})
         leaves = [
             f
@@ -70,7 +71,7 @@ def pipeline_config(settings: Sequence[str] = (), preset: str = "default", **val
         ]
         if path[-1] not in leaves:
             raise NeurotouchError(
-                f"--set {item!r}: {model.__name__} has no field {path[-1]!r}; fields: {', '.join(leaves)}"
+                f"--set {short(item)}: {model.__name__} has no field {path[-1]!r}; fields: {', '.join(leaves)}"
             )
         group[path[-1]] = None if text.lower() in ("none", "null") else text
         given[tuple(path)] = item
@@ -81,11 +82,11 @@ def pipeline_config(settings: Sequence[str] = (), preset: str = "default", **val
         problems = []
         for err in exc.errors():
             loc = tuple(str(p) for p in err["loc"])
-            where = f"--set {given[loc]!r}: " if loc in given else ""
+            where = f"--set {short(given[loc])}: " if loc in given else ""
             field = ".".join(loc) or "the hyperparameters"
             message = err["msg"].removeprefix("Value error, ")
             message = message[:1].lower() + message[1:]
-            problems.append(f"{where}{field}: found {err['input']!r}; {message}" if loc else f"{where}{message}")
+            problems.append(f"{where}{field}: found {short(err['input'])}; {message}" if loc else f"{where}{message}")
         raise NeurotouchError("invalid pipeline hyperparameters: " + "; ".join(problems)) from None
 
 

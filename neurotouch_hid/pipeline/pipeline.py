@@ -388,7 +388,7 @@ class PipelineConfig(BaseModel):
     noise_filter_us: int | None = None
     tracker: TrackerConfig = Field(default_factory=TrackerConfig)
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)  # a --set of inf or nan is refused
 
     @field_validator("window_us", "noise_filter_us", mode="before")
     @classmethod

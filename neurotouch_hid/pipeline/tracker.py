@@ -99,7 +99,7 @@ class TrackerConfig(BaseModel):
             neighbour's edge) meet a large covariance and throw the blob px away.
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     sigma_px: float = 1.0
     assoc_px: float = 4.0

@@ -1,0 +1,441 @@
+"""Inputs crafted to break the driver (docs/limits.md): each ends with exit 0 or 2, one short
+message, no traceback, and bounded memory; the running driver refuses them and keeps going.
+
+Commands run in child processes, measured with ``wait4`` (their peak memory) and guarded by an
+address-space limit, so that a bound that does not hold fails the test without taking the
+machine's memory."""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+from hostile_inputs import ALIAS_BOMB, DEEP_YAML, bomb_recording
+
+import neurotouch_hid
+from neurotouch_hid.errors import ProfileError, SensorError
+
+#: The tree whose package the tests import (children import the same one).
+ROOT = Path(neurotouch_hid.__file__).resolve().parents[1]
+#: Peak memory a crafted input may cost a command (KB, ru_maxrss): "well under 1 GiB".
+MAX_RSS_KB = 512 * 1024
+#: Most a refusal may print (bytes): one line, a few KB at most.
+MAX_OUTPUT = 4096
+
+
+def bounded_run(args: list[str], *, env: dict | None = None, timeout_s: float = 30.0, address_space_gib: int = 3):
+    """Run ``args``; (exit code, stdout, stderr, peak RSS in KB). Killed after ``timeout_s`` (exit
+    code None then); its address space is limited so that a runaway allocation fails in it."""
+
+    def limit() -> None:
+        size = address_space_gib << 30
+        resource.setrlimit(resource.RLIMIT_AS, (size, size))
+
+    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+        proc = subprocess.Popen(args, stdout=out, stderr=err, env=env, preexec_fn=limit, cwd=ROOT)
+        end = time.monotonic() + timeout_s
+        code = None
+        while time.monotonic() < end:
+            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+            if pid:
+                code, rss = os.waitstatus_to_exitcode(status), usage.ru_maxrss
+                break
+            time.sleep(0.05)
+        else:
+            proc.kill()
+            _, _, usage = os.wait4(proc.pid, 0)
+            rss = usage.ru_maxrss
+        proc.returncode = code  # reaped here: keep Popen from waiting again
+        out.seek(0)
+        err.seek(0)
+        return code, out.read().decode(errors="replace"), err.read().decode(errors="replace"), rss
+
+
+def cli(*args: str, env: dict | None = None, **kw):
+    return bounded_run([sys.executable, "-m", "neurotouch_hid.cli", *args], env=env or _env(), **kw)
+
+
+def _env(**extra) -> dict:
+    return dict(os.environ, PYTHONPATH=str(ROOT), **extra)
+
+
+def assert_refused(result, *must_say: str) -> None:
+    """Exit 2, one short line naming the problem, no traceback, bounded memory."""
+    code, out, err, rss = result
+    assert code == 2, f"exit {code}: {err[-2000:]}"
+    assert "Traceback" not in err and len(out) + len(err) <= MAX_OUTPUT, err[-2000:]
+    assert len(err.strip().splitlines()) == 1, err
+    for words in must_say:
+        assert words in err, err
+    assert rss < MAX_RSS_KB, f"peak memory {rss // 1024} MB"
+
+
+# --- recordings ---------------------------------------------------------------------------------
+def test_a_decompression_bomb_is_refused_before_it_is_inflated(tmp_path):
+    """~100 KB of zstd RLE blocks declaring 3 GiB in one packet: ``info`` refuses the packet from
+    its framing, without inflating it."""
+    path = bomb_recording(tmp_path / "bomb.aedat4", inflated=3 << 30)
+    assert path.stat().st_size < 200_000
+    assert_refused(cli("info", str(path)), "decompression bomb", "docs/limits.md")
+
+
+def test_the_reader_refuses_a_bomb_after_yielding_what_comes_before(tmp_path):
+    """The stream every command reads gives the packets before the bomb, then one RecordingError."""
+    from neurotouch_hid.errors import RecordingError
+    from neurotouch_hid.sources.recording import RecordingReader
+
+    path = bomb_recording(tmp_path / "bomb.aedat4", inflated=256 << 20)
+    read = []
+    with RecordingReader(path) as reader, pytest.raises(RecordingError, match="would inflate to up to 268435456"):
+        for item in reader.stream():
+            read.append(len(item))
+    assert sum(read) == 2000  # every event before the bomb
+
+
+def test_a_bomb_spread_over_many_small_packets_meets_the_file_budget():
+    """Packets of 32 MiB each stay under the packet bound; their total against the file's size
+    does not (MAX_INFLATE_RATIO beyond MIN_INFLATE_BUDGET)."""
+    from hostile_inputs import zstd_rle_bomb
+
+    from neurotouch_hid.sources.packet_bounds import COMPRESSION_ZSTD, inflated_bound
+    from neurotouch_hid.sources.recording import MAX_INFLATE_RATIO, MAX_PACKET_BYTES, MIN_INFLATE_BUDGET
+
+    payload = zstd_rle_bomb(32 << 20)
+    bound = inflated_bound(payload, COMPRESSION_ZSTD)
+    assert bound == 32 << 20 and bound <= MAX_PACKET_BYTES
+    packets_to_budget = MIN_INFLATE_BUDGET // bound + 1
+    assert packets_to_budget * bound > max(MIN_INFLATE_BUDGET, MAX_INFLATE_RATIO * packets_to_budget * len(payload))
+
+
+# --- YAML ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "text, says",
+    [
+        (ALIAS_BOMB, "aliases"),
+        (DEEP_YAML, "nested more than"),
+        ("mappings: {}\ndescription: " + "1" * 5000 + "\n", "a number of 5000 characters"),
+        ("mappings: {}\ndescription: x\ndescription: y\n", "duplicate key"),
+    ],
+    ids=["alias-bomb", "8000-deep", "5000-digits", "duplicate-key"],
+)
+def test_profile_validate_refuses_yaml_bombs_in_one_line(tmp_path, text, says):
+    path = tmp_path / "crafted.yaml"
+    path.write_text(text)
+    assert_refused(cli("profile", "validate", str(path)), says, f"{path}:")
+
+
+def test_profile_numbers_must_be_finite():
+    text = "mappings:\n  move: {input: push, output: left_stick, deadzone_mm: .inf}\n"
+    with pytest.raises(ProfileError, match="finite number"):
+        from neurotouch_hid.mapping.profile import parse_profile
+
+        parse_profile(text, "inf.yaml")
+
+
+def test_yaml_errors_carry_a_plain_hint_beside_file_and_line():
+    from neurotouch_hid.mapping.profile import parse_profile
+
+    with pytest.raises(ProfileError) as tab:
+        parse_profile("mappings:\n\tjump: {input: push, output: A}\n", "tabs.yaml")
+    assert str(tab.value).startswith("tabs.yaml:2: not valid YAML") and "never tabs" in str(tab.value)
+    with pytest.raises(ProfileError) as indent:
+        parse_profile("mappings:\n  jump: {input: push, output: A}\n kick: x\n", "indent.yaml")
+    assert str(indent.value).startswith("indent.yaml:3:") and "indentation" in str(indent.value)
+
+
+def _load_sensor_in_child(path: Path):
+    code = (
+        "import sys\nfrom neurotouch_hid.errors import SensorError\nfrom neurotouch_hid.sensor import SensorGeometry\n"
+        "try:\n    SensorGeometry.load(sys.argv[1])\nexcept SensorError as exc:\n"
+        "    print(exc, file=sys.stderr)\n    sys.exit(2)\n"
+    )
+    return bounded_run([sys.executable, "-c", code, str(path)], env=_env())
+
+
+@pytest.mark.parametrize(
+    "text, says",
+    [
+        (ALIAS_BOMB, "aliases"),
+        (DEEP_YAML, "nested more than"),
+        ("width: " + "3" * 5000 + "\n", "a number of 5000 characters"),
+        ("px_per_mm: .inf\n", "finite number"),
+        ("width: 1e300\n", "width"),
+        ("width: 346\nwidth: 640\n", "duplicate key"),
+    ],
+    ids=["alias-bomb", "8000-deep", "5000-digits", "inf", "huge", "duplicate-key"],
+)
+def test_sensor_yaml_bombs_are_one_line(tmp_path, text, says):
+    path = tmp_path / "sensor.yaml"
+    path.write_text(text)
+    assert_refused(_load_sensor_in_child(path), says)
+
+
+def test_a_fifo_as_sensor_yaml_does_not_hang(tmp_path):
+    fifo = tmp_path / "sensor.yaml"
+    os.mkfifo(fifo)
+    assert_refused(_load_sensor_in_child(fifo), "not a regular file")
+    with pytest.raises(SensorError, match="not a regular file"):
+        from neurotouch_hid.sensor import SensorGeometry
+
+        SensorGeometry.load(fifo)
+
+
+def test_a_fifo_or_a_huge_file_as_profile_is_refused(tmp_path):
+    from neurotouch_hid.mapping.profile import load_profile
+
+    fifo = tmp_path / "fifo.yaml"
+    os.mkfifo(fifo)
+    with pytest.raises(ProfileError, match="not a regular file"):
+        load_profile(fifo)
+    big = tmp_path / "big.yaml"
+    big.write_text("# " + "x" * (300 * 1024) + "\nmappings: {}\n")
+    with pytest.raises(ProfileError, match="larger than 256 KB"):
+        load_profile(big)
+
+
+def test_error_messages_do_not_echo_long_values():
+    from neurotouch_hid.errors import NeurotouchError
+    from neurotouch_hid.evaluation.runner import pipeline_config
+    from neurotouch_hid.mapping.profile import parse_profile
+
+    with pytest.raises(ProfileError) as err:
+        parse_profile("mappings:\n  m: {input: push, output: A, press_mm: [" + "1, " * 20000 + "1]}\n", "long.yaml")
+    assert len(str(err.value)) < 600
+    with pytest.raises(NeurotouchError) as err:
+        pipeline_config(["r_px=" + "x" * 100_000])
+    assert len(str(err.value)) < 600
+    with pytest.raises(NeurotouchError, match="finite"):
+        pipeline_config(["r_px=inf"])
+
+
+# --- the keyboard: SysRq and what the device offers --------------------------------------------
+@pytest.mark.parametrize(
+    "output, says",
+    [("KEY_LEFTALT+KEY_SYSRQ+KEY_B", "KEY_SYSRQ"), ("KEY_SYSRQ", "reboots")],
+)
+def test_sysrq_is_refused_at_validation_with_the_reason(output, says):
+    from neurotouch_hid.mapping.profile import parse_profile
+
+    with pytest.raises(ProfileError, match=says):
+        parse_profile(f"mappings:\n  boom: {{input: push_intensity, output: {output}}}\n", "sysrq.yaml")
+
+
+def test_ctrl_alt_delete_is_refused_even_over_several_mappings():
+    from neurotouch_hid.mapping.profile import parse_profile
+
+    text = (
+        "mappings:\n  a: {input: push_intensity, output: KEY_LEFTCTRL+KEY_LEFTALT}\n"
+        "  b: {input: pinch, output: KEY_DELETE}\n"
+    )
+    with pytest.raises(ProfileError, match="Ctrl\\+Alt\\+Delete"):
+        parse_profile(text, "cad.yaml")
+
+
+class _FakeUinput:
+    def __init__(self, capabilities):
+        self.capabilities, self.events, self.closed, self.device = capabilities, [], False, None
+
+    def write(self, etype, code, value):
+        self.events.append((etype, code, value))
+
+    def syn(self):
+        self.events.append((0, 0, 0))
+
+    def close(self):
+        self.closed = True
+
+
+class _Pad:
+    device_path = None
+
+    def write(self, state):
+        pass
+
+    def neutralise(self):
+        pass
+
+    close = neutralise
+
+
+def test_keyboard_offers_only_the_profiles_keys_and_is_made_again_for_new_ones(monkeypatch):
+    """The keyboard offers the loaded profiles' keys and udev's keyboard block, never SysRq; a
+    profile needing more replaces it by one offering both, after releasing what was held."""
+    from evdev import ecodes
+
+    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.mapping.profile import parse_profile
+    from neurotouch_hid.output import desktop
+
+    made: list[_FakeUinput] = []
+    monkeypatch.setattr(
+        desktop, "create_uinput", lambda what, caps, *a, **k: made.append(_FakeUinput(caps)) or made[-1]
+    )
+    monkeypatch.setattr(desktop, "RELEASE_GRACE_S", 0.0, raising=False)
+    first = parse_profile("mappings:\n  jump: {input: push_intensity, output: KEY_F5}\n", "a.yaml")
+    known = parse_profile("mappings:\n  go: {input: pinch, output: KEY_F6}\n", "b.yaml")
+    outputs = desktop.UinputOutputs(_Pad(), first, known=[known])
+    codes = set(made[0].capabilities[ecodes.EV_KEY])
+    assert codes == set(range(1, 32)) | {ecodes.KEY_F5, ecodes.KEY_F6}
+    assert ecodes.KEY_SYSRQ not in codes and ecodes.KEY_POWER not in codes
+    outputs.write(ControllerState(keys=frozenset({"KEY_F5", "KEY_POWER"})))
+    assert (ecodes.EV_KEY, ecodes.KEY_F5, 1) in made[0].events
+    assert all(code != ecodes.KEY_POWER for _, code, _ in made[0].events)  # not offered: not written
+    outputs.prepare(known)  # offered already: the same device
+    assert len(made) == 1
+    more = parse_profile("mappings:\n  save: {input: push_intensity, output: KEY_LEFTCTRL+KEY_S+KEY_F9}\n", "c.yaml")
+    outputs.prepare(more)
+    assert len(made) == 2 and made[0].closed and (ecodes.EV_KEY, ecodes.KEY_F5, 0) in made[0].events
+    assert set(made[1].capabilities[ecodes.EV_KEY]) == codes | {ecodes.KEY_F9}
+    outputs.close()
+
+
+# --- the control socket -------------------------------------------------------------------------
+@pytest.fixture
+def runtime_dir(tmp_path, monkeypatch):
+    folder = tmp_path / "run"
+    folder.mkdir(mode=0o700)
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(folder))
+    return folder
+
+
+def _send(path: Path, data: bytes) -> bytes:
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
+        sock.settimeout(10)
+        sock.connect(str(path))
+        sock.sendall(data)
+        sock.shutdown(socket.SHUT_WR)
+        return sock.makefile("rb").readline()
+
+
+def test_control_socket_refuses_malformed_requests_and_keeps_answering(runtime_dir):
+    from neurotouch_hid.control import ControlServer, request_use, socket_path
+
+    server = ControlServer(lambda ref: f"switched to {ref}")
+    assert server.start()
+    try:
+        path = socket_path()
+        for crafted in (b"[" * 8192 + b"\n", b"[" * 100_000, b'{"command": "use", "profile": [[[[["x"]]]]]}\n'):
+            answer = json.loads(_send(path, crafted))
+            assert answer["ok"] is False and len(answer["message"]) < 200
+        silent = [socket.socket(socket.AF_UNIX) for _ in range(3)]
+        for sock in silent:
+            sock.connect(str(path))
+        assert request_use("mouse", timeout_s=5.0) == "switched to mouse"  # beside the silent ones
+        for sock in silent:  # the driver drops them after its request timeout
+            assert sock.recv(100) == b""
+            sock.close()
+        assert request_use("default", timeout_s=5.0) == "switched to default"
+    finally:
+        server.stop()
+
+
+# --- the running driver -------------------------------------------------------------------------
+def _predictions(folder: Path, seconds: float) -> Path:
+    """Estimates alternating a 2 s push and 0.3 s of rest: the states change all the time, and a
+    push holds A long enough to stop the process while it is held."""
+    from neurotouch_hid.dataset import write_predictions
+    from neurotouch_hid.estimate import GestureEstimate, GestureType
+
+    step_us, estimates = 10_000, []
+    for i in range(int(seconds * 1e6 / step_us)):
+        pushing = i % 230 < 200
+        estimates.append(
+            GestureEstimate(
+                t_us=i * step_us,
+                gesture=GestureType.PUSH if pushing else GestureType.NONE,
+                intensity_mm=4.0 if pushing else 0.0,
+                translation_mm=(3.0, 0.0) if pushing else (0.0, 0.0),
+                resting=not pushing,
+            )
+        )
+    path = folder / "preds.jsonl"
+    write_predictions(path, estimates)
+    return path
+
+
+def _lines(path: Path) -> list[dict]:
+    text = path.read_text() if path.exists() else ""
+    complete = text[: text.rfind("\n") + 1]  # a line being written is left out
+    return [json.loads(line) for line in complete.splitlines() if line.strip()]
+
+
+def _wait(condition, timeout_s: float = 60.0) -> bool:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if condition():
+            return True
+        time.sleep(0.02)
+    return False
+
+
+def _process_state(pid: int) -> str:
+    return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+
+
+def test_the_running_driver_survives_every_attack_and_ctrl_z_releases_everything(tmp_path):
+    """``run --output jsonl`` with the control socket: an 8 KB line of '[', a silent client, the
+    alias-bomb profile through ``profile use``, a deeply nested profile on SIGHUP: each is refused
+    and logged, the driver keeps writing states and then switches profile on request. SIGTSTP
+    writes the neutral state before the process stops; SIGCONT resumes; SIGTERM exits 0."""
+    from neurotouch_hid.control import SOCKET_NAME, request_use
+    from neurotouch_hid.errors import NeurotouchError
+
+    runtime_dir = tmp_path / "xdg"
+    runtime_dir.mkdir(mode=0o700)
+    sock_path = runtime_dir / SOCKET_NAME
+    profile, good, bomb = tmp_path / "mine.yaml", tmp_path / "good.yaml", tmp_path / "bomb.yaml"
+    states = tmp_path / "states.jsonl"
+    good.write_text(
+        "mappings:\n  stick: {input: push, output: left_stick}\n  fire: {input: push_intensity, output: A}\n"
+    )
+    profile.write_text(good.read_text())
+    bomb.write_text(ALIAS_BOMB)
+    env = _env(XDG_RUNTIME_DIR=str(runtime_dir), XDG_CONFIG_HOME=str(tmp_path / "config"))
+    preds = _predictions(tmp_path, 120.0)
+    args = ["run", "--source", str(preds), "--profile", str(profile), "--output", "jsonl", "--out", str(states)]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "neurotouch_hid.cli", *args], env=env, stderr=subprocess.PIPE, text=True, cwd=ROOT
+    )
+    try:
+        assert _wait(lambda: sock_path.exists() and len(_lines(states)) >= 2), "the driver did not start"
+        answer = json.loads(_send(sock_path, b"[" * 8192 + b"\n"))
+        assert answer["ok"] is False
+        silent = socket.socket(socket.AF_UNIX)
+        silent.connect(str(sock_path))
+        with pytest.raises(NeurotouchError, match="aliases"):
+            request_use(str(bomb), path=sock_path, timeout_s=10.0)
+        profile.write_text(DEEP_YAML)
+        proc.send_signal(signal.SIGHUP)
+        seen = len(_lines(states))
+        assert _wait(lambda: len(_lines(states)) >= seen + 4), "the driver stopped writing states"
+        assert request_use(str(good), path=sock_path, timeout_s=10.0) == f"switched to profile {good}"
+        silent.close()
+        # Ctrl-Z while A is held: the outputs are released (a neutral line at the held state's
+        # time, not a later window's release), then the process stops
+        assert _wait(lambda: _lines(states)[-1]["buttons"]["BTN_SOUTH"]), "A never held"
+        proc.send_signal(signal.SIGTSTP)
+        assert _wait(lambda: _process_state(proc.pid) == "T", 30.0)
+        stopped = _lines(states)
+        held, last = stopped[-2], stopped[-1]
+        assert not any(last["buttons"].values()) and last["axes"]["ABS_X"] == 0, last
+        assert held["buttons"]["BTN_SOUTH"] and last["t_us"] == held["t_us"], stopped[-3:]
+        proc.send_signal(signal.SIGCONT)
+        assert _wait(lambda: len(_lines(states)) > len(stopped) + 2), "nothing after SIGCONT"
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, err[-3000:]
+    assert "Traceback" not in err and len(err) < 8192, err[-3000:]
+    assert "profile not reloaded" in err and "request refused" in err
