@@ -710,7 +710,7 @@ def profile_list() -> None:
 def profile_use(name: str = typer.Argument(..., help="profile name or path")) -> None:
     """Switch the running driver (`neurotouch-hid run`) to this profile, every output neutral first.
 
-    Talks to the driver over $XDG_RUNTIME_DIR/neurotouch-hid.sock; with no driver running, says so
+    Talks to the driver over $XDG_RUNTIME_DIR/neurotouch-hid/control.sock; with no driver running, says so
     (exit 2)."""
     from neurotouch_hid.control import request_use
 

@@ -1,7 +1,7 @@
 """The running driver's control socket: ``neurotouch-hid profile use NAME`` switches its profile.
 
 The driver (:class:`~neurotouch_hid.runtime.Runtime`) listens on the Unix stream socket
-:func:`socket_path` (``$XDG_RUNTIME_DIR/neurotouch-hid.sock``: per user, on a tmpfs only that user
+:func:`socket_path` (``$XDG_RUNTIME_DIR/neurotouch-hid/control.sock``: per user, on a tmpfs only that user
 can write). A request is one JSON line ``{"command": "use", "profile": NAME_OR_ABSOLUTE_PATH}``;
 the answer one JSON line ``{"ok": bool, "message": str}``. The driver loads the profile (a bad
 one is refused and nothing changes), neutralises every output, then maps with the new profile.
@@ -24,7 +24,9 @@ from neurotouch_hid.errors import NeurotouchError
 
 log = logging.getLogger(__name__)
 
-SOCKET_NAME = "neurotouch-hid.sock"
+#: The socket, under $XDG_RUNTIME_DIR: in a folder of its own (0700), the one place the systemd
+#: unit lets the driver write there (RuntimeDirectory=neurotouch-hid).
+SOCKET_NAME = "neurotouch-hid/control.sock"
 #: Longest request or answer (bytes): a command and a profile path.
 MAX_MESSAGE = 8192
 #: How long the client waits for the driver's answer (s): loading a profile takes milliseconds.
@@ -40,7 +42,7 @@ _ACCEPT_POLL_S = 0.2
 
 
 def socket_path() -> Path | None:
-    """``$XDG_RUNTIME_DIR/neurotouch-hid.sock``, or None when XDG_RUNTIME_DIR is not set."""
+    """``$XDG_RUNTIME_DIR/neurotouch-hid/control.sock``, or None when XDG_RUNTIME_DIR is not set."""
     runtime_dir = os.environ.get("XDG_RUNTIME_DIR")
     return Path(runtime_dir) / SOCKET_NAME if runtime_dir else None
 
@@ -90,6 +92,8 @@ class ControlServer:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._inode: int | None = None
+        self._clients = threading.BoundedSemaphore(MAX_CLIENTS)
+        self._switch = threading.Lock()  # one profile switch at a time
 
     def start(self) -> bool:
         if self.path is None:
@@ -104,6 +108,7 @@ class ControlServer:
                 self.path.unlink()
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         try:
+            self.path.parent.mkdir(mode=0o700, exist_ok=True)
             sock.bind(str(self.path))
             os.chmod(self.path, 0o600)
             sock.listen(4)
@@ -113,8 +118,6 @@ class ControlServer:
             return False
         sock.settimeout(_ACCEPT_POLL_S)
         self._sock, self._inode = sock, os.stat(self.path).st_ino
-        self._clients = threading.BoundedSemaphore(MAX_CLIENTS)
-        self._switch = threading.Lock()  # one profile switch at a time
         self._thread = threading.Thread(target=self._serve, name="nt-control", daemon=True)
         self._thread.start()
         return True

@@ -3,6 +3,7 @@ decompression bombs in AEDAT4 recordings and bombs in YAML."""
 
 from __future__ import annotations
 
+import json
 import struct
 from pathlib import Path
 
@@ -55,3 +56,172 @@ def bomb_recording(path: Path, inflated: int = 3 << 30) -> Path:
     payload = zstd_rle_bomb(inflated)
     path.write_bytes(bytes(data[:table]) + struct.pack("<II", 0, len(payload)) + payload)
     return path
+
+
+# --- fuzzing: the targets and the inputs they get (tests/test_fuzz_inputs.py, benchmarks/fuzz_inputs.py)
+#: Longest message a refusal may carry (characters).
+MAX_MESSAGE_CHARS = 4096
+
+
+def check_message(exc: BaseException) -> None:
+    """A refusal's message: not empty, not a file echoed at length."""
+    text = str(exc)
+    assert text and len(text) <= MAX_MESSAGE_CHARS, f"{type(exc).__name__} of {len(text)} characters"
+
+
+def fuzz_profile(text: str) -> None:
+    """A profile's YAML text: a Profile or one ProfileError."""
+    from neurotouch_hid.errors import ProfileError
+    from neurotouch_hid.mapping.profile import parse_profile
+
+    try:
+        parse_profile(text, "fuzz.yaml")
+    except ProfileError as exc:
+        check_message(exc)
+
+
+def fuzz_sensor(text: str, folder: Path) -> None:
+    """A sensor.yaml's text, read from a file: a SensorGeometry or one SensorError."""
+    from neurotouch_hid.errors import SensorError
+    from neurotouch_hid.sensor import SensorGeometry
+
+    path = folder / "sensor.yaml"
+    path.write_text(text, encoding="utf-8", errors="surrogatepass")
+    try:
+        SensorGeometry.load(path)
+    except SensorError as exc:
+        check_message(exc)
+
+
+def fuzz_set(items: list[str]) -> None:
+    """``--set NAME=VALUE`` strings: a PipelineConfig or one NeurotouchError."""
+    from neurotouch_hid.errors import NeurotouchError
+    from neurotouch_hid.evaluation.runner import pipeline_config
+
+    try:
+        pipeline_config(items)
+    except NeurotouchError as exc:
+        check_message(exc)
+
+
+def fuzz_control(line: bytes) -> None:
+    """One request line on the control socket: an answer ``{"ok": bool, "message": str}``, never
+    an exception (the switch itself is a stand-in that refuses unknown profiles)."""
+    from neurotouch_hid.control import ControlServer
+    from neurotouch_hid.errors import ProfileError
+
+    def use(ref: str) -> str:
+        if ref != "default":
+            raise ProfileError(f"no profile named {ref[:40]!r}")
+        return "switched"
+
+    answer = ControlServer(use, path=Path("/nonexistent"))._answer(line)
+    assert set(answer) == {"ok", "message"} and isinstance(answer["ok"], bool), answer
+    assert len(answer["message"]) <= MAX_MESSAGE_CHARS
+
+
+def fuzz_recording(original: bytes, edits: list[tuple[int, int]], cut: int | None, folder: Path) -> None:
+    """A real recording with bytes replaced (position, value) and maybe cut: read by ``info`` and
+    ``stream``, it gives data or one RecordingError, never anything else."""
+    from neurotouch_hid.errors import RecordingError
+    from neurotouch_hid.sources.packet_bounds import inflated_bound
+    from neurotouch_hid.sources.recording import RecordingReader
+
+    data = bytearray(original)
+    for position, value in edits:
+        data[len(AEDAT4_MAGIC) + position % (len(data) - len(AEDAT4_MAGIC))] = value
+    if cut is not None:
+        data = data[: len(AEDAT4_MAGIC) + cut % (len(data) - len(AEDAT4_MAGIC))]
+    for compression in range(5):
+        assert inflated_bound(bytes(data[-4096:]), compression) >= 0
+    path = folder / "fuzz.aedat4"
+    path.write_bytes(bytes(data))
+    try:
+        with RecordingReader(path) as reader:
+            assert reader.info.n_events >= 0
+            for _ in reader.stream():
+                pass
+    except RecordingError as exc:
+        check_message(exc)
+
+
+def small_recording(folder: Path, compression: str) -> bytes:
+    """The bytes of a real recording (dv-processing) of 2000 events and two APS frames."""
+    from neurotouch_hid.sources import Frame
+
+    path = folder / f"small-{compression}.aedat4"
+    with RecordingWriter(path, compression=compression) as writer:
+        events = small_events()
+        writer.write_frame(Frame(0, np.full((260, 346), 100, np.uint8)))
+        writer.write_events(events[:1000])
+        writer.write_frame(Frame(int(events["timestamp"][1000]), np.full((260, 346), 120, np.uint8)))
+        writer.write_events(events[1000:])
+    return path.read_bytes()
+
+
+def strategies():
+    """The hypothesis strategies of each target's input, by target name."""
+    from hypothesis import strategies as st
+
+    from neurotouch_hid.mapping.profile import shipped_profiles_dir
+
+    scalars = st.one_of(
+        st.none(),
+        st.booleans(),
+        st.integers(),
+        st.floats(allow_nan=True, allow_infinity=True),
+        st.text(max_size=20),
+        st.sampled_from(["push", "A", "left_stick", "KEY_SYSRQ", "KEY_A+KEY_B", "hold", ".inf", "*x", "&x"]),
+    )
+    values = st.recursive(
+        scalars,
+        lambda inner: st.lists(inner, max_size=5) | st.dictionaries(st.text(max_size=12), inner, max_size=5),
+        max_leaves=30,
+    )
+    keys = st.sampled_from(["mappings", "layers", "device", "description", "input", "output", "width", "px_per_mm"])
+    documents = st.dictionaries(keys | st.text(max_size=8), values, max_size=6).map(
+        lambda d: json.dumps(d, default=str)
+    )
+    shipped = [p.read_text() for p in sorted(shipped_profiles_dir().glob("*.yaml"))]
+    sensor_text = "width: 346\nheight: 260\npx_per_mm: 2.5\ngel_center_px: [173.0, 130.0]\ngel_radius_px: 75.0\n"
+
+    def mutated(texts: list[str]):
+        return st.tuples(
+            st.sampled_from(texts), st.lists(st.tuples(st.integers(0, 10**6), st.text(max_size=4)), max_size=6)
+        ).map(lambda t: _splice(*t))
+
+    yaml_text = st.one_of(st.text(max_size=300), documents, mutated(shipped + [ALIAS_BOMB, sensor_text]))
+    settings_items = st.lists(
+        st.one_of(
+            st.text(max_size=40),
+            st.tuples(
+                st.sampled_from(["r_px", "window_us", "tracker.assoc_px", "noise_filter", "tracker", "x.y"]),
+                st.one_of(st.text(max_size=12), st.sampled_from(["inf", "nan", "-1", "1e999", "9" * 5000, "none"])),
+            ).map(lambda t: f"{t[0]}={t[1]}"),
+        ),
+        max_size=4,
+    )
+    request = {"command": "use", "profile": "default"}
+    lines = st.one_of(
+        st.binary(max_size=200),
+        values.map(lambda v: json.dumps(v, default=str).encode()),
+        st.dictionaries(st.sampled_from(["command", "profile"]), values, max_size=2).map(
+            lambda d: json.dumps({**request, **d}, default=str).encode()
+        ),
+        st.integers(1, 20000).map(lambda n: b"[" * n),
+    )
+    edits = st.lists(st.tuples(st.integers(0, 10**7), st.integers(0, 255)), min_size=1, max_size=16)
+    return {
+        "profile": yaml_text,
+        "sensor": yaml_text,
+        "set": settings_items,
+        "control": lines,
+        "recording": st.tuples(st.sampled_from(["LZ4", "ZSTD", "NONE"]), edits, st.none() | st.integers(0, 10**7)),
+    }
+
+
+def _splice(text: str, edits: list[tuple[int, str]]) -> str:
+    for position, piece in edits:
+        at = position % (len(text) + 1)
+        text = text[:at] + piece + text[at + len(piece) :]
+    return text

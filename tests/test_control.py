@@ -47,6 +47,7 @@ def test_a_stale_socket_file_counts_as_no_driver_and_is_replaced(runtime_dir):
     import socket
 
     stale = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    socket_path().parent.mkdir(mode=0o700)
     stale.bind(str(socket_path()))
     stale.close()  # the file stays, nobody listens
     with pytest.raises(NeurotouchError, match="no neurotouch-hid driver is running"):

@@ -395,8 +395,8 @@ class PipelineConfig(BaseModel):
     def _as_given(cls, value, info: ValidationInfo):
         """Numbers are checked as given, before pydantic converts them (text from ``--set`` is
         converted first, then checked by :meth:`_consistent`)."""
-        if isinstance(value, str):
-            return value
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            return value  # text from --set, or a type pydantic refuses with its own message
         if info.field_name == "window_us":
             if value < MIN_WINDOW_US:
                 raise ValueError(f"window_us must be at least {MIN_WINDOW_US} us, got {value}")

@@ -176,22 +176,29 @@ def _read_header(path: Path) -> tuple[int, str, int, int]:
         header = fh.read(min(size, MAX_HEADER_BYTES))
     if len(header) < size:
         raise RecordingError(f"{path}: truncated or corrupt: the file ends inside its AEDAT4 header")
+
+    def read(fmt: str, offset: int) -> tuple:
+        # every offset checked: the decoder reads this header unchecked (a Rust panic, or an
+        # abort, on an offset out of the buffer or a description that is not UTF-8)
+        if offset < 0 or offset + struct.calcsize(fmt) > len(header):
+            raise struct.error("out of the header")
+        return struct.unpack_from(fmt, header, offset)
+
     try:
-        (root,) = struct.unpack_from("<I", header, 0)
-        (vtable_back,) = struct.unpack_from("<i", header, root)
+        (root,) = read("<I", 0)
+        (vtable_back,) = read("<i", root)
         vtable = root - vtable_back
-        (vtable_size,) = struct.unpack_from("<H", header, vtable)
-        fields = [
-            struct.unpack_from("<H", header, vtable + 4 + 2 * i)[0] if vtable_size >= 6 + 2 * i else 0 for i in range(3)
-        ]
-        position = struct.unpack_from("<q", header, root + fields[1])[0] if fields[1] else -1
-        compression = struct.unpack_from("<i", header, root + fields[0])[0] if fields[0] else 0
+        (vtable_size,) = read("<H", vtable)
+        read(f"<{vtable_size}s", vtable)
+        fields = [read("<H", vtable + 4 + 2 * i)[0] if vtable_size >= 6 + 2 * i else 0 for i in range(3)]
+        position = read("<q", root + fields[1])[0] if fields[1] else -1
+        compression = read("<i", root + fields[0])[0] if fields[0] else 0
         xml = ""
         if fields[2]:
-            start = root + fields[2] + struct.unpack_from("<I", header, root + fields[2])[0]
-            (length,) = struct.unpack_from("<I", header, start)
-            xml = header[start + 4 : start + 4 + length].decode("utf-8", "replace")
-    except struct.error:
+            start = root + fields[2] + read("<I", root + fields[2])[0]
+            (length,) = read("<I", start)
+            xml = read(f"<{length}s", start + 4)[0].decode("utf-8")
+    except (struct.error, UnicodeDecodeError):
         raise RecordingError(f"{path}: corrupt AEDAT4 header") from None
     return position, xml, compression, len(AEDAT4_MAGIC) + 4 + size
 
