@@ -8,12 +8,20 @@ exception other than the one error of the loader's kind with a short message; ea
 (type and place) is listed. Prints a Markdown table: inputs tried, crashes, distinct crashes,
 seconds.
 
-Usage: PYTHONPATH=. python benchmarks/fuzz_inputs.py [--examples 2000] [--only profile,sensor]
+Two engines: hypothesis (property-based: the strategies of tests/hostile_inputs.py) and atheris
+(coverage-guided libFuzzer over the same targets, the package's code instrumented; bytes from
+libFuzzer become the targets' text, byte lines, ``--set`` lists or recording edits; each target
+runs in a child process, which libFuzzer takes over).
+
+Usage: PYTHONPATH=. python benchmarks/fuzz_inputs.py [--engine hypothesis|atheris]
+       [--examples 2000] [--only profile,sensor,set,control,recording]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -60,11 +68,77 @@ def run(name: str, examples: int, folder: Path, recordings: dict) -> tuple[int, 
     return tried, crashes, time.perf_counter() - start
 
 
+def _atheris_child(name: str, examples: int) -> None:
+    """One target under atheris: print its table row after ``examples`` inputs, then exit."""
+    import atheris
+
+    with atheris.instrument_imports(include=["neurotouch_hid"]):
+        import neurotouch_hid.control  # noqa: F401
+        import neurotouch_hid.evaluation.runner  # noqa: F401
+        import neurotouch_hid.limits  # noqa: F401
+        import neurotouch_hid.mapping.profile  # noqa: F401
+        import neurotouch_hid.sensor  # noqa: F401
+        import neurotouch_hid.sources.packet_bounds  # noqa: F401
+        import neurotouch_hid.sources.recording  # noqa: F401
+    folder = Path(tempfile.mkdtemp(prefix="fuzz-atheris-"))
+    recordings = {c: targets.small_recording(folder, c) for c in ("LZ4", "ZSTD", "NONE")}
+    tried, crashes, start = 0, Counter(), time.perf_counter()
+
+    def one(data: bytes) -> None:
+        nonlocal tried
+        fdp = atheris.FuzzedDataProvider(data)
+        try:
+            if name in ("profile", "sensor"):
+                text = fdp.ConsumeUnicodeNoSurrogates(len(data))
+                targets.fuzz_profile(text) if name == "profile" else targets.fuzz_sensor(text, folder)
+            elif name == "set":
+                targets.fuzz_set([fdp.ConsumeUnicodeNoSurrogates(64) for _ in range(fdp.ConsumeIntInRange(0, 4))])
+            elif name == "control":
+                targets.fuzz_control(fdp.ConsumeBytes(len(data)))
+            else:
+                kind = fdp.PickValueInList(["LZ4", "ZSTD", "NONE"])
+                edits = [(fdp.ConsumeIntInRange(0, 10**7), fdp.ConsumeIntInRange(0, 255)) for _ in range(16)]
+                cut = fdp.ConsumeIntInRange(0, 10**7) if fdp.ConsumeBool() else None
+                targets.fuzz_recording(recordings[kind], edits, cut, folder)
+        except Exception as exc:  # a crash: counted, and the run goes on
+            where = traceback.extract_tb(exc.__traceback__)[-1]
+            crashes[f"{type(exc).__name__} at {Path(where.filename).name}:{where.lineno}: {str(exc)[:80]!r}"] += 1
+        tried += 1
+        if tried >= examples:
+            print(
+                f"| {name} (atheris) | {tried} | {sum(crashes.values())} | {len(crashes)} | "
+                f"{time.perf_counter() - start:.0f} |",
+                flush=True,
+            )
+            for signature, n in crashes.most_common():
+                print(f"- {name}: {n} x {signature}", flush=True)
+            os._exit(0)
+
+    atheris.Setup([sys.argv[0], "-max_len=4096"], one)
+    atheris.Fuzz()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--examples", type=int, default=2000, help="inputs per target")
     parser.add_argument("--only", default="profile,sensor,set,control,recording", help="targets, comma-separated")
+    parser.add_argument("--engine", choices=("hypothesis", "atheris"), default="hypothesis")
+    parser.add_argument("--atheris-child", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.atheris_child:
+        _atheris_child(args.atheris_child, args.examples)
+        return
+    if args.engine == "atheris":
+        print("| target | inputs tried | crashes | distinct crashes | s |")
+        print("|---|---:|---:|---:|---:|", flush=True)
+        for name in args.only.split(","):
+            child = [sys.executable, __file__, "--atheris-child", name, "--examples", str(args.examples)]
+            done = subprocess.run(child, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+            print(
+                done.stdout.strip() or f"| {name} (atheris) | the child ended with exit {done.returncode} |||",
+                flush=True,
+            )
+        return
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         recordings = {c: targets.small_recording(folder, c) for c in ("LZ4", "ZSTD", "NONE")}

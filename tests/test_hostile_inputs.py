@@ -168,7 +168,7 @@ def _load_sensor_in_child(path: Path):
         (DEEP_YAML, "nested more than"),
         ("width: " + "3" * 5000 + "\n", "a number of 5000 characters"),
         ("px_per_mm: .inf\n", "finite number"),
-        ("width: 1e300\n", "width"),
+        ("gel_radius_px: 1e300\n", "gel_radius_px"),
         ("width: 346\nwidth: 640\n", "duplicate key"),
     ],
     ids=["alias-bomb", "8000-deep", "5000-digits", "inf", "huge", "duplicate-key"],
