@@ -46,6 +46,8 @@ from typing import TYPE_CHECKING
 import numba
 import numpy as np
 
+from neurotouch_hid.limits import short
+
 if TYPE_CHECKING:  # pragma: no cover
     import dv_processing as dv
 
@@ -73,13 +75,13 @@ def check_noise_filter(name: str | None, time_us: int | None) -> None:
             is not a positive whole number of microseconds, or a time parameter without a filter.
     """
     if name is not None and name not in NOISE_FILTERS:
-        raise ValueError(f"noise_filter must be None or one of {', '.join(NOISE_FILTERS)}, got {name!r}")
+        raise ValueError(f"noise_filter must be None or one of {', '.join(NOISE_FILTERS)}, got {short(name)}")
     if time_us is None:
         return
     if name is None:
         raise ValueError(f"noise_filter_us={time_us} is set but noise_filter is None (no filter to apply it to)")
     if isinstance(time_us, bool) or not isinstance(time_us, (int, np.integer)) or time_us < 1:
-        raise ValueError(f"noise_filter_us must be a whole number of microseconds >= 1 or None, got {time_us!r}")
+        raise ValueError(f"noise_filter_us must be a whole number of microseconds >= 1 or None, got {short(time_us)}")
 
 
 #: The time stamped on the border of the numba filter's padded time surface: so far in the past

@@ -93,6 +93,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validat
 from neurotouch_hid.camera_model import fit_camera_model
 from neurotouch_hid.errors import SensorError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.limits import short
 from neurotouch_hid.pipeline.contacts import HOMOGRAPHY_METHODS, detect_contacts, rest_neighbours
 from neurotouch_hid.pipeline.creep import CreepFilter
 from neurotouch_hid.pipeline.gel_motion import compile_gel_motion_kernels, estimate_gel_motion, rim_markers
@@ -410,7 +411,7 @@ class PipelineConfig(BaseModel):
             raise ValueError(f"window_us must be at least {MIN_WINDOW_US} us, got {self.window_us}")
         if self.homography_method not in HOMOGRAPHY_METHODS:
             raise ValueError(
-                f"homography_method must be one of {', '.join(HOMOGRAPHY_METHODS)}, got {self.homography_method!r}"
+                f"homography_method must be one of {', '.join(HOMOGRAPHY_METHODS)}, got {short(self.homography_method)}"
             )
         check_noise_filter(self.noise_filter, self.noise_filter_us)
         for name in ("intensity_sigma_px", "contact_refine_px", "motion_override_px", "origin_radius_px"):
