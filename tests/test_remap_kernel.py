@@ -26,6 +26,11 @@ def test_a_layer_switch_and_profile_use_mid_run_then_sigterm_leave_nothing_press
     assert details["exit_code"] == 0 and details["profile_use"].startswith("switched to profile")
 
 
+def test_profile_use_of_a_profile_with_new_keys_makes_the_keyboard_again(guest):
+    details = passed(guest, "checks_runtime_remap.check_profile_use_of_new_keys_makes_the_keyboard_again")
+    assert details["exit_code"] == 0 and details["profile_use"].startswith("switched to profile")
+
+
 def test_sdl_sees_a_gamecontroller_with_rumble(guest):
     details = passed(guest, "checks_runtime_remap.check_sdl_sees_a_gamecontroller_with_rumble")
     assert details["is_controller"] and details["rumble"]

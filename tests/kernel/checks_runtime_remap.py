@@ -50,6 +50,7 @@ NAMES = {
         "KEY_A",
         "KEY_B",
         "KEY_LEFTCTRL",
+        "KEY_F9",
         "BTN_LEFT",
         "BTN_RIGHT",
         "BTN_SOUTH",
@@ -359,6 +360,64 @@ def check_layer_switch_profile_use_and_sigterm_leave_nothing_pressed() -> dict:
         "profile_use": answer,
         "exit_code": proc.returncode,
         "pointer_x": w["mouse"].total(ecodes.REL_X),
+    }
+
+
+#: A profile switched to by path whose key (F9) no profile known at start uses.
+NEW_KEY = """\
+description: guest check - a key the keyboard does not offer yet
+mappings:
+  key: {input: push_intensity, output: KEY_F9, press_mm: 2.0, release_mm: 1.0}
+"""
+
+
+def check_profile_use_of_new_keys_makes_the_keyboard_again() -> dict:
+    """``profile use`` of a profile file whose key the keyboard does not offer (KEY_F9): KEY_ENTER,
+    held by the old profile, is released on the old keyboard, which goes; a new keyboard offering
+    F9 (and not SysRq) comes, F9 is held on it; SIGTERM releases it. The pad stays the same device."""
+    from neurotouch_hid.control import SOCKET_NAME, request_use
+
+    folder = Path(tempfile.mkdtemp(prefix="remap-newkey-"))
+    runtime_dir = folder / "xdg"
+    runtime_dir.mkdir(mode=0o700)
+    env = dict(_env(), XDG_RUNTIME_DIR=str(runtime_dir), XDG_CONFIG_HOME=str(folder / "config"))
+    profile, new_key = folder / "layered.yaml", folder / "new-key.yaml"
+    profile.write_text(LAYERED)
+    new_key.write_text(NEW_KEY)
+    preds = _write_preds(folder, sequence((G.PINCH, 4.0, 0.3), (G.PUSH, 4.0, 120.0), lead_in_s=4.0))
+    proc, w = _start_run(preds, profile, env)
+    codes = ecodes.ecodes
+    old_keyboard = _devices(KEYBOARD_PHYS)
+    try:
+        held = guestlib.wait_for(lambda: codes["KEY_ENTER"] in w["keyboard"].pressed, 90.0)
+        assert held, f"the push in layer alt pressed nothing: {w['keyboard'].keys_log()}"
+        answer = request_use(str(new_key), path=runtime_dir / SOCKET_NAME)
+        remade = guestlib.wait_for(lambda: _devices(KEYBOARD_PHYS) and _devices(KEYBOARD_PHYS) != old_keyboard, 30.0)
+        assert remade, f"no new keyboard: {_devices(KEYBOARD_PHYS)} (was {old_keyboard})"
+        new_path = _devices(KEYBOARD_PHYS)[0]
+        offered = set(InputDevice(new_path).capabilities().get(ecodes.EV_KEY, []))
+        new = Watcher(new_path)
+        f9_held = guestlib.wait_for(lambda: codes["KEY_F9"] in new.pressed, 30.0)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+        guestlib.wait_for(lambda: new.reader.gone, 10.0)
+        time.sleep(0.2)
+        for watcher in (*w.values(), new):
+            watcher.stop()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    old_log = w["keyboard"].keys_log()
+    assert old_log[-1] == ("KEY_ENTER", 0) and w["keyboard"].reader.gone, old_log
+    assert codes["KEY_F9"] in offered and codes["KEY_ENTER"] in offered and codes["KEY_SYSRQ"] not in offered
+    assert f9_held, f"F9 not held on the new keyboard: {new.keys_log()}"
+    assert proc.returncode == 0, f"exit code {proc.returncode}: {err[-2000:]}"
+    assert not new.pressed and new.keys_log()[-1] == ("KEY_F9", 0), new.keys_log()
+    return {
+        "profile_use": answer,
+        "old_keyboard": old_log,
+        "new_keyboard": new.keys_log(),
+        "exit_code": proc.returncode,
     }
 
 
