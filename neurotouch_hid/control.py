@@ -62,6 +62,12 @@ def _read_line(conn: socket.socket) -> bytes | None:
     return line if len(line) <= MAX_MESSAGE else None
 
 
+def _fit(message: str) -> str:
+    """``message`` cut to fit an answer line the client reads (:data:`MAX_MESSAGE` bytes)."""
+    limit = MAX_MESSAGE // 2  # JSON escapes may double it
+    return message if len(message) <= limit else message[: limit - 5] + " ..."
+
+
 def _json_depth(value, limit: int) -> int:
     """Nesting depth of a decoded JSON value, counted up to ``limit + 1`` at most."""
     depth, level = 0, [value]
@@ -178,10 +184,10 @@ class ControlServer:
             with self._switch:
                 return {"ok": True, "message": self._use(request["profile"])}
         except NeurotouchError as exc:
-            return {"ok": False, "message": str(exc)}
+            return {"ok": False, "message": _fit(str(exc))}
         except Exception as exc:  # the driver keeps running; the client learns why
             log.exception("profile switch failed")
-            return {"ok": False, "message": f"the driver could not switch: {type(exc).__name__}: {exc}"}
+            return {"ok": False, "message": _fit(f"the driver could not switch: {type(exc).__name__}: {exc}")}
 
     def stop(self) -> None:
         """Stop serving and remove the socket file (if it is still ours)."""

@@ -210,6 +210,10 @@ def test_error_messages_do_not_echo_long_values():
     with pytest.raises(ProfileError) as err:
         parse_profile("mappings:\n  m: {input: push, output: A, press_mm: [" + "1, " * 20000 + "1]}\n", "long.yaml")
     assert len(str(err.value)) < 600
+    many = "mappings:\n" + "".join(f"  m{i}: {{input: nope, output: A}}\n" for i in range(500))
+    with pytest.raises(ProfileError, match="and 490 more") as err:
+        parse_profile(many, "many.yaml")
+    assert len(str(err.value)) < 4096
     with pytest.raises(NeurotouchError) as err:
         pipeline_config(["r_px=" + "x" * 100_000])
     assert len(str(err.value)) < 600

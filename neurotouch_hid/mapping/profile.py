@@ -130,6 +130,8 @@ BASE_LAYER = "base"
 MODES: tuple[str, ...] = ("hold", "toggle", "long_press", "double_press", "turbo")
 #: Turbo's highest rate (Hz): one press and one release need two windows of 10 ms.
 MAX_TURBO_HZ = 50.0
+#: Schema problems listed in one error (the rest are counted): a crafted profile may have thousands.
+MAX_PROBLEMS_SHOWN = 10
 #: Keys the kernel acts on itself: SysRq (Alt+SysRq+B reboots at once, Alt+SysRq+C crashes the
 #: kernel; Documentation/admin-guide/sysrq.rst). No profile may press it.
 KERNEL_COMMAND_KEYS = frozenset({"KEY_SYSRQ"})
@@ -590,9 +592,12 @@ def parse_profile(text: str, source: str | os.PathLike) -> Profile:
         problems = [
             line for _, line in sorted((_describe(err, root, source) for err in exc.errors()), key=lambda p: p[0])
         ]
+        shown = problems[:MAX_PROBLEMS_SHOWN] + (
+            [f"... and {len(problems) - MAX_PROBLEMS_SHOWN} more"] if len(problems) > MAX_PROBLEMS_SHOWN else []
+        )
         raise ProfileError(
             f"profile {source} is invalid ({len(problems)} problem{'s' * (len(problems) > 1)}):\n  "
-            + "\n  ".join(problems)
+            + "\n  ".join(shown)
         ) from None
 
 
