@@ -23,10 +23,13 @@ SHORT = settings(
 )
 
 
-@SHORT
-@given(STRATEGIES["profile"])
-def test_profile_loader(text):
-    targets.fuzz_profile(text)
+@pytest.mark.parametrize(
+    "name, target",
+    [("profile", targets.fuzz_profile), ("set", targets.fuzz_set), ("control", targets.fuzz_control)],
+    ids=["profile-loader", "set-conversion", "control-protocol"],
+)
+def test_loader(name, target):
+    SHORT(given(STRATEGIES[name])(target))()
 
 
 @SHORT
@@ -34,18 +37,6 @@ def test_profile_loader(text):
 def test_sensor_loader(text):
     with tempfile.TemporaryDirectory() as folder:
         targets.fuzz_sensor(text, Path(folder))
-
-
-@SHORT
-@given(STRATEGIES["set"])
-def test_set_conversion(items):
-    targets.fuzz_set(items)
-
-
-@SHORT
-@given(STRATEGIES["control"])
-def test_control_protocol(line):
-    targets.fuzz_control(line)
 
 
 @pytest.fixture(scope="module")

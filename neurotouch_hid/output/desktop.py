@@ -145,7 +145,7 @@ class _UinputDevice(NeutralOnClose):
 
 class VirtualKeyboard(_UinputDevice):
     """A uinput keyboard offering ``keys`` (``KEY_*`` names; :func:`keyboard_codes`);
-    :meth:`write` presses those of ``state.keys`` it offers (``self.keys``). Raises DeviceError
+    :meth:`write` presses those of ``state.keys`` it offers (``self.offers``). Raises DeviceError
     like :class:`VirtualGamepad`."""
 
     def __init__(self, keys: Iterable[str] = (), devnode: str = "/dev/uinput") -> None:
@@ -154,16 +154,16 @@ class VirtualKeyboard(_UinputDevice):
         codes = keyboard_codes(keys)
         super().__init__("keyboard", {ecodes.EV_KEY: list(codes)}, KEYBOARD_NAME, KEYBOARD_PHYS, devnode)
         offered = set(codes)
-        self.keys = frozenset(n for n, c in ecodes.ecodes.items() if n.startswith("KEY_") and c in offered)
+        self.offers = frozenset(n for n, c in ecodes.ecodes.items() if n.startswith("KEY_") and c in offered)
 
     def write(self, state: ControllerState) -> None:
-        self._emit(state.keys & self.keys, {})
+        self._emit(state.keys & self.offers, {})
 
 
 class VirtualMouse(_UinputDevice):
     """A uinput mouse driving ``outputs`` (mouse buttons, REL_* names; :func:`mouse_capabilities`);
     :meth:`write` presses the buttons of ``state.keys`` it offers and moves by ``state.rel``'s
-    codes it offers (``self.outputs``). Raises DeviceError like :class:`VirtualGamepad`."""
+    codes it offers (``self.offers``). Raises DeviceError like :class:`VirtualGamepad`."""
 
     def __init__(self, outputs: Iterable[str] = (), devnode: str = "/dev/uinput") -> None:
         from evdev import ecodes
@@ -171,11 +171,11 @@ class VirtualMouse(_UinputDevice):
         caps = mouse_capabilities(outputs)
         super().__init__("mouse", caps, MOUSE_NAME, MOUSE_PHYS, devnode)
         offered = {c for codes in caps.values() for c in codes}
-        self.outputs = frozenset(n for n in (*MOUSE_BUTTONS, *MOUSE_REL) if ecodes.ecodes[n] in offered)
+        self.offers = frozenset(n for n in (*MOUSE_BUTTONS, *MOUSE_REL) if ecodes.ecodes[n] in offered)
 
     def write(self, state: ControllerState) -> None:
-        rel = {name: v for name, v in state.rel.items() if name in self.outputs}
-        self._emit(state.keys & self.outputs, rel)
+        rel = {name: v for name, v in state.rel.items() if name in self.offers}
+        self._emit(state.keys & self.offers, rel)
 
 
 class UinputOutputs:
@@ -222,21 +222,19 @@ class UinputOutputs:
         the known profiles use too), or replace one lacking some of its keys or buttons by one
         offering both (the old one is released and removed first: call this only after
         :meth:`neutralise`). Raises DeviceError when the kernel refuses."""
-        keys, mouse = profile.keyboard_keys, profile.mouse_outputs
-        if keys and (self.keyboard is None or not keys <= self.keyboard.keys):
-            offered = self._known_keys if self.keyboard is None else self.keyboard.keys
-            if self.keyboard is not None:
-                log.warning("the profile uses keys the virtual keyboard lacks: it is made again with them")
-                self.keyboard.close()
-                self.keyboard = None
-            self.keyboard = VirtualKeyboard(offered | keys, self._devnode)
-        if mouse and (self.mouse is None or not mouse <= self.mouse.outputs):
-            offered = self._known_mouse if self.mouse is None else self.mouse.outputs
-            if self.mouse is not None:
-                log.warning("the profile uses mouse buttons or wheels the virtual mouse lacks: it is made again")
-                self.mouse.close()
-                self.mouse = None
-            self.mouse = VirtualMouse(offered | mouse, self._devnode)
+        self.keyboard = self._made(self.keyboard, profile.keyboard_keys, self._known_keys, VirtualKeyboard)
+        self.mouse = self._made(self.mouse, profile.mouse_outputs, self._known_mouse, VirtualMouse)
+
+    def _made(self, device: Any, needed: frozenset[str], known: frozenset[str], make: Any) -> Any:
+        """``device`` if it offers ``needed`` (or nothing is needed), else a new one offering
+        ``needed`` and what ``device`` offered (``known`` for a first one); the old one is closed."""
+        if not needed or (device is not None and needed <= device.offers):
+            return device
+        offered = known if device is None else device.offers
+        if device is not None:
+            log.warning("the profile uses keys the virtual %s lacks: it is made again with them", device.what)
+            device.close()
+        return make(offered | needed, self._devnode)
 
     def write(self, state: ControllerState, estimate: Any = None) -> None:
         for device in self.devices:
