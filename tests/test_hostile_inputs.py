@@ -20,6 +20,8 @@ from pathlib import Path
 
 import pytest
 from hostile_inputs import ALIAS_BOMB, DEEP_YAML, bomb_recording
+from test_control import runtime_dir  # noqa: F401 (a fixture)
+from test_runtime import wait_until
 
 import neurotouch_hid
 from neurotouch_hid.errors import ProfileError, SensorError
@@ -303,14 +305,6 @@ def test_keyboard_offers_only_the_profiles_keys_and_is_made_again_for_new_ones(m
 
 
 # --- the control socket -------------------------------------------------------------------------
-@pytest.fixture
-def runtime_dir(tmp_path, monkeypatch):
-    folder = tmp_path / "run"
-    folder.mkdir(mode=0o700)
-    monkeypatch.setenv("XDG_RUNTIME_DIR", str(folder))
-    return folder
-
-
 def _send(path: Path, data: bytes) -> bytes:
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
         sock.settimeout(10)
@@ -320,7 +314,8 @@ def _send(path: Path, data: bytes) -> bytes:
         return sock.makefile("rb").readline()
 
 
-def test_control_socket_refuses_malformed_requests_and_keeps_answering(runtime_dir):
+@pytest.mark.usefixtures("runtime_dir")
+def test_control_socket_refuses_malformed_requests_and_keeps_answering():
     from neurotouch_hid.control import ControlServer, request_use, socket_path
 
     server = ControlServer(lambda ref: f"switched to {ref}")
@@ -372,15 +367,6 @@ def _lines(path: Path) -> list[dict]:
     return [json.loads(line) for line in complete.splitlines() if line.strip()]
 
 
-def _wait(condition, timeout_s: float = 60.0) -> bool:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if condition():
-            return True
-        time.sleep(0.02)
-    return False
-
-
 def _process_state(pid: int) -> str:
     return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
 
@@ -393,9 +379,9 @@ def test_the_running_driver_survives_every_attack_and_ctrl_z_releases_everything
     from neurotouch_hid.control import SOCKET_NAME, request_use
     from neurotouch_hid.errors import NeurotouchError
 
-    runtime_dir = tmp_path / "xdg"
-    runtime_dir.mkdir(mode=0o700)
-    sock_path = runtime_dir / SOCKET_NAME
+    xdg = tmp_path / "xdg"
+    xdg.mkdir(mode=0o700)
+    sock_path = xdg / SOCKET_NAME
     profile, good, bomb = tmp_path / "mine.yaml", tmp_path / "good.yaml", tmp_path / "bomb.yaml"
     states = tmp_path / "states.jsonl"
     good.write_text(
@@ -403,14 +389,14 @@ def test_the_running_driver_survives_every_attack_and_ctrl_z_releases_everything
     )
     profile.write_text(good.read_text())
     bomb.write_text(ALIAS_BOMB)
-    env = _env(XDG_RUNTIME_DIR=str(runtime_dir), XDG_CONFIG_HOME=str(tmp_path / "config"))
+    env = _env(XDG_RUNTIME_DIR=str(xdg), XDG_CONFIG_HOME=str(tmp_path / "config"))
     preds = _predictions(tmp_path, 120.0)
     args = ["run", "--source", str(preds), "--profile", str(profile), "--output", "jsonl", "--out", str(states)]
     proc = subprocess.Popen(
         [sys.executable, "-m", "neurotouch_hid.cli", *args], env=env, stderr=subprocess.PIPE, text=True, cwd=ROOT
     )
     try:
-        assert _wait(lambda: sock_path.exists() and len(_lines(states)) >= 2), "the driver did not start"
+        assert wait_until(lambda: sock_path.exists() and len(_lines(states)) >= 2), "the driver did not start"
         answer = json.loads(_send(sock_path, b"[" * 8192 + b"\n"))
         assert answer["ok"] is False
         silent = socket.socket(socket.AF_UNIX)
@@ -420,20 +406,20 @@ def test_the_running_driver_survives_every_attack_and_ctrl_z_releases_everything
         profile.write_text(DEEP_YAML)
         proc.send_signal(signal.SIGHUP)
         seen = len(_lines(states))
-        assert _wait(lambda: len(_lines(states)) >= seen + 4), "the driver stopped writing states"
+        assert wait_until(lambda: len(_lines(states)) >= seen + 4), "the driver stopped writing states"
         assert request_use(str(good), path=sock_path, timeout_s=10.0) == f"switched to profile {good}"
         silent.close()
         # Ctrl-Z while A is held: the outputs are released (a neutral line at the held state's
         # time, not a later window's release), then the process stops
-        assert _wait(lambda: _lines(states)[-1]["buttons"]["BTN_SOUTH"]), "A never held"
+        assert wait_until(lambda: _lines(states)[-1]["buttons"]["BTN_SOUTH"]), "A never held"
         proc.send_signal(signal.SIGTSTP)
-        assert _wait(lambda: _process_state(proc.pid) == "T", 30.0)
+        assert wait_until(lambda: _process_state(proc.pid) == "T", 30.0)
         stopped = _lines(states)
         held, last = stopped[-2], stopped[-1]
         assert not any(last["buttons"].values()) and last["axes"]["ABS_X"] == 0, last
         assert held["buttons"]["BTN_SOUTH"] and last["t_us"] == held["t_us"], stopped[-3:]
         proc.send_signal(signal.SIGCONT)
-        assert _wait(lambda: len(_lines(states)) > len(stopped) + 2), "nothing after SIGCONT"
+        assert wait_until(lambda: len(_lines(states)) > len(stopped) + 2), "nothing after SIGCONT"
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=60)
     finally:
