@@ -26,7 +26,11 @@ import numpy as np
 
 from neurotouch_hid.errors import DatasetError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.limits import FileLimitError, read_text_file, short
 from neurotouch_hid.sensor import user_sensor_path
+
+#: Largest predictions file read (bytes; read whole): an hour of 10 ms windows is ~100 MB.
+MAX_PREDICTIONS_BYTES = 1 << 30
 
 #: The columns of ``SEQUENCE.labels.csv``, in docs/dataset.md's order.
 LABEL_COLUMNS: tuple[str, ...] = (
@@ -301,9 +305,13 @@ def read_predictions(path: str | Path) -> list[GestureEstimate]:
     """
     path = Path(path)
     try:
-        text = path.read_text()
+        text = read_text_file(path, MAX_PREDICTIONS_BYTES, "predictions file")
+    except FileLimitError as exc:
+        raise DatasetError(str(exc)) from None
     except OSError as exc:
         raise DatasetError(f"{path}: cannot read the predictions file: {exc.strerror}") from None
+    except UnicodeDecodeError:
+        raise DatasetError(f"{path}: not a predictions file (not UTF-8 text)") from None
     estimates: list[GestureEstimate] = []
     for number, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
@@ -312,6 +320,8 @@ def read_predictions(path: str | Path) -> list[GestureEstimate]:
             data = json.loads(line)
         except json.JSONDecodeError as exc:
             raise DatasetError(f"{path}:{number}: not a JSON object: {exc.msg}") from None
+        except (ValueError, RecursionError):  # a number of thousands of digits, nesting too deep
+            raise DatasetError(f"{path}:{number}: not a predictions line (a number or nesting out of bounds)") from None
         if not isinstance(data, dict):
             raise DatasetError(f"{path}:{number}: expected a JSON object, found {type(data).__name__}")
         missing = [k for k in ("t_us", "gesture", "resting", "intensity_mm") if k not in data]
@@ -320,7 +330,7 @@ def read_predictions(path: str | Path) -> list[GestureEstimate]:
         try:
             estimate = GestureEstimate.from_json_dict(data)
         except (TypeError, ValueError, KeyError) as exc:
-            raise DatasetError(f"{path}:{number}: bad value: {exc}") from None
+            raise DatasetError(f"{path}:{number}: bad value: {short(str(exc))}") from None
         if estimate.contacts_px.shape != estimate.contacts_mm.shape:
             raise DatasetError(f"{path}:{number}: contacts_px and contacts_mm have different numbers of points")
         if estimates and estimate.t_us < estimates[-1].t_us:

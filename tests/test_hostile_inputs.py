@@ -429,3 +429,14 @@ def test_the_running_driver_survives_every_attack_and_ctrl_z_releases_everything
     assert proc.returncode == 0, err[-3000:]
     assert "Traceback" not in err and len(err) < 8192, err[-3000:]
     assert "profile not reloaded" in err and "request refused" in err
+
+
+def test_a_predictions_file_that_is_a_fifo_or_nests_deeply_is_one_line(tmp_path):
+    """``run --source PRED.jsonl`` replays predictions: a FIFO does not hang it, a line of 100 000
+    '[' is one error naming the line (it was a RecursionError traceback)."""
+    fifo = tmp_path / "fifo.jsonl"
+    os.mkfifo(fifo)
+    assert_refused(cli("run", "--source", str(fifo), "--output", "jsonl", "--seconds", "1"), "not a regular file")
+    deep = tmp_path / "deep.jsonl"
+    deep.write_text("[" * 100_000 + "\n")
+    assert_refused(cli("run", "--source", str(deep), "--output", "jsonl", "--seconds", "1"), f"{deep}:1:")
