@@ -20,7 +20,11 @@ import typer
 
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.kinds import OutputKind, SourceKind
-from neurotouch_hid.output.console import make_console
+from neurotouch_hid.output.console import PIPE_WIDTH, make_console
+
+#: --help to a pipe or a file: each paragraph and option on one line, nothing cut (click re-flows
+#: help to the terminal's width, and to 80 columns elsewhere).
+_HELP_WIDTH = {} if sys.stdout.isatty() else {"terminal_width": PIPE_WIDTH, "max_content_width": PIPE_WIDTH}
 
 app = typer.Typer(
     name="neurotouch-hid",
@@ -28,12 +32,41 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    # click's plain help: flags without rich's `<bool>`, each paragraph re-flowed whole (rich's
+    # boxes broke docstrings at their source line ends, mid-sentence)
+    rich_markup_mode=None,
+    context_settings=_HELP_WIDTH,
 )
 profile_app = typer.Typer(
     help="List, show, create, edit, validate, test, tune and use (switch the running driver to) profiles.",
     no_args_is_help=True,
+    rich_markup_mode=None,
 )
 app.add_typer(profile_app, name="profile")
+
+
+def _print_version(value: bool) -> None:
+    """``--version``: the installed distribution's version (the package's own when run from a
+    checkout without an install), then exit 0."""
+    if not value:
+        return
+    import importlib.metadata
+
+    from neurotouch_hid import __version__
+
+    try:
+        version = importlib.metadata.version("neurotouch-hid")
+    except importlib.metadata.PackageNotFoundError:
+        version = __version__
+    typer.echo(f"neurotouch-hid {version}")
+    raise typer.Exit()
+
+
+@app.callback()
+def _options(
+    version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True, help="print the version"),
+) -> None:
+    """NeuroTouch soft tactile sensor -> standard game controller."""
 
 console = make_console()
 err_console = make_console(stderr=True)
@@ -460,7 +493,7 @@ def demo(
     """A simulated gel performing every gesture, through the default profile, to the gamepad.
 
     Without a writable /dev/uinput the gamepad is shown in the terminal instead (one line says
-    why); without a terminal, one state line a second."""
+    why); without a terminal, a line at each button or key change and at most one a second otherwise."""
     from neurotouch_hid.driver import run_demo
 
     stats = run_demo(
@@ -519,9 +552,8 @@ def devices(json_out: bool = typer.Option(False, "--json", help="print JSON (for
             if c.ready:
                 console.print(f"[green]ready:[/] {escape(c.label())}", highlight=False, soft_wrap=True)
             else:
-                console.print(
-                    f"[bold red]{escape(c.problem)}[/]\n  fix: {escape(c.fix)}", highlight=False, soft_wrap=True
-                )
+                fix = "".join(f"\n  {escape(step)}" for step in c.fix.splitlines())
+                console.print(f"[bold red]{escape(c.problem)}[/]{fix}", highlight=False, soft_wrap=True)
     if not json_out:
         for line in found.dv_log:
             console.print(f"[dim]dv-processing said: {escape(line)}[/]", highlight=False, soft_wrap=True)
@@ -884,7 +916,7 @@ def profile_tune(
         95.0, "--percentile", help="intensity percentile that gives full deflection", callback=_finite
     ),
 ) -> None:
-    """Set each analogue mapping's saturation to what this user reaches (e.g. weak fingers)."""
+    """Set each analogue mapping's saturation to what this user reaches (weak fingers, for one)."""
     from neurotouch_hid.driver import estimates_from_source
     from neurotouch_hid.mapping.editor import set_values
     from neurotouch_hid.mapping.profile import load_profile

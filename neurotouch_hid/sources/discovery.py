@@ -630,7 +630,8 @@ def discover(dv: bool = True) -> Discovery:
 
 
 def explain(found: Discovery, serial: str | None = None, error: str | None = None) -> str:
-    """One line, for a person: the state of the best camera in ``found`` and what to do (pure).
+    """For a person, one line or a few short ones: the state of the best camera in ``found`` and
+    what to do, a command alone on its line (pure).
 
     ``serial``: the camera asked for (None: any). ``error``: why opening it failed, if it was
     tried (dv-processing's text, e.g. its firmware-version message), said when the camera looks
@@ -675,7 +676,7 @@ def explain(found: Discovery, serial: str | None = None, error: str | None = Non
             f"{best.label()} is accessible and listed by dv-processing, but could not be used: is another "
             f"program using it? unplug and replug it, then see `neurotouch-hid doctor`{more}"
         )
-    return f"{best.problem}: {best.fix}{more}"
+    return f"{best.problem}\n{best.fix}{more}"
 
 
 def explain_no_camera(serial: str | None = None, error: str | None = None) -> str:
