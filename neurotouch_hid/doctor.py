@@ -70,7 +70,8 @@ def check_camera(found: Discovery) -> Check:
             "camera on USB",
             FAIL,
             f"no DAVIS-346 ({CAMERA_USB_ID}) on USB{seen}",
-            f"plug the NeuroTouch's USB cable in (a USB 3 port), then check that this lists it:\nlsusb -d {CAMERA_USB_ID}",
+            f"plug the NeuroTouch's USB cable in (a USB 3 port), then check that this lists it:\n"
+            f"lsusb -d {CAMERA_USB_ID}",
         )
     where = ", ".join(
         f"bus {c.bus} device {c.address}" + (f" (serial {c.serial})" if c.serial else "") for c in cameras
@@ -225,5 +226,6 @@ def report(checks: list[Check], console: Console) -> int:
         for step in c.fix.splitlines():
             say(f"      {escape(step)}")
     failed = [c.name for c in checks if c.status == FAIL]
-    say(f"[bold red]{len(failed)} problem(s):[/] {escape(', '.join(failed))}" if failed else "[green]all checks passed[/]")
+    problems = f"[bold red]{len(failed)} problem(s):[/] {escape(', '.join(failed))}"
+    say(problems if failed else "[green]all checks passed[/]")
     return 1 if failed else 0
