@@ -49,7 +49,7 @@ def camera_access_fix(rules: str | None = None) -> str:
     udev rule, or (``rules``: where it is installed) log in at the seat or use a group rule.
     Several lines, one step each; the commands stand alone on their lines (copyable)."""
     if rules is None:
-        return f"install the udev rule:\n{RULES_INSTALL}\nthen unplug and replug the camera"
+        return f"install the udev rule ({RULES_NAME}):\n{RULES_INSTALL}\nthen unplug and replug the camera"
     return (
         f"the udev rule is installed ({rules}) but it gives access only to the user logged in at this "
         "computer itself (uaccess): log in there (not over SSH), then unplug and replug the camera\n"
