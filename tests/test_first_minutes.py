@@ -104,68 +104,43 @@ def test_piped_switch_access_run_shows_every_key_press_the_json_lines_show():
     assert key_changes(from_term) == key_changes(from_json)
 
 
-# --- the profile commands ------------------------------------------------------------------------
-@pytest.fixture()
-def cli(tmp_path, monkeypatch, capsys):
-    """``neurotouch-hid ARGS`` in this process (cli.main: errors -> exit 2), config in tmp;
-    ``stdin``: what the user types."""
-    from neurotouch_hid.cli import main
-
-    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
-    monkeypatch.delenv("VISUAL", raising=False)
-
-    def run(*args: str, stdin: str = "") -> subprocess.CompletedProcess:
-        monkeypatch.setattr(sys, "argv", ["neurotouch-hid", *args])
-        monkeypatch.setattr(sys, "stdin", io.StringIO(stdin))
-        capsys.readouterr()
-        try:
-            main()
-            code = 0
-        except SystemExit as exc:
-            code = exc.code or 0
-        out, err = capsys.readouterr()
-        return subprocess.CompletedProcess(args, code, out, err)
-
-    run.user_dir = tmp_path / "config" / "neurotouch-hid" / "profiles"
-    return run
-
-
+# --- the profile commands (test_cli's fixture) ----------
 def test_setting_a_shipped_profile_says_it_made_a_shadowing_copy_and_reset_undoes_it(cli):
-    changed = cli("profile", "set", "default", "mappings.push.deadzone_mm", "1.0")
+    changed = cli("set", "default", "mappings.push.deadzone_mm", "1.0")
     assert changed.returncode == 0, changed.stderr
     copy = cli.user_dir / "default.yaml"
     assert "shipped profile" in changed.stderr and str(copy) in changed.stderr
     assert "neurotouch-hid profile reset default" in changed.stderr
-    again = cli("profile", "set", "default", "mappings.push.deadzone_mm", "1.1")
+    again = cli("set", "default", "mappings.push.deadzone_mm", "1.1")
     assert again.returncode == 0 and "shipped profile" not in again.stderr  # said once, when made
-    reset = cli("profile", "reset", "default")
+    reset = cli("reset", "default")
     assert reset.returncode == 0 and "shipped one again" in reset.stdout
     assert not copy.exists()
-    assert cli("profile", "path", "default").stdout.strip() == str(shipped_profiles_dir() / "default.yaml")
-    assert "already the shipped one" in cli("profile", "reset", "default").stdout
-    mine = cli("profile", "reset", "mine")
+    assert cli("path", "default").stdout.strip() == str(shipped_profiles_dir() / "default.yaml")
+    assert "already the shipped one" in cli("reset", "default").stdout
+    mine = cli("reset", "mine")
     assert mine.returncode == 2 and "not a shipped profile" in mine.stderr and "profile delete mine" in mine.stderr
 
 
 def test_delete_removes_a_user_profile_and_refuses_a_shipped_one(cli):
-    assert cli("profile", "new", "mine").returncode == 0
-    deleted = cli("profile", "delete", "mine")
+    assert cli("new", "mine").returncode == 0
+    deleted = cli("delete", "mine")
     assert deleted.returncode == 0 and not (cli.user_dir / "mine.yaml").exists()
-    assert cli("profile", "path", "mine").returncode == 2
-    shipped = cli("profile", "delete", "default")
+    assert cli("path", "mine").returncode == 2
+    shipped = cli("delete", "default")
     assert shipped.returncode == 2 and "shipped profile" in shipped.stderr
     assert (shipped_profiles_dir() / "default.yaml").is_file()
-    assert cli("profile", "set", "default", "mappings.push.deadzone_mm", "1.0").returncode == 0
-    shadow = cli("profile", "delete", "default")  # deleting the copy brings the shipped one back
+    assert cli("set", "default", "mappings.push.deadzone_mm", "1.0").returncode == 0
+    shadow = cli("delete", "default")  # deleting the copy brings the shipped one back
     assert shadow.returncode == 0 and "applies again" in shadow.stdout
 
 
 def test_unset_on_a_copy_of_a_shipped_profile_goes_back_to_the_shipped_value(cli):
     from ruamel.yaml import YAML
 
-    assert cli("profile", "new", "mine", "--from", "default").returncode == 0
-    assert cli("profile", "set", "mine", "mappings.push.deadzone_mm", "2.0").returncode == 0
-    undone = cli("profile", "unset", "mine", "mappings.push.deadzone_mm")
+    assert cli("new", "mine", "--from", "default").returncode == 0
+    assert cli("set", "mine", "mappings.push.deadzone_mm", "2.0").returncode == 0
+    undone = cli("unset", "mine", "mappings.push.deadzone_mm")
     assert undone.returncode == 0, undone.stderr
     shipped = YAML().load((shipped_profiles_dir() / "default.yaml").read_text())["mappings"]["push"]["deadzone_mm"]
     assert shipped != 0.5  # the schema's default, which unset used to leave
@@ -174,14 +149,14 @@ def test_unset_on_a_copy_of_a_shipped_profile_goes_back_to_the_shipped_value(cli
 
 
 def test_a_key_of_a_mapping_the_profile_lacks_names_the_mappings_it_has(cli):
-    assert cli("profile", "new", "mine", "--from", "accessibility").returncode == 0
+    assert cli("new", "mine", "--from", "accessibility").returncode == 0
     before = (cli.user_dir / "mine.yaml").read_text()
-    wrong = cli("profile", "set", "mine", "mappings.push.deadzone_mm", "1.0")
+    wrong = cli("set", "mine", "mappings.push.deadzone_mm", "1.0")
     assert wrong.returncode == 2
     assert "has no mapping 'push'" in wrong.stderr and "up, down, left, right, confirm, back, move" in wrong.stderr
     assert "input: missing" not in wrong.stderr
     assert (cli.user_dir / "mine.yaml").read_text() == before
-    unset = cli("profile", "unset", "mine", "mappings.push.deadzone_mm")
+    unset = cli("unset", "mine", "mappings.push.deadzone_mm")
     assert unset.returncode == 2 and "it has: up, down" in unset.stderr
 
 
@@ -209,24 +184,27 @@ def scripted_editor(tmp_path, monkeypatch):
     return calls
 
 
-def test_edit_reopens_the_editor_on_an_invalid_save_like_crontab(cli, scripted_editor):
-    edited = cli("profile", "edit", "default", stdin="y\n")
+def test_edit_reopens_the_editor_on_an_invalid_save_like_crontab(cli, scripted_editor, monkeypatch):
+    monkeypatch.setattr(sys, "stdin", io.StringIO("y\n"))  # the user answers yes
+    edited = cli("edit", "default")
     assert edited.returncode == 0, edited.stderr
     assert len(scripted_editor.read_text().split()) == 2  # opened again after the invalid save
     assert "deadzone_mm" in edited.stderr and "edit it again?" in edited.stderr
     assert "deadzone_mm: 1.5 " in (cli.user_dir / "default.yaml").read_text()
 
 
-def test_edit_answered_no_keeps_the_profile_and_the_rejected_edit(cli, scripted_editor):
-    assert cli("profile", "set", "default", "mappings.push.exponent", "1.0").returncode == 0
+def test_edit_answered_no_keeps_the_profile_and_the_rejected_edit(cli, scripted_editor, monkeypatch):
+    assert cli("set", "default", "mappings.push.exponent", "1.0").returncode == 0
     copy = cli.user_dir / "default.yaml"
     before = copy.read_text()
-    given_up = cli("profile", "edit", "default", stdin="n\n")
+    monkeypatch.setattr(sys, "stdin", io.StringIO("n\n"))
+    given_up = cli("edit", "default")
     assert given_up.returncode == 2 and "Traceback" not in given_up.stderr
     assert copy.read_text() == before  # the profile the driver loads is still valid
     assert "deadzone_mm: -2 " in (cli.user_dir / "default.yaml.rejected").read_text()
     assert "default.yaml.rejected" in given_up.stderr
-    unchanged = cli("profile", "edit", "default")  # the script's second call changes nothing here
+    monkeypatch.setattr(sys, "stdin", io.StringIO(""))
+    unchanged = cli("edit", "default")  # the script's second call changes nothing here
     assert unchanged.returncode == 0 and "unchanged" in unchanged.stdout and copy.read_text() == before
 
 

@@ -12,32 +12,8 @@ import textwrap
 import pytest
 from ruamel.yaml import YAML
 
-from neurotouch_hid.cli import main
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.mapping.profile import shipped_profiles_dir
-
-
-@pytest.fixture()
-def cli(tmp_path, monkeypatch, capsys):
-    """``neurotouch-hid profile ARGS`` in this process (cli.main: errors -> exit 2), XDG in tmp."""
-    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
-    monkeypatch.delenv("VISUAL", raising=False)
-
-    def run(*args: str, editor: str | None = None) -> subprocess.CompletedProcess:
-        if editor is not None:
-            monkeypatch.setenv("EDITOR", editor)
-        monkeypatch.setattr(sys, "argv", ["neurotouch-hid", "profile", *args])
-        capsys.readouterr()
-        try:
-            main()
-            code = 0
-        except SystemExit as exc:
-            code = exc.code or 0
-        out, err = capsys.readouterr()
-        return subprocess.CompletedProcess(args, code, out, err)
-
-    run.user_dir = tmp_path / "config" / "neurotouch-hid" / "profiles"
-    return run
 
 
 @pytest.fixture()
