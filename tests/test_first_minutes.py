@@ -368,6 +368,8 @@ def test_every_option_the_readme_shows_exists():
                 assert flag in known, f"README: `{span}`: {command.name} has no {flag}"
     assert "--set noise_filter=none` turns it off for `track`" not in readme
     assert "What was and was not tested" not in readme
+    # the exit codes README promises are the ones the commands give (test_doctor: doctor exits 1)
+    assert "exits with\ncode 2; `doctor` and `devices` are reports, and exit 1" in readme
     assert "What was and was not tested on hardware" in (ROOT / "tests/README.md").read_text()
 
 
