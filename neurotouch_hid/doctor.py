@@ -32,6 +32,7 @@ from neurotouch_hid.sources.discovery import (
     CameraStatus,
     Discovery,
     discover,
+    pip_command,
 )
 from neurotouch_hid.udev import INSTALL_SCRIPT, RULES_DIRS, RULES_INSTALL, RULES_NAME, installed_rules, uinput_help
 
@@ -158,12 +159,6 @@ def check_jit_cache() -> Check:
             "make ~/.cache writable, or set XDG_CACHE_HOME (or NUMBA_CACHE_DIR) to a writable folder",
         )
     return Check("compiled-code cache (numba)", OK, cache.describe())
-
-
-def pip_command() -> str:
-    """pip of the Python this driver runs in (a venv's or pipx's), as a command: an upgrade with
-    the distribution's ``python3 -m pip`` fails under PEP 668 and would not reach this install."""
-    return f"{sys.executable} -m pip"
 
 
 def this_command() -> str | None:

@@ -387,3 +387,10 @@ def test_troubleshooting_lists_the_messages_the_driver_prints(tmp_path):
     for message in ("has no mapping", "is a shipped profile: it cannot be deleted", "not saved:", "(stalled)"):
         assert message in text
     assert (ROOT / "docs/getting-started.md").is_file()
+
+
+def test_pip_fixes_name_this_installation_python_not_the_distribution_one():
+    from neurotouch_hid import doctor
+
+    fix = doctor.check_library("neurotouch_no_such_module", "no-such-dist").fix
+    assert fix == f"{sys.executable} -m pip install --upgrade no-such-dist"  # python3 -m pip: PEP 668
