@@ -393,7 +393,12 @@ def test_the_running_driver_survives_every_attack_and_ctrl_z_releases_everything
     preds = _predictions(tmp_path, 120.0)
     args = ["run", "--source", str(preds), "--profile", str(profile), "--output", "jsonl", "--out", str(states)]
     proc = subprocess.Popen(
-        [sys.executable, "-m", "neurotouch_hid.cli", *args], env=env, stderr=subprocess.PIPE, text=True, cwd=ROOT
+        [sys.executable, "-m", "neurotouch_hid.cli", *args],
+        env=env,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+        process_group=0,  # a group of its own that is not orphaned: the kernel honours its SIGTSTP
     )
     try:
         assert wait_until(lambda: sock_path.exists() and len(_lines(states)) >= 2), "the driver did not start"
