@@ -39,9 +39,10 @@ def zstd_rle_bomb(inflated: int) -> bytes:
     return frame + b"".join(blocks)
 
 
-def bomb_recording(path: Path, inflated: int = 3 << 30) -> Path:
+def bomb_recording(path: Path, inflated: int = 3 << 30, table_at: int = -1) -> Path:
     """A real zstd AEDAT4 recording (dv-processing) whose index table is replaced by one more
-    event packet that inflates to ``inflated`` bytes (3 GiB: a file of ~100 KB)."""
+    event packet that inflates to ``inflated`` bytes (3 GiB: a file of ~100 KB). The header says
+    the table is at ``table_at`` (-1: none; the decoder stops only at exactly that byte)."""
     with RecordingWriter(path, frames=False, compression="ZSTD") as writer:
         writer.write_events(small_events())
     data = bytearray(path.read_bytes())
@@ -52,7 +53,7 @@ def bomb_recording(path: Path, inflated: int = 3 << 30) -> Path:
     table_field = struct.unpack_from("<H", header, vtable + 6)[0]
     at = len(AEDAT4_MAGIC) + 4 + root + table_field
     table = struct.unpack_from("<q", data, at)[0]
-    struct.pack_into("<q", data, at, -1)  # no index table: the decoder reads to the end
+    struct.pack_into("<q", data, at, table_at)  # the decoder reads to the end unless exactly there
     payload = zstd_rle_bomb(inflated)
     path.write_bytes(bytes(data[:table]) + struct.pack("<II", 0, len(payload)) + payload)
     return path

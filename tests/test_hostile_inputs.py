@@ -90,6 +90,13 @@ def test_a_decompression_bomb_is_refused_before_it_is_inflated(tmp_path):
     assert_refused(cli("info", str(path)), "decompression bomb", "docs/limits.md")
 
 
+def test_a_bomb_behind_a_table_position_the_packets_skip_over_is_refused_too(tmp_path):
+    """The decoder stops at the index table only when a packet ends exactly on it: a header
+    naming a byte inside a packet does not hide the packets after it from the checks."""
+    path = bomb_recording(tmp_path / "bomb.aedat4", inflated=3 << 30, table_at=200)
+    assert_refused(cli("info", str(path)), "decompression bomb")
+
+
 def test_the_reader_refuses_a_bomb_after_yielding_what_comes_before(tmp_path):
     """The stream every command reads gives the packets before the bomb, then one RecordingError."""
     from neurotouch_hid.errors import RecordingError

@@ -491,8 +491,8 @@ class _InflateGuard:
         """Why the next packet must not be read (the pass ends there), or None: read it. A packet
         that runs past the end of the file is not read either ("cut"): the decoder would reserve
         its declared size first."""
-        if 0 <= self.table <= self.pos or self.pos + 8 > self.size:
-            return None  # the decoder stops by itself here
+        if self.pos == self.table or self.pos + 8 > self.size:
+            return None  # the decoder stops by itself here (it stops at the table only when exactly there)
         (length,) = struct.unpack("<I", os.pread(self.fd, 4, self.pos + 4))
         if self.pos + 8 + length > self.size:
             return "cut"
