@@ -17,6 +17,7 @@ import logging
 import os
 import socket
 import threading
+import time
 from pathlib import Path
 from typing import Callable
 
@@ -47,11 +48,17 @@ def socket_path() -> Path | None:
     return Path(runtime_dir) / SOCKET_NAME if runtime_dir else None
 
 
-def _read_line(conn: socket.socket) -> bytes | None:
+def _read_line(conn: socket.socket, within_s: float) -> bytes | None:
     """The first line (without its newline) of at most MAX_MESSAGE bytes, or None when the peer
-    sends more than that without a newline."""
+    sends more than that without a newline. Raises TimeoutError when the line is not complete
+    ``within_s`` seconds (in all: a peer sending a byte now and then gains nothing)."""
+    deadline = time.monotonic() + within_s
     data = b""
     while b"\n" not in data:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise TimeoutError
+        conn.settimeout(left)
         chunk = conn.recv(MAX_MESSAGE)
         if not chunk:
             break
@@ -149,9 +156,8 @@ class ControlServer:
         """One client: read its request line (bounded in size and time), answer, close."""
         try:
             with conn:
-                conn.settimeout(REQUEST_TIMEOUT_S)
                 try:
-                    line = _read_line(conn)
+                    line = _read_line(conn, REQUEST_TIMEOUT_S)
                 except TimeoutError:
                     log.warning("control socket: a client sent no request in %.0f s; dropped", REQUEST_TIMEOUT_S)
                     return
@@ -231,9 +237,10 @@ def request_use(profile: str, path: Path | None = None, timeout_s: float = ANSWE
             raise NeurotouchError(f"cannot reach the driver at {path}: {exc.strerror}") from None
         try:
             sock.sendall(json.dumps({"command": "use", "profile": profile}).encode() + b"\n")
-            line = _read_line(sock) or b""
+            line = _read_line(sock, timeout_s) or b""
         except OSError as exc:
-            raise NeurotouchError(f"the driver at {path} did not answer: {exc.strerror or exc}") from None
+            why = exc.strerror or str(exc) or f"no answer in {timeout_s:.0f} s"
+            raise NeurotouchError(f"the driver at {path} did not answer: {why}") from None
     try:
         answer = json.loads(line)
         ok, message = bool(answer["ok"]), str(answer["message"])

@@ -452,3 +452,33 @@ def test_a_predictions_file_that_is_a_fifo_or_nests_deeply_is_one_line(tmp_path)
     deep = tmp_path / "deep.jsonl"
     deep.write_text("[" * 100_000 + "\n")
     assert_refused(cli("run", "--source", str(deep), "--output", "jsonl", "--seconds", "1"), f"{deep}:1:")
+
+
+@pytest.mark.usefixtures("runtime_dir")
+def test_a_client_sending_a_byte_now_and_then_is_dropped_at_the_request_deadline():
+    """The request timeout is for the whole line: a byte every second does not keep a slot."""
+    from neurotouch_hid.control import REQUEST_TIMEOUT_S, ControlServer, socket_path
+
+    server = ControlServer(lambda ref: "switched")
+    assert server.start()
+    try:
+        with socket.socket(socket.AF_UNIX) as slow:
+            slow.connect(str(socket_path()))
+            start = time.monotonic()
+            closed = False
+            for _ in range(int(REQUEST_TIMEOUT_S * 20)):  # 10x the deadline: a loaded machine is late
+                try:
+                    slow.sendall(b"[")
+                except OSError:  # the driver closed it
+                    closed = True
+                    break
+                slow.settimeout(0.5)
+                try:
+                    if slow.recv(100) == b"":
+                        closed = True
+                        break
+                except TimeoutError:
+                    pass
+            assert closed, f"still connected after {time.monotonic() - start:.1f} s of a byte every 0.5 s"
+    finally:
+        server.stop()
