@@ -44,7 +44,7 @@ from neurotouch_hid.dataset import list_sequences, read_labels, read_predictions
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.evaluation.metrics import Observations, align, evaluate
 from neurotouch_hid.evaluation.runner import evaluate_dataset, pipeline_config
-from neurotouch_hid.pipeline.gesture import EpisodeVote
+from neurotouch_hid.pipeline.episode import EpisodeVote
 from neurotouch_hid.pipeline.pipeline import PipelineConfig
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import PHYSICS

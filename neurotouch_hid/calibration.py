@@ -411,11 +411,11 @@ def press_amplitude(recording: str | Path, sensor: SensorGeometry) -> tuple[np.n
     Returns:
         (t_us (T,) int64 us, amplitude (T,) float64 px).
     Raises:
-        RecordingError: the file cannot be read (see ``pipeline.track.pipeline_over``).
+        RecordingError: the file cannot be read (see ``track.pipeline_over``).
         SensorError: no gel on its first APS frame.
     """
     from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
-    from neurotouch_hid.pipeline.track import pipeline_over
+    from neurotouch_hid.track import pipeline_over
 
     times: list[int] = []
     amplitude: list[float] = []

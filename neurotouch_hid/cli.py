@@ -265,8 +265,8 @@ def track(
     with long_lived_start_up():
         from neurotouch_hid.evaluation.runner import pipeline_config
         from neurotouch_hid.pipeline.pipeline import GesturePipeline
-        from neurotouch_hid.pipeline.track import recording_progress, track_recording
         from neurotouch_hid.sensor import find_sensor_file
+        from neurotouch_hid.track import recording_progress, track_recording
 
         config = pipeline_config(preset=preset, window_us=window_us)
         geometry = find_sensor_file(recording, sensor)
@@ -356,9 +356,9 @@ def view(
     sensor: Optional[Path] = typer.Option(None, "--sensor", help="sensor.yaml (default: the one beside the recording)"),
 ) -> None:
     """Draw what the pipeline sees: APS frame, events, markers, displacements, contacts, gesture."""
-    from neurotouch_hid.pipeline.track import recording_progress
-    from neurotouch_hid.pipeline.view import render_view
     from neurotouch_hid.sensor import find_sensor_file
+    from neurotouch_hid.track import recording_progress
+    from neurotouch_hid.view import render_view
 
     geometry = find_sensor_file(recording, sensor)
     with recording_progress(err_console, "drawing") as report:

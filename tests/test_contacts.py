@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from neurotouch_hid.pipeline.contacts import detect_contacts, local_maxima, refine_peak
+from neurotouch_hid.pipeline.contacts import detect_contacts, local_maxima
+from neurotouch_hid.pipeline.contacts_refine import refine_peak
 from neurotouch_hid.sensor import SensorGeometry
 
 SENSOR = SensorGeometry()
@@ -255,7 +256,7 @@ def test_a_lone_mistracked_marker_is_no_contact_and_hides_no_finger():
 
 
 def test_neighbours_given_once_per_reference_match_those_computed_per_window_with_lost_markers():
-    from neurotouch_hid.pipeline.contacts import rest_neighbours
+    from neurotouch_hid.pipeline.contacts_plateau import rest_neighbours
 
     rest, cur, _ = three_finger_push(seed=3)
     valid = np.ones(len(rest), dtype=bool)
@@ -270,7 +271,7 @@ def test_neighbours_given_once_per_reference_match_those_computed_per_window_wit
 
 
 def test_the_valid_markers_neighbour_table_matches_one_built_from_the_valid_markers_alone():
-    from neurotouch_hid.pipeline.contacts import _valid_table, rest_neighbours
+    from neurotouch_hid.pipeline.contacts_plateau import _valid_table, rest_neighbours
 
     rest = grid()
     rng = np.random.default_rng(5)
@@ -420,7 +421,7 @@ def numpy_bump_fit(rest, v, centres, knot, n_knots, rounds):
 
 
 def test_bump_fit_matches_its_algorithm_written_with_numpy():
-    from neurotouch_hid.pipeline.contacts import BUMP_ITERATIONS, bump_fit
+    from neurotouch_hid.pipeline.contacts_bump import BUMP_ITERATIONS, bump_fit
 
     rest, cur, _ = long_tailed_pinch()
     v = cur - rest
@@ -441,7 +442,7 @@ def test_bump_fit_matches_its_algorithm_written_with_numpy():
 
 
 def test_bump_fit_keeps_the_start_on_a_field_it_cannot_fit():
-    from neurotouch_hid.pipeline.contacts import bump_fit
+    from neurotouch_hid.pipeline.contacts_bump import bump_fit
 
     rest = grid()
     start = rest[[10, 50]].astype(float)
@@ -458,7 +459,7 @@ def test_bump_fit_keeps_the_start_on_a_field_it_cannot_fit():
 
 
 def test_the_small_solver_matches_numpy():
-    from neurotouch_hid.pipeline.contacts import _solve
+    from neurotouch_hid.pipeline.contacts_bump import _solve
 
     rng = np.random.default_rng(4)
     for n in (1, 2, 6, 9):
@@ -474,7 +475,7 @@ def test_the_small_solver_matches_numpy():
 
 
 def test_field_at_and_at_rest_match_numpy():
-    from neurotouch_hid.pipeline.contacts import _at_rest, field_at
+    from neurotouch_hid.pipeline.contacts_bump import _at_rest, field_at
 
     rng = np.random.default_rng(5)
     rest = grid()

@@ -14,7 +14,7 @@ import pytest
 from neurotouch_hid.dataset import read_predictions, write_predictions
 from neurotouch_hid.errors import DatasetError, SensorError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.pipeline.gesture import EpisodeVote
+from neurotouch_hid.pipeline.episode import EpisodeVote
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 from neurotouch_hid.pipeline.resting import RestingResult
 from neurotouch_hid.sensor import SensorGeometry
@@ -281,8 +281,8 @@ def push_dataset(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def push_tracked(push_dataset, tmp_path_factory):
-    from neurotouch_hid.pipeline.track import track_recording
     from neurotouch_hid.sensor import find_sensor_file
+    from neurotouch_hid.track import track_recording
 
     out = tmp_path_factory.mktemp("track")
     summary = track_recording(
@@ -411,8 +411,8 @@ def test_track_command_writes_predictions_and_markers(push_dataset, push_tracked
 def test_view_writes_a_picture_of_the_right_size(push_dataset, tmp_path, suffix, scale):
     import imageio.v3 as iio
 
-    from neurotouch_hid.pipeline.view import render_view
     from neurotouch_hid.sensor import find_sensor_file
+    from neurotouch_hid.view import render_view
 
     sensor = find_sensor_file(push_dataset)
     out = tmp_path / f"view{suffix}"

@@ -93,10 +93,12 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validat
 from neurotouch_hid.camera_model import fit_camera_model
 from neurotouch_hid.errors import SensorError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.pipeline.contacts import HOMOGRAPHY_METHODS, detect_contacts, rest_neighbours
+from neurotouch_hid.pipeline.contacts import HOMOGRAPHY_METHODS, detect_contacts
+from neurotouch_hid.pipeline.contacts_plateau import rest_neighbours
 from neurotouch_hid.pipeline.creep import CreepFilter
+from neurotouch_hid.pipeline.episode import EpisodeVote
 from neurotouch_hid.pipeline.gel_motion import compile_gel_motion_kernels, estimate_gel_motion, rim_markers
-from neurotouch_hid.pipeline.gesture import EpisodeVote, compile_camera_model_kernels, estimate_gesture, points_to_user
+from neurotouch_hid.pipeline.gesture import compile_camera_model_kernels, estimate_gesture, points_to_user
 from neurotouch_hid.pipeline.learned import gesture_features, learned_gesture
 from neurotouch_hid.pipeline.markers import MARKER_SPACING_MM, detect_markers, looks_like_marker_grid
 from neurotouch_hid.pipeline.noise import EventNoiseFilter, check_noise_filter

@@ -19,9 +19,9 @@ import numpy as np
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.estimate import GestureEstimate
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
-from neurotouch_hid.pipeline.track import pipeline_over
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
+from neurotouch_hid.track import pipeline_over
 
 #: Output kinds by file suffix.
 VIEW_SUFFIXES = (".mp4", ".gif", ".png")
@@ -113,12 +113,12 @@ def render_view(
         scale: integer upscaling; pictures are (height*scale, width*scale).
         fps: frame rate of mp4/gif.
         event_span_us: how much recent event history each picture shows (us).
-        on_progress: see :func:`neurotouch_hid.pipeline.track.pipeline_over`.
+        on_progress: see :func:`neurotouch_hid.track.pipeline_over`.
     Returns:
         the number of pictures drawn.
     Raises:
         NeurotouchError: ``out`` has another suffix or cannot be written.
-        RecordingError, SensorError: see :func:`neurotouch_hid.pipeline.track.pipeline_over`.
+        RecordingError, SensorError: see :func:`neurotouch_hid.track.pipeline_over`.
     """
     import imageio.v2 as imageio
 
