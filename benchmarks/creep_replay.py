@@ -1,11 +1,11 @@
 """How much a creep model's error costs: the ``viscoelastic`` family's predictions replayed
 through the load estimate with a given (q, tau) (docs/accuracy.md, "Round 5").
 
-The pipeline (``PipelineConfig.creep_load``) answers ``none`` in a window whose load, the
+The pipeline (docs/method.md, "Creep") answers ``none`` in a window whose load, the
 window's intensity through the standard linear solid's inverse with the gel's measured creep
 (``pipeline/creep.py``), is below ``min_intensity_px``. ``calibrate --press`` measures (q, tau)
 on a press; this replays a family_eval.py method's predictions (made without the rule, e.g.
-``creep_load=false``) with any (q, tau) instead, after the episode vote: every gesture window
+a sensor.yaml without ``creep``) with any (q, tau) instead, after the episode vote: every gesture window
 whose load is below the threshold is turned to ``none``, and the result scored against the
 labels (only the type of gesture windows can change). It shows how far from the gel's true creep
 a calibration may be before the rule stops paying.

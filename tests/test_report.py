@@ -123,11 +123,11 @@ def test_pipeline_config_rejects_unknown_or_bad_hyperparameter():
         pipeline_config(["r_px=big"])
     with pytest.raises(NeurotouchError, match="TrackerConfig has no field 'nope'"):
         pipeline_config(["tracker.nope=1"])
-    config = pipeline_config(["r_px=25", "n_min=3", "detect_resting=false", "tracker.assoc_px=5"], window_us=5000)
-    assert (config.r_px, config.n_min, config.detect_resting, config.tracker.assoc_px, config.window_us) == (
+    config = pipeline_config(["r_px=25", "n_min=3", "noise_filter=none", "tracker.assoc_px=5"], window_us=5000)
+    assert (config.r_px, config.n_min, config.noise_filter, config.tracker.assoc_px, config.window_us) == (
         25.0,
         3,
-        False,
+        None,
         5.0,
         5000,
     )
@@ -142,4 +142,4 @@ def test_a_bad_set_value_names_the_setting_the_field_and_what_was_expected():
     assert "--set 'tracker.assoc_px=wide': tracker.assoc_px: found 'wide'; input should be a valid number" in str(
         info.value
     )
-    assert pipeline_config(["contact_refine_px=none", "field_fallback=off"]).model_dump()["contact_refine_px"] is None
+    assert pipeline_config(["marker_threshold=none"]).marker_threshold is None

@@ -1,83 +1,15 @@
-"""Contact point detection (paper, section "Contact Point Detection").
+"""Contact point detection (paper, section "Contact Point Detection"; docs/method.md, "Contacts").
 
-A finger deforms the gel locally; the rest of the displacement field follows a smooth global
-motion. A RANSAC homography from the markers' rest positions to their current positions models
-that global motion with a *dynamic* reprojection threshold ``a * mean_i ||v_i||`` (paper, first
-equation of the section), so the number of outliers stays stable whatever the gesture's
-intensity. The outliers are the candidate set S. A contact point is a candidate whose
-displacement is the largest within radius r among the candidates (its neighbourhood N(i)), with
-at least ``n_min`` candidates in that neighbourhood (paper, section "Results": N_min = 4).
-
-Field fallback (not in the paper, ``field_fallback``): a wide multi-finger push drags a large
-part of the gel almost rigidly; the homography then models the fingers' motion itself, its
-dynamic threshold (``a`` x the large mean displacement) is loose, and the few outliers left are
-scattered, so no neighbourhood holds ``n_min`` of them and no contact is found although the gel
-is strongly deformed (measured on the quick preset's 3-finger push, seed 0: ``none`` on ~65 %
-of its windows above 2 mm). When the outliers give no contact, the rest model (no motion, the
-identity) takes the homography's place: the candidates are the markers it rejects with the same
-dynamic threshold, ``||v_i|| > a * mean_i ||v_i||``, and their local maxima are the contacts --
-the contact point is, by the paper's definition, "the location where the silicone gel
-experiences the greatest deformation".
-
-Sub-marker refinement (not in the paper, ``refine_px``): the paper's contact point is the
-position of the marker of peak displacement, so it is quantised to the 4 mm marker grid (the
-paper's labels share that 4 mm uncertainty). :func:`refine_peak` instead fits a quadratic
-surface to ||v|| and to v over the markers within ``refine_px`` of the peak marker (rest
-positions), takes the surface's maximum (when it is one, near the peak marker) and returns where
-that gel point is now (its rest position plus the fitted v there).
-
-Flat tops (not in the paper, ``plateau_fraction``): the paper's contact is a marker whose
-displacement is the largest within r. Where several fingers push together, or a stuck contact
-disc carries the gel under it rigidly (Cattaneo-Mindlin partial slip), the field's maximum is a
-plateau several markers wide, flat to within the tracker's noise: any of its markers may be
-the largest within r, so one plateau yields maxima at random places on it (measured on the
-development families: a 3-finger push reads as 4-6 contacts, its contact distance 5-6.5 mm).
-:func:`plateau_contacts` merges the maxima that lie on one plateau -- the markers connected to
-the strongest maximum (neighbours within 1.5 marker pitches at rest) whose displacement is at
-least ``plateau_fraction`` x its own, i.e. maxima whose topographic prominence is below
-``1 - plateau_fraction`` of the peak. A plateau of more than :data:`PLATEAU_MARKERS` markers is
-a flat top: it holds one finger per fingertip footprint (pi r^2, the paper's r being "the
-typical radius of a fingertip") of its area, at most 3, placed at the weighted centroids of
-equal parts of the plateau along its principal axis (weights: how far each marker rises above
-the plateau's level); a smaller plateau is a finger's peak and keeps its contact as before.
-
-Neighbourhoods on the gel (not in the paper, ``maxima_at_rest``): the paper's N(i) holds the
-candidates within r of marker i's *current* position. A pinch brings two fingers, and the gel
-under them, together: when their contact markers come within r of each other in the image,
-the weaker one is no maximum any more and the pinch reads as one contact (measured on the
-development families: most of the 2 -> 1 errors of ``strong`` and ``drift`` pinches, where the
-markers between the fingers are squeezed together). With ``maxima_at_rest`` N(i) is taken over
-the rest positions: markers within r on the gel, which a deformation does not bring together.
-
-Lone markers (not in the paper, ``spike_fraction``): a finger's footprint is wider than the
-4 mm marker pitch, so the markers next to a contact move nearly as much as it does. A single
-marker far above all its neighbours is the tracker's error (a hot pixel or background activity
-pulled its blob: the ``noise`` family), and the paper's rule makes it a contact, or lets it
-suppress a real one within r. With ``spike_fraction`` a marker displaced more than
-1 / spike_fraction times the median of its neighbours (rest positions within 1.5 pitches) takes
-that median in this stage (maxima, plateaus, refinement; the intensity still reads its own).
-
-Long tails (not in the paper, ``bump_span_px``; the pipeline's ``bump_fit``): the paper's
-contact point is the marker of largest displacement within r, "the location where the silicone
-gel experiences the greatest deformation". Where the fingers' fields have long tails (a power-law
-falloff, or the a/r field outside a stuck contact disc), the fields of the fingers of one gesture
-overlap: in a pinch, zoom or twist each finger's field is opposed on its inner side by the
-others' tails, so the largest displacement lies one to two marker pitches *outside* the finger
-(measured on the development families: 5-8 px outward, 2-3 mm, on ``powerlaw`` and
-``stickslip``; ~1 px on the Gaussian ``default``). :func:`bump_fit` instead explains the whole
-field as a sum of radial bumps, one per contact, v(x) = sum_k g(||x - c_k||) u_k, and moves
-the centres c_k to the least-squares optimum. The profile g is not assumed (no Gaussian or power
-law): it is measured on the window's own field, a piecewise-linear function of the distance with
-knots one marker pitch apart up to the gel's radius (the only constants, both geometry); the
-fit starts at the contacts found above, keeps their number, and a centre it moves further than
-two pitches stays where it was. A contact point is then the fitted gel point where it is now (its
-rest position plus the field there, :func:`field_at`). It runs only where there are at least two
-contacts and no flat top holds several fingers: a single finger's peak is symmetric already, and
-on a multi-finger flat top (a rigid plateau) the bumps' centres are not determined by the field
-(measured: the 3-finger push of ``default`` 2.7 -> 3.7 mm with it, ``powerlaw`` 7.1 -> 6.3 mm).
-The gesture step still takes A and the intensity about the maxima (``Contacts.peaks_px``): the
-paper's intensity is the largest deformation, and the fitted centres moved the intensity MAE by
-+0.02 to +0.06 mm on every family.
+A RANSAC homography from the markers' rest positions to their current positions models the gel's
+global motion with a dynamic reprojection threshold ``a * mean_i ||v_i||`` (paper, first equation
+of the section); its outliers are the candidate set S (:func:`outlier_candidates`), and a contact
+point is a candidate whose displacement is the largest within radius r among the candidates, with
+at least ``n_min`` candidates there (:func:`local_maxima`). The paper's method stops there
+(``paper.paper_contacts``). The product's :func:`detect_contacts` adds, each for a reason given in
+docs/method.md, "Contacts": neighbourhoods on the gel at rest, lone markers at their neighbours'
+median and flat tops (``contacts_plateau.py``), the rest model when the outliers give no contact,
+sub-marker refinement (``contacts_refine.py``) and the fit of radial bumps on long-tailed fields
+(``contacts_bump.py``).
 
 Everything here is in the image frame (px).
 """
@@ -105,12 +37,12 @@ class Contacts:
         indices: (K,) int64, indices of the markers that are contact points (ordered by
             decreasing displacement; the contacts of one plateau all give its maximum's marker).
         points_px: (K, 2) float64, their current positions, image frame (px) (sub-marker
-            refined ones with ``refine_px``, see :func:`refine_peak`; the fitted fingers' centres
-            with ``bump_span_px``, see :func:`bump_fit`).
+            refined ones, ``contacts_refine.refine_peak``; the fitted fingers' centres,
+            ``contacts_bump.bump_fit``; the peak markers' positions by the paper's rule).
         peaks_px: (K, 2) float64, the points of the field's maxima (px, image frame): the
-            contact points as they are before :func:`bump_fit` (``points_px`` itself without
-            it). The gesture step reads its set A and intensity around these: the largest
-            deformation (paper, "Gesture Classification and Intensity Prediction").
+            contact points as they are before the bump fit (``points_px`` itself without it).
+            The gesture step reads its set A and intensity around these: the largest deformation
+            (paper, "Gesture Classification and Intensity Prediction").
         candidates: (N,) bool, the RANSAC outliers S (False for markers not valid).
         reproj_threshold_px: the dynamic reprojection threshold used (px); 0 when RANSAC did
             not run.
@@ -142,7 +74,7 @@ def _no_contacts(n: int, threshold: float = 0.0) -> Contacts:
 #: the paper's reference [RANSAC]); ``usac_fast`` is OpenCV's USAC framework (RANSAC with local
 #: optimisation, ``cv2.USAC_FAST``). On simulated gels (quick datasets, seeds 0 and 3) usac_fast
 #: scored as well or better (gesture accuracy 92.5 vs 90.0 % and 94.7 vs 94.7 %, contact count
-#: 84.7 vs 76.8 % and 84.9 vs 84.6 %) at ~2.5x less time (docs/performance.md, Pipeline).
+#: 84.7 vs 76.8 % and 84.9 vs 84.6 %) at ~2.5x less time (docs/method.md, "Contacts").
 HOMOGRAPHY_METHODS = {"ransac": cv2.RANSAC, "usac_fast": cv2.USAC_FAST}
 
 
@@ -269,7 +201,7 @@ def _usable(
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _maxima(
-    where: np.ndarray,
+    rest: np.ndarray,
     magnitudes: np.ndarray,
     outliers: np.ndarray,
     table: np.ndarray,
@@ -280,22 +212,88 @@ def _maxima(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The contact step after RANSAC, up to the plateaus (:func:`detect_contacts`).
 
-    ``where`` (M, 2) float64 px: the positions whose neighbourhoods N(i) count (current, or rest
-    with ``maxima_at_rest``); ``magnitudes`` (M,) ||v|| px; ``outliers`` (M,) bool, RANSAC's;
-    ``table`` (M, K) int64, the valid markers' neighbour table (used when ``spike_fraction`` > 0);
-    ``spike_fraction`` <= 0: no lone-marker median; ``r2`` = r^2 (px^2);
-    ``fallback_threshold`` < 0: no field fallback, else the rest model's threshold (px).
-    Returns the maxima (K,) int64 (indices into the M markers, by decreasing magnitude) and the
-    magnitudes the later steps read (M,) float64 (lone markers at their neighbours' median)."""
-    if spike_fraction > 0:
-        magnitudes = _despiked(table, magnitudes, spike_fraction)
+    ``rest`` (M, 2) float64 px: the rest positions, whose neighbourhoods N(i) count;
+    ``magnitudes`` (M,) ||v|| px; ``outliers`` (M,) bool, RANSAC's; ``table`` (M, K) int64, the
+    valid markers' neighbour table; ``r2`` = r^2 (px^2); ``fallback_threshold``: the rest model's
+    threshold (px) when the outliers give no contact. Returns the maxima (K,) int64 (indices into
+    the M markers, by decreasing magnitude) and the magnitudes the later steps read (M,) float64
+    (lone markers at their neighbours' median)."""
+    magnitudes = _despiked(table, magnitudes, spike_fraction)
     chosen = np.flatnonzero(outliers)
-    found = _local_maxima(where[chosen], magnitudes[chosen], r2, n_min)
-    peaks = chosen[found]
-    if len(peaks) == 0 and fallback_threshold >= 0:
+    peaks = chosen[_local_maxima(rest[chosen], magnitudes[chosen], r2, n_min)]
+    if len(peaks) == 0:
         moved = np.flatnonzero(magnitudes > fallback_threshold)  # the rest model's outliers
-        peaks = moved[_local_maxima(where[moved], magnitudes[moved], r2, n_min)]
+        peaks = moved[_local_maxima(rest[moved], magnitudes[moved], r2, n_min)]
     return peaks, magnitudes
+
+
+@dataclass(frozen=True)
+class Candidates:
+    """The markers that take part in one window and RANSAC's verdict on them (:func:`outlier_candidates`).
+
+    Attributes:
+        n: N, the number of markers.
+        idx: (M,) int64, indices of the valid, finite markers.
+        rest_px, current_px, v_px: (M, 2) float64, their rest and current positions and
+            displacements (px, image frame).
+        magnitudes: (M,) float64, ||v|| (px).
+        outliers: (M,) bool, the homography's outliers S.
+        threshold_px: the dynamic reprojection threshold ``a * mean ||v||`` (px).
+    """
+
+    n: int
+    idx: np.ndarray
+    rest_px: np.ndarray
+    current_px: np.ndarray
+    v_px: np.ndarray
+    magnitudes: np.ndarray
+    outliers: np.ndarray
+    threshold_px: float
+
+    def contacts(self, rows: np.ndarray, points_px: np.ndarray, peaks_px: np.ndarray) -> Contacts:
+        """The :class:`Contacts` of the markers ``rows`` (K,) int64 (into the M) at ``points_px``."""
+        candidates = np.zeros(self.n, dtype=bool)
+        candidates[self.idx[self.outliers]] = True
+        return Contacts(
+            indices=self.idx[rows],
+            points_px=points_px,
+            peaks_px=peaks_px,
+            candidates=candidates,
+            reproj_threshold_px=self.threshold_px,
+        )
+
+
+def outlier_candidates(
+    rest_px: np.ndarray,
+    current_px: np.ndarray,
+    valid: np.ndarray | None,
+    *,
+    a: float,
+    min_mean_displacement_px: float = 1e-3,
+    max_iters: int = 2000,
+    method: str = "usac_fast",
+) -> Candidates | int:
+    """The candidate set S of one window: RANSAC's outliers with the dynamic threshold (paper,
+    "Contact Point Detection").
+
+    Args: as :func:`detect_contacts`.
+    Returns:
+        :class:`Candidates`, or N (the number of markers) when the window has no contact: fewer
+        than 4 valid markers (a homography needs 4) or a mean displacement below
+        ``min_mean_displacement_px``.
+    Raises:
+        ValueError: the arrays do not describe the same N markers (:func:`marker_arrays`).
+    """
+    rest, cur, usable = marker_arrays(rest_px, current_px, valid)
+    idx, rest_ok, cur_ok, v_ok, magnitudes = _usable(rest, cur, usable)
+    if len(idx) < 4:
+        return len(rest)
+    mean = float(magnitudes.mean())
+    if mean < min_mean_displacement_px:
+        return len(rest)
+    threshold = a * mean
+    outliers = homography_outliers(rest_ok, cur_ok, threshold, max_iters, method)
+    return Candidates(len(rest), idx, rest_ok, cur_ok, v_ok, magnitudes, outliers, threshold)
 
 
 def detect_contacts(
@@ -303,96 +301,77 @@ def detect_contacts(
     current_px: np.ndarray,
     valid: np.ndarray | None = None,
     *,
-    r_px: float = 30.0,
+    r_px: float = 25.0,
     a: float = 0.6,
-    n_min: int = 4,
+    n_min: int = 12,
     min_mean_displacement_px: float = 1e-3,
     max_iters: int = 2000,
     method: str = "usac_fast",
-    field_fallback: bool = False,
-    refine_px: float | None = None,
-    plateau_fraction: float | None = None,
+    refine_px: float = 20.0,
+    plateau_fraction: float = 0.8,
     pitch_px: float = 10.0,
-    maxima_at_rest: bool = False,
-    spike_fraction: float | None = None,
+    spike_fraction: float = 0.6,
+    bump_span_px: float = 75.0,
     neighbours: np.ndarray | None = None,
-    bump_span_px: float | None = None,
 ) -> Contacts:
-    """The contact points of one window (paper, section "Contact Point Detection").
+    """The contact points of one window, the product's method (docs/method.md, "Contacts").
 
     Args:
         rest_px: (N, 2) float, rest positions p_i(t0), image frame (px), finite.
         current_px: (N, 2) float, tracked positions p_i(t_k), image frame (px); NaN rows count
             as lost.
         valid: (N,) bool, False for markers the tracker lost (they take no part); None = all.
-        r_px: neighbourhood radius r (px); paper: 30 px.
-        a: dynamic reprojection threshold coefficient; paper: 0.6.
-        n_min: minimum neighbourhood size N_min; paper: 4.
+        r_px: neighbourhood radius r (px), taken over the rest positions (on the gel).
+        a: dynamic reprojection threshold coefficient (paper's 0.6).
+        n_min: minimum neighbourhood size N_min.
         min_mean_displacement_px: below this mean displacement (px) nothing moves and there is
             no contact (RANSAC needs a positive threshold).
         max_iters, method: RANSAC's iteration cap and variant (see :func:`homography_outliers`).
-        field_fallback: when the outliers give no contact, take the local maxima among the
-            markers displaced by more than the threshold (the rest model's outliers, see the
-            module docstring); ``candidates`` still holds the homography's outliers.
-        refine_px: None: a contact point is its marker's position (paper); > 0: refined below
-            the marker pitch with the markers within this radius (:func:`refine_peak`).
-        plateau_fraction: None: every local maximum is a contact (paper); in (0, 1): maxima on
-            one plateau at this fraction of the strongest are merged, and a wide plateau's
-            contacts are read off its area and shape (:func:`plateau_contacts`, with ``r_px`` as
-            the fingertip's radius).
-        pitch_px: the marker pitch (px), for the plateaus.
-        maxima_at_rest: False: N(i) = the candidates within r of marker i now (paper); True:
-            within r at rest (module docstring, "Neighbourhoods on the gel").
-        spike_fraction: None: the tracked ||v|| (paper); in (0, 1]: lone markers take their
-            neighbours' median (module docstring, "Lone markers").
+        refine_px: a peak is refined below the marker pitch with the markers within this
+            radius (px, :func:`~neurotouch_hid.pipeline.contacts_refine.refine_peak`).
+        plateau_fraction: in (0, 1): maxima on one plateau at this fraction of the strongest are
+            merged, and a wide plateau's contacts are read off its area and shape
+            (:func:`~neurotouch_hid.pipeline.contacts_plateau.plateau_contacts`).
+        pitch_px: the marker pitch (px).
+        spike_fraction: in (0, 1]: a marker displaced more than 1 / spike_fraction times the
+            median of its neighbours takes that median.
+        bump_span_px: with at least two contacts and no flat top of several fingers, their
+            centres are fitted as radial bumps with a profile of knots ``pitch_px`` apart up to
+            this distance (px), the gel's radius
+            (:func:`~neurotouch_hid.pipeline.contacts_bump.bump_fit`).
         neighbours: (N, K) int64, :func:`rest_neighbours` of ``rest_px`` with ``pitch_px``
-            (computed once per rest reference by the pipeline); None: computed here when needed.
-        bump_span_px: None: the contact points are the maxima's (paper); > 0: when there are
-            at least two contacts and none is a flat top's, their centres are fitted as radial
-            bumps with a profile of knots ``pitch_px`` apart up to this distance (px), e.g. the
-            gel's radius (:func:`bump_fit`, module docstring "Long tails").
+            (computed once per rest reference by the pipeline); None: computed here.
     Returns:
-        :class:`Contacts`. Degenerate inputs give no contact: fewer than 4 valid markers (a
-        homography needs 4), or a mean displacement below ``min_mean_displacement_px``
-        (e.g. all-zero). When ``cv2.findHomography`` returns None, all valid markers are
-        candidates (see :func:`homography_outliers`).
+        :class:`Contacts` (``peaks_px``: the maxima before the bump fit). Degenerate inputs give
+        no contact (see :func:`outlier_candidates`).
     Raises:
         ValueError: the arrays do not describe the same N markers (:func:`marker_arrays`).
     """
-    rest, cur, usable = marker_arrays(rest_px, current_px, valid)
-    n = len(rest)
-    idx, rest_ok, cur_ok, v_ok, magnitudes = _usable(rest, cur, usable)
-    if len(idx) < 4:
-        return _no_contacts(n)
-    mean = float(magnitudes.mean())
-    if mean < min_mean_displacement_px:
-        return _no_contacts(n)
-    threshold = a * mean
-    outliers = homography_outliers(rest_ok, cur_ok, threshold, max_iters, method)
-    candidates = np.zeros(n, dtype=bool)
-    candidates[idx[outliers]] = True
-    if spike_fraction is None and plateau_fraction is None:
-        table = np.zeros((len(idx), 1), dtype=np.int64)  # not read
-    else:
-        if neighbours is None:
-            neighbours = rest_neighbours(rest, pitch_px)
-        table = _valid_table(np.ascontiguousarray(neighbours, dtype=np.int64), idx, n)
-    peaks, magnitudes = _maxima(
-        rest_ok if maxima_at_rest else cur_ok,  # the neighbourhoods N(i): on the gel at rest, or now (paper)
-        magnitudes,
-        outliers,
-        table,
-        -1.0 if spike_fraction is None else float(spike_fraction),
-        float(r_px) * float(r_px),
-        int(n_min),
-        threshold if field_fallback else -1.0,
+    found = outlier_candidates(
+        rest_px,
+        current_px,
+        valid,
+        a=a,
+        min_mean_displacement_px=min_mean_displacement_px,
+        max_iters=max_iters,
+        method=method,
     )
-    if plateau_fraction is not None and len(peaks):
+    if isinstance(found, int):
+        return _no_contacts(found)
+    if neighbours is None:
+        neighbours = rest_neighbours(np.asarray(rest_px, dtype=np.float64), pitch_px)
+    c = found
+    table = _valid_table(np.ascontiguousarray(neighbours, dtype=np.int64), c.idx, c.n)
+    r2 = float(r_px) * float(r_px)
+    peaks, magnitudes = _maxima(
+        c.rest_px, c.magnitudes, c.outliers, table, float(spike_fraction), r2, int(n_min), c.threshold_px
+    )
+    if len(peaks):
         peaks, fingers, flat = plateau_contacts(
-            table, cur_ok, magnitudes, peaks, float(plateau_fraction), float(pitch_px), float(r_px)
+            table, c.current_px, magnitudes, peaks, float(plateau_fraction), float(pitch_px), float(r_px)
         )
     else:
-        fingers, flat = np.zeros(len(peaks), dtype=np.int64), np.zeros((0, 2))
+        fingers, flat = np.zeros(0, dtype=np.int64), np.zeros((0, 2))
     rows, points, used = [], [], 0
     for i, f in zip(peaks.tolist(), fingers.tolist()):
         if f:  # a flat top: its contacts, all on its maximum's marker
@@ -401,13 +380,10 @@ def detect_contacts(
             used += f
         else:
             rows.append(i)
-            points.append(_refine_peak(rest_ok, v_ok, magnitudes, i, refine_px) if refine_px else cur_ok[i])
-    maxima = idx[np.array(rows, dtype=np.int64)]
+            points.append(_refine_peak(c.rest_px, c.v_px, magnitudes, i, refine_px))
     points = peaks_px = np.array(points, dtype=np.float64).reshape(-1, 2)
-    if bump_span_px is not None and len(points) >= 2 and fingers.max(initial=0) < 2:
+    if len(points) >= 2 and fingers.max(initial=0) < 2:
         n_knots = max(2, math.ceil(bump_span_px / pitch_px) + 1)
-        centres = bump_fit(rest_ok, v_ok, _at_rest(cur_ok, v_ok, points), float(pitch_px), n_knots)
-        points = field_at(rest_ok, v_ok, centres)
-    return Contacts(
-        indices=maxima, points_px=points, peaks_px=peaks_px, candidates=candidates, reproj_threshold_px=threshold
-    )
+        centres = bump_fit(c.rest_px, c.v_px, _at_rest(c.current_px, c.v_px, points), float(pitch_px), n_knots)
+        points = field_at(c.rest_px, c.v_px, centres)
+    return c.contacts(np.array(rows, dtype=np.int64), points, peaks_px)
