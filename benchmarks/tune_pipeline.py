@@ -72,8 +72,8 @@ TARGETS = (
     ("resting_f1", 0.97, True),
 )
 
-DEFAULT_GRID = ("r_px=20,25,30", "a=0.4,0.6,0.9", "n_min=3,4")
-DEFAULT_CHAMFER = "0.005,0.01,0.02,0.03,0.05"
+DEFAULT_GRID = ("contacts.r_mm=8,10,12", "contacts.a=0.4,0.6,0.9", "contacts.n_min=3,4")
+DEFAULT_CHAMFER = "0.0008,0.0016,0.0032,0.005,0.008"
 
 console = make_console()
 
@@ -120,7 +120,7 @@ def chamfer_series(dataset: Path, name: str, marker_threshold: int | None) -> tu
                 detector = RestingDetector(item.image, sensor, binary_threshold=marker_threshold, centroids=True)
                 continue
             times.append(item.t_us)
-            distances.append(detector.update(item).distance)
+            distances.append(detector.update(item).distance / sensor.px_per_mm**2)  # mm^2, as the setting
     truth = labels_at(read_labels(dataset / f"{name}.labels.csv"), np.array(times, dtype=np.int64))
     keep = [k for k, row in enumerate(truth) if row is not None]
     return np.array(distances)[keep], np.array([truth[k].resting for k in keep])
@@ -162,7 +162,7 @@ def record_sequence(dataset: Path, name: str, config, out: Path) -> Path:
         valid=np.array(valid),
         resting=np.array(resting),
         rest_px=pipeline.rest_px,
-        centroid_threshold=config.centroid_threshold,
+        centroid_threshold=config.resting.centroid_threshold_mm2,
     )
     return path
 
@@ -225,14 +225,16 @@ def main(
     pool = ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn"))
 
     # stage 1
-    series = list(pool.map(chamfer_series, [tuning] * len(names), names, [defaults.marker_threshold] * len(names)))
+    series = list(
+        pool.map(chamfer_series, [tuning] * len(names), names, [defaults.resting.marker_threshold] * len(names))
+    )
     distances = np.concatenate([d for d, _ in series])
     resting = np.concatenate([r for _, r in series])
     thresholds = [float(v) for v in chamfer.split(",")]
     f1s = {thr: resting_f1(distances, resting, thr) for thr in thresholds}
     best_chamfer = max(thresholds, key=lambda thr: f1s[thr])
     table = Table(title=f"Resting threshold on {len(distances)} APS frames (users {users}, seed {TUNING_SEED})")
-    table.add_column("centroid_threshold", justify="right")
+    table.add_column("centroid_threshold_mm2", justify="right")
     table.add_column("resting F1 (frames)", justify="right")
     for thr in thresholds:
         table.add_row(f"{thr:g}", f"{100 * f1s[thr]:.2f} %")
@@ -241,11 +243,11 @@ def main(
     # stage 2
     snapshots = out / "windows"
     snapshots.mkdir(parents=True, exist_ok=True)
-    config = pipeline_config([f"centroid_threshold={best_chamfer}"])
+    config = pipeline_config([f"resting.centroid_threshold_mm2={best_chamfer}"])
     stale = [n for n in names if not recorded_with(snapshots / f"{n}.npz", best_chamfer)]
     list(pool.map(record_sequence, [tuning] * len(stale), stale, [config] * len(stale), [snapshots] * len(stale)))
     combos = [
-        [f"centroid_threshold={best_chamfer}"] + [f"{k}={v}" for k, v in zip(axes, combo)]
+        [f"resting.centroid_threshold_mm2={best_chamfer}"] + [f"{k}={v}" for k, v in zip(axes, combo)]
         for combo in itertools.product(*axes.values())
     ]
     rows = list(pool.map(replay, [tuning] * len(combos), [snapshots] * len(combos), [names] * len(combos), combos))

@@ -295,8 +295,9 @@ def eval_cmd(
     settings: list[str] = typer.Option(
         [],
         "--set",
-        help="pipeline hyperparameter NAME=VALUE, repeatable: a field of the method's config "
-        "(PipelineConfig or PaperConfig; *_px in px at 2.5 px/mm, scaled to sensor.yaml's, *_us in us)",
+        help="pipeline hyperparameter NAME=VALUE, repeatable: a field of the method's config; default: "
+        "window_us, noise_filter, noise_filter_us (us), contacts.*, gesture.*, resting.* (*_mm in mm on the gel, "
+        "*_mm2 in mm^2), tracker.* (px at 2.5 px/mm, scaled to sensor.yaml's); paper: its fields in px",
     ),
     method: str = typer.Option("default", "--method", "--preset", help=METHOD_HELP + "; --set applies over it"),
     jobs: int = typer.Option(1, "--jobs", min=1, help="sequences run in parallel processes"),

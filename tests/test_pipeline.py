@@ -104,7 +104,7 @@ def test_the_first_frame_is_the_rest_reference(rest_image):
 
 def test_a_scene_without_gel_raises_no_gel_found():
     noise = np.random.default_rng(0).integers(0, 256, (SENSOR.height, SENSOR.width), dtype=np.uint8)
-    pipeline = GesturePipeline(SENSOR, PipelineConfig(reference_attempts=2))
+    pipeline = GesturePipeline(SENSOR, PipelineConfig(resting={"reference_attempts": 2}))
     assert pipeline.process(Frame(0, noise)) == []  # one bad first frame is tolerated
     with pytest.raises(SensorError, match="no gel found: the first 2 APS frame"):
         pipeline.process(Frame(40000, noise))
@@ -138,7 +138,7 @@ def test_frames_decide_resting_and_rest_resets_the_tracker(rest_image):
 
 
 def test_moving_markers_overrule_a_stale_resting_verdict(rest_image):
-    pipeline = GesturePipeline(SENSOR, PipelineConfig(motion_override_px=1.0))
+    pipeline = GesturePipeline(SENSOR, PipelineConfig(resting={"motion_override_mm": 0.4}))
     pipeline.process(Frame(0, rest_image))
     assert pipeline.resting.resting
     assert [e.resting for e in pipeline.process(events_at(1, 15000))] == [True]  # nothing moved
@@ -157,7 +157,7 @@ def test_motion_override_counts_its_own_markers_not_the_contact_n_min(rest_image
     """With the paper's N_min = 4, the old rule (n_min markers moved) let five markers' tracker
     jitter overrule a resting verdict; the override's own count (12) does not, and a real
     finger still does."""
-    pipeline = GesturePipeline(SENSOR, PipelineConfig(motion_override_px=0.3, n_min=4))
+    pipeline = GesturePipeline(SENSOR, PipelineConfig(contacts={"n_min": 4}))
     pipeline.process(Frame(0, rest_image))
     pipeline.process(events_at(1))
     jitter = pipeline.rest_px.copy()
@@ -177,7 +177,7 @@ def test_smooth_override_ignores_scattered_jitter_but_not_a_finger(rest_image):
     own displacements, but not once median-filtered over their grid neighbours; a finger's smooth
     bump of 2 px (0.8 mm) still overrules it."""
     rng = np.random.default_rng(4)
-    pipeline = GesturePipeline(SENSOR, PipelineConfig(motion_override_px=0.3))
+    pipeline = GesturePipeline(SENSOR, PipelineConfig())
     pipeline.process(Frame(0, rest_image))
     pipeline.process(events_at(1))
     jitter = pipeline.rest_px.copy()
@@ -507,7 +507,7 @@ def _push_then_pinch(config: PipelineConfig, rest_image, cls: type = GesturePipe
 def test_episode_vote_keeps_one_type_over_a_gesture_where_windows_flip(rest_image):
     """The window-by-window rule (paper) reads the lingering finger at the end as push; the
     episode vote answers pinch once the pinch outweighs the push, and keeps it."""
-    base = dict(motion_override_px=0.3, centroid_threshold=-1.0)  # never resting: only the events decide
+    base = dict(resting={"centroid_threshold_mm2": -1.0})  # never resting: only the events decide
     plain = _push_then_pinch(PipelineConfig(**base), rest_image, _WindowByWindow)
     voted = _push_then_pinch(PipelineConfig(**base), rest_image)
     P, Q = GestureType.PUSH, GestureType.PINCH
@@ -541,7 +541,7 @@ def _lagging_pinch(
 def test_a_lagging_fingers_push_gives_way_to_the_pinch_once_its_second_contact_is_seen(rest_image):
     """The episode vote restarts when a push decided on one contact meets a window that sees the
     second: the pinch is answered from that window on, as the window-by-window rule does."""
-    base = dict(motion_override_px=0.3, centroid_threshold=-1.0)
+    base = dict(resting={"centroid_threshold_mm2": -1.0})
     plain = _lagging_pinch(PipelineConfig(**base), rest_image, _WindowByWindow)
     first_pinch = next(k for k, (g, _) in enumerate(plain) if g is GestureType.PINCH)
     assert {g for g, _ in plain[:first_pinch]} == {GestureType.PUSH}
@@ -620,7 +620,7 @@ def test_pixel_settings_follow_px_per_mm_on_a_closer_camera():
         ix, iy = int(round(x)), int(round(y))
         img[iy - 6 : iy + 7, ix - 6 : ix + 7] += 220 * np.exp(-((xx + ix - x) ** 2 + (yy + iy - y) ** 2) / (2 * 1.4**2))
     image = np.clip(img, 0, 255).astype(np.uint8)
-    pipeline = GesturePipeline(sensor, PipelineConfig(centroid_threshold=-1.0))
+    pipeline = GesturePipeline(sensor, PipelineConfig(resting={"centroid_threshold_mm2": -1.0}))
     pipeline.process(Frame(0, image))
     pipeline.process(events_at(1))
     assert len(pipeline.rest_px) == len(rest)
@@ -629,7 +629,7 @@ def test_pixel_settings_follow_px_per_mm_on_a_closer_camera():
     (estimate,) = pipeline.process(events_at(15000))
     assert estimate.gesture is GestureType.PUSH and estimate.n_contacts == 1
     assert scaled_to_sensor(PipelineConfig(), sensor).r_px == pytest.approx(25.0 * 4.0 / 2.5)
-    assert scaled_to_sensor(PipelineConfig(), SENSOR) == PipelineConfig()  # the reference scale: unchanged
+    assert scaled_to_sensor(PipelineConfig(), SENSOR).r_px == 25.0  # 10 mm at 2.5 px/mm
 
 
 def pinch_with_slip(rest_px: np.ndarray, slip_px=(3.0, 0.0), turn_rad=0.0) -> np.ndarray:
@@ -657,7 +657,7 @@ def test_a_pinch_on_a_gel_that_slid_in_its_mount_stays_a_pinch(rest_image, slip,
     # this finger field (sigma 8 px) is narrower than a marker pitch: its peak marker stands
     # alone above its neighbours, which the lone-marker rule takes for a mistracked marker
     # unless its fraction is tiny; that rule is not what is tested here
-    pipeline = GesturePipeline(SENSOR, PipelineConfig(spike_fraction=0.01))
+    pipeline = GesturePipeline(SENSOR, PipelineConfig(contacts={"spike_fraction": 0.01}))
     pipeline.process(Frame(0, rest_image))
     pipeline.process(events_at(1))
     pipeline.tracker.reset(pinch_with_slip(pipeline.rest_px, slip, turn))
@@ -723,7 +723,7 @@ def test_a_frame_near_rest_re_anchors_a_drifted_tracker_without_calling_it_rest(
     near = gel_image((0.5, 0.0), region_px=15)
     answers = {}
     for reset in (0.02, 0.05):
-        pipeline = GesturePipeline(SENSOR, PipelineConfig(centroid_reset_threshold=reset))
+        pipeline = GesturePipeline(SENSOR, PipelineConfig(resting={"centroid_reset_threshold_mm2": reset / 6.25}))
         pipeline.process(Frame(0, rest_image))
         pipeline.process(events_at(1))
         w = np.exp(-np.sum((pipeline.rest_px - SENSOR.gel_center_px) ** 2, axis=1) / (2 * 12.0**2))

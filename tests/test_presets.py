@@ -24,13 +24,13 @@ def test_paper_method_has_the_papers_hyperparameters():
         assert getattr(config, name) == value, name
     default = pipeline_config()
     assert default == PipelineConfig()
-    assert (default.r_px, default.n_min) != (config.r_px, config.n_min)
+    assert default.contacts.n_min != config.n_min
 
 
 def test_paper_config_has_no_product_step():
     """The paper's settings name none of the product's own steps (noise filter, override, ...)."""
     product_only = set(PipelineConfig.model_fields) - set(PaperConfig.model_fields)
-    assert {"noise_filter", "motion_override_px", "spike_fraction", "plateau_fraction"} <= product_only
+    assert {"noise_filter", "contacts", "gesture", "resting"} <= product_only
 
 
 def test_the_config_picks_the_pipeline():

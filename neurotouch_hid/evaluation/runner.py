@@ -31,8 +31,8 @@ def pipeline_config(settings: Sequence[str] = (), method: str = "default", **val
     :class:`~neurotouch_hid.pipeline.paper.PaperConfig`) from its defaults, then ``NAME=VALUE``
     strings (the CLI's ``--set``) and keyword values over them, validated by the pydantic model.
 
-    NAME is a field of the method's config, or ``tracker.FIELD`` for a field of its nested
-    TrackerConfig (any nested model field works the same way). VALUE is converted by pydantic to
+    NAME is a field of the method's config, or ``GROUP.FIELD`` for a field of one of its groups
+    (PipelineConfig's ``contacts``, ``gesture``, ``resting``, ``tracker``). VALUE is converted by pydantic to
     the field's type (``none`` or ``null`` for an optional field).
 
     Raises:
@@ -53,7 +53,7 @@ def pipeline_config(settings: Sequence[str] = (), method: str = "default", **val
         name, sep, text = item.partition("=")
         name, text = name.strip(), text.strip()
         if not sep or not name:
-            raise NeurotouchError(f"--set {item!r}: expected NAME=VALUE, e.g. --set r_px=30")
+            raise NeurotouchError(f"--set {item!r}: expected NAME=VALUE, e.g. --set contacts.r_mm=12")
         model: type[BaseModel] = config_model
         path = name.split(".")
         group = data
@@ -68,8 +68,10 @@ def pipeline_config(settings: Sequence[str] = (), method: str = "default", **val
             if not (isinstance(info.annotation, type) and issubclass(info.annotation, BaseModel))
         ]
         if path[-1] not in leaves:
+            groups = [f for f in model.model_fields if f not in leaves]
             raise NeurotouchError(
                 f"--set {item!r}: {model.__name__} has no field {path[-1]!r}; fields: {', '.join(leaves)}"
+                + (f"; groups (GROUP.FIELD): {', '.join(groups)}" if groups else "")
             )
         group[path[-1]] = None if text.lower() in ("none", "null") else text
         given[tuple(path)] = item

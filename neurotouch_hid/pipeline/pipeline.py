@@ -42,7 +42,7 @@ import numpy as np
 from neurotouch_hid.camera_model import fit_camera_model
 from neurotouch_hid.errors import SensorError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.pipeline.config import MIN_WINDOW_US, PipelineConfig, scaled_to_sensor
+from neurotouch_hid.pipeline.config import MIN_WINDOW_US, PipelineConfig, PixelSettings, scaled_to_sensor
 from neurotouch_hid.pipeline.contacts import Contacts, detect_contacts
 from neurotouch_hid.pipeline.contacts_plateau import rest_neighbours
 from neurotouch_hid.pipeline.creep import CreepFilter
@@ -111,7 +111,7 @@ class GesturePipeline:
         detect_resting: bool = True,
     ) -> None:
         self.sensor = sensor
-        #: the settings as given; ``config`` is what runs (pixel settings scaled to the sensor)
+        #: the settings as given (mm, us); ``config`` is what runs (in pixels at the sensor's scale)
         self.settings = config or self.default_config()
         self.config = self._scaled(self.settings, sensor)
         self.detect_resting = detect_resting
@@ -151,8 +151,8 @@ class GesturePipeline:
         return PipelineConfig()
 
     # --- the product's composition: the steps a method may take differently ------------------
-    def _scaled(self, settings: PipelineConfig, sensor: SensorGeometry) -> PipelineConfig:
-        """The settings that run: pixel settings following the sensor's scale (``config.py``)."""
+    def _scaled(self, settings: PipelineConfig, sensor: SensorGeometry) -> PixelSettings:
+        """The settings that run: in pixels at the sensor's scale (``config.py``)."""
         return scaled_to_sensor(settings, sensor)
 
     def _noise_filter(self) -> EventNoiseFilter | None:
