@@ -95,14 +95,15 @@ def fuzz_sensor(text: str, folder: Path) -> None:
 
 
 def fuzz_set(items: list[str]) -> None:
-    """``--set NAME=VALUE`` strings: a PipelineConfig or one NeurotouchError."""
+    """``--set NAME=VALUE`` strings, for each method: its config or one NeurotouchError."""
     from neurotouch_hid.errors import NeurotouchError
     from neurotouch_hid.evaluation.runner import pipeline_config
 
-    try:
-        pipeline_config(items)
-    except NeurotouchError as exc:
-        check_message(exc)
+    for method in ("default", "paper"):
+        try:
+            pipeline_config(items, method=method)
+        except NeurotouchError as exc:
+            check_message(exc)
 
 
 def fuzz_control(line: bytes) -> None:
@@ -196,7 +197,17 @@ def strategies():
         st.one_of(
             st.text(max_size=40),
             st.tuples(
-                st.sampled_from(["r_px", "window_us", "tracker.assoc_px", "noise_filter", "tracker", "x.y"]),
+                st.sampled_from(
+                    [
+                        "contacts.r_mm",
+                        "window_us",
+                        "tracker.assoc_px",
+                        "noise_filter",
+                        "noise_filter_us",
+                        "tracker",
+                        "x.y",
+                    ]
+                ),
                 st.one_of(st.text(max_size=12), st.sampled_from(["inf", "nan", "-1", "1e999", "9" * 5000, "none"])),
             ).map(lambda t: f"{t[0]}={t[1]}"),
         ),

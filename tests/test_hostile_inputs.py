@@ -224,10 +224,10 @@ def test_error_messages_do_not_echo_long_values():
         parse_profile(many, "many.yaml")
     assert len(str(err.value)) < 4096
     with pytest.raises(NeurotouchError) as err:
-        pipeline_config(["r_px=" + "x" * 100_000])
+        pipeline_config(["contacts.r_mm=" + "x" * 100_000])
     assert len(str(err.value)) < 600
     with pytest.raises(NeurotouchError, match="finite"):
-        pipeline_config(["r_px=inf"])
+        pipeline_config(["contacts.r_mm=inf"])
 
 
 # --- the keyboard: SysRq and what the device offers --------------------------------------------
