@@ -71,13 +71,23 @@ def read_text_file(path: str | os.PathLike, max_bytes: int, what: str) -> str:
         UnicodeDecodeError: the bytes are not UTF-8.
     """
     fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    too_large = FileLimitError(f"{path}: larger than {max_bytes // 1024} KB, the most a {what} may be (docs/limits.md)")
     with os.fdopen(fd, "rb") as fh:
         info = os.fstat(fd)
         if not stat.S_ISREG(info.st_mode):
             raise FileLimitError(f"{path}: not a regular file (a {what} must be a file, not a pipe or a device)")
-        data = fh.read(max_bytes + 1)
-    if len(data) > max_bytes:
-        raise FileLimitError(f"{path}: larger than {max_bytes // 1024} KB, the most a {what} may be (docs/limits.md)")
+        if info.st_size > max_bytes:
+            raise too_large
+        chunks, size = [], 0  # in pieces: read(n) reserves n bytes before it reads
+        while size <= max_bytes:
+            chunk = fh.read(min(1 << 20, max_bytes + 1 - size))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            size += len(chunk)
+    if size > max_bytes:  # the file grew while read
+        raise too_large
+    data = b"".join(chunks)
     return data.decode("utf-8")
 
 

@@ -34,12 +34,12 @@ MAX_RSS_KB = 512 * 1024
 MAX_OUTPUT = 4096
 
 
-def bounded_run(args: list[str], *, env: dict | None = None, timeout_s: float = 30.0, address_space_gib: int = 3):
+def bounded_run(args: list[str], *, env: dict | None = None, timeout_s: float = 30.0, address_space_gib: float = 3):
     """Run ``args``; (exit code, stdout, stderr, peak RSS in KB). Killed after ``timeout_s`` (exit
     code None then); its address space is limited so that a runaway allocation fails in it."""
 
     def limit() -> None:
-        size = address_space_gib << 30
+        size = int(address_space_gib * (1 << 30))
         resource.setrlimit(resource.RLIMIT_AS, (size, size))
 
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
@@ -482,3 +482,12 @@ def test_a_client_sending_a_byte_now_and_then_is_dropped_at_the_request_deadline
             assert closed, f"still connected after {time.monotonic() - start:.1f} s of a byte every 0.5 s"
     finally:
         server.stop()
+
+
+def test_reading_a_small_file_reserves_no_more_than_it_holds(tmp_path):
+    """The bounded read of a predictions file (at most 1 GiB) reserved its bound before reading:
+    a MemoryError in a guest of 1 GiB. A run reading a small one fits a 1.5 GiB address space."""
+    preds = _predictions(tmp_path, 2.0)
+    code, out, err, _ = cli("run", "--source", str(preds), "--output", "jsonl", "--seconds", "1", address_space_gib=1.5)
+    assert code == 0 and "Traceback" not in err, err[-2000:]
+    assert out.strip()
