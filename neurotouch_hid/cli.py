@@ -201,7 +201,11 @@ def record(
 def simulate(
     out: Path = typer.Option(..., "--out", help="dataset folder to write (docs/dataset.md)"),
     preset: str = typer.Option(
-        "quick", "--preset", help="quick (small, for tests) or paper (5 users x 5 gestures x ~1 min)"
+        "quick",
+        "--preset",
+        help="quick (small, for tests), paper (5 users x 5 gestures x ~1 min) or sessions (5 users x a 10 s game "
+        "session: the type changes from one gesture to the next; taps from 0.25 s, ordinary gestures, holds of "
+        "several seconds, rests of a fraction of a second)",
     ),
     seed: int = typer.Option(0, "--seed", min=0, help="random seed: the same seed gives the same files"),
     minutes: Optional[float] = typer.Option(

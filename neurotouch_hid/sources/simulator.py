@@ -53,7 +53,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterable, Iterator, Sequence
 
@@ -159,17 +159,19 @@ USERS: tuple[SimUser, ...] = (
 #: Users of evaluations (paper preset, even seeds) and of tuning (paper preset, odd seeds).
 TEST_USERS: tuple[int, ...] = (0, 1, 2, 3, 4)
 TUNING_USERS: tuple[int, ...] = (5, 6, 7, 8, 9)
-#: Dataset presets: simulated seconds per sequence (one sequence per user and gesture type).
-PRESET_SECONDS: dict[str, float] = {"quick": 3.0, "paper": 60.0}
+#: Dataset presets: simulated seconds per sequence (``quick``, ``paper``: one sequence per user
+#: and gesture type; ``sessions``: one game session per user, :func:`session_script`).
+PRESET_SECONDS: dict[str, float] = {"quick": 3.0, "paper": 60.0, "sessions": 10.0}
 
 
 def preset_users(preset: str, seed: int) -> tuple[int, ...]:
     """The user ids a preset simulates for a seed.
 
-    ``paper``: the 5 test users (0-4) for an even seed, the 5 tuning users (5-9) for an odd seed.
-    ``quick``: one user, ``seed % 10``. Raises NeurotouchError for an unknown preset.
+    ``paper`` and ``sessions``: the 5 test users (0-4) for an even seed, the 5 tuning users (5-9)
+    for an odd seed. ``quick``: one user, ``seed % 10``. Raises NeurotouchError for an unknown
+    preset.
     """
-    if preset == "paper":
+    if preset in ("paper", "sessions"):
         return TEST_USERS if seed % 2 == 0 else TUNING_USERS
     if preset == "quick":
         return (seed % len(USERS),)
@@ -671,6 +673,80 @@ def gesture_script(
         k += 1
 
 
+# --- game sessions ----------------------------------------------------------------------------
+#: How long the gestures of a game session last, and how often: a tap (attack start to release
+#: end, us), an ordinary gesture (:func:`draw_gesture`'s timing) or a long hold (the hold alone, us).
+SESSION_KINDS: dict[str, float] = {"tap": 0.3, "ordinary": 0.45, "hold": 0.25}
+TAP_US = (250_000, 500_000)
+LONG_HOLD_US = (2_500_000, 5_000_000)
+#: A session's rests: from a gesture's release end (the fingers have left) to the next attack (us).
+SESSION_REST_US = (150_000, 700_000)
+#: Sessions' random streams start here (stream_seed (user, SESSION_STREAM + k)), apart from the
+#: per-gesture sequences' (user, 0..4).
+SESSION_STREAM = 100
+
+
+def session_gesture(
+    rng: np.random.Generator,
+    user: SimUser,
+    gestures: Sequence[GestureType],
+    previous: GestureType | None,
+    t_start_us: int,
+    sensor: SensorGeometry,
+    physics: Physics = PHYSICS["default"],
+    physics_rng: np.random.Generator | None = None,
+) -> SimGesture:
+    """One gesture of a game session: a type other than ``previous`` (drawn uniformly among
+    ``gestures``; the same only when there is one type), drawn by :func:`draw_gesture`, then made
+    a tap, an ordinary gesture or a long hold (:data:`SESSION_KINDS`).
+
+    A tap lasts :data:`TAP_US` from attack start to release end (attack 35 %, hold 30 %, release
+    35 %); its intensity is capped so that the attack stays under :data:`MAX_SPEED_MM_S`. A long
+    hold holds for :data:`LONG_HOLD_US`. A lagging finger's lag (the ``fingers`` family) scales
+    with the attack.
+    """
+    choices = [g for g in gestures if g is not previous] or list(gestures)
+    kind = choices[int(rng.integers(len(choices)))]
+    g = draw_gesture(rng, user, kind, t_start_us, sensor, physics, physics_rng)
+    names = list(SESSION_KINDS)
+    length = names[int(rng.choice(len(names), p=list(SESSION_KINDS.values())))]
+    if length == "tap":
+        total = rng.uniform(*TAP_US)
+        attack, hold = int(0.35 * total), int(0.3 * total)
+        amplitude = min(g.amplitude_mm, 2.0 * MAX_SPEED_MM_S * attack * 1e-6 / math.pi)
+        lags = tuple(int(lag * attack / g.attack_us) for lag in g.lags_us)
+        return replace(
+            g, attack_us=attack, hold_us=hold, release_us=int(total) - attack - hold, amplitude_mm=amplitude, lags_us=lags
+        )
+    if length == "hold":
+        return replace(g, hold_us=int(rng.uniform(*LONG_HOLD_US)))
+    return g
+
+
+def session_script(
+    rng: np.random.Generator,
+    user: SimUser,
+    gestures: Iterable[GestureType],
+    start_us: int,
+    sensor: SensorGeometry,
+    first_rest_us: int = 600_000,
+    physics: Physics = PHYSICS["default"],
+    physics_rng: np.random.Generator | None = None,
+) -> Iterator[SimGesture]:
+    """An endless game session of ``user``: the type changes from one gesture to the next, taps,
+    ordinary gestures and long holds (:func:`session_gesture`), rests of a fraction of a second
+    (:data:`SESSION_REST_US`, from the release's end: the gel may still creep back when the next
+    gesture begins). The first gesture starts ``first_rest_us`` after ``start_us``."""
+    order = list(gestures)
+    t = start_us + first_rest_us
+    previous = None
+    while True:
+        g = session_gesture(rng, user, order, previous, t, sensor, physics, physics_rng)
+        yield g
+        previous = g.gesture
+        t = g.t_end_us + int(rng.uniform(*SESSION_REST_US))
+
+
 # --- the simulation engine --------------------------------------------------------------------
 @dataclass(frozen=True)
 class SimChunk:
@@ -701,8 +777,11 @@ class GelSimulator:
         seed: the camera's and gel's seed (thresholds, hot pixels, marker brightness).
         stream_seed: the script's and noise's seed.
         start_us: time of the first APS frame (us).
-        script: the gestures to perform (time-ordered, not overlapping: each starts after the
-            previous one's ``t_settled_us``) instead of drawing them for ``user``; may be finite.
+        script: the gestures to perform (time-ordered, each starting after the previous one's
+            release ends; the earlier one's creep may overlap the next) instead of drawing them
+            for ``user``; may be finite.
+        session: draw a game session (:func:`session_script`) instead of cycling through
+            ``gestures`` with rests until the gel settles (:func:`gesture_script`).
         noise_rate_hz: the event camera's background-activity rate per pixel (Hz, >= 0;
             ``EventCamera``). The gestures do not depend on it; the noise's random stream (shared
             with the APS frames' noise) does. A family with its own rate (``noise``) overrides it.
@@ -724,6 +803,7 @@ class GelSimulator:
         script: Iterable[SimGesture] | None = None,
         noise_rate_hz: float = NOISE_RATE_HZ,
         physics: Physics = PHYSICS["default"],
+        session: bool = False,
     ) -> None:
         self.sensor = sensor or SensorGeometry()
         self.physics = physics
@@ -752,7 +832,7 @@ class GelSimulator:
         self._script = (
             iter(script)
             if script is not None
-            else gesture_script(
+            else (session_script if session else gesture_script)(
                 np.random.default_rng(script_ss),
                 user,
                 gestures,
@@ -970,15 +1050,19 @@ def write_dataset(
     physics: str = "default",
 ) -> Path:
     """Simulate and write a labelled dataset (docs/dataset.md): ``sensor.yaml`` and, per user and
-    gesture type, ``u{user}_{gesture}.aedat4``, ``.labels.csv`` and ``.markers.npz``.
+    gesture type, ``u{user}_{gesture}.aedat4``, ``.labels.csv`` and ``.markers.npz`` (the
+    ``sessions`` preset: per user and session, ``u{user}_session{k}.*``).
 
     Args:
         out_dir: the dataset folder (created if missing).
-        preset: ``quick`` (1 user x 5 gestures x 3 s, for tests) or ``paper`` (5 users x 5
+        preset: ``quick`` (1 user x 5 gestures x 3 s, for tests), ``paper`` (5 users x 5
             gestures x 60 s: the paper's 25 minutes; section "Creation of the Gesture Detection
-            Dataset").
+            Dataset") or ``sessions`` (5 users x one 10 s game session, :func:`session_script`:
+            the type changes from one gesture to the next, taps, ordinary gestures, long holds,
+            short rests).
         seed: the same seed writes the same files; it also picks the users (:func:`preset_users`).
-        minutes: total simulated minutes instead of the preset's (split over the sequences).
+        minutes: total simulated minutes instead of the preset's (split over the sequences;
+            ``sessions``: as many 10 s sessions per user as make it up, at least one).
         progress: show a rich progress bar on stderr.
         users: user ids (0-9) instead of the preset's, e.g. ``TUNING_USERS``.
         gestures: gesture types instead of all five.
@@ -1008,13 +1092,19 @@ def write_dataset(
         raise NeurotouchError(f"unknown gesture type: {exc}") from None
     if not kinds or GestureType.NONE in kinds:
         raise NeurotouchError("gestures must be among push, pinch, zoom, twist_cw, twist_ccw")
-    n_seq = len(user_ids) * len(kinds)
-    families = mix_families(n_seq, seed) if physics == "mix" else [physics_family(physics)] * n_seq
     if minutes is not None and not minutes > 0:
         raise NeurotouchError(f"--minutes must be positive, got {minutes}")
+    sessions = preset == "sessions"
+    if sessions:
+        per_user = 1 if minutes is None else max(1, round(minutes * 60.0 / PRESET_SECONDS[preset] / len(user_ids)))
+        pairs: list[tuple[int, GestureType | int]] = [(int(u), k) for u in user_ids for k in range(per_user)]
+    else:
+        pairs = [(int(u), g) for u in user_ids for g in kinds]
+    n_seq = len(pairs)
+    families = mix_families(n_seq, seed) if physics == "mix" else [physics_family(physics)] * n_seq
     if not noise_hz >= 0:
         raise NeurotouchError(f"--noise-hz must be >= 0 (events per pixel per second), got {noise_hz}")
-    seconds = PRESET_SECONDS[preset] if minutes is None else minutes * 60.0 / n_seq
+    seconds = PRESET_SECONDS[preset] if minutes is None or sessions else minutes * 60.0 / n_seq
     sensor = sensor or SensorGeometry()
     out = Path(out_dir)
     try:
@@ -1024,10 +1114,10 @@ def write_dataset(
     sensor.save(out / "sensor.yaml")
     import json
 
-    pairs = [(int(u), g) for u in user_ids for g in kinds]
+    names = [f"u{u}_session{k}" if sessions else sequence_name(u, k) for u, k in pairs]
     (out / "physics.json").write_text(
         json.dumps(
-            {"physics": physics, "sequences": {sequence_name(u, g): f.name for (u, g), f in zip(pairs, families)}},
+            {"physics": physics, "sequences": {name: f.name for name, f in zip(names, families)}},
             indent=1,
         )
         + "\n"
@@ -1044,17 +1134,17 @@ def write_dataset(
     )
     with Progress(*columns, disable=not progress, transient=False) as bar:
         task = bar.add_task("simulating", total=n_seq * seconds)
-        for k, (uid, kind) in enumerate(pairs):
-            name = sequence_name(uid, kind)
+        for k, ((uid, kind), name) in enumerate(zip(pairs, names)):
             bar.update(task, description=name)
             sim = GelSimulator(
                 sensor,
                 USERS[uid],
-                [kind],
+                kinds if sessions else [kind],
                 seed=seed,
-                stream_seed=(uid, SIM_GESTURES.index(kind)),
+                stream_seed=(uid, SESSION_STREAM + kind if sessions else SIM_GESTURES.index(kind)),
                 noise_rate_hz=noise_hz,
                 physics=families[k],
+                session=sessions,
             )
             write_sequence(
                 out,
