@@ -306,8 +306,15 @@ def eval_cmd(
     predictions: Optional[Path] = typer.Option(
         None, "--predictions", help="keep each sequence's predictions here (JSON lines)"
     ),
+    deadzone_mm: float = typer.Option(
+        0.8,
+        "--deadzone-mm",
+        min=0.0,
+        help="dead zone of the per-gesture metrics (mm; default: the default profile's), docs/dataset.md",
+        callback=_finite,
+    ),
 ) -> None:
-    """Run the pipeline over a labelled dataset and print the paper's metrics."""
+    """Run the pipeline over a labelled dataset; print the paper's metrics and the per-gesture ones."""
     import json
     import shlex
 
@@ -325,7 +332,9 @@ def eval_cmd(
         TimeRemainingColumn(),
     )
     with Progress(*columns, console=err_console, transient=True) as progress:
-        result = evaluate_dataset(dataset, config, jobs=jobs, predictions_dir=predictions, progress=progress)
+        result = evaluate_dataset(
+            dataset, config, jobs=jobs, predictions_dir=predictions, progress=progress, deadzone_mm=deadzone_mm
+        )
     print_tables(result, console)
     argv = (
         ["eval", str(dataset)]
@@ -336,6 +345,7 @@ def eval_cmd(
             for flag, value in (
                 ("--window-us", window_us),
                 ("--jobs", jobs if jobs > 1 else None),
+                ("--deadzone-mm", deadzone_mm if deadzone_mm != 0.8 else None),
                 ("--report", report),
                 ("--json", json_out),
             )

@@ -716,7 +716,12 @@ def session_gesture(
         amplitude = min(g.amplitude_mm, 2.0 * MAX_SPEED_MM_S * attack * 1e-6 / math.pi)
         lags = tuple(int(lag * attack / g.attack_us) for lag in g.lags_us)
         return replace(
-            g, attack_us=attack, hold_us=hold, release_us=int(total) - attack - hold, amplitude_mm=amplitude, lags_us=lags
+            g,
+            attack_us=attack,
+            hold_us=hold,
+            release_us=int(total) - attack - hold,
+            amplitude_mm=amplitude,
+            lags_us=lags,
         )
     if length == "hold":
         return replace(g, hold_us=int(rng.uniform(*LONG_HOLD_US)))
