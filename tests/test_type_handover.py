@@ -91,3 +91,11 @@ def test_a_new_gesture_of_the_same_button_is_a_new_press():
     mapper = Mapper(two_types_one_button("hold"))
     down = ["BTN_SOUTH" in pressed(mapper.update(e)) for e in est]
     assert rising_edges(down) == 2
+
+
+def test_the_same_type_after_the_gesture_ended_is_a_new_press():
+    """A twist read as pinch at its end, the fingers off (none windows, the gel not yet at rest),
+    then a new twist: the toggle flips again (twice in all: off at the end)."""
+    est = windows((G.TWIST_CCW, 4.0, 30), (G.PINCH, 4.0, 10), (G.NONE, 0.5, 5), (G.TWIST_CCW, 4.0, 30))
+    down = ["BTN_SOUTH" in pressed(s) for s in replay(load_profile("accessibility"), est)]
+    assert rising_edges(down) == 1 and not down[-1]

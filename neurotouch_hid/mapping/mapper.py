@@ -273,7 +273,8 @@ class Mapper:
     held, as a decaying filter would leave them); a button the old type held that a mapping of
     the new type presses too stays held through the change (:meth:`Activator.carry`, while the
     new value is at or above its ``release_mm``), so neither a toggle nor a game sees a new press;
-    and if the old type comes back within the gesture, its holds go on without a new press
+    and if the old type comes back within the gesture (the intensity, whatever the type, never
+    below the mapping's ``release_mm`` in between), its holds go on without a new press
     (:meth:`Activator.suspend`): a toggle flips once per gesture, however the type flickers.
     """
 
@@ -300,10 +301,11 @@ class Mapper:
         active = not estimate.resting and estimate.gesture is not GestureType.NONE
         kind = estimate.gesture if active else None
         changed = kind is not None and self._kind is not None and kind is not self._kind
+        for name, activator in self._activators.items():
+            if inputs["intensity"] < self.profile.mappings[name].release_mm:  # that gesture is over
+                activator.settle()
         if estimate.resting:
             self._kind = None
-            for activator in self._activators.values():
-                activator.settle()
         elif kind is not None:
             self._kind = kind
         if not changed:
