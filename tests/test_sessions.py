@@ -17,11 +17,11 @@ from neurotouch_hid.cli import app
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import PHYSICS
-from neurotouch_hid.sources.simulator import MAX_SPEED_MM_S, USERS, SimGesture, session_script
+from neurotouch_hid.sources.simulator import MAX_SPEED_MM_S, USERS, SimGesture, gesture_script
 
 
 def session(family: str, user: int, n: int = 60) -> list[SimGesture]:
-    script = session_script(
+    script = gesture_script(
         np.random.default_rng(user),
         USERS[user],
         list(GestureType)[1:],
@@ -29,6 +29,7 @@ def session(family: str, user: int, n: int = 60) -> list[SimGesture]:
         SensorGeometry(),
         physics=PHYSICS[family],
         physics_rng=np.random.default_rng(100 + user),
+        session=True,
     )
     return list(itertools.islice(script, n))
 

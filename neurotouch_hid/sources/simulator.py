@@ -116,6 +116,10 @@ RIM_CLAMP = 1.0
 RIM_EASE_MM = 6.0
 #: How long after its release a gesture still deforms the gel, in creep time constants.
 CREEP_SPAN_TAUS = 7.0
+#: Spread (sigma of the log) of a user's gesture strengths about the median for the type.
+STRENGTH_SIGMA = 0.55
+#: Distance of a multi-finger gesture's fingers from their centre (mm, uniform in this range).
+FINGER_SPREAD_MM = (9.0, 15.0)
 #: Time step (us) of a viscoelastic gel's deformation history (SimGesture.profile).
 SLS_STEP_US = 1000
 
@@ -160,7 +164,7 @@ USERS: tuple[SimUser, ...] = (
 TEST_USERS: tuple[int, ...] = (0, 1, 2, 3, 4)
 TUNING_USERS: tuple[int, ...] = (5, 6, 7, 8, 9)
 #: Dataset presets: simulated seconds per sequence (``quick``, ``paper``: one sequence per user
-#: and gesture type; ``sessions``: one game session per user, :func:`session_script`).
+#: and gesture type; ``sessions``: one game session per user, :func:`gesture_script` with ``session``).
 PRESET_SECONDS: dict[str, float] = {"quick": 3.0, "paper": 60.0, "sessions": 10.0}
 
 
@@ -544,6 +548,7 @@ def draw_gesture(
     sensor: SensorGeometry,
     physics: Physics = PHYSICS["default"],
     physics_rng: np.random.Generator | None = None,
+    steady: bool = False,
 ) -> SimGesture:
     """Draw one gesture of ``user`` starting at ``t_start_us`` (us): fingers, intensity, speed.
 
@@ -555,6 +560,12 @@ def draw_gesture(
     A family that changes the gestures (:attr:`Physics.changes_gestures`: ``strong``, ``drift``,
     ``fingers``) draws its changes from ``physics_rng`` after the default draws from ``rng``, so
     that the default family's gestures stay what they were.
+
+    ``steady``: every gesture of a type as strong as the next, firmly (one :data:`STRENGTH_SIGMA`
+    above the user's median for the type, within the narrowest finger spread's cap for pinch and
+    zoom), so that the two twists and the push directions weigh the same and a profile's
+    saturations are reached (the live simulated hand, :class:`SimulatedSource`); the same draws
+    are made, so nothing else changes.
     """
     prng = physics_rng if physics_rng is not None else np.random.default_rng(0)
     if gesture is GestureType.PUSH:
@@ -563,7 +574,10 @@ def draw_gesture(
         n_fingers = int(rng.choice([2, 3], p=[0.65, 0.35]))
     finger = user.finger_mm * rng.uniform(0.9, 1.1)
     factor = {GestureType.PUSH: 1.2, GestureType.ZOOM: 0.7}.get(gesture, 0.85)
-    amplitude = float(np.clip(rng.lognormal(math.log(user.intensity_mm * factor), 0.55), 0.8, MAX_INTENSITY_MM))
+    median = user.intensity_mm * factor
+    amplitude = float(np.clip(rng.lognormal(math.log(median), STRENGTH_SIGMA), 0.8, MAX_INTENSITY_MM))
+    if steady:
+        amplitude = min(median * math.exp(STRENGTH_SIGMA), MAX_INTENSITY_MM)
     if physics.strong > 0 and prng.random() < physics.strong:
         amplitude = float(prng.uniform(12.0, 20.0))
     bias = sensor.vectors_image_to_user(np.array([user.bias_mm * sensor.px_per_mm, 0.0]))
@@ -576,14 +590,14 @@ def draw_gesture(
         offsets = (np.arange(n_fingers) - (n_fingers - 1) / 2)[:, None] * across * rng.uniform(14.0, 18.0)
     else:
         direction = np.zeros(2)
-        spread = rng.uniform(9.0, 15.0)
+        spread = rng.uniform(*FINGER_SPREAD_MM)
         angles = rng.uniform(0, 2 * math.pi) + 2 * math.pi * np.arange(n_fingers) / n_fingers
         angles += rng.normal(0.0, 0.15, n_fingers)
         offsets = spread * np.stack([np.cos(angles), np.sin(angles)], axis=1)
         cap = {GestureType.PINCH: 0.55, GestureType.ZOOM: 0.5}.get(gesture, 1.2) * spread
         if physics.strong > 0:  # very strong pinches and zooms: the fingers travel further
             cap = {GestureType.PINCH: 0.7, GestureType.ZOOM: 0.65}.get(gesture, 1.2) * spread
-        amplitude = min(amplitude, cap)
+        amplitude = min(amplitude, cap * FINGER_SPREAD_MM[0] / spread if steady else cap)
     reach = float(np.linalg.norm(offsets, axis=1).max())
     # the centre: Gaussian about the (biased) gel centre, kept so that fingers stay off the rim
     room = max(0.0, limit - reach - (amplitude if gesture in (GestureType.PUSH, GestureType.ZOOM) else 0.0))
@@ -659,18 +673,27 @@ def gesture_script(
     first_rest_us: int = 600_000,
     physics: Physics = PHYSICS["default"],
     physics_rng: np.random.Generator | None = None,
+    steady: bool = False,
+    session: bool = False,
 ) -> Iterator[SimGesture]:
-    """An endless succession of gestures of ``user``, cycling through ``gestures``, separated by
-    rests (the first starts ``first_rest_us`` after ``start_us``), drawn for the family
-    ``physics`` (:func:`draw_gesture`)."""
+    """An endless succession of gestures of ``user`` drawn for the family ``physics`` (the first
+    starts ``first_rest_us`` after ``start_us``): cycling through ``gestures``
+    (:func:`draw_gesture`, ``steady`` or not), each after the previous one has settled and a rest
+    (:func:`draw_rest_us`); or, with ``session``, a game session: the type changes from one
+    gesture to the next, taps, ordinary gestures and long holds (:func:`session_gesture`), rests
+    of a fraction of a second (:data:`SESSION_REST_US`, from the release's end: the gel may
+    still creep back when the next gesture begins)."""
     order = list(gestures)
     t = start_us + first_rest_us
-    k = 0
+    k, previous = 0, None
     while True:
-        g = draw_gesture(rng, user, order[k % len(order)], t, sensor, physics, physics_rng)
+        if session:
+            g = session_gesture(rng, user, order, previous, t, sensor, physics, physics_rng)
+        else:
+            g = draw_gesture(rng, user, order[k % len(order)], t, sensor, physics, physics_rng, steady)
         yield g
-        t = g.t_settled_us + draw_rest_us(rng, user)
-        k += 1
+        previous, k = g.gesture, k + 1
+        t = g.t_end_us + int(rng.uniform(*SESSION_REST_US)) if session else g.t_settled_us + draw_rest_us(rng, user)
 
 
 # --- game sessions ----------------------------------------------------------------------------
@@ -728,30 +751,6 @@ def session_gesture(
     return g
 
 
-def session_script(
-    rng: np.random.Generator,
-    user: SimUser,
-    gestures: Iterable[GestureType],
-    start_us: int,
-    sensor: SensorGeometry,
-    first_rest_us: int = 600_000,
-    physics: Physics = PHYSICS["default"],
-    physics_rng: np.random.Generator | None = None,
-) -> Iterator[SimGesture]:
-    """An endless game session of ``user``: the type changes from one gesture to the next, taps,
-    ordinary gestures and long holds (:func:`session_gesture`), rests of a fraction of a second
-    (:data:`SESSION_REST_US`, from the release's end: the gel may still creep back when the next
-    gesture begins). The first gesture starts ``first_rest_us`` after ``start_us``."""
-    order = list(gestures)
-    t = start_us + first_rest_us
-    previous = None
-    while True:
-        g = session_gesture(rng, user, order, previous, t, sensor, physics, physics_rng)
-        yield g
-        previous = g.gesture
-        t = g.t_end_us + int(rng.uniform(*SESSION_REST_US))
-
-
 # --- the simulation engine --------------------------------------------------------------------
 @dataclass(frozen=True)
 class SimChunk:
@@ -785,8 +784,10 @@ class GelSimulator:
         script: the gestures to perform (time-ordered, each starting after the previous one's
             release ends; the earlier one's creep may overlap the next) instead of drawing them
             for ``user``; may be finite.
-        session: draw a game session (:func:`session_script`) instead of cycling through
-            ``gestures`` with rests until the gel settles (:func:`gesture_script`).
+        hand: how the gestures are drawn when there is no ``script``: ``drawn`` cycles through
+            ``gestures`` with rests until the gel settles (:func:`gesture_script`), ``steady`` the
+            same with every gesture of a type equally strong (:func:`draw_gesture`), ``session``
+            a game session (:func:`gesture_script` with ``session``).
         noise_rate_hz: the event camera's background-activity rate per pixel (Hz, >= 0;
             ``EventCamera``). The gestures do not depend on it; the noise's random stream (shared
             with the APS frames' noise) does. A family with its own rate (``noise``) overrides it.
@@ -808,7 +809,7 @@ class GelSimulator:
         script: Iterable[SimGesture] | None = None,
         noise_rate_hz: float = NOISE_RATE_HZ,
         physics: Physics = PHYSICS["default"],
-        session: bool = False,
+        hand: str = "drawn",
     ) -> None:
         self.sensor = sensor or SensorGeometry()
         self.physics = physics
@@ -837,7 +838,7 @@ class GelSimulator:
         self._script = (
             iter(script)
             if script is not None
-            else (session_script if session else gesture_script)(
+            else gesture_script(
                 np.random.default_rng(script_ss),
                 user,
                 gestures,
@@ -845,6 +846,8 @@ class GelSimulator:
                 self.sensor,
                 physics=physics,
                 physics_rng=np.random.default_rng(gesture_ss),
+                steady=hand == "steady",
+                session=hand == "session",
             )
         )
         self._flicker_phase = float(np.random.default_rng(gel_ss).uniform(0, 2 * math.pi))
@@ -952,9 +955,11 @@ class SimulatedSource:
     """A live stream from the simulated gel, for the runtime and the demo.
 
     Cycles through every gesture type (or ``gestures``) with rests in between, performed by user
-    ``seed % 10``. Same item kinds and order as ``RecordingReader.stream``: an APS
-    :class:`Frame` every 40 ms, yielded before the events with timestamp >= its t_us, and event
-    batches (EVENT_DTYPE, time-ordered) cut at the frame timestamps and every ``batch_us``.
+    ``seed % 10`` with a steady hand: every gesture of a type equally strong (the two twists, the
+    push directions), so that a profile's mappings can be tried both ways. Same item kinds and
+    order as ``RecordingReader.stream``: an APS :class:`Frame` every 40 ms, yielded before the
+    events with timestamp >= its t_us, and event batches (EVENT_DTYPE, time-ordered) cut at the
+    frame timestamps and every ``batch_us``.
 
     Args:
         sensor: geometry (default docs/dataset.md's); seed: simulation seed;
@@ -967,7 +972,9 @@ class SimulatedSource:
         if any(g is GestureType.NONE for g in order) or not order:
             raise NeurotouchError("the simulated gel needs gesture types among push, pinch, zoom, twist_cw, twist_ccw")
         self.seed = seed
-        self._sim = GelSimulator(self.sensor, USERS[seed % len(USERS)], order, seed=seed, stream_seed=(0xC0FFEE,))
+        self._sim = GelSimulator(
+            self.sensor, USERS[seed % len(USERS)], order, seed=seed, stream_seed=(0xC0FFEE,), hand="steady"
+        )
 
     @property
     def rest_px(self) -> np.ndarray:
@@ -1062,7 +1069,7 @@ def write_dataset(
         out_dir: the dataset folder (created if missing).
         preset: ``quick`` (1 user x 5 gestures x 3 s, for tests), ``paper`` (5 users x 5
             gestures x 60 s: the paper's 25 minutes; section "Creation of the Gesture Detection
-            Dataset") or ``sessions`` (5 users x one 10 s game session, :func:`session_script`:
+            Dataset") or ``sessions`` (5 users x one 10 s game session, :func:`gesture_script` with ``session``:
             the type changes from one gesture to the next, taps, ordinary gestures, long holds,
             short rests).
         seed: the same seed writes the same files; it also picks the users (:func:`preset_users`).
@@ -1149,7 +1156,7 @@ def write_dataset(
                 stream_seed=(uid, SESSION_STREAM + kind if sessions else SIM_GESTURES.index(kind)),
                 noise_rate_hz=noise_hz,
                 physics=families[k],
-                session=sessions,
+                hand="session" if sessions else "drawn",
             )
             write_sequence(
                 out,
