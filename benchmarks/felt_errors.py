@@ -17,7 +17,10 @@ Per family, and over all of them, it prints:
 * the failure modes of multi-finger gestures: *onset push* (the first window at or above the dead
   zone says push, whatever follows: the first finger's bump answered alone) and *one contact
   throughout* (every answered window has fewer contacts than the label, from start to end),
-  and the share of answered windows with fewer contacts than labelled.
+  and the share of answered windows with fewer contacts than labelled;
+* the onset against the gel's own motion: the label's intensity at the first window of the
+  right type, and how long after the label reached 0.1 mm (the gel has moved) and the dead zone
+  it came.
 """
 
 from __future__ import annotations
@@ -35,6 +38,8 @@ from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM, FRAME_PERIOD_US,
 app = typer.Typer(add_completion=False)
 #: A gesture this short or shorter (first to last labelled frame, ms) counts as a tap.
 TAP_MS = 500.0
+#: The gel has moved: label intensity (mm) at least the simulator's rest tolerance.
+MOVED_MM = 0.1
 #: The hold: label intensity at least this share of the gesture's labelled peak.
 HOLD_SHARE = 0.8
 
@@ -50,6 +55,7 @@ class Tally:
         self.onset_push = 0
         self.one_contact = 0
         self.fewer = [0, 0]  # answered windows of multi-finger gestures with fewer contacts, all
+        self.onsets: list[tuple[float, float, float, float]] = []  # ms; label mm at onset; ms past 0.1 mm, dz
 
     def add(self, other: "Tally") -> None:
         for name in ("gestures", "wrong", "pairs", "phases"):
@@ -57,6 +63,7 @@ class Tally:
         self.onset_push += other.onset_push
         self.one_contact += other.one_contact
         self.fewer = [a + b for a, b in zip(self.fewer, other.fewer)]
+        self.onsets += other.onsets
 
 
 def tally_sequence(labels, predictions, deadzone_mm: float) -> Tally:
@@ -76,6 +83,11 @@ def tally_sequence(labels, predictions, deadzone_mm: float) -> Tally:
         answered = [(p, r) for p, r in zip(inside, truth) if p.gesture is not GestureType.NONE]
         felt = [(p, r) for p, r in answered if p.intensity_mm >= deadzone_mm]
         wrong = [(p, r) for p, r in felt if p.gesture is not kind]
+        if onset is not None:
+            at = labels_at(labels, np.array([onset], dtype=np.int64))[0]
+            moved = next((r.t_us for r in rows if r.intensity_mm >= MOVED_MM), t1)
+            felt_t = next((r.t_us for r in rows if r.intensity_mm >= deadzone_mm), t1)
+            t.onsets.append(((onset - t0) / 1e3, at.intensity_mm, (onset - moved) / 1e3, (onset - felt_t) / 1e3))
         t.gestures[(multi, tap)] += 1
         t.wrong[(multi, tap)] += bool(wrong)
         for p, r in wrong:
@@ -118,8 +130,19 @@ def lines_for(name: str, t: Tally) -> list[str]:
         f"- multi-finger gestures: {multi}; first felt window push {share(t.onset_push, multi)}; "
         f"fewer contacts than labelled in every answered window {share(t.one_contact, multi)}; answered windows "
         f"with fewer contacts {share(t.fewer[0], t.fewer[1])}",
-        "",
     ]
+    if t.onsets:
+        ms, mm, after_moved, after_felt = (np.array(v) for v in zip(*t.onsets))
+
+        def mp(v: np.ndarray, unit: str) -> str:
+            return f"{np.median(v):.0f} / {np.percentile(v, 90):.0f} {unit}"
+
+        out.append(
+            f"- onset (median / p90): {mp(ms, 'ms')} after the first labelled frame; label intensity there "
+            f"{np.median(mm):.2f} / {np.percentile(mm, 90):.2f} mm; {mp(after_moved, 'ms')} after the label "
+            f"reaches {MOVED_MM} mm; {mp(after_felt, 'ms')} after it reaches the dead zone (negative: before)"
+        )
+    out.append("")
     return out
 
 
