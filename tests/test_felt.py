@@ -137,3 +137,12 @@ def test_eval_reports_them_beside_the_papers_metrics():
     assert rows["Never recognised"] == "1 of 3"
     assert rows["Gestures felt wrong (another type >= 0.8 mm)"] == "66.67 %"
     assert rows["False activations at rest (> 300 ms from a gesture)"] == "1 of 2 windows"
+
+
+def test_eval_refuses_a_negative_dead_zone_before_running_anything(tmp_path):
+    from typer.testing import CliRunner
+
+    from neurotouch_hid.cli import app
+
+    result = CliRunner().invoke(app, ["eval", str(tmp_path), "--deadzone-mm", "-0.5"])
+    assert result.exit_code == 2 and "--deadzone-mm" in result.output
