@@ -20,8 +20,16 @@ from neurotouch_hid.estimate import GestureType
 G = GestureType
 
 
-def _ramp(gesture: GestureType, mm: float, up: bool) -> tuple[float, GestureType, object]:
-    return (0.2, gesture, (lambda f: mm * f) if up else (lambda f: mm * (1 - f)))
+def one_gesture(*parts: tuple[GestureType, float], level: float = 4.0, rest_s: float = 0.6) -> list:
+    """timeline() segments of one gesture whose type changes: ramp up 0.2 s as the first type,
+    each (type, seconds) at ``level`` mm, ramp down 0.2 s as the last type, rest ``rest_s``."""
+    first, last = parts[0][0], parts[-1][0]
+    segments = [(0.2, first, lambda f: level * f)]
+    segments += [(seconds, kind, lambda f: level) for kind, seconds in parts]
+    return segments + [(0.2, last, lambda f: level * (1 - f)), (rest_s, G.NONE, lambda f: 0.0)]
+
+
+LEAD_IN = [(1.0, G.NONE, lambda f: 0.0)]
 
 
 def _reports(events: list[tuple[int, int, int]]) -> list[dict[int, int]]:
@@ -40,19 +48,7 @@ def check_default_stick_and_trigger_never_both_held() -> dict:
     """``run --profile default``: a push (left stick) read as pinch (left trigger) for 0.6 s in
     its middle, then push again: in no report is the stick off-centre while the trigger is
     pulled, and both were reached."""
-    level = 4.0
-    estimates = timeline(
-        [
-            (1.0, G.NONE, lambda f: 0.0),
-            _ramp(G.PUSH, level, True),
-            (0.6, G.PUSH, lambda f: level),
-            (0.6, G.PINCH, lambda f: level),
-            (0.6, G.PUSH, lambda f: level),
-            _ramp(G.PUSH, level, False),
-            (0.6, G.NONE, lambda f: 0.0),
-        ],
-        STEP_US,
-    )
+    estimates = timeline(LEAD_IN + one_gesture((G.PUSH, 0.6), (G.PINCH, 0.6), (G.PUSH, 0.6)), STEP_US)
     expected = _expected("default", estimates)
     assert not any(s.axes["ABS_Z"] > 0 and (s.axes["ABS_X"] or s.axes["ABS_Y"]) for s in expected)
     watchers, stats, _ = _run_in_process("default", estimates, Path(tempfile.mkdtemp(prefix="handover-")))
@@ -71,23 +67,8 @@ def check_accessibility_toggle_flips_once_per_gesture() -> dict:
     0.16 s in its middle, then a clockwise twist (toggles B): A goes down once and stays down
     until B has gone down (the twist's return after the pinch is no second press); the run's
     end releases both."""
-    level = 4.0
-    estimates = timeline(
-        [
-            (1.0, G.NONE, lambda f: 0.0),
-            _ramp(G.TWIST_CCW, level, True),
-            (0.4, G.TWIST_CCW, lambda f: level),
-            (0.16, G.PINCH, lambda f: level),
-            (0.4, G.TWIST_CCW, lambda f: level),
-            _ramp(G.TWIST_CCW, level, False),
-            (0.6, G.NONE, lambda f: 0.0),
-            _ramp(G.TWIST_CW, level, True),
-            (0.4, G.TWIST_CW, lambda f: level),
-            _ramp(G.TWIST_CW, level, False),
-            (0.6, G.NONE, lambda f: 0.0),
-        ],
-        STEP_US,
-    )
+    twist_read_as_pinch = one_gesture((G.TWIST_CCW, 0.4), (G.PINCH, 0.16), (G.TWIST_CCW, 0.4))
+    estimates = timeline(LEAD_IN + twist_read_as_pinch + one_gesture((G.TWIST_CW, 0.4)), STEP_US)
     assert _expected("accessibility", estimates)[-1].buttons["BTN_SOUTH"], "the Mapper itself flips A twice"
     watchers, stats, _ = _run_in_process("accessibility", estimates, Path(tempfile.mkdtemp(prefix="handover-")))
     names = {ecodes.BTN_SOUTH: "BTN_SOUTH", ecodes.BTN_EAST: "BTN_EAST"}
