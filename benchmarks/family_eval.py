@@ -223,7 +223,7 @@ def replay_vote(dataset: Path, predictions: Path, method: str, deadzone_mm: floa
     """METHOD's predictions (``predictions/METHOD``) through :class:`EpisodeVote`, written to
     ``predictions/METHOD+vote`` and scored: the same per-window estimates as the product's
     episode vote (docs/method.md, "Episode vote"; the vote only reads each window's type,
-    intensity and contact count, in order); the per-gesture metrics with ``deadzone_mm``."""
+    intensity, contact count and time, in order); the per-gesture metrics with ``deadzone_mm``."""
     sensor = SensorGeometry.load(dataset / "sensor.yaml")
     dst = predictions / f"{method}+vote"
     dst.mkdir(parents=True, exist_ok=True)
@@ -231,7 +231,7 @@ def replay_vote(dataset: Path, predictions: Path, method: str, deadzone_mm: floa
     for name in list_sequences(dataset):
         vote = EpisodeVote()
         voted = [
-            replace(p, gesture=vote.update(p.gesture, p.intensity_mm, p.n_contacts))
+            replace(p, gesture=vote.update(p.gesture, p.intensity_mm, p.n_contacts, p.t_us))
             for p in read_predictions(predictions / method / f"{name}.jsonl")
         ]
         write_predictions(dst / f"{name}.jsonl", voted)

@@ -512,8 +512,8 @@ def test_episode_vote_keeps_one_type_over_a_gesture_where_windows_flip(rest_imag
     voted = _push_then_pinch(PipelineConfig(**base), rest_image)
     P, Q = GestureType.PUSH, GestureType.PINCH
     assert plain[:2] == [P, P] and plain[2:8] == [Q] * 6 and plain[8] is P
-    assert voted[:2] == [P, P]  # no added latency at onset: the first windows answer as before
-    assert voted[2:] == [Q] * 7  # the strong pinch outweighs at once, the weak push at the end does not
+    assert voted[:2] == [GestureType.NONE] * 2  # one contact for 10 ms: undecided
+    assert voted[2:] == [Q] * 7  # committed on two contacts; the weak push at the end does not outweigh
 
 
 def _lagging_pinch(
@@ -538,9 +538,9 @@ def _lagging_pinch(
     return out
 
 
-def test_a_lagging_fingers_push_gives_way_to_the_pinch_once_its_second_contact_is_seen(rest_image):
-    """The episode vote restarts when a push decided on one contact meets a window that sees the
-    second: the pinch is answered from that window on, as the window-by-window rule does."""
+def test_a_lagging_finger_is_waited_for_and_the_pinch_committed_once_its_second_contact_is_seen(rest_image):
+    """The first finger alone for 40 ms leaves the episode undecided (``none``); the pinch is
+    answered from the window that sees the second contact on, as the window-by-window rule does."""
     base = dict(resting={"centroid_threshold_mm2": -1.0})
     plain = _lagging_pinch(PipelineConfig(**base), rest_image, _WindowByWindow)
     first_pinch = next(k for k, (g, _) in enumerate(plain) if g is GestureType.PINCH)
@@ -548,18 +548,21 @@ def test_a_lagging_fingers_push_gives_way_to_the_pinch_once_its_second_contact_i
     assert {n for _, n in plain[:first_pinch]} == {1} and plain[first_pinch][1] == 2
     assert {g for g, _ in plain[first_pinch:]} == {GestureType.PINCH}
     voted = _lagging_pinch(PipelineConfig(**base), rest_image)
-    assert [g for g, _ in voted] == [g for g, _ in plain]
+    assert [g for g, _ in voted] == [GestureType.NONE] * first_pinch + [g for g, _ in plain[first_pinch:]]
 
 
-def test_the_vote_restarts_only_for_a_push_and_only_on_more_contacts_than_before():
-    """Restart rule of ``EpisodeVote``: a push decided on two contacts is kept against a pinch
-    window with two; a third contact restarts the votes; a decided zoom is never restarted."""
+def test_the_one_correction_needs_more_contacts_than_before_and_comes_once():
+    """Correction rule of ``EpisodeVote``: a push committed on two contacts is kept against a
+    pinch window with two; a third contact, within the correction time, is answered at once; a
+    second correction is not taken, nor one after the correction time."""
     P, Q, Z, T = GestureType.PUSH, GestureType.PINCH, GestureType.ZOOM, GestureType.TWIST_CW
     vote = EpisodeVote()
-    assert [vote.update(P, 5.0, 2), vote.update(P, 5.0, 2), vote.update(Q, 1.0, 2)] == [P, P, P]
-    assert vote.update(Q, 1.0, 3) is Q and vote.update(P, 0.5, 3) is Q  # the earlier 10 mm of push are gone
-    vote.update(GestureType.NONE, 0.0)
-    assert [vote.update(Z, 5.0, 1), vote.update(T, 1.0, 3)] == [Z, Z]
+    assert [vote.update(P, 5.0, 2, 10_000), vote.update(P, 5.0, 2, 20_000), vote.update(Q, 1.0, 2, 30_000)] == [P] * 3
+    assert vote.update(Q, 1.0, 3, 40_000) is Q and vote.update(P, 0.5, 3, 50_000) is Q  # the 10 mm of push are gone
+    assert vote.update(T, 0.5, 4, 60_000) is Q  # a second correction is not taken
+    vote.update(GestureType.NONE, 0.0, 0, 70_000)
+    assert vote.update(Z, 5.0, 2, 80_000) is Z
+    assert vote.update(T, 1.0, 3, 80_000 + vote.correction_us + 10_000) is Z  # too late to correct
 
 
 def _calibrated(points_px) -> SensorGeometry:

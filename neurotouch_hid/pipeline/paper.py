@@ -159,7 +159,7 @@ class PaperPipeline(GesturePipeline):
         """An elastic gel: its deformation is the fingers' load."""
         return False
 
-    def _vote(self, gesture: GestureType, intensity_mm: float, n_contacts: int = 0) -> GestureType:
+    def _vote(self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int) -> GestureType:
         """Each window's own type."""
         return gesture
 

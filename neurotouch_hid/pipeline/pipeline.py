@@ -452,9 +452,10 @@ class GesturePipeline:
         limit = self.config.min_intensity_px
         return largest < 0.0 or largest < limit * limit
 
-    def _vote(self, gesture: GestureType, intensity_mm: float, n_contacts: int = 0) -> GestureType:
-        """The window's type: the episode's decision so far (docs/method.md, "Episode vote")."""
-        return self._episode.update(gesture, intensity_mm, n_contacts)
+    def _vote(self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int) -> GestureType:
+        """The window's type: the episode's committed type, ``none`` while undecided
+        (docs/method.md, "Episode vote")."""
+        return self._episode.update(gesture, intensity_mm, n_contacts, t_us)
 
     def _estimate(self, t_us: int) -> GestureEstimate:
         current = self.tracker.positions_px
@@ -468,7 +469,7 @@ class GesturePipeline:
             return self._none(t_us, resting=False, fed=result.gesture is not GestureType.NONE)
         return GestureEstimate(
             t_us=t_us,
-            gesture=self._vote(result.gesture, result.intensity_mm, len(contacts.points_px)),
+            gesture=self._vote(result.gesture, result.intensity_mm, len(contacts.points_px), t_us),
             resting=False,
             intensity_mm=result.intensity_mm,
             contacts_px=contacts.points_px,
@@ -483,7 +484,7 @@ class GesturePipeline:
         ``fed`` already) a gel below the intensity threshold (taken as 0 px)."""
         if not fed and self._creep is not None:
             self._creep.update(0.0, t_us)
-        self._vote(GestureType.NONE, 0.0)
+        self._vote(GestureType.NONE, 0.0, 0, t_us)
         return GestureEstimate(t_us=t_us, gesture=GestureType.NONE, resting=resting)
 
     def _released(self, intensity_px: float, t_us: int) -> bool:
