@@ -73,8 +73,7 @@ METRICS = (
     ("intensity_mae_mm", "MAE mm", 0.96, 0.7, False, 1.0),
     ("resting_f1", "resting F1", 0.9403, 0.97, True, 100.0),
 )
-#: ``ours`` is the tuned pipeline without the episode vote (its predictions are replayed through
-#: the vote as ``ours+vote``, which is the default now).
+#: ``ours`` is the product's pipeline (its episode vote included), ``paper`` the paper's method.
 DEFAULT_METHODS = ("ours=default", "paper=paper")
 
 app = typer.Typer(add_completion=False)
@@ -131,10 +130,10 @@ def main(
         "and write it into the family's sensor.yaml (not for mix: no one gel to calibrate)",
     ),
     vote_of: Optional[str] = typer.Option(
-        "ours",
+        None,
         "--vote-of",
-        help="also score METHOD+vote: METHOD's predictions "
-        "replayed through the episode vote (episode.EpisodeVote, as the product does)",
+        help="also score METHOD+vote: the predictions of METHOD, one whose windows each answer their own "
+        "type (e.g. paper), replayed through the episode vote (episode.EpisodeVote, as the product does)",
     ),
 ) -> None:
     console = Console(soft_wrap=True)
