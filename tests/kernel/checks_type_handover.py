@@ -32,15 +32,16 @@ def one_gesture(*parts: tuple[GestureType, float], level: float = 4.0, rest_s: f
 LEAD_IN = [(1.0, G.NONE, lambda f: 0.0)]
 
 
-def _reports(events: list[tuple[int, int, int]]) -> list[dict[int, int]]:
-    """The pad's absolute axes after every SYN_REPORT (axes not reported yet are 0)."""
+def _reports(reports: list[list[tuple[int, int, int]]]) -> list[dict[int, int]]:
+    """The pad's absolute axes after every report (guestlib.EventReader.reports: the events up
+    to each SYN_REPORT; axes not reported yet are 0)."""
     axes: dict[int, int] = {}
     out = []
-    for kind, code, value in events:
-        if kind == ecodes.EV_ABS:
-            axes[code] = value
-        elif kind == ecodes.EV_SYN and code == ecodes.SYN_REPORT:
-            out.append(dict(axes))
+    for report in reports:
+        for kind, code, value in report:
+            if kind == ecodes.EV_ABS:
+                axes[code] = value
+        out.append(dict(axes))
     return out
 
 
@@ -52,7 +53,7 @@ def check_default_stick_and_trigger_never_both_held() -> dict:
     expected = _expected("default", estimates)
     assert not any(s.axes["ABS_Z"] > 0 and (s.axes["ABS_X"] or s.axes["ABS_Y"]) for s in expected)
     watchers, stats, _ = _run_in_process("default", estimates, Path(tempfile.mkdtemp(prefix="handover-")))
-    reports = _reports(watchers["pad"].events)
+    reports = _reports(watchers["pad"].reader.reports)
     both = [r for r in reports if r.get(ecodes.ABS_Z, 0) > 0 and (r.get(ecodes.ABS_X, 0) or r.get(ecodes.ABS_Y, 0))]
     trigger = max(r.get(ecodes.ABS_Z, 0) for r in reports)
     stick = max(abs(r.get(ecodes.ABS_X, 0)) + abs(r.get(ecodes.ABS_Y, 0)) for r in reports)
