@@ -138,7 +138,8 @@ def test_frames_decide_resting_and_rest_resets_the_tracker(rest_image):
 
 
 def test_moving_markers_overrule_a_stale_resting_verdict(rest_image):
-    pipeline = GesturePipeline(SENSOR, PipelineConfig(resting={"motion_override_mm": 0.4}))
+    # each window's own type (the episode vote would hold a lone contact undecided)
+    pipeline = _WindowByWindow(SENSOR, PipelineConfig(resting={"motion_override_mm": 0.4}))
     pipeline.process(Frame(0, rest_image))
     assert pipeline.resting.resting
     assert [e.resting for e in pipeline.process(events_at(1, 15000))] == [True]  # nothing moved
@@ -623,7 +624,7 @@ def test_pixel_settings_follow_px_per_mm_on_a_closer_camera():
         ix, iy = int(round(x)), int(round(y))
         img[iy - 6 : iy + 7, ix - 6 : ix + 7] += 220 * np.exp(-((xx + ix - x) ** 2 + (yy + iy - y) ** 2) / (2 * 1.4**2))
     image = np.clip(img, 0, 255).astype(np.uint8)
-    pipeline = GesturePipeline(sensor, PipelineConfig(resting={"centroid_threshold_mm2": -1.0}))
+    pipeline = _WindowByWindow(sensor, PipelineConfig(resting={"centroid_threshold_mm2": -1.0}))  # own types
     pipeline.process(Frame(0, image))
     pipeline.process(events_at(1))
     assert len(pipeline.rest_px) == len(rest)
@@ -726,7 +727,8 @@ def test_a_frame_near_rest_re_anchors_a_drifted_tracker_without_calling_it_rest(
     near = gel_image((0.5, 0.0), region_px=15)
     answers = {}
     for reset in (0.02, 0.05):
-        pipeline = GesturePipeline(SENSOR, PipelineConfig(resting={"centroid_reset_threshold_mm2": reset / 6.25}))
+        config = PipelineConfig(resting={"centroid_reset_threshold_mm2": reset / 6.25})
+        pipeline = _WindowByWindow(SENSOR, config)  # each window's own type: no undecided start
         pipeline.process(Frame(0, rest_image))
         pipeline.process(events_at(1))
         w = np.exp(-np.sum((pipeline.rest_px - SENSOR.gel_center_px) ** 2, axis=1) / (2 * 12.0**2))
@@ -755,7 +757,7 @@ def test_a_window_where_nothing_moved_min_intensity_skips_the_fits(rest_image):
     """Not at rest, but no tracked marker 0.3 px (min_intensity_px) from rest: the intensity is
     below the minimum whatever the contacts, so the window answers none (not resting) without a
     homography; once a finger moves the markers the fits run again."""
-    pipeline = GesturePipeline(SENSOR)
+    pipeline = _WindowByWindow(SENSOR)  # each window's own type: no undecided start
     pipeline.process(Frame(0, rest_image))
     pipeline.process(Frame(40_000, gel_image((4.0, 0.0), region_px=30)))
     assert not pipeline.resting.resting
