@@ -291,7 +291,7 @@ def main() -> None:
         action="append",
         default=[],
         metavar="FIELD=VALUE",
-        help="a TrackerConfig field (float), e.g. --set max_offset_px=0 (repeatable)",
+        help="a TrackerConfig field (float), in mm and us, e.g. --set max_offset_mm=0 (repeatable)",
     )
     args = parser.parse_args()
     console = make_console()

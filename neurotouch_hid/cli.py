@@ -331,8 +331,9 @@ def eval_cmd(
         [],
         "--set",
         help="pipeline hyperparameter NAME=VALUE, repeatable: a field of the method's config; default: "
-        "window_us, noise_filter, noise_filter_us (us), contacts.*, gesture.*, resting.* (*_mm in mm on the gel, "
-        "*_mm2 in mm^2), tracker.* (px at 2.5 px/mm, scaled to sensor.yaml's); paper: its fields in px",
+        "window_us (us), noise.kind, noise.time_us (us), tracker.*, contacts.*, gesture.*, resting.* (*_mm in "
+        "mm on the gel, *_mm2 in mm^2, *_um2 in um^2, *_us in us), converted with sensor.yaml's px/mm; paper: its "
+        "fields in px, tracker.* as the default's",
     ),
     method: str = typer.Option("default", "--method", "--preset", help=METHOD_HELP + "; --set applies over it"),
     jobs: int = typer.Option(1, "--jobs", min=1, help="sequences run in parallel processes"),

@@ -32,7 +32,7 @@ def pipeline_config(settings: Sequence[str] = (), method: str = "default", **val
     strings (the CLI's ``--set``) and keyword values over them, validated by the pydantic model.
 
     NAME is a field of the method's config, or ``GROUP.FIELD`` for a field of one of its groups
-    (PipelineConfig's ``contacts``, ``gesture``, ``resting``, ``tracker``). VALUE is converted by pydantic to
+    (PipelineConfig's ``noise``, ``tracker``, ``contacts``, ``gesture``, ``resting``). VALUE is converted by pydantic to
     the field's type (``none`` or ``null`` for an optional field).
 
     Raises:
