@@ -55,7 +55,7 @@ PRESS_USER = 5
 PRESS_SEED = 1
 #: Kept untouched until the final run (docs/accuracy.md).
 FINAL_FAMILY = "contrast"
-#: Earlier final families kept out of tuning too (docs/accuracy.md); round 5 develops on them.
+#: Earlier final families kept out of tuning too (docs/accuracy.md).
 SEEN_FINAL_FAMILIES: tuple[str, ...] = ()
 #: Evaluated only with --final-run.
 HELD_BACK = (*SEEN_FINAL_FAMILIES, FINAL_FAMILY)

@@ -95,7 +95,7 @@ def long_lived_start_up() -> Iterator[None]:
     for ``track``) lives as long as the process. The garbage collector is off meanwhile and
     those objects are frozen at the end (``gc.freeze``), so that none of its passes walks them
     again: its full passes over them were ~0.5 s of CPU of a 40 s ``track`` (docs/performance.md,
-    "track at 20x real time"). Cyclic garbage made inside is never freed: keep the block to
+    "track"). Cyclic garbage made inside is never freed: keep the block to
     imports and set-up."""
     enabled = gc.isenabled()
     gc.disable()

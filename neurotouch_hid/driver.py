@@ -48,7 +48,7 @@ class CameraBackend(Protocol):
 
 class EstimateReplay:
     """Stands in for the pipeline when the source is a predictions file: its items already are
-    the windows' :class:`GestureEstimate` values (docs/dataset.md "Predictions"), handed on as they are."""
+    the windows' :class:`GestureEstimate` values (docs/dataset.md "Predictions (JSON lines)"), handed on as they are."""
 
     def process(self, item: GestureEstimate) -> list[GestureEstimate]:
         return [item]

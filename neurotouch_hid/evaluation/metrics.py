@@ -2,7 +2,7 @@
 
 Predictions (:class:`~neurotouch_hid.estimate.GestureEstimate`, one per window) are compared
 with the ground truth at each prediction's time (:func:`~neurotouch_hid.dataset.labels_at`,
-docs/dataset.md "Predictions"). :func:`align` turns one sequence into :class:`Observations`: plain
+docs/dataset.md "Predictions (JSON lines)"). :func:`align` turns one sequence into :class:`Observations`: plain
 aligned arrays, one entry per evaluated prediction, that concatenate across sequences and cross
 process boundaries. :func:`evaluate` computes every metric into an :class:`EvaluationResult`.
 
@@ -246,7 +246,7 @@ class Observations:
 
 
 def align(labels: Sequence[LabelRow], predictions: Sequence[GestureEstimate], sensor: SensorGeometry) -> Observations:
-    """Pair one sequence's predictions with its labels (docs/dataset.md "Predictions").
+    """Pair one sequence's predictions with its labels (docs/dataset.md "Predictions (JSON lines)").
 
     The ground truth at each prediction time comes from
     :func:`~neurotouch_hid.dataset.labels_at`; predictions before the first label are
