@@ -131,10 +131,10 @@ def main(
         "and write it into the family's sensor.yaml (not for mix: no one gel to calibrate)",
     ),
     vote_of: Optional[str] = typer.Option(
-        "ours",
+        None,
         "--vote-of",
-        help="also score METHOD+vote: METHOD's predictions "
-        "replayed through the episode vote (episode.EpisodeVote, as the product does)",
+        help="also score METHOD+vote: METHOD's predictions replayed through the episode vote "
+        "(episode.EpisodeVote; for a method without it: the product's own method already votes)",
     ),
 ) -> None:
     console = Console(soft_wrap=True)
