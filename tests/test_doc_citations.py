@@ -20,13 +20,15 @@ CITATION = re.compile(
 
 
 def headings(path: Path) -> set[str]:
-    """The text of every Markdown heading of ``path``, outside fenced code."""
+    """The text of every Markdown heading of ``path``, outside fenced code, each also without a
+    closing parenthetical (``Predictions (JSON lines)`` may be cited as ``Predictions``)."""
     found, fenced = set(), False
     for line in path.read_text(encoding="utf-8").splitlines():
         if line.startswith("```"):
             fenced = not fenced
         elif not fenced and (m := re.match(r"#+ (.*)", line)):
-            found.add(m.group(1).strip())
+            heading = m.group(1).strip()
+            found |= {heading, re.sub(r"\s*\([^()]*\)$", "", heading)}
     return found
 
 
@@ -35,6 +37,12 @@ def citations(text: str) -> list[tuple[str, str]]:
     citation may run over a line break, in a docstring or a comment)."""
     flat = re.sub(r"\n\s*(?:#\s*)?", " ", text)
     return [(m.group(1), name) for m in CITATION.finditer(flat) for name in re.findall(r'"([^"]+)"', m.group(2))]
+
+
+def test_a_heading_is_cited_with_or_without_its_closing_parenthetical(tmp_path):
+    doc = tmp_path / "d.md"
+    doc.write_text("# D\n\n## Predictions (JSON lines)\n\n```sh\n# not a heading\n```\n")
+    assert headings(doc) == {"D", "Predictions (JSON lines)", "Predictions"}
 
 
 def test_the_pattern_finds_citations_and_skips_a_closing_quote():
