@@ -61,7 +61,7 @@ PRESS_USER = 5
 PRESS_SEED = 1
 #: Kept untouched until the final run (docs/accuracy.md).
 FINAL_FAMILY = "contrast"
-#: Earlier final families kept out of tuning too (docs/accuracy.md); round 5 develops on them.
+#: Earlier final families kept out of tuning too (docs/accuracy.md).
 SEEN_FINAL_FAMILIES: tuple[str, ...] = ()
 #: Evaluated only with --final-run.
 HELD_BACK = (*SEEN_FINAL_FAMILIES, FINAL_FAMILY)
@@ -132,8 +132,8 @@ def main(
     vote_of: Optional[str] = typer.Option(
         None,
         "--vote-of",
-        help="also score METHOD+vote: the predictions of METHOD, one whose windows each answer their own "
-        "type (e.g. paper), replayed through the episode vote (episode.EpisodeVote, as the product does)",
+        help="also score METHOD+vote: METHOD's predictions replayed through the episode vote "
+        "(episode.EpisodeVote; for a method without it: the product's own method already votes)",
     ),
 ) -> None:
     console = Console(soft_wrap=True)

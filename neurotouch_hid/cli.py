@@ -95,7 +95,7 @@ def long_lived_start_up() -> Iterator[None]:
     for ``track``) lives as long as the process. The garbage collector is off meanwhile and
     those objects are frozen at the end (``gc.freeze``), so that none of its passes walks them
     again: its full passes over them were ~0.5 s of CPU of a 40 s ``track`` (docs/performance.md,
-    "track at 20x real time"). Cyclic garbage made inside is never freed: keep the block to
+    "track"). Cyclic garbage made inside is never freed: keep the block to
     imports and set-up."""
     enabled = gc.isenabled()
     gc.disable()
@@ -335,8 +335,9 @@ def eval_cmd(
         [],
         "--set",
         help="pipeline hyperparameter NAME=VALUE, repeatable: a field of the method's config; default: "
-        "window_us, noise_filter, noise_filter_us (us), contacts.*, gesture.*, resting.* (*_mm in mm on the gel, "
-        "*_mm2 in mm^2), tracker.* (px at 2.5 px/mm, scaled to sensor.yaml's); paper: its fields in px",
+        "window_us (us), noise.kind, noise.time_us (us), tracker.*, contacts.*, gesture.*, resting.* (*_mm in "
+        "mm on the gel, *_mm2 in mm^2, *_um2 in um^2, *_us in us), converted with sensor.yaml's px/mm; paper: its "
+        "fields in px, tracker.* as the default's",
     ),
     method: str = typer.Option("default", "--method", "--preset", help=METHOD_HELP + "; --set applies over it"),
     jobs: int = typer.Option(1, "--jobs", min=1, help="sequences run in parallel processes"),

@@ -2,7 +2,7 @@
 
 Predictions (:class:`~neurotouch_hid.estimate.GestureEstimate`, one per window) are compared
 with the ground truth at each prediction's time (:func:`~neurotouch_hid.dataset.labels_at`,
-docs/dataset.md "Predictions"). :func:`align` turns one sequence into :class:`Observations`: plain
+docs/dataset.md "Predictions (JSON lines)"). :func:`align` turns one sequence into :class:`Observations`: plain
 aligned arrays, one entry per evaluated prediction, that concatenate across sequences and cross
 process boundaries. :func:`evaluate` computes every metric into an :class:`EvaluationResult`.
 
@@ -255,7 +255,7 @@ def align(
     sensor: SensorGeometry,
     deadzone_mm: float = DEFAULT_DEADZONE_MM,
 ) -> Observations:
-    """Pair one sequence's predictions with its labels (docs/dataset.md "Predictions"), and
+    """Pair one sequence's predictions with its labels (docs/dataset.md "Predictions (JSON lines)"), and
     score them per gesture (:func:`.felt.gesture_records`, with ``deadzone_mm``, mm).
 
     The ground truth at each prediction time comes from

@@ -2,7 +2,7 @@
 
 For each sequence: read ``SEQUENCE.labels.csv``, stream ``SEQUENCE.aedat4`` through
 :class:`~neurotouch_hid.pipeline.pipeline.GesturePipeline`, keep the predictions (optionally as
-JSON lines, docs/dataset.md "Predictions") and pair them with the labels
+JSON lines, docs/dataset.md "Predictions (JSON lines)") and pair them with the labels
 (:func:`~neurotouch_hid.evaluation.metrics.align`). Sequences can run in parallel processes;
 their observations are concatenated and :func:`~neurotouch_hid.evaluation.metrics.evaluate`
 computes the paper's metrics over the whole dataset (paper, section "Results": "The pipeline is
@@ -33,7 +33,7 @@ def pipeline_config(settings: Sequence[str] = (), method: str = "default", **val
     strings (the CLI's ``--set``) and keyword values over them, validated by the pydantic model.
 
     NAME is a field of the method's config, or ``GROUP.FIELD`` for a field of one of its groups
-    (PipelineConfig's ``contacts``, ``gesture``, ``resting``, ``tracker``). VALUE is converted by pydantic to
+    (PipelineConfig's ``noise``, ``tracker``, ``contacts``, ``gesture``, ``resting``). VALUE is converted by pydantic to
     the field's type (``none`` or ``null`` for an optional field).
 
     Raises:
@@ -105,7 +105,7 @@ def run_sequence(
         dataset: the dataset folder (docs/dataset.md).
         name: the sequence (``name.aedat4`` and ``name.labels.csv``).
         config: the method's settings (:func:`pipeline_config`; None: the product's defaults).
-        predictions_dir: if given, write ``name.jsonl`` there (docs/dataset.md "Predictions").
+        predictions_dir: if given, write ``name.jsonl`` there (docs/dataset.md "Predictions (JSON lines)").
         on_time: called now and then with the microseconds processed since the recording's start.
         deadzone_mm: the dead zone of the per-gesture figures (mm; :mod:`.felt`).
     Raises:
