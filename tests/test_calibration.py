@@ -6,14 +6,12 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import run_cli
 
 from neurotouch_hid.calibration import calibrate, read_rest_frames
 from neurotouch_hid.dataset import dataset_sensor_file
@@ -179,18 +177,6 @@ def test_eval_says_it_uses_the_users_calibration(shifted_dataset, tmp_path, capl
         result = evaluate_dataset(dataset)
     assert result.n_sequences == 1
     assert f"using your calibration {user_sensor_path()}" in caplog.text
-
-
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    """``neurotouch-hid ARGS`` in a fresh process without a terminal (the tmp user config folder)."""
-    return subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", *args],
-        capture_output=True,
-        text=True,
-        env=dict(os.environ, COLUMNS="200"),
-        stdin=subprocess.DEVNULL,
-        timeout=300,
-    )
 
 
 def test_calibrate_command_writes_sensor_yaml_where_track_finds_it(shifted_dataset, tmp_path):

@@ -8,12 +8,11 @@ import dataclasses
 import importlib.util
 import json
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import run_cli
 from typer.testing import CliRunner
 
 from neurotouch_hid.cli import app
@@ -171,17 +170,6 @@ def test_calibrate_press_measures_the_creep_and_keeps_it_when_recalibrated(visco
     assert result.exit_code == 0, result.output
     assert SensorGeometry.load(out).creep == (share, time_s)
     assert "kept from" in result.output
-
-
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    """``neurotouch-hid ARGS`` in a fresh process without a terminal."""
-    return subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", *args],
-        capture_output=True,
-        text=True,
-        stdin=subprocess.DEVNULL,
-        timeout=300,
-    )
 
 
 def test_calibrate_press_refuses_a_recording_without_a_press_and_loses_nothing(tmp_path):

@@ -12,12 +12,12 @@ and load_profile: one error naming the file, the line and the field, never a tra
 from __future__ import annotations
 
 import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import run_cli
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from recording_damage import damage
@@ -64,13 +64,7 @@ def test_damaged_recording_cli_ends_cleanly(originals, base, command, what):
         path.write_bytes(damage(originals[base], *what))
         args = [command, str(path)] + (["--out", str(Path(tmp) / "pred.jsonl")] if command == "track" else [])
         try:
-            result = subprocess.run(
-                [sys.executable, "-m", "neurotouch_hid.cli", *args],
-                capture_output=True,
-                text=True,
-                timeout=TIME_LIMIT_S,
-                stdin=subprocess.DEVNULL,
-            )
+            result = run_cli(*args, timeout=TIME_LIMIT_S)
         except subprocess.TimeoutExpired:
             pytest.fail(f"{command} hung on {base} with damage {what}")
     assert result.returncode in (0, 2), f"{command} {base} {what}: exit {result.returncode}\n{result.stderr}"
@@ -168,13 +162,7 @@ def test_mutated_profile_validate_cli(tmp_path, name, changes):
     path.write_bytes(
         mutate((shipped_profiles_dir() / name).read_text(encoding="utf-8"), changes).encode("utf-8", "replace")
     )
-    result = subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", "profile", "validate", str(path)],
-        capture_output=True,
-        text=True,
-        timeout=TIME_LIMIT_S,
-        stdin=subprocess.DEVNULL,
-    )
+    result = run_cli("profile", "validate", str(path), timeout=TIME_LIMIT_S)
     assert result.returncode in (0, 2) and "Traceback" not in result.stderr, result.stderr
     if result.returncode == 2:
         assert result.stderr.startswith("error:") and str(path.name) in result.stderr, result.stderr
@@ -183,8 +171,6 @@ def test_mutated_profile_validate_cli(tmp_path, name, changes):
 def test_track_writes_what_is_readable_of_a_cut_recording_before_its_error(tmp_path):
     """The progress total's pass meets the damage first; the windows before it are still
     tracked and written, then the one error (exit 2)."""
-    import subprocess
-    import sys
 
     from neurotouch_hid.sources.simulator import write_dataset
 
@@ -196,12 +182,7 @@ def test_track_writes_what_is_readable_of_a_cut_recording_before_its_error(tmp_p
     cut.write_bytes(whole.read_bytes()[: int(whole.stat().st_size * 0.7)])
     (tmp_path / "sensor.yaml").write_bytes((folder / "sensor.yaml").read_bytes())
     out = tmp_path / "pred.jsonl"
-    proc = subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", "track", str(cut), "--out", str(out)],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    proc = run_cli("track", str(cut), "--out", str(out))
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert str(cut) in proc.stderr
     assert out.exists() and len(out.read_text().splitlines()) > 10

@@ -10,15 +10,13 @@ real dv-processing backend is also checked for the no-camera message.
 from __future__ import annotations
 
 import datetime
-import os
-import subprocess
-import sys
 import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
 from camera_replay import Fault, ReplayWorld
+from helpers import run_cli
 
 from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.errors import DeviceError, SensorError
@@ -311,14 +309,7 @@ def test_run_source_davis_without_camera_tells_what_to_do(tmp_path):
 
     if dv.io.camera.discover():
         pytest.skip(reason="a camera is plugged in: the no-camera error cannot occur")
-    env = dict(os.environ, COLUMNS="400", XDG_CONFIG_HOME=str(tmp_path))
-    proc = subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", "run", "--source", "davis", "--output", "jsonl"],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=120,
-    )
+    proc = run_cli("run", "--source", "davis", "--output", "jsonl", env={"COLUMNS": "400"})
     assert proc.returncode == 2, proc.stderr
     assert proc.stdout == ""  # no state was written: nothing started
     error = " ".join(proc.stderr.split())

@@ -20,6 +20,7 @@ from types import SimpleNamespace
 import pytest
 import usb.core
 import usb.util
+from helpers import run_cli
 
 from neurotouch_hid.sources import discovery
 from neurotouch_hid.sources.discovery import (
@@ -32,8 +33,6 @@ from neurotouch_hid.sources.discovery import (
     merge,
 )
 from neurotouch_hid.udev import RULES_INSTALL
-
-CLI = [sys.executable, "-m", "neurotouch_hid.cli"]
 
 
 def usb_cam(bus=1, address=5, access=UsbAccess.OK, reason="", serial="00000123", holders=()) -> UsbCamera:
@@ -73,16 +72,14 @@ def test_explain_no_camera_here_says_plug_it_in_and_lsusb():
 
 
 def test_cli_devices_without_a_camera_says_so_and_exits_1():
-    proc = subprocess.run(
-        [*CLI, "devices"], capture_output=True, text=True, timeout=120, env=dict(os.environ, COLUMNS="200")
-    )
+    proc = run_cli("devices")
     assert proc.returncode == 1, proc.stdout + proc.stderr
     assert "no DAVIS-346 (USB 152a:841a) found" in proc.stdout and "lsusb -d 152a:841a" in proc.stdout
     assert "Traceback" not in proc.stderr
 
 
 def test_cli_devices_json_without_a_camera():
-    proc = subprocess.run([*CLI, "devices", "--json"], capture_output=True, text=True, timeout=120)
+    proc = run_cli("devices", "--json")
     assert proc.returncode == 1, proc.stdout + proc.stderr
     data = json.loads(proc.stdout)
     assert data["cameras"] == [] and data["ready"] == 0

@@ -10,6 +10,7 @@ import warnings
 
 import numpy as np
 import pytest
+from helpers import run_cli
 
 from neurotouch_hid.dataset import read_predictions, write_predictions
 from neurotouch_hid.errors import DatasetError, SensorError
@@ -365,15 +366,6 @@ def test_windows_whose_markers_did_not_move_reuse_the_fit_with_identical_estimat
     assert 0 < len(fitted) < fresh.fits  # some windows had the same markers as the one before
 
 
-def _cli(*args: str):
-    import subprocess
-    import sys
-
-    return subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", *args], capture_output=True, text=True, timeout=300
-    )
-
-
 STREET = "/work/shared/data/davis346-street/recording.aedat4"
 
 
@@ -382,14 +374,14 @@ def test_track_on_a_street_recording_says_no_gel_and_exits_2(tmp_path):
 
     if not os.path.exists(STREET):
         pytest.skip(reason="the shared real DAVIS-346 street recording is not on this machine")
-    done = _cli("track", STREET, "--out", str(tmp_path / "p.jsonl"))
+    done = run_cli("track", STREET, "--out", str(tmp_path / "p.jsonl"))
     assert done.returncode == 2
     assert "no gel found" in done.stderr and "Traceback" not in done.stderr
     assert not (tmp_path / "p.jsonl").exists()
 
 
 def test_track_command_writes_predictions_and_markers(push_dataset, push_tracked, tmp_path):
-    done = _cli(
+    done = run_cli(
         "track",
         str(push_dataset),
         "--out",

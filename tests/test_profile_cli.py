@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import json
-import os
 import re
 import subprocess
 import sys
 import textwrap
 
 import pytest
+from helpers import run_cli
 from ruamel.yaml import YAML
 
 from neurotouch_hid.cli import main
@@ -218,17 +218,9 @@ def test_bad_predictions_file_names_its_line(cli, tmp_path):
 
 def test_the_installed_command_runs_as_a_user_would(tmp_path, pushes):
     """The console script's module in a fresh process: copy, change, test."""
-    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "config")}
 
     def run(*args: str) -> subprocess.CompletedProcess:
-        return subprocess.run(
-            [sys.executable, "-m", "neurotouch_hid.cli", "profile", *args],
-            capture_output=True,
-            text=True,
-            env=env,
-            stdin=subprocess.DEVNULL,
-            timeout=120,
-        )
+        return run_cli("profile", *args, env={"XDG_CONFIG_HOME": str(tmp_path / "config")})
 
     assert run("new", "mine", "--from", "spacecraft").returncode == 0
     assert run("set", "mine", "mappings.push.output", "right_stick").returncode == 0

@@ -9,13 +9,13 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 from camera_replay import Fault, ReplayWorld
+from helpers import CLI, run_cli
 
 from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.sources import Frame
@@ -23,20 +23,13 @@ from neurotouch_hid.sources.davis import DavisConfig, DavisSource
 from neurotouch_hid.sources.recording import RecordingReader, read_info, record_stream
 from neurotouch_hid.sources.simulator import SimulatedSource
 
-CLI = [sys.executable, "-m", "neurotouch_hid.cli"]
 ENV = dict(os.environ, COLUMNS="200")
 STREET = Path(__file__).resolve().parents[2] / "shared" / "data" / "davis346-street" / "recording.aedat4"
 
 
 def test_record_sim_writes_exactly_what_the_source_gave(tmp_path):
     out = tmp_path / "sim.aedat4"
-    proc = subprocess.run(
-        [*CLI, "record", str(out), "--source", "sim", "--seconds", "1.5", "--fast", "--seed", "3"],
-        capture_output=True,
-        text=True,
-        env=ENV,
-        timeout=300,
-    )
+    proc = run_cli("record", str(out), "--source", "sim", "--seconds", "1.5", "--fast", "--seed", "3")
     assert proc.returncode == 0, proc.stderr
     items = list(SimulatedSource(seed=3).stream(seconds=1.5))
     want_events = np.concatenate([i for i in items if not isinstance(i, Frame)])
@@ -103,9 +96,7 @@ def test_a_lost_camera_ends_the_recording_but_keeps_the_file_whole(tmp_path):
     ],
 )
 def test_bad_options_say_what_is_expected(tmp_path, args, message):
-    proc = subprocess.run(
-        [*CLI, "record", str(tmp_path / "x.aedat4"), *args], capture_output=True, text=True, env=ENV, timeout=120
-    )
+    proc = run_cli("record", str(tmp_path / "x.aedat4"), *args)
     assert proc.returncode == 2 and message in proc.stderr, proc.stderr
     assert not (tmp_path / "x.aedat4").exists()
 
@@ -113,21 +104,9 @@ def test_bad_options_say_what_is_expected(tmp_path, args, message):
 def test_an_existing_file_is_kept_unless_forced(tmp_path):
     out = tmp_path / "keep.aedat4"
     out.write_bytes(b"precious")
-    proc = subprocess.run(
-        [*CLI, "record", str(out), "--source", "sim", "--seconds", "0.2", "--fast"],
-        capture_output=True,
-        text=True,
-        env=ENV,
-        timeout=120,
-    )
+    proc = run_cli("record", str(out), "--source", "sim", "--seconds", "0.2", "--fast")
     assert proc.returncode == 2 and "--force" in proc.stderr
     assert out.read_bytes() == b"precious"
-    proc = subprocess.run(
-        [*CLI, "record", str(out), "--source", "sim", "--seconds", "0.2", "--fast", "--force"],
-        capture_output=True,
-        text=True,
-        env=ENV,
-        timeout=120,
-    )
+    proc = run_cli("record", str(out), "--source", "sim", "--seconds", "0.2", "--fast", "--force")
     assert proc.returncode == 0, proc.stderr
     assert read_info(out).n_frames == 5

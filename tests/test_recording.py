@@ -8,12 +8,11 @@ from __future__ import annotations
 
 import json
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import run_cli
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -31,12 +30,6 @@ from neurotouch_hid.sources.recording import (
 REPO = Path(__file__).parents[1]
 STREET = REPO.parent / "shared" / "data" / "davis346-street" / "recording.aedat4"
 needs_street = pytest.mark.skipif(not STREET.exists(), reason=f"shared dataset not beside the repo: {STREET}")
-
-
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", *args], capture_output=True, text=True, cwd=REPO, timeout=120
-    )
 
 
 def synthetic(n: int = 20_000, duration_us: int = 400_000, seed: int = 1, t0: int = 1_000_000):

@@ -12,6 +12,7 @@ import subprocess
 import sys
 
 import pytest
+from helpers import run_cli
 from rich.console import Console
 
 from neurotouch_hid.cli import long_lived_start_up
@@ -85,12 +86,7 @@ def test_without_a_terminal_no_bar_and_no_pass_for_its_total(push_recording, tra
 
 def test_the_track_command_writes_the_same_predictions_and_nothing_on_a_piped_stderr(push_recording, tracked, tmp_path):
     out = tmp_path / "p.jsonl"
-    done = subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", "track", str(push_recording), "--out", str(out)],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    done = run_cli("track", str(push_recording), "--out", str(out))
     assert done.returncode == 0, done.stderr
     assert done.stderr == ""  # no bar drawn into a pipe
     assert out.read_bytes() == tracked[1]

@@ -1,0 +1,52 @@
+"""What many test modules share that is not a fixture: the one way to run the CLI in a fresh
+process (:func:`run_cli`). Fixtures (the simulated recordings, the real street recording) are in
+tests/conftest.py."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+#: ``neurotouch-hid`` as a command: this interpreter, this tree's package.
+CLI = (sys.executable, "-m", "neurotouch_hid.cli")
+
+
+def run_cli(
+    *args: str,
+    home: Path | None = None,
+    env: dict[str, str] | None = None,
+    cwd: Path | str | None = None,
+    text: bool = True,
+    stdout: int | None = subprocess.PIPE,
+    timeout: float = 300,
+) -> subprocess.CompletedProcess:
+    """``neurotouch-hid ARGS`` in a fresh process, stdin closed, no terminal; stdout and stderr
+    captured (``stdout`` may instead be an open file, to test what goes to a file).
+
+    Args:
+        home: run as a new user would, in a bare environment: only PATH, HOME=``home``,
+            XDG_CONFIG_HOME=``home``/config and COLUMNS=80, in ``home`` (unless ``cwd``).
+            Without it, this process's environment (the test's tmp config folder,
+            tests/conftest.py) with COLUMNS=200 so that nothing is wrapped.
+        env: variables set on top of either environment (None: unset it).
+        text: decode the output (str) or keep the bytes (to compare files exactly).
+        timeout: seconds before the run counts as hung (a hang, not a slow machine).
+    """
+    if home is not None:
+        base = {"PATH": "/usr/bin:/bin", "HOME": str(home), "XDG_CONFIG_HOME": str(Path(home) / "config")}
+        base["COLUMNS"] = "80"
+        cwd = home if cwd is None else cwd
+    else:
+        base = dict(os.environ, COLUMNS="200")
+    return subprocess.run(
+        [*CLI, *args],
+        stdout=stdout,
+        stderr=subprocess.PIPE,
+        text=text,
+        env={k: v for k, v in {**base, **(env or {})}.items() if v is not None},
+        cwd=cwd,
+        stdin=subprocess.DEVNULL,
+        timeout=timeout,
+    )
