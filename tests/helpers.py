@@ -1,12 +1,13 @@
 """What many test modules share that is not a fixture: the one way to run the CLI in a fresh
-process (:func:`run_cli`). Fixtures (the simulated recordings, the real street recording) are in
-tests/conftest.py."""
+process (:func:`run_cli`), and waiting for what a test waits on (:func:`wait_until`). Fixtures
+(the simulated recordings, the real street recording) are in tests/conftest.py."""
 
 from __future__ import annotations
 
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 #: ``neurotouch-hid`` as a command: this interpreter, this tree's package.
@@ -50,3 +51,15 @@ def run_cli(
         stdin=subprocess.DEVNULL,
         timeout=timeout,
     )
+
+
+def wait_until(condition, timeout_s: float = 60.0) -> bool:
+    """Poll ``condition()`` every 10 ms until it holds (True) or ``timeout_s`` passes (False): a
+    test waits for what happened, not for a delay a loaded machine can overrun; ``timeout_s``
+    only ends a hang."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if condition():
+            return True
+        time.sleep(0.01)
+    return False

@@ -4,9 +4,9 @@ tests/test_control.py only: acceptance runs the real stages), and waits on what 
 from __future__ import annotations
 
 import threading
-import time
 
 import numpy as np
+from helpers import wait_until
 
 from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.estimate import GestureEstimate, GestureType
@@ -93,16 +93,6 @@ def endless(step_us: int = 1000):
 
 def writes_of(calls):
     return [s for k, s in calls if k == "write"]
-
-
-def wait_until(condition, timeout_s: float = 60.0) -> bool:
-    """Poll ``condition()`` every 10 ms until it holds (True) or ``timeout_s`` passes (False)."""
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if condition():
-            return True
-        time.sleep(0.01)
-    return False
 
 
 def once(condition, action, timeout_s: float = 60.0) -> threading.Thread:

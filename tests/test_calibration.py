@@ -42,22 +42,17 @@ def test_the_shifted_geometry_is_out_of_tolerance_of_the_default():
         assert_recovers(default, SHIFTED)
 
 
-def write_rest_dataset(folder: Path, sensor: SensorGeometry) -> Path:
-    """A dataset of one 0.6 s simulated sequence ``u0_push`` (the gel rests until the push at
-    0.6 s) with the simulator's own sensor.yaml."""
-    return write_dataset(folder, users=[0], gestures=[GestureType.PUSH], minutes=0.01, progress=False, sensor=sensor)
-
-
-@pytest.fixture(scope="module", params=["default", "shifted"])
-def sim_dataset(request, tmp_path_factory) -> Path:
-    return write_rest_dataset(
-        tmp_path_factory.mktemp(request.param), SensorGeometry() if request.param == "default" else SHIFTED
+@pytest.fixture(scope="module")
+def shifted_dataset(tmp_path_factory) -> Path:
+    """:func:`sim_rest_dataset` (tests/conftest.py) in the SHIFTED geometry."""
+    return write_dataset(
+        tmp_path_factory.mktemp("shifted"), users=[0], gestures=["push"], minutes=0.01, progress=False, sensor=SHIFTED
     )
 
 
-@pytest.fixture(scope="module")
-def shifted_dataset(tmp_path_factory) -> Path:
-    return write_rest_dataset(tmp_path_factory.mktemp("shifted"), SHIFTED)
+@pytest.fixture(params=["default", "shifted"])
+def sim_dataset(request) -> Path:
+    return request.getfixturevalue("sim_rest_dataset" if request.param == "default" else "shifted_dataset")
 
 
 @pytest.fixture(scope="module")

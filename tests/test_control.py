@@ -8,8 +8,8 @@ import threading
 
 import numpy as np
 import pytest
-from helpers import run_cli
-from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, endless, wait_until, writes_of
+from helpers import run_cli, wait_until
+from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, endless, writes_of
 
 from neurotouch_hid.control import ControlServer, request_use, socket_path
 from neurotouch_hid.errors import NeurotouchError, ProfileError

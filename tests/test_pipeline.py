@@ -271,13 +271,9 @@ def test_bad_prediction_lines_name_file_and_line(tmp_path, line, message):
 
 # --- end to end on a simulated recording ------------------------------------------------------
 @pytest.fixture(scope="module")
-def push_dataset(tmp_path_factory):
-    """A quick simulated push sequence (sources/simulator.py): AEDAT4 + labels + true markers."""
-    from neurotouch_hid.sources.simulator import write_dataset
-
-    folder = write_dataset(tmp_path_factory.mktemp("sim") / "ds", preset="quick", gestures=["push"], progress=False)
-    (recording,) = sorted(folder.glob("*.aedat4"))
-    return recording
+def push_dataset(sim_push_recording):
+    """A quick simulated push sequence (tests/conftest.py): AEDAT4 + labels + true markers."""
+    return sim_push_recording
 
 
 @pytest.fixture(scope="module")

@@ -295,30 +295,9 @@ def is_neutral(line: dict) -> bool:
     return all(line["axes"][n] == AXES[n][2] for n in AXES) and not any(line["buttons"].values())
 
 
-@pytest.fixture(scope="module")
-def push_recording(tmp_path_factory) -> "os.PathLike":
-    """4.5 s of the simulated gel (rest, one push, release, rest) written as an AEDAT4 recording
-    with its sensor.yaml, the way `neurotouch-hid simulate` stores sequences."""
-    from neurotouch_hid.sources.recording import RecordingWriter
-    from neurotouch_hid.sources.simulator import SimulatedSource
-
-    folder = tmp_path_factory.mktemp("push")
-    sim = SimulatedSource(seed=0, gestures=["push"])
-    sim.sensor.save(folder / "sensor.yaml")
-    path = folder / "push.aedat4"
-    labels = []
-    with RecordingWriter(path) as writer:
-        for chunk in sim.chunks(4.5):
-            writer.write_frame(chunk.frame)
-            writer.write_events(chunk.events)
-            labels.append((chunk.frame.t_us, chunk.label.gesture))
-    assert any(g == GestureType.PUSH for _, g in labels) and labels[-1][1] == GestureType.NONE
-    return path
-
-
-def test_run_on_a_recording_moves_the_stick_during_the_push_and_ends_neutral(push_recording, tmp_path):
+def test_run_on_a_recording_moves_the_stick_during_the_push_and_ends_neutral(sim_push_only_recording, tmp_path):
     out = tmp_path / "states.jsonl"
-    proc = run_cli("run", "--source", str(push_recording), "--output", "jsonl", "--fast", "--out", str(out))
+    proc = run_cli("run", "--source", str(sim_push_only_recording), "--output", "jsonl", "--fast", "--out", str(out))
     assert proc.returncode == 0, proc.stderr
     states = read_states(out.read_text())
     pushes = [s for s in states if s["gesture"] == "push"]
@@ -382,13 +361,13 @@ def test_a_bad_profile_raises_before_any_output_or_source_exists(tmp_path, monke
     assert opened == []
 
 
-def test_fast_replays_are_deterministic(push_recording, tmp_path):
+def test_fast_replays_are_deterministic(sim_push_only_recording, tmp_path):
     from neurotouch_hid.driver import run_driver
 
     runs = []
     for k in range(2):
         out = tmp_path / f"states{k}.jsonl"
-        stats = run_driver(str(push_recording), "default", "jsonl", fast=True, out=out)
+        stats = run_driver(str(sim_push_only_recording), "default", "jsonl", fast=True, out=out)
         assert stats.dropped_items == 0 and stats.windows > 0
         runs.append(out.read_text())
     assert runs[0] == runs[1] and runs[0]
