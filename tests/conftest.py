@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from helpers import STREET  # noqa: E402
 from kernel.vm import (  # noqa: E402
     KernelUnavailable,
     boot_summary,
@@ -81,10 +82,6 @@ def passed(guest: dict, name: str) -> dict:
 
 
 # --- recordings ----------------------------------------------------------------------------------
-#: The real DAVIS-346 street recording (the shared dataset beside the repository, docs/dataset.md).
-STREET = Path(__file__).resolve().parents[2] / "shared" / "data" / "davis346-street" / "recording.aedat4"
-
-
 @dataclass(frozen=True)
 class KnownRecording:
     """An AEDAT4 recording and what is known of it independently of the reader under test (the
@@ -157,7 +154,8 @@ def sim_street_recording(tmp_path_factory) -> KnownRecording:
     events, frames = street_scene()
     path = tmp_path_factory.mktemp("street") / "street.aedat4"
     write_recording(path, events, frames, camera_name="DAVIS346_00000499")
-    duration_s = round((int(events["timestamp"][-1]) - frames[0].t_us) / 1e6, 2)
+    start_us = min(int(events["timestamp"][0]), frames[0].t_us)
+    duration_s = round((max(int(events["timestamp"][-1]), frames[-1].t_us) - start_us) / 1e6, 2)
     return KnownRecording(path, "DAVIS346_00000499", len(events), len(frames), duration_s)
 
 

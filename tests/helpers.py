@@ -10,6 +10,10 @@ import sys
 import time
 from pathlib import Path
 
+#: The real DAVIS-346 street recording (the shared dataset beside the repository, docs/dataset.md);
+#: tests read it through the ``street_recording`` fixture (tests/conftest.py), which skips without it.
+STREET = Path(__file__).resolve().parents[2] / "shared" / "data" / "davis346-street" / "recording.aedat4"
+
 #: ``neurotouch-hid`` as a command: this interpreter, this tree's package.
 CLI = (sys.executable, "-m", "neurotouch_hid.cli")
 

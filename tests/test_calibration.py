@@ -21,7 +21,6 @@ from neurotouch_hid.sensor import SensorGeometry, default_sensor, find_sensor_fi
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.simulator import START_US, USERS, GelSimulator, gesture_script, write_dataset
 
-STREET = Path("/work/shared/data/davis346-street/recording.aedat4")
 #: Not the default geometry: centre ~10 px off, 2.3 px/mm, the 30 mm radius at that scale.
 SHIFTED = SensorGeometry(px_per_mm=2.3, gel_center_px=(183.0, 121.0), gel_radius_px=69.0)
 
@@ -72,11 +71,9 @@ def test_recovers_the_simulators_sensor_yaml_from_its_recording(sim_dataset):
     assert len(result.frames_t_us) == 10
 
 
-def test_refuses_the_real_street_recording():
-    if not STREET.exists():
-        pytest.skip(reason=f"the real DAVIS-346 street recording is not here ({STREET})")
+def test_refuses_a_street_recording(any_street):
     with pytest.raises(SensorError, match="no gel in view") as caught:
-        calibrate(read_rest_frames(STREET))
+        calibrate(read_rest_frames(any_street.path))
     assert "\n" not in str(caught.value)
 
 
@@ -202,10 +199,8 @@ def test_calibrate_command_writes_sensor_yaml_where_track_finds_it(shifted_datas
     assert find_sensor_file(recording).rotation_deg == 90.0
 
 
-def test_calibrate_command_refuses_a_scene_without_gel_in_one_line():
-    if not STREET.exists():
-        pytest.skip(reason=f"the real DAVIS-346 street recording is not here ({STREET})")
-    done = run_cli("calibrate", "--source", str(STREET))
+def test_calibrate_command_refuses_a_scene_without_gel_in_one_line(any_street):
+    done = run_cli("calibrate", "--source", str(any_street.path))
     assert done.returncode == 2
     assert "no gel in view" in done.stderr and len(done.stderr.strip().splitlines()) == 1
     assert not user_sensor_path().exists()

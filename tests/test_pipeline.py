@@ -362,15 +362,8 @@ def test_windows_whose_markers_did_not_move_reuse_the_fit_with_identical_estimat
     assert 0 < len(fitted) < fresh.fits  # some windows had the same markers as the one before
 
 
-STREET = "/work/shared/data/davis346-street/recording.aedat4"
-
-
-def test_track_on_a_street_recording_says_no_gel_and_exits_2(tmp_path):
-    import os
-
-    if not os.path.exists(STREET):
-        pytest.skip(reason="the shared real DAVIS-346 street recording is not on this machine")
-    done = run_cli("track", STREET, "--out", str(tmp_path / "p.jsonl"))
+def test_track_on_a_street_recording_says_no_gel_and_exits_2(any_street, tmp_path):
+    done = run_cli("track", str(any_street.path), "--out", str(tmp_path / "p.jsonl"))
     assert done.returncode == 2
     assert "no gel found" in done.stderr and "Traceback" not in done.stderr
     assert not (tmp_path / "p.jsonl").exists()
