@@ -6,7 +6,6 @@ from __future__ import annotations
 import os
 import signal
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -17,7 +16,7 @@ from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.errors import ProfileError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.runtime import DropOldestQueue, Runtime, item_end_us
-from neurotouch_hid.sources import Frame
+from neurotouch_hid.sources import Frame, Pacer
 
 
 def make_runtime(source, pipeline=None, output=None, **kw) -> tuple[Runtime, FakePipeline, RecordingOutput]:
@@ -164,7 +163,7 @@ def test_error_in_the_source_processes_what_was_read_then_neutralises_and_raises
 
 def test_stop_from_another_thread_ends_a_paced_endless_source_neutral():
     rt, pipeline, out = make_runtime(endless(), pace=True, pipeline=FakePipeline(push_batches=10**9))
-    threading.Timer(0.3, rt.stop).start()
+    once(lambda: writes(out), rt.stop)
     rt.run()
     assert pipeline.seen and out.calls[-1] == ("neutralise", None)
     assert writes(out) and not writes(out)[-1].is_neutral()  # stopped in the middle of a push
@@ -173,20 +172,43 @@ def test_stop_from_another_thread_ends_a_paced_endless_source_neutral():
 def test_sigterm_is_a_clean_stop():
     rt, pipeline, out = make_runtime(endless(), pace=True, pipeline=FakePipeline(push_batches=10**9))
     previous = signal.getsignal(signal.SIGTERM)
-    threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGTERM)).start()
+    once(lambda: writes(out), lambda: os.kill(os.getpid(), signal.SIGTERM))
     stats = rt.run()  # returns normally
     assert stats.windows > 0 and out.calls[-1] == ("neutralise", None)
     assert signal.getsignal(signal.SIGTERM) is previous  # handler restored
 
 
-def test_pacing_follows_the_timestamps():
+class ManualClock:
+    """A clock (ns) that moves only when the pacer sleeps on it; remembers each sleep (s)."""
 
-    rt, pipeline, _ = make_runtime((batch(i * 50_000, n=1) for i in range(5)), pace=True)
-    t0 = time.perf_counter()
+    def __init__(self):
+        self.now_ns = 0
+        self.slept: list[float] = []
+
+    def sleep(self, stop: threading.Event, seconds: float) -> bool:
+        self.slept.append(seconds)
+        self.now_ns += round(seconds * 1e9)
+        return stop.is_set()
+
+
+def test_pacing_follows_the_timestamps():
+    clock = ManualClock()
+    pacer = Pacer(clock=lambda: clock.now_ns, sleep=clock.sleep)
+    rt, pipeline, _ = make_runtime((batch(i * 50_000, n=1) for i in range(5)), pace=True, pacer=pacer)
     rt.run()
-    # 5 batches 50 ms apart in camera time cannot be through in less than 200 ms of wall time
-    assert time.perf_counter() - t0 >= 0.2
-    assert len(pipeline.seen) == 5
+    # 5 batches 50 ms apart in camera time: each waited for, 200 ms of the clock in all
+    assert clock.slept == pytest.approx([0.05] * 4)
+    assert clock.now_ns == 200_000_000
+    # the clock's sleeps take no wall time, so the worker may take the batches joined: all five
+    assert sum(pipeline.sizes) == 5 and pipeline.seen[-1] == 200_000
+
+
+def test_without_pacing_nothing_waits():
+    clock = ManualClock()
+    pacer = Pacer(clock=lambda: clock.now_ns, sleep=clock.sleep)
+    rt, pipeline, _ = make_runtime((batch(i * 50_000, n=1) for i in range(5)), pace=False, pacer=pacer)
+    rt.run()
+    assert clock.slept == [] and len(pipeline.seen) == 5
 
 
 def test_seconds_limits_the_camera_time_read():
