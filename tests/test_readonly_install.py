@@ -85,18 +85,10 @@ def assert_states(path: Path) -> None:
 
 def test_no_writable_folder_compiles_at_start_and_runs(tmp_path, sim_gel_short_recording):
     """Nothing writable but the output's folder: `run` starts, says so in one line, and works."""
+    recording = str(sim_gel_short_recording)
     out = tmp_path / "states.jsonl"
     result = run_read_only(
-        tmp_path,
-        "run",
-        "--source",
-        str(sim_gel_short_recording),
-        "--output",
-        "jsonl",
-        "--fast",
-        "--out",
-        str(out),
-        env={},
+        tmp_path, "run", "--source", recording, "--output", "jsonl", "--fast", "--out", str(out), env={}
     )
     assert_clean(result)
     assert result.stderr.count(MEMORY_LINE) == 1, result.stderr
@@ -107,11 +99,12 @@ def test_no_writable_folder_compiles_at_start_and_runs(tmp_path, sim_gel_short_r
 
 def test_runtime_dir_caches_track_and_run(tmp_path, sim_gel_short_recording):
     """With $XDG_RUNTIME_DIR writable, `track` compiles once into it, and `run` reuses that."""
+    recording = str(sim_gel_short_recording)
     runtime = tmp_path / "run-user"
     runtime.mkdir()
     env = {"XDG_RUNTIME_DIR": str(runtime)}
     predictions = tmp_path / "pred.jsonl"
-    track = run_read_only(tmp_path, "track", str(sim_gel_short_recording), "--out", str(predictions), env=env)
+    track = run_read_only(tmp_path, "track", recording, "--out", str(predictions), env=env)
     assert_clean(track)
     assert MEMORY_LINE not in track.stderr
     assert len(predictions.read_text().splitlines()) > 50
@@ -119,16 +112,7 @@ def test_runtime_dir_caches_track_and_run(tmp_path, sim_gel_short_recording):
     assert list(cache.rglob("*.nbi")), f"nothing cached in {cache}"
     states = tmp_path / "states.jsonl"
     run = run_read_only(
-        tmp_path,
-        "run",
-        "--source",
-        str(sim_gel_short_recording),
-        "--output",
-        "jsonl",
-        "--fast",
-        "--out",
-        str(states),
-        env=env,
+        tmp_path, "run", "--source", recording, "--output", "jsonl", "--fast", "--out", str(states), env=env
     )
     assert_clean(run)
     assert_states(states)
