@@ -22,6 +22,7 @@ def run_cli(
     *args: str,
     home: Path | None = None,
     env: dict[str, str] | None = None,
+    columns: int | None = None,
     cwd: Path | str | None = None,
     text: bool = True,
     stdout: int | None = subprocess.PIPE,
@@ -34,8 +35,10 @@ def run_cli(
         home: run as a new user would, in a bare environment: only PATH, HOME=``home``,
             XDG_CONFIG_HOME=``home``/config and COLUMNS=80, in ``home`` (unless ``cwd``).
             Without it, this process's environment (the test's tmp config folder,
-            tests/conftest.py) with COLUMNS=200 so that nothing is wrapped.
+            tests/conftest.py).
         env: variables set on top of either environment (None: unset it).
+        columns: COLUMNS, the width rich lays out to without a terminal (None: the
+            environment's).
         text: decode the output (str) or keep the bytes (to compare files exactly).
         timeout: seconds before the run counts as hung (a hang, not a slow machine).
     """
@@ -44,7 +47,9 @@ def run_cli(
         base["COLUMNS"] = "80"
         cwd = home if cwd is None else cwd
     else:
-        base = dict(os.environ, COLUMNS="200")
+        base = dict(os.environ)
+    if columns is not None:
+        base["COLUMNS"] = str(columns)
     return subprocess.run(
         [*CLI, *args],
         stdout=stdout,

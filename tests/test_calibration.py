@@ -178,14 +178,16 @@ def test_calibrate_command_writes_sensor_yaml_where_track_finds_it(shifted_datas
     shutil.copy(shifted_dataset / "u0_push.aedat4", recording)
 
     out = tmp_path / "out" / "sensor.yaml"
-    done = run_cli("calibrate", "--source", str(recording), "--out", str(out), "--no-mirror", "--rotation", "30")
+    done = run_cli(
+        "calibrate", "--source", str(recording), "--out", str(out), "--no-mirror", "--rotation", "30", columns=200
+    )
     assert done.returncode == 0, done.stderr
     written = SensorGeometry.load(out)
     assert_recovers(written, truth)
     assert (written.mirror, written.rotation_deg) == (False, 30.0)
     assert not user_sensor_path().exists()
 
-    done = run_cli("calibrate", "--source", str(recording))  # no terminal: the defaults, said so
+    done = run_cli("calibrate", "--source", str(recording), columns=200)  # no terminal: the defaults, said so
     assert done.returncode == 0, done.stderr
     assert "not asked" in done.stdout and str(user_sensor_path()) in done.stdout
     calibrated = find_sensor_file(recording)
@@ -193,14 +195,14 @@ def test_calibrate_command_writes_sensor_yaml_where_track_finds_it(shifted_datas
     assert_recovers(calibrated, truth)
     assert (calibrated.mirror, calibrated.rotation_deg) == (True, 0.0)
 
-    done = run_cli("calibrate", "--source", str(recording), "--rotation", "90")
+    done = run_cli("calibrate", "--source", str(recording), "--rotation", "90", columns=200)
     assert done.returncode == 0, done.stderr
     assert f"replacing {user_sensor_path()}" in done.stdout and "rotation_deg: 0.0 -> 90.0" in done.stdout
     assert find_sensor_file(recording).rotation_deg == 90.0
 
 
 def test_calibrate_command_refuses_a_scene_without_gel_in_one_line(any_street):
-    done = run_cli("calibrate", "--source", str(any_street.path))
+    done = run_cli("calibrate", "--source", str(any_street.path), columns=200)
     assert done.returncode == 2
     assert "no gel in view" in done.stderr and len(done.stderr.strip().splitlines()) == 1
     assert not user_sensor_path().exists()

@@ -297,7 +297,7 @@ def test_run_source_davis_without_camera_tells_what_to_do(tmp_path):
 
     if dv.io.camera.discover():
         pytest.skip(reason="a camera is plugged in: the no-camera error cannot occur")
-    proc = run_cli("run", "--source", "davis", "--output", "jsonl", env={"COLUMNS": "400"})
+    proc = run_cli("run", "--source", "davis", "--output", "jsonl", columns=400)
     assert proc.returncode == 2, proc.stderr
     assert proc.stdout == ""  # no state was written: nothing started
     error = " ".join(proc.stderr.split())

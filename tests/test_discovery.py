@@ -71,7 +71,7 @@ def test_explain_no_camera_here_says_plug_it_in_and_lsusb():
 
 
 def test_cli_devices_without_a_camera_says_so_and_exits_1():
-    proc = run_cli("devices")
+    proc = run_cli("devices", columns=200)
     assert proc.returncode == 1, proc.stdout + proc.stderr
     assert "no DAVIS-346 (USB 152a:841a) found" in proc.stdout and "lsusb -d 152a:841a" in proc.stdout
     assert "Traceback" not in proc.stderr
@@ -113,7 +113,10 @@ def test_permission_denied_without_rules_says_install_the_udev_rule():
         camera.problem
         == f"DAVIS-346 at bus 1 device 5 (/dev/bus/usb/001/005), serial 00000123 is not accessible ({reason})"
     )
-    assert camera.fix == f"install the udev rule: {RULES_INSTALL}; then unplug and replug the camera"
+    assert (
+        camera.fix
+        == f"install the udev rule (60-neurotouch.rules):\n{RULES_INSTALL}\nthen unplug and replug the camera"
+    )
     assert camera.serial == "00000123"  # dv-processing could not read it (empty): the USB string
 
 
@@ -210,7 +213,7 @@ def test_explain_not_accessible_gives_the_udev_rule():
     found = merge([usb_cam(access=UsbAccess.DENIED, reason="permission denied")], [])
     assert explain(found) == (
         f"DAVIS-346 at bus 1 device 5 (/dev/bus/usb/001/005), serial 00000123 is not "
-        f"accessible (permission denied): install the udev rule: {RULES_INSTALL}; then "
+        f"accessible (permission denied)\ninstall the udev rule (60-neurotouch.rules):\n{RULES_INSTALL}\nthen "
         f"unplug and replug the camera"
     )
 

@@ -27,7 +27,7 @@ ENV = dict(os.environ, COLUMNS="200")
 
 def test_record_sim_writes_exactly_what_the_source_gave(tmp_path):
     out = tmp_path / "sim.aedat4"
-    proc = run_cli("record", str(out), "--source", "sim", "--seconds", "1.5", "--fast", "--seed", "3")
+    proc = run_cli("record", str(out), "--source", "sim", "--seconds", "1.5", "--fast", "--seed", "3", columns=200)
     assert proc.returncode == 0, proc.stderr
     items = list(SimulatedSource(seed=3).stream(seconds=1.5))
     want_events = np.concatenate([i for i in items if not isinstance(i, Frame)])
@@ -106,7 +106,7 @@ def test_a_lost_camera_ends_the_recording_but_keeps_the_file_whole(any_street, t
     ],
 )
 def test_bad_options_say_what_is_expected(tmp_path, args, message):
-    proc = run_cli("record", str(tmp_path / "x.aedat4"), *args)
+    proc = run_cli("record", str(tmp_path / "x.aedat4"), *args, columns=200)
     assert proc.returncode == 2 and message in proc.stderr, proc.stderr
     assert not (tmp_path / "x.aedat4").exists()
 
@@ -114,9 +114,9 @@ def test_bad_options_say_what_is_expected(tmp_path, args, message):
 def test_an_existing_file_is_kept_unless_forced(tmp_path):
     out = tmp_path / "keep.aedat4"
     out.write_bytes(b"precious")
-    proc = run_cli("record", str(out), "--source", "sim", "--seconds", "0.2", "--fast")
+    proc = run_cli("record", str(out), "--source", "sim", "--seconds", "0.2", "--fast", columns=200)
     assert proc.returncode == 2 and "--force" in proc.stderr
     assert out.read_bytes() == b"precious"
-    proc = run_cli("record", str(out), "--source", "sim", "--seconds", "0.2", "--fast", "--force")
+    proc = run_cli("record", str(out), "--source", "sim", "--seconds", "0.2", "--fast", "--force", columns=200)
     assert proc.returncode == 0, proc.stderr
     assert read_info(out).n_frames == 5

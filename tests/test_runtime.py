@@ -319,7 +319,9 @@ def is_neutral(line: dict) -> bool:
 
 def test_run_on_a_recording_moves_the_stick_during_the_push_and_ends_neutral(sim_push_only_recording, tmp_path):
     out = tmp_path / "states.jsonl"
-    proc = run_cli("run", "--source", str(sim_push_only_recording), "--output", "jsonl", "--fast", "--out", str(out))
+    proc = run_cli(
+        "run", "--source", str(sim_push_only_recording), "--output", "jsonl", "--fast", "--out", str(out), columns=160
+    )
     assert proc.returncode == 0, proc.stderr
     states = read_states(out.read_text())
     pushes = [s for s in states if s["gesture"] == "push"]
@@ -360,7 +362,7 @@ def test_sigterm_ends_a_live_run_with_a_neutral_state_and_exit_0():
 def test_demo_without_uinput_shows_the_terminal_view_and_says_why(tmp_path):
     if os.access("/dev/uinput", os.W_OK):
         pytest.skip(reason="/dev/uinput is writable here: the demo uses the real gamepad")
-    proc = run_cli("demo", "--seconds", "3")
+    proc = run_cli("demo", "--seconds", "3", columns=160)
     assert proc.returncode == 0, proc.stderr
     assert "no writable /dev/uinput (" in proc.stderr
     assert "showing the gamepad in the terminal instead; see `neurotouch-hid doctor`" in proc.stderr
