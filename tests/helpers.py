@@ -1,9 +1,11 @@
 """What many test modules share that is not a fixture: the one way to run the CLI in a fresh
-process (:func:`run_cli`), and waiting for what a test waits on (:func:`wait_until`). Fixtures
-(the simulated recordings, the real street recording) are in tests/conftest.py."""
+process (:func:`run_cli`), reading its JSON-lines states (:func:`read_states`), and waiting for
+what a test waits on (:func:`wait_until`). Fixtures (the simulated recordings, the real street
+recording) are in tests/conftest.py."""
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -72,3 +74,8 @@ def wait_until(condition, timeout_s: float = 60.0) -> bool:
             return True
         time.sleep(0.01)
     return False
+
+
+def read_states(text: str) -> list[dict]:
+    """The controller states of ``run --output jsonl`` (one JSON object a line)."""
+    return [json.loads(line) for line in text.splitlines() if line.strip()]

@@ -8,7 +8,7 @@ import threading
 
 import numpy as np
 import pytest
-from helpers import run_cli, wait_until
+from helpers import read_states, run_cli, wait_until
 from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, endless, writes_of
 
 from neurotouch_hid.control import ControlServer, request_use, socket_path
@@ -122,8 +122,6 @@ def wait_for_socket(timeout_s: float = 5.0) -> bool:
 def test_mouse_profile_run_writes_every_motion_and_ends_neutral(tmp_path, runtime_dir):
     """``run --profile mouse --output jsonl`` on a push: one line per window with motion, the
     pointer moving right and up, the last line neutral with no motion."""
-    from test_runtime import read_states
-
     from neurotouch_hid.dataset import write_predictions
     from neurotouch_hid.driver import run_driver
 

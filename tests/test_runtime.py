@@ -9,7 +9,7 @@ import threading
 
 import numpy as np
 import pytest
-from helpers import run_cli
+from helpers import read_states, run_cli
 from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, batch, endless, once, writes_of
 
 from neurotouch_hid.controller import ControllerState
@@ -305,10 +305,6 @@ import sys  # noqa: E402
 
 CLI = [sys.executable, "-c", "from neurotouch_hid.cli import main; main()"]
 ENV = dict(os.environ, PYTHONUNBUFFERED="1", COLUMNS="160")
-
-
-def read_states(text: str) -> list[dict]:
-    return [json.loads(line) for line in text.splitlines() if line.strip()]
 
 
 def is_neutral(line: dict) -> bool:
