@@ -4,7 +4,6 @@ and the simulator's background-activity rate (``simulate --noise-hz``)."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,7 +21,6 @@ from neurotouch_hid.sources.dv import events_from_store, store_from_events
 from neurotouch_hid.sources.recording import RecordingReader, read_info, split_batches
 from neurotouch_hid.sources.simulator import START_US, GelSimulator, SimGesture
 
-STREET = Path("/work/shared/data/davis346-street/recording.aedat4")
 SENSOR = SensorGeometry()
 W, H = SENSOR.width, SENSOR.height
 PUSH_START_US = START_US + 200_000
@@ -192,10 +190,8 @@ def _numba_ba(events: np.ndarray, time_us: int, batch_us: int, width: int = W, h
 
 
 @pytest.mark.parametrize("time_us, batch_us", [(2000, 1000), (20_000, 1000), (20_000, 10_000), (500, 10_000)])
-def test_numba_filter_keeps_exactly_what_dv_processing_keeps_on_the_real_street_recording(time_us, batch_us):
-    if not STREET.exists():
-        pytest.skip(reason=f"the real DAVIS-346 street recording is not here ({STREET})")
-    with RecordingReader(STREET) as reader:
+def test_numba_filter_keeps_exactly_what_dv_processing_keeps_on_a_street_recording(any_street, time_us, batch_us):
+    with RecordingReader(any_street.path) as reader:
         events, _ = reader.read_all()
     library = _library_ba(events, time_us, batch_us)
     assert 0 < len(library) < len(events)  # the filter decides something on real sensor noise

@@ -10,6 +10,7 @@ import warnings
 
 import numpy as np
 import pytest
+from helpers import run_cli
 
 from neurotouch_hid.dataset import read_predictions, write_predictions
 from neurotouch_hid.errors import DatasetError, SensorError
@@ -272,13 +273,9 @@ def test_bad_prediction_lines_name_file_and_line(tmp_path, line, message):
 
 # --- end to end on a simulated recording ------------------------------------------------------
 @pytest.fixture(scope="module")
-def push_dataset(tmp_path_factory):
-    """A quick simulated push sequence (sources/simulator.py): AEDAT4 + labels + true markers."""
-    from neurotouch_hid.sources.simulator import write_dataset
-
-    folder = write_dataset(tmp_path_factory.mktemp("sim") / "ds", preset="quick", gestures=["push"], progress=False)
-    (recording,) = sorted(folder.glob("*.aedat4"))
-    return recording
+def push_dataset(sim_push_recording):
+    """A quick simulated push sequence (tests/conftest.py): AEDAT4 + labels + true markers."""
+    return sim_push_recording
 
 
 @pytest.fixture(scope="module")
@@ -367,31 +364,15 @@ def test_windows_whose_markers_did_not_move_reuse_the_fit_with_identical_estimat
     assert 0 < len(fitted) < fresh.fits  # some windows had the same markers as the one before
 
 
-def _cli(*args: str):
-    import subprocess
-    import sys
-
-    return subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", *args], capture_output=True, text=True, timeout=300
-    )
-
-
-STREET = "/work/shared/data/davis346-street/recording.aedat4"
-
-
-def test_track_on_a_street_recording_says_no_gel_and_exits_2(tmp_path):
-    import os
-
-    if not os.path.exists(STREET):
-        pytest.skip(reason="the shared real DAVIS-346 street recording is not on this machine")
-    done = _cli("track", STREET, "--out", str(tmp_path / "p.jsonl"))
+def test_track_on_a_street_recording_says_no_gel_and_exits_2(any_street, tmp_path):
+    done = run_cli("track", str(any_street.path), "--out", str(tmp_path / "p.jsonl"))
     assert done.returncode == 2
     assert "no gel found" in done.stderr and "Traceback" not in done.stderr
     assert not (tmp_path / "p.jsonl").exists()
 
 
 def test_track_command_writes_predictions_and_markers(push_dataset, push_tracked, tmp_path):
-    done = _cli(
+    done = run_cli(
         "track",
         str(push_dataset),
         "--out",

@@ -61,20 +61,7 @@ def test_write_report_writes_figures_and_summary_embedding_them(result, tmp_path
 
 
 # --- `neurotouch-hid eval` end to end on a tiny simulated dataset ----------------------------
-@pytest.fixture(scope="module")
-def quick_dataset(tmp_path_factory):
-    simulator = pytest.importorskip("neurotouch_hid.sources.simulator", reason="needs the gel simulator")
-    return simulator.write_dataset(
-        tmp_path_factory.mktemp("quick"),
-        preset="quick",
-        seed=3,
-        progress=False,
-        gestures=["push", "zoom"],
-        minutes=0.05,
-    )
-
-
-def test_eval_command_writes_report_json_and_predictions(quick_dataset, tmp_path):
+def test_eval_command_writes_report_json_and_predictions(sim_quick_dataset, tmp_path):
     from typer.testing import CliRunner
 
     from neurotouch_hid.cli import app
@@ -86,7 +73,7 @@ def test_eval_command_writes_report_json_and_predictions(quick_dataset, tmp_path
         app,
         [
             "eval",
-            str(quick_dataset),
+            str(sim_quick_dataset),
             "--report",
             str(tmp_path / "report"),
             "--json",
@@ -108,7 +95,7 @@ def test_eval_command_writes_report_json_and_predictions(quick_dataset, tmp_path
     for name in FIGURES:
         assert (tmp_path / "report" / name).stat().st_size > 0
     assert (tmp_path / "report" / "summary.md").exists()
-    for seq in list_sequences(quick_dataset):
+    for seq in list_sequences(sim_quick_dataset):
         lines = (tmp_path / "pred" / f"{seq}.jsonl").read_text().splitlines()
         assert lines and {"t_us", "gesture", "resting", "intensity_mm", "contacts_px"} <= json.loads(lines[0]).keys()
 
