@@ -200,14 +200,16 @@ class LiveCamera:
         self._stack.close()
 
     def rest_frames(self, n: int) -> list[Frame]:
-        """Up to ``n`` frames within the first ``wait_s`` s of the camera's clock."""
+        """Up to ``n`` APS frames within the first ``wait_s`` s of the camera's clock (its
+        frames' and events' timestamps; a camera that sends nothing raises DeviceError, stalled)."""
         frames: list[Frame] = []
         start = None
         for item in self._items:
+            t_us = stream_time_us(item)
+            start = t_us if start is None else start
+            if t_us is not None and t_us - start > self._wait_s * 1e6:
+                break
             if isinstance(item, Frame):
-                start = item.t_us if start is None else start
-                if item.t_us - start > self._wait_s * 1e6:
-                    break
                 frames.append(item)
                 if len(frames) == n:
                     break
@@ -290,34 +292,38 @@ class Watcher:
 
         self._items = items
         self._pipeline = GesturePipeline(sensor)
-        self._t_us: int | None = None
-        self._estimates = self._run()
-
-    def _run(self) -> Iterator[GestureEstimate]:
-        for item in self._items:
-            if isinstance(item, Frame):
-                self._t_us = item.t_us
-            yield from self._pipeline.process(item)
 
     def watch(self) -> list[GestureEstimate]:
         """The windows of the next gesture: from its first window read as a gesture to its
-        release (:data:`RELEASE_S` without one), within :data:`STEP_S` of being called (stream
-        time); [] when none started in time."""
-        start = self._t_us
+        release (:data:`RELEASE_S` without one), or what there is of it when :data:`STEP_S` of
+        stream time (frames' and events' timestamps) have passed; [] when none started."""
+        start = None
         episode: list[GestureEstimate] = []
-        last_moving = None
-        for estimate in self._estimates:
-            start = estimate.t_us if start is None else start
-            if estimate.gesture is not GestureType.NONE:
-                episode.append(estimate)
-                last_moving = estimate.t_us
-            elif episode:
-                episode.append(estimate)
-                if estimate.t_us - last_moving >= RELEASE_S * 1e6:
-                    return episode
-            if estimate.t_us - start > STEP_S * 1e6:
+        last_moving = 0
+        for item in self._items:
+            t_us = stream_time_us(item)
+            start = t_us if start is None else start
+            for estimate in self._pipeline.process(item):
+                if estimate.gesture is not GestureType.NONE:
+                    episode.append(estimate)
+                    last_moving = estimate.t_us
+                elif episode:
+                    episode.append(estimate)
+                    if estimate.t_us - last_moving >= RELEASE_S * 1e6:
+                        return episode
+            if start is not None and t_us is not None and t_us - start > STEP_S * 1e6:
                 break
         return episode
+
+
+def stream_time_us(item: StreamItem) -> int | None:
+    """The camera time of a stream item (us): a frame's, an event batch's last event's; None for
+    an empty batch or a status."""
+    if isinstance(item, Frame):
+        return int(item.t_us)
+    if isinstance(item, np.ndarray) and len(item):
+        return int(item["timestamp"][-1])
+    return None
 
 
 def _angle_between(a: np.ndarray, b: np.ndarray) -> float:
