@@ -178,21 +178,27 @@ class LiveCamera:
     """The live DAVIS-346, with a person who performs the gestures (a context manager: the camera
     stays open from the rest frames to the end of the check).
 
+    Args:
+        wait_s: how long to wait for the rest frames (s of the camera's clock).
+        backend: the capture backend of :class:`~neurotouch_hid.sources.davis.DavisSource`
+            (None: dv-processing's cameras).
+
     Raises:
         DeviceError: no camera (on entering).
     """
 
     by_hand = True
 
-    def __init__(self, wait_s: float) -> None:
+    def __init__(self, wait_s: float, backend: object = None) -> None:
         self._wait_s = wait_s
+        self._backend = backend
         self._stack = contextlib.ExitStack()
         self._items: Iterator[StreamItem] | None = None
 
     def __enter__(self) -> "LiveCamera":
         from neurotouch_hid.sources.davis import DavisSource
 
-        camera = self._stack.enter_context(DavisSource())
+        camera = self._stack.enter_context(DavisSource(backend=self._backend))
         self._items = self._stack.enter_context(contextlib.closing(camera.stream()))
         return self
 

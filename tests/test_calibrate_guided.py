@@ -169,3 +169,35 @@ def test_steps_ask_for_what_they_check():
             assert ways[step.direction] in step.prompt
         else:
             assert step.gesture.value.split("_")[0] in step.prompt
+
+
+def test_a_person_at_the_camera_is_guided_by_prompts_alone(tmp_path):
+    """The live camera's path (the real DavisSource, its capture backend replaying a recording in
+    wall time, ``tests/camera_replay.py``): a person at a camera mounted unmirrored and turned
+    90 degrees pushes up, then right, as asked; nothing is typed and the mounting is found."""
+    from camera_replay import ReplayWorld
+
+    from neurotouch_hid.calibration_guide import LiveCamera
+    from neurotouch_hid.sources.recording import RecordingWriter
+    from neurotouch_hid.sources.simulator import GelSimulator, guided_gesture
+
+    camera = SensorGeometry(mirror=False, rotation_deg=90.0)
+    sim = GelSimulator(camera, script=())
+    start = sim.t_us + 800_000
+    for step in CALIBRATION_PUSHES:  # the person's pushes, each after the previous one settled
+        push = guided_gesture(step.gesture, start, step.direction)
+        sim.perform(push)
+        start = push.t_settled_us + 300_000
+    recording = tmp_path / "person.aedat4"
+    with RecordingWriter(recording, width=camera.width, height=camera.height) as writer:
+        while sim.t_us < start + 500_000:
+            chunk = sim.step()
+            writer.write_frame(chunk.frame)
+            writer.write_events(chunk.events)
+
+    said: list[str] = []
+    with LiveCamera(calibration.CAMERA_WAIT_S, backend=ReplayWorld(recording)) as source:
+        rest = calibration.calibrate(source.rest_frames(calibration.REST_FRAMES)).sensor
+        mirror, rotation = measure_orientation(source, source.stream(), rest, said.append)
+    assert mirror is False and turn_difference(rotation, 90.0) < 3.0
+    assert not any("simulated hand" in line for line in said)  # the prompts are for the person
