@@ -201,3 +201,33 @@ def test_a_person_at_the_camera_is_guided_by_prompts_alone(tmp_path):
         mirror, rotation = measure_orientation(source, source.stream(), rest, said.append)
     assert mirror is False and turn_difference(rotation, 90.0) < 3.0
     assert not any("simulated hand" in line for line in said)  # the prompts are for the person
+
+
+def test_a_recording_on_a_terminal_is_calibrated_without_a_question_it_cannot_answer(tmp_path):
+    """On a terminal, a recording (which cannot be pushed) used to be met with "Rotation from the
+    mirrored image to your view"; now it takes the defaults and says how to measure them."""
+    from neurotouch_hid.sources.recording import RecordingWriter
+    from neurotouch_hid.sources.simulator import GelSimulator
+
+    sim = GelSimulator(SensorGeometry(), script=())
+    recording = tmp_path / "rest.aedat4"
+    with RecordingWriter(recording) as writer:
+        for _ in range(15):
+            chunk = sim.step()
+            writer.write_frame(chunk.frame)
+            writer.write_events(chunk.events)
+    terminal, keyboard = os.openpty()  # stdin is a terminal nobody types on
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "neurotouch_hid.cli", "calibrate", "--source", str(recording)],
+            capture_output=True,
+            text=True,
+            stdin=keyboard,
+            timeout=120,  # a question nobody answers ends here
+        )
+    finally:
+        os.close(terminal)
+        os.close(keyboard)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "Rotation from" not in done.stdout and "?" not in done.stdout
+    assert "calibrate with the camera to measure them" in done.stdout
