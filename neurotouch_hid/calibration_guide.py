@@ -344,9 +344,9 @@ def push_problem(attempt: Attempt) -> str | None:
     if attempt.peak_mm < MIN_INTENSITY_MM:
         return f"the push moved the gel only {attempt.peak_mm:.1f} mm: push harder, about 3-4 mm"
     if attempt.gesture is not GestureType.PUSH or attempt.share < PUSH_SHARE:
-        read = ", ".join(f"{_NAMES.get(g, g.value)} {n}" for g, n in attempt.seen)
+        read = ", ".join(f"{_NAMES[g]} {n}" for g, n in attempt.seen)
         return (
-            f"that was read as {_NAMES.get(attempt.gesture)} (windows: {read}): "
+            f"that was read as {_NAMES[attempt.gesture]} (windows: {read}): "
             "push with one finger, sliding it, not turning"
         )
     if float(np.hypot(*attempt.translation_mm)) < MIN_PUSH_MM:
@@ -432,12 +432,15 @@ class CheckResult:
     Attributes:
         step: what was asked; attempt: what the pipeline saw; right: whether it came out right;
         fix: what to do when not ("" when right).
+        again: the gesture was not done as asked (too weak, another gesture): worth asking again,
+            unlike a gesture read turned or the other way round (the calibration's fault).
     """
 
     step: Step
     attempt: Attempt
     right: bool
     fix: str
+    again: bool = False
 
     def line(self) -> str:
         """One line for the user: the gesture, right or wrong, what was read, what to do."""
@@ -463,10 +466,12 @@ def judge(step: Step, attempt: Attempt) -> CheckResult:
     gesture ``step`` asked for, and what to do when it is not."""
     recalibrate = "calibrate again and push exactly the ways asked"
     if not attempt.seen or attempt.peak_mm < MIN_INTENSITY_MM:
-        return CheckResult(step, attempt, False, "too weak or not seen: do it again more firmly (3-4 mm)")
+        return CheckResult(step, attempt, False, "too weak or not seen: do it more firmly (3-4 mm)", again=True)
     if step.gesture is GestureType.PUSH:
         if attempt.gesture is not GestureType.PUSH:
-            return CheckResult(step, attempt, False, "push with one finger, sliding it, not turning or spreading")
+            return CheckResult(
+                step, attempt, False, "push with one finger, sliding it, not turning or spreading", again=True
+            )
         off = _angle_between(np.asarray(step.direction), attempt.translation_mm)
         if abs(off) <= CHECK_PUSH_DEG:
             return CheckResult(step, attempt, True, "")
@@ -477,8 +482,8 @@ def judge(step: Step, attempt: Attempt) -> CheckResult:
     if step.gesture in twists and attempt.gesture in twists:
         return CheckResult(step, attempt, False, f"read the other way round, the mirror is wrong: {recalibrate}")
     if {step.gesture, attempt.gesture} == {GestureType.PINCH, GestureType.ZOOM}:
-        return CheckResult(step, attempt, False, "pinch closes the fingers, zoom opens them: do it again")
-    return CheckResult(step, attempt, False, f"do {step.name} again: {step.prompt}")
+        return CheckResult(step, attempt, False, "pinch closes the fingers, zoom opens them", again=True)
+    return CheckResult(step, attempt, False, step.prompt, again=True)
 
 
 def guided_check(
@@ -489,14 +494,18 @@ def guided_check(
     steps: Sequence[Step] = CHECK_STEPS,
 ) -> list[CheckResult]:
     """Ask for each of ``steps`` and judge what a pipeline with ``sensor`` reads (:func:`judge`),
-    saying each result as it comes. Returns the results in the order asked."""
+    saying each result as it comes; a gesture not done as asked (``CheckResult.again``) is asked
+    once more. Returns the last result of each step, in the order asked."""
     watcher = Watcher(items, sensor)
     results = []
     for step in steps:
-        say(f"{step.prompt}{'' if source.by_hand else ' (the simulated hand does it)'}")
-        source.perform(step)
-        result = judge(step, summarise(watcher.watch()))
-        say(f"  {result.line()}")
+        for attempt_no in range(2):
+            say(f"{step.prompt}{'' if source.by_hand else ' (the simulated hand does it)'}")
+            source.perform(step)
+            result = judge(step, summarise(watcher.watch()))
+            say(f"  {result.line()}" + ("; again:" if result.again and attempt_no == 0 else ""))
+            if not result.again:
+                break
         results.append(result)
     return results
 

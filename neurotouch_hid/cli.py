@@ -698,7 +698,14 @@ def calibrate(
                 say(f"what to do: {advice}")
     for note in result.notes:
         say(f"note: {note}")
+    checked_wrong = any(not r.right for r in results)  # exit 1, after writing
 
+    if source == SourceKind.SIM and out is None:
+        say(
+            "nothing written: a simulated camera's calibration does not replace your sensor's in your config "
+            "folder (--out FILE to keep it)"
+        )
+        sys.exit(1 if checked_wrong else 0)
     path = user_sensor_path() if out is None else (out / "sensor.yaml" if out.is_dir() else out)
     if press is not None:
         share, time_s = calibration.measure_creep(press, geometry)
@@ -738,7 +745,7 @@ def calibrate(
         )
     else:
         say(f"use it with --sensor {path}, or calibrate without --out to make it your default")
-    if any(not r.right for r in results):
+    if checked_wrong:
         sys.exit(1)
 
 

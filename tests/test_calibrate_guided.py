@@ -29,7 +29,7 @@ from neurotouch_hid.calibration_guide import (
 )
 from neurotouch_hid.errors import SensorError
 from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.sensor import SensorGeometry, user_sensor_path
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:
@@ -129,13 +129,11 @@ def test_calibrate_source_sim_measures_a_turned_mirrored_camera_and_checks_every
     assert all(len(line) > 80 for line in lines if line.startswith("push the gel towards the top"))  # not wrapped
 
 
-def test_a_wrong_calibration_is_caught_by_the_check_with_the_flags_to_give(tmp_path):
+def test_a_wrong_calibration_is_caught_by_the_check_with_the_flags_to_give():
     """The camera mirrored and turned 90 degrees, the calibration told neither: every push and
-    both twists come out wrong, the exit code says so, and the pushes name the right flags."""
-    out = tmp_path / "sensor.yaml"
-    done = run_cli(
-        "calibrate", "--source", "sim", "--sim-rotation", "90", "--no-mirror", "--rotation", "0", "--out", str(out)
-    )
+    both twists come out wrong, the exit code says so, and the pushes name the right flags. A
+    simulated camera's calibration never replaces the user's own without --out."""
+    done = run_cli("calibrate", "--source", "sim", "--sim-rotation", "90", "--no-mirror", "--rotation", "0")
     assert done.returncode == 1, done.stdout + done.stderr
     lines = [line.strip() for line in done.stdout.splitlines()]
     wrong = {line.split(":")[0] for line in lines if ": WRONG: " in line}
@@ -143,7 +141,8 @@ def test_a_wrong_calibration_is_caught_by_the_check_with_the_flags_to_give(tmp_p
     assert any("twist clockwise: WRONG: read as a counter-clockwise twist" in line for line in lines)
     advice = [line for line in lines if line.startswith("what to do:")]
     assert len(advice) == 1 and advice[0].endswith("or give --mirror --rotation 90"), advice
-    assert SensorGeometry.load(out).mirror is False  # written as told
+    assert "nothing written: a simulated camera's calibration does not replace your sensor's" in done.stdout
+    assert not user_sensor_path().exists()
 
 
 def test_half_the_orientation_flags_is_one_clear_line():
@@ -231,3 +230,13 @@ def test_a_recording_on_a_terminal_is_calibrated_without_a_question_it_cannot_an
     assert done.returncode == 0, done.stdout + done.stderr
     assert "Rotation from" not in done.stdout and "?" not in done.stdout
     assert "calibrate with the camera to measure them" in done.stdout
+
+
+def test_a_check_gesture_done_too_weakly_is_asked_again_not_blamed_on_the_calibration():
+    source, rest, said = started(SensorGeometry(mirror=True, rotation_deg=0.0), push_mm=[0.3])
+    push_up = [s for s in CHECK_STEPS if s.name == "push up"]
+    results = guided_check(source, source.stream(), rest, said.append, push_up)
+    assert len(results) == 1 and results[0].right
+    first, second = [line for line in said if line.strip().startswith("push up:")]
+    assert "WRONG" in first and "do it more firmly" in first and first.endswith("again:")
+    assert "push up: right" in second
