@@ -240,3 +240,26 @@ def test_a_check_gesture_done_too_weakly_is_asked_again_not_blamed_on_the_calibr
     first, second = [line for line in said if line.strip().startswith("push up:")]
     assert "WRONG" in first and "do it more firmly" in first and first.endswith("again:")
     assert "push up: right" in second
+
+
+@pytest.mark.parametrize(("mirror", "rotation"), [(True, 90.0), (False, -45.0), (True, 180.0)])
+def test_the_checks_pushes_name_the_flags_that_would_make_them_right(mirror, rotation):
+    """Pushes as a camera mounted (mirror, rotation) shows them, read with the default calibration
+    (mirror, 0 degrees): the advice names that mounting. The reads are made with the sensor's own
+    conversions."""
+    from neurotouch_hid.calibration_guide import Attempt, check_advice, judge
+
+    truth = SensorGeometry(mirror=mirror, rotation_deg=rotation)
+    told = SensorGeometry()
+    results = []
+    for step in CHECK_STEPS:
+        if step.gesture is GestureType.PUSH:
+            read = told.vectors_image_to_user(truth.vectors_user_to_image(np.array(step.direction) * 2.5))
+            attempt = Attempt(((GestureType.PUSH, 50),), 4.0, read, 2.0, 0.0)
+        else:
+            attempt = Attempt(((step.gesture, 50),), 2.5, np.zeros(2), 0.0, 0.0)
+        results.append(judge(step, attempt))
+    advice = check_advice(results, told)
+    flag = "--mirror" if mirror else "--no-mirror"
+    assert advice is not None and advice.endswith(f"or give {flag} --rotation {rotation:g}"), advice
+    assert check_advice([judge(r.step, r.attempt) for r in results if r.right], told) is None
