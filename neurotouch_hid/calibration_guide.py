@@ -154,9 +154,11 @@ class SimulatedHand:
         self._push_mm = list(push_mm or ())
 
     def rest_frames(self, n: int) -> list[Frame]:
+        """The next ``n`` simulated APS frames, uint8 (260, 346), the gel at rest."""
         return [self._sim.step().frame for _ in range(n)]
 
     def stream(self) -> Iterator[StreamItem]:
+        """Endless: each frame period's APS frame, then its events in 1 ms EVENT_DTYPE batches."""
         from neurotouch_hid.sources.recording import split_batches
 
         for chunk in self._sim.run():
@@ -164,6 +166,7 @@ class SimulatedHand:
             yield from split_batches(chunk.events, 1000)
 
     def perform(self, step: Step) -> None:
+        """Start ``step`` SIM_REACTION_US after the simulator's time (or the last gesture's settling)."""
         from neurotouch_hid.sources.simulator import guided_gesture
 
         start = max(self._sim.t_us, self._free_us) + SIM_REACTION_US

@@ -652,6 +652,11 @@ def calibrate(
             "--mirror/--no-mirror and --rotation go together with the camera or simulator (both instead of the "
             "guided pushes): give both or neither"
         )
+    if source in (SourceKind.DAVIS, SourceKind.SIM):
+        from neurotouch_hid.driver import compile_pipeline
+
+        err_console.print("loading the gesture pipeline (compiled on the first run only)", highlight=False)
+        compile_pipeline()  # before the camera opens: nothing of the guided gestures waits for it
     with contextlib.ExitStack() as stack:
         guide: Optional[calibration_guide.GuidedSource] = None
         if source == SourceKind.SIM:
