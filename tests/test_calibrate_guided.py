@@ -263,3 +263,14 @@ def test_the_checks_pushes_name_the_flags_that_would_make_them_right(mirror, rot
     flag = "--mirror" if mirror else "--no-mirror"
     assert advice is not None and advice.endswith(f"or give {flag} --rotation {rotation:g}"), advice
     assert check_advice([judge(r.step, r.attempt) for r in results if r.right], told) is None
+
+
+def test_troubleshooting_lists_what_calibrate_says():
+    from pathlib import Path
+
+    from neurotouch_hid.calibration_guide import Attempt, push_problem
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "troubleshooting.md").read_text()
+    weak = push_problem(Attempt(((GestureType.PUSH, 40),), 0.4, np.array([0.3, 0.0]), 1.0, 0.0))
+    assert weak is not None and weak.split(" 0.4 mm")[0] in text
+    assert "no usable push up in 3 tries" in text and "what to do:" in text
