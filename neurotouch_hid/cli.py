@@ -95,7 +95,7 @@ def long_lived_start_up() -> Iterator[None]:
     for ``track``) lives as long as the process. The garbage collector is off meanwhile and
     those objects are frozen at the end (``gc.freeze``), so that none of its passes walks them
     again: its full passes over them were ~0.5 s of CPU of a 40 s ``track`` (docs/performance.md,
-    "track at 20x real time"). Cyclic garbage made inside is never freed: keep the block to
+    "track"). Cyclic garbage made inside is never freed: keep the block to
     imports and set-up."""
     enabled = gc.isenabled()
     gc.disable()
@@ -236,7 +236,11 @@ def record(
 def simulate(
     out: Path = typer.Option(..., "--out", help="dataset folder to write (docs/dataset.md)"),
     preset: str = typer.Option(
-        "quick", "--preset", help="quick (small, for tests) or paper (5 users x 5 gestures x ~1 min)"
+        "quick",
+        "--preset",
+        help="quick (small, for tests), paper (5 users x 5 gestures x ~1 min) or sessions (5 users x a 10 s game "
+        "session: the type changes from one gesture to the next; taps from 0.25 s, ordinary gestures, holds of "
+        "several seconds, rests of a fraction of a second)",
     ),
     seed: int = typer.Option(0, "--seed", min=0, help="random seed: the same seed gives the same files"),
     minutes: Optional[float] = typer.Option(
@@ -331,16 +335,24 @@ def eval_cmd(
         [],
         "--set",
         help="pipeline hyperparameter NAME=VALUE, repeatable: a field of the method's config; default: "
-        "window_us, noise_filter, noise_filter_us (us), contacts.*, gesture.*, resting.* (*_mm in mm on the gel, "
-        "*_mm2 in mm^2), tracker.* (px at 2.5 px/mm, scaled to sensor.yaml's); paper: its fields in px",
+        "window_us (us), noise.kind, noise.time_us (us), tracker.*, contacts.*, gesture.*, resting.* (*_mm in "
+        "mm on the gel, *_mm2 in mm^2, *_um2 in um^2, *_us in us), converted with sensor.yaml's px/mm; paper: its "
+        "fields in px, tracker.* as the default's",
     ),
     method: str = typer.Option("default", "--method", "--preset", help=METHOD_HELP + "; --set applies over it"),
     jobs: int = typer.Option(1, "--jobs", min=1, help="sequences run in parallel processes"),
     predictions: Optional[Path] = typer.Option(
         None, "--predictions", help="keep each sequence's predictions here (JSON lines)"
     ),
+    deadzone_mm: float = typer.Option(
+        0.8,
+        "--deadzone-mm",
+        min=0.0,
+        help="dead zone of the per-gesture metrics (mm; default: the default profile's), docs/dataset.md",
+        callback=_finite,
+    ),
 ) -> None:
-    """Run the pipeline over a labelled dataset and print the paper's metrics."""
+    """Run the pipeline over a labelled dataset; print the paper's metrics and the per-gesture ones."""
     import json
     import shlex
 
@@ -358,7 +370,9 @@ def eval_cmd(
         TimeRemainingColumn(),
     )
     with Progress(*columns, console=err_console, transient=True) as progress:
-        result = evaluate_dataset(dataset, config, jobs=jobs, predictions_dir=predictions, progress=progress)
+        result = evaluate_dataset(
+            dataset, config, jobs=jobs, predictions_dir=predictions, progress=progress, deadzone_mm=deadzone_mm
+        )
     print_tables(result, console)
     argv = (
         ["eval", str(dataset)]
@@ -369,6 +383,7 @@ def eval_cmd(
             for flag, value in (
                 ("--window-us", window_us),
                 ("--jobs", jobs if jobs > 1 else None),
+                ("--deadzone-mm", deadzone_mm if deadzone_mm != 0.8 else None),
                 ("--report", report),
                 ("--json", json_out),
             )

@@ -608,6 +608,7 @@ def test_pixel_settings_follow_px_per_mm_on_a_closer_camera():
     would be 6 mm, whose neighbourhood never holds n_min markers; following px_per_mm, r is
     40 px = 10 mm on the gel again, and a clear push is found."""
     from neurotouch_hid.pipeline.config import scaled_to_sensor
+    from neurotouch_hid.pipeline.tracker import BlobTracker
 
     sensor = SensorGeometry(px_per_mm=4.0, gel_radius_px=120.0)
     c = np.asarray(sensor.gel_center_px)
@@ -630,6 +631,9 @@ def test_pixel_settings_follow_px_per_mm_on_a_closer_camera():
     assert estimate.gesture is GestureType.PUSH and estimate.n_contacts == 1
     assert scaled_to_sensor(PipelineConfig(), sensor).r_px == pytest.approx(25.0 * 4.0 / 2.5)
     assert scaled_to_sensor(PipelineConfig(), SENSOR).r_px == 25.0  # 10 mm at 2.5 px/mm
+    # the tracker's gates follow it too: 1.6 mm association radius = 6.4 px here, 4 px at 2.5
+    assert pipeline.tracker.pixels.assoc_px == pytest.approx(1.6 * pipeline.sensor.px_per_mm)
+    assert BlobTracker(rest, sensor=SENSOR).pixels.assoc_px == 4.0
 
 
 def pinch_with_slip(rest_px: np.ndarray, slip_px=(3.0, 0.0), turn_rad=0.0) -> np.ndarray:
@@ -872,9 +876,10 @@ def test_the_resting_verdict_carries_the_frames_marker_centroids_in_the_image_fr
     from neurotouch_hid.pipeline.resting import RestingDetector
 
     moved = gel_image(shift_px=(2.0, 1.0), region_px=30.0)
-    verdict = RestingDetector(rest_image, SENSOR, 0.01, centroids=True).update(moved)
+    verdict = RestingDetector(rest_image, SENSOR).update(moved)  # the product's: centroids
     markers = detect_markers(moved, SENSOR).centroids_px
     assert not verdict.resting and len(verdict.centroids_px) == len(markers)
     d = np.hypot(*(verdict.centroids_px[:, None] - markers[None]).transpose(2, 0, 1)).min(axis=1)
     assert d.max() < 0.1
-    assert RestingDetector(rest_image, SENSOR, 2.5).update(moved).centroids_px is None  # pixel sets: none
+    pixel_sets = RestingDetector(rest_image, SENSOR, 2.5, centroids=False)
+    assert pixel_sets.update(moved).centroids_px is None

@@ -124,19 +124,19 @@ def test_pipeline_config_rejects_unknown_or_bad_hyperparameter():
     with pytest.raises(NeurotouchError, match="TrackerConfig has no field 'nope'"):
         pipeline_config(["tracker.nope=1"])
     config = pipeline_config(
-        ["contacts.r_mm=10", "contacts.n_min=3", "noise_filter=none", "tracker.assoc_px=5"], window_us=5000
+        ["contacts.r_mm=10", "contacts.n_min=3", "noise.kind=none", "tracker.assoc_mm=2"], window_us=5000
     )
     assert (
         config.contacts.r_mm,
         config.contacts.n_min,
-        config.noise_filter,
-        config.tracker.assoc_px,
+        config.noise.kind,
+        config.tracker.assoc_mm,
         config.window_us,
     ) == (
         10.0,
         3,
         None,
-        5.0,
+        2.0,
         5000,
     )
 
@@ -146,8 +146,8 @@ def test_a_bad_set_value_names_the_setting_the_field_and_what_was_expected():
     from neurotouch_hid.evaluation.runner import pipeline_config
 
     with pytest.raises(NeurotouchError) as info:
-        pipeline_config(["tracker.assoc_px=wide"])
-    assert "--set 'tracker.assoc_px=wide': tracker.assoc_px: found 'wide'; input should be a valid number" in str(
+        pipeline_config(["tracker.assoc_mm=wide"])
+    assert "--set 'tracker.assoc_mm=wide': tracker.assoc_mm: found 'wide'; input should be a valid number" in str(
         info.value
     )
     assert pipeline_config(["resting.marker_threshold=none"]).resting.marker_threshold is None

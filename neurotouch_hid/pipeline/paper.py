@@ -47,7 +47,8 @@ class PaperConfig(BaseModel):
             positive one).
         marker_threshold: grey level of marker pixels (0..255); None = Otsu's threshold.
         reference_attempts: how many first APS frames may fail to show a marker grid.
-        tracker: the blob tracker's parameters.
+        tracker: the blob tracker's parameters (mm and us: the product's tracker, at sensor.yaml's
+            scale).
     """
 
     window_us: int = 10_000

@@ -157,10 +157,10 @@ class GesturePipeline:
 
     def _noise_filter(self) -> EventNoiseFilter | None:
         """The noise filter in front of the tracker (docs/method.md, "Noise filter")."""
-        c = self.config
-        if c.noise_filter is None:
+        noise = self.settings.noise
+        if noise.kind is None:
             return None
-        return EventNoiseFilter(c.noise_filter, self.sensor.width, self.sensor.height, c.noise_filter_us)
+        return EventNoiseFilter(noise.kind, self.sensor.width, self.sensor.height, noise.time_us)
 
     # --- inputs -----------------------------------------------------------------------------
     def process(self, item: StreamItem) -> list[GestureEstimate]:
@@ -206,7 +206,7 @@ class GesturePipeline:
         events: on a fresh install that takes seconds, which a real-time run would spend dropping data.
         Later runs load the code from numba's cache. Leaves the pipeline as it was."""
         rest, moved, flat, pinch, events = synthetic_windows(self.sensor)
-        tracker = BlobTracker(rest, self.sensor.width, self.sensor.height, self.config.tracker, sensor=self.sensor)
+        tracker = BlobTracker(rest, self.sensor.width, self.sensor.height, self.settings.tracker, sensor=self.sensor)
         # numba compiles one version per array layout: a one-event batch's fields count as
         # contiguous, a longer batch's are strided views of the structured array; both occur
         tracker.update(events[:1])
@@ -340,7 +340,7 @@ class GesturePipeline:
         self._use_camera_model()
         self._grid_neighbours = grid_neighbours(self.rest_px)
         self.tracker = BlobTracker(
-            self.rest_px, self.sensor.width, self.sensor.height, self.config.tracker, sensor=self.sensor
+            self.rest_px, self.sensor.width, self.sensor.height, self.settings.tracker, sensor=self.sensor
         )
         self.resting_detector = self._resting_detector(frame.image)
         self._resting = RestingResult(True, 0.0)
@@ -349,9 +349,7 @@ class GesturePipeline:
         """A resting detector with ``reference`` as its rest image: the Chamfer distance over the
         markers' centroids (docs/method.md, "Resting"). Raises SensorError when it shows no marker."""
         c = self.config
-        return RestingDetector(
-            reference, self.sensor, c.centroid_threshold, c.marker_threshold, per_marker=True, centroids=True
-        )
+        return RestingDetector(reference, self.sensor, c.centroid_threshold, c.marker_threshold)
 
     def _use_camera_model(self) -> None:
         """Without a model in sensor.yaml: the sensor as fitted to the rest reference's markers
