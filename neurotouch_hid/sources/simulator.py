@@ -751,6 +751,59 @@ def session_gesture(
     return g
 
 
+#: The guided hand (:func:`guided_gesture`): a push's travel, a pinch's, zoom's and twist's
+#: finger travel (mm; the same for both twists, so neither reads weaker), its two fingers' distance
+#: from the gel's centre (mm), and its attack, hold and release (us).
+GUIDED_PUSH_MM = 4.0
+GUIDED_TRAVEL_MM = 3.0
+GUIDED_SPREAD_MM = 8.0
+GUIDED_PHASES_US = (300_000, 900_000, 300_000)
+
+
+def guided_gesture(
+    gesture: GestureType, t_start_us: int, direction: Sequence[float] = (0.0, 1.0), user: SimUser = USERS[0]
+) -> SimGesture:
+    """The gesture a calibration asks for, as a steady hand performs it: one finger at the gel's
+    centre pushing :data:`GUIDED_PUSH_MM` towards ``direction`` (user frame, normalised), or two
+    fingers :data:`GUIDED_SPREAD_MM` left and right of the centre moving :data:`GUIDED_TRAVEL_MM`
+    (pinch, zoom, twist either way); :data:`GUIDED_PHASES_US`, no tremor, no global motion.
+
+    Raises:
+        ValueError: ``gesture`` is NONE, or a push's ``direction`` has no length.
+    """
+    if gesture is GestureType.NONE:
+        raise ValueError("a guided gesture needs a gesture type, not none")
+    if gesture is GestureType.PUSH:
+        fingers = np.zeros((1, 2))
+        norm = math.hypot(*direction)
+        if norm == 0:
+            raise ValueError("a guided push needs a direction")
+        unit = np.asarray(direction, dtype=np.float64) / norm
+        amplitude = GUIDED_PUSH_MM
+    else:
+        fingers = np.array([[-GUIDED_SPREAD_MM, 0.0], [GUIDED_SPREAD_MM, 0.0]])
+        unit = np.zeros(2)
+        amplitude = GUIDED_TRAVEL_MM
+    attack, hold, release = GUIDED_PHASES_US
+    return SimGesture(
+        gesture=gesture,
+        t_start_us=int(t_start_us),
+        attack_us=attack,
+        hold_us=hold,
+        release_us=release,
+        fingers_mm=fingers,
+        amplitude_mm=amplitude,
+        direction=unit,
+        finger_mm=user.finger_mm,
+        press=0.6,
+        tremor=(0.0, 5.0, 0.0),
+        global_mm=np.zeros(2),
+        global_rad=0.0,
+        residual=0.03,
+        creep_us=80_000,
+    )
+
+
 # --- the simulation engine --------------------------------------------------------------------
 @dataclass(frozen=True)
 class SimChunk:
@@ -865,6 +918,21 @@ class GelSimulator:
                 self._known.append(nxt)
         self._known = [g for g in self._known if g.t_settled_us >= t0_us]
         return [g for g in self._known if g.t_start_us <= t1_us and g.t_settled_us >= t0_us]
+
+    def perform(self, gesture: SimGesture) -> None:
+        """Add ``gesture`` to what the simulated hand does, for a simulator made with ``script=()``
+        that is told each gesture as it goes (a calibration's guided gestures, :func:`guided_gesture`).
+
+        Raises:
+            ValueError: the gesture starts before the simulator's time (``t_us``) or before the
+                gestures already added have settled.
+        """
+        if gesture.t_start_us < self.t_us or any(g.t_settled_us > gesture.t_start_us for g in self._known):
+            raise ValueError(
+                f"a gesture added at {gesture.t_start_us} us starts before the simulator's time ({self.t_us} us) "
+                "or before the previous gesture settled"
+            )
+        self._known.append(gesture)
 
     def light(self, t_us: np.ndarray) -> np.ndarray:
         """(T,) float64 relative brightness of the LED ring at t_us (1 unless the family flickers)."""
