@@ -202,8 +202,8 @@ def strategies():
                         "contacts.r_mm",
                         "window_us",
                         "tracker.assoc_px",
-                        "noise_filter",
-                        "noise_filter_us",
+                        "noise.kind",
+                        "noise.time_us",
                         "tracker",
                         "x.y",
                     ]
