@@ -19,9 +19,9 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers import wait_until
 from hostile_inputs import ALIAS_BOMB, DEEP_YAML, bomb_recording
 from test_control import runtime_dir  # noqa: F401 (a fixture)
-from test_runtime import wait_until
 
 import neurotouch_hid
 from neurotouch_hid.errors import ProfileError, SensorError
