@@ -12,15 +12,13 @@ read back with evdev.
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import tempfile
-import time
 from pathlib import Path
 
 import guestlib
 from checks_runtime import _env
-from checks_runtime_remap import EVERYTHING, G, _start_run, _write_preds, sequence
+from checks_runtime_remap import EVERYTHING, G, _start_run, _write_preds, holds_everything, sequence, stop_run
 from evdev import ecodes
 
 TIMEOUT_S = 300
@@ -66,15 +64,7 @@ def check_a_game_switches_profiles_leaving_nothing_held() -> dict:
         )
         assert base_held, f"the push held nothing: {w['keyboard'].keys_log()} {w['pad'].keys_log()}"
         game = subprocess.Popen(["sleep", "600"], env=dict(os.environ, SteamAppId="4242"))
-        game_held = guestlib.wait_for(
-            lambda: (
-                chord <= w["keyboard"].pressed
-                and codes["BTN_LEFT"] in w["mouse"].pressed
-                and codes["BTN_SOUTH"] in w["pad"].pressed
-                and w["pad"].reader.axes.get(ecodes.ABS_X, 0) > 0
-            ),
-            60.0,
-        )
+        game_held = guestlib.wait_for(lambda: holds_everything(w), 60.0)
         during = {name: sorted(watcher.pressed) for name, watcher in w.items()}
         game.kill()
         game.wait(10)
@@ -88,12 +78,7 @@ def check_a_game_switches_profiles_leaving_nothing_held() -> dict:
             60.0,
         )
         stick_after = w["pad"].reader.axes.get(ecodes.ABS_X)
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=60)
-        guestlib.wait_for(lambda: all(x.reader.gone for x in w.values()), 10.0)
-        time.sleep(0.2)
-        for watcher in w.values():
-            watcher.stop()
+        err = stop_run(proc, w)
     finally:
         for p in (game, proc):
             if p is not None and p.poll() is None:
