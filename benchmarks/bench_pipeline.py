@@ -1,5 +1,5 @@
 """Gesture pipeline: time per stage per window, and ``track``'s real-time factor end to end
-(docs/performance.md, Pipeline).
+(docs/performance.md, "Pipeline stages").
 
 1. Per stage (``GesturePipeline(profile=True)``), on simulated recordings read back through
    ``RecordingReader`` into memory: tracker per window (every ``BlobTracker.update`` between two
@@ -29,10 +29,10 @@ from rich.table import Table
 from neurotouch_hid.dataset import list_sequences
 from neurotouch_hid.output.console import make_console
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
-from neurotouch_hid.pipeline.track import track_recording
 from neurotouch_hid.sensor import find_sensor_file
 from neurotouch_hid.sources.recording import RecordingReader
 from neurotouch_hid.sources.simulator import write_dataset
+from neurotouch_hid.track import track_recording
 
 
 def profile_sequence(recording: Path, config: PipelineConfig) -> dict[str, list[tuple[float, float]]]:

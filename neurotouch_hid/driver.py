@@ -13,7 +13,7 @@ from __future__ import annotations
 import contextlib
 import logging
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator
+from typing import TYPE_CHECKING, Callable, Iterator, Protocol
 
 from neurotouch_hid.errors import DeviceError, NeurotouchError
 from neurotouch_hid.estimate import GestureEstimate
@@ -21,10 +21,29 @@ from neurotouch_hid.kinds import OutputKind, SourceKind
 from neurotouch_hid.mapping.profile import Profile, load_profile
 from neurotouch_hid.runtime import DEFAULT_BATCH_US, DEFAULT_MAX_LAG_US, Runtime
 from neurotouch_hid.sources import Frame
-from neurotouch_hid.stages import Output
+from neurotouch_hid.stages import Output, Pipeline, SourceStream
 from neurotouch_hid.stats import RunStats
 
+if TYPE_CHECKING:
+    from rich.console import Console
+
+    from neurotouch_hid.pipeline.pipeline import GesturePipeline
+    from neurotouch_hid.pipeline.resting import RestingResult
+    from neurotouch_hid.sensor import SensorGeometry
+    from neurotouch_hid.sources.davis import DavisConfig
+
 log = logging.getLogger(__name__)
+
+
+class CameraBackend(Protocol):
+    """What the live camera's source asks of dv-processing's camera module (``dv.io.camera``),
+    or of a stand-in that replays recordings (tests)."""
+
+    def discover(self) -> list:
+        """The cameras plugged in (dv-processing's descriptors)."""
+
+    def open(self, descriptor: object) -> object:
+        """The opened camera of one descriptor."""
 
 
 class EstimateReplay:
@@ -37,7 +56,7 @@ class EstimateReplay:
     def restart(self) -> None:  # pragma: no cover - a predictions file is never interrupted
         pass
 
-    def set_resting(self, result: Any, t_us: int) -> None:  # pragma: no cover - no frames here
+    def set_resting(self, result: RestingResult | None, t_us: int) -> None:  # pragma: no cover - no frames
         pass
 
 
@@ -49,10 +68,11 @@ def open_source(
     batch_us: int = DEFAULT_BATCH_US,
     sensor: str | Path | None = None,
     seed: int = 0,
-    davis: Any = None,
+    davis: DavisConfig | None = None,
     wait: bool = False,
-    capture: Any = None,
-) -> tuple[Iterable[Any], Any, bool]:
+    capture: CameraBackend | None = None,
+    filter_noise: bool = True,
+) -> tuple[SourceStream, SensorGeometry | None, bool]:
     """Open ``davis`` (the live camera), ``sim`` (the simulated gel), an AEDAT4 recording path, or
     a predictions file (``*.jsonl``, docs/dataset.md: the pipeline's estimates, replayed as they are).
 
@@ -62,7 +82,8 @@ def open_source(
     failing, ``capture`` replaces dv-processing's camera backend (tests replay recordings through
     it). Its geometry is ``sensor``, else the user's calibration, else the built-in one. The
     pipeline's default noise filter runs in the camera's source, on dv-processing's own event
-    stores (no copies; build the pipeline with ``filter_noise=False`` then).
+    stores (no copies; build the pipeline with ``filter_noise=False`` then); ``filter_noise``
+    False: none (the paper's method).
 
     Returns ``(stream, sensor_geometry, live)``; ``live`` is True for the camera (never paced by
     the runtime); the geometry is None for a predictions file. Resources (camera, file) are
@@ -86,13 +107,13 @@ def open_source(
         defaults = PipelineConfig()
         noise = (
             EventNoiseFilter(defaults.noise_filter, *DAVIS346_RESOLUTION, defaults.noise_filter_us)
-            if defaults.noise_filter is not None
+            if filter_noise and defaults.noise_filter is not None
             else None
         )
         try:
             camera = stack.enter_context(DavisSource(davis, wait=wait, backend=capture, noise_filter=noise))
         except DeviceError as exc:
-            raise DeviceError(f"{exc}; or start with --wait to wait for a camera") from None
+            raise DeviceError(f"{exc}\nor start with --wait to wait for a camera") from None
         geometry = SensorGeometry.load(sensor) if sensor is not None else default_sensor()
         return camera.stream(seconds=seconds, batch_us=batch_us, reconnect=True), geometry, True
     if spec == SourceKind.SIM:
@@ -118,7 +139,7 @@ def open_output(
     stack: contextlib.ExitStack,
     *,
     out: str | Path | None = None,
-    console: Any = None,
+    console: Console | None = None,
     say: Callable[[str], None] | None = None,
     stats: RunStats | None = None,
 ) -> Output:
@@ -150,21 +171,27 @@ class PipelineResting:
     ``GesturePipeline`` creates its :class:`~neurotouch_hid.pipeline.resting.RestingDetector` at
     its reference (first) APS frame; until then :meth:`update` has no verdict (None)."""
 
-    def __init__(self, pipeline: Any):
+    def __init__(self, pipeline: GesturePipeline):
         self._pipeline = pipeline
 
-    def update(self, frame: Frame) -> Any:
+    def update(self, frame: Frame) -> RestingResult | None:
         """The Chamfer-distance verdict for ``frame`` (``RestingResult``), or None."""
         detector = self._pipeline.resting_detector
         return None if detector is None else detector.update(frame, verdict_only=True)
 
 
 def build_pipeline(
-    geometry: Any, window_us: int, *, resting_beside: bool = True, filter_noise: bool = True
-) -> tuple[Any, PipelineResting | None]:
-    """A ``GesturePipeline`` with ``window_us`` windows, and the resting detector to run beside it.
+    geometry: SensorGeometry,
+    window_us: int,
+    *,
+    method: str = "default",
+    resting_beside: bool = True,
+    filter_noise: bool = True,
+) -> tuple[GesturePipeline, PipelineResting | None]:
+    """The ``method``'s pipeline (``pipeline.methods``) with ``window_us`` windows, and the resting
+    detector to run beside it.
 
-    ``filter_noise``: the pipeline runs its default noise filter (``PipelineConfig.noise_filter``);
+    ``filter_noise``: the product's pipeline runs its noise filter (``PipelineConfig.noise_filter``);
     False when the source already did (the live camera, :func:`open_source`).
 
     ``resting_beside``: the resting detection runs in the runtime's own thread (paper, section
@@ -173,23 +200,23 @@ def build_pipeline(
     the run is deterministic (the same input gives the same estimates): what ``--fast`` replays
     use, as nothing there needs to keep up with the camera.
     """
-    from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
+    from neurotouch_hid.evaluation.runner import pipeline_config
+    from neurotouch_hid.pipeline.methods import pipeline_for
 
-    config = PipelineConfig(window_us=window_us, detect_resting=not resting_beside)
-    if not filter_noise:
-        config.noise_filter = config.noise_filter_us = None
-    pipeline = GesturePipeline(geometry, config)
+    quiet = {} if filter_noise or method != "default" else {"noise_filter": None}
+    config = pipeline_config(method=method, window_us=window_us, **quiet)
+    pipeline = pipeline_for(geometry, config, detect_resting=not resting_beside)
     return pipeline, (PipelineResting(pipeline) if resting_beside else None)
 
 
-def compile_pipeline() -> None:
-    """Compile the pipeline's numba code before any source is opened
+def compile_pipeline(method: str = "default") -> None:
+    """Compile the ``method``'s numba code before any source is opened
     (:meth:`GesturePipeline.compile_kernels`): on a fresh install that takes seconds, which a
     real-time run would otherwise spend dropping data, and a camera buffering it."""
-    from neurotouch_hid.pipeline.pipeline import GesturePipeline
+    from neurotouch_hid.pipeline.methods import METHODS
     from neurotouch_hid.sensor import SensorGeometry
 
-    GesturePipeline(SensorGeometry()).compile_kernels()
+    METHODS[method][1](SensorGeometry()).compile_kernels()
 
 
 def run_driver(
@@ -203,14 +230,15 @@ def run_driver(
     window_us: int = 10_000,
     sensor: str | Path | None = None,
     seed: int = 0,
-    console: Any = None,
+    console: Console | None = None,
     output_obj: Output | None = None,
-    davis: Any = None,
+    davis: DavisConfig | None = None,
     wait: bool = False,
-    capture: Any = None,
+    capture: CameraBackend | None = None,
     say: Callable[[str], None] = log.warning,
     stats: RunStats | None = None,
     max_lag_us: int = DEFAULT_MAX_LAG_US,
+    method: str = "default",
 ) -> RunStats:
     """``neurotouch-hid run``: load the profile (a bad one raises ProfileError before any device
     exists), open the source, build the pipeline, open the output, run until the end.
@@ -223,7 +251,8 @@ def run_driver(
     ``output_obj`` replaces the output named by ``output`` (the demo's fallback, benchmarks);
     ``stats`` is where the run is counted (the one a given terminal view shows).
     ``davis``, ``wait``, ``capture``: the live camera's settings (:func:`open_source`); ``say``
-    tells the user when it is lost and back.
+    tells the user when it is lost and back. ``method``: the gesture pipeline
+    (``pipeline.methods``: ``default`` or ``paper``).
     Raises NeurotouchError subclasses for bad input (ProfileError, RecordingError, DeviceError,
     SensorError).
     """
@@ -233,9 +262,13 @@ def run_driver(
         raise NeurotouchError(f"--window-us {window_us}: windows must be at least 1000 us")
     if max_lag_us < 1000:
         raise NeurotouchError(f"--max-lag-ms {max_lag_us / 1000:g}: the lag allowed must be at least 1 ms")
+    from neurotouch_hid.pipeline.methods import METHODS
+
+    if method not in METHODS:
+        raise NeurotouchError(f"--method {method!r}: expected one of {', '.join(METHODS)}")
     loaded = load_profile(profile)
     if not source.endswith(".jsonl"):
-        compile_pipeline()
+        compile_pipeline(method)
     stats = stats if stats is not None else RunStats()
     with contextlib.ExitStack() as stack:
         stream, geometry, live = open_source(
@@ -248,12 +281,15 @@ def run_driver(
             davis=davis,
             wait=wait,
             capture=capture,
+            filter_noise=method == "default",
         )
+        pipeline: Pipeline
+        resting: PipelineResting | None = None
         if geometry is None:  # a predictions file: the estimates are already there
-            pipeline, resting = EstimateReplay(), None
+            pipeline = EstimateReplay()
         else:
             pipeline, resting = build_pipeline(
-                geometry, window_us, resting_beside=live or not fast, filter_noise=not live
+                geometry, window_us, method=method, resting_beside=live or not fast, filter_noise=not live
             )
         out_obj = (
             output_obj
@@ -282,18 +318,16 @@ def gamepad_or_terminal(
     profile: Profile,
     stack: contextlib.ExitStack,
     *,
-    console: Any = None,
+    console: Console | None = None,
     say: Callable[[str], None] = print,
     stats: RunStats | None = None,
 ) -> Output:
     """The virtual gamepad where /dev/uinput is writable; else the terminal view (showing
     ``stats``), after saying why in one line (``say``)."""
-    from neurotouch_hid.udev import uinput_help
-
     try:
         return open_output("gamepad", profile, stack)
     except DeviceError as exc:
-        reason = str(exc).replace(": " + uinput_help(), "").strip()
+        reason = str(exc).splitlines()[0]  # the why; the fix's lines follow (udev.uinput_help)
         say(
             f"no writable /dev/uinput ({reason}): showing the gamepad in the terminal instead; "
             "see `neurotouch-hid doctor`"
@@ -301,7 +335,9 @@ def gamepad_or_terminal(
         return open_output("term", profile, stack, console=console, stats=stats)
 
 
-def run_demo(seconds: float | None = 30.0, *, console: Any = None, say: Callable[[str], None] = print) -> RunStats:
+def run_demo(
+    seconds: float | None = 30.0, *, console: Console | None = None, say: Callable[[str], None] = print
+) -> RunStats:
     """``neurotouch-hid demo``: the simulated gel performing every gesture, paced in real time,
     through the default profile, to the virtual gamepad (or the terminal view, see
     :func:`gamepad_or_terminal`)."""
