@@ -247,7 +247,11 @@ def record(
 def simulate(
     out: Path = typer.Option(..., "--out", help="dataset folder to write (docs/dataset.md)"),
     preset: str = typer.Option(
-        "quick", "--preset", help="quick (small, for tests) or paper (5 users x 5 gestures x ~1 min)"
+        "quick",
+        "--preset",
+        help="quick (small, for tests), paper (5 users x 5 gestures x ~1 min) or sessions (5 users x a 10 s game "
+        "session: the type changes from one gesture to the next; taps from 0.25 s, ordinary gestures, holds of "
+        "several seconds, rests of a fraction of a second)",
     ),
     seed: int = typer.Option(0, "--seed", min=0, help="random seed: the same seed gives the same files"),
     minutes: Optional[float] = typer.Option(
@@ -350,8 +354,15 @@ def eval_cmd(
     predictions: Optional[Path] = typer.Option(
         None, "--predictions", help="keep each sequence's predictions here (JSON lines)"
     ),
+    deadzone_mm: float = typer.Option(
+        0.8,
+        "--deadzone-mm",
+        min=0.0,
+        help="dead zone of the per-gesture metrics (mm; default: the default profile's), docs/dataset.md",
+        callback=_finite,
+    ),
 ) -> None:
-    """Run the pipeline over a labelled dataset and print the paper's metrics."""
+    """Run the pipeline over a labelled dataset; print the paper's metrics and the per-gesture ones."""
     import json
     import shlex
 
@@ -369,7 +380,9 @@ def eval_cmd(
         TimeRemainingColumn(),
     )
     with Progress(*columns, console=err_console, transient=True) as progress:
-        result = evaluate_dataset(dataset, config, jobs=jobs, predictions_dir=predictions, progress=progress)
+        result = evaluate_dataset(
+            dataset, config, jobs=jobs, predictions_dir=predictions, progress=progress, deadzone_mm=deadzone_mm
+        )
     print_tables(result, console)
     argv = (
         ["eval", str(dataset)]
@@ -380,6 +393,7 @@ def eval_cmd(
             for flag, value in (
                 ("--window-us", window_us),
                 ("--jobs", jobs if jobs > 1 else None),
+                ("--deadzone-mm", deadzone_mm if deadzone_mm != 0.8 else None),
                 ("--report", report),
                 ("--json", json_out),
             )

@@ -17,6 +17,8 @@ ORDER = {
     "runtime": 5,
     "control": 5,
     "driver": 6,
+    "track": 2,
+    "view": 3,
     "doctor": 7,
     "cli": 7,
 }
