@@ -307,6 +307,7 @@ def run_driver(
             profile_ref=profile,
             say=say,
             control=True,
+            games=not fast,
             stats=stats,
             max_lag_us=max_lag_us,
         )

@@ -43,7 +43,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Callable, Iterator, Optional
+from typing import Any, Callable, Iterator, Optional
 
 import numpy as np
 
@@ -232,6 +232,8 @@ class Runtime:
             in tests).
         say: tells the user what happens to a live source (camera lost, back; one line each).
         control: serve the control socket while running (``profile use``, :meth:`use_profile`).
+        games: with ``control``, switch to a game's profile while it runs
+            (:class:`~neurotouch_hid.games.GameProfiles`, the user's games.yaml).
         stats: where the run is counted (:class:`RunStats`; e.g. shared with the terminal view
             that shows it); a new one by default.
         pacer: the :class:`~neurotouch_hid.sources.Pacer` that paces and times the run (one on
@@ -255,10 +257,12 @@ class Runtime:
         profile_loader: Callable[[str | Path], Profile] = load_profile,
         say: Callable[[str], None] = log.warning,
         control: bool = False,
+        games: bool = False,
         stats: RunStats | None = None,
         pacer: Pacer | None = None,
     ):
         self._control = control
+        self._games = games
         self._source = source
         self._pipeline = pipeline
         self.profile = profile
@@ -272,6 +276,7 @@ class Runtime:
         self._profile_ref = profile_ref
         self._profile_loader = profile_loader
         self.stats = stats if stats is not None else RunStats()
+        self.stats.profile = str(profile_ref) if profile_ref is not None else ""
         self._items = DropOldestQueue(
             queue_items, drop_oldest=self._realtime, on_drop=self._count_drop, max_span_us=max_lag_us
         )
@@ -331,15 +336,18 @@ class Runtime:
         log.warning("profile reloaded from %s", self._profile_ref)
         return True
 
-    def use_profile(self, ref: str) -> str:
-        """``profile use``: load ``ref`` (name or path), switch to it (:meth:`switch_profile`), and
-        reload it on SIGHUP from now on; returns a line saying so. Raises ProfileError (nothing
+    def use_profile(self, ref: str, reason: str | None = None) -> str:
+        """``profile use`` and the profile per game: load ``ref`` (name or path), switch to it
+        (:meth:`switch_profile`), and reload it on SIGHUP from now on; returns the line said on
+        the log (with ``reason``, e.g. the game that started). Raises ProfileError (nothing
         changes) for a missing or invalid profile."""
         profile = self._profile_loader(ref)
         self.switch_profile(profile)
         self._profile_ref = ref
-        log.warning("switched to profile %s", ref)
-        return f"switched to profile {ref}"
+        self.stats.profile = str(ref)
+        line = f"switched to profile {ref}" + (f" ({reason})" if reason else "")
+        log.warning("%s", line)
+        return line
 
     # --- the run ----------------------------------------------------------------------------
     def run(self, seconds: float | None = None) -> RunStats:
@@ -399,12 +407,23 @@ class Runtime:
             return
         from neurotouch_hid.control import ControlServer
 
-        server = ControlServer(self.use_profile)
+        games = None
+        if self._games and self._profile_ref is not None:
+            from neurotouch_hid.games import GameProfiles
+
+            games = GameProfiles(self.use_profile, str(self._profile_ref), on_game=self._follow_game)
+            games.start()
+        server = ControlServer(games.manual_use if games is not None else self.use_profile)
         server.start()
         try:
             yield
         finally:
             server.stop()
+            if games is not None:
+                games.stop()
+
+    def _follow_game(self, game: Any) -> None:
+        self.stats.game = game.label() if game is not None else ""
 
     @contextlib.contextmanager
     def _switch_interval(self) -> Iterator[None]:
