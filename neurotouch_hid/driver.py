@@ -52,6 +52,8 @@ def open_source(
     davis: Any = None,
     wait: bool = False,
     capture: Any = None,
+    scene: Any = None,
+    warmup: Any = None,
 ) -> tuple[Iterable[Any], Any, bool]:
     """Open ``davis`` (the live camera), ``sim`` (the simulated gel), an AEDAT4 recording path, or
     a predictions file (``*.jsonl``, docs/dataset.md: the pipeline's estimates, replayed as they are).
@@ -66,7 +68,9 @@ def open_source(
 
     Returns ``(stream, sensor_geometry, live)``; ``live`` is True for the camera (never paced by
     the runtime); the geometry is None for a predictions file. Resources (camera, file) are
-    closed by ``stack``. Raises RecordingError for a missing or unreadable recording,
+    closed by ``stack``. The simulated gel hands its labels to ``scene`` (the live view's
+    :class:`~neurotouch_hid.output.live.LiveScene`) and simulates under ``warmup`` 's guard (a
+    first run's compile, :mod:`neurotouch_hid.warmup`). Raises RecordingError for a missing or unreadable recording,
     DatasetError for a bad predictions file, DeviceError when the camera cannot be opened (and
     ``wait`` is off).
     """
@@ -99,7 +103,11 @@ def open_source(
         from neurotouch_hid.sources.simulator import SimulatedSource
 
         sim = SimulatedSource(seed=seed) if sensor is None else SimulatedSource(SensorGeometry.load(sensor), seed=seed)
-        return sim.stream(seconds=seconds, batch_us=batch_us), sim.sensor, False
+        if scene is None and warmup is None:
+            return sim.stream(seconds=seconds, batch_us=batch_us), sim.sensor, False
+        from neurotouch_hid.output.live import labelled_simulation
+
+        return labelled_simulation(sim, scene, warmup, seconds, batch_us), sim.sensor, False
     from neurotouch_hid.errors import RecordingError
     from neurotouch_hid.sources.recording import RecordingReader
 
@@ -124,7 +132,8 @@ def open_output(
 ) -> Output:
     """Create the output: ``gamepad`` (the uinput pad with the profile's name and ids, and the
     keyboard and mouse if the profile uses them), ``jsonl`` (one state line per change to ``out``
-    or stdout) or ``term`` (the terminal view, showing ``stats`` under the pad). ``say`` tells the
+    or stdout) or ``term`` (the terminal view, showing ``stats`` under the pad; on a terminal the
+    live view of :mod:`neurotouch_hid.output.live`). ``say`` tells the
     user about rumble effects games send to the pad (the gel has no motor; default: the log).
     Closed by ``stack``. Raises DeviceError when /dev/uinput cannot be used."""
     if kind == OutputKind.GAMEPAD:
@@ -139,9 +148,9 @@ def open_output(
         from neurotouch_hid.output.jsonl import StateJsonlWriter
 
         return stack.enter_context(StateJsonlWriter(out))
-    from neurotouch_hid.output.term import TermView
+    from neurotouch_hid.output.live import LiveView
 
-    return stack.enter_context(TermView(console, stats=stats))
+    return stack.enter_context(LiveView(console, stats=stats))
 
 
 class PipelineResting:
@@ -180,6 +189,38 @@ def build_pipeline(
         config.noise_filter = config.noise_filter_us = None
     pipeline = GesturePipeline(geometry, config)
     return pipeline, (PipelineResting(pipeline) if resting_beside else None)
+
+
+def start_warmup(source: str, *, fast: bool, say: Callable[[str], None]) -> Any:
+    """The first run's compile for ``source`` (:class:`~neurotouch_hid.warmup.Warmup`), started.
+
+    The simulated gel in real time (``demo``, ``run --source sim``) runs at once: its cold
+    kernels are interpreted while child processes compile them, and it waits rather than drop
+    data. Other sources (the camera cannot wait; ``--fast`` replays must be deterministic)
+    compile the cold kernels here first, saying so. Warm kernels are loaded from the cache now
+    (a first call would otherwise stall the run). None for a predictions file (no pipeline)."""
+    from neurotouch_hid.warmup import PIPELINE, SIMULATOR, Warmup
+
+    if source.endswith(".jsonl"):
+        return None
+    interpreted = source == SourceKind.SIM and not fast
+    groups = [PIPELINE, SIMULATOR] if source == SourceKind.SIM else [PIPELINE]
+    return Warmup(groups, say=say, interpreted=interpreted).start()
+
+
+def _with_view(
+    out: Output, kind: str, scene: Any, console: Any, stats: RunStats, stack: contextlib.ExitStack
+) -> Output:
+    """The output with the live view: a terminal view shows ``scene``; the virtual gamepad gets
+    the live view drawn beside it when ``console`` is a terminal."""
+    from neurotouch_hid.output.live import LiveView, ShownOutput
+
+    if isinstance(out, LiveView):
+        out.scene = scene
+        return out
+    if kind == OutputKind.GAMEPAD and console is not None and console.is_terminal:
+        return ShownOutput(out, stack.enter_context(LiveView(console, scene=scene, stats=stats)))
+    return out
 
 
 def compile_pipeline() -> None:
@@ -234,10 +275,14 @@ def run_driver(
     if max_lag_us < 1000:
         raise NeurotouchError(f"--max-lag-ms {max_lag_us / 1000:g}: the lag allowed must be at least 1 ms")
     loaded = load_profile(profile)
-    if not source.endswith(".jsonl"):
-        compile_pipeline()
+    warmup = start_warmup(source, fast=fast, say=say)
     stats = stats if stats is not None else RunStats()
     with contextlib.ExitStack() as stack:
+        if warmup is not None:
+            stack.callback(warmup.close)
+        from neurotouch_hid.output.live import LiveScene, ScenePipeline
+
+        scene = LiveScene(None, str(profile), loaded, warmup=warmup, demo=source == SourceKind.SIM)
         stream, geometry, live = open_source(
             source,
             stack,
@@ -248,18 +293,22 @@ def run_driver(
             davis=davis,
             wait=wait,
             capture=capture,
+            scene=scene,
+            warmup=warmup,
         )
+        scene.sensor = geometry
         if geometry is None:  # a predictions file: the estimates are already there
             pipeline, resting = EstimateReplay(), None
         else:
-            pipeline, resting = build_pipeline(
-                geometry, window_us, resting_beside=live or not fast, filter_noise=not live
-            )
+            built, resting = build_pipeline(geometry, window_us, resting_beside=live or not fast, filter_noise=not live)
+            pipeline = ScenePipeline(built, scene, warmup)
+            resting = pipeline.resting(resting)
         out_obj = (
             output_obj
             if output_obj is not None
             else open_output(output, loaded, stack, out=out, console=console, say=say, stats=stats)
         )
+        out_obj = _with_view(out_obj, output, scene, console, stats, stack)
         runtime = Runtime(
             stream,
             pipeline,
@@ -273,7 +322,9 @@ def run_driver(
             control=True,
             stats=stats,
             max_lag_us=max_lag_us,
+            waits=source == SourceKind.SIM,
         )
+        scene.follow(runtime)
         return runtime.run(seconds)
 
 
