@@ -107,7 +107,7 @@ def open_source(
             return sim.stream(seconds=seconds, batch_us=batch_us), sim.sensor, False
         from neurotouch_hid.output.live import labelled_simulation
 
-        return labelled_simulation(sim, scene, warmup, seconds, batch_us), sim.sensor, False
+        return labelled_simulation(sim, scene, _guard(warmup, "simulator"), seconds, batch_us), sim.sensor, False
     from neurotouch_hid.errors import RecordingError
     from neurotouch_hid.sources.recording import RecordingReader
 
@@ -208,6 +208,15 @@ def start_warmup(source: str, *, fast: bool, say: Callable[[str], None]) -> Any:
     return Warmup(groups, say=say, interpreted=interpreted).start()
 
 
+def _guard(warmup: Any, group_name: str) -> Callable[[], Any] | None:
+    """A zero-argument callable giving ``warmup`` 's guard of the group (None without warmup)."""
+    if warmup is None:
+        return None
+    from neurotouch_hid.warmup import GROUPS
+
+    return lambda: warmup.guard(GROUPS[group_name])
+
+
 def _with_view(
     out: Output, kind: str, scene: Any, console: Any, stats: RunStats, stack: contextlib.ExitStack
 ) -> Output:
@@ -221,16 +230,6 @@ def _with_view(
     if kind == OutputKind.GAMEPAD and console is not None and console.is_terminal:
         return ShownOutput(out, stack.enter_context(LiveView(console, scene=scene, stats=stats)))
     return out
-
-
-def compile_pipeline() -> None:
-    """Compile the pipeline's numba code before any source is opened
-    (:meth:`GesturePipeline.compile_kernels`): on a fresh install that takes seconds, which a
-    real-time run would otherwise spend dropping data, and a camera buffering it."""
-    from neurotouch_hid.pipeline.pipeline import GesturePipeline
-    from neurotouch_hid.sensor import SensorGeometry
-
-    GesturePipeline(SensorGeometry()).compile_kernels()
 
 
 def run_driver(
@@ -301,7 +300,7 @@ def run_driver(
             pipeline, resting = EstimateReplay(), None
         else:
             built, resting = build_pipeline(geometry, window_us, resting_beside=live or not fast, filter_noise=not live)
-            pipeline = ScenePipeline(built, scene, warmup)
+            pipeline = ScenePipeline(built, scene, _guard(warmup, "pipeline"))
             resting = pipeline.resting(resting)
         out_obj = (
             output_obj

@@ -72,7 +72,7 @@ PIPELINE = KernelGroup(
     "pipeline",
     "neurotouch_hid.pipeline.pipeline",
     ("neurotouch_hid.pipeline.",),
-    "neurotouch_hid.driver:compile_pipeline",
+    "neurotouch_hid.warmup:compile_pipeline",
     load_when_warm=True,
 )
 SIMULATOR = KernelGroup(
@@ -82,6 +82,16 @@ SIMULATOR = KernelGroup(
     "neurotouch_hid.warmup:simulate_briefly",
 )
 GROUPS = {g.name: g for g in (PIPELINE, SIMULATOR)}
+
+
+def compile_pipeline() -> None:
+    """Compile (or load from numba's cache) every kernel of the gesture pipeline now
+    (:meth:`GesturePipeline.compile_kernels`), on the default sensor: what a real-time run that
+    cannot wait does before it opens its source, and the pipeline group's child does."""
+    from neurotouch_hid.pipeline.pipeline import GesturePipeline
+    from neurotouch_hid.sensor import SensorGeometry
+
+    GesturePipeline(SensorGeometry()).compile_kernels()
 
 
 def simulate_briefly() -> None:

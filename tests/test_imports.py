@@ -16,6 +16,7 @@ ORDER = {
     "stages": 5,
     "runtime": 5,
     "control": 5,
+    "warmup": 5,
     "driver": 6,
     "doctor": 7,
     "cli": 7,

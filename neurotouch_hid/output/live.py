@@ -24,7 +24,7 @@ import collections
 import contextlib
 import math
 import threading
-from typing import TYPE_CHECKING, Any, Iterator, Optional
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Optional
 
 import numpy as np
 from rich.console import Group
@@ -42,7 +42,6 @@ if TYPE_CHECKING:
     from neurotouch_hid.sensor import SensorGeometry
     from neurotouch_hid.sources import Frame
     from neurotouch_hid.stats import RunStats
-    from neurotouch_hid.warmup import Warmup
 
 #: The gel plot's size in characters (a terminal cell is about twice as tall as wide).
 GEL_COLUMNS = 31
@@ -158,7 +157,7 @@ class LiveScene:
         profile_name: str,
         profile: "Profile",
         *,
-        warmup: Optional["Warmup"] = None,
+        warmup: Any = None,
         demo: bool = False,
     ):
         self.sensor = sensor
@@ -216,23 +215,17 @@ class LiveScene:
 
 class ScenePipeline:
     """A :class:`~neurotouch_hid.stages.Pipeline` that shows its markers in a :class:`LiveScene`
-    after each window, and runs under the first-run compile's guard (:meth:`Warmup.guard`)."""
+    after each window, each call inside ``guard()`` (a first run's compile,
+    :meth:`neurotouch_hid.warmup.Warmup.guard`: the kernels never switch form within a call)."""
 
-    def __init__(self, pipeline: Any, scene: LiveScene | None, warmup: Optional["Warmup"] = None):
+    def __init__(self, pipeline: Any, scene: LiveScene | None, guard: Callable[[], Any] | None = None):
         self._pipeline = pipeline
         self._scene = scene
-        self._warmup = warmup
-
-    def _guarded(self):
-        if self._warmup is None:
-            return contextlib.nullcontext()
-        from neurotouch_hid.warmup import PIPELINE
-
-        return self._warmup.guard(PIPELINE)
+        self._guard = guard or contextlib.nullcontext
 
     def process(self, item: Any) -> list[GestureEstimate]:
         """The wrapped pipeline's estimates for ``item``."""
-        with self._guarded():
+        with self._guard():
             estimates = self._pipeline.process(item)
             if estimates and self._scene is not None:
                 self._scene.observe(self._pipeline, estimates[-1])
@@ -247,34 +240,32 @@ class ScenePipeline:
         self._pipeline.restart()
 
     def resting(self, detection: Any) -> Any:
-        """``detection`` (a :class:`~neurotouch_hid.stages.RestingDetection`, or None) under the
+        """``detection`` (a :class:`~neurotouch_hid.stages.RestingDetection`, or None) inside the
         same guard: its kernels are the pipeline's."""
-        if detection is None or self._warmup is None:
-            return detection
-        return _GuardedResting(detection, self._guarded)
+        return None if detection is None else _GuardedResting(detection, self._guard)
 
 
 class _GuardedResting:
-    def __init__(self, detection: Any, guarded: Any):
+    def __init__(self, detection: Any, guard: Callable[[], Any]):
         self._detection = detection
-        self._guarded = guarded
+        self._guard = guard
 
     def update(self, frame: "Frame") -> Any:
-        with self._guarded():
+        with self._guard():
             return self._detection.update(frame)
 
 
 def labelled_simulation(
-    sim: Any, scene: LiveScene | None, warmup: Optional["Warmup"], seconds: float | None, batch_us: int
+    sim: Any, scene: LiveScene | None, guard: Callable[[], Any] | None, seconds: float | None, batch_us: int
 ) -> Iterator[Any]:
     """The simulated gel's stream (as ``SimulatedSource.stream``), handing each frame period's
-    label to ``scene`` and simulating under the first-run compile's guard."""
+    label to ``scene`` and simulating inside ``guard()`` (see :class:`ScenePipeline`)."""
     from neurotouch_hid.sources.recording import split_batches
-    from neurotouch_hid.warmup import SIMULATOR
 
+    guard = guard or contextlib.nullcontext
     chunks = iter(sim.chunks(seconds))
     while True:
-        with warmup.guard(SIMULATOR) if warmup is not None else contextlib.nullcontext():
+        with guard():
             chunk = next(chunks, None)
         if chunk is None:
             return
@@ -325,7 +316,7 @@ def scene_panel(scene: LiveScene, estimate: GestureEstimate | None) -> Group:
     return Group(*rows)
 
 
-def compile_line(warmup: Optional["Warmup"]) -> Optional[Group]:
+def compile_line(warmup: Any) -> Optional[Group]:
     """While the first-run compile lasts: why the run is slow and a bar of its progress; else None."""
     if warmup is None or not warmup.compiling:
         return None
