@@ -105,8 +105,9 @@ class DropOldestQueue:
     """A bounded FIFO between two threads.
 
     ``put`` on a full queue drops the oldest item (counted in ``stats``) when ``drop_oldest``, else
-    waits for room. The queue is also full when it would span more than ``max_span_us`` of camera
-    time (from the oldest item's start to the new one's end). ``close``
+    waits for room. With ``drop_oldest`` (or ``span_waits``: then ``put`` waits) the queue is also
+    full when it would span more than ``max_span_us`` of camera time (from the oldest item's
+    start to the new one's end). ``close``
     ends the stream: ``get`` returns None once a closed queue is empty. Items are
     ``(arrival_ns, StreamItem)`` pairs.
     """
@@ -118,6 +119,7 @@ class DropOldestQueue:
         drop_oldest: bool = True,
         on_drop: Callable[[StreamItem], None] | None = None,
         max_span_us: int | None = None,
+        span_waits: bool = False,
     ):
         if maxlen < 1:
             raise ValueError("a queue needs room for at least one item")
@@ -126,11 +128,12 @@ class DropOldestQueue:
         self._drop_oldest = drop_oldest
         self._on_drop = on_drop
         self._max_span_us = max_span_us
+        self._span_waits = span_waits
         self._cond = threading.Condition()
         self._closed = False
 
     def _too_long(self, item: StreamItem) -> bool:
-        if self._max_span_us is None or not self._items:
+        if self._max_span_us is None or not (self._drop_oldest or self._span_waits) or not self._items:
             return False
         start, end = item_start_us(self._items[0][1]), item_end_us(item)
         return start is not None and end is not None and end - start > self._max_span_us
@@ -279,7 +282,8 @@ class Runtime:
             queue_items,
             drop_oldest=self._realtime and not self._waits,
             on_drop=self._count_drop,
-            max_span_us=max_lag_us if self._realtime else None,
+            max_span_us=max_lag_us,
+            span_waits=self._waits,
         )
         self._frames = DropOldestQueue(
             DEFAULT_FRAME_QUEUE, drop_oldest=self._realtime, on_drop=self._count_resting_drop
