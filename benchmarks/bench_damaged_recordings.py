@@ -1,5 +1,5 @@
 """Damaged recordings: which AEDAT4 reader always ends, and how fast each reads (docs/performance.md,
-Damaged recordings).
+"Recording I/O").
 
 The two options for reading files that come from users and other tools:
 

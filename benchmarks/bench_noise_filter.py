@@ -1,5 +1,5 @@
 """Noise filter in front of the tracker: its cost, conversions included, against the tracker's
-(docs/performance.md, Noise filter).
+(docs/performance.md, "Event path and noise filter").
 
 The simulated gel (``GelSimulator``, every gesture type in turn, user 0) is simulated in memory
 at each background-activity rate (``--noise-hz``, Hz per pixel), cut into the batches a source

@@ -1,5 +1,5 @@
 """Gesture pipeline: time per stage per window, and ``track``'s real-time factor end to end
-(docs/performance.md, Pipeline).
+(docs/performance.md, "Pipeline stages").
 
 1. Per stage (``GesturePipeline(profile=True)``), on simulated recordings read back through
    ``RecordingReader`` into memory: tracker per window (every ``BlobTracker.update`` between two

@@ -1,5 +1,5 @@
 """How much a creep model's error costs: the ``viscoelastic`` family's predictions replayed
-through the load estimate with a given (q, tau) (docs/accuracy.md, "Round 5").
+through the load estimate with a given (q, tau) (docs/method.md, "Creep").
 
 The pipeline (``PipelineConfig.creep_load``) answers ``none`` in a window whose load, the
 window's intensity through the standard linear solid's inverse with the gel's measured creep

@@ -3,7 +3,7 @@
     python3 benchmarks/family_eval.py --out DIR [--families powerlaw,camera,...] [--users 0,3]
         [--seconds 4] [--seed 2] [--jobs 2] [--method NAME=PRESET[:NAME=VALUE;...]] [--final-run]
 
-Protocol (docs/accuracy.md, "Physics families"):
+Protocol (docs/accuracy.md, "How it is measured"):
 
 * The pipeline's defaults were tuned on the ``default`` family only (benchmarks/tune_pipeline.py,
   tuning users 5-9), so every other family is held out for them. A method change is tuned (if at

@@ -9,7 +9,7 @@ many of those lie in a gesture before any marker has moved ``REST_TOLERANCE_MM``
 missed rests (false negatives), and the resting F1 when a window also counts as at rest whenever
 every true marker (the simulator's 1 ms ``SEQUENCE.markers.npz``) is within 0.1 mm of its rest
 position -- the rule the labels apply after a gesture, applied at the onset too
-(docs/accuracy.md, "Round 3: resting detection and gel drift").
+(docs/accuracy.md, "Where the errors are").
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
     python3 benchmarks/train_gesture_classifier.py --out DIR --test DIR2 [--families a,b,...] [--write]
 
-Protocol (docs/accuracy.md, "Round 3"):
+Protocol (docs/method.md, "Gesture"):
 
 * **Training data**: each development family (every physics family but the final one,
   ``family_eval.FINAL_FAMILY``: ``contrast`` from round 5 on; nor ``mix``, which draws it)

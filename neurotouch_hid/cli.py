@@ -20,7 +20,11 @@ import typer
 
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.kinds import OutputKind, SourceKind
-from neurotouch_hid.output.console import make_console
+from neurotouch_hid.output.console import PIPE_WIDTH, make_console
+
+#: --help to a pipe or a file: each paragraph and option on one line, nothing cut (click re-flows
+#: help to the terminal's width, and to 80 columns elsewhere).
+_HELP_WIDTH = {} if sys.stdout.isatty() else {"terminal_width": PIPE_WIDTH, "max_content_width": PIPE_WIDTH}
 
 app = typer.Typer(
     name="neurotouch-hid",
@@ -28,12 +32,43 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    # click's plain help: flags without rich's `<bool>`, each paragraph re-flowed whole (rich's
+    # boxes broke docstrings at their source line ends, mid-sentence)
+    rich_markup_mode=None,
+    context_settings=_HELP_WIDTH,
 )
 profile_app = typer.Typer(
-    help="List, show, create, edit, validate, test, tune and use (switch the running driver to) profiles.",
+    help="List, show, create, edit, validate, test, tune, delete, reset and use (switch the running driver to) "
+    "profiles.",
     no_args_is_help=True,
+    rich_markup_mode=None,
 )
 app.add_typer(profile_app, name="profile")
+
+
+def _print_version(value: bool) -> None:
+    """``--version``: the installed distribution's version (the package's own when run from a
+    checkout without an install), then exit 0."""
+    if not value:
+        return
+    import importlib.metadata
+
+    from neurotouch_hid import __version__
+
+    try:
+        version = importlib.metadata.version("neurotouch-hid")
+    except importlib.metadata.PackageNotFoundError:
+        version = __version__
+    typer.echo(f"neurotouch-hid {version}")
+    raise typer.Exit()
+
+
+@app.callback()
+def _options(
+    version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True, help="print the version"),
+) -> None:
+    """NeuroTouch soft tactile sensor -> standard game controller."""
+
 
 console = make_console()
 err_console = make_console(stderr=True)
@@ -460,7 +495,7 @@ def demo(
     """A simulated gel performing every gesture, through the default profile, to the gamepad.
 
     Without a writable /dev/uinput the gamepad is shown in the terminal instead (one line says
-    why); without a terminal, one state line a second."""
+    why); without a terminal, a line at each button or key change and at most one a second otherwise."""
     from neurotouch_hid.driver import run_demo
 
     stats = run_demo(
@@ -519,9 +554,8 @@ def devices(json_out: bool = typer.Option(False, "--json", help="print JSON (for
             if c.ready:
                 console.print(f"[green]ready:[/] {escape(c.label())}", highlight=False, soft_wrap=True)
             else:
-                console.print(
-                    f"[bold red]{escape(c.problem)}[/]\n  fix: {escape(c.fix)}", highlight=False, soft_wrap=True
-                )
+                fix = "".join(f"\n  {escape(step)}" for step in c.fix.splitlines())
+                console.print(f"[bold red]{escape(c.problem)}[/]{fix}", highlight=False, soft_wrap=True)
     if not json_out:
         for line in found.dv_log:
             console.print(f"[dim]dv-processing said: {escape(line)}[/]", highlight=False, soft_wrap=True)
@@ -749,6 +783,17 @@ def profile_new(
     console.print(f"created {new_profile(name, from_name)} (a copy of {from_name})", highlight=False)
 
 
+def _note_shadow(name: str, path: Path) -> None:
+    """Say that a change to the shipped profile ``name`` went to a user copy that now shadows it."""
+    err_console.print(
+        f"note: '{name}' is a shipped profile, so the change went to your copy, {path}, which replaces it "
+        f"from now on (neurotouch-hid profile reset {name} goes back to the shipped one)",
+        highlight=False,
+        markup=False,
+        soft_wrap=True,
+    )
+
+
 @profile_app.command("set", context_settings={"ignore_unknown_options": True})  # VALUE may be -1
 def profile_set(
     name: str = typer.Argument(..., help="profile name (a shipped one is copied to the user folder)"),
@@ -756,22 +801,53 @@ def profile_set(
     value: str = typer.Argument(..., help="YAML value, e.g. 1.5, true, ABS_RX"),
 ) -> None:
     """Set one value; the profile is validated first and left unchanged if the result is invalid."""
-    from neurotouch_hid.mapping.editor import parse_value, set_values
+    from neurotouch_hid.mapping.editor import creates_shadow, parse_value, set_values
 
+    shadow = creates_shadow(name)
     path, previous = set_values(name, {key: parse_value(value)})
-    console.print(f"{path}: {key}: {previous[key]!r} -> {value}", highlight=False)
+    console.print(f"{path}: {key}: {previous[key]!r} -> {value}", highlight=False, soft_wrap=True)
+    if shadow:
+        _note_shadow(name, path)
 
 
 @profile_app.command("unset")
 def profile_unset(
     name: str = typer.Argument(..., help="profile name"),
-    key: str = typer.Argument(..., help="dotted key to remove (its default applies again)"),
+    key: str = typer.Argument(..., help="dotted key to undo"),
 ) -> None:
-    """Remove one key; the profile is validated first and left unchanged if the result is invalid."""
-    from neurotouch_hid.mapping.editor import unset_value
+    """Undo one key: the shipped profile's value when the profile is a copy of one, else the default.
 
-    path, removed = unset_value(name, key)
-    console.print(f"{path}: removed {key} (was {removed!r})", highlight=False)
+    The profile is validated first and left unchanged if the result is invalid."""
+    from neurotouch_hid.mapping.editor import creates_shadow, unset_value
+
+    shadow = creates_shadow(name)
+    path, removed, shipped = unset_value(name, key)
+    now = "removed, its default applies" if shipped is None else f"back to the shipped value {shipped!r}"
+    console.print(f"{path}: {key}: {removed!r} -> {now}", highlight=False, soft_wrap=True)
+    if shadow:
+        _note_shadow(name, path)
+
+
+@profile_app.command("delete")
+def profile_delete(name: str = typer.Argument(..., help="user profile name")) -> None:
+    """Delete one of your profiles (a copy of a shipped one: the shipped one applies again)."""
+    from neurotouch_hid.mapping.editor import delete_profile
+
+    path, shipped = delete_profile(name)
+    again = f"; the shipped '{name}' ({shipped}) applies again" if shipped is not None else ""
+    console.print(f"deleted {path}{again}", highlight=False, soft_wrap=True)
+
+
+@profile_app.command("reset")
+def profile_reset(name: str = typer.Argument(..., help="shipped profile name")) -> None:
+    """Put a shipped profile back as shipped: delete your copy of it."""
+    from neurotouch_hid.mapping.editor import reset_profile
+
+    path, shipped = reset_profile(name)
+    if path is None:
+        console.print(f"'{name}' is already the shipped one ({shipped}): nothing to reset", highlight=False)
+    else:
+        console.print(f"deleted {path}: '{name}' is the shipped one again ({shipped})", highlight=False)
 
 
 @profile_app.command("validate")
@@ -783,24 +859,36 @@ def profile_validate(path: str = typer.Argument(..., help="profile file (or name
     console.print(f"{find_profile(path)}: ok ({len(loaded.mappings)} mappings)", highlight=False)
 
 
-@profile_app.command("edit")
-def profile_edit(name: str = typer.Argument(..., help="profile name (a shipped one is copied first)")) -> None:
-    """Open the user's copy of a profile in $EDITOR, then validate it."""
-    from neurotouch_hid.errors import ProfileError
-    from neurotouch_hid.mapping.editor import run_editor, user_copy
-    from neurotouch_hid.mapping.profile import load_profile
+def _edit_again(problem: str) -> bool:
+    """After an invalid edit: show why and ask (on stdin, a terminal or not) whether to edit
+    again; yes by default, no at the end of the input."""
+    err_console.print(problem, highlight=False, markup=False, soft_wrap=True)
+    err_console.print("edit it again? [Y/n] ", end="", highlight=False, markup=False)
+    try:
+        answer = sys.stdin.readline()
+    except (OSError, ValueError):  # no input to read from
+        answer = ""
+    if not answer:
+        err_console.print("")
+    return bool(answer) and answer.strip().lower() in ("", "y", "yes")
 
-    path = user_copy(name)
-    while True:
-        run_editor(path)
-        try:
-            load_profile(path)
-        except ProfileError as exc:
-            if sys.stdin.isatty() and typer.confirm(f"{exc}\nre-open the editor?", default=True):
-                continue
-            raise ProfileError(f"{path} was saved but is not valid (the driver will refuse it): {exc}") from None
-        console.print(f"{path}: ok", highlight=False)
+
+@profile_app.command("edit")
+def profile_edit(name: str = typer.Argument(..., help="profile name (a shipped one is copied when changed)")) -> None:
+    """Edit a profile in $VISUAL or $EDITOR, as crontab -e: saved only when valid.
+
+    An invalid save shows the problem and asks to edit again; answering no leaves the profile as
+    it was and keeps your edit beside it (NAME.yaml.rejected)."""
+    from neurotouch_hid.mapping.editor import creates_shadow, edit_profile
+
+    shadow = creates_shadow(name)
+    path = edit_profile(name, _edit_again)
+    if path is None:
+        console.print(f"'{name}' unchanged", highlight=False)
         return
+    console.print(f"{path}: ok", highlight=False, soft_wrap=True)
+    if shadow:
+        _note_shadow(name, path)
 
 
 @profile_app.command("path")
@@ -884,9 +972,9 @@ def profile_tune(
         95.0, "--percentile", help="intensity percentile that gives full deflection", callback=_finite
     ),
 ) -> None:
-    """Set each analogue mapping's saturation to what this user reaches (e.g. weak fingers)."""
+    """Set each analogue mapping's saturation to what this user reaches (weak fingers, for one)."""
     from neurotouch_hid.driver import estimates_from_source
-    from neurotouch_hid.mapping.editor import set_values
+    from neurotouch_hid.mapping.editor import creates_shadow, set_values
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.mapping.replay import tuned_saturations
 
@@ -897,10 +985,13 @@ def profile_tune(
         raise NeurotouchError(
             f"{from_source}: no gesture there exercises an analogue mapping of '{name}'; nothing tuned"
         )
+    shadow = creates_shadow(name)
     path, _ = set_values(name, {f"mappings.{m}.saturation_mm": new for m, (_, new) in tuned.items()})
     for mapping, (old, new) in tuned.items():
         console.print(f"{mapping}: saturation_mm {old:g} -> {new:g}", highlight=False)
-    console.print(f"written to {path}", highlight=False)
+    console.print(f"written to {path}", highlight=False, soft_wrap=True)
+    if shadow:
+        _note_shadow(name, path)
 
 
 def main() -> None:

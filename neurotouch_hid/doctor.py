@@ -6,17 +6,25 @@ held by another program, dv-processing lists the camera (all three from one
 /dev/uinput exists and is writable, the udev rules are installed, dv-processing / numba / evdev
 import (with versions), where numba caches the compiled pipeline (a warning when nowhere: it compiles
 in memory at every start), and (a warning only) the plug-and-play systemd user unit is installed.
+
+The report is plain lines, one per check, each fix's steps on lines of their own (a command alone
+on its line, so it can be copied), never wrapped: the same text on a terminal (coloured) and in a
+pipe or a file. The fixes name the udev rule and install script shipped with this installation
+(absolute paths, :mod:`neurotouch_hid.udev`) and this installation's own Python and command.
 """
 
 from __future__ import annotations
 
 import importlib
 import importlib.metadata
+import os
+import shutil
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 from rich.console import Console
-from rich.table import Table
+from rich.markup import escape
 
 from neurotouch_hid.output.gamepad import uinput_problem
 from neurotouch_hid.sources.discovery import (
@@ -24,8 +32,9 @@ from neurotouch_hid.sources.discovery import (
     CameraStatus,
     Discovery,
     discover,
+    pip_command,
 )
-from neurotouch_hid.udev import RULES_DIRS, RULES_INSTALL, RULES_NAME, installed_rules, uinput_help
+from neurotouch_hid.udev import INSTALL_SCRIPT, RULES_DIRS, RULES_INSTALL, RULES_NAME, installed_rules, uinput_help
 
 SERVICE_NAME = "neurotouch-hid.service"
 #: (import name, distribution name) of the libraries the driver needs at run time.
@@ -36,7 +45,8 @@ OK, FAIL, WARN, SKIP = "ok", "fail", "warn", "skip"
 
 @dataclass(frozen=True)
 class Check:
-    """One line of the report. ``status``: ok, fail (exit code 1), warn or skip (do not fail)."""
+    """One line of the report. ``status``: ok, fail (exit code 1), warn or skip (do not fail);
+    ``fix``: the steps, one a line (newline-separated), each command alone on its line."""
 
     name: str
     status: str
@@ -55,13 +65,14 @@ def check_camera(found: Discovery) -> Check:
                 "camera on USB",
                 FAIL,
                 f"pyusb cannot list USB devices ({found.usb_error}){seen}",
-                "python3 -m pip install --force-reinstall pyusb libusb-package",
+                f"{pip_command()} install --force-reinstall pyusb libusb-package",
             )
         return Check(
             "camera on USB",
             FAIL,
             f"no DAVIS-346 ({CAMERA_USB_ID}) on USB{seen}",
-            f"plug the NeuroTouch's USB cable in (a USB 3 port); `lsusb -d {CAMERA_USB_ID}` must list it",
+            f"plug the NeuroTouch's USB cable in (a USB 3 port), then check that this lists it:\n"
+            f"lsusb -d {CAMERA_USB_ID}",
         )
     where = ", ".join(
         f"bus {c.bus} device {c.address}" + (f" (serial {c.serial})" if c.serial else "") for c in cameras
@@ -79,7 +90,7 @@ def check_camera_access(found: Discovery) -> Check:
     bad = [c for c in usb if c.status in unusable]
     if bad:
         fixes = list(dict.fromkeys(c.fix for c in bad))
-        return Check("camera permissions", FAIL, "; ".join(c.problem for c in bad), "; or ".join(fixes))
+        return Check("camera permissions", FAIL, "; ".join(c.problem for c in bad), "\nor: ".join(fixes))
     return Check("camera permissions", OK, ", ".join(c.node for c in usb) + " readable and writable")
 
 
@@ -125,7 +136,7 @@ def check_library(module: str, dist: str) -> Check:
             dist,
             FAIL,
             f"import {module} failed: {type(exc).__name__}: {exc}",
-            f"python3 -m pip install --upgrade {dist}",
+            f"{pip_command()} install --upgrade {dist}",
         )
     try:
         version = importlib.metadata.version(dist)
@@ -150,10 +161,25 @@ def check_jit_cache() -> Check:
     return Check("compiled-code cache (numba)", OK, cache.describe())
 
 
-def check_service(home: Path | None = None) -> Check:
-    """The plug-and-play systemd user unit is installed (a warning only: `run` works without)."""
-    home = home or Path.home()
-    dirs = (home / ".config/systemd/user", Path("/etc/systemd/user"), Path("/usr/lib/systemd/user"))
+def this_command() -> str | None:
+    """The absolute path of the ``neurotouch-hid`` command that is running (pipx's link, a venv's
+    script), else the one on PATH, else None."""
+    argv0 = Path(sys.argv[0])
+    if argv0.name == "neurotouch-hid" and argv0.exists():
+        return os.path.abspath(argv0)
+    return shutil.which("neurotouch-hid")
+
+
+def user_config_dir() -> Path:
+    """$XDG_CONFIG_HOME, else ~/.config: where install.sh --user puts the unit (XDG base dirs)."""
+    return Path(os.environ.get("XDG_CONFIG_HOME") or Path.home() / ".config")
+
+
+def check_service(config: Path | None = None) -> Check:
+    """The plug-and-play systemd user unit is installed in ``config``/systemd/user (default:
+    :func:`user_config_dir`) or system-wide (a warning only: `run` works without)."""
+    config = config or user_config_dir()
+    dirs = (config / "systemd/user", Path("/etc/systemd/user"), Path("/usr/lib/systemd/user"))
     found = [str(d / SERVICE_NAME) for d in dirs if (d / SERVICE_NAME).is_file()]
     if found:
         return Check("plug-and-play service", OK, found[0])
@@ -161,7 +187,7 @@ def check_service(home: Path | None = None) -> Check:
         "plug-and-play service",
         WARN,
         f"{SERVICE_NAME} is not installed (start by hand with `neurotouch-hid run`)",
-        "packaging/install.sh --user",
+        f"sh {INSTALL_SCRIPT} --user" + (f" --bin {command}" if (command := this_command()) else ""),
     )
 
 
@@ -181,16 +207,20 @@ def run_checks() -> list[Check]:
 
 
 def report(checks: list[Check], console: Console) -> int:
-    """Print the checks as a rich table; return the exit code (1 if any check failed, else 0)."""
+    """Print the checks, one line each (status, name, detail) with each fix's lines indented under
+    it, and a last line that counts the problems; return the exit code (1 if any check failed,
+    else 0). Nothing is wrapped or cut: a fix is copied from its own line."""
     style = {OK: "green", FAIL: "bold red", WARN: "yellow", SKIP: "dim"}
-    table = Table(title="neurotouch-hid doctor", show_lines=True)
-    for column in ("check", "status", "detail", "fix"):
-        table.add_column(column, overflow="fold")
+    width = max(len(c.name) for c in checks) if checks else 0
+
+    def say(line: str) -> None:
+        console.print(line, highlight=False, soft_wrap=True)
+
     for c in checks:
-        table.add_row(c.name, f"[{style[c.status]}]{c.status}[/]", c.detail, c.fix)
-    console.print(table)
+        say(f"[{style[c.status]}]{c.status:<4}[/] {escape(c.name):<{width}}  {escape(c.detail)}")
+        for step in c.fix.splitlines():
+            say(f"      {escape(step)}")
     failed = [c.name for c in checks if c.status == FAIL]
-    console.print(
-        f"[bold red]{len(failed)} problem(s):[/] {', '.join(failed)}" if failed else "[green]all checks passed[/]"
-    )
+    problems = f"[bold red]{len(failed)} problem(s):[/] {escape(', '.join(failed))}"
+    say(problems if failed else "[green]all checks passed[/]")
     return 1 if failed else 0

@@ -96,7 +96,7 @@ def open_source(
         try:
             camera = stack.enter_context(DavisSource(davis, wait=wait, backend=capture, noise_filter=noise))
         except DeviceError as exc:
-            raise DeviceError(f"{exc}; or start with --wait to wait for a camera") from None
+            raise DeviceError(f"{exc}\nor start with --wait to wait for a camera") from None
         geometry = SensorGeometry.load(sensor) if sensor is not None else default_sensor()
         return camera.stream(seconds=seconds, batch_us=batch_us, reconnect=True), geometry, True
     if spec == SourceKind.SIM:
@@ -337,12 +337,10 @@ def gamepad_or_terminal(
 ) -> Output:
     """The virtual gamepad where /dev/uinput is writable; else the terminal view (showing
     ``stats``), after saying why in one line (``say``)."""
-    from neurotouch_hid.udev import uinput_help
-
     try:
         return open_output("gamepad", profile, stack)
     except DeviceError as exc:
-        reason = str(exc).replace(": " + uinput_help(), "").strip()
+        reason = str(exc).splitlines()[0]  # the why; the fix's lines follow (udev.uinput_help)
         say(
             f"no writable /dev/uinput ({reason}): showing the gamepad in the terminal instead; "
             "see `neurotouch-hid doctor`"

@@ -2,7 +2,10 @@
 name them.
 
 The rules file is ``udev/60-neurotouch.rules`` (camera access, /dev/uinput access, a mark on our
-own virtual devices); ``packaging/install.sh`` installs it. The camera's discovery
+own virtual devices); ``packaging/install.sh`` installs it. Both ship inside the package
+(``neurotouch_hid/data/udev`` and ``neurotouch_hid/data/packaging`` link to those folders, and
+pyproject.toml's package data copies them into every wheel), so the fixes name absolute paths that
+exist wherever the driver is installed, not only in a checkout. The camera's discovery
 (:mod:`neurotouch_hid.sources.discovery`), the virtual devices (:mod:`neurotouch_hid.output.gamepad`)
 and ``doctor`` all take their rule names, folders and advice from here, so the three say the same.
 Rule syntax and folders: udev(7).
@@ -16,12 +19,13 @@ from pathlib import Path
 RULES_NAME = "60-neurotouch.rules"
 #: Where udev reads rules from (udev(7)), most specific first.
 RULES_DIRS = ("/etc/udev/rules.d", "/run/udev/rules.d", "/usr/lib/udev/rules.d", "/lib/udev/rules.d")
-#: How to install the rules from a source checkout (packaging/install.sh does the same).
-RULES_INSTALL = (
-    "sudo install -m644 udev/60-neurotouch.rules /etc/udev/rules.d/ && "
-    "sudo udevadm control --reload && sudo udevadm trigger "
-    "(or: sudo packaging/install.sh --system)"
-)
+#: The installed package's copies of udev/ and packaging/ (absolute; in a checkout, the folders).
+DATA_DIR = Path(__file__).parent / "data"
+#: The udev rules file and the install script that ship with this installation.
+RULES_FILE = (DATA_DIR / "udev" / RULES_NAME).resolve()
+INSTALL_SCRIPT = (DATA_DIR / "packaging" / "install.sh").resolve()
+#: How to install the rules (and load uinput now and at every boot): one command.
+RULES_INSTALL = f"sudo sh {INSTALL_SCRIPT} --system"
 #: The rule that gives the seated user access to /dev/uinput (udev/60-neurotouch.rules carries the
 #: same line; tests/test_packaging.py checks they agree).
 UINPUT_RULE = 'KERNEL=="uinput", SUBSYSTEM=="misc", TAG+="uaccess", OPTIONS+="static_node=uinput"'
@@ -42,22 +46,23 @@ def installed_rules(dirs: tuple[str, ...] = RULES_DIRS) -> str | None:
 
 def camera_access_fix(rules: str | None = None) -> str:
     """What to do when a camera's USB node is not readable and writable by this user: install the
-    udev rule, or (``rules``: where it is installed) log in at the seat or use a group rule."""
+    udev rule, or (``rules``: where it is installed) log in at the seat or use a group rule.
+    Several lines, one step each; the commands stand alone on their lines (copyable)."""
     if rules is None:
-        return f"install the udev rule: {RULES_INSTALL}; then unplug and replug the camera"
+        return f"install the udev rule ({RULES_NAME}):\n{RULES_INSTALL}\nthen unplug and replug the camera"
     return (
         f"the udev rule is installed ({rules}) but it gives access only to the user logged in at this "
-        f"computer itself (uaccess): log in there (not over SSH) and unplug and replug the camera; "
-        f"for headless use add a group rule to /etc/udev/rules.d/: {GROUP_RULE} (and join that group)"
+        "computer itself (uaccess): log in there (not over SSH), then unplug and replug the camera\n"
+        "for headless use, add this group rule to /etc/udev/rules.d/ and join that group:\n"
+        f"{GROUP_RULE}"
     )
 
 
 def uinput_help() -> str:
-    """The fix for a missing or unwritable /dev/uinput: the module, the udev rule, the install
-    command."""
+    """The fix for a missing or unwritable /dev/uinput, a few short lines: the install command
+    (the udev rule, and the uinput module now and at every boot), log out and in, check."""
     return (
-        f"load the uinput module: sudo modprobe uinput (at every boot: "
-        f"echo uinput | sudo tee /etc/modules-load.d/neurotouch-hid.conf); give the seated user "
-        f"access with the udev rule `{UINPUT_RULE}`: {RULES_INSTALL}; then log out and in. "
-        f"Check with: neurotouch-hid doctor"
+        "to fix it, install the udev rule and load uinput (now and at every boot):\n"
+        f"{RULES_INSTALL}\n"
+        "then log out and in, and check with: neurotouch-hid doctor"
     )

@@ -1,15 +1,17 @@
 #!/bin/sh
 # Install neurotouch-hid's udev rules (system-wide, root) and its systemd user unit (per user).
 #
-# usage: packaging/install.sh [--system] [--user] [--bin PATH]
+# usage: install.sh [--system] [--user] [--bin PATH]
 #   --system  udev/60-neurotouch.rules -> /etc/udev/rules.d/, "uinput" -> /etc/modules-load.d/
 #             (loaded at every boot), then reload udev, re-trigger devices and load uinput now.
 #             Needs root.
-#   --user    packaging/neurotouch-hid.service -> ~/.config/systemd/user/ with ExecStart/ExecReload set to the
-#             neurotouch-hid on PATH (or --bin PATH), a ~/.config/neurotouch-hid/service.env to
-#             pick the profile, and `systemctl --user daemon-reload`. Run as yourself, not root.
+#   --user    neurotouch-hid.service -> ~/.config/systemd/user/ (or $XDG_CONFIG_HOME/systemd/user/)
+#             with ExecStart/ExecReload set to the neurotouch-hid on PATH, else pipx's
+#             ~/.local/bin/neurotouch-hid (or --bin PATH), a ~/.config/neurotouch-hid/service.env
+#             to pick the profile, and `systemctl --user daemon-reload`. Run as yourself, not root.
 #   neither   both: the system part through sudo, the user part as you.
 # DESTDIR=DIR stages the system files under DIR and touches nothing live (packagers, tests).
+# The script ships inside the installed package too: `neurotouch-hid doctor` prints its path.
 set -eu
 
 here=$(cd "$(dirname "$0")" && pwd)
@@ -20,7 +22,7 @@ while [ $# -gt 0 ]; do
         --system) do_system=1 ;;
         --user) do_user=1 ;;
         --bin) shift; bin=${1:?--bin needs a path} ;;
-        -h|--help) sed -n '2,15p' "$0"; exit 0 ;;
+        -h|--help) sed -n '2,/^[^#]/{/^#/s/^# \{0,1\}//p}' "$0"; exit 0 ;;
         *) echo "install.sh: unknown option $1 (see --help)" >&2; exit 2 ;;
     esac
     shift
@@ -28,9 +30,9 @@ done
 if [ $do_system = 0 ] && [ $do_user = 0 ]; then
     if [ "$(id -u)" = 0 ]; then
         do_system=1
-        echo "install.sh: running as root: system part only; run 'packaging/install.sh --user' as your own user" >&2
+        echo "install.sh: running as root: system part only; run 'sh $0 --user' as your own user" >&2
     else
-        sudo "$0" --system
+        sudo sh "$0" --system
         do_user=1
     fi
 fi
@@ -38,7 +40,7 @@ fi
 if [ $do_system = 1 ]; then
     dest=${DESTDIR:-}
     if [ -z "$dest" ] && [ "$(id -u)" != 0 ]; then
-        echo "install.sh: --system needs root: sudo $0 --system" >&2; exit 1
+        echo "install.sh: --system needs root: sudo sh $0 --system" >&2; exit 1
     fi
     install -D -m 644 "$src/udev/60-neurotouch.rules" "$dest/etc/udev/rules.d/60-neurotouch.rules"
     install -d -m 755 "$dest/etc/modules-load.d"
@@ -55,10 +57,13 @@ fi
 if [ $do_user = 1 ]; then
     if [ -z "$bin" ]; then
         bin=$(command -v neurotouch-hid || true)
+        if [ -z "$bin" ] && [ -x "$HOME/.local/bin/neurotouch-hid" ]; then
+            bin=$HOME/.local/bin/neurotouch-hid  # pipx's, before ~/.local/bin is on PATH
+        fi
     fi
     case "$bin" in
         /*) [ -x "$bin" ] || { echo "install.sh: $bin is not executable" >&2; exit 1; } ;;
-        *) echo "install.sh: neurotouch-hid is not on PATH; install it (python3 -m pip install --user .) or pass --bin /path/to/neurotouch-hid" >&2; exit 1 ;;
+        *) echo "install.sh: neurotouch-hid is not on PATH; install it (pipx install .) or pass --bin /path/to/neurotouch-hid" >&2; exit 1 ;;
     esac
     config=${XDG_CONFIG_HOME:-$HOME/.config}
     units="$config/systemd/user"

@@ -1,11 +1,12 @@
 """Shared fixtures: the one real-kernel boot per test session (tests/kernel/vm.py), and a user
-config folder in tmp for every other test.
+config folder in tmp for every other test, and ``cli``: the profile commands run in this process.
 
 The boot starts in the background as soon as the tests are collected, when any of them needs it,
 and the tests that need it run last: the host's tests run while the guest boots and checks."""
 
 from __future__ import annotations
 
+import subprocess
 import sys
 from pathlib import Path
 
@@ -74,3 +75,29 @@ def passed(guest: dict, name: str) -> dict:
     assert entry is not None, f"the guest did not run {name} (setup: {guest.get('setup')})"
     assert entry["ok"], f"{name}: {entry.get('error')}\n{entry.get('traceback', '')}\nboot: {guest.get('_boot')}"
     return entry["details"]
+
+
+@pytest.fixture()
+def cli(tmp_path, monkeypatch, capsys):
+    """``neurotouch-hid profile ARGS`` in this process (cli.main: errors -> exit 2), XDG in tmp;
+    ``cli.user_dir``: the user's profiles folder."""
+    from neurotouch_hid.cli import main
+
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
+    monkeypatch.delenv("VISUAL", raising=False)
+
+    def run(*args: str, editor: str | None = None) -> subprocess.CompletedProcess:
+        if editor is not None:
+            monkeypatch.setenv("EDITOR", editor)
+        monkeypatch.setattr(sys, "argv", ["neurotouch-hid", "profile", *args])
+        capsys.readouterr()
+        try:
+            main()
+            code = 0
+        except SystemExit as exc:
+            code = exc.code or 0
+        out, err = capsys.readouterr()
+        return subprocess.CompletedProcess(args, code, out, err)
+
+    run.user_dir = tmp_path / "config" / "neurotouch-hid" / "profiles"
+    return run

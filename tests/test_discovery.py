@@ -117,7 +117,10 @@ def test_permission_denied_without_rules_says_install_the_udev_rule():
         camera.problem
         == f"DAVIS-346 at bus 1 device 5 (/dev/bus/usb/001/005), serial 00000123 is not accessible ({reason})"
     )
-    assert camera.fix == f"install the udev rule: {RULES_INSTALL}; then unplug and replug the camera"
+    assert (
+        camera.fix
+        == f"install the udev rule (60-neurotouch.rules):\n{RULES_INSTALL}\nthen unplug and replug the camera"
+    )
     assert camera.serial == "00000123"  # dv-processing could not read it (empty): the USB string
 
 
@@ -214,7 +217,7 @@ def test_explain_not_accessible_gives_the_udev_rule():
     found = merge([usb_cam(access=UsbAccess.DENIED, reason="permission denied")], [])
     assert explain(found) == (
         f"DAVIS-346 at bus 1 device 5 (/dev/bus/usb/001/005), serial 00000123 is not "
-        f"accessible (permission denied): install the udev rule: {RULES_INSTALL}; then "
+        f"accessible (permission denied)\ninstall the udev rule (60-neurotouch.rules):\n{RULES_INSTALL}\nthen "
         f"unplug and replug the camera"
     )
 

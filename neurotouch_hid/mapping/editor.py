@@ -1,10 +1,14 @@
-"""Editing profiles in the user's folder (the ``profile new/set/unset/edit/tune`` commands).
+"""Editing profiles in the user's folder (the ``profile new/set/unset/edit/tune/delete/reset``
+commands).
 
 Shipped profiles are read-only: editing one writes a user copy of the same name, which shadows
-it. Changes go through ruamel.yaml's round-trip mode (comments, order and number formats kept),
-and the changed text is validated (:func:`~neurotouch_hid.mapping.profile.parse_profile`)
-*before* anything is written: a change that breaks the profile raises ProfileError and leaves
-the file as it was.
+it (the commands say so; ``reset`` removes the copy). A profile made with ``new --from`` a shipped
+one remembers it in its first line (:data:`COPY_MARK`), so that ``unset`` puts back the shipped
+value rather than the schema's default. Changes go through ruamel.yaml's round-trip mode
+(comments, order and number formats kept), and the changed text is validated
+(:func:`~neurotouch_hid.mapping.profile.parse_profile`) *before* anything is written: a change
+that breaks the profile raises ProfileError and leaves the file as it was. ``edit`` works on a
+temporary copy and saves it only when valid, asking to edit again otherwise, as ``crontab -e``.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ import re
 import shlex
 import subprocess
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -23,10 +28,13 @@ from ruamel.yaml.comments import CommentedMap
 from ruamel.yaml.error import YAMLError
 
 from neurotouch_hid.errors import NeurotouchError, ProfileError
-from neurotouch_hid.mapping.profile import find_profile, parse_profile, user_profiles_dir
+from neurotouch_hid.mapping.profile import find_profile, parse_profile, shipped_profiles_dir, user_profiles_dir
 
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_-]*$")
 _MISSING = object()
+#: The first line of a user profile made from a shipped one (``profile new NAME --from SHIPPED``).
+COPY_MARK = "# neurotouch-hid: a copy of the shipped profile '{}' (profile unset goes back to its values)"
+_COPY_MARK = re.compile(r"^# neurotouch-hid: a copy of the shipped profile '([A-Za-z0-9_-]+)'")
 
 
 def _yaml() -> YAML:
@@ -57,8 +65,28 @@ def _write(path: Path, text: str) -> None:
         raise
 
 
+def shipped_profile(name: str) -> Path | None:
+    """The shipped file of profile ``name``, or None when no shipped profile has that name."""
+    path = shipped_profiles_dir() / f"{name}.yaml"
+    return path if path.is_file() else None
+
+
+def shipped_base(name: str) -> Path | None:
+    """The shipped profile the user's profile ``name`` is a copy of: the shipped one of the same
+    name (which it shadows), else the one its first line names (:data:`COPY_MARK`), else None."""
+    same = shipped_profile(name)
+    if same is not None:
+        return same
+    path = user_profile_path(name)
+    if not path.is_file():
+        return None
+    found = _COPY_MARK.match(path.read_text(encoding="utf-8").partition("\n")[0])
+    return shipped_profile(found.group(1)) if found else None
+
+
 def new_profile(name: str, from_name: str = "default") -> Path:
-    """Create the user's profile ``name`` as a copy of ``from_name`` (a name or a path).
+    """Create the user's profile ``name`` as a copy of ``from_name`` (a name or a path); a copy
+    of a shipped profile starts with :data:`COPY_MARK`.
 
     Raises:
         ProfileError: bad name, ``name`` already exists in the user folder, or no such source.
@@ -67,16 +95,54 @@ def new_profile(name: str, from_name: str = "default") -> Path:
     if target.exists():
         raise ProfileError(f"profile '{name}' already exists: {target} (edit it, or delete it first)")
     source = find_profile(from_name)
-    _write(target, source.read_text(encoding="utf-8"))
+    text = source.read_text(encoding="utf-8")
+    if source.parent == shipped_profiles_dir():
+        text = COPY_MARK.format(source.stem) + "\n" + text
+    _write(target, text)
     return target
 
 
-def user_copy(name: str) -> Path:
-    """The user's file of profile ``name``, copying the shipped one there first if needed."""
+def creates_shadow(name: str) -> bool:
+    """True when changing profile ``name`` would first make a user copy of the shipped profile of
+    that name (which then shadows it everywhere)."""
+    return shipped_profile(name) is not None and not user_profile_path(name).exists()
+
+
+def delete_profile(name: str) -> tuple[Path, Path | None]:
+    """Delete the user's profile ``name``. Returns (the deleted file, the shipped profile that
+    applies again under that name, or None).
+
+    Raises:
+        ProfileError: bad name, or no user profile of that name (a shipped one cannot be deleted).
+    """
     target = user_profile_path(name)
-    if not target.exists():
-        _write(target, find_profile(name).read_text(encoding="utf-8"))
-    return target
+    if not target.is_file():
+        if shipped_profile(name) is not None:
+            raise ProfileError(f"'{name}' is a shipped profile: it cannot be deleted (and you have no copy of it)")
+        raise ProfileError(f"no user profile named '{name}' in {target.parent}")
+    target.unlink()
+    return target, shipped_profile(name)
+
+
+def reset_profile(name: str) -> tuple[Path | None, Path]:
+    """Put the shipped profile ``name`` back: delete the user's copy that shadows it. Returns (the
+    deleted copy, or None when there was none, the shipped file).
+
+    Raises:
+        ProfileError: ``name`` is not a shipped profile (nothing to go back to).
+    """
+    shipped = shipped_profile(name)
+    if shipped is None:
+        names = ", ".join(sorted(p.stem for p in shipped_profiles_dir().glob("*.yaml")))
+        raise ProfileError(
+            f"'{name}' is not a shipped profile, so there is nothing to reset it to (shipped: {names}); "
+            f"to remove it: neurotouch-hid profile delete {name}"
+        )
+    target = user_profile_path(name)
+    if not target.is_file():
+        return None, shipped
+    target.unlink()
+    return target, shipped
 
 
 def _load_rt(name: str) -> tuple[Path, Any]:
@@ -106,7 +172,8 @@ def _parent(document: Any, key: str, create: bool) -> tuple[CommentedMap, str]:
         if depth < len(parts) - 1:
             if part not in node:
                 if not create:
-                    raise ProfileError(f"key '{key}': there is no '{part}' in {where}")
+                    there = ", ".join(map(str, node)) or "nothing"
+                    raise ProfileError(f"key '{key}': there is no '{part}' in {where} (it has: {there})")
                 node[part] = CommentedMap()
             node = node[part]
     return node, parts[-1]
@@ -134,35 +201,111 @@ def _save_validated(name: str, document: Any) -> Path:
     return target
 
 
+def _known_mapping(name: str, document: Any, key: str) -> None:
+    """A key under ``mappings.NAME.`` must name a mapping the profile has: setting one field of a
+    mapping that is not there cannot make a valid mapping. Raises ProfileError naming them."""
+    parts = key.split(".")
+    if len(parts) < 3 or parts[0] != "mappings":
+        return
+    mappings = document.get("mappings") if isinstance(document, CommentedMap) else None
+    mappings = mappings if isinstance(mappings, CommentedMap) else {}
+    if parts[1] not in mappings:
+        there = ", ".join(map(str, mappings)) or "none"
+        raise ProfileError(
+            f"profile '{name}' has no mapping '{parts[1]}' (its mappings: {there}); set a key of one of "
+            f"those, or add the mapping with: neurotouch-hid profile edit {name}"
+        )
+
+
 def set_values(name: str, changes: dict[str, Any]) -> tuple[Path, dict[str, Any]]:
     """Set dotted keys (e.g. ``mappings.push.deadzone_mm``) in profile ``name`` and save it as the
-    user's copy, comments and order kept. Missing intermediate mappings are created.
+    user's copy, comments and order kept. Missing intermediate mappings are created, except a
+    mapping the profile does not have.
 
     Returns:
         (the user's file, key -> previous value or None).
     Raises:
-        ProfileError: bad key, or the result is not a valid profile (the file is left unchanged).
+        ProfileError: bad key, a mapping the profile does not have (its mappings named), or the
+            result is not a valid profile (the file is left unchanged).
     """
     _, document = _load_rt(name)
     previous = {}
     for key, value in changes.items():
+        _known_mapping(name, document, key)
         parent, last = _parent(document, key, create=True)
         previous[key] = parent.get(last)
         parent[last] = value
     return _save_validated(name, document), previous
 
 
-def unset_value(name: str, key: str) -> tuple[Path, Any]:
-    """Remove a dotted key (its default applies again) from profile ``name``, saved as the user's
-    copy. Returns (file, removed value). Raises ProfileError for a key that is not there or when the
-    result is invalid (the file is left unchanged)."""
+def unset_value(name: str, key: str) -> tuple[Path, Any, Any]:
+    """Undo a dotted key of profile ``name``, saved as the user's copy: back to the value of the
+    shipped profile it is a copy of (:func:`shipped_base`) where that has the key, else removed
+    (the schema's default applies).
+
+    Returns:
+        (file, the value taken away, the shipped value put back or None when the key was removed).
+    Raises:
+        ProfileError: a key that is not there, or the result is invalid (the file is left
+            unchanged).
+    """
     _, document = _load_rt(name)
     parent, last = _parent(document, key, create=False)
     if last not in parent:
         raise ProfileError(f"key '{key}' is not set in profile '{name}'")
     removed = parent[last]
-    del parent[last]
-    return _save_validated(name, document), removed
+    shipped = _MISSING
+    base = shipped_base(name)
+    if base is not None:
+        try:
+            base_parent, base_last = _parent(_yaml().load(base.read_text(encoding="utf-8")), key, create=False)
+            shipped = base_parent.get(base_last, _MISSING)
+        except ProfileError:  # the shipped profile does not have that part: the default applies
+            pass
+    if shipped is _MISSING:
+        del parent[last]
+    else:
+        parent[last] = shipped
+    return _save_validated(name, document), removed, None if shipped is _MISSING else shipped
+
+
+def edit_profile(name: str, edit_again: Callable[[str], bool]) -> Path | None:
+    """Edit profile ``name`` in the user's editor (:func:`run_editor`), as ``crontab -e`` does: on
+    a temporary copy, saved to the user's file only when it is a valid profile. On an invalid
+    save, ``edit_again(problem)`` decides: True reopens the editor on the edited text, False
+    gives up. Returns the saved file, or None when nothing was changed.
+
+    Raises:
+        ProfileError: the edit was not valid and not edited again; the user's file is left as it
+            was and the edited text is kept beside it (``NAME.yaml.rejected``, named in the message).
+        NeurotouchError: the editor cannot be started or fails.
+    """
+    target = user_profile_path(name)
+    original = find_profile(name).read_text(encoding="utf-8")
+    text = original
+    fd, tmp = tempfile.mkstemp(prefix=f"neurotouch-hid-{name}.", suffix=".yaml")
+    os.close(fd)
+    work = Path(tmp)
+    try:
+        while True:
+            work.write_text(text, encoding="utf-8")
+            run_editor(work)
+            text = work.read_text(encoding="utf-8")
+            try:
+                parse_profile(text, target)
+            except ProfileError as exc:
+                if edit_again(str(exc)):
+                    continue
+                rejected = target.with_name(f"{target.name}.rejected")
+                _write(rejected, text)
+                kept = f"{target} kept as it was" if target.exists() else f"no user copy of '{name}' made"
+                raise ProfileError(f"{exc}\nnot saved: {kept}; your edit is in {rejected}") from None
+            if text == original:
+                return None
+            _write(target, text)
+            return target
+    finally:
+        work.unlink(missing_ok=True)
 
 
 def run_editor(path: Path) -> None:

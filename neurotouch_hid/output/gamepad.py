@@ -75,18 +75,19 @@ def create_uinput(what: str, capabilities: dict, devnode: str = "/dev/uinput", *
 
     Raises:
         DeviceError: ``devnode`` cannot be used (:func:`uinput_problem`) or the kernel refuses the
-            device; the message ends with the fix (:func:`neurotouch_hid.udev.uinput_help`).
+            device; the message's first line says why, the next ones the fix
+            (:func:`neurotouch_hid.udev.uinput_help`).
     """
     problem = uinput_problem(devnode)
     if problem:
-        raise DeviceError(f"{problem}: {uinput_help()}")
+        raise DeviceError(f"{problem}\n{uinput_help()}")
     from evdev import UInput, UInputError
 
     try:
         return UInput(capabilities, devnode=devnode, **setup)
     except (OSError, UInputError) as exc:
         raise DeviceError(
-            f"the kernel refused to create the virtual {what} on {devnode}: {exc}: " + uinput_help()
+            f"the kernel refused to create the virtual {what} on {devnode}: {exc}\n" + uinput_help()
         ) from None
 
 

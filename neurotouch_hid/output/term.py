@@ -3,8 +3,10 @@
 The same ``write(state[, estimate])`` / ``neutralise()`` / ``close()`` shape as the virtual gamepad,
 so ``neurotouch-hid run --output term`` and ``demo`` (without a writable /dev/uinput) show what a
 game would get. On a terminal it redraws in place with :class:`rich.live.Live`; without one (CI,
-a pipe, a log file) it prints one plain state line at most every ``line_period_s`` seconds, and a
-last one when it is neutralised or closed.
+a pipe, a log file) it prints one plain state line whenever a button, key or d-pad direction goes
+down or up (so a press shorter than a line period still shows), otherwise at most one line every
+``line_period_s`` seconds for the analogue axes, with the mouse motion summed since the previous
+line, and a last one when it is neutralised or closed.
 
 Buttons are labelled as the Xbox 360 pad (and Linux' xpad driver) names them: BTN_SOUTH A,
 BTN_EAST B, BTN_NORTH X, BTN_WEST Y.
@@ -12,6 +14,7 @@ BTN_EAST B, BTN_NORTH X, BTN_WEST Y.
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from typing import TYPE_CHECKING, Any, Optional
@@ -120,6 +123,13 @@ def state_line(state: ControllerState, estimate: GestureEstimate | None, stats: 
     return line
 
 
+def discrete_outputs(state: ControllerState) -> tuple:
+    """What of ``state`` is on or off: the pressed buttons, the keys down and the d-pad. The piped
+    view prints a line whenever this changes."""
+    pressed = tuple(sorted(name for name, down in state.buttons.items() if down))
+    return pressed, tuple(sorted(state.keys)), state.axes["ABS_HAT0X"], state.axes["ABS_HAT0Y"]
+
+
 class TermView:
     """The gamepad state drawn in the terminal.
 
@@ -127,7 +137,8 @@ class TermView:
         console: where to draw (default: a new stdout :class:`rich.console.Console`).
         stats: the runtime's live :class:`~neurotouch_hid.stats.RunStats` (windows, dropped
             data), shown under the pad; may be set after construction.
-        line_period_s: without a terminal, the shortest time (s) between two printed lines.
+        line_period_s: without a terminal, the shortest time (s) between two printed lines when
+            only analogue axes change (a button, key or d-pad change is printed at once).
         refresh_per_second: redraw rate on a terminal.
     """
 
@@ -148,6 +159,10 @@ class TermView:
         self._estimate: GestureEstimate | None = None
         self._line_period_s = line_period_s
         self._last_line = float("-inf")
+        self._printed_discrete: tuple = discrete_outputs(self._state)
+        self._rel_since_line: dict[str, int] = {}
+        self._pending = False  # a state written but not printed yet (piped view)
+        self._timer: threading.Timer | None = None
         self._lock = threading.Lock()
         self._live: Live | None = None
         if self.console.is_terminal:
@@ -160,8 +175,16 @@ class TermView:
             self._state = state
             if estimate is not None:
                 self._estimate = estimate
-        if self._live is None and time.monotonic() - self._last_line >= self._line_period_s:
-            self._print_line()
+            for name, value in state.rel.items():
+                self._rel_since_line[name] = self._rel_since_line.get(name, 0) + value
+        if self._live is None:
+            if (
+                discrete_outputs(state) != self._printed_discrete
+                or time.monotonic() - self._last_line >= self._line_period_s
+            ):
+                self._print_line()
+            else:
+                self._print_later()
 
     def prepare(self, profile: Any) -> None:
         """Nothing to get ready: every profile's states draw alike (:class:`~neurotouch_hid.stages.Output`)."""
@@ -177,7 +200,14 @@ class TermView:
             self._live.refresh()
 
     def close(self) -> None:
-        """Stop redrawing (the last picture stays on screen)."""
+        """Stop redrawing (the last picture stays on screen); without a terminal, print the state
+        not printed yet, if any."""
+        with self._lock:
+            timer, self._timer = self._timer, None
+        if timer is not None:
+            timer.cancel()
+        if self._pending:
+            self._print_line()
         if self._live is not None:
             self._live.stop()
             self._live = None
@@ -188,10 +218,31 @@ class TermView:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    def _print_later(self) -> None:
+        """A state arrived within the line period: print it when the period is over, unless a
+        newer line comes first (so the last state of a still stretch is never left unprinted)."""
+        with self._lock:
+            self._pending = True
+            if self._timer is None:
+                delay = max(0.0, self._last_line + self._line_period_s - time.monotonic())
+                self._timer = threading.Timer(delay, self._print_pending)
+                self._timer.daemon = True
+                self._timer.start()
+
+    def _print_pending(self) -> None:
+        with self._lock:
+            self._timer = None
+        if self._pending:
+            self._print_line()
+
     def _print_line(self) -> None:
         self._last_line = time.monotonic()
         with self._lock:
-            line = state_line(self._state, self._estimate, self.stats)
+            self._pending = False
+            state = dataclasses.replace(self._state, rel={k: v for k, v in self._rel_since_line.items() if v})
+            self._rel_since_line = {}
+            self._printed_discrete = discrete_outputs(state)
+            line = state_line(state, self._estimate, self.stats)
         self.console.print(line, highlight=False, markup=False, soft_wrap=True)
 
     def __rich__(self) -> Panel:

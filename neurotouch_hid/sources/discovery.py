@@ -242,6 +242,13 @@ class Discovery:
         }
 
 
+def pip_command() -> str:
+    """pip of the Python this driver runs in (its pipx or venv environment), as a command for a
+    fix: the distribution's ``python3 -m pip`` is refused under PEP 668 and would not reach this
+    installation anyway."""
+    return f"{sys.executable} -m pip"
+
+
 def _json_usb(usb: UsbCamera | None) -> dict | None:
     if usb is None:
         return None
@@ -271,7 +278,7 @@ def find_cameras() -> list:
     backend = libusb_package.get_libusb1_backend()
     if backend is None:
         raise DeviceError(
-            "libusb-package has no libusb for this platform: python3 -m pip install --force-reinstall libusb-package"
+            f"libusb-package has no libusb for this platform: {pip_command()} install --force-reinstall libusb-package"
         )
     try:
         return list(usb.core.find(idVendor=CAMERA_VID, idProduct=CAMERA_PID, find_all=True, backend=backend))
@@ -483,7 +490,7 @@ def dv_cameras(log: list[str] | None = None) -> list[DvCamera]:
     except Exception as exc:  # ImportError, or its native library failing to load
         raise DeviceError(
             f"dv-processing cannot be imported ({type(exc).__name__}: {exc}): "
-            f"python3 -m pip install --upgrade dv-processing"
+            f"{pip_command()} install --upgrade dv-processing"
         ) from None
     from neurotouch_hid.sources.dv import DV_ERRORS, dv_error_text
 
@@ -559,7 +566,7 @@ def _diagnose(usb: UsbCamera | None, dv: DvCamera | None, dv_error: str | None, 
             None,
             CameraStatus.DV_UNAVAILABLE,
             f"{where} is accessible but dv-processing cannot list cameras ({dv_error})",
-            "python3 -m pip install --upgrade dv-processing",
+            f"{pip_command()} install --upgrade dv-processing",
         )
     return Camera(
         usb,
@@ -630,7 +637,8 @@ def discover(dv: bool = True) -> Discovery:
 
 
 def explain(found: Discovery, serial: str | None = None, error: str | None = None) -> str:
-    """One line, for a person: the state of the best camera in ``found`` and what to do (pure).
+    """For a person, one line or a few short ones: the state of the best camera in ``found`` and
+    what to do, a command alone on its line (pure).
 
     ``serial``: the camera asked for (None: any). ``error``: why opening it failed, if it was
     tried (dv-processing's text, e.g. its firmware-version message), said when the camera looks
@@ -657,7 +665,7 @@ def explain(found: Discovery, serial: str | None = None, error: str | None = Non
         if found.usb_error is not None:
             return (
                 f"no DAVIS-346 found, and pyusb cannot list USB devices ({found.usb_error}){seen}: "
-                f"python3 -m pip install --force-reinstall pyusb libusb-package"
+                f"{pip_command()} install --force-reinstall pyusb libusb-package"
             )
         return (
             f"no DAVIS-346 (USB {CAMERA_USB_ID}) found{seen}: plug the NeuroTouch's USB cable in "
@@ -675,7 +683,7 @@ def explain(found: Discovery, serial: str | None = None, error: str | None = Non
             f"{best.label()} is accessible and listed by dv-processing, but could not be used: is another "
             f"program using it? unplug and replug it, then see `neurotouch-hid doctor`{more}"
         )
-    return f"{best.problem}: {best.fix}{more}"
+    return f"{best.problem}\n{best.fix}{more}"
 
 
 def explain_no_camera(serial: str | None = None, error: str | None = None) -> str:
