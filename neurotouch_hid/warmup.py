@@ -192,6 +192,11 @@ class GroupProgress:
     state: str = "cold"
     seen: set = field(default_factory=set, repr=False)
 
+    def add(self, kernel: str) -> None:
+        """``kernel`` (``module.name``) was compiled."""
+        self.seen.add(kernel)
+        self.done = len(self.seen)
+
 
 class Warmup:
     """The cold groups of a run, compiled in child processes while the run interprets them.
@@ -296,23 +301,9 @@ class Warmup:
                 child.wait(5)
 
     def _compile_here(self, group: KernelGroup) -> None:
-        from numba.core import event
-
         progress = self.progress[group.name]
-        names = {d: name for name, d in self._kernels[group.name].items()}
-
-        class Counting(event.Listener):
-            def on_start(self, ev):
-                pass
-
-            def on_end(self, ev):
-                name = names.get(ev.data.get("dispatcher"))
-                if name is not None:
-                    progress.seen.add(name)
-                    progress.done = len(progress.seen)
-
-        self._say(f"{COMPILING}: {len(names)} {group.name} kernels, ~40 s on two cores ...")
-        with event.install_listener("numba:compile", Counting()):
+        self._say(f"{COMPILING}: {progress.total} {group.name} kernels, ~40 s on two cores ...")
+        with _on_each_compiled(self._kernels[group.name], progress.add):
             _call(group.warm)
         progress.state = "ready"
         self._say(
@@ -335,10 +326,8 @@ class Warmup:
             return
         self._children.append(child)
         for line in child.stdout:
-            name = line.strip()
-            if name in self._kernels[group.name]:
-                progress.seen.add(name)
-                progress.done = len(progress.seen)
+            if line.strip() in self._kernels[group.name]:
+                progress.add(line.strip())
         error = child.stderr.read().strip()
         if child.wait() != 0 and self._closing:  # the run ended first: what it cached stays
             return
@@ -365,6 +354,25 @@ class Warmup:
         self._say(f"{why}: numba compiles it in this process instead")
 
 
+def _on_each_compiled(group_kernels: dict[str, object], on_kernel: Callable[[str], None]):
+    """A context in which ``on_kernel(name)`` is called each time numba has compiled one of
+    ``group_kernels`` (numba's ``numba:compile`` event, nested compiles included)."""
+    from numba.core import event
+
+    names = {d: name for name, d in group_kernels.items()}
+
+    class Reporting(event.Listener):
+        def on_start(self, ev):
+            pass
+
+        def on_end(self, ev):
+            name = names.get(ev.data.get("dispatcher"))
+            if name is not None:
+                on_kernel(name)
+
+    return event.install_listener("numba:compile", Reporting())
+
+
 def _call(spec: str) -> None:
     import importlib
 
@@ -378,21 +386,8 @@ def main(argv: list[str]) -> int:
     if len(argv) != 1 or argv[0] not in GROUPS:
         print(f"expected one group among: {', '.join(GROUPS)}", file=sys.stderr)
         return 2
-    from numba.core import event
-
     group = GROUPS[argv[0]]
-    names = {d: name for name, d in kernels(group).items()}
-
-    class Reporting(event.Listener):
-        def on_start(self, ev):
-            pass
-
-        def on_end(self, ev):
-            name = names.get(ev.data.get("dispatcher"))
-            if name is not None:
-                print(name, flush=True)
-
-    with event.install_listener("numba:compile", Reporting()):
+    with _on_each_compiled(kernels(group), lambda name: print(name, flush=True)):
         _call(group.warm)
     return 0
 
