@@ -291,7 +291,9 @@ class Warmup:
         return not any(t.is_alive() for t in self._threads)
 
     def close(self) -> None:
-        """Stop the children still compiling (the run ended first); what they cached stays."""
+        """Stop the children still compiling (the run ended first; what they cached stays) and
+        point the names of the groups still interpreted back at the compiled kernels (a later run
+        in this process compiles or loads them when it first calls them)."""
         self._closing = True
         for child in self._children:
             if child.poll() is None:
@@ -299,6 +301,11 @@ class Warmup:
         for child in self._children:
             with contextlib.suppress(subprocess.TimeoutExpired):
                 child.wait(5)
+        for name, progress in self.progress.items():
+            with self._locks[name]:
+                if progress.state == "cold":
+                    compiled(self._kernels[name])
+                    progress.state = "failed"
 
     def _compile_here(self, group: KernelGroup) -> None:
         progress = self.progress[group.name]

@@ -153,3 +153,18 @@ def test_a_source_that_waits_loses_nothing_to_a_slow_pipeline(max_lag_us):
     stats = runtime.run()
     assert stats.dropped_items == 0 and stats.dropped_events == 0
     assert pipeline.events == stats.events == 3000
+
+
+def test_a_run_that_ends_before_its_compile_leaves_the_compiled_kernels_named(tmp_path, monkeypatch):
+    """The run's process goes on (tests, a second run): nothing stays interpreted after close."""
+    import neurotouch_hid.sources.esim as esim
+
+    found = warmup.kernels(warmup.SIMULATOR)
+    chunk = found["neurotouch_hid.sources.esim.esim_chunk"]
+    run = warmup.Warmup([warmup.SIMULATOR], say=lambda line: None)
+    monkeypatch.setattr(warmup, "cached_signatures", lambda dispatcher: [])  # cold, whatever is cached
+    monkeypatch.setattr(run, "_child", lambda group: None)  # a compile that never ends
+    run.start()
+    assert esim.esim_chunk is chunk.py_func and run.compiling
+    run.close()
+    assert esim.esim_chunk is chunk and not run.compiling
