@@ -111,3 +111,38 @@ def test_the_demo_in_a_real_80x24_terminal_shows_the_gel_the_gestures_and_the_pr
         subprocess.run([tmux, "send-keys", "-t", session, "C-c"], capture_output=True)
         time.sleep(2)
         subprocess.run([tmux, "kill-session", "-t", session], capture_output=True)
+
+
+def test_the_gamepad_with_the_view_beside_it_gets_every_state_and_is_neutralised():
+    import io
+
+    from rich.console import Console
+
+    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.estimate import GestureEstimate, GestureType
+    from neurotouch_hid.output.live import LiveView, ShownOutput
+
+    class Pad:
+        accepts_estimate = False
+
+        def __init__(self):
+            self.written, self.neutralised = [], 0
+
+        def write(self, state):
+            self.written.append(state)
+
+        def neutralise(self):
+            self.neutralised += 1
+
+        def prepare(self, profile):
+            pass
+
+    pad = Pad()
+    view = LiveView(Console(file=io.StringIO(), force_terminal=False, width=200))
+    shown = ShownOutput(pad, view)
+    state = ControllerState.neutral(10_000)
+    state.axes["ABS_X"] = 20_000
+    shown.write(state, GestureEstimate(t_us=10_000, gesture=GestureType.PUSH, intensity_mm=3.0))
+    shown.neutralise()
+    assert pad.written == [state] and pad.neutralised == 1
+    assert "push 3.00 mm" in view.console.file.getvalue()
