@@ -1,11 +1,11 @@
 """How much a creep model's error costs: the ``viscoelastic`` family's predictions replayed
 through the load estimate with a given (q, tau) (docs/method.md, "Creep").
 
-The pipeline (``PipelineConfig.creep_load``) answers ``none`` in a window whose load, the
+The pipeline (docs/method.md, "Creep") answers ``none`` in a window whose load, the
 window's intensity through the standard linear solid's inverse with the gel's measured creep
-(``pipeline/creep.py``), is below ``min_intensity_px``. ``calibrate --press`` measures (q, tau)
+(``pipeline/creep.py``), is below the minimum intensity. ``calibrate --press`` measures (q, tau)
 on a press; this replays a family_eval.py method's predictions (made without the rule, e.g.
-``creep_load=false``) with any (q, tau) instead, after the episode vote: every gesture window
+a sensor.yaml without ``creep``) with any (q, tau) instead, after the episode vote: every gesture window
 whose load is below the threshold is turned to ``none``, and the result scored against the
 labels (only the type of gesture windows can change). It shows how far from the gel's true creep
 a calibration may be before the rule stops paying.
@@ -37,10 +37,10 @@ METRICS = ("gesture_accuracy", "contact_count_accuracy", "contact_distance_mm", 
 def replay(dataset: Path, predictions: Path, share: float, time_s: float) -> dict:
     """The predictions of ``predictions`` (one JSON lines file per sequence of ``dataset``) with
     every gesture window whose estimated load (mm, :func:`load_estimate` of the windows'
-    intensities) is below ``PipelineConfig().min_intensity_px`` answered ``none``, scored
+    intensities) is below ``PipelineConfig().gesture.min_intensity_mm`` answered ``none``, scored
     against the labels. Returns the metrics and ``changed``, the windows turned to ``none``."""
     sensor = SensorGeometry.load(dataset / "sensor.yaml")
-    threshold_mm = PipelineConfig().min_intensity_px / sensor.px_per_mm
+    threshold_mm = PipelineConfig().gesture.min_intensity_mm
     parts, changed = [], 0
     for name in list_sequences(dataset):
         windows = read_predictions(predictions / f"{name}.jsonl")

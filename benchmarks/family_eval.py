@@ -44,8 +44,7 @@ from neurotouch_hid.dataset import list_sequences, read_labels, read_predictions
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.evaluation.metrics import Observations, align, evaluate
 from neurotouch_hid.evaluation.runner import evaluate_dataset, pipeline_config
-from neurotouch_hid.pipeline.gesture import EpisodeVote
-from neurotouch_hid.pipeline.pipeline import PipelineConfig
+from neurotouch_hid.pipeline.episode import EpisodeVote
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import PHYSICS
 from neurotouch_hid.sources.simulator import write_dataset
@@ -70,7 +69,7 @@ METRICS = (
 )
 #: ``ours`` is the tuned pipeline without the episode vote (its predictions are replayed through
 #: the vote as ``ours+vote``, which is the default now).
-DEFAULT_METHODS = ("ours=default:episode_vote=false", "paper=paper")
+DEFAULT_METHODS = ("ours=default", "paper=paper")
 
 app = typer.Typer(add_completion=False)
 
@@ -123,7 +122,7 @@ def main(
         "ours",
         "--vote-of",
         help="also score METHOD+vote: METHOD's predictions "
-        "replayed through the episode vote (gesture.EpisodeVote, as episode_vote=true does)",
+        "replayed through the episode vote (episode.EpisodeVote, as the product does)",
     ),
 ) -> None:
     console = Console(soft_wrap=True)
@@ -205,15 +204,15 @@ def press_creep(press_dir: Path, family: str, sensor_file: Path) -> tuple[float,
 
 def replay_vote(dataset: Path, predictions: Path, method: str) -> dict:
     """METHOD's predictions (``predictions/METHOD``) through :class:`EpisodeVote`, written to
-    ``predictions/METHOD+vote`` and scored: the same per-window estimates as the pipeline with
-    ``episode_vote=true`` and the default ``vote_restart`` (the vote only reads each window's
-    type, intensity and contact count, in order)."""
+    ``predictions/METHOD+vote`` and scored: the same per-window estimates as the product's
+    episode vote (docs/method.md, "Episode vote"; the vote only reads each window's type,
+    intensity and contact count, in order)."""
     sensor = SensorGeometry.load(dataset / "sensor.yaml")
     dst = predictions / f"{method}+vote"
     dst.mkdir(parents=True, exist_ok=True)
     parts = []
     for name in list_sequences(dataset):
-        vote = EpisodeVote(restart_on_contacts=PipelineConfig().vote_restart)
+        vote = EpisodeVote()
         voted = [
             replace(p, gesture=vote.update(p.gesture, p.intensity_mm, p.n_contacts))
             for p in read_predictions(predictions / method / f"{name}.jsonl")

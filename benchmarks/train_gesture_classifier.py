@@ -54,7 +54,7 @@ def rows(dataset: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(features (W, 9), true class (W,), the rule's class (W,)) of a dataset's windows that both
     the rule and the labels call a gesture; the snapshots are recorded under ``dataset/snap``."""
     sensor = SensorGeometry.load(dataset / "sensor.yaml")
-    config = pipeline_config(["gesture_classifier=false"])
+    config = pipeline_config()
     snaps = dataset / "snap"
     snaps.mkdir(exist_ok=True)
     x, y, rule = [], [], []
@@ -63,6 +63,7 @@ def rows(dataset: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             record_sequence(dataset, name, config, snaps)
         data = np.load(snaps / f"{name}.npz")
         pipeline = GesturePipeline(sensor, config)
+        pipeline._learned_type = lambda result, *_: result  # the rule's type: what the classifier learns from
         pipeline.rest_px = data["rest_px"]
         pipeline._use_camera_model()
         labels = labels_at(read_labels(dataset / f"{name}.labels.csv"), data["t_us"])

@@ -8,7 +8,7 @@ test users 0-4, so tuning never sees a test user or seed.
 
 Two stages, so that a grid costs minutes rather than hours:
 
-1. **Resting threshold** -- the Chamfer distance of every APS frame to the first one
+1. **Resting threshold** -- the centroid Chamfer distance of every APS frame to the first one
    (:class:`~neurotouch_hid.pipeline.resting.RestingDetector`) is computed once; every candidate
    threshold is scored by the resting F1 against the labels of those frames (labels are per APS
    frame). The best threshold is kept for stage 2 (it changes when the tracker is reset).
@@ -72,8 +72,8 @@ TARGETS = (
     ("resting_f1", 0.97, True),
 )
 
-DEFAULT_GRID = ("r_px=20,25,30", "a=0.4,0.6,0.9", "n_min=3,4")
-DEFAULT_CHAMFER = "0.5,1,1.5,2,2.5,3,4"
+DEFAULT_GRID = ("contacts.r_mm=8,10,12", "contacts.a=0.4,0.6,0.9", "contacts.n_min=3,4")
+DEFAULT_CHAMFER = "0.0008,0.0016,0.0032,0.005,0.008"
 
 console = make_console()
 
@@ -117,10 +117,10 @@ def chamfer_series(dataset: Path, name: str, marker_threshold: int | None) -> tu
             if not isinstance(item, Frame):
                 continue
             if detector is None:
-                detector = RestingDetector(item.image, sensor, binary_threshold=marker_threshold)
+                detector = RestingDetector(item.image, sensor, binary_threshold=marker_threshold, centroids=True)
                 continue
             times.append(item.t_us)
-            distances.append(detector.update(item).distance)
+            distances.append(detector.update(item).distance / sensor.px_per_mm**2)  # mm^2, as the setting
     truth = labels_at(read_labels(dataset / f"{name}.labels.csv"), np.array(times, dtype=np.int64))
     keep = [k for k, row in enumerate(truth) if row is not None]
     return np.array(distances)[keep], np.array([truth[k].resting for k in keep])
@@ -162,17 +162,17 @@ def record_sequence(dataset: Path, name: str, config, out: Path) -> Path:
         valid=np.array(valid),
         resting=np.array(resting),
         rest_px=pipeline.rest_px,
-        chamfer_threshold=config.chamfer_threshold,
+        centroid_threshold=config.resting.centroid_threshold_mm2,
     )
     return path
 
 
-def recorded_with(path: Path, chamfer_threshold: float) -> bool:
+def recorded_with(path: Path, centroid_threshold: float) -> bool:
     """True when ``path`` holds windows recorded with this resting threshold (reused then)."""
     if not path.exists():
         return False
     with np.load(path) as data:
-        return "chamfer_threshold" in data and float(data["chamfer_threshold"]) == chamfer_threshold
+        return "centroid_threshold" in data and float(data["centroid_threshold"]) == centroid_threshold
 
 
 def replay(dataset: Path, snapshots: Path, names: list[str], settings: list[str]) -> dict:
@@ -225,14 +225,16 @@ def main(
     pool = ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn"))
 
     # stage 1
-    series = list(pool.map(chamfer_series, [tuning] * len(names), names, [defaults.marker_threshold] * len(names)))
+    series = list(
+        pool.map(chamfer_series, [tuning] * len(names), names, [defaults.resting.marker_threshold] * len(names))
+    )
     distances = np.concatenate([d for d, _ in series])
     resting = np.concatenate([r for _, r in series])
     thresholds = [float(v) for v in chamfer.split(",")]
     f1s = {thr: resting_f1(distances, resting, thr) for thr in thresholds}
     best_chamfer = max(thresholds, key=lambda thr: f1s[thr])
     table = Table(title=f"Resting threshold on {len(distances)} APS frames (users {users}, seed {TUNING_SEED})")
-    table.add_column("chamfer_threshold", justify="right")
+    table.add_column("centroid_threshold_mm2", justify="right")
     table.add_column("resting F1 (frames)", justify="right")
     for thr in thresholds:
         table.add_row(f"{thr:g}", f"{100 * f1s[thr]:.2f} %")
@@ -241,11 +243,11 @@ def main(
     # stage 2
     snapshots = out / "windows"
     snapshots.mkdir(parents=True, exist_ok=True)
-    config = pipeline_config([f"chamfer_threshold={best_chamfer}"])
+    config = pipeline_config([f"resting.centroid_threshold_mm2={best_chamfer}"])
     stale = [n for n in names if not recorded_with(snapshots / f"{n}.npz", best_chamfer)]
     list(pool.map(record_sequence, [tuning] * len(stale), stale, [config] * len(stale), [snapshots] * len(stale)))
     combos = [
-        [f"chamfer_threshold={best_chamfer}"] + [f"{k}={v}" for k, v in zip(axes, combo)]
+        [f"resting.centroid_threshold_mm2={best_chamfer}"] + [f"{k}={v}" for k, v in zip(axes, combo)]
         for combo in itertools.product(*axes.values())
     ]
     rows = list(pool.map(replay, [tuning] * len(combos), [snapshots] * len(combos), [names] * len(combos), combos))

@@ -32,14 +32,14 @@ step here is scale-free:
    as the grid, and the linear scale stays).
 5. **Rest layout** -- the markers of the averaged rest frame are written to sensor.yaml as
    ``rest_markers_px`` (image px): the pipeline refuses a first frame whose markers are off this
-   layout (a run that starts with the gel pressed; ``PipelineConfig.rest_match_pitch``).
+   layout (a run that starts with the gel pressed; docs/method.md, "Markers").
 6. **Marker count** -- refused below half the expected count (paper: 177), noted when off by
    more than :data:`COUNT_TOLERANCE`.
 7. **Creep** (``calibrate --press``, optional) -- a soft gel creeps under a held finger and
    relaxes slowly after it: :func:`measure_creep` tracks a recorded press with the pipeline and
    fits a standard linear solid to its amplitude (:mod:`neurotouch_hid.pipeline.creep`);
    sensor.yaml gets ``creep`` (q, tau), with which the pipeline tells a release's relaxation
-   from a gesture (``PipelineConfig.creep_load``).
+   from a gesture (docs/method.md, "Creep").
 
 Mirror and rotation cannot be seen on a rest frame: :func:`calibrate` leaves SensorGeometry's
 defaults (mirror, as the camera looks from inside; no rotation) for the caller to set.
@@ -411,11 +411,11 @@ def press_amplitude(recording: str | Path, sensor: SensorGeometry) -> tuple[np.n
     Returns:
         (t_us (T,) int64 us, amplitude (T,) float64 px).
     Raises:
-        RecordingError: the file cannot be read (see ``pipeline.track.pipeline_over``).
+        RecordingError: the file cannot be read (see ``track.pipeline_over``).
         SensorError: no gel on its first APS frame.
     """
-    from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
-    from neurotouch_hid.pipeline.track import pipeline_over
+    from neurotouch_hid.pipeline.pipeline import GesturePipeline
+    from neurotouch_hid.track import pipeline_over
 
     times: list[int] = []
     amplitude: list[float] = []
@@ -426,7 +426,7 @@ def press_amplitude(recording: str | Path, sensor: SensorGeometry) -> tuple[np.n
         times.append(estimate.t_us)
         amplitude.append(float(np.sort(moved)[-PRESS_MARKERS:].mean()) if len(moved) else 0.0)
 
-    pipeline = GesturePipeline(sensor, PipelineConfig(creep_load=False), on_window=keep)
+    pipeline = GesturePipeline(sensor, on_window=keep)
     for _ in pipeline_over(recording, pipeline):
         pass
     return np.array(times, dtype=np.int64), np.array(amplitude)

@@ -284,6 +284,10 @@ def simulate(
     console.print(f"wrote {folder}")
 
 
+#: ``--method``'s help (track, eval, run).
+METHOD_HELP = "the gesture pipeline: default (the product's) or paper (the paper's method exactly)"
+
+
 # --- the pipeline (pipeline/) ---------------------------------------------------------------
 @app.command()
 def track(
@@ -292,20 +296,18 @@ def track(
     sensor: Optional[Path] = typer.Option(None, "--sensor", help="sensor.yaml (default: the one beside the recording)"),
     window_us: int = typer.Option(10_000, "--window-us", help="window length in microseconds (>= 1000)"),
     markers: Optional[Path] = typer.Option(None, "--markers", help="also write tracked marker positions (.npz)"),
-    preset: str = typer.Option(
-        "default", "--preset", help="pipeline settings: default (tuned) or paper (the paper's method exactly)"
-    ),
+    method: str = typer.Option("default", "--method", "--preset", help=METHOD_HELP),
 ) -> None:
     """Run the gesture pipeline on a recording and write one prediction per window."""
     with long_lived_start_up():
         from neurotouch_hid.evaluation.runner import pipeline_config
-        from neurotouch_hid.pipeline.pipeline import GesturePipeline
-        from neurotouch_hid.pipeline.track import recording_progress, track_recording
+        from neurotouch_hid.pipeline.methods import pipeline_for
         from neurotouch_hid.sensor import find_sensor_file
+        from neurotouch_hid.track import recording_progress, track_recording
 
-        config = pipeline_config(preset=preset, window_us=window_us)
+        config = pipeline_config(method=method, window_us=window_us)
         geometry = find_sensor_file(recording, sensor)
-        GesturePipeline(geometry, config).compile_kernels()  # numba's cached code, loaded now
+        pipeline_for(geometry, config).compile_kernels()  # numba's cached code, loaded now
     with recording_progress(err_console, "tracking") as report:
         summary = track_recording(recording, out, geometry, config, markers_out=markers, on_progress=report)
     console.print(
@@ -326,13 +328,13 @@ def eval_cmd(
         None, "--window-us", help="window length in microseconds (default: PipelineConfig's)"
     ),
     settings: list[str] = typer.Option(
-        [], "--set", help="pipeline hyperparameter NAME=VALUE (a PipelineConfig field), repeatable"
+        [],
+        "--set",
+        help="pipeline hyperparameter NAME=VALUE, repeatable: a field of the method's config; default: "
+        "window_us, noise_filter, noise_filter_us (us), contacts.*, gesture.*, resting.* (*_mm in mm on the gel, "
+        "*_mm2 in mm^2), tracker.* (px at 2.5 px/mm, scaled to sensor.yaml's); paper: its fields in px",
     ),
-    preset: str = typer.Option(
-        "default",
-        "--preset",
-        help="pipeline settings before --set: default (tuned) or paper (the paper's method exactly)",
-    ),
+    method: str = typer.Option("default", "--method", "--preset", help=METHOD_HELP + "; --set applies over it"),
     jobs: int = typer.Option(1, "--jobs", min=1, help="sequences run in parallel processes"),
     predictions: Optional[Path] = typer.Option(
         None, "--predictions", help="keep each sequence's predictions here (JSON lines)"
@@ -347,7 +349,7 @@ def eval_cmd(
     from neurotouch_hid.evaluation.report import print_tables, write_report
     from neurotouch_hid.evaluation.runner import evaluate_dataset, pipeline_config
 
-    config = pipeline_config(settings, preset, **({} if window_us is None else {"window_us": window_us}))
+    config = pipeline_config(settings, method, **({} if window_us is None else {"window_us": window_us}))
     columns = (
         TextColumn("{task.description}"),
         BarColumn(),
@@ -360,7 +362,7 @@ def eval_cmd(
     print_tables(result, console)
     argv = (
         ["eval", str(dataset)]
-        + ([f"--preset={preset}"] if preset != "default" else [])
+        + ([f"--method={method}"] if method != "default" else [])
         + [f"--set={item}" for item in settings]
         + [
             f"{flag}={value}"
@@ -391,9 +393,9 @@ def view(
     sensor: Optional[Path] = typer.Option(None, "--sensor", help="sensor.yaml (default: the one beside the recording)"),
 ) -> None:
     """Draw what the pipeline sees: APS frame, events, markers, displacements, contacts, gesture."""
-    from neurotouch_hid.pipeline.track import recording_progress
-    from neurotouch_hid.pipeline.view import render_view
     from neurotouch_hid.sensor import find_sensor_file
+    from neurotouch_hid.track import recording_progress
+    from neurotouch_hid.view import render_view
 
     geometry = find_sensor_file(recording, sensor)
     with recording_progress(err_console, "drawing") as report:
@@ -461,6 +463,7 @@ def run(
         "data is dropped; more lets a slow machine track every event, later",
         callback=_finite,
     ),
+    method: str = typer.Option("default", "--method", help=METHOD_HELP),
 ) -> None:
     """Run the driver: source -> pipeline -> profile -> virtual gamepad.
 
@@ -484,6 +487,7 @@ def run(
         davis=_davis_config(serial, exposure_us, stall_timeout),
         say=lambda line: err_console.print(line, markup=False, highlight=False, soft_wrap=True),
         max_lag_us=round(max_lag_ms * 1000),
+        method=method,
     )
     err_console.print(stats.summary(), highlight=False, soft_wrap=True)
 

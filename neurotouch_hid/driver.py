@@ -13,7 +13,7 @@ from __future__ import annotations
 import contextlib
 import logging
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Protocol
 
 from neurotouch_hid.errors import DeviceError, NeurotouchError
 from neurotouch_hid.estimate import GestureEstimate
@@ -21,10 +21,31 @@ from neurotouch_hid.kinds import OutputKind, SourceKind
 from neurotouch_hid.mapping.profile import Profile, load_profile
 from neurotouch_hid.runtime import DEFAULT_BATCH_US, DEFAULT_MAX_LAG_US, Runtime
 from neurotouch_hid.sources import Frame
-from neurotouch_hid.stages import Output
+from neurotouch_hid.stages import Output, Pipeline, RestingDetection, SourceStream
 from neurotouch_hid.stats import RunStats
 
+if TYPE_CHECKING:
+    from rich.console import Console
+
+    from neurotouch_hid.output.live import LiveScene
+    from neurotouch_hid.pipeline.pipeline import GesturePipeline
+    from neurotouch_hid.pipeline.resting import RestingResult
+    from neurotouch_hid.sensor import SensorGeometry
+    from neurotouch_hid.sources.davis import DavisConfig
+    from neurotouch_hid.warmup import KernelGroup, Warmup
+
 log = logging.getLogger(__name__)
+
+
+class CameraBackend(Protocol):
+    """What the live camera's source asks of dv-processing's camera module (``dv.io.camera``),
+    or of a stand-in that replays recordings (tests)."""
+
+    def discover(self) -> list:
+        """The cameras plugged in (dv-processing's descriptors)."""
+
+    def open(self, descriptor: object) -> object:
+        """The opened camera of one descriptor."""
 
 
 class EstimateReplay:
@@ -37,7 +58,7 @@ class EstimateReplay:
     def restart(self) -> None:  # pragma: no cover - a predictions file is never interrupted
         pass
 
-    def set_resting(self, result: Any, t_us: int) -> None:  # pragma: no cover - no frames here
+    def set_resting(self, result: RestingResult | None, t_us: int) -> None:  # pragma: no cover - no frames
         pass
 
 
@@ -49,12 +70,13 @@ def open_source(
     batch_us: int = DEFAULT_BATCH_US,
     sensor: str | Path | None = None,
     seed: int = 0,
-    davis: Any = None,
+    davis: DavisConfig | None = None,
     wait: bool = False,
-    capture: Any = None,
-    scene: Any = None,
-    warmup: Any = None,
-) -> tuple[Iterable[Any], Any, bool]:
+    capture: CameraBackend | None = None,
+    filter_noise: bool = True,
+    scene: LiveScene | None = None,
+    warmup: Warmup | None = None,
+) -> tuple[SourceStream, SensorGeometry | None, bool]:
     """Open ``davis`` (the live camera), ``sim`` (the simulated gel), an AEDAT4 recording path, or
     a predictions file (``*.jsonl``, docs/dataset.md: the pipeline's estimates, replayed as they are).
 
@@ -64,7 +86,8 @@ def open_source(
     failing, ``capture`` replaces dv-processing's camera backend (tests replay recordings through
     it). Its geometry is ``sensor``, else the user's calibration, else the built-in one. The
     pipeline's default noise filter runs in the camera's source, on dv-processing's own event
-    stores (no copies; build the pipeline with ``filter_noise=False`` then).
+    stores (no copies; build the pipeline with ``filter_noise=False`` then); ``filter_noise``
+    False: none (the paper's method).
 
     Returns ``(stream, sensor_geometry, live)``; ``live`` is True for the camera (never paced by
     the runtime); the geometry is None for a predictions file. Resources (camera, file) are
@@ -90,7 +113,7 @@ def open_source(
         defaults = PipelineConfig()
         noise = (
             EventNoiseFilter(defaults.noise_filter, *DAVIS346_RESOLUTION, defaults.noise_filter_us)
-            if defaults.noise_filter is not None
+            if filter_noise and defaults.noise_filter is not None
             else None
         )
         try:
@@ -106,8 +129,9 @@ def open_source(
         if scene is None and warmup is None:
             return sim.stream(seconds=seconds, batch_us=batch_us), sim.sensor, False
         from neurotouch_hid.output.live import labelled_simulation
+        from neurotouch_hid.warmup import SIMULATOR
 
-        return labelled_simulation(sim, scene, _guard(warmup, "simulator"), seconds, batch_us), sim.sensor, False
+        return labelled_simulation(sim, scene, _guard(warmup, SIMULATOR), seconds, batch_us), sim.sensor, False
     from neurotouch_hid.errors import RecordingError
     from neurotouch_hid.sources.recording import RecordingReader
 
@@ -126,7 +150,7 @@ def open_output(
     stack: contextlib.ExitStack,
     *,
     out: str | Path | None = None,
-    console: Any = None,
+    console: Console | None = None,
     say: Callable[[str], None] | None = None,
     stats: RunStats | None = None,
 ) -> Output:
@@ -159,21 +183,27 @@ class PipelineResting:
     ``GesturePipeline`` creates its :class:`~neurotouch_hid.pipeline.resting.RestingDetector` at
     its reference (first) APS frame; until then :meth:`update` has no verdict (None)."""
 
-    def __init__(self, pipeline: Any):
+    def __init__(self, pipeline: GesturePipeline):
         self._pipeline = pipeline
 
-    def update(self, frame: Frame) -> Any:
+    def update(self, frame: Frame) -> RestingResult | None:
         """The Chamfer-distance verdict for ``frame`` (``RestingResult``), or None."""
         detector = self._pipeline.resting_detector
         return None if detector is None else detector.update(frame, verdict_only=True)
 
 
 def build_pipeline(
-    geometry: Any, window_us: int, *, resting_beside: bool = True, filter_noise: bool = True
-) -> tuple[Any, PipelineResting | None]:
-    """A ``GesturePipeline`` with ``window_us`` windows, and the resting detector to run beside it.
+    geometry: SensorGeometry,
+    window_us: int,
+    *,
+    method: str = "default",
+    resting_beside: bool = True,
+    filter_noise: bool = True,
+) -> tuple[GesturePipeline, PipelineResting | None]:
+    """The ``method``'s pipeline (``pipeline.methods``) with ``window_us`` windows, and the resting
+    detector to run beside it.
 
-    ``filter_noise``: the pipeline runs its default noise filter (``PipelineConfig.noise_filter``);
+    ``filter_noise``: the product's pipeline runs its noise filter (``PipelineConfig.noise_filter``);
     False when the source already did (the live camera, :func:`open_source`).
 
     ``resting_beside``: the resting detection runs in the runtime's own thread (paper, section
@@ -182,16 +212,16 @@ def build_pipeline(
     the run is deterministic (the same input gives the same estimates): what ``--fast`` replays
     use, as nothing there needs to keep up with the camera.
     """
-    from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
+    from neurotouch_hid.evaluation.runner import pipeline_config
+    from neurotouch_hid.pipeline.methods import pipeline_for
 
-    config = PipelineConfig(window_us=window_us, detect_resting=not resting_beside)
-    if not filter_noise:
-        config.noise_filter = config.noise_filter_us = None
-    pipeline = GesturePipeline(geometry, config)
+    quiet = {} if filter_noise or method != "default" else {"noise_filter": None}
+    config = pipeline_config(method=method, window_us=window_us, **quiet)
+    pipeline = pipeline_for(geometry, config, detect_resting=not resting_beside)
     return pipeline, (PipelineResting(pipeline) if resting_beside else None)
 
 
-def start_warmup(source: str, *, fast: bool, say: Callable[[str], None]) -> Any:
+def start_warmup(source: str, *, fast: bool, say: Callable[[str], None], method: str = "default") -> Warmup | None:
     """The first run's compile for ``source`` (:class:`~neurotouch_hid.warmup.Warmup`), started.
 
     The simulated gel in real time (``demo``, ``run --source sim``) runs at once: its cold
@@ -199,22 +229,19 @@ def start_warmup(source: str, *, fast: bool, say: Callable[[str], None]) -> Any:
     data. Other sources (the camera cannot wait; ``--fast`` replays must be deterministic)
     compile the cold kernels here first, saying so. Warm kernels are loaded from the cache now
     (a first call would otherwise stall the run). None for a predictions file (no pipeline)."""
-    from neurotouch_hid.warmup import PIPELINE, SIMULATOR, Warmup
+    from neurotouch_hid.warmup import PIPELINE_OF, SIMULATOR, Warmup
 
     if source.endswith(".jsonl"):
         return None
     interpreted = source == SourceKind.SIM and not fast
-    groups = [PIPELINE, SIMULATOR] if source == SourceKind.SIM else [PIPELINE]
+    pipeline = PIPELINE_OF[method]
+    groups = [pipeline, SIMULATOR] if source == SourceKind.SIM else [pipeline]
     return Warmup(groups, say=say, interpreted=interpreted).start()
 
 
-def _guard(warmup: Any, group_name: str) -> Callable[[], Any] | None:
-    """A zero-argument callable giving ``warmup`` 's guard of the group (None without warmup)."""
-    if warmup is None:
-        return None
-    from neurotouch_hid.warmup import GROUPS
-
-    return lambda: warmup.guard(GROUPS[group_name])
+def _guard(warmup: Warmup | None, group: KernelGroup) -> Callable[[], Any] | None:
+    """A zero-argument callable giving ``warmup`` 's guard of ``group`` (None without warmup)."""
+    return None if warmup is None else (lambda: warmup.guard(group))
 
 
 def _with_view(
@@ -243,14 +270,15 @@ def run_driver(
     window_us: int = 10_000,
     sensor: str | Path | None = None,
     seed: int = 0,
-    console: Any = None,
+    console: Console | None = None,
     output_obj: Output | None = None,
-    davis: Any = None,
+    davis: DavisConfig | None = None,
     wait: bool = False,
-    capture: Any = None,
+    capture: CameraBackend | None = None,
     say: Callable[[str], None] = log.warning,
     stats: RunStats | None = None,
     max_lag_us: int = DEFAULT_MAX_LAG_US,
+    method: str = "default",
 ) -> RunStats:
     """``neurotouch-hid run``: load the profile (a bad one raises ProfileError before any device
     exists), open the source, build the pipeline, open the output, run until the end.
@@ -263,7 +291,8 @@ def run_driver(
     ``output_obj`` replaces the output named by ``output`` (the demo's fallback, benchmarks);
     ``stats`` is where the run is counted (the one a given terminal view shows).
     ``davis``, ``wait``, ``capture``: the live camera's settings (:func:`open_source`); ``say``
-    tells the user when it is lost and back.
+    tells the user when it is lost and back. ``method``: the gesture pipeline
+    (``pipeline.methods``: ``default`` or ``paper``).
     Raises NeurotouchError subclasses for bad input (ProfileError, RecordingError, DeviceError,
     SensorError).
     """
@@ -273,13 +302,18 @@ def run_driver(
         raise NeurotouchError(f"--window-us {window_us}: windows must be at least 1000 us")
     if max_lag_us < 1000:
         raise NeurotouchError(f"--max-lag-ms {max_lag_us / 1000:g}: the lag allowed must be at least 1 ms")
+    from neurotouch_hid.pipeline.methods import METHODS
+
+    if method not in METHODS:
+        raise NeurotouchError(f"--method {method!r}: expected one of {', '.join(METHODS)}")
     loaded = load_profile(profile)
-    warmup = start_warmup(source, fast=fast, say=say)
+    warmup = start_warmup(source, fast=fast, say=say, method=method)
     stats = stats if stats is not None else RunStats()
     with contextlib.ExitStack() as stack:
         if warmup is not None:
             stack.callback(warmup.close)
         from neurotouch_hid.output.live import LiveScene, ScenePipeline
+        from neurotouch_hid.warmup import PIPELINE_OF
 
         scene = LiveScene(None, str(profile), loaded, warmup=warmup, demo=source == SourceKind.SIM)
         stream, geometry, live = open_source(
@@ -294,14 +328,19 @@ def run_driver(
             capture=capture,
             scene=scene,
             warmup=warmup,
+            filter_noise=method == "default",
         )
         scene.sensor = geometry
+        pipeline: Pipeline
+        resting: RestingDetection | None = None
         if geometry is None:  # a predictions file: the estimates are already there
-            pipeline, resting = EstimateReplay(), None
+            pipeline = EstimateReplay()
         else:
-            built, resting = build_pipeline(geometry, window_us, resting_beside=live or not fast, filter_noise=not live)
-            pipeline = ScenePipeline(built, scene, _guard(warmup, "pipeline"))
-            resting = pipeline.resting(resting)
+            built, resting = build_pipeline(
+                geometry, window_us, method=method, resting_beside=live or not fast, filter_noise=not live
+            )
+            watched = ScenePipeline(built, scene, _guard(warmup, PIPELINE_OF[method]))
+            pipeline, resting = watched, watched.resting(resting)
         out_obj = (
             output_obj
             if output_obj is not None
@@ -331,7 +370,7 @@ def gamepad_or_terminal(
     profile: Profile,
     stack: contextlib.ExitStack,
     *,
-    console: Any = None,
+    console: Console | None = None,
     say: Callable[[str], None] = print,
     stats: RunStats | None = None,
 ) -> Output:
@@ -348,7 +387,9 @@ def gamepad_or_terminal(
         return open_output("term", profile, stack, console=console, stats=stats)
 
 
-def run_demo(seconds: float | None = 30.0, *, console: Any = None, say: Callable[[str], None] = print) -> RunStats:
+def run_demo(
+    seconds: float | None = 30.0, *, console: Console | None = None, say: Callable[[str], None] = print
+) -> RunStats:
     """``neurotouch-hid demo``: the simulated gel performing every gesture, paced in real time,
     through the default profile, to the virtual gamepad (or the terminal view, see
     :func:`gamepad_or_terminal`)."""

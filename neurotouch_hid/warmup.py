@@ -70,7 +70,7 @@ class KernelGroup:
 
 PIPELINE = KernelGroup(
     "pipeline",
-    "neurotouch_hid.pipeline.pipeline",
+    "neurotouch_hid.pipeline.methods",
     ("neurotouch_hid.pipeline.",),
     "neurotouch_hid.warmup:compile_pipeline",
     load_when_warm=True,
@@ -81,17 +81,32 @@ SIMULATOR = KernelGroup(
     ("neurotouch_hid.sources.esim", "neurotouch_hid.sources.simulator"),
     "neurotouch_hid.warmup:simulate_briefly",
 )
-GROUPS = {g.name: g for g in (PIPELINE, SIMULATOR)}
+PAPER_PIPELINE = KernelGroup(
+    "paper-pipeline",
+    "neurotouch_hid.pipeline.methods",
+    ("neurotouch_hid.pipeline.",),
+    "neurotouch_hid.warmup:compile_paper_pipeline",
+    load_when_warm=True,
+)
+#: The pipeline's group of each method (``pipeline.methods``).
+PIPELINE_OF = {"default": PIPELINE, "paper": PAPER_PIPELINE}
+GROUPS = {g.name: g for g in (PIPELINE, PAPER_PIPELINE, SIMULATOR)}
 
 
-def compile_pipeline() -> None:
-    """Compile (or load from numba's cache) every kernel of the gesture pipeline now
-    (:meth:`GesturePipeline.compile_kernels`), on the default sensor: what a real-time run that
-    cannot wait does before it opens its source, and the pipeline group's child does."""
-    from neurotouch_hid.pipeline.pipeline import GesturePipeline
+def compile_pipeline(method: str = "default") -> None:
+    """Compile (or load from numba's cache) every kernel of the ``method``'s gesture pipeline now
+    (:meth:`GesturePipeline.compile_kernels`, ``pipeline.methods``), on the default sensor: what
+    a real-time run that cannot wait does before it opens its source, and a pipeline group's child
+    does."""
+    from neurotouch_hid.pipeline.methods import METHODS
     from neurotouch_hid.sensor import SensorGeometry
 
-    GesturePipeline(SensorGeometry()).compile_kernels()
+    METHODS[method][1](SensorGeometry()).compile_kernels()
+
+
+def compile_paper_pipeline() -> None:
+    """:func:`compile_pipeline` of the paper's method (``run --method paper``)."""
+    compile_pipeline("paper")
 
 
 def simulate_briefly() -> None:

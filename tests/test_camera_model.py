@@ -80,7 +80,8 @@ def test_intensity_is_the_gel_displacement_with_the_camera_model_not_with_one_sc
 
 
 def test_the_pipeline_fits_the_model_to_its_rest_reference_and_its_pixel_settings_follow():
-    from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
+    from neurotouch_hid.pipeline.paper import PaperConfig, PaperPipeline
+    from neurotouch_hid.pipeline.pipeline import GesturePipeline
     from neurotouch_hid.sources.simulator import GelSimulator
 
     frame = GelSimulator(SENSOR, physics=PHYSICS["camera"]).step().frame
@@ -89,9 +90,9 @@ def test_the_pipeline_fits_the_model_to_its_rest_reference_and_its_pixel_setting
     assert pipeline.sensor.radial_k is not None
     assert pipeline.sensor.px_per_mm == pytest.approx(2.27, abs=0.01)
     assert pipeline.config.r_px == pytest.approx(25.0 * pipeline.sensor.px_per_mm / 2.5)
-    paper = GesturePipeline(SENSOR, PipelineConfig(camera_model=False))
+    paper = PaperPipeline(SENSOR)  # the paper's one scale and fixed pixels
     paper.process(frame)
-    assert paper.sensor is SENSOR and paper.config.r_px == 25.0
+    assert paper.sensor is SENSOR and paper.config.r_px == PaperConfig().r_px
     calibrated = dataclasses.replace(SENSOR, radial_k=(0.0, 0.0))  # sensor.yaml's own model is kept
     kept = GesturePipeline(calibrated)
     kept.process(frame)

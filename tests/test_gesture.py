@@ -45,6 +45,14 @@ def move_in_user_frame(sensor, rest_px, centre_px, *, angle=0.0, scale=1.0, shif
 
 
 CENTRE = np.array([173.0, 130.0])
+#: The paper's gesture step (uniform mean intensity over A, the translation about the contacts'
+#: mean) with r = 30 px and a 0.5 px minimum intensity, as these hand-made windows were set up.
+UNIFORM = dict(r_px=30.0, min_intensity_px=0.5, intensity_sigma_px=0.0, origin_radius_px=0.0)
+
+
+def uniform_gesture(*args, **kwargs):
+    """:func:`estimate_gesture` with :data:`UNIFORM` unless ``kwargs`` say otherwise."""
+    return estimate_gesture(*args, **{**UNIFORM, **kwargs})
 
 
 @pytest.mark.parametrize("name", list(SENSORS))
@@ -52,7 +60,7 @@ def test_pure_translation_is_a_push_in_the_user_direction(name):
     sensor = SENSORS[name]
     rest = grid(sensor)
     cur = move_in_user_frame(sensor, rest, CENTRE, shift_mm=(2.0, 1.0))
-    result = estimate_gesture(rest, cur, None, CENTRE[None], sensor)
+    result = uniform_gesture(rest, cur, None, CENTRE[None], sensor)
     assert result.gesture is GestureType.PUSH
     np.testing.assert_allclose(result.translation_mm, [2.0, 1.0], atol=1e-3)
     assert result.intensity_mm == pytest.approx(math.hypot(2.0, 1.0), rel=1e-4)
@@ -66,7 +74,7 @@ def test_pure_rotation_is_a_twist_of_the_user_frame_sign(name, angle, expected):
     rest = grid(sensor)
     contacts = np.array([[158.0, 130.0], [188.0, 130.0]])  # two fingers about the centre
     cur = move_in_user_frame(sensor, rest, CENTRE, angle=angle)
-    result = estimate_gesture(rest, cur, None, contacts, sensor)
+    result = uniform_gesture(rest, cur, None, contacts, sensor)
     assert result.gesture is expected
     assert result.rotation_rad == pytest.approx(angle, abs=1e-4)
     assert result.similarity.scale == pytest.approx(1.0, abs=1e-4)
@@ -78,7 +86,7 @@ def test_pure_scale_is_a_pinch_or_a_zoom(scale, expected):
     rest = grid(sensor)
     contacts = np.array([[153.0, 130.0], [193.0, 130.0]])
     cur = move_in_user_frame(sensor, rest, CENTRE, scale=scale)
-    result = estimate_gesture(rest, cur, None, contacts, sensor)
+    result = uniform_gesture(rest, cur, None, contacts, sensor)
     assert result.gesture is expected
     assert result.similarity.scale == pytest.approx(scale, abs=1e-4)
     np.testing.assert_allclose(result.translation_mm, [0.0, 0.0], atol=1e-3)
@@ -92,7 +100,7 @@ def test_intensity_is_the_mean_displacement_of_a_in_mm():
     disp[near] = [5.0, 0.0]
     away = rest[~near] - CENTRE
     disp[~near] = 20.0 * away / np.linalg.norm(away, axis=1, keepdims=True)  # outside A: not counted
-    result = estimate_gesture(rest, rest + disp, None, CENTRE[None], sensor, r_px=30.0)
+    result = uniform_gesture(rest, rest + disp, None, CENTRE[None], sensor, r_px=30.0)
     assert result.gesture is GestureType.PUSH
     assert result.intensity_mm == pytest.approx(5.0 / sensor.px_per_mm)
     # A is taken at the current positions (paper: distance at t_k)
@@ -102,14 +110,14 @@ def test_intensity_is_the_mean_displacement_of_a_in_mm():
 def test_nothing_moves_gives_none():
     sensor = SENSORS["mirrored"]
     rest = grid(sensor)
-    result = estimate_gesture(rest, rest + 0.2, None, CENTRE[None], sensor, min_intensity_px=0.5)
+    result = uniform_gesture(rest, rest + 0.2, None, CENTRE[None], sensor, min_intensity_px=0.5)
     assert result.gesture is GestureType.NONE and result.intensity_mm == 0.0
 
 
 def test_no_contact_gives_none():
     sensor = SENSORS["mirrored"]
     rest = grid(sensor)
-    result = estimate_gesture(rest, rest + 3.0, None, np.zeros((0, 2)), sensor)
+    result = uniform_gesture(rest, rest + 3.0, None, np.zeros((0, 2)), sensor)
     assert result.gesture is GestureType.NONE and not result.area.any()
 
 
@@ -134,8 +142,8 @@ def test_proximity_weighted_intensity_reads_the_contact_points_displacement():
     w = np.exp(-np.sum((rest - centre) ** 2, axis=1) / (2 * 12.0**2))
     cur = rest + w[:, None] * np.array([8.0, 0.0])
     contact = (centre + [8.0, 0.0])[None]
-    paper = estimate_gesture(rest, cur, None, contact, sensor, r_px=30.0)
-    peak = estimate_gesture(rest, cur, None, contact, sensor, r_px=30.0, intensity_sigma_px=0.5)
+    paper = uniform_gesture(rest, cur, None, contact, sensor, r_px=30.0)
+    peak = uniform_gesture(rest, cur, None, contact, sensor, r_px=30.0, intensity_sigma_px=0.5)
     assert peak.intensity_mm == pytest.approx(8.0 / sensor.px_per_mm, rel=1e-6)
     assert paper.intensity_mm < 0.8 * peak.intensity_mm  # the uniform mean reads the falloff too
     assert peak.gesture is paper.gesture is GestureType.PUSH
@@ -145,7 +153,7 @@ def test_weighted_intensity_is_the_paper_mean_without_sigma_and_weights_by_dista
     rest = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]])
     cur = rest + [[4.0, 0.0], [0.0, 2.0], [1.0, 0.0]]
     contacts = np.array([[4.0, 0.0]])
-    assert weighted_intensity(rest, cur, contacts, None) == pytest.approx(7.0 / 3.0)
+    assert weighted_intensity(rest, cur, contacts, 0.0) == pytest.approx(7.0 / 3.0)
     d2 = np.array([0.0, 6.0**2 + 2.0**2, 17.0**2])
     weights = np.exp(-d2 / (2 * 5.0**2))
     assert weighted_intensity(rest, cur, contacts, 5.0) == pytest.approx((weights * [4, 2, 1]).sum() / weights.sum())
@@ -160,8 +168,8 @@ def test_a_twist_about_a_missed_centre_is_still_a_twist_with_the_origin_radius()
     cur = move_in_user_frame(sensor, rest, CENTRE, angle=0.15)
     contact = (CENTRE + [13.0, 0.0])[None]
     kwargs = dict(r_px=12.0, min_intensity_px=0.1)
-    paper = estimate_gesture(rest, cur, None, contact, sensor, **kwargs)
-    ours = estimate_gesture(rest, cur, None, contact, sensor, origin_radius_px=10.0, **kwargs)
+    paper = uniform_gesture(rest, cur, None, contact, sensor, **kwargs)
+    ours = uniform_gesture(rest, cur, None, contact, sensor, origin_radius_px=10.0, **kwargs)
     assert paper.gesture is GestureType.PUSH
     assert ours.gesture is GestureType.TWIST_CCW
 
@@ -170,7 +178,7 @@ def test_the_origin_radius_leaves_a_push_a_push():
     sensor = SENSORS["mirrored"]
     rest = grid(sensor)
     cur = move_in_user_frame(sensor, rest, CENTRE, angle=0.02, shift_mm=(2.0, 1.0))
-    result = estimate_gesture(rest, cur, None, CENTRE[None], sensor, r_px=30.0, origin_radius_px=10.0)
+    result = uniform_gesture(rest, cur, None, CENTRE[None], sensor, r_px=30.0, origin_radius_px=10.0)
     assert result.gesture is GestureType.PUSH
     s = result.similarity
     m = math.hypot(s.scale * math.cos(s.rotation_rad) - 1, s.scale * math.sin(s.rotation_rad))

@@ -308,6 +308,13 @@ def test_the_default_pipeline_filters_finds_the_push_and_closes_the_same_windows
     assert all(e.resting and e.gesture is GestureType.NONE for e in with_filter if e.t_us < PUSH_START_US)
 
 
+class _EventsOnly(GesturePipeline):
+    """The product's pipeline without the APS-frame correction: the event path alone."""
+
+    def _correct(self, result, t_us: int) -> None:
+        pass
+
+
 def _tracking_errors(chunks: list, config: PipelineConfig) -> np.ndarray:
     """Distance (px) from each tracked marker to its true position at every window end, on the
     markers that moved more than 1 px (the simulator's 1 ms truth, interpolated; lost = inf)."""
@@ -323,7 +330,7 @@ def _tracking_errors(chunks: list, config: PipelineConfig) -> np.ndarray:
         moved = np.linalg.norm(truth - p_true[0][match], axis=1) > 1.0
         errors.append(np.where(np.isfinite(d), d, np.inf)[moved])
 
-    pipeline = GesturePipeline(SENSOR, config, on_window=on_window)
+    pipeline = _EventsOnly(SENSOR, config, on_window=on_window)
     items = _stream(chunks)
     pipeline.process(items[0])
     match = np.argmin(np.linalg.norm(pipeline.rest_px[:, None] - p_true[0][None], axis=2), axis=1)
@@ -333,10 +340,10 @@ def _tracking_errors(chunks: list, config: PipelineConfig) -> np.ndarray:
 
 
 def test_under_3_hz_noise_the_default_filter_keeps_the_markers_tracked(noisy_push_chunks):
-    # the event path alone: the APS-frame correction (on by default) pulls held blobs onto the
-    # frame's markers whatever the events did (p90 0.36 px with or without the filter)
-    on = _tracking_errors(noisy_push_chunks, PipelineConfig(frame_correction=False))
-    off = _tracking_errors(noisy_push_chunks, PipelineConfig(noise_filter=None, frame_correction=False))
+    # the event path alone: the APS-frame correction pulls held blobs onto the frame's markers
+    # whatever the events did (p90 0.36 px with or without the filter)
+    on = _tracking_errors(noisy_push_chunks, PipelineConfig())
+    off = _tracking_errors(noisy_push_chunks, PipelineConfig(noise_filter=None))
     assert len(on) == len(off) > 1000
     # measured: p90 0.71 px with the filter, 1.07 px without; p99 1.06 against 1.85 px
     assert np.percentile(on, 90) < 0.8 * np.percentile(off, 90)
@@ -345,8 +352,8 @@ def test_under_3_hz_noise_the_default_filter_keeps_the_markers_tracked(noisy_pus
 
 def test_at_the_default_noise_the_filter_costs_no_tracking_accuracy():
     chunks = _push_chunks(0.1)
-    on = _tracking_errors(chunks, PipelineConfig(frame_correction=False))
-    off = _tracking_errors(chunks, PipelineConfig(noise_filter=None, frame_correction=False))
+    on = _tracking_errors(chunks, PipelineConfig())
+    off = _tracking_errors(chunks, PipelineConfig(noise_filter=None))
     # measured: p90 0.63 px either way
     assert np.percentile(on, 90) < 1.1 * np.percentile(off, 90)
     assert np.median(on) < 1.1 * np.median(off)

@@ -94,7 +94,7 @@ def test_eval_command_writes_report_json_and_predictions(quick_dataset, tmp_path
             "--predictions",
             str(tmp_path / "pred"),
             "--set",
-            "a=0.6",
+            "contacts.a=0.6",
             "--jobs",
             "2",
         ],
@@ -104,7 +104,7 @@ def test_eval_command_writes_report_json_and_predictions(quick_dataset, tmp_path
     data = json.loads(out_json.read_text())
     for name in EvaluationResult.__dataclass_fields__:
         assert name in data, name
-    assert data["config"]["a"] == 0.6
+    assert data["config"]["contacts"]["a"] == 0.6
     for name in FIGURES:
         assert (tmp_path / "report" / name).stat().st_size > 0
     assert (tmp_path / "report" / "summary.md").exists()
@@ -119,15 +119,23 @@ def test_pipeline_config_rejects_unknown_or_bad_hyperparameter():
 
     with pytest.raises(NeurotouchError, match="no field 'radius'"):
         pipeline_config(["radius=3"])
-    with pytest.raises(NeurotouchError, match="r_px"):
-        pipeline_config(["r_px=big"])
+    with pytest.raises(NeurotouchError, match="r_mm"):
+        pipeline_config(["contacts.r_mm=big"])
     with pytest.raises(NeurotouchError, match="TrackerConfig has no field 'nope'"):
         pipeline_config(["tracker.nope=1"])
-    config = pipeline_config(["r_px=25", "n_min=3", "detect_resting=false", "tracker.assoc_px=5"], window_us=5000)
-    assert (config.r_px, config.n_min, config.detect_resting, config.tracker.assoc_px, config.window_us) == (
-        25.0,
+    config = pipeline_config(
+        ["contacts.r_mm=10", "contacts.n_min=3", "noise_filter=none", "tracker.assoc_px=5"], window_us=5000
+    )
+    assert (
+        config.contacts.r_mm,
+        config.contacts.n_min,
+        config.noise_filter,
+        config.tracker.assoc_px,
+        config.window_us,
+    ) == (
+        10.0,
         3,
-        False,
+        None,
         5.0,
         5000,
     )
@@ -142,4 +150,4 @@ def test_a_bad_set_value_names_the_setting_the_field_and_what_was_expected():
     assert "--set 'tracker.assoc_px=wide': tracker.assoc_px: found 'wide'; input should be a valid number" in str(
         info.value
     )
-    assert pipeline_config(["contact_refine_px=none", "field_fallback=off"]).model_dump()["contact_refine_px"] is None
+    assert pipeline_config(["resting.marker_threshold=none"]).resting.marker_threshold is None

@@ -15,11 +15,12 @@ import pytest
 from rich.console import Console
 
 from neurotouch_hid.cli import long_lived_start_up
-from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
-from neurotouch_hid.pipeline.track import recording_progress, track_recording
+from neurotouch_hid.pipeline.pipeline import GesturePipeline
+from neurotouch_hid.pipeline.resting import RestingDetector
 from neurotouch_hid.sensor import find_sensor_file
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.recording import RecordingReader
+from neurotouch_hid.track import recording_progress, track_recording
 
 
 @pytest.fixture(scope="module")
@@ -144,20 +145,23 @@ def test_the_numba_noise_filter_never_loads_dv_processing():
 
 # --- the resting detector's early verdict --------------------------------------------------------
 def _gel_frames(recording, n: int = 400):
-    """The recording's first ``n`` APS frames (rest, presses and releases) and its pixel-set
-    (paper) detector: ``verdict_only`` shortens the pixel-set distance only."""
-    pipeline = GesturePipeline(find_sensor_file(recording), PipelineConfig(resting_centroids=False))
-    frames = []
+    """The recording's first ``n`` APS frames (rest, presses and releases) and a pixel-set
+    detector on its reference frame (the per-marker distance at 0.4 px^2): ``verdict_only``
+    shortens the pixel-set distance only."""
+    pipeline = GesturePipeline(find_sensor_file(recording))
+    frames, detector = [], None
     with RecordingReader(recording) as reader:
         for item in reader.stream(batch_us=10_000):
             if isinstance(item, Frame):
                 frames.append(item)
-                if pipeline.resting_detector is None:
+                if detector is None:
                     pipeline.process(item)
+                    if pipeline.resting_detector is not None:
+                        detector = RestingDetector(item.image, pipeline.sensor, 0.4, per_marker=True, centroids=False)
             if len(frames) >= n:
                 break
-    assert pipeline.resting_detector is not None
-    return pipeline.resting_detector, frames
+    assert detector is not None
+    return detector, frames
 
 
 def test_verdict_only_gives_every_verdict_and_the_exact_distance_at_rest(push_recording):

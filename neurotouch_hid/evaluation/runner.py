@@ -25,43 +25,42 @@ from neurotouch_hid.sensor import SensorGeometry
 log = logging.getLogger(__name__)
 
 
-def pipeline_config(settings: Sequence[str] = (), preset: str = "default", **values):
-    """A :class:`~neurotouch_hid.pipeline.pipeline.PipelineConfig` from a preset
-    (:data:`~neurotouch_hid.pipeline.pipeline.PIPELINE_PRESETS`, the CLI's ``--preset``), then
-    ``NAME=VALUE`` strings (the CLI's ``--set``) and keyword values over it, validated by the
-    pydantic model itself.
+def pipeline_config(settings: Sequence[str] = (), method: str = "default", **values):
+    """The settings of a method (:data:`~neurotouch_hid.pipeline.methods.METHODS`, the CLI's
+    ``--method``: a :class:`~neurotouch_hid.pipeline.config.PipelineConfig` or a
+    :class:`~neurotouch_hid.pipeline.paper.PaperConfig`) from its defaults, then ``NAME=VALUE``
+    strings (the CLI's ``--set``) and keyword values over them, validated by the pydantic model.
 
-    NAME is a field of PipelineConfig, or ``tracker.FIELD`` for a field of its nested
-    TrackerConfig (any nested model field works the same way). VALUE is converted by pydantic to
-    the field's type (``true``/``false`` for booleans; ``none`` or ``null`` for an optional field).
+    NAME is a field of the method's config, or ``GROUP.FIELD`` for a field of one of its groups
+    (PipelineConfig's ``contacts``, ``gesture``, ``resting``, ``tracker``). VALUE is converted by pydantic to
+    the field's type (``none`` or ``null`` for an optional field).
 
     Raises:
-        NeurotouchError: an unknown preset (the message lists them); naming the setting, when
+        NeurotouchError: an unknown method (the message lists them); naming the setting, when
             it is not ``NAME=VALUE``, NAME is not a field (the message lists the fields), or the
             model rejects the value (the field, the value found and what was expected).
     """
-    import copy
-
     from pydantic import BaseModel, ValidationError
 
-    from neurotouch_hid.pipeline.pipeline import PIPELINE_PRESETS, PipelineConfig
+    from neurotouch_hid.pipeline.methods import METHODS
 
-    if preset not in PIPELINE_PRESETS:
-        raise NeurotouchError(f"--preset {preset!r}: expected one of {', '.join(PIPELINE_PRESETS)}")
-    data: dict = copy.deepcopy(PIPELINE_PRESETS[preset])
+    if method not in METHODS:
+        raise NeurotouchError(f"--method {method!r}: expected one of {', '.join(METHODS)}")
+    config_model = METHODS[method][0]
+    data: dict = {}
     given: dict[tuple, str] = {}
     for item in settings:
         name, sep, text = item.partition("=")
         name, text = name.strip(), text.strip()
         if not sep or not name:
-            raise NeurotouchError(f"--set {item!r}: expected NAME=VALUE, e.g. --set r_px=30")
-        model: type[BaseModel] = PipelineConfig
+            raise NeurotouchError(f"--set {item!r}: expected NAME=VALUE, e.g. --set contacts.r_mm=12")
+        model: type[BaseModel] = config_model
         path = name.split(".")
         group = data
         for part in path[:-1]:
             annotation = model.model_fields[part].annotation if part in model.model_fields else None
             if not (isinstance(annotation, type) and issubclass(annotation, BaseModel)):
-                raise NeurotouchError(f"--set {item!r}: {part!r} is not a group of PipelineConfig")
+                raise NeurotouchError(f"--set {item!r}: {part!r} is not a group of {config_model.__name__}")
             model, group = annotation, group.setdefault(part, {})
         leaves = [
             f
@@ -69,14 +68,16 @@ def pipeline_config(settings: Sequence[str] = (), preset: str = "default", **val
             if not (isinstance(info.annotation, type) and issubclass(info.annotation, BaseModel))
         ]
         if path[-1] not in leaves:
+            groups = [f for f in model.model_fields if f not in leaves]
             raise NeurotouchError(
                 f"--set {item!r}: {model.__name__} has no field {path[-1]!r}; fields: {', '.join(leaves)}"
+                + (f"; groups (GROUP.FIELD): {', '.join(groups)}" if groups else "")
             )
         group[path[-1]] = None if text.lower() in ("none", "null") else text
         given[tuple(path)] = item
     data.update(values)
     try:
-        return PipelineConfig.model_validate(data)
+        return config_model.model_validate(data)
     except ValidationError as exc:
         problems = []
         for err in exc.errors():
@@ -101,19 +102,19 @@ def run_sequence(
     Args:
         dataset: the dataset folder (docs/dataset.md).
         name: the sequence (``name.aedat4`` and ``name.labels.csv``).
-        config: PipelineConfig (None: the defaults, tuned; see PipelineConfig).
+        config: the method's settings (:func:`pipeline_config`; None: the product's defaults).
         predictions_dir: if given, write ``name.jsonl`` there (docs/dataset.md "Predictions").
         on_time: called now and then with the microseconds processed since the recording's start.
     Raises:
         DatasetError, RecordingError, SensorError: bad labels, recording or geometry.
     """
-    from neurotouch_hid.pipeline.pipeline import GesturePipeline
+    from neurotouch_hid.pipeline.methods import pipeline_for
     from neurotouch_hid.sources.recording import RecordingReader
 
     dataset = Path(dataset)
     sensor = SensorGeometry.load(dataset_sensor_file(dataset))
     labels = read_labels(dataset / f"{name}.labels.csv")
-    pipeline = GesturePipeline(sensor, config)
+    pipeline = pipeline_for(sensor, config)
     predictions = []
     with RecordingReader(dataset / f"{name}.aedat4") as reader:
         start = reader.info.start_us
@@ -142,7 +143,7 @@ def evaluate_dataset(
 
     Args:
         dataset: the dataset folder (docs/dataset.md).
-        config: PipelineConfig (None: defaults).
+        config: the method's settings (None: the product's defaults).
         jobs: sequences processed in parallel processes (1: in this process).
         predictions_dir: if given, each sequence's predictions are written there as JSON lines.
         progress: an optional ``rich.progress.Progress``; a task advancing over the recorded

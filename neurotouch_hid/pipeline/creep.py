@@ -12,10 +12,10 @@ would cause) the deformation is::
 Markers show d, and the gesture step reads a window as a gesture while d is above
 ``min_intensity_px``: after a release, that is as long as the creep takes to relax (on the
 simulated ``viscoelastic`` gel, q = 0.3 and tau = 0.3 s, ~0.4 s after the fingers have left;
-docs/accuracy.md, "Round 5"). The load follows from d alone when q and tau are known: eliminating
+docs/method.md, "Creep"). The load follows from d alone when q and tau are known: eliminating
 f gives ``(1 - q) tau dy/dt = d - y``, so y is d low-passed with the time constant (1 - q) tau,
-and ``f = (d - q y) / (1 - q)``. The pipeline (``PipelineConfig.creep_load``, with the gel's
-``creep`` in sensor.yaml) answers ``none`` in a window whose load is below ``min_intensity_px``:
+and ``f = (d - q y) / (1 - q)``. The pipeline (with the gel's ``creep`` in
+sensor.yaml; docs/method.md, "Creep") answers ``none`` in a window whose load is below ``min_intensity_px``:
 the fingers have left, whatever the gel still shows. Without a creep model (an elastic gel,
 q = 0) the load is the deformation and nothing changes.
 

@@ -1,11 +1,12 @@
-"""The whole gel's motion in its mount, read off the rim markers (not in the paper).
+"""The whole gel's motion in its mount, read off the rim markers (not in the paper; docs/method.md,
+"Gel motion").
 
 The paper's gesture step fits one similarity to the markers around the contacts and calls its
 dominant term the gesture. When the whole dome slides or turns a little in its mount while a
 finger presses (the ``drift`` physics family: up to 1.2 mm and 1.2 degrees), that rigid motion
 adds to every marker's displacement: a pinch or a zoom, whose scale term at r is only a few
 px, then reads as a push (on ``drift``: 151 of 772 pinch and 379 of 616 zoom windows,
-docs/accuracy.md "Round 3"), and the contact homography's dynamic threshold (a times the mean
+docs/method.md "Gel motion"), and the contact homography's dynamic threshold (a times the mean
 displacement) loosens.
 
 The dome's rim is clamped in its mount, so a finger's deformation fades out towards it
@@ -28,7 +29,7 @@ the rim markers' displacements along it (the rotation's share removed), the angl
 quantile of their turns about c (the translation removed), each capped by the fit. A pure slip
 keeps its whole motion; a push whose far rim barely moves keeps its translation.
 
-With ``PipelineConfig.gel_motion`` the pipeline removes that motion (``remove``) before the
+The product's pipeline (docs/method.md, "Gel motion") removes that motion (``remove``) before the
 contact homography and the gesture's similarity, and puts it back on the contact points
 (``apply``): the labels, like a user, see the contact points where they are. The intensity stays
 the displacement of the markers as tracked (the labels' intensity includes the slip).

@@ -1,43 +1,23 @@
-"""Gesture type and intensity (paper, section "Gesture Classification and Intensity Prediction").
+"""Gesture type and intensity (paper, section "Gesture Classification and Intensity Prediction";
+docs/method.md, "Gesture").
 
 The markers within r of a contact point form the set A. A 4-DoF similarity (scale s, rotation
 theta, translation t) is fitted with RANSAC to their motion from rest to now, about the contact
-points' mean (the paper's transformation origin): both point sets have that mean subtracted
-before the fit, so a rotation or a scale is "about the contacts", not about the image origin.
-The dominant term gives the type: a translation is a push, a scale below 1 a pinch, above 1 a
-zoom, a rotation a twist.
+points' mean (the paper's transformation origin). The dominant term gives the type: a
+translation is a push, a scale below 1 a pinch, above 1 a zoom, a rotation a twist. Each term is
+made a length, the displacement it causes at distance r from the origin (``|s - 1| r``,
+``|theta| r``, ``||t||``, px), so that they compare.
 
-Units: the paper compares |s - 1|, |theta| and ||t|| directly although they differ (1, rad,
-px). Here each term is made a length: the displacement it causes at distance r from the origin,
-``|s - 1| * r`` (px), ``|theta| * r`` (px, the arc; ~ the chord 2 r sin(theta/2) for small
-angles) and ``||t||`` (px). The argmax of those three is the type.
+The product departs from the paper (docs/method.md, "Gesture"): the translation term is taken at
+the best origin within ``origin_radius_px`` of the contacts' mean, ``max(0, ||t|| - m rho)`` with
+``m = |s e^{i theta} - 1|``; the intensity is a proximity-weighted mean of ||v_i|| over A
+(:func:`weighted_intensity`, sigma ``intensity_sigma_px``) instead of the paper's uniform mean.
 
-Origin (not in the paper, ``origin_radius_px``): the paper approximates the transformation
-origin by the contact points' mean. When a finger of a twist, pinch or zoom is missed (fingers
-closer than r, one finger dominating), that mean is off the gesture's true centre by some
-distance d, and a rotation or scaling about the true centre reads, about the wrong origin, as
-the same rotation or scaling plus a translation of about m d (m = |s e^{i theta} - 1|), often
-the largest term: such windows read as push. The scale and the angle do not depend on the
-origin; only the translation does. So the translation term may be taken at the best origin
-within ``origin_radius_px`` of the contacts' mean, which has the closed form
-``max(0, ||t|| - m * origin_radius_px)``; a push (m ~ 0) keeps its whole translation.
-
-Orientation: OpenCV's angle is measured in the image frame, whose y axis points down, so a
-positive cv2 angle turns clockwise *as displayed*. Its counter-clockwise-as-displayed angle is
-``-theta``, and :meth:`SensorGeometry.rotation_image_to_user` turns that into the user frame
-(the mirror flips it). Clockwise/counter-clockwise are decided in the user frame.
-
-Intensity (paper, eq. "Gesture Intensity") is the mean ||v_i|| over A, converted to mm with
-``sensor.px_per_mm`` (with a camera model, ``SensorGeometry.radial_k``, each v_i is converted to
-mm where it lies on the gel instead). The paper allows other intensity profiles; ``intensity_sigma_px`` selects a
-proximity-weighted mean instead (:func:`weighted_intensity`): marker i of A weighs
-``exp(-d_i^2 / (2 sigma^2))`` with d_i its distance to the nearest contact point. The uniform
-mean averages the peak under a finger with its falloff and so reads only a fraction of the
-contact point's own displacement (on the simulated gel ~0.69 x, docs/accuracy.md); with sigma
-below the marker pitch the estimate tends to the displacement of the contact markers themselves,
-i.e. "the average displacement of the contact points" by which the paper's dataset labels
-intensity (section "Creation of the Gesture Detection Dataset"); a sigma of a few px still
-averages the tracker noise of the few markers around each contact.
+Orientation: OpenCV's angle is measured in the image frame (y down), so a positive cv2 angle
+turns clockwise as displayed; :meth:`SensorGeometry.rotation_image_to_user` turns ``-theta`` into
+the user frame, where clockwise/counter-clockwise are decided. Intensities are converted to mm
+with ``sensor.px_per_mm``, or with the camera model (``SensorGeometry.radial_k``) where each
+displacement lies on the gel (docs/method.md, "Camera model").
 """
 
 from __future__ import annotations
@@ -70,18 +50,17 @@ class Similarity:
     rotation_rad: float = 0.0
     translation_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
 
-    def terms_px(self, r_px: float, origin_radius_px: float | None = None) -> tuple[float, float, float]:
+    def terms_px(self, r_px: float, origin_radius_px: float = 10.0) -> tuple[float, float, float]:
         """(scale, rotation, translation) as displacements at distance r (px): the quantities
         compared to pick the gesture type (see the module docstring).
 
-        ``origin_radius_px``: None = the translation about the fitted origin (paper); else the
-        smallest translation over origins within that distance of it, ``max(0, ||t|| - m rho)``
-        with ``m = |s e^{i theta} - 1|`` (moving the origin by o changes t by (sR - I) o, a
-        scaled rotation of norm m): see the module docstring, "Origin"."""
+        ``origin_radius_px`` (px): the smallest translation over origins within that distance of
+        the fitted one, ``max(0, ||t|| - m rho)`` with ``m = |s e^{i theta} - 1|`` (moving the
+        origin by o changes t by (sR - I) o, a scaled rotation of norm m); 0 = about the fitted
+        origin (paper)."""
         translation = math.hypot(self.translation_px[0], self.translation_px[1])
-        if origin_radius_px is not None:
-            m = math.hypot(self.scale * math.cos(self.rotation_rad) - 1.0, self.scale * math.sin(self.rotation_rad))
-            translation = max(0.0, translation - m * origin_radius_px)
+        m = math.hypot(self.scale * math.cos(self.rotation_rad) - 1.0, self.scale * math.sin(self.rotation_rad))
+        translation = max(0.0, translation - m * origin_radius_px)
         return abs(self.scale - 1.0) * r_px, abs(self.rotation_rad) * r_px, translation
 
 
@@ -141,7 +120,7 @@ def _near(points_px: np.ndarray, centres_px: np.ndarray, r2: float) -> np.ndarra
 
 
 def weighted_intensity(
-    rest_px: np.ndarray, current_px: np.ndarray, contacts_px: np.ndarray, sigma_px: float | None
+    rest_px: np.ndarray, current_px: np.ndarray, contacts_px: np.ndarray, sigma_px: float = 3.0
 ) -> float:
     """Gesture intensity (px) of the markers of A (paper, eq. "Gesture Intensity", or a
     proximity-weighted profile, see the module docstring).
@@ -150,8 +129,8 @@ def weighted_intensity(
         rest_px: (M, 2) float, rest positions of A's markers (px).
         current_px: (M, 2) float, their current positions (px), finite.
         contacts_px: (K, 2) float, contact points (px), K >= 1.
-        sigma_px: None: the paper's uniform mean of ||v_i||; > 0: the mean weighted by
-            ``exp(-d_i^2 / (2 sigma^2))``, d_i = distance (px) of marker i to its nearest contact.
+        sigma_px: > 0: the mean weighted by ``exp(-d_i^2 / (2 sigma^2))``, d_i = distance (px) of
+            marker i to its nearest contact; 0: the paper's uniform mean of ||v_i||.
     Returns:
         the intensity (px); 0 when M = 0.
     """
@@ -161,12 +140,7 @@ def weighted_intensity(
         return 0.0
     norms = np.hypot(cur[:, 0] - rest[:, 0], cur[:, 1] - rest[:, 1])
     contacts = np.ascontiguousarray(contacts_px, dtype=np.float64).reshape(-1, 2)
-    return _profile(norms, cur, contacts, _sigma(sigma_px))
-
-
-def _sigma(sigma_px: float | None) -> float:
-    """``intensity_sigma_px`` as the kernels take it: 0.0 for None (the uniform mean), else > 0."""
-    return 0.0 if sigma_px is None else float(sigma_px)
+    return _profile(norms, cur, contacts, float(sigma_px))
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -252,7 +226,7 @@ def _ransac_similarity(src: np.ndarray, dst: np.ndarray, reproj_threshold_px: fl
 
 
 def classify(
-    similarity: Similarity, r_px: float, sensor: SensorGeometry, origin_radius_px: float | None = None
+    similarity: Similarity, r_px: float, sensor: SensorGeometry, origin_radius_px: float = 10.0
 ) -> GestureType:
     """The dominant term of the similarity (paper, eq. "Gesture Type"), terms in px at radius r
     (``origin_radius_px``: see :meth:`Similarity.terms_px`).
@@ -286,15 +260,16 @@ def estimate_gesture(
     contacts_px: np.ndarray,
     sensor: SensorGeometry,
     *,
-    r_px: float = 30.0,
+    r_px: float = 25.0,
     reproj_factor: float = 2.0,
     min_reproj_px: float = 0.5,
-    min_intensity_px: float = 0.5,
-    intensity_sigma_px: float | None = None,
-    origin_radius_px: float | None = None,
+    min_intensity_px: float = 0.3,
+    intensity_sigma_px: float = 3.0,
+    origin_radius_px: float = 10.0,
     gel_motion: GelMotion | None = None,
 ) -> GestureResult:
-    """Gesture type and intensity from the markers around the contact points.
+    """Gesture type and intensity from the markers around the contact points (the product's
+    defaults; the paper's method passes its own, ``paper.py``).
 
     Args:
         rest_px: (N, 2) float, rest positions (px, image frame).
@@ -307,10 +282,10 @@ def estimate_gesture(
             ||v_i|| over A (dynamic, like the contact stage's), at least ``min_reproj_px``.
         min_reproj_px: floor of that threshold (px).
         min_intensity_px: below this intensity (px), nothing moves: ``NONE``.
-        intensity_sigma_px: the intensity profile (:func:`weighted_intensity`): None = the
-            paper's mean ||v_i|| over A; > 0 = weighted by proximity to the contacts.
-        origin_radius_px: None = the translation term about the contacts' mean (paper); else
-            the smallest over origins within this distance of it (module docstring, "Origin").
+        intensity_sigma_px: the intensity profile (:func:`weighted_intensity`): > 0 = weighted by
+            proximity to the contacts (px); 0 = the paper's mean ||v_i|| over A.
+        origin_radius_px: the translation term at the best origin within this distance (px) of
+            the contacts' mean; 0 = about the contacts' mean (paper).
         gel_motion: None (paper), or the whole gel's rigid motion in its mount
             (:mod:`~neurotouch_hid.pipeline.gel_motion`): removed from A's current positions and
             from the origin before the similarity is fitted, so that the type and the
@@ -323,7 +298,7 @@ def estimate_gesture(
     """
     rest, cur, valid = marker_arrays(rest_px, current_px, valid)
     contacts = np.ascontiguousarray(contacts_px, dtype=np.float64).reshape(-1, 2)
-    sigma = _sigma(intensity_sigma_px)
+    sigma = float(intensity_sigma_px)
     area, rest_a, cur_a, intensity_px, mean_px, origin = _area_motion(
         rest, cur, valid, contacts, float(r_px) * float(r_px), sigma
     )
@@ -496,61 +471,10 @@ def _mm_figures(mm: np.ndarray, current_px: np.ndarray, contacts_px: np.ndarray,
 def compile_camera_model_kernels() -> None:
     """Compile (or load from numba's cache) the camera model's kernels of :func:`estimate_gesture`
     and :func:`points_to_user` now, for the types they are passed: a pipeline's sensor gets its
-    camera model at the first rest frame (``PipelineConfig.camera_model``), after
+    camera model at the first rest frame (docs/method.md, "Camera model"), after
     ``GesturePipeline.compile_kernels``."""
     points = np.zeros((1, 2))
     camera = (0.0, 0.0, 1.0, 0.0, 0.0, 1.0, True)
     mm = _area_mm(points, points, np.zeros(2), np.zeros(2), camera)
     _mm_figures(mm, points, points, 1.0)
     _points_mm(points, camera)
-
-
-class EpisodeVote:
-    """One gesture decision per gesture episode (not in the paper; ``PipelineConfig.episode_vote``).
-
-    The windows from a gesture's onset (the first window with a gesture) to its end (the next
-    ``none`` window) form an episode. Each window adds its intensity (mm) to the votes of its own
-    type; the episode's decision is the type with the most votes so far, the window's own type on
-    a tie. The first window of an episode is answered with its own type (no added latency at
-    onset); a later window changes the answer only once its type outweighs the others.
-
-    With ``restart_on_contacts`` (``PipelineConfig.vote_restart``, not in the paper): while the
-    decision is push, a window that sees more contacts than every earlier window of the episode
-    and reads another type restarts the votes from that window. A multi-finger gesture whose
-    first finger leads reads as a one-finger push until the next finger moves the gel (paper,
-    "Results": "multi-finger gestures often exhibit varying intensities across individual
-    fingers"); those push votes were cast on fewer contacts than the gesture has, so they stop
-    counting once the finger they missed is seen.
-    """
-
-    def __init__(self, restart_on_contacts: bool = False) -> None:
-        self._votes: dict[GestureType, float] = {}
-        self._restart = restart_on_contacts
-        self._decision: GestureType | None = None
-        self._most_contacts = 0
-
-    def reset(self) -> None:
-        """End the episode (a ``none`` or resting window, or a restart)."""
-        self._votes = {}
-        self._decision = None
-        self._most_contacts = 0
-
-    def update(self, gesture: GestureType, intensity_mm: float, n_contacts: int = 0) -> GestureType:
-        """The decision after one window of type ``gesture`` with intensity ``intensity_mm`` (mm,
-        >= 0) and ``n_contacts`` contact points (0-3; read only with ``restart_on_contacts``);
-        ``NONE`` ends the episode and is returned as is."""
-        if gesture is GestureType.NONE:
-            self.reset()
-            return gesture
-        if (
-            self._restart
-            and self._decision is GestureType.PUSH
-            and gesture is not GestureType.PUSH
-            and n_contacts > self._most_contacts
-        ):
-            self._votes = {}
-        self._most_contacts = max(self._most_contacts, n_contacts)
-        self._votes[gesture] = self._votes.get(gesture, 0.0) + max(float(intensity_mm), 1e-6)
-        best = max(self._votes.values())
-        self._decision = gesture if self._votes[gesture] == best else max(self._votes, key=self._votes.get)
-        return self._decision

@@ -1,11 +1,11 @@
-"""A learned gesture type (not in the paper; ``PipelineConfig.gesture_classifier``).
+"""A learned gesture type (not in the paper; docs/method.md, "Gesture").
 
 The paper's type is the largest of three similarity terms (``gesture.classify``). On gels the
 rule was not tuned on it breaks where the terms mislead: a whole-gel drift adds a translation
 to every pinch or zoom (``drift`` family), long-tailed fields let a twist's fingers drag each
-other (``powerlaw``). Issue 9 allows "a small learned classifier (scikit-learn) on the
-similarity terms and per-contact motion, trained on the family mix, kept only if it wins on
-held-out families". This is a multinomial logistic regression over :func:`gesture_features`,
+other (``powerlaw``). A small learned classifier on the similarity terms and per-contact
+motion, trained on the family mix, was kept because it wins on held-out families
+(docs/method.md, "Gesture"). This is a multinomial logistic regression over :func:`gesture_features`,
 trained by ``benchmarks/train_gesture_classifier.py`` (scikit-learn's ``LogisticRegression``)
 on the tuning users of the development families; its coefficients are the constants of
 :mod:`neurotouch_hid.pipeline.gesture_model`, evaluated here with NumPy (no scikit-learn at run
@@ -46,7 +46,7 @@ def gesture_features(
     valid: np.ndarray,
     sensor: SensorGeometry,
     r_px: float,
-    origin_radius_px: float | None,
+    origin_radius_px: float,
 ) -> np.ndarray:
     """(9,) float64 features of one window (:data:`FEATURES`).
 

@@ -21,11 +21,11 @@ each with its time parameter in microseconds:
   and keeps an event that has enough supporting neighbours within that time (library docs).
 
 Which one (or none) the pipeline uses is ``PipelineConfig.noise_filter``; by default the
-background-activity filter with 20 ms (docs/accuracy.md, "Noise filter": on the simulated test
+background-activity filter with 20 ms (docs/method.md, "Noise filter": on the simulated test
 set at 0.1 Hz per pixel it moves no metric by more than 0.08 point or 0.06 mm, and at 3 Hz per
 pixel it keeps the contact count accuracy at ~86-87 % where the tracker alone falls to ~80 %,
 the contact distance at ~2.1 mm instead of ~2.8 mm). Through the library its cost is mostly
-the conversion to and from dv-processing's ``EventStore`` (docs/performance.md, "Noise
+the conversion to and from dv-processing's ``EventStore`` (docs/method.md, "Noise
 filter"; dv-processing 2.0.4 has no bulk path from numpy: one ``push_back`` per event); the
 live camera delivers ``EventStore`` values, so ``DavisSource`` runs the library's filter
 (:meth:`EventNoiseFilter.filter_store`) on them before any copy, and its pipeline has none.
@@ -34,7 +34,7 @@ filter runs as a numba kernel instead (:func:`background_activity_keep`) that ke
 events dv-processing's ``BackgroundActivityNoiseFilter`` keeps on the same input (its rule
 and time surface, re-implemented; ``tests/test_noise_filter.py`` compares the two on the street
 recording and on simulated gels with noise), without the copies: 4-7x faster than the copies
-and the library (docs/performance.md, "Event path at the camera's full rate"). The other two
+and the library (docs/method.md, "Noise filter"). The other two
 filters still go through the library and its copies.
 """
 
@@ -51,7 +51,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 #: The supported ``dv_processing.noise`` filters and the time parameter (us) each gets when
 #: ``PipelineConfig.noise_filter_us`` is None: the best of each on the simulated tuning set over
-#: 0.1-3 Hz per pixel of background activity (docs/accuracy.md, "Noise filter"; the library's
+#: 0.1-3 Hz per pixel of background activity (docs/method.md, "Noise filter"; the library's
 #: defaults, 2000 and 10 000 us, drop too many marker events); ``KNoiseFilter``: the library's
 #: 1000 us (it keeps about a third of the marker events at any time tried).
 NOISE_FILTERS: dict[str, int] = {
@@ -216,7 +216,7 @@ class EventNoiseFilter:
         """Filter one numpy batch. The background-activity filter runs in numba
         (:func:`background_activity_keep`: the library's decisions, no copies); the others run
         :meth:`filter_store` between two copies (``store_from_events``, ``events_from_store``),
-        which cost ~90 % of their time (docs/performance.md, "Noise filter"). An instance is
+        which cost ~90 % of their time (docs/method.md, "Noise filter"). An instance is
         meant for one kind of batch: the numba filter and the library's keep separate state.
 
         Args:

@@ -26,7 +26,7 @@ Marker centroids (``centroids``, not in the paper): the marker pixels are those 
 grey level, so a global change of the light (a flickering LED driver whose phase each 4 ms
 exposure samples anew: the ``flicker`` physics family, +-25 % at 120 Hz) adds or removes a ring
 of pixels round every marker and the pixel-set distance of a gel at rest jumps far above the
-threshold (docs/accuracy.md: resting F1 33 % on ``flicker``). Scaling the grey level with the
+threshold (docs/method.md, "Resting": resting F1 33 % on ``flicker``). Scaling the grey level with the
 frame's mean brightness does not undo it (on the simulated frames the background and the
 markers do not brighten in proportion, and bright markers saturate at 255; measured: resting
 F1 50 %). With ``centroids`` the same Chamfer formula is taken over the markers' centroids
@@ -71,7 +71,7 @@ class RestingResult:
             frame not at rest it may be the current-to-reference term alone (a lower bound).
         centroids_px: (M, 2) float64 the frame's marker centroids (x, y px, image frame) when
             the detector compared centroids (``centroids``), else None. The pipeline's
-            ``frame_correction`` fuses them into the tracker's blobs.
+            frame correction fuses them into the tracker's blobs.
     """
 
     resting: bool

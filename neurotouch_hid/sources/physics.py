@@ -52,7 +52,7 @@ viscoelastic  the gel creeps: a standard linear solid (Zener; a spring in parall
               of Nonlinear Viscoelastic Materials*, 1976, ch. 5): the deformation keeps growing
               through the hold and, once the fingers have left (the gesture's label ends there),
               relaxes slowly back to rest. q = 0.3, tau = 0.3 s: chosen as a soft silicone's fast
-              relaxation, not fitted to a measured gel. The final family of round 3.
+              relaxation, not fitted to a measured gel. Once a held-out family.
 pasternak     a gel on a shear-coupled foundation: the drag falls off as the surface deflection of a
               membrane on a Pasternak foundation (Winkler springs coupled by a shear layer) under a
               point load, ``K0(r / lambda)`` (modified Bessel function of the second kind, order 0;
@@ -65,15 +65,13 @@ pasternak     a gel on a shear-coupled foundation: the drag falls off as the sur
               / 3 s / 4 s: 0.26 / 0.11 / 0.044 against the Gaussian's 0.14 / 0.011 / 0.0003 and the
               power law's 0.44 / 0.28 / 0.19; far out ~ exp(-r / lambda) / sqrt(r)); its steepest
               slope, 0.51 / s, is below the Gaussian's 0.61 / s, so the gel folds no more than the
-              default's. A development family of round 4 (seen before two of its three decisions were
-              taken, so not the untouched one: docs/accuracy.md, "Round 4").
+              default's. A development family.
 exposure      dim light: the APS frames are exposed for 15 ms of their 40 ms period instead of 4 ms
               (the DAVIS-346's frame exposure is a camera setting, raised by DV's auto-exposure
               when the light is dim; iniVation, DAVIS346 datasheet and DV documentation), so a
               moving marker is blurred over ~4x the distance on the frames. The events, the
               markers' brightness and the labels (at each frame's exposure start, as DV stamps it)
-              are unchanged. The final family of round 4 (run once there; a development family
-              from round 5 on).
+              are unchanged. A development family (once held out).
 contrast      an event sensor biased for fewer events: the contrast threshold of the event pixels
               raised from C = 0.25 to 0.45 (log units, ON and OFF alike) with a larger pixel-to-
               pixel mismatch, sigma 0.09 instead of 0.03 (20 % of C instead of 12 %). Users raise
@@ -89,7 +87,7 @@ contrast      an event sensor biased for fewer events: the contrast threshold of
               events, a change below the pixel's threshold none (the faint flanks of the markers'
               blobs, small motions), so the tracker sees fewer, sparser events per marker. The
               APS frames, the noise events and the labels are the default family's. The final
-              family from round 5 on (``benchmarks/family_eval.py``).
+              family (``benchmarks/family_eval.py``).
 ============  ==================================================================================
 
 ``mix`` draws one family per sequence (round robin over a seeded permutation, so that every family

@@ -20,7 +20,8 @@ import numpy as np
 from neurotouch_hid.dataset import PredictionsWriter
 from neurotouch_hid.errors import RecordingError, SensorError
 from neurotouch_hid.estimate import GestureEstimate
-from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
+from neurotouch_hid.pipeline.methods import MethodConfig, pipeline_for
+from neurotouch_hid.pipeline.pipeline import GesturePipeline
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import Frame, StreamItem
 
@@ -126,7 +127,7 @@ def track_recording(
     recording: str | Path,
     out: str | Path,
     sensor: SensorGeometry,
-    config: PipelineConfig | None = None,
+    config: MethodConfig | None = None,
     *,
     markers_out: str | Path | None = None,
     on_progress: Callable[[int, int], None] | None = None,
@@ -137,8 +138,8 @@ def track_recording(
         recording: AEDAT4 file with events and APS frames of ``sensor``'s resolution.
         out: predictions file to write (docs/dataset.md).
         sensor: the geometry (e.g. :func:`neurotouch_hid.sensor.find_sensor_file`).
-        config: pipeline thresholds (window length included); None = PipelineConfig()'s tuned
-            defaults (not the paper's: --preset paper).
+        config: the method's settings (window length included; its type picks the method,
+            ``pipeline.methods``); None = the product's defaults (the paper's: ``PaperConfig``).
         markers_out: if given, also write the tracked marker positions at each window's end
             (``.npz``, see the module docstring).
         on_progress: see :func:`pipeline_over`.
@@ -156,7 +157,7 @@ def track_recording(
         times.append(estimate.t_us)
         positions.append(pipeline.marker_positions())
 
-    pipeline = GesturePipeline(sensor, config, on_window=keep_markers if markers_out is not None else None)
+    pipeline = pipeline_for(sensor, config, on_window=keep_markers if markers_out is not None else None)
     windows = events = frames = 0
     first_us = last_us = None
     try:

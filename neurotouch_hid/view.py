@@ -18,10 +18,10 @@ import numpy as np
 
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.estimate import GestureEstimate
-from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
-from neurotouch_hid.pipeline.track import pipeline_over
+from neurotouch_hid.pipeline.methods import MethodConfig, pipeline_for
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
+from neurotouch_hid.track import pipeline_over
 
 #: Output kinds by file suffix.
 VIEW_SUFFIXES = (".mp4", ".gif", ".png")
@@ -95,7 +95,7 @@ def render_view(
     recording: str | Path,
     out: str | Path,
     sensor: SensorGeometry,
-    config: PipelineConfig | None = None,
+    config: MethodConfig | None = None,
     *,
     scale: int = 2,
     fps: float = 25.0,
@@ -109,16 +109,16 @@ def render_view(
         out: ``.mp4`` or ``.gif`` (one picture per APS frame, at ``fps``) or ``.png`` (the
             picture with the largest gesture intensity, else the last).
         sensor: the geometry.
-        config: pipeline thresholds.
+        config: the method's settings (``pipeline.methods``); None = the product's defaults.
         scale: integer upscaling; pictures are (height*scale, width*scale).
         fps: frame rate of mp4/gif.
         event_span_us: how much recent event history each picture shows (us).
-        on_progress: see :func:`neurotouch_hid.pipeline.track.pipeline_over`.
+        on_progress: see :func:`neurotouch_hid.track.pipeline_over`.
     Returns:
         the number of pictures drawn.
     Raises:
         NeurotouchError: ``out`` has another suffix or cannot be written.
-        RecordingError, SensorError: see :func:`neurotouch_hid.pipeline.track.pipeline_over`.
+        RecordingError, SensorError: see :func:`neurotouch_hid.track.pipeline_over`.
     """
     import imageio.v2 as imageio
 
@@ -128,7 +128,7 @@ def render_view(
         raise NeurotouchError(
             f"{out}: the view is written as {', '.join(VIEW_SUFFIXES)}, not {out.suffix or 'no suffix'!r}"
         )
-    pipeline = GesturePipeline(sensor, config)
+    pipeline = pipeline_for(sensor, config)
     recent: deque[np.ndarray] = deque()
     latest: GestureEstimate | None = None
     best: tuple[float, np.ndarray] | None = None

@@ -1,0 +1,300 @@
+"""The product's pipeline settings (:class:`PipelineConfig`, one group per stage, mm and us) and
+their pixels at a sensor's scale (:func:`scaled_to_sensor`).
+
+Every number has one default, the product's; each stage's reasons are in docs/method.md (one
+section per stage). The paper's method has its own settings (:class:`~neurotouch_hid.pipeline.paper.PaperConfig`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
+
+from neurotouch_hid.pipeline.contacts import HOMOGRAPHY_METHODS
+from neurotouch_hid.pipeline.noise import check_noise_filter
+from neurotouch_hid.pipeline.tracker import TrackerConfig
+from neurotouch_hid.sensor import MARKER_SPACING_MM, SensorGeometry
+
+#: Shortest window accepted (us).
+MIN_WINDOW_US = 1_000
+
+
+class ContactsConfig(BaseModel):
+    """The contact step (docs/method.md, "Contacts"); lengths in mm on the gel.
+
+    Attributes:
+        r_mm: radius r of the contact neighbourhoods and of the gesture's set A (mm).
+        a: dynamic reprojection threshold coefficient of the contact homography (paper's 0.6).
+        n_min: minimum number of candidates in a contact's neighbourhood.
+        homography_max_iters: iteration cap of the contact homography's RANSAC.
+        homography_method: ``usac_fast`` or ``ransac`` (``contacts.HOMOGRAPHY_METHODS``).
+        refine_mm: radius (mm) of the sub-marker refinement of a peak.
+        plateau_fraction: in (0, 1): maxima on one plateau at this fraction of its peak are one
+            flat top.
+        spike_fraction: in (0, 1]: a marker displaced more than 1 / spike_fraction times its
+            neighbours' median takes that median.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    r_mm: float = 10.0
+    a: float = 0.6
+    n_min: int = 12
+    homography_max_iters: int = 2000
+    homography_method: str = "usac_fast"
+    refine_mm: float = 8.0
+    plateau_fraction: float = 0.8
+    spike_fraction: float = 0.6
+
+    @model_validator(mode="after")
+    def _consistent(self) -> "ContactsConfig":
+        check_homography(self.homography_method, self.r_mm, self.a, self.n_min)
+        if not self.refine_mm > 0:
+            raise ValueError(f"refine_mm must be positive, got {self.refine_mm}")
+        if not 0.0 < self.spike_fraction <= 1.0:
+            raise ValueError(f"spike_fraction must be in (0, 1], got {self.spike_fraction}")
+        if not 0.0 < self.plateau_fraction < 1.0:
+            raise ValueError(f"plateau_fraction must be in (0, 1), got {self.plateau_fraction}")
+        return self
+
+
+class GestureConfig(BaseModel):
+    """The gesture step (docs/method.md, "Gesture"); lengths in mm on the gel.
+
+    Attributes:
+        reproj_factor: the similarity's RANSAC threshold as a multiple of A's mean displacement.
+        min_reproj_mm: floor of that threshold (mm).
+        min_intensity_mm: below this intensity (mm), nothing moves: ``none`` (also the creeping
+            gel's load threshold, "Creep").
+        intensity_sigma_mm: sigma (mm) of the proximity-weighted intensity.
+        origin_radius_mm: the translation term is taken at the best origin within this distance
+            (mm) of the contacts' mean.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    reproj_factor: float = 2.0
+    min_reproj_mm: float = 0.2
+    min_intensity_mm: float = 0.12
+    intensity_sigma_mm: float = 1.2
+    origin_radius_mm: float = 4.0
+
+    @model_validator(mode="after")
+    def _consistent(self) -> "GestureConfig":
+        for name in ("intensity_sigma_mm", "origin_radius_mm"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        return self
+
+
+class RestingConfig(BaseModel):
+    """The rest reference and the resting detection (docs/method.md, "Markers", "Resting").
+
+    Attributes:
+        centroid_threshold_mm2: centroid Chamfer distance (mm^2 per reference marker) at or
+            below which the gel rests.
+        centroid_reset_threshold_mm2: centroid distance (mm^2 per marker, >= the resting one) at
+            or below which a frame not at rest still re-anchors the tracker.
+        motion_override_mm: displacement from rest (mm) beyond which ``override_min_markers``
+            markers (median-filtered over their neighbours) overrule a resting verdict.
+        override_min_markers: how many markers must have moved for that override (>= 1).
+        rest_match_pitch: a candidate rest reference is refused while its markers are off the
+            calibrated rest layout (sensor.yaml ``rest_markers_px``) by more than this many
+            marker pitches.
+        marker_threshold: grey level of marker pixels (0..255); None = Otsu's threshold on the
+            reference frame.
+        reference_attempts: how many first APS frames may fail to show a marker grid before the
+            pipeline says "no gel found".
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    centroid_threshold_mm2: float = 0.0016
+    centroid_reset_threshold_mm2: float = 0.008
+    motion_override_mm: float = 0.12
+    override_min_markers: int = 12
+    rest_match_pitch: float = 0.1
+    marker_threshold: int | None = None
+    reference_attempts: int = 3
+
+    @model_validator(mode="after")
+    def _consistent(self) -> "RestingConfig":
+        for name in ("motion_override_mm", "rest_match_pitch"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if self.centroid_reset_threshold_mm2 < self.centroid_threshold_mm2:
+            raise ValueError(
+                f"centroid_reset_threshold_mm2 ({self.centroid_reset_threshold_mm2}) must be at least "
+                f"centroid_threshold_mm2 ({self.centroid_threshold_mm2})"
+            )
+        if self.override_min_markers < 1:
+            raise ValueError(f"override_min_markers must be >= 1, got {self.override_min_markers}")
+        check_attempts(self.reference_attempts)
+        return self
+
+
+class PipelineConfig(BaseModel):
+    """Every setting of the product's pipeline, one group per stage (docs/method.md, one section
+    per stage), in physical units: mm on the gel (converted to pixels with the sensor's scale,
+    :func:`scaled_to_sensor`) and us. The marker pitch is the sensor's (4 mm).
+
+    A pydantic model: a value of the wrong type, out of range, or an unknown field raises
+    ``pydantic.ValidationError`` (a ValueError) naming the field; the CLI's ``--set GROUP.NAME=VALUE``
+    is converted through it (``evaluation/runner.py``).
+
+    Attributes:
+        window_us: window length (us), >= 1000; paper: 10 ms.
+        noise_filter: the dv-processing noise filter run on every event batch before the tracker
+            (``noise.NOISE_FILTERS``), or None for none (docs/method.md, "Noise filter").
+        noise_filter_us: the filter's time parameter (us, >= 1); None = that filter's own
+            (``noise.NOISE_FILTERS``).
+        tracker: the blob tracker's parameters (docs/method.md, "Tracker"; px at
+            :data:`REFERENCE_PX_PER_MM`, scaled like the rest).
+        contacts, gesture, resting: the stages' settings (:class:`ContactsConfig`,
+            :class:`GestureConfig`, :class:`RestingConfig`).
+    """
+
+    window_us: int = 10_000
+    noise_filter: str | None = "BackgroundActivityNoiseFilter"
+    noise_filter_us: int | None = None
+    tracker: TrackerConfig = Field(default_factory=TrackerConfig)
+    contacts: ContactsConfig = Field(default_factory=ContactsConfig)
+    gesture: GestureConfig = Field(default_factory=GestureConfig)
+    resting: RestingConfig = Field(default_factory=RestingConfig)
+
+    model_config = ConfigDict(extra="forbid")
+
+    @field_validator("window_us", "noise_filter_us", mode="before")
+    @classmethod
+    def _as_given(cls, value, info: ValidationInfo):
+        """Numbers are checked as given, before pydantic converts them (text from ``--set`` is
+        converted first, then checked by :meth:`_consistent`)."""
+        if isinstance(value, str):
+            return value
+        if info.field_name == "window_us":
+            check_window(value)
+        else:
+            check_noise_filter(info.data.get("noise_filter"), value)
+        return value
+
+    @model_validator(mode="after")
+    def _consistent(self) -> "PipelineConfig":
+        check_window(self.window_us)
+        check_noise_filter(self.noise_filter, self.noise_filter_us)
+        return self
+
+
+def check_window(window_us: int) -> None:
+    """Raise ValueError when ``window_us`` is below :data:`MIN_WINDOW_US`."""
+    if window_us < MIN_WINDOW_US:
+        raise ValueError(f"window_us must be at least {MIN_WINDOW_US} us, got {window_us}")
+
+
+def check_homography(method: str, r: float, a: float, n_min: int) -> None:
+    """Raise ValueError for an unknown RANSAC variant, r (any unit) or a not positive, or n_min < 1."""
+    if method not in HOMOGRAPHY_METHODS:
+        raise ValueError(f"homography_method must be one of {', '.join(HOMOGRAPHY_METHODS)}, got {method!r}")
+    if r <= 0 or a <= 0 or n_min < 1:
+        raise ValueError(f"r and a must be positive and n_min >= 1, got r={r}, a={a}, n_min={n_min}")
+
+
+def check_attempts(reference_attempts: int) -> None:
+    """Raise ValueError when ``reference_attempts`` < 1."""
+    if reference_attempts < 1:
+        raise ValueError(f"reference_attempts must be >= 1, got {reference_attempts}")
+
+
+#: The image scale (px/mm) at which TrackerConfig's pixel settings are given: the simulated
+#: DAVIS-346 NeuroTouch's (docs/dataset.md sensor.yaml), 4 mm marker pitch = 10 px.
+REFERENCE_PX_PER_MM = 2.5
+#: Tracker settings that are lengths (scale with px_per_mm), and those that are squared lengths
+#: or squared velocities (scale with its square).
+_TRACKER_PX = (
+    "sigma_px",
+    "assoc_px",
+    "max_step_px",
+    "frame_gate_px",
+    "frame_sigma_px",
+    "merge_px",
+    "gel_margin_px",
+    "max_offset_px",
+)
+_TRACKER_PX2 = ("q_pos", "q_vel", "q_offset", "p0_pos", "p0_vel", "p0_offset")
+
+
+@dataclass(frozen=True)
+class PixelSettings:
+    """:class:`PipelineConfig` in the image's pixels for one sensor scale: what the stages run on
+    (lengths px, areas px^2, times us; names as the stage functions' arguments)."""
+
+    window_us: int
+    noise_filter: str | None
+    noise_filter_us: int | None
+    tracker: TrackerConfig
+    r_px: float
+    a: float
+    n_min: int
+    homography_max_iters: int
+    homography_method: str
+    contact_refine_px: float
+    plateau_fraction: float
+    spike_fraction: float
+    marker_pitch_px: float
+    gesture_reproj_factor: float
+    min_gesture_reproj_px: float
+    min_intensity_px: float
+    intensity_sigma_px: float
+    origin_radius_px: float
+    centroid_threshold: float
+    centroid_reset_threshold: float
+    motion_override_px: float
+    override_min_markers: int
+    rest_match_pitch: float
+    marker_threshold: int | None
+    reference_attempts: int
+
+
+def scaled_to_sensor(config: PipelineConfig, sensor: SensorGeometry) -> PixelSettings:
+    """``config`` in pixels at the sensor's scale (docs/method.md, "Camera model").
+
+    Lengths in mm are multiplied by ``sensor.px_per_mm``, areas by its square; the marker pitch is
+    :data:`~neurotouch_hid.sensor.MARKER_SPACING_MM` there; the tracker's pixel settings, given at
+    :data:`REFERENCE_PX_PER_MM`, by ``px_per_mm / REFERENCE_PX_PER_MM`` (squared for its
+    variances), so that a camera nearer the gel or with more pixels keeps the same contact radius,
+    tracker gates and thresholds on the gel."""
+    s = sensor.px_per_mm
+    k = s / REFERENCE_PX_PER_MM
+    t = config.tracker
+    if k != 1.0:
+        t = t.model_copy(
+            update={**{n: getattr(t, n) * k for n in _TRACKER_PX}, **{n: getattr(t, n) * k * k for n in _TRACKER_PX2}}
+        )
+    c, g, r = config.contacts, config.gesture, config.resting
+    return PixelSettings(
+        window_us=config.window_us,
+        noise_filter=config.noise_filter,
+        noise_filter_us=config.noise_filter_us,
+        tracker=t,
+        r_px=c.r_mm * s,
+        a=c.a,
+        n_min=c.n_min,
+        homography_max_iters=c.homography_max_iters,
+        homography_method=c.homography_method,
+        contact_refine_px=c.refine_mm * s,
+        plateau_fraction=c.plateau_fraction,
+        spike_fraction=c.spike_fraction,
+        marker_pitch_px=MARKER_SPACING_MM * s,
+        gesture_reproj_factor=g.reproj_factor,
+        min_gesture_reproj_px=g.min_reproj_mm * s,
+        min_intensity_px=g.min_intensity_mm * s,
+        intensity_sigma_px=g.intensity_sigma_mm * s,
+        origin_radius_px=g.origin_radius_mm * s,
+        centroid_threshold=r.centroid_threshold_mm2 * s * s,
+        centroid_reset_threshold=r.centroid_reset_threshold_mm2 * s * s,
+        motion_override_px=r.motion_override_mm * s,
+        override_min_markers=r.override_min_markers,
+        rest_match_pitch=r.rest_match_pitch,
+        marker_threshold=r.marker_threshold,
+        reference_attempts=r.reference_attempts,
+    )

@@ -1,0 +1,220 @@
+"""Flat tops and lone markers of the contact step (not in the paper; docs/method.md, "Contacts").
+
+Both read each marker's neighbours on the gel at rest (:func:`rest_neighbours`). A plateau of the
+displacement field several markers wide (several fingers together, or a stuck contact disc) is
+one flat top whose contacts are read off its area (:func:`plateau_contacts`); a marker displaced
+far more than all its neighbours is the tracker's error and takes their median (``_despiked``).
+Image frame (px).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+#: Gaussian-like peak holds 2-5 markers above 90 % of its maximum on the development families).
+PLATEAU_MARKERS = 6
+#: Most fingers one plateau is read as (paper, "Creation of the Gesture Detection Dataset":
+#: gestures with up to 3 fingers).
+MAX_FINGERS = 3
+
+
+def rest_neighbours(rest_px: np.ndarray, pitch_px: float) -> np.ndarray:
+    """Each marker's neighbours on the gel: the markers whose rest positions are closer than 1.5
+    marker pitches (a square grid's 8 nearest), for the plateaus and the lone markers.
+
+    Args:
+        rest_px: (M, 2) float, rest positions (px, image frame).
+        pitch_px: the marker pitch (px).
+    Returns:
+        (M, K) int64, row i the indices of marker i's neighbours (itself excluded), padded
+        with -1; K is the largest neighbour count (at least 1).
+    """
+    rest = np.ascontiguousarray(rest_px, dtype=np.float64)
+    return _neighbour_table(rest, (1.5 * float(pitch_px)) ** 2)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _neighbour_table(rest: np.ndarray, link2: float) -> np.ndarray:
+    """:func:`rest_neighbours` with ``link2`` = (1.5 pitch)^2 (px^2)."""
+    m = len(rest)
+    counts = np.zeros(m, dtype=np.int64)
+    for i in range(m):
+        for j in range(m):
+            if j != i:
+                dx = rest[i, 0] - rest[j, 0]
+                dy = rest[i, 1] - rest[j, 1]
+                if dx * dx + dy * dy <= link2:
+                    counts[i] += 1
+    width = max(1, counts.max()) if m else 1
+    table = np.full((m, width), -1, dtype=np.int64)
+    for i in range(m):
+        k = 0
+        for j in range(m):
+            if j != i:
+                dx = rest[i, 0] - rest[j, 0]
+                dy = rest[i, 1] - rest[j, 1]
+                if dx * dx + dy * dy <= link2:
+                    table[i, k] = j
+                    k += 1
+    return table
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _valid_table(neighbours: np.ndarray, idx: np.ndarray, n: int) -> np.ndarray:
+    """``neighbours`` (N, K) int64 over all N markers restricted to the valid ones ``idx`` (M,):
+    (M, K) int64, rows of the valid markers, entries renumbered among them, lost neighbours -1."""
+    position = np.full(n, -1, dtype=np.int64)
+    for q in range(len(idx)):
+        position[idx[q]] = q
+    table = np.empty((len(idx), neighbours.shape[1]), dtype=np.int64)
+    for q in range(len(idx)):
+        for k in range(neighbours.shape[1]):
+            j = neighbours[idx[q], k]
+            table[q, k] = position[j] if j >= 0 else -1
+    return table
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _plateau(table: np.ndarray, magnitudes: np.ndarray, seed: int, level: float) -> np.ndarray:
+    """(M,) bool: the markers connected to ``seed`` through neighbours (``table``, see
+    :func:`rest_neighbours`) whose magnitude is at least ``level`` (breadth-first)."""
+    m = len(magnitudes)
+    inside = np.zeros(m, dtype=np.bool_)
+    queue = np.empty(m, dtype=np.int64)
+    inside[seed] = True
+    queue[0] = seed
+    head, tail = 0, 1
+    while head < tail:
+        i = queue[head]
+        head += 1
+        for j in table[i]:
+            if j < 0 or inside[j] or magnitudes[j] < level:
+                continue
+            inside[j] = True
+            queue[tail] = j
+            tail += 1
+    return inside
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _despiked(table: np.ndarray, magnitudes: np.ndarray, fraction: float) -> np.ndarray:
+    """(M,) magnitudes where a marker displaced more than 1 / ``fraction`` times the median of its
+    neighbours (``table``, see :func:`rest_neighbours`; at least 2 of them) takes that median."""
+    out = magnitudes.copy()
+    near = np.empty(table.shape[1])
+    for i in range(len(magnitudes)):
+        k = 0
+        for j in table[i]:
+            if j >= 0:
+                near[k] = magnitudes[j]
+                k += 1
+        if k >= 2:
+            for q in range(1, k):  # insertion sort of the (<= 8) neighbours
+                x = near[q]
+                r = q - 1
+                while r >= 0 and near[r] > x:
+                    near[r + 1] = near[r]
+                    r -= 1
+                near[r + 1] = x
+            median = near[k // 2] if k % 2 else 0.5 * (near[k // 2 - 1] + near[k // 2])
+            if magnitudes[i] * fraction > median:
+                out[i] = median
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _split_along_axis(points: np.ndarray, weights: np.ndarray, n: int) -> np.ndarray:
+    """(n, 2) weighted centroids of ``n`` parts of equal weight of ``points`` (M, 2), M >= n,
+    taken in order along their weighted principal axis (equal numbers of points when one point
+    outweighs a part). The axis is the 2x2 weighted covariance's leading eigenvector, in closed
+    form."""
+    total = weights.sum()
+    mx = (points[:, 0] * weights).sum() / total
+    my = (points[:, 1] * weights).sum() / total
+    out = np.empty((n, 2))
+    if n == 1:
+        out[0, 0], out[0, 1] = mx, my
+        return out
+    dx = points[:, 0] - mx
+    dy = points[:, 1] - my
+    a = (weights * dx * dx).sum()
+    b = (weights * dx * dy).sum()
+    c = (weights * dy * dy).sum()
+    top = 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b * b)
+    if abs(b) > 1e-12 * (a + c + 1e-300):
+        ax, ay = top - c, b
+    elif a >= c:
+        ax, ay = 1.0, 0.0
+    else:
+        ax, ay = 0.0, 1.0
+    order = np.argsort(dx * ax + dy * ay, kind="mergesort")
+    w = weights[order]
+    middle = (np.cumsum(w) - 0.5 * w) / total  # each marker's place along the axis, by weight
+    group = np.minimum((middle * n).astype(np.int64), n - 1)
+    if len(np.unique(group)) < n:  # a marker outweighs a part: parts of equal marker counts
+        group = np.arange(len(order)) * n // len(order)
+    for g in range(n):
+        sx = sy = sw = 0.0
+        for q in range(len(order)):
+            if group[q] == g:
+                i = order[q]
+                sx += points[i, 0] * weights[i]
+                sy += points[i, 1] * weights[i]
+                sw += weights[i]
+        out[g, 0], out[g, 1] = sx / sw, sy / sw
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def plateau_contacts(
+    table: np.ndarray,
+    current_px: np.ndarray,
+    magnitudes: np.ndarray,
+    peaks: np.ndarray,
+    fraction: float,
+    pitch_px: float,
+    finger_radius_px: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Merge the displacement maxima that lie on one plateau; a wide plateau's contacts (see the
+    module docstring, "Flat tops").
+
+    Args:
+        table: (M, K) int64, the valid markers' neighbours on the gel (:func:`rest_neighbours`
+            renumbered among them, -1 padded).
+        current_px: (M, 2) float64, their current positions (px, image frame).
+        magnitudes: (M,) float64, their displacement norms ||v|| (px).
+        peaks: (K,) int64, the maxima (indices into the M markers) by decreasing magnitude.
+        fraction: plateau level as a fraction of its maximum's magnitude, in (0, 1).
+        pitch_px: the marker pitch (px): each marker stands for pitch^2 of gel.
+        finger_radius_px: a fingertip's radius (px, the paper's r): a plateau of area A holds
+            ``min(3, ceil(A / (pi r^2)))`` fingers (the paper's gestures have up to 3).
+    Returns:
+        (kept, fingers, points): the kept maxima (K' <= K, int64, by decreasing magnitude); for
+        each, 0 (a plateau of at most :data:`PLATEAU_MARKERS` markers: the caller places its
+        contact) or its number of fingers n (int64, K'); and the fingers' contact points, (sum
+        of n, 2) float64 (px, current positions) in the order of ``kept``: the weighted
+        centroids of n equal-weight parts of each wide plateau along its principal axis.
+    """
+    covered = np.zeros(len(magnitudes), dtype=np.bool_)
+    kept = np.empty(len(peaks), dtype=np.int64)
+    fingers = np.zeros(len(peaks), dtype=np.int64)
+    points = np.empty((MAX_FINGERS * len(peaks), 2))
+    n_kept = n_points = 0
+    for p in peaks:
+        if covered[p]:
+            continue  # on a stronger maximum's plateau: the same flat top
+        level = fraction * magnitudes[p]
+        mask = _plateau(table, magnitudes, p, level)
+        covered |= mask
+        kept[n_kept] = p
+        size = np.count_nonzero(mask)
+        if size > PLATEAU_MARKERS:
+            n = min(MAX_FINGERS, max(1, math.ceil(size * pitch_px**2 / (math.pi * finger_radius_px**2))))
+            points[n_points : n_points + n] = _split_along_axis(current_px[mask], magnitudes[mask] - level + 1e-9, n)
+            fingers[n_kept] = n
+            n_points += n
+        n_kept += 1
+    return kept[:n_kept].copy(), fingers[:n_kept].copy(), points[:n_points].copy()

@@ -1,0 +1,82 @@
+"""The event path overruling a stale resting verdict (not in the paper; docs/method.md, "Resting").
+
+A resting verdict comes from an APS frame, up to 40 ms old at 25 Hz. When, at a window's end,
+enough tracked markers have moved further than a threshold from rest, the window is processed as
+a gesture window. A marker counts as moved by the median of its and its nearest neighbours'
+displacements at rest (a finger moves a marker's neighbours with it; tracker jitter under a
+flickering light does not).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+
+def overrules_rest(
+    current: np.ndarray,
+    valid: np.ndarray,
+    rest: np.ndarray,
+    neighbours: np.ndarray,
+    threshold_px: float,
+    min_markers: int,
+) -> bool:
+    """Whether at least ``min_markers`` ``valid`` (N,) bool markers moved further than
+    ``threshold_px`` from rest, each by the median displacement over itself and its
+    ``neighbours`` (:func:`grid_neighbours`); ``current``, ``rest`` (N, 2) float64 px.
+    The median is taken only when the markers' own displacements would overrule (at rest nearly
+    always not, so its cost is spent on the few windows that need it)."""
+    threshold_sq = threshold_px * threshold_px
+    if _count_moved(current, valid, rest, threshold_sq) < min_markers:
+        return False
+    d = np.where(valid[:, None], current - rest, np.nan)
+    d = _median_of_sorted(np.sort(np.concatenate([d, np.full((1, 2), np.nan)])[neighbours], axis=1))
+    moved = int(np.count_nonzero(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] > threshold_sq))
+    return moved >= min_markers
+
+
+#: The smooth override's neighbours of a marker: the markers within this many times the median
+#: nearest-neighbour distance at rest (on the square 4 mm grid: its four nearest, not the diagonals).
+OVERRIDE_NEIGHBOUR_GAP = 1.25
+
+
+def _median_of_sorted(values: np.ndarray) -> np.ndarray:
+    """(N, 2) the median over axis 1 of ``values`` (N, k, 2) sorted along it with NaN last
+    (NaN ignored, as ``np.nanmedian``, ~7x faster here); 0 where a row has no finite value (a
+    marker whose neighbours are all lost has not moved)."""
+    n = np.isfinite(values).sum(axis=1)  # (N, 2)
+    lo = np.take_along_axis(values, np.maximum((n - 1) // 2, 0)[:, None, :], axis=1)[:, 0]
+    hi = np.take_along_axis(values, np.maximum(n // 2, 0)[:, None, :], axis=1)[:, 0]
+    return np.where(n > 0, 0.5 * (lo + hi), 0.0)
+
+
+def grid_neighbours(rest_px: np.ndarray) -> np.ndarray:
+    """(N, k) int64: each marker of ``rest_px`` (N, 2) px, then its neighbours at rest (within
+    :data:`OVERRIDE_NEIGHBOUR_GAP` times the median nearest-neighbour distance), padded with N
+    (a row of NaN is appended to the displacements it indexes)."""
+    n = len(rest_px)
+    gap = np.sqrt(((rest_px[:, None, :] - rest_px[None, :, :]) ** 2).sum(axis=-1))
+    np.fill_diagonal(gap, np.inf)
+    near = gap <= OVERRIDE_NEIGHBOUR_GAP * np.median(gap.min(axis=1)) if n > 1 else np.zeros((n, n), bool)
+    k = int(near.sum(axis=1).max()) if n else 0
+    out = np.full((n, k + 1), n, dtype=np.int64)
+    out[:, 0] = np.arange(n)
+    for i in range(n):
+        idx = np.flatnonzero(near[i])
+        out[i, 1 : 1 + len(idx)] = idx
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _count_moved(current: np.ndarray, valid: np.ndarray, rest: np.ndarray, threshold_sq: float) -> int:
+    """How many ``valid`` (N,) bool markers are more than sqrt(``threshold_sq``) (px^2) from rest,
+    ``current`` and ``rest`` (N, 2) float64 px (a NaN position is not). One pass, no
+    temporaries: every resting window runs it (the motion override)."""
+    moved = 0
+    for i in range(len(current)):
+        if valid[i]:
+            dx = current[i, 0] - rest[i, 0]
+            dy = current[i, 1] - rest[i, 1]
+            if dx * dx + dy * dy > threshold_sq:
+                moved += 1
+    return moved
