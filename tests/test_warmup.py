@@ -27,20 +27,24 @@ def _env(cache) -> dict:
 
 
 def test_interpret_points_every_name_at_the_python_form_and_back():
-    import neurotouch_hid.pipeline.contacts as contacts
-    import neurotouch_hid.pipeline.tracker as tracker
-
+    """Where a kernel is defined and where it is imported (``from ... import kernel``) alike."""
     found = warmup.kernels(warmup.PIPELINE)
-    track = found["neurotouch_hid.pipeline.tracker._track"]
-    plateau = found["neurotouch_hid.pipeline.contacts.plateau_contacts"]
-    assert tracker._track is track
+    assert len(found) > 30
+    names = [
+        (module, attr, kernel)
+        for kernel in found.values()
+        for module in list(sys.modules.values())
+        if getattr(module, "__name__", "").startswith("neurotouch_hid")
+        for attr, value in list(vars(module).items())
+        if value is kernel
+    ]
+    assert any(module.__name__ != kernel.py_func.__module__ for module, _, kernel in names)  # imported ones too
     warmup.interpret(found)
     try:
-        assert tracker._track is track.py_func
-        assert contacts.plateau_contacts is plateau.py_func
+        assert all(getattr(module, attr) is kernel.py_func for module, attr, kernel in names)
     finally:
         warmup.compiled(found)
-    assert tracker._track is track and contacts.plateau_contacts is plateau
+    assert all(getattr(module, attr) is kernel for module, attr, kernel in names)
 
 
 def test_interpreted_pipeline_gives_the_compiled_pipelines_windows():
