@@ -324,7 +324,7 @@ class Warmup:
 
     def _compile_here(self, group: KernelGroup) -> None:
         progress = self.progress[group.name]
-        self._say(f"{COMPILING}: {progress.total} {group.name} kernels, ~40 s on two cores ...")
+        self._say(f"{COMPILING}: the {group.name} kernels ({progress.total}), before the run starts ...")
         with _on_each_compiled(self._kernels[group.name], progress.add):
             _call(group.warm)
         progress.state = "ready"
