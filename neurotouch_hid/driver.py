@@ -13,7 +13,7 @@ from __future__ import annotations
 import contextlib
 import logging
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Iterator, Protocol
+from typing import TYPE_CHECKING, Callable, ContextManager, Iterator, Protocol
 
 from neurotouch_hid.errors import DeviceError, NeurotouchError
 from neurotouch_hid.estimate import GestureEstimate
@@ -239,13 +239,13 @@ def start_warmup(source: str, *, fast: bool, say: Callable[[str], None], method:
     return Warmup(groups, say=say, interpreted=interpreted).start()
 
 
-def _guard(warmup: Warmup | None, group: KernelGroup) -> Callable[[], Any] | None:
+def _guard(warmup: Warmup | None, group: KernelGroup) -> Callable[[], ContextManager[None]] | None:
     """A zero-argument callable giving ``warmup`` 's guard of ``group`` (None without warmup)."""
     return None if warmup is None else (lambda: warmup.guard(group))
 
 
 def _with_view(
-    out: Output, kind: str, scene: Any, console: Any, stats: RunStats, stack: contextlib.ExitStack
+    out: Output, kind: str, scene: LiveScene, console: Console | None, stats: RunStats, stack: contextlib.ExitStack
 ) -> Output:
     """The output with the live view: a terminal view shows ``scene``; the virtual gamepad gets
     the live view drawn beside it when ``console`` is a terminal."""
