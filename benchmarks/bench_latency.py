@@ -1,5 +1,5 @@
 """Runtime latency, sustained event rate and memory: the figures of docs/performance.md
-("## Runtime latency").
+("Runtime latency").
 
     python3 benchmarks/bench_latency.py [--seconds 30] [--rss-minutes 30] [--workdir DIR] [--no-busy]
         [--idle-ms 0.8]
@@ -174,7 +174,7 @@ def stages(
 
     ``idle_s`` > 0: the thread sleeps that long after each 1 ms batch, as the running driver
     waits for the camera's next one. Its caches are then cold when a window closes: on this
-    machine class every step costs 2-4x its back-to-back CPU time (docs/performance.md)."""
+    machine class every step costs 2-4x its back-to-back CPU time (docs/performance.md, "Runtime latency")."""
     from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 
     pipeline = GesturePipeline(sensor, PipelineConfig(window_us=window_us), profile=True)

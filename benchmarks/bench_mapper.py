@@ -1,4 +1,4 @@
-"""Mapping cost per window: the figures of docs/performance.md ("## Mapping").
+"""Mapping cost per window: the figures of docs/performance.md ("Mapping").
 
     python3 benchmarks/bench_mapper.py [--windows 20000]
 

@@ -3,7 +3,7 @@
 Cases: the ``quick`` preset, and one minute of paper-like data (the ``paper`` preset for user 0,
 all five gesture types, 12 s each). Also the simulation alone (no files) for the same minute,
 to separate the gel/camera model from AEDAT4 writing. Figures go to docs/performance.md
-(## Simulator).
+("Simulator").
 
     python3 benchmarks/bench_simulator.py [--minutes 1.0] [--full-paper]
 

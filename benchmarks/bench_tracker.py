@@ -1,5 +1,5 @@
 """Event-blob tracker: accuracy against the simulator's truth, throughput, and a 12 M events/s
-stress stream, side by side with dv-processing's MeanShiftTracker (docs/performance.md, Tracker).
+stress stream, side by side with dv-processing's MeanShiftTracker (docs/performance.md, "Tracker").
 
 1. Simulated recordings (``neurotouch_hid.sources.simulator.write_dataset``, read back through
    ``RecordingReader``): the markers are detected on the first APS frame, tracked in 10 ms
@@ -291,7 +291,7 @@ def main() -> None:
         action="append",
         default=[],
         metavar="FIELD=VALUE",
-        help="a TrackerConfig field (float), e.g. --set max_offset_px=0 (repeatable)",
+        help="a TrackerConfig field (float), in mm and us, e.g. --set max_offset_mm=0 (repeatable)",
     )
     args = parser.parse_args()
     console = make_console()

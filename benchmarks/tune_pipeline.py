@@ -117,7 +117,7 @@ def chamfer_series(dataset: Path, name: str, marker_threshold: int | None) -> tu
             if not isinstance(item, Frame):
                 continue
             if detector is None:
-                detector = RestingDetector(item.image, sensor, binary_threshold=marker_threshold, centroids=True)
+                detector = RestingDetector(item.image, sensor, binary_threshold=marker_threshold)
                 continue
             times.append(item.t_us)
             distances.append(detector.update(item).distance / sensor.px_per_mm**2)  # mm^2, as the setting

@@ -42,7 +42,8 @@ step here is scale-free:
    from a gesture (docs/method.md, "Creep").
 
 Mirror and rotation cannot be seen on a rest frame: :func:`calibrate` leaves SensorGeometry's
-defaults (mirror, as the camera looks from inside; no rotation) for the caller to set.
+defaults (mirror, as the camera looks from inside; no rotation); ``calibrate`` measures them
+from two guided pushes and then checks every gesture (:mod:`neurotouch_hid.calibration_guide`).
 """
 
 from __future__ import annotations
@@ -77,7 +78,7 @@ PRESS_MARKERS = 10
 #: Rest frames averaged by default (0.4 s at the DAVIS-346's 25 Hz), and the fewest accepted.
 REST_FRAMES = 10
 MIN_REST_FRAMES = 3
-#: How long to wait for the live camera's rest frames (s).
+#: How long to wait for the live camera's rest frames (s of the camera's clock).
 CAMERA_WAIT_S = 10.0
 #: Largest marker image looked for (px): a 1 mm dot at 10 px/mm, where the 60 mm gel would be
 #: 600 px wide, more than the whole image. The top-hat's kernel is twice as wide (it keeps the dots
@@ -371,20 +372,15 @@ def _centre_spacing(points: np.ndarray, nn: np.ndarray, center: np.ndarray) -> f
 
 
 def read_rest_frames(source: str | Path, n_frames: int = REST_FRAMES) -> list[Frame]:
-    """The first ``n_frames`` APS frames of ``source``: ``"davis"`` (the live DAVIS-346, waiting
-    up to :data:`CAMERA_WAIT_S` s) or the path of an AEDAT4 recording.
+    """The first ``n_frames`` APS frames of the AEDAT4 recording ``source`` (the live camera's
+    and the simulator's: :mod:`neurotouch_hid.calibration_guide`, which keeps them open for the
+    guided pushes).
 
     Returns:
         up to ``n_frames`` :class:`Frame` values (uint8 (260, 346) for a DAVIS-346), in time order.
     Raises:
-        DeviceError: no camera (davis). RecordingError: the recording cannot be read or has no
-            APS frames.
+        RecordingError: the recording cannot be read or has no APS frames.
     """
-    if str(source) == "davis":
-        from neurotouch_hid.sources.davis import DavisSource
-
-        with DavisSource() as camera, contextlib.closing(camera.stream(seconds=CAMERA_WAIT_S)) as stream:
-            return list(itertools.islice((item for item in stream if isinstance(item, Frame)), n_frames))
     from neurotouch_hid.sources.recording import RecordingReader
 
     with RecordingReader(source, require_frames=True) as reader, contextlib.closing(reader.stream()) as stream:

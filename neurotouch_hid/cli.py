@@ -95,7 +95,7 @@ def long_lived_start_up() -> Iterator[None]:
     for ``track``) lives as long as the process. The garbage collector is off meanwhile and
     those objects are frozen at the end (``gc.freeze``), so that none of its passes walks them
     again: its full passes over them were ~0.5 s of CPU of a 40 s ``track`` (docs/performance.md,
-    "track at 20x real time"). Cyclic garbage made inside is never freed: keep the block to
+    "track"). Cyclic garbage made inside is never freed: keep the block to
     imports and set-up."""
     enabled = gc.isenabled()
     gc.disable()
@@ -236,7 +236,11 @@ def record(
 def simulate(
     out: Path = typer.Option(..., "--out", help="dataset folder to write (docs/dataset.md)"),
     preset: str = typer.Option(
-        "quick", "--preset", help="quick (small, for tests) or paper (5 users x 5 gestures x ~1 min)"
+        "quick",
+        "--preset",
+        help="quick (small, for tests), paper (5 users x 5 gestures x ~1 min) or sessions (5 users x a 10 s game "
+        "session: the type changes from one gesture to the next; taps from 0.25 s, ordinary gestures, holds of "
+        "several seconds, rests of a fraction of a second)",
     ),
     seed: int = typer.Option(0, "--seed", min=0, help="random seed: the same seed gives the same files"),
     minutes: Optional[float] = typer.Option(
@@ -331,16 +335,24 @@ def eval_cmd(
         [],
         "--set",
         help="pipeline hyperparameter NAME=VALUE, repeatable: a field of the method's config; default: "
-        "window_us, noise_filter, noise_filter_us (us), contacts.*, gesture.*, resting.* (*_mm in mm on the gel, "
-        "*_mm2 in mm^2), tracker.* (px at 2.5 px/mm, scaled to sensor.yaml's); paper: its fields in px",
+        "window_us (us), noise.kind, noise.time_us (us), tracker.*, contacts.*, gesture.*, resting.* (*_mm in "
+        "mm on the gel, *_mm2 in mm^2, *_um2 in um^2, *_us in us), converted with sensor.yaml's px/mm; paper: its "
+        "fields in px, tracker.* as the default's",
     ),
     method: str = typer.Option("default", "--method", "--preset", help=METHOD_HELP + "; --set applies over it"),
     jobs: int = typer.Option(1, "--jobs", min=1, help="sequences run in parallel processes"),
     predictions: Optional[Path] = typer.Option(
         None, "--predictions", help="keep each sequence's predictions here (JSON lines)"
     ),
+    deadzone_mm: float = typer.Option(
+        0.8,
+        "--deadzone-mm",
+        min=0.0,
+        help="dead zone of the per-gesture metrics (mm; default: the default profile's), docs/dataset.md",
+        callback=_finite,
+    ),
 ) -> None:
-    """Run the pipeline over a labelled dataset and print the paper's metrics."""
+    """Run the pipeline over a labelled dataset; print the paper's metrics and the per-gesture ones."""
     import json
     import shlex
 
@@ -358,7 +370,9 @@ def eval_cmd(
         TimeRemainingColumn(),
     )
     with Progress(*columns, console=err_console, transient=True) as progress:
-        result = evaluate_dataset(dataset, config, jobs=jobs, predictions_dir=predictions, progress=progress)
+        result = evaluate_dataset(
+            dataset, config, jobs=jobs, predictions_dir=predictions, progress=progress, deadzone_mm=deadzone_mm
+        )
     print_tables(result, console)
     argv = (
         ["eval", str(dataset)]
@@ -369,6 +383,7 @@ def eval_cmd(
             for flag, value in (
                 ("--window-us", window_us),
                 ("--jobs", jobs if jobs > 1 else None),
+                ("--deadzone-mm", deadzone_mm if deadzone_mm != 0.8 else None),
                 ("--report", report),
                 ("--json", json_out),
             )
@@ -581,55 +596,9 @@ def doctor() -> None:
 
 
 # --- calibration (calibration.py) -------------------------------------------------------------
-@app.command()
-def calibrate(
-    source: str = typer.Option(
-        "davis", "--source", help="davis (live camera) or an AEDAT4 recording that starts with the gel at rest"
-    ),
-    out: Optional[Path] = typer.Option(
-        None,
-        "--out",
-        help="sensor.yaml (or folder) to write (default: your config folder, where run, track and eval find it)",
-    ),
-    markers: int = typer.Option(177, "--markers", min=1, help="the gel's marker count (the paper's gel: 177)"),
-    mirror: Optional[bool] = typer.Option(
-        None, "--mirror/--no-mirror", help="the camera sees the gel from inside (default: ask on a terminal, else yes)"
-    ),
-    rotation: Optional[float] = typer.Option(
-        None,
-        "--rotation",
-        help="counter-clockwise degrees from the mirrored image to your view (default: ask on a terminal, else 0)",
-        callback=_finite,
-    ),
-    frames: int = typer.Option(10, "--frames", min=3, help="rest frames to check and average (25 a second)"),
-    press: Optional[Path] = typer.Option(
-        None,
-        "--press",
-        help="an AEDAT4 recording of one press (a finger pressed in, held still ~2 s, lifted quickly, "
-        "then ~2 s alone): also measure how the gel creeps",
-    ),
-) -> None:
-    """Measure the gel's circle and scale on rest frames and save sensor.yaml (docs/dataset.md).
-
-    Keep your hands off the gel while it runs. With --press, also measure the gel's creep (how
-    slowly it relaxes after a release) on a recorded press; without it, a creep already in the
-    sensor.yaml being replaced is kept."""
-    import dataclasses
-    import math
-
-    from neurotouch_hid import calibration
-    from neurotouch_hid.errors import SensorError
-    from neurotouch_hid.pipeline.creep import at_search_edge
-    from neurotouch_hid.sensor import SensorGeometry, user_sensor_path
-
-    def say(line: str) -> None:
-        console.print(line, highlight=False, markup=False, soft_wrap=True)
-
-    if source == SourceKind.DAVIS:
-        err_console.print("reading rest frames from the camera: keep your hands off the gel", highlight=False)
-    result = calibration.calibrate(
-        calibration.read_rest_frames(source, frames), expected_markers=markers, n_frames=frames
-    )
+def _say_rest_geometry(say, source: str, result, markers: int) -> None:
+    """``calibrate``'s lines on what the rest frames gave: the frames, the gel circle, the scale,
+    the camera model and the marker count."""
     geometry = result.sensor
     span_s = (result.frames_t_us[-1] - result.frames_t_us[0]) / 1e6
     say(f"{len(result.frames_t_us)} rest frames of {source} over {span_s:.2f} s: the gel did not move")
@@ -658,29 +627,143 @@ def calibrate(
             f"from the centre, {edge / geometry.px_per_mm:.2f} mm at the centre's scale)"
         )
     say(f"markers: {result.n_markers} found, {markers} expected")
-    interactive = sys.stdin.isatty()
-    if mirror is None and interactive:
-        mirror = typer.confirm(
-            "Does the camera look at the gel from inside (the image is a mirror of your view)?", default=True
+
+
+@app.command()
+def calibrate(
+    source: str = typer.Option(
+        "davis",
+        "--source",
+        help="davis (the live camera: you push the gel when asked), sim (the simulated gel: its hand does) "
+        "or an AEDAT4 recording that starts with the gel at rest",
+    ),
+    out: Optional[Path] = typer.Option(
+        None,
+        "--out",
+        help="sensor.yaml (or folder) to write (default: your config folder, where run, track and eval find it)",
+    ),
+    markers: int = typer.Option(177, "--markers", min=1, help="the gel's marker count (the paper's gel: 177)"),
+    mirror: Optional[bool] = typer.Option(
+        None,
+        "--mirror/--no-mirror",
+        help="the camera sees the gel from inside; with --rotation, instead of the guided pushes "
+        "(a recording: default yes)",
+    ),
+    rotation: Optional[float] = typer.Option(
+        None,
+        "--rotation",
+        help="counter-clockwise degrees from the (mirrored) image to your view; with --mirror/--no-mirror, "
+        "instead of the guided pushes (a recording: default 0)",
+        callback=_finite,
+    ),
+    check: bool = typer.Option(
+        True,
+        "--check/--no-check",
+        help="with davis or sim: afterwards, ask for each gesture and say whether it reads right",
+    ),
+    frames: int = typer.Option(10, "--frames", min=3, help="rest frames to check and average (25 a second)"),
+    press: Optional[Path] = typer.Option(
+        None,
+        "--press",
+        help="an AEDAT4 recording of one press (a finger pressed in, held still ~2 s, lifted quickly, "
+        "then ~2 s alone): also measure how the gel creeps",
+    ),
+    sim_rotation: float = typer.Option(
+        0.0,
+        "--sim-rotation",
+        help="with --source sim: the simulated camera's rotation (degrees), for calibrate to find",
+        callback=_finite,
+    ),
+    sim_mirror: bool = typer.Option(
+        True,
+        "--sim-mirror/--sim-no-mirror",
+        help="with --source sim: whether the simulated camera sees the gel mirrored (from inside, as the real one)",
+    ),
+    seed: int = typer.Option(0, "--seed", min=0, help="with --source sim: the simulation's seed"),
+) -> None:
+    """Measure the gel's circle and scale on rest frames, and (camera or simulator) which way you
+    look at it from two guided pushes, check each gesture, and save sensor.yaml (docs/dataset.md).
+
+    Keep your hands off the gel until asked to push. Nothing is typed: each gesture is watched
+    for up to 12 s. With --press, also measure the gel's creep (how slowly it relaxes after a
+    release) on a recorded press; without it, a creep already in the sensor.yaml being replaced
+    is kept."""
+    import dataclasses
+
+    from neurotouch_hid import calibration, calibration_guide
+    from neurotouch_hid.errors import SensorError
+    from neurotouch_hid.pipeline.creep import at_search_edge
+    from neurotouch_hid.sensor import SensorGeometry, user_sensor_path
+
+    def say(line: str) -> None:
+        console.print(line, highlight=False, markup=False, soft_wrap=True)
+
+    if source != SourceKind.SIM and (sim_rotation != 0.0 or not sim_mirror):
+        raise NeurotouchError("--sim-rotation and --sim-no-mirror are for --source sim (the simulated camera)")
+    if source in (SourceKind.DAVIS, SourceKind.SIM) and (mirror is None) != (rotation is None):
+        raise NeurotouchError(
+            "--mirror/--no-mirror and --rotation go together with the camera or simulator (both instead of the "
+            "guided pushes): give both or neither"
         )
-    elif mirror is None:
-        say(
-            "mirror: true (the default: the camera looks from inside; not asked without a terminal; "
-            "--no-mirror to change)"
-        )
-        mirror = True
-    if rotation is None and interactive:
-        seen = "mirrored image" if mirror else "image"
-        rotation = typer.prompt(
-            f"Rotation from the {seen} to your view (counter-clockwise degrees)", default=0.0, type=float
-        )
-    elif rotation is None:
-        say("rotation: 0 deg (the default; not asked without a terminal; --rotation DEG to change)")
-        rotation = 0.0
-    geometry = dataclasses.replace(geometry, mirror=mirror, rotation_deg=float(rotation))
+    if source in (SourceKind.DAVIS, SourceKind.SIM):
+        from neurotouch_hid.driver import compile_pipeline
+
+        err_console.print("loading the gesture pipeline (compiled on the first run only)", highlight=False)
+        compile_pipeline()  # before the camera opens: nothing of the guided gestures waits for it
+    with contextlib.ExitStack() as stack:
+        guide: Optional[calibration_guide.GuidedSource] = None
+        if source == SourceKind.SIM:
+            guide = calibration_guide.SimulatedHand(
+                SensorGeometry(mirror=sim_mirror, rotation_deg=sim_rotation), seed=seed
+            )
+        elif source == SourceKind.DAVIS:
+            err_console.print("reading rest frames from the camera: keep your hands off the gel", highlight=False)
+            guide = stack.enter_context(calibration_guide.LiveCamera(calibration.CAMERA_WAIT_S))
+        rest = guide.rest_frames(frames) if guide is not None else calibration.read_rest_frames(source, frames)
+        result = calibration.calibrate(rest, expected_markers=markers, n_frames=frames)
+        geometry = result.sensor
+        _say_rest_geometry(say, source, result, markers)
+        items = guide.stream() if guide is not None else None
+        if guide is None or (mirror is not None and rotation is not None):
+            if guide is None and (mirror is None or rotation is None):
+                say(
+                    "mirror and rotation: not asked (a recording cannot be pushed; calibrate with the camera to "
+                    "measure them, or give --mirror/--no-mirror and --rotation DEG): "
+                    f"{'given' if mirror is not None else 'true, the default'} mirror, "
+                    f"{'given' if rotation is not None else '0 deg, the default'} rotation"
+                )
+            mirror = True if mirror is None else mirror
+            rotation = 0.0 if rotation is None else rotation
+        else:
+            say("which way you look at the gel: two guided pushes")
+            mirror, rotation = calibration_guide.measure_orientation(guide, items, geometry, say)
+            say(
+                f"measured: mirror {'true' if mirror else 'false'} (the image is "
+                f"{'a mirror of' if mirror else 'the same as'} your view), rotation {rotation:g} deg"
+            )
+        geometry = dataclasses.replace(geometry, mirror=mirror, rotation_deg=float(rotation))
+        results = []
+        if guide is not None and check:
+            say("guided check: each gesture, read with this calibration")
+            results = calibration_guide.guided_check(guide, items, geometry, say)
+            wrong = [r for r in results if not r.right]
+            say(
+                f"guided check: {len(results) - len(wrong)} of {len(results)} gestures right"
+                + (f"; wrong: {', '.join(r.step.name for r in wrong)}" if wrong else "")
+            )
+            advice = calibration_guide.check_advice(results, geometry)
+            if advice:
+                say(f"what to do: {advice}")
     for note in result.notes:
         say(f"note: {note}")
+    checked_wrong = any(not r.right for r in results)  # exit 1, after writing
 
+    if source == SourceKind.SIM and out is None:
+        say(
+            "nothing written: a simulated camera's calibration does not replace your sensor's in your config "
+            "folder (--out FILE to keep it)"
+        )
+        sys.exit(1 if checked_wrong else 0)
     path = user_sensor_path() if out is None else (out / "sensor.yaml" if out.is_dir() else out)
     if press is not None:
         share, time_s = calibration.measure_creep(press, geometry)
@@ -704,7 +787,7 @@ def calibrate(
             say(f"replacing {path}: " + ("; ".join(changes) if changes else "the same values"))
         except SensorError as exc:
             say(f"replacing {path}, which was not a valid sensor.yaml ({exc})")
-        if interactive and not typer.confirm(f"Replace {path}?", default=True):
+        if sys.stdin.isatty() and not typer.confirm(f"Replace {path}?", default=True):
             say("nothing written")
             return
     try:
@@ -720,6 +803,8 @@ def calibrate(
         )
     else:
         say(f"use it with --sensor {path}, or calibrate without --out to make it your default")
+    if checked_wrong:
+        sys.exit(1)
 
 
 # --- profiles (mapping/) ----------------------------------------------------------------------

@@ -186,7 +186,7 @@ def list_sequences(dataset: str | Path) -> list[str]:
 
 
 def labels_at(labels: Sequence[LabelRow], t_us: np.ndarray) -> list[LabelRow | None]:
-    """The ground truth at each prediction time, as docs/dataset.md's "Predictions" section defines it.
+    """The ground truth at each prediction time, as docs/dataset.md's "Predictions (JSON lines)" section defines it.
 
     Paper, section "Creation of the Gesture Detection Dataset": "we use the most recent labeled
     gesture type and linearly interpolate the contact points localizations and intensities based

@@ -50,7 +50,7 @@ class CameraBackend(Protocol):
 
 class EstimateReplay:
     """Stands in for the pipeline when the source is a predictions file: its items already are
-    the windows' :class:`GestureEstimate` values (docs/dataset.md "Predictions"), handed on as they are."""
+    the windows' :class:`GestureEstimate` values (docs/dataset.md "Predictions (JSON lines)"), handed on as they are."""
 
     def process(self, item: GestureEstimate) -> list[GestureEstimate]:
         return [item]
@@ -110,14 +110,14 @@ def open_source(
         from neurotouch_hid.sources.davis import DavisSource
         from neurotouch_hid.sources.recording import DAVIS346_RESOLUTION
 
-        defaults = PipelineConfig()
-        noise = (
-            EventNoiseFilter(defaults.noise_filter, *DAVIS346_RESOLUTION, defaults.noise_filter_us)
-            if filter_noise and defaults.noise_filter is not None
+        noise = PipelineConfig().noise
+        camera_filter = (
+            EventNoiseFilter(noise.kind, *DAVIS346_RESOLUTION, noise.time_us)
+            if filter_noise and noise.kind is not None
             else None
         )
         try:
-            camera = stack.enter_context(DavisSource(davis, wait=wait, backend=capture, noise_filter=noise))
+            camera = stack.enter_context(DavisSource(davis, wait=wait, backend=capture, noise_filter=camera_filter))
         except DeviceError as exc:
             raise DeviceError(f"{exc}\nor start with --wait to wait for a camera") from None
         geometry = SensorGeometry.load(sensor) if sensor is not None else default_sensor()
@@ -203,7 +203,7 @@ def build_pipeline(
     """The ``method``'s pipeline (``pipeline.methods``) with ``window_us`` windows, and the resting
     detector to run beside it.
 
-    ``filter_noise``: the product's pipeline runs its noise filter (``PipelineConfig.noise_filter``);
+    ``filter_noise``: the product's pipeline runs its noise filter (``PipelineConfig.noise``);
     False when the source already did (the live camera, :func:`open_source`).
 
     ``resting_beside``: the resting detection runs in the runtime's own thread (paper, section
@@ -215,7 +215,7 @@ def build_pipeline(
     from neurotouch_hid.evaluation.runner import pipeline_config
     from neurotouch_hid.pipeline.methods import pipeline_for
 
-    quiet = {} if filter_noise or method != "default" else {"noise_filter": None}
+    quiet = {} if filter_noise or method != "default" else {"noise": {"kind": None}}
     config = pipeline_config(method=method, window_us=window_us, **quiet)
     pipeline = pipeline_for(geometry, config, detect_resting=not resting_beside)
     return pipeline, (PipelineResting(pipeline) if resting_beside else None)

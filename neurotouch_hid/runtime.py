@@ -241,6 +241,8 @@ class Runtime:
         control: serve the control socket while running (``profile use``, :meth:`use_profile`).
         stats: where the run is counted (:class:`RunStats`; e.g. shared with the terminal view
             that shows it); a new one by default.
+        pacer: the :class:`~neurotouch_hid.sources.Pacer` that paces and times the run (one on
+            a clock a test controls); a new wall-clock one by default.
     """
 
     def __init__(
@@ -261,6 +263,7 @@ class Runtime:
         say: Callable[[str], None] = log.warning,
         control: bool = False,
         stats: RunStats | None = None,
+        pacer: Pacer | None = None,
         waits: bool = False,
     ):
         self._control = control
@@ -295,7 +298,7 @@ class Runtime:
         self._last_state = ControllerState.neutral()
         self._last_gesture: GestureType | None = None
         self._limit_us: int | None = None
-        self._clock = Pacer()  # the first item read anchors pacing, limits and latencies
+        self._clock = pacer or Pacer()  # the first item read anchors pacing, limits and latencies
         self._ran = False
         self._say = say
         self._paused = False  # the live camera is lost: write nothing (under self._lock)

@@ -56,7 +56,7 @@ def recording_progress(console, label: str) -> Iterator[Callable[[int, int], Non
     yields the ``on_progress(done_us, total_us)`` callback of :func:`pipeline_over`. The bar
     disappears when done. When ``console`` is not a terminal (a pipe, a file, CI) rich would
     draw nothing of a transient bar, so there is none and None is yielded: no callback, and no
-    pass over the file for the bar's total (~5 % of ``track``; docs/performance.md)."""
+    pass over the file for the bar's total (~5 % of ``track``; docs/performance.md, "track")."""
     if not console.is_terminal:
         yield None
         return

@@ -3,12 +3,16 @@
 The live source (``neurotouch_hid/sources/davis.py``) is written against a small capture
 interface: ``discover()`` and ``open(descriptor)`` of ``dv_processing.io.camera``, and a handful of
 the camera's methods. :class:`ReplayWorld` offers the same calls, answering them from a real
-recording (the real DAVIS-346 street recording, or a simulated gel) played in wall time, as a
-camera watching that scene would: a camera opened at wall time w delivers what the scene shows
-from w on, in packets of at least :data:`PACKET_US` as time passes (a DAVIS sends a USB packet
-every few ms), with the recording's own (Unix-time) timestamps.
+recording (the real DAVIS-346 street recording, a simulated street or gel) played in time, as a
+camera watching that scene would: a camera opened at time w delivers what the scene shows from w
+on, in packets of at least :data:`PACKET_US` as time passes (a DAVIS sends a USB packet every few
+ms), with the recording's own (Unix-time) timestamps.
 
-Faults are scripted in wall seconds from the world's start:
+Time is the wall clock, or a :class:`ManualClock` the test controls: it moves only when the code
+under test sleeps (``DavisSource(clock=clock.monotonic, sleep=clock.sleep)``), so that a loaded
+machine plays the same scene at the same times as an idle one.
+
+Faults are scripted in seconds from the world's start:
 
 * ``unplug``: from ``start_s`` the camera is gone: every camera opened before reports
   ``isRunning() == False`` for good and delivers nothing; ``discover()`` lists nothing and
@@ -39,6 +43,22 @@ from neurotouch_hid.sources.recording import RecordingReader
 PACKET_US = 2_000
 
 
+class ManualClock:
+    """A monotonic clock (s) that moves only when someone sleeps on it (thread-safe)."""
+
+    def __init__(self) -> None:
+        self._now = 0.0
+        self._lock = threading.Lock()
+
+    def monotonic(self) -> float:
+        with self._lock:
+            return self._now
+
+    def sleep(self, seconds: float) -> None:
+        with self._lock:
+            self._now += max(0.0, seconds)
+
+
 @dataclass(frozen=True)
 class Fault:
     """``kind`` ("unplug" or "stall") between ``start_s`` and ``end_s`` wall seconds (end may be inf)."""
@@ -64,18 +84,19 @@ class _Frame:
 
 @dataclass
 class ReplayWorld:
-    """The scene of ``recording`` played in wall time from the first ``discover()`` (when a source
-    first looks for a camera, so that setting up the code under test costs no scene time), and
-    the camera on it.
+    """The scene of ``recording`` played in time (``clock``: a :class:`ManualClock`, or None for
+    the wall clock) from the first ``discover()`` (when a source first looks for a camera, so that
+    setting up the code under test costs no scene time), and the camera on it.
 
     Attributes:
-        searches: wall seconds (from the start) of every ``discover()`` call: the source's attempts
+        searches: seconds (from the start) of every ``discover()`` call: the source's attempts
             to find the camera.
         settings: the DAVIS settings the source applied, as (method name, value) pairs.
     """
 
     recording: Path
     faults: tuple[Fault, ...] = ()
+    clock: ManualClock | None = None
     serial: str = "00000499"
     searches: list[float] = field(default_factory=list)
     settings: list[tuple[str, object]] = field(default_factory=list)
@@ -91,11 +112,16 @@ class ReplayWorld:
 
     # --- the clock -------------------------------------------------------------------------
     def now_s(self) -> float:
-        """Wall seconds since the world started (the first ``discover()``)."""
+        """Seconds since the world started (the first ``discover()``)."""
+        now = time.monotonic if self.clock is None else self.clock.monotonic
         with self._lock:
             if self._start is None:
-                self._start = time.monotonic()
-            return time.monotonic() - self._start
+                self._start = now()
+            return now() - self._start
+
+    def source_clock(self) -> dict:
+        """The keywords that put a DavisSource on this world's clock (none for the wall clock)."""
+        return {} if self.clock is None else {"clock": self.clock.monotonic, "sleep": self.clock.sleep}
 
     def t_us(self, wall_s: float) -> int:
         """The recording's timestamp (us) the scene shows at ``wall_s``."""

@@ -6,14 +6,12 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import run_cli
 
 from neurotouch_hid.calibration import calibrate, read_rest_frames
 from neurotouch_hid.dataset import dataset_sensor_file
@@ -23,7 +21,6 @@ from neurotouch_hid.sensor import SensorGeometry, default_sensor, find_sensor_fi
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.simulator import START_US, USERS, GelSimulator, gesture_script, write_dataset
 
-STREET = Path("/work/shared/data/davis346-street/recording.aedat4")
 #: Not the default geometry: centre ~10 px off, 2.3 px/mm, the 30 mm radius at that scale.
 SHIFTED = SensorGeometry(px_per_mm=2.3, gel_center_px=(183.0, 121.0), gel_radius_px=69.0)
 
@@ -44,22 +41,17 @@ def test_the_shifted_geometry_is_out_of_tolerance_of_the_default():
         assert_recovers(default, SHIFTED)
 
 
-def write_rest_dataset(folder: Path, sensor: SensorGeometry) -> Path:
-    """A dataset of one 0.6 s simulated sequence ``u0_push`` (the gel rests until the push at
-    0.6 s) with the simulator's own sensor.yaml."""
-    return write_dataset(folder, users=[0], gestures=[GestureType.PUSH], minutes=0.01, progress=False, sensor=sensor)
-
-
-@pytest.fixture(scope="module", params=["default", "shifted"])
-def sim_dataset(request, tmp_path_factory) -> Path:
-    return write_rest_dataset(
-        tmp_path_factory.mktemp(request.param), SensorGeometry() if request.param == "default" else SHIFTED
+@pytest.fixture(scope="module")
+def shifted_dataset(tmp_path_factory) -> Path:
+    """:func:`sim_rest_dataset` (tests/conftest.py) in the SHIFTED geometry."""
+    return write_dataset(
+        tmp_path_factory.mktemp("shifted"), users=[0], gestures=["push"], minutes=0.01, progress=False, sensor=SHIFTED
     )
 
 
-@pytest.fixture(scope="module")
-def shifted_dataset(tmp_path_factory) -> Path:
-    return write_rest_dataset(tmp_path_factory.mktemp("shifted"), SHIFTED)
+@pytest.fixture(params=["default", "shifted"])
+def sim_dataset(request) -> Path:
+    return request.getfixturevalue("sim_rest_dataset" if request.param == "default" else "shifted_dataset")
 
 
 @pytest.fixture(scope="module")
@@ -79,11 +71,9 @@ def test_recovers_the_simulators_sensor_yaml_from_its_recording(sim_dataset):
     assert len(result.frames_t_us) == 10
 
 
-def test_refuses_the_real_street_recording():
-    if not STREET.exists():
-        pytest.skip(reason=f"the real DAVIS-346 street recording is not here ({STREET})")
+def test_refuses_a_street_recording(any_street):
     with pytest.raises(SensorError, match="no gel in view") as caught:
-        calibrate(read_rest_frames(STREET))
+        calibrate(read_rest_frames(any_street.path))
     assert "\n" not in str(caught.value)
 
 
@@ -181,18 +171,6 @@ def test_eval_says_it_uses_the_users_calibration(shifted_dataset, tmp_path, capl
     assert f"using your calibration {user_sensor_path()}" in caplog.text
 
 
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    """``neurotouch-hid ARGS`` in a fresh process without a terminal (the tmp user config folder)."""
-    return subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", *args],
-        capture_output=True,
-        text=True,
-        env=dict(os.environ, COLUMNS="200"),
-        stdin=subprocess.DEVNULL,
-        timeout=300,
-    )
-
-
 def test_calibrate_command_writes_sensor_yaml_where_track_finds_it(shifted_dataset, tmp_path):
     truth = SensorGeometry.load(shifted_dataset / "sensor.yaml")
     recording = tmp_path / "elsewhere" / "rest.aedat4"  # no sensor.yaml beside it
@@ -200,14 +178,16 @@ def test_calibrate_command_writes_sensor_yaml_where_track_finds_it(shifted_datas
     shutil.copy(shifted_dataset / "u0_push.aedat4", recording)
 
     out = tmp_path / "out" / "sensor.yaml"
-    done = run_cli("calibrate", "--source", str(recording), "--out", str(out), "--no-mirror", "--rotation", "30")
+    done = run_cli(
+        "calibrate", "--source", str(recording), "--out", str(out), "--no-mirror", "--rotation", "30", columns=200
+    )
     assert done.returncode == 0, done.stderr
     written = SensorGeometry.load(out)
     assert_recovers(written, truth)
     assert (written.mirror, written.rotation_deg) == (False, 30.0)
     assert not user_sensor_path().exists()
 
-    done = run_cli("calibrate", "--source", str(recording))  # no terminal: the defaults, said so
+    done = run_cli("calibrate", "--source", str(recording), columns=200)  # no terminal: the defaults, said so
     assert done.returncode == 0, done.stderr
     assert "not asked" in done.stdout and str(user_sensor_path()) in done.stdout
     calibrated = find_sensor_file(recording)
@@ -215,16 +195,14 @@ def test_calibrate_command_writes_sensor_yaml_where_track_finds_it(shifted_datas
     assert_recovers(calibrated, truth)
     assert (calibrated.mirror, calibrated.rotation_deg) == (True, 0.0)
 
-    done = run_cli("calibrate", "--source", str(recording), "--rotation", "90")
+    done = run_cli("calibrate", "--source", str(recording), "--rotation", "90", columns=200)
     assert done.returncode == 0, done.stderr
     assert f"replacing {user_sensor_path()}" in done.stdout and "rotation_deg: 0.0 -> 90.0" in done.stdout
     assert find_sensor_file(recording).rotation_deg == 90.0
 
 
-def test_calibrate_command_refuses_a_scene_without_gel_in_one_line():
-    if not STREET.exists():
-        pytest.skip(reason=f"the real DAVIS-346 street recording is not here ({STREET})")
-    done = run_cli("calibrate", "--source", str(STREET))
+def test_calibrate_command_refuses_a_scene_without_gel_in_one_line(any_street):
+    done = run_cli("calibrate", "--source", str(any_street.path), columns=200)
     assert done.returncode == 2
     assert "no gel in view" in done.stderr and len(done.stderr.strip().splitlines()) == 1
     assert not user_sensor_path().exists()

@@ -4,14 +4,12 @@ the keyboard and mouse states (motion always written, keys compared)."""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 import threading
 
 import numpy as np
 import pytest
-from test_runtime import FakeMapper, FakePipeline, RecordingOutput, endless, wait_until, writes_of
+from helpers import read_states, run_cli, wait_until
+from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, endless, writes_of
 
 from neurotouch_hid.control import ControlServer, request_use, socket_path
 from neurotouch_hid.errors import NeurotouchError, ProfileError
@@ -27,19 +25,12 @@ def runtime_dir(tmp_path, monkeypatch):
     return folder
 
 
-def _cli(*args, env=None):
-    return subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", *args], capture_output=True, text=True, env=env, timeout=120
-    )
-
-
 def test_profile_use_without_a_driver_says_so_in_one_line_exit_2(runtime_dir):
-    proc = _cli("profile", "use", "mouse", env=dict(os.environ))
+    proc = run_cli("profile", "use", "mouse")
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "no neurotouch-hid driver is running" in lines[0] and "Traceback" not in proc.stderr
-    env = {k: v for k, v in os.environ.items() if k != "XDG_RUNTIME_DIR"}
-    proc = _cli("profile", "use", "mouse", env=env)
+    proc = run_cli("profile", "use", "mouse", env={"XDG_RUNTIME_DIR": None})
     assert proc.returncode == 2 and "XDG_RUNTIME_DIR is not set" in proc.stderr
 
 
@@ -131,8 +122,6 @@ def wait_for_socket(timeout_s: float = 5.0) -> bool:
 def test_mouse_profile_run_writes_every_motion_and_ends_neutral(tmp_path, runtime_dir):
     """``run --profile mouse --output jsonl`` on a push: one line per window with motion, the
     pointer moving right and up, the last line neutral with no motion."""
-    from test_runtime import read_states
-
     from neurotouch_hid.dataset import write_predictions
     from neurotouch_hid.driver import run_driver
 

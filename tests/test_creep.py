@@ -8,12 +8,11 @@ import dataclasses
 import importlib.util
 import json
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import run_cli
 from typer.testing import CliRunner
 
 from neurotouch_hid.cli import app
@@ -173,23 +172,11 @@ def test_calibrate_press_measures_the_creep_and_keeps_it_when_recalibrated(visco
     assert "kept from" in result.output
 
 
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    """``neurotouch-hid ARGS`` in a fresh process without a terminal."""
-    return subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", *args],
-        capture_output=True,
-        text=True,
-        stdin=subprocess.DEVNULL,
-        timeout=300,
-    )
-
-
-def test_calibrate_press_refuses_a_recording_without_a_press_and_loses_nothing(tmp_path):
+def test_calibrate_press_refuses_a_recording_without_a_press_and_loses_nothing(sim_rest_dataset, tmp_path):
     """A press recording that shows no press (the gel at rest throughout), or that does not
     exist: one line saying what to do, no traceback, and the sensor.yaml already there is left
     as it was."""
-    rest = write_dataset(tmp_path / "rest", users=[0], gestures=["push"], minutes=0.01, progress=False)
-    recording = str(rest / "u0_push.aedat4")  # 0.6 s: the gel rests until the push would start
+    recording = str(sim_rest_dataset / "u0_push.aedat4")  # 0.6 s: the gel rests until the push would start
     out = tmp_path / "sensor.yaml"
     SensorGeometry(creep=(0.1, 0.2)).save(out)
     before = out.read_text()

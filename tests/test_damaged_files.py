@@ -1,23 +1,24 @@
 """Damaged files (property-based, hypothesis): reading one always ends, with a clear error or
 with what was readable; never a hang, a crash or a traceback.
 
-Recordings: copies of the real DAVIS-346 street recording (LZ4) and of a simulated gel recording
-(ZSTD) with 1-32 flipped bits, cut short, or with two neighbouring packets swapped, read by
-``info`` and ``track`` in a subprocess with a time limit (a hang fails the test, a crash shows as a
-negative exit code), and through RecordingReader in this process. Profiles: mutated YAML
-(characters changed, lines dropped or repeated, values replaced) through ``profile validate``
-and load_profile: one error naming the file, the line and the field, never a traceback.
+Recordings: copies of a DAVIS-346 street recording, the real one where it is and a simulated one
+(LZ4), and of a simulated gel recording (ZSTD), with 1-32 flipped bits, cut short, or with two
+neighbouring packets swapped, read by ``info`` and ``track`` in a subprocess with a time limit (a
+hang fails the test, a crash shows as a negative exit code), and through RecordingReader in this
+process. Profiles: mutated YAML (characters changed, lines dropped or repeated, values replaced)
+through ``profile validate`` and load_profile: one error naming the file, the line and the field,
+never a traceback.
 """
 
 from __future__ import annotations
 
 import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import STREET, run_cli
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from recording_damage import damage
@@ -28,19 +29,18 @@ from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.recording import RecordingReader, RecordingWriter
 from neurotouch_hid.sources.simulator import SimulatedSource
 
-REPO = Path(__file__).parents[1]
-STREET = REPO.parent / "shared" / "data" / "davis346-street" / "recording.aedat4"
 TIME_LIMIT_S = 120  # a hang, not a slow machine: reading these files takes a few seconds
 
 
 @pytest.fixture(scope="module")
-def originals(tmp_path_factory) -> dict[str, bytes]:
-    """The undamaged files: the real street recording (LZ4) and 1 s of the simulated gel (ZSTD)."""
+def originals(sim_street_recording, tmp_path_factory) -> dict[str, bytes]:
+    """The undamaged files: the real street recording where it is, the simulated street (LZ4)
+    and 1 s of the simulated gel (ZSTD)."""
     gel = tmp_path_factory.mktemp("gel") / "gel.aedat4"
     with RecordingWriter(gel, compression="ZSTD") as writer:
         for item in SimulatedSource(seed=3).stream(seconds=1.0, batch_us=10_000):
             writer.write_frame(item) if isinstance(item, Frame) else writer.write_events(item)
-    found = {"gel": gel.read_bytes()}
+    found = {"gel": gel.read_bytes(), "simulated street": sim_street_recording.path.read_bytes()}
     if STREET.exists():
         found["street"] = STREET.read_bytes()
     return found
@@ -53,24 +53,22 @@ settings_subprocess = settings(
 
 
 @settings_subprocess
-@given(base=st.sampled_from(["street", "gel"]), command=st.sampled_from(["info", "track"]), what=damages)
+@given(
+    base=st.sampled_from(["street", "simulated street", "gel"]),
+    command=st.sampled_from(["info", "track"]),
+    what=damages,
+)
 def test_damaged_recording_cli_ends_cleanly(originals, base, command, what):
     """`info` / `track` on a damaged copy: exit 0 or 2, one clear error line, no traceback,
     within the time limit (dv-processing 2.0 hung for ever in LZ4, or crashed, on such files)."""
-    if base not in originals:
-        base = "gel"
+    if base not in originals:  # no real street recording here
+        base = "simulated street"
     with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / f"damaged-{base}.aedat4"
+        path = Path(tmp) / f"damaged-{base.replace(' ', '-')}.aedat4"
         path.write_bytes(damage(originals[base], *what))
         args = [command, str(path)] + (["--out", str(Path(tmp) / "pred.jsonl")] if command == "track" else [])
         try:
-            result = subprocess.run(
-                [sys.executable, "-m", "neurotouch_hid.cli", *args],
-                capture_output=True,
-                text=True,
-                timeout=TIME_LIMIT_S,
-                stdin=subprocess.DEVNULL,
-            )
+            result = run_cli(*args, timeout=TIME_LIMIT_S)
         except subprocess.TimeoutExpired:
             pytest.fail(f"{command} hung on {base} with damage {what}")
     assert result.returncode in (0, 2), f"{command} {base} {what}: exit {result.returncode}\n{result.stderr}"
@@ -83,12 +81,12 @@ def test_damaged_recording_cli_ends_cleanly(originals, base, command, what):
 @settings(
     max_examples=100, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture]
 )
-@given(base=st.sampled_from(["street", "gel"]), what=damages)
+@given(base=st.sampled_from(["street", "simulated street", "gel"]), what=damages)
 def test_damaged_recording_reader_gives_valid_data_or_recording_error(originals, base, what):
     """In this process: RecordingReader raises nothing but RecordingError, and everything it
     yields before is what the pipeline may index with: in the sensor, time-ordered."""
-    if base not in originals:
-        base = "gel"
+    if base not in originals:  # no real street recording here
+        base = "simulated street"
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "damaged.aedat4"
         path.write_bytes(damage(originals[base], *what))
@@ -168,40 +166,20 @@ def test_mutated_profile_validate_cli(tmp_path, name, changes):
     path.write_bytes(
         mutate((shipped_profiles_dir() / name).read_text(encoding="utf-8"), changes).encode("utf-8", "replace")
     )
-    result = subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", "profile", "validate", str(path)],
-        capture_output=True,
-        text=True,
-        timeout=TIME_LIMIT_S,
-        stdin=subprocess.DEVNULL,
-    )
+    result = run_cli("profile", "validate", str(path), timeout=TIME_LIMIT_S)
     assert result.returncode in (0, 2) and "Traceback" not in result.stderr, result.stderr
     if result.returncode == 2:
         assert result.stderr.startswith("error:") and str(path.name) in result.stderr, result.stderr
 
 
-def test_track_writes_what_is_readable_of_a_cut_recording_before_its_error(tmp_path):
+def test_track_writes_what_is_readable_of_a_cut_recording_before_its_error(sim_push_recording, tmp_path):
     """The progress total's pass meets the damage first; the windows before it are still
     tracked and written, then the one error (exit 2)."""
-    import subprocess
-    import sys
-
-    from neurotouch_hid.sources.simulator import write_dataset
-
-    folder = write_dataset(
-        tmp_path / "ds", preset="quick", seed=5, minutes=0.05, progress=False, users=[0], gestures=["push"]
-    )
-    whole = next(folder.glob("*.aedat4"))
     cut = tmp_path / "cut.aedat4"
-    cut.write_bytes(whole.read_bytes()[: int(whole.stat().st_size * 0.7)])
-    (tmp_path / "sensor.yaml").write_bytes((folder / "sensor.yaml").read_bytes())
+    cut.write_bytes(sim_push_recording.read_bytes()[: int(sim_push_recording.stat().st_size * 0.7)])
+    (tmp_path / "sensor.yaml").write_bytes((sim_push_recording.parent / "sensor.yaml").read_bytes())
     out = tmp_path / "pred.jsonl"
-    proc = subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", "track", str(cut), "--out", str(out)],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    proc = run_cli("track", str(cut), "--out", str(out))
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert str(cut) in proc.stderr
     assert out.exists() and len(out.read_text().splitlines()) > 10

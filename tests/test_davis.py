@@ -1,8 +1,9 @@
 """The live DAVIS-346 source and the runtime through camera faults.
 
 DavisSource is driven through its capture interface by a replay of real AEDAT4 files
-(tests/camera_replay.py): the real DAVIS-346 street recording and a simulated gel, played in wall
-time, with scripted unplugs and stalls. Everything else is the real code: DavisSource, the
+(tests/camera_replay.py): a street (the real DAVIS-346 street recording where it is, and a
+simulated one) and a simulated gel, with scripted unplugs and stalls; the source alone on a clock
+the test controls, the runtime in wall time. Everything else is the real code: DavisSource, the
 pipeline, the runtime, the mapper and the default profile. Without a camera on this machine, the
 real dv-processing backend is also checked for the no-camera message.
 """
@@ -10,15 +11,13 @@ real dv-processing backend is also checked for the no-camera message.
 from __future__ import annotations
 
 import datetime
-import os
-import subprocess
-import sys
 import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
-from camera_replay import Fault, ReplayWorld
+from camera_replay import Fault, ManualClock, ReplayWorld
+from helpers import run_cli
 
 from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.errors import DeviceError, SensorError
@@ -26,34 +25,19 @@ from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.sources import EVENT_DTYPE, Frame, SourceStatus
 from neurotouch_hid.sources.davis import DavisConfig, DavisSource, backoff_delays
 
-STREET = Path(__file__).resolve().parents[2] / "shared" / "data" / "davis346-street" / "recording.aedat4"
 #: Short stall timeout and back-off so that faults play out in a few seconds.
 QUICK = DavisConfig(stall_timeout_s=0.3, retry_initial_s=0.1, retry_max_s=0.4)
 
 
-@pytest.fixture(scope="module")
-def street() -> Path:
-    if not STREET.exists():
-        pytest.skip(reason=f"{STREET} (the real DAVIS-346 street recording in shared/) is not on this machine")
-    return STREET
+@pytest.fixture
+def street(any_street) -> Path:
+    """A street in view, no gel (tests/conftest.py): the real recording and a simulated one."""
+    return any_street.path
 
 
-@pytest.fixture(scope="module")
-def gel_recording(tmp_path_factory) -> tuple[Path, list[tuple[float, GestureType, bool]]]:
-    """7 s of the simulated gel (seed 0: rest, a push held from 0.6 to 2.8 s, rest from 3.0 s, a
-    pinch from 4.6 s) as an AEDAT4 recording, with its labels as (seconds, gesture, resting)."""
-    from neurotouch_hid.sources.recording import RecordingWriter
-    from neurotouch_hid.sources.simulator import SimulatedSource
-
-    path = tmp_path_factory.mktemp("gel") / "gel.aedat4"
-    labels = []
-    with RecordingWriter(path) as writer:
-        for chunk in SimulatedSource(seed=0).chunks(7.0):
-            writer.write_frame(chunk.frame)
-            writer.write_events(chunk.events)
-            labels.append((chunk.label.t_us, chunk.label.gesture, chunk.label.resting))
-    t0 = labels[0][0]
-    return path, [((t - t0) / 1e6, g, r) for t, g, r in labels]
+def replay(recording: Path, *faults: Fault) -> ReplayWorld:
+    """The scene of ``recording`` with ``faults``, on a clock the test controls."""
+    return ReplayWorld(recording, faults=faults, clock=ManualClock())
 
 
 # --- opening ------------------------------------------------------------------------------------
@@ -70,7 +54,7 @@ def test_config_rejects_what_a_camera_cannot_do():
 
 
 def test_no_camera_says_what_to_do(street):
-    world = ReplayWorld(street, faults=(Fault("unplug", 0.0),))
+    world = replay(street, Fault("unplug", 0.0))
     with pytest.raises(DeviceError) as err:
         DavisSource(backend=world)
     message = str(err.value)
@@ -113,8 +97,8 @@ def test_frame_interval_and_exposure_are_set(street):
 
 # --- reading --------------------------------------------------------------------------------------
 def test_street_camera_delivers_the_scene_as_batches_and_frames(street):
-    world = ReplayWorld(street)
-    with DavisSource(backend=world) as camera:
+    world = replay(street)
+    with DavisSource(backend=world, **world.source_clock()) as camera:
         items = list(camera.stream(seconds=1.2, batch_us=1000))
     frames = [i for i in items if isinstance(i, Frame)]
     batches = [i for i in items if isinstance(i, np.ndarray)]
@@ -130,17 +114,17 @@ def test_street_camera_delivers_the_scene_as_batches_and_frames(street):
 
 
 def test_unplug_without_reconnect_raises_after_the_data(street):
-    world = ReplayWorld(street, faults=(Fault("unplug", 0.5),))
+    world = replay(street, Fault("unplug", 0.5))
     received = []
     with pytest.raises(DeviceError, match=r"stopped \(unplugged\?\)"):
-        for item in DavisSource(QUICK, backend=world).stream(seconds=3):
+        for item in DavisSource(QUICK, backend=world, **world.source_clock()).stream(seconds=3):
             received.append(item)
     assert any(isinstance(i, Frame) for i in received)
 
 
 def test_unplug_with_reconnect_reports_lost_then_resumed_and_backs_off(street):
-    world = ReplayWorld(street, faults=(Fault("unplug", 0.4, 1.2),))
-    items = list(DavisSource(QUICK, backend=world).stream(seconds=1.9, reconnect=True))
+    world = replay(street, Fault("unplug", 0.4, 1.2))
+    items = list(DavisSource(QUICK, backend=world, **world.source_clock()).stream(seconds=1.9, reconnect=True))
     kinds = [i.kind for i in items if isinstance(i, SourceStatus)]
     assert kinds == ["lost", "resumed"]
     lost = next(k for k, i in enumerate(items) if isinstance(i, SourceStatus) and i.kind == "lost")
@@ -155,8 +139,8 @@ def test_unplug_with_reconnect_reports_lost_then_resumed_and_backs_off(street):
 
 
 def test_a_stalled_camera_is_treated_like_an_unplug(street):
-    world = ReplayWorld(street, faults=(Fault("stall", 0.4, 1.1),))
-    items = list(DavisSource(QUICK, backend=world).stream(seconds=1.8, reconnect=True))
+    world = replay(street, Fault("stall", 0.4, 1.1))
+    items = list(DavisSource(QUICK, backend=world, **world.source_clock()).stream(seconds=1.8, reconnect=True))
     statuses = [i for i in items if isinstance(i, SourceStatus)]
     assert [s.kind for s in statuses] == ["lost", "resumed"]
     assert "stalled" in statuses[0].message
@@ -164,8 +148,10 @@ def test_a_stalled_camera_is_treated_like_an_unplug(street):
 
 
 def test_wait_for_a_camera_that_is_plugged_in_later(street):
-    world = ReplayWorld(street, faults=(Fault("unplug", 0.0, 0.5),))
-    source = DavisSource(QUICK, wait=True, backend=world)  # no error although nothing is plugged in
+    world = replay(street, Fault("unplug", 0.0, 0.5))
+    source = DavisSource(
+        QUICK, wait=True, backend=world, **world.source_clock()
+    )  # no error although nothing is plugged in
     items = list(source.stream(seconds=1.2, reconnect=True))
     assert isinstance(items[0], SourceStatus) and items[0].kind == "waiting" and "plug" in items[0].message
     assert isinstance(items[1], SourceStatus) and items[1].kind == "resumed" and "found" in items[1].message
@@ -224,8 +210,8 @@ def run_davis(world: ReplayWorld, seconds: float, log: Log):
     )
 
 
-def test_an_unplug_mid_gesture_centres_at_once_and_the_run_resumes_at_rest(gel_recording):
-    path, labels = gel_recording
+def test_an_unplug_mid_gesture_centres_at_once_and_the_run_resumes_at_rest(sim_gel_recording):
+    path, labels = sim_gel_recording
     unplug, back = 2.0, 2.6
     assert all(g is GestureType.PUSH for t, g, _ in labels if unplug - 0.5 <= t <= unplug)  # a held push
     world = ReplayWorld(path, faults=(Fault("unplug", unplug, back),))
@@ -246,8 +232,8 @@ def test_an_unplug_mid_gesture_centres_at_once_and_the_run_resumes_at_rest(gel_r
     assert log.entries[-1] == ("neutralise", None)
 
 
-def test_a_stall_centres_the_pad_and_the_run_carries_on(gel_recording):
-    path, _ = gel_recording
+def test_a_stall_centres_the_pad_and_the_run_carries_on(sim_gel_recording):
+    path, _ = sim_gel_recording
     world = ReplayWorld(path, faults=(Fault("stall", 2.0, 2.6),))
     log = Log()
     stats = run_davis(world, 6.6, log)
@@ -259,8 +245,8 @@ def test_a_stall_centres_the_pad_and_the_run_carries_on(gel_recording):
     assert log.entries[-1] == ("neutralise", None)
 
 
-def test_a_camera_that_never_comes_back_still_ends_the_run_neutral(gel_recording):
-    path, _ = gel_recording
+def test_a_camera_that_never_comes_back_still_ends_the_run_neutral(sim_gel_recording):
+    path, _ = sim_gel_recording
     world = ReplayWorld(path, faults=(Fault("unplug", 1.6),))
     log = Log()
     stats = run_davis(world, 2.5, log)
@@ -270,10 +256,10 @@ def test_a_camera_that_never_comes_back_still_ends_the_run_neutral(gel_recording
     assert len([t for t in world.searches if t >= 1.6]) >= 2  # it kept trying
 
 
-def test_run_with_wait_starts_when_the_camera_is_plugged_in(gel_recording):
+def test_run_with_wait_starts_when_the_camera_is_plugged_in(sim_gel_recording):
     from neurotouch_hid.driver import run_driver
 
-    path, labels = gel_recording
+    path, labels = sim_gel_recording
     plugged = 3.2  # the gel rests from 3.0 s, a pinch follows from 4.6 s
     assert [r for t, _, r in labels if plugged <= t <= plugged + 0.3] == [True] * 8
     world = ReplayWorld(path, faults=(Fault("unplug", 0.0, plugged),))
@@ -311,14 +297,7 @@ def test_run_source_davis_without_camera_tells_what_to_do(tmp_path):
 
     if dv.io.camera.discover():
         pytest.skip(reason="a camera is plugged in: the no-camera error cannot occur")
-    env = dict(os.environ, COLUMNS="400", XDG_CONFIG_HOME=str(tmp_path))
-    proc = subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", "run", "--source", "davis", "--output", "jsonl"],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=120,
-    )
+    proc = run_cli("run", "--source", "davis", "--output", "jsonl", columns=400)
     assert proc.returncode == 2, proc.stderr
     assert proc.stdout == ""  # no state was written: nothing started
     error = " ".join(proc.stderr.split())
@@ -333,8 +312,8 @@ def test_the_noise_filter_runs_on_the_camera_s_own_event_stores(street):
     from neurotouch_hid.pipeline.noise import EventNoiseFilter
 
     noise = EventNoiseFilter("BackgroundActivityNoiseFilter", 346, 260, 2_000)
-    world = ReplayWorld(street)
-    with DavisSource(backend=world, noise_filter=noise) as camera:
+    world = replay(street)
+    with DavisSource(backend=world, noise_filter=noise, **world.source_clock()) as camera:
         items = list(camera.stream(seconds=1.0))
     events = np.concatenate([i for i in items if isinstance(i, np.ndarray)])
     assert noise.n_in > 0 and len(events) == noise.n_out < noise.n_in  # some noise dropped
@@ -347,7 +326,7 @@ def test_the_noise_filter_runs_on_the_camera_s_own_event_stores(street):
     assert kept.sum() == len(events)  # every event yielded is one the camera sent, in order
 
 
-def test_the_live_pipeline_leaves_the_noise_to_the_source(gel_recording):
+def test_the_live_pipeline_leaves_the_noise_to_the_source(sim_gel_recording):
     from neurotouch_hid.driver import build_pipeline
     from neurotouch_hid.sensor import SensorGeometry
 

@@ -35,9 +35,6 @@ METHOD_SECTIONS = [
 COMMAND = re.compile(r"python3\s+benchmarks/\w+\.py|neurotouch-hid\s+(eval|track|simulate|calibrate)\b")
 #: Diary wording that belongs in docs/lab/, not in a reference page.
 DIARY = re.compile(r"\b(round|issue)\s+[0-9]|\b20[0-9]{2}-[01][0-9]-[0-3][0-9]\b", re.IGNORECASE)
-#: Written by another change in the same batch of work (the retired switches' table); its link
-#: is checked once that file exists.
-WRITTEN_ELSEWHERE = {DOCS / "lab" / "retired.md"}
 
 
 def _prose_lines(text: str) -> list[str]:
@@ -147,8 +144,6 @@ def test_relative_links_in_the_docs_resolve_to_files_and_headings():
                 continue
             path, _, anchor = target.partition("#")
             resolved = (doc.parent / path).resolve() if path else doc
-            if resolved in WRITTEN_ELSEWHERE and not resolved.exists():
-                continue
             if not resolved.exists():
                 broken.append(f"{doc.relative_to(ROOT)}: {target}")
             elif anchor and resolved.suffix == ".md" and anchor not in _anchors(resolved):

@@ -5,9 +5,8 @@ from __future__ import annotations
 
 import importlib.metadata
 import os
-import subprocess
-import sys
 
+from helpers import run_cli
 from rich.console import Console
 
 from neurotouch_hid import doctor
@@ -95,10 +94,7 @@ def test_exit_code_counts_failures_only():
 
 
 def test_cli_doctor_on_this_machine_reports_no_camera_and_exits_1():
-    env = dict(os.environ, COLUMNS="200")
-    proc = subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", "doctor"], capture_output=True, text=True, env=env, timeout=120
-    )
+    proc = run_cli("doctor", columns=200)
     assert proc.returncode == 1, proc.stdout + proc.stderr
     assert "no DAVIS-346 (152a:841a) on USB" in proc.stdout
     if not os.path.exists("/dev/uinput"):

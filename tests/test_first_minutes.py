@@ -15,6 +15,7 @@ import tomllib
 from pathlib import Path
 
 import pytest
+from helpers import run_cli
 from rich.console import Console
 
 from neurotouch_hid.controller import ControllerState
@@ -212,17 +213,6 @@ def test_edit_answered_no_keeps_the_profile_and_the_rejected_edit(cli, scripted_
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def cli_process(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
-    """The command as a user runs it, its output to a pipe."""
-    return subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", *args],
-        capture_output=True,
-        text=True,
-        env={**os.environ, **(env or {})},
-        timeout=300,
-    )
-
-
 def test_the_rule_and_the_install_script_ship_inside_the_package():
     from neurotouch_hid.udev import INSTALL_SCRIPT, RULES_FILE
 
@@ -239,7 +229,7 @@ def test_doctor_piped_is_plain_lines_with_each_fix_whole_on_its_own_line(tmp_pat
     from neurotouch_hid.udev import INSTALL_SCRIPT, RULES_INSTALL
 
     config = tmp_path / "xdg"
-    proc = cli_process("doctor", env={"XDG_CONFIG_HOME": str(config), "COLUMNS": "40"})
+    proc = run_cli("doctor", env={"XDG_CONFIG_HOME": str(config), "COLUMNS": "40"})
     assert proc.returncode == 1  # no camera here: a report with problems, not a usage error
     lines = proc.stdout.splitlines()
     assert not any(ch in proc.stdout for ch in "│┃━─╭╰") and "\x1b[" not in proc.stdout
@@ -263,7 +253,7 @@ def test_doctor_piped_is_plain_lines_with_each_fix_whole_on_its_own_line(tmp_pat
     assert installed.returncode == 0, installed.stderr
     unit = config / "systemd/user/neurotouch-hid.service"
     assert unit.is_file()
-    again = cli_process("doctor", env={"XDG_CONFIG_HOME": str(config)})
+    again = run_cli("doctor", env={"XDG_CONFIG_HOME": str(config)})
     service = [line for line in again.stdout.splitlines() if "plug-and-play service" in line]
     assert service and service[0].startswith("ok") and str(unit) in service[0]
 
@@ -294,13 +284,13 @@ def test_install_script_help_is_its_usage_not_its_code():
 
 
 def test_version():
-    proc = cli_process("--version")
+    proc = run_cli("--version")
     assert proc.returncode == 0
     assert proc.stdout == f"neurotouch-hid {importlib.metadata.version('neurotouch-hid')}\n"
 
 
 def test_help_has_no_bool_placeholders_and_whole_sentences():
-    run = cli_process("run", "--help")
+    run = run_cli("run", "--help")
     assert run.returncode == 0 and "<bool>" not in run.stdout and "╭" not in run.stdout
     fast = [line for line in run.stdout.splitlines() if line.strip().startswith("--fast")]
     assert fast and "do not pace recordings in real time" in fast[0]  # flag and help on one line
@@ -309,7 +299,7 @@ def test_help_has_no_bool_placeholders_and_whole_sentences():
         line.strip().startswith("Stops at the end of the source") and line.rstrip().endswith("back.")
         for line in run.stdout.splitlines()
     )
-    profile = cli_process("profile", "--help")
+    profile = run_cli("profile", "--help")
     commands = profile.stdout.split("Commands:")[1].splitlines()
     assert any(line.split()[:1] == ["delete"] for line in commands if line.strip())
     assert not any(line.rstrip().endswith("...") for line in commands)  # no summary cut short

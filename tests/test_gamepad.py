@@ -9,7 +9,7 @@ import os
 
 import pytest
 from evdev import ecodes
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
@@ -108,6 +108,7 @@ _button_values = st.fixed_dictionaries({b: st.booleans() for b in BUTTONS})
 _states = st.builds(lambda a, b: ControllerState(axes=a, buttons=b), _axis_values, _button_values)
 
 
+@settings(deadline=None)  # behaviour, not speed: a loaded machine must not fail it
 @given(_states, _states)
 def test_applying_the_changes_reaches_the_new_state(old, new):
     events = changed_events(old, new)

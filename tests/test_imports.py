@@ -9,6 +9,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "neurotouch_hid"
 ORDER = {
     "sources": 1,
     "calibration": 2,
+    "calibration_guide": 2,
     "pipeline": 2,
     "mapping": 3,
     "evaluation": 3,
@@ -18,6 +19,8 @@ ORDER = {
     "control": 5,
     "warmup": 5,
     "driver": 6,
+    "track": 2,
+    "view": 3,
     "doctor": 7,
     "cli": 7,
 }

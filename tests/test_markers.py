@@ -1,8 +1,6 @@
 """Marker detection on APS frames (paper, section Marker Tracking): synthetic frames whose dot
 centres are known, and a real non-gel AEDAT4 recording."""
 
-from pathlib import Path
-
 import cv2
 import dv_processing as dv
 import numpy as np
@@ -13,7 +11,6 @@ from neurotouch_hid.pipeline.markers import Markers, detect_markers, looks_like_
 from neurotouch_hid.sensor import SensorGeometry
 
 SENSOR = SensorGeometry()
-STREET = Path("/work/shared/data/davis346-street/recording.aedat4")
 
 
 def render_dots(centres, sensor=SENSOR, diameter_px=2.5, seed=0, noise=3.0):
@@ -101,10 +98,8 @@ def test_not_a_grid_sparse_dots_or_noise():
     assert not looks_like_marker_grid(few, SENSOR)
 
 
-def test_street_recording_is_not_a_gel():
-    if not STREET.exists():
-        pytest.skip(reason=f"{STREET} (real DAVIS-346 street recording) is not present")
-    rec = dv.io.MonoCameraRecording(str(STREET))
+def test_street_recording_is_not_a_gel(any_street):
+    rec = dv.io.MonoCameraRecording(str(any_street.path))
     for _ in range(3):
         frame = rec.getNextFrame()
         image = frame.image if frame.image.ndim == 2 else frame.image[:, :, 0]

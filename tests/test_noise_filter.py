@@ -1,10 +1,9 @@
-"""The optional noise filter before the tracker (pipeline/noise.py, PipelineConfig.noise_filter)
+"""The optional noise filter before the tracker (pipeline/noise.py, PipelineConfig.noise)
 and the simulator's background-activity rate (``simulate --noise-hz``)."""
 
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,7 +21,6 @@ from neurotouch_hid.sources.dv import events_from_store, store_from_events
 from neurotouch_hid.sources.recording import RecordingReader, read_info, split_batches
 from neurotouch_hid.sources.simulator import START_US, GelSimulator, SimGesture
 
-STREET = Path("/work/shared/data/davis346-street/recording.aedat4")
 SENSOR = SensorGeometry()
 W, H = SENSOR.width, SENSOR.height
 PUSH_START_US = START_US + 200_000
@@ -131,7 +129,7 @@ def test_filters_remove_injected_background_activity_and_keep_marker_events(
 
 def test_the_default_filter_removes_most_noise_at_1_hz_and_keeps_most_marker_events(marker_events):
     events, is_marker = mix(marker_events, 1.0)
-    kept = _kept(PipelineConfig().noise_filter, PipelineConfig().noise_filter_us, events)
+    kept = _kept(PipelineConfig().noise.kind, PipelineConfig().noise.time_us, events)
     assert 1.0 - kept[~is_marker].mean() > 0.8
     assert kept[is_marker].mean() > 0.9
 
@@ -192,10 +190,8 @@ def _numba_ba(events: np.ndarray, time_us: int, batch_us: int, width: int = W, h
 
 
 @pytest.mark.parametrize("time_us, batch_us", [(2000, 1000), (20_000, 1000), (20_000, 10_000), (500, 10_000)])
-def test_numba_filter_keeps_exactly_what_dv_processing_keeps_on_the_real_street_recording(time_us, batch_us):
-    if not STREET.exists():
-        pytest.skip(reason=f"the real DAVIS-346 street recording is not here ({STREET})")
-    with RecordingReader(STREET) as reader:
+def test_numba_filter_keeps_exactly_what_dv_processing_keeps_on_a_street_recording(any_street, time_us, batch_us):
+    with RecordingReader(any_street.path) as reader:
         events, _ = reader.read_all()
     library = _library_ba(events, time_us, batch_us)
     assert 0 < len(library) < len(events)  # the filter decides something on real sensor noise
@@ -241,28 +237,25 @@ def test_an_empty_batch_passes_through():
 @pytest.mark.parametrize(
     "kwargs, message",
     [
-        ({"noise_filter": "MedianFilter"}, "noise_filter must be None or one of BackgroundActivityNoiseFilter"),
-        (
-            {"noise_filter": "KNoiseFilter", "noise_filter_us": 0},
-            "noise_filter_us must be a whole number of microseconds >= 1",
-        ),
-        ({"noise_filter": "KNoiseFilter", "noise_filter_us": 2.5}, "noise_filter_us must be a whole number"),
-        ({"noise_filter": None, "noise_filter_us": 2000}, "noise_filter_us=2000 is set but noise_filter is None"),
+        ({"kind": "MedianFilter"}, "noise.kind must be None or one of BackgroundActivityNoiseFilter"),
+        ({"kind": "KNoiseFilter", "time_us": 0}, "noise.time_us must be a whole number of microseconds >= 1"),
+        ({"kind": "KNoiseFilter", "time_us": 2.5}, "noise.time_us must be a whole number"),
+        ({"kind": None, "time_us": 2000}, "noise.time_us=2000 is set but noise.kind is None"),
     ],
 )
 def test_bad_noise_filter_settings_are_clear_errors(kwargs, message):
     with pytest.raises(ValueError, match=message):
-        PipelineConfig(**kwargs)
+        PipelineConfig(noise=kwargs)
 
 
 def test_set_reaches_the_noise_filter_fields():
-    config = pipeline_config(["noise_filter=FastDecayNoiseFilter", "noise_filter_us=20000"])
-    assert config.noise_filter == "FastDecayNoiseFilter" and config.noise_filter_us == 20_000
-    assert pipeline_config(["noise_filter=none"]).noise_filter is None
-    with pytest.raises(NeurotouchError, match="noise_filter must be None or one of"):
-        pipeline_config(["noise_filter=bilateral"])
-    with pytest.raises(NeurotouchError, match="noise_filter_us"):
-        pipeline_config(["noise_filter=KNoiseFilter", "noise_filter_us=1.5"])
+    config = pipeline_config(["noise.kind=FastDecayNoiseFilter", "noise.time_us=20000"])
+    assert config.noise.kind == "FastDecayNoiseFilter" and config.noise.time_us == 20_000
+    assert pipeline_config(["noise.kind=none"]).noise.kind is None
+    with pytest.raises(NeurotouchError, match="noise.kind must be None or one of"):
+        pipeline_config(["noise.kind=bilateral"])
+    with pytest.raises(NeurotouchError, match="noise.time_us"):
+        pipeline_config(["noise.kind=KNoiseFilter", "noise.time_us=1.5"])
 
 
 # --- in the pipeline --------------------------------------------------------------------------
@@ -297,7 +290,7 @@ def _run(items: list, config: PipelineConfig) -> tuple[GesturePipeline, list]:
 
 def test_the_default_pipeline_filters_finds_the_push_and_closes_the_same_windows(noisy_push_stream):
     filtered, with_filter = _run(noisy_push_stream, PipelineConfig())
-    _, without = _run(noisy_push_stream, PipelineConfig(noise_filter=None))
+    _, without = _run(noisy_push_stream, PipelineConfig(noise={"kind": None}))
     assert [e.t_us for e in with_filter] == [e.t_us for e in without]
     f = filtered.noise_filter
     assert f is not None and f.n_in == sum(len(i) for i in noisy_push_stream if not isinstance(i, Frame))
@@ -343,7 +336,7 @@ def test_under_3_hz_noise_the_default_filter_keeps_the_markers_tracked(noisy_pus
     # the event path alone: the APS-frame correction pulls held blobs onto the frame's markers
     # whatever the events did (p90 0.36 px with or without the filter)
     on = _tracking_errors(noisy_push_chunks, PipelineConfig())
-    off = _tracking_errors(noisy_push_chunks, PipelineConfig(noise_filter=None))
+    off = _tracking_errors(noisy_push_chunks, PipelineConfig(noise={"kind": None}))
     assert len(on) == len(off) > 1000
     # measured: p90 0.71 px with the filter, 1.07 px without; p99 1.06 against 1.85 px
     assert np.percentile(on, 90) < 0.8 * np.percentile(off, 90)
@@ -353,7 +346,7 @@ def test_under_3_hz_noise_the_default_filter_keeps_the_markers_tracked(noisy_pus
 def test_at_the_default_noise_the_filter_costs_no_tracking_accuracy():
     chunks = _push_chunks(0.1)
     on = _tracking_errors(chunks, PipelineConfig())
-    off = _tracking_errors(chunks, PipelineConfig(noise_filter=None))
+    off = _tracking_errors(chunks, PipelineConfig(noise={"kind": None}))
     # measured: p90 0.63 px either way
     assert np.percentile(on, 90) < 1.1 * np.percentile(off, 90)
     assert np.median(on) < 1.1 * np.median(off)
@@ -376,7 +369,7 @@ def test_windows_start_and_close_on_the_unfiltered_events(noisy_push_stream):
         _events((t0 + 75_000, 200, 200)),  # isolated
     ]
     filtered = GesturePipeline(SENSOR, PipelineConfig())  # the default filter
-    plain = GesturePipeline(SENSOR, PipelineConfig(noise_filter=None))
+    plain = GesturePipeline(SENSOR, PipelineConfig(noise={"kind": None}))
     for pipeline in (filtered, plain):
         pipeline.process(frame)
     ends = []
@@ -410,16 +403,16 @@ def test_noise_hz_makes_a_noisier_recording_and_eval_runs_the_filter_on_it(tmp_p
             "eval",
             str(tmp_path / "noisy"),
             "--set",
-            "noise_filter=BackgroundActivityNoiseFilter",
+            "noise.kind=BackgroundActivityNoiseFilter",
             "--set",
-            "noise_filter_us=5000",
+            "noise.time_us=5000",
             "--json",
             str(out),
         ],
     )
     assert result.exit_code == 0, result.output
     config = json.loads(out.read_text())["config"]
-    assert (config["noise_filter"], config["noise_filter_us"]) == ("BackgroundActivityNoiseFilter", 5000)
+    assert config["noise"] == {"kind": "BackgroundActivityNoiseFilter", "time_us": 5000}
 
 
 def test_negative_noise_hz_is_one_clear_error(tmp_path, monkeypatch, capsys):

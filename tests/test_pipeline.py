@@ -10,6 +10,7 @@ import warnings
 
 import numpy as np
 import pytest
+from helpers import run_cli
 
 from neurotouch_hid.dataset import read_predictions, write_predictions
 from neurotouch_hid.errors import DatasetError, SensorError
@@ -138,7 +139,8 @@ def test_frames_decide_resting_and_rest_resets_the_tracker(rest_image):
 
 
 def test_moving_markers_overrule_a_stale_resting_verdict(rest_image):
-    pipeline = GesturePipeline(SENSOR, PipelineConfig(resting={"motion_override_mm": 0.4}))
+    # each window's own type (the episode vote would hold a lone contact undecided)
+    pipeline = _WindowByWindow(SENSOR, PipelineConfig(resting={"motion_override_mm": 0.4}))
     pipeline.process(Frame(0, rest_image))
     assert pipeline.resting.resting
     assert [e.resting for e in pipeline.process(events_at(1, 15000))] == [True]  # nothing moved
@@ -271,13 +273,9 @@ def test_bad_prediction_lines_name_file_and_line(tmp_path, line, message):
 
 # --- end to end on a simulated recording ------------------------------------------------------
 @pytest.fixture(scope="module")
-def push_dataset(tmp_path_factory):
-    """A quick simulated push sequence (sources/simulator.py): AEDAT4 + labels + true markers."""
-    from neurotouch_hid.sources.simulator import write_dataset
-
-    folder = write_dataset(tmp_path_factory.mktemp("sim") / "ds", preset="quick", gestures=["push"], progress=False)
-    (recording,) = sorted(folder.glob("*.aedat4"))
-    return recording
+def push_dataset(sim_push_recording):
+    """A quick simulated push sequence (tests/conftest.py): AEDAT4 + labels + true markers."""
+    return sim_push_recording
 
 
 @pytest.fixture(scope="module")
@@ -366,31 +364,15 @@ def test_windows_whose_markers_did_not_move_reuse_the_fit_with_identical_estimat
     assert 0 < len(fitted) < fresh.fits  # some windows had the same markers as the one before
 
 
-def _cli(*args: str):
-    import subprocess
-    import sys
-
-    return subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", *args], capture_output=True, text=True, timeout=300
-    )
-
-
-STREET = "/work/shared/data/davis346-street/recording.aedat4"
-
-
-def test_track_on_a_street_recording_says_no_gel_and_exits_2(tmp_path):
-    import os
-
-    if not os.path.exists(STREET):
-        pytest.skip(reason="the shared real DAVIS-346 street recording is not on this machine")
-    done = _cli("track", STREET, "--out", str(tmp_path / "p.jsonl"))
+def test_track_on_a_street_recording_says_no_gel_and_exits_2(any_street, tmp_path):
+    done = run_cli("track", str(any_street.path), "--out", str(tmp_path / "p.jsonl"))
     assert done.returncode == 2
     assert "no gel found" in done.stderr and "Traceback" not in done.stderr
     assert not (tmp_path / "p.jsonl").exists()
 
 
 def test_track_command_writes_predictions_and_markers(push_dataset, push_tracked, tmp_path):
-    done = _cli(
+    done = run_cli(
         "track",
         str(push_dataset),
         "--out",
@@ -512,8 +494,8 @@ def test_episode_vote_keeps_one_type_over_a_gesture_where_windows_flip(rest_imag
     voted = _push_then_pinch(PipelineConfig(**base), rest_image)
     P, Q = GestureType.PUSH, GestureType.PINCH
     assert plain[:2] == [P, P] and plain[2:8] == [Q] * 6 and plain[8] is P
-    assert voted[:2] == [P, P]  # no added latency at onset: the first windows answer as before
-    assert voted[2:] == [Q] * 7  # the strong pinch outweighs at once, the weak push at the end does not
+    assert voted[:2] == [GestureType.NONE] * 2  # one contact for 10 ms: undecided
+    assert voted[2:] == [Q] * 7  # committed on two contacts; the weak push at the end does not outweigh
 
 
 def _lagging_pinch(
@@ -538,9 +520,9 @@ def _lagging_pinch(
     return out
 
 
-def test_a_lagging_fingers_push_gives_way_to_the_pinch_once_its_second_contact_is_seen(rest_image):
-    """The episode vote restarts when a push decided on one contact meets a window that sees the
-    second: the pinch is answered from that window on, as the window-by-window rule does."""
+def test_a_lagging_finger_is_waited_for_and_the_pinch_committed_once_its_second_contact_is_seen(rest_image):
+    """The first finger alone for 40 ms leaves the episode undecided (``none``); the pinch is
+    answered from the window that sees the second contact on, as the window-by-window rule does."""
     base = dict(resting={"centroid_threshold_mm2": -1.0})
     plain = _lagging_pinch(PipelineConfig(**base), rest_image, _WindowByWindow)
     first_pinch = next(k for k, (g, _) in enumerate(plain) if g is GestureType.PINCH)
@@ -548,18 +530,21 @@ def test_a_lagging_fingers_push_gives_way_to_the_pinch_once_its_second_contact_i
     assert {n for _, n in plain[:first_pinch]} == {1} and plain[first_pinch][1] == 2
     assert {g for g, _ in plain[first_pinch:]} == {GestureType.PINCH}
     voted = _lagging_pinch(PipelineConfig(**base), rest_image)
-    assert [g for g, _ in voted] == [g for g, _ in plain]
+    assert [g for g, _ in voted] == [GestureType.NONE] * first_pinch + [g for g, _ in plain[first_pinch:]]
 
 
-def test_the_vote_restarts_only_for_a_push_and_only_on_more_contacts_than_before():
-    """Restart rule of ``EpisodeVote``: a push decided on two contacts is kept against a pinch
-    window with two; a third contact restarts the votes; a decided zoom is never restarted."""
+def test_the_one_correction_needs_more_contacts_than_before_and_comes_once():
+    """Correction rule of ``EpisodeVote``: a push committed on two contacts is kept against a
+    pinch window with two; a third contact, within the correction time, is answered at once; a
+    second correction is not taken, nor one after the correction time."""
     P, Q, Z, T = GestureType.PUSH, GestureType.PINCH, GestureType.ZOOM, GestureType.TWIST_CW
     vote = EpisodeVote()
-    assert [vote.update(P, 5.0, 2), vote.update(P, 5.0, 2), vote.update(Q, 1.0, 2)] == [P, P, P]
-    assert vote.update(Q, 1.0, 3) is Q and vote.update(P, 0.5, 3) is Q  # the earlier 10 mm of push are gone
-    vote.update(GestureType.NONE, 0.0)
-    assert [vote.update(Z, 5.0, 1), vote.update(T, 1.0, 3)] == [Z, Z]
+    assert [vote.update(P, 5.0, 2, 10_000), vote.update(P, 5.0, 2, 20_000), vote.update(Q, 1.0, 2, 30_000)] == [P] * 3
+    assert vote.update(Q, 1.0, 3, 40_000) is Q and vote.update(P, 0.5, 3, 50_000) is Q  # the 10 mm of push are gone
+    assert vote.update(T, 0.5, 4, 60_000) is Q  # a second correction is not taken
+    vote.update(GestureType.NONE, 0.0, 0, 70_000)
+    assert vote.update(Z, 5.0, 2, 80_000) is Z
+    assert vote.update(T, 1.0, 3, 80_000 + vote.correction_us + 10_000) is Z  # too late to correct
 
 
 def _calibrated(points_px) -> SensorGeometry:
@@ -608,6 +593,7 @@ def test_pixel_settings_follow_px_per_mm_on_a_closer_camera():
     would be 6 mm, whose neighbourhood never holds n_min markers; following px_per_mm, r is
     40 px = 10 mm on the gel again, and a clear push is found."""
     from neurotouch_hid.pipeline.config import scaled_to_sensor
+    from neurotouch_hid.pipeline.tracker import BlobTracker
 
     sensor = SensorGeometry(px_per_mm=4.0, gel_radius_px=120.0)
     c = np.asarray(sensor.gel_center_px)
@@ -620,7 +606,7 @@ def test_pixel_settings_follow_px_per_mm_on_a_closer_camera():
         ix, iy = int(round(x)), int(round(y))
         img[iy - 6 : iy + 7, ix - 6 : ix + 7] += 220 * np.exp(-((xx + ix - x) ** 2 + (yy + iy - y) ** 2) / (2 * 1.4**2))
     image = np.clip(img, 0, 255).astype(np.uint8)
-    pipeline = GesturePipeline(sensor, PipelineConfig(resting={"centroid_threshold_mm2": -1.0}))
+    pipeline = _WindowByWindow(sensor, PipelineConfig(resting={"centroid_threshold_mm2": -1.0}))  # own types
     pipeline.process(Frame(0, image))
     pipeline.process(events_at(1))
     assert len(pipeline.rest_px) == len(rest)
@@ -630,6 +616,9 @@ def test_pixel_settings_follow_px_per_mm_on_a_closer_camera():
     assert estimate.gesture is GestureType.PUSH and estimate.n_contacts == 1
     assert scaled_to_sensor(PipelineConfig(), sensor).r_px == pytest.approx(25.0 * 4.0 / 2.5)
     assert scaled_to_sensor(PipelineConfig(), SENSOR).r_px == 25.0  # 10 mm at 2.5 px/mm
+    # the tracker's gates follow it too: 1.6 mm association radius = 6.4 px here, 4 px at 2.5
+    assert pipeline.tracker.pixels.assoc_px == pytest.approx(1.6 * pipeline.sensor.px_per_mm)
+    assert BlobTracker(rest, sensor=SENSOR).pixels.assoc_px == 4.0
 
 
 def pinch_with_slip(rest_px: np.ndarray, slip_px=(3.0, 0.0), turn_rad=0.0) -> np.ndarray:
@@ -723,7 +712,8 @@ def test_a_frame_near_rest_re_anchors_a_drifted_tracker_without_calling_it_rest(
     near = gel_image((0.5, 0.0), region_px=15)
     answers = {}
     for reset in (0.02, 0.05):
-        pipeline = GesturePipeline(SENSOR, PipelineConfig(resting={"centroid_reset_threshold_mm2": reset / 6.25}))
+        config = PipelineConfig(resting={"centroid_reset_threshold_mm2": reset / 6.25})
+        pipeline = _WindowByWindow(SENSOR, config)  # each window's own type: no undecided start
         pipeline.process(Frame(0, rest_image))
         pipeline.process(events_at(1))
         w = np.exp(-np.sum((pipeline.rest_px - SENSOR.gel_center_px) ** 2, axis=1) / (2 * 12.0**2))
@@ -752,7 +742,7 @@ def test_a_window_where_nothing_moved_min_intensity_skips_the_fits(rest_image):
     """Not at rest, but no tracked marker 0.3 px (min_intensity_px) from rest: the intensity is
     below the minimum whatever the contacts, so the window answers none (not resting) without a
     homography; once a finger moves the markers the fits run again."""
-    pipeline = GesturePipeline(SENSOR)
+    pipeline = _WindowByWindow(SENSOR)  # each window's own type: no undecided start
     pipeline.process(Frame(0, rest_image))
     pipeline.process(Frame(40_000, gel_image((4.0, 0.0), region_px=30)))
     assert not pipeline.resting.resting
@@ -872,9 +862,10 @@ def test_the_resting_verdict_carries_the_frames_marker_centroids_in_the_image_fr
     from neurotouch_hid.pipeline.resting import RestingDetector
 
     moved = gel_image(shift_px=(2.0, 1.0), region_px=30.0)
-    verdict = RestingDetector(rest_image, SENSOR, 0.01, centroids=True).update(moved)
+    verdict = RestingDetector(rest_image, SENSOR).update(moved)  # the product's: centroids
     markers = detect_markers(moved, SENSOR).centroids_px
     assert not verdict.resting and len(verdict.centroids_px) == len(markers)
     d = np.hypot(*(verdict.centroids_px[:, None] - markers[None]).transpose(2, 0, 1)).min(axis=1)
     assert d.max() < 0.1
-    assert RestingDetector(rest_image, SENSOR, 2.5).update(moved).centroids_px is None  # pixel sets: none
+    pixel_sets = RestingDetector(rest_image, SENSOR, 2.5, centroids=False)
+    assert pixel_sets.update(moved).centroids_px is None

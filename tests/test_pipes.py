@@ -6,28 +6,14 @@ with stdout a pipe (a subprocess), or a file (``> mine.yaml``).
 
 from __future__ import annotations
 
-import subprocess
-import sys
+from helpers import run_cli
 
 from neurotouch_hid.mapping.profile import load_profile, shipped_profiles_dir
 
 
-def run_cli(*args: str, tmp_path, stdout=subprocess.PIPE) -> subprocess.CompletedProcess:
-    env = {"PATH": "/usr/bin:/bin", "HOME": str(tmp_path), "XDG_CONFIG_HOME": str(tmp_path / "config"), "COLUMNS": "80"}
-    return subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", *args],
-        stdout=stdout,
-        stderr=subprocess.PIPE,
-        env=env,
-        stdin=subprocess.DEVNULL,
-        timeout=120,
-        cwd=tmp_path,
-    )
-
-
 def test_profile_show_piped_is_the_file(tmp_path):
     for shipped in sorted(shipped_profiles_dir().glob("*.yaml")):
-        result = run_cli("profile", "show", shipped.stem, tmp_path=tmp_path)
+        result = run_cli("profile", "show", shipped.stem, home=tmp_path, text=False)
         assert result.returncode == 0, result.stderr
         assert result.stdout == shipped.read_bytes(), shipped.stem
 
@@ -35,9 +21,9 @@ def test_profile_show_piped_is_the_file(tmp_path):
 def test_profile_show_to_a_file_validates(tmp_path):
     mine = tmp_path / "mine.yaml"
     with open(mine, "wb") as fh:
-        assert run_cli("profile", "show", "default", tmp_path=tmp_path, stdout=fh).returncode == 0
+        assert run_cli("profile", "show", "default", home=tmp_path, text=False, stdout=fh).returncode == 0
     assert mine.read_bytes() == (shipped_profiles_dir() / "default.yaml").read_bytes()
-    checked = run_cli("profile", "validate", str(mine), tmp_path=tmp_path)
+    checked = run_cli("profile", "validate", str(mine), home=tmp_path, text=False)
     assert checked.returncode == 0, checked.stderr
     assert b": ok (" in checked.stdout
 
@@ -45,7 +31,7 @@ def test_profile_show_to_a_file_validates(tmp_path):
 def test_wide_table_to_a_pipe_is_not_cropped(tmp_path):
     """`profile list`'s rows are wider than 80 columns (the default profile's description alone is
     over 100): piped, each row keeps its whole description and status on one line."""
-    result = run_cli("profile", "list", tmp_path=tmp_path)
+    result = run_cli("profile", "list", home=tmp_path, text=False)
     assert result.returncode == 0, result.stderr
     lines = result.stdout.decode().splitlines()
     description = load_profile(shipped_profiles_dir() / "default.yaml").description

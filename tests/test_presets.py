@@ -30,7 +30,7 @@ def test_paper_method_has_the_papers_hyperparameters():
 def test_paper_config_has_no_product_step():
     """The paper's settings name none of the product's own steps (noise filter, override, ...)."""
     product_only = set(PipelineConfig.model_fields) - set(PaperConfig.model_fields)
-    assert {"noise_filter", "contacts", "gesture", "resting"} <= product_only
+    assert {"noise", "contacts", "gesture", "resting"} <= product_only
 
 
 def test_the_config_picks_the_pipeline():

@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import json
-import os
 import re
 import subprocess
-import sys
 import textwrap
 
 import pytest
+from helpers import run_cli
 from ruamel.yaml import YAML
 
 from neurotouch_hid.estimate import GestureEstimate, GestureType
@@ -195,17 +194,9 @@ def test_bad_predictions_file_names_its_line(cli, tmp_path):
 
 def test_the_installed_command_runs_as_a_user_would(tmp_path, pushes):
     """The console script's module in a fresh process: copy, change, test."""
-    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "config")}
 
     def run(*args: str) -> subprocess.CompletedProcess:
-        return subprocess.run(
-            [sys.executable, "-m", "neurotouch_hid.cli", "profile", *args],
-            capture_output=True,
-            text=True,
-            env=env,
-            stdin=subprocess.DEVNULL,
-            timeout=120,
-        )
+        return run_cli("profile", *args, env={"XDG_CONFIG_HOME": str(tmp_path / "config")})
 
     assert run("new", "mine", "--from", "spacecraft").returncode == 0
     assert run("set", "mine", "mappings.push.output", "right_stick").returncode == 0
@@ -218,33 +209,19 @@ def test_the_installed_command_runs_as_a_user_would(tmp_path, pushes):
 
 
 # --- end to end: the simulated gel and a real AEDAT4 recording through the pipeline ---------------
-@pytest.fixture(scope="module")
-def sim_recording(tmp_path_factory):
-    """1.5 s of the simulated gel (it starts with a push) written as a real AEDAT4 file."""
-    from neurotouch_hid.sources import Frame
-    from neurotouch_hid.sources.recording import RecordingWriter
-    from neurotouch_hid.sources.simulator import SimulatedSource
-
-    path = tmp_path_factory.mktemp("recording") / "sim.aedat4"
-    with RecordingWriter(path) as writer:
-        for item in SimulatedSource(seed=0).stream(seconds=1.5, batch_us=10_000):
-            writer.write_frame(item) if isinstance(item, Frame) else writer.write_events(item)
-    return path
-
-
-def test_test_and_tune_on_a_recording(cli, sim_recording):
+def test_test_and_tune_on_a_recording(cli, sim_gel_short_recording):
     # a profile made for much stronger fingers than this (simulated) user's
     assert cli("set", "default", "mappings.push.saturation_mm", "40").returncode == 0
-    before = summary(cli("test", "default", "--source", str(sim_recording), "--json"))
+    before = summary(cli("test", "default", "--source", str(sim_gel_short_recording), "--json"))
     assert before["estimates"] >= 100  # 10 ms windows over ~1.5 s
     stick = max(before["max_deflection"]["ABS_X"], before["max_deflection"]["ABS_Y"])
     assert 0 < stick < 0.5  # the push moves the left stick, but only a little
-    tuned = cli("tune", "default", "--from", str(sim_recording))
+    tuned = cli("tune", "default", "--from", str(sim_gel_short_recording))
     assert tuned.returncode == 0, tuned.stderr
     new = float(re.search(r"push: saturation_mm 40 -> ([0-9.]+)", tuned.stdout).group(1))
     assert 0.8 < new < 40
     assert YAML().load((cli.user_dir / "default.yaml").read_text())["mappings"]["push"]["saturation_mm"] == new
-    after = summary(cli("test", "default", "--source", str(sim_recording), "--json"))
+    after = summary(cli("test", "default", "--source", str(sim_gel_short_recording), "--json"))
     # about full travel now (a stick axis sees the push's projection, slightly off-axis, smoothed)
     assert max(after["max_deflection"]["ABS_X"], after["max_deflection"]["ABS_Y"]) > max(0.8, 3 * stick)
 

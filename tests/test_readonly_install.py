@@ -73,30 +73,6 @@ def run_read_only(tmp_path: Path, *args: str, env: dict[str, str]) -> subprocess
     )
 
 
-@pytest.fixture(scope="module")
-def recording(tmp_path_factory) -> Path:
-    """One second of the simulated gel, recorded as a user would (AEDAT4, APS frames)."""
-    path = tmp_path_factory.mktemp("rec") / "gel.aedat4"
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "neurotouch_hid.cli",
-            "record",
-            str(path),
-            "--source",
-            "sim",
-            "--fast",
-            "--seconds",
-            "1",
-        ],
-        check=True,
-        capture_output=True,
-        timeout=600,
-    )
-    return path
-
-
 def assert_clean(result: subprocess.CompletedProcess) -> None:
     assert "Traceback" not in result.stderr and result.returncode == 0, result.stderr
 
@@ -107,11 +83,12 @@ def assert_states(path: Path) -> None:
     assert lines and all("axes" in json.loads(line) for line in lines), path
 
 
-def test_no_writable_folder_compiles_at_start_and_runs(tmp_path, recording):
+def test_no_writable_folder_compiles_at_start_and_runs(tmp_path, sim_gel_short_recording):
     """Nothing writable but the output's folder: `run` starts, says so in one line, and works."""
+    recording = str(sim_gel_short_recording)
     out = tmp_path / "states.jsonl"
     result = run_read_only(
-        tmp_path, "run", "--source", str(recording), "--output", "jsonl", "--fast", "--out", str(out), env={}
+        tmp_path, "run", "--source", recording, "--output", "jsonl", "--fast", "--out", str(out), env={}
     )
     assert_clean(result)
     assert result.stderr.count(MEMORY_LINE) == 1, result.stderr
@@ -120,13 +97,14 @@ def test_no_writable_folder_compiles_at_start_and_runs(tmp_path, recording):
     assert MEMORY_LINE in doctor.stdout and "removed at exit" in doctor.stdout, doctor.stdout
 
 
-def test_runtime_dir_caches_track_and_run(tmp_path, recording):
+def test_runtime_dir_caches_track_and_run(tmp_path, sim_gel_short_recording):
     """With $XDG_RUNTIME_DIR writable, `track` compiles once into it, and `run` reuses that."""
+    recording = str(sim_gel_short_recording)
     runtime = tmp_path / "run-user"
     runtime.mkdir()
     env = {"XDG_RUNTIME_DIR": str(runtime)}
     predictions = tmp_path / "pred.jsonl"
-    track = run_read_only(tmp_path, "track", str(recording), "--out", str(predictions), env=env)
+    track = run_read_only(tmp_path, "track", recording, "--out", str(predictions), env=env)
     assert_clean(track)
     assert MEMORY_LINE not in track.stderr
     assert len(predictions.read_text().splitlines()) > 50
@@ -134,7 +112,7 @@ def test_runtime_dir_caches_track_and_run(tmp_path, recording):
     assert list(cache.rglob("*.nbi")), f"nothing cached in {cache}"
     states = tmp_path / "states.jsonl"
     run = run_read_only(
-        tmp_path, "run", "--source", str(recording), "--output", "jsonl", "--fast", "--out", str(states), env=env
+        tmp_path, "run", "--source", recording, "--output", "jsonl", "--fast", "--out", str(states), env=env
     )
     assert_clean(run)
     assert_states(states)

@@ -1,7 +1,8 @@
 """neurotouch-hid record: what the camera sees, as AEDAT4 that `info` (and DV) read back.
 
 The simulated gel stands in for the camera in the CLI tests; the live-camera path (DavisSource)
-is driven by a replay of the real street recording with an unplug (tests/camera_replay.py).
+is driven by a replay of a street (the real recording where it is, and a simulated one) with an
+unplug, on a clock the test controls (tests/camera_replay.py).
 """
 
 from __future__ import annotations
@@ -9,34 +10,24 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
-import sys
-import time
-from pathlib import Path
 
 import numpy as np
 import pytest
-from camera_replay import Fault, ReplayWorld
+from camera_replay import Fault, ManualClock, ReplayWorld
+from helpers import CLI, run_cli, wait_until
 
-from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.errors import DeviceError, RecordingError
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.davis import DavisConfig, DavisSource
 from neurotouch_hid.sources.recording import RecordingReader, read_info, record_stream
 from neurotouch_hid.sources.simulator import SimulatedSource
 
-CLI = [sys.executable, "-m", "neurotouch_hid.cli"]
 ENV = dict(os.environ, COLUMNS="200")
-STREET = Path(__file__).resolve().parents[2] / "shared" / "data" / "davis346-street" / "recording.aedat4"
 
 
 def test_record_sim_writes_exactly_what_the_source_gave(tmp_path):
     out = tmp_path / "sim.aedat4"
-    proc = subprocess.run(
-        [*CLI, "record", str(out), "--source", "sim", "--seconds", "1.5", "--fast", "--seed", "3"],
-        capture_output=True,
-        text=True,
-        env=ENV,
-        timeout=300,
-    )
+    proc = run_cli("record", str(out), "--source", "sim", "--seconds", "1.5", "--fast", "--seed", "3", columns=200)
     assert proc.returncode == 0, proc.stderr
     items = list(SimulatedSource(seed=3).stream(seconds=1.5))
     want_events = np.concatenate([i for i in items if not isinstance(i, Frame)])
@@ -51,6 +42,22 @@ def test_record_sim_writes_exactly_what_the_source_gave(tmp_path):
     assert f"{len(want_events):,} events" in proc.stdout
 
 
+def written_so_far(path) -> tuple[int, int]:
+    """(events, APS frames) readable in the part of ``path`` written so far: (0, 0) until there
+    are both."""
+    events = frames = 0
+    try:
+        with RecordingReader(path) as reader:
+            for item in reader.stream(batch_us=10_000):
+                if isinstance(item, Frame):
+                    frames += 1
+                else:
+                    events += len(item)
+    except RecordingError:
+        pass  # where the writing is, or no file yet
+    return (events, frames) if events and frames else (0, 0)
+
+
 def test_ctrl_c_ends_a_recording_with_a_complete_file(tmp_path):
     out = tmp_path / "stopped.aedat4"
     proc = subprocess.Popen(
@@ -61,10 +68,8 @@ def test_ctrl_c_ends_a_recording_with_a_complete_file(tmp_path):
         env=ENV,
     )
     try:
-        deadline = time.monotonic() + 120
-        while not out.exists() and time.monotonic() < deadline and proc.poll() is None:
-            time.sleep(0.1)
-        time.sleep(1.5)  # let it record something (paced: ~1.5 s of gel)
+        # stopped once it has recorded something (a frame and events), however long that takes
+        assert wait_until(lambda: proc.poll() is not None or written_so_far(out) != (0, 0), timeout_s=120)
         proc.send_signal(signal.SIGINT)
         stdout, stderr = proc.communicate(timeout=60)
     finally:
@@ -75,13 +80,11 @@ def test_ctrl_c_ends_a_recording_with_a_complete_file(tmp_path):
     assert info.n_frames > 0 and info.n_events > 0
 
 
-def test_a_lost_camera_ends_the_recording_but_keeps_the_file_whole(tmp_path):
-    if not STREET.exists():
-        pytest.skip(reason=f"{STREET} (the real DAVIS-346 street recording in shared/) is not on this machine")
-    world = ReplayWorld(STREET, faults=(Fault("unplug", 0.8),))
+def test_a_lost_camera_ends_the_recording_but_keeps_the_file_whole(any_street, tmp_path):
+    world = ReplayWorld(any_street.path, faults=(Fault("unplug", 0.8),), clock=ManualClock())
     out = tmp_path / "street.aedat4"
     seen = []
-    with DavisSource(DavisConfig(stall_timeout_s=0.3), backend=world) as camera:
+    with DavisSource(DavisConfig(stall_timeout_s=0.3), backend=world, **world.source_clock()) as camera:
         with pytest.raises(DeviceError, match="unplugged"):
             record_stream(
                 camera.stream(seconds=5, batch_us=10_000),
@@ -103,9 +106,7 @@ def test_a_lost_camera_ends_the_recording_but_keeps_the_file_whole(tmp_path):
     ],
 )
 def test_bad_options_say_what_is_expected(tmp_path, args, message):
-    proc = subprocess.run(
-        [*CLI, "record", str(tmp_path / "x.aedat4"), *args], capture_output=True, text=True, env=ENV, timeout=120
-    )
+    proc = run_cli("record", str(tmp_path / "x.aedat4"), *args, columns=200)
     assert proc.returncode == 2 and message in proc.stderr, proc.stderr
     assert not (tmp_path / "x.aedat4").exists()
 
@@ -113,21 +114,9 @@ def test_bad_options_say_what_is_expected(tmp_path, args, message):
 def test_an_existing_file_is_kept_unless_forced(tmp_path):
     out = tmp_path / "keep.aedat4"
     out.write_bytes(b"precious")
-    proc = subprocess.run(
-        [*CLI, "record", str(out), "--source", "sim", "--seconds", "0.2", "--fast"],
-        capture_output=True,
-        text=True,
-        env=ENV,
-        timeout=120,
-    )
+    proc = run_cli("record", str(out), "--source", "sim", "--seconds", "0.2", "--fast", columns=200)
     assert proc.returncode == 2 and "--force" in proc.stderr
     assert out.read_bytes() == b"precious"
-    proc = subprocess.run(
-        [*CLI, "record", str(out), "--source", "sim", "--seconds", "0.2", "--fast", "--force"],
-        capture_output=True,
-        text=True,
-        env=ENV,
-        timeout=120,
-    )
+    proc = run_cli("record", str(out), "--source", "sim", "--seconds", "0.2", "--fast", "--force", columns=200)
     assert proc.returncode == 0, proc.stderr
     assert read_info(out).n_frames == 5

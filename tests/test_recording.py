@@ -8,12 +8,11 @@ from __future__ import annotations
 
 import json
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import run_cli
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -29,14 +28,6 @@ from neurotouch_hid.sources.recording import (
 )
 
 REPO = Path(__file__).parents[1]
-STREET = REPO.parent / "shared" / "data" / "davis346-street" / "recording.aedat4"
-needs_street = pytest.mark.skipif(not STREET.exists(), reason=f"shared dataset not beside the repo: {STREET}")
-
-
-def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", *args], capture_output=True, text=True, cwd=REPO, timeout=120
-    )
 
 
 def synthetic(n: int = 20_000, duration_us: int = 400_000, seed: int = 1, t0: int = 1_000_000):
@@ -62,51 +53,63 @@ def written(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def street_half(tmp_path_factory):
-    """A copy of the real recording cut to half its bytes."""
-    data = STREET.read_bytes()
+def street_half(any_street, tmp_path_factory):
+    """A copy of a street recording (tests/conftest.py: the real one, a simulated one) cut to
+    half its bytes."""
+    data = any_street.path.read_bytes()
     path = tmp_path_factory.mktemp("half") / "half.aedat4"
     path.write_bytes(data[: len(data) // 2])
     return path
 
 
-# --- the real DAVIS-346 recording ---------------------------------------------------------------
-@needs_street
-def test_info_of_real_recording_matches_dataset_readme():
-    info = read_info(STREET)
-    assert info.camera_name == "DAVIS346_00000002"
+# --- a DAVIS-346 street recording: the real one (its README's figures), and a simulated one -----
+def test_info_of_a_street_recording_is_what_is_known_of_it(any_street):
+    info = read_info(any_street.path)
+    assert info.camera_name == any_street.camera_name
     assert (info.width, info.height) == (346, 260)
-    assert info.n_events == 78_830
-    assert info.n_frames == 59
-    assert round(info.duration_us / 1e6, 2) == 2.36
+    assert info.n_events == any_street.n_events
+    assert info.n_frames == any_street.n_frames
+    assert round(info.duration_us / 1e6, 2) == any_street.duration_s
     assert info.duration_us == info.end_us - info.start_us
 
 
-@needs_street
-def test_cli_info_json_and_table():
-    result = run_cli("info", str(STREET), "--json")
+def test_cli_info_json_and_table(any_street):
+    known = any_street
+    result = run_cli("info", str(known.path), "--json")
     assert result.returncode == 0, result.stderr
     data = json.loads(result.stdout)
-    assert data["camera_name"] == "DAVIS346_00000002"
-    assert (data["width"], data["height"], data["n_events"], data["n_frames"]) == (346, 260, 78_830, 59)
-    assert round(data["duration_s"], 2) == 2.36
+    assert data["camera_name"] == known.camera_name
+    assert (data["width"], data["height"], data["n_events"], data["n_frames"]) == (
+        346,
+        260,
+        known.n_events,
+        known.n_frames,
+    )
+    assert round(data["duration_s"], 2) == known.duration_s
     assert data["duration_us"] == data["end_us"] - data["start_us"]
-    table = run_cli("info", str(STREET))
+    table = run_cli("info", str(known.path))
     assert table.returncode == 0, table.stderr
-    for text in ("DAVIS346_00000002", "346", "260", "78,830", "59", "2.36 s"):
+    for text in (
+        known.camera_name,
+        "346",
+        "260",
+        f"{known.n_events:,}",
+        str(known.n_frames),
+        f"{known.duration_s:.2f} s",
+    ):
         assert text in table.stdout
 
 
-@needs_street
-def test_stream_of_real_recording_is_merged_in_time_order():
-    with RecordingReader(STREET, require_frames=True, require_resolution=(346, 260)) as reader:
+def test_stream_of_a_street_recording_is_merged_in_time_order(any_street):
+    with RecordingReader(any_street.path, require_frames=True, require_resolution=(346, 260)) as reader:
         items = list(reader.stream(batch_us=1000))
         all_events, all_frames = reader.read_all()
     frames = [item for item in items if isinstance(item, Frame)]
     batches = [item for item in items if not isinstance(item, Frame)]
-    assert len(frames) == 59 and all(f.image.shape == (260, 346) and f.image.dtype == np.uint8 for f in frames)
+    assert len(frames) == any_street.n_frames
+    assert all(f.image.shape == (260, 346) and f.image.dtype == np.uint8 for f in frames)
     events = np.concatenate(batches)
-    assert events.dtype == EVENT_DTYPE and len(events) == 78_830
+    assert events.dtype == EVENT_DTYPE and len(events) == any_street.n_events
     assert np.array_equal(events, all_events)
     assert [f.t_us for f in frames] == [f.t_us for f in all_frames]
     assert np.all(np.diff(events["timestamp"]) >= 0)
@@ -281,9 +284,8 @@ def test_cli_bad_files_exit_2(tmp_path, written):
         assert len(result.stderr.strip().splitlines()) <= 3, (name, result.stderr)
 
 
-@needs_street
-def test_truncated_file_yields_what_was_read_then_raises(street_half):
-    with RecordingReader(STREET) as reader:
+def test_truncated_file_yields_what_was_read_then_raises(any_street, street_half):
+    with RecordingReader(any_street.path) as reader:
         full_events, full_frames = reader.read_all()
     got = []
     with RecordingReader(street_half) as reader:
@@ -299,7 +301,6 @@ def test_truncated_file_yields_what_was_read_then_raises(street_half):
     assert all(np.array_equal(a.image, b.image) and a.t_us == b.t_us for a, b in zip(frames, full_frames))
 
 
-@needs_street
 def test_truncated_file_info_and_cli(street_half):
     with pytest.raises(RecordingError, match="truncated"):
         read_info(street_half)

@@ -61,20 +61,7 @@ def test_write_report_writes_figures_and_summary_embedding_them(result, tmp_path
 
 
 # --- `neurotouch-hid eval` end to end on a tiny simulated dataset ----------------------------
-@pytest.fixture(scope="module")
-def quick_dataset(tmp_path_factory):
-    simulator = pytest.importorskip("neurotouch_hid.sources.simulator", reason="needs the gel simulator")
-    return simulator.write_dataset(
-        tmp_path_factory.mktemp("quick"),
-        preset="quick",
-        seed=3,
-        progress=False,
-        gestures=["push", "zoom"],
-        minutes=0.05,
-    )
-
-
-def test_eval_command_writes_report_json_and_predictions(quick_dataset, tmp_path):
+def test_eval_command_writes_report_json_and_predictions(sim_quick_dataset, tmp_path):
     from typer.testing import CliRunner
 
     from neurotouch_hid.cli import app
@@ -86,7 +73,7 @@ def test_eval_command_writes_report_json_and_predictions(quick_dataset, tmp_path
         app,
         [
             "eval",
-            str(quick_dataset),
+            str(sim_quick_dataset),
             "--report",
             str(tmp_path / "report"),
             "--json",
@@ -108,7 +95,7 @@ def test_eval_command_writes_report_json_and_predictions(quick_dataset, tmp_path
     for name in FIGURES:
         assert (tmp_path / "report" / name).stat().st_size > 0
     assert (tmp_path / "report" / "summary.md").exists()
-    for seq in list_sequences(quick_dataset):
+    for seq in list_sequences(sim_quick_dataset):
         lines = (tmp_path / "pred" / f"{seq}.jsonl").read_text().splitlines()
         assert lines and {"t_us", "gesture", "resting", "intensity_mm", "contacts_px"} <= json.loads(lines[0]).keys()
 
@@ -124,19 +111,19 @@ def test_pipeline_config_rejects_unknown_or_bad_hyperparameter():
     with pytest.raises(NeurotouchError, match="TrackerConfig has no field 'nope'"):
         pipeline_config(["tracker.nope=1"])
     config = pipeline_config(
-        ["contacts.r_mm=10", "contacts.n_min=3", "noise_filter=none", "tracker.assoc_px=5"], window_us=5000
+        ["contacts.r_mm=10", "contacts.n_min=3", "noise.kind=none", "tracker.assoc_mm=2"], window_us=5000
     )
     assert (
         config.contacts.r_mm,
         config.contacts.n_min,
-        config.noise_filter,
-        config.tracker.assoc_px,
+        config.noise.kind,
+        config.tracker.assoc_mm,
         config.window_us,
     ) == (
         10.0,
         3,
         None,
-        5.0,
+        2.0,
         5000,
     )
 
@@ -146,8 +133,8 @@ def test_a_bad_set_value_names_the_setting_the_field_and_what_was_expected():
     from neurotouch_hid.evaluation.runner import pipeline_config
 
     with pytest.raises(NeurotouchError) as info:
-        pipeline_config(["tracker.assoc_px=wide"])
-    assert "--set 'tracker.assoc_px=wide': tracker.assoc_px: found 'wide'; input should be a valid number" in str(
+        pipeline_config(["tracker.assoc_mm=wide"])
+    assert "--set 'tracker.assoc_mm=wide': tracker.assoc_mm: found 'wide'; input should be a valid number" in str(
         info.value
     )
     assert pipeline_config(["resting.marker_threshold=none"]).resting.marker_threshold is None

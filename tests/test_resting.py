@@ -32,7 +32,8 @@ def dots(shift=(0, 0), region=None, value=220) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def detector() -> RestingDetector:
-    return RestingDetector(dots(), SENSOR)
+    """The distance over marker pixels (the paper's), per marker, at the paper's threshold."""
+    return RestingDetector(dots(), SENSOR, threshold=2.5, centroids=False)
 
 
 def test_identical_frame_rests_with_zero_distance(detector):
@@ -58,7 +59,7 @@ def test_the_distance_is_per_reference_marker():
             img[129:132, x + dx] = 200
         return img
 
-    result = RestingDetector(bars(0), SENSOR).update(bars(2))
+    result = RestingDetector(bars(0), SENSOR, centroids=False).update(bars(2))
     assert result.distance == pytest.approx(24.0, rel=0.02)
 
 
@@ -97,7 +98,7 @@ def test_the_paper_raw_sum_is_the_per_marker_distance_times_the_markers():
             img[129:132, x + dx] = 200
         return img
 
-    raw = RestingDetector(bars(0), SENSOR, threshold=2.5, per_marker=False)
+    raw = RestingDetector(bars(0), SENSOR, threshold=2.5, per_marker=False, centroids=False)
     assert raw.update(bars(2)).distance == pytest.approx(72.0, rel=0.02)
     assert not raw.update(bars(2)).resting and raw.update(bars(0)).resting
 
@@ -126,7 +127,7 @@ def test_a_flickering_light_is_not_motion_when_centroids_are_compared(gain):
     grey level and the Chamfer distance is far above the threshold (moving); over the markers'
     weighted centroids nothing moved and the gel rests. (Grey level 120: between the blobs'
     pixel values at every gain, so that rounding to uint8 decides nothing.)"""
-    pixels = RestingDetector(blobs(), SENSOR, threshold=0.4, binary_threshold=120)
+    pixels = RestingDetector(blobs(), SENSOR, threshold=0.4, binary_threshold=120, centroids=False)
     centroids = RestingDetector(blobs(), SENSOR, threshold=0.02, binary_threshold=120, centroids=True)
     assert not pixels.update(blobs(gain)).resting
     assert pixels.update(blobs(gain)).distance > 2.0

@@ -6,87 +6,17 @@ from __future__ import annotations
 import os
 import signal
 import threading
-import time
 
 import numpy as np
 import pytest
+from helpers import read_states, run_cli
+from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, batch, endless, once, writes_of
 
 from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.errors import ProfileError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.runtime import DropOldestQueue, Runtime, item_end_us
-from neurotouch_hid.sources import EVENT_DTYPE, Frame
-
-
-# --- small fakes (unit tests only) --------------------------------------------------------------
-def batch(t0_us: int, n: int = 3, step_us: int = 100) -> np.ndarray:
-    ev = np.zeros(n, dtype=EVENT_DTYPE)
-    ev["timestamp"] = t0_us + np.arange(n) * step_us
-    return ev
-
-
-class FakePipeline:
-    """One estimate per event batch: a push whose intensity is the batch's index, then rest."""
-
-    def __init__(self, push_batches: int = 5, fail_at: int | None = None, gate: threading.Event | None = None):
-        self.started = threading.Event()
-        self.seen: list[int] = []
-        self.sizes: list[int] = []  # events per call
-        self.resting: list[tuple[object, int]] = []
-        self.push_batches = push_batches
-        self.fail_at = fail_at
-        self.gate = gate
-
-    def process(self, item):
-        self.started.set()
-        if self.gate is not None:
-            self.gate.wait(5)
-        if isinstance(item, Frame):
-            return []
-        self.seen.append(item_end_us(item))
-        self.sizes.append(len(item))
-        if self.fail_at is not None and len(self.seen) == self.fail_at:
-            raise RuntimeError("pipeline failure")
-        k = len(self.seen)
-        if k <= self.push_batches:
-            return [
-                GestureEstimate(t_us=item_end_us(item), gesture=GestureType.PUSH, resting=False, intensity_mm=float(k))
-            ]
-        return [GestureEstimate(t_us=item_end_us(item))]
-
-    def set_resting(self, result, t_us):
-        self.resting.append((result, t_us))
-
-
-class FakeMapper:
-    """ABS_X follows the intensity (x1000), BTN_SOUTH pressed during a push."""
-
-    def __init__(self, profile):
-        self.profile = profile
-
-    def update(self, est: GestureEstimate) -> ControllerState:
-        state = ControllerState.neutral(est.t_us)
-        state.axes["ABS_X"] = int(est.intensity_mm * 1000) * self.profile.get("sign", 1)
-        state.buttons["BTN_SOUTH"] = est.gesture is GestureType.PUSH
-        return state
-
-
-class RecordingOutput:
-    """Remembers every call, in order."""
-
-    accepts_estimate = False
-
-    def __init__(self):
-        self.calls: list[tuple[str, ControllerState | None]] = []
-
-    def write(self, state):
-        self.calls.append(("write", state))
-
-    def neutralise(self):
-        self.calls.append(("neutralise", None))
-
-    def prepare(self, profile):
-        pass
+from neurotouch_hid.sources import Frame, Pacer
 
 
 def make_runtime(source, pipeline=None, output=None, **kw) -> tuple[Runtime, FakePipeline, RecordingOutput]:
@@ -231,16 +161,9 @@ def test_error_in_the_source_processes_what_was_read_then_neutralises_and_raises
     assert out.calls[-1] == ("neutralise", None)
 
 
-def endless(step_us: int = 1000):
-    t = 0
-    while True:
-        yield batch(t)
-        t += step_us
-
-
 def test_stop_from_another_thread_ends_a_paced_endless_source_neutral():
     rt, pipeline, out = make_runtime(endless(), pace=True, pipeline=FakePipeline(push_batches=10**9))
-    threading.Timer(0.3, rt.stop).start()
+    once(lambda: writes(out), rt.stop)
     rt.run()
     assert pipeline.seen and out.calls[-1] == ("neutralise", None)
     assert writes(out) and not writes(out)[-1].is_neutral()  # stopped in the middle of a push
@@ -249,21 +172,43 @@ def test_stop_from_another_thread_ends_a_paced_endless_source_neutral():
 def test_sigterm_is_a_clean_stop():
     rt, pipeline, out = make_runtime(endless(), pace=True, pipeline=FakePipeline(push_batches=10**9))
     previous = signal.getsignal(signal.SIGTERM)
-    threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGTERM)).start()
+    once(lambda: writes(out), lambda: os.kill(os.getpid(), signal.SIGTERM))
     stats = rt.run()  # returns normally
     assert stats.windows > 0 and out.calls[-1] == ("neutralise", None)
     assert signal.getsignal(signal.SIGTERM) is previous  # handler restored
 
 
-def test_pacing_follows_the_timestamps():
-    import time
+class ManualClock:
+    """A clock (ns) that moves only when the pacer sleeps on it; remembers each sleep (s)."""
 
-    rt, pipeline, _ = make_runtime((batch(i * 50_000, n=1) for i in range(5)), pace=True)
-    t0 = time.perf_counter()
+    def __init__(self):
+        self.now_ns = 0
+        self.slept: list[float] = []
+
+    def sleep(self, stop: threading.Event, seconds: float) -> bool:
+        self.slept.append(seconds)
+        self.now_ns += round(seconds * 1e9)
+        return stop.is_set()
+
+
+def test_pacing_follows_the_timestamps():
+    clock = ManualClock()
+    pacer = Pacer(clock=lambda: clock.now_ns, sleep=clock.sleep)
+    rt, pipeline, _ = make_runtime((batch(i * 50_000, n=1) for i in range(5)), pace=True, pacer=pacer)
     rt.run()
-    # 5 batches 50 ms apart in camera time cannot be through in less than 200 ms of wall time
-    assert time.perf_counter() - t0 >= 0.2
-    assert len(pipeline.seen) == 5
+    # 5 batches 50 ms apart in camera time: each waited for, 200 ms of the clock in all
+    assert clock.slept == pytest.approx([0.05] * 4)
+    assert clock.now_ns == 200_000_000
+    # the clock's sleeps take no wall time, so the worker may take the batches joined: all five
+    assert sum(pipeline.sizes) == 5 and pipeline.seen[-1] == 200_000
+
+
+def test_without_pacing_nothing_waits():
+    clock = ManualClock()
+    pacer = Pacer(clock=lambda: clock.now_ns, sleep=clock.sleep)
+    rt, pipeline, _ = make_runtime((batch(i * 50_000, n=1) for i in range(5)), pace=False, pacer=pacer)
+    rt.run()
+    assert clock.slept == [] and len(pipeline.seen) == 5
 
 
 def test_seconds_limits_the_camera_time_read():
@@ -297,28 +242,6 @@ def test_switch_profile_neutralises_then_maps_with_the_new_profile():
     assert before and after
     assert all(s.axes["ABS_X"] > 0 for s in before)
     assert all(s.axes["ABS_X"] < 0 for s in after)
-
-
-def writes_of(calls):
-    return [s for k, s in calls if k == "write"]
-
-
-def wait_until(condition, timeout_s: float = 60.0) -> bool:
-    """Poll ``condition()`` every 10 ms until it holds (True) or ``timeout_s`` passes (False)."""
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if condition():
-            return True
-        time.sleep(0.01)
-    return False
-
-
-def once(condition, action, timeout_s: float = 60.0) -> threading.Thread:
-    """Run ``action`` in a thread as soon as ``condition()`` holds (:func:`wait_until`), so a test
-    waits for what the runtime did, not for a wall-clock delay a loaded machine can overrun."""
-    thread = threading.Thread(target=lambda: (wait_until(condition, timeout_s), action()), daemon=True)
-    thread.start()
-    return thread
 
 
 def test_reload_keeps_the_old_profile_when_the_new_one_is_bad():
@@ -384,45 +307,16 @@ CLI = [sys.executable, "-c", "from neurotouch_hid.cli import main; main()"]
 ENV = dict(os.environ, PYTHONUNBUFFERED="1", COLUMNS="160")
 
 
-def read_states(text: str) -> list[dict]:
-    return [json.loads(line) for line in text.splitlines() if line.strip()]
-
-
 def is_neutral(line: dict) -> bool:
     from neurotouch_hid.controller import AXES
 
     return all(line["axes"][n] == AXES[n][2] for n in AXES) and not any(line["buttons"].values())
 
 
-@pytest.fixture(scope="module")
-def push_recording(tmp_path_factory) -> "os.PathLike":
-    """4.5 s of the simulated gel (rest, one push, release, rest) written as an AEDAT4 recording
-    with its sensor.yaml, the way `neurotouch-hid simulate` stores sequences."""
-    from neurotouch_hid.sources.recording import RecordingWriter
-    from neurotouch_hid.sources.simulator import SimulatedSource
-
-    folder = tmp_path_factory.mktemp("push")
-    sim = SimulatedSource(seed=0, gestures=["push"])
-    sim.sensor.save(folder / "sensor.yaml")
-    path = folder / "push.aedat4"
-    labels = []
-    with RecordingWriter(path) as writer:
-        for chunk in sim.chunks(4.5):
-            writer.write_frame(chunk.frame)
-            writer.write_events(chunk.events)
-            labels.append((chunk.frame.t_us, chunk.label.gesture))
-    assert any(g == GestureType.PUSH for _, g in labels) and labels[-1][1] == GestureType.NONE
-    return path
-
-
-def test_run_on_a_recording_moves_the_stick_during_the_push_and_ends_neutral(push_recording, tmp_path):
+def test_run_on_a_recording_moves_the_stick_during_the_push_and_ends_neutral(sim_push_only_recording, tmp_path):
     out = tmp_path / "states.jsonl"
-    proc = subprocess.run(
-        [*CLI, "run", "--source", str(push_recording), "--output", "jsonl", "--fast", "--out", str(out)],
-        capture_output=True,
-        text=True,
-        env=ENV,
-        timeout=300,
+    proc = run_cli(
+        "run", "--source", str(sim_push_only_recording), "--output", "jsonl", "--fast", "--out", str(out), columns=160
     )
     assert proc.returncode == 0, proc.stderr
     states = read_states(out.read_text())
@@ -464,9 +358,7 @@ def test_sigterm_ends_a_live_run_with_a_neutral_state_and_exit_0():
 def test_demo_without_uinput_shows_the_terminal_view_and_says_why(tmp_path):
     if os.access("/dev/uinput", os.W_OK):
         pytest.skip(reason="/dev/uinput is writable here: the demo uses the real gamepad")
-    proc = subprocess.run(
-        [*CLI, "demo", "--seconds", "3"], capture_output=True, text=True, env=ENV, timeout=300, stdin=subprocess.DEVNULL
-    )
+    proc = run_cli("demo", "--seconds", "3", columns=160)
     assert proc.returncode == 0, proc.stderr
     assert "no writable /dev/uinput (" in proc.stderr
     assert "showing the gamepad in the terminal instead; see `neurotouch-hid doctor`" in proc.stderr
@@ -489,13 +381,13 @@ def test_a_bad_profile_raises_before_any_output_or_source_exists(tmp_path, monke
     assert opened == []
 
 
-def test_fast_replays_are_deterministic(push_recording, tmp_path):
+def test_fast_replays_are_deterministic(sim_push_only_recording, tmp_path):
     from neurotouch_hid.driver import run_driver
 
     runs = []
     for k in range(2):
         out = tmp_path / f"states{k}.jsonl"
-        stats = run_driver(str(push_recording), "default", "jsonl", fast=True, out=out)
+        stats = run_driver(str(sim_push_only_recording), "default", "jsonl", fast=True, out=out)
         assert stats.dropped_items == 0 and stats.windows > 0
         runs.append(out.read_text())
     assert runs[0] == runs[1] and runs[0]

@@ -14,9 +14,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
-from typer.testing import CliRunner
 
-from neurotouch_hid.cli import app
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
@@ -50,14 +48,6 @@ DATASET_COLUMNS = [
 ]
 DATASET_GESTURES = {"none", "push", "pinch", "zoom", "twist_cw", "twist_ccw"}
 SENSOR_KEYS = {"width", "height", "px_per_mm", "gel_center_px", "gel_radius_px", "mirror", "rotation_deg"}
-
-
-@pytest.fixture(scope="session")
-def quick_dataset(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("sim") / "quick"
-    result = CliRunner().invoke(app, ["simulate", "--out", str(out), "--preset", "quick", "--seed", "0"])
-    assert result.exit_code == 0, result.output
-    return out
 
 
 def _read_dv(path: Path) -> tuple[np.ndarray, list[tuple[int, np.ndarray]], tuple[int, int]]:
@@ -105,11 +95,11 @@ def _signed_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 # --- the gel at rest --------------------------------------------------------------------------
-def test_rest_frame_shows_177_markers_inside_the_gel_circle(quick_dataset):
-    sensor_file = quick_dataset / "sensor.yaml"
+def test_rest_frame_shows_177_markers_inside_the_gel_circle(sim_quick_dataset):
+    sensor_file = sim_quick_dataset / "sensor.yaml"
     data = yaml.safe_load(sensor_file.read_text())
     cx, cy = data["gel_center_px"]
-    _, frames, _ = _read_dv(quick_dataset / "u0_push.aedat4")
+    _, frames, _ = _read_dv(sim_quick_dataset / "u0_push.aedat4")
     t0, image = frames[0]
     centroids = _components(image)
     assert len(centroids) == 177
@@ -117,7 +107,7 @@ def test_rest_frame_shows_177_markers_inside_the_gel_circle(quick_dataset):
     assert r.max() < data["gel_radius_px"]
     # sub-pixel rendering: weighted blob centroids agree with the true rest positions of
     # markers.npz (the read noise moves a centroid by a few hundredths of a pixel)
-    rest = np.load(quick_dataset / "u0_push.markers.npz")["rest_px"]
+    rest = np.load(sim_quick_dataset / "u0_push.markers.npz")["rest_px"]
     d = np.linalg.norm(centroids[:, None, :] - rest[None], axis=-1)
     assert np.all(d.min(axis=1) < 0.1)
     assert len(set(d.argmin(axis=1))) == 177
@@ -328,19 +318,19 @@ def test_paper_preset_users_keep_tuning_apart_from_testing():
 
 
 # --- the written dataset ----------------------------------------------------------------------
-def test_quick_dataset_follows_dataset_md(quick_dataset):
-    data = yaml.safe_load((quick_dataset / "sensor.yaml").read_text())
+def test_quick_dataset_follows_dataset_md(sim_quick_dataset):
+    data = yaml.safe_load((sim_quick_dataset / "sensor.yaml").read_text())
     assert SENSOR_KEYS <= set(data)
     assert (data["width"], data["height"]) == (346, 260) and data["mirror"] is True
-    names = sorted(p.name[: -len(".aedat4")] for p in quick_dataset.glob("*.aedat4"))
+    names = sorted(p.name[: -len(".aedat4")] for p in sim_quick_dataset.glob("*.aedat4"))
     assert names == sorted(f"u0_{g.value}" for g in SIM_GESTURES)
     cx, cy = data["gel_center_px"]
     for name in names:
-        with open(quick_dataset / f"{name}.labels.csv", newline="") as fh:
+        with open(sim_quick_dataset / f"{name}.labels.csv", newline="") as fh:
             reader = csv.reader(fh)
             assert next(reader) == DATASET_COLUMNS
             rows = list(reader)
-        events, frames, resolution = _read_dv(quick_dataset / f"{name}.aedat4")
+        events, frames, resolution = _read_dv(sim_quick_dataset / f"{name}.aedat4")
         assert resolution == (346, 260)
         assert [t for t, _ in frames] == [int(r[0]) for r in rows]  # one label per APS frame
         assert all(img.shape[:2] == (260, 346) and img.dtype == np.uint8 for _, img in frames)
@@ -363,7 +353,7 @@ def test_quick_dataset_follows_dataset_md(quick_dataset):
                 assert resting == "0" and n >= 1 and intensity >= 0.0
         assert gestures == {"none", name.split("_", 1)[1]}
         assert rows[0][1:3] == ["none", "1"] and rows[-1][1:3] == ["none", "1"]
-        markers = np.load(quick_dataset / f"{name}.markers.npz")
+        markers = np.load(sim_quick_dataset / f"{name}.markers.npz")
         assert markers["t_us"].dtype == np.int64 and markers["positions_px"].dtype == np.float32
         assert markers["positions_px"].shape == (len(markers["t_us"]), 177, 2)
         assert markers["rest_px"].shape == (177, 2)
@@ -371,15 +361,15 @@ def test_quick_dataset_follows_dataset_md(quick_dataset):
         assert np.all(np.diff(markers["t_us"]) == 1000)
 
 
-def test_same_seed_same_files_other_seed_other_files(quick_dataset, tmp_path):
+def test_same_seed_same_files_other_seed_other_files(sim_quick_dataset, tmp_path):
     again = write_dataset(tmp_path / "again", preset="quick", seed=0, gestures=["push"], progress=False)
-    assert filecmp.cmp(again / "u0_push.labels.csv", quick_dataset / "u0_push.labels.csv", shallow=False)
+    assert filecmp.cmp(again / "u0_push.labels.csv", sim_quick_dataset / "u0_push.labels.csv", shallow=False)
     ev_a, fr_a, _ = _read_dv(again / "u0_push.aedat4")
-    ev_b, fr_b, _ = _read_dv(quick_dataset / "u0_push.aedat4")
+    ev_b, fr_b, _ = _read_dv(sim_quick_dataset / "u0_push.aedat4")
     assert np.array_equal(ev_a, ev_b)
     assert all(ta == tb and np.array_equal(a, b) for (ta, a), (tb, b) in zip(fr_a, fr_b))
     other = write_dataset(tmp_path / "other", preset="quick", seed=1, users=[0], gestures=["push"], progress=False)
-    assert not filecmp.cmp(other / "u0_push.labels.csv", quick_dataset / "u0_push.labels.csv", shallow=False)
+    assert not filecmp.cmp(other / "u0_push.labels.csv", sim_quick_dataset / "u0_push.labels.csv", shallow=False)
     ev_c, _, _ = _read_dv(other / "u0_push.aedat4")
     assert len(ev_c) != len(ev_b) or not np.array_equal(ev_c, ev_b)
 

@@ -12,6 +12,7 @@ import subprocess
 import sys
 
 import pytest
+from helpers import run_cli
 from rich.console import Console
 
 from neurotouch_hid.cli import long_lived_start_up
@@ -24,30 +25,20 @@ from neurotouch_hid.track import recording_progress, track_recording
 
 
 @pytest.fixture(scope="module")
-def push_recording(tmp_path_factory):
-    """A quick simulated push sequence (AEDAT4 beside its sensor.yaml)."""
-    from neurotouch_hid.sources.simulator import write_dataset
-
-    folder = write_dataset(tmp_path_factory.mktemp("sim") / "ds", preset="quick", gestures=["push"], progress=False)
-    (recording,) = sorted(folder.glob("*.aedat4"))
-    return recording
-
-
-@pytest.fixture(scope="module")
-def tracked(push_recording, tmp_path_factory):
+def tracked(sim_push_recording, tmp_path_factory):
     """``track_recording`` in this process with a progress callback: (summary, predictions
     bytes, every (done_us, total_us) reported)."""
     out = tmp_path_factory.mktemp("track") / "p.jsonl"
     calls: list[tuple[int, int]] = []
     summary = track_recording(
-        push_recording, out, find_sensor_file(push_recording), on_progress=lambda d, t: calls.append((d, t))
+        sim_push_recording, out, find_sensor_file(sim_push_recording), on_progress=lambda d, t: calls.append((d, t))
     )
     return summary, out.read_bytes(), calls
 
 
-def test_progress_totals_are_the_recording_s_length_from_the_start(push_recording, tracked):
+def test_progress_totals_are_the_recording_s_length_from_the_start(sim_push_recording, tracked):
     summary, _, calls = tracked
-    with RecordingReader(push_recording) as reader:
+    with RecordingReader(sim_push_recording) as reader:
         length = reader.info.duration_us
     assert len(calls) > 10
     assert all(total == length for _, total in calls)  # known before the first window
@@ -55,16 +46,18 @@ def test_progress_totals_are_the_recording_s_length_from_the_start(push_recordin
     assert calls[-1][0] == summary.duration_us <= length
 
 
-def test_a_terminal_gets_a_bar_that_reports_to_the_end(push_recording, tmp_path):
+def test_a_terminal_gets_a_bar_that_reports_to_the_end(sim_push_recording, tmp_path):
     screen = io.StringIO()
     console = Console(file=screen, force_terminal=True, width=100)
     with recording_progress(console, "tracking") as report:
         assert report is not None
-        track_recording(push_recording, tmp_path / "p.jsonl", find_sensor_file(push_recording), on_progress=report)
+        track_recording(
+            sim_push_recording, tmp_path / "p.jsonl", find_sensor_file(sim_push_recording), on_progress=report
+        )
     assert "tracking" in screen.getvalue()
 
 
-def test_without_a_terminal_no_bar_and_no_pass_for_its_total(push_recording, tracked, tmp_path, monkeypatch):
+def test_without_a_terminal_no_bar_and_no_pass_for_its_total(sim_push_recording, tracked, tmp_path, monkeypatch):
     screen = io.StringIO()
     with recording_progress(Console(file=screen), "tracking") as report:
         assert report is None
@@ -75,7 +68,7 @@ def test_without_a_terminal_no_bar_and_no_pass_for_its_total(push_recording, tra
 
     monkeypatch.setattr(RecordingReader, "info", property(no_second_pass))
     out = tmp_path / "p.jsonl"
-    summary = track_recording(push_recording, out, find_sensor_file(push_recording), on_progress=report)
+    summary = track_recording(sim_push_recording, out, find_sensor_file(sim_push_recording), on_progress=report)
     assert out.read_bytes() == tracked[1]  # the same predictions
     assert (summary.windows, summary.events, summary.frames) == (
         tracked[0].windows,
@@ -84,14 +77,11 @@ def test_without_a_terminal_no_bar_and_no_pass_for_its_total(push_recording, tra
     )
 
 
-def test_the_track_command_writes_the_same_predictions_and_nothing_on_a_piped_stderr(push_recording, tracked, tmp_path):
+def test_the_track_command_writes_the_same_predictions_and_nothing_on_a_piped_stderr(
+    sim_push_recording, tracked, tmp_path
+):
     out = tmp_path / "p.jsonl"
-    done = subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", "track", str(push_recording), "--out", str(out)],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    done = run_cli("track", str(sim_push_recording), "--out", str(out))
     assert done.returncode == 0, done.stderr
     assert done.stderr == ""  # no bar drawn into a pipe
     assert out.read_bytes() == tracked[1]
@@ -164,8 +154,8 @@ def _gel_frames(recording, n: int = 400):
     return detector, frames
 
 
-def test_verdict_only_gives_every_verdict_and_the_exact_distance_at_rest(push_recording):
-    detector, frames = _gel_frames(push_recording)
+def test_verdict_only_gives_every_verdict_and_the_exact_distance_at_rest(sim_push_recording):
+    detector, frames = _gel_frames(sim_push_recording)
     full = [detector.update(f) for f in frames]
     quick = [detector.update(f, verdict_only=True) for f in frames]
     assert [q.resting for q in quick] == [f.resting for f in full]

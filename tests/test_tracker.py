@@ -158,7 +158,7 @@ def test_isolated_noise_events_near_a_resting_blob_are_gated():
 
 def test_each_event_goes_to_the_nearest_blob_through_the_owner_image():
     start = np.array([[100.0, 100.0], [108.0, 100.0]])
-    tracker = BlobTracker(start, config=TrackerConfig(assoc_px=3.5))
+    tracker = BlobTracker(start, config=TrackerConfig(assoc_mm=1.4))
     owner = tracker.owner_image()
     assert owner[100, 103] == 0 and owner[100, 105] == 1  # each pixel to its nearest blob
     assert owner[100, 97] == 0 and owner[100, 111] == 1
@@ -211,19 +211,19 @@ def test_blob_leaving_the_gel_is_lost():
     assert not tracker.valid[0]
     assert tracker.valid[1]
     assert np.all(tracker.owner_image() != 0)
-    assert tracker.positions_px[0, 0] < cx + SENSOR.gel_radius_px + TrackerConfig().gel_margin_px + 1.5
+    assert tracker.positions_px[0, 0] < cx + SENSOR.gel_radius_px + tracker.pixels.gel_margin_px + 1.5
 
 
 def test_blobs_that_merge_are_lost():
     # Two dots 7 px apart slide onto each other: both blobs are lost, a third one is not. (The
-    # last ~2 px of an exact overlap make few distinguishable events: merge_px 3 here.)
+    # last ~2 px of an exact overlap make few distinguishable events: merge_mm 1.2, 3 px at 2.5 px/mm, here.)
     start = np.array([[150.2, 120.3], [157.2, 120.3], [150.2, 130.3]])
 
     def truth(t):
         return start + min(t / 30_000.0, 1.0) * np.array([[3.5, 0.0], [-3.5, 0.0], [0.0, 0.0]])
 
     events = esim(truth, 40_000, (140, 110, 168, 140))
-    tracker = BlobTracker(start, config=TrackerConfig(merge_px=3.0))
+    tracker = BlobTracker(start, config=TrackerConfig(merge_mm=1.2))
     tracker.update(events)
     assert not tracker.valid[:2].any()
     assert tracker.valid[2]

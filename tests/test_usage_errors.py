@@ -8,10 +8,10 @@ with code 2; never a traceback, whichever click (typer's own copy, or none insta
 from __future__ import annotations
 
 import subprocess
-import sys
 
 import pytest
 import typer
+from helpers import run_cli
 
 from neurotouch_hid.cli import app
 
@@ -34,19 +34,6 @@ def _commands() -> list[tuple[str, ...]]:
 COMMANDS = _commands()
 
 
-def run_cli(*args: str, tmp_path) -> subprocess.CompletedProcess:
-    env = {"PATH": "/usr/bin:/bin", "HOME": str(tmp_path), "XDG_CONFIG_HOME": str(tmp_path / "config"), "COLUMNS": "80"}
-    return subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.cli", *args],
-        capture_output=True,
-        text=True,
-        env=env,
-        stdin=subprocess.DEVNULL,
-        timeout=120,
-        cwd=tmp_path,
-    )
-
-
 def assert_usage_error(result: subprocess.CompletedProcess, message: str) -> None:
     shown = result.stdout + result.stderr
     assert "Traceback" not in shown, shown
@@ -62,7 +49,7 @@ def test_every_command_is_covered():
 
 @pytest.mark.parametrize("words", [c for c in COMMANDS if c != ("profile", "set")], ids=" ".join)
 def test_unknown_option(words, tmp_path):
-    assert_usage_error(run_cli(*words, "--no-such-option", tmp_path=tmp_path), "No such option")
+    assert_usage_error(run_cli(*words, "--no-such-option", home=tmp_path), "No such option")
 
 
 @pytest.mark.parametrize(
@@ -83,7 +70,7 @@ def test_unknown_option(words, tmp_path):
     ids=" ".join,
 )
 def test_missing_argument(words, tmp_path):
-    assert_usage_error(run_cli(*words, tmp_path=tmp_path), "Missing argument")
+    assert_usage_error(run_cli(*words, home=tmp_path), "Missing argument")
 
 
 @pytest.mark.parametrize(
@@ -107,18 +94,18 @@ def test_missing_argument(words, tmp_path):
     ids=" ".join,
 )
 def test_bad_value(args, tmp_path):
-    assert_usage_error(run_cli(*args, tmp_path=tmp_path), "Invalid value")
+    assert_usage_error(run_cli(*args, home=tmp_path), "Invalid value")
 
 
 @pytest.mark.parametrize("args", [("nosuch",), ("profile", "nosuch"), ("trak", "x.aedat4")], ids=" ".join)
 def test_unknown_command(args, tmp_path):
-    assert_usage_error(run_cli(*args, tmp_path=tmp_path), "No such command")
+    assert_usage_error(run_cli(*args, home=tmp_path), "No such command")
 
 
 @pytest.mark.parametrize("args", [(), ("profile",)], ids=lambda a: " ".join(a) or "none")
 def test_no_command_shows_help(args, tmp_path):
     """No command at all: the help (the list of commands), exit 2, no traceback."""
-    result = run_cli(*args, tmp_path=tmp_path)
+    result = run_cli(*args, home=tmp_path)
     shown = result.stdout + result.stderr
     assert "Traceback" not in shown and result.returncode == 2, shown
     assert "Usage:" in shown and ("track" in shown if not args else "validate" in shown), shown

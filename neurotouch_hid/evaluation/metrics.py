@@ -2,7 +2,7 @@
 
 Predictions (:class:`~neurotouch_hid.estimate.GestureEstimate`, one per window) are compared
 with the ground truth at each prediction's time (:func:`~neurotouch_hid.dataset.labels_at`,
-docs/dataset.md "Predictions"). :func:`align` turns one sequence into :class:`Observations`: plain
+docs/dataset.md "Predictions (JSON lines)"). :func:`align` turns one sequence into :class:`Observations`: plain
 aligned arrays, one entry per evaluated prediction, that concatenate across sequences and cross
 process boundaries. :func:`evaluate` computes every metric into an :class:`EvaluationResult`.
 
@@ -21,13 +21,14 @@ arrays and ``None`` in :meth:`EvaluationResult.to_dict`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, is_dataclass
 from typing import Sequence
 
 import numpy as np
 
 from neurotouch_hid.dataset import LabelRow, labels_at
 from neurotouch_hid.estimate import GESTURE_ORDER, GestureEstimate, GestureType
+from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM, FeltRecords, FeltSummary, gesture_records, summarise
 from neurotouch_hid.sensor import SensorGeometry
 
 #: Width of the ground-truth intensity bins of the accuracy-vs-intensity analysis (mm), as the
@@ -199,6 +200,7 @@ class Observations:
         distance_n: int64 number of contact pairs in that sum (0 when either side has no contact).
         n_skipped: predictions before the sequence's first label (not evaluated).
         n_sequences: sequences these observations come from.
+        felt: the per-gesture records of the same predictions (:mod:`.felt`).
     """
 
     gesture_true: np.ndarray
@@ -213,6 +215,7 @@ class Observations:
     distance_n: np.ndarray
     n_skipped: int = 0
     n_sequences: int = 1
+    felt: FeltRecords | None = None
 
     _ARRAYS = (
         "gesture_true",
@@ -242,11 +245,18 @@ class Observations:
             **arrays,
             n_skipped=sum(p.n_skipped for p in parts),
             n_sequences=sum(p.n_sequences for p in parts),
+            felt=FeltRecords.concatenate([p.felt for p in parts if p.felt is not None]),
         )
 
 
-def align(labels: Sequence[LabelRow], predictions: Sequence[GestureEstimate], sensor: SensorGeometry) -> Observations:
-    """Pair one sequence's predictions with its labels (docs/dataset.md "Predictions").
+def align(
+    labels: Sequence[LabelRow],
+    predictions: Sequence[GestureEstimate],
+    sensor: SensorGeometry,
+    deadzone_mm: float = DEFAULT_DEADZONE_MM,
+) -> Observations:
+    """Pair one sequence's predictions with its labels (docs/dataset.md "Predictions (JSON lines)"), and
+    score them per gesture (:func:`.felt.gesture_records`, with ``deadzone_mm``, mm).
 
     The ground truth at each prediction time comes from
     :func:`~neurotouch_hid.dataset.labels_at`; predictions before the first label are
@@ -279,6 +289,7 @@ def align(labels: Sequence[LabelRow], predictions: Sequence[GestureEstimate], se
         distance_sum_mm=np.zeros(m, np.float64),
         distance_n=np.zeros(m, np.int64),
         n_skipped=len(predictions) - m,
+        felt=gesture_records(labels, predictions, deadzone_mm),
     )
     for k, (pred, true) in enumerate(kept):
         obs.gesture_true[k] = _GESTURE_INDEX[true.gesture]
@@ -298,7 +309,9 @@ def align(labels: Sequence[LabelRow], predictions: Sequence[GestureEstimate], se
 
 # --- the result -----------------------------------------------------------------------------
 def _clean(value):
-    """JSON-able copy: numpy -> Python, NaN -> None."""
+    """JSON-able copy: numpy -> Python, NaN -> None, dataclasses -> dicts."""
+    if is_dataclass(value):
+        return _clean(asdict(value))
     if isinstance(value, dict):
         return {str(k): _clean(v) for k, v in value.items()}
     if isinstance(value, (list, tuple, np.ndarray)):
@@ -338,6 +351,7 @@ class EvaluationResult:
         gesture_accuracy_by_intensity, contact_count_accuracy_by_intensity: (B,) per bin, over
             gesture observations.
         n_by_intensity: (B,) observations per bin.
+        felt: the per-gesture figures (docs/dataset.md, "Per-gesture metrics").
     """
 
     classes: list[str]
@@ -367,6 +381,7 @@ class EvaluationResult:
     gesture_accuracy_by_intensity: np.ndarray
     contact_count_accuracy_by_intensity: np.ndarray
     n_by_intensity: np.ndarray
+    felt: FeltSummary
 
     def to_dict(self) -> dict:
         """All fields as JSON-able values (lists, floats, ints; NaN -> None)."""
@@ -388,7 +403,8 @@ def evaluate(obs: Observations) -> EvaluationResult:
     - intensity MAE over gesture observations (label gesture != none);
     - resting precision/recall/F1 with resting as the positive class;
     - gesture type and contact count accuracy per 0.6 mm bin of ground-truth intensity, over
-      gesture observations.
+      gesture observations;
+    - the per-gesture figures of the observations' records (:func:`.felt.summarise`).
     """
     k = len(GESTURE_ORDER)
     counts = confusion_matrix(obs.gesture_true, obs.gesture_pred, k)
@@ -434,4 +450,5 @@ def evaluate(obs: Observations) -> EvaluationResult:
         gesture_accuracy_by_intensity=g_acc,
         contact_count_accuracy_by_intensity=c_acc,
         n_by_intensity=n_bin,
+        felt=summarise(obs.felt if obs.felt is not None else FeltRecords.concatenate([])),
     )

@@ -90,6 +90,29 @@ def per_class_rows(result: EvaluationResult) -> list[list[str]]:
     ]
 
 
+def felt_rows(result: EvaluationResult) -> list[tuple[str, str]]:
+    """(metric, value) rows of the per-gesture figures (docs/dataset.md, "Per-gesture metrics"),
+    formatted."""
+    f = result.felt
+
+    def ms(value: float) -> str:
+        return "-" if math.isnan(value) else f"{value:.0f} ms"
+
+    def per(value: float) -> str:
+        return "-" if math.isnan(value) else f"{value:.2f}"
+
+    dz = f"{f.deadzone_mm:g} mm"
+    return [
+        ("Gestures", str(f.n_gestures)),
+        ("Onset latency, median / p90", f"{ms(f.onset_median_ms)} / {ms(f.onset_p90_ms)}"),
+        ("Never recognised", f"{f.never_recognised} of {f.n_gestures}"),
+        ("Type changes per gesture", per(f.type_changes_per_gesture)),
+        (f"Type changes per gesture >= {dz}", per(f.felt_type_changes_per_gesture)),
+        (f"Gestures felt wrong (another type >= {dz})", _pct(f.felt_wrong_share)),
+        ("False activations at rest (> 300 ms from a gesture)", f"{f.false_activations} of {f.n_rest} windows"),
+    ]
+
+
 PER_CLASS_HEADER = ["Gesture", "Prec. %", "Recall %", "F1 %", "Support", "Count acc. %", "Dist. mm", "MAE mm"]
 
 
@@ -121,6 +144,13 @@ def print_tables(result: EvaluationResult, console: Console) -> None:
     for row in summary_rows(result):
         head.add_row(*row)
     console.print(head)
+
+    felt = Table(title="Per gesture (what a controller's user feels; docs/dataset.md)")
+    felt.add_column("Metric")
+    felt.add_column("Ours", justify="right")
+    for row in felt_rows(result):
+        felt.add_row(*row)
+    console.print(felt)
 
     per_class = Table(title="Per gesture type (precision, recall, F1 of the gesture type; errors on labelled type)")
     for col in PER_CLASS_HEADER:
@@ -271,6 +301,12 @@ def write_report(
         "",
     ]
     parts += [_md_table(["Metric", "Ours", "Paper"], summary_rows(result)), ""]
+    parts += [
+        "## Per gesture (what a controller's user feels)",
+        "",
+        _md_table(["Metric", "Ours"], felt_rows(result)),
+        "",
+    ]
     parts += ["## Per gesture type", "", _md_table(PER_CLASS_HEADER, per_class_rows(result)), ""]
     parts += [
         "## Accuracy against ground-truth intensity",

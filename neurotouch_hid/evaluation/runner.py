@@ -2,7 +2,7 @@
 
 For each sequence: read ``SEQUENCE.labels.csv``, stream ``SEQUENCE.aedat4`` through
 :class:`~neurotouch_hid.pipeline.pipeline.GesturePipeline`, keep the predictions (optionally as
-JSON lines, docs/dataset.md "Predictions") and pair them with the labels
+JSON lines, docs/dataset.md "Predictions (JSON lines)") and pair them with the labels
 (:func:`~neurotouch_hid.evaluation.metrics.align`). Sequences can run in parallel processes;
 their observations are concatenated and :func:`~neurotouch_hid.evaluation.metrics.evaluate`
 computes the paper's metrics over the whole dataset (paper, section "Results": "The pipeline is
@@ -19,6 +19,7 @@ from typing import Callable, Sequence
 
 from neurotouch_hid.dataset import dataset_sensor_file, list_sequences, read_labels, write_predictions
 from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
 from neurotouch_hid.evaluation.metrics import EvaluationResult, Observations, align, evaluate
 from neurotouch_hid.sensor import SensorGeometry
 
@@ -32,7 +33,7 @@ def pipeline_config(settings: Sequence[str] = (), method: str = "default", **val
     strings (the CLI's ``--set``) and keyword values over them, validated by the pydantic model.
 
     NAME is a field of the method's config, or ``GROUP.FIELD`` for a field of one of its groups
-    (PipelineConfig's ``contacts``, ``gesture``, ``resting``, ``tracker``). VALUE is converted by pydantic to
+    (PipelineConfig's ``noise``, ``tracker``, ``contacts``, ``gesture``, ``resting``). VALUE is converted by pydantic to
     the field's type (``none`` or ``null`` for an optional field).
 
     Raises:
@@ -96,6 +97,7 @@ def run_sequence(
     config=None,
     predictions_dir: str | Path | None = None,
     on_time: Callable[[int], None] | None = None,
+    deadzone_mm: float = DEFAULT_DEADZONE_MM,
 ) -> Observations:
     """Run the pipeline over one sequence and pair its predictions with the labels.
 
@@ -103,8 +105,9 @@ def run_sequence(
         dataset: the dataset folder (docs/dataset.md).
         name: the sequence (``name.aedat4`` and ``name.labels.csv``).
         config: the method's settings (:func:`pipeline_config`; None: the product's defaults).
-        predictions_dir: if given, write ``name.jsonl`` there (docs/dataset.md "Predictions").
+        predictions_dir: if given, write ``name.jsonl`` there (docs/dataset.md "Predictions (JSON lines)").
         on_time: called now and then with the microseconds processed since the recording's start.
+        deadzone_mm: the dead zone of the per-gesture figures (mm; :mod:`.felt`).
     Raises:
         DatasetError, RecordingError, SensorError: bad labels, recording or geometry.
     """
@@ -125,7 +128,7 @@ def run_sequence(
     if predictions_dir is not None:
         Path(predictions_dir).mkdir(parents=True, exist_ok=True)
         write_predictions(Path(predictions_dir) / f"{name}.jsonl", predictions)
-    return align(labels, predictions, sensor)
+    return align(labels, predictions, sensor, deadzone_mm)
 
 
 def evaluate_dataset(
@@ -135,6 +138,7 @@ def evaluate_dataset(
     jobs: int = 1,
     predictions_dir: str | Path | None = None,
     progress=None,
+    deadzone_mm: float = DEFAULT_DEADZONE_MM,
 ) -> EvaluationResult:
     """Run the pipeline over every sequence of a dataset and compute the paper's metrics.
 
@@ -148,6 +152,7 @@ def evaluate_dataset(
         predictions_dir: if given, each sequence's predictions are written there as JSON lines.
         progress: an optional ``rich.progress.Progress``; a task advancing over the recorded
             time (s) is added to it.
+        deadzone_mm: the dead zone of the per-gesture figures (mm; :mod:`.felt`).
     Raises:
         DatasetError: the folder is not a dataset; and what :func:`run_sequence` raises.
     """
@@ -172,13 +177,15 @@ def evaluate_dataset(
                     progress.advance(task, (t - done[0]) / 1e6)
                 done[0] = t
 
-            parts.append(run_sequence(dataset, n, config, predictions_dir, on_time))
+            parts.append(run_sequence(dataset, n, config, predictions_dir, on_time, deadzone_mm))
             if task is not None:
                 progress.advance(task, (durations[n] - done[0]) / 1e6)
     else:
         ctx = multiprocessing.get_context("spawn")  # no fork of a process with rich's refresh thread
         with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-            futures = {pool.submit(run_sequence, dataset, n, config, predictions_dir): n for n in names}
+            futures = {
+                pool.submit(run_sequence, dataset, n, config, predictions_dir, None, deadzone_mm): n for n in names
+            }
             for future in as_completed(futures):
                 parts.append(future.result())
                 if task is not None:

@@ -22,7 +22,7 @@ class OneEuroFilter:
     The arithmetic is Python's, element by element (the same IEEE double operations as NumPy's
     element-wise ones): the mapper runs once per window right after the pipeline's fit, on a
     core that slept since the last window, where each NumPy call on a 1- or 2-element array
-    costs several microseconds (docs/performance.md, "A window's fit on a cold core").
+    costs several microseconds (docs/performance.md, "Runtime latency").
     """
 
     def __init__(self, min_cutoff_hz: float = 1.0, beta: float = 0.0, d_cutoff_hz: float = 1.0) -> None:

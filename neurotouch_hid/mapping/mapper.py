@@ -80,6 +80,13 @@ def gesture_inputs(estimate: GestureEstimate) -> dict[str, np.ndarray | float]:
     }
 
 
+#: Inputs that belong to one gesture type (zero under any other): a type change hands them over.
+#: ``intensity`` and ``contact*`` go on through a change.
+TYPE_INPUTS = frozenset(
+    ("push", "push_intensity", "push_x", "push_y", "push_up", "push_down", "push_left", "push_right")
+    + ("twist", "twist_ccw", "twist_cw", "pinch", "zoom", "pinch_zoom")
+)
+
 #: Longest camera-time step (us) the pointer and wheels integrate over: a gap in the data (a
 #: dropped batch, a pause) must not turn into one long jump.
 MAX_MOTION_STEP_US = 100_000
@@ -134,6 +141,23 @@ class Activator:
         self._first_us: int | None = None  # start of a press that may be the first of a double
         self._double = False  # the current hold is a double press's second
         self._toggled = False
+        self._suspended = False  # released by a type change: the next press goes on with this hold
+
+    def carry(self, t_us: int) -> None:
+        """Go on with a hold that another mapping of the same output began (a gesture's type
+        changed under it): held from ``t_us`` with no press, so a toggle does not flip and the
+        output shows no release-and-press."""
+        if not self.held:
+            self.held, self._since_us = True, int(t_us)
+
+    def suspend(self) -> None:
+        """The input is gone because the gesture's type changed: if the type comes back within
+        the gesture, that is this hold going on, not a new press (:meth:`settle` ends it)."""
+        self._suspended = self.held
+
+    def settle(self) -> None:
+        """The gesture is over: the next press is a new one."""
+        self._suspended = False
 
     @classmethod
     def of(cls, mapping: ButtonMapping | LayerSwitch) -> "Activator":
@@ -152,12 +176,14 @@ class Activator:
     def update(self, value_mm: float, t_us: int) -> bool:
         """The output's state for the input ``value_mm`` (mm) at ``t_us`` (us, camera clock)."""
         t_us = int(t_us)
-        was = self.held
+        was, resumed = self.held, False
         if not self.held and value_mm >= self.press_mm:
-            self.held, self._since_us = True, t_us
+            self.held, resumed = True, self._suspended
+            self._since_us = self._since_us if resumed else t_us
+            self._suspended = False
         elif self.held and value_mm < self.release_mm:
             self.held = False
-        pressed, released = self.held and not was, was and not self.held
+        pressed, released = self.held and not was and not resumed, was and not self.held
         mode = self.mode
         if mode == "hold":
             return self.held
@@ -240,6 +266,16 @@ class Mapper:
     (in file order) whose switch is on, else ``base``. When it changes, that update returns the
     neutral state (everything of the old layer released, no motion) and every mapping starts
     afresh; the new layer's mappings act from the next estimate on.
+
+    A gesture whose type changes (the gel not resting in between, windows of ``none`` allowed):
+    in the estimate of the new type, the mappings of :data:`TYPE_INPUTS` forget their smoothing,
+    so the old type's outputs are released in the very state the new type's begin (never both
+    held, as a decaying filter would leave them); a button the old type held that a mapping of
+    the new type presses too stays held through the change (:meth:`Activator.carry`, while the
+    new value is at or above its ``release_mm``), so neither a toggle nor a game sees a new press;
+    and if the old type comes back within the gesture (the intensity, whatever the type, never
+    below the mapping's ``release_mm`` in between), its holds go on without a new press
+    (:meth:`Activator.suspend`): a toggle flips once per gesture, however the type flickers.
     """
 
     def __init__(self, profile: Profile) -> None:
@@ -255,6 +291,38 @@ class Mapper:
         self._activators = {name: Activator.of(m) for name, m in mappings.items() if isinstance(m, ButtonMapping)}
         self._pointer = {"REL_X": RelMotion(), "REL_Y": RelMotion()}
         self._wheels = {"REL_WHEEL": _Wheel(), "REL_HWHEEL": _Wheel()}
+        self._kind: GestureType | None = None  # the gesture's type (None at rest)
+        self._held: dict[str, bool] = {}  # per button-like mapping: its output in the last state
+
+    def _hand_over(self, estimate: GestureEstimate, inputs: dict, layer: str) -> None:
+        """A type change: the type's mappings restart their smoothing; a button held by a mapping
+        whose input is gone now goes on under the new type's mapping of the same output; the old
+        type's holds are suspended (its return within the gesture goes on with them)."""
+        active = not estimate.resting and estimate.gesture is not GestureType.NONE
+        kind = estimate.gesture if active else None
+        changed = kind is not None and self._kind is not None and kind is not self._kind
+        for name, activator in self._activators.items():
+            if inputs["intensity"] < self.profile.mappings[name].release_mm:  # that gesture is over
+                activator.settle()
+        if estimate.resting:
+            self._kind = None
+        elif kind is not None:
+            self._kind = kind
+        if not changed:
+            return
+        mappings = self.profile.mappings
+        typed = [n for n, m in mappings.items() if m.layer == layer and m.input in TYPE_INPUTS]
+        gone = [n for n in typed if not np.any(inputs[mappings[n].input])]
+        for name in typed:
+            self._filters[name] = _filter_for(mappings[name].smoothing)
+        for name in gone:
+            if name in self._activators:
+                self._activators[name].suspend()
+        left = {out for name in gone if self._held.get(name) for out in mappings[name].presses}
+        for name in set(typed) - set(gone):
+            m = mappings[name]
+            if name in self._activators and left & set(m.presses) and float(inputs[m.input]) >= m.release_mm:
+                self._activators[name].carry(estimate.t_us)
 
     def reset(self) -> None:
         """Forget filters, activators, motion remainders and layers (the next update starts from scratch)."""
@@ -283,6 +351,7 @@ class Mapper:
             self.layer = layer
             self._fresh_mappings()
             return ControllerState.neutral(t_us)
+        self._hand_over(estimate, inputs, layer)
         analog = dict.fromkeys(ANALOG_AXES, 0.0)
         velocity = dict.fromkeys(("REL_X", "REL_Y", "REL_WHEEL", "REL_HWHEEL"), 0.0)
         hats = {"ABS_HAT0X": 0, "ABS_HAT0Y": 0}
@@ -317,7 +386,10 @@ class Mapper:
                 else:
                     up = -1.0 if mapping.output == "REL_Y" else 1.0  # user +y (up) -> pointer up
                     velocity[mapping.output] += up * shaped * mapping.velocity_scale
-            elif self._activators[name].update(float(value), t_us):
+            else:
+                self._held[name] = self._activators[name].update(float(value), t_us)
+                if not self._held[name]:
+                    continue
                 for out in mapping.presses:
                     if out in DPAD:
                         hat, direction = DPAD[out]

@@ -1,5 +1,5 @@
 """The product's pipeline settings (:class:`PipelineConfig`, one group per stage, mm and us) and
-their pixels at a sensor's scale (:func:`scaled_to_sensor`).
+their pixels at a sensor's scale (:func:`scaled_to_sensor`; the tracker converts its own group).
 
 Every number has one default, the product's; each stage's reasons are in docs/method.md (one
 section per stage). The paper's method has its own settings (:class:`~neurotouch_hid.pipeline.paper.PaperConfig`).
@@ -18,6 +18,37 @@ from neurotouch_hid.sensor import MARKER_SPACING_MM, SensorGeometry
 
 #: Shortest window accepted (us).
 MIN_WINDOW_US = 1_000
+
+
+class NoiseConfig(BaseModel):
+    """The noise filter in front of the tracker (docs/method.md, "Noise filter").
+
+    Attributes:
+        kind: the dv-processing noise filter run on every event batch before the tracker (a key
+            of ``noise.NOISE_FILTERS``), or None for none: a product choice (the live camera's
+            source runs the filter itself, and ``eval --set noise.kind=none`` measures without).
+        time_us: the filter's time parameter (us, >= 1); None = that kind's own time
+            (``noise.NOISE_FILTERS``), so that another kind gets its own.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    kind: str | None = "BackgroundActivityNoiseFilter"
+    time_us: int | None = None
+
+    @field_validator("time_us", mode="before")
+    @classmethod
+    def _as_given(cls, value, info: ValidationInfo):
+        """The time is checked as given, before pydantic converts it (text from ``--set`` is
+        converted first, then checked by :meth:`_consistent`)."""
+        if not isinstance(value, str):
+            check_noise_filter(info.data.get("kind"), value)
+        return value
+
+    @model_validator(mode="after")
+    def _consistent(self) -> "NoiseConfig":
+        check_noise_filter(self.kind, self.time_us)
+        return self
 
 
 class ContactsConfig(BaseModel):
@@ -145,19 +176,15 @@ class PipelineConfig(BaseModel):
 
     Attributes:
         window_us: window length (us), >= 1000; paper: 10 ms.
-        noise_filter: the dv-processing noise filter run on every event batch before the tracker
-            (``noise.NOISE_FILTERS``), or None for none (docs/method.md, "Noise filter").
-        noise_filter_us: the filter's time parameter (us, >= 1); None = that filter's own
-            (``noise.NOISE_FILTERS``).
-        tracker: the blob tracker's parameters (docs/method.md, "Tracker"; px at
-            :data:`REFERENCE_PX_PER_MM`, scaled like the rest).
+        noise: the noise filter in front of the tracker (:class:`NoiseConfig`; kind, time in us).
+        tracker: the blob tracker's parameters (:class:`~neurotouch_hid.pipeline.tracker.TrackerConfig`,
+            mm and us; docs/method.md, "Tracker").
         contacts, gesture, resting: the stages' settings (:class:`ContactsConfig`,
             :class:`GestureConfig`, :class:`RestingConfig`).
     """
 
     window_us: int = 10_000
-    noise_filter: str | None = "BackgroundActivityNoiseFilter"
-    noise_filter_us: int | None = None
+    noise: NoiseConfig = Field(default_factory=NoiseConfig)
     tracker: TrackerConfig = Field(default_factory=TrackerConfig)
     contacts: ContactsConfig = Field(default_factory=ContactsConfig)
     gesture: GestureConfig = Field(default_factory=GestureConfig)
@@ -165,23 +192,18 @@ class PipelineConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    @field_validator("window_us", "noise_filter_us", mode="before")
+    @field_validator("window_us", mode="before")
     @classmethod
-    def _as_given(cls, value, info: ValidationInfo):
-        """Numbers are checked as given, before pydantic converts them (text from ``--set`` is
+    def _as_given(cls, value):
+        """The window is checked as given, before pydantic converts it (text from ``--set`` is
         converted first, then checked by :meth:`_consistent`)."""
-        if isinstance(value, str):
-            return value
-        if info.field_name == "window_us":
+        if not isinstance(value, str):
             check_window(value)
-        else:
-            check_noise_filter(info.data.get("noise_filter"), value)
         return value
 
     @model_validator(mode="after")
     def _consistent(self) -> "PipelineConfig":
         check_window(self.window_us)
-        check_noise_filter(self.noise_filter, self.noise_filter_us)
         return self
 
 
@@ -205,33 +227,13 @@ def check_attempts(reference_attempts: int) -> None:
         raise ValueError(f"reference_attempts must be >= 1, got {reference_attempts}")
 
 
-#: The image scale (px/mm) at which TrackerConfig's pixel settings are given: the simulated
-#: DAVIS-346 NeuroTouch's (docs/dataset.md sensor.yaml), 4 mm marker pitch = 10 px.
-REFERENCE_PX_PER_MM = 2.5
-#: Tracker settings that are lengths (scale with px_per_mm), and those that are squared lengths
-#: or squared velocities (scale with its square).
-_TRACKER_PX = (
-    "sigma_px",
-    "assoc_px",
-    "max_step_px",
-    "frame_gate_px",
-    "frame_sigma_px",
-    "merge_px",
-    "gel_margin_px",
-    "max_offset_px",
-)
-_TRACKER_PX2 = ("q_pos", "q_vel", "q_offset", "p0_pos", "p0_vel", "p0_offset")
-
-
 @dataclass(frozen=True)
 class PixelSettings:
     """:class:`PipelineConfig` in the image's pixels for one sensor scale: what the stages run on
-    (lengths px, areas px^2, times us; names as the stage functions' arguments)."""
+    (lengths px, areas px^2, times us; names as the stage functions' arguments). The noise filter and
+    the tracker take their groups of :class:`PipelineConfig` as they are."""
 
     window_us: int
-    noise_filter: str | None
-    noise_filter_us: int | None
-    tracker: TrackerConfig
     r_px: float
     a: float
     n_min: int
@@ -259,23 +261,14 @@ def scaled_to_sensor(config: PipelineConfig, sensor: SensorGeometry) -> PixelSet
     """``config`` in pixels at the sensor's scale (docs/method.md, "Camera model").
 
     Lengths in mm are multiplied by ``sensor.px_per_mm``, areas by its square; the marker pitch is
-    :data:`~neurotouch_hid.sensor.MARKER_SPACING_MM` there; the tracker's pixel settings, given at
-    :data:`REFERENCE_PX_PER_MM`, by ``px_per_mm / REFERENCE_PX_PER_MM`` (squared for its
-    variances), so that a camera nearer the gel or with more pixels keeps the same contact radius,
-    tracker gates and thresholds on the gel."""
+    :data:`~neurotouch_hid.sensor.MARKER_SPACING_MM` there, so that a camera nearer the gel or
+    with more pixels keeps the same contact radius and thresholds on the gel. The tracker's
+    settings are converted by the tracker itself, with the same sensor
+    (:meth:`~neurotouch_hid.pipeline.tracker.TrackerConfig.in_pixels`)."""
     s = sensor.px_per_mm
-    k = s / REFERENCE_PX_PER_MM
-    t = config.tracker
-    if k != 1.0:
-        t = t.model_copy(
-            update={**{n: getattr(t, n) * k for n in _TRACKER_PX}, **{n: getattr(t, n) * k * k for n in _TRACKER_PX2}}
-        )
     c, g, r = config.contacts, config.gesture, config.resting
     return PixelSettings(
         window_us=config.window_us,
-        noise_filter=config.noise_filter,
-        noise_filter_us=config.noise_filter_us,
-        tracker=t,
         r_px=c.r_mm * s,
         a=c.a,
         n_min=c.n_min,

@@ -1,49 +1,84 @@
-"""One gesture decision per gesture episode (not in the paper; docs/method.md, "Episode vote")."""
+"""One gesture type per gesture episode, committed once the fingers are found (not in the paper;
+docs/method.md, "Episode vote")."""
 
 from __future__ import annotations
 
 from neurotouch_hid.estimate import GestureType
 
+#: How long (us) an episode that shows one contact stays undecided: a second finger may land up
+#: to ~100 ms after the first and is seen a window or two later (docs/method.md, "Episode vote").
+FIRST_FINGER_US = 90_000
+#: Within this time (us) of the onset one correction is allowed (libinput's 300 ms).
+CORRECTION_US = 300_000
+
 
 class EpisodeVote:
-    """One gesture decision per gesture episode (not in the paper; docs/method.md, "Episode vote").
+    """One gesture type per gesture episode (docs/method.md, "Episode vote").
 
-    The windows from a gesture's onset (the first window with a gesture) to its end (the next
-    ``none`` window) form an episode. Each window adds its intensity (mm) to the votes of its own
-    type; the episode's decision is the type with the most votes so far, the window's own type on
-    a tie. The first window of an episode is answered with its own type (no added latency at
-    onset); a later window changes the answer only once its type outweighs the others.
+    The windows from a gesture's onset (its first window with a gesture) to its end (the next
+    ``none`` window) form an episode. While its windows have shown at most one contact, for less
+    than ``first_finger_us``, the episode is *undecided* and answers ``none`` (no output for the
+    mapper): a multi-finger gesture whose first finger leads reads as a one-finger push until the
+    next finger moves the gel (paper, "Results"). The type is committed at the first window that
+    sees two contacts or more, or once one contact has held for ``first_finger_us``: the type with
+    the most intensity-weighted votes (mm) since the contact count last changed.
 
-    While the decision is push, a window that sees more contacts than every earlier window of the
-    episode and reads another type restarts the votes from that window. A multi-finger gesture whose
-    first finger leads reads as a one-finger push until the next finger moves the gel (paper,
-    "Results": "multi-finger gestures often exhibit varying intensities across individual
-    fingers"); those push votes were cast on fewer contacts than the gesture has, so they stop
-    counting once the finger they missed is seen.
+    Once committed, each window adds its intensity to its own type's votes and the answer changes
+    only when another type outweighs it, with one exception: within ``correction_us`` of the onset,
+    once per episode, a window that sees more contacts than every earlier window and reads
+    another type is answered at once and the votes restart from it (the fingers seen before were
+    fewer than the gesture has).
+
+    Args:
+        first_finger_us: how long one contact alone stays undecided (us, >= 0).
+        correction_us: how long after the onset the one correction may come (us, >= 0).
     """
 
-    def __init__(self) -> None:
-        self._votes: dict[GestureType, float] = {}
-        self._decision: GestureType | None = None
-        self._most_contacts = 0
+    def __init__(self, first_finger_us: int = FIRST_FINGER_US, correction_us: int = CORRECTION_US) -> None:
+        self.first_finger_us = first_finger_us
+        self.correction_us = correction_us
+        self.reset()
 
     def reset(self) -> None:
         """End the episode (a ``none`` or resting window, or a restart)."""
-        self._votes = {}
-        self._decision = None
-        self._most_contacts = 0
+        self._votes: dict[GestureType, float] = {}
+        self._decision: GestureType | None = None
+        self._onset_us = 0
+        self._count = -1
+        self._count_since_us = 0
+        self._most_contacts = -1
+        self._corrected = False
 
-    def update(self, gesture: GestureType, intensity_mm: float, n_contacts: int = 0) -> GestureType:
-        """The decision after one window of type ``gesture`` with intensity ``intensity_mm`` (mm,
-        >= 0) and ``n_contacts`` contact points (0-3);
-        ``NONE`` ends the episode and is returned as is."""
+    def update(self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int) -> GestureType:
+        """The answer after one window ending at ``t_us`` (us, increasing) of type ``gesture``,
+        intensity ``intensity_mm`` (mm, >= 0) and ``n_contacts`` contact points: the committed
+        type, or ``NONE`` while undecided. A ``NONE`` window ends the episode and is returned as is."""
         if gesture is GestureType.NONE:
             self.reset()
             return gesture
-        if self._decision is GestureType.PUSH and gesture is not GestureType.PUSH and n_contacts > self._most_contacts:
-            self._votes = {}
+        if self._most_contacts < 0:
+            self._onset_us = t_us
+        if n_contacts != self._count:
+            self._count, self._count_since_us = n_contacts, t_us
+            if self._decision is None:
+                self._votes = {}
+        weight = max(float(intensity_mm), 1e-6)
+        if self._decision is None:
+            self._most_contacts = max(self._most_contacts, n_contacts)
+            self._votes[gesture] = self._votes.get(gesture, 0.0) + weight
+            if n_contacts <= 1 and t_us - self._count_since_us < self.first_finger_us:
+                return GestureType.NONE
+            self._decision = max(self._votes, key=self._votes.get)
+            return self._decision
+        if (
+            not self._corrected
+            and gesture is not self._decision
+            and n_contacts > self._most_contacts
+            and t_us - self._onset_us <= self.correction_us
+        ):
+            self._decision, self._corrected, self._votes = gesture, True, {}
         self._most_contacts = max(self._most_contacts, n_contacts)
-        self._votes[gesture] = self._votes.get(gesture, 0.0) + max(float(intensity_mm), 1e-6)
-        best = max(self._votes.values())
-        self._decision = gesture if self._votes[gesture] == best else max(self._votes, key=self._votes.get)
+        self._votes[gesture] = self._votes.get(gesture, 0.0) + weight
+        if self._votes.get(self._decision, 0.0) < max(self._votes.values()):
+            self._decision = max(self._votes, key=self._votes.get)
         return self._decision

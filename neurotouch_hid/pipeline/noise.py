@@ -20,7 +20,7 @@ each with its time parameter in microseconds:
   neuromorphic vision sensors", 2018): it stores the last event per row and per column only
   and keeps an event that has enough supporting neighbours within that time (library docs).
 
-Which one (or none) the pipeline uses is ``PipelineConfig.noise_filter``; by default the
+Which one (or none) the pipeline uses is ``PipelineConfig.noise.kind``; by default the
 background-activity filter with 20 ms (docs/method.md, "Noise filter": on the simulated test
 set at 0.1 Hz per pixel it moves no metric by more than 0.08 point or 0.06 mm, and at 3 Hz per
 pixel it keeps the contact count accuracy at ~86-87 % where the tracker alone falls to ~80 %,
@@ -50,7 +50,7 @@ if TYPE_CHECKING:  # pragma: no cover
     import dv_processing as dv
 
 #: The supported ``dv_processing.noise`` filters and the time parameter (us) each gets when
-#: ``PipelineConfig.noise_filter_us`` is None: the best of each on the simulated tuning set over
+#: ``PipelineConfig.noise.time_us`` is None: the best of each on the simulated tuning set over
 #: 0.1-3 Hz per pixel of background activity (docs/method.md, "Noise filter"; the library's
 #: defaults, 2000 and 10 000 us, drop too many marker events); ``KNoiseFilter``: the library's
 #: 1000 us (it keeps about a third of the marker events at any time tried).
@@ -62,7 +62,7 @@ NOISE_FILTERS: dict[str, int] = {
 
 
 def check_noise_filter(name: str | None, time_us: int | None) -> None:
-    """Validate a filter choice (``PipelineConfig.noise_filter`` / ``noise_filter_us``).
+    """Validate a filter choice (``PipelineConfig.noise``: ``kind`` and ``time_us``).
 
     Args:
         name: None (no filter) or a key of :data:`NOISE_FILTERS`.
@@ -73,13 +73,13 @@ def check_noise_filter(name: str | None, time_us: int | None) -> None:
             is not a positive whole number of microseconds, or a time parameter without a filter.
     """
     if name is not None and name not in NOISE_FILTERS:
-        raise ValueError(f"noise_filter must be None or one of {', '.join(NOISE_FILTERS)}, got {name!r}")
+        raise ValueError(f"noise.kind must be None or one of {', '.join(NOISE_FILTERS)}, got {name!r}")
     if time_us is None:
         return
     if name is None:
-        raise ValueError(f"noise_filter_us={time_us} is set but noise_filter is None (no filter to apply it to)")
+        raise ValueError(f"noise.time_us={time_us} is set but noise.kind is None (no filter to apply it to)")
     if isinstance(time_us, bool) or not isinstance(time_us, (int, np.integer)) or time_us < 1:
-        raise ValueError(f"noise_filter_us must be a whole number of microseconds >= 1 or None, got {time_us!r}")
+        raise ValueError(f"noise.time_us must be a whole number of microseconds >= 1 or None, got {time_us!r}")
 
 
 #: The time stamped on the border of the numba filter's padded time surface: so far in the past

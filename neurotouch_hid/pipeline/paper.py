@@ -47,7 +47,8 @@ class PaperConfig(BaseModel):
             positive one).
         marker_threshold: grey level of marker pixels (0..255); None = Otsu's threshold.
         reference_attempts: how many first APS frames may fail to show a marker grid.
-        tracker: the blob tracker's parameters.
+        tracker: the blob tracker's parameters (mm and us: the product's tracker, at sensor.yaml's
+            scale).
     """
 
     window_us: int = 10_000
@@ -159,7 +160,7 @@ class PaperPipeline(GesturePipeline):
         """An elastic gel: its deformation is the fingers' load."""
         return False
 
-    def _vote(self, gesture: GestureType, intensity_mm: float, n_contacts: int = 0) -> GestureType:
+    def _vote(self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int) -> GestureType:
         """Each window's own type."""
         return gesture
 

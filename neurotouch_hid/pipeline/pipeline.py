@@ -157,10 +157,10 @@ class GesturePipeline:
 
     def _noise_filter(self) -> EventNoiseFilter | None:
         """The noise filter in front of the tracker (docs/method.md, "Noise filter")."""
-        c = self.config
-        if c.noise_filter is None:
+        noise = self.settings.noise
+        if noise.kind is None:
             return None
-        return EventNoiseFilter(c.noise_filter, self.sensor.width, self.sensor.height, c.noise_filter_us)
+        return EventNoiseFilter(noise.kind, self.sensor.width, self.sensor.height, noise.time_us)
 
     # --- inputs -----------------------------------------------------------------------------
     def process(self, item: StreamItem) -> list[GestureEstimate]:
@@ -206,7 +206,7 @@ class GesturePipeline:
         events: on a fresh install that takes seconds, which a real-time run would spend dropping data.
         Later runs load the code from numba's cache. Leaves the pipeline as it was."""
         rest, moved, flat, pinch, events = synthetic_windows(self.sensor)
-        tracker = BlobTracker(rest, self.sensor.width, self.sensor.height, self.config.tracker, sensor=self.sensor)
+        tracker = BlobTracker(rest, self.sensor.width, self.sensor.height, self.settings.tracker, sensor=self.sensor)
         # numba compiles one version per array layout: a one-event batch's fields count as
         # contiguous, a longer batch's are strided views of the structured array; both occur
         tracker.update(events[:1])
@@ -340,7 +340,7 @@ class GesturePipeline:
         self._use_camera_model()
         self._grid_neighbours = grid_neighbours(self.rest_px)
         self.tracker = BlobTracker(
-            self.rest_px, self.sensor.width, self.sensor.height, self.config.tracker, sensor=self.sensor
+            self.rest_px, self.sensor.width, self.sensor.height, self.settings.tracker, sensor=self.sensor
         )
         self.resting_detector = self._resting_detector(frame.image)
         self._resting = RestingResult(True, 0.0)
@@ -349,9 +349,7 @@ class GesturePipeline:
         """A resting detector with ``reference`` as its rest image: the Chamfer distance over the
         markers' centroids (docs/method.md, "Resting"). Raises SensorError when it shows no marker."""
         c = self.config
-        return RestingDetector(
-            reference, self.sensor, c.centroid_threshold, c.marker_threshold, per_marker=True, centroids=True
-        )
+        return RestingDetector(reference, self.sensor, c.centroid_threshold, c.marker_threshold)
 
     def _use_camera_model(self) -> None:
         """Without a model in sensor.yaml: the sensor as fitted to the rest reference's markers
@@ -452,9 +450,10 @@ class GesturePipeline:
         limit = self.config.min_intensity_px
         return largest < 0.0 or largest < limit * limit
 
-    def _vote(self, gesture: GestureType, intensity_mm: float, n_contacts: int = 0) -> GestureType:
-        """The window's type: the episode's decision so far (docs/method.md, "Episode vote")."""
-        return self._episode.update(gesture, intensity_mm, n_contacts)
+    def _vote(self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int) -> GestureType:
+        """The window's type: the episode's committed type, ``none`` while undecided
+        (docs/method.md, "Episode vote")."""
+        return self._episode.update(gesture, intensity_mm, n_contacts, t_us)
 
     def _estimate(self, t_us: int) -> GestureEstimate:
         current = self.tracker.positions_px
@@ -468,7 +467,7 @@ class GesturePipeline:
             return self._none(t_us, resting=False, fed=result.gesture is not GestureType.NONE)
         return GestureEstimate(
             t_us=t_us,
-            gesture=self._vote(result.gesture, result.intensity_mm, len(contacts.points_px)),
+            gesture=self._vote(result.gesture, result.intensity_mm, len(contacts.points_px), t_us),
             resting=False,
             intensity_mm=result.intensity_mm,
             contacts_px=contacts.points_px,
@@ -483,7 +482,7 @@ class GesturePipeline:
         ``fed`` already) a gel below the intensity threshold (taken as 0 px)."""
         if not fed and self._creep is not None:
             self._creep.update(0.0, t_us)
-        self._vote(GestureType.NONE, 0.0)
+        self._vote(GestureType.NONE, 0.0, 0, t_us)
         return GestureEstimate(t_us=t_us, gesture=GestureType.NONE, resting=resting)
 
     def _released(self, intensity_px: float, t_us: int) -> bool:

@@ -39,7 +39,7 @@ over the current centroids P and the reference's Q. A symmetric blob's weighted 
 not move when the light scales it, saturates it or when the threshold takes one ring of pixels
 more or less, so a resting gel gives d ~ 0 under any light; a marker shifted by delta px adds
 2 delta^2 (not ~2 k delta^2 as with its k pixels), so the threshold is on another scale
-(``PipelineConfig.centroid_threshold``). A marker lost or split adds about its distance to the
+(``PipelineConfig.resting.centroid_threshold_mm2``). A marker lost or split adds about its distance to the
 nearest centroid squared (a pitch, ~100 px^2 at 2.5 px/mm) over n_markers. Cost per frame: one
 connected-components pass over the gel's bounding box (OpenCV) and the centroid sums and the
 (P x Q) nearest distances (~177^2) in numba, all without the GIL, so a resting thread does not
@@ -55,6 +55,7 @@ import numba
 import numpy as np
 
 from neurotouch_hid.errors import SensorError
+from neurotouch_hid.pipeline.config import RestingConfig
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import Frame
 
@@ -80,19 +81,25 @@ class RestingResult:
 
 
 class RestingDetector:
-    """Chamfer-distance resting detector (paper, section "Resting Position Detection").
+    """Chamfer-distance resting detector (paper, section "Resting Position Detection";
+    docs/method.md, "Resting"). Its defaults are the product's method: the distance over the
+    markers' centroids, per marker, at the product's threshold; the paper's (the raw sum over
+    marker pixels, threshold 2.5) is :class:`~neurotouch_hid.pipeline.paper.PaperPipeline`'s.
 
     Args:
         reference: uint8 (height, width) APS frame of the gel at rest, image frame.
-        sensor: the geometry (image size, gel disc: pixels outside it are ignored).
-        threshold: Chamfer distance at or below which the gel rests (px^2); paper: 2.5.
+        sensor: the geometry (image size, gel disc: pixels outside it are ignored; its px_per_mm
+            converts the default threshold).
+        threshold: Chamfer distance at or below which the gel rests (px^2); None: the product's,
+            ``RestingConfig.centroid_threshold_mm2`` (mm^2) at the sensor's px_per_mm; the paper's
+            raw sum over pixels: 2.5.
         binary_threshold: grey level above which a pixel is a marker pixel (0..255); None =
             Otsu's threshold over the reference's gel disc, computed once and kept.
         per_marker: True: the distance is divided by the reference's number of markers (module
             docstring); False: the paper's raw sum (px^2).
-        centroids: True: the distance is taken over the markers' weighted centroids instead of
-            their pixels (module docstring, "Marker centroids"; not in the paper); per marker
-            whatever ``per_marker`` says.
+        centroids: True: the distance is taken over the markers' weighted centroids (module
+            docstring, "Marker centroids"; not in the paper); False: over their pixels (the
+            paper's); per marker whatever ``per_marker`` says.
     Attributes:
         n_markers: number of markers (8-connected marker-pixel regions) of the reference.
     Raises:
@@ -104,12 +111,15 @@ class RestingDetector:
         self,
         reference: np.ndarray,
         sensor: SensorGeometry,
-        threshold: float = 2.5,
+        threshold: float | None = None,
         binary_threshold: int | None = None,
         per_marker: bool = True,
-        centroids: bool = False,
+        centroids: bool = True,
     ) -> None:
         self.sensor = sensor
+        if threshold is None:
+            s = sensor.px_per_mm
+            threshold = RestingConfig().centroid_threshold_mm2 * s * s
         self.threshold = float(threshold)
         self.per_marker = bool(per_marker)
         self.centroids = bool(centroids)

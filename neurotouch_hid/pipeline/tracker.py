@@ -12,11 +12,11 @@ that linear filter, per blob and per event:
   velocity decays with time constant ``velocity_tau_us`` (a blob that stops producing events has
   stopped moving), process noise scaled by dt, at most ``max_gap_us`` (a pause in a blob's
   events is evidence that it stands still, not growing uncertainty);
-* measurement: the event's pixel, H = [1, 0, +-1], noise Lambda^2 = ``sigma_px``^2;
-* constraint: |q| <= ``max_offset_px`` (about the marker's radius), enforced by projection after
+* measurement: the event's pixel, H = [1, 0, +-1], noise Lambda^2, Lambda = ``sigma_mm`` in px;
+* constraint: |q| <= ``max_offset_mm`` (about the marker's radius), enforced by projection after
   each update.
 
-The prediction's advance between two events of a blob is capped at ``max_step_px`` (a marker moves
+The prediction's advance between two events of a blob is capped at ``max_step_mm`` (a marker moves
 a fraction of a pixel between two of its events), which keeps the filter linear in practice.
 
 The x and y axes share one 3x3 covariance: the model is isotropic and both axes see the same
@@ -24,14 +24,14 @@ measurements, so their covariances are equal at all times (half the arithmetic).
 
 Association: each event goes to the blob that owns its pixel in a label image (per-pixel lookup,
 O(1) per event, no scan of the blobs). There is one label image per polarity: a blob owns the
-pixels within ``assoc_px`` of where it expects its events of that polarity (p + q for ON, p - q
+pixels within ``assoc_mm`` of where it expects its events of that polarity (p + q for ON, p - q
 for OFF), nearest blob first, so a neighbour's leading edge does not steal a blob's trailing
 events when markers are squeezed together under a finger. A blob's ownership is repainted when
 p +- q has moved 1 px from where it was painted. Events on pixels no blob owns are noise and
 are skipped. A per-blob event-rate gate skips isolated events (background-activity noise near a
 blob at rest): an event updates its blob only when the blob's leaky event count (time constant
 ``rate_tau_us``) reaches ``min_rate_count``. After each batch, a blob is lost (``valid`` False,
-no longer updated) when it has left the gel circle or come within ``merge_px`` of another blob
+no longer updated) when it has left the gel circle or come within ``merge_mm`` of another blob
 (then both are). The pipeline re-initialises the tracker at rest with :meth:`BlobTracker.reset`
 (paper, section Resting Position Detection). Optionally, :meth:`BlobTracker.correct` fuses the
 markers detected on an APS frame (not in the paper; see docs/method.md, "Tracker").
@@ -43,6 +43,7 @@ positions.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict
@@ -71,37 +72,41 @@ from neurotouch_hid.sources import EVENT_DTYPE
 
 
 class TrackerConfig(BaseModel):
-    """Parameters of :class:`BlobTracker` (units: px, microseconds; velocities px/ms). A pydantic
-    model: a value of the wrong type, or an unknown field, raises ``pydantic.ValidationError``
-    (a ValueError) naming the field.
+    """Parameters of :class:`BlobTracker` in units on the gel: lengths in mm, the filter's
+    variances in um^2 (velocities in um/ms, i.e. mm/s), times in microseconds; converted to the
+    image's pixels with the sensor's px_per_mm (:meth:`in_pixels`: lengths times px_per_mm,
+    variances times (px_per_mm / 1000)^2). A pydantic model: a value of the wrong
+    type, or an unknown field, raises ``pydantic.ValidationError`` (a ValueError) naming the field.
+    The reasons for the values: docs/method.md, "Tracker".
 
     Attributes:
-        sigma_px: fixed blob size Lambda (px); the measurement noise is sigma_px^2.
-        assoc_px: association threshold (px): an event can update a blob only within this distance
+        sigma_mm: fixed blob size Lambda (mm); the measurement noise is its square.
+        assoc_mm: association threshold (mm): an event can update a blob only within this distance
             of the pixel where the blob expects events of its polarity (p +- q, repainted with a
-            1 px hysteresis). Below half the marker spacing (~10 px).
-        q_pos: position process noise (px^2 per ms).
-        q_vel: velocity process noise ((px/ms)^2 per ms).
-        q_offset: polarity-offset process noise (px^2 per ms).
-        p0_pos, p0_vel, p0_offset: initial variances (px^2, (px/ms)^2, px^2) at init/reset.
+            1 px hysteresis). Below half the marker spacing (4 mm).
+        q_pos_um2: position process noise (um^2 per ms).
+        q_vel_um2: velocity process noise ((um/ms)^2 per ms).
+        q_offset_um2: polarity-offset process noise (um^2 per ms).
+        p0_pos_um2, p0_vel_um2, p0_offset_um2: initial variances (um^2, (um/ms)^2, um^2) at
+            init/reset.
         velocity_tau_us: time constant of the velocity's decay between a blob's events (us).
-        max_step_px: largest move (px) the velocity may predict between two events of a blob.
+        max_step_mm: largest move (mm) the velocity may predict between two events of a blob.
         rate_tau_us: time constant of the per-blob leaky event count (us).
         min_rate_count: leaky event count a blob needs for an event to update it (1 = no gate).
-        frame_gate_px: :meth:`BlobTracker.correct` matches a blob to an APS-frame detection only
-            within this distance (px).
-        frame_sigma_px: noise of an APS-frame detection (px) in :meth:`BlobTracker.correct`.
+        frame_gate_mm: :meth:`BlobTracker.correct` matches a blob to an APS-frame detection only
+            within this distance (mm).
+        frame_sigma_mm: noise of an APS-frame detection (mm) in :meth:`BlobTracker.correct`.
         frame_motion_us: time over which an APS frame integrates motion (its exposure, us): a
             blob moving at v px/us adds (v * frame_motion_us)^2 to the detection's noise.
-        merge_px: two blobs closer than this are both lost.
-        gel_margin_px: a blob farther than gel radius + margin from the gel centre is lost.
-        max_offset_px: largest length (px) of the polarity offset q: an ON event cannot lead a
-            marker's centre by more than its radius (1 mm marker, 1.25 px at 2.5 px/mm) plus its
-            blurred edge. After each update a longer q is shortened to this length (projection
-            onto the constraint). Without it (0 = no bound), q and p drift apart along their
-            weakly observed directions during a held gesture (few events, mostly of one
-            polarity), and a blob squeezed ~4 px from its neighbours slides onto a neighbour's
-            marker (docs/method.md, "Tracker").
+        merge_mm: two blobs closer than this (mm) are both lost.
+        gel_margin_mm: a blob farther than gel radius + margin (mm) from the gel centre is lost.
+        max_offset_mm: largest length (mm) of the polarity offset q: an ON event cannot lead a
+            marker's centre by more than its radius (1 mm marker) plus its blurred edge. After
+            each update a longer q is shortened to this length (projection onto the constraint).
+            Without it (0 = no bound), q and p drift apart along their weakly observed directions
+            during a held gesture (few events, mostly of one polarity), and a blob squeezed
+            ~1.6 mm from its neighbours slides onto a neighbour's marker (docs/method.md,
+            "Tracker").
         max_gap_us: the process noise of a prediction over a longer pause in a blob's events is
             that of this pause (us; 0 = no bound). A marker that moves makes events: a pause says
             it did not move, so its uncertainty must not keep growing. Without the bound, the
@@ -111,25 +116,82 @@ class TrackerConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    sigma_px: float = 1.0
-    assoc_px: float = 4.0
-    q_pos: float = 3e-4
-    q_vel: float = 1e-4
-    q_offset: float = 3e-2
-    p0_pos: float = 0.1
-    p0_vel: float = 1e-2
-    p0_offset: float = 0.5
+    sigma_mm: float = 0.4
+    assoc_mm: float = 1.6
+    q_pos_um2: float = 48.0
+    q_vel_um2: float = 16.0
+    q_offset_um2: float = 4800.0
+    p0_pos_um2: float = 16_000.0
+    p0_vel_um2: float = 1600.0
+    p0_offset_um2: float = 80_000.0
     velocity_tau_us: float = 10_000.0
-    max_step_px: float = 0.25
+    max_step_mm: float = 0.1
     rate_tau_us: float = 1_000.0
     min_rate_count: float = 2.0
-    frame_gate_px: float = 1.5
-    frame_sigma_px: float = 0.1
+    frame_gate_mm: float = 0.6
+    frame_sigma_mm: float = 0.04
     frame_motion_us: float = 4_000.0
-    merge_px: float = 2.0
-    gel_margin_px: float = 4.0
-    max_offset_px: float = 1.5
+    merge_mm: float = 0.8
+    gel_margin_mm: float = 1.6
+    max_offset_mm: float = 0.6
     max_gap_us: float = 10_000.0
+
+    def in_pixels(self, px_per_mm: float) -> "TrackerPixels":
+        """These settings in the image's pixels at ``px_per_mm`` (lengths px, variances px^2,
+        velocities px/ms, times us)."""
+        s = px_per_mm
+
+        def variance(um2: float) -> float:  # um^2 -> px^2 (exact at 2.5 px/mm for the defaults)
+            return um2 * s * s / 1e6
+
+        return TrackerPixels(
+            sigma_px=self.sigma_mm * s,
+            assoc_px=self.assoc_mm * s,
+            q_pos=variance(self.q_pos_um2),
+            q_vel=variance(self.q_vel_um2),
+            q_offset=variance(self.q_offset_um2),
+            p0_pos=variance(self.p0_pos_um2),
+            p0_vel=variance(self.p0_vel_um2),
+            p0_offset=variance(self.p0_offset_um2),
+            velocity_tau_us=self.velocity_tau_us,
+            max_step_px=self.max_step_mm * s,
+            rate_tau_us=self.rate_tau_us,
+            min_rate_count=self.min_rate_count,
+            frame_gate_px=self.frame_gate_mm * s,
+            frame_sigma_px=self.frame_sigma_mm * s,
+            frame_motion_us=self.frame_motion_us,
+            merge_px=self.merge_mm * s,
+            gel_margin_px=self.gel_margin_mm * s,
+            max_offset_px=self.max_offset_mm * s,
+            max_gap_us=self.max_gap_us,
+        )
+
+
+@dataclass(frozen=True)
+class TrackerPixels:
+    """:class:`TrackerConfig` in the image's pixels at one scale (:meth:`TrackerConfig.in_pixels`):
+    what :class:`BlobTracker` runs on. Same fields with ``_px`` for ``_mm``; ``q_*`` and ``p0_*``
+    in px^2 (velocities px/ms)."""
+
+    sigma_px: float
+    assoc_px: float
+    q_pos: float
+    q_vel: float
+    q_offset: float
+    p0_pos: float
+    p0_vel: float
+    p0_offset: float
+    velocity_tau_us: float
+    max_step_px: float
+    rate_tau_us: float
+    min_rate_count: float
+    frame_gate_px: float
+    frame_sigma_px: float
+    frame_motion_us: float
+    merge_px: float
+    gel_margin_px: float
+    max_offset_px: float
+    max_gap_us: float
 
 
 class BlobTracker:
@@ -139,16 +201,19 @@ class BlobTracker:
         initial_px: (N, 2) float, initial marker positions (x, y), image frame, px (from
             :func:`neurotouch_hid.pipeline.markers.detect_markers` on an APS frame at rest).
         width, height: image size (px).
-        config: :class:`TrackerConfig` (defaults if None).
-        sensor: when given, a blob farther than the gel radius + ``config.gel_margin_px`` from the
-            gel centre is lost; without it, only a blob beyond the image's circumscribed circle is
-            (a blob outside the image owns no pixel and gets no events).
+        config: :class:`TrackerConfig` (mm; the product's defaults if None).
+        sensor: its ``px_per_mm`` converts ``config`` to pixels, and a blob farther than the gel
+            radius + ``config.gel_margin_mm`` from the gel centre is lost. Without it: the default
+            :class:`~neurotouch_hid.sensor.SensorGeometry`'s scale, and only a blob beyond the
+            image's circumscribed circle is lost (a blob outside the image owns no pixel and gets
+            no events).
 
     Attributes:
         positions_px: (N, 2) float64 current positions, image frame, px (a copy).
         valid: (N,) bool, False for a lost marker (a copy).
         velocities_px_per_s: (N, 2) float64 current velocity estimates, px/s (a copy).
         counts: dict of event counters since construction: applied, gated (rate gate), noise.
+        config: the :class:`TrackerConfig` (mm); ``pixels``: it at the sensor's scale.
     """
 
     def __init__(
@@ -163,9 +228,9 @@ class BlobTracker:
         self.config = config or TrackerConfig()
         self.width = int(width)
         self.height = int(height)
-        c = self.config
-        if not 0 < c.assoc_px:
-            raise ValueError(f"TrackerConfig.assoc_px must be positive, got {c.assoc_px}")
+        if not 0 < self.config.assoc_mm:
+            raise ValueError(f"TrackerConfig.assoc_mm must be positive, got {self.config.assoc_mm}")
+        self.pixels = c = self.config.in_pixels((sensor or SensorGeometry()).px_per_mm)
         if sensor is not None:
             cx, cy = sensor.gel_center_px
             r = sensor.gel_radius_px + c.gel_margin_px
@@ -207,7 +272,7 @@ class BlobTracker:
         if p.ndim != 2 or p.shape[1] != 2 or not np.all(np.isfinite(p)):
             raise ValueError(f"positions_px must be a finite (N, 2) array, got shape {p.shape}")
         n = len(p)
-        c = self.config
+        c = self.pixels
         self._state = np.zeros((n, 6), dtype=np.float64)
         self._state[:, :2] = p
         self._cov = np.zeros((n, 6), dtype=np.float64)
@@ -234,9 +299,9 @@ class BlobTracker:
         Between events a blob's position is a running average of its recent events, which lags
         a little behind a marker that has just stopped, and a held gesture makes no more events
         to correct it. The APS frame shows the markers where they are: each valid blob whose
-        nearest detection is within ``config.frame_gate_px``, is nearest to no other blob and has
+        nearest detection is within ``config.frame_gate_mm``, is nearest to no other blob and has
         no other blob within twice that distance (two squeezed markers seen as one), gets a Kalman
-        position update from it, with noise ``config.frame_sigma_px``^2 plus the blur of its
+        position update from it, with noise ``config.frame_sigma_mm``^2 plus the blur of its
         motion over ``config.frame_motion_us``. Call it with the frame's marker centroids when
         the frame arrives (the stream yields it before the events at or after its timestamp):
         :func:`~neurotouch_hid.pipeline.markers.detect_markers`'s, or the resting detector's
@@ -253,8 +318,8 @@ class BlobTracker:
         n = len(self._state)
         if n == 0 or len(det) == 0:
             return 0
-        match = _frame_matches(self._state, self._valid, det, self.config.frame_gate_px**2)
-        c = self.config
+        c = self.pixels
+        match = _frame_matches(self._state, self._valid, det, c.frame_gate_px**2)
         t = -1 if t_us is None else int(t_us)
         _correct(
             det,

@@ -10,7 +10,7 @@ import threading
 import time
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Iterator, Union
+from typing import Callable, Iterator, Union
 
 import numpy as np
 
@@ -67,24 +67,35 @@ class Pacer:
     (``time.perf_counter_ns``) from the first item on, as a camera delivers them. One pacing
     rule for the runtime (recordings and the simulated gel, ``run``) and for ``record``.
 
+    Args:
+        clock: the clock (ns) items are paced on; ``time.perf_counter_ns``, or one a test controls.
+        sleep: ``sleep(stop, seconds)`` waits up to ``seconds`` on ``clock`` or until ``stop`` is
+            set, returning whether it was; None = ``stop.wait(seconds)`` (wall time).
+
     Attributes:
         first_us: the first item's timestamp (us), the anchor; None before the first item.
-        first_ns: ``perf_counter_ns`` when the first item was seen (0 before).
+        first_ns: ``clock()`` when the first item was seen (0 before).
     """
 
-    def __init__(self) -> None:
+    def __init__(
+        self,
+        clock: Callable[[], int] = time.perf_counter_ns,
+        sleep: Callable[[threading.Event, float], bool] | None = None,
+    ) -> None:
         self.first_us: int | None = None
         self.first_ns = 0
+        self._clock = clock
+        self._sleep = sleep if sleep is not None else lambda stop, seconds: stop.wait(seconds)
 
     def due_ns(self, t_us: int) -> int:
-        """The ``perf_counter_ns`` at which an item stamped ``t_us`` is due; the first call
+        """The ``clock()`` (ns) at which an item stamped ``t_us`` is due; the first call
         anchors the clock at ``t_us`` = now."""
         if self.first_us is None:
-            self.first_us, self.first_ns = t_us, time.perf_counter_ns()
+            self.first_us, self.first_ns = t_us, self._clock()
         return self.first_ns + (t_us - self.first_us) * 1000
 
     def wait(self, t_us: int, stop: threading.Event) -> bool:
         """Sleep until an item stamped ``t_us`` is due, or until ``stop`` is set; returns
         whether ``stop`` was set (the caller then stops)."""
-        delay_ns = self.due_ns(t_us) - time.perf_counter_ns()
-        return delay_ns > 0 and stop.wait(delay_ns / 1e9)
+        delay_ns = self.due_ns(t_us) - self._clock()
+        return delay_ns > 0 and self._sleep(stop, delay_ns / 1e9)

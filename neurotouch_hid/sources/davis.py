@@ -37,7 +37,7 @@ from __future__ import annotations
 import datetime
 import time
 from dataclasses import dataclass
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.sources import Frame, SourceStatus, StatusKind, StreamItem
@@ -126,6 +126,9 @@ class DavisSource:
         noise_filter: an :class:`~neurotouch_hid.pipeline.noise.EventNoiseFilter` run on the
             camera's own event stores before they become numpy batches (no copy: the pipeline's
             noise filter then stays off, ``driver.build_pipeline``), or None.
+        clock, sleep: the monotonic clock (s) that times the stream, stalls and outages, and how
+            to wait on it; ``time.monotonic`` and ``time.sleep``, or a clock a test controls
+            together with ``backend``.
 
     Raises:
         DeviceError: (unless ``wait``) no DAVIS camera can be opened: none on USB, no permission
@@ -135,7 +138,14 @@ class DavisSource:
     """
 
     def __init__(
-        self, config: DavisConfig | None = None, *, wait: bool = False, backend: Any = None, noise_filter: Any = None
+        self,
+        config: DavisConfig | None = None,
+        *,
+        wait: bool = False,
+        backend: Any = None,
+        noise_filter: Any = None,
+        clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
     ) -> None:
         if backend is None:
             import dv_processing as dv
@@ -144,6 +154,7 @@ class DavisSource:
         self.config = config or DavisConfig()
         self._backend = backend
         self._noise = noise_filter
+        self._clock, self._sleep = clock, sleep
         self._camera: Any = None
         self.camera_name: str | None = None
         self.has_frames = False
@@ -262,10 +273,10 @@ class DavisSource:
                 stalls before ``seconds`` are over.
         """
         cfg = self.config
-        deadline = None if seconds is None else time.monotonic() + seconds
+        deadline = None if seconds is None else self._clock() + seconds
 
         def remaining() -> float:
-            return float("inf") if deadline is None else deadline - time.monotonic()
+            return float("inf") if deadline is None else deadline - self._clock()
 
         delays = backoff_delays(cfg.retry_initial_s, cfg.retry_max_s)
         lost_since: float | None = None  # monotonic time the current outage began
@@ -274,19 +285,19 @@ class DavisSource:
             if not reconnect:
                 self._open_or_raise()
             else:
-                lost_since = time.monotonic()
+                lost_since = self._clock()
                 yield SourceStatus(
                     StatusKind.WAITING, f"waiting for a DAVIS-346 ({_fix_hint(cfg.serial)}); Ctrl-C stops"
                 )
-        last_data = time.monotonic()
+        last_data = self._clock()
         while remaining() > 0:
             if self._camera is None:  # in an outage: try again after the back-off
                 if self._try_open() is not None:
-                    time.sleep(max(0.0, min(next(delays), remaining())))
+                    self._sleep(max(0.0, min(next(delays), remaining())))
                     continue
-                last_data = time.monotonic()
+                last_data = self._clock()
             items, failure = self._read()
-            now = time.monotonic()
+            now = self._clock()
             if items:
                 if lost_since is not None:
                     what = "found" if never_opened else "is back"
@@ -308,7 +319,7 @@ class DavisSource:
             if failure is None and now - last_data > cfg.stall_timeout_s:
                 failure = f"sent no data for {now - last_data:.1f} s (stalled)"
             if failure is None:
-                time.sleep(_IDLE_SLEEP_S)
+                self._sleep(_IDLE_SLEEP_S)
                 continue
             name = self.camera_name
             self.close()
@@ -323,4 +334,4 @@ class DavisSource:
                     f"camera {name} {failure}: gamepad centred and released; "
                     f"trying to reopen it (back-off up to {cfg.retry_max_s:g} s)",
                 )
-            time.sleep(max(0.0, min(next(delays), remaining())))
+            self._sleep(max(0.0, min(next(delays), remaining())))

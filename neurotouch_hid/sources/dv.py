@@ -44,7 +44,7 @@ def store_from_events(events: np.ndarray) -> "dv.EventStore":
 
     dv-processing 2.0.4 has no constructor from numpy, and ``EventStore.numpy()`` returns a
     copy (no writable view), so events go in one ``push_back`` call each, driven by ``map`` over
-    column lists: about 3 M events/s (docs/performance.md, Recording I/O).
+    column lists: about 3 M events/s (docs/performance.md, "Recording I/O").
     """
     import dv_processing as dv
 

@@ -4,7 +4,7 @@ Reading goes through the ``aedat`` package (a decoder written in Rust, memory-sa
 file gives an error, never a hang or a crash) and writing through dv-processing's
 ``MonoCameraWriter`` (iniVation's own library, the format DV records; docs/dataset.md, section
 SEQUENCE.aedat4). dv-processing 2.0's reader can hang for ever in LZ4 decompression or crash on
-a damaged file (docs/performance.md, Damaged recordings, has the measurements and the choice).
+a damaged file (docs/performance.md, "Recording I/O", has the measurements and the choice).
 This module adds:
 
 - one clear :class:`~neurotouch_hid.errors.RecordingError` per bad file (missing, not AEDAT4,
@@ -224,7 +224,7 @@ class RecordingReader:
     or hang on damaged data: a packet that does not decompress, or whose events are out of the
     sensor or out of time order, is skipped (numba's pipeline must never index with them), the
     rest is read, and :meth:`stream` raises one RecordingError after yielding everything
-    readable. A file cut short is read up to the cut (docs/performance.md, Damaged recordings).
+    readable. A file cut short is read up to the cut (docs/performance.md, "Recording I/O").
 
     Args:
         path: the ``.aedat4`` file.

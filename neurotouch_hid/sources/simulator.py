@@ -53,7 +53,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterable, Iterator, Sequence
 
@@ -116,6 +116,10 @@ RIM_CLAMP = 1.0
 RIM_EASE_MM = 6.0
 #: How long after its release a gesture still deforms the gel, in creep time constants.
 CREEP_SPAN_TAUS = 7.0
+#: Spread (sigma of the log) of a user's gesture strengths about the median for the type.
+STRENGTH_SIGMA = 0.55
+#: Distance of a multi-finger gesture's fingers from their centre (mm, uniform in this range).
+FINGER_SPREAD_MM = (9.0, 15.0)
 #: Time step (us) of a viscoelastic gel's deformation history (SimGesture.profile).
 SLS_STEP_US = 1000
 
@@ -159,17 +163,19 @@ USERS: tuple[SimUser, ...] = (
 #: Users of evaluations (paper preset, even seeds) and of tuning (paper preset, odd seeds).
 TEST_USERS: tuple[int, ...] = (0, 1, 2, 3, 4)
 TUNING_USERS: tuple[int, ...] = (5, 6, 7, 8, 9)
-#: Dataset presets: simulated seconds per sequence (one sequence per user and gesture type).
-PRESET_SECONDS: dict[str, float] = {"quick": 3.0, "paper": 60.0}
+#: Dataset presets: simulated seconds per sequence (``quick``, ``paper``: one sequence per user
+#: and gesture type; ``sessions``: one game session per user, :func:`gesture_script` with ``session``).
+PRESET_SECONDS: dict[str, float] = {"quick": 3.0, "paper": 60.0, "sessions": 10.0}
 
 
 def preset_users(preset: str, seed: int) -> tuple[int, ...]:
     """The user ids a preset simulates for a seed.
 
-    ``paper``: the 5 test users (0-4) for an even seed, the 5 tuning users (5-9) for an odd seed.
-    ``quick``: one user, ``seed % 10``. Raises NeurotouchError for an unknown preset.
+    ``paper`` and ``sessions``: the 5 test users (0-4) for an even seed, the 5 tuning users (5-9)
+    for an odd seed. ``quick``: one user, ``seed % 10``. Raises NeurotouchError for an unknown
+    preset.
     """
-    if preset == "paper":
+    if preset in ("paper", "sessions"):
         return TEST_USERS if seed % 2 == 0 else TUNING_USERS
     if preset == "quick":
         return (seed % len(USERS),)
@@ -542,6 +548,7 @@ def draw_gesture(
     sensor: SensorGeometry,
     physics: Physics = PHYSICS["default"],
     physics_rng: np.random.Generator | None = None,
+    steady: bool = False,
 ) -> SimGesture:
     """Draw one gesture of ``user`` starting at ``t_start_us`` (us): fingers, intensity, speed.
 
@@ -553,6 +560,12 @@ def draw_gesture(
     A family that changes the gestures (:attr:`Physics.changes_gestures`: ``strong``, ``drift``,
     ``fingers``) draws its changes from ``physics_rng`` after the default draws from ``rng``, so
     that the default family's gestures stay what they were.
+
+    ``steady``: every gesture of a type as strong as the next, firmly (one :data:`STRENGTH_SIGMA`
+    above the user's median for the type, within the narrowest finger spread's cap for pinch and
+    zoom), so that the two twists and the push directions weigh the same and a profile's
+    saturations are reached (the live simulated hand, :class:`SimulatedSource`); the same draws
+    are made, so nothing else changes.
     """
     prng = physics_rng if physics_rng is not None else np.random.default_rng(0)
     if gesture is GestureType.PUSH:
@@ -561,7 +574,10 @@ def draw_gesture(
         n_fingers = int(rng.choice([2, 3], p=[0.65, 0.35]))
     finger = user.finger_mm * rng.uniform(0.9, 1.1)
     factor = {GestureType.PUSH: 1.2, GestureType.ZOOM: 0.7}.get(gesture, 0.85)
-    amplitude = float(np.clip(rng.lognormal(math.log(user.intensity_mm * factor), 0.55), 0.8, MAX_INTENSITY_MM))
+    median = user.intensity_mm * factor
+    amplitude = float(np.clip(rng.lognormal(math.log(median), STRENGTH_SIGMA), 0.8, MAX_INTENSITY_MM))
+    if steady:
+        amplitude = min(median * math.exp(STRENGTH_SIGMA), MAX_INTENSITY_MM)
     if physics.strong > 0 and prng.random() < physics.strong:
         amplitude = float(prng.uniform(12.0, 20.0))
     bias = sensor.vectors_image_to_user(np.array([user.bias_mm * sensor.px_per_mm, 0.0]))
@@ -574,14 +590,14 @@ def draw_gesture(
         offsets = (np.arange(n_fingers) - (n_fingers - 1) / 2)[:, None] * across * rng.uniform(14.0, 18.0)
     else:
         direction = np.zeros(2)
-        spread = rng.uniform(9.0, 15.0)
+        spread = rng.uniform(*FINGER_SPREAD_MM)
         angles = rng.uniform(0, 2 * math.pi) + 2 * math.pi * np.arange(n_fingers) / n_fingers
         angles += rng.normal(0.0, 0.15, n_fingers)
         offsets = spread * np.stack([np.cos(angles), np.sin(angles)], axis=1)
         cap = {GestureType.PINCH: 0.55, GestureType.ZOOM: 0.5}.get(gesture, 1.2) * spread
         if physics.strong > 0:  # very strong pinches and zooms: the fingers travel further
             cap = {GestureType.PINCH: 0.7, GestureType.ZOOM: 0.65}.get(gesture, 1.2) * spread
-        amplitude = min(amplitude, cap)
+        amplitude = min(amplitude, cap * FINGER_SPREAD_MM[0] / spread if steady else cap)
     reach = float(np.linalg.norm(offsets, axis=1).max())
     # the centre: Gaussian about the (biased) gel centre, kept so that fingers stay off the rim
     room = max(0.0, limit - reach - (amplitude if gesture in (GestureType.PUSH, GestureType.ZOOM) else 0.0))
@@ -657,18 +673,135 @@ def gesture_script(
     first_rest_us: int = 600_000,
     physics: Physics = PHYSICS["default"],
     physics_rng: np.random.Generator | None = None,
+    steady: bool = False,
+    session: bool = False,
 ) -> Iterator[SimGesture]:
-    """An endless succession of gestures of ``user``, cycling through ``gestures``, separated by
-    rests (the first starts ``first_rest_us`` after ``start_us``), drawn for the family
-    ``physics`` (:func:`draw_gesture`)."""
+    """An endless succession of gestures of ``user`` drawn for the family ``physics`` (the first
+    starts ``first_rest_us`` after ``start_us``): cycling through ``gestures``
+    (:func:`draw_gesture`, ``steady`` or not), each after the previous one has settled and a rest
+    (:func:`draw_rest_us`); or, with ``session``, a game session: the type changes from one
+    gesture to the next, taps, ordinary gestures and long holds (:func:`session_gesture`), rests
+    of a fraction of a second (:data:`SESSION_REST_US`, from the release's end: the gel may
+    still creep back when the next gesture begins)."""
     order = list(gestures)
     t = start_us + first_rest_us
-    k = 0
+    k, previous = 0, None
     while True:
-        g = draw_gesture(rng, user, order[k % len(order)], t, sensor, physics, physics_rng)
+        if session:
+            g = session_gesture(rng, user, order, previous, t, sensor, physics, physics_rng)
+        else:
+            g = draw_gesture(rng, user, order[k % len(order)], t, sensor, physics, physics_rng, steady)
         yield g
-        t = g.t_settled_us + draw_rest_us(rng, user)
-        k += 1
+        previous, k = g.gesture, k + 1
+        t = g.t_end_us + int(rng.uniform(*SESSION_REST_US)) if session else g.t_settled_us + draw_rest_us(rng, user)
+
+
+# --- game sessions ----------------------------------------------------------------------------
+#: How long the gestures of a game session last, and how often: a tap (attack start to release
+#: end, us), an ordinary gesture (:func:`draw_gesture`'s timing) or a long hold (the hold alone, us).
+SESSION_KINDS: dict[str, float] = {"tap": 0.3, "ordinary": 0.45, "hold": 0.25}
+TAP_US = (250_000, 500_000)
+LONG_HOLD_US = (2_500_000, 5_000_000)
+#: A session's rests: from a gesture's release end (the fingers have left) to the next attack (us).
+SESSION_REST_US = (150_000, 700_000)
+#: Sessions' random streams start here (stream_seed (user, SESSION_STREAM + k)), apart from the
+#: per-gesture sequences' (user, 0..4).
+SESSION_STREAM = 100
+
+
+def session_gesture(
+    rng: np.random.Generator,
+    user: SimUser,
+    gestures: Sequence[GestureType],
+    previous: GestureType | None,
+    t_start_us: int,
+    sensor: SensorGeometry,
+    physics: Physics = PHYSICS["default"],
+    physics_rng: np.random.Generator | None = None,
+) -> SimGesture:
+    """One gesture of a game session: a type other than ``previous`` (drawn uniformly among
+    ``gestures``; the same only when there is one type), drawn by :func:`draw_gesture`, then made
+    a tap, an ordinary gesture or a long hold (:data:`SESSION_KINDS`).
+
+    A tap lasts :data:`TAP_US` from attack start to release end (attack 35 %, hold 30 %, release
+    35 %); its intensity is capped so that the attack stays under :data:`MAX_SPEED_MM_S`. A long
+    hold holds for :data:`LONG_HOLD_US`. A lagging finger's lag (the ``fingers`` family) scales
+    with the attack.
+    """
+    choices = [g for g in gestures if g is not previous] or list(gestures)
+    kind = choices[int(rng.integers(len(choices)))]
+    g = draw_gesture(rng, user, kind, t_start_us, sensor, physics, physics_rng)
+    names = list(SESSION_KINDS)
+    length = names[int(rng.choice(len(names), p=list(SESSION_KINDS.values())))]
+    if length == "tap":
+        total = rng.uniform(*TAP_US)
+        attack, hold = int(0.35 * total), int(0.3 * total)
+        amplitude = min(g.amplitude_mm, 2.0 * MAX_SPEED_MM_S * attack * 1e-6 / math.pi)
+        lags = tuple(int(lag * attack / g.attack_us) for lag in g.lags_us)
+        return replace(
+            g,
+            attack_us=attack,
+            hold_us=hold,
+            release_us=int(total) - attack - hold,
+            amplitude_mm=amplitude,
+            lags_us=lags,
+        )
+    if length == "hold":
+        return replace(g, hold_us=int(rng.uniform(*LONG_HOLD_US)))
+    return g
+
+
+#: The guided hand (:func:`guided_gesture`): a push's travel, a pinch's, zoom's and twist's
+#: finger travel (mm; the same for both twists, so neither reads weaker), its two fingers' distance
+#: from the gel's centre (mm), and its attack, hold and release (us).
+GUIDED_PUSH_MM = 4.0
+GUIDED_TRAVEL_MM = 3.0
+GUIDED_SPREAD_MM = 8.0
+GUIDED_PHASES_US = (300_000, 900_000, 300_000)
+
+
+def guided_gesture(
+    gesture: GestureType, t_start_us: int, direction: Sequence[float] = (0.0, 1.0), user: SimUser = USERS[0]
+) -> SimGesture:
+    """The gesture a calibration asks for, as a steady hand performs it: one finger at the gel's
+    centre pushing :data:`GUIDED_PUSH_MM` towards ``direction`` (user frame, normalised), or two
+    fingers :data:`GUIDED_SPREAD_MM` left and right of the centre moving :data:`GUIDED_TRAVEL_MM`
+    (pinch, zoom, twist either way); :data:`GUIDED_PHASES_US`, no tremor, no global motion.
+
+    Raises:
+        ValueError: ``gesture`` is NONE, or a push's ``direction`` has no length.
+    """
+    if gesture is GestureType.NONE:
+        raise ValueError("a guided gesture needs a gesture type, not none")
+    if gesture is GestureType.PUSH:
+        fingers = np.zeros((1, 2))
+        norm = math.hypot(*direction)
+        if norm == 0:
+            raise ValueError("a guided push needs a direction")
+        unit = np.asarray(direction, dtype=np.float64) / norm
+        amplitude = GUIDED_PUSH_MM
+    else:
+        fingers = np.array([[-GUIDED_SPREAD_MM, 0.0], [GUIDED_SPREAD_MM, 0.0]])
+        unit = np.zeros(2)
+        amplitude = GUIDED_TRAVEL_MM
+    attack, hold, release = GUIDED_PHASES_US
+    return SimGesture(
+        gesture=gesture,
+        t_start_us=int(t_start_us),
+        attack_us=attack,
+        hold_us=hold,
+        release_us=release,
+        fingers_mm=fingers,
+        amplitude_mm=amplitude,
+        direction=unit,
+        finger_mm=user.finger_mm,
+        press=0.6,
+        tremor=(0.0, 5.0, 0.0),
+        global_mm=np.zeros(2),
+        global_rad=0.0,
+        residual=0.03,
+        creep_us=80_000,
+    )
 
 
 # --- the simulation engine --------------------------------------------------------------------
@@ -701,8 +834,13 @@ class GelSimulator:
         seed: the camera's and gel's seed (thresholds, hot pixels, marker brightness).
         stream_seed: the script's and noise's seed.
         start_us: time of the first APS frame (us).
-        script: the gestures to perform (time-ordered, not overlapping: each starts after the
-            previous one's ``t_settled_us``) instead of drawing them for ``user``; may be finite.
+        script: the gestures to perform (time-ordered, each starting after the previous one's
+            release ends; the earlier one's creep may overlap the next) instead of drawing them
+            for ``user``; may be finite.
+        hand: how the gestures are drawn when there is no ``script``: ``drawn`` cycles through
+            ``gestures`` with rests until the gel settles (:func:`gesture_script`), ``steady`` the
+            same with every gesture of a type equally strong (:func:`draw_gesture`), ``session``
+            a game session (:func:`gesture_script` with ``session``).
         noise_rate_hz: the event camera's background-activity rate per pixel (Hz, >= 0;
             ``EventCamera``). The gestures do not depend on it; the noise's random stream (shared
             with the APS frames' noise) does. A family with its own rate (``noise``) overrides it.
@@ -724,6 +862,7 @@ class GelSimulator:
         script: Iterable[SimGesture] | None = None,
         noise_rate_hz: float = NOISE_RATE_HZ,
         physics: Physics = PHYSICS["default"],
+        hand: str = "drawn",
     ) -> None:
         self.sensor = sensor or SensorGeometry()
         self.physics = physics
@@ -760,6 +899,8 @@ class GelSimulator:
                 self.sensor,
                 physics=physics,
                 physics_rng=np.random.default_rng(gesture_ss),
+                steady=hand == "steady",
+                session=hand == "session",
             )
         )
         self._flicker_phase = float(np.random.default_rng(gel_ss).uniform(0, 2 * math.pi))
@@ -777,6 +918,21 @@ class GelSimulator:
                 self._known.append(nxt)
         self._known = [g for g in self._known if g.t_settled_us >= t0_us]
         return [g for g in self._known if g.t_start_us <= t1_us and g.t_settled_us >= t0_us]
+
+    def perform(self, gesture: SimGesture) -> None:
+        """Add ``gesture`` to what the simulated hand does, for a simulator made with ``script=()``
+        that is told each gesture as it goes (a calibration's guided gestures, :func:`guided_gesture`).
+
+        Raises:
+            ValueError: the gesture starts before the simulator's time (``t_us``) or before the
+                gestures already added have settled.
+        """
+        if gesture.t_start_us < self.t_us or any(g.t_settled_us > gesture.t_start_us for g in self._known):
+            raise ValueError(
+                f"a gesture added at {gesture.t_start_us} us starts before the simulator's time ({self.t_us} us) "
+                "or before the previous gesture settled"
+            )
+        self._known.append(gesture)
 
     def light(self, t_us: np.ndarray) -> np.ndarray:
         """(T,) float64 relative brightness of the LED ring at t_us (1 unless the family flickers)."""
@@ -867,9 +1023,11 @@ class SimulatedSource:
     """A live stream from the simulated gel, for the runtime and the demo.
 
     Cycles through every gesture type (or ``gestures``) with rests in between, performed by user
-    ``seed % 10``. Same item kinds and order as ``RecordingReader.stream``: an APS
-    :class:`Frame` every 40 ms, yielded before the events with timestamp >= its t_us, and event
-    batches (EVENT_DTYPE, time-ordered) cut at the frame timestamps and every ``batch_us``.
+    ``seed % 10`` with a steady hand: every gesture of a type equally strong (the two twists, the
+    push directions), so that a profile's mappings can be tried both ways. Same item kinds and
+    order as ``RecordingReader.stream``: an APS :class:`Frame` every 40 ms, yielded before the
+    events with timestamp >= its t_us, and event batches (EVENT_DTYPE, time-ordered) cut at the
+    frame timestamps and every ``batch_us``.
 
     Args:
         sensor: geometry (default docs/dataset.md's); seed: simulation seed;
@@ -882,7 +1040,9 @@ class SimulatedSource:
         if any(g is GestureType.NONE for g in order) or not order:
             raise NeurotouchError("the simulated gel needs gesture types among push, pinch, zoom, twist_cw, twist_ccw")
         self.seed = seed
-        self._sim = GelSimulator(self.sensor, USERS[seed % len(USERS)], order, seed=seed, stream_seed=(0xC0FFEE,))
+        self._sim = GelSimulator(
+            self.sensor, USERS[seed % len(USERS)], order, seed=seed, stream_seed=(0xC0FFEE,), hand="steady"
+        )
 
     @property
     def rest_px(self) -> np.ndarray:
@@ -970,15 +1130,19 @@ def write_dataset(
     physics: str = "default",
 ) -> Path:
     """Simulate and write a labelled dataset (docs/dataset.md): ``sensor.yaml`` and, per user and
-    gesture type, ``u{user}_{gesture}.aedat4``, ``.labels.csv`` and ``.markers.npz``.
+    gesture type, ``u{user}_{gesture}.aedat4``, ``.labels.csv`` and ``.markers.npz`` (the
+    ``sessions`` preset: per user and session, ``u{user}_session{k}.*``).
 
     Args:
         out_dir: the dataset folder (created if missing).
-        preset: ``quick`` (1 user x 5 gestures x 3 s, for tests) or ``paper`` (5 users x 5
+        preset: ``quick`` (1 user x 5 gestures x 3 s, for tests), ``paper`` (5 users x 5
             gestures x 60 s: the paper's 25 minutes; section "Creation of the Gesture Detection
-            Dataset").
+            Dataset") or ``sessions`` (5 users x one 10 s game session, :func:`gesture_script` with ``session``:
+            the type changes from one gesture to the next, taps, ordinary gestures, long holds,
+            short rests).
         seed: the same seed writes the same files; it also picks the users (:func:`preset_users`).
-        minutes: total simulated minutes instead of the preset's (split over the sequences).
+        minutes: total simulated minutes instead of the preset's (split over the sequences;
+            ``sessions``: as many 10 s sessions per user as make it up, at least one).
         progress: show a rich progress bar on stderr.
         users: user ids (0-9) instead of the preset's, e.g. ``TUNING_USERS``.
         gestures: gesture types instead of all five.
@@ -1008,13 +1172,19 @@ def write_dataset(
         raise NeurotouchError(f"unknown gesture type: {exc}") from None
     if not kinds or GestureType.NONE in kinds:
         raise NeurotouchError("gestures must be among push, pinch, zoom, twist_cw, twist_ccw")
-    n_seq = len(user_ids) * len(kinds)
-    families = mix_families(n_seq, seed) if physics == "mix" else [physics_family(physics)] * n_seq
     if minutes is not None and not minutes > 0:
         raise NeurotouchError(f"--minutes must be positive, got {minutes}")
+    sessions = preset == "sessions"
+    if sessions:
+        per_user = 1 if minutes is None else max(1, round(minutes * 60.0 / PRESET_SECONDS[preset] / len(user_ids)))
+        pairs: list[tuple[int, GestureType | int]] = [(int(u), k) for u in user_ids for k in range(per_user)]
+    else:
+        pairs = [(int(u), g) for u in user_ids for g in kinds]
+    n_seq = len(pairs)
+    families = mix_families(n_seq, seed) if physics == "mix" else [physics_family(physics)] * n_seq
     if not noise_hz >= 0:
         raise NeurotouchError(f"--noise-hz must be >= 0 (events per pixel per second), got {noise_hz}")
-    seconds = PRESET_SECONDS[preset] if minutes is None else minutes * 60.0 / n_seq
+    seconds = PRESET_SECONDS[preset] if minutes is None or sessions else minutes * 60.0 / n_seq
     sensor = sensor or SensorGeometry()
     out = Path(out_dir)
     try:
@@ -1024,10 +1194,10 @@ def write_dataset(
     sensor.save(out / "sensor.yaml")
     import json
 
-    pairs = [(int(u), g) for u in user_ids for g in kinds]
+    names = [f"u{u}_session{k}" if sessions else sequence_name(u, k) for u, k in pairs]
     (out / "physics.json").write_text(
         json.dumps(
-            {"physics": physics, "sequences": {sequence_name(u, g): f.name for (u, g), f in zip(pairs, families)}},
+            {"physics": physics, "sequences": {name: f.name for name, f in zip(names, families)}},
             indent=1,
         )
         + "\n"
@@ -1044,17 +1214,17 @@ def write_dataset(
     )
     with Progress(*columns, disable=not progress, transient=False) as bar:
         task = bar.add_task("simulating", total=n_seq * seconds)
-        for k, (uid, kind) in enumerate(pairs):
-            name = sequence_name(uid, kind)
+        for k, ((uid, kind), name) in enumerate(zip(pairs, names)):
             bar.update(task, description=name)
             sim = GelSimulator(
                 sensor,
                 USERS[uid],
-                [kind],
+                kinds if sessions else [kind],
                 seed=seed,
-                stream_seed=(uid, SIM_GESTURES.index(kind)),
+                stream_seed=(uid, SESSION_STREAM + kind if sessions else SIM_GESTURES.index(kind)),
                 noise_rate_hz=noise_hz,
                 physics=families[k],
+                hand="session" if sessions else "drawn",
             )
             write_sequence(
                 out,

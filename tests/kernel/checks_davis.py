@@ -285,10 +285,12 @@ def _record(camera: EmulatedCamera) -> dict:
 
 def _calibrate(camera: EmulatedCamera) -> dict:
     """``calibrate --source davis --frames 3`` on the gel at rest: it succeeds and writes a
-    sensor.yaml (the host-side test compares it with calibrate on the replayed frame itself)."""
+    sensor.yaml (the host-side test compares it with calibrate on the replayed frame itself).
+    Nobody pushes the replayed gel: the mirror and rotation are given, the guided check is off."""
     out = Path("/tmp/davis-sensor.yaml")
     out.unlink(missing_ok=True)
-    proc = _run([CLI, "calibrate", "--source", "davis", "--frames", "3", "--out", str(out)])
+    args = ["--frames", "3", "--mirror", "--rotation", "0", "--no-check", "--out", str(out)]
+    proc = _run([CLI, "calibrate", "--source", "davis", *args])
     assert proc.returncode == 0 and out.exists(), f"exit {proc.returncode}: {proc.stdout[-1000:]} {proc.stderr[-2000:]}"
     import yaml
 

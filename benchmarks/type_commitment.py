@@ -1,0 +1,108 @@
+"""How long a one-contact gesture stays undecided: onset latency against felt wrong types
+(docs/method.md, "Episode vote"; docs/lab/type-commitment.md).
+
+    python3 benchmarks/type_commitment.py --out DIR [--families default,fingers,strong]
+        [--first-finger-ms 0,40,70,90,110] [--deadzone-mm 0.8]
+
+``DIR`` is a ``benchmarks/family_eval.py --sessions`` folder (``DIR/FAMILY`` datasets, their
+sensor.yaml with the family's creep). Each sequence is run once through the product's pipeline
+with its episode vote taken out (each window's own type), into ``DIR/predictions/FAMILY/raw``;
+those per-window answers are then replayed through :class:`EpisodeVote` with each undecided time
+(the vote reads only each window's type, intensity, contact count and time, so the replay is what
+the pipeline answers) and scored: the per-gesture metrics (docs/dataset.md) and the paper's
+per-window ones, one markdown row per family and time, then the mean over the families.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import typer
+
+from neurotouch_hid.dataset import list_sequences, read_labels, read_predictions, write_predictions
+from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
+from neurotouch_hid.evaluation.metrics import Observations, align, evaluate
+from neurotouch_hid.pipeline.episode import EpisodeVote
+from neurotouch_hid.pipeline.pipeline import GesturePipeline
+from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.sources.recording import RecordingReader
+
+app = typer.Typer(add_completion=False)
+
+#: Columns: label, key in the result (felt keys under "felt"), format.
+COLUMNS = (
+    ("gesture %", "gesture_accuracy", lambda v: f"{100 * v:.2f}"),
+    ("count %", "contact_count_accuracy", lambda v: f"{100 * v:.2f}"),
+    ("onset median ms", "onset_median_ms", lambda v: f"{v:.0f}"),
+    ("onset p90 ms", "onset_p90_ms", lambda v: f"{v:.0f}"),
+    ("never", "never_recognised", lambda v: f"{v:.2f}" if isinstance(v, float) else f"{v}"),
+    ("changes", "type_changes_per_gesture", lambda v: f"{v:.2f}"),
+    ("felt changes", "felt_type_changes_per_gesture", lambda v: f"{v:.2f}"),
+    ("felt wrong %", "felt_wrong_share", lambda v: f"{100 * v:.1f}"),
+)
+
+
+class WindowByWindow(GesturePipeline):
+    """The product's pipeline without its episode vote: each window answers its own type."""
+
+    def _vote(self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int) -> GestureType:
+        return gesture
+
+
+def raw_predictions(dataset: Path, dst: Path) -> None:
+    """Each sequence of ``dataset`` through :class:`WindowByWindow`, into ``dst/NAME.jsonl``
+    (kept: a sequence already there is not run again)."""
+    sensor = SensorGeometry.load(dataset / "sensor.yaml")
+    dst.mkdir(parents=True, exist_ok=True)
+    for name in list_sequences(dataset):
+        if (dst / f"{name}.jsonl").exists():
+            continue
+        with RecordingReader(dataset / f"{name}.aedat4") as reader:
+            predictions = list(WindowByWindow(sensor).run(reader.stream()))
+        write_predictions(dst / f"{name}.jsonl", predictions)
+
+
+def replay(dataset: Path, raw: Path, first_finger_us: int, deadzone_mm: float) -> dict:
+    """The per-window answers of ``raw`` through ``EpisodeVote(first_finger_us)``, scored."""
+    sensor = SensorGeometry.load(dataset / "sensor.yaml")
+    parts = []
+    for name in list_sequences(dataset):
+        vote = EpisodeVote(first_finger_us=first_finger_us)
+        voted = [
+            replace(p, gesture=vote.update(p.gesture, p.intensity_mm, p.n_contacts, p.t_us))
+            for p in read_predictions(raw / f"{name}.jsonl")
+        ]
+        parts.append(align(read_labels(dataset / f"{name}.labels.csv"), voted, sensor, deadzone_mm))
+    result = evaluate(Observations.concatenate(parts)).to_dict()
+    return {**result, **result["felt"]}
+
+
+@app.command()
+def main(
+    out: Path = typer.Option(..., "--out", help="a family_eval --sessions folder"),
+    families: str = typer.Option("default,fingers,strong", "--families"),
+    first_finger_ms: str = typer.Option("0,40,70,90,110", "--first-finger-ms", help="undecided times to compare"),
+    deadzone_mm: float = typer.Option(DEFAULT_DEADZONE_MM, "--deadzone-mm", min=0.0),
+) -> None:
+    names = [f.strip() for f in families.split(",") if f.strip()]
+    times = [int(float(t) * 1000) for t in first_finger_ms.split(",")]
+    print("| family | undecided ms | " + " | ".join(c[0] for c in COLUMNS) + " |")
+    print("| --- | ---: |" + " ---: |" * len(COLUMNS))
+    rows: dict[int, list[dict]] = {t: [] for t in times}
+    for fam in names:
+        raw = out / "predictions" / fam / "raw"
+        raw_predictions(out / fam, raw)
+        for t in times:
+            row = replay(out / fam, raw, t, deadzone_mm)
+            rows[t].append(row)
+            print(f"| {fam} | {t // 1000} | " + " | ".join(f(row[k]) for _, k, f in COLUMNS) + " |", flush=True)
+    for t in times:
+        mean = {k: float(np.mean([r[k] for r in rows[t]])) for _, k, _ in COLUMNS}
+        print(f"| mean | {t // 1000} | " + " | ".join(f(mean[k]) for _, k, f in COLUMNS) + " |")
+
+
+if __name__ == "__main__":
+    app()

@@ -1,0 +1,211 @@
+"""Per-gesture ("felt") metrics: what a controller's user feels, gesture by gesture.
+
+docs/dataset.md, "Per-gesture metrics", defines them. A *gesture* is a maximal run of labelled
+frames with the same type other than ``none``, from its first labelled frame ``t0`` to its last
+``t1``; its predictions are those with ``t0 <= t_us < t1 + FRAME_PERIOD_US``. Per gesture:
+
+- onset latency: the first of its predictions with the labelled type, minus ``t0`` (ms);
+- never recognised: none of its predictions has the labelled type;
+- type changes: in its predictions other than ``none``, in time order, the neighbours whose types
+  differ; felt type changes: the same over those whose ``intensity_mm`` is at least the dead zone;
+- felt wrong: one of its predictions has another type (not ``none``) at or above the dead zone.
+
+False activations: predictions other than ``none`` more than :data:`REST_MARGIN_US` from every
+labelled frame of a gesture (counted over such predictions, the windows "at rest").
+
+:func:`gesture_records` computes them for one sequence into :class:`FeltRecords` (one entry per
+gesture, concatenable across sequences); :func:`summarise` turns records into the figures
+(medians, shares) of :class:`FeltSummary`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Sequence
+
+import numpy as np
+
+from neurotouch_hid.dataset import LabelRow
+from neurotouch_hid.estimate import GESTURE_ORDER, GestureEstimate, GestureType
+
+#: Default dead zone (mm): the ``default`` profile's stick dead zone (profiles/default.yaml).
+DEFAULT_DEADZONE_MM = 0.8
+#: A gesture's predictions run until one APS frame period (us) after its last labelled frame.
+FRAME_PERIOD_US = 40_000
+#: A prediction further than this (us) from every labelled gesture frame is at rest.
+REST_MARGIN_US = 300_000
+
+_INDEX = {g: i for i, g in enumerate(GESTURE_ORDER)}
+
+
+@dataclass
+class FeltRecords:
+    """Per gesture (G entries, arrays of shape (G,)) of one or more sequences.
+
+    Attributes:
+        gesture: int64 labelled type, index into ``GESTURE_ORDER``.
+        duration_ms: float64 ``t1 - t0`` (ms).
+        onset_ms: float64 onset latency (ms), NaN when never recognised.
+        changes, felt_changes: int64 type changes, all and at or above the dead zone.
+        felt_wrong: bool, another type at or above the dead zone.
+        wrong_as: int64 the first such other type (index into ``GESTURE_ORDER``), -1 if none.
+        n_rest: predictions at rest (more than REST_MARGIN_US from every gesture frame).
+        false_activations: those of them other than ``none``.
+        deadzone_mm: the dead zone the felt figures used (mm).
+    """
+
+    gesture: np.ndarray
+    duration_ms: np.ndarray
+    onset_ms: np.ndarray
+    changes: np.ndarray
+    felt_changes: np.ndarray
+    felt_wrong: np.ndarray
+    wrong_as: np.ndarray
+    n_rest: int = 0
+    false_activations: int = 0
+    deadzone_mm: float = DEFAULT_DEADZONE_MM
+
+    _ARRAYS = ("gesture", "duration_ms", "onset_ms", "changes", "felt_changes", "felt_wrong", "wrong_as")
+
+    def __len__(self) -> int:
+        return int(len(self.gesture))
+
+    @classmethod
+    def concatenate(cls, parts: Sequence["FeltRecords"], deadzone_mm: float = DEFAULT_DEADZONE_MM) -> "FeltRecords":
+        """All parts' gestures in one (rest counts add up); raises ValueError when the parts
+        used different dead zones."""
+        if not parts:
+            return gesture_records([], [], deadzone_mm)
+        if len({p.deadzone_mm for p in parts}) > 1:
+            raise ValueError("felt records with different dead zones cannot be combined")
+        return cls(
+            **{name: np.concatenate([getattr(p, name) for p in parts]) for name in cls._ARRAYS},
+            n_rest=sum(p.n_rest for p in parts),
+            false_activations=sum(p.false_activations for p in parts),
+            deadzone_mm=parts[0].deadzone_mm,
+        )
+
+
+def gesture_spans(labels: Sequence[LabelRow]) -> list[tuple[GestureType, int, int]]:
+    """The gestures of a sequence: (type, t0, t1) per maximal run of labelled frames of one type
+    other than ``none`` (t0, t1: its first and last frame's ``t_us``, us)."""
+    spans: list[tuple[GestureType, int, int]] = []
+    prev: GestureType | None = None
+    for row in labels:
+        if row.gesture is not GestureType.NONE:
+            if row.gesture is prev:
+                spans[-1] = (row.gesture, spans[-1][1], row.t_us)
+            else:
+                spans.append((row.gesture, row.t_us, row.t_us))
+        prev = row.gesture
+    return spans
+
+
+def _changes(types: list[GestureType]) -> int:
+    return sum(1 for a, b in zip(types, types[1:]) if a is not b)
+
+
+def gesture_records(
+    labels: Sequence[LabelRow], predictions: Sequence[GestureEstimate], deadzone_mm: float = DEFAULT_DEADZONE_MM
+) -> FeltRecords:
+    """The per-gesture records of one sequence (docs/dataset.md, "Per-gesture metrics").
+
+    Args:
+        labels: the sequence's label rows, ordered by time.
+        predictions: its predictions (``t_us``, ``gesture``, ``intensity_mm``), ordered by time.
+        deadzone_mm: the dead zone of the felt figures (mm, >= 0).
+    Raises:
+        ValueError: a negative or non-finite dead zone.
+    """
+    if not (math.isfinite(deadzone_mm) and deadzone_mm >= 0):
+        raise ValueError(f"the dead zone must be a finite number of mm >= 0, got {deadzone_mm}")
+    t_pred = np.array([p.t_us for p in predictions], dtype=np.int64)
+    spans = gesture_spans(labels)
+    g = len(spans)
+    rec = FeltRecords(
+        gesture=np.empty(g, np.int64),
+        duration_ms=np.empty(g, np.float64),
+        onset_ms=np.full(g, np.nan),
+        changes=np.zeros(g, np.int64),
+        felt_changes=np.zeros(g, np.int64),
+        felt_wrong=np.zeros(g, bool),
+        wrong_as=np.full(g, -1, np.int64),
+        deadzone_mm=float(deadzone_mm),
+    )
+    for k, (kind, t0, t1) in enumerate(spans):
+        lo, hi = np.searchsorted(t_pred, t0, "left"), np.searchsorted(t_pred, t1 + FRAME_PERIOD_US, "left")
+        inside = predictions[lo:hi]
+        rec.gesture[k] = _INDEX[kind]
+        rec.duration_ms[k] = (t1 - t0) / 1000.0
+        hit = next((p for p in inside if p.gesture is kind), None)
+        if hit is not None:
+            rec.onset_ms[k] = (hit.t_us - t0) / 1000.0
+        answered = [p for p in inside if p.gesture is not GestureType.NONE]
+        felt = [p for p in answered if p.intensity_mm >= deadzone_mm]
+        rec.changes[k] = _changes([p.gesture for p in answered])
+        rec.felt_changes[k] = _changes([p.gesture for p in felt])
+        wrong = next((p for p in felt if p.gesture is not kind), None)
+        if wrong is not None:
+            rec.felt_wrong[k], rec.wrong_as[k] = True, _INDEX[wrong.gesture]
+    frames = np.array([r.t_us for r in labels if r.gesture is not GestureType.NONE], dtype=np.int64)
+    if len(frames):
+        at = np.searchsorted(frames, t_pred)  # frames[at - 1] < t <= frames[at]
+        before = frames[np.clip(at - 1, 0, len(frames) - 1)]
+        after = frames[np.clip(at, 0, len(frames) - 1)]
+        rest = np.minimum(np.abs(t_pred - before), np.abs(after - t_pred)) > REST_MARGIN_US
+    else:
+        rest = np.ones(len(t_pred), bool)
+    rec.n_rest = int(rest.sum())
+    rec.false_activations = int(sum(1 for p, r in zip(predictions, rest) if r and p.gesture is not GestureType.NONE))
+    return rec
+
+
+@dataclass
+class FeltSummary:
+    """The per-gesture figures over records (docs/dataset.md, "Per-gesture metrics").
+
+    Attributes:
+        deadzone_mm: the dead zone (mm).
+        n_gestures: gestures.
+        onset_median_ms, onset_p90_ms: onset latency over the recognised gestures (ms; p90 by
+            ``numpy.percentile``'s linear interpolation); NaN when none is recognised.
+        never_recognised: gestures with no prediction of their type.
+        type_changes_per_gesture, felt_type_changes_per_gesture: mean type changes, all and at or
+            above the dead zone.
+        felt_wrong_share: share of gestures felt wrong (0..1).
+        false_activations, n_rest: predictions other than ``none`` at rest, and predictions at rest.
+    """
+
+    deadzone_mm: float
+    n_gestures: int
+    onset_median_ms: float
+    onset_p90_ms: float
+    never_recognised: int
+    type_changes_per_gesture: float
+    felt_type_changes_per_gesture: float
+    felt_wrong_share: float
+    false_activations: int
+    n_rest: int
+
+    def to_dict(self) -> dict:
+        """JSON-able values (NaN -> None)."""
+        return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in asdict(self).items()}
+
+
+def summarise(rec: FeltRecords) -> FeltSummary:
+    """The figures of :class:`FeltSummary` from records."""
+    onsets = rec.onset_ms[~np.isnan(rec.onset_ms)]
+    n = len(rec)
+    return FeltSummary(
+        deadzone_mm=rec.deadzone_mm,
+        n_gestures=n,
+        onset_median_ms=float(np.median(onsets)) if len(onsets) else math.nan,
+        onset_p90_ms=float(np.percentile(onsets, 90)) if len(onsets) else math.nan,
+        never_recognised=int(n - len(onsets)),
+        type_changes_per_gesture=float(rec.changes.mean()) if n else math.nan,
+        felt_type_changes_per_gesture=float(rec.felt_changes.mean()) if n else math.nan,
+        felt_wrong_share=float(rec.felt_wrong.mean()) if n else math.nan,
+        false_activations=rec.false_activations,
+        n_rest=rec.n_rest,
+    )

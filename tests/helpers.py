@@ -1,0 +1,81 @@
+"""What many test modules share that is not a fixture: the one way to run the CLI in a fresh
+process (:func:`run_cli`), reading its JSON-lines states (:func:`read_states`), and waiting for
+what a test waits on (:func:`wait_until`). Fixtures (the simulated recordings, the real street
+recording) are in tests/conftest.py."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+#: The real DAVIS-346 street recording (the shared dataset beside the repository, docs/dataset.md);
+#: tests read it through the ``street_recording`` fixture (tests/conftest.py), which skips without it.
+STREET = Path(__file__).resolve().parents[2] / "shared" / "data" / "davis346-street" / "recording.aedat4"
+
+#: ``neurotouch-hid`` as a command: this interpreter, this tree's package.
+CLI = (sys.executable, "-m", "neurotouch_hid.cli")
+
+
+def run_cli(
+    *args: str,
+    home: Path | None = None,
+    env: dict[str, str] | None = None,
+    columns: int | None = None,
+    cwd: Path | str | None = None,
+    text: bool = True,
+    stdout: int | None = subprocess.PIPE,
+    timeout: float = 300,
+) -> subprocess.CompletedProcess:
+    """``neurotouch-hid ARGS`` in a fresh process, stdin closed, no terminal; stdout and stderr
+    captured (``stdout`` may instead be an open file, to test what goes to a file).
+
+    Args:
+        home: run as a new user would, in a bare environment: only PATH, HOME=``home``,
+            XDG_CONFIG_HOME=``home``/config and COLUMNS=80, in ``home`` (unless ``cwd``).
+            Without it, this process's environment (the test's tmp config folder,
+            tests/conftest.py).
+        env: variables set on top of either environment (None: unset it).
+        columns: COLUMNS, the width rich lays out to without a terminal (None: the
+            environment's).
+        text: decode the output (str) or keep the bytes (to compare files exactly).
+        timeout: seconds before the run counts as hung (a hang, not a slow machine).
+    """
+    if home is not None:
+        base = {"PATH": "/usr/bin:/bin", "HOME": str(home), "XDG_CONFIG_HOME": str(Path(home) / "config")}
+        base["COLUMNS"] = "80"
+        cwd = home if cwd is None else cwd
+    else:
+        base = dict(os.environ)
+    if columns is not None:
+        base["COLUMNS"] = str(columns)
+    return subprocess.run(
+        [*CLI, *args],
+        stdout=stdout,
+        stderr=subprocess.PIPE,
+        text=text,
+        env={k: v for k, v in {**base, **(env or {})}.items() if v is not None},
+        cwd=cwd,
+        stdin=subprocess.DEVNULL,
+        timeout=timeout,
+    )
+
+
+def wait_until(condition, timeout_s: float = 60.0) -> bool:
+    """Poll ``condition()`` every 10 ms until it holds (True) or ``timeout_s`` passes (False): a
+    test waits for what happened, not for a delay a loaded machine can overrun; ``timeout_s``
+    only ends a hang."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if condition():
+            return True
+        time.sleep(0.01)
+    return False
+
+
+def read_states(text: str) -> list[dict]:
+    """The controller states of ``run --output jsonl`` (one JSON object a line)."""
+    return [json.loads(line) for line in text.splitlines() if line.strip()]

@@ -1,0 +1,148 @@
+"""The per-gesture metrics (docs/dataset.md, "Per-gesture metrics") on hand-made labels and
+predictions, every expected value worked out by hand in the comments."""
+
+import math
+
+import numpy as np
+import pytest
+
+from neurotouch_hid.dataset import LabelRow
+from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.evaluation.felt import FeltRecords, gesture_records, gesture_spans, summarise
+from neurotouch_hid.evaluation.metrics import align, evaluate
+from neurotouch_hid.evaluation.report import felt_rows
+from neurotouch_hid.sensor import SensorGeometry
+
+G = GestureType
+NO_POINTS = np.zeros((0, 2))
+
+
+def label(t_us: int, gesture: GestureType) -> LabelRow:
+    none = gesture is G.NONE
+    return LabelRow(t_us, gesture, none, 0.0 if none else 1.0, NO_POINTS)
+
+
+def labels() -> list[LabelRow]:
+    """Frames every 40 ms from 0 to 1.5 s: push at 80-160 ms, pinch at 640-720 ms, zoom at
+    1000-1080 ms, none elsewhere."""
+    kinds = {80: G.PUSH, 120: G.PUSH, 160: G.PUSH, 640: G.PINCH, 680: G.PINCH, 720: G.PINCH}
+    kinds.update({1000: G.ZOOM, 1040: G.ZOOM, 1080: G.ZOOM})
+    return [label(ms * 1000, kinds.get(ms, G.NONE)) for ms in range(0, 1501, 40)]
+
+
+def pred(ms: int, gesture: GestureType, mm: float = 0.0) -> GestureEstimate:
+    return GestureEstimate(ms * 1000, gesture, gesture is G.NONE, mm)
+
+
+def predictions() -> list[GestureEstimate]:
+    return [
+        pred(0, G.PUSH, 0.3),  # 80 ms before the push: not at rest
+        # push, frames 80..160 ms: its predictions are 80 <= t < 200 ms
+        pred(80, G.NONE),
+        pred(100, G.PUSH, 0.5),  # onset 100 - 80 = 20 ms
+        pred(120, G.PINCH, 1.0),  # another type, exactly at a 1.0 mm dead zone
+        pred(140, G.PUSH, 1.2),
+        pred(160, G.PUSH, 2.0),
+        pred(180, G.NONE, 0.3),
+        pred(200, G.TWIST_CW, 3.0),  # t1 + 40 ms: no longer the push's
+        pred(400, G.NONE),  # 240 ms from both gestures: not at rest
+        # pinch, frames 640..720 ms: never a pinch
+        pred(640, G.TWIST_CW, 0.5),
+        pred(660, G.PUSH, 0.9),
+        pred(680, G.NONE),
+        pred(700, G.ZOOM, 0.7),
+        pred(720, G.ZOOM, 0.79),
+        pred(740, G.NONE),
+        # zoom, frames 1000..1080 ms
+        pred(1000, G.NONE),
+        pred(1020, G.NONE),
+        pred(1040, G.ZOOM, 1.5),  # onset 40 ms
+        pred(1060, G.ZOOM, 2.0),
+        pred(1300, G.PUSH, 0.5),  # 220 ms after the zoom's last frame: not at rest
+        pred(1400, G.NONE),  # 320 ms: at rest
+        pred(1500, G.TWIST_CCW, 0.2),  # 420 ms: at rest, a false activation
+    ]
+
+
+def test_gestures_are_runs_of_one_type():
+    rows = [label(0, G.NONE), label(40, G.PUSH), label(80, G.PUSH), label(120, G.PINCH)]
+    rows += [label(160, G.NONE), label(200, G.PINCH), label(240, G.PINCH)]
+    # push 40-80, then pinch straight after it (a new gesture), then after a none another pinch
+    assert gesture_spans(rows) == [(G.PUSH, 40, 80), (G.PINCH, 120, 120), (G.PINCH, 200, 240)]
+
+
+def test_each_gesture_scored_by_hand():
+    rec = gesture_records(labels(), predictions(), deadzone_mm=0.8)
+    assert list(rec.gesture) == [1, 2, 3]  # push, pinch, zoom in GESTURE_ORDER
+    assert list(rec.duration_ms) == [80.0, 80.0, 80.0]
+    # onsets: push 100 - 80; pinch never; zoom 1040 - 1000
+    assert rec.onset_ms[0] == 20.0 and math.isnan(rec.onset_ms[1]) and rec.onset_ms[2] == 40.0
+    # push answered push, pinch, push, push (the twist at 200 ms is outside): 2 changes;
+    # pinch answered twist_cw, push, zoom, zoom: 2; zoom: zoom, zoom: 0
+    assert list(rec.changes) == [2, 2, 0]
+    # at >= 0.8 mm: push sees pinch 1.0, push 1.2, push 2.0: 1 change; pinch sees push 0.9 alone: 0
+    assert list(rec.felt_changes) == [1, 0, 0]
+    # felt wrong: push (pinch at 1.0 mm) and pinch (push at 0.9 mm), not zoom
+    assert list(rec.felt_wrong) == [True, True, False]
+    assert list(rec.wrong_as) == [2, 1, -1]  # pinch, push
+    # at rest (> 300 ms from every gesture frame): 1400 and 1500 ms; the one at 1500 is a twist
+    assert (rec.n_rest, rec.false_activations) == (2, 1)
+
+
+def test_summary_by_hand():
+    s = summarise(gesture_records(labels(), predictions(), deadzone_mm=0.8))
+    assert s.n_gestures == 3
+    assert s.onset_median_ms == 30.0  # median of 20 and 40
+    assert s.onset_p90_ms == pytest.approx(38.0)  # 20 + 0.9 * (40 - 20), linear interpolation
+    assert s.never_recognised == 1
+    assert s.type_changes_per_gesture == pytest.approx(4 / 3)  # (2 + 2 + 0) / 3
+    assert s.felt_type_changes_per_gesture == pytest.approx(1 / 3)  # (1 + 0 + 0) / 3
+    assert s.felt_wrong_share == pytest.approx(2 / 3)
+    assert (s.false_activations, s.n_rest) == (1, 2)
+
+
+def test_the_dead_zone_is_inclusive_and_moves_the_felt_figures():
+    at = gesture_records(labels(), predictions(), deadzone_mm=1.0)
+    # push: pinch 1.0 counts (at least the dead zone): pinch, push, push -> 1 change, felt wrong
+    # pinch: push 0.9 falls below: nothing felt
+    assert list(at.felt_changes) == [1, 0, 0] and list(at.felt_wrong) == [True, False, False]
+    above = gesture_records(labels(), predictions(), deadzone_mm=1.01)
+    # push: only push 1.2 and 2.0 remain: no change, nothing wrong
+    assert list(above.felt_changes) == [0, 0, 0] and not above.felt_wrong.any()
+    zero = gesture_records(labels(), predictions(), deadzone_mm=0.0)
+    # every answer counts: the felt figures equal the plain ones; pinch's first wrong is twist_cw
+    assert list(zero.felt_changes) == [2, 2, 0] and list(zero.wrong_as) == [2, 4, -1]
+
+
+def test_a_negative_dead_zone_is_refused():
+    with pytest.raises(ValueError, match="dead zone"):
+        gesture_records(labels(), predictions(), deadzone_mm=-0.1)
+
+
+def test_records_of_sequences_add_up():
+    one = gesture_records(labels(), predictions())
+    both = FeltRecords.concatenate([one, one])
+    assert len(both) == 6 and (both.n_rest, both.false_activations) == (4, 2)
+    assert summarise(both).felt_wrong_share == pytest.approx(2 / 3)
+    with pytest.raises(ValueError, match="dead zones"):
+        FeltRecords.concatenate([one, gesture_records(labels(), predictions(), deadzone_mm=1.0)])
+
+
+def test_eval_reports_them_beside_the_papers_metrics():
+    result = evaluate(align(labels(), predictions(), SensorGeometry(), deadzone_mm=0.8))
+    assert result.felt.never_recognised == 1
+    assert result.to_dict()["felt"]["onset_median_ms"] == 30.0
+    rows = dict(felt_rows(result))
+    assert rows["Onset latency, median / p90"] == "30 ms / 38 ms"
+    assert rows["Never recognised"] == "1 of 3"
+    assert rows["Gestures felt wrong (another type >= 0.8 mm)"] == "66.67 %"
+    assert rows["False activations at rest (> 300 ms from a gesture)"] == "1 of 2 windows"
+
+
+def test_eval_refuses_a_negative_dead_zone_before_running_anything(tmp_path):
+    from typer.testing import CliRunner
+
+    from neurotouch_hid.cli import app
+
+    result = CliRunner().invoke(app, ["eval", str(tmp_path), "--deadzone-mm", "-0.5"])
+    assert result.exit_code == 2 and "--deadzone-mm" in result.output

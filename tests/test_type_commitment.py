@@ -1,0 +1,110 @@
+"""The type commitment of a gesture (docs/method.md, "Episode vote"): the first felt window
+carries the gesture's type, and a short tap is recognised with it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_pipeline import SENSOR, _WindowByWindow, events_at, gel_image
+
+from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
+from neurotouch_hid.pipeline.episode import EpisodeVote
+from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
+from neurotouch_hid.sources import Frame
+
+P, Q, N = GestureType.PUSH, GestureType.PINCH, GestureType.NONE
+NEVER_RESTING = PipelineConfig(resting={"centroid_threshold_mm2": -1.0})  # only the events decide
+
+
+@pytest.fixture(scope="module")
+def rest_image() -> np.ndarray:
+    return gel_image()
+
+
+def _run(frames_of, n_windows: int, cls: type = GesturePipeline) -> list[GestureEstimate]:
+    """Each 10 ms window's estimate when the markers sit at ``frames_of(k, rest)`` in window k."""
+    pipeline = cls(SENSOR, NEVER_RESTING)
+    pipeline.process(Frame(0, gel_image()))
+    pipeline.process(events_at(1))
+    rest = pipeline.rest_px
+    out = []
+    for k in range(n_windows):
+        pipeline.tracker.reset(frames_of(k, rest))
+        (estimate,) = pipeline.process(events_at(15000 + 10000 * k))
+        out.append(estimate)
+    return out
+
+
+def _bump(rest: np.ndarray, at_px) -> np.ndarray:
+    """(N, 1) weight of a finger's bump of displacement centred at ``at_px`` (12 px sigma)."""
+    return np.exp(-np.sum((rest - np.asarray(at_px)) ** 2, axis=1) / (2 * 12.0**2))[:, None]
+
+
+def _pinch(lag_windows: int, n_windows: int, peak_px: float = 8.0):
+    """A two-finger pinch along x whose second finger lands ``lag_windows`` windows after the first;
+    each finger's displacement ramps up over 4 windows and holds."""
+    c = np.asarray(SENSOR.gel_center_px)
+
+    def frames_of(k: int, rest: np.ndarray) -> np.ndarray:
+        first = peak_px * min(1.0, (k + 1) / 4)
+        second = peak_px * min(1.0, max(0, k + 1 - lag_windows) / 4)
+        return rest + _bump(rest, c + [-15.0, 0.0]) * [first, 0.0] - _bump(rest, c + [15.0, 0.0]) * [second, 0.0]
+
+    return frames_of
+
+
+def test_a_second_finger_60_ms_late_shows_no_push_above_the_dead_zone(rest_image):
+    """The first finger alone for 60 ms: the window-by-window rule (which the earlier vote
+    followed at onset) answers push above the default profile's dead zone before the pinch; the
+    commitment waits, and the first window it answers is the pinch."""
+    plain = _run(_pinch(6, 14), 14, _WindowByWindow)
+    felt_push = [e for e in plain if e.gesture is P and e.intensity_mm >= DEFAULT_DEADZONE_MM]
+    assert felt_push, "the hand-made case must show the failure of the window-by-window rule"
+    first_pinch = next(k for k, e in enumerate(plain) if e.gesture is Q)
+    assert first_pinch >= 5 and plain[first_pinch].n_contacts == 2
+
+    committed = _run(_pinch(6, 14), 14)
+    assert not [e for e in committed if e.gesture not in (N, Q)]
+    assert [e.gesture for e in committed[:first_pinch]] == [N] * first_pinch
+    assert committed[first_pinch].gesture is Q  # no latency added once the second finger is seen
+    assert max(e.intensity_mm for e in committed[:first_pinch]) >= DEFAULT_DEADZONE_MM  # pending, not still
+
+
+def test_a_quarter_second_tap_is_recognised_with_its_type(rest_image):
+    """25 windows (0.25 s): a one-finger push tap is committed push within the tap, after the
+    wait for a second finger; a two-finger pinch tap is pinch from its first window."""
+    c = np.asarray(SENSOR.gel_center_px)
+
+    def push_tap(k: int, rest: np.ndarray) -> np.ndarray:
+        return rest + _bump(rest, c) * [6.0 * min(1.0, (k + 1) / 5, (25 - k) / 5), 0.0]
+
+    estimates = _run(push_tap, 25)
+    push = [e.gesture for e in estimates]
+    assert set(push) == {N, P}
+    onset = next(k for k, e in enumerate(estimates) if e.intensity_mm > 0)  # the gel moved: undecided
+    first = push.index(P)
+    assert (first - onset) * 10_000 == EpisodeVote().first_finger_us  # answered as soon as the wait ends
+    end = max(k for k, e in enumerate(estimates) if e.intensity_mm > 0) + 1  # then the gel is still
+    assert end >= 20 and push[first:end] == [P] * (end - first)
+
+    pinch = [e.gesture for e in _run(_pinch(0, 25, peak_px=6.0), 25)]
+    assert pinch == [Q] * 25
+
+
+def test_one_contact_stays_undecided_for_the_first_finger_time_and_a_count_change_restarts_it():
+    vote = EpisodeVote(first_finger_us=30_000)
+    assert [vote.update(P, 1.0, 1, t) for t in (10_000, 20_000, 30_000)] == [N, N, N]
+    assert vote.update(P, 1.0, 1, 40_000) is P  # one contact held 30 ms: committed push
+    vote.update(N, 0.0, 0, 50_000)
+    assert [vote.update(P, 1.0, 0, 60_000), vote.update(P, 1.0, 1, 70_000)] == [N, N]
+    assert vote.update(P, 1.0, 1, 90_000) is N  # held 20 ms since the count became 1
+    assert vote.update(P, 1.0, 1, 100_000) is P
+
+
+def test_the_commitment_is_the_vote_since_the_contact_count_last_changed():
+    """Votes cast on fewer contacts while undecided do not count: two contacts commit their own
+    type even after a long heavy push on one."""
+    vote = EpisodeVote()
+    assert vote.update(P, 3.0, 1, 10_000) is N
+    assert vote.update(Q, 0.2, 2, 20_000) is Q

@@ -1,0 +1,101 @@
+"""A gesture whose type changes under the profile: the old type's outputs are released in the
+very state the new type's begin (never both held), and a button both types press stays held
+through the change (no release a toggle or a game would read as a new press)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.mapping.mapper import Mapper
+from neurotouch_hid.mapping.profile import Profile, load_profile
+from neurotouch_hid.mapping.replay import pressed, replay
+
+G = GestureType
+SMOOTH = {"filter": "one_euro", "min_cutoff_hz": 2.0, "beta": 0.05, "d_cutoff_hz": 1.0}
+
+
+def windows(*parts: tuple[GestureType, float, int], direction=(0.0, 1.0)) -> list[GestureEstimate]:
+    """Consecutive 10 ms windows: (type, intensity mm, how many) per part, the gel never at rest
+    in between; then 30 windows at rest."""
+    out, t = [], 1_000_000
+    for kind, mm, n in (*parts, (G.NONE, 0.0, 30)):
+        for _ in range(n):
+            t += 10_000
+            out.append(GestureEstimate(t, kind, kind is G.NONE and mm == 0.0, mm, translation_mm=np.array(direction)))
+    return out
+
+
+def test_default_profile_stick_and_trigger_never_both_held():
+    """default: push -> left stick, pinch -> left trigger, both smoothed by a 1-euro filter (a
+    decaying filter used to hold the stick for ~100 ms of pinch)."""
+    est = windows((G.PUSH, 3.0, 40), (G.PINCH, 3.0, 40), (G.PUSH, 3.0, 40))
+    states = replay(load_profile("default"), est)
+    stick = [s.axes["ABS_Y"] != 0 or s.axes["ABS_X"] != 0 for s in states]
+    trigger = [s.axes["ABS_Z"] > 0 for s in states]
+    assert not any(a and b for a, b in zip(stick, trigger))
+    # and no gap: the first pinch window pulls the trigger, the first push window after it moves the stick
+    assert trigger[40] and not stick[40]
+    assert stick[80] and not trigger[80]
+    assert all(stick[:40]) and all(trigger[40:80]) and all(stick[80:120])
+
+
+def test_a_none_window_inside_the_gesture_does_not_leave_both_held():
+    est = windows((G.TWIST_CCW, 4.0, 30), (G.NONE, 4.0, 2), (G.ZOOM, 4.0, 30))
+    states = replay(load_profile("default"), est)
+    assert not any(s.axes["ABS_RX"] != 0 and s.axes["ABS_RZ"] > 0 for s in states)
+    assert states[32].axes["ABS_RZ"] > 0
+
+
+def two_types_one_button(mode: str) -> Profile:
+    button = {"output": "BTN_SOUTH", "mode": mode, "press_mm": 2.0, "release_mm": 1.0, "smoothing": SMOOTH}
+    return Profile.model_validate({"mappings": {"a": {"input": "pinch", **button}, "b": {"input": "zoom", **button}}})
+
+
+@pytest.mark.parametrize("second_mm", [3.0, 1.5])
+def test_a_button_both_types_press_stays_held(second_mm):
+    """pinch and zoom both hold A; the zoom after the pinch is at 1.5 mm, between release (1.0)
+    and press (2.0): A stays down through the change, one press in all."""
+    est = windows((G.PINCH, 3.0, 30), (G.ZOOM, second_mm, 30))
+    down = ["BTN_SOUTH" in pressed(s) for s in replay(two_types_one_button("hold"), est)]
+    assert all(down[:60]) and not down[-1]
+    assert rising_edges(down) == 1
+
+
+def rising_edges(down: list[bool]) -> int:
+    return sum(1 for a, b in zip([False, *down], down) if b and not a)
+
+
+def test_a_toggle_flips_once_however_the_type_flickers():
+    """accessibility: a counter-clockwise twist toggles A. One twist read as pinch for 150 ms in
+    its middle: A toggles on once and stays on (the twist's return is no new press)."""
+    est = windows((G.TWIST_CCW, 4.0, 30), (G.PINCH, 4.0, 15), (G.TWIST_CCW, 4.0, 30))
+    down = ["BTN_SOUTH" in pressed(s) for s in replay(load_profile("accessibility"), est)]
+    assert rising_edges(down) == 1 and down[-1]
+
+
+def test_a_toggle_shared_by_two_types_flips_once():
+    est = windows((G.PINCH, 3.0, 30), (G.ZOOM, 3.0, 30), (G.PINCH, 3.0, 30))
+    mapper = Mapper(two_types_one_button("toggle"))
+    down = ["BTN_SOUTH" in pressed(mapper.update(e)) for e in est]
+    assert all(down)  # on from the first pinch window, never back off
+
+
+def test_a_new_gesture_of_the_same_button_is_a_new_press():
+    """Only a change inside a gesture is carried: pinch, rest, zoom presses A twice."""
+    est = windows((G.PINCH, 3.0, 30))
+    est += [
+        GestureEstimate(e.t_us + 1_000_000, e.gesture, e.resting, e.intensity_mm) for e in windows((G.ZOOM, 3.0, 30))
+    ]
+    mapper = Mapper(two_types_one_button("hold"))
+    down = ["BTN_SOUTH" in pressed(mapper.update(e)) for e in est]
+    assert rising_edges(down) == 2
+
+
+def test_the_same_type_after_the_gesture_ended_is_a_new_press():
+    """A twist read as pinch at its end, the fingers off (none windows, the gel not yet at rest),
+    then a new twist: the toggle flips again (twice in all: off at the end)."""
+    est = windows((G.TWIST_CCW, 4.0, 30), (G.PINCH, 4.0, 10), (G.NONE, 0.5, 5), (G.TWIST_CCW, 4.0, 30))
+    down = ["BTN_SOUTH" in pressed(s) for s in replay(load_profile("accessibility"), est)]
+    assert rising_edges(down) == 1 and not down[-1]
