@@ -105,8 +105,9 @@ class DropOldestQueue:
     """A bounded FIFO between two threads.
 
     ``put`` on a full queue drops the oldest item (counted in ``stats``) when ``drop_oldest``, else
-    waits for room. With ``drop_oldest`` the queue is also full when it would span more than
-    ``max_span_us`` of camera time (from the oldest item's start to the new one's end). ``close``
+    waits for room. With ``drop_oldest`` (or ``span_waits``: then ``put`` waits) the queue is also
+    full when it would span more than ``max_span_us`` of camera time (from the oldest item's
+    start to the new one's end). ``close``
     ends the stream: ``get`` returns None once a closed queue is empty. Items are
     ``(arrival_ns, StreamItem)`` pairs.
     """
@@ -118,6 +119,7 @@ class DropOldestQueue:
         drop_oldest: bool = True,
         on_drop: Callable[[StreamItem], None] | None = None,
         max_span_us: int | None = None,
+        span_waits: bool = False,
     ):
         if maxlen < 1:
             raise ValueError("a queue needs room for at least one item")
@@ -126,11 +128,12 @@ class DropOldestQueue:
         self._drop_oldest = drop_oldest
         self._on_drop = on_drop
         self._max_span_us = max_span_us
+        self._span_waits = span_waits
         self._cond = threading.Condition()
         self._closed = False
 
     def _too_long(self, item: StreamItem) -> bool:
-        if self._max_span_us is None or not self._drop_oldest or not self._items:
+        if self._max_span_us is None or not (self._drop_oldest or self._span_waits) or not self._items:
             return False
         start, end = item_start_us(self._items[0][1]), item_end_us(item)
         return start is not None and end is not None and end - start > self._max_span_us
@@ -224,6 +227,10 @@ class Runtime:
             its data is dropped, oldest first, when the pipeline falls behind. With neither
             ``pace`` nor ``live`` (``--fast``) everything is processed as fast as possible and
             nothing is dropped: the source waits for the pipeline.
+        waits: a paced source that can wait (the simulated gel, which is not a camera): when the
+            pipeline falls more than ``max_lag_us`` behind (a first run still compiling), the
+            source waits instead of data being dropped, and catches up after; ``seconds`` then
+            counts its time, not the wall clock's.
         profile_ref: name or path the profile came from, reloaded on SIGHUP.
         queue_items: bound of the input queue (items; a memory guard).
         max_lag_us: real time only: how far (us of camera time) the queued data may reach back
@@ -260,9 +267,11 @@ class Runtime:
         games: bool = False,
         stats: RunStats | None = None,
         pacer: Pacer | None = None,
+        waits: bool = False,
     ):
         self._control = control
         self._games = games
+        self._waits = waits and pace and not live
         self._source = source
         self._pipeline = pipeline
         self.profile = profile
@@ -278,7 +287,11 @@ class Runtime:
         self.stats = stats if stats is not None else RunStats()
         self.stats.profile = str(profile_ref) if profile_ref is not None else ""
         self._items = DropOldestQueue(
-            queue_items, drop_oldest=self._realtime, on_drop=self._count_drop, max_span_us=max_lag_us
+            queue_items,
+            drop_oldest=self._realtime and not self._waits,
+            on_drop=self._count_drop,
+            max_span_us=max_lag_us,
+            span_waits=self._waits,
         )
         self._frames = DropOldestQueue(
             DEFAULT_FRAME_QUEUE, drop_oldest=self._realtime, on_drop=self._count_resting_drop
@@ -295,6 +308,11 @@ class Runtime:
         self._say = say
         self._paused = False  # the live camera is lost: write nothing (under self._lock)
         self._restart = threading.Event()  # it is back: restart the pipeline before its data
+
+    @property
+    def profile_name(self) -> str:
+        """The profile in use as the user named it (name or path), for display."""
+        return str(self._profile_ref) if self._profile_ref is not None else "(given)"
 
     # --- control ----------------------------------------------------------------------------
     def stop(self) -> None:
@@ -380,7 +398,7 @@ class Runtime:
                     if self._reload.is_set():
                         self._reload.clear()
                         self.reload_profile()
-                    if seconds is not None and self._realtime:
+                    if seconds is not None and self._realtime and not self._waits:
                         # a real-time source that stalls still ends: wall deadline from its first item
                         first = self._clock.first_ns / 1e9 if self._clock.first_ns else start
                         if time.perf_counter() > first + seconds + _GRACE_S:

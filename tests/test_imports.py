@@ -18,6 +18,7 @@ ORDER = {
     "runtime": 5,
     "control": 5,
     "games": 5,
+    "warmup": 5,
     "driver": 6,
     "track": 2,
     "view": 3,
