@@ -245,7 +245,9 @@ def sim_push_only_recording(tmp_path_factory) -> Path:
     rest = next(i for i in range(first, len(chunks)) if chunks[i].label.gesture is GestureType.NONE)
     end = next((i for i in range(rest, len(chunks)) if chunks[i].label.gesture is not GestureType.NONE), len(chunks))
     chunks = chunks[:end]
-    assert chunks[-1].frame.t_us - chunks[rest].frame.t_us >= 1_000_000, "the push's release needs a second of rest after it"
+    assert chunks[-1].frame.t_us - chunks[rest].frame.t_us >= 1_000_000, (
+        "the push's release needs a second of rest after it"
+    )
     return write_chunks(folder / "push.aedat4", chunks)
 
 
