@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import gc
 import math
+import os
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -44,6 +45,16 @@ profile_app = typer.Typer(
     rich_markup_mode=None,
 )
 app.add_typer(profile_app, name="profile")
+auto_app = typer.Typer(
+    help="A profile per game: the running driver switches to a game's profile while the game runs "
+    "(a Steam app id or an executable's name; the user's games.yaml). Without a command: list.",
+    invoke_without_command=True,
+)
+profile_app.add_typer(auto_app, name="auto")
+
+#: The variable through which shells ask for completions (click's protocol):
+#: ``_NEUROTOUCH_HID_COMPLETE=source_bash neurotouch-hid`` prints the bash script (zsh, fish too).
+COMPLETE_ENV = "_NEUROTOUCH_HID_COMPLETE"
 
 
 def _print_version(value: bool) -> None:
@@ -988,6 +999,70 @@ def profile_path(name: str = typer.Argument(..., help="profile name")) -> None:
     typer.echo(str(find_profile(name)))
 
 
+def _game_label(section: str, key: object) -> str:
+    return f"Steam app {key}" if section == "steam" else str(key)
+
+
+@auto_app.callback()
+def profile_auto(ctx: typer.Context) -> None:
+    """A profile per game: `add GAME PROFILE`, `remove GAME`, `list` (also without a command).
+
+    A game is a Steam app id (Steam sets SteamAppId in its processes' environment) or an
+    executable's name; the running driver looks at your processes twice a second, switches to the
+    game's profile (every output released first) and back when it exits. `profile use` during a
+    game wins until the game exits."""
+    if ctx.invoked_subcommand is None:
+        profile_auto_list()
+
+
+@auto_app.command("add")
+def profile_auto_add(
+    game: str = typer.Argument(..., help="Steam app id (a number) or executable name (e.g. supertuxkart)"),
+    profile: str = typer.Argument(..., help="profile name or path"),
+) -> None:
+    """Map a game to a profile (an entry already there is replaced)."""
+    from neurotouch_hid.games import add_game, games_file
+
+    section, key, profile = add_game(game, profile)
+    typer.echo(f"{_game_label(section, key)} -> {profile} (in {games_file()}); a running driver follows it")
+
+
+@auto_app.command("remove")
+def profile_auto_remove(
+    game: str = typer.Argument(..., help="Steam app id or executable name, as added"),
+) -> None:
+    """Remove a game's entry."""
+    from neurotouch_hid.games import games_file, remove_game
+
+    section, key, profile = remove_game(game)
+    typer.echo(f"removed {_game_label(section, key)} -> {profile} (from {games_file()})")
+
+
+@auto_app.command("list")
+def profile_auto_list() -> None:
+    """List the map, and which mapped game runs now (the one the driver follows)."""
+    from neurotouch_hid.games import EXECUTABLE, STEAM, ProcessScanner, games_file, load_game_map
+
+    path = games_file()
+    game_map = load_game_map(path)
+    if not game_map:
+        typer.echo(f"no game is mapped ({path} has no entry); add one: neurotouch-hid profile auto add 4242 mouse")
+        return
+    running = ProcessScanner().games(game_map)
+    typer.echo(f"games -> profiles ({path}):")
+    entries = [(STEAM, k, v) for k, v in game_map.steam.items()] + [
+        (EXECUTABLE, k, v) for k, v in game_map.executable.items()
+    ]
+    for section, key, profile in entries:
+        pids = [str(g.pid) for g in running if g.section == section and g.key == key]
+        now = f"  running: pid {', '.join(pids)}" if pids else ""
+        typer.echo(f"  {_game_label(section, key)} -> {profile}{now}")
+    if running:
+        typer.echo(f"matched now: {running[0].label()} -> {running[0].profile}")
+    else:
+        typer.echo("matched now: none (no mapped game is running)")
+
+
 @profile_app.command("test")
 def profile_test(
     name: str = typer.Argument(..., help="profile name or path"),
@@ -1090,6 +1165,10 @@ def main() -> None:
     option or command, bad value) is printed by typer itself (usage, the error, exit code 2)
     whichever click it uses (typer 0.29 carries its own copy and no longer installs click).
     """
+    if COMPLETE_ENV in os.environ:  # a shell asks for completions (the scripts the package installs)
+        from typer.completion import completion_init
+
+        completion_init()
     try:
         app()
     except NeurotouchError as exc:

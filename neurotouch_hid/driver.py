@@ -13,7 +13,7 @@ from __future__ import annotations
 import contextlib
 import logging
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Iterator, Protocol
+from typing import TYPE_CHECKING, Callable, ContextManager, Iterator, Protocol
 
 from neurotouch_hid.errors import DeviceError, NeurotouchError, ProfileError
 from neurotouch_hid.estimate import GestureEstimate
@@ -21,16 +21,18 @@ from neurotouch_hid.kinds import OutputKind, SourceKind
 from neurotouch_hid.mapping.profile import Profile, available_profiles, load_profile
 from neurotouch_hid.runtime import DEFAULT_BATCH_US, DEFAULT_MAX_LAG_US, Runtime
 from neurotouch_hid.sources import Frame
-from neurotouch_hid.stages import Output, Pipeline, SourceStream
+from neurotouch_hid.stages import Output, Pipeline, RestingDetection, SourceStream
 from neurotouch_hid.stats import RunStats
 
 if TYPE_CHECKING:
     from rich.console import Console
 
+    from neurotouch_hid.output.live import LiveScene
     from neurotouch_hid.pipeline.pipeline import GesturePipeline
     from neurotouch_hid.pipeline.resting import RestingResult
     from neurotouch_hid.sensor import SensorGeometry
     from neurotouch_hid.sources.davis import DavisConfig
+    from neurotouch_hid.warmup import KernelGroup, Warmup
 
 log = logging.getLogger(__name__)
 
@@ -72,6 +74,8 @@ def open_source(
     wait: bool = False,
     capture: CameraBackend | None = None,
     filter_noise: bool = True,
+    scene: LiveScene | None = None,
+    warmup: Warmup | None = None,
 ) -> tuple[SourceStream, SensorGeometry | None, bool]:
     """Open ``davis`` (the live camera), ``sim`` (the simulated gel), an AEDAT4 recording path, or
     a predictions file (``*.jsonl``, docs/dataset.md: the pipeline's estimates, replayed as they are).
@@ -87,7 +91,9 @@ def open_source(
 
     Returns ``(stream, sensor_geometry, live)``; ``live`` is True for the camera (never paced by
     the runtime); the geometry is None for a predictions file. Resources (camera, file) are
-    closed by ``stack``. Raises RecordingError for a missing or unreadable recording,
+    closed by ``stack``. The simulated gel hands its labels to ``scene`` (the live view's
+    :class:`~neurotouch_hid.output.live.LiveScene`) and simulates under ``warmup`` 's guard (a
+    first run's compile, :mod:`neurotouch_hid.warmup`). Raises RecordingError for a missing or unreadable recording,
     DatasetError for a bad predictions file, DeviceError when the camera cannot be opened (and
     ``wait`` is off).
     """
@@ -120,7 +126,12 @@ def open_source(
         from neurotouch_hid.sources.simulator import SimulatedSource
 
         sim = SimulatedSource(seed=seed) if sensor is None else SimulatedSource(SensorGeometry.load(sensor), seed=seed)
-        return sim.stream(seconds=seconds, batch_us=batch_us), sim.sensor, False
+        if scene is None and warmup is None:
+            return sim.stream(seconds=seconds, batch_us=batch_us), sim.sensor, False
+        from neurotouch_hid.output.live import labelled_simulation
+        from neurotouch_hid.warmup import SIMULATOR
+
+        return labelled_simulation(sim, scene, _guard(warmup, SIMULATOR), seconds, batch_us), sim.sensor, False
     from neurotouch_hid.errors import RecordingError
     from neurotouch_hid.sources.recording import RecordingReader
 
@@ -145,7 +156,8 @@ def open_output(
 ) -> Output:
     """Create the output: ``gamepad`` (the uinput pad with the profile's name and ids, and the
     keyboard and mouse if the profile uses them), ``jsonl`` (one state line per change to ``out``
-    or stdout) or ``term`` (the terminal view, showing ``stats`` under the pad). ``say`` tells the
+    or stdout) or ``term`` (the terminal view, showing ``stats`` under the pad; on a terminal the
+    live view of :mod:`neurotouch_hid.output.live`). ``say`` tells the
     user about rumble effects games send to the pad (the gel has no motor; default: the log).
     Closed by ``stack``. Raises DeviceError when /dev/uinput cannot be used."""
     if kind == OutputKind.GAMEPAD:
@@ -161,9 +173,9 @@ def open_output(
         from neurotouch_hid.output.jsonl import StateJsonlWriter
 
         return stack.enter_context(StateJsonlWriter(out))
-    from neurotouch_hid.output.term import TermView
+    from neurotouch_hid.output.live import LiveView
 
-    return stack.enter_context(TermView(console, stats=stats))
+    return stack.enter_context(LiveView(console, stats=stats))
 
 
 def known_profiles() -> list[Profile]:
@@ -222,14 +234,42 @@ def build_pipeline(
     return pipeline, (PipelineResting(pipeline) if resting_beside else None)
 
 
-def compile_pipeline(method: str = "default") -> None:
-    """Compile the ``method``'s numba code before any source is opened
-    (:meth:`GesturePipeline.compile_kernels`): on a fresh install that takes seconds, which a
-    real-time run would otherwise spend dropping data, and a camera buffering it."""
-    from neurotouch_hid.pipeline.methods import METHODS
-    from neurotouch_hid.sensor import SensorGeometry
+def start_warmup(source: str, *, fast: bool, say: Callable[[str], None], method: str = "default") -> Warmup | None:
+    """The first run's compile for ``source`` (:class:`~neurotouch_hid.warmup.Warmup`), started.
 
-    METHODS[method][1](SensorGeometry()).compile_kernels()
+    The simulated gel in real time (``demo``, ``run --source sim``) runs at once: its cold
+    kernels are interpreted while child processes compile them, and it waits rather than drop
+    data. Other sources (the camera cannot wait; ``--fast`` replays must be deterministic)
+    compile the cold kernels here first, saying so. Warm kernels are loaded from the cache now
+    (a first call would otherwise stall the run). None for a predictions file (no pipeline)."""
+    from neurotouch_hid.warmup import PIPELINE_OF, SIMULATOR, Warmup
+
+    if source.endswith(".jsonl"):
+        return None
+    interpreted = source == SourceKind.SIM and not fast
+    pipeline = PIPELINE_OF[method]
+    groups = [pipeline, SIMULATOR] if source == SourceKind.SIM else [pipeline]
+    return Warmup(groups, say=say, interpreted=interpreted).start()
+
+
+def _guard(warmup: Warmup | None, group: KernelGroup) -> Callable[[], ContextManager[None]] | None:
+    """A zero-argument callable giving ``warmup`` 's guard of ``group`` (None without warmup)."""
+    return None if warmup is None else (lambda: warmup.guard(group))
+
+
+def _with_view(
+    out: Output, kind: str, scene: LiveScene, console: Console | None, stats: RunStats, stack: contextlib.ExitStack
+) -> Output:
+    """The output with the live view: a terminal view shows ``scene``; the virtual gamepad gets
+    the live view drawn beside it when ``console`` is a terminal."""
+    from neurotouch_hid.output.live import LiveView, ShownOutput
+
+    if isinstance(out, LiveView):
+        out.scene = scene
+        return out
+    if kind == OutputKind.GAMEPAD and console is not None and console.is_terminal:
+        return ShownOutput(out, stack.enter_context(LiveView(console, scene=scene, stats=stats)))
+    return out
 
 
 def run_driver(
@@ -280,10 +320,15 @@ def run_driver(
     if method not in METHODS:
         raise NeurotouchError(f"--method {method!r}: expected one of {', '.join(METHODS)}")
     loaded = load_profile(profile)
-    if not source.endswith(".jsonl"):
-        compile_pipeline(method)
+    warmup = start_warmup(source, fast=fast, say=say, method=method)
     stats = stats if stats is not None else RunStats()
     with contextlib.ExitStack() as stack:
+        if warmup is not None:
+            stack.callback(warmup.close)
+        from neurotouch_hid.output.live import LiveScene, ScenePipeline
+        from neurotouch_hid.warmup import PIPELINE_OF
+
+        scene = LiveScene(None, str(profile), loaded, warmup=warmup, demo=source == SourceKind.SIM)
         stream, geometry, live = open_source(
             source,
             stack,
@@ -294,21 +339,27 @@ def run_driver(
             davis=davis,
             wait=wait,
             capture=capture,
+            scene=scene,
+            warmup=warmup,
             filter_noise=method == "default",
         )
+        scene.sensor = geometry
         pipeline: Pipeline
-        resting: PipelineResting | None = None
+        resting: RestingDetection | None = None
         if geometry is None:  # a predictions file: the estimates are already there
             pipeline = EstimateReplay()
         else:
-            pipeline, resting = build_pipeline(
+            built, resting = build_pipeline(
                 geometry, window_us, method=method, resting_beside=live or not fast, filter_noise=not live
             )
+            watched = ScenePipeline(built, scene, _guard(warmup, PIPELINE_OF[method]))
+            pipeline, resting = watched, watched.resting(resting)
         out_obj = (
             output_obj
             if output_obj is not None
             else open_output(output, loaded, stack, out=out, console=console, say=say, stats=stats)
         )
+        out_obj = _with_view(out_obj, output, scene, console, stats, stack)
         runtime = Runtime(
             stream,
             pipeline,
@@ -320,9 +371,12 @@ def run_driver(
             profile_ref=profile,
             say=say,
             control=True,
+            games=not fast,
             stats=stats,
             max_lag_us=max_lag_us,
+            waits=source == SourceKind.SIM,
         )
+        scene.follow(runtime)
         return runtime.run(seconds)
 
 

@@ -46,7 +46,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Callable, Iterator, Optional
+from typing import Any, Callable, Iterator, Optional
 
 import numpy as np
 
@@ -108,8 +108,9 @@ class DropOldestQueue:
     """A bounded FIFO between two threads.
 
     ``put`` on a full queue drops the oldest item (counted in ``stats``) when ``drop_oldest``, else
-    waits for room. With ``drop_oldest`` the queue is also full when it would span more than
-    ``max_span_us`` of camera time (from the oldest item's start to the new one's end). ``close``
+    waits for room. With ``drop_oldest`` (or ``span_waits``: then ``put`` waits) the queue is also
+    full when it would span more than ``max_span_us`` of camera time (from the oldest item's
+    start to the new one's end). ``close``
     ends the stream: ``get`` returns None once a closed queue is empty. Items are
     ``(arrival_ns, StreamItem)`` pairs.
     """
@@ -121,6 +122,7 @@ class DropOldestQueue:
         drop_oldest: bool = True,
         on_drop: Callable[[StreamItem], None] | None = None,
         max_span_us: int | None = None,
+        span_waits: bool = False,
     ):
         if maxlen < 1:
             raise ValueError("a queue needs room for at least one item")
@@ -129,11 +131,12 @@ class DropOldestQueue:
         self._drop_oldest = drop_oldest
         self._on_drop = on_drop
         self._max_span_us = max_span_us
+        self._span_waits = span_waits
         self._cond = threading.Condition()
         self._closed = False
 
     def _too_long(self, item: StreamItem) -> bool:
-        if self._max_span_us is None or not self._drop_oldest or not self._items:
+        if self._max_span_us is None or not (self._drop_oldest or self._span_waits) or not self._items:
             return False
         start, end = item_start_us(self._items[0][1]), item_end_us(item)
         return start is not None and end is not None and end - start > self._max_span_us
@@ -227,6 +230,10 @@ class Runtime:
             its data is dropped, oldest first, when the pipeline falls behind. With neither
             ``pace`` nor ``live`` (``--fast``) everything is processed as fast as possible and
             nothing is dropped: the source waits for the pipeline.
+        waits: a paced source that can wait (the simulated gel, which is not a camera): when the
+            pipeline falls more than ``max_lag_us`` behind (a first run still compiling), the
+            source waits instead of data being dropped, and catches up after; ``seconds`` then
+            counts its time, not the wall clock's.
         profile_ref: name or path the profile came from, reloaded on SIGHUP.
         queue_items: bound of the input queue (items; a memory guard).
         max_lag_us: real time only: how far (us of camera time) the queued data may reach back
@@ -235,6 +242,8 @@ class Runtime:
             in tests).
         say: tells the user what happens to a live source (camera lost, back; one line each).
         control: serve the control socket while running (``profile use``, :meth:`use_profile`).
+        games: with ``control``, switch to a game's profile while it runs
+            (:class:`~neurotouch_hid.games.GameProfiles`, the user's games.yaml).
         stats: where the run is counted (:class:`RunStats`; e.g. shared with the terminal view
             that shows it); a new one by default.
         pacer: the :class:`~neurotouch_hid.sources.Pacer` that paces and times the run (one on
@@ -258,10 +267,14 @@ class Runtime:
         profile_loader: Callable[[str | Path], Profile] = load_profile,
         say: Callable[[str], None] = log.warning,
         control: bool = False,
+        games: bool = False,
         stats: RunStats | None = None,
         pacer: Pacer | None = None,
+        waits: bool = False,
     ):
         self._control = control
+        self._games = games
+        self._waits = waits and pace and not live
         self._source = source
         self._pipeline = pipeline
         self.profile = profile
@@ -275,8 +288,13 @@ class Runtime:
         self._profile_ref = profile_ref
         self._profile_loader = profile_loader
         self.stats = stats if stats is not None else RunStats()
+        self.stats.profile = str(profile_ref) if profile_ref is not None else ""
         self._items = DropOldestQueue(
-            queue_items, drop_oldest=self._realtime, on_drop=self._count_drop, max_span_us=max_lag_us
+            queue_items,
+            drop_oldest=self._realtime and not self._waits,
+            on_drop=self._count_drop,
+            max_span_us=max_lag_us,
+            span_waits=self._waits,
         )
         self._frames = DropOldestQueue(
             DEFAULT_FRAME_QUEUE, drop_oldest=self._realtime, on_drop=self._count_resting_drop
@@ -295,6 +313,11 @@ class Runtime:
         self._suspend = threading.Event()  # SIGTSTP arrived: the main thread suspends the run
         self._suspended = False  # stopped by SIGTSTP: write nothing (under self._lock)
         self._restart = threading.Event()  # it is back: restart the pipeline before its data
+
+    @property
+    def profile_name(self) -> str:
+        """The profile in use as the user named it (name or path), for display."""
+        return str(self._profile_ref) if self._profile_ref is not None else "(given)"
 
     # --- control ----------------------------------------------------------------------------
     def stop(self) -> None:
@@ -339,15 +362,18 @@ class Runtime:
         log.warning("profile reloaded from %s", self._profile_ref)
         return True
 
-    def use_profile(self, ref: str) -> str:
-        """``profile use``: load ``ref`` (name or path), switch to it (:meth:`switch_profile`), and
-        reload it on SIGHUP from now on; returns a line saying so. Raises ProfileError (nothing
+    def use_profile(self, ref: str, reason: str | None = None) -> str:
+        """``profile use`` and the profile per game: load ``ref`` (name or path), switch to it
+        (:meth:`switch_profile`), and reload it on SIGHUP from now on; returns the line said on
+        the log (with ``reason``, e.g. the game that started). Raises ProfileError (nothing
         changes) for a missing or invalid profile."""
         profile = self._profile_loader(ref)
         self.switch_profile(profile)
         self._profile_ref = ref
-        log.warning("switched to profile %s", ref)
-        return f"switched to profile {ref}"
+        self.stats.profile = str(ref)
+        line = f"switched to profile {ref}" + (f" ({reason})" if reason else "")
+        log.warning("%s", line)
+        return line
 
     def suspend(self) -> None:
         """SIGTSTP (Ctrl-Z): release every output, then stop the process as SIGTSTP's default
@@ -405,7 +431,7 @@ class Runtime:
                     if self._suspend.is_set():
                         self._suspend.clear()
                         self.suspend()
-                    if seconds is not None and self._realtime:
+                    if seconds is not None and self._realtime and not self._waits:
                         # a real-time source that stalls still ends: wall deadline from its first item
                         first = self._clock.first_ns / 1e9 if self._clock.first_ns else start
                         if time.perf_counter() > first + seconds + _GRACE_S:
@@ -432,12 +458,23 @@ class Runtime:
             return
         from neurotouch_hid.control import ControlServer
 
-        server = ControlServer(self.use_profile)
+        games = None
+        if self._games and self._profile_ref is not None:
+            from neurotouch_hid.games import GameProfiles
+
+            games = GameProfiles(self.use_profile, str(self._profile_ref), on_game=self._follow_game)
+            games.start()
+        server = ControlServer(games.manual_use if games is not None else self.use_profile)
         server.start()
         try:
             yield
         finally:
             server.stop()
+            if games is not None:
+                games.stop()
+
+    def _follow_game(self, game: Any) -> None:
+        self.stats.game = game.label() if game is not None else ""
 
     @contextlib.contextmanager
     def _switch_interval(self) -> Iterator[None]:

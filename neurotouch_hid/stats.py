@@ -51,6 +51,8 @@ class RunStats:
         resting_updates: resting detector results handed to the pipeline.
         resting_dropped_frames: APS frames the resting detector skipped (it was still busy).
         camera_losses: times the live camera was lost (unplugged, failing, stalled).
+        profile: the profile mapping now (a name or path, as given).
+        game: the running game whose profile is on (``neurotouch_hid.games``), or "".
         wall_s: wall time of the run (s).
         stream_us: camera time covered by the processed data (us).
         latency: processing latencies: from the moment the item that closed a window was read
@@ -70,6 +72,8 @@ class RunStats:
     resting_updates: int = 0
     resting_dropped_frames: int = 0
     camera_losses: int = 0
+    profile: str = ""
+    game: str = ""
     wall_s: float = 0.0
     stream_us: int = 0
     latency: LatencyRing = field(default_factory=LatencyRing, repr=False)

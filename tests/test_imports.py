@@ -17,6 +17,8 @@ ORDER = {
     "stages": 5,
     "runtime": 5,
     "control": 5,
+    "games": 5,
+    "warmup": 5,
     "driver": 6,
     "track": 2,
     "view": 3,

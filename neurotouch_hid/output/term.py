@@ -120,6 +120,8 @@ def state_line(state: ControllerState, estimate: GestureEstimate | None, stats: 
         line += "".join(f" {name} {value:+d}" for name, value in state.rel.items())
     if stats is not None:
         line += f" | windows {stats.windows} dropped {stats.dropped_items}"
+        if stats.game:
+            line += f" | profile {stats.profile} for {stats.game}"
     return line
 
 
@@ -283,5 +285,7 @@ class TermView:
                 f" ({s.dropped_events} events, {s.dropped_frames} frames)",
                 style="bold red" if s.dropped_items else "dim",
             )
+            if s.profile:
+                counters.append(f"   profile {s.profile}" + (f" for {s.game}" if s.game else ""), style="bold")
         rows = [pad, Text(""), buttons_text(state.buttons), *([desktop] if desktop else []), gesture, counters]
         return Panel(Group(*rows), title="NeuroTouch gamepad", expand=False)

@@ -286,6 +286,28 @@ def _start_run(preds: Path, profile: Path, env: dict) -> tuple[subprocess.Popen,
     return proc, watchers
 
 
+def holds_everything(w: dict[str, Watcher]) -> bool:
+    """What EVERYTHING holds during a push: the Ctrl+B chord, BTN_LEFT, the pad's A, the stick right."""
+    codes = ecodes.ecodes
+    return (
+        {codes["KEY_LEFTCTRL"], codes["KEY_B"]} <= w["keyboard"].pressed
+        and codes["BTN_LEFT"] in w["mouse"].pressed
+        and codes["BTN_SOUTH"] in w["pad"].pressed
+        and w["pad"].reader.axes.get(ecodes.ABS_X, 0) > 0
+    )
+
+
+def stop_run(proc: subprocess.Popen, w: dict[str, Watcher]) -> str:
+    """SIGTERM the run, wait for it and for its devices to go, stop the watchers; its stderr."""
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    guestlib.wait_for(lambda: all(x.reader.gone for x in w.values()), 10.0)
+    time.sleep(0.2)
+    for watcher in w.values():
+        watcher.stop()
+    return err
+
+
 def check_layer_switch_profile_use_and_sigterm_leave_nothing_pressed() -> dict:
     """``neurotouch-hid run``: a zoom latches KEY_A and BTN_RIGHT (toggles) in the base layer; a
     pinch switches to layer ``alt``: both are released before anything of ``alt`` is pressed. In
@@ -307,7 +329,6 @@ def check_layer_switch_profile_use_and_sigterm_leave_nothing_pressed() -> dict:
     preds = _write_preds(folder, sequence((G.ZOOM, 4.0, 0.3), (G.PINCH, 4.0, 0.3), (G.PUSH, 4.0, 120.0), lead_in_s=4.0))
     proc, w = _start_run(preds, profile, env)
     codes = ecodes.ecodes
-    chord = {codes["KEY_LEFTCTRL"], codes["KEY_B"]}
     try:
         # the latch lasts well under a second of a slow guest: judged from the event logs, not polled
         held = guestlib.wait_for(
@@ -316,21 +337,8 @@ def check_layer_switch_profile_use_and_sigterm_leave_nothing_pressed() -> dict:
         assert held, f"the push in layer alt pressed nothing: {w['keyboard'].keys_log()} {w['pad'].keys_log()}"
         before_use = {"keyboard": w["keyboard"].keys_log(), "mouse": w["mouse"].keys_log()}
         answer = request_use(str(everything), path=runtime_dir / SOCKET_NAME)  # what `profile use FILE` sends
-        all_held = guestlib.wait_for(
-            lambda: (
-                chord <= w["keyboard"].pressed
-                and codes["BTN_LEFT"] in w["mouse"].pressed
-                and codes["BTN_SOUTH"] in w["pad"].pressed
-                and w["pad"].reader.axes.get(ecodes.ABS_X, 0) > 0
-            ),
-            30.0,
-        )
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=60)
-        guestlib.wait_for(lambda: all(x.reader.gone for x in w.values()), 10.0)
-        time.sleep(0.2)
-        for watcher in w.values():
-            watcher.stop()
+        all_held = guestlib.wait_for(lambda: holds_everything(w), 30.0)
+        err = stop_run(proc, w)
     finally:
         if proc.poll() is None:
             proc.kill()

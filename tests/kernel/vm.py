@@ -209,11 +209,11 @@ GUEST_NUMBA_CACHE = "numba-cache"
 
 
 def compile_guest_numba_cache(folder: Path) -> None:
-    """Compile the gesture pipeline's numba code (``driver.compile_pipeline``) into ``folder`` for
+    """Compile the gesture pipeline's numba code (``warmup.compile_pipeline``) into ``folder`` for
     the guest (GUEST_NUMBA_ENV). Raises RuntimeError with the output if that fails."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(folder), **GUEST_NUMBA_ENV)
     proc = _run(
-        [sys.executable, "-c", "from neurotouch_hid.driver import compile_pipeline; compile_pipeline()"],
+        [sys.executable, "-c", "from neurotouch_hid.warmup import compile_pipeline; compile_pipeline()"],
         env=env,
         cwd=str(HERE.parent.parent),
     )

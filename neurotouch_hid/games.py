@@ -1,0 +1,449 @@
+"""A profile per game: the user's map from a game to a profile, the mapped games running now, and
+the running driver's watcher that switches to a game's profile while the game runs.
+
+The map is ``games.yaml`` beside the user's profiles folder
+(``$XDG_CONFIG_HOME/neurotouch-hid/games.yaml``; ``neurotouch-hid profile auto add/remove`` edit
+it, comments kept)::
+
+    steam:           # Steam app id -> profile (Steam sets SteamAppId in a game's environment)
+      4242: mouse
+    executable:      # process name -> profile
+      supertuxkart: spacecraft
+
+A game is recognised among the processes of the user running the driver (psutil reads
+``/proc``): a Steam game by ``SteamAppId`` in its environment (every process Steam starts for a
+game inherits it, Proton's included), any program by its name (the kernel's process name, the
+file name of its executable or of its command line's first word: ``Game.exe`` under Wine). So it
+works the same on X11, Wayland and a console, without asking the desktop which window has focus.
+When several mapped games run, the one started last counts.
+
+The watcher (:class:`GameProfiles`) polls every :data:`POLL_S`: when a mapped game starts, the
+driver switches to its profile by the same path as ``neurotouch-hid profile use`` (every output
+released and centred first); when the game exits, back to the profile it had before. A
+``profile use`` while a game runs wins until that game exits. ``games.yaml`` is read again when
+it changes, so ``profile auto add`` takes effect on a running driver.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path, PureWindowsPath
+from typing import Any, Callable
+
+import psutil
+
+from neurotouch_hid.errors import NeurotouchError
+
+log = logging.getLogger(__name__)
+
+#: The environment variable Steam sets for the processes of a game it starts (its app id).
+STEAM_APP_ENV = "SteamAppId"
+#: How often the driver looks at the user's processes (s): a game's profile is on within this
+#: (plus a profile load, milliseconds) of the game's start.
+POLL_S = 0.5
+#: A process younger than this (s) when it was read is read again at the next polls: a program
+#: started by fork and exec may be seen between the two, under its parent's name.
+YOUNG_S = 2.0
+STEAM, EXECUTABLE = "steam", "executable"
+HEADER = (
+    "# neurotouch-hid: a profile per game (`neurotouch-hid profile auto add GAME PROFILE` edits this file).\n"
+    "# steam: Steam app id -> profile; executable: process name -> profile. Profiles: names or paths.\n"
+)
+
+
+class GameMapError(NeurotouchError):
+    """games.yaml cannot be read or breaks its format, or an entry to add or remove is invalid."""
+
+
+def games_file() -> Path:
+    """The user's map: ``platformdirs.user_config_dir("neurotouch-hid")/games.yaml``, beside the
+    profiles folder (:func:`~neurotouch_hid.mapping.profile.user_profiles_dir`). Not created here."""
+    from neurotouch_hid.mapping.profile import user_profiles_dir
+
+    return user_profiles_dir().parent / "games.yaml"
+
+
+@dataclass(frozen=True)
+class GameMap:
+    """Game -> profile (a name or an absolute path): ``steam`` by app id, ``executable`` by name."""
+
+    steam: dict[int, str]
+    executable: dict[str, str]
+
+    def __bool__(self) -> bool:
+        return bool(self.steam or self.executable)
+
+    def profile_for_name(self, names: set[str]) -> tuple[str, str] | None:
+        """``(mapped name, profile)`` for the first of the map's executables among ``names``
+        (compared case-insensitively), or None."""
+        folded = {n.casefold() for n in names}
+        for name, profile in self.executable.items():
+            if name.casefold() in folded:
+                return name, profile
+        return None
+
+
+def parse_game(game: str) -> tuple[str, int | str]:
+    """What ``profile auto add GAME`` means: a number is a Steam app id (``("steam", 4242)``),
+    anything else an executable's name (``("executable", "supertuxkart")``).
+
+    Raises:
+        GameMapError: empty, or a path (a name is matched, not a path).
+    """
+    game = game.strip()
+    if game.isdigit():
+        return STEAM, int(game)
+    if not game or "/" in game or "\\" in game:
+        raise GameMapError(
+            f"'{game}' is not a game: give a Steam app id (a number) or an executable's name without its "
+            f"folder (e.g. {Path(game.replace(chr(92), '/')).name or 'supertuxkart'})"
+        )
+    return EXECUTABLE, game
+
+
+def _check_section(path: Path, data: dict, section: str) -> dict:
+    value = data.get(section) or {}
+    if not isinstance(value, dict):
+        raise GameMapError(f"{path}: '{section}' must map games to profiles (GAME: PROFILE), found {value!r}")
+    for game, profile in value.items():
+        if not isinstance(profile, str) or not profile.strip():
+            raise GameMapError(f"{path}: {section}.{game}: expected a profile name or path, found {profile!r}")
+        if section == STEAM and not (isinstance(game, int) and game >= 0):
+            raise GameMapError(f"{path}: steam: '{game}' is not a Steam app id (a whole number)")
+        if section == EXECUTABLE and not isinstance(game, str):
+            raise GameMapError(f"{path}: executable: '{game}' is not a name (quote it: '\"{game}\"')")
+    return value
+
+
+def _load_document(path: Path) -> Any:
+    from ruamel.yaml import YAML
+    from ruamel.yaml.error import YAMLError
+
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        return None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise GameMapError(f"cannot read {path}: {exc}") from None
+    yaml = YAML()  # round-trip: `profile auto add/remove` keep the user's comments
+    yaml.width = 4096
+    try:
+        data = yaml.load(text)
+    except YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
+        raise GameMapError(
+            f"{where}: not valid YAML ({getattr(exc, 'problem', None) or exc}); fix or delete it"
+        ) from None
+    if data is not None and not isinstance(data, dict):
+        raise GameMapError(f"{path}: expected the sections 'steam:' and 'executable:', found {type(data).__name__}")
+    unknown = sorted(str(k) for k in (data or {}) if k not in (STEAM, EXECUTABLE))
+    if unknown:
+        raise GameMapError(f"{path}: unknown section(s) {', '.join(unknown)} (expected 'steam:' and 'executable:')")
+    for section in (STEAM, EXECUTABLE):
+        _check_section(path, data or {}, section)
+    return data
+
+
+def load_game_map(path: Path | None = None) -> GameMap:
+    """Read the map (``path``, default :func:`games_file`); a missing file is an empty map.
+
+    Raises:
+        GameMapError: unreadable, not YAML, or not the format above (file, line where YAML
+            says, and what was expected).
+    """
+    data = _load_document(path if path is not None else games_file()) or {}
+    return GameMap(
+        steam={int(k): str(v) for k, v in (data.get(STEAM) or {}).items()},
+        executable={str(k): str(v) for k, v in (data.get(EXECUTABLE) or {}).items()},
+    )
+
+
+def _save(path: Path, data: Any) -> None:
+    import io
+
+    from ruamel.yaml import YAML
+
+    from neurotouch_hid.mapping.editor import _write
+
+    yaml = YAML()
+    yaml.width = 4096
+    buffer = io.StringIO()
+    yaml.dump(data, buffer)
+    _write(path, buffer.getvalue())
+
+
+def add_game(game: str, profile: str, path: Path | None = None) -> tuple[str, int | str, str]:
+    """Map ``game`` (a Steam app id or an executable's name, :func:`parse_game`) to ``profile``
+    (a name, or a path stored as an absolute path) in the map; returns ``(section, key,
+    profile)``. The profile must exist and be valid (it is loaded here).
+
+    Raises:
+        GameMapError: a bad game or map file; ProfileError: no such profile, or an invalid one.
+    """
+    from ruamel.yaml.comments import CommentedMap
+
+    from neurotouch_hid.mapping.profile import _is_path, load_profile
+
+    section, key = parse_game(game)
+    load_profile(profile)
+    if _is_path(profile):
+        profile = str(Path(profile).resolve())
+    path = path if path is not None else games_file()
+    data = _load_document(path)
+    if data is None:
+        data = CommentedMap()
+        data.yaml_set_start_comment(HEADER.replace("# ", "").rstrip("\n"))
+    if data.get(section) is None:
+        data[section] = CommentedMap()
+    data[section][key] = profile
+    _save(path, data)
+    return section, key, profile
+
+
+def remove_game(game: str, path: Path | None = None) -> tuple[str, int | str, str]:
+    """Remove ``game``'s entry; returns ``(section, key, the profile it had)``.
+
+    Raises:
+        GameMapError: a bad game or map file, or no such entry (the entries are listed).
+    """
+    section, key = parse_game(game)
+    path = path if path is not None else games_file()
+    data = _load_document(path)
+    entries = (data or {}).get(section) or {}
+    if key not in entries:
+        known = load_game_map(path)
+        listed = [str(k) for k in known.steam] + list(known.executable)
+        raise GameMapError(
+            f"'{game}' is not in {path} (mapped: {', '.join(listed) or 'nothing'}; "
+            "see `neurotouch-hid profile auto list`)"
+        )
+    profile = str(entries.pop(key))
+    if not entries:  # no empty section left behind (ruamel would write "{}" after its comment)
+        del data[section]
+    _save(path, data)
+    return section, key, profile
+
+
+@dataclass(frozen=True)
+class Game:
+    """A mapped game running now: ``section`` (steam or executable), ``key`` (app id or mapped
+    name), its ``profile``, and the process found: ``pid``, ``name``, ``started`` (s since the
+    epoch, psutil's ``create_time``)."""
+
+    section: str
+    key: int | str
+    profile: str
+    pid: int
+    name: str
+    started: float
+
+    @property
+    def ident(self) -> tuple[int, float]:
+        """The process (a pid is reused only by a later process)."""
+        return self.pid, self.started
+
+    def label(self) -> str:
+        """How the user is told, e.g. ``Steam app 4242 (pid 1234, sleep)``."""
+        what = f"Steam app {self.key}" if self.section == STEAM else str(self.key)
+        return f"{what} (pid {self.pid}, {self.name})"
+
+
+@dataclass
+class _Seen:
+    started: float
+    read_at: float
+    name: str = ""
+    names: frozenset[str] = frozenset()
+    app_id: int | None = None
+    ours: bool = False
+
+
+def _read_process(pid: int, uid: int) -> _Seen | None:
+    """What the scanner needs of one process (psutil): None when it is gone or unreadable."""
+    try:
+        proc = psutil.Process(pid)
+        seen = _Seen(started=proc.create_time(), read_at=time.time())
+        if proc.uids().real != uid:
+            return seen  # another user's: never a game of ours, never read again
+        seen.ours = True
+        seen.name = proc.name()
+        names = {seen.name}
+        with contextlib.suppress(psutil.AccessDenied, psutil.ZombieProcess):
+            exe = proc.exe()
+            if exe:
+                names.add(os.path.basename(exe))
+        with contextlib.suppress(psutil.AccessDenied, psutil.ZombieProcess):
+            cmdline = proc.cmdline()
+            if cmdline and cmdline[0]:
+                names.add(PureWindowsPath(cmdline[0]).name)  # splits on / and \ (Wine's Z:\...\Game.exe)
+        with contextlib.suppress(psutil.AccessDenied, psutil.ZombieProcess):
+            app = proc.environ().get(STEAM_APP_ENV, "")
+            seen.app_id = int(app) if app.isdigit() else None
+        seen.names = frozenset(n for n in names if n)
+        return seen
+    except (psutil.NoSuchProcess, psutil.AccessDenied, psutil.ZombieProcess, OSError):
+        return None
+
+
+class ProcessScanner:
+    """The mapped games among the processes of this user (psutil).
+
+    A process is read once (name, executable, command line, ``SteamAppId``), when a scan first
+    sees it, and again while it is younger than :data:`YOUNG_S` (a fork that has not yet
+    exec'ed its program carries its parent's name); later scans only list ``/proc``. The
+    scanner's own process is never a game (a driver started from Steam inherits SteamAppId).
+    """
+
+    def __init__(self, uid: int | None = None):
+        self._uid = os.getuid() if uid is None else uid
+        self._seen: dict[int, _Seen] = {}
+        self._own = os.getpid()
+
+    def games(self, game_map: GameMap) -> list[Game]:
+        """Every mapped game running now, the one started last first."""
+        pids = set(psutil.pids())
+        pids.discard(self._own)
+        for gone in self._seen.keys() - pids:
+            del self._seen[gone]
+        now = time.time()
+        found = []
+        for pid in pids:
+            seen = self._seen.get(pid)
+            if seen is None or (seen.ours and seen.read_at - seen.started < YOUNG_S and now - seen.read_at > 0.1):
+                seen = _read_process(pid, self._uid)
+                if seen is None:
+                    continue
+                self._seen[pid] = seen
+            if not seen.ours:
+                continue
+            if seen.app_id is not None and seen.app_id in game_map.steam:
+                found.append(Game(STEAM, seen.app_id, game_map.steam[seen.app_id], pid, seen.name, seen.started))
+                continue
+            hit = game_map.profile_for_name(set(seen.names))
+            if hit is not None:
+                found.append(Game(EXECUTABLE, hit[0], hit[1], pid, seen.name, seen.started))
+        return sorted(found, key=lambda g: (g.started, g.pid), reverse=True)
+
+
+class GameProfiles:
+    """The running driver's profile per game (see the module's docstring).
+
+    Args:
+        use: switches the driver (``Runtime.use_profile(ref, reason)``: loads ``ref``, releases
+            every output, maps with the new profile, logs the switch; raises NeurotouchError
+            and changes nothing for a bad profile).
+        profile: the profile the driver runs now (a name or path): the one it returns to.
+        path: the map (default :func:`games_file`).
+        scanner: where the games come from (a :class:`ProcessScanner` by default).
+        on_game: told the game whose profile is on (None: none), e.g. for the live view.
+    """
+
+    def __init__(
+        self,
+        use: Callable[[str, str | None], str],
+        profile: str,
+        *,
+        path: Path | None = None,
+        poll_s: float = POLL_S,
+        scanner: ProcessScanner | None = None,
+        on_game: Callable[[Game | None], None] | None = None,
+    ):
+        self._use = use
+        self._base = self._current = profile
+        self._path = path if path is not None else games_file()
+        self._poll_s = poll_s
+        self._scanner = scanner if scanner is not None else ProcessScanner()
+        self._on_game = on_game
+        self._map = GameMap({}, {})
+        self._map_stamp: tuple[int, int] | None = None
+        self._game: Game | None = None  # the game whose profile was asked for
+        self._manual_during: tuple[int, float] | None = None  # a `profile use` while this game ran
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    @property
+    def game(self) -> Game | None:
+        """The mapped game the driver follows now, or None."""
+        return self._game
+
+    def manual_use(self, ref: str) -> str:
+        """``profile use REF`` (the control socket): switch now; while a mapped game runs this wins
+        until that game exits, otherwise ``ref`` becomes the profile to come back to."""
+        with self._lock:
+            message = self._use(ref, None)
+            self._current = ref
+            if self._game is not None:
+                self._manual_during = self._game.ident
+                message += f" (until {self._game.label()} exits)"
+            else:
+                self._base = ref
+            return message
+
+    def _read_map(self) -> GameMap:
+        """The map, read again when games.yaml changed; a broken one keeps the last good map
+        (said once)."""
+        try:
+            st = self._path.stat()
+            stamp = (st.st_mtime_ns, st.st_size)
+        except OSError:
+            stamp = None
+        if stamp != self._map_stamp:
+            self._map_stamp = stamp
+            try:
+                self._map = load_game_map(self._path) if stamp is not None else GameMap({}, {})
+            except GameMapError as exc:
+                log.error("profiles per game: %s (keeping the map read before)", exc)
+        return self._map
+
+    def poll(self) -> None:
+        """Look at the processes once and switch if the game to follow changed."""
+        game_map = self._read_map()
+        games = self._scanner.games(game_map) if game_map else []
+        with self._lock:
+            if self._manual_during is not None:
+                if any(g.ident == self._manual_during for g in games):
+                    return  # the user chose a profile during this game: theirs until it exits
+                self._manual_during = None
+            game = games[0] if games else None
+            if game == self._game:
+                return
+            previous, self._game = self._game, game
+            if game is not None:
+                target, reason = game.profile, f"{game.label()} is running"
+            else:
+                target, reason = self._base, f"{previous.label()} exited" if previous else None
+            if self._on_game is not None:
+                self._on_game(game)
+            if target == self._current:
+                return
+            try:
+                self._use(target, reason)
+                self._current = target
+            except NeurotouchError as exc:
+                log.error(
+                    "%s, but profile %s could not be used: %s (staying on %s)", reason, target, exc, self._current
+                )
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self._poll_s):
+            try:
+                self.poll()
+            except Exception:  # the driver keeps running; profiles stay as they are
+                log.exception("profiles per game: looking at the processes failed")
+
+    def start(self) -> None:
+        """Poll in a thread until :meth:`stop`."""
+        self._thread = threading.Thread(target=self._loop, name="nt-games", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(2.0)

@@ -1,0 +1,418 @@
+"""A run's first start on a cold numba cache: progress from the first second, a first state in seconds.
+
+The gesture pipeline and the simulated gel are numba kernels (``@numba.njit(cache=True)``). On a
+fresh install numba has nothing cached: compiling them takes ~45 s of CPU (~40 s for the
+pipeline, ~5 s for the simulator; docs/performance.md, "Start-up"), during which a run used to
+show nothing. This module orchestrates that first compile around the kernels' modules, without
+changing them:
+
+* **what is cold**: a :class:`KernelGroup` (the pipeline's kernels, the simulator's) is warm when
+  every one of its kernels has code in numba's cache for this machine (numba's cache index,
+  :func:`cached_signatures`); only cold groups are compiled, and only the groups the run needs.
+* **compiled in parallel processes into the cache**: each cold group is compiled by its own
+  child process (``python -m neurotouch_hid.warmup GROUP``, the same warm-up that
+  ``GesturePipeline.compile_kernels`` or a short simulation is), which writes numba's cache; the
+  two groups use both cores. The child reports each kernel it compiled (one line on stdout), so
+  :class:`Warmup` can show progress.
+* **interpreted until compiled**: meanwhile the run calls the kernels' pure-Python/NumPy form
+  (numba's ``Dispatcher.py_func``; the same code, ~50x slower): every module's global name of a
+  cold kernel points at its ``py_func`` (:func:`interpret`). So the first windows come out in
+  seconds, slowly; a source that can wait (the simulated gel) waits instead of dropping data.
+* **switched back at a safe point**: when a child is done, a thread of this process loads the
+  group's compiled code from the cache (``Dispatcher.compile(signature)``, a cache hit), then,
+  while no call of the group runs (:meth:`Warmup.guard`, held by the callers around each call
+  while the group is interpreted), points every name back at the compiled kernels. No kernel is
+  compiled in this process.
+
+Where numba cannot cache (:mod:`neurotouch_hid.jit_cache`, "memory"), a child's work would be
+lost: the run compiles in-process before it starts instead, showing the same progress.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Iterator
+
+import numpy as np
+
+from neurotouch_hid import jit_cache
+
+#: What the user is told while the kernels compile.
+COMPILING = "compiling the gesture pipeline, first run only"
+
+
+@dataclass(frozen=True)
+class KernelGroup:
+    """Kernels compiled together by one child process.
+
+    Attributes:
+        name: the group's name (the child's argument).
+        imports: the module whose import defines every kernel of the group.
+        packages: module-name prefixes whose numba kernels belong to the group.
+        warm: ``"module:function"`` run by the child: calls every kernel of the group with the
+            argument types a run gives them, so numba compiles and caches them.
+        load_when_warm: on a warm cache, run ``warm`` in the run's process before it starts (it
+            loads the cached code, ~2 s, which the first window would otherwise wait for).
+    """
+
+    name: str
+    imports: str
+    packages: tuple[str, ...]
+    warm: str
+    load_when_warm: bool = False
+
+
+PIPELINE = KernelGroup(
+    "pipeline",
+    "neurotouch_hid.pipeline.methods",
+    ("neurotouch_hid.pipeline.",),
+    "neurotouch_hid.warmup:compile_pipeline",
+    load_when_warm=True,
+)
+SIMULATOR = KernelGroup(
+    "simulator",
+    "neurotouch_hid.sources.simulator",
+    ("neurotouch_hid.sources.esim", "neurotouch_hid.sources.simulator"),
+    "neurotouch_hid.warmup:simulate_briefly",
+)
+PAPER_PIPELINE = KernelGroup(
+    "paper-pipeline",
+    "neurotouch_hid.pipeline.methods",
+    ("neurotouch_hid.pipeline.",),
+    "neurotouch_hid.warmup:compile_paper_pipeline",
+    load_when_warm=True,
+)
+#: The pipeline's group of each method (``pipeline.methods``).
+PIPELINE_OF = {"default": PIPELINE, "paper": PAPER_PIPELINE}
+GROUPS = {g.name: g for g in (PIPELINE, PAPER_PIPELINE, SIMULATOR)}
+
+
+def compile_pipeline(method: str = "default") -> None:
+    """Compile (or load from numba's cache) every kernel of the ``method``'s gesture pipeline now
+    (:meth:`GesturePipeline.compile_kernels`, ``pipeline.methods``), on the default sensor: what
+    a real-time run that cannot wait does before it opens its source, and a pipeline group's child
+    does."""
+    from neurotouch_hid.pipeline.methods import METHODS
+    from neurotouch_hid.sensor import SensorGeometry
+
+    METHODS[method][1](SensorGeometry()).compile_kernels()
+
+
+def compile_paper_pipeline() -> None:
+    """:func:`compile_pipeline` of the paper's method (``run --method paper``)."""
+    compile_pipeline("paper")
+
+
+def simulate_briefly() -> None:
+    """The simulator's warm-up: the simulated gel up to its first gesture (its frame, event and
+    finger kernels; ~1 s of simulated time)."""
+    from neurotouch_hid.estimate import GestureType
+    from neurotouch_hid.sources.simulator import SimulatedSource
+
+    for chunk in SimulatedSource(seed=0).chunks(seconds=10.0):
+        if chunk.label.gesture is not GestureType.NONE:
+            break
+
+
+def kernels(group: KernelGroup) -> dict[str, object]:
+    """The group's numba dispatchers, by ``module.name``, importing the group's module.
+
+    Kernels compiled only inside others (``inline="always"``) are left out: they have no cached
+    code of their own."""
+    import importlib
+
+    from numba.core.registry import CPUDispatcher
+
+    importlib.import_module(group.imports)
+    found: dict[str, object] = {}
+    for name, module in list(sys.modules.items()):
+        if module is None or not name.startswith(group.packages):
+            continue
+        for attr, value in list(vars(module).items()):
+            if (
+                isinstance(value, CPUDispatcher)
+                and value.py_func.__module__ == name
+                and value.targetoptions.get("inline", "never") == "never"
+            ):
+                found[f"{name}.{attr}"] = value
+    return found
+
+
+def cached_signatures(dispatcher) -> list:
+    """The argument types numba's cache holds compiled code for, for this machine (its index;
+    numba's ``FunctionCache``, which ``cache=True`` gives). Empty when nothing (or, with another
+    numba, nothing readable) is cached."""
+    try:
+        magic = dispatcher.targetctx.codegen().magic_tuple()
+        index = dispatcher._cache._cache_file._load_index()
+    except Exception:  # a numba whose cache is laid out otherwise: treated as cold
+        return []
+    return [key[0] for key in index if len(key) > 1 and key[1] == magic]
+
+
+def is_cold(group: KernelGroup) -> bool:
+    """Whether some kernel of ``group`` has no cached code (numba would compile it)."""
+    return any(not cached_signatures(d) for d in kernels(group).values())
+
+
+def _every_module_name(dispatchers: dict[object, object]) -> Iterator[tuple[object, str, object]]:
+    """(module, attribute, replacement) for every global name of the package bound to a key of
+    ``dispatchers`` (a kernel or its py_func)."""
+    for name, module in list(sys.modules.items()):
+        if module is None or not name.startswith("neurotouch_hid"):
+            continue
+        for attr, value in list(vars(module).items()):
+            try:
+                if value in dispatchers:
+                    yield module, attr, dispatchers[value]
+            except TypeError:  # unhashable module globals
+                continue
+
+
+def interpret(group_kernels: dict[str, object]) -> None:
+    """Point every global name of the package bound to one of these kernels at its pure-Python
+    form (``py_func``): calls from Python and from the other interpreted kernels alike."""
+    swap = {d: d.py_func for d in group_kernels.values()}
+    for module, attr, value in _every_module_name(swap):
+        setattr(module, attr, value)
+
+
+def compiled(group_kernels: dict[str, object]) -> None:
+    """Undo :func:`interpret`: every name points at the compiled kernel again."""
+    swap = {d.py_func: d for d in group_kernels.values()}
+    for module, attr, value in _every_module_name(swap):
+        setattr(module, attr, value)
+
+
+@dataclass
+class GroupProgress:
+    """One group's compile, as the user sees it.
+
+    Attributes:
+        state: ``"cold"`` (compiling, interpreted meanwhile), ``"loading"`` (compiled, loading
+            the cache), ``"ready"`` (compiled code in use), ``"failed"`` (the child failed: numba
+            compiles in this process when the kernels are first called).
+        done, total: kernels compiled so far, kernels in the group.
+    """
+
+    name: str
+    total: int
+    done: int = 0
+    state: str = "cold"
+    seen: set = field(default_factory=set, repr=False)
+
+    def add(self, kernel: str) -> None:
+        """``kernel`` (``module.name``) was compiled."""
+        self.seen.add(kernel)
+        self.done = len(self.seen)
+
+
+class Warmup:
+    """The cold groups of a run, compiled in child processes while the run interprets them.
+
+    Args:
+        groups: the groups the run needs (e.g. ``[PIPELINE, SIMULATOR]`` for the demo).
+        say: one line to the user (the child's error when one fails).
+        interpreted: True: interpret cold groups and compile them in children while the run goes
+            on; False: compile the cold groups now (:meth:`start` returns when done), in this
+            process, with the same progress (for sources that cannot wait, and deterministic
+            ``--fast`` replays, which must not mix the two forms' rounding).
+    """
+
+    def __init__(self, groups: list[KernelGroup], *, say: Callable[[str], None] = print, interpreted: bool = True):
+        self._groups = groups
+        self._say = say
+        self._interpreted = interpreted
+        self._locks = {g.name: threading.Lock() for g in groups}
+        self._kernels: dict[str, dict[str, object]] = {}
+        self.progress: dict[str, GroupProgress] = {}
+        self._threads: list[threading.Thread] = []
+        self._children: list[subprocess.Popen] = []
+        self.started_s = time.monotonic()
+        self._closing = False
+
+    # --- what the run sees -------------------------------------------------------------------
+    @property
+    def compiling(self) -> bool:
+        """Some group is still cold or loading."""
+        return any(p.state in ("cold", "loading") for p in self.progress.values())
+
+    def fraction(self) -> float:
+        """Kernels compiled over kernels to compile, across the cold groups (1.0 when none)."""
+        total = sum(p.total for p in self.progress.values())
+        done = sum(p.total if p.state in ("ready", "failed") else min(p.done, p.total) for p in self.progress.values())
+        return 1.0 if total == 0 else done / total
+
+    def describe(self) -> str:
+        """One line: why the run is slow and how far the compile is, or '' when it is not."""
+        if not self.compiling:
+            return ""
+        elapsed = time.monotonic() - self.started_s
+        how = "interpreted meanwhile" if self._interpreted else "the run starts after it"
+        return f"{COMPILING}: {self.fraction():.0%}, {elapsed:.0f} s ({how})"
+
+    @contextlib.contextmanager
+    def guard(self, group: KernelGroup) -> Iterator[None]:
+        """Hold around a call that may run ``group``'s kernels: while the group is interpreted,
+        its switch to compiled code waits for the call to end (never mixed within a call)."""
+        progress = self.progress.get(group.name)
+        if progress is None or progress.state in ("ready", "failed"):
+            yield
+            return
+        with self._locks[group.name], np.errstate(all="ignore"):  # numba's error_model="numpy"
+            yield
+
+    # --- the compile -----------------------------------------------------------------------
+    def start(self) -> "Warmup":
+        """Find the cold groups and compile them (see the class). Returns self."""
+        in_memory = jit_cache.chosen().kind == jit_cache.MEMORY
+        for group in self._groups:
+            found = kernels(group)
+            if not any(not cached_signatures(d) for d in found.values()):
+                if group.load_when_warm:
+                    _call(group.warm)
+                continue
+            self._kernels[group.name] = found
+            self.progress[group.name] = GroupProgress(group.name, len(found))
+        if not self.progress:
+            return self
+        if self._interpreted and not in_memory:
+            self._say(f"{COMPILING}: running interpreted (slowly) meanwhile, ~40 s on two cores")
+        for group in self._groups:
+            if group.name not in self.progress:
+                continue
+            if self._interpreted and not in_memory:
+                interpret(self._kernels[group.name])
+                thread = threading.Thread(
+                    target=self._child, args=(group,), name=f"nt-compile-{group.name}", daemon=True
+                )
+                self._threads.append(thread)
+                thread.start()
+            else:
+                self._compile_here(group)
+        return self
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Wait for every child and the switch to compiled code; whether all ended in time."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        for thread in self._threads:
+            thread.join(None if deadline is None else max(0.0, deadline - time.monotonic()))
+        return not any(t.is_alive() for t in self._threads)
+
+    def close(self) -> None:
+        """Stop the children still compiling (the run ended first; what they cached stays) and
+        point the names of the groups still interpreted back at the compiled kernels (a later run
+        in this process compiles or loads them when it first calls them)."""
+        self._closing = True
+        for child in self._children:
+            if child.poll() is None:
+                child.terminate()
+        for child in self._children:
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                child.wait(5)
+        for name, progress in self.progress.items():
+            with self._locks[name]:
+                if progress.state == "cold":
+                    compiled(self._kernels[name])
+                    progress.state = "failed"
+
+    def _compile_here(self, group: KernelGroup) -> None:
+        progress = self.progress[group.name]
+        self._say(f"{COMPILING}: the {group.name} kernels ({progress.total}), before the run starts ...")
+        with _on_each_compiled(self._kernels[group.name], progress.add):
+            _call(group.warm)
+        progress.state = "ready"
+        self._say(
+            f"compiled the {group.name} kernels in {time.monotonic() - self.started_s:.0f} s; cached for next time"
+        )
+
+    def _child(self, group: KernelGroup) -> None:
+        """Thread: run the group's child, count its progress lines, then switch to its code."""
+        progress = self.progress[group.name]
+        try:
+            child = subprocess.Popen(
+                [sys.executable, "-m", "neurotouch_hid.warmup", group.name],
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+                env=os.environ.copy(),
+            )
+        except OSError as exc:
+            self._failed(group, f"could not start the compile ({exc})")
+            return
+        self._children.append(child)
+        for line in child.stdout:
+            if line.strip() in self._kernels[group.name]:
+                progress.add(line.strip())
+        error = child.stderr.read().strip()
+        if child.wait() != 0 and self._closing:  # the run ended first: what it cached stays
+            return
+        if child.wait() != 0:
+            last = error.splitlines()[-1] if error else f"exit status {child.returncode}"
+            self._failed(group, f"the {group.name} compile failed ({last})")
+            return
+        progress.state = "loading"
+        group_kernels = self._kernels[group.name]
+        for dispatcher in group_kernels.values():
+            for signature in cached_signatures(dispatcher):
+                with contextlib.suppress(Exception):  # an entry it cannot load: compiled on first call
+                    dispatcher.compile(signature)
+        with self._locks[group.name]:
+            compiled(group_kernels)
+            progress.state = "ready"
+        if not self.compiling:
+            self._say(f"compiled in {time.monotonic() - self.started_s:.0f} s, cached for next time: full speed now")
+
+    def _failed(self, group: KernelGroup, why: str) -> None:
+        with self._locks[group.name]:
+            compiled(self._kernels[group.name])
+            self.progress[group.name].state = "failed"
+        self._say(f"{why}: numba compiles it in this process instead")
+
+
+def _on_each_compiled(group_kernels: dict[str, object], on_kernel: Callable[[str], None]):
+    """A context in which ``on_kernel(name)`` is called each time numba has compiled one of
+    ``group_kernels`` (numba's ``numba:compile`` event, nested compiles included)."""
+    from numba.core import event
+
+    names = {d: name for name, d in group_kernels.items()}
+
+    class Reporting(event.Listener):
+        def on_start(self, ev):
+            pass
+
+        def on_end(self, ev):
+            name = names.get(ev.data.get("dispatcher"))
+            if name is not None:
+                on_kernel(name)
+
+    return event.install_listener("numba:compile", Reporting())
+
+
+def _call(spec: str) -> None:
+    import importlib
+
+    module, function = spec.split(":")
+    getattr(importlib.import_module(module), function)()
+
+
+def main(argv: list[str]) -> int:
+    """The child: compile one group (its name in ``argv``) into numba's cache, printing the
+    ``module.name`` of each of its kernels as it is compiled. Exit status 2 for an unknown group."""
+    if len(argv) != 1 or argv[0] not in GROUPS:
+        print(f"expected one group among: {', '.join(GROUPS)}", file=sys.stderr)
+        return 2
+    group = GROUPS[argv[0]]
+    with _on_each_compiled(kernels(group), lambda name: print(name, flush=True)):
+        _call(group.warm)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,148 @@
+"""The live terminal view of run and demo (neurotouch_hid/output/live.py): the gel plot, the
+gestures performed and recognised, the profile, drawn in a real terminal (tmux) at 80x24."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+import uuid
+
+import numpy as np
+import pytest
+
+from neurotouch_hid.mapping.profile import load_profile
+from neurotouch_hid.output.live import gel_cells, mapping_lines
+
+
+def _grid(columns=9, rows=9):
+    k = np.linspace(-8.0, 8.0, 5)
+    return np.stack(np.meshgrid(k, k), axis=-1).reshape(-1, 2)
+
+
+def _find(cells, char):
+    return [(r, c) for r, row in enumerate(cells) for c, (ch, _) in enumerate(row) if ch == char]
+
+
+def test_a_marker_moved_right_is_an_arrow_right_where_it_is_now():
+    rest = _grid()
+    now = rest.copy()
+    centre = int(np.argmin(np.linalg.norm(rest, axis=1)))
+    now[centre] += (3.0, 0.0)  # 3 mm right, user frame
+    cells = gel_cells(rest, now, np.zeros((0, 2)), radius_mm=15.0, columns=31, rows=13)
+    assert _find(cells, "→") == [(6, 18)]  # centre (6, 15) plus 3 mm = 3 columns of 1 mm
+    assert len(_find(cells, "·")) == len(rest) - 1  # every other marker at rest
+    assert not _find(cells, "←") and not _find(cells, "↑")
+
+
+def test_up_is_up_and_contacts_are_drawn_on_top():
+    rest = _grid()
+    now = rest + (0.0, 1.5)  # the whole gel pushed up (user frame: y up)
+    contact = np.array([[0.0, 1.5]])
+    cells = gel_cells(rest, now, contact, radius_mm=15.0, columns=31, rows=13)
+    assert _find(cells, "●") == [(5, 15)]  # above the centre row 6
+    assert len(_find(cells, "↑")) == len(rest) - 1  # the contact covers one marker
+    assert not _find(cells, "↓")
+
+
+def test_lost_markers_are_left_out():
+    rest = _grid()
+    now = rest.copy()
+    now[:5] = np.nan
+    cells = gel_cells(rest, now, np.zeros((0, 2)), radius_mm=15.0)
+    assert len(_find(cells, "·")) == len(rest) - 5
+
+
+def test_the_profile_says_what_each_gesture_drives():
+    lines = mapping_lines(load_profile("default"))
+    assert ("push", "left_stick") in lines
+    assert ("pinch", "ABS_Z") in lines
+    assert len(lines) == len(load_profile("default").mappings)
+
+
+def _tmux() -> str:
+    """tmux, apt-installed when missing (as root, like the kernel tests' qemu)."""
+    found = shutil.which("tmux")
+    if found is None and os.geteuid() == 0 and shutil.which("apt-get"):
+        env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
+        subprocess.run(["apt-get", "update"], capture_output=True, env=env)
+        subprocess.run(["apt-get", "install", "-y", "--no-install-recommends", "tmux"], capture_output=True, env=env)
+        found = shutil.which("tmux")
+    if found is None:
+        pytest.skip("tmux is not installed and cannot be apt-installed here (needs root and apt-get)")
+    return found
+
+
+def test_the_demo_in_a_real_80x24_terminal_shows_the_gel_the_gestures_and_the_profile(tmp_path):
+    """A cold numba cache, so the compile's progress shows too, before any gesture."""
+    tmux = _tmux()
+    session = f"nt-live-{uuid.uuid4().hex[:8]}"
+    env = {
+        "NUMBA_CACHE_DIR": str(tmp_path / "numba"),
+        "PYTHONPATH": os.pathsep.join(sys.path),
+        "XDG_CONFIG_HOME": os.environ.get("XDG_CONFIG_HOME", str(tmp_path / "config")),
+        "TERM": "xterm-256color",
+    }
+    command = " ".join(f"{k}={v}" for k, v in env.items())
+    command += f" {sys.executable} -m neurotouch_hid.cli demo --seconds 60; sleep 60"
+    subprocess.run([tmux, "new-session", "-d", "-s", session, "-x", "80", "-y", "24", command], check=True)
+    try:
+        screen = ""
+        for _ in range(600):
+            time.sleep(0.5)
+            screen = subprocess.run([tmux, "capture-pane", "-p", "-t", session], capture_output=True, text=True).stdout
+            if "compiling the gesture pipeline" in screen and re.search(r"windows [1-9]", screen):
+                break  # a first state, the compile still going
+        lines = screen.splitlines()
+        assert len(lines) <= 24 and all(len(line) <= 80 for line in lines)
+        assert "the gel, seen from outside" in screen
+        assert screen.count("·") > 100  # the markers at rest
+        assert "performed" in screen and "recognised" in screen
+        assert "profile default" in screen
+        for gesture, output in mapping_lines(load_profile("default")):
+            assert f"{gesture}" in screen and f"→ {output}" in screen
+        assert "L stick" in screen and "R stick" in screen and "LT" in screen
+        assert "compiling the gesture pipeline, first run only" in screen
+        assert "Traceback" not in screen
+    finally:  # Ctrl-C ends the run (and its compile children) as a user would; then the terminal
+        subprocess.run([tmux, "send-keys", "-t", session, "C-c"], capture_output=True)
+        time.sleep(2)
+        subprocess.run([tmux, "kill-session", "-t", session], capture_output=True)
+
+
+def test_the_gamepad_with_the_view_beside_it_gets_every_state_and_is_neutralised():
+    import io
+
+    from rich.console import Console
+
+    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.estimate import GestureEstimate, GestureType
+    from neurotouch_hid.output.live import LiveView, ShownOutput
+
+    class Pad:
+        accepts_estimate = False
+
+        def __init__(self):
+            self.written, self.neutralised = [], 0
+
+        def write(self, state):
+            self.written.append(state)
+
+        def neutralise(self):
+            self.neutralised += 1
+
+        def prepare(self, profile):
+            pass
+
+    pad = Pad()
+    view = LiveView(Console(file=io.StringIO(), force_terminal=False, width=200))
+    shown = ShownOutput(pad, view)
+    state = ControllerState.neutral(10_000)
+    state.axes["ABS_X"] = 20_000
+    shown.write(state, GestureEstimate(t_us=10_000, gesture=GestureType.PUSH, intensity_mm=3.0))
+    shown.neutralise()
+    assert pad.written == [state] and pad.neutralised == 1
+    assert "push 3.00 mm" in view.console.file.getvalue()

@@ -1,0 +1,174 @@
+"""A first run on a cold numba cache (neurotouch_hid/warmup.py): what is cold, the interpreted
+kernels, the children that compile into the cache, the progress said before the first state,
+and a simulated source that waits instead of dropping data."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from neurotouch_hid import warmup
+from neurotouch_hid.controller import ControllerState
+from neurotouch_hid.estimate import GestureEstimate
+from neurotouch_hid.mapping.profile import load_profile
+from neurotouch_hid.runtime import Runtime
+from neurotouch_hid.sources import EVENT_DTYPE
+
+CLI = [sys.executable, "-m", "neurotouch_hid.cli"]
+
+
+def _env(cache) -> dict:
+    return dict(os.environ, NUMBA_CACHE_DIR=str(cache), PYTHONPATH=os.pathsep.join(sys.path))
+
+
+def test_interpret_points_every_name_at_the_python_form_and_back():
+    """Where a kernel is defined and where it is imported (``from ... import kernel``) alike."""
+    found = warmup.kernels(warmup.PIPELINE)
+    assert len(found) > 30
+    names = [
+        (module, attr, kernel)
+        for kernel in found.values()
+        for module in list(sys.modules.values())
+        if getattr(module, "__name__", "").startswith("neurotouch_hid")
+        for attr, value in list(vars(module).items())
+        if value is kernel
+    ]
+    assert any(module.__name__ != kernel.py_func.__module__ for module, _, kernel in names)  # imported ones too
+    warmup.interpret(found)
+    try:
+        assert all(getattr(module, attr) is kernel.py_func for module, attr, kernel in names)
+    finally:
+        warmup.compiled(found)
+    assert all(getattr(module, attr) is kernel for module, attr, kernel in names)
+
+
+def test_interpreted_pipeline_gives_the_compiled_pipelines_windows():
+    """The kernels' Python form (what a cold run uses until compiled) computes the same windows."""
+    from neurotouch_hid.pipeline.pipeline import GesturePipeline
+    from neurotouch_hid.sources.simulator import SimulatedSource
+
+    items = list(SimulatedSource(seed=3, gestures=["push"]).stream(seconds=1.6))
+
+    def windows():
+        pipeline = GesturePipeline(SimulatedSource(seed=3).sensor)
+        return [e for item in items for e in pipeline.process(item)]
+
+    compiled = windows()
+    found = warmup.kernels(warmup.PIPELINE)
+    warmup.interpret(found)
+    try:
+        with np.errstate(all="ignore"):
+            interpreted = windows()
+    finally:
+        warmup.compiled(found)
+    assert len(interpreted) == len(compiled) > 100
+    assert any(e.gesture.value == "push" for e in compiled)
+    assert [e.gesture for e in interpreted] == [e.gesture for e in compiled]
+    np.testing.assert_allclose([e.intensity_mm for e in interpreted], [e.intensity_mm for e in compiled], atol=1e-6)
+
+
+def test_a_group_is_cold_until_its_child_compiled_it_into_the_cache(tmp_path):
+    check = [sys.executable, "-c", "from neurotouch_hid import warmup as w; print(w.is_cold(w.SIMULATOR))"]
+    assert subprocess.run(check, env=_env(tmp_path), capture_output=True, text=True).stdout.strip() == "True"
+    child = subprocess.run(
+        [sys.executable, "-m", "neurotouch_hid.warmup", "simulator"], env=_env(tmp_path), capture_output=True, text=True
+    )
+    assert child.returncode == 0, child.stderr
+    assert "neurotouch_hid.sources.esim.esim_chunk" in child.stdout.split()  # its progress lines
+    assert subprocess.run(check, env=_env(tmp_path), capture_output=True, text=True).stdout.strip() == "False"
+
+
+def test_the_child_refuses_an_unknown_group():
+    child = subprocess.run([sys.executable, "-m", "neurotouch_hid.warmup", "nope"], capture_output=True, text=True)
+    assert child.returncode == 2
+    assert "pipeline" in child.stderr and "Traceback" not in child.stderr
+
+
+def test_a_cold_run_says_it_compiles_before_its_first_state_and_drops_nothing(tmp_path):
+    """Cold cache, output piped (stdout and stderr in one pipe, in order): the compile is
+    announced before the first state line; the simulated source waited instead of dropping."""
+    proc = subprocess.Popen(
+        [*CLI, "run", "--source", "sim", "--output", "term", "--seconds", "0.3"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=_env(tmp_path),
+    )
+    out, _ = proc.communicate(timeout=600)
+    assert proc.returncode == 0, out
+    lines = out.splitlines()
+    said = next(i for i, line in enumerate(lines) if "compiling the gesture pipeline, first run only" in line)
+    first_state = next(i for i, line in enumerate(lines) if line.startswith("t "))
+    assert said < first_state
+    assert "dropped 0 items" in lines[-1]
+    assert "╭" not in out  # piped: the plain lines, no panel
+    assert "Traceback" not in out
+
+
+class _SlowPipeline:
+    """Takes longer per batch than the batch lasts (a pipeline still interpreted)."""
+
+    def __init__(self):
+        self.events = 0
+
+    def process(self, item):
+        time.sleep(0.004)
+        self.events += len(item)
+        return [GestureEstimate(t_us=int(item["timestamp"][-1]))]
+
+    def set_resting(self, result, t_us):
+        pass
+
+    def restart(self):
+        pass
+
+
+class _Recorder:
+    accepts_estimate = False
+
+    def write(self, state: ControllerState, estimate=None):
+        pass
+
+    def neutralise(self):
+        pass
+
+    def prepare(self, profile):
+        pass
+
+
+def _batches(n: int):
+    for i in range(n):
+        batch = np.zeros(10, dtype=EVENT_DTYPE)
+        batch["timestamp"] = i * 1000 + np.arange(10) * 100
+        yield batch
+
+
+@pytest.mark.parametrize("max_lag_us", [2_000, 50_000])
+def test_a_source_that_waits_loses_nothing_to_a_slow_pipeline(max_lag_us):
+    pipeline = _SlowPipeline()
+    runtime = Runtime(
+        _batches(300), pipeline, load_profile("default"), _Recorder(), pace=True, waits=True, max_lag_us=max_lag_us
+    )
+    stats = runtime.run()
+    assert stats.dropped_items == 0 and stats.dropped_events == 0
+    assert pipeline.events == stats.events == 3000
+
+
+def test_a_run_that_ends_before_its_compile_leaves_the_compiled_kernels_named(tmp_path, monkeypatch):
+    """The run's process goes on (tests, a second run): nothing stays interpreted after close."""
+    import neurotouch_hid.sources.esim as esim
+
+    found = warmup.kernels(warmup.SIMULATOR)
+    chunk = found["neurotouch_hid.sources.esim.esim_chunk"]
+    run = warmup.Warmup([warmup.SIMULATOR], say=lambda line: None)
+    monkeypatch.setattr(warmup, "cached_signatures", lambda dispatcher: [])  # cold, whatever is cached
+    monkeypatch.setattr(run, "_child", lambda group: None)  # a compile that never ends
+    run.start()
+    assert esim.esim_chunk is chunk.py_func and run.compiling
+    run.close()
+    assert esim.esim_chunk is chunk and not run.compiling
