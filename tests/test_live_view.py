@@ -72,7 +72,7 @@ def _tmux() -> str:
         subprocess.run(["apt-get", "install", "-y", "--no-install-recommends", "tmux"], capture_output=True, env=env)
         found = shutil.which("tmux")
     if found is None:
-        pytest.skip("tmux is not installed and cannot be apt-installed here (needs root and apt-get)")
+        pytest.skip(reason="tmux is not installed and cannot be apt-installed here (needs root and apt-get)")
     return found
 
 
