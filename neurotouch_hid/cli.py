@@ -717,7 +717,7 @@ def calibrate(
             "guided pushes): give both or neither"
         )
     if source in (SourceKind.DAVIS, SourceKind.SIM):
-        from neurotouch_hid.driver import compile_pipeline
+        from neurotouch_hid.warmup import compile_pipeline
 
         err_console.print("loading the gesture pipeline (compiled on the first run only)", highlight=False)
         compile_pipeline()  # before the camera opens: nothing of the guided gestures waits for it

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from neurotouch_hid.control import SOCKET_NAME
 from neurotouch_hid.errors import ProfileError
 from neurotouch_hid.games import (
     EXECUTABLE,
@@ -370,7 +371,7 @@ def test_a_running_driver_switches_to_a_games_profile_and_back_through_its_contr
     states = tmp_path / "states.jsonl"
     driver = Driver(env, states)
     try:
-        assert _wait_for(lambda: (runtime_dir / "neurotouch-hid.sock").exists() or driver.proc.poll() is not None, 300)
+        assert _wait_for(lambda: (runtime_dir / SOCKET_NAME).exists() or driver.proc.poll() is not None, 300)
         assert driver.proc.poll() is None, driver.lines
         steam = _steam_game(children)
         game = f"Steam app 4242 (pid {steam.pid}, sleep)"

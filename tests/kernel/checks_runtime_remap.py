@@ -379,6 +379,14 @@ mappings:
 """
 
 
+def _offers_key(path: str, code: int) -> bool:
+    """Whether the input device at ``path`` offers key ``code`` (False while it cannot be opened)."""
+    try:
+        return code in InputDevice(path).capabilities().get(ecodes.EV_KEY, [])
+    except OSError:
+        return False
+
+
 def check_profile_use_of_new_keys_makes_the_keyboard_again() -> dict:
     """``profile use`` of a profile file whose key the keyboard does not offer (KEY_F9): KEY_ENTER,
     held by the old profile, is released on the old keyboard, which goes; a new keyboard offering
@@ -400,8 +408,15 @@ def check_profile_use_of_new_keys_makes_the_keyboard_again() -> dict:
         held = guestlib.wait_for(lambda: codes["KEY_ENTER"] in w["keyboard"].pressed, 90.0)
         assert held, f"the push in layer alt pressed nothing: {w['keyboard'].keys_log()}"
         answer = request_use(str(new_key), path=runtime_dir / SOCKET_NAME)
-        remade = guestlib.wait_for(lambda: _devices(KEYBOARD_PHYS) and _devices(KEYBOARD_PHYS) != old_keyboard, 30.0)
-        assert remade, f"no new keyboard: {_devices(KEYBOARD_PHYS)} (was {old_keyboard})"
+        # the new keyboard may get the old one's /dev/input/eventN: told apart by the old one's
+        # reader seeing it go and by the new one offering F9
+        remade = guestlib.wait_for(
+            lambda: w["keyboard"].reader.gone
+            and _devices(KEYBOARD_PHYS)
+            and _offers_key(_devices(KEYBOARD_PHYS)[0], codes["KEY_F9"]),
+            30.0,
+        )
+        assert remade, f"no new keyboard: {_devices(KEYBOARD_PHYS)} (was {old_keyboard}, answer {answer!r})"
         new_path = _devices(KEYBOARD_PHYS)[0]
         offered = set(InputDevice(new_path).capabilities().get(ecodes.EV_KEY, []))
         new = Watcher(new_path)
