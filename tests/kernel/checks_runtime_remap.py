@@ -411,9 +411,11 @@ def check_profile_use_of_new_keys_makes_the_keyboard_again() -> dict:
         # the new keyboard may get the old one's /dev/input/eventN: told apart by the old one's
         # reader seeing it go and by the new one offering F9
         remade = guestlib.wait_for(
-            lambda: w["keyboard"].reader.gone
-            and _devices(KEYBOARD_PHYS)
-            and _offers_key(_devices(KEYBOARD_PHYS)[0], codes["KEY_F9"]),
+            lambda: (
+                w["keyboard"].reader.gone
+                and _devices(KEYBOARD_PHYS)
+                and _offers_key(_devices(KEYBOARD_PHYS)[0], codes["KEY_F9"])
+            ),
             30.0,
         )
         assert remade, f"no new keyboard: {_devices(KEYBOARD_PHYS)} (was {old_keyboard}, answer {answer!r})"
