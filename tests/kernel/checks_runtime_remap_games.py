@@ -103,10 +103,8 @@ def check_a_game_switches_profiles_leaving_nothing_held() -> dict:
         ("BTN_RIGHT", 1),
         ("BTN_RIGHT", 0),
     ], mouse
-    assert pad == [("BTN_EAST", 1), ("BTN_EAST", 0), ("BTN_SOUTH", 1), ("BTN_SOUTH", 0)] + [
-        ("BTN_EAST", 1),
-        ("BTN_EAST", 0),
-    ], pad
+    east = str(ecodes.BTN_EAST)  # the watcher logs a code with several names (B, EAST) by number
+    assert pad == [(east, 1), (east, 0), ("BTN_SOUTH", 1), ("BTN_SOUTH", 0), (east, 1), (east, 0)], pad
     assert stick_after == 0, f"the stick stayed off centre after the game exited: ABS_X {stick_after}"
     assert proc.returncode == 0, f"exit code {proc.returncode}: {err[-2000:]}"
     leftover = {name: sorted(watcher.pressed) for name, watcher in w.items() if watcher.pressed}
