@@ -1,10 +1,11 @@
-"""Shared fixtures: the one real-kernel boot per test session (tests/kernel/vm.py), a user
-config folder in tmp for every other test, ``cli``: the profile commands run in this process, and
-the recordings many test modules read: each simulated once per session, the real street
-recording where it is, and a simulated street for a clone without it (../shared).
+"""Shared fixtures: the real-kernel boots of a test session (tests/kernel/vm.py: two guests side
+by side, their results merged), a user config folder in tmp for every other test, ``cli``: the
+profile commands run in this process, and the recordings many test modules read: each simulated
+once per session, the real street recording where it is, and a simulated street for a clone
+without it (../shared).
 
-The boot starts in the background as soon as the tests are collected, when any of them needs it,
-and the tests that need it run last: the host's tests run while the guest boots and checks."""
+The boots start in the background as soon as the tests are collected, when any test needs them,
+and the tests that need them run last: the host's tests run while the guests boot and check."""
 
 from __future__ import annotations
 
@@ -66,8 +67,8 @@ def user_config_in_tmp(request, tmp_path, monkeypatch) -> Path | None:
 
 @pytest.fixture(scope="session")
 def guest() -> dict:
-    """The JSON results of every guest check (tests/kernel/checks_*.py), from one boot of Debian's
-    kernel under qemu. Skips, with the reason, only where qemu cannot be installed at all."""
+    """The JSON results of every guest check (tests/kernel/checks_*.py), from the session's boots of
+    Debian's kernel under qemu. Skips, with the reason, only where qemu cannot be installed at all."""
     try:
         return guest_results()
     except KernelUnavailable as exc:

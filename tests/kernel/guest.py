@@ -1,6 +1,8 @@
 """Runs INSIDE the qemu guest (tests/kernel/vm.py boots it): every guest check, one JSON file.
 
-Usage (by vm.py): ``python3 tests/kernel/guest.py OUT/result.json``
+Usage (by vm.py): ``python3 tests/kernel/guest.py OUT/result.json [MODULE ...]``: with MODULEs
+(e.g. ``checks_davis``), only those check modules (vm.py boots two guests side by side, each with
+its share of the modules, ``vm.GUEST_PARTS``).
 
 1. Setup: load the modules (uinput, joydev, ...), put the project's udev rules into
    /run/udev/rules.d (read by udev like /etc/udev/rules.d), start systemd-udevd, trigger, settle.
@@ -64,9 +66,12 @@ def setup() -> dict:
     return details
 
 
-def load_check_modules() -> list:
+def load_check_modules(only: list[str] | None = None) -> list:
+    """The check modules, in name order: those named in ``only`` (module names), or all."""
     modules = []
     for path in sorted(HERE.glob("checks_*.py")):
+        if only and path.stem not in only:
+            continue
         spec = importlib.util.spec_from_file_location(path.stem, path)
         module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
@@ -98,7 +103,7 @@ def run_one(func, timeout_s: int) -> dict:
     return entry
 
 
-def main(out: Path) -> int:
+def main(out: Path, only: list[str] | None = None) -> int:
     results: dict = {}
 
     def save() -> None:
@@ -108,7 +113,7 @@ def main(out: Path) -> int:
     results["setup"] = run_one(setup, 120)
     save()
     try:
-        modules = load_check_modules()
+        modules = load_check_modules(only)
     except Exception:
         results["load_checks"] = {"ok": False, "error": traceback.format_exc()[-4000:]}
         save()
@@ -125,4 +130,4 @@ def main(out: Path) -> int:
 
 if __name__ == "__main__":
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
-    sys.exit(main(Path(sys.argv[1])))
+    sys.exit(main(Path(sys.argv[1]), sys.argv[2:]))

@@ -2,14 +2,16 @@
 
 This machine's own kernel has no uinput (tests/kernel/README.md, "Why a kernel under qemu"), so the tests boot
 Debian's generic ``linux-image-*-amd64`` under qemu with virtme-ng (``vng``), sharing the host's
-root file system read-only, and run ``tests/kernel/guest.py`` inside. The guest script runs every
-guest check (``tests/kernel/checks_*.py``) in that one boot and writes a JSON file into a
-``--rwdir`` folder; the tests assert on it.
+root file system read-only, and run ``tests/kernel/guest.py`` inside. Two guests boot side by
+side (:data:`GUEST_PARTS`: each qemu emulates on one core), each running its share of the guest
+checks (``tests/kernel/checks_*.py``) and writing a JSON file into a ``--rwdir`` folder; the tests
+assert on the two merged.
 
 Everything is owned by the tests: host packages are apt-installed when qemu is missing (as root),
 the kernel is downloaded with ``apt-get download`` and extracted into a cache folder
 (``$NEUROTOUCH_KERNEL_CACHE`` or ``~/.cache/neurotouch-hid/kernel``) that later runs reuse.
-:func:`guest_results` boots at most once per Python process, whichever test file asks first.
+:func:`guest_results` boots at most once per Python process (the two guests), whichever test file
+asks first.
 """
 
 from __future__ import annotations
@@ -40,6 +42,18 @@ HOST_COMMANDS = {
     "depmod": "kmod",
     "udevadm": "udev",
 }
+#: The guest checks of each of the two guests booted side by side: the emulated camera's
+#: (checks_davis.py: seven commands, each a Python start of tens of seconds under emulation, ~8 min)
+#: and every other module's (~8 min); one guest for all took 17-20 min on 2 cores.
+CAMERA_MODULES = ("checks_davis",)
+
+
+def guest_parts() -> list[tuple[str, ...]]:
+    """The check modules (names) of each guest: :data:`CAMERA_MODULES`, then all the others."""
+    modules = sorted(path.stem for path in HERE.glob("checks_*.py"))
+    return [CAMERA_MODULES, tuple(m for m in modules if m not in CAMERA_MODULES)]
+
+
 #: The whole guest run (a limit, not a duration): checks_davis.py alone took 8 minutes under
 #: emulation at load 7 (it runs seven commands, each a Python start of tens of seconds there), the
 #: whole guest run with the boot 19 minutes at load 6-9 on 2 cores.
@@ -222,12 +236,17 @@ def compile_guest_numba_cache(folder: Path) -> None:
 
 
 def boot(
-    guest_script: Path = GUEST_SCRIPT, timeout_s: int = BOOT_TIMEOUT_S, cancelled: threading.Event | None = None
+    guest_script: Path = GUEST_SCRIPT,
+    timeout_s: int = BOOT_TIMEOUT_S,
+    cancelled: threading.Event | None = None,
+    modules: tuple[str, ...] = (),
 ) -> dict:
-    """Boot the kernel once under qemu (no KVM), run ``guest_script`` in it, return its JSON.
+    """Boot the kernel once under qemu (no KVM), run ``guest_script`` in it (on the check
+    ``modules`` only, when given), return its JSON.
 
-    The boot's shared folder holds, beside the result, what checks_davis.py needs: the replay
-    recording and the pipeline's numba code compiled here (:func:`compile_guest_numba_cache`).
+    When checks_davis.py runs, the boot's shared folder holds, beside the result, what it needs:
+    the replay recording and the pipeline's numba code compiled here
+    (:func:`compile_guest_numba_cache`).
     The JSON maps each check's name to ``{"ok": bool, "seconds": float, ...details}``, plus
     ``"_boot"`` with the boot's wall time and kernel release. Raises KernelUnavailable when qemu
     cannot be installed, RuntimeError (with vng's output) when the guest wrote no result.
@@ -238,12 +257,13 @@ def boot(
     kdir, kver = ensure_kernel()
     vmlinuz = kdir / "boot" / f"vmlinuz-{kver}"
     out = Path(tempfile.mkdtemp(prefix="boot-", dir=cache_dir()))
-    shutil.copyfile(ensure_replay_recording(), out / "davis_replay.aedat4")  # checks_davis.py's camera
-    compile_guest_numba_cache(out / GUEST_NUMBA_CACHE)  # and the pipeline's code for its runs
+    if not modules or any(m in CAMERA_MODULES for m in modules):
+        shutil.copyfile(ensure_replay_recording(), out / "davis_replay.aedat4")  # checks_davis.py's camera
+        compile_guest_numba_cache(out / GUEST_NUMBA_CACHE)  # and the pipeline's code for its runs
     result = out / "result.json"
     env = dict(os.environ)
     env["PATH"] = f"{Path(sys.executable).parent}:{env.get('PATH', '/usr/bin:/bin')}"
-    inner = " ".join(shlex.quote(s) for s in (sys.executable, str(guest_script), str(result)))
+    inner = " ".join(shlex.quote(s) for s in (sys.executable, str(guest_script), str(result), *modules))
     cmd = [
         _vng(),
         "--disable-kvm",
@@ -289,7 +309,7 @@ def boot(
     if not result.exists():
         raise RuntimeError(f"the guest wrote no {result.name}; vng said:\n{log[-3000:]}")
     data = json.loads(result.read_text())
-    data["_boot"] = {"seconds": round(seconds, 1), "kernel": kver}
+    data["_boot"] = {"seconds": round(seconds, 1), "kernel": kver, "modules": list(modules)}
     if all(entry.get("ok", True) for entry in data.values()):
         shutil.rmtree(out, ignore_errors=True)
     else:
@@ -297,40 +317,69 @@ def boot(
     return data
 
 
+def merge_results(parts: list[dict]) -> dict:
+    """One result from the guests' results: every check's entry, and ``_boot`` with the longest
+    boot's seconds, the kernel and each guest's own ``_boot`` (``parts``)."""
+    merged: dict = {}
+    for part in parts:
+        merged.update({name: entry for name, entry in part.items() if name not in ("_boot", "_guest", "setup")})
+    boots = [part.get("_boot", {}) for part in parts]
+    merged["setup"] = next((p["setup"] for p in parts if not p.get("setup", {}).get("ok", True)), parts[0].get("setup"))
+    merged["_boot"] = {
+        "seconds": max(b.get("seconds", 0) for b in boots),
+        "kernel": boots[0].get("kernel"),
+        "parts": boots,
+    }
+    return merged
+
+
 class BackgroundBoot:
-    """:func:`boot` in a thread of its own, started as the test session starts so that the host's
-    tests run while the guest does (the boot takes minutes under software emulation)."""
+    """The guests of :func:`guest_parts`, each :func:`boot` in a thread of its own, started as the
+    test session starts so that the host's tests run while the guests do (a boot takes minutes
+    under software emulation)."""
 
     def __init__(self) -> None:
         self._cancelled = threading.Event()
-        self._result: dict | None = None
-        self._error: BaseException | None = None
-        self._thread = threading.Thread(target=self._boot, name="kernel-boot", daemon=True)
-        self._thread.start()
+        self._parts = guest_parts()
+        self._results: list[dict | None] = [None] * len(self._parts)
+        self._first_error: BaseException | None = None  # not the other guest's cancellation after it
+        self._lock = threading.Lock()
+        self._threads = [
+            threading.Thread(target=self._boot, args=(i,), name=f"kernel-boot-{i}", daemon=True)
+            for i in range(len(self._parts))
+        ]
+        for thread in self._threads:
+            thread.start()
 
-    def _boot(self) -> None:
+    def _boot(self, index: int) -> None:
         try:
-            self._result = boot(cancelled=self._cancelled)
+            self._results[index] = boot(cancelled=self._cancelled, modules=self._parts[index])
         except BaseException as exc:  # noqa: BLE001 - handed to the thread that asks for the result
-            self._error = exc
+            with self._lock:
+                self._first_error = self._first_error or exc
+            self._cancelled.set()  # the other guest's result alone would not do
 
     def result(self) -> dict:
-        """The boot's JSON once it is done; raises what :func:`boot` raised."""
-        self._thread.join()
-        if self._error is not None:
-            raise self._error
-        assert self._result is not None
-        return self._result
+        """The guests' merged JSON once both are done (:func:`merge_results`); raises what a
+        :func:`boot` raised."""
+        for thread in self._threads:
+            thread.join()
+        if self._first_error is not None:
+            raise self._first_error
+        return merge_results([r for r in self._results if r is not None])
 
     @property
     def finished(self) -> dict | None:
-        """The boot's JSON if it finished with one, else None (without waiting)."""
-        return self._result
+        """The merged JSON if both guests finished with one, else None (without waiting)."""
+        if any(r is None for r in self._results):
+            return None
+        return merge_results(self._results)
 
     def cancel(self) -> None:
         """Stop qemu if it still runs (the session ended before any test asked for the result)."""
         self._cancelled.set()
-        self._thread.join(timeout=30)
+        for thread in self._threads:
+            thread.join(timeout=30)
 
 
 _background: BackgroundBoot | None = None
@@ -359,7 +408,10 @@ def boot_summary() -> str | None:
         key=lambda item: -item[1],
     )
     listed = ", ".join(f"{name.split('.')[-1]} {seconds:.0f} s" for name, seconds in checks)
-    return f"kernel boot {result.get('_boot', {}).get('seconds', '?')} s; guest checks: {listed}"
+    boots = ", ".join(
+        f"{b.get('seconds', '?')} s ({' '.join(b.get('modules') or ['all'])})" for b in result["_boot"].get("parts", [])
+    )
+    return f"kernel boots {boots}; guest checks: {listed}"
 
 
 def cancel_background_boot() -> None:
@@ -370,8 +422,8 @@ def cancel_background_boot() -> None:
 
 @functools.cache
 def guest_results() -> dict:
-    """The results of the one boot per Python process (one pytest session): the background boot's
-    when one was started, else :func:`boot` now; later calls get the same dict.
+    """The merged results of the one pair of boots per Python process (one pytest session): the
+    background ones' when they were started, else both booted now; later calls get the same dict.
 
     Raises KernelUnavailable (tests skip with its message) or RuntimeError (tests fail)."""
-    return _background.result() if _background is not None else boot()
+    return (_background if _background is not None else BackgroundBoot()).result()
