@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Callable, ContextManager, Iterator, Protocol
 
 from neurotouch_hid.errors import DeviceError, NeurotouchError, ProfileError
 from neurotouch_hid.estimate import GestureEstimate
-from neurotouch_hid.kinds import OutputKind, SourceKind
+from neurotouch_hid.kinds import MethodKind, OutputKind, SourceKind
 from neurotouch_hid.mapping.profile import Profile, available_profiles, load_profile
 from neurotouch_hid.runtime import DEFAULT_BATCH_US, DEFAULT_MAX_LAG_US, Runtime
 from neurotouch_hid.sources import Frame
@@ -315,10 +315,8 @@ def run_driver(
         raise NeurotouchError(f"--window-us {window_us}: windows must be at least 1000 us")
     if max_lag_us < 1000:
         raise NeurotouchError(f"--max-lag-ms {max_lag_us / 1000:g}: the lag allowed must be at least 1 ms")
-    from neurotouch_hid.pipeline.methods import METHODS
-
-    if method not in METHODS:
-        raise NeurotouchError(f"--method {method!r}: expected one of {', '.join(METHODS)}")
+    if method not in tuple(MethodKind):
+        raise NeurotouchError(f"--method {method!r}: expected one of {', '.join(MethodKind)}")
     loaded = load_profile(profile)
     warmup = start_warmup(source, fast=fast, say=say, method=method)
     stats = stats if stats is not None else RunStats()

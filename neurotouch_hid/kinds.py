@@ -21,3 +21,10 @@ class SourceKind(StrEnum):
 
     DAVIS = "davis"  #: the live DAVIS-346
     SIM = "sim"  #: the simulated gel
+
+
+class MethodKind(StrEnum):
+    """The gesture pipeline's methods (``--method``; ``pipeline.methods`` maps each to its code)."""
+
+    DEFAULT = "default"  #: the product (docs/method.md, "Overview")
+    PAPER = "paper"  #: the paper's method exactly (docs/method.md, "The paper's method")
