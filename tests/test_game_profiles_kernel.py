@@ -12,11 +12,6 @@ from conftest import passed
 pytestmark = pytest.mark.kernel
 
 
-@pytest.mark.xfail(
-    reason="not yet passed in the guest: its first runs failed on the check itself (a profile by path "
-    "remade the keyboard; the pad's log names BTN_EAST by number), both corrected since without a run",
-    strict=False,
-)
 def test_a_game_switches_the_profile_mid_push_and_back_and_leaves_nothing_held(guest):
     details = passed(guest, "checks_runtime_remap_games.check_a_game_switches_profiles_leaving_nothing_held")
     assert ["KEY_ENTER", 0] == details["keyboard"][1] and ["KEY_LEFTCTRL", 1] == details["keyboard"][2]

@@ -60,8 +60,11 @@ PUSH_S, HELD_S, GESTURE_SLOW = (REST_TO_S, 2.0), (1.6, 2.0), 10
 RUN_WINDOW_US = 200_000
 #: ``run``'s allowed lag (ms): a pushed window's estimate takes up to ~0.25 s under emulation, more
 #: than the default 200 ms of data that may wait meanwhile; with less, the pipeline dropped 58 %
-#: of the push's events and the stick reached only a tenth of its travel.
-RUN_MAX_LAG_MS = 3000
+#: of the push's events and the stick reached only a tenth of its travel. With 3 s, in 2 of 3
+#: guest runs on a loaded host, every event of the push was dropped (about 108k of 133k) and the
+#: pad never moved: the emulated camera, its gadget and the pipeline share one emulated CPU. The
+#: check is of the camera's path and the unplug, not of the emulator's speed: the run may lag.
+RUN_MAX_LAG_MS = 30_000
 #: The push counts as on the pad once the left stick is this far left (of 32767: the default
 #: profile maps a push's intensity to ABS_X), at most this many seconds after the cue.
 PUSHED_X, PUSH_WAIT_S = 16_000, 120
@@ -435,7 +438,11 @@ def _run_gamepad_unplug(camera: EmulatedCamera) -> dict:
             proc.send_signal(signal.SIGTERM)  # its summary says what the pipeline processed and dropped
             proc.wait(120)
             err.poll()
-            raise AssertionError(f"no push on the pad {PUSH_WAIT_S} s after the cue: {reader.axes}; {err.lines[-5:]}")
+            compiled = _compiled_in_guest(out_path.read_text())
+            raise AssertionError(
+                f"no push on the pad {PUSH_WAIT_S} s after the cue: {reader.axes}; {err.lines[-5:]}; "
+                f"numba compiled in the guest: {compiled or 'nothing'}"
+            )
         pushed_after_s = time.monotonic() - t_cue
         pushed_axes = dict(reader.axes)
         t_unplug = time.monotonic()

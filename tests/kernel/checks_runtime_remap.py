@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 
 import guestlib
-from checks_runtime import _env, _start_run_on_pad, timeline
+from checks_runtime import NO_DROP_LAG_MS, _env, _start_run_on_pad, timeline
 from evdev import InputDevice, ecodes, list_devices
 
 from neurotouch_hid.estimate import GestureEstimate, GestureType
@@ -164,7 +164,7 @@ def _run_in_process(
         for device in (outputs.keyboard, outputs.mouse):
             if device is not None:
                 watchers[device.what] = Watcher(device.device_path)
-        stats = run_driver(str(preds), profile, "gamepad", output_obj=outputs)
+        stats = run_driver(str(preds), profile, "gamepad", output_obj=outputs, max_lag_us=int(NO_DROP_LAG_MS) * 1000)
     time.sleep(0.3)
     for w in watchers.values():
         w.stop()
