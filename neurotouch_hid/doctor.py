@@ -18,6 +18,7 @@ from __future__ import annotations
 import importlib
 import importlib.metadata
 import os
+import platform
 import shutil
 import sys
 from dataclasses import dataclass
@@ -37,8 +38,11 @@ from neurotouch_hid.sources.discovery import (
 from neurotouch_hid.udev import INSTALL_SCRIPT, RULES_DIRS, RULES_INSTALL, RULES_NAME, installed_rules, uinput_help
 
 SERVICE_NAME = "neurotouch-hid.service"
+#: The distribution that brings ``import evdev`` here, as pyproject.toml chooses it: the
+#: precompiled evdev-binary on x86_64 (its only wheels), the source evdev elsewhere.
+EVDEV_DIST = "evdev-binary" if platform.machine() == "x86_64" else "evdev"
 #: (import name, distribution name) of the libraries the driver needs at run time.
-LIBRARIES = (("dv_processing", "dv-processing"), ("numba", "numba"), ("evdev", "evdev"))
+LIBRARIES = (("dv_processing", "dv-processing"), ("numba", "numba"), ("evdev", EVDEV_DIST))
 
 OK, FAIL, WARN, SKIP = "ok", "fail", "warn", "skip"
 
@@ -128,7 +132,8 @@ def check_rules(dirs: tuple[str, ...] = RULES_DIRS) -> Check:
 
 
 def check_library(module: str, dist: str) -> Check:
-    """``module`` imports; the detail is its distribution's version."""
+    """``module`` imports; the detail is its distribution's version (else the version of the
+    distribution that did install ``module``: an older environment's evdev, say)."""
     try:
         importlib.import_module(module)
     except Exception as exc:  # an ImportError, or a broken native library underneath
@@ -138,10 +143,13 @@ def check_library(module: str, dist: str) -> Check:
             f"import {module} failed: {type(exc).__name__}: {exc}",
             f"{pip_command()} install --upgrade {dist}",
         )
-    try:
-        version = importlib.metadata.version(dist)
-    except importlib.metadata.PackageNotFoundError:
-        version = "version unknown"
+    version = "version unknown"
+    for name in (dist, *importlib.metadata.packages_distributions().get(module.split(".")[0], ())):
+        try:
+            version = importlib.metadata.version(name) + ("" if name == dist else f" ({name})")
+            break
+        except importlib.metadata.PackageNotFoundError:
+            continue
     return Check(dist, OK, version)
 
 

@@ -6,8 +6,8 @@
 # The venv is made with Debian 12's python3 (3.11) INSIDE a Debian 12 root
 # (packaging/debian12-root.sh build, cached), at its final place /opt/neurotouch-hid (a venv
 # holds its own path), from the checkout's files (tracked and new, not ignored); numba,
-# OpenCV, dv-processing & co. come from PyPI as wheels built for that interpreter, evdev is
-# compiled there. The package holds:
+# OpenCV, dv-processing & co. come from PyPI as wheels built for that interpreter (evdev as
+# evdev-binary on amd64; compiled there elsewhere). The package holds:
 #   /opt/neurotouch-hid/                         the venv (python3 -> /usr/bin/python3.11)
 #   /usr/bin/neurotouch-hid                      -> /opt/neurotouch-hid/bin/neurotouch-hid
 #   /usr/lib/udev/rules.d/60-neurotouch.rules    camera + /dev/uinput access, starts the unit

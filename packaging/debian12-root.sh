@@ -2,8 +2,8 @@
 # Debian 12 (bookworm) roots for building and testing the .deb, cached between runs.
 #
 # usage: packaging/debian12-root.sh base            the pristine root (debootstrap --variant=minbase)
-#        packaging/debian12-root.sh build           the build root: base + python3, its venv and
-#                                                   dev packages, gcc, help2man (build-deb.sh)
+#        packaging/debian12-root.sh build           the build root: base + python3, its venv
+#                                                   package, help2man (build-deb.sh)
 #        packaging/debian12-root.sh copy DIR        a fresh copy of the base root at DIR (a clean
 #                                                   machine to install the package into)
 #        packaging/debian12-root.sh chroot DIR CMD  run CMD (sh -c) in DIR with /proc mounted
@@ -52,9 +52,12 @@ make_base() {
     mv "$base.partial" "$base"
 }
 
-# python3-venv makes the venv; python3-dev, gcc and the kernel's headers compile evdev (no wheel on
-# PyPI); help2man writes the man page.
-BUILD_PACKAGES="python3 python3-venv python3-dev gcc libc6-dev linux-libc-dev help2man ca-certificates"
+# python3-venv makes the venv; help2man writes the man page. Every dependency is a wheel on amd64
+# (evdev as evdev-binary, x86_64 only); elsewhere evdev is compiled: gcc, Python's and the
+# kernel's headers.
+BUILD_PACKAGES="python3 python3-venv help2man ca-certificates"
+[ "$(dpkg --print-architecture)" = amd64 ] \
+    || BUILD_PACKAGES="$BUILD_PACKAGES python3-dev gcc libc6-dev linux-libc-dev"
 
 make_build() {
     [ "$(cat "$build/.neurotouch-build-packages" 2>/dev/null)" = "$BUILD_PACKAGES" ] && return 0

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.metadata
 import os
+from pathlib import Path
 
 from helpers import run_cli
 from rich.console import Console
@@ -75,6 +76,19 @@ def test_libraries_report_versions_or_the_pip_command():
     assert ok.status == OK and ok.detail == importlib.metadata.version("numba")
     bad = doctor.check_library("neurotouch_no_such_module", "no-such-dist")
     assert bad.status == FAIL and "pip install --upgrade no-such-dist" in bad.fix
+
+
+def test_evdev_is_checked_under_the_distribution_pyproject_installs_here():
+    import tomllib
+
+    from packaging.requirements import Requirement
+
+    project = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())["project"]
+    wanted = [Requirement(r) for r in project["dependencies"]]
+    here = {r.name for r in wanted if r.marker is None or r.marker.evaluate()}
+    assert doctor.EVDEV_DIST in here and here & {"evdev", "evdev-binary"} == {doctor.EVDEV_DIST}
+    check = doctor.check_library("evdev", doctor.EVDEV_DIST)
+    assert check.status == OK and check.detail[0].isdigit()  # a version, also from an older venv's evdev
 
 
 def test_missing_service_is_only_a_warning(tmp_path):
