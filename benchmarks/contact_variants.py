@@ -17,7 +17,12 @@ a * mean ||v||, r the neighbourhood radius):
   0.6 / 1 px) (when they give no contact, as ``outliers``);
 * ``union_strong``: the outliers' maxima, plus the union's maxima above 2.5 t farther than 1.6 r
   from all of them;
-* ``product``: the product's own (``union_floor`` with the gesture step's minimum intensity).
+* ``residual05`` / ``07``: the outliers' maxima (as ``outliers``), the outliers being the
+  markers the homography maps farther than 0.5 / 0.7 t from where they are (or that USAC rejects);
+* ``union_outlier_peaks`` (``0``, ``03``): as ``union_floor06`` (floor 0, 0.3 px), but only the
+  maxima that are outliers are kept; ``union_share03`` / ``025``: the others too when their ||v||
+  is at least 0.3 / 0.25 of the strongest maximum's;
+* ``product``: the product's own (``union_outlier_peaks`` with ``ContactsConfig.min_move_mm``).
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import typer
 
@@ -63,6 +69,24 @@ def _union_floor(floor):
     return variant
 
 
+def _union_kept(floor, share):
+    """As ``union_floor`` (floor px), but a maximum that is no outlier is kept only when its
+    ||v|| is at least ``share`` of the strongest maximum's (share > 1: never)."""
+
+    def variant(rest, magnitudes, outliers, table, spike_fraction, r2, n_min, threshold, min_move=0.0):
+        despiked = _despiked(table, magnitudes, spike_fraction)
+        chosen = np.flatnonzero(outliers | (despiked > max(threshold, floor)))
+        peaks = chosen[C._local_maxima(rest[chosen], despiked[chosen], r2, n_min)]
+        if len(peaks):
+            top = despiked[peaks].max()
+            peaks = peaks[outliers[peaks] | (despiked[peaks] >= share * top)]
+        if len(peaks) == 0:
+            return _outliers(rest, magnitudes, outliers, table, spike_fraction, r2, n_min, threshold)
+        return peaks, despiked
+
+    return variant
+
+
 def _union_strong(rest, magnitudes, outliers, table, spike_fraction, r2, n_min, threshold, min_move=0.0):
     """The outliers' maxima, plus the union's above 2.5 t farther than 1.6 r from all of them."""
     level, far = 2.5, 1.6
@@ -82,6 +106,31 @@ def _union_strong(rest, magnitudes, outliers, table, spike_fraction, r2, n_min, 
     return out[np.argsort(-magnitudes[out], kind="mergesort")], magnitudes
 
 
+ORIGINAL_OUTLIERS = C.homography_outliers
+
+
+def _residual_outliers(share):
+    """``contacts.homography_outliers`` whose outliers also hold the markers the homography maps
+    farther than ``share`` of the threshold from where they are (px)."""
+
+    def outliers(rest_px, current_px, reproj_threshold_px, max_iters=2000, method="usac_fast"):
+        src = np.ascontiguousarray(rest_px, dtype=np.float32)
+        dst = np.ascontiguousarray(current_px, dtype=np.float32)
+        h, inliers = cv2.findHomography(
+            src, dst, C.HOMOGRAPHY_METHODS[method], float(reproj_threshold_px), maxIters=int(max_iters)
+        )
+        if h is None or inliers is None:
+            return np.ones(len(src), dtype=bool)
+        mapped = cv2.perspectiveTransform(src.reshape(-1, 1, 2).astype(np.float64), h).reshape(-1, 2)
+        residual = np.linalg.norm(mapped - np.asarray(current_px, dtype=np.float64), axis=1)
+        return (inliers.ravel() == 0) | (residual > share * reproj_threshold_px)
+
+    return outliers
+
+
+#: Variants patched in place of ``contacts.homography_outliers`` (with ``_outliers`` maxima).
+RESIDUAL = {"residual05": _residual_outliers(0.5), "residual07": _residual_outliers(0.7)}
+
 VARIANTS = {
     "outliers": _outliers,
     "union": _union_floor(0.0),
@@ -90,13 +139,23 @@ VARIANTS = {
     "union_floor06": _union_floor(0.6),
     "union_floor1": _union_floor(1.0),
     "product": PRODUCT,
+    "union_outlier_peaks": _union_kept(0.6, 2.0),
+    "union_outlier_peaks0": _union_kept(0.0, 2.0),
+    "union_outlier_peaks03": _union_kept(0.3, 2.0),
+    "union_share03": _union_kept(0.6, 0.3),
+    "union_share025": _union_kept(0.6, 0.25),
 }
 
 app = typer.Typer(add_completion=False)
 
 
 def _use(variant: str) -> None:
-    C._maxima = VARIANTS[variant]
+    if variant in RESIDUAL:
+        C.homography_outliers = RESIDUAL[variant]
+        C._maxima = _outliers
+    else:
+        C.homography_outliers = ORIGINAL_OUTLIERS
+        C._maxima = VARIANTS[variant]
 
 
 @app.command()
@@ -106,7 +165,7 @@ def replay(
     families: str = typer.Option("default,fingers,strong,powerlaw,camera"),
 ) -> None:
     _use(variant)
-    contact_replay.VARIANTS[variant] = contact_replay.VARIANTS["current"]
+    contact_replay.VARIANTS.setdefault(variant, contact_replay.VARIANTS["current"])
     contact_replay.score(out=out, families=families, variant=variant)
 
 

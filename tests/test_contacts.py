@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from neurotouch_hid.pipeline.contacts import detect_contacts, local_maxima
+from neurotouch_hid.pipeline.contacts import _maxima, detect_contacts, local_maxima
+from neurotouch_hid.pipeline.contacts_plateau import _valid_table, rest_neighbours
 from neurotouch_hid.pipeline.contacts_refine import refine_peak
 from neurotouch_hid.pipeline.paper import paper_contacts
 from neurotouch_hid.sensor import SensorGeometry
@@ -539,3 +540,31 @@ def test_moved_markers_add_no_contact_to_a_one_finger_push():
             for offset in ([0.0, 0.0], [30.0, -20.0], [-50.0, 10.0]):
                 cur = rest + bump(rest, c + offset, (amount, -amount / 2), sigma=sigma)
                 assert detect_contacts(rest, cur).count == 1, (amount, sigma, offset)
+
+
+def _two_bumps_maxima(outliers_at_weak: str):
+    """The maxima step on two bumps, the weak one's outliers as the homography might leave them:
+    ``peak`` only its peak marker and its ring are outliers (fewer than N_min), ``none`` no
+    marker of it is one (the homography explains it, as a gel sliding in its mount)."""
+    rest = grid()
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    strong, weak = c + [-40.0, 0.0], c + [40.0, 0.0]
+    v = bump(rest, strong, (8.0, 0.0), sigma=16.0) + bump(rest, weak, (-1.6, 0.0), sigma=16.0)
+    magnitudes = np.linalg.norm(v, axis=1)
+    outliers = np.linalg.norm(rest - strong, axis=1) <= 30.0
+    if outliers_at_weak == "peak":
+        outliers |= np.linalg.norm(rest - weak, axis=1) <= 10.0
+    table = _valid_table(rest_neighbours(rest, 10.0), np.arange(len(rest)), len(rest))
+    threshold = 0.6 * magnitudes.mean()
+    peaks, _ = _maxima(rest, magnitudes, outliers, table, NO_SPIKES, 25.0**2, 12, threshold, 0.6)
+    return rest[peaks], strong, weak
+
+
+def test_a_weak_finger_with_few_outliers_is_found_through_its_moved_neighbours():
+    found, strong, weak = _two_bumps_maxima("peak")
+    np.testing.assert_allclose(found, [strong, weak])
+
+
+def test_a_moved_region_the_homography_explains_is_no_contact():
+    found, strong, _ = _two_bumps_maxima("none")
+    np.testing.assert_allclose(found, [strong])

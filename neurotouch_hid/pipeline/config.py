@@ -67,7 +67,8 @@ class ContactsConfig(BaseModel):
         spike_fraction: in (0, 1]: a marker displaced more than 1 / spike_fraction times its
             neighbours' median takes that median.
         min_move_mm: >= 0: a marker displaced more than this (mm) and than the dynamic threshold
-            is a candidate even where the homography keeps it (a weak finger's markers).
+            counts in an outlier's neighbourhood even where the homography keeps it (a weak
+            finger's markers).
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)

@@ -6,7 +6,7 @@ of the section); its outliers are the candidate set S (:func:`outlier_candidates
 point is a candidate whose displacement is the largest within radius r among the candidates, with
 at least ``n_min`` candidates there (:func:`local_maxima`). The paper's method stops there
 (``paper.paper_contacts``). The product's :func:`detect_contacts` adds, each for a reason given in
-docs/method.md, "Contacts": the markers moved beyond the threshold among the candidates,
+docs/method.md, "Contacts": the markers moved beyond the threshold among the neighbours,
 neighbourhoods on the gel at rest, lone markers at their neighbours' median and flat tops
 (``contacts_plateau.py``), the rest model when the outliers give no contact, sub-marker refinement
 (``contacts_refine.py``) and the fit of radial bumps on long-tailed fields (``contacts_bump.py``).
@@ -217,14 +217,16 @@ def _maxima(
     ``magnitudes`` (M,) ||v|| px; ``outliers`` (M,) bool, RANSAC's; ``table`` (M, K) int64, the
     valid markers' neighbour table; ``r2`` = r^2 (px^2); ``fallback_threshold``: the dynamic
     threshold a * mean ||v|| (px), the rest model's; ``min_move`` (px): the least displacement
-    that counts as moved. The candidates are the outliers and the markers moved more than both
-    (docs/method.md, "Contacts", step 3); when they give no contact, the outliers alone, then the
-    rest model. Returns the maxima (K,) int64 (indices into the M markers, by decreasing
+    that counts as moved. The maxima are outliers whose ||v|| is the largest within r among the
+    outliers and the markers moved more than both thresholds, with N_min of those there
+    (docs/method.md, "Contacts", step 3); when that gives no contact, the outliers alone, then
+    the rest model. Returns the maxima (K,) int64 (indices into the M markers, by decreasing
     magnitude) and the magnitudes the later steps read (M,) float64 (lone markers at their
     neighbours' median)."""
     magnitudes = _despiked(table, magnitudes, spike_fraction)
     chosen = np.flatnonzero(outliers | (magnitudes > max(fallback_threshold, min_move)))
     peaks = chosen[_local_maxima(rest[chosen], magnitudes[chosen], r2, n_min)]
+    peaks = peaks[outliers[peaks]]  # a finger's peak is where the homography fails
     if len(peaks) == 0:
         chosen = np.flatnonzero(outliers)
         peaks = chosen[_local_maxima(rest[chosen], magnitudes[chosen], r2, n_min)]
@@ -347,8 +349,9 @@ def detect_contacts(
             centres are fitted as radial bumps with a profile of knots ``pitch_px`` apart up to
             this distance (px), the gel's radius
             (:func:`~neurotouch_hid.pipeline.contacts_bump.bump_fit`).
-        min_move_px: a marker displaced more than this (px) and than the dynamic threshold is
-            a candidate even where the homography keeps it (``ContactsConfig.min_move_mm``).
+        min_move_px: a marker displaced more than this (px) and than the dynamic threshold
+            counts among an outlier's neighbours (for N_min and its being the largest) even where
+            the homography keeps it (``ContactsConfig.min_move_mm``).
         neighbours: (N, K) int64, :func:`rest_neighbours` of ``rest_px`` with ``pitch_px``
             (computed once per rest reference by the pipeline); None: computed here.
     Returns:
