@@ -7,7 +7,8 @@ Reads ``DIR/FAMILY`` (the dataset) and ``DIR/predictions/FAMILY/METHOD`` (its pr
 the windows labelled with that type (docs/dataset.md, "Predictions (JSON lines)": the ground
 truth at each prediction's time):
 
-* count: the share of windows whose contact count is the labelled one;
+* count: the share of windows whose contact count is the labelled one; count >= 0.12 mm: the same
+  over the windows whose labelled intensity is at least the gesture step's minimum (:data:`SEEN_MM`);
 * too few / too many: the shares with fewer / more contacts than labelled;
 * by time since the gesture's first labelled frame (onset 0-100 ms, 100-200 ms, later): the
   share of each part's windows with too few contacts, and the part's share of all windows;
@@ -30,13 +31,17 @@ from neurotouch_hid.estimate import GestureType
 
 app = typer.Typer(add_completion=False)
 
+#: The gesture step's minimum intensity (mm; ``GestureConfig.min_intensity_mm``): below it a
+#: window is ``none`` and has no contact whatever the contacts stage finds.
+SEEN_MM = 0.12
 #: Time since a gesture's first labelled frame (ms): the parts the losses are split into.
 PARTS_MS = ((0.0, 100.0), (100.0, 200.0), (200.0, np.inf))
 
 
-def sequence_windows(dataset: Path, predictions: Path, name: str) -> list[tuple[str, int, int, float, int]]:
+def sequence_windows(dataset: Path, predictions: Path, name: str) -> list[tuple[str, int, int, float, int, float]]:
     """The windows of one sequence inside labelled gestures: (type, labelled count, predicted
-    count, ms since the gesture's first labelled frame, the gesture's running number)."""
+    count, ms since the gesture's first labelled frame, the gesture's running number, labelled
+    intensity mm)."""
     labels = read_labels(dataset / f"{name}.labels.csv")
     preds = read_predictions(predictions / f"{name}.jsonl")
     truth = labels_at(labels, np.array([p.t_us for p in preds], dtype=np.int64))
@@ -48,7 +53,9 @@ def sequence_windows(dataset: Path, predictions: Path, name: str) -> list[tuple[
             continue
         if t.gesture is not last:
             start, number, last = t.t_us, number + 1, t.gesture
-        out.append((t.gesture.value, len(t.contacts_px), p.n_contacts, (p.t_us - start) / 1000.0, number))
+        out.append(
+            (t.gesture.value, len(t.contacts_px), p.n_contacts, (p.t_us - start) / 1000.0, number, t.intensity_mm)
+        )
     return out
 
 
@@ -59,13 +66,14 @@ def family_rows(dataset: Path, predictions: Path) -> dict[str, dict]:
         if not (predictions / f"{name}.jsonl").exists():
             continue
         for w in sequence_windows(dataset, predictions, name):
-            rows.setdefault(w[0], []).append((*w[1:], name))
+            rows.setdefault(w[0], []).append((*w[1:5], name, w[5]))
     result = {}
     for kind, ws in sorted(rows.items()):
         true = np.array([w[0] for w in ws])
         pred = np.array([w[1] for w in ws])
         ms = np.array([w[2] for w in ws])
         gid = np.array([f"{w[4]}#{w[3]}" for w in ws])
+        seen = np.array([w[5] for w in ws]) >= SEEN_MM
         few = pred < true
         parts = []
         for lo, hi in PARTS_MS:
@@ -81,6 +89,7 @@ def family_rows(dataset: Path, predictions: Path) -> dict[str, dict]:
         result[kind] = {
             "n": len(ws),
             "count": float((pred == true).mean()),
+            "count_seen": float((pred == true)[seen].mean()) if seen.any() else float("nan"),
             "few": float(few.mean()),
             "many": float((pred > true).mean()),
             "parts": parts,
@@ -97,15 +106,17 @@ def main(
     method: str = typer.Option("ours", "--method", help="the predictions' method name"),
 ) -> None:
     head = "few @0-100 / 100-200 / 200+ ms (share of windows)"
-    print(f"| family | type | windows | count | too few | too many | {head} | 3 -> 2 | merged gestures |")
-    print("| --- | --- | ---: | ---: | ---: | ---: | --- | ---: | ---: |")
+    cols = f"count | count >= 0.12 mm | too few | too many | {head} | 3 -> 2 | merged gestures"
+    print(f"| family | type | windows | {cols} |")
+    print("| --- | --- | ---: | ---: | ---: | ---: | ---: | --- | ---: | ---: |")
     for fam in [f.strip() for f in families.split(",") if f.strip()]:
         for kind, r in family_rows(out / fam, out / "predictions" / fam / method).items():
             parts = " / ".join(f"{100 * f:.0f} % ({100 * s:.0f})" for f, s in r["parts"])
             three, n3 = r["three_as_two"]
             three_s = f"{100 * three:.0f} % of {n3}" if n3 else "-"
             print(
-                f"| {fam} | {kind} | {r['n']} | {100 * r['count']:.1f} % | {100 * r['few']:.1f} % | "
+                f"| {fam} | {kind} | {r['n']} | {100 * r['count']:.1f} % | {100 * r['count_seen']:.1f} % | "
+                f"{100 * r['few']:.1f} % | "
                 f"{100 * r['many']:.1f} % | {parts} | {three_s} | {r['merged'][0]} of {r['merged'][1]} |"
             )
 
