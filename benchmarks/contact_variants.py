@@ -22,11 +22,15 @@ a * mean ||v||, r the neighbourhood radius):
 * ``union_outlier_peaks`` (``0``, ``03``): as ``union_floor06`` (floor 0, 0.3 px), but only the
   maxima that are outliers are kept; ``union_share03`` / ``025``: the others too when their ||v||
   is at least 0.3 / 0.25 of the strongest maximum's;
+* ``plateau_shape`` / ``plateau_shape3``: the product's maxima, and a flat top at least
+  floor(L / W) fingers (L / W its elongation, round fingertips side by side) / 3 fingers when
+  L / W >= 3, beside its area's count (``contacts_plateau.plateau_contacts``);
 * ``product``: the product's own (``union_outlier_peaks`` with ``ContactsConfig.min_move_mm``).
 """
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
@@ -39,7 +43,13 @@ sys.path.insert(0, str(Path(__file__).parent))
 import contact_replay  # noqa: E402
 
 from neurotouch_hid.pipeline import contacts as C  # noqa: E402
-from neurotouch_hid.pipeline.contacts_plateau import _despiked  # noqa: E402
+from neurotouch_hid.pipeline.contacts_plateau import (  # noqa: E402
+    MAX_FINGERS,
+    PLATEAU_MARKERS,
+    _despiked,
+    _plateau,
+    _split_along_axis,
+)
 
 PRODUCT = C._maxima
 
@@ -146,11 +156,60 @@ VARIANTS = {
     "union_share025": _union_kept(0.6, 0.25),
 }
 
+ORIGINAL_PLATEAUS = C.plateau_contacts
+
+
+def _elongation(points, weights):
+    """sqrt of the ratio of the weighted covariance's eigenvalues of ``points`` (M, 2)."""
+    m = (points * weights[:, None]).sum(0) / weights.sum()
+    d = points - m
+    cov = (weights[:, None, None] * d[:, :, None] * d[:, None, :]).sum(0) / weights.sum()
+    small, large = np.linalg.eigvalsh(cov)
+    return float(np.sqrt(large / max(small, 1e-12)))
+
+
+def _plateaus_by_shape(table, current_px, magnitudes, peaks, fraction, pitch_px, finger_radius_px, least=1.0):
+    """``plateau_contacts`` whose wide plateau holds at least floor(L / W) fingers, L / W its
+    elongation (round fingertips side by side), beside its area's count."""
+    covered = np.zeros(len(magnitudes), dtype=bool)
+    kept, fingers, points = [], [], []
+    for p in peaks:
+        if covered[p]:
+            continue
+        level = fraction * magnitudes[p]
+        mask = _plateau(table, magnitudes, p, level)
+        covered |= mask
+        kept.append(p)
+        size = int(mask.sum())
+        if size > PLATEAU_MARKERS:
+            weights = magnitudes[mask] - level + 1e-9
+            by_area = math.ceil(size * pitch_px**2 / (math.pi * finger_radius_px**2))
+            elongation = _elongation(current_px[mask], weights)
+            by_shape = int(elongation) if elongation >= least else 1
+            n = min(MAX_FINGERS, max(1, by_area, by_shape))
+            points.append(_split_along_axis(current_px[mask], weights, n))
+            fingers.append(n)
+        else:
+            fingers.append(0)
+    pts = np.concatenate(points) if points else np.zeros((0, 2))
+    return np.array(kept, dtype=np.int64), np.array(fingers, dtype=np.int64), pts
+
+
+#: Variants patched in place of ``contacts.plateau_contacts`` (with the product's maxima).
+PLATEAUS = {
+    "plateau_shape": _plateaus_by_shape,
+    "plateau_shape3": lambda *args: _plateaus_by_shape(*args, least=3.0),
+}
+
 app = typer.Typer(add_completion=False)
 
 
 def _use(variant: str) -> None:
-    if variant in RESIDUAL:
+    C.plateau_contacts = PLATEAUS.get(variant, ORIGINAL_PLATEAUS)
+    if variant in PLATEAUS:
+        C.homography_outliers = ORIGINAL_OUTLIERS
+        C._maxima = PRODUCT
+    elif variant in RESIDUAL:
         C.homography_outliers = RESIDUAL[variant]
         C._maxima = _outliers
     else:
