@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from neurotouch_hid.pipeline.contacts import detect_contacts, local_maxima
+from neurotouch_hid.pipeline.contacts import _maxima, detect_contacts, local_maxima
+from neurotouch_hid.pipeline.contacts_plateau import _valid_table, rest_neighbours
 from neurotouch_hid.pipeline.contacts_refine import refine_peak
 from neurotouch_hid.pipeline.paper import paper_contacts
 from neurotouch_hid.sensor import SensorGeometry
@@ -488,3 +489,82 @@ def test_field_at_and_at_rest_match_numpy():
     cur = rest + v
     nearest = np.argmin(np.sum((cur[None] - points[:, None]) ** 2, axis=2), axis=1)
     np.testing.assert_array_equal(_at_rest(cur, v, points), points - v[nearest])
+
+
+def test_a_weak_second_finger_whose_markers_the_homography_keeps_is_still_a_contact():
+    # a pinch led by one finger: the second pushes at 0.2 of the first's displacement, 80 px
+    # away; the homography keeps half of its markers as inliers, too few outliers are left
+    # within r of its peak for N_min, but its markers moved beyond the dynamic threshold and the
+    # least displacement (docs/method.md, "Contacts", step 3)
+    rest = grid()
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    strong, weak = c + [-40.0, 0.0], c + [40.0, 0.0]
+    cur = rest + bump(rest, strong, (8.0, 0.0), sigma=16.0) + bump(rest, weak, (-1.6, 0.0), sigma=16.0)
+    contacts = detect_contacts(rest, cur)
+    within_r = np.linalg.norm(rest - weak, axis=1) <= 25.0  # the weak finger's peak marker is on it
+    assert contacts.candidates[within_r].sum() < 12  # the outliers alone are fewer than N_min
+    assert contacts.count == 2
+    found = contacts.points_px[np.argsort(contacts.points_px[:, 0])]
+    np.testing.assert_allclose(found, [strong + [8.0, 0.0], weak + [-1.6, 0.0]], atol=1.0)
+
+
+@pytest.mark.parametrize("weak", [0.3, 0.5, 1.0])
+def test_a_second_finger_of_any_strength_in_a_twist_is_a_contact(weak):
+    rest = grid()
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    left, right = c + [-40.0, 0.0], c + [40.0, 0.0]
+    cur = rest + bump(rest, left, (0.0, 15.0), sigma=10.0) + bump(rest, right, (0.0, -15.0 * weak), sigma=10.0)
+    contacts = detect_contacts(rest, cur)
+    assert contacts.count == 2
+    found = np.sort(contacts.points_px[:, 0])
+    np.testing.assert_allclose(found, [left[0], right[0]], atol=3.0)
+
+
+def test_a_bump_below_the_least_displacement_is_no_finger():
+    # a finger 1 px deep and, 80 px away, a ripple of 0.25 px: above the dynamic threshold
+    # (0.6 x the mean, ~0.03 px) but below the least displacement that counts as moved
+    rest = grid()
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    left, right = c + [-40.0, 0.0], c + [40.0, 0.0]
+    cur = rest + bump(rest, left, (1.0, 0.0), sigma=10.0) + bump(rest, right, (-0.25, 0.0), sigma=10.0)
+    assert detect_contacts(rest, cur, min_move_px=0.6).count == 1
+    assert detect_contacts(rest, cur, min_move_px=0.3).count == 1
+    assert detect_contacts(rest, cur, min_move_px=0.0).count == 2
+
+
+def test_moved_markers_add_no_contact_to_a_one_finger_push():
+    rest = grid()
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    for amount in (0.5, 2.0, 8.0, 20.0):
+        for sigma in (8.0, 12.0, 20.0):
+            for offset in ([0.0, 0.0], [30.0, -20.0], [-50.0, 10.0]):
+                cur = rest + bump(rest, c + offset, (amount, -amount / 2), sigma=sigma)
+                assert detect_contacts(rest, cur).count == 1, (amount, sigma, offset)
+
+
+def _two_bumps_maxima(outliers_at_weak: str):
+    """The maxima step on two bumps, the weak one's outliers as the homography might leave them:
+    ``peak`` only its peak marker and its ring are outliers (fewer than N_min), ``none`` no
+    marker of it is one (the homography explains it, as a gel sliding in its mount)."""
+    rest = grid()
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    strong, weak = c + [-40.0, 0.0], c + [40.0, 0.0]
+    v = bump(rest, strong, (8.0, 0.0), sigma=16.0) + bump(rest, weak, (-1.6, 0.0), sigma=16.0)
+    magnitudes = np.linalg.norm(v, axis=1)
+    outliers = np.linalg.norm(rest - strong, axis=1) <= 30.0
+    if outliers_at_weak == "peak":
+        outliers |= np.linalg.norm(rest - weak, axis=1) <= 10.0
+    table = _valid_table(rest_neighbours(rest, 10.0), np.arange(len(rest)), len(rest))
+    threshold = 0.6 * magnitudes.mean()
+    peaks, _ = _maxima(rest, magnitudes, outliers, table, NO_SPIKES, 25.0**2, 12, threshold, 0.6)
+    return rest[peaks], strong, weak
+
+
+def test_a_weak_finger_with_few_outliers_is_found_through_its_moved_neighbours():
+    found, strong, weak = _two_bumps_maxima("peak")
+    np.testing.assert_allclose(found, [strong, weak])
+
+
+def test_a_moved_region_the_homography_explains_is_no_contact():
+    found, strong, _ = _two_bumps_maxima("none")
+    np.testing.assert_allclose(found, [strong])

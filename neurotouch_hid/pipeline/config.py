@@ -66,6 +66,9 @@ class ContactsConfig(BaseModel):
             flat top.
         spike_fraction: in (0, 1]: a marker displaced more than 1 / spike_fraction times its
             neighbours' median takes that median.
+        min_move_mm: >= 0: a marker displaced more than this (mm) and than the dynamic threshold
+            counts in an outlier's neighbourhood even where the homography keeps it (a weak
+            finger's markers).
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -78,6 +81,7 @@ class ContactsConfig(BaseModel):
     refine_mm: float = 8.0
     plateau_fraction: float = 0.8
     spike_fraction: float = 0.6
+    min_move_mm: float = 0.24
 
     @model_validator(mode="after")
     def _consistent(self) -> "ContactsConfig":
@@ -88,6 +92,8 @@ class ContactsConfig(BaseModel):
             raise ValueError(f"spike_fraction must be in (0, 1], got {self.spike_fraction}")
         if not 0.0 < self.plateau_fraction < 1.0:
             raise ValueError(f"plateau_fraction must be in (0, 1), got {self.plateau_fraction}")
+        if not self.min_move_mm >= 0.0:
+            raise ValueError(f"min_move_mm must be >= 0, got {self.min_move_mm}")
         return self
 
 
@@ -243,6 +249,7 @@ class PixelSettings:
     contact_refine_px: float
     plateau_fraction: float
     spike_fraction: float
+    min_move_px: float
     marker_pitch_px: float
     gesture_reproj_factor: float
     min_gesture_reproj_px: float
@@ -278,6 +285,7 @@ def scaled_to_sensor(config: PipelineConfig, sensor: SensorGeometry) -> PixelSet
         contact_refine_px=c.refine_mm * s,
         plateau_fraction=c.plateau_fraction,
         spike_fraction=c.spike_fraction,
+        min_move_px=c.min_move_mm * s,
         marker_pitch_px=MARKER_SPACING_MM * s,
         gesture_reproj_factor=g.reproj_factor,
         min_gesture_reproj_px=g.min_reproj_mm * s,

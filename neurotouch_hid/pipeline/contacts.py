@@ -6,10 +6,10 @@ of the section); its outliers are the candidate set S (:func:`outlier_candidates
 point is a candidate whose displacement is the largest within radius r among the candidates, with
 at least ``n_min`` candidates there (:func:`local_maxima`). The paper's method stops there
 (``paper.paper_contacts``). The product's :func:`detect_contacts` adds, each for a reason given in
-docs/method.md, "Contacts": neighbourhoods on the gel at rest, lone markers at their neighbours'
-median and flat tops (``contacts_plateau.py``), the rest model when the outliers give no contact,
-sub-marker refinement (``contacts_refine.py``) and the fit of radial bumps on long-tailed fields
-(``contacts_bump.py``).
+docs/method.md, "Contacts": the markers moved beyond the threshold among the neighbours,
+neighbourhoods on the gel at rest, lone markers at their neighbours' median and flat tops
+(``contacts_plateau.py``), the rest model when the outliers give no contact, sub-marker refinement
+(``contacts_refine.py``) and the fit of radial bumps on long-tailed fields (``contacts_bump.py``).
 
 Everything here is in the image frame (px).
 """
@@ -209,18 +209,27 @@ def _maxima(
     r2: float,
     n_min: int,
     fallback_threshold: float,
+    min_move: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The contact step after RANSAC, up to the plateaus (:func:`detect_contacts`).
 
     ``rest`` (M, 2) float64 px: the rest positions, whose neighbourhoods N(i) count;
     ``magnitudes`` (M,) ||v|| px; ``outliers`` (M,) bool, RANSAC's; ``table`` (M, K) int64, the
-    valid markers' neighbour table; ``r2`` = r^2 (px^2); ``fallback_threshold``: the rest model's
-    threshold (px) when the outliers give no contact. Returns the maxima (K,) int64 (indices into
-    the M markers, by decreasing magnitude) and the magnitudes the later steps read (M,) float64
-    (lone markers at their neighbours' median)."""
+    valid markers' neighbour table; ``r2`` = r^2 (px^2); ``fallback_threshold``: the dynamic
+    threshold a * mean ||v|| (px), the rest model's; ``min_move`` (px): the least displacement
+    that counts as moved. The maxima are outliers whose ||v|| is the largest within r among the
+    outliers and the markers moved more than both thresholds, with N_min of those there
+    (docs/method.md, "Contacts", step 3); when that gives no contact, the outliers alone, then
+    the rest model. Returns the maxima (K,) int64 (indices into the M markers, by decreasing
+    magnitude) and the magnitudes the later steps read (M,) float64 (lone markers at their
+    neighbours' median)."""
     magnitudes = _despiked(table, magnitudes, spike_fraction)
-    chosen = np.flatnonzero(outliers)
+    chosen = np.flatnonzero(outliers | (magnitudes > max(fallback_threshold, min_move)))
     peaks = chosen[_local_maxima(rest[chosen], magnitudes[chosen], r2, n_min)]
+    peaks = peaks[outliers[peaks]]  # a finger's peak is where the homography fails
+    if len(peaks) == 0:
+        chosen = np.flatnonzero(outliers)
+        peaks = chosen[_local_maxima(rest[chosen], magnitudes[chosen], r2, n_min)]
     if len(peaks) == 0:
         moved = np.flatnonzero(magnitudes > fallback_threshold)  # the rest model's outliers
         peaks = moved[_local_maxima(rest[moved], magnitudes[moved], r2, n_min)]
@@ -312,6 +321,7 @@ def detect_contacts(
     pitch_px: float = 10.0,
     spike_fraction: float = 0.6,
     bump_span_px: float = 75.0,
+    min_move_px: float = 0.6,
     neighbours: np.ndarray | None = None,
 ) -> Contacts:
     """The contact points of one window, the product's method (docs/method.md, "Contacts").
@@ -339,6 +349,9 @@ def detect_contacts(
             centres are fitted as radial bumps with a profile of knots ``pitch_px`` apart up to
             this distance (px), the gel's radius
             (:func:`~neurotouch_hid.pipeline.contacts_bump.bump_fit`).
+        min_move_px: a marker displaced more than this (px) and than the dynamic threshold
+            counts among an outlier's neighbours (for N_min and its being the largest) even where
+            the homography keeps it (``ContactsConfig.min_move_mm``).
         neighbours: (N, K) int64, :func:`rest_neighbours` of ``rest_px`` with ``pitch_px``
             (computed once per rest reference by the pipeline); None: computed here.
     Returns:
@@ -364,7 +377,15 @@ def detect_contacts(
     table = _valid_table(np.ascontiguousarray(neighbours, dtype=np.int64), c.idx, c.n)
     r2 = float(r_px) * float(r_px)
     peaks, magnitudes = _maxima(
-        c.rest_px, c.magnitudes, c.outliers, table, float(spike_fraction), r2, int(n_min), c.threshold_px
+        c.rest_px,
+        c.magnitudes,
+        c.outliers,
+        table,
+        float(spike_fraction),
+        r2,
+        int(n_min),
+        c.threshold_px,
+        float(min_move_px),
     )
     if len(peaks):
         peaks, fingers, flat = plateau_contacts(

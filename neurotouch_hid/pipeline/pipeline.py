@@ -535,6 +535,7 @@ class GesturePipeline:
             pitch_px=c.marker_pitch_px,
             spike_fraction=c.spike_fraction,
             bump_span_px=self.sensor.gel_radius_px,
+            min_move_px=c.min_move_px,
             neighbours=self._of_rest("contacts", rest_px, lambda rest: rest_neighbours(rest, c.marker_pitch_px)),
         )
         if motion is not None:  # the contact points where they are, the gel's motion included

@@ -1,0 +1,266 @@
+"""Variants of the contacts stage's candidate maxima, compared on the development families.
+
+    python3 benchmarks/contact_variants.py replay --out DIR --variant NAME [--families ...]
+    python3 benchmarks/contact_variants.py family --out DIR --variant NAME --data SRC [--families ...]
+
+``replay`` scores a variant on ``contact_replay.py record``'s windows (contact count per type);
+``family`` runs ``family_eval.py`` with the variant in place of the product's maxima, in
+``DIR/NAME`` with the datasets of ``SRC`` linked in (``--sessions``: game sessions; ``--jobs 1``:
+the variant is patched into this process). Figures only.
+
+Variants (the maxima step after RANSAC, ``contacts._maxima``; ``t`` the dynamic threshold
+a * mean ||v||, r the neighbourhood radius):
+
+* ``outliers``: the candidates are RANSAC's outliers (the rest model when they give none);
+* ``union``: the candidates are the outliers and every marker with ||v|| > t;
+* ``union_floor03`` / ``06`` / ``1``: the outliers and every marker with ||v|| > max(t, 0.3 /
+  0.6 / 1 px) (when they give no contact, as ``outliers``);
+* ``union_strong``: the outliers' maxima, plus the union's maxima above 2.5 t farther than 1.6 r
+  from all of them;
+* ``residual05`` / ``07``: the outliers' maxima (as ``outliers``), the outliers being the
+  markers the homography maps farther than 0.5 / 0.7 t from where they are (or that USAC rejects);
+* ``union_outlier_peaks`` (``0``, ``03``): as ``union_floor06`` (floor 0, 0.3 px), but only the
+  maxima that are outliers are kept; ``union_share03`` / ``025``: the others too when their ||v||
+  is at least 0.3 / 0.25 of the strongest maximum's;
+* ``plateau_shape`` / ``plateau_shape3``: the product's maxima, and a flat top at least
+  floor(L / W) fingers (L / W its elongation, round fingertips side by side) / 3 fingers when
+  L / W >= 3, beside its area's count (``contacts_plateau.plateau_contacts``);
+* ``product``: the product's own (``union_outlier_peaks`` with ``ContactsConfig.min_move_mm``).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import typer
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+import contact_replay  # noqa: E402
+
+from neurotouch_hid.pipeline import contacts as C  # noqa: E402
+from neurotouch_hid.pipeline.contacts_plateau import (  # noqa: E402
+    MAX_FINGERS,
+    PLATEAU_MARKERS,
+    _despiked,
+    _plateau,
+    _split_along_axis,
+)
+
+PRODUCT = C._maxima
+
+
+def _outliers(rest, magnitudes, outliers, table, spike_fraction, r2, n_min, threshold, min_move=0.0):
+    """The candidates are RANSAC's outliers; the rest model when they give no contact."""
+    magnitudes = _despiked(table, magnitudes, spike_fraction)
+    chosen = np.flatnonzero(outliers)
+    peaks = chosen[C._local_maxima(rest[chosen], magnitudes[chosen], r2, n_min)]
+    if len(peaks) == 0:
+        moved = np.flatnonzero(magnitudes > threshold)
+        peaks = moved[C._local_maxima(rest[moved], magnitudes[moved], r2, n_min)]
+    return peaks, magnitudes
+
+
+def _union_floor(floor):
+    """The outliers and the markers moved more than max(t, floor) px; else as ``outliers``."""
+
+    def variant(rest, magnitudes, outliers, table, spike_fraction, r2, n_min, threshold, min_move=0.0):
+        despiked = _despiked(table, magnitudes, spike_fraction)
+        chosen = np.flatnonzero(outliers | (despiked > max(threshold, floor)))
+        peaks = chosen[C._local_maxima(rest[chosen], despiked[chosen], r2, n_min)]
+        if len(peaks) == 0:
+            return _outliers(rest, magnitudes, outliers, table, spike_fraction, r2, n_min, threshold)
+        return peaks, despiked
+
+    return variant
+
+
+def _union_kept(floor, share):
+    """As ``union_floor`` (floor px), but a maximum that is no outlier is kept only when its
+    ||v|| is at least ``share`` of the strongest maximum's (share > 1: never)."""
+
+    def variant(rest, magnitudes, outliers, table, spike_fraction, r2, n_min, threshold, min_move=0.0):
+        despiked = _despiked(table, magnitudes, spike_fraction)
+        chosen = np.flatnonzero(outliers | (despiked > max(threshold, floor)))
+        peaks = chosen[C._local_maxima(rest[chosen], despiked[chosen], r2, n_min)]
+        if len(peaks):
+            top = despiked[peaks].max()
+            peaks = peaks[outliers[peaks] | (despiked[peaks] >= share * top)]
+        if len(peaks) == 0:
+            return _outliers(rest, magnitudes, outliers, table, spike_fraction, r2, n_min, threshold)
+        return peaks, despiked
+
+    return variant
+
+
+def _union_strong(rest, magnitudes, outliers, table, spike_fraction, r2, n_min, threshold, min_move=0.0):
+    """The outliers' maxima, plus the union's above 2.5 t farther than 1.6 r from all of them."""
+    level, far = 2.5, 1.6
+    peaks, magnitudes = _outliers(rest, magnitudes, outliers, table, spike_fraction, r2, n_min, threshold)
+    if len(peaks) == 0:
+        return peaks, magnitudes
+    chosen = np.flatnonzero(outliers | (magnitudes > threshold))
+    more = chosen[C._local_maxima(rest[chosen], magnitudes[chosen], r2, n_min)]
+    extra = [
+        p
+        for p in more
+        if magnitudes[p] > level * threshold and np.min(np.sum((rest[peaks] - rest[p]) ** 2, axis=1)) > far * far * r2
+    ]
+    if not extra:
+        return peaks, magnitudes
+    out = np.concatenate([peaks, np.array(extra, dtype=np.int64)])
+    return out[np.argsort(-magnitudes[out], kind="mergesort")], magnitudes
+
+
+ORIGINAL_OUTLIERS = C.homography_outliers
+
+
+def _residual_outliers(share):
+    """``contacts.homography_outliers`` whose outliers also hold the markers the homography maps
+    farther than ``share`` of the threshold from where they are (px)."""
+
+    def outliers(rest_px, current_px, reproj_threshold_px, max_iters=2000, method="usac_fast"):
+        src = np.ascontiguousarray(rest_px, dtype=np.float32)
+        dst = np.ascontiguousarray(current_px, dtype=np.float32)
+        h, inliers = cv2.findHomography(
+            src, dst, C.HOMOGRAPHY_METHODS[method], float(reproj_threshold_px), maxIters=int(max_iters)
+        )
+        if h is None or inliers is None:
+            return np.ones(len(src), dtype=bool)
+        mapped = cv2.perspectiveTransform(src.reshape(-1, 1, 2).astype(np.float64), h).reshape(-1, 2)
+        residual = np.linalg.norm(mapped - np.asarray(current_px, dtype=np.float64), axis=1)
+        return (inliers.ravel() == 0) | (residual > share * reproj_threshold_px)
+
+    return outliers
+
+
+#: Variants patched in place of ``contacts.homography_outliers`` (with ``_outliers`` maxima).
+RESIDUAL = {"residual05": _residual_outliers(0.5), "residual07": _residual_outliers(0.7)}
+
+VARIANTS = {
+    "outliers": _outliers,
+    "union": _union_floor(0.0),
+    "union_strong": _union_strong,
+    "union_floor03": _union_floor(0.3),
+    "union_floor06": _union_floor(0.6),
+    "union_floor1": _union_floor(1.0),
+    "product": PRODUCT,
+    "union_outlier_peaks": _union_kept(0.6, 2.0),
+    "union_outlier_peaks0": _union_kept(0.0, 2.0),
+    "union_outlier_peaks03": _union_kept(0.3, 2.0),
+    "union_share03": _union_kept(0.6, 0.3),
+    "union_share025": _union_kept(0.6, 0.25),
+}
+
+ORIGINAL_PLATEAUS = C.plateau_contacts
+
+
+def _elongation(points, weights):
+    """sqrt of the ratio of the weighted covariance's eigenvalues of ``points`` (M, 2)."""
+    m = (points * weights[:, None]).sum(0) / weights.sum()
+    d = points - m
+    cov = (weights[:, None, None] * d[:, :, None] * d[:, None, :]).sum(0) / weights.sum()
+    small, large = np.linalg.eigvalsh(cov)
+    return float(np.sqrt(large / max(small, 1e-12)))
+
+
+def _plateaus_by_shape(table, current_px, magnitudes, peaks, fraction, pitch_px, finger_radius_px, least=1.0):
+    """``plateau_contacts`` whose wide plateau holds at least floor(L / W) fingers, L / W its
+    elongation (round fingertips side by side), beside its area's count."""
+    covered = np.zeros(len(magnitudes), dtype=bool)
+    kept, fingers, points = [], [], []
+    for p in peaks:
+        if covered[p]:
+            continue
+        level = fraction * magnitudes[p]
+        mask = _plateau(table, magnitudes, p, level)
+        covered |= mask
+        kept.append(p)
+        size = int(mask.sum())
+        if size > PLATEAU_MARKERS:
+            weights = magnitudes[mask] - level + 1e-9
+            by_area = math.ceil(size * pitch_px**2 / (math.pi * finger_radius_px**2))
+            elongation = _elongation(current_px[mask], weights)
+            by_shape = int(elongation) if elongation >= least else 1
+            n = min(MAX_FINGERS, max(1, by_area, by_shape))
+            points.append(_split_along_axis(current_px[mask], weights, n))
+            fingers.append(n)
+        else:
+            fingers.append(0)
+    pts = np.concatenate(points) if points else np.zeros((0, 2))
+    return np.array(kept, dtype=np.int64), np.array(fingers, dtype=np.int64), pts
+
+
+#: Variants patched in place of ``contacts.plateau_contacts`` (with the product's maxima).
+PLATEAUS = {
+    "plateau_shape": _plateaus_by_shape,
+    "plateau_shape3": lambda *args: _plateaus_by_shape(*args, least=3.0),
+}
+
+app = typer.Typer(add_completion=False)
+
+
+def _use(variant: str) -> None:
+    C.plateau_contacts = PLATEAUS.get(variant, ORIGINAL_PLATEAUS)
+    if variant in PLATEAUS:
+        C.homography_outliers = ORIGINAL_OUTLIERS
+        C._maxima = PRODUCT
+    elif variant in RESIDUAL:
+        C.homography_outliers = RESIDUAL[variant]
+        C._maxima = _outliers
+    else:
+        C.homography_outliers = ORIGINAL_OUTLIERS
+        C._maxima = VARIANTS[variant]
+
+
+@app.command()
+def replay(
+    out: Path = typer.Option(...),
+    variant: str = typer.Option(...),
+    families: str = typer.Option("default,fingers,strong,powerlaw,camera"),
+) -> None:
+    _use(variant)
+    contact_replay.VARIANTS.setdefault(variant, contact_replay.VARIANTS["current"])
+    contact_replay.score(out=out, families=families, variant=variant)
+
+
+@app.command()
+def family(
+    out: Path = typer.Option(...),
+    variant: str = typer.Option(...),
+    data: Path = typer.Option(..., help="a family_eval.py folder whose datasets are linked in"),
+    families: str = typer.Option("default,fingers,strong,powerlaw,camera"),
+    sessions: bool = typer.Option(False, "--sessions", help="SRC holds family_eval.py --sessions datasets"),
+) -> None:
+    import family_eval
+
+    _use(variant)
+    folder = out / variant
+    folder.mkdir(parents=True, exist_ok=True)
+    names = [f for f in families.split(",") if f]
+    for fam in names:
+        if not (folder / fam).exists():
+            (folder / fam).symlink_to((data / fam).resolve())
+    family_eval.main(
+        out=folder,
+        families=",".join(names),
+        users="0,3",
+        seconds=4.0,
+        seed=2,
+        jobs=1,
+        method=["ours=default"],
+        final_run=False,
+        rerun=False,
+        sessions=sessions,
+        deadzone_mm=family_eval.DEFAULT_DEADZONE_MM,
+        creep=True,
+        vote_of=None,
+    )
+
+
+if __name__ == "__main__":
+    app()

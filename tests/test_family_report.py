@@ -1,0 +1,50 @@
+"""family_eval.py's report: beside the five metrics, the contact count per labelled gesture type."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "family_eval.py"
+
+
+@pytest.fixture(scope="module")
+def family_eval():
+    spec = importlib.util.spec_from_file_location("family_eval", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def row(count_by_gesture=None):
+    out = {
+        "gesture_accuracy": 0.95,
+        "contact_count_accuracy": 0.93,
+        "contact_distance_mm": 1.0,
+        "intensity_mae_mm": 0.1,
+        "resting_f1": 0.96,
+    }
+    if count_by_gesture is not None:
+        out["count_by_gesture"] = count_by_gesture
+    return out
+
+
+def test_the_report_gives_the_count_per_gesture_type_and_marks_those_below_92(family_eval):
+    per_type = {"push": 0.87, "pinch": 0.974, "zoom": 0.925, "twist_cw": None, "twist_ccw": 0.92}
+    lines = family_eval.report({"default/ours": row(per_type), "fingers/ours": row()}, ["default", "fingers"], ["ours"])
+    head = lines.index("| family | method | push | pinch | zoom | twist_cw | twist_ccw |")
+    assert lines[head + 2] == "| default | ours | 87.00 % * | 97.40 % | 92.50 % | - | 92.00 % |"
+    assert lines[head + 3] == "| fingers | ours | - | - | - | - | - |"  # cached before the per-type count
+
+
+def test_count_by_gesture_reads_the_evaluation_result_without_none(family_eval):
+    result = {"contact_count_accuracy_by_gesture": [0.99, 0.8, 0.9, None, 0.95, 0.97]}
+    assert family_eval.count_by_gesture(result) == {
+        "push": 0.8,
+        "pinch": 0.9,
+        "zoom": None,
+        "twist_cw": 0.95,
+        "twist_ccw": 0.97,
+    }
