@@ -43,7 +43,6 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.console import Console
 from rich.table import Table
 
 from neurotouch_hid.calibration import measure_creep
@@ -52,6 +51,7 @@ from neurotouch_hid.estimate import GESTURE_ORDER, GestureType
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
 from neurotouch_hid.evaluation.metrics import Observations, align, evaluate
 from neurotouch_hid.evaluation.runner import evaluate_dataset, pipeline_config
+from neurotouch_hid.output.console import make_console
 from neurotouch_hid.pipeline.episode import EpisodeVote
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import PHYSICS
@@ -140,7 +140,7 @@ def main(
         "(episode.EpisodeVote; for a method without it: the product's own method already votes)",
     ),
 ) -> None:
-    console = Console(soft_wrap=True)
+    console = make_console()  # a pipe or a file gets the whole table, never cut
     names = [f.strip() for f in families.split(",") if f.strip()]
     if {*HELD_BACK, "mix"} & set(names) and not final_run:
         raise typer.BadParameter(
