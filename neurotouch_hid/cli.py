@@ -716,8 +716,8 @@ def calibrate(
             "--mirror/--no-mirror and --rotation go together with the camera or simulator (both instead of the "
             "guided pushes): give both or neither"
         )
-    if source in (SourceKind.DAVIS, SourceKind.SIM):
-        from neurotouch_hid.warmup import compile_pipeline
+    if source in (SourceKind.DAVIS, SourceKind.SIM) and (check or mirror is None):
+        from neurotouch_hid.warmup import compile_pipeline  # the guided pushes and the check use it
 
         err_console.print("loading the gesture pipeline (compiled on the first run only)", highlight=False)
         compile_pipeline()  # before the camera opens: nothing of the guided gestures waits for it

@@ -145,6 +145,18 @@ def test_a_wrong_calibration_is_caught_by_the_check_with_the_flags_to_give():
     assert not user_sensor_path().exists()
 
 
+def test_given_orientation_without_the_check_measures_the_rest_without_loading_the_pipeline(tmp_path):
+    """Mirror and rotation given, no check: nothing uses the gesture pipeline, so calibrate does
+    not spend its start loading it (under emulation, a minute); the rest frame is still measured."""
+    out = tmp_path / "sensor.yaml"
+    done = run_cli("calibrate", "--source", "sim", "--mirror", "--rotation", "0", "--no-check", "--out", str(out))
+    assert done.returncode == 0, done.stderr
+    assert "loading the gesture pipeline" not in done.stdout + done.stderr
+    assert "markers: 177 found" in done.stdout and out.exists()
+    done = run_cli("calibrate", "--source", "sim", "--mirror", "--rotation", "0", "--out", str(tmp_path / "c.yaml"))
+    assert done.returncode == 0 and "loading the gesture pipeline" in done.stderr  # the check needs it
+
+
 def test_half_the_orientation_flags_is_one_clear_line():
     done = run_cli("calibrate", "--source", "sim", "--rotation", "30", "--no-check")
     assert done.returncode == 2
