@@ -2,11 +2,15 @@
 
 The gadget replays a simulated gel recording at rest (vm.py makes it on the host and puts it in
 the boot's shared folder) as a DAVIS-346 on dummy_hcd; dv-processing's own camera driver opens it
-through libusb as it would open the real camera. The gadget is started once, then every part of
-PARTS runs against it, each with its own verdict (a failing part does not hide the others):
-``neurotouch-hid devices``, ``record --source davis``, ``calibrate --source davis``, ``run
---source davis --output jsonl``, ``run --source davis`` on the gamepad with the camera unplugged
-(SIGUSR1) and plugged in again (SIGUSR2) mid-run, and finally SIGTERM, which must unplug it.
+through libusb as it would open the real camera. The gadget is started once, then every part of a
+set runs against it, each with its own verdict (a failing part does not hide the others), and
+finally SIGTERM, which must unplug it. Two sets, two guest checks:
+
+- :data:`PARTS` (here, in every test run): the USB descriptors, ``neurotouch-hid devices`` and
+  ``record --source davis``;
+- :data:`PIPELINE_PARTS` (checks_davis_pipeline.py, the slow tier, ``pytest -m slow``):
+  ``calibrate --source davis``, ``run --source davis --output jsonl``, and ``run --source davis``
+  on the gamepad with the camera unplugged (SIGUSR1) and plugged in again (SIGUSR2) mid-run.
 
 Two things make the commands work under software emulation (tests/kernel/README.md has the
 details): the pipeline's numba code is compiled on the host before the boot, for LLVM's generic
@@ -485,18 +489,24 @@ def _run_gamepad_unplug(camera: EmulatedCamera) -> dict:
     }
 
 
+#: The parts of the default test run: the camera's USB path, no gesture pipeline (one Python
+#: start each, about a minute under emulation).
 PARTS = {
     "descriptors": _descriptors,
     "devices": _devices,
     "record": _record,
+}
+#: The parts that run the gesture pipeline on the camera (numba's code under emulation: about ten
+#: minutes on an idle host, far more on a loaded one): the slow tier, checks_davis_pipeline.py.
+PIPELINE_PARTS = {
     "calibrate": _calibrate,
     "run_jsonl": _run_jsonl,
     "run_gamepad_unplug": _run_gamepad_unplug,
 }
 
 
-def check_emulated_davis() -> dict:
-    """The gadget started once, every part of PARTS against it, then SIGTERM: it must unplug.
+def against_the_camera(parts: dict) -> dict:
+    """The gadget started once, every part of ``parts`` against it, then SIGTERM: it must unplug.
 
     Returns ``{"ready": ..., "<part>": {"ok": bool, "details" or "error"}, "sigterm": ...}``; fails
     only when the camera never appears."""
@@ -507,7 +517,7 @@ def check_emulated_davis() -> dict:
     try:
         line, seconds = camera.wait_ready()
         results["ready"] = {"line": line, "seconds": round(seconds, 1)}
-        for name, part in PARTS.items():
+        for name, part in parts.items():
             t0 = time.monotonic()
             try:
                 results[name] = {"ok": True, "details": part(camera)}
@@ -528,3 +538,8 @@ def check_emulated_davis() -> dict:
             "log_tail": camera.log()[-3000:],
         }
     return results
+
+
+def check_emulated_davis() -> dict:
+    """:func:`against_the_camera` with :data:`PARTS`."""
+    return against_the_camera(PARTS)

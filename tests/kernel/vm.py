@@ -43,20 +43,24 @@ HOST_COMMANDS = {
     "udevadm": "udev",
 }
 #: The guest checks of each of the two guests booted side by side: the emulated camera's
-#: (checks_davis.py: seven commands, each a Python start of tens of seconds under emulation, ~8 min)
-#: and every other module's (~8 min); one guest for all took 17-20 min on 2 cores.
+#: (checks_davis.py: three Python starts, a few minutes under emulation) and every other module's.
 CAMERA_MODULES = ("checks_davis",)
+#: Guest check modules of the slow tier only (``pytest -m slow``, :func:`slow_guest_results`, a
+#: guest of their own): the gesture pipeline's numba code on the emulated camera, about ten
+#: minutes under emulation on an idle host.
+SLOW_MODULES = ("checks_davis_pipeline",)
 
 
 def guest_parts() -> list[tuple[str, ...]]:
-    """The check modules (names) of each guest: :data:`CAMERA_MODULES`, then all the others."""
+    """The check modules (names) of each guest of the default run: :data:`CAMERA_MODULES`, then
+    all the others but :data:`SLOW_MODULES`."""
     modules = sorted(path.stem for path in HERE.glob("checks_*.py"))
-    return [CAMERA_MODULES, tuple(m for m in modules if m not in CAMERA_MODULES)]
+    return [CAMERA_MODULES, tuple(m for m in modules if m not in CAMERA_MODULES + SLOW_MODULES)]
 
 
-#: The whole guest run (a limit, not a duration): checks_davis.py alone took 8 minutes under
-#: emulation at load 7 (it runs seven commands, each a Python start of tens of seconds there), the
-#: whole guest run with the boot 19 minutes at load 6-9 on 2 cores.
+#: A guest's whole run (a limit, not a duration): the camera's pipeline checks alone took 8 to 17
+#: minutes under emulation at load 7 (six commands, each a Python start of tens of seconds there),
+#: the guest of all the other modules 22 minutes beside them at load 6-9 on 2 cores.
 BOOT_TIMEOUT_S = 2400
 #: Modules udev's coldplug would load for qemu's emulated q35 hardware (disk, CD, KVM, crypto,
 #: watchdog, PS/2): none is used (the root is 9p), and loading them under software emulation costs
@@ -244,9 +248,9 @@ def boot(
     """Boot the kernel once under qemu (no KVM), run ``guest_script`` in it (on the check
     ``modules`` only, when given), return its JSON.
 
-    When checks_davis.py runs, the boot's shared folder holds, beside the result, what it needs:
-    the replay recording and the pipeline's numba code compiled here
-    (:func:`compile_guest_numba_cache`).
+    When the camera's checks run (checks_davis.py, checks_davis_pipeline.py), the boot's shared
+    folder holds, beside the result, what they need: the replay recording, and for the pipeline's
+    runs its numba code compiled here (:func:`compile_guest_numba_cache`).
     The JSON maps each check's name to ``{"ok": bool, "seconds": float, ...details}``, plus
     ``"_boot"`` with the boot's wall time and kernel release. Raises KernelUnavailable when qemu
     cannot be installed, RuntimeError (with vng's output) when the guest wrote no result.
@@ -257,9 +261,10 @@ def boot(
     kdir, kver = ensure_kernel()
     vmlinuz = kdir / "boot" / f"vmlinuz-{kver}"
     out = Path(tempfile.mkdtemp(prefix="boot-", dir=cache_dir()))
-    if not modules or any(m in CAMERA_MODULES for m in modules):
+    if not modules or any(m in CAMERA_MODULES + SLOW_MODULES for m in modules):
         shutil.copyfile(ensure_replay_recording(), out / "davis_replay.aedat4")  # checks_davis.py's camera
-        compile_guest_numba_cache(out / GUEST_NUMBA_CACHE)  # and the pipeline's code for its runs
+    if not modules or any(m in SLOW_MODULES for m in modules):
+        compile_guest_numba_cache(out / GUEST_NUMBA_CACHE)  # the pipeline's code for its runs
     result = out / "result.json"
     env = dict(os.environ)
     env["PATH"] = f"{Path(sys.executable).parent}:{env.get('PATH', '/usr/bin:/bin')}"
@@ -310,11 +315,18 @@ def boot(
         raise RuntimeError(f"the guest wrote no {result.name}; vng said:\n{log[-3000:]}")
     data = json.loads(result.read_text())
     data["_boot"] = {"seconds": round(seconds, 1), "kernel": kver, "modules": list(modules)}
-    if all(entry.get("ok", True) for entry in data.values()):
+    if not _failed_anywhere(data):
         shutil.rmtree(out, ignore_errors=True)
     else:
         data["_boot"]["out_dir"] = str(out)  # kept: result.json and vng.log, to look at
     return data
+
+
+def _failed_anywhere(entry) -> bool:
+    """Whether a result, or any part of one at any depth (checks_davis.py's parts), says ``"ok": false``."""
+    if isinstance(entry, dict):
+        return entry.get("ok") is False or any(_failed_anywhere(value) for value in entry.values())
+    return False
 
 
 def merge_results(parts: list[dict]) -> dict:
@@ -418,6 +430,14 @@ def cancel_background_boot() -> None:
     """Stop a background boot that is still running (nothing when none was started)."""
     if _background is not None:
         _background.cancel()
+
+
+@functools.cache
+def slow_guest_results() -> dict:
+    """The results of one boot of :data:`SLOW_MODULES` per Python process (the slow tier's guest).
+
+    Raises KernelUnavailable or RuntimeError as :func:`boot` does."""
+    return boot(modules=SLOW_MODULES)
 
 
 @functools.cache

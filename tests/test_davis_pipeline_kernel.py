@@ -1,0 +1,82 @@
+"""The gesture pipeline on the live camera path, an emulated DAVIS-346 on USB, in a REAL Linux
+kernel: the slow tier (``pytest -m slow``).
+
+The guest check checks_davis_pipeline.check_pipeline_on_the_emulated_davis (tests/kernel) starts
+the emulated camera of test_davis_kernel.py and runs ``calibrate``, ``run --output jsonl`` and
+``run`` on the gamepad against it, with the pipeline's numba code compiled on the host. Under
+software emulation that takes about ten minutes on an idle host, so it has a guest of its own
+(tests/kernel/vm.py ``slow_guest_results``), booted only when these tests are selected.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from kernel.vm import KernelUnavailable, slow_guest_results
+from test_davis_kernel import part
+
+pytestmark = [pytest.mark.kernel, pytest.mark.slow]
+
+ON_THE_CAMERA = "checks_davis_pipeline.check_pipeline_on_the_emulated_davis"
+
+
+@pytest.fixture(scope="module")
+def pipeline_guest() -> dict:
+    """The slow tier's guest results (one boot per session); skips only where qemu cannot be
+    installed at all."""
+    try:
+        return slow_guest_results()
+    except KernelUnavailable as exc:
+        pytest.skip(reason=f"cannot boot a real kernel here: {exc}")
+
+
+def test_calibrate_on_the_camera_measures_the_replayed_rest_frame(pipeline_guest):
+    """``calibrate --source davis`` in the guest gives what calibrate gives here on the frame the
+    gadget replays (the recording's first, once per pass), taken three times as three rest frames
+    (the values are rounded to 0.01 px and 0.0001 px/mm: one step of rounding apart at most)."""
+    from kernel.vm import ensure_replay_recording
+
+    from neurotouch_hid.calibration import calibrate
+    from neurotouch_hid.sources import Frame
+    from neurotouch_hid.sources.recording import RecordingReader
+
+    details = part(pipeline_guest, "calibrate", ON_THE_CAMERA)
+    sensor = details["sensor"]
+    with RecordingReader(ensure_replay_recording()) as reader:
+        _, frames = reader.read_all()
+    sent = [Frame(frames[0].t_us + k * details["pass_us"], frames[0].image) for k in range(3)]
+    expected = calibrate(sent, n_frames=3).sensor
+    assert sensor["px_per_mm"] == pytest.approx(expected.px_per_mm, abs=1.1e-4)
+    assert sensor["gel_center_px"] == pytest.approx(list(expected.gel_center_px), abs=0.011)
+    assert sensor["gel_radius_px"] == pytest.approx(expected.gel_radius_px, abs=0.011)
+    markers = expected.extra["rest_markers_px"]
+    assert len(markers) > 100
+    np.testing.assert_allclose(sensor["rest_markers_px"], markers, rtol=0, atol=0.011)
+
+
+def test_run_on_the_camera_gives_estimates_from_the_hosts_compiled_pipeline(pipeline_guest):
+    """``run --source davis --output jsonl``: states (the gel at rest: no gesture) from windows of
+    camera data; numba loaded the pipeline from the cache compiled on the host (vm.py)."""
+    details = part(pipeline_guest, "run_jsonl", ON_THE_CAMERA)
+    assert details["states"] > 0 and details["windows"] > 0, details
+    assert details["gestures"] == ["none"], details
+    assert details["cache_loads"] > 0, details
+
+
+@pytest.mark.xfail(
+    reason="flaky under emulation, open (failed in 3 of 4 guest runs on a loaded host): the emulated "
+    "camera's cued push did not reach the pad in 120 s; in two runs every event of the push was dropped "
+    "as lag (about 108k of 133k events), in one only 24k events arrived in 132 s of camera time (1.1k "
+    "dropped): the gadget, dv-processing and the pipeline share one emulated CPU. The same replay through "
+    "`run` and `track` on the host gives the push; the unplug itself is asserted on the host (test_davis.py)",
+    strict=False,
+)
+def test_run_unplugged_mid_push_centres_the_pad_and_carries_on_when_the_camera_is_back(pipeline_guest):
+    """``run --source davis`` on the gamepad: the camera's push (the gadget's cue) moved the left
+    stick; unplugged mid-push, the driver reported the loss with the pad neutral and wrote nothing
+    while the camera was away; plugged in again, it said the camera is back and kept running until
+    SIGTERM (exit 0)."""
+    details = part(pipeline_guest, "run_gamepad_unplug", ON_THE_CAMERA)
+    assert details["pushed_axes"].get("ABS_X", 0) <= -16_000, details
+    assert "gamepad centred" in details["lost"] and "is back" in details["back"], details
+    assert details["exit_code"] == 0
