@@ -4,8 +4,9 @@ kernel: the slow tier (``pytest -m slow``).
 The guest check checks_davis_pipeline.check_pipeline_on_the_emulated_davis (tests/kernel) starts
 the emulated camera of test_davis_kernel.py and runs ``calibrate``, ``run --output jsonl`` and
 ``run`` on the gamepad against it, with the pipeline's numba code compiled on the host. Under
-software emulation that takes about ten minutes on an idle host, so it has a guest of its own
-(tests/kernel/vm.py ``slow_guest_results``), booted only when these tests are selected.
+software emulation that takes about 5 minutes on an idle host and up to 17 on a loaded one, so it
+has a guest of its own (tests/kernel/vm.py ``slow_guest_results``), booted only when these tests
+are selected.
 """
 
 from __future__ import annotations

@@ -2,8 +2,8 @@
 :data:`~checks_davis.PIPELINE_PARTS`: ``calibrate``, ``run --output jsonl``, ``run`` on the gamepad
 through an unplug).
 
-Its numba code runs under software emulation, about ten minutes on an idle host and flaky on a
-loaded one, so it is left out of the default test run: vm.py boots it on its own guest for
+Its numba code runs under software emulation: about 5 minutes on an idle host, 8 to 17 and flaky
+on a loaded one, so it is left out of the default test run: vm.py boots it on its own guest for
 tests/test_davis_pipeline_kernel.py (``pytest -m slow``).
 """
 
