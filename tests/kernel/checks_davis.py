@@ -496,8 +496,8 @@ PARTS = {
     "devices": _devices,
     "record": _record,
 }
-#: The parts that run the gesture pipeline on the camera (numba's code under emulation: about ten
-#: minutes on an idle host, far more on a loaded one): the slow tier, checks_davis_pipeline.py.
+#: The parts that run the gesture pipeline on the camera (numba's code under emulation: about 5
+#: minutes on an idle host, 8 to 17 on a loaded one): the slow tier, checks_davis_pipeline.py.
 PIPELINE_PARTS = {
     "calibrate": _calibrate,
     "run_jsonl": _run_jsonl,

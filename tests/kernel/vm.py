@@ -46,8 +46,8 @@ HOST_COMMANDS = {
 #: (checks_davis.py: three Python starts, a few minutes under emulation) and every other module's.
 CAMERA_MODULES = ("checks_davis",)
 #: Guest check modules of the slow tier only (``pytest -m slow``, :func:`slow_guest_results`, a
-#: guest of their own): the gesture pipeline's numba code on the emulated camera, about ten
-#: minutes under emulation on an idle host.
+#: guest of their own): the gesture pipeline's numba code on the emulated camera, about 5 minutes
+#: under emulation on an idle host, 8 to 17 on a loaded one.
 SLOW_MODULES = ("checks_davis_pipeline",)
 
 
