@@ -83,6 +83,14 @@ def passed(guest: dict, name: str) -> dict:
     return entry["details"]
 
 
+def passed_part(guest: dict, check: str, name: str) -> dict:
+    """The details of part ``name`` of guest check ``check`` (checks_davis.py's parts), failing the
+    test with the part's error if it failed."""
+    entry = passed(guest, check)[name]
+    assert entry["ok"], f"{name}: {entry.get('error')}\n{entry.get('traceback', '')}"
+    return entry["details"]
+
+
 @pytest.fixture()
 def cli(tmp_path, monkeypatch, capsys):
     """``neurotouch-hid profile ARGS`` in this process (cli.main: errors -> exit 2), XDG in tmp;

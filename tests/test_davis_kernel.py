@@ -11,18 +11,11 @@ against it); the gesture pipeline on the same camera is the slow tier's
 from __future__ import annotations
 
 import pytest
-from conftest import passed
+from conftest import passed, passed_part
 
 pytestmark = pytest.mark.kernel
 
 AT_REST = "checks_davis.check_emulated_davis"
-
-
-def part(guest: dict, name: str, check: str = AT_REST) -> dict:
-    """The details of part ``name`` of guest check ``check``, failing with its error if it failed."""
-    entry = passed(guest, check)[name]
-    assert entry["ok"], f"{name}: {entry.get('error')}\n{entry.get('traceback', '')}"
-    return entry["details"]
 
 
 def test_the_emulated_camera_appears_on_usb(guest):
@@ -33,19 +26,19 @@ def test_the_emulated_camera_appears_on_usb(guest):
 
 
 def test_its_descriptors_are_the_davis_fx3_ones_libcaer_expects(guest):
-    details = part(guest, "descriptors")
+    details = passed_part(guest, AT_REST, "descriptors")
     assert details["attrs"]["idVendor"] == "152a" and details["attrs"]["idProduct"] == "841a"
     assert details["endpoints"]["ep_82"] == "Bulk" and details["endpoints"]["ep_81"] == "Interrupt"
 
 
 def test_devices_lists_it_as_ready_and_dv_processing_lists_a_davis(guest):
-    details = part(guest, "devices")
+    details = passed_part(guest, AT_REST, "devices")
     assert details["message"].startswith("ready: DAVIS-346 at bus ")
     assert details["dv"]["model"] == "DAVIS"
 
 
 def test_record_writes_the_replayed_events_and_frames_exactly(guest):
-    details = part(guest, "record")
+    details = passed_part(guest, AT_REST, "record")
     assert details["found_in_source"] == details["recorded_events"] > 100
     assert details["frame_shapes"] == [[260, 346]] and set(details["frame_max_diff"]) == {0}
 

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import passed_part
 from kernel.vm import KernelUnavailable, slow_guest_results
-from test_davis_kernel import part
 
 pytestmark = [pytest.mark.kernel, pytest.mark.slow]
 
@@ -41,7 +41,7 @@ def test_calibrate_on_the_camera_measures_the_replayed_rest_frame(pipeline_guest
     from neurotouch_hid.sources import Frame
     from neurotouch_hid.sources.recording import RecordingReader
 
-    details = part(pipeline_guest, "calibrate", ON_THE_CAMERA)
+    details = passed_part(pipeline_guest, ON_THE_CAMERA, "calibrate")
     sensor = details["sensor"]
     with RecordingReader(ensure_replay_recording()) as reader:
         _, frames = reader.read_all()
@@ -58,7 +58,7 @@ def test_calibrate_on_the_camera_measures_the_replayed_rest_frame(pipeline_guest
 def test_run_on_the_camera_gives_estimates_from_the_hosts_compiled_pipeline(pipeline_guest):
     """``run --source davis --output jsonl``: states (the gel at rest: no gesture) from windows of
     camera data; numba loaded the pipeline from the cache compiled on the host (vm.py)."""
-    details = part(pipeline_guest, "run_jsonl", ON_THE_CAMERA)
+    details = passed_part(pipeline_guest, ON_THE_CAMERA, "run_jsonl")
     assert details["states"] > 0 and details["windows"] > 0, details
     assert details["gestures"] == ["none"], details
     assert details["cache_loads"] > 0, details
@@ -77,7 +77,7 @@ def test_run_unplugged_mid_push_centres_the_pad_and_carries_on_when_the_camera_i
     stick; unplugged mid-push, the driver reported the loss with the pad neutral and wrote nothing
     while the camera was away; plugged in again, it said the camera is back and kept running until
     SIGTERM (exit 0)."""
-    details = part(pipeline_guest, "run_gamepad_unplug", ON_THE_CAMERA)
+    details = passed_part(pipeline_guest, ON_THE_CAMERA, "run_gamepad_unplug")
     assert details["pushed_axes"].get("ABS_X", 0) <= -16_000, details
     assert "gamepad centred" in details["lost"] and "is back" in details["back"], details
     assert details["exit_code"] == 0
