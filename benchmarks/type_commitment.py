@@ -1,16 +1,17 @@
-"""How long a one-contact gesture stays undecided: onset latency against felt wrong types
-(docs/method.md, "Episode vote"; docs/lab/type-commitment.md).
+"""How long a one-contact gesture stays undecided, and below which intensity an undecided window
+answers its own type: onset latency against felt wrong types (docs/method.md, "Episode vote";
+docs/lab/type-commitment.md).
 
     python3 benchmarks/type_commitment.py --out DIR [--families default,fingers,strong]
-        [--first-finger-ms 0,40,70,90,110] [--deadzone-mm 0.8]
+        [--first-finger-ms 0,40,70,90,110] [--provisional-mm 0,0.4] [--deadzone-mm 0.8]
 
 ``DIR`` is a ``benchmarks/family_eval.py --sessions`` folder (``DIR/FAMILY`` datasets, their
 sensor.yaml with the family's creep). Each sequence is run once through the product's pipeline
 with its episode vote taken out (each window's own type), into ``DIR/predictions/FAMILY/raw``;
 those per-window answers are then replayed through :class:`EpisodeVote` with each undecided time
-(the vote reads only each window's type, intensity, contact count and time, so the replay is what
+and provisional limit (0: an undecided window always answers ``none``; the vote reads only each window's type, intensity, contact count and time, so the replay is what
 the pipeline answers) and scored: the per-gesture metrics (docs/dataset.md) and the paper's
-per-window ones, one markdown row per family and time, then the mean over the families.
+per-window ones, one markdown row per family and candidate, then the mean over the families.
 """
 
 from __future__ import annotations
@@ -65,12 +66,13 @@ def raw_predictions(dataset: Path, dst: Path) -> None:
         write_predictions(dst / f"{name}.jsonl", predictions)
 
 
-def replay(dataset: Path, raw: Path, first_finger_us: int, deadzone_mm: float) -> dict:
-    """The per-window answers of ``raw`` through ``EpisodeVote(first_finger_us)``, scored."""
+def replay(dataset: Path, raw: Path, first_finger_us: int, provisional_mm: float, deadzone_mm: float) -> dict:
+    """The per-window answers of ``raw`` through ``EpisodeVote(first_finger_us, provisional_mm=...)``,
+    scored."""
     sensor = SensorGeometry.load(dataset / "sensor.yaml")
     parts = []
     for name in list_sequences(dataset):
-        vote = EpisodeVote(first_finger_us=first_finger_us)
+        vote = EpisodeVote(first_finger_us=first_finger_us, provisional_mm=provisional_mm)
         voted = [
             replace(p, gesture=vote.update(p.gesture, p.intensity_mm, p.n_contacts, p.t_us))
             for p in read_predictions(raw / f"{name}.jsonl")
@@ -85,23 +87,28 @@ def main(
     out: Path = typer.Option(..., "--out", help="a family_eval --sessions folder"),
     families: str = typer.Option("default,fingers,strong", "--families"),
     first_finger_ms: str = typer.Option("0,40,70,90,110", "--first-finger-ms", help="undecided times to compare"),
+    provisional_mm: str = typer.Option(
+        "0,0.4", "--provisional-mm", help="provisional limits to compare (mm; 0: undecided is none)"
+    ),
     deadzone_mm: float = typer.Option(DEFAULT_DEADZONE_MM, "--deadzone-mm", min=0.0),
 ) -> None:
     names = [f.strip() for f in families.split(",") if f.strip()]
-    times = [int(float(t) * 1000) for t in first_finger_ms.split(",")]
-    print("| family | undecided ms | " + " | ".join(c[0] for c in COLUMNS) + " |")
-    print("| --- | ---: |" + " ---: |" * len(COLUMNS))
-    rows: dict[int, list[dict]] = {t: [] for t in times}
+    candidates = [
+        (int(float(t) * 1000), float(p)) for t in first_finger_ms.split(",") for p in provisional_mm.split(",")
+    ]
+    print("| family | undecided ms | provisional mm | " + " | ".join(c[0] for c in COLUMNS) + " |")
+    print("| --- | ---: | ---: |" + " ---: |" * len(COLUMNS))
+    rows: dict[tuple[int, float], list[dict]] = {c: [] for c in candidates}
     for fam in names:
         raw = out / "predictions" / fam / "raw"
         raw_predictions(out / fam, raw)
-        for t in times:
-            row = replay(out / fam, raw, t, deadzone_mm)
-            rows[t].append(row)
-            print(f"| {fam} | {t // 1000} | " + " | ".join(f(row[k]) for _, k, f in COLUMNS) + " |", flush=True)
-    for t in times:
-        mean = {k: float(np.mean([r[k] for r in rows[t]])) for _, k, _ in COLUMNS}
-        print(f"| mean | {t // 1000} | " + " | ".join(f(mean[k]) for _, k, f in COLUMNS) + " |")
+        for t, p in candidates:
+            row = replay(out / fam, raw, t, p, deadzone_mm)
+            rows[t, p].append(row)
+            print(f"| {fam} | {t // 1000} | {p:g} | " + " | ".join(f(row[k]) for _, k, f in COLUMNS) + " |", flush=True)
+    for t, p in candidates:
+        mean = {k: float(np.mean([r[k] for r in rows[t, p]])) for _, k, _ in COLUMNS}
+        print(f"| mean | {t // 1000} | {p:g} | " + " | ".join(f(mean[k]) for _, k, f in COLUMNS) + " |")
 
 
 if __name__ == "__main__":

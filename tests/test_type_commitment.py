@@ -9,7 +9,8 @@ from test_pipeline import SENSOR, _WindowByWindow, events_at, gel_image
 
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
-from neurotouch_hid.pipeline.episode import EpisodeVote
+from neurotouch_hid.mapping.profile import available_profiles, load_profile
+from neurotouch_hid.pipeline.episode import PROVISIONAL_MM, EpisodeVote
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 from neurotouch_hid.sources import Frame
 
@@ -41,14 +42,14 @@ def _bump(rest: np.ndarray, at_px) -> np.ndarray:
     return np.exp(-np.sum((rest - np.asarray(at_px)) ** 2, axis=1) / (2 * 12.0**2))[:, None]
 
 
-def _pinch(lag_windows: int, n_windows: int, peak_px: float = 8.0):
+def _pinch(lag_windows: int, n_windows: int, peak_px: float = 8.0, ramp_windows: int = 4):
     """A two-finger pinch along x whose second finger lands ``lag_windows`` windows after the first;
-    each finger's displacement ramps up over 4 windows and holds."""
+    each finger's displacement ramps up over ``ramp_windows`` windows and holds."""
     c = np.asarray(SENSOR.gel_center_px)
 
     def frames_of(k: int, rest: np.ndarray) -> np.ndarray:
-        first = peak_px * min(1.0, (k + 1) / 4)
-        second = peak_px * min(1.0, max(0, k + 1 - lag_windows) / 4)
+        first = peak_px * min(1.0, (k + 1) / ramp_windows)
+        second = peak_px * min(1.0, max(0, k + 1 - lag_windows) / ramp_windows)
         return rest + _bump(rest, c + [-15.0, 0.0]) * [first, 0.0] - _bump(rest, c + [15.0, 0.0]) * [second, 0.0]
 
     return frames_of
@@ -65,10 +66,38 @@ def test_a_second_finger_60_ms_late_shows_no_push_above_the_dead_zone(rest_image
     assert first_pinch >= 5 and plain[first_pinch].n_contacts == 2
 
     committed = _run(_pinch(6, 14), 14)
-    assert not [e for e in committed if e.gesture not in (N, Q)]
-    assert [e.gesture for e in committed[:first_pinch]] == [N] * first_pinch
+    assert not [e for e in committed if e.gesture not in (N, Q) and e.intensity_mm >= PROVISIONAL_MM]
+    assert [e.gesture for e in committed[:first_pinch] if e.intensity_mm >= PROVISIONAL_MM] == [N] * len(
+        [e for e in committed[:first_pinch] if e.intensity_mm >= PROVISIONAL_MM]
+    )
     assert committed[first_pinch].gesture is Q  # no latency added once the second finger is seen
     assert max(e.intensity_mm for e in committed[:first_pinch]) >= DEFAULT_DEADZONE_MM  # pending, not still
+
+
+def test_the_first_finger_is_answered_at_once_only_while_too_weak_to_be_felt(rest_image):
+    """A slow pinch (a 120 ms ramp) whose second finger lands 30 ms late: its first windows, below the
+    provisional limit, answer the first finger's own type at once (the onset is not delayed);
+    from the limit on the answer waits (``none``) until the second finger commits the pinch, so no
+    window a profile could map shows another type."""
+    committed = _run(_pinch(3, 20, peak_px=4.0, ramp_windows=12), 20)
+    moving = [e for e in committed if e.intensity_mm > 0]
+    first_pinch = next(k for k, e in enumerate(committed) if e.gesture is Q)
+    early = committed[:first_pinch]
+    assert moving[0].gesture is P and moving[0].intensity_mm < PROVISIONAL_MM  # answered at once
+    assert [e for e in early if e.intensity_mm >= PROVISIONAL_MM], "the case must cross the limit undecided"
+    assert all(e.gesture is N for e in early if e.intensity_mm >= PROVISIONAL_MM)
+    assert all(e.gesture is P for e in early if 0 < e.intensity_mm < PROVISIONAL_MM)
+    assert all(e.gesture is Q for e in committed[first_pinch:])
+
+
+def test_no_shipped_profile_maps_a_provisional_answer():
+    """Every dead zone and press threshold of the shipped profiles is at or above the limit below
+    which an undecided window answers its first finger's type: no built-in profile feels it."""
+    for name, path in available_profiles().items():
+        for key, mapping in load_profile(path).mappings.items():
+            for field in ("deadzone_mm", "press_mm"):
+                value = getattr(mapping, field, None)
+                assert value is None or value >= PROVISIONAL_MM, f"{name}: {key}.{field} = {value}"
 
 
 def test_a_quarter_second_tap_is_recognised_with_its_type(rest_image):
@@ -100,6 +129,15 @@ def test_one_contact_stays_undecided_for_the_first_finger_time_and_a_count_chang
     assert [vote.update(P, 1.0, 0, 60_000), vote.update(P, 1.0, 1, 70_000)] == [N, N]
     assert vote.update(P, 1.0, 1, 90_000) is N  # held 20 ms since the count became 1
     assert vote.update(P, 1.0, 1, 100_000) is P
+
+
+def test_an_undecided_window_below_the_provisional_limit_answers_its_own_type():
+    vote = EpisodeVote(first_finger_us=30_000, provisional_mm=0.4)
+    assert vote.update(P, 0.2, 1, 10_000) is P  # too weak for any profile: answered at once
+    assert vote.update(P, 0.6, 1, 20_000) is N  # strong enough to be felt: undecided
+    assert vote.update(P, 0.3, 1, 30_000) is P
+    assert vote.update(Q, 0.5, 2, 40_000) is Q  # the second finger commits its own type
+    assert vote.update(P, 0.1, 2, 50_000) is Q  # committed: the limit no longer applies
 
 
 def test_the_commitment_is_the_vote_since_the_contact_count_last_changed():

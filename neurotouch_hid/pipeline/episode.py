@@ -10,6 +10,10 @@ from neurotouch_hid.estimate import GestureType
 FIRST_FINGER_US = 90_000
 #: Within this time (us) of the onset one correction is allowed (libinput's 300 ms).
 CORRECTION_US = 300_000
+#: Below this intensity (mm) an undecided window answers the vote so far: it is below every dead zone
+#: and press threshold of the built-in profiles (the lowest: ``spacecraft``'s triggers, 0.4 mm),
+#: so nothing is felt, and the onset is not delayed (docs/method.md, "Episode vote").
+PROVISIONAL_MM = 0.4
 
 
 class EpisodeVote:
@@ -17,9 +21,11 @@ class EpisodeVote:
 
     The windows from a gesture's onset (its first window with a gesture) to its end (the next
     ``none`` window) form an episode. While its windows have shown at most one contact, for less
-    than ``first_finger_us``, the episode is *undecided* and answers ``none`` (no output for the
-    mapper): a multi-finger gesture whose first finger leads reads as a one-finger push until the
-    next finger moves the gel (paper, "Results"). The type is committed at the first window that
+    than ``first_finger_us``, the episode is *undecided*: a multi-finger gesture whose first finger
+    leads reads as a one-finger push until the next finger moves the gel (paper, "Results"). An
+    undecided window whose intensity is below ``provisional_mm`` (too weak for a profile to map
+    it) answers the vote so far (below); from there on it answers ``none`` (no output for the
+    mapper). The type is committed at the first window that
     sees two contacts or more, or once one contact has held for ``first_finger_us``: the type with
     the most intensity-weighted votes (mm) since the contact count last changed.
 
@@ -32,11 +38,18 @@ class EpisodeVote:
     Args:
         first_finger_us: how long one contact alone stays undecided (us, >= 0).
         correction_us: how long after the onset the one correction may come (us, >= 0).
+        provisional_mm: below this intensity (mm, >= 0) an undecided window answers the vote so far.
     """
 
-    def __init__(self, first_finger_us: int = FIRST_FINGER_US, correction_us: int = CORRECTION_US) -> None:
+    def __init__(
+        self,
+        first_finger_us: int = FIRST_FINGER_US,
+        correction_us: int = CORRECTION_US,
+        provisional_mm: float = PROVISIONAL_MM,
+    ) -> None:
         self.first_finger_us = first_finger_us
         self.correction_us = correction_us
+        self.provisional_mm = provisional_mm
         self.reset()
 
     def reset(self) -> None:
@@ -52,7 +65,8 @@ class EpisodeVote:
     def update(self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int) -> GestureType:
         """The answer after one window ending at ``t_us`` (us, increasing) of type ``gesture``,
         intensity ``intensity_mm`` (mm, >= 0) and ``n_contacts`` contact points: the committed
-        type, or ``NONE`` while undecided. A ``NONE`` window ends the episode and is returned as is."""
+        type; while undecided, the vote so far below ``provisional_mm`` and ``NONE`` at or above
+        it. A ``NONE`` window ends the episode and is returned as is."""
         if gesture is GestureType.NONE:
             self.reset()
             return gesture
@@ -67,6 +81,8 @@ class EpisodeVote:
             self._most_contacts = max(self._most_contacts, n_contacts)
             self._votes[gesture] = self._votes.get(gesture, 0.0) + weight
             if n_contacts <= 1 and t_us - self._count_since_us < self.first_finger_us:
+                if intensity_mm < self.provisional_mm:
+                    return max(self._votes, key=self._votes.get)
                 return GestureType.NONE
             self._decision = max(self._votes, key=self._votes.get)
             return self._decision
