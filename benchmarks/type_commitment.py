@@ -9,8 +9,9 @@ docs/lab/type-commitment.md).
 sensor.yaml with the family's creep). Each sequence is run once through the product's pipeline
 with its episode vote taken out (each window's own type), into ``DIR/predictions/FAMILY/raw``;
 those per-window answers are then replayed through :class:`EpisodeVote` with each undecided time
-and provisional limit (0: an undecided window always answers ``none``; the vote reads only each window's type, intensity, contact count and time, so the replay is what
-the pipeline answers) and scored: the per-gesture metrics (docs/dataset.md) and the paper's
+and provisional limit (0: an undecided window always answers ``none``; the vote reads only each
+window's type, intensity, contact count and time, so the replay is what the pipeline answers)
+and scored: the per-gesture metrics (docs/dataset.md) and the paper's
 per-window ones, one markdown row per family and candidate, then the mean over the families.
 """
 
