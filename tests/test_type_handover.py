@@ -99,3 +99,41 @@ def test_the_same_type_after_the_gesture_ended_is_a_new_press():
     est = windows((G.TWIST_CCW, 4.0, 30), (G.PINCH, 4.0, 10), (G.NONE, 0.5, 5), (G.TWIST_CCW, 4.0, 30))
     down = ["BTN_SOUTH" in pressed(s) for s in replay(load_profile("accessibility"), est)]
     assert rising_edges(down) == 1 and not down[-1]
+
+
+def onset_windows(contact_mm=(6.0, 0.0)) -> list[GestureEstimate]:
+    """A pinch's onset as the pipeline answers it while its second finger is awaited: its first
+    finger answered push below the provisional limit (3 windows), then undecided (``none`` with
+    its intensity and contact, 6 windows), then the pinch (20 windows), then rest."""
+    parts = [(G.PUSH, 0.3, 3), (G.NONE, 0.7, 6), (G.PINCH, 2.5, 20), (G.NONE, 0.0, 30)]
+    out, t = [], 1_000_000
+    contact = np.array([contact_mm], dtype=float)
+    for kind, mm, n in parts:
+        for _ in range(n):
+            t += 10_000
+            c = contact if mm > 0 else np.zeros((0, 2))
+            out.append(GestureEstimate(t, kind, mm == 0.0, mm, contacts_px=c.copy(), contacts_mm=c))
+    return out
+
+
+def test_a_contact_mapping_neither_waits_for_the_type_nor_drops_while_it_is_decided():
+    """contact_x -> a toggle and the right stick: the finger's position counts from the first
+    window the gel moves, through the undecided windows, to the pinch: one toggle, the stick
+    never back at the centre before the fingers leave."""
+    toggle = {"input": "contact_x", "output": "BTN_NORTH", "mode": "toggle", "press_mm": 2.0, "release_mm": 1.0}
+    stick = {"input": "contact", "output": "right_stick", "deadzone_mm": 0.5, "saturation_mm": 30.0}
+    profile = Profile.model_validate({"mappings": {"t": toggle, "s": stick}})
+    states = replay(profile, onset_windows())
+    down = ["BTN_NORTH" in pressed(s) for s in states]
+    assert rising_edges(down) == 1 and down[-1]
+    moved = [s.axes["ABS_RX"] != 0 for s in states]
+    assert all(moved[:29]) and not moved[-1]
+
+
+def test_an_undecided_window_moves_no_output_of_a_type():
+    """The same onset through default: nothing from the push below its dead zone, nothing while
+    undecided, then the left trigger from the pinch; the stick never moves."""
+    states = replay(load_profile("default"), onset_windows())
+    assert not any(s.axes["ABS_X"] or s.axes["ABS_Y"] for s in states)
+    trigger = [s.axes["ABS_Z"] > 0 for s in states]
+    assert not any(trigger[:9]) and trigger[9]

@@ -38,13 +38,21 @@ _ZERO2 = np.zeros(2)
 def gesture_inputs(estimate: GestureEstimate) -> dict[str, np.ndarray | float]:
     """Every input quantity of the profile schema for one estimate (mm, user frame).
 
+    The inputs of no one type (``intensity``, ``contact``, ``contact_x``, ``contact_y``) also
+    follow a window whose type is not decided yet (``none`` with an intensity above 0 and not
+    resting: the pipeline waits for a second finger; docs/method.md, "Episode vote"), so an output
+    mapped from them neither waits for the type nor drops back while it is decided.
+
     Returns:
         name -> float, or (2,) float64 for ``push`` and ``contact``. All zero when the gel rests
-        or the gesture is ``none``; non-finite estimate values count as 0.
+        or the window is ``none`` without intensity; the typed inputs are zero while ``none``;
+        non-finite estimate values count as 0.
     """
     gesture = estimate.gesture
-    active = not estimate.resting and gesture != GestureType.NONE
-    intensity = float(estimate.intensity_mm) if active and math.isfinite(estimate.intensity_mm) else 0.0
+    moving = not estimate.resting and math.isfinite(estimate.intensity_mm) and estimate.intensity_mm > 0
+    active = moving and gesture != GestureType.NONE
+    any_intensity = float(estimate.intensity_mm) if moving else 0.0
+    intensity = any_intensity if active else 0.0
     push = _ZERO2
     if gesture == GestureType.PUSH and intensity > 0:
         dx, dy = float(estimate.translation_mm[0]), float(estimate.translation_mm[1])
@@ -52,7 +60,7 @@ def gesture_inputs(estimate: GestureEstimate) -> dict[str, np.ndarray | float]:
         if norm > 0:
             push = np.array((dx / norm * intensity, dy / norm * intensity))
     contact = _ZERO2
-    if active and estimate.n_contacts > 0 and len(estimate.contacts_mm) > 0:
+    if moving and estimate.n_contacts > 0 and len(estimate.contacts_mm) > 0:
         cx, cy = float(estimate.contacts_mm[0][0]), float(estimate.contacts_mm[0][1])
         contact = np.array((cx, cy)) if math.isfinite(cx) and math.isfinite(cy) else _ZERO2
     twist = {GestureType.TWIST_CCW: intensity, GestureType.TWIST_CW: -intensity}.get(gesture, 0.0)
@@ -61,7 +69,7 @@ def gesture_inputs(estimate: GestureEstimate) -> dict[str, np.ndarray | float]:
     return {
         "push": push,
         "contact": contact,
-        "intensity": intensity,
+        "intensity": any_intensity,
         "push_intensity": intensity if gesture == GestureType.PUSH else 0.0,
         "push_x": float(push[0]),
         "push_y": float(push[1]),
