@@ -12,7 +12,8 @@ those per-window answers are then replayed through :class:`EpisodeVote` with eac
 and provisional limit (0: an undecided window always answers ``none``; the vote reads only each
 window's type, intensity, contact count and time, so the replay is what the pipeline answers)
 and scored: the per-gesture metrics (docs/dataset.md) and the paper's
-per-window ones, one markdown row per family and candidate, then the mean over the families.
+per-window ones, and what the wait costs a push where it is felt (:func:`push_waits_ms`), one
+markdown row per family and candidate, then the mean over the families.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ import typer
 
 from neurotouch_hid.dataset import list_sequences, read_labels, read_predictions, write_predictions
 from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
+from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM, gesture_spans
 from neurotouch_hid.evaluation.metrics import Observations, align, evaluate
 from neurotouch_hid.pipeline.episode import EpisodeVote
 from neurotouch_hid.pipeline.pipeline import GesturePipeline
@@ -44,6 +45,8 @@ COLUMNS = (
     ("changes", "type_changes_per_gesture", lambda v: f"{v:.2f}"),
     ("felt changes", "felt_type_changes_per_gesture", lambda v: f"{v:.2f}"),
     ("felt wrong %", "felt_wrong_share", lambda v: f"{100 * v:.1f}"),
+    ("push wait median ms", "push_wait_median_ms", lambda v: f"{v:.0f}"),
+    ("push wait max ms", "push_wait_max_ms", lambda v: f"{v:.0f}"),
 )
 
 
@@ -67,19 +70,39 @@ def raw_predictions(dataset: Path, dst: Path) -> None:
         write_predictions(dst / f"{name}.jsonl", predictions)
 
 
+def push_waits_ms(labels: list, raw: list, voted: list, deadzone_mm: float) -> list[float]:
+    """What the vote costs a push where it is felt: per labelled push gesture (docs/dataset.md's
+    spans), ms from its first window answered with any type at ``deadzone_mm`` or more without
+    the vote (``raw``) to its first window answered push at ``deadzone_mm`` or more with it
+    (``voted``); pushes that reach the dead zone in neither are left out."""
+    waits = []
+    for gesture, t0, t1 in gesture_spans(labels):
+        if gesture is not GestureType.PUSH:
+            continue
+        span = [(r, v) for r, v in zip(raw, voted) if t0 <= r.t_us < t1 + 40_000 and r.intensity_mm >= deadzone_mm]
+        first_raw = next((r.t_us for r, _ in span if r.gesture is not GestureType.NONE), None)
+        first_push = next((v.t_us for _, v in span if v.gesture is GestureType.PUSH), None)
+        if first_raw is not None and first_push is not None:
+            waits.append((first_push - first_raw) / 1000)
+    return waits
+
+
 def replay(dataset: Path, raw: Path, first_finger_us: int, provisional_mm: float, deadzone_mm: float) -> dict:
     """The per-window answers of ``raw`` through ``EpisodeVote(first_finger_us, provisional_mm=...)``,
-    scored."""
+    scored; with the median and longest :func:`push_waits_ms` (NaN without a push)."""
     sensor = SensorGeometry.load(dataset / "sensor.yaml")
-    parts = []
+    parts, waits = [], []
     for name in list_sequences(dataset):
         vote = EpisodeVote(first_finger_us=first_finger_us, provisional_mm=provisional_mm)
-        voted = [
-            replace(p, gesture=vote.update(p.gesture, p.intensity_mm, p.n_contacts, p.t_us))
-            for p in read_predictions(raw / f"{name}.jsonl")
-        ]
-        parts.append(align(read_labels(dataset / f"{name}.labels.csv"), voted, sensor, deadzone_mm))
+        answers = read_predictions(raw / f"{name}.jsonl")
+        voted = [replace(p, gesture=vote.update(p.gesture, p.intensity_mm, p.n_contacts, p.t_us)) for p in answers]
+        labels = read_labels(dataset / f"{name}.labels.csv")
+        parts.append(align(labels, voted, sensor, deadzone_mm))
+        waits += push_waits_ms(labels, answers, voted, deadzone_mm)
     result = evaluate(Observations.concatenate(parts)).to_dict()
+    nan = float("nan")
+    result["push_wait_median_ms"] = float(np.median(waits)) if waits else nan
+    result["push_wait_max_ms"] = float(np.max(waits)) if waits else nan
     return {**result, **result["felt"]}
 
 
@@ -108,7 +131,7 @@ def main(
             rows[t, p].append(row)
             print(f"| {fam} | {t // 1000} | {p:g} | " + " | ".join(f(row[k]) for _, k, f in COLUMNS) + " |", flush=True)
     for t, p in candidates:
-        mean = {k: float(np.mean([r[k] for r in rows[t, p]])) for _, k, _ in COLUMNS}
+        mean = {k: float(np.nanmean([r[k] for r in rows[t, p]])) for _, k, _ in COLUMNS}
         print(f"| mean | {t // 1000} | {p:g} | " + " | ".join(f(mean[k]) for _, k, f in COLUMNS) + " |")
 
 
