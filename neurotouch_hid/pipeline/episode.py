@@ -25,9 +25,9 @@ class EpisodeVote:
     leads reads as a one-finger push until the next finger moves the gel (paper, "Results"). An
     undecided window whose intensity is below ``provisional_mm`` (too weak for a profile to map
     it) answers the vote so far (below); from there on it answers ``none`` (no output for the
-    mapper). The type is committed at the first window that
-    sees two contacts or more, or once one contact has held for ``first_finger_us``: the type with
-    the most intensity-weighted votes (mm) since the contact count last changed.
+    mapper). The type is committed at the first window that sees two contacts or more, or once one
+    contact has held for ``first_finger_us``: the type with the most intensity-weighted votes (mm)
+    since the contact count last changed.
 
     Once committed, each window adds its intensity to its own type's votes and the answer changes
     only when another type outweighs it, with one exception: within ``correction_us`` of the onset,
