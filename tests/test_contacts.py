@@ -192,6 +192,27 @@ def test_a_flat_top_of_three_fingers_gives_three_contacts_on_them_not_random_max
     assert not old_errors or np.mean(old_errors) > 10.0
 
 
+def test_three_deep_fingertips_give_three_contacts_not_a_finger_count_per_footprint():
+    # three fingers pinch deep: each presses a flat disc of radius 26 px, wider than a fingertip's
+    # footprint pi r^2 (r = 25 px), so the area rule alone reads each as two fingers (six
+    # contacts); a gesture has at most three fingers, so each flat top is one contact, on its disc
+    rest = grid()
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    cur, fingers = rest.copy(), []
+    for k in range(3):
+        toward = -np.array([np.cos(2 * np.pi * k / 3 + 0.3), np.sin(2 * np.pi * k / 3 + 0.3)])
+        centre = c - 45.0 * toward
+        d = np.linalg.norm(rest - centre, axis=1)
+        cur += np.where(d <= 26.0, 1.0, np.exp(-((d - 26.0) ** 2) / (2 * 6.0**2)))[:, None] * (6.0 * toward)
+        fingers.append(centre + 6.0 * toward)
+    cur += np.random.default_rng(0).normal(0.0, 0.05, cur.shape)
+    found = detect_contacts(rest, cur, r_px=25.0, n_min=12, refine_px=20.0, plateau_fraction=0.8)
+    assert found.count == 3
+    nearest = np.linalg.norm(np.asarray(fingers)[None] - found.points_px[:, None], axis=2)
+    assert sorted(np.argmin(nearest, axis=1)) == [0, 1, 2]  # one contact on each finger
+    assert nearest.min(axis=1).max() < 26.0  # on its flat disc
+
+
 def test_maxima_on_one_stuck_disc_merge_into_its_centre():
     # a stuck contact disc (Cattaneo-Mindlin) carries the gel under it rigidly: a plateau of
     # radius 16 px, falling off outside; two maxima (tracker noise) on its rim, more than r apart,

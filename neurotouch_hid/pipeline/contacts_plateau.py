@@ -191,6 +191,10 @@ def plateau_contacts(
         pitch_px: the marker pitch (px): each marker stands for pitch^2 of gel.
         finger_radius_px: a fingertip's radius (px, the paper's r): a plateau of area A holds
             ``min(3, ceil(A / (pi r^2)))`` fingers (the paper's gestures have up to 3).
+    At most :data:`MAX_FINGERS` contacts come out: when the wide plateaus' fingers and the other
+    maxima would make more, each plateau is one contact (placed by the caller) and only the
+    :data:`MAX_FINGERS` strongest maxima are kept.
+
     Returns:
         (kept, fingers, points): the kept maxima (K' <= K, int64, by decreasing magnitude); for
         each, 0 (a plateau of at most :data:`PLATEAU_MARKERS` markers: the caller places its
@@ -217,4 +221,10 @@ def plateau_contacts(
             fingers[n_kept] = n
             n_points += n
         n_kept += 1
+    if np.maximum(fingers[:n_kept], 1).sum() > MAX_FINGERS:
+        # more contacts than a gesture has fingers: the wide plateaus are deep single fingertips
+        # (a fingertip's footprint grows with its depth), and beyond three maxima the weakest
+        # are its tails'
+        n_kept = min(n_kept, MAX_FINGERS)
+        return kept[:n_kept].copy(), np.zeros(n_kept, dtype=np.int64), points[:0].copy()
     return kept[:n_kept].copy(), fingers[:n_kept].copy(), points[:n_points].copy()
