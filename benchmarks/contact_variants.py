@@ -25,6 +25,9 @@ a * mean ||v||, r the neighbourhood radius):
 * ``plateau_shape`` / ``plateau_shape3``: the product's maxima, and a flat top at least
   floor(L / W) fingers (L / W its elongation, round fingertips side by side) / 3 fingers when
   L / W >= 3, beside its area's count (``contacts_plateau.plateau_contacts``);
+* ``plateau_uncapped``: flat tops by their area only, with no cap of 3 contacts a window;
+* ``plateau_round115`` / ``plateau_round15``: the product's, and a flat top whose elongation is
+  below 1.15 / 1.5 is one finger (a deep fingertip's round footprint);
 * ``product``: the product's own (``union_outlier_peaks`` with ``ContactsConfig.min_move_mm``).
 """
 
@@ -195,10 +198,35 @@ def _plateaus_by_shape(table, current_px, magnitudes, peaks, fraction, pitch_px,
     return np.array(kept, dtype=np.int64), np.array(fingers, dtype=np.int64), pts
 
 
+def _round_flat_tops(least):
+    """The product's ``plateau_contacts`` where a flat top split into fingers whose elongation
+    L / W is below ``least`` is one finger (the caller places its contact)."""
+
+    def variant(table, current_px, magnitudes, peaks, fraction, pitch_px, finger_radius_px):
+        kept, fingers, points = ORIGINAL_PLATEAUS(
+            table, current_px, magnitudes, peaks, fraction, pitch_px, finger_radius_px
+        )
+        groups = np.split(points, np.cumsum(fingers)[:-1]) if len(fingers) else []
+        fingers = fingers.copy()
+        for k, p in enumerate(kept):
+            if fingers[k] >= 2:
+                mask = _plateau(table, magnitudes, p, fraction * magnitudes[p])
+                weights = magnitudes[mask] - fraction * magnitudes[p] + 1e-9
+                if _elongation(current_px[mask], weights) < least:
+                    fingers[k], groups[k] = 0, points[:0]
+        pts = np.concatenate(groups) if groups else np.zeros((0, 2))
+        return kept, fingers, pts.reshape(-1, 2)
+
+    return variant
+
+
 #: Variants patched in place of ``contacts.plateau_contacts`` (with the product's maxima).
 PLATEAUS = {
     "plateau_shape": _plateaus_by_shape,
     "plateau_shape3": lambda *args: _plateaus_by_shape(*args, least=3.0),
+    "plateau_uncapped": lambda *args: _plateaus_by_shape(*args, least=math.inf),
+    "plateau_round115": _round_flat_tops(1.15),
+    "plateau_round15": _round_flat_tops(1.5),
 }
 
 app = typer.Typer(add_completion=False)
@@ -235,6 +263,8 @@ def family(
     data: Path = typer.Option(..., help="a family_eval.py folder whose datasets are linked in"),
     families: str = typer.Option("default,fingers,strong,powerlaw,camera"),
     sessions: bool = typer.Option(False, "--sessions", help="SRC holds family_eval.py --sessions datasets"),
+    users: str = typer.Option("0,3", help="the users of SRC's datasets (5,7: tuning users)"),
+    seed: int = typer.Option(2, help="the seed of SRC's datasets (odd: tuning users)"),
 ) -> None:
     import family_eval
 
@@ -248,9 +278,9 @@ def family(
     family_eval.main(
         out=folder,
         families=",".join(names),
-        users="0,3",
+        users=users,
         seconds=4.0,
-        seed=2,
+        seed=seed,
         jobs=1,
         method=["ours=default"],
         final_run=False,
