@@ -28,6 +28,7 @@ a * mean ||v||, r the neighbourhood radius):
 * ``plateau_uncapped``: flat tops by their area only, with no cap of 3 contacts a window;
 * ``plateau_round115`` / ``plateau_round15``: the product's, and a flat top whose elongation is
   below 1.15 / 1.5 is one finger (a deep fingertip's round footprint);
+* ``plateau_footprint125``: the product's, with a finger per 1.25 pi r^2 of a flat top's area;
 * ``product``: the product's own (``union_outlier_peaks`` with ``ContactsConfig.min_move_mm``).
 """
 
@@ -227,6 +228,7 @@ PLATEAUS = {
     "plateau_uncapped": lambda *args: _plateaus_by_shape(*args, least=math.inf),
     "plateau_round115": _round_flat_tops(1.15),
     "plateau_round15": _round_flat_tops(1.5),
+    "plateau_footprint125": lambda *args: ORIGINAL_PLATEAUS(*args[:-1], args[-1] * math.sqrt(1.25)),
 }
 
 app = typer.Typer(add_completion=False)
