@@ -213,6 +213,23 @@ def test_three_deep_fingertips_give_three_contacts_not_a_finger_count_per_footpr
     assert nearest.min(axis=1).max() < 26.0  # on its flat disc
 
 
+def test_three_fingertips_in_a_row_give_three_contacts_whatever_the_flat_top_s_area():
+    # three fingertips side by side, 24 px apart, push down together: one flat top about 60 px
+    # long and 12 px wide, whose area is less than one fingertip footprint pi r^2 (r = 25 px), so
+    # the area alone reads one finger; a flat top three times as long as wide is three in a row
+    rest = grid()
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    fingers = c + np.array([[-24.0, 6.0], [0.0, 6.0], [24.0, 6.0]])
+    along = np.clip(rest[:, 0] - c[0], -24.0, 24.0)  # each marker's nearest point on the row
+    d = np.hypot(rest[:, 0] - (c[0] + along), rest[:, 1] - c[1])
+    fall = np.where(d <= 6.0, 1.0, np.exp(-((d - 6.0) ** 2) / (2 * 7.0**2)))
+    cur = rest + fall[:, None] * [0.0, 6.0] + np.random.default_rng(0).normal(0.0, 0.05, rest.shape)
+    found = detect_contacts(rest, cur, r_px=25.0, n_min=12, refine_px=20.0, plateau_fraction=0.8)
+    assert found.count == 3
+    np.testing.assert_allclose(np.sort(found.points_px[:, 0]), fingers[:, 0], atol=6.0)  # along the row
+    np.testing.assert_allclose(found.points_px[:, 1], fingers[:, 1], atol=2.0)
+
+
 def test_maxima_on_one_stuck_disc_merge_into_its_centre():
     # a stuck contact disc (Cattaneo-Mindlin) carries the gel under it rigidly: a plateau of
     # radius 16 px, falling off outside; two maxima (tracker noise) on its rim, more than r apart,

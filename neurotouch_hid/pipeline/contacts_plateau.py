@@ -2,8 +2,9 @@
 
 Both read each marker's neighbours on the gel at rest (:func:`rest_neighbours`). A plateau of the
 displacement field several markers wide (several fingers together, or a stuck contact disc) is
-one flat top whose contacts are read off its area (:func:`plateau_contacts`); a marker displaced
-far more than all its neighbours is the tracker's error and takes their median (``_despiked``).
+one flat top whose contacts are read off its area and shape (:func:`plateau_contacts`); a marker
+displaced far more than all its neighbours is the tracker's error and takes their median
+(``_despiked``).
 Image frame (px).
 """
 
@@ -19,6 +20,9 @@ PLATEAU_MARKERS = 6
 #: Most fingers one plateau is read as (paper, "Creation of the Gesture Detection Dataset":
 #: gestures with up to 3 fingers).
 MAX_FINGERS = 3
+#: A flat top at least this many times as long as wide is three fingertips side by side, whatever
+#: its area (round fingertips in a row; two side by side are about twice as long as wide).
+ROW_ELONGATION = 3.0
 
 
 def rest_neighbours(rest_px: np.ndarray, pitch_px: float) -> np.ndarray:
@@ -126,6 +130,23 @@ def _despiked(table: np.ndarray, magnitudes: np.ndarray, fraction: float) -> np.
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def _elongation(points: np.ndarray, weights: np.ndarray) -> float:
+    """How many times as long as wide ``points`` (M, 2) are: the square root of the ratio of
+    their ``weights``-weighted covariance's eigenvalues (closed form; inf for points on a line)."""
+    total = weights.sum()
+    mx = (points[:, 0] * weights).sum() / total
+    my = (points[:, 1] * weights).sum() / total
+    dx = points[:, 0] - mx
+    dy = points[:, 1] - my
+    a = (weights * dx * dx).sum() / total
+    b = (weights * dx * dy).sum() / total
+    c = (weights * dy * dy).sum() / total
+    half = np.sqrt(0.25 * (a - c) ** 2 + b * b)
+    small = 0.5 * (a + c) - half
+    return np.sqrt((0.5 * (a + c) + half) / small) if small > 1e-12 else np.inf
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _split_along_axis(points: np.ndarray, weights: np.ndarray, n: int) -> np.ndarray:
     """(n, 2) weighted centroids of ``n`` parts of equal weight of ``points`` (M, 2), M >= n,
     taken in order along their weighted principal axis (equal numbers of points when one point
@@ -190,7 +211,8 @@ def plateau_contacts(
         fraction: plateau level as a fraction of its maximum's magnitude, in (0, 1).
         pitch_px: the marker pitch (px): each marker stands for pitch^2 of gel.
         finger_radius_px: a fingertip's radius (px, the paper's r): a plateau of area A holds
-            ``min(3, ceil(A / (pi r^2)))`` fingers (the paper's gestures have up to 3).
+            ``min(3, ceil(A / (pi r^2)))`` fingers (the paper's gestures have up to 3), and 3
+            when it is at least :data:`ROW_ELONGATION` times as long as wide.
     At most :data:`MAX_FINGERS` contacts come out: when the wide plateaus' fingers and the other
     maxima would make more, each plateau is one contact (placed by the caller) and only the
     :data:`MAX_FINGERS` strongest maxima are kept.
@@ -216,8 +238,12 @@ def plateau_contacts(
         kept[n_kept] = p
         size = np.count_nonzero(mask)
         if size > PLATEAU_MARKERS:
-            n = min(MAX_FINGERS, max(1, math.ceil(size * pitch_px**2 / (math.pi * finger_radius_px**2))))
-            points[n_points : n_points + n] = _split_along_axis(current_px[mask], magnitudes[mask] - level + 1e-9, n)
+            weights = magnitudes[mask] - level + 1e-9
+            n = max(1, math.ceil(size * pitch_px**2 / (math.pi * finger_radius_px**2)))
+            if _elongation(current_px[mask], weights) >= ROW_ELONGATION:
+                n = MAX_FINGERS
+            n = min(MAX_FINGERS, n)
+            points[n_points : n_points + n] = _split_along_axis(current_px[mask], weights, n)
             fingers[n_kept] = n
             n_points += n
         n_kept += 1
