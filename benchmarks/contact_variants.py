@@ -26,6 +26,7 @@ a * mean ||v||, r the neighbourhood radius):
   floor(L / W) fingers (L / W its elongation, round fingertips side by side) / 3 fingers when
   L / W >= 3, beside its area's count (``contacts_plateau.plateau_contacts``);
 * ``plateau_uncapped``: flat tops by their area only, with no cap of 3 contacts a window;
+* ``plateau_no_row``: flat tops by their area only, with the cap (no three-in-a-row rule);
 * ``plateau_round115`` / ``plateau_round15``: the product's, and a flat top whose elongation is
   below 1.15 / 1.5 is one finger (a deep fingertip's round footprint);
 * ``plateau_footprint125``: the product's, with a finger per 1.25 pi r^2 of a flat top's area;
@@ -199,6 +200,20 @@ def _plateaus_by_shape(table, current_px, magnitudes, peaks, fraction, pitch_px,
     return np.array(kept, dtype=np.int64), np.array(fingers, dtype=np.int64), pts
 
 
+def _capped(variant):
+    """``variant`` with the product's cap: when its flat tops' fingers and the other maxima would
+    make more than MAX_FINGERS contacts, each flat top is one and the strongest maxima stay."""
+
+    def capped(*args):
+        kept, fingers, points = variant(*args)
+        if np.maximum(fingers, 1).sum() > MAX_FINGERS:
+            n = min(len(kept), MAX_FINGERS)
+            return kept[:n], np.zeros(n, dtype=np.int64), np.zeros((0, 2))
+        return kept, fingers, points
+
+    return capped
+
+
 def _round_flat_tops(least):
     """The product's ``plateau_contacts`` where a flat top split into fingers whose elongation
     L / W is below ``least`` is one finger (the caller places its contact)."""
@@ -226,6 +241,7 @@ PLATEAUS = {
     "plateau_shape": _plateaus_by_shape,
     "plateau_shape3": lambda *args: _plateaus_by_shape(*args, least=3.0),
     "plateau_uncapped": lambda *args: _plateaus_by_shape(*args, least=math.inf),
+    "plateau_no_row": _capped(lambda *args: _plateaus_by_shape(*args, least=math.inf)),
     "plateau_round115": _round_flat_tops(1.15),
     "plateau_round15": _round_flat_tops(1.5),
     "plateau_footprint125": lambda *args: ORIGINAL_PLATEAUS(*args[:-1], args[-1] * math.sqrt(1.25)),
