@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import resource
 import signal
 import socket
 import subprocess
@@ -34,29 +33,54 @@ MAX_RSS_KB = 512 * 1024
 MAX_OUTPUT = 4096
 
 
+#: Runs in the child in place of the command: it forks the command from its own small process,
+#: limits the command's address space, waits for it and writes the command's peak memory (wait4's
+#: ru_maxrss, KB) to the file descriptor given. Forked straight from the test process, the command
+#: would report that process's memory as its own peak (exec records the high-water mark of the
+#: memory the child was forked with), and the suite's process passes 512 MB.
+_LAUNCHER = """
+import os, resource, sys
+fd, limit, argv = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3:]
+pid = os.fork()
+if pid == 0:
+    os.close(fd)
+    resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    os.execv(argv[0], argv)
+_, status, usage = os.wait4(pid, 0)
+os.write(fd, str(usage.ru_maxrss).encode())
+code = os.waitstatus_to_exitcode(status)
+os._exit(code if code >= 0 else 128 - code)
+"""
+
+
 def bounded_run(args: list[str], *, env: dict | None = None, timeout_s: float = 30.0, address_space_gib: float = 3):
     """Run ``args``; (exit code, stdout, stderr, peak RSS in KB). Killed after ``timeout_s`` (exit
-    code None then); its address space is limited so that a runaway allocation fails in it."""
-
-    def limit() -> None:
-        size = int(address_space_gib * (1 << 30))
-        resource.setrlimit(resource.RLIMIT_AS, (size, size))
-
+    code None then); its address space is limited so that a runaway allocation fails in it. A
+    command killed by a signal exits 128 + the signal's number."""
+    size = int(address_space_gib * (1 << 30))
+    read_fd, write_fd = os.pipe()
+    launcher = [sys.executable, "-c", _LAUNCHER, str(write_fd), str(size), *args]
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
-        proc = subprocess.Popen(args, stdout=out, stderr=err, env=env, preexec_fn=limit, cwd=ROOT)
+        try:
+            proc = subprocess.Popen(
+                launcher, stdout=out, stderr=err, env=env, cwd=ROOT, pass_fds=(write_fd,), start_new_session=True
+            )
+        finally:
+            os.close(write_fd)
         end = time.monotonic() + timeout_s
         code = None
         while time.monotonic() < end:
-            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+            pid, status, _ = os.wait4(proc.pid, os.WNOHANG)
             if pid:
-                code, rss = os.waitstatus_to_exitcode(status), usage.ru_maxrss
+                code = os.waitstatus_to_exitcode(status)
                 break
             time.sleep(0.05)
         else:
-            proc.kill()
-            _, _, usage = os.wait4(proc.pid, 0)
-            rss = usage.ru_maxrss
+            os.killpg(proc.pid, signal.SIGKILL)  # the launcher and the command
+            os.wait4(proc.pid, 0)
         proc.returncode = code  # reaped here: keep Popen from waiting again
+        with os.fdopen(read_fd, "rb") as report:
+            rss = int(report.read() or 0)
         out.seek(0)
         err.seek(0)
         return code, out.read().decode(errors="replace"), err.read().decode(errors="replace"), rss
