@@ -52,6 +52,7 @@ from neurotouch_hid.pipeline.contacts_plateau import (  # noqa: E402
     MAX_FINGERS,
     PLATEAU_MARKERS,
     _despiked,
+    _elongation,
     _plateau,
     _split_along_axis,
 )
@@ -162,15 +163,6 @@ VARIANTS = {
 }
 
 ORIGINAL_PLATEAUS = C.plateau_contacts
-
-
-def _elongation(points, weights):
-    """sqrt of the ratio of the weighted covariance's eigenvalues of ``points`` (M, 2)."""
-    m = (points * weights[:, None]).sum(0) / weights.sum()
-    d = points - m
-    cov = (weights[:, None, None] * d[:, :, None] * d[:, None, :]).sum(0) / weights.sum()
-    small, large = np.linalg.eigvalsh(cov)
-    return float(np.sqrt(large / max(small, 1e-12)))
 
 
 def _plateaus_by_shape(table, current_px, magnitudes, peaks, fraction, pitch_px, finger_radius_px, least=1.0):

@@ -130,20 +130,26 @@ def _despiked(table: np.ndarray, magnitudes: np.ndarray, fraction: float) -> np.
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _elongation(points: np.ndarray, weights: np.ndarray) -> float:
-    """How many times as long as wide ``points`` (M, 2) are: the square root of the ratio of
-    their ``weights``-weighted covariance's eigenvalues (closed form; inf for points on a line)."""
+def _second_moments(points: np.ndarray, weights: np.ndarray):
+    """``points`` (M, 2) with ``weights`` (M,): their weighted centre (mx, my), each point's offset
+    from it (dx, dy: (M,) each) and the weighted sums a = sum w dx^2, b = sum w dx dy, c = sum w
+    dy^2 (the 2x2 weighted covariance times the total weight)."""
     total = weights.sum()
     mx = (points[:, 0] * weights).sum() / total
     my = (points[:, 1] * weights).sum() / total
     dx = points[:, 0] - mx
     dy = points[:, 1] - my
-    a = (weights * dx * dx).sum() / total
-    b = (weights * dx * dy).sum() / total
-    c = (weights * dy * dy).sum() / total
+    return mx, my, dx, dy, (weights * dx * dx).sum(), (weights * dx * dy).sum(), (weights * dy * dy).sum()
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _elongation(points: np.ndarray, weights: np.ndarray) -> float:
+    """How many times as long as wide ``points`` (M, 2) are: the square root of the ratio of
+    their ``weights``-weighted covariance's eigenvalues (closed form; inf for points on a line)."""
+    _, _, _, _, a, b, c = _second_moments(points, weights)
     half = np.sqrt(0.25 * (a - c) ** 2 + b * b)
     small = 0.5 * (a + c) - half
-    return np.sqrt((0.5 * (a + c) + half) / small) if small > 1e-12 else np.inf
+    return np.sqrt((0.5 * (a + c) + half) / small) if small > 1e-12 * (a + c) else np.inf
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -153,17 +159,11 @@ def _split_along_axis(points: np.ndarray, weights: np.ndarray, n: int) -> np.nda
     outweighs a part). The axis is the 2x2 weighted covariance's leading eigenvector, in closed
     form."""
     total = weights.sum()
-    mx = (points[:, 0] * weights).sum() / total
-    my = (points[:, 1] * weights).sum() / total
+    mx, my, dx, dy, a, b, c = _second_moments(points, weights)
     out = np.empty((n, 2))
     if n == 1:
         out[0, 0], out[0, 1] = mx, my
         return out
-    dx = points[:, 0] - mx
-    dy = points[:, 1] - my
-    a = (weights * dx * dx).sum()
-    b = (weights * dx * dy).sum()
-    c = (weights * dy * dy).sum()
     top = 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b * b)
     if abs(b) > 1e-12 * (a + c + 1e-300):
         ax, ay = top - c, b
@@ -202,6 +202,10 @@ def plateau_contacts(
     """Merge the displacement maxima that lie on one plateau; a wide plateau's contacts (see the
     module docstring, "Flat tops").
 
+    At most :data:`MAX_FINGERS` contacts come out: when the wide plateaus' fingers and the other
+    maxima would make more, each plateau is one contact (placed by the caller) and only the
+    :data:`MAX_FINGERS` strongest maxima are kept.
+
     Args:
         table: (M, K) int64, the valid markers' neighbours on the gel (:func:`rest_neighbours`
             renumbered among them, -1 padded).
@@ -213,9 +217,6 @@ def plateau_contacts(
         finger_radius_px: a fingertip's radius (px, the paper's r): a plateau of area A holds
             ``min(3, ceil(A / (pi r^2)))`` fingers (the paper's gestures have up to 3), and 3
             when it is at least :data:`ROW_ELONGATION` times as long as wide.
-    At most :data:`MAX_FINGERS` contacts come out: when the wide plateaus' fingers and the other
-    maxima would make more, each plateau is one contact (placed by the caller) and only the
-    :data:`MAX_FINGERS` strongest maxima are kept.
 
     Returns:
         (kept, fingers, points): the kept maxima (K' <= K, int64, by decreasing magnitude); for
