@@ -167,12 +167,11 @@ class Wrappers:
 
 
 def digest_of(estimates: list[GestureEstimate]) -> str:
-    """A hash of every estimate's fields: equal digests, equal predictions."""
+    """A hash of the estimates' predictions lines (``GestureEstimate.to_json_dict``, what
+    ``track`` writes): equal digests, byte-identical predictions."""
     h = hashlib.sha256()
     for e in estimates:
-        h.update(repr((e.t_us, str(e.gesture), e.resting, e.intensity_mm, e.rotation_rad, e.scale)).encode())
-        for a in (e.contacts_px, e.contacts_mm, e.translation_mm):
-            h.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
+        h.update(json.dumps(e.to_json_dict()).encode())
     return h.hexdigest()[:16]
 
 

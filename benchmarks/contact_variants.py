@@ -55,6 +55,7 @@ from neurotouch_hid.pipeline.contacts_plateau import (  # noqa: E402
     _elongation,
     _plateau,
     _split_along_axis,
+    at_most_three,
 )
 
 PRODUCT = C._maxima
@@ -193,17 +194,8 @@ def _plateaus_by_shape(table, current_px, magnitudes, peaks, fraction, pitch_px,
 
 
 def _capped(variant):
-    """``variant`` with the product's cap: when its flat tops' fingers and the other maxima would
-    make more than MAX_FINGERS contacts, each flat top is one and the strongest maxima stay."""
-
-    def capped(*args):
-        kept, fingers, points = variant(*args)
-        if np.maximum(fingers, 1).sum() > MAX_FINGERS:
-            n = min(len(kept), MAX_FINGERS)
-            return kept[:n], np.zeros(n, dtype=np.int64), np.zeros((0, 2))
-        return kept, fingers, points
-
-    return capped
+    """``variant`` with the product's cap (``contacts_plateau.at_most_three``)."""
+    return lambda *args: at_most_three(*variant(*args))
 
 
 def _round_flat_tops(least):

@@ -248,10 +248,20 @@ def plateau_contacts(
             fingers[n_kept] = n
             n_points += n
         n_kept += 1
-    if np.maximum(fingers[:n_kept], 1).sum() > MAX_FINGERS:
-        # more contacts than a gesture has fingers: the wide plateaus are deep single fingertips
-        # (a fingertip's footprint grows with its depth), and beyond three maxima the weakest
-        # are its tails'
-        n_kept = min(n_kept, MAX_FINGERS)
-        return kept[:n_kept].copy(), np.zeros(n_kept, dtype=np.int64), points[:0].copy()
-    return kept[:n_kept].copy(), fingers[:n_kept].copy(), points[:n_points].copy()
+    return at_most_three(kept[:n_kept].copy(), fingers[:n_kept].copy(), points[:n_points].copy())
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def at_most_three(
+    kept: np.ndarray, fingers: np.ndarray, points: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The cap of :func:`plateau_contacts` on its (kept, fingers, points): as they are when they
+    make at most :data:`MAX_FINGERS` contacts (a flat top of n fingers n, any other maximum 1);
+    else each flat top is one contact (fingers 0, no points: the caller places it) and only the
+    :data:`MAX_FINGERS` strongest maxima stay. More contacts than a gesture has fingers means
+    the wide flat tops are deep single fingertips (a fingertip's footprint grows with its depth),
+    and the weakest maxima the fingers' tails."""
+    if np.maximum(fingers, 1).sum() > MAX_FINGERS:
+        n = min(len(kept), MAX_FINGERS)
+        return kept[:n].copy(), np.zeros(n, dtype=np.int64), points[:0].copy()
+    return kept, fingers, points
