@@ -25,11 +25,14 @@ a * mean ||v||, r the neighbourhood radius):
 * ``plateau_shape`` / ``plateau_shape3``: the product's maxima, and a flat top at least
   floor(L / W) fingers (L / W its elongation, round fingertips side by side) / 3 fingers when
   L / W >= 3, beside its area's count (``contacts_plateau.plateau_contacts``);
-* ``plateau_uncapped``: flat tops by their area only, with no cap of 3 contacts a window;
-* ``plateau_no_row``: flat tops by their area only, with the cap (no three-in-a-row rule);
+* ``plateau_uncapped``: flat tops by their area only (a finger per pi r^2), with no cap of 3
+  contacts a window;
+* ``plateau_no_row``: flat tops by their area only (a finger per pi r^2), with the cap (no
+  three-in-a-row rule);
 * ``plateau_round115`` / ``plateau_round15``: the product's, and a flat top whose elongation is
   below 1.15 / 1.5 is one finger (a deep fingertip's round footprint);
-* ``plateau_footprint125``: the product's, with a finger per 1.25 pi r^2 of a flat top's area;
+* ``plateau_footprint1`` / ``15`` / ``2``: the product's, with a finger per 1 / 1.5 / 2 pi r^2
+  of a flat top's area (the product: ``contacts_plateau.FOOTPRINTS_PER_FINGER``);
 * ``product``: the product's own (``union_outlier_peaks`` with ``ContactsConfig.min_move_mm``).
 """
 
@@ -49,6 +52,7 @@ import contact_replay  # noqa: E402
 
 from neurotouch_hid.pipeline import contacts as C  # noqa: E402
 from neurotouch_hid.pipeline.contacts_plateau import (  # noqa: E402
+    FOOTPRINTS_PER_FINGER,
     MAX_FINGERS,
     PLATEAU_MARKERS,
     _despiked,
@@ -175,7 +179,7 @@ def _plateaus_by_shape(table, current_px, magnitudes, peaks, fraction, pitch_px,
         if covered[p]:
             continue
         level = fraction * magnitudes[p]
-        mask = _plateau(table, magnitudes, p, level)
+        mask = _plateau(table, magnitudes, p, level, covered)
         covered |= mask
         kept.append(p)
         size = int(mask.sum())
@@ -208,9 +212,11 @@ def _round_flat_tops(least):
         )
         groups = np.split(points, np.cumsum(fingers)[:-1]) if len(fingers) else []
         fingers = fingers.copy()
+        covered = np.zeros(len(magnitudes), dtype=bool)
         for k, p in enumerate(kept):
+            mask = _plateau(table, magnitudes, p, fraction * magnitudes[p], covered)
+            covered |= mask
             if fingers[k] >= 2:
-                mask = _plateau(table, magnitudes, p, fraction * magnitudes[p])
                 weights = magnitudes[mask] - fraction * magnitudes[p] + 1e-9
                 if _elongation(current_px[mask], weights) < least:
                     fingers[k], groups[k] = 0, points[:0]
@@ -218,6 +224,12 @@ def _round_flat_tops(least):
         return kept, fingers, pts.reshape(-1, 2)
 
     return variant
+
+
+def _footprint(per_finger):
+    """The product's ``plateau_contacts`` with a finger per ``per_finger`` pi r^2 of a flat top."""
+    scale = math.sqrt(per_finger / FOOTPRINTS_PER_FINGER)
+    return lambda *args: ORIGINAL_PLATEAUS(*args[:-1], args[-1] * scale)
 
 
 #: Variants patched in place of ``contacts.plateau_contacts`` (with the product's maxima).
@@ -228,7 +240,9 @@ PLATEAUS = {
     "plateau_no_row": _capped(lambda *args: _plateaus_by_shape(*args, least=math.inf)),
     "plateau_round115": _round_flat_tops(1.15),
     "plateau_round15": _round_flat_tops(1.5),
-    "plateau_footprint125": lambda *args: ORIGINAL_PLATEAUS(*args[:-1], args[-1] * math.sqrt(1.25)),
+    "plateau_footprint1": _footprint(1.0),
+    "plateau_footprint15": _footprint(1.5),
+    "plateau_footprint2": _footprint(2.0),
 }
 
 app = typer.Typer(add_completion=False)

@@ -160,13 +160,15 @@ def test_refinement_keeps_the_marker_without_a_maximum_or_enough_markers():
 
 
 def three_finger_push(noise_px: float = 0.15, seed: int = 0):
-    """Three fingers on a line, 35 px (14 mm) apart, pushing together: their blended falloffs
-    carry the gel between them as one flat top (the displacement saturates at the fingers'),
-    with tracker noise on it. Returns rest, current, the fingers' current positions."""
+    """Three fingers on a line, 35 px (14 mm) apart, pushing hard together: their blended
+    falloffs carry the gel between them as one flat top (the displacement saturates at the
+    fingers'), ~3.3 fingertip footprints pi (25 px)^2 wide, as deep 3-finger flat tops are on the
+    simulated gels (1.1 a finger), with tracker noise on it. Returns rest, current, the fingers'
+    current positions."""
     rest = grid()
     c = np.asarray(SENSOR.gel_center_px, dtype=float)
     fingers = c + np.array([[-25.0, -25.0], [0.0, 0.0], [25.0, 25.0]])
-    reach = sum(np.exp(-np.sum((rest - f) ** 2, axis=1) / (2 * 22.0**2)) for f in fingers)
+    reach = 1.5 * sum(np.exp(-np.sum((rest - f) ** 2, axis=1) / (2 * 22.0**2)) for f in fingers)
     direction = np.array([8.0, -6.0])
     rng = np.random.default_rng(seed)
     cur = rest + np.minimum(reach, 1.0)[:, None] * direction + rng.normal(0.0, noise_px, rest.shape)
@@ -211,6 +213,47 @@ def test_three_deep_fingertips_give_three_contacts_not_a_finger_count_per_footpr
     nearest = np.linalg.norm(np.asarray(fingers)[None] - found.points_px[:, None], axis=2)
     assert sorted(np.argmin(nearest, axis=1)) == [0, 1, 2]  # one contact on each finger
     assert nearest.min(axis=1).max() < 26.0  # on its flat disc
+
+
+def test_two_deep_fingertips_pressed_together_give_two_contacts_though_their_flat_top_spans_more():
+    # two fingers push deep side by side, 44 px apart: each presses a flat disc of radius 27 px, and
+    # their one flat top covers more than two fingertip footprints pi r^2 (r = 25 px), which one
+    # finger per footprint would read as three; a deep fingertip's flat top is wider than its
+    # footprint, so one finger per 1.25 footprints reads two, one on each disc
+    rest = grid()
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    fingers = c + np.array([[-22.0, 0.0], [22.0, 0.0]])
+    d = np.linalg.norm(rest[:, None] - fingers[None], axis=2).min(axis=1)
+    fall = np.where(d <= 27.0, 1.0, np.exp(-((d - 27.0) ** 2) / (2 * 4.0**2)))
+    cur = rest + fall[:, None] * [0.0, 6.0] + np.random.default_rng(0).normal(0.0, 0.05, rest.shape)
+    flat = np.linalg.norm(cur - rest, axis=1) >= 0.8 * 6.0
+    assert 2.0 < flat.sum() * 10.0**2 / (np.pi * 25.0**2) < 2.5  # footprints: three by one per footprint
+    found = detect_contacts(rest, cur, r_px=25.0, n_min=12, refine_px=20.0, plateau_fraction=0.8)
+    assert found.count == 2
+    nearest = np.linalg.norm((fingers + [0.0, 6.0])[None] - found.points_px[:, None], axis=2)
+    assert sorted(np.argmin(nearest, axis=1)) == [0, 1]  # one contact on each finger
+    assert nearest.min(axis=1).max() < 12.0
+
+
+def test_a_weaker_finger_s_flat_top_does_not_take_in_a_stronger_finger_s():
+    # a deep narrow fingertip (6 px, disc of 12 px) and a weaker wide one (4.8 px, disc of 22 px)
+    # 40 px apart: at the weaker one's level (0.8 x 4.8 px) the gel joins them, and its flat top
+    # took in the stronger one's markers: its area read two fingers, one placed on the stronger
+    # finger (two contacts there); a flat top ends where a stronger maximum's begins
+    rest = grid()
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    fingers = c + np.array([[-20.0, 0.0], [20.0, 0.0]])
+    fall = [
+        np.where(d <= radius, 1.0, np.exp(-((d - radius) ** 2) / (2 * 8.0**2)))
+        for d, radius in zip(np.linalg.norm(rest[:, None] - fingers[None], axis=2).T, (12.0, 22.0))
+    ]
+    magnitude = np.maximum(6.0 * fall[0], 4.8 * fall[1])
+    cur = rest + magnitude[:, None] * [0.0, 1.0] + np.random.default_rng(0).normal(0.0, 0.05, rest.shape)
+    found = detect_contacts(rest, cur, r_px=25.0, n_min=12, refine_px=20.0, plateau_fraction=0.8)
+    assert found.count == 2
+    nearest = np.linalg.norm((fingers + [0.0, 6.0])[None] - found.points_px[:, None], axis=2)
+    assert sorted(np.argmin(nearest, axis=1)) == [0, 1]  # one contact on each finger
+    assert nearest.min(axis=1).max() < 10.0
 
 
 def test_three_fingertips_in_a_row_give_three_contacts_whatever_the_flat_top_s_area():

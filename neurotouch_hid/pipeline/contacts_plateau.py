@@ -23,6 +23,9 @@ MAX_FINGERS = 3
 #: A flat top at least this many times as long as wide is three fingertips side by side, whatever
 #: its area (round fingertips in a row; two side by side are about twice as long as wide).
 ROW_ELONGATION = 3.0
+#: A flat top's area per finger, in fingertip footprints pi r^2: a deep fingertip's flat top is
+#: wider than its footprint (1.1-1.25 footprints per finger where two or three press together).
+FOOTPRINTS_PER_FINGER = 1.25
 
 
 def rest_neighbours(rest_px: np.ndarray, pitch_px: float) -> np.ndarray:
@@ -82,9 +85,10 @@ def _valid_table(neighbours: np.ndarray, idx: np.ndarray, n: int) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _plateau(table: np.ndarray, magnitudes: np.ndarray, seed: int, level: float) -> np.ndarray:
+def _plateau(table: np.ndarray, magnitudes: np.ndarray, seed: int, level: float, taken: np.ndarray) -> np.ndarray:
     """(M,) bool: the markers connected to ``seed`` through neighbours (``table``, see
-    :func:`rest_neighbours`) whose magnitude is at least ``level`` (breadth-first)."""
+    :func:`rest_neighbours`) whose magnitude is at least ``level`` and that are not ``taken``
+    ((M,) bool: on a stronger maximum's flat top), breadth-first."""
     m = len(magnitudes)
     inside = np.zeros(m, dtype=np.bool_)
     queue = np.empty(m, dtype=np.int64)
@@ -95,7 +99,7 @@ def _plateau(table: np.ndarray, magnitudes: np.ndarray, seed: int, level: float)
         i = queue[head]
         head += 1
         for j in table[i]:
-            if j < 0 or inside[j] or magnitudes[j] < level:
+            if j < 0 or inside[j] or taken[j] or magnitudes[j] < level:
                 continue
             inside[j] = True
             queue[tail] = j
@@ -200,7 +204,8 @@ def plateau_contacts(
     finger_radius_px: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Merge the displacement maxima that lie on one plateau; a wide plateau's contacts (see the
-    module docstring, "Flat tops").
+    module docstring, "Flat tops"). Each maximum's plateau (at ``fraction`` of its magnitude)
+    stops at the plateaus of the stronger maxima before it.
 
     At most :data:`MAX_FINGERS` contacts come out: when the wide plateaus' fingers and the other
     maxima would make more, each plateau is one contact (placed by the caller) and only the
@@ -215,8 +220,9 @@ def plateau_contacts(
         fraction: plateau level as a fraction of its maximum's magnitude, in (0, 1).
         pitch_px: the marker pitch (px): each marker stands for pitch^2 of gel.
         finger_radius_px: a fingertip's radius (px, the paper's r): a plateau of area A holds
-            ``min(3, ceil(A / (pi r^2)))`` fingers (the paper's gestures have up to 3), and 3
-            when it is at least :data:`ROW_ELONGATION` times as long as wide.
+            ``min(3, ceil(A / (f pi r^2)))`` fingers, f = :data:`FOOTPRINTS_PER_FINGER` (the
+            paper's gestures have up to 3), and 3 when it is at least :data:`ROW_ELONGATION`
+            times as long as wide.
 
     Returns:
         (kept, fingers, points): the kept maxima (K' <= K, int64, by decreasing magnitude); for
@@ -234,13 +240,13 @@ def plateau_contacts(
         if covered[p]:
             continue  # on a stronger maximum's plateau: the same flat top
         level = fraction * magnitudes[p]
-        mask = _plateau(table, magnitudes, p, level)
+        mask = _plateau(table, magnitudes, p, level, covered)  # a weaker one's level may reach a stronger's
         covered |= mask
         kept[n_kept] = p
         size = np.count_nonzero(mask)
         if size > PLATEAU_MARKERS:
             weights = magnitudes[mask] - level + 1e-9
-            n = max(1, math.ceil(size * pitch_px**2 / (math.pi * finger_radius_px**2)))
+            n = max(1, math.ceil(size * pitch_px**2 / (FOOTPRINTS_PER_FINGER * math.pi * finger_radius_px**2)))
             if _elongation(current_px[mask], weights) >= ROW_ELONGATION:
                 n = MAX_FINGERS
             n = min(MAX_FINGERS, n)
