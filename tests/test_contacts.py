@@ -215,24 +215,37 @@ def test_three_deep_fingertips_give_three_contacts_not_a_finger_count_per_footpr
     assert nearest.min(axis=1).max() < 26.0  # on its flat disc
 
 
+def pressed_discs(rest, centres, radii_px, depths_px, falloff_px):
+    """Fingertips pressing flat discs (``radii_px``) into the gel, each carrying its disc by its
+    depth (px, straight down the image) and falling off as a Gaussian of ``falloff_px`` outside;
+    where two overlap the deeper wins. Returns the current positions, with tracker noise."""
+    d = np.linalg.norm(rest[:, None] - np.asarray(centres)[None], axis=2)
+    radii = np.asarray(radii_px)
+    fall = np.where(d <= radii, 1.0, np.exp(-((d - radii) ** 2) / (2 * falloff_px**2)))
+    magnitude = (fall * np.asarray(depths_px)).max(axis=1)
+    return rest + magnitude[:, None] * [0.0, 1.0] + np.random.default_rng(0).normal(0.0, 0.05, rest.shape)
+
+
+def assert_one_contact_on_each(found, fingers_px, within_px):
+    """As many contacts as fingers, one on each, every one within ``within_px`` of its finger."""
+    assert found.count == len(fingers_px)
+    nearest = np.linalg.norm(np.asarray(fingers_px)[None] - found.points_px[:, None], axis=2)
+    assert sorted(np.argmin(nearest, axis=1)) == list(range(len(fingers_px)))
+    assert nearest.min(axis=1).max() < within_px
+
+
 def test_two_deep_fingertips_pressed_together_give_two_contacts_though_their_flat_top_spans_more():
     # two fingers push deep side by side, 44 px apart: each presses a flat disc of radius 27 px, and
     # their one flat top covers more than two fingertip footprints pi r^2 (r = 25 px), which one
     # finger per footprint would read as three; a deep fingertip's flat top is wider than its
     # footprint, so one finger per 1.25 footprints reads two, one on each disc
     rest = grid()
-    c = np.asarray(SENSOR.gel_center_px, dtype=float)
-    fingers = c + np.array([[-22.0, 0.0], [22.0, 0.0]])
-    d = np.linalg.norm(rest[:, None] - fingers[None], axis=2).min(axis=1)
-    fall = np.where(d <= 27.0, 1.0, np.exp(-((d - 27.0) ** 2) / (2 * 4.0**2)))
-    cur = rest + fall[:, None] * [0.0, 6.0] + np.random.default_rng(0).normal(0.0, 0.05, rest.shape)
+    fingers = np.asarray(SENSOR.gel_center_px, dtype=float) + np.array([[-22.0, 0.0], [22.0, 0.0]])
+    cur = pressed_discs(rest, fingers, radii_px=(27.0, 27.0), depths_px=(6.0, 6.0), falloff_px=4.0)
     flat = np.linalg.norm(cur - rest, axis=1) >= 0.8 * 6.0
     assert 2.0 < flat.sum() * 10.0**2 / (np.pi * 25.0**2) < 2.5  # footprints: three by one per footprint
     found = detect_contacts(rest, cur, r_px=25.0, n_min=12, refine_px=20.0, plateau_fraction=0.8)
-    assert found.count == 2
-    nearest = np.linalg.norm((fingers + [0.0, 6.0])[None] - found.points_px[:, None], axis=2)
-    assert sorted(np.argmin(nearest, axis=1)) == [0, 1]  # one contact on each finger
-    assert nearest.min(axis=1).max() < 12.0
+    assert_one_contact_on_each(found, fingers + [0.0, 6.0], within_px=12.0)
 
 
 def test_a_weaker_finger_s_flat_top_does_not_take_in_a_stronger_finger_s():
@@ -241,19 +254,10 @@ def test_a_weaker_finger_s_flat_top_does_not_take_in_a_stronger_finger_s():
     # took in the stronger one's markers: its area read two fingers, one placed on the stronger
     # finger (two contacts there); a flat top ends where a stronger maximum's begins
     rest = grid()
-    c = np.asarray(SENSOR.gel_center_px, dtype=float)
-    fingers = c + np.array([[-20.0, 0.0], [20.0, 0.0]])
-    fall = [
-        np.where(d <= radius, 1.0, np.exp(-((d - radius) ** 2) / (2 * 8.0**2)))
-        for d, radius in zip(np.linalg.norm(rest[:, None] - fingers[None], axis=2).T, (12.0, 22.0))
-    ]
-    magnitude = np.maximum(6.0 * fall[0], 4.8 * fall[1])
-    cur = rest + magnitude[:, None] * [0.0, 1.0] + np.random.default_rng(0).normal(0.0, 0.05, rest.shape)
+    fingers = np.asarray(SENSOR.gel_center_px, dtype=float) + np.array([[-20.0, 0.0], [20.0, 0.0]])
+    cur = pressed_discs(rest, fingers, radii_px=(12.0, 22.0), depths_px=(6.0, 4.8), falloff_px=8.0)
     found = detect_contacts(rest, cur, r_px=25.0, n_min=12, refine_px=20.0, plateau_fraction=0.8)
-    assert found.count == 2
-    nearest = np.linalg.norm((fingers + [0.0, 6.0])[None] - found.points_px[:, None], axis=2)
-    assert sorted(np.argmin(nearest, axis=1)) == [0, 1]  # one contact on each finger
-    assert nearest.min(axis=1).max() < 10.0
+    assert_one_contact_on_each(found, fingers + [0.0, 6.0], within_px=10.0)
 
 
 def test_three_fingertips_in_a_row_give_three_contacts_whatever_the_flat_top_s_area():
