@@ -30,7 +30,8 @@ a * mean ||v||, r the neighbourhood radius):
 * ``plateau_no_row``: flat tops by their area only (a finger per pi r^2), with the cap (no
   three-in-a-row rule);
 * ``plateau_round115`` / ``plateau_round15``: the product's, and a flat top whose elongation is
-  below 1.15 / 1.5 is one finger (a deep fingertip's round footprint);
+  below 1.15 / 1.5 is one finger (a deep fingertip's round footprint); ``plateau_round105_two``:
+  the same below 1.05, only where the flat top's area reads two fingers;
 * ``plateau_footprint1`` / ``15`` / ``2``: the product's, with a finger per 1 / 1.5 / 2 pi r^2
   of a flat top's area (the product: ``contacts_plateau.FOOTPRINTS_PER_FINGER``);
 * ``product``: the product's own (``union_outlier_peaks`` with ``ContactsConfig.min_move_mm``).
@@ -202,9 +203,9 @@ def _capped(variant):
     return lambda *args: at_most_three(*variant(*args))
 
 
-def _round_flat_tops(least):
-    """The product's ``plateau_contacts`` where a flat top split into fingers whose elongation
-    L / W is below ``least`` is one finger (the caller places its contact)."""
+def _round_flat_tops(least, most=MAX_FINGERS):
+    """The product's ``plateau_contacts`` where a flat top split into 2 to ``most`` fingers whose
+    elongation L / W is below ``least`` is one finger (the caller places its contact)."""
 
     def variant(table, current_px, magnitudes, peaks, fraction, pitch_px, finger_radius_px):
         kept, fingers, points = ORIGINAL_PLATEAUS(
@@ -216,7 +217,7 @@ def _round_flat_tops(least):
         for k, p in enumerate(kept):
             mask = _plateau(table, magnitudes, p, fraction * magnitudes[p], covered)
             covered |= mask
-            if fingers[k] >= 2:
+            if 2 <= fingers[k] <= most:
                 weights = magnitudes[mask] - fraction * magnitudes[p] + 1e-9
                 if _elongation(current_px[mask], weights) < least:
                     fingers[k], groups[k] = 0, points[:0]
@@ -240,6 +241,7 @@ PLATEAUS = {
     "plateau_no_row": _capped(lambda *args: _plateaus_by_shape(*args, least=math.inf)),
     "plateau_round115": _round_flat_tops(1.15),
     "plateau_round15": _round_flat_tops(1.5),
+    "plateau_round105_two": _round_flat_tops(1.05, most=2),
     "plateau_footprint1": _footprint(1.0),
     "plateau_footprint15": _footprint(1.5),
     "plateau_footprint2": _footprint(2.0),
