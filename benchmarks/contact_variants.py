@@ -34,6 +34,8 @@ a * mean ||v||, r the neighbourhood radius):
   the same below 1.05, only where the flat top's area reads two fingers;
 * ``plateau_footprint1`` / ``15`` / ``2``: the product's, with a finger per 1 / 1.5 / 2 pi r^2
   of a flat top's area (the product: ``contacts_plateau.FOOTPRINTS_PER_FINGER``);
+* ``no_missed_finger``: the product's, without the finger the bumps find where the maxima missed
+  it (``contacts_bump.with_missed_finger``: the bump fit alone);
 * ``product``: the product's own (``union_outlier_peaks`` with ``ContactsConfig.min_move_mm``).
 """
 
@@ -52,6 +54,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 import contact_replay  # noqa: E402
 
 from neurotouch_hid.pipeline import contacts as C  # noqa: E402
+from neurotouch_hid.pipeline.contacts_bump import bump_fit  # noqa: E402
 from neurotouch_hid.pipeline.contacts_plateau import (  # noqa: E402
     FOOTPRINTS_PER_FINGER,
     MAX_FINGERS,
@@ -247,12 +250,24 @@ PLATEAUS = {
     "plateau_footprint2": _footprint(2.0),
 }
 
+ORIGINAL_MISSED = C.with_missed_finger
+
+
+def _no_missed_finger(rest, v, centres, table, knot, n_knots, r):
+    """``contacts_bump.with_missed_finger`` without the missed finger: the bump fit alone."""
+    return bump_fit(rest, v, centres, knot, n_knots), -1
+
+
+#: Variants patched in place of ``contacts.with_missed_finger`` (with the product's maxima).
+BUMPS = {"no_missed_finger": _no_missed_finger}
+
 app = typer.Typer(add_completion=False)
 
 
 def _use(variant: str) -> None:
     C.plateau_contacts = PLATEAUS.get(variant, ORIGINAL_PLATEAUS)
-    if variant in PLATEAUS:
+    C.with_missed_finger = BUMPS.get(variant, ORIGINAL_MISSED)
+    if variant in PLATEAUS or variant in BUMPS:
         C.homography_outliers = ORIGINAL_OUTLIERS
         C._maxima = PRODUCT
     elif variant in RESIDUAL:

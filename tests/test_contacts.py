@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from neurotouch_hid.pipeline.contacts import _maxima, detect_contacts, local_maxima
+from neurotouch_hid.pipeline.contacts import _maxima, detect_contacts, local_maxima, outlier_candidates
 from neurotouch_hid.pipeline.contacts_plateau import _valid_table, rest_neighbours
 from neurotouch_hid.pipeline.contacts_refine import refine_peak
 from neurotouch_hid.pipeline.paper import paper_contacts
@@ -603,6 +603,45 @@ def test_a_second_finger_of_any_strength_in_a_twist_is_a_contact(weak):
     assert contacts.count == 2
     found = np.sort(contacts.points_px[:, 0])
     np.testing.assert_allclose(found, [left[0], right[0]], atol=3.0)
+
+
+def twist_of_three(rest, strengths, sigma_px):
+    """Three fingers 28 px from the gel's centre, 120 degrees apart, turning it: each drags the gel
+    tangentially, 6 px times its strength at its centre, a Gaussian of ``sigma_px`` about it.
+    Returns the current positions (with tracker noise) and where the fingers' centres are now."""
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    cur, fingers = rest.copy(), []
+    for k, strength in enumerate(strengths):
+        angle = 2 * np.pi * k / 3 + 0.4
+        finger = c + 28.0 * np.array([np.cos(angle), np.sin(angle)])
+        turn = 6.0 * strength * np.array([-np.sin(angle), np.cos(angle)])
+        cur = cur + bump(rest, finger, turn, sigma=sigma_px)
+        fingers.append(finger + turn)
+    return cur + np.random.default_rng(0).normal(0.0, 0.05, cur.shape), np.asarray(fingers)
+
+
+def test_a_weak_third_finger_no_marker_of_which_is_a_maximum_is_found_by_the_bumps():
+    # a twist of three fingers, the third at 0.35 of the others' strength: with wide bumps the
+    # gel between the strong fingers moves more than the third finger's markers, so no maximum
+    # lies on it (two contacts); two bumps leave its field as the residual, a third explains it
+    rest = grid()
+    cur, fingers = twist_of_three(rest, (1.0, 1.0, 0.35), sigma_px=20.0)
+    found = outlier_candidates(rest, cur, None, a=0.6)
+    table = _valid_table(rest_neighbours(rest, 10.0), found.idx, found.n)
+    peaks, _ = _maxima(found.rest_px, found.magnitudes, found.outliers, table, 0.6, 25.0**2, 12, found.threshold_px, 0.6)
+    assert len(peaks) == 2 and np.linalg.norm(found.rest_px[peaks] - fingers[2], axis=1).min() > 25.0
+    found = detect_contacts(rest, cur, r_px=25.0, n_min=12, refine_px=20.0, plateau_fraction=0.8)
+    assert_one_contact_on_each(found, fingers, within_px=3.0)
+
+
+def test_two_fingers_with_long_tails_get_no_third_from_the_bumps():
+    # the third finger absent: what two bumps leave of two fingers is no finger (wider bumps
+    # join into one flat top, read by its area)
+    rest = grid()
+    for sigma in (10.0, 20.0, 25.0):
+        cur, fingers = twist_of_three(rest, (1.0, 1.0, 0.0), sigma_px=sigma)
+        found = detect_contacts(rest, cur, r_px=25.0, n_min=12, refine_px=20.0, plateau_fraction=0.8)
+        assert_one_contact_on_each(found, fingers[:2], within_px=3.0)
 
 
 def test_a_bump_below_the_least_displacement_is_no_finger():

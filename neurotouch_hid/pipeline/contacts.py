@@ -23,8 +23,8 @@ import cv2
 import numba
 import numpy as np
 
-from neurotouch_hid.pipeline.contacts_bump import _at_rest, bump_fit, field_at
-from neurotouch_hid.pipeline.contacts_plateau import _despiked, _valid_table, plateau_contacts, rest_neighbours
+from neurotouch_hid.pipeline.contacts_bump import _at_rest, bump_fit, field_at, with_missed_finger
+from neurotouch_hid.pipeline.contacts_plateau import MAX_FINGERS, _despiked, _valid_table, plateau_contacts, rest_neighbours
 from neurotouch_hid.pipeline.contacts_refine import _refine_peak
 from neurotouch_hid.pipeline.markers import marker_arrays
 
@@ -405,6 +405,13 @@ def detect_contacts(
     points = peaks_px = np.array(points, dtype=np.float64).reshape(-1, 2)
     if len(points) >= 2 and fingers.max(initial=0) < 2:
         n_knots = max(2, math.ceil(bump_span_px / pitch_px) + 1)
-        centres = bump_fit(c.rest_px, c.v_px, _at_rest(c.current_px, c.v_px, points), float(pitch_px), n_knots)
+        start = _at_rest(c.current_px, c.v_px, points)
+        if len(points) < MAX_FINGERS:
+            centres, missed = with_missed_finger(c.rest_px, c.v_px, start, table, float(pitch_px), n_knots, r_px)
+            if missed >= 0:  # a finger the maxima missed: its marker, as the maxima's
+                rows.append(missed)
+                peaks_px = np.vstack([peaks_px, c.current_px[missed]])
+        else:
+            centres = bump_fit(c.rest_px, c.v_px, start, float(pitch_px), n_knots)
         points = field_at(c.rest_px, c.v_px, centres)
     return c.contacts(np.array(rows, dtype=np.int64), points, peaks_px)
