@@ -85,7 +85,7 @@ STEPS: list[tuple[str, str, str]] = [
     ("detect_contacts", "  of it: detect_contacts", "fit"),
     ("homography", "    of it: cv2.findHomography (USAC)", "where it ran"),
     ("refine", "    of it: peak refinement", "where it ran"),
-    ("bump_fit", "    of it: bump fit (bump_fit kernel)", "where it ran"),
+    ("bump_fit", "    of it: bump fit (bump_fit or with_missed_finger kernel)", "where it ran"),
     ("gesture_step", "gesture step (estimate_gesture + learned type)", "fit"),
     ("estimate_gesture", "  of it: estimate_gesture", "fit"),
     ("similarity", "    of it: cv2.estimateAffinePartial2D RANSAC", "where it ran"),
@@ -156,6 +156,9 @@ class Wrappers:
             ),
             mock.patch.object(GesturePipeline, "_learned_type", self.timed("learned", GesturePipeline._learned_type)),
             mock.patch.object(contacts_module, "bump_fit", self.timed("bump_fit", contacts_module.bump_fit)),
+            mock.patch.object(
+                contacts_module, "with_missed_finger", self.timed("bump_fit", contacts_module.with_missed_finger)
+            ),
             mock.patch.object(contacts_module, "_refine_peak", self.timed("refine", contacts_module._refine_peak)),
             mock.patch.object(cv2, "findHomography", self.timed("homography", cv2.findHomography)),
             mock.patch.object(cv2, "estimateAffinePartial2D", self.timed(affine_kind, cv2.estimateAffinePartial2D)),

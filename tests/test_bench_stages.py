@@ -46,6 +46,7 @@ def test_the_timers_wrap_existing_functions_and_are_removed_afterwards(bench_sta
         (pipeline, "estimate_gesture"),
         (pipeline.GesturePipeline, "_learned_type"),
         (contacts, "bump_fit"),
+        (contacts, "with_missed_finger"),
         (contacts, "_refine_peak"),
         (cv2, "findHomography"),
         (cv2, "estimateAffinePartial2D"),
