@@ -24,7 +24,13 @@ import numba
 import numpy as np
 
 from neurotouch_hid.pipeline.contacts_bump import _at_rest, bump_fit, field_at, with_missed_finger
-from neurotouch_hid.pipeline.contacts_plateau import MAX_FINGERS, _despiked, _valid_table, plateau_contacts, rest_neighbours
+from neurotouch_hid.pipeline.contacts_plateau import (
+    MAX_FINGERS,
+    _despiked,
+    _valid_table,
+    plateau_contacts,
+    rest_neighbours,
+)
 from neurotouch_hid.pipeline.contacts_refine import _refine_peak
 from neurotouch_hid.pipeline.markers import marker_arrays
 
@@ -348,7 +354,9 @@ def detect_contacts(
         bump_span_px: with at least two contacts and no flat top of several fingers, their
             centres are fitted as radial bumps with a profile of knots ``pitch_px`` apart up to
             this distance (px), the gel's radius
-            (:func:`~neurotouch_hid.pipeline.contacts_bump.bump_fit`).
+            (:func:`~neurotouch_hid.pipeline.contacts_bump.bump_fit`); with two, a third finger
+            the maxima missed is looked for in what their bumps leave
+            (:func:`~neurotouch_hid.pipeline.contacts_bump.with_missed_finger`).
         min_move_px: a marker displaced more than this (px) and than the dynamic threshold
             counts among an outlier's neighbours (for N_min and its being the largest) even where
             the homography keeps it (``ContactsConfig.min_move_mm``).

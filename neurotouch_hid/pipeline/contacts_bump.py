@@ -4,7 +4,9 @@ docs/method.md, "Contacts").
 Where the fingers' fields have long tails they overlap, and the largest displacement lies one to
 two marker pitches outside each finger. :func:`bump_fit` explains the whole field as a sum of
 radial bumps, one per contact, with a profile measured on the window's own field, and moves the
-centres to the least-squares optimum. Image frame (px).
+centres to the least-squares optimum. A finger whose markers are no maximum (weaker than the
+gel between stronger fingers) stays in what the bumps leave: :func:`with_missed_finger` fits one
+more bump there. Image frame (px).
 """
 
 from __future__ import annotations
