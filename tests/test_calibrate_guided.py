@@ -191,6 +191,7 @@ def test_a_person_at_the_camera_is_guided_by_prompts_alone(tmp_path):
     from neurotouch_hid.calibration_guide import LiveCamera
     from neurotouch_hid.sources.recording import RecordingWriter
     from neurotouch_hid.sources.simulator import GelSimulator, guided_gesture
+    from neurotouch_hid.warmup import compile_pipeline
 
     camera = SensorGeometry(mirror=False, rotation_deg=90.0)
     sim = GelSimulator(camera, script=())
@@ -207,6 +208,9 @@ def test_a_person_at_the_camera_is_guided_by_prompts_alone(tmp_path):
             writer.write_events(chunk.events)
 
     said: list[str] = []
+    # as `calibrate --guided` does before the camera opens: the replay runs in wall time, and a
+    # kernel compiled mid-stream would stall it
+    compile_pipeline()
     with LiveCamera(calibration.CAMERA_WAIT_S, backend=ReplayWorld(recording)) as source:
         rest = calibration.calibrate(source.rest_frames(calibration.REST_FRAMES)).sensor
         mirror, rotation = measure_orientation(source, source.stream(), rest, said.append)
