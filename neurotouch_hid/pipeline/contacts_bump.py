@@ -73,6 +73,26 @@ def _hat(r: float, knot: float, n_knots: int) -> tuple[int, float]:
     return j, t - j
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _displacements(a: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, bool]:
+    """The fingers' displacements u (K, 2) px that best explain the field ``v`` (M, 2) px as
+    ``a`` u, ``a`` (M, K) each bump's profile at each marker: least squares by the normal
+    equations a^T a u = a^T v with a ridge of 1e-9 of their diagonal, written out (numba's @
+    needs SciPy's BLAS). False when they are singular (:func:`_solve`)."""
+    k_n = a.shape[1]
+    normal = np.zeros((k_n, k_n))
+    rhs = np.zeros((k_n, 2))
+    for i in range(len(a)):
+        for k in range(k_n):
+            rhs[k, 0] += a[i, k] * v[i, 0]
+            rhs[k, 1] += a[i, k] * v[i, 1]
+            for q in range(k_n):
+                normal[k, q] += a[i, k] * a[i, q]
+    for k in range(k_n):
+        normal[k, k] += 1e-9 * (normal[k, k] + 1e-12)
+    return _solve(normal, rhs)
+
+
 #: Rounds of the bump fit (:func:`bump_fit`): its centres move by at most half a knot per round.
 #: 3: on the development families' windows, 2-8 rounds are within 0.1 mm of each other on every
 #: family, 3 within 0.04 mm of the best; each round costs ~15 us (K = 2, 177 markers, hot).
@@ -143,17 +163,7 @@ def _bump_model(
             for k in range(k_n):
                 j, f = seg[i, k], frac[i, k]
                 a[i, k] = g[j] * (1.0 - f) + g[j + 1] * f
-        normal = np.zeros((k_n, k_n))
-        rhs = np.zeros((k_n, 2))
-        for i in range(m):  # a^T a and a^T v, written out (numba's @ needs SciPy's BLAS)
-            for k in range(k_n):
-                rhs[k, 0] += a[i, k] * v[i, 0]
-                rhs[k, 1] += a[i, k] * v[i, 1]
-                for q in range(k_n):
-                    normal[k, q] += a[i, k] * a[i, q]
-        for k in range(k_n):
-            normal[k, k] += 1e-9 * (normal[k, k] + 1e-12)
-        u, ok = _solve(normal, rhs)
+        u, ok = _displacements(a, v)
         if not ok:
             return centres.copy(), g, False
         # the profile g given u and c: rows (i, d) = sum_k b_k u_kd, b_k the hat basis at r_ik
@@ -255,23 +265,27 @@ def _residual(
         for k in range(k_n):
             j, f = _hat(math.sqrt((rest[i, 0] - c[k, 0]) ** 2 + (rest[i, 1] - c[k, 1]) ** 2), knot, n_knots)
             a[i, k] = g[j] * (1.0 - f) + g[j + 1] * f
-    normal = np.zeros((k_n, k_n))
-    rhs = np.zeros((k_n, 2))
-    for i in range(m):
-        for k in range(k_n):
-            rhs[k, 0] += a[i, k] * v[i, 0]
-            rhs[k, 1] += a[i, k] * v[i, 1]
-            for q in range(k_n):
-                normal[k, q] += a[i, k] * a[i, q]
-    for k in range(k_n):
-        normal[k, k] += 1e-9 * (normal[k, k] + 1e-12)
-    u, ok = _solve(normal, rhs)
+    u, ok = _displacements(a, v)
     res = v.copy()
     for i in range(m):
         for k in range(k_n):
             res[i, 0] -= a[i, k] * u[k, 0]
             res[i, 1] -= a[i, k] * u[k, 1]
     return u, res, ok
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _fitted(
+    rest: np.ndarray, v: np.ndarray, centres: np.ndarray, knot: float, n_knots: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """The bumps fitted from ``centres`` (:func:`_bump_model`) and what they leave
+    (:func:`_residual`): (centres (K, 2), u (K, 2), residual (M, 2), ok), ok False when either
+    fit failed."""
+    c, g, ok = _bump_model(rest, v, centres, knot, n_knots, BUMP_ITERATIONS)
+    if not ok:
+        return c, np.zeros((len(c), 2)), v.copy(), False
+    u, res, ok = _residual(rest, v, c, g, knot, n_knots)
+    return c, u, res, ok
 
 
 #: A finger the maxima missed (:func:`with_missed_finger`) is taken when one more bump leaves less
@@ -311,10 +325,7 @@ def with_missed_finger(
         (centres, marker): the (K, 2) or (K + 1, 2) float64 centres at rest (px), and the index
         of the marker where the new finger was started (-1: none).
     """
-    c, g, ok = _bump_model(rest, v, centres, knot, n_knots, BUMP_ITERATIONS)
-    if not ok:
-        return c, -1
-    u, res, ok = _residual(rest, v, c, g, knot, n_knots)
+    c, _, res, ok = _fitted(rest, v, centres, knot, n_knots)
     if not ok:
         return c, -1
     m = len(rest)
@@ -342,10 +353,7 @@ def with_missed_finger(
     start = np.empty((len(c) + 1, 2))
     start[: len(c)] = c
     start[len(c)] = rest[best]
-    more, g_more, ok = _bump_model(rest, v, start, knot, n_knots, BUMP_ITERATIONS)
-    if not ok:
-        return c, -1
-    u_more, res_more, ok = _residual(rest, v, more, g_more, knot, n_knots)
+    more, u_more, res_more, ok = _fitted(rest, v, start, knot, n_knots)
     if not ok:
         return c, -1
     after = 0.0
