@@ -260,6 +260,22 @@ def test_a_weaker_finger_s_flat_top_does_not_take_in_a_stronger_finger_s():
     assert_one_contact_on_each(found, fingers + [0.0, 6.0], within_px=10.0)
 
 
+@pytest.mark.parametrize(("apart_px", "ratio"), [(40.0, 0.4), (35.0, 0.6)])
+def test_a_weaker_finger_s_flat_top_does_not_climb_a_stronger_finger_s_slope(apart_px, ratio):
+    # a strong finger (15 px) and a weaker one (0.4 / 0.6 of it) 40 / 35 px apart: the weaker
+    # maximum's level (0.8 of its own) takes in the ring of the stronger finger's slope outside
+    # the stronger's flat top, which is higher than the weaker maximum itself; read as the weaker
+    # one's flat top, that ring made two more contacts on the stronger finger, or put both contacts
+    # there. A weaker maximum's flat top holds no marker displaced more than the maximum.
+    rest = grid()
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    fingers = c + np.array([[-apart_px / 2, 0.0], [apart_px / 2, 0.0]])
+    noise = np.random.default_rng(0).normal(0.0, 0.05, rest.shape)
+    cur = rest + bump(rest, fingers[0], (0.0, 15.0)) + bump(rest, fingers[1], (0.0, 15.0 * ratio)) + noise
+    found = detect_contacts(rest, cur, r_px=25.0, n_min=12, refine_px=20.0, plateau_fraction=0.8)
+    assert_one_contact_on_each(found, fingers + [[0.0, 15.0], [0.0, 15.0 * ratio]], within_px=5.0)
+
+
 def test_three_fingertips_in_a_row_give_three_contacts_whatever_the_flat_top_s_area():
     # three fingertips side by side, 24 px apart, push down together: one flat top about 60 px
     # long and 12 px wide, whose area is less than one fingertip footprint pi r^2 (r = 25 px), so

@@ -85,10 +85,12 @@ def _valid_table(neighbours: np.ndarray, idx: np.ndarray, n: int) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _plateau(table: np.ndarray, magnitudes: np.ndarray, seed: int, level: float, taken: np.ndarray) -> np.ndarray:
+def _plateau(
+    table: np.ndarray, magnitudes: np.ndarray, seed: int, level: float, top: float, taken: np.ndarray
+) -> np.ndarray:
     """(M,) bool: the markers connected to ``seed`` through neighbours (``table``, see
-    :func:`rest_neighbours`) whose magnitude is at least ``level`` and that are not ``taken``
-    ((M,) bool: on a stronger maximum's flat top), breadth-first."""
+    :func:`rest_neighbours`) whose magnitude is at least ``level`` and at most ``top`` and that are
+    not ``taken`` ((M,) bool: on a stronger maximum's flat top), breadth-first."""
     m = len(magnitudes)
     inside = np.zeros(m, dtype=np.bool_)
     queue = np.empty(m, dtype=np.int64)
@@ -99,7 +101,7 @@ def _plateau(table: np.ndarray, magnitudes: np.ndarray, seed: int, level: float,
         i = queue[head]
         head += 1
         for j in table[i]:
-            if j < 0 or inside[j] or taken[j] or magnitudes[j] < level:
+            if j < 0 or inside[j] or taken[j] or magnitudes[j] < level or magnitudes[j] > top:
                 continue
             inside[j] = True
             queue[tail] = j
@@ -205,7 +207,9 @@ def plateau_contacts(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Merge the displacement maxima that lie on one plateau; a wide plateau's contacts (see the
     module docstring, "Flat tops"). Each maximum's plateau (at ``fraction`` of its magnitude)
-    stops at the plateaus of the stronger maxima before it.
+    stops at the plateaus of the stronger maxima before it and, but for the strongest's, holds no
+    marker displaced more than its maximum: such a marker lies on a stronger finger's slope (the
+    strongest maximum's own centre can be higher, where the homography explains it).
 
     At most :data:`MAX_FINGERS` contacts come out: when the wide plateaus' fingers and the other
     maxima would make more, each plateau is one contact (placed by the caller) and only the
@@ -240,7 +244,9 @@ def plateau_contacts(
         if covered[p]:
             continue  # on a stronger maximum's plateau: the same flat top
         level = fraction * magnitudes[p]
-        mask = _plateau(table, magnitudes, p, level, covered)  # a weaker one's level may reach a stronger's
+        # a weaker one's level may reach a stronger's flat top, and the slope below it
+        top = magnitudes[p] if n_kept else np.inf
+        mask = _plateau(table, magnitudes, p, level, top, covered)
         covered |= mask
         kept[n_kept] = p
         size = np.count_nonzero(mask)
