@@ -34,6 +34,9 @@ a * mean ||v||, r the neighbourhood radius):
   the same below 1.05, only where the flat top's area reads two fingers;
 * ``plateau_footprint1`` / ``15`` / ``2``: the product's, with a finger per 1 / 1.5 / 2 pi r^2
   of a flat top's area (the product: ``contacts_plateau.FOOTPRINTS_PER_FINGER``);
+* ``plateau_any_height``: the product's, but a weaker maximum's flat top may hold markers
+  displaced more than its maximum (a stronger finger's slope); ``plateau_below_own_top``: the
+  strongest maximum's may not either;
 * ``no_missed_finger``: the product's, without the finger the bumps find where the maxima missed
   it (``contacts_bump.with_missed_finger``: the bump fit alone);
 * ``product``: the product's own (``union_outlier_peaks`` with ``ContactsConfig.min_move_mm``).
@@ -59,6 +62,7 @@ from neurotouch_hid.pipeline.contacts_plateau import (  # noqa: E402
     FOOTPRINTS_PER_FINGER,
     MAX_FINGERS,
     PLATEAU_MARKERS,
+    ROW_ELONGATION,
     _despiked,
     _elongation,
     _plateau,
@@ -183,7 +187,7 @@ def _plateaus_by_shape(table, current_px, magnitudes, peaks, fraction, pitch_px,
         if covered[p]:
             continue
         level = fraction * magnitudes[p]
-        mask = _plateau(table, magnitudes, p, level, covered)
+        mask = _plateau(table, magnitudes, p, level, magnitudes[p] if kept else np.inf, covered)
         covered |= mask
         kept.append(p)
         size = int(mask.sum())
@@ -218,7 +222,7 @@ def _round_flat_tops(least, most=MAX_FINGERS):
         fingers = fingers.copy()
         covered = np.zeros(len(magnitudes), dtype=bool)
         for k, p in enumerate(kept):
-            mask = _plateau(table, magnitudes, p, fraction * magnitudes[p], covered)
+            mask = _plateau(table, magnitudes, p, fraction * magnitudes[p], magnitudes[p] if k else np.inf, covered)
             covered |= mask
             if 2 <= fingers[k] <= most:
                 weights = magnitudes[mask] - fraction * magnitudes[p] + 1e-9
@@ -226,6 +230,40 @@ def _round_flat_tops(least, most=MAX_FINGERS):
                     fingers[k], groups[k] = 0, points[:0]
         pts = np.concatenate(groups) if groups else np.zeros((0, 2))
         return kept, fingers, pts.reshape(-1, 2)
+
+    return variant
+
+
+def _flat_top_heights(bounded: str):
+    """The product's ``plateau_contacts`` with another bound on how high a marker a maximum's flat
+    top holds (the product: no higher than its maximum, but for the strongest maximum's):
+    ``bounded`` "none", any height (a weaker maximum's flat top may climb a stronger finger's
+    slope); "all", no higher than its maximum for the strongest too."""
+
+    def variant(table, current_px, magnitudes, peaks, fraction, pitch_px, finger_radius_px):
+        covered = np.zeros(len(magnitudes), dtype=bool)
+        kept, fingers, points = [], [], []
+        for p in peaks:
+            if covered[p]:
+                continue
+            level = fraction * magnitudes[p]
+            top = magnitudes[p] if bounded == "all" else np.inf
+            mask = _plateau(table, magnitudes, p, level, top, covered)
+            covered |= mask
+            kept.append(p)
+            size = int(mask.sum())
+            if size > PLATEAU_MARKERS:
+                weights = magnitudes[mask] - level + 1e-9
+                n = math.ceil(size * pitch_px**2 / (FOOTPRINTS_PER_FINGER * math.pi * finger_radius_px**2))
+                if _elongation(current_px[mask], weights) >= ROW_ELONGATION:
+                    n = MAX_FINGERS
+                n = min(MAX_FINGERS, max(1, n))
+                points.append(_split_along_axis(current_px[mask], weights, n))
+                fingers.append(n)
+            else:
+                fingers.append(0)
+        pts = np.concatenate(points) if points else np.zeros((0, 2))
+        return at_most_three(np.array(kept, dtype=np.int64), np.array(fingers, dtype=np.int64), pts)
 
     return variant
 
@@ -248,6 +286,8 @@ PLATEAUS = {
     "plateau_footprint1": _footprint(1.0),
     "plateau_footprint15": _footprint(1.5),
     "plateau_footprint2": _footprint(2.0),
+    "plateau_any_height": _flat_top_heights("none"),
+    "plateau_below_own_top": _flat_top_heights("all"),
 }
 
 ORIGINAL_MISSED = C.with_missed_finger
