@@ -10,7 +10,7 @@ changing them:
   every one of its kernels has code in numba's cache for this machine (numba's cache index,
   :func:`cached_signatures`); only cold groups are compiled, and only the groups the run needs.
 * **compiled in parallel processes into the cache**: each cold group is compiled by its own
-  child process (``python -m neurotouch_hid.warmup GROUP``, the same warm-up that
+  child process (``python -P -m neurotouch_hid.warmup GROUP``, the same warm-up that
   ``GesturePipeline.compile_kernels`` or a short simulation is), which writes numba's cache; the
   two groups use both cores. The child reports each kernel it compiled (one line on stdout), so
   :class:`Warmup` can show progress.
@@ -118,6 +118,15 @@ def simulate_briefly() -> None:
     for chunk in SimulatedSource(seed=0).chunks(seconds=10.0):
         if chunk.label.gesture is not GestureType.NONE:
             break
+
+
+def child_command(group: KernelGroup) -> list[str]:
+    """The command of ``group``'s child: this Python on ``python -m neurotouch_hid.warmup GROUP``,
+    with ``-P`` (Python 3.11) so that the working directory is not put first on ``sys.path``: run
+    from a source checkout (as the README's first command is), ``-m`` alone imports the
+    checkout's ``neurotouch_hid``, compiles its kernels into the checkout's cache and leaves the
+    installed package's cold, so every later run compiles again."""
+    return [sys.executable, "-P", "-m", "neurotouch_hid.warmup", group.name]
 
 
 def kernels(group: KernelGroup) -> dict[str, object]:
@@ -337,7 +346,7 @@ class Warmup:
         progress = self.progress[group.name]
         try:
             child = subprocess.Popen(
-                [sys.executable, "-m", "neurotouch_hid.warmup", group.name],
+                child_command(group),
                 stdout=subprocess.PIPE,
                 stderr=subprocess.PIPE,
                 text=True,

@@ -83,6 +83,23 @@ def test_a_group_is_cold_until_its_child_compiled_it_into_the_cache(tmp_path):
     assert subprocess.run(check, env=_env(tmp_path), capture_output=True, text=True).stdout.strip() == "False"
 
 
+def test_the_child_compiles_the_installed_package_not_a_checkout_in_the_working_directory(tmp_path):
+    # the README's first command runs from the source checkout: a child started with ``-m`` alone
+    # imported the checkout's neurotouch_hid (here a copy that fails at import), not the run's
+    checkout = tmp_path / "checkout"
+    (checkout / "neurotouch_hid").mkdir(parents=True)
+    (checkout / "neurotouch_hid" / "__init__.py").write_text('raise SystemExit("the checkout\'s copy was imported")\n')
+    child = subprocess.run(
+        warmup.child_command(warmup.SIMULATOR),
+        cwd=checkout,
+        env=_env(tmp_path / "cache"),
+        capture_output=True,
+        text=True,
+    )
+    assert child.returncode == 0, child.stderr
+    assert "neurotouch_hid.sources.esim.esim_chunk" in child.stdout.split()
+
+
 def test_the_child_refuses_an_unknown_group():
     child = subprocess.run([sys.executable, "-m", "neurotouch_hid.warmup", "nope"], capture_output=True, text=True)
     assert child.returncode == 2
