@@ -178,31 +178,58 @@ VARIANTS = {
 ORIGINAL_PLATEAUS = C.plateau_contacts
 
 
-def _plateaus_by_shape(table, current_px, magnitudes, peaks, fraction, pitch_px, finger_radius_px, least=1.0):
-    """``plateau_contacts`` whose wide plateau holds at least floor(L / W) fingers, L / W its
-    elongation (round fingertips side by side), beside its area's count."""
+def _product_top(magnitude: float, strongest: bool) -> float:
+    """How high a marker the product's flat top of a maximum of ``magnitude`` holds: any height for
+    the strongest maximum, no higher than the maximum for the others."""
+    return np.inf if strongest else magnitude
+
+
+def _flat_tops(table, magnitudes, peaks, fraction, top=_product_top):
+    """(p, mask, level) for each maximum of ``peaks`` not on a stronger one's flat top, as
+    ``plateau_contacts`` walks them: its flat top (M,) bool at ``level`` = ``fraction`` of its
+    magnitude, no higher than ``top(magnitude, strongest)``."""
     covered = np.zeros(len(magnitudes), dtype=bool)
-    kept, fingers, points = [], [], []
     for p in peaks:
         if covered[p]:
             continue
         level = fraction * magnitudes[p]
-        mask = _plateau(table, magnitudes, p, level, magnitudes[p] if kept else np.inf, covered)
+        mask = _plateau(table, magnitudes, p, level, top(magnitudes[p], not covered.any()), covered)
         covered |= mask
+        yield p, mask, level
+
+
+def _plateaus_by_count(table, current_px, magnitudes, peaks, fraction, pitch_px, finger_radius_px, count, top):
+    """``plateau_contacts`` with a wide flat top's fingers ``count(size, points, weights)`` and its
+    height bound ``top`` (:func:`_flat_tops`)."""
+    kept, fingers, points = [], [], []
+    for p, mask, level in _flat_tops(table, magnitudes, peaks, fraction, top):
         kept.append(p)
         size = int(mask.sum())
         if size > PLATEAU_MARKERS:
             weights = magnitudes[mask] - level + 1e-9
-            by_area = math.ceil(size * pitch_px**2 / (math.pi * finger_radius_px**2))
-            elongation = _elongation(current_px[mask], weights)
-            by_shape = int(elongation) if elongation >= least else 1
-            n = min(MAX_FINGERS, max(1, by_area, by_shape))
+            n = min(
+                MAX_FINGERS,
+                max(1, count(size * pitch_px**2 / (math.pi * finger_radius_px**2), current_px[mask], weights)),
+            )
             points.append(_split_along_axis(current_px[mask], weights, n))
             fingers.append(n)
         else:
             fingers.append(0)
     pts = np.concatenate(points) if points else np.zeros((0, 2))
     return np.array(kept, dtype=np.int64), np.array(fingers, dtype=np.int64), pts
+
+
+def _plateaus_by_shape(table, current_px, magnitudes, peaks, fraction, pitch_px, finger_radius_px, least=1.0):
+    """``plateau_contacts`` whose wide plateau holds at least floor(L / W) fingers, L / W its
+    elongation (round fingertips side by side), beside its area's count (a finger per pi r^2)."""
+
+    def count(footprints, points, weights):
+        elongation = _elongation(points, weights)
+        return max(math.ceil(footprints), int(elongation) if elongation >= least else 1)
+
+    return _plateaus_by_count(
+        table, current_px, magnitudes, peaks, fraction, pitch_px, finger_radius_px, count, _product_top
+    )
 
 
 def _capped(variant):
@@ -220,14 +247,9 @@ def _round_flat_tops(least, most=MAX_FINGERS):
         )
         groups = np.split(points, np.cumsum(fingers)[:-1]) if len(fingers) else []
         fingers = fingers.copy()
-        covered = np.zeros(len(magnitudes), dtype=bool)
-        for k, p in enumerate(kept):
-            mask = _plateau(table, magnitudes, p, fraction * magnitudes[p], magnitudes[p] if k else np.inf, covered)
-            covered |= mask
-            if 2 <= fingers[k] <= most:
-                weights = magnitudes[mask] - fraction * magnitudes[p] + 1e-9
-                if _elongation(current_px[mask], weights) < least:
-                    fingers[k], groups[k] = 0, points[:0]
+        for k, (_, mask, level) in enumerate(_flat_tops(table, magnitudes, kept, fraction)):
+            if 2 <= fingers[k] <= most and _elongation(current_px[mask], magnitudes[mask] - level + 1e-9) < least:
+                fingers[k], groups[k] = 0, points[:0]
         pts = np.concatenate(groups) if groups else np.zeros((0, 2))
         return kept, fingers, pts.reshape(-1, 2)
 
@@ -240,30 +262,16 @@ def _flat_top_heights(bounded: str):
     ``bounded`` "none", any height (a weaker maximum's flat top may climb a stronger finger's
     slope); "all", no higher than its maximum for the strongest too."""
 
-    def variant(table, current_px, magnitudes, peaks, fraction, pitch_px, finger_radius_px):
-        covered = np.zeros(len(magnitudes), dtype=bool)
-        kept, fingers, points = [], [], []
-        for p in peaks:
-            if covered[p]:
-                continue
-            level = fraction * magnitudes[p]
-            top = magnitudes[p] if bounded == "all" else np.inf
-            mask = _plateau(table, magnitudes, p, level, top, covered)
-            covered |= mask
-            kept.append(p)
-            size = int(mask.sum())
-            if size > PLATEAU_MARKERS:
-                weights = magnitudes[mask] - level + 1e-9
-                n = math.ceil(size * pitch_px**2 / (FOOTPRINTS_PER_FINGER * math.pi * finger_radius_px**2))
-                if _elongation(current_px[mask], weights) >= ROW_ELONGATION:
-                    n = MAX_FINGERS
-                n = min(MAX_FINGERS, max(1, n))
-                points.append(_split_along_axis(current_px[mask], weights, n))
-                fingers.append(n)
-            else:
-                fingers.append(0)
-        pts = np.concatenate(points) if points else np.zeros((0, 2))
-        return at_most_three(np.array(kept, dtype=np.int64), np.array(fingers, dtype=np.int64), pts)
+    def count(footprints, points, weights):
+        if _elongation(points, weights) >= ROW_ELONGATION:
+            return MAX_FINGERS
+        return math.ceil(footprints / FOOTPRINTS_PER_FINGER)
+
+    def top(magnitude, strongest):
+        return magnitude if bounded == "all" else np.inf
+
+    def variant(*args):
+        return at_most_three(*_plateaus_by_count(*args, count, top))
 
     return variant
 
