@@ -220,11 +220,31 @@ def test_set_resting_ignores_no_verdict_and_stale_verdicts(rest_image):
     pipeline.set_resting(RestingResult(False, 9.0), 80000)
     pipeline.set_resting(RestingResult(True, 0.1), 40000)  # older frame, computed late
     pipeline.set_resting(None, 120000)  # the detector had no verdict
-    pipeline.process(events_at(1))
+    pipeline.process(Frame(80000, rest_image))
     assert not pipeline.resting.resting and pipeline.resting.distance == 9.0
     pipeline.set_resting(RestingResult(True, 0.2), 60000)  # older than the verdict in force
-    pipeline.process(events_at(2))
+    pipeline.process(events_at(80001))
     assert not pipeline.resting.resting
+
+
+def test_a_verdict_on_a_frame_the_pipeline_has_not_reached_waits_for_that_frame(rest_image):
+    # a pipeline running behind its source (a cold start, a busy machine) while the resting thread
+    # keeps up: the verdict on a frame after the release (at rest) was applied to the windows
+    # of the press still queued, which re-anchored the markers and said rest in mid-press
+    pipeline = GesturePipeline(SENSOR, detect_resting=False)
+    pipeline.process(Frame(0, rest_image))
+    pipeline.set_resting(RestingResult(False, 9.0), 40000)
+    pipeline.process(Frame(40000, rest_image))
+    w = np.exp(-np.sum((pipeline.rest_px - SENSOR.gel_center_px) ** 2, axis=1) / (2 * 12.0**2))
+    pressed = pipeline.rest_px + w[:, None] * [3.0, 0.0]
+    pipeline.tracker.reset(pressed)
+    pipeline.set_resting(RestingResult(True, 0.0), 120000)  # the frame after the release
+    during = pipeline.process(events_at(40001, 55000, 65000, 75000))
+    assert during and not any(e.resting for e in during)
+    np.testing.assert_array_equal(pipeline.tracker.positions_px, pressed)  # not re-anchored
+    pipeline.process(Frame(120000, rest_image))
+    assert pipeline.resting.resting
+    np.testing.assert_array_equal(pipeline.tracker.positions_px, pipeline.rest_px)
 
 
 # --- predictions JSON lines --------------------------------------------------------------------

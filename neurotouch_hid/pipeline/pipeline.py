@@ -73,6 +73,10 @@ __all__ = ["MIN_WINDOW_US", "PipelineConfig", "GesturePipeline", "RESUME_MATCH_F
 #: away, and the driver must not wait for ever.
 RESUME_MATCH_FRAMES = 50
 
+#: Verdicts handed over for frames the stream has not yet brought the pipeline to, kept at most
+#: (:meth:`GesturePipeline.set_resting`; 0.64 s at 25 Hz: older ones are superseded anyway).
+MAX_PENDING_VERDICTS = 16
+
 #: The stages :attr:`GesturePipeline.timings` measures.
 STAGES = ("noise_filter", "tracker", "contacts", "gesture", "resting", "frame_correction")
 
@@ -123,8 +127,11 @@ class GesturePipeline:
         self.timings: dict[str, list[int]] | None = {s: [] for s in STAGES} if profile else None
         self.cpu_timings: dict[str, list[int]] | None = {s: [] for s in STAGES} if profile else None
         self._resting = RestingResult(True, 0.0)
-        self._pending: tuple[RestingResult, int] | None = None
+        #: verdicts handed over by :meth:`set_resting`, by increasing frame time, not yet applied
+        self._pending: list[tuple[RestingResult, int]] = []
         self._resting_t_us = -(2**62)
+        #: the time of the latest APS frame the stream has brought the pipeline to (us)
+        self._frame_t_us = -(2**62)
         self._lock = threading.Lock()
         self._next_end: int | None = None
         self._rejected_frames = 0
@@ -191,14 +198,19 @@ class GesturePipeline:
 
     def set_resting(self, result: RestingResult | None, t_us: int) -> None:
         """Hand over a resting verdict computed elsewhere (e.g. another thread) for the frame at
-        ``t_us``. Thread-safe; applied before the pipeline's next item: at rest the tracker is
-        reset to the rest positions, and estimates say ``resting`` until a verdict says not.
-        ``None`` (no verdict yet) and verdicts older than one already handed over are ignored."""
+        ``t_us``. Thread-safe. It is applied once the stream has brought the pipeline to that
+        frame (at the frame, or before the next item when the verdict comes later), as a verdict
+        computed inline is: at rest the tracker is reset to the rest positions, otherwise the
+        frame's markers correct it, and estimates say ``resting`` until a verdict says not. A
+        pipeline running behind its source (a cold start, a busy machine) would otherwise apply a
+        later frame's verdict to earlier windows. ``None`` (no verdict yet) and verdicts older than
+        one already handed over are ignored; of several reached at once, the latest is applied."""
         if result is None:
             return
         with self._lock:
-            if self._pending is None or t_us >= self._pending[1]:
-                self._pending = (result, int(t_us))
+            if not self._pending or t_us >= self._pending[-1][1]:
+                self._pending.append((result, int(t_us)))
+                del self._pending[:-MAX_PENDING_VERDICTS]
 
     def compile_kernels(self) -> None:
         """Compile the pipeline's numba code (noise filter, tracker, gel motion, contacts, gesture) now, on a synthetic
@@ -244,8 +256,9 @@ class GesturePipeline:
         self.tracker = None
         self._next_end = None
         with self._lock:
-            self._pending = None
+            self._pending = []
         self._resting_t_us = -(2**62)
+        self._frame_t_us = -(2**62)
         self._resting = RestingResult(True, 0.0)
         self._rejected_frames = 0
         self._resume_waited = 0
@@ -271,8 +284,11 @@ class GesturePipeline:
 
     # --- internals --------------------------------------------------------------------------
     def _apply_pending(self) -> None:
+        """Apply the latest handed-over verdict of a frame the stream has reached (:meth:`set_resting`)."""
         with self._lock:
-            pending, self._pending = self._pending, None
+            reached = [v for v in self._pending if v[1] <= self._frame_t_us]
+            self._pending = self._pending[len(reached) :]
+        pending = reached[-1] if reached else None
         if pending is not None and pending[1] >= self._resting_t_us:
             self._resting_t_us = pending[1]
             self._apply_resting(pending[0], pending[1])
@@ -382,12 +398,15 @@ class GesturePipeline:
                 self._initialise(frame)
             return []
         out = self._close_windows_until(frame.t_us)
+        self._frame_t_us = frame.t_us
         if self.detect_resting:
             start = self._clock()
             result = self.resting_detector.update(frame, verdict_only=True)
             self._record("resting", start)
             self._resting_t_us = frame.t_us
             self._apply_resting(result, frame.t_us)
+        else:
+            self._apply_pending()  # this frame's verdict, when it was computed beside in time
         return out
 
     def _close_windows_until(self, t_us: int) -> list[GestureEstimate]:
