@@ -394,6 +394,7 @@ class GesturePipeline:
 
     def _process_frame(self, frame: Frame) -> list[GestureEstimate]:
         if self.tracker is None:
+            self._frame_t_us = frame.t_us
             if self.rest_px is None or self._at_rest_after_restart(frame):
                 self._initialise(frame)
             return []
