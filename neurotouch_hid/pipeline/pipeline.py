@@ -393,13 +393,12 @@ class GesturePipeline:
         return still.update(frame, verdict_only=True).resting
 
     def _process_frame(self, frame: Frame) -> list[GestureEstimate]:
+        self._frame_t_us = frame.t_us
         if self.tracker is None:
-            self._frame_t_us = frame.t_us
             if self.rest_px is None or self._at_rest_after_restart(frame):
                 self._initialise(frame)
             return []
         out = self._close_windows_until(frame.t_us)
-        self._frame_t_us = frame.t_us
         if self.detect_resting:
             start = self._clock()
             result = self.resting_detector.update(frame, verdict_only=True)
