@@ -285,11 +285,15 @@ class GesturePipeline:
     # --- internals --------------------------------------------------------------------------
     def _apply_pending(self) -> None:
         """Apply the latest handed-over verdict of a frame the stream has reached (:meth:`set_resting`)."""
-        with self._lock:
-            reached = [v for v in self._pending if v[1] <= self._frame_t_us]
-            self._pending = self._pending[len(reached) :]
-        pending = reached[-1] if reached else None
-        if pending is not None and pending[1] >= self._resting_t_us:
+        with self._lock:  # every item comes here: nothing is allocated while nothing is reached
+            n = 0
+            while n < len(self._pending) and self._pending[n][1] <= self._frame_t_us:
+                n += 1
+            if n == 0:
+                return
+            pending = self._pending[n - 1]
+            del self._pending[:n]
+        if pending[1] >= self._resting_t_us:
             self._resting_t_us = pending[1]
             self._apply_resting(pending[0], pending[1])
 
