@@ -11,7 +11,9 @@ gesture type for variants of :func:`~neurotouch_hid.pipeline.contacts.detect_con
 prints the contact count per labelled gesture type (and in brackets the share of windows with
 more contacts than labelled) (windows whose estimate is ``none`` keep 0
 contacts), and the share of ``none`` windows inside gestures left aside. The gesture step, which
-reads the contacts, is not rerun: the full effect is ``family_eval.py``'s. Figures only.
+reads the contacts, is not rerun, and each window is replayed without its press (a round flat top
+read by its area, ``detect_contacts``' ``long_before``): the full effect is ``family_eval.py``'s.
+Figures only.
 """
 
 from __future__ import annotations
@@ -92,7 +94,8 @@ def record_sequence(dataset: Path, name: str) -> dict:
         "rest": rest,
         "true_type": np.array([tr.gesture.value if tr else "skip" for tr in truth]),
         "true_count": np.array([len(tr.contacts_px) if tr else -1 for tr in truth], dtype=np.int64),
-        "kw": {k: v for k, v in first[3].items() if k != "neighbours"} if first is not None else {},
+        # the settings, not the press: a window replayed alone reads a round flat top by its area
+        "kw": {k: v for k, v in (first[3] if first else {}).items() if k not in ("neighbours", "long_before")},
     }
 
 

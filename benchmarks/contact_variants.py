@@ -37,6 +37,10 @@ a * mean ||v||, r the neighbourhood radius):
 * ``plateau_any_height``: the product's, but a weaker maximum's flat top may hold markers
   displaced more than its maximum (a stronger finger's slope); ``plateau_below_own_top``: the
   strongest maximum's may not either;
+* ``plateau_round_by_area``: the product's, but a round flat top whose area reads two fingers
+  is read by its area whatever the press showed before (``long_before`` always True);
+  ``plateau_round105_two_unless_seen``: instead of the product's long flat top, a press keeps two
+  for a round flat top when it showed two contacts before its first flat top of two fingers;
 * ``no_missed_finger``: the product's, without the finger the bumps find where the maxima missed
   it (``contacts_bump.with_missed_finger``: the bump fit alone);
 * ``product``: the product's own (``union_outlier_peaks`` with ``ContactsConfig.min_move_mm``).
@@ -57,6 +61,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 import contact_replay  # noqa: E402
 
 from neurotouch_hid.pipeline import contacts as C  # noqa: E402
+from neurotouch_hid.pipeline import pipeline as P  # noqa: E402
 from neurotouch_hid.pipeline.contacts_bump import bump_fit  # noqa: E402
 from neurotouch_hid.pipeline.contacts_plateau import (  # noqa: E402
     FOOTPRINTS_PER_FINGER,
@@ -178,6 +183,18 @@ VARIANTS = {
 ORIGINAL_PLATEAUS = C.plateau_contacts
 
 
+def _area_plateaus(table, current_px, magnitudes, peaks, fraction, pitch_px, finger_radius_px):
+    """The product's ``plateau_contacts`` of one window without its press: a round flat top read
+    by its area (``long_before`` True); (kept, fingers, points)."""
+    return ORIGINAL_PLATEAUS(table, current_px, magnitudes, peaks, fraction, pitch_px, finger_radius_px, True)[:3]
+
+
+def _one_window(variant):
+    """``variant``, a rule of one window's flat tops returning (kept, fingers, points), called as
+    ``plateau_contacts`` is: the press's history ignored, no long flat top reported."""
+    return lambda *args: (*variant(*args[:7]), False)
+
+
 def _product_top(magnitude: float, strongest: bool) -> float:
     """How high a marker the product's flat top of a maximum of ``magnitude`` holds: any height for
     the strongest maximum, no higher than the maximum for the others."""
@@ -242,9 +259,8 @@ def _round_flat_tops(least, most=MAX_FINGERS):
     elongation L / W is below ``least`` is one finger (the caller places its contact)."""
 
     def variant(table, current_px, magnitudes, peaks, fraction, pitch_px, finger_radius_px):
-        kept, fingers, points = ORIGINAL_PLATEAUS(
-            table, current_px, magnitudes, peaks, fraction, pitch_px, finger_radius_px
-        )
+        args = (table, current_px, magnitudes, peaks, fraction, pitch_px, finger_radius_px)
+        kept, fingers, points = _area_plateaus(*args)
         groups = np.split(points, np.cumsum(fingers)[:-1]) if len(fingers) else []
         fingers = fingers.copy()
         for k, (_, mask, level) in enumerate(_flat_tops(table, magnitudes, kept, fraction)):
@@ -279,7 +295,7 @@ def _flat_top_heights(bounded: str):
 def _footprint(per_finger):
     """The product's ``plateau_contacts`` with a finger per ``per_finger`` pi r^2 of a flat top."""
     scale = math.sqrt(per_finger / FOOTPRINTS_PER_FINGER)
-    return lambda *args: ORIGINAL_PLATEAUS(*args[:-1], args[-1] * scale)
+    return lambda *args: _area_plateaus(*args[:6], args[6] * scale)
 
 
 #: Variants patched in place of ``contacts.plateau_contacts`` (with the product's maxima).
@@ -296,6 +312,7 @@ PLATEAUS = {
     "plateau_footprint2": _footprint(2.0),
     "plateau_any_height": _flat_top_heights("none"),
     "plateau_below_own_top": _flat_top_heights("all"),
+    "plateau_round_by_area": _area_plateaus,
 }
 
 ORIGINAL_MISSED = C.with_missed_finger
@@ -309,13 +326,55 @@ def _no_missed_finger(rest, v, centres, table, knot, n_knots, r):
 #: Variants patched in place of ``contacts.with_missed_finger`` (with the product's maxima).
 BUMPS = {"no_missed_finger": _no_missed_finger}
 
+ORIGINAL_DETECT = P.detect_contacts
+ORIGINAL_NONE = P.GesturePipeline._none
+
+
+def _round_unless_seen(least):
+    """(detect_contacts, GesturePipeline._none) where ``_round_flat_tops(least, most=2)`` holds
+    unless a window of the press showed two contacts or more before its first flat top of two
+    fingers or more (in place of the product's long flat top). A press ends at a window without a
+    gesture (``_none``). One pipeline at a time (``--jobs 1``)."""
+    round_rule = _round_flat_tops(least, most=2)
+    press = {"seen": 0, "wide": False}
+
+    def plateaus(*args):
+        kept, fingers, points = _area_plateaus(*args[:7])
+        wide = len(fingers) and fingers.max() >= 2
+        if wide and press["seen"] < 2:
+            kept, fingers, points = round_rule(*args[:7])
+        press["wide"] = press["wide"] or wide
+        return kept, fingers, points, False
+
+    def detect(*args, **kwargs):
+        C.plateau_contacts = plateaus
+        try:
+            contacts = C.detect_contacts(*args, **kwargs)
+        finally:
+            C.plateau_contacts = ORIGINAL_PLATEAUS
+        if not press["wide"]:
+            press["seen"] = max(press["seen"], len(contacts.points_px))
+        return contacts
+
+    def none(self, t_us, *, resting, fed=False):
+        press["seen"], press["wide"] = 0, False
+        return ORIGINAL_NONE(self, t_us, resting=resting, fed=fed)
+
+    return detect, none
+
+
+#: Variants patched in place of ``pipeline.detect_contacts`` and ``GesturePipeline._none``: rules
+#: that read the press's earlier windows.
+PRESS = {"plateau_round105_two_unless_seen": _round_unless_seen(1.05)}
+
 app = typer.Typer(add_completion=False)
 
 
 def _use(variant: str) -> None:
-    C.plateau_contacts = PLATEAUS.get(variant, ORIGINAL_PLATEAUS)
+    C.plateau_contacts = _one_window(PLATEAUS[variant]) if variant in PLATEAUS else ORIGINAL_PLATEAUS
     C.with_missed_finger = BUMPS.get(variant, ORIGINAL_MISSED)
-    if variant in PLATEAUS or variant in BUMPS:
+    P.detect_contacts, P.GesturePipeline._none = PRESS.get(variant, (ORIGINAL_DETECT, ORIGINAL_NONE))
+    if variant in PLATEAUS or variant in BUMPS or variant in PRESS:
         C.homography_outliers = ORIGINAL_OUTLIERS
         C._maxima = PRODUCT
     elif variant in RESIDUAL:

@@ -313,6 +313,35 @@ def test_maxima_on_one_stuck_disc_merge_into_its_centre():
     assert np.linalg.norm(new.points_px[0] - (centre + [6.0, 0.0])) < 3.0
 
 
+def flat_top(rest: np.ndarray, radius_px: float, axes=(1.0, 1.0), peak_px: float = 6.0) -> np.ndarray:
+    """Current positions of a flat top of the displacement field at the gel's centre: ``peak_px``
+    along x (5 % less at its rim), ``radius_px`` across, stretched by ``axes`` (x, y), falling off
+    outside as a Gaussian of 10 px."""
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    d = np.hypot((rest[:, 0] - c[0]) / axes[0], (rest[:, 1] - c[1]) / axes[1])
+    fall = np.where(d <= radius_px, 1.0 - 0.05 * d / radius_px, 0.95 * np.exp(-((d - radius_px) ** 2) / 200.0))
+    return rest + fall[:, None] * [peak_px, 0.0]
+
+
+def test_a_round_flat_top_read_as_two_is_one_fingertip_unless_its_press_was_long():
+    # one fingertip pressed deep makes a round flat top of 1.25-2.5 footprints, whose area reads
+    # two fingers; two fingertips pressed deep together make one as round, but their press made
+    # a long one first (docs/method.md, "Contacts")
+    rest = grid()
+    options = dict(r_px=25.0, n_min=12, refine_px=20.0, plateau_fraction=0.8)
+    round_top = flat_top(rest, 26.0)
+    by_area = detect_contacts(rest, round_top, **options)  # a window alone: read by its area
+    deep = detect_contacts(rest, round_top, **options, long_before=False)
+    assert by_area.count == 2 and detect_contacts(rest, round_top, **options, long_before=True).count == 2
+    assert deep.count == 1
+    np.testing.assert_allclose(deep.points_px[0], np.asarray(SENSOR.gel_center_px) + [6.0, 0.0], atol=3.0)
+    assert not by_area.long_flat_top and not deep.long_flat_top
+    side_by_side = detect_contacts(rest, flat_top(rest, 24.0, axes=(1.6, 1.0)), **options, long_before=False)
+    assert side_by_side.long_flat_top and side_by_side.count == 2
+    small = detect_contacts(rest, flat_top(rest, 10.0, axes=(1.6, 1.0)), **options)
+    assert not small.long_flat_top  # long, but less than a footprint
+
+
 def test_a_plateau_rule_leaves_a_finger_peak_and_two_separate_fingers_alone():
     rest = grid()
     centre = np.asarray(SENSOR.gel_center_px, dtype=float) + [3.0, -3.0]

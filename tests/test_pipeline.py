@@ -776,6 +776,29 @@ def test_a_window_where_nothing_moved_min_intensity_skips_the_fits(rest_image):
     assert estimate.gesture is GestureType.PUSH and pipeline._last_fit is not None
 
 
+def test_a_press_remembers_a_long_flat_top_until_it_ends(rest_image):
+    """Two fingertips side by side make a long flat top, then pressed deep a round one that reads
+    as one fingertip alone: the press keeps them two. A window without a gesture ends the press,
+    and the next press's round flat top is one fingertip (docs/method.md, "Contacts")."""
+    pipeline = _WindowByWindow(SENSOR)
+    pipeline.process(Frame(0, rest_image))
+    pipeline.process(Frame(40_000, gel_image((4.0, 0.0), region_px=30)))
+    pipeline.process(events_at(41_000))  # the windows start
+    rest, c = pipeline.rest_px, np.asarray(SENSOR.gel_center_px, dtype=float)
+
+    def flat_top(radius_px: float, long: float = 1.0) -> np.ndarray:
+        d = np.hypot((rest[:, 0] - c[0]) / long, rest[:, 1] - c[1])
+        fall = np.where(d <= radius_px, 1.0 - 0.05 * d / radius_px, 0.95 * np.exp(-((d - radius_px) ** 2) / 200.0))
+        return rest + fall[:, None] * [6.0, 0.0]
+
+    counts = []
+    for t_us, current in enumerate((flat_top(24.0, 1.6), flat_top(26.0), rest + 0.1, flat_top(26.0))):
+        pipeline.tracker.reset(current)
+        (estimate,) = pipeline.process(events_at(51_000 + 10_000 * t_us))
+        counts.append((estimate.gesture is GestureType.NONE, len(estimate.contacts_px)))
+    assert counts == [(False, 2), (False, 2), (True, 0), (False, 1)]
+
+
 def _numba_signatures() -> dict[str, int]:
     """Compiled signatures per numba function of the pipeline's modules."""
     import numba
@@ -809,7 +832,7 @@ def test_compile_kernels_leaves_nothing_to_compile_on_real_gestures(rest_image):
     sides = [np.exp(-np.sum((rest - c - (dx, 0.0)) ** 2, axis=1) / (2 * 10.0**2))[:, None] for dx in (-25.0, 25.0)]
     pipeline.tracker.reset(rest + (sides[0] - sides[1]) * [5.0, 1.0])  # a pinch: the bump fit of its centres
     pipeline.process(events_at(90_000))
-    assert pipeline._last_fit[3].count == 2
+    assert pipeline._last_fit[4].count == 2
     pipeline.process(Frame(100_000, rest_image))  # the resting detector's kernels
     assert _numba_signatures() == compiled
 

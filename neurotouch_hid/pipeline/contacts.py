@@ -52,6 +52,9 @@ class Contacts:
         candidates: (N,) bool, the RANSAC outliers S (False for markers not valid).
         reproj_threshold_px: the dynamic reprojection threshold used (px); 0 when RANSAC did
             not run.
+        long_flat_top: a flat top of the field, at least a fingertip's footprint, is long:
+            fingertips side by side (``contacts_plateau.LONG_ELONGATION``). The pipeline keeps it
+            over the press (:func:`detect_contacts`'s ``long_before``).
     """
 
     indices: np.ndarray
@@ -59,6 +62,7 @@ class Contacts:
     peaks_px: np.ndarray
     candidates: np.ndarray
     reproj_threshold_px: float
+    long_flat_top: bool = False
 
     @property
     def count(self) -> int:
@@ -265,7 +269,9 @@ class Candidates:
     outliers: np.ndarray
     threshold_px: float
 
-    def contacts(self, rows: np.ndarray, points_px: np.ndarray, peaks_px: np.ndarray) -> Contacts:
+    def contacts(
+        self, rows: np.ndarray, points_px: np.ndarray, peaks_px: np.ndarray, long_flat_top: bool = False
+    ) -> Contacts:
         """The :class:`Contacts` of the markers ``rows`` (K,) int64 (into the M) at ``points_px``."""
         candidates = np.zeros(self.n, dtype=bool)
         candidates[self.idx[self.outliers]] = True
@@ -275,6 +281,7 @@ class Candidates:
             peaks_px=peaks_px,
             candidates=candidates,
             reproj_threshold_px=self.threshold_px,
+            long_flat_top=long_flat_top,
         )
 
 
@@ -329,6 +336,7 @@ def detect_contacts(
     bump_span_px: float = 75.0,
     min_move_px: float = 0.6,
     neighbours: np.ndarray | None = None,
+    long_before: bool = True,
 ) -> Contacts:
     """The contact points of one window, the product's method (docs/method.md, "Contacts").
 
@@ -362,6 +370,10 @@ def detect_contacts(
             the homography keeps it (``ContactsConfig.min_move_mm``).
         neighbours: (N, K) int64, :func:`rest_neighbours` of ``rest_px`` with ``pitch_px``
             (computed once per rest reference by the pipeline); None: computed here.
+        long_before: whether an earlier window of the press had a long flat top
+            (:attr:`Contacts.long_flat_top`); False: a round flat top whose area reads two
+            fingers is one fingertip pressed deep. True (the default, a window without its
+            press) keeps the area's reading.
     Returns:
         :class:`Contacts` (``peaks_px``: the maxima before the bump fit). Degenerate inputs give
         no contact (see :func:`outlier_candidates`).
@@ -395,9 +407,17 @@ def detect_contacts(
         c.threshold_px,
         float(min_move_px),
     )
+    long_flat_top = False
     if len(peaks):
-        peaks, fingers, flat = plateau_contacts(
-            table, c.current_px, magnitudes, peaks, float(plateau_fraction), float(pitch_px), float(r_px)
+        peaks, fingers, flat, long_flat_top = plateau_contacts(
+            table,
+            c.current_px,
+            magnitudes,
+            peaks,
+            float(plateau_fraction),
+            float(pitch_px),
+            float(r_px),
+            bool(long_before),
         )
     else:
         fingers, flat = np.zeros(0, dtype=np.int64), np.zeros((0, 2))
@@ -422,4 +442,4 @@ def detect_contacts(
         else:
             centres = bump_fit(c.rest_px, c.v_px, start, float(pitch_px), n_knots)
         points = field_at(c.rest_px, c.v_px, centres)
-    return c.contacts(np.array(rows, dtype=np.int64), points, peaks_px)
+    return c.contacts(np.array(rows, dtype=np.int64), points, peaks_px, bool(long_flat_top))

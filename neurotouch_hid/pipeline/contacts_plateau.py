@@ -26,6 +26,12 @@ ROW_ELONGATION = 3.0
 #: A flat top's area per finger, in fingertip footprints pi r^2: a deep fingertip's flat top is
 #: wider than its footprint (1.1-1.25 footprints per finger where two or three press together).
 FOOTPRINTS_PER_FINGER = 1.25
+#: A flat top less than this many times as long as wide is round: one fingertip pressed deep
+#: (1.01-1.04), or two pressed deep together once their flat tops have merged (1.00-1.07).
+ROUND_ELONGATION = 1.05
+#: A flat top of at least one footprint at least this many times as long as wide is fingertips
+#: side by side (two: 1.5-1.9 before they press deep and round; one fingertip: 1.11 at most).
+LONG_ELONGATION = 1.3
 
 
 def rest_neighbours(rest_px: np.ndarray, pitch_px: float) -> np.ndarray:
@@ -204,12 +210,18 @@ def plateau_contacts(
     fraction: float,
     pitch_px: float,
     finger_radius_px: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    long_before: bool = True,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     """Merge the displacement maxima that lie on one plateau; a wide plateau's contacts (see the
     module docstring, "Flat tops"). Each maximum's plateau (at ``fraction`` of its magnitude)
     stops at the plateaus of the stronger maxima before it and, but for the strongest's, holds no
     marker displaced more than its maximum: such a marker lies on a stronger finger's slope (the
     strongest maximum's own centre can be higher, where the homography explains it).
+
+    A round flat top (less than :data:`ROUND_ELONGATION` times as long as wide) whose area reads
+    two fingers is one fingertip pressed deep unless an earlier window of the press showed a long
+    flat top (``long_before``): two fingertips pressed deep together are as round, but side by
+    side (at least :data:`LONG_ELONGATION` times as long as wide) before.
 
     At most :data:`MAX_FINGERS` contacts come out: when the wide plateaus' fingers and the other
     maxima would make more, each plateau is one contact (placed by the caller) and only the
@@ -227,19 +239,26 @@ def plateau_contacts(
             ``min(3, ceil(A / (f pi r^2)))`` fingers, f = :data:`FOOTPRINTS_PER_FINGER` (the
             paper's gestures have up to 3), and 3 when it is at least :data:`ROW_ELONGATION`
             times as long as wide.
+        long_before: whether an earlier window of the press had a long flat top (the
+            ``long`` this function returned); True where there is no press (a single window)
+            keeps the area's reading of a round flat top.
 
     Returns:
-        (kept, fingers, points): the kept maxima (K' <= K, int64, by decreasing magnitude); for
-        each, 0 (a plateau of at most :data:`PLATEAU_MARKERS` markers: the caller places its
-        contact) or its number of fingers n (int64, K'); and the fingers' contact points, (sum
-        of n, 2) float64 (px, current positions) in the order of ``kept``: the weighted
-        centroids of n equal-weight parts of each wide plateau along its principal axis.
+        (kept, fingers, points, long): the kept maxima (K' <= K, int64, by decreasing
+        magnitude); for each, 0 (a plateau of at most :data:`PLATEAU_MARKERS` markers, or a
+        round one read as one fingertip: the caller places its contact) or its number of fingers
+        n (int64, K'); the fingers' contact points, (sum of n, 2) float64 (px, current positions)
+        in the order of ``kept``: the weighted centroids of n equal-weight parts of each wide
+        plateau along its principal axis; and whether a flat top of at least one footprint
+        pi r^2 is at least :data:`LONG_ELONGATION` times as long as wide (bool).
     """
     covered = np.zeros(len(magnitudes), dtype=np.bool_)
     kept = np.empty(len(peaks), dtype=np.int64)
     fingers = np.zeros(len(peaks), dtype=np.int64)
     points = np.empty((MAX_FINGERS * len(peaks), 2))
     n_kept = n_points = 0
+    footprint = math.pi * finger_radius_px**2
+    long = False
     for p in peaks:
         if covered[p]:
             continue  # on a stronger maximum's plateau: the same flat top
@@ -252,15 +271,22 @@ def plateau_contacts(
         size = np.count_nonzero(mask)
         if size > PLATEAU_MARKERS:
             weights = magnitudes[mask] - level + 1e-9
-            n = max(1, math.ceil(size * pitch_px**2 / (FOOTPRINTS_PER_FINGER * math.pi * finger_radius_px**2)))
-            if _elongation(current_px[mask], weights) >= ROW_ELONGATION:
+            area = size * pitch_px**2
+            n = max(1, math.ceil(area / (FOOTPRINTS_PER_FINGER * footprint)))
+            elongation = _elongation(current_px[mask], weights)
+            long = long or (area >= footprint and elongation >= LONG_ELONGATION)
+            if elongation >= ROW_ELONGATION:
                 n = MAX_FINGERS
+            elif n == 2 and elongation < ROUND_ELONGATION and not long_before:
+                n = 0  # one fingertip pressed deep
             n = min(MAX_FINGERS, n)
-            points[n_points : n_points + n] = _split_along_axis(current_px[mask], weights, n)
+            if n:
+                points[n_points : n_points + n] = _split_along_axis(current_px[mask], weights, n)
             fingers[n_kept] = n
             n_points += n
         n_kept += 1
-    return at_most_three(kept[:n_kept].copy(), fingers[:n_kept].copy(), points[:n_points].copy())
+    kept, fingers, points = at_most_three(kept[:n_kept].copy(), fingers[:n_kept].copy(), points[:n_points].copy())
+    return kept, fingers, points, long
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")

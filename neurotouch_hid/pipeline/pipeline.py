@@ -142,11 +142,14 @@ class GesturePipeline:
         self._previous_frame: Frame | None = None
         #: the current gesture episode's decision (docs/method.md, "Episode vote")
         self._episode = EpisodeVote()
+        #: whether a window of the current press had a long flat top: fingertips side by side
+        #: (docs/method.md, "Contacts"; ends with the press, at a window without a gesture)
+        self._long_press = False
         #: the fingers' load behind the deformation of a gel whose creep sensor.yaml has ("Creep")
         self._creep = CreepFilter(*sensor.creep) if sensor.creep is not None else None
         #: what the fits derive from a rest reference, by name: (that reference, the value)
         self._of_rest_kept: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-        #: the last window's fit: (rest_px, current, valid, contacts, gesture result)
+        #: the last window's fit: (rest_px, current, valid, long press, contacts, gesture result)
         self._last_fit: tuple | None = None
         #: the noise filter in front of the tracker (one per pipeline, its state kept across
         #: batches; it starts afresh by itself when the clock goes back, ``noise.py``)
@@ -264,6 +267,7 @@ class GesturePipeline:
         self._resume_waited = 0
         self._previous_frame = None
         self._episode.reset()
+        self._long_press = False
         if self._creep is not None:
             self._creep.reset()
 
@@ -501,11 +505,12 @@ class GesturePipeline:
         )
 
     def _none(self, t_us: int, *, resting: bool, fed: bool = False) -> GestureEstimate:
-        """A window without a gesture: the vote hears ``none`` and the creep filter (when not
-        ``fed`` already) a gel below the intensity threshold (taken as 0 px)."""
+        """A window without a gesture: the vote hears ``none``, the creep filter (when not
+        ``fed`` already) a gel below the intensity threshold (taken as 0 px), and the press ends."""
         if not fed and self._creep is not None:
             self._creep.update(0.0, t_us)
         self._vote(GestureType.NONE, 0.0, 0, t_us)
+        self._long_press = False
         return GestureEstimate(t_us=t_us, gesture=GestureType.NONE, resting=resting)
 
     def _released(self, intensity_px: float, t_us: int) -> bool:
@@ -523,16 +528,25 @@ class GesturePipeline:
         (the same rest reference, positions and lost markers, bit for bit: about half of the
         moving windows of a simulated session, e.g. a held gesture whose markers made no event)
         the previous window's contacts and gesture are returned as they are, without a new
-        homography (both stages are deterministic functions of these inputs; OpenCV's RANSAC
-        and USAC draw from fixed seeds, so the predictions are byte-identical)."""
+        homography (both stages are deterministic functions of these inputs and of whether the
+        press had a long flat top; OpenCV's RANSAC and USAC draw from fixed seeds, so the
+        predictions are byte-identical)."""
         last = self._last_fit
-        if last is not None and last[0] is rest_px and _unchanged(last[1], current, last[2], valid):
+        long_before = self._long_press
+        if (
+            last is not None
+            and last[0] is rest_px
+            and last[3] == long_before
+            and _unchanged(last[1], current, last[2], valid)
+        ):
             begin = self._clock()
             self._record("contacts", begin)
             self._record("gesture", begin)
-            return last[3], last[4]
-        contacts, result = self._fit(rest_px, current, valid)
-        self._last_fit = (rest_px, current.copy(), valid.copy(), contacts, result)
+            contacts, result = last[4], last[5]
+        else:
+            contacts, result = self._fit(rest_px, current, valid)
+            self._last_fit = (rest_px, current.copy(), valid.copy(), long_before, contacts, result)
+        self._long_press = long_before or contacts.long_flat_top
         return contacts, result
 
     def _fit(self, rest_px: np.ndarray, current: np.ndarray, valid: np.ndarray):
@@ -560,6 +574,7 @@ class GesturePipeline:
             bump_span_px=self.sensor.gel_radius_px,
             min_move_px=c.min_move_px,
             neighbours=self._of_rest("contacts", rest_px, lambda rest: rest_neighbours(rest, c.marker_pitch_px)),
+            long_before=self._long_press,
         )
         if motion is not None:  # the contact points where they are, the gel's motion included
             points = motion.apply(contacts.points_px)
