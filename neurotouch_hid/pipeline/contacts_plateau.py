@@ -30,7 +30,7 @@ FOOTPRINTS_PER_FINGER = 1.25
 #: (1.01-1.04), or two pressed deep together once their flat tops have merged (1.00-1.07).
 ROUND_ELONGATION = 1.05
 #: A flat top of at least one footprint at least this many times as long as wide is fingertips
-#: side by side (two: 1.5-1.9 before they press deep and round; one fingertip: 1.11 at most).
+#: side by side (two: 1.3-3.1 up to 4 mm deep, before they press round; one fingertip: 1.05 at most).
 LONG_ELONGATION = 1.3
 
 
