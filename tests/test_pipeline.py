@@ -815,7 +815,8 @@ def _numba_signatures() -> dict[str, int]:
 
 def test_compile_kernels_leaves_nothing_to_compile_on_real_gestures(rest_image):
     """A run compiles while it starts, not mid-gesture (where it would drop events): after
-    compile_kernels, a push, a wide flat top, a lone mistracked marker and a pinch compile nothing."""
+    compile_kernels, a push, a wide flat top, a lone mistracked marker, a pinch and a three-finger
+    twist compile nothing."""
     pipeline = GesturePipeline(SENSOR)
     pipeline.compile_kernels()
     compiled = _numba_signatures()
@@ -833,6 +834,13 @@ def test_compile_kernels_leaves_nothing_to_compile_on_real_gestures(rest_image):
     pipeline.tracker.reset(rest + (sides[0] - sides[1]) * [5.0, 1.0])  # a pinch: the bump fit of its centres
     pipeline.process(events_at(90_000))
     assert pipeline._last_fit[4].count == 2
+    twist = rest.copy()
+    for angle in np.radians([30.0, 150.0, 270.0]):  # three fingers: the fit of their centres
+        finger = np.exp(-np.sum((rest - c - 40.0 * np.array([np.cos(angle), np.sin(angle)])) ** 2, axis=1) / 242.0)
+        twist += finger[:, None] * 4.0 * np.array([-np.sin(angle), np.cos(angle)])
+    pipeline.tracker.reset(twist)
+    pipeline.process(events_at(95_000))
+    assert pipeline._last_fit[4].count == 3
     pipeline.process(Frame(100_000, rest_image))  # the resting detector's kernels
     assert _numba_signatures() == compiled
 

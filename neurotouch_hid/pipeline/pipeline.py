@@ -217,10 +217,10 @@ class GesturePipeline:
 
     def compile_kernels(self) -> None:
         """Compile the pipeline's numba code (noise filter, tracker, gel motion, contacts, gesture) now, on a synthetic
-        marker grid with a finger-like bump of displacement, a flat top and a pinch, instead of on the first real
-        events: on a fresh install that takes seconds, which a real-time run would spend dropping data.
-        Later runs load the code from numba's cache. Leaves the pipeline as it was."""
-        rest, moved, flat, pinch, events = synthetic_windows(self.sensor)
+        marker grid with a finger-like bump of displacement, a flat top, a pinch and a three-finger twist, instead of
+        on the first real events: on a fresh install that takes seconds, which a real-time run would spend dropping
+        data. Later runs load the code from numba's cache. Leaves the pipeline as it was."""
+        rest, moved, flat, pinch, three, events = synthetic_windows(self.sensor)
         tracker = BlobTracker(rest, self.sensor.width, self.sensor.height, self.settings.tracker, sensor=self.sensor)
         # numba compiles one version per array layout: a one-event batch's fields count as
         # contiguous, a longer batch's are strided views of the structured array; both occur
@@ -241,6 +241,7 @@ class GesturePipeline:
             self._fit(rest, moved, all_valid)
             self._fit(rest, flat, all_valid)
             self._fit(rest, pinch, all_valid)
+            self._fit(rest, three, all_valid)  # three contacts: their centres' fit, called from Python
         finally:
             self.timings = timings
 
