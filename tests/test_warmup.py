@@ -83,6 +83,17 @@ def test_a_group_is_cold_until_its_child_compiled_it_into_the_cache(tmp_path):
     assert subprocess.run(check, env=_env(tmp_path), capture_output=True, text=True).stdout.strip() == "False"
 
 
+def test_the_paper_pipeline_s_child_leaves_no_kernel_of_its_group_cold(tmp_path):
+    # its group is every kernel of the pipeline's package, the product's too: compiled alone, the
+    # paper's method left them cold, and every later ``run --method paper`` compiled again
+    check = [sys.executable, "-c", "from neurotouch_hid import warmup as w; print(w.is_cold(w.PAPER_PIPELINE))"]
+    child = subprocess.run(
+        warmup.child_command(warmup.PAPER_PIPELINE), env=_env(tmp_path), capture_output=True, text=True
+    )
+    assert child.returncode == 0, child.stderr
+    assert subprocess.run(check, env=_env(tmp_path), capture_output=True, text=True).stdout.strip() == "False"
+
+
 def test_the_child_compiles_the_installed_package_not_a_checkout_in_the_working_directory(tmp_path):
     # the README's first command runs from the source checkout: a child started with ``-m`` alone
     # imported the checkout's neurotouch_hid (here a copy that fails at import), not the run's
