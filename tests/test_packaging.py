@@ -10,6 +10,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from kernel.vm import apt_get
 
 from neurotouch_hid.output.gamepad import PHYS
 from neurotouch_hid.udev import UINPUT_RULE
@@ -28,7 +29,7 @@ def _rule_lines(text: str) -> list[str]:
 def systemd_analyze() -> str:
     found = shutil.which("systemd-analyze")
     if found is None and os.geteuid() == 0 and shutil.which("apt-get"):
-        subprocess.run(["apt-get", "install", "-y", "--no-install-recommends", "systemd"], capture_output=True)
+        apt_get(["install", "-y", "--no-install-recommends", "systemd"])
         found = shutil.which("systemd-analyze")
     if found is None:
         pytest.skip(reason="systemd-analyze not found and systemd cannot be apt-installed here")

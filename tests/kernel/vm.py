@@ -93,6 +93,27 @@ def _run(cmd: list[str], **kw) -> subprocess.CompletedProcess:
     return subprocess.run(cmd, capture_output=True, text=True, **kw)
 
 
+#: How long an apt-get call waits for a lock another apt holds (s): on a freshly booted machine
+#: unattended-upgrades or a first ``apt-get update`` can hold the dpkg or the lists lock for minutes.
+APT_LOCK_WAIT_S = 600.0
+#: apt-get's words when another process holds one of its locks (dpkg's, the lists', the archives').
+APT_LOCKED = "Could not get lock"
+
+
+def apt_get(args: list[str], wait_s: float = APT_LOCK_WAIT_S, **kw) -> subprocess.CompletedProcess:
+    """``apt-get ARGS``, tried again every 2 s for up to ``wait_s`` while another process holds a
+    lock apt-get needs (it fails at once with :data:`APT_LOCKED` otherwise, exit code 100).
+
+    Returns the last try's completed process (text output captured); ``kw`` go to
+    ``subprocess.run``."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        done = _run(["apt-get", *args], **kw)
+        if done.returncode == 0 or APT_LOCKED not in done.stderr or time.monotonic() >= deadline:
+            return done
+        time.sleep(2.0)
+
+
 def _which(cmd: str) -> str | None:
     return shutil.which(cmd) or shutil.which(cmd, path="/usr/sbin:/sbin:/usr/bin:/bin")
 
@@ -102,7 +123,7 @@ def ensure_host_packages() -> None:
     libaio1 when the library is (functionfs, which davis_gadget.py uses, loads it).
 
     Raises KernelUnavailable when they are missing and cannot be installed (not root, no apt,
-    apt fails)."""
+    apt fails, or another apt held its lock for :data:`APT_LOCK_WAIT_S`)."""
     missing = sorted({pkg for cmd, pkg in HOST_COMMANDS.items() if _which(cmd) is None})
     if ctypes.util.find_library("aio") is None:  # functionfs (davis_gadget.py) loads libaio
         missing.append("libaio1")
@@ -113,10 +134,9 @@ def ensure_host_packages() -> None:
             f"{', '.join(missing)} not installed and cannot be apt-installed here (needs root and apt-get)"
         )
     env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
-    update = _run(["apt-get", "update"], env=env)
-    install = _run(
+    update = apt_get(["update"], env=env)
+    install = apt_get(
         [
-            "apt-get",
             "install",
             "-y",
             "--no-install-recommends",
@@ -143,7 +163,7 @@ def _kernel_package_name() -> str:
             ):
                 return word
         if attempt == 0:
-            _run(["apt-get", "update"])
+            apt_get(["update"])
     raise KernelUnavailable(
         "apt-cache cannot name Debian's generic kernel package "
         "(linux-image-amd64 has no linux-image-*-amd64 dependency)"
@@ -173,7 +193,7 @@ def ensure_kernel() -> tuple[Path, str]:
         kver = pkg.removeprefix("linux-image-")
         kdir = root / pkg
         with tempfile.TemporaryDirectory(dir=root) as tmp:
-            dl = _run(["apt-get", "download", pkg], cwd=tmp)
+            dl = apt_get(["download", pkg], cwd=tmp)
             debs = list(Path(tmp).glob(f"{pkg}_*.deb"))
             if dl.returncode != 0 or not debs:
                 raise RuntimeError(f"apt-get download {pkg} failed: {dl.stderr.strip()[-500:]}")
