@@ -257,7 +257,7 @@ def count_by_gesture(result: dict) -> dict[str, Optional[float]]:
     return {g.value: v for g, v in zip(GESTURE_ORDER, values) if g is not GestureType.NONE}
 
 
-#: The per-gesture columns: key, label, target (docs/accuracy.md), higher is better.
+#: The per-gesture columns: key, label, target (docs/accuracy.md; None: none set), higher is better.
 FELT = (
     ("onset_median_ms", "onset median ms", 40.0, False),
     ("onset_p90_ms", "onset p90 ms", 100.0, False),
@@ -266,6 +266,9 @@ FELT = (
     ("felt_type_changes_per_gesture", "felt type changes / gesture", 0.15, False),
     ("felt_wrong_share", "felt wrong %", 0.10, False),
     ("false_activations", "false activations", 0, False),
+    ("deadzone_latency_median_ms", "dead-zone latency median ms", None, False),
+    ("deadzone_latency_p90_ms", "dead-zone latency p90 ms", None, False),
+    ("missed_above_deadzone", "missed above the dead zone", 0, False),
 )
 
 
@@ -279,6 +282,8 @@ def fmt_felt(key: str, row: dict) -> str:
         return f"{value} of {row.get('n_gestures')}"
     if key == "false_activations":
         return f"{value} of {row.get('n_rest')}"
+    if key == "missed_above_deadzone":
+        return f"{value} of {row.get('reached_deadzone')}"
     return f"{value:.0f}" if key.endswith("_ms") else f"{value:.2f}"
 
 
@@ -298,14 +303,16 @@ def report(cache: dict, families: list[str], methods: list[str]) -> list[str]:
                 mark = "" if meets(row[key], paper, higher) else " *"
                 cells.append(fmt(key, row[key], scale) + mark)
             for key, _, target, higher in FELT:
-                mark = "" if row.get(key) is None or meets(row[key], target, higher) else " *"
+                mark = "" if row.get(key) is None or target is None or meets(row[key], target, higher) else " *"
                 cells.append(fmt_felt(key, row) + mark)
             lines.append(f"| {fam} | {meth} | " + " | ".join(cells) + " |")
     blank = " |" * len(FELT)
     lines.append(
         "| paper (its own data) | | " + " | ".join(fmt(k, p, s) for k, _, p, _, _, s in METRICS) + " |" + blank
     )
-    targets = " | ".join(f"{t:g}" if k != "felt_wrong_share" else f"{100 * t:g} %" for k, _, t, _ in FELT)
+    targets = " | ".join(
+        "-" if t is None else f"{100 * t:g} %" if k == "felt_wrong_share" else f"{t:g}" for k, _, t, _ in FELT
+    )
     lines.append(
         "| target (mix) | | " + " | ".join(fmt(k, t, s) for k, _, _, t, _, s in METRICS) + " | " + targets + " |"
     )

@@ -48,3 +48,29 @@ def test_count_by_gesture_reads_the_evaluation_result_without_none(family_eval):
         "twist_cw": 0.95,
         "twist_ccw": 0.97,
     }
+
+
+def test_the_report_gives_the_dead_zone_latency_without_a_target_and_marks_a_missed_gesture(family_eval):
+    felt = {
+        "onset_median_ms": 40.0,
+        "onset_p90_ms": 120.0,
+        "n_gestures": 9,
+        "never_recognised": 0,
+        "type_changes_per_gesture": 0.1,
+        "felt_type_changes_per_gesture": 0.0,
+        "felt_wrong_share": 0.0,
+        "false_activations": 0,
+        "n_rest": 58,
+        "reached_deadzone": 8,
+        "deadzone_latency_median_ms": 11.4,
+        "deadzone_latency_p90_ms": 17.5,
+        "missed_above_deadzone": 1,
+    }
+    lines = family_eval.report({"default/ours": {**row(), **felt}}, ["default"], ["ours"])
+    head, cells = ([c.strip() for c in line.strip("|").split("|")] for line in (lines[0], lines[2]))
+    assert cells[head.index("onset p90 ms")] == "120 *"  # the onset's target is 100 ms
+    assert cells[head.index("dead-zone latency median ms")] == "11"  # no target: never marked
+    assert cells[head.index("dead-zone latency p90 ms")] == "18"
+    assert cells[head.index("missed above the dead zone")] == "1 of 8 *"
+    targets = [c.strip() for c in next(line for line in lines if line.startswith("| target")).strip("|").split("|")]
+    assert targets[head.index("dead-zone latency p90 ms")] == "-"

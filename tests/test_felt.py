@@ -114,6 +114,43 @@ def test_the_dead_zone_is_inclusive_and_moves_the_felt_figures():
     assert list(zero.felt_changes) == [2, 2, 0] and list(zero.wrong_as) == [2, 4, -1]
 
 
+def test_dead_zone_latency_by_hand():
+    # the fixture's gestures are labelled 1.0 mm from their first frame: each reaches a 0.8 mm
+    # dead zone at t0. push: first push >= 0.8 mm at 140 ms -> 140 - 80 = 60 ms; pinch: no pinch,
+    # missed; zoom: zoom 1.5 mm at 1040 ms -> 40 ms
+    rec = gesture_records(labels(), predictions(), deadzone_mm=0.8)
+    assert list(rec.reaches_deadzone) == [True, True, True]
+    assert rec.deadzone_latency_ms[0] == 60.0 and math.isnan(rec.deadzone_latency_ms[1])
+    assert rec.deadzone_latency_ms[2] == 40.0
+    s = summarise(rec)
+    assert (s.reached_deadzone, s.missed_above_deadzone) == (3, 1)
+    assert s.deadzone_latency_median_ms == 50.0  # median of 60 and 40
+    assert s.deadzone_latency_p90_ms == pytest.approx(58.0)  # 40 + 0.9 * (60 - 40)
+    # above every labelled intensity, no gesture reaches the dead zone
+    none = summarise(gesture_records(labels(), predictions(), deadzone_mm=1.5))
+    assert (none.reached_deadzone, none.missed_above_deadzone) == (0, 0)
+    assert math.isnan(none.deadzone_latency_median_ms)
+
+
+def test_dead_zone_latency_is_counted_from_where_the_labelled_intensity_crosses_it():
+    def row(ms, gesture, mm):
+        return LabelRow(ms * 1000, gesture, gesture is G.NONE, mm, NO_POINTS)
+
+    rows = [row(0, G.NONE, 0.0), row(40, G.PUSH, 0.2), row(80, G.PUSH, 0.6), row(120, G.PUSH, 1.0)]
+    rows += [row(160, G.PUSH, 1.4), row(200, G.NONE, 0.0)]
+    rows += [row(240, G.PINCH, 0.3), row(280, G.PINCH, 0.7), row(320, G.NONE, 0.0)]
+    # push: 0.8 mm lies halfway between 0.6 mm at 80 ms and 1.0 mm at 120 ms: crossed at 100 ms;
+    # its first push at or above 0.8 mm comes at 110 ms (the pinch at 105 ms is another type)
+    # pinch: its labels never reach 0.8 mm, so its 0.9 mm answer is no dead-zone latency
+    late = [pred(90, G.PUSH, 0.7), pred(105, G.PINCH, 0.9), pred(110, G.PUSH, 0.9), pred(260, G.PINCH, 0.9)]
+    rec = gesture_records(rows, late, deadzone_mm=0.8)
+    assert list(rec.reaches_deadzone) == [True, False]
+    assert rec.deadzone_latency_ms[0] == pytest.approx(10.0) and math.isnan(rec.deadzone_latency_ms[1])
+    # an answer at or above the dead zone before the gel gets there counts as negative latency
+    early = gesture_records(rows, [pred(95, G.PUSH, 0.85)], deadzone_mm=0.8)
+    assert early.deadzone_latency_ms[0] == pytest.approx(-5.0)
+
+
 def test_a_negative_dead_zone_is_refused():
     with pytest.raises(ValueError, match="dead zone"):
         gesture_records(labels(), predictions(), deadzone_mm=-0.1)
@@ -137,6 +174,9 @@ def test_eval_reports_them_beside_the_papers_metrics():
     assert rows["Never recognised"] == "1 of 3"
     assert rows["Gestures felt wrong (another type >= 0.8 mm)"] == "66.67 %"
     assert rows["False activations at rest (> 300 ms from a gesture)"] == "1 of 2 windows"
+    assert rows["Dead-zone latency, median / p90 (the gel past 0.8 mm to the answer past it)"] == "50 ms / 58 ms"
+    assert rows["Missed above 0.8 mm (no answer of the type past it)"] == "1 of 3"
+    assert result.to_dict()["felt"]["missed_above_deadzone"] == 1
 
 
 def test_eval_refuses_a_negative_dead_zone_before_running_anything(tmp_path):

@@ -8,7 +8,12 @@ frames with the same type other than ``none``, from its first labelled frame ``t
 - never recognised: none of its predictions has the labelled type;
 - type changes: in its predictions other than ``none``, in time order, the neighbours whose types
   differ; felt type changes: the same over those whose ``intensity_mm`` is at least the dead zone;
-- felt wrong: one of its predictions has another type (not ``none``) at or above the dead zone.
+- felt wrong: one of its predictions has another type (not ``none``) at or above the dead zone;
+- dead-zone latency: when the labelled intensity reaches the dead zone (linear between the two
+  labelled frames around it), the first of its predictions with the labelled type at or above
+  the dead zone, minus that instant (ms; negative when the answer comes first): how late the
+  output passes the dead zone after the gel has. Only for gestures whose labelled intensity
+  reaches the dead zone; one with no such prediction is missed above the dead zone.
 
 False activations: predictions other than ``none`` more than :data:`REST_MARGIN_US` from every
 labelled frame of a gesture (counted over such predictions, the windows "at rest").
@@ -50,6 +55,9 @@ class FeltRecords:
         changes, felt_changes: int64 type changes, all and at or above the dead zone.
         felt_wrong: bool, another type at or above the dead zone.
         wrong_as: int64 the first such other type (index into ``GESTURE_ORDER``), -1 if none.
+        reaches_deadzone: bool, the labelled intensity reaches the dead zone.
+        deadzone_latency_ms: float64 dead-zone latency (ms), NaN when the labelled intensity
+            does not reach the dead zone or no prediction of the type does.
         n_rest: predictions at rest (more than REST_MARGIN_US from every gesture frame).
         false_activations: those of them other than ``none``.
         deadzone_mm: the dead zone the felt figures used (mm).
@@ -62,11 +70,23 @@ class FeltRecords:
     felt_changes: np.ndarray
     felt_wrong: np.ndarray
     wrong_as: np.ndarray
+    reaches_deadzone: np.ndarray
+    deadzone_latency_ms: np.ndarray
     n_rest: int = 0
     false_activations: int = 0
     deadzone_mm: float = DEFAULT_DEADZONE_MM
 
-    _ARRAYS = ("gesture", "duration_ms", "onset_ms", "changes", "felt_changes", "felt_wrong", "wrong_as")
+    _ARRAYS = (
+        "gesture",
+        "duration_ms",
+        "onset_ms",
+        "changes",
+        "felt_changes",
+        "felt_wrong",
+        "wrong_as",
+        "reaches_deadzone",
+        "deadzone_latency_ms",
+    )
 
     def __len__(self) -> int:
         return int(len(self.gesture))
@@ -106,6 +126,26 @@ def _changes(types: list[GestureType]) -> int:
     return sum(1 for a, b in zip(types, types[1:]) if a is not b)
 
 
+def deadzone_crossing(t_us: np.ndarray, intensity_mm: np.ndarray, deadzone_mm: float) -> float | None:
+    """When a gesture's labelled intensity first reaches ``deadzone_mm`` (us, float), linear
+    between the labelled frame before and the first at or above it; the first frame's time when it
+    is already there; None when no frame reaches it.
+
+    Args:
+        t_us: (F,) int64 the gesture's labelled frames' times (us), increasing.
+        intensity_mm: (F,) float64 their labelled intensity (mm).
+        deadzone_mm: the dead zone (mm).
+    """
+    above = np.flatnonzero(intensity_mm >= deadzone_mm)
+    if len(above) == 0:
+        return None
+    k = int(above[0])
+    if k == 0:
+        return float(t_us[0])
+    i0, i1 = float(intensity_mm[k - 1]), float(intensity_mm[k])
+    return float(t_us[k - 1]) + (deadzone_mm - i0) / (i1 - i0) * float(t_us[k] - t_us[k - 1])
+
+
 def gesture_records(
     labels: Sequence[LabelRow], predictions: Sequence[GestureEstimate], deadzone_mm: float = DEFAULT_DEADZONE_MM
 ) -> FeltRecords:
@@ -131,8 +171,12 @@ def gesture_records(
         felt_changes=np.zeros(g, np.int64),
         felt_wrong=np.zeros(g, bool),
         wrong_as=np.full(g, -1, np.int64),
+        reaches_deadzone=np.zeros(g, bool),
+        deadzone_latency_ms=np.full(g, np.nan),
         deadzone_mm=float(deadzone_mm),
     )
+    t_lab = np.array([r.t_us for r in labels], dtype=np.int64)
+    i_lab = np.array([r.intensity_mm for r in labels], dtype=np.float64)
     for k, (kind, t0, t1) in enumerate(spans):
         lo, hi = np.searchsorted(t_pred, t0, "left"), np.searchsorted(t_pred, t1 + FRAME_PERIOD_US, "left")
         inside = predictions[lo:hi]
@@ -148,6 +192,13 @@ def gesture_records(
         wrong = next((p for p in felt if p.gesture is not kind), None)
         if wrong is not None:
             rec.felt_wrong[k], rec.wrong_as[k] = True, _INDEX[wrong.gesture]
+        f0, f1 = np.searchsorted(t_lab, t0, "left"), np.searchsorted(t_lab, t1, "right")
+        crossing = deadzone_crossing(t_lab[f0:f1], i_lab[f0:f1], deadzone_mm)
+        if crossing is not None:
+            rec.reaches_deadzone[k] = True
+            out = next((p for p in felt if p.gesture is kind), None)
+            if out is not None:
+                rec.deadzone_latency_ms[k] = (out.t_us - crossing) / 1000.0
     frames = np.array([r.t_us for r in labels if r.gesture is not GestureType.NONE], dtype=np.int64)
     if len(frames):
         at = np.searchsorted(frames, t_pred)  # frames[at - 1] < t <= frames[at]
@@ -175,6 +226,10 @@ class FeltSummary:
             above the dead zone.
         felt_wrong_share: share of gestures felt wrong (0..1).
         false_activations, n_rest: predictions other than ``none`` at rest, and predictions at rest.
+        reached_deadzone: gestures whose labelled intensity reaches the dead zone.
+        deadzone_latency_median_ms, deadzone_latency_p90_ms: dead-zone latency over those with an
+            answer of their type at or above it (ms); NaN when there is none.
+        missed_above_deadzone: gestures that reach the dead zone without such an answer.
     """
 
     deadzone_mm: float
@@ -187,6 +242,10 @@ class FeltSummary:
     felt_wrong_share: float
     false_activations: int
     n_rest: int
+    reached_deadzone: int
+    deadzone_latency_median_ms: float
+    deadzone_latency_p90_ms: float
+    missed_above_deadzone: int
 
     def to_dict(self) -> dict:
         """JSON-able values (NaN -> None)."""
@@ -196,6 +255,7 @@ class FeltSummary:
 def summarise(rec: FeltRecords) -> FeltSummary:
     """The figures of :class:`FeltSummary` from records."""
     onsets = rec.onset_ms[~np.isnan(rec.onset_ms)]
+    latencies = rec.deadzone_latency_ms[~np.isnan(rec.deadzone_latency_ms)]
     n = len(rec)
     return FeltSummary(
         deadzone_mm=rec.deadzone_mm,
@@ -208,4 +268,8 @@ def summarise(rec: FeltRecords) -> FeltSummary:
         felt_wrong_share=float(rec.felt_wrong.mean()) if n else math.nan,
         false_activations=rec.false_activations,
         n_rest=rec.n_rest,
+        reached_deadzone=int(rec.reaches_deadzone.sum()),
+        deadzone_latency_median_ms=float(np.median(latencies)) if len(latencies) else math.nan,
+        deadzone_latency_p90_ms=float(np.percentile(latencies, 90)) if len(latencies) else math.nan,
+        missed_above_deadzone=int(rec.reaches_deadzone.sum() - len(latencies)),
     )
