@@ -20,7 +20,11 @@ Per family, and over all of them, it prints:
   and the share of answered windows with fewer contacts than labelled;
 * the onset against the gel's own motion: the label's intensity at the first window of the
   right type, and how long after the label reached 0.1 mm (the gel has moved) and the dead zone
-  it came.
+  it came;
+* the gestures whose dead-zone latency (docs/dataset.md) exceeds 40 ms, by labelled type, and
+  how many of them waited out the episode vote's undecided lone contact (a window answered
+  ``none`` with one contact at or above its provisional limit between the label passing the
+  dead zone and the answer; docs/method.md, "Episode vote").
 """
 
 from __future__ import annotations
@@ -33,7 +37,14 @@ import typer
 
 from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions
 from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM, FRAME_PERIOD_US, gesture_spans
+from neurotouch_hid.evaluation.felt import (
+    DEFAULT_DEADZONE_MM,
+    FRAME_PERIOD_US,
+    deadzone_crossing,
+    gesture_records,
+    gesture_spans,
+)
+from neurotouch_hid.pipeline.episode import PROVISIONAL_MM
 
 app = typer.Typer(add_completion=False)
 #: A gesture this short or shorter (first to last labelled frame, ms) counts as a tap.
@@ -42,6 +53,8 @@ TAP_MS = 500.0
 MOVED_MM = 0.1
 #: The hold: label intensity at least this share of the gesture's labelled peak.
 HOLD_SHARE = 0.8
+#: A dead-zone latency above this (ms) is listed with its cause.
+SLOW_MS = 40.0
 
 
 class Tally:
@@ -56,9 +69,10 @@ class Tally:
         self.one_contact = 0
         self.fewer = [0, 0]  # answered windows of multi-finger gestures with fewer contacts, all
         self.onsets: list[tuple[float, float, float, float]] = []  # ms; label mm at onset; ms past 0.1 mm, dz
+        self.slow = Counter()  # (label type, waited as an undecided lone contact) -> gestures past SLOW_MS
 
     def add(self, other: "Tally") -> None:
-        for name in ("gestures", "wrong", "pairs", "phases"):
+        for name in ("gestures", "wrong", "pairs", "phases", "slow"):
             getattr(self, name).update(getattr(other, name))
         self.onset_push += other.onset_push
         self.one_contact += other.one_contact
@@ -70,7 +84,8 @@ def tally_sequence(labels, predictions, deadzone_mm: float) -> Tally:
     t = Tally()
     t_pred = np.array([p.t_us for p in predictions], dtype=np.int64)
     label_times = np.array([r.t_us for r in labels], dtype=np.int64)
-    for kind, t0, t1 in gesture_spans(labels):
+    latencies = gesture_records(labels, predictions, deadzone_mm).deadzone_latency_ms
+    for k, (kind, t0, t1) in enumerate(gesture_spans(labels)):
         rows = [r for r in labels if t0 <= r.t_us <= t1]
         n_true = max(r.n_contacts for r in rows)
         peak = max(r.intensity_mm for r in rows)
@@ -88,6 +103,17 @@ def tally_sequence(labels, predictions, deadzone_mm: float) -> Tally:
             moved = next((r.t_us for r in rows if r.intensity_mm >= MOVED_MM), t1)
             felt_t = next((r.t_us for r in rows if r.intensity_mm >= deadzone_mm), t1)
             t.onsets.append(((onset - t0) / 1e3, at.intensity_mm, (onset - moved) / 1e3, (onset - felt_t) / 1e3))
+        if latencies[k] > SLOW_MS:
+            crossing = deadzone_crossing(
+                np.array([r.t_us for r in rows]), np.array([r.intensity_mm for r in rows]), deadzone_mm
+            )
+            answer = crossing + latencies[k] * 1e3
+            waited = any(
+                p.gesture is GestureType.NONE and p.n_contacts == 1 and p.intensity_mm >= PROVISIONAL_MM
+                for p in inside
+                if crossing <= p.t_us < answer
+            )
+            t.slow[(kind.value, waited)] += 1
         t.gestures[(multi, tap)] += 1
         t.wrong[(multi, tap)] += bool(wrong)
         for p, r in wrong:
@@ -142,6 +168,15 @@ def lines_for(name: str, t: Tally) -> list[str]:
             f"{np.median(mm):.2f} / {np.percentile(mm, 90):.2f} mm; {mp(after_moved, 'ms')} after the label "
             f"reaches {MOVED_MM} mm; {mp(after_felt, 'ms')} after it reaches the dead zone (negative: before)"
         )
+    slow = sum(t.slow.values())
+    out.append(
+        f"- dead-zone latency above {SLOW_MS:.0f} ms: {slow} gestures"
+        + "".join(
+            f"; {kind} {sum(v for (k, _), v in t.slow.items() if k == kind)} (of them waiting as an undecided "
+            f"lone contact {t.slow[(kind, True)]})"
+            for kind in sorted({k for k, _ in t.slow})
+        )
+    )
     out.append("")
     return out
 
