@@ -1,0 +1,52 @@
+"""benchmarks/felt_errors.py on hand-made labels and predictions: the gestures whose dead-zone
+latency is long, and whether the episode vote's wait for a lone contact made them so."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from neurotouch_hid.dataset import LabelRow
+from neurotouch_hid.estimate import GestureEstimate, GestureType
+
+SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "felt_errors.py"
+G = GestureType
+ONE = np.zeros((1, 2))
+
+
+@pytest.fixture(scope="module")
+def felt_errors():
+    spec = importlib.util.spec_from_file_location("felt_errors", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def row(ms: int, gesture: GestureType, mm: float) -> LabelRow:
+    return LabelRow(ms * 1000, gesture, gesture is G.NONE, mm, ONE if mm else np.zeros((0, 2)))
+
+
+def pred(ms: int, gesture: GestureType, mm: float, contacts: int = 1) -> GestureEstimate:
+    return GestureEstimate(ms * 1000, gesture, False, mm, np.zeros((contacts, 2)))
+
+
+def test_a_push_held_undecided_past_the_dead_zone_is_listed_as_waiting(felt_errors):
+    # push labelled 1.0 mm from 40 ms: it reaches 0.8 mm at 40 ms. Answered none with one contact
+    # at 0.9-1.5 mm (undecided) until push 2.0 mm at 100 ms: dead-zone latency 60 ms, waiting.
+    # pinch labelled 1.0 mm from 240 ms, answered pinch 1.2 mm at 300 ms (60 ms) with none at
+    # 0.2 mm before (below the provisional limit): long, but not the wait.
+    labels = [row(0, G.NONE, 0.0), row(40, G.PUSH, 1.0), row(80, G.PUSH, 1.0), row(120, G.PUSH, 1.0)]
+    labels += [row(160, G.NONE, 0.0), row(200, G.NONE, 0.0), row(240, G.PINCH, 1.0), row(280, G.PINCH, 1.0)]
+    labels += [row(320, G.PINCH, 1.0), row(360, G.NONE, 0.0)]
+    preds = [pred(50, G.NONE, 0.9), pred(70, G.NONE, 1.5), pred(100, G.PUSH, 2.0)]
+    preds += [pred(250, G.NONE, 0.2, 2), pred(300, G.PINCH, 1.2, 2)]
+    tally = felt_errors.tally_sequence(labels, preds, 0.8)
+    assert dict(tally.slow) == {("push", True): 1, ("pinch", False): 1}
+    line = next(x for x in felt_errors.lines_for("hand", tally) if "dead-zone latency" in x)
+    assert line == (
+        "- dead-zone latency above 40 ms: 2 gestures; pinch 1 (of them waiting as an undecided lone contact 0); "
+        "push 1 (of them waiting as an undecided lone contact 1)"
+    )
