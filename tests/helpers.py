@@ -5,16 +5,21 @@ recording) are in tests/conftest.py."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import subprocess
 import sys
 import time
+import types
 from pathlib import Path
 
 #: The real DAVIS-346 street recording (the shared dataset beside the repository, docs/dataset.md);
 #: tests read it through the ``street_recording`` fixture (tests/conftest.py), which skips without it.
 STREET = Path(__file__).resolve().parents[2] / "shared" / "data" / "davis346-street" / "recording.aedat4"
+
+#: The repository's benchmark scripts (not a package: tests load them with :func:`load_benchmark`).
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 
 #: ``neurotouch-hid`` as a command: this interpreter, this tree's package.
 CLI = (sys.executable, "-m", "neurotouch_hid.cli")
@@ -79,3 +84,15 @@ def wait_until(condition, timeout_s: float = 60.0) -> bool:
 def read_states(text: str) -> list[dict]:
     """The controller states of ``run --output jsonl`` (one JSON object a line)."""
     return [json.loads(line) for line in text.splitlines() if line.strip()]
+
+
+def load_benchmark(name: str) -> types.ModuleType:
+    """``benchmarks/NAME.py`` imported as the module ``NAME``, registered in ``sys.modules`` (where
+    a script's dataclasses look their module up); later calls return the same module."""
+    if name in sys.modules:
+        return sys.modules[name]
+    spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module

@@ -3,13 +3,13 @@ on functions that exist, leave them as they were and change no estimate. No spee
 
 from __future__ import annotations
 
-import importlib.util
 import subprocess
 import sys
 from pathlib import Path
 
 import cv2
 import pytest
+from helpers import load_benchmark
 
 from neurotouch_hid.pipeline import contacts, pipeline
 from neurotouch_hid.sensor import SensorGeometry
@@ -19,14 +19,7 @@ SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_stages.py"
 
 @pytest.fixture(scope="module")
 def bench_stages():
-    spec = importlib.util.spec_from_file_location("bench_stages", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["bench_stages"] = module  # its dataclasses look their module up there
-    try:
-        spec.loader.exec_module(module)
-        yield module
-    finally:
-        del sys.modules["bench_stages"]
+    return load_benchmark("bench_stages")
 
 
 @pytest.mark.parametrize("args", [["--idle-ms", "-1"], ["--slowest-percent", "0"], ["--slowest-percent", "100"]])

@@ -5,14 +5,12 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import importlib.util
 import json
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import run_cli
+from helpers import load_benchmark, run_cli
 from typer.testing import CliRunner
 
 from neurotouch_hid.cli import app
@@ -203,11 +201,7 @@ def test_family_eval_calibrates_a_familys_creep_on_its_press(viscoelastic_press,
     """family_eval.py's ``press_creep`` (the press of tuning user 5, seed 1, here the fixture's
     same simulation) writes the measured creep into the family's sensor.yaml, the rest of it
     unchanged."""
-    spec = importlib.util.spec_from_file_location(
-        "family_eval", Path(__file__).resolve().parents[1] / "benchmarks" / "family_eval.py"
-    )
-    family_eval = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(family_eval)
+    family_eval = load_benchmark("family_eval")
     press_dir = tmp_path / "presses" / "viscoelastic"
     shutil.copytree(viscoelastic_press, press_dir)
     sensor_file = tmp_path / "sensor.yaml"

@@ -2,20 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import pytest
-
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "family_eval.py"
+from helpers import load_benchmark
 
 
 @pytest.fixture(scope="module")
 def family_eval():
-    spec = importlib.util.spec_from_file_location("family_eval", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("family_eval")
 
 
 def row(count_by_gesture=None):

@@ -3,26 +3,20 @@ latency is long, and whether the episode vote's wait for a lone contact made the
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
+from helpers import load_benchmark
 
 from neurotouch_hid.dataset import LabelRow
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "felt_errors.py"
 G = GestureType
 ONE = np.zeros((1, 2))
 
 
 @pytest.fixture(scope="module")
 def felt_errors():
-    spec = importlib.util.spec_from_file_location("felt_errors", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("felt_errors")
 
 
 def row(ms: int, gesture: GestureType, mm: float) -> LabelRow:
