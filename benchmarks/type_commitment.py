@@ -11,9 +11,10 @@ with its episode vote taken out (each window's own type), into ``DIR/predictions
 those per-window answers are then replayed through :class:`EpisodeVote` with each undecided time
 and provisional limit (0: an undecided window always answers ``none``; the vote reads only each
 window's type, intensity, contact count and time, so the replay is what the pipeline answers)
-and scored: the per-gesture metrics (docs/dataset.md) and the paper's
-per-window ones, and what the wait costs a push where it is felt (:func:`push_waits_ms`), one
-markdown row per family and candidate, then the mean over the families.
+and scored: the per-gesture metrics (docs/dataset.md, the dead-zone latency among them) and the
+paper's per-window ones, and what the wait costs a push where it is felt
+(:func:`push_waits_ms`), one markdown row per family and candidate, then the mean over the
+families.
 """
 
 from __future__ import annotations
@@ -47,6 +48,8 @@ COLUMNS = (
     ("felt wrong %", "felt_wrong_share", lambda v: f"{100 * v:.1f}"),
     ("push wait median ms", "push_wait_median_ms", lambda v: f"{v:.0f}"),
     ("push wait max ms", "push_wait_max_ms", lambda v: f"{v:.0f}"),
+    ("dead-zone latency median ms", "deadzone_latency_median_ms", lambda v: f"{v:.0f}"),
+    ("dead-zone latency p90 ms", "deadzone_latency_p90_ms", lambda v: f"{v:.0f}"),
 )
 
 
