@@ -5,16 +5,15 @@ from __future__ import annotations
 
 import subprocess
 import sys
-from pathlib import Path
 
 import cv2
 import pytest
-from helpers import load_benchmark
+from helpers import BENCHMARKS, load_benchmark
 
 from neurotouch_hid.pipeline import contacts, pipeline
 from neurotouch_hid.sensor import SensorGeometry
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_stages.py"
+SCRIPT = BENCHMARKS / "bench_stages.py"
 
 
 @pytest.fixture(scope="module")

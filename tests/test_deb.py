@@ -22,7 +22,7 @@ import zipfile
 from pathlib import Path
 
 import pytest
-from kernel.vm import apt_get
+from kernel.vm import installed
 
 REPO = Path(__file__).resolve().parent.parent
 PACKAGING = REPO / "packaging"
@@ -153,14 +153,8 @@ def deb() -> Path:
     """The .deb, built by packaging/build-deb.sh (slow: the venv is built in a Debian 12 root);
     ``NEUROTOUCH_DEB=dist/...deb`` tests one built before instead."""
     assert os.geteuid() == 0, "building and installing the .deb needs root (debootstrap, chroot): run as root"
-    if shutil.which("debootstrap") is None and shutil.which("apt-get"):  # as the kernel tests' qemu
-        apt_get(
-            ["install", "-y", "--no-install-recommends", "debootstrap"],
-            env=dict(os.environ, DEBIAN_FRONTEND="noninteractive"),
-        )
-    assert shutil.which("debootstrap"), (
-        "needs debootstrap, which apt-get could not install: apt-get install debootstrap"
-    )
+    found = installed("debootstrap", "debootstrap")  # apt-installed when missing, as the kernel tests' qemu
+    assert found, "needs debootstrap, which apt-get could not install: apt-get install debootstrap"
     if os.environ.get("NEUROTOUCH_DEB"):
         return Path(os.environ["NEUROTOUCH_DEB"]).resolve()
     out = _sh(str(PACKAGING / "build-deb.sh"), timeout=7200).stdout.strip().splitlines()[-1]

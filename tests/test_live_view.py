@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import os
 import re
-import shutil
 import subprocess
 import sys
 import time
@@ -13,7 +12,7 @@ import uuid
 
 import numpy as np
 import pytest
-from kernel.vm import apt_get
+from kernel.vm import installed
 
 from neurotouch_hid.mapping.profile import load_profile
 from neurotouch_hid.output.live import gel_cells, mapping_lines
@@ -65,13 +64,8 @@ def test_the_profile_says_what_each_gesture_drives():
 
 
 def _tmux() -> str:
-    """tmux, apt-installed when missing (as root, like the kernel tests' qemu, waiting for another apt's lock)."""
-    found = shutil.which("tmux")
-    if found is None and os.geteuid() == 0 and shutil.which("apt-get"):
-        env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
-        apt_get(["update"], env=env)
-        apt_get(["install", "-y", "--no-install-recommends", "tmux"], env=env)
-        found = shutil.which("tmux")
+    """tmux, apt-installed when missing (as root, like the kernel tests' qemu)."""
+    found = installed("tmux", "tmux")
     if found is None:
         pytest.skip(reason="tmux is not installed and cannot be apt-installed here (needs root and apt-get)")
     return found

@@ -10,7 +10,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
-from kernel.vm import apt_get
+from kernel.vm import installed
 
 from neurotouch_hid.output.gamepad import PHYS
 from neurotouch_hid.udev import UINPUT_RULE
@@ -27,10 +27,7 @@ def _rule_lines(text: str) -> list[str]:
 
 @pytest.fixture(scope="module")
 def systemd_analyze() -> str:
-    found = shutil.which("systemd-analyze")
-    if found is None and os.geteuid() == 0 and shutil.which("apt-get"):
-        apt_get(["install", "-y", "--no-install-recommends", "systemd"])
-        found = shutil.which("systemd-analyze")
+    found = installed("systemd-analyze", "systemd")
     if found is None:
         pytest.skip(reason="systemd-analyze not found and systemd cannot be apt-installed here")
     return found

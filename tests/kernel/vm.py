@@ -118,6 +118,19 @@ def _which(cmd: str) -> str | None:
     return shutil.which(cmd) or shutil.which(cmd, path="/usr/sbin:/sbin:/usr/bin:/bin")
 
 
+def installed(command: str, package: str) -> str | None:
+    """The path of ``command``; when it is missing and this runs as root with apt-get, ``package``
+    is apt-installed first (after ``apt-get update``; both wait for another apt's lock,
+    :func:`apt_get`). None when it is still missing."""
+    found = _which(command)
+    if found is None and os.geteuid() == 0 and _which("apt-get"):
+        env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
+        apt_get(["update"], env=env)
+        apt_get(["install", "-y", "--no-install-recommends", package], env=env)
+        found = _which(command)
+    return found
+
+
 def ensure_host_packages() -> None:
     """apt-get install qemu, busybox, kmod and udev when one of their commands is missing, and
     libaio1 when the library is (functionfs, which davis_gadget.py uses, loads it).
