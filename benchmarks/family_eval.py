@@ -11,13 +11,12 @@ Protocol (docs/accuracy.md, "How it is measured"):
   all) on the families it names in docs/accuracy.md and judged on the others.
 * :data:`FINAL_FAMILY` is kept untouched: it and ``mix`` (which draws it too) are evaluated only
   when named in ``--families`` together with ``--final-run``, once, when the method changes are
-  done (``--final-run`` permits them; it adds no family of its own: in round 4 an earlier version
-  that did appended ``pasternak``, then the final family, to a development run). Round 5: the
-  method is developed on the fourteen other families, ``stickslip`` (round 2's final family),
-  ``viscoelastic`` (round 3's), ``pasternak`` and ``exposure`` (round 4's) among them, since all
-  of them have been run and looked at; ``contrast`` is untouched until the final run, and so is
-  ``mix``, which draws it. An earlier final family still to be kept out of decisions would go in
-  :data:`SEEN_FINAL_FAMILIES` and be refused the same way (none in round 5).
+  done (``--final-run`` permits them and adds no family of its own). The method is developed on
+  the fourteen other families, earlier final families (``stickslip``, ``viscoelastic``,
+  ``pasternak``, ``exposure``) among them, since all of them have been run and looked at;
+  ``contrast`` is untouched until the final run, and so is ``mix``, which draws it. An earlier
+  final family still to be kept out of decisions would go in :data:`SEEN_FINAL_FAMILIES` and be
+  refused the same way (there is none).
 * Each family's dataset is small for a 2-core machine: the test users ``--users`` (default 0
   and 3) x the five gesture types x ``--seconds`` (default 4 s, then on until the gel rests), an
   even ``--seed`` (test users, never the tuning seed). ``mix`` is one family per sequence.

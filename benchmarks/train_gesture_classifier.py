@@ -5,7 +5,7 @@
 Protocol (docs/method.md, "Gesture"):
 
 * **Training data**: each development family (every physics family but the final one,
-  ``family_eval.FINAL_FAMILY``: ``contrast`` from round 5 on; nor ``mix``, which draws it)
+  ``family_eval.FINAL_FAMILY``, ``contrast``; nor ``mix``, which draws it)
   simulated for the tuning users 5 and 8 with the odd seed 1 (4 s per gesture type and user, as
   ``family_eval.py``), written under ``DIR/FAMILY``. The pipeline runs once per
   sequence (the defaults, classifier off) and saves the tracked markers at every window's end

@@ -26,7 +26,7 @@ SHIFTED = SensorGeometry(px_per_mm=2.3, gel_center_px=(183.0, 121.0), gel_radius
 
 
 def assert_recovers(found: SensorGeometry, truth: SensorGeometry) -> None:
-    """The issue's tolerance: centre within 2 px, px_per_mm within 3 % (and the radius too)."""
+    """The calibration's tolerance: centre within 2 px, px_per_mm within 3 % (and the radius too)."""
     dx, dy = np.subtract(found.gel_center_px, truth.gel_center_px)
     assert math.hypot(dx, dy) <= 2.0, (found, truth)
     assert found.px_per_mm == pytest.approx(truth.px_per_mm, rel=0.03)

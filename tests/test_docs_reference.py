@@ -159,3 +159,27 @@ def test_code_never_links_into_the_lab():
         if "docs/lab" in line
     ]
     assert hits == [], f"code cites docs/method.md, never docs/lab/: {hits}"
+
+
+#: Citing the history from code: a round or an issue by number.
+CODE_DIARY = re.compile(r"\b(round|issue)\s+#?[0-9]", re.IGNORECASE)
+
+
+def test_code_cites_the_docs_never_rounds_or_issues():
+    """Docstrings and comments point at docs/ (method, accuracy, performance); how a choice was
+    found, round by round or issue by issue, is docs/lab/'s."""
+    hits = []
+    for folder in ("neurotouch_hid", "benchmarks", "tests", "packaging", ".ci"):
+        for path in sorted((ROOT / folder).rglob("*")):
+            if path.suffix not in (".py", ".sh", ".yaml", ".toml", "") or not path.is_file():
+                continue
+            text = path.read_text(encoding="utf-8", errors="replace")
+            lines = enumerate(text.splitlines(), 1)
+            hits += [f"{path.relative_to(ROOT)}:{n}" for n, line in lines if CODE_DIARY.search(line)]
+    assert hits == [], f"rounds or issues cited from code (say it in docs/lab/): {hits}"
+
+
+def test_the_code_check_sees_a_citation():
+    """The pattern catches what it is for, and not the word in ordinary use."""
+    assert CODE_DIARY.search("(round" + " 5: contrast)") and CODE_DIARY.search("fast (issue" + " 11, docs)")
+    assert not CODE_DIARY.search("a round flat top") and not CODE_DIARY.search("the issue's tolerance")

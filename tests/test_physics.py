@@ -342,7 +342,7 @@ def test_unknown_physics_family_is_one_clear_error(tmp_path, monkeypatch, capsys
 
 @pytest.mark.parametrize("families", ["contrast", "default,contrast", "powerlaw,mix"])
 def test_family_eval_refuses_the_final_families_without_final_run(tmp_path, families):
-    """The protocol (docs/accuracy.md): the final family (round 5: contrast) and the mix, which
+    """The protocol (docs/accuracy.md): the final family (``FINAL_FAMILY``, contrast) and the mix, which
     draws it, are evaluated only with --final-run; nothing is simulated or written before the
     refusal."""
     import subprocess
@@ -365,7 +365,7 @@ def test_family_eval_refuses_the_final_families_without_final_run(tmp_path, fami
 @pytest.mark.parametrize("families", ["contrast", "default,mix"])
 def test_classifier_training_refuses_the_final_family_and_mix(tmp_path, families):
     """train_gesture_classifier.py never trains on the final family (family_eval.FINAL_FAMILY,
-    round 5: contrast) nor on mix, which draws it: exit 2 before anything is simulated."""
+    contrast) nor on mix, which draws it: exit 2 before anything is simulated."""
     import subprocess
     import sys
     from pathlib import Path

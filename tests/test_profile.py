@@ -54,7 +54,7 @@ def test_shipped_profiles_document_their_units():
         assert "millimetres" in text and "user frame" in text, path
 
 
-def test_shipped_profiles_follow_the_issue():
+def test_shipped_profiles_map_each_gesture_where_docs_profiles_says():
     default = load_profile(shipped_profiles_dir() / "default.yaml")
     by_input = {m.input: m for m in default.mappings.values()}
     assert by_input["push"].output == "left_stick"

@@ -1,4 +1,4 @@
-"""What makes ``track`` fast (issue 11, docs/performance.md "track"): no
+"""What makes ``track`` fast (docs/performance.md, "track"): no
 progress bar and no pass over the file for its total when nothing shows it, the start-up's
 objects kept out of the garbage collector's passes, the library noise filter made only when
 used, the resting detector stopping once its verdict is certain. Behaviour only: the same
