@@ -265,6 +265,7 @@ FELT = (
     ("felt_type_changes_per_gesture", "felt type changes / gesture", 0.15, False),
     ("felt_wrong_share", "felt wrong %", 0.10, False),
     ("false_activations", "false activations", 0, False),
+    ("felt_false_activations", "false activations past the dead zone", None, False),
     ("deadzone_latency_median_ms", "dead-zone latency median ms", None, False),
     ("deadzone_latency_p90_ms", "dead-zone latency p90 ms", None, False),
     ("missed_above_deadzone", "missed above the dead zone", 0, False),
@@ -279,7 +280,7 @@ def fmt_felt(key: str, row: dict) -> str:
         return f"{100 * value:.1f} %"
     if key == "never_recognised":
         return f"{value} of {row.get('n_gestures')}"
-    if key == "false_activations":
+    if key in ("false_activations", "felt_false_activations"):
         return f"{value} of {row.get('n_rest')}"
     if key == "missed_above_deadzone":
         return f"{value} of {row.get('reached_deadzone')}"

@@ -52,7 +52,8 @@ def test_the_report_gives_the_dead_zone_latency_without_a_target_and_marks_a_mis
         "type_changes_per_gesture": 0.1,
         "felt_type_changes_per_gesture": 0.0,
         "felt_wrong_share": 0.0,
-        "false_activations": 0,
+        "false_activations": 3,
+        "felt_false_activations": 1,
         "n_rest": 58,
         "reached_deadzone": 8,
         "deadzone_latency_median_ms": 11.4,
@@ -65,5 +66,7 @@ def test_the_report_gives_the_dead_zone_latency_without_a_target_and_marks_a_mis
     assert cells[head.index("dead-zone latency median ms")] == "11"  # no target: never marked
     assert cells[head.index("dead-zone latency p90 ms")] == "18"
     assert cells[head.index("missed above the dead zone")] == "1 of 8 *"
+    assert cells[head.index("false activations")] == "3 of 58 *"  # the target is 0
+    assert cells[head.index("false activations past the dead zone")] == "1 of 58"  # no target of its own
     targets = [c.strip() for c in next(line for line in lines if line.startswith("| target")).strip("|").split("|")]
     assert targets[head.index("dead-zone latency p90 ms")] == "-"

@@ -151,6 +151,21 @@ def test_dead_zone_latency_is_counted_from_where_the_labelled_intensity_crosses_
     assert early.deadzone_latency_ms[0] == pytest.approx(-5.0)
 
 
+def test_false_activations_past_the_dead_zone_are_counted_apart():
+    """At rest (> 300 ms from every gesture frame): 1400 ms none, 1450 ms push 0.9 mm, 1500 ms
+    twist_ccw 0.2 mm: two false activations; the push is past a 0.8 mm dead zone (mapped), not
+    past 1.0 mm; the twist under both."""
+    preds = [*predictions()[:-1], pred(1450, G.PUSH, 0.9), predictions()[-1]]
+    at_08 = gesture_records(labels(), preds, deadzone_mm=0.8)
+    assert (at_08.n_rest, at_08.false_activations, at_08.felt_false_activations) == (3, 2, 1)
+    at_10 = summarise(gesture_records(labels(), preds, deadzone_mm=1.0))
+    assert (at_10.false_activations, at_10.felt_false_activations) == (2, 0)
+    both = FeltRecords.concatenate([at_08, at_08])
+    assert (both.false_activations, both.felt_false_activations) == (4, 2)
+    rows = dict(felt_rows(evaluate(align(labels(), preds, SensorGeometry(), deadzone_mm=0.8))))
+    assert rows["False activations at rest >= 0.8 mm"] == "1 of 3 windows"
+
+
 def test_a_negative_dead_zone_is_refused():
     with pytest.raises(ValueError, match="dead zone"):
         gesture_records(labels(), predictions(), deadzone_mm=-0.1)

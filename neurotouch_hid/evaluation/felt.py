@@ -60,6 +60,8 @@ class FeltRecords:
             does not reach the dead zone or no prediction of the type does.
         n_rest: predictions at rest (more than REST_MARGIN_US from every gesture frame).
         false_activations: those of them other than ``none``.
+        felt_false_activations: those of the false activations whose ``intensity_mm`` is at
+            least the dead zone (a profile maps them).
         deadzone_mm: the dead zone the felt figures used (mm).
     """
 
@@ -74,6 +76,7 @@ class FeltRecords:
     deadzone_latency_ms: np.ndarray
     n_rest: int = 0
     false_activations: int = 0
+    felt_false_activations: int = 0
     deadzone_mm: float = DEFAULT_DEADZONE_MM
 
     _ARRAYS = (
@@ -103,6 +106,7 @@ class FeltRecords:
             **{name: np.concatenate([getattr(p, name) for p in parts]) for name in cls._ARRAYS},
             n_rest=sum(p.n_rest for p in parts),
             false_activations=sum(p.false_activations for p in parts),
+            felt_false_activations=sum(p.felt_false_activations for p in parts),
             deadzone_mm=parts[0].deadzone_mm,
         )
 
@@ -208,7 +212,9 @@ def gesture_records(
     else:
         rest = np.ones(len(t_pred), bool)
     rec.n_rest = int(rest.sum())
-    rec.false_activations = int(sum(1 for p, r in zip(predictions, rest) if r and p.gesture is not GestureType.NONE))
+    active = [p for p, r in zip(predictions, rest) if r and p.gesture is not GestureType.NONE]
+    rec.false_activations = len(active)
+    rec.felt_false_activations = sum(1 for p in active if p.intensity_mm >= deadzone_mm)
     return rec
 
 
@@ -226,6 +232,7 @@ class FeltSummary:
             above the dead zone.
         felt_wrong_share: share of gestures felt wrong (0..1).
         false_activations, n_rest: predictions other than ``none`` at rest, and predictions at rest.
+        felt_false_activations: the false activations at or above the dead zone.
         reached_deadzone: gestures whose labelled intensity reaches the dead zone.
         deadzone_latency_median_ms, deadzone_latency_p90_ms: dead-zone latency over those with an
             answer of their type at or above it (ms); NaN when there is none.
@@ -242,6 +249,7 @@ class FeltSummary:
     felt_wrong_share: float
     false_activations: int
     n_rest: int
+    felt_false_activations: int
     reached_deadzone: int
     deadzone_latency_median_ms: float
     deadzone_latency_p90_ms: float
@@ -268,6 +276,7 @@ def summarise(rec: FeltRecords) -> FeltSummary:
         felt_wrong_share=float(rec.felt_wrong.mean()) if n else math.nan,
         false_activations=rec.false_activations,
         n_rest=rec.n_rest,
+        felt_false_activations=rec.felt_false_activations,
         reached_deadzone=int(rec.reaches_deadzone.sum()),
         deadzone_latency_median_ms=float(np.median(latencies)) if len(latencies) else math.nan,
         deadzone_latency_p90_ms=float(np.percentile(latencies, 90)) if len(latencies) else math.nan,

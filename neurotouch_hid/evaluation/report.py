@@ -110,6 +110,7 @@ def felt_rows(result: EvaluationResult) -> list[tuple[str, str]]:
         (f"Type changes per gesture >= {dz}", per(f.felt_type_changes_per_gesture)),
         (f"Gestures felt wrong (another type >= {dz})", _pct(f.felt_wrong_share)),
         ("False activations at rest (> 300 ms from a gesture)", f"{f.false_activations} of {f.n_rest} windows"),
+        (f"False activations at rest >= {dz}", f"{f.felt_false_activations} of {f.n_rest} windows"),
         (
             f"Dead-zone latency, median / p90 (the gel past {dz} to the answer past it)",
             f"{ms(f.deadzone_latency_median_ms)} / {ms(f.deadzone_latency_p90_ms)}",
