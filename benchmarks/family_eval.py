@@ -12,7 +12,7 @@ Protocol (docs/accuracy.md, "How it is measured"):
 * :data:`FINAL_FAMILY` is kept untouched: it and ``mix`` (which draws it too) are evaluated only
   when named in ``--families`` together with ``--final-run``, once, when the method changes are
   done (``--final-run`` permits them and adds no family of its own). The method is developed on
-  the fourteen other families, earlier final families (``stickslip``, ``viscoelastic``,
+  the other families, earlier final families (``stickslip``, ``viscoelastic``,
   ``pasternak``, ``exposure``) among them, since all of them have been run and looked at;
   ``contrast`` is untouched until the final run, and so is ``mix``, which draws it. An earlier
   final family still to be kept out of decisions would go in :data:`SEEN_FINAL_FAMILIES` and be

@@ -273,7 +273,7 @@ def simulate(
         "default",
         "--physics",
         help="gel and camera family: default, powerlaw, stickslip, indent, camera, drift, fingers, strong, markers, "
-        "noise, flicker, viscoelastic, pasternak, exposure, contrast, or mix (one family per sequence); "
+        "noise, flicker, viscoelastic, pasternak, exposure, contrast, late, or mix (one family per sequence); "
         "see docs/accuracy.md",
     ),
 ) -> None:

@@ -21,6 +21,7 @@ from neurotouch_hid.cli import app
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import (
+    MIX_FAMILIES,
     PASTERNAK_LAMBDA,
     PHYSICS,
     DomeCamera,
@@ -29,7 +30,7 @@ from neurotouch_hid.sources.physics import (
     mix_families,
     pasternak_falloff,
 )
-from neurotouch_hid.sources.simulator import START_US, USERS, GelSimulator, draw_gesture
+from neurotouch_hid.sources.simulator import START_US, USERS, GelSimulator, draw_gesture, session_gesture
 
 SENSOR = SensorGeometry()
 
@@ -211,6 +212,33 @@ def test_gesture_families_draw_strong_presses_lags_unequal_fingers_and_drift():
     assert levels[late] == 0.0 and levels.max() > 0.0
 
 
+def test_late_fingers_land_up_to_100_ms_after_the_first_however_slow_the_attack():
+    """``late``: lags uniform in 0-100 ms (at most 0.8 of the attack), where ``fingers`` draws
+    them in proportion to the attack; a tap keeps its late finger's lag when it fits."""
+
+    def draws(name, user):
+        rng, prng = np.random.default_rng(5), np.random.default_rng(6)
+        return [draw_gesture(rng, USERS[user], GestureType.TWIST_CW, 0, SENSOR, PHYSICS[name], prng) for _ in range(60)]
+
+    late = draws("late", 0) + draws("late", 4)
+    assert all(len(g.lags_us) == len(g.fingers_mm) and min(g.lags_us) == 0 for g in late)
+    assert all(max(g.lags_us) <= min(100_000, 0.8 * g.attack_us) for g in late)
+    slow = [g for g in late if g.attack_us > 400_000]
+    assert slow and max(max(g.lags_us) for g in slow) > 80_000  # as late on a slow attack as the cap allows
+    fingers = [g for g in draws("fingers", 0) + draws("fingers", 4) if g.attack_us > 400_000]
+    assert max(max(g.lags_us) for g in fingers) > 150_000  # in proportion: far later than 100 ms
+    assert not draws("default", 0)[0].lags_us  # the default family's fingers land together
+
+    taps = []
+    for seed in range(40):
+        rng, prng = np.random.default_rng(seed), np.random.default_rng(seed + 100)
+        kinds = [GestureType.PINCH]
+        taps.append(session_gesture(rng, USERS[0], kinds, None, 0, SENSOR, PHYSICS["late"], prng))
+    short = [g for g in taps if g.attack_us + g.hold_us + g.release_us <= 500_000]
+    assert short and all(max(g.lags_us) <= 0.8 * g.attack_us for g in short)
+    assert max(max(g.lags_us) for g in short) > 50_000  # not shrunk with the tap's attack
+
+
 def test_viscoelastic_gel_creeps_under_a_hold_and_relaxes_slowly_after_release():
     """The standard linear solid: 70 % of the load's deformation at once, the rest with tau = 0.3 s;
     after the release the gel is still deformed (labelled none, not resting, until every marker is
@@ -314,8 +342,10 @@ def test_flicker_changes_aps_brightness_and_markers_family_spreads_marker_sizes(
 
 
 def test_mix_covers_every_family_and_simulate_writes_physics_json(tmp_path):
-    fams = mix_families(len(PHYSICS), seed=4)
-    assert sorted(f.name for f in fams) == sorted(PHYSICS)
+    fams = mix_families(len(MIX_FAMILIES), seed=4)
+    assert sorted(f.name for f in fams) == sorted(MIX_FAMILIES)
+    assert set(PHYSICS) - set(MIX_FAMILIES) == {"late"}  # drawn by no mix, so none changed
+    assert "late" not in {f.name for f in mix_families(300, seed=2)}
     out = tmp_path / "mix"
     result = CliRunner().invoke(
         app, ["simulate", "--out", str(out), "--physics", "mix", "--minutes", "0.05", "--users", "0"]

@@ -88,10 +88,16 @@ contrast      an event sensor biased for fewer events: the contrast threshold of
               blobs, small motions), so the tracker sees fewer, sparser events per marker. The
               APS frames, the noise events and the labels are the default family's. The final
               family (``benchmarks/family_eval.py``).
+late          late fingers whatever the attack: each finger of a multi-finger gesture but the
+              first lands 0-100 ms after it (uniform; at most 0.8 of the attack), however slow
+              or fast the attack, where ``fingers`` draws its lags in proportion to the attack. A
+              second finger may land ~100 ms after the first (libinput debounces a change of
+              finger count for 100 ms; Android's tap timeout is 100 ms). Equal fingers. A
+              development family, not in ``mix``.
 ============  ==================================================================================
 
 ``mix`` draws one family per sequence (round robin over a seeded permutation, so that every family
-appears) and writes which one in the dataset's ``physics.json``.
+of :data:`MIX_FAMILIES` appears) and writes which one in the dataset's ``physics.json``.
 
 The labels stay the truth of each family: contact points are where the surface points that were
 under the finger centres at the gesture's start are now (the largest deformation under each finger
@@ -132,8 +138,9 @@ class Physics:
         k1: radial distortion coefficient (negative: barrel).
         global_mm: sigma and clip of the whole gel's translation per gesture (mm);
             global_rad: sigma and clip of its rotation (rad).
-        lag: largest onset lag of a finger as a fraction of the attack; strength_min: weakest
-            finger's strength relative to the strongest (1 = equal fingers).
+        lag: largest onset lag of a finger as a fraction of the attack; lag_ms: largest onset lag
+            of a finger in ms whatever the attack (at most 0.8 of it; 0: none); strength_min:
+            weakest finger's strength relative to the strongest (1 = equal fingers).
         strong: fraction of gestures drawn with a hold intensity of 12-20 mm.
         squeeze: radial contraction of the markers under a pressing finger (mm; 0 = the default
             radial spread of 0.35 mm).
@@ -159,6 +166,7 @@ class Physics:
     global_mm: tuple[float, float] = (0.15, 0.3)
     global_rad: tuple[float, float] = (0.003, math.inf)
     lag: float = 0.0
+    lag_ms: float = 0.0
     strength_min: float = 1.0
     strong: float = 0.0
     squeeze: float = 0.0
@@ -180,6 +188,7 @@ class Physics:
         """Whether the family draws gestures differently from the default (its own random stream)."""
         return (
             self.lag > 0
+            or self.lag_ms > 0
             or self.strength_min < 1
             or self.strong > 0
             or self.global_mm != (0.15, 0.3)
@@ -206,8 +215,12 @@ PHYSICS: dict[str, Physics] = {
         Physics("pasternak", falloff=FALLOFF_PASTERNAK),
         Physics("exposure", exposure_us=15_000),
         Physics("contrast", contrast=0.45, contrast_sigma=0.09),
+        Physics("late", lag_ms=100.0),
     )
 }
+#: The families ``mix`` draws: every family but ``late``, which came after the mix's sets were
+#: measured (drawing it would change every mixed sequence).
+MIX_FAMILIES: tuple[str, ...] = tuple(name for name in PHYSICS if name != "late")
 #: ``--physics`` names: every family, and ``mix`` (one family per sequence).
 PHYSICS_CHOICES: tuple[str, ...] = (*PHYSICS, "mix")
 
@@ -223,10 +236,10 @@ def physics_family(name: str) -> Physics:
 
 
 def mix_families(n_sequences: int, seed: int) -> list[Physics]:
-    """One family per sequence for ``--physics mix``: a seeded permutation of every family,
-    repeated, so that ``n_sequences >= len(PHYSICS)`` covers each family."""
+    """One family per sequence for ``--physics mix``: a seeded permutation of
+    :data:`MIX_FAMILIES`, repeated, so that ``n_sequences >= len(MIX_FAMILIES)`` covers each."""
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x9A15]))
-    names = list(PHYSICS)
+    names = list(MIX_FAMILIES)
     order: list[str] = []
     while len(order) < n_sequences:
         order += [names[i] for i in rng.permutation(len(names))]

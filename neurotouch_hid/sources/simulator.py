@@ -118,6 +118,9 @@ RIM_EASE_MM = 6.0
 CREEP_SPAN_TAUS = 7.0
 #: Spread (sigma of the log) of a user's gesture strengths about the median for the type.
 STRENGTH_SIGMA = 0.55
+#: A late finger (the ``late`` family) starts moving at most this share of the attack after the
+#: first, so that it still ramps up before the hold.
+LATEST_LAG = 0.8
 #: Distance of a multi-finger gesture's fingers from their centre (mm, uniform in this range).
 FINGER_SPREAD_MM = (9.0, 15.0)
 #: Time step (us) of a viscoelastic gel's deformation history (SimGesture.profile).
@@ -254,7 +257,7 @@ class SimGesture:
         residual: deformation left when the release ends (fraction); creep_us: its time constant.
         lags_us: per finger, how long after t_start_us it starts moving (us, each < attack_us;
             empty: all at once); strengths: per finger, its share of the motion (0..1; empty:
-            all 1) -- the ``fingers`` family.
+            all 1) -- the ``fingers`` and ``late`` families.
         squeeze: radial contraction of the markers under a pressing finger (mm; 0: the default
             spread) -- the ``strong`` family.
         sls: (delayed share q, retardation time tau us) of the gel's standard linear solid, or
@@ -616,8 +619,9 @@ def draw_gesture(
     release = int(max(min_ramp_us, 0.3e6 * rng.lognormal(0.0, 0.45) / speed))
     hold = int(1.0e6 * user.hold * rng.lognormal(0.0, 0.5))
     extra: dict = {}
-    if physics.lag > 0:
-        lags = prng.uniform(0.0, physics.lag * attack, n_fingers)
+    if physics.lag > 0 or physics.lag_ms > 0:
+        top = physics.lag * attack if physics.lag > 0 else min(physics.lag_ms * 1000.0, LATEST_LAG * attack)
+        lags = prng.uniform(0.0, top, n_fingers)
         lags[int(prng.integers(n_fingers))] = 0.0  # the first finger starts the gesture
         extra["lags_us"] = tuple(int(v) for v in lags)
     if physics.strength_min < 1:
@@ -737,7 +741,10 @@ def session_gesture(
         total = rng.uniform(*TAP_US)
         attack, hold = int(0.35 * total), int(0.3 * total)
         amplitude = min(g.amplitude_mm, 2.0 * MAX_SPEED_MM_S * attack * 1e-6 / math.pi)
-        lags = tuple(int(lag * attack / g.attack_us) for lag in g.lags_us)
+        if physics.lag_ms > 0:  # a late finger lands as late, within the shorter attack
+            lags = tuple(int(min(lag, LATEST_LAG * attack)) for lag in g.lags_us)
+        else:
+            lags = tuple(int(lag * attack / g.attack_us) for lag in g.lags_us)
         return replace(
             g,
             attack_us=attack,
