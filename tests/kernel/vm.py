@@ -118,15 +118,20 @@ def _which(cmd: str) -> str | None:
     return shutil.which(cmd) or shutil.which(cmd, path="/usr/sbin:/sbin:/usr/bin:/bin")
 
 
+def _apt_install(packages: list[str]) -> tuple[subprocess.CompletedProcess, subprocess.CompletedProcess]:
+    """``apt-get update``, then ``apt-get install`` of ``packages`` without recommends, both
+    non-interactive and waiting for another apt's lock (:func:`apt_get`): (update, install)."""
+    env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
+    update = apt_get(["update"], env=env)
+    return update, apt_get(["install", "-y", "--no-install-recommends", *packages], env=env)
+
+
 def installed(command: str, package: str) -> str | None:
     """The path of ``command``; when it is missing and this runs as root with apt-get, ``package``
-    is apt-installed first (after ``apt-get update``; both wait for another apt's lock,
-    :func:`apt_get`). None when it is still missing."""
+    is apt-installed first (:func:`_apt_install`). None when it is still missing."""
     found = _which(command)
     if found is None and os.geteuid() == 0 and _which("apt-get"):
-        env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
-        apt_get(["update"], env=env)
-        apt_get(["install", "-y", "--no-install-recommends", package], env=env)
+        _apt_install([package])
         found = _which(command)
     return found
 
@@ -146,18 +151,7 @@ def ensure_host_packages() -> None:
         raise KernelUnavailable(
             f"{', '.join(missing)} not installed and cannot be apt-installed here (needs root and apt-get)"
         )
-    env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
-    update = apt_get(["update"], env=env)
-    install = apt_get(
-        [
-            "install",
-            "-y",
-            "--no-install-recommends",
-            *HOST_PACKAGES,
-            *(["libaio1"] if "libaio1" in missing else []),
-        ],
-        env=env,
-    )
+    update, install = _apt_install([*HOST_PACKAGES, *(["libaio1"] if "libaio1" in missing else [])])
     if install.returncode != 0 or _which("qemu-system-x86_64") is None:
         raise KernelUnavailable("apt-get install of qemu failed: " + (install.stderr or update.stderr).strip()[-500:])
 
