@@ -17,8 +17,11 @@ pipeline's call (``EventNoiseFilter.__call__``: for the background-activity filt
 kernel, checked to keep the same events batch by batch; for the others the library between the
 copies); then, for the pipeline's call: us per batch (median, p99), its share of one core in
 real time, and the ratios filter / tracker (the tracker on every event, as without a filter)
-and (filter + tracker on the kept events) / (tracker on every event), and the event path's
-rate: events offered / CPU s of the pipeline's filter call plus the tracker on the kept events.
+and (filter + tracker on the kept events) / (tracker on every event); then the flicker filter the
+pipeline runs after it (:class:`neurotouch_hid.pipeline.noise.FlickerFilter`, the product's
+window) on the filter's kept events, M events/s (events it is offered / CPU s); and the event
+path's rate: events offered / CPU s of the pipeline's two filter calls plus the tracker on the
+events both keep.
 
 Then what each filter keeps (``--selectivity``, on by default): the markers' own events of the
 same simulation without background activity (hot pixels dropped), with uniform Poisson noise
@@ -41,7 +44,8 @@ from rich.console import Console
 from rich.table import Table
 
 from neurotouch_hid.output.console import make_console
-from neurotouch_hid.pipeline.noise import NOISE_FILTERS, EventNoiseFilter
+from neurotouch_hid.pipeline.config import NoiseConfig
+from neurotouch_hid.pipeline.noise import NOISE_FILTERS, EventNoiseFilter, FlickerFilter
 from neurotouch_hid.pipeline.tracker import BlobTracker
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.dv import events_from_store, store_from_events
@@ -93,11 +97,18 @@ def time_filter(name: str, time_us: int, batches: list[np.ndarray], sensor: Sens
     again = EventNoiseFilter(name, sensor.width, sensor.height, time_us)
     again(batches[0][:2])  # numba: compiled or loaded from its cache before the timing
     again.reset()
-    pipeline = []
+    # then the pipeline's flicker filter on what it keeps
+    flicker = FlickerFilter(sensor.width, sensor.height, NoiseConfig().flicker_us)
+    flicker(batches[0][:2])
+    flicker.reset()
+    pipeline, flickers, path_kept = [], [], []
     for batch, k in zip(batches, kept):
         c0 = time.thread_time()
         got = again(batch)
-        pipeline.append(time.thread_time() - c0)
+        c1 = time.thread_time()
+        path_kept.append(flicker(got))
+        flickers.append(time.thread_time() - c1)
+        pipeline.append(c1 - c0)
         assert np.array_equal(got, k)
     return {
         "to_store": np.array(to_store),
@@ -106,6 +117,8 @@ def time_filter(name: str, time_us: int, batches: list[np.ndarray], sensor: Sens
         "total": np.array(total),
         "pipeline": np.array(pipeline),
         "kept": kept,
+        "flicker": np.array(flickers),
+        "path_kept": path_kept,
     }
 
 
@@ -236,7 +249,8 @@ def main() -> None:
         "core % (real time)",
         "filter / tracker",
         "(filter + tracker kept) / tracker all",
-        "M ev/s event path (filter + tracker)",
+        "M ev/s flicker filter",
+        "M ev/s event path (filters + tracker)",
     ):
         table.add_column(col, justify="left" if col == "filter" else "right")
     for noise_hz in args.noise_hz:
@@ -250,6 +264,8 @@ def main() -> None:
                 n_in = len(events)
                 n_kept = sum(len(k) for k in t["kept"])
                 tracker_kept = time_tracker([k for k in t["kept"] if len(k)], rest, sensor)
+                tracker_path = time_tracker([k for k in t["path_kept"] if len(k)], rest, sensor)
+                flickered = float(t["flicker"].sum())
                 total = float(t["total"].sum())
                 called = float(t["pipeline"].sum())  # the pipeline's call: what the rest of the row is about
                 per_batch_us = t["pipeline"] * 1e6
@@ -269,7 +285,8 @@ def main() -> None:
                     f"{100 * called / span_s:.1f}",
                     f"{called / tracker_all:.2f}",
                     f"{(called + tracker_kept) / tracker_all:.2f}",
-                    f"{n_in / (called + tracker_kept) / 1e6:.1f}",
+                    f"{n_kept / flickered / 1e6:.1f}",
+                    f"{n_in / (called + flickered + tracker_path) / 1e6:.1f}",
                 )
             console.print(
                 f"noise {noise_hz:g} Hz/px, {batch_us} us batches: tracker on every event "
