@@ -225,6 +225,8 @@ class FlickerFilter:
         self._last_reversal_us = np.full((self.height, self.width), _NEVER_US, dtype=np.int64)
         self._newest_us: int | None = None
         self.n_in = self.n_out = 0
+        #: the kernel's keep mask, reused from batch to batch
+        self._keep = np.empty(0, dtype=np.bool_)
 
     def __call__(self, events: np.ndarray) -> np.ndarray:
         """Filter one numpy batch.
@@ -235,7 +237,7 @@ class FlickerFilter:
                 batch's last event resets the filter first.
         Returns:
             (K,) EVENT_DTYPE, K <= E: the kept events, in their order (a new array; ``events``
-            itself when it is empty).
+            itself when every event is kept).
         """
         if len(events) == 0:
             return events
@@ -243,11 +245,14 @@ class FlickerFilter:
         if self._newest_us is not None and int(ts[0]) < self._newest_us:
             self.reset()
         self._newest_us = int(ts[-1])
-        keep = np.empty(len(events), dtype=np.bool_)
+        if len(self._keep) < len(events):
+            self._keep = np.empty(max(len(events), 2 * len(self._keep)), dtype=np.bool_)
+        keep = self._keep[: len(events)]
         n = flicker_keep(events, self._last_polarity, self._last_reversal_us, self.window_us, keep)
         self.n_in += len(events)
         self.n_out += n
-        return events[keep]
+        # under a steady light every event passes: no copy then
+        return events if n == len(events) else events[keep]
 
 
 def check_flicker_window(window_us) -> None:
