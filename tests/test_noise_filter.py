@@ -518,3 +518,16 @@ def test_set_reaches_the_flicker_window():
     assert pipeline_config(["noise.flicker_us=5000"]).noise.flicker_us == 5000
     with pytest.raises(NeurotouchError, match="noise.flicker_us"):
         pipeline_config(["noise.flicker_us=0"])
+
+
+def test_on_the_real_street_recording_the_flicker_filter_keeps_nearly_every_event(street_recording):
+    """A real DAVIS-346 (a street, cars going by): what the background-activity filter keeps, the
+    flicker filter keeps too, but for a few pixels that flipped twice within 10 ms."""
+    with RecordingReader(street_recording.path) as reader:
+        events, _ = reader.read_all()
+    noise, flicker = EventNoiseFilter("BackgroundActivityNoiseFilter", W, H), FlickerFilter(W, H, 10_000)
+    kept = [noise(b) for b in split_batches(events, 1000)]
+    after = [flicker(b) for b in kept]
+    n_kept, n_after = sum(map(len, kept)), sum(map(len, after))
+    assert n_kept > 0.9 * len(events)
+    assert 0.99 * n_kept < n_after <= n_kept
