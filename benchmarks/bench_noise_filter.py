@@ -17,12 +17,8 @@ pipeline's call (``EventNoiseFilter.__call__``: for the background-activity filt
 kernel, checked to keep the same events batch by batch; for the others the library between the
 copies); then, for the pipeline's call: us per batch (median, p99), its share of one core in
 real time, and the ratios filter / tracker (the tracker on every event, as without a filter)
-and (filter + tracker on the kept events) / (tracker on every event); then the flicker filter the
-pipeline runs after it (:class:`neurotouch_hid.pipeline.noise.FlickerFilter`, the product's
-window) on the filter's kept events, M events/s (events it is offered / CPU s); and the event
-path's rate: events offered / CPU s of the pipeline's two filters and the tracker on what they
-keep, batch after batch under one clock (:func:`time_event_path`), and its ratio to the same
-path without the flicker filter.
+and (filter + tracker on the kept events) / (tracker on every event), and the event path's
+rate: events offered / CPU s of the pipeline's filter call plus the tracker on the kept events.
 
 Then what each filter keeps (``--selectivity``, on by default): the markers' own events of the
 same simulation without background activity (hot pixels dropped), with uniform Poisson noise
@@ -45,8 +41,7 @@ from rich.console import Console
 from rich.table import Table
 
 from neurotouch_hid.output.console import make_console
-from neurotouch_hid.pipeline.config import NoiseConfig
-from neurotouch_hid.pipeline.noise import NOISE_FILTERS, EventNoiseFilter, FlickerFilter
+from neurotouch_hid.pipeline.noise import NOISE_FILTERS, EventNoiseFilter
 from neurotouch_hid.pipeline.tracker import BlobTracker
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.dv import events_from_store, store_from_events
@@ -71,25 +66,6 @@ def time_tracker(batches: list[np.ndarray], rest_px: np.ndarray, sensor: SensorG
         tracker.update(batch)
         cpu += time.thread_time() - c
     return cpu
-
-
-def time_event_path(
-    name: str, time_us: int, batches: list[np.ndarray], rest_px: np.ndarray, sensor: SensorGeometry, flicker: bool
-) -> float:
-    """CPU s of the pipeline's event path over ``batches``, one clock round the whole loop (no
-    per-call clock reads): the noise filter, the flicker filter when ``flicker``, then the tracker
-    on what they keep, every object fresh."""
-    noise = EventNoiseFilter(name, sensor.width, sensor.height, time_us)
-    flickers = FlickerFilter(sensor.width, sensor.height, NoiseConfig().flicker_us) if flicker else None
-    tracker = BlobTracker(rest_px, sensor.width, sensor.height, sensor=sensor)
-    c = time.thread_time()
-    for batch in batches:
-        kept = noise(batch)
-        if flickers is not None:
-            kept = flickers(kept)
-        if len(kept):
-            tracker.update(kept)
-    return time.thread_time() - c
 
 
 def time_filter(name: str, time_us: int, batches: list[np.ndarray], sensor: SensorGeometry) -> dict:
@@ -117,18 +93,11 @@ def time_filter(name: str, time_us: int, batches: list[np.ndarray], sensor: Sens
     again = EventNoiseFilter(name, sensor.width, sensor.height, time_us)
     again(batches[0][:2])  # numba: compiled or loaded from its cache before the timing
     again.reset()
-    # then the pipeline's flicker filter on what it keeps
-    flicker = FlickerFilter(sensor.width, sensor.height, NoiseConfig().flicker_us)
-    flicker(batches[0][:2])
-    flicker.reset()
-    pipeline, flickers, path_kept = [], [], []
+    pipeline = []
     for batch, k in zip(batches, kept):
         c0 = time.thread_time()
         got = again(batch)
-        c1 = time.thread_time()
-        path_kept.append(flicker(got))
-        flickers.append(time.thread_time() - c1)
-        pipeline.append(c1 - c0)
+        pipeline.append(time.thread_time() - c0)
         assert np.array_equal(got, k)
     return {
         "to_store": np.array(to_store),
@@ -137,8 +106,6 @@ def time_filter(name: str, time_us: int, batches: list[np.ndarray], sensor: Sens
         "total": np.array(total),
         "pipeline": np.array(pipeline),
         "kept": kept,
-        "flicker": np.array(flickers),
-        "path_kept": path_kept,
     }
 
 
@@ -269,9 +236,7 @@ def main() -> None:
         "core % (real time)",
         "filter / tracker",
         "(filter + tracker kept) / tracker all",
-        "M ev/s flicker filter",
-        "M ev/s event path (filters + tracker)",
-        "event path with / without flicker filter (CPU)",
+        "M ev/s event path (filter + tracker)",
     ):
         table.add_column(col, justify="left" if col == "filter" else "right")
     for noise_hz in args.noise_hz:
@@ -285,9 +250,6 @@ def main() -> None:
                 n_in = len(events)
                 n_kept = sum(len(k) for k in t["kept"])
                 tracker_kept = time_tracker([k for k in t["kept"] if len(k)], rest, sensor)
-                flickered = float(t["flicker"].sum())
-                with_flicker = time_event_path(name, time_us, batches, rest, sensor, flicker=True)
-                without_flicker = time_event_path(name, time_us, batches, rest, sensor, flicker=False)
                 total = float(t["total"].sum())
                 called = float(t["pipeline"].sum())  # the pipeline's call: what the rest of the row is about
                 per_batch_us = t["pipeline"] * 1e6
@@ -307,9 +269,7 @@ def main() -> None:
                     f"{100 * called / span_s:.1f}",
                     f"{called / tracker_all:.2f}",
                     f"{(called + tracker_kept) / tracker_all:.2f}",
-                    f"{n_kept / flickered / 1e6:.1f}",
-                    f"{n_in / with_flicker / 1e6:.1f}",
-                    f"{with_flicker / without_flicker:.2f}",
+                    f"{n_in / (called + tracker_kept) / 1e6:.1f}",
                 )
             console.print(
                 f"noise {noise_hz:g} Hz/px, {batch_us} us batches: tracker on every event "

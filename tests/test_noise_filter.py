@@ -13,12 +13,11 @@ from neurotouch_hid.cli import app
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.evaluation.runner import pipeline_config
-from neurotouch_hid.pipeline.noise import EventNoiseFilter, FlickerFilter
+from neurotouch_hid.pipeline.noise import EventNoiseFilter
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
 from neurotouch_hid.sources.dv import events_from_store, store_from_events
-from neurotouch_hid.sources.physics import physics_family
 from neurotouch_hid.sources.recording import RecordingReader, read_info, split_batches
 from neurotouch_hid.sources.simulator import START_US, GelSimulator, SimGesture
 
@@ -284,8 +283,8 @@ def noisy_push_stream(noisy_push_chunks) -> list:
     return _stream(noisy_push_chunks)
 
 
-def _run(items: list, config: PipelineConfig, composition=GesturePipeline) -> tuple[GesturePipeline, list]:
-    pipeline = composition(SENSOR, config)
+def _run(items: list, config: PipelineConfig) -> tuple[GesturePipeline, list]:
+    pipeline = GesturePipeline(SENSOR, config)
     return pipeline, list(pipeline.run(items))
 
 
@@ -353,11 +352,11 @@ def test_at_the_default_noise_the_filter_costs_no_tracking_accuracy():
     assert np.median(on) < 1.1 * np.median(off)
 
 
-def _events(*rows: tuple[int, ...]) -> np.ndarray:
-    """Events at (t_us, x, y), ON, or (t_us, x, y, polarity)."""
+def _events(*rows: tuple[int, int, int]) -> np.ndarray:
+    """Events at (t_us, x, y), ON."""
     ev = np.zeros(len(rows), dtype=EVENT_DTYPE)
-    for k, row in enumerate(rows):
-        ev[k] = (*row, 1) if len(row) == 3 else row
+    for k, (t, x, y) in enumerate(rows):
+        ev[k] = (t, x, y, 1)
     return ev
 
 
@@ -413,7 +412,7 @@ def test_noise_hz_makes_a_noisier_recording_and_eval_runs_the_filter_on_it(tmp_p
     )
     assert result.exit_code == 0, result.output
     config = json.loads(out.read_text())["config"]
-    assert config["noise"] == {"kind": "BackgroundActivityNoiseFilter", "time_us": 5000, "flicker_us": 10_000}
+    assert config["noise"] == {"kind": "BackgroundActivityNoiseFilter", "time_us": 5000}
 
 
 def test_negative_noise_hz_is_one_clear_error(tmp_path, monkeypatch, capsys):
@@ -425,109 +424,3 @@ def test_negative_noise_hz_is_one_clear_error(tmp_path, monkeypatch, capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert "--noise-hz must be >= 0" in err and "Traceback" not in err
-
-
-# --- the flicker filter -----------------------------------------------------------------------
-def test_a_pixel_that_reverses_polarity_twice_within_the_window_is_flicker():
-    f = FlickerFilter(W, H, 10_000)
-    ev = _events(
-        (1_000, 5, 5, 1),  # ON: kept (the pixel's first)
-        (1_500, 5, 5, 1),  # ON again: kept (a brightening edge fires one polarity)
-        (5_500, 5, 5, 0),  # OFF: the pixel's first reversal, kept (a marker's edge went by)
-        (9_700, 5, 5, 1),  # ON 4.2 ms after that reversal: the light rose again (120 Hz)
-        (13_900, 5, 5, 0),  # and fell
-        (14_000, 5, 5, 0),  # no reversal: kept
-        (9_800, 6, 5, 1),  # another pixel: ON,
-        (20_000, 6, 5, 0),  # OFF (its first reversal),
-        (45_000, 6, 5, 1),  # ON 25 ms later: the next marker or the way back, kept
-    )
-    ev = ev[np.argsort(ev["timestamp"], kind="stable")]
-    kept = f(ev)
-    assert kept["timestamp"].tolist() == [1_000, 1_500, 5_500, 9_800, 14_000, 20_000, 45_000]
-    assert (f.n_in, f.n_out) == (9, 7)
-
-
-def test_the_flicker_filter_keeps_its_state_across_batches_and_starts_afresh_when_the_clock_goes_back():
-    f = FlickerFilter(W, H, 10_000)
-    assert len(f(_events((1_000, 5, 5, 1), (5_000, 5, 5, 0)))) == 2
-    assert len(f(_events((9_000, 5, 5, 1)))) == 0  # the reversal of the batch before counts
-    assert len(f(_events((2_000, 5, 5, 1), (6_000, 5, 5, 0), (9_000, 5, 5, 1)))) == 2  # a new stream
-    assert (f.n_in, f.n_out) == (3, 2)
-    assert len(f(np.zeros(0, dtype=EVENT_DTYPE))) == 0
-
-
-def test_the_flicker_filter_keeps_nearly_every_event_of_a_moving_marker(marker_events):
-    """A push under a steady light: a pixel fires one polarity while an edge crosses it."""
-    kept = np.concatenate([FlickerFilter(W, H, 10_000)(b) for b in split_batches(marker_events, 1000)])
-    assert len(kept) > 0.95 * len(marker_events), len(kept) / len(marker_events)
-
-
-def _flicker_chunks(script) -> list:
-    return list(
-        GelSimulator(SENSOR, seed=1, script=script, noise_rate_hz=0.0, physics=physics_family("flicker")).run(1.2)
-    )
-
-
-class GesturePipelineWithoutFlickerFilter(GesturePipeline):
-    """The product's pipeline but for the flicker filter: every kept event reaches the tracker."""
-
-    def _flicker_filter(self) -> None:
-        return None
-
-
-@pytest.fixture(scope="module")
-def flickering_rest() -> list:
-    """A gel at rest for 1.2 s under a light flickering at 120 Hz (the ``flicker`` family)."""
-    return _stream(_flicker_chunks([]))
-
-
-def test_under_a_flickering_light_a_resting_gel_shows_no_gesture(flickering_rest):
-    """Without the filter the light's rings of events walk the tracked markers about and some
-    windows at rest read as gestures; with it (the default) none does, and from the second APS
-    frame on the markers stay put (until then each pixel's first event of the light passes: one
-    event cannot tell a flicker)."""
-    _, without = _run(flickering_rest, PipelineConfig(), GesturePipelineWithoutFlickerFilter)
-    assert any(e.gesture is not GestureType.NONE for e in without)
-    pipeline = GesturePipeline(SENSOR, PipelineConfig())
-    second_frame_us = [item.t_us for item in flickering_rest if isinstance(item, Frame)][1]
-    wander = []
-    for item in flickering_rest:
-        estimates = pipeline.process(item)
-        if estimates and estimates[-1].t_us > second_frame_us:
-            moved = np.linalg.norm(pipeline.marker_positions() - pipeline.rest_px, axis=1)
-            wander.append(np.nanmax(moved))
-        assert all(e.gesture is GestureType.NONE for e in estimates)
-    assert pipeline.flicker_filter.n_out < 0.5 * pipeline.flicker_filter.n_in  # the light's events go
-    assert max(wander) < 0.3  # px: the motion override's threshold (docs/method.md, "Resting")
-
-
-def test_under_a_flickering_light_a_push_is_found():
-    _, estimates = _run(_stream(_flicker_chunks([_push()])), PipelineConfig())
-    held = [e for e in estimates if PUSH_START_US + ATTACK_US <= e.t_us < PUSH_START_US + ATTACK_US + HOLD_US]
-    assert len(held) >= 25
-    assert np.mean([e.gesture is GestureType.PUSH for e in held]) > 0.9
-
-
-@pytest.mark.parametrize("value", [0, -5, 2.5, True, None])
-def test_a_bad_flicker_window_is_a_clear_error(value):
-    with pytest.raises(ValueError, match="noise.flicker_us must be a whole number of microseconds >= 1"):
-        PipelineConfig(noise={"flicker_us": value})
-
-
-def test_set_reaches_the_flicker_window():
-    assert pipeline_config(["noise.flicker_us=5000"]).noise.flicker_us == 5000
-    with pytest.raises(NeurotouchError, match="noise.flicker_us"):
-        pipeline_config(["noise.flicker_us=0"])
-
-
-def test_on_the_real_street_recording_the_flicker_filter_keeps_nearly_every_event(street_recording):
-    """A real DAVIS-346 (a street, cars going by): what the background-activity filter keeps, the
-    flicker filter keeps too, but for a few pixels that flipped twice within 10 ms."""
-    with RecordingReader(street_recording.path) as reader:
-        events, _ = reader.read_all()
-    noise, flicker = EventNoiseFilter("BackgroundActivityNoiseFilter", W, H), FlickerFilter(W, H, 10_000)
-    kept = [noise(b) for b in split_batches(events, 1000)]
-    after = [flicker(b) for b in kept]
-    n_kept, n_after = sum(map(len, kept)), sum(map(len, after))
-    assert n_kept > 0.9 * len(events)
-    assert 0.99 * n_kept < n_after <= n_kept

@@ -13,7 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validat
 
 from neurotouch_hid.limits import short
 from neurotouch_hid.pipeline.contacts import HOMOGRAPHY_METHODS
-from neurotouch_hid.pipeline.noise import check_flicker_window, check_noise_filter
+from neurotouch_hid.pipeline.noise import check_noise_filter
 from neurotouch_hid.pipeline.tracker import TrackerConfig
 from neurotouch_hid.sensor import MARKER_SPACING_MM, SensorGeometry
 
@@ -30,31 +30,12 @@ class NoiseConfig(BaseModel):
             source runs the filter itself, and ``eval --set noise.kind=none`` measures without).
         time_us: the filter's time parameter (us, >= 1); None = that kind's own time
             (``noise.NOISE_FILTERS``), so that another kind gets its own.
-        flicker_us: the flicker filter's window after it (``noise.FlickerFilter``: an event
-            that reverses its pixel's polarity less than this many us after the pixel's previous
-            reversal is dropped; 10 ms, half the period of a light flickering at 50 Hz
-            (docs/method.md, "Noise filter").
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     kind: str | None = "BackgroundActivityNoiseFilter"
     time_us: int | None = None
-    flicker_us: int = 10_000
-
-    @field_validator("flicker_us", mode="before")
-    @classmethod
-    def _flicker_window(cls, value):
-        """Checked as given, as ``time_us`` (text from ``--set`` after its conversion)."""
-        if not isinstance(value, str):
-            check_flicker_window(value)
-        return value
-
-    @field_validator("flicker_us")
-    @classmethod
-    def _flicker_window_converted(cls, value):
-        check_flicker_window(value)
-        return value
 
     @field_validator("time_us", mode="before")
     @classmethod

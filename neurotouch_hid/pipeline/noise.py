@@ -1,4 +1,4 @@
-"""Event noise filtering before the tracker: dv-processing's noise filters, then our flicker filter.
+"""Optional event noise filtering before the tracker, with dv-processing's noise filters.
 
 A DAVIS-346 adds background activity (BA) to the events of the markers: isolated events at
 random pixels and times, about 0.1 Hz per pixel in good light and up to a few Hz per pixel in
@@ -36,9 +36,6 @@ and time surface, re-implemented; ``tests/test_noise_filter.py`` compares the tw
 recording and on simulated gels with noise), without the copies: 4-7x faster than the copies
 and the library (docs/method.md, "Noise filter"). The other two
 filters still go through the library and its copies.
-
-After it, :class:`FlickerFilter` drops the events of a flickering light (docs/method.md, "Noise
-filter"): in the pipeline on every path, since the live camera's source runs only the first.
 """
 
 from __future__ import annotations
@@ -143,126 +140,6 @@ def background_activity_keep(events, surface, duration_us, keep):
         keep[i] = supported
         n += supported
     return n
-
-
-@numba.njit(cache=True, nogil=True)
-def flicker_keep(events, last_polarity, last_reversal_us, window_us, keep):
-    """The flicker filter's rule over a batch (:class:`FlickerFilter`), in numba.
-
-    An event of the other polarity than its pixel's previous event is a reversal; a reversal
-    less than ``window_us`` after the pixel's previous reversal is dropped. Every event then
-    sets its pixel's polarity, and a reversal its reversal time, kept or not.
-
-    Args:
-        events: (E,) EVENT_DTYPE structured array (``timestamp`` int64 us, ``x``/``y`` int16 px
-            inside the array, ``polarity``), time-ordered.
-        last_polarity: (H, W) int8, the polarity (1 ON, 0 OFF, -1 none yet) of pixel (x, y)'s
-            last event at [y, x]; updated in place.
-        last_reversal_us: (H, W) int64, the time (us) of that pixel's last reversal, or
-            :data:`_NEVER_US`; updated in place.
-        window_us: the filter's window (us).
-        keep: (E,) bool, written: which events are kept.
-    Returns:
-        the number of kept events.
-    """
-    ts = events["timestamp"]
-    xs = events["x"]
-    ys = events["y"]
-    ps = events["polarity"]
-    n = 0
-    for i in range(ts.shape[0]):
-        t = ts[i]
-        x = np.int64(xs[i])
-        y = np.int64(ys[i])
-        p = 1 if ps[i] > 0 else 0
-        flicker = False
-        if last_polarity[y, x] >= 0 and last_polarity[y, x] != p:
-            flicker = t - last_reversal_us[y, x] < window_us
-            last_reversal_us[y, x] = t
-        last_polarity[y, x] = p
-        keep[i] = not flicker
-        n += not flicker
-    return n
-
-
-class FlickerFilter:
-    """Drops the events of a flickering light (not in the paper; docs/method.md, "Noise filter").
-
-    A lamp on mains power or a PWM-dimmed LED flickers at 100-120 Hz or more: every pixel of a
-    marker's edge then fires ON as the light rises and OFF as it falls, a few milliseconds
-    apart, around the whole marker, while the gel rests. Fed to the tracker, those rings of
-    events walk each blob about at random (up to ~1 px within 30 ms of a rest frame on the
-    simulated ``flicker`` family). A marker that moves makes a pixel reverse its polarity once
-    as it goes by (ON while its bright edge comes, OFF while it leaves), and again only when the
-    next marker or the way back comes, tens of milliseconds later at a finger's speeds. So a
-    reversal that comes less than ``window_us`` after its pixel's previous reversal is dropped:
-    a flickering pixel loses every event but its first two, a passing marker none. Our own rule
-    (dv-processing 2.0.4 has no flicker filter); the state is two (H, W) arrays, kept across
-    batches.
-
-    Args:
-        width, height: the sensor's pixel array (px), e.g. 346 x 260.
-        window_us: the window (us, >= 1): at least half the flicker's period (a reversal per
-            half period).
-    Raises:
-        ValueError: width/height < 1, or a window that is not a whole number of us >= 1.
-
-    Attributes:
-        n_in, n_out: events offered and kept so far (since construction or the last reset).
-    """
-
-    def __init__(self, width: int, height: int, window_us: int) -> None:
-        if width < 1 or height < 1:
-            raise ValueError(f"the pixel array must be at least 1 x 1 px, got {width} x {height}")
-        check_flicker_window(window_us)
-        self.width, self.height = int(width), int(height)
-        self.window_us = int(window_us)
-        self.reset()
-
-    def reset(self) -> None:
-        """Forget every event seen (a new stream, e.g. whose clock restarts) and the counts."""
-        self._last_polarity = np.full((self.height, self.width), -1, dtype=np.int8)
-        self._last_reversal_us = np.full((self.height, self.width), _NEVER_US, dtype=np.int64)
-        self._newest_us: int | None = None
-        self.n_in = self.n_out = 0
-        #: the kernel's keep mask, reused from batch to batch
-        self._keep = np.empty(0, dtype=np.bool_)
-
-    def __call__(self, events: np.ndarray) -> np.ndarray:
-        """Filter one numpy batch.
-
-        Args:
-            events: (E,) EVENT_DTYPE (``timestamp`` int64 us, ``x``/``y`` int16 px inside the
-                array, ``polarity``), time-ordered. A batch that starts before the previous
-                batch's last event resets the filter first.
-        Returns:
-            (K,) EVENT_DTYPE, K <= E: the kept events, in their order (a new array; ``events``
-            itself when every event is kept).
-        """
-        if len(events) == 0:
-            return events
-        ts = events["timestamp"]
-        if self._newest_us is not None and int(ts[0]) < self._newest_us:
-            self.reset()
-        self._newest_us = int(ts[-1])
-        if len(self._keep) < len(events):
-            self._keep = np.empty(max(len(events), 2 * len(self._keep)), dtype=np.bool_)
-        keep = self._keep[: len(events)]
-        n = flicker_keep(events, self._last_polarity, self._last_reversal_us, self.window_us, keep)
-        self.n_in += len(events)
-        self.n_out += n
-        # under a steady light every event passes: no copy then
-        return events if n == len(events) else events[keep]
-
-
-def check_flicker_window(window_us) -> None:
-    """Validate ``PipelineConfig.noise.flicker_us``.
-
-    Raises:
-        ValueError: not a whole number of microseconds >= 1.
-    """
-    if isinstance(window_us, bool) or not isinstance(window_us, (int, np.integer)) or window_us < 1:
-        raise ValueError(f"noise.flicker_us must be a whole number of microseconds >= 1, got {short(window_us)}")
 
 
 class EventNoiseFilter:

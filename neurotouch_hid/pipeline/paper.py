@@ -129,10 +129,6 @@ class PaperPipeline(GesturePipeline):
         """Every event reaches the tracker."""
         return None
 
-    def _flicker_filter(self) -> None:
-        """Every event reaches the tracker."""
-        return None
-
     def _rest_reference_ok(self, points_px: np.ndarray) -> bool:
         """The first frame with a marker grid is t0, "a timestep where the gel is in resting position"."""
         return True

@@ -57,7 +57,7 @@ from neurotouch_hid.pipeline.gesture import (
 from neurotouch_hid.pipeline.learned import gesture_features, learned_gesture
 from neurotouch_hid.pipeline.markers import MARKER_SPACING_MM, detect_markers, looks_like_marker_grid
 from neurotouch_hid.pipeline.moves import _largest_move_sq, _off_layout, _unchanged
-from neurotouch_hid.pipeline.noise import EventNoiseFilter, FlickerFilter
+from neurotouch_hid.pipeline.noise import EventNoiseFilter
 from neurotouch_hid.pipeline.override import grid_neighbours, overrules_rest
 from neurotouch_hid.pipeline.resting import RestingDetector, RestingResult, compile_resting_kernels
 from neurotouch_hid.pipeline.synthetic import synthetic_windows
@@ -154,8 +154,6 @@ class GesturePipeline:
         #: the noise filter in front of the tracker (one per pipeline, its state kept across
         #: batches; it starts afresh by itself when the clock goes back, ``noise.py``)
         self.noise_filter = self._noise_filter()
-        #: the flicker filter after it (``noise.FlickerFilter``), its state kept likewise
-        self.flicker_filter = self._flicker_filter()
 
     @staticmethod
     def default_config() -> PipelineConfig:
@@ -173,11 +171,6 @@ class GesturePipeline:
         if noise.kind is None:
             return None
         return EventNoiseFilter(noise.kind, self.sensor.width, self.sensor.height, noise.time_us)
-
-    def _flicker_filter(self) -> FlickerFilter | None:
-        """The flicker filter after the noise filter (docs/method.md, "Noise filter"); the live
-        camera's source runs only the noise filter, so this one runs here on every path."""
-        return FlickerFilter(self.sensor.width, self.sensor.height, self.settings.noise.flicker_us)
 
     # --- inputs -----------------------------------------------------------------------------
     def process(self, item: StreamItem) -> list[GestureEstimate]:
@@ -236,8 +229,6 @@ class GesturePipeline:
         tracker.correct(rest + 0.5, int(events["timestamp"][-1]))  # the frame correction's fusion
         if self.noise_filter is not None:  # a fresh one: this pipeline's keeps its state
             self._noise_filter()(events)
-        if self.flicker_filter is not None:  # likewise
-            self._flicker_filter()(events)
         all_valid = np.ones(len(rest), dtype=bool)
         compile_resting_kernels()  # its frames come later, possibly in the runtime's thread
         compile_gel_motion_kernels()  # the grid's rim barely moves: its fits stop before them
@@ -436,15 +427,14 @@ class GesturePipeline:
     def _process_events(self, events: np.ndarray, *, filtered: bool = False) -> list[GestureEstimate]:
         if self.tracker is None or len(events) == 0:
             return []
-        if not filtered and (self.noise_filter is not None or self.flicker_filter is not None):
+        if self.noise_filter is not None and not filtered:
             # the tracker gets the kept events; the windows start and close on the unfiltered
             # timestamps, as without a filter (a batch of noise only still ends its windows)
             last_us = int(events["timestamp"][-1])
             if self._next_end is None:
                 self._next_end = int(events["timestamp"][0]) + self.config.window_us
             begin = self._clock()
-            kept = events if self.noise_filter is None else self.noise_filter(events)
-            kept = kept if self.flicker_filter is None else self.flicker_filter(kept)
+            kept = self.noise_filter(events)
             self._record("noise_filter", begin)
             return self._process_events(kept, filtered=True) + self._close_windows_until(last_us)
         ts = events["timestamp"]
