@@ -728,7 +728,8 @@ def test_a_frame_near_rest_re_anchors_a_drifted_tracker_without_calling_it_rest(
     (centroid distance 0.03: above the resting threshold 0.01, so not at rest, as the labels say)
     left that error standing and the windows after it read a gesture; re-anchoring the tracker
     near rest (centroid_reset_threshold 0.05) reads them as none, still not resting; with the
-    re-anchoring threshold below that frame's distance (0.02) they read a gesture."""
+    re-anchoring threshold below that frame's distance (0.02) they read a gesture. The frame
+    before shows the gel further pressed: the press is relaxing, not growing from rest."""
     near = gel_image((0.5, 0.0), region_px=15)
     answers = {}
     for reset in (0.02, 0.05):
@@ -736,6 +737,8 @@ def test_a_frame_near_rest_re_anchors_a_drifted_tracker_without_calling_it_rest(
         pipeline = _WindowByWindow(SENSOR, config)  # each window's own type: no undecided start
         pipeline.process(Frame(0, rest_image))
         pipeline.process(events_at(1))
+        pipeline.process(Frame(20_000, gel_image((1.0, 0.0), region_px=15)))
+        pipeline.process(events_at(21_000))
         w = np.exp(-np.sum((pipeline.rest_px - SENSOR.gel_center_px) ** 2, axis=1) / (2 * 12.0**2))
         pipeline.tracker.reset(pipeline.rest_px + w[:, None] * [2.0, 0.0])
         pipeline.process(Frame(40_000, near))
@@ -873,13 +876,19 @@ def test_the_window_checks_before_a_fit_match_numpy():
         assert not _unchanged(current.copy(), current, flipped, valid)  # a marker lost or found
 
 
-def _held_and_lagging(config: PipelineConfig, rest_image: np.ndarray, frame_image: np.ndarray) -> tuple:
+def _held_and_lagging(
+    config: PipelineConfig, rest_image: np.ndarray, frame_image: np.ndarray, before: np.ndarray | None = None
+) -> tuple:
     """A pipeline whose blobs lag: the markers within 30 px of the centre are held 3 px right,
     the blobs still 0.6 px short of them (a held gesture makes no events that would move them
-    on); then the APS frame ``frame_image`` arrives. Returns (rest, blobs after the frame)."""
+    on); then the APS frame ``frame_image`` arrives, after the frame ``before`` when given.
+    Returns (rest, the markers within 30 px, blobs after the frame)."""
     pipeline = GesturePipeline(SENSOR, config)
     pipeline.process(Frame(0, rest_image))
     pipeline.process(events_at(1))
+    if before is not None:
+        pipeline.process(Frame(20_000, before))
+        pipeline.process(events_at(21_000))
     rest = pipeline.rest_px
     near = np.hypot(*(rest - SENSOR.gel_center_px).T) <= 30.0
     pipeline.tracker.reset(rest + near[:, None] * [2.4, 0.0])
@@ -900,12 +909,37 @@ def test_frame_correction_brings_lagging_blobs_onto_the_markers_the_frame_shows(
 
 
 def test_a_frame_near_rest_re_anchors_the_blobs_and_is_not_fused_back(rest_image):
-    """A frame near rest (``centroid_reset_threshold``) re-anchors the tracker at the rest
-    positions; its own centroids, a few hundredths of a pixel off, must not then pull the blobs
-    away again (the frame correction is for frames that are not near rest)."""
+    """A frame near rest (``centroid_reset_threshold``) after a deeper one (a release) re-anchors
+    the tracker at the rest positions; its own centroids, a few tenths of a pixel off, must not
+    then pull the blobs away again (the frame correction is for frames that are not near rest)."""
     almost = gel_image(shift_px=(0.3, 0.0), region_px=30.0)  # Chamfer ~0.03 px^2: not resting, near rest
-    rest, _, after = _held_and_lagging(PipelineConfig(), rest_image, almost)
+    deeper = gel_image(shift_px=(1.0, 0.0), region_px=30.0)
+    rest, _, after = _held_and_lagging(PipelineConfig(), rest_image, almost, before=deeper)
     assert np.array_equal(after, rest)
+
+
+def test_a_frame_near_rest_whose_press_grows_from_rest_corrects_the_blobs(rest_image):
+    """A frame near rest straight after the gel rested: a press growing from rest, 0.3 px
+    (0.12 mm) on a patch of markers, beyond ``press_mm`` (0.1 mm), whose blobs the events have
+    moved 0.1 px so far. Re-anchored, the attack's first displacement would be wiped at every
+    frame; the frame corrects the blobs instead, towards the markers it shows, and the verdict
+    stays "not at rest". With ``press_mm`` 0.2 mm the same frame re-anchors them."""
+    almost = gel_image(shift_px=(0.3, 0.0), region_px=30.0)
+    after = {}
+    for press_mm in (0.1, 0.2):
+        pipeline = GesturePipeline(SENSOR, PipelineConfig(resting={"press_mm": press_mm}))
+        pipeline.process(Frame(0, rest_image))
+        pipeline.process(events_at(1))
+        rest = pipeline.rest_px
+        near = np.hypot(*(rest - SENSOR.gel_center_px).T) <= 30.0
+        pipeline.tracker.reset(rest + near[:, None] * [0.1, 0.0])
+        pipeline.process(events_at(30_000))
+        pipeline.process(Frame(40_000, almost))
+        pipeline.process(events_at(41_000))
+        assert not pipeline.resting.resting
+        after[press_mm] = pipeline.tracker.positions_px - rest
+    assert np.all(after[0.1][near, 0] > 0.2) and np.abs(after[0.1][~near]).max() < 0.05
+    assert np.array_equal(after[0.2], np.zeros_like(rest))
 
 
 def test_the_resting_verdict_carries_the_frames_marker_centroids_in_the_image_frame(rest_image):

@@ -175,10 +175,9 @@ def test_the_centroid_kernels_give_the_weighted_means_of_each_marker():
 
 def test_the_chamfer_sweep_finds_every_nearest_neighbour_of_the_brute_force():
     """``_nearest_sq`` (a sweep in x that stops early) gives, for every point, exactly the minimum
-    over all pairs, and ``_chamfer_sum`` their two sums (to rounding: the order of a sum is
-    numba's, not NumPy's pairwise one): on random sets of different sizes, on
-    whole-pixel points with many equal x and distances, and with an empty set (inf)."""
-    from neurotouch_hid.pipeline.resting import _chamfer_sum, _nearest_sq
+    over all pairs: on random sets of different sizes, on whole-pixel points with many equal x
+    and distances, and with an empty set (inf)."""
+    from neurotouch_hid.pipeline.resting import _nearest_sq
 
     rng = np.random.default_rng(5)
     for trial in range(60):
@@ -189,5 +188,37 @@ def test_the_chamfer_sweep_finds_every_nearest_neighbour_of_the_brute_force():
         d2 = ((p[:, None, :] - q[None, :, :]) ** 2).sum(axis=2)
         np.testing.assert_array_equal(_nearest_sq(p, q), d2.min(axis=1))
         np.testing.assert_array_equal(_nearest_sq(q, p), d2.min(axis=0))
-        assert _chamfer_sum(p, q) == pytest.approx(d2.min(axis=1).sum() + d2.min(axis=0).sum(), rel=1e-12)
     assert np.all(np.isinf(_nearest_sq(np.ones((3, 2)), np.zeros((0, 2)))))
+
+
+def test_the_press_is_how_far_a_patch_of_markers_moved_not_one_marker():
+    """The press (``press_px``): the largest median, over a marker and its grid neighbours, of
+    their distances to the frame's nearest centroid. A patch of markers moved 0.4 px shows
+    0.4 px whatever the light, while the Chamfer distance, a mean over the gel, stays below the
+    near-rest threshold (0.05 px^2); one marker moved 2 px alone shows no press; at rest 0."""
+    detector = RestingDetector(blobs(), SENSOR, threshold=0.01, binary_threshold=120, centroids=True)
+    assert detector.update(blobs()).press_px == pytest.approx(0.0, abs=1e-6)
+    for gain in (0.8, 1.0, 1.2):
+        patch = detector.update(blobs(gain, shift=(0.4, 0.0), region=15))
+        assert patch.press_px == pytest.approx(0.4, abs=0.03)
+        assert patch.distance < 0.05
+    one = detector.update(blobs(shift=(2.0, 0.0), region=1))
+    assert one.distance > 0.0 and one.press_px < 0.01
+
+
+def test_the_press_kernel_is_the_largest_neighbourhood_median():
+    """``_press`` (numba, insertion sort) equals NumPy's median over each marker's row of
+    :func:`grid_neighbours` (padding ignored), then the largest, on random distances."""
+    from neurotouch_hid.pipeline.override import grid_neighbours
+    from neurotouch_hid.pipeline.resting import _press
+
+    rng = np.random.default_rng(3)
+    k = np.arange(-6, 7) * 10.0
+    rest = np.stack(np.meshgrid(k, k), axis=-1).reshape(-1, 2)
+    rest = rest[np.hypot(*rest.T) <= 60]
+    neighbours = grid_neighbours(rest)
+    for _ in range(20):
+        nearest_sq = rng.exponential(0.1, len(rest))
+        d = np.append(np.sqrt(nearest_sq), np.nan)[neighbours]
+        assert _press(nearest_sq, neighbours) == pytest.approx(np.nanmax(np.nanmedian(d, axis=1)), rel=1e-12)
+    assert _press(np.zeros(0), np.zeros((0, 1), np.int64)) == 0.0

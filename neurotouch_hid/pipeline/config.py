@@ -137,6 +137,10 @@ class RestingConfig(BaseModel):
         motion_override_mm: displacement from rest (mm) beyond which ``override_min_markers``
             markers (median-filtered over their neighbours) overrule a resting verdict.
         override_min_markers: how many markers must have moved for that override (>= 1).
+        press_mm: a frame near rest still corrects the blobs, instead of re-anchoring them,
+            while the press it shows (``RestingResult.press_px``) is beyond this (mm) and
+            deeper than the frame before's: a press growing from rest (the labels' rest
+            tolerance, docs/dataset.md).
         rest_match_pitch: a candidate rest reference is refused while its markers are off the
             calibrated rest layout (sensor.yaml ``rest_markers_px``) by more than this many
             marker pitches.
@@ -152,13 +156,14 @@ class RestingConfig(BaseModel):
     centroid_reset_threshold_mm2: float = 0.008
     motion_override_mm: float = 0.12
     override_min_markers: int = 12
+    press_mm: float = 0.1
     rest_match_pitch: float = 0.1
     marker_threshold: int | None = None
     reference_attempts: int = 3
 
     @model_validator(mode="after")
     def _consistent(self) -> "RestingConfig":
-        for name in ("motion_override_mm", "rest_match_pitch"):
+        for name in ("motion_override_mm", "press_mm", "rest_match_pitch"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
         if self.centroid_reset_threshold_mm2 < self.centroid_threshold_mm2:
@@ -260,6 +265,7 @@ class PixelSettings:
     centroid_reset_threshold: float
     motion_override_px: float
     override_min_markers: int
+    press_px: float
     rest_match_pitch: float
     marker_threshold: int | None
     reference_attempts: int
@@ -296,6 +302,7 @@ def scaled_to_sensor(config: PipelineConfig, sensor: SensorGeometry) -> PixelSet
         centroid_reset_threshold=r.centroid_reset_threshold_mm2 * s * s,
         motion_override_px=r.motion_override_mm * s,
         override_min_markers=r.override_min_markers,
+        press_px=r.press_mm * s,
         rest_match_pitch=r.rest_match_pitch,
         marker_threshold=r.marker_threshold,
         reference_attempts=r.reference_attempts,

@@ -4,8 +4,9 @@ docs/method.md, "Overview"): events and APS frames in, one :class:`GestureEstima
 The frame path (:meth:`GesturePipeline._process_frame`): the first APS frame showing the gel's
 marker grid at its calibrated rest is the rest reference (``markers.py``; the camera model is
 fitted to it, ``camera_model.py``); every later frame goes to the resting detector
-(``resting.py``); at rest, or near it, the tracker is re-anchored at the rest positions,
-otherwise the frame's marker centroids correct the blobs (``tracker.py``).
+(``resting.py``); at rest, or near it unless a press is growing from rest, the tracker is
+re-anchored at the rest positions, otherwise the frame's marker centroids correct the blobs
+(``tracker.py``).
 
 The window path (:meth:`GesturePipeline._process_events`, :meth:`GesturePipeline._estimate`):
 events pass the noise filter (``noise.py``) to the event-blob tracker (``tracker.py``); at each
@@ -130,6 +131,7 @@ class GesturePipeline:
         #: verdicts handed over by :meth:`set_resting`, by increasing frame time, not yet applied
         self._pending: list[tuple[RestingResult, int]] = []
         self._resting_t_us = -(2**62)
+        self._press_px = 0.0
         #: the time of the latest APS frame the stream has brought the pipeline to (us)
         self._frame_t_us = -(2**62)
         self._lock = threading.Lock()
@@ -262,6 +264,7 @@ class GesturePipeline:
         with self._lock:
             self._pending = []
         self._resting_t_us = -(2**62)
+        self._press_px = 0.0
         self._frame_t_us = -(2**62)
         self._resting = RestingResult(True, 0.0)
         self._rejected_frames = 0
@@ -303,19 +306,26 @@ class GesturePipeline:
             self._apply_resting(pending[0], pending[1])
 
     def _apply_resting(self, result: RestingResult, t_us: int) -> None:
-        """The frame path after the resting detector: at rest (or near it) the tracker is
-        re-anchored at the rest positions; otherwise the frame corrects the blobs."""
+        """The frame path after the resting detector: at rest (or near it, :meth:`_near_rest`)
+        the tracker is re-anchored at the rest positions; otherwise the frame corrects the blobs."""
         self._resting = result
         if self.tracker is None:
             return
-        if result.resting or self._near_rest(result):
+        near = self._near_rest(result)
+        if result.resting or near:
             self.tracker.reset(self.rest_px)
         else:
             self._correct(result, t_us)
 
     def _near_rest(self, result: RestingResult) -> bool:
-        """Whether a frame not at rest is near enough to re-anchor the tracker (docs/method.md,
-        "Resting")."""
+        """Whether a frame not at rest is near enough to re-anchor the tracker: its distance is
+        within the near-rest threshold and it shows no press growing beyond ``press_px``
+        (docs/method.md, "Resting"). Called on every frame, in order: it keeps the frame's press
+        for the next."""
+        growing = self._press_px < result.press_px
+        self._press_px = result.press_px
+        if growing and result.press_px > self.config.press_px:
+            return False
         return result.distance <= self.config.centroid_reset_threshold
 
     def _correct(self, result: RestingResult, t_us: int) -> None:

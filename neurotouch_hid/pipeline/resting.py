@@ -44,6 +44,13 @@ nearest centroid squared (a pitch, ~100 px^2 at 2.5 px/mm) over n_markers. Cost 
 connected-components pass over the gel's bounding box (OpenCV) and the centroid sums and the
 (P x Q) nearest distances (~177^2) in numba, all without the GIL, so a resting thread does not
 hold up the event path.
+
+Press (``RestingResult.press_px``, not in the paper): the Chamfer distance is a mean over the
+whole gel, so one fingertip starting to press moves it little (a dozen markers 0.1 mm from rest
+add less than the near-rest threshold). Each reference marker's distance to the frame's nearest
+centroid, the median over the marker and its grid neighbours (a finger moves them together, a
+marker's noise does not), and the largest of these over the gel, say how far the gel is pressed
+anywhere (docs/method.md, "Resting").
 """
 
 from __future__ import annotations
@@ -56,6 +63,7 @@ import numpy as np
 
 from neurotouch_hid.errors import SensorError
 from neurotouch_hid.pipeline.config import RestingConfig
+from neurotouch_hid.pipeline.override import grid_neighbours
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import Frame
 
@@ -73,11 +81,15 @@ class RestingResult:
         centroids_px: (M, 2) float64 the frame's marker centroids (x, y px, image frame) when
             the detector compared centroids (``centroids``), else None. The pipeline's
             frame correction fuses them into the tracker's blobs.
+        press_px: the press the frame shows (px; centroids only, else 0): the largest, over the
+            reference's markers, of the median over a marker and its grid neighbours of their
+            distances to the frame's nearest centroid (module docstring, "Press").
     """
 
     resting: bool
     distance: float
     centroids_px: np.ndarray | None = field(default=None, compare=False, repr=False)
+    press_px: float = 0.0
 
 
 class RestingDetector:
@@ -148,6 +160,8 @@ class RestingDetector:
         self.n_markers = n_labels - 1
         #: (n_markers, 2) float64 the reference's marker centroids (px, gel bounding box)
         self.reference_centroids = self.marker_centroids(ref)
+        #: (n_markers, k) int64 each reference marker, then its grid neighbours, padded with n_markers
+        self._neighbours = grid_neighbours(self.reference_centroids)
 
     def _check(self, image: np.ndarray) -> np.ndarray:
         img = np.asarray(image)
@@ -175,14 +189,15 @@ class RestingDetector:
 
     def _centroid_verdict(self, image: np.ndarray) -> RestingResult:
         """The verdict from the Chamfer distance between the centroids of ``image`` and the
-        reference's (px^2), with the centroids in the image frame."""
+        reference's (px^2) and the press it shows (px), with the centroids in the image frame."""
         p = self.marker_centroids(image)
         if len(p) == 0:
             return RestingResult(False, float("inf"), p)
-        distance = _chamfer_sum(p, self.reference_centroids) / (self.n_markers if self.per_marker else 1)
+        chamfer, press = _chamfer_and_press(p, self.reference_centroids, self._neighbours)
+        distance = chamfer / (self.n_markers if self.per_marker else 1)
         p[:, 0] += self._roi[1].start
         p[:, 1] += self._roi[0].start
-        return RestingResult(distance <= self.threshold, distance, p)
+        return RestingResult(distance <= self.threshold, distance, p, press)
 
     @staticmethod
     def _squared_distance_to(mask: np.ndarray) -> np.ndarray:
@@ -227,7 +242,7 @@ def compile_resting_kernels() -> None:
     """Compile (or load from numba's cache) the centroid kernels now, for the array types
     :meth:`RestingDetector.marker_centroids` passes them, instead of at the first APS frame."""
     centroids = _weighted_centroids(np.zeros((2, 2), np.int32), np.zeros((2, 2), np.uint8), 2, 0.0)
-    _chamfer_sum(centroids, centroids)
+    _chamfer_and_press(centroids, centroids, np.zeros((len(centroids), 1), np.int64))
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -255,12 +270,42 @@ def _weighted_centroids(labels: np.ndarray, image: np.ndarray, n: int, level: fl
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _chamfer_sum(p: np.ndarray, q: np.ndarray) -> float:
-    """sum over p of min_q ||p - q||^2 + sum over q of min_p ||p - q||^2 (px^2) for (P, 2) and
-    (Q, 2) float64 point sets (the paper's Chamfer distance, section "Resting Position Detection").
-    Each nearest neighbour is found by a sweep in x (:func:`_nearest_sq`), the same minima as
-    measuring all P x Q pairs."""
-    return _nearest_sq(p, q).sum() + _nearest_sq(q, p).sum()
+def _chamfer_and_press(p: np.ndarray, q: np.ndarray, neighbours: np.ndarray) -> tuple[float, float]:
+    """The Chamfer sum of the frame's centroids ``p`` (P, 2) and the reference's ``q`` (Q, 2)
+    float64 (px^2: sum over p of min_q ||p - q||^2 + sum over q of min_p ||p - q||^2, the paper's,
+    section "Resting Position Detection") and the press the frame shows (px, :func:`_press`,
+    ``neighbours`` (Q, k) int64 the reference's grid neighbours): one call, both from the same
+    nearest distances (:func:`_nearest_sq`)."""
+    reference_to_current = _nearest_sq(q, p)
+    return _nearest_sq(p, q).sum() + reference_to_current.sum(), _press(reference_to_current, neighbours)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _press(nearest_sq: np.ndarray, neighbours: np.ndarray) -> float:
+    """The press a frame shows (px): over the reference's markers, the largest median of the
+    distances ``sqrt(nearest_sq)`` ((N,) float64, each reference marker's squared distance to
+    the frame's nearest centroid, px^2) over a marker and its grid neighbours (``neighbours``,
+    (N, k) int64, :func:`~neurotouch_hid.pipeline.override.grid_neighbours`, padded with N).
+    A finger moves a marker's neighbours with it; one marker's noise or a lost marker does not
+    move the median. 0 when N = 0."""
+    largest = 0.0
+    near = np.empty(neighbours.shape[1])
+    for i in range(len(nearest_sq)):
+        k = 0
+        for j in neighbours[i]:
+            if j < len(nearest_sq):
+                near[k] = np.sqrt(nearest_sq[j])
+                k += 1
+        for q in range(1, k):  # insertion sort of the (<= 5) distances
+            x = near[q]
+            r = q - 1
+            while r >= 0 and near[r] > x:
+                near[r + 1] = near[r]
+                r -= 1
+            near[r + 1] = x
+        median = near[k // 2] if k % 2 else 0.5 * (near[k // 2 - 1] + near[k // 2])
+        largest = max(largest, median)
+    return largest
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
