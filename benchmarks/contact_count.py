@@ -28,6 +28,7 @@ import typer
 
 from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions
 from neurotouch_hid.estimate import GestureType
+from workdir import families_in
 
 app = typer.Typer(add_completion=False)
 
@@ -102,14 +103,15 @@ def family_rows(dataset: Path, predictions: Path) -> dict[str, dict]:
 @app.command()
 def main(
     out: Path = typer.Option(..., "--out", help="family_eval.py's working folder"),
-    families: str = typer.Option("default,fingers,strong,powerlaw,camera", "--families"),
+    families: str = typer.Option("", "--families", help="comma-separated (default: every family with predictions)"),
     method: str = typer.Option("ours", "--method", help="the predictions' method name"),
 ) -> None:
+    names = families_in(out, families, method)
     head = "few @0-100 / 100-200 / 200+ ms (share of windows)"
     cols = f"count | count >= 0.12 mm | too few | too many | {head} | 3 -> 2 | merged gestures"
     print(f"| family | type | windows | {cols} |")
     print("| --- | --- | ---: | ---: | ---: | ---: | ---: | --- | ---: | ---: |")
-    for fam in [f.strip() for f in families.split(",") if f.strip()]:
+    for fam in names:
         for kind, r in family_rows(out / fam, out / "predictions" / fam / method).items():
             parts = " / ".join(f"{100 * f:.0f} % ({100 * s:.0f})" for f, s in r["parts"])
             three, n3 = r["three_as_two"]

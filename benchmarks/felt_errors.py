@@ -45,6 +45,7 @@ from neurotouch_hid.evaluation.felt import (
     gesture_spans,
 )
 from neurotouch_hid.pipeline.episode import PROVISIONAL_MM
+from workdir import families_in
 
 app = typer.Typer(add_completion=False)
 #: A gesture this short or shorter (first to last labelled frame, ms) counts as a tap.
@@ -184,13 +185,11 @@ def lines_for(name: str, t: Tally) -> list[str]:
 @app.command()
 def main(
     out: Path = typer.Option(..., "--out", help="family_eval.py working folder"),
-    method: str = typer.Option("ours+vote", "--method", help="whose predictions (DIR/predictions/FAMILY/METHOD)"),
+    method: str = typer.Option("ours", "--method", help="whose predictions (DIR/predictions/FAMILY/METHOD)"),
     families: str = typer.Option("", "--families", help="comma-separated (default: every family with predictions)"),
     deadzone_mm: float = typer.Option(DEFAULT_DEADZONE_MM, "--deadzone-mm", min=0.0),
 ) -> None:
-    names = [f for f in families.split(",") if f] or sorted(
-        p.name for p in (out / "predictions").iterdir() if (p / method).is_dir()
-    )
+    names = families_in(out, families, method)
     total = Tally()
     for fam in names:
         t = Tally()

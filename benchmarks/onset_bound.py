@@ -22,6 +22,7 @@ import typer
 from neurotouch_hid.dataset import list_sequences, read_labels
 from neurotouch_hid.evaluation.felt import gesture_spans
 from neurotouch_hid.sensor import SensorGeometry
+from workdir import families_in
 
 app = typer.Typer(add_completion=False)
 
@@ -50,14 +51,11 @@ def first_moved_ms(dataset: Path, thresholds_mm: list[float]) -> np.ndarray:
 @app.command()
 def main(
     out: Path = typer.Option(..., "--out", help="family_eval.py working folder"),
-    families: str = typer.Option(
-        "default,powerlaw,stickslip,indent,camera,drift,fingers,strong,markers,noise,flicker,viscoelastic,pasternak,exposure",
-        "--families",
-    ),
+    families: str = typer.Option("", "--families", help="comma-separated (default: every family with a dataset)"),
     mm: str = typer.Option("0.02,0.05,0.1,0.12,0.2", "--mm", help="displacements (mm) to time"),
 ) -> None:
     thresholds = [float(x) for x in mm.split(",")]
-    times = np.concatenate([first_moved_ms(out / f.strip(), thresholds) for f in families.split(",") if f.strip()])
+    times = np.concatenate([first_moved_ms(out / f, thresholds) for f in families_in(out, families)])
     print(f"{len(times)} gestures")
     print("| largest marker displacement | median ms | p90 ms | never |")
     print("| ---: | ---: | ---: | ---: |")

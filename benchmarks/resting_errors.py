@@ -23,6 +23,7 @@ from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.simulator import REST_TOLERANCE_MM
+from workdir import families_in
 
 app = typer.Typer(add_completion=False)
 
@@ -67,15 +68,14 @@ def family_errors(dataset: Path, predictions: Path) -> dict:
 def main(
     out: Path = typer.Option(..., "--out", help="family_eval.py working folder"),
     method: str = typer.Option(..., "--method", help="the method's name in family_eval.py"),
-    families: str = typer.Option(
-        "default,powerlaw,indent,camera,drift,fingers,strong,markers,noise,flicker", "--families"
-    ),
+    families: str = typer.Option("", "--families", help="comma-separated (default: every family with predictions)"),
 ) -> None:
+    names = families_in(out, families, method)
     print(
         "| family | resting F1 | F1, offset rule at onset too | false rest | of which at onset < 0.1 mm | missed rest |"
     )
     print("| --- | ---: | ---: | ---: | ---: | ---: |")
-    for fam in (f.strip() for f in families.split(",") if f.strip()):
+    for fam in names:
         r = family_errors(out / fam, out / "predictions" / fam / method)
         print(
             f"| {fam} | {100 * r['f1']:.2f} % | {100 * r['f1_offset_rule']:.2f} % | {r['false_rest']} | "

@@ -33,6 +33,7 @@ from neurotouch_hid.pipeline.episode import EpisodeVote
 from neurotouch_hid.pipeline.pipeline import GesturePipeline
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.recording import RecordingReader
+from workdir import families_in
 
 app = typer.Typer(add_completion=False)
 
@@ -119,7 +120,7 @@ def main(
     ),
     deadzone_mm: float = typer.Option(DEFAULT_DEADZONE_MM, "--deadzone-mm", min=0.0),
 ) -> None:
-    names = [f.strip() for f in families.split(",") if f.strip()]
+    names = families_in(out, families)
     candidates = [
         (int(float(t) * 1000), float(p)) for t in first_finger_ms.split(",") for p in provisional_mm.split(",")
     ]

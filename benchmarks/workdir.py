@@ -1,0 +1,56 @@
+"""The families of a ``family_eval.py`` working folder, for the scripts that read one
+(``felt_errors.py``, ``resting_errors.py``, ``onset_bound.py``, ``contact_count.py``,
+``type_commitment.py``).
+
+A working folder holds each family's dataset under ``DIR/FAMILY`` (its ``sensor.yaml`` and
+sequences) and each method's predictions under ``DIR/predictions/FAMILY/METHOD``
+(``family_eval.py``'s module docstring).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def families_in(out: Path, names: str = "", method: str | None = None) -> list[str]:
+    """The families to read: ``names`` (comma-separated) if given, else every family of ``out``
+    with a dataset (and, when ``method`` is given, that method's predictions), sorted.
+
+    Raises:
+        typer.Exit: (status 2, after one line on stderr naming the folder and the command that
+            fills it) ``out`` is not a folder, a named family has no dataset (or no predictions
+            of ``method``) there, or no family qualifies.
+    """
+    if not out.is_dir():
+        _usage_error(f"{out}: no such folder (a family_eval.py --out folder)")
+
+    def ready(family: str) -> str | None:
+        if not (out / family / "sensor.yaml").is_file():
+            return f"{out / family}: no dataset (make it with: python3 benchmarks/family_eval.py --out {out} --families {family})"
+        if method is not None and not (out / "predictions" / family / method).is_dir():
+            return (
+                f"{out / 'predictions' / family / method}: no predictions of method {method!r} "
+                f"(make them with: python3 benchmarks/family_eval.py --out {out} --families {family} --method {method}=default)"
+            )
+        return None
+
+    chosen = [f.strip() for f in names.split(",") if f.strip()]
+    if chosen:
+        for family in chosen:
+            problem = ready(family)
+            if problem is not None:
+                _usage_error(problem)
+        return chosen
+    found = sorted(p.name for p in out.iterdir() if p.is_dir() and ready(p.name) is None)
+    if not found:
+        what = "datasets" if method is None else f"datasets with predictions of method {method!r}"
+        _usage_error(f"{out}: no family {what} (run benchmarks/family_eval.py --out {out} first)")
+    return found
+
+
+def _usage_error(message: str) -> None:
+    """One line on stderr, unwrapped (a pipe or a log gets it whole), then exit status 2."""
+    typer.echo(f"error: {message}", err=True)
+    raise typer.Exit(2)

@@ -1,0 +1,74 @@
+"""The scripts that read a family_eval.py working folder (benchmarks/workdir.py): which families
+they read, and a folder or family without data is one line naming it and what makes it, exit
+status 2, never a traceback."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+import typer
+from helpers import BENCHMARKS, load_benchmark
+
+
+@pytest.fixture(scope="module")
+def workdir():
+    return load_benchmark("workdir")
+
+
+def make_family(out, family, methods=()):
+    (out / family).mkdir(parents=True)
+    (out / family / "sensor.yaml").write_text("{}\n")
+    for method in methods:
+        (out / "predictions" / family / method).mkdir(parents=True)
+
+
+def test_without_names_every_family_with_data_is_read_in_order(workdir, tmp_path):
+    make_family(tmp_path, "strong", ["ours"])
+    make_family(tmp_path, "default", ["ours", "paper"])
+    make_family(tmp_path, "late", ["paper"])
+    (tmp_path / "notes").mkdir()  # a folder without a dataset is not a family
+    assert workdir.families_in(tmp_path) == ["default", "late", "strong"]
+    assert workdir.families_in(tmp_path, method="ours") == ["default", "strong"]
+    assert workdir.families_in(tmp_path, " late , default", method="paper") == ["late", "default"]
+
+
+@pytest.mark.parametrize(
+    ("names", "method", "said"),
+    [
+        ("fingers", None, "fingers: no dataset"),
+        ("default", "paper", "no predictions of method 'paper'"),
+        ("", "paper", "no family datasets with predictions of method 'paper'"),
+    ],
+)
+def test_a_family_without_data_is_a_usage_error(workdir, tmp_path, capsys, names, method, said):
+    make_family(tmp_path, "default", ["ours"])
+    with pytest.raises(typer.Exit) as stop:
+        workdir.families_in(tmp_path, names, method)
+    assert stop.value.exit_code == 2
+    err = capsys.readouterr().err
+    assert said in err and "family_eval.py --out" in err
+
+
+@pytest.mark.parametrize(
+    ("script", "args"),
+    [
+        ("resting_errors.py", ["--method", "ours"]),
+        ("felt_errors.py", ["--families", "late"]),
+        ("onset_bound.py", []),
+        ("contact_count.py", ["--families", "default"]),
+        ("type_commitment.py", ["--families", "default"]),
+    ],
+)
+def test_each_script_refuses_a_folder_without_data_in_one_unwrapped_line(tmp_path, script, args):
+    out = tmp_path / ("a folder whose name is long enough to pass eighty columns" * 2)
+    out.mkdir()
+    done = subprocess.run(
+        [sys.executable, str(BENCHMARKS / script), "--out", str(out), *args], capture_output=True, text=True
+    )
+    assert done.returncode == 2, done.stderr
+    assert "Traceback" not in done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and str(out) in lines[0], done.stderr
+    assert done.stdout == ""
