@@ -88,9 +88,13 @@ def read_states(text: str) -> list[dict]:
 
 def load_benchmark(name: str) -> types.ModuleType:
     """``benchmarks/NAME.py`` imported as the module ``NAME``, registered in ``sys.modules`` (where
-    a script's dataclasses look their module up); later calls return the same module."""
+    a script's dataclasses look their module up); later calls return the same module. The
+    benchmarks folder is put on ``sys.path``, as running a script there does, so that a script
+    imports its neighbours (``workdir.py``)."""
     if name in sys.modules:
         return sys.modules[name]
+    if str(BENCHMARKS) not in sys.path:
+        sys.path.append(str(BENCHMARKS))
     spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module

@@ -1,0 +1,53 @@
+"""benchmarks/resting_errors.py on a hand-made sequence: the resting F1 against the labels, with the
+labels' offset rule at the onset too, and that of the labels' 0.1 mm tolerance itself."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from helpers import load_benchmark
+
+from neurotouch_hid.dataset import LabelRow, write_labels, write_predictions
+from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.sensor import default_sensor
+
+
+@pytest.fixture(scope="module")
+def resting_errors():
+    return load_benchmark("resting_errors")
+
+
+def test_the_figures_of_a_slow_push(resting_errors, tmp_path):
+    # Labels every 10 ms: rest to 90 ms, a push from 100 ms, rest again from 300 ms. The one marker
+    # moves from 100 ms, 0.1 mm at 150 ms, and is back at rest at 300 ms. The predictions call
+    # rest to 110 ms and from 310 ms.
+    sensor = default_sensor()
+    dataset, predictions = tmp_path / "family", tmp_path / "predictions"
+    dataset.mkdir()
+    predictions.mkdir()
+    sensor.save(dataset / "sensor.yaml")
+    (dataset / "s.aedat4").write_bytes(b"")  # listed by name only
+    labels = [
+        LabelRow(ms * 1000, GestureType.PUSH if 100 <= ms < 300 else GestureType.NONE, not 100 <= ms < 300, 0.0, np.zeros((0, 2)))
+        for ms in range(0, 400, 10)
+    ]
+    write_labels(dataset / "s.labels.csv", labels)
+    t_ms = np.arange(0, 400)
+    moved_mm = np.where((t_ms >= 100) & (t_ms < 300), 0.1 * (t_ms - 100) / 50, 0.0)
+    rest = np.array([[100.0, 100.0]])
+    positions = rest[None] + np.stack([moved_mm * sensor.px_per_mm, np.zeros_like(moved_mm)], axis=1)[:, None, :]
+    np.savez(dataset / "s.markers.npz", t_us=t_ms * 1000, positions_px=positions, rest_px=rest)
+    windows = range(10, 400, 10)
+    write_predictions(
+        predictions / "s.jsonl",
+        [GestureEstimate(ms * 1000, GestureType.NONE, ms < 120 or ms >= 310) for ms in windows],
+    )
+    r = resting_errors.family_errors(dataset, predictions)
+    # truth rest 10-90 and 300-390 ms (19 windows); said 10-110 and 310-390 (20): 18 agree,
+    # 100 and 110 ms called rest in the push (below 0.1 mm), 300 ms missed
+    assert (r["false_rest"], r["false_rest_at_onset_below_tolerance"], r["missed_rest"]) == (2, 2, 1)
+    assert r["f1"] == pytest.approx(36 / 39)
+    # with the offset rule at the onset too, 10-140 ms are at rest (24 windows): 20 agree, 4 do not
+    assert r["f1_offset_rule"] == pytest.approx(40 / 44)
+    # the tolerance itself calls rest to 140 ms: 19 agree, 100-140 ms (5) do not
+    assert r["f1_tolerance_detector"] == pytest.approx(38 / 43)
