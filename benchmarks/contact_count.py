@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 import typer
+from workdir import families_in
 
 from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions
 from neurotouch_hid.estimate import GestureType
-from workdir import families_in
 
 app = typer.Typer(add_completion=False)
 

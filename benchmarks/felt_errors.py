@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 import typer
+from workdir import families_in
 
 from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions
 from neurotouch_hid.estimate import GestureType
@@ -45,7 +46,6 @@ from neurotouch_hid.evaluation.felt import (
     gesture_spans,
 )
 from neurotouch_hid.pipeline.episode import PROVISIONAL_MM
-from workdir import families_in
 
 app = typer.Typer(add_completion=False)
 #: A gesture this short or shorter (first to last labelled frame, ms) counts as a tap.

@@ -18,11 +18,11 @@ from pathlib import Path
 
 import numpy as np
 import typer
+from workdir import families_in
 
 from neurotouch_hid.dataset import list_sequences, read_labels
 from neurotouch_hid.evaluation.felt import gesture_spans
 from neurotouch_hid.sensor import SensorGeometry
-from workdir import families_in
 
 app = typer.Typer(add_completion=False)
 

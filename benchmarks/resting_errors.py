@@ -21,12 +21,12 @@ from pathlib import Path
 
 import numpy as np
 import typer
+from workdir import families_in
 
 from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.simulator import REST_TOLERANCE_MM
-from workdir import families_in
 
 app = typer.Typer(add_completion=False)
 
@@ -84,7 +84,8 @@ def main(
         r = family_errors(out / fam, out / "predictions" / fam / method)
         print(
             f"| {fam} | {100 * r['f1']:.2f} % | {100 * r['f1_offset_rule']:.2f} % | {r['false_rest']} | "
-            f"{r['false_rest_at_onset_below_tolerance']} | {r['missed_rest']} | {100 * r['f1_tolerance_detector']:.2f} % |"
+            f"{r['false_rest_at_onset_below_tolerance']} | {r['missed_rest']} | "
+            f"{100 * r['f1_tolerance_detector']:.2f} % |"
         )
 
 

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import typer
+from workdir import families_in
 
 from neurotouch_hid.dataset import list_sequences, read_labels, read_predictions, write_predictions
 from neurotouch_hid.estimate import GestureType
@@ -33,7 +34,6 @@ from neurotouch_hid.pipeline.episode import EpisodeVote
 from neurotouch_hid.pipeline.pipeline import GesturePipeline
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.recording import RecordingReader
-from workdir import families_in
 
 app = typer.Typer(add_completion=False)
 

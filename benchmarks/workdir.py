@@ -28,12 +28,12 @@ def families_in(out: Path, names: str = "", method: str | None = None) -> list[s
 
     def ready(family: str) -> str | None:
         if not (out / family / "sensor.yaml").is_file():
-            return f"{out / family}: no dataset (make it with: python3 benchmarks/family_eval.py --out {out} --families {family})"
+            make = f"python3 benchmarks/family_eval.py --out {out} --families {family}"
+            return f"{out / family}: no dataset (make it with: {make})"
         if method is not None and not (out / "predictions" / family / method).is_dir():
-            return (
-                f"{out / 'predictions' / family / method}: no predictions of method {method!r} "
-                f"(make them with: python3 benchmarks/family_eval.py --out {out} --families {family} --method {method}=default)"
-            )
+            make = f"python3 benchmarks/family_eval.py --out {out} --families {family} --method {method}=default"
+            where = out / "predictions" / family / method
+            return f"{where}: no predictions of method {method!r} (make them with: {make})"
         return None
 
     chosen = [f.strip() for f in names.split(",") if f.strip()]
