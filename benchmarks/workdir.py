@@ -10,6 +10,7 @@ sequences) and each method's predictions under ``DIR/predictions/FAMILY/METHOD``
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NoReturn
 
 import typer
 
@@ -50,7 +51,7 @@ def families_in(out: Path, names: str = "", method: str | None = None) -> list[s
     return found
 
 
-def _usage_error(message: str) -> None:
+def _usage_error(message: str) -> NoReturn:
     """One line on stderr, unwrapped (a pipe or a log gets it whole), then exit status 2."""
     typer.echo(f"error: {message}", err=True)
     raise typer.Exit(2)

@@ -28,9 +28,11 @@ def test_the_figures_of_a_slow_push(resting_errors, tmp_path):
     sensor.save(dataset / "sensor.yaml")
     (dataset / "s.aedat4").write_bytes(b"")  # listed by name only
     pushed = range(100, 300)
-    kinds = {True: GestureType.PUSH, False: GestureType.NONE}
     labels = [
-        LabelRow(ms * 1000, kinds[ms in pushed], ms not in pushed, 0.0, np.zeros((0, 2))) for ms in range(0, 400, 10)
+        LabelRow(
+            ms * 1000, GestureType.PUSH if ms in pushed else GestureType.NONE, ms not in pushed, 0.0, np.zeros((0, 2))
+        )
+        for ms in range(0, 400, 10)
     ]
     write_labels(dataset / "s.labels.csv", labels)
     t_ms = np.arange(0, 400)
