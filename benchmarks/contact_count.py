@@ -29,8 +29,9 @@ from workdir import families_in
 
 from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions
 from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.output.console import command_app
 
-app = typer.Typer(add_completion=False)
+app = command_app()
 
 #: The gesture step's minimum intensity (mm; ``GestureConfig.min_intensity_mm``): below it a
 #: window is ``none`` and has no contact whatever the contacts stage finds.

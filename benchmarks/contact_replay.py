@@ -26,10 +26,11 @@ import typer
 
 from neurotouch_hid.dataset import labels_at, list_sequences, read_labels
 from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.output.console import command_app
 from neurotouch_hid.pipeline import contacts as contacts_mod
 from neurotouch_hid.pipeline import pipeline as pipeline_mod
 
-app = typer.Typer(add_completion=False)
+app = command_app()
 
 
 def record_sequence(dataset: Path, name: str) -> dict:

@@ -60,6 +60,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 import contact_replay  # noqa: E402
 
+from neurotouch_hid.output.console import command_app  # noqa: E402
 from neurotouch_hid.pipeline import contacts as C  # noqa: E402
 from neurotouch_hid.pipeline import pipeline as P  # noqa: E402
 from neurotouch_hid.pipeline.contacts_bump import bump_fit  # noqa: E402
@@ -367,7 +368,7 @@ def _round_unless_seen(least):
 #: that read the press's earlier windows.
 PRESS = {"plateau_round105_two_unless_seen": _round_unless_seen(1.05)}
 
-app = typer.Typer(add_completion=False)
+app = command_app()
 
 
 def _use(variant: str) -> None:

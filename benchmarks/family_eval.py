@@ -50,7 +50,7 @@ from neurotouch_hid.estimate import GESTURE_ORDER, GestureType
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
 from neurotouch_hid.evaluation.metrics import Observations, align, evaluate
 from neurotouch_hid.evaluation.runner import evaluate_dataset, pipeline_config
-from neurotouch_hid.output.console import make_console
+from neurotouch_hid.output.console import command_app, make_console
 from neurotouch_hid.pipeline.episode import EpisodeVote
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import PHYSICS
@@ -79,7 +79,7 @@ COUNT_PER_TYPE = 0.92
 #: ``ours`` is the product's pipeline (its episode vote included), ``paper`` the paper's method.
 DEFAULT_METHODS = ("ours=default", "paper=paper")
 
-app = typer.Typer(add_completion=False)
+app = command_app()
 
 
 def parse_method(text: str) -> tuple[str, str, list[str]]:

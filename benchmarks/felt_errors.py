@@ -45,9 +45,10 @@ from neurotouch_hid.evaluation.felt import (
     gesture_records,
     gesture_spans,
 )
+from neurotouch_hid.output.console import command_app
 from neurotouch_hid.pipeline.episode import PROVISIONAL_MM
 
-app = typer.Typer(add_completion=False)
+app = command_app()
 #: A gesture this short or shorter (first to last labelled frame, ms) counts as a tap.
 TAP_MS = 500.0
 #: The gel has moved: label intensity (mm) at least the simulator's rest tolerance.

@@ -22,9 +22,10 @@ from workdir import families_in
 
 from neurotouch_hid.dataset import list_sequences, read_labels
 from neurotouch_hid.evaluation.felt import gesture_spans
+from neurotouch_hid.output.console import command_app
 from neurotouch_hid.sensor import SensorGeometry
 
-app = typer.Typer(add_completion=False)
+app = command_app()
 
 
 def first_moved_ms(dataset: Path, thresholds_mm: list[float]) -> np.ndarray:

@@ -25,10 +25,11 @@ from workdir import families_in
 
 from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions
 from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.output.console import command_app
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.simulator import REST_TOLERANCE_MM
 
-app = typer.Typer(add_completion=False)
+app = command_app()
 
 
 def f1(truth: np.ndarray, predicted: np.ndarray) -> float:

@@ -39,6 +39,7 @@ from tune_pipeline import record_sequence  # noqa: E402
 from neurotouch_hid.dataset import labels_at, list_sequences, read_labels  # noqa: E402
 from neurotouch_hid.estimate import GestureType  # noqa: E402
 from neurotouch_hid.evaluation.runner import pipeline_config  # noqa: E402
+from neurotouch_hid.output.console import command_app
 from neurotouch_hid.pipeline.learned import CLASSES, FEATURES, gesture_features  # noqa: E402
 from neurotouch_hid.pipeline.pipeline import GesturePipeline  # noqa: E402
 from neurotouch_hid.sensor import SensorGeometry  # noqa: E402
@@ -47,7 +48,7 @@ from neurotouch_hid.sources.simulator import write_dataset  # noqa: E402
 
 MODEL_FILE = Path(__file__).resolve().parents[1] / "neurotouch_hid" / "pipeline" / "gesture_model.py"
 
-app = typer.Typer(add_completion=False)
+app = command_app()
 
 
 def rows(dataset: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -46,7 +46,7 @@ from neurotouch_hid.evaluation.metrics import (
     precision_recall_f1,
 )
 from neurotouch_hid.evaluation.runner import pipeline_config
-from neurotouch_hid.output.console import make_console
+from neurotouch_hid.output.console import command_app, make_console
 from neurotouch_hid.sensor import SensorGeometry
 
 #: Seeds of the tuning and test sets: the ``paper`` preset simulates its tuning users (5-9) for
@@ -205,6 +205,10 @@ def simulate(out: Path, seed: int, minutes: Optional[float]) -> Path:
     return out
 
 
+app = command_app()
+
+
+@app.command()
 def main(
     out: Path = typer.Option(..., "--out", help="folder for the tuning set, the window snapshots and tuning.json"),
     grid: list[str] = typer.Option(list(DEFAULT_GRID), "--grid", help="NAME=V1,V2,... (a PipelineConfig field)"),
@@ -277,4 +281,4 @@ def main(
 
 
 if __name__ == "__main__":
-    typer.run(main)
+    app()

@@ -30,12 +30,13 @@ from neurotouch_hid.dataset import list_sequences, read_labels, read_predictions
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM, gesture_spans
 from neurotouch_hid.evaluation.metrics import Observations, align, evaluate
+from neurotouch_hid.output.console import command_app
 from neurotouch_hid.pipeline.episode import EpisodeVote
 from neurotouch_hid.pipeline.pipeline import GesturePipeline
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.recording import RecordingReader
 
-app = typer.Typer(add_completion=False)
+app = command_app()
 
 #: Columns: label, key in the result (felt keys under "felt"), format.
 COLUMNS = (

@@ -21,22 +21,12 @@ import typer
 
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.kinds import OutputKind, SourceKind
-from neurotouch_hid.output.console import PIPE_WIDTH, make_console
+from neurotouch_hid.output.console import command_app, make_console
 
-#: --help to a pipe or a file: each paragraph and option on one line, nothing cut (click re-flows
-#: help to the terminal's width, and to 80 columns elsewhere).
-_HELP_WIDTH = {} if sys.stdout.isatty() else {"terminal_width": PIPE_WIDTH, "max_content_width": PIPE_WIDTH}
-
-app = typer.Typer(
+app = command_app(
     name="neurotouch-hid",
     help="NeuroTouch soft tactile sensor -> standard game controller.",
     no_args_is_help=True,
-    add_completion=False,
-    pretty_exceptions_enable=False,
-    # click's plain help: flags without rich's `<bool>`, each paragraph re-flowed whole (rich's
-    # boxes broke docstrings at their source line ends, mid-sentence)
-    rich_markup_mode=None,
-    context_settings=_HELP_WIDTH,
 )
 profile_app = typer.Typer(
     help="List, show, create, edit, validate, test, tune, delete, reset and use (switch the running driver to) "

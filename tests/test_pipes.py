@@ -6,9 +6,14 @@ with stdout a pipe (a subprocess), or a file (``> mine.yaml``).
 
 from __future__ import annotations
 
-from helpers import run_cli
+import subprocess
+import sys
+
+import pytest
+from helpers import BENCHMARKS, load_benchmark, run_cli
 
 from neurotouch_hid.mapping.profile import load_profile, shipped_profiles_dir
+from neurotouch_hid.sources.physics import PHYSICS
 
 
 def test_profile_show_piped_is_the_file(tmp_path):
@@ -38,3 +43,39 @@ def test_wide_table_to_a_pipe_is_not_cropped(tmp_path):
     assert len(description) > 80
     row = [line for line in lines if description in line]
     assert len(row) == 1 and "ok" in row[0].split(description)[1], result.stdout.decode()
+
+
+#: The benchmarks' typer scripts (each builds its app with ``command_app``).
+TYPER_BENCHMARKS = sorted(p.stem for p in BENCHMARKS.glob("*.py") if "command_app()" in p.read_text())
+
+
+def test_every_typer_benchmark_is_covered():
+    typer_scripts = sorted(p.stem for p in BENCHMARKS.glob("*.py") if "import typer" in p.read_text())
+    assert TYPER_BENCHMARKS == [s for s in typer_scripts if s != "workdir"]
+
+
+@pytest.mark.parametrize("script", TYPER_BENCHMARKS)
+def test_benchmark_usage_error_to_a_pipe_is_one_plain_line(script):
+    """Without its required option or command, a benchmark says so on one unboxed line (rich's
+    boxes, cropped at 80 columns, were what a CI log got)."""
+    result = subprocess.run(
+        [sys.executable, str(BENCHMARKS / f"{script}.py")], capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 2, result.stderr
+    errors = [line for line in result.stderr.splitlines() if line.startswith("Error: Missing ")]
+    assert len(errors) == 1, result.stderr
+    assert not set("╭│╰…") & set(result.stderr), result.stderr
+
+
+def test_benchmark_help_to_a_pipe_is_not_cropped():
+    """``family_eval.py --help`` piped: the default family list (over 100 characters) is whole,
+    on the line of its option."""
+    result = subprocess.run(
+        [sys.executable, str(BENCHMARKS / "family_eval.py"), "--help"], capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 0, result.stderr
+    families = ",".join(f for f in PHYSICS if f not in load_benchmark("family_eval").HELD_BACK)
+    assert len(families) > 100
+    (line,) = [line for line in result.stdout.splitlines() if line.lstrip().startswith("--families")]
+    assert f"[default: {families}]" in line, result.stdout
+    assert "…" not in result.stdout
