@@ -1,6 +1,6 @@
 """The families of a ``family_eval.py`` working folder, for the scripts that read one
 (``felt_errors.py``, ``resting_errors.py``, ``onset_bound.py``, ``contact_count.py``,
-``type_commitment.py``).
+``type_commitment.py``, ``profile_felt.py``), and their usage errors.
 
 A working folder holds each family's dataset under ``DIR/FAMILY`` (its ``sensor.yaml`` and
 sequences) and each method's predictions under ``DIR/predictions/FAMILY/METHOD``
@@ -25,7 +25,7 @@ def families_in(out: Path, names: str = "", method: str | None = None) -> list[s
             of ``method``) there, or no family qualifies.
     """
     if not out.is_dir():
-        _usage_error(f"{out}: no such folder (a family_eval.py --out folder)")
+        usage_error(f"{out}: no such folder (a family_eval.py --out folder)")
 
     def ready(family: str) -> str | None:
         if not (out / family / "sensor.yaml").is_file():
@@ -42,16 +42,16 @@ def families_in(out: Path, names: str = "", method: str | None = None) -> list[s
         for family in chosen:
             problem = ready(family)
             if problem is not None:
-                _usage_error(problem)
+                usage_error(problem)
         return chosen
     found = sorted(p.name for p in out.iterdir() if p.is_dir() and ready(p.name) is None)
     if not found:
         what = "datasets" if method is None else f"datasets with predictions of method {method!r}"
-        _usage_error(f"{out}: no family {what} (run benchmarks/family_eval.py --out {out} first)")
+        usage_error(f"{out}: no family {what} (run benchmarks/family_eval.py --out {out} first)")
     return found
 
 
-def _usage_error(message: str) -> NoReturn:
-    """One line on stderr, unwrapped (a pipe or a log gets it whole), then exit status 2."""
+def usage_error(message: str) -> NoReturn:
+    """``error: MESSAGE``: one line on stderr, unwrapped (a pipe or a log gets it whole), then exit status 2."""
     typer.echo(f"error: {message}", err=True)
     raise typer.Exit(2)

@@ -59,6 +59,7 @@ def test_a_family_without_data_is_a_usage_error(workdir, tmp_path, capsys, names
         ("onset_bound.py", []),
         ("contact_count.py", ["--families", "default"]),
         ("type_commitment.py", ["--families", "default"]),
+        ("profile_felt.py", ["--method", "ours"]),
     ],
 )
 def test_each_script_refuses_a_folder_without_data_in_one_unwrapped_line(tmp_path, script, args):
