@@ -37,7 +37,7 @@ from workdir import families_in, usage_error
 
 from neurotouch_hid.controller import AXES, ControllerState
 from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions
-from neurotouch_hid.errors import ProfileError
+from neurotouch_hid.errors import DatasetError, ProfileError
 from neurotouch_hid.estimate import GESTURE_ORDER, GestureEstimate, GestureType
 from neurotouch_hid.evaluation.felt import REST_MARGIN_US, gesture_spans
 from neurotouch_hid.mapping.profile import Profile, load_profile, shipped_profiles_dir
@@ -51,7 +51,8 @@ app = command_app()
 #: outlasts the fingers while the gel relaxes, longest on a creeping gel (docs/method.md, "Creep";
 #: measured: up to ~240 ms), and the rest margin of the false activations is as long.
 TAIL_US = 300_000
-#: The probe: windows of 10 ms, the intensity ramped to PROBE_MM over PROBE_RAMP_US, held after.
+#: The windows of the probe and of the labels' replay (us); the probe's intensity is ramped to
+#: PROBE_MM over PROBE_RAMP_US, then held.
 PROBE_MM = 6.0
 PROBE_RAMP_US = 200_000
 PROBE_HOLD_US = 700_000
@@ -149,17 +150,19 @@ def tally(profile: Profile, own: dict[GestureType, set[str]], labels, prediction
     predictions'); ideal (gestures whose ideal replay changes an output of their own); rest
     windows; rest windows in which an output went active."""
     t = Counter()
-    if not predictions:
-        return t
     times = np.array([p.t_us for p in predictions], dtype=np.int64)
     went, changed = edges(profile, predictions)
-    _, ideal_changed = edges(profile, ideal_estimates(labels, times, geometry))
+    # the labels' replay on its own 10 ms grid, so that a sequence answered sparsely (or not at
+    # all) is still judged against every gesture its labels hold
+    grid = np.arange(labels[0].t_us, labels[-1].t_us + TAIL_US, WINDOW_US, dtype=np.int64) if labels else times
+    _, ideal_changed = edges(profile, ideal_estimates(labels, grid, geometry))
     spans = gesture_spans(labels)
     for k, (kind, t0, t1) in enumerate(spans):
         end = t1 + TAIL_US if k + 1 == len(spans) else min(t1 + TAIL_US, spans[k + 1][1])
         lo, hi = np.searchsorted(times, t0), np.searchsorted(times, end)
         others = set().union(*(outs for g, outs in own.items() if g is not kind)) - own[kind]
-        ideal = bool(set().union(*ideal_changed[lo:hi]) & own[kind])
+        ideal_span = ideal_changed[np.searchsorted(grid, t0) : np.searchsorted(grid, end)]
+        ideal = bool(set().union(*ideal_span) & own[kind])
         t["gestures"] += 1
         t["wrong"] += bool(set().union(*went[lo:hi]) & others)
         t["ideal"] += ideal
@@ -194,8 +197,11 @@ def main(
         for family in chosen:
             t = Counter()
             for seq in list_sequences(out / family):
-                labels = read_labels(out / family / f"{seq}.labels.csv")
-                predictions = read_predictions(out / "predictions" / family / method / f"{seq}.jsonl")
+                try:
+                    labels = read_labels(out / family / f"{seq}.labels.csv")
+                    predictions = read_predictions(out / "predictions" / family / method / f"{seq}.jsonl")
+                except DatasetError as exc:
+                    usage_error(str(exc))
                 t += tally(profile, owned[name], labels, predictions, geometry[family])
             total += t
             print(_row(name, family, t))

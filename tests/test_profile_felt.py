@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from helpers import BENCHMARKS, load_benchmark
 
-from neurotouch_hid.dataset import LabelRow
+from neurotouch_hid.dataset import LabelRow, write_labels
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.mapping.profile import load_profile
 from neurotouch_hid.sensor import SensorGeometry
@@ -85,6 +85,9 @@ def test_a_gesture_never_answered_is_missed_unless_the_profile_could_not_fire(pr
     default = load_profile("default")
     t = profile_felt.tally(default, profile_felt.outputs_by_type(default), labelled_pinch(), nothing, GEOMETRY)
     assert (t["ideal"], t["missed"], t["wrong"]) == (1, 1, 0)
+    # a sequence without a single answer is judged against its labels all the same
+    t = profile_felt.tally(default, profile_felt.outputs_by_type(default), labelled_pinch(), [], GEOMETRY)
+    assert (t["gestures"], t["ideal"], t["missed"]) == (1, 1, 1)
     # switch-access presses Enter only past 2.5 mm: a 1 mm pinch fires nothing even when read right
     switch = load_profile("switch-access")
     right = answers({range(400, 1000): (G.PINCH, 1.0)})
@@ -127,3 +130,19 @@ def test_an_unknown_profile_is_one_line_naming_those_there_are(tmp_path):
     assert done.returncode == 2 and done.stdout == "", done.stderr
     (line,) = done.stderr.splitlines()
     assert "no-such-profile" in line and "switch-access" in line
+
+
+def test_a_sequence_without_predictions_is_one_line_naming_the_file(tmp_path):
+    (tmp_path / "default").mkdir()
+    (tmp_path / "default" / "sensor.yaml").write_text("{}\n")
+    (tmp_path / "default" / "u0.aedat4").write_bytes(b"")
+    write_labels(tmp_path / "default" / "u0.labels.csv", labelled_pinch())
+    (tmp_path / "predictions" / "default" / "ours").mkdir(parents=True)
+    done = subprocess.run(
+        [sys.executable, str(BENCHMARKS / "profile_felt.py"), "--out", str(tmp_path), "--method", "ours",
+         "--profiles", "default"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    (line,) = done.stderr.splitlines()
+    assert "u0.jsonl" in line and "Traceback" not in done.stderr
