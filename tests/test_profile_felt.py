@@ -118,31 +118,33 @@ def test_an_output_going_active_at_rest_is_counted_a_toggle_left_on_is_not(profi
     assert t["gestures"] == 2 and t["wrong"] == 0 and t["rest_active"] == 0
 
 
+def family_folder(out, sequences: bool) -> None:
+    """A family_eval.py folder: family ``default`` (with one sequence, ``u0``, when ``sequences``)
+    and an empty predictions folder of method ``ours``."""
+    (out / "default").mkdir()
+    (out / "default" / "sensor.yaml").write_text("{}\n")
+    if sequences:
+        (out / "default" / "u0.aedat4").write_bytes(b"")
+        write_labels(out / "default" / "u0.labels.csv", labelled_pinch())
+    (out / "predictions" / "default" / "ours").mkdir(parents=True)
+
+
+def run_script(out, profiles: str) -> subprocess.CompletedProcess:
+    argv = [str(BENCHMARKS / "profile_felt.py"), "--out", str(out), "--method", "ours", "--profiles", profiles]
+    return subprocess.run([sys.executable, *argv], capture_output=True, text=True, timeout=120)
+
+
 def test_an_unknown_profile_is_one_line_naming_those_there_are(tmp_path):
-    (tmp_path / "default").mkdir()
-    (tmp_path / "default" / "sensor.yaml").write_text("{}\n")
-    (tmp_path / "predictions" / "default" / "ours").mkdir(parents=True)
-    done = subprocess.run(
-        [sys.executable, str(BENCHMARKS / "profile_felt.py"), "--out", str(tmp_path), "--method", "ours",
-         "--profiles", "default,no-such-profile"],
-        capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
+    family_folder(tmp_path, sequences=False)
+    done = run_script(tmp_path, "default,no-such-profile")
     assert done.returncode == 2 and done.stdout == "", done.stderr
     (line,) = done.stderr.splitlines()
     assert "no-such-profile" in line and "switch-access" in line
 
 
 def test_a_sequence_without_predictions_is_one_line_naming_the_file(tmp_path):
-    (tmp_path / "default").mkdir()
-    (tmp_path / "default" / "sensor.yaml").write_text("{}\n")
-    (tmp_path / "default" / "u0.aedat4").write_bytes(b"")
-    write_labels(tmp_path / "default" / "u0.labels.csv", labelled_pinch())
-    (tmp_path / "predictions" / "default" / "ours").mkdir(parents=True)
-    done = subprocess.run(
-        [sys.executable, str(BENCHMARKS / "profile_felt.py"), "--out", str(tmp_path), "--method", "ours",
-         "--profiles", "default"],
-        capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
+    family_folder(tmp_path, sequences=True)
+    done = run_script(tmp_path, "default")
     assert done.returncode == 2, done.stderr
     (line,) = done.stderr.splitlines()
     assert "u0.jsonl" in line and "Traceback" not in done.stderr
