@@ -56,10 +56,37 @@ def test_the_load_behind_a_creeping_gel_is_the_load_that_deformed_it():
     np.testing.assert_array_equal(grid[:, 0], deformation)  # an elastic gel: the load is what is seen
 
 
-def test_a_creep_model_needs_a_share_below_one_and_a_positive_time():
-    for share, time_s in ((1.0, 0.3), (-0.1, 0.3), (0.3, 0.0)):
-        with pytest.raises(ValueError, match="0 <= q < 1 and tau > 0"):
-            CreepFilter(share, time_s)
+def test_a_gel_seen_at_rest_holds_no_creep_so_the_next_press_is_read_at_once():
+    """A deep press held 3 s, released; its tail is followed until it reads 0.7 px, then the
+    pipeline's rest reference takes in what is left (0 px for 150 ms), and a slow press starts
+    elsewhere (3 px in 0.4 s). With the creep calibrated slower than the gel (tau 0.45 s for 0.3 s),
+    the unbounded inverse still holds the first press's creep: its load passes the 0.3 px
+    threshold 90 ms after the true load; bounded (no pull: y <= max(d, floor) / q) 30 ms after,
+    and the tail stays below the threshold all the same."""
+    load1 = 2.0 * press_load(hold_s=3.0, rest_s=0.0)
+    seen = creeping(np.concatenate([load1, np.zeros(300)]), 0.3, 0.3)
+    tail = seen[len(load1) :]
+    tail = tail[: int(np.argmax(tail < 0.7))]
+    second_load = np.concatenate([np.linspace(0.0, 3.0, 41), np.full(60, 3.0)])
+    d = np.concatenate([seen[: len(load1)], tail, np.zeros(15), creeping(second_load, 0.3, 0.3)])
+    t = np.arange(len(d)) * STEP_US
+    creep = CreepFilter(0.28, 0.45, floor=0.3)
+    bounded = np.array([creep.update(x, int(ti)) for x, ti in zip(d, t)])
+    unbounded = load_estimate(d, t, 0.28, 0.45)
+    start = len(d) - len(second_load)
+    assert bounded[len(load1) + 5 : start].max() < 0.3  # the tail: no false activation
+    true_onset = int(np.argmax(second_load >= 0.3))
+    assert int(np.argmax(bounded[start:] >= 0.3)) - true_onset <= 3
+    assert int(np.argmax(unbounded[start:] >= 0.3)) - true_onset >= 8
+    # while the gel is seen still, y is at most floor / q: the load no lower than -floor / (1 - q)
+    still = bounded[start - 15 : start]
+    assert np.all(still <= 0.0) and np.all(still >= -0.3 / 0.72 - 1e-9)
+
+
+def test_a_creep_model_needs_a_share_below_one_a_positive_time_and_a_floor_not_below_zero():
+    for share, time_s, floor in ((1.0, 0.3, 0.0), (-0.1, 0.3, 0.0), (0.3, 0.0, 0.0), (0.3, 0.3, -0.1)):
+        with pytest.raises(ValueError, match=r"0 <= q < 1, tau > 0 s and a floor >= 0"):
+            CreepFilter(share, time_s, floor)
 
 
 @pytest.mark.parametrize(("share", "time_s"), [(0.3, 0.3), (0.2, 0.6), (0.4, 0.3), (0.15, 1.0)])

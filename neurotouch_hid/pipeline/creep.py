@@ -47,18 +47,31 @@ RELEASED_FOR_US = 1_500_000
 class CreepFilter:
     """The load of :mod:`creep`'s module docstring, window after window.
 
+    Fingers press and never pull, so the load is never negative: the delayed part y is at most
+    d / q. When the deformation falls faster than the model lets y follow (a creep calibrated
+    slower than the gel's, or the gel seen still after a release), y is brought down to that bound:
+    a gel seen at rest holds no creep, and the next press is read from its first window instead of
+    being taken for the last one's relaxation.
+
     Args:
         share: q in [0, 1), the delayed share of the gel's deformation.
         time_s: tau > 0, its retardation time (s).
+        floor: the deformation (same unit as :meth:`update`'s) below which a window reads as
+            still; a deformation given below it may be up to it, so y is bounded by floor / q
+            then (>= 0; 0: the deformation is exact).
     Raises:
-        ValueError: q or tau out of range.
+        ValueError: q, tau or the floor out of range.
     """
 
-    def __init__(self, share: float, time_s: float) -> None:
-        if not (0.0 <= share < 1.0) or not time_s > 0.0:
-            raise ValueError(f"a creep model needs 0 <= q < 1 and tau > 0 s, got q={share}, tau={time_s}")
+    def __init__(self, share: float, time_s: float, floor: float = 0.0) -> None:
+        if not (0.0 <= share < 1.0) or not time_s > 0.0 or not floor >= 0.0:
+            raise ValueError(
+                f"a creep model needs 0 <= q < 1, tau > 0 s and a floor >= 0, "
+                f"got q={share}, tau={time_s}, floor={floor}"
+            )
         self.share = float(share)
         self.time_us = float(time_s) * 1e6 * (1.0 - self.share)  # y's time constant (1 - q) tau
+        self.floor = float(floor)
         self._y = 0.0
         self._t_us: int | None = None
 
@@ -72,7 +85,11 @@ class CreepFilter:
         given the deformation then; the first call takes the gel to have been at rest before."""
         dt = 0.0 if self._t_us is None else max(t_us - self._t_us, 0)
         self._t_us = t_us
-        self._y, load = _step(self._y, float(deformation), dt, self.share, self.time_us)
+        deformation = float(deformation)
+        self._y, load = _step(self._y, deformation, dt, self.share, self.time_us)
+        if self.share > 0.0 and load < 0.0:  # no pull: y <= max(d, floor) / q
+            self._y = min(self._y, max(deformation, self.floor) / self.share)
+            load = (deformation - self.share * self._y) / (1.0 - self.share)
         return float(load)
 
 

@@ -148,7 +148,9 @@ class GesturePipeline:
         #: (docs/method.md, "Contacts"; ends with the press, at a window without a gesture)
         self._long_press = False
         #: the fingers' load behind the deformation of a gel whose creep sensor.yaml has ("Creep")
-        self._creep = CreepFilter(*sensor.creep) if sensor.creep is not None else None
+        self._creep = (
+            CreepFilter(*sensor.creep, floor=self.config.min_intensity_px) if sensor.creep is not None else None
+        )
         #: what the fits derive from a rest reference, by name: (that reference, the value)
         self._of_rest_kept: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         #: the last window's fit: (rest_px, current, valid, long press, contacts, gesture result)
@@ -396,6 +398,8 @@ class GesturePipeline:
         if fitted is not None:
             self.sensor = fitted
             self.config = self._scaled(self.settings, fitted)
+            if self._creep is not None:
+                self._creep.floor = self.config.min_intensity_px
 
     def _at_rest_after_restart(self, frame: Frame) -> bool:
         """After :meth:`restart`: whether ``frame`` may re-initialise the markers (see there)."""
