@@ -22,12 +22,10 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
 from neurotouch_hid.dataset import list_sequences, read_labels, read_predictions
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.evaluation.metrics import Observations, align, evaluate
-from neurotouch_hid.pipeline.creep import load_estimate
+from neurotouch_hid.pipeline.creep import CreepFilter
 from neurotouch_hid.pipeline.pipeline import PipelineConfig
 from neurotouch_hid.sensor import SensorGeometry
 
@@ -36,17 +34,18 @@ METRICS = ("gesture_accuracy", "contact_count_accuracy", "contact_distance_mm", 
 
 def replay(dataset: Path, predictions: Path, share: float, time_s: float) -> dict:
     """The predictions of ``predictions`` (one JSON lines file per sequence of ``dataset``) with
-    every gesture window whose estimated load (mm, :func:`load_estimate` of the windows'
-    intensities) is below ``PipelineConfig().gesture.min_intensity_mm`` answered ``none``, scored
-    against the labels. Returns the metrics and ``changed``, the windows turned to ``none``."""
+    every gesture window whose estimated load (mm, :class:`CreepFilter` over the windows'
+    intensities, bounded as the pipeline's) is below ``PipelineConfig().gesture.min_intensity_mm``
+    answered ``none``, scored against the labels. Returns the metrics and ``changed``, the windows
+    turned to ``none``."""
     sensor = SensorGeometry.load(dataset / "sensor.yaml")
     threshold_mm = PipelineConfig().gesture.min_intensity_mm
     parts, changed = [], 0
     for name in list_sequences(dataset):
         windows = read_predictions(predictions / f"{name}.jsonl")
         if share > 0:
-            t = np.array([w.t_us for w in windows], dtype=np.int64)
-            load = load_estimate(np.array([w.intensity_mm for w in windows]), t, share, time_s)
+            creep = CreepFilter(share, time_s, floor=threshold_mm)
+            load = [creep.update(w.intensity_mm, w.t_us) for w in windows]
             light = [w.gesture is not GestureType.NONE and f < threshold_mm for w, f in zip(windows, load)]
             changed += sum(light)
             windows = [replace(w, gesture=GestureType.NONE) if off else w for w, off in zip(windows, light)]
