@@ -40,8 +40,8 @@ from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_
 from neurotouch_hid.errors import DatasetError, ProfileError
 from neurotouch_hid.estimate import GESTURE_ORDER, GestureEstimate, GestureType
 from neurotouch_hid.evaluation.felt import REST_MARGIN_US, gesture_spans
-from neurotouch_hid.mapping.profile import Profile, load_profile, shipped_profiles_dir
-from neurotouch_hid.mapping.replay import replay
+from neurotouch_hid.mapping.profile import DPAD, Profile, load_profile, shipped_profiles_dir
+from neurotouch_hid.mapping.replay import pressed, replay
 from neurotouch_hid.output.console import command_app
 from neurotouch_hid.sensor import SensorGeometry
 
@@ -60,10 +60,11 @@ WINDOW_US = 10_000
 
 
 def active_outputs(state: ControllerState) -> set[str]:
-    """The outputs of ``state`` away from neutral: axes (evdev names), buttons, keys, relative axes."""
-    axes = {name for name, (_, _, neutral) in AXES.items() if state.axes[name] != neutral}
-    buttons = {name for name, down in state.buttons.items() if down}
-    return axes | buttons | set(state.keys) | {name for name, count in state.rel.items() if count}
+    """The outputs of ``state`` away from neutral: its buttons, d-pad directions and keys down
+    (``replay.pressed``), its other axes off centre (evdev names) and its relative motion."""
+    hats = {axis for axis, _ in DPAD.values()}
+    axes = {name for name, (_, _, neutral) in AXES.items() if name not in hats and state.axes[name] != neutral}
+    return set(pressed(state)) | axes | {name for name, count in state.rel.items() if count}
 
 
 def _probe(gesture: GestureType, direction_rad: float) -> list[GestureEstimate]:
