@@ -352,6 +352,12 @@ def eval_cmd(
         help="dead zone of the per-gesture metrics (mm; default: the default profile's), docs/dataset.md",
         callback=_finite,
     ),
+    profiles: list[str] = typer.Option(
+        [],
+        "--profile",
+        help="profile name or file, repeatable: replay the answers through it and count wrong outputs, missed "
+        'gestures and outputs going active at rest (docs/dataset.md, "Through a profile")',
+    ),
 ) -> None:
     """Run the pipeline over a labelled dataset; print the paper's metrics and the per-gesture ones."""
     import json
@@ -361,8 +367,11 @@ def eval_cmd(
 
     from neurotouch_hid.evaluation.report import print_tables, write_report
     from neurotouch_hid.evaluation.runner import evaluate_dataset, pipeline_config
+    from neurotouch_hid.evaluation.through_profile import ProfileUnderTest
+    from neurotouch_hid.mapping.profile import load_profile
 
     config = pipeline_config(settings, method, **({} if window_us is None else {"window_us": window_us}))
+    tested = [ProfileUnderTest.probe(name, load_profile(name)) for name in dict.fromkeys(profiles)]
     columns = (
         TextColumn("{task.description}"),
         BarColumn(),
@@ -372,13 +381,20 @@ def eval_cmd(
     )
     with Progress(*columns, console=err_console, transient=True) as progress:
         result = evaluate_dataset(
-            dataset, config, jobs=jobs, predictions_dir=predictions, progress=progress, deadzone_mm=deadzone_mm
+            dataset,
+            config,
+            jobs=jobs,
+            predictions_dir=predictions,
+            progress=progress,
+            deadzone_mm=deadzone_mm,
+            profiles=tested,
         )
     print_tables(result, console)
     argv = (
         ["eval", str(dataset)]
         + ([f"--method={method}"] if method != "default" else [])
         + [f"--set={item}" for item in settings]
+        + [f"--profile={name}" for name in dict.fromkeys(profiles)]
         + [
             f"{flag}={value}"
             for flag, value in (

@@ -126,6 +126,18 @@ def gesture_spans(labels: Sequence[LabelRow]) -> list[tuple[GestureType, int, in
     return spans
 
 
+def at_rest(labels: Sequence[LabelRow], t_us: np.ndarray) -> np.ndarray:
+    """Which of the times ``t_us`` ((N,) int64, us) are at rest: more than :data:`REST_MARGIN_US`
+    from every labelled frame of a gesture (the false activations' windows); (N,) bool."""
+    frames = np.array([r.t_us for r in labels if r.gesture is not GestureType.NONE], dtype=np.int64)
+    if not len(frames):
+        return np.ones(len(t_us), bool)
+    at = np.searchsorted(frames, t_us)  # frames[at - 1] < t <= frames[at]
+    before = frames[np.clip(at - 1, 0, len(frames) - 1)]
+    after = frames[np.clip(at, 0, len(frames) - 1)]
+    return np.minimum(np.abs(t_us - before), np.abs(after - t_us)) > REST_MARGIN_US
+
+
 def _changes(types: list[GestureType]) -> int:
     return sum(1 for a, b in zip(types, types[1:]) if a is not b)
 
@@ -203,14 +215,7 @@ def gesture_records(
             out = next((p for p in felt if p.gesture is kind), None)
             if out is not None:
                 rec.deadzone_latency_ms[k] = (out.t_us - crossing) / 1000.0
-    frames = np.array([r.t_us for r in labels if r.gesture is not GestureType.NONE], dtype=np.int64)
-    if len(frames):
-        at = np.searchsorted(frames, t_pred)  # frames[at - 1] < t <= frames[at]
-        before = frames[np.clip(at - 1, 0, len(frames) - 1)]
-        after = frames[np.clip(at, 0, len(frames) - 1)]
-        rest = np.minimum(np.abs(t_pred - before), np.abs(after - t_pred)) > REST_MARGIN_US
-    else:
-        rest = np.ones(len(t_pred), bool)
+    rest = at_rest(labels, t_pred)
     rec.n_rest = int(rest.sum())
     active = [p for p, r in zip(predictions, rest) if r and p.gesture is not GestureType.NONE]
     rec.false_activations = len(active)

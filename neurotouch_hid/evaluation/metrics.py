@@ -21,7 +21,7 @@ arrays and ``None`` in :meth:`EvaluationResult.to_dict`.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, is_dataclass
+from dataclasses import asdict, dataclass, field, is_dataclass
 from typing import Sequence
 
 import numpy as np
@@ -29,6 +29,7 @@ import numpy as np
 from neurotouch_hid.dataset import LabelRow, labels_at
 from neurotouch_hid.estimate import GESTURE_ORDER, GestureEstimate, GestureType
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM, FeltRecords, FeltSummary, gesture_records, summarise
+from neurotouch_hid.evaluation.through_profile import ProfileTally, ProfileUnderTest, tally
 from neurotouch_hid.sensor import SensorGeometry
 
 #: Width of the ground-truth intensity bins of the accuracy-vs-intensity analysis (mm), as the
@@ -201,6 +202,8 @@ class Observations:
         n_skipped: predictions before the sequence's first label (not evaluated).
         n_sequences: sequences these observations come from.
         felt: the per-gesture records of the same predictions (:mod:`.felt`).
+        through_profiles: per profile name, the counts of the same predictions through it
+            (:mod:`.through_profile`).
     """
 
     gesture_true: np.ndarray
@@ -216,6 +219,7 @@ class Observations:
     n_skipped: int = 0
     n_sequences: int = 1
     felt: FeltRecords | None = None
+    through_profiles: dict[str, ProfileTally] = field(default_factory=dict)
 
     _ARRAYS = (
         "gesture_true",
@@ -246,6 +250,10 @@ class Observations:
             n_skipped=sum(p.n_skipped for p in parts),
             n_sequences=sum(p.n_sequences for p in parts),
             felt=FeltRecords.concatenate([p.felt for p in parts if p.felt is not None]),
+            through_profiles={
+                name: sum((p.through_profiles.get(name, ProfileTally()) for p in parts), ProfileTally())
+                for name in dict.fromkeys(name for p in parts for name in p.through_profiles)
+            },
         )
 
 
@@ -254,9 +262,11 @@ def align(
     predictions: Sequence[GestureEstimate],
     sensor: SensorGeometry,
     deadzone_mm: float = DEFAULT_DEADZONE_MM,
+    profiles: Sequence[ProfileUnderTest] = (),
 ) -> Observations:
-    """Pair one sequence's predictions with its labels (docs/dataset.md "Predictions (JSON lines)"), and
-    score them per gesture (:func:`.felt.gesture_records`, with ``deadzone_mm``, mm).
+    """Pair one sequence's predictions with its labels (docs/dataset.md "Predictions (JSON lines)"),
+    score them per gesture (:func:`.felt.gesture_records`, with ``deadzone_mm``, mm), and through
+    each of ``profiles`` (:func:`.through_profile.tally`).
 
     The ground truth at each prediction time comes from
     :func:`~neurotouch_hid.dataset.labels_at`; predictions before the first label are
@@ -269,6 +279,8 @@ def align(
         labels: the sequence's label rows, ordered by time.
         predictions: the pipeline's estimates for the sequence, ordered by time.
         sensor: the dataset's geometry.
+        deadzone_mm: the dead zone of the per-gesture figures (mm).
+        profiles: the profiles to replay the predictions through.
     """
     truth = (
         labels_at(labels, np.array([p.t_us for p in predictions], dtype=np.int64))
@@ -290,6 +302,7 @@ def align(
         distance_n=np.zeros(m, np.int64),
         n_skipped=len(predictions) - m,
         felt=gesture_records(labels, predictions, deadzone_mm),
+        through_profiles={tested.name: tally(tested, labels, predictions, sensor) for tested in profiles},
     )
     for k, (pred, true) in enumerate(kept):
         obs.gesture_true[k] = _GESTURE_INDEX[true.gesture]
@@ -352,6 +365,7 @@ class EvaluationResult:
             gesture observations.
         n_by_intensity: (B,) observations per bin.
         felt: the per-gesture figures (docs/dataset.md, "Per-gesture metrics").
+        through_profiles: per profile name, the counts through it (docs/dataset.md, "Through a profile").
     """
 
     classes: list[str]
@@ -382,6 +396,7 @@ class EvaluationResult:
     contact_count_accuracy_by_intensity: np.ndarray
     n_by_intensity: np.ndarray
     felt: FeltSummary
+    through_profiles: dict[str, ProfileTally] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """All fields as JSON-able values (lists, floats, ints; NaN -> None)."""
@@ -451,4 +466,5 @@ def evaluate(obs: Observations) -> EvaluationResult:
         contact_count_accuracy_by_intensity=c_acc,
         n_by_intensity=n_bin,
         felt=summarise(obs.felt if obs.felt is not None else FeltRecords.concatenate([])),
+        through_profiles=dict(obs.through_profiles),
     )

@@ -119,6 +119,19 @@ def felt_rows(result: EvaluationResult) -> list[tuple[str, str]]:
     ]
 
 
+PROFILE_HEADER = ["Profile", "Gestures", "Wrong output", "Missed (of those the labels move)", "Went active at rest"]
+
+
+def profile_rows(result: EvaluationResult) -> list[list[str]]:
+    """Per profile replayed (``eval --profile``): gestures, those with a wrong output, those missed
+    (of those whose labels move an output of their type) and the rest windows in which an output
+    went active (docs/dataset.md, "Through a profile"), formatted."""
+    return [
+        [name, str(t.gestures), str(t.wrong), f"{t.missed} of {t.ideal}", f"{t.rest_active} of {t.rest} windows"]
+        for name, t in result.through_profiles.items()
+    ]
+
+
 PER_CLASS_HEADER = ["Gesture", "Prec. %", "Recall %", "F1 %", "Support", "Count acc. %", "Dist. mm", "MAE mm"]
 
 
@@ -139,8 +152,9 @@ def intensity_rows(result: EvaluationResult) -> list[list[str]]:
 
 
 def print_tables(result: EvaluationResult, console: Console) -> None:
-    """Print the paper's metrics as rich tables: headline metrics beside the paper's, per gesture
-    type metrics, the balanced confusion matrix, and accuracy against intensity."""
+    """Print the paper's metrics as rich tables: headline metrics beside the paper's, the
+    per-gesture figures, the counts through each profile replayed, per gesture type metrics, the
+    balanced confusion matrix, and accuracy against intensity."""
     head = Table(
         title=f"NeuroTouch evaluation: {result.n_sequences} sequences, {result.n_observations} observations "
         f"({result.n_skipped} predictions before the first label skipped)"
@@ -157,6 +171,14 @@ def print_tables(result: EvaluationResult, console: Console) -> None:
     for row in felt_rows(result):
         felt.add_row(*row)
     console.print(felt)
+
+    if result.through_profiles:
+        profiles = Table(title="Through the profiles (what each output does; docs/dataset.md)")
+        for col in PROFILE_HEADER:
+            profiles.add_column(col, justify="left" if col == "Profile" else "right")
+        for row in profile_rows(result):
+            profiles.add_row(*row)
+        console.print(profiles)
 
     per_class = Table(title="Per gesture type (precision, recall, F1 of the gesture type; errors on labelled type)")
     for col in PER_CLASS_HEADER:
@@ -313,6 +335,8 @@ def write_report(
         _md_table(["Metric", "Ours"], felt_rows(result)),
         "",
     ]
+    if result.through_profiles:
+        parts += ["## Through the profiles", "", _md_table(PROFILE_HEADER, profile_rows(result)), ""]
     parts += ["## Per gesture type", "", _md_table(PER_CLASS_HEADER, per_class_rows(result)), ""]
     parts += [
         "## Accuracy against ground-truth intensity",

@@ -21,6 +21,7 @@ from neurotouch_hid.dataset import dataset_sensor_file, list_sequences, read_lab
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
 from neurotouch_hid.evaluation.metrics import EvaluationResult, Observations, align, evaluate
+from neurotouch_hid.evaluation.through_profile import ProfileUnderTest
 from neurotouch_hid.limits import short
 from neurotouch_hid.sensor import SensorGeometry
 
@@ -99,6 +100,7 @@ def run_sequence(
     predictions_dir: str | Path | None = None,
     on_time: Callable[[int], None] | None = None,
     deadzone_mm: float = DEFAULT_DEADZONE_MM,
+    profiles: Sequence[ProfileUnderTest] = (),
 ) -> Observations:
     """Run the pipeline over one sequence and pair its predictions with the labels.
 
@@ -109,6 +111,7 @@ def run_sequence(
         predictions_dir: if given, write ``name.jsonl`` there (docs/dataset.md "Predictions (JSON lines)").
         on_time: called now and then with the microseconds processed since the recording's start.
         deadzone_mm: the dead zone of the per-gesture figures (mm; :mod:`.felt`).
+        profiles: profiles to replay the predictions through (:mod:`.through_profile`).
     Raises:
         DatasetError, RecordingError, SensorError: bad labels, recording or geometry.
     """
@@ -129,7 +132,7 @@ def run_sequence(
     if predictions_dir is not None:
         Path(predictions_dir).mkdir(parents=True, exist_ok=True)
         write_predictions(Path(predictions_dir) / f"{name}.jsonl", predictions)
-    return align(labels, predictions, sensor, deadzone_mm)
+    return align(labels, predictions, sensor, deadzone_mm, profiles)
 
 
 def evaluate_dataset(
@@ -140,6 +143,7 @@ def evaluate_dataset(
     predictions_dir: str | Path | None = None,
     progress=None,
     deadzone_mm: float = DEFAULT_DEADZONE_MM,
+    profiles: Sequence[ProfileUnderTest] = (),
 ) -> EvaluationResult:
     """Run the pipeline over every sequence of a dataset and compute the paper's metrics.
 
@@ -154,6 +158,7 @@ def evaluate_dataset(
         progress: an optional ``rich.progress.Progress``; a task advancing over the recorded
             time (s) is added to it.
         deadzone_mm: the dead zone of the per-gesture figures (mm; :mod:`.felt`).
+        profiles: profiles to replay the predictions through (:mod:`.through_profile`).
     Raises:
         DatasetError: the folder is not a dataset; and what :func:`run_sequence` raises.
     """
@@ -178,14 +183,15 @@ def evaluate_dataset(
                     progress.advance(task, (t - done[0]) / 1e6)
                 done[0] = t
 
-            parts.append(run_sequence(dataset, n, config, predictions_dir, on_time, deadzone_mm))
+            parts.append(run_sequence(dataset, n, config, predictions_dir, on_time, deadzone_mm, profiles))
             if task is not None:
                 progress.advance(task, (durations[n] - done[0]) / 1e6)
     else:
         ctx = multiprocessing.get_context("spawn")  # no fork of a process with rich's refresh thread
         with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
             futures = {
-                pool.submit(run_sequence, dataset, n, config, predictions_dir, None, deadzone_mm): n for n in names
+                pool.submit(run_sequence, dataset, n, config, predictions_dir, None, deadzone_mm, profiles): n
+                for n in names
             }
             for future in as_completed(futures):
                 parts.append(future.result())
