@@ -151,41 +151,43 @@ def intensity_rows(result: EvaluationResult) -> list[list[str]]:
     ]
 
 
+def _print_table(console: Console, title: str, header: list[str], rows) -> None:
+    """One rich table: the first column left-aligned, the others right-aligned."""
+    table = Table(title=title)
+    for k, col in enumerate(header):
+        table.add_column(col, justify="right" if k else "left")
+    for row in rows:
+        table.add_row(*row)
+    console.print(table)
+
+
 def print_tables(result: EvaluationResult, console: Console) -> None:
     """Print the paper's metrics as rich tables: headline metrics beside the paper's, the
     per-gesture figures, the counts through each profile replayed, per gesture type metrics, the
     balanced confusion matrix, and accuracy against intensity."""
-    head = Table(
-        title=f"NeuroTouch evaluation: {result.n_sequences} sequences, {result.n_observations} observations "
-        f"({result.n_skipped} predictions before the first label skipped)"
+    _print_table(
+        console,
+        f"NeuroTouch evaluation: {result.n_sequences} sequences, {result.n_observations} observations "
+        f"({result.n_skipped} predictions before the first label skipped)",
+        ["Metric", "Ours", "Paper"],
+        summary_rows(result),
     )
-    for col in ("Metric", "Ours", "Paper"):
-        head.add_column(col, justify="left" if col == "Metric" else "right")
-    for row in summary_rows(result):
-        head.add_row(*row)
-    console.print(head)
-
-    felt = Table(title="Per gesture (what a controller's user feels; docs/dataset.md)")
-    felt.add_column("Metric")
-    felt.add_column("Ours", justify="right")
-    for row in felt_rows(result):
-        felt.add_row(*row)
-    console.print(felt)
-
+    _print_table(
+        console, "Per gesture (what a controller's user feels; docs/dataset.md)", ["Metric", "Ours"], felt_rows(result)
+    )
     if result.through_profiles:
-        profiles = Table(title="Through the profiles (what each output does; docs/dataset.md)")
-        for col in PROFILE_HEADER:
-            profiles.add_column(col, justify="left" if col == "Profile" else "right")
-        for row in profile_rows(result):
-            profiles.add_row(*row)
-        console.print(profiles)
-
-    per_class = Table(title="Per gesture type (precision, recall, F1 of the gesture type; errors on labelled type)")
-    for col in PER_CLASS_HEADER:
-        per_class.add_column(col, justify="left" if col == "Gesture" else "right")
-    for row in per_class_rows(result):
-        per_class.add_row(*row)
-    console.print(per_class)
+        _print_table(
+            console,
+            "Through the profiles (what each output does; docs/dataset.md)",
+            PROFILE_HEADER,
+            profile_rows(result),
+        )
+    _print_table(
+        console,
+        "Per gesture type (precision, recall, F1 of the gesture type; errors on labelled type)",
+        PER_CLASS_HEADER,
+        per_class_rows(result),
+    )
 
     confusion = Table(title="Balanced confusion matrix (rows: ground truth, columns: prediction)")
     confusion.add_column("")
