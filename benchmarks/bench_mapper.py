@@ -5,7 +5,11 @@
 Replays hand-made estimates (pushes, twists, pinches, zooms and rests, 10 ms apart) through each
 shipped profile's :class:`Mapper` and prints the time per ``update`` (wall and process CPU), the
 updates per second, and the ratio to the 1 ms budget of the smallest window (paper, section
-"Runtime Performance": down to 3 ms windows; the project allows 1 ms).
+"Runtime Performance": down to 3 ms windows; the project allows 1 ms). Then what ``eval
+--profile`` adds per window of a dataset: the same estimates taken as a sequence's answers and
+as its labels (one every 40 ms), counted through each profile
+(:func:`neurotouch_hid.evaluation.through_profile.tally`: the answers and the labels each through
+a fresh mapper).
 """
 
 from __future__ import annotations
@@ -15,9 +19,12 @@ import time
 
 import numpy as np
 
+from neurotouch_hid.dataset import LabelRow
 from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.evaluation.through_profile import ProfileUnderTest, tally
 from neurotouch_hid.mapping.mapper import Mapper
 from neurotouch_hid.mapping.profile import load_profile, shipped_profiles_dir
+from neurotouch_hid.sensor import SensorGeometry
 
 
 def estimates(n: int) -> list[GestureEstimate]:
@@ -48,8 +55,15 @@ def main() -> None:
     parser.add_argument("--windows", type=int, default=20_000)
     args = parser.parse_args()
     stream = estimates(args.windows)
-    print("| profile | mappings | us/update (wall) | us/update (CPU) | updates/s (CPU) | x 1 ms budget (CPU) |")
-    print("| --- | ---: | ---: | ---: | ---: | ---: |")
+    labels = [
+        LabelRow(e.t_us, e.gesture, e.resting, e.intensity_mm, e.contacts_px if not e.resting else np.zeros((0, 2)))
+        for e in stream[::4]
+    ]
+    print(
+        "| profile | mappings | us/update (wall) | us/update (CPU) | updates/s (CPU) | x 1 ms budget (CPU) "
+        "| eval --profile: us/window (CPU) |"
+    )
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
     for path in sorted(shipped_profiles_dir().glob("*.yaml")):
         profile = load_profile(path)
         mapper = Mapper(profile)
@@ -58,9 +72,13 @@ def main() -> None:
             mapper.update(e)
         wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
         per_cpu = cpu / len(stream)
+        tested = ProfileUnderTest.probe(path.stem, profile)
+        counted = time.process_time()
+        tally(tested, labels, stream, SensorGeometry())
+        counted = (time.process_time() - counted) / len(stream)
         print(
             f"| {path.stem} | {len(profile.mappings)} | {wall / len(stream) * 1e6:.1f} | {per_cpu * 1e6:.1f} | "
-            f"{1 / per_cpu:,.0f} | {1e-3 / per_cpu:.0f} |"
+            f"{1 / per_cpu:,.0f} | {1e-3 / per_cpu:.0f} | {counted * 1e6:.1f} |"
         )
 
 
