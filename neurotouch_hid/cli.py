@@ -371,7 +371,7 @@ def eval_cmd(
     from neurotouch_hid.mapping.profile import load_profile
 
     config = pipeline_config(settings, method, **({} if window_us is None else {"window_us": window_us}))
-    tested = [ProfileUnderTest.probe(name, load_profile(name)) for name in dict.fromkeys(profiles)]
+    tested = [ProfileUnderTest.probe(name, load_profile(name)) for name in dict.fromkeys(profiles)]  # each once
     columns = (
         TextColumn("{task.description}"),
         BarColumn(),
@@ -394,7 +394,7 @@ def eval_cmd(
         ["eval", str(dataset)]
         + ([f"--method={method}"] if method != "default" else [])
         + [f"--set={item}" for item in settings]
-        + [f"--profile={name}" for name in dict.fromkeys(profiles)]
+        + [f"--profile={t.name}" for t in tested]
         + [
             f"{flag}={value}"
             for flag, value in (
