@@ -74,3 +74,81 @@ fcntl.lockf(f, fcntl.LOCK_EX)
 print("locked", flush=True)
 time.sleep(600)
 """
+
+
+#: Stands in for vng in the tests of the boot's watchdog (a fake for those unit tests only: the real
+#: boots are the kernel tests'). Each call appends its pid to $FAKE_VNG_CALLS; the calls listed in
+#: $FAKE_VNG_PLAN (comma-separated, one word per call) behave as: "stuck" a boot that never starts
+#: guest.py, "hangs" a guest.py that starts and never ends, "ok" one that writes its result.
+FAKE_VNG = """
+import os, sys, time
+from pathlib import Path
+calls = Path(os.environ["FAKE_VNG_CALLS"])
+with calls.open("a") as f:
+    f.write(f"{os.getpid()}\\n")
+plan = os.environ["FAKE_VNG_PLAN"].split(",")
+what = plan[min(len(calls.read_text().split()), len(plan)) - 1]
+out = Path(next(a for a in sys.argv if a.startswith("--rwdir=")).split("=", 1)[1])
+print(f"[    1.000000] fake kernel, call {len(calls.read_text().split())}: {what}", flush=True)
+if what == "stuck":
+    time.sleep(600)
+(out / "guest-started").write_text("1\\n")
+if what == "hangs":
+    time.sleep(600)
+(out / "result.json").write_text('{"setup": {"ok": true, "seconds": 0.1}}')
+"""
+
+
+@pytest.fixture
+def fake_vng(tmp_path, monkeypatch):
+    """vm.boot with :data:`FAKE_VNG` for vng; returns the file of its calls' pids (set FAKE_VNG_PLAN)."""
+    script = tmp_path / "vng"
+    script.write_text(f"#!{sys.executable}\n{FAKE_VNG}")
+    script.chmod(0o755)
+    monkeypatch.setattr(vm, "_vng", lambda: str(script))
+    monkeypatch.setattr(vm, "ensure_host_packages", lambda: None)
+    monkeypatch.setattr(vm, "ensure_kernel", lambda: (tmp_path, "0.0-fake"))
+    monkeypatch.setenv("NEUROTOUCH_KERNEL_CACHE", str(tmp_path / "cache"))
+    calls = tmp_path / "calls"
+    monkeypatch.setenv("FAKE_VNG_CALLS", str(calls))
+    return calls
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def test_a_boot_that_never_starts_the_guest_script_is_stopped_and_booted_again(fake_vng, monkeypatch):
+    monkeypatch.setenv("FAKE_VNG_PLAN", "stuck,ok")
+    data = vm.boot(modules=("checks_gamepad",), timeout_s=60, start_timeout_s=2)
+    first, second = (int(pid) for pid in fake_vng.read_text().split())
+    assert data["setup"]["ok"]
+    retried = data["_boot"]["retried"]
+    assert retried.startswith(f"{vm.NEVER_STARTED} within 2 s")
+    assert "call 1: stuck" in retried  # the first boot's console, to see where it stopped
+    assert not _alive(first)  # its whole process group was stopped
+    assert not _alive(second)
+    monkeypatch.setattr(vm, "_background", type("Done", (), {"finished": vm.merge_results([data])})())
+    assert f"booted again: {vm.NEVER_STARTED} within 2 s" in vm.boot_summary()
+
+
+def test_a_boot_that_never_starts_twice_fails_with_both_consoles(fake_vng, monkeypatch):
+    monkeypatch.setenv("FAKE_VNG_PLAN", "stuck,stuck")
+    with pytest.raises(RuntimeError, match="booted twice") as failed:
+        vm.boot(modules=("checks_gamepad",), timeout_s=60, start_timeout_s=2)
+    assert "call 1: stuck" in str(failed.value) and "call 2: stuck" in str(failed.value)
+    assert len(fake_vng.read_text().split()) == 2
+
+
+def test_a_guest_script_that_started_and_hangs_is_not_booted_again(fake_vng, monkeypatch):
+    # once guest.py runs, a hang is the checks' own (their alarms, the boot's timeout): a second
+    # boot would hide it
+    monkeypatch.setenv("FAKE_VNG_PLAN", "hangs,ok")
+    with pytest.raises(RuntimeError, match="vng timed out after 4 s") as failed:
+        vm.boot(modules=("checks_gamepad",), timeout_s=4, start_timeout_s=1)
+    assert "call 1: hangs" in str(failed.value) and "booted twice" not in str(failed.value)
+    assert len(fake_vng.read_text().split()) == 1

@@ -4,6 +4,9 @@ Usage (by vm.py): ``python3 tests/kernel/guest.py OUT/result.json [MODULE ...]``
 (e.g. ``checks_davis``), only those check modules (vm.py boots two guests side by side, each with
 its share of the modules, ``vm.GUEST_PARTS``).
 
+0. Write ``OUT/guest-started`` (``vm.GUEST_STARTED``): the host then knows the boot reached this
+   script (a boot that never does is booted again). Every check prints a line as it starts and as it
+   ends: vng's log on the host shows where a guest stopped.
 1. Setup: load the modules (uinput, joydev, ...), put the project's udev rules into
    /run/udev/rules.d (read by udev like /etc/udev/rules.d), start systemd-udevd, trigger, settle.
 2. Every ``tests/kernel/checks_*.py`` module, in name order; in each, every function named
@@ -37,6 +40,7 @@ REPO = HERE.parent.parent
 sys.path[:0] = [str(HERE), str(REPO)]  # guestlib, and the checkout's neurotouch_hid
 
 import guestlib  # noqa: E402
+from vm import GUEST_STARTED  # noqa: E402
 
 CHECK_TIMEOUT_S = 300  # per check; generous, a loaded host under software emulation is slow
 
@@ -88,7 +92,9 @@ def _checks(module) -> list:
     return sorted(funcs, key=lambda f: f.__code__.co_firstlineno)
 
 
-def run_one(func, timeout_s: int) -> dict:
+def run_one(func, timeout_s: int, name: str) -> dict:
+    """Run one check under its alarm; its line on the console (vng's log on the host) before and after."""
+    print(f"guest: {name} ...", flush=True)
     t0 = time.monotonic()
     signal.signal(signal.SIGALRM, _on_alarm)
     signal.alarm(timeout_s)
@@ -100,17 +106,19 @@ def run_one(func, timeout_s: int) -> dict:
     finally:
         signal.alarm(0)
     entry["seconds"] = round(time.monotonic() - t0, 2)
+    print(f"guest: {name} {'ok' if entry['ok'] else 'FAILED'} in {entry['seconds']} s", flush=True)
     return entry
 
 
 def main(out: Path, only: list[str] | None = None) -> int:
+    out.with_name(GUEST_STARTED).write_text(f"{os.getpid()}\n")  # the host's sign that the boot reached us
     results: dict = {}
 
     def save() -> None:
         out.write_text(json.dumps(results, indent=1, sort_keys=True, default=str))
 
     t0 = time.monotonic()
-    results["setup"] = run_one(setup, 120)
+    results["setup"] = run_one(setup, 120, "setup")
     save()
     try:
         modules = load_check_modules(only)
@@ -120,7 +128,8 @@ def main(out: Path, only: list[str] | None = None) -> int:
         return 1
     for module in modules:
         for func in _checks(module):
-            results[f"{module.__name__}.{func.__name__}"] = run_one(func, getattr(module, "TIMEOUT_S", CHECK_TIMEOUT_S))
+            name = f"{module.__name__}.{func.__name__}"
+            results[name] = run_one(func, getattr(module, "TIMEOUT_S", CHECK_TIMEOUT_S), name)
             save()
     results["_guest"] = {"seconds": round(time.monotonic() - t0, 1)}
     save()

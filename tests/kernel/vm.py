@@ -266,49 +266,97 @@ def compile_guest_numba_cache(folder: Path) -> None:
         raise RuntimeError(f"compiling the pipeline for the guest failed: {proc.stdout[-1000:]}{proc.stderr[-1000:]}")
 
 
+#: How long a guest may take to start ``guest.py`` (the :data:`GUEST_STARTED` file it writes first
+#: in the shared folder): about 20 s on an idle host, a few minutes beside the other guest and the
+#: host's tests. A guest that has not started it by then is stuck in the kernel's boot or in
+#: virtme-ng's init, before any of the project's code runs: it is stopped and booted once more.
+GUEST_START_TIMEOUT_S = 600
+#: The file ``guest.py`` writes into the shared folder before anything else.
+GUEST_STARTED = "guest-started"
+
+
 def boot(
     guest_script: Path = GUEST_SCRIPT,
     timeout_s: int = BOOT_TIMEOUT_S,
     cancelled: threading.Event | None = None,
     modules: tuple[str, ...] = (),
+    start_timeout_s: float = GUEST_START_TIMEOUT_S,
 ) -> dict:
-    """Boot the kernel once under qemu (no KVM), run ``guest_script`` in it (on the check
-    ``modules`` only, when given), return its JSON.
+    """Boot the kernel under qemu (no KVM), run ``guest_script`` in it (on the check ``modules``
+    only, when given), return its JSON.
 
     When the camera's checks run (checks_davis.py, checks_davis_pipeline.py), the boot's shared
     folder holds, beside the result, what they need: the replay recording, and for the pipeline's
     runs its numba code compiled here (:func:`compile_guest_numba_cache`).
     The JSON maps each check's name to ``{"ok": bool, "seconds": float, ...details}``, plus
-    ``"_boot"`` with the boot's wall time and kernel release. Raises KernelUnavailable when qemu
-    cannot be installed, RuntimeError (with vng's output) when the guest wrote no result.
+    ``"_boot"`` with the boot's wall time and kernel release. A guest that has not started
+    ``guest_script`` within ``start_timeout_s`` is booted once more; ``"_boot"`` then says so under
+    ``"retried"``, with the end of the first boot's console.
 
+    Raises KernelUnavailable when qemu cannot be installed, RuntimeError (with the end of vng's
+    output: the kernel's console and the guest's progress) when the guest wrote no result.
     ``cancelled`` (set from another thread, :func:`cancel_background_boot`) stops qemu early: the
     boot then raises RuntimeError."""
     ensure_host_packages()
     kdir, kver = ensure_kernel()
     vmlinuz = kdir / "boot" / f"vmlinuz-{kver}"
-    out = Path(tempfile.mkdtemp(prefix="boot-", dir=cache_dir()))
-    if not modules or any(m in CAMERA_MODULES + SLOW_MODULES for m in modules):
-        shutil.copyfile(ensure_replay_recording(), out / "davis_replay.aedat4")  # checks_davis.py's camera
-    if not modules or any(m in SLOW_MODULES for m in modules):
-        compile_guest_numba_cache(out / GUEST_NUMBA_CACHE)  # the pipeline's code for its runs
-    result = out / "result.json"
+    cancelled = cancelled or threading.Event()
+    retried = None
+    while True:
+        out = Path(tempfile.mkdtemp(prefix="boot-", dir=cache_dir()))
+        if not modules or any(m in CAMERA_MODULES + SLOW_MODULES for m in modules):
+            shutil.copyfile(ensure_replay_recording(), out / "davis_replay.aedat4")  # checks_davis.py's camera
+        if not modules or any(m in SLOW_MODULES for m in modules):
+            compile_guest_numba_cache(out / GUEST_NUMBA_CACHE)  # the pipeline's code for its runs
+        result = out / "result.json"
+        inner = " ".join(shlex.quote(s) for s in (sys.executable, str(guest_script), str(result), *modules))
+        cmd = [
+            _vng(),
+            "--disable-kvm",
+            "--verbose",  # the kernel's console in the log: where a boot that never ends stopped
+            "--run",
+            str(vmlinuz),
+            "--memory",
+            "1G",
+            "--append",
+            f"module_blacklist={GUEST_MODULE_BLACKLIST}",
+            f"--rwdir={out}",
+            "--exec",
+            inner,
+        ]
+        log, seconds, stopped = _run_vng(cmd, out, timeout_s, start_timeout_s, cancelled)
+        (out / "vng.log").write_text(log)
+        if result.exists() or retried is not None or stopped != NEVER_STARTED:
+            break
+        console = log[-1500:]
+        retried = f"{NEVER_STARTED} within {start_timeout_s:.0f} s (kept: {out}); its console ended with:\n{console}"
+    if not result.exists():
+        again = "" if retried is None else f", booted twice (the first time: {retried})"
+        raise RuntimeError(f"the guest wrote no {result.name}{again}; vng said:\n{log[-3000:]}")
+    data = json.loads(result.read_text())
+    data["_boot"] = {"seconds": round(seconds, 1), "kernel": kver, "modules": list(modules)}
+    if retried is not None:
+        data["_boot"]["retried"] = retried
+    if not _failed_anywhere(data):
+        shutil.rmtree(out, ignore_errors=True)
+    else:
+        data["_boot"]["out_dir"] = str(out)  # kept: result.json and vng.log, to look at
+    return data
+
+
+#: Why :func:`_run_vng` stopped a guest that never started ``guest.py``.
+NEVER_STARTED = "the guest never started guest.py"
+
+
+def _run_vng(
+    cmd: list[str], out: Path, timeout_s: float, start_timeout_s: float, cancelled: threading.Event
+) -> tuple[str, float, str]:
+    """Run ``cmd`` (vng) until it exits, or stop its whole process group: when ``cancelled`` is
+    set, when ``timeout_s`` has passed, or when ``start_timeout_s`` has passed without the
+    :data:`GUEST_STARTED` file in ``out``. Returns (its output, wall seconds, why it was stopped:
+    "" when it exited, :data:`NEVER_STARTED` for the last case)."""
     env = dict(os.environ)
     env["PATH"] = f"{Path(sys.executable).parent}:{env.get('PATH', '/usr/bin:/bin')}"
-    inner = " ".join(shlex.quote(s) for s in (sys.executable, str(guest_script), str(result), *modules))
-    cmd = [
-        _vng(),
-        "--disable-kvm",
-        "--run",
-        str(vmlinuz),
-        "--memory",
-        "1G",
-        "--append",
-        f"module_blacklist={GUEST_MODULE_BLACKLIST}",
-        f"--rwdir={out}",
-        "--exec",
-        inner,
-    ]
     t0 = time.monotonic()
     with (
         tempfile.TemporaryFile("w+") as log_file,
@@ -324,29 +372,20 @@ def boot(
         ) as proc,
     ):
         stopped = ""
-        cancelled = cancelled or threading.Event()
         while proc.poll() is None and not stopped:
             if cancelled.wait(1.0):  # a 1 s tick, not a spin: qemu needs both cores
                 stopped = "the test session ended first"
             elif time.monotonic() - t0 > timeout_s:
                 stopped = f"vng timed out after {timeout_s} s"
+            elif time.monotonic() - t0 > start_timeout_s and not (out / GUEST_STARTED).exists():
+                stopped = NEVER_STARTED
         if stopped:
             with contextlib.suppress(ProcessLookupError):
                 os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
         log_file.seek(0)
         log = (f"{stopped}\n" if stopped else "") + log_file.read()
-    seconds = time.monotonic() - t0
-    (out / "vng.log").write_text(log)
-    if not result.exists():
-        raise RuntimeError(f"the guest wrote no {result.name}; vng said:\n{log[-3000:]}")
-    data = json.loads(result.read_text())
-    data["_boot"] = {"seconds": round(seconds, 1), "kernel": kver, "modules": list(modules)}
-    if not _failed_anywhere(data):
-        shutil.rmtree(out, ignore_errors=True)
-    else:
-        data["_boot"]["out_dir"] = str(out)  # kept: result.json and vng.log, to look at
-    return data
+    return log, time.monotonic() - t0, stopped
 
 
 def _failed_anywhere(entry) -> bool:
@@ -450,7 +489,9 @@ def boot_summary() -> str | None:
     boots = ", ".join(
         f"{b.get('seconds', '?')} s ({' '.join(b.get('modules') or ['all'])})" for b in result["_boot"].get("parts", [])
     )
-    return f"kernel boots {boots}; guest checks: {listed}"
+    retries = [b["retried"].splitlines()[0] for b in result["_boot"].get("parts", []) if b.get("retried")]
+    again = "".join(f"; booted again: {reason}" for reason in retries)
+    return f"kernel boots {boots}{again}; guest checks: {listed}"
 
 
 def cancel_background_boot() -> None:
