@@ -311,35 +311,34 @@ def boot(
     kdir, kver = ensure_kernel()
     vmlinuz = kdir / "boot" / f"vmlinuz-{kver}"
     cancelled = cancelled or threading.Event()
+    out = Path(tempfile.mkdtemp(prefix="boot-", dir=cache_dir()))
+    if not modules or any(m in CAMERA_MODULES + SLOW_MODULES for m in modules):
+        shutil.copyfile(ensure_replay_recording(), out / "davis_replay.aedat4")  # checks_davis.py's camera
+    if not modules or any(m in SLOW_MODULES for m in modules):
+        compile_guest_numba_cache(out / GUEST_NUMBA_CACHE)  # the pipeline's code for its runs
+    result = out / "result.json"
+    inner = " ".join(shlex.quote(s) for s in (sys.executable, str(guest_script), str(result), *modules))
+    cmd = [
+        _vng(),
+        "--disable-kvm",
+        "--verbose",  # the kernel's console in the log: where a boot that never ends stopped
+        "--run",
+        str(vmlinuz),
+        "--memory",
+        "1G",
+        "--append",
+        f"module_blacklist={GUEST_MODULE_BLACKLIST}",
+        f"--rwdir={out}",
+        "--exec",
+        inner,
+    ]
+    log, seconds, stopped = _run_vng(cmd, out, timeout_s, start_timeout_s, cancelled)
     retried = None
-    while True:
-        out = Path(tempfile.mkdtemp(prefix="boot-", dir=cache_dir()))
-        if not modules or any(m in CAMERA_MODULES + SLOW_MODULES for m in modules):
-            shutil.copyfile(ensure_replay_recording(), out / "davis_replay.aedat4")  # checks_davis.py's camera
-        if not modules or any(m in SLOW_MODULES for m in modules):
-            compile_guest_numba_cache(out / GUEST_NUMBA_CACHE)  # the pipeline's code for its runs
-        result = out / "result.json"
-        inner = " ".join(shlex.quote(s) for s in (sys.executable, str(guest_script), str(result), *modules))
-        cmd = [
-            _vng(),
-            "--disable-kvm",
-            "--verbose",  # the kernel's console in the log: where a boot that never ends stopped
-            "--run",
-            str(vmlinuz),
-            "--memory",
-            "1G",
-            "--append",
-            f"module_blacklist={GUEST_MODULE_BLACKLIST}",
-            f"--rwdir={out}",
-            "--exec",
-            inner,
-        ]
+    if stopped == NEVER_STARTED:  # stuck before any of the project's code ran: the same boot once more
+        (out / "vng-first-boot.log").write_text(log)
+        retried = f"{NEVER_STARTED} within {start_timeout_s:.0f} s; its console ended with:\n{log[-1500:]}"
         log, seconds, stopped = _run_vng(cmd, out, timeout_s, start_timeout_s, cancelled)
-        (out / "vng.log").write_text(log)
-        if result.exists() or retried is not None or stopped != NEVER_STARTED:
-            break
-        console = log[-1500:]
-        retried = f"{NEVER_STARTED} within {start_timeout_s:.0f} s (kept: {out}); its console ended with:\n{console}"
+    (out / "vng.log").write_text(log)
     if not result.exists():
         again = "" if retried is None else f", booted twice (the first time: {retried})"
         raise RuntimeError(f"the guest wrote no {result.name}{again}; vng said:\n{log[-3000:]}")
@@ -350,7 +349,7 @@ def boot(
     if not _failed_anywhere(data):
         shutil.rmtree(out, ignore_errors=True)
     else:
-        data["_boot"]["out_dir"] = str(out)  # kept: result.json and vng.log, to look at
+        data["_boot"]["out_dir"] = str(out)  # kept: result.json and the vng logs, to look at
     return data
 
 
