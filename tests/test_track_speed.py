@@ -15,7 +15,7 @@ import pytest
 from helpers import run_cli
 from rich.console import Console
 
-from neurotouch_hid.cli import long_lived_start_up
+from neurotouch_hid.cli.common import long_lived_start_up
 from neurotouch_hid.pipeline.pipeline import GesturePipeline
 from neurotouch_hid.pipeline.resting import RestingDetector
 from neurotouch_hid.sensor import find_sensor_file

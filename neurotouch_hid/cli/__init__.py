@@ -1,0 +1,86 @@
+"""The ``neurotouch-hid`` command (typer): the main app, its global options and :func:`main`.
+
+Each command is a thin layer: it parses options, calls one function of the stage it belongs to,
+and prints. Heavy modules (numba, OpenCV, dv-processing) are imported inside the commands so
+``--help`` stays fast. Every :class:`~neurotouch_hid.errors.NeurotouchError` becomes one clear
+line on stderr and exit code 2 (see :func:`main`).
+
+The commands live in one module per group, each a typer sub-application beside what it drives:
+:mod:`~neurotouch_hid.cli.devices` (the controller and its devices),
+:mod:`~neurotouch_hid.cli.recordings` (recordings and datasets) and
+:mod:`~neurotouch_hid.cli.profiles` (profiles); :mod:`~neurotouch_hid.cli.common` holds what
+they share.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import typer
+
+from neurotouch_hid.cli import devices, profiles, recordings
+from neurotouch_hid.cli.common import err_console
+from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.output.console import command_app
+
+app = command_app(
+    name="neurotouch-hid",
+    help="NeuroTouch soft tactile sensor -> standard game controller.",
+    no_args_is_help=True,
+)
+app.add_typer(devices.app)
+app.add_typer(recordings.app)
+app.add_typer(profiles.profile_app, name="profile")
+
+#: The variable through which shells ask for completions (click's protocol):
+#: ``_NEUROTOUCH_HID_COMPLETE=source_bash neurotouch-hid`` prints the bash script (zsh, fish too).
+COMPLETE_ENV = "_NEUROTOUCH_HID_COMPLETE"
+
+
+def _print_version(value: bool) -> None:
+    """``--version``: the installed distribution's version (the package's own when run from a
+    checkout without an install), then exit 0."""
+    if not value:
+        return
+    import importlib.metadata
+
+    from neurotouch_hid import __version__
+
+    try:
+        version = importlib.metadata.version("neurotouch-hid")
+    except importlib.metadata.PackageNotFoundError:
+        version = __version__
+    typer.echo(f"neurotouch-hid {version}")
+    raise typer.Exit()
+
+
+@app.callback()
+def _options(
+    version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True, help="print the version"),
+) -> None:
+    """NeuroTouch soft tactile sensor -> standard game controller."""
+
+
+def main() -> None:
+    """Console-script entry point: user errors become one line on stderr and exit code 2.
+
+    typer runs in its standalone mode, so a mistyped command line (missing argument, unknown
+    option or command, bad value) is printed by typer itself (usage, the error, exit code 2)
+    whichever click it uses (typer 0.29 carries its own copy and no longer installs click).
+    """
+    if COMPLETE_ENV in os.environ:  # a shell asks for completions (the scripts the package installs)
+        from typer.completion import completion_init
+
+        completion_init()
+    try:
+        app()
+    except NeurotouchError as exc:
+        err_console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
+        sys.exit(2)
+    except KeyboardInterrupt:
+        sys.exit(130)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

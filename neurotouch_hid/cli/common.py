@@ -1,0 +1,71 @@
+"""What every command module of the CLI shares: the consoles, the option checks, the start-up
+block of long-running commands, and the live camera's settings from the command line."""
+
+from __future__ import annotations
+
+import contextlib
+import gc
+import math
+from collections.abc import Iterator
+from typing import Optional
+
+import typer
+
+from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.output.console import make_console
+
+console = make_console()
+err_console = make_console(stderr=True)
+
+
+def finite(value: Optional[float]) -> Optional[float]:
+    """Every float option: ``nan`` and ``inf`` are usage errors (exit 2, the option named), not a
+    traceback later on."""
+    if value is not None and not math.isfinite(value):
+        raise typer.BadParameter(f"expected a finite number, got {value}")
+    return value
+
+
+def duration(value: Optional[float]) -> Optional[float]:
+    """``--seconds``: a finite, positive duration (0 or less ran nothing and said nothing)."""
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise typer.BadParameter(f"expected a positive duration (seconds), got {value}")
+    return value
+
+
+@contextlib.contextmanager
+def long_lived_start_up() -> Iterator[None]:
+    """A command's start-up: what is made inside (imports, numba's loaded code: ~130 k objects
+    for ``track``) lives as long as the process. The garbage collector is off meanwhile and
+    those objects are frozen at the end (``gc.freeze``), so that none of its passes walks them
+    again: its full passes over them were ~0.5 s of CPU of a 40 s ``track`` (docs/performance.md,
+    "track"). Cyclic garbage made inside is never freed: keep the block to
+    imports and set-up."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.freeze()
+        if enabled:
+            gc.enable()
+
+
+#: ``--method``'s help (track, eval, run).
+METHOD_HELP = "the gesture pipeline: default (the product's) or paper (the paper's method exactly)"
+
+
+def davis_config(serial: Optional[str], exposure_us: str, stall_timeout: float):
+    """The live camera's settings from the command line (sources/davis.py DavisConfig)."""
+    from neurotouch_hid.sources.davis import DavisConfig
+
+    if exposure_us != "auto" and not exposure_us.isdigit():
+        raise NeurotouchError(f"--exposure-us {exposure_us!r}: expected a whole number of microseconds or 'auto'")
+    try:
+        return DavisConfig(
+            serial=serial,
+            exposure_us=None if exposure_us == "auto" else int(exposure_us),
+            stall_timeout_s=stall_timeout,
+        )
+    except ValueError as exc:
+        raise NeurotouchError(f"camera settings: {exc}") from None

@@ -1,0 +1,399 @@
+"""The controller and its devices: ``run``, ``demo``, ``devices``, ``doctor`` and ``calibrate``.
+
+Each command parses its options, calls one function of what it drives (driver.py, runtime.py,
+sources/discovery.py, doctor.py, calibration.py, calibration_guide.py) and prints.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from neurotouch_hid.cli.common import (
+    METHOD_HELP,
+    console,
+    davis_config,
+    duration,
+    err_console,
+    finite,
+)
+from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.kinds import OutputKind, SourceKind
+
+app = typer.Typer()
+
+
+@app.command()
+def run(
+    source: str = typer.Option(
+        "davis",
+        "--source",
+        help="davis (live camera), sim (simulated gel), a recording path, or predictions PRED.jsonl "
+        "(replayed without the pipeline)",
+    ),
+    profile: str = typer.Option("default", "--profile", help="profile name or path"),
+    output: OutputKind = typer.Option(OutputKind.GAMEPAD, "--output", help="where the states go"),
+    seconds: Optional[float] = typer.Option(None, "--seconds", help="stop after this many seconds", callback=duration),
+    fast: bool = typer.Option(False, "--fast", help="do not pace recordings in real time"),
+    out: Optional[Path] = typer.Option(
+        None, "--out", help="with --output jsonl: write the states here instead of stdout"
+    ),
+    window_us: int = typer.Option(10_000, "--window-us", help="window length in microseconds (>= 1000)"),
+    sensor: Optional[Path] = typer.Option(
+        None, "--sensor", help="sensor.yaml (default: beside the recording, or the built-in one)"
+    ),
+    seed: int = typer.Option(0, "--seed", min=0, help="with --source sim: the simulation's seed"),
+    wait: bool = typer.Option(
+        False, "--wait", help="with --source davis: wait for a camera to be plugged in instead of failing"
+    ),
+    serial: Optional[str] = typer.Option(
+        None, "--serial", help="with --source davis: the camera's serial number (default: the first DAVIS-346)"
+    ),
+    exposure_us: str = typer.Option(
+        "4000", "--exposure-us", help="with --source davis: APS exposure in microseconds, or 'auto'"
+    ),
+    stall_timeout: float = typer.Option(
+        1.0,
+        "--stall-timeout",
+        help="with --source davis: seconds without data that count as a lost camera",
+        callback=finite,
+    ),
+    max_lag_ms: float = typer.Option(
+        200.0,
+        "--max-lag-ms",
+        help="how far the pipeline may fall behind the camera (or a paced replay) before the oldest "
+        "data is dropped; more lets a slow machine track every event, later",
+        callback=finite,
+    ),
+    method: str = typer.Option("default", "--method", help=METHOD_HELP),
+) -> None:
+    """Run the driver: source -> pipeline -> profile -> virtual gamepad.
+
+    Stops at the end of the source, after --seconds, on Ctrl-C (exit 130) or SIGTERM (a clean
+    stop, exit 0), always leaving the gamepad neutral. SIGHUP reloads the profile. A camera that
+    is unplugged or stalls centres the gamepad at once; the driver reconnects when it is back."""
+    from neurotouch_hid.driver import run_driver
+
+    stats = run_driver(
+        source,
+        profile,
+        output,
+        seconds=seconds,
+        fast=fast,
+        out=out,
+        window_us=window_us,
+        sensor=sensor,
+        seed=seed,
+        console=console,
+        wait=wait,
+        davis=davis_config(serial, exposure_us, stall_timeout),
+        say=lambda line: err_console.print(line, markup=False, highlight=False, soft_wrap=True),
+        max_lag_us=round(max_lag_ms * 1000),
+        method=method,
+    )
+    err_console.print(stats.summary(), highlight=False, soft_wrap=True)
+
+
+@app.command()
+def demo(
+    seconds: Optional[float] = typer.Option(30.0, "--seconds", help="how long to run", callback=duration),
+) -> None:
+    """A simulated gel performing every gesture, through the default profile, to the gamepad.
+
+    Without a writable /dev/uinput the gamepad is shown in the terminal instead (one line says
+    why); without a terminal, a line at each button or key change and at most one a second otherwise."""
+    from neurotouch_hid.driver import run_demo
+
+    stats = run_demo(
+        seconds,
+        console=console,
+        say=lambda line: err_console.print(line, markup=False, highlight=False, soft_wrap=True),
+    )
+    err_console.print(stats.summary(), highlight=False, soft_wrap=True)
+
+
+@app.command()
+def devices(json_out: bool = typer.Option(False, "--json", help="print JSON (for scripts) instead of a table")) -> None:
+    """List the DAVIS-346 cameras: every USB 152a:841a device (pyusb) and what dv-processing sees.
+
+    For each: where it is, whether this user can open it and, if not, why and what to do (the
+    udev rule, another program holding it, firmware). Exit code 0 when a camera is ready to use,
+    1 otherwise."""
+    import json
+
+    from rich.markup import escape
+    from rich.table import Table
+
+    from neurotouch_hid.sources.discovery import discover, explain
+
+    found = discover()
+    if json_out:
+        typer.echo(json.dumps(found.to_json(), indent=1))
+    elif not found.cameras:
+        console.print(escape(explain(found)), style="bold red", highlight=False, soft_wrap=True)
+    else:
+        style = {"ready": "green", "other-camera": "yellow"}
+        table = Table(
+            "device",
+            "serial",
+            "USB (pyusb)",
+            "dv-processing",
+            "status",
+            title="DAVIS-346 cameras (USB 152a:841a)",
+            show_lines=True,
+        )
+        for c in found.cameras:
+            usb = "not seen"
+            if c.usb is not None:
+                speed = f", {c.usb.speed_mbps:g} Mb/s" if c.usb.speed_mbps else ""
+                usb = f"{c.usb.product or '?'}{speed}\naccess: {c.usb.access}"
+            dv = f"{c.dv.model} ({c.dv.device_type}), firmware {c.dv.firmware}" if c.dv else "not listed"
+            table.add_row(
+                f"bus {c.bus} device {c.address}\n{c.node}",
+                c.serial or "?",
+                escape(usb),
+                escape(dv),
+                f"[{style.get(c.status, 'bold red')}]{c.status}[/]",
+            )
+        console.print(table)
+        for c in found.cameras:
+            if c.ready:
+                console.print(f"[green]ready:[/] {escape(c.label())}", highlight=False, soft_wrap=True)
+            else:
+                fix = "".join(f"\n  {escape(step)}" for step in c.fix.splitlines())
+                console.print(f"[bold red]{escape(c.problem)}[/]{fix}", highlight=False, soft_wrap=True)
+    if not json_out:
+        for line in found.dv_log:
+            console.print(f"[dim]dv-processing said: {escape(line)}[/]", highlight=False, soft_wrap=True)
+        for what, error in (("pyusb", found.usb_error), ("dv-processing", found.dv_error)):
+            if error:
+                console.print(f"[yellow]{what}: {escape(error)}[/]", highlight=False, soft_wrap=True)
+    if not found.ready:
+        sys.exit(1)
+
+
+@app.command()
+def doctor() -> None:
+    """Check the camera, permissions, /dev/uinput and libraries; print the fix for each failure."""
+    from neurotouch_hid.doctor import report, run_checks
+
+    code = report(run_checks(), console)
+    if code:
+        sys.exit(code)
+
+
+# --- calibration (calibration.py) -------------------------------------------------------------
+def _say_rest_geometry(say, source: str, result, markers: int) -> None:
+    """``calibrate``'s lines on what the rest frames gave: the frames, the gel circle, the scale,
+    the camera model and the marker count."""
+    geometry = result.sensor
+    span_s = (result.frames_t_us[-1] - result.frames_t_us[0]) / 1e6
+    say(f"{len(result.frames_t_us)} rest frames of {source} over {span_s:.2f} s: the gel did not move")
+    offset = math.hypot(
+        geometry.gel_center_px[0] - result.grid_center_px[0], geometry.gel_center_px[1] - result.grid_center_px[1]
+    )
+    circle = (
+        f"fitted to the gel's edge, {offset:.1f} px from the marker grid's centre"
+        if result.edge_found
+        else "the marker grid's extent + 4 mm"
+    )
+    say(
+        f"gel circle: centre ({geometry.gel_center_px[0]:.2f}, {geometry.gel_center_px[1]:.2f}) px, "
+        f"radius {geometry.gel_radius_px:.2f} px ({circle})"
+    )
+    say(
+        f"scale: {geometry.px_per_mm:.4f} px/mm at the centre "
+        f"(neighbouring markers there {result.spacing_px:.2f} px = 4 mm apart)"
+    )
+    if geometry.radial_k is not None:
+        edge = geometry.gel_radius_px
+        rim = geometry.image_to_user([[geometry.gel_center_px[0] + edge, geometry.gel_center_px[1]]])[0]
+        say(
+            f"camera model: radial_k {geometry.radial_k[0]:g}, {geometry.radial_k[1]:g} "
+            f"(fitted to the 4 mm grid on the dome; the gel circle's rim at {math.hypot(*rim):.2f} mm "
+            f"from the centre, {edge / geometry.px_per_mm:.2f} mm at the centre's scale)"
+        )
+    say(f"markers: {result.n_markers} found, {markers} expected")
+
+
+@app.command()
+def calibrate(
+    source: str = typer.Option(
+        "davis",
+        "--source",
+        help="davis (the live camera: you push the gel when asked), sim (the simulated gel: its hand does) "
+        "or an AEDAT4 recording that starts with the gel at rest",
+    ),
+    out: Optional[Path] = typer.Option(
+        None,
+        "--out",
+        help="sensor.yaml (or folder) to write (default: your config folder, where run, track and eval find it)",
+    ),
+    markers: int = typer.Option(177, "--markers", min=1, help="the gel's marker count (the paper's gel: 177)"),
+    mirror: Optional[bool] = typer.Option(
+        None,
+        "--mirror/--no-mirror",
+        help="the camera sees the gel from inside; with --rotation, instead of the guided pushes "
+        "(a recording: default yes)",
+    ),
+    rotation: Optional[float] = typer.Option(
+        None,
+        "--rotation",
+        help="counter-clockwise degrees from the (mirrored) image to your view; with --mirror/--no-mirror, "
+        "instead of the guided pushes (a recording: default 0)",
+        callback=finite,
+    ),
+    check: bool = typer.Option(
+        True,
+        "--check/--no-check",
+        help="with davis or sim: afterwards, ask for each gesture and say whether it reads right",
+    ),
+    frames: int = typer.Option(10, "--frames", min=3, help="rest frames to check and average (25 a second)"),
+    press: Optional[Path] = typer.Option(
+        None,
+        "--press",
+        help="an AEDAT4 recording of one press (a finger pressed in, held still ~2 s, lifted quickly, "
+        "then ~2 s alone): also measure how the gel creeps",
+    ),
+    sim_rotation: float = typer.Option(
+        0.0,
+        "--sim-rotation",
+        help="with --source sim: the simulated camera's rotation (degrees), for calibrate to find",
+        callback=finite,
+    ),
+    sim_mirror: bool = typer.Option(
+        True,
+        "--sim-mirror/--sim-no-mirror",
+        help="with --source sim: whether the simulated camera sees the gel mirrored (from inside, as the real one)",
+    ),
+    seed: int = typer.Option(0, "--seed", min=0, help="with --source sim: the simulation's seed"),
+) -> None:
+    """Measure the gel's circle and scale on rest frames, and (camera or simulator) which way you
+    look at it from two guided pushes, check each gesture, and save sensor.yaml (docs/dataset.md).
+
+    Keep your hands off the gel until asked to push. Nothing is typed: each gesture is watched
+    for up to 12 s. With --press, also measure the gel's creep (how slowly it relaxes after a
+    release) on a recorded press; without it, a creep already in the sensor.yaml being replaced
+    is kept."""
+    import dataclasses
+
+    from neurotouch_hid import calibration, calibration_guide
+    from neurotouch_hid.errors import SensorError
+    from neurotouch_hid.pipeline.creep import at_search_edge
+    from neurotouch_hid.sensor import SensorGeometry, user_sensor_path
+
+    def say(line: str) -> None:
+        console.print(line, highlight=False, markup=False, soft_wrap=True)
+
+    if source != SourceKind.SIM and (sim_rotation != 0.0 or not sim_mirror):
+        raise NeurotouchError("--sim-rotation and --sim-no-mirror are for --source sim (the simulated camera)")
+    if source in (SourceKind.DAVIS, SourceKind.SIM) and (mirror is None) != (rotation is None):
+        raise NeurotouchError(
+            "--mirror/--no-mirror and --rotation go together with the camera or simulator (both instead of the "
+            "guided pushes): give both or neither"
+        )
+    if source in (SourceKind.DAVIS, SourceKind.SIM) and (check or mirror is None):
+        from neurotouch_hid.warmup import compile_pipeline  # the guided pushes and the check use it
+
+        err_console.print("loading the gesture pipeline (compiled on the first run only)", highlight=False)
+        compile_pipeline()  # before the camera opens: nothing of the guided gestures waits for it
+    with contextlib.ExitStack() as stack:
+        guide: Optional[calibration_guide.GuidedSource] = None
+        if source == SourceKind.SIM:
+            guide = calibration_guide.SimulatedHand(
+                SensorGeometry(mirror=sim_mirror, rotation_deg=sim_rotation), seed=seed
+            )
+        elif source == SourceKind.DAVIS:
+            err_console.print("reading rest frames from the camera: keep your hands off the gel", highlight=False)
+            guide = stack.enter_context(calibration_guide.LiveCamera(calibration.CAMERA_WAIT_S))
+        rest = guide.rest_frames(frames) if guide is not None else calibration.read_rest_frames(source, frames)
+        result = calibration.calibrate(rest, expected_markers=markers, n_frames=frames)
+        geometry = result.sensor
+        _say_rest_geometry(say, source, result, markers)
+        items = guide.stream() if guide is not None else None
+        if guide is None or (mirror is not None and rotation is not None):
+            if guide is None and (mirror is None or rotation is None):
+                say(
+                    "mirror and rotation: not asked (a recording cannot be pushed; calibrate with the camera to "
+                    "measure them, or give --mirror/--no-mirror and --rotation DEG): "
+                    f"{'given' if mirror is not None else 'true, the default'} mirror, "
+                    f"{'given' if rotation is not None else '0 deg, the default'} rotation"
+                )
+            mirror = True if mirror is None else mirror
+            rotation = 0.0 if rotation is None else rotation
+        else:
+            say("which way you look at the gel: two guided pushes")
+            mirror, rotation = calibration_guide.measure_orientation(guide, items, geometry, say)
+            say(
+                f"measured: mirror {'true' if mirror else 'false'} (the image is "
+                f"{'a mirror of' if mirror else 'the same as'} your view), rotation {rotation:g} deg"
+            )
+        geometry = dataclasses.replace(geometry, mirror=mirror, rotation_deg=float(rotation))
+        results = []
+        if guide is not None and check:
+            say("guided check: each gesture, read with this calibration")
+            results = calibration_guide.guided_check(guide, items, geometry, say)
+            wrong = [r for r in results if not r.right]
+            say(
+                f"guided check: {len(results) - len(wrong)} of {len(results)} gestures right"
+                + (f"; wrong: {', '.join(r.step.name for r in wrong)}" if wrong else "")
+            )
+            advice = calibration_guide.check_advice(results, geometry)
+            if advice:
+                say(f"what to do: {advice}")
+    for note in result.notes:
+        say(f"note: {note}")
+    checked_wrong = any(not r.right for r in results)  # exit 1, after writing
+
+    if source == SourceKind.SIM and out is None:
+        say(
+            "nothing written: a simulated camera's calibration does not replace your sensor's in your config "
+            "folder (--out FILE to keep it)"
+        )
+        sys.exit(1 if checked_wrong else 0)
+    path = user_sensor_path() if out is None else (out / "sensor.yaml" if out.is_dir() else out)
+    if press is not None:
+        share, time_s = calibration.measure_creep(press, geometry)
+        geometry = dataclasses.replace(geometry, creep=(share, time_s))
+        say(
+            f"creep: q {share:.2f}, tau {time_s:.2f} s (a press in {press}: {share:.0%} of a held deformation "
+            f"comes with a delay of ~{time_s:.2f} s and relaxes as slowly after the release)"
+        )
+        if at_search_edge(share, time_s):
+            say(
+                "note: that is at the edge of what is searched (q up to 0.6, tau 0.05-3 s): the press may not "
+                "have been held still, or lifted quickly; record it again if gestures end too early or too late"
+            )
+    if path.exists():
+        try:
+            old = SensorGeometry.load(path)
+            if press is None and old.creep is not None:
+                geometry = dataclasses.replace(geometry, creep=old.creep)
+                say(f"creep: q {old.creep[0]:.2f}, tau {old.creep[1]:.2f} s, kept from {path} (--press to measure it)")
+            changes = calibration.sensor_changes(old, geometry)
+            say(f"replacing {path}: " + ("; ".join(changes) if changes else "the same values"))
+        except SensorError as exc:
+            say(f"replacing {path}, which was not a valid sensor.yaml ({exc})")
+        if sys.stdin.isatty() and not typer.confirm(f"Replace {path}?", default=True):
+            say("nothing written")
+            return
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        geometry.save(path)
+    except OSError as exc:
+        raise SensorError(f"{path}: cannot write the sensor file: {exc.strerror}") from None
+    say(f"wrote {path}")
+    if path == user_sensor_path():
+        say(
+            "run, track, view and eval use it when no --sensor is given and no sensor.yaml is beside the recording "
+            "or in the dataset"
+        )
+    else:
+        say(f"use it with --sensor {path}, or calibrate without --out to make it your default")
+    if checked_wrong:
+        sys.exit(1)

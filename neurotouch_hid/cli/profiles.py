@@ -1,0 +1,375 @@
+"""Profiles: ``profile list|use|show|new|set|unset|delete|reset|validate|edit|path|test|tune`` and
+``profile auto`` (a profile per game).
+
+Each command parses its options, calls one function of what it drives (mapping/profile.py,
+mapping/editor.py, games.py, control.py, mapping/replay.py) and prints.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from neurotouch_hid.cli.common import (
+    console,
+    duration,
+    err_console,
+    finite,
+)
+from neurotouch_hid.errors import NeurotouchError
+
+profile_app = typer.Typer(
+    help="List, show, create, edit, validate, test, tune, delete, reset and use (switch the running driver to) "
+    "profiles.",
+    no_args_is_help=True,
+    rich_markup_mode=None,
+)
+auto_app = typer.Typer(
+    help="A profile per game: the running driver switches to a game's profile while the game runs "
+    "(a Steam app id or an executable's name; the user's games.yaml). Without a command: list.",
+    invoke_without_command=True,
+)
+profile_app.add_typer(auto_app, name="auto")
+
+
+# --- profiles (mapping/) ----------------------------------------------------------------------
+@profile_app.command("list")
+def profile_list() -> None:
+    """List the profiles: shipped ones and the user's (a user copy shadows a shipped one)."""
+    from rich.table import Table
+
+    from neurotouch_hid.errors import ProfileError
+    from neurotouch_hid.mapping.profile import available_profiles, load_profile, shipped_profiles_dir
+
+    table = Table("name", "where", "description", "status")
+    shipped = {p.stem for p in shipped_profiles_dir().glob("*.yaml")}
+    for name, path in available_profiles().items():
+        user = path.parent != shipped_profiles_dir()
+        where = ("user (shadows shipped)" if name in shipped else "user") if user else "shipped"
+        try:
+            loaded = load_profile(path)
+            table.add_row(name, where, loaded.description, "[green]ok[/]")
+        except ProfileError:
+            table.add_row(name, where, "", f"[red]invalid[/] (neurotouch-hid profile validate {path})")
+    console.print(table)
+
+
+@profile_app.command("use")
+def profile_use(name: str = typer.Argument(..., help="profile name or path")) -> None:
+    """Switch the running driver (`neurotouch-hid run`) to this profile, every output neutral first.
+
+    Talks to the driver over $XDG_RUNTIME_DIR/neurotouch-hid/control.sock; with no driver running, says so
+    (exit 2)."""
+    from neurotouch_hid.control import request_use
+
+    console.print(request_use(name), highlight=False, soft_wrap=True)
+
+
+@profile_app.command("show")
+def profile_show(name: str = typer.Argument(..., help="profile name or path")) -> None:
+    """Print a profile's file (with its comments) and where it is.
+
+    To a pipe or a file (``profile show NAME > mine.yaml``) it writes the file's exact bytes, and
+    where it is to stderr."""
+    from rich.syntax import Syntax
+
+    from neurotouch_hid.mapping.profile import find_profile
+
+    path = find_profile(name)
+    if not console.is_terminal:
+        err_console.print(f"# {path}", highlight=False, markup=False, soft_wrap=True)
+        sys.stdout.flush()
+        sys.stdout.buffer.write(path.read_bytes())
+        sys.stdout.buffer.flush()
+        return
+    console.print(f"# {path}", highlight=False)
+    console.print(Syntax(path.read_text(encoding="utf-8"), "yaml", background_color="default"))
+
+
+@profile_app.command("new")
+def profile_new(
+    name: str = typer.Argument(..., help="name of the new user profile"),
+    from_name: str = typer.Option("default", "--from", help="profile (name or path) to copy"),
+) -> None:
+    """Create a user profile as a copy of another one."""
+    from neurotouch_hid.mapping.editor import new_profile
+
+    console.print(f"created {new_profile(name, from_name)} (a copy of {from_name})", highlight=False)
+
+
+def _note_shadow(name: str, path: Path) -> None:
+    """Say that a change to the shipped profile ``name`` went to a user copy that now shadows it."""
+    err_console.print(
+        f"note: '{name}' is a shipped profile, so the change went to your copy, {path}, which replaces it "
+        f"from now on (neurotouch-hid profile reset {name} goes back to the shipped one)",
+        highlight=False,
+        markup=False,
+        soft_wrap=True,
+    )
+
+
+@profile_app.command("set", context_settings={"ignore_unknown_options": True})  # VALUE may be -1
+def profile_set(
+    name: str = typer.Argument(..., help="profile name (a shipped one is copied to the user folder)"),
+    key: str = typer.Argument(..., help="dotted key, e.g. mappings.push.deadzone_mm"),
+    value: str = typer.Argument(..., help="YAML value, e.g. 1.5, true, ABS_RX"),
+) -> None:
+    """Set one value; the profile is validated first and left unchanged if the result is invalid."""
+    from neurotouch_hid.mapping.editor import creates_shadow, parse_value, set_values
+
+    shadow = creates_shadow(name)
+    path, previous = set_values(name, {key: parse_value(value)})
+    console.print(f"{path}: {key}: {previous[key]!r} -> {value}", highlight=False, soft_wrap=True)
+    if shadow:
+        _note_shadow(name, path)
+
+
+@profile_app.command("unset")
+def profile_unset(
+    name: str = typer.Argument(..., help="profile name"),
+    key: str = typer.Argument(..., help="dotted key to undo"),
+) -> None:
+    """Undo one key: the shipped profile's value when the profile is a copy of one, else the default.
+
+    The profile is validated first and left unchanged if the result is invalid."""
+    from neurotouch_hid.mapping.editor import creates_shadow, unset_value
+
+    shadow = creates_shadow(name)
+    path, removed, shipped = unset_value(name, key)
+    now = "removed, its default applies" if shipped is None else f"back to the shipped value {shipped!r}"
+    console.print(f"{path}: {key}: {removed!r} -> {now}", highlight=False, soft_wrap=True)
+    if shadow:
+        _note_shadow(name, path)
+
+
+@profile_app.command("delete")
+def profile_delete(name: str = typer.Argument(..., help="user profile name")) -> None:
+    """Delete one of your profiles (a copy of a shipped one: the shipped one applies again)."""
+    from neurotouch_hid.mapping.editor import delete_profile
+
+    path, shipped = delete_profile(name)
+    again = f"; the shipped '{name}' ({shipped}) applies again" if shipped is not None else ""
+    console.print(f"deleted {path}{again}", highlight=False, soft_wrap=True)
+
+
+@profile_app.command("reset")
+def profile_reset(name: str = typer.Argument(..., help="shipped profile name")) -> None:
+    """Put a shipped profile back as shipped: delete your copy of it."""
+    from neurotouch_hid.mapping.editor import reset_profile
+
+    path, shipped = reset_profile(name)
+    if path is None:
+        console.print(f"'{name}' is already the shipped one ({shipped}): nothing to reset", highlight=False)
+    else:
+        console.print(f"deleted {path}: '{name}' is the shipped one again ({shipped})", highlight=False)
+
+
+@profile_app.command("validate")
+def profile_validate(path: str = typer.Argument(..., help="profile file (or name)")) -> None:
+    """Check a profile; every problem is listed with its file, line, field, value and expectation."""
+    from neurotouch_hid.mapping.profile import find_profile, load_profile
+
+    loaded = load_profile(path)
+    console.print(f"{find_profile(path)}: ok ({len(loaded.mappings)} mappings)", highlight=False)
+
+
+def _edit_again(problem: str) -> bool:
+    """After an invalid edit: show why and ask (on stdin, a terminal or not) whether to edit
+    again; yes by default, no at the end of the input."""
+    err_console.print(problem, highlight=False, markup=False, soft_wrap=True)
+    err_console.print("edit it again? [Y/n] ", end="", highlight=False, markup=False)
+    try:
+        answer = sys.stdin.readline()
+    except (OSError, ValueError):  # no input to read from
+        answer = ""
+    if not answer:
+        err_console.print("")
+    return bool(answer) and answer.strip().lower() in ("", "y", "yes")
+
+
+@profile_app.command("edit")
+def profile_edit(name: str = typer.Argument(..., help="profile name (a shipped one is copied when changed)")) -> None:
+    """Edit a profile in $VISUAL or $EDITOR, as crontab -e: saved only when valid.
+
+    An invalid save shows the problem and asks to edit again; answering no leaves the profile as
+    it was and keeps your edit beside it (NAME.yaml.rejected)."""
+    from neurotouch_hid.mapping.editor import creates_shadow, edit_profile
+
+    shadow = creates_shadow(name)
+    path = edit_profile(name, _edit_again)
+    if path is None:
+        console.print(f"'{name}' unchanged", highlight=False)
+        return
+    console.print(f"{path}: ok", highlight=False, soft_wrap=True)
+    if shadow:
+        _note_shadow(name, path)
+
+
+@profile_app.command("path")
+def profile_path(name: str = typer.Argument(..., help="profile name")) -> None:
+    """Print the file a profile name resolves to (the user's copy, else the shipped one)."""
+    from neurotouch_hid.mapping.profile import find_profile
+
+    typer.echo(str(find_profile(name)))
+
+
+def _game_label(section: str, key: object) -> str:
+    return f"Steam app {key}" if section == "steam" else str(key)
+
+
+@auto_app.callback()
+def profile_auto(ctx: typer.Context) -> None:
+    """A profile per game: `add GAME PROFILE`, `remove GAME`, `list` (also without a command).
+
+    A game is a Steam app id (Steam sets SteamAppId in its processes' environment) or an
+    executable's name; the running driver looks at your processes twice a second, switches to the
+    game's profile (every output released first) and back when it exits. `profile use` during a
+    game wins until the game exits."""
+    if ctx.invoked_subcommand is None:
+        profile_auto_list()
+
+
+@auto_app.command("add")
+def profile_auto_add(
+    game: str = typer.Argument(..., help="Steam app id (a number) or executable name (e.g. supertuxkart)"),
+    profile: str = typer.Argument(..., help="profile name or path"),
+) -> None:
+    """Map a game to a profile (an entry already there is replaced)."""
+    from neurotouch_hid.games import add_game, games_file
+
+    section, key, profile = add_game(game, profile)
+    typer.echo(f"{_game_label(section, key)} -> {profile} (in {games_file()}); a running driver follows it")
+
+
+@auto_app.command("remove")
+def profile_auto_remove(
+    game: str = typer.Argument(..., help="Steam app id or executable name, as added"),
+) -> None:
+    """Remove a game's entry."""
+    from neurotouch_hid.games import games_file, remove_game
+
+    section, key, profile = remove_game(game)
+    typer.echo(f"removed {_game_label(section, key)} -> {profile} (from {games_file()})")
+
+
+@auto_app.command("list")
+def profile_auto_list() -> None:
+    """List the map, and which mapped game runs now (the one the driver follows)."""
+    from neurotouch_hid.games import EXECUTABLE, STEAM, ProcessScanner, games_file, load_game_map
+
+    path = games_file()
+    game_map = load_game_map(path)
+    if not game_map:
+        typer.echo(f"no game is mapped ({path} has no entry); add one: neurotouch-hid profile auto add 4242 mouse")
+        return
+    running = ProcessScanner().games(game_map)
+    typer.echo(f"games -> profiles ({path}):")
+    entries = [(STEAM, k, v) for k, v in game_map.steam.items()] + [
+        (EXECUTABLE, k, v) for k, v in game_map.executable.items()
+    ]
+    for section, key, profile in entries:
+        pids = [str(g.pid) for g in running if g.section == section and g.key == key]
+        now = f"  running: pid {', '.join(pids)}" if pids else ""
+        typer.echo(f"  {_game_label(section, key)} -> {profile}{now}")
+    if running:
+        typer.echo(f"matched now: {running[0].label()} -> {running[0].profile}")
+    else:
+        typer.echo("matched now: none (no mapped game is running)")
+
+
+@profile_app.command("test")
+def profile_test(
+    name: str = typer.Argument(..., help="profile name or path"),
+    source: str = typer.Option("sim", "--source", help="sim, an AEDAT4 recording, or predictions PRED.jsonl"),
+    plot: Optional[Path] = typer.Option(None, "--plot", help="also draw the timeline to this PNG"),
+    seconds: Optional[float] = typer.Option(
+        None, "--seconds", help="only the first N seconds (sim: 20 s by default)", callback=duration
+    ),
+    every_ms: int = typer.Option(100, "--every-ms", help="timeline sampling period (ms)"),
+    json_out: bool = typer.Option(False, "--json", help="print the summary as JSON instead of tables"),
+) -> None:
+    """Replay a source through the pipeline and the profile; print the axis and button timeline."""
+    import json
+
+    from rich.table import Table
+
+    from neurotouch_hid.controller import AXES
+    from neurotouch_hid.driver import estimates_from_source
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.mapping.replay import (
+        deflection,
+        plot_timeline,
+        pressed,
+        replay,
+        sample_timeline,
+        summarise,
+    )
+
+    loaded = load_profile(name)
+    estimates = list(estimates_from_source(source, seconds))
+    states = replay(loaded, estimates)
+    summary = summarise(states)
+    if plot is not None:
+        plot_timeline(estimates, states, plot)
+    if json_out:
+        typer.echo(
+            json.dumps(
+                {"estimates": len(estimates), "max_deflection": summary.max_deflection, "presses": summary.presses}
+            )
+        )
+        return
+    moved = [a for a in AXES if summary.max_deflection[a] > 0]
+    table = Table("t (s)", "gesture", "mm", *moved, "buttons", title=f"{name} on {source} ({len(estimates)} windows)")
+    t0 = estimates[0].t_us if estimates else 0
+    for row in sample_timeline(estimates, states, every_ms * 1000):
+        down = " ".join(b.removeprefix("BTN_") for b in pressed(row.state))
+        table.add_row(
+            f"{(row.t_us - t0) / 1e6:.1f}",
+            row.estimate.gesture.value,
+            f"{row.estimate.intensity_mm:.1f}",
+            *(f"{deflection(a, row.state.axes[a]):+.2f}" for a in moved),
+            down,
+        )
+    console.print(table)
+    totals = Table("axis / button", "max deflection / presses", title="summary")
+    for axis in AXES:
+        totals.add_row(axis, f"{summary.max_deflection[axis]:.0%}")
+    for button, count in summary.presses.items():
+        if count:
+            totals.add_row(button, str(count))
+    console.print(totals)
+    if plot is not None:
+        console.print(f"plot: {plot}", highlight=False)
+
+
+@profile_app.command("tune")
+def profile_tune(
+    name: str = typer.Argument(..., help="profile name (written to the user's copy)"),
+    from_source: str = typer.Option(..., "--from", help="AEDAT4 recording or predictions PRED.jsonl of this user"),
+    percentile: float = typer.Option(
+        95.0, "--percentile", help="intensity percentile that gives full deflection", callback=finite
+    ),
+) -> None:
+    """Set each analogue mapping's saturation to what this user reaches (weak fingers, for one)."""
+    from neurotouch_hid.driver import estimates_from_source
+    from neurotouch_hid.mapping.editor import creates_shadow, set_values
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.mapping.replay import tuned_saturations
+
+    if not 0 < percentile <= 100:
+        raise NeurotouchError(f"--percentile {percentile}: expected a value in (0, 100]")
+    tuned = tuned_saturations(load_profile(name), estimates_from_source(from_source), percentile)
+    if not tuned:
+        raise NeurotouchError(
+            f"{from_source}: no gesture there exercises an analogue mapping of '{name}'; nothing tuned"
+        )
+    shadow = creates_shadow(name)
+    path, _ = set_values(name, {f"mappings.{m}.saturation_mm": new for m, (_, new) in tuned.items()})
+    for mapping, (old, new) in tuned.items():
+        console.print(f"{mapping}: saturation_mm {old:g} -> {new:g}", highlight=False)
+    console.print(f"written to {path}", highlight=False, soft_wrap=True)
+    if shadow:
+        _note_shadow(name, path)

@@ -1,0 +1,350 @@
+"""Recordings and datasets: ``info``, ``record``, ``simulate``, ``track``, ``eval`` and ``view``.
+
+Each command parses its options, calls one function of the stage it drives
+(sources/recording.py, sources/simulator.py, track.py, evaluation/, view.py) and prints.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from neurotouch_hid.cli.common import (
+    METHOD_HELP,
+    console,
+    davis_config,
+    duration,
+    err_console,
+    finite,
+    long_lived_start_up,
+)
+from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.kinds import SourceKind
+
+app = typer.Typer()
+
+
+# --- recordings (sources/recording.py) ------------------------------------------------------
+@app.command()
+def info(
+    recording: Path = typer.Argument(..., help="AEDAT4 recording"),
+    json_out: bool = typer.Option(False, "--json", help="print JSON instead of a table"),
+) -> None:
+    """Print a recording's camera name, resolution, duration, event count and frame count."""
+    import json
+
+    from rich.table import Table
+
+    from neurotouch_hid.sources.recording import read_info
+
+    rec = read_info(recording)
+    if json_out:
+        print(json.dumps(rec.to_json()))
+        return
+    table = Table(title=str(rec.path), show_header=False)
+    table.add_column("field", style="bold")
+    table.add_column("value")
+    table.add_row("camera", rec.camera_name)
+    table.add_row("resolution", f"{rec.width}x{rec.height} px")
+    table.add_row("duration", f"{rec.duration_s:.2f} s ({rec.duration_us:,} us)")
+    table.add_row("events", f"{rec.n_events:,}")
+    table.add_row("APS frames", f"{rec.n_frames:,}")
+    table.add_row("time range", f"{rec.start_us} .. {rec.end_us} us")
+    console.print(table)
+
+
+@app.command()
+def record(
+    out: Path = typer.Argument(..., help="AEDAT4 file to write"),
+    seconds: Optional[float] = typer.Option(
+        None,
+        "--seconds",
+        help="stop after this many seconds (default: at Ctrl-C)",
+        callback=duration,
+    ),
+    source: str = typer.Option("davis", "--source", help="davis (the live camera) or sim (the simulated gel)"),
+    force: bool = typer.Option(False, "--force", help="overwrite OUT if it exists"),
+    fast: bool = typer.Option(
+        False, "--fast", help="with --source sim: as fast as it is simulated, not in real time (needs --seconds)"
+    ),
+    seed: int = typer.Option(0, "--seed", min=0, help="with --source sim: the simulation's seed"),
+    serial: Optional[str] = typer.Option(None, "--serial", help="with --source davis: the camera's serial number"),
+    exposure_us: str = typer.Option(
+        "4000", "--exposure-us", help="with --source davis: APS exposure in microseconds, or 'auto'"
+    ),
+) -> None:
+    """Record what the camera sees (events and APS frames) as AEDAT4, readable by DV and `info`.
+
+    Ctrl-C (or SIGTERM) ends the recording with a complete, readable file (exit 0); a camera that
+    is unplugged ends it too, keeping what was recorded (exit 2)."""
+    import contextlib
+    import signal
+    import threading
+
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from neurotouch_hid.errors import DeviceError
+    from neurotouch_hid.sources.recording import record_stream
+
+    if source not in tuple(SourceKind):
+        raise NeurotouchError(f"--source {source!r}: expected davis or sim (to replay a recording, copy the file)")
+    if out.exists() and not force:
+        raise NeurotouchError(f"{out} exists: choose another name, or add --force to overwrite it")
+    if fast and (source != SourceKind.SIM or seconds is None):
+        raise NeurotouchError("--fast is for --source sim with --seconds (a camera cannot go faster than time)")
+    with contextlib.ExitStack() as stack:
+        if source == SourceKind.DAVIS:
+            from neurotouch_hid.sources.davis import DavisSource
+
+            camera = stack.enter_context(DavisSource(davis_config(serial, exposure_us, 1.0)))
+            stream, name = camera.stream(seconds=seconds, batch_us=10_000), camera.camera_name
+        else:
+            from neurotouch_hid.sources.simulator import SimulatedSource
+
+            stream, name = (
+                SimulatedSource(seed=seed).stream(seconds=seconds, batch_us=10_000),
+                "NeuroTouch-sim_DAVIS346",
+            )
+        stop = threading.Event()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            stack.callback(signal.signal, sig, signal.signal(sig, lambda *_: stop.set()))
+        columns = [
+            TextColumn(f"recording {source} -> {out}"),
+            *([BarColumn()] if seconds else []),
+            TextColumn("{task.fields[what]}"),
+            TimeElapsedColumn(),
+        ]
+        done = {"us": 0, "events": 0, "frames": 0}
+        with Progress(*columns, console=err_console, transient=True) as progress:
+            task = progress.add_task("record", total=seconds, what="")
+
+            def report(duration_us: int, events: int, frames: int) -> None:
+                done.update(us=duration_us, events=events, frames=frames)
+                progress.update(
+                    task,
+                    completed=duration_us / 1e6,
+                    what=f"{duration_us / 1e6:.1f} s, {events:,} events, {frames} frames",
+                )
+
+            try:
+                summary = record_stream(
+                    stream,
+                    out,
+                    camera_name=name,
+                    pace=source == SourceKind.SIM and not fast,
+                    stop=stop,
+                    on_progress=report,
+                )
+            except DeviceError as exc:
+                raise DeviceError(
+                    f"{exc}; the {done['us'] / 1e6:.1f} s recorded until then ({done['events']:,} "
+                    f"events, {done['frames']} frames) are complete in {out}"
+                ) from None
+    how = " (stopped by Ctrl-C)" if summary.stopped else ""
+    console.print(
+        f"wrote {out}: {summary.duration_us / 1e6:.2f} s, {summary.events:,} events, {summary.frames} APS frames{how}",
+        highlight=False,
+        soft_wrap=True,
+    )
+
+
+# --- the simulated gel (sources/simulator.py) ----------------------------------------------
+@app.command()
+def simulate(
+    out: Path = typer.Option(..., "--out", help="dataset folder to write (docs/dataset.md)"),
+    preset: str = typer.Option(
+        "quick",
+        "--preset",
+        help="quick (small, for tests), paper (5 users x 5 gestures x ~1 min) or sessions (5 users x a 10 s game "
+        "session: the type changes from one gesture to the next; taps from 0.25 s, ordinary gestures, holds of "
+        "several seconds, rests of a fraction of a second)",
+    ),
+    seed: int = typer.Option(0, "--seed", min=0, help="random seed: the same seed gives the same files"),
+    minutes: Optional[float] = typer.Option(
+        None, "--minutes", help="override the total simulated duration (minutes)", callback=finite
+    ),
+    users: Optional[str] = typer.Option(
+        None,
+        "--users",
+        help="comma-separated user ids 0-9 (default: the preset's; paper: even seed -> test users 0-4, "
+        "odd seed -> tuning users 5-9)",
+    ),
+    noise_hz: float = typer.Option(
+        0.1,
+        "--noise-hz",
+        help="background-activity noise per pixel (Hz): 0.1 a DAVIS-346 in good light, a few Hz in dim light",
+        callback=finite,
+    ),
+    physics: str = typer.Option(
+        "default",
+        "--physics",
+        help="gel and camera family: default, powerlaw, stickslip, indent, camera, drift, fingers, strong, markers, "
+        "noise, flicker, viscoelastic, pasternak, exposure, contrast, late, or mix (one family per sequence); "
+        "see docs/accuracy.md",
+    ),
+) -> None:
+    """Simulate the NeuroTouch gel and write a labelled dataset (docs/dataset.md)."""
+    from neurotouch_hid.sources.simulator import write_dataset
+
+    user_ids = None
+    if users is not None:
+        try:
+            user_ids = [int(u) for u in users.split(",") if u.strip()]
+        except ValueError:
+            raise NeurotouchError(f"--users: expected comma-separated user ids 0-9, got {users!r}") from None
+    folder = write_dataset(
+        out,
+        preset=preset,
+        seed=seed,
+        minutes=minutes,
+        users=user_ids,
+        progress=True,
+        noise_hz=noise_hz,
+        physics=physics,
+    )
+    console.print(f"wrote {folder}")
+
+
+# --- the pipeline (pipeline/) ---------------------------------------------------------------
+@app.command()
+def track(
+    recording: Path = typer.Argument(..., help="AEDAT4 recording"),
+    out: Path = typer.Option(..., "--out", help="predictions, JSON lines (docs/dataset.md)"),
+    sensor: Optional[Path] = typer.Option(None, "--sensor", help="sensor.yaml (default: the one beside the recording)"),
+    window_us: int = typer.Option(10_000, "--window-us", help="window length in microseconds (>= 1000)"),
+    markers: Optional[Path] = typer.Option(None, "--markers", help="also write tracked marker positions (.npz)"),
+    method: str = typer.Option("default", "--method", "--preset", help=METHOD_HELP),
+) -> None:
+    """Run the gesture pipeline on a recording and write one prediction per window."""
+    with long_lived_start_up():
+        from neurotouch_hid.evaluation.runner import pipeline_config
+        from neurotouch_hid.pipeline.methods import pipeline_for
+        from neurotouch_hid.sensor import find_sensor_file
+        from neurotouch_hid.track import recording_progress, track_recording
+
+        config = pipeline_config(method=method, window_us=window_us)
+        geometry = find_sensor_file(recording, sensor)
+        pipeline_for(geometry, config).compile_kernels()  # numba's cached code, loaded now
+    with recording_progress(err_console, "tracking") as report:
+        summary = track_recording(recording, out, geometry, config, markers_out=markers, on_progress=report)
+    console.print(
+        f"{summary.windows} windows of {config.window_us} us over {summary.duration_us * 1e-6:.2f} s "
+        f"({summary.events} events, {summary.frames} frames) in {summary.elapsed_s:.2f} s, "
+        f"{summary.realtime_factor:.1f}x real time -> {out}" + (f", markers -> {markers}" if markers else ""),
+        highlight=False,
+        soft_wrap=True,
+    )
+
+
+@app.command("eval")
+def eval_cmd(
+    dataset: Path = typer.Argument(..., help="dataset folder (docs/dataset.md)"),
+    report: Optional[Path] = typer.Option(None, "--report", help="write PNG figures and a Markdown summary here"),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="write the metrics as JSON"),
+    window_us: Optional[int] = typer.Option(
+        None, "--window-us", help="window length in microseconds (default: PipelineConfig's)"
+    ),
+    settings: list[str] = typer.Option(
+        [],
+        "--set",
+        help="pipeline hyperparameter NAME=VALUE, repeatable: a field of the method's config; default: "
+        "window_us (us), noise.kind, noise.time_us (us), tracker.*, contacts.*, gesture.*, resting.* (*_mm in "
+        "mm on the gel, *_mm2 in mm^2, *_um2 in um^2, *_us in us), converted with sensor.yaml's px/mm; paper: its "
+        "fields in px, tracker.* as the default's",
+    ),
+    method: str = typer.Option("default", "--method", "--preset", help=METHOD_HELP + "; --set applies over it"),
+    jobs: int = typer.Option(1, "--jobs", min=1, help="sequences run in parallel processes"),
+    predictions: Optional[Path] = typer.Option(
+        None, "--predictions", help="keep each sequence's predictions here (JSON lines)"
+    ),
+    deadzone_mm: float = typer.Option(
+        0.8,
+        "--deadzone-mm",
+        min=0.0,
+        help="dead zone of the per-gesture metrics (mm; default: the default profile's), docs/dataset.md",
+        callback=finite,
+    ),
+    profiles: list[str] = typer.Option(
+        [],
+        "--profile",
+        help="profile name or file, repeatable: replay the answers through it and count wrong outputs, missed "
+        'gestures and outputs going active at rest (docs/dataset.md, "Through a profile")',
+    ),
+) -> None:
+    """Run the pipeline over a labelled dataset; print the paper's metrics and the per-gesture ones."""
+    import json
+    import shlex
+
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    from neurotouch_hid.evaluation.report import print_tables, write_report
+    from neurotouch_hid.evaluation.runner import evaluate_dataset, pipeline_config
+    from neurotouch_hid.evaluation.through_profile import ProfileUnderTest
+    from neurotouch_hid.mapping.profile import load_profile
+
+    config = pipeline_config(settings, method, **({} if window_us is None else {"window_us": window_us}))
+    tested = [ProfileUnderTest.probe(name, load_profile(name)) for name in dict.fromkeys(profiles)]  # each once
+    columns = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed:.1f}/{task.total:.1f} s recorded"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+    )
+    with Progress(*columns, console=err_console, transient=True) as progress:
+        result = evaluate_dataset(
+            dataset,
+            config,
+            jobs=jobs,
+            predictions_dir=predictions,
+            progress=progress,
+            deadzone_mm=deadzone_mm,
+            profiles=tested,
+        )
+    print_tables(result, console)
+    argv = (
+        ["eval", str(dataset)]
+        + ([f"--method={method}"] if method != "default" else [])
+        + [f"--set={item}" for item in settings]
+        + [f"--profile={t.name}" for t in tested]
+        + [
+            f"{flag}={value}"
+            for flag, value in (
+                ("--window-us", window_us),
+                ("--jobs", jobs if jobs > 1 else None),
+                ("--deadzone-mm", deadzone_mm if deadzone_mm != 0.8 else None),
+                ("--report", report),
+                ("--json", json_out),
+            )
+            if value is not None
+        ]
+    )
+    command = "neurotouch-hid " + shlex.join(argv)
+    hyper = config.model_dump()
+    if json_out is not None:
+        data = {"dataset": str(dataset), "command": command, "config": hyper, **result.to_dict()}
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(data, indent=1, allow_nan=False, default=str) + "\n")
+    if report is not None:
+        summary = write_report(result, report, command=command, config=hyper)
+        console.print(f"report: {summary}")
+
+
+@app.command()
+def view(
+    recording: Path = typer.Argument(..., help="AEDAT4 recording"),
+    out: Path = typer.Option(..., "--out", help="FILE.mp4, FILE.gif or FILE.png"),
+    sensor: Optional[Path] = typer.Option(None, "--sensor", help="sensor.yaml (default: the one beside the recording)"),
+) -> None:
+    """Draw what the pipeline sees: APS frame, events, markers, displacements, contacts, gesture."""
+    from neurotouch_hid.sensor import find_sensor_file
+    from neurotouch_hid.track import recording_progress
+    from neurotouch_hid.view import render_view
+
+    geometry = find_sensor_file(recording, sensor)
+    with recording_progress(err_console, "drawing") as report:
+        drawn = render_view(recording, out, geometry, on_progress=report)
+    what = "the most intense of " if out.suffix.lower() == ".png" else ""
+    console.print(f"{what}{drawn} pictures -> {out}", highlight=False, soft_wrap=True)
