@@ -93,11 +93,11 @@ def read_text_file(path: str | os.PathLike, max_bytes: int, what: str) -> str:
 
 def _hint(problem: str) -> str:
     """A plain-words hint for YAML's usual parser messages (empty when none fits)."""
+    if "could not find expected ':'" in problem:
+        return " (hint: a key on this line has no ':' after it; write 'key: value')"
     if "'\\t'" in problem or "tab" in problem:
         return " (hint: YAML indents with spaces, never tabs: replace the tabs on this line)"
-    if any(
-        s in problem for s in ("expected <block end>", "mapping values are not allowed", "could not find expected ':'")
-    ):
+    if any(s in problem for s in ("expected <block end>", "mapping values are not allowed")):
         return (
             " (hint: check this line's indentation against the lines above: keys of one mapping "
             "start in the same column, and a value on its own line is indented more than its key)"
@@ -107,6 +107,11 @@ def _hint(problem: str) -> str:
     if "while scanning a quoted scalar" in problem or "found unexpected end of stream" in problem:
         return " (hint: a quote is not closed)"
     return ""
+
+
+def _lines(text: str) -> int:
+    """The number of lines of ``text`` (at least 1; a final newline ends the last line)."""
+    return max(1, text.count("\n") + (not text.endswith("\n")))
 
 
 def _composer_class():
@@ -210,12 +215,20 @@ def load_yaml(text: str) -> tuple[Any, Any]:
         ) from None
     except MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
+        if exc.context_mark is not None and (exc.context or "").startswith(
+            ("while scanning a simple key", "while scanning a quoted scalar")
+        ):
+            # the scanner notices a key without ':' (or an open quote) only on a later line; the
+            # line to fix is where that key (or quote) starts
+            mark = exc.context_mark
         problem = " ".join((exc.problem or exc.context or "not valid YAML").split())
         if "duplicate key" in problem:
             problem = problem.split(" with value")[0] + " (each key may appear once in a mapping)"
         elif "maximum depth" in problem:
             problem = f"nested more than {MAX_YAML_DEPTH} levels deep (docs/limits.md)"
-        raise YamlError(mark.line + 1 if mark is not None else 0, problem + _hint(problem)) from None
+        # a problem found at the end of the text is on its last line, never past it
+        line = min(mark.line + 1, _lines(text)) if mark is not None else 0
+        raise YamlError(line, problem + _hint(problem)) from None
     except YAMLError as exc:
         raise YamlError(0, " ".join(str(exc).split())[:200]) from None
     except (ValueError, OverflowError) as exc:  # a value the constructor cannot make

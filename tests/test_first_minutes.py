@@ -205,8 +205,9 @@ def test_edit_answered_no_keeps_the_profile_and_the_rejected_edit(cli, scripted_
     assert "deadzone_mm: -2 " in (cli.user_dir / "default.yaml.rejected").read_text()
     assert "default.yaml.rejected" in given_up.stderr
     monkeypatch.setattr(sys, "stdin", io.StringIO(""))
-    unchanged = cli("edit", "default")  # the script's second call changes nothing here
-    assert unchanged.returncode == 0 and "unchanged" in unchanged.stdout and copy.read_text() == before
+    again = cli("edit", "default")  # starts from the rejected edit, which the script's second call fixes
+    assert again.returncode == 0 and "deadzone_mm: 1.5 " in copy.read_text()
+    assert not (cli.user_dir / "default.yaml.rejected").exists()
 
 
 # --- install, doctor, --version, --help ----------------------------------------------------------

@@ -195,11 +195,11 @@ def profile_edit(name: str = typer.Argument(..., help="profile name (a shipped o
     """Edit a profile in $VISUAL or $EDITOR, as crontab -e: saved only when valid.
 
     An invalid save shows the problem and asks to edit again; answering no leaves the profile as
-    it was and keeps your edit beside it (NAME.yaml.rejected)."""
+    it was and keeps your edit beside it (NAME.yaml.rejected), where the next edit starts."""
     from neurotouch_hid.mapping.editor import creates_shadow, edit_profile
 
     shadow = creates_shadow(name)
-    path = edit_profile(name, _edit_again)
+    path = edit_profile(name, _edit_again, note=lambda line: err_console.print(line, highlight=False, soft_wrap=True))
     if path is None:
         console.print(f"'{name}' unchanged", highlight=False)
         return

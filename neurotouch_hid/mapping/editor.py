@@ -28,6 +28,7 @@ from ruamel.yaml.comments import CommentedMap
 from ruamel.yaml.error import YAMLError
 
 from neurotouch_hid.errors import NeurotouchError, ProfileError
+from neurotouch_hid.limits import YamlError, load_yaml, where
 from neurotouch_hid.mapping.profile import find_profile, parse_profile, shipped_profiles_dir, user_profiles_dir
 
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_-]*$")
@@ -146,11 +147,18 @@ def reset_profile(name: str) -> tuple[Path | None, Path]:
 
 
 def _load_rt(name: str) -> tuple[Path, Any]:
+    """The profile's file and its round-trip document. Raises ProfileError when it is not YAML,
+    at the line to fix (the bounded loader's report), with the command that fixes it."""
     source = find_profile(name)
+    text = source.read_text(encoding="utf-8")
     try:
-        return source, _yaml().load(source.read_text(encoding="utf-8"))
+        load_yaml(text)
+        return source, _yaml().load(text)
+    except YamlError as exc:
+        problem = f"{where(source, exc.line)}: not valid YAML: {exc.problem}"
     except YAMLError as exc:
-        raise ProfileError(f"{source}: not valid YAML: {exc}") from None
+        problem = f"{source}: not valid YAML: {' '.join(str(exc).split())}"
+    raise ProfileError(f"{problem}\n  fix it first: neurotouch-hid profile edit {name}")
 
 
 def _dump(document: Any) -> str:
@@ -269,20 +277,34 @@ def unset_value(name: str, key: str) -> tuple[Path, Any, Any]:
     return _save_validated(name, document), removed, None if shipped is _MISSING else shipped
 
 
-def edit_profile(name: str, edit_again: Callable[[str], bool]) -> Path | None:
+def rejected_path(name: str) -> Path:
+    """Where ``profile edit`` keeps an invalid edit of the user's profile ``name``
+    (``NAME.yaml.rejected`` beside it)."""
+    target = user_profile_path(name)
+    return target.with_name(f"{target.name}.rejected")
+
+
+def edit_profile(name: str, edit_again: Callable[[str], bool], note: Callable[[str], None] = lambda _: None) -> Path | None:
     """Edit profile ``name`` in the user's editor (:func:`run_editor`), as ``crontab -e`` does: on
     a temporary copy, saved to the user's file only when it is a valid profile. On an invalid
-    save, ``edit_again(problem)`` decides: True reopens the editor on the edited text, False
-    gives up. Returns the saved file, or None when nothing was changed.
+    save, ``edit_again(problem)`` decides: True reopens the editor on the edited text (the problem
+    names the temporary file the editor shows, at its lines), False gives up. An edit rejected
+    before (:func:`rejected_path`) is where the editing starts again (``note`` says so), and it is
+    removed once a valid edit is saved. Returns the saved file, or None when nothing was changed.
 
     Raises:
         ProfileError: the edit was not valid and not edited again; the user's file is left as it
-            was and the edited text is kept beside it (``NAME.yaml.rejected``, named in the message).
+            was and the edited text is kept in :func:`rejected_path`, which the message's lines
+            refer to.
         NeurotouchError: the editor cannot be started or fails.
     """
     target = user_profile_path(name)
+    rejected = rejected_path(name)
     original = find_profile(name).read_text(encoding="utf-8")
     text = original
+    if rejected.is_file():
+        text = rejected.read_text(encoding="utf-8")
+        note(f"starting from your earlier edit that was not saved, {rejected} (delete it to start from the profile)")
     fd, tmp = tempfile.mkstemp(prefix=f"neurotouch-hid-{name}.", suffix=".yaml")
     os.close(fd)
     work = Path(tmp)
@@ -292,18 +314,23 @@ def edit_profile(name: str, edit_again: Callable[[str], bool]) -> Path | None:
             run_editor(work)
             text = work.read_text(encoding="utf-8")
             try:
-                parse_profile(text, target)
+                parse_profile(text, work)
             except ProfileError as exc:
                 if edit_again(str(exc)):
                     continue
-                rejected = target.with_name(f"{target.name}.rejected")
                 _write(rejected, text)
                 kept = f"{target} kept as it was" if target.exists() else f"no user copy of '{name}' made"
-                raise ProfileError(f"{exc}\nnot saved: {kept}; your edit is in {rejected}") from None
-            if text == original:
-                return None
-            _write(target, text)
-            return target
+                try:
+                    parse_profile(text, rejected)
+                except ProfileError as in_rejected:
+                    exc = in_rejected
+                raise ProfileError(
+                    f"{exc}\nnot saved: {kept}; your edit is in {rejected} (profile edit {name} starts from it)"
+                ) from None
+            if text != original:
+                _write(target, text)
+            rejected.unlink(missing_ok=True)
+            return target if text != original else None
     finally:
         work.unlink(missing_ok=True)
 

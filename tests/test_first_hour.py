@@ -1,0 +1,103 @@
+"""The first hour of a new user: every message says what is true and where (the line to fix, the
+file that holds the text), and every command the docs show works as written."""
+
+from __future__ import annotations
+
+import io
+import sys
+import textwrap
+
+import pytest
+
+from neurotouch_hid.errors import ProfileError
+from neurotouch_hid.limits import YamlError, load_yaml
+from neurotouch_hid.mapping.profile import load_profile, shipped_profiles_dir
+
+
+# --- YAML errors at the line to fix, with the hint that fits --------------------------------------
+def test_a_key_without_its_colon_is_reported_at_its_own_line_with_a_colon_hint():
+    text = "a:\n  b: 1\n  c 2\n  d: 3\n"
+    with pytest.raises(YamlError) as caught:
+        load_yaml(text)
+    assert caught.value.line == 3
+    assert "no ':'" in caught.value.problem and "indentation" not in caught.value.problem
+
+
+def test_an_error_at_the_end_of_the_text_is_on_its_last_line_never_past_it():
+    for text in ("a:\n  b: 1\n  c 2\n", "a:\n  b: 1\n  c 2", 'a: 1\nb: "open\n'):
+        with pytest.raises(YamlError) as caught:
+            load_yaml(text)
+        assert 1 <= caught.value.line <= len(text.splitlines()), (text, caught.value.line)
+    with pytest.raises(YamlError) as caught:
+        load_yaml('a: 1\nb: "open\nc: 2\n')
+    assert caught.value.line == 2 and "quote" in caught.value.problem  # where the quote opens
+
+
+def test_a_shipped_profile_missing_a_colon_on_its_last_key_names_that_line(tmp_path):
+    lines = (shipped_profiles_dir() / "accessibility.yaml").read_text().splitlines(keepends=True)
+    broken = next(i for i in range(len(lines) - 2, 0, -1) if lines[i].strip().startswith("exponent:"))
+    lines[broken] = lines[broken].replace("exponent:", "exponent", 1)
+    path = tmp_path / "mine.yaml"
+    path.write_text("".join(lines))
+    with pytest.raises(ProfileError) as caught:
+        load_profile(path)
+    assert f"{path}:{broken + 1}: not valid YAML" in str(caught.value)
+    assert "indentation" not in str(caught.value)
+
+
+def test_profile_set_on_a_broken_profile_cites_the_line_to_fix_within_the_file(cli):
+    assert cli("new", "mine", "--from", "default").returncode == 0
+    path = cli.user_dir / "mine.yaml"
+    text = path.read_text().rstrip("\n") + "\n  extra 1\n"  # the last line lacks its colon
+    path.write_text(text)
+    failed = cli("set", "mine", "mappings.push.deadzone_mm", "1.0")
+    assert failed.returncode == 2 and "Traceback" not in failed.stderr
+    n_lines = len(text.splitlines())
+    assert f"{path}:{n_lines}: not valid YAML" in failed.stderr
+    assert "profile edit mine" in failed.stderr
+    assert path.read_text() == text
+
+
+@pytest.fixture()
+def breaking_editor(tmp_path, monkeypatch):
+    """$EDITOR: drops the colon after ``exponent`` on its first call, puts it back on the next."""
+    calls = tmp_path / "calls"
+    script = tmp_path / "editor.sh"
+    script.write_text(
+        textwrap.dedent(
+            f"""\
+            #!/bin/sh
+            echo x >> {calls}
+            if [ "$(wc -l < {calls})" -eq 1 ]; then
+                sed -i 's/exponent: 1.5 /exponent 1.5 /' "$1"
+            else
+                sed -i 's/exponent 1.5 /exponent: 1.2 /' "$1"
+            fi
+            """
+        )
+    )
+    script.chmod(0o755)
+    monkeypatch.setenv("EDITOR", str(script))
+    return calls
+
+
+def test_a_rejected_edit_names_the_file_that_holds_it_and_the_next_edit_starts_from_it(
+    cli, breaking_editor, monkeypatch
+):
+    assert cli("new", "mine", "--from", "default").returncode == 0
+    path = cli.user_dir / "mine.yaml"
+    before = path.read_text()
+    broken_line = next(i for i, line in enumerate(before.splitlines(), 1) if "exponent: 1.5" in line)
+    monkeypatch.setattr(sys, "stdin", io.StringIO("n\n"))
+    given_up = cli("edit", "mine")
+    rejected = cli.user_dir / "mine.yaml.rejected"
+    assert given_up.returncode == 2 and path.read_text() == before
+    # the lines cited are those of the file that holds the broken text, not of the kept profile
+    assert f"{rejected}:{broken_line}: not valid YAML" in given_up.stderr
+    assert f"{path}:{broken_line}" not in given_up.stderr
+    monkeypatch.setattr(sys, "stdin", io.StringIO(""))
+    fixed = cli("edit", "mine")  # starts from the rejected text, which the editor now fixes
+    assert fixed.returncode == 0, fixed.stderr
+    assert str(rejected) in fixed.stderr
+    assert "exponent: 1.2 " in path.read_text()
+    assert not rejected.exists()  # nothing stale left beside the profile
