@@ -43,7 +43,7 @@ def test_count_by_gesture_reads_the_evaluation_result_without_none(family_eval):
     }
 
 
-def test_the_report_gives_the_dead_zone_latency_without_a_target_and_marks_a_missed_gesture(family_eval):
+def test_the_report_marks_the_dead_zone_latency_against_its_target_and_a_missed_gesture(family_eval):
     felt = {
         "onset_median_ms": 40.0,
         "onset_p90_ms": 120.0,
@@ -59,14 +59,22 @@ def test_the_report_gives_the_dead_zone_latency_without_a_target_and_marks_a_mis
         "deadzone_latency_median_ms": 11.4,
         "deadzone_latency_p90_ms": 17.5,
         "missed_above_deadzone": 1,
+        "resting_collared_f1": 0.9875,
     }
     lines = family_eval.report({"default/ours": {**row(), **felt}}, ["default"], ["ours"])
     head, cells = ([c.strip() for c in line.strip("|").split("|")] for line in (lines[0], lines[2]))
     assert cells[head.index("onset p90 ms")] == "120 *"  # the onset's target is 100 ms
-    assert cells[head.index("dead-zone latency median ms")] == "11"  # no target: never marked
-    assert cells[head.index("dead-zone latency p90 ms")] == "18"
+    assert cells[head.index("dead-zone latency median ms")] == "11"  # target 20 ms
+    assert cells[head.index("dead-zone latency p90 ms")] == "18"  # target 50 ms
     assert cells[head.index("missed above the dead zone")] == "1 of 8 *"
     assert cells[head.index("false activations")] == "3 of 58 *"  # the target is 0
     assert cells[head.index("false activations past the dead zone")] == "1 of 58"  # no target of its own
     targets = [c.strip() for c in next(line for line in lines if line.startswith("| target")).strip("|").split("|")]
-    assert targets[head.index("dead-zone latency p90 ms")] == "-"
+    assert targets[head.index("dead-zone latency p90 ms")] == "50"
+    assert cells[head.index("resting F1 outside the collar")] == "98.75 % *"  # the target is 99 %
+    assert targets[head.index("resting F1 outside the collar")] == "99 %"
+    slow = {**felt, "deadzone_latency_median_ms": 24.0, "deadzone_latency_p90_ms": 80.0}
+    lines = family_eval.report({"default/ours": {**row(), **slow}}, ["default"], ["ours"])
+    cells = [c.strip() for c in lines[2].strip("|").split("|")]
+    assert cells[head.index("dead-zone latency median ms")] == "24 *"
+    assert cells[head.index("dead-zone latency p90 ms")] == "80 *"

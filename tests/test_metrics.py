@@ -20,6 +20,7 @@ from neurotouch_hid.evaluation.metrics import (
     contact_distances,
     evaluate,
     mean_absolute_error,
+    outside_resting_collar,
     precision_recall_f1,
 )
 from neurotouch_hid.sensor import SensorGeometry
@@ -186,3 +187,47 @@ def test_observations_concatenate_and_result_is_json(small_case):
     assert data["intensity_mae_by_gesture_mm"][0] is None
     assert len(data["balanced_confusion"]) == len(GESTURE_ORDER)
     assert Observations.concatenate([]).n_sequences == 0
+
+
+# --- resting outside the collar -------------------------------------------------------------
+def test_resting_collar_leaves_out_predictions_within_40_ms_of_each_flag_change():
+    # frames every 40 ms: rest, rest, pressed from 80 ms, rest again from 200 ms
+    label_t = np.array([0, 40_000, 80_000, 120_000, 160_000, 200_000, 240_000, 280_000])
+    label_rest = np.array([1, 1, 0, 0, 0, 1, 1, 1], dtype=bool)
+    t = np.arange(0, 300_001, 10_000)
+    kept = outside_resting_collar(label_t, label_rest, t)
+    left_out = set(t[~kept].tolist())
+    # [80 - 40, 80 + 40] and [200 - 40, 200 + 40] ms, ends included
+    assert left_out == set(range(40_000, 120_001, 10_000)) | set(range(160_000, 240_001, 10_000))
+    # a flag that never changes has no collar; a wider collar takes more
+    assert outside_resting_collar(label_t, np.ones(8, dtype=bool), t).all()
+    assert not outside_resting_collar(label_t, label_rest, t, collar_us=200_000).any()
+    with pytest.raises(ValueError):
+        outside_resting_collar(label_t, label_rest[:3], t)
+
+
+def test_collared_resting_f1_scores_only_predictions_outside_the_collar():
+    sensor = SensorGeometry(px_per_mm=2.5)
+    labels = [
+        LabelRow(0, NONE, True, 0.0, _pts()),
+        LabelRow(100_000, PUSH, False, 1.0, _pts((173, 130))),
+        LabelRow(200_000, PUSH, False, 2.0, _pts((173, 130))),
+        LabelRow(300_000, NONE, True, 0.0, _pts()),
+    ]
+    # the pipeline sees the press 30 ms late and its end 20 ms late: wrong only inside the collar
+    predictions = [
+        GestureEstimate(t_us=t, gesture=NONE, resting=not (130_000 <= t < 320_000)) for t in range(0, 400_001, 10_000)
+    ]
+    result = evaluate(align(labels, predictions, sensor))
+    # raw: truth resting at 0-90 and 300-400 ms (21 windows), predicted resting at 0-120 and
+    # 320-400 ms (22 windows), 19 of them right
+    assert result.resting_precision == pytest.approx(19 / 22)
+    assert result.resting_recall == pytest.approx(19 / 21)
+    # outside the collar (60-140 and 260-340 ms left out) every answer is right
+    assert result.resting_collared_precision == pytest.approx(1.0)
+    assert result.resting_collared_recall == pytest.approx(1.0)
+    assert result.resting_collared_f1 == pytest.approx(1.0)
+    # a miss outside the collar counts
+    predictions[20] = GestureEstimate(t_us=200_000, gesture=NONE, resting=True)
+    missed = evaluate(align(labels, predictions, sensor))
+    assert missed.resting_collared_precision < 1.0

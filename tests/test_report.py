@@ -45,6 +45,7 @@ def test_print_tables_shows_headline_metrics_beside_the_paper(result):
     text = console.export_text()
     assert "Gesture type accuracy" in text and f"{100 * result.gesture_accuracy:.2f} %" in text
     assert "91.12 %" in text  # the paper's figure beside ours
+    assert "Resting F1 outside the 40 ms collar" in text
     assert "Balanced confusion matrix" in text and "Zoom" in text
     assert "Accuracy against ground-truth intensity" in text
 

@@ -12,7 +12,8 @@ The metric functions themselves are pure functions on numpy arrays:
   :func:`balanced_confusion_matrix` (gesture type, contact count, resting flag);
 - :func:`contact_distances` (average Euclidean distance error, surplus predictions dropped);
 - :func:`mean_absolute_error` (intensity);
-- :func:`accuracy_by_bin` (accuracy against ground-truth intensity, 0.6 mm bins).
+- :func:`accuracy_by_bin` (accuracy against ground-truth intensity, 0.6 mm bins);
+- :func:`outside_resting_collar` (which predictions the collared resting F1 scores).
 
 Undefined values (a precision with no prediction of the class, a mean over nothing) are NaN in
 arrays and ``None`` in :meth:`EvaluationResult.to_dict`.
@@ -35,6 +36,9 @@ from neurotouch_hid.sensor import SensorGeometry
 #: Width of the ground-truth intensity bins of the accuracy-vs-intensity analysis (mm), as the
 #: paper's intensity figures (section "Results").
 INTENSITY_BIN_MM = 0.6
+#: Half-width of the collar about each change of the labelled resting flag whose predictions the
+#: collared resting F1 leaves out (us): one APS frame period at 25 Hz (docs/dataset.md).
+RESTING_COLLAR_US = 40_000
 
 _GESTURE_INDEX = {g: i for i, g in enumerate(GESTURE_ORDER)}
 _NONE = _GESTURE_INDEX[GestureType.NONE]
@@ -186,6 +190,39 @@ def accuracy_by_bin(
     return edges, acc, count
 
 
+def outside_resting_collar(
+    label_t_us: np.ndarray, label_resting: np.ndarray, t_us: np.ndarray, collar_us: int = RESTING_COLLAR_US
+) -> np.ndarray:
+    """Which predictions the collared resting F1 scores (docs/dataset.md, "Predictions (JSON
+    lines)"): those more than ``collar_us`` from every change of the labelled resting flag. A
+    change is at the labelled frame whose flag differs from the frame before it (from there on
+    the label at a prediction's time says the new flag, :func:`~neurotouch_hid.dataset.labels_at`);
+    a prediction at most ``collar_us`` before or after it is left out.
+
+    Args:
+        label_t_us: (L,) int64 labelled frames' times (us), increasing.
+        label_resting: (L,) bool their resting flags.
+        t_us: (M,) int64 prediction times (us).
+        collar_us: the collar's half-width (us, >= 0).
+    Returns:
+        (M,) bool, True where the prediction is outside every collar.
+    Raises:
+        ValueError: the label arrays differ in shape.
+    """
+    label_t_us = np.asarray(label_t_us, dtype=np.int64).reshape(-1)
+    label_resting = np.asarray(label_resting, dtype=bool).reshape(-1)
+    t_us = np.asarray(t_us, dtype=np.int64).reshape(-1)
+    if label_t_us.shape != label_resting.shape:
+        raise ValueError(f"label times and flags differ in shape: {label_t_us.shape} vs {label_resting.shape}")
+    changes = label_t_us[1:][label_resting[1:] != label_resting[:-1]]
+    if changes.size == 0 or t_us.size == 0:
+        return np.ones(t_us.shape, dtype=bool)
+    after = np.searchsorted(changes, t_us, side="left")  # the first change at or after each prediction
+    gap_next = np.abs(changes[np.minimum(after, changes.size - 1)] - t_us)
+    gap_prev = np.abs(t_us - changes[np.maximum(after - 1, 0)])
+    return np.minimum(gap_next, gap_prev) > collar_us
+
+
 # --- aligning predictions with labels -------------------------------------------------------
 @dataclass
 class Observations:
@@ -195,6 +232,8 @@ class Observations:
     Attributes:
         gesture_true, gesture_pred: int64 indices into ``GESTURE_ORDER``.
         resting_true, resting_pred: bool.
+        resting_scored: bool, outside the collar about every change of the labelled resting flag
+            (:func:`outside_resting_collar`): what the collared resting F1 scores.
         count_true, count_pred: int64 contact counts.
         intensity_true, intensity_pred: float64 intensity (mm).
         distance_sum_mm: float64 sum of the observation's contact distance errors (mm, user frame).
@@ -210,6 +249,7 @@ class Observations:
     gesture_pred: np.ndarray
     resting_true: np.ndarray
     resting_pred: np.ndarray
+    resting_scored: np.ndarray
     count_true: np.ndarray
     count_pred: np.ndarray
     intensity_true: np.ndarray
@@ -226,6 +266,7 @@ class Observations:
         "gesture_pred",
         "resting_true",
         "resting_pred",
+        "resting_scored",
         "count_true",
         "count_pred",
         "intensity_true",
@@ -294,6 +335,11 @@ def align(
         gesture_pred=np.empty(m, np.int64),
         resting_true=np.empty(m, bool),
         resting_pred=np.empty(m, bool),
+        resting_scored=outside_resting_collar(
+            np.array([row.t_us for row in labels], dtype=np.int64),
+            np.array([row.resting for row in labels], dtype=bool),
+            np.array([p.t_us for p, _ in kept], dtype=np.int64),
+        ),
         count_true=np.empty(m, np.int64),
         count_pred=np.empty(m, np.int64),
         intensity_true=np.empty(m, np.float64),
@@ -360,6 +406,8 @@ class EvaluationResult:
         intensity_mae_mm: intensity MAE over gesture observations (mm).
         intensity_mae_by_gesture_mm: (K,) the same per labelled gesture type (NaN for ``none``).
         resting_precision, resting_recall, resting_f1: resting detection, positive = resting.
+        resting_collared_precision, resting_collared_recall, resting_collared_f1: the same over
+            the observations outside the 40 ms collar about each change of the labelled flag.
         intensity_bin_edges_mm: (B+1,) ground-truth intensity bin edges (0.6 mm bins).
         gesture_accuracy_by_intensity, contact_count_accuracy_by_intensity: (B,) per bin, over
             gesture observations.
@@ -391,6 +439,9 @@ class EvaluationResult:
     resting_precision: float
     resting_recall: float
     resting_f1: float
+    resting_collared_precision: float
+    resting_collared_recall: float
+    resting_collared_f1: float
     intensity_bin_edges_mm: np.ndarray
     gesture_accuracy_by_intensity: np.ndarray
     contact_count_accuracy_by_intensity: np.ndarray
@@ -416,7 +467,8 @@ def evaluate(obs: Observations) -> EvaluationResult:
     - contact distance error: mean over every contact pair of :func:`contact_distances`, over
       observations where both sides have a contact;
     - intensity MAE over gesture observations (label gesture != none);
-    - resting precision/recall/F1 with resting as the positive class;
+    - resting precision/recall/F1 with resting as the positive class, over every observation
+      and outside the collar (``Observations.resting_scored``);
     - gesture type and contact count accuracy per 0.6 mm bin of ground-truth intensity, over
       gesture observations;
     - the per-gesture figures of the observations' records (:func:`.felt.summarise`).
@@ -426,6 +478,9 @@ def evaluate(obs: Observations) -> EvaluationResult:
     precision, recall, f1 = precision_recall_f1(counts)
     resting = confusion_matrix(obs.resting_true.astype(np.int64), obs.resting_pred.astype(np.int64), 2)
     r_precision, r_recall, r_f1 = (float(v[1]) for v in precision_recall_f1(resting))
+    scored = obs.resting_scored
+    collared = confusion_matrix(obs.resting_true[scored].astype(np.int64), obs.resting_pred[scored].astype(np.int64), 2)
+    c_precision, c_recall, c_f1 = (float(v[1]) for v in precision_recall_f1(collared))
     gesture_ok = obs.gesture_true == obs.gesture_pred
     count_ok = obs.count_true == obs.count_pred
     active = obs.gesture_true != _NONE
@@ -461,6 +516,9 @@ def evaluate(obs: Observations) -> EvaluationResult:
         resting_precision=r_precision,
         resting_recall=r_recall,
         resting_f1=r_f1,
+        resting_collared_precision=c_precision,
+        resting_collared_recall=c_recall,
+        resting_collared_f1=c_f1,
         intensity_bin_edges_mm=edges,
         gesture_accuracy_by_intensity=g_acc,
         contact_count_accuracy_by_intensity=c_acc,

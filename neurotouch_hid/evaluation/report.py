@@ -65,6 +65,7 @@ def summary_rows(result: EvaluationResult) -> list[tuple[str, str, str]]:
         ("Resting precision", _pct(result.resting_precision), "-"),
         ("Resting recall", _pct(result.resting_recall), "-"),
         ("Resting F1", _pct(result.resting_f1), _pct(paper["resting_f1"])),
+        ("Resting F1 outside the 40 ms collar", _pct(result.resting_collared_f1), "-"),
     ]
 
 
