@@ -3,8 +3,9 @@
 One picture per APS frame: the frame (grey), the events of the last 10 ms (ON green, OFF red,
 as the paper's Figure "APS frame and EVS events"), the tracked markers, their displacement
 from rest as arrows (scaled up to be visible), the contact points, and the gesture type and
-intensity. Drawing is OpenCV's; writing is imageio's (mp4 through ffmpeg, gif through Pillow,
-png for one picture: the frame with the largest gesture intensity).
+intensity. Drawing is OpenCV's; so is writing a png (one picture: the frame with the largest
+gesture intensity); gif and mp4 are imageio's (Pillow, ffmpeg), the optional extra ``video``
+(:mod:`neurotouch_hid.extras`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import numpy as np
 
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.estimate import GestureEstimate
+from neurotouch_hid.extras import require, require_ffmpeg
 from neurotouch_hid.pipeline.methods import MethodConfig, pipeline_for
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
@@ -118,16 +120,19 @@ def render_view(
         the number of pictures drawn.
     Raises:
         NeurotouchError: ``out`` has another suffix or cannot be written.
+        MissingExtraError: gif or mp4 without the extra ``video`` (mp4: or without an ffmpeg program).
         RecordingError, SensorError: see :func:`neurotouch_hid.track.pipeline_over`.
     """
-    import imageio.v2 as imageio
-
     out = Path(out)
     suffix = out.suffix.lower()
     if suffix not in VIEW_SUFFIXES:
         raise NeurotouchError(
             f"{out}: the view is written as {', '.join(VIEW_SUFFIXES)}, not {out.suffix or 'no suffix'!r}"
         )
+    if suffix == ".mp4":
+        require_ffmpeg("view --out FILE.mp4")
+    elif suffix == ".gif":
+        require("video", "view --out FILE.gif", ("imageio",))
     pipeline = pipeline_for(sensor, config)
     recent: deque[np.ndarray] = deque()
     latest: GestureEstimate | None = None
@@ -137,6 +142,8 @@ def render_view(
     try:
         if suffix != ".png":
             kwargs = {"fps": fps, "macro_block_size": 1} if suffix == ".mp4" else {"duration": 1000.0 / fps, "loop": 0}
+            import imageio.v2 as imageio
+
             writer = imageio.get_writer(out, **kwargs)
         for item, estimates in pipeline_over(recording, pipeline, on_progress=on_progress):
             if estimates:
@@ -158,8 +165,8 @@ def render_view(
                 intensity = latest.intensity_mm if latest is not None else 0.0
                 if best is None or intensity > best[0] or intensity == best[0] == 0.0:
                     best = (intensity, pic)
-        if best is not None:
-            imageio.imwrite(out, best[1])
+        if best is not None and not cv2.imwrite(str(out), cv2.cvtColor(best[1], cv2.COLOR_RGB2BGR)):
+            raise NeurotouchError(f"{out}: cannot write the view (OpenCV's imwrite failed)")
     except OSError as exc:
         raise NeurotouchError(f"{out}: cannot write the view: {exc}") from None
     finally:

@@ -17,6 +17,7 @@ from rich.console import Console
 from rich.table import Table
 
 from neurotouch_hid.evaluation.metrics import EvaluationResult
+from neurotouch_hid.extras import require
 
 #: The paper's results (section "Results"), to print beside ours.
 PAPER_RESULTS: dict[str, float] = {
@@ -209,8 +210,13 @@ def print_tables(result: EvaluationResult, console: Console) -> None:
 def write_figures(result: EvaluationResult, out_dir: str | Path) -> list[Path]:
     """Write the PNG figures of :data:`FIGURES` into ``out_dir`` (created if missing).
 
-    Uses matplotlib's Agg backend (no display needed). Returns the paths written.
+    Uses matplotlib's Agg backend (no display needed), the optional extra ``plots``. Returns the
+    paths written.
+
+    Raises:
+        MissingExtraError: matplotlib is not installed (the message says how to install it).
     """
+    require("plots", "eval --report")
     import matplotlib
 
     matplotlib.use("Agg")

@@ -13,6 +13,7 @@ import numpy as np
 
 from neurotouch_hid.controller import AXES, ControllerState
 from neurotouch_hid.estimate import GestureEstimate
+from neurotouch_hid.extras import require
 from neurotouch_hid.mapping.mapper import Mapper, gesture_inputs
 from neurotouch_hid.mapping.profile import DIGITAL_OUTPUTS, DPAD, ButtonMapping, Profile
 
@@ -90,7 +91,12 @@ def summarise(states: list[ControllerState]) -> Summary:
 
 def plot_timeline(estimates: list[GestureEstimate], states: list[ControllerState], path: str | os.PathLike) -> None:
     """Draw the gesture intensity, every axis (as deflection -1..1) and every button over time
-    (s from the first estimate) to a PNG (matplotlib, Agg backend)."""
+    (s from the first estimate) to a PNG (matplotlib, Agg backend: the optional extra ``plots``).
+
+    Raises:
+        MissingExtraError: matplotlib is not installed (the message says how to install it).
+    """
+    require("plots", "profile test --plot")
     import matplotlib
 
     matplotlib.use("Agg")
