@@ -118,3 +118,14 @@ def test_the_driver_commands_import_neither_extra():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "[]"
+
+
+def test_eval_report_without_matplotlib_says_so_before_evaluating(sim_rest_dataset, tmp_path):
+    report = tmp_path / "report"
+    json_out = tmp_path / "m.json"
+    result = cli_without(
+        ["matplotlib"], "eval", str(sim_rest_dataset), "--report", str(report), "--json", str(json_out)
+    )
+    assert_names_the_extra(result, "plots", "matplotlib")
+    assert "eval --report" in result.stderr
+    assert not report.exists() and not json_out.exists()  # nothing evaluated, nothing half-written

@@ -308,6 +308,10 @@ def profile_test(
         summarise,
     )
 
+    if plot is not None:  # before the replay, not after it
+        from neurotouch_hid.extras import require
+
+        require("plots", "profile test --plot")
     loaded = load_profile(name)
     estimates = list(estimates_from_source(source, seconds))
     states = replay(loaded, estimates)

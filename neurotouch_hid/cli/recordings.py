@@ -282,8 +282,11 @@ def eval_cmd(
     from neurotouch_hid.evaluation.report import print_tables, write_report
     from neurotouch_hid.evaluation.runner import evaluate_dataset, pipeline_config
     from neurotouch_hid.evaluation.through_profile import ProfileUnderTest
+    from neurotouch_hid.extras import require
     from neurotouch_hid.mapping.profile import load_profile
 
+    if report is not None:  # before the evaluation, not after it
+        require("plots", "eval --report")
     config = pipeline_config(settings, method, **({} if window_us is None else {"window_us": window_us}))
     tested = [ProfileUnderTest.probe(name, load_profile(name)) for name in dict.fromkeys(profiles)]  # each once
     columns = (
