@@ -38,6 +38,16 @@ from typing import Any, Callable
 import psutil
 
 from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.limits import (
+    FileLimitError,
+    YamlError,
+    load_yaml,
+    printable,
+    read_proc_file,
+    read_text_file,
+    short,
+    where,
+)
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +60,17 @@ POLL_S = 0.5
 #: started by fork and exec may be seen between the two, under its parent's name.
 YOUNG_S = 2.0
 STEAM, EXECUTABLE = "steam", "executable"
+#: Largest games.yaml (bytes): an entry is a line of some 40 bytes.
+MAX_GAMES_BYTES = 256 * 1024
+#: Most games in one section: a scan compares every process with each.
+MAX_GAMES = 1000
+#: Largest Steam app id (they are 32-bit numbers); a longer SteamAppId is no app's.
+MAX_STEAM_APP_ID = 2**32 - 1
+#: Longest executable name (NAME_MAX, a file name's most bytes on Linux).
+MAX_NAME_CHARS = 255
+#: Most bytes read of a process's environment or command line (``/proc/PID/environ``,
+#: ``cmdline``): a desktop session's environment is a few KB; what lies beyond is not looked at.
+MAX_PROC_BYTES = 128 * 1024
 HEADER = (
     "# neurotouch-hid: a profile per game (`neurotouch-hid profile auto add GAME PROFILE` edits this file).\n"
     "# steam: Steam app id -> profile; executable: process name -> profile. Profiles: names or paths.\n"
@@ -93,61 +114,97 @@ def parse_game(game: str) -> tuple[str, int | str]:
     anything else an executable's name (``("executable", "supertuxkart")``).
 
     Raises:
-        GameMapError: empty, or a path (a name is matched, not a path).
+        GameMapError: empty, a path (a name is matched, not a path), a number past
+            :data:`MAX_STEAM_APP_ID` or a name longer than :data:`MAX_NAME_CHARS`.
     """
     game = game.strip()
-    if game.isdigit():
-        return STEAM, int(game)
+    if game.isascii() and game.isdigit():
+        app_id = _app_id(game)
+        if app_id is None:
+            raise GameMapError(f"'{printable(game)}' is not a Steam app id (a whole number up to {MAX_STEAM_APP_ID})")
+        return STEAM, app_id
     if not game or "/" in game or "\\" in game:
+        name = Path(game.replace(chr(92), "/")).name or "supertuxkart"
         raise GameMapError(
-            f"'{game}' is not a game: give a Steam app id (a number) or an executable's name without its "
-            f"folder (e.g. {Path(game.replace(chr(92), '/')).name or 'supertuxkart'})"
+            f"'{printable(game)}' is not a game: give a Steam app id (a number) or an executable's name without "
+            f"its folder (e.g. {printable(name)})"
+        )
+    if len(game) > MAX_NAME_CHARS or not game.isprintable():
+        raise GameMapError(
+            f"'{printable(game)}' is not an executable's name (at most {MAX_NAME_CHARS} printable characters)"
         )
     return EXECUTABLE, game
+
+
+def _app_id(text: str) -> int | None:
+    """A Steam app id from its decimal digits (ASCII), or None when it is none (too long, not
+    digits): never converts more than 10 digits."""
+    if not (0 < len(text) <= 10 and text.isascii() and text.isdigit()):
+        return None
+    value = int(text)
+    return value if value <= MAX_STEAM_APP_ID else None
 
 
 def _check_section(path: Path, data: dict, section: str) -> dict:
     value = data.get(section) or {}
     if not isinstance(value, dict):
-        raise GameMapError(f"{path}: '{section}' must map games to profiles (GAME: PROFILE), found {value!r}")
+        raise GameMapError(f"{path}: '{section}' must map games to profiles (GAME: PROFILE), found {short(value)}")
+    if len(value) > MAX_GAMES:
+        raise GameMapError(f"{path}: {section}: {len(value)} games (at most {MAX_GAMES}, docs/limits.md)")
     for game, profile in value.items():
         if not isinstance(profile, str) or not profile.strip():
-            raise GameMapError(f"{path}: {section}.{game}: expected a profile name or path, found {profile!r}")
-        if section == STEAM and not (isinstance(game, int) and game >= 0):
-            raise GameMapError(f"{path}: steam: '{game}' is not a Steam app id (a whole number)")
+            raise GameMapError(
+                f"{path}: {section}.{printable(game)}: expected a profile name or path, found {short(profile)}"
+            )
+        if section == STEAM and not (isinstance(game, int) and 0 <= game <= MAX_STEAM_APP_ID):
+            raise GameMapError(
+                f"{path}: steam: '{printable(game)}' is not a Steam app id (a whole number up to {MAX_STEAM_APP_ID})"
+            )
         if section == EXECUTABLE and not isinstance(game, str):
-            raise GameMapError(f"{path}: executable: '{game}' is not a name (quote it: '\"{game}\"')")
+            raise GameMapError(f"{path}: executable: '{printable(game)}' is not a name (quote it)")
+        if section == EXECUTABLE and (len(game) > MAX_NAME_CHARS or not game.isprintable()):
+            raise GameMapError(
+                f"{path}: executable: '{printable(game)}' is not a name (at most {MAX_NAME_CHARS} printable characters)"
+            )
     return value
 
 
-def _load_document(path: Path) -> Any:
-    from ruamel.yaml import YAML
-    from ruamel.yaml.error import YAMLError
-
+def _load_document(path: Path, round_trip: bool = False) -> Any:
+    """games.yaml's document (None when there is no file): read and parsed within the bounds of
+    :mod:`neurotouch_hid.limits` (a regular file of at most :data:`MAX_GAMES_BYTES`, YAML depth,
+    aliases, numbers and strings bounded), then checked. ``round_trip``: ruamel's round-trip
+    document (comments kept, for ``profile auto add/remove``), parsed only once the bounded
+    parse passed; else plain Python data."""
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_text_file(path, MAX_GAMES_BYTES, "games.yaml")
     except FileNotFoundError:
         return None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise GameMapError(f"cannot read {path}: {exc}") from None
-    yaml = YAML()  # round-trip: `profile auto add/remove` keep the user's comments
-    yaml.width = 4096
+    except UnicodeDecodeError:
+        raise GameMapError(f"cannot read {path}: not UTF-8 text") from None
+    except FileLimitError as exc:
+        raise GameMapError(f"cannot read {exc}") from None
+    except OSError as exc:
+        raise GameMapError(f"cannot read {path}: {exc.strerror or exc}") from None
     try:
-        data = yaml.load(text)
-    except YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
-        raise GameMapError(
-            f"{where}: not valid YAML ({getattr(exc, 'problem', None) or exc}); fix or delete it"
-        ) from None
+        data, _ = load_yaml(text)
+    except YamlError as exc:
+        raise GameMapError(f"{where(path, exc.line)}: not valid YAML: {exc.problem}; fix or delete it") from None
     if data is not None and not isinstance(data, dict):
         raise GameMapError(f"{path}: expected the sections 'steam:' and 'executable:', found {type(data).__name__}")
-    unknown = sorted(str(k) for k in (data or {}) if k not in (STEAM, EXECUTABLE))
+    unknown = sorted(printable(k) for k in (data or {}) if k not in (STEAM, EXECUTABLE))
     if unknown:
-        raise GameMapError(f"{path}: unknown section(s) {', '.join(unknown)} (expected 'steam:' and 'executable:')")
+        raise GameMapError(
+            f"{path}: unknown section(s) {printable(', '.join(unknown), 200)} (expected 'steam:' and 'executable:')"
+        )
     for section in (STEAM, EXECUTABLE):
         _check_section(path, data or {}, section)
-    return data
+    if not round_trip:
+        return data
+    from ruamel.yaml import YAML
+
+    yaml = YAML()  # round-trip: `profile auto add/remove` keep the user's comments
+    yaml.width = 4096
+    return yaml.load(text)
 
 
 def load_game_map(path: Path | None = None) -> GameMap:
@@ -195,7 +252,7 @@ def add_game(game: str, profile: str, path: Path | None = None) -> tuple[str, in
     if _is_path(profile):
         profile = str(Path(profile).resolve())
     path = path if path is not None else games_file()
-    data = _load_document(path)
+    data = _load_document(path, round_trip=True)
     if data is None:
         data = CommentedMap()
         data.yaml_set_start_comment(HEADER.replace("# ", "").rstrip("\n"))
@@ -214,7 +271,7 @@ def remove_game(game: str, path: Path | None = None) -> tuple[str, int | str, st
     """
     section, key = parse_game(game)
     path = path if path is not None else games_file()
-    data = _load_document(path)
+    data = _load_document(path, round_trip=True)
     entries = (data or {}).get(section) or {}
     if key not in entries:
         known = load_game_map(path)
@@ -250,8 +307,8 @@ class Game:
 
     def label(self) -> str:
         """How the user is told, e.g. ``Steam app 4242 (pid 1234, sleep)``."""
-        what = f"Steam app {self.key}" if self.section == STEAM else str(self.key)
-        return f"{what} (pid {self.pid}, {self.name})"
+        what = f"Steam app {self.key}" if self.section == STEAM else printable(self.key)
+        return f"{what} (pid {self.pid}, {printable(self.name)})"
 
 
 @dataclass
@@ -264,31 +321,62 @@ class _Seen:
     ours: bool = False
 
 
+def _steam_app_id(pid: int) -> int | None:
+    """``SteamAppId`` in process ``pid``'s environment (the first :data:`MAX_PROC_BYTES` of
+    ``/proc/PID/environ``), or None: absent, not a valid app id, or not readable."""
+    try:
+        data, _ = read_proc_file(f"/proc/{pid}/environ", MAX_PROC_BYTES)
+    except OSError:
+        return None
+    key = STEAM_APP_ENV.encode() + b"="
+    for entry in data.split(b"\0"):
+        if entry.startswith(key):
+            return _app_id(entry[len(key) : len(key) + 11].decode("ascii", "replace"))
+    return None
+
+
+def _first_word(pid: int) -> str:
+    """The file name of process ``pid``'s command line's first word (``Game.exe`` of Wine's
+    ``Z:\\...\\Game.exe``), from the first :data:`MAX_PROC_BYTES` of ``/proc/PID/cmdline``;
+    empty when unreadable."""
+    try:
+        data, _ = read_proc_file(f"/proc/{pid}/cmdline", MAX_PROC_BYTES)
+    except OSError:
+        return ""
+    first = data.split(b"\0", 1)[0].decode("utf-8", "surrogateescape")
+    return PureWindowsPath(first).name[:MAX_NAME_CHARS] if first else ""  # splits on / and \\
+
+
 def _read_process(pid: int, uid: int) -> _Seen | None:
-    """What the scanner needs of one process (psutil): None when it is gone or unreadable."""
+    """What the scanner needs of one process: None when it is gone or unreadable.
+
+    psutil gives its start time, owner, kernel name (``comm``, 15 bytes) and executable (a
+    ``readlink``, at most PATH_MAX); the environment and the command line, which the process
+    itself fills and may make megabytes long, are read bounded (:func:`read_proc_file`)."""
     try:
         proc = psutil.Process(pid)
         seen = _Seen(started=proc.create_time(), read_at=time.time())
         if proc.uids().real != uid:
             return seen  # another user's: never a game of ours, never read again
         seen.ours = True
-        seen.name = proc.name()
-        names = {seen.name}
+        seen.name = _comm(pid)
+        names = {seen.name, _first_word(pid)}
         with contextlib.suppress(psutil.AccessDenied, psutil.ZombieProcess):
             exe = proc.exe()
             if exe:
-                names.add(os.path.basename(exe))
-        with contextlib.suppress(psutil.AccessDenied, psutil.ZombieProcess):
-            cmdline = proc.cmdline()
-            if cmdline and cmdline[0]:
-                names.add(PureWindowsPath(cmdline[0]).name)  # splits on / and \ (Wine's Z:\...\Game.exe)
-        with contextlib.suppress(psutil.AccessDenied, psutil.ZombieProcess):
-            app = proc.environ().get(STEAM_APP_ENV, "")
-            seen.app_id = int(app) if app.isdigit() else None
+                names.add(os.path.basename(exe)[:MAX_NAME_CHARS])
+        seen.app_id = _steam_app_id(pid)
         seen.names = frozenset(n for n in names if n)
         return seen
     except (psutil.NoSuchProcess, psutil.AccessDenied, psutil.ZombieProcess, OSError):
         return None
+
+
+def _comm(pid: int) -> str:
+    """The kernel's name of process ``pid`` (``/proc/PID/comm``, at most 15 bytes; psutil's
+    ``name()`` would read the whole command line to complete a 15-byte one)."""
+    data, _ = read_proc_file(f"/proc/{pid}/comm", 64)
+    return data.decode("utf-8", "surrogateescape").rstrip("\n")
 
 
 class ProcessScanner:
@@ -432,11 +520,16 @@ class GameProfiles:
                 )
 
     def _loop(self) -> None:
+        failed = ""  # the last failure logged: the same one again at the next polls is not
         while not self._stop.wait(self._poll_s):
             try:
                 self.poll()
-            except Exception:  # the driver keeps running; profiles stay as they are
-                log.exception("profiles per game: looking at the processes failed")
+                failed = ""
+            except Exception as exc:  # the driver keeps running; profiles stay as they are
+                why = printable(f"{type(exc).__name__}: {exc}", 200)
+                if why != failed:
+                    log.error("profiles per game: looking at the processes failed: %s", why)
+                failed = why
 
     def start(self) -> None:
         """Poll in a thread until :meth:`stop`."""

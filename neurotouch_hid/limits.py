@@ -11,7 +11,12 @@ the driver (docs/limits.md has every limit, its value and why it is there):
   a billion values for the schema to walk) and the length of a number (Python refuses ints of
   more than 4300 digits with a ValueError; floats of thousands of digits are no number a person
   writes). Every refusal is one :class:`YamlError` with the line, the problem and, for the
-  common slips (tabs, indentation), a hint.
+  common slips (tabs, indentation), a hint. A string longer than :data:`MAX_STRING_CHARS` is
+  refused the same way;
+- :func:`read_proc_file` reads a file of ``/proc`` (another process's environment, command
+  line) up to a size, however much the process put there;
+- :func:`printable` is how any outside text reaches a message or the terminal: a short excerpt,
+  control characters (escape sequences, newlines) written as Python escapes.
 
 Library: ruamel.yaml (``YAML(typ="safe", pure=True)``, ``max_depth``, ``allow_duplicate_keys``).
 """
@@ -39,6 +44,12 @@ MAX_SENSOR_PX = 4096
 #: Longest number written in YAML (characters). A float has 17 significant digits; the rest
 #: is sign, point and exponent.
 MAX_NUMBER_CHARS = 64
+
+#: Longest string value in YAML (characters): a profile name, a path (PATH_MAX is 4096 bytes), a
+#: description of a few lines.
+MAX_STRING_CHARS = 4096
+#: Characters of an outside value quoted in a message (:func:`short`, :func:`printable`).
+EXCERPT_CHARS = 60
 
 _SHORT = reprlib.Repr()  # keyword arguments only from Python 3.12
 _SHORT.maxlevel, _SHORT.maxlist, _SHORT.maxtuple, _SHORT.maxdict, _SHORT.maxstring = 2, 4, 4, 4, 40
@@ -161,6 +172,12 @@ def _composer_class():
                     f"a number of {len(node.value)} characters (at most {MAX_NUMBER_CHARS}); "
                     "write it with fewer digits",
                 )
+            if len(node.value) > MAX_STRING_CHARS:
+                raise YamlError(
+                    node.start_mark.line + 1,
+                    f"a value of {len(node.value)} characters (at most {MAX_STRING_CHARS}, docs/limits.md): "
+                    f"{printable(node.value, 30)}",
+                )
             return node
 
         def compose_sequence_node(self, anchor: Any) -> Any:
@@ -196,7 +213,8 @@ def load_yaml(text: str) -> tuple[Any, Any]:
     Raises:
         YamlError: not YAML, larger than :data:`MAX_YAML_BYTES`, deeper than
             :data:`MAX_YAML_DEPTH`, more than :data:`MAX_YAML_NODES` values with aliases
-            expanded, a number longer than :data:`MAX_NUMBER_CHARS`, or a key given twice.
+            expanded, a number longer than :data:`MAX_NUMBER_CHARS`, a string longer than
+            :data:`MAX_STRING_CHARS`, or a key given twice.
     """
     from ruamel.yaml.error import MarkedYAMLError, YAMLError
     from ruamel.yaml.reader import ReaderError
@@ -237,10 +255,47 @@ def load_yaml(text: str) -> tuple[Any, Any]:
 
 
 def short(value: Any) -> str:
-    """``repr(value)`` cut to 60 characters: error messages never echo a file at length (a
-    value may be a list of a million items, or an alias to one)."""
+    """``repr(value)`` cut to :data:`EXCERPT_CHARS` characters: error messages never echo a file
+    at length (a value may be a list of a million items, or an alias to one); ``repr`` escapes a
+    string's control characters."""
     text = _SHORT.repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
+    return text if len(text) <= EXCERPT_CHARS else text[: EXCERPT_CHARS - 3] + "..."
+
+
+def printable(value: Any, limit: int | None = EXCERPT_CHARS) -> str:
+    """``str(value)`` safe for a terminal and a log line: every character ``str.isprintable``
+    refuses (C0 and C1 controls such as ESC, which starts the terminal's escape sequences, DEL,
+    newlines, bidirectional overrides) written as its Python escape (``\\x1b``, ``\\n``,
+    ``\\u202e``), and the text cut to ``limit`` characters of the original
+    (``...`` and the length after it; None: never cut)."""
+    text = str(value)
+    cut = limit is not None and len(text) > limit
+    part = text[:limit] if cut else text
+    if not part.isprintable():
+        part = "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in part)
+    return f"{part}... ({len(text)} characters)" if cut else part
+
+
+def read_proc_file(path: str | os.PathLike, max_bytes: int) -> tuple[bytes, bool]:
+    """The first ``max_bytes`` bytes of a ``/proc`` file (``/proc/PID/environ``, ``cmdline``) and
+    whether there was more. ``/proc`` files say size 0, so the size is only known by reading:
+    at most ``max_bytes + 1`` bytes are read, whatever the process holds.
+
+    Raises:
+        FileNotFoundError, ProcessLookupError, PermissionError, OSError: as ``open``/``read`` do
+        (the process is gone, or is not ours to read).
+    """
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    with os.fdopen(fd, "rb", buffering=0) as fh:
+        chunks, size = [], 0
+        while size <= max_bytes:
+            chunk = fh.read(min(1 << 16, max_bytes + 1 - size))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            size += len(chunk)
+    data = b"".join(chunks)
+    return data[:max_bytes], size > max_bytes
 
 
 def where(source: str | os.PathLike | Path, line: int) -> str:

@@ -266,6 +266,45 @@ def test_sysrq_is_refused_at_validation_with_the_reason(output, says):
         parse_profile(f"mappings:\n  boom: {{input: push_intensity, output: {output}}}\n", "sysrq.yaml")
 
 
+@pytest.mark.parametrize(
+    "output", ["KEY_POWER", "KEY_POWER2", "KEY_RESTART", "KEY_SLEEP", "KEY_LEFTCTRL+KEY_SUSPEND", "KEY_RFKILL"]
+)
+def test_keys_the_machine_acts_on_are_refused_and_never_offered(output):
+    """logind powers off, reboots, suspends or hibernates on these keys, rfkill-input turns the
+    radios off: no profile may press them, and the virtual keyboard never has them."""
+    from evdev import ecodes
+
+    from neurotouch_hid.mapping.profile import KERNEL_COMMAND_KEYS, keyboard_keys, parse_profile
+    from neurotouch_hid.output.desktop import keyboard_codes
+
+    with pytest.raises(ProfileError, match="the system acts on it"):
+        parse_profile(f"mappings:\n  off: {{input: push_intensity, output: {output}}}\n", "power.yaml")
+    offered = set(keyboard_codes(keyboard_keys()))
+    assert not offered & {ecodes.ecodes[name] for name in KERNEL_COMMAND_KEYS}
+
+
+def test_a_chord_or_a_profile_cannot_ask_for_every_key():
+    """A chord holds at most MAX_CHORD_KEYS keys, a profile presses at most MAX_PROFILE_KEYS."""
+    from neurotouch_hid.mapping.profile import (
+        KERNEL_COMMAND_KEYS,
+        MAX_CHORD_KEYS,
+        MAX_PROFILE_KEYS,
+        keyboard_keys,
+        parse_profile,
+    )
+
+    keys = sorted(keyboard_keys() - KERNEL_COMMAND_KEYS)
+    chord = "+".join(keys[:300])
+    with pytest.raises(ProfileError, match=f"a chord of at most {MAX_CHORD_KEYS} keys") as err:
+        parse_profile(f"mappings:\n  all: {{input: push_intensity, output: {chord}}}\n", "chord.yaml")
+    assert len(str(err.value)) < 1000
+    plain = [k for k in keys if k[4:].isalnum() and k not in ("KEY_DELETE", "KEY_KPDOT")][: MAX_PROFILE_KEYS + 1]
+    many = "mappings:\n" + "".join(f"  m{i}: {{input: push_intensity, output: {k}}}\n" for i, k in enumerate(plain))
+    with pytest.raises(ProfileError, match=f"at most {MAX_PROFILE_KEYS} different keyboard keys"):
+        parse_profile(many, "many.yaml")
+    assert len(parse_profile(many.rsplit("  m", 1)[0] + "\n", "fits.yaml").keyboard_keys) == MAX_PROFILE_KEYS
+
+
 def test_ctrl_alt_delete_is_refused_even_over_several_mappings():
     from neurotouch_hid.mapping.profile import parse_profile
 
@@ -518,3 +557,80 @@ def test_reading_a_small_file_reserves_no_more_than_it_holds(tmp_path):
     code, out, err, _ = cli("run", "--source", str(preds), "--output", "jsonl", "--seconds", "1", address_space_gib=1.5)
     assert code == 0 and "Traceback" not in err, err[-2000:]
     assert out.strip()
+
+
+# --- games.yaml and the processes the driver looks at -----------------------------------------
+def _games_yaml(tmp_path: Path) -> tuple[Path, dict]:
+    config = tmp_path / "config"
+    (config / "neurotouch-hid").mkdir(parents=True)
+    return config / "neurotouch-hid" / "games.yaml", _env(XDG_CONFIG_HOME=str(config))
+
+
+@pytest.mark.parametrize(
+    "text, says",
+    [
+        (ALIAS_BOMB.replace("a: &a", "steam: {}\nexecutable: {}\na: &a"), "aliases"),
+        (DEEP_YAML.replace("mappings", "steam"), "nested more than"),
+        ("executable:\n  game: " + "x" * 200_000 + "\n", "a value of 200000 characters"),
+        ("steam:\n  " + "4" * 5000 + ": mouse\n", "a number of 5000 characters"),
+        ("steam:\n  " + "4" * 12 + ": mouse\n", "is not a Steam app id"),
+        ('executable:\n  "a\\nb\\e]0;x\\a": mouse\n', "'a\\nb\\x1b]0;x\\x07' is not a name"),
+    ],
+    ids=["alias-bomb", "8000-deep", "200k-value", "5000-digits", "12-digit-app", "control-characters"],
+)
+def test_games_yaml_goes_through_the_bounded_reader(tmp_path, text, says):
+    """``profile auto list`` on a crafted games.yaml: one short line (the value never echoed
+    whole, control characters escaped), bounded time and memory."""
+    path, env = _games_yaml(tmp_path)
+    path.write_text(text)
+    assert_refused(cli("profile", "auto", "list", env=env), says, str(path))
+
+
+@pytest.mark.parametrize("kind", ["fifo", "dev-zero"])
+def test_a_games_yaml_that_never_ends_blocks_neither_the_command_nor_the_watcher(tmp_path, kind):
+    """A FIFO (a read would wait for a writer for ever) or a link to /dev/zero (a read never
+    ends) as games.yaml: refused by ``profile auto list``; the running driver's watcher says so
+    and goes on polling."""
+    import threading
+
+    from neurotouch_hid.games import GameProfiles
+
+    path, env = _games_yaml(tmp_path)
+    if kind == "fifo":
+        os.mkfifo(path)
+    else:
+        path.symlink_to("/dev/zero")
+    assert_refused(cli("profile", "auto", "list", env=env), "not a regular file")
+
+    class NoGames:
+        def games(self, game_map):
+            return []
+
+    watcher = GameProfiles(lambda ref, why: ref, "default", path=path, scanner=NoGames())
+    polled = threading.Thread(target=lambda: [watcher.poll() for _ in range(3)], daemon=True)
+    polled.start()
+    polled.join(30.0)
+    assert not polled.is_alive(), "the watcher blocked on games.yaml"
+
+
+def test_a_process_with_a_huge_steam_app_id_does_not_hide_the_game_beside_it(tmp_path):
+    """A process whose SteamAppId is 5000 digits (Python refuses to convert it) and one whose
+    environment is 800 KB of padding before SteamAppId: the game beside them is still found, and
+    neither is taken for a game."""
+    from neurotouch_hid.games import GameMap, ProcessScanner
+
+    sleeper = [sys.executable, "-c", "import time; time.sleep(120)"]
+    base = {"PATH": os.environ.get("PATH", "")}
+    procs = [
+        subprocess.Popen(sleeper, env=dict(base, SteamAppId="9" * 5000)),
+        subprocess.Popen(sleeper, env=dict(base, **{f"PAD{i}": "p" * 100_000 for i in range(8)}, SteamAppId="4243")),
+        subprocess.Popen(sleeper, env=dict(base, SteamAppId="4242")),
+    ]
+    try:
+        game_map = GameMap({4242: "mouse", 4243: "spacecraft", int("9" * 10): "x"}, {})
+        found = ProcessScanner().games(game_map)
+        assert [(g.key, g.pid) for g in found] == [(4242, procs[2].pid)], found
+    finally:
+        for proc in procs:
+            proc.kill()
+            proc.wait()

@@ -132,9 +132,36 @@ MODES: tuple[str, ...] = ("hold", "toggle", "long_press", "double_press", "turbo
 MAX_TURBO_HZ = 50.0
 #: Schema problems listed in one error (the rest are counted): a crafted profile may have thousands.
 MAX_PROBLEMS_SHOWN = 10
-#: Keys the kernel acts on itself: SysRq (Alt+SysRq+B reboots at once, Alt+SysRq+C crashes the
-#: kernel; Documentation/admin-guide/sysrq.rst). No profile may press it.
-KERNEL_COMMAND_KEYS = frozenset({"KEY_SYSRQ"})
+#: Keys the machine acts on, whatever program has the focus. No profile may press them, and the
+#: virtual keyboard never offers them:
+#: SysRq (the kernel runs Alt+SysRq+B as a reboot at once, Alt+SysRq+C crashes it;
+#: Documentation/admin-guide/sysrq.rst); power, reboot, sleep and hibernate (systemd-logind
+#: powers off on KEY_POWER/KEY_POWER2, reboots on KEY_RESTART, suspends on KEY_SLEEP and
+#: hibernates on KEY_SUSPEND by default: logind.conf(5), HandlePowerKey= ... HandleRebootKey=);
+#: the radio keys (the kernel's rfkill-input handler switches every radio off on them:
+#: net/rfkill/input.c).
+KERNEL_COMMAND_KEYS = frozenset(
+    {
+        "KEY_SYSRQ",
+        "KEY_POWER",
+        "KEY_POWER2",
+        "KEY_RESTART",
+        "KEY_SLEEP",
+        "KEY_SUSPEND",
+        "KEY_RFKILL",
+        "KEY_WLAN",
+        "KEY_BLUETOOTH",
+        "KEY_UWB",
+        "KEY_WIMAX",
+        "KEY_WWAN",
+    }
+)
+#: Most keys and buttons in one chord (``KEY_LEFTCTRL+KEY_LEFTSHIFT+KEY_LEFTALT+KEY_LEFTMETA+KEY_T``
+#: is five); a chord of hundreds would make the keyboard offer every key.
+MAX_CHORD_KEYS = 5
+#: Most keyboard keys one profile may press in all (its mappings and chords together): the
+#: virtual keyboard offers these, not every key there is.
+MAX_PROFILE_KEYS = 64
 #: Ctrl+Alt+Delete (and its keypad form): the console keyboard driver reboots on it
 #: (drivers/tty/vt/keyboard.c, fn_boot_it). No profile may be able to press all three at once.
 _CTRL = frozenset({"KEY_LEFTCTRL", "KEY_RIGHTCTRL"})
@@ -337,19 +364,27 @@ class ButtonMapping(_Hysteresis, _Layered):
         if not isinstance(value, str):
             raise ValueError(_expected_outputs())
         parts = value.split("+")
+        if len(parts) > MAX_CHORD_KEYS:
+            raise ValueError(f"a chord of at most {MAX_CHORD_KEYS} keys or buttons (this one has {len(parts)})")
         for part in parts:
             if part not in BUTTON_LIKE and part not in keyboard_keys():
                 raise ValueError(
                     f"a pad button (BTN_SOUTH ... BTN_THUMBR, A, B, X, Y, dpad_*), a mouse button "
                     f"({', '.join(MOUSE_BUTTONS)}) or an evdev key name such as 'KEY_SPACE' "
-                    f"(several joined by '+'); '{part}' is none of these"
+                    f"(several joined by '+'); {short(part)} is none of these"
                 )
         if len(parts) > 1 and any(not p.startswith("KEY_") and p not in MOUSE_BUTTONS for p in parts):
             raise ValueError("a chord of keyboard keys and mouse buttons only, such as 'KEY_LEFTSHIFT+KEY_TAB'")
-        if KERNEL_COMMAND_KEYS & set(parts):
+        banned = sorted(KERNEL_COMMAND_KEYS & set(parts))
+        if "KEY_SYSRQ" in banned:
             raise ValueError(
                 "a key other than KEY_SYSRQ: the kernel runs SysRq chords as commands (Alt+SysRq+B "
                 "reboots the machine at once), so no profile may press it"
+            )
+        if banned:
+            raise ValueError(
+                f"a key other than {', '.join(banned)}: the system acts on it (power off, reboot, suspend, "
+                "hibernate or radios off, whatever program has the focus), so no profile may press it"
             )
         return "+".join(FACE_ALIASES.get(p, p) for p in parts)
 
@@ -474,6 +509,15 @@ class Profile(_Strict):
             raise ValueError(
                 "keys that cannot make Ctrl+Alt+Delete: the console reboots the machine on it; this "
                 f"profile presses {', '.join(sorted(keys & (_CTRL | _ALT | _DELETE)))}"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _few_keys(self) -> "Profile":
+        keys = self.keyboard_keys
+        if len(keys) > MAX_PROFILE_KEYS:
+            raise ValueError(
+                f"at most {MAX_PROFILE_KEYS} different keyboard keys in a profile; this one has {len(keys)}"
             )
         return self
 

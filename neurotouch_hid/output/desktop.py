@@ -63,7 +63,9 @@ _HI_RES = {"REL_WHEEL": "REL_WHEEL_HI_RES", "REL_HWHEEL": "REL_HWHEEL_HI_RES"}
 
 def keyboard_codes(keys: Iterable[str]) -> tuple[int, ...]:
     """The codes a keyboard offering ``keys`` (``KEY_*`` names) has: theirs and
-    :data:`UDEV_KEYBOARD_CODES`, sorted, without KEY_SYSRQ (profiles may not press it)."""
+    :data:`UDEV_KEYBOARD_CODES`, sorted, without the keys the machine acts on (SysRq, power,
+    reboot, sleep, radios: profiles may not press them,
+    :data:`~neurotouch_hid.mapping.profile.KERNEL_COMMAND_KEYS`)."""
     from evdev import ecodes
 
     from neurotouch_hid.mapping.profile import KERNEL_COMMAND_KEYS
