@@ -4,6 +4,7 @@ file that holds the text), and every command the docs show works as written."""
 from __future__ import annotations
 
 import io
+import re
 import sys
 import textwrap
 
@@ -101,3 +102,64 @@ def test_a_rejected_edit_names_the_file_that_holds_it_and_the_next_edit_starts_f
     assert str(rejected) in fixed.stderr
     assert "exponent: 1.2 " in path.read_text()
     assert not rejected.exists()  # nothing stale left beside the profile
+
+
+# --- typos and values: the nearest name, YAML's own values, the project's words -------------------
+def test_resetting_a_mistyped_shipped_name_suggests_that_name_not_deleting(cli):
+    wrong = cli("reset", "defualt")
+    assert wrong.returncode == 2
+    assert "did you mean 'neurotouch-hid profile reset default'?" in wrong.stderr
+    assert "profile delete" not in wrong.stderr  # there is no user profile 'defualt' to delete
+
+
+def test_unsetting_a_mistyped_field_names_it_and_the_nearest_field(cli):
+    assert cli("new", "mine", "--from", "accessibility").returncode == 0
+    wrong = cli("unset", "mine", "mappings.move.deadzone_zm")
+    assert wrong.returncode == 2
+    assert "'deadzone_zm' is not a field" in wrong.stderr and "did you mean 'deadzone_mm'?" in wrong.stderr
+    assert "is not set" not in wrong.stderr
+    typo = cli("unset", "mine", "mappings.mvoe.deadzone_mm")
+    assert typo.returncode == 2 and "did you mean 'move'?" in typo.stderr
+
+
+def test_setting_a_mistyped_field_cites_no_line_of_a_text_that_is_in_no_file(cli):
+    assert cli("new", "mine", "--from", "accessibility").returncode == 0
+    path = cli.user_dir / "mine.yaml"
+    before = path.read_text()
+    wrong = cli("set", "mine", "mappings.move.deadzone_zm", "1")
+    assert wrong.returncode == 2 and path.read_text() == before
+    assert "did you mean 'deadzone_mm'?" in wrong.stderr
+    assert not re.search(re.escape(f"{path}:") + r"\d", wrong.stderr)  # a line of the changed text: past the file
+
+
+def test_change_reports_print_yaml_values_not_python_ones(cli):
+    assert cli("new", "mine", "--from", "accessibility").returncode == 0
+    was_unset = cli("set", "mine", "mappings.move.invert_x", "true")
+    assert was_unset.returncode == 0
+    assert "mappings.move.invert_x: (not set) -> true" in was_unset.stdout
+    undone = cli("unset", "mine", "mappings.move.invert_x")
+    assert "mappings.move.invert_x: true -> removed" in undone.stdout
+    smoothing = cli("set", "mine", "mappings.move.smoothing", "{beta: 0.1}")
+    assert "-> {beta: 0.1}" in smoothing.stdout and "{filter: one_euro," in smoothing.stdout
+    for python in ("None", "True", "False", "'beta'"):
+        assert python not in was_unset.stdout + undone.stdout + smoothing.stdout
+
+
+def test_mapping_a_game_again_says_which_entry_it_replaces(tmp_path):
+    from helpers import run_cli
+
+    env = {"XDG_CONFIG_HOME": str(tmp_path / "config")}
+    assert run_cli("profile", "auto", "add", "4242", "mouse", env=env).returncode == 0
+    again = run_cli("profile", "auto", "add", "4242", "default", env=env)
+    assert again.returncode == 0 and "replacing Steam app 4242 -> mouse" in again.stdout
+
+
+def test_bad_option_values_are_said_in_the_projects_words_with_the_nearest_choice():
+    from helpers import run_cli
+
+    number = run_cli("demo", "--seconds", "abc")
+    assert number.returncode == 2 and "expected a number" in number.stderr
+    choice = run_cli("run", "--source", "sim", "--output", "termial")
+    assert choice.returncode == 2 and "did you mean 'term'?" in choice.stderr
+    for library in ("Value error", "Input should be", "unable to parse"):
+        assert library not in number.stderr + choice.stderr

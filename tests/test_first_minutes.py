@@ -119,6 +119,7 @@ def test_setting_a_shipped_profile_says_it_made_a_shadowing_copy_and_reset_undoe
     assert not copy.exists()
     assert cli("path", "default").stdout.strip() == str(shipped_profiles_dir() / "default.yaml")
     assert "already the shipped one" in cli("reset", "default").stdout
+    assert cli("new", "mine").returncode == 0
     mine = cli("reset", "mine")
     assert mine.returncode == 2 and "not a shipped profile" in mine.stderr and "profile delete mine" in mine.stderr
 

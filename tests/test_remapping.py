@@ -273,7 +273,7 @@ def test_toggled_layer_maps_the_same_gesture_to_another_key_and_back():
         ),
         (
             "mappings:\n  m: {input: zoom, output: KEY_A, dwel_ms: 300}\n",
-            "q.yaml:2: mappings.m.dwel_ms: unknown field (found 300); expected a known field: one of",
+            "q.yaml:2: mappings.m.dwel_ms: unknown field (found 300; did you mean 'dwell_ms'?); expected a known field",
         ),
     ],
 )

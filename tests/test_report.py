@@ -135,7 +135,5 @@ def test_a_bad_set_value_names_the_setting_the_field_and_what_was_expected():
 
     with pytest.raises(NeurotouchError) as info:
         pipeline_config(["tracker.assoc_mm=wide"])
-    assert "--set 'tracker.assoc_mm=wide': tracker.assoc_mm: found 'wide'; input should be a valid number" in str(
-        info.value
-    )
+    assert "--set 'tracker.assoc_mm=wide': tracker.assoc_mm: found 'wide'; expected a number" in str(info.value)
     assert pipeline_config(["resting.marker_threshold=none"]).resting.marker_threshold is None

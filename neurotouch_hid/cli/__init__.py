@@ -15,13 +15,14 @@ they share.
 from __future__ import annotations
 
 import os
+import re
 import sys
 
 import typer
 
 from neurotouch_hid.cli import devices, profiles, recordings
 from neurotouch_hid.cli.common import err_console
-from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.errors import NeurotouchError, did_you_mean, in_plain_words
 from neurotouch_hid.output.console import command_app
 
 app = command_app(
@@ -65,16 +66,28 @@ def _options(
 def main() -> None:
     """Console-script entry point: user errors become one line on stderr and exit code 2.
 
-    typer runs in its standalone mode, so a mistyped command line (missing argument, unknown
-    option or command, bad value) is printed by typer itself (usage, the error, exit code 2)
-    whichever click it uses (typer 0.29 carries its own copy and no longer installs click).
+    A mistyped command line (missing argument, unknown option or command, bad value) is printed
+    as typer prints it (usage, the error, exit code 2), a bad value in the project's words
+    (:func:`usage_in_plain_words`), whichever click typer uses (typer 0.29 carries its own copy
+    and no longer installs click: its exception classes are found through typer's).
     """
     if COMPLETE_ENV in os.environ:  # a shell asks for completions (the scripts the package installs)
         from typer.completion import completion_init
 
         completion_init()
+    click_exception = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException")
     try:
-        app()
+        code = app(standalone_mode=False)  # usage errors come back here, to be said in plain words
+    except typer.BadParameter as exc:
+        exc.message = usage_in_plain_words(exc.message)
+        exc.show()
+        sys.exit(exc.exit_code)
+    except click_exception as exc:  # the other usage errors (a missing argument, an unknown option)
+        exc.show()
+        sys.exit(exc.exit_code)
+    except typer.Abort:  # the end of the input at a prompt
+        err_console.print("Aborted!", highlight=False)
+        sys.exit(1)
     except NeurotouchError as exc:
         from rich.markup import escape  # the message's own brackets (an extra's name) are text
 
@@ -82,6 +95,19 @@ def main() -> None:
         sys.exit(2)
     except KeyboardInterrupt:
         sys.exit(130)
+    sys.exit(code if isinstance(code, int) else 0)
+
+
+def usage_in_plain_words(message: str) -> str:
+    """A bad option value's message in the project's words: typer validates through pydantic,
+    whose wording (``Value error, ...``, ``Input should be ...``) is not ours; a choice
+    mistyped gets the nearest one."""
+    message = in_plain_words(message)
+    choice = re.fullmatch(r"'(.*)' is not one of (.*?)\.?", message)
+    if choice is not None:
+        choices = re.findall(r"'([^']*)'", choice.group(2))
+        message = f"'{choice.group(1)}' is not one of {choice.group(2)}{did_you_mean(choice.group(1), choices)}"
+    return message
 
 
 if __name__ == "__main__":  # pragma: no cover

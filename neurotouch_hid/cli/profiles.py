@@ -118,11 +118,13 @@ def profile_set(
     value: str = typer.Argument(..., help="YAML value, e.g. 1.5, true, ABS_RX"),
 ) -> None:
     """Set one value; the profile is validated first and left unchanged if the result is invalid."""
-    from neurotouch_hid.mapping.editor import creates_shadow, parse_value, set_values
+    from neurotouch_hid.mapping.editor import creates_shadow, parse_value, set_values, yaml_text
 
     shadow = creates_shadow(name)
-    path, previous = set_values(name, {key: parse_value(value)})
-    console.print(f"{path}: {key}: {previous[key]!r} -> {value}", highlight=False, soft_wrap=True)
+    new = parse_value(value)
+    path, previous = set_values(name, {key: new})
+    before = yaml_text(previous[key]) if key in previous else "(not set)"
+    console.print(f"{path}: {key}: {before} -> {yaml_text(new)}", highlight=False, markup=False, soft_wrap=True)
     if shadow:
         _note_shadow(name, path)
 
@@ -135,12 +137,12 @@ def profile_unset(
     """Undo one key: the shipped profile's value when the profile is a copy of one, else the default.
 
     The profile is validated first and left unchanged if the result is invalid."""
-    from neurotouch_hid.mapping.editor import creates_shadow, unset_value
+    from neurotouch_hid.mapping.editor import creates_shadow, unset_value, yaml_text
 
     shadow = creates_shadow(name)
     path, removed, shipped = unset_value(name, key)
-    now = "removed, its default applies" if shipped is None else f"back to the shipped value {shipped!r}"
-    console.print(f"{path}: {key}: {removed!r} -> {now}", highlight=False, soft_wrap=True)
+    now = "removed, its default applies" if shipped is None else f"back to the shipped value {yaml_text(shipped)}"
+    console.print(f"{path}: {key}: {yaml_text(removed)} -> {now}", highlight=False, markup=False, soft_wrap=True)
     if shadow:
         _note_shadow(name, path)
 
@@ -238,10 +240,14 @@ def profile_auto_add(
     profile: str = typer.Argument(..., help="profile name or path"),
 ) -> None:
     """Map a game to a profile (an entry already there is replaced)."""
-    from neurotouch_hid.games import add_game, games_file
+    from neurotouch_hid.games import STEAM, add_game, games_file, load_game_map, parse_game
 
+    section, key = parse_game(game)
+    known = load_game_map(games_file())
+    before = (known.steam if section == STEAM else known.executable).get(key)
     section, key, profile = add_game(game, profile)
-    typer.echo(f"{_game_label(section, key)} -> {profile} (in {games_file()}); a running driver follows it")
+    replaced = f", replacing {_game_label(section, key)} -> {before}" if before not in (None, profile) else ""
+    typer.echo(f"{_game_label(section, key)} -> {profile} (in {games_file()}{replaced}); a running driver follows it")
 
 
 @auto_app.command("remove")

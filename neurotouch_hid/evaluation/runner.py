@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from neurotouch_hid.dataset import dataset_sensor_file, list_sequences, read_labels, write_predictions
-from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.errors import NeurotouchError, in_plain_words
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
 from neurotouch_hid.evaluation.metrics import EvaluationResult, Observations, align, evaluate
 from neurotouch_hid.evaluation.through_profile import ProfileUnderTest
@@ -87,7 +87,7 @@ def pipeline_config(settings: Sequence[str] = (), method: str = "default", **val
             loc = tuple(str(p) for p in err["loc"])
             where = f"--set {short(given[loc])}: " if loc in given else ""
             field = ".".join(loc) or "the hyperparameters"
-            message = err["msg"].removeprefix("Value error, ")
+            message = in_plain_words(err["msg"])
             message = message[:1].lower() + message[1:]
             problems.append(f"{where}{field}: found {short(err['input'])}; {message}" if loc else f"{where}{message}")
         raise NeurotouchError("invalid pipeline hyperparameters: " + "; ".join(problems)) from None

@@ -27,9 +27,21 @@ from ruamel.yaml import YAML
 from ruamel.yaml.comments import CommentedMap
 from ruamel.yaml.error import YAMLError
 
-from neurotouch_hid.errors import NeurotouchError, ProfileError
+from neurotouch_hid.errors import NeurotouchError, ProfileError, did_you_mean, nearest
 from neurotouch_hid.limits import YamlError, load_yaml, where
-from neurotouch_hid.mapping.profile import find_profile, parse_profile, shipped_profiles_dir, user_profiles_dir
+from neurotouch_hid.mapping.profile import (
+    _ANY_MAPPING_FIELDS,
+    _TAG_MODELS,
+    DeviceSpec,
+    LayerSwitch,
+    OneEuroSmoothing,
+    Profile,
+    _output_kind,
+    find_profile,
+    parse_profile,
+    shipped_profiles_dir,
+    user_profiles_dir,
+)
 
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_-]*$")
 _MISSING = object()
@@ -134,11 +146,15 @@ def reset_profile(name: str) -> tuple[Path | None, Path]:
     """
     shipped = shipped_profile(name)
     if shipped is None:
-        names = ", ".join(sorted(p.stem for p in shipped_profiles_dir().glob("*.yaml")))
-        raise ProfileError(
-            f"'{name}' is not a shipped profile, so there is nothing to reset it to (shipped: {names}); "
-            f"to remove it: neurotouch-hid profile delete {name}"
-        )
+        shipped_names = sorted(p.stem for p in shipped_profiles_dir().glob("*.yaml"))
+        message = f"'{name}' is not a shipped profile, so there is nothing to reset it to"
+        close = nearest(name, shipped_names)
+        if close is not None:
+            message += f"; did you mean 'neurotouch-hid profile reset {close}'?"
+        message += f" (shipped: {', '.join(shipped_names)})"
+        if user_profile_path(name).is_file():
+            message += f"; to remove your profile '{name}': neurotouch-hid profile delete {name}"
+        raise ProfileError(message)
     target = user_profile_path(name)
     if not target.is_file():
         return None, shipped
@@ -167,6 +183,34 @@ def _dump(document: Any) -> str:
     return buffer.getvalue()
 
 
+def yaml_text(value: Any) -> str:
+    """``value`` as YAML writes it (``null``, ``true``, ``1.5``, ``0x045e``, ``{beta: 0.1}``), for
+    the change reports of ``set`` and ``unset``."""
+    yaml = _yaml()
+    yaml.default_flow_style = True
+    buffer = io.StringIO()
+    yaml.dump(value, buffer)
+    return buffer.getvalue().removesuffix("\n").removesuffix("\n...")
+
+
+def schema_fields(parts: list[str], node: Any = None) -> tuple[str, ...] | None:
+    """The fields the schema allows in the mapping ``node`` at the dotted path ``parts`` (the top
+    level for ``[]``; for ``["mappings", NAME]`` those of the mapping's kind, which its ``output``
+    decides), or None where it does not say (a name under ``mappings:`` or ``layers:``)."""
+    if not parts:
+        return tuple(Profile.model_fields)
+    if parts[-1] == "smoothing":
+        return tuple(OneEuroSmoothing.model_fields)
+    if parts == ["device"]:
+        return tuple(DeviceSpec.model_fields)
+    if len(parts) == 2 and parts[0] == "mappings":
+        kind = _output_kind(dict(node)) if isinstance(node, dict) else "unknown"
+        return tuple(_ANY_MAPPING_FIELDS if kind == "unknown" else _TAG_MODELS[kind].model_fields)
+    if len(parts) == 2 and parts[0] == "layers":
+        return tuple(LayerSwitch.model_fields)
+    return None
+
+
 def _parent(document: Any, key: str, create: bool) -> tuple[CommentedMap, str]:
     """The mapping holding the last part of a dotted ``key``, and that part."""
     parts = key.split(".")
@@ -176,12 +220,14 @@ def _parent(document: Any, key: str, create: bool) -> tuple[CommentedMap, str]:
     for depth, part in enumerate(parts):
         where = ".".join(parts[:depth]) or "the top level"
         if not isinstance(node, CommentedMap):
-            raise ProfileError(f"key '{key}': {where} is a value ({node!r}), not a mapping")
+            raise ProfileError(f"key '{key}': {where} is a value ({yaml_text(node)}), not a mapping")
         if depth < len(parts) - 1:
             if part not in node:
                 if not create:
                     there = ", ".join(map(str, node)) or "nothing"
-                    raise ProfileError(f"key '{key}': there is no '{part}' in {where} (it has: {there})")
+                    raise ProfileError(
+                        f"key '{key}': there is no '{part}' in {where}{did_you_mean(part, node)} (it has: {there})"
+                    )
                 node[part] = CommentedMap()
             node = node[part]
     return node, parts[-1]
@@ -199,11 +245,12 @@ def parse_value(text: str) -> Any:
 def _save_validated(name: str, document: Any) -> Path:
     target = user_profile_path(name)
     text = _dump(document)
-    try:
-        parse_profile(text, target)
+    try:  # the changed text is in no file yet: its lines would point into nothing
+        parse_profile(text, target, lines=False)
     except ProfileError as exc:
+        problem = str(exc).replace(f"profile {target} is invalid", f"the change would make profile {target} invalid", 1)
         raise ProfileError(
-            f"{exc}\n  nothing was changed ({target if target.exists() else 'no user copy'} kept as it was)"
+            f"{problem}\n  nothing was changed ({target if target.exists() else 'no user copy'} kept as it was)"
         ) from None
     _write(target, text)
     return target
@@ -231,7 +278,7 @@ def set_values(name: str, changes: dict[str, Any]) -> tuple[Path, dict[str, Any]
     mapping the profile does not have.
 
     Returns:
-        (the user's file, key -> previous value or None).
+        (the user's file, key -> previous value; a key that was not set is absent).
     Raises:
         ProfileError: bad key, a mapping the profile does not have (its mappings named), or the
             result is not a valid profile (the file is left unchanged).
@@ -241,7 +288,8 @@ def set_values(name: str, changes: dict[str, Any]) -> tuple[Path, dict[str, Any]
     for key, value in changes.items():
         _known_mapping(name, document, key)
         parent, last = _parent(document, key, create=True)
-        previous[key] = parent.get(last)
+        if last in parent:
+            previous[key] = parent[last]
         parent[last] = value
     return _save_validated(name, document), previous
 
@@ -260,7 +308,12 @@ def unset_value(name: str, key: str) -> tuple[Path, Any, Any]:
     _, document = _load_rt(name)
     parent, last = _parent(document, key, create=False)
     if last not in parent:
-        raise ProfileError(f"key '{key}' is not set in profile '{name}'")
+        fields = schema_fields(key.split(".")[:-1], parent)
+        if fields is not None and last not in fields:
+            raise ProfileError(
+                f"key '{key}': '{last}' is not a field there{did_you_mean(last, fields)} (fields: {', '.join(fields)})"
+            )
+        raise ProfileError(f"key '{key}' is not set in profile '{name}': its default applies already")
     removed = parent[last]
     shipped = _MISSING
     base = shipped_base(name)
@@ -284,7 +337,9 @@ def rejected_path(name: str) -> Path:
     return target.with_name(f"{target.name}.rejected")
 
 
-def edit_profile(name: str, edit_again: Callable[[str], bool], note: Callable[[str], None] = lambda _: None) -> Path | None:
+def edit_profile(
+    name: str, edit_again: Callable[[str], bool], note: Callable[[str], None] = lambda _: None
+) -> Path | None:
     """Edit profile ``name`` in the user's editor (:func:`run_editor`), as ``crontab -e`` does: on
     a temporary copy, saved to the user's file only when it is a valid profile. On an invalid
     save, ``edit_again(problem)`` decides: True reopens the editor on the edited text (the problem

@@ -71,7 +71,7 @@ from pydantic import (
 from ruamel.yaml.nodes import MappingNode, ScalarNode
 
 from neurotouch_hid.controller import BUTTONS, MOUSE_BUTTONS
-from neurotouch_hid.errors import ProfileError
+from neurotouch_hid.errors import ProfileError, did_you_mean, in_plain_words
 from neurotouch_hid.limits import MAX_YAML_BYTES, FileLimitError, YamlError, load_yaml, read_text_file, short, where
 
 #: The gel dome's radius (mm); the default saturation of the ``contact`` inputs.
@@ -411,7 +411,7 @@ _ANY_MAPPING_FIELDS = {
 
 
 def _no_such_output(cls, value: Any) -> Any:
-    raise ValueError(_expected_outputs())
+    raise ValueError(_expected_outputs() + (did_you_mean(value, ALL_OUTPUTS) if isinstance(value, str) else ""))
 
 
 #: Chosen only when ``output`` names no known output: reports it with the valid names, and still
@@ -616,8 +616,10 @@ def load_profile(name_or_path: str | os.PathLike) -> Profile:
     return parse_profile(text, path)
 
 
-def parse_profile(text: str, source: str | os.PathLike) -> Profile:
-    """Validate a profile's YAML text; ``source`` (a file name) is only used in error messages.
+def parse_profile(text: str, source: str | os.PathLike, lines: bool = True) -> Profile:
+    """Validate a profile's YAML text; ``source`` (a file name) is only used in error messages,
+    with the line of each problem unless ``lines`` is False (a text that is in no file: a change
+    about to be written).
 
     Raises:
         ProfileError: YAML syntax error (with its line) or every schema problem at once.
@@ -634,7 +636,8 @@ def parse_profile(text: str, source: str | os.PathLike) -> Profile:
         return Profile.model_validate(data, context=context)
     except ValidationError as exc:
         problems = [
-            line for _, line in sorted((_describe(err, root, source) for err in exc.errors()), key=lambda p: p[0])
+            line
+            for _, line in sorted((_describe(err, root, source, lines) for err in exc.errors()), key=lambda p: p[0])
         ]
         shown = problems[:MAX_PROBLEMS_SHOWN] + (
             [f"... and {len(problems) - MAX_PROBLEMS_SHOWN} more"] if len(problems) > MAX_PROBLEMS_SHOWN else []
@@ -678,30 +681,32 @@ def _model_at(loc: tuple) -> type[BaseModel] | None:
     return {"device": DeviceSpec, "smoothing": OneEuroSmoothing}.get(str(parent[-1]))
 
 
-def _describe(err: dict, root: Any, source: str | os.PathLike) -> tuple[int, str]:
-    """(line, ``FILE:LINE: field: found VALUE; expected ...``) for one pydantic error."""
+def _describe(err: dict, root: Any, source: str | os.PathLike, lines: bool = True) -> tuple[int, str]:
+    """(line, ``FILE:LINE: field: found VALUE; expected ...``) for one pydantic error (``FILE:``
+    without lines)."""
     line, path = _line_of(root, tuple(err["loc"]))
+    at = where(source, line if lines else 0)
     field = ".".join(str(p) for p in path) or "(top level)"
     kind = err["type"]
     if kind == "missing":
-        return line, f"{source}:{line}: {field}: missing; expected a value (this field is required)"
+        return line, f"{at}: {field}: missing; expected a value (this field is required)"
     if kind == "extra_forbidden":
         model = _model_at(tuple(err["loc"]))
         allowed = f": one of {', '.join(model.model_fields)}" if model is not None else ""
+        close = did_you_mean(str(path[-1]), model.model_fields) if model is not None and path else ""
         return (
             line,
-            f"{source}:{line}: {field}: unknown field (found {short(err['input'])}); expected a known field{allowed}",
+            f"{at}: {field}: unknown field (found {short(err['input'])}{close}); expected a known field{allowed}",
         )
     if kind == "string_pattern_mismatch" and path[-1:] == ("[key]",):
         field = ".".join(str(p) for p in path[:-1])
         return line, (
-            f"{source}:{line}: {field}: found the name {short(err['input'])}; expected a name of letters, "
+            f"{at}: {field}: found the name {short(err['input'])}; expected a name of letters, "
             "digits and '_' that does not start with a digit"
         )
     if kind in ("model_type", "model_attributes_type", "dict_type"):
-        return line, f"{source}:{line}: {field}: found {short(err['input'])}; expected a mapping (key: value lines)"
-    message = err["msg"].removeprefix("Value error, ")
+        return line, f"{at}: {field}: found {short(err['input'])}; expected a mapping (key: value lines)"
+    message = in_plain_words(err["msg"])
     expected = message[0].lower() + message[1:] if message else message
-    if expected.startswith("input should be "):
-        expected = expected.removeprefix("input should be ")
-    return line, f"{source}:{line}: {field}: found {short(err['input'])}; expected {expected}"
+    expected = expected.removeprefix("expected ")
+    return line, f"{at}: {field}: found {short(err['input'])}; expected {expected}"
