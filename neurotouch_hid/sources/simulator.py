@@ -552,6 +552,7 @@ def draw_gesture(
     physics: Physics = PHYSICS["default"],
     physics_rng: np.random.Generator | None = None,
     steady: bool = False,
+    direction_rad: float | None = None,
 ) -> SimGesture:
     """Draw one gesture of ``user`` starting at ``t_start_us`` (us): fingers, intensity, speed.
 
@@ -569,6 +570,9 @@ def draw_gesture(
     zoom), so that the two twists and the push directions weigh the same and a profile's
     saturations are reached (the live simulated hand, :class:`SimulatedSource`); the same draws
     are made, so nothing else changes.
+
+    ``direction_rad``: a push's direction (user frame, counter-clockwise from x, rad) instead of a
+    drawn one (a prompted push, :func:`prompted_gesture`); the draw is still made.
     """
     prng = physics_rng if physics_rng is not None else np.random.default_rng(0)
     if gesture is GestureType.PUSH:
@@ -588,6 +592,7 @@ def draw_gesture(
 
     if gesture is GestureType.PUSH:
         angle = rng.uniform(0, 2 * math.pi)
+        angle = angle if direction_rad is None else direction_rad
         direction = np.array([math.cos(angle), math.sin(angle)])
         across = np.array([-direction[1], direction[0]])
         offsets = (np.arange(n_fingers) - (n_fingers - 1) / 2)[:, None] * across * rng.uniform(14.0, 18.0)
@@ -727,10 +732,8 @@ def session_gesture(
     ``gestures``; the same only when there is one type), drawn by :func:`draw_gesture`, then made
     a tap, an ordinary gesture or a long hold (:data:`SESSION_KINDS`).
 
-    A tap lasts :data:`TAP_US` from attack start to release end (attack 35 %, hold 30 %, release
-    35 %); its intensity is capped so that the attack stays under :data:`MAX_SPEED_MM_S`. A long
-    hold holds for :data:`LONG_HOLD_US`. A lagging finger's lag (the ``fingers`` family) scales
-    with the attack.
+    A tap lasts :data:`TAP_US` from attack start to release end (:func:`as_tap`). A long hold
+    holds for :data:`LONG_HOLD_US`.
     """
     choices = [g for g in gestures if g is not previous] or list(gestures)
     kind = choices[int(rng.integers(len(choices)))]
@@ -738,24 +741,69 @@ def session_gesture(
     names = list(SESSION_KINDS)
     length = names[int(rng.choice(len(names), p=list(SESSION_KINDS.values())))]
     if length == "tap":
-        total = rng.uniform(*TAP_US)
-        attack, hold = int(0.35 * total), int(0.3 * total)
-        amplitude = min(g.amplitude_mm, 2.0 * MAX_SPEED_MM_S * attack * 1e-6 / math.pi)
-        if physics.lag_ms > 0:  # a late finger lands as late, within the shorter attack
-            lags = tuple(int(min(lag, LATEST_LAG * attack)) for lag in g.lags_us)
-        else:
-            lags = tuple(int(lag * attack / g.attack_us) for lag in g.lags_us)
-        return replace(
-            g,
-            attack_us=attack,
-            hold_us=hold,
-            release_us=int(total) - attack - hold,
-            amplitude_mm=amplitude,
-            lags_us=lags,
-        )
+        return as_tap(g, int(rng.uniform(*TAP_US)), physics)
     if length == "hold":
         return replace(g, hold_us=int(rng.uniform(*LONG_HOLD_US)))
     return g
+
+
+def as_tap(g: SimGesture, total_us: int, physics: Physics = PHYSICS["default"]) -> SimGesture:
+    """``g`` made a tap of ``total_us`` from attack start to release end (attack 35 %, hold 30 %,
+    release 35 %), its intensity capped so that the attack stays under :data:`MAX_SPEED_MM_S`; a
+    lagging finger's lag (the ``fingers`` family) scales with the attack, a late one (``late``)
+    lands as late, within the shorter attack."""
+    attack, hold = int(0.35 * total_us), int(0.3 * total_us)
+    amplitude = min(g.amplitude_mm, 2.0 * MAX_SPEED_MM_S * attack * 1e-6 / math.pi)
+    if physics.lag_ms > 0:
+        lags = tuple(int(min(lag, LATEST_LAG * attack)) for lag in g.lags_us)
+    else:
+        lags = tuple(int(lag * attack / g.attack_us) for lag in g.lags_us)
+    return replace(
+        g,
+        attack_us=attack,
+        hold_us=hold,
+        release_us=int(total_us) - attack - hold,
+        amplitude_mm=amplitude,
+        lags_us=lags,
+    )
+
+
+#: A prompted gesture held for less than this (s) is a tap (:func:`prompted_gesture`).
+TAP_MAX_S = 1.0
+
+
+def prompted_gesture(
+    rng: np.random.Generator,
+    user: SimUser,
+    gesture: GestureType,
+    t_start_us: int,
+    seconds: float,
+    sensor: SensorGeometry,
+    physics: Physics = PHYSICS["default"],
+    physics_rng: np.random.Generator | None = None,
+    direction: Sequence[float] | None = None,
+) -> SimGesture:
+    """A gesture a prompt asked for, as ``user`` performs it (an enrolment's simulated hand):
+    drawn by :func:`draw_gesture` (a push towards ``direction``, user frame, when given), then
+    a tap lasting ``seconds`` in all (:func:`as_tap`) when ``seconds`` < :data:`TAP_MAX_S`, else
+    held for ``seconds`` (its attack and release as drawn).
+
+    Raises:
+        ValueError: ``gesture`` is NONE, ``seconds`` is not positive, or ``direction`` has no length.
+    """
+    if gesture is GestureType.NONE:
+        raise ValueError("a prompted gesture needs a gesture type, not none")
+    if not seconds > 0:
+        raise ValueError(f"a prompted gesture lasts a positive time, got {seconds} s")
+    angle = None
+    if direction is not None:
+        if math.hypot(*direction) == 0:
+            raise ValueError("a prompted push needs a direction")
+        angle = math.atan2(direction[1], direction[0])
+    g = draw_gesture(rng, user, gesture, t_start_us, sensor, physics, physics_rng, direction_rad=angle)
+    if seconds < TAP_MAX_S:
+        return as_tap(g, int(seconds * 1e6), physics)
+    return replace(g, hold_us=int(seconds * 1e6))
 
 
 #: The guided hand (:func:`guided_gesture`): a push's travel, a pinch's, zoom's and twist's
