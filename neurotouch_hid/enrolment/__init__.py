@@ -1,0 +1,12 @@
+"""Enrolment: a few guided minutes in which the driver learns this gel and this hand.
+
+One module per stage:
+
+- ``plan.py``: the prompts (which gesture, when, how long), made from a seed, written and read as
+  docs/dataset.md's "Guided session plan (JSON)";
+- ``hand.py``: the simulated hand that performs a plan like a person (late, longer or shorter,
+  a prompt missed now and then), on the simulated gel;
+- ``label.py``: labels a recording made by following a plan (the type from the prompt, the
+  moments, contacts and intensity from the gel), and writes it as a dataset (docs/dataset.md);
+- ``session.py``: the guided session itself (prompts on the terminal while the camera records).
+"""
