@@ -223,7 +223,7 @@ def read_plan(path: str | Path) -> Plan:
     """Read a plan file (docs/dataset.md, "Guided session plan (JSON)") through the bounded reader.
 
     Fields other than ``gesture``, ``cue_s``, ``seconds`` and a push's ``direction`` are
-    ignored; a ``direction`` that is not one of :data:`DIRECTIONS` is ignored too.
+    ignored; so is a ``direction`` that is not one of :data:`DIRECTIONS` or not a push's.
 
     Raises:
         DatasetError: the file cannot be read, is larger than :data:`MAX_PLAN_BYTES`, is not
@@ -264,10 +264,12 @@ def read_plan(path: str | Path) -> Plan:
             found = "nothing" if "gesture" not in item else short(gesture)
             raise DatasetError(f"{at}: field 'gesture': expected one of {names}, found {found}")
         cue = _number(item, "cue_s", at, "a time in seconds >= 0", lambda v: v >= 0)
-        seconds = _number(item, "seconds", at, f"a duration in seconds, > 0 and <= {MAX_PROMPT_S:g}",
-                          lambda v: 0 < v <= MAX_PROMPT_S)
+        seconds = _number(
+            item, "seconds", at, f"a duration in seconds, > 0 and <= {MAX_PROMPT_S:g}", lambda v: 0 < v <= MAX_PROMPT_S
+        )
         direction = item.get("direction")
-        prompt = Prompt(GestureType(gesture), cue, seconds, direction if direction in DIRECTIONS else None)
+        known = gesture == GestureType.PUSH.value and isinstance(direction, str) and direction in DIRECTIONS
+        prompt = Prompt(GestureType(gesture), cue, seconds, direction if known else None)
         if prompts and cue < prompts[-1].end_s:
             before = prompts[-1]
             raise DatasetError(
