@@ -1,0 +1,350 @@
+"""Labels a recording made by following an enrolment's plan (``enrol --from``).
+
+The prompt gives each gesture's type; the gel gives its moments (docs/dataset.md, "Guided session
+plan (JSON)"). The recording runs through the gesture pipeline
+(:class:`~neurotouch_hid.pipeline.pipeline.GesturePipeline`, public entry points only). At each
+window's end, the gel's motion is the :data:`MOTION_RANK`-th largest displacement of the
+tracker's markers from their rest positions (mm at the centre's scale; the largest few can be a
+lost or mis-tracked marker). For each prompt, in order (:func:`find_gestures`):
+
+- the search runs from its cue (or the previous gesture's end, when later) for
+  :data:`SEARCH_S`, and not past the next prompt's cue;
+- the gesture is there when the motion rises :data:`ONSET_MM` above the gel's level just before
+  the cue; its start is the last window before that at most :data:`REST_MM` above that level (the
+  fingers' first move);
+- it ends at the first window after that in which the motion is back below
+  :data:`END_SHARE` of its peak (and at most :data:`REST_MM` above the level before it);
+- a prompt with no such motion is left out (not labelled) and reported.
+
+Every APS frame is labelled (docs/dataset.md, "SEQUENCE.labels.csv"): within a gesture
+(start <= t < end), the prompt's type, not resting, and the contact points and intensity that
+the pipeline's contact and intensity stages measure in the window holding the frame (when a
+window has none -- a gesture's first or last few ms -- the gesture's last contact points and
+the motion as intensity); outside, ``none``, resting when the motion is within :data:`REST_MM`.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from neurotouch_hid.dataset import MAX_CONTACTS, LabelRow, write_labels
+from neurotouch_hid.enrolment.plan import Plan, Prompt, write_atomic
+from neurotouch_hid.errors import DatasetError
+from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.sources import Frame
+
+#: How long after its cue a prompted gesture may start (s): people start a few hundred ms late.
+SEARCH_S = 2.0
+#: The gel's motion that makes a gesture (mm above the level before the cue).
+ONSET_MM = 0.5
+#: Motion within this of the level before the cue is the gel at rest (mm): above the tracker's
+#: noise at rest, below a gesture's first few ms.
+REST_MM = 0.15
+#: A gesture ends when its motion is back below this share of its peak.
+END_SHARE = 0.1
+#: The motion is the k-th largest marker displacement (k = MOTION_RANK).
+MOTION_RANK = 3
+#: The gel's level before a cue: the median motion over this long before it (s).
+LEVEL_S = 0.3
+
+
+@dataclass(frozen=True)
+class GelMotion:
+    """What the pipeline saw of a recording.
+
+    Attributes:
+        t_us: (W,) int64 window ends (us, camera clock).
+        moved_mm: (W,) float64 the gel's motion at each window's end (mm; module docstring).
+        estimates: the W windows' estimates.
+        frames_us: (F,) int64 APS frame timestamps (us).
+        start_us: the recording's first timestamp (event or frame, us): plans' cues count from it.
+    """
+
+    t_us: np.ndarray
+    moved_mm: np.ndarray
+    estimates: list[GestureEstimate]
+    frames_us: np.ndarray
+    start_us: int
+
+
+@dataclass(frozen=True)
+class Found:
+    """One prompt and the gesture found for it.
+
+    Attributes:
+        prompt: the prompt; start_us, end_us: the gesture's start and end (us, camera clock),
+        None when missed; peak_mm: its largest motion (mm; 0 when missed).
+    """
+
+    prompt: Prompt
+    start_us: int | None
+    end_us: int | None
+    peak_mm: float = 0.0
+
+    @property
+    def seen(self) -> bool:
+        return self.start_us is not None
+
+
+def measure_motion(
+    recording: str | Path, sensor: SensorGeometry, on_progress: Callable[[int, int], None] | None = None
+) -> GelMotion:
+    """Run the pipeline over ``recording`` and keep the gel's motion at each window's end.
+
+    Raises:
+        RecordingError, SensorError: as :func:`neurotouch_hid.track.pipeline_over`.
+    """
+    from neurotouch_hid.pipeline.pipeline import GesturePipeline
+    from neurotouch_hid.track import pipeline_over
+
+    moved: list[float] = []
+
+    def keep(estimate: GestureEstimate) -> None:
+        moved.append(motion_mm(pipeline.marker_positions(), pipeline.rest_px, sensor.px_per_mm))
+
+    pipeline = GesturePipeline(sensor, on_window=keep)
+    estimates: list[GestureEstimate] = []
+    frames: list[int] = []
+    start_us = None
+    for item, closed in pipeline_over(recording, pipeline, on_progress=on_progress):
+        if isinstance(item, Frame):
+            frames.append(item.t_us)
+            first = item.t_us
+        else:
+            first = int(item["timestamp"][0])
+        start_us = first if start_us is None else min(start_us, first)
+        estimates.extend(closed)
+    return GelMotion(
+        np.asarray([e.t_us for e in estimates], dtype=np.int64),
+        np.asarray(moved, dtype=np.float64),
+        estimates,
+        np.asarray(frames, dtype=np.int64),
+        int(start_us or 0),
+    )
+
+
+def motion_mm(positions_px: np.ndarray, rest_px: np.ndarray, px_per_mm: float) -> float:
+    """The gel's motion (mm): the :data:`MOTION_RANK`-th largest distance of the tracked
+    markers (N, 2) px (NaN rows lost) from their rest positions (N, 2) px; 0 with fewer markers."""
+    d = np.linalg.norm(np.asarray(positions_px, dtype=np.float64) - rest_px, axis=1)
+    d = d[np.isfinite(d)]
+    if len(d) < MOTION_RANK:
+        return 0.0
+    return float(np.partition(d, len(d) - MOTION_RANK)[len(d) - MOTION_RANK]) / px_per_mm
+
+
+def find_gestures(plan: Plan, motion: GelMotion) -> list[Found]:
+    """For each prompt of ``plan``, in order, the gesture the gel shows near its cue (module
+    docstring), or a miss."""
+    t, m = motion.t_us, motion.moved_mm
+    found: list[Found] = []
+    cursor = int(motion.start_us)
+    prompts = plan.prompts
+    for i, prompt in enumerate(prompts):
+        cue = motion.start_us + int(round(prompt.cue_s * 1e6))
+        next_cue = motion.start_us + int(round(prompts[i + 1].cue_s * 1e6)) if i + 1 < len(prompts) else None
+        lo = max(cue, cursor)
+        hi = cue + int(SEARCH_S * 1e6)
+        hi = hi if next_cue is None else min(hi, next_cue)
+        before = m[(t >= max(cursor, cue - int(LEVEL_S * 1e6))) & (t < lo)]
+        level = float(np.median(before)) if len(before) else 0.0
+        a, b = np.searchsorted(t, lo, side="left"), np.searchsorted(t, hi, side="left")
+        above = np.flatnonzero(m[a:b] >= level + ONSET_MM)
+        if len(above) == 0:
+            found.append(Found(prompt, None, None))
+            continue
+        j = a + int(above[0])
+        k = j
+        while k > 0 and t[k - 1] > cursor and m[k - 1] > level + REST_MM:
+            k -= 1
+        start = int(t[k - 1]) if k > 0 else int(t[k])
+        peak, e = m[j], j
+        while e < len(m):
+            peak = max(peak, m[e])
+            if m[e] < max(level + REST_MM, END_SHARE * peak):
+                break
+            e += 1
+        end = int(t[min(e, len(t) - 1)])
+        found.append(Found(prompt, start, end, float(peak)))
+        cursor = end
+    return found
+
+
+def label_frames(motion: GelMotion, found: Sequence[Found]) -> list[LabelRow]:
+    """One label per APS frame of the recording (module docstring)."""
+    spans = [(f.start_us, f.end_us, f.prompt.gesture) for f in found if f.seen]
+    starts = np.asarray([s[0] for s in spans], dtype=np.int64)
+    counts = [_finger_count(motion, a, b) for a, b, _ in spans]
+    rows: list[LabelRow] = []
+    last_contacts = np.zeros((0, 2))
+    current = -1
+    for f_us in motion.frames_us.tolist():
+        w = min(int(np.searchsorted(motion.t_us, f_us, side="right")), len(motion.t_us) - 1)
+        moved = float(motion.moved_mm[w]) if w >= 0 else 0.0
+        s = int(np.searchsorted(starts, f_us, side="right")) - 1
+        if w < 0 or s < 0 or f_us >= spans[s][1]:
+            rows.append(LabelRow(int(f_us), GestureType.NONE, moved <= REST_MM, 0.0, np.zeros((0, 2))))
+            continue
+        if s != current:
+            current, last_contacts = s, np.zeros((0, 2))
+        estimate = motion.estimates[w]
+        if estimate.n_contacts:
+            intensity = float(estimate.intensity_mm)
+            if estimate.n_contacts == counts[s] or len(last_contacts) == 0:
+                last_contacts = np.asarray(estimate.contacts_px[:MAX_CONTACTS], dtype=np.float64)
+        else:
+            intensity = moved
+        rows.append(LabelRow(int(f_us), spans[s][2], False, intensity, last_contacts))
+    return rows
+
+
+def _finger_count(motion: GelMotion, start_us: int, end_us: int) -> int:
+    """The contact count the pipeline reads most often in a gesture's windows (its fingers stay
+    the same from start to end; 0 when no window has contacts)."""
+    a, b = np.searchsorted(motion.t_us, [start_us, end_us], side="left")
+    counts = [min(e.n_contacts, MAX_CONTACTS) for e in motion.estimates[a:b] if e.n_contacts]
+    return int(np.bincount(counts).argmax()) if counts else 0
+
+
+@dataclass(frozen=True)
+class Labelled:
+    """What :func:`label_recording` wrote: the dataset folder, the sequence's name and, per
+    prompt, what was found."""
+
+    folder: Path
+    name: str
+    found: list[Found]
+
+    @property
+    def missed(self) -> list[Found]:
+        """The prompts with no gesture near their cue (left out of the labels)."""
+        return [f for f in self.found if not f.seen]
+
+
+def label_recording(
+    recording: str | Path,
+    plan: Plan,
+    out_dir: str | Path,
+    sensor: SensorGeometry,
+    *,
+    inputs: Sequence[str | Path] = (),
+    on_progress: Callable[[int, int], None] | None = None,
+) -> Labelled:
+    """Label ``recording`` from ``plan`` and write it as a dataset (docs/dataset.md) into
+    ``out_dir`` (created): ``NAME.aedat4`` (a copy), ``NAME.labels.csv``, ``NAME.plan.json`` and
+    ``sensor.yaml`` (``sensor``), each through a temporary file renamed at the end. An output that
+    is the recording or one of ``inputs`` (the plan and sensor files read) is not written: it
+    already holds what it would.
+
+    Raises:
+        RecordingError, SensorError: the recording cannot be read or shows no gel (nothing written).
+        DatasetError: the folder cannot be written.
+    """
+    from neurotouch_hid.enrolment.plan import write_plan
+
+    recording = Path(recording)
+    out = Path(out_dir)
+    motion = measure_motion(recording, sensor, on_progress)
+    found = find_gestures(plan, motion)
+    rows = label_frames(motion, found)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DatasetError(f"{out}: cannot create the dataset folder: {exc.strerror}") from None
+    name = recording.name.removesuffix(".aedat4")
+    given = [recording, *(Path(p) for p in inputs)]
+
+    def is_input(path: Path) -> bool:
+        return path.exists() and any(p.exists() and os.path.samefile(path, p) for p in given)
+
+    target = out / f"{name}.aedat4"
+    if not is_input(target):
+        copy_atomic(recording, target)
+    labels = out / f"{name}.labels.csv"
+    if is_input(labels):
+        raise DatasetError(f"{labels}: an input of this run: write the dataset elsewhere (--out)")
+    fd, tmp = tempfile.mkstemp(prefix=f".{labels.name}.", suffix=".tmp", dir=out)
+    os.close(fd)
+    try:
+        write_labels(tmp, rows)
+        os.replace(tmp, labels)
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+    if not is_input(out / f"{name}.plan.json"):
+        write_plan(plan, out / f"{name}.plan.json")
+    if not is_input(out / "sensor.yaml"):
+        import yaml
+
+        write_atomic(out / "sensor.yaml", yaml.safe_dump(sensor.to_dict(), sort_keys=False).encode())
+    return Labelled(out, name, found)
+
+
+def copy_atomic(source: Path, target: Path) -> None:
+    """Copy ``source`` to ``target`` through a temporary file beside ``target``, renamed over it.
+
+    Raises DatasetError (naming the files) when it cannot be copied."""
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+        os.close(fd)
+    except OSError as exc:
+        raise DatasetError(f"{target}: cannot write: {exc.strerror}") from None
+    try:
+        shutil.copyfile(source, tmp)
+        os.replace(tmp, target)
+    except OSError as exc:
+        raise DatasetError(f"{target}: cannot copy {source} there: {exc.strerror}") from None
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+
+
+@dataclass(frozen=True)
+class Agreement:
+    """How far labels agree with reference labels (the simulator's own) on the frames further
+    than a collar from every reference gesture's start or end.
+
+    Attributes:
+        frames: frames compared; gesture: share with the same type (``none`` included);
+        contacts: share of the frames where both are the same gesture (not ``none``) with the
+        same contact count; intensity_mae_mm: mean absolute intensity difference there (mm).
+    """
+
+    frames: int
+    gesture: float
+    contacts: float
+    intensity_mae_mm: float
+
+
+def agreement(reference: Sequence[LabelRow], labels: Sequence[LabelRow], collar_us: int = 100_000) -> Agreement:
+    """Compare ``labels`` with ``reference`` frame by frame (same ``t_us``), leaving out frames
+    within ``collar_us`` of a change of the reference's gesture type (a gesture's start or end).
+
+    Raises ValueError when the two do not label the same frames."""
+    ref_t = np.asarray([r.t_us for r in reference], dtype=np.int64)
+    if len(ref_t) != len(labels) or np.any(ref_t != [r.t_us for r in labels]):
+        raise ValueError("the labels and the reference do not label the same frames")
+    kinds = [r.gesture for r in reference]
+    changes = ref_t[1:][[a is not b for a, b in zip(kinds[:-1], kinds[1:])]]
+    near = np.zeros(len(ref_t), dtype=bool)
+    for c in changes.tolist():
+        near |= np.abs(ref_t - c) <= collar_us
+    same = both = count = 0
+    diffs: list[float] = []
+    for r, lab, skip in zip(reference, labels, near.tolist()):
+        if skip:
+            continue
+        if r.gesture is lab.gesture:
+            same += 1
+            if r.gesture is not GestureType.NONE:
+                both += 1
+                count += r.n_contacts == lab.n_contacts
+                diffs.append(abs(r.intensity_mm - lab.intensity_mm))
+    n = int((~near).sum())
+    return Agreement(n, same / n if n else 0.0, count / both if both else 0.0, float(np.mean(diffs)) if diffs else 0.0)
