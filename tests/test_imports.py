@@ -13,6 +13,7 @@ ORDER = {
     "pipeline": 2,
     "mapping": 3,
     "evaluation": 3,
+    "enrolment": 3,
     "output": 4,
     "stages": 5,
     "runtime": 5,

@@ -7,9 +7,9 @@ line on stderr and exit code 2 (see :func:`main`).
 
 The commands live in one module per group, each a typer sub-application beside what it drives:
 :mod:`~neurotouch_hid.cli.devices` (the controller and its devices),
-:mod:`~neurotouch_hid.cli.recordings` (recordings and datasets) and
-:mod:`~neurotouch_hid.cli.profiles` (profiles); :mod:`~neurotouch_hid.cli.common` holds what
-they share.
+:mod:`~neurotouch_hid.cli.recordings` (recordings and datasets),
+:mod:`~neurotouch_hid.cli.enrolment` (enrolment) and :mod:`~neurotouch_hid.cli.profiles`
+(profiles); :mod:`~neurotouch_hid.cli.common` holds what they share.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import sys
 
 import typer
 
-from neurotouch_hid.cli import devices, profiles, recordings
+from neurotouch_hid.cli import devices, enrolment, profiles, recordings
 from neurotouch_hid.cli.common import err_console
 from neurotouch_hid.errors import NeurotouchError, did_you_mean, in_plain_words
 from neurotouch_hid.output.console import command_app
@@ -32,6 +32,7 @@ app = command_app(
 )
 app.add_typer(devices.app)
 app.add_typer(recordings.app)
+app.add_typer(enrolment.app)
 app.add_typer(profiles.profile_app, name="profile")
 
 #: The variable through which shells ask for completions (click's protocol):
