@@ -296,3 +296,73 @@ def test_summary_counts_dpad_presses():
     stream = [est(G.PUSH if mm else G.NONE, mm, t_us=10_000 * i, direction=d) for i, (d, mm) in enumerate(pushes)]
     presses = summarise(replay(p, stream)).presses
     assert presses["dpad_up"] == 2 and presses["dpad_right"] == 1 and presses["dpad_down"] == 0
+
+
+# --- a resting gel: the kept state instead of the computation ---------------------------------------
+def _session() -> list[GestureEstimate]:
+    """Rest, every gesture (firm and light, a short tap and a long hold), each followed by rest long
+    enough for every filter to reach exactly zero (80 s), some rests broken by single windows of
+    a light non-resting ``none``."""
+    stream, t = [], 0
+
+    def add(e: GestureEstimate) -> None:
+        nonlocal t
+        stream.append(e)
+        t += 10_000
+
+    for _ in range(50):
+        add(est(t_us=t))
+    for gesture, direction, mm, n in [
+        (G.PUSH, (0, 1), 9.0, 100),
+        (G.TWIST_CCW, (1, 0), 4.0, 8),
+        (G.ZOOM, (1, 0), 9.0, 120),
+        (G.PINCH, (1, 0), 2.5, 60),
+        (G.TWIST_CW, (1, 0), 9.0, 100),
+        (G.PUSH, (-1, 0.3), 5.0, 30),
+    ]:
+        for _ in range(n):
+            add(est(gesture, mm, t_us=t, direction=direction, contact=(5.0, 5.0)))
+        for k in range(8000):
+            add(est(G.NONE, 0.4, t_us=t, resting=False) if k % 997 == 500 else est(t_us=t))
+    return stream
+
+
+@pytest.mark.parametrize("name", ["default", "mouse", "spacecraft", "accessibility", "switch-access"])
+def test_rest_at_the_fixed_point_gives_what_the_full_update_gives(name, monkeypatch):
+    p = load_profile(shipped_profiles_dir() / f"{name}.yaml")
+    session = _session()
+    full = Mapper(p)
+    reference = []
+    for e in session:
+        full._quiet = None  # never the kept state: every update computed
+        reference.append(full.update(e))
+    computed = []
+    real_inputs = gesture_inputs
+    monkeypatch.setattr(
+        "neurotouch_hid.mapping.mapper.gesture_inputs", lambda e: computed.append(e.t_us) or real_inputs(e)
+    )
+    states = replay(p, session)
+    assert [(s.t_us, s.axes, s.buttons, s.keys, s.rel) for s in states] == [
+        (s.t_us, s.axes, s.buttons, s.keys, s.rel) for s in reference
+    ]
+    assert len(computed) < len(session) // 4  # most of the resting windows were not computed
+
+
+def test_a_resting_gel_is_not_mapped_again_and_the_next_touch_is():
+    p = load_profile(shipped_profiles_dir() / "default.yaml")
+    mapper = Mapper(p)
+    calls = []
+    real_inputs = gesture_inputs
+    import neurotouch_hid.mapping.mapper as mapper_module
+
+    mapper_module.gesture_inputs, saved = (lambda e: calls.append(e) or real_inputs(e)), mapper_module.gesture_inputs
+    try:
+        first = mapper.update(est(t_us=0))
+        rested = [mapper.update(est(t_us=10_000 * i)) for i in range(1, 200)]
+        assert len(calls) == 1  # only the first resting window was computed
+        assert all(s.axes == first.axes and s.buttons == first.buttons and not s.rel for s in rested)
+        assert [s.t_us for s in rested] == [10_000 * i for i in range(1, 200)]
+        touched = mapper.update(est(G.PUSH, 9.0, t_us=2_000_000, direction=(0, 1)))
+        assert len(calls) == 2 and touched.axes["ABS_Y"] < AXES["ABS_Y"][2]  # pushed up at once
+    finally:
+        mapper_module.gesture_inputs = saved

@@ -9,6 +9,11 @@ import math
 
 import numpy as np
 
+#: Below this (input units, and units per second), a filter decaying towards a zero input holds
+#: exactly zero: the exponential decay would otherwise take minutes to get there and then stick at
+#: the smallest subnormal number; a mapper at rest needs the exact zero (``Mapper``'s fixed point).
+ZERO_TAIL = 1e-12
+
 
 class OneEuroFilter:
     """The 1-euro filter (Casiez, Roussel, Vogel: "1 Euro Filter: A Simple Speed-based Low-pass
@@ -37,6 +42,16 @@ class OneEuroFilter:
         self._dx: list[float] = []
         self._t_us: int | None = None
 
+    def at_zero(self) -> bool:
+        """True when the filter holds exactly 0 with no speed: a zero sample, whenever it comes,
+        leaves the output at 0 and changes only the clock (:meth:`tick`). False before any sample."""
+        return self._x is not None and not any(self._x) and not any(self._dx)
+
+    def tick(self, t_us: int) -> None:
+        """What a zero sample at ``t_us`` does to a filter :meth:`at_zero` that has a history:
+        its clock moves on (the next sample's dt counts from here), nothing else changes."""
+        self._t_us = max(int(t_us), self._t_us + 1)
+
     @staticmethod
     def _alpha(cutoff_hz: float, dt_s: float) -> float:
         tau = 1.0 / (2.0 * math.pi * cutoff_hz)
@@ -45,7 +60,8 @@ class OneEuroFilter:
     def __call__(self, value: np.ndarray | float, t_us: int) -> np.ndarray | float:
         """Filter one sample taken at ``t_us`` (us); returns the filtered value: a float for a
         scalar, a float64 array of the same shape for an array. A sample not later than the
-        previous one is treated as 1 us later.
+        previous one is treated as 1 us later. A zero input whose filtered value and speed are
+        below :data:`ZERO_TAIL` gives exactly 0.
         """
         scalar = isinstance(value, (float, int)) or np.ndim(value) == 0  # the mapper's scalars are floats
         x = [float(value)] if scalar else np.asarray(value, dtype=np.float64).ravel().tolist()
@@ -58,8 +74,11 @@ class OneEuroFilter:
             for i, (xi, last, dx_last) in enumerate(zip(x, self._x, self._dx)):
                 dx = dx_last + alpha_d * ((xi - last) / dt_s - dx_last)
                 cutoff = self.min_cutoff_hz + self.beta * abs(dx)
+                xf = last + self._alpha(cutoff, dt_s) * (xi - last)
+                if xi == 0.0 and abs(xf) < ZERO_TAIL and abs(dx) < ZERO_TAIL:
+                    xf = dx = 0.0  # the decay's tail ends at zero, not stuck among subnormals
                 self._dx[i] = dx
-                self._x[i] = last + self._alpha(cutoff, dt_s) * (xi - last)
+                self._x[i] = xf
         if scalar:
             return self._x[0]
         return np.array(self._x, dtype=np.float64).reshape(np.shape(value))

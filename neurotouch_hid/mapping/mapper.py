@@ -295,6 +295,9 @@ class Mapper:
 
     def _fresh_mappings(self) -> None:
         mappings = self.profile.mappings
+        #: the last state, while the mapper rests at its fixed point (:meth:`_quiet_after`): a
+        #: resting estimate then gives that state again, only its time and the clocks move
+        self._quiet: ControllerState | None = None
         self._filters = {name: _filter_for(m.smoothing) for name, m in mappings.items()}
         self._activators = {name: Activator.of(m) for name, m in mappings.items() if isinstance(m, ButtonMapping)}
         self._pointer = {"REL_X": RelMotion(), "REL_Y": RelMotion()}
@@ -351,8 +354,17 @@ class Mapper:
         return layer
 
     def update(self, estimate: GestureEstimate) -> ControllerState:
-        """The controller state for one estimate (axes clamped to their ranges)."""
+        """The controller state for one estimate (axes clamped to their ranges).
+
+        A resting gel costs next to nothing: once a resting estimate left the mapper at its fixed
+        point (nothing held, every filter at exactly zero, no motion), the next resting estimate
+        gives the same state at its own time and moves only the clocks (filters, pointer and
+        wheels), which is what the full computation would do (tests/test_mapper.py compares them).
+        """
         t_us = int(estimate.t_us)
+        if estimate.resting and self._quiet is not None:
+            return self._rest_again(t_us)
+        self._quiet = None
         inputs = gesture_inputs(estimate)
         layer = self._current_layer(inputs, t_us)
         if layer != self.layer:
@@ -412,7 +424,42 @@ class Mapper:
         for name, wheel in self._wheels.items():
             rel[name + "_HI_RES"], rel[name] = wheel.step(velocity[name], t_us)
         rel = {name: rel[name] for name in MOUSE_REL if rel[name]}
-        return ControllerState(t_us=t_us, axes=axes, buttons=buttons, keys=frozenset(keys), rel=rel)
+        state = ControllerState(t_us=t_us, axes=axes, buttons=buttons, keys=frozenset(keys), rel=rel)
+        if estimate.resting and self._quiet_after(state):
+            self._quiet = state
+        return state
+
+    def _quiet_after(self, state: ControllerState) -> bool:
+        """Whether this resting estimate's update left the mapper at its fixed point: another
+        resting estimate (every input 0) would change nothing but the clocks. So: no motion, no
+        activator held or suspended (a held one may be released, a long press or turbo moves
+        with time), every filter called at exactly zero, the wheels' counts at zero, the type
+        forgotten."""
+        if state.rel or self._kind is not None:
+            return False
+        activators = [*self._activators.values(), *self._switches.values()]
+        if any(a.held or a._suspended for a in activators):
+            return False
+        if any(w._hi_res or w.motion._rest for w in self._wheels.values()):
+            return False
+        return all(f is None or f.at_zero() for f in self._called_filters())
+
+    def _called_filters(self) -> list[OneEuroFilter | None]:
+        """The filters an update calls: every layer switch's, and the current layer's mappings'."""
+        mappings = self.profile.mappings
+        layer = [self._filters[name] for name, m in mappings.items() if m.layer == self.layer]
+        return [*self._switch_filters.values(), *layer]
+
+    def _rest_again(self, t_us: int) -> ControllerState:
+        """:meth:`update` of a resting estimate at the fixed point: the kept state at ``t_us``;
+        the filters', pointer's and wheels' clocks move on as the full update moves them."""
+        for f in self._called_filters():
+            if f is not None:
+                f.tick(t_us)
+        for motion in (*self._pointer.values(), *(w.motion for w in self._wheels.values())):
+            motion.step(0.0, t_us)
+        last = self._quiet
+        return ControllerState(t_us=t_us, axes=dict(last.axes), buttons=dict(last.buttons), keys=last.keys, rel={})
 
 
 def _shape(mapping: StickMapping | AxisMapping | PointerMapping | RelMapping, magnitude_mm: float) -> float:
