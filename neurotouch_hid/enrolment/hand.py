@@ -86,13 +86,14 @@ class SimulatedHand:
         )
         self._free_us = START_US
 
-    def perform(self, prompt: Prompt, cue_us: int) -> Performed:
+    def perform(self, prompt: Prompt, cue_us: int, missed: bool | None = None) -> Performed:
         """Do ``prompt``, cued at ``cue_us`` (camera clock, us, not before the simulator's time):
-        start late, hold longer or shorter, or miss it. The gesture is added to the simulator."""
+        start late, hold longer or shorter, or miss it (at ``miss_rate``, or as ``missed`` says
+        when given). The gesture is added to the simulator."""
         reaction = self._hand.uniform(*REACTION_S)
         factor = self._hand.uniform(*HOLD_FACTOR)
-        missed = self._hand.random() < self.miss_rate
-        if missed:
+        drawn_miss = self._hand.random() < self.miss_rate
+        if drawn_miss if missed is None else missed:
             return Performed(prompt, None)
         start = max(int(cue_us + reaction * 1e6), self._free_us, self.simulator.t_us)
         direction = DIRECTIONS.get(prompt.direction or "")

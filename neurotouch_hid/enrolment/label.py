@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,11 +34,11 @@ from pathlib import Path
 import numpy as np
 
 from neurotouch_hid.dataset import MAX_CONTACTS, LabelRow, write_labels
-from neurotouch_hid.enrolment.plan import Plan, Prompt, write_atomic
+from neurotouch_hid.enrolment.plan import Plan, Prompt, temp_beside, write_atomic
 from neurotouch_hid.errors import DatasetError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.sensor import SensorGeometry
-from neurotouch_hid.sources import Frame
+from neurotouch_hid.sources import Frame, StreamItem
 
 #: How long after its cue a prompted gesture may start (s): people start a few hundred ms late.
 SEARCH_S = 2.0
@@ -94,41 +93,75 @@ class Found:
         return self.start_us is not None
 
 
+class MotionMeter:
+    """Keeps what a pipeline sees of a stream: the gel's motion at each window's end, the
+    windows' estimates, the APS frames' times and the stream's first timestamp.
+
+    Feed each stream item to :attr:`pipeline` (its ``process``, or
+    :func:`neurotouch_hid.track.pipeline_over`), then hand the item and the estimates it closed to
+    :meth:`note`; :meth:`motion` is what was seen so far.
+
+    Args:
+        sensor: the pipeline's geometry.
+    """
+
+    def __init__(self, sensor: SensorGeometry) -> None:
+        from neurotouch_hid.pipeline.pipeline import GesturePipeline
+
+        self.sensor = sensor
+        self.pipeline = GesturePipeline(sensor, on_window=self._keep)
+        self._moved: list[float] = []
+        self.estimates: list[GestureEstimate] = []
+        self._frames: list[int] = []
+        self.start_us: int | None = None
+
+    def _keep(self, estimate: GestureEstimate) -> None:
+        self._moved.append(motion_mm(self.pipeline.marker_positions(), self.pipeline.rest_px, self.sensor.px_per_mm))
+
+    @property
+    def moved_mm(self) -> float:
+        """The gel's motion at the last window's end (mm; 0 before the first window)."""
+        return self._moved[-1] if self._moved else 0.0
+
+    def note(self, item: StreamItem, closed: Sequence[GestureEstimate]) -> None:
+        """Keep ``item``'s time (a frame's timestamp, an event batch's first) and the estimates it closed."""
+        if isinstance(item, Frame):
+            self._frames.append(item.t_us)
+            first = item.t_us
+        elif len(item):
+            first = int(item["timestamp"][0])
+        else:
+            first = None
+        if first is not None:
+            self.start_us = first if self.start_us is None else min(self.start_us, first)
+        self.estimates.extend(closed)
+
+    def motion(self) -> GelMotion:
+        """What was seen so far."""
+        n = len(self.estimates)
+        return GelMotion(
+            np.asarray([e.t_us for e in self.estimates], dtype=np.int64),
+            np.asarray(self._moved[:n], dtype=np.float64),
+            list(self.estimates),
+            np.asarray(self._frames, dtype=np.int64),
+            int(self.start_us or 0),
+        )
+
+
 def measure_motion(
     recording: str | Path, sensor: SensorGeometry, on_progress: Callable[[int, int], None] | None = None
 ) -> GelMotion:
-    """Run the pipeline over ``recording`` and keep the gel's motion at each window's end.
+    """Run the pipeline over ``recording`` and keep what it sees (:class:`MotionMeter`).
 
     Raises:
         RecordingError, SensorError: as :func:`neurotouch_hid.track.pipeline_over`.
     """
-    from neurotouch_hid.pipeline.pipeline import GesturePipeline
     from neurotouch_hid.track import pipeline_over
 
-    moved: list[float] = []
-
-    def keep(estimate: GestureEstimate) -> None:
-        moved.append(motion_mm(pipeline.marker_positions(), pipeline.rest_px, sensor.px_per_mm))
-
-    pipeline = GesturePipeline(sensor, on_window=keep)
-    estimates: list[GestureEstimate] = []
-    frames: list[int] = []
-    start_us = None
-    for item, closed in pipeline_over(recording, pipeline, on_progress=on_progress):
-        if isinstance(item, Frame):
-            frames.append(item.t_us)
-            first = item.t_us
-        else:
-            first = int(item["timestamp"][0])
-        start_us = first if start_us is None else min(start_us, first)
-        estimates.extend(closed)
-    return GelMotion(
-        np.asarray([e.t_us for e in estimates], dtype=np.int64),
-        np.asarray(moved, dtype=np.float64),
-        estimates,
-        np.asarray(frames, dtype=np.int64),
-        int(start_us or 0),
-    )
+    meter = MotionMeter(sensor)
+    for item, closed in pipeline_over(recording, meter.pipeline, on_progress=on_progress):
+        meter.note(item, closed)
+    return meter.motion()
 
 
 def motion_mm(positions_px: np.ndarray, rest_px: np.ndarray, px_per_mm: float) -> float:
@@ -238,21 +271,39 @@ def label_recording(
     inputs: Sequence[str | Path] = (),
     on_progress: Callable[[int, int], None] | None = None,
 ) -> Labelled:
-    """Label ``recording`` from ``plan`` and write it as a dataset (docs/dataset.md) into
-    ``out_dir`` (created): ``NAME.aedat4`` (a copy), ``NAME.labels.csv``, ``NAME.plan.json`` and
-    ``sensor.yaml`` (``sensor``), each through a temporary file renamed at the end. An output that
-    is the recording or one of ``inputs`` (the plan and sensor files read) is not written: it
-    already holds what it would.
+    """Label ``recording`` from ``plan`` (:func:`measure_motion`) and write it as a dataset
+    (:func:`write_dataset`).
 
     Raises:
         RecordingError, SensorError: the recording cannot be read or shows no gel (nothing written).
+        DatasetError: the folder cannot be written.
+    """
+    motion = measure_motion(recording, sensor, on_progress)
+    return write_dataset(out_dir, recording, plan, motion, sensor, inputs=inputs)
+
+
+def write_dataset(
+    out_dir: str | Path,
+    recording: str | Path,
+    plan: Plan,
+    motion: GelMotion,
+    sensor: SensorGeometry,
+    *,
+    inputs: Sequence[str | Path] = (),
+) -> Labelled:
+    """Label ``recording``, which the pipeline saw as ``motion``, from ``plan`` and write it as a
+    dataset (docs/dataset.md) into ``out_dir`` (created): ``NAME.aedat4`` (a copy, unless it is
+    there already), ``NAME.labels.csv``, ``NAME.plan.json`` and ``sensor.yaml`` (``sensor``), each
+    through a temporary file renamed at the end. An output that is the recording or one of
+    ``inputs`` (the plan and sensor files read) is not written: it already holds what it would.
+
+    Raises:
         DatasetError: the folder cannot be written.
     """
     from neurotouch_hid.enrolment.plan import write_plan
 
     recording = Path(recording)
     out = Path(out_dir)
-    motion = measure_motion(recording, sensor, on_progress)
     found = find_gestures(plan, motion)
     rows = label_frames(motion, found)
     try:
@@ -271,13 +322,12 @@ def label_recording(
     labels = out / f"{name}.labels.csv"
     if is_input(labels):
         raise DatasetError(f"{labels}: an input of this run: write the dataset elsewhere (--out)")
-    fd, tmp = tempfile.mkstemp(prefix=f".{labels.name}.", suffix=".tmp", dir=out)
-    os.close(fd)
+    tmp = temp_beside(labels)
     try:
         write_labels(tmp, rows)
         os.replace(tmp, labels)
     finally:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
     if not is_input(out / f"{name}.plan.json"):
         write_plan(plan, out / f"{name}.plan.json")
     if not is_input(out / "sensor.yaml"):
@@ -291,18 +341,14 @@ def copy_atomic(source: Path, target: Path) -> None:
     """Copy ``source`` to ``target`` through a temporary file beside ``target``, renamed over it.
 
     Raises DatasetError (naming the files) when it cannot be copied."""
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-        os.close(fd)
-    except OSError as exc:
-        raise DatasetError(f"{target}: cannot write: {exc.strerror}") from None
+    tmp = temp_beside(target)
     try:
         shutil.copyfile(source, tmp)
         os.replace(tmp, target)
     except OSError as exc:
         raise DatasetError(f"{target}: cannot copy {source} there: {exc.strerror}") from None
     finally:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
+import secrets
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -97,17 +97,23 @@ class Prompt:
         """Short name for reports: ``push up``, ``twist_cw``."""
         return f"{self.gesture.value} {self.direction}" if self.direction else self.gesture.value
 
-    def instruction(self) -> str:
-        """What to do, in words, for the user."""
-        what = {
+    def what(self) -> str:
+        """What to do, in words, for the user (at most 58 characters)."""
+        return {
             GestureType.PUSH: f"push the gel {_TOWARDS.get(self.direction or '', 'one way')}",
             GestureType.PINCH: "pinch: two fingers on the gel, move them together",
             GestureType.ZOOM: "zoom: two fingers on the gel, move them apart",
             GestureType.TWIST_CW: "twist clockwise: two fingers turning like a key",
             GestureType.TWIST_CCW: "twist counter-clockwise: two fingers turning like a key",
         }[self.gesture]
-        how = "a quick tap" if self.is_tap else f"hold {self.seconds:.1f} s"
-        return f"{what}, {how}, then let go"
+
+    def how(self) -> str:
+        """For how long, in words: ``a quick tap`` or ``hold 2.4 s``."""
+        return "a quick tap" if self.is_tap else f"hold {self.seconds:.1f} s"
+
+    def instruction(self) -> str:
+        """What to do and for how long, in words, for the user."""
+        return f"{self.what()}, {self.how()}, then let go"
 
     def to_json(self) -> dict:
         """The prompt's JSON object (docs/dataset.md), ``direction`` only for a push."""
@@ -202,21 +208,35 @@ def write_plan(plan: Plan, path: str | Path) -> Path:
     return path
 
 
+def temp_beside(path: Path, suffix: str = ".tmp") -> Path:
+    """A new empty file beside ``path`` (``.NAME.RANDOM`` + ``suffix``) with the umask's mode, as
+    ``path`` itself would be made, to be renamed over it.
+
+    Raises DatasetError (naming ``path``) when it cannot be created."""
+    for _ in range(100):
+        tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}{suffix}"
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666))
+            return tmp
+        except FileExistsError:
+            continue
+        except OSError as exc:
+            raise DatasetError(f"{path}: cannot write: {exc.strerror}") from None
+    raise DatasetError(f"{path}: cannot write: no free temporary name beside it")
+
+
 def write_atomic(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` through a temporary file beside it, renamed over it.
 
     Raises DatasetError (naming the file) when it cannot be written."""
+    tmp = temp_beside(path)
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    except OSError as exc:
-        raise DatasetError(f"{path}: cannot write: {exc.strerror}") from None
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
+        tmp.write_bytes(data)
         os.replace(tmp, path)
     except OSError as exc:
-        Path(tmp).unlink(missing_ok=True)
         raise DatasetError(f"{path}: cannot write: {exc.strerror}") from None
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def read_plan(path: str | Path) -> Plan:
