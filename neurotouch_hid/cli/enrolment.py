@@ -35,6 +35,20 @@ def enrol(
         None, "--sensor", help="sensor.yaml (default: beside the recording, or the calibrated one)"
     ),
     seed: int = typer.Option(0, "--seed", min=0, help="the plan's seed (and the simulated hand's)"),
+    source: str = typer.Option(
+        "davis", "--source", help="davis (the live camera: you follow the prompts) or sim (the simulated hand does)"
+    ),
+    serial: Optional[str] = typer.Option(
+        None, "--serial", help="with --source davis: the camera's serial number (default: the first DAVIS-346)"
+    ),
+    physics: str = typer.Option("default", "--physics", hidden=True, help="with --source sim: the gel's family"),
+    sim_miss: list[int] = typer.Option(
+        [], "--sim-miss", hidden=True, help="with --source sim: a prompt number the hand misses (repeatable)"
+    ),
+    sim_miss_rate: float = typer.Option(
+        1 / 20, "--sim-miss-rate", hidden=True, min=0.0, max=1.0, help="with --source sim: the share of prompts missed"
+    ),
+    fast: bool = typer.Option(False, "--fast", hidden=True, help="with --source sim: do not pace in real time"),
 ) -> None:
     """Teach the driver your gel and your hand: a guided session of at most 3 minutes.
 
@@ -42,7 +56,7 @@ def enrol(
     --out DIR labels a recording made by following that plan elsewhere: the type from each prompt,
     the moments, contacts and intensity from the gel; a prompt with no gesture near its cue is
     left out and said. The folder written is a dataset (docs/dataset.md) that `eval DIR` reads."""
-    from neurotouch_hid.enrolment.plan import make_plan, read_plan, write_plan
+    from neurotouch_hid.enrolment.plan import MAX_SESSION_S, make_plan, read_plan, write_plan
 
     chosen = read_plan(plan) if plan is not None else make_plan(seed)
     if plan_out is not None:
@@ -56,7 +70,52 @@ def enrol(
     if from_recording is not None:
         _label(from_recording, plan, chosen, out, sensor)
         return
-    raise NeurotouchError("give --plan-out FILE, or --from REC.aedat4 --plan FILE --out DIR")
+    if source not in ("davis", "sim"):
+        raise NeurotouchError(f"--source {source!r}: expected davis (the live camera) or sim (the simulated hand)")
+    if chosen.end_s > MAX_SESSION_S:
+        raise NeurotouchError(
+            f"{plan}: the plan lasts {chosen.end_s:.0f} s, more than an enrolment's {MAX_SESSION_S:.0f} s"
+        )
+    _session(chosen, source, out, sensor, seed, serial, physics, sim_miss, sim_miss_rate, fast)
+
+
+def _session(plan, source, out, sensor, seed, serial, physics, sim_miss, sim_miss_rate, fast) -> None:
+    """The guided session: prompts on the terminal while the camera records; the dataset written."""
+    import contextlib
+    import signal
+    import threading
+
+    with long_lived_start_up():
+        from neurotouch_hid.enrolment.prompt_view import PromptView
+        from neurotouch_hid.enrolment.session import CameraSource, SimulatedHandSource, enrolment_folder, run_session
+        from neurotouch_hid.pipeline.pipeline import GesturePipeline
+        from neurotouch_hid.sensor import SensorGeometry, default_sensor
+
+        if source == "sim":
+            if sensor is not None:
+                raise NeurotouchError("--sensor is for the live camera: the simulated gel has its own geometry")
+            guide = SimulatedHandSource(seed, physics=physics, miss_rate=sim_miss_rate, misses=sim_miss)
+            geometry = guide.sensor
+        else:
+            from neurotouch_hid.cli.common import davis_config
+
+            geometry = SensorGeometry.load(sensor) if sensor is not None else default_sensor()
+            guide = CameraSource(davis_config(serial, "4000", 1.0))
+        GesturePipeline(geometry).compile_kernels()  # before the camera opens: nothing waits for it
+    folder = out if out is not None else enrolment_folder()
+    stop = threading.Event()
+    with contextlib.ExitStack() as stack:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            stack.callback(signal.signal, sig, signal.signal(sig, lambda *_: stop.set()))
+        if isinstance(guide, CameraSource):
+            stack.enter_context(guide)
+        view = stack.enter_context(PromptView(console, by_hand=guide.by_hand))
+        result = run_session(plan, guide, folder, geometry, view.show, pace=source == "sim" and not fast, stop=stop)
+    if result.stopped:
+        console.print("stopped: what was recorded is labelled", highlight=False, soft_wrap=True)
+    for prompt in result.asked_again:
+        console.print(f"asked again: {prompt.name} (not seen at {prompt.cue_s:g} s)", highlight=False, soft_wrap=True)
+    say_labelled(result.labelled)
 
 
 def _label(recording: Path, plan_path: Optional[Path], plan, out: Optional[Path], sensor: Optional[Path]) -> None:

@@ -1,0 +1,164 @@
+"""What an enrolment shows: the prompts, with a countdown, what to do and for how long.
+
+A view, drawn from what it is given and nothing else: the prompts (:class:`~neurotouch_hid.enrolment.plan.Prompt`,
+the plan's and those asked again), the time in the recording (s from its first event), what the
+pipeline sees (:class:`Seen`) and the notes so far (a prompt not seen, asked again). It reaches
+into no source and no pipeline: whoever runs the session hands it these (:meth:`PromptView.show`).
+
+On a terminal it is a panel redrawn in place (rich ``Live``, 80x24 at least); elsewhere (a pipe, a
+file) it prints one plain line per prompt as it is cued and one per note, exactly, never wrapped.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from rich.console import Group
+from rich.panel import Panel
+from rich.text import Text
+
+from neurotouch_hid.enrolment.plan import MAX_SESSION_S, Prompt
+from neurotouch_hid.estimate import GestureType
+
+#: The countdown before a cue (s): "in 3, 2, 1".
+COUNTDOWN_S = 3.0
+#: Width of the bar of a held gesture's remaining time (characters).
+BAR_WIDTH = 20
+
+
+@dataclass(frozen=True)
+class Seen:
+    """What the pipeline sees now.
+
+    Attributes:
+        moved_mm: the gel's motion (mm; :func:`~neurotouch_hid.enrolment.label.motion_mm`).
+        gesture: the type the pipeline reads (NONE when none).
+        intensity_mm: its intensity (mm).
+    """
+
+    moved_mm: float = 0.0
+    gesture: GestureType = GestureType.NONE
+    intensity_mm: float = 0.0
+
+
+def clock(t_s: float) -> str:
+    """``m:ss`` of a time in seconds (clamped at 0)."""
+    t = max(0, int(t_s))
+    return f"{t // 60}:{t % 60:02d}"
+
+
+def current(prompts: Sequence[Prompt], t_s: float) -> tuple[int | None, int | None]:
+    """The index of the prompt cued last at ``t_s`` (None before the first cue) and of the next one
+    (None after the last)."""
+    last = None
+    for i, p in enumerate(prompts):
+        if p.cue_s <= t_s:
+            last = i
+        else:
+            return last, i
+    return last, None
+
+
+def prompt_lines(prompts: Sequence[Prompt], t_s: float) -> list[Text]:
+    """The prompt part of the panel: what to do now (and for how long), or the countdown to the next."""
+    last, nxt = current(prompts, t_s)
+    lines: list[Text] = []
+    if last is not None and t_s < prompts[last].end_s:
+        p = prompts[last]
+        left = p.end_s - t_s
+        done = int(round(BAR_WIDTH * min(1.0, (t_s - p.cue_s) / p.seconds)))
+        lines.append(Text.assemble(("NOW", "bold reverse green"), "  ", (p.what(), "bold")))
+        lines.append(
+            Text.assemble(
+                f"     {p.how()}, then let go  ",
+                ("█" * done, "green"),
+                ("░" * (BAR_WIDTH - done), "dim"),
+                f" {left:.1f} s",
+            )
+        )
+    elif last is not None:
+        lines.append(Text("let go, hands off the gel: rest", style="bold"))
+        lines.append(Text(""))
+    else:
+        lines.append(Text("hands off the gel: it is seen at rest first", style="bold"))
+        lines.append(Text(""))
+    if nxt is not None:
+        p = prompts[nxt]
+        wait = p.cue_s - t_s
+        if wait <= COUNTDOWN_S:
+            lines.append(Text.assemble(("GET READY", "bold yellow"), f" in {math.ceil(wait)}: {p.what()}"))
+        else:
+            lines.append(Text(f"next, in {wait:.0f} s: {p.what()}", style="dim"))
+    else:
+        lines.append(Text("last prompt", style="dim"))
+    return lines
+
+
+def seen_line(seen: Seen | None) -> Text:
+    """What the gel does, as the pipeline sees it."""
+    if seen is None:
+        return Text("gel: waiting for the camera", style="dim")
+    if seen.moved_mm < 0.15:
+        return Text("gel: at rest", style="dim")
+    read = f", read as {seen.gesture.value} {seen.intensity_mm:.1f} mm" if seen.gesture is not GestureType.NONE else ""
+    return Text(f"gel: moving {seen.moved_mm:.1f} mm{read}", style="cyan")
+
+
+class PromptView:
+    """The enrolment's prompts on ``console`` (a ``rich.console.Console``): a live panel on a
+    terminal, plain lines elsewhere (module docstring). A context manager.
+
+    Args:
+        console: where to draw.
+        by_hand: the person at the gel performs the prompts (False: the simulated hand does, said
+            in the title).
+    """
+
+    def __init__(self, console: Any, by_hand: bool = True) -> None:
+        self.console = console
+        self.by_hand = by_hand
+        self._live = None
+        self._said_cues = 0
+        self._said_notes = 0
+
+    def __enter__(self) -> "PromptView":
+        if self.console.is_terminal:
+            from rich.live import Live
+
+            self._live = Live(console=self.console, auto_refresh=False, transient=False)
+            self._live.__enter__()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._live is not None:
+            self._live.__exit__(*exc)
+            self._live = None
+
+    def panel(self, prompts: Sequence[Prompt], t_s: float, seen: Seen | None, notes: Sequence[str]) -> Panel:
+        """The panel for these inputs (what :meth:`show` draws on a terminal)."""
+        last, _ = current(prompts, t_s)
+        number = 0 if last is None else last + 1
+        who = "" if self.by_hand else "    the simulated hand performs them"
+        head = Text(f"{clock(t_s)} of at most {clock(MAX_SESSION_S)}    prompt {number} of {len(prompts)}{who}")
+        body = [head, Text(""), *prompt_lines(prompts, t_s), Text(""), seen_line(seen)]
+        body += [Text(n, style="yellow") for n in notes[-4:]]
+        return Panel(Group(*body), title="enrol: teach the driver your gel and your hand", title_align="left")
+
+    def show(self, prompts: Sequence[Prompt], t_s: float, seen: Seen | None, notes: Sequence[str]) -> None:
+        """Draw the prompts at ``t_s`` (s from the recording's first event)."""
+        if self._live is not None:
+            self._live.update(self.panel(prompts, t_s, seen, notes), refresh=True)
+            return
+        while self._said_cues < len(prompts) and prompts[self._said_cues].cue_s <= t_s:
+            p = prompts[self._said_cues]
+            self._said_cues += 1
+            self._plain(f"{clock(p.cue_s)} prompt {self._said_cues} of {len(prompts)}: {p.instruction()}")
+        while self._said_notes < len(notes):
+            self._plain(notes[self._said_notes])
+            self._said_notes += 1
+
+    def _plain(self, line: str) -> None:
+        self.console.print(line, highlight=False, soft_wrap=True, markup=False)

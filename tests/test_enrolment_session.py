@@ -1,0 +1,122 @@
+"""The guided enrolment (``enrol``, neurotouch_hid/enrolment/session.py): the prompts shown, a
+prompt not performed asked again, the labelled dataset written where it says.
+
+The simulated hand performs a short plan of three prompts (``--plan``); ``--sim-miss N`` makes it
+miss the N-th prompt asked."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+from helpers import run_cli
+from kernel.vm import installed
+
+from neurotouch_hid.dataset import list_sequences, read_labels
+from neurotouch_hid.enrolment.plan import Plan, Prompt, read_plan, write_plan
+from neurotouch_hid.estimate import GestureType
+
+PLAN = Plan(
+    (
+        Prompt(GestureType.PUSH, 2.0, 1.5, "up"),
+        Prompt(GestureType.PINCH, 6.5, 0.4),
+        Prompt(GestureType.TWIST_CW, 10.0, 1.5),
+    )
+)
+
+
+def _runs(labels) -> list[GestureType]:
+    kinds = [r.gesture for r in labels]
+    return [k for i, k in enumerate(kinds) if k is not GestureType.NONE and (i == 0 or kinds[i - 1] is not k)]
+
+
+def test_a_prompt_missed_twice_is_said_and_left_out_and_the_dataset_goes_to_the_data_folder(tmp_path):
+    plan = write_plan(PLAN, tmp_path / "short.json")
+    data = tmp_path / "data"
+    result = run_cli(
+        "enrol", "--source", "sim", "--plan", str(plan), "--fast", "--seed", "3", "--sim-miss", "2", "--sim-miss", "4",
+        env={"XDG_DATA_HOME": str(data)},
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    folders = list((data / "neurotouch-hid" / "enrolments").iterdir())
+    assert len(folders) == 1
+    folder = folders[0]
+    assert "0:02 prompt 1 of 3: push the gel up (away from you), hold 1.5 s, then let go" in lines
+    assert any(line.startswith("prompt 2 (pinch): no gesture seen: asked again at 0:") for line in lines)
+    assert "prompt 4 (pinch): no gesture seen when asked again: left out" in lines
+    assert "asked again: pinch (not seen at 6.5 s)" in lines
+    assert any(line.startswith(f"labelled 2 of 4 prompts -> {folder} ") for line in lines)
+    # the folder is a dataset eval reads, labelled from the prompts asked
+    assert list_sequences(folder) == ["enrolment"]
+    asked = read_plan(folder / "enrolment.plan.json")
+    assert [p.gesture for p in asked.prompts] == [GestureType.PUSH, GestureType.PINCH, GestureType.TWIST_CW,
+                                                  GestureType.PINCH]  # fmt: skip
+    assert _runs(read_labels(folder / "enrolment.labels.csv")) == [GestureType.PUSH, GestureType.TWIST_CW]
+    assert not [name for name in os.listdir(folder) if name.startswith(".")]  # no temporary file left
+
+
+def test_a_bad_source_or_plan_is_one_clear_line(tmp_path):
+    result = run_cli("enrol", "--source", "camera2")
+    assert result.returncode == 2 and "--source 'camera2': expected davis" in result.stderr
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"prompts": [{"gesture": "push", "cue_s": 1}]}))
+    result = run_cli("enrol", "--source", "sim", "--plan", str(bad), "--out", str(tmp_path / "x"))
+    assert result.returncode == 2
+    assert f"{bad}: prompt 1: field 'seconds' is missing" in result.stderr
+    assert "Traceback" not in result.stderr and not (tmp_path / "x").exists()
+
+
+def _tmux() -> str:
+    found = installed("tmux", "tmux")
+    if found is None:
+        pytest.skip(reason="tmux is not installed and cannot be apt-installed here (needs root and apt-get)")
+    return found
+
+
+def test_the_prompts_show_in_a_real_80x24_terminal(tmp_path):
+    tmux = _tmux()
+    plan = write_plan(PLAN, tmp_path / "short.json")
+    out = tmp_path / "enrolment"
+    session = f"nt-enrol-{uuid.uuid4().hex[:8]}"
+    env = {
+        "PYTHONPATH": os.pathsep.join(sys.path),
+        "XDG_CONFIG_HOME": os.environ.get("XDG_CONFIG_HOME", str(tmp_path / "config")),
+        "TERM": "xterm-256color",
+    }
+    command = " ".join(f"{k}={v}" for k, v in env.items())
+    command += f" {sys.executable} -m neurotouch_hid.cli enrol --source sim --plan {plan} --out {out} --seed 3"
+    command += " --sim-miss 2; sleep 60"
+    subprocess.run([tmux, "new-session", "-d", "-s", session, "-x", "80", "-y", "24", command], check=True)
+    screens: list[str] = []
+    try:
+        for _ in range(1200):  # a hang ends the test, a slow machine does not
+            time.sleep(0.25)
+            screen = subprocess.run([tmux, "capture-pane", "-p", "-t", session], capture_output=True, text=True).stdout
+            screens.append(screen)
+            if "labelled" in screen or "Traceback" in screen:
+                break
+    finally:
+        subprocess.run([tmux, "kill-session", "-t", session], capture_output=True)
+    shown = "\n".join(screens)
+    assert "Traceback" not in shown
+    assert all(len(s.splitlines()) <= 24 and all(len(line) <= 80 for line in s.splitlines()) for s in screens)
+    assert "enrol: teach the driver your gel and your hand" in shown
+    for prompt in PLAN.prompts:  # each prompt, what to do and for how long, counted down
+        assert f"NOW  {prompt.what()}" in shown
+        assert f"{prompt.how()}, then let go" in shown
+        assert f"GET READY in 1: {prompt.what()}" in shown or f"GET READY in 2: {prompt.what()}" in shown
+    assert "prompt 2 (pinch): no gesture seen: asked again at 0:" in shown
+    assert "prompt 4 of 4" in shown  # the pinch asked again
+    last = screens[-1]
+    assert "asked again: pinch (not seen at 6.5 s)" in last
+    assert f"labelled 3 of 4 prompts -> {out}" in last.replace("\n", "")
+    assert _runs(read_labels(Path(out) / "enrolment.labels.csv")) == [
+        GestureType.PUSH, GestureType.TWIST_CW, GestureType.PINCH,
+    ]  # fmt: skip
