@@ -13,6 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validat
 
 from neurotouch_hid.limits import short
 from neurotouch_hid.pipeline.contacts import HOMOGRAPHY_METHODS
+from neurotouch_hid.pipeline.learned import CLASSES, FEATURES, Classifier
 from neurotouch_hid.pipeline.noise import check_noise_filter
 from neurotouch_hid.pipeline.tracker import TrackerConfig
 from neurotouch_hid.sensor import MARKER_SPACING_MM, SensorGeometry
@@ -97,6 +98,43 @@ class ContactsConfig(BaseModel):
         return self
 
 
+class ClassifierConfig(BaseModel):
+    """The learned gesture type's parameters (``learned.py``; docs/method.md, "Gesture" and
+    "Adaptation"): a multinomial logistic regression over the standardised features.
+
+    Attributes:
+        mean, scale: (9,) each, the features' standardisation (``learned.FEATURES`` order; scale > 0).
+        weights: (5, 9), one row per class (``learned.CLASSES`` order).
+        intercept: (5,).
+    """
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True)
+
+    mean: tuple[float, ...]
+    scale: tuple[float, ...]
+    weights: tuple[tuple[float, ...], ...]
+    intercept: tuple[float, ...]
+
+    @model_validator(mode="after")
+    def _consistent(self) -> "ClassifierConfig":
+        n, k = len(FEATURES), len(CLASSES)
+        if len(self.mean) != n or len(self.scale) != n:
+            raise ValueError(
+                f"mean and scale must have {n} values (one per feature), got {len(self.mean)} and {len(self.scale)}"
+            )
+        if len(self.weights) != k or any(len(row) != n for row in self.weights):
+            raise ValueError(f"weights must be {k} rows (one per class) of {n} values")
+        if len(self.intercept) != k:
+            raise ValueError(f"intercept must have {k} values (one per class), got {len(self.intercept)}")
+        if not all(s > 0 for s in self.scale):
+            raise ValueError("every scale must be positive")
+        return self
+
+    def arrays(self) -> Classifier:
+        """The parameters as float64 arrays (:class:`~neurotouch_hid.pipeline.learned.Classifier`)."""
+        return Classifier.of(self.mean, self.scale, self.weights, self.intercept)
+
+
 class GestureConfig(BaseModel):
     """The gesture step (docs/method.md, "Gesture"); lengths in mm on the gel.
 
@@ -108,6 +146,10 @@ class GestureConfig(BaseModel):
         intensity_sigma_mm: sigma (mm) of the proximity-weighted intensity.
         origin_radius_mm: the translation term is taken at the best origin within this distance
             (mm) of the contacts' mean.
+        intensity_gain: > 0, the intensity (mm) is multiplied by it: 1 but for a gel adapted by
+            ``neurotouch-hid adapt`` (docs/method.md, "Adaptation").
+        classifier: the learned type's parameters (:class:`ClassifierConfig`); None: the
+            shipped ones (``gesture_model.py``), else an adapted model's (docs/method.md, "Adaptation").
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -117,10 +159,12 @@ class GestureConfig(BaseModel):
     min_intensity_mm: float = 0.12
     intensity_sigma_mm: float = 1.2
     origin_radius_mm: float = 4.0
+    intensity_gain: float = 1.0
+    classifier: ClassifierConfig | None = None
 
     @model_validator(mode="after")
     def _consistent(self) -> "GestureConfig":
-        for name in ("intensity_sigma_mm", "origin_radius_mm"):
+        for name in ("intensity_sigma_mm", "origin_radius_mm", "intensity_gain"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
         return self
@@ -261,6 +305,8 @@ class PixelSettings:
     min_intensity_px: float
     intensity_sigma_px: float
     origin_radius_px: float
+    intensity_gain: float
+    classifier: Classifier
     centroid_threshold: float
     centroid_reset_threshold: float
     motion_override_px: float
@@ -298,6 +344,8 @@ def scaled_to_sensor(config: PipelineConfig, sensor: SensorGeometry) -> PixelSet
         min_intensity_px=g.min_intensity_mm * s,
         intensity_sigma_px=g.intensity_sigma_mm * s,
         origin_radius_px=g.origin_radius_mm * s,
+        intensity_gain=g.intensity_gain,
+        classifier=Classifier.shipped() if g.classifier is None else g.classifier.arrays(),
         centroid_threshold=r.centroid_threshold_mm2 * s * s,
         centroid_reset_threshold=r.centroid_reset_threshold_mm2 * s * s,
         motion_override_px=r.motion_override_mm * s,

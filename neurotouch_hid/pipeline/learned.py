@@ -15,6 +15,8 @@ time). It only relabels windows the rule already calls a gesture (``none`` stays
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from functools import cache
 
 import numba
 import numpy as np
@@ -163,9 +165,38 @@ def _relative_motion(contacts: np.ndarray, rest: np.ndarray, current: np.ndarray
 CLASSES = (GestureType.PUSH, GestureType.PINCH, GestureType.ZOOM, GestureType.TWIST_CW, GestureType.TWIST_CCW)
 
 
-def learned_gesture(features: np.ndarray) -> GestureType:
+@dataclass(frozen=True, eq=False)
+class Classifier:
+    """The logistic regression's parameters as float64 arrays: ``mean``, ``scale`` (9,) (the
+    features' standardisation, :data:`FEATURES` order), ``weights`` (5, 9) and ``intercept`` (5,)
+    (:data:`CLASSES` order). The shipped ones are :mod:`gesture_model`'s (:meth:`shipped`); an
+    adapted model (``neurotouch-hid adapt``, docs/method.md, "Adaptation") brings its own."""
+
+    mean: np.ndarray
+    scale: np.ndarray
+    weights: np.ndarray
+    intercept: np.ndarray
+
+    @classmethod
+    def of(cls, mean, scale, weights, intercept) -> "Classifier":
+        """From sequences (or arrays) of the shapes above, copied as float64 arrays."""
+        return cls(*(np.array(a, dtype=np.float64) for a in (mean, scale, weights, intercept)))
+
+    @staticmethod
+    @cache
+    def shipped() -> "Classifier":
+        """The shipped parameters (:mod:`gesture_model`)."""
+        m = gesture_model
+        return Classifier.of(m.MEAN, m.SCALE, m.WEIGHTS, m.INTERCEPT)
+
+    def logits(self, features: np.ndarray) -> np.ndarray:
+        """(..., 5) float64 class scores ``W (x - mean) / scale + b`` of (..., 9) features."""
+        x = (np.asarray(features, dtype=np.float64) - self.mean) / self.scale
+        return x @ self.weights.T + self.intercept
+
+
+def learned_gesture(features: np.ndarray, classifier: Classifier | None = None) -> GestureType:
     """The logistic regression's type for (9,) features: argmax of ``W (x - mean) / scale + b``
-    with :mod:`gesture_model`'s constants."""
-    x = (np.asarray(features, dtype=np.float64) - gesture_model.MEAN) / gesture_model.SCALE
-    logits = gesture_model.WEIGHTS @ x + gesture_model.INTERCEPT
+    with ``classifier``'s parameters (None: the shipped ones, :mod:`gesture_model`)."""
+    logits = (classifier or Classifier.shipped()).logits(features)
     return CLASSES[int(np.argmax(logits))]

@@ -414,19 +414,21 @@ class GesturePipeline(FramePath):
             gel_motion=motion,
         )
         result = self._learned_type(result, contacts, rest_px, current, valid)
+        if c.intensity_gain != 1.0:  # an adapted model's (docs/method.md, "Adaptation")
+            result = dataclasses.replace(result, intensity_mm=result.intensity_mm * c.intensity_gain)
         self._record("gesture", begin)
         return contacts, result
 
     def _learned_type(self, result: GestureResult, contacts: Contacts, rest_px, current, valid) -> GestureResult:
         """A window the rule calls a gesture gets the type of the learned classifier
-        (``learned.py``; docs/method.md, "Gesture")."""
+        (``learned.py``, the settings' parameters; docs/method.md, "Gesture", "Adaptation")."""
         if result.gesture is GestureType.NONE:
             return result
         c = self.config
         features = gesture_features(
             result, contacts.peaks_px, rest_px, current, valid, self.sensor, c.r_px, c.origin_radius_px
         )
-        return dataclasses.replace(result, gesture=learned_gesture(features))
+        return dataclasses.replace(result, gesture=learned_gesture(features, c.classifier))
 
     def _of_rest(self, name: str, rest_px: np.ndarray, make: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
         """``make(rest_px)``, computed once per rest reference (the pipeline's own, or
