@@ -199,6 +199,28 @@ def check_service(config: Path | None = None) -> Check:
     )
 
 
+def check_model() -> Check:
+    """Which model ``run``, ``track``, ``eval`` and ``profile test`` use by default: the user's
+    adapted model (``enrolment/model.py``, written by ``neurotouch-hid adapt``) or the shipped
+    method; a failure when the user's model file is there but cannot be used."""
+    from neurotouch_hid.enrolment.model import ModelError, describe, resolve_model, user_model_path
+
+    try:
+        model = resolve_model(None)
+    except ModelError as exc:
+        return Check(
+            "gesture model",
+            FAIL,
+            str(exc),
+            f"neurotouch-hid adapt ENROLMENT --out {user_model_path()}\nor remove {user_model_path()}",
+        )
+    if model is None:
+        return Check(
+            "gesture model", OK, f"the shipped method (no {user_model_path()}; `neurotouch-hid adapt` fits one)"
+        )
+    return Check("gesture model", OK, describe(model))
+
+
 def run_checks() -> list[Check]:
     """Every check, in the order the report shows them."""
     found = discover()
@@ -211,6 +233,7 @@ def run_checks() -> list[Check]:
         *(check_library(m, d) for m, d in LIBRARIES),
         check_jit_cache(),
         check_service(),
+        check_model(),
     ]
 
 

@@ -27,6 +27,7 @@ from neurotouch_hid.stats import RunStats
 if TYPE_CHECKING:
     from rich.console import Console
 
+    from neurotouch_hid.enrolment.model import Model
     from neurotouch_hid.output.live import LiveScene
     from neurotouch_hid.pipeline.pipeline import GesturePipeline
     from neurotouch_hid.pipeline.resting import RestingResult
@@ -212,6 +213,7 @@ def build_pipeline(
     method: str = "default",
     resting_beside: bool = True,
     filter_noise: bool = True,
+    model: Model | None = None,
 ) -> tuple[GesturePipeline, PipelineResting | None]:
     """The ``method``'s pipeline (``pipeline.methods``) with ``window_us`` windows, and the resting
     detector to run beside it.
@@ -224,12 +226,16 @@ def build_pipeline(
     not run it (``detect_resting=False``). False: the pipeline runs it inline on each frame, and
     the run is deterministic (the same input gives the same estimates): what ``--fast`` replays
     use, as nothing there needs to keep up with the camera.
+
+    ``model``: an adapted model's values over the method's (``enrolment/model.py``; None: the
+    shipped method).
     """
+    from neurotouch_hid.enrolment.model import apply_model
     from neurotouch_hid.evaluation.runner import pipeline_config
     from neurotouch_hid.pipeline.methods import pipeline_for
 
     quiet = {} if filter_noise or method != "default" else {"noise": {"kind": None}}
-    config = pipeline_config(method=method, window_us=window_us, **quiet)
+    config = apply_model(pipeline_config(method=method, window_us=window_us, **quiet), model)
     pipeline = pipeline_for(geometry, config, detect_resting=not resting_beside)
     return pipeline, (PipelineResting(pipeline) if resting_beside else None)
 
@@ -292,6 +298,7 @@ def run_driver(
     stats: RunStats | None = None,
     max_lag_us: int = DEFAULT_MAX_LAG_US,
     method: str = "default",
+    model: Model | None = None,
 ) -> RunStats:
     """``neurotouch-hid run``: load the profile (a bad one raises ProfileError before any device
     exists), open the source, build the pipeline, open the output, run until the end.
@@ -305,7 +312,8 @@ def run_driver(
     ``stats`` is where the run is counted (the one a given terminal view shows).
     ``davis``, ``wait``, ``capture``: the live camera's settings (:func:`open_source`); ``say``
     tells the user when it is lost and back. ``method``: the gesture pipeline
-    (``pipeline.methods``: ``default`` or ``paper``).
+    (``pipeline.methods``: ``default`` or ``paper``); ``model``: an adapted model's values over
+    it (``enrolment/model.py``; None: the shipped method).
     Raises NeurotouchError subclasses for bad input (ProfileError, RecordingError, DeviceError,
     SensorError).
     """
@@ -348,7 +356,12 @@ def run_driver(
             pipeline = EstimateReplay()
         else:
             built, resting = build_pipeline(
-                geometry, window_us, method=method, resting_beside=live or not fast, filter_noise=not live
+                geometry,
+                window_us,
+                method=method,
+                resting_beside=live or not fast,
+                filter_noise=not live,
+                model=model,
             )
             watched = ScenePipeline(built, scene, _guard(warmup, PIPELINE_OF[method]))
             pipeline, resting = watched, watched.resting(resting)
@@ -412,10 +425,13 @@ def run_demo(
         return run_driver("sim", "default", "gamepad", seconds=seconds, console=console, output_obj=out, stats=stats)
 
 
-def estimates_from_source(source: str, seconds: float | None = None) -> Iterator[GestureEstimate]:
+def estimates_from_source(
+    source: str, seconds: float | None = None, model: Model | None = None
+) -> Iterator[GestureEstimate]:
     """Estimates from ``PRED.jsonl`` (predictions), ``sim`` (the simulated gel through the
     pipeline, 20 s unless ``seconds``) or an AEDAT4 recording (through the pipeline, with the
-    sensor.yaml beside it). Only the first ``seconds`` (from the first estimate) when given.
+    sensor.yaml beside it), the pipeline with ``model``'s values (None: the shipped method). Only
+    the first ``seconds`` (from the first estimate) when given.
 
     Raises:
         DatasetError, RecordingError, SensorError: unreadable source.
@@ -425,13 +441,14 @@ def estimates_from_source(source: str, seconds: float | None = None) -> Iterator
 
         yield from _first_seconds(iter(read_predictions(source)), seconds)
         return
+    from neurotouch_hid.enrolment.model import apply_model
     from neurotouch_hid.pipeline.pipeline import GesturePipeline
 
     with contextlib.ExitStack() as stack:
         stream, sensor, _ = open_source(
             source, stack, seconds=seconds if seconds is not None or source != "sim" else 20.0
         )
-        yield from _first_seconds(GesturePipeline(sensor).run(stream), seconds)
+        yield from _first_seconds(GesturePipeline(sensor, apply_model(None, model)).run(stream), seconds)
 
 
 def _first_seconds(estimates: Iterator[GestureEstimate], seconds: float | None) -> Iterator[GestureEstimate]:

@@ -51,6 +51,28 @@ def long_lived_start_up() -> Iterator[None]:
             gc.enable()
 
 
+#: ``--model``, one definition for every command that runs the pipeline (run, track, eval, profile
+#: test; the service runs ``run``): the adapted model (``enrolment/model.py``).
+MODEL_OPTION = typer.Option(
+    None,
+    "--model",
+    metavar="PATH|none",
+    help="adapted model written by `neurotouch-hid adapt` (a model.yaml), or none for the shipped method; "
+    "default: your model.yaml (beside sensor.yaml) when there is one",
+)
+
+
+def chosen_model(option: Optional[str]):
+    """The model ``--model`` picks (``enrolment.model.resolve_model``: None for the shipped
+    method), said on stderr when it is an adapted one. Raises ModelError for a bad file."""
+    from neurotouch_hid.enrolment.model import describe, resolve_model
+
+    model = resolve_model(option)
+    if model is not None:
+        err_console.print(f"model: {describe(model)}", highlight=False, soft_wrap=True, markup=False)
+    return model
+
+
 #: ``--method``'s help (track, eval, run).
 METHOD_HELP = "the gesture pipeline: default (the product's) or paper (the paper's method exactly)"
 

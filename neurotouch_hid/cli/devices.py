@@ -16,6 +16,8 @@ import typer
 
 from neurotouch_hid.cli.common import (
     METHOD_HELP,
+    MODEL_OPTION,
+    chosen_model,
     console,
     davis_config,
     duration,
@@ -71,6 +73,7 @@ def run(
         callback=finite,
     ),
     method: str = typer.Option("default", "--method", help=METHOD_HELP),
+    model: Optional[str] = MODEL_OPTION,
 ) -> None:
     """Run the driver: source -> pipeline -> profile -> virtual gamepad.
 
@@ -95,6 +98,7 @@ def run(
         say=lambda line: err_console.print(line, markup=False, highlight=False, soft_wrap=True),
         max_lag_us=round(max_lag_ms * 1000),
         method=method,
+        model=chosen_model(model),
     )
     err_console.print(stats.summary(), highlight=False, soft_wrap=True)
 

@@ -1,7 +1,9 @@
-"""Enrolment: ``enrol`` (a guided session, its plan, or labelling a recording made by following one).
+"""Enrolment: ``enrol`` (a guided session, its plan, or labelling a recording made by following one)
+and ``adapt`` (the recogniser fitted to one gel and hand from enrolments).
 
-The command parses its options, calls one function of the stage it drives
-(enrolment/plan.py, enrolment/label.py, enrolment/session.py) and prints.
+Each command parses its options, calls one function of the stage it drives
+(enrolment/plan.py, enrolment/label.py, enrolment/session.py; enrolment/adapt.py,
+enrolment/model.py) and prints.
 """
 
 from __future__ import annotations
@@ -153,3 +155,34 @@ def say_labelled(done) -> None:
             highlight=False,
             soft_wrap=True,
         )
+
+
+@app.command()
+def adapt(
+    datasets: list[Path] = typer.Argument(..., help="enrolment datasets (docs/dataset.md folders), one or more"),
+    out: Optional[Path] = typer.Option(
+        None, "--out", help="the model file to write (default: your model.yaml beside sensor.yaml, used by default)"
+    ),
+    jobs: int = typer.Option(2, "--jobs", min=1, help="sequences run in parallel processes"),
+) -> None:
+    """Fit the recogniser to your gel and hand from enrolment datasets; hold part out to check it.
+
+    Refits the learned gesture type (the shipped one as its prior), the contact and resting
+    thresholds and the intensity scale; keeps the shipped value wherever the fit does not beat it
+    on the held-out gestures, and says what it changed (docs/method.md, "Adaptation")."""
+    from neurotouch_hid.enrolment.adapt import adapt as fit
+    from neurotouch_hid.enrolment.adapt import check_output, fitted_info, record_datasets, summary
+    from neurotouch_hid.enrolment.model import Model, user_model_path
+
+    target = check_output(out if out is not None else user_model_path(), datasets)
+
+    def say(line: str) -> None:
+        err_console.print(line, highlight=False, soft_wrap=True, markup=False)
+
+    records = record_datasets(datasets, jobs=jobs, on_sequence=lambda name: say(f"recorded {name}"))
+    adaptation = fit(records)
+    for line in summary(adaptation):
+        console.print(line, highlight=False, soft_wrap=True, markup=False)
+    model = adaptation.model
+    written = Model(model.settings, model.classifier, fitted_info(adaptation, datasets)).save(target)
+    console.print(f"-> {written}", highlight=False, soft_wrap=True, markup=False)

@@ -14,6 +14,8 @@ from typing import Optional
 import typer
 
 from neurotouch_hid.cli.common import (
+    MODEL_OPTION,
+    chosen_model,
     console,
     duration,
     err_console,
@@ -296,6 +298,7 @@ def profile_test(
     ),
     every_ms: int = typer.Option(100, "--every-ms", help="timeline sampling period (ms)"),
     json_out: bool = typer.Option(False, "--json", help="print the summary as JSON instead of tables"),
+    model: Optional[str] = MODEL_OPTION,
 ) -> None:
     """Replay a source through the pipeline and the profile; print the axis and button timeline."""
     import json
@@ -319,7 +322,7 @@ def profile_test(
 
         require("plots", "profile test --plot")
     loaded = load_profile(name)
-    estimates = list(estimates_from_source(source, seconds))
+    estimates = list(estimates_from_source(source, seconds, chosen_model(model)))
     states = replay(loaded, estimates)
     summary = summarise(states)
     if plot is not None:

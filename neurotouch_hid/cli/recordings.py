@@ -13,6 +13,8 @@ import typer
 
 from neurotouch_hid.cli.common import (
     METHOD_HELP,
+    MODEL_OPTION,
+    chosen_model,
     console,
     davis_config,
     duration,
@@ -216,15 +218,17 @@ def track(
     window_us: int = typer.Option(10_000, "--window-us", help="window length in microseconds (>= 1000)"),
     markers: Optional[Path] = typer.Option(None, "--markers", help="also write tracked marker positions (.npz)"),
     method: str = typer.Option("default", "--method", "--preset", help=METHOD_HELP),
+    model: Optional[str] = MODEL_OPTION,
 ) -> None:
     """Run the gesture pipeline on a recording and write one prediction per window."""
     with long_lived_start_up():
+        from neurotouch_hid.enrolment.model import apply_model
         from neurotouch_hid.evaluation.runner import pipeline_config
         from neurotouch_hid.pipeline.methods import pipeline_for
         from neurotouch_hid.sensor import find_sensor_file
         from neurotouch_hid.track import recording_progress, track_recording
 
-        config = pipeline_config(method=method, window_us=window_us)
+        config = apply_model(pipeline_config(method=method, window_us=window_us), chosen_model(model))
         geometry = find_sensor_file(recording, sensor)
         pipeline_for(geometry, config).compile_kernels()  # numba's cached code, loaded now
     with recording_progress(err_console, "tracking") as report:
@@ -272,6 +276,7 @@ def eval_cmd(
         help="profile name or file, repeatable: replay the answers through it and count wrong outputs, missed "
         'gestures and outputs going active at rest (docs/dataset.md, "Through a profile")',
     ),
+    model: Optional[str] = MODEL_OPTION,
 ) -> None:
     """Run the pipeline over a labelled dataset; print the paper's metrics and the per-gesture ones."""
     import json
@@ -287,7 +292,11 @@ def eval_cmd(
 
     if report is not None:  # before the evaluation, not after it
         require("plots", "eval --report")
+    from neurotouch_hid.enrolment.model import apply_model
+
     config = pipeline_config(settings, method, **({} if window_us is None else {"window_us": window_us}))
+    given = [item.partition("=")[0].strip() for item in settings]  # --set wins over the model
+    config = apply_model(config, chosen_model(model), keep=given)
     tested = [ProfileUnderTest.probe(name, load_profile(name)) for name in dict.fromkeys(profiles)]  # each once
     columns = (
         TextColumn("{task.description}"),

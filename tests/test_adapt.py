@@ -1,0 +1,244 @@
+"""Adaptation (``enrolment/adapt.py``, ``enrolment/model.py``; docs/method.md, "Adaptation"): the
+model file, what ``adapt`` fits and keeps, and ``--model`` on the commands that run the pipeline."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from helpers import run_cli
+
+from neurotouch_hid.enrolment.adapt import Record, adapt, held_out_prompts, record_datasets, replay, summary
+from neurotouch_hid.enrolment.model import (
+    Model,
+    ModelError,
+    apply_model,
+    load_model,
+    resolve_model,
+    user_model_path,
+)
+from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.pipeline.config import PipelineConfig
+from neurotouch_hid.pipeline.learned import CLASSES, Classifier, learned_gesture
+from neurotouch_hid.sources.simulator import write_dataset
+
+TWISTS = {"twist_cw": "twist_ccw", "twist_ccw": "twist_cw"}
+
+
+def swapped_classifier() -> dict:
+    """The shipped classifier with its two twist rows exchanged: reads every twist the other way."""
+    c = Classifier.shipped()
+    order = [CLASSES.index(GestureType(TWISTS.get(k.value, k.value))) for k in CLASSES]
+    return {
+        "mean": c.mean.tolist(),
+        "scale": c.scale.tolist(),
+        "weights": c.weights[order].tolist(),
+        "intercept": c.intercept[order].tolist(),
+    }
+
+
+@pytest.fixture(scope="module")
+def enrolment(tmp_path_factory) -> Path:
+    """A small simulated enrolment: one hand, each gesture type 2-3 times (9 s each; odd seed: no test draw)."""
+    folder = tmp_path_factory.mktemp("enrolment")
+    return write_dataset(folder, seed=11, users=[0], minutes=0.75, progress=False)
+
+
+@pytest.fixture(scope="module")
+def records(enrolment) -> list[Record]:
+    return record_datasets([enrolment])
+
+
+@pytest.fixture(scope="module")
+def mirrored(enrolment, tmp_path_factory) -> Path:
+    """The same enrolment labelled by a hand whose twists the gel reads the other way (a sensor
+    mounted mirrored): every twist label swapped."""
+    folder = tmp_path_factory.mktemp("mirrored")
+    for f in enrolment.iterdir():
+        if f.name.endswith(".labels.csv"):
+            rows = list(csv.reader(f.read_text().splitlines()))
+            for row in rows[1:]:
+                row[1] = TWISTS.get(row[1], row[1])
+            (folder / f.name).write_text("\n".join(",".join(r) for r in rows) + "\n")
+        elif f.suffix in (".aedat4", ".yaml"):
+            shutil.copy(f, folder / f.name)
+    return folder
+
+
+# --- the model file --------------------------------------------------------------------------
+def test_a_model_round_trips_and_applies_its_values(tmp_path):
+    model = Model({"gesture.intensity_gain": 1.25, "resting.centroid_threshold_mm2": 0.002}, swapped_classifier())
+    path = model.save(tmp_path / "sub" / "model.yaml")
+    back = load_model(path)
+    assert back.settings == model.settings and back.classifier == model.classifier and back.path == path
+    config = apply_model(PipelineConfig(), back)
+    assert config.gesture.intensity_gain == 1.25 and config.resting.centroid_threshold_mm2 == 0.002
+    assert config.contacts == PipelineConfig().contacts  # nothing else changes
+    features = np.array([0.1, 0.8, 0.1, 0.0, 0.8, 0.0, 0.9, 2.0, 1.5])  # a counter-clockwise twist
+    assert learned_gesture(features) is GestureType.TWIST_CCW
+    assert learned_gesture(features, config.gesture.classifier.arrays()) is GestureType.TWIST_CW
+    assert not list(tmp_path.glob("sub/.*.tmp"))  # written through a temporary file, renamed
+
+
+def test_an_empty_model_is_the_shipped_method(tmp_path):
+    assert apply_model(PipelineConfig(), load_model(Model().save(tmp_path / "m.yaml"))) == PipelineConfig()
+
+
+@pytest.mark.parametrize(
+    "text, expected",
+    [
+        ("format: neurotouch-hid model\nversion: 7\n", ["version 7", "reads version 1", "adapt", "--model none"]),
+        ("format: a profile\nversion: 1\n", ["'format'", "neurotouch-hid model"]),
+        (
+            "format: neurotouch-hid model\nversion: 1\nsettings:\n  contacts.r_mm: 3\n",
+            ["m.yaml:4", "settings.contacts.r_mm", "one of gesture.min_intensity_mm"],
+        ),
+        (
+            "format: neurotouch-hid model\nversion: 1\nsettings:\n  gesture.intensity_gain: fast\n",
+            ["m.yaml:4", "'fast'", "a finite number"],
+        ),
+        (
+            "format: neurotouch-hid model\nversion: 1\nclassifier:\n  mean: [1, 2]\n  scale: [1]\n"
+            "  weights: [[1]]\n  intercept: [1]\n",
+            ["m.yaml:3", "classifier", "9 values"],
+        ),
+        (
+            "format: neurotouch-hid model\nversion: 1\nsettings:\n  gesture.intensity_gain: -2\n",
+            ["intensity_gain", "positive"],
+        ),
+        ("format: neurotouch-hid model\nversion: 1\nextra: 1\n", ["'extra'", "only format"]),
+        ("- a\n- list\n", ["expected a mapping"]),
+        ("format: [unclosed\n", ["not valid YAML"]),
+    ],
+)
+def test_a_bad_model_file_says_where_and_what_was_expected(tmp_path, text, expected):
+    path = tmp_path / "m.yaml"
+    path.write_text(text)
+    with pytest.raises(ModelError) as caught:
+        load_model(path)
+    for part in expected:
+        assert part in str(caught.value)
+    assert str(path) in str(caught.value)
+
+
+def test_a_missing_or_oversized_model_is_refused_clearly(tmp_path):
+    with pytest.raises(ModelError, match="no such model file.*adapt"):
+        load_model(tmp_path / "nothing.yaml")
+    big = tmp_path / "big.yaml"
+    big.write_text("#" * (1 << 20))
+    with pytest.raises(ModelError, match="larger than"):
+        load_model(big)
+
+
+def test_the_users_model_is_used_unless_none_is_asked(tmp_path):
+    assert resolve_model(None) is None  # no user model: the shipped method
+    Model({"gesture.intensity_gain": 1.1}).save(user_model_path())
+    assert resolve_model(None).settings == {"gesture.intensity_gain": 1.1}
+    assert resolve_model("none") is None and resolve_model("NONE") is None
+    other = Model({"gesture.intensity_gain": 0.9}).save(tmp_path / "other.yaml")
+    assert resolve_model(str(other)).settings == {"gesture.intensity_gain": 0.9}
+
+
+def test_doctor_names_the_model_in_use():
+    from neurotouch_hid.doctor import FAIL, OK, check_model
+
+    assert check_model().status == OK and "shipped method" in check_model().detail
+    Model({"gesture.intensity_gain": 1.1}).save(user_model_path())
+    check = check_model()
+    assert check.status == OK and str(user_model_path()) in check.detail and "intensity_gain = 1.1" in check.detail
+    user_model_path().write_text("format: neurotouch-hid model\nversion: 99\n")
+    check = check_model()
+    assert check.status == FAIL and "version 99" in check.detail and "adapt" in check.fix
+
+
+# --- adapt -----------------------------------------------------------------------------------
+def test_the_replay_answers_what_the_pipeline_answered(records):
+    for r in records:
+        assert len(r.t_us) > 500
+        assert np.array_equal(replay(r), r.answered)
+
+
+def test_gestures_are_held_out_by_prompt_with_their_rest(records):
+    held = held_out_prompts(records)
+    kinds = [k for r in records for k in r.prompt_type.values()]
+    assert 0 < len(held) < len(kinds)
+    for r in records:
+        windows = np.isin(r.prompt, list(held))
+        for prompt in set(r.prompt[windows].tolist()):  # a held-out prompt's windows, gesture and rest
+            assert prompt in held
+
+
+def test_adapt_learns_a_hand_whose_twists_read_the_other_way(mirrored):
+    adaptation = adapt(record_datasets([mirrored]))
+    check = next(c for c in adaptation.checks if c.what == "classifier")
+    assert check.kept and check.fitted > check.shipped + 0.02
+    assert adaptation.model.classifier is not None
+    assert adaptation.accuracy_after > adaptation.accuracy_before + 0.02
+    lines = summary(adaptation)
+    assert any(line.startswith("held-out gesture type accuracy: shipped") for line in lines)
+    assert any("the learned gesture type refitted" in line for line in lines)
+
+
+def test_adapt_keeps_the_shipped_value_where_the_fit_does_not_beat_it(records):
+    """The fitted part says every twist turns the other way and every intensity is twice what is
+    read; the held-out gestures say neither: the shipped classifier and scale stay."""
+    held = held_out_prompts(records)
+    swap = {CLASSES.index(GestureType.TWIST_CW): CLASSES.index(GestureType.TWIST_CCW)}
+    swap.update({v: k for k, v in swap.items()})
+    misled = []
+    for r in records:
+        fit = ~np.isin(r.prompt, list(held))
+        label = r.label.copy()
+        for a, b in swap.items():
+            label[fit & (r.label == a)] = b
+        misled.append(
+            dataclasses.replace(
+                r, label=label, label_intensity_mm=np.where(fit, 2 * r.label_intensity_mm, r.label_intensity_mm)
+            )
+        )
+    adaptation = adapt(misled)
+    by_name = {c.what: c for c in adaptation.checks}
+    assert not by_name["classifier"].kept and by_name["classifier"].fitted < by_name["classifier"].shipped
+    assert not by_name["gesture.intensity_gain"].kept and float(by_name["gesture.intensity_gain"].value) > 1.5
+    assert adaptation.model.classifier is None and "gesture.intensity_gain" not in adaptation.model.settings
+    assert any("the shipped value stays" in line for line in summary(adaptation))
+
+
+def test_adapt_writes_a_model_the_commands_use_and_none_means_shipped(mirrored, tmp_path):
+    out = tmp_path / "model.yaml"
+    done = run_cli("adapt", str(mirrored), "--out", str(out), "--jobs", "1")
+    assert done.returncode == 0, done.stderr
+    assert "held-out gesture type accuracy: shipped" in done.stdout and f"-> {out}" in done.stdout
+    assert load_model(out).classifier is not None
+    recording = mirrored / "u0_twist_cw.aedat4"
+    answers = {}
+    for name, extra in (("shipped", []), ("none", ["--model", "none"]), ("adapted", ["--model", str(out)])):
+        pred = tmp_path / f"{name}.jsonl"
+        done = run_cli("track", str(recording), "--out", str(pred), *extra)
+        assert done.returncode == 0, done.stderr
+        answers[name] = [json.loads(line)["gesture"] for line in pred.read_text().splitlines()]
+    assert answers["none"] == answers["shipped"]
+    assert answers["adapted"].count("twist_ccw") > answers["shipped"].count("twist_ccw")  # read the other way
+    user_model_path().parent.mkdir(parents=True, exist_ok=True)
+    shutil.copy(out, user_model_path())  # the user's model: used by default, named on stderr
+    pred = tmp_path / "default.jsonl"
+    done = run_cli("track", str(recording), "--out", str(pred))
+    assert done.returncode == 0 and str(user_model_path()) in done.stderr
+    assert [json.loads(line)["gesture"] for line in pred.read_text().splitlines()] == answers["adapted"]
+
+
+def test_adapt_never_writes_over_an_input_and_a_bad_model_is_one_line(enrolment, tmp_path):
+    labels = sorted(enrolment.glob("*.labels.csv"))[0]
+    before = labels.read_bytes()
+    done = run_cli("adapt", str(enrolment), "--out", str(labels))
+    assert done.returncode == 2 and "never overwrites an input" in done.stderr and labels.read_bytes() == before
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("format: neurotouch-hid model\nversion: 3\n")
+    recording = sorted(enrolment.glob("*.aedat4"))[0]
+    done = run_cli("track", str(recording), "--out", str(tmp_path / "p.jsonl"), "--model", str(bad))
+    assert done.returncode == 2 and "version 3" in done.stderr and "Traceback" not in done.stderr
