@@ -7,8 +7,10 @@ section per stage). The paper's method has its own settings (:class:`~neurotouch
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from neurotouch_hid.limits import short
@@ -131,8 +133,29 @@ class ClassifierConfig(BaseModel):
         return self
 
     def arrays(self) -> Classifier:
-        """The parameters as float64 arrays (:class:`~neurotouch_hid.pipeline.learned.Classifier`)."""
-        return Classifier.of(self.mean, self.scale, self.weights, self.intercept)
+        """The parameters as float64 arrays (:class:`~neurotouch_hid.pipeline.learned.Classifier`;
+        the shipped object itself when they are the shipped ones)."""
+        return _arrays(self)
+
+    @classmethod
+    def shipped(cls) -> "ClassifierConfig":
+        """The shipped parameters (``gesture_model.py``)."""
+        c = Classifier.shipped()
+        return cls(
+            mean=tuple(c.mean.tolist()),
+            scale=tuple(c.scale.tolist()),
+            weights=tuple(tuple(row) for row in c.weights.tolist()),
+            intercept=tuple(c.intercept.tolist()),
+        )
+
+
+@functools.lru_cache(maxsize=16)
+def _arrays(config: ClassifierConfig) -> Classifier:
+    """:meth:`ClassifierConfig.arrays`, made once per distinct parameters (the config is frozen)."""
+    c = Classifier.of(config.mean, config.scale, config.weights, config.intercept)
+    shipped = Classifier.shipped()
+    same = all(np.array_equal(getattr(c, f), getattr(shipped, f)) for f in ("mean", "scale", "weights", "intercept"))
+    return shipped if same else c
 
 
 class GestureConfig(BaseModel):
@@ -148,8 +171,8 @@ class GestureConfig(BaseModel):
             (mm) of the contacts' mean.
         intensity_gain: > 0, the intensity (mm) is multiplied by it: 1 but for a gel adapted by
             ``neurotouch-hid adapt`` (docs/method.md, "Adaptation").
-        classifier: the learned type's parameters (:class:`ClassifierConfig`); None: the
-            shipped ones (``gesture_model.py``), else an adapted model's (docs/method.md, "Adaptation").
+        classifier: the learned type's parameters (:class:`ClassifierConfig`): the shipped ones
+            (``gesture_model.py``) but for an adapted model (docs/method.md, "Adaptation").
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -160,7 +183,7 @@ class GestureConfig(BaseModel):
     intensity_sigma_mm: float = 1.2
     origin_radius_mm: float = 4.0
     intensity_gain: float = 1.0
-    classifier: ClassifierConfig | None = None
+    classifier: ClassifierConfig = Field(default_factory=ClassifierConfig.shipped)
 
     @model_validator(mode="after")
     def _consistent(self) -> "GestureConfig":
@@ -345,7 +368,7 @@ def scaled_to_sensor(config: PipelineConfig, sensor: SensorGeometry) -> PixelSet
         intensity_sigma_px=g.intensity_sigma_mm * s,
         origin_radius_px=g.origin_radius_mm * s,
         intensity_gain=g.intensity_gain,
-        classifier=Classifier.shipped() if g.classifier is None else g.classifier.arrays(),
+        classifier=g.classifier.arrays(),
         centroid_threshold=r.centroid_threshold_mm2 * s * s,
         centroid_reset_threshold=r.centroid_reset_threshold_mm2 * s * s,
         motion_override_px=r.motion_override_mm * s,
