@@ -29,6 +29,7 @@ METHOD_SECTIONS = [
     "Creep",
     "Resting",
     "Camera model",
+    "Adaptation",
     "The paper's method",
 ]
 #: A command that makes a figure: a benchmark script, the CLI, or the CLI under /usr/bin/time.
