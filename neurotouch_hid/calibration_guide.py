@@ -464,10 +464,15 @@ def _direction_name(vector: np.ndarray) -> str:
     return ("right", "up", "left", "down")[int(((angle + 45) % 360) // 90)]
 
 
-def judge(step: Step, attempt: Attempt) -> CheckResult:
+def judge(step: Step, attempt: Attempt, orientation_given: bool = False) -> CheckResult:
     """Whether ``attempt`` (seen by a pipeline with the calibrated geometry, user frame) is the
-    gesture ``step`` asked for, and what to do when it is not."""
-    recalibrate = "calibrate again and push exactly the ways asked"
+    gesture ``step`` asked for, and what to do when it is not; ``orientation_given``: the mirror
+    and rotation came from --mirror/--no-mirror and --rotation, not from guided pushes."""
+    recalibrate = (
+        "the --mirror/--no-mirror and --rotation given do not fit this camera (what to give is said after the check)"
+        if orientation_given
+        else "calibrate again and push exactly the ways asked"
+    )
     if not attempt.seen or attempt.peak_mm < MIN_INTENSITY_MM:
         return CheckResult(step, attempt, False, "too weak or not seen: do it more firmly (3-4 mm)", again=True)
     if step.gesture is GestureType.PUSH:
@@ -495,17 +500,19 @@ def guided_check(
     sensor: SensorGeometry,
     say: Callable[[str], None],
     steps: Sequence[Step] = CHECK_STEPS,
+    orientation_given: bool = False,
 ) -> list[CheckResult]:
-    """Ask for each of ``steps`` and judge what a pipeline with ``sensor`` reads (:func:`judge`),
-    saying each result as it comes; a gesture not done as asked (``CheckResult.again``) is asked
-    once more. Returns the last result of each step, in the order asked."""
+    """Ask for each of ``steps`` and judge what a pipeline with ``sensor`` reads (:func:`judge`,
+    ``orientation_given`` passed on), saying each result as it comes; a gesture not done as asked
+    (``CheckResult.again``) is asked once more. Returns the last result of each step, in the
+    order asked."""
     watcher = Watcher(items, sensor)
     results = []
     for step in steps:
         for attempt_no in range(2):
             say(f"{step.prompt}{'' if source.by_hand else ' (the simulated hand does it)'}")
             source.perform(step)
-            result = judge(step, summarise(watcher.watch()))
+            result = judge(step, summarise(watcher.watch()), orientation_given)
             say(f"  {result.line()}" + ("; again:" if result.again and attempt_no == 0 else ""))
             if not result.again:
                 break
@@ -513,14 +520,17 @@ def guided_check(
     return results
 
 
-def check_advice(results: Sequence[CheckResult], sensor: SensorGeometry) -> str | None:
+def check_advice(results: Sequence[CheckResult], sensor: SensorGeometry, orientation_given: bool = False) -> str | None:
     """What to do when the check's gestures say the mirror or rotation is wrong (one line), or None.
 
     ``sensor`` is the geometry the check ran with. When a push came out wrong and the pushes up
     and right were read as pushes, they give the mirror and rotation themselves (as the guided
     pushes do, :func:`orientation`), and the line names them; when only both twists came out the
-    other way round, the mirror is wrong.
+    other way round, the mirror is wrong. ``orientation_given``: the mirror and rotation were
+    given as options, so the line says which options to give instead (no pushes were asked).
     """
+    given = f"{'--mirror' if sensor.mirror else '--no-mirror'} --rotation {sensor.rotation_deg:g}"
+    again = "give" if not orientation_given else f"give, instead of {given},"
     pushes = {r.step.name: r for r in results if r.step.gesture is GestureType.PUSH}
     calibrating = [pushes.get(step.name) for step in CALIBRATION_PUSHES]
     if any(not r.right for r in pushes.values()) and all(
@@ -534,13 +544,16 @@ def check_advice(results: Sequence[CheckResult], sensor: SensorGeometry) -> str 
             mirror, rotation = orientation(CALIBRATION_PUSHES, seen)
             return (
                 f"the pushes say the image is {'a mirror of' if mirror else 'the same as'} your view, turned "
-                f"{rotation:g} degrees: calibrate again, pushing exactly the ways asked, or give "
-                f"{'--mirror' if mirror else '--no-mirror'} --rotation {rotation:g}"
+                f"{rotation:g} degrees: "
+                + ("" if orientation_given else "calibrate again, pushing exactly the ways asked, or ")
+                + f"{again} {'--mirror' if mirror else '--no-mirror'} --rotation {rotation:g}"
             )
     twists = [r for r in results if r.step.gesture in (GestureType.TWIST_CW, GestureType.TWIST_CCW)]
     if twists and all(
         not r.right and r.attempt.gesture in (GestureType.TWIST_CW, GestureType.TWIST_CCW) for r in twists
     ):
-        flip = "--no-mirror" if sensor.mirror else "--mirror"
+        flip = f"{'--no-mirror' if sensor.mirror else '--mirror'} --rotation {sensor.rotation_deg:g}"
+        if orientation_given:
+            return f"the twists read the other way round: {again} {flip}"
         return f"the twists read the other way round: calibrate again, pushing exactly the ways asked, or give {flip}"
     return None

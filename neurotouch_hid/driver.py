@@ -429,9 +429,11 @@ def estimates_from_source(
     source: str, seconds: float | None = None, model: Model | None = None
 ) -> Iterator[GestureEstimate]:
     """Estimates from ``PRED.jsonl`` (predictions), ``sim`` (the simulated gel through the
-    pipeline, 20 s unless ``seconds``) or an AEDAT4 recording (through the pipeline, with the
-    sensor.yaml beside it), the pipeline with ``model``'s values (None: the shipped method). Only
-    the first ``seconds`` (from the first estimate) when given.
+    pipeline: one cycle of the steady hand's gestures unless ``seconds``,
+    :meth:`~neurotouch_hid.sources.simulator.SimulatedSource.cycle_seconds`) or an AEDAT4
+    recording (through the pipeline, with the sensor.yaml beside it), the pipeline with
+    ``model``'s values (None: the shipped method). Only the first ``seconds`` (from the first
+    estimate) when given.
 
     Raises:
         DatasetError, RecordingError, SensorError: unreadable source.
@@ -444,10 +446,12 @@ def estimates_from_source(
     from neurotouch_hid.enrolment.model import apply_model
     from neurotouch_hid.pipeline.pipeline import GesturePipeline
 
+    if seconds is None and source == SourceKind.SIM:
+        from neurotouch_hid.sources.simulator import SimulatedSource
+
+        seconds = SimulatedSource().cycle_seconds()
     with contextlib.ExitStack() as stack:
-        stream, sensor, _ = open_source(
-            source, stack, seconds=seconds if seconds is not None or source != "sim" else 20.0
-        )
+        stream, sensor, _ = open_source(source, stack, seconds=seconds)
         yield from _first_seconds(GesturePipeline(sensor, apply_model(None, model)).run(stream), seconds)
 
 

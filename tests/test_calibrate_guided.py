@@ -131,8 +131,8 @@ def test_calibrate_source_sim_measures_a_turned_mirrored_camera_and_checks_every
 
 def test_a_wrong_calibration_is_caught_by_the_check_with_the_flags_to_give():
     """The camera mirrored and turned 90 degrees, the calibration told neither: every push and
-    both twists come out wrong, the exit code says so, and the pushes name the right flags. A
-    simulated camera's calibration never replaces the user's own without --out."""
+    both twists come out wrong, the exit code says so, the pushes name the right flags, and
+    nothing is written."""
     done = run_cli("calibrate", "--source", "sim", "--sim-rotation", "90", "--no-mirror", "--rotation", "0")
     assert done.returncode == 1, done.stdout + done.stderr
     lines = [line.strip() for line in done.stdout.splitlines()]
@@ -140,8 +140,9 @@ def test_a_wrong_calibration_is_caught_by_the_check_with_the_flags_to_give():
     assert wrong == {"push up", "push down", "push left", "push right", "twist clockwise", "twist counter-clockwise"}
     assert any("twist clockwise: WRONG: read as a counter-clockwise twist" in line for line in lines)
     advice = [line for line in lines if line.startswith("what to do:")]
-    assert len(advice) == 1 and advice[0].endswith("or give --mirror --rotation 90"), advice
-    assert "nothing written: a simulated camera's calibration does not replace your sensor's" in done.stdout
+    assert len(advice) == 1 and advice[0].endswith("give, instead of --no-mirror --rotation 0, --mirror --rotation 90")
+    assert "push exactly" not in done.stdout  # the orientation was given, not pushed
+    assert "nothing written: the guided check read gestures wrong" in done.stdout
     assert not user_sensor_path().exists()
 
 

@@ -163,3 +163,49 @@ def test_bad_option_values_are_said_in_the_projects_words_with_the_nearest_choic
     assert choice.returncode == 2 and "did you mean 'term'?" in choice.stderr
     for library in ("Value error", "Input should be", "unable to parse"):
         assert library not in number.stderr + choice.stderr
+
+
+# --- profile test: every mapped output, those never reached marked --------------------------------
+def test_profile_test_lists_every_mapped_output_and_marks_those_never_reached(cli, tmp_path):
+    import json
+
+    from neurotouch_hid.estimate import GestureEstimate, GestureType
+
+    path = tmp_path / "up.jsonl"  # rest, a 4 mm push up for 1 s, rest: nothing else
+    rows = []
+    for i in range(300):
+        pushing = 50 <= i < 150
+        e = GestureEstimate(
+            t_us=i * 10_000,
+            gesture=GestureType.PUSH if pushing else GestureType.NONE,
+            resting=not pushing,
+            intensity_mm=4.0 if pushing else 0.0,
+            translation_mm=[0.0, 1.5] if pushing else [0.0, 0.0],
+        )
+        rows.append(json.dumps(e.to_json_dict()))
+    path.write_text("\n".join(rows) + "\n")
+    shown = cli("test", "accessibility", "--source", str(path), "--every-ms", "1000")
+    assert shown.returncode == 0, shown.stderr
+    lines = {line.split()[1]: line for line in shown.stdout.splitlines() if line.startswith("│ ") and "press" in line}
+    assert set(lines) == {"dpad_up", "dpad_down", "dpad_left", "dpad_right", "BTN_SOUTH", "BTN_EAST"}
+    assert "never reached" not in lines["dpad_up"] and "never reached" in lines["dpad_down"]
+    assert "never reached: dpad_down, dpad_left, dpad_right, BTN_SOUTH, BTN_EAST" in shown.stdout
+    as_json = json.loads(cli("test", "accessibility", "--source", str(path), "--json").stdout)
+    assert {o["output"]: o["reached"] for o in as_json["outputs"]}["dpad_left"] is False
+
+
+# --- calibrate: a calibration its own check finds wrong is not written ----------------------------
+def test_a_calibration_the_check_finds_wrong_is_written_only_with_force(tmp_path):
+    from helpers import run_cli
+
+    out = tmp_path / "sensor.yaml"
+    flags = ("calibrate", "--source", "sim", "--sim-rotation", "90", "--mirror", "--rotation", "0", "--out", str(out))
+    refused = run_cli(*flags)
+    assert refused.returncode == 1, refused.stdout + refused.stderr
+    assert not out.exists() and "nothing written" in refused.stdout and "--force" in refused.stdout
+    assert "use it with --sensor" not in refused.stdout
+    # the orientation came from options: the advice names the options, not pushes never asked for
+    assert "give, instead of --mirror --rotation 0, --mirror --rotation 90" in refused.stdout
+    assert "push exactly the ways asked" not in refused.stdout
+    forced = run_cli(*flags, "--force")
+    assert forced.returncode == 1 and out.is_file() and "written with --force" in forced.stdout

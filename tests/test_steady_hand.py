@@ -12,7 +12,7 @@ import pytest
 from neurotouch_hid.driver import estimates_from_source
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.mapping.profile import load_profile
-from neurotouch_hid.mapping.replay import deflection, replay, summarise
+from neurotouch_hid.mapping.replay import deflection, reach, replay, summarise
 from neurotouch_hid.sources.simulator import SimulatedSource
 
 G = GestureType
@@ -30,7 +30,8 @@ def test_every_gesture_of_a_type_is_as_strong(seed):
 
 @pytest.fixture(scope="module")
 def sim_estimates():
-    """What ``profile test --source sim`` replays: 20 s of the simulated gel through the pipeline."""
+    """What ``profile test --source sim`` replays: one cycle of the simulated hand's gestures
+    through the pipeline."""
     return list(estimates_from_source("sim"))
 
 
@@ -45,3 +46,18 @@ def test_accessibility_toggles_both_ways_and_default_turns_both_ways(sim_estimat
     rx = [deflection("ABS_RX", s.axes["ABS_RX"]) for s in replay(load_profile("default"), sim_estimates)]
     left, right = -min(rx), max(rx)
     assert left > 0.3 and right > 0.3 and 0.67 <= left / right <= 1.5, (left, right)
+
+
+def test_one_cycle_pushes_all_four_ways_and_every_mapped_output_is_reached(sim_estimates):
+    states = replay(load_profile("accessibility"), sim_estimates)
+    presses = summarise(states).presses
+    assert all(presses[f"dpad_{d}"] >= 1 for d in ("up", "right", "down", "left")), presses
+    reached = {r.output: r.reached for r in reach(load_profile("accessibility"), states)}
+    assert set(reached) == {"dpad_up", "dpad_down", "dpad_left", "dpad_right", "BTN_SOUTH", "BTN_EAST", "left_stick"}
+    assert all(reached.values()), reached
+
+
+def test_the_steady_hand_pushes_up_right_down_and_left_in_turn():
+    script = SimulatedSource(seed=3)._sim._script
+    pushes = [g.direction for g in itertools.islice(script, 8) if g.gesture is G.PUSH]
+    assert [tuple(round(float(c), 6) for c in d) for d in pushes] == [(0, 1), (1, 0), (0, -1), (-1, 0)]

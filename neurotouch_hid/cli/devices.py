@@ -276,9 +276,13 @@ def calibrate(
         help="with --source sim: whether the simulated camera sees the gel mirrored (from inside, as the real one)",
     ),
     seed: int = typer.Option(0, "--seed", min=0, help="with --source sim: the simulation's seed"),
+    force: bool = typer.Option(
+        False, "--force", help="write the sensor.yaml even when the guided check reads gestures wrong"
+    ),
 ) -> None:
     """Measure the gel's circle and scale on rest frames, and (camera or simulator) which way you
     look at it from two guided pushes, check each gesture, and save sensor.yaml (docs/dataset.md).
+    A calibration the check finds wrong is not written (exit 1) unless --force.
 
     Keep your hands off the gel until asked to push. Nothing is typed: each gesture is watched
     for up to 12 s. With --press, also measure the gel's creep (how slowly it relaxes after a
@@ -320,7 +324,8 @@ def calibrate(
         geometry = result.sensor
         _say_rest_geometry(say, source, result, markers)
         items = guide.stream() if guide is not None else None
-        if guide is None or (mirror is not None and rotation is not None):
+        given = mirror is not None and rotation is not None  # no guided pushes: the options say
+        if guide is None or given:
             if guide is None and (mirror is None or rotation is None):
                 say(
                     "mirror and rotation: not asked (a recording cannot be pushed; calibrate with the camera to "
@@ -341,18 +346,24 @@ def calibrate(
         results = []
         if guide is not None and check:
             say("guided check: each gesture, read with this calibration")
-            results = calibration_guide.guided_check(guide, items, geometry, say)
+            results = calibration_guide.guided_check(guide, items, geometry, say, orientation_given=given)
             wrong = [r for r in results if not r.right]
             say(
                 f"guided check: {len(results) - len(wrong)} of {len(results)} gestures right"
                 + (f"; wrong: {', '.join(r.step.name for r in wrong)}" if wrong else "")
             )
-            advice = calibration_guide.check_advice(results, geometry)
+            advice = calibration_guide.check_advice(results, geometry, orientation_given=given)
             if advice:
                 say(f"what to do: {advice}")
     for note in result.notes:
         say(f"note: {note}")
-    checked_wrong = any(not r.right for r in results)  # exit 1, after writing
+    checked_wrong = any(not r.right for r in results)  # nothing written unless --force; exit 1
+    if checked_wrong and not force:
+        say(
+            "nothing written: the guided check read gestures wrong with this calibration "
+            "(do what is said above, or --force to write it anyway)"
+        )
+        sys.exit(1)
 
     if source == SourceKind.SIM and out is None:
         say(
@@ -397,7 +408,8 @@ def calibrate(
             "run, track, view and eval use it when no --sensor is given and no sensor.yaml is beside the recording "
             "or in the dataset"
         )
-    else:
+    elif not checked_wrong:
         say(f"use it with --sensor {path}, or calibrate without --out to make it your default")
     if checked_wrong:
+        say("written with --force although the guided check read gestures wrong: gestures may come out turned")
         sys.exit(1)

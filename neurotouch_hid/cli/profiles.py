@@ -294,13 +294,20 @@ def profile_test(
     source: str = typer.Option("sim", "--source", help="sim, an AEDAT4 recording, or predictions PRED.jsonl"),
     plot: Optional[Path] = typer.Option(None, "--plot", help="also draw the timeline to this PNG"),
     seconds: Optional[float] = typer.Option(
-        None, "--seconds", help="only the first N seconds (sim: 20 s by default)", callback=duration
+        None,
+        "--seconds",
+        help="only the first N seconds (sim: one cycle of the simulated hand's gestures, ~25 s, by default)",
+        callback=duration,
     ),
     every_ms: int = typer.Option(100, "--every-ms", help="timeline sampling period (ms)"),
     json_out: bool = typer.Option(False, "--json", help="print the summary as JSON instead of tables"),
     model: Optional[str] = MODEL_OPTION,
 ) -> None:
-    """Replay a source through the pipeline and the profile; print the axis and button timeline."""
+    """Replay a source through the pipeline and the profile; print the axis and button timeline,
+    then every output the profile maps, those never reached marked.
+
+    The simulated hand (--source sim) pushes up, right, down and left and twists both ways within
+    one cycle, so that each mapping is tried both ways."""
     import json
 
     from rich.table import Table
@@ -312,6 +319,7 @@ def profile_test(
         deflection,
         plot_timeline,
         pressed,
+        reach,
         replay,
         sample_timeline,
         summarise,
@@ -325,12 +333,22 @@ def profile_test(
     estimates = list(estimates_from_source(source, seconds, chosen_model(model)))
     states = replay(loaded, estimates)
     summary = summarise(states)
+    reached = reach(loaded, states)
     if plot is not None:
         plot_timeline(estimates, states, plot)
     if json_out:
+        outputs = [
+            {"output": r.output, "mappings": list(r.mappings), "reached": r.reached, "detail": r.detail}
+            for r in reached
+        ]
         typer.echo(
             json.dumps(
-                {"estimates": len(estimates), "max_deflection": summary.max_deflection, "presses": summary.presses}
+                {
+                    "estimates": len(estimates),
+                    "max_deflection": summary.max_deflection,
+                    "presses": summary.presses,
+                    "outputs": outputs,
+                }
             )
         )
         return
@@ -347,13 +365,17 @@ def profile_test(
             down,
         )
     console.print(table)
-    totals = Table("axis / button", "max deflection / presses", title="summary")
-    for axis in AXES:
-        totals.add_row(axis, f"{summary.max_deflection[axis]:.0%}")
-    for button, count in summary.presses.items():
-        if count:
-            totals.add_row(button, str(count))
+    totals = Table("output", "mapping", "reached", title=f"summary: every output {name} maps")
+    for r in reached:
+        totals.add_row(r.output, ", ".join(r.mappings), r.detail if r.reached else f"never reached ({r.detail})")
     console.print(totals)
+    missed = [r.output for r in reached if not r.reached]
+    if missed:
+        console.print(
+            f"never reached: {', '.join(missed)} (a longer --seconds, or a recording with those gestures, tries them)",
+            highlight=False,
+            soft_wrap=True,
+        )
     if plot is not None:
         console.print(f"plot: {plot}", highlight=False)
 

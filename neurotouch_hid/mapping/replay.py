@@ -15,7 +15,15 @@ from neurotouch_hid.controller import AXES, ControllerState
 from neurotouch_hid.estimate import GestureEstimate
 from neurotouch_hid.extras import require
 from neurotouch_hid.mapping.mapper import Mapper, gesture_inputs
-from neurotouch_hid.mapping.profile import DIGITAL_OUTPUTS, DPAD, ButtonMapping, Profile
+from neurotouch_hid.mapping.profile import (
+    DIGITAL_OUTPUTS,
+    DPAD,
+    STICKS,
+    ButtonMapping,
+    PointerMapping,
+    Profile,
+    RelMapping,
+)
 
 
 def replay(profile: Profile, estimates: Iterable[GestureEstimate]) -> list[ControllerState]:
@@ -87,6 +95,65 @@ def summarise(states: list[ControllerState]) -> Summary:
             presses[name] = presses.get(name, 0) + 1
         previous = now
     return Summary(max_deflection, presses)
+
+
+@dataclass(frozen=True)
+class OutputReach:
+    """What one output the profile maps did over a replay: ``detail`` says how far an axis went
+    each way (% of full deflection), how many presses a button had or how far a pointer or wheel
+    moved (counts); ``reached`` is False when it never left neutral."""
+
+    output: str
+    mappings: tuple[str, ...]
+    reached: bool
+    detail: str
+
+
+def _is_down(state: ControllerState, name: str) -> bool:
+    if name in DPAD:
+        return state.axes[DPAD[name][0]] == DPAD[name][1]
+    return state.buttons.get(name, False) or name in state.keys
+
+
+def _span(states: list[ControllerState], axis: str) -> tuple[float, float]:
+    values = [deflection(axis, s.axes[axis]) for s in states] or [0.0]
+    return min(min(values), 0.0), max(max(values), 0.0)
+
+
+def _span_text(low: float, high: float) -> str:
+    return f"{high:.0%}" if low == 0 else f"{low:+.0%} .. {high:+.0%}"
+
+
+def reach(profile: Profile, states: list[ControllerState]) -> list[OutputReach]:
+    """Every output ``profile`` maps, in the order of its mappings (several mappings of one output
+    listed together), with what it did over ``states`` (:class:`OutputReach`)."""
+    outputs: dict[str, list[str]] = {}
+    kinds: dict[str, object] = {}
+    for name, m in profile.mappings.items():
+        outputs.setdefault(m.output, []).append(name)
+        kinds.setdefault(m.output, m)
+    result = []
+    for output, names in outputs.items():
+        m = kinds[output]
+        if isinstance(m, ButtonMapping):
+            parts = m.presses
+            count, before = 0, False
+            for state in states:
+                now = all(_is_down(state, p) for p in parts)
+                count += now and not before
+                before = now
+            reached, detail = count > 0, f"{count} press{'es' * (count != 1)}"
+        elif isinstance(m, (PointerMapping, RelMapping)):
+            axes = ("REL_X", "REL_Y") if isinstance(m, PointerMapping) else (m.output,)
+            moved = {a: sum(abs(s.rel.get(a, 0)) for s in states) for a in axes}
+            reached, detail = any(moved.values()), ", ".join(f"{a} {v} counts" for a, v in moved.items())
+        else:
+            axes = STICKS.get(output, (output,))
+            spans = {a: _span(states, a) for a in axes}
+            reached = any(low < 0 or high > 0 for low, high in spans.values())
+            detail = ", ".join(f"{a} {_span_text(*span)}" for a, span in spans.items())
+        result.append(OutputReach(output, tuple(names), reached, detail))
+    return result
 
 
 def plot_timeline(estimates: list[GestureEstimate], states: list[ControllerState], path: str | os.PathLike) -> None:

@@ -52,6 +52,7 @@ at that instant.
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -86,6 +87,22 @@ SIM_GESTURES: tuple[GestureType, ...] = (
     GestureType.TWIST_CW,
     GestureType.TWIST_CCW,
 )
+#: The live steady hand's cycle (:class:`SimulatedSource`): four pushes, up, right, down and left
+#: in turn (:data:`PUSH_TURNS`), between the other types, so that one cycle tries a stick, a
+#: d-pad or a key of each direction and each twist.
+STEADY_GESTURES: tuple[GestureType, ...] = (
+    GestureType.PUSH,
+    GestureType.TWIST_CW,
+    GestureType.PUSH,
+    GestureType.TWIST_CCW,
+    GestureType.PUSH,
+    GestureType.PINCH,
+    GestureType.PUSH,
+    GestureType.ZOOM,
+)
+#: The steady hand's push directions, one push after the other: up, right, down, left (user
+#: frame, rad counter-clockwise from x right).
+PUSH_TURNS: tuple[float, ...] = (math.pi / 2, 0.0, -math.pi / 2, math.pi)
 #: Marker grid spacing on the gel surface (mm: the sensor's) and the marker diameter (mm).
 MARKER_PITCH_MM = MARKER_SPACING_MM
 MARKER_DIAMETER_MM = 1.0
@@ -567,16 +584,18 @@ def draw_gesture(
 
     ``steady``: every gesture of a type as strong as the next, firmly (one :data:`STRENGTH_SIGMA`
     above the user's median for the type, within the narrowest finger spread's cap for pinch and
-    zoom), so that the two twists and the push directions weigh the same and a profile's
-    saturations are reached (the live simulated hand, :class:`SimulatedSource`); the same draws
+    zoom; pushes with one finger), so that the two twists and the push directions weigh the same
+    and a profile's saturations are reached (the live simulated hand, :class:`SimulatedSource`); the same draws
     are made, so nothing else changes.
 
     ``direction_rad``: a push's direction (user frame, counter-clockwise from x, rad) instead of a
-    drawn one (a prompted push, :func:`prompted_gesture`); the draw is still made.
+    drawn one (a prompted push, :func:`prompted_gesture`; the steady hand's turns,
+    :data:`PUSH_TURNS`); the draw is still made.
     """
     prng = physics_rng if physics_rng is not None else np.random.default_rng(0)
     if gesture is GestureType.PUSH:
         n_fingers = int(rng.choice([1, 2, 3], p=[0.75, 0.18, 0.07]))
+        n_fingers = 1 if steady else n_fingers  # wider hands reach the rim sooner: a weaker push
     else:
         n_fingers = int(rng.choice([2, 3], p=[0.65, 0.35]))
     finger = user.finger_mm * rng.uniform(0.9, 1.1)
@@ -687,19 +706,23 @@ def gesture_script(
 ) -> Iterator[SimGesture]:
     """An endless succession of gestures of ``user`` drawn for the family ``physics`` (the first
     starts ``first_rest_us`` after ``start_us``): cycling through ``gestures``
-    (:func:`draw_gesture`, ``steady`` or not), each after the previous one has settled and a rest
+    (:func:`draw_gesture`, ``steady`` or not: a steady hand pushes in the :data:`PUSH_TURNS` in
+    turn), each after the previous one has settled and a rest
     (:func:`draw_rest_us`); or, with ``session``, a game session: the type changes from one
     gesture to the next, taps, ordinary gestures and long holds (:func:`session_gesture`), rests
     of a fraction of a second (:data:`SESSION_REST_US`, from the release's end: the gel may
     still creep back when the next gesture begins)."""
     order = list(gestures)
     t = start_us + first_rest_us
-    k, previous = 0, None
+    k, previous, pushes = 0, None, 0
     while True:
         if session:
             g = session_gesture(rng, user, order, previous, t, sensor, physics, physics_rng)
         else:
-            g = draw_gesture(rng, user, order[k % len(order)], t, sensor, physics, physics_rng, steady)
+            kind = order[k % len(order)]
+            turn = PUSH_TURNS[pushes % len(PUSH_TURNS)] if steady and kind is GestureType.PUSH else None
+            pushes += kind is GestureType.PUSH
+            g = draw_gesture(rng, user, kind, t, sensor, physics, physics_rng, steady, direction_rad=turn)
         yield g
         previous, k = g.gesture, k + 1
         t = g.t_end_us + int(rng.uniform(*SESSION_REST_US)) if session else g.t_settled_us + draw_rest_us(rng, user)
@@ -1077,9 +1100,10 @@ class GelSimulator:
 class SimulatedSource:
     """A live stream from the simulated gel, for the runtime and the demo.
 
-    Cycles through every gesture type (or ``gestures``) with rests in between, performed by user
-    ``seed % 10`` with a steady hand: every gesture of a type equally strong (the two twists, the
-    push directions), so that a profile's mappings can be tried both ways. Same item kinds and
+    Cycles through :data:`STEADY_GESTURES` (or ``gestures``) with rests in between, performed by
+    user ``seed % 10`` with a steady hand: every gesture of a type equally strong (the two twists,
+    the push directions), the pushes up, right, down and left in turn, so that a profile's
+    mappings are tried both ways within one cycle (:meth:`cycle_seconds`). Same item kinds and
     order as ``RecordingReader.stream``: an APS :class:`Frame` every 40 ms, yielded before the
     events with timestamp >= its t_us, and event batches (EVENT_DTYPE, time-ordered) cut at the
     frame timestamps and every ``batch_us``.
@@ -1091,13 +1115,28 @@ class SimulatedSource:
 
     def __init__(self, sensor: SensorGeometry | None = None, seed: int = 0, gestures: Sequence | None = None) -> None:
         self.sensor = sensor or SensorGeometry()
-        order = [GestureType(g) for g in gestures] if gestures else list(SIM_GESTURES)
+        order = [GestureType(g) for g in gestures] if gestures else list(STEADY_GESTURES)
         if any(g is GestureType.NONE for g in order) or not order:
             raise NeurotouchError("the simulated gel needs gesture types among push, pinch, zoom, twist_cw, twist_ccw")
         self.seed = seed
-        self._sim = GelSimulator(
-            self.sensor, USERS[seed % len(USERS)], order, seed=seed, stream_seed=(0xC0FFEE,), hand="steady"
+        self._order = order
+        self._sim = self._simulator()
+
+    def _simulator(self) -> GelSimulator:
+        return GelSimulator(
+            self.sensor,
+            USERS[self.seed % len(USERS)],
+            self._order,
+            seed=self.seed,
+            stream_seed=(0xC0FFEE,),
+            hand="steady",
         )
+
+    def cycle_seconds(self) -> float:
+        """Simulated time (s) from the stream's start until every gesture of the first cycle has
+        been performed and the gel has settled after the last one (the same script, drawn again)."""
+        first_cycle = list(itertools.islice(self._simulator()._script, len(self._order)))
+        return (first_cycle[-1].t_settled_us - START_US) / 1e6
 
     @property
     def rest_px(self) -> np.ndarray:
