@@ -72,6 +72,12 @@ DEFAULT_QUEUE_ITEMS = 100_000
 #: At most this many events in one pipeline call when the pipeline catches up on queued batches
 #: (:meth:`DropOldestQueue.get_joined`): about 0.1 s at the camera's 12 M events/s USB maximum.
 MAX_JOINED_EVENTS = 1_000_000
+#: While the gel rests, a paced source hands its items on once per window instead of once per
+#: batch: at each window's end plus this much (the batch that closes the window), with everything
+#: due by then, its event batches joined into one. Each window closes when it would have; the
+#: first events of a touch wait at most one window; the pipeline's thread runs once per window
+#: instead of once per batch (docs/performance.md, "At rest").
+REST_WAKE_AFTER_END_US = DEFAULT_BATCH_US
 #: Frame queue bound for the resting detector (APS frames, 25 Hz).
 DEFAULT_FRAME_QUEUE = 2
 #: The interpreter's thread switch interval (s) during real-time runs, instead of Python's 5 ms:
@@ -313,6 +319,10 @@ class Runtime:
         self._suspend = threading.Event()  # SIGTSTP arrived: the main thread suspends the run
         self._suspended = False  # stopped by SIGTSTP: write nothing (under self._lock)
         self._restart = threading.Event()  # it is back: restart the pipeline before its data
+        #: (the last window's end, the window's length) (us) while the gel rests, else None:
+        #: set by the worker, read by the source thread (:meth:`_hand_on_us`)
+        self._rest_windows: tuple[int, int] | None = None
+        self._last_end_us: int | None = None
 
     @property
     def profile_name(self) -> str:
@@ -516,6 +526,8 @@ class Runtime:
     def _read_source(self) -> None:
         """Source thread: read, pace, stamp the arrival time, enqueue."""
         iterator = iter(self._source)
+        held: list[np.ndarray] = []  # event batches of a resting gel, joined, handed on at held_us
+        held_us = 0
         try:
             for item in iterator:
                 if self._stop.is_set():
@@ -528,12 +540,23 @@ class Runtime:
                     self._clock.due_ns(t_us)  # the first item anchors the clock
                     if self._limit_us is not None and t_us - self._clock.first_us >= self._limit_us:
                         break
-                    if self._pace and self._clock.wait(t_us, self._stop):
-                        break
+                    if self._pace:
+                        due_us = self._hand_on_us(t_us)
+                        joins = isinstance(item, np.ndarray) and (due_us > t_us or (held and due_us == held_us))
+                        if held and not (joins and due_us == held_us) and self._hand_on_held(held, held_us):
+                            break
+                        if joins:
+                            held.append(item)
+                            held_us = due_us
+                            continue
+                        if self._clock.wait(due_us, self._stop):
+                            break
                 entry = (time.perf_counter_ns(), item)
                 if isinstance(item, Frame) and self._resting is not None:
                     self._frames.put(entry)
                 self._items.put(entry)
+            if held and not self._stop.is_set():
+                self._hand_on_held(held, held_us)
         except BaseException as exc:  # a truncated recording, a lost camera: what was read is
             self._errors.append(exc)  # still processed, then run() neutralises and re-raises
         finally:
@@ -543,6 +566,27 @@ class Runtime:
                     close()
             self._items.close()
             self._frames.close()
+
+    def _hand_on_us(self, t_us: int) -> int:
+        """Source thread: when (camera time, us) the item ending at ``t_us`` is handed on: then,
+        or while the gel rests, at the first window end + :data:`REST_WAKE_AFTER_END_US` not before it."""
+        rest = self._rest_windows
+        if rest is None:
+            return t_us
+        end, window_us = rest
+        wake = end + REST_WAKE_AFTER_END_US
+        return t_us if t_us <= wake else wake + -(-(t_us - wake) // window_us) * window_us
+
+    def _hand_on_held(self, held: list[np.ndarray], at_us: int) -> bool:
+        """Source thread: at ``at_us`` (camera time), the ``held`` event batches as one (in order;
+        the pipeline's windows close inside a batch as between batches), ``held`` emptied.
+        Returns whether the run was stopped meanwhile (nothing is handed on then)."""
+        if self._clock.wait(at_us, self._stop):
+            return True
+        batch = held[0] if len(held) == 1 else np.concatenate(held)
+        held.clear()
+        self._items.put((time.perf_counter_ns(), batch))
+        return False
 
     def _source_status(self, status: SourceStatus) -> None:
         """Source thread: the live camera was lost (neutralise now, drop the stale queue) or is
@@ -605,6 +649,9 @@ class Runtime:
                 for estimate in estimates:
                     self._emit(estimate)
                     stats.windows += 1
+                    previous, self._last_end_us = self._last_end_us, estimate.t_us
+                    resting = estimate.resting and previous is not None and estimate.t_us > previous
+                    self._rest_windows = (estimate.t_us, estimate.t_us - previous) if resting else None
                 if estimates:
                     done_ns = time.perf_counter_ns()
                     stats.latency.add(done_ns - arrival_ns)

@@ -9,7 +9,7 @@ import threading
 
 import numpy as np
 import pytest
-from helpers import read_states, run_cli
+from helpers import read_states, run_cli, wait_until
 from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, batch, endless, once, writes_of
 
 from neurotouch_hid.controller import ControllerState
@@ -201,6 +201,68 @@ def test_pacing_follows_the_timestamps():
     assert clock.now_ns == 200_000_000
     # the clock's sleeps take no wall time, so the worker may take the batches joined: all five
     assert sum(pipeline.sizes) == 5 and pipeline.seen[-1] == 200_000
+
+
+class WindowedPipeline:
+    """10 ms windows from the first event, as the real pipeline closes them (an estimate for each
+    window end an event crossed); the gel rests until ``touch_us``, then pushes."""
+
+    def __init__(self, touch_us: int):
+        self.touch_us = touch_us
+        self.seen: list[int] = []  # each event's timestamp, in the order processed
+        self.next_end: int | None = None
+
+    def process(self, item):
+        if isinstance(item, Frame):
+            return []
+        out = []
+        for t in item["timestamp"].tolist():
+            self.next_end = t + 10_000 if self.next_end is None else self.next_end
+            while t >= self.next_end:
+                touched = self.next_end > self.touch_us
+                out.append(
+                    GestureEstimate(t_us=self.next_end)
+                    if not touched
+                    else GestureEstimate(t_us=self.next_end, gesture=GestureType.PUSH, resting=False, intensity_mm=3.0)
+                )
+                self.next_end += 10_000
+            self.seen.append(t)
+        return out
+
+    def set_resting(self, result, t_us):
+        pass
+
+
+def test_a_resting_gel_wakes_the_paced_source_once_per_window_and_a_touch_at_once():
+    clock = ManualClock()
+    pacer = Pacer(clock=lambda: clock.now_ns, sleep=clock.sleep)
+    pipeline = WindowedPipeline(touch_us=60_000)
+    times = [k * 1000 + 500 for k in range(100)]  # one event per 1 ms batch; windows end at 10 500 + 10 000 j
+
+    puts = []
+
+    def source():
+        for t in times:  # each batch once what was handed on is processed: no race on the clock
+            assert wait_until(lambda: len(pipeline.seen) >= sum(len(e[1]) for e in puts))
+            yield batch(t, n=1)
+
+    rt = Runtime(source(), pipeline, {"sign": 1}, RecordingOutput(), mapper_factory=FakeMapper, pace=True, pacer=pacer)
+    put = rt._items.put
+    rt._items.put = lambda entry: (puts.append(entry), put(entry))[1]
+    rt.run()
+    assert pipeline.seen == times  # everything, in order
+    woke = (np.cumsum(clock.slept) * 1e6 + times[0]).round().astype(int).tolist()  # camera time of each wake
+    resting = [w for w in woke if w < 60_000]
+    moving = [w for w in woke if w > 72_000]
+    # at rest (from the second resting window on): once per window, a batch after its end
+    assert resting[-4:] == [21_500, 31_500, 41_500, 51_500]
+    assert len(resting) < 30  # not one per 1 ms batch
+    # the window the touch began in closed when it would have; after it, every batch on its own
+    assert 61_500 in woke and 71_500 in woke
+    assert moving == times[times.index(72_500) :]
+    # at rest the batches of a window went on as one: the pipeline ran once per window
+    sizes = [len(e[1]) for e in puts]
+    assert sizes == [1] * 22 + [10] * 4 + [1] * 38
 
 
 def test_without_pacing_nothing_waits():
