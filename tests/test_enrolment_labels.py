@@ -3,7 +3,7 @@ neurotouch_hid/enrolment/label.py) against the simulator's own labels.
 
 The simulated hand (neurotouch_hid/enrolment/hand.py) starts late, holds longer or shorter; the
 gel is the ``markers`` family with seed 8, neither of which the labeller was designed on (the
-``default`` family, seeds 1 and 3)."""
+``default`` family, seed 1)."""
 
 from __future__ import annotations
 

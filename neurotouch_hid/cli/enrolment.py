@@ -115,9 +115,13 @@ def _session(plan, source, out, sensor, seed, serial, physics, sim_miss, sim_mis
         result = run_session(plan, guide, folder, geometry, view.show, pace=source == "sim" and not fast, stop=stop)
     if result.stopped:
         console.print("stopped: what was recorded is labelled", highlight=False, soft_wrap=True)
-    for prompt in result.asked_again:
-        console.print(f"asked again: {prompt.name} (not seen at {prompt.cue_s:g} s)", highlight=False, soft_wrap=True)
-    say_labelled(result.labelled)
+    say_labelled(result.labelled, dict(result.asked_again))
+
+
+def _at(found) -> str:
+    from neurotouch_hid.enrolment.prompt_view import clock
+
+    return f"{found.prompt.name} at {clock(found.prompt.cue_s)}"
 
 
 def _label(recording: Path, plan_path: Optional[Path], plan, out: Optional[Path], sensor: Optional[Path]) -> None:
@@ -139,8 +143,10 @@ def _label(recording: Path, plan_path: Optional[Path], plan, out: Optional[Path]
     say_labelled(done)
 
 
-def say_labelled(done) -> None:
-    """Print where a labelled enrolment went and each prompt left out (``enrolment.label.Labelled``)."""
+def say_labelled(done, again: dict[int, int] | None = None) -> None:
+    """Print where a labelled enrolment went (``enrolment.label.Labelled``) and each prompt left
+    out; ``again`` (a session's: prompt index -> the index of the prompt that asked it again) says
+    how each prompt not seen fared when asked again."""
     seen = len(done.found) - len(done.missed)
     console.print(
         f"labelled {seen} of {len(done.found)} prompts -> {done.folder} ({done.name}.aedat4, "
@@ -148,6 +154,20 @@ def say_labelled(done) -> None:
         highlight=False,
         soft_wrap=True,
     )
+    if again is not None:
+        retries = set(again.values())
+        for i, f in enumerate(done.found):
+            if f.seen or i in retries:
+                continue
+            line = f"prompt {i + 1} ({_at(f)}): not seen"
+            if i not in again:
+                line += ", no time left to ask again: left out"
+            else:
+                j = again[i]
+                fared = "seen" if done.found[j].seen else "not seen either: left out"
+                line += f"; asked again as prompt {j + 1} ({_at(done.found[j])}): {fared}"
+            console.print(line, highlight=False, soft_wrap=True)
+        return
     for f in done.missed:
         n = done.found.index(f) + 1
         console.print(

@@ -122,8 +122,10 @@ def simulate_enrolment(
     user: int | None = None,
     physics: str = "default",
     miss_rate: float = MISS_RATE,
+    tail_s: float = 0.0,
 ) -> list[Performed]:
-    """The simulated hand performs ``plan`` (cues from the first frame, :data:`START_US`); writes
+    """The simulated hand performs ``plan`` (cues from the first frame, :data:`START_US`), and the
+    gel is recorded until the plan's end and ``tail_s`` more (s), then on until it rests; writes
     ``NAME.aedat4``, the simulator's own labels ``NAME.labels.csv`` and ``NAME.markers.npz``
     (:func:`~neurotouch_hid.sources.simulator.write_sequence`) and ``sensor.yaml`` into
     ``out_dir`` (created). Returns what was done for each prompt, in the plan's order.
@@ -136,5 +138,5 @@ def simulate_enrolment(
     hand = SimulatedHand(seed, user=user, physics=physics, miss_rate=miss_rate)
     hand.sensor.save(out / "sensor.yaml")
     performed = [hand.perform(p, START_US + int(round(p.cue_s * 1e6))) for p in plan.prompts]
-    write_sequence(out, name, hand.simulator, plan.end_s)
+    write_sequence(out, name, hand.simulator, plan.end_s + tail_s)
     return performed

@@ -92,6 +92,8 @@ class CameraSource:
 
     Args:
         config: the camera's settings (:class:`~neurotouch_hid.sources.davis.DavisConfig`).
+        backend: the capture backend of :class:`~neurotouch_hid.sources.davis.DavisSource` (None:
+            dv-processing's cameras); options: its other keywords (e.g. its clock).
     Raises:
         DeviceError: no camera (on entering).
     """
@@ -99,15 +101,17 @@ class CameraSource:
     by_hand = True
     camera_name = "DAVIS346"
 
-    def __init__(self, config: object = None) -> None:
+    def __init__(self, config: object = None, backend: object = None, **options: object) -> None:
         self._config = config
+        self._backend = backend
+        self._options = options
         self._stack = contextlib.ExitStack()
         self._items: Iterator[StreamItem] | None = None
 
     def __enter__(self) -> "CameraSource":
         from neurotouch_hid.sources.davis import DavisSource
 
-        camera = self._stack.enter_context(DavisSource(self._config))
+        camera = self._stack.enter_context(DavisSource(self._config, backend=self._backend, **self._options))
         self._items = self._stack.enter_context(contextlib.closing(camera.stream()))
         return self
 
@@ -127,12 +131,13 @@ class SessionResult:
 
     Attributes:
         labelled: the dataset written (its folder, sequence name, each prompt asked and what was found).
-        asked_again: the prompts not seen when first asked, asked again.
+        asked_again: (index, index) pairs (0-based, into ``labelled.found``, the prompts in the
+            order asked): a prompt not seen when first asked, and the prompt that asked it again.
         stopped: True when the session was stopped before its end (what was recorded is labelled).
     """
 
     labelled: Labelled
-    asked_again: list[Prompt]
+    asked_again: list[tuple[int, int]]
     stopped: bool
 
     @property
@@ -149,7 +154,7 @@ class _Session:
         self.source = source
         self.meter = MotionMeter(sensor)
         self.notes: list[str] = []
-        self.asked_again: list[Prompt] = []
+        self.asked_again: list[tuple[int, int]] = []
         self.again_of: set[int] = set()  # indices of prompts that are themselves asked again
         self.cued = 0
         self.judged = 0
@@ -184,7 +189,7 @@ class _Session:
             return
         self.prompts.append(dataclasses.replace(p, cue_s=cue))
         self.again_of.add(len(self.prompts) - 1)
-        self.asked_again.append(p)
+        self.asked_again.append((i, len(self.prompts) - 1))
         self.notes.append(f"{what}: asked again at {clock(cue)}")
 
     def done(self, t_us: int) -> bool:
