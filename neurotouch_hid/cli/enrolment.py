@@ -150,7 +150,8 @@ def say_labelled(done, again: dict[int, int] | None = None) -> None:
     seen = len(done.found) - len(done.missed)
     console.print(
         f"labelled {seen} of {len(done.found)} prompts -> {done.folder} ({done.name}.aedat4, "
-        f"{done.name}.labels.csv, sensor.yaml); `neurotouch-hid eval {done.folder}` scores the pipeline on it",
+        f"{done.name}.labels.csv, sensor.yaml); `neurotouch-hid adapt {done.folder}` fits the recogniser to it, "
+        f"`neurotouch-hid eval {done.folder}` scores it",
         highlight=False,
         soft_wrap=True,
     )
