@@ -20,6 +20,7 @@ from rich.console import Group
 from rich.panel import Panel
 from rich.text import Text
 
+from neurotouch_hid.enrolment.label import REST_MM
 from neurotouch_hid.enrolment.plan import MAX_SESSION_S, Prompt
 from neurotouch_hid.estimate import GestureType
 
@@ -101,7 +102,7 @@ def seen_line(seen: Seen | None) -> Text:
     """What the gel does, as the pipeline sees it."""
     if seen is None:
         return Text("gel: waiting for the camera", style="dim")
-    if seen.moved_mm < 0.15:
+    if seen.moved_mm <= REST_MM:
         return Text("gel: at rest", style="dim")
     read = f", read as {seen.gesture.value} {seen.intensity_mm:.1f} mm" if seen.gesture is not GestureType.NONE else ""
     return Text(f"gel: moving {seen.moved_mm:.1f} mm{read}", style="cyan")
