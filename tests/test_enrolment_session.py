@@ -155,3 +155,29 @@ def test_a_person_at_the_camera_follows_the_prompts_and_is_labelled(tmp_path):
     assert not result.asked_again and not result.not_seen and not result.stopped
     assert shown and all(n == 3 and not notes for n, _, notes in shown)
     assert _runs(read_labels(tmp_path / "out" / "enrolment.labels.csv")) == [p.gesture for p in PLAN.prompts]
+
+
+def test_a_session_stopped_early_keeps_its_recording_and_labels_what_was_asked(tmp_path):
+    """Ctrl-C (the stop event) during the second prompt: the recording is complete, the prompts
+    cued so far are labelled, nothing is left half-written."""
+    import threading
+
+    from neurotouch_hid.enrolment.session import SimulatedHandSource, run_session
+    from neurotouch_hid.sources.recording import read_info
+
+    source = SimulatedHandSource(3, miss_rate=0.0)
+    stop = threading.Event()
+
+    def show(prompts, t_s, seen, notes):
+        if t_s >= PLAN.prompts[1].cue_s + 1.0:
+            stop.set()
+
+    result = run_session(PLAN, source, tmp_path, source.sensor, show, stop=stop)
+    assert result.stopped
+    assert [f.prompt for f in result.labelled.found] == list(PLAN.prompts[:2])
+    assert read_info(tmp_path / "enrolment.aedat4").n_frames > 0
+    assert read_plan(tmp_path / "enrolment.plan.json") == Plan(PLAN.prompts[:2])
+    assert _runs(read_labels(tmp_path / "enrolment.labels.csv"))[:1] == [GestureType.PUSH]
+    assert sorted(os.listdir(tmp_path)) == [
+        "enrolment.aedat4", "enrolment.labels.csv", "enrolment.plan.json", "sensor.yaml",
+    ]  # fmt: skip
