@@ -1,0 +1,70 @@
+"""A resting gel costs nothing but noticing the next touch: while the pipeline's verdict is
+"resting", no window runs the contact search or the gesture fit, and a touch is noticed and
+reported within one window of a pipeline that never skips them."""
+
+from __future__ import annotations
+
+import pytest
+
+from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.pipeline.pipeline import GesturePipeline
+from neurotouch_hid.sources.simulator import SimulatedSource
+
+
+@pytest.fixture(scope="module")
+def rest_push_rest():
+    """4 s of the simulated gel, seed 0: rest, a push, its release, rest (items, 1 ms batches)."""
+    sim = SimulatedSource(seed=0, gestures=["push"])
+    return sim.sensor, list(sim.stream(4.0, batch_us=1000))
+
+
+def replay(sensor, items, *, skip_at_rest: bool):
+    """Every window's estimate and the window ends at which the contact search ran."""
+    pipeline = GesturePipeline(sensor)
+    searched: list[int] = []
+    search = pipeline._contacts_and_gesture
+    closing: list[int] = []
+
+    def counted(*args):
+        searched.append(closing[-1])
+        return search(*args)
+
+    pipeline._contacts_and_gesture = counted
+    pipeline.on_window = lambda e: None
+    estimate = pipeline._estimate
+
+    def estimate_at(t_us):
+        closing.append(t_us)
+        return estimate(t_us)
+
+    pipeline._estimate = estimate_at
+    if not skip_at_rest:  # the event path always overrules the verdict: every window is searched
+        pipeline._moving = lambda current, valid: True
+    estimates = [e for item in items for e in pipeline.process(item)]
+    return estimates, searched
+
+
+def test_no_contact_search_while_resting_and_the_touch_is_seen_within_one_window(rest_push_rest):
+    sensor, items = rest_push_rest
+    estimates, searched = replay(sensor, items, skip_at_rest=True)
+    resting = {e.t_us for e in estimates if e.resting}
+    assert len(resting) > 100  # the gel rests before and after the push
+    assert not resting & set(searched)  # no window at rest ran the contact search
+    pushed = [e.t_us for e in estimates if e.gesture is GestureType.PUSH]
+    assert pushed, "the push is reported"
+
+    full, _ = replay(sensor, items, skip_at_rest=False)
+    window = GesturePipeline(sensor).config.window_us
+    # the pipeline that searches every window sees the push first at `seen`; the one that skips
+    # the resting windows notices it (a window not at rest) within one window of that, and
+    # holds the push from at most one window after the other does
+    seen = next(e.t_us for e in full if e.intensity_mm > 0)
+    noticed = next(e.t_us for e in estimates if not e.resting and e.t_us >= seen - window)
+    assert noticed <= seen + window
+    assert held_push(estimates) <= held_push(full) + window
+
+
+def held_push(estimates) -> int:
+    """The first window of the first five in a row that report the push (us)."""
+    kinds = [e.gesture for e in estimates]
+    return next(e.t_us for k, e in enumerate(estimates) if kinds[k : k + 5] == [GestureType.PUSH] * 5)
