@@ -132,7 +132,7 @@ def run(stream, sensor: SensorGeometry, window_us: int, *, pace: bool, output=No
     pipeline, resting = build_pipeline(sensor, window_us, resting_beside=pace)
     with StateJsonlWriter(os.devnull) as null:
         out = output if output is not None else null
-        return Runtime(stream, pipeline, profile, out, resting=resting, pace=pace).run()
+        return Runtime(stream, pipeline, profile, [out], resting=resting, pace=pace).run()
 
 
 def show(name: str, stats: RunStats) -> None:

@@ -1,52 +1,46 @@
 """The driver's start-up wiring: the ``run`` and ``demo`` commands put the concrete stages together.
 
-:func:`run_driver` loads the profile (a bad one fails before any device exists), opens the source
-(:func:`open_source`: the live camera, the simulated gel, an AEDAT4 recording or a predictions
-file), builds the pipeline and its resting detector (:func:`build_pipeline`), opens the output
-(:func:`open_output`: the uinput devices, JSON lines or the terminal view) and hands them to the
-engine, :class:`~neurotouch_hid.runtime.Runtime`, which owns threads, pacing and shutdown.
-The engine knows the stages only through the seams of :mod:`neurotouch_hid.stages`.
+The road goes one way: :func:`run_driver` loads the profile (a bad one fails before any device
+exists), opens the subscribers (:func:`open_outputs`: the uinput devices, JSON lines, the terminal
+or live view) and hands them, with a :class:`RunAssembly` of what to open, to the engine
+(:func:`neurotouch_hid.runtime.run_assembled`). The engine opens the source and the pipeline
+through the assembly when the run starts (:meth:`RunAssembly.open`: the first run's compile, the
+source, the pipeline and its resting detector), runs them in its threads, and publishes one
+record per window to the subscribers. The engine knows the stages only through the seams of
+:mod:`neurotouch_hid.stages`; no stage knows a view.
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, ContextManager, Iterator, Protocol
+from typing import TYPE_CHECKING, Callable, Iterator
 
 from neurotouch_hid.errors import DeviceError, NeurotouchError, ProfileError
 from neurotouch_hid.estimate import GestureEstimate
 from neurotouch_hid.kinds import MethodKind, OutputKind, SourceKind
 from neurotouch_hid.mapping.profile import Profile, available_profiles, load_profile
-from neurotouch_hid.runtime import DEFAULT_BATCH_US, DEFAULT_MAX_LAG_US, Runtime
+from neurotouch_hid.runtime import DEFAULT_BATCH_US, DEFAULT_MAX_LAG_US, RunParts, run_assembled
 from neurotouch_hid.sources import Frame
-from neurotouch_hid.stages import Output, Pipeline, RestingDetection, SourceStream
+from neurotouch_hid.sources.open import CameraBackend, open_source
+from neurotouch_hid.stages import MarkerPositions, Subscriber
 from neurotouch_hid.stats import RunStats
 
 if TYPE_CHECKING:
     from rich.console import Console
 
     from neurotouch_hid.enrolment.model import Model
-    from neurotouch_hid.output.live import LiveScene
     from neurotouch_hid.pipeline.pipeline import GesturePipeline
     from neurotouch_hid.pipeline.resting import RestingResult
     from neurotouch_hid.sensor import SensorGeometry
     from neurotouch_hid.sources.davis import DavisConfig
-    from neurotouch_hid.warmup import KernelGroup, Warmup
+    from neurotouch_hid.warmup import Warmup
 
 log = logging.getLogger(__name__)
 
-
-class CameraBackend(Protocol):
-    """What the live camera's source asks of dv-processing's camera module (``dv.io.camera``),
-    or of a stand-in that replays recordings (tests)."""
-
-    def discover(self) -> list:
-        """The cameras plugged in (dv-processing's descriptors)."""
-
-    def open(self, descriptor: object) -> object:
-        """The opened camera of one descriptor."""
+__all__ = ["CameraBackend", "open_source"]  # the camera's seam and the opener, for the CLI and tests
 
 
 class EstimateReplay:
@@ -62,87 +56,9 @@ class EstimateReplay:
     def set_resting(self, result: RestingResult | None, t_us: int) -> None:  # pragma: no cover - no frames
         pass
 
-
-def open_source(
-    spec: str,
-    stack: contextlib.ExitStack,
-    *,
-    seconds: float | None = None,
-    batch_us: int = DEFAULT_BATCH_US,
-    sensor: str | Path | None = None,
-    seed: int = 0,
-    davis: DavisConfig | None = None,
-    wait: bool = False,
-    capture: CameraBackend | None = None,
-    filter_noise: bool = True,
-    scene: LiveScene | None = None,
-    warmup: Warmup | None = None,
-) -> tuple[SourceStream, SensorGeometry | None, bool]:
-    """Open ``davis`` (the live camera), ``sim`` (the simulated gel), an AEDAT4 recording path, or
-    a predictions file (``*.jsonl``, docs/dataset.md: the pipeline's estimates, replayed as they are).
-
-    The camera's stream survives unplugs and stalls (it yields
-    :class:`~neurotouch_hid.sources.SourceStatus` items); ``davis`` is its
-    :class:`~neurotouch_hid.sources.davis.DavisConfig`, ``wait`` waits for a camera instead of
-    failing, ``capture`` replaces dv-processing's camera backend (tests replay recordings through
-    it). Its geometry is ``sensor``, else the user's calibration, else the built-in one. The
-    pipeline's default noise filter runs in the camera's source, on dv-processing's own event
-    stores (no copies; build the pipeline with ``filter_noise=False`` then); ``filter_noise``
-    False: none (the paper's method).
-
-    Returns ``(stream, sensor_geometry, live)``; ``live`` is True for the camera (never paced by
-    the runtime); the geometry is None for a predictions file. Resources (camera, file) are
-    closed by ``stack``. The simulated gel hands its labels to ``scene`` (the live view's
-    :class:`~neurotouch_hid.output.live.LiveScene`) and simulates under ``warmup`` 's guard (a
-    first run's compile, :mod:`neurotouch_hid.warmup`). Raises RecordingError for a missing or unreadable recording,
-    DatasetError for a bad predictions file, DeviceError when the camera cannot be opened (and
-    ``wait`` is off).
-    """
-    from neurotouch_hid.sensor import SensorGeometry, default_sensor, find_sensor_file
-
-    if spec.endswith(".jsonl"):
-        from neurotouch_hid.dataset import read_predictions
-
-        return iter(read_predictions(spec)), None, False
-
-    if spec == SourceKind.DAVIS:
-        from neurotouch_hid.pipeline.noise import EventNoiseFilter
-        from neurotouch_hid.pipeline.pipeline import PipelineConfig
-        from neurotouch_hid.sources.davis import DavisSource
-        from neurotouch_hid.sources.recording import DAVIS346_RESOLUTION
-
-        noise = PipelineConfig().noise
-        camera_filter = (
-            EventNoiseFilter(noise.kind, *DAVIS346_RESOLUTION, noise.time_us)
-            if filter_noise and noise.kind is not None
-            else None
-        )
-        try:
-            camera = stack.enter_context(DavisSource(davis, wait=wait, backend=capture, noise_filter=camera_filter))
-        except DeviceError as exc:
-            raise DeviceError(f"{exc}\nor start with --wait to wait for a camera") from None
-        geometry = SensorGeometry.load(sensor) if sensor is not None else default_sensor()
-        return camera.stream(seconds=seconds, batch_us=batch_us, reconnect=True), geometry, True
-    if spec == SourceKind.SIM:
-        from neurotouch_hid.sources.simulator import SimulatedSource
-
-        sim = SimulatedSource(seed=seed) if sensor is None else SimulatedSource(SensorGeometry.load(sensor), seed=seed)
-        if scene is None and warmup is None:
-            return sim.stream(seconds=seconds, batch_us=batch_us), sim.sensor, False
-        from neurotouch_hid.output.live import labelled_simulation
-        from neurotouch_hid.warmup import SIMULATOR
-
-        return labelled_simulation(sim, scene, _guard(warmup, SIMULATOR), seconds, batch_us), sim.sensor, False
-    from neurotouch_hid.errors import RecordingError
-    from neurotouch_hid.sources.recording import RecordingReader
-
-    path = Path(spec)
-    if not path.is_file():
-        raise RecordingError(
-            f"{path}: no such recording (--source takes davis, sim, an AEDAT4 file or a predictions .jsonl)"
-        )
-    reader = stack.enter_context(RecordingReader(path))
-    return reader.stream(batch_us=batch_us), find_sensor_file(path, sensor), False
+    def markers(self) -> MarkerPositions | None:
+        """None: a predictions file has no markers."""
+        return None
 
 
 def open_output(
@@ -153,14 +69,13 @@ def open_output(
     out: str | Path | None = None,
     console: Console | None = None,
     say: Callable[[str], None] | None = None,
-    stats: RunStats | None = None,
-) -> Output:
-    """Create the output: ``gamepad`` (the uinput pad with the profile's name and ids, and the
+) -> Subscriber:
+    """Create one output: ``gamepad`` (the uinput pad with the profile's name and ids, and the
     keyboard and mouse if the profile uses them), ``jsonl`` (one state line per change to ``out``
-    or stdout) or ``term`` (the terminal view, showing ``stats`` under the pad; on a terminal the
-    live view of :mod:`neurotouch_hid.output.live`). ``say`` tells the
-    user about rumble effects games send to the pad (the gel has no motor; default: the log).
-    Closed by ``stack``. Raises DeviceError when /dev/uinput cannot be used."""
+    or stdout) or ``term`` (the terminal view; on a terminal the live view of
+    :mod:`neurotouch_hid.output.live`: the gel, the gestures, the profile, beside the pad). ``say``
+    tells the user about rumble effects games send to the pad (the gel has no motor; default: the
+    log). Closed by ``stack``. Raises DeviceError when /dev/uinput cannot be used."""
     if kind == OutputKind.GAMEPAD:
         from neurotouch_hid.output.desktop import UinputOutputs
         from neurotouch_hid.output.gamepad import GamepadIdentity, VirtualGamepad
@@ -176,7 +91,31 @@ def open_output(
         return stack.enter_context(StateJsonlWriter(out))
     from neurotouch_hid.output.live import LiveView
 
-    return stack.enter_context(LiveView(console, stats=stats))
+    return stack.enter_context(LiveView(console))
+
+
+def open_outputs(
+    kind: str,
+    profile: Profile,
+    stack: contextlib.ExitStack,
+    *,
+    out: str | Path | None = None,
+    console: Console | None = None,
+    say: Callable[[str], None] | None = None,
+) -> list[Subscriber]:
+    """The run's subscribers: the output ``kind`` names (:func:`open_output`) and, for the virtual
+    gamepad on a terminal (``console.is_terminal``), the live view drawn beside it."""
+    outputs = [open_output(kind, profile, stack, out=out, console=console, say=say)]
+    return outputs + _live_view_beside(kind, console, stack)
+
+
+def _live_view_beside(kind: str, console: Console | None, stack: contextlib.ExitStack) -> list[Subscriber]:
+    """The live view beside the virtual gamepad when ``console`` is a terminal, else nothing."""
+    if kind != OutputKind.GAMEPAD or console is None or not console.is_terminal:
+        return []
+    from neurotouch_hid.output.live import LiveView
+
+    return [stack.enter_context(LiveView(console))]
 
 
 def known_profiles() -> list[Profile]:
@@ -258,24 +197,95 @@ def start_warmup(source: str, *, fast: bool, say: Callable[[str], None], method:
     return Warmup(groups, say=say, interpreted=interpreted).start()
 
 
-def _guard(warmup: Warmup | None, group: KernelGroup) -> Callable[[], ContextManager[None]] | None:
-    """A zero-argument callable giving ``warmup`` 's guard of ``group`` (None without warmup)."""
-    return None if warmup is None else (lambda: warmup.guard(group))
+@dataclass(frozen=True)
+class RunAssembly:
+    """What a run opens when it starts (:meth:`open`, called by the engine): the first run's
+    compile, the source, and the pipeline with its resting detector.
+
+    Attributes:
+        source: ``davis``, ``sim``, an AEDAT4 recording or a predictions ``.jsonl``
+            (:func:`~neurotouch_hid.sources.open.open_source`).
+        seconds: how much of the source to read (s of camera time), None for all.
+        window_us: the pipeline's window (us). method: ``pipeline.methods``' name.
+        fast: as fast as possible, resting detection inline (deterministic replays).
+        sensor, seed, davis, wait, capture: the source's settings (``open_source``).
+        say: one line to the user (the compile's progress, a child's failure).
+        model: an adapted model's values over the method's (``enrolment/model.py``; None: the
+            shipped method).
+    """
+
+    source: str
+    seconds: float | None = None
+    window_us: int = 10_000
+    method: str = "default"
+    fast: bool = False
+    sensor: str | Path | None = None
+    seed: int = 0
+    davis: DavisConfig | None = None
+    wait: bool = False
+    capture: CameraBackend | None = None
+    say: Callable[[str], None] = log.warning
+    model: Model | None = None
+
+    def open(self, stack: contextlib.ExitStack) -> RunParts:
+        """Start the first run's compile, open the source, build the pipeline (its kernels
+        guarded while they are interpreted: a property of how it is built, not of who watches
+        it). Everything opened is closed by ``stack``. Raises what
+        :func:`~neurotouch_hid.sources.open.open_source` raises."""
+        from neurotouch_hid.warmup import PIPELINE_OF, SIMULATOR, GuardedPipeline, GuardedResting
+
+        warmup = start_warmup(self.source, fast=self.fast, say=self.say, method=self.method)
+        if warmup is not None:
+            stack.callback(warmup.close)
+        live_camera = self.source == SourceKind.DAVIS
+        opened = open_source(
+            self.source,
+            stack,
+            seconds=self.seconds,
+            batch_us=min(DEFAULT_BATCH_US, self.window_us),
+            sensor=self.sensor,
+            seed=self.seed,
+            davis=self.davis,
+            wait=self.wait,
+            capture=self.capture,
+            noise_filter=camera_noise_filter() if live_camera and self.method == "default" else None,
+            labelled=self.source == SourceKind.SIM,
+            guard=None if warmup is None else warmup.guarded(SIMULATOR),
+        )
+        if opened.sensor is None:  # a predictions file: the estimates are already there
+            return RunParts(opened.stream, EstimateReplay(), None, None, opened.live, opened.labelled, None)
+        pipeline, resting = build_pipeline(
+            opened.sensor,
+            self.window_us,
+            method=self.method,
+            resting_beside=opened.live or not self.fast,
+            filter_noise=not opened.live,
+            model=self.model,
+        )
+        if warmup is None:
+            return RunParts(opened.stream, pipeline, resting, opened.sensor, opened.live, opened.labelled, None)
+        guard = warmup.guarded(PIPELINE_OF[self.method])
+        return RunParts(
+            opened.stream,
+            GuardedPipeline(pipeline, guard),
+            None if resting is None else GuardedResting(resting, guard),
+            opened.sensor,
+            opened.live,
+            opened.labelled,
+            warmup.progress_now,
+        )
 
 
-def _with_view(
-    out: Output, kind: str, scene: LiveScene, console: Console | None, stats: RunStats, stack: contextlib.ExitStack
-) -> Output:
-    """The output with the live view: a terminal view shows ``scene``; the virtual gamepad gets
-    the live view drawn beside it when ``console`` is a terminal."""
-    from neurotouch_hid.output.live import LiveView, ShownOutput
+def camera_noise_filter() -> object:
+    """The product pipeline's noise filter (``PipelineConfig.noise``) to run in the live camera's
+    source, on dv-processing's own event stores (the pipeline's own then stays off); None when the
+    method has none."""
+    from neurotouch_hid.pipeline.noise import EventNoiseFilter
+    from neurotouch_hid.pipeline.pipeline import PipelineConfig
+    from neurotouch_hid.sources.recording import DAVIS346_RESOLUTION
 
-    if isinstance(out, LiveView):
-        out.scene = scene
-        return out
-    if kind == OutputKind.GAMEPAD and console is not None and console.is_terminal:
-        return ShownOutput(out, stack.enter_context(LiveView(console, scene=scene, stats=stats)))
-    return out
+    noise = PipelineConfig().noise
+    return None if noise.kind is None else EventNoiseFilter(noise.kind, *DAVIS346_RESOLUTION, noise.time_us)
 
 
 def run_driver(
@@ -290,7 +300,7 @@ def run_driver(
     sensor: str | Path | None = None,
     seed: int = 0,
     console: Console | None = None,
-    output_obj: Output | None = None,
+    outputs: list[Subscriber] | None = None,
     davis: DavisConfig | None = None,
     wait: bool = False,
     capture: CameraBackend | None = None,
@@ -301,14 +311,15 @@ def run_driver(
     model: Model | None = None,
 ) -> RunStats:
     """``neurotouch-hid run``: load the profile (a bad one raises ProfileError before any device
-    exists), open the source, build the pipeline, open the output, run until the end.
+    exists), open the outputs, then run: the engine opens the source and builds the pipeline
+    (:class:`RunAssembly`) and runs until the end.
 
     Real time (the camera, or paced replays): the resting detector runs in its own thread, and
     data is dropped, oldest first, if the pipeline falls more than ``max_lag_us`` (us of camera
     time) behind. ``fast`` (recordings and the simulated gel only): as fast as possible, nothing
     dropped, resting detection inline, so the same input always gives the same states.
 
-    ``output_obj`` replaces the output named by ``output`` (the demo's fallback, benchmarks);
+    ``outputs`` replace the subscribers named by ``output`` (the demo's fallback, benchmarks);
     ``stats`` is where the run is counted (the one a given terminal view shows).
     ``davis``, ``wait``, ``capture``: the live camera's settings (:func:`open_source`); ``say``
     tells the user when it is lost and back. ``method``: the gesture pipeline
@@ -326,59 +337,30 @@ def run_driver(
     if method not in tuple(MethodKind):
         raise NeurotouchError(f"--method {method!r}: expected one of {', '.join(MethodKind)}")
     loaded = load_profile(profile)
-    warmup = start_warmup(source, fast=fast, say=say, method=method)
-    stats = stats if stats is not None else RunStats()
     with contextlib.ExitStack() as stack:
-        if warmup is not None:
-            stack.callback(warmup.close)
-        from neurotouch_hid.output.live import LiveScene, ScenePipeline
-        from neurotouch_hid.warmup import PIPELINE_OF
-
-        scene = LiveScene(None, str(profile), loaded, warmup=warmup, demo=source == SourceKind.SIM)
-        stream, geometry, live = open_source(
+        subscribers = (
+            outputs if outputs is not None else open_outputs(output, loaded, stack, out=out, console=console, say=say)
+        )
+        assembly = RunAssembly(
             source,
-            stack,
             seconds=seconds,
-            batch_us=min(DEFAULT_BATCH_US, window_us),
+            window_us=window_us,
+            method=method,
+            fast=fast,
             sensor=sensor,
             seed=seed,
             davis=davis,
             wait=wait,
             capture=capture,
-            scene=scene,
-            warmup=warmup,
-            filter_noise=method == "default",
+            say=say,
+            model=model,
         )
-        scene.sensor = geometry
-        pipeline: Pipeline
-        resting: RestingDetection | None = None
-        if geometry is None:  # a predictions file: the estimates are already there
-            pipeline = EstimateReplay()
-        else:
-            built, resting = build_pipeline(
-                geometry,
-                window_us,
-                method=method,
-                resting_beside=live or not fast,
-                filter_noise=not live,
-                model=model,
-            )
-            watched = ScenePipeline(built, scene, _guard(warmup, PIPELINE_OF[method]))
-            pipeline, resting = watched, watched.resting(resting)
-        out_obj = (
-            output_obj
-            if output_obj is not None
-            else open_output(output, loaded, stack, out=out, console=console, say=say, stats=stats)
-        )
-        out_obj = _with_view(out_obj, output, scene, console, stats, stack)
-        runtime = Runtime(
-            stream,
-            pipeline,
+        return run_assembled(
+            assembly,
             loaded,
-            out_obj,
-            resting=resting,
+            subscribers,
+            seconds,
             pace=not fast,
-            live=live,
             profile_ref=profile,
             say=say,
             control=True,
@@ -387,8 +369,6 @@ def run_driver(
             max_lag_us=max_lag_us,
             waits=source == SourceKind.SIM,
         )
-        scene.follow(runtime)
-        return runtime.run(seconds)
 
 
 def gamepad_or_terminal(
@@ -397,19 +377,18 @@ def gamepad_or_terminal(
     *,
     console: Console | None = None,
     say: Callable[[str], None] = print,
-    stats: RunStats | None = None,
-) -> Output:
-    """The virtual gamepad where /dev/uinput is writable; else the terminal view (showing
-    ``stats``), after saying why in one line (``say``)."""
+) -> list[Subscriber]:
+    """The virtual gamepad where /dev/uinput is writable (with the live view beside it on a
+    terminal); else the terminal view, after saying why in one line (``say``)."""
     try:
-        return open_output("gamepad", profile, stack)
+        return [open_output("gamepad", profile, stack), *_live_view_beside("gamepad", console, stack)]
     except DeviceError as exc:
         reason = str(exc).splitlines()[0]  # the why; the fix's lines follow (udev.uinput_help)
         say(
             f"no writable /dev/uinput ({reason}): showing the gamepad in the terminal instead; "
             "see `neurotouch-hid doctor`"
         )
-        return open_output("term", profile, stack, console=console, stats=stats)
+        return [open_output("term", profile, stack, console=console)]
 
 
 def run_demo(
@@ -419,10 +398,9 @@ def run_demo(
     through the default profile, to the virtual gamepad (or the terminal view, see
     :func:`gamepad_or_terminal`)."""
     profile = load_profile("default")
-    stats = RunStats()
     with contextlib.ExitStack() as stack:
-        out = gamepad_or_terminal(profile, stack, console=console, say=say, stats=stats)
-        return run_driver("sim", "default", "gamepad", seconds=seconds, console=console, output_obj=out, stats=stats)
+        outputs = gamepad_or_terminal(profile, stack, console=console, say=say)
+        return run_driver("sim", "default", "gamepad", seconds=seconds, console=console, outputs=outputs)
 
 
 def estimates_from_source(
@@ -451,8 +429,9 @@ def estimates_from_source(
 
         seconds = SimulatedSource().cycle_seconds()
     with contextlib.ExitStack() as stack:
-        stream, sensor, _ = open_source(source, stack, seconds=seconds)
-        yield from _first_seconds(GesturePipeline(sensor, apply_model(None, model)).run(stream), seconds)
+        opened = open_source(source, stack, seconds=seconds)
+        pipeline = GesturePipeline(opened.sensor, apply_model(None, model))
+        yield from _first_seconds(pipeline.run(opened.stream), seconds)
 
 
 def _first_seconds(estimates: Iterator[GestureEstimate], seconds: float | None) -> Iterator[GestureEstimate]:

@@ -101,3 +101,17 @@ class GestureEstimate:
             rotation_rad=float(data.get("rotation_rad", 0.0)),
             scale=float(data.get("scale", 1.0)),
         )
+
+
+@dataclass(frozen=True)
+class MarkerPositions:
+    """The markers the pipeline saw at a window's end.
+
+    Attributes:
+        rest_px: (N, 2) float64, the markers at rest (image frame, px).
+        now_px: (N, 2) float64, where they are tracked now (image frame, px); NaN rows for
+            markers lost.
+    """
+
+    rest_px: np.ndarray
+    now_px: np.ndarray

@@ -1,8 +1,8 @@
-"""The engine: source -> gesture pipeline -> mapping -> output, in threads, with clean shutdown.
+"""The engine: source -> gesture pipeline -> mapping -> subscribers, in threads, with clean shutdown.
 
 Following the paper (section "Runtime Performance"), the event path and the resting detection run
 beside each other: one thread reads the source (pacing recordings and the simulated gel in real
-time), one runs the gesture pipeline and the mapping and writes the output, and one runs the
+time), one runs the gesture pipeline and the mapping and publishes each window, and one runs the
 resting detector (Chamfer distance on APS frames, paper, section "Resting Position Detection") and
 hands its results to the pipeline (``pipeline.set_resting``). numpy, OpenCV and numba release the
 GIL in their heavy parts, so on two cores the resting detection does not hold up the event path.
@@ -14,13 +14,17 @@ OLDEST items (counted in :class:`RunStats`) instead of letting the controller la
 with ``pace=False`` (``--fast``) nothing is dropped: the source waits for the pipeline instead,
 and the pipeline runs the resting detection inline so that a replay is deterministic.
 
-The engine knows its stages only through their seams (:mod:`neurotouch_hid.stages`); which
-concrete source, pipeline and output a command uses is wired in :mod:`neurotouch_hid.driver`
-(the live camera, the simulated gel, an AEDAT4 recording, or a predictions file replayed
-without the pipeline).
+The engine knows its stages only through their seams (:mod:`neurotouch_hid.stages`): it is the
+one place that knows source, pipeline, mapper and subscribers. After each window it publishes one
+:class:`~neurotouch_hid.stages.WindowRecord` to every subscriber (the uinput devices, JSON lines,
+the terminal and live views); none of them is known to a stage. Which concrete source and
+pipeline a command uses is opened by an assembly (:mod:`neurotouch_hid.driver`'s: the live
+camera, the simulated gel, an AEDAT4 recording, or a predictions file replayed without the
+pipeline) when the run starts.
 
 Every way out of :meth:`Runtime.run` (end of the source, :meth:`Runtime.stop`, SIGTERM, Ctrl-C, an
-exception in any stage) first centres all axes and releases all buttons (``output.neutralise()``).
+exception in any stage) first centres all axes and releases all buttons (``neutralise()`` of every
+subscriber).
 
 A live camera that is unplugged, fails or stalls does not end the run: its stream says so
 (:class:`~neurotouch_hid.sources.SourceStatus`, see ``sources/davis.py``). On ``"lost"`` the source
@@ -45,8 +49,9 @@ import signal
 import sys
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterator, Optional
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Optional, Protocol, Sequence
 
 import numpy as np
 
@@ -55,10 +60,14 @@ from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.mapping.mapper import Mapper
 from neurotouch_hid.mapping.profile import Profile, load_profile
-from neurotouch_hid.sources import Frame, Pacer, SourceStatus, StatusKind, StreamItem
+from neurotouch_hid.sources import Frame, Pacer, Performed, SourceStatus, StatusKind, StreamItem
+from neurotouch_hid.stages import CompileProgress, Pipeline, RestingDetection, SourceStream, Subscriber, WindowRecord
 from neurotouch_hid.stages import Mapper as MapperStage
-from neurotouch_hid.stages import Output, Pipeline, RestingDetection, SourceStream
 from neurotouch_hid.stats import RunStats
+
+if TYPE_CHECKING:
+    from neurotouch_hid.dataset import LabelRow
+    from neurotouch_hid.sensor import SensorGeometry
 
 log = logging.getLogger(__name__)
 
@@ -216,7 +225,7 @@ class DropOldestQueue:
 
 
 class Runtime:
-    """Source -> pipeline -> mapper -> output, with a resting detector beside the event path.
+    """Source -> pipeline -> mapper -> subscribers, with a resting detector beside the event path.
 
     The stages are known only through their seams (:mod:`neurotouch_hid.stages`).
 
@@ -225,9 +234,10 @@ class Runtime:
             e.g. ``RecordingReader.stream()``, ``SimulatedSource.stream()``.
         pipeline: a :class:`~neurotouch_hid.stages.Pipeline` (``GesturePipeline``).
         profile: the loaded profile; the mapper is ``mapper_factory(profile)``.
-        output: an :class:`~neurotouch_hid.stages.Output`; one whose ``accepts_estimate`` is
-            true also gets the window's estimate (gesture, intensity). The runtime does not
-            close the output (its owner does; the gamepad device outlives profile switches).
+        subscribers: the :class:`~neurotouch_hid.stages.Subscriber` s each window's
+            :class:`~neurotouch_hid.stages.WindowRecord` is published to, in this order. The
+            runtime does not close them (their owner does; the gamepad device outlives profile
+            switches).
         resting: a :class:`~neurotouch_hid.stages.RestingDetection` run in its own thread on
             APS frames; its results go to ``pipeline.set_resting(result, frame.t_us)``
             (thread-safe). None when the pipeline does its own resting detection.
@@ -254,6 +264,11 @@ class Runtime:
             that shows it); a new one by default.
         pacer: the :class:`~neurotouch_hid.sources.Pacer` that paces and times the run (one on
             a clock a test controls); a new wall-clock one by default.
+        sensor: the gel's geometry, handed on in each record (None: a predictions file).
+        compile_progress: the first run's compile, asked after each window while it lasts
+            (:meth:`neurotouch_hid.warmup.Warmup.progress_now`); None when nothing compiles.
+        labelled: the source says what it performs (:class:`~neurotouch_hid.sources.Performed`
+            items: the simulated hand).
     """
 
     def __init__(
@@ -261,7 +276,7 @@ class Runtime:
         source: SourceStream,
         pipeline: Pipeline,
         profile: Profile,
-        output: Output,
+        subscribers: Sequence[Subscriber],
         *,
         resting: RestingDetection | None = None,
         pace: bool = True,
@@ -277,6 +292,9 @@ class Runtime:
         stats: RunStats | None = None,
         pacer: Pacer | None = None,
         waits: bool = False,
+        sensor: SensorGeometry | None = None,
+        compile_progress: Callable[[], CompileProgress | None] | None = None,
+        labelled: bool = False,
     ):
         self._control = control
         self._games = games
@@ -286,8 +304,13 @@ class Runtime:
         self.profile = profile
         self._mapper_factory = mapper_factory
         self._mapper = mapper_factory(profile)
-        self._output = output
-        self._takes_estimate = output.accepts_estimate
+        self._subscribers = tuple(subscribers)
+        self._wants_markers = any(s.wants_markers for s in self._subscribers)
+        self._sensor = sensor
+        self._compile_progress = compile_progress
+        self._labelled = labelled
+        self._labels: collections.deque[LabelRow] = collections.deque()  # performed, not yet reached
+        self._performed: LabelRow | None = None
         self._resting = resting
         self._pace = pace and not live
         self._realtime = pace or live
@@ -331,25 +354,26 @@ class Runtime:
 
     # --- control ----------------------------------------------------------------------------
     def stop(self) -> None:
-        """Ask every thread to stop; :meth:`run` then neutralises the output and returns.
+        """Ask every thread to stop; :meth:`run` then neutralises every subscriber and returns.
         Safe from any thread and from a signal handler."""
         self._stop.set()
         self._items.close()
         self._frames.close()
 
     def switch_profile(self, profile: Profile) -> None:
-        """Neutralise the output, then map with ``profile`` from the next window on.
+        """Neutralise every subscriber, then map with ``profile`` from the next window on.
         The output devices are kept (the pad's name and ids stay those it was created with); a
-        keyboard or mouse the new profile needs is created (``output.prepare(profile)``)."""
+        keyboard or mouse the new profile needs is created (``prepare(profile)``)."""
         with self._lock:
-            self._output.neutralise()
-            self._output.prepare(profile)
+            self._neutralise()
+            for subscriber in self._subscribers:
+                subscriber.prepare(profile)
             self._mapper = self._mapper_factory(profile)
             self.profile = profile
             self._forget_state()
 
     def _forget_state(self) -> None:
-        """The output was neutralised or the mapping starts afresh: the next state written is
+        """The subscribers were neutralised or the mapping starts afresh: the next state is
         compared with a neutral one (caller holds ``self._lock``)."""
         self._last_state = ControllerState.neutral(self._last_state.t_us)
         self._last_gesture = None
@@ -391,7 +415,7 @@ class Runtime:
         the time stopped (a paced source does not rush to catch up). Main thread only."""
         with self._lock:
             self._suspended = True
-            self._output.neutralise()
+            self._neutralise()
             self._forget_state()
         log.warning("stopped: every output released (fg or SIGCONT resumes)")
         stopped_ns = time.perf_counter_ns()
@@ -410,7 +434,7 @@ class Runtime:
     # --- the run ----------------------------------------------------------------------------
     def run(self, seconds: float | None = None) -> RunStats:
         """Run until the source ends, ``seconds`` of camera time have been read, :meth:`stop`,
-        SIGTERM or Ctrl-C; neutralise the output on every way out.
+        SIGTERM or Ctrl-C; neutralise every subscriber on every way out.
 
         Returns the :class:`RunStats`. Re-raises the first exception of any stage (after
         neutralising); a KeyboardInterrupt is re-raised too. SIGTERM returns normally. Installs
@@ -454,7 +478,7 @@ class Runtime:
                     t.join(_JOIN_S)
                 self.stats.wall_s = time.perf_counter() - start
                 with self._lock:
-                    self._output.neutralise()
+                    self._neutralise()
         if self._errors:
             raise self._errors[0]
         if interrupted:
@@ -535,6 +559,9 @@ class Runtime:
                 if isinstance(item, SourceStatus):
                     self._source_status(item)
                     continue
+                if isinstance(item, Performed):
+                    self._labels.append(item.label)  # the worker reaches it at its window
+                    continue
                 t_us = item_end_us(item)
                 if t_us is not None:
                     self._clock.due_ns(t_us)  # the first item anchors the clock
@@ -594,7 +621,7 @@ class Runtime:
         if status.kind == StatusKind.LOST:
             with self._lock:
                 self._paused = True
-                self._output.neutralise()
+                self._neutralise()
                 self._forget_state()
             self._items.clear()
             self.stats.camera_losses += 1
@@ -621,7 +648,7 @@ class Runtime:
             self.stop()
 
     def _work(self) -> None:
-        """Pipeline thread: items -> estimates -> controller states -> output."""
+        """Pipeline thread: items -> estimates -> controller states -> records published."""
         stats = self.stats
         first_us: int | None = None
         # real time only: there the alternative is dropping data; a --fast run waits for the
@@ -673,22 +700,107 @@ class Runtime:
             self._forget_state()
             self._paused = False
 
+    def _neutralise(self) -> None:
+        """Every subscriber neutral at once (caller holds ``self._lock``)."""
+        for subscriber in self._subscribers:
+            subscriber.neutralise()
+
+    def _performed_at(self, t_us: int) -> LabelRow | None:
+        """The source's label in force at ``t_us`` (us): the last one at or before it."""
+        labels = self._labels
+        while labels and labels[0].t_us <= t_us:
+            self._performed = labels.popleft()
+        return self._performed
+
     def _emit(self, estimate: GestureEstimate) -> None:
+        """Map one window's estimate and publish its record (a relative motion is an impulse:
+        its state always counts as changed)."""
         with self._lock:
             if self._stop.is_set() or self._paused or self._suspended:  # run() neutralises (under this
                 return  # lock): nothing after that; a lost camera, Ctrl-Z: nothing until back
             state = self._mapper.update(estimate)
             last = self._last_state
-            changed = (
+            state_changed = (
                 state.axes != last.axes or state.buttons != last.buttons or state.keys != last.keys or bool(state.rel)
-            )  # motion is an impulse: always written
-            if self._takes_estimate:
-                changed = changed or estimate.gesture != self._last_gesture
-                if changed:
-                    self._output.write(state, estimate)
-            elif changed:
-                self._output.write(state)
-            if changed:
+            )
+            markers = self._pipeline.markers() if self._wants_markers else None
+            progress = self._compile_progress() if self._compile_progress is not None else None
+            record = WindowRecord(
+                estimate=estimate,
+                state=state,
+                state_changed=state_changed,
+                gesture_changed=estimate.gesture != self._last_gesture,
+                profile=self.profile,
+                profile_name=self.profile_name,
+                sensor=self._sensor,
+                markers=markers,
+                performed=self._performed_at(estimate.t_us) if self._labelled else None,
+                labelled=self._labelled,
+                stats=self.stats,
+                compile=progress,
+            )
+            for subscriber in self._subscribers:
+                subscriber.publish(record)
+            if state_changed:
                 self.stats.states_written += 1
             self._last_state = state
             self._last_gesture = estimate.gesture
+
+
+@dataclass(frozen=True)
+class RunParts:
+    """What an assembly opened for one run (:func:`run_assembled`).
+
+    Attributes:
+        stream: the source's items in time order.
+        pipeline: the gesture pipeline (or a predictions file's replay).
+        resting: the resting detector run beside it, or None (the pipeline runs its own).
+        sensor: the gel's geometry; None for a predictions file.
+        live: the source is real time by itself (the camera).
+        labelled: the source says what it performs.
+        compile_progress: the first run's compile, while it lasts (None: nothing compiles).
+    """
+
+    stream: SourceStream
+    pipeline: Pipeline
+    resting: RestingDetection | None
+    sensor: SensorGeometry | None
+    live: bool
+    labelled: bool
+    compile_progress: Callable[[], CompileProgress | None] | None
+
+
+class Assembly(Protocol):
+    """What a run opens when it starts: the source, the pipeline and its resting detector
+    (``driver.RunAssembly``)."""
+
+    def open(self, stack: contextlib.ExitStack) -> RunParts:
+        """Open everything, closed by ``stack``."""
+
+
+def run_assembled(
+    assembly: Assembly,
+    profile: Profile,
+    subscribers: Sequence[Subscriber],
+    seconds: float | None = None,
+    **options: Any,
+) -> RunStats:
+    """Open what ``assembly`` names, then run it (:class:`Runtime`, with ``options``) to the end,
+    publishing to ``subscribers``; everything opened is closed on every way out.
+
+    Returns the run's :class:`RunStats`; raises what the assembly's opening or the run raises."""
+    with contextlib.ExitStack() as stack:
+        parts = assembly.open(stack)
+        runtime = Runtime(
+            parts.stream,
+            parts.pipeline,
+            profile,
+            subscribers,
+            resting=parts.resting,
+            live=parts.live,
+            sensor=parts.sensor,
+            compile_progress=parts.compile_progress,
+            labelled=parts.labelled,
+            **options,
+        )
+        return runtime.run(seconds)

@@ -1,30 +1,91 @@
 """The typed seams between the stages: what the engine (:class:`~neurotouch_hid.runtime.Runtime`)
-asks of a source stream, a pipeline, a resting detector, a mapper and an output.
+asks of a source stream, a pipeline, a resting detector and a mapper, and what it publishes to its
+subscribers.
+
+The road goes one way: source -> pipeline -> mapper -> subscribers. The runtime is the one place
+that knows them all. After each window it publishes one :class:`WindowRecord` (the estimate, the
+controller state, the markers the pipeline saw, the gesture the source performed when it knows it,
+the run's counters, the first run's compile progress) to every :class:`Subscriber`: the uinput
+pad, keyboard and mouse, the JSON-lines writer, the terminal and live views. A stage knows nothing
+of who reads it; a subscriber knows only the record.
 
 Each concrete stage satisfies one of these :class:`typing.Protocol` s structurally (no base class
 to inherit): the gesture pipeline (:class:`~neurotouch_hid.pipeline.pipeline.GesturePipeline`) and
 the replay of a predictions file (:class:`~neurotouch_hid.driver.EstimateReplay`) are
-:class:`Pipeline` s; the uinput devices, the JSON-lines writer and the terminal view are
-:class:`Output` s. A type checker holds them to it; the engine never asks an object what it can do.
+:class:`Pipeline` s. A type checker holds them to it.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Iterable, Protocol, Union
 
 from neurotouch_hid.controller import ControllerState
-from neurotouch_hid.estimate import GestureEstimate
-from neurotouch_hid.sources import Frame, StreamItem
+from neurotouch_hid.estimate import GestureEstimate, MarkerPositions
+from neurotouch_hid.sources import Frame, Performed, StreamItem
 
 if TYPE_CHECKING:
+    from neurotouch_hid.dataset import LabelRow
     from neurotouch_hid.mapping.profile import Profile
     from neurotouch_hid.pipeline.resting import RestingResult
+    from neurotouch_hid.sensor import SensorGeometry
+    from neurotouch_hid.stats import RunStats
 
 #: What a source yields, in time order: event batches (``EVENT_DTYPE`` arrays) and APS
 #: :class:`~neurotouch_hid.sources.Frame` s, a live camera's
-#: :class:`~neurotouch_hid.sources.SourceStatus` items, or, from a predictions file, the
-#: windows' estimates themselves.
-SourceStream = Iterable[Union[StreamItem, GestureEstimate]]
+#: :class:`~neurotouch_hid.sources.SourceStatus` items, the simulated hand's
+#: :class:`~neurotouch_hid.sources.Performed` labels, or, from a predictions file, the windows'
+#: estimates themselves.
+SourceStream = Iterable[Union[StreamItem, Performed, GestureEstimate]]
+
+
+@dataclass(frozen=True)
+class CompileProgress:
+    """A first run's compile of the numba kernels (:mod:`neurotouch_hid.warmup`), while it lasts.
+
+    Attributes:
+        description: one line for the user: what compiles and why the run is slow meanwhile.
+        fraction: how far it is, 0..1.
+    """
+
+    description: str
+    fraction: float
+
+
+@dataclass(frozen=True)
+class WindowRecord:
+    """What the runtime publishes after each window, the same object to every subscriber.
+
+    Attributes:
+        estimate: the window's gesture estimate (its end ``t_us``, type, intensity, contacts).
+        state: the controller state the profile maps it to.
+        state_changed: ``state`` differs from the last one published (axes, buttons, keys, or a
+            relative motion, which is an impulse and always counts).
+        gesture_changed: the estimate's type differs from the last window's.
+        profile, profile_name: the profile mapping now, and its name as the user gave it.
+        sensor: the gel's geometry (image px -> user mm), None for a predictions file.
+        markers: the markers the pipeline saw, only when a subscriber asks for them
+            (:attr:`Subscriber.wants_markers`) and the pipeline tracks markers; else None.
+        performed: the gesture the source performs at the window's end, when it knows it (the
+            simulated hand's label, docs/dataset.md); None otherwise.
+        labelled: the source says what it performs (``performed`` may still be None before
+            its first label).
+        stats: the run's live counters.
+        compile: the first run's compile while it lasts, else None.
+    """
+
+    estimate: GestureEstimate
+    state: ControllerState
+    state_changed: bool
+    gesture_changed: bool
+    profile: Profile
+    profile_name: str
+    sensor: SensorGeometry | None
+    markers: MarkerPositions | None
+    performed: LabelRow | None
+    labelled: bool
+    stats: RunStats
+    compile: CompileProgress | None
 
 
 class Pipeline(Protocol):
@@ -38,6 +99,10 @@ class Pipeline(Protocol):
 
     def restart(self) -> None:
         """A new session after the live camera came back (markers re-initialised at rest)."""
+
+    def markers(self) -> MarkerPositions | None:
+        """The markers seen at the last window's end; None when there are none (before the
+        first APS frame, or no tracker at all)."""
 
 
 class RestingDetection(Protocol):
@@ -55,22 +120,22 @@ class Mapper(Protocol):
         """The controller state for one estimate."""
 
 
-class Output(Protocol):
-    """Where controller states go: the uinput devices, JSON lines, the terminal view.
+class Subscriber(Protocol):
+    """What listens to the run: the uinput devices, JSON lines, the terminal and live views.
 
     Attributes:
-        accepts_estimate: True when the output also shows the window's estimate (gesture,
-            intensity): it is then written whenever the gesture changes too, not only the state.
+        wants_markers: the subscriber draws the markers: the runtime then copies them into
+            each record (nothing is copied when no subscriber asks).
     """
 
-    accepts_estimate: bool
+    wants_markers: bool
 
-    def write(self, state: ControllerState, estimate: GestureEstimate | None = None) -> None:
-        """Show ``state`` (and ``estimate`` where ``accepts_estimate``)."""
+    def publish(self, record: WindowRecord) -> None:
+        """One window's record, from the runtime's pipeline thread; return quickly."""
 
     def neutralise(self) -> None:
         """Centre every axis and release every button and key, at once."""
 
     def prepare(self, profile: Profile) -> None:
         """Get ready to map ``profile`` (e.g. create the keyboard it uses), after
-        :meth:`neutralise`, before its first state."""
+        :meth:`neutralise`, before its first record."""

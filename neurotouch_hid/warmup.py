@@ -37,11 +37,20 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Iterator
+from typing import TYPE_CHECKING, Callable, ContextManager, Iterable, Iterator, TypeVar
 
 import numpy as np
 
 from neurotouch_hid import jit_cache
+from neurotouch_hid.stages import CompileProgress
+
+if TYPE_CHECKING:
+    from neurotouch_hid.estimate import GestureEstimate
+    from neurotouch_hid.pipeline.resting import RestingResult
+    from neurotouch_hid.sources import Frame, StreamItem
+    from neurotouch_hid.stages import MarkerPositions, Pipeline, RestingDetection
+
+T = TypeVar("T")
 
 #: What the user is told while the kernels compile.
 COMPILING = "compiling the gesture pipeline, first run only"
@@ -334,6 +343,16 @@ class Warmup:
                     compiled(self._kernels[name])
                     progress.state = "failed"
 
+    def progress_now(self) -> CompileProgress | None:
+        """The compile while it lasts (what the runtime publishes in each window's record), else None."""
+        if not self.compiling:
+            return None
+        return CompileProgress(self.describe(), self.fraction())
+
+    def guarded(self, group: KernelGroup) -> Callable[[], ContextManager[None]]:
+        """A zero-argument callable giving :meth:`guard` of ``group``."""
+        return lambda: self.guard(group)
+
     def _compile_here(self, group: KernelGroup) -> None:
         progress = self.progress[group.name]
         self._say(f"{COMPILING}: the {group.name} kernels ({progress.total}), before the run starts ...")
@@ -386,6 +405,61 @@ class Warmup:
             compiled(self._kernels[group.name])
             self.progress[group.name].state = "failed"
         self._say(f"{why}: numba compiles it in this process instead")
+
+
+class GuardedPipeline:
+    """A pipeline built on kernels that may still be interpreted: each call runs inside ``guard()``
+    (:meth:`Warmup.guard`), so the kernels never switch form within a call. A
+    :class:`~neurotouch_hid.stages.Pipeline` like the one it wraps."""
+
+    def __init__(self, pipeline: Pipeline, guard: Callable[[], ContextManager[None]]):
+        self._pipeline = pipeline
+        self._guard = guard
+
+    def process(self, item: StreamItem | GestureEstimate) -> list[GestureEstimate]:
+        """The wrapped pipeline's estimates for ``item``."""
+        with self._guard():
+            return self._pipeline.process(item)
+
+    def set_resting(self, result: RestingResult | None, t_us: int) -> None:
+        """Hands the resting verdict on."""
+        self._pipeline.set_resting(result, t_us)
+
+    def restart(self) -> None:
+        """Restarts the wrapped pipeline."""
+        with self._guard():
+            self._pipeline.restart()
+
+    def markers(self) -> MarkerPositions | None:
+        """The wrapped pipeline's markers."""
+        return self._pipeline.markers()
+
+
+class GuardedResting:
+    """A resting detection whose kernels are the pipeline's: each verdict inside ``guard()``."""
+
+    def __init__(self, detection: RestingDetection, guard: Callable[[], ContextManager[None]]):
+        self._detection = detection
+        self._guard = guard
+
+    def update(self, frame: Frame) -> RestingResult | None:
+        """The wrapped detector's verdict for ``frame``."""
+        with self._guard():
+            return self._detection.update(frame)
+
+
+def guarded_items(items: Iterable[T], guard: Callable[[], ContextManager[None]]) -> Iterator[T]:
+    """``items`` with each one made inside ``guard()`` (the simulated gel's kernels)."""
+    iterator = iter(items)
+    while True:
+        with guard():
+            item = next(iterator, _END)
+        if item is _END:
+            return
+        yield item
+
+
+_END = object()
 
 
 def _on_each_compiled(group_kernels: dict[str, object], on_kernel: Callable[[str], None]):

@@ -67,9 +67,13 @@ class FakeMapper:
 
 
 class RecordingOutput:
-    """Remembers every call, in order."""
+    """Remembers every call, in order: the states published that changed, as writes."""
 
-    accepts_estimate = False
+    wants_markers = False
+
+    def publish(self, record):
+        if record.state_changed:
+            self.write(record.state)
 
     def __init__(self):
         self.calls: list[tuple[str, ControllerState | None]] = []

@@ -77,7 +77,7 @@ def test_profile_use_switches_a_running_runtime_outputs_neutral_first(runtime_di
         endless(),
         FakePipeline(push_batches=10**9),
         {"sign": 1},
-        out,
+        [out],
         mapper_factory=FakeMapper,
         pace=True,
         profile_loader=loader,

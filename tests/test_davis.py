@@ -175,7 +175,11 @@ class Log:
 
 
 class LoggedOutput:
-    accepts_estimate = False
+    wants_markers = False
+
+    def publish(self, record):
+        if record.state_changed:
+            self.write(record.state)
 
     def __init__(self, log: Log):
         self.log = log
@@ -205,7 +209,7 @@ def run_davis(world: ReplayWorld, seconds: float, log: Log):
         seconds=seconds,
         capture=world,
         davis=QUICK,
-        output_obj=LoggedOutput(log),
+        outputs=[LoggedOutput(log)],
         say=lambda line: log.add("say", line),
     )
 
@@ -272,7 +276,7 @@ def test_run_with_wait_starts_when_the_camera_is_plugged_in(sim_gel_recording):
         capture=world,
         davis=QUICK,
         wait=True,
-        output_obj=LoggedOutput(log),
+        outputs=[LoggedOutput(log)],
         say=lambda line: log.add("say", line),
     )
     waiting = log.index("say", "waiting for a DAVIS-346")

@@ -60,14 +60,14 @@ def test_piped_view_prints_the_last_analogue_state_and_the_whole_mouse_motion():
 class Both:
     """The piped terminal view and the JSON lines of one and the same run."""
 
-    accepts_estimate = True
+    wants_markers = False
 
     def __init__(self, term: TermView, jsonl: StateJsonlWriter):
         self.term, self.jsonl = term, jsonl
 
-    def write(self, state, estimate=None):
-        self.term.write(state, estimate)
-        self.jsonl.write(state, estimate)
+    def publish(self, record):
+        self.term.publish(record)
+        self.jsonl.publish(record)
 
     def prepare(self, profile):
         pass
@@ -93,7 +93,7 @@ def test_piped_switch_access_run_shows_every_key_press_the_json_lines_show():
     console, stream = plain_console(), io.StringIO()
     term = TermView(console)
     jsonl = StateJsonlWriter(stream)
-    run_driver("sim", "switch-access", "term", seconds=8, fast=True, output_obj=Both(term, jsonl))
+    run_driver("sim", "switch-access", "term", seconds=8, fast=True, outputs=[Both(term, jsonl)])
     term.close()
     from_json = [frozenset(json.loads(line)["keys"]) for line in stream.getvalue().splitlines()]
     from_term = []

@@ -15,7 +15,7 @@ ORDER = {
     "evaluation": 3,
     "enrolment": 3,
     "output": 4,
-    "stages": 5,
+    "stages": 3,
     "runtime": 5,
     "control": 5,
     "games": 5,

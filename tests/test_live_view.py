@@ -108,36 +108,25 @@ def test_the_demo_in_a_real_80x24_terminal_shows_the_gel_the_gestures_and_the_pr
         subprocess.run([tmux, "kill-session", "-t", session], capture_output=True)
 
 
-def test_the_gamepad_with_the_view_beside_it_gets_every_state_and_is_neutralised():
+def test_the_gamepad_with_the_view_beside_it_both_get_every_record_and_are_neutralised():
+    """Two subscribers of one run: the pad writes the states that changed, the view shows them
+    with the gesture; both are neutral at the end."""
     import io
 
     from rich.console import Console
+    from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, batch
 
-    from neurotouch_hid.controller import ControllerState
-    from neurotouch_hid.estimate import GestureEstimate, GestureType
-    from neurotouch_hid.output.live import LiveView, ShownOutput
+    from neurotouch_hid.output.live import LiveView
+    from neurotouch_hid.runtime import Runtime
 
-    class Pad:
-        accepts_estimate = False
-
-        def __init__(self):
-            self.written, self.neutralised = [], 0
-
-        def write(self, state):
-            self.written.append(state)
-
-        def neutralise(self):
-            self.neutralised += 1
-
-        def prepare(self, profile):
-            pass
-
-    pad = Pad()
+    pad = RecordingOutput()
     view = LiveView(Console(file=io.StringIO(), force_terminal=False, width=200))
-    shown = ShownOutput(pad, view)
-    state = ControllerState.neutral(10_000)
-    state.axes["ABS_X"] = 20_000
-    shown.write(state, GestureEstimate(t_us=10_000, gesture=GestureType.PUSH, intensity_mm=3.0))
-    shown.neutralise()
-    assert pad.written == [state] and pad.neutralised == 1
-    assert "push 3.00 mm" in view.console.file.getvalue()
+    stream = [batch(k * 1000) for k in range(8)]
+    Runtime(stream, FakePipeline(push_batches=3), {"sign": 1}, [pad, view], mapper_factory=FakeMapper, pace=False).run()
+    view.close()
+    written = [state for kind, state in pad.calls if kind == "write"]
+    assert [s.axes["ABS_X"] for s in written] == [1000, 2000, 3000, 0]
+    assert pad.calls[-1] == ("neutralise", None)
+    shown = view.console.file.getvalue()
+    assert "push 1.00 mm" in shown and view.wants_markers is False  # a pipe: no markers asked for
+    assert shown.splitlines()[-1].startswith("t ") and "buttons -" in shown.splitlines()[-1]

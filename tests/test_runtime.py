@@ -23,7 +23,7 @@ def make_runtime(source, pipeline=None, output=None, **kw) -> tuple[Runtime, Fak
     pipeline = pipeline or FakePipeline()
     output = output or RecordingOutput()
     kw.setdefault("pace", False)
-    rt = Runtime(source, pipeline, {"sign": 1}, output, mapper_factory=FakeMapper, **kw)
+    rt = Runtime(source, pipeline, {"sign": 1}, [output], mapper_factory=FakeMapper, **kw)
     return rt, pipeline, output
 
 

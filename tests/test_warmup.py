@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 from neurotouch_hid import warmup
-from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.estimate import GestureEstimate
 from neurotouch_hid.mapping.profile import load_profile
 from neurotouch_hid.runtime import Runtime
@@ -157,9 +156,9 @@ class _SlowPipeline:
 
 
 class _Recorder:
-    accepts_estimate = False
+    wants_markers = False
 
-    def write(self, state: ControllerState, estimate=None):
+    def publish(self, record):
         pass
 
     def neutralise(self):
@@ -180,7 +179,7 @@ def _batches(n: int):
 def test_a_source_that_waits_loses_nothing_to_a_slow_pipeline(max_lag_us):
     pipeline = _SlowPipeline()
     runtime = Runtime(
-        _batches(300), pipeline, load_profile("default"), _Recorder(), pace=True, waits=True, max_lag_us=max_lag_us
+        _batches(300), pipeline, load_profile("default"), [_Recorder()], pace=True, waits=True, max_lag_us=max_lag_us
     )
     stats = runtime.run()
     assert stats.dropped_items == 0 and stats.dropped_events == 0

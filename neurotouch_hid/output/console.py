@@ -13,7 +13,7 @@ crop them).
 from __future__ import annotations
 
 import sys
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from rich.console import Console
 
@@ -32,7 +32,7 @@ def make_console(*, stderr: bool = False) -> Console:
     return console if console.is_terminal else Console(stderr=stderr, width=PIPE_WIDTH)
 
 
-def command_app(**options: Any) -> typer.Typer:
+def command_app(**options: object) -> typer.Typer:
     """A typer app whose ``--help`` and usage errors are click's plain text, re-flowed to the
     terminal's width on a terminal and to :data:`PIPE_WIDTH` elsewhere (each paragraph and option
     on one line, nothing cut), with plain tracebacks and no shell-completion options. ``options``

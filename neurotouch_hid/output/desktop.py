@@ -25,11 +25,15 @@ from __future__ import annotations
 
 import logging
 import threading
-from typing import Any, Iterable
+from typing import TYPE_CHECKING, Callable, Iterable, TypeVar
 
 from neurotouch_hid.controller import MOUSE_BUTTONS, MOUSE_REL, ControllerState
 from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.output.gamepad import NeutralOnClose, VirtualGamepad, create_uinput
+
+if TYPE_CHECKING:
+    from neurotouch_hid.mapping.profile import Profile
+    from neurotouch_hid.stages import WindowRecord
 
 log = logging.getLogger(__name__)
 
@@ -180,6 +184,9 @@ class VirtualMouse(_UinputDevice):
         self._emit(state.keys & self.offers, rel)
 
 
+D = TypeVar("D", bound=_UinputDevice)
+
+
 class UinputOutputs:
     """The pad, and the keyboard and mouse a profile uses, as one output.
 
@@ -191,11 +198,15 @@ class UinputOutputs:
     every device (programs keep their handles).
     """
 
-    #: uinput devices show states only (:class:`~neurotouch_hid.stages.Output`).
-    accepts_estimate = False
+    #: Draws no markers (:class:`~neurotouch_hid.stages.Subscriber`).
+    wants_markers = False
 
     def __init__(
-        self, pad: VirtualGamepad, profile: Any = None, devnode: str = "/dev/uinput", known: Iterable[Any] = ()
+        self,
+        pad: VirtualGamepad,
+        profile: Profile | None = None,
+        devnode: str = "/dev/uinput",
+        known: Iterable[Profile] = (),
     ) -> None:
         self.pad = pad
         self.keyboard: VirtualKeyboard | None = None
@@ -219,7 +230,7 @@ class UinputOutputs:
     def devices(self) -> list:
         return [d for d in (self.keyboard, self.mouse, self.pad) if d is not None]
 
-    def prepare(self, profile: Any) -> None:
+    def prepare(self, profile: Profile) -> None:
         """Make the keyboard and/or mouse ``profile`` uses: create a missing one (offering what
         the known profiles use too), or replace one lacking some of its keys or buttons by one
         offering both (the old one is released and removed first: call this only after
@@ -227,7 +238,9 @@ class UinputOutputs:
         self.keyboard = self._made(self.keyboard, profile.keyboard_keys, self._known_keys, VirtualKeyboard)
         self.mouse = self._made(self.mouse, profile.mouse_outputs, self._known_mouse, VirtualMouse)
 
-    def _made(self, device: Any, needed: frozenset[str], known: frozenset[str], make: Any) -> Any:
+    def _made(
+        self, device: D | None, needed: frozenset[str], known: frozenset[str], make: Callable[[frozenset[str], str], D]
+    ) -> D | None:
         """``device`` if it offers ``needed`` (or nothing is needed), else a new one offering
         ``needed`` and what ``device`` offered (``known`` for a first one); the old one is closed."""
         if not needed or (device is not None and needed <= device.offers):
@@ -238,7 +251,13 @@ class UinputOutputs:
             device.close()
         return make(offered | needed, self._devnode)
 
-    def write(self, state: ControllerState, estimate: Any = None) -> None:
+    def publish(self, record: WindowRecord) -> None:
+        """A window's record (:class:`~neurotouch_hid.stages.Subscriber`): each device's part of
+        its state written when the state changed."""
+        if record.state_changed:
+            self.write(record.state)
+
+    def write(self, state: ControllerState) -> None:
         for device in self.devices:
             device.write(state)
 

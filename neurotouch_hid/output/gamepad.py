@@ -27,11 +27,17 @@ import stat
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Callable
 
 from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
 from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.udev import uinput_help
+
+if TYPE_CHECKING:
+    from evdev import UInput
+
+    from neurotouch_hid.mapping.profile import Profile
+    from neurotouch_hid.stages import WindowRecord
 
 #: ``phys`` of every device we create; the udev rule tags devices with it ID_NEUROTOUCH_VIRTUAL=1.
 PHYS = "neurotouch-hid/gamepad"
@@ -69,7 +75,7 @@ class GamepadIdentity:
     bustype: int = 0x03  # BUS_USB
 
 
-def create_uinput(what: str, capabilities: dict, devnode: str = "/dev/uinput", **setup: Any) -> Any:
+def create_uinput(what: str, capabilities: dict, devnode: str = "/dev/uinput", **setup: object) -> UInput:
     """A python-evdev :class:`evdev.UInput` device (the virtual ``what``: gamepad, keyboard, mouse)
     with ``capabilities`` and ``setup`` (name, ids, bus, phys, ... of ``UInput``).
 
@@ -293,18 +299,24 @@ class VirtualGamepad(NeutralOnClose):
         device = self._ui.device
         return device.path if device is not None else None
 
-    #: A pad shows states only (:class:`~neurotouch_hid.stages.Output`).
-    accepts_estimate = False
+    #: Draws no markers (:class:`~neurotouch_hid.stages.Subscriber`).
+    wants_markers = False
 
     @property
     def closed(self) -> bool:
         return self._closed
 
-    def prepare(self, profile: Any) -> None:
+    def prepare(self, profile: Profile) -> None:
         """Nothing to get ready: the pad's layout is the same for every profile, and its name and ids
-        stay those it was created with (games keep their handle) (:class:`~neurotouch_hid.stages.Output`)."""
+        stay those it was created with (games keep their handle) (:class:`~neurotouch_hid.stages.Subscriber`)."""
 
-    def write(self, state: ControllerState, estimate: Any = None) -> None:
+    def publish(self, record: WindowRecord) -> None:
+        """A window's record (:class:`~neurotouch_hid.stages.Subscriber`): its state written when
+        it changed."""
+        if record.state_changed:
+            self.write(record.state)
+
+    def write(self, state: ControllerState) -> None:
         """Write the axes and buttons that changed since the last write, then one SYN_REPORT.
 
         Values are clamped to each axis' range. Nothing is written when nothing changed (the kernel

@@ -6,11 +6,15 @@ Written with the line writer of the predictions files (:class:`neurotouch_hid.da
 from __future__ import annotations
 
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING
 
 from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.dataset import JsonlWriter
 from neurotouch_hid.estimate import GestureEstimate, GestureType
+
+if TYPE_CHECKING:
+    from neurotouch_hid.mapping.profile import Profile
+    from neurotouch_hid.stages import WindowRecord
 
 
 class StateJsonlWriter(JsonlWriter):
@@ -30,8 +34,8 @@ class StateJsonlWriter(JsonlWriter):
         DatasetError: the file cannot be opened for writing.
     """
 
-    #: The runtime hands this output each window's estimate too (its gesture and intensity).
-    accepts_estimate = True
+    #: Writes no markers (:class:`~neurotouch_hid.stages.Subscriber`).
+    wants_markers = False
 
     def __init__(self, out: str | Path | IO[str] | None = None) -> None:
         super().__init__("-" if out is None else out, flush=True)
@@ -52,9 +56,15 @@ class StateJsonlWriter(JsonlWriter):
             }
         )
 
-    def prepare(self, profile: Any) -> None:
+    def publish(self, record: WindowRecord) -> None:
+        """A window's record (:class:`~neurotouch_hid.stages.Subscriber`): one line when its state
+        or its gesture changed."""
+        if record.state_changed or record.gesture_changed:
+            self.write(record.state, record.estimate)
+
+    def prepare(self, profile: Profile) -> None:
         """Nothing to get ready: every profile's states are written alike
-        (:class:`~neurotouch_hid.stages.Output`)."""
+        (:class:`~neurotouch_hid.stages.Subscriber`)."""
 
     def neutralise(self) -> None:
         """Write the neutral state (all axes centred, all buttons released) at the last time."""

@@ -17,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
-from typing import TYPE_CHECKING, Any, Optional
+from typing import TYPE_CHECKING, Optional
 
 from rich.console import Console, Group
 from rich.live import Live
@@ -29,7 +29,9 @@ from rich.text import Text
 from neurotouch_hid.controller import AXES, ControllerState
 from neurotouch_hid.estimate import GestureEstimate
 
-if TYPE_CHECKING:  # the runtime hands its live counters; no import at run time (no cycle)
+if TYPE_CHECKING:  # the runtime publishes its records; no import at run time (no cycle)
+    from neurotouch_hid.mapping.profile import Profile
+    from neurotouch_hid.stages import WindowRecord
     from neurotouch_hid.stats import RunStats
 
 #: evdev button -> label on the pad.
@@ -138,14 +140,14 @@ class TermView:
     Args:
         console: where to draw (default: a new stdout :class:`rich.console.Console`).
         stats: the runtime's live :class:`~neurotouch_hid.stats.RunStats` (windows, dropped
-            data), shown under the pad; may be set after construction.
+            data), shown under the pad; the records published bring it too.
         line_period_s: without a terminal, the shortest time (s) between two printed lines when
             only analogue axes change (a button, key or d-pad change is printed at once).
         refresh_per_second: redraw rate on a terminal.
     """
 
-    #: The runtime hands this output each window's estimate too (gesture and intensity line).
-    accepts_estimate = True
+    #: Draws no markers (:class:`~neurotouch_hid.stages.Subscriber`).
+    wants_markers = False
 
     def __init__(
         self,
@@ -188,8 +190,15 @@ class TermView:
             else:
                 self._print_later()
 
-    def prepare(self, profile: Any) -> None:
-        """Nothing to get ready: every profile's states draw alike (:class:`~neurotouch_hid.stages.Output`)."""
+    def publish(self, record: WindowRecord) -> None:
+        """A window's record (:class:`~neurotouch_hid.stages.Subscriber`): shown when its state or
+        its gesture changed."""
+        self.stats = record.stats
+        if record.state_changed or record.gesture_changed:
+            self.write(record.state, record.estimate)
+
+    def prepare(self, profile: Profile) -> None:
+        """Nothing to get ready: every profile's states draw alike (:class:`~neurotouch_hid.stages.Subscriber`)."""
 
     def neutralise(self) -> None:
         """Show all axes centred and all buttons released (and, without a terminal, print it)."""

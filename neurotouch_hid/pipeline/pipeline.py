@@ -40,7 +40,7 @@ from collections.abc import Callable, Iterable, Iterator
 import numpy as np
 
 from neurotouch_hid.errors import SensorError
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.estimate import GestureEstimate, GestureType, MarkerPositions
 from neurotouch_hid.pipeline.config import MIN_WINDOW_US, PipelineConfig, PixelSettings, scaled_to_sensor
 from neurotouch_hid.pipeline.contacts import Contacts, detect_contacts
 from neurotouch_hid.pipeline.contacts_plateau import rest_neighbours
@@ -232,6 +232,14 @@ class GesturePipeline(FramePath):
         positions = self.tracker.positions_px.astype(np.float32)
         positions[~self.tracker.valid] = np.nan
         return positions
+
+    def markers(self) -> MarkerPositions | None:
+        """The markers at the last window's end (:class:`~neurotouch_hid.stages.Pipeline`): rest
+        and tracked positions, (N, 2) float64 image px, NaN rows for lost markers; None before the
+        first APS frame."""
+        if self.tracker is None or self.rest_px is None:
+            return None
+        return MarkerPositions(np.array(self.rest_px, dtype=np.float64), self.marker_positions().astype(np.float64))
 
     # --- internals --------------------------------------------------------------------------
     def _close_windows_until(self, t_us: int) -> list[GestureEstimate]:

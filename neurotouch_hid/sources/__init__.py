@@ -10,9 +10,12 @@ import threading
 import time
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Callable, Iterator, Union
+from typing import TYPE_CHECKING, Callable, Iterator, Union
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from neurotouch_hid.dataset import LabelRow
 
 #: dv-processing's ``EventStore.numpy()`` fields: timestamp us (int64), x, y px (int16),
 #: polarity (int8, 1 = ON brighter, 0 = OFF darker). dv-processing pads each record to 16 bytes;
@@ -54,6 +57,19 @@ class SourceStatus:
 
     kind: StatusKind
     message: str
+
+
+@dataclass(frozen=True)
+class Performed:
+    """What a source that knows its truth (the simulated hand) performs from ``label.t_us`` on,
+    in its stream just before the APS frame of that moment.
+
+    Attributes:
+        label: the simulator's label (:class:`~neurotouch_hid.dataset.LabelRow`: type,
+            intensity in mm, contact points in image px; docs/dataset.md).
+    """
+
+    label: LabelRow
 
 
 #: One item of a source's stream: an event batch (EVENT_DTYPE array, time-ordered), a frame, or

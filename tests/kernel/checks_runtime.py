@@ -251,7 +251,7 @@ def check_run_gamepad_matches_the_profile() -> dict:
         guestlib.settle()
         props = guestlib.udev_properties(pad.device_path)
         watcher = PadWatcher(pad.device_path)
-        stats = run_driver(str(preds), profile_path, "gamepad", output_obj=pad, max_lag_us=int(NO_DROP_LAG_MS) * 1000)
+        stats = run_driver(str(preds), profile_path, "gamepad", outputs=[pad], max_lag_us=int(NO_DROP_LAG_MS) * 1000)
         guestlib.wait_for(lambda: watcher.states[-1] == NEUTRAL, 5.0)
         watcher.stop()
     got = _changes(watcher.states)

@@ -164,7 +164,7 @@ def _run_in_process(
         for device in (outputs.keyboard, outputs.mouse):
             if device is not None:
                 watchers[device.what] = Watcher(device.device_path)
-        stats = run_driver(str(preds), profile, "gamepad", output_obj=outputs, max_lag_us=int(NO_DROP_LAG_MS) * 1000)
+        stats = run_driver(str(preds), profile, "gamepad", outputs=[outputs], max_lag_us=int(NO_DROP_LAG_MS) * 1000)
     time.sleep(0.3)
     for w in watchers.values():
         w.stop()

@@ -1,0 +1,147 @@
+"""Open the source a command names: the live camera, the simulated gel, an AEDAT4 recording, or a
+predictions file.
+
+A source knows nothing of who reads it: it yields its stream (event batches, APS frames, a live
+camera's status changes, the simulated hand's :class:`~neurotouch_hid.sources.Performed` labels
+when asked) and says which gel geometry goes with it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable, ContextManager, Iterable, Iterator, Protocol, Union
+
+from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.estimate import GestureEstimate
+from neurotouch_hid.kinds import SourceKind
+from neurotouch_hid.sources import Performed, StreamItem
+
+if TYPE_CHECKING:
+    from neurotouch_hid.sensor import SensorGeometry
+    from neurotouch_hid.sources.davis import DavisConfig
+    from neurotouch_hid.sources.simulator import SimulatedSource
+
+#: What an opened source yields (``stages.SourceStream``).
+Items = Iterable[Union[StreamItem, Performed, GestureEstimate]]
+
+
+class CameraBackend(Protocol):
+    """What the live camera's source asks of dv-processing's camera module (``dv.io.camera``),
+    or of a stand-in that replays recordings (tests)."""
+
+    def discover(self) -> list:
+        """The cameras plugged in (dv-processing's descriptors)."""
+
+    def open(self, descriptor: object) -> object:
+        """The opened camera of one descriptor."""
+
+
+@dataclass(frozen=True)
+class OpenedSource:
+    """A source ready to be read.
+
+    Attributes:
+        stream: its items in time order.
+        sensor: the gel's geometry (image px -> user mm); None for a predictions file.
+        live: real time by itself (the camera): never paced by the runtime.
+        labelled: the stream says what it performs (:class:`~neurotouch_hid.sources.Performed`).
+    """
+
+    stream: Items
+    sensor: SensorGeometry | None
+    live: bool
+    labelled: bool = False
+
+
+def open_source(
+    spec: str,
+    stack: contextlib.ExitStack,
+    *,
+    seconds: float | None = None,
+    batch_us: int = 1_000,
+    sensor: str | Path | None = None,
+    seed: int = 0,
+    davis: DavisConfig | None = None,
+    wait: bool = False,
+    capture: CameraBackend | None = None,
+    noise_filter: object = None,
+    labelled: bool = False,
+    guard: Callable[[], ContextManager[None]] | None = None,
+) -> OpenedSource:
+    """Open ``davis`` (the live camera), ``sim`` (the simulated gel), an AEDAT4 recording path, or
+    a predictions file (``*.jsonl``, docs/dataset.md: the pipeline's estimates, replayed as they are).
+
+    The camera's stream survives unplugs and stalls (it yields
+    :class:`~neurotouch_hid.sources.SourceStatus` items); ``davis`` is its
+    :class:`~neurotouch_hid.sources.davis.DavisConfig`, ``wait`` waits for a camera instead of
+    failing, ``capture`` replaces dv-processing's camera backend (tests replay recordings through
+    it), ``noise_filter`` runs on dv-processing's own event stores (no copies). Its geometry is
+    ``sensor``, else the user's calibration, else the built-in one.
+
+    The simulated gel also says what its hand performs when ``labelled``
+    (:class:`~neurotouch_hid.sources.Performed` before each APS frame), and simulates each chunk
+    inside ``guard()`` when given (a first run's compile: :meth:`neurotouch_hid.warmup.Warmup.guard`).
+
+    Resources (camera, file) are closed by ``stack``. Raises RecordingError for a missing or
+    unreadable recording, DatasetError for a bad predictions file, DeviceError when the camera
+    cannot be opened (and ``wait`` is off).
+    """
+    from neurotouch_hid.sensor import SensorGeometry, default_sensor, find_sensor_file
+
+    if spec.endswith(".jsonl"):
+        from neurotouch_hid.dataset import read_predictions
+
+        return OpenedSource(iter(read_predictions(spec)), None, False)
+    if spec == SourceKind.DAVIS:
+        from neurotouch_hid.sources.davis import DavisSource
+
+        try:
+            camera = stack.enter_context(DavisSource(davis, wait=wait, backend=capture, noise_filter=noise_filter))
+        except DeviceError as exc:
+            raise DeviceError(f"{exc}\nor start with --wait to wait for a camera") from None
+        geometry = SensorGeometry.load(sensor) if sensor is not None else default_sensor()
+        return OpenedSource(camera.stream(seconds=seconds, batch_us=batch_us, reconnect=True), geometry, True)
+    if spec == SourceKind.SIM:
+        from neurotouch_hid.sources.simulator import SimulatedSource
+
+        sim = SimulatedSource(seed=seed) if sensor is None else SimulatedSource(SensorGeometry.load(sensor), seed=seed)
+        stream = simulated_items(sim, seconds, batch_us, labelled=labelled, guard=guard)
+        return OpenedSource(stream, sim.sensor, False, labelled=labelled)
+    from neurotouch_hid.errors import RecordingError
+    from neurotouch_hid.sources.recording import RecordingReader
+
+    path = Path(spec)
+    if not path.is_file():
+        raise RecordingError(
+            f"{path}: no such recording (--source takes davis, sim, an AEDAT4 file or a predictions .jsonl)"
+        )
+    reader = stack.enter_context(RecordingReader(path))
+    return OpenedSource(reader.stream(batch_us=batch_us), find_sensor_file(path, sensor), False)
+
+
+def simulated_items(
+    sim: SimulatedSource,
+    seconds: float | None,
+    batch_us: int,
+    *,
+    labelled: bool = False,
+    guard: Callable[[], ContextManager[None]] | None = None,
+) -> Iterator[StreamItem | Performed]:
+    """The simulated gel's stream (as ``SimulatedSource.stream``): per frame period, the label of
+    what the hand performs (when ``labelled``), the APS frame, then its events in ``batch_us``
+    batches; each period simulated inside ``guard()`` when given."""
+    from neurotouch_hid.sources.recording import split_batches
+
+    guard = guard or contextlib.nullcontext
+    chunks = iter(sim.chunks(seconds))
+    while True:
+        with guard():
+            chunk = next(chunks, None)
+        if chunk is None:
+            return
+        if labelled:
+            yield Performed(chunk.label)
+        yield chunk.frame
+        yield from split_batches(chunk.events, batch_us)
