@@ -246,7 +246,9 @@ def test_a_resting_gel_wakes_the_paced_source_once_per_window_and_a_touch_at_onc
             assert wait_until(lambda: len(pipeline.seen) >= sum(len(e[1]) for e in puts))
             yield batch(t, n=1)
 
-    rt = Runtime(source(), pipeline, {"sign": 1}, RecordingOutput(), mapper_factory=FakeMapper, pace=True, pacer=pacer)
+    rt = Runtime(
+        source(), pipeline, {"sign": 1}, [RecordingOutput()], mapper_factory=FakeMapper, pace=True, pacer=pacer
+    )
     put = rt._items.put
     rt._items.put = lambda entry: (puts.append(entry), put(entry))[1]
     rt.run()
