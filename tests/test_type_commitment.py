@@ -146,3 +146,31 @@ def test_the_commitment_is_the_vote_since_the_contact_count_last_changed():
     vote = EpisodeVote()
     assert vote.update(P, 3.0, 1, 10_000) is N
     assert vote.update(Q, 0.2, 2, 20_000) is Q
+
+
+def test_the_pipeline_settings_set_the_vote_and_an_override_changes_its_wait(rest_image):
+    """The wait is a setting of ``PipelineConfig.episode`` (a per-user model may override it): the
+    same one-finger push tap is answered push after the default wait, and after 30 ms with a
+    setting that says so."""
+    c = np.asarray(SENSOR.gel_center_px)
+
+    def push_tap(k: int, rest: np.ndarray) -> np.ndarray:
+        return rest + _bump(rest, c) * [6.0 * min(1.0, (k + 1) / 5, (25 - k) / 5), 0.0]
+
+    def first_push(config: PipelineConfig) -> int:
+        pipeline = GesturePipeline(SENSOR, config)
+        pipeline.process(Frame(0, gel_image()))
+        pipeline.process(events_at(1))
+        rest = pipeline.rest_px
+        answers = []
+        for k in range(25):
+            pipeline.tracker.reset(push_tap(k, rest))
+            (estimate,) = pipeline.process(events_at(15000 + 10000 * k))
+            answers.append(estimate.gesture)
+        return answers.index(P)
+
+    default = first_push(NEVER_RESTING)
+    shorter = first_push(PipelineConfig(resting=NEVER_RESTING.resting, episode={"first_finger_us": 30_000}))
+    assert (default - shorter) * 10_000 == EpisodeVote().first_finger_us - 30_000
+    with pytest.raises(ValueError):
+        PipelineConfig(episode={"first_finger_us": -1})

@@ -15,6 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validat
 
 from neurotouch_hid.limits import short
 from neurotouch_hid.pipeline.contacts import HOMOGRAPHY_METHODS
+from neurotouch_hid.pipeline.episode import CORRECTION_US, FIRST_FINGER_US, PROVISIONAL_MM
 from neurotouch_hid.pipeline.learned import CLASSES, FEATURES, Classifier
 from neurotouch_hid.pipeline.noise import check_noise_filter
 from neurotouch_hid.pipeline.tracker import TrackerConfig
@@ -193,6 +194,29 @@ class GestureConfig(BaseModel):
         return self
 
 
+class EpisodeConfig(BaseModel):
+    """The episode vote (docs/method.md, "Episode vote"; ``episode.EpisodeVote``).
+
+    Attributes:
+        first_finger_us: how long an episode that shows one contact stays undecided (us, >= 0).
+        correction_us: how long after the onset the one correction may come (us, >= 0).
+        provisional_mm: below this intensity (mm, >= 0) an undecided window answers the vote so far.
+    """
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    first_finger_us: int = FIRST_FINGER_US
+    correction_us: int = CORRECTION_US
+    provisional_mm: float = PROVISIONAL_MM
+
+    @model_validator(mode="after")
+    def _consistent(self) -> "EpisodeConfig":
+        for name in ("first_finger_us", "correction_us", "provisional_mm"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        return self
+
+
 class RestingConfig(BaseModel):
     """The rest reference and the resting detection (docs/method.md, "Markers", "Resting").
 
@@ -258,8 +282,8 @@ class PipelineConfig(BaseModel):
         noise: the noise filter in front of the tracker (:class:`NoiseConfig`; kind, time in us).
         tracker: the blob tracker's parameters (:class:`~neurotouch_hid.pipeline.tracker.TrackerConfig`,
             mm and us; docs/method.md, "Tracker").
-        contacts, gesture, resting: the stages' settings (:class:`ContactsConfig`,
-            :class:`GestureConfig`, :class:`RestingConfig`).
+        contacts, gesture, episode, resting: the stages' settings (:class:`ContactsConfig`,
+            :class:`GestureConfig`, :class:`EpisodeConfig`, :class:`RestingConfig`).
     """
 
     window_us: int = 10_000
@@ -267,6 +291,7 @@ class PipelineConfig(BaseModel):
     tracker: TrackerConfig = Field(default_factory=TrackerConfig)
     contacts: ContactsConfig = Field(default_factory=ContactsConfig)
     gesture: GestureConfig = Field(default_factory=GestureConfig)
+    episode: EpisodeConfig = Field(default_factory=EpisodeConfig)
     resting: RestingConfig = Field(default_factory=RestingConfig)
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)

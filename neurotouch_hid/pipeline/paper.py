@@ -20,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.pipeline.config import check_attempts, check_homography, check_window
 from neurotouch_hid.pipeline.contacts import Contacts, _no_contacts, local_maxima, outlier_candidates
+from neurotouch_hid.pipeline.episode import EpisodeVote
 from neurotouch_hid.pipeline.gesture import GestureResult, estimate_gesture
 from neurotouch_hid.pipeline.moves import _largest_move_sq
 from neurotouch_hid.pipeline.pipeline import GesturePipeline
@@ -124,6 +125,10 @@ class PaperPipeline(GesturePipeline):
     def _scaled(self, settings: PaperConfig, sensor: SensorGeometry) -> PaperConfig:
         """Fixed pixels."""
         return settings
+
+    def _episode_vote(self) -> EpisodeVote:
+        """Not used: each window answers its own type (:meth:`_vote`)."""
+        return EpisodeVote()
 
     def _noise_filter(self) -> None:
         """Every event reaches the tracker."""

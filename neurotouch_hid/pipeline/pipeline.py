@@ -114,7 +114,7 @@ class GesturePipeline(FramePath):
         self._next_end: int | None = None
         self._init_frame_path()
         #: the current gesture episode's decision (docs/method.md, "Episode vote")
-        self._episode = EpisodeVote()
+        self._episode = self._episode_vote()
         #: whether a window of the current press had a long flat top: fingertips side by side
         #: (docs/method.md, "Contacts"; ends with the press, at a window without a gesture)
         self._long_press = False
@@ -139,6 +139,11 @@ class GesturePipeline(FramePath):
     def _scaled(self, settings: PipelineConfig, sensor: SensorGeometry) -> PixelSettings:
         """The settings that run: in pixels at the sensor's scale (``config.py``)."""
         return scaled_to_sensor(settings, sensor)
+
+    def _episode_vote(self) -> EpisodeVote:
+        """The episode vote with the settings' ``episode`` group (docs/method.md, "Episode vote")."""
+        e = self.settings.episode
+        return EpisodeVote(e.first_finger_us, e.correction_us, e.provisional_mm)
 
     def _noise_filter(self) -> EventNoiseFilter | None:
         """The noise filter in front of the tracker (docs/method.md, "Noise filter")."""
