@@ -681,6 +681,27 @@ def test_a_weak_third_finger_no_marker_of_which_is_a_maximum_is_found_by_the_bum
     assert_one_contact_on_each(found, fingers, within_px=3.0)
 
 
+@pytest.mark.parametrize("weak", [0.4, 0.6, 0.8])
+def test_a_pinch_with_one_finger_at_the_apex_gives_two_contacts_where_the_maxima_see_one(weak):
+    # two fingers 15 mm (37.5 px) apart pinching, the stronger at the gel's centre: no marker of
+    # the weaker is a maximum with N_min around it (one maximum); one bump explains the stronger
+    # finger's field and leaves the weaker's as the residual, which a second bump explains
+    rest = grid()
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    apex, other = c, c + [37.5, 0.0]
+    cur = rest + bump(rest, apex, (6.0, 0.0)) + bump(rest, other, (-6.0 * weak, 0.0))
+    found = outlier_candidates(rest, cur, None, a=0.6)
+    table = _valid_table(rest_neighbours(rest, 10.0), found.idx, found.n)
+    peaks, _ = _maxima(
+        found.rest_px, found.magnitudes, found.outliers, table, 0.6, 25.0**2, 12, found.threshold_px, 0.6
+    )
+    assert len(peaks) == 1
+    contacts = detect_contacts(rest, cur)
+    assert contacts.count == 2
+    points = contacts.points_px[np.argsort(contacts.points_px[:, 0])]
+    np.testing.assert_allclose(points, [apex + [6.0, 0.0], other - [6.0 * weak, 0.0]], atol=3.0)
+
+
 def test_two_fingers_with_long_tails_get_no_third_from_the_bumps():
     # the third finger absent: what two bumps leave of two fingers is no finger (wider bumps
     # join into one flat top, read by its area)

@@ -174,3 +174,21 @@ def test_the_pipeline_settings_set_the_vote_and_an_override_changes_its_wait(res
     assert (default - shorter) * 10_000 == EpisodeVote().first_finger_us - 30_000
     with pytest.raises(ValueError):
         PipelineConfig(episode={"first_finger_us": -1})
+
+
+def test_a_pinch_with_one_finger_at_the_apex_is_felt_as_a_pinch_not_a_push_after_the_wait(rest_image):
+    """Two fingers 15 mm apart pinching, the stronger at the gel's centre, the other at 0.6 of
+    its strength: the contact maxima see one finger, a second bump finds the other, so the
+    episode commits the pinch on two contacts instead of answering push when the one-contact wait
+    runs out, and it stays a pinch through the hold."""
+    c = np.asarray(SENSOR.gel_center_px)
+
+    def apex_pinch(k: int, rest: np.ndarray) -> np.ndarray:
+        level = 6.0 * min(1.0, (k + 1) / 6)
+        return rest + _bump(rest, c) * [level, 0.0] - _bump(rest, c + [37.5, 0.0]) * [0.6 * level, 0.0]
+
+    estimates = _run(apex_pinch, 30)
+    felt = [e for e in estimates if e.intensity_mm >= PROVISIONAL_MM]
+    assert felt and all(e.gesture in (N, Q) for e in felt)
+    assert [e.gesture for e in estimates[10:]] == [Q] * 20
+    assert all(e.n_contacts == 2 for e in estimates[10:])

@@ -431,7 +431,7 @@ def detect_contacts(
             rows.append(i)
             points.append(_refine_peak(c.rest_px, c.v_px, magnitudes, i, refine_px))
     points = peaks_px = np.array(points, dtype=np.float64).reshape(-1, 2)
-    if len(points) >= 2 and fingers.max(initial=0) < 2:
+    if len(points) and fingers.max(initial=0) < 2:
         n_knots = max(2, math.ceil(bump_span_px / pitch_px) + 1)
         start = _at_rest(c.current_px, c.v_px, points)
         if len(points) < MAX_FINGERS:
@@ -441,5 +441,6 @@ def detect_contacts(
                 peaks_px = np.vstack([peaks_px, c.current_px[missed]])
         else:
             centres = bump_fit(c.rest_px, c.v_px, start, float(pitch_px), n_knots)
-        points = field_at(c.rest_px, c.v_px, centres)
+        if len(centres) >= 2:  # one finger alone keeps its refined peak
+            points = field_at(c.rest_px, c.v_px, centres)
     return c.contacts(np.array(rows, dtype=np.int64), points, peaks_px, bool(long_flat_top))
