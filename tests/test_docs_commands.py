@@ -34,7 +34,7 @@ NOT_RUN: list[tuple[str, str]] = [
     ),
     (r"\$\{?\w", "a figure's reproduction with shell variables (docs/accuracy.md): minutes of CPU each"),
     (
-        r"[\[\]|]|\b(?:KEY|VALUE|NAME|DIR|N|FAMILY|DEG|GAME|PROFILE|DATASET|FILE|PATH)\b",
+        r"[\[\]|<>]|\b(?:KEY|VALUE|NAME|DIR|N|FAMILY|DEG|GAME|PROFILE|DATASET|FILE|PATH)\b",
         "a synopsis: capitals, [optional] parts and a|b stand for what the user fills in",
     ),
     (r"--source davis\b", "needs the DAVIS-346 camera and the gel"),
