@@ -1,6 +1,6 @@
 """The families of a ``family_eval.py`` working folder, for the scripts that read one
-(``felt_errors.py``, ``resting_errors.py``, ``onset_bound.py``, ``contact_count.py``,
-``type_commitment.py``, ``profile_felt.py``), and their usage errors.
+(``felt_errors.py``, ``resting_errors.py``, ``onset_bound.py``, ``profile_felt.py``, and the lab
+scripts docs/lab/contact_count.py and type_commitment.py), and their usage errors.
 
 A working folder holds each family's dataset under ``DIR/FAMILY`` (its ``sensor.yaml`` and
 sequences) and each method's predictions under ``DIR/predictions/FAMILY/METHOD``

@@ -57,8 +57,8 @@ def test_a_family_without_data_is_a_usage_error(workdir, tmp_path, capsys, names
         ("resting_errors.py", ["--method", "ours"]),
         ("felt_errors.py", ["--families", "late"]),
         ("onset_bound.py", []),
-        ("contact_count.py", ["--families", "default"]),
-        ("type_commitment.py", ["--families", "default"]),
+        ("../docs/lab/contact_count.py", ["--families", "default"]),
+        ("../docs/lab/type_commitment.py", ["--families", "default"]),
         ("profile_felt.py", ["--method", "ours"]),
     ],
 )

@@ -1,6 +1,6 @@
 """Where contact count is lost, per gesture type: from the predictions ``family_eval.py`` wrote.
 
-    python3 benchmarks/contact_count.py --out DIR [--families default,fingers,...] [--method ours]
+    python3 docs/lab/contact_count.py --out DIR [--families default,fingers,...] [--method ours]
 
 Reads ``DIR/FAMILY`` (the dataset) and ``DIR/predictions/FAMILY/METHOD`` (its predictions) as
 ``family_eval.py --out DIR`` leaves them and prints, per family and labelled gesture type, over
@@ -21,15 +21,18 @@ Figures only; nothing here is a pass or fail.
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
 import typer
-from workdir import families_in
 
-from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions
-from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.output.console import command_app
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))  # workdir.py, a benchmark's helper
+from workdir import families_in  # noqa: E402
+
+from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions  # noqa: E402
+from neurotouch_hid.estimate import GestureType  # noqa: E402
+from neurotouch_hid.output.console import command_app  # noqa: E402
 
 app = command_app()
 

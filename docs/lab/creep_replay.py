@@ -12,7 +12,7 @@ a calibration may be before the rule stops paying.
 
 Run::
 
-    python3 benchmarks/creep_replay.py --dataset W/viscoelastic \\
+    python3 docs/lab/creep_replay.py --dataset W/viscoelastic \\
         --predictions W/predictions/viscoelastic/r4 --share 0.3 --time-s 0.3
 """
 

@@ -1,7 +1,7 @@
 """Variants of the contacts stage's candidate maxima, compared on the development families.
 
-    python3 benchmarks/contact_variants.py replay --out DIR --variant NAME [--families ...]
-    python3 benchmarks/contact_variants.py family --out DIR --variant NAME --data SRC [--families ...]
+    python3 docs/lab/contact_variants.py replay --out DIR --variant NAME [--families ...]
+    python3 docs/lab/contact_variants.py family --out DIR --variant NAME --data SRC [--families ...]
 
 ``replay`` scores a variant on ``contact_replay.py record``'s windows (contact count per type);
 ``family`` runs ``family_eval.py`` with the variant in place of the product's maxima, in

@@ -1,8 +1,8 @@
 """The contacts stage alone, replayed on the windows of real pipeline runs: contact count per
 gesture type for variants of :func:`~neurotouch_hid.pipeline.contacts.detect_contacts`.
 
-    python3 benchmarks/contact_replay.py record --out DIR --families default,fingers,...
-    python3 benchmarks/contact_replay.py score --out DIR --families default,fingers,... [--variant NAME]
+    python3 docs/lab/contact_replay.py record --out DIR --families default,fingers,...
+    python3 docs/lab/contact_replay.py score --out DIR --families default,fingers,... [--variant NAME]
 
 ``record`` runs the product's pipeline over each family's dataset ``DIR/FAMILY`` (as
 ``family_eval.py --out DIR`` made it) and keeps, per window, the inputs its contacts stage saw

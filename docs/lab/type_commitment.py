@@ -2,7 +2,7 @@
 answers its own type: onset latency against felt wrong types (docs/method.md, "Episode vote";
 docs/lab/type-commitment.md).
 
-    python3 benchmarks/type_commitment.py --out DIR [--families default,fingers,strong]
+    python3 docs/lab/type_commitment.py --out DIR [--families default,fingers,strong]
         [--first-finger-ms 0,40,70,90,110] [--provisional-mm 0,0.4] [--deadzone-mm 0.8]
 
 ``DIR`` is a ``benchmarks/family_eval.py --sessions`` folder (``DIR/FAMILY`` datasets, their
@@ -19,22 +19,25 @@ families.
 
 from __future__ import annotations
 
+import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import typer
-from workdir import families_in
 
-from neurotouch_hid.dataset import list_sequences, read_labels, read_predictions, write_predictions
-from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM, gesture_spans
-from neurotouch_hid.evaluation.metrics import Observations, align, evaluate
-from neurotouch_hid.output.console import command_app
-from neurotouch_hid.pipeline.episode import EpisodeVote
-from neurotouch_hid.pipeline.pipeline import GesturePipeline
-from neurotouch_hid.sensor import SensorGeometry
-from neurotouch_hid.sources.recording import RecordingReader
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))  # workdir.py, a benchmark's helper
+from workdir import families_in  # noqa: E402
+
+from neurotouch_hid.dataset import list_sequences, read_labels, read_predictions, write_predictions  # noqa: E402
+from neurotouch_hid.estimate import GestureType  # noqa: E402
+from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM, gesture_spans  # noqa: E402
+from neurotouch_hid.evaluation.metrics import Observations, align, evaluate  # noqa: E402
+from neurotouch_hid.output.console import command_app  # noqa: E402
+from neurotouch_hid.pipeline.episode import EpisodeVote  # noqa: E402
+from neurotouch_hid.pipeline.pipeline import GesturePipeline  # noqa: E402
+from neurotouch_hid.sensor import SensorGeometry  # noqa: E402
+from neurotouch_hid.sources.recording import RecordingReader  # noqa: E402
 
 app = command_app()
 
