@@ -25,6 +25,7 @@ from neurotouch_hid.enrolment.model import (
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.pipeline.config import PipelineConfig
 from neurotouch_hid.pipeline.learned import CLASSES, Classifier, learned_gesture
+from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.simulator import write_dataset
 
 TWISTS = {"twist_cw": "twist_ccw", "twist_ccw": "twist_cw"}
@@ -242,3 +243,18 @@ def test_adapt_never_writes_over_an_input_and_a_bad_model_is_one_line(enrolment,
     recording = sorted(enrolment.glob("*.aedat4"))[0]
     done = run_cli("track", str(recording), "--out", str(tmp_path / "p.jsonl"), "--model", str(bad))
     assert done.returncode == 2 and "version 3" in done.stderr and "Traceback" not in done.stderr
+
+
+def test_the_driver_and_profile_test_run_the_pipeline_with_the_model():
+    from neurotouch_hid.driver import build_pipeline
+
+    model = Model({"gesture.intensity_gain": 1.3, "gesture.min_intensity_mm": 0.2}, swapped_classifier())
+    pipeline, _ = build_pipeline(SensorGeometry(), 10_000, model=model)
+    assert pipeline.settings.gesture.intensity_gain == 1.3 and pipeline.settings.gesture.min_intensity_mm == 0.2
+    assert pipeline.config.classifier.weights.tolist() == model.classifier["weights"]
+    shipped, _ = build_pipeline(SensorGeometry(), 10_000)
+    assert shipped.settings == PipelineConfig() and shipped.config.classifier is Classifier.shipped()
+    from neurotouch_hid.pipeline.paper import PaperConfig
+
+    paper, _ = build_pipeline(SensorGeometry(), 10_000, method="paper", model=model)  # the paper's stays its own
+    assert paper.settings == PaperConfig()

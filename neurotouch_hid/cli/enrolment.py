@@ -201,7 +201,7 @@ def adapt(
         err_console.print(line, highlight=False, soft_wrap=True, markup=False)
 
     records = record_datasets(datasets, jobs=jobs, on_sequence=lambda name: say(f"recorded {name}"))
-    adaptation = fit(records)
+    adaptation = fit(records, rerun=lambda config: record_datasets(datasets, jobs=jobs, config=config))
     for line in summary(adaptation):
         console.print(line, highlight=False, soft_wrap=True, markup=False)
     model = adaptation.model
