@@ -152,20 +152,7 @@ def main(
     cache = json.loads(cache_path.read_text()) if cache_path.exists() else {}
     methods = [parse_method(m) for m in method]
     for fam in names:
-        folder = out / fam
-        if not (folder / "done").exists():
-            if sessions:
-                write_dataset(folder, preset="sessions", seed=seed, users=user_ids, physics=fam, progress=False)
-            else:
-                n_seq = len(user_ids) * 5
-                write_dataset(
-                    folder, seed=seed, users=user_ids, minutes=seconds * n_seq / 60.0, physics=fam, progress=False
-                )
-            (folder / "done").write_text("")
-        if creep and fam != "mix" and not (folder / "creep.done").exists():
-            share, time_s = press_creep(out / "presses" / fam, fam, folder / "sensor.yaml")
-            console.print(f"{fam}: creep q {share:.2f}, tau {time_s:.2f} s (a simulated press)", highlight=False)
-            (folder / "creep.done").write_text("")
+        folder = family_dataset(out, fam, sessions=sessions, seed=seed, users=user_ids, seconds=seconds, creep=creep)
         for name, preset, sets in methods:
             key = f"{fam}/{name}"
             if key in cache and not rerun and cache[key].get("settings") == [preset, *sets, deadzone_mm]:
@@ -205,6 +192,28 @@ def main(
     console.print(table)
     console.print("\n".join(lines[len(main_rows) + 2 :]), highlight=False)
     console.print(f"-> {out / 'families.md'}")
+
+
+def family_dataset(
+    out: Path, fam: str, *, sessions: bool, seed: int, users: list[int], seconds: float = 4.0, creep: bool = True
+) -> Path:
+    """The family's test dataset ``out/FAM``, written once (``done`` marks it): game sessions
+    (``simulate --preset sessions``) or ``seconds`` per user and gesture type, of the ``users``
+    with ``seed``; with ``creep`` (not for mix), the family's creep calibrated on a tuning user's
+    press (:func:`press_creep`) and written into its sensor.yaml."""
+    folder = out / fam
+    if not (folder / "done").exists():
+        if sessions:
+            write_dataset(folder, preset="sessions", seed=seed, users=users, physics=fam, progress=False)
+        else:
+            n_seq = len(users) * 5
+            write_dataset(folder, seed=seed, users=users, minutes=seconds * n_seq / 60.0, physics=fam, progress=False)
+        (folder / "done").write_text("")
+    if creep and fam != "mix" and not (folder / "creep.done").exists():
+        share, time_s = press_creep(out / "presses" / fam, fam, folder / "sensor.yaml")
+        make_console().print(f"{fam}: creep q {share:.2f}, tau {time_s:.2f} s (a simulated press)", highlight=False)
+        (folder / "creep.done").write_text("")
+    return folder
 
 
 def press_creep(press_dir: Path, family: str, sensor_file: Path) -> tuple[float, float]:
