@@ -209,3 +209,65 @@ def test_a_calibration_the_check_finds_wrong_is_written_only_with_force(tmp_path
     assert "push exactly the ways asked" not in refused.stdout
     forced = run_cli(*flags, "--force")
     assert forced.returncode == 1 and out.is_file() and "written with --force" in forced.stdout
+
+
+# --- help: -h everywhere, an example on every page, the main page leads with where to start ---------
+def _command_paths() -> list[tuple[str, ...]]:
+    import typer
+
+    from neurotouch_hid.cli import app
+
+    paths = []
+
+    def walk(command, path):
+        paths.append(path)
+        for name, sub in getattr(command, "commands", {}).items():
+            walk(sub, (*path, name))
+
+    walk(typer.main.get_command(app), ())
+    return paths
+
+
+def _help(monkeypatch, capsys, *args: str) -> str:
+    from neurotouch_hid.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["neurotouch-hid", *args])
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as done:
+        main()
+    out = capsys.readouterr().out
+    assert done.value.code == 0, (args, out)
+    return out
+
+
+def test_every_command_takes_h_and_its_help_ends_with_an_example_of_its_own_options(monkeypatch, capsys):
+    import typer
+
+    from neurotouch_hid.cli import EXAMPLES, app
+
+    paths = _command_paths()
+    assert len(paths) > 25
+    root = typer.main.get_command(app)
+    for path in paths[1:]:
+        page = _help(monkeypatch, capsys, *path, "-h")
+        assert page.startswith("Usage: ") and f"neurotouch-hid {' '.join(path)}" in page.splitlines()[0], path
+        assert "\n  Example" in page, path
+        for example in EXAMPLES[" ".join(path)]:
+            assert f"    {example}" in page
+            words = example.split()
+            words = words[words.index("neurotouch-hid") + 1 :]
+            assert " ".join(words).startswith(" ".join(path)), example
+            command = root  # the command the example runs
+            while words and words[0] in getattr(command, "commands", {}):
+                command = command.commands[words.pop(0)]
+            options = {opt for param in command.params for opt in param.opts + param.secondary_opts}
+            assert all(word in options for word in words if word.startswith("--")), example
+
+
+def test_the_main_help_leads_with_demo_doctor_and_the_guide(monkeypatch, capsys):
+    page = _help(monkeypatch, capsys, "-h")
+    commands = page.split("Commands:\n")[1].split()
+    assert commands[0] == "demo" and "doctor" in commands[:15] and commands.index("doctor") < commands.index("info")
+    listed = [line.split()[0] for line in page.split("Commands:\n")[1].splitlines() if line.startswith("  ")]
+    assert listed[:2] == ["demo", "doctor"]
+    assert "docs/getting-started.md" in page and "neurotouch-hid demo" in page.split("Options:")[0]

@@ -1,4 +1,4 @@
-"""Pipeline methods (``track/eval/run --method``, ``--preset`` an alias): ``paper`` is the paper's
+"""Pipeline methods (``track/eval/run --method``; ``--preset`` is simulate's): ``paper`` is the paper's
 method exactly, its own composition."""
 
 from __future__ import annotations
@@ -58,13 +58,24 @@ def test_unknown_method_is_one_clear_error():
         pipeline_config(method="papr")
 
 
-@pytest.mark.parametrize("flag", ["--method", "--preset"])
-def test_eval_takes_the_method_and_its_alias(tmp_path, monkeypatch, capsys, flag):
+def test_eval_takes_the_method(tmp_path, monkeypatch, capsys):
     from neurotouch_hid.cli import main
 
-    monkeypatch.setattr("sys.argv", ["neurotouch-hid", "eval", str(tmp_path), flag, "nope"])
+    monkeypatch.setattr("sys.argv", ["neurotouch-hid", "eval", str(tmp_path), "--method", "nope"])
     with pytest.raises(SystemExit) as exc:
         main()
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert "--method 'nope'" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("command", ["eval", "track"])
+def test_preset_belongs_to_simulate_and_the_pipeline_commands_say_to_use_method(tmp_path, monkeypatch, capsys, command):
+    from neurotouch_hid.cli import main
+
+    out = ["--out", str(tmp_path / "p.jsonl")] if command == "track" else []
+    monkeypatch.setattr("sys.argv", ["neurotouch-hid", command, str(tmp_path), *out, "--preset", "paper"])
+    with pytest.raises(SystemExit) as exc:
+        main()
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "--preset is simulate's dataset size" in err and "--method paper" in err

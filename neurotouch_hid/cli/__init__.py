@@ -19,21 +19,102 @@ import re
 import sys
 
 import typer
+from typer.core import TyperGroup
 
 from neurotouch_hid.cli import devices, enrolment, profiles, recordings
 from neurotouch_hid.cli.common import err_console
 from neurotouch_hid.errors import NeurotouchError, did_you_mean, in_plain_words
 from neurotouch_hid.output.console import command_app
 
-app = command_app(
-    name="neurotouch-hid",
-    help="NeuroTouch soft tactile sensor -> standard game controller.",
-    no_args_is_help=True,
+#: The main help's lead: where a new user starts.
+MAIN_HELP = (
+    "NeuroTouch soft tactile sensor -> standard game controller.\n\n"
+    "New here? `neurotouch-hid demo` shows every gesture on a simulated gel through the default profile "
+    "(no camera needed); `neurotouch-hid doctor` says what your setup still lacks and how to fix it. "
+    "Every command takes -h for its help, with an example. The guide: docs/getting-started.md, and "
+    "docs/troubleshooting.md for every message, in the source tree (README.md)."
 )
+#: The commands the main help lists first (where a new user starts), then the others in order.
+FIRST_COMMANDS = ("demo", "doctor")
+
+
+class _StartHereGroup(TyperGroup):
+    """The main command group: :data:`FIRST_COMMANDS` lead its help's command list."""
+
+    def list_commands(self, ctx) -> list[str]:
+        names = super().list_commands(ctx)
+        return [n for n in FIRST_COMMANDS if n in names] + [n for n in names if n not in FIRST_COMMANDS]
+
+
+app = command_app(name="neurotouch-hid", help=MAIN_HELP, no_args_is_help=True, cls=_StartHereGroup)
 app.add_typer(devices.app)
 app.add_typer(recordings.app)
 app.add_typer(enrolment.app)
 app.add_typer(profiles.profile_app, name="profile")
+
+#: One example per command, shown at the end of its help (``-h``); tests check that each one's
+#: options are the command's.
+EXAMPLES: dict[str, tuple[str, ...]] = {
+    "run": ("neurotouch-hid run --source davis --profile default", "neurotouch-hid run --source sim --output term"),
+    "demo": ("neurotouch-hid demo --seconds 20",),
+    "devices": ("neurotouch-hid devices",),
+    "doctor": ("neurotouch-hid doctor",),
+    "calibrate": (
+        "neurotouch-hid calibrate",
+        "neurotouch-hid calibrate --source sim --sim-rotation 40 --out /tmp/sensor.yaml",
+    ),
+    "info": ("neurotouch-hid info rec.aedat4",),
+    "record": ("neurotouch-hid record rec.aedat4 --seconds 10",),
+    "simulate": ("neurotouch-hid simulate --out my-dataset --preset quick --seed 1",),
+    "track": ("neurotouch-hid track rec.aedat4 --out pred.jsonl",),
+    "eval": ("neurotouch-hid eval my-dataset --report report/", "neurotouch-hid eval my-dataset --profile mine"),
+    "view": ("neurotouch-hid view rec.aedat4 --out rec.png",),
+    "enrol": ("neurotouch-hid enrol --source sim",),
+    "adapt": ("neurotouch-hid adapt ~/.local/share/neurotouch-hid/enrolments/*",),
+    "profile": ("neurotouch-hid profile new mine --from default", "neurotouch-hid profile test mine --source sim"),
+    "profile list": ("neurotouch-hid profile list",),
+    "profile use": ("neurotouch-hid profile use mouse",),
+    "profile show": ("neurotouch-hid profile show default",),
+    "profile new": ("neurotouch-hid profile new mine --from default",),
+    "profile set": ("neurotouch-hid profile set mine mappings.push.deadzone_mm 1.0",),
+    "profile unset": ("neurotouch-hid profile unset mine mappings.push.deadzone_mm",),
+    "profile delete": ("neurotouch-hid profile delete mine",),
+    "profile reset": ("neurotouch-hid profile reset default",),
+    "profile validate": ("neurotouch-hid profile validate ~/.config/neurotouch-hid/profiles/mine.yaml",),
+    "profile edit": ("EDITOR=nano neurotouch-hid profile edit mine",),
+    "profile path": ("neurotouch-hid profile path default",),
+    "profile test": (
+        "neurotouch-hid profile test mine --source sim",
+        "neurotouch-hid profile test mine --source pred.jsonl",
+    ),
+    "profile tune": ("neurotouch-hid profile tune mine --from my-recording.aedat4",),
+    "profile auto": ("neurotouch-hid profile auto add 4242 mouse",),
+    "profile auto add": ("neurotouch-hid profile auto add supertuxkart spacecraft",),
+    "profile auto remove": ("neurotouch-hid profile auto remove 4242",),
+    "profile auto list": ("neurotouch-hid profile auto list",),
+}
+
+
+def _epilog(path: str) -> str:
+    """The help's closing paragraph for the command at ``path`` (its examples, one a line)."""
+    lines = EXAMPLES[path]
+    return "\b\nExample" + ("s" * (len(lines) > 1)) + ":\n" + "\n".join(f"  {line}" for line in lines)
+
+
+def _add_examples(typer_app: typer.Typer, prefix: str) -> None:
+    """Give each command of ``typer_app`` (its sub-groups too) its :data:`EXAMPLES` as epilog."""
+    for info in typer_app.registered_commands:
+        name = info.name or info.callback.__name__.replace("_", "-")
+        info.epilog = _epilog(f"{prefix}{name}")
+    for group in typer_app.registered_groups:
+        if not isinstance(group.name, str):  # no name of its own: its commands are the parent's
+            _add_examples(group.typer_instance, prefix)
+            continue
+        group.typer_instance.info.epilog = _epilog(f"{prefix}{group.name}")
+        _add_examples(group.typer_instance, f"{prefix}{group.name} ")
+
+
+_add_examples(app, "")
 
 #: The variable through which shells ask for completions (click's protocol):
 #: ``_NEUROTOUCH_HID_COMPLETE=source_bash neurotouch-hid`` prints the bash script (zsh, fish too).

@@ -77,6 +77,18 @@ def chosen_model(option: Optional[str]):
 METHOD_HELP = "the gesture pipeline: default (the product's) or paper (the paper's method exactly)"
 
 
+def _not_a_method(value: Optional[str]) -> None:
+    """``--preset`` on track and eval: it is simulate's option, not the pipeline's (exit 2)."""
+    if value is not None:
+        raise typer.BadParameter(
+            f"--preset is simulate's dataset size; the pipeline is chosen with --method (--method {value})"
+        )
+
+
+#: A hidden ``--preset`` on the pipeline's commands that says to use ``--method``.
+PRESET_IS_NOT_A_METHOD = typer.Option(None, "--preset", hidden=True, callback=_not_a_method)
+
+
 def davis_config(serial: Optional[str], exposure_us: str, stall_timeout: float):
     """The live camera's settings from the command line (sources/davis.py DavisConfig)."""
     from neurotouch_hid.sources.davis import DavisConfig

@@ -14,6 +14,7 @@ import typer
 from neurotouch_hid.cli.common import (
     METHOD_HELP,
     MODEL_OPTION,
+    PRESET_IS_NOT_A_METHOD,
     chosen_model,
     console,
     davis_config,
@@ -217,8 +218,9 @@ def track(
     sensor: Optional[Path] = typer.Option(None, "--sensor", help="sensor.yaml (default: the one beside the recording)"),
     window_us: int = typer.Option(10_000, "--window-us", help="window length in microseconds (>= 1000)"),
     markers: Optional[Path] = typer.Option(None, "--markers", help="also write tracked marker positions (.npz)"),
-    method: str = typer.Option("default", "--method", "--preset", help=METHOD_HELP),
+    method: str = typer.Option("default", "--method", help=METHOD_HELP),
     model: Optional[str] = MODEL_OPTION,
+    preset: Optional[str] = PRESET_IS_NOT_A_METHOD,
 ) -> None:
     """Run the gesture pipeline on a recording and write one prediction per window."""
     with long_lived_start_up():
@@ -258,7 +260,8 @@ def eval_cmd(
         "mm on the gel, *_mm2 in mm^2, *_um2 in um^2, *_us in us), converted with sensor.yaml's px/mm; paper: its "
         "fields in px, tracker.* as the default's",
     ),
-    method: str = typer.Option("default", "--method", "--preset", help=METHOD_HELP + "; --set applies over it"),
+    method: str = typer.Option("default", "--method", help=METHOD_HELP + "; --set applies over it"),
+    preset: Optional[str] = PRESET_IS_NOT_A_METHOD,
     jobs: int = typer.Option(1, "--jobs", min=1, help="sequences run in parallel processes"),
     predictions: Optional[Path] = typer.Option(
         None, "--predictions", help="keep each sequence's predictions here (JSON lines)"

@@ -33,13 +33,14 @@ def make_console(*, stderr: bool = False) -> Console:
 
 
 def command_app(**options: object) -> typer.Typer:
-    """A typer app whose ``--help`` and usage errors are click's plain text, re-flowed to the
+    """A typer app whose ``--help`` (and ``-h``) and usage errors are click's plain text, re-flowed to the
     terminal's width on a terminal and to :data:`PIPE_WIDTH` elsewhere (each paragraph and option
     on one line, nothing cut), with plain tracebacks and no shell-completion options. ``options``
     go to :class:`typer.Typer` (typer; click's ``terminal_width`` / ``max_content_width``)."""
     import typer  # here, not at the top: the runtime's consoles do not need it
 
     width = {} if sys.stdout.isatty() else {"terminal_width": PIPE_WIDTH, "max_content_width": PIPE_WIDTH}
+    width["help_option_names"] = ["-h", "--help"]  # every command and group: subcommands inherit it
     return typer.Typer(
         add_completion=False,
         pretty_exceptions_enable=False,
