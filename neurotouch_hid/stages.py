@@ -18,7 +18,7 @@ the replay of a predictions file (:class:`~neurotouch_hid.driver.EstimateReplay`
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Iterable, Protocol, Union
+from typing import TYPE_CHECKING, Iterable, NamedTuple, Protocol, Union
 
 from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.estimate import GestureEstimate, MarkerPositions
@@ -52,9 +52,9 @@ class CompileProgress:
     fraction: float
 
 
-@dataclass(frozen=True)
-class WindowRecord:
-    """What the runtime publishes after each window, the same object to every subscriber.
+class WindowRecord(NamedTuple):
+    """What the runtime publishes after each window, the same object to every subscriber (an
+    immutable tuple: made 100 times a second, it costs a tenth of a frozen dataclass).
 
     Attributes:
         estimate: the window's gesture estimate (its end ``t_us``, type, intensity, contacts).
