@@ -56,11 +56,15 @@ def test_lost_markers_are_left_out():
     assert len(_find(cells, "·")) == len(rest) - 5
 
 
-def test_the_profile_says_what_each_gesture_drives():
+def test_the_profile_says_what_each_gesture_drives_in_its_words_and_the_pads():
     lines = mapping_lines(load_profile("default"))
-    assert ("push", "left_stick") in lines
-    assert ("pinch", "ABS_Z") in lines
+    assert ("push", "L stick") in lines and ("pinch", "LT") in lines and ("twist", "R stick X") in lines
     assert len(lines) == len(load_profile("default").mappings)
+    spacecraft = mapping_lines(load_profile("spacecraft"))
+    assert ("twist", "roll (R stick X)") in spacecraft and ("zoom", "accelerate (RT)") in spacecraft
+    assert not any("ABS_" in what or "BTN_" in what for _, what in lines + spacecraft)
+    accessibility = dict(mapping_lines(load_profile("accessibility")))
+    assert accessibility["twist_ccw"] == "confirm (A)"
 
 
 def _tmux() -> str:

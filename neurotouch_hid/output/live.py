@@ -32,7 +32,15 @@ from rich.text import Text
 
 from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.output.term import BUTTON_LABELS, STICK_COLUMNS, TermView, axis_fraction, dpad_text, stick_grid
+from neurotouch_hid.output.term import (
+    BUTTON_LABELS,
+    STICK_COLUMNS,
+    TermView,
+    axis_fraction,
+    dpad_text,
+    pad_name,
+    stick_grid,
+)
 
 if TYPE_CHECKING:
     from neurotouch_hid.mapping.profile import Profile
@@ -121,14 +129,17 @@ def gel_text(cells: list[list[tuple[str, str]]]) -> Text:
 
 
 def mapping_lines(profile: "Profile") -> list[tuple[str, str]]:
-    """What each gesture drives in ``profile``: (input, output) per mapping, e.g.
-    ``("push", "left_stick")``, in the profile's order; layer switches as ``(input, "layer NAME")``."""
+    """What each gesture drives in ``profile``, in the profile's words and the pad's: (input, what)
+    per mapping, in the profile's order, ``what`` the pad's name of the output (:func:`pad_name`)
+    after the mapping's own name when that is not the input's, e.g. ``("twist", "roll (R stick
+    X)")``, ``("push", "L stick")``; layer switches as ``(input, "layer NAME")``."""
     lines = []
-    for mapping in profile.mappings.values():
+    for name, mapping in profile.mappings.items():
         output = mapping.output
         if isinstance(output, (list, tuple)):
             output = "+".join(str(o) for o in output)
-        lines.append((str(mapping.input), str(output)))
+        on_pad = pad_name(str(output))
+        lines.append((str(mapping.input), on_pad if name == mapping.input else f"{name} ({on_pad})"))
     for name, switch in profile.layers.items():
         lines.append((str(switch.input), f"layer {name}"))
     return lines

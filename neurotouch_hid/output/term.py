@@ -49,6 +49,45 @@ BUTTON_LABELS: dict[str, str] = {
     "BTN_THUMBR": "RS",
 }
 
+#: The pad's (and mouse's) names of the outputs a profile drives, as the views draw them.
+PAD_NAMES: dict[str, str] = {
+    "left_stick": "L stick",
+    "right_stick": "R stick",
+    "ABS_X": "L stick X",
+    "ABS_Y": "L stick Y",
+    "ABS_RX": "R stick X",
+    "ABS_RY": "R stick Y",
+    "ABS_Z": "LT",
+    "ABS_RZ": "RT",
+    "dpad_up": "d-pad up",
+    "dpad_down": "d-pad down",
+    "dpad_left": "d-pad left",
+    "dpad_right": "d-pad right",
+    "pointer": "mouse pointer",
+    "REL_X": "mouse X",
+    "REL_Y": "mouse Y",
+    "REL_WHEEL": "mouse wheel",
+    "REL_HWHEEL": "mouse wheel sideways",
+    "BTN_LEFT": "left click",
+    "BTN_RIGHT": "right click",
+    "BTN_MIDDLE": "middle click",
+    "BTN_SIDE": "mouse side button",
+    "BTN_EXTRA": "mouse extra button",
+    **BUTTON_LABELS,
+}
+
+
+def pad_name(output: str) -> str:
+    """What the pad calls a profile's ``output`` (``ABS_RX`` -> ``R stick X``, ``BTN_SOUTH`` ->
+    ``A``); keys by their name (``KEY_LEFTSHIFT+KEY_TAB`` -> ``LEFTSHIFT+TAB key``)."""
+    if output in PAD_NAMES:
+        return PAD_NAMES[output]
+    parts = output.split("+")
+    if all(p.startswith("KEY_") for p in parts):
+        return "+".join(p.removeprefix("KEY_") for p in parts) + " key"
+    return "+".join(PAD_NAMES.get(p, p.removeprefix("KEY_")) for p in parts)
+
+
 STICK_COLUMNS = 11
 STICK_ROWS = 5
 
