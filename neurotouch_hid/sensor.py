@@ -291,15 +291,23 @@ def default_sensor() -> SensorGeometry:
     return SensorGeometry.load(path) if path.exists() else SensorGeometry()
 
 
+def chosen_sensor_file(recording: str | Path, sensor: str | Path | None = None) -> Path | None:
+    """The sensor.yaml :func:`find_sensor_file` reads for a recording: ``sensor``, else the one
+    beside the recording, else the user's calibration; None for the built-in geometry."""
+    if sensor is not None:
+        return Path(sensor)
+    beside = Path(recording).with_name("sensor.yaml")
+    if beside.exists():
+        return beside
+    return user_sensor_path() if user_sensor_path().exists() else None
+
+
 def find_sensor_file(recording: str | Path, sensor: str | Path | None = None) -> SensorGeometry:
     """The geometry for a recording: ``sensor`` if given, else ``sensor.yaml`` beside the
-    recording, else the user's calibration, else the default geometry (:func:`default_sensor`).
+    recording, else the user's calibration, else the default geometry (:func:`default_sensor`;
+    which one: :func:`chosen_sensor_file`).
 
     Raises :class:`SensorError` naming the file when the chosen sensor.yaml is missing or invalid.
     """
-    if sensor is not None:
-        return SensorGeometry.load(sensor)
-    beside = Path(recording).with_name("sensor.yaml")
-    if beside.exists():
-        return SensorGeometry.load(beside)
-    return default_sensor()
+    chosen = chosen_sensor_file(recording, sensor)
+    return SensorGeometry.load(chosen) if chosen is not None else SensorGeometry()

@@ -36,6 +36,9 @@ class TrackSummary:
         frames: APS frames read.
         duration_us: recording time covered (us).
         elapsed_s: wall-clock time of the whole run, file reading included (s).
+        refused_frames: first APS frames refused as the rest reference (their markers off the
+            sensor.yaml's rest layout: the gel pressed, or a sensor.yaml of another camera pose).
+        first_window_us: the first window's end from the recording's start (us).
     """
 
     windows: int
@@ -43,6 +46,8 @@ class TrackSummary:
     frames: int
     duration_us: int
     elapsed_s: float
+    refused_frames: int = 0
+    first_window_us: int = 0
 
     @property
     def realtime_factor(self) -> float:
@@ -72,11 +77,17 @@ def recording_progress(console, label: str) -> Iterator[Callable[[int, int], Non
         yield report
 
 
+def sensor_label(sensor_file: str | Path | None) -> str:
+    """How messages name the geometry in use: the sensor.yaml's path, or the built-in one."""
+    return str(sensor_file) if sensor_file is not None else "the built-in geometry (no sensor.yaml)"
+
+
 def pipeline_over(
     recording: str | Path,
     pipeline: GesturePipeline,
     *,
     on_progress: Callable[[int, int], None] | None = None,
+    sensor_file: str | Path | None = None,
 ) -> Iterator[tuple[StreamItem, list[GestureEstimate]]]:
     """Feed a recording through ``pipeline``, yielding each stream item with the estimates it
     closed (shared by ``track`` and ``view``).
@@ -88,10 +99,13 @@ def pipeline_over(
             done, total) in us (the total costs one pass over the file's packets with the
             ``aedat`` decoder; 0 when that pass finds the file damaged: what is readable is
             still tracked and written before the error).
+        sensor_file: the sensor.yaml the pipeline's geometry came from (None: the built-in
+            one), named when no frame matches it.
     Raises:
         RecordingError: the file is missing, not AEDAT4, has no APS frames or the wrong
             resolution, or is truncated (after everything readable was yielded).
-        SensorError: no gel found on the first APS frame (the message names the file).
+        SensorError: no gel found on the first APS frame, or no APS frame matched the gel at
+            rest in the sensor.yaml (the messages name the files and what to try).
     """
     from neurotouch_hid.sources.recording import RecordingReader  # dv-processing: imported on use
 
@@ -106,17 +120,26 @@ def pipeline_over(
                 total_us = 0
         first_us = last_us = None
         next_report = 0
+        frames = 0
         for item in reader.stream(batch_us=pipeline.config.window_us):
+            frames += isinstance(item, Frame)
             last_us = item.t_us if isinstance(item, Frame) else int(item["timestamp"][-1])
             first_us = last_us if first_us is None else first_us
             try:
                 estimates = pipeline.process(item)
             except SensorError as exc:
-                raise SensorError(f"{recording}: {exc}") from None
+                raise SensorError(f"{recording}: {exc} (geometry: {sensor_label(sensor_file)})") from None
             yield item, estimates
             if on_progress is not None and last_us - first_us >= next_report:
                 on_progress(last_us - first_us, total_us)
                 next_report = last_us - first_us + 100_000
+    if pipeline.rest_px is None and frames > 0:
+        raise SensorError(
+            f"{recording}: none of its {frames} APS frames matched the gel at rest in {sensor_label(sensor_file)} "
+            "(the markers lie off its rest layout, rest_markers_px): the gel was pressed throughout, or that "
+            "sensor.yaml is for another camera pose. Try another one with --sensor FILE, or calibrate on a "
+            f"recording of this camera that starts at rest: neurotouch-hid calibrate --source REC.aedat4 --out FILE"
+        )
     if pipeline.rest_px is None:
         raise RecordingError(f"{recording}: no APS frame found: the pipeline needs one to find the gel's markers")
     if on_progress is not None and first_us is not None:
@@ -131,6 +154,7 @@ def track_recording(
     *,
     markers_out: str | Path | None = None,
     on_progress: Callable[[int, int], None] | None = None,
+    sensor_file: str | Path | None = None,
 ) -> TrackSummary:
     """Run the pipeline over ``recording`` and write its predictions to ``out`` (JSON lines).
 
@@ -142,7 +166,7 @@ def track_recording(
             ``pipeline.methods``); None = the product's defaults (the paper's: ``PaperConfig``).
         markers_out: if given, also write the tracked marker positions at each window's end
             (``.npz``, see the module docstring).
-        on_progress: see :func:`pipeline_over`.
+        on_progress, sensor_file: see :func:`pipeline_over`.
     Returns:
         :class:`TrackSummary`.
     Raises:
@@ -159,10 +183,10 @@ def track_recording(
 
     pipeline = pipeline_for(sensor, config, on_window=keep_markers if markers_out is not None else None)
     windows = events = frames = 0
-    first_us = last_us = None
+    first_us = last_us = first_window_us = None
     try:
         with PredictionsWriter(out) as writer:
-            for item, estimates in pipeline_over(recording, pipeline, on_progress=on_progress):
+            for item, estimates in pipeline_over(recording, pipeline, on_progress=on_progress, sensor_file=sensor_file):
                 if isinstance(item, Frame):
                     frames += 1
                     last_us = item.t_us
@@ -172,6 +196,7 @@ def track_recording(
                 first_us = last_us if first_us is None else first_us
                 for estimate in estimates:
                     writer.write(estimate)
+                    first_window_us = estimate.t_us if first_window_us is None else first_window_us
                 windows += len(estimates)
     except SensorError:
         if windows == 0:  # nothing was predicted: leave no empty file behind
@@ -186,4 +211,5 @@ def track_recording(
             rest_px=pipeline.rest_px.astype(np.float32),
         )
     duration = 0 if first_us is None else last_us - first_us
-    return TrackSummary(windows, events, frames, duration, time.perf_counter() - start)
+    late = 0 if first_window_us is None or first_us is None else first_window_us - first_us
+    return TrackSummary(windows, events, frames, duration, time.perf_counter() - start, pipeline.pressed_frames, late)

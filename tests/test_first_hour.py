@@ -7,6 +7,7 @@ import io
 import re
 import sys
 import textwrap
+from pathlib import Path
 
 import pytest
 
@@ -271,3 +272,50 @@ def test_the_main_help_leads_with_demo_doctor_and_the_guide(monkeypatch, capsys)
     listed = [line.split()[0] for line in page.split("Commands:\n")[1].splitlines() if line.startswith("  ")]
     assert listed[:2] == ["demo", "doctor"]
     assert "docs/getting-started.md" in page and "neurotouch-hid demo" in page.split("Options:")[0]
+
+
+# --- a sensor.yaml that does not fit the recording is named, and so is what it did ----------------
+def _off_by_12_px(tmp_path, recording) -> Path:
+    """``recording`` in a folder of its own beside a sensor.yaml whose rest layout is 12 px off."""
+    from neurotouch_hid.sources.simulator import SimulatedSource
+
+    folder = tmp_path / "rec"
+    folder.mkdir()
+    copy = folder / "rec.aedat4"
+    copy.write_bytes(recording.read_bytes())
+    rest = SimulatedSource(seed=0).rest_px
+    sensor = SimulatedSource(seed=0).sensor
+    text = (
+        f"width: {sensor.width}\nheight: {sensor.height}\npx_per_mm: {sensor.px_per_mm}\n"
+        f"gel_center_px: [{sensor.gel_center_px[0]}, {sensor.gel_center_px[1]}]\n"
+        f"gel_radius_px: {sensor.gel_radius_px}\nmirror: true\nrotation_deg: 0.0\nrest_markers_px:\n"
+        + "".join(f"- [{x + 12:.2f}, {y:.2f}]\n" for x, y in rest)
+    )
+    (folder / "sensor.yaml").write_text(text)
+    return copy
+
+
+def test_track_names_the_sensor_yaml_no_frame_matched_and_what_to_try(tmp_path, sim_gel_short_recording):
+    from helpers import run_cli
+
+    recording = _off_by_12_px(tmp_path, sim_gel_short_recording)  # 38 frames, the gel pressed from 0.6 s
+    done = run_cli("track", str(recording), "--out", str(tmp_path / "p.jsonl"))
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    said = done.stderr
+    assert "no APS frame found" not in said
+    assert f"none of its 38 APS frames matched the gel at rest in {recording.parent / 'sensor.yaml'}" in said
+    assert "--sensor" in said and "calibrate" in said
+
+
+def test_track_says_why_its_windows_start_late(tmp_path):
+    from conftest import write_chunks
+    from helpers import run_cli
+
+    from neurotouch_hid.sources.simulator import SimulatedSource
+
+    still = list(SimulatedSource(seed=0, gestures=["pinch"]).chunks(2.5))  # at rest for the first 0.6 s
+    recording = _off_by_12_px(tmp_path, write_chunks(tmp_path / "still.aedat4", still))
+    done = run_cli("track", str(recording), "--out", str(tmp_path / "p.jsonl"))
+    assert done.returncode == 0, done.stderr
+    assert f"(geometry: {recording.parent / 'sensor.yaml'})" in done.stdout
+    assert "did not match the gel at rest" in done.stderr and "the windows start" in done.stderr

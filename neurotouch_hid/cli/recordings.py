@@ -227,18 +227,33 @@ def track(
         from neurotouch_hid.enrolment.model import apply_model
         from neurotouch_hid.evaluation.runner import pipeline_config
         from neurotouch_hid.pipeline.methods import pipeline_for
-        from neurotouch_hid.sensor import find_sensor_file
-        from neurotouch_hid.track import recording_progress, track_recording
+        from neurotouch_hid.sensor import chosen_sensor_file, find_sensor_file
+        from neurotouch_hid.track import recording_progress, sensor_label, track_recording
 
         config = apply_model(pipeline_config(method=method, window_us=window_us), chosen_model(model))
+        sensor_file = chosen_sensor_file(recording, sensor)
         geometry = find_sensor_file(recording, sensor)
         pipeline_for(geometry, config).compile_kernels()  # numba's cached code, loaded now
     with recording_progress(err_console, "tracking") as report:
-        summary = track_recording(recording, out, geometry, config, markers_out=markers, on_progress=report)
+        summary = track_recording(
+            recording, out, geometry, config, markers_out=markers, on_progress=report, sensor_file=sensor_file
+        )
+    if summary.refused_frames:
+        err_console.print(
+            f"note: the first {summary.refused_frames} APS frames did not match the gel at rest in "
+            f"{sensor_label(sensor_file)} (the gel pressed, or a sensor.yaml of another camera pose), so the "
+            f"windows start {summary.first_window_us * 1e-6:.2f} s into the recording; a sensor.yaml of this "
+            "camera (--sensor FILE) starts them at once",
+            highlight=False,
+            markup=False,
+            soft_wrap=True,
+        )
     console.print(
         f"{summary.windows} windows of {config.window_us} us over {summary.duration_us * 1e-6:.2f} s "
         f"({summary.events} events, {summary.frames} frames) in {summary.elapsed_s:.2f} s, "
-        f"{summary.realtime_factor:.1f}x real time -> {out}" + (f", markers -> {markers}" if markers else ""),
+        f"{summary.realtime_factor:.1f}x real time -> {out}"
+        + (f", markers -> {markers}" if markers else "")
+        + f" (geometry: {sensor_label(sensor_file)})",
         highlight=False,
         soft_wrap=True,
     )
