@@ -9,7 +9,10 @@ updates per second, and the ratio to the 1 ms budget of the smallest window (pap
 --profile`` adds per window of a dataset: the same estimates taken as a sequence's answers and
 as its labels (one every 40 ms), counted through each profile
 (:func:`neurotouch_hid.evaluation.through_profile.tally`: the answers and the labels each through
-a fresh mapper).
+a fresh mapper). Last, the whole road of a window through the runtime with the default profile:
+the queue, the mapper, the record published to a JSON-lines subscriber
+(:class:`neurotouch_hid.runtime.Runtime` over the estimates replayed as a predictions file is,
+``driver.EstimateReplay``).
 """
 
 from __future__ import annotations
@@ -80,6 +83,27 @@ def main() -> None:
             f"| {path.stem} | {len(profile.mappings)} | {wall / len(stream) * 1e6:.1f} | {per_cpu * 1e6:.1f} | "
             f"{1 / per_cpu:,.0f} | {1e-3 / per_cpu:.0f} | {counted * 1e6:.1f} |"
         )
+    road = road_per_window(stream)
+    print(
+        f"\nthe runtime's road, default profile, JSON lines: {road * 1e6:.1f} us/window (CPU), "
+        f"{1e-3 / road:.0f} x the 1 ms budget"
+    )
+
+
+def road_per_window(stream: list[GestureEstimate]) -> float:
+    """Process CPU (s) per window of a runtime run over ``stream`` (replayed, not paced), the
+    default profile, one JSON-lines subscriber writing to /dev/null."""
+    import os
+
+    from neurotouch_hid.driver import EstimateReplay
+    from neurotouch_hid.output.jsonl import StateJsonlWriter
+    from neurotouch_hid.runtime import Runtime
+
+    with StateJsonlWriter(os.devnull) as out:
+        runtime = Runtime(iter(stream), EstimateReplay(), load_profile("default"), [out], pace=False)
+        cpu = time.process_time()
+        stats = runtime.run()
+        return (time.process_time() - cpu) / stats.windows
 
 
 if __name__ == "__main__":
