@@ -212,6 +212,8 @@ class RunAssembly:
         say: one line to the user (the compile's progress, a child's failure).
         model: an adapted model's values over the method's (``enrolment/model.py``; None: the
             shipped method).
+        finish_gesture: the simulated hand finishes the gesture it performs at ``seconds`` (the
+            demo ends on the gel at rest, :func:`~neurotouch_hid.sources.open.simulated_items`).
     """
 
     source: str
@@ -226,6 +228,7 @@ class RunAssembly:
     capture: CameraBackend | None = None
     say: Callable[[str], None] = log.warning
     model: Model | None = None
+    finish_gesture: bool = False
 
     def open(self, stack: contextlib.ExitStack) -> RunParts:
         """Start the first run's compile, open the source, build the pipeline (its kernels
@@ -251,6 +254,7 @@ class RunAssembly:
             noise_filter=camera_noise_filter() if live_camera and self.method == "default" else None,
             labelled=self.source == SourceKind.SIM,
             guard=None if warmup is None else warmup.guarded(SIMULATOR),
+            finish=self.finish_gesture,
         )
         if opened.sensor is None:  # a predictions file: the estimates are already there
             return RunParts(opened.stream, EstimateReplay(), None, None, opened.live, opened.labelled, None)
@@ -309,6 +313,7 @@ def run_driver(
     max_lag_us: int = DEFAULT_MAX_LAG_US,
     method: str = "default",
     model: Model | None = None,
+    finish_gesture: bool = False,
 ) -> RunStats:
     """``neurotouch-hid run``: load the profile (a bad one raises ProfileError before any device
     exists), open the outputs, then run: the engine opens the source and builds the pipeline
@@ -324,7 +329,8 @@ def run_driver(
     ``davis``, ``wait``, ``capture``: the live camera's settings (:func:`open_source`); ``say``
     tells the user when it is lost and back. ``method``: the gesture pipeline
     (``pipeline.methods``: ``default`` or ``paper``); ``model``: an adapted model's values over
-    it (``enrolment/model.py``; None: the shipped method).
+    it (``enrolment/model.py``; None: the shipped method). ``finish_gesture`` (the simulated
+    gel): past ``seconds`` its hand finishes the gesture it performs (:class:`RunAssembly`).
     Raises NeurotouchError subclasses for bad input (ProfileError, RecordingError, DeviceError,
     SensorError).
     """
@@ -354,12 +360,13 @@ def run_driver(
             capture=capture,
             say=say,
             model=model,
+            finish_gesture=finish_gesture,
         )
         return run_assembled(
             assembly,
             loaded,
             subscribers,
-            seconds,
+            None if finish_gesture else seconds,  # the source ends it, at rest
             pace=not fast,
             profile_ref=profile,
             say=say,
@@ -396,11 +403,14 @@ def run_demo(
 ) -> RunStats:
     """``neurotouch-hid demo``: the simulated gel performing every gesture, paced in real time,
     through the default profile, to the virtual gamepad (or the terminal view, see
-    :func:`gamepad_or_terminal`)."""
+    :func:`gamepad_or_terminal`); past ``seconds`` the hand finishes its gesture, so that the
+    demo ends with the gel at rest."""
     profile = load_profile("default")
     with contextlib.ExitStack() as stack:
         outputs = gamepad_or_terminal(profile, stack, console=console, say=say)
-        return run_driver("sim", "default", "gamepad", seconds=seconds, console=console, outputs=outputs)
+        return run_driver(
+            "sim", "default", "gamepad", seconds=seconds, console=console, outputs=outputs, finish_gesture=True
+        )
 
 
 def estimates_from_source(

@@ -319,3 +319,51 @@ def test_track_says_why_its_windows_start_late(tmp_path):
     assert done.returncode == 0, done.stderr
     assert f"(geometry: {recording.parent / 'sensor.yaml'})" in done.stdout
     assert "did not match the gel at rest" in done.stderr and "the windows start" in done.stderr
+
+
+# --- the demo ends on the gel at rest, and its t counter goes with the windows ----------------------
+def test_the_demos_hand_finishes_its_gesture_before_the_stream_ends():
+    from neurotouch_hid.sources import Performed
+    from neurotouch_hid.sources.open import FINISH_GESTURE_S, simulated_items
+    from neurotouch_hid.sources.simulator import SimulatedSource
+
+    def labels(finish: bool) -> list:
+        items = simulated_items(SimulatedSource(seed=0), 2.0, 10_000, labelled=True, finish=finish)
+        return [item.label for item in items if isinstance(item, Performed)]
+
+    cut = labels(False)  # the first push, from 0.6 s, is held at 2 s
+    assert cut[-1].gesture.value == "push" and len(cut) == 50
+    finished = labels(True)
+    assert [label.t_us for label in finished[: len(cut)]] == [label.t_us for label in cut]  # the same run, longer
+    assert finished[-1].gesture.value == "none" and finished[-1].resting
+    assert all(label.resting for label in finished[-12:])  # half a second at rest at the end
+    assert len(finished) * 0.04 <= 2.0 + FINISH_GESTURE_S
+
+
+def test_the_live_views_t_counts_from_the_first_window_as_the_windows_do():
+    import io
+
+    from rich.console import Console
+
+    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.estimate import GestureEstimate, GestureType
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.output.live import LiveView
+    from neurotouch_hid.stages import WindowRecord
+    from neurotouch_hid.stats import RunStats
+
+    view = LiveView(Console(file=io.StringIO(), force_terminal=False, width=200))
+    stats = RunStats()
+    for k in range(1, 68):
+        stats.windows = k
+        estimate = GestureEstimate(t_us=1_000_000 + k * 10_000, gesture=GestureType.NONE, resting=True)
+        state = ControllerState.neutral(estimate.t_us)
+        record = WindowRecord(
+            estimate, state, k == 1, False, load_profile("default"), "default", None, None, None, True, stats, None
+        )
+        view.publish(record)
+    shown = Console(file=io.StringIO(), width=120, color_system=None)
+    shown.print(view.__rich__())
+    footer = [line for line in shown.file.getvalue().splitlines() if "windows 67" in line]
+    view.close()
+    assert footer and "t 0.660 s" in footer[0]  # 66 windows of 10 ms after the first

@@ -226,11 +226,14 @@ def pad_text(state: ControllerState) -> Group:
     return Group(*rows)
 
 
-def live_layout(state: ControllerState, estimate: GestureEstimate | None, record: WindowRecord) -> Panel:
+def live_layout(
+    state: ControllerState, estimate: GestureEstimate | None, record: WindowRecord, first_t_us: int = 0
+) -> Panel:
     """The whole interactive view, 80x24 at most: the gel plot on the left; the gestures, the
     profile and the pad on the right; the compile's progress and the counters at the bottom.
     ``state`` and ``estimate`` are what the pad shows now (neutral after a release); ``record``
-    is the last window's."""
+    is the last window's; ``first_t_us`` the first window's end (the counters' ``t`` is the time
+    since, s of camera time, so that it goes with the windows)."""
     from neurotouch_hid.sensor import SensorGeometry
 
     sensor = record.sensor if record.sensor is not None else SensorGeometry()
@@ -246,7 +249,7 @@ def live_layout(state: ControllerState, estimate: GestureEstimate | None, record
     top = Table.grid(padding=(0, 2))
     top.add_row(gel, Group(scene_panel(record, estimate), pad_text(state)))
     stats = record.stats
-    footer = Text(f"t {record.estimate.t_us / 1e6:.3f} s", style="dim")
+    footer = Text(f"t {(record.estimate.t_us - first_t_us) / 1e6:.3f} s", style="dim")
     footer.append(
         f"   windows {stats.windows}   dropped {stats.dropped_items} items",
         style="bold red" if stats.dropped_items else "dim",
@@ -267,6 +270,7 @@ class LiveView(TermView):
 
     def __init__(self, console: Console | None = None, *, line_period_s: float = 1.0, refresh_per_second: float = 20.0):
         self._record: WindowRecord | None = None  # before super().__init__: a terminal draws at once
+        self._first_t_us: int | None = None
         super().__init__(console, line_period_s=line_period_s, refresh_per_second=refresh_per_second)
         self.wants_markers = self.console.is_terminal
 
@@ -274,11 +278,13 @@ class LiveView(TermView):
         """Keep ``record`` to draw (the pad's state as :class:`TermView` shows it)."""
         with self._lock:
             self._record = record
+            if self._first_t_us is None:
+                self._first_t_us = record.estimate.t_us
         super().publish(record)
 
     def __rich__(self) -> Panel:
         with self._lock:
-            state, estimate, record = self._state, self._estimate, self._record
+            state, estimate, record, first = self._state, self._estimate, self._record, self._first_t_us
         if record is None:
             return super().__rich__()
-        return live_layout(state, estimate, record)
+        return live_layout(state, estimate, record, first or 0)

@@ -69,6 +69,7 @@ def open_source(
     noise_filter: object = None,
     labelled: bool = False,
     guard: Callable[[], ContextManager[None]] | None = None,
+    finish: bool = False,
 ) -> OpenedSource:
     """Open ``davis`` (the live camera), ``sim`` (the simulated gel), an AEDAT4 recording path, or
     a predictions file (``*.jsonl``, docs/dataset.md: the pipeline's estimates, replayed as they are).
@@ -82,7 +83,8 @@ def open_source(
 
     The simulated gel also says what its hand performs when ``labelled``
     (:class:`~neurotouch_hid.sources.Performed` before each APS frame), and simulates each chunk
-    inside ``guard()`` when given (a first run's compile: :meth:`neurotouch_hid.warmup.Warmup.guard`).
+    inside ``guard()`` when given (a first run's compile: :meth:`neurotouch_hid.warmup.Warmup.guard`);
+    with ``finish``, its hand finishes the gesture it performs at ``seconds`` (:func:`simulated_items`).
 
     Resources (camera, file) are closed by ``stack``. Raises RecordingError for a missing or
     unreadable recording, DatasetError for a bad predictions file, DeviceError when the camera
@@ -107,7 +109,7 @@ def open_source(
         from neurotouch_hid.sources.simulator import SimulatedSource
 
         sim = SimulatedSource(seed=seed) if sensor is None else SimulatedSource(SensorGeometry.load(sensor), seed=seed)
-        stream = simulated_items(sim, seconds, batch_us, labelled=labelled, guard=guard)
+        stream = simulated_items(sim, seconds, batch_us, labelled=labelled, guard=guard, finish=finish)
         return OpenedSource(stream, sim.sensor, False, labelled=labelled)
     from neurotouch_hid.errors import RecordingError
     from neurotouch_hid.sources.recording import RecordingReader
@@ -121,6 +123,13 @@ def open_source(
     return OpenedSource(reader.stream(batch_us=batch_us), find_sensor_file(path, sensor), False)
 
 
+#: How long past its ``seconds`` a labelled simulation may go on for the hand to finish (s).
+FINISH_GESTURE_S = 8.0
+#: How long the gel must rest before a labelled simulation past its ``seconds`` ends (us): the
+#: pipeline's windows say "none" again by then.
+FINISHED_REST_US = 500_000
+
+
 def simulated_items(
     sim: SimulatedSource,
     seconds: float | None,
@@ -128,19 +137,33 @@ def simulated_items(
     *,
     labelled: bool = False,
     guard: Callable[[], ContextManager[None]] | None = None,
+    finish: bool = False,
 ) -> Iterator[StreamItem | Performed]:
     """The simulated gel's stream (as ``SimulatedSource.stream``): per frame period, the label of
     what the hand performs (when ``labelled``), the APS frame, then its events in ``batch_us``
-    batches; each period simulated inside ``guard()`` when given."""
+    batches; each period simulated inside ``guard()`` when given.
+
+    ``finish`` (the demo): past ``seconds`` the hand finishes the gesture it is performing, so
+    that the last frame shows the gel at rest, not a gesture cut off before it was recognised:
+    the stream ends once the gel has rested for :data:`FINISHED_REST_US`, at most
+    :data:`FINISH_GESTURE_S` after ``seconds``."""
     from neurotouch_hid.sources.recording import split_batches
 
     guard = guard or contextlib.nullcontext
-    chunks = iter(sim.chunks(seconds))
+    finish = finish and seconds is not None
+    chunks = iter(sim.chunks(seconds + FINISH_GESTURE_S if finish else seconds))
+    start_us = rest_since_us = None
     while True:
         with guard():
             chunk = next(chunks, None)
         if chunk is None:
             return
+        t_us = int(chunk.t_us[0])
+        start_us = t_us if start_us is None else start_us
+        rest_since_us = (t_us if rest_since_us is None else rest_since_us) if chunk.label.resting else None
+        if finish and t_us - start_us >= seconds * 1e6 and rest_since_us is not None:
+            if t_us - rest_since_us >= FINISHED_REST_US:
+                return
         if labelled:
             yield Performed(chunk.label)
         yield chunk.frame
