@@ -29,7 +29,7 @@ import threading
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Iterable, Iterator
+from typing import TYPE_CHECKING, Iterable, Iterator, TypeVar
 
 import numpy as np
 
@@ -37,6 +37,8 @@ from neurotouch_hid.errors import RecordingError
 from neurotouch_hid.sources import EVENT_DTYPE, Frame, Pacer, StreamItem
 from neurotouch_hid.sources.dv import DV_ERRORS, dv_error_text, store_from_events
 from neurotouch_hid.sources.packet_bounds import Unbounded, inflated_bound
+
+_Item = TypeVar("_Item")
 
 if TYPE_CHECKING:  # pragma: no cover
     pass
@@ -799,6 +801,20 @@ def write_recording(path: str | os.PathLike, events: np.ndarray, frames: Iterabl
             writer.write_frame(frame)
         if start < len(events):
             writer.write_events(events[start:])
+
+
+def recorded(stream: Iterable[_Item], writer: RecordingWriter) -> Iterator[_Item]:
+    """``stream``'s items, each APS :class:`Frame` and non-empty event batch written to
+    ``writer`` before it is handed on (a tee: whoever reads the stream, the recording holds what
+    it read); other items (a camera's status, the simulated hand's labels) pass unwritten.
+
+    Raises RecordingError as :class:`RecordingWriter` does (the item is not handed on)."""
+    for item in stream:
+        if isinstance(item, Frame):
+            writer.write_frame(item)
+        elif isinstance(item, np.ndarray) and len(item):
+            writer.write_events(item)
+        yield item
 
 
 # --- recording a live source ----------------------------------------------------------------------
