@@ -19,7 +19,7 @@ from helpers import run_cli
 from kernel.vm import installed
 
 from neurotouch_hid.dataset import list_sequences, read_labels
-from neurotouch_hid.enrolment.plan import Plan, Prompt, read_plan, write_plan
+from neurotouch_hid.enrolment.plan import Plan, Prompt, Script, read_plan, write_plan
 from neurotouch_hid.estimate import GestureType
 
 PLAN = Plan(
@@ -29,6 +29,32 @@ PLAN = Plan(
         Prompt(GestureType.TWIST_CW, 10.0, 1.5),
     )
 )
+
+
+class ScriptView:
+    """A view of the session's script, as the prompt view reads it: what it would show at each
+    record (the number of prompts, s from the stream's start, the notes); sets ``stop`` (Ctrl-C)
+    once the record's time reaches ``stop_at_s``."""
+
+    wants_markers = False
+
+    def __init__(self, script: Script, stop_at_s: float | None = None, stop=None):
+        self.script = script
+        self.stop_at_s = stop_at_s
+        self.stop = stop
+        self.shown: list[tuple[int, float, list[str]]] = []
+
+    def publish(self, record) -> None:
+        t_s = (record.estimate.t_us - self.script.start_us) * 1e-6
+        self.shown.append((len(self.script.prompts()), t_s, list(self.script.notes())))
+        if self.stop_at_s is not None and t_s >= self.stop_at_s:
+            self.stop.set()
+
+    def neutralise(self) -> None:
+        pass
+
+    def prepare(self, profile) -> None:
+        pass
 
 
 def _runs(labels) -> list[GestureType]:
@@ -144,16 +170,13 @@ def test_a_person_at_the_camera_follows_the_prompts_and_is_labelled(tmp_path):
     simulate_enrolment(PLAN, person, seed=5, miss_rate=0.0, tail_s=3.0)
     sensor = SensorGeometry.load(person / "sensor.yaml")
     GesturePipeline(sensor).compile_kernels()  # as enrol does before the camera opens
-    shown: list[tuple[int, float, list[str]]] = []
-
-    def show(prompts, t_s, seen, notes):
-        shown.append((len(prompts), t_s, list(notes)))
-
+    script = Script(PLAN)
+    view = ScriptView(script)
     world = ReplayWorld(person / "enrolment.aedat4", clock=ManualClock())
     with CameraSource(DavisConfig(), backend=world, **world.source_clock()) as camera:
-        result = run_session(PLAN, camera, tmp_path / "out", sensor, show)
+        result = run_session(script, camera, tmp_path / "out", sensor, [view])
     assert not result.asked_again and not result.not_seen and not result.stopped
-    assert shown and all(n == 3 and not notes for n, _, notes in shown)
+    assert view.shown and all(n == 3 and not notes for n, _, notes in view.shown)
     assert _runs(read_labels(tmp_path / "out" / "enrolment.labels.csv")) == [p.gesture for p in PLAN.prompts]
 
 
@@ -167,12 +190,9 @@ def test_a_session_stopped_early_keeps_its_recording_and_labels_what_was_asked(t
 
     source = SimulatedHandSource(3, miss_rate=0.0)
     stop = threading.Event()
-
-    def show(prompts, t_s, seen, notes):
-        if t_s >= PLAN.prompts[1].cue_s + 1.0:
-            stop.set()
-
-    result = run_session(PLAN, source, tmp_path, source.sensor, show, stop=stop)
+    script = Script(PLAN)
+    view = ScriptView(script, stop_at_s=PLAN.prompts[1].cue_s + 1.0, stop=stop)
+    result = run_session(script, source, tmp_path, source.sensor, [view], stop=stop)
     assert result.stopped
     assert [f.prompt for f in result.labelled.found] == list(PLAN.prompts[:2])
     assert read_info(tmp_path / "enrolment.aedat4").n_frames > 0
@@ -181,3 +201,23 @@ def test_a_session_stopped_early_keeps_its_recording_and_labels_what_was_asked(t
     assert sorted(os.listdir(tmp_path)) == [
         "enrolment.aedat4", "enrolment.labels.csv", "enrolment.plan.json", "sensor.yaml",
     ]  # fmt: skip
+
+
+def test_a_sessions_labels_are_those_enrol_from_gives_on_its_recording(tmp_path):
+    """The session labels its recording as ``enrol --from`` does: the same recording and the
+    prompts asked give the same labels, byte for byte."""
+    from neurotouch_hid.enrolment.label import label_recording
+    from neurotouch_hid.enrolment.session import SimulatedHandSource, run_session
+
+    plan = Plan(PLAN.prompts[:2])
+    source = SimulatedHandSource(3, miss_rate=0.0)
+    session = tmp_path / "session"
+    result = run_session(Script(plan), source, session, source.sensor, [])
+    assert not result.stopped and not result.not_seen
+    asked = read_plan(session / "enrolment.plan.json")
+    assert asked == plan
+    again = label_recording(session / "enrolment.aedat4", asked, tmp_path / "from", source.sensor)
+    assert [f.seen for f in again.found] == [True, True]
+    labels = (session / "enrolment.labels.csv").read_bytes()
+    assert labels == (tmp_path / "from" / "enrolment.labels.csv").read_bytes()
+    assert _runs(read_labels(session / "enrolment.labels.csv")) == [p.gesture for p in plan.prompts]

@@ -13,7 +13,7 @@ ORDER = {
     "pipeline": 2,
     "mapping": 3,
     "evaluation": 3,
-    "enrolment": 3,
+    "enrolment": 5,
     "output": 4,
     "stages": 3,
     "runtime": 5,

@@ -88,6 +88,7 @@ def _session(plan, source, out, sensor, seed, serial, physics, sim_miss, sim_mis
     import threading
 
     with long_lived_start_up():
+        from neurotouch_hid.enrolment.plan import Script
         from neurotouch_hid.enrolment.prompt_view import PromptView
         from neurotouch_hid.enrolment.session import CameraSource, SimulatedHandSource, enrolment_folder, run_session
         from neurotouch_hid.pipeline.pipeline import GesturePipeline
@@ -111,8 +112,12 @@ def _session(plan, source, out, sensor, seed, serial, physics, sim_miss, sim_mis
             stack.callback(signal.signal, sig, signal.signal(sig, lambda *_: stop.set()))
         if isinstance(guide, CameraSource):
             stack.enter_context(guide)
-        view = stack.enter_context(PromptView(console, by_hand=guide.by_hand))
-        result = run_session(plan, guide, folder, geometry, view.show, pace=source == "sim" and not fast, stop=stop)
+        script = Script(plan)
+        view = stack.enter_context(PromptView(console, script, by_hand=guide.by_hand))
+        result = run_session(
+            script, guide, folder, geometry, [view],
+            pace=source == "sim" and not fast, stop=stop, on_progress=view.labelling,
+        )  # fmt: skip
     if result.stopped:
         console.print("stopped: what was recorded is labelled", highlight=False, soft_wrap=True)
     say_labelled(result.labelled, dict(result.asked_again))

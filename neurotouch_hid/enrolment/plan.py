@@ -6,7 +6,8 @@ times, pushes towards each of the four directions of the user frame, taps
 (:data:`TAP_S`) and holds (:data:`HOLD_S`), each prompt followed by a rest long enough to see the
 gel back at rest (:func:`rest_after_s`), all within :data:`MAX_SESSION_S` with room left to ask
 again for the prompts that were missed. It is written and read as JSON (:func:`write_plan`,
-:func:`read_plan`); ``cue_s`` counts from the recording's first event (or frame).
+:func:`read_plan`); ``cue_s`` counts from the recording's first event (or frame). A guided
+session runs it as a :class:`Script`, to which the prompts missed are added.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import json
 import math
 import os
 import secrets
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -148,6 +150,78 @@ class Plan:
     def to_json(self) -> dict:
         """The plan's JSON object: ``{"prompts": [...]}``."""
         return {"prompts": [p.to_json() for p in self.prompts]}
+
+
+class Script:
+    """A plan as a guided session runs it, read and written from the session's threads: the
+    prompts (the plan's, then those asked again), where the stream's time starts, the notes said
+    so far and whether the session is over. It is what the person at the gel reads (the prompt
+    view) and what the simulated hand follows. Thread-safe.
+
+    Args:
+        plan: the prompts asked first.
+    Attributes:
+        start_us: the stream's first timestamp (us, camera clock), from which the cues count;
+            None before the first item.
+        reached_us: the last timestamp the stream reached (us); None before the first item.
+    """
+
+    def __init__(self, plan: Plan) -> None:
+        self._lock = threading.Lock()
+        self._prompts = list(plan.prompts)
+        self._notes: list[str] = []
+        self._over = threading.Event()
+        self.start_us: int | None = None
+        self.reached_us: int | None = None
+
+    def reach(self, first_us: int, last_us: int) -> None:
+        """The stream passed an item from ``first_us`` to ``last_us`` (us): the first item
+        anchors :attr:`start_us`."""
+        with self._lock:
+            if self.start_us is None:
+                self.start_us = int(first_us)
+            self.reached_us = int(last_us)
+
+    def prompts(self) -> tuple[Prompt, ...]:
+        """The prompts so far: the plan's, then those asked again, in the order asked."""
+        with self._lock:
+            return tuple(self._prompts)
+
+    def cue_us(self, prompt: Prompt) -> int:
+        """``prompt``'s cue on the camera clock (us); after the first item (:meth:`reach`)."""
+        return int(self.start_us or 0) + int(round(prompt.cue_s * 1e6))
+
+    def ask_again(self, prompt: Prompt) -> int:
+        """Append ``prompt`` (cued after the last one); returns its index."""
+        with self._lock:
+            self._prompts.append(prompt)
+            return len(self._prompts) - 1
+
+    def note(self, line: str) -> None:
+        """Say ``line`` to the person (a prompt not seen, asked again)."""
+        with self._lock:
+            self._notes.append(line)
+
+    def notes(self) -> tuple[str, ...]:
+        """The notes so far, oldest first."""
+        with self._lock:
+            return tuple(self._notes)
+
+    def finish(self) -> None:
+        """Every prompt was asked and judged: the session is over."""
+        self._over.set()
+
+    @property
+    def finished(self) -> bool:
+        """:meth:`finish` was called."""
+        return self._over.is_set()
+
+    def asked(self) -> Plan:
+        """The prompts whose cue the stream reached (those the person was shown)."""
+        with self._lock:
+            if self.reached_us is None:
+                return Plan(())
+            return Plan(tuple(p for p in self._prompts if self.cue_us(p) <= self.reached_us))
 
 
 def make_plan(seed: int = 0) -> Plan:

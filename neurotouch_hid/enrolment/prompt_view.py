@@ -1,12 +1,15 @@
 """What an enrolment shows: the prompts, with a countdown, what to do and for how long.
 
-A view, drawn from what it is given and nothing else: the prompts (:class:`~neurotouch_hid.enrolment.plan.Prompt`,
-the plan's and those asked again), the time in the recording (s from its first event), what the
-pipeline sees (:class:`Seen`) and the notes so far (a prompt not seen, asked again). It reaches
-into no source and no pipeline: whoever runs the session hands it these (:meth:`PromptView.show`).
+A view that subscribes to the run (:class:`~neurotouch_hid.stages.Subscriber`): from each
+window's record (:class:`~neurotouch_hid.stages.WindowRecord`) and the session's script
+(:class:`~neurotouch_hid.enrolment.plan.Script`) it draws the prompts (the plan's and those
+asked again) at the record's time (s from the stream's first event), what the pipeline sees
+(:class:`Seen`: the gel's motion from the record's markers, the gesture read) and the notes so
+far (a prompt not seen, asked again). It reaches into no source and no pipeline.
 
-On a terminal it is a panel redrawn in place (rich ``Live``, 80x24 at least); elsewhere (a pipe, a
-file) it prints one plain line per prompt as it is cued and one per note, exactly, never wrapped.
+On a terminal it is a panel redrawn in place (rich ``Live``, 80x24 at least; at most every
+:data:`DRAW_EVERY_US` of stream time); elsewhere (a pipe, a file) it prints one plain line per
+prompt as it is cued and one per note, exactly, never wrapped.
 """
 
 from __future__ import annotations
@@ -20,14 +23,17 @@ from rich.console import Group
 from rich.panel import Panel
 from rich.text import Text
 
-from neurotouch_hid.enrolment.label import REST_MM
-from neurotouch_hid.enrolment.plan import MAX_SESSION_S, Prompt
+from neurotouch_hid.enrolment.label import REST_MM, motion_mm
+from neurotouch_hid.enrolment.plan import MAX_SESSION_S, Prompt, Script
 from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.stages import WindowRecord
 
 #: The countdown before a cue (s): "in 3, 2, 1".
 COUNTDOWN_S = 3.0
 #: Width of the bar of a held gesture's remaining time (characters).
 BAR_WIDTH = 20
+#: The panel is redrawn at most this often (us of stream time): the APS frames' 25 Hz.
+DRAW_EVERY_US = 40_000
 
 
 @dataclass(frozen=True)
@@ -110,20 +116,27 @@ def seen_line(seen: Seen | None) -> Text:
 
 class PromptView:
     """The enrolment's prompts on ``console`` (a ``rich.console.Console``): a live panel on a
-    terminal, plain lines elsewhere (module docstring). A context manager.
+    terminal, plain lines elsewhere (module docstring). A subscriber and a context manager.
 
     Args:
         console: where to draw.
+        script: the session's prompts and notes.
         by_hand: the person at the gel performs the prompts (False: the simulated hand does, said
             in the title).
     """
 
-    def __init__(self, console: Any, by_hand: bool = True) -> None:
+    wants_markers = True
+
+    def __init__(self, console: Any, script: Script, by_hand: bool = True) -> None:
         self.console = console
+        self.script = script
         self.by_hand = by_hand
         self._live = None
+        self._drawn_us: int | None = None
+        self._last: tuple[float, Seen | None] = (0.0, None)  # the time and what was seen, drawn last
         self._said_cues = 0
         self._said_notes = 0
+        self._said_labelling = False
 
     def __enter__(self) -> "PromptView":
         if self.console.is_terminal:
@@ -131,6 +144,7 @@ class PromptView:
 
             self._live = Live(console=self.console, auto_refresh=False, transient=False)
             self._live.__enter__()
+            self._live.update(self.panel(self.script.prompts(), 0.0, None, ()), refresh=True)
         return self
 
     def __exit__(self, *exc) -> None:
@@ -138,20 +152,30 @@ class PromptView:
             self._live.__exit__(*exc)
             self._live = None
 
-    def panel(self, prompts: Sequence[Prompt], t_s: float, seen: Seen | None, notes: Sequence[str]) -> Panel:
-        """The panel for these inputs (what :meth:`show` draws on a terminal)."""
+    def panel(
+        self, prompts: Sequence[Prompt], t_s: float, seen: Seen | None, notes: Sequence[str], status: str = ""
+    ) -> Panel:
+        """The panel for these inputs (what :meth:`publish` draws on a terminal), ``status`` last."""
         last, _ = current(prompts, t_s)
         number = 0 if last is None else last + 1
         who = "" if self.by_hand else "    the simulated hand performs them"
         head = Text(f"{clock(t_s)} of at most {clock(MAX_SESSION_S)}    prompt {number} of {len(prompts)}{who}")
         body = [head, Text(""), *prompt_lines(prompts, t_s), Text(""), seen_line(seen)]
         body += [Text(n, style="yellow") for n in notes[-4:]]
+        body += [Text(status, style="bold")] if status else []
         return Panel(Group(*body), title="enrol: teach the driver your gel and your hand", title_align="left")
 
-    def show(self, prompts: Sequence[Prompt], t_s: float, seen: Seen | None, notes: Sequence[str]) -> None:
-        """Draw the prompts at ``t_s`` (s from the recording's first event)."""
+    def publish(self, record: WindowRecord) -> None:
+        """Draw the script at the record's window end."""
+        t_us = int(record.estimate.t_us)
+        prompts, notes = self.script.prompts(), self.script.notes()
+        t_s = (t_us - int(self.script.start_us or t_us)) * 1e-6
         if self._live is not None:
-            self._live.update(self.panel(prompts, t_s, seen, notes), refresh=True)
+            if self._drawn_us is not None and t_us - self._drawn_us < DRAW_EVERY_US:
+                return
+            self._drawn_us = t_us
+            self._last = (t_s, seen_in(record))
+            self._live.update(self.panel(prompts, t_s, *self._last[1:], notes), refresh=True)
             return
         while self._said_cues < len(prompts) and prompts[self._said_cues].cue_s <= t_s:
             p = prompts[self._said_cues]
@@ -161,5 +185,31 @@ class PromptView:
             self._plain(notes[self._said_notes])
             self._said_notes += 1
 
+    def labelling(self, done_us: int, total_us: int) -> None:
+        """After the session: how far the labelling of its recording is (us of recording done, of
+        ``total_us``), an ``on_progress`` of :func:`~neurotouch_hid.track.pipeline_over`."""
+        if self._live is None:
+            if not self._said_labelling:
+                self._plain("labelling the recording")
+            self._said_labelling = True
+            return
+        status = f"labelling the recording: {done_us * 1e-6:.0f} of {max(done_us, total_us) * 1e-6:.0f} s"
+        prompts, notes = self.script.prompts(), self.script.notes()
+        self._live.update(self.panel(prompts, *self._last, notes, status), refresh=True)
+
+    def neutralise(self) -> None:
+        """Nothing to release: a view drives no device."""
+
+    def prepare(self, profile: object) -> None:
+        """Nothing to prepare: the view shows no profile."""
+
     def _plain(self, line: str) -> None:
         self.console.print(line, highlight=False, soft_wrap=True, markup=False)
+
+
+def seen_in(record: WindowRecord) -> Seen:
+    """What the pipeline sees in ``record``: the gel's motion from its markers (0 with none, or
+    no geometry), the gesture read and its intensity."""
+    m, sensor = record.markers, record.sensor
+    moved = 0.0 if m is None or sensor is None else motion_mm(m.now_px, m.rest_px, sensor.px_per_mm)
+    return Seen(moved, record.estimate.gesture, float(record.estimate.intensity_mm))

@@ -1,20 +1,27 @@
 """The guided enrolment: prompts while the camera records, then the labelled dataset.
 
-The session follows a plan (:mod:`~neurotouch_hid.enrolment.plan`) in the stream's own time
-(s from its first event or frame): at each cue the prompt is shown (and the simulated hand, when
-it is the source, performs it), every item is written to the recording (AEDAT4, through a
-temporary name renamed at the end) and fed to the pipeline, whose tracked markers give the gel's
-motion (:class:`~neurotouch_hid.enrolment.label.MotionMeter`). When a prompt's search span has
-passed (:data:`~neurotouch_hid.enrolment.label.SEARCH_S` after its cue) it is judged as
-``enrol --from`` would (:func:`~neurotouch_hid.enrolment.label.find_gestures`); a prompt with no
-gesture is asked again once, after the plan's last prompt, when that still ends within
+The session runs on the driver's one road (:class:`~neurotouch_hid.runtime.Runtime`): the
+source's stream, written to the recording as it passes (AEDAT4, through a temporary name renamed
+at the end: :func:`~neurotouch_hid.sources.recording.recorded`), goes through the gesture
+pipeline, and each window's record is published to the session's subscribers: the
+:class:`Judge` and the views (:class:`~neurotouch_hid.enrolment.prompt_view.PromptView`). They
+share the session's :class:`~neurotouch_hid.enrolment.plan.Script`: the plan's prompts and
+those asked again, cued in the stream's own time (s from its first event or frame), and the
+notes. The simulated hand, when it is the source, performs each prompt as its stream reaches
+the cue; a person at the camera reads it on the view.
+
+The judge keeps the gel's motion from each record's markers
+(:func:`~neurotouch_hid.enrolment.label.motion_mm`); when a prompt's search span has passed
+(:data:`~neurotouch_hid.enrolment.label.SEARCH_S` after its cue) it judges it as ``enrol --from``
+would (:func:`~neurotouch_hid.enrolment.label.find_gestures`); a prompt with no gesture is asked
+again once, after the plan's last prompt, when that still ends within
 :data:`~neurotouch_hid.enrolment.plan.MAX_SESSION_S`. At the end the recording is labelled from
-the prompts asked (the plan's and those asked again) and written as a dataset
-(:func:`~neurotouch_hid.enrolment.label.write_dataset`).
+the prompts asked as ``enrol --from`` labels it
+(:func:`~neurotouch_hid.enrolment.label.label_recording`): the same recording and prompts give
+the same labels.
 
 Where the stream comes from is an :class:`EnrolSource`: the live camera (:class:`CameraSource`,
-a person reads the prompts) or the simulated hand (:class:`SimulatedHandSource`). What is shown
-is the caller's view (:class:`~neurotouch_hid.enrolment.prompt_view.PromptView`).
+a person reads the prompts) or the simulated hand (:class:`SimulatedHandSource`).
 """
 
 from __future__ import annotations
@@ -23,22 +30,29 @@ import contextlib
 import dataclasses
 import os
 import threading
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
-from neurotouch_hid.enrolment.label import SEARCH_S, Labelled, MotionMeter, find_gestures, write_dataset
-from neurotouch_hid.enrolment.plan import MAX_SESSION_S, Plan, Prompt, rest_after_s, temp_beside
-from neurotouch_hid.enrolment.prompt_view import Seen, clock
+import numpy as np
+
+from neurotouch_hid.enrolment.label import SEARCH_S, GelMotion, Labelled, find_gestures, label_recording
+from neurotouch_hid.enrolment.plan import MAX_SESSION_S, Plan, Prompt, Script, rest_after_s, temp_beside
+from neurotouch_hid.enrolment.prompt_view import clock, seen_in
 from neurotouch_hid.errors import RecordingError
+from neurotouch_hid.runtime import item_end_us, item_start_us
 from neurotouch_hid.sensor import SensorGeometry
-from neurotouch_hid.sources import Frame, Pacer, StreamItem
+from neurotouch_hid.sources import StreamItem
+from neurotouch_hid.stages import Subscriber, WindowRecord
 
 #: The sequence name of an enrolment's recording in its dataset folder.
 SEQUENCE = "enrolment"
 #: A prompt asked again is cued at least this long after it was judged missed (s).
 AGAIN_AFTER_S = 3.0
+#: Items the source may read ahead of the pipeline when the run is not paced: a prompt asked
+#: again (cued :data:`AGAIN_AFTER_S` ahead of the judge) is never in the source's past.
+QUEUE_ITEMS = 64
 
 
 class EnrolSource(Protocol):
@@ -49,11 +63,9 @@ class EnrolSource(Protocol):
     #: The camera name written into the recording.
     camera_name: str
 
-    def stream(self) -> Iterator[StreamItem]:
-        """Frames and event batches, time-ordered, endless."""
-
-    def perform(self, number: int, prompt: Prompt, cue_us: int) -> None:
-        """Called when prompt ``number`` (1-based, in the order asked) is cued at ``cue_us``."""
+    def stream(self, script: Script) -> Iterator[StreamItem]:
+        """Frames and event batches, time-ordered, endless; ``script``'s prompts performed as
+        the stream reaches their cues, when the source performs them."""
 
 
 class SimulatedHandSource:
@@ -76,15 +88,22 @@ class SimulatedHandSource:
         self.sensor = self.hand.sensor
         self._misses = set(misses)
 
-    def stream(self) -> Iterator[StreamItem]:
+    def stream(self, script: Script) -> Iterator[StreamItem]:
+        """The simulated gel's frames and event batches (1000 events at most); once an item has
+        been taken, each prompt of ``script`` cued by its end (:attr:`Script.start_us`, set as
+        the first item passes, plus the cue) is performed, as a person starts on a cue."""
         from neurotouch_hid.sources.recording import split_batches
 
+        cued = 0
         for chunk in self.hand.simulator.run():
-            yield chunk.frame
-            yield from split_batches(chunk.events, 1000)
-
-    def perform(self, number: int, prompt: Prompt, cue_us: int) -> None:
-        self.hand.perform(prompt, cue_us, missed=True if number in self._misses else None)
+            for item in (chunk.frame, *split_batches(chunk.events, 1000)):
+                yield item
+                t_us = item_end_us(item)
+                prompts = script.prompts()
+                while t_us is not None and cued < len(prompts) and script.cue_us(prompts[cued]) <= t_us:
+                    cued += 1
+                    missed = True if cued in self._misses else None
+                    self.hand.perform(prompts[cued - 1], script.cue_us(prompts[cued - 1]), missed=missed)
 
 
 class CameraSource:
@@ -118,11 +137,9 @@ class CameraSource:
     def __exit__(self, *exc) -> None:
         self._stack.close()
 
-    def stream(self) -> Iterator[StreamItem]:
+    def stream(self, script: Script) -> Iterator[StreamItem]:
+        """The camera's stream; ``script`` is for the person, who reads it on the view."""
         return iter(self._items)
-
-    def perform(self, number: int, prompt: Prompt, cue_us: int) -> None:
-        """Nothing: the person reads the prompt."""
 
 
 @dataclass(frozen=True)
@@ -146,78 +163,110 @@ class SessionResult:
         return [f.prompt for f in self.labelled.missed]
 
 
-class _Session:
-    """One enrolment's state as the stream goes (see :func:`run_session`)."""
+class Judge:
+    """A subscriber that keeps the gel's motion of each record (it needs the record's markers
+    and geometry) and judges each prompt of ``script`` once its search span has passed (module
+    docstring), asks a prompt not seen again, says so in the script's notes, and finishes the
+    script when every prompt is judged and the last one's rest is over.
 
-    def __init__(self, plan: Plan, source: EnrolSource, sensor: SensorGeometry) -> None:
-        self.prompts = list(plan.prompts)
-        self.source = source
-        self.meter = MotionMeter(sensor)
-        self.notes: list[str] = []
+    Args:
+        script: the session's.
+    Attributes:
+        asked_again: as :attr:`SessionResult.asked_again`.
+    """
+
+    wants_markers = True
+
+    def __init__(self, script: Script) -> None:
+        self.script = script
         self.asked_again: list[tuple[int, int]] = []
-        self.again_of: set[int] = set()  # indices of prompts that are themselves asked again
-        self.cued = 0
-        self.judged = 0
-        self.seen = Seen()
+        self._again_of: set[int] = set()  # indices of prompts that are themselves asked again
+        self._judged = 0
+        self._t_us: list[int] = []
+        self._moved: list[float] = []
 
-    def cue_us(self, i: int) -> int:
-        return int(self.meter.start_us) + int(round(self.prompts[i].cue_s * 1e6))
+    def publish(self, record: WindowRecord) -> None:
+        """Keep the window's motion; judge the prompts whose search span ended by its end."""
+        t_us = int(record.estimate.t_us)
+        self._t_us.append(t_us)
+        self._moved.append(seen_in(record).moved_mm)
+        prompts = self.script.prompts()
+        while self._judged < len(prompts) and self.script.cue_us(prompts[self._judged]) + int(SEARCH_S * 1e6) <= t_us:
+            self._judge(prompts, self._judged, t_us)
+            self._judged += 1
+            prompts = self.script.prompts()
+        if self._judged == len(prompts) and (t_us - int(self.script.start_us or 0)) * 1e-6 >= Plan(prompts).end_s:
+            self.script.finish()
 
-    def step(self, t_us: int) -> None:
-        """Cue the prompts due at ``t_us`` and judge those whose search span has passed."""
-        while self.cued < len(self.prompts) and self.cue_us(self.cued) <= t_us:
-            self.source.perform(self.cued + 1, self.prompts[self.cued], self.cue_us(self.cued))
-            self.cued += 1
-        while self.judged < self.cued and self.cue_us(self.judged) + int(SEARCH_S * 1e6) <= t_us:
-            self._judge(self.judged, t_us)
-            self.judged += 1
-
-    def _judge(self, i: int, t_us: int) -> None:
-        found = find_gestures(Plan(tuple(self.prompts[: i + 1])), self.meter.motion())[-1]
-        if found.seen:
+    def _judge(self, prompts: Sequence[Prompt], i: int, t_us: int) -> None:
+        motion = GelMotion(
+            np.asarray(self._t_us, dtype=np.int64),
+            np.asarray(self._moved, dtype=np.float64),
+            [],
+            np.zeros(0, dtype=np.int64),
+            int(self.script.start_us or 0),
+        )
+        if find_gestures(Plan(tuple(prompts[: i + 1])), motion)[-1].seen:
             return
-        p = self.prompts[i]
+        p = prompts[i]
         what = f"prompt {i + 1} ({p.name}): no gesture seen"
-        if i in self.again_of:
-            self.notes.append(f"{what} when asked again: left out")
+        if i in self._again_of:
+            self.script.note(f"{what} when asked again: left out")
             return
-        last = self.prompts[-1]
-        now_s = (t_us - self.meter.start_us) * 1e-6
+        last = prompts[-1]
+        now_s = (t_us - int(self.script.start_us or 0)) * 1e-6
         cue = round(max(last.end_s + rest_after_s(last.seconds), now_s + AGAIN_AFTER_S), 3)
         if cue + p.seconds + rest_after_s(p.seconds) > MAX_SESSION_S:
-            self.notes.append(f"{what}: no time left to ask again, left out")
+            self.script.note(f"{what}: no time left to ask again, left out")
             return
-        self.prompts.append(dataclasses.replace(p, cue_s=cue))
-        self.again_of.add(len(self.prompts) - 1)
-        self.asked_again.append((i, len(self.prompts) - 1))
-        self.notes.append(f"{what}: asked again at {clock(cue)}")
+        again = self.script.ask_again(dataclasses.replace(p, cue_s=cue))
+        self._again_of.add(again)
+        self.asked_again.append((i, again))
+        self.script.note(f"{what}: asked again at {clock(cue)}")
 
-    def done(self, t_us: int) -> bool:
-        """All prompts cued and judged, the last one's rest over."""
-        end_s = Plan(tuple(self.prompts)).end_s
-        return self.judged == len(self.prompts) and (t_us - self.meter.start_us) * 1e-6 >= end_s
+    def neutralise(self) -> None:
+        """Nothing to release: the judge drives no device."""
+
+    def prepare(self, profile: object) -> None:
+        """Nothing to prepare: the judge maps nothing."""
+
+
+def _until_over(items: Iterable[StreamItem], script: Script, stop: threading.Event) -> Iterator[StreamItem]:
+    """``items`` until ``script`` is finished or ``stop`` is set, each one's times given to
+    ``script`` as it passes (:meth:`Script.reach`)."""
+    for item in items:
+        first, last = item_start_us(item), item_end_us(item)
+        if first is not None and last is not None:
+            script.reach(first, last)
+        yield item
+        if script.finished or stop.is_set():
+            return
 
 
 def run_session(
-    plan: Plan,
+    script: Script,
     source: EnrolSource,
     out_dir: str | Path,
     sensor: SensorGeometry,
-    show: Callable[[Sequence[Prompt], float, Seen | None, Sequence[str]], None],
+    views: Sequence[Subscriber],
     *,
     pace: bool = False,
     stop: threading.Event | None = None,
+    on_progress: Callable[[int, int], None] | None = None,
 ) -> SessionResult:
     """Run a guided enrolment (module docstring) and write its dataset into ``out_dir`` (created):
     ``enrolment.aedat4``, ``enrolment.labels.csv``, ``enrolment.plan.json`` (the prompts asked)
     and ``sensor.yaml``.
 
     Args:
-        plan: the prompts; source: the stream and who performs them; sensor: the geometry.
-        show: the view, called after every APS frame with (the prompts: the plan's and those asked
-            again so far; s from the recording's first event; what the pipeline sees; notes).
+        script: the session's prompts (a new :class:`~neurotouch_hid.enrolment.plan.Script` of
+            the plan), which the views read; source: the stream and who performs the prompts;
+            sensor: the geometry.
+        views: subscribers to the run's records (e.g. the prompt view, which draws ``script``).
         pace: keep the stream on wall time (the simulated gel; a camera paces itself).
         stop: set it (Ctrl-C) to end the session early; what was recorded is labelled.
+        on_progress: how far the labelling of the recording is, after the session (as
+            :func:`~neurotouch_hid.track.pipeline_over`'s).
     Returns:
         :class:`SessionResult`.
     Raises:
@@ -225,7 +274,10 @@ def run_session(
         source's own errors (e.g. DeviceError). The recording is complete and kept on any of them
         raised after it started.
     """
-    from neurotouch_hid.sources.recording import RecordingWriter
+    from neurotouch_hid.mapping.profile import Profile
+    from neurotouch_hid.pipeline.pipeline import GesturePipeline
+    from neurotouch_hid.runtime import Runtime
+    from neurotouch_hid.sources.recording import RecordingWriter, recorded
 
     stop = stop or threading.Event()
     out = Path(out_dir)
@@ -235,44 +287,23 @@ def run_session(
         raise RecordingError(f"{out}: cannot create the enrolment folder: {exc.strerror}") from None
     recording = out / f"{SEQUENCE}.aedat4"
     partial = temp_beside(recording, ".aedat4")
-    session = _Session(plan, source, sensor)
-    pacer = Pacer()
+    judge = Judge(script)
     try:
         with RecordingWriter(partial, camera_name=source.camera_name) as writer:
-            for item in source.stream():
-                if isinstance(item, Frame):
-                    writer.write_frame(item)
-                    t_us = item.t_us
-                elif len(item):
-                    writer.write_events(item)
-                    t_us = int(item["timestamp"][-1])
-                else:
-                    continue
-                closed = session.meter.pipeline.process(item)
-                session.meter.note(item, closed)
-                if closed:
-                    last = closed[-1]
-                    session.seen = Seen(session.meter.moved_mm, last.gesture, last.intensity_mm)
-                session.step(t_us)
-                if isinstance(item, Frame):
-                    show(
-                        session.prompts,
-                        (t_us - session.meter.start_us) * 1e-6,
-                        session.seen,
-                        session.notes,
-                    )
-                if session.done(t_us) or stop.is_set():
-                    break
-                if pace:
-                    pacer.wait(t_us, stop)
+            stream = _until_over(recorded(source.stream(script), writer), script, stop)
+            # no profile maps anything here: the judge and the views read the estimates and markers
+            runtime = Runtime(
+                stream, GesturePipeline(sensor), Profile(), [judge, *views],
+                pace=pace, waits=pace, queue_items=QUEUE_ITEMS, sensor=sensor,
+            )  # fmt: skip
+            runtime.run()
     finally:  # the writer has closed the file complete: keep what was recorded, however it ended
         if partial.stat().st_size:
             os.replace(partial, recording)
         else:
             partial.unlink()
-    asked = Plan(tuple(session.prompts[: session.cued]))
-    labelled = write_dataset(out, recording, asked, session.meter.motion(), sensor)
-    return SessionResult(labelled, session.asked_again, stop.is_set())
+    labelled = label_recording(recording, script.asked(), out, sensor, on_progress=on_progress)
+    return SessionResult(labelled, judge.asked_again, not script.finished)
 
 
 def enrolment_folder(now: str | None = None) -> Path:
