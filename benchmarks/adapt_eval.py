@@ -74,8 +74,9 @@ def enrol(out: Path, fam: str, user: int, seed: int, creep) -> Path:
     return labelled
 
 
-def family(out: Path, fam: str, users: list[int], seed: int, enrol_seed: int) -> dict:
-    """One family: enrol and adapt each user, score the sessions both ways (module docstring)."""
+def family(out: Path, fam: str, users: list[int], seed: int, enrol_seed: int, labels: str = "enrol") -> dict:
+    """One family: enrol and adapt each user, score the sessions both ways (module docstring);
+    ``labels`` ``simulator``: adapt on the simulator's own labels of the enrolment instead."""
     from neurotouch_hid.dataset import list_sequences
     from neurotouch_hid.enrolment.adapt import adapt, fitted_info, record_datasets, summary
     from neurotouch_hid.enrolment.model import Model, apply_model
@@ -89,9 +90,11 @@ def family(out: Path, fam: str, users: list[int], seed: int, enrol_seed: int) ->
     adapted = []
     for user in users:
         enrolment = enrol(out / "enrol" / fam / f"u{user}", fam, user, enrol_seed + user, creep)
+        if labels == "simulator":
+            enrolment = enrolment.parent / "raw"
         adaptation = adapt(record_datasets([enrolment]), rerun=lambda c, e=enrolment: record_datasets([e], config=c))
         model = Model(adaptation.model.settings, adaptation.model.classifier, fitted_info(adaptation, [enrolment]))
-        model.save(out / "models" / fam / f"u{user}.yaml")
+        model.save(out / "models" / labels / fam / f"u{user}.yaml")
         adapted.append({"user": user, "summary": summary(adaptation), "changes": model.changes()})
         config = apply_model(None, model)
         for name in list_sequences(folder):
@@ -157,6 +160,12 @@ def main(
     jobs: int = typer.Option(2, "--jobs", min=1, help="families run in parallel processes"),
     final_run: bool = typer.Option(False, "--final-run", help=f"permit {', '.join(HELD_BACK)} and mix"),
     rerun: bool = typer.Option(False, "--rerun", help="recompute cached families"),
+    labels: str = typer.Option(
+        "enrol",
+        "--labels",
+        help="enrol: the enrolment labelled as enrol --from does; simulator: the simulator's own labels of it "
+        "(what adapt could do with perfect labels)",
+    ),
 ) -> None:
     import multiprocessing
 
@@ -168,20 +177,23 @@ def main(
         console.print(f"note: {', '.join(ADAPT_TUNING)} were looked at for adaptation's choices: not held out")
     user_ids = [int(u) for u in users.split(",")]
     out.mkdir(parents=True, exist_ok=True)
-    cache_path = out / "results.json"
+    if labels not in ("enrol", "simulator"):
+        raise typer.BadParameter(f"--labels {labels}: expected enrol or simulator")
+    suffix = "" if labels == "enrol" else "-simulator"
+    cache_path = out / f"results{suffix}.json"
     cache = json.loads(cache_path.read_text()) if cache_path.exists() else {}
     todo = [f for f in names if rerun or f not in cache]
     ctx = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-        futures = {f: pool.submit(family, out, f, user_ids, seed, enrol_seed) for f in todo}
+        futures = {f: pool.submit(family, out, f, user_ids, seed, enrol_seed, labels) for f in todo}
         for fam, future in futures.items():
             cache[fam] = future.result()
             cache_path.write_text(json.dumps(cache, indent=1) + "\n")
             console.print(f"{fam}: done", highlight=False)
     lines = report(cache, names)
-    (out / "adapt.md").write_text("\n".join(lines) + "\n")
+    (out / f"adapt{suffix}.md").write_text("\n".join(lines) + "\n")
     console.print("\n".join(lines), highlight=False, soft_wrap=True)
-    console.print(f"-> {out / 'adapt.md'}")
+    console.print(f"-> {out / f'adapt{suffix}.md'}")
 
 
 if __name__ == "__main__":
