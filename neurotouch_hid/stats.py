@@ -57,6 +57,9 @@ class RunStats:
         stream_us: camera time covered by the processed data (us).
         latency: processing latencies: from the moment the item that closed a window was read
             from the source (after pacing) to the output being up to date.
+        interpreted_windows: windows made while the first run's compile went on (the pipeline
+            interpreted, slowly: the latency's tail is theirs).
+        compiled_latency: ``latency`` of the windows made once the pipeline was compiled.
         window_latency: paced sources only: from the window's end in wall time (the camera clock
             mapped to wall time by the pacing) to the output being up to date; adds the wait for
             the source batch that shows the window is over (up to one batch).
@@ -78,6 +81,8 @@ class RunStats:
     stream_us: int = 0
     latency: LatencyRing = field(default_factory=LatencyRing, repr=False)
     window_latency: LatencyRing = field(default_factory=LatencyRing, repr=False)
+    interpreted_windows: int = 0
+    compiled_latency: LatencyRing = field(default_factory=LatencyRing, repr=False)
 
     def summary(self) -> str:
         """One line for the end of a run."""
@@ -86,6 +91,17 @@ class RunStats:
             lat = (
                 f", latency p50 {self.latency.percentile_us(50) / 1e3:.2f} ms"
                 f" p99 {self.latency.percentile_us(99) / 1e3:.2f} ms"
+            )
+        if self.interpreted_windows:  # say why the latency is what it is
+            lat += (
+                f" ({self.interpreted_windows} windows ran interpreted, slowly, while the pipeline compiled: "
+                "first run only"
+                + (
+                    f"; once compiled: p50 {self.compiled_latency.percentile_us(50) / 1e3:.2f} ms"
+                    f" p99 {self.compiled_latency.percentile_us(99) / 1e3:.2f} ms)"
+                    if len(self.compiled_latency)
+                    else "; the next run starts compiled)"
+                )
             )
         return (
             f"{self.windows} windows, {self.events} events, {self.frames} frames in {self.wall_s:.1f} s"

@@ -54,6 +54,10 @@ T = TypeVar("T")
 
 #: What the user is told while the kernels compile.
 COMPILING = "compiling the gesture pipeline, first run only"
+#: What the first run's compile costs, as measured (docs/performance.md, "Start-up"): ~40 s of
+#: CPU (pipeline 35 s, simulator 4 s); full speed ~52 s after the start on two nearly idle cores;
+#: minutes on a busy machine (235 s at load 13).
+COMPILE_COST = "about 40 s of CPU: full speed after ~1 minute on two idle cores, minutes on a busy machine"
 
 
 @dataclass(frozen=True)
@@ -304,7 +308,7 @@ class Warmup:
         if not self.progress:
             return self
         if self._interpreted and not in_memory:
-            self._say(f"{COMPILING}: running interpreted (slowly) meanwhile, ~40 s on two cores")
+            self._say(f"{COMPILING}: running interpreted (slowly) meanwhile; {COMPILE_COST}")
         for group in self._groups:
             if group.name not in self.progress:
                 continue

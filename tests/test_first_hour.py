@@ -367,3 +367,56 @@ def test_the_live_views_t_counts_from_the_first_window_as_the_windows_do():
     footer = [line for line in shown.file.getvalue().splitlines() if "windows 67" in line]
     view.close()
     assert footer and "t 0.660 s" in footer[0]  # 66 windows of 10 ms after the first
+
+
+# --- the first run's promise: the closing line says why its latency is high ----------------------
+def test_the_closing_line_says_which_windows_ran_interpreted_while_compiling():
+    from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, batch
+
+    from neurotouch_hid.runtime import Runtime
+    from neurotouch_hid.stages import CompileProgress
+
+    compiling = iter([CompileProgress("compiling", k / 5) for k in range(5)])
+
+    def progress():  # the compile lasts five windows, then the pipeline is compiled
+        return next(compiling, None)
+
+    stream = [batch(k * 1000) for k in range(12)]
+    runtime = Runtime(
+        stream,
+        FakePipeline(),
+        {"sign": 1},
+        [RecordingOutput()],
+        mapper_factory=FakeMapper,
+        pace=False,
+        compile_progress=progress,
+    )
+    stats = runtime.run()
+    assert stats.windows == 12 and 1 <= stats.interpreted_windows < 12
+    line = stats.summary()
+    assert f"{stats.interpreted_windows} windows ran interpreted" in line and "once compiled: p50" in line
+
+
+def test_a_run_without_a_compile_says_nothing_of_it():
+    from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, batch
+
+    from neurotouch_hid.runtime import Runtime
+
+    stats = Runtime(
+        [batch(k * 1000) for k in range(6)],
+        FakePipeline(),
+        {"sign": 1},
+        [RecordingOutput()],
+        mapper_factory=FakeMapper,
+        pace=False,
+    ).run()
+    assert stats.interpreted_windows == 0 and "interpreted" not in stats.summary()
+
+
+def test_the_compile_message_states_the_measured_cost():
+    from neurotouch_hid.warmup import COMPILE_COST
+
+    performance = (Path(__file__).resolve().parents[1] / "docs" / "performance.md").read_text()
+    assert "40 s of CPU" in COMPILE_COST and "busy machine" in COMPILE_COST and "two cores" not in COMPILE_COST
+    start_up = performance.split("## Start-up")[1].split("\n## ")[0]
+    assert "Compiling costs ~40 s of CPU" in start_up and "compile_pipeline()" in start_up
