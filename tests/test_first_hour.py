@@ -420,3 +420,23 @@ def test_the_compile_message_states_the_measured_cost():
     assert "40 s of CPU" in COMPILE_COST and "busy machine" in COMPILE_COST and "two cores" not in COMPILE_COST
     start_up = performance.split("## Start-up")[1].split("\n## ")[0]
     assert "Compiling costs ~40 s of CPU" in start_up and "compile_pipeline()" in start_up
+
+
+# --- smaller: install.sh --user refuses root, as its help says ---------------------------------------
+def test_install_user_refuses_root_run_through_sudo(tmp_path):
+    import os
+    import shutil
+    import subprocess
+
+    from neurotouch_hid.udev import INSTALL_SCRIPT
+
+    as_root = [] if os.geteuid() == 0 else [shutil.which("unshare") or "unshare", "--map-root-user"]
+    env = {
+        **os.environ,
+        "HOME": str(tmp_path / "home"),
+        "XDG_CONFIG_HOME": str(tmp_path / "config"),
+        "SUDO_USER": "ada",
+    }
+    done = subprocess.run([*as_root, "sh", str(INSTALL_SCRIPT), "--user"], capture_output=True, text=True, env=env)
+    assert done.returncode == 1 and "without sudo" in done.stderr
+    assert not (tmp_path / "config" / "systemd").exists()
