@@ -2,10 +2,10 @@
 
 One picture per APS frame: the frame (grey), the events of the last 10 ms (ON green, OFF red,
 as the paper's Figure "APS frame and EVS events"), the tracked markers, their displacement
-from rest as arrows (scaled up to be visible), the contact points, and the gesture type and
-intensity. Drawing is OpenCV's; so is writing a png (one picture: the frame with the largest
-gesture intensity); gif and mp4 are imageio's (Pillow, ffmpeg), the optional extra ``video``
-(:mod:`neurotouch_hid.extras`).
+from rest as arrows (scaled up to be visible, never past the neighbouring marker), the contact
+points, the gesture type and intensity, and a key to the colours. Drawing is OpenCV's; so is
+writing a png (one picture: the frame with the largest gesture intensity); gif and mp4 are
+imageio's (Pillow, ffmpeg), the optional extra ``video`` (:mod:`neurotouch_hid.extras`).
 """
 
 from __future__ import annotations
@@ -71,12 +71,13 @@ def draw_view(
     def at(p: np.ndarray) -> tuple[int, int]:
         return int(round((p[0] + 0.5) * k - k / (2 * scale))), int(round((p[1] + 0.5) * k - k / (2 * scale)))
 
+    gain = arrow_scale(markers_px, rest_px, arrow_gain)
     for cur, rest in zip(markers_px, rest_px):
         if not np.all(np.isfinite(cur)):
             continue
-        tip = rest + arrow_gain * (cur - rest)
+        tip = rest + gain * (cur - rest)
         if np.hypot(*(cur - rest)) >= 0.3:
-            cv2.arrowedLine(pic, at(rest), at(tip), ARROW_RGB, 1, cv2.LINE_AA, shift, tipLength=0.3)
+            cv2.arrowedLine(pic, at(rest), at(tip), ARROW_RGB, 2, cv2.LINE_AA, shift, tipLength=0.3)
         cv2.circle(pic, at(cur), 3 * (1 << shift), MARKER_RGB, 1, cv2.LINE_AA, shift)  # hollow: events show
     lines = ["no estimate yet"]
     if estimate is not None:
@@ -87,10 +88,51 @@ def draw_view(
             f"{'resting' if estimate.resting else 'moving'}  t={estimate.t_us / 1e6:.2f} s",
         ]
     for i, text in enumerate(lines):
-        org = (8, 22 + 22 * i)
-        cv2.putText(pic, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 3, cv2.LINE_AA)
-        cv2.putText(pic, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.6, TEXT_RGB, 1, cv2.LINE_AA)
+        _label(pic, text, (8, 22 + 22 * i), 0.6)
+    _colour_key(pic, gain)
     return pic
+
+
+def _label(pic: np.ndarray, text: str, org: tuple[int, int], size: float, colour=TEXT_RGB) -> None:
+    """White (or ``colour``) text with a black outline, readable on any frame."""
+    cv2.putText(pic, text, org, cv2.FONT_HERSHEY_SIMPLEX, size, (0, 0, 0), 3, cv2.LINE_AA)
+    cv2.putText(pic, text, org, cv2.FONT_HERSHEY_SIMPLEX, size, colour, 1, cv2.LINE_AA)
+
+
+def colour_key(gain: float) -> list[tuple[str, tuple[int, int, int]]]:
+    """What each colour of a picture means: (label, RGB), as drawn in its bottom-left corner."""
+    return [
+        ("ON events", ON_RGB),
+        ("OFF events", OFF_RGB),
+        ("markers", MARKER_RGB),
+        (f"displacement x{gain:.1f}", ARROW_RGB),
+        ("contacts", CONTACT_RGB),
+    ]
+
+
+def _colour_key(pic: np.ndarray, gain: float) -> None:
+    key = colour_key(gain)
+    h = pic.shape[0]
+    for i, (text, colour) in enumerate(key):
+        y = h - 10 - 18 * (len(key) - 1 - i)
+        cv2.rectangle(pic, (8, y - 10), (20, y), colour, -1)
+        _label(pic, text, (26, y), 0.45, colour)
+
+
+def arrow_scale(markers_px: np.ndarray, rest_px: np.ndarray, arrow_gain: float) -> float:
+    """How many times longer than the displacement the arrows are drawn: ``arrow_gain``, less
+    when the largest displacement would then reach past 0.8 of the marker pitch (the median
+    distance between neighbouring rest markers, px), where arrows would cross their
+    neighbours'."""
+    rest = np.asarray(rest_px, dtype=np.float64).reshape(-1, 2)
+    moved = np.asarray(markers_px, dtype=np.float64).reshape(-1, 2) - rest
+    largest = np.nanmax(np.hypot(moved[:, 0], moved[:, 1]), initial=0.0)
+    if len(rest) < 2 or not np.isfinite(largest) or largest <= 0:
+        return arrow_gain
+    gaps = np.hypot(*(rest[:, None, :] - rest[None, :, :]).transpose(2, 0, 1))
+    np.fill_diagonal(gaps, np.inf)
+    pitch = float(np.median(gaps.min(axis=1)))
+    return float(min(arrow_gain, 0.8 * pitch / largest))
 
 
 def render_view(

@@ -440,3 +440,71 @@ def test_install_user_refuses_root_run_through_sudo(tmp_path):
     done = subprocess.run([*as_root, "sh", str(INSTALL_SCRIPT), "--user"], capture_output=True, text=True, env=env)
     assert done.returncode == 1 and "without sudo" in done.stderr
     assert not (tmp_path / "config" / "systemd").exists()
+
+
+# --- smaller: no legend covers data ----------------------------------------------------------------
+def _legends_over_data(monkeypatch, draw) -> list[str]:
+    """The legends that overlap their axes' data area in the figures ``draw()`` makes."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figures = []
+    close = plt.close
+    monkeypatch.setattr(plt, "close", lambda fig=None: figures.append(fig) or close(fig))
+    draw()
+    over = []
+    for fig in figures:
+        fig.canvas.draw()
+        for ax in fig.axes:
+            legend = ax.get_legend()
+            if legend is not None and legend.get_window_extent().overlaps(ax.get_window_extent()):
+                over.append(f"{ax.get_title() or ax.get_ylabel()}")
+    assert figures
+    return over
+
+
+def test_no_legend_of_the_eval_report_covers_data(monkeypatch, tmp_path):
+    from test_report import result as result_fixture
+
+    from neurotouch_hid.evaluation.report import write_figures
+
+    result = result_fixture.__wrapped__()
+    assert _legends_over_data(monkeypatch, lambda: write_figures(result, tmp_path)) == []
+
+
+def test_no_legend_of_the_profile_test_plot_covers_data(monkeypatch, tmp_path):
+    from neurotouch_hid.estimate import GestureEstimate, GestureType
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.mapping.replay import plot_timeline, replay
+
+    estimates = [
+        GestureEstimate(
+            t_us=k * 10_000,
+            gesture=GestureType.PUSH if 20 <= k < 60 else GestureType.NONE,
+            resting=not 20 <= k < 60,
+            intensity_mm=4.0 if 20 <= k < 60 else 0.0,
+            translation_mm=[1.0, 1.0] if 20 <= k < 60 else [0.0, 0.0],
+        )
+        for k in range(100)
+    ]
+    states = replay(load_profile("default"), estimates)
+    assert _legends_over_data(monkeypatch, lambda: plot_timeline(estimates, states, tmp_path / "t.png")) == []
+
+
+# --- smaller: view's picture has a colour key and arrows that do not cross -------------------------
+def test_views_picture_has_a_colour_key_and_arrows_that_stay_short_of_the_next_marker():
+    import numpy as np
+
+    from neurotouch_hid.view import arrow_scale, colour_key, draw_view
+
+    grid = np.array([(x, y) for x in range(100, 200, 10) for y in range(80, 180, 10)], dtype=float)
+    pushed = grid + [6.0, 0.0]  # a firm push: 6 px, 60 % of the 10 px pitch
+    gain = arrow_scale(pushed, grid, 3.0)
+    assert gain * 6.0 <= 0.8 * 10.0 + 1e-9 and gain < 3.0
+    assert arrow_scale(grid + [0.5, 0.0], grid, 3.0) == 3.0  # small moves: the full gain
+    picture = draw_view(np.full((260, 346), 40, np.uint8), np.zeros(0, dtype=[("x", "i2")]), pushed, grid, None)
+    corner = picture[-110:, :30].reshape(-1, 3)
+    for label, colour in colour_key(gain):
+        assert (corner == colour).all(axis=1).any(), label

@@ -47,6 +47,10 @@ FIGURES: dict[str, str] = {
 }
 
 
+#: Where the figures' legends go: beside the axes, right of them, never over the data.
+LEGEND_BESIDE = {"loc": "upper left", "bbox_to_anchor": (1.01, 1.0), "borderaxespad": 0.0}
+
+
 def _pct(value: float) -> str:
     return "-" if value is None or math.isnan(value) else f"{100 * value:.2f} %"
 
@@ -230,7 +234,7 @@ def write_figures(result: EvaluationResult, out_dir: str | Path) -> list[Path]:
 
     def save(fig, name: str) -> None:
         fig.tight_layout()
-        fig.savefig(out_dir / name, dpi=120)
+        fig.savefig(out_dir / name, dpi=120, bbox_inches="tight")  # the legends beside the axes too
         plt.close(fig)
         written.append(out_dir / name)
 
@@ -261,7 +265,7 @@ def write_figures(result: EvaluationResult, out_dir: str | Path) -> list[Path]:
     ax.set_xticks(x, names)
     ax.set_ylabel("%")
     ax.set_ylim(0, 105)
-    ax.legend(loc="lower right", fontsize=8)
+    ax.legend(**LEGEND_BESIDE, fontsize=8)
     ax.set_title(
         f"Gesture type accuracy {_pct(result.gesture_accuracy)}, "
         f"contact count accuracy {_pct(result.contact_count_accuracy)}"
@@ -279,7 +283,7 @@ def write_figures(result: EvaluationResult, out_dir: str | Path) -> list[Path]:
     ax.set_xlabel("Ground-truth intensity (mm), 0.6 mm bins")
     ax.set_ylabel("Accuracy (%)")
     ax.set_ylim(0, 115)
-    ax.legend(loc="upper right", ncol=2)
+    ax.legend(**LEGEND_BESIDE)
     ax.set_title("Accuracy against ground-truth intensity (gesture observations)")
     save(fig, "accuracy_vs_intensity.png")
 
@@ -292,11 +296,10 @@ def write_figures(result: EvaluationResult, out_dir: str | Path) -> list[Path]:
     )
     for ax, (title, per_gesture, overall, colour) in zip(axes, panels):
         ax.bar(gx, np.nan_to_num(per_gesture[gestures]), color=colour)
-        ax.axhline(overall, color="black", ls="--", lw=1, label=f"all: {_mm(overall)}")
+        ax.axhline(overall, color="black", ls="--", lw=1)  # named in the title: no legend over the bars
         ax.set_xticks(gx, [names[k] for k in gestures])
         ax.set_ylabel("mm")
-        ax.set_title(title)
-        ax.legend(fontsize=8)
+        ax.set_title(f"{title} (dashed: all, {_mm(overall)})")
     save(fig, "error_per_gesture.png")
     return written
 

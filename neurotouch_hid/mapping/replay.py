@@ -179,7 +179,7 @@ def plot_timeline(estimates: list[GestureEstimate], states: list[ControllerState
     for g in gestures:  # each window's gesture type as the dot's colour
         mask = np.array([e.gesture.value == g for e in estimates])
         ax_in.scatter(t[mask], intensity[mask], s=4, label=g)
-    ax_in.legend(loc="upper right", fontsize=7, ncol=len(gestures) or 1)
+    ax_in.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=7)  # beside the data
     for name in AXES:
         values = [deflection(name, s.axes[name]) for s in states]
         if any(values):
@@ -187,7 +187,7 @@ def plot_timeline(estimates: list[GestureEstimate], states: list[ControllerState
     ax_axes.set_ylabel("axis deflection")
     ax_axes.set_ylim(-1.05, 1.05)
     if ax_axes.lines:
-        ax_axes.legend(loc="upper right", fontsize=7)
+        ax_axes.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=7)
     down = [set(pressed(s)) for s in states]
     used = [name for name in DIGITAL_OUTPUTS if any(name in d for d in down)]
     used += sorted(set().union(*down) - set(DIGITAL_OUTPUTS)) if down else []
@@ -197,7 +197,7 @@ def plot_timeline(estimates: list[GestureEstimate], states: list[ControllerState
     ax_btn.set_ylabel("buttons")
     ax_btn.set_xlabel("time (s)")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    fig.savefig(path, dpi=100, bbox_inches="tight")
     plt.close(fig)
 
 
