@@ -24,7 +24,8 @@
 4. **Check** on the held-out gestures: each fitted value is kept only where it beats the shipped
    one there by more than :data:`MIN_GAIN` of the windows' gesture type accuracy (the type and the
    contact threshold: replayed; the resting threshold: the pipeline run again with it, and its
-   frames' resting F1 higher too; the scale: a lower intensity MAE and no accuracy lost);
+   frames' resting F1 higher too; the scale: an intensity MAE lower by more than
+   :data:`MIN_MAE_GAIN` of it, and no accuracy lost);
    otherwise the shipped value stays. The model (``model.py``) holds only what was kept.
 """
 
@@ -58,6 +59,9 @@ MIN_HELD_OUT = 3
 #: more than this (gesture type accuracy, 0..1): 0.2 points is ~7 windows of a 3-minute enrolment's
 #: ~3400 held-out ones, less than one tap: a smaller gain is within what another hold-out moves.
 MIN_GAIN = 0.002
+#: The intensity scale is kept only when it lowers the held-out intensity MAE by more than this share
+#: of it: a scale within a few thousandths of 1 changes nothing a profile can feel.
+MIN_MAE_GAIN = 0.05
 
 
 @dataclass
@@ -560,7 +564,7 @@ def adapt(records: Sequence[Record], rerun: Callable[..., list[Record]] | None =
             with_gain = _accuracy(
                 records, [replay(r, classifier, min_intensity or 0.0, fitted_gain) for r in records], held
             )[0]
-            kept = mae_fitted < mae_shipped and with_gain >= current
+            kept = mae_fitted < (1.0 - MIN_MAE_GAIN) * mae_shipped and with_gain >= current
             checks.append(
                 Check(
                     "gesture.intensity_gain",
