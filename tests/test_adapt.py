@@ -162,6 +162,8 @@ def test_the_replay_answers_what_the_pipeline_answered(records):
     for r in records:
         assert len(r.t_us) > 500
         assert np.array_equal(replay(r), r.answered)
+        assert len(r.frame_t_us) > 100 and r.frame_resting.any() and not r.frame_resting.all()  # every frame's verdict
+        assert np.isfinite(r.features[r.gesture >= 0]).all() and np.isnan(r.features[r.gesture < 0]).all()
 
 
 def test_gestures_are_held_out_by_prompt_with_their_rest(records):
