@@ -24,6 +24,7 @@ from typing import IO, Sequence
 
 import numpy as np
 
+from neurotouch_hid.atomic import AtomicFile
 from neurotouch_hid.errors import DatasetError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.limits import FileLimitError, read_text_file, short
@@ -76,10 +77,12 @@ class LabelRow:
 def write_labels(path: str | Path, rows: list[LabelRow]) -> None:
     """Write ``SEQUENCE.labels.csv`` exactly as docs/dataset.md defines it (rows ordered by time).
 
+    The file is written beside its name and renamed into place when complete.
+
     Raises ValueError when rows are not time-ordered or have more than 3 contacts.
     """
     last = -math.inf
-    with open(path, "w", newline="") as fh:
+    with AtomicFile(path, what="labels file", newline="") as fh:
         writer = csv.writer(fh)
         writer.writerow(LABEL_COLUMNS)
         for row in rows:
@@ -236,23 +239,40 @@ def labels_at(labels: Sequence[LabelRow], t_us: np.ndarray) -> list[LabelRow | N
 class JsonlWriter:
     """Writes one JSON object a line. Context manager.
 
+    A file is written as a temporary file beside it and renamed over it when the writer is
+    closed without an error (:class:`~neurotouch_hid.atomic.AtomicFile`): a command that fails
+    leaves what was there. With ``live``, it is renamed at its first line instead, so that another
+    process can follow it from then on. A FIFO or a character device is written in place.
+
     Args:
-        out: a file path (created or truncated), ``"-"`` for stdout, or an open text stream
-            (not closed by :meth:`close`).
+        out: a file path, ``"-"`` for stdout, or an open text stream (not closed by
+            :meth:`close`).
         flush: flush after every line (for live outputs read by another process).
+        live: publish the file at its first line (see above) rather than at the end.
+        inputs: the command's input files: ``out`` may not be one of them.
     Raises:
         DatasetError: the file cannot be opened for writing (names it and why).
+        OutputError: ``out`` is a symbolic link, a folder, or one of ``inputs``.
     """
 
-    def __init__(self, out: str | Path | IO[str], *, flush: bool = False) -> None:
-        self._flush = flush
+    def __init__(
+        self,
+        out: str | Path | IO[str],
+        *,
+        flush: bool = False,
+        live: bool = False,
+        inputs: Iterable[str | Path | None] = (),
+    ) -> None:
+        self._flush, self._live = flush, live
+        self._atomic: AtomicFile | None = None
         if isinstance(out, (str, Path)) and str(out) == "-":
             self._fh, self._owned = sys.stdout, False
         elif isinstance(out, (str, Path)):
             try:
-                self._fh, self._owned = open(out, "w"), True
+                self._atomic = AtomicFile(out, inputs, what="output file")
             except OSError as exc:
-                raise DatasetError(f"{out}: cannot write JSON lines: {exc.strerror}") from None
+                raise DatasetError(f"{out}: cannot write JSON lines: {exc.strerror or exc}") from None
+            self._fh, self._owned = self._atomic.file, True
         else:
             self._fh, self._owned = out, False
 
@@ -261,10 +281,15 @@ class JsonlWriter:
         self._fh.write(json.dumps(data, separators=(", ", ": ")) + "\n")
         if self._flush:
             self._fh.flush()
+        if self._live and self._atomic is not None and not self._atomic.published:
+            self._atomic.publish()
 
-    def close(self) -> None:
-        """Flush, and close the file if this writer opened it."""
-        if self._owned:
+    def close(self, keep: bool = True) -> None:
+        """Flush, and close the file if this writer opened it: renamed into place when ``keep``,
+        else removed unless it was already published (a live file)."""
+        if self._atomic is not None:
+            self._atomic.close(keep=keep)
+        elif self._owned:
             self._fh.close()
         else:
             self._fh.flush()
@@ -272,8 +297,8 @@ class JsonlWriter:
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type, *exc) -> None:
+        self.close(keep=exc_type is None)
 
 
 class PredictionsWriter(JsonlWriter):
@@ -285,7 +310,8 @@ class PredictionsWriter(JsonlWriter):
 
 
 def write_predictions(path: str | Path, estimates: Iterable[GestureEstimate]) -> int:
-    """Write a whole predictions file; returns the number of lines written."""
+    """Write a whole predictions file (renamed into place when complete); returns the number of
+    lines written."""
     n = 0
     with PredictionsWriter(path) as writer:
         for estimate in estimates:

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Callable, Iterator
 from neurotouch_hid.errors import DeviceError, NeurotouchError, ProfileError
 from neurotouch_hid.estimate import GestureEstimate
 from neurotouch_hid.kinds import MethodKind, OutputKind, SourceKind
-from neurotouch_hid.mapping.profile import Profile, available_profiles, load_profile
+from neurotouch_hid.mapping.profile import Profile, available_profiles, find_profile, load_profile
 from neurotouch_hid.runtime import DEFAULT_BATCH_US, DEFAULT_MAX_LAG_US, RunParts, run_assembled
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.open import CameraBackend, open_source
@@ -69,11 +69,13 @@ def open_output(
     out: str | Path | None = None,
     console: Console | None = None,
     say: Callable[[str], None] | None = None,
+    inputs: tuple[str | Path | None, ...] = (),
 ) -> Subscriber:
     """Create one output: ``gamepad`` (the uinput pad with the profile's name and ids, and the
     keyboard and mouse if the profile uses them), ``jsonl`` (one state line per change to ``out``
-    or stdout) or ``term`` (the terminal view; on a terminal the live view of
-    :mod:`neurotouch_hid.output.live`: the gel, the gestures, the profile, beside the pad). ``say``
+    or stdout; ``out`` may not be one of the run's ``inputs``) or ``term`` (the terminal view; on a
+    terminal the live view of :mod:`neurotouch_hid.output.live`: the gel, the gestures, the
+    profile, beside the pad). ``say``
     tells the user about rumble effects games send to the pad (the gel has no motor; default: the
     log). Closed by ``stack``. Raises DeviceError when /dev/uinput cannot be used."""
     if kind == OutputKind.GAMEPAD:
@@ -88,7 +90,7 @@ def open_output(
     if kind == OutputKind.JSONL:
         from neurotouch_hid.output.jsonl import StateJsonlWriter
 
-        return stack.enter_context(StateJsonlWriter(out))
+        return stack.enter_context(StateJsonlWriter(out, inputs))
     from neurotouch_hid.output.live import LiveView
 
     return stack.enter_context(LiveView(console))
@@ -102,10 +104,12 @@ def open_outputs(
     out: str | Path | None = None,
     console: Console | None = None,
     say: Callable[[str], None] | None = None,
+    inputs: tuple[str | Path | None, ...] = (),
 ) -> list[Subscriber]:
-    """The run's subscribers: the output ``kind`` names (:func:`open_output`) and, for the virtual
-    gamepad on a terminal (``console.is_terminal``), the live view drawn beside it."""
-    outputs = [open_output(kind, profile, stack, out=out, console=console, say=say)]
+    """The run's subscribers: the output ``kind`` names (:func:`open_output`; ``out`` may not be
+    one of the run's ``inputs``) and, for the virtual gamepad on a terminal
+    (``console.is_terminal``), the live view drawn beside it."""
+    outputs = [open_output(kind, profile, stack, out=out, console=console, say=say, inputs=inputs)]
     return outputs + _live_view_beside(kind, console, stack)
 
 
@@ -343,9 +347,12 @@ def run_driver(
     if method not in tuple(MethodKind):
         raise NeurotouchError(f"--method {method!r}: expected one of {', '.join(MethodKind)}")
     loaded = load_profile(profile)
+    inputs = (None if source in tuple(SourceKind) else source, find_profile(profile), sensor)
     with contextlib.ExitStack() as stack:
         subscribers = (
-            outputs if outputs is not None else open_outputs(output, loaded, stack, out=out, console=console, say=say)
+            outputs
+            if outputs is not None
+            else open_outputs(output, loaded, stack, out=out, console=console, say=say, inputs=inputs)
         )
         assembly = RunAssembly(
             source,

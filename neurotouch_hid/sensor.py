@@ -31,6 +31,7 @@ from pydantic import ConfigDict, Field, StrictBool, TypeAdapter, ValidationError
 from ruamel.yaml.nodes import MappingNode
 from typing_extensions import TypedDict  # pydantic needs typing_extensions' TypedDict before 3.12
 
+from neurotouch_hid.atomic import AtomicFile
 from neurotouch_hid.errors import SensorError
 from neurotouch_hid.limits import (
     MAX_SENSOR_PX,
@@ -172,8 +173,10 @@ class SensorGeometry:
         return data
 
     def save(self, path: str | Path) -> None:
-        """Write this geometry as ``sensor.yaml`` (docs/dataset.md field order)."""
-        Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=False))
+        """Write this geometry as ``sensor.yaml`` (docs/dataset.md field order), renamed into
+        place when complete. Raises OutputError for a symbolic link or a folder."""
+        with AtomicFile(path, what="sensor file") as fh:
+            fh.write(yaml.safe_dump(self.to_dict(), sort_keys=False))
 
     # --- conversions --------------------------------------------------------------------
     @property

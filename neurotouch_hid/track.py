@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from neurotouch_hid.atomic import check_output, replacing
 from neurotouch_hid.dataset import PredictionsWriter
 from neurotouch_hid.errors import RecordingError, SensorError
 from neurotouch_hid.estimate import GestureEstimate
@@ -170,8 +171,12 @@ def track_recording(
     Returns:
         :class:`TrackSummary`.
     Raises:
-        RecordingError, SensorError: see :func:`pipeline_over`; when no gel is found, ``out``
-            is not left behind.
+        RecordingError, SensorError: see :func:`pipeline_over`. ``out`` is written as a
+            temporary file beside it, renamed over it at the end: on an error, what was there
+            is left as it was, except after a damaged or cut recording, whose windows before the
+            damage are kept (the error says how many and where).
+        OutputError: ``out`` or ``markers_out`` is a symbolic link, a folder, the recording or
+            ``sensor_file``.
     """
     start = time.perf_counter()
     times: list[int] = []
@@ -182,34 +187,44 @@ def track_recording(
         positions.append(pipeline.marker_positions())
 
     pipeline = pipeline_for(sensor, config, on_window=keep_markers if markers_out is not None else None)
+    inputs = (recording, sensor_file)
+    if markers_out is not None:
+        check_output(markers_out, (*inputs, out), "markers file")
     windows = events = frames = 0
     first_us = last_us = first_window_us = None
+    writer = PredictionsWriter(out, inputs=inputs)
     try:
-        with PredictionsWriter(out) as writer:
-            for item, estimates in pipeline_over(recording, pipeline, on_progress=on_progress, sensor_file=sensor_file):
-                if isinstance(item, Frame):
-                    frames += 1
-                    last_us = item.t_us
-                else:
-                    events += len(item)
-                    last_us = int(item["timestamp"][-1])
-                first_us = last_us if first_us is None else first_us
-                for estimate in estimates:
-                    writer.write(estimate)
-                    first_window_us = estimate.t_us if first_window_us is None else first_window_us
-                windows += len(estimates)
-    except SensorError:
-        if windows == 0:  # nothing was predicted: leave no empty file behind
-            Path(out).unlink(missing_ok=True)
+        for item, estimates in pipeline_over(recording, pipeline, on_progress=on_progress, sensor_file=sensor_file):
+            if isinstance(item, Frame):
+                frames += 1
+                last_us = item.t_us
+            else:
+                events += len(item)
+                last_us = int(item["timestamp"][-1])
+            first_us = last_us if first_us is None else first_us
+            for estimate in estimates:
+                writer.write(estimate)
+                first_window_us = estimate.t_us if first_window_us is None else first_window_us
+            windows += len(estimates)
+    except RecordingError as exc:
+        # a damaged or cut file: every window before the damage is kept, and the error says so
+        writer.close(keep=windows > 0)
+        if windows == 0:
+            raise
+        raise RecordingError(f"{exc}; the {windows} windows before it are in {out}") from None
+    except BaseException:  # no gel, Ctrl-C, a full disk: what was at ``out`` is left as it was
+        writer.close(keep=False)
         raise
+    writer.close()
     if markers_out is not None:
         n = len(pipeline.rest_px)
-        np.savez_compressed(
-            markers_out,
-            t_us=np.asarray(times, dtype=np.int64),
-            positions_px=np.asarray(positions, dtype=np.float32).reshape(len(times), n, 2),
-            rest_px=pipeline.rest_px.astype(np.float32),
-        )
+        with replacing(markers_out, (*inputs, out), "markers file") as tmp, open(tmp, "wb") as fh:
+            np.savez_compressed(  # to the open file: numpy would add .npz to a name without it
+                fh,
+                t_us=np.asarray(times, dtype=np.int64),
+                positions_px=np.asarray(positions, dtype=np.float32).reshape(len(times), n, 2),
+                rest_px=pipeline.rest_px.astype(np.float32),
+            )
     duration = 0 if first_us is None else last_us - first_us
     late = 0 if first_window_us is None or first_us is None else first_window_us - first_us
     return TrackSummary(windows, events, frames, duration, time.perf_counter() - start, pipeline.pressed_frames, late)

@@ -17,6 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from neurotouch_hid.atomic import replacing
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.estimate import GestureEstimate
 from neurotouch_hid.extras import require, require_ffmpeg
@@ -161,7 +162,9 @@ def render_view(
     Returns:
         the number of pictures drawn.
     Raises:
-        NeurotouchError: ``out`` has another suffix or cannot be written.
+        NeurotouchError: ``out`` has another suffix or cannot be written; OutputError: it is a
+            symbolic link, a folder or the recording. What was at ``out`` is kept until the
+            view is complete.
         MissingExtraError: gif or mp4 without the extra ``video`` (mp4: or without an ffmpeg program).
         RecordingError, SensorError: see :func:`neurotouch_hid.track.pipeline_over`.
     """
@@ -181,37 +184,40 @@ def render_view(
     best: tuple[float, np.ndarray] | None = None
     drawn = 0
     writer = None
-    try:
-        if suffix != ".png":
-            kwargs = {"fps": fps, "macro_block_size": 1} if suffix == ".mp4" else {"duration": 1000.0 / fps, "loop": 0}
-            import imageio.v2 as imageio
+    with replacing(out, (recording,), "view") as target:  # renamed into place when complete
+        try:
+            if suffix != ".png":
+                kwargs = (
+                    {"fps": fps, "macro_block_size": 1} if suffix == ".mp4" else {"duration": 1000.0 / fps, "loop": 0}
+                )
+                import imageio.v2 as imageio
 
-            writer = imageio.get_writer(out, **kwargs)
-        for item, estimates in pipeline_over(recording, pipeline, on_progress=on_progress):
-            if estimates:
-                latest = estimates[-1]
-            if not isinstance(item, Frame):
-                recent.append(item)
-                while recent and recent[0]["timestamp"][-1] < item["timestamp"][-1] - event_span_us:
-                    recent.popleft()
-                continue
-            if pipeline.rest_px is None:
-                continue
-            events = np.concatenate(list(recent)) if recent else np.zeros(0, dtype=EVENT_DTYPE)
-            events = events[events["timestamp"] >= item.t_us - event_span_us]
-            pic = draw_view(item.image, events, pipeline.marker_positions(), pipeline.rest_px, latest, scale=scale)
-            drawn += 1
+                writer = imageio.get_writer(target, **kwargs)
+            for item, estimates in pipeline_over(recording, pipeline, on_progress=on_progress):
+                if estimates:
+                    latest = estimates[-1]
+                if not isinstance(item, Frame):
+                    recent.append(item)
+                    while recent and recent[0]["timestamp"][-1] < item["timestamp"][-1] - event_span_us:
+                        recent.popleft()
+                    continue
+                if pipeline.rest_px is None:
+                    continue
+                events = np.concatenate(list(recent)) if recent else np.zeros(0, dtype=EVENT_DTYPE)
+                events = events[events["timestamp"] >= item.t_us - event_span_us]
+                pic = draw_view(item.image, events, pipeline.marker_positions(), pipeline.rest_px, latest, scale=scale)
+                drawn += 1
+                if writer is not None:
+                    writer.append_data(pic)
+                else:
+                    intensity = latest.intensity_mm if latest is not None else 0.0
+                    if best is None or intensity > best[0] or intensity == best[0] == 0.0:
+                        best = (intensity, pic)
+            if best is not None and not cv2.imwrite(str(target), cv2.cvtColor(best[1], cv2.COLOR_RGB2BGR)):
+                raise NeurotouchError(f"{out}: cannot write the view (OpenCV's imwrite failed)")
+        except OSError as exc:
+            raise NeurotouchError(f"{out}: cannot write the view: {exc}") from None
+        finally:
             if writer is not None:
-                writer.append_data(pic)
-            else:
-                intensity = latest.intensity_mm if latest is not None else 0.0
-                if best is None or intensity > best[0] or intensity == best[0] == 0.0:
-                    best = (intensity, pic)
-        if best is not None and not cv2.imwrite(str(out), cv2.cvtColor(best[1], cv2.COLOR_RGB2BGR)):
-            raise NeurotouchError(f"{out}: cannot write the view (OpenCV's imwrite failed)")
-    except OSError as exc:
-        raise NeurotouchError(f"{out}: cannot write the view: {exc}") from None
-    finally:
-        if writer is not None:
-            writer.close()
+                writer.close()
     return drawn

@@ -634,3 +634,68 @@ def test_a_process_with_a_huge_steam_app_id_does_not_hide_the_game_beside_it(tmp
         for proc in procs:
             proc.kill()
             proc.wait()
+
+
+# --- outputs never destroy an input -------------------------------------------------------------
+def test_track_never_writes_over_its_recording_a_link_or_what_a_failure_would_lose(tmp_path, sim_gel_short_recording):
+    """``track X --out X`` (the recording emptied), ``--out`` a symbolic link (written through
+    to wherever it points), and a track that fails (a recording without APS frames): each is
+    one line, and every file is as it was."""
+    from hostile_inputs import small_events
+
+    from neurotouch_hid.sources.recording import RecordingWriter
+
+    recording = tmp_path / "rec.aedat4"
+    recording.write_bytes(sim_gel_short_recording.read_bytes())
+    size = recording.stat().st_size
+    assert_refused(cli("track", str(recording), "--out", str(recording)), "same file as the input")
+    assert recording.stat().st_size == size
+    hard = tmp_path / "hard.aedat4"
+    os.link(recording, hard)
+    assert_refused(cli("track", str(recording), "--out", str(hard)), "same file as the input")
+    precious, link = tmp_path / "precious.txt", tmp_path / "link.jsonl"
+    precious.write_text("keep me\n")
+    link.symlink_to(precious)
+    assert_refused(cli("track", str(recording), "--out", str(link)), "symbolic link")
+    assert precious.read_text() == "keep me\n"
+    no_frames = tmp_path / "noframes.aedat4"
+    with RecordingWriter(no_frames, frames=False) as writer:
+        writer.write_events(small_events())
+    out = tmp_path / "pred.jsonl"
+    out.write_text("earlier predictions\n")
+    code, _, err, _ = cli("track", str(no_frames), "--out", str(out))
+    assert code == 2 and "Traceback" not in err, err
+    assert out.read_text() == "earlier predictions\n"
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")], "a temporary file was left"
+
+
+def test_a_cut_recording_keeps_every_window_before_the_cut_and_says_where(tmp_path, sim_gel_short_recording):
+    """A recording cut short: ``track`` writes the windows before the cut, exits 2, and says how
+    many and up to when."""
+    cut = tmp_path / "cut.aedat4"
+    data = sim_gel_short_recording.read_bytes()
+    cut.write_bytes(data[: len(data) * 2 // 3])
+    out = tmp_path / "pred.jsonl"
+    code, _, err, _ = cli("track", str(cut), "--out", str(out))
+    assert code == 2 and "Traceback" not in err, err
+    windows = len(out.read_text().splitlines())
+    assert windows > 10 and f"the {windows} windows before it are in {out}" in err and "up to t=" in err, err
+
+
+def test_run_never_writes_its_states_over_its_source_or_through_a_link(tmp_path):
+    """``run --source P.jsonl --output jsonl --out P.jsonl`` replaced the source it was
+    replaying; a link as ``--out`` was written through."""
+    preds = _predictions(tmp_path, 0.5)
+    before = preds.read_bytes()
+    run = ["run", "--fast", "--profile", "default", "--output", "jsonl"]
+    assert_refused(cli(*run, "--source", str(preds), "--out", str(preds)), "same file as the input")
+    assert preds.read_bytes() == before
+    link = tmp_path / "states.jsonl"
+    link.symlink_to(preds)
+    assert_refused(cli(*run, "--source", str(preds), "--out", str(link)), "symbolic link")
+    assert preds.read_bytes() == before
+    states = tmp_path / "real-states.jsonl"
+    states.write_text("old\n")
+    code, _, err, _ = cli(*run, "--source", str(preds), "--out", str(states))
+    assert code == 0, err
+    assert [json.loads(line)["t_us"] for line in states.read_text().splitlines()][-1] >= 0

@@ -16,6 +16,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from neurotouch_hid.atomic import AtomicFile, replacing
 from neurotouch_hid.evaluation.metrics import EvaluationResult
 from neurotouch_hid.extras import require
 
@@ -234,7 +235,8 @@ def write_figures(result: EvaluationResult, out_dir: str | Path) -> list[Path]:
 
     def save(fig, name: str) -> None:
         fig.tight_layout()
-        fig.savefig(out_dir / name, dpi=120, bbox_inches="tight")  # the legends beside the axes too
+        with replacing(out_dir / name, what="figure") as tmp:  # renamed into place when complete
+            fig.savefig(tmp, dpi=120, bbox_inches="tight")  # the legends beside the axes too
         plt.close(fig)
         written.append(out_dir / name)
 
@@ -369,5 +371,6 @@ def write_report(
     for name, caption in FIGURES.items():
         parts += [f"![{caption}]({name})", "", f"*{caption}.*", ""]
     summary = out_dir / "summary.md"
-    summary.write_text("\n".join(parts))
+    with AtomicFile(summary, what="summary") as fh:
+        fh.write("\n".join(parts))
     return summary

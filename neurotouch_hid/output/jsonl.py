@@ -5,6 +5,7 @@ Written with the line writer of the predictions files (:class:`neurotouch_hid.da
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
@@ -26,19 +27,23 @@ class StateJsonlWriter(JsonlWriter):
     that are down (sorted) and the mouse motion of this step (non-zero codes only);
     ``gesture`` and ``intensity_mm`` are those of the window's estimate. :meth:`neutralise`
     writes a neutral line (gesture ``none``), so a stopped run always ends on one. Lines are
-    flushed as written (another process reads them live).
+    flushed as written (another process reads them live). A file is written beside its name and
+    renamed over it at the first line (a run that fails before its first state leaves what was
+    there); a FIFO is written in place.
 
     Args:
         out: a file path, ``"-"`` or None for stdout, or an open text stream.
+        inputs: the run's input files (source, profile, sensor.yaml): ``out`` may not be one.
     Raises:
         DatasetError: the file cannot be opened for writing.
+        OutputError: ``out`` is a symbolic link, a folder or one of ``inputs``.
     """
 
     #: Writes no markers (:class:`~neurotouch_hid.stages.Subscriber`).
     wants_markers = False
 
-    def __init__(self, out: str | Path | IO[str] | None = None) -> None:
-        super().__init__("-" if out is None else out, flush=True)
+    def __init__(self, out: str | Path | IO[str] | None = None, inputs: Iterable[str | Path | None] = ()) -> None:
+        super().__init__("-" if out is None else out, flush=True, live=True, inputs=inputs)
         self._t_us = 0
 
     def write(self, state: ControllerState, estimate: GestureEstimate | None = None) -> None:

@@ -1205,7 +1205,12 @@ def save_npz(path: Path, **arrays: np.ndarray) -> None:
     a minute are ~85 MB raw; level 1 keeps the paper preset's writing time small)."""
     import zipfile
 
-    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
+    from neurotouch_hid.atomic import replacing
+
+    with (
+        replacing(path, what="arrays file") as tmp,
+        zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as zf,
+    ):
         for key, value in arrays.items():
             with zf.open(f"{key}.npy", "w", force_zip64=True) as fh:
                 np.lib.format.write_array(fh, np.asanyarray(value), allow_pickle=False)
@@ -1289,13 +1294,13 @@ def write_dataset(
     import json
 
     names = [f"u{u}_session{k}" if sessions else sequence_name(u, k) for u, k in pairs]
-    (out / "physics.json").write_text(
-        json.dumps(
-            {"physics": physics, "sequences": {name: f.name for name, f in zip(names, families)}},
-            indent=1,
+    from neurotouch_hid.atomic import AtomicFile
+
+    with AtomicFile(out / "physics.json", what="physics file") as fh:
+        fh.write(
+            json.dumps({"physics": physics, "sequences": {name: f.name for name, f in zip(names, families)}}, indent=1)
+            + "\n"
         )
-        + "\n"
-    )
 
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 

@@ -1,0 +1,190 @@
+"""Output files that never destroy an input: every file a command writes is made as a temporary
+file in the same folder and renamed over its name only when it is complete (``rename`` is atomic
+within a file system), so a failure, a Ctrl-C or a full disk leaves what was there before.
+
+:func:`check_output` refuses, before anything is written, an output that is a symbolic link (a
+write would go wherever it points), a folder, or the same file as one of the command's inputs
+(``track X.aedat4 --out X.aedat4`` emptied the recording before reading it). A FIFO or a
+character device (``--out /dev/stdout``, a pipe made with ``mkfifo``) is written as it is: there
+is nothing there to lose, and another process reads it live.
+
+Library: the standard library (``tempfile.mkstemp``, ``os.replace``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import stat
+import tempfile
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import IO
+
+from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.limits import printable
+
+
+class OutputError(NeurotouchError):
+    """An output path that may not be written: a symbolic link, a folder, or one of the inputs."""
+
+
+def _umask() -> int:
+    """The process's umask (``/proc/self/status``; 0o022 where that is not available): a file
+    made by ``mkstemp`` is 0600, a renamed output gets what ``open`` would have given it."""
+    with contextlib.suppress(OSError, ValueError):
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    return 0o022
+
+
+def is_stream(path: str | os.PathLike) -> bool:
+    """True when ``path`` is a FIFO or a character device (written in place, read live)."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return False
+    return stat.S_ISFIFO(mode) or stat.S_ISCHR(mode)
+
+
+def check_output(
+    path: str | os.PathLike, inputs: Iterable[str | os.PathLike | None] = (), what: str = "output"
+) -> Path:
+    """``path`` as a :class:`Path`, once it is known that writing it destroys no input.
+
+    Raises:
+        OutputError: ``path`` is a symbolic link, a folder, or the same file as one of
+            ``inputs`` (compared by device and inode, so a hard link or another spelling of
+            the same path is caught too); the message names it and the input.
+    """
+    path = Path(path)
+    shown = printable(path, 200)
+    if path.is_symlink():
+        raise OutputError(
+            f"{shown}: the {what} is a symbolic link (to {printable(os.readlink(path), 200)}); "
+            "give the file itself, or another name: a link is never written through"
+        )
+    try:
+        info = path.stat()
+    except OSError:
+        return path  # not there (yet): nothing to lose
+    if stat.S_ISDIR(info.st_mode):
+        raise OutputError(f"{shown}: the {what} is a folder; give a file name")
+    for source in inputs:
+        if source is None:
+            continue
+        with contextlib.suppress(OSError):
+            other = os.stat(source)
+            if (other.st_dev, other.st_ino) == (info.st_dev, info.st_ino):
+                raise OutputError(
+                    f"{shown}: the {what} is the same file as the input {printable(source, 200)}; "
+                    "writing it would destroy what is read: give another name"
+                )
+    return path
+
+
+def _temporary(path: Path) -> tuple[int, str]:
+    """A new hidden file beside ``path``, with ``path``'s suffix (libraries that write by name
+    pick the format from it): ``.NAME.RANDOM.part.SUFFIX``. Raises OutputError when the folder
+    cannot be written (missing, read-only, full)."""
+    try:
+        return tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=f".part{path.suffix}")
+    except OSError as exc:
+        folder = printable(path.parent if str(path.parent) else ".", 200)
+        raise OutputError(f"{printable(path, 200)}: cannot write in {folder}: {exc.strerror or exc}") from None
+
+
+@contextlib.contextmanager
+def replacing(
+    path: str | os.PathLike, inputs: Iterable[str | os.PathLike | None] = (), what: str = "output"
+) -> Iterator[Path]:
+    """A temporary path in ``path``'s folder to write the output to (by name: numpy, imageio,
+    dv-processing); renamed over ``path`` when the block ends normally, removed when it raises.
+    A FIFO or character device at ``path`` is given as it is.
+
+    Raises:
+        OutputError: see :func:`check_output`; or the folder cannot be written (missing,
+            read-only, full).
+    """
+    path = check_output(path, inputs, what)
+    if is_stream(path):
+        yield path
+        return
+    fd, tmp = _temporary(path)
+    try:
+        os.fchmod(fd, 0o666 & ~_umask())
+        os.close(fd)
+        yield Path(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+class AtomicFile:
+    """A text or binary file object writing to a temporary file beside ``path``.
+
+    :meth:`publish` renames it over ``path`` (the lines written so far become the file, later
+    writes go on in it: a live output is published at its first line); :meth:`close` publishes
+    (``keep=True``) or removes it (``keep=False``, when it was never published). A FIFO or
+    character device at ``path`` is opened and written in place.
+
+    Raises:
+        OutputError: see :func:`check_output`; or the folder cannot be written.
+        OSError: a FIFO or device at ``path`` cannot be opened.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        inputs: Iterable[str | os.PathLike | None] = (),
+        *,
+        what: str = "output",
+        mode: str = "w",
+        newline: str | None = None,
+    ) -> None:
+        self.path = check_output(path, inputs, what)
+        encoding = None if "b" in mode else "utf-8"
+        if is_stream(self.path):
+            self._tmp: Path | None = None
+            self.file: IO = open(self.path, mode, encoding=encoding, newline=newline)  # noqa: SIM115
+            return
+        fd, tmp = _temporary(self.path)
+        self._tmp = Path(tmp)
+        try:
+            os.fchmod(fd, 0o666 & ~_umask())
+            self.file = os.fdopen(fd, mode, encoding=encoding, newline=newline)
+        except BaseException:
+            os.close(fd)
+            self._tmp.unlink(missing_ok=True)
+            raise
+
+    @property
+    def published(self) -> bool:
+        """True once the file is at ``path`` (or was a stream all along)."""
+        return self._tmp is None
+
+    def publish(self) -> None:
+        """Rename the file written so far over ``path`` (once; a no-op after)."""
+        if self._tmp is not None:
+            self.file.flush()
+            os.replace(self._tmp, self.path)
+            self._tmp = None
+
+    def close(self, keep: bool = True) -> None:
+        """Close; publish when ``keep``, else remove the file if it was never published."""
+        try:
+            if keep:
+                self.publish()
+        finally:
+            self.file.close()
+            if self._tmp is not None:
+                self._tmp.unlink(missing_ok=True)
+                self._tmp = None
+
+    def __enter__(self) -> IO:
+        return self.file
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.close(keep=exc_type is None)
