@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Callable
 
 from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.limits import printable
 
 log = logging.getLogger(__name__)
 
@@ -163,7 +164,7 @@ class ControlServer:
                     return
                 answer = self._answer(line)
                 if not answer["ok"]:
-                    log.warning("control socket: request refused: %s", answer["message"][:200])
+                    log.warning("control socket: request refused: %s", printable(answer["message"], 200))
                 conn.settimeout(ANSWER_TIMEOUT_S)
                 conn.sendall(json.dumps(answer).encode() + b"\n")
         except OSError as exc:
@@ -231,7 +232,7 @@ def request_use(profile: str, path: Path | None = None, timeout_s: float = ANSWE
         except (FileNotFoundError, ConnectionRefusedError):
             raise NeurotouchError(
                 f"no neurotouch-hid driver is running (nothing listens on {path}); "
-                f"start one with `neurotouch-hid run --profile {profile}`"
+                f"start one with `neurotouch-hid run --profile {printable(profile, 200)}`"
             ) from None
         except OSError as exc:
             raise NeurotouchError(f"cannot reach the driver at {path}: {exc.strerror}") from None

@@ -699,3 +699,113 @@ def test_run_never_writes_its_states_over_its_source_or_through_a_link(tmp_path)
     code, _, err, _ = cli(*run, "--source", str(preds), "--out", str(states))
     assert code == 0, err
     assert [json.loads(line)["t_us"] for line in states.read_text().splitlines()][-1] >= 0
+
+
+# --- per-game profiles under the unit as shipped ------------------------------------------------
+_SCAN = (
+    "import sys\nfrom neurotouch_hid.games import GameMap, ProcessScanner\n"
+    "print(' '.join(str(g.pid) for g in ProcessScanner().games(GameMap({4242: 'mouse'}, {}))))\n"
+)
+
+
+def test_the_shipped_unit_lets_the_driver_see_the_users_games():
+    """The scanner run in the user namespace the unit's ``PrivateUsers=`` makes (``unshare
+    --user --map-current-user``, the same mapping: the user to itself): a Steam game of the same
+    user beside it is found. With PrivateUsers=yes the kernel refuses to show the driver any
+    other process's environment and executable, so no game was ever found under the service."""
+    from test_packaging import UNIT, _rule_lines
+
+    private_users = "PrivateUsers=yes" in set(_rule_lines(UNIT.read_text()))
+    wrap = ["unshare", "--user", "--map-current-user"] if private_users else []
+    game = subprocess.Popen(
+        [sys.executable, "-c", "import time; time.sleep(120)"], env={"PATH": os.environ["PATH"], "SteamAppId": "4242"}
+    )
+    try:
+        found = subprocess.run(
+            [*wrap, sys.executable, "-c", _SCAN], env=_env(), capture_output=True, text=True, timeout=60, cwd=ROOT
+        )
+        assert found.returncode == 0, found.stderr
+        assert str(game.pid) in found.stdout.split(), f"the game (pid {game.pid}) was not found: {found.stdout!r}"
+    finally:
+        game.kill()
+        game.wait()
+
+
+# --- the profile editor and info read through the bounded reader --------------------------------
+def _user_profiles(config: Path) -> Path:
+    folder = config / "neurotouch-hid" / "profiles"
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+def assert_refused_briefly(result, *must_say: str) -> None:
+    """Exit 2, a short message (a line and a hint) naming the problem, no traceback, bounded
+    memory."""
+    code, out, err, rss = result
+    assert code == 2, f"exit {code}: {err[-2000:]}"
+    assert "Traceback" not in err and len(out) + len(err) <= 1000, err[-2000:]
+    for words in must_say:
+        assert words in err, err
+    assert rss < MAX_RSS_KB, f"peak memory {rss // 1024} MB"
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("set", "deep", "description", "x"),
+        ("unset", "deep", "description"),
+        ("validate", "deep"),
+        ("set", "zero", "description", "x"),
+        ("unset", "zero", "description"),
+        ("show", "zero"),
+        ("validate", "zero"),
+        ("new", "copy", "--from", "zero"),
+    ],
+)
+def test_the_editor_reads_user_profiles_within_the_bounds(user_config_in_tmp, args):
+    """A user profile nested 8000 deep (``profile set`` raised RecursionError), and one that is
+    a link to /dev/zero (``profile show`` read gigabytes): a short message, bounded memory."""
+    folder = _user_profiles(user_config_in_tmp)
+    (folder / "deep.yaml").write_text(DEEP_YAML)
+    (folder / "zero.yaml").symlink_to("/dev/zero")
+    says = "nested more than" if "deep" in args else "not a regular file"
+    assert_refused_briefly(cli("profile", *args), says)
+
+
+@pytest.mark.parametrize("command", ["validate", "show", "new", "use"])
+@pytest.mark.parametrize("suffix", ["", ".yaml"])
+def test_a_300_character_profile_name_is_one_short_line(command, suffix):
+    """A name (or a file name) of 300 characters: the file system refuses it (ENAMETOOLONG),
+    which was a traceback; the message quotes an excerpt."""
+    name = "p" * 300 + suffix
+    code, out, err, _ = cli("profile", command, name, env=_env(XDG_RUNTIME_DIR=tempfile.mkdtemp()))
+    assert code == 2 and "Traceback" not in err and len(err) < 1000, err
+    assert len(err.strip().splitlines()) == 1 and "p" * 300 not in err, err
+
+
+def test_info_on_a_fifo_is_refused_not_waited_on(tmp_path):
+    fifo = tmp_path / "camera.aedat4"
+    os.mkfifo(fifo)
+    assert_refused(cli("info", str(fifo)), "not a regular file")
+
+
+# --- terminal escapes ---------------------------------------------------------------------------
+OSC = "\x1b]52;c;cm0gLXJmIH4K\x07\x1b]0;pwned\x07"  # a clipboard write and a window title
+
+
+def test_descriptions_file_names_and_game_names_reach_the_terminal_escaped(user_config_in_tmp):
+    """A profile whose description holds OSC sequences (clipboard write, window title), a
+    profile file whose name holds one, a game name with a newline: printed with their control
+    characters escaped, never as they are."""
+    folder = _user_profiles(user_config_in_tmp)
+    (folder / "evil.yaml").write_text(f'description: "{OSC.encode("unicode_escape").decode()}"\nmappings: {{}}\n')
+    (folder / f"name{OSC}.yaml").write_text("mappings: {}\n")
+    code, out, err, _ = cli("profile", "list")
+    assert code == 0, err
+    assert "\x1b" not in out + err and "\x07" not in out + err, repr(out)
+    assert "\\x1b]52;c;" in out, out
+    code, out, err, _ = cli("profile", "validate", str(folder / f"missing{OSC}.yaml"))
+    assert code == 2 and "\x1b" not in out + err and "\\x1b]0;pwned" in err, repr(err)
+    code, out, err, _ = cli("profile", "auto", "add", "game\nname\x1b[2J", "default")
+    assert code == 2 and "\x1b" not in out + err and "game\\nname\\x1b[2J" in err, repr(err)
+    assert len(err.strip().splitlines()) == 1, err

@@ -173,7 +173,10 @@ def main() -> None:
     except NeurotouchError as exc:
         from rich.markup import escape  # the message's own brackets (an extra's name) are text
 
-        err_console.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
+        from neurotouch_hid.limits import printable  # a file name's escape sequences never reach the terminal
+
+        message = "\n".join(printable(line, None) for line in str(exc).split("\n"))
+        err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
         sys.exit(2)
     except KeyboardInterrupt:
         sys.exit(130)

@@ -22,6 +22,7 @@ from neurotouch_hid.cli.common import (
     finite,
 )
 from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.limits import printable
 
 profile_app = typer.Typer(
     help="List, show, create, edit, validate, test, tune, delete, reset and use (switch the running driver to) "
@@ -41,21 +42,30 @@ profile_app.add_typer(auto_app, name="auto")
 @profile_app.command("list")
 def profile_list() -> None:
     """List the profiles: shipped ones and the user's (a user copy shadows a shipped one)."""
+    from rich.markup import escape
     from rich.table import Table
 
     from neurotouch_hid.errors import ProfileError
-    from neurotouch_hid.mapping.profile import available_profiles, load_profile, shipped_profiles_dir
+    from neurotouch_hid.mapping.profile import (
+        MAX_PROFILE_NAME_CHARS,
+        available_profiles,
+        load_profile,
+        shipped_profiles_dir,
+    )
 
     table = Table("name", "where", "description", "status")
     shipped = {p.stem for p in shipped_profiles_dir().glob("*.yaml")}
     for name, path in available_profiles().items():
         user = path.parent != shipped_profiles_dir()
         where = ("user (shadows shipped)" if name in shipped else "user") if user else "shipped"
+        shown = escape(printable(name, MAX_PROFILE_NAME_CHARS))  # file names and descriptions are text, escaped
         try:
             loaded = load_profile(path)
-            table.add_row(name, where, loaded.description, "[green]ok[/]")
+            table.add_row(shown, where, escape(printable(loaded.description, 200)), "[green]ok[/]")
         except ProfileError:
-            table.add_row(name, where, "", f"[red]invalid[/] (neurotouch-hid profile validate {path})")
+            table.add_row(
+                shown, where, "", f"[red]invalid[/] (neurotouch-hid profile validate {escape(printable(path, None))})"
+            )
     console.print(table)
 
 
@@ -78,17 +88,19 @@ def profile_show(name: str = typer.Argument(..., help="profile name or path")) -
     where it is to stderr."""
     from rich.syntax import Syntax
 
-    from neurotouch_hid.mapping.profile import find_profile
+    from neurotouch_hid.mapping.profile import find_profile, read_profile_text
 
     path = find_profile(name)
+    text = read_profile_text(path)  # bounded: a FIFO or a link to /dev/zero is refused
     if not console.is_terminal:
-        err_console.print(f"# {path}", highlight=False, markup=False, soft_wrap=True)
+        err_console.print(f"# {printable(path, None)}", highlight=False, markup=False, soft_wrap=True)
         sys.stdout.flush()
-        sys.stdout.buffer.write(path.read_bytes())
+        sys.stdout.buffer.write(text.encode("utf-8"))
         sys.stdout.buffer.flush()
         return
-    console.print(f"# {path}", highlight=False)
-    console.print(Syntax(path.read_text(encoding="utf-8"), "yaml", background_color="default"))
+    console.print(f"# {printable(path, None)}", highlight=False, markup=False)
+    shown = "\n".join(printable(line, None) for line in text.split("\n"))  # no escape sequence reaches the terminal
+    console.print(Syntax(shown, "yaml", background_color="default"))
 
 
 @profile_app.command("new")
@@ -221,7 +233,7 @@ def profile_path(name: str = typer.Argument(..., help="profile name")) -> None:
 
 
 def _game_label(section: str, key: object) -> str:
-    return f"Steam app {key}" if section == "steam" else str(key)
+    return f"Steam app {key}" if section == "steam" else printable(key, None)
 
 
 @auto_app.callback()
@@ -248,8 +260,13 @@ def profile_auto_add(
     known = load_game_map(games_file())
     before = (known.steam if section == STEAM else known.executable).get(key)
     section, key, profile = add_game(game, profile)
-    replaced = f", replacing {_game_label(section, key)} -> {before}" if before not in (None, profile) else ""
-    typer.echo(f"{_game_label(section, key)} -> {profile} (in {games_file()}{replaced}); a running driver follows it")
+    replaced = (
+        f", replacing {_game_label(section, key)} -> {printable(before, None)}" if before not in (None, profile) else ""
+    )
+    typer.echo(
+        f"{_game_label(section, key)} -> {printable(profile, None)} (in {games_file()}{replaced}); "
+        "a running driver follows it"
+    )
 
 
 @auto_app.command("remove")
@@ -260,7 +277,7 @@ def profile_auto_remove(
     from neurotouch_hid.games import games_file, remove_game
 
     section, key, profile = remove_game(game)
-    typer.echo(f"removed {_game_label(section, key)} -> {profile} (from {games_file()})")
+    typer.echo(f"removed {_game_label(section, key)} -> {printable(profile, None)} (from {games_file()})")
 
 
 @auto_app.command("list")
@@ -281,9 +298,9 @@ def profile_auto_list() -> None:
     for section, key, profile in entries:
         pids = [str(g.pid) for g in running if g.section == section and g.key == key]
         now = f"  running: pid {', '.join(pids)}" if pids else ""
-        typer.echo(f"  {_game_label(section, key)} -> {profile}{now}")
+        typer.echo(f"  {_game_label(section, key)} -> {printable(profile, None)}{now}")
     if running:
-        typer.echo(f"matched now: {running[0].label()} -> {running[0].profile}")
+        typer.echo(f"matched now: {running[0].label()} -> {printable(running[0].profile, None)}")
     else:
         typer.echo("matched now: none (no mapped game is running)")
 

@@ -28,10 +28,11 @@ from ruamel.yaml.comments import CommentedMap
 from ruamel.yaml.error import YAMLError
 
 from neurotouch_hid.errors import NeurotouchError, ProfileError, did_you_mean, nearest
-from neurotouch_hid.limits import YamlError, load_yaml, where
+from neurotouch_hid.limits import YamlError, load_yaml, printable, short, where
 from neurotouch_hid.mapping.profile import (
     _ANY_MAPPING_FIELDS,
     _TAG_MODELS,
+    MAX_PROFILE_NAME_CHARS,
     DeviceSpec,
     LayerSwitch,
     OneEuroSmoothing,
@@ -39,6 +40,7 @@ from neurotouch_hid.mapping.profile import (
     _output_kind,
     find_profile,
     parse_profile,
+    read_profile_text,
     shipped_profiles_dir,
     user_profiles_dir,
 )
@@ -60,8 +62,10 @@ def _yaml() -> YAML:
 def user_profile_path(name: str) -> Path:
     """Where the user's profile ``name`` lives (it may not exist). Raises ProfileError for a name
     that is not a plain file name (letters, digits, ``_``, ``-``)."""
+    if len(name) > MAX_PROFILE_NAME_CHARS:
+        raise ProfileError(f"profile name '{printable(name)}' is too long: at most {MAX_PROFILE_NAME_CHARS} characters")
     if not _NAME.match(name):
-        raise ProfileError(f"profile name '{name}' is not allowed: use letters, digits, '_' and '-' only")
+        raise ProfileError(f"profile name '{printable(name)}' is not allowed: use letters, digits, '_' and '-' only")
     return user_profiles_dir() / f"{name}.yaml"
 
 
@@ -93,7 +97,7 @@ def shipped_base(name: str) -> Path | None:
     path = user_profile_path(name)
     if not path.is_file():
         return None
-    found = _COPY_MARK.match(path.read_text(encoding="utf-8").partition("\n")[0])
+    found = _COPY_MARK.match(read_profile_text(path).partition("\n")[0])
     return shipped_profile(found.group(1)) if found else None
 
 
@@ -108,7 +112,7 @@ def new_profile(name: str, from_name: str = "default") -> Path:
     if target.exists():
         raise ProfileError(f"profile '{name}' already exists: {target} (edit it, or delete it first)")
     source = find_profile(from_name)
-    text = source.read_text(encoding="utf-8")
+    text = read_profile_text(source)
     if source.parent == shipped_profiles_dir():
         text = COPY_MARK.format(source.stem) + "\n" + text
     _write(target, text)
@@ -166,7 +170,7 @@ def _load_rt(name: str) -> tuple[Path, Any]:
     """The profile's file and its round-trip document. Raises ProfileError when it is not YAML,
     at the line to fix (the bounded loader's report), with the command that fixes it."""
     source = find_profile(name)
-    text = source.read_text(encoding="utf-8")
+    text = read_profile_text(source)
     try:
         load_yaml(text)
         return source, _yaml().load(text)
@@ -215,18 +219,21 @@ def _parent(document: Any, key: str, create: bool) -> tuple[CommentedMap, str]:
     """The mapping holding the last part of a dotted ``key``, and that part."""
     parts = key.split(".")
     if not key or any(not p for p in parts):
-        raise ProfileError(f"key '{key}': expected a dotted path like mappings.push.deadzone_mm")
+        raise ProfileError(f"key '{printable(key)}': expected a dotted path like mappings.push.deadzone_mm")
     node = document
     for depth, part in enumerate(parts):
         where = ".".join(parts[:depth]) or "the top level"
         if not isinstance(node, CommentedMap):
-            raise ProfileError(f"key '{key}': {where} is a value ({yaml_text(node)}), not a mapping")
+            raise ProfileError(
+                f"key '{printable(key)}': {where} is a value ({printable(yaml_text(node))}), not a mapping"
+            )
         if depth < len(parts) - 1:
             if part not in node:
                 if not create:
                     there = ", ".join(map(str, node)) or "nothing"
                     raise ProfileError(
-                        f"key '{key}': there is no '{part}' in {where}{did_you_mean(part, node)} (it has: {there})"
+                        f"key '{printable(key)}': there is no '{printable(part)}' in {printable(where)}"
+                        f"{did_you_mean(part, node)} (it has: {printable(there, 200)})"
                     )
                 node[part] = CommentedMap()
             node = node[part]
@@ -237,9 +244,12 @@ def parse_value(text: str) -> Any:
     """A command-line VALUE parsed as YAML (``1.5`` -> float, ``true`` -> bool, ``ABS_RX`` -> str,
     ``0x045e`` -> int, ``{beta: 0.1}`` -> mapping). Raises ProfileError if it is not YAML."""
     try:
+        load_yaml(text)  # the bounds first: depth, aliases, lengths
         return _yaml().load(text)
+    except YamlError as exc:
+        raise ProfileError(f"value {short(text)} is not a YAML value: {exc.problem}") from None
     except YAMLError as exc:
-        raise ProfileError(f"value {text!r} is not a YAML value: {exc}") from None
+        raise ProfileError(f"value {short(text)} is not a YAML value: {printable(exc, 300)}") from None
 
 
 def _save_validated(name: str, document: Any) -> Path:
@@ -311,15 +321,16 @@ def unset_value(name: str, key: str) -> tuple[Path, Any, Any]:
         fields = schema_fields(key.split(".")[:-1], parent)
         if fields is not None and last not in fields:
             raise ProfileError(
-                f"key '{key}': '{last}' is not a field there{did_you_mean(last, fields)} (fields: {', '.join(fields)})"
+                f"key '{printable(key)}': '{printable(last)}' is not a field there{did_you_mean(last, fields)} "
+                f"(fields: {', '.join(fields)})"
             )
-        raise ProfileError(f"key '{key}' is not set in profile '{name}': its default applies already")
+        raise ProfileError(f"key '{printable(key)}' is not set in profile '{name}': its default applies already")
     removed = parent[last]
     shipped = _MISSING
     base = shipped_base(name)
     if base is not None:
         try:
-            base_parent, base_last = _parent(_yaml().load(base.read_text(encoding="utf-8")), key, create=False)
+            base_parent, base_last = _parent(_yaml().load(read_profile_text(base)), key, create=False)
             shipped = base_parent.get(base_last, _MISSING)
         except ProfileError:  # the shipped profile does not have that part: the default applies
             pass
@@ -355,10 +366,10 @@ def edit_profile(
     """
     target = user_profile_path(name)
     rejected = rejected_path(name)
-    original = find_profile(name).read_text(encoding="utf-8")
+    original = read_profile_text(find_profile(name))
     text = original
     if rejected.is_file():
-        text = rejected.read_text(encoding="utf-8")
+        text = read_profile_text(rejected)
         note(f"starting from your earlier edit that was not saved, {rejected} (delete it to start from the profile)")
     fd, tmp = tempfile.mkstemp(prefix=f"neurotouch-hid-{name}.", suffix=".yaml")
     os.close(fd)
@@ -367,7 +378,7 @@ def edit_profile(
         while True:
             work.write_text(text, encoding="utf-8")
             run_editor(work)
-            text = work.read_text(encoding="utf-8")
+            text = read_profile_text(work)
             try:
                 parse_profile(text, work)
             except ProfileError as exc:

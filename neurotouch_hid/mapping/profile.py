@@ -72,7 +72,16 @@ from ruamel.yaml.nodes import MappingNode, ScalarNode
 
 from neurotouch_hid.controller import BUTTONS, MOUSE_BUTTONS
 from neurotouch_hid.errors import ProfileError, did_you_mean, in_plain_words
-from neurotouch_hid.limits import MAX_YAML_BYTES, FileLimitError, YamlError, load_yaml, read_text_file, short, where
+from neurotouch_hid.limits import (
+    MAX_YAML_BYTES,
+    FileLimitError,
+    YamlError,
+    load_yaml,
+    printable,
+    read_text_file,
+    short,
+    where,
+)
 
 #: The gel dome's radius (mm); the default saturation of the ``contact`` inputs.
 GEL_RADIUS_MM = 30.0
@@ -156,6 +165,8 @@ KERNEL_COMMAND_KEYS = frozenset(
         "KEY_WWAN",
     }
 )
+#: Longest profile name (characters): a file name in the user's folder, typed on command lines.
+MAX_PROFILE_NAME_CHARS = 64
 #: Most keys and buttons in one chord (``KEY_LEFTCTRL+KEY_LEFTSHIFT+KEY_LEFTALT+KEY_LEFTMETA+KEY_T``
 #: is five); a chord of hundreds would make the keyboard offer every key.
 MAX_CHORD_KEYS = 5
@@ -582,19 +593,47 @@ def available_profiles() -> dict[str, Path]:
 
 def find_profile(name_or_path: str | os.PathLike) -> Path:
     """The file of a profile: a path (contains ``/`` or ends in ``.yaml``) as is, else the user's
-    ``NAME.yaml``, else the shipped one. Raises ProfileError when there is none."""
+    ``NAME.yaml``, else the shipped one. Raises ProfileError when there is none, or for a name
+    longer than :data:`MAX_PROFILE_NAME_CHARS` (the message quotes an excerpt of it, escaped)."""
     if _is_path(name_or_path):
         path = Path(name_or_path)
-        if not path.exists():
-            raise ProfileError(f"profile file {path} does not exist")
+        try:
+            path.stat()
+        except FileNotFoundError:
+            raise ProfileError(f"profile file {printable(path, 200)} does not exist") from None
+        except OSError as exc:  # a name too long, a loop of links, a folder not ours
+            raise ProfileError(f"profile file {printable(path, 200)}: {exc.strerror or exc}") from None
         return path
-    found = available_profiles().get(str(name_or_path))
-    if found is None:
-        names = ", ".join(available_profiles()) or "none"
+    name = str(name_or_path)
+    if len(name) > MAX_PROFILE_NAME_CHARS:
         raise ProfileError(
-            f"no profile named '{name_or_path}' (available: {names}; user folder: {user_profiles_dir()})"
+            f"no profile named '{printable(name)}': a profile name has at most {MAX_PROFILE_NAME_CHARS} characters"
+        )
+    found = available_profiles().get(name)
+    if found is None:
+        names = ", ".join(printable(n) for n in available_profiles()) or "none"
+        raise ProfileError(
+            f"no profile named '{printable(name)}' (available: {names}; user folder: {user_profiles_dir()})"
         )
     return found
+
+
+def read_profile_text(path: str | os.PathLike) -> str:
+    """The text of profile file ``path``, read within the bounds (:func:`~neurotouch_hid.limits.
+    read_text_file`: a regular file of at most :data:`~neurotouch_hid.limits.MAX_YAML_BYTES`,
+    opened without blocking: a FIFO or a link to ``/dev/zero`` is refused, not waited on).
+
+    Raises:
+        ProfileError: missing, unreadable, not a regular file, too large, or not UTF-8.
+    """
+    try:
+        return read_text_file(path, MAX_YAML_BYTES, "profile")
+    except UnicodeDecodeError:
+        raise ProfileError(f"cannot read profile {printable(path, 200)}: not UTF-8 text") from None
+    except FileLimitError as exc:
+        raise ProfileError(f"cannot read profile {printable(exc, 400)}") from None
+    except OSError as exc:
+        raise ProfileError(f"cannot read profile {printable(path, 200)}: {exc.strerror or exc}") from None
 
 
 def load_profile(name_or_path: str | os.PathLike) -> Profile:
@@ -605,15 +644,7 @@ def load_profile(name_or_path: str | os.PathLike) -> Profile:
             problem as ``FILE:LINE: field: found VALUE; expected ...``.
     """
     path = find_profile(name_or_path)
-    try:
-        text = read_text_file(path, MAX_YAML_BYTES, "profile")
-    except UnicodeDecodeError:
-        raise ProfileError(f"cannot read profile {path}: not UTF-8 text") from None
-    except FileLimitError as exc:
-        raise ProfileError(f"cannot read profile {exc}") from None
-    except OSError as exc:
-        raise ProfileError(f"cannot read profile {path}: {exc.strerror or exc}") from None
-    return parse_profile(text, path)
+    return parse_profile(read_profile_text(path), path)
 
 
 def parse_profile(text: str, source: str | os.PathLike, lines: bool = True) -> Profile:

@@ -24,6 +24,7 @@ from __future__ import annotations
 import collections
 import itertools
 import os
+import stat
 import struct
 import threading
 from dataclasses import dataclass
@@ -143,11 +144,18 @@ def grey_image(image: np.ndarray) -> np.ndarray:
 
 # --- opening a file ---------------------------------------------------------------------------
 def _check_path(path: Path) -> None:
-    """Raise RecordingError unless ``path`` is an existing, readable file named ``*.aedat4``."""
-    if not path.exists():
-        raise RecordingError(f"{path}: no such file")
-    if path.is_dir():
+    """Raise RecordingError unless ``path`` is an existing, readable regular file named
+    ``*.aedat4`` (a FIFO would block the reader for ever, a device never ends)."""
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        raise RecordingError(f"{path}: no such file") from None
+    except OSError as exc:  # a name too long, a loop of links
+        raise RecordingError(f"{path}: {exc.strerror or exc}") from None
+    if stat.S_ISDIR(mode):
         raise RecordingError(f"{path}: is a directory, not an AEDAT4 recording")
+    if not stat.S_ISREG(mode):
+        raise RecordingError(f"{path}: not a regular file (a recording is a file, not a pipe or a device)")
     if not os.access(path, os.R_OK):
         raise RecordingError(f"{path}: cannot read the file (permission denied)")
     if path.suffix != AEDAT4_SUFFIX:
