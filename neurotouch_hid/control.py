@@ -2,8 +2,14 @@
 
 The driver (:class:`~neurotouch_hid.runtime.Runtime`) listens on the Unix stream socket
 :func:`socket_path` (``$XDG_RUNTIME_DIR/neurotouch-hid/control.sock``: per user, on a tmpfs only that user
-can write). A request is one JSON line ``{"command": "use", "profile": NAME_OR_ABSOLUTE_PATH}``;
-the answer one JSON line ``{"ok": bool, "message": str}``. The driver loads the profile (a bad
+can write). Neither side trusts the place as found: the folder must be the user's own and closed
+to others (:func:`check_folder`; the driver repairs the mode of a folder of its own, and refuses
+one of another user), and each side asks the kernel who the other is (``SO_PEERCRED``): the
+driver answers only its own user, and ``profile use`` talks only to a driver of its own user
+(a socket another user made would otherwise answer it).
+
+A request is one JSON line ``{"command": "use", "profile": NAME_OR_ABSOLUTE_PATH}``; the answer
+one JSON line ``{"ok": bool, "message": str}``. The driver loads the profile (a bad
 one is refused and nothing changes), neutralises every output, then maps with the new profile.
 
 Library: the standard library's :mod:`socket` (AF_UNIX); no D-Bus dependency.
@@ -16,6 +22,8 @@ import json
 import logging
 import os
 import socket
+import stat
+import struct
 import threading
 import time
 from pathlib import Path
@@ -41,6 +49,38 @@ MAX_CLIENTS = 8
 #: Deepest JSON nesting in a request (a request is a flat object).
 MAX_JSON_DEPTH = 4
 _ACCEPT_POLL_S = 0.2
+
+
+def check_folder(folder: Path, repair: bool = False) -> None:
+    """Make sure nobody but this user can reach into ``folder`` (the socket's): a real folder (not
+    a link), owned by this user, with no access for the group or others. ``repair``: a folder of
+    this user's with a wider mode is narrowed to 0700 (logged) instead of refused.
+
+    Raises:
+        NeurotouchError: a link, not a folder, another user's, or open to others (not repaired).
+    """
+    info = os.lstat(folder)
+    if not stat.S_ISDIR(info.st_mode):
+        raise NeurotouchError(f"{folder} is not a folder (a link or a file): the control socket is not used")
+    if info.st_uid != os.getuid():
+        raise NeurotouchError(
+            f"{folder} belongs to another user (uid {info.st_uid}): the control socket is not used "
+            "(remove the folder, or set XDG_RUNTIME_DIR to your own runtime folder)"
+        )
+    if info.st_mode & 0o077:
+        if not repair:
+            raise NeurotouchError(
+                f"{folder} is open to other users (mode {stat.S_IMODE(info.st_mode):o}): the control socket is not used"
+            )
+        os.chmod(folder, 0o700)
+        log.warning("%s was open to other users (mode %o): made 0700", folder, stat.S_IMODE(info.st_mode))
+
+
+def peer_uid(conn: socket.socket) -> int:
+    """The user id of the process at the other end of a Unix socket (``SO_PEERCRED``, set by the
+    kernel at connect time: the peer cannot forge it)."""
+    creds = conn.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, struct.calcsize("3i"))
+    return struct.unpack("3i", creds)[1]
 
 
 def socket_path() -> Path | None:
@@ -90,6 +130,27 @@ def _json_depth(value, limit: int) -> int:
     return depth
 
 
+def _not_a_profile(ref: str) -> str | None:
+    """Why a profile given by path cannot be used, said without what the file holds (the path may
+    name any file the driver can read: a key, a password file), or None when it loads. A profile
+    given by name (the profile folders) is left to the driver, whose message is complete."""
+    from neurotouch_hid.errors import ProfileError
+    from neurotouch_hid.mapping.profile import _is_path, load_profile
+
+    if not _is_path(ref):
+        return None
+    try:
+        load_profile(ref)
+    except ProfileError as exc:
+        first = str(exc).split("\n", 1)[0]
+        head, yaml_error, _ = first.partition(": not valid YAML: ")
+        if yaml_error and "docs/limits.md" not in first:
+            first = f"{head}: not valid YAML"
+        first = first.split(" (docs/limits.md)")[0].split("docs/limits.md):")[0]
+        return _fit(f"{printable(first, 600)} (`neurotouch-hid profile validate` on that file says why)")
+    return None
+
+
 class ControlServer:
     """Serves :func:`socket_path` in a thread; ``use(profile) -> message`` does a switch and
     raises NeurotouchError to refuse one (its message goes back to the client).
@@ -113,6 +174,12 @@ class ControlServer:
         if self.path is None:
             log.info("XDG_RUNTIME_DIR is not set: no control socket, `profile use` cannot reach this driver")
             return False
+        try:
+            self.path.parent.mkdir(mode=0o700, exist_ok=True)
+            check_folder(self.path.parent, repair=True)
+        except (OSError, NeurotouchError) as exc:
+            log.warning("no control socket (%s): `profile use` cannot reach this driver", printable(exc, 300))
+            return False
         if self.path.exists():
             with contextlib.suppress(OSError), socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as probe:
                 probe.connect(str(self.path))
@@ -122,7 +189,6 @@ class ControlServer:
                 self.path.unlink()
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         try:
-            self.path.parent.mkdir(mode=0o700, exist_ok=True)
             sock.bind(str(self.path))
             os.chmod(self.path, 0o600)
             sock.listen(4)
@@ -154,9 +220,14 @@ class ControlServer:
             threading.Thread(target=self._client, args=(conn,), name="nt-control-client", daemon=True).start()
 
     def _client(self, conn: socket.socket) -> None:
-        """One client: read its request line (bounded in size and time), answer, close."""
+        """One client: read its request line (bounded in size and time), answer, close. A client
+        of another user is closed unanswered."""
         try:
             with conn:
+                uid = peer_uid(conn)
+                if uid != os.getuid():
+                    log.warning("control socket: a process of another user (uid %d) connected; refused", uid)
+                    return
                 try:
                     line = _read_line(conn, REQUEST_TIMEOUT_S)
                 except TimeoutError:
@@ -187,6 +258,9 @@ class ControlServer:
             or not isinstance(request.get("profile"), str)
         ):
             return {"ok": False, "message": 'expected {"command": "use", "profile": NAME}'}
+        refused = _not_a_profile(request["profile"])
+        if refused is not None:
+            return {"ok": False, "message": refused}
         try:
             with self._switch:
                 return {"ok": True, "message": self._use(request["profile"])}
@@ -214,8 +288,10 @@ def request_use(profile: str, path: Path | None = None, timeout_s: float = ANSWE
     returns its one-line answer.
 
     Raises:
-        NeurotouchError: no driver is running (no socket, or nobody listening), or the driver
-            refused (a missing or invalid profile: its message).
+        NeurotouchError: no driver is running (no socket, or nobody listening), the socket's
+            folder is not this user's alone or the socket is served by another user
+            (:func:`check_folder`, :func:`peer_uid`), or the driver refused (a missing or
+            invalid profile: its message).
     """
     path = path if path is not None else socket_path()
     if path is None:
@@ -225,6 +301,12 @@ def request_use(profile: str, path: Path | None = None, timeout_s: float = ANSWE
         )
     if os.sep in profile or profile.endswith((".yaml", ".yml")):
         profile = str(Path(profile).resolve())
+    try:
+        check_folder(path.parent)
+    except FileNotFoundError:
+        pass  # no driver: said when connecting
+    except OSError as exc:
+        raise NeurotouchError(f"cannot reach the driver at {path}: {exc.strerror or exc}") from None
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
         sock.settimeout(timeout_s)
         try:
@@ -236,6 +318,11 @@ def request_use(profile: str, path: Path | None = None, timeout_s: float = ANSWE
             ) from None
         except OSError as exc:
             raise NeurotouchError(f"cannot reach the driver at {path}: {exc.strerror}") from None
+        uid = peer_uid(sock)
+        if uid != os.getuid():
+            raise NeurotouchError(
+                f"{path} is served by a process of another user (uid {uid}), not your driver: not asked"
+            )
         try:
             sock.sendall(json.dumps({"command": "use", "profile": profile}).encode() + b"\n")
             line = _read_line(sock, timeout_s) or b""

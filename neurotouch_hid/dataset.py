@@ -320,6 +320,16 @@ def write_predictions(path: str | Path, estimates: Iterable[GestureEstimate]) ->
     return n
 
 
+#: Latest time a predictions line may carry (us, ~146 000 years; the recordings' bound): later
+#: times overflow the int64 arithmetic of the replay.
+MAX_T_US = 2**62
+
+
+def _no_constant(name: str) -> float:
+    """``json.loads``' hook for ``NaN`` and ``Infinity``: no number of a predictions file."""
+    raise ValueError(f"{name} is not a finite number")
+
+
 def read_predictions(path: str | Path) -> list[GestureEstimate]:
     """Read a predictions file (docs/dataset.md) back into estimates.
 
@@ -343,7 +353,7 @@ def read_predictions(path: str | Path) -> list[GestureEstimate]:
         if not line.strip():
             continue
         try:
-            data = json.loads(line)
+            data = json.loads(line, parse_constant=_no_constant)
         except json.JSONDecodeError as exc:
             raise DatasetError(f"{path}:{number}: not a JSON object: {exc.msg}") from None
         except (ValueError, RecursionError):  # a number of thousands of digits, nesting too deep
@@ -353,9 +363,14 @@ def read_predictions(path: str | Path) -> list[GestureEstimate]:
         missing = [k for k in ("t_us", "gesture", "resting", "intensity_mm") if k not in data]
         if missing:
             raise DatasetError(f"{path}:{number}: missing field(s) {', '.join(missing)} (docs/dataset.md, Predictions)")
+        t_us = data["t_us"]
+        if isinstance(t_us, bool) or not isinstance(t_us, (int, float)) or not 0 <= t_us <= MAX_T_US:
+            raise DatasetError(
+                f"{path}:{number}: t_us: expected a time in microseconds from 0 to 2^62, found {short(t_us)}"
+            )
         try:
             estimate = GestureEstimate.from_json_dict(data)
-        except (TypeError, ValueError, KeyError) as exc:
+        except (TypeError, ValueError, KeyError, OverflowError) as exc:
             raise DatasetError(f"{path}:{number}: bad value: {short(str(exc))}") from None
         if estimate.contacts_px.shape != estimate.contacts_mm.shape:
             raise DatasetError(f"{path}:{number}: contacts_px and contacts_mm have different numbers of points")

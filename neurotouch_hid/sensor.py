@@ -54,22 +54,31 @@ DOME_SPHERE_MM = 40.0
 MARKER_SPACING_MM = 4.0
 
 
+#: A position in the image (px): the gel's centre may lie a little outside the image, never
+#: further than an image is wide (1e300 ended in an OverflowError traceback).
+_Px = Annotated[float, Field(ge=-MAX_SENSOR_PX, le=MAX_SENSOR_PX)]
+#: A radial term of the camera model (dimensionless, over the normalised radius): real lenses
+#: have |k| well under 1.
+_Coefficient = Annotated[float, Field(ge=-100, le=100)]
+
+
 @with_config(ConfigDict(allow_inf_nan=False))
 class SensorFile(TypedDict, total=False):
     """The fields of a ``sensor.yaml`` as read from the file (docs/dataset.md), each optional (a
     missing one takes :class:`SensorGeometry`'s default), checked by pydantic (:data:`_SENSOR_FILE`):
-    a whole number of px, a positive number, a pair of numbers, true/false; every number finite
-    and sizes at most :data:`~neurotouch_hid.limits.MAX_SENSOR_PX` (docs/limits.md)."""
+    a whole number of px, a positive number, a pair of numbers, true/false; every number finite,
+    sizes and positions at most :data:`~neurotouch_hid.limits.MAX_SENSOR_PX`, a rotation within
+    one turn, a creep time at most an hour (docs/limits.md)."""
 
     width: Annotated[int, Field(gt=0, le=MAX_SENSOR_PX)]
     height: Annotated[int, Field(gt=0, le=MAX_SENSOR_PX)]
     px_per_mm: Annotated[float, Field(gt=0, le=MAX_SENSOR_PX)]
-    gel_center_px: tuple[float, float]
+    gel_center_px: tuple[_Px, _Px]
     gel_radius_px: Annotated[float, Field(gt=0, le=MAX_SENSOR_PX)]
     mirror: StrictBool
-    rotation_deg: float
-    radial_k: tuple[float, float]
-    creep: tuple[Annotated[float, Field(ge=0, lt=1)], Annotated[float, Field(gt=0)]]
+    rotation_deg: Annotated[float, Field(ge=-360, le=360)]
+    radial_k: tuple[_Coefficient, _Coefficient]
+    creep: tuple[Annotated[float, Field(ge=0, lt=1)], Annotated[float, Field(gt=0, le=3600)]]
 
 
 _SENSOR_FILE = TypeAdapter(SensorFile)

@@ -202,9 +202,11 @@ def _load_sensor_in_child(path: Path):
         ("width: " + "3" * 5000 + "\n", "a number of 5000 characters"),
         ("px_per_mm: .inf\n", "finite number"),
         ("gel_radius_px: 1e300\n", "gel_radius_px"),
+        ("gel_center_px: [1e300, 130]\n", "gel_center_px"),
+        ("rotation_deg: 1e300\n", "rotation_deg"),
         ("width: 346\nwidth: 640\n", "duplicate key"),
     ],
-    ids=["alias-bomb", "8000-deep", "5000-digits", "inf", "huge", "duplicate-key"],
+    ids=["alias-bomb", "8000-deep", "5000-digits", "inf", "huge", "huge-centre", "huge-rotation", "duplicate-key"],
 )
 def test_sensor_yaml_bombs_are_one_line(tmp_path, text, says):
     path = tmp_path / "sensor.yaml"
@@ -809,3 +811,162 @@ def test_descriptions_file_names_and_game_names_reach_the_terminal_escaped(user_
     code, out, err, _ = cli("profile", "auto", "add", "game\nname\x1b[2J", "default")
     assert code == 2 and "\x1b" not in out + err and "game\\nname\\x1b[2J" in err, repr(err)
     assert len(err.strip().splitlines()) == 1, err
+
+
+# --- the control socket's folder and peers ------------------------------------------------------
+NOBODY = 65534
+
+
+def _as_nobody(work) -> int:
+    """Fork a child that drops to uid/gid 65534 and runs ``work()``; returns its pid (needs root,
+    as the suite runs: only root can make a process of another user)."""
+    pid = os.fork()
+    if pid == 0:  # the child: never returns into pytest
+        try:
+            work()
+        finally:
+            os._exit(0)
+    return pid
+
+
+def _forged_driver(folder: Path, ready: int) -> None:
+    """Another user's socket that answers every request "ok" (bound as root in ``folder``, then
+    listening as uid 65534: SO_PEERCRED reports the listener's credentials)."""
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    sock.bind(str(folder / "control.sock"))
+    os.chmod(folder / "control.sock", 0o777)
+    os.setgid(NOBODY)
+    os.setuid(NOBODY)
+    sock.listen(4)
+    os.write(ready, b"x")
+    sock.settimeout(60)
+    conn, _ = sock.accept()
+    conn.recv(8192)
+    conn.sendall(b'{"ok": true, "message": "switched to profile forged"}\n')
+    conn.close()
+
+
+@pytest.fixture
+def shared_runtime_dir(monkeypatch):
+    """A runtime folder other users can reach (in /tmp, not under pytest's 0700 folders)."""
+    import shutil
+
+    folder = Path(tempfile.mkdtemp(prefix="nt-run-"))
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(folder))
+    yield folder
+    shutil.rmtree(folder, ignore_errors=True)
+
+
+def test_the_control_socket_folder_and_its_peer_are_checked(shared_runtime_dir, caplog):
+    """A folder open to others is made 0700 by the driver; another user's folder is refused by
+    both sides; a socket served by another user's process (a forged driver) is not asked;
+    a client of another user is not answered."""
+    from neurotouch_hid.control import SOCKET_NAME, ControlServer, request_use
+    from neurotouch_hid.errors import NeurotouchError
+
+    shared = shared_runtime_dir
+    folder = shared / SOCKET_NAME.split("/")[0]
+    folder.mkdir(mode=0o777)
+    os.chmod(folder, 0o777)
+    server = ControlServer(lambda ref: f"switched to {ref}")
+    assert server.start()
+    try:
+        assert folder.stat().st_mode & 0o777 == 0o700
+        # a client of another user, given a way in, is closed unanswered
+        os.chmod(shared, 0o755)
+        os.chmod(folder, 0o755)
+        os.chmod(server.path, 0o777)
+        reply_r, reply_w = os.pipe()
+
+        def client() -> None:
+            os.setgid(NOBODY)
+            os.setuid(NOBODY)
+            try:
+                os.write(reply_w, _send(server.path, b'{"command": "use", "profile": "mouse"}\n') or b"none")
+            except OSError as exc:
+                os.write(reply_w, f"error {exc}".encode())
+
+        child = _as_nobody(client)
+        os.waitpid(child, 0)
+        os.close(reply_w)
+        reply = os.read(reply_r, 8192)
+        os.close(reply_r)
+        assert reply == b"none" or b"reset by peer" in reply, reply  # closed unanswered
+        assert "a process of another user (uid 65534) connected; refused" in caplog.text
+    finally:
+        server.stop()
+    # another user's folder: the driver runs without a socket, the client does not talk
+    os.chown(folder, NOBODY, NOBODY)
+    assert not ControlServer(lambda ref: ref).start()
+    with pytest.raises(NeurotouchError, match="belongs to another user"):
+        request_use("mouse", path=folder / "control.sock")
+    # a forged driver in a folder of ours: SO_PEERCRED tells
+    os.chown(folder, os.getuid(), os.getgid())
+    os.chmod(folder, 0o700)
+    ready_r, ready_w = os.pipe()
+    forger = _as_nobody(lambda: _forged_driver(folder, ready_w))
+    try:
+        assert os.read(ready_r, 1) == b"x"
+        with pytest.raises(NeurotouchError, match="another user"):
+            request_use("mouse", path=folder / "control.sock")
+    finally:
+        os.kill(forger, signal.SIGKILL)
+        os.waitpid(forger, 0)
+
+
+@pytest.mark.usefixtures("runtime_dir")
+def test_profile_use_on_a_file_that_is_no_profile_does_not_quote_it(tmp_path):
+    """The driver reads the file the client names: its answer says it is no profile without
+    repeating what the file holds (a key, a password file)."""
+    from neurotouch_hid.control import ControlServer, socket_path
+
+    secrets = {
+        "key": "-----BEGIN OPENSSH PRIVATE KEY-----\nb3BlbnNzaC1rZXktdjEAAAAABG5vbmUAAAAE\n-----END OPENSSH KEY-----\n",
+        "env": "API_TOKEN: b3BlbnNzaC1rZXktdjEAAAAABG5vbmUAAAAE\n",
+        "yaml-error": "password: [b3BlbnNzaC1rZXktdjEAAAAABG5vbmUAAAAE\n",
+    }
+    server = ControlServer(lambda ref: f"switched to {ref}")
+    assert server.start()
+    try:
+        for name, text in secrets.items():
+            path = tmp_path / f"{name}.txt"
+            path.write_text(text)
+            answer = json.loads(
+                _send(socket_path(), json.dumps({"command": "use", "profile": str(path)}).encode() + b"\n")
+            )
+            assert answer["ok"] is False and str(path) in answer["message"], answer
+            assert "b3BlbnNz" not in answer["message"] and "API_TOKEN" not in answer["message"], answer
+    finally:
+        server.stop()
+
+
+# --- numbers past what the kernel and int64 hold --------------------------------------------------
+@pytest.mark.parametrize("t_us", ["1e30", "Infinity", "-5", "9223372036854775807"])
+def test_a_predictions_time_past_int64_is_one_line(tmp_path, t_us):
+    """``run --source P.jsonl`` with a line whose t_us is 1e30 (an OverflowError traceback),
+    infinite, negative or past 2^62."""
+    preds = tmp_path / "p.jsonl"
+    preds.write_text(
+        '{"t_us": 0, "gesture": "none", "resting": true, "intensity_mm": 0.0}\n'
+        f'{{"t_us": {t_us}, "gesture": "none", "resting": true, "intensity_mm": 0.0}}\n'
+    )
+    assert_refused(cli("run", "--source", str(preds), "--fast", "--output", "jsonl"), f"{preds}:2:")
+
+
+def test_relative_counts_per_step_stay_within_an_event():
+    """2000 wheel mappings at the highest speed sum to more hi-res counts in a step than an
+    event's signed 32 bits hold (python-evdev raised OverflowError): the step is clamped."""
+    from neurotouch_hid.estimate import GestureEstimate, GestureType
+    from neurotouch_hid.mapping.mapper import MAX_REL_COUNTS_PER_STEP, Mapper
+    from neurotouch_hid.mapping.profile import parse_profile
+
+    text = "mappings:\n" + "".join(
+        f"  w{i}: {{input: intensity, output: {'REL_WHEEL' if i % 2 else 'REL_X'}, speed: 100000}}\n"
+        for i in range(2000)
+    )
+    mapper = Mapper(parse_profile(text, "wheels.yaml"))
+    push = dict(gesture=GestureType.PUSH, intensity_mm=20.0, translation_mm=(1.0, 0.0), resting=False)
+    for t_us in (0, 100_000, 200_000):
+        state = mapper.update(GestureEstimate(t_us=t_us, **push))
+        assert all(abs(v) <= MAX_REL_COUNTS_PER_STEP < 2**31 for v in state.rel.values()), state.rel
+    assert state.rel["REL_X"] == MAX_REL_COUNTS_PER_STEP and state.rel["REL_WHEEL_HI_RES"] == MAX_REL_COUNTS_PER_STEP

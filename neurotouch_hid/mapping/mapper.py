@@ -98,6 +98,10 @@ TYPE_INPUTS = frozenset(
 #: Longest camera-time step (us) the pointer and wheels integrate over: a gap in the data (a
 #: dropped batch, a pause) must not turn into one long jump.
 MAX_MOTION_STEP_US = 100_000
+#: Most counts a relative axis moves in one step (pointer px, or hi-res wheel units): a mouse
+#: reports a few hundred at most; an event holds a signed 32-bit value, which a profile summing
+#: many fast mappings would pass (python-evdev raises OverflowError).
+MAX_REL_COUNTS_PER_STEP = 10_000
 #: Hi-res wheel units per detent (the kernel's REL_WHEEL_HI_RES convention).
 HI_RES_PER_DETENT = 120
 
@@ -219,7 +223,8 @@ class RelMotion:
 
     ``step(velocity, t_us)``: ``velocity`` in counts per second (pointer px/s, or wheel hi-res
     1/120 detents per second); returns the whole counts moved since the previous step (the step
-    is capped at :data:`MAX_MOTION_STEP_US`; the first step moves nothing). A zero velocity
+    is capped at :data:`MAX_MOTION_STEP_US`, the counts at :data:`MAX_REL_COUNTS_PER_STEP`; the
+    first step moves nothing). A zero velocity
     drops the remainder, so a stopped pointer never creeps.
     """
 
@@ -235,8 +240,8 @@ class RelMotion:
             self._rest = 0.0
             return 0
         total = self._rest + velocity * dt_us * 1e-6
-        counts = int(total)  # towards zero
-        self._rest = total - counts
+        counts = int(max(-MAX_REL_COUNTS_PER_STEP, min(MAX_REL_COUNTS_PER_STEP, total)))  # towards zero
+        self._rest = max(-1.0, min(1.0, total - counts))  # what is clamped away is not owed later
         return counts
 
 
