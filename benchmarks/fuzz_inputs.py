@@ -2,8 +2,10 @@
 
 The targets and input strategies of tests/test_fuzz_inputs.py (tests/hostile_inputs.py), run with
 many more examples: the recording reader (real LZ4, zstd and uncompressed recordings with bytes
-replaced and cuts), profiles and sensor.yaml (random text, random documents, shipped profiles and
-the alias bomb spliced), ``--set`` strings and control-socket request lines. A *crash* is any
+replaced and cuts), profiles, sensor.yaml and games.yaml (random text, random documents, shipped
+profiles, a games map and the alias bomb spliced), ``--set`` strings, control-socket request lines
+and bytes sent on a running control server's real socket (a valid request must still be answered
+after each). A *crash* is any
 exception other than the one error of the loader's kind with a short message; each distinct one
 (type and place) is listed. Prints a Markdown table: inputs tried, crashes, distinct crashes,
 seconds.
@@ -14,7 +16,7 @@ libFuzzer become the targets' text, byte lines, ``--set`` lists or recording edi
 runs in a child process, which libFuzzer takes over).
 
 Usage: PYTHONPATH=. python benchmarks/fuzz_inputs.py [--engine hypothesis|atheris]
-       [--examples 2000] [--only profile,sensor,set,control,recording]
+       [--examples 2000] [--only profile,sensor,games,set,control,socket,recording]
 """
 
 from __future__ import annotations
@@ -44,6 +46,8 @@ def run(name: str, examples: int, folder: Path, recordings: dict) -> tuple[int, 
         "sensor": lambda x: targets.fuzz_sensor(x, folder),
         "set": lambda x: targets.fuzz_set(x),
         "control": lambda x: targets.fuzz_control(x),
+        "games": lambda x: targets.fuzz_games(x, folder),
+        "socket": lambda x: targets.fuzz_control_socket(folder / "neurotouch-hid" / "control.sock", x),
         "recording": lambda x: targets.fuzz_recording(recordings[x[0]], x[1], x[2], folder),
     }
 
@@ -63,8 +67,13 @@ def run(name: str, examples: int, folder: Path, recordings: dict) -> tuple[int, 
             where = traceback.extract_tb(exc.__traceback__)[-1]
             crashes[f"{type(exc).__name__} at {Path(where.filename).name}:{where.lineno}: {str(exc)[:80]!r}"] += 1
 
+    server = targets.control_server(folder) if name == "socket" else None
     start = time.perf_counter()
-    fuzz()
+    try:
+        fuzz()
+    finally:
+        if server is not None:
+            server.stop()
     return tried, crashes, time.perf_counter() - start
 
 
@@ -75,6 +84,7 @@ def _atheris_child(name: str, examples: int) -> None:
     with atheris.instrument_imports(include=["neurotouch_hid"]):
         import neurotouch_hid.control  # noqa: F401
         import neurotouch_hid.evaluation.runner  # noqa: F401
+        import neurotouch_hid.games  # noqa: F401
         import neurotouch_hid.limits  # noqa: F401
         import neurotouch_hid.mapping.profile  # noqa: F401
         import neurotouch_hid.sensor  # noqa: F401
@@ -82,15 +92,24 @@ def _atheris_child(name: str, examples: int) -> None:
         import neurotouch_hid.sources.recording  # noqa: F401
     folder = Path(tempfile.mkdtemp(prefix="fuzz-atheris-"))
     recordings = {c: targets.small_recording(folder, c) for c in ("LZ4", "ZSTD", "NONE")}
+    server = targets.control_server(folder) if name == "socket" else None
     tried, crashes, start = 0, Counter(), time.perf_counter()
 
     def one(data: bytes) -> None:
         nonlocal tried
         fdp = atheris.FuzzedDataProvider(data)
         try:
-            if name in ("profile", "sensor"):
+            if name in ("profile", "sensor", "games"):
                 text = fdp.ConsumeUnicodeNoSurrogates(len(data))
-                targets.fuzz_profile(text) if name == "profile" else targets.fuzz_sensor(text, folder)
+                if name == "profile":
+                    targets.fuzz_profile(text)
+                elif name == "sensor":
+                    targets.fuzz_sensor(text, folder)
+                else:
+                    targets.fuzz_games(text, folder)
+            elif name == "socket":
+                assert server is not None
+                targets.fuzz_control_socket(server.path, fdp.ConsumeBytes(len(data)))
             elif name == "set":
                 targets.fuzz_set([fdp.ConsumeUnicodeNoSurrogates(64) for _ in range(fdp.ConsumeIntInRange(0, 4))])
             elif name == "control":
@@ -121,7 +140,9 @@ def _atheris_child(name: str, examples: int) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--examples", type=int, default=2000, help="inputs per target")
-    parser.add_argument("--only", default="profile,sensor,set,control,recording", help="targets, comma-separated")
+    parser.add_argument(
+        "--only", default="profile,sensor,games,set,control,socket,recording", help="targets, comma-separated"
+    )
     parser.add_argument("--engine", choices=("hypothesis", "atheris"), default="hypothesis")
     parser.add_argument("--atheris-child", help=argparse.SUPPRESS)
     args = parser.parse_args()

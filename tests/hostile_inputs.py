@@ -122,6 +122,66 @@ def fuzz_control(line: bytes) -> None:
     assert len(answer["message"]) <= MAX_MESSAGE_CHARS
 
 
+def fuzz_games(text: str, folder: Path) -> None:
+    """A games.yaml's text, read from a file: the map, or one GameMapError; the round-trip path of
+    ``profile auto remove`` too (it rewrites the file only when the entry is there)."""
+    from neurotouch_hid.games import GameMapError, load_game_map, remove_game
+
+    path = folder / "games.yaml"
+    path.write_text(text, encoding="utf-8", errors="surrogatepass")
+    try:
+        load_game_map(path)
+    except GameMapError as exc:
+        check_message(exc)
+    try:
+        remove_game("supertuxkart", path)
+    except GameMapError as exc:
+        check_message(exc)
+
+
+def fuzz_control_socket(path: Path, data: bytes) -> None:
+    """Bytes sent on the running server's real socket, then the write side closed: one JSON
+    answer line or none (a line too long, a peer refused), never a crash of the server: a valid
+    request right after is answered."""
+    import socket
+
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
+        sock.settimeout(20)
+        sock.connect(str(path))
+        try:
+            sock.sendall(data)
+            sock.shutdown(socket.SHUT_WR)
+            line = sock.makefile("rb").readline()
+        except (BrokenPipeError, ConnectionResetError):  # the server closed first: an answer was not due
+            line = b""
+    if line:
+        answer = json.loads(line)
+        assert set(answer) == {"ok", "message"} and isinstance(answer["ok"], bool), answer
+        assert len(answer["message"]) <= MAX_MESSAGE_CHARS
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
+        sock.settimeout(20)
+        sock.connect(str(path))
+        sock.sendall(b'{"command": "use", "profile": "default"}\n')
+        assert json.loads(sock.makefile("rb").readline()) == {"ok": True, "message": "switched"}
+
+
+def control_server(folder: Path):
+    """A started ControlServer on ``folder``/neurotouch-hid/control.sock whose switch accepts
+    "default" only (the fuzzing's stand-in for the driver); stop it when done."""
+    from neurotouch_hid.control import ControlServer
+    from neurotouch_hid.errors import ProfileError
+
+    def use(ref: str) -> str:
+        if ref != "default":
+            raise ProfileError(f"no profile named {ref[:40]!r}")
+        return "switched"
+
+    folder.chmod(0o700)
+    server = ControlServer(use, path=folder / "neurotouch-hid" / "control.sock")
+    assert server.start()
+    return server
+
+
 def fuzz_recording(original: bytes, edits: list[tuple[int, int]], cut: int | None, folder: Path) -> None:
     """A real recording with bytes replaced (position, value) and maybe cut: read by ``info`` and
     ``stream``, it gives data or one RecordingError, never anything else."""
@@ -193,6 +253,15 @@ def strategies():
         ).map(lambda t: _splice(*t))
 
     yaml_text = st.one_of(st.text(max_size=300), documents, mutated(shipped + [ALIAS_BOMB, sensor_text]))
+    games_text = "steam:\n  4242: mouse\n  570: /home/me/p.yaml\nexecutable:\n  supertuxkart: spacecraft\n"
+    game_keys = st.sampled_from(["steam", "executable"]) | st.text(max_size=8)
+    game_values = st.dictionaries(st.integers() | st.text(max_size=12) | st.booleans(), values, max_size=4)
+    game_documents = st.dictionaries(game_keys, game_values | values, max_size=3).map(
+        lambda d: json.dumps(d, default=str)
+    )
+    games_yaml = st.one_of(
+        st.text(max_size=300), game_documents, mutated([games_text, ALIAS_BOMB, "steam: " + DEEP_YAML])
+    )
     settings_items = st.lists(
         st.one_of(
             st.text(max_size=40),
@@ -228,6 +297,8 @@ def strategies():
         "sensor": yaml_text,
         "set": settings_items,
         "control": lines,
+        "games": games_yaml,
+        "socket": lines | st.binary(min_size=8000, max_size=9000),
         "recording": st.tuples(st.sampled_from(["LZ4", "ZSTD", "NONE"]), edits, st.none() | st.integers(0, 10**7)),
     }
 

@@ -1,5 +1,6 @@
 """Property-based fuzzing (hypothesis) of every loader of outside input: the recording reader,
-profiles, sensor.yaml, ``--set`` and the control protocol. Each input gives a result or the one
+profiles, sensor.yaml, games.yaml, ``--set``, the control protocol and the control socket itself
+(a real server, bytes on its socket). Each input gives a result or the one
 error of its kind with a short message, never another exception (docs/limits.md). A short run
 here; benchmarks/fuzz_inputs.py runs the same targets long and reports the counts."""
 
@@ -37,6 +38,25 @@ def test_loader(name, target):
 def test_sensor_loader(text):
     with tempfile.TemporaryDirectory() as folder:
         targets.fuzz_sensor(text, Path(folder))
+
+
+@SHORT
+@given(STRATEGIES["games"])
+def test_games_loader(text):
+    with tempfile.TemporaryDirectory() as folder:
+        targets.fuzz_games(text, Path(folder))
+
+
+def test_control_socket():
+    """A real server: each input sent on its socket, then a valid request still answered."""
+    with tempfile.TemporaryDirectory() as folder:
+        server = targets.control_server(Path(folder))
+        try:
+            settings(SHORT, max_examples=40)(
+                given(STRATEGIES["socket"])(lambda data: targets.fuzz_control_socket(server.path, data))
+            )()
+        finally:
+            server.stop()
 
 
 @pytest.fixture(scope="module")

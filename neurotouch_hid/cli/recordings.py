@@ -355,8 +355,11 @@ def eval_cmd(
     hyper = config.model_dump()
     if json_out is not None:
         data = {"dataset": str(dataset), "command": command, "config": hyper, **result.to_dict()}
+        from neurotouch_hid.atomic import AtomicFile
+
         json_out.parent.mkdir(parents=True, exist_ok=True)
-        json_out.write_text(json.dumps(data, indent=1, allow_nan=False, default=str) + "\n")
+        with AtomicFile(json_out, (dataset,), what="JSON summary") as fh:
+            fh.write(json.dumps(data, indent=1, allow_nan=False, default=str) + "\n")
     if report is not None:
         summary = write_report(result, report, command=command, config=hyper)
         console.print(f"report: {summary}")

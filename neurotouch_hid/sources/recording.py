@@ -871,15 +871,32 @@ def record_stream(
         of the source such as a lost camera), the file is closed complete and readable first.
 
     Raises:
-        RecordingError: the file cannot be written; the source's own errors (e.g. DeviceError)
-            after the file is closed.
+        RecordingError: the file cannot be written (what was at ``path`` is left as it was: the
+            recording is written beside it and renamed over it when closed); OutputError: ``path``
+            is a symbolic link or a folder; the source's own errors (e.g. DeviceError) after the
+            file is closed and in place.
     """
+    from neurotouch_hid.atomic import replacing
+
+    if Path(path).suffix != AEDAT4_SUFFIX:  # said of ``path``, not of the temporary file beside it
+        raise RecordingError(f"{path}: a recording's name must end in '{AEDAT4_SUFFIX}' (dv-processing requires it)")
     stop = stop or threading.Event()
     events = frames = 0
     first_us = last_us = None
     clock = Pacer()
-    with RecordingWriter(path, camera_name=camera_name) as writer:
-        for item in stream:
+    source_error: Exception | None = None
+    # written beside ``path`` and renamed over it once closed: a recording that cannot be written
+    # leaves what was at ``path`` (``record --force``); one the source ends (a lost camera) is kept
+    with replacing(path, what="recording") as tmp, RecordingWriter(tmp, camera_name=camera_name) as writer:
+        items = iter(stream)
+        while True:
+            try:
+                item = next(items)
+            except StopIteration:
+                break
+            except Exception as exc:  # the source's (a lost camera): raised once the file is complete
+                source_error = exc
+                break
             if isinstance(item, Frame):
                 writer.write_frame(item)
                 frames += 1
@@ -896,4 +913,6 @@ def record_stream(
                 clock.wait(last_us, stop)
             if stop.is_set():
                 break
+    if source_error is not None:
+        raise source_error
     return RecordSummary(Path(path), events, frames, 0 if first_us is None else last_us - first_us, stop.is_set())
