@@ -138,6 +138,9 @@ def _atheris_child(name: str, examples: int) -> None:
 
 
 def main() -> None:
+    import logging
+
+    logging.getLogger("neurotouch_hid.control").setLevel(logging.CRITICAL)  # every refusal is logged
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--examples", type=int, default=2000, help="inputs per target")
     parser.add_argument(
