@@ -14,6 +14,7 @@ predictions, ``run`` replays them, evaluation reads all of them.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import sys
@@ -27,7 +28,7 @@ import numpy as np
 from neurotouch_hid.atomic import AtomicFile
 from neurotouch_hid.errors import DatasetError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.limits import FileLimitError, read_text_file, short
+from neurotouch_hid.limits import FileLimitError, printable, read_text_file, short
 from neurotouch_hid.sensor import user_sensor_path
 
 #: Largest predictions file read (bytes; read whole): an hour of 10 ms windows is ~100 MB.
@@ -115,15 +116,21 @@ def read_labels(path: str | Path) -> list[LabelRow]:
     """
     path = Path(path)
     rows: list[LabelRow] = []
-    try:
-        fh = open(path, newline="")
+    try:  # bounded as a predictions file: a regular file (a FIFO would hang), at most 1 GiB
+        text = read_text_file(path, MAX_PREDICTIONS_BYTES, "labels file")
+    except FileLimitError as exc:
+        raise DatasetError(str(exc)) from None
     except OSError as exc:
-        raise DatasetError(f"{path}: cannot read labels: {exc.strerror}") from None
-    with fh:
+        raise DatasetError(f"{path}: cannot read labels: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        raise DatasetError(f"{path}: not a labels file (not UTF-8 text)") from None
+    with io.StringIO(text, newline="") as fh:
         reader = csv.reader(fh)
         header = next(reader, None)
         if header is None or tuple(h.strip() for h in header) != LABEL_COLUMNS:
-            raise DatasetError(f"{path}:1: header must be {','.join(LABEL_COLUMNS)} (docs/dataset.md), found {header}")
+            raise DatasetError(
+                f"{path}:1: header must be {','.join(LABEL_COLUMNS)} (docs/dataset.md), found {short(header)}"
+            )
         last = -math.inf
         for line_no, cells in enumerate(reader, start=2):
             if not cells:
@@ -149,7 +156,7 @@ def read_labels(path: str | Path) -> list[LabelRow]:
                     [[float(cells[5 + 2 * k]), float(cells[6 + 2 * k])] for k in range(n)], dtype=np.float64
                 ).reshape(n, 2)
             except ValueError as exc:
-                raise DatasetError(f"{path}:{line_no}: column {col!r}: {exc}") from None
+                raise DatasetError(f"{path}:{line_no}: column {col!r}: {printable(exc, 200)}") from None
             if t_us < last:
                 raise DatasetError(f"{path}:{line_no}: rows must be ordered by time (t_us {t_us} < {last})")
             last = t_us

@@ -970,3 +970,20 @@ def test_relative_counts_per_step_stay_within_an_event():
         state = mapper.update(GestureEstimate(t_us=t_us, **push))
         assert all(abs(v) <= MAX_REL_COUNTS_PER_STEP < 2**31 for v in state.rel.values()), state.rel
     assert state.rel["REL_X"] == MAX_REL_COUNTS_PER_STEP and state.rel["REL_WHEEL_HI_RES"] == MAX_REL_COUNTS_PER_STEP
+
+
+def test_a_labels_file_that_is_a_fifo_or_a_huge_header_is_one_line(tmp_path):
+    """Labels (``eval``, ``enrol``) are read through the bounded reader: a FIFO was waited on for
+    ever; a header line of a million cells was quoted whole."""
+    from neurotouch_hid.dataset import read_labels
+    from neurotouch_hid.errors import DatasetError
+
+    fifo = tmp_path / "x.labels.csv"
+    os.mkfifo(fifo)
+    with pytest.raises(DatasetError, match="not a regular file"):
+        read_labels(fifo)
+    wide = tmp_path / "wide.labels.csv"
+    wide.write_text(",".join(["x"] * 1_000_000) + "\n")
+    with pytest.raises(DatasetError) as err:
+        read_labels(wide)
+    assert len(str(err.value)) < 1000
