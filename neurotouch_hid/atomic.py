@@ -111,15 +111,28 @@ def replacing(
     if is_stream(path):
         yield path
         return
+    tmp = temporary_beside(path)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def temporary_beside(path: Path) -> Path:
+    """A new empty file beside ``path`` (:func:`_temporary`, with the mode ``open`` would give
+    it), for a writer that takes a name and is renamed into place by the caller.
+
+    Raises:
+        OutputError: the folder cannot be written.
+    """
     fd, tmp = _temporary(path)
     try:
         os.fchmod(fd, 0o666 & ~_umask())
+    finally:
         os.close(fd)
-        yield Path(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    return Path(tmp)
 
 
 class AtomicFile:

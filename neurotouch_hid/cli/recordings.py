@@ -223,6 +223,11 @@ def track(
     preset: Optional[str] = PRESET_IS_NOT_A_METHOD,
 ) -> None:
     """Run the gesture pipeline on a recording and write one prediction per window."""
+    from neurotouch_hid.atomic import check_output
+
+    for output in (out, markers):  # before the pipeline's start-up: an input is never at risk
+        if output is not None:
+            check_output(output, (recording, sensor, out if output is markers else None))
     with long_lived_start_up():
         from neurotouch_hid.enrolment.model import apply_model
         from neurotouch_hid.evaluation.runner import pipeline_config

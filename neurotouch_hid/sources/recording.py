@@ -871,48 +871,60 @@ def record_stream(
         of the source such as a lost camera), the file is closed complete and readable first.
 
     Raises:
-        RecordingError: the file cannot be written (what was at ``path`` is left as it was: the
-            recording is written beside it and renamed over it when closed); OutputError: ``path``
-            is a symbolic link or a folder; the source's own errors (e.g. DeviceError) after the
-            file is closed and in place.
+        RecordingError: the file cannot be written (what was at ``path`` is left as it was when
+            the recording fails before its first item: it is written beside ``path`` and renamed
+            over it then); OutputError: ``path`` is a symbolic link or a folder; the source's own
+            errors (e.g. DeviceError) after the file is closed and in place.
     """
-    from neurotouch_hid.atomic import replacing
+    from neurotouch_hid.atomic import check_output, temporary_beside
 
     if Path(path).suffix != AEDAT4_SUFFIX:  # said of ``path``, not of the temporary file beside it
         raise RecordingError(f"{path}: a recording's name must end in '{AEDAT4_SUFFIX}' (dv-processing requires it)")
+    target = check_output(path, what="recording")
     stop = stop or threading.Event()
     events = frames = 0
     first_us = last_us = None
     clock = Pacer()
     source_error: Exception | None = None
-    # written beside ``path`` and renamed over it once closed: a recording that cannot be written
-    # leaves what was at ``path`` (``record --force``); one the source ends (a lost camera) is kept
-    with replacing(path, what="recording") as tmp, RecordingWriter(tmp, camera_name=camera_name) as writer:
-        items = iter(stream)
-        while True:
-            try:
-                item = next(items)
-            except StopIteration:
-                break
-            except Exception as exc:  # the source's (a lost camera): raised once the file is complete
-                source_error = exc
-                break
-            if isinstance(item, Frame):
-                writer.write_frame(item)
-                frames += 1
-                t_us = item.t_us
-            else:
-                writer.write_events(item)
-                events += len(item)
-                t_us = int(item["timestamp"][-1])
-            first_us = t_us if first_us is None else min(first_us, t_us)
-            last_us = t_us if last_us is None else max(last_us, t_us)
-            if on_progress is not None:
-                on_progress(last_us - first_us, events, frames)
-            if pace:
-                clock.wait(last_us, stop)
-            if stop.is_set():
-                break
+    # written beside ``path`` and renamed over it at its first item (the writer goes on in the same
+    # file): a recording that cannot start leaves what was at ``path`` (``record --force``)
+    tmp, published = temporary_beside(target), False
+    try:
+        with RecordingWriter(tmp, camera_name=camera_name) as writer:
+            items = iter(stream)
+            while True:
+                try:
+                    item = next(items)
+                except StopIteration:
+                    break
+                except Exception as exc:  # the source's (a lost camera): raised once the file is complete
+                    source_error = exc
+                    break
+                if isinstance(item, Frame):
+                    writer.write_frame(item)
+                    frames += 1
+                    t_us = item.t_us
+                else:
+                    writer.write_events(item)
+                    events += len(item)
+                    t_us = int(item["timestamp"][-1])
+                if not published:
+                    os.replace(tmp, target)
+                    published = True
+                first_us = t_us if first_us is None else min(first_us, t_us)
+                last_us = t_us if last_us is None else max(last_us, t_us)
+                if on_progress is not None:
+                    on_progress(last_us - first_us, events, frames)
+                if pace:
+                    clock.wait(last_us, stop)
+                if stop.is_set():
+                    break
+        if not published:  # nothing came: an empty recording, complete
+            os.replace(tmp, target)
+            published = True
+    finally:
+        if not published:
+            tmp.unlink(missing_ok=True)
     if source_error is not None:
         raise source_error
     return RecordSummary(Path(path), events, frames, 0 if first_us is None else last_us - first_us, stop.is_set())
