@@ -871,10 +871,10 @@ def record_stream(
         of the source such as a lost camera), the file is closed complete and readable first.
 
     Raises:
-        RecordingError: the file cannot be written (what was at ``path`` is left as it was when
-            the recording fails before its first item: it is written beside ``path`` and renamed
-            over it then); OutputError: ``path`` is a symbolic link or a folder; the source's own
-            errors (e.g. DeviceError) after the file is closed and in place.
+        RecordingError: the file cannot be written; OutputError: ``path`` is a link or a folder;
+            the source's own errors (e.g. DeviceError) after the file is closed and in place. The
+            file is written beside ``path`` and renamed over it at its first item (the writer goes
+            on in it): a recording that cannot start leaves what was there (``record --force``).
     """
     from neurotouch_hid.atomic import check_output, temporary_beside
 
@@ -885,21 +885,10 @@ def record_stream(
     events = frames = 0
     first_us = last_us = None
     clock = Pacer()
-    source_error: Exception | None = None
-    # written beside ``path`` and renamed over it at its first item (the writer goes on in the same
-    # file): a recording that cannot start leaves what was at ``path`` (``record --force``)
     tmp, published = temporary_beside(target), False
     try:
         with RecordingWriter(tmp, camera_name=camera_name) as writer:
-            items = iter(stream)
-            while True:
-                try:
-                    item = next(items)
-                except StopIteration:
-                    break
-                except Exception as exc:  # the source's (a lost camera): raised once the file is complete
-                    source_error = exc
-                    break
+            for item in stream:
                 if isinstance(item, Frame):
                     writer.write_frame(item)
                     frames += 1
@@ -919,12 +908,9 @@ def record_stream(
                     clock.wait(last_us, stop)
                 if stop.is_set():
                     break
-        if not published:  # nothing came: an empty recording, complete
+        if not published:  # nothing came: an empty recording, complete (the unlink below finds nothing)
             os.replace(tmp, target)
-            published = True
     finally:
         if not published:
             tmp.unlink(missing_ok=True)
-    if source_error is not None:
-        raise source_error
     return RecordSummary(Path(path), events, frames, 0 if first_us is None else last_us - first_us, stop.is_set())
