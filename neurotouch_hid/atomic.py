@@ -135,6 +135,36 @@ def temporary_beside(path: Path) -> Path:
     return Path(tmp)
 
 
+class PathBeside:
+    """A temporary path beside ``path`` for a writer that takes a name (dv-processing), renamed
+    over ``path`` by :meth:`publish` (the writer may go on writing: the file is the same) or when
+    the block ends normally; removed when the block raises before it was published.
+
+    Raises:
+        OutputError: see :func:`check_output`; or the folder cannot be written.
+    """
+
+    def __init__(self, path: str | os.PathLike, inputs: Iterable[str | os.PathLike | None] = (), what: str = "output"):
+        self.target = check_output(path, inputs, what)
+        self.tmp = temporary_beside(self.target)
+        self.published = False
+
+    def publish(self) -> None:
+        """Rename the file over ``path`` (once; a no-op after)."""
+        if not self.published:
+            os.replace(self.tmp, self.target)
+            self.published = True
+
+    def __enter__(self) -> "PathBeside":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.publish()
+        elif not self.published:
+            self.tmp.unlink(missing_ok=True)
+
+
 class AtomicFile:
     """A text or binary file object writing to a temporary file beside ``path``.
 

@@ -24,7 +24,6 @@ from __future__ import annotations
 import collections
 import itertools
 import os
-import stat
 import struct
 import threading
 from dataclasses import dataclass
@@ -34,6 +33,7 @@ from typing import TYPE_CHECKING, Iterable, Iterator, TypeVar
 
 import numpy as np
 
+from neurotouch_hid.atomic import PathBeside
 from neurotouch_hid.errors import RecordingError
 from neurotouch_hid.sources import EVENT_DTYPE, Frame, Pacer, StreamItem
 from neurotouch_hid.sources.dv import DV_ERRORS, dv_error_text, store_from_events
@@ -144,18 +144,15 @@ def grey_image(image: np.ndarray) -> np.ndarray:
 
 # --- opening a file ---------------------------------------------------------------------------
 def _check_path(path: Path) -> None:
-    """Raise RecordingError unless ``path`` is an existing, readable regular file named
-    ``*.aedat4`` (a FIFO would block the reader for ever, a device never ends)."""
+    """Raise RecordingError unless ``path`` is an existing, readable regular file named ``*.aedat4``."""
     try:
-        mode = path.stat().st_mode
-    except FileNotFoundError:
-        raise RecordingError(f"{path}: no such file") from None
-    except OSError as exc:  # a name too long, a loop of links
-        raise RecordingError(f"{path}: {exc.strerror or exc}") from None
-    if stat.S_ISDIR(mode):
-        raise RecordingError(f"{path}: is a directory, not an AEDAT4 recording")
-    if not stat.S_ISREG(mode):
-        raise RecordingError(f"{path}: not a regular file (a recording is a file, not a pipe or a device)")
+        path.stat()
+    except OSError as exc:  # missing, a name too long, a loop of links
+        why = "no such file" if isinstance(exc, FileNotFoundError) else exc.strerror
+        raise RecordingError(f"{path}: {why}") from None
+    if not path.is_file():  # a pipe would block the reader, a device never ends
+        what = "a directory" if path.is_dir() else "not a regular file (a pipe or a device)"
+        raise RecordingError(f"{path}: is {what}, not an AEDAT4 recording")
     if not os.access(path, os.R_OK):
         raise RecordingError(f"{path}: cannot read the file (permission denied)")
     if path.suffix != AEDAT4_SUFFIX:
@@ -871,46 +868,33 @@ def record_stream(
         of the source such as a lost camera), the file is closed complete and readable first.
 
     Raises:
-        RecordingError: the file cannot be written; OutputError: ``path`` is a link or a folder;
-            the source's own errors (e.g. DeviceError) after the file is closed and in place. The
-            file is written beside ``path`` and renamed over it at its first item (the writer goes
-            on in it): a recording that cannot start leaves what was there (``record --force``).
+        RecordingError: the file cannot be written (it is written beside ``path``, renamed over
+            it at the first item: one that cannot start leaves what was there); OutputError:
+            ``path`` is a link or a folder; the source's own errors once the file is in place.
     """
-    from neurotouch_hid.atomic import check_output, temporary_beside
-
     if Path(path).suffix != AEDAT4_SUFFIX:  # said of ``path``, not of the temporary file beside it
         raise RecordingError(f"{path}: a recording's name must end in '{AEDAT4_SUFFIX}' (dv-processing requires it)")
-    target = check_output(path, what="recording")
     stop = stop or threading.Event()
     events = frames = 0
     first_us = last_us = None
     clock = Pacer()
-    tmp, published = temporary_beside(target), False
-    try:
-        with RecordingWriter(tmp, camera_name=camera_name) as writer:
-            for item in stream:
-                if isinstance(item, Frame):
-                    writer.write_frame(item)
-                    frames += 1
-                    t_us = item.t_us
-                else:
-                    writer.write_events(item)
-                    events += len(item)
-                    t_us = int(item["timestamp"][-1])
-                if not published:
-                    os.replace(tmp, target)
-                    published = True
-                first_us = t_us if first_us is None else min(first_us, t_us)
-                last_us = t_us if last_us is None else max(last_us, t_us)
-                if on_progress is not None:
-                    on_progress(last_us - first_us, events, frames)
-                if pace:
-                    clock.wait(last_us, stop)
-                if stop.is_set():
-                    break
-        if not published:  # nothing came: an empty recording, complete (the unlink below finds nothing)
-            os.replace(tmp, target)
-    finally:
-        if not published:
-            tmp.unlink(missing_ok=True)
+    with PathBeside(path, what="recording") as out, RecordingWriter(out.tmp, camera_name=camera_name) as writer:
+        for item in stream:
+            if isinstance(item, Frame):
+                writer.write_frame(item)
+                frames += 1
+                t_us = item.t_us
+            else:
+                writer.write_events(item)
+                events += len(item)
+                t_us = int(item["timestamp"][-1])
+            out.publish()  # at the first item: the writer goes on in the same file
+            first_us = t_us if first_us is None else min(first_us, t_us)
+            last_us = t_us if last_us is None else max(last_us, t_us)
+            if on_progress is not None:
+                on_progress(last_us - first_us, events, frames)
+            if pace:
+                clock.wait(last_us, stop)
+            if stop.is_set():
+                break
     return RecordSummary(Path(path), events, frames, 0 if first_us is None else last_us - first_us, stop.is_set())
