@@ -143,7 +143,7 @@ def _composer_class():
                 raise YamlError(
                     mark.line + 1,
                     f"more than {MAX_YAML_NODES} values once its aliases ('*name') are expanded: "
-                    "a profile or sensor file is never that large (docs/limits.md)",
+                    "no profile, sensor or games file is that large (docs/limits.md)",
                 )
 
         def _size(self, node: Any) -> int:
