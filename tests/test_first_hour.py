@@ -508,3 +508,12 @@ def test_views_picture_has_a_colour_key_and_arrows_that_stay_short_of_the_next_m
     corner = picture[-110:, :30].reshape(-1, 3)
     for label, colour in colour_key(gain):
         assert (corner == colour).all(axis=1).any(), label
+
+
+def test_record_says_what_it_wrote(tmp_path):
+    from helpers import run_cli
+
+    out = tmp_path / "rec.aedat4"
+    done = run_cli("record", str(out), "--source", "sim", "--seconds", "1", "--fast")
+    assert done.returncode == 0, done.stderr
+    assert f"wrote {out}: 1.00 s," in done.stdout and "APS frames" in done.stdout
