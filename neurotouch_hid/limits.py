@@ -23,6 +23,7 @@ Library: ruamel.yaml (``YAML(typ="safe", pure=True)``, ``max_depth``, ``allow_du
 
 from __future__ import annotations
 
+import logging
 import os
 import reprlib
 import stat
@@ -274,6 +275,15 @@ def printable(value: Any, limit: int | None = EXCERPT_CHARS) -> str:
     if not part.isprintable():
         part = "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in part)
     return f"{part}... ({len(text)} characters)" if cut else part
+
+
+class PrintableFormatter(logging.Formatter):
+    """A :mod:`logging` formatter whose lines have their control characters escaped
+    (:func:`printable`, line by line, never cut): a value quoted in a log message (a file name, a
+    process's name) never drives the terminal the log is read on."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        return "\n".join(printable(line, None) for line in super().format(record).split("\n"))
 
 
 def read_proc_file(path: str | os.PathLike, max_bytes: int) -> tuple[bytes, bool]:

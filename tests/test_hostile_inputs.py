@@ -985,3 +985,17 @@ def test_a_labels_file_that_is_a_fifo_or_a_huge_header_is_one_line(tmp_path):
     with pytest.raises(DatasetError) as err:
         read_labels(wide)
     assert len(str(err.value)) < 1000
+
+
+def test_log_lines_reach_the_terminal_escaped():
+    """Whatever a log message quotes (a file name, a process's name) is printed with its control
+    characters escaped: the command's log handler formats every line through limits.printable."""
+    code = (
+        "import logging, sys\nimport neurotouch_hid.cli as cli\n"
+        "shout = lambda: logging.getLogger('neurotouch_hid.x').warning('game \\x1b]0;pwned\\x07 runs')\n"
+        "cli.app.command('shout')(shout)\n"
+        "sys.argv = ['neurotouch-hid', 'shout']\ncli.main()\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], env=_env(), capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "\x1b" not in done.stderr and "game \\x1b]0;pwned\\x07 runs" in done.stderr, repr(done.stderr)

@@ -157,6 +157,13 @@ def main() -> None:
         from typer.completion import completion_init
 
         completion_init()
+    import logging
+
+    from neurotouch_hid.limits import PrintableFormatter
+
+    logs = logging.StreamHandler()  # what Python's last-resort handler prints, control characters escaped
+    logs.setFormatter(PrintableFormatter("%(message)s"))
+    logging.basicConfig(level=logging.WARNING, handlers=[logs])
     click_exception = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException")
     try:
         code = app(standalone_mode=False)  # usage errors come back here, to be said in plain words
