@@ -47,6 +47,9 @@ def test_wide_table_to_a_pipe_is_not_cropped(tmp_path):
 
 #: The benchmarks' typer scripts (each builds its app with ``command_app``).
 TYPER_BENCHMARKS = sorted(p.stem for p in BENCHMARKS.glob("*.py") if "command_app()" in p.read_text())
+#: Those with a required option or argument (``typer.Option(...`` / ``typer.Argument(...``): the
+#: others run on their defaults without one.
+REQUIRING_BENCHMARKS = [s for s in TYPER_BENCHMARKS if "(...," in (BENCHMARKS / f"{s}.py").read_text()]
 
 
 def test_every_typer_benchmark_is_covered():
@@ -54,7 +57,7 @@ def test_every_typer_benchmark_is_covered():
     assert TYPER_BENCHMARKS == [s for s in typer_scripts if s != "workdir"]
 
 
-@pytest.mark.parametrize("script", TYPER_BENCHMARKS)
+@pytest.mark.parametrize("script", REQUIRING_BENCHMARKS)
 def test_benchmark_usage_error_to_a_pipe_is_one_plain_line(script):
     """Without its required option or command, a benchmark says so on one unboxed line (rich's
     boxes, cropped at 80 columns, were what a CI log got)."""
@@ -63,6 +66,20 @@ def test_benchmark_usage_error_to_a_pipe_is_one_plain_line(script):
     )
     assert result.returncode == 2, result.stderr
     errors = [line for line in result.stderr.splitlines() if line.startswith("Error: Missing ")]
+    assert len(errors) == 1, result.stderr
+    assert not set("╭│╰…") & set(result.stderr), result.stderr
+
+
+@pytest.mark.parametrize("script", sorted(set(TYPER_BENCHMARKS) - set(REQUIRING_BENCHMARKS)))
+def test_a_benchmark_on_defaults_refuses_an_unknown_option_in_one_plain_line(script):
+    result = subprocess.run(
+        [sys.executable, str(BENCHMARKS / f"{script}.py"), "--no-such-option"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 2, result.stderr
+    errors = [line for line in result.stderr.splitlines() if line.startswith("Error: No such option")]
     assert len(errors) == 1, result.stderr
     assert not set("╭│╰…") & set(result.stderr), result.stderr
 
