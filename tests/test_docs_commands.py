@@ -50,6 +50,7 @@ NOT_RUN: list[tuple[str, str]] = [
 CHANGED = {
     "--seconds N of demo and run -> --seconds 2": "the same run, shorter",
     "run --source sim without --seconds -> with --seconds 2": "it runs until Ctrl-C",
+    "enrol --source sim -> with --fast": "the same session and dataset, not paced in real time (~2 min)",
     "/tmp/ -> the sandbox's folder": "no file outside the test's folder",
 }
 #: Commands documented to fail here, with the message troubleshooting.md must list for them.
@@ -102,6 +103,8 @@ def as_run(command: str, sandbox: Path) -> str:
         command = re.sub(r"--seconds \S+", "--seconds 2", command)
         if "--seconds" not in command:
             command += " --seconds 2"
+    if re.match(r"neurotouch-hid enrol\b.*--source sim\b", command) and "--fast" not in command:
+        command += " --fast"
     return command.replace("/tmp/", f"{sandbox}/")
 
 
