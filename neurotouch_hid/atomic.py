@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import IO
 
 from neurotouch_hid.errors import NeurotouchError
-from neurotouch_hid.limits import printable
+from neurotouch_hid.limits import printable, read_proc_file
 
 
 class OutputError(NeurotouchError):
@@ -33,7 +33,8 @@ def _umask() -> int:
     """The process's umask (``/proc/self/status``; 0o022 where that is not available): a file
     made by ``mkstemp`` is 0600, a renamed output gets what ``open`` would have given it."""
     with contextlib.suppress(OSError, ValueError):
-        for line in Path("/proc/self/status").read_text().splitlines():
+        status, _ = read_proc_file("/proc/self/status", 64 * 1024)
+        for line in status.decode("ascii", "replace").splitlines():
             if line.startswith("Umask:"):
                 return int(line.split()[1], 8)
     return 0o022
