@@ -87,8 +87,25 @@ def test_unit_is_hardened():
     }
 
 
+def test_the_user_unit_drops_no_capability_an_unprivileged_manager_cannot():
+    """A user manager runs without CAP_SETPCAP: a unit that drops capabilities from the bounding
+    set never starts (status 218/CAPABILITIES under a real ``systemd --user`` 252, in a qemu guest;
+    packaging/README.md)."""
+    keys = {line.split("=", 1)[0] for line in _rule_lines(UNIT.read_text())}
+    dropping = {
+        "CapabilityBoundingSet",
+        "AmbientCapabilities",
+        "ProtectKernelModules",
+        "ProtectKernelLogs",
+        "ProtectClock",
+    }
+    assert keys & dropping == set()
+    assert "NoNewPrivileges=yes" in set(_rule_lines(UNIT.read_text()))
+
+
 def test_security_exposure_is_low_and_documented(systemd_analyze, tmp_path):
-    """`systemd-analyze security` rates the user unit OK (< 3), the figure packaging/README.md gives."""
+    """`systemd-analyze security` rates the user unit below 5 (it counts the bounding-set
+    capabilities a user manager cannot drop, packaging/README.md), the figure the README gives."""
     runtime = tmp_path / "runtime"
     runtime.mkdir(mode=0o700)
     proc = subprocess.run(
@@ -101,7 +118,7 @@ def test_security_exposure_is_low_and_documented(systemd_analyze, tmp_path):
     found = re.search(r"Overall exposure level for neurotouch-hid.service: (\d+\.\d) (\w+)", proc.stdout)
     assert found, proc.stdout + proc.stderr
     level = float(found.group(1))
-    assert level < 3.0, proc.stdout
+    assert level < 5.0, proc.stdout
     readme = (ROOT / "packaging" / "README.md").read_text()
     assert f"overall exposure level {found.group(1)} {found.group(2)}" in readme
 
