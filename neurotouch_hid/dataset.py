@@ -28,7 +28,7 @@ import numpy as np
 from neurotouch_hid.atomic import AtomicFile
 from neurotouch_hid.errors import DatasetError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.limits import FileLimitError, printable, read_text_file, short
+from neurotouch_hid.limits import printable, read_outside_text, short
 from neurotouch_hid.sensor import user_sensor_path
 
 #: Largest predictions file read (bytes; read whole): an hour of 10 ms windows is ~100 MB.
@@ -116,14 +116,8 @@ def read_labels(path: str | Path) -> list[LabelRow]:
     """
     path = Path(path)
     rows: list[LabelRow] = []
-    try:  # bounded as a predictions file: a regular file (a FIFO would hang), at most 1 GiB
-        text = read_text_file(path, MAX_PREDICTIONS_BYTES, "labels file")
-    except FileLimitError as exc:
-        raise DatasetError(str(exc)) from None
-    except OSError as exc:
-        raise DatasetError(f"{path}: cannot read labels: {exc.strerror or exc}") from None
-    except UnicodeDecodeError:
-        raise DatasetError(f"{path}: not a labels file (not UTF-8 text)") from None
+    # bounded as a predictions file: a regular file (a FIFO would hang), at most 1 GiB
+    text = read_outside_text(path, MAX_PREDICTIONS_BYTES, "labels file", DatasetError)
     with io.StringIO(text, newline="") as fh:
         reader = csv.reader(fh)
         header = next(reader, None)
@@ -347,14 +341,7 @@ def read_predictions(path: str | Path) -> list[GestureEstimate]:
             are not ordered by time.
     """
     path = Path(path)
-    try:
-        text = read_text_file(path, MAX_PREDICTIONS_BYTES, "predictions file")
-    except FileLimitError as exc:
-        raise DatasetError(str(exc)) from None
-    except OSError as exc:
-        raise DatasetError(f"{path}: cannot read the predictions file: {exc.strerror}") from None
-    except UnicodeDecodeError:
-        raise DatasetError(f"{path}: not a predictions file (not UTF-8 text)") from None
+    text = read_outside_text(path, MAX_PREDICTIONS_BYTES, "predictions file", DatasetError)
     estimates: list[GestureEstimate] = []
     for number, line in enumerate(text.splitlines(), start=1):
         if not line.strip():

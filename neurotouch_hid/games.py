@@ -39,12 +39,11 @@ import psutil
 
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.limits import (
-    FileLimitError,
     YamlError,
     load_yaml,
     printable,
+    read_outside_text,
     read_proc_file,
-    read_text_file,
     short,
     where,
 )
@@ -176,15 +175,9 @@ def _load_document(path: Path, round_trip: bool = False) -> Any:
     document (comments kept, for ``profile auto add/remove``), parsed only once the bounded
     parse passed; else plain Python data."""
     try:
-        text = read_text_file(path, MAX_GAMES_BYTES, "games.yaml")
+        text = read_outside_text(path, MAX_GAMES_BYTES, "games file", GameMapError, missing=None)
     except FileNotFoundError:
         return None
-    except UnicodeDecodeError:
-        raise GameMapError(f"cannot read {path}: not UTF-8 text") from None
-    except FileLimitError as exc:
-        raise GameMapError(f"cannot read {exc}") from None
-    except OSError as exc:
-        raise GameMapError(f"cannot read {path}: {exc.strerror or exc}") from None
     try:
         data, _ = load_yaml(text)
     except YamlError as exc:

@@ -4,7 +4,9 @@ Profiles and ``sensor.yaml`` files are handed around, so they are read as if cra
 the driver (docs/limits.md has every limit, its value and why it is there):
 
 - :func:`read_text_file` reads only a regular file (a FIFO or a device would block or never end)
-  of at most a given size, without following the read past it;
+  of at most a given size, without following the read past it; :func:`read_outside_text` is
+  that read with each way it fails (missing, too large, unreadable, not UTF-8) told as one error
+  line of the caller's error class;
 - :func:`load_yaml` parses with ruamel.yaml's safe loader (pure Python, so its composer's
   ``max_depth`` applies; duplicate keys refused, its default), plus two counts kept in the
   composer's own hooks: nodes after alias expansion (a "billion laughs" of a few KB would make
@@ -101,6 +103,47 @@ def read_text_file(path: str | os.PathLike, max_bytes: int, what: str) -> str:
         raise too_large
     data = b"".join(chunks)
     return data.decode("utf-8")
+
+
+def read_outside_text(
+    path: str | os.PathLike,
+    max_bytes: int,
+    kind: str,
+    error: type[Exception],
+    missing: str | None = "",
+) -> str:
+    """The UTF-8 text of ``path`` (:func:`read_text_file`), every way the read fails told as one
+    ``error(message)``: one line that starts with the file and names its ``kind`` (words for the
+    user: ``"profile"``, ``"sensor file"``), control characters in the path escaped
+    (:func:`printable`).
+
+    - missing, ``missing`` a non-empty hint: ``FILE: no such KIND (MISSING)``; ``missing`` empty:
+      told as any file that cannot be read (below); ``missing`` None: the ``FileNotFoundError``
+      is raised as it is (a caller for which no file is a valid state);
+    - not a regular file, larger than ``max_bytes``: :class:`FileLimitError`'s message;
+    - cannot be read (permissions, a folder, I/O): ``FILE: cannot read the KIND: REASON``;
+    - not UTF-8: ``FILE: not a KIND (not UTF-8 text)``.
+
+    Raises:
+        error: as above.
+        FileNotFoundError: ``missing`` is None and there is no file at ``path``.
+    """
+    shown = printable(path, None)
+    try:
+        return read_text_file(path, max_bytes, kind)
+    except FileLimitError as exc:
+        message = printable(exc, None)
+    except OSError as exc:
+        gone = isinstance(exc, FileNotFoundError)
+        if gone and missing is None:
+            raise
+        if gone and missing:
+            message = f"{shown}: no such {kind} ({missing})"
+        else:
+            message = f"{shown}: cannot read the {kind}: {exc.strerror or exc}"
+    except UnicodeDecodeError:
+        message = f"{shown}: not a {kind} (not UTF-8 text)"
+    raise error(message)
 
 
 def _hint(problem: str) -> str:

@@ -36,10 +36,9 @@ from neurotouch_hid.errors import SensorError
 from neurotouch_hid.limits import (
     MAX_SENSOR_PX,
     MAX_YAML_BYTES,
-    FileLimitError,
     YamlError,
     load_yaml,
-    read_text_file,
+    read_outside_text,
     short,
     where,
 )
@@ -131,16 +130,9 @@ class SensorGeometry:
         the file is missing, is not YAML, or a field has the wrong type.
         """
         path = Path(path)
-        try:
-            text = read_text_file(path, MAX_YAML_BYTES, "sensor file")
-        except FileNotFoundError:
-            raise SensorError(f"{path}: no such sensor file (expected a sensor.yaml, see docs/dataset.md)") from None
-        except FileLimitError as exc:
-            raise SensorError(str(exc)) from None
-        except OSError as exc:
-            raise SensorError(f"{path}: cannot read the sensor file: {exc.strerror or exc}") from None
-        except UnicodeDecodeError:
-            raise SensorError(f"{path}: not a sensor.yaml (not UTF-8 text)") from None
+        text = read_outside_text(
+            path, MAX_YAML_BYTES, "sensor file", SensorError, "expected a sensor.yaml, see docs/dataset.md"
+        )
         try:
             data, root = load_yaml(text)
         except YamlError as exc:

@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from neurotouch_hid.errors import NeurotouchError
-from neurotouch_hid.limits import FileLimitError, YamlError, load_yaml, read_text_file, short, where
+from neurotouch_hid.limits import YamlError, load_yaml, read_outside_text, short, where
 
 #: The format's name (the file's ``format``) and the version this code reads and writes.
 FORMAT = "neurotouch-hid model"
@@ -152,18 +152,9 @@ def load_model(path: str | Path) -> Model:
     from neurotouch_hid.pipeline.config import ClassifierConfig
 
     path = Path(path)
-    try:
-        text = read_text_file(path, MAX_MODEL_BYTES, "model file")
-    except FileNotFoundError:
-        raise ModelError(
-            f"{path}: no such model file (write one with `neurotouch-hid adapt`, or use --model none)"
-        ) from None
-    except FileLimitError as exc:
-        raise ModelError(str(exc)) from None
-    except OSError as exc:
-        raise ModelError(f"{path}: cannot read the model file: {exc.strerror or exc}") from None
-    except UnicodeDecodeError:
-        raise ModelError(f"{path}: not a model file (not UTF-8 text)") from None
+    text = read_outside_text(
+        path, MAX_MODEL_BYTES, "model file", ModelError, "write one with `neurotouch-hid adapt`, or use --model none"
+    )
     try:
         data, root = load_yaml(text)
     except YamlError as exc:

@@ -24,7 +24,7 @@ import numpy as np
 
 from neurotouch_hid.errors import DatasetError
 from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.limits import FileLimitError, read_text_file, short
+from neurotouch_hid.limits import read_outside_text, short
 
 #: The gesture types a plan prompts (docs/dataset.md).
 PLAN_GESTURES: tuple[GestureType, ...] = (
@@ -326,14 +326,7 @@ def read_plan(path: str | Path) -> Plan:
             the file, the prompt (1-based) and field, what was found and what was expected.
     """
     path = Path(path)
-    try:
-        text = read_text_file(path, MAX_PLAN_BYTES, "session plan")
-    except FileLimitError as exc:
-        raise DatasetError(str(exc)) from None
-    except OSError as exc:
-        raise DatasetError(f"{path}: cannot read the session plan: {exc.strerror}") from None
-    except UnicodeDecodeError:
-        raise DatasetError(f"{path}: not a session plan (not UTF-8 text)") from None
+    text = read_outside_text(path, MAX_PLAN_BYTES, "session plan", DatasetError)
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:

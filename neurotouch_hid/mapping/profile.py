@@ -74,11 +74,10 @@ from neurotouch_hid.controller import BUTTONS, MOUSE_BUTTONS
 from neurotouch_hid.errors import ProfileError, did_you_mean, in_plain_words
 from neurotouch_hid.limits import (
     MAX_YAML_BYTES,
-    FileLimitError,
     YamlError,
     load_yaml,
     printable,
-    read_text_file,
+    read_outside_text,
     short,
     where,
 )
@@ -620,20 +619,13 @@ def find_profile(name_or_path: str | os.PathLike) -> Path:
 
 def read_profile_text(path: str | os.PathLike) -> str:
     """The text of profile file ``path``, read within the bounds (:func:`~neurotouch_hid.limits.
-    read_text_file`: a regular file of at most :data:`~neurotouch_hid.limits.MAX_YAML_BYTES`,
+    read_outside_text`: a regular file of at most :data:`~neurotouch_hid.limits.MAX_YAML_BYTES`,
     opened without blocking: a FIFO or a link to ``/dev/zero`` is refused, not waited on).
 
     Raises:
         ProfileError: missing, unreadable, not a regular file, too large, or not UTF-8.
     """
-    try:
-        return read_text_file(path, MAX_YAML_BYTES, "profile")
-    except UnicodeDecodeError:
-        raise ProfileError(f"cannot read profile {printable(path, 200)}: not UTF-8 text") from None
-    except FileLimitError as exc:
-        raise ProfileError(f"cannot read profile {printable(exc, 400)}") from None
-    except OSError as exc:
-        raise ProfileError(f"cannot read profile {printable(path, 200)}: {exc.strerror or exc}") from None
+    return read_outside_text(path, MAX_YAML_BYTES, "profile", ProfileError)
 
 
 def load_profile(name_or_path: str | os.PathLike) -> Profile:
