@@ -1,13 +1,14 @@
 """The driver's start-up wiring: the ``run`` and ``demo`` commands put the concrete stages together.
 
 The road goes one way: :func:`run_driver` loads the profile (a bad one fails before any device
-exists), opens the subscribers (:func:`open_outputs`: the uinput devices, JSON lines, the terminal
-or live view) and hands them, with a :class:`RunAssembly` of what to open, to the engine
-(:func:`neurotouch_hid.runtime.run_assembled`). The engine opens the source and the pipeline
-through the assembly when the run starts (:meth:`RunAssembly.open`: the first run's compile, the
-source, the pipeline and its resting detector), runs them in its threads, and publishes one
-record per window to the subscribers. The engine knows the stages only through the seams of
-:mod:`neurotouch_hid.stages`; no stage knows a view.
+exists), opens the subscribers (:func:`open_output`: the uinput devices, JSON lines, the terminal
+or live view; :func:`open_outputs`: the live view beside the pad) and hands them, with a
+:class:`RunAssembly` of what to open, to the engine (:func:`neurotouch_hid.runtime.run_assembled`).
+The engine opens the source and the pipeline through the assembly when the run starts
+(:meth:`RunAssembly.open`: the first run's compile, the source, the pipeline and its resting
+detector), runs them in its threads, and publishes one record per window to the subscribers.
+The engine knows the stages only through the seams of :mod:`neurotouch_hid.stages`; no stage
+knows a view.
 """
 
 from __future__ import annotations
@@ -97,29 +98,16 @@ def open_output(
 
 
 def open_outputs(
-    kind: str,
-    profile: Profile,
-    stack: contextlib.ExitStack,
-    *,
-    out: str | Path | None = None,
-    console: Console | None = None,
-    say: Callable[[str], None] | None = None,
-    inputs: tuple[str | Path | None, ...] = (),
+    output: Subscriber, kind: str, stack: contextlib.ExitStack, console: Console | None = None
 ) -> list[Subscriber]:
-    """The run's subscribers: the output ``kind`` names (:func:`open_output`; ``out`` may not be
-    one of the run's ``inputs``) and, for the virtual gamepad on a terminal
-    (``console.is_terminal``), the live view drawn beside it."""
-    outputs = [open_output(kind, profile, stack, out=out, console=console, say=say, inputs=inputs)]
-    return outputs + _live_view_beside(kind, console, stack)
-
-
-def _live_view_beside(kind: str, console: Console | None, stack: contextlib.ExitStack) -> list[Subscriber]:
-    """The live view beside the virtual gamepad when ``console`` is a terminal, else nothing."""
+    """The run's subscribers: ``output`` (what :func:`open_output` made for ``kind``) and, for the
+    virtual gamepad on a terminal (``console.is_terminal``), the live view drawn beside it, closed
+    by ``stack``."""
     if kind != OutputKind.GAMEPAD or console is None or not console.is_terminal:
-        return []
+        return [output]
     from neurotouch_hid.output.live import LiveView
 
-    return [stack.enter_context(LiveView(console))]
+    return [output, stack.enter_context(LiveView(console))]
 
 
 def known_profiles() -> list[Profile]:
@@ -349,11 +337,10 @@ def run_driver(
     loaded = load_profile(profile)
     inputs = (None if source in tuple(SourceKind) else source, find_profile(profile), sensor)
     with contextlib.ExitStack() as stack:
-        subscribers = (
-            outputs
-            if outputs is not None
-            else open_outputs(output, loaded, stack, out=out, console=console, say=say, inputs=inputs)
-        )
+        subscribers = outputs
+        if subscribers is None:
+            made = open_output(output, loaded, stack, out=out, console=console, say=say, inputs=inputs)
+            subscribers = open_outputs(made, output, stack, console)
         assembly = RunAssembly(
             source,
             seconds=seconds,
@@ -395,7 +382,7 @@ def gamepad_or_terminal(
     """The virtual gamepad where /dev/uinput is writable (with the live view beside it on a
     terminal); else the terminal view, after saying why in one line (``say``)."""
     try:
-        return [open_output("gamepad", profile, stack), *_live_view_beside("gamepad", console, stack)]
+        return open_outputs(open_output("gamepad", profile, stack), "gamepad", stack, console)
     except DeviceError as exc:
         reason = str(exc).splitlines()[0]  # the why; the fix's lines follow (udev.uinput_help)
         say(

@@ -134,3 +134,28 @@ def test_the_gamepad_with_the_view_beside_it_both_get_every_record_and_are_neutr
     shown = view.console.file.getvalue()
     assert "push 1.00 mm" in shown and view.wants_markers is False  # a pipe: no markers asked for
     assert shown.splitlines()[-1].startswith("t ") and "buttons -" in shown.splitlines()[-1]
+
+
+@pytest.mark.parametrize(
+    ("kind", "terminal", "beside"),
+    [("gamepad", True, True), ("gamepad", False, False), ("jsonl", True, False), ("term", True, False)],
+)
+def test_the_live_view_goes_beside_the_pad_only_on_a_terminal(kind, terminal, beside):
+    """``open_outputs`` keeps the output it is given first and adds the live view only beside the
+    virtual gamepad drawn on a terminal (a pipe gets the pad's plain output alone)."""
+    import contextlib
+    import io
+
+    from rich.console import Console
+    from runtime_fakes import RecordingOutput
+
+    from neurotouch_hid.driver import open_outputs
+    from neurotouch_hid.output.live import LiveView
+
+    made = RecordingOutput()
+    console = Console(file=io.StringIO(), force_terminal=terminal, width=120)
+    with contextlib.ExitStack() as stack:
+        outputs = open_outputs(made, kind, stack, console)
+        assert outputs[0] is made
+        assert [type(o) for o in outputs[1:]] == ([LiveView] if beside else [])
+    assert open_outputs(made, kind, contextlib.ExitStack(), None) == [made]  # no console: no view
