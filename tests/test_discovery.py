@@ -349,6 +349,25 @@ def test_probe_unplugged_meanwhile_is_gone(fake_usb, tmp_path):
     assert cam.serial is None
 
 
+def test_sysfs_attributes_are_read_within_a_page_and_a_bad_one_is_no_value(fake_usb):
+    """sysfs is read through the bounded reader: an attribute longer than the page the kernel
+    serves (a link to a large file in a tampered tree), not UTF-8, or missing is no value; a
+    folder whose busnum is no number, or is too long, is passed over."""
+    with open(fake_usb.sysfs / "serial", "wb") as fh:
+        fh.truncate(8 << 20)  # 8 MB (sparse): read whole, it would be an 8 MB serial number
+    (fake_usb.sysfs / "product").write_bytes(b"\xffDAVIS\n")
+    (fake_usb.sysfs / "speed").unlink()
+    for name, busnum in (("1-1", b"two\n"), ("1-2", b"2" * 5000)):
+        other = fake_usb.sysfs.parent / name
+        other.mkdir()
+        (other / "busnum").write_bytes(busnum)
+        (other / "devnum").write_bytes(b"7\n")
+    fake_usb.device.iSerialNumber = fake_usb.device.iProduct = 0  # no strings from the device itself
+    cam = discovery.probe_usb(fake_usb.device)
+    assert cam.port == "2-1" and cam.access == UsbAccess.OK  # found, past the two bad folders
+    assert (cam.serial, cam.product, cam.manufacturer, cam.speed_mbps) == (None, None, "iniVation", None)
+
+
 # --- dv-processing's stderr --------------------------------------------------------------------
 def test_native_stderr_is_captured_once_per_line():
     lines: list[str] = []

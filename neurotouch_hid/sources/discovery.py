@@ -4,8 +4,8 @@ Two views of the USB bus are merged into one :class:`Camera` record per device:
 
 * **pyusb** (with libusb-package's bundled libusb) lists every USB device 152a:841a, whether or
   not this user may open it. For each: bus, address, its ``/dev/bus/usb/BBB/DDD`` node, the
-  serial/product strings (from sysfs, which anyone may read, else from the device when it can be
-  opened), and an access verdict: the node is readable and writable, and interface 0 can be
+  serial/product strings (from sysfs, which anyone may read, through the bounded reader of
+  ``limits.py``; else from the device when it can be opened), and an access verdict: the node is readable and writable, and interface 0 can be
   claimed (then released at once: nothing is sent to the camera). When not: permission denied
   (the fix: the udev rule), busy (another program, or a kernel driver, holds the interface), gone.
 * **dv-processing** (``dv_processing.io.camera.discover()``, iniVation's libusb-based driver)
@@ -33,12 +33,15 @@ from enum import StrEnum
 from pathlib import Path
 
 from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.limits import read_proc_file
 from neurotouch_hid.udev import camera_access_fix, installed_rules
 
 #: USB ids of the DAVIS-346 (iniVation FX3 boards).
 CAMERA_VID, CAMERA_PID = 0x152A, 0x841A
 CAMERA_USB_ID = f"{CAMERA_VID:04x}:{CAMERA_PID:04x}"
 _SYSFS_USB = Path("/sys/bus/usb/devices")
+#: Most bytes read of a sysfs attribute or ``/proc/PID/comm``: the kernel serves one page at most.
+_KERNEL_FILE_BYTES = 4096
 #: dv-processing's logger prefix ("[ERROR] usb_discovery: ").
 _DV_LOG_PREFIX = re.compile(r"^\[[A-Z]+\] \w+: ")
 
@@ -293,18 +296,28 @@ def _sysfs_device(bus: int, address: int) -> Path | None:
     except OSError:
         return None
     for entry in entries:
-        try:
-            if int((entry / "busnum").read_text()) == bus and int((entry / "devnum").read_text()) == address:
-                return entry
-        except (OSError, ValueError):
-            continue
+        if _number(entry / "busnum") == bus and _number(entry / "devnum") == address:
+            return entry
     return None
 
 
 def _read(path: Path) -> str | None:
+    """A small kernel file's text (a sysfs attribute, ``/proc/PID/comm``), stripped, read through
+    :func:`~neurotouch_hid.limits.read_proc_file`; None when it is missing, unreadable, empty,
+    longer than :data:`_KERNEL_FILE_BYTES` or not UTF-8."""
     try:
-        return path.read_text().strip() or None
+        data, more = read_proc_file(path, _KERNEL_FILE_BYTES)
+        return None if more else data.decode("utf-8").strip() or None
     except (OSError, UnicodeDecodeError):
+        return None
+
+
+def _number(path: Path) -> int | None:
+    """A small kernel file's whole number (:func:`_read`), or None when it holds none."""
+    text = _read(path)
+    try:
+        return None if text is None else int(text)
+    except ValueError:
         return None
 
 
