@@ -6,6 +6,7 @@ path by real processes."""
 from __future__ import annotations
 
 import os
+import secrets
 import shutil
 import signal
 import subprocess
@@ -35,6 +36,14 @@ from neurotouch_hid.games import (
 REPO = Path(__file__).resolve().parent.parent
 #: Generous: a loaded two-core machine; the driver polls every 0.5 s.
 WAIT_S = 60.0
+#: The Steam app id and the executable name of this run's games, which no other process has:
+#: the scanner sees every process of this user, and other runs of these tests (other checkouts,
+#: other users' sessions under the same uid) start games of their own at the same time. The id
+#: is past every real Steam app's (they are under 10^7) and holds this process's pid, unique
+#: among the processes running; the name is random, 11 characters (the kernel keeps 15 of a
+#: process's name).
+APP_ID = 3_000_000_000 + os.getpid() * 256 + secrets.randbelow(256)
+GAME = f"tux{secrets.token_hex(4)}"
 
 
 def _cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
@@ -73,12 +82,12 @@ def children():
         proc.wait(10)
 
 
-def _steam_game(start, app_id: int = 4242) -> subprocess.Popen:
+def _steam_game(start, app_id: int = APP_ID) -> subprocess.Popen:
     """A `sleep` Steam would have started: SteamAppId in its environment."""
     return start(["sleep", "600"], env=dict(os.environ, SteamAppId=str(app_id)))
 
 
-def _renamed(start, tmp_path: Path, name: str = "supertuxkart") -> subprocess.Popen:
+def _renamed(start, tmp_path: Path, name: str = GAME) -> subprocess.Popen:
     """The `sleep` program copied under a game's name, started from there."""
     exe = tmp_path / "bin" / name
     exe.parent.mkdir(exist_ok=True)
@@ -167,40 +176,40 @@ def test_profile_auto_cli_adds_lists_what_runs_and_removes(children, tmp_path):
     env = {"XDG_CONFIG_HOME": os.environ["XDG_CONFIG_HOME"]}
     empty = _cli("profile", "auto", env=env)
     assert empty.returncode == 0 and "no game is mapped" in empty.stdout
-    added = _cli("profile", "auto", "add", "4242", "mouse", env=env)
-    assert added.returncode == 0 and added.stdout.startswith("Steam app 4242 -> mouse"), added
-    assert _cli("profile", "auto", "add", "supertuxkart", "spacecraft", env=env).returncode == 0
+    added = _cli("profile", "auto", "add", str(APP_ID), "mouse", env=env)
+    assert added.returncode == 0 and added.stdout.startswith(f"Steam app {APP_ID} -> mouse"), added
+    assert _cli("profile", "auto", "add", GAME, "spacecraft", env=env).returncode == 0
     game = _steam_game(children)
     listed = _cli("profile", "auto", "list", env=env)
     assert listed.returncode == 0, listed
-    assert f"Steam app 4242 -> mouse  running: pid {game.pid}" in listed.stdout
-    assert "supertuxkart -> spacecraft\n" in listed.stdout
-    assert f"matched now: Steam app 4242 (pid {game.pid}, sleep) -> mouse" in listed.stdout
+    assert f"Steam app {APP_ID} -> mouse  running: pid {game.pid}" in listed.stdout
+    assert f"{GAME} -> spacecraft\n" in listed.stdout
+    assert f"matched now: Steam app {APP_ID} (pid {game.pid}, sleep) -> mouse" in listed.stdout
     refused = _cli("profile", "auto", "add", "4343", "nosuch", env=env)
     assert refused.returncode == 2 and "no profile named 'nosuch'" in refused.stderr
-    removed = _cli("profile", "auto", "remove", "4242", env=env)
-    assert removed.returncode == 0 and "removed Steam app 4242 -> mouse" in removed.stdout
-    again = _cli("profile", "auto", "remove", "4242", env=env)
-    assert again.returncode == 2 and "'4242' is not in" in again.stderr and "supertuxkart" in again.stderr
+    removed = _cli("profile", "auto", "remove", str(APP_ID), env=env)
+    assert removed.returncode == 0 and f"removed Steam app {APP_ID} -> mouse" in removed.stdout
+    again = _cli("profile", "auto", "remove", str(APP_ID), env=env)
+    assert again.returncode == 2 and f"'{APP_ID}' is not in" in again.stderr and GAME in again.stderr
     assert "matched now: none" in _cli("profile", "auto", env=env).stdout
 
 
 # --- the processes ---------------------------------------------------------------------------------
 def test_the_scanner_finds_a_steam_game_and_a_renamed_executable_newest_first(children, tmp_path):
-    game_map = GameMap({4242: "mouse"}, {"SuperTuxKart": "spacecraft"})  # names compare case-insensitively
+    game_map = GameMap({APP_ID: "mouse"}, {GAME.upper(): "spacecraft"})  # names compare case-insensitively
     scanner = ProcessScanner()
     assert scanner.games(game_map) == []
     steam = _steam_game(children)
     children(["sleep", "600"])  # a sleep without SteamAppId is no game
-    assert [(g.section, g.key, g.pid, g.name) for g in scanner.games(game_map)] == [(STEAM, 4242, steam.pid, "sleep")]
+    assert [(g.section, g.key, g.pid, g.name) for g in scanner.games(game_map)] == [(STEAM, APP_ID, steam.pid, "sleep")]
     time.sleep(0.05)  # create_time has clock-tick resolution
     tux = _renamed(children, tmp_path)
     found = scanner.games(game_map)
     assert [(g.key, g.pid, g.profile) for g in found] == [
-        ("SuperTuxKart", tux.pid, "spacecraft"),
-        (4242, steam.pid, "mouse"),
+        (GAME.upper(), tux.pid, "spacecraft"),
+        (APP_ID, steam.pid, "mouse"),
     ]
-    assert found[0].label() == f"SuperTuxKart (pid {tux.pid}, supertuxkart)"
+    assert found[0].label() == f"{GAME.upper()} (pid {tux.pid}, {GAME})"
     _stop(tux)
     assert [g.pid for g in scanner.games(game_map)] == [steam.pid]
     _stop(steam)
@@ -209,11 +218,11 @@ def test_the_scanner_finds_a_steam_game_and_a_renamed_executable_newest_first(ch
 
 def test_a_game_started_by_fork_then_exec_is_found_once_it_has_execd(children, tmp_path):
     """A process first seen under its parent's name (before its exec) is read again while young."""
-    exe = tmp_path / "bin" / "supertuxkart"
+    exe = tmp_path / "bin" / GAME
     exe.parent.mkdir()
     shutil.copy2(shutil.which("sleep"), exe)
     scanner = ProcessScanner()
-    game_map = GameMap({}, {"supertuxkart": "spacecraft"})
+    game_map = GameMap({}, {GAME: "spacecraft"})
     launcher = subprocess.Popen(
         [sys.executable, "-c", f"import os, sys; sys.stdin.readline(); os.execv({str(exe)!r}, ['x', '600'])"],
         stdin=subprocess.PIPE,
@@ -234,13 +243,13 @@ def test_the_scanner_skips_its_own_process_even_with_steamappid(children):
     other = _steam_game(children)
     code = (
         "import os; from neurotouch_hid.games import GameMap, ProcessScanner; "
-        "print(os.getpid(), *[g.pid for g in ProcessScanner().games(GameMap({4242: 'mouse'}, {}))])"
+        f"print(os.getpid(), *[g.pid for g in ProcessScanner().games(GameMap({{{APP_ID}: 'mouse'}}, {{}}))])"
     )
     result = subprocess.run(
         [sys.executable, "-c", code],
         capture_output=True,
         text=True,
-        env=dict(os.environ, PYTHONPATH=str(REPO), SteamAppId="4242"),
+        env=dict(os.environ, PYTHONPATH=str(REPO), SteamAppId=str(APP_ID)),
         timeout=60,
     )
     own, *found = (int(x) for x in result.stdout.split())
@@ -262,25 +271,25 @@ class Switches:
 
 
 def test_the_watcher_follows_a_game_and_comes_back_to_the_profile_it_had(children, tmp_path):
-    add_game("4242", "mouse")
+    add_game(str(APP_ID), "mouse")
     use = Switches()
     games = GameProfiles(use, "default")
     games.poll()
     assert use.calls == [] and games.game is None
     steam = _steam_game(children)
     games.poll()
-    assert use.calls == [("mouse", f"Steam app 4242 (pid {steam.pid}, sleep) is running")]
+    assert use.calls == [("mouse", f"Steam app {APP_ID} (pid {steam.pid}, sleep) is running")]
     games.poll()  # nothing changed
     assert len(use.calls) == 1
     _stop(steam)
     games.poll()
-    assert use.calls[-1] == ("default", f"Steam app 4242 (pid {steam.pid}, sleep) exited")
+    assert use.calls[-1] == ("default", f"Steam app {APP_ID} (pid {steam.pid}, sleep) exited")
     assert games.game is None
 
 
 def test_a_manual_profile_use_during_a_game_wins_until_that_game_exits(children, tmp_path):
-    add_game("4242", "mouse")
-    add_game("supertuxkart", "spacecraft")
+    add_game(str(APP_ID), "mouse")
+    add_game(GAME, "spacecraft")
     use = Switches()
     games = GameProfiles(use, "default")
     assert games.manual_use("accessibility") == "switched to profile accessibility"  # no game: the new base
@@ -288,22 +297,22 @@ def test_a_manual_profile_use_during_a_game_wins_until_that_game_exits(children,
     games.poll()
     assert use.calls[-1][0] == "mouse"
     answer = games.manual_use("switch-access")
-    assert answer == f"switched to profile switch-access (until Steam app 4242 (pid {steam.pid}, sleep) exits)"
+    assert answer == f"switched to profile switch-access (until Steam app {APP_ID} (pid {steam.pid}, sleep) exits)"
     tux = _renamed(children, tmp_path)  # another mapped game starts: the user's choice still wins
     games.poll()
     assert use.calls[-1] == ("switch-access", None)
     _stop(steam)
     games.poll()  # the game it was chosen in exited: the game still running counts again
-    assert use.calls[-1] == ("spacecraft", f"supertuxkart (pid {tux.pid}, supertuxkart) is running")
+    assert use.calls[-1] == ("spacecraft", f"{GAME} (pid {tux.pid}, {GAME}) is running")
     _stop(tux)
     games.poll()
-    assert use.calls[-1] == ("accessibility", f"supertuxkart (pid {tux.pid}, supertuxkart) exited")
+    assert use.calls[-1] == ("accessibility", f"{GAME} (pid {tux.pid}, {GAME}) exited")
 
 
 def test_a_game_whose_profile_fails_keeps_the_driver_on_its_profile_and_says_so(children, caplog):
     path = games_file()
     path.parent.mkdir(parents=True)
-    path.write_text("steam:\n  4242: broken\n")
+    path.write_text(f"steam:\n  {APP_ID}: broken\n")
     use = Switches()
     games = GameProfiles(use, "default")
     _steam_game(children)
@@ -318,9 +327,9 @@ def test_games_yaml_is_read_again_when_it_changes_and_a_broken_one_keeps_the_las
     steam = _steam_game(children)
     games.poll()
     assert use.calls == []  # not mapped yet
-    add_game("4242", "mouse")  # `profile auto add` while the driver runs
+    add_game(str(APP_ID), "mouse")  # `profile auto add` while the driver runs
     games.poll()
-    assert use.calls == [("mouse", f"Steam app 4242 (pid {steam.pid}, sleep) is running")]
+    assert use.calls == [("mouse", f"Steam app {APP_ID} (pid {steam.pid}, sleep) is running")]
     games_file().write_text("steam: [\n")
     games.poll()
     assert "keeping the map read before" in caplog.text
@@ -366,21 +375,21 @@ def test_a_running_driver_switches_to_a_games_profile_and_back_through_its_contr
     runtime_dir = tmp_path / "xdg-runtime"
     runtime_dir.mkdir(mode=0o700)
     env = dict(os.environ, PYTHONPATH=str(REPO), XDG_RUNTIME_DIR=str(runtime_dir), PYTHONUNBUFFERED="1")
-    add_game("4242", "mouse")
-    add_game("supertuxkart", "spacecraft")
+    add_game(str(APP_ID), "mouse")
+    add_game(GAME, "spacecraft")
     states = tmp_path / "states.jsonl"
     driver = Driver(env, states)
     try:
         assert _wait_for(lambda: (runtime_dir / SOCKET_NAME).exists() or driver.proc.poll() is not None, 300)
         assert driver.proc.poll() is None, driver.lines
         steam = _steam_game(children)
-        game = f"Steam app 4242 (pid {steam.pid}, sleep)"
+        game = f"Steam app {APP_ID} (pid {steam.pid}, sleep)"
         assert _wait_for(lambda: driver.said(f"switched to profile mouse ({game} is running)")), driver.lines
         _stop(steam)
         assert _wait_for(lambda: driver.said(f"switched to profile default ({game} exited)")), driver.lines
 
         tux = _renamed(children, tmp_path)
-        tux_game = f"supertuxkart (pid {tux.pid}, supertuxkart)"
+        tux_game = f"{GAME} (pid {tux.pid}, {GAME})"
         assert _wait_for(lambda: driver.said(f"switched to profile spacecraft ({tux_game} is running)")), driver.lines
         manual = _cli("profile", "use", "accessibility", env={"XDG_RUNTIME_DIR": str(runtime_dir)})
         assert manual.returncode == 0, manual

@@ -623,15 +623,21 @@ def test_a_process_with_a_huge_steam_app_id_does_not_hide_the_game_beside_it(tmp
 
     sleeper = [sys.executable, "-c", "import time; time.sleep(120)"]
     base = {"PATH": os.environ.get("PATH", "")}
+    # app ids no other process has (the scanner sees all of this user's, other test runs' too):
+    # past every real Steam app's, holding this process's pid
+    game = 3_000_000_000 + os.getpid() * 256
+    padded = game + 1
     procs = [
         subprocess.Popen(sleeper, env=dict(base, SteamAppId="9" * 5000)),
-        subprocess.Popen(sleeper, env=dict(base, **{f"PAD{i}": "p" * 100_000 for i in range(8)}, SteamAppId="4243")),
-        subprocess.Popen(sleeper, env=dict(base, SteamAppId="4242")),
+        subprocess.Popen(
+            sleeper, env=dict(base, **{f"PAD{i}": "p" * 100_000 for i in range(8)}, SteamAppId=str(padded))
+        ),
+        subprocess.Popen(sleeper, env=dict(base, SteamAppId=str(game))),
     ]
     try:
-        game_map = GameMap({4242: "mouse", 4243: "spacecraft", int("9" * 10): "x"}, {})
+        game_map = GameMap({game: "mouse", padded: "spacecraft", int("9" * 10): "x"}, {})
         found = ProcessScanner().games(game_map)
-        assert [(g.key, g.pid) for g in found] == [(4242, procs[2].pid)], found
+        assert [(g.key, g.pid) for g in found] == [(game, procs[2].pid)], found
     finally:
         for proc in procs:
             proc.kill()
