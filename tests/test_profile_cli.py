@@ -148,6 +148,30 @@ def test_new_refuses_an_existing_or_bad_name(cli):
     assert cli("new", "x", "--from", "nope").returncode == 2
 
 
+def test_new_from_a_broken_profile_says_file_line_field_and_writes_nothing(cli, tmp_path):
+    """A source that breaks the schema, or is not YAML, gets profile validate's report (file, line,
+    field, what was found and expected) and no copy is made; a broken user profile by name too."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("mappings:\n  push:\n    input: push\n    output: left_stick\n    deadzone_mm: -2\n")
+    says = cli("validate", str(bad))
+    copied = cli("new", "mine", "--from", str(bad))
+    assert copied.returncode == 2 and says.returncode == 2
+    assert f"{bad}:5: mappings.push.deadzone_mm: found -2" in copied.stderr, copied.stderr
+    assert copied.stderr.startswith(says.stderr.rstrip("\n")), (copied.stderr, says.stderr)  # the same report
+    assert "nothing written" in copied.stderr and "Traceback" not in copied.stderr
+    assert not (cli.user_dir / "mine.yaml").exists()
+    tabs = tmp_path / "tabs.yaml"
+    tabs.write_text("mappings:\n\tpush: {}\n")
+    not_yaml = cli("new", "mine", "--from", str(tabs))
+    assert not_yaml.returncode == 2 and f"{tabs}:2: not valid YAML" in not_yaml.stderr, not_yaml.stderr
+    assert not (cli.user_dir / "mine.yaml").exists()
+    cli.user_dir.mkdir(parents=True)
+    (cli.user_dir / "broken.yaml").write_text(bad.read_text())  # written by hand, never validated
+    by_name = cli("new", "mine", "--from", "broken")
+    assert by_name.returncode == 2 and "broken.yaml:5: mappings.push.deadzone_mm" in by_name.stderr, by_name.stderr
+    assert sorted(p.name for p in cli.user_dir.iterdir()) == ["broken.yaml"]
+
+
 def test_edit_validates_and_reports_non_interactively(cli, tmp_path):
     fix = cli("edit", "default", editor="sed -i s/deadzone_mm:\\ 0.8/deadzone_mm:\\ 1.2/")
     assert fix.returncode == 0, fix.stderr

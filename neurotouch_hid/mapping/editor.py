@@ -103,16 +103,23 @@ def shipped_base(name: str) -> Path | None:
 
 def new_profile(name: str, from_name: str = "default") -> Path:
     """Create the user's profile ``name`` as a copy of ``from_name`` (a name or a path); a copy
-    of a shipped profile starts with :data:`COPY_MARK`.
+    of a shipped profile starts with :data:`COPY_MARK`. The source is validated first
+    (:func:`~neurotouch_hid.mapping.profile.parse_profile`): a broken one is not copied.
 
     Raises:
-        ProfileError: bad name, ``name`` already exists in the user folder, or no such source.
+        ProfileError: bad name, ``name`` already exists in the user folder, no such source, or
+            the source is not a valid profile (every problem as ``FILE:LINE: field: found VALUE;
+            expected ...``, as ``profile validate`` says it); nothing is written then.
     """
     target = user_profile_path(name)
     if target.exists():
         raise ProfileError(f"profile '{name}' already exists: {target} (edit it, or delete it first)")
     source = find_profile(from_name)
     text = read_profile_text(source)
+    try:
+        parse_profile(text, source)
+    except ProfileError as exc:
+        raise ProfileError(f"{exc}\nnothing written: {printable(target, None)} was not created") from None
     if source.parent == shipped_profiles_dir():
         text = COPY_MARK.format(source.stem) + "\n" + text
     _write(target, text)
