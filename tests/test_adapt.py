@@ -13,7 +13,16 @@ import numpy as np
 import pytest
 from helpers import run_cli
 
-from neurotouch_hid.enrolment.adapt import Record, adapt, held_out_prompts, record_datasets, replay, summary
+from neurotouch_hid.enrolment.adapt import (
+    Record,
+    _felt_wrong,
+    _fit_first_finger,
+    adapt,
+    held_out_prompts,
+    record_datasets,
+    replay,
+    summary,
+)
 from neurotouch_hid.enrolment.model import (
     Model,
     ModelError,
@@ -23,7 +32,8 @@ from neurotouch_hid.enrolment.model import (
     user_model_path,
 )
 from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.pipeline.config import PipelineConfig
+from neurotouch_hid.pipeline.config import EpisodeConfig, PipelineConfig
+from neurotouch_hid.pipeline.episode import FIRST_FINGER_US
 from neurotouch_hid.pipeline.learned import CLASSES, Classifier, learned_gesture
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.simulator import write_dataset
@@ -210,6 +220,58 @@ def test_adapt_keeps_the_shipped_value_where_the_fit_does_not_beat_it(records):
     assert not by_name["gesture.intensity_gain"].kept and float(by_name["gesture.intensity_gain"].value) > 1.5
     assert adaptation.model.classifier is None and "gesture.intensity_gain" not in adaptation.model.settings
     assert any("the shipped value stays" in line for line in summary(adaptation))
+
+
+def test_the_replay_with_another_first_finger_wait_answers_what_the_pipeline_answers(enrolment, records):
+    wait = 0
+    again = record_datasets([enrolment], config=PipelineConfig(episode=EpisodeConfig(first_finger_us=wait)))
+    for shipped, rerun in zip(records, again):
+        assert np.array_equal(replay(shipped, first_finger_us=wait), rerun.answered)
+    assert any(not np.array_equal(replay(r, first_finger_us=wait), r.answered) for r in records)  # it matters
+
+
+ONE_HOT = Classifier.of(np.zeros(9), np.ones(9), 10 * np.eye(5, 9), np.zeros(5))  # feature k: class k
+
+
+def episode_record(windows: list[tuple[str, float, int]], label: str) -> Record:
+    """One labelled gesture of 10 ms windows (type read, intensity mm, contacts), rest before and
+    after; the type is read from a one-hot feature (:data:`ONE_HOT`)."""
+    rows = [("none", 0.0, 0)] * 20 + windows + [("none", 0.0, 0)] * 20
+    kinds = np.array([-1 if k == "none" else CLASSES.index(GestureType(k)) for k, _, _ in rows], dtype=np.int8)
+    features = np.full((len(rows), 9), np.nan)
+    features[kinds >= 0] = np.eye(9)[kinds[kinds >= 0]]
+    labelled = np.zeros(len(rows), dtype=bool)
+    labelled[20 : 20 + len(windows)] = True
+    n = len(rows)
+    return Record(
+        name="synthetic",
+        t_us=10_000 * np.arange(1, n + 1, dtype=np.int64),
+        gesture=kinds,
+        intensity_mm=np.array([i for _, i, _ in rows]),
+        n_contacts=np.array([c for _, _, c in rows], dtype=np.int16),
+        features=features,
+        answered=kinds,
+        label=np.where(labelled, CLASSES.index(GestureType(label)), -1).astype(np.int8),
+        label_intensity_mm=np.array([i for _, i, _ in rows]),
+        prompt=np.zeros(n, dtype=np.int64),
+        frame_t_us=np.zeros(0, dtype=np.int64),
+        frame_distance_mm2=np.zeros(0),
+        frame_resting=np.zeros(0, dtype=bool),
+        frame_prompt=np.zeros(0, dtype=np.int64),
+        prompt_type={0: CLASSES.index(GestureType(label))},
+    )
+
+
+def test_the_first_fingers_wait_is_shortened_only_where_no_window_reads_wrong_above_the_dead_zone():
+    """A push is one finger: the wait for a second one only answers ``none`` meanwhile, so the fit
+    drops it. A pinch whose second finger lags 40 ms reads as a strong push meanwhile: without the
+    wait the player would feel a push, so the shipped wait stays (the longest of equal accuracy)."""
+    push = episode_record([("push", 0.5 + 0.1 * i, 1) for i in range(30)], "push")
+    assert _fit_first_finger([push], ONE_HOT, 0.0, {0}) == 0
+    lagging = episode_record([("push", 1.5, 1)] * 4 + [("pinch", 1.5, 2)] * 26, "pinch")
+    assert _fit_first_finger([lagging], ONE_HOT, 0.0, {0}) == FIRST_FINGER_US
+    assert _felt_wrong([lagging], [replay(lagging, ONE_HOT, first_finger_us=0)], {0}) == 4
+    assert _felt_wrong([lagging], [replay(lagging, ONE_HOT)], {0}) == 0
 
 
 def test_adapt_writes_a_model_the_commands_use_and_none_means_shipped(mirrored, tmp_path):

@@ -18,12 +18,17 @@
      cross-validation by gesture within the fitted part);
    - the minimum intensity (the contact threshold, ``gesture.min_intensity_mm``), from the shipped
      value up (:data:`MIN_INTENSITY_STEPS`);
+   - how long one contact alone keeps an episode undecided (``episode.first_finger_us``, the hand's
+     lag between its first and second finger), from the shipped value down
+     (:data:`FIRST_FINGER_STEPS_US`), the fitted part's best accuracy among the values that show no
+     more windows of another type above the dead zone (:data:`DEADZONE_MM`) than the shipped one;
    - the resting threshold (``resting.centroid_threshold_mm2``), the frames' best resting F1;
    - the intensity scale (``gesture.intensity_gain``), least squares against the labels.
 
 4. **Check** on the held-out gestures: each fitted value is kept only where it beats the shipped
-   one there by more than :data:`MIN_GAIN` of the windows' gesture type accuracy (the type and the
-   contact threshold: replayed; the resting threshold: the pipeline run again with it, and its
+   one there by more than :data:`MIN_GAIN` of the windows' gesture type accuracy (the type, the
+   contact threshold and the first finger's wait: replayed, the wait with no more windows of another
+   type above the dead zone either; the resting threshold: the pipeline run again with it, and its
    frames' resting F1 higher too; the scale: an intensity MAE lower by more than
    :data:`MIN_MAE_GAIN` of it, and no accuracy lost);
    otherwise the shipped value stays. The model (``model.py``) holds only what was kept.
@@ -41,6 +46,8 @@ import numpy as np
 
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
+from neurotouch_hid.pipeline.episode import FIRST_FINGER_US
 from neurotouch_hid.pipeline.learned import CLASSES, FEATURES, Classifier
 
 #: Every HOLD_EVERY-th labelled gesture of each type, from the second on, is held out.
@@ -51,6 +58,13 @@ PRIOR_STRENGTHS = (0.001, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0)
 #: Minimum intensities tried (multiples of the shipped one; only up: a lower one would need the
 #: windows the shipped threshold skipped).
 MIN_INTENSITY_STEPS = (1.0, 1.25, 1.5, 2.0, 2.5)
+#: How long one contact alone keeps an episode undecided, tried (us; only down from the shipped
+#: FIRST_FINGER_US: a longer wait only delays every answer). A hand whose fingers land together
+#: needs no wait; one whose second finger lags needs the shipped one.
+FIRST_FINGER_STEPS_US = (0, 30_000, 45_000, 60_000, 75_000, FIRST_FINGER_US)
+#: A window of another type (not ``none``) at or above this intensity (mm) is felt wrong: the
+#: ``default`` profile's dead zone (docs/dataset.md, "Per-gesture metrics").
+DEADZONE_MM = DEFAULT_DEADZONE_MM
 #: Resting thresholds tried (multiples of the shipped one), at most the near-rest threshold.
 RESTING_STEPS = (0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 5.0)
 #: Fewest held-out gestures (all types together) for a check; fewer: the shipped model is kept.
@@ -262,11 +276,16 @@ def held_out_prompts(records: Sequence[Record]) -> set[int]:
 
 # --- the replay ---------------------------------------------------------------------------
 def replay(
-    record: Record, classifier: Classifier | None = None, min_intensity_mm: float = 0.0, gain: float = 1.0
+    record: Record,
+    classifier: Classifier | None = None,
+    min_intensity_mm: float = 0.0,
+    gain: float = 1.0,
+    first_finger_us: int = FIRST_FINGER_US,
 ) -> np.ndarray:
     """(W,) int8 what the pipeline answers (-1 ``none``, else a CLASSES index) with another
     learned type (None: the shipped one), a minimum intensity at least the shipped one (mm), an
-    intensity gain: the recorded windows through the episode vote (``pipeline/episode.py``)."""
+    intensity gain, the episode vote's ``first_finger_us`` (us): the recorded windows through the
+    episode vote (``pipeline/episode.py``)."""
     from neurotouch_hid.pipeline.episode import EpisodeVote
 
     classifier = classifier or Classifier.shipped()
@@ -275,7 +294,7 @@ def replay(
     if gesture.any():
         kinds[gesture] = np.argmax(classifier.logits(record.features[gesture]), axis=1)
     kinds[record.intensity_mm < min_intensity_mm] = -1
-    vote = EpisodeVote()
+    vote = EpisodeVote(first_finger_us=first_finger_us)
     types = (*CLASSES, GestureType.NONE)  # index -1: none
     out = np.empty(len(kinds), dtype=np.int8)
     for i, (t, k, intensity, n) in enumerate(
@@ -297,6 +316,16 @@ def _accuracy(records: Sequence[Record], answers: Sequence[np.ndarray], prompts:
         right += int(np.sum(a[m] == r.label[m]))
         total += int(m.sum())
     return (right / total if total else float("nan")), total
+
+
+def _felt_wrong(records: Sequence[Record], answers: Sequence[np.ndarray], prompts: set[int]) -> int:
+    """Windows of ``prompts`` labelled a gesture and answered another one (not ``none``) at an
+    intensity at least :data:`DEADZONE_MM`: what a player would feel as the wrong gesture."""
+    wrong = 0
+    for r, a in zip(records, answers):
+        m = (r.label >= 0) & (a >= 0) & (a != r.label) & (r.intensity_mm >= DEADZONE_MM)
+        wrong += int(np.sum(m & np.isin(r.prompt, list(prompts))))
+    return wrong
 
 
 # --- the fits -----------------------------------------------------------------------------
@@ -389,6 +418,21 @@ def pick_strength(x: np.ndarray, y: np.ndarray, prompts: np.ndarray) -> float:
         if right > best_score:
             best, best_score = strength, right
     return best
+
+
+def _fit_first_finger(
+    records: Sequence[Record], classifier: Classifier | None, min_intensity_mm: float, prompts: set[int]
+) -> int:
+    """The first finger's wait (us, of :data:`FIRST_FINGER_STEPS_US`) with the best gesture type
+    accuracy over the windows of ``prompts`` among those with no more windows felt wrong there
+    (:func:`_felt_wrong`) than the shipped wait; ties go to the longer wait."""
+    scores = []
+    for wait in FIRST_FINGER_STEPS_US:
+        answers = [replay(r, classifier, min_intensity_mm, first_finger_us=wait) for r in records]
+        scores.append((wait, _accuracy(records, answers, prompts)[0], _felt_wrong(records, answers, prompts)))
+    shipped_felt = next(felt for wait, _, felt in scores if wait == FIRST_FINGER_US)
+    allowed = [(accuracy, wait) for wait, accuracy, felt in scores if felt <= shipped_felt]
+    return max(allowed)[1]
 
 
 def _resting_f1(records: Sequence[Record], prompts: set[int], threshold: float) -> float:
@@ -520,6 +564,28 @@ def adapt(records: Sequence[Record], rerun: Callable[..., list[Record]] | None =
         )
         if kept:
             min_intensity, current = shipped_min * step, after
+    # the first finger's wait: the fitted part's best among the waits felt wrong no more often
+    first_finger = _fit_first_finger(records, classifier, min_intensity or 0.0, fit_part)
+    if first_finger != FIRST_FINGER_US:
+        wait_answers = [replay(r, classifier, min_intensity or 0.0, first_finger_us=first_finger) for r in records]
+        after = _accuracy(records, wait_answers, held)[0]
+        felt_before = _felt_wrong(records, [replay(r, classifier, min_intensity or 0.0) for r in records], held)
+        felt_after = _felt_wrong(records, wait_answers, held)
+        kept = after > current + MIN_GAIN and felt_after <= felt_before
+        checks.append(
+            Check(
+                "episode.first_finger_us",
+                f"gesture type accuracy (windows of another type above the dead zone {felt_before} -> {felt_after})",
+                current,
+                after,
+                kept,
+                f"{first_finger}",
+            )
+        )
+        if kept:
+            current = after
+        else:
+            first_finger = FIRST_FINGER_US
     # the resting threshold: the frames' best F1 in the fitted part, checked by running the
     # pipeline again with it (the tracker's re-anchoring follows the verdicts: no replay)
     rest = RestingConfig()
@@ -534,7 +600,9 @@ def adapt(records: Sequence[Record], rerun: Callable[..., list[Record]] | None =
         from neurotouch_hid.pipeline.config import PipelineConfig
 
         again = rerun(PipelineConfig(resting=RestingConfig(centroid_threshold_mm2=best)))
-        after = _accuracy(again, [replay(r, classifier, min_intensity or 0.0) for r in again], held)[0]
+        after = _accuracy(again, [replay(r, classifier, min_intensity or 0.0, 1.0, first_finger) for r in again], held)[
+            0
+        ]
         f_shipped, f_fitted = _resting_f1(records, held, rest.centroid_threshold_mm2), _resting_f1(records, held, best)
         kept = after > current + MIN_GAIN and f_fitted > f_shipped
         checks.append(
@@ -562,7 +630,7 @@ def adapt(records: Sequence[Record], rerun: Callable[..., list[Record]] | None =
             mae_shipped, _ = _mae(records, held, 1.0)
             mae_fitted, _ = _mae(records, held, fitted_gain)
             with_gain = _accuracy(
-                records, [replay(r, classifier, min_intensity or 0.0, fitted_gain) for r in records], held
+                records, [replay(r, classifier, min_intensity or 0.0, fitted_gain, first_finger) for r in records], held
             )[0]
             kept = mae_fitted < (1.0 - MIN_MAE_GAIN) * mae_shipped and with_gain >= current
             checks.append(
@@ -581,6 +649,8 @@ def adapt(records: Sequence[Record], rerun: Callable[..., list[Record]] | None =
     settings: dict[str, float] = {}
     if min_intensity is not None:
         settings["gesture.min_intensity_mm"] = float(min_intensity)
+    if first_finger != FIRST_FINGER_US:
+        settings["episode.first_finger_us"] = float(first_finger)
     if resting is not None:
         settings["resting.centroid_threshold_mm2"] = float(resting)
     if gain is not None:

@@ -45,6 +45,7 @@ ADAPTABLE = (
     "gesture.intensity_gain",
     "resting.centroid_threshold_mm2",
     "resting.centroid_reset_threshold_mm2",
+    "episode.first_finger_us",
 )
 #: ``--model none``: the shipped method.
 NONE = "none"
@@ -61,7 +62,7 @@ class Model:
 
     Attributes:
         settings: ``GROUP.FIELD`` (one of :data:`ADAPTABLE`) -> value, in the field's units (mm,
-            mm^2 per marker, a factor).
+            mm^2 per marker, us, a factor).
         classifier: the refitted learned type as ``{"mean", "scale", "weights", "intercept"}``
             lists (shapes (9,), (9,), (5, 9), (5,)), or None: the shipped one.
         fitted: what it was fitted from and its held-out check (free-form, written for people).
