@@ -3,6 +3,8 @@ carries the gesture's type, and a short tap is recognised with it."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from test_pipeline import SENSOR, _WindowByWindow, events_at, gel_image
@@ -146,6 +148,25 @@ def test_the_commitment_is_the_vote_since_the_contact_count_last_changed():
     vote = EpisodeVote()
     assert vote.update(P, 3.0, 1, 10_000) is N
     assert vote.update(Q, 0.2, 2, 20_000) is Q
+
+
+def test_once_committed_a_window_that_sees_several_fingers_outweighs_one_that_sees_one():
+    """A held three-finger twist whose contacts merge into one window after window: the one-contact
+    windows read push, deeper than the twist of the three-contact ones. Counted once each, the
+    push outweighs the twist after two of them; a window that sees several fingers votes twice
+    from ``counted_mm`` on, and the twist stays. Below it each window counts once."""
+    T = GestureType.TWIST_CW
+    held = [(T, 4.5, 3), (T, 4.5, 3), (P, 7.5, 1), (T, 4.5, 3), (P, 7.5, 1), (T, 4.5, 3), (P, 7.5, 1)]
+
+    def answers(vote: EpisodeVote, windows) -> list[GestureType]:
+        return [vote.update(g, mm, n, 10_000 * (k + 1)) for k, (g, mm, n) in enumerate(windows)]
+
+    assert answers(EpisodeVote(), held) == [T] * 7
+    assert answers(EpisodeVote(counted_mm=math.inf), held)[4] is P  # every window once: push felt
+    # a push's attack read as a zoom under a flickering light, two contacts below counted_mm
+    attack = [(GestureType.ZOOM, 0.5, 2), (GestureType.ZOOM, 0.5, 2), (P, 1.2, 1)]
+    assert answers(EpisodeVote(), attack)[2] is P
+    assert answers(EpisodeVote(counted_mm=0.0), attack)[2] is GestureType.ZOOM
 
 
 def test_the_pipeline_settings_set_the_vote_and_an_override_changes_its_wait(rest_image):

@@ -3,13 +3,15 @@ answers its own type: onset latency against felt wrong types (docs/method.md, "E
 docs/lab/type-commitment.md).
 
     python3 docs/lab/type_commitment.py --out DIR [--families default,fingers,strong]
-        [--first-finger-ms 0,40,70,90,110] [--provisional-mm 0,0.4] [--deadzone-mm 0.8]
+        [--first-finger-ms 0,40,70,90,110] [--provisional-mm 0,0.4] [--counted-mm inf,0.8]
+        [--deadzone-mm 0.8]
 
 ``DIR`` is a ``benchmarks/family_eval.py --sessions`` folder (``DIR/FAMILY`` datasets, their
 sensor.yaml with the family's creep). Each sequence is run once through the product's pipeline
 with its episode vote taken out (each window's own type), into ``DIR/predictions/FAMILY/raw``;
-those per-window answers are then replayed through :class:`EpisodeVote` with each undecided time
-and provisional limit (0: an undecided window always answers ``none``; the vote reads only each
+those per-window answers are then replayed through :class:`EpisodeVote` with each undecided time,
+provisional limit (0: an undecided window always answers ``none``) and limit from which a
+committed window of several contacts votes twice (inf: every window once; the vote reads only each
 window's type, intensity, contact count and time, so the replay is what the pipeline answers)
 and scored: the per-gesture metrics (docs/dataset.md, the dead-zone latency among them) and the
 paper's per-window ones, and what the wait costs a push where it is felt
@@ -34,7 +36,7 @@ from neurotouch_hid.estimate import GestureType  # noqa: E402
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM, gesture_spans  # noqa: E402
 from neurotouch_hid.evaluation.metrics import Observations, align, evaluate  # noqa: E402
 from neurotouch_hid.output.console import command_app  # noqa: E402
-from neurotouch_hid.pipeline.episode import EpisodeVote  # noqa: E402
+from neurotouch_hid.pipeline.episode import COUNTED_MM, EpisodeVote  # noqa: E402
 from neurotouch_hid.pipeline.pipeline import GesturePipeline  # noqa: E402
 from neurotouch_hid.sensor import SensorGeometry  # noqa: E402
 from neurotouch_hid.sources.recording import RecordingReader  # noqa: E402
@@ -95,13 +97,20 @@ def push_waits_ms(labels: list, raw: list, voted: list, deadzone_mm: float) -> l
     return waits
 
 
-def replay(dataset: Path, raw: Path, first_finger_us: int, provisional_mm: float, deadzone_mm: float) -> dict:
-    """The per-window answers of ``raw`` through ``EpisodeVote(first_finger_us, provisional_mm=...)``,
-    scored; with the median and longest :func:`push_waits_ms` (NaN without a push)."""
+def replay(
+    dataset: Path,
+    raw: Path,
+    first_finger_us: int,
+    provisional_mm: float,
+    deadzone_mm: float,
+    counted_mm: float = COUNTED_MM,
+) -> dict:
+    """The per-window answers of ``raw`` through ``EpisodeVote(first_finger_us, provisional_mm=...,
+    counted_mm=...)``, scored; with the median and longest :func:`push_waits_ms` (NaN without a push)."""
     sensor = SensorGeometry.load(dataset / "sensor.yaml")
     parts, waits = [], []
     for name in list_sequences(dataset):
-        vote = EpisodeVote(first_finger_us=first_finger_us, provisional_mm=provisional_mm)
+        vote = EpisodeVote(first_finger_us=first_finger_us, provisional_mm=provisional_mm, counted_mm=counted_mm)
         answers = read_predictions(raw / f"{name}.jsonl")
         voted = [replace(p, gesture=vote.update(p.gesture, p.intensity_mm, p.n_contacts, p.t_us)) for p in answers]
         labels = read_labels(dataset / f"{name}.labels.csv")
@@ -122,25 +131,34 @@ def main(
     provisional_mm: str = typer.Option(
         "0,0.4", "--provisional-mm", help="provisional limits to compare (mm; 0: undecided is none)"
     ),
+    counted_mm: str = typer.Option(
+        f"{COUNTED_MM:g}",
+        "--counted-mm",
+        help="limits from which a committed window of several contacts votes twice (mm; inf: never)",
+    ),
     deadzone_mm: float = typer.Option(DEFAULT_DEADZONE_MM, "--deadzone-mm", min=0.0),
 ) -> None:
     names = families_in(out, families)
     candidates = [
-        (int(float(t) * 1000), float(p)) for t in first_finger_ms.split(",") for p in provisional_mm.split(",")
+        (int(float(t) * 1000), float(p), float(c))
+        for t in first_finger_ms.split(",")
+        for p in provisional_mm.split(",")
+        for c in counted_mm.split(",")
     ]
-    print("| family | undecided ms | provisional mm | " + " | ".join(c[0] for c in COLUMNS) + " |")
-    print("| --- | ---: | ---: |" + " ---: |" * len(COLUMNS))
-    rows: dict[tuple[int, float], list[dict]] = {c: [] for c in candidates}
+    print("| family | undecided ms | provisional mm | counted mm | " + " | ".join(c[0] for c in COLUMNS) + " |")
+    print("| --- | ---: | ---: | ---: |" + " ---: |" * len(COLUMNS))
+    rows: dict[tuple[int, float, float], list[dict]] = {c: [] for c in candidates}
     for fam in names:
         raw = out / "predictions" / fam / "raw"
         raw_predictions(out / fam, raw)
-        for t, p in candidates:
-            row = replay(out / fam, raw, t, p, deadzone_mm)
-            rows[t, p].append(row)
-            print(f"| {fam} | {t // 1000} | {p:g} | " + " | ".join(f(row[k]) for _, k, f in COLUMNS) + " |", flush=True)
-    for t, p in candidates:
-        mean = {k: float(np.nanmean([r[k] for r in rows[t, p]])) for _, k, _ in COLUMNS}
-        print(f"| mean | {t // 1000} | {p:g} | " + " | ".join(f(mean[k]) for _, k, f in COLUMNS) + " |")
+        for t, p, c in candidates:
+            row = replay(out / fam, raw, t, p, deadzone_mm, c)
+            rows[t, p, c].append(row)
+            cells = " | ".join(f(row[k]) for _, k, f in COLUMNS)
+            print(f"| {fam} | {t // 1000} | {p:g} | {c:g} | {cells} |", flush=True)
+    for t, p, c in candidates:
+        mean = {k: float(np.nanmean([r[k] for r in rows[t, p, c]])) for _, k, _ in COLUMNS}
+        print(f"| mean | {t // 1000} | {p:g} | {c:g} | " + " | ".join(f(mean[k]) for _, k, f in COLUMNS) + " |")
 
 
 if __name__ == "__main__":

@@ -14,6 +14,12 @@ CORRECTION_US = 300_000
 #: and press threshold of the built-in profiles (the lowest: ``spacecraft``'s triggers, 0.4 mm),
 #: so nothing is felt, and the onset is not delayed (docs/method.md, "Episode vote").
 PROVISIONAL_MM = 0.4
+#: Once the type is committed, a window at or above this intensity (mm) that sees two contacts or
+#: more votes twice: one contact is what a multi-finger gesture shows when its fingers merge or one
+#: is missed, never the reverse. Below it, in an attack's first 0.15-0.6 mm, a flickering light
+#: makes the contact count jump between 1 and 3 window after window
+#: (docs/method.md, "Episode vote").
+COUNTED_MM = 0.8
 
 
 class EpisodeVote:
@@ -29,8 +35,9 @@ class EpisodeVote:
     contact has held for ``first_finger_us``: the type with the most intensity-weighted votes (mm)
     since the contact count last changed.
 
-    Once committed, each window adds its intensity to its own type's votes and the answer changes
-    only when another type outweighs it, with one exception: within ``correction_us`` of the onset,
+    Once committed, each window adds its intensity to its own type's votes, twice when it sees two
+    contacts or more at or above ``counted_mm``, and the answer changes only when another type
+    outweighs it, with one exception: within ``correction_us`` of the onset,
     once per episode, a window that sees more contacts than every earlier window and reads
     another type is answered at once and the votes restart from it (the fingers seen before were
     fewer than the gesture has).
@@ -39,6 +46,8 @@ class EpisodeVote:
         first_finger_us: how long one contact alone stays undecided (us, >= 0).
         correction_us: how long after the onset the one correction may come (us, >= 0).
         provisional_mm: below this intensity (mm, >= 0) an undecided window answers the vote so far.
+        counted_mm: from this intensity (mm, >= 0) on, a committed episode's window that sees two
+            contacts or more votes twice.
     """
 
     def __init__(
@@ -46,10 +55,12 @@ class EpisodeVote:
         first_finger_us: int = FIRST_FINGER_US,
         correction_us: int = CORRECTION_US,
         provisional_mm: float = PROVISIONAL_MM,
+        counted_mm: float = COUNTED_MM,
     ) -> None:
         self.first_finger_us = first_finger_us
         self.correction_us = correction_us
         self.provisional_mm = provisional_mm
+        self.counted_mm = counted_mm
         self.reset()
 
     def reset(self) -> None:
@@ -93,6 +104,8 @@ class EpisodeVote:
             and t_us - self._onset_us <= self.correction_us
         ):
             self._decision, self._corrected, self._votes = gesture, True, {}
+        if n_contacts >= 2 and intensity_mm >= self.counted_mm:
+            weight *= 2.0
         self._most_contacts = max(self._most_contacts, n_contacts)
         self._votes[gesture] = self._votes.get(gesture, 0.0) + weight
         if self._votes.get(self._decision, 0.0) < max(self._votes.values()):
