@@ -184,8 +184,8 @@ def start_warmup(source: str, *, fast: bool, say: Callable[[str], None], method:
     if source.endswith(".jsonl"):
         return None
     interpreted = source == SourceKind.SIM and not fast
-    pipeline = PIPELINE_OF[method]
-    groups = [pipeline, SIMULATOR] if source == SourceKind.SIM else [pipeline]
+    pipeline = list(PIPELINE_OF[method])
+    groups = [SIMULATOR, *pipeline] if source == SourceKind.SIM else pipeline
     return Warmup(groups, say=say, interpreted=interpreted).start()
 
 
@@ -260,7 +260,7 @@ class RunAssembly:
         )
         if warmup is None:
             return RunParts(opened.stream, pipeline, resting, opened.sensor, opened.live, opened.labelled, None)
-        guard = warmup.guarded(PIPELINE_OF[self.method])
+        guard = warmup.guarded(*PIPELINE_OF[self.method])
         return RunParts(
             opened.stream,
             GuardedPipeline(pipeline, guard),

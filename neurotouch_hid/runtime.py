@@ -249,7 +249,8 @@ class Runtime:
         waits: a paced source that can wait (the simulated gel, which is not a camera): when the
             pipeline falls more than ``max_lag_us`` behind (a first run still compiling), the
             source waits instead of data being dropped, and catches up after; ``seconds`` then
-            counts its time, not the wall clock's.
+            counts its time, not the wall clock's. Its clock starts when the run does: a first
+            item that takes a while (the simulated gel compiling) is caught up after too.
         profile_ref: name or path the profile came from, reloaded on SIGHUP.
         queue_items: bound of the input queue (items; a memory guard).
         max_lag_us: real time only: how far (us of camera time) the queued data may reach back
@@ -549,6 +550,8 @@ class Runtime:
 
     def _read_source(self) -> None:
         """Source thread: read, pace, stamp the arrival time, enqueue."""
+        if self._waits:  # its stream starts now, even when its first item takes a while
+            self._clock.anchor_now()
         iterator = iter(self._source)
         held: list[np.ndarray] = []  # event batches of a resting gel, joined, handed on at held_us
         held_us = 0

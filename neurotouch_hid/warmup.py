@@ -12,7 +12,11 @@ changing them:
 * **compiled in parallel processes into the cache**: each cold group is compiled by its own
   child process (``python -P -m neurotouch_hid.warmup GROUP``, the same warm-up that
   ``GesturePipeline.compile_kernels`` or a short simulation is), which writes numba's cache; the
-  two groups use both cores. The child reports each kernel it compiled (one line on stdout), so
+  groups use both cores. The pipeline is two groups: the per-event tracker and noise filter
+  (what an interpreted run spends most on) and the per-window rest (the tracker's APS-frame
+  correction among them, compiled last: the tracker's kernels it calls are in the cache by
+  then), whose child starts once the simulator's and the tracker's, which the first gestures
+  wait for, are done. The child reports each kernel it compiled (one line on stdout), so
   :class:`Warmup` can show progress.
 * **interpreted until compiled**: meanwhile the run calls the kernels' pure-Python/NumPy form
   (numba's ``Dispatcher.py_func``; the same code, ~50x slower): every module's global name of a
@@ -24,8 +28,10 @@ changing them:
   while the group is interpreted), points every name back at the compiled kernels. No kernel is
   compiled in this process.
 
-Where numba cannot cache (:mod:`neurotouch_hid.jit_cache`, "memory"), a child's work would be
-lost: the run compiles in-process before it starts instead, showing the same progress.
+A run that cannot be interpreted (the camera cannot wait; ``--fast`` replays must be
+deterministic) waits for the same children before it starts. Where numba cannot cache
+(:mod:`neurotouch_hid.jit_cache`, "memory"), a child's work would be lost: the run compiles
+in-process before it starts instead, showing the same progress.
 """
 
 from __future__ import annotations
@@ -72,6 +78,12 @@ class KernelGroup:
             argument types a run gives them, so numba compiles and caches them.
         load_when_warm: on a warm cache, run ``warm`` in the run's process before it starts (it
             loads the cached code, ~2 s, which the first window would otherwise wait for).
+        only: when given, the group's kernels are these (``module.name``) alone.
+        excludes: kernels (``module.name``) left to another group.
+        background: the child starts once the other groups of the run are compiled: what the
+            first gestures do not wait for leaves both cores to what they do, then has one.
+        waits: never interpreted: a run waits for its compile (its Python form is so much
+            slower than its compile that waiting comes first sooner; the simulated gel).
     """
 
     name: str
@@ -79,31 +91,59 @@ class KernelGroup:
     packages: tuple[str, ...]
     warm: str
     load_when_warm: bool = False
+    only: tuple[str, ...] = ()
+    excludes: tuple[str, ...] = ()
+    background: bool = False
+    waits: bool = False
 
 
+#: The pipeline's per-event kernels: the tracker's (its APS-frame correction aside) and the
+#: noise filter's.
+TRACKER_KERNELS = (
+    *(
+        f"neurotouch_hid.pipeline.tracker_kernels.{name}"
+        for name in ("_track", "_check_lost", "_claim", "_release", "_repaint", "_lose", "_paint_all")
+    ),
+    "neurotouch_hid.pipeline.noise.background_activity_keep",
+)
+
+TRACKER = KernelGroup(
+    "tracker",
+    "neurotouch_hid.pipeline.methods",
+    ("neurotouch_hid.pipeline.",),
+    "neurotouch_hid.warmup:compile_tracker",
+    load_when_warm=True,
+    only=TRACKER_KERNELS,
+    waits=True,  # ~3 s of CPU to compile; interpreted, ~2 s a second of events
+)
 PIPELINE = KernelGroup(
     "pipeline",
     "neurotouch_hid.pipeline.methods",
     ("neurotouch_hid.pipeline.",),
-    "neurotouch_hid.warmup:compile_pipeline",
+    "neurotouch_hid.warmup:compile_windows",
     load_when_warm=True,
+    excludes=TRACKER_KERNELS,
+    background=True,
 )
 SIMULATOR = KernelGroup(
     "simulator",
     "neurotouch_hid.sources.simulator",
     ("neurotouch_hid.sources.esim", "neurotouch_hid.sources.simulator"),
     "neurotouch_hid.warmup:simulate_briefly",
+    waits=True,  # ~3 s of CPU to compile, while interpreted it gives ~0.1 s of gel a second
 )
 PAPER_PIPELINE = KernelGroup(
     "paper-pipeline",
     "neurotouch_hid.pipeline.methods",
     ("neurotouch_hid.pipeline.",),
-    "neurotouch_hid.warmup:compile_paper_pipeline",
+    "neurotouch_hid.warmup:compile_paper_windows",
     load_when_warm=True,
+    excludes=TRACKER_KERNELS,
+    background=True,
 )
-#: The pipeline's group of each method (``pipeline.methods``).
-PIPELINE_OF = {"default": PIPELINE, "paper": PAPER_PIPELINE}
-GROUPS = {g.name: g for g in (PIPELINE, PAPER_PIPELINE, SIMULATOR)}
+#: The pipeline's groups of each method (``pipeline.methods``): both methods track alike.
+PIPELINE_OF = {"default": (TRACKER, PIPELINE), "paper": (TRACKER, PAPER_PIPELINE)}
+GROUPS = {g.name: g for g in (TRACKER, PIPELINE, PAPER_PIPELINE, SIMULATOR)}
 
 
 def compile_pipeline(method: str = "default") -> None:
@@ -117,12 +157,32 @@ def compile_pipeline(method: str = "default") -> None:
     METHODS[method][1](SensorGeometry()).compile_kernels()
 
 
-def compile_paper_pipeline() -> None:
-    """:func:`compile_pipeline` of the paper's method (``run --method paper``), then of the
-    product's: both groups hold every kernel of the pipeline's package (``packages``), so the
-    paper's alone would leave the group cold and every later run compiling again."""
-    compile_pipeline("paper")
-    compile_pipeline("default")
+def compile_tracker() -> None:
+    """The tracker group's warm-up: the per-event part of :func:`compile_pipeline`
+    (:meth:`GesturePipeline.compile_tracker_kernels`), for both methods."""
+    from neurotouch_hid.pipeline.methods import METHODS
+    from neurotouch_hid.sensor import SensorGeometry
+
+    for _, pipeline in METHODS.values():
+        pipeline(SensorGeometry()).compile_tracker_kernels()
+
+
+def compile_windows(method: str = "default") -> None:
+    """The pipeline group's warm-up: the per-window part of :func:`compile_pipeline`
+    (:meth:`GesturePipeline.compile_window_kernels`) of ``method``."""
+    from neurotouch_hid.pipeline.methods import METHODS
+    from neurotouch_hid.sensor import SensorGeometry
+
+    METHODS[method][1](SensorGeometry()).compile_window_kernels()
+
+
+def compile_paper_windows() -> None:
+    """:func:`compile_windows` of the paper's method (``run --method paper``), then of the
+    product's: both groups hold every per-window kernel of the pipeline's package
+    (``packages``), so the paper's alone would leave the group cold and every later run
+    compiling again."""
+    compile_windows("paper")
+    compile_windows("default")
 
 
 def simulate_briefly() -> None:
@@ -164,6 +224,8 @@ def kernels(group: KernelGroup) -> dict[str, object]:
                 isinstance(value, CPUDispatcher)
                 and value.py_func.__module__ == name
                 and value.targetoptions.get("inline", "never") == "never"
+                and (not group.only or f"{name}.{attr}" in group.only)
+                and f"{name}.{attr}" not in group.excludes
             ):
                 found[f"{name}.{attr}"] = value
     return found
@@ -245,9 +307,10 @@ class Warmup:
         groups: the groups the run needs (e.g. ``[PIPELINE, SIMULATOR]`` for the demo).
         say: one line to the user (the child's error when one fails).
         interpreted: True: interpret cold groups and compile them in children while the run goes
-            on; False: compile the cold groups now (:meth:`start` returns when done), in this
-            process, with the same progress (for sources that cannot wait, and deterministic
-            ``--fast`` replays, which must not mix the two forms' rounding).
+            on; False: compile the cold groups now (:meth:`start` returns when done), in the
+            same children (in this process where numba cannot cache), with the same progress
+            (for sources that cannot wait, and deterministic ``--fast`` replays, which must not
+            mix the two forms' rounding).
     """
 
     def __init__(self, groups: list[KernelGroup], *, say: Callable[[str], None] = print, interpreted: bool = True):
@@ -255,6 +318,7 @@ class Warmup:
         self._say = say
         self._interpreted = interpreted
         self._locks = {g.name: threading.Lock() for g in groups}
+        self._settled = {g.name: threading.Event() for g in groups}  # ready or failed
         self._kernels: dict[str, dict[str, object]] = {}
         self.progress: dict[str, GroupProgress] = {}
         self._threads: list[threading.Thread] = []
@@ -290,37 +354,43 @@ class Warmup:
         if progress is None or progress.state in ("ready", "failed"):
             yield
             return
+        if group.waits:
+            self._settled[group.name].wait()
+            yield
+            return
         with self._locks[group.name], np.errstate(all="ignore"):  # numba's error_model="numpy"
             yield
 
     # --- the compile -----------------------------------------------------------------------
     def start(self) -> "Warmup":
-        """Find the cold groups and compile them (see the class). Returns self."""
+        """Find the cold groups and compile them (see the class), each group's child started as
+        soon as the group is found cold. Returns self."""
         in_memory = jit_cache.chosen().kind == jit_cache.MEMORY
         for group in self._groups:
             found = kernels(group)
             if not any(not cached_signatures(d) for d in found.values()):
                 if group.load_when_warm:
                     _call(group.warm)
+                self._settled[group.name].set()
                 continue
             self._kernels[group.name] = found
             self.progress[group.name] = GroupProgress(group.name, len(found))
-        if not self.progress:
-            return self
-        if self._interpreted and not in_memory:
-            self._say(f"{COMPILING}: running interpreted (slowly) meanwhile; {COMPILE_COST}")
-        for group in self._groups:
-            if group.name not in self.progress:
+            if in_memory:
                 continue
-            if self._interpreted and not in_memory:
-                interpret(self._kernels[group.name])
-                thread = threading.Thread(
-                    target=self._child, args=(group,), name=f"nt-compile-{group.name}", daemon=True
-                )
-                self._threads.append(thread)
-                thread.start()
-            else:
-                self._compile_here(group)
+            if len(self.progress) == 1:
+                how = "running interpreted (slowly) meanwhile" if self._interpreted else "before the run starts"
+                self._say(f"{COMPILING}: {how}; {COMPILE_COST}")
+            if self._interpreted and not group.waits:
+                interpret(found)
+            thread = threading.Thread(target=self._child, args=(group,), name=f"nt-compile-{group.name}", daemon=True)
+            self._threads.append(thread)
+            thread.start()
+        if in_memory:
+            for group in self._groups:
+                if group.name in self.progress:
+                    self._compile_here(group)
+        elif not self._interpreted:
+            self.wait()
         return self
 
     def wait(self, timeout: float | None = None) -> bool:
@@ -346,6 +416,7 @@ class Warmup:
                 if progress.state == "cold":
                     compiled(self._kernels[name])
                     progress.state = "failed"
+            self._settled[name].set()
 
     def progress_now(self) -> CompileProgress | None:
         """The compile while it lasts (what the runtime publishes in each window's record), else None."""
@@ -353,9 +424,18 @@ class Warmup:
             return None
         return CompileProgress(self.describe(), self.fraction())
 
-    def guarded(self, group: KernelGroup) -> Callable[[], ContextManager[None]]:
-        """A zero-argument callable giving :meth:`guard` of ``group``."""
-        return lambda: self.guard(group)
+    def guarded(self, *groups: KernelGroup) -> Callable[[], ContextManager[None]]:
+        """A zero-argument callable giving :meth:`guard` of every one of ``groups`` (in the
+        order given: callers name a pipeline's groups in :data:`PIPELINE_OF`'s order)."""
+
+        @contextlib.contextmanager
+        def guard_all() -> Iterator[None]:
+            with contextlib.ExitStack() as stack:
+                for group in groups:
+                    stack.enter_context(self.guard(group))
+                yield
+
+        return guard_all
 
     def _compile_here(self, group: KernelGroup) -> None:
         progress = self.progress[group.name]
@@ -363,13 +443,21 @@ class Warmup:
         with _on_each_compiled(self._kernels[group.name], progress.add):
             _call(group.warm)
         progress.state = "ready"
+        self._settled[group.name].set()
         self._say(
             f"compiled the {group.name} kernels in {time.monotonic() - self.started_s:.0f} s; cached for next time"
         )
 
     def _child(self, group: KernelGroup) -> None:
-        """Thread: run the group's child, count its progress lines, then switch to its code."""
+        """Thread: run the group's child (a background group's once the others are settled),
+        count its progress lines, then switch to its code."""
         progress = self.progress[group.name]
+        if group.background:
+            for other in self._groups:
+                if not other.background:
+                    self._settled[other.name].wait()
+            if self._closing:
+                return
         try:
             child = subprocess.Popen(
                 child_command(group),
@@ -401,13 +489,20 @@ class Warmup:
         with self._locks[group.name]:
             compiled(group_kernels)
             progress.state = "ready"
+        self._settled[group.name].set()
         if not self.compiling:
-            self._say(f"compiled in {time.monotonic() - self.started_s:.0f} s, cached for next time: full speed now")
+            done = "full speed now" if self._interpreted else "starting"
+            self._say(f"compiled in {time.monotonic() - self.started_s:.0f} s, cached for next time: {done}")
 
     def _failed(self, group: KernelGroup, why: str) -> None:
+        if not self._interpreted:  # nothing runs yet: compile here before it does
+            self._say(f"{why}: compiling it in this process instead")
+            self._compile_here(group)
+            return
         with self._locks[group.name]:
             compiled(self._kernels[group.name])
             self.progress[group.name].state = "failed"
+        self._settled[group.name].set()
         self._say(f"{why}: numba compiles it in this process instead")
 
 

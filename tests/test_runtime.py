@@ -203,6 +203,23 @@ def test_pacing_follows_the_timestamps():
     assert sum(pipeline.sizes) == 5 and pipeline.seen[-1] == 200_000
 
 
+def test_a_source_that_waits_starts_its_clock_with_the_run_and_catches_up_a_late_first_item():
+    """The simulated gel waits for its first run's compile before its first item: that wait is
+    caught up after, as any other (the stream's clock started with the run), not added to it."""
+    clock = ManualClock()
+    pacer = Pacer(clock=lambda: clock.now_ns, sleep=clock.sleep)
+
+    def late_source():
+        clock.now_ns += 120_000_000  # 120 ms before the first item (a compile)
+        yield from (batch(i * 50_000, n=1) for i in range(5))
+
+    rt, pipeline, _ = make_runtime(late_source(), pace=True, waits=True, pacer=pacer)
+    rt.run()
+    # items at 0, 50, ..., 200 ms of camera time: those due by 120 ms go at once, then on time
+    assert clock.slept == pytest.approx([0.03, 0.05])
+    assert clock.now_ns == 200_000_000 and sum(pipeline.sizes) == 5
+
+
 class WindowedPipeline:
     """10 ms windows from the first event, as the real pipeline closes them (an estimate for each
     window end an event crossed); the gel rests until ``touch_us``, then pushes."""

@@ -348,7 +348,8 @@ def test_frame_matches_follow_the_gated_mutual_nearest_rule_written_with_numpy()
     its nearest detection within the gate when it is that detection's nearest valid blob and no
     second valid blob lies within twice the gate; on random blobs and detections, some squeezed
     together, some invalid; and on whole-pixel positions, where equal distances are common (the
-    kernel measures only the pairs near in x, so its ties must still go to the lower index)."""
+    kernel measures only the pairs in neighbouring cells, so its ties must still go to the lower
+    index); and on a gate far smaller than the detections' spread (cells coarser than the gate)."""
     from neurotouch_hid.pipeline.tracker import _frame_matches
 
     rng = np.random.default_rng(11)
@@ -362,7 +363,7 @@ def test_frame_matches_follow_the_gated_mutual_nearest_rule_written_with_numpy()
         if trial % 2:  # ties
             state[:, :2] = np.round(state[:, :2] / 2.0)
             det = np.round(det / 2.0)
-        gate2 = 1.5**2
+        gate2 = 1.5**2 if trial % 3 else 0.05**2
         d2 = (state[:, None, 0] - det[None, :, 0]) ** 2 + (state[:, None, 1] - det[None, :, 1]) ** 2
         d2[~valid] = np.inf
         nearest = d2.argmin(axis=1)

@@ -188,14 +188,120 @@ def test_a_source_that_waits_loses_nothing_to_a_slow_pipeline(max_lag_us):
 
 def test_a_run_that_ends_before_its_compile_leaves_the_compiled_kernels_named(tmp_path, monkeypatch):
     """The run's process goes on (tests, a second run): nothing stays interpreted after close."""
-    import neurotouch_hid.sources.esim as esim
+    import neurotouch_hid.pipeline.gesture as gesture
 
-    found = warmup.kernels(warmup.SIMULATOR)
-    chunk = found["neurotouch_hid.sources.esim.esim_chunk"]
-    run = warmup.Warmup([warmup.SIMULATOR], say=lambda line: None)
+    found = warmup.kernels(warmup.PIPELINE)
+    area = found["neurotouch_hid.pipeline.gesture._area_motion"]
+    run = warmup.Warmup([warmup.PIPELINE], say=lambda line: None)
     monkeypatch.setattr(warmup, "cached_signatures", lambda dispatcher: [])  # cold, whatever is cached
     monkeypatch.setattr(run, "_child", lambda group: None)  # a compile that never ends
     run.start()
-    assert esim.esim_chunk is chunk.py_func and run.compiling
+    assert gesture._area_motion is area.py_func and run.compiling
     run.close()
-    assert esim.esim_chunk is chunk and not run.compiling
+    assert gesture._area_motion is area and not run.compiling
+
+
+def test_the_pipeline_s_groups_share_out_its_kernels_the_per_event_ones_first():
+    """The tracker's group (compiled first, at full priority) and the rest (in the background)
+    hold every kernel of the pipeline's package once; the paper's method's rest is the same."""
+    tracker, rest = warmup.PIPELINE_OF["default"]
+    everything = warmup.kernels(warmup.KernelGroup("all", tracker.imports, tracker.packages, tracker.warm))
+    first, second = warmup.kernels(tracker), warmup.kernels(rest)
+    assert set(first) == set(warmup.TRACKER_KERNELS) and not set(first) & set(second)
+    assert set(first) | set(second) == set(everything)
+    assert set(warmup.kernels(warmup.PIPELINE_OF["paper"][1])) == set(second)
+    assert rest.background and not tracker.background and not warmup.SIMULATOR.background
+
+
+def test_a_background_group_s_child_starts_once_the_others_are_compiled(monkeypatch):
+    """The simulator's and the tracker's children have both cores; the rest's starts after."""
+    run = warmup.Warmup([warmup.SIMULATOR, *warmup.PIPELINE_OF["default"]], say=lambda line: None)
+    started: list[tuple[str, dict[str, str]]] = []
+
+    def command(group):
+        started.append((group.name, {name: p.state for name, p in run.progress.items()}))
+        return [sys.executable, "-c", "pass"]  # a child that compiles nothing, successfully
+
+    monkeypatch.setattr(warmup, "cached_signatures", lambda dispatcher: [])
+    monkeypatch.setattr(warmup.jit_cache, "chosen", lambda: warmup.jit_cache.JitCache(warmup.jit_cache.USER_CACHE, None))
+    monkeypatch.setattr(warmup, "child_command", command)
+    run.start()
+    try:
+        assert run.wait(60)
+    finally:
+        run.close()
+    assert sorted(name for name, _ in started[:2]) == ["simulator", "tracker"]
+    assert started[2] == ("pipeline", {"simulator": "ready", "tracker": "ready", "pipeline": "cold"})
+
+
+@pytest.mark.parametrize("group", [warmup.SIMULATOR, warmup.TRACKER], ids=lambda g: g.name)
+def test_the_simulator_and_the_tracker_are_waited_for_instead_of_run_interpreted(group, monkeypatch):
+    """Interpreted, the simulator gives ~0.1 s of gel a second and the tracker ~0.5 s of events:
+    a run waits for their ~3 s compiles (the first gesture comes sooner)."""
+    import importlib
+    import threading
+
+    found = warmup.kernels(group)
+    run = warmup.Warmup([group], say=lambda line: None)
+    release = threading.Event()
+
+    def child(group):  # the child's compile, done when the test says so
+        release.wait(10)
+        run.progress[group.name].state = "ready"
+        run._settled[group.name].set()
+
+    monkeypatch.setattr(warmup, "cached_signatures", lambda dispatcher: [])
+    monkeypatch.setattr(run, "_child", child)
+    run.start()
+    assert run.compiling
+    for name, kernel in found.items():  # never interpreted
+        module, attr = name.rsplit(".", 1)
+        assert getattr(importlib.import_module(module), attr) is kernel
+    entered = threading.Event()
+
+    def call():
+        with run.guarded(group)():
+            entered.set()
+
+    thread = threading.Thread(target=call, daemon=True)
+    thread.start()
+    assert not entered.wait(0.3)  # waits for the compile
+    release.set()
+    assert entered.wait(10)
+    thread.join(10)
+    run.close()
+
+
+def test_a_run_that_cannot_wait_compiles_in_the_children_before_it_starts(monkeypatch):
+    """The camera and ``--fast``: the same children (both cores), nothing interpreted, and
+    :meth:`Warmup.start` returns once every group is compiled; a failed child is compiled here."""
+    import neurotouch_hid.pipeline.tracker_kernels as kernels
+
+    track = warmup.kernels(warmup.TRACKER)["neurotouch_hid.pipeline.tracker_kernels._track"]
+    said: list[str] = []
+    run = warmup.Warmup(list(warmup.PIPELINE_OF["default"]), say=said.append, interpreted=False)
+    children: list[str] = []
+    here: list[str] = []
+
+    def child(group):
+        children.append(group.name)
+        assert kernels._track is track  # not interpreted meanwhile
+        if group.name == "pipeline":
+            run._failed(group, "the pipeline compile failed (a test)")
+        else:
+            run.progress[group.name].state = "ready"
+            run._settled[group.name].set()
+
+    def compile_here(group):
+        here.append(group.name)
+        run.progress[group.name].state = "ready"
+
+    monkeypatch.setattr(warmup, "cached_signatures", lambda dispatcher: [])
+    monkeypatch.setattr(warmup.jit_cache, "chosen", lambda: warmup.jit_cache.JitCache(warmup.jit_cache.USER_CACHE, None))
+    monkeypatch.setattr(run, "_child", child)
+    monkeypatch.setattr(run, "_compile_here", compile_here)
+    run.start()
+    assert sorted(children) == ["pipeline", "tracker"] and here == ["pipeline"]
+    assert not run.compiling
+    assert any("before the run starts" in line for line in said)
+    assert any("compiling it in this process instead" in line for line in said)

@@ -360,8 +360,9 @@ def with_missed_finger(
     if best < 0 or not before > 0.0:
         return c, -1
     start = np.empty((len(c) + 1, 2))
-    start[: len(c)] = c
-    start[len(c)] = rest[best]
+    for k in range(len(c)):  # (a slice assignment would cost the first run ~2 s of compiling)
+        start[k, 0], start[k, 1] = c[k, 0], c[k, 1]
+    start[len(c), 0], start[len(c), 1] = rest[best, 0], rest[best, 1]
     more, u_more, res_more, ok = _fitted(rest, v, start, knot, n_knots)
     if not ok:
         return c, -1

@@ -187,7 +187,10 @@ def _split_along_axis(points: np.ndarray, weights: np.ndarray, n: int) -> np.nda
     w = weights[order]
     middle = (np.cumsum(w) - 0.5 * w) / total  # each marker's place along the axis, by weight
     group = np.minimum((middle * n).astype(np.int64), n - 1)
-    if len(np.unique(group)) < n:  # a marker outweighs a part: parts of equal marker counts
+    parts = 1  # distinct parts: group is non-decreasing (cumulative weights), so count its steps
+    for k in range(1, len(group)):  # (np.unique would cost the first run ~1 s of compiling)
+        parts += group[k] != group[k - 1]
+    if parts < n:  # a marker outweighs a part: parts of equal marker counts
         group = np.arange(len(order)) * n // len(order)
     for g in range(n):
         sx = sy = sw = 0.0
@@ -281,7 +284,9 @@ def plateau_contacts(
                 n = 0  # one fingertip pressed deep
             n = min(MAX_FINGERS, n)
             if n:
-                points[n_points : n_points + n] = _split_along_axis(current_px[mask], weights, n)
+                parts = _split_along_axis(current_px[mask], weights, n)
+                for q in range(n):  # (a slice assignment would cost the first run ~2 s of compiling)
+                    points[n_points + q, 0], points[n_points + q, 1] = parts[q, 0], parts[q, 1]
             fingers[n_kept] = n
             n_points += n
         n_kept += 1

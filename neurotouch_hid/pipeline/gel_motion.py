@@ -115,9 +115,20 @@ def _rigid_motion(
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _low_quantile(values: np.ndarray) -> float:
     """The :data:`SHARED_QUANTILE` quantile of ``values`` (M,) float64, M >= 1, as the order
-    statistic below it (the k-th smallest, k = floor(SHARED_QUANTILE (M - 1)))."""
+    statistic below it (the k-th smallest, k = floor(SHARED_QUANTILE (M - 1))).
+
+    An insertion sort of a copy: M is the rim's few dozen markers, and numba's ``np.partition``
+    costs the first run ~4 s of compiling (docs/performance.md, "Start-up")."""
     k = int(SHARED_QUANTILE * (len(values) - 1))
-    return np.partition(values, k)[k]
+    ordered = values.copy()
+    for i in range(1, len(ordered)):
+        x = ordered[i]
+        j = i - 1
+        while j >= 0 and ordered[j] > x:
+            ordered[j + 1] = ordered[j]
+            j -= 1
+        ordered[j + 1] = x
+    return ordered[k]
 
 
 def rim_markers(rest_px: np.ndarray, centre_px, rim_fraction: float = RIM_FRACTION) -> np.ndarray:

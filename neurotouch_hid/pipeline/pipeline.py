@@ -184,15 +184,24 @@ class GesturePipeline(FramePath):
         marker grid with a finger-like bump of displacement, a flat top, a pinch and a three-finger twist, instead of
         on the first real events: on a fresh install that takes seconds, which a real-time run would spend dropping
         data. Later runs load the code from numba's cache. Leaves the pipeline as it was."""
-        rest, moved, flat, pinch, three, events = synthetic_windows(self.sensor)
+        self.compile_tracker_kernels()
+        self.compile_window_kernels()
+
+    def compile_tracker_kernels(self) -> None:
+        """The per-event part of :meth:`compile_kernels`: the noise filter and the tracker's
+        event-by-event kernels (a first run compiles them apart from the rest, first:
+        ``warmup.TRACKER``)."""
+        rest, _, _, _, _, events = synthetic_windows(self.sensor)
         tracker = BlobTracker(rest, self.sensor.width, self.sensor.height, self.settings.tracker, sensor=self.sensor)
-        # numba compiles one version per array layout: a one-event batch's fields count as
-        # contiguous, a longer batch's are strided views of the structured array; both occur
-        tracker.update(events[:1])
-        tracker.update(events[1:])
-        tracker.correct(rest + 0.5, int(events["timestamp"][-1]))  # the frame correction's fusion
+        tracker.update(events)  # the batch whole: one version for batches of any length
         if self.noise_filter is not None:  # a fresh one: this pipeline's keeps its state
             self._noise_filter()(events)
+
+    def compile_window_kernels(self) -> None:
+        """The per-window part of :meth:`compile_kernels`: resting detection, gel motion, the
+        camera model, the checks before a fit, contacts and gesture, then the tracker's APS-frame
+        correction (last: the per-event kernels it calls are compiled, or cached, by then)."""
+        rest, moved, flat, pinch, three, events = synthetic_windows(self.sensor)
         all_valid = np.ones(len(rest), dtype=bool)
         compile_resting_kernels()  # its frames come later, possibly in the runtime's thread
         compile_gel_motion_kernels()  # the grid's rim barely moves: its fits stop before them
@@ -208,6 +217,8 @@ class GesturePipeline(FramePath):
             self._fit(rest, three, all_valid)  # three contacts: their centres' fit, called from Python
         finally:
             self.timings = timings
+        tracker = BlobTracker(rest, self.sensor.width, self.sensor.height, self.settings.tracker, sensor=self.sensor)
+        tracker.correct(rest + 0.5, int(events["timestamp"][-1]))  # the frame correction's fusion
 
     def restart(self) -> None:
         """Start a new session after the source was interrupted (the camera was unplugged or

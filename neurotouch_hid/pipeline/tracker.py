@@ -355,11 +355,10 @@ class BlobTracker:
             raise ValueError(f"events must have the EVENT_DTYPE fields {EVENT_DTYPE.names}, got {events.dtype}")
         if len(events) == 0 or len(self._state) == 0:
             return
+        if events.dtype != EVENT_DTYPE or not events.flags.c_contiguous:  # the kernel's one layout
+            events = _as_event_batch(events)
         _track(
-            events["timestamp"],
-            events["x"],
-            events["y"],
-            events["polarity"],
+            events,
             self._state,
             self._cov,
             self._t_upd,
@@ -404,3 +403,12 @@ class BlobTracker:
         """(height, width) int32 copy of the label image of ``polarity`` (1 = ON, 0 = OFF): index
         of the blob that owns each pixel's events of that polarity, -1 for none."""
         return self._label[1 if polarity else 0].copy()
+
+
+def _as_event_batch(events: np.ndarray) -> np.ndarray:
+    """``events`` (a structured array with the EVENT_DTYPE fields, another dtype or strided) as
+    a C-contiguous EVENT_DTYPE copy: the layout :func:`_track` is compiled for."""
+    batch = np.empty(len(events), dtype=EVENT_DTYPE)
+    for name in EVENT_DTYPE.names:
+        batch[name] = events[name]
+    return batch

@@ -112,6 +112,7 @@ def _repaint(i, cell, label, offs, n_offs, neigh, valid, state, assoc2):
     no repainting back and forth across a pixel border). A one-pixel move releases only the
     pixels that leave the disc (the precomputed rings of :func:`_disc_shapes`); the whole new
     disc is claimed (a blob that came nearer takes pixels from its neighbour)."""
+    far = np.int64(_FAR)  # typed as the positions it stands for: _release compiles once
     for pol in range(2):
         s = 1.0 if pol == 1 else -1.0
         ex = state[i, _PX] + s * state[i, _QX]
@@ -127,9 +128,7 @@ def _repaint(i, cell, label, offs, n_offs, neigh, valid, state, assoc2):
             cell[i, pol, 1] = ny
             if -1 <= sx <= 1 and -1 <= sy <= 1:
                 r = (sx + 1) * 3 + (sy + 1)
-                _release(
-                    i, pol, ox, oy, offs[1 + r], n_offs[1 + r], _FAR, _FAR, cell, label, neigh, valid, state, assoc2
-                )
+                _release(i, pol, ox, oy, offs[1 + r], n_offs[1 + r], far, far, cell, label, neigh, valid, state, assoc2)
             else:
                 _release(i, pol, ox, oy, offs[0], n_offs[0], nx, ny, cell, label, neigh, valid, state, assoc2)
             _claim(i, pol, nx, ny, offs[0], n_offs[0], label, state)
@@ -139,6 +138,7 @@ def _repaint(i, cell, label, offs, n_offs, neigh, valid, state, assoc2):
 def _lose(i, cell, label, offs, n_offs, neigh, valid, state, assoc2):
     """Mark blob ``i`` lost and hand its pixels to its neighbours."""
     valid[i] = False
+    far = np.int64(_FAR)  # typed as the positions it stands for: _release compiles once
     for pol in range(2):
         _release(
             i,
@@ -147,8 +147,8 @@ def _lose(i, cell, label, offs, n_offs, neigh, valid, state, assoc2):
             cell[i, pol, 1],
             offs[0],
             n_offs[0],
-            _FAR,
-            _FAR,
+            far,
+            far,
             cell,
             label,
             neigh,
@@ -210,8 +210,14 @@ def _gain(state, i, k0, k1, k2, rx, ry):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, offs, n_offs, neigh, prm, counts):
-    """The event loop: per-pixel association, rate gate, linear Kalman predict + update, repaint."""
+def _track(events, state, cov, t_upd, t_seen, rate, valid, cell, label, offs, n_offs, neigh, prm, counts):
+    """The event loop: per-pixel association, rate gate, linear Kalman predict + update, repaint.
+    ``events`` is the batch itself (EVENT_DTYPE, C-contiguous), not its fields: one compiled
+    version for batches of one event and of many alike."""
+    ts = events["timestamp"]
+    xs = events["x"]
+    ys = events["y"]
+    ps = events["polarity"]
     sigma2 = prm[_P_SIGMA2]
     q_pos = prm[_P_QPOS]
     q_vel = prm[_P_QVEL]
@@ -231,7 +237,7 @@ def _track(ts, xs, ys, ps, state, cov, t_upd, t_seen, rate, valid, cell, label, 
             counts[_N_NOISE] += 1
             continue
         pol = 1 if ps[k] > 0 else 0
-        i = label[pol, y, x]
+        i = np.int64(label[pol, y, x])  # one type of index for the kernels it calls (one compile each)
         if i < 0:
             counts[_N_NOISE] += 1
             continue
@@ -332,9 +338,12 @@ def _frame_matches(state: np.ndarray, valid: np.ndarray, det: np.ndarray, gate2:
     j's nearest valid blob too, and j has no second valid blob within twice the gate (two
     markers squeezed together under a finger seen as one). Ties go to the lower index.
 
-    Only the pairs less than twice the gate apart in x are measured (the detections sorted by
-    x, a binary search per blob): every distance the rule compares with the gate or its double
-    is among them, so the matches are those of all N x M pairs at a tenth of the cost."""
+    Only the pairs less than twice the gate apart are measured: the detections are put in square
+    cells at least twice the gate wide (a counting sort, no comparison sort: numba compiles this
+    kernel on a first run in a fraction of a second), and each blob looks in its cell and the 8
+    around it.
+    Every distance the rule compares with the gate or its double is among them, so the matches
+    are those of all N x M pairs at a tenth of the cost."""
     n = state.shape[0]
     m = det.shape[0]
     first = np.full(m, -1, np.int64)  # each detection's nearest valid blob
@@ -342,29 +351,58 @@ def _frame_matches(state: np.ndarray, valid: np.ndarray, det: np.ndarray, gate2:
     second = np.full(m, np.inf)  # and the squared distance of its second nearest
     nearest = np.full(n, -1, np.int64)  # each valid blob's nearest detection
     near_d2 = np.full(n, np.inf)
-    order = np.argsort(det[:, 0])
-    xs = det[order, 0]
+    match = np.full(n, -1, np.int64)
+    if m == 0:
+        return match
     reach = 2.0 * math.sqrt(gate2) * (1.0 + 1e-9) + 1e-9  # twice the gate, rounded outwards
+    x0 = x1 = det[0, 0]
+    y0 = y1 = det[0, 1]
+    for j in range(1, m):
+        x0, x1 = min(x0, det[j, 0]), max(x1, det[j, 0])
+        y0, y1 = min(y0, det[j, 1]), max(y1, det[j, 1])
+    width = x1 - x0
+    height = y1 - y0
+    reach = max(reach, math.sqrt(width * height / (4.0 * m)))  # a small gate: about 4 detections a cell
+    cols = int(width / reach) + 1
+    rows = int(height / reach) + 1
+    start = np.zeros(cols * rows + 1, np.int64)  # detections of cell c: members[start[c]:start[c + 1]]
+    home = np.empty(m, np.int64)
+    for j in range(m):
+        home[j] = int((det[j, 1] - y0) / reach) * cols + int((det[j, 0] - x0) / reach)
+        start[home[j] + 1] += 1
+    for c in range(cols * rows):
+        start[c + 1] += start[c]
+    fill = start.copy()
+    members = np.empty(m, np.int64)
+    for j in range(m):
+        members[fill[home[j]]] = j
+        fill[home[j]] += 1
     for i in range(n):  # blobs in index order: each detection's ties go to the lower blob
         if not valid[i]:
             continue
         x = state[i, 0]
         y = state[i, 1]
-        for k in range(np.searchsorted(xs, x - reach), np.searchsorted(xs, x + reach, side="right")):
-            j = order[k]
-            dx = x - det[j, 0]
-            dy = y - det[j, 1]
-            d2 = dx * dx + dy * dy
-            if d2 < near_d2[i] or (d2 == near_d2[i] and j < nearest[i]):
-                near_d2[i] = d2
-                nearest[i] = j
-            if d2 < best[j]:
-                second[j] = best[j]
-                best[j] = d2
-                first[j] = i
-            elif d2 < second[j]:
-                second[j] = d2
-    match = np.full(n, -1, np.int64)
+        if not (math.isfinite(x) and math.isfinite(y)):
+            continue  # nearest to nothing, as every comparison with NaN is false
+        cx = math.floor((x - x0) / reach)
+        cy = math.floor((y - y0) / reach)
+        for r in range(max(cy - 1, 0), min(cy + 1, rows - 1) + 1):
+            for c in range(max(cx - 1, 0), min(cx + 1, cols - 1) + 1):
+                cell = int(r) * cols + int(c)
+                for k in range(start[cell], start[cell + 1]):
+                    j = members[k]
+                    dx = x - det[j, 0]
+                    dy = y - det[j, 1]
+                    d2 = dx * dx + dy * dy
+                    if d2 < near_d2[i] or (d2 == near_d2[i] and j < nearest[i]):
+                        near_d2[i] = d2
+                        nearest[i] = j
+                    if d2 < best[j]:
+                        second[j] = best[j]
+                        best[j] = d2
+                        first[j] = i
+                    elif d2 < second[j]:
+                        second[j] = d2
     for i in range(n):
         j = nearest[i]
         if j >= 0 and near_d2[i] <= gate2 and first[j] == i and second[j] > 4.0 * gate2:

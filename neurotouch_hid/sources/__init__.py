@@ -101,13 +101,20 @@ class Pacer:
         self.first_us: int | None = None
         self.first_ns = 0
         self._clock = clock
+        self._anchor_ns: int | None = None  # anchor_now's
         self._sleep = sleep if sleep is not None else lambda stop, seconds: stop.wait(seconds)
+
+    def anchor_now(self) -> None:
+        """Anchor the clock now, before the first item: it is due now whenever it comes, and a
+        source that waited for it (the simulated gel while a first run compiles it) catches up."""
+        self._anchor_ns = self._clock()
 
     def due_ns(self, t_us: int) -> int:
         """The ``clock()`` (ns) at which an item stamped ``t_us`` is due; the first call
-        anchors the clock at ``t_us`` = now."""
+        anchors the clock at ``t_us`` = now (or when :meth:`anchor_now` was called)."""
         if self.first_us is None:
-            self.first_us, self.first_ns = t_us, self._clock()
+            self.first_us = t_us
+            self.first_ns = self._clock() if self._anchor_ns is None else self._anchor_ns
         return self.first_ns + (t_us - self.first_us) * 1000
 
     def wait(self, t_us: int, stop: threading.Event) -> bool:

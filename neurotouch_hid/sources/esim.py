@@ -132,9 +132,12 @@ def render_frame(
     gx = np.empty(2 * PATCH_RADIUS + 1)
     gy = np.empty(2 * PATCH_RADIUS + 1)
     s_count = pos.shape[0]
+    none_dirty = np.int64(0)  # typed as esim_chunk's count: splat compiles once
     for s in range(s_count):
         for n in range(pos.shape[1]):
-            splat(img, pos[s, n, 0], pos[s, n, 1], amp[s, n] / s_count, sigma[s, n], no_dirty, no_list, 0, gx, gy)
+            splat(
+                img, pos[s, n, 0], pos[s, n, 1], amp[s, n] / s_count, sigma[s, n], no_dirty, no_list, none_dirty, gx, gy
+            )
     out = np.empty(img.shape, dtype=np.uint8)
     h, w = img.shape
     noise = noise_bank[offset : offset + h * w]
@@ -220,7 +223,7 @@ def esim_chunk(
         for j in range(1, n_sub + 1):
             a = j / n_sub
             t_now = t0 + a * (t1 - t0)
-            n_dirty = 0
+            n_dirty = np.int64(0)  # not a literal: splat compiles once
             for n in range(n_markers):
                 x = pos[k, n, 0] + a * (pos[k + 1, n, 0] - pos[k, n, 0])
                 y = pos[k, n, 1] + a * (pos[k + 1, n, 1] - pos[k, n, 1])
