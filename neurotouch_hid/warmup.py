@@ -1,8 +1,8 @@
 """A run's first start on a cold numba cache: progress from the first second, a first state in seconds.
 
 The gesture pipeline and the simulated gel are numba kernels (``@numba.njit(cache=True)``). On a
-fresh install numba has nothing cached: compiling them takes ~45 s of CPU (~40 s for the
-pipeline, ~5 s for the simulator; docs/performance.md, "Start-up"), during which a run used to
+fresh install numba has nothing cached: compiling them takes ~25 s of CPU (~22 s for the
+pipeline, ~3 s for the simulator; docs/performance.md, "Start-up"), during which a run used to
 show nothing. This module orchestrates that first compile around the kernels' modules, without
 changing them:
 
@@ -60,10 +60,10 @@ T = TypeVar("T")
 
 #: What the user is told while the kernels compile.
 COMPILING = "compiling the gesture pipeline, first run only"
-#: What the first run's compile costs, as measured (docs/performance.md, "Start-up"): ~40 s of
-#: CPU (pipeline 35 s, simulator 4 s); full speed ~52 s after the start on two nearly idle cores;
-#: minutes on a busy machine (235 s at load 13).
-COMPILE_COST = "about 40 s of CPU: full speed after ~1 minute on two idle cores, minutes on a busy machine"
+#: What the first run's compile costs, as measured (docs/performance.md, "Start-up"): ~25 s of
+#: CPU (simulator 3 s, tracker 3 s, the rest of the pipeline 19 s); the first gesture ~5 s and
+#: full speed ~25 s after the start on two idle cores; longer on a busy machine.
+COMPILE_COST = "about 25 s of CPU: full speed after ~25 s on two idle cores, longer on a busy machine"
 
 
 @dataclass(frozen=True)
@@ -378,7 +378,9 @@ class Warmup:
             if in_memory:
                 continue
             if len(self.progress) == 1:
-                how = "running interpreted (slowly) meanwhile" if self._interpreted else "before the run starts"
+                how = "before the run starts"
+                if self._interpreted:
+                    how = "starting in seconds, partly interpreted (slowly) meanwhile"
                 self._say(f"{COMPILING}: {how}; {COMPILE_COST}")
             if self._interpreted and not group.waits:
                 interpret(found)

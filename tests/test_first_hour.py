@@ -417,9 +417,9 @@ def test_the_compile_message_states_the_measured_cost():
     from neurotouch_hid.warmup import COMPILE_COST
 
     performance = (Path(__file__).resolve().parents[1] / "docs" / "performance.md").read_text()
-    assert "40 s of CPU" in COMPILE_COST and "busy machine" in COMPILE_COST and "two cores" not in COMPILE_COST
+    assert "25 s of CPU" in COMPILE_COST and "busy machine" in COMPILE_COST and "two cores" not in COMPILE_COST
     start_up = performance.split("## Start-up")[1].split("\n## ")[0]
-    assert "Compiling costs ~40 s of CPU" in start_up and "compile_pipeline()" in start_up
+    assert "Compiling costs ~25 s of CPU" in start_up and "compile_pipeline()" in start_up
 
 
 # --- smaller: install.sh --user refuses root, as its help says ---------------------------------------

@@ -223,7 +223,8 @@ def test_a_background_group_s_child_starts_once_the_others_are_compiled(monkeypa
         return [sys.executable, "-c", "pass"]  # a child that compiles nothing, successfully
 
     monkeypatch.setattr(warmup, "cached_signatures", lambda dispatcher: [])
-    monkeypatch.setattr(warmup.jit_cache, "chosen", lambda: warmup.jit_cache.JitCache(warmup.jit_cache.USER_CACHE, None))
+    user_cache = warmup.jit_cache.JitCache(warmup.jit_cache.USER_CACHE, None)
+    monkeypatch.setattr(warmup.jit_cache, "chosen", lambda: user_cache)
     monkeypatch.setattr(warmup, "child_command", command)
     run.start()
     try:
@@ -297,7 +298,8 @@ def test_a_run_that_cannot_wait_compiles_in_the_children_before_it_starts(monkey
         run.progress[group.name].state = "ready"
 
     monkeypatch.setattr(warmup, "cached_signatures", lambda dispatcher: [])
-    monkeypatch.setattr(warmup.jit_cache, "chosen", lambda: warmup.jit_cache.JitCache(warmup.jit_cache.USER_CACHE, None))
+    user_cache = warmup.jit_cache.JitCache(warmup.jit_cache.USER_CACHE, None)
+    monkeypatch.setattr(warmup.jit_cache, "chosen", lambda: user_cache)
     monkeypatch.setattr(run, "_child", child)
     monkeypatch.setattr(run, "_compile_here", compile_here)
     run.start()
