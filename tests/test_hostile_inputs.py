@@ -895,7 +895,9 @@ def test_the_control_socket_folder_and_its_peer_are_checked(shared_runtime_dir, 
         os.close(reply_w)
         reply = os.read(reply_r, 8192)
         os.close(reply_r)
-        assert reply == b"none" or b"reset by peer" in reply, reply  # closed unanswered
+        # closed unanswered: nothing read, or the close seen as a reset or, when the server closed
+        # before the request was written (a loaded machine), as a broken pipe
+        assert reply == b"none" or b"reset by peer" in reply or b"Broken pipe" in reply, reply
         assert "a process of another user (uid 65534) connected; refused" in caplog.text
     finally:
         server.stop()
