@@ -41,10 +41,17 @@ in_root() {
     return $status
 }
 
+# A root's /proc left mounted by a run killed inside in_root (SIGKILL skips its umount): unmount
+# it before the root is removed, or rm would walk into the host's /proc.
+release() {
+    ! mountpoint -q "$1/proc" || umount -l "$1/proc"
+}
+
 make_base() {
     [ -x "$base/usr/bin/apt-get" ] && return 0
     command -v debootstrap > /dev/null || die "debootstrap is missing: apt-get install debootstrap"
-    rm -rf "$base.partial"
+    release "$base.partial"  # debootstrap mounts it too
+    rm -rf --one-file-system "$base.partial"
     mkdir -p "$cache"
     debootstrap --variant=minbase bookworm "$base.partial" ${DEBIAN_MIRROR:-} > "$cache/debootstrap.log" 2>&1 \
         || die "debootstrap failed; see $cache/debootstrap.log"
@@ -62,7 +69,8 @@ BUILD_PACKAGES="python3 python3-venv help2man ca-certificates"
 make_build() {
     [ "$(cat "$build/.neurotouch-build-packages" 2>/dev/null)" = "$BUILD_PACKAGES" ] && return 0
     make_base
-    rm -rf "$build"
+    release "$build"
+    rm -rf --one-file-system "$build"
     cp -a "$base" "$build"
     in_root "$build" "apt-get update -q && apt-get install -y -q --no-install-recommends $BUILD_PACKAGES \
         && apt-get clean" > "$cache/build-root.log" 2>&1 \
