@@ -80,8 +80,9 @@ class KernelGroup:
             loads the cached code, ~2 s, which the first window would otherwise wait for).
         only: when given, the group's kernels are these (``module.name``) alone.
         excludes: kernels (``module.name``) left to another group.
-        background: the child starts once the other groups of the run are compiled: what the
-            first gestures do not wait for leaves both cores to what they do, then has one.
+        background: in a run that goes on while it compiles, the child starts once the other
+            groups are compiled: what the first gestures do not wait for leaves both cores to
+            what they do, then has one.
         waits: never interpreted: a run waits for its compile (its Python form is so much
             slower than its compile that waiting comes first sooner; the simulated gel).
     """
@@ -454,7 +455,7 @@ class Warmup:
         """Thread: run the group's child (a background group's once the others are settled),
         count its progress lines, then switch to its code."""
         progress = self.progress[group.name]
-        if group.background:
+        if group.background and self._interpreted:  # (a run that waits for all: all at once)
             for other in self._groups:
                 if not other.background:
                     self._settled[other.name].wait()
