@@ -194,8 +194,9 @@ def adapt(
     """Fit the recogniser to your gel and hand from enrolment datasets; hold part out to check it.
 
     Refits the learned gesture type (the shipped one as its prior), the contact and resting
-    thresholds, the wait for a second finger and the intensity scale; keeps the shipped value wherever the fit does not beat it
-    on the held-out gestures, and says what it changed (docs/method.md, "Adaptation")."""
+    thresholds, the wait for a second finger and the intensity scale; keeps the shipped value
+    wherever the fit does not beat it on the held-out gestures, and says what it changed
+    (docs/method.md, "Adaptation")."""
     from neurotouch_hid.enrolment.adapt import adapt as fit
     from neurotouch_hid.enrolment.adapt import check_output, fitted_info, record_datasets, summary
     from neurotouch_hid.enrolment.model import Model, user_model_path

@@ -5,8 +5,9 @@ Two views of the USB bus are merged into one :class:`Camera` record per device:
 * **pyusb** (with libusb-package's bundled libusb) lists every USB device 152a:841a, whether or
   not this user may open it. For each: bus, address, its ``/dev/bus/usb/BBB/DDD`` node, the
   serial/product strings (from sysfs, which anyone may read, through the bounded reader of
-  ``limits.py``; else from the device when it can be opened), and an access verdict: the node is readable and writable, and interface 0 can be
-  claimed (then released at once: nothing is sent to the camera). When not: permission denied
+  ``limits.py``; else from the device when it can be opened), and an access verdict: the node
+  is readable and writable, and interface 0 can be claimed (then released at once: nothing is
+  sent to the camera). When not: permission denied
   (the fix: the udev rule), busy (another program, or a kernel driver, holds the interface), gone.
 * **dv-processing** (``dv_processing.io.camera.discover()``, iniVation's libusb-based driver)
   lists the cameras it would open, with serial number, camera model and firmware version. A
