@@ -341,6 +341,7 @@ def run_driver(
         if subscribers is None:
             made = open_output(output, loaded, stack, out=out, console=console, say=say, inputs=inputs)
             subscribers = open_outputs(made, output, stack, console)
+        say = said_above(subscribers, say)
         assembly = RunAssembly(
             source,
             seconds=seconds,
@@ -370,6 +371,18 @@ def run_driver(
             max_lag_us=max_lag_us,
             waits=source == SourceKind.SIM,
         )
+
+
+def said_above(subscribers: list[Subscriber], say: Callable[[str], None]) -> Callable[[str], None]:
+    """Where a run's lines for the user go (the first run's compile, a camera lost and back):
+    while a terminal view draws on a terminal, through it, above the view
+    (:meth:`~neurotouch_hid.output.term.TermView.say`); else ``say``."""
+    from neurotouch_hid.output.term import TermView
+
+    for subscriber in subscribers:
+        if isinstance(subscriber, TermView) and subscriber.console.is_terminal:
+            return subscriber.say
+    return say
 
 
 def gamepad_or_terminal(

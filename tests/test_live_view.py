@@ -159,3 +159,28 @@ def test_the_live_view_goes_beside_the_pad_only_on_a_terminal(kind, terminal, be
         assert outputs[0] is made
         assert [type(o) for o in outputs[1:]] == ([LiveView] if beside else [])
     assert open_outputs(made, kind, contextlib.ExitStack(), None) == [made]  # no console: no view
+
+
+def test_a_run_s_lines_go_above_the_view_drawn_on_a_terminal_else_where_they_went():
+    """The first run's compile line went to stderr while the view was drawn on the terminal's
+    stdout, and the next redraw drew over it: the user saw no sign of the compile."""
+    import io
+
+    from rich.console import Console
+
+    from neurotouch_hid.driver import said_above
+    from neurotouch_hid.output.term import TermView
+
+    screen = io.StringIO()
+    view = TermView(Console(file=screen, force_terminal=True, width=100))
+    elsewhere: list[str] = []
+    try:
+        said_above([view], elsewhere.append)("compiling the gesture pipeline, first run only")
+    finally:
+        view.close()
+    assert "compiling the gesture pipeline, first run only" in screen.getvalue() and elsewhere == []
+    piped = TermView(Console(file=io.StringIO(), width=100))
+    try:
+        assert said_above([piped], elsewhere.append) == elsewhere.append
+    finally:
+        piped.close()

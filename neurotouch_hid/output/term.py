@@ -212,6 +212,11 @@ class TermView:
             self._live = Live(self, console=self.console, refresh_per_second=refresh_per_second, transient=False)
             self._live.start()
 
+    def say(self, line: str) -> None:
+        """Print one line for the user: above the view while it is drawn on a terminal (rich's
+        Live; a line written to stderr meanwhile would be drawn over), else to this console."""
+        self.console.print(line, markup=False, highlight=False, soft_wrap=True)
+
     def write(self, state: ControllerState, estimate: GestureEstimate | None = None) -> None:
         """Show ``state`` (and the estimate's gesture and intensity)."""
         with self._lock:
