@@ -59,6 +59,7 @@ def test_a_family_without_data_is_a_usage_error(workdir, tmp_path, capsys, names
         ("onset_bound.py", []),
         ("../docs/lab/contact_count.py", ["--families", "default"]),
         ("../docs/lab/type_commitment.py", ["--families", "default"]),
+        ("../docs/lab/gesture_collar.py", ["--families", "strong"]),
         ("profile_felt.py", ["--method", "ours"]),
     ],
 )
