@@ -1,4 +1,4 @@
-"""A run's first start on a cold numba cache: progress from the first second, a first state in seconds.
+"""A run's first start on a cold numba cache: progress from the first second, a first gesture in seconds.
 
 The gesture pipeline and the simulated gel are numba kernels (``@numba.njit(cache=True)``). On a
 fresh install numba has nothing cached: compiling them takes ~25 s of CPU (~22 s for the
@@ -18,10 +18,13 @@ changing them:
   then), whose child starts once the simulator's and the tracker's, which the first gestures
   wait for, are done. The child reports each kernel it compiled (one line on stdout), so
   :class:`Warmup` can show progress.
-* **interpreted until compiled**: meanwhile the run calls the kernels' pure-Python/NumPy form
-  (numba's ``Dispatcher.py_func``; the same code, ~50x slower): every module's global name of a
-  cold kernel points at its ``py_func`` (:func:`interpret`). So the first windows come out in
-  seconds, slowly; a source that can wait (the simulated gel) waits instead of dropping data.
+* **waited for, or interpreted until compiled**: the simulator's and the tracker's groups compile
+  in ~3 s each, much sooner than their Python form would get anywhere, so the run waits for them
+  (:attr:`KernelGroup.waits`; the first state comes after ~4 s, the first gesture soon after).
+  The rest of the pipeline is interpreted meanwhile: the run calls the kernels' pure-Python/NumPy
+  form (numba's ``Dispatcher.py_func``; the same code, ~50x slower): every module's global name
+  of a cold kernel points at its ``py_func`` (:func:`interpret`). A source that can wait (the
+  simulated gel) waits instead of dropping data.
 * **switched back at a safe point**: when a child is done, a thread of this process loads the
   group's compiled code from the cache (``Dispatcher.compile(signature)``, a cache hit), then,
   while no call of the group runs (:meth:`Warmup.guard`, held by the callers around each call
