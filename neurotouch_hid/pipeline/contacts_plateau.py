@@ -15,6 +15,8 @@ import math
 import numba
 import numpy as np
 
+from neurotouch_hid.pipeline.order import median_head
+
 #: Gaussian-like peak holds 2-5 markers above 90 % of its maximum on the development families).
 PLATEAU_MARKERS = 6
 #: Most fingers one plateau is read as (paper, "Creation of the Gesture Detection Dataset":
@@ -128,14 +130,7 @@ def _despiked(table: np.ndarray, magnitudes: np.ndarray, fraction: float) -> np.
                 near[k] = magnitudes[j]
                 k += 1
         if k >= 2:
-            for q in range(1, k):  # insertion sort of the (<= 8) neighbours
-                x = near[q]
-                r = q - 1
-                while r >= 0 and near[r] > x:
-                    near[r + 1] = near[r]
-                    r -= 1
-                near[r + 1] = x
-            median = near[k // 2] if k % 2 else 0.5 * (near[k // 2 - 1] + near[k // 2])
+            median = median_head(near, k)  # of the (<= 8) neighbours
             if magnitudes[i] * fraction > median:
                 out[i] = median
     return out

@@ -45,6 +45,7 @@ import numba
 import numpy as np
 
 from neurotouch_hid.pipeline.markers import marker_arrays
+from neurotouch_hid.pipeline.order import sort_head
 
 #: The outer ring: markers whose rest distance from the gel centre is at least this fraction of
 #: the farthest marker's (on the simulated 177-marker gel: the outer ~60 markers).
@@ -117,17 +118,11 @@ def _low_quantile(values: np.ndarray) -> float:
     """The :data:`SHARED_QUANTILE` quantile of ``values`` (M,) float64, M >= 1, as the order
     statistic below it (the k-th smallest, k = floor(SHARED_QUANTILE (M - 1))).
 
-    An insertion sort of a copy: M is the rim's few dozen markers, and numba's ``np.partition``
-    costs the first run ~4 s of compiling (docs/performance.md, "Start-up")."""
+    A sorted copy (:func:`~neurotouch_hid.pipeline.order.sort_head`): M is the rim's few dozen
+    markers, and numba's ``np.partition`` costs the first run ~4 s of compiling."""
     k = int(SHARED_QUANTILE * (len(values) - 1))
     ordered = values.copy()
-    for i in range(1, len(ordered)):
-        x = ordered[i]
-        j = i - 1
-        while j >= 0 and ordered[j] > x:
-            ordered[j + 1] = ordered[j]
-            j -= 1
-        ordered[j + 1] = x
+    sort_head(ordered, len(ordered))
     return ordered[k]
 
 

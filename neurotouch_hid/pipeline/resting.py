@@ -63,6 +63,7 @@ import numpy as np
 
 from neurotouch_hid.errors import SensorError
 from neurotouch_hid.pipeline.config import RestingConfig
+from neurotouch_hid.pipeline.order import median_head
 from neurotouch_hid.pipeline.override import grid_neighbours
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import Frame
@@ -296,15 +297,7 @@ def _press(nearest_sq: np.ndarray, neighbours: np.ndarray) -> float:
             if j < len(nearest_sq):
                 near[k] = np.sqrt(nearest_sq[j])
                 k += 1
-        for q in range(1, k):  # insertion sort of the (<= 5) distances
-            x = near[q]
-            r = q - 1
-            while r >= 0 and near[r] > x:
-                near[r + 1] = near[r]
-                r -= 1
-            near[r + 1] = x
-        median = near[k // 2] if k % 2 else 0.5 * (near[k // 2 - 1] + near[k // 2])
-        largest = max(largest, median)
+        largest = max(largest, median_head(near, k))  # of the (<= 5) distances
     return largest
 
 
