@@ -46,6 +46,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.lib import recfunctions
 from pydantic import BaseModel, ConfigDict
 
 from neurotouch_hid.pipeline.tracker_kernels import (
@@ -349,14 +350,14 @@ class BlobTracker:
         Raises:
             ValueError: ``events`` lacks the EVENT_DTYPE fields.
         """
-        if events.dtype != EVENT_DTYPE and (
-            events.dtype.names is None or not set(EVENT_DTYPE.names) <= set(events.dtype.names)
-        ):  # (the sets only for another dtype: ~1.5 us a batch)
-            raise ValueError(f"events must have the EVENT_DTYPE fields {EVENT_DTYPE.names}, got {events.dtype}")
+        if events.dtype != EVENT_DTYPE:  # (the sets only for another dtype: ~1.5 us a batch)
+            if events.dtype.names is None or not set(EVENT_DTYPE.names) <= set(events.dtype.names):
+                raise ValueError(f"events must have the EVENT_DTYPE fields {EVENT_DTYPE.names}, got {events.dtype}")
+            events = recfunctions.require_fields(events, EVENT_DTYPE)  # the kernel's one layout (a copy)
+        elif not events.flags.c_contiguous:
+            events = np.ascontiguousarray(events)
         if len(events) == 0 or len(self._state) == 0:
             return
-        if events.dtype != EVENT_DTYPE or not events.flags.c_contiguous:  # the kernel's one layout
-            events = _as_event_batch(events)
         _track(
             events,
             self._state,
@@ -403,12 +404,3 @@ class BlobTracker:
         """(height, width) int32 copy of the label image of ``polarity`` (1 = ON, 0 = OFF): index
         of the blob that owns each pixel's events of that polarity, -1 for none."""
         return self._label[1 if polarity else 0].copy()
-
-
-def _as_event_batch(events: np.ndarray) -> np.ndarray:
-    """``events`` (a structured array with the EVENT_DTYPE fields, another dtype or strided) as
-    a C-contiguous EVENT_DTYPE copy: the layout :func:`_track` is compiled for."""
-    batch = np.empty(len(events), dtype=EVENT_DTYPE)
-    for name in EVENT_DTYPE.names:
-        batch[name] = events[name]
-    return batch

@@ -14,8 +14,9 @@ import numpy as np
 #: A blob's ownership is repainted when its expected event position is this far (px, in x or y)
 #: from the pixel it was painted around.
 _HYSTERESIS_PX = 1.0
-#: A pixel coordinate far outside any image (releasing every pixel of a lost blob).
-_FAR = 1 << 30
+#: A pixel coordinate far outside any image (releasing every pixel of a lost blob); an int64, as
+#: the positions it stands for (a plain int would be a literal to numba: a second compile).
+_FAR = np.int64(1 << 30)
 #: Number of neighbours per blob remembered for ownership hand-over and merge detection.
 _N_NEIGHBOURS = 12
 
@@ -112,7 +113,6 @@ def _repaint(i, cell, label, offs, n_offs, neigh, valid, state, assoc2):
     no repainting back and forth across a pixel border). A one-pixel move releases only the
     pixels that leave the disc (the precomputed rings of :func:`_disc_shapes`); the whole new
     disc is claimed (a blob that came nearer takes pixels from its neighbour)."""
-    far = np.int64(_FAR)  # typed as the positions it stands for: _release compiles once
     for pol in range(2):
         s = 1.0 if pol == 1 else -1.0
         ex = state[i, _PX] + s * state[i, _QX]
@@ -128,7 +128,9 @@ def _repaint(i, cell, label, offs, n_offs, neigh, valid, state, assoc2):
             cell[i, pol, 1] = ny
             if -1 <= sx <= 1 and -1 <= sy <= 1:
                 r = (sx + 1) * 3 + (sy + 1)
-                _release(i, pol, ox, oy, offs[1 + r], n_offs[1 + r], far, far, cell, label, neigh, valid, state, assoc2)
+                _release(
+                    i, pol, ox, oy, offs[1 + r], n_offs[1 + r], _FAR, _FAR, cell, label, neigh, valid, state, assoc2
+                )
             else:
                 _release(i, pol, ox, oy, offs[0], n_offs[0], nx, ny, cell, label, neigh, valid, state, assoc2)
             _claim(i, pol, nx, ny, offs[0], n_offs[0], label, state)
@@ -138,7 +140,6 @@ def _repaint(i, cell, label, offs, n_offs, neigh, valid, state, assoc2):
 def _lose(i, cell, label, offs, n_offs, neigh, valid, state, assoc2):
     """Mark blob ``i`` lost and hand its pixels to its neighbours."""
     valid[i] = False
-    far = np.int64(_FAR)  # typed as the positions it stands for: _release compiles once
     for pol in range(2):
         _release(
             i,
@@ -147,8 +148,8 @@ def _lose(i, cell, label, offs, n_offs, neigh, valid, state, assoc2):
             cell[i, pol, 1],
             offs[0],
             n_offs[0],
-            far,
-            far,
+            _FAR,
+            _FAR,
             cell,
             label,
             neigh,
