@@ -194,6 +194,31 @@ def test_smooth_override_ignores_scattered_jitter_but_not_a_finger(rest_image):
     assert [e.resting for e in pipeline.process(events_at(25000))] == [False]
 
 
+def test_override_ignores_a_whole_gel_walked_by_flicker_but_not_a_finger_on_it(rest_image):
+    """When a flickering light has just come on, every marker's events walk its blob on its own:
+    the whole gel's blobs 0.4 px off in random directions, so many that their neighbourhood
+    medians pass the threshold too. The part of each displacement its neighbours do not share
+    (the gel's jitter) is what the shared motion must exceed; a finger's smooth 3 px bump on the
+    same walking gel still overrules the verdict."""
+    rng = np.random.default_rng(5)
+    pipeline = GesturePipeline(SENSOR, PipelineConfig())
+    pipeline.process(Frame(0, rest_image))
+    pipeline.process(events_at(1))
+    rest = pipeline.rest_px
+    angle = rng.uniform(0, 2 * np.pi, len(rest))
+    walk = 0.4 * np.stack([np.cos(angle), np.sin(angle)], axis=1)
+    pipeline.tracker.reset(rest + walk)
+    assert pipeline.resting.resting
+    # without the background, the smooth override's own count would overrule
+    d = np.concatenate([walk, np.full((1, 2), np.nan)])[pipeline._grid_neighbours]
+    moved = np.linalg.norm(np.nanmedian(d, axis=1), axis=1) > pipeline.config.motion_override_px
+    assert np.count_nonzero(moved) >= pipeline.config.override_min_markers
+    assert [e.resting for e in pipeline.process(events_at(15000))] == [True]
+    w = np.exp(-np.sum((rest - SENSOR.gel_center_px) ** 2, axis=1) / (2 * 12.0**2))
+    pipeline.tracker.reset(rest + walk + w[:, None] * [3.0, 0.0])
+    assert [e.resting for e in pipeline.process(events_at(25000))] == [False]
+
+
 def test_papers_resting_verdict_holds_until_the_next_frame(rest_image):
     pipeline = PaperPipeline(SENSOR)
     pipeline.process(Frame(0, rest_image))

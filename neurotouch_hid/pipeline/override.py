@@ -4,7 +4,14 @@ A resting verdict comes from an APS frame, up to 40 ms old at 25 Hz. When, at a 
 enough tracked markers have moved further than a threshold from rest, the window is processed as
 a gesture window. A marker counts as moved by the median of its and its nearest neighbours'
 displacements at rest (a finger moves a marker's neighbours with it; tracker jitter under a
-flickering light does not).
+flickering light does not), and only beyond the threshold plus the gel's jitter: the median, over
+the gel's markers, of the part of each marker's displacement that its neighbourhood does not share
+(its distance from that median). A finger's field is smooth over the 4 mm grid, so near it and
+far from it a marker moves as its neighbours do; a flickering light changes every marker's
+brightness at once, and the events of each change walk every blob of the gel on its own, so much
+just after the light comes on that the neighbourhood medians of a whole gel of walking blobs pass
+the threshold. On a gel whose untouched markers make no events (a steady light) the jitter is 0
+and the threshold is as given (docs/method.md, "Resting").
 """
 
 from __future__ import annotations
@@ -22,16 +29,22 @@ def overrules_rest(
     min_markers: int,
 ) -> bool:
     """Whether at least ``min_markers`` ``valid`` (N,) bool markers moved further than
-    ``threshold_px`` from rest, each by the median displacement over itself and its
-    ``neighbours`` (:func:`grid_neighbours`); ``current``, ``rest`` (N, 2) float64 px.
-    The median is taken only when the markers' own displacements would overrule (at rest nearly
-    always not, so its cost is spent on the few windows that need it)."""
+    ``threshold_px`` plus the gel's jitter from rest, each by the median displacement over itself
+    and its ``neighbours`` (:func:`grid_neighbours`); the jitter is the median over the valid
+    markers of their distances (px) from their neighbourhood's median displacement (module
+    docstring); ``current``, ``rest`` (N, 2) float64 px. The medians are taken only when the
+    markers' own displacements would overrule (at rest nearly always not, so their cost is spent
+    on the few windows that need it)."""
     threshold_sq = threshold_px * threshold_px
     if _count_moved(current, valid, rest, threshold_sq) < min_markers:
         return False
     d = np.where(valid[:, None], current - rest, np.nan)
-    d = _median_of_sorted(np.sort(np.concatenate([d, np.full((1, 2), np.nan)])[neighbours], axis=1))
-    moved = int(np.count_nonzero(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] > threshold_sq))
+    shared = _median_of_sorted(np.sort(np.concatenate([d, np.full((1, 2), np.nan)])[neighbours], axis=1))
+    own = d[valid] - shared[valid]
+    jitter = float(np.median(np.hypot(own[:, 0], own[:, 1])))
+    if jitter > 0.0:  # (exactly as given otherwise)
+        threshold_sq = (threshold_px + jitter) ** 2
+    moved = int(np.count_nonzero(shared[:, 0] * shared[:, 0] + shared[:, 1] * shared[:, 1] > threshold_sq))
     return moved >= min_markers
 
 
