@@ -60,7 +60,7 @@ from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.mapping.mapper import Mapper
 from neurotouch_hid.mapping.profile import Profile, load_profile
-from neurotouch_hid.sources import Frame, Pacer, Performed, SourceStatus, StatusKind, StreamItem
+from neurotouch_hid.sources import Frame, Pacer, Performed, SourceStatus, StatusKind, StreamItem, join_events
 from neurotouch_hid.stages import CompileProgress, Pipeline, RestingDetection, SourceStream, Subscriber, WindowRecord
 from neurotouch_hid.stages import Mapper as MapperStage
 from neurotouch_hid.stats import RunStats
@@ -197,7 +197,7 @@ class DropOldestQueue:
                     parts.append(self._items.popleft()[1])
                     n += len(parts[-1])
             self._cond.notify_all()
-        return arrival_ns, (np.concatenate(parts) if len(parts) > 1 else item)
+        return arrival_ns, (join_events(parts) if len(parts) > 1 else item)
 
     def clear(self) -> None:
         """Drop every queued item (each counted like a drop-oldest one)."""
@@ -613,7 +613,7 @@ class Runtime:
         Returns whether the run was stopped meanwhile (nothing is handed on then)."""
         if self._clock.wait(at_us, self._stop):
             return True
-        batch = held[0] if len(held) == 1 else np.concatenate(held)
+        batch = join_events(held)
         held.clear()
         self._items.put((time.perf_counter_ns(), batch))
         return False

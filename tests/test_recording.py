@@ -186,6 +186,29 @@ def test_writer_rejects_bad_data(tmp_path):
         RecordingWriter(tmp_path / "no" / "such.aedat4")
 
 
+# --- joined batches -------------------------------------------------------------------------------
+def test_join_events_is_concatenate_without_the_dtype_promotion():
+    """Batches of EVENT_DTYPE joined as their bytes are the same records as np.concatenate's; a
+    strided batch or one of another dtype goes through np.concatenate; nothing to join is refused."""
+    from neurotouch_hid.sources import join_events
+
+    rng = np.random.default_rng(0)
+    events = np.zeros(100, EVENT_DTYPE)
+    events["timestamp"] = np.sort(rng.integers(0, 10**12, 100))
+    events["x"], events["y"] = rng.integers(0, 346, 100), rng.integers(0, 260, 100)
+    events["polarity"] = rng.integers(0, 2, 100)
+    parts = [events[:7], events[7:8], events[8:8], events[8:60], events[60:]]
+    joined = join_events(parts)
+    assert joined.dtype == EVENT_DTYPE and np.array_equal(joined, np.concatenate(parts))
+    assert np.array_equal(join_events([events[::2], events[1::2]]), np.concatenate([events[::2], events[1::2]]))
+    fields = {"names": EVENT_DTYPE.names, "formats": [EVENT_DTYPE[n] for n in EVENT_DTYPE.names]}
+    padded = np.zeros(3, np.dtype({**fields, "itemsize": 16}))  # dv-processing's own records
+    assert np.array_equal(join_events([events[:2], padded]), np.concatenate([events[:2], padded]))
+    assert join_events([events]) is events
+    with pytest.raises(ValueError, match="no event batches"):
+        join_events([])
+
+
 # --- the merged stream ------------------------------------------------------------------------------
 def test_merge_stream_cuts_at_batches_and_frames():
     events = np.zeros(8, EVENT_DTYPE)

@@ -35,7 +35,7 @@ import numpy as np
 
 from neurotouch_hid.atomic import PathBeside
 from neurotouch_hid.errors import RecordingError
-from neurotouch_hid.sources import EVENT_DTYPE, Frame, Pacer, StreamItem
+from neurotouch_hid.sources import EVENT_DTYPE, Frame, Pacer, StreamItem, join_events
 from neurotouch_hid.sources.dv import DV_ERRORS, dv_error_text, store_from_events
 from neurotouch_hid.sources.packet_bounds import Unbounded, inflated_bound
 
@@ -607,7 +607,7 @@ def merge_stream(event_chunks: Iterable[np.ndarray], frames: Iterable[Frame], ba
         if final or not len(leftover):
             ev = leftover if final else chunk
         else:
-            ev = np.concatenate((leftover, chunk))
+            ev = join_events((leftover, chunk))
         ts = np.ascontiguousarray(ev["timestamp"])
         n = len(ev)
         # Frames whose preceding events are all here: the events are time-ordered, so every
@@ -764,7 +764,7 @@ class RecordingWriter:
         """Write pending events in packets of PACKET_EVENTS (all of them when ``final``)."""
         if not self._pending:
             return
-        events = np.concatenate(self._pending) if len(self._pending) > 1 else self._pending[0]
+        events = join_events(self._pending)
         stop = len(events) if final else len(events) - len(events) % PACKET_EVENTS
         try:
             for start in range(0, stop, PACKET_EVENTS):
