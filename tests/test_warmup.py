@@ -314,3 +314,33 @@ def test_a_run_that_cannot_wait_compiles_in_the_children_before_it_starts(monkey
     assert not run.compiling
     assert any("before the run starts" in line for line in said)
     assert any("compiling it in this process instead" in line for line in said)
+
+
+def test_a_settled_guard_costs_nothing_and_never_waits(monkeypatch):
+    """Once every group of a guard is settled (warm, compiled or given up: for good), a call
+    takes no lock: a run at rest pays no guard per window. Before that it takes the group's."""
+    import threading
+
+    run = warmup.Warmup([warmup.PIPELINE], say=lambda line: None)
+    monkeypatch.setattr(warmup, "cached_signatures", lambda dispatcher: [])
+    monkeypatch.setattr(run, "_child", lambda group: None)  # a compile that has not ended
+    run.start()
+    guard = run.guarded(warmup.SIMULATOR, warmup.PIPELINE)  # the simulator: not compiled here
+    entered = threading.Event()
+
+    def call():
+        with guard():
+            entered.set()
+
+    with run._locks["pipeline"]:  # the switch to compiled code, under way
+        thread = threading.Thread(target=call, daemon=True)
+        thread.start()
+        assert not entered.wait(0.3)  # a cold group's call waits for the switch
+    assert entered.wait(10)
+    thread.join(10)
+    run.close()  # the run ended first: the group given up, its names back on the compiled kernels
+    assert run.progress["pipeline"].state == "failed"
+    with run._locks["pipeline"]:  # settled: the lock is never taken again
+        with guard():
+            pass
+        assert guard() is guard()  # one shared empty context, nothing made per call
