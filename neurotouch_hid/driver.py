@@ -161,6 +161,8 @@ def build_pipeline(
     ``model``: an adapted model's values over the method's (``enrolment/model.py``; None: the
     shipped method).
     """
+    import cv2
+
     from neurotouch_hid.enrolment.model import apply_model
     from neurotouch_hid.evaluation.runner import pipeline_config
     from neurotouch_hid.pipeline.methods import pipeline_for
@@ -168,6 +170,9 @@ def build_pipeline(
     quiet = {} if filter_noise or method != "default" else {"noise": {"kind": None}}
     config = apply_model(pipeline_config(method=method, window_us=window_us, **quiet), model)
     pipeline = pipeline_for(geometry, config, detect_resting=not resting_beside)
+    # OpenCV's own pool off: the pipeline's calls are on one 346x260 APS frame or a few hundred
+    # points, too small to share out, and the pool's thread woke at every call (25 a second at rest)
+    cv2.setNumThreads(1)
     return pipeline, (PipelineResting(pipeline) if resting_beside else None)
 
 

@@ -529,3 +529,20 @@ def test_the_pacer_maps_camera_time_onto_wall_time_from_its_first_item():
     assert clock.wait(4_000_000, stop) is False  # already due: no wait, not stopped
     stop.set()
     assert clock.wait(5_000_000 + 3_600_000_000, stop) is True  # an hour ahead: the stop ends the wait
+
+
+def test_the_run_s_pipeline_runs_opencv_without_its_thread_pool():
+    """A run's pipeline calls OpenCV on one APS frame or a few hundred points at a time: its
+    pool's thread, woken at every call, cost more than it shared out (25 times a second at rest)."""
+    import cv2
+
+    from neurotouch_hid.driver import build_pipeline
+    from neurotouch_hid.sensor import SensorGeometry
+
+    previous = cv2.getNumThreads()
+    cv2.setNumThreads(2)
+    try:
+        build_pipeline(SensorGeometry(), 10_000)
+        assert cv2.getNumThreads() == 1
+    finally:
+        cv2.setNumThreads(previous)
