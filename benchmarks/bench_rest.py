@@ -13,6 +13,13 @@ between them, is the steady state's share of a core: the start (imports, loading
 pipeline, the first frame's markers) cancels out. Peak resident memory is the child's
 ``ru_maxrss``, the larger of the two runs. ``--repeat N`` runs each N times, interleaved, and
 prints every pair and the median.
+
+``--work``: also the stages' own CPU at rest, without the runtime's threads: the same recording's
+items as the runtime hands them at rest (a window's event batches joined, APS frames between
+them), through the pipeline, its resting detector and the default profile's mapper in this
+thread, once back to back ("hot") and once with ``--gap-ms`` of sleep after each item, as the
+driver idles between windows ("spread"), CPU of this thread per window and as a share of a core
+at 100 windows a second, and what as many sleeps alone cost.
 """
 
 from __future__ import annotations
@@ -66,12 +73,76 @@ def measure(recording: Path, seconds: float) -> dict[str, float]:
     return {"cpu": usage.ru_utime + usage.ru_stime, "rss_mib": usage.ru_maxrss / 1024, "wall": wall}
 
 
+def rest_items(recording: Path, window_us: int = 10_000) -> list:
+    """The recording's items as a paced run hands them on at rest: each window's 1 ms event
+    batches joined into one (``runtime.REST_WAKE_AFTER_END_US``), APS frames in time order."""
+    from neurotouch_hid.sources import Frame, join_events
+    from neurotouch_hid.sources.recording import RecordingReader
+
+    items, held = [], []
+    for item in RecordingReader(recording).stream(1000):
+        if isinstance(item, Frame):
+            items += [join_events(held), item] if held else [item]
+            held = []
+            continue
+        held.append(item)
+        if int(item["timestamp"][-1]) // window_us != (int(item["timestamp"][-1]) + 1000) // window_us:
+            items.append(join_events(held))
+            held = []
+    return items
+
+
+def measure_work(recording: Path, gap_s: float) -> dict[str, float]:
+    """The stages' CPU (this thread's, s) per window at rest, hot and with ``gap_s`` of sleep
+    after each item, each on its own 10 s of the recording after its first 5 s (the stages warmed
+    up on those)."""
+    from neurotouch_hid.driver import build_pipeline
+    from neurotouch_hid.mapping.mapper import Mapper
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.sensor import SensorGeometry
+    from neurotouch_hid.sources import Frame
+    from neurotouch_hid.warmup import compile_pipeline
+
+    compile_pipeline()
+    items = rest_items(recording)
+    pipeline, resting = build_pipeline(SensorGeometry.load(recording.parent / "sensor.yaml"), 10_000)
+    mapper = Mapper(load_profile("default"))
+
+    def run(part: list, gap: float) -> tuple[int, float]:
+        windows, begin = 0, time.thread_time()
+        for item in part:
+            if isinstance(item, Frame):
+                verdict = resting.update(item)
+                if verdict is not None:
+                    pipeline.set_resting(verdict, item.t_us)
+            for estimate in pipeline.process(item):
+                mapper.update(estimate)
+                windows += 1
+            if gap:
+                time.sleep(gap)
+        return windows, time.thread_time() - begin
+
+    part = len(items) // 9  # ~5 s of the 45: the warm-up, then 10 s hot, then 10 s spread
+    run(items[:part], 0.0)
+    out = {}
+    for k, (name, gap) in enumerate((("hot", 0.0), ("spread", gap_s))):
+        windows, cpu = run(items[(1 + 2 * k) * part : (3 + 2 * k) * part], gap)  # time goes on
+        out[name] = cpu / windows
+    begin = time.thread_time()
+    for _ in range(2 * part):  # the sleeps alone, as many
+        time.sleep(gap_s)
+    out["sleeps"] = (time.thread_time() - begin) / windows
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--workdir", type=Path, default=None, help="keep the recording here")
     ap.add_argument("--short", type=float, default=10.0, help="the short run (s)")
     ap.add_argument("--long", type=float, default=40.0, help="the long run (s)")
     ap.add_argument("--repeat", type=int, default=1, help="pairs of runs")
+    ap.add_argument("--work", action="store_true", help="also the stages' own CPU, hot and spread")
+    ap.add_argument("--gap-ms", type=float, default=8.0, help="--work: sleep after each item (ms)")
     args = ap.parse_args()
     if not 0 < args.short < args.long <= RECORDING_S:
         sys.exit(f"bench_rest.py: expected 0 < --short < --long <= {RECORDING_S:g}")
@@ -96,6 +167,15 @@ def main() -> None:
         f"peak RSS {max(peaks):.0f} MiB",
         flush=True,
     )
+    if args.work:
+        work = measure_work(recording, args.gap_ms / 1e3)
+        print(
+            f"the stages alone, one thread: hot {work['hot'] * 1e6:.0f} us a window "
+            f"({100 * work['hot'] * 100:.2f} % of a core at 100 windows/s); spread ({args.gap_ms:g} ms of "
+            f"sleep after each item) {work['spread'] * 1e6:.0f} us ({100 * work['spread'] * 100:.2f} %), "
+            f"x{work['spread'] / work['hot']:.1f}, of which the sleeps themselves {work['sleeps'] * 1e6:.0f} us",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":
