@@ -303,6 +303,7 @@ class Mapper:
         #: the last state, while the mapper rests at its fixed point (:meth:`_quiet_after`): a
         #: resting estimate then gives that state again, only its time and the clocks move
         self._quiet: ControllerState | None = None
+        self._quiet_us: int | None = None  # the last resting window's time at the fixed point
         self._filters = {name: _filter_for(m.smoothing) for name, m in mappings.items()}
         self._activators = {name: Activator.of(m) for name, m in mappings.items() if isinstance(m, ButtonMapping)}
         self._pointer = {"REL_X": RelMotion(), "REL_Y": RelMotion()}
@@ -369,6 +370,7 @@ class Mapper:
         t_us = int(estimate.t_us)
         if estimate.resting and self._quiet is not None:
             return self._rest_again(t_us)
+        self._wake_clocks()
         self._quiet = None
         inputs = gesture_inputs(estimate)
         layer = self._current_layer(inputs, t_us)
@@ -456,15 +458,24 @@ class Mapper:
         return [*self._switch_filters.values(), *layer]
 
     def _rest_again(self, t_us: int) -> ControllerState:
-        """:meth:`update` of a resting estimate at the fixed point: the kept state at ``t_us``;
-        the filters', pointer's and wheels' clocks move on as the full update moves them."""
+        """:meth:`update` of a resting estimate at the fixed point: the kept state at ``t_us``.
+        The clocks (filters, pointer, wheels) are not moved here, only noted: a zero sample moves
+        nothing else, so moving them once to the last resting time when the rest ends
+        (:meth:`_wake_clocks`) gives what moving them every window gives."""
+        self._quiet_us = t_us
+        last = self._quiet
+        return ControllerState(t_us=t_us, axes=dict(last.axes), buttons=dict(last.buttons), keys=last.keys, rel={})
+
+    def _wake_clocks(self) -> None:
+        """The rest at the fixed point ends: its clocks moved on to the last resting window."""
+        t_us, self._quiet_us = self._quiet_us, None
+        if t_us is None:
+            return
         for f in self._called_filters():
             if f is not None:
                 f.tick(t_us)
         for motion in (*self._pointer.values(), *(w.motion for w in self._wheels.values())):
             motion.step(0.0, t_us)
-        last = self._quiet
-        return ControllerState(t_us=t_us, axes=dict(last.axes), buttons=dict(last.buttons), keys=last.keys, rel={})
 
 
 def _shape(mapping: StickMapping | AxisMapping | PointerMapping | RelMapping, magnitude_mm: float) -> float:
