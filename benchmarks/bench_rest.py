@@ -20,6 +20,12 @@ them), through the pipeline, its resting detector and the default profile's mapp
 thread, once back to back ("hot") and once with ``--gap-ms`` of sleep after each item, as the
 driver idles between windows ("spread"), CPU of this thread per window and as a share of a core
 at 100 windows a second, and what as many sleeps alone cost.
+
+``--wakes``: also what this machine charges for waking a thread, with no work at all: one thread
+sleeping to a deadline every 10 ms (``threading.Event.wait``, as the paced source waits), and one
+thread waking another every 10 ms through a ``threading.Condition`` (as the source hands a window
+to the pipeline's thread), CPU of the process per wake and as a share of a core at 100 a second:
+the floor under a driver that wakes once or twice per window.
 """
 
 from __future__ import annotations
@@ -135,6 +141,49 @@ def measure_work(recording: Path, gap_s: float) -> dict[str, float]:
     return out
 
 
+def measure_wakes(n: int = 1000, period_s: float = 0.01) -> dict[str, float]:
+    """CPU s of the process per wake-up with no work: ``sleep``, one thread waking at ``n``
+    deadlines ``period_s`` apart; ``handoff``, a second thread woken at each one through a
+    ``threading.Condition`` (both threads' CPU)."""
+    import threading
+    from collections import deque
+
+    stop = threading.Event()
+
+    def paced(each) -> None:
+        t0 = time.perf_counter()
+        for k in range(n):
+            delay = t0 + (k + 1) * period_s - time.perf_counter()
+            if delay > 0:
+                stop.wait(delay)
+            each(k)
+
+    begin = time.process_time()
+    paced(lambda k: None)
+    out = {"sleep": (time.process_time() - begin) / n}
+    cond, items = threading.Condition(), deque()
+
+    def hand(k) -> None:
+        with cond:
+            items.append(k)
+            cond.notify()
+
+    def take() -> None:
+        for _ in range(n):
+            with cond:
+                while not items:
+                    cond.wait()
+                items.popleft()
+
+    taker = threading.Thread(target=take)
+    begin = time.process_time()
+    taker.start()
+    paced(hand)
+    taker.join()
+    out["handoff"] = (time.process_time() - begin) / n
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--workdir", type=Path, default=None, help="keep the recording here")
@@ -143,6 +192,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=1, help="pairs of runs")
     ap.add_argument("--work", action="store_true", help="also the stages' own CPU, hot and spread")
     ap.add_argument("--gap-ms", type=float, default=8.0, help="--work: sleep after each item (ms)")
+    ap.add_argument("--wakes", action="store_true", help="also the CPU of a wake-up with no work")
     args = ap.parse_args()
     if not 0 < args.short < args.long <= RECORDING_S:
         sys.exit(f"bench_rest.py: expected 0 < --short < --long <= {RECORDING_S:g}")
@@ -174,6 +224,14 @@ def main() -> None:
             f"({100 * work['hot'] * 100:.2f} % of a core at 100 windows/s); spread ({args.gap_ms:g} ms of "
             f"sleep after each item) {work['spread'] * 1e6:.0f} us ({100 * work['spread'] * 100:.2f} %), "
             f"x{work['spread'] / work['hot']:.1f}, of which the sleeps themselves {work['sleeps'] * 1e6:.0f} us",
+            flush=True,
+        )
+    if args.wakes:
+        wakes = measure_wakes()
+        print(
+            f"a wake-up with no work: one thread {wakes['sleep'] * 1e6:.0f} us "
+            f"({100 * wakes['sleep'] * 100:.2f} % of a core at 100 a second); one thread waking another "
+            f"{wakes['handoff'] * 1e6:.0f} us ({100 * wakes['handoff'] * 100:.2f} %)",
             flush=True,
         )
 
