@@ -301,7 +301,7 @@ class Mapper:
     def _fresh_mappings(self) -> None:
         mappings = self.profile.mappings
         #: the last state, while the mapper rests at its fixed point (:meth:`_quiet_after`): a
-        #: resting estimate then gives that state again, only its time and the clocks move
+        #: resting estimate then gives that state again at its own time
         self._quiet: ControllerState | None = None
         self._quiet_us: int | None = None  # the last resting window's time at the fixed point
         self._filters = {name: _filter_for(m.smoothing) for name, m in mappings.items()}
@@ -364,8 +364,9 @@ class Mapper:
 
         A resting gel costs next to nothing: once a resting estimate left the mapper at its fixed
         point (nothing held, every filter at exactly zero, no motion), the next resting estimate
-        gives the same state at its own time and moves only the clocks (filters, pointer and
-        wheels), which is what the full computation would do (tests/test_mapper.py compares them).
+        gives the same state at its own time; the clocks (filters, pointer and wheels) move once,
+        to the last resting window, when the rest ends. That is what the full computation would
+        do (tests/test_mapper.py compares them).
         """
         t_us = int(estimate.t_us)
         if estimate.resting and self._quiet is not None:
