@@ -161,6 +161,16 @@ def compile_pipeline(method: str = "default") -> None:
     METHODS[method][1](SensorGeometry()).compile_kernels()
 
 
+def compile_before(say: Callable[[str], None], method: str = "default", *, simulator: bool = False) -> None:
+    """Before a command that runs the ``method``'s pipeline from its first item and does not
+    interpret it (``track``, ``enrol``, ``calibrate``): the cold kernel groups (the simulated
+    gel's too with ``simulator``) compiled by child processes, on both cores, saying so
+    (:data:`COMPILING`, :data:`COMPILE_COST`) and when it is done, as a run from the camera does;
+    the warm ones loaded from numba's cache, saying nothing."""
+    groups = [SIMULATOR, *PIPELINE_OF[method]] if simulator else list(PIPELINE_OF[method])
+    Warmup(groups, say=say, interpreted=False).start().close()
+
+
 def compile_tracker() -> None:
     """The tracker group's warm-up: the per-event part of :func:`compile_pipeline`
     (:meth:`GesturePipeline.compile_tracker_kernels`), for both methods."""

@@ -344,3 +344,42 @@ def test_a_settled_guard_costs_nothing_and_never_waits(monkeypatch):
         with guard():
             pass
         assert guard() is guard()  # one shared empty context, nothing made per call
+
+
+@pytest.mark.parametrize("command", ["track", "enrol --from"])
+def test_a_command_that_runs_the_pipeline_at_once_has_a_cold_cache_compiled_by_the_children_and_says_so(
+    command, sim_push_only_recording, tmp_path, monkeypatch, capsys
+):
+    """``track`` and ``enrol --from`` (like ``calibrate`` and ``enrol``) cannot interpret the
+    pipeline: on a cold cache they wait for the same children as a camera run (both cores), and
+    say so on stderr before anything else, instead of compiling in this process in silence."""
+    from neurotouch_hid.cli import main
+
+    children: list[str] = []
+
+    def child(run, group):
+        children.append(group.name)
+        run.progress[group.name].state = "ready"
+        run._settled[group.name].set()
+
+    monkeypatch.setattr(warmup, "cached_signatures", lambda dispatcher: [])  # every group cold
+    user_cache = warmup.jit_cache.JitCache(warmup.jit_cache.USER_CACHE, None)
+    monkeypatch.setattr(warmup.jit_cache, "chosen", lambda: user_cache)
+    monkeypatch.setattr(warmup.Warmup, "_child", child)
+    if command == "track":
+        args = ["track", str(sim_push_only_recording), "--out", str(tmp_path / "p.jsonl")]
+    else:
+        plan = tmp_path / "plan.json"
+        plan.write_text('{"prompts": [{"gesture": "push", "cue_s": 1.0, "seconds": 1.0}]}')
+        args = ["enrol", "--from", str(sim_push_only_recording), "--plan", str(plan), "--out", str(tmp_path / "d")]
+    monkeypatch.setattr(sys, "argv", ["neurotouch-hid", *args])
+    capsys.readouterr()
+    try:
+        main()
+        code = 0
+    except SystemExit as exc:
+        code = exc.code or 0
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert sorted(children) == ["pipeline", "tracker"]
+    assert err.startswith(f"{warmup.COMPILING}: before the run starts"), err

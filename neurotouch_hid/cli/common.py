@@ -18,6 +18,12 @@ console = make_console()
 err_console = make_console(stderr=True)
 
 
+def say_err(line: str) -> None:
+    """One line for the user on stderr, exactly as given: no markup, no highlighting, never
+    wrapped (a pipe or a file gets the whole line)."""
+    err_console.print(line, markup=False, highlight=False, soft_wrap=True)
+
+
 def finite(value: Optional[float]) -> Optional[float]:
     """Every float option: ``nan`` and ``inf`` are usage errors (exit 2, the option named), not a
     traceback later on."""

@@ -23,6 +23,7 @@ from neurotouch_hid.cli.common import (
     duration,
     err_console,
     finite,
+    say_err,
 )
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.kinds import OutputKind, SourceKind
@@ -95,7 +96,7 @@ def run(
         console=console,
         wait=wait,
         davis=davis_config(serial, exposure_us, stall_timeout),
-        say=lambda line: err_console.print(line, markup=False, highlight=False, soft_wrap=True),
+        say=say_err,
         max_lag_us=round(max_lag_ms * 1000),
         method=method,
         model=chosen_model(model),
@@ -116,7 +117,7 @@ def demo(
     stats = run_demo(
         seconds,
         console=console,
-        say=lambda line: err_console.print(line, markup=False, highlight=False, soft_wrap=True),
+        say=say_err,
     )
     err_console.print(stats.summary(), highlight=False, soft_wrap=True)
 
@@ -306,8 +307,9 @@ def calibrate(
             "guided pushes): give both or neither"
         )
     if source in (SourceKind.DAVIS, SourceKind.SIM) and (check or mirror is None):
-        from neurotouch_hid.warmup import compile_pipeline  # the guided pushes and the check use it
+        from neurotouch_hid.warmup import compile_before, compile_pipeline  # the guided pushes and the check use it
 
+        compile_before(say_err, simulator=source == SourceKind.SIM)  # a first run: compiled in child processes, said
         err_console.print("loading the gesture pipeline (compiled on the first run only)", highlight=False)
         compile_pipeline()  # before the camera opens: nothing of the guided gestures waits for it
     with contextlib.ExitStack() as stack:

@@ -13,7 +13,7 @@ from typing import Optional
 
 import typer
 
-from neurotouch_hid.cli.common import console, err_console, long_lived_start_up
+from neurotouch_hid.cli.common import console, err_console, long_lived_start_up, say_err
 from neurotouch_hid.errors import NeurotouchError
 
 app = typer.Typer()
@@ -93,6 +93,7 @@ def _session(plan, source, out, sensor, seed, serial, physics, sim_miss, sim_mis
         from neurotouch_hid.enrolment.session import CameraSource, SimulatedHandSource, enrolment_folder, run_session
         from neurotouch_hid.pipeline.pipeline import GesturePipeline
         from neurotouch_hid.sensor import SensorGeometry, default_sensor
+        from neurotouch_hid.warmup import compile_before
 
         if source == "sim":
             if sensor is not None:
@@ -104,6 +105,7 @@ def _session(plan, source, out, sensor, seed, serial, physics, sim_miss, sim_mis
 
             geometry = SensorGeometry.load(sensor) if sensor is not None else default_sensor()
             guide = CameraSource(davis_config(serial, "4000", 1.0))
+        compile_before(say_err, simulator=source == "sim")  # a first run: compiled in child processes, said
         GesturePipeline(geometry).compile_kernels()  # before the camera opens: nothing waits for it
     folder = out if out is not None else enrolment_folder()
     stop = threading.Event()
@@ -138,8 +140,10 @@ def _label(recording: Path, plan_path: Optional[Path], plan, out: Optional[Path]
         from neurotouch_hid.pipeline.pipeline import GesturePipeline
         from neurotouch_hid.sensor import find_sensor_file
         from neurotouch_hid.track import recording_progress
+        from neurotouch_hid.warmup import compile_before
 
         geometry = find_sensor_file(recording, sensor)
+        compile_before(say_err)  # a first run: compiled in child processes, said
         GesturePipeline(geometry).compile_kernels()
     beside = recording.with_name("sensor.yaml")
     inputs = [plan_path, sensor if sensor is not None else beside]
@@ -203,10 +207,7 @@ def adapt(
 
     target = check_output(out if out is not None else user_model_path(), datasets)
 
-    def say(line: str) -> None:
-        err_console.print(line, highlight=False, soft_wrap=True, markup=False)
-
-    records = record_datasets(datasets, jobs=jobs, on_sequence=lambda name: say(f"recorded {name}"))
+    records = record_datasets(datasets, jobs=jobs, on_sequence=lambda name: say_err(f"recorded {name}"))
     adaptation = fit(records, rerun=lambda config: record_datasets(datasets, jobs=jobs, config=config))
     for line in summary(adaptation):
         console.print(line, highlight=False, soft_wrap=True, markup=False)

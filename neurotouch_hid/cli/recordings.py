@@ -22,6 +22,7 @@ from neurotouch_hid.cli.common import (
     err_console,
     finite,
     long_lived_start_up,
+    say_err,
 )
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.kinds import SourceKind
@@ -234,10 +235,12 @@ def track(
         from neurotouch_hid.pipeline.methods import pipeline_for
         from neurotouch_hid.sensor import chosen_sensor_file, find_sensor_file
         from neurotouch_hid.track import recording_progress, sensor_label, track_recording
+        from neurotouch_hid.warmup import compile_before
 
         config = apply_model(pipeline_config(method=method, window_us=window_us), chosen_model(model))
         sensor_file = chosen_sensor_file(recording, sensor)
         geometry = find_sensor_file(recording, sensor)
+        compile_before(say_err, method)  # a first run: compiled in child processes, said
         pipeline_for(geometry, config).compile_kernels()  # numba's cached code, loaded now
     with recording_progress(err_console, "tracking") as report:
         summary = track_recording(
