@@ -50,7 +50,7 @@ from typing import TYPE_CHECKING, Callable, ContextManager, Iterable, Iterator, 
 
 import numpy as np
 
-from neurotouch_hid import jit_cache
+from neurotouch_hid import jit_cache, resident
 from neurotouch_hid.stages import CompileProgress
 
 if TYPE_CHECKING:
@@ -374,7 +374,8 @@ class Warmup:
             found = kernels(group)
             if not any(not cached_signatures(d) for d in found.values()):
                 if group.load_when_warm:
-                    _call(group.warm)
+                    with _releasing_file_pages():
+                        _call(group.warm)
                 self._settled[group.name].set()
                 continue
             self._kernels[group.name] = found
@@ -593,6 +594,32 @@ def _on_each_compiled(group_kernels: dict[str, object], on_kernel: Callable[[str
                 on_kernel(name)
 
     return event.install_listener("numba:compile", Reporting())
+
+
+@contextlib.contextmanager
+def _releasing_file_pages() -> Iterator[None]:
+    """A context that releases the process's clean file pages (:func:`resident.release_file_pages`)
+    at its start, once numba has loaded its first kernel from the cache, and at its end: numba's
+    set-up at the first kernel reads ~50 MB of LLVM's library, the other kernels ~15 MB more, and
+    the loaded kernels never read it again; released as they go, they do not add up."""
+    from numba.core import event
+    from numba.core.compiler_lock import global_compiler_lock
+
+    class FirstLoaded(event.Listener):
+        done = False
+
+        def on_start(self, ev):
+            pass
+
+        def on_end(self, ev):
+            if not self.done and not global_compiler_lock.is_locked():  # the outermost: loaded
+                self.done = True
+                resident.release_file_pages()
+
+    resident.release_file_pages()
+    with event.install_listener("numba:compiler_lock", FirstLoaded()):
+        yield
+    resident.release_file_pages()
 
 
 def _call(spec: str) -> None:
