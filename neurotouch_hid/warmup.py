@@ -46,7 +46,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Callable, ContextManager, Iterable, Iterator, TypeVar
+from typing import TYPE_CHECKING, Callable, ContextManager, Iterable, Iterator, Literal, TypeVar
 
 import numpy as np
 
@@ -79,8 +79,12 @@ class KernelGroup:
         packages: module-name prefixes whose numba kernels belong to the group.
         warm: ``"module:function"`` run by the child: calls every kernel of the group with the
             argument types a run gives them, so numba compiles and caches them.
-        load_when_warm: on a warm cache, run ``warm`` in the run's process before it starts (it
-            loads the cached code, ~2 s, which the first window would otherwise wait for).
+        load_when_warm: on a warm cache, how the run's process loads the group's cached code
+            before it starts (~2 s for the pipeline, which the first window would otherwise wait
+            for): ``"call"`` runs ``warm`` (the signatures a run calls: the pipeline's cache also
+            holds other commands'), ``"cache"`` loads every signature numba's cache holds (the
+            simulator's: one a kernel). Either releases the mapped files' pages as it loads
+            (:func:`_releasing_file_pages`).
         only: when given, the group's kernels are these (``module.name``) alone.
         excludes: kernels (``module.name``) left to another group.
         background: in a run that goes on while it compiles, the child starts once the other
@@ -94,7 +98,7 @@ class KernelGroup:
     imports: str
     packages: tuple[str, ...]
     warm: str
-    load_when_warm: bool = False
+    load_when_warm: Literal["call", "cache"] = "cache"
     only: tuple[str, ...] = ()
     excludes: tuple[str, ...] = ()
     background: bool = False
@@ -116,7 +120,7 @@ TRACKER = KernelGroup(
     "neurotouch_hid.pipeline.methods",
     ("neurotouch_hid.pipeline.",),
     "neurotouch_hid.warmup:compile_tracker",
-    load_when_warm=True,
+    load_when_warm="call",
     only=TRACKER_KERNELS,
     waits=True,  # ~3 s of CPU to compile; interpreted, ~2 s a second of events
 )
@@ -125,7 +129,7 @@ PIPELINE = KernelGroup(
     "neurotouch_hid.pipeline.methods",
     ("neurotouch_hid.pipeline.",),
     "neurotouch_hid.warmup:compile_windows",
-    load_when_warm=True,
+    load_when_warm="call",
     excludes=TRACKER_KERNELS,
     background=True,
 )
@@ -141,7 +145,7 @@ PAPER_PIPELINE = KernelGroup(
     "neurotouch_hid.pipeline.methods",
     ("neurotouch_hid.pipeline.",),
     "neurotouch_hid.warmup:compile_paper_windows",
-    load_when_warm=True,
+    load_when_warm="call",
     excludes=TRACKER_KERNELS,
     background=True,
 )
@@ -373,9 +377,11 @@ class Warmup:
         for group in self._groups:
             found = kernels(group)
             if not any(not cached_signatures(d) for d in found.values()):
-                if group.load_when_warm:
-                    with _releasing_file_pages():
+                with _releasing_file_pages():
+                    if group.load_when_warm == "call":
                         _call(group.warm)
+                    else:
+                        _load_cached(found)
                 self._settled[group.name].set()
                 continue
             self._kernels[group.name] = found
@@ -496,10 +502,7 @@ class Warmup:
             return
         progress.state = "loading"
         group_kernels = self._kernels[group.name]
-        for dispatcher in group_kernels.values():
-            for signature in cached_signatures(dispatcher):
-                with contextlib.suppress(Exception):  # an entry it cannot load: compiled on first call
-                    dispatcher.compile(signature)
+        _load_cached(group_kernels)
         with self._locks[group.name]:
             compiled(group_kernels)
             progress.state = "ready"
@@ -620,6 +623,15 @@ def _releasing_file_pages() -> Iterator[None]:
     with event.install_listener("numba:compiler_lock", FirstLoaded()):
         yield
     resident.release_file_pages()
+
+
+def _load_cached(group_kernels: dict[str, object]) -> None:
+    """Load every signature numba's cache holds for these kernels (``Dispatcher.compile``, a cache
+    hit); one it cannot load is compiled at its first call."""
+    for dispatcher in group_kernels.values():
+        for signature in cached_signatures(dispatcher):
+            with contextlib.suppress(Exception):
+                dispatcher.compile(signature)
 
 
 def _call(spec: str) -> None:

@@ -66,3 +66,17 @@ def test_loading_the_warm_pipeline_releases_the_pages_before_after_its_first_ker
     monkeypatch.setattr(warmup, "cached_signatures", lambda dispatcher: ["a signature"])
     warmup.Warmup([warmup.TRACKER], say=lambda line: None, interpreted=False).start()
     assert calls == ["released", "loading", "first", "released", "second", "released"]
+
+
+def test_a_warm_simulator_is_loaded_from_the_cache_before_the_run_starts_its_pages_released(monkeypatch):
+    """Its kernels' cached code is loaded at the start, not at the simulated gel's first chunk
+    (after the pipeline's pages were released: LLVM's would be read again and kept)."""
+    calls: list[str] = []
+    loaded: list[object] = []
+    monkeypatch.setattr(warmup.resident, "release_file_pages", lambda: calls.append("released") or 0)
+    monkeypatch.setattr(warmup, "cached_signatures", lambda dispatcher: ["a signature"])
+    monkeypatch.setattr(warmup, "_load_cached", lambda found: loaded.extend(found) or calls.append("loaded"))
+    monkeypatch.setattr(warmup, "_call", lambda spec: pytest.fail("the simulator is not simulated to load"))
+    warmup.Warmup([warmup.SIMULATOR], say=lambda line: None).start()
+    assert sorted(loaded) == sorted(warmup.kernels(warmup.SIMULATOR)) and loaded
+    assert calls == ["released", "loaded", "released"]
