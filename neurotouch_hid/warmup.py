@@ -46,11 +46,11 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Callable, ContextManager, Iterable, Iterator, TypeVar
+from typing import TYPE_CHECKING, Callable, ContextManager, Iterable, Iterator, Literal, TypeVar
 
 import numpy as np
 
-from neurotouch_hid import jit_cache
+from neurotouch_hid import jit_cache, resident
 from neurotouch_hid.stages import CompileProgress
 
 if TYPE_CHECKING:
@@ -79,8 +79,12 @@ class KernelGroup:
         packages: module-name prefixes whose numba kernels belong to the group.
         warm: ``"module:function"`` run by the child: calls every kernel of the group with the
             argument types a run gives them, so numba compiles and caches them.
-        load_when_warm: on a warm cache, run ``warm`` in the run's process before it starts (it
-            loads the cached code, ~2 s, which the first window would otherwise wait for).
+        load_when_warm: on a warm cache, how the run's process loads the group's cached code
+            before it starts (~2 s for the pipeline, which the first window would otherwise wait
+            for): ``"call"`` runs ``warm`` (the signatures a run calls: the pipeline's cache also
+            holds other commands'), ``"cache"`` loads every signature numba's cache holds (the
+            simulator's: one a kernel). Either releases the mapped files' pages as it loads
+            (:func:`_releasing_file_pages`).
         only: when given, the group's kernels are these (``module.name``) alone.
         excludes: kernels (``module.name``) left to another group.
         background: in a run that goes on while it compiles, the child starts once the other
@@ -94,7 +98,7 @@ class KernelGroup:
     imports: str
     packages: tuple[str, ...]
     warm: str
-    load_when_warm: bool = False
+    load_when_warm: Literal["call", "cache"] = "cache"
     only: tuple[str, ...] = ()
     excludes: tuple[str, ...] = ()
     background: bool = False
@@ -116,7 +120,7 @@ TRACKER = KernelGroup(
     "neurotouch_hid.pipeline.methods",
     ("neurotouch_hid.pipeline.",),
     "neurotouch_hid.warmup:compile_tracker",
-    load_when_warm=True,
+    load_when_warm="call",
     only=TRACKER_KERNELS,
     waits=True,  # ~3 s of CPU to compile; interpreted, ~2 s a second of events
 )
@@ -125,7 +129,7 @@ PIPELINE = KernelGroup(
     "neurotouch_hid.pipeline.methods",
     ("neurotouch_hid.pipeline.",),
     "neurotouch_hid.warmup:compile_windows",
-    load_when_warm=True,
+    load_when_warm="call",
     excludes=TRACKER_KERNELS,
     background=True,
 )
@@ -141,7 +145,7 @@ PAPER_PIPELINE = KernelGroup(
     "neurotouch_hid.pipeline.methods",
     ("neurotouch_hid.pipeline.",),
     "neurotouch_hid.warmup:compile_paper_windows",
-    load_when_warm=True,
+    load_when_warm="call",
     excludes=TRACKER_KERNELS,
     background=True,
 )
@@ -383,8 +387,11 @@ class Warmup:
         for group in self._groups:
             found = kernels(group)
             if not any(not cached_signatures(d) for d in found.values()):
-                if group.load_when_warm:
-                    _call(group.warm)
+                with _releasing_file_pages():
+                    if group.load_when_warm == "call":
+                        _call(group.warm)
+                    else:
+                        _load_cached(found)
                 self._settled[group.name].set()
                 continue
             self._kernels[group.name] = found
@@ -505,10 +512,7 @@ class Warmup:
             return
         progress.state = "loading"
         group_kernels = self._kernels[group.name]
-        for dispatcher in group_kernels.values():
-            for signature in cached_signatures(dispatcher):
-                with contextlib.suppress(Exception):  # an entry it cannot load: compiled on first call
-                    dispatcher.compile(signature)
+        _load_cached(group_kernels)
         with self._locks[group.name]:
             compiled(group_kernels)
             progress.state = "ready"
@@ -603,6 +607,41 @@ def _on_each_compiled(group_kernels: dict[str, object], on_kernel: Callable[[str
                 on_kernel(name)
 
     return event.install_listener("numba:compile", Reporting())
+
+
+@contextlib.contextmanager
+def _releasing_file_pages() -> Iterator[None]:
+    """A context that releases the process's clean file pages (:func:`resident.release_file_pages`)
+    at its start, once numba has loaded its first kernel from the cache, and at its end: numba's
+    set-up at the first kernel reads ~50 MB of LLVM's library, the other kernels ~15 MB more, and
+    the loaded kernels never read it again; released as they go, they do not add up."""
+    from numba.core import event
+    from numba.core.compiler_lock import global_compiler_lock
+
+    class FirstLoaded(event.Listener):
+        done = False
+
+        def on_start(self, ev):
+            pass
+
+        def on_end(self, ev):
+            if not self.done and not global_compiler_lock.is_locked():  # the outermost: loaded
+                self.done = True
+                resident.release_file_pages()
+
+    resident.release_file_pages()
+    with event.install_listener("numba:compiler_lock", FirstLoaded()):
+        yield
+    resident.release_file_pages()
+
+
+def _load_cached(group_kernels: dict[str, object]) -> None:
+    """Load every signature numba's cache holds for these kernels (``Dispatcher.compile``, a cache
+    hit); one it cannot load is compiled at its first call."""
+    for dispatcher in group_kernels.values():
+        for signature in cached_signatures(dispatcher):
+            with contextlib.suppress(Exception):
+                dispatcher.compile(signature)
 
 
 def _call(spec: str) -> None:
