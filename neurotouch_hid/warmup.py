@@ -170,9 +170,11 @@ def compile_before(say: Callable[[str], None], method: str = "default", *, simul
     interpret it (``track``, ``enrol``, ``calibrate``): the cold kernel groups (the simulated
     gel's too with ``simulator``) compiled by child processes, on both cores, saying so
     (:data:`COMPILING`, :data:`COMPILE_COST`) and when it is done, as a run from the camera does;
-    the warm ones loaded from numba's cache, saying nothing."""
+    nothing done on a warm cache (the command loads the kernels it calls)."""
     groups = [SIMULATOR, *PIPELINE_OF[method]] if simulator else list(PIPELINE_OF[method])
-    Warmup(groups, say=say, interpreted=False).start().close()
+    cold = [group for group in groups if any(not cached_signatures(d) for d in kernels(group).values())]
+    if cold:
+        Warmup(cold, say=say, interpreted=False).start().close()
 
 
 def compile_tracker() -> None:
