@@ -21,6 +21,8 @@ import functools
 import mmap
 import sys
 
+from neurotouch_hid.limits import read_proc_file
+
 
 def release_file_pages() -> int:
     """Unmap the resident pages of the process's file mappings that are copies of the file: the
@@ -42,28 +44,33 @@ def release_file_pages() -> int:
     return released
 
 
+#: At most this much of ``/proc/self/smaps`` is read (~1 KiB a mapping; a run has ~1 000).
+MAX_SMAPS_BYTES = 16 * 1024 * 1024
+
+
 def _clean_file_mappings() -> list[tuple[int, int, int]]:
     """(start, end, resident bytes) of the read-only file mappings without anonymous pages, from
-    ``/proc/self/smaps``; [] when it cannot be read."""
-    found, current = [], None
+    ``/proc/self/smaps`` read bounded (:func:`~neurotouch_hid.limits.read_proc_file`); a mapping
+    whose ``Anonymous:`` line was not read (past the bound) is left out; [] when it cannot be read."""
     try:
-        with open("/proc/self/smaps", encoding="ascii", errors="replace") as smaps:
-            for line in smaps:
-                fields = line.split()
-                if not fields:
-                    continue
-                if not fields[0].endswith(":"):  # a mapping's first line: range, flags, ..., path
-                    current = None
-                    if len(fields) >= 6 and fields[5].startswith("/") and "w" not in fields[1]:
-                        start, end = (int(x, 16) for x in fields[0].split("-"))
-                        current = [start, end, 0, 0]
-                        found.append(current)
-                elif current is not None and fields[0] == "Rss:":
-                    current[2] = int(fields[1]) * 1024
-                elif current is not None and fields[0] == "Anonymous:":
-                    current[3] = int(fields[1])
+        data, _ = read_proc_file("/proc/self/smaps", MAX_SMAPS_BYTES)
     except OSError:
         return []
+    found, current = [], None
+    for line in data.decode("ascii", errors="replace").splitlines():
+        fields = line.split()
+        if not fields:
+            continue
+        if not fields[0].endswith(":"):  # a mapping's first line: range, flags, ..., path
+            current = None
+            if len(fields) >= 6 and fields[5].startswith("/") and "w" not in fields[1]:
+                start, end = (int(x, 16) for x in fields[0].split("-"))
+                current = [start, end, 0, None]
+                found.append(current)
+        elif current is not None and fields[0] == "Rss:":
+            current[2] = int(fields[1]) * 1024
+        elif current is not None and fields[0] == "Anonymous:":
+            current[3] = int(fields[1])
     return [(start, end, resident) for start, end, resident, anonymous in found if anonymous == 0]
 
 

@@ -80,3 +80,17 @@ def test_a_warm_simulator_is_loaded_from_the_cache_before_the_run_starts_its_pag
     warmup.Warmup([warmup.SIMULATOR], say=lambda line: None).start()
     assert sorted(loaded) == sorted(warmup.kernels(warmup.SIMULATOR)) and loaded
     assert calls == ["released", "loaded", "released"]
+
+
+def test_a_mapping_whose_anonymous_pages_were_not_read_is_kept(monkeypatch):
+    """``/proc/self/smaps`` is read bounded: a mapping cut off before its ``Anonymous:`` line may
+    hold pages the process wrote, so it is not released; one whose line says 0 is."""
+    text = (
+        "7f0000000000-7f0000004000 r--p 00000000 08:01 11 /usr/lib/a.so\n"
+        "Rss:                  16 kB\n"
+        "Anonymous:             0 kB\n"
+        "7f0000010000-7f0000014000 r-xp 00000000 08:01 12 /usr/lib/b.so\n"
+        "Rss:                  16 kB\n"
+    )
+    monkeypatch.setattr(resident, "read_proc_file", lambda path, max_bytes: (text.encode(), True))
+    assert resident._clean_file_mappings() == [(0x7F0000000000, 0x7F0000004000, 16 * 1024)]
