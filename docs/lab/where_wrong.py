@@ -9,7 +9,8 @@ placed against the labels (docs/lab/adaptation.md).
 is the branch of ``GesturePipeline._estimate`` that answered it (mirrored here, so the answers are
 the pipeline's own): ``resting`` (the resting verdict held), ``still`` (no marker beyond the
 contact threshold), ``rule-none`` (the gesture step's ``none``), ``creep`` (the creep filter read
-the fingers gone, docs/method.md "Creep"), ``undecided`` (the episode vote's ``none``),
+the fingers gone, docs/method.md "Creep"; unless a new press in the tail is fitted against the gel
+the tail left, noted beside the answer), ``undecided`` (the episode vote's ``none``),
 ``answered``. The windows whose type, or contact count, differs from the labels' are counted by:
 
 - a labelled gesture's window the creep filter answered, in the gesture's first 150 ms (and
@@ -53,9 +54,17 @@ def _estimate(self, t_us):
     if result.gesture is GestureType.NONE:
         STAGES.append("rule-none")
         return self._none(t_us, resting=False)
+    tail = ""
     if self._released(result.intensity_px, t_us):
-        STAGES.append("creep")
-        return self._none(t_us, resting=False, fed=True)
+        tail_rest = self._new_press_in_tail(current, valid)
+        if tail_rest is None:
+            STAGES.append("creep")
+            return self._none(t_us, resting=False, fed=True)
+        contacts, result = self._fit(tail_rest, current, valid)
+        if result.gesture is GestureType.NONE:
+            STAGES.append("creep")
+            return self._none(t_us, resting=False, fed=True)
+        tail = ", a new press in a tail"
     estimate = P.GestureEstimate(
         t_us=t_us,
         gesture=self._vote(result.gesture, result.intensity_mm, len(contacts.points_px), t_us),
@@ -67,7 +76,7 @@ def _estimate(self, t_us):
         rotation_rad=result.rotation_rad,
         scale=result.similarity.scale,
     )
-    STAGES.append("undecided" if estimate.gesture is GestureType.NONE else "answered")
+    STAGES.append(("undecided" if estimate.gesture is GestureType.NONE else "answered") + tail)
     return estimate
 
 
@@ -94,9 +103,9 @@ def place(stage: str, t_us: int, segments: list[tuple[GestureType, int, int]]) -
         before = [s for s in segments[:k] if s[0] is not GestureType.NONE]
         tail = bool(before) and (start - before[-1][2]) / 1000 <= TAIL_MS
         return f"creep filter: fingers read gone, {edge}" + (", begun in a tail" if since <= EDGE_MS and tail else "")
-    if stage != "answered":
+    if not stage.startswith("answered"):
         return f"below the thresholds or undecided, {edge}"
-    return "answered another type or count"
+    return "answered another type or count" + stage[len("answered") :]
 
 
 def main(
