@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 
 from neurotouch_hid.cli import app
 from neurotouch_hid.errors import SensorError
-from neurotouch_hid.pipeline.creep import SHARES, TIMES_S, CreepFilter, fit_creep, load_estimate
+from neurotouch_hid.pipeline.creep import SHARES, TIMES_S, CreepFilter, TailWatch, fit_creep, load_estimate
 from neurotouch_hid.pipeline.creep import at_search_edge as creep_at_search_edge
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import sls_deformation
@@ -81,6 +81,33 @@ def test_a_gel_seen_at_rest_holds_no_creep_so_the_next_press_is_read_at_once():
     # while the gel is seen still, y is at most floor / q: the load no lower than -floor / (1 - q)
     still = bounded[start - 15 : start]
     assert np.all(still <= 0.0) and np.all(still >= -0.3 / 0.72 - 1e-9)
+
+
+def test_a_new_press_in_a_release_tail_is_found_and_measured_from_the_gel_the_tail_left():
+    """A tail whose 40 markers relax back towards rest, 0.05 px a window with +-0.1 px of tracking
+    noise, shows no new press; once 6 of them move 0.2 px or more out again from their least, a
+    new press has begun, and the reference given back is where each marker was at its least (the
+    new press's markers from before they moved out). Forgotten, the watch starts afresh."""
+    rng = np.random.default_rng(3)
+    n = 40
+    direction = np.tile([1.0, 0.0], (n, 1))
+    watch = TailWatch()
+    positions = []
+    for k in range(30):  # the relaxing tail
+        distance = 3.0 - 0.05 * k + rng.uniform(-0.1, 0.1, n)
+        positions.append(direction * distance[:, None])
+        assert watch.update(distance, positions[-1], 0.15, 6) is None
+    least_at = np.stack(positions)[np.argmin(np.stack([p[:, 0] for p in positions]), axis=0), np.arange(n)]
+    distance = 3.0 - 0.05 * 30 + rng.uniform(-0.1, 0.1, n)
+    pressed = np.arange(6)
+    distance[pressed] = least_at[pressed, 0] + 0.3  # out again, beyond 0.15 px
+    reference = watch.update(distance, direction * distance[:, None], 0.15, 6)
+    assert reference is not None
+    np.testing.assert_allclose(reference[pressed], least_at[pressed])
+    distance[pressed[-1]] = least_at[pressed[-1], 0]  # one fewer: 5 of 6
+    assert watch.update(distance, direction * distance[:, None], 0.15, 6) is None
+    watch.reset()
+    assert watch.update(distance + 1.0, direction * (distance + 1.0)[:, None], 0.15, 6) is None
 
 
 def test_a_creep_model_needs_a_share_below_one_a_positive_time_and_a_floor_not_below_zero():

@@ -171,3 +171,56 @@ def fit_creep(t_us: np.ndarray, amplitude: np.ndarray) -> tuple[float, float]:
     cost = ((load[hold] - level) ** 2).sum(axis=0) + (load[released] ** 2).sum(axis=0)
     i, j = np.unravel_index(np.argmin(cost), cost.shape)
     return float(SHARES[i]), float(TIMES_S[j])
+
+
+#: A new press in a release tail (:class:`TailWatch`): this share of the motion override's
+#: displacement (plus the gel's jitter) ...
+TAIL_PRESS_SHARE = 0.5
+#: ... on this share of its markers.
+TAIL_PRESS_MARKERS = 0.5
+
+
+class TailWatch:
+    """A new press in a creeping gel's release tail (docs/method.md, "Creep").
+
+    While :class:`CreepFilter` reads the fingers gone, a relaxing gel's markers only come back
+    towards rest. A new press, in the tail of the last one, moves some away again; but the window's
+    deformation, taken about contacts still on the old press, keeps falling with the tail, so the
+    filter keeps reading the fingers gone. Each marker's least distance from rest since the filter
+    read them gone is kept, with where the marker was then: once enough markers are a threshold
+    beyond their least, a new press has begun, and those positions are the gel as the tail left it,
+    the reference the new press is measured from.
+    """
+
+    def __init__(self) -> None:
+        self._least: np.ndarray | None = None
+        self._at: np.ndarray | None = None
+
+    def reset(self) -> None:
+        """Forget the tail (the fingers are read on the gel, a new rest reference or re-anchoring)."""
+        self._least = self._at = None
+
+    def update(
+        self, distance: np.ndarray, positions: np.ndarray, threshold: float, min_markers: int
+    ) -> np.ndarray | None:
+        """One window of the tail.
+
+        Args:
+            distance: (N,) float64 each marker's distance from rest (px; NaN: not tracked).
+            positions: (N, 2) float64 the markers' positions then (px).
+            threshold: how much further than its least a marker must be to have moved again (px).
+            min_markers: how many such markers make a new press.
+        Returns:
+            None, or (N, 2) float64 the positions (px) at each marker's least distance since the
+            tail began (a lost marker's first position), when at least ``min_markers`` markers are
+            more than ``threshold`` beyond their least.
+        """
+        if self._least is None:
+            self._least, self._at = distance.copy(), positions.copy()
+            return None
+        lower = (distance < self._least) | (np.isnan(self._least) & ~np.isnan(distance))
+        self._least = np.where(lower, distance, self._least)
+        self._at = np.where(lower[:, None], positions, self._at)
+        if np.count_nonzero(distance - self._least > threshold) < min_markers:
+            return None
+        return self._at

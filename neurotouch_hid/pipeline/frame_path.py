@@ -57,6 +57,8 @@ class FramePath:
     def _init_frame_path(self) -> None:
         """The frame path's state before the first frame."""
         self.rest_px: np.ndarray | None = None
+        #: how many times the tracker was re-anchored at rest
+        self._anchorings = 0
         self._grid_neighbours: np.ndarray | None = None
         self.resting_detector: RestingDetector | None = None
         self._lock = threading.Lock()
@@ -221,6 +223,7 @@ class FramePath:
         near = self._near_rest(result)
         if result.resting or near:
             self.tracker.reset(self.rest_px)
+            self._anchorings += 1
         else:
             self._correct(result, t_us)
 

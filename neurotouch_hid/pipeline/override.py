@@ -48,6 +48,26 @@ def overrules_rest(
     return moved >= min_markers
 
 
+def shared_distances(
+    current: np.ndarray, valid: np.ndarray, rest: np.ndarray, neighbours: np.ndarray
+) -> tuple[np.ndarray, float]:
+    """Each marker's distance from rest as its neighbourhood shares it, and the gel's jitter.
+
+    Args:
+        current, rest: (N, 2) float64 positions (px).
+        valid: (N,) bool, the tracked markers.
+        neighbours: (N, k) int64, :func:`grid_neighbours` of ``rest``.
+    Returns:
+        ((N,) float64 px, the length of the median over each marker and its ``neighbours`` of their
+        displacements from rest, NaN for a lost marker; the jitter (px) of :func:`overrules_rest`).
+    """
+    d = np.where(valid[:, None], current - rest, np.nan)
+    shared = _median_of_sorted(np.sort(np.concatenate([d, np.full((1, 2), np.nan)])[neighbours], axis=1))
+    own = d[valid] - shared[valid]
+    jitter = float(np.median(np.hypot(own[:, 0], own[:, 1]))) if len(own) else 0.0
+    return np.where(valid, np.hypot(shared[:, 0], shared[:, 1]), np.nan), jitter
+
+
 #: The smooth override's neighbours of a marker: the markers within this many times the median
 #: nearest-neighbour distance at rest (on the square 4 mm grid: its four nearest, not the diagonals).
 OVERRIDE_NEIGHBOUR_GAP = 1.25

@@ -44,7 +44,7 @@ from neurotouch_hid.estimate import GestureEstimate, GestureType, MarkerPosition
 from neurotouch_hid.pipeline.config import MIN_WINDOW_US, PipelineConfig, PixelSettings, scaled_to_sensor
 from neurotouch_hid.pipeline.contacts import Contacts, detect_contacts
 from neurotouch_hid.pipeline.contacts_plateau import rest_neighbours
-from neurotouch_hid.pipeline.creep import CreepFilter
+from neurotouch_hid.pipeline.creep import TAIL_PRESS_MARKERS, TAIL_PRESS_SHARE, CreepFilter, TailWatch
 from neurotouch_hid.pipeline.episode import EpisodeVote
 from neurotouch_hid.pipeline.frame_path import RESUME_MATCH_FRAMES, FramePath
 from neurotouch_hid.pipeline.gel_motion import compile_gel_motion_kernels, estimate_gel_motion, rim_markers
@@ -57,7 +57,7 @@ from neurotouch_hid.pipeline.gesture import (
 from neurotouch_hid.pipeline.learned import gesture_features, learned_gesture
 from neurotouch_hid.pipeline.moves import _largest_move_sq, _unchanged
 from neurotouch_hid.pipeline.noise import EventNoiseFilter
-from neurotouch_hid.pipeline.override import grid_neighbours, overrules_rest
+from neurotouch_hid.pipeline.override import grid_neighbours, overrules_rest, shared_distances
 from neurotouch_hid.pipeline.resting import compile_resting_kernels
 from neurotouch_hid.pipeline.synthetic import synthetic_windows
 from neurotouch_hid.pipeline.tracker import BlobTracker
@@ -122,6 +122,10 @@ class GesturePipeline(FramePath):
         self._creep = (
             CreepFilter(*sensor.creep, floor=self.config.min_intensity_px) if sensor.creep is not None else None
         )
+        #: a new press in the creep's release tail, and the rest reference and re-anchoring it is
+        #: watched against (docs/method.md, "Creep")
+        self._tail = TailWatch()
+        self._tail_of: tuple | None = None
         #: what the fits derive from a rest reference, by name: (that reference, the value)
         self._of_rest_kept: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         #: the last window's fit: (rest_px, current, valid, long press, contacts, gesture result)
@@ -238,6 +242,7 @@ class GesturePipeline(FramePath):
         self._long_press = False
         if self._creep is not None:
             self._creep.reset()
+        self._tail.reset()
 
     # --- outputs ----------------------------------------------------------------------------
     def marker_positions(self) -> np.ndarray:
@@ -331,8 +336,15 @@ class GesturePipeline(FramePath):
         if self._still(current, valid):  # what the gesture step would answer, without its fits
             return self._none(t_us, resting=False)
         contacts, result = self._contacts_and_gesture(self.rest_px, current, valid)
-        if result.gesture is GestureType.NONE or self._released(result.intensity_px, t_us):
-            return self._none(t_us, resting=False, fed=result.gesture is not GestureType.NONE)
+        if result.gesture is GestureType.NONE:
+            return self._none(t_us, resting=False)
+        if self._released(result.intensity_px, t_us):
+            tail_rest = self._new_press_in_tail(current, valid)
+            if tail_rest is None:
+                return self._none(t_us, resting=False, fed=True)
+            contacts, result = self._fit(tail_rest, current, valid)  # the new press alone
+            if result.gesture is GestureType.NONE:
+                return self._none(t_us, resting=False, fed=True)
         return GestureEstimate(
             t_us=t_us,
             gesture=self._vote(result.gesture, result.intensity_mm, len(contacts.points_px), t_us),
@@ -359,7 +371,27 @@ class GesturePipeline(FramePath):
         ``min_intensity_px`` (docs/method.md, "Creep"; False without the gel's creep)."""
         if self._creep is None:
             return False
-        return self._creep.update(intensity_px, t_us) < self.config.min_intensity_px
+        if self._creep.update(intensity_px, t_us) >= self.config.min_intensity_px:
+            self._tail.reset()
+            return False
+        return True
+
+    def _new_press_in_tail(self, current: np.ndarray, valid: np.ndarray) -> np.ndarray | None:
+        """While the creep filter reads the fingers gone: None, or (N, 2) px the gel as the tail
+        left it when a new press has begun there (``creep.TailWatch``: markers, each by the median
+        over its neighbourhood as the motion override takes it, ``TAIL_PRESS_SHARE`` of
+        ``motion_override_px`` plus the gel's jitter beyond their least distance from rest, on
+        ``TAIL_PRESS_MARKERS`` of ``override_min_markers``; docs/method.md, "Creep"). Watched
+        afresh at a new rest reference or re-anchoring."""
+        c = self.config
+        if self._tail_of is None or self._tail_of[0] is not self.rest_px or self._tail_of[1] != self._anchorings:
+            self._tail.reset()
+            self._tail_of = (self.rest_px, self._anchorings)
+        distance, jitter = shared_distances(current, valid, self.rest_px, self._grid_neighbours)
+        positions = np.where(valid[:, None], current, self.rest_px)
+        threshold = TAIL_PRESS_SHARE * c.motion_override_px + jitter
+        markers = max(1, round(TAIL_PRESS_MARKERS * c.override_min_markers))
+        return self._tail.update(distance, positions, threshold, markers)
 
     def _contacts_and_gesture(self, rest_px: np.ndarray, current: np.ndarray, valid: np.ndarray):
         """Contact points (paper, "Contact Point Detection") and the gesture's similarity, type and
