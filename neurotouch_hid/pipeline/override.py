@@ -38,10 +38,7 @@ def overrules_rest(
     threshold_sq = threshold_px * threshold_px
     if _count_moved(current, valid, rest, threshold_sq) < min_markers:
         return False
-    d = np.where(valid[:, None], current - rest, np.nan)
-    shared = _median_of_sorted(np.sort(np.concatenate([d, np.full((1, 2), np.nan)])[neighbours], axis=1))
-    own = d[valid] - shared[valid]
-    jitter = float(np.median(np.hypot(own[:, 0], own[:, 1])))
+    shared, jitter = _shared_and_jitter(current, valid, rest, neighbours)
     if jitter > 0.0:  # (exactly as given otherwise)
         threshold_sq = (threshold_px + jitter) ** 2
     moved = int(np.count_nonzero(shared[:, 0] * shared[:, 0] + shared[:, 1] * shared[:, 1] > threshold_sq))
@@ -61,11 +58,19 @@ def shared_distances(
         ((N,) float64 px, the length of the median over each marker and its ``neighbours`` of their
         displacements from rest, NaN for a lost marker; the jitter (px) of :func:`overrules_rest`).
     """
+    shared, jitter = _shared_and_jitter(current, valid, rest, neighbours)
+    return np.where(valid, np.hypot(shared[:, 0], shared[:, 1]), np.nan), jitter
+
+
+def _shared_and_jitter(
+    current: np.ndarray, valid: np.ndarray, rest: np.ndarray, neighbours: np.ndarray
+) -> tuple[np.ndarray, float]:
+    """(N, 2) float64 px each marker's median displacement over itself and its ``neighbours``
+    (NaN rows where none is tracked), and the gel's jitter (px; 0 with no valid marker)."""
     d = np.where(valid[:, None], current - rest, np.nan)
     shared = _median_of_sorted(np.sort(np.concatenate([d, np.full((1, 2), np.nan)])[neighbours], axis=1))
     own = d[valid] - shared[valid]
-    jitter = float(np.median(np.hypot(own[:, 0], own[:, 1]))) if len(own) else 0.0
-    return np.where(valid, np.hypot(shared[:, 0], shared[:, 1]), np.nan), jitter
+    return shared, float(np.median(np.hypot(own[:, 0], own[:, 1]))) if len(own) else 0.0
 
 
 #: The smooth override's neighbours of a marker: the markers within this many times the median
