@@ -352,13 +352,15 @@ def _read_process(pid: int, uid: int) -> _Seen | None:
         if proc.uids().real != uid:
             return seen  # another user's: never a game of ours, never read again
         seen.ours = True
+        # the environment first: a fork that exec's meanwhile shows its new environment only
+        # once it has its new name, so a game found by SteamAppId is never named as its parent
+        seen.app_id = _steam_app_id(pid)
         seen.name = _comm(pid)
         names = {seen.name, _first_word(pid)}
         with contextlib.suppress(psutil.AccessDenied, psutil.ZombieProcess):
             exe = proc.exe()
             if exe:
                 names.add(os.path.basename(exe)[:MAX_NAME_CHARS])
-        seen.app_id = _steam_app_id(pid)
         seen.names = frozenset(n for n in names if n)
         return seen
     except (psutil.NoSuchProcess, psutil.AccessDenied, psutil.ZombieProcess, OSError):

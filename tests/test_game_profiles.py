@@ -409,3 +409,29 @@ def test_a_running_driver_switches_to_a_games_profile_and_back_through_its_contr
     ], driver.lines
     assert code == 0, driver.lines
     assert states.stat().st_size > 0
+
+
+def test_a_steam_game_that_execs_while_it_is_read_is_never_named_as_its_parent(monkeypatch):
+    """A fork exec's between two reads of it: whichever is read first sees the parent (its name
+    ``python``, its environment without SteamAppId), what is read after sees the game. The
+    environment is read first, so a game found by its SteamAppId has its own name."""
+    import neurotouch_hid.games as games
+
+    state = {"execd": False}
+
+    def read_once(before, after):
+        def read(pid):
+            value = after if state["execd"] else before
+            state["execd"] = True  # the exec happens right after the first read
+            return value
+
+        return read
+
+    monkeypatch.setattr(games, "_comm", read_once("python", "sleep"))
+    monkeypatch.setattr(games, "_steam_app_id", read_once(None, APP_ID))
+    monkeypatch.setattr(games, "_first_word", lambda pid: "sleep" if state["execd"] else "python")
+    seen = games._read_process(os.getpid(), os.getuid())
+    assert seen.app_id is None and seen.name == "sleep"  # not a game yet: read again while young
+    state["execd"] = True
+    seen = games._read_process(os.getpid(), os.getuid())
+    assert seen.app_id == APP_ID and seen.name == "sleep"
