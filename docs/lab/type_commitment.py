@@ -4,7 +4,7 @@ docs/lab/type-commitment.md).
 
     python3 docs/lab/type_commitment.py --out DIR [--families default,fingers,strong]
         [--first-finger-ms 0,40,70,90,110] [--provisional-mm 0,0.4] [--counted-mm inf,0.8]
-        [--deadzone-mm 0.8]
+        [--commit-mm inf,1,3] [--deadzone-mm 0.8]
 
 ``DIR`` is a ``benchmarks/family_eval.py --sessions`` folder (``DIR/FAMILY`` datasets, their
 sensor.yaml with the family's creep). Each sequence is run once through the product's pipeline
@@ -12,11 +12,12 @@ with its episode vote taken out (each window's own type), into ``DIR/predictions
 those per-window answers are then replayed through :class:`EpisodeVote` with each undecided time,
 provisional limit (0: an undecided window always answers ``none``) and limit from which a
 committed window of several contacts votes twice (inf: every window once; the vote reads only each
-window's type, intensity, contact count and time, so the replay is what the pipeline answers)
-and scored: the per-gesture metrics (docs/dataset.md, the dead-zone latency among them) and the
-paper's per-window ones, and what the wait costs a push where it is felt
-(:func:`push_waits_ms`), one markdown row per family and candidate, then the mean over the
-families.
+window's type, intensity, contact count and time, so the replay is what the pipeline answers),
+and depth from which one contact ends the wait at once (inf: never, the product's vote; a candidate
+tried and not kept, docs/lab/type-commitment.md) and scored: the per-gesture metrics
+(docs/dataset.md, the dead-zone latency among them) and the paper's per-window ones, and what the
+wait costs a push where it is felt (:func:`push_waits_ms`), one markdown row per family and
+candidate, then the mean over the families.
 """
 
 from __future__ import annotations
@@ -67,6 +68,26 @@ class WindowByWindow(GesturePipeline):
         return gesture
 
 
+class DeepOneContact(EpisodeVote):
+    """A candidate: one contact at ``commit_mm`` or more ends the wait at once (a fast push is
+    deep long before the wait runs out; a lagging second finger lands whatever the first's depth)."""
+
+    def __init__(self, commit_mm: float, **kwargs) -> None:
+        self.commit_mm = commit_mm
+        super().__init__(**kwargs)
+
+    def update(self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int) -> GestureType:
+        if (
+            self._decision is None
+            and gesture is not GestureType.NONE
+            and n_contacts <= 1
+            and n_contacts == self._count
+            and intensity_mm >= self.commit_mm
+        ):
+            self._count_since_us = min(self._count_since_us, t_us - self.first_finger_us)
+        return super().update(gesture, intensity_mm, n_contacts, t_us)
+
+
 def raw_predictions(dataset: Path, dst: Path) -> None:
     """Each sequence of ``dataset`` through :class:`WindowByWindow`, into ``dst/NAME.jsonl``
     (kept: a sequence already there is not run again)."""
@@ -104,13 +125,16 @@ def replay(
     provisional_mm: float,
     deadzone_mm: float,
     counted_mm: float = COUNTED_MM,
+    commit_mm: float = float("inf"),
 ) -> dict:
     """The per-window answers of ``raw`` through ``EpisodeVote(first_finger_us, provisional_mm=...,
     counted_mm=...)``, scored; with the median and longest :func:`push_waits_ms` (NaN without a push)."""
     sensor = SensorGeometry.load(dataset / "sensor.yaml")
     parts, waits = [], []
     for name in list_sequences(dataset):
-        vote = EpisodeVote(first_finger_us=first_finger_us, provisional_mm=provisional_mm, counted_mm=counted_mm)
+        vote = DeepOneContact(
+            commit_mm, first_finger_us=first_finger_us, provisional_mm=provisional_mm, counted_mm=counted_mm
+        )
         answers = read_predictions(raw / f"{name}.jsonl")
         voted = [replace(p, gesture=vote.update(p.gesture, p.intensity_mm, p.n_contacts, p.t_us)) for p in answers]
         labels = read_labels(dataset / f"{name}.labels.csv")
@@ -136,29 +160,35 @@ def main(
         "--counted-mm",
         help="limits from which a committed window of several contacts votes twice (mm; inf: never)",
     ),
+    commit_mm: str = typer.Option(
+        "inf", "--commit-mm", help="depths from which one contact ends the wait at once (mm; inf: never)"
+    ),
     deadzone_mm: float = typer.Option(DEFAULT_DEADZONE_MM, "--deadzone-mm", min=0.0),
 ) -> None:
     names = families_in(out, families)
     candidates = [
-        (int(float(t) * 1000), float(p), float(c))
+        (int(float(t) * 1000), float(p), float(c), float(d))
         for t in first_finger_ms.split(",")
         for p in provisional_mm.split(",")
         for c in counted_mm.split(",")
+        for d in commit_mm.split(",")
     ]
-    print("| family | undecided ms | provisional mm | counted mm | " + " | ".join(c[0] for c in COLUMNS) + " |")
-    print("| --- | ---: | ---: | ---: |" + " ---: |" * len(COLUMNS))
-    rows: dict[tuple[int, float, float], list[dict]] = {c: [] for c in candidates}
+    head = "| family | undecided ms | provisional mm | counted mm | one contact commits at mm | "
+    print(head + " | ".join(c[0] for c in COLUMNS) + " |")
+    print("| --- | ---: | ---: | ---: | ---: |" + " ---: |" * len(COLUMNS))
+    rows: dict[tuple[int, float, float, float], list[dict]] = {c: [] for c in candidates}
     for fam in names:
         raw = out / "predictions" / fam / "raw"
         raw_predictions(out / fam, raw)
-        for t, p, c in candidates:
-            row = replay(out / fam, raw, t, p, deadzone_mm, c)
-            rows[t, p, c].append(row)
+        for t, p, c, d in candidates:
+            row = replay(out / fam, raw, t, p, deadzone_mm, c, d)
+            rows[t, p, c, d].append(row)
             cells = " | ".join(f(row[k]) for _, k, f in COLUMNS)
-            print(f"| {fam} | {t // 1000} | {p:g} | {c:g} | {cells} |", flush=True)
-    for t, p, c in candidates:
-        mean = {k: float(np.nanmean([r[k] for r in rows[t, p, c]])) for _, k, _ in COLUMNS}
-        print(f"| mean | {t // 1000} | {p:g} | {c:g} | " + " | ".join(f(mean[k]) for _, k, f in COLUMNS) + " |")
+            print(f"| {fam} | {t // 1000} | {p:g} | {c:g} | {d:g} | {cells} |", flush=True)
+    for t, p, c, d in candidates:
+        mean = {k: float(np.nanmean([r[k] for r in rows[t, p, c, d]])) for _, k, _ in COLUMNS}
+        cells = " | ".join(f(mean[k]) for _, k, f in COLUMNS)
+        print(f"| mean | {t // 1000} | {p:g} | {c:g} | {d:g} | {cells} |")
 
 
 if __name__ == "__main__":
