@@ -737,15 +737,22 @@ def test_moved_markers_add_no_contact_to_a_one_finger_push():
 def _two_bumps_maxima(outliers_at_weak: str):
     """The maxima step on two bumps, the weak one's outliers as the homography might leave them:
     ``peak`` only its peak marker and its ring are outliers (fewer than N_min), ``none`` no
-    marker of it is one (the homography explains it, as a gel sliding in its mount)."""
+    marker of it is one (the homography explains it, as a gel sliding in its mount), ``ring`` its
+    ring but not its peak marker (a stuck disc whose centre the homography fits, the slip about it
+    not), ``one`` a single marker of its ring."""
     rest = grid()
     c = np.asarray(SENSOR.gel_center_px, dtype=float)
     strong, weak = c + [-40.0, 0.0], c + [40.0, 0.0]
     v = bump(rest, strong, (8.0, 0.0), sigma=16.0) + bump(rest, weak, (-1.6, 0.0), sigma=16.0)
     magnitudes = np.linalg.norm(v, axis=1)
     outliers = np.linalg.norm(rest - strong, axis=1) <= 30.0
+    to_weak = np.linalg.norm(rest - weak, axis=1)
     if outliers_at_weak == "peak":
-        outliers |= np.linalg.norm(rest - weak, axis=1) <= 10.0
+        outliers |= to_weak <= 10.0
+    elif outliers_at_weak == "ring":
+        outliers |= (to_weak > 1.0) & (to_weak <= 10.0)
+    elif outliers_at_weak == "one":
+        outliers[np.argsort(to_weak)[1]] = True
     table = _valid_table(rest_neighbours(rest, 10.0), np.arange(len(rest)), len(rest))
     threshold = 0.6 * magnitudes.mean()
     peaks, _ = _maxima(rest, magnitudes, outliers, table, NO_SPIKES, 25.0**2, 12, threshold, 0.6)
@@ -759,4 +766,14 @@ def test_a_weak_finger_with_few_outliers_is_found_through_its_moved_neighbours()
 
 def test_a_moved_region_the_homography_explains_is_no_contact():
     found, strong, _ = _two_bumps_maxima("none")
+    np.testing.assert_allclose(found, [strong])
+
+
+def test_a_finger_whose_peak_marker_the_homography_fits_is_found_through_its_outlier_ring():
+    found, strong, weak = _two_bumps_maxima("ring")
+    np.testing.assert_allclose(found, [strong, weak])
+
+
+def test_one_outlier_beside_a_maximum_the_homography_fits_is_no_contact():
+    found, strong, _ = _two_bumps_maxima("one")
     np.testing.assert_allclose(found, [strong])

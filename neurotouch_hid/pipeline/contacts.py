@@ -209,6 +209,31 @@ def _usable(
     return idx, rest_ok, cur_ok, v, norms
 
 
+#: A maximum that the homography fits is still a finger's peak when at least this many of its grid
+#: neighbours are outliers: under a rigid stick disc (Cattaneo-Mindlin) the homography can fit the
+#: disc's centre but not the slip about it (docs/method.md, "Contacts").
+PEAK_OUTLIER_NEIGHBOURS = 2
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _where_homography_fails(peaks: np.ndarray, outliers: np.ndarray, table: np.ndarray) -> np.ndarray:
+    """(K,) bool for the maxima ``peaks`` (K,) int64 (into the M markers): a finger's peak is where
+    the homography fails, on the maximum itself or on :data:`PEAK_OUTLIER_NEIGHBOURS` of its grid
+    neighbours (``table`` (M, K') int64, -1 for none; ``outliers`` (M,) bool)."""
+    keep = np.zeros(len(peaks), dtype=np.bool_)
+    for q in range(len(peaks)):
+        i = peaks[q]
+        if outliers[i]:
+            keep[q] = True
+            continue
+        count = 0
+        for j in table[i]:
+            if j >= 0 and outliers[j]:
+                count += 1
+        keep[q] = count >= PEAK_OUTLIER_NEIGHBOURS
+    return keep
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _maxima(
     rest: np.ndarray,
@@ -232,11 +257,12 @@ def _maxima(
     (docs/method.md, "Contacts", step 3); when that gives no contact, the outliers alone, then
     the rest model. Returns the maxima (K,) int64 (indices into the M markers, by decreasing
     magnitude) and the magnitudes the later steps read (M,) float64 (lone markers at their
-    neighbours' median)."""
+    neighbours' median). A maximum is kept where the homography fails on it or about it
+    (:func:`_where_homography_fails`)."""
     magnitudes = _despiked(table, magnitudes, spike_fraction)
     chosen = np.flatnonzero(outliers | (magnitudes > max(fallback_threshold, min_move)))
     peaks = chosen[_local_maxima(rest[chosen], magnitudes[chosen], r2, n_min)]
-    peaks = peaks[outliers[peaks]]  # a finger's peak is where the homography fails
+    peaks = peaks[_where_homography_fails(peaks, outliers, table)]
     if len(peaks) == 0:
         chosen = np.flatnonzero(outliers)
         peaks = chosen[_local_maxima(rest[chosen], magnitudes[chosen], r2, n_min)]
