@@ -759,21 +759,16 @@ def _two_bumps_maxima(outliers_at_weak: str):
     return rest[peaks], strong, weak
 
 
-def test_a_weak_finger_with_few_outliers_is_found_through_its_moved_neighbours():
-    found, strong, weak = _two_bumps_maxima("peak")
-    np.testing.assert_allclose(found, [strong, weak])
-
-
-def test_a_moved_region_the_homography_explains_is_no_contact():
-    found, strong, _ = _two_bumps_maxima("none")
-    np.testing.assert_allclose(found, [strong])
-
-
-def test_a_finger_whose_peak_marker_the_homography_fits_is_found_through_its_outlier_ring():
-    found, strong, weak = _two_bumps_maxima("ring")
-    np.testing.assert_allclose(found, [strong, weak])
-
-
-def test_one_outlier_beside_a_maximum_the_homography_fits_is_no_contact():
-    found, strong, _ = _two_bumps_maxima("one")
-    np.testing.assert_allclose(found, [strong])
+@pytest.mark.parametrize(
+    ("outliers_at_weak", "weak_is_a_finger"),
+    [("peak", True), ("none", False), ("ring", True), ("one", False)],
+    ids=[
+        "a_weak_finger_with_few_outliers_is_found_through_its_moved_neighbours",
+        "a_moved_region_the_homography_explains_is_no_contact",
+        "a_finger_whose_peak_marker_the_homography_fits_is_found_through_its_outlier_ring",
+        "one_outlier_beside_a_maximum_the_homography_fits_is_no_contact",
+    ],
+)
+def test_which_maxima_the_homography_s_outliers_keep(outliers_at_weak, weak_is_a_finger):
+    found, strong, weak = _two_bumps_maxima(outliers_at_weak)
+    np.testing.assert_allclose(found, [strong, weak] if weak_is_a_finger else [strong])
