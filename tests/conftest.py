@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from helpers import STREET  # noqa: E402
+from helpers import STREET, run_main  # noqa: E402
 from kernel.vm import (  # noqa: E402
     KernelUnavailable,
     boot_summary,
@@ -95,23 +95,14 @@ def passed_part(guest: dict, check: str, name: str) -> dict:
 def cli(tmp_path, monkeypatch, capsys):
     """``neurotouch-hid profile ARGS`` in this process (cli.main: errors -> exit 2), XDG in tmp;
     ``cli.user_dir``: the user's profiles folder."""
-    from neurotouch_hid.cli import main
-
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
     monkeypatch.delenv("VISUAL", raising=False)
 
     def run(*args: str, editor: str | None = None) -> subprocess.CompletedProcess:
         if editor is not None:
             monkeypatch.setenv("EDITOR", editor)
-        monkeypatch.setattr(sys, "argv", ["neurotouch-hid", "profile", *args])
-        capsys.readouterr()
-        try:
-            main()
-            code = 0
-        except SystemExit as exc:
-            code = exc.code or 0
-        out, err = capsys.readouterr()
-        return subprocess.CompletedProcess(args, code, out, err)
+        done = run_main(monkeypatch, capsys, ["profile", *args])
+        return subprocess.CompletedProcess(args, done.returncode, done.stdout, done.stderr)
 
     run.user_dir = tmp_path / "config" / "neurotouch-hid" / "profiles"
     return run

@@ -1,7 +1,7 @@
 """What many test modules share that is not a fixture: the one way to run the CLI in a fresh
-process (:func:`run_cli`), reading its JSON-lines states (:func:`read_states`), and waiting for
-what a test waits on (:func:`wait_until`). Fixtures (the simulated recordings, the real street
-recording) are in tests/conftest.py."""
+process (:func:`run_cli`) and in this one (:func:`run_main`), reading its JSON-lines states
+(:func:`read_states`), and waiting for what a test waits on (:func:`wait_until`). Fixtures (the
+simulated recordings, the real street recording) are in tests/conftest.py."""
 
 from __future__ import annotations
 
@@ -67,6 +67,22 @@ def run_cli(
         stdin=subprocess.DEVNULL,
         timeout=timeout,
     )
+
+
+def run_main(monkeypatch, capsys, args: list[str]) -> subprocess.CompletedProcess:
+    """``neurotouch-hid ARGS`` in this process (``cli.main``, with pytest's ``monkeypatch`` and
+    ``capsys``): its exit code and what it printed, as :func:`run_cli` returns them."""
+    from neurotouch_hid.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["neurotouch-hid", *args])
+    capsys.readouterr()
+    try:
+        main()
+        code = 0
+    except SystemExit as exc:
+        code = exc.code or 0
+    out, err = capsys.readouterr()
+    return subprocess.CompletedProcess(args, code, out, err)
 
 
 def wait_until(condition, timeout_s: float = 60.0) -> bool:

@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 import pytest
+from helpers import run_main
 
 from neurotouch_hid import warmup
 from neurotouch_hid.estimate import GestureEstimate
@@ -353,8 +354,6 @@ def test_a_command_that_runs_the_pipeline_at_once_has_a_cold_cache_compiled_by_t
     """``track`` and ``enrol --from`` (like ``calibrate`` and ``enrol``) cannot interpret the
     pipeline: on a cold cache they wait for the same children as a camera run (both cores), and
     say so on stderr before anything else, instead of compiling in this process in silence."""
-    from neurotouch_hid.cli import main
-
     children: list[str] = []
 
     def child(run, group):
@@ -372,14 +371,8 @@ def test_a_command_that_runs_the_pipeline_at_once_has_a_cold_cache_compiled_by_t
         plan = tmp_path / "plan.json"
         plan.write_text('{"prompts": [{"gesture": "push", "cue_s": 1.0, "seconds": 1.0}]}')
         args = ["enrol", "--from", str(sim_push_only_recording), "--plan", str(plan), "--out", str(tmp_path / "d")]
-    monkeypatch.setattr(sys, "argv", ["neurotouch-hid", *args])
-    capsys.readouterr()
-    try:
-        main()
-        code = 0
-    except SystemExit as exc:
-        code = exc.code or 0
-    err = capsys.readouterr().err
-    assert code == 0, err
+    done = run_main(monkeypatch, capsys, args)
+    err = done.stderr
+    assert done.returncode == 0, err
     assert sorted(children) == ["pipeline", "tracker"]
     assert err.startswith(f"{warmup.COMPILING}: before the run starts"), err
