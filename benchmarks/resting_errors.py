@@ -50,7 +50,7 @@ def f1(truth: np.ndarray, predicted: np.ndarray) -> float:
 def family_errors(dataset: Path, predictions: Path, ideal_mm: tuple[float, ...] = ()) -> dict:
     """The figures of one family (module docstring); ``ideal_mm`` the ideal detectors' tolerances (mm)."""
     sensor = SensorGeometry.load(dataset / "sensor.yaml")
-    truth, said, still, gesture, scored, moved_max = [], [], [], [], [], []
+    truth, said, gesture, scored, moved_max = [], [], [], [], []
     for name in list_sequences(dataset):
         labels = read_labels(dataset / f"{name}.labels.csv")
         preds = read_predictions(predictions / f"{name}.jsonl")
@@ -71,10 +71,10 @@ def family_errors(dataset: Path, predictions: Path, ideal_mm: tuple[float, ...] 
         )
         truth += [at[k].resting for k in keep]
         said += [preds[k].resting for k in keep]
-        still += list(moved_mm < REST_TOLERANCE_MM)
         gesture += [at[k].gesture is not GestureType.NONE for k in keep]
-    truth, said, still, gesture, scored = (np.array(v, dtype=bool) for v in (truth, said, still, gesture, scored))
+    truth, said, gesture, scored = (np.array(v, dtype=bool) for v in (truth, said, gesture, scored))
     moved_max = np.array(moved_max, dtype=np.float64)
+    still = moved_max < REST_TOLERANCE_MM
     false_rest = ~truth & said
     return {
         "f1_collared": f1(truth[scored], said[scored]),
