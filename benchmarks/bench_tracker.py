@@ -48,6 +48,7 @@ class Run:
 
     name: str
     errors: list = field(default_factory=list)  # per-sample position errors (px), moved markers
+    lags: list = field(default_factory=list)  # per-sample lag along the motion (ms), moving markers
     tracked: int = 0  # moved-marker samples with a valid track
     samples: int = 0  # moved-marker samples
     events: int = 0
@@ -63,6 +64,7 @@ class Run:
 
     def row(self) -> list[str]:
         e = np.concatenate(self.errors) if self.errors else np.zeros(0)
+        lag = np.concatenate(self.lags) if self.lags else np.zeros(0)
         w = np.array(self.window_s) * 1e3
         wall = np.array(self.wall_s) * 1e3
 
@@ -74,6 +76,7 @@ class Run:
             stat(e, 50),
             stat(e, 90),
             stat(e, 99),
+            f"{np.median(lag):.2f}" if len(lag) else "-",
             f"{100.0 * self.tracked / self.samples:.1f}" if self.samples else "-",
             f"{self.events / max(self.seconds, 1e-12) / 1e6:.2f}",
             stat(w, 50),
@@ -90,9 +93,23 @@ def identity(start_px: np.ndarray, rest_px: np.ndarray, max_px: float = 2.0) -> 
     return np.where(d[np.arange(len(j)), j] <= max_px, j, -1)
 
 
-def score(run: Run, est: np.ndarray, ok: np.ndarray, truth: np.ndarray, rest: np.ndarray, who: np.ndarray) -> None:
+#: A marker moving at least this fast (px/ms) counts in the lag; slower, the lag is ill-defined.
+LAG_MIN_SPEED_PX_PER_MS = 0.03
+
+
+def score(
+    run: Run,
+    est: np.ndarray,
+    ok: np.ndarray,
+    truth: np.ndarray,
+    rest: np.ndarray,
+    who: np.ndarray,
+    velocity: np.ndarray | None = None,
+) -> None:
     """Add one window end: est (M, 2) positions of tracks with identities ``who`` (M,), ok (M,)
-    valid; truth (N, 2) true positions; rest (N, 2)."""
+    valid; truth (N, 2) true positions; rest (N, 2); velocity (N, 2) the true markers' velocity
+    (px/ms), for the lag along the motion, -(error . v) / |v|^2 (ms), of markers moving at least
+    :data:`LAG_MIN_SPEED_PX_PER_MS`."""
     moved = np.linalg.norm(truth - rest, axis=1) > 1.0
     run.samples += int(moved.sum())
     sel = ok & (who >= 0)
@@ -101,7 +118,21 @@ def score(run: Run, est: np.ndarray, ok: np.ndarray, truth: np.ndarray, rest: np
     _, first = np.unique(who[sel], return_index=True)
     idx = np.flatnonzero(sel)[first]
     run.tracked += len(idx)
-    run.errors.append(np.linalg.norm(est[idx] - truth[who[idx]], axis=1))
+    error = est[idx] - truth[who[idx]]
+    run.errors.append(np.linalg.norm(error, axis=1))
+    if velocity is not None:
+        v = velocity[who[idx]]
+        speed2 = (v * v).sum(axis=1)
+        moving = speed2 >= LAG_MIN_SPEED_PX_PER_MS**2
+        run.lags.append(-(error[moving] * v[moving]).sum(axis=1) / speed2[moving])
+
+
+def true_velocity(t_grid: np.ndarray, positions: np.ndarray, k: int, span_us: int = 5_000) -> np.ndarray:
+    """(N, 2) the true markers' velocity (px/ms) over the ``span_us`` before grid sample ``k``."""
+    j = max(int(np.searchsorted(t_grid, t_grid[k] - span_us)), 0)
+    if j >= k:
+        return np.zeros_like(positions[k])
+    return (positions[k] - positions[j]) / ((t_grid[k] - t_grid[j]) / 1000.0)
 
 
 def windows(events: np.ndarray, t0: int, t1: int) -> list[tuple[int, np.ndarray]]:
@@ -136,7 +167,8 @@ def run_ours(run: Run, seq, sensor: SensorGeometry, config: TrackerConfig, with_
         run.add(time.thread_time() - c, time.perf_counter() - t, len(batch))
         k = int(np.searchsorted(t_grid, end))
         if k < len(t_grid) and t_grid[k] == end:
-            score(run, tracker.positions_px, tracker.valid, positions[k], rest, who)
+            velocity = true_velocity(t_grid, positions, k)
+            score(run, tracker.positions_px, tracker.valid, positions[k], rest, who, velocity)
 
 
 def seed_image(points_px: np.ndarray, shape: tuple[int, int], radius_px: float = 2.0) -> np.ndarray:
@@ -190,7 +222,7 @@ def run_meanshift(run: Run, seq, sensor: SensorGeometry) -> None:
         pts, idx = meanshift_window(noise, tracker, batch, run, who, rest)
         k = int(np.searchsorted(t_grid, end))
         if k < len(t_grid) and t_grid[k] == end:
-            score(run, pts, np.ones(len(idx), bool), positions[k], rest, idx)
+            score(run, pts, np.ones(len(idx), bool), positions[k], rest, idx, true_velocity(t_grid, positions, k))
 
 
 def stress_stream(
@@ -370,6 +402,7 @@ def main() -> None:
         "err median px",
         "err p90 px",
         "err p99 px",
+        "lag median ms",
         "tracked %",
         "M events/s (CPU)",
         "window median ms (CPU)",
@@ -383,7 +416,8 @@ def main() -> None:
     console.print(table)
     console.print(
         "errors: per marker against its own true position, on markers > 1 px from rest, at every "
-        "10 ms window end; tracked %: moved-marker samples with a live track"
+        "10 ms window end; lag: how far behind its marker a blob is along the marker's motion (ms), "
+        f"on those moving >= {LAG_MIN_SPEED_PX_PER_MS} px/ms; tracked %: moved-marker samples with a live track"
     )
 
 
