@@ -83,34 +83,6 @@ def test_dot_at_constant_velocity_is_tracked_within_half_a_pixel(velocity):
     assert np.dot(v, velocity) > 0  # the velocity estimate points along the motion
 
 
-@pytest.mark.parametrize("velocity", [(0.05, 0.03), (0.1, 0.05)])
-def test_a_steadily_moving_dot_is_followed_within_2_ms(velocity):
-    # The lag along the motion (ms) is what a controller feels: a press's intensity reaches the dead
-    # zone that much late (docs/method.md, "Tracker"). A velocity decaying over every gap between a
-    # marker's events left the blob 4-6 ms behind at these speeds.
-    p0 = (150.3, 120.6)
-    truth = linear(p0, velocity)
-    t_end = 100_000
-    events = esim(truth, t_end, (120, 95, 185, 145))
-    positions, ends = run(BlobTracker(np.array([p0])), events, t_end)
-    v = np.asarray(velocity)
-    behind_ms = -((positions[:, 0] - np.array([truth(t)[0] for t in ends])) @ v) / (v @ v)
-    assert 0 < np.median(behind_ms[30:]) < 2.0
-
-
-@pytest.mark.parametrize("gap_ms, kept", [(0.4, 1.0), (1.0, 1.0), (6.0, 1 / 1.5), (21.0, 1 / 3.0)])
-def test_the_velocity_decays_only_over_a_gap_longer_than_a_moving_marker_s(gap_ms, kept):
-    # Defaults: no decay up to velocity_hold_us (1 ms), then 1 / (1 + excess / velocity_tau_us (10 ms)).
-    from neurotouch_hid.pipeline import tracker_kernels as k
-
-    c = TrackerConfig().in_pixels(SENSOR.px_per_mm)
-    state = np.array([[100.0, 50.0, 0.08, -0.04, 0.0, 0.0]])
-    cov = np.ones((1, 6))
-    args = (1e3 / c.velocity_tau_us, c.max_step_px**2, c.q_pos, c.q_vel, c.q_offset, c.max_gap_us * 1e-3)
-    k._predict(state, cov, 0, gap_ms, *args, c.velocity_hold_us * 1e-3)
-    np.testing.assert_allclose(state[0, 2:4], np.array([0.08, -0.04]) * kept)
-
-
 def test_fast_dot_stays_locked():
     # 0.36 px/ms, faster than any simulated gesture: the blob lags a little but keeps its marker.
     p0 = (150.3, 120.6)

@@ -9,9 +9,8 @@ that linear filter, per blob and per event:
   AEB-Tracker (white markers on black: ON events lead the true centre along the motion, OFF events
   trail it, so an ON event measures p + q and an OFF event p - q);
 * prediction over the time dt since the blob's last update: a constant-velocity model whose
-  velocity decays with time constant ``velocity_tau_us`` over the part of the gap beyond
-  ``velocity_hold_us`` (a moving marker fires every fraction of a millisecond; a blob that stops
-  producing events has stopped moving), process noise scaled by dt, at most ``max_gap_us`` (a pause in a blob's
+  velocity decays with time constant ``velocity_tau_us`` (a blob that stops producing events has
+  stopped moving), process noise scaled by dt, at most ``max_gap_us`` (a pause in a blob's
   events is evidence that it stands still, not growing uncertainty);
 * measurement: the event's pixel, H = [1, 0, +-1], noise Lambda^2, Lambda = ``sigma_mm`` in px;
 * constraint: |q| <= ``max_offset_mm`` (about the marker's radius), enforced by projection after
@@ -92,10 +91,6 @@ class TrackerConfig(BaseModel):
         p0_pos_um2, p0_vel_um2, p0_offset_um2: initial variances (um^2, (um/ms)^2, um^2) at
             init/reset.
         velocity_tau_us: time constant of the velocity's decay between a blob's events (us).
-        velocity_hold_us: the velocity decays only over the part of a gap between a blob's events
-            beyond this (us; 0 = over all of it). A moving marker fires every fraction of a ms,
-            so a gap that short says nothing of stopping; decaying over it held a blob 4-8 ms
-            behind a marker moving steadily (docs/method.md, "Tracker").
         max_step_mm: largest move (mm) the velocity may predict between two events of a blob.
         rate_tau_us: time constant of the per-blob leaky event count (us).
         min_rate_count: leaky event count a blob needs for an event to update it (1 = no gate).
@@ -141,7 +136,6 @@ class TrackerConfig(BaseModel):
     gel_margin_mm: float = 1.6
     max_offset_mm: float = 0.6
     max_gap_us: float = 10_000.0
-    velocity_hold_us: float = 1_000.0
 
     def in_pixels(self, px_per_mm: float) -> "TrackerPixels":
         """These settings in the image's pixels at ``px_per_mm`` (lengths px, variances px^2,
@@ -171,7 +165,6 @@ class TrackerConfig(BaseModel):
             gel_margin_px=self.gel_margin_mm * s,
             max_offset_px=self.max_offset_mm * s,
             max_gap_us=self.max_gap_us,
-            velocity_hold_us=self.velocity_hold_us,
         )
 
 
@@ -200,7 +193,6 @@ class TrackerPixels:
     gel_margin_px: float
     max_offset_px: float
     max_gap_us: float
-    velocity_hold_us: float
 
 
 class BlobTracker:
@@ -263,7 +255,6 @@ class BlobTracker:
                 c.max_step_px,
                 c.max_offset_px**2 if c.max_offset_px > 0 else np.inf,
                 c.max_gap_us * 1e-3 if c.max_gap_us > 0 else np.inf,
-                c.velocity_hold_us * 1e-3,
             ],
             dtype=np.float64,
         )

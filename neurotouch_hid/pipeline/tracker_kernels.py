@@ -38,8 +38,7 @@ _N_NEIGHBOURS = 12
     _P_MAXSTEP,
     _P_MAXOFF2,
     _P_MAXGAP,
-    _P_HOLD,
-) = range(16)
+) = range(15)
 # Columns of the per-blob state: position, velocity (px/ms), polarity offset (px).
 _PX, _PY, _VX, _VY, _QX, _QY = range(6)
 # Columns of the shared per-axis covariance [p, v, q]: P00 P01 P02 P11 P12 P22.
@@ -174,10 +173,10 @@ def _paint_all(state, valid, cell, label, offs, n_offs):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _predict(state, cov, i, dt, inv_tau_v, max_step2, q_pos, q_vel, q_off, max_gap, hold):
+def _predict(state, cov, i, dt, inv_tau_v, max_step2, q_pos, q_vel, q_off, max_gap):
     """Predict blob ``i`` over ``dt`` ms with the damped constant-velocity model (state and
-    covariance in place); the velocity decays over the part of ``dt`` beyond ``hold`` ms."""
-    d = 1.0 / (1.0 + max(dt - hold, 0.0) * inv_tau_v)
+    covariance in place)."""
+    d = 1.0 / (1.0 + dt * inv_tau_v)
     a = dt * d
     # A moving marker makes tens of events per pixel it moves: between two of its events it
     # moves a fraction of a pixel, however long the gap (a long gap means it stopped).
@@ -231,7 +230,6 @@ def _track(events, state, cov, t_upd, t_seen, rate, valid, cell, label, offs, n_
     max_step2 = prm[_P_MAXSTEP] ** 2
     max_off2 = prm[_P_MAXOFF2]
     max_gap = prm[_P_MAXGAP]
-    hold = prm[_P_HOLD]
     h, w = label.shape[1], label.shape[2]
     for k in range(ts.shape[0]):
         x = np.int64(xs[k])
@@ -260,7 +258,7 @@ def _track(events, state, cov, t_upd, t_seen, rate, valid, cell, label, offs, n_
         if t_upd[i] >= 0:
             dt = max(t - t_upd[i], 0) * 1e-3
         t_upd[i] = t
-        _predict(state, cov, i, dt, inv_tau_v, max_step2, q_pos, q_vel, q_off, max_gap, hold)
+        _predict(state, cov, i, dt, inv_tau_v, max_step2, q_pos, q_vel, q_off, max_gap)
         c00 = cov[i, _C00]
         c01 = cov[i, _C01]
         c02 = cov[i, _C02]
@@ -434,7 +432,6 @@ def _correct(det, match, t, state, cov, t_upd, valid, cell, label, offs, n_offs,
                 prm[_P_QVEL],
                 prm[_P_QOFF],
                 prm[_P_MAXGAP],
-                prm[_P_HOLD],
             )
             t_upd[i] = t
         vx = state[i, _VX]
