@@ -2,7 +2,6 @@
 lag along the motion, on hand-computed cases."""
 
 import numpy as np
-
 from helpers import load_benchmark
 
 bench = load_benchmark("bench_tracker")
