@@ -104,7 +104,7 @@ def score(
     truth: np.ndarray,
     rest: np.ndarray,
     who: np.ndarray,
-    velocity: np.ndarray | None = None,
+    velocity: np.ndarray,
 ) -> None:
     """Add one window end: est (M, 2) positions of tracks with identities ``who`` (M,), ok (M,)
     valid; truth (N, 2) true positions; rest (N, 2); velocity (N, 2) the true markers' velocity
@@ -120,16 +120,15 @@ def score(
     run.tracked += len(idx)
     error = est[idx] - truth[who[idx]]
     run.errors.append(np.linalg.norm(error, axis=1))
-    if velocity is not None:
-        v = velocity[who[idx]]
-        speed2 = (v * v).sum(axis=1)
-        moving = speed2 >= LAG_MIN_SPEED_PX_PER_MS**2
-        run.lags.append(-(error[moving] * v[moving]).sum(axis=1) / speed2[moving])
+    v = velocity[who[idx]]
+    speed2 = (v * v).sum(axis=1)
+    moving = speed2 >= LAG_MIN_SPEED_PX_PER_MS**2
+    run.lags.append(-(error[moving] * v[moving]).sum(axis=1) / speed2[moving])
 
 
 def true_velocity(t_grid: np.ndarray, positions: np.ndarray, k: int, span_us: int = 5_000) -> np.ndarray:
     """(N, 2) the true markers' velocity (px/ms) over the ``span_us`` before grid sample ``k``."""
-    j = max(int(np.searchsorted(t_grid, t_grid[k] - span_us)), 0)
+    j = int(np.searchsorted(t_grid, t_grid[k] - span_us))
     if j >= k:
         return np.zeros_like(positions[k])
     return (positions[k] - positions[j]) / ((t_grid[k] - t_grid[j]) / 1000.0)
