@@ -324,7 +324,10 @@ def request_use(profile: str, path: Path | None = None, timeout_s: float = ANSWE
                 f"{path} is served by a process of another user (uid {uid}), not your driver: not asked"
             )
         try:
-            sock.sendall(json.dumps({"command": "use", "profile": profile}).encode() + b"\n")
+            try:
+                sock.sendall(json.dumps({"command": "use", "profile": profile}).encode() + b"\n")
+            except BrokenPipeError:
+                pass  # a request over the driver's bound: it answered so and closed; read why
             line = _read_line(sock, timeout_s) or b""
         except OSError as exc:
             why = exc.strerror or str(exc) or f"no answer in {timeout_s:.0f} s"

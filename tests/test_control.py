@@ -52,6 +52,19 @@ def test_a_stale_socket_file_counts_as_no_driver_and_is_replaced(runtime_dir):
     assert not socket_path().exists()
 
 
+def test_a_profile_name_over_the_request_bound_gets_the_drivers_refusal(runtime_dir):
+    """The driver answers a request over its size bound and closes before the rest is sent: the
+    CLI reads that answer instead of reporting the broken pipe."""
+    server = ControlServer(lambda ref: f"switched to {ref}")
+    assert server.start()
+    try:
+        with pytest.raises(NeurotouchError, match="request longer than 8192 bytes"):
+            request_use("a" * 5_000_000)
+        assert request_use("mouse") == "switched to mouse"
+    finally:
+        server.stop()
+
+
 def test_a_second_driver_leaves_the_first_ones_socket_alone(runtime_dir):
     first, second = ControlServer(lambda ref: "first"), ControlServer(lambda ref: "second")
     assert first.start()
