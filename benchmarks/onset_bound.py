@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import typer
-from workdir import families_in
+from workdir import families_in, numbers
 
 from neurotouch_hid.dataset import list_sequences, read_labels
 from neurotouch_hid.evaluation.felt import gesture_spans
@@ -55,7 +55,7 @@ def main(
     families: str = typer.Option("", "--families", help="comma-separated (default: every family with a dataset)"),
     mm: str = typer.Option("0.02,0.05,0.1,0.12,0.2", "--mm", help="displacements (mm) to time"),
 ) -> None:
-    thresholds = [float(x) for x in mm.split(",")]
+    thresholds = numbers(mm, "--mm", finite=True)
     times = np.concatenate([first_moved_ms(out / f, thresholds) for f in families_in(out, families)])
     print(f"{len(times)} gestures")
     print("| largest marker displacement | median ms | p90 ms | never |")

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 import typer
-from workdir import families_in
+from workdir import families_in, numbers
 
 from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions
 from neurotouch_hid.estimate import GestureType
@@ -102,7 +102,7 @@ def main(
     ),
 ) -> None:
     names = families_in(out, families, method)
-    tolerances = tuple(float(v) for v in ideal_mm.split(","))
+    tolerances = tuple(numbers(ideal_mm, "--ideal-mm", finite=True))
     results = {fam: family_errors(out / fam, out / "predictions" / fam / method, tolerances) for fam in names}
     print(
         "| family | resting F1 | F1, offset rule at onset too | false rest | of which at onset < 0.1 mm | missed rest "

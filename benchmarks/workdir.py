@@ -1,6 +1,7 @@
 """The families of a ``family_eval.py`` working folder, for the scripts that read one
-(``felt_errors.py``, ``resting_errors.py``, ``onset_bound.py``, ``profile_felt.py``, and the lab
-scripts docs/lab/contact_count.py and type_commitment.py), and their usage errors.
+(``felt_errors.py``, ``resting_errors.py``, ``onset_bound.py``, ``wait_bound.py``, ``profile_felt.py``,
+and the lab scripts docs/lab/contact_count.py and type_commitment.py), their lists of numbers, and
+their usage errors.
 
 A working folder holds each family's dataset under ``DIR/FAMILY`` (its ``sensor.yaml`` and
 sequences) and each method's predictions under ``DIR/predictions/FAMILY/METHOD``
@@ -9,6 +10,7 @@ sequences) and each method's predictions under ``DIR/predictions/FAMILY/METHOD``
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import NoReturn
 
@@ -49,6 +51,25 @@ def families_in(out: Path, names: str = "", method: str | None = None) -> list[s
         what = "datasets" if method is None else f"datasets with predictions of method {method!r}"
         usage_error(f"{out}: no family {what} (run benchmarks/family_eval.py --out {out} first)")
     return found
+
+
+def numbers(text: str, option: str, finite: bool = False) -> list[float]:
+    """The comma-separated numbers of option ``option``, each >= 0 (``inf`` too unless ``finite``).
+
+    Raises:
+        typer.Exit: (a usage error naming the option and the value) one is not such a number.
+    """
+    values = []
+    for item in text.split(","):
+        try:
+            value = float(item)
+        except ValueError:
+            value = float("nan")
+        if not value >= 0 or (finite and math.isinf(value)):
+            kind = "finite numbers" if finite else "numbers"
+            usage_error(f"{option}: expected comma-separated {kind} >= 0, got {item.strip()!r}")
+        values.append(value)
+    return values
 
 
 def usage_error(message: str) -> NoReturn:

@@ -74,3 +74,29 @@ def test_each_script_refuses_a_folder_without_data_in_one_unwrapped_line(tmp_pat
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and str(out) in lines[0], done.stderr
     assert done.stdout == ""
+
+
+def test_numbers_are_read_or_refused_naming_the_option(workdir, capsys):
+    assert workdir.numbers("0.1, 2,inf", "--mm") == [0.1, 2.0, float("inf")]
+    for text, finite in (("1,x", False), ("-1", False), ("nan", False), ("inf", True), ("", False)):
+        with pytest.raises(typer.Exit) as stop:
+            workdir.numbers(text, "--mm", finite=finite)
+        assert stop.value.exit_code == 2 and "--mm: expected comma-separated" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("script", "args"),
+    [
+        ("onset_bound.py", ["--mm", "0.1,x"]),
+        ("resting_errors.py", ["--method", "ours", "--ideal-mm", "-0.1"]),
+    ],
+)
+def test_each_script_refuses_a_bad_number_in_one_line(tmp_path, script, args):
+    make_family(tmp_path, "default", ["ours"])
+    done = subprocess.run(
+        [sys.executable, str(BENCHMARKS / script), "--out", str(tmp_path), *args], capture_output=True, text=True
+    )
+    assert done.returncode == 2, done.stderr
+    assert "Traceback" not in done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "expected comma-separated" in lines[0], done.stderr
