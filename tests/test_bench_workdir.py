@@ -57,6 +57,7 @@ def test_a_family_without_data_is_a_usage_error(workdir, tmp_path, capsys, names
         ("resting_errors.py", ["--method", "ours"]),
         ("felt_errors.py", ["--families", "late"]),
         ("onset_bound.py", []),
+        ("wait_bound.py", ["--seed", "2"]),
         ("../docs/lab/contact_count.py", ["--families", "default"]),
         ("../docs/lab/type_commitment.py", ["--families", "default"]),
         ("../docs/lab/gesture_collar.py", ["--families", "strong"]),
@@ -87,6 +88,7 @@ def test_numbers_are_read_or_refused_naming_the_option(workdir, capsys):
 @pytest.mark.parametrize(
     ("script", "args"),
     [
+        ("wait_bound.py", ["--seed", "2", "--families", "default", "--wait-ms", "90,inf"]),
         ("onset_bound.py", ["--mm", "0.1,x"]),
         ("resting_errors.py", ["--method", "ours", "--ideal-mm", "-0.1"]),
     ],
