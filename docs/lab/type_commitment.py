@@ -30,7 +30,7 @@ import numpy as np
 import typer
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))  # workdir.py, a benchmark's helper
-from workdir import families_in  # noqa: E402
+from workdir import families_in, numbers  # noqa: E402
 
 from neurotouch_hid.dataset import list_sequences, read_labels, read_predictions, write_predictions  # noqa: E402
 from neurotouch_hid.estimate import GestureType  # noqa: E402
@@ -88,6 +88,27 @@ class DeepOneContact(EpisodeVote):
         return super().update(gesture, intensity_mm, n_contacts, t_us)
 
 
+class WaitFromIntensity(DeepOneContact):
+    """A candidate: one contact's wait counts from its first window at ``wait_from_mm`` or more
+    instead of from its first window (a slow attack's first finger is long below any dead zone,
+    which is when a lagging finger lands; 0: the product's vote)."""
+
+    def __init__(self, commit_mm: float, wait_from_mm: float, **kwargs) -> None:
+        self.wait_from_mm = wait_from_mm
+        self._reached = False
+        super().__init__(commit_mm, **kwargs)
+
+    def update(self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int) -> GestureType:
+        if gesture is GestureType.NONE or n_contacts != self._count:
+            self._reached = False
+        if self._decision is None and gesture is not GestureType.NONE and not self._reached:
+            self._reached = intensity_mm >= self.wait_from_mm
+            answer = super().update(gesture, intensity_mm, n_contacts, t_us)
+            self._count_since_us = t_us  # the wait starts at the first window at wait_from_mm
+            return answer
+        return super().update(gesture, intensity_mm, n_contacts, t_us)
+
+
 def raw_predictions(dataset: Path, dst: Path) -> None:
     """Each sequence of ``dataset`` through :class:`WindowByWindow`, into ``dst/NAME.jsonl``
     (kept: a sequence already there is not run again)."""
@@ -126,14 +147,19 @@ def replay(
     deadzone_mm: float,
     counted_mm: float = COUNTED_MM,
     commit_mm: float = float("inf"),
+    wait_from_mm: float = 0.0,
 ) -> dict:
     """The per-window answers of ``raw`` through ``EpisodeVote(first_finger_us, provisional_mm=...,
     counted_mm=...)``, scored; with the median and longest :func:`push_waits_ms` (NaN without a push)."""
     sensor = SensorGeometry.load(dataset / "sensor.yaml")
     parts, waits = [], []
     for name in list_sequences(dataset):
-        vote = DeepOneContact(
-            commit_mm, first_finger_us=first_finger_us, provisional_mm=provisional_mm, counted_mm=counted_mm
+        vote = WaitFromIntensity(
+            commit_mm,
+            wait_from_mm,
+            first_finger_us=first_finger_us,
+            provisional_mm=provisional_mm,
+            counted_mm=counted_mm,
         )
         answers = read_predictions(raw / f"{name}.jsonl")
         voted = [replace(p, gesture=vote.update(p.gesture, p.intensity_mm, p.n_contacts, p.t_us)) for p in answers]
@@ -164,31 +190,33 @@ def main(
         "inf", "--commit-mm", help="depths from which one contact ends the wait at once (mm; inf: never)"
     ),
     deadzone_mm: float = typer.Option(DEFAULT_DEADZONE_MM, "--deadzone-mm", min=0.0),
+    wait_from_mm: str = typer.Option("0", "--wait-from-mm", help="intensities from which the wait counts (mm)"),
 ) -> None:
     names = families_in(out, families)
     candidates = [
-        (int(float(t) * 1000), float(p), float(c), float(d))
-        for t in first_finger_ms.split(",")
-        for p in provisional_mm.split(",")
-        for c in counted_mm.split(",")
-        for d in commit_mm.split(",")
+        (int(t * 1000), p, c, d, w)
+        for t in numbers(first_finger_ms, "--first-finger-ms", finite=True)
+        for p in numbers(provisional_mm, "--provisional-mm", finite=True)
+        for c in numbers(counted_mm, "--counted-mm")
+        for d in numbers(commit_mm, "--commit-mm")
+        for w in numbers(wait_from_mm, "--wait-from-mm", finite=True)
     ]
-    head = "| family | undecided ms | provisional mm | counted mm | one contact commits at mm | "
+    head = "| family | undecided ms | provisional mm | counted mm | one contact commits at mm | wait from mm | "
     print(head + " | ".join(c[0] for c in COLUMNS) + " |")
-    print("| --- | ---: | ---: | ---: | ---: |" + " ---: |" * len(COLUMNS))
-    rows: dict[tuple[int, float, float, float], list[dict]] = {c: [] for c in candidates}
+    print("| --- | ---: | ---: | ---: | ---: | ---: |" + " ---: |" * len(COLUMNS))
+    rows: dict[tuple, list[dict]] = {c: [] for c in candidates}
     for fam in names:
         raw = out / "predictions" / fam / "raw"
         raw_predictions(out / fam, raw)
-        for t, p, c, d in candidates:
-            row = replay(out / fam, raw, t, p, deadzone_mm, c, d)
-            rows[t, p, c, d].append(row)
+        for t, p, c, d, w in candidates:
+            row = replay(out / fam, raw, t, p, deadzone_mm, c, d, w)
+            rows[t, p, c, d, w].append(row)
             cells = " | ".join(f(row[k]) for _, k, f in COLUMNS)
-            print(f"| {fam} | {t // 1000} | {p:g} | {c:g} | {d:g} | {cells} |", flush=True)
-    for t, p, c, d in candidates:
-        mean = {k: float(np.nanmean([r[k] for r in rows[t, p, c, d]])) for _, k, _ in COLUMNS}
+            print(f"| {fam} | {t // 1000} | {p:g} | {c:g} | {d:g} | {w:g} | {cells} |", flush=True)
+    for t, p, c, d, w in candidates:
+        mean = {k: float(np.nanmean([r[k] for r in rows[t, p, c, d, w]])) for _, k, _ in COLUMNS}
         cells = " | ".join(f(mean[k]) for _, k, f in COLUMNS)
-        print(f"| mean | {t // 1000} | {p:g} | {c:g} | {d:g} | {cells} |")
+        print(f"| mean | {t // 1000} | {p:g} | {c:g} | {d:g} | {w:g} | {cells} |")
 
 
 if __name__ == "__main__":
