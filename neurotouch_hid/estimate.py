@@ -47,9 +47,10 @@ class GestureEstimate:
         gesture: the dominant gesture type (``NONE`` at rest or when nothing moves).
         resting: True when the resting detector (Chamfer distance on APS frames) says the gel is
             undeformed.
-        intensity_mm: mean displacement of the markers within r of the contacts (mm), 0 for NONE
-            except in a gesture's undecided first windows (``NONE`` with the window's intensity
-            and contacts: its type is not committed yet; docs/method.md, "Episode vote").
+        intensity_mm: mean displacement of the markers within r of the contacts (mm), led 3 ms
+            along its change within a gesture (docs/method.md, "Gesture"), 0 for NONE except in a
+            gesture's undecided first windows (``NONE`` with the window's intensity and contacts:
+            its type is not committed yet; docs/method.md, "Episode vote").
         contacts_px: (K, 2) float64, contact points in the image frame (px), K in 0..3+.
         contacts_mm: (K, 2) float64, the same contact points in the user frame (mm).
         translation_mm: (2,) float64, the similarity's translation in the user frame (mm): a

@@ -376,6 +376,37 @@ def test_track_markers_npz_follow_the_true_markers(push_dataset, push_tracked):
     assert np.median(err) < 1.0
 
 
+def test_the_answered_intensity_leads_its_change_within_a_gesture_and_nothing_else(push_dataset):
+    """docs/method.md, "Intensity lead": each window's intensity goes ``intensity_lead_us`` ahead along its
+    change since the window before when that one had a gesture; types, contacts and the first window of
+    each gesture are those of the pipeline without a lead."""
+    from neurotouch_hid.sensor import find_sensor_file
+    from neurotouch_hid.sources.recording import RecordingReader
+
+    sensor = find_sensor_file(push_dataset)
+    runs = {}
+    for lead_us in (0, 3000):
+        with RecordingReader(push_dataset) as reader:
+            config = PipelineConfig(gesture={"intensity_lead_us": lead_us})
+            runs[lead_us] = list(GesturePipeline(sensor, config).run(reader.stream()))
+    plain, led = runs[0], runs[3000]
+    assert [(p.t_us, p.gesture, p.n_contacts) for p in plain] == [(p.t_us, p.gesture, p.n_contacts) for p in led]
+    rising = falling = 0
+    for before, now, answered in zip(plain, plain[1:], led[1:]):
+        if before.intensity_mm > 0 and now.intensity_mm > 0:  # two windows of one gesture
+            change = now.intensity_mm - before.intensity_mm
+            assert answered.intensity_mm == pytest.approx(max(0.0, now.intensity_mm + change * 0.3), abs=1e-9)
+            rising += change > 0.05
+            falling += change < -0.05
+        else:
+            assert answered.intensity_mm == now.intensity_mm
+    assert rising > 3 and falling > 3  # the push's attack and release were both led
+    with pytest.raises(ValueError, match="intensity_lead_us"):
+        PipelineConfig(gesture={"intensity_lead_us": -1})
+    with pytest.raises(ValueError, match="intensity_lead_us"):
+        PipelineConfig(gesture={"intensity_lead_us": 60_000})
+
+
 class _AlwaysFits(GesturePipeline):
     """The pipeline computing contacts and gesture afresh for every window (no reuse)."""
 

@@ -23,6 +23,8 @@ from neurotouch_hid.sensor import MARKER_SPACING_MM, SensorGeometry
 
 #: Shortest window accepted (us).
 MIN_WINDOW_US = 1_000
+#: Longest intensity lead accepted (us): a lead is a few ms of the tracker's lag, not a forecast.
+MAX_LEAD_US = 50_000
 
 
 class NoiseConfig(BaseModel):
@@ -172,6 +174,9 @@ class GestureConfig(BaseModel):
             (mm) of the contacts' mean.
         intensity_gain: > 0, the intensity (mm) is multiplied by it: 1 but for a gel adapted by
             ``neurotouch-hid adapt`` (docs/method.md, "Adaptation").
+        intensity_lead_us: the answered intensity is extrapolated this far ahead (us, 0 to
+            :data:`MAX_LEAD_US`) along its change since the window before, within a gesture:
+            the tracked blobs lag their markers (docs/method.md, "Gesture": intensity lead).
         classifier: the learned type's parameters (:class:`ClassifierConfig`): the shipped ones
             (``gesture_model.py``) but for an adapted model (docs/method.md, "Adaptation").
     """
@@ -184,6 +189,7 @@ class GestureConfig(BaseModel):
     intensity_sigma_mm: float = 1.2
     origin_radius_mm: float = 4.0
     intensity_gain: float = 1.0
+    intensity_lead_us: int = 3_000
     classifier: ClassifierConfig = Field(default_factory=ClassifierConfig.shipped)
 
     @model_validator(mode="after")
@@ -191,6 +197,8 @@ class GestureConfig(BaseModel):
         for name in ("intensity_sigma_mm", "origin_radius_mm", "intensity_gain"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if not 0 <= self.intensity_lead_us <= MAX_LEAD_US:
+            raise ValueError(f"intensity_lead_us must be 0 to {MAX_LEAD_US} us, got {self.intensity_lead_us}")
         return self
 
 
@@ -354,6 +362,7 @@ class PixelSettings:
     intensity_sigma_px: float
     origin_radius_px: float
     intensity_gain: float
+    intensity_lead_us: int
     classifier: Classifier
     centroid_threshold: float
     centroid_reset_threshold: float
@@ -393,6 +402,7 @@ def scaled_to_sensor(config: PipelineConfig, sensor: SensorGeometry) -> PixelSet
         intensity_sigma_px=g.intensity_sigma_mm * s,
         origin_radius_px=g.origin_radius_mm * s,
         intensity_gain=g.intensity_gain,
+        intensity_lead_us=g.intensity_lead_us,
         classifier=g.classifier.arrays(),
         centroid_threshold=r.centroid_threshold_mm2 * s * s,
         centroid_reset_threshold=r.centroid_reset_threshold_mm2 * s * s,

@@ -169,6 +169,10 @@ class PaperPipeline(GesturePipeline):
         """Each window's own type."""
         return gesture
 
+    def _led(self, intensity_mm: float, t_us: int) -> float:
+        """Each window's own intensity."""
+        return intensity_mm
+
     def _fit(self, rest_px: np.ndarray, current: np.ndarray, valid: np.ndarray) -> tuple[Contacts, GestureResult]:
         """The paper's contacts and the gesture's similarity, type and intensity about them."""
         c = self.config

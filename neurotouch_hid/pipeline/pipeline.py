@@ -118,6 +118,8 @@ class GesturePipeline(FramePath):
         #: whether a window of the current press had a long flat top: fingertips side by side
         #: (docs/method.md, "Contacts"; ends with the press, at a window without a gesture)
         self._long_press = False
+        #: (t_us, intensity_mm) of the window before when it had a gesture ("Gesture": intensity lead)
+        self._last_intensity: tuple[int, float] | None = None
         #: the fingers' load behind the deformation of a gel whose creep sensor.yaml has ("Creep")
         self._creep = (
             CreepFilter(*sensor.creep, floor=self.config.min_intensity_px) if sensor.creep is not None else None
@@ -240,6 +242,7 @@ class GesturePipeline(FramePath):
         self._next_end = None
         self._episode.reset()
         self._long_press = False
+        self._last_intensity = None
         if self._creep is not None:
             self._creep.reset()
         self._tail.reset()
@@ -349,7 +352,7 @@ class GesturePipeline(FramePath):
             t_us=t_us,
             gesture=self._vote(result.gesture, result.intensity_mm, len(contacts.points_px), t_us),
             resting=False,
-            intensity_mm=result.intensity_mm,
+            intensity_mm=self._led(result.intensity_mm, t_us),
             contacts_px=contacts.points_px,
             contacts_mm=points_to_user(contacts.points_px, self.sensor),
             translation_mm=result.translation_mm,
@@ -357,12 +360,24 @@ class GesturePipeline(FramePath):
             scale=result.similarity.scale,
         )
 
+    def _led(self, intensity_mm: float, t_us: int) -> float:
+        """The window's intensity (mm) extrapolated ``gesture.intensity_lead_us`` ahead along its
+        change since the window before, when that one had a gesture too; never below 0. The
+        stages before (vote, creep filter) keep the measured intensity (docs/method.md, "Gesture":
+        intensity lead)."""
+        before, self._last_intensity = self._last_intensity, (t_us, intensity_mm)
+        if before is None or t_us <= before[0]:
+            return intensity_mm
+        slope = (intensity_mm - before[1]) / (t_us - before[0])
+        return max(0.0, intensity_mm + slope * self.config.intensity_lead_us)
+
     def _none(self, t_us: int, *, resting: bool, fed: bool = False) -> GestureEstimate:
         """A window without a gesture: the vote hears ``none``, the creep filter (when not
         ``fed`` already) a gel below the intensity threshold (taken as 0 px), and the press ends."""
         if not fed and self._creep is not None:
             self._creep.update(0.0, t_us)
         self._vote(GestureType.NONE, 0.0, 0, t_us)
+        self._last_intensity = None
         self._long_press = False
         return GestureEstimate(t_us=t_us, gesture=GestureType.NONE, resting=resting)
 
