@@ -69,10 +69,11 @@ class Gesture:
     fingers_mm: np.ndarray
     label_mm: np.ndarray
 
-    def first(self, values: np.ndarray, at_least: float) -> int | None:
-        """The first ms at which ``values`` (T,) reaches ``at_least``, or None."""
-        hit = np.flatnonzero(values >= at_least)
-        return int(hit[0]) if len(hit) else None
+
+def first_at(values: np.ndarray, at_least: float) -> int | None:
+    """The first ms (index) at which ``values`` (T,) float64 reaches ``at_least``, or None."""
+    hit = np.flatnonzero(values >= at_least)
+    return int(hit[0]) if len(hit) else None
 
 
 def session_gestures(dataset: Path, name: str, family: str, seed: int) -> list[Gesture]:
@@ -97,7 +98,7 @@ def session_gestures(dataset: Path, name: str, family: str, seed: int) -> list[G
         hand="session",
     )
     labels = read_labels(dataset / f"{name}.labels.csv")
-    drawn = sim._gestures_between(0, labels[-1].t_us)
+    drawn = sim._gestures_between(0, labels[-1].t_us)  # the simulator's own draw, as it performs them
     out = []
     for g in drawn:
         t_us = np.arange(g.t_start_us, g.t_end_us, 1000, dtype=np.int64)
@@ -124,11 +125,11 @@ def bound(gestures: list[Gesture], visible_mm: float, wait_ms: int, from_deadzon
     wrong, missed, latencies, pushes = 0, 0, [], []
     for g in gestures:
         seen = sorted(
-            t for t in (g.first(g.fingers_mm[:, k], visible_mm) for k in range(g.fingers_mm.shape[1])) if t is not None
+            t for t in (first_at(g.fingers_mm[:, k], visible_mm) for k in range(g.fingers_mm.shape[1])) if t is not None
         )
         deepest = g.fingers_mm.max(axis=1)
         if from_deadzone:
-            start = g.first(deepest, deadzone_mm)
+            start = first_at(deepest, deadzone_mm)
         else:
             start = seen[0] if seen else None
         second = seen[1] if len(seen) > 1 else None
@@ -141,7 +142,7 @@ def bound(gestures: list[Gesture], visible_mm: float, wait_ms: int, from_deadzon
             if start is not None and deepest[start + wait_ms : end].max(initial=0.0) >= deadzone_mm:
                 wrong += 1
             answer = second
-        crossing = g.first(g.label_mm, deadzone_mm)
+        crossing = first_at(g.label_mm, deadzone_mm)
         if crossing is not None and answer is None:
             missed += 1
         elif crossing is not None:

@@ -366,7 +366,7 @@ class GesturePipeline(FramePath):
         stages before (vote, creep filter) keep the measured intensity (docs/method.md, "Gesture":
         intensity lead)."""
         before, self._last_intensity = self._last_intensity, (t_us, intensity_mm)
-        if before is None or t_us <= before[0]:
+        if before is None:
             return intensity_mm
         slope = (intensity_mm - before[1]) / (t_us - before[0])
         return max(0.0, intensity_mm + slope * self.config.intensity_lead_us)
