@@ -47,8 +47,8 @@ class GestureEstimate:
         gesture: the dominant gesture type (``NONE`` at rest or when nothing moves).
         resting: True when the resting detector (Chamfer distance on APS frames) says the gel is
             undeformed.
-        intensity_mm: mean displacement of the markers within r of the contacts (mm), led 3 ms
-            along its change within a gesture (docs/method.md, "Gesture"), 0 for NONE except in a
+        intensity_mm: mean displacement of the markers within r of the contacts (mm), led along
+            its change within a gesture (3 ms by default; docs/method.md, "Gesture"), 0 for NONE except in a
             gesture's undecided first windows (``NONE`` with the window's intensity and contacts:
             its type is not committed yet; docs/method.md, "Episode vote").
         contacts_px: (K, 2) float64, contact points in the image frame (px), K in 0..3+.
