@@ -36,7 +36,7 @@ from pathlib import Path
 import typer
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from family_eval import HELD_BACK, family_dataset  # noqa: E402  (the family protocol, reused)
+from family_eval import HELD_BACK, family_dataset, parse_users  # noqa: E402  (the family protocol, reused)
 
 from neurotouch_hid.output.console import command_app, make_console  # noqa: E402
 
@@ -175,7 +175,7 @@ def main(
         raise typer.BadParameter(f"kept untouched until the final run: {', '.join(HELD_BACK)} and mix; add --final-run")
     if set(ADAPT_TUNING) & set(names):
         console.print(f"note: {', '.join(ADAPT_TUNING)} were looked at for adaptation's choices: not held out")
-    user_ids = [int(u) for u in users.split(",")]
+    user_ids = parse_users(users)
     out.mkdir(parents=True, exist_ok=True)
     if labels not in ("enrol", "simulator"):
         raise typer.BadParameter(f"--labels {labels}: expected enrol or simulator")

@@ -54,7 +54,7 @@ from neurotouch_hid.output.console import command_app, make_console
 from neurotouch_hid.pipeline.episode import EpisodeVote
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import PHYSICS
-from neurotouch_hid.sources.simulator import write_dataset
+from neurotouch_hid.sources.simulator import USERS, write_dataset
 
 #: The press each family's creep is calibrated on: a tuning user (5-9, never a test user) and an
 #: odd seed (test datasets use even ones).
@@ -87,6 +87,20 @@ def parse_method(text: str) -> tuple[str, str, list[str]]:
     name, _, rest = text.partition("=")
     preset, _, sets = rest.partition(":")
     return name.strip(), (preset.strip() or "default"), [s for s in sets.split(";") if s.strip()]
+
+
+def parse_users(text: str) -> list[int]:
+    """``--users``: comma-separated simulated user ids (0 to 9).
+
+    Raises:
+        typer.BadParameter: (a usage error naming the value) one is not such an id.
+    """
+    ids = []
+    for item in text.split(","):
+        if not (item.strip().isdecimal() and int(item) < len(USERS)):
+            raise typer.BadParameter(f"expected comma-separated user ids 0 to {len(USERS) - 1}, got {item.strip()!r}")
+        ids.append(int(item))
+    return ids
 
 
 def fmt(key: str, value: Optional[float], scale: float) -> str:
@@ -146,7 +160,7 @@ def main(
             f"kept untouched until the final run: {', '.join(HELD_BACK)} and mix (which draws from them); "
             "add --final-run"
         )
-    user_ids = [int(u) for u in users.split(",")]
+    user_ids = parse_users(users)
     out.mkdir(parents=True, exist_ok=True)
     cache_path = out / "results.json"
     cache = json.loads(cache_path.read_text()) if cache_path.exists() else {}

@@ -35,6 +35,7 @@ from typing import Optional
 import numpy as np
 import typer
 from rich.table import Table
+from workdir import numbers
 
 from neurotouch_hid.dataset import labels_at, list_sequences, read_labels
 from neurotouch_hid.evaluation.metrics import (
@@ -219,6 +220,7 @@ def main(
     """Simulate the tuning set, tune the resting threshold, grid-search the per-window stages."""
     from neurotouch_hid.sources.simulator import preset_users
 
+    thresholds = numbers(chamfer, "--chamfer", finite=True)  # a usage error before the simulation
     users = preset_users("paper", TUNING_SEED)
     if set(users) & set(preset_users("paper", TEST_SEED)):
         raise SystemExit("the tuning and test sets must not share users")
@@ -234,7 +236,6 @@ def main(
     )
     distances = np.concatenate([d for d, _ in series])
     resting = np.concatenate([r for _, r in series])
-    thresholds = [float(v) for v in chamfer.split(",")]
     f1s = {thr: resting_f1(distances, resting, thr) for thr in thresholds}
     best_chamfer = max(thresholds, key=lambda thr: f1s[thr])
     table = Table(title=f"Resting threshold on {len(distances)} APS frames (users {users}, seed {TUNING_SEED})")

@@ -103,3 +103,22 @@ def test_each_script_refuses_a_bad_number_in_one_line(tmp_path, script, args):
     assert "Traceback" not in done.stderr
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and "expected comma-separated" in lines[0], done.stderr
+
+
+@pytest.mark.parametrize(
+    ("script", "args"),
+    [
+        ("family_eval.py", ["--users", "0,x"]),
+        ("family_eval.py", ["--users", "12"]),
+        ("adapt_eval.py", ["--users", "3,"]),
+        ("tune_pipeline.py", ["--chamfer", "0.002,nan"]),
+    ],
+)
+def test_a_bad_user_or_threshold_is_a_usage_error_before_any_work(tmp_path, script, args):
+    out = tmp_path / "out"
+    done = subprocess.run(
+        [sys.executable, str(BENCHMARKS / script), "--out", str(out), *args], capture_output=True, text=True
+    )
+    assert done.returncode == 2, done.stderr
+    assert "Traceback" not in done.stderr and "expected comma-separated" in done.stderr
+    assert not out.exists()  # nothing simulated or written
