@@ -5,7 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from neurotouch_hid.pipeline.contacts import _maxima, detect_contacts, local_maxima, outlier_candidates
+from neurotouch_hid.pipeline.contacts import (
+    HELD_PEAK_SHARE,
+    _maxima,
+    detect_contacts,
+    local_maxima,
+    outlier_candidates,
+)
 from neurotouch_hid.pipeline.contacts_plateau import _valid_table, rest_neighbours
 from neurotouch_hid.pipeline.contacts_refine import refine_peak
 from neurotouch_hid.pipeline.paper import paper_contacts
@@ -734,12 +740,14 @@ def test_moved_markers_add_no_contact_to_a_one_finger_push():
                 assert detect_contacts(rest, cur).count == 1, (amount, sigma, offset)
 
 
-def _two_bumps_maxima(outliers_at_weak: str):
+def _two_bumps_maxima(outliers_at_weak: str, held_at: float = 0.0, held_share: float = 1.0):
     """The maxima step on two bumps, the weak one's outliers as the homography might leave them:
     ``peak`` only its peak marker and its ring are outliers (fewer than N_min), ``none`` no
     marker of it is one (the homography explains it, as a gel sliding in its mount), ``ring`` its
     ring but not its peak marker (a stuck disc whose centre the homography fits, the slip about it
-    not), ``one`` a single marker of its ring."""
+    not), ``one`` a single marker of its ring. With ``held_share`` > 0, the window before held the
+    marker ``held_at`` px from the weak bump's peak at its displacement / ``held_share``. Returns
+    the maxima's rest positions, the bumps' centres and the ||v|| (px) each maximum is held at."""
     rest = grid()
     c = np.asarray(SENSOR.gel_center_px, dtype=float)
     strong, weak = c + [-40.0, 0.0], c + [40.0, 0.0]
@@ -755,8 +763,12 @@ def _two_bumps_maxima(outliers_at_weak: str):
         outliers[np.argsort(to_weak)[1]] = True
     table = _valid_table(rest_neighbours(rest, 10.0), np.arange(len(rest)), len(rest))
     threshold = 0.6 * magnitudes.mean()
-    peaks, _ = _maxima(rest, magnitudes, outliers, table, NO_SPIKES, 25.0**2, 12, threshold, 0.6)
-    return rest[peaks], strong, weak
+    held = np.zeros(len(rest))
+    if held_share > 0.0:
+        marker = np.argmin(np.abs(to_weak - held_at))
+        held[marker] = magnitudes[np.argmin(to_weak)] / held_share
+    peaks, level, _ = _maxima(rest, magnitudes, outliers, table, NO_SPIKES, 25.0**2, 12, threshold, 0.6, held)
+    return rest[peaks], strong, weak, level
 
 
 @pytest.mark.parametrize(
@@ -770,5 +782,32 @@ def _two_bumps_maxima(outliers_at_weak: str):
     ],
 )
 def test_which_maxima_the_homography_s_outliers_keep(outliers_at_weak, weak_is_a_finger):
-    found, strong, weak = _two_bumps_maxima(outliers_at_weak)
+    found, strong, weak, _ = _two_bumps_maxima(outliers_at_weak, held_share=0.0)
     np.testing.assert_allclose(found, [strong, weak] if weak_is_a_finger else [strong])
+
+
+@pytest.mark.parametrize(
+    ("held_at", "held_share", "weak_is_a_finger"),
+    [
+        (0.0, 1.0, True),
+        (10.0, 0.95, True),
+        (0.0, 0.85, False),
+        (20.0, 1.0, False),
+        (0.0, 0.0, False),
+    ],
+    ids=[
+        "a_finger_the_homography_follows_stays_held_from_the_window_before",
+        "held_beside_its_peak_and_displaced_as_much_it_stays",
+        "eased_off_below_the_share_it_goes",
+        "held_two_pitches_away_is_another_place",
+        "held_nowhere_it_is_no_contact",
+    ],
+)
+def test_a_maximum_the_homography_fits_is_kept_where_the_window_before_held_it(held_at, held_share, weak_is_a_finger):
+    # the weak finger's region is all inlier (the homography's consensus followed it this frame)
+    found, strong, weak, level = _two_bumps_maxima("none", held_at=held_at, held_share=held_share)
+    np.testing.assert_allclose(found, [strong, weak] if weak_is_a_finger else [strong])
+    assert 0.85 < HELD_PEAK_SHARE < 0.95
+    if weak_is_a_finger:  # held at what it was held at, not at today's displacement: easing off adds up
+        assert level[1] == pytest.approx(1.6 / held_share, rel=0.01)
+    assert level[0] == pytest.approx(8.0, rel=0.01)  # the strong finger, an outlier: held at its own

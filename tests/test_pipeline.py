@@ -858,6 +858,35 @@ def test_a_press_remembers_a_long_flat_top_until_it_ends(rest_image):
     assert counts == [(False, 2), (False, 2), (True, 0), (False, 1)]
 
 
+def test_a_press_hands_each_window_s_held_maxima_to_the_next_until_it_ends(rest_image, monkeypatch):
+    """The maxima a window holds (:attr:`Contacts.held`) reach the next window of the same press,
+    whether its fit is computed or reused, and no window after the press ends (docs/method.md,
+    "Contacts": a finger held where the homography follows it)."""
+    from neurotouch_hid.pipeline import pipeline as pipeline_mod
+
+    heard, said, real = [], [], pipeline_mod.detect_contacts
+
+    def detect(*args, **kwargs):
+        heard.append(kwargs["held"])
+        contacts = real(*args, **kwargs)
+        said.append(contacts.held)
+        return contacts
+
+    monkeypatch.setattr(pipeline_mod, "detect_contacts", detect)
+    pipeline = _WindowByWindow(SENSOR)
+    pipeline.process(Frame(0, rest_image))
+    pipeline.process(Frame(40_000, gel_image((4.0, 0.0), region_px=30)))
+    pipeline.process(events_at(41_000))  # the windows start
+    rest, c = pipeline.rest_px, np.asarray(SENSOR.gel_center_px, dtype=float)
+    push = rest + np.exp(-np.sum((rest - c) ** 2, axis=1) / 300.0)[:, None] * [6.0, 0.0]
+    for k, current in enumerate((push, push + [0.02, 0.0], rest + 0.1, push)):
+        pipeline.tracker.reset(current)
+        pipeline.process(events_at(51_000 + 10_000 * k))
+    assert len(heard) == 3  # the window at rest is no fit
+    assert heard[0] is None and heard[2] is None  # a press's first window holds nothing
+    assert len(said[0][0]) == 1 and heard[1] is said[0]
+
+
 def _numba_signatures() -> dict[str, int]:
     """Compiled signatures per numba function of the pipeline's modules."""
     import numba

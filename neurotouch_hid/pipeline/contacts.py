@@ -55,6 +55,9 @@ class Contacts:
         long_flat_top: a flat top of the field, at least a fingertip's footprint, is long:
             fingertips side by side (``contacts_plateau.LONG_ELONGATION``). The pipeline keeps it
             over the press (:func:`detect_contacts`'s ``long_before``).
+        held: the field's maxima as the next window of the press hears them
+            (:func:`detect_contacts`'s ``held``): (H,) int64 marker indices and (H,) float64 their
+            ||v|| (px) when the homography last failed on or about them.
     """
 
     indices: np.ndarray
@@ -63,6 +66,7 @@ class Contacts:
     candidates: np.ndarray
     reproj_threshold_px: float
     long_flat_top: bool = False
+    held: tuple[np.ndarray, np.ndarray] = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.float64))
 
     @property
     def count(self) -> int:
@@ -214,24 +218,39 @@ def _usable(
 #: disc's centre but not the slip about it (docs/method.md, "Contacts").
 PEAK_OUTLIER_NEIGHBOURS = 2
 
+#: A maximum the homography fits is still a finger's peak when it or one of its grid neighbours
+#: was a maximum in the window before, of the same press, and it is displaced at least this share
+#: of what it was when the homography last failed on or about it: a finger held where, from one
+#: APS frame's correction to the next, the homography's consensus follows it (a held 3-finger zoom
+#: or twist, docs/method.md, "Contacts"); a finger easing off below it is left to the homography.
+HELD_PEAK_SHARE = 0.9
+
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _where_homography_fails(peaks: np.ndarray, outliers: np.ndarray, table: np.ndarray) -> np.ndarray:
-    """(K,) bool for the maxima ``peaks`` (K,) int64 (into the M markers): a finger's peak is where
-    the homography fails, on the maximum itself or on :data:`PEAK_OUTLIER_NEIGHBOURS` of its grid
-    neighbours (``table`` (M, K') int64, -1 for none; ``outliers`` (M,) bool)."""
+def _where_homography_fails(
+    peaks: np.ndarray, outliers: np.ndarray, table: np.ndarray, magnitudes: np.ndarray, held: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which maxima ``peaks`` (K,) int64 (into the M markers) are a finger's peak, and the ||v||
+    (px) each is held at. A peak is where the homography fails, on the maximum itself or on
+    :data:`PEAK_OUTLIER_NEIGHBOURS` of its grid neighbours (``table`` (M, K') int64, -1 for none;
+    ``outliers`` (M,) bool), held at its ``magnitudes`` (M,) float64 px; or where it or a grid
+    neighbour was held in the window before (``held`` (M,) float64 px, 0: not) and it is displaced
+    at least :data:`HELD_PEAK_SHARE` of that, held at the same. Returns (K,) bool, (K,) float64."""
     keep = np.zeros(len(peaks), dtype=np.bool_)
+    level = np.zeros(len(peaks))
     for q in range(len(peaks)):
         i = peaks[q]
-        if outliers[i]:
-            keep[q] = True
-            continue
         count = 0
+        before = held[i]
         for j in table[i]:
-            if j >= 0 and outliers[j]:
-                count += 1
-        keep[q] = count >= PEAK_OUTLIER_NEIGHBOURS
-    return keep
+            if j >= 0:
+                count += outliers[j]
+                before = max(before, held[j])
+        if outliers[i] or count >= PEAK_OUTLIER_NEIGHBOURS:
+            keep[q], level[q] = True, magnitudes[i]
+        elif before > 0.0 and magnitudes[i] >= HELD_PEAK_SHARE * before:
+            keep[q], level[q] = True, before
+    return keep, level
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -245,7 +264,8 @@ def _maxima(
     n_min: int,
     fallback_threshold: float,
     min_move: float,
-) -> tuple[np.ndarray, np.ndarray]:
+    held: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The contact step after RANSAC, up to the plateaus (:func:`detect_contacts`).
 
     ``rest`` (M, 2) float64 px: the rest positions, whose neighbourhoods N(i) count;
@@ -256,20 +276,24 @@ def _maxima(
     outliers and the markers moved more than both thresholds, with N_min of those there
     (docs/method.md, "Contacts", step 3); when that gives no contact, the outliers alone, then
     the rest model. Returns the maxima (K,) int64 (indices into the M markers, by decreasing
-    magnitude) and the magnitudes the later steps read (M,) float64 (lone markers at their
-    neighbours' median). A maximum is kept where the homography fails on it or about it
-    (:func:`_where_homography_fails`)."""
+    magnitude), the ||v|| (px) each is held at (K,) float64, and the magnitudes the later steps
+    read (M,) float64 (lone markers at their neighbours' median). A maximum is kept where the
+    homography fails on it or about it, or where it was held in the window before (``held`` (M,)
+    float64 px, 0: not; :func:`_where_homography_fails`)."""
     magnitudes = _despiked(table, magnitudes, spike_fraction)
     chosen = np.flatnonzero(outliers | (magnitudes > max(fallback_threshold, min_move)))
     peaks = chosen[_local_maxima(rest[chosen], magnitudes[chosen], r2, n_min)]
-    peaks = peaks[_where_homography_fails(peaks, outliers, table)]
+    keep, level = _where_homography_fails(peaks, outliers, table, magnitudes, held)
+    peaks, level = peaks[keep], level[keep]
     if len(peaks) == 0:
         chosen = np.flatnonzero(outliers)
         peaks = chosen[_local_maxima(rest[chosen], magnitudes[chosen], r2, n_min)]
+        level = magnitudes[peaks]
     if len(peaks) == 0:
         moved = np.flatnonzero(magnitudes > fallback_threshold)  # the rest model's outliers
         peaks = moved[_local_maxima(rest[moved], magnitudes[moved], r2, n_min)]
-    return peaks, magnitudes
+        level = magnitudes[peaks]
+    return peaks, level, magnitudes
 
 
 @dataclass(frozen=True)
@@ -296,7 +320,12 @@ class Candidates:
     threshold_px: float
 
     def contacts(
-        self, rows: np.ndarray, points_px: np.ndarray, peaks_px: np.ndarray, long_flat_top: bool = False
+        self,
+        rows: np.ndarray,
+        points_px: np.ndarray,
+        peaks_px: np.ndarray,
+        long_flat_top: bool = False,
+        held: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> Contacts:
         """The :class:`Contacts` of the markers ``rows`` (K,) int64 (into the M) at ``points_px``."""
         candidates = np.zeros(self.n, dtype=bool)
@@ -308,7 +337,19 @@ class Candidates:
             candidates=candidates,
             reproj_threshold_px=self.threshold_px,
             long_flat_top=long_flat_top,
+            **({} if held is None else {"held": held}),
         )
+
+
+def _held_levels(held: tuple[np.ndarray, np.ndarray] | None, idx: np.ndarray) -> np.ndarray:
+    """(M,) float64: the ||v|| (px) each of the valid markers ``idx`` (M,) int64 (ascending) is held at
+    by ``held`` (:attr:`Contacts.held`), 0 where none."""
+    levels = np.zeros(len(idx))
+    if held is not None and len(held[0]):
+        at = np.minimum(np.searchsorted(idx, held[0]), len(idx) - 1)
+        found = idx[at] == held[0]
+        levels[at[found]] = held[1][found]
+    return levels
 
 
 def outlier_candidates(
@@ -363,6 +404,7 @@ def detect_contacts(
     min_move_px: float = 0.6,
     neighbours: np.ndarray | None = None,
     long_before: bool = True,
+    held: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Contacts:
     """The contact points of one window, the product's method (docs/method.md, "Contacts").
 
@@ -400,6 +442,10 @@ def detect_contacts(
             (:attr:`Contacts.long_flat_top`); False: a round flat top whose area reads two
             fingers is one fingertip pressed deep. True (the default, a window without its
             press) keeps the area's reading.
+        held: the window before's :attr:`Contacts.held`, of the same press and rest reference
+            (marker indices into the N, ||v|| px); a maximum there, or beside it, displaced at
+            least :data:`HELD_PEAK_SHARE` of that stays a finger's peak where the homography
+            fits it. None (a window without its press): none held.
     Returns:
         :class:`Contacts` (``peaks_px``: the maxima before the bump fit). Degenerate inputs give
         no contact (see :func:`outlier_candidates`).
@@ -422,7 +468,7 @@ def detect_contacts(
     c = found
     table = _valid_table(np.ascontiguousarray(neighbours, dtype=np.int64), c.idx, c.n)
     r2 = float(r_px) * float(r_px)
-    peaks, magnitudes = _maxima(
+    peaks, level, magnitudes = _maxima(
         c.rest_px,
         c.magnitudes,
         c.outliers,
@@ -432,7 +478,9 @@ def detect_contacts(
         int(n_min),
         c.threshold_px,
         float(min_move_px),
+        _held_levels(held, c.idx),
     )
+    held_now = (c.idx[peaks], level)
     long_flat_top = False
     if len(peaks):
         peaks, fingers, flat, long_flat_top = plateau_contacts(
@@ -469,4 +517,4 @@ def detect_contacts(
             centres = bump_fit(c.rest_px, c.v_px, start, float(pitch_px), n_knots)
         if len(centres) >= 2:  # one finger alone keeps its refined peak
             points = field_at(c.rest_px, c.v_px, centres)
-    return c.contacts(np.array(rows, dtype=np.int64), points, peaks_px, bool(long_flat_top))
+    return c.contacts(np.array(rows, dtype=np.int64), points, peaks_px, bool(long_flat_top), held_now)

@@ -173,7 +173,9 @@ class PaperPipeline(GesturePipeline):
         """Each window's own intensity."""
         return intensity_mm
 
-    def _fit(self, rest_px: np.ndarray, current: np.ndarray, valid: np.ndarray) -> tuple[Contacts, GestureResult]:
+    def _fit(
+        self, rest_px: np.ndarray, current: np.ndarray, valid: np.ndarray, held: object = None
+    ) -> tuple[Contacts, GestureResult]:
         """The paper's contacts and the gesture's similarity, type and intensity about them."""
         c = self.config
         begin = self._clock()

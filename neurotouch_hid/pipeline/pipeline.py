@@ -70,6 +70,13 @@ __all__ = ["MIN_WINDOW_US", "PipelineConfig", "GesturePipeline", "RESUME_MATCH_F
 STAGES = ("noise_filter", "tracker", "contacts", "gesture", "resting", "frame_correction")
 
 
+def _same_held(a: tuple[np.ndarray, np.ndarray] | None, b: tuple[np.ndarray, np.ndarray] | None) -> bool:
+    """Whether two :attr:`Contacts.held` (or None) hold the same markers at the same ||v||."""
+    if a is None or b is None:
+        return a is b
+    return np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+
+
 class GesturePipeline(FramePath):
     """Events and APS frames -> one :class:`GestureEstimate` per window (paper, "Methodology").
 
@@ -118,6 +125,9 @@ class GesturePipeline(FramePath):
         #: whether a window of the current press had a long flat top: fingertips side by side
         #: (docs/method.md, "Contacts"; ends with the press, at a window without a gesture)
         self._long_press = False
+        #: (rest reference, :attr:`Contacts.held`) of the window before in the current press: the
+        #: maxima a finger held where the homography follows it keeps ("Contacts"; ends with the press)
+        self._held: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None = None
         #: (t_us, intensity_mm) of the window before when it had a gesture ("Gesture": intensity lead)
         self._last_intensity: tuple[int, float] | None = None
         #: the fingers' load behind the deformation of a gel whose creep sensor.yaml has ("Creep")
@@ -242,6 +252,7 @@ class GesturePipeline(FramePath):
         self._next_end = None
         self._episode.reset()
         self._long_press = False
+        self._held = None
         self._last_intensity = None
         if self._creep is not None:
             self._creep.reset()
@@ -379,6 +390,7 @@ class GesturePipeline(FramePath):
         self._vote(GestureType.NONE, 0.0, 0, t_us)
         self._last_intensity = None
         self._long_press = False
+        self._held = None
         return GestureEstimate(t_us=t_us, gesture=GestureType.NONE, resting=resting)
 
     def _released(self, intensity_px: float, t_us: int) -> bool:
@@ -421,10 +433,12 @@ class GesturePipeline(FramePath):
         predictions are byte-identical)."""
         last = self._last_fit
         long_before = self._long_press
+        held = self._held[1] if self._held is not None and self._held[0] is rest_px else None
         if (
             last is not None
             and last[0] is rest_px
             and last[3] == long_before
+            and _same_held(last[6], held)
             and _unchanged(last[1], current, last[2], valid)
         ):
             begin = self._clock()
@@ -432,15 +446,23 @@ class GesturePipeline(FramePath):
             self._record("gesture", begin)
             contacts, result = last[4], last[5]
         else:
-            contacts, result = self._fit(rest_px, current, valid)
-            self._last_fit = (rest_px, current.copy(), valid.copy(), long_before, contacts, result)
+            contacts, result = self._fit(rest_px, current, valid, held)
+            self._last_fit = (rest_px, current.copy(), valid.copy(), long_before, contacts, result, held)
         self._long_press = long_before or contacts.long_flat_top
+        self._held = (rest_px, contacts.held)
         return contacts, result
 
-    def _fit(self, rest_px: np.ndarray, current: np.ndarray, valid: np.ndarray):
+    def _fit(
+        self,
+        rest_px: np.ndarray,
+        current: np.ndarray,
+        valid: np.ndarray,
+        held: tuple[np.ndarray, np.ndarray] | None = None,
+    ):
         """:meth:`_contacts_and_gesture` computed afresh: the gel's motion in its mount removed
-        (docs/method.md, "Gel motion"), the contacts ("Contacts"), the gesture's similarity and a
-        learned type ("Gesture")."""
+        (docs/method.md, "Gel motion"), the contacts ("Contacts"; ``held``: the press's
+        :attr:`Contacts.held` of the window before), the gesture's similarity and a learned type
+        ("Gesture")."""
         c = self.config
         begin = self._clock()
         centre = self.sensor.gel_center_px
@@ -463,6 +485,7 @@ class GesturePipeline(FramePath):
             min_move_px=c.min_move_px,
             neighbours=self._of_rest("contacts", rest_px, lambda rest: rest_neighbours(rest, c.marker_pitch_px)),
             long_before=self._long_press,
+            held=held,
         )
         if motion is not None:  # the contact points where they are, the gel's motion included
             points = motion.apply(contacts.points_px)
