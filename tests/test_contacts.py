@@ -786,6 +786,18 @@ def test_which_maxima_the_homography_s_outliers_keep(outliers_at_weak, weak_is_a
     np.testing.assert_allclose(found, [strong, weak] if weak_is_a_finger else [strong])
 
 
+def test_a_flat_top_s_maxima_are_held_as_its_one_and_a_held_window_counts_the_same():
+    """The window before's maxima held over a 3-finger push's flat top: only the plateau's own
+    maximum is held (its other maxima, kept the next window, would make more than three and the
+    cap would read the flat top as one finger), and the next window counts three again."""
+    for seed in range(5):
+        rest, cur, _ = three_finger_push(seed=seed)
+        options = {"r_px": 25.0, "n_min": 12, "refine_px": 20.0, "plateau_fraction": 0.8}
+        first = detect_contacts(rest, cur, **options)
+        assert len(first.held[0]) == len(np.unique(first.indices)) == 1
+        assert detect_contacts(rest, cur, **options, held=first.held).count == 3
+
+
 @pytest.mark.parametrize(
     ("held_at", "held_share", "weak_is_a_finger"),
     [
