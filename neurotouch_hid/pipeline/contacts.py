@@ -55,7 +55,7 @@ class Contacts:
         long_flat_top: a flat top of the field, at least a fingertip's footprint, is long:
             fingertips side by side (``contacts_plateau.LONG_ELONGATION``). The pipeline keeps it
             over the press (:func:`detect_contacts`'s ``long_before``).
-        held: the field's maxima that the plateaus left (one per finger or flat top), as the
+        held: the field's maxima that are one finger's peak (not a flat top of several), as the
             next window of the press hears them (:func:`detect_contacts`'s ``held``): (H,) int64
             marker indices and (H,) float64 their ||v|| (px) when the homography last failed on or
             about them.
@@ -220,10 +220,11 @@ def _usable(
 PEAK_OUTLIER_NEIGHBOURS = 2
 
 #: A maximum the homography fits is still a finger's peak when it or one of its grid neighbours
-#: was a maximum the plateaus left in the window before, of the same press, and it is displaced at least this share
-#: of what it was when the homography last failed on or about it: a finger held where, from one
-#: APS frame's correction to the next, the homography's consensus follows it (a held 3-finger zoom
-#: or twist, docs/method.md, "Contacts"); a finger easing off below it is left to the homography.
+#: was one finger's peak (not a flat top of several) in the window before, of the same press, and
+#: it is displaced at least this share of what it was when the homography last failed on or about
+#: it: a finger held where, from one APS frame's correction to the next, the homography's consensus
+#: follows it (a held 3-finger zoom or twist, docs/method.md, "Contacts"); a finger easing off below
+#: it is left to the homography.
 HELD_PEAK_SHARE = 0.9
 
 
@@ -497,7 +498,8 @@ def detect_contacts(
         )
     else:
         fingers, flat = np.zeros(0, dtype=np.int64), np.zeros((0, 2))
-    held_now = (c.idx[peaks], level_at[peaks])  # the maxima the plateaus left: one per finger or flat top
+    alone = fingers <= 1  # one finger's peak, not a flat top of several (whose maximum wanders over it)
+    held_now = (c.idx[peaks[alone]], level_at[peaks[alone]])
     rows, points, used = [], [], 0
     for i, f in zip(peaks.tolist(), fingers.tolist()):
         if f:  # a flat top: its contacts, all on its maximum's marker
