@@ -679,8 +679,17 @@ def test_a_weak_third_finger_no_marker_of_which_is_a_maximum_is_found_by_the_bum
     cur, fingers = twist_of_three(rest, (1.0, 1.0, 0.35), sigma_px=20.0)
     found = outlier_candidates(rest, cur, None, a=0.6)
     table = _valid_table(rest_neighbours(rest, 10.0), found.idx, found.n)
-    peaks, _ = _maxima(
-        found.rest_px, found.magnitudes, found.outliers, table, 0.6, 25.0**2, 12, found.threshold_px, 0.6
+    peaks, _, _ = _maxima(
+        found.rest_px,
+        found.magnitudes,
+        found.outliers,
+        table,
+        0.6,
+        25.0**2,
+        12,
+        found.threshold_px,
+        0.6,
+        np.zeros(len(found.idx)),
     )
     assert len(peaks) == 2 and np.linalg.norm(found.rest_px[peaks] - fingers[2], axis=1).min() > 25.0
     found = detect_contacts(rest, cur, r_px=25.0, n_min=12, refine_px=20.0, plateau_fraction=0.8)
@@ -698,8 +707,17 @@ def test_a_pinch_with_one_finger_at_the_apex_gives_two_contacts_where_the_maxima
     cur = rest + bump(rest, apex, (6.0, 0.0)) + bump(rest, other, (-6.0 * weak, 0.0))
     found = outlier_candidates(rest, cur, None, a=0.6)
     table = _valid_table(rest_neighbours(rest, 10.0), found.idx, found.n)
-    peaks, _ = _maxima(
-        found.rest_px, found.magnitudes, found.outliers, table, 0.6, 25.0**2, 12, found.threshold_px, 0.6
+    peaks, _, _ = _maxima(
+        found.rest_px,
+        found.magnitudes,
+        found.outliers,
+        table,
+        0.6,
+        25.0**2,
+        12,
+        found.threshold_px,
+        0.6,
+        np.zeros(len(found.idx)),
     )
     assert len(peaks) == 1
     contacts = detect_contacts(rest, cur)

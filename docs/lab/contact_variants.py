@@ -79,6 +79,17 @@ from neurotouch_hid.pipeline.contacts_plateau import (  # noqa: E402
 PRODUCT = C._maxima
 
 
+def _holding_nothing(variant):
+    """A variant below (written before a press held its fingers' peaks) as ``contacts._maxima`` is
+    called today: ``held`` (the last argument) ignored, each maximum held at its own ||v||."""
+
+    def maxima(*args):
+        peaks, magnitudes = variant(*args[:-1])
+        return peaks, magnitudes[peaks], magnitudes
+
+    return maxima
+
+
 def _outliers(rest, magnitudes, outliers, table, spike_fraction, r2, n_min, threshold, min_move=0.0):
     """The candidates are RANSAC's outliers; the rest model when they give no contact."""
     magnitudes = _despiked(table, magnitudes, spike_fraction)
@@ -167,18 +178,18 @@ def _residual_outliers(share):
 RESIDUAL = {"residual05": _residual_outliers(0.5), "residual07": _residual_outliers(0.7)}
 
 VARIANTS = {
-    "outliers": _outliers,
-    "union": _union_floor(0.0),
-    "union_strong": _union_strong,
-    "union_floor03": _union_floor(0.3),
-    "union_floor06": _union_floor(0.6),
-    "union_floor1": _union_floor(1.0),
+    "outliers": _holding_nothing(_outliers),
+    "union": _holding_nothing(_union_floor(0.0)),
+    "union_strong": _holding_nothing(_union_strong),
+    "union_floor03": _holding_nothing(_union_floor(0.3)),
+    "union_floor06": _holding_nothing(_union_floor(0.6)),
+    "union_floor1": _holding_nothing(_union_floor(1.0)),
     "product": PRODUCT,
-    "union_outlier_peaks": _union_kept(0.6, 2.0),
-    "union_outlier_peaks0": _union_kept(0.0, 2.0),
-    "union_outlier_peaks03": _union_kept(0.3, 2.0),
-    "union_share03": _union_kept(0.6, 0.3),
-    "union_share025": _union_kept(0.6, 0.25),
+    "union_outlier_peaks": _holding_nothing(_union_kept(0.6, 2.0)),
+    "union_outlier_peaks0": _holding_nothing(_union_kept(0.0, 2.0)),
+    "union_outlier_peaks03": _holding_nothing(_union_kept(0.3, 2.0)),
+    "union_share03": _holding_nothing(_union_kept(0.6, 0.3)),
+    "union_share025": _holding_nothing(_union_kept(0.6, 0.25)),
 }
 
 ORIGINAL_PLATEAUS = C.plateau_contacts
@@ -380,7 +391,7 @@ def _use(variant: str) -> None:
         C._maxima = PRODUCT
     elif variant in RESIDUAL:
         C.homography_outliers = RESIDUAL[variant]
-        C._maxima = _outliers
+        C._maxima = _holding_nothing(_outliers)
     else:
         C.homography_outliers = ORIGINAL_OUTLIERS
         C._maxima = VARIANTS[variant]
