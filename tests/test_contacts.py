@@ -671,6 +671,13 @@ def twist_of_three(rest, strengths, sigma_px):
     return cur + np.random.default_rng(0).normal(0.0, 0.05, cur.shape), np.asarray(fingers)
 
 
+def _product_maxima(found, table: np.ndarray) -> np.ndarray:
+    """The product's maxima step (r 25 px, N_min 12) on ``outlier_candidates``' ``found``, no
+    finger held: (K,) int64 into its markers."""
+    args = (found.rest_px, found.magnitudes, found.outliers, table, 0.6, 25.0**2, 12, found.threshold_px, 0.6)
+    return _maxima(*args, np.zeros(len(found.idx)))[0]
+
+
 def test_a_weak_third_finger_no_marker_of_which_is_a_maximum_is_found_by_the_bumps():
     # a twist of three fingers, the third at 0.35 of the others' strength: with wide bumps the
     # gel between the strong fingers moves more than the third finger's markers, so no maximum
@@ -679,18 +686,7 @@ def test_a_weak_third_finger_no_marker_of_which_is_a_maximum_is_found_by_the_bum
     cur, fingers = twist_of_three(rest, (1.0, 1.0, 0.35), sigma_px=20.0)
     found = outlier_candidates(rest, cur, None, a=0.6)
     table = _valid_table(rest_neighbours(rest, 10.0), found.idx, found.n)
-    peaks, _, _ = _maxima(
-        found.rest_px,
-        found.magnitudes,
-        found.outliers,
-        table,
-        0.6,
-        25.0**2,
-        12,
-        found.threshold_px,
-        0.6,
-        np.zeros(len(found.idx)),
-    )
+    peaks = _product_maxima(found, table)
     assert len(peaks) == 2 and np.linalg.norm(found.rest_px[peaks] - fingers[2], axis=1).min() > 25.0
     found = detect_contacts(rest, cur, r_px=25.0, n_min=12, refine_px=20.0, plateau_fraction=0.8)
     assert_one_contact_on_each(found, fingers, within_px=3.0)
@@ -707,18 +703,7 @@ def test_a_pinch_with_one_finger_at_the_apex_gives_two_contacts_where_the_maxima
     cur = rest + bump(rest, apex, (6.0, 0.0)) + bump(rest, other, (-6.0 * weak, 0.0))
     found = outlier_candidates(rest, cur, None, a=0.6)
     table = _valid_table(rest_neighbours(rest, 10.0), found.idx, found.n)
-    peaks, _, _ = _maxima(
-        found.rest_px,
-        found.magnitudes,
-        found.outliers,
-        table,
-        0.6,
-        25.0**2,
-        12,
-        found.threshold_px,
-        0.6,
-        np.zeros(len(found.idx)),
-    )
+    peaks = _product_maxima(found, table)
     assert len(peaks) == 1
     contacts = detect_contacts(rest, cur)
     assert contacts.count == 2
