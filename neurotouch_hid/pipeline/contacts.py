@@ -34,6 +34,9 @@ from neurotouch_hid.pipeline.contacts_plateau import (
 from neurotouch_hid.pipeline.contacts_refine import _refine_peak
 from neurotouch_hid.pipeline.markers import marker_arrays
 
+#: :attr:`Contacts.held` of a window that holds no finger's peak.
+NOTHING_HELD = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.float64))
+
 
 @dataclass(frozen=True)
 class Contacts:
@@ -67,7 +70,7 @@ class Contacts:
     candidates: np.ndarray
     reproj_threshold_px: float
     long_flat_top: bool = False
-    held: tuple[np.ndarray, np.ndarray] = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.float64))
+    held: tuple[np.ndarray, np.ndarray] = NOTHING_HELD
 
     @property
     def count(self) -> int:
@@ -327,7 +330,7 @@ class Candidates:
         points_px: np.ndarray,
         peaks_px: np.ndarray,
         long_flat_top: bool = False,
-        held: tuple[np.ndarray, np.ndarray] | None = None,
+        held: tuple[np.ndarray, np.ndarray] = NOTHING_HELD,
     ) -> Contacts:
         """The :class:`Contacts` of the markers ``rows`` (K,) int64 (into the M) at ``points_px``."""
         candidates = np.zeros(self.n, dtype=bool)
@@ -339,7 +342,7 @@ class Candidates:
             candidates=candidates,
             reproj_threshold_px=self.threshold_px,
             long_flat_top=long_flat_top,
-            **({} if held is None else {"held": held}),
+            held=held,
         )
 
 

@@ -429,9 +429,9 @@ class GesturePipeline(FramePath):
         (the same rest reference, positions and lost markers, bit for bit: about half of the
         moving windows of a simulated session, e.g. a held gesture whose markers made no event)
         the previous window's contacts and gesture are returned as they are, without a new
-        homography (both stages are deterministic functions of these inputs and of whether the
-        press had a long flat top; OpenCV's RANSAC and USAC draw from fixed seeds, so the
-        predictions are byte-identical)."""
+        homography (both stages are deterministic functions of these inputs, of whether the
+        press had a long flat top and of the fingers' peaks it holds; OpenCV's RANSAC and USAC
+        draw from fixed seeds, so the predictions are byte-identical)."""
         last = self._last_fit
         long_before = self._long_press
         held = self._held[1] if self._held is not None and self._held[0] is rest_px else None
