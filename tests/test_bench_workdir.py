@@ -61,6 +61,7 @@ def test_a_family_without_data_is_a_usage_error(workdir, tmp_path, capsys, names
         ("../docs/lab/contact_count.py", ["--families", "default"]),
         ("../docs/lab/type_commitment.py", ["--families", "default"]),
         ("../docs/lab/gesture_collar.py", ["--families", "strong"]),
+        ("../docs/lab/count_collar.py", ["--method", "ours"]),
         ("profile_felt.py", ["--method", "ours"]),
     ],
 )
