@@ -10,7 +10,7 @@ with its labels as ``eval`` pairs them (:func:`~neurotouch_hid.evaluation.metric
 family and gesture type: the count accuracy on every window of that labelled type; the wrong
 windows labelled below ``--below-mm`` (the gel barely moved: an attack's first instants, a
 release's last); and the accuracy on the windows more than ``--collar-ms`` from every change of
-the labelled type (``gesture_collar.outside_collar``, the resting F1's collar of docs/dataset.md).
+the labelled type (``gesture_collar.scored_outside_collar``, the resting F1's collar of docs/dataset.md).
 One markdown row per family and type.
 """
 
@@ -25,7 +25,7 @@ import typer
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))  # workdir.py, a benchmark's helper
 
-from gesture_collar import outside_collar  # noqa: E402
+from gesture_collar import scored_outside_collar  # noqa: E402
 from workdir import families_in  # noqa: E402
 
 from neurotouch_hid.dataset import list_sequences, read_labels, read_predictions  # noqa: E402
@@ -52,14 +52,11 @@ def main(
             labels = read_labels(out / family / f"{name}.labels.csv")
             estimates = read_predictions(out / "predictions" / family / method / f"{name}.jsonl")
             obs = align(labels, estimates, sensor)
-            t_us = np.array([e.t_us for e in estimates if e.t_us >= labels[0].t_us], dtype=np.int64)
-            label_t = np.array([r.t_us for r in labels], dtype=np.int64)
-            label_type = np.array([GESTURE_ORDER.index(r.gesture) for r in labels])
             ok = obs.count_true == obs.count_pred
             kinds.append(obs.gesture_true)
             right.append(ok)
             wrong_low.append(~ok & (obs.intensity_true < below_mm))
-            kept.append(outside_collar(label_t, label_type, t_us, int(collar_ms * 1000)))
+            kept.append(scored_outside_collar(labels, estimates, collar_ms))
         kind, ok, low, out_of_collar = (np.concatenate(a) for a in (kinds, right, wrong_low, kept))
         for k, gesture in enumerate(GESTURE_ORDER):
             mine = kind == k

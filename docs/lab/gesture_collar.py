@@ -42,6 +42,16 @@ def outside_collar(label_t_us: np.ndarray, label_type: np.ndarray, t_us: np.ndar
     return np.minimum(gap_next, gap_prev) > collar_us
 
 
+def scored_outside_collar(labels, estimates, collar_ms: float) -> np.ndarray:
+    """(M,) bool: which of a sequence's scored windows (``estimates`` from its first label on, as
+    :func:`~neurotouch_hid.evaluation.metrics.align` pairs them with ``labels``) lie more than
+    ``collar_ms`` from every change of the labelled gesture type (:func:`outside_collar`)."""
+    t_us = np.array([e.t_us for e in estimates if e.t_us >= labels[0].t_us], dtype=np.int64)
+    label_t = np.array([r.t_us for r in labels], dtype=np.int64)
+    label_type = np.array([GESTURE_ORDER.index(r.gesture) for r in labels])
+    return outside_collar(label_t, label_type, t_us, int(collar_ms * 1000))
+
+
 def main(
     out: Path = typer.Option(..., "--out", help="a benchmarks/adapt_eval.py folder"),
     families: str = typer.Option("powerlaw,drift,strong,viscoelastic,late,camera,contrast", "--families"),
@@ -75,10 +85,7 @@ def main(
                 labels = read_labels(recording.with_name(f"u{user}_session0.labels.csv"))
                 estimates = read_predictions(path)
                 obs = align(labels, estimates, sensor)
-                t_us = np.array([e.t_us for e in estimates if e.t_us >= labels[0].t_us], dtype=np.int64)
-                label_t = np.array([r.t_us for r in labels], dtype=np.int64)
-                label_type = np.array([GESTURE_ORDER.index(r.gesture) for r in labels])
-                kept = outside_collar(label_t, label_type, t_us, int(collar_ms * 1000))
+                kept = scored_outside_collar(labels, estimates, collar_ms)
                 right_window = obs.gesture_true == obs.gesture_pred
                 right += int(right_window.sum())
                 total += len(right_window)
