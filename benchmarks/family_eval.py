@@ -224,27 +224,28 @@ def family_dataset(
             write_dataset(folder, seed=seed, users=users, minutes=seconds * n_seq / 60.0, physics=fam, progress=False)
         (folder / "done").write_text("")
     if creep and fam != "mix" and not (folder / "creep.done").exists():
-        share, time_s = press_creep(out / "presses" / fam, fam, folder / "sensor.yaml")
-        make_console().print(f"{fam}: creep q {share:.2f}, tau {time_s:.2f} s (a simulated press)", highlight=False)
+        measured = press_creep(out / "presses" / fam, fam, folder / "sensor.yaml")
+        said = "none" if measured is None else f"q {measured[0]:.2f}, tau {measured[1]:.2f} s"
+        make_console().print(f"{fam}: creep {said} (a simulated press)", highlight=False)
         (folder / "creep.done").write_text("")
     return folder
 
 
-def press_creep(press_dir: Path, family: str, sensor_file: Path) -> tuple[float, float]:
+def press_creep(press_dir: Path, family: str, sensor_file: Path) -> tuple[float, float] | None:
     """The family's creep as a user would measure it (``calibrate --press``): one push sequence
     of the tuning user :data:`PRESS_USER` (seed :data:`PRESS_SEED`, odd: never a test draw, 6 s)
     simulated with the family's physics into ``press_dir``, tracked with the dataset's sensor,
     fitted (:func:`neurotouch_hid.calibration.measure_creep`); written into ``sensor_file`` as
-    its ``creep``. Returns (q, tau s)."""
+    its ``creep``. Returns (q, tau s), or None: the press shows no creep (none written)."""
     if not (press_dir / f"u{PRESS_USER}_push.aedat4").exists():
         users, gestures = [PRESS_USER], ["push"]
         write_dataset(
             press_dir, seed=PRESS_SEED, users=users, gestures=gestures, minutes=0.1, physics=family, progress=False
         )
     sensor = SensorGeometry.load(sensor_file)
-    share, time_s = measure_creep(press_dir / f"u{PRESS_USER}_push.aedat4", sensor)
-    replace(sensor, creep=(share, time_s)).save(sensor_file)
-    return share, time_s
+    creep = measure_creep(press_dir / f"u{PRESS_USER}_push.aedat4", sensor)
+    replace(sensor, creep=creep).save(sensor_file)
+    return creep
 
 
 def replay_vote(dataset: Path, predictions: Path, method: str, deadzone_mm: float = DEFAULT_DEADZONE_MM) -> dict:

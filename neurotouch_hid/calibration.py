@@ -39,7 +39,7 @@ step here is scale-free:
    relaxes slowly after it: :func:`measure_creep` tracks a recorded press with the pipeline and
    fits a standard linear solid to its amplitude (:mod:`neurotouch_hid.pipeline.creep`);
    sensor.yaml gets ``creep`` (q, tau), with which the pipeline tells a release's relaxation
-   from a gesture (docs/method.md, "Creep").
+   from a gesture (docs/method.md, "Creep"), or none when the press relaxes as an elastic gel's.
 
 Mirror and rotation cannot be seen on a rest frame: :func:`calibrate` leaves SensorGeometry's
 defaults (mirror, as the camera looks from inside; no rotation); ``calibrate`` measures them
@@ -428,10 +428,11 @@ def press_amplitude(recording: str | Path, sensor: SensorGeometry) -> tuple[np.n
     return np.array(times, dtype=np.int64), np.array(amplitude)
 
 
-def measure_creep(recording: str | Path, sensor: SensorGeometry) -> tuple[float, float]:
+def measure_creep(recording: str | Path, sensor: SensorGeometry) -> tuple[float, float] | None:
     """The gel's creep (q, tau s), sensor.yaml's ``creep``, from a recording of a press: one
     finger pressed into the gel, held still ~2 s, lifted quickly, then the gel left alone ~2 s
-    (:func:`neurotouch_hid.pipeline.creep.fit_creep` on :func:`press_amplitude`).
+    (:func:`neurotouch_hid.pipeline.creep.fit_creep` on :func:`press_amplitude`); None when the
+    gel does not creep (an elastic gel explains the press nearly as well).
 
     Raises:
         SensorError: the recording shows no press held and released (what to do is said);

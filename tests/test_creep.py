@@ -119,7 +119,7 @@ def test_a_creep_model_needs_a_share_below_one_a_positive_time_and_a_floor_not_b
 @pytest.mark.parametrize(("share", "time_s"), [(0.3, 0.3), (0.2, 0.6), (0.4, 0.3), (0.15, 1.0)])
 def test_a_press_gives_the_gels_creep(share, time_s):
     """A press on a simulated creeping gel with tracking noise (0.1 px) and a tremor: the fit
-    finds q within 0.05 and tau within 30 %; on an elastic gel q at most 0.04. (A much faster
+    finds q within 0.05 and tau within 30 %; on an elastic gel no creep. (A much faster
     creep, tau ~0.15 s, is mostly over before the hold starts: its q is then found low, which
     matters little, as its tail is as short.)"""
     rng = np.random.default_rng(3)
@@ -129,8 +129,35 @@ def test_a_press_gives_the_gels_creep(share, time_s):
     fitted_q, fitted_tau = fit_creep(t, creeping(load, share, time_s) + rng.normal(0.0, 0.1, len(load)))
     assert abs(fitted_q - share) <= 0.05
     assert abs(fitted_tau - time_s) <= 0.3 * time_s
-    elastic_q, _ = fit_creep(t, load + rng.normal(0.0, 0.1, len(load)))
-    assert elastic_q <= 0.04
+    assert fit_creep(t, load + rng.normal(0.0, 0.1, len(load))) is None
+
+
+def test_an_elastic_gel_with_the_trackers_error_after_a_quick_lift_does_not_creep():
+    """After a quick lift the tracker can leave a few blobs up to half a marker pitch behind their
+    markers until the gel is seen near rest (the elastic simulated families' presses: ~4 px for
+    ~0.1 s, then 0). A small creep explains part of that plateau (q 0.1-0.14 was written for
+    those gels, and ended their gestures' release ramps early), but not half of what the elastic
+    gel leaves: no creep. The same plateau on a gel that does creep keeps its creep."""
+    rng = np.random.default_rng(4)
+    load = press_load()
+    t = np.arange(len(load)) * STEP_US
+    end = int(np.flatnonzero(load > 0)[-1]) + 1
+    stuck = np.zeros(len(load))
+    stuck[end : end + 10] = 4.0  # left behind, then re-anchored when the gel is seen near rest
+    noise = rng.normal(0.0, 0.1, len(load))
+    q_stuck, _ = fit_creep_any(t, load + stuck + noise)
+    assert q_stuck >= 0.04  # what the best model alone says: a creep that is not there
+    assert fit_creep(t, load + stuck + noise) is None
+    share, time_s = fit_creep(t, creeping(load, 0.3, 0.3) + stuck + noise)
+    assert abs(share - 0.3) <= 0.05 and abs(time_s - 0.3) <= 0.3 * 0.3
+
+
+def fit_creep_any(t_us: np.ndarray, amplitude: np.ndarray) -> tuple[float, float]:
+    """The best model of the grid whatever its misfit against the elastic gel's (``fit_creep``
+    with :data:`MISFIT_SHARE` at 1)."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("neurotouch_hid.pipeline.creep.MISFIT_SHARE", 1.0)
+        return fit_creep(t_us, amplitude) or (0.0, float(TIMES_S[0]))
 
 
 def test_no_press_or_no_release_is_refused_with_what_to_do():
@@ -222,6 +249,22 @@ def test_calibrate_press_measures_the_creep_and_keeps_it_when_recalibrated(visco
     assert result.exit_code == 0, result.output
     assert SensorGeometry.load(out).creep == (share, time_s)
     assert "kept from" in result.output
+
+
+def test_calibrate_press_on_an_elastic_gel_writes_no_creep_and_says_so(sim_push_recording, tmp_path):
+    """``calibrate --press`` on a push of the default (elastic) simulated gel: "creep: none", and
+    the creep an earlier calibration wrote is gone from sensor.yaml (it would end every gesture's
+    release early); the rest of the calibration is written as without --press."""
+    recording = str(sim_push_recording)
+    out = tmp_path / "sensor.yaml"
+    SensorGeometry(creep=(0.1, 0.2)).save(out)
+    args = ["calibrate", "--source", recording, "--out", str(out), "--mirror", "--rotation", "0"]
+    result = CliRunner().invoke(app, [*args, "--press", recording])
+    assert result.exit_code == 0, result.output
+    assert "creep: none" in result.output and "creep: q" not in result.output
+    written = SensorGeometry.load(out)
+    assert written.creep is None and "creep" not in out.read_text()
+    assert written.px_per_mm > 0 and written.gel_radius_px > 0
 
 
 def test_calibrate_press_refuses_a_recording_without_a_press_and_loses_nothing(sim_rest_dataset, tmp_path):

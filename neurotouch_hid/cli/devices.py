@@ -375,13 +375,17 @@ def calibrate(
         sys.exit(1 if checked_wrong else 0)
     path = user_sensor_path() if out is None else (out / "sensor.yaml" if out.is_dir() else out)
     if press is not None:
-        share, time_s = calibration.measure_creep(press, geometry)
-        geometry = dataclasses.replace(geometry, creep=(share, time_s))
-        say(
-            f"creep: q {share:.2f}, tau {time_s:.2f} s (a press in {press}: {share:.0%} of a held deformation "
-            f"comes with a delay of ~{time_s:.2f} s and relaxes as slowly after the release)"
-        )
-        if at_search_edge(share, time_s):
+        creep = calibration.measure_creep(press, geometry)
+        geometry = dataclasses.replace(geometry, creep=creep)
+        if creep is None:
+            say(f"creep: none (a press in {press} relaxes as an elastic gel's does: gestures end when the gel is back)")
+        else:
+            share, time_s = creep
+            say(
+                f"creep: q {share:.2f}, tau {time_s:.2f} s (a press in {press}: {share:.0%} of a held deformation "
+                f"comes with a delay of ~{time_s:.2f} s and relaxes as slowly after the release)"
+            )
+        if creep is not None and at_search_edge(*creep):
             say(
                 "note: that is at the edge of what is searched (q up to 0.6, tau 0.05-3 s): the press may not "
                 "have been held still, or lifted quickly; record it again if gestures end too early or too late"
