@@ -62,6 +62,7 @@ def test_a_family_without_data_is_a_usage_error(workdir, tmp_path, capsys, names
         ("../docs/lab/type_commitment.py", ["--families", "default"]),
         ("../docs/lab/gesture_collar.py", ["--families", "strong"]),
         ("../docs/lab/count_collar.py", ["--method", "ours"]),
+        ("../docs/lab/creep_misfit.py", []),
         ("profile_felt.py", ["--method", "ours"]),
     ],
 )

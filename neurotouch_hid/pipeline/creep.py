@@ -133,21 +133,20 @@ def at_search_edge(share: float, time_s: float) -> bool:
     return share >= SHARES[-1] - 1e-9 or time_s <= TIMES_S[0] * (1 + 1e-9) or time_s >= TIMES_S[-1] * (1 - 1e-9)
 
 
-def fit_creep(t_us: np.ndarray, amplitude: np.ndarray) -> tuple[float, float] | None:
-    """The gel's creep (q, tau s) from a recording of presses (``calibrate --press``).
+def creep_misfit(t_us: np.ndarray, amplitude: np.ndarray) -> np.ndarray:
+    """How far each creep model of the grid is from a recording of presses (``calibrate --press``).
 
     Args:
         t_us: (T,) int64 window times (us), non-decreasing.
         amplitude: (T,) float, the deformation's amplitude then (px; e.g. the mean of the
             largest tracked marker displacements).
     Returns:
-        (q, tau): of :data:`SHARES` x :data:`TIMES_S`, the model whose load (:func:`load_estimate`)
-        varies least about its median over the holds and stays nearest 0 after the releases
-        (least squares, px^2); None (the gel does not creep) when that misfit is more than
-        :data:`MISFIT_SHARE` of the elastic gel's (q = 0). A press is a run of windows at >=
-        :data:`PRESS_FRACTION` of the peak; its hold starts :data:`HOLD_AFTER_US` after it and ends
-        :data:`HOLD_BEFORE_US` before its end, its released part lasts :data:`RELEASED_FOR_US` from
-        :data:`RELEASED_AFTER_US` after it.
+        (len(:data:`SHARES`), len(:data:`TIMES_S`)) float64 misfit (px^2) of each (q, tau): how much
+        its load (:func:`load_estimate`) varies about its median over the holds plus how far it is
+        from 0 after the releases (least squares); row 0 (q = 0) is the elastic gel's. A press is a
+        run of windows at >= :data:`PRESS_FRACTION` of the peak; its hold starts
+        :data:`HOLD_AFTER_US` after it and ends :data:`HOLD_BEFORE_US` before its end, its released
+        part lasts :data:`RELEASED_FOR_US` from :data:`RELEASED_AFTER_US` after it.
     Raises:
         ValueError: the amplitude never reaches :data:`MIN_PRESS_PX`, or no press has a hold of
             at least 3 windows and a released part of at least 3 windows (a press too short, or
@@ -175,7 +174,22 @@ def fit_creep(t_us: np.ndarray, amplitude: np.ndarray) -> tuple[float, float] | 
     q, tau = np.meshgrid(SHARES, TIMES_S, indexing="ij")
     load = load_estimate(a, t, q, tau)
     level = np.median(load[hold], axis=0)
-    cost = ((load[hold] - level) ** 2).sum(axis=0) + (load[released] ** 2).sum(axis=0)
+    return ((load[hold] - level) ** 2).sum(axis=0) + (load[released] ** 2).sum(axis=0)
+
+
+def fit_creep(t_us: np.ndarray, amplitude: np.ndarray) -> tuple[float, float] | None:
+    """The gel's creep (q, tau s) from a recording of presses (``calibrate --press``).
+
+    Args:
+        t_us, amplitude: as :func:`creep_misfit`'s.
+    Returns:
+        (q, tau): the model of :data:`SHARES` x :data:`TIMES_S` with the least
+        :func:`creep_misfit`; None (the gel does not creep) when that misfit is more than
+        :data:`MISFIT_SHARE` of the elastic gel's (q = 0).
+    Raises:
+        ValueError: as :func:`creep_misfit`.
+    """
+    cost = creep_misfit(t_us, amplitude)
     i, j = np.unravel_index(np.argmin(cost), cost.shape)
     if SHARES[i] == 0.0 or cost[i, j] > MISFIT_SHARE * cost[0, 0]:  # SHARES[0] is 0: the elastic gel
         return None
