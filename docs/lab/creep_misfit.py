@@ -8,7 +8,7 @@ creep is calibrated on (tuning user 5's push, with its sensor.yaml and the simul
 Per family, on the tracked amplitude (what ``calibrate --press`` fits,
 ``calibration.press_amplitude``) and on the true markers' (the same mean of the 10 largest
 displacements, every 10 ms): the best (q, tau) of the grid and its misfit as a share of the elastic
-gel's (``creep.creep_misfit``; ``creep.MISFIT_SHARE`` keeps a creep at or below it). Then the first
+gel's (``creep.creep_misfit``), and whether ``creep.fit_creep`` keeps it. Then the first
 family's true amplitude, as a load, through the simulator's standard linear solid
 (``physics.sls_deformation``) for a few (q, tau), alone and with the tracker's error on that press
 (tracked minus true) added. Markdown rows.
@@ -22,7 +22,7 @@ import numpy as np
 import typer
 
 from neurotouch_hid.calibration import PRESS_MARKERS, press_amplitude
-from neurotouch_hid.pipeline.creep import MISFIT_SHARE, SHARES, TIMES_S, creep_misfit
+from neurotouch_hid.pipeline.creep import SHARES, TIMES_S, creep_misfit, fit_creep
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import sls_deformation
 
@@ -37,7 +37,7 @@ def best(t_us: np.ndarray, amplitude: np.ndarray) -> str:
     cost = creep_misfit(t_us, amplitude)
     i, j = np.unravel_index(np.argmin(cost), cost.shape)
     share = cost[i, j] / cost[0, 0] if cost[0, 0] > 0 else 1.0
-    kept = "kept" if SHARES[i] > 0 and share <= MISFIT_SHARE else "none"
+    kept = "none" if fit_creep(t_us, amplitude) is None else "kept"
     return f"q {SHARES[i]:.2f}, tau {TIMES_S[j]:.2f} s: {share:.2f} ({kept})"
 
 
