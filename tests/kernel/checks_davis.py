@@ -52,6 +52,8 @@ CLI = str(Path(sys.executable).parent / "neurotouch-hid")
 REST_TO_S = 0.55
 #: Frames sent: the first of every 14, i.e. one per pass of the 0.55 s (14 frames) above.
 FRAME_EVERY = 14
+#: How many runs of 32 recorded events :func:`_match` tries to locate in the source.
+HEAD_TRIES = 16
 #: The push the gadget plays on SIGHUP (s of the recording: the simulated session's push, from
 #: the rest before it to its end), then the part of it held, again and again; both GESTURE_SLOW
 #: times slower than recorded (the gel's ~70k events/s at real speed are more than the emulated
@@ -239,12 +241,18 @@ def _match(source: tuple, recorded: tuple, period_us: int) -> dict:
     assert len(b) > 100, f"only {len(b)} events recorded"
     key_a = np.stack([a["x"], a["y"], a["polarity"]], axis=1).astype(np.int64)
     key_b = np.stack([b["x"], b["y"], b["polarity"]], axis=1).astype(np.int64)
-    head = key_b[:32]
-    candidates = np.flatnonzero((key_a[: len(a) - 32] == head[0]).all(axis=1))
-    start = next((int(j) for j in candidates if (key_a[j : j + 32] == head).all()), None)
+    # locate 32 recorded events in a row in the source; under load the host can drop a packet, so
+    # the first run of 32 may hold a gap: the next runs are tried
+    start = head_at = None
+    for head_at in range(0, min(len(b) - 32, HEAD_TRIES * 32), 32):
+        head = key_b[head_at : head_at + 32]
+        candidates = np.flatnonzero((key_a[: len(a) - 32] == head[0]).all(axis=1))
+        start = next((int(j) for j in candidates if (key_a[j : j + 32] == head).all()), None)
+        if start is not None:
+            break
     assert start is not None, "the recorded events are not found in the replayed recording"
     rel_a = a["timestamp"] - first
-    rel_b = (b["timestamp"] - b["timestamp"][0] + rel_a[start]) % period_us
+    rel_b = (b["timestamp"] - b["timestamp"][head_at] + rel_a[start]) % period_us
     source_set = set(zip(rel_a.tolist(), *key_a.T.tolist()))
     found = np.array([item in source_set for item in zip(rel_b.tolist(), *key_b.T.tolist())])
     span_us = int(b["timestamp"][-1] - b["timestamp"][0])
@@ -255,6 +263,7 @@ def _match(source: tuple, recorded: tuple, period_us: int) -> dict:
         "period_us": period_us,
         "recorded_events": len(b),
         "start_index": start,
+        "head_at": head_at,
         "span_us": span_us,
         "found_in_source": int(found.sum()),
         "first_not_found": int(np.argmin(found)) if not found.all() else None,
