@@ -385,11 +385,11 @@ def calibrate(
                 f"creep: q {share:.2f}, tau {time_s:.2f} s (a press in {press}: {share:.0%} of a held deformation "
                 f"comes with a delay of ~{time_s:.2f} s and relaxes as slowly after the release)"
             )
-        if creep is not None and at_search_edge(*creep):
-            say(
-                "note: that is at the edge of what is searched (q up to 0.6, tau 0.05-3 s): the press may not "
-                "have been held still, or lifted quickly; record it again if gestures end too early or too late"
-            )
+            if at_search_edge(share, time_s):
+                say(
+                    "note: that is at the edge of what is searched (q up to 0.6, tau 0.05-3 s): the press may not "
+                    "have been held still, or lifted quickly; record it again if gestures end too early or too late"
+                )
     if path.exists():
         try:
             old = SensorGeometry.load(path)
