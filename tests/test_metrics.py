@@ -20,6 +20,7 @@ from neurotouch_hid.evaluation.metrics import (
     contact_distances,
     evaluate,
     mean_absolute_error,
+    outside_collar,
     outside_resting_collar,
     precision_recall_f1,
 )
@@ -204,6 +205,16 @@ def test_resting_collar_leaves_out_predictions_within_40_ms_of_each_flag_change(
     assert not outside_resting_collar(label_t, label_rest, t, collar_us=200_000).any()
     with pytest.raises(ValueError):
         outside_resting_collar(label_t, label_rest[:3], t)
+
+
+def test_a_collar_about_a_labelled_type_counts_a_change_from_one_type_to_another():
+    # none, push from 100 ms, pinch from 200 ms (no rest between), none from 300 ms
+    label_t = np.array([0, 100_000, 200_000, 300_000, 400_000])
+    label_type = np.array([-1, 0, 1, 1, -1])
+    t = np.arange(0, 400_001, 10_000)
+    left_out = set(t[~outside_collar(label_t, label_type, t, 40_000)].tolist())
+    expected = {u for c in (100_000, 200_000, 400_000) for u in range(c - 40_000, c + 40_001, 10_000)}
+    assert left_out == expected & set(t.tolist())
 
 
 def test_collared_resting_f1_scores_only_predictions_outside_the_collar():

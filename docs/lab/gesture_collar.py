@@ -24,28 +24,17 @@ import typer
 
 from neurotouch_hid.dataset import read_labels, read_predictions
 from neurotouch_hid.estimate import GESTURE_ORDER
-from neurotouch_hid.evaluation.metrics import align
+from neurotouch_hid.evaluation.metrics import align, outside_collar
 from neurotouch_hid.sensor import SensorGeometry
 
 USERS = (0, 3)
 
 
-def outside_collar(label_t_us: np.ndarray, label_type: np.ndarray, t_us: np.ndarray, collar_us: int) -> np.ndarray:
-    """(M,) bool: the windows ending at ``t_us`` (M,) int64 us more than ``collar_us`` from every
-    change of the labelled type (``label_type`` (L,) int at ``label_t_us`` (L,) int64 us)."""
-    changes = label_t_us[1:][label_type[1:] != label_type[:-1]]
-    if changes.size == 0:
-        return np.ones(t_us.shape, dtype=bool)
-    after = np.searchsorted(changes, t_us, side="left")
-    gap_next = np.abs(changes[np.minimum(after, changes.size - 1)] - t_us)
-    gap_prev = np.abs(t_us - changes[np.maximum(after - 1, 0)])
-    return np.minimum(gap_next, gap_prev) > collar_us
-
-
 def scored_outside_collar(labels, estimates, collar_ms: float) -> np.ndarray:
     """(M,) bool: which of a sequence's scored windows (``estimates`` from its first label on, as
     :func:`~neurotouch_hid.evaluation.metrics.align` pairs them with ``labels``) lie more than
-    ``collar_ms`` from every change of the labelled gesture type (:func:`outside_collar`)."""
+    ``collar_ms`` from every change of the labelled gesture type
+    (:func:`~neurotouch_hid.evaluation.metrics.outside_collar`)."""
     t_us = np.array([e.t_us for e in estimates if e.t_us >= labels[0].t_us], dtype=np.int64)
     label_t = np.array([r.t_us for r in labels], dtype=np.int64)
     label_type = np.array([GESTURE_ORDER.index(r.gesture) for r in labels])

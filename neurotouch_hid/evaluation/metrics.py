@@ -13,7 +13,8 @@ The metric functions themselves are pure functions on numpy arrays:
 - :func:`contact_distances` (average Euclidean distance error, surplus predictions dropped);
 - :func:`mean_absolute_error` (intensity);
 - :func:`accuracy_by_bin` (accuracy against ground-truth intensity, 0.6 mm bins);
-- :func:`outside_resting_collar` (which predictions the collared resting F1 scores).
+- :func:`outside_resting_collar` (which predictions the collared resting F1 scores), through
+  :func:`outside_collar` (the times outside a collar about each change of any labelled value).
 
 Undefined values (a precision with no prediction of the class, a mean over nothing) are NaN in
 arrays and ``None`` in :meth:`EvaluationResult.to_dict`.
@@ -190,14 +191,45 @@ def accuracy_by_bin(
     return edges, acc, count
 
 
+def outside_collar(
+    label_t_us: np.ndarray, label_values: np.ndarray, t_us: np.ndarray, collar_us: int = RESTING_COLLAR_US
+) -> np.ndarray:
+    """Which of the times ``t_us`` lie more than ``collar_us`` from every change of a labelled value
+    (the resting flag, a gesture type). A change is at the labelled time whose value differs from
+    the one before it (from there on the label at a prediction's time says the new value,
+    :func:`~neurotouch_hid.dataset.labels_at`); a time at most ``collar_us`` before or after it is
+    left out.
+
+    Args:
+        label_t_us: (L,) int64 labelled times (us), increasing.
+        label_values: (L,) the labelled values (bool, int: any dtype ``!=`` compares).
+        t_us: (M,) int64 prediction times (us).
+        collar_us: the collar's half-width (us, >= 0).
+    Returns:
+        (M,) bool, True where the time is outside every collar.
+    Raises:
+        ValueError: the label arrays differ in shape.
+    """
+    label_t_us = np.asarray(label_t_us, dtype=np.int64).reshape(-1)
+    label_values = np.asarray(label_values).reshape(-1)
+    t_us = np.asarray(t_us, dtype=np.int64).reshape(-1)
+    if label_t_us.shape != label_values.shape:
+        raise ValueError(f"label times and values differ in shape: {label_t_us.shape} vs {label_values.shape}")
+    changes = label_t_us[1:][label_values[1:] != label_values[:-1]]
+    if changes.size == 0 or t_us.size == 0:
+        return np.ones(t_us.shape, dtype=bool)
+    after = np.searchsorted(changes, t_us, side="left")  # the first change at or after each time
+    gap_next = np.abs(changes[np.minimum(after, changes.size - 1)] - t_us)
+    gap_prev = np.abs(t_us - changes[np.maximum(after - 1, 0)])
+    return np.minimum(gap_next, gap_prev) > collar_us
+
+
 def outside_resting_collar(
     label_t_us: np.ndarray, label_resting: np.ndarray, t_us: np.ndarray, collar_us: int = RESTING_COLLAR_US
 ) -> np.ndarray:
     """Which predictions the collared resting F1 scores (docs/dataset.md, "Predictions (JSON
-    lines)"): those more than ``collar_us`` from every change of the labelled resting flag. A
-    change is at the labelled frame whose flag differs from the frame before it (from there on
-    the label at a prediction's time says the new flag, :func:`~neurotouch_hid.dataset.labels_at`);
-    a prediction at most ``collar_us`` before or after it is left out.
+    lines)"): those more than ``collar_us`` from every change of the labelled resting flag
+    (:func:`outside_collar`).
 
     Args:
         label_t_us: (L,) int64 labelled frames' times (us), increasing.
@@ -209,18 +241,7 @@ def outside_resting_collar(
     Raises:
         ValueError: the label arrays differ in shape.
     """
-    label_t_us = np.asarray(label_t_us, dtype=np.int64).reshape(-1)
-    label_resting = np.asarray(label_resting, dtype=bool).reshape(-1)
-    t_us = np.asarray(t_us, dtype=np.int64).reshape(-1)
-    if label_t_us.shape != label_resting.shape:
-        raise ValueError(f"label times and flags differ in shape: {label_t_us.shape} vs {label_resting.shape}")
-    changes = label_t_us[1:][label_resting[1:] != label_resting[:-1]]
-    if changes.size == 0 or t_us.size == 0:
-        return np.ones(t_us.shape, dtype=bool)
-    after = np.searchsorted(changes, t_us, side="left")  # the first change at or after each prediction
-    gap_next = np.abs(changes[np.minimum(after, changes.size - 1)] - t_us)
-    gap_prev = np.abs(t_us - changes[np.maximum(after - 1, 0)])
-    return np.minimum(gap_next, gap_prev) > collar_us
+    return outside_collar(label_t_us, np.asarray(label_resting, dtype=bool), t_us, collar_us)
 
 
 # --- aligning predictions with labels -------------------------------------------------------
