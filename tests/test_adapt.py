@@ -274,6 +274,57 @@ def test_the_first_fingers_wait_is_shortened_only_where_no_window_reads_wrong_ab
     assert _felt_wrong([lagging], [replay(lagging, ONE_HOT)], {0}) == 0
 
 
+def pushes_with_weak_windows(after_end_ms: int, prompts: int = 9) -> Record:
+    """``prompts`` labelled pushes at 1.0 mm, each followed by three 10 ms windows the pipeline
+    reads as a push at 0.2 mm and the labels call ``none``, starting ``after_end_ms`` after the
+    labelled end (rest belongs to the gesture after it)."""
+    kinds, intensity, labelled, prompt = [], [], [], []
+    for p in range(prompts):
+        before = [(-1, 0.0, False)] * 20 + [(0, 1.0, True)] * 30
+        after = [(-1, 0.0, False)] * (after_end_ms // 10) + [(0, 0.2, False)] * 3 + [(-1, 0.0, False)] * 20
+        for rows, owner in ((before, p), (after, min(p + 1, prompts - 1))):
+            for k, i, lab in rows:
+                kinds.append(k)
+                intensity.append(i)
+                labelled.append(lab)
+                prompt.append(owner)
+    n = len(kinds)
+    kinds_a = np.array(kinds, dtype=np.int8)
+    features = np.full((n, 9), np.nan)
+    features[kinds_a >= 0] = np.eye(9)[0]
+    push = CLASSES.index(GestureType.PUSH)
+    return Record(
+        name="synthetic",
+        t_us=10_000 * np.arange(1, n + 1, dtype=np.int64),
+        gesture=np.where(kinds_a >= 0, push, -1).astype(np.int8),
+        intensity_mm=np.array(intensity),
+        n_contacts=(kinds_a >= 0).astype(np.int16),
+        features=features,
+        answered=kinds_a,
+        label=np.where(labelled, push, -1).astype(np.int8),
+        label_intensity_mm=np.where(labelled, 1.0, 0.0),
+        prompt=np.array(prompt, dtype=np.int64),
+        frame_t_us=np.zeros(0, dtype=np.int64),
+        frame_distance_mm2=np.zeros(0),
+        frame_resting=np.zeros(0, dtype=bool),
+        frame_prompt=np.zeros(0, dtype=np.int64),
+        prompt_type=dict.fromkeys(range(prompts), push),
+    )
+
+
+def test_the_contact_threshold_is_not_kept_for_windows_the_labels_end_a_frame_early():
+    """A release's last windows read at 0.2 mm just after the enrolment's labels end the gesture (they
+    end it at a tenth of its peak): a game's labels still call them the gesture, so a threshold that
+    only answers them ``none`` is not kept. The same weak windows 200 ms after the end, in a rest the
+    labels are sure of, keep it."""
+    tail = pushes_with_weak_windows(after_end_ms=0)
+    assert "gesture.min_intensity_mm" not in adapt([tail]).model.settings
+    blip = adapt([pushes_with_weak_windows(after_end_ms=200)])
+    assert blip.model.settings["gesture.min_intensity_mm"] == pytest.approx(0.24)
+    check = next(c for c in blip.checks if c.what == "gesture.min_intensity_mm")
+    assert check.kept and "outside the 40 ms collar" in check.metric
+
+
 def test_adapt_writes_a_model_the_commands_use_and_none_means_shipped(mirrored, tmp_path):
     out = tmp_path / "model.yaml"
     done = run_cli("adapt", str(mirrored), "--out", str(out), "--jobs", "1")

@@ -17,7 +17,8 @@
      L2-regularised toward them (:func:`fit_classifier`; the strength picked by a 3-fold
      cross-validation by gesture within the fitted part);
    - the minimum intensity (the contact threshold, ``gesture.min_intensity_mm``), from the shipped
-     value up (:data:`MIN_INTENSITY_STEPS`);
+     value up (:data:`MIN_INTENSITY_STEPS`), scored on the windows outside a collar about each
+     change of the labelled type (:data:`THRESHOLD_COLLAR_US`);
    - how long one contact alone keeps an episode undecided (``episode.first_finger_us``, the hand's
      lag between its first and second finger), from the shipped value down
      (:data:`FIRST_FINGER_STEPS_US`), the fitted part's best accuracy among the values that show no
@@ -27,10 +28,10 @@
 
 4. **Check** on the held-out gestures: each fitted value is kept only where it beats the shipped
    one there by more than :data:`MIN_GAIN` of the windows' gesture type accuracy (the type, the
-   contact threshold and the first finger's wait: replayed, the wait with no more windows of another
-   type above the dead zone either; the resting threshold: the pipeline run again with it, and its
-   frames' resting F1 higher too; the scale: an intensity MAE lower by more than
-   :data:`MIN_MAE_GAIN` of it, and no accuracy lost);
+   contact threshold (outside the collar) and the first finger's wait: replayed, the wait with no
+   more windows of another type above the dead zone either; the resting threshold: the pipeline
+   run again with it, and its frames' resting F1 higher too; the scale: an intensity MAE lower by
+   more than :data:`MIN_MAE_GAIN` of it, and no accuracy lost);
    otherwise the shipped value stays. The model (``model.py``) holds only what was kept.
 """
 
@@ -47,6 +48,7 @@ import numpy as np
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
+from neurotouch_hid.evaluation.metrics import outside_collar
 from neurotouch_hid.pipeline.episode import FIRST_FINGER_US
 from neurotouch_hid.pipeline.learned import CLASSES, FEATURES, Classifier
 
@@ -73,6 +75,15 @@ MIN_HELD_OUT = 3
 #: more than this (gesture type accuracy, 0..1): 0.2 points is ~7 windows of a 3-minute enrolment's
 #: ~3400 held-out ones, less than one tap: a smaller gain is within what another hold-out moves.
 MIN_GAIN = 0.002
+#: The contact threshold is fitted and checked on the windows more than this from every change of
+#: the labelled type (us; one APS frame, the collar docs/dataset.md puts about the resting flag). A
+#: higher threshold moves only a gesture's weakest windows, its attack's first and its release's
+#: last, and there the enrolment's labels, which take a gesture's moments from the gel's motion
+#: (``label.py``: from the last window near the level before the cue to a tenth of the peak), are
+#: unsure by a window or more. Scored on every window, a threshold was kept for answering ``none``
+#: in the 10-40 ms after a labelled end (intensity 0.15-0.24 mm), where a game's labels, which end
+#: a gesture when its fingers have left, still call it the gesture (docs/lab/adaptation.md).
+THRESHOLD_COLLAR_US = 40_000
 #: The intensity scale is kept only when it lowers the held-out intensity MAE by more than this share
 #: of it: a scale within a few thousandths of 1 changes nothing a profile can feel.
 MIN_MAE_GAIN = 0.05
@@ -308,11 +319,17 @@ def replay(
     return out
 
 
-def _accuracy(records: Sequence[Record], answers: Sequence[np.ndarray], prompts: set[int]) -> tuple[float, int]:
-    """(gesture type accuracy, windows) over the labelled windows of ``prompts``."""
+def _accuracy(
+    records: Sequence[Record], answers: Sequence[np.ndarray], prompts: set[int], collar_us: int = 0
+) -> tuple[float, int]:
+    """(gesture type accuracy, windows) over the labelled windows of ``prompts``; with ``collar_us``
+    > 0, only those more than that (us) from every change of the labelled type
+    (:func:`~neurotouch_hid.evaluation.metrics.outside_collar`)."""
     right = total = 0
     for r, a in zip(records, answers):
         m = (r.label >= -1) & np.isin(r.prompt, list(prompts))
+        if collar_us > 0:
+            m &= outside_collar(r.t_us, r.label, r.t_us, collar_us)
         right += int(np.sum(a[m] == r.label[m]))
         total += int(m.sum())
     return (right / total if total else float("nan")), total
@@ -548,22 +565,32 @@ def adapt(records: Sequence[Record], rerun: Callable[..., list[Record]] | None =
         )
         classifier = candidate if kept else None
     current = _accuracy(records, [replay(r, classifier) for r in records], held)[0]
-    # the contact threshold: the fitted part's best, then checked
+    # the contact threshold: the fitted part's best, then checked, outside the collar
     shipped_min = GestureConfig().min_intensity_mm
+    collar = THRESHOLD_COLLAR_US
     fit_scores = [
-        (_accuracy(records, [replay(r, classifier, shipped_min * s) for r in records], fit_part)[0], -s)
+        (_accuracy(records, [replay(r, classifier, shipped_min * s) for r in records], fit_part, collar)[0], -s)
         for s in MIN_INTENSITY_STEPS
     ]
     step = -max(fit_scores)[1]
     min_intensity = None
     if step != 1.0:
-        after = _accuracy(records, [replay(r, classifier, shipped_min * step) for r in records], held)[0]
-        kept = after > current + MIN_GAIN
+        with_step = [replay(r, classifier, shipped_min * step) for r in records]
+        shipped_outside = _accuracy(records, [replay(r, classifier) for r in records], held, collar)[0]
+        after_outside = _accuracy(records, with_step, held, collar)[0]
+        kept = after_outside > shipped_outside + MIN_GAIN
         checks.append(
-            Check("gesture.min_intensity_mm", "gesture type accuracy", current, after, kept, f"{shipped_min * step:g}")
+            Check(
+                "gesture.min_intensity_mm",
+                f"gesture type accuracy outside the {collar // 1000} ms collar",
+                shipped_outside,
+                after_outside,
+                kept,
+                f"{shipped_min * step:g}",
+            )
         )
         if kept:
-            min_intensity, current = shipped_min * step, after
+            min_intensity, current = shipped_min * step, _accuracy(records, with_step, held)[0]
     # the first finger's wait: the fitted part's best among the waits felt wrong no more often
     first_finger = _fit_first_finger(records, classifier, min_intensity or 0.0, fit_part)
     if first_finger != FIRST_FINGER_US:
