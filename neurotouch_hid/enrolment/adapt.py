@@ -82,7 +82,7 @@ MIN_GAIN = 0.002
 #: (``label.py``: from the last window near the level before the cue to a tenth of the peak), are
 #: unsure by a window or more. Scored on every window, a threshold was kept for answering ``none``
 #: in the 10-40 ms after a labelled end (intensity 0.15-0.24 mm), where a game's labels, which end
-#: a gesture when its fingers have left, still call it the gesture (docs/lab/adaptation.md).
+#: a gesture when its fingers have left, still call it the gesture (docs/method.md, "Adaptation").
 THRESHOLD_COLLAR_US = 40_000
 #: The intensity scale is kept only when it lowers the held-out intensity MAE by more than this share
 #: of it: a scale within a few thousandths of 1 changes nothing a profile can feel.
