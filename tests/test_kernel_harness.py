@@ -3,11 +3,15 @@ which checks, and when a boot's folder is kept for a look."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import threading
+import time
+from pathlib import Path
 
 import pytest
 from kernel import vm
@@ -157,3 +161,42 @@ def test_a_guest_script_that_started_and_hangs_is_not_booted_again(fake_vng, mon
         vm.boot(modules=("checks_gamepad",), timeout_s=4, start_timeout_s=1)
     assert "call 1: hangs" in str(failed.value) and "booted twice" not in str(failed.value)
     assert len(fake_vng.read_text().split()) == 1
+
+
+#: A test process that boots :data:`FAKE_VNG` ("hangs": guest.py started, never ends) and waits;
+#: argv: the fake vng's path, the kernel cache folder. The test kills it with SIGKILL, as a CI's or
+#: a developer's kill would: none of its cleanup runs.
+BOOTING_PROCESS = """
+import sys
+from pathlib import Path
+sys.path.insert(0, sys.argv[3])
+from kernel import vm
+vm._vng = lambda: sys.argv[1]
+vm.ensure_host_packages = lambda: None
+vm.ensure_kernel = lambda: (Path(sys.argv[2]), "0.0-fake")
+vm.boot(modules=("checks_gamepad",), timeout_s=600, start_timeout_s=600)
+"""
+
+
+def test_a_killed_test_process_leaves_no_guest_running(fake_vng, monkeypatch, tmp_path):
+    monkeypatch.setenv("FAKE_VNG_PLAN", "hangs")
+    tests_dir = str(Path(vm.__file__).resolve().parent.parent)
+    booting = subprocess.Popen([sys.executable, "-c", BOOTING_PROCESS, vm._vng(), str(tmp_path), tests_dir])
+    try:
+        deadline = time.monotonic() + 60
+        while not (fake_vng.exists() and fake_vng.read_text().split()) and time.monotonic() < deadline:
+            assert booting.poll() is None, "the booting process ended before its guest started"
+            time.sleep(0.2)
+        (guest,) = (int(pid) for pid in fake_vng.read_text().split())
+        assert _alive(guest)
+        booting.kill()
+        booting.wait()
+        deadline = time.monotonic() + 30
+        while _alive(guest) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not _alive(guest), "the guest outlived the test process that booted it"
+    finally:
+        booting.kill()
+        booting.wait()
+        with contextlib.suppress(ProcessLookupError, ValueError):
+            os.killpg(int(fake_vng.read_text().split()[0]), signal.SIGKILL)

@@ -355,6 +355,23 @@ def boot(
 
 #: Why :func:`_run_vng` stopped a guest that never started ``guest.py``.
 NEVER_STARTED = "the guest never started guest.py"
+#: A process of its own beside each vng (:func:`_run_vng`): every second it checks that the test
+#: process that started it is still its parent, and when it is not (that process was killed, its
+#: cleanup never ran) it kills vng's process group, qemu with it, instead of leaving the guest
+#: running with both cores; it ends with the group. argv: the test process's pid, vng's group.
+WATCHDOG = """
+import os, signal, sys, time
+parent, group = int(sys.argv[1]), int(sys.argv[2])
+while True:
+    time.sleep(1.0)
+    try:
+        os.killpg(group, 0)
+    except ProcessLookupError:
+        break
+    if os.getppid() != parent:
+        os.killpg(group, signal.SIGKILL)
+        break
+"""
 
 
 def _run_vng(
@@ -362,8 +379,9 @@ def _run_vng(
 ) -> tuple[str, float, str]:
     """Run ``cmd`` (vng) until it exits, or stop its whole process group: when ``cancelled`` is
     set, when ``timeout_s`` has passed, or when ``start_timeout_s`` has passed without the
-    :data:`GUEST_STARTED` file in ``out``. Returns (its output, wall seconds, why it was stopped:
-    "" when it exited, :data:`NEVER_STARTED` for the last case)."""
+    :data:`GUEST_STARTED` file in ``out``; a :data:`WATCHDOG` stops it when this process is killed
+    first. Returns (its output, wall seconds, why it was stopped: "" when it exited,
+    :data:`NEVER_STARTED` for the last case)."""
     env = dict(os.environ)
     env["PATH"] = f"{Path(sys.executable).parent}:{env.get('PATH', '/usr/bin:/bin')}"
     t0 = time.monotonic()
@@ -380,18 +398,34 @@ def _run_vng(
             start_new_session=True,  # vng, qemu and all: one process group, to stop them together
         ) as proc,
     ):
-        stopped = ""
-        while proc.poll() is None and not stopped:
-            if cancelled.wait(1.0):  # a 1 s tick, not a spin: qemu needs both cores
-                stopped = "the test session ended first"
-            elif time.monotonic() - t0 > timeout_s:
-                stopped = f"vng timed out after {timeout_s} s"
-            elif time.monotonic() - t0 > start_timeout_s and not (out / GUEST_STARTED).exists():
-                stopped = NEVER_STARTED
-        if stopped:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+        # in a session of its own too: a signal to the test's process group leaves it to do its job
+        watchdog = subprocess.Popen(
+            [sys.executable, "-c", WATCHDOG, str(os.getpid()), str(proc.pid)],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,
+        )
+        try:
+            stopped = ""
+            while proc.poll() is None and not stopped:
+                if cancelled.wait(1.0):  # a 1 s tick, not a spin: qemu needs both cores
+                    stopped = "the test session ended first"
+                elif time.monotonic() - t0 > timeout_s:
+                    stopped = f"vng timed out after {timeout_s} s"
+                elif time.monotonic() - t0 > start_timeout_s and not (out / GUEST_STARTED).exists():
+                    stopped = NEVER_STARTED
+            if stopped:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+        finally:  # also on an exception here (Ctrl-C): the guest does not outlive the wait for it
+            if proc.poll() is None:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+            watchdog.kill()
+            watchdog.wait()
         log_file.seek(0)
         log = (f"{stopped}\n" if stopped else "") + log_file.read()
     return log, time.monotonic() - t0, stopped
