@@ -293,14 +293,15 @@ def pushes_with_weak_windows(after_end_ms: int, prompts: int = 9) -> Record:
     features = np.full((n, 9), np.nan)
     features[kinds_a >= 0] = np.eye(9)[0]
     push = CLASSES.index(GestureType.PUSH)
+    read = np.where(kinds_a >= 0, push, -1).astype(np.int8)
     return Record(
         name="synthetic",
         t_us=10_000 * np.arange(1, n + 1, dtype=np.int64),
-        gesture=np.where(kinds_a >= 0, push, -1).astype(np.int8),
+        gesture=read,
         intensity_mm=np.array(intensity),
         n_contacts=(kinds_a >= 0).astype(np.int16),
         features=features,
-        answered=kinds_a,
+        answered=read,
         label=np.where(labelled, push, -1).astype(np.int8),
         label_intensity_mm=np.where(labelled, 1.0, 0.0),
         prompt=np.array(prompt, dtype=np.int64),
