@@ -340,17 +340,17 @@ def test_the_live_pipeline_leaves_the_noise_to_the_source(sim_gel_recording):
 
 
 class _BurstCamera:
-    """A DAVIS-346 that has queued several event batches and one frame since the last poll (a
-    consumer slower than the camera), then nothing more."""
+    """A DAVIS-346 that has queued several event batches and frames (one at 0 us unless
+    ``frames_us`` says when) since the last poll (a consumer slower than the camera), then nothing
+    more."""
 
-    def __init__(self, batches: list[np.ndarray]) -> None:
+    def __init__(self, batches: list[np.ndarray], frames_us: tuple[int, ...] = (0,)) -> None:
         import dv_processing as dv
 
         from neurotouch_hid.sources.dv import store_from_events
 
         self._stores = [store_from_events(b) for b in batches]
-        frame = dv.Frame(0, np.full((260, 346), 7, np.uint8))
-        self._frames = [frame]
+        self._frames = [dv.Frame(t, np.full((260, 346), 7, np.uint8)) for t in frames_us]
 
     def getCameraName(self):
         return "DAVIS346_burst"  # noqa: E704
@@ -398,3 +398,28 @@ def test_one_poll_takes_every_batch_the_camera_has_queued_and_the_frame():
     assert isinstance(frame, Frame) and (frame.image == 7).all()
     got = np.concatenate(event_items)
     np.testing.assert_array_equal(got["timestamp"], np.concatenate([b["timestamp"] for b in batches]))
+
+
+def test_one_poll_takes_every_frame_queued_each_before_the_events_at_or_after_it():
+    """A slow consumer used to get one frame a poll: frames fell behind the events, and a frame at
+    rest from before a push reached the pipeline in the middle of it (the guided calibration under
+    load asked for pushes the camera had already shown)."""
+    batches = []
+    for k in range(10):
+        b = np.zeros(20, EVENT_DTYPE)
+        b["timestamp"] = 1000 * k + 50 * np.arange(20)
+        batches.append(b)
+    frames_us = (2500, 5500, 8500)
+    camera = _BurstCamera(batches, frames_us)
+    items, failure = DavisSource(DavisConfig(exposure_us=None), backend=_BurstBackend(camera))._read()
+    assert failure is None
+    assert [i.t_us for i in items if isinstance(i, Frame)] == list(frames_us)
+    last_event = -1
+    for item in items:
+        if isinstance(item, Frame):
+            assert last_event < item.t_us  # nothing stamped at or after the frame came before it
+        else:
+            assert item["timestamp"][0] > last_event
+            last_event = int(item["timestamp"][-1])
+    events = np.concatenate([i for i in items if not isinstance(i, Frame)])
+    np.testing.assert_array_equal(events["timestamp"], np.concatenate([b["timestamp"] for b in batches]))

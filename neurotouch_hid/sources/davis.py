@@ -39,6 +39,8 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Iterator
 
+import numpy as np
+
 from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.sources import Frame, SourceStatus, StatusKind, StreamItem
 from neurotouch_hid.sources.dv import DV_ERRORS, dv_error_text, events_from_store
@@ -50,8 +52,44 @@ _IDLE_SLEEP_S = 0.0002
 #: consumer catches up instead of letting dv-processing's queue overflow, bounded so that APS
 #: frames are still looked at in between.
 _MAX_BATCHES_PER_POLL = 64
+#: APS frames read in one poll at most: every frame the camera has queued (a third of a second at
+#: 25 Hz), so that frames do not fall behind the events when the consumer is slow: read one a poll,
+#: they did, and a frame at rest from before a push reached the pipeline in the middle of it.
+_MAX_FRAMES_PER_POLL = 8
 #: dv-processing camera models that are DAVIS cameras (events + APS frames).
 _DAVIS_MODELS = ("DAVIS", "DAVIS_GEN2")
+
+
+def in_time_order(frames: list[Frame], batches: list[np.ndarray]) -> list[StreamItem]:
+    """One poll's items in camera time: each frame before the events at or after its timestamp,
+    as a recording's stream has it (:meth:`~neurotouch_hid.sources.recording.RecordingReader.stream`).
+
+    Args:
+        frames: the poll's APS frames, in the order the camera delivered them (``t_us`` increasing).
+        batches: its event batches (EVENT_DTYPE, each and all time-ordered), possibly empty.
+    Returns:
+        The frames and the events cut at the frames' timestamps (views, no copy; empty batches
+        left out); without frames, ``batches`` as given (an empty batch still says the camera is
+        alive to the stall timer).
+    """
+    if not frames:
+        return list(batches)
+    items: list[StreamItem] = []
+    k = 0  # the next frame
+    for batch in batches:  # cut where a frame falls, views only (no copy of the events)
+        ts = batch["timestamp"]
+        start = 0
+        while k < len(frames) and len(ts) and frames[k].t_us <= ts[-1]:
+            cut = int(np.searchsorted(ts, frames[k].t_us, side="left"))
+            if cut > start:
+                items.append(batch[start:cut])
+                start = cut
+            items.append(frames[k])
+            k += 1
+        if start < len(ts):
+            items.append(batch[start:])
+    items.extend(frames[k:])
+    return items
 
 
 @dataclass(frozen=True)
@@ -232,10 +270,12 @@ class DavisSource:
         try:
             if not camera.isRunning():
                 return [], "stopped (unplugged?)"
-            items: list[StreamItem] = []
-            frame = camera.getNextFrame() if self.has_frames else None
-            if frame is not None:
-                items.append(Frame(int(frame.timestamp), grey_image(frame.image)))
+            frames: list[Frame] = []
+            for _ in range(_MAX_FRAMES_PER_POLL if self.has_frames else 0):  # all, as for the events
+                frame = camera.getNextFrame()
+                if frame is None:
+                    break
+                frames.append(Frame(int(frame.timestamp), grey_image(frame.image)))
             stores = []
             for _ in range(_MAX_BATCHES_PER_POLL):  # all the camera has: one a poll falls behind
                 store = camera.getNextEventBatch()
@@ -244,13 +284,14 @@ class DavisSource:
                 stores.append(store)
         except DV_ERRORS as exc:
             return [], f"failed ({dv_error_text(str(exc))})"
+        batches = []
         for store in stores:
             if self._noise is not None:
                 store = self._noise.filter_store(store)
             # a batch of noise only still tells the stream is alive (the stall timer), but none is
             # yielded: nothing would change downstream
-            items.append(events_from_store(store))
-        return items, None
+            batches.append(events_from_store(store))
+        return in_time_order(frames, batches), None
 
     def stream(
         self, seconds: float | None = None, batch_us: int = 1000, *, reconnect: bool = False
