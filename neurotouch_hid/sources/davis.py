@@ -16,6 +16,9 @@ alive through faults:
   back-off (:func:`backoff_delays`), and yields ``"resumed"`` before the first data of the camera
   that came back. A stream without data for ``stall_timeout_s`` is treated like an unplug (the
   camera is closed and opened again). Without ``reconnect`` a fault raises DeviceError.
+* **A consumer slower than the camera**: one poll takes everything queued, up to 64 event packets
+  and 8 APS frames, each frame placed before the events at or after its timestamp
+  (:func:`in_time_order`): the frames do not fall behind the events.
 
 The capture interface
 ---------------------
