@@ -564,7 +564,8 @@ def adapt(records: Sequence[Record], rerun: Callable[..., list[Record]] | None =
             Check("classifier", "gesture type accuracy", before, after, kept, f"refitted, prior strength {strength:g}")
         )
         classifier = candidate if kept else None
-    current = _accuracy(records, [replay(r, classifier) for r in records], held)[0]
+    with_type = [replay(r, classifier) for r in records]
+    current = _accuracy(records, with_type, held)[0]
     # the contact threshold: the fitted part's best, then checked, outside the collar
     shipped_min = GestureConfig().min_intensity_mm
     collar = THRESHOLD_COLLAR_US
@@ -576,7 +577,7 @@ def adapt(records: Sequence[Record], rerun: Callable[..., list[Record]] | None =
     min_intensity = None
     if step != 1.0:
         with_step = [replay(r, classifier, shipped_min * step) for r in records]
-        shipped_outside = _accuracy(records, [replay(r, classifier) for r in records], held, collar)[0]
+        shipped_outside = _accuracy(records, with_type, held, collar)[0]
         after_outside = _accuracy(records, with_step, held, collar)[0]
         kept = after_outside > shipped_outside + MIN_GAIN
         checks.append(
