@@ -227,6 +227,16 @@ def test_papers_resting_verdict_holds_until_the_next_frame(rest_image):
     assert [(e.resting, e.gesture) for e in pipeline.process(events_at(15000))] == [(True, GestureType.NONE)]
 
 
+def test_the_papers_method_runs_on_a_gel_whose_creep_is_measured(rest_image):
+    """A calibrated gel's sensor.yaml has a creep; the paper's method (elastic gel) ignores it
+    and answers, as the product's method takes it."""
+    sensor = dataclasses.replace(SENSOR, creep=(0.3, 0.3))
+    for pipeline in (PaperPipeline(sensor), GesturePipeline(sensor)):
+        pipeline.process(Frame(0, rest_image))
+        pipeline.process(events_at(1))
+        assert [e.resting for e in pipeline.process(events_at(15000))] == [True]
+
+
 def test_set_resting_from_another_thread_is_applied_at_the_next_item(rest_image):
     pipeline = GesturePipeline(SENSOR, detect_resting=False)
     pipeline.process(Frame(0, rest_image))

@@ -114,7 +114,6 @@ class PaperPipeline(GesturePipeline):
 
     def __init__(self, sensor: SensorGeometry, config: PaperConfig | None = None, **kwargs) -> None:
         super().__init__(sensor, config, **kwargs)
-        self._creep = None  # the paper's gel is elastic
 
     @staticmethod
     def default_config() -> PaperConfig:
@@ -129,6 +128,10 @@ class PaperPipeline(GesturePipeline):
     def _episode_vote(self) -> EpisodeVote:
         """Not used: each window answers its own type (:meth:`_vote`)."""
         return EpisodeVote()
+
+    def _creep_filter(self, sensor: SensorGeometry) -> None:
+        """None whatever sensor.yaml's creep: the paper's gel is elastic."""
+        return None
 
     def _noise_filter(self) -> None:
         """Every event reaches the tracker."""

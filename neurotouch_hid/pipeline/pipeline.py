@@ -132,9 +132,7 @@ class GesturePipeline(FramePath):
         #: (t_us, intensity_mm) of the window before when it had a gesture ("Gesture": intensity lead)
         self._last_intensity: tuple[int, float] | None = None
         #: the fingers' load behind the deformation of a gel whose creep sensor.yaml has ("Creep")
-        self._creep = (
-            CreepFilter(*sensor.creep, floor=self.config.min_intensity_px) if sensor.creep is not None else None
-        )
+        self._creep = self._creep_filter(sensor)
         #: a new press in the creep's release tail, and the rest reference and re-anchoring it is
         #: watched against (docs/method.md, "Creep")
         self._tail = TailWatch()
@@ -161,6 +159,11 @@ class GesturePipeline(FramePath):
         """The episode vote with the settings' ``episode`` group (docs/method.md, "Episode vote")."""
         e = self.settings.episode
         return EpisodeVote(e.first_finger_us, e.correction_us, e.provisional_mm)
+
+    def _creep_filter(self, sensor: SensorGeometry) -> CreepFilter | None:
+        """The fingers' load behind the deformation when ``sensor.creep`` is measured, else None
+        (docs/method.md, "Creep")."""
+        return CreepFilter(*sensor.creep, floor=self.config.min_intensity_px) if sensor.creep is not None else None
 
     def _noise_filter(self) -> EventNoiseFilter | None:
         """The noise filter in front of the tracker (docs/method.md, "Noise filter")."""
