@@ -344,7 +344,7 @@ def test_flicker_changes_aps_brightness_and_markers_family_spreads_marker_sizes(
 def test_mix_covers_every_family_and_simulate_writes_physics_json(tmp_path):
     fams = mix_families(len(MIX_FAMILIES), seed=4)
     assert sorted(f.name for f in fams) == sorted(MIX_FAMILIES)
-    assert set(PHYSICS) - set(MIX_FAMILIES) == {"late"}  # drawn by no mix, so none changed
+    assert set(PHYSICS) - set(MIX_FAMILIES) == {"late", "compound", "compound2"}  # drawn by no mix: none changed
     assert "late" not in {f.name for f in mix_families(300, seed=2)}
     out = tmp_path / "mix"
     result = CliRunner().invoke(

@@ -185,7 +185,8 @@ def simulate(
         "default",
         "--physics",
         help="gel and camera family: default, powerlaw, stickslip, indent, camera, drift, fingers, strong, markers, "
-        "noise, flicker, viscoelastic, pasternak, exposure, contrast, late, or mix (one family per sequence); "
+        "noise, flicker, viscoelastic, pasternak, exposure, contrast, late, compound, compound2, or mix (one family "
+        "per sequence); "
         "see docs/accuracy.md",
     ),
 ) -> None:

@@ -94,6 +94,17 @@ late          late fingers whatever the attack: each finger of a multi-finger ge
               second finger may land ~100 ms after the first (libinput debounces a change of
               finger count for 100 ms; Android's tap timeout is 100 ms). Equal fingers. A
               development family, not in ``mix``.
+compound      several of the above at once, as one real gel and camera may have them: the
+              ``pasternak`` falloff, ``indent`` (35 %), the ``camera`` (k1 = -0.10, vignetting),
+              the ``markers``' spread, a noisier sensor (1 Hz per pixel, 20 hot pixels at 150
+              Hz), the light flickering +-10 % at 120 Hz and ``viscoelastic``'s creep (q 0.3,
+              tau 0.3 s). Each effect as its family models it; the mixture chosen, not fitted.
+              A development family, not in ``mix``.
+compound2     another such gel: the ``powerlaw`` falloff, indent 20 %, the ``camera``, the gel
+              sliding up to 0.8 mm and 0.8 degrees, fingers lagging up to 30 % of the attack at
+              70-100 % of the strongest's strength, the ``markers``' spread, the noisier sensor of
+              ``compound``, a slower, smaller creep (q 0.15, tau 0.5 s) and 8 ms exposures. A
+              development family, not in ``mix``.
 ============  ==================================================================================
 
 ``mix`` draws one family per sequence (round robin over a seeded permutation, so that every family
@@ -216,11 +227,45 @@ PHYSICS: dict[str, Physics] = {
         Physics("exposure", exposure_us=15_000),
         Physics("contrast", contrast=0.45, contrast_sigma=0.09),
         Physics("late", lag_ms=100.0),
+        Physics(
+            "compound",
+            falloff=FALLOFF_PASTERNAK,
+            indent=0.35,
+            perspective=True,
+            k1=-0.10,
+            size_spread=0.2,
+            brightness_spread=0.2,
+            noise_hz=1.0,
+            n_hot=20,
+            hot_rate_hz=150.0,
+            flicker=0.1,
+            creep=0.3,
+            creep_s=0.3,
+        ),
+        Physics(
+            "compound2",
+            falloff=FALLOFF_POWERLAW,
+            indent=0.2,
+            perspective=True,
+            k1=-0.10,
+            global_mm=(0.4, 0.8),
+            global_rad=(0.006, 0.014),
+            lag=0.3,
+            strength_min=0.7,
+            size_spread=0.2,
+            brightness_spread=0.2,
+            noise_hz=1.0,
+            n_hot=20,
+            hot_rate_hz=150.0,
+            creep=0.15,
+            creep_s=0.5,
+            exposure_us=8000,
+        ),
     )
 }
-#: The families ``mix`` draws: every family but ``late``, which came after the mix's sets were
-#: measured (drawing it would change every mixed sequence).
-MIX_FAMILIES: tuple[str, ...] = tuple(name for name in PHYSICS if name != "late")
+#: The families ``mix`` draws: every family but ``late`` and the compounds, which came after the
+#: mix's sets were measured (drawing them would change every mixed sequence).
+MIX_FAMILIES: tuple[str, ...] = tuple(name for name in PHYSICS if name not in ("late", "compound", "compound2"))
 #: ``--physics`` names: every family, and ``mix`` (one family per sequence).
 PHYSICS_CHOICES: tuple[str, ...] = (*PHYSICS, "mix")
 
