@@ -2,7 +2,8 @@
 
 One simulated gel is one model; a real gel is another. To measure how the pipeline generalises,
 the simulator draws its gel and camera from named *families*, each changing one aspect of the
-default model (:mod:`neurotouch_hid.sources.simulator`) to another published model of it:
+default model (:mod:`neurotouch_hid.sources.simulator`) to another published model of it (the
+compounds several at once):
 
 ============  ==================================================================================
 family        what changes, and the model it follows
