@@ -16,7 +16,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from neurotouch_hid.sources.physics import FALLOFF_GAUSSIAN, PHYSICS, Physics
+from neurotouch_hid.sources.physics import PHYSICS, Physics
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 
@@ -28,9 +28,9 @@ PARTS = (
     replace(
         _BASE, name="c-nonoise", noise_hz=_DEFAULT.noise_hz, n_hot=_DEFAULT.n_hot, hot_rate_hz=_DEFAULT.hot_rate_hz
     ),
-    replace(_BASE, name="c-nocamera", perspective=False, k1=0.0),
+    replace(_BASE, name="c-nocamera", perspective=_DEFAULT.perspective, k1=_DEFAULT.k1),
     replace(_BASE, name="c-nomarkers", size_spread=_DEFAULT.size_spread, brightness_spread=_DEFAULT.brightness_spread),
-    replace(_BASE, name="c-gauss", falloff=FALLOFF_GAUSSIAN, indent=_DEFAULT.indent),
+    replace(_BASE, name="c-gauss", falloff=_DEFAULT.falloff, indent=_DEFAULT.indent),
 )
 # registered at import, so that family_eval's worker processes (which import this module) know them
 for _part in PARTS:
