@@ -64,6 +64,27 @@ def test_the_load_behind_a_creeping_gel_is_the_load_that_deformed_it():
     np.testing.assert_array_equal(grid[:, 0], deformation)  # an elastic gel: the load is what is seen
 
 
+def test_a_creep_measured_quicker_than_the_gels_still_reads_the_fingers_gone_at_the_release():
+    """The gel creeps with tau 0.4 s, the filter was calibrated at 0.3 s (one press measures it
+    only so well). Its load read rises back above the 0.3 px floor 50 ms after the fingers left and
+    stays there for 0.45 s; with the margin (a fifth of the delayed deformation q y) the fingers are
+    read gone within 20 ms of the release and stay gone, while the 2 s hold is never read released."""
+    load = press_load()
+    deformation = creeping(load, 0.3, 0.4)
+    t = np.arange(len(load)) * STEP_US
+    creep = CreepFilter(0.3, 0.3, floor=0.3)
+    released = []
+    for d, ti in zip(deformation, t):
+        estimate = creep.update(d, int(ti))
+        released.append((estimate < 0.3, creep.released(estimate)))
+    no_margin, with_margin = (np.array(r) for r in zip(*released))
+    last = int(np.flatnonzero(load > 0)[-1])
+    start = int(np.flatnonzero(load > 0)[0])
+    assert not with_margin[start:last].any()  # the press and its hold
+    assert with_margin[last + 2 :].all()
+    assert not no_margin[last + 6 : last + 50].any()  # without the margin: pressed again, 0.45 s
+
+
 def test_a_gel_seen_at_rest_holds_no_creep_so_the_next_press_is_read_at_once():
     """A deep press held 3 s, released; its tail is followed until it reads 0.7 px, then the
     pipeline's rest reference takes in what is left (0 px for 150 ms), and a slow press starts
@@ -118,10 +139,16 @@ def test_a_new_press_in_a_release_tail_is_found_and_measured_from_the_gel_the_ta
     assert watch.update(distance + 1.0, direction * (distance + 1.0)[:, None], 0.15, 6) is None
 
 
-def test_a_creep_model_needs_a_share_below_one_a_positive_time_and_a_floor_not_below_zero():
-    for share, time_s, floor in ((1.0, 0.3, 0.0), (-0.1, 0.3, 0.0), (0.3, 0.0, 0.0), (0.3, 0.3, -0.1)):
-        with pytest.raises(ValueError, match=r"0 <= q < 1, tau > 0 s and a floor >= 0"):
-            CreepFilter(share, time_s, floor)
+def test_a_creep_model_needs_a_share_below_one_a_positive_time_a_floor_and_a_margin_not_below_zero():
+    for share, time_s, floor, margin in (
+        (1.0, 0.3, 0.0, 0.2),
+        (-0.1, 0.3, 0.0, 0.2),
+        (0.3, 0.0, 0.0, 0.2),
+        (0.3, 0.3, -0.1, 0.2),
+        (0.3, 0.3, 0.0, -0.1),
+    ):
+        with pytest.raises(ValueError, match=r"0 <= q < 1, tau > 0 s, a floor >= 0 and a margin >= 0"):
+            CreepFilter(share, time_s, floor, margin)
 
 
 @pytest.mark.parametrize(("share", "time_s"), [(0.3, 0.3), (0.2, 0.6), (0.4, 0.3), (0.15, 1.0)])

@@ -399,10 +399,11 @@ class GesturePipeline(FramePath):
 
     def _released(self, intensity_px: float, t_us: int) -> bool:
         """Whether the fingers' load behind the window's intensity (px) is below
-        ``min_intensity_px`` (docs/method.md, "Creep"; False without the gel's creep)."""
+        ``min_intensity_px`` plus the load's margin (``CreepFilter.released``; docs/method.md,
+        "Creep"; False without the gel's creep)."""
         if self._creep is None:
             return False
-        if self._creep.update(intensity_px, t_us) >= self.config.min_intensity_px:
+        if not self._creep.released(self._creep.update(intensity_px, t_us)):
             self._tail.reset()
             return False
         return True
