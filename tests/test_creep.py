@@ -85,6 +85,40 @@ def test_a_creep_measured_quicker_than_the_gels_still_reads_the_fingers_gone_at_
     assert not no_margin[last + 6 : last + 50].any()  # without the margin: pressed again, 0.45 s
 
 
+def test_fingers_read_gone_stay_gone_through_a_tails_sawtooth_until_a_new_press_or_a_still_gel():
+    """After the release the tracked tail rises up to 0.45 px between two APS frames' corrections
+    (every 4 windows). Against the threshold alone the fingers would be read back every fourth
+    window, switching the output on and off; with the hysteresis they stay gone. A new press
+    (0.5 px more a window, 0.9 s after the release) is read from its second window, and a gel
+    seen still (a deformation below the floor) reads nothing back either."""
+    load = press_load(rest_s=1.0)
+    start = len(load) - 60
+    second = np.zeros_like(load)
+    second[start:] = np.minimum(np.arange(60) * 0.5, 3.0)
+    last = int(np.flatnonzero(load > 0)[-1])
+    k = np.arange(len(load))
+    sawtooth = np.where(k > last, 0.45 * (k % 4) / 3, 0.0)
+    deformation = creeping(load + second, 0.3, 0.3) + sawtooth
+    creep = CreepFilter(0.3, 0.3, floor=0.3)
+    threshold_only, released = [], []
+    for d, ti in zip(deformation, k * STEP_US):
+        estimate = creep.update(d, int(ti))
+        threshold_only.append(estimate < 0.3 + creep.margin * creep.share * creep._y)
+        released.append(creep.released(estimate))
+    threshold_only, released = np.array(threshold_only), np.array(released)
+    assert threshold_only[last + 1 : start].sum() < start - last - 1 - 5  # read back 6 times or more
+    assert released[last + 1 : start].all()
+    assert not released[start + 1 :].any()
+    assert creep.released(0.0)  # gone again
+
+    def threshold() -> float:
+        return creep.floor + creep.margin * creep.share * creep._y
+
+    assert creep.released(1.2 * threshold())  # above the threshold, below REARM times it: still gone
+    creep.update(0.1, int(len(k) * STEP_US))  # the gel seen still
+    assert not creep.released(1.2 * threshold())
+
+
 def test_a_gel_seen_at_rest_holds_no_creep_so_the_next_press_is_read_at_once():
     """A deep press held 3 s, released; its tail is followed until it reads 0.7 px, then the
     pipeline's rest reference takes in what is left (0 px for 150 ms), and a slow press starts

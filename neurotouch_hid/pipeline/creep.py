@@ -16,7 +16,8 @@ docs/method.md, "Creep"). The load follows from d alone when q and tau are known
 f gives ``(1 - q) tau dy/dt = d - y``, so y is d low-passed with the time constant (1 - q) tau,
 and ``f = (d - q y) / (1 - q)``. The pipeline (with the gel's ``creep`` in
 sensor.yaml; docs/method.md, "Creep") answers ``none`` in a window whose load is below ``min_intensity_px``
-plus :data:`LOAD_MARGIN` times q y, the part of the deformation the load was separated from: the
+plus :data:`LOAD_MARGIN` times q y, the part of the deformation the load was separated from (and,
+once read gone, until the load is back at :data:`REARM` times that or the gel is seen still): the
 fingers have left, whatever the gel still shows. Without a creep model (an elastic gel,
 q = 0) the load is the deformation and nothing changes.
 
@@ -52,9 +53,13 @@ MISFIT_SHARE = 0.5
 #: The load is read to within this share of the delayed deformation q y: a creep measured on one
 #: press is off the gel's (``compound``'s tau 0.27 s for its 0.3 s), and the tracked deformation
 #: relaxes more slowly than the markers (its noise and lag do not relax), so after a release the
-#: load read stays 0.1-0.5 mm above zero for as long as the creep lasts; a hold, whose load is
-#: above q y, never comes near it (docs/method.md, "Creep").
+#: load read stays 0.1-0.5 mm above zero for as long as the creep lasts; in a hold the load is y
+#: itself, far above 0.2 q y (docs/method.md, "Creep").
 LOAD_MARGIN = 0.2
+#: Hysteresis: once read gone, the fingers are read back only when the load reaches this many
+#: times the threshold (or the gel was seen still): in a tail the load read rises ~0.25 mm between
+#: two APS frames' corrections and would switch the output on and off (docs/method.md, "Creep").
+REARM = 1.5
 
 
 class CreepFilter:
@@ -74,9 +79,10 @@ class CreepFilter:
             then (>= 0; 0: the deformation is exact).
         margin: the share of the delayed deformation q y within which the load is known
             (:data:`LOAD_MARGIN`, >= 0): :meth:`released` reads the fingers gone below the floor
-            plus that much.
+            plus that much, and back at :data:`REARM` times that (or once a deformation below the
+            floor was given: the gel seen still).
     Raises:
-        ValueError: q, tau or the floor out of range.
+        ValueError: q, tau, the floor or the margin out of range.
     """
 
     def __init__(self, share: float, time_s: float, floor: float = 0.0, margin: float = LOAD_MARGIN) -> None:
@@ -91,11 +97,13 @@ class CreepFilter:
         self.margin = float(margin)
         self._y = 0.0
         self._t_us: int | None = None
+        self._gone = False
 
     def reset(self) -> None:
         """Forget the history (a new stream): the gel at rest."""
         self._y = 0.0
         self._t_us = None
+        self._gone = False
 
     def update(self, deformation: float, t_us: int) -> float:
         """The load (same unit as ``deformation``, e.g. px) at ``t_us`` (us, non-decreasing),
@@ -103,6 +111,8 @@ class CreepFilter:
         dt = 0.0 if self._t_us is None else max(t_us - self._t_us, 0)
         self._t_us = t_us
         deformation = float(deformation)
+        if deformation <= 0.0 or deformation < self.floor:  # the gel seen still: nothing to read back
+            self._gone = False
         self._y, load = _step(self._y, deformation, dt, self.share, self.time_us)
         if self.share > 0.0 and load < 0.0:  # no pull: y <= max(d, floor) / q
             self._y = min(self._y, max(deformation, self.floor) / self.share)
@@ -111,8 +121,12 @@ class CreepFilter:
 
     def released(self, load: float) -> bool:
         """Whether ``load`` (the last :meth:`update`'s, same unit) says the fingers have left:
-        below the floor plus ``margin`` times the delayed deformation q y it was separated from."""
-        return load < self.floor + self.margin * self.share * self._y
+        below the floor plus ``margin`` times the delayed deformation q y it was separated from;
+        once they have, until the load is back at :data:`REARM` times that (hysteresis) or the
+        gel was seen still."""
+        threshold = self.floor + self.margin * self.share * self._y
+        self._gone = load < (REARM * threshold if self._gone else threshold)
+        return self._gone
 
 
 def _step(y, deformation: float, dt_us: float, share, time_us):
