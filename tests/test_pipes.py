@@ -96,3 +96,23 @@ def test_benchmark_help_to_a_pipe_is_not_cropped():
     (line,) = [line for line in result.stdout.splitlines() if line.lstrip().startswith("--families")]
     assert f"[default: {families}]" in line, result.stdout
     assert "…" not in result.stdout
+
+
+def test_every_scripts_help_to_a_pipe_is_whole():
+    """Every script of benchmarks/ and docs/lab/ with options builds its command with
+    ``command_app`` (click's plain help, never cut in a pipe), and ``gesture_collar.py --help``
+    piped shows its default family list whole (rich's boxes had cropped it at 80 columns)."""
+    scripts = sorted(BENCHMARKS.glob("*.py")) + sorted((BENCHMARKS.parent / "docs" / "lab").glob("*.py"))
+    own = [p for p in scripts if "typer.Option(" in p.read_text()]
+    assert len(own) > 10
+    assert [p.name for p in own if "command_app" not in p.read_text()] == []
+    result = subprocess.run(
+        [sys.executable, str(BENCHMARKS.parent / "docs" / "lab" / "gesture_collar.py"), "--help"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    (line,) = [line for line in result.stdout.splitlines() if line.lstrip().startswith("--families")]
+    assert "[default: powerlaw,drift,strong,viscoelastic,late,camera,contrast]" in line, result.stdout
+    assert not set("╭│╰…") & set(result.stdout), result.stdout

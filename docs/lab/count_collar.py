@@ -31,6 +31,7 @@ from workdir import families_in  # noqa: E402
 from neurotouch_hid.dataset import list_sequences, read_labels, read_predictions  # noqa: E402
 from neurotouch_hid.estimate import GESTURE_ORDER, GestureType  # noqa: E402
 from neurotouch_hid.evaluation.metrics import align  # noqa: E402
+from neurotouch_hid.output.console import command_app
 from neurotouch_hid.sensor import SensorGeometry  # noqa: E402
 
 
@@ -68,4 +69,6 @@ def main(
 
 
 if __name__ == "__main__":
-    typer.run(main)
+    app = command_app()
+    app.command()(main)
+    app()

@@ -22,6 +22,7 @@ import numpy as np
 import typer
 
 from neurotouch_hid.calibration import PRESS_MARKERS, press_amplitude
+from neurotouch_hid.output.console import command_app
 from neurotouch_hid.pipeline.creep import SHARES, TIMES_S, creep_misfit, fit_creep
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import sls_deformation
@@ -83,4 +84,6 @@ def main(
 
 
 if __name__ == "__main__":
-    typer.run(main)
+    app = command_app()
+    app.command()(main)
+    app()

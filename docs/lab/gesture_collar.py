@@ -25,6 +25,7 @@ import typer
 from neurotouch_hid.dataset import read_labels, read_predictions
 from neurotouch_hid.estimate import GESTURE_ORDER
 from neurotouch_hid.evaluation.metrics import align, outside_collar
+from neurotouch_hid.output.console import command_app
 from neurotouch_hid.sensor import SensorGeometry
 
 USERS = (0, 3)
@@ -85,4 +86,6 @@ def main(
 
 
 if __name__ == "__main__":
-    typer.run(main)
+    app = command_app()
+    app.command()(main)
+    app()

@@ -33,6 +33,7 @@ import typer
 from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.evaluation.runner import run_sequence
+from neurotouch_hid.output.console import command_app
 from neurotouch_hid.pipeline import pipeline as P
 
 #: the stage that answered each window of the sequence being run, in order
@@ -147,4 +148,6 @@ def main(
 
 
 if __name__ == "__main__":
-    typer.run(main)
+    app = command_app()
+    app.command()(main)
+    app()
