@@ -103,20 +103,16 @@ def test_fingers_read_gone_stay_gone_through_a_tails_sawtooth_until_a_new_press_
     threshold_only, released = [], []
     for d, ti in zip(deformation, k * STEP_US):
         estimate = creep.update(d, int(ti))
-        threshold_only.append(estimate < 0.3 + creep.margin * creep.share * creep._y)
+        threshold_only.append(estimate < creep.threshold)
         released.append(creep.released(estimate))
     threshold_only, released = np.array(threshold_only), np.array(released)
     assert threshold_only[last + 1 : start].sum() < start - last - 1 - 5  # read back 6 times or more
     assert released[last + 1 : start].all()
     assert not released[start + 1 :].any()
     assert creep.released(0.0)  # gone again
-
-    def threshold() -> float:
-        return creep.floor + creep.margin * creep.share * creep._y
-
-    assert creep.released(1.2 * threshold())  # above the threshold, below REARM times it: still gone
+    assert creep.released(1.2 * creep.threshold)  # above the threshold, below REARM times it: still gone
     creep.update(0.1, int(len(k) * STEP_US))  # the gel seen still
-    assert not creep.released(1.2 * threshold())
+    assert not creep.released(1.2 * creep.threshold)
 
 
 def test_a_gel_seen_at_rest_holds_no_creep_so_the_next_press_is_read_at_once():

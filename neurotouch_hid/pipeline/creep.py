@@ -119,12 +119,17 @@ class CreepFilter:
             load = (deformation - self.share * self._y) / (1.0 - self.share)
         return float(load)
 
+    @property
+    def threshold(self) -> float:
+        """The load (same unit as :meth:`update`'s) below which the fingers are read gone now: the
+        floor plus ``margin`` times the delayed deformation q y the load was separated from."""
+        return self.floor + self.margin * self.share * self._y
+
     def released(self, load: float) -> bool:
         """Whether ``load`` (the last :meth:`update`'s, same unit) says the fingers have left:
-        below the floor plus ``margin`` times the delayed deformation q y it was separated from;
-        once they have, until the load is back at :data:`REARM` times that (hysteresis) or the
-        gel was seen still."""
-        threshold = self.floor + self.margin * self.share * self._y
+        below :attr:`threshold`; once they have, until the load is back at :data:`REARM` times it
+        (hysteresis) or the gel was seen still."""
+        threshold = self.threshold
         self._gone = load < (REARM * threshold if self._gone else threshold)
         return self._gone
 
