@@ -399,8 +399,8 @@ class GesturePipeline(FramePath):
 
     def _released(self, intensity_px: float, t_us: int) -> bool:
         """Whether the fingers' load behind the window's intensity (px) is below
-        ``min_intensity_px`` plus the load's margin (``CreepFilter.released``; docs/method.md,
-        "Creep"; False without the gel's creep)."""
+        ``min_intensity_px`` plus the load's margin, with hysteresis (``CreepFilter.released``;
+        docs/method.md, "Creep"; False without the gel's creep)."""
         if self._creep is None:
             return False
         if not self._creep.released(self._creep.update(intensity_px, t_us)):
