@@ -169,6 +169,30 @@ def test_once_committed_a_window_that_sees_several_fingers_outweighs_one_that_se
     assert answers(EpisodeVote(counted_mm=0.0), attack)[2] is GestureType.ZOOM
 
 
+def test_a_new_press_of_another_type_in_the_last_ones_tail_is_a_new_gesture():
+    """A deep twist held long, then released on a creeping gel: its tail is still read as the
+    twist (a committed episode with no ``none`` window), and a pinch begins in it. The pinch's
+    windows are outvoted by the hold's for as long as the pinch lasts, unless a window of another
+    type that rises ``REPRESS_MM`` above the tail's lowest, once below half the peak, begins a new
+    episode. A tail's wobble, the same type pressed again, or another type read in the hold
+    leaves the episode as it is."""
+    T = GestureType.TWIST_CW
+
+    def answers(windows) -> list[GestureType]:
+        vote = EpisodeVote()
+        return [vote.update(g, mm, n, 10_000 * (k + 1)) for k, (g, mm, n) in enumerate(windows)]
+
+    hold = [(T, 0.5, 2), (T, 2.0, 2)] + [(T, 3.7, 2)] * 100
+    tail = [(T, 1.2, 2), (T, 0.9, 2), (T, 0.7, 2), (T, 0.6, 2)]  # below half the peak
+    pinch = [(Q, 0.81, 2), (Q, 0.94, 2), (Q, 1.2, 2), (Q, 2.0, 2)]
+    assert answers(hold + tail + pinch)[-4:] == [T, Q, Q, Q]  # 0.34 mm above the tail's 0.6 mm
+    wobble = [(Q, 0.81, 2), (Q, 0.85, 2), (Q, 0.7, 2), (Q, 0.75, 2)]  # at most 0.25 mm above the tail's lowest
+    assert answers(hold + tail + wobble)[-4:] == [T] * 4
+    assert answers(hold + tail + [(T, 1.2, 2), (T, 2.0, 2)])[-2:] == [T, T]  # the twist pressed again
+    assert answers(hold + [(Q, 3.4, 2), (Q, 3.8, 2)])[-2:] == [T, T]  # another type read in the hold
+    assert answers(hold + tail + [(P, 0.95, 1), (P, 1.2, 1)])[-2:] == [N, N]  # one contact: it waits for a second
+
+
 def test_the_pipeline_settings_set_the_vote_and_an_override_changes_its_wait(rest_image):
     """The wait is a setting of ``PipelineConfig.episode`` (a per-user model may override it): the
     same one-finger push tap is answered push after the default wait, and after 30 ms with a

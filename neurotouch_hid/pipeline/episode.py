@@ -3,6 +3,8 @@ docs/method.md, "Episode vote")."""
 
 from __future__ import annotations
 
+import math
+
 from neurotouch_hid.estimate import GestureType
 
 #: How long (us) an episode that shows one contact stays undecided: a second finger may land up
@@ -20,6 +22,13 @@ PROVISIONAL_MM = 0.4
 #: makes the contact count jump between 1 and 3 window after window
 #: (docs/method.md, "Episode vote").
 COUNTED_MM = 0.8
+#: A committed episode whose intensity has fallen below this share of its peak (the fingers mostly
+#: gone: a release, or a creeping gel's tail still read as the gesture) ...
+REPRESS_SHARE = 0.5
+#: ... and has risen again by this much (mm) above its lowest since, in a window of another type,
+#: is a new press: a new episode begins at that window (docs/method.md, "Episode vote"). Above
+#: the ~0.25 mm a tracked tail rises between two APS frames' corrections.
+REPRESS_MM = 0.3
 
 
 class EpisodeVote:
@@ -37,10 +46,13 @@ class EpisodeVote:
 
     Once committed, each window adds its intensity to its own type's votes, twice when it sees two
     contacts or more at or above ``counted_mm``, and the answer changes only when another type
-    outweighs it, with one exception: within ``correction_us`` of the onset,
+    outweighs it, with two exceptions: within ``correction_us`` of the onset,
     once per episode, a window that sees more contacts than every earlier window and reads
     another type is answered at once and the votes restart from it (the fingers seen before were
-    fewer than the gesture has).
+    fewer than the gesture has); and a window of another type whose intensity has risen
+    ``repress_mm`` above the lowest since the episode's peak, that lowest below ``repress_share``
+    of the peak, begins a new episode (a new press after the fingers had mostly left: a creeping
+    gel's release tail can still be read as the last gesture when the next one begins in it).
 
     Args:
         first_finger_us: how long one contact alone stays undecided (us, >= 0).
@@ -48,6 +60,10 @@ class EpisodeVote:
         provisional_mm: below this intensity (mm, >= 0) an undecided window answers the vote so far.
         counted_mm: from this intensity (mm, >= 0) on, a committed episode's window that sees two
             contacts or more votes twice.
+        repress_share: share of the episode's peak intensity (0..1) its intensity must have fallen
+            below before a new press can begin a new episode.
+        repress_mm: how far (mm, > 0) above its lowest since the peak a window of another type must
+            rise to begin one.
     """
 
     def __init__(
@@ -56,11 +72,15 @@ class EpisodeVote:
         correction_us: int = CORRECTION_US,
         provisional_mm: float = PROVISIONAL_MM,
         counted_mm: float = COUNTED_MM,
+        repress_share: float = REPRESS_SHARE,
+        repress_mm: float = REPRESS_MM,
     ) -> None:
         self.first_finger_us = first_finger_us
         self.correction_us = correction_us
         self.provisional_mm = provisional_mm
         self.counted_mm = counted_mm
+        self.repress_share = repress_share
+        self.repress_mm = repress_mm
         self.reset()
 
     def reset(self) -> None:
@@ -72,6 +92,8 @@ class EpisodeVote:
         self._count_since_us = 0
         self._most_contacts = -1
         self._corrected = False
+        self._peak = 0.0  # the episode's highest intensity (mm) ...
+        self._low = math.inf  # ... and its lowest since (mm)
 
     def update(self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int) -> GestureType:
         """The answer after one window ending at ``t_us`` (us, increasing) of type ``gesture``,
@@ -81,6 +103,17 @@ class EpisodeVote:
         if gesture is GestureType.NONE:
             self.reset()
             return gesture
+        if (
+            self._decision is not None
+            and gesture is not self._decision
+            and self._low < self.repress_share * self._peak
+            and intensity_mm - self._low >= self.repress_mm
+        ):
+            self.reset()  # a new press: a new episode from this window
+        if intensity_mm >= self._peak:
+            self._peak, self._low = float(intensity_mm), math.inf
+        else:
+            self._low = min(self._low, float(intensity_mm))
         if self._most_contacts < 0:
             self._onset_us = t_us
         if n_contacts != self._count:
