@@ -173,9 +173,9 @@ def test_a_new_press_of_another_type_in_the_last_ones_tail_is_a_new_gesture():
     """A deep twist held long, then released on a creeping gel: its tail is still read as the
     twist (a committed episode with no ``none`` window), and a pinch begins in it. The pinch's
     windows are outvoted by the hold's for as long as the pinch lasts, unless a window of another
-    type that rises ``REPRESS_MM`` above the tail's lowest, once below half the peak, begins a new
-    episode. A tail's wobble, the same type pressed again, or another type read in the hold
-    leaves the episode as it is."""
+    type that sees two contacts and rises ``REPRESS_MM`` above the tail's lowest, once below half
+    the peak, begins a new episode. A tail's wobble, the same type pressed again, another type read
+    in the hold or on one contact leaves the episode as it is."""
     T = GestureType.TWIST_CW
 
     def answers(windows) -> list[GestureType]:
@@ -190,7 +190,9 @@ def test_a_new_press_of_another_type_in_the_last_ones_tail_is_a_new_gesture():
     assert answers(hold + tail + wobble)[-4:] == [T] * 4
     assert answers(hold + tail + [(T, 1.2, 2), (T, 2.0, 2)])[-2:] == [T, T]  # the twist pressed again
     assert answers(hold + [(Q, 3.4, 2), (Q, 3.8, 2)])[-2:] == [T, T]  # another type read in the hold
-    assert answers(hold + tail + [(P, 0.95, 1), (P, 1.2, 1)])[-2:] == [N, N]  # one contact: it waits for a second
+    # one contact: its intensity jumps where fingers merge (a zoom's release read 0.81 mm on three
+    # contacts, then 1.13 on one), so it begins nothing
+    assert answers(hold + tail + [(P, 0.95, 1), (P, 1.2, 1)])[-2:] == [T, T]
 
 
 def test_the_pipeline_settings_set_the_vote_and_an_override_changes_its_wait(rest_image):

@@ -25,9 +25,10 @@ COUNTED_MM = 0.8
 #: A committed episode whose intensity has fallen below this share of its peak (the fingers mostly
 #: gone: a release, or a creeping gel's tail still read as the gesture) ...
 REPRESS_SHARE = 0.5
-#: ... and has risen again by this much (mm) above its lowest since, in a window of another type,
-#: is a new press: a new episode begins at that window (docs/method.md, "Episode vote"). Above
-#: the ~0.25 mm a tracked tail rises between two APS frames' corrections.
+#: ... and has risen again by this much (mm) above its lowest since, in a window of another type
+#: that sees two contacts or more, is a new press: a new episode begins at that window
+#: (docs/method.md, "Episode vote"). Above the ~0.25 mm a tracked tail rises between two APS
+#: frames' corrections; one contact is left out, as its intensity jumps where fingers merge.
 REPRESS_MM = 0.3
 
 
@@ -49,9 +50,9 @@ class EpisodeVote:
     outweighs it, with two exceptions: within ``correction_us`` of the onset,
     once per episode, a window that sees more contacts than every earlier window and reads
     another type is answered at once and the votes restart from it (the fingers seen before were
-    fewer than the gesture has); and a window of another type whose intensity has risen
-    ``repress_mm`` above the lowest since the episode's peak, that lowest below ``repress_share``
-    of the peak, begins a new episode (a new press after the fingers had mostly left: a creeping
+    fewer than the gesture has); and a window of another type that sees two contacts or more,
+    whose intensity has risen ``repress_mm`` above the lowest since the episode's peak, that lowest
+    below ``repress_share`` of the peak, begins a new episode (a new press after the fingers had mostly left: a creeping
     gel's release tail can still be read as the last gesture when the next one begins in it).
 
     Args:
@@ -62,8 +63,8 @@ class EpisodeVote:
             contacts or more votes twice.
         repress_share: share of the episode's peak intensity (0..1) its intensity must have fallen
             below before a new press can begin a new episode.
-        repress_mm: how far (mm, > 0) above its lowest since the peak a window of another type must
-            rise to begin one.
+        repress_mm: how far (mm, > 0) above its lowest since the peak a window of another type that
+            sees two contacts or more must rise to begin one.
     """
 
     def __init__(
@@ -106,6 +107,7 @@ class EpisodeVote:
         if (
             self._decision is not None
             and gesture is not self._decision
+            and n_contacts >= 2
             and self._low < self.repress_share * self._peak
             and intensity_mm - self._low >= self.repress_mm
         ):
