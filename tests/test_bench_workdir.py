@@ -64,6 +64,7 @@ def test_a_family_without_data_is_a_usage_error(workdir, tmp_path, capsys, names
         ("../docs/lab/count_collar.py", ["--method", "ours"]),
         ("../docs/lab/creep_misfit.py", []),
         ("profile_felt.py", ["--method", "ours"]),
+        ("felt_pooled.py", ["--method", "ours"]),
     ],
 )
 def test_each_script_refuses_a_folder_without_data_in_one_unwrapped_line(tmp_path, script, args):
