@@ -1049,3 +1049,21 @@ def test_the_resting_verdict_carries_the_frames_marker_centroids_in_the_image_fr
     assert d.max() < 0.1
     pixel_sets = RestingDetector(rest_image, SENSOR, 2.5, centroids=False)
     assert pixel_sets.update(moved).centroids_px is None
+
+
+def test_a_frame_puts_blobs_left_on_their_neighbours_markers_back_on_their_own(rest_image):
+    pipeline = GesturePipeline(SENSOR)
+    pipeline.process(Frame(0, rest_image))
+    pressed = gel_image((4.0, 0.0), region_px=30)
+    pipeline.process(Frame(40000, pressed))
+    assert not pipeline.resting.resting  # the frame corrects the blobs, it does not re-anchor them
+    rest = pipeline.rest_px
+    shifted = rest + np.where((np.hypot(*(rest - SENSOR.gel_center_px).T) <= 30)[:, None], [4.0, 0.0], 0.0)
+    # a chain of three blobs in a row near the centre, each on the next marker along (+x, 10 px)
+    centre = np.argmin(np.hypot(*(rest - SENSOR.gel_center_px).T))
+    row = [int(np.argmin(np.hypot(*(rest - rest[centre] - [10.0 * k, 0.0]).T))) for k in range(-1, 3)]
+    left = shifted.copy()
+    left[row[:3]] = shifted[row[1:]]
+    pipeline.tracker.reset(left)
+    pipeline.process(Frame(80000, pressed))
+    np.testing.assert_allclose(pipeline.marker_positions()[row[:3]], shifted[row[:3]], atol=0.5)

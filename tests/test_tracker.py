@@ -5,7 +5,8 @@ event each time a pixel's log intensity crosses a contrast threshold."""
 import numpy as np
 import pytest
 
-from neurotouch_hid.pipeline.tracker import BlobTracker, TrackerConfig
+from neurotouch_hid.pipeline.contacts_plateau import rest_neighbours
+from neurotouch_hid.pipeline.tracker import SWAP_PITCHES, BlobTracker, TrackerConfig, swapped_blobs
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE
 
@@ -373,3 +374,73 @@ def test_frame_matches_follow_the_gated_mutual_nearest_rule_written_with_numpy()
             ok &= np.partition(d2, 1, axis=0)[1][nearest] > 4.0 * gate2
         expected = np.where(ok, nearest, -1)
         np.testing.assert_array_equal(_frame_matches(state, valid, det, gate2), expected)
+
+
+PITCH = 10.0
+
+
+def gel_grid(n=9):
+    """(n * n, 2) rest positions of a square marker grid, PITCH px apart, and a smooth drag: a
+    Gaussian bump of 19 px along +x about the grid's centre (a deep push, sigma 2 pitches)."""
+    xs, ys = np.meshgrid(np.arange(n) * PITCH + 100.0, np.arange(n) * PITCH + 100.0)
+    rest = np.column_stack([xs.ravel(), ys.ravel()])
+    centre = rest.mean(axis=0)
+    bump = 19.0 * np.exp(-np.sum((rest - centre) ** 2, axis=1) / (2 * (2 * PITCH) ** 2))
+    return rest, rest + np.column_stack([bump, np.zeros(len(rest))])
+
+
+def test_a_chain_of_blobs_left_one_marker_along_is_put_back_on_its_own_markers():
+    rest, truth = gel_grid()
+    neighbours = rest_neighbours(rest, PITCH)
+    # a released press left three blobs of the third row each on the next marker of the row
+    blobs = truth.copy()
+    chain = [20, 21, 22]
+    blobs[chain] = truth[[21, 22, 23]]
+    blobs[23] = truth[23] + [0.4, 0.0]  # the last one's marker holds its own blob too, nearly
+    moved, where = swapped_blobs(blobs, np.ones(len(rest), bool), rest, neighbours, truth, PITCH)
+    assert sorted(moved.tolist()) == chain
+    assert np.allclose(where[np.argsort(moved)], truth[chain])
+    # the tracker takes them there, at rest speed, and owns their pixels again
+    tracker = BlobTracker(blobs)
+    tracker.relocate(moved, where)
+    assert np.allclose(tracker.positions_px, np.where(np.isin(np.arange(len(rest)), chain)[:, None], truth, blobs))
+    assert np.all(tracker.velocities_px_per_s == 0)
+    x, y = np.round(truth[20]).astype(int)
+    assert tracker.owner_image()[y, x] == 20
+
+
+def test_a_smooth_deep_drag_and_a_frame_without_the_marker_move_no_blob():
+    rest, truth = gel_grid()
+    neighbours = rest_neighbours(rest, PITCH)
+    valid = np.ones(len(rest), bool)
+    # the steepest part of the drag differs from its neighbours' median by less than the limit
+    moved, _ = swapped_blobs(truth, valid, rest, neighbours, truth, PITCH)
+    assert len(moved) == 0
+    # a blob one pitch off whose own marker the frame does not show stays where it is
+    blobs = truth.copy()
+    blobs[40] = truth[41]
+    frame = np.delete(truth, 40, axis=0)
+    moved, _ = swapped_blobs(blobs, valid, rest, neighbours, frame, PITCH)
+    assert len(moved) == 0
+    # a blob off by less than the limit is not a suspect, whatever the frame shows
+    blobs = truth.copy()
+    blobs[40] += [0.9 * SWAP_PITCHES * PITCH, 0.0]
+    moved, _ = swapped_blobs(blobs, valid, rest, neighbours, truth, PITCH)
+    assert len(moved) == 0
+    # a lost blob is neither moved nor counted among its neighbours
+    blobs = truth.copy()
+    blobs[40] = truth[41]
+    lost = valid.copy()
+    lost[40] = False
+    moved, _ = swapped_blobs(blobs, lost, rest, neighbours, truth, PITCH)
+    assert len(moved) == 0
+
+
+def test_relocate_rejects_mismatched_or_non_finite_positions():
+    tracker = BlobTracker(np.array([[100.0, 100.0], [110.0, 100.0]]))
+    with pytest.raises(ValueError):
+        tracker.relocate(np.array([0, 1]), np.array([[1.0, 2.0]]))
+    with pytest.raises(ValueError):
+        tracker.relocate(np.array([0]), np.array([[np.nan, 2.0]]))
+    tracker.relocate(np.zeros(0, np.int64), np.zeros((0, 2)))  # nothing to move
+    assert np.array_equal(tracker.positions_px, [[100.0, 100.0], [110.0, 100.0]])

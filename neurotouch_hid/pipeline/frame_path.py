@@ -7,7 +7,8 @@ The first APS frame showing the gel's marker grid at its calibrated rest is the 
 (``markers.py``; the camera model is fitted to it, ``camera_model.py``); every later frame goes to
 the resting detector (``resting.py``), inline or in another thread (:meth:`FramePath.set_resting`);
 at rest, or near it unless a press is growing from rest, the tracker is re-anchored at the rest
-positions, otherwise the frame's marker centroids correct the blobs (``tracker.py``). After a
+positions, otherwise the frame's marker centroids correct the blobs (``tracker.py``), the blobs
+left on another marker than their own first put back on theirs. After a
 restart the kept reference is matched again before the markers are re-initialised.
 """
 
@@ -20,11 +21,12 @@ import numpy as np
 from neurotouch_hid.camera_model import fit_camera_model
 from neurotouch_hid.errors import SensorError
 from neurotouch_hid.estimate import GestureEstimate
+from neurotouch_hid.pipeline.contacts_plateau import rest_neighbours
 from neurotouch_hid.pipeline.markers import MARKER_SPACING_MM, detect_markers, looks_like_marker_grid
 from neurotouch_hid.pipeline.moves import _off_layout
 from neurotouch_hid.pipeline.override import grid_neighbours
 from neurotouch_hid.pipeline.resting import RestingDetector, RestingResult
-from neurotouch_hid.pipeline.tracker import BlobTracker
+from neurotouch_hid.pipeline.tracker import BlobTracker, swapped_blobs
 from neurotouch_hid.sources import Frame
 
 __all__ = ["FramePath", "MAX_PENDING_VERDICTS", "RESUME_MATCH_FRAMES"]
@@ -239,9 +241,22 @@ class FramePath:
         return result.distance <= self.config.centroid_reset_threshold
 
     def _correct(self, result: RestingResult, t_us: int) -> None:
-        """Fuse the frame's marker centroids into the blobs (:meth:`BlobTracker.correct`;
+        """Fuse the frame's marker centroids into the blobs (:meth:`BlobTracker.correct`), after
+        putting back on their own markers the blobs a fast motion left on another
+        (:func:`~neurotouch_hid.pipeline.tracker.swapped_blobs`, :meth:`BlobTracker.relocate`;
         docs/method.md, "Frame correction")."""
         if result.centroids_px is not None:
             start = self._clock()
+            c = self.config
+            neighbours = self._of_rest("contacts", self.rest_px, lambda rest: rest_neighbours(rest, c.marker_pitch_px))
+            moved, where = swapped_blobs(
+                self.tracker.positions_px,
+                self.tracker.valid,
+                self.rest_px,
+                neighbours,
+                result.centroids_px,
+                c.marker_pitch_px,
+            )
+            self.tracker.relocate(moved, where)
             self.tracker.correct(result.centroids_px, t_us)
             self._record("frame_correction", start)

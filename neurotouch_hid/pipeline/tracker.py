@@ -34,7 +34,9 @@ blob at rest): an event updates its blob only when the blob's leaky event count 
 no longer updated) when it has left the gel circle or come within ``merge_mm`` of another blob
 (then both are). The pipeline re-initialises the tracker at rest with :meth:`BlobTracker.reset`
 (paper, section Resting Position Detection). Optionally, :meth:`BlobTracker.correct` fuses the
-markers detected on an APS frame (not in the paper; see docs/method.md, "Tracker").
+markers detected on an APS frame (not in the paper; see docs/method.md, "Tracker"), after
+:func:`swapped_blobs` has found the blobs left on another marker than their own and
+:meth:`BlobTracker.relocate` has put them back (docs/method.md, "Frame correction").
 
 Displacements v_i = p_i(t) - p_i(t0) are computed downstream from ``positions_px`` and the rest
 positions.
@@ -45,10 +47,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numpy.lib import recfunctions
 from pydantic import BaseModel, ConfigDict
 
+from neurotouch_hid.pipeline.order import median_head
 from neurotouch_hid.pipeline.tracker_kernels import (
     _C00,
     _C11,
@@ -341,6 +345,26 @@ class BlobTracker:
         )
         return int(np.count_nonzero(match >= 0))
 
+    def relocate(self, indices: np.ndarray, positions_px: np.ndarray) -> None:
+        """Move blobs ``indices`` ((K,) int) to ``positions_px`` ((K, 2) float px, image frame)
+        as :meth:`reset` places a blob: zero velocity and offset, initial covariance; every blob's
+        ownership repainted. For a blob found on another marker than its own
+        (:func:`swapped_blobs`). Raises ValueError when the positions are not (K, 2) finite."""
+        idx = np.asarray(indices, dtype=np.int64).reshape(-1)
+        p = np.asarray(positions_px, dtype=np.float64).reshape(-1, 2)
+        if len(p) != len(idx) or not np.all(np.isfinite(p)):
+            raise ValueError(f"relocate needs one finite position per blob, got {len(idx)} blobs and {p.shape}")
+        if not len(idx):
+            return
+        c = self.pixels
+        self._state[idx] = 0.0
+        self._state[idx, :2] = p
+        self._cov[idx] = 0.0
+        self._cov[idx, _C00] = c.p0_pos
+        self._cov[idx, _C11] = c.p0_vel
+        self._cov[idx, _C22] = c.p0_offset
+        _paint_all(self._state, self._valid, self._cell, self._label, self._offs, self._n_offs)
+
     def update(self, events: np.ndarray) -> None:
         """Track through a batch of events, event by event (numba).
 
@@ -404,3 +428,110 @@ class BlobTracker:
         """(height, width) int32 copy of the label image of ``polarity`` (1 = ON, 0 = OFF): index
         of the blob that owns each pixel's events of that polarity, -1 for none."""
         return self._label[1 if polarity else 0].copy()
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _suspects(positions, valid, rest, neighbours, limit, shared):
+    """(N,) bool: the valid blobs with at least 3 valid neighbours whose displacement from rest is
+    more than ``limit`` px from the median of their neighbours'; ``shared`` ((N, 2) float64)
+    gets that median where it is computed (:func:`swapped_blobs`)."""
+    n, k = neighbours.shape
+    out = np.zeros(n, dtype=np.bool_)
+    xs = np.empty(k)
+    ys = np.empty(k)
+    for i in range(n):
+        if not valid[i]:
+            continue
+        m = 0
+        for j in neighbours[i]:
+            if j >= 0 and valid[j]:
+                xs[m] = positions[j, 0] - rest[j, 0]
+                ys[m] = positions[j, 1] - rest[j, 1]
+                m += 1
+        if m < 3:
+            continue
+        mx = median_head(xs, m)
+        my = median_head(ys, m)
+        shared[i, 0], shared[i, 1] = mx, my
+        dx = positions[i, 0] - rest[i, 0] - mx
+        dy = positions[i, 1] - rest[i, 1] - my
+        out[i] = dx * dx + dy * dy > limit * limit
+    return out
+
+
+#: A blob whose displacement from rest is this many marker pitches from the median of its
+#: neighbours' on the gel is on another marker than its own (:func:`swapped_blobs`) ...
+SWAP_PITCHES = 0.7
+#: ... when a detection of the frame lies within this many pitches of where that median puts it.
+SWAP_FOUND_PITCHES = 0.3
+
+
+def swapped_blobs(
+    positions_px: np.ndarray,
+    valid: np.ndarray,
+    rest_px: np.ndarray,
+    neighbours: np.ndarray,
+    detections_px: np.ndarray,
+    pitch_px: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The blobs that sit on another marker than their own, and where their own marker is on an
+    APS frame (not in the paper; docs/method.md, "Frame correction").
+
+    A fast, large motion (a deep press let go at once) can leave blobs on their neighbours'
+    markers, a chain of them each one pitch along; the frame correction then holds each on the
+    wrong marker, and only a frame at rest re-anchors them, which a creeping gel may not show for
+    seconds. The gel is continuous: a marker moves as its neighbours do. A valid blob whose
+    displacement from rest is more than :data:`SWAP_PITCHES` pitches from the median of its valid
+    neighbours' (at least 3) is a suspect; each suspect is assigned the frame's detection nearest
+    where that median puts it, when that detection is within :data:`SWAP_FOUND_PITCHES` pitches of
+    it and no blob that is not a suspect is as near to it (closest pairs first, each detection
+    once: markers lie more than twice that apart, so a chain is undone at once).
+
+    Args:
+        positions_px: (N, 2) float64 the blobs' positions (px, image frame).
+        valid: (N,) bool, the tracked blobs.
+        rest_px: (N, 2) float64 their rest positions (px).
+        neighbours: (N, K) int64 each marker's neighbours on the gel, -1 padded
+            (``contacts_plateau.rest_neighbours``).
+        detections_px: (M, 2) float64 the frame's marker centroids (px).
+        pitch_px: the marker pitch (px, > 0).
+    Returns:
+        (indices (K,) int64 of the blobs to move, positions (K, 2) float64 px where to).
+    """
+    none = (np.zeros(0, dtype=np.int64), np.zeros((0, 2)))
+    det = np.asarray(detections_px, dtype=np.float64).reshape(-1, 2)
+    if not len(det):
+        return none
+    shared = np.full((len(valid), 2), np.nan)
+    is_suspect = _suspects(
+        np.ascontiguousarray(positions_px, dtype=np.float64),
+        np.ascontiguousarray(valid, dtype=np.bool_),
+        np.ascontiguousarray(rest_px, dtype=np.float64),
+        np.ascontiguousarray(neighbours, dtype=np.int64),
+        SWAP_PITCHES * float(pitch_px),
+        shared,
+    )
+    suspects = np.flatnonzero(is_suspect)
+    if not len(suspects):
+        return none
+    wanted = shared[suspects] + rest_px[suspects]  # (S, 2) where each suspect's marker should be
+    reach = SWAP_FOUND_PITCHES * float(pitch_px)
+    cost = np.hypot(*(wanted[:, None, :] - det[None, :, :]).transpose(2, 0, 1))  # (S, M)
+    near = np.flatnonzero((cost <= reach).any(axis=0))  # the detections within reach of one
+    if not len(near):
+        return none
+    others = valid.copy()
+    others[suspects] = False
+    gap = np.hypot(*(positions_px[others][:, None, :] - det[near][None, :, :]).transpose(2, 0, 1))
+    free = near[~(gap <= reach).any(axis=0)] if len(gap) else near  # no other blob holds them
+    pairs = [(cost[i, j], i, j) for i in range(len(suspects)) for j in free.tolist() if cost[i, j] <= reach]
+    taken_s, taken_d, rows, cols = set(), set(), [], []
+    for _, i, j in sorted(pairs):
+        if i not in taken_s and j not in taken_d:
+            taken_s.add(i)
+            taken_d.add(j)
+            rows.append(i)
+            cols.append(j)
+    rows_a, cols_a = np.array(rows, dtype=np.int64), np.array(cols, dtype=np.int64)
+    moved = np.hypot(*(positions_px[suspects[rows_a]] - det[cols_a]).reshape(-1, 2).T) > reach
+    return suspects[rows_a[moved]], det[cols_a[moved]].reshape(-1, 2)
