@@ -55,12 +55,13 @@ from neurotouch_hid.pipeline.gesture import (
     points_to_user,
 )
 from neurotouch_hid.pipeline.learned import gesture_features, learned_gesture
+from neurotouch_hid.pipeline.markers import MARKER_SPACING_MM
 from neurotouch_hid.pipeline.moves import _largest_move_sq, _unchanged
 from neurotouch_hid.pipeline.noise import EventNoiseFilter
 from neurotouch_hid.pipeline.override import grid_neighbours, overrules_rest, shared_distances
 from neurotouch_hid.pipeline.resting import compile_resting_kernels
 from neurotouch_hid.pipeline.synthetic import synthetic_windows
-from neurotouch_hid.pipeline.tracker import BlobTracker
+from neurotouch_hid.pipeline.tracker import BlobTracker, swapped_blobs
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import Frame, StreamItem
 
@@ -220,7 +221,8 @@ class GesturePipeline(FramePath):
     def compile_window_kernels(self) -> None:
         """The per-window part of :meth:`compile_kernels`: resting detection, gel motion, the
         camera model, the checks before a fit, contacts and gesture, then the tracker's APS-frame
-        correction (last: the per-event kernels it calls are compiled, or cached, by then)."""
+        correction and its look for blobs on another marker (last: the per-event kernels it calls
+        are compiled, or cached, by then)."""
         rest, moved, flat, pinch, three, events = synthetic_windows(self.sensor)
         all_valid = np.ones(len(rest), dtype=bool)
         compile_resting_kernels()  # its frames come later, possibly in the runtime's thread
@@ -238,6 +240,8 @@ class GesturePipeline(FramePath):
         finally:
             self.timings = timings
         tracker = BlobTracker(rest, self.sensor.width, self.sensor.height, self.settings.tracker, sensor=self.sensor)
+        pitch = MARKER_SPACING_MM * self.sensor.px_per_mm  # the paper's settings have no pitch of their own
+        swapped_blobs(tracker.positions_px, tracker.valid, rest, rest_neighbours(rest, pitch), rest + 0.5, pitch)
         tracker.correct(rest + 0.5, int(events["timestamp"][-1]))  # the frame correction's fusion
 
     def restart(self) -> None:
