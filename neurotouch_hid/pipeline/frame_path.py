@@ -21,7 +21,6 @@ import numpy as np
 from neurotouch_hid.camera_model import fit_camera_model
 from neurotouch_hid.errors import SensorError
 from neurotouch_hid.estimate import GestureEstimate
-from neurotouch_hid.pipeline.contacts_plateau import rest_neighbours
 from neurotouch_hid.pipeline.markers import MARKER_SPACING_MM, detect_markers, looks_like_marker_grid
 from neurotouch_hid.pipeline.moves import _off_layout
 from neurotouch_hid.pipeline.override import grid_neighbours
@@ -248,12 +247,11 @@ class FramePath:
         if result.centroids_px is not None:
             start = self._clock()
             c = self.config
-            neighbours = self._of_rest("contacts", self.rest_px, lambda rest: rest_neighbours(rest, c.marker_pitch_px))
             moved, where = swapped_blobs(
                 self.tracker.positions_px,
                 self.tracker.valid,
                 self.rest_px,
-                neighbours,
+                self._contact_neighbours(self.rest_px),
                 result.centroids_px,
                 c.marker_pitch_px,
             )

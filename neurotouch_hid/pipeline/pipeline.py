@@ -492,7 +492,7 @@ class GesturePipeline(FramePath):
             spike_fraction=c.spike_fraction,
             bump_span_px=self.sensor.gel_radius_px,
             min_move_px=c.min_move_px,
-            neighbours=self._of_rest("contacts", rest_px, lambda rest: rest_neighbours(rest, c.marker_pitch_px)),
+            neighbours=self._contact_neighbours(rest_px),
             long_before=self._long_press,
             held=held,
         )
@@ -532,6 +532,12 @@ class GesturePipeline(FramePath):
             result, contacts.peaks_px, rest_px, current, valid, self.sensor, c.r_px, c.origin_radius_px
         )
         return dataclasses.replace(result, gesture=learned_gesture(features, c.classifier))
+
+    def _contact_neighbours(self, rest_px: np.ndarray) -> np.ndarray:
+        """(N, K) int64 each marker's neighbours on the gel at rest (``rest_neighbours`` at the
+        marker pitch), kept per rest reference: the contacts stage's and the frame correction's."""
+        pitch = self.config.marker_pitch_px
+        return self._of_rest("contacts", rest_px, lambda rest: rest_neighbours(rest, pitch))
 
     def _of_rest(self, name: str, rest_px: np.ndarray, make: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
         """``make(rest_px)``, computed once per rest reference (the pipeline's own, or
