@@ -45,8 +45,8 @@ class FramePath:
     """The frame half of the gesture pipeline: the rest reference, the resting verdicts and what
     they do to the tracker. A base of :class:`~neurotouch_hid.pipeline.pipeline.GesturePipeline`,
     which provides ``sensor``, ``settings``, ``config`` (pixel settings), ``detect_resting``,
-    ``_creep``, ``_scaled``, the stage clock (``_clock``, ``_record``) and
-    ``_close_windows_until`` (the window path).
+    ``_creep``, ``_scaled``, the stage clock (``_clock``, ``_record``), the markers' neighbours at
+    rest (``_contact_neighbours``) and ``_close_windows_until`` (the window path).
 
     Attributes:
         rest_px: (N, 2) float64, rest marker positions (image px), None before the first frame.
