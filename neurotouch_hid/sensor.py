@@ -242,17 +242,41 @@ class SensorGeometry:
 
     def user_to_image(self, points_mm: np.ndarray) -> np.ndarray:
         """Inverse of :meth:`image_to_user`: (..., 2) user mm -> (..., 2) image px (the camera
-        model inverted by Newton's method on the radius: 8 steps, far below 1e-6 px)."""
-        p = self.vectors_user_to_image(points_mm)
+        model inverted as :meth:`distort` does)."""
+        return self.distort(self.vectors_user_to_image(points_mm) + np.asarray(self.gel_center_px))
+
+    def undistort(self, points_px: np.ndarray) -> np.ndarray:
+        """Image points as a camera without the camera model (``radial_k``) would see them: each
+        point's offset from the gel's centre times :meth:`radial_gain`, so that one px is one
+        base-plane mm / ``px_per_mm`` everywhere on the gel (the centre's scale; image frame, px).
+
+        Args:
+            points_px: (..., 2) float, image px; NaN rows stay NaN.
+        Returns:
+            (..., 2) float64, undistorted px; the points unchanged without a camera model.
+        """
+        p = np.asarray(points_px, dtype=np.float64)
+        if self.radial_k is None:
+            return p.copy()
+        d = p - np.asarray(self.gel_center_px)
+        return d * self.radial_gain(np.hypot(d[..., 0], d[..., 1]))[..., None] + np.asarray(self.gel_center_px)
+
+    def distort(self, points_px: np.ndarray) -> np.ndarray:
+        """Inverse of :meth:`undistort`: (..., 2) undistorted px -> (..., 2) image px, the camera
+        model's radius ``r (1 + k1 x^2 + k2 x^4)`` solved for r by Newton's method (until a step
+        is below 1e-9 px, at most 8 steps)."""
+        p = np.asarray(points_px, dtype=np.float64) - np.asarray(self.gel_center_px)
         if self.radial_k is not None:
             target = np.hypot(p[..., 0], p[..., 1])  # = r g(r), solved for the image radius r
             r = target.copy()
             k1, k2 = self.radial_k
-            x = 1.0 / self.gel_radius_px
+            per_x2 = 1.0 / self.gel_radius_px**2
             for _ in range(8):
-                f = r * self.radial_gain(r) - target
-                df = 1.0 + 3.0 * k1 * (r * x) ** 2 + 5.0 * k2 * (r * x) ** 4
-                r = r - f / df
+                x2 = r * r * per_x2
+                step = (r * (1.0 + x2 * (k1 + k2 * x2)) - target) / (1.0 + x2 * (3.0 * k1 + 5.0 * k2 * x2))
+                r = r - step
+                if np.fmax.reduce(np.abs(step), axis=None, initial=0.0) <= 1e-9:  # converged (NaN left aside)
+                    break
             scale = np.where(target > 0, r / np.where(target > 0, target, 1.0), 1.0)
             p = p * scale[..., None]
         return p + np.asarray(self.gel_center_px)

@@ -80,3 +80,20 @@ def test_every_bad_field_is_named_with_its_line_and_what_was_expected(tmp_path):
     message = str(info.value)
     assert f"{bad}:2: field 'px_per_mm': found -2; input should be greater than 0" in message
     assert f"{bad}:3: field 'mirror': found 1" in message and "boolean" in message
+
+
+def test_undistorted_px_are_base_plane_mm_at_the_centres_scale_and_distort_inverts_them():
+    """``undistort``: the camera model's radial gain taken out of the image, so one px is one
+    base-plane mm / px_per_mm near the rim as at the centre; ``distort`` puts it back."""
+    sensor = SensorGeometry(radial_k=(-0.105, 0.0115), rotation_deg=30.0)
+    rng = np.random.default_rng(3)
+    points = np.asarray(sensor.gel_center_px) + rng.uniform(-60.0, 60.0, (40, 2))
+    flat = sensor.undistort(points)
+    linear = SensorGeometry(rotation_deg=30.0)  # the same geometry without a camera model
+    np.testing.assert_allclose(linear.image_to_user(flat), sensor.image_to_user(points), atol=1e-9)
+    np.testing.assert_allclose(sensor.distort(flat), points, atol=1e-9)
+    rim = np.asarray(sensor.gel_center_px) + [[60.0, 0.0], [61.0, 0.0]]  # 1 px apart near the rim
+    assert np.linalg.norm(np.diff(sensor.undistort(rim), axis=0)) < 0.85  # the rim is magnified
+    assert np.array_equal(linear.undistort(points), points) and np.array_equal(linear.distort(points), points)
+    lost = sensor.undistort(np.array([[np.nan, np.nan], [200.0, 140.0]]))
+    assert np.isnan(lost[0]).all() and np.isfinite(sensor.distort(lost)[1]).all()
