@@ -470,16 +470,18 @@ class GesturePipeline(FramePath):
     ):
         """:meth:`_contacts_and_gesture` computed afresh: the gel's motion in its mount removed
         (docs/method.md, "Gel motion"), the contacts ("Contacts"; ``held``: the press's
-        :attr:`Contacts.held` of the window before), the gesture's similarity and a learned type
-        ("Gesture")."""
+        :attr:`Contacts.held` of the window before) found on the positions undistorted by the
+        camera model ("Camera model": one px one base-plane mm / px_per_mm everywhere) and put
+        back in the image, the gesture's similarity and a learned type ("Gesture")."""
         c = self.config
         begin = self._clock()
         centre = self.sensor.gel_center_px
         rim = self._of_rest("rim", rest_px, lambda rest: rim_markers(rest, centre))
         motion = estimate_gel_motion(rest_px, current, valid, rim, centre)
+        on_gel = self._of_rest("undistorted", rest_px, self.sensor.undistort)
         contacts = detect_contacts(
-            rest_px,
-            current if motion is None else motion.remove(current),
+            on_gel,
+            self.sensor.undistort(current if motion is None else motion.remove(current)),
             valid,
             r_px=c.r_px,
             a=c.a,
@@ -492,14 +494,21 @@ class GesturePipeline(FramePath):
             spike_fraction=c.spike_fraction,
             bump_span_px=self.sensor.gel_radius_px,
             min_move_px=c.min_move_px,
-            neighbours=self._contact_neighbours(rest_px),
+            neighbours=self._of_rest(
+                "undistorted neighbours", on_gel, lambda rest: rest_neighbours(rest, c.marker_pitch_px)
+            ),
             long_before=self._long_press,
             held=held,
         )
+        if contacts.peaks_px is contacts.points_px:  # back to the image
+            points = peaks = self.sensor.distort(contacts.points_px)
+        else:  # (one call: the camera model's inverse costs ~30 us a call)
+            both = self.sensor.distort(np.concatenate([contacts.points_px, contacts.peaks_px]))
+            points, peaks = both[: len(contacts.points_px)], both[len(contacts.points_px) :]
         if motion is not None:  # the contact points where they are, the gel's motion included
-            points = motion.apply(contacts.points_px)
-            peaks = points if contacts.peaks_px is contacts.points_px else motion.apply(contacts.peaks_px)
-            contacts = dataclasses.replace(contacts, points_px=points, peaks_px=peaks)
+            points = motion.apply(points)
+            peaks = points if contacts.peaks_px is contacts.points_px else motion.apply(peaks)
+        contacts = dataclasses.replace(contacts, points_px=points, peaks_px=peaks)
         self._record("contacts", begin)
         begin = self._clock()
         result = estimate_gesture(
@@ -535,14 +544,15 @@ class GesturePipeline(FramePath):
 
     def _contact_neighbours(self, rest_px: np.ndarray) -> np.ndarray:
         """(N, K) int64 each marker's neighbours on the gel at rest (``rest_neighbours`` at the
-        marker pitch), kept per rest reference: the contacts stage's and the frame correction's."""
+        marker pitch), kept per rest reference: the frame correction's (the contacts stage takes its own
+        on the undistorted rest positions, :meth:`_fit`)."""
         pitch = self.config.marker_pitch_px
         return self._of_rest("contacts", rest_px, lambda rest: rest_neighbours(rest, pitch))
 
     def _of_rest(self, name: str, rest_px: np.ndarray, make: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
         """``make(rest_px)``, computed once per rest reference (the pipeline's own, or
         :meth:`compile_kernels`' synthetic grid) and kept under ``name``: the gel's rim markers
-        (gel_motion) and the contacts' neighbour table."""
+        (gel_motion), the rest positions undistorted and neighbour tables."""
         kept = self._of_rest_kept.get(name)
         if kept is None or kept[0] is not rest_px:
             kept = self._of_rest_kept[name] = (rest_px, make(rest_px))
