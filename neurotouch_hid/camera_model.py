@@ -32,7 +32,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from neurotouch_hid.sensor import DOME_SPHERE_MM, MARKER_SPACING_MM, SensorGeometry
+from neurotouch_hid.sensor import DOME_SPHERE_MM, MARKER_SPACING_MM, SensorGeometry, one_to_one
 
 #: Largest RMS residual (mm) of an accepted fit: a tenth of the pitch.
 MAX_RESIDUAL_MM = 0.4
@@ -70,7 +70,7 @@ def fit_camera_model(points_px: np.ndarray, sensor: SensorGeometry) -> SensorGeo
         A copy of ``sensor`` with ``px_per_mm`` (at the centre, rounded to 1e-4) and
         ``radial_k`` fitted, or None when the markers do not index as the 4 mm grid (fewer than
         :data:`MIN_MARKERS`, two markers on one grid point, or an RMS residual above
-        :data:`MAX_RESIDUAL_MM`).
+        :data:`MAX_RESIDUAL_MM`) or the fit folds (:func:`~neurotouch_hid.sensor.one_to_one`).
     """
     points = np.asarray(points_px, dtype=np.float64).reshape(-1, 2)
     if len(points) < MIN_MARKERS:
@@ -98,8 +98,9 @@ def fit_camera_model(points_px: np.ndarray, sensor: SensorGeometry) -> SensorGeo
     residual = design @ coef - _expected_radius_mm(index)
     if float(np.sqrt(np.mean(residual**2))) > MAX_RESIDUAL_MM:
         return None
-    return replace(
-        sensor,
-        px_per_mm=round(1.0 / float(coef[0]), 4),
-        radial_k=(round(float(coef[1] / coef[0]), 5), round(float(coef[2] / coef[0]), 5)),
-    )
+    radial_k = (round(float(coef[1] / coef[0]), 5), round(float(coef[2] / coef[0]), 5))
+    try:
+        one_to_one(radial_k)
+    except ValueError:  # a folded model: two radii of the gel on one
+        return None
+    return replace(sensor, px_per_mm=round(1.0 / float(coef[0]), 4), radial_k=radial_k)

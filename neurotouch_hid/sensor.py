@@ -27,7 +27,7 @@ from typing import Annotated, Any
 
 import numpy as np
 import yaml
-from pydantic import ConfigDict, Field, StrictBool, TypeAdapter, ValidationError, with_config
+from pydantic import AfterValidator, ConfigDict, Field, StrictBool, TypeAdapter, ValidationError, with_config
 from ruamel.yaml.nodes import MappingNode
 from typing_extensions import TypedDict  # pydantic needs typing_extensions' TypedDict before 3.12
 
@@ -59,6 +59,23 @@ _Px = Annotated[float, Field(ge=-MAX_SENSOR_PX, le=MAX_SENSOR_PX)]
 #: A radial term of the camera model (dimensionless, over the normalised radius): real lenses
 #: have |k| well under 1.
 _Coefficient = Annotated[float, Field(ge=-100, le=100)]
+#: The camera model must map the image radius one to one out to this many gel radii (the gel and
+#: a margin for markers tracked past its rim): :meth:`SensorGeometry.distort` inverts it there.
+MONOTONE_TO_RADII = 1.25
+
+
+def one_to_one(radial_k: tuple[float, float]) -> tuple[float, float]:
+    """``radial_k`` when ``r (1 + k1 x^2 + k2 x^4)`` grows with r for x = r / gel radius up to
+    :data:`MONOTONE_TO_RADII` (its derivative ``1 + 3 k1 x^2 + 5 k2 x^4`` stays positive); else
+    ValueError (a folded model maps two radii of the gel to one)."""
+    k1, k2 = radial_k
+    x2 = np.linspace(0.0, MONOTONE_TO_RADII**2, 201)
+    if not np.all(1.0 + 3.0 * k1 * x2 + 5.0 * k2 * x2 * x2 > 0.0):
+        raise ValueError(
+            f"expected a camera model whose radius grows with the image radius out to {MONOTONE_TO_RADII:g} gel radii "
+            "(1 + 3 k1 x^2 + 5 k2 x^4 > 0; calibrate fits one)"
+        )
+    return radial_k
 
 
 @with_config(ConfigDict(allow_inf_nan=False))
@@ -76,7 +93,7 @@ class SensorFile(TypedDict, total=False):
     gel_radius_px: Annotated[float, Field(gt=0, le=MAX_SENSOR_PX)]
     mirror: StrictBool
     rotation_deg: Annotated[float, Field(ge=-360, le=360)]
-    radial_k: tuple[_Coefficient, _Coefficient]
+    radial_k: Annotated[tuple[_Coefficient, _Coefficient], AfterValidator(one_to_one)]
     creep: tuple[Annotated[float, Field(ge=0, lt=1)], Annotated[float, Field(gt=0, le=3600)]]
 
 

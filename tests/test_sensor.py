@@ -97,3 +97,16 @@ def test_undistorted_px_are_base_plane_mm_at_the_centres_scale_and_distort_inver
     assert np.array_equal(linear.undistort(points), points) and np.array_equal(linear.distort(points), points)
     lost = sensor.undistort(np.array([[np.nan, np.nan], [200.0, 140.0]]))
     assert np.isnan(lost[0]).all() and np.isfinite(sensor.distort(lost)[1]).all()
+
+
+def test_a_folded_camera_model_is_refused_with_its_file_line_and_field(tmp_path):
+    """A camera model must map the image radius one to one over the gel: k1 = -2 folds the rim
+    back onto the gel (and ``distort`` could not invert it), so the file is refused."""
+    bad = tmp_path / "sensor.yaml"
+    bad.write_text("width: 346\nradial_k: [-2.0, 0.1]\n")
+    with pytest.raises(SensorError) as info:
+        SensorGeometry.load(bad)
+    assert f"{bad}:2: field 'radial_k': found [-2.0, 0.1]; expected a camera model" in str(info.value)
+    good = tmp_path / "fitted.yaml"
+    good.write_text("width: 346\nradial_k: [-0.105, 0.0115]\n")
+    assert SensorGeometry.load(good).radial_k == (-0.105, 0.0115)
