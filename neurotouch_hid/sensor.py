@@ -252,10 +252,15 @@ class SensorGeometry:
         Returns:
             (..., 2) float64, user frame mm, origin at the gel's centre.
         """
+        return self.vectors_image_to_user(self._undistorted_offsets(points_px))
+
+    def _undistorted_offsets(self, points_px: np.ndarray) -> np.ndarray:
+        """(..., 2) float64: image points' offsets (px) from the gel's centre times the camera
+        model's :meth:`radial_gain` (unchanged without a model)."""
         p = np.asarray(points_px, dtype=np.float64) - np.asarray(self.gel_center_px)
         if self.radial_k is not None:
             p = p * self.radial_gain(np.hypot(p[..., 0], p[..., 1]))[..., None]
-        return self.vectors_image_to_user(p)
+        return p
 
     def user_to_image(self, points_mm: np.ndarray) -> np.ndarray:
         """Inverse of :meth:`image_to_user`: (..., 2) user mm -> (..., 2) image px (the camera
@@ -272,11 +277,9 @@ class SensorGeometry:
         Returns:
             (..., 2) float64, undistorted px; the points unchanged without a camera model.
         """
-        p = np.asarray(points_px, dtype=np.float64)
         if self.radial_k is None:
-            return p.copy()
-        d = p - np.asarray(self.gel_center_px)
-        return d * self.radial_gain(np.hypot(d[..., 0], d[..., 1]))[..., None] + np.asarray(self.gel_center_px)
+            return np.array(points_px, dtype=np.float64)
+        return self._undistorted_offsets(points_px) + np.asarray(self.gel_center_px)
 
     def distort(self, points_px: np.ndarray) -> np.ndarray:
         """Inverse of :meth:`undistort`: (..., 2) undistorted px -> (..., 2) image px, the camera

@@ -46,7 +46,7 @@ class FramePath:
     they do to the tracker. A base of :class:`~neurotouch_hid.pipeline.pipeline.GesturePipeline`,
     which provides ``sensor``, ``settings``, ``config`` (pixel settings), ``detect_resting``,
     ``_creep``, ``_scaled``, the stage clock (``_clock``, ``_record``), the markers' neighbours at
-    rest (``_contact_neighbours``) and ``_close_windows_until`` (the window path).
+    rest (``_image_neighbours``) and ``_close_windows_until`` (the window path).
 
     Attributes:
         rest_px: (N, 2) float64, rest marker positions (image px), None before the first frame.
@@ -251,7 +251,7 @@ class FramePath:
                 self.tracker.positions_px,
                 self.tracker.valid,
                 self.rest_px,
-                self._contact_neighbours(self.rest_px),
+                self._image_neighbours(self.rest_px),
                 result.centroids_px,
                 c.marker_pitch_px,
             )

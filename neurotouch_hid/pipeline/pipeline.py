@@ -542,12 +542,12 @@ class GesturePipeline(FramePath):
         )
         return dataclasses.replace(result, gesture=learned_gesture(features, c.classifier))
 
-    def _contact_neighbours(self, rest_px: np.ndarray) -> np.ndarray:
-        """(N, K) int64 each marker's neighbours on the gel at rest (``rest_neighbours`` at the
-        marker pitch), kept per rest reference: the frame correction's (the contacts stage takes its own
-        on the undistorted rest positions, :meth:`_fit`)."""
+    def _image_neighbours(self, rest_px: np.ndarray) -> np.ndarray:
+        """(N, K) int64 each marker's neighbours on the gel at rest in the image (``rest_neighbours``
+        at the marker pitch), kept per rest reference: the frame correction's (the contacts stage
+        takes its own on the undistorted rest positions, :meth:`_fit`)."""
         pitch = self.config.marker_pitch_px
-        return self._of_rest("contacts", rest_px, lambda rest: rest_neighbours(rest, pitch))
+        return self._of_rest("image neighbours", rest_px, lambda rest: rest_neighbours(rest, pitch))
 
     def _of_rest(self, name: str, rest_px: np.ndarray, make: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
         """``make(rest_px)``, computed once per rest reference (the pipeline's own, or
