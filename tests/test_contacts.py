@@ -829,3 +829,33 @@ def test_a_maximum_the_homography_fits_is_kept_where_the_window_before_held_it(h
     if weak_is_a_finger:  # held at what it was held at, not at today's displacement: easing off adds up
         assert level[1] == pytest.approx(1.6 / held_share, rel=0.01)
     assert level[0] == pytest.approx(8.0, rel=0.01)  # the strong finger, an outlier: held at its own
+
+
+@pytest.mark.parametrize(
+    ("held_share", "valid", "still_held"),
+    [(0.95, True, True), (0.85, True, False), (0.95, False, False)],
+    ids=[
+        "no_maximum_this_window_but_displaced_as_much_the_press_still_holds_it",
+        "eased_off_below_the_share_the_press_lets_it_go",
+        "its_marker_lost_the_press_lets_it_go",
+    ],
+)
+def test_a_finger_held_earlier_in_the_press_outlasts_a_window_without_its_maximum(held_share, valid, still_held):
+    """A weak finger beside a strong one, displaced below the least move that counts: no contact of
+    this window. Held by the press before (at its displacement / ``held_share``), it stays held for
+    the next window while its marker is valid and displaced at least HELD_PEAK_SHARE of that, at the
+    level it was held at: a correction that reshuffles the maxima for one frame does not lose it."""
+    rest = grid()
+    c = np.asarray(SENSOR.gel_center_px, dtype=float)
+    strong, weak_at = c + [-40.0, 0.0], c + [40.0, 0.0]
+    cur = rest + bump(rest, strong, (8.0, 0.0), sigma=16.0) + bump(rest, weak_at, (-0.5, 0.0), sigma=16.0)
+    weak = int(np.argmin(np.linalg.norm(rest - weak_at, axis=1)))
+    level = float(np.linalg.norm(cur[weak] - rest[weak])) / held_share
+    ok = np.ones(len(rest), dtype=bool)
+    ok[weak] = valid
+    found = detect_contacts(rest, cur, ok, held=(np.array([weak]), np.array([level])))
+    assert found.count == 1 and weak not in found.indices.tolist()
+    assert (weak in found.held[0].tolist()) == still_held
+    if still_held:
+        assert found.held[1][found.held[0].tolist().index(weak)] == pytest.approx(level)
+    assert len(found.held[0]) == len(set(found.held[0].tolist()))  # the strong finger once, not twice

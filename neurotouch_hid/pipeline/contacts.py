@@ -58,10 +58,11 @@ class Contacts:
         long_flat_top: a flat top of the field, at least a fingertip's footprint, is long:
             fingertips side by side (``contacts_plateau.LONG_ELONGATION``). The pipeline keeps it
             over the press (:func:`detect_contacts`'s ``long_before``).
-        held: the field's maxima that are one finger's peak (not a flat top of several), as the
-            next window of the press hears them (:func:`detect_contacts`'s ``held``): (H,) int64
-            marker indices and (H,) float64 their ||v|| (px) when the homography last failed on or
-            about them.
+        held: the fingers' peaks the press holds, as the next window of the press hears them
+            (:func:`detect_contacts`'s ``held``): this window's maxima that are one finger's peak
+            (not a flat top of several), and the press's earlier ones whose marker is still displaced
+            at least :data:`HELD_PEAK_SHARE` of what it is held at; (H,) int64 marker indices and
+            (H,) float64 their ||v|| (px) when the homography last failed on or about them.
     """
 
     indices: np.ndarray
@@ -223,11 +224,13 @@ def _usable(
 PEAK_OUTLIER_NEIGHBOURS = 2
 
 #: A maximum the homography fits is still a finger's peak when it or one of its grid neighbours
-#: was one finger's peak (not a flat top of several) in the window before, of the same press, and
-#: it is displaced at least this share of what it was when the homography last failed on or about
-#: it: a finger held where, from one APS frame's correction to the next, the homography's consensus
-#: follows it (a held 3-finger zoom or twist, docs/method.md, "Contacts"); a finger easing off below
-#: it is left to the homography.
+#: was one finger's peak (not a flat top of several) earlier in the same press, and it is displaced
+#: at least this share of what it was when the homography last failed on or about it: a finger held
+#: where, from one APS frame's correction to the next, the homography's consensus follows it (a held
+#: 3-finger zoom or twist, docs/method.md, "Contacts"). The press keeps such a peak while its marker
+#: stays displaced at least this share, through windows where it is no maximum (another finger's
+#: flat top beside it, the maxima reshuffled by a correction); a finger easing off below it is left
+#: to the homography.
 HELD_PEAK_SHARE = 0.9
 
 
@@ -344,6 +347,24 @@ class Candidates:
             long_flat_top=long_flat_top,
             held=held,
         )
+
+
+def _still_held(
+    held: tuple[np.ndarray, np.ndarray] | None,
+    idx: np.ndarray,
+    magnitudes: np.ndarray,
+    now: tuple[np.ndarray, np.ndarray],
+) -> tuple[np.ndarray, np.ndarray]:
+    """The peaks the press holds after this window (:attr:`Contacts.held`): this window's one-finger
+    peaks ``now`` ((K,) int64 marker indices into the N, (K,) float64 ||v|| px), and those of
+    ``held`` (the window before's, the same form; None: none) not among them whose marker is one of
+    this window's valid markers ``idx`` (M,) int64 (ascending) and displaced, by ``magnitudes`` (M,)
+    float64 px, at least :data:`HELD_PEAK_SHARE` of what it is held at (docs/method.md, "Contacts")."""
+    if held is None or not len(held[0]):
+        return now
+    at = np.minimum(np.searchsorted(idx, held[0]), len(idx) - 1)
+    still = (idx[at] == held[0]) & (magnitudes[at] >= HELD_PEAK_SHARE * held[1]) & ~np.isin(held[0], now[0])
+    return np.concatenate([now[0], held[0][still]]), np.concatenate([now[1], held[1][still]])
 
 
 def _held_levels(held: tuple[np.ndarray, np.ndarray] | None, idx: np.ndarray) -> np.ndarray:
@@ -502,7 +523,7 @@ def detect_contacts(
     else:
         fingers, flat = np.zeros(0, dtype=np.int64), np.zeros((0, 2))
     alone = fingers <= 1  # one finger's peak, not a flat top of several (whose maximum wanders over it)
-    held_now = (c.idx[peaks[alone]], level_at[peaks[alone]])
+    held_now = _still_held(held, c.idx, magnitudes, (c.idx[peaks[alone]], level_at[peaks[alone]]))
     rows, points, used = [], [], 0
     for i, f in zip(peaks.tolist(), fingers.tolist()):
         if f:  # a flat top: its contacts, all on its maximum's marker
