@@ -363,7 +363,8 @@ def _still_held(
     if held is None or not len(held[0]):
         return now
     at = np.minimum(np.searchsorted(idx, held[0]), len(idx) - 1)
-    still = (idx[at] == held[0]) & (magnitudes[at] >= HELD_PEAK_SHARE * held[1]) & ~np.isin(held[0], now[0])
+    again = (held[0][:, None] == now[0][None, :]).any(axis=1)  # held again this window: ``now``'s level
+    still = (idx[at] == held[0]) & (magnitudes[at] >= HELD_PEAK_SHARE * held[1]) & ~again
     return np.concatenate([now[0], held[0][still]]), np.concatenate([now[1], held[1][still]])
 
 
