@@ -1,6 +1,6 @@
 """Where the resting errors are: against the labels, and against the offset's rule at the onset too.
 
-    python3 benchmarks/resting_errors.py --out DIR --method NAME [--families default,drift,...]
+    python3 benchmarks/resting_errors.py --out DIR --method NAME [--families default,drift,...] [--collar-ms 40,80]
 
 DIR is a ``family_eval.py`` working folder (each family's dataset under ``DIR/FAMILY``, a
 method's predictions under ``DIR/predictions/FAMILY/NAME``). Per family it prints the resting F1
@@ -14,7 +14,8 @@ exactly when every true marker is within 0.1 mm of rest (no noise, no delay), so
 detector which needs the gel to move 0.1 mm can score against the labels (docs/accuracy.md,
 "Where the errors are").
 
-Then the same outside the 40 ms collar (docs/dataset.md, the target's F1): the method's, its
+Then the same outside the 40 ms collar (docs/dataset.md, the target's F1; ``--collar-ms`` other
+half-widths too, one table each: how far from the labels' changes rest is decided): the method's, its
 windows called resting while the labels say not (and how many of them lie in a gesture before any
 marker has moved 0.1 mm), its missed rests, its F1 with the offset's rule at the onset too, and the F1 of ideal
 detectors that call rest exactly when every true marker is within ``--ideal-mm`` of rest (the
@@ -32,7 +33,7 @@ from workdir import families_in, numbers
 
 from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions
 from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.evaluation.metrics import outside_resting_collar
+from neurotouch_hid.evaluation.metrics import RESTING_COLLAR_US, outside_resting_collar
 from neurotouch_hid.output.console import command_app
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.simulator import REST_TOLERANCE_MM
@@ -47,8 +48,11 @@ def f1(truth: np.ndarray, predicted: np.ndarray) -> float:
     return 2 * tp / max(2 * tp + wrong, 1)
 
 
-def family_errors(dataset: Path, predictions: Path, ideal_mm: tuple[float, ...] = ()) -> dict:
-    """The figures of one family (module docstring); ``ideal_mm`` the ideal detectors' tolerances (mm)."""
+def family_errors(
+    dataset: Path, predictions: Path, ideal_mm: tuple[float, ...] = (), collar_us: int = RESTING_COLLAR_US
+) -> dict:
+    """The figures of one family (module docstring); ``ideal_mm`` the ideal detectors' tolerances (mm),
+    ``collar_us`` the collar's half-width (us) about each change of the labelled resting flag."""
     sensor = SensorGeometry.load(dataset / "sensor.yaml")
     truth, said, gesture, scored, moved_max = [], [], [], [], []
     for name in list_sequences(dataset):
@@ -67,6 +71,7 @@ def family_errors(dataset: Path, predictions: Path, ideal_mm: tuple[float, ...] 
                 np.array([label.t_us for label in labels], dtype=np.int64),
                 np.array([label.resting for label in labels], dtype=bool),
                 t_us,
+                collar_us,
             )
         )
         truth += [at[k].resting for k in keep]
@@ -100,10 +105,16 @@ def main(
     ideal_mm: str = typer.Option(
         "0.02,0.05,0.1", "--ideal-mm", help="comma-separated tolerances (mm) of the ideal detectors outside the collar"
     ),
+    collar_ms: str = typer.Option(
+        "40", "--collar-ms", help="comma-separated collar half-widths (ms; 40 is docs/dataset.md's), a table each"
+    ),
 ) -> None:
     names = families_in(out, families, method)
     tolerances = tuple(numbers(ideal_mm, "--ideal-mm", finite=True))
-    results = {fam: family_errors(out / fam, out / "predictions" / fam / method, tolerances) for fam in names}
+    collars_us = [round(1000 * ms) for ms in numbers(collar_ms, "--collar-ms", finite=True)]
+    results = {
+        fam: family_errors(out / fam, out / "predictions" / fam / method, tolerances, collars_us[0]) for fam in names
+    }
     print(
         "| family | resting F1 | F1, offset rule at onset too | false rest | of which at onset < 0.1 mm | missed rest "
         "| F1 of the 0.1 mm tolerance itself |"
@@ -116,21 +127,26 @@ def main(
             f"{r['false_rest_at_onset_below_tolerance']} | {r['missed_rest']} | "
             f"{100 * r['f1_tolerance_detector']:.2f} % |"
         )
-    print()
     ideal = " | ".join(f"ideal detector, {mm:g} mm" for mm in tolerances)
-    print(
-        "Outside the 40 ms collar:\n\n| family | resting F1 | false rest | of which at onset < 0.1 mm | missed rest "
-        f"| F1, offset rule at onset too | {ideal} |"
-    )
-    print("| --- | ---: | ---: | ---: | ---: | ---: |" + " ---: |" * len(tolerances))
-    for fam in names:
-        r = results[fam]
-        cells = " | ".join(f"{100 * r['f1_ideal_collared'][mm]:.2f} %" for mm in tolerances)
+    for k, collar_us in enumerate(collars_us):
+        if k:
+            results = {
+                fam: family_errors(out / fam, out / "predictions" / fam / method, tolerances, collar_us)
+                for fam in names
+            }
         print(
-            f"| {fam} | {100 * r['f1_collared']:.2f} % | {r['false_rest_collared']} | "
-            f"{r['false_rest_collared_below_tolerance']} | {r['missed_rest_collared']} | "
-            f"{100 * r['f1_offset_rule_collared']:.2f} % | {cells} |"
+            f"\nOutside the {collar_us / 1000:g} ms collar:\n\n| family | resting F1 | false rest "
+            f"| of which at onset < 0.1 mm | missed rest | F1, offset rule at onset too | {ideal} |"
         )
+        print("| --- | ---: | ---: | ---: | ---: | ---: |" + " ---: |" * len(tolerances))
+        for fam in names:
+            r = results[fam]
+            cells = " | ".join(f"{100 * r['f1_ideal_collared'][mm]:.2f} %" for mm in tolerances)
+            print(
+                f"| {fam} | {100 * r['f1_collared']:.2f} % | {r['false_rest_collared']} | "
+                f"{r['false_rest_collared_below_tolerance']} | {r['missed_rest_collared']} | "
+                f"{100 * r['f1_offset_rule_collared']:.2f} % | {cells} |"
+            )
 
 
 if __name__ == "__main__":

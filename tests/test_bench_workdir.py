@@ -94,6 +94,7 @@ def test_numbers_are_read_or_refused_naming_the_option(workdir, capsys):
         ("wait_bound.py", ["--seed", "2", "--families", "default", "--wait-ms", "90,inf"]),
         ("onset_bound.py", ["--mm", "0.1,x"]),
         ("resting_errors.py", ["--method", "ours", "--ideal-mm", "-0.1"]),
+        ("resting_errors.py", ["--method", "ours", "--collar-ms", "40,inf"]),
         ("../docs/lab/type_commitment.py", ["--families", "default", "--first-finger-ms", "90,nan"]),
     ],
 )

@@ -77,3 +77,15 @@ def test_the_figures_outside_the_collar(resting_errors, tmp_path):
     # an ideal detector at 0.05 mm agrees everywhere outside the collar; at 0.2 mm it calls rest at
     # 150-190 ms (the marker below 0.2 mm)
     assert r["f1_ideal_collared"] == pytest.approx({0.05: 1.0, 0.2: 20 / 25})
+
+
+def test_a_wider_collar_leaves_out_the_rest_called_early_in_the_push(resting_errors, tmp_path):
+    # The predictions call rest to 160 ms, as above. Outside 80 ms collars about 100 and 300 ms only
+    # 10, 190-210 and 390 ms are scored (a window 80 ms from a change is in its collar): the rests
+    # called at 150 and 160 ms are left out, and every scored window agrees
+    dataset, predictions = slow_push(tmp_path, 170)
+    r = resting_errors.family_errors(dataset, predictions, ideal_mm=(0.2,), collar_us=80_000)
+    assert (r["false_rest_collared"], r["missed_rest_collared"]) == (0, 0)
+    assert r["f1_collared"] == pytest.approx(1.0)
+    # the 0.2 mm ideal detector calls rest at 190 ms (the marker 0.18 mm from rest): one false rest
+    assert r["f1_ideal_collared"] == pytest.approx({0.2: 4 / 5})
