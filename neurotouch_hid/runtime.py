@@ -684,11 +684,10 @@ class Runtime:
                     self._rest_windows = (estimate.t_us, estimate.t_us - previous) if resting else None
                 if estimates:
                     done_ns = time.perf_counter_ns()
-                    stats.latency.add(done_ns - arrival_ns)
-                    if self._compile_progress is not None and self._compile_progress() is not None:
-                        stats.interpreted_windows += len(estimates)  # the first run's compile goes on
-                    else:
-                        stats.compiled_latency.add(done_ns - arrival_ns)
+                    compiling = self._compile_progress is not None and self._compile_progress() is not None
+                    stats.add_latency(
+                        len(estimates), done_ns - arrival_ns, compiling=compiling, waiting=len(self._items)
+                    )
                     if self._pace:
                         for estimate in estimates:
                             end_ns = self._clock.due_ns(estimate.t_us)

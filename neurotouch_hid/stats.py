@@ -59,7 +59,11 @@ class RunStats:
             from the source (after pacing) to the output being up to date.
         interpreted_windows: windows made while the first run's compile went on (the pipeline
             interpreted, slowly: the latency's tail is theirs).
-        compiled_latency: ``latency`` of the windows made once the pipeline was compiled.
+        queued_windows: windows made once the pipeline was compiled from the items that had
+            queued up behind the compile (until the queue was first empty): their latency is the
+            compile's too.
+        compiled_latency: ``latency`` of the windows made once the pipeline was compiled and the
+            queue it left was worked off: what every later run sees.
         window_latency: paced sources only: from the window's end in wall time (the camera clock
             mapped to wall time by the pacing) to the output being up to date; adds the wait for
             the source batch that shows the window is over (up to one batch).
@@ -82,7 +86,25 @@ class RunStats:
     latency: LatencyRing = field(default_factory=LatencyRing, repr=False)
     window_latency: LatencyRing = field(default_factory=LatencyRing, repr=False)
     interpreted_windows: int = 0
+    queued_windows: int = 0
     compiled_latency: LatencyRing = field(default_factory=LatencyRing, repr=False)
+    _behind_compile: bool = field(default=False, repr=False)
+
+    def add_latency(self, windows: int, latency_ns: int, *, compiling: bool, waiting: int) -> None:
+        """Count the latency (ns) of one item that closed ``windows`` (>= 1) windows: in
+        :attr:`latency`, and by when it was made: while the first run's compile went on
+        (``compiling``: :attr:`interpreted_windows`), after it from the items that queued up behind
+        it (:attr:`queued_windows`, until ``waiting``, the items still queued after this one, is
+        first 0), or once the pipeline is compiled and caught up (:attr:`compiled_latency`)."""
+        self.latency.add(latency_ns)
+        if compiling:
+            self.interpreted_windows += windows
+            self._behind_compile = True
+        elif self._behind_compile:
+            self.queued_windows += windows
+            self._behind_compile = waiting > 0
+        else:
+            self.compiled_latency.add(latency_ns)
 
     def summary(self) -> str:
         """One line for the end of a run."""
@@ -94,8 +116,9 @@ class RunStats:
             )
         if self.interpreted_windows:  # say why the latency is what it is
             lat += (
-                f" ({self.interpreted_windows} windows ran interpreted, slowly, while the pipeline compiled: "
-                "first run only"
+                f" ({self.interpreted_windows} windows ran interpreted, slowly, while the pipeline compiled"
+                + (f", {self.queued_windows} more from the items queued meanwhile" if self.queued_windows else "")
+                + ": first run only"
                 + (
                     f"; once compiled: p50 {self.compiled_latency.percentile_us(50) / 1e3:.2f} ms"
                     f" p99 {self.compiled_latency.percentile_us(99) / 1e3:.2f} ms)"

@@ -393,8 +393,39 @@ def test_the_closing_line_says_which_windows_ran_interpreted_while_compiling():
     )
     stats = runtime.run()
     assert stats.windows == 12 and 1 <= stats.interpreted_windows < 12
+    # a fast run reads its source ahead: what the compile left queued is counted apart from the rest
+    assert stats.interpreted_windows + stats.queued_windows + len(stats.compiled_latency) == 12
+    assert f"{stats.interpreted_windows} windows ran interpreted" in stats.summary()
+
+
+def test_the_queue_the_compile_left_is_kept_out_of_the_compiled_latency():
+    from neurotouch_hid.stats import RunStats
+
+    stats = RunStats()
+    for _ in range(3):  # interpreted, 500 ms each
+        stats.add_latency(1, 500_000_000, compiling=True, waiting=4)
+    for waiting in (3, 2, 0):  # compiled now, but read while it compiled: 600 ms behind
+        stats.add_latency(1, 600_000_000, compiling=False, waiting=waiting)
+    for _ in range(5):  # caught up: 2 ms, even when the source queues ahead again
+        stats.add_latency(1, 2_000_000, compiling=False, waiting=2)
+    stats.windows = 11
+    counted = (stats.interpreted_windows, stats.queued_windows, len(stats.compiled_latency), len(stats.latency))
+    assert counted == (3, 3, 5, 11)
     line = stats.summary()
-    assert f"{stats.interpreted_windows} windows ran interpreted" in line and "once compiled: p50" in line
+    assert (
+        "3 windows ran interpreted, slowly, while the pipeline compiled, 3 more from the items queued meanwhile" in line
+    )
+    assert "once compiled: p50 2.00 ms p99 2.00 ms" in line
+
+
+def test_a_run_that_compiled_before_its_first_window_counts_every_window_as_compiled():
+    from neurotouch_hid.stats import RunStats
+
+    stats = RunStats()
+    for waiting in (5, 0, 3):
+        stats.add_latency(1, 1_000_000, compiling=False, waiting=waiting)
+    assert (stats.interpreted_windows, stats.queued_windows, len(stats.compiled_latency)) == (0, 0, 3)
+    assert "interpreted" not in stats.summary()
 
 
 def test_a_run_without_a_compile_says_nothing_of_it():
