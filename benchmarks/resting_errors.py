@@ -112,9 +112,13 @@ def main(
     names = families_in(out, families, method)
     tolerances = tuple(numbers(ideal_mm, "--ideal-mm", finite=True))
     collars_us = [round(1000 * ms) for ms in numbers(collar_ms, "--collar-ms", finite=True)]
-    results = {
-        fam: family_errors(out / fam, out / "predictions" / fam / method, tolerances, collars_us[0]) for fam in names
+    by_collar = {
+        collar_us: {
+            fam: family_errors(out / fam, out / "predictions" / fam / method, tolerances, collar_us) for fam in names
+        }
+        for collar_us in collars_us
     }
+    results = by_collar[collars_us[0]]  # the figures over every window are the same for each collar
     print(
         "| family | resting F1 | F1, offset rule at onset too | false rest | of which at onset < 0.1 mm | missed rest "
         "| F1 of the 0.1 mm tolerance itself |"
@@ -128,12 +132,7 @@ def main(
             f"{100 * r['f1_tolerance_detector']:.2f} % |"
         )
     ideal = " | ".join(f"ideal detector, {mm:g} mm" for mm in tolerances)
-    for k, collar_us in enumerate(collars_us):
-        if k:
-            results = {
-                fam: family_errors(out / fam, out / "predictions" / fam / method, tolerances, collar_us)
-                for fam in names
-            }
+    for collar_us, results in by_collar.items():
         print(
             f"\nOutside the {collar_us / 1000:g} ms collar:\n\n| family | resting F1 | false rest "
             f"| of which at onset < 0.1 mm | missed rest | F1, offset rule at onset too | {ideal} |"
