@@ -18,7 +18,7 @@ the replay of a predictions file (:class:`~neurotouch_hid.driver.EstimateReplay`
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Iterable, NamedTuple, Protocol, Union
+from typing import TYPE_CHECKING, Callable, Iterable, NamedTuple, Protocol, Union
 
 from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.estimate import GestureEstimate, MarkerPositions
@@ -139,3 +139,82 @@ class Subscriber(Protocol):
     def prepare(self, profile: Profile) -> None:
         """Get ready to map ``profile`` (e.g. create the keyboard it uses), after
         :meth:`neutralise`, before its first record."""
+
+
+# --- the output and input seams ---------------------------------------------------------------
+# Every device the system sees is a Target behind one subscriber; every device merged into the
+# gel's pad is an InputDevice behind one Merge. docs/architecture.md, "Targets and inputs".
+
+
+@dataclass(frozen=True)
+class Feedback:
+    """What a game or a host sent back to a target: rumble or a player LED.
+
+    Attributes:
+        kind: ``"rumble"`` or ``"led"``.
+        strong, weak: rumble magnitudes 0..1 (the low- and high-frequency motors; 0 stops).
+        duration_ms: how long the rumble lasts (None: until the next one).
+        led: the player LED pattern as the protocol numbers it (xpad's 0..15), for ``"led"``.
+        source: the target that received it (its ``what``), for the user's log line.
+    """
+
+    kind: str
+    strong: float = 0.0
+    weak: float = 0.0
+    duration_ms: int | None = None
+    led: int | None = None
+    source: str = ""
+
+
+class Target(Protocol):
+    """One device the system sees, fed from the controller state: the uinput pad, keyboard and
+    mouse, a UHID device, a USB gadget function (HID joystick, Switch pad, XInput pad, keyboard,
+    mouse). All targets of a run sit behind one :class:`Subscriber` (``targets.TargetOutputs``).
+
+    Attributes:
+        what: a short name for messages ("uinput pad", "USB gadget (xinput)", ...).
+    """
+
+    what: str
+
+    def write(self, state: ControllerState) -> None:
+        """Send ``state`` as one report (or one evdev frame), only where it changed."""
+
+    def neutralise(self) -> None:
+        """Send the neutral report now: axes centred, triggers 0, nothing pressed."""
+
+    def prepare(self, profile: Profile) -> None:
+        """Get ready for ``profile`` (after :meth:`neutralise`, before its first state)."""
+
+    def fileno(self) -> int | None:
+        """The readable side (force-feedback uploads, a host's output reports, ep0 events),
+        or None when the target has none."""
+
+    def feedback(self) -> list[Feedback]:
+        """Called when :meth:`fileno` is readable: read and handle what arrived; returns the
+        rumble and LED requests in it (possibly none)."""
+
+    def close(self) -> None:
+        """Neutral first, then remove the device. Idempotent, safe from any thread."""
+
+
+class Merge(Protocol):
+    """Devices merged into the gel's pad (a profile's ``copilot:``): read, grabbed, combined.
+
+    The runtime calls :meth:`merge` on each window's mapped state and publishes the result; the
+    merge calls the ``on_input`` it was started with (from its own thread, which sleeps in
+    ``select`` while no merged device sends anything) whenever a merged device's controls
+    changed, and the runtime then publishes ``merge(last gel state)`` at once, so a helper's
+    press never waits for the gel's next window."""
+
+    def start(self, on_input: Callable[[], None]) -> None:
+        """Open, grab and start reading the devices (a missing one is waited for)."""
+
+    def merge(self, gel: ControllerState) -> ControllerState:
+        """The pad's state: ``gel`` combined with the merged devices' current controls."""
+
+    def feedback(self, request: Feedback) -> None:
+        """Forward a game's rumble to the merged pads that can rumble."""
+
+    def stop(self) -> None:
+        """Release every grab and stop reading; the merged controls count as neutral."""

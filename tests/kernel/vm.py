@@ -62,8 +62,12 @@ SLOW_MODULES = ("checks_davis_pipeline",)
 def guest_parts() -> list[tuple[str, ...]]:
     """The check modules (names) of each guest of the default run: :data:`CAMERA_MODULES` and
     :data:`FIRST_GUEST_ALSO`, then all the others but :data:`SLOW_MODULES`. A guest runs its
-    modules in name order (``guest.py``): the camera's first."""
+    modules in name order (``guest.py``): the camera's first. ``NEUROTOUCH_GUEST_ONLY=a,b``
+    (a developer's focused run) boots one guest with just modules ``a`` and ``b``."""
     modules = sorted(path.stem for path in HERE.glob("checks_*.py"))
+    only = os.environ.get("NEUROTOUCH_GUEST_ONLY", "").strip()
+    if only:  # a developer's focused run: one guest with just these modules (comma-separated)
+        return [tuple(sorted(m.strip() for m in only.split(",") if m.strip()))]
     first = CAMERA_MODULES + FIRST_GUEST_ALSO
     return [first, tuple(m for m in modules if m not in first + SLOW_MODULES)]
 
