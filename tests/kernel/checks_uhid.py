@@ -75,8 +75,8 @@ def _push_right(hold_s: float) -> list:
 
 
 def _held_state(folder: Path, profile: Path):
-    """The profile's state for the held push: the last line of ``run --output jsonl --fast`` over
-    the push held 0.4 s (the driver's own run_driver, in this process)."""
+    """The profile's state for the held push: the last push line of ``run --output jsonl --fast``
+    over the push held 0.4 s (the driver's own run_driver, in this process)."""
     from neurotouch_hid.controller import ControllerState
     from neurotouch_hid.dataset import write_predictions
     from neurotouch_hid.driver import run_driver
@@ -85,7 +85,8 @@ def _held_state(folder: Path, profile: Path):
     write_predictions(preds, _push_right(0.4))
     out = folder / "expected.jsonl"
     run_driver(str(preds), profile, "jsonl", fast=True, out=out)
-    last = json.loads(out.read_text().splitlines()[-1])
+    # the last line of the push (the run's neutral line at its end follows it)
+    last = [d for d in map(json.loads, out.read_text().splitlines()) if d["gesture"] == "push"][-1]
     return ControllerState(axes=last["axes"], buttons=last["buttons"])
 
 
