@@ -191,10 +191,12 @@ def check_run_output_hid() -> dict:
         props = guestlib.udev_properties(node)
         watcher = guestlib.EventReader(node)
         x_max = watcher.device.absinfo(ecodes.ABS_X).max
-        watcher.pump(timeout_s=1.0, until=lambda r: r.axes.get(ecodes.ABS_X, 0) > 0, max_s=120.0)
+        pushed = lambda r: r.axes.get(ecodes.ABS_X, 0) == held.axes["ABS_X"]  # noqa: E731  (the ramp's end)
+        guestlib.wait_for(lambda: watcher.pump(timeout_s=0.5, until=pushed, max_s=1.0) or pushed(watcher), 120.0, 0)
         evdev_held = dict(watcher.axes)
         evdev_south = ecodes.BTN_TRIGGER in watcher.keys  # button 1 of a Joystick: BTN_TRIGGER
         got_held = guestlib.wait_for(lambda: held_report in reader.reports, 30.0)
+        held_s = time.monotonic() - t_run
         asked = bytes(device.get_input_report(0, 64))
         sdl_held = guestlib.wait_for(
             lambda: next((d for d in lines.samples_raw() if d["axes"] and d["axes"][0] > 0.99), None), 60.0
@@ -237,5 +239,7 @@ def check_run_output_hid() -> dict:
         "sdl_held_axes": sdl_held["axes"],
         "sdl_ready_s": round(sdl_ready_s, 1),
         "device_after_start_s": round(device_s, 1),
+        "held_after_start_s": round(held_s, 1),
+        "check_s": round(time.monotonic() - t0, 1),
         "stderr_tail": err.strip().splitlines()[-2:],
     }  # fmt: skip

@@ -244,24 +244,14 @@ def joystick(seconds: float) -> dict:
     return {"done": True, "removed": removed, "changes": samples, "error": None}
 
 
+#: The modes that watch a device another process makes: each returns its ``done`` line.
+MODES = {"--joystick": joystick, "--rumble": rumble, "--watch": watch}
+
+
 if __name__ == "__main__":
-    if sys.argv[1:2] == ["--joystick"]:
+    if sys.argv[1:2] and sys.argv[1] in MODES:
         try:
-            out = joystick(float(sys.argv[2]))
-        except Exception as exc:
-            out = {"done": True, "error": f"{type(exc).__name__}: {exc}"}
-        say(out)
-        sys.exit(0)
-    if sys.argv[1:2] == ["--rumble"]:
-        try:
-            out = rumble(float(sys.argv[2]))
-        except Exception as exc:
-            out = {"done": True, "error": f"{type(exc).__name__}: {exc}"}
-        say(out)
-        sys.exit(0)
-    if sys.argv[1:2] == ["--watch"]:
-        try:
-            out = watch(float(sys.argv[2]))
+            out = MODES[sys.argv[1]](float(sys.argv[2]))
         except Exception as exc:
             out = {"done": True, "error": f"{type(exc).__name__}: {exc}"}
         say(out)
