@@ -34,7 +34,7 @@ from pathlib import Path
 
 import guestlib
 import numpy as np
-from checks_runtime import NO_DROP_LAG_MS, ProbeLines, _cli, _env, _write, timeline
+from checks_runtime import NO_DROP_LAG_MS, PadWatcher, ProbeLines, _cli, _env, _write, timeline
 
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.targets.reports.hid import HID_JOYSTICK
@@ -189,12 +189,11 @@ def check_run_output_hid() -> dict:
         node = guestlib.wait_for(_our_input_device, 10.0)
         assert node, "no input device with our phys"
         props = guestlib.udev_properties(node)
-        watcher = guestlib.EventReader(node)
-        x_max = watcher.device.absinfo(ecodes.ABS_X).max
-        pushed = lambda r: r.axes.get(ecodes.ABS_X, 0) == held.axes["ABS_X"]  # noqa: E731  (the ramp's end)
-        guestlib.wait_for(lambda: watcher.pump(timeout_s=0.5, until=pushed, max_s=1.0) or pushed(watcher), 120.0, 0)
-        evdev_held = dict(watcher.axes)
-        evdev_south = ecodes.BTN_TRIGGER in watcher.keys  # button 1 of a Joystick: BTN_TRIGGER
+        watcher = PadWatcher(node)  # reads in a thread, like a game: a gone device's queue is lost
+        x_max = watcher.reader.device.absinfo(ecodes.ABS_X).max
+        guestlib.wait_for(lambda: watcher.reader.axes.get(ecodes.ABS_X) == held.axes["ABS_X"], 120.0)
+        evdev_held = dict(watcher.reader.axes)
+        evdev_south = ecodes.BTN_TRIGGER in watcher.reader.keys  # button 1 of a Joystick: BTN_TRIGGER
         got_held = guestlib.wait_for(lambda: held_report in reader.reports, 30.0)
         held_s = time.monotonic() - t_run
         asked = bytes(device.get_input_report(0, 64))
@@ -203,7 +202,7 @@ def check_run_output_hid() -> dict:
         )
         run.send_signal(signal.SIGTERM)
         _, err = run.communicate(timeout=60)
-        watcher.pump(timeout_s=1.0, max_s=5.0)
+        guestlib.wait_for(lambda: watcher.reader.gone, 10.0)
         time.sleep(0.5)
         reader.stop()
         opened = lines.first("opened")
@@ -212,7 +211,7 @@ def check_run_output_hid() -> dict:
             if proc is not None and proc.poll() is None:
                 proc.kill()
         if watcher is not None:
-            watcher.close()
+            watcher.stop()
     assert run.returncode == 0, f"run exit code {run.returncode}: {err[-2000:]}"
     assert driver == "hid-generic", f"the HID driver of {sysfs_name}: {driver}"
     assert descriptor == HID_JOYSTICK.descriptor, f"descriptor read back: {descriptor.hex()}"
@@ -221,7 +220,7 @@ def check_run_output_hid() -> dict:
     assert reader.reports[-1] == HID_JOYSTICK.neutral(), f"last report after SIGTERM: {reader.reports[-1].hex()}"
     assert evdev_held.get(ecodes.ABS_X) == held.axes["ABS_X"] > 0, f"evdev ABS_X {evdev_held.get(ecodes.ABS_X)}"
     assert evdev_south, "button A (HID button 1) is not BTN_TRIGGER on evdev"
-    assert watcher.axes.get(ecodes.ABS_X) == 0, f"evdev after SIGTERM: ABS_X {watcher.axes.get(ecodes.ABS_X)}"
+    assert watcher.states[-1][0] == 0, f"evdev after SIGTERM: ABS_X {watcher.states[-1][0]}"  # ABS_X first
     assert props.get("ID_INPUT_JOYSTICK") == "1", f"udev: {props}"
     assert sdl_held, f"SDL never read axis 0 at full right: {lines.lines[-5:]}"
     return {
