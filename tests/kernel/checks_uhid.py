@@ -147,11 +147,7 @@ def check_run_output_hid() -> dict:
     assert Path("/dev/uhid").exists(), f"no /dev/uhid after modprobe: {modprobe}"
     folder = Path(tempfile.mkdtemp(prefix="uhid-check-"))
     preds, profile = _write(folder, _push_right(120.0), PROFILE)
-    held = _held_state(folder, profile)
-    assert held.axes["ABS_X"] > 0 and held.buttons["BTN_SOUTH"], f"the profile's held push: {held}"
-    held_report = HID_JOYSTICK.pack(held)
-
-    t0 = time.monotonic()
+    t0 = time.monotonic()  # SDL, the run and the expected state start together (each a Python start here)
     probe = subprocess.Popen(
         [sys.executable, str(Path(__file__).resolve().parent / "sdl_probe.py"), "--joystick", "240"],
         stdout=subprocess.PIPE,
@@ -163,17 +159,20 @@ def check_run_output_hid() -> dict:
     run = None
     reader = watcher = None
     try:
-        ready = guestlib.wait_for(
-            lambda: lines.first("ready") or lines.first("done") or probe.poll() is not None, 150.0
-        )
-        assert isinstance(ready, dict) and ready.get("ready"), f"SDL did not start: {lines.lines} {probe.poll()}"
-        sdl_ready_s = time.monotonic() - t0
         run = subprocess.Popen(
             _cli("run", "--source", str(preds), "--profile", str(profile), "--output", "hid",
                  "--max-lag-ms", NO_DROP_LAG_MS),
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(),
         )  # fmt: skip
         t_run = time.monotonic()
+        held = _held_state(folder, profile)
+        assert held.axes["ABS_X"] > 0 and held.buttons["BTN_SOUTH"], f"the profile's held push: {held}"
+        held_report = HID_JOYSTICK.pack(held)
+        ready = guestlib.wait_for(
+            lambda: lines.first("ready") or lines.first("done") or probe.poll() is not None, 150.0
+        )
+        assert isinstance(ready, dict) and ready.get("ready"), f"SDL did not start: {lines.lines} {probe.poll()}"
+        sdl_ready_s = time.monotonic() - t0
         found = guestlib.wait_for(
             lambda: hidraw.enumerate(HID_DEFAULT.vendor, HID_DEFAULT.product) or run.poll() is not None, 150.0, 0.1
         )
