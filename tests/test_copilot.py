@@ -135,6 +135,13 @@ def test_a_bad_copilot_entry_names_file_line_field_and_what_was_expected(tmp_pat
     assert expected in hits[0], hits[0]
 
 
+def test_the_names_refused_are_those_of_the_keyboard_and_mouse_the_driver_makes():
+    from neurotouch_hid.mapping.profile import OWN_INPUT_NAMES
+    from neurotouch_hid.output.desktop import KEYBOARD_NAME, MOUSE_NAME
+
+    assert set(OWN_INPUT_NAMES) == {KEYBOARD_NAME, MOUSE_NAME}
+
+
 def test_a_profile_touching_no_pad_control_needs_no_pad():
     assert not load_profile("mouse").uses_pad
     assert not load_profile("switch-access").uses_pad

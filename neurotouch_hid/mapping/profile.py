@@ -496,6 +496,8 @@ AXIS_POLICIES: tuple[str, ...] = ("further", "gel", "helper", "sum")
 MAX_COPILOT_DEVICES = 8
 #: A device's ids as the user writes them: ``045e:02ea`` (USB vendor:product, hex).
 _IDS_PATTERN = r"^[0-9A-Fa-f]{4}:[0-9A-Fa-f]{4}$"
+#: The names of the keyboard and mouse the driver makes (``output/desktop.py``): never merged.
+OWN_INPUT_NAMES: tuple[str, ...] = ("NeuroTouch keyboard", "NeuroTouch mouse")
 #: Where stable paths of input devices live (udev's persistent links).
 STABLE_PATH_PREFIX = "/dev/input/"
 
@@ -611,10 +613,8 @@ class Profile(_Strict):
     @field_validator("copilot")
     @classmethod
     def _devices_once_and_not_ours(cls, value: list[CopilotDevice], info: ValidationInfo) -> list[CopilotDevice]:
-        from neurotouch_hid.output.desktop import KEYBOARD_NAME, MOUSE_NAME
-
         own = info.data.get("device")
-        ours = {KEYBOARD_NAME, MOUSE_NAME} | ({own.name} if isinstance(own, DeviceSpec) else set())
+        ours = set(OWN_INPUT_NAMES) | ({own.name} if isinstance(own, DeviceSpec) else set())
         seen: dict[str, int] = {}
         for i, entry in enumerate(value):
             if entry.device in seen:
