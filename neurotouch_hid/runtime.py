@@ -388,6 +388,7 @@ class Runtime:
         compared with a neutral one (caller holds ``self._lock``)."""
         self._last_state = ControllerState.neutral(self._last_state.t_us)
         self._last_gel = ControllerState.neutral(self._last_state.t_us)
+        self._last_record = None  # a merged device's input waits for the next window's record
         self._last_gesture = None
 
     def reload_profile(self) -> bool:
