@@ -477,3 +477,62 @@ def test_a_profile_switch_releases_the_old_merge_and_starts_the_new_ones():
     started.set()
     thread.join(30)
     assert made[2].events == ["start", "stop"]
+
+
+# --- what the user is told ------------------------------------------------------------------------
+def test_presence_names_what_is_plugged_in_and_what_is_waited_for():
+    from neurotouch_hid.inputs.match import presence, presence_line
+
+    box = InputInfo("/dev/input/event8", "Switch Box", "usb-3/input0", 0x1234, 0x5678)
+    assert presence_line(["Helper Pad", "Switch Box", "045e:028e"], [HELPER]) == (
+        "present: Helper Pad (/dev/input/event7); missing: Switch Box, 045e:028e"
+    )
+    # one device is taken by the first rule naming it, as the running driver takes it
+    assert presence(["045e:02ea", "Helper Pad", "Switch Box"], [HELPER, box]) == [
+        ("045e:02ea", HELPER),
+        ("Helper Pad", None),
+        ("Switch Box", box),
+    ]
+
+
+def test_doctor_says_which_copilot_devices_are_there_and_which_are_waited_for(tmp_path):
+    from neurotouch_hid.doctor import FAIL, OK, SKIP, WARN, check_copilot
+
+    node = tmp_path / "event7"
+    node.write_text("")
+    helper = InputInfo(str(node), "Helper Pad", "usb-2/input0", 0x045E, 0x02EA)
+    profile = parse_profile(SHORT_FORM, "p.yaml")
+    waiting = check_copilot({"mine": profile}, [helper])
+    assert waiting.status == WARN
+    assert waiting.detail.startswith(f"mine: Helper Pad at {node}, Switch Box missing")
+    box = InputInfo(str(node), "Switch Box", "usb-3/input0", 0x1234, 0x5678)
+    assert check_copilot({"mine": profile}, [helper, box]).status == OK
+    closed = InputInfo("/nonexistent/event9", "Switch Box", "usb-3/input0", 0x1234, 0x5678)
+    denied = check_copilot({"mine": profile}, [helper, closed])
+    assert denied.status == FAIL and "sudo usermod -aG input $USER" in denied.fix
+    assert check_copilot({"default": load_profile("default")}, []).status == SKIP
+
+
+def test_the_live_view_says_what_is_merged_and_what_is_missing():
+    from neurotouch_hid.output.live import copilot_line
+
+    assert copilot_line(("Helper Pad",), ("Switch Box",)).plain == "merged: Helper Pad; missing: Switch Box"
+    assert copilot_line((), ()).plain == "merged: none; missing: none"
+
+
+def test_devices_json_lists_the_input_devices_a_copilot_can_merge():
+    import json
+
+    from helpers import run_cli
+
+    from neurotouch_hid.inputs.match import mergeable_devices, to_json
+
+    data = json.loads(run_cli("devices", "--json").stdout)
+    assert data["inputs"] == [to_json(info) for info in mergeable_devices()]
+    assert to_json(HELPER) == {
+        "node": "/dev/input/event7",
+        "name": "Helper Pad",
+        "ids": "045e:02ea",
+        "phys": "usb-0000:00:14.0-2/input0",
+        "links": ["/dev/input/by-id/usb-Helper-event-joystick"],
+    }

@@ -137,3 +137,36 @@ def matches(rule: str, info: InputInfo) -> bool:
     if ids:
         return info.vendor == int(ids.group(1), 16) and info.product == int(ids.group(2), 16)
     return rule == info.name
+
+
+def mergeable_devices(input_dir: Path = INPUT_DIR, sysfs: Path = SYSFS_INPUT) -> list[InputInfo]:
+    """The input devices a profile's ``copilot:`` could name: every evdev device but the
+    driver's own, in node order."""
+    return [info for info in input_devices(input_dir, sysfs) if not info.own]
+
+
+def presence(rules: list[str], devices: list[InputInfo]) -> list[tuple[str, InputInfo | None]]:
+    """Each ``copilot:`` rule with the device it names among ``devices`` (None: missing); a device
+    is taken by the first rule naming it, as the running driver takes it."""
+    free = list(devices)
+    out: list[tuple[str, InputInfo | None]] = []
+    for rule in rules:
+        found = next((info for info in free if matches(rule, info)), None)
+        if found is not None:
+            free.remove(found)
+        out.append((rule, found))
+    return out
+
+
+def presence_line(rules: list[str], devices: list[InputInfo]) -> str:
+    """One line for the user: ``present: NAME (NODE), ...; missing: NAME, ...`` (a missing device
+    is waited for by the running driver, and merged when it comes)."""
+    found = presence(rules, devices)
+    present = [f"{rule} ({info.path})" for rule, info in found if info is not None]
+    missing = [rule for rule, info in found if info is None]
+    return f"present: {', '.join(present) or 'none'}; missing: {', '.join(missing) or 'none'}"
+
+
+def to_json(info: InputInfo) -> dict:
+    """``info`` for ``devices --json``: the name, ids and stable links to write in ``copilot:``."""
+    return {"node": info.path, "name": info.name, "ids": info.ids, "phys": info.phys, "links": list(info.links)}
