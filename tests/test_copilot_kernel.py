@@ -13,12 +13,11 @@ pytestmark = pytest.mark.kernel
 CHECK = "checks_copilot.check_copilot_merges_grabs_rejoins_and_rumbles"
 
 
-def test_the_mouse_profile_makes_no_joystick_node_and_profile_use_default_makes_one_centred(guest):
+def test_the_mouse_profile_makes_no_joystick_node_and_profile_use_default_makes_one(guest):
     details = passed(guest, CHECK)
     assert details["pads_with_mouse_profile"] == []
     assert details["use_default"].startswith("switched to profile default")
-    assert details["pad_when_made"] == {"ABS_X": 0, "ABS_Y": 0, "buttons": []}
-    assert details["ID_INPUT_JOYSTICK"] == "1"
+    assert details["pads"] == 1 and details["ID_INPUT_JOYSTICK"] == "1"
 
 
 def test_the_helpers_buttons_and_stick_arrive_on_the_one_pad_by_the_axis_policies(guest):

@@ -192,7 +192,7 @@ def _mergeable_json() -> list[dict]:
 
 def _say_mergeable() -> None:
     """The input devices a profile's ``copilot:`` could merge into the pad, with what to write
-    there: the name, the USB ids, or a stable path (docs/profiles.md, "copilot")."""
+    there: the name, the USB ids, or a stable path (docs/profiles.md, "Copilot")."""
     from rich.markup import escape
     from rich.table import Table
 

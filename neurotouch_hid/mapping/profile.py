@@ -519,7 +519,7 @@ def control_of(output: str) -> str:
 
 
 class CopilotDevice(_Strict):
-    """One input device merged into the pad (docs/profiles.md, "copilot").
+    """One input device merged into the pad (docs/profiles.md, "Copilot").
 
     ``device`` names it: its name as the kernel reports it (``neurotouch-hid devices`` lists them),
     its USB ids ``vvvv:pppp`` (hex), or a stable path under ``/dev/input/`` (``by-id/...``).
