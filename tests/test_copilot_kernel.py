@@ -35,7 +35,7 @@ def test_a_grabbed_helper_reaches_no_other_reader_until_the_run_ends_neutral(gue
     details = passed(guest, CHECK)
     assert details["helper_reader_while_grabbed"] == 0 and details["helper_reader_while_grabbed_again"] == 0
     assert details["helper_reader_after_stop"]
-    assert details["exit_code"] == 0 and details["pad_last"] == {"ABS_X": 0, "ABS_Y": 0, "buttons": []}
+    assert details["windows"] > 0 and details["pad_last"] == {"ABS_X": 0, "ABS_Y": 0, "buttons": []}
 
 
 def test_an_unplugged_helper_lets_go_at_once_and_a_new_one_of_the_same_name_rejoins(guest):

@@ -186,6 +186,17 @@ class Copilot:
         return device
 
     def _loop(self) -> None:
+        try:
+            self._serve()
+        except Exception:  # a bug here must not leave a device grabbed and silent
+            log.exception("the copilot stopped reading its devices; they are released")
+            with self._lock:
+                devices, self._open = [d for d in self._open if d is not None], [None] * len(self._specs)
+            for device in devices:
+                device.close()
+            self._on_input()
+
+    def _serve(self) -> None:
         from inotify_simple import flags
 
         wake = self._wake[0]

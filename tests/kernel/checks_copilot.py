@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import queue
 import signal
 import subprocess
@@ -27,7 +28,7 @@ import time
 from pathlib import Path
 
 import guestlib
-from checks_runtime import NO_DROP_LAG_MS, _cli, _env, timeline
+from checks_runtime import NO_DROP_LAG_MS, timeline
 from checks_runtime_remap import Watcher, _devices, _write_preds
 from evdev import AbsInfo, UInput, ecodes
 
@@ -141,18 +142,6 @@ def press(ui: UInput, *events: tuple[int, int, int]) -> None:
     ui.syn()
 
 
-class Lines:
-    """A process's text stream read in a thread, line by line (its stderr: what ``run`` says)."""
-
-    def __init__(self, stream):
-        self.lines: list[str] = []
-        self.thread = threading.Thread(target=lambda: self.lines.extend(iter(stream.readline, "")), daemon=True)
-        self.thread.start()
-
-    def count(self, text: str) -> int:
-        return sum(text in line for line in list(self.lines))
-
-
 class Sdl:
     """tests/kernel/sdl_probe.py ``--serve``: one SDL start, commands on stdin."""
 
@@ -221,63 +210,131 @@ def _pad(watcher: Watcher) -> dict:
 
 
 def check_copilot_merges_grabs_rejoins_and_rumbles() -> dict:
-    """``run`` on ``mouse`` makes no joystick node; ``profile use default`` makes the pad,
-    centred; ``profile use`` of a copilot profile grabs the helper's pad and the switch box (a
-    reader of the helper's own node then receives nothing) and merges them: the helper's buttons
-    arrive on the pad (evdev and SDL), its stick follows the policies against the gel's push
-    (``further`` on ABS_X, ``sum`` on ABS_Y), Space on the switch box presses the mapped button; an
-    SDL rumble on the pad is played on the helper's device; the helper destroyed mid-press leaves
-    its controls neutral at once and the run goes on; a new device of that name rejoins; SIGTERM:
-    exit 0, the pad's last state neutral, the helper's node delivers to other readers again."""
-    from neurotouch_hid.control import SOCKET_NAME, request_use
+    """``run`` on ``mouse`` makes no joystick node; ``profile use default`` makes the pad;
+    ``profile use`` of a copilot profile grabs the helper's pad and the switch box (a reader of the
+    helper's own node then receives nothing) and merges them: the helper's buttons arrive on the
+    pad (evdev and SDL), its stick follows the policies against the gel's push (``further`` on
+    ABS_X, ``sum`` on ABS_Y), Space on the switch box presses the mapped button; an SDL rumble on
+    the pad is played on the helper's device; the helper destroyed mid-press leaves its controls
+    neutral at once and the run goes on; a new device of that name rejoins; SIGTERM: the run ends
+    cleanly, the pad's last state neutral, the helper's node delivers to other readers again.
+
+    The driver runs in this process (``run_driver``, what ``neurotouch-hid run`` calls, in the main
+    thread, where SIGTERM's handler runs): a second Python start would cost minutes here. The steps
+    run in a thread beside it, and end it with a real SIGTERM to this process."""
+    from neurotouch_hid.control import SOCKET_NAME
+    from neurotouch_hid.driver import run_driver
 
     started = time.monotonic()
     folder = Path(tempfile.mkdtemp(prefix="copilot-"))
     runtime_dir = folder / "xdg"
     runtime_dir.mkdir(mode=0o700)
-    env = dict(_env(), XDG_RUNTIME_DIR=str(runtime_dir), XDG_CONFIG_HOME=str(folder / "config"))
     profile = folder / "copilot.yaml"
     profile.write_text(COPILOT)
     G = GestureType
-    gel = timeline([(0.4, G.NONE, lambda f: 0.0), (0.4, G.PUSH, lambda f: 6.0 * f), (400.0, G.PUSH, lambda f: 6.0)])
-    preds = _write_preds(folder, [e for e in gel])
-    helper, box = helper_pad(), switch_box()
-    answerer = RumbleAnswerer(helper)
-    guestlib.settle()
-    helper_reader = Watcher(helper.device.path)
-    sdl = Sdl("028e")  # SDL's ~12 s start overlaps the driver's
-    before = {phys: set(_devices(phys)) for phys in (PHYS, MOUSE_PHYS)}
-    run = ("run", "--source", str(preds), "--profile", "mouse", "--output", "gamepad", "--max-lag-ms", NO_DROP_LAG_MS)
-    proc = subprocess.Popen(_cli(*run), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
-    said = Lines(proc.stderr)
-    details: dict = {}
-    pad = None
-    socket = runtime_dir / SOCKET_NAME
-    new = lambda phys: sorted(set(_devices(phys)) - before[phys])  # noqa: E731
+    gel = timeline(
+        [(0.4, G.NONE, lambda f: 0.0), (0.4, G.PUSH, lambda f: 6.0 * f), (400.0, G.PUSH, lambda f: 6.0)], STEP_US
+    )
+    preds = _write_preds(folder, gel)
+    scenario = Scenario(runtime_dir / SOCKET_NAME, profile)
+    env = {"XDG_RUNTIME_DIR": str(runtime_dir), "XDG_CONFIG_HOME": str(folder / "config")}
+    saved = {name: os.environ.get(name) for name in env}
+    os.environ.update(env)
+    thread = threading.Thread(target=scenario.run, daemon=True)
     try:
-        mouse_up = guestlib.wait_for(lambda: new(MOUSE_PHYS) or proc.poll() is not None, 200.0, 0.1)
-        assert mouse_up and proc.poll() is None, f"the run did not start: {said.lines[-20:]}"
-        guestlib.wait_for(lambda: socket.exists(), 60.0)
-        details["pads_with_mouse_profile"] = new(PHYS)
-        assert not new(PHYS), f"the mouse profile made a pad: {new(PHYS)}"
+        thread.start()
+        stats = run_driver(
+            str(preds), "mouse", "gamepad", max_lag_us=int(NO_DROP_LAG_MS) * 1000, say=scenario.said.append
+        )
+        scenario.details["windows"] = stats.windows
+    finally:
+        scenario.driver_done.set()
+        thread.join(120)
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+        scenario.close()
+    if scenario.error is not None:
+        raise scenario.error
+    details = scenario.details
+    assert details["pad_last"] == {"ABS_X": 0, "ABS_Y": 0, "buttons": []}, details["pad_last"]
+    assert details["helper_reader_after_stop"], "the helper's node delivers nothing after the run"
+    assert details["helper_reader_while_grabbed"] == 0 and details["helper_reader_while_grabbed_again"] == 0, details
+    details["said"] = [line for line in scenario.said if "merged" in line or "went away" in line]
+    details["seconds"] = round(time.monotonic() - started, 1)
+    return details
+
+
+class Scenario:
+    """The steps beside the running driver (a thread): the devices, the readers, SDL, the
+    control socket; ends the run with SIGTERM, then checks what is left once it returned."""
+
+    def __init__(self, socket: Path, profile: Path):
+        self.socket, self.profile = socket, profile
+        self.said: list[str] = []
+        self.details: dict = {}
+        self.error: BaseException | None = None
+        self.driver_done = threading.Event()
+        self.helper, self.box = helper_pad(), switch_box()
+        self.answerer = RumbleAnswerer(self.helper)
+        guestlib.settle()
+        self.helper_reader = Watcher(self.helper.device.path)
+        self.pad: Watcher | None = None
+        self.sdl = Sdl("028e")  # SDL's ~12 s start overlaps the driver's
+        self.before = {phys: set(_devices(phys)) for phys in (PHYS, MOUSE_PHYS)}
+        self.started = time.monotonic()
+
+    def new(self, phys: str) -> list[str]:
+        return sorted(set(_devices(phys)) - self.before[phys])
+
+    def count(self, text: str) -> int:
+        return sum(text in line for line in list(self.said))
+
+    def run(self) -> None:
+        try:
+            self.during()
+        except BaseException as exc:
+            self.error = exc
+        finally:
+            # the run's SIGTERM handler is in place once its control socket is (a failure before
+            # that leaves the run to end with its source: SIGTERM's default would end the guest)
+            if not self.driver_done.is_set() and self.socket.exists():
+                os.kill(os.getpid(), signal.SIGTERM)
+        try:
+            if self.error is None:
+                self.after()
+        except BaseException as exc:
+            self.error = exc
+
+    def during(self) -> None:
+        from neurotouch_hid.control import request_use
+
+        details, helper, box = self.details, self.helper, self.box
+        mouse_up = guestlib.wait_for(lambda: self.new(MOUSE_PHYS) or self.driver_done.is_set(), 200.0, 0.1)
+        assert mouse_up and not self.driver_done.is_set(), f"the run did not start: {self.said[-20:]}"
+        guestlib.wait_for(lambda: self.socket.exists(), 60.0)
+        details["run_started_s"] = round(time.monotonic() - self.started, 1)
+        details["pads_with_mouse_profile"] = self.new(PHYS)
+        assert not self.new(PHYS), f"the mouse profile made a pad: {self.new(PHYS)}"
         press(helper, (ecodes.EV_KEY, ecodes.BTN_EAST, 1))
         press(helper, (ecodes.EV_KEY, ecodes.BTN_EAST, 0))
-        details["run_started_s"] = round(time.monotonic() - started, 1)
         # a press and a release (the reader keeps events, not SYN_REPORTs): not grabbed yet
-        assert guestlib.wait_for(lambda: len(helper_reader.events) >= 2, 10.0), "the helper's reader reads nothing"
+        reads = guestlib.wait_for(lambda: len(self.helper_reader.events) >= 2, 10.0)
+        assert reads, "the helper's reader reads nothing"
 
-        details["use_default"] = request_use("default", path=socket)
-        assert guestlib.wait_for(lambda: new(PHYS), 30.0), f"profile use default made no pad: {said.lines[-10:]}"
-        pad = Watcher(new(PHYS)[0])
-        details["pads"] = len(new(PHYS))
-        props = guestlib.udev_properties(new(PHYS)[0])
-        details["ID_INPUT_JOYSTICK"] = props.get("ID_INPUT_JOYSTICK")
+        details["use_default"] = request_use("default", path=self.socket)
+        assert guestlib.wait_for(lambda: self.new(PHYS), 30.0), "profile use default made no pad"
+        pad = self.pad = Watcher(self.new(PHYS)[0])
+        details["pads"] = len(self.new(PHYS))
+        details["ID_INPUT_JOYSTICK"] = guestlib.udev_properties(self.new(PHYS)[0]).get("ID_INPUT_JOYSTICK")
 
-        details["use_copilot"] = request_use(str(profile), path=socket)
-        merged = guestlib.wait_for(lambda: said.count("merged Helper Pad") and said.count("merged Switch Box"), 30.0)
-        assert merged, f"the devices were not merged: {said.lines[-10:]}"
-        details["merged_s"] = round(time.monotonic() - started, 1)
-        grabbed_at = len(helper_reader.events)
+        details["use_copilot"] = request_use(str(self.profile), path=self.socket)
+        merged = guestlib.wait_for(lambda: self.count("merged Helper Pad") and self.count("merged Switch Box"), 30.0)
+        assert merged, f"the devices were not merged: {self.said[-10:]}"
+        details["merged_s"] = round(time.monotonic() - self.started, 1)
+        grabbed_at = len(self.helper_reader.events)
         gel_held = guestlib.wait_for(lambda: pad.reader.axes.get(ecodes.ABS_X, 0) > 30000, 60.0)
         assert gel_held, f"the gel's push does not show on the pad: {_pad(pad)}"
         details["gel_alone"] = _pad(pad)
@@ -295,10 +352,10 @@ def check_copilot_merges_grabs_rejoins_and_rumbles() -> dict:
         )
         details["helper_full"] = _pad(pad)
         assert further, details
-        opened = sdl.next_with("opened", 200.0)
-        assert opened.get("opened"), f"SDL did not open the pad: {opened} {sdl.close()}"
+        opened = self.sdl.next_with("opened", 200.0)
+        assert opened.get("opened"), f"SDL did not open the pad: {opened}"
         details["sdl_controllers"] = opened["count"]
-        sdl_held = sdl.until(lambda v: v.get("a") and v.get("leftx", 0) <= -32767)
+        sdl_held = self.sdl.until(lambda v: v.get("a") and v.get("leftx", 0) <= -32767)
         details["sdl_held"] = {k: sdl_held.get(k) for k in ("a", "x", "leftx", "lefty")}
         assert sdl_held.get("a") and sdl_held.get("leftx") <= -32767, sdl_held
 
@@ -308,12 +365,13 @@ def check_copilot_merges_grabs_rejoins_and_rumbles() -> dict:
         unboxed = guestlib.wait_for(lambda: ecodes.BTN_WEST not in pad.pressed, 10.0)
         assert boxed and unboxed, f"Space on the switch box: {pad.keys_log()}"
 
-        rumble = sdl.ask("rumble", "rumble")
+        rumble = self.sdl.ask("rumble", "rumble")
         details["sdl_rumble"] = rumble
+        answerer = self.answerer
         played = guestlib.wait_for(lambda: any(s[0] == "play" and s[2] > 0 for s in answerer.seen), 15.0)
         details["helper_ff"] = answerer.seen[:6]
         assert rumble.get("rumble") and played, f"the rumble did not reach the helper: {rumble} {answerer.seen}"
-        details["helper_reader_while_grabbed"] = len(helper_reader.events) - grabbed_at
+        details["helper_reader_while_grabbed"] = len(self.helper_reader.events) - grabbed_at
 
         # unplugged mid-press: the pad lets go at once, the run goes on
         helper.close()
@@ -322,50 +380,43 @@ def check_copilot_merges_grabs_rejoins_and_rumbles() -> dict:
         )
         details["after_unplug"] = _pad(pad)
         assert released and details["after_unplug"]["ABS_Y"] == gel_y, details["after_unplug"]
-        assert proc.poll() is None, "the run ended when the helper went away"
-        assert guestlib.wait_for(lambda: said.count("Helper Pad went away"), 10.0), said.lines[-5:]
+        assert not self.driver_done.is_set(), "the run ended when the helper went away"
+        assert guestlib.wait_for(lambda: self.count("Helper Pad went away"), 10.0), self.said[-5:]
 
-        helper = helper_pad()  # the same name: rejoins
+        self.helper = helper = helper_pad()  # the same name: rejoins
         answerer.stop()
-        answerer = RumbleAnswerer(helper)
-        rejoined = guestlib.wait_for(lambda: said.count("merged Helper Pad") >= 2, 30.0)
-        assert rejoined, f"the new Helper Pad was not merged: {said.lines[-5:]}"
-        helper_reader.stop()
-        helper_reader = Watcher(helper.device.path)
+        self.answerer = RumbleAnswerer(helper)
+        rejoined = guestlib.wait_for(lambda: self.count("merged Helper Pad") >= 2, 30.0)
+        assert rejoined, f"the new Helper Pad was not merged: {self.said[-5:]}"
+        self.helper_reader.stop()
+        self.helper_reader = Watcher(helper.device.path)
         press(helper, (ecodes.EV_KEY, ecodes.BTN_NORTH, 1))
         assert guestlib.wait_for(lambda: ecodes.BTN_NORTH in pad.pressed, 10.0), _pad(pad)
         details["rejoined"] = _pad(pad)
+        details["steps_s"] = round(time.monotonic() - self.started, 1)
 
-        proc.send_signal(signal.SIGTERM)
-        proc.wait(60)
-        said.thread.join(10)
+    def after(self) -> None:
+        """Once SIGTERM ended the run: the pad's last state, the helper's node free again."""
+        details, pad = self.details, self.pad
+        assert self.driver_done.wait(60), "SIGTERM did not end the run"
         guestlib.wait_for(lambda: pad.reader.gone, 10.0)
         time.sleep(0.2)
         details["pad_last"] = _pad(pad)
-        details["exit_code"] = proc.returncode
-        assert proc.returncode == 0, f"exit code {proc.returncode}: {said.lines[-20:]}"
-        assert details["pad_last"] == {"ABS_X": 0, "ABS_Y": 0, "buttons": []}, details["pad_last"]
-        grabbed_events = len(helper_reader.events)
-        press(helper, (ecodes.EV_KEY, ecodes.BTN_NORTH, 0))
-        details["helper_reader_after_stop"] = guestlib.wait_for(
-            lambda: len(helper_reader.events) > grabbed_events, 10.0
+        grabbed_events = len(self.helper_reader.events)
+        press(self.helper, (ecodes.EV_KEY, ecodes.BTN_NORTH, 0))
+        details["helper_reader_after_stop"] = bool(
+            guestlib.wait_for(lambda: len(self.helper_reader.events) > grabbed_events, 10.0)
         )
         details["helper_reader_while_grabbed_again"] = grabbed_events
-        assert details["helper_reader_after_stop"], "the helper's node delivers nothing after the run"
-        assert details["helper_reader_while_grabbed"] == 0 and grabbed_events == 0, details
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        details["sdl_stderr"] = sdl.close()[-300:]
-        answerer.stop()
-        for watcher in (helper_reader, pad):
+
+    def close(self) -> None:
+        self.details["sdl_stderr"] = self.sdl.close()[-300:]
+        self.answerer.stop()
+        for watcher in (self.helper_reader, self.pad):
             if watcher is not None:
                 watcher.reader.close()
-        for device in (helper, box):
+        for device in (self.helper, self.box):
             try:
                 device.close()
             except OSError:
                 pass
-    details["said"] = [line.strip() for line in said.lines if "merged" in line or "went away" in line]
-    details["seconds"] = round(time.monotonic() - started, 1)
-    return details
