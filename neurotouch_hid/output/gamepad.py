@@ -12,8 +12,9 @@ and each rumble played or stopped to ``on_feedback`` as a :class:`~neurotouch_hi
 By default it presents itself as "Microsoft X-Box 360 pad", USB 045e:028e version 0x0114: the ids
 SDL's controller database maps without configuration.
 
-The device is created once and kept for the whole run (a profile switch calls
-:meth:`VirtualGamepad.neutralise`, not a new device: games keep their handle). The runtime owns
+The device is made when a profile first drives it (``output/desktop.py``) and kept for the rest
+of the run (a profile switch calls :meth:`VirtualGamepad.neutralise`, not a new device: games
+keep their handle). The runtime owns
 signal handling; on SIGTERM/SIGINT it must call :meth:`VirtualGamepad.close`, which centres every
 axis and releases every button before the device disappears, so no button stays pressed.
 
