@@ -10,14 +10,21 @@ read of the keys held and axes' values (EVIOCGKEY, EVIOCGABS), as Documentation/
 event-codes.rst asks.
 
 Rumble: a game's rumble on the gel's pad (:class:`~neurotouch_hid.stages.Feedback`) is uploaded
-to a device that has FF_RUMBLE as one effect (EVIOCSFF) and played (an EV_FF write), or stopped.
+to a device that has FF_RUMBLE as one effect (EVIOCSFF) and played (an EV_FF write), or stopped
+(EVIOCRMFF erases it when the device is let go). The two ioctls go through :func:`fcntl.ioctl`,
+which releases the interpreter's lock while the kernel waits for the device's driver to accept
+the effect (python-evdev's ``upload_effect`` holds it): the runtime's threads go on meanwhile,
+even when that driver is a program (a uinput device) in this very process.
 
-Library: python-evdev's :class:`evdev.InputDevice` and ``evdev.ff``.
+Library: python-evdev's :class:`evdev.InputDevice` and ``evdev.ff`` (the ``struct ff_effect``
+layout); the ioctls are linux/input.h's.
 """
 
 from __future__ import annotations
 
+import ctypes
 import errno
+import fcntl
 import logging
 from typing import TYPE_CHECKING
 
@@ -36,6 +43,15 @@ MAX_EVENTS_PER_READ = 64
 DEFAULT_RUMBLE_MS = 1000
 #: Errors that mean the device went away (unplugged) or its node was closed.
 GONE_ERRNOS = (errno.ENODEV, errno.EBADF, errno.EIO)
+#: linux/input.h: EVIOCSFF = _IOW('E', 0x80, struct ff_effect), EVIOCRMFF = _IOW('E', 0x81, int).
+_IOC_WRITE, _IOC_SIZESHIFT, _IOC_DIRSHIFT = 1, 16, 30
+
+
+def _iow(number: int, size: int) -> int:
+    return (_IOC_WRITE << _IOC_DIRSHIFT) | (size << _IOC_SIZESHIFT) | (ord("E") << 8) | number
+
+
+EVIOCRMFF = _iow(0x81, 4)
 
 
 def _names(table: dict, code: int) -> list[str]:
@@ -150,7 +166,8 @@ class MergedInput:
             ff.Replay(min(max(int(length), 0), 0xFFFF), 0),
             ff.EffectType(ff_rumble_effect=rumble),
         )
-        self._effect = self.device.upload_effect(effect)
+        fcntl.ioctl(self.device.fd, _iow(0x80, ctypes.sizeof(effect)), effect, True)  # the kernel writes its id
+        self._effect = int(effect.id)
         self.device.write(ec.EV_FF, self._effect, 1)
 
     def close(self) -> None:
@@ -169,6 +186,6 @@ class MergedInput:
     def _stop_rumble(self) -> None:
         effect = getattr(self, "_effect", None)
         if effect is not None:
-            self.device.write(self._ecodes.EV_FF, effect, 0)
-            self.device.erase_effect(effect)
             self._effect = None
+            self.device.write(self._ecodes.EV_FF, effect, 0)
+            fcntl.ioctl(self.device.fd, EVIOCRMFF, effect)
