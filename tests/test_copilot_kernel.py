@@ -43,6 +43,13 @@ def test_an_unplugged_helper_lets_go_at_once_and_a_new_one_of_the_same_name_rejo
     gel = details["gel_alone"]
     assert details["after_unplug"] == {"ABS_X": gel["ABS_X"], "ABS_Y": gel["ABS_Y"], "buttons": []}
     assert details["rejoined"]["buttons"] == ["BTN_NORTH"]
+
+
+def test_a_profile_without_the_copilot_releases_the_grab_and_switching_back_grabs_it_again(guest):
+    details = passed(guest, CHECK)
+    assert details["use_plain"].startswith("switched to profile default")
+    assert details["helper_reader_after_switch"] >= 2
+    assert details["merged_again"]["buttons"] == ["BTN_NORTH"]
     assert sum("merged Helper Pad" in line for line in details["said"]) == 2
 
 

@@ -216,8 +216,10 @@ def check_copilot_merges_grabs_rejoins_and_rumbles() -> dict:
     pad (evdev and SDL), its stick follows the policies against the gel's push (``further`` on
     ABS_X, ``sum`` on ABS_Y), Space on the switch box presses the mapped button; an SDL rumble on
     the pad is played on the helper's device; the helper destroyed mid-press leaves its controls
-    neutral at once and the run goes on; a new device of that name rejoins; SIGTERM: the run ends
-    cleanly, the pad's last state neutral, the helper's node delivers to other readers again.
+    neutral at once and the run goes on; a new device of that name rejoins; ``profile use default``
+    (no copilot) lets go of it and releases the grab, the copilot profile again grabs it and shows
+    the button it holds; SIGTERM: the run ends cleanly, the pad's last state neutral, the helper's
+    node delivers to other readers again.
 
     The driver runs in this process (``run_driver``, what ``neurotouch-hid run`` calls, in the main
     thread, where SIGTERM's handler runs): a second Python start would cost minutes here. The steps
@@ -282,6 +284,7 @@ class Scenario:
         guestlib.settle()
         self.helper_reader = Watcher(self.helper.device.path)
         self.pad: Watcher | None = None
+        self.grabbed_from = 0  # the helper's reader's events when it was grabbed the last time
         self.sdl = Sdl("028e")  # SDL's ~12 s start overlaps the driver's
         self.before = {phys: set(_devices(phys)) for phys in (PHYS, MOUSE_PHYS)}
         self.started = time.monotonic()
@@ -393,6 +396,23 @@ class Scenario:
         press(helper, (ecodes.EV_KEY, ecodes.BTN_NORTH, 1))
         assert guestlib.wait_for(lambda: ecodes.BTN_NORTH in pad.pressed, 10.0), _pad(pad)
         details["rejoined"] = _pad(pad)
+
+        # a profile without copilot: the pad lets go of the helper's button, the grab is released
+        details["use_plain"] = request_use("default", path=self.socket)
+        let_go = guestlib.wait_for(lambda: ecodes.BTN_NORTH not in pad.pressed, 10.0)
+        free_from = len(self.helper_reader.events)
+        press(helper, (ecodes.EV_KEY, ecodes.BTN_EAST, 1))
+        press(helper, (ecodes.EV_KEY, ecodes.BTN_EAST, 0))
+        guestlib.wait_for(lambda: len(self.helper_reader.events) >= free_from + 2, 10.0)
+        details["helper_reader_after_switch"] = len(self.helper_reader.events) - free_from
+        assert let_go and details["helper_reader_after_switch"] >= 2, details
+        # back: grabbed again, and the button it holds shows on the pad
+        request_use(str(self.profile), path=self.socket)
+        regrabbed = guestlib.wait_for(lambda: self.count("merged Helper Pad") >= 3, 30.0)
+        self.grabbed_from = len(self.helper_reader.events)
+        held = guestlib.wait_for(lambda: ecodes.BTN_NORTH in pad.pressed, 10.0)
+        details["merged_again"] = _pad(pad)
+        assert regrabbed and held, details["merged_again"]
         details["steps_s"] = round(time.monotonic() - self.started, 1)
 
     def after(self) -> None:
@@ -407,7 +427,7 @@ class Scenario:
         details["helper_reader_after_stop"] = bool(
             guestlib.wait_for(lambda: len(self.helper_reader.events) > grabbed_events, 10.0)
         )
-        details["helper_reader_while_grabbed_again"] = grabbed_events
+        details["helper_reader_while_grabbed_again"] = grabbed_events - self.grabbed_from
 
     def close(self) -> None:
         self.details["sdl_stderr"] = self.sdl.close()[-300:]
