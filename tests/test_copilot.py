@@ -536,3 +536,12 @@ def test_devices_json_lists_the_input_devices_a_copilot_can_merge():
         "phys": "usb-0000:00:14.0-2/input0",
         "links": ["/dev/input/by-id/usb-Helper-event-joystick"],
     }
+
+
+def test_profile_show_says_which_copilot_devices_are_plugged_in(cli, tmp_path):
+    path = tmp_path / "helped.yaml"
+    path.write_text(SHORT_FORM)
+    done = cli("show", str(path))
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == SHORT_FORM  # a pipe gets the file's exact bytes
+    assert "# copilot: present: none; missing: Helper Pad, Switch Box" in done.stderr
