@@ -50,6 +50,11 @@ def test_a_profile_without_the_copilot_releases_the_grab_and_switching_back_grab
     assert details["use_plain"].startswith("switched to profile default")
     assert details["helper_reader_after_switch"] >= 2
     assert details["merged_again"]["buttons"] == ["BTN_NORTH"]
+
+
+def test_the_copilot_costs_nothing_at_rest(guest):
+    details = passed(guest, CHECK)
+    assert details["copilot_wakeups_idle_2s"] == 0
     assert sum("merged Helper Pad" in line for line in details["said"]) == 3  # at start, rejoined, switched back
 
 
