@@ -221,6 +221,51 @@ def check_model() -> Check:
     return Check("gesture model", OK, describe(model))
 
 
+def check_copilot(profiles: dict[str, object] | None = None, devices: list | None = None) -> Check:
+    """The devices the profiles' ``copilot:`` sections name (the shipped and the user's,
+    ``profiles``: name -> loaded profile): which are plugged in (``devices``: the input devices now,
+    :func:`~neurotouch_hid.inputs.match.mergeable_devices`) and which the driver would wait for.
+    A present device this user cannot open read-write fails (the driver could not grab it)."""
+    from neurotouch_hid.inputs.match import mergeable_devices, presence
+
+    if profiles is None:
+        from neurotouch_hid.errors import ProfileError
+        from neurotouch_hid.mapping.profile import available_profiles, load_profile
+
+        profiles = {}
+        for name, path in available_profiles().items():
+            try:
+                profiles[name] = load_profile(path)
+            except ProfileError:  # a broken profile is for `profile check` to report
+                continue
+    with_copilot = {name: p for name, p in profiles.items() if getattr(p, "copilot", None)}
+    if not with_copilot:
+        return Check("copilot devices", SKIP, "no profile merges other devices (copilot:)")
+    devices = mergeable_devices() if devices is None else devices
+    parts, missing, closed = [], [], []
+    for name, profile in with_copilot.items():
+        found = presence([c.device for c in profile.copilot], devices)
+        for rule, info in found:
+            if info is None:
+                missing.append(rule)
+            elif not os.access(info.path, os.R_OK | os.W_OK):
+                closed.append(f"{rule} ({info.path})")
+        shown = ", ".join(f"{rule} at {info.path}" if info else f"{rule} missing" for rule, info in found)
+        parts.append(f"{name}: {shown}")
+    detail = "; ".join(parts)
+    if closed:
+        return Check(
+            "copilot devices",
+            FAIL,
+            f"{detail}; not readable and writable by this user: {', '.join(closed)} (the driver "
+            "could not grab them; after the command below, log out and in again)",
+            "sudo usermod -aG input $USER",
+        )
+    if missing:
+        return Check("copilot devices", WARN, f"{detail} (a missing device is waited for and merged when it comes)")
+    return Check("copilot devices", OK, detail)
+
+
 def run_checks() -> list[Check]:
     """Every check, in the order the report shows them."""
     found = discover()
@@ -234,6 +279,7 @@ def run_checks() -> list[Check]:
         check_jit_cache(),
         check_service(),
         check_model(),
+        check_copilot(),
     ]
 
 

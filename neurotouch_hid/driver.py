@@ -26,13 +26,14 @@ from neurotouch_hid.mapping.profile import Profile, available_profiles, find_pro
 from neurotouch_hid.runtime import DEFAULT_BATCH_US, DEFAULT_MAX_LAG_US, RunParts, run_assembled
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.open import CameraBackend, open_source
-from neurotouch_hid.stages import MarkerPositions, Subscriber
+from neurotouch_hid.stages import Feedback, MarkerPositions, Subscriber
 from neurotouch_hid.stats import RunStats
 
 if TYPE_CHECKING:
     from rich.console import Console
 
     from neurotouch_hid.enrolment.model import Model
+    from neurotouch_hid.inputs.copilot import FeedbackRelay
     from neurotouch_hid.pipeline.pipeline import GesturePipeline
     from neurotouch_hid.pipeline.resting import RestingResult
     from neurotouch_hid.sensor import SensorGeometry
@@ -71,6 +72,7 @@ def open_output(
     console: Console | None = None,
     say: Callable[[str], None] | None = None,
     inputs: tuple[str | Path | None, ...] = (),
+    on_feedback: Callable[[Feedback], None] | None = None,
 ) -> Subscriber:
     """Create one output (:data:`OPENERS` has one opener per kind): ``gamepad`` (the uinput pad
     with the profile's name and ids, and the keyboard and mouse if the profile uses them), ``hid``
@@ -79,23 +81,28 @@ def open_output(
     one of the run's ``inputs``) or ``term`` (the terminal view; on a terminal the live view of
     :mod:`neurotouch_hid.output.live`: the gel, the gestures, the profile, beside the pad). ``say``
     tells the user about rumble effects games send to the pad (the gel has no motor; default: the
-    log). Closed by ``stack``. Raises DeviceError when /dev/uinput (``gamepad``) or /dev/uhid
-    (``hid``) cannot be used."""
-    return OPENERS[OutputKind(kind)](profile, stack, out=out, console=console, say=say, inputs=inputs)
+    log); ``on_feedback`` gets each rumble the pad is sent (the copilot's merged pads play it). The
+    uinput pad is made when the profile first drives a pad control. Closed by ``stack``. Raises
+    DeviceError when /dev/uinput (``gamepad``) or /dev/uhid (``hid``) cannot be used."""
+    opener = OPENERS[OutputKind(kind)]
+    return opener(profile, stack, out=out, console=console, say=say, inputs=inputs, on_feedback=on_feedback)
 
 
-def _open_gamepad(profile: Profile, stack: contextlib.ExitStack, *, say, **_) -> Subscriber:
+def _open_gamepad(profile: Profile, stack: contextlib.ExitStack, *, say, on_feedback=None, **_) -> Subscriber:
     from neurotouch_hid.extras import require
 
     require("uinput", "the virtual gamepad (--output gamepad)")
     from neurotouch_hid.output.desktop import UinputOutputs
     from neurotouch_hid.output.gamepad import GamepadIdentity, VirtualGamepad
 
-    dev = profile.device
-    identity = GamepadIdentity(name=dev.name, vendor=dev.vendor, product=dev.product, version=dev.version)
     on_effect = None if say is None else (lambda line: say(f"rumble (the gel has no motor): {line}"))
-    pad = VirtualGamepad(identity, on_effect=on_effect)
-    return stack.enter_context(UinputOutputs(pad, profile, known=known_profiles()))
+
+    def make_pad(using: Profile) -> VirtualGamepad:
+        dev = using.device
+        identity = GamepadIdentity(name=dev.name, vendor=dev.vendor, product=dev.product, version=dev.version)
+        return VirtualGamepad(identity, on_effect=on_effect, on_feedback=on_feedback)
+
+    return stack.enter_context(UinputOutputs(None, profile, known=known_profiles(), make_pad=make_pad))
 
 
 def _open_hid(profile: Profile, stack: contextlib.ExitStack, *, say, **_) -> Subscriber:
@@ -381,10 +388,13 @@ def run_driver(
         raise NeurotouchError(f"--method {method!r}: expected one of {', '.join(MethodKind)}")
     loaded = load_profile(profile)
     inputs = (None if source in tuple(SourceKind) else source, find_profile(profile), sensor)
+    copilot = copilot_relay(output, say)
     with contextlib.ExitStack() as stack:
         subscribers = outputs
         if subscribers is None:
-            made = open_output(output, loaded, stack, out=out, console=console, say=say, inputs=inputs)
+            made = open_output(
+                output, loaded, stack, out=out, console=console, say=say, inputs=inputs, on_feedback=copilot
+            )
             subscribers = open_outputs(made, output, stack, console)
         say = said_above(subscribers, say)
         assembly = RunAssembly(
@@ -415,7 +425,19 @@ def run_driver(
             stats=stats,
             max_lag_us=max_lag_us,
             waits=source == SourceKind.SIM,
+            merge_for=None if copilot is None else copilot.merge_for,
         )
+
+
+def copilot_relay(output: str, say: Callable[[str], None]) -> FeedbackRelay | None:
+    """What merges a profile's ``copilot:`` devices into the pad and forwards the pad's rumble to
+    them (:class:`~neurotouch_hid.inputs.copilot.FeedbackRelay`): for the ``gamepad`` output only
+    (the other outputs make no pad to merge into); None otherwise."""
+    if output != OutputKind.GAMEPAD:
+        return None
+    from neurotouch_hid.inputs.copilot import FeedbackRelay
+
+    return FeedbackRelay(say=say)
 
 
 def said_above(subscribers: list[Subscriber], say: Callable[[str], None]) -> Callable[[str], None]:

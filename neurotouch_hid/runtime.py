@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import dataclasses
 import logging
 import os
 import signal
@@ -68,6 +69,7 @@ from neurotouch_hid.stats import RunStats
 if TYPE_CHECKING:
     from neurotouch_hid.dataset import LabelRow
     from neurotouch_hid.sensor import SensorGeometry
+    from neurotouch_hid.stages import Merge
 
 log = logging.getLogger(__name__)
 
@@ -296,7 +298,13 @@ class Runtime:
         sensor: SensorGeometry | None = None,
         compile_progress: Callable[[], CompileProgress | None] | None = None,
         labelled: bool = False,
+        merge: Merge | None = None,
+        merge_for: Callable[[Profile], Merge | None] | None = None,
     ):
+        self._merge_for = merge_for  # the copilot of a profile switched to (None: merges nothing)
+        self._merge = merge if merge is not None or merge_for is None else merge_for(profile)
+        self._last_gel = ControllerState.neutral()  # the mapped state before the merge
+        self._last_record: WindowRecord | None = None
         self._control = control
         self._games = games
         self._waits = waits and pace and not live
@@ -364,7 +372,9 @@ class Runtime:
     def switch_profile(self, profile: Profile) -> None:
         """Neutralise every subscriber, then map with ``profile`` from the next window on.
         The output devices are kept (the pad's name and ids stay those it was created with); a
-        keyboard or mouse the new profile needs is created (``prepare(profile)``)."""
+        keyboard or mouse the new profile needs is created (``prepare(profile)``). The old
+        profile's merged devices are released, the new one's grabbed."""
+        self._switch_merge(profile)
         with self._lock:
             self._neutralise()
             for subscriber in self._subscribers:
@@ -377,6 +387,8 @@ class Runtime:
         """The subscribers were neutralised or the mapping starts afresh: the next state is
         compared with a neutral one (caller holds ``self._lock``)."""
         self._last_state = ControllerState.neutral(self._last_state.t_us)
+        self._last_gel = ControllerState.neutral(self._last_state.t_us)
+        self._last_record = None  # a merged device's input waits for the next window's record
         self._last_gesture = None
 
     def reload_profile(self) -> bool:
@@ -455,6 +467,9 @@ class Runtime:
         start = time.perf_counter()
         with self._signal_handlers(), self._switch_interval(), self._control_socket():
             try:
+                if self._merge is not None:
+                    self._merge.start(self._on_input)
+                    self.stats.merged, self.stats.missing = self._merge.status()
                 for t in threads:
                     t.start()
                 worker = threads[1]
@@ -478,6 +493,8 @@ class Runtime:
                 for t in threads:
                     t.join(_JOIN_S)
                 self.stats.wall_s = time.perf_counter() - start
+                if self._merge is not None:
+                    self._merge.stop()
                 with self._lock:
                     self._neutralise()
         if self._errors:
@@ -724,7 +741,9 @@ class Runtime:
         with self._lock:
             if self._stop.is_set() or self._paused or self._suspended:  # run() neutralises (under this
                 return  # lock): nothing after that; a lost camera, Ctrl-Z: nothing until back
-            state = self._mapper.update(estimate)
+            state = self._last_gel = self._mapper.update(estimate)
+            if self._merge is not None:
+                state = self._merge.merge(state)
             last = self._last_state
             state_changed = (
                 state.axes != last.axes or state.buttons != last.buttons or state.keys != last.keys or bool(state.rel)
@@ -751,6 +770,42 @@ class Runtime:
                 self.stats.states_written += 1
             self._last_state = state
             self._last_gesture = estimate.gesture
+            self._last_record = record
+
+    def _on_input(self) -> None:
+        """A merged device's controls changed, or a device came or went (the merge's thread):
+        publish the merged state of the gel's last one at once, when it changed (the last window's
+        record with that state; the gel's relative motion is not repeated)."""
+        with self._lock:
+            merge, record = self._merge, self._last_record
+            if merge is None:
+                return
+            self.stats.merged, self.stats.missing = merge.status()
+            if self._stop.is_set() or self._paused or self._suspended or record is None:
+                return
+            state = merge.merge(dataclasses.replace(self._last_gel, rel={}))
+            last = self._last_state
+            if state.axes == last.axes and state.buttons == last.buttons and state.keys == last.keys:
+                return
+            record = record._replace(state=state, state_changed=True, gesture_changed=False)
+            for subscriber in self._subscribers:
+                subscriber.publish(record)
+            self.stats.states_written += 1
+            self._last_state = state
+
+    def _switch_merge(self, profile: Profile) -> None:
+        """Release the merged devices of the profile in use, grab those of ``profile`` (outside
+        ``self._lock``: the merge's thread may be waiting for it in :meth:`_on_input`)."""
+        if self._merge_for is None:
+            return
+        old, self._merge = self._merge, None
+        if old is not None:
+            old.stop()
+        new = self._merge_for(profile)
+        if new is not None and self._ran:
+            new.start(self._on_input)
+        self._merge = new
+        self.stats.merged, self.stats.missing = new.status() if new is not None else ((), ())
 
 
 @dataclass(frozen=True)

@@ -218,3 +218,6 @@ class Merge(Protocol):
 
     def stop(self) -> None:
         """Release every grab and stop reading; the merged controls count as neutral."""
+
+    def status(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        """(the devices merged now, the devices waited for), as the profile names them."""

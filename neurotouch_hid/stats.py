@@ -53,6 +53,8 @@ class RunStats:
         camera_losses: times the live camera was lost (unplugged, failing, stalled).
         profile: the profile mapping now (a name or path, as given).
         game: the running game whose profile is on (``neurotouch_hid.games``), or "".
+        merged, missing: the profile's ``copilot:`` devices merged into the pad now, and those
+            waited for (as the profile names them).
         wall_s: wall time of the run (s).
         stream_us: camera time covered by the processed data (us).
         latency: processing latencies: from the moment the item that closed a window was read
@@ -81,6 +83,8 @@ class RunStats:
     camera_losses: int = 0
     profile: str = ""
     game: str = ""
+    merged: tuple[str, ...] = ()
+    missing: tuple[str, ...] = ()
     wall_s: float = 0.0
     stream_us: int = 0
     latency: LatencyRing = field(default_factory=LatencyRing, repr=False)

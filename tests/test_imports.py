@@ -16,6 +16,7 @@ ORDER = {
     "enrolment": 5,
     "output": 4,
     "targets": 4,
+    "inputs": 4,
     "stages": 3,
     "runtime": 5,
     "control": 5,

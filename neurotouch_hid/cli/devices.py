@@ -138,7 +138,7 @@ def devices(json_out: bool = typer.Option(False, "--json", help="print JSON (for
 
     found = discover()
     if json_out:
-        typer.echo(json.dumps(found.to_json(), indent=1))
+        typer.echo(json.dumps({**found.to_json(), "inputs": _mergeable_json()}, indent=1))
     elif not found.cameras:
         console.print(escape(explain(found)), style="bold red", highlight=False, soft_wrap=True)
     else:
@@ -178,8 +178,34 @@ def devices(json_out: bool = typer.Option(False, "--json", help="print JSON (for
         for what, error in (("pyusb", found.usb_error), ("dv-processing", found.dv_error)):
             if error:
                 console.print(f"[yellow]{what}: {escape(error)}[/]", highlight=False, soft_wrap=True)
+        _say_mergeable()
     if not found.ready:
         sys.exit(1)
+
+
+def _mergeable_json() -> list[dict]:
+    """``devices --json``'s ``inputs``: the input devices a profile's ``copilot:`` could name."""
+    from neurotouch_hid.inputs.match import mergeable_devices, to_json
+
+    return [to_json(info) for info in mergeable_devices()]
+
+
+def _say_mergeable() -> None:
+    """The input devices a profile's ``copilot:`` could merge into the pad, with what to write
+    there: the name, the USB ids, or a stable path (docs/profiles.md, "Copilot")."""
+    from rich.markup import escape
+    from rich.table import Table
+
+    from neurotouch_hid.inputs.match import mergeable_devices
+
+    inputs = mergeable_devices()
+    if not inputs:
+        console.print("no input device to merge into the pad (copilot:) is plugged in", highlight=False)
+        return
+    table = Table("device: (name)", "or ids", "or stable path", "node", title="input devices a copilot: can merge")
+    for info in inputs:
+        table.add_row(escape(f'"{info.name}"'), info.ids, escape("\n".join(info.links) or "-"), info.path)
+    console.print(table)
 
 
 @app.command()

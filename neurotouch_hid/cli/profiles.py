@@ -97,10 +97,29 @@ def profile_show(name: str = typer.Argument(..., help="profile name or path")) -
         sys.stdout.flush()
         sys.stdout.buffer.write(text.encode("utf-8"))
         sys.stdout.buffer.flush()
+        _say_copilot(path, err_console)
         return
     console.print(f"# {printable(path, None)}", highlight=False, markup=False)
     shown = "\n".join(printable(line, None) for line in text.split("\n"))  # no escape sequence reaches the terminal
     console.print(Syntax(shown, "yaml", background_color="default"))
+    _say_copilot(path)
+
+
+def _say_copilot(path: Path, to=None) -> None:
+    """For a profile with ``copilot:``: which of its devices are plugged in now and which the
+    driver would wait for (one line on ``to``, the console by default, after the file; nothing for
+    a profile that does not load)."""
+    from neurotouch_hid.errors import ProfileError
+    from neurotouch_hid.inputs.match import mergeable_devices, presence_line
+    from neurotouch_hid.mapping.profile import load_profile
+
+    try:
+        profile = load_profile(path)
+    except ProfileError:
+        return
+    if profile.copilot:
+        line = presence_line([c.device for c in profile.copilot], mergeable_devices())
+        (to or console).print(f"# copilot: {printable(line, None)}", highlight=False, markup=False, soft_wrap=True)
 
 
 @profile_app.command("new")

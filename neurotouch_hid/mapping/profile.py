@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
@@ -68,9 +69,9 @@ from pydantic import (
     field_validator,
     model_validator,
 )
-from ruamel.yaml.nodes import MappingNode, ScalarNode
+from ruamel.yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
-from neurotouch_hid.controller import BUTTONS, MOUSE_BUTTONS
+from neurotouch_hid.controller import AXES, BUTTONS, MOUSE_BUTTONS
 from neurotouch_hid.errors import ProfileError, did_you_mean, in_plain_words
 from neurotouch_hid.limits import (
     MAX_YAML_BYTES,
@@ -491,6 +492,118 @@ class DeviceSpec(_Strict):
 
 _Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")]
 
+# --- copilot: devices merged into the pad ---------------------------------------------------------
+#: What a button does when the gel and a merged device both act on it: pressed while either presses.
+BUTTON_POLICIES: tuple[str, ...] = ("either",)
+#: What an axis does when both act: the value further from centre, the gel's (``gel``) or the
+#: device's (``helper``) while it is off centre, else the other's, or the ``sum`` (clipped).
+AXIS_POLICIES: tuple[str, ...] = ("further", "gel", "helper", "sum")
+#: Most devices one profile merges.
+MAX_COPILOT_DEVICES = 8
+#: A device's ids as the user writes them: ``045e:02ea`` (USB vendor:product, hex).
+_IDS_PATTERN = r"^[0-9A-Fa-f]{4}:[0-9A-Fa-f]{4}$"
+#: The names of the keyboard and mouse the driver makes (``output/desktop.py``): never merged.
+OWN_INPUT_NAMES: tuple[str, ...] = ("NeuroTouch keyboard", "NeuroTouch mouse")
+#: Where stable paths of input devices live (udev's persistent links).
+STABLE_PATH_PREFIX = "/dev/input/"
+
+
+@functools.cache
+def _device_codes() -> frozenset[str]:
+    """Every evdev key, button and absolute-axis name (``KEY_*``, ``BTN_*``, ``ABS_*``) python-evdev knows."""
+    from evdev import ecodes
+
+    prefixes, limits = ("KEY_", "BTN_", "ABS_"), ("_MAX", "_CNT")
+    return frozenset(name for name in ecodes.ecodes if name.startswith(prefixes) and not name.endswith(limits))
+
+
+def control_of(output: str) -> str:
+    """The pad control an output drives: a face alias resolved, a ``dpad_*`` direction as its hat
+    axis (``ABS_HAT0X``/``ABS_HAT0Y``); any other name as it is."""
+    output = FACE_ALIASES.get(output, output)
+    return DPAD[output][0] if output in DPAD else output
+
+
+class CopilotDevice(_Strict):
+    """One input device merged into the pad (docs/profiles.md, "Copilot").
+
+    ``device`` names it: its name as the kernel reports it (``neurotouch-hid devices`` lists them),
+    its USB ids ``vvvv:pppp`` (hex), or a stable path under ``/dev/input/`` (``by-id/...``).
+    ``map``: its controls (evdev names: ``KEY_SPACE``, ``BTN_SOUTH``, ``ABS_X``) -> what they drive:
+    a key or button -> a pad button, ``A``/``B``/``X``/``Y``, ``dpad_*`` or a keyboard key; an axis
+    -> a pad axis (``ABS_X`` .. ``ABS_RZ``, ``ABS_HAT0X``/``Y``). ``passthrough``: the device's pad
+    controls (a pad's buttons, sticks, triggers and d-pad) drive the same controls of the pad,
+    unless ``map`` says otherwise. ``policy``: per pad control, what it does when the gel (and the
+    devices listed before this one) and this device both act: ``either`` for a button, ``further``
+    (the default), ``gel``, ``helper`` or ``sum`` for an axis."""
+
+    device: str = Field(min_length=1, max_length=255, description="a device name, 'vvvv:pppp' or a /dev/input/ path")
+    map: dict[str, str] = Field(default_factory=dict, max_length=64)
+    passthrough: bool = True
+    policy: dict[str, Literal[BUTTON_POLICIES + AXIS_POLICIES]] = Field(default_factory=dict, max_length=64)
+
+    @field_validator("device")
+    @classmethod
+    def _device_form(cls, value: str) -> str:
+        if not value.isprintable():
+            raise ValueError("a device name of printable characters")
+        if value.startswith("/") and not value.startswith(STABLE_PATH_PREFIX):
+            raise ValueError(f"a path under {STABLE_PATH_PREFIX} (such as /dev/input/by-id/usb-...-event-joystick)")
+        return value.lower() if re.match(_IDS_PATTERN, value) else value
+
+    @field_validator("map")
+    @classmethod
+    def _known_controls(cls, value: dict[str, str]) -> dict[str, str]:
+        out = {}
+        for source, target in value.items():
+            if source not in _device_codes():
+                raise ValueError(
+                    f"a control of the device (an evdev name such as 'KEY_SPACE', 'BTN_SOUTH' or 'ABS_X'); "
+                    f"{short(source)} is none{did_you_mean(source, _device_codes())}"
+                )
+            written, target = target, FACE_ALIASES.get(target, target)
+            if source.startswith("ABS_"):
+                if target not in AXES:
+                    raise ValueError(f"a pad axis ({', '.join(AXES)}) for the axis {source}; found {short(written)}")
+            elif target in KERNEL_COMMAND_KEYS:
+                raise ValueError(f"a key other than {target}: the system acts on it, so no profile may press it")
+            elif target not in DIGITAL_OUTPUTS and target not in keyboard_keys():
+                raise ValueError(
+                    f"a pad button (BTN_SOUTH ... BTN_THUMBR, A, B, X, Y), a d-pad direction (dpad_*) or a "
+                    f"keyboard key such as 'KEY_SPACE' for {source}; found {short(written)}"
+                )
+            out[source] = target
+        return out
+
+    @field_validator("policy")
+    @classmethod
+    def _policies_fit(cls, value: dict[str, str], info: ValidationInfo) -> dict[str, str]:
+        mapped = info.data.get("map") or {}
+        passthrough = info.data.get("passthrough", True)
+        reach = set(AXES) | set(BUTTONS) if passthrough else {control_of(t) for t in mapped.values()}
+        for control, policy in value.items():
+            pad = control_of(control)
+            if pad not in AXES and pad not in BUTTONS:
+                raise ValueError(
+                    "a pad control (an axis ABS_X .. ABS_HAT0Y, a button BTN_SOUTH .. BTN_THUMBR, A, B, X, Y or "
+                    f"dpad_*) for each policy; {short(control)} is none"
+                )
+            if pad not in reach:
+                raise ValueError(
+                    f"a policy only on a control this device drives; {control} is not one of them (passthrough "
+                    f"is off and map: drives {', '.join(sorted(reach)) or 'nothing'})"
+                )
+            allowed = BUTTON_POLICIES if pad in BUTTONS else AXIS_POLICIES
+            if policy not in allowed:
+                kind = "a button" if pad in BUTTONS else "an axis"
+                raise ValueError(f"the policy {' or '.join(allowed)} for {control} ({kind}), not {short(policy)}")
+        return value
+
+    @property
+    def policies(self) -> dict[str, str]:
+        """Pad control (``ABS_*``, ``BTN_*``) -> policy, aliases and d-pad directions resolved."""
+        return {control_of(c): p for c, p in self.policy.items()}
+
 
 class Profile(_Strict):
     """A profile: the pad to create, the layers and their switches, and the named mappings (see
@@ -501,6 +614,28 @@ class Profile(_Strict):
     device: DeviceSpec = DeviceSpec()
     layers: dict[_Name, LayerSwitch] = Field(default_factory=dict)
     mappings: dict[_Name, Mapping] = Field(default_factory=dict)
+    copilot: list[CopilotDevice] = Field(default_factory=list, max_length=MAX_COPILOT_DEVICES)
+
+    @field_validator("copilot")
+    @classmethod
+    def _devices_once_and_not_ours(cls, value: list[CopilotDevice], info: ValidationInfo) -> list[CopilotDevice]:
+        own = info.data.get("device")
+        ours = set(OWN_INPUT_NAMES) | ({own.name} if isinstance(own, DeviceSpec) else set())
+        seen: dict[str, int] = {}
+        for i, entry in enumerate(value):
+            if entry.device in seen:
+                raise ValueError(
+                    f"each device once: {short(entry.device)} is named by entries {seen[entry.device]} and {i} "
+                    "(one entry per device; put every map: line of it in one entry)"
+                )
+            seen[entry.device] = i
+            if entry.device in ours:
+                raise ValueError(
+                    f"a device other than the driver's own: {short(entry.device)} is the name of the pad, "
+                    "keyboard or mouse this profile makes (a helper's pad of the same model: name it by its "
+                    "/dev/input/by-id/ path, or give this profile's pad another name under device:)"
+                )
+        return value
 
     @field_validator("layers")
     @classmethod
@@ -539,10 +674,23 @@ class Profile(_Strict):
 
     @property
     def keyboard_keys(self) -> frozenset[str]:
-        """The keyboard keys (``KEY_*``) its mappings press (the keyboard device offers these)."""
-        return frozenset(
+        """The keyboard keys (``KEY_*``) its mappings and its merged devices' ``map:`` press (the
+        keyboard device offers these)."""
+        mapped = frozenset(
             p for m in self.mappings.values() if isinstance(m, ButtonMapping) for p in m.presses if p.startswith("KEY_")
         )
+        return mapped | {t for c in self.copilot for t in c.map.values() if t.startswith("KEY_")}
+
+    @property
+    def uses_pad(self) -> bool:
+        """A mapping drives a pad control (stick, axis, trigger, pad button, d-pad) or a merged
+        device does (``passthrough`` or a ``map:`` to a pad control): the pad is made only then."""
+        for m in self.mappings.values():
+            if isinstance(m, (StickMapping, AxisMapping)):
+                return True
+            if isinstance(m, ButtonMapping) and any(p in DIGITAL_OUTPUTS for p in m.presses):
+                return True
+        return any(c.passthrough or any(not t.startswith("KEY_") for t in c.map.values()) for c in self.copilot)
 
     @property
     def mouse_outputs(self) -> frozenset[str]:
@@ -689,6 +837,8 @@ def _line_of(root: Any, loc: tuple) -> tuple[int, tuple]:
         match = None
         if isinstance(node, MappingNode):
             match = next(((k, v) for k, v in node.value if isinstance(k, ScalarNode) and k.value == str(part)), None)
+        elif isinstance(node, SequenceNode) and isinstance(part, int) and 0 <= part < len(node.value):
+            match = (node.value[part], node.value[part])
         if match is not None:
             line, node = match[0].start_mark.line + 1, match[1]
             path.append(part)
@@ -707,6 +857,8 @@ def _model_at(loc: tuple) -> type[BaseModel] | None:
         return _TAG_MODELS[parent[-1]]
     if len(parent) == 2 and parent[0] == "layers":
         return LayerSwitch
+    if len(parent) == 2 and parent[0] == "copilot":
+        return CopilotDevice
     return {"device": DeviceSpec, "smoothing": OneEuroSmoothing}.get(str(parent[-1]))
 
 

@@ -1,4 +1,4 @@
-"""Keyboard and mouse beside the pad: one uinput device each, made only when a profile uses it.
+"""The pad, and keyboard and mouse beside it: one uinput device each, made only when a profile uses it.
 
 Each device offers only what the profiles use (docs/limits.md, Devices): a profile that a
 crafted file or a bug made press something else cannot type it.
@@ -10,8 +10,12 @@ and desktops do not apply the keyboard layout to it), never KEY_SYSRQ, and write
 makes a mouse for udev) plus the buttons and wheels given (a wheel with its hi-res code, 120 per
 detent, kernel 5.0+), and writes its buttons in :attr:`ControllerState.keys` and the motion in
 :attr:`ControllerState.rel`. :class:`UinputOutputs` puts the pad and these together behind the
-one ``write`` / ``neutralise`` / ``close`` an output has. The devices offer the union of the
-profiles known at start (shipped and the user's: ``profile use NAME`` keeps the same devices);
+one ``write`` / ``neutralise`` / ``close`` an output has. The pad too is made only when a profile
+uses it (:attr:`~neurotouch_hid.mapping.profile.Profile.uses_pad`: a mapping or a merged device
+drives a pad control), released and centred, so that a mouse or keyboard profile does not take
+a player slot from a real pad; once made it stays for the run (games keep their handle).
+The keyboard and mouse offer the union of the profiles known at start (shipped and the user's:
+``profile use NAME`` keeps the same devices);
 :meth:`UinputOutputs.prepare`, called after everything is released, makes a missing keyboard or
 mouse, or replaces one that lacks what a new profile needs (a profile file given by path, or
 edited since) by one offering both. Neutral = every key and button released (motion is an
@@ -188,12 +192,13 @@ D = TypeVar("D", bound=_UinputDevice)
 
 
 class UinputOutputs:
-    """The pad, and the keyboard and mouse a profile uses, as one output.
+    """The pad, the keyboard and the mouse a profile uses, as one output.
 
     ``write(state)`` writes each device's part; :meth:`neutralise` and :meth:`close` act on all
     (the pad last on close, so a game sees its release even if another device fails).
-    :meth:`prepare` creates the keyboard or mouse a (new) profile needs, or replaces one that
-    lacks some of its keys or buttons; the pad is never replaced, and the keyboard and mouse
+    :meth:`prepare` creates the pad (``make_pad(profile)``), keyboard or mouse a (new) profile
+    needs, or replaces a keyboard or mouse that lacks some of its keys or buttons; the pad is never
+    replaced (``pad``: one made already, kept whatever the profile), and the keyboard and mouse
     offer from the start what the ``known`` profiles use, so that switching between them keeps
     every device (programs keep their handles).
     """
@@ -203,12 +208,14 @@ class UinputOutputs:
 
     def __init__(
         self,
-        pad: VirtualGamepad,
+        pad: VirtualGamepad | None,
         profile: Profile | None = None,
         devnode: str = "/dev/uinput",
         known: Iterable[Profile] = (),
+        make_pad: Callable[[Profile], VirtualGamepad] | None = None,
     ) -> None:
         self.pad = pad
+        self._make_pad = make_pad
         self.keyboard: VirtualKeyboard | None = None
         self.mouse: VirtualMouse | None = None
         self._devnode = devnode
@@ -224,17 +231,21 @@ class UinputOutputs:
 
     @property
     def device_path(self) -> str | None:
-        return self.pad.device_path
+        """The pad's event node (None while there is no pad)."""
+        return self.pad.device_path if self.pad is not None else None
 
     @property
     def devices(self) -> list:
         return [d for d in (self.keyboard, self.mouse, self.pad) if d is not None]
 
     def prepare(self, profile: Profile) -> None:
-        """Make the keyboard and/or mouse ``profile`` uses: create a missing one (offering what
-        the known profiles use too), or replace one lacking some of its keys or buttons by one
-        offering both (the old one is released and removed first: call this only after
-        :meth:`neutralise`). Raises DeviceError when the kernel refuses."""
+        """Make the pad, keyboard and/or mouse ``profile`` uses: the pad once a profile drives it
+        (neutral from its first report); a missing keyboard or mouse (offering what the known
+        profiles use too), or one lacking some of its keys or buttons replaced by one offering
+        both (the old one is released and removed first: call this only after :meth:`neutralise`).
+        Raises DeviceError when the kernel refuses."""
+        if self.pad is None and self._make_pad is not None and profile.uses_pad:
+            self.pad = self._make_pad(profile)
         self.keyboard = self._made(self.keyboard, profile.keyboard_keys, self._known_keys, VirtualKeyboard)
         self.mouse = self._made(self.mouse, profile.mouse_outputs, self._known_mouse, VirtualMouse)
 

@@ -6,12 +6,15 @@ d-pad ABS_HAT0X/Y in -1..1, and the 11 buttons BTN_SOUTH .. BTN_THUMBR. Nothing 
 touch-like, so udev classes it as a joystick (ID_INPUT_JOYSTICK=1) and SDL as a GameController.
 Like xpad it advertises force feedback ``FF_RUMBLE`` (Wine and SDL offer rumble only then): a
 thread answers every effect upload and erase at once (the kernel blocks the game's EVIOCSFF
-until uinput answers) and reports uploads and plays to ``on_effect`` -- the gel has no motor.
+until uinput answers) and reports uploads and plays to ``on_effect`` -- the gel has no motor --
+and each rumble played or stopped to ``on_feedback`` as a :class:`~neurotouch_hid.stages.Feedback`
+(the copilot plays it on a merged pad that can rumble).
 By default it presents itself as "Microsoft X-Box 360 pad", USB 045e:028e version 0x0114: the ids
 SDL's controller database maps without configuration.
 
-The device is created once and kept for the whole run (a profile switch calls
-:meth:`VirtualGamepad.neutralise`, not a new device: games keep their handle). The runtime owns
+The device is made when a profile first drives it (``output/desktop.py``) and kept for the rest
+of the run (a profile switch calls :meth:`VirtualGamepad.neutralise`, not a new device: games
+keep their handle). The runtime owns
 signal handling; on SIGTERM/SIGINT it must call :meth:`VirtualGamepad.close`, which centres every
 axis and releases every button before the device disappears, so no button stays pressed.
 
@@ -37,7 +40,7 @@ if TYPE_CHECKING:
     from evdev import UInput
 
     from neurotouch_hid.mapping.profile import Profile
-    from neurotouch_hid.stages import WindowRecord
+    from neurotouch_hid.stages import Feedback, WindowRecord
 
 #: ``phys`` of every device we create; the udev rule tags devices with it ID_NEUROTOUCH_VIRTUAL=1.
 PHYS = "neurotouch-hid/gamepad"
@@ -225,9 +228,12 @@ class VirtualGamepad(NeutralOnClose):
         devnode: str = "/dev/uinput",
         *,
         on_effect: Callable[[str], None] | None = None,
+        on_feedback: Callable[[Feedback], None] | None = None,
     ) -> None:
         self.identity = identity or GamepadIdentity()
         self.on_effect = on_effect or (lambda line: log.info("rumble (the gel has no motor): %s", line))
+        self.on_feedback = on_feedback
+        self._rumbles: dict[int, tuple[int, int, int]] = {}  # effect id -> (strong, weak 0..65535, length ms)
         if not 0 < len(self.identity.name.encode()) <= _NAME_MAX:
             raise DeviceError(f"gamepad name {self.identity.name!r} must be 1..{_NAME_MAX} bytes long")
         from evdev import ecodes
@@ -274,6 +280,7 @@ class VirtualGamepad(NeutralOnClose):
                         upload = _begin_ff_request(self._ui, "upload", ev.value)
                         upload.retval = 0
                         line = "uploaded " + describe_effect(upload.effect)
+                        self._remember_rumble(upload.effect)
                         self._ui.end_upload(upload)
                     elif ev.type == ecodes.EV_UINPUT and ev.code == ecodes.UI_FF_ERASE:
                         erase = _begin_ff_request(self._ui, "erase", ev.value)
@@ -282,6 +289,7 @@ class VirtualGamepad(NeutralOnClose):
                         self._ui.end_erase(erase)
                     elif ev.type == ecodes.EV_FF and ev.code < MAX_EFFECTS:
                         line = f"{'play' if ev.value else 'stop'} effect {ev.code}"
+                        self._forward_rumble(ev.code, ev.value)
                     else:
                         continue
                 except (OSError, UInputError) as exc:
@@ -292,6 +300,33 @@ class VirtualGamepad(NeutralOnClose):
                 if line != said or now - said_at >= EFFECT_REPEAT_S:
                     said, said_at = line, now
                     self.on_effect(line)
+
+    def _remember_rumble(self, effect) -> None:
+        """An uploaded effect (python-evdev ``ff.Effect``): a rumble's magnitudes and length kept
+        for its play; any other type forgotten (the gel's pad forwards rumble only)."""
+        from evdev import ecodes
+
+        if effect.type == ecodes.FF_RUMBLE and 0 <= effect.id < MAX_EFFECTS:
+            rumble = effect.u.ff_rumble_effect
+            self._rumbles[effect.id] = (rumble.strong_magnitude, rumble.weak_magnitude, effect.ff_replay.length)
+        else:
+            self._rumbles.pop(effect.id, None)
+
+    def _forward_rumble(self, effect_id: int, value: int) -> None:
+        """A play (``value`` > 0, the repeat count) or stop (0) of effect ``effect_id``, handed to
+        ``on_feedback`` as a ``"rumble"`` :class:`~neurotouch_hid.stages.Feedback` (magnitudes
+        0..1; a stop has both 0); nothing for an effect that is no rumble. Its failure is logged."""
+        rumble = self._rumbles.get(effect_id)
+        if self.on_feedback is None or rumble is None:
+            return
+        from neurotouch_hid.stages import Feedback
+
+        strong, weak, length = rumble if value > 0 else (0, 0, 0)
+        request = Feedback("rumble", strong / 0xFFFF, weak / 0xFFFF, length or None, source="uinput pad")
+        try:
+            self.on_feedback(request)
+        except Exception as exc:  # the game's request is answered whatever a merged pad does
+            log.warning("could not forward a rumble: %s", exc)
 
     @property
     def device_path(self) -> str | None:

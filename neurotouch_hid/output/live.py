@@ -177,12 +177,24 @@ def scene_panel(record: WindowRecord, estimate: GestureEstimate | None) -> Group
         rows.append(_gesture_line("gesture", recognised, intensity, contacts, "bold green"))
     rows.append(Text(""))
     rows.append(Text.assemble(("profile ", "bold"), (record.profile_name, "bold cyan")))
+    if record.profile.copilot:
+        rows.append(copilot_line(record.stats.merged, record.stats.missing))
     drives = Table.grid(padding=(0, 1))
     for gesture, output in mapping_lines(record.profile)[:8]:
         style = "bold reverse" if gesture == recognised.value or recognised.value.startswith(gesture) else ""
         drives.add_row(Text(gesture, style=style), Text("→", style="dim"), Text(output))
     rows.append(drives)
     return Group(*rows)
+
+
+def copilot_line(merged: tuple[str, ...], missing: tuple[str, ...]) -> Text:
+    """``merged: X; missing: Y``: the profile's ``copilot:`` devices merged into the pad now, and
+    those the driver waits for (names as the profile writes them; "none" for an empty list)."""
+    text = Text.assemble(("merged: ", "bold"), (", ".join(merged) or "none", "green"))
+    text.append("; ")
+    text.append("missing: ", style="bold")
+    text.append(", ".join(missing) or "none", style="yellow" if missing else "")
+    return text
 
 
 def compile_line(progress: CompileProgress | None) -> Optional[Group]:

@@ -21,6 +21,12 @@ mapping for, e.g. the generic HID joystick of ``run --output hid``): print ``{"o
 [...], "hats": [...]}`` line per change of what SDL's joystick API reads, until it is unplugged or
 SECONDS pass; last ``{"done": ...}``.
 
+``--serve SECONDS PRODUCT``: wait for the GameController whose USB product id (the joystick GUID's,
+4 hex digits as written: ``028e``) is PRODUCT, print ``{"opened": ...}`` (with every controller's
+GUID), then answer one line per command read on stdin: ``state`` -> ``{"v": {...}}`` (what SDL
+reads now, as ``--watch``), ``rumble`` -> ``{"rumble": bool, ...}`` (a 300 ms rumble played),
+``quit`` (or the end of stdin) -> the ``{"done": ...}`` line.
+
 Run with SDL_VIDEODRIVER=dummy.
 """
 
@@ -244,11 +250,60 @@ def joystick(seconds: float) -> dict:
     return {"done": True, "removed": removed, "changes": samples, "error": None}
 
 
+def serve(seconds: float, product: str) -> dict:
+    """``--serve``: see the module docstring. Returns the ``done`` line."""
+    pygame, controller = start_sdl()
+    pygame.joystick.init()
+    say({"ready": True})
+    # the GUID's bytes 8..9 are the product id, little-endian: 028e -> "8e02"
+    wanted = product[2:4] + product[0:2]
+    end = time.monotonic() + seconds
+    index = None
+    while index is None and time.monotonic() < end:
+        pygame.event.pump()
+        index = next(
+            (
+                i
+                for i in range(controller.get_count())
+                if controller.is_controller(i) and pygame.joystick.Joystick(i).get_guid()[16:20] == wanted
+            ),
+            None,
+        )
+        time.sleep(0.01)
+    if index is None:
+        return {"done": True, "error": f"no GameController with product {product} within {seconds} s"}
+    ctl = controller.Controller(index)
+    count = controller.get_count()
+    say({"opened": True, "count": count, "guids": [pygame.joystick.Joystick(i).get_guid() for i in range(count)]})
+    axes = [(name.lower(), getattr(pygame, "CONTROLLER_AXIS_" + name)) for name in WATCH_AXES]
+    buttons = [(name.lower(), getattr(pygame, "CONTROLLER_BUTTON_" + name)) for name in WATCH_BUTTONS]
+    for line in sys.stdin:
+        command = line.strip()
+        pygame.event.pump()
+        if command == "state":
+            values = {name: ctl.get_axis(code) for name, code in axes}
+            values.update((name, ctl.get_button(code)) for name, code in buttons)
+            say({"v": values})
+        elif command == "rumble":
+            played = ctl.rumble(0.5, 1.0, 300)
+            say({"rumble": bool(played), "sdl_error": None if played else pygame.get_error()})
+        else:
+            break
+    return {"done": True, "error": None}
+
+
 #: The modes that watch a device another process makes: each returns its ``done`` line.
 MODES = {"--joystick": joystick, "--rumble": rumble, "--watch": watch}
 
 
 if __name__ == "__main__":
+    if sys.argv[1:2] == ["--serve"]:
+        try:
+            out = serve(float(sys.argv[2]), sys.argv[3])
+        except Exception as exc:
+            out = {"done": True, "error": f"{type(exc).__name__}: {exc}"}
+        say(out)
+        sys.exit(0)
     if sys.argv[1:2] and sys.argv[1] in MODES:
         try:
             out = MODES[sys.argv[1]](float(sys.argv[2]))

@@ -1,0 +1,65 @@
+"""The copilot in a REAL Linux kernel (Debian's, booted under qemu by tests/kernel/vm.py): a
+helper's pad and a switch box (python-evdev UInput devices) merged into the gel's pad by
+``neurotouch-hid run``; the guest check is tests/kernel/checks_copilot.py. Skips, with the
+reason, only where qemu cannot be installed at all."""
+
+from __future__ import annotations
+
+import pytest
+from conftest import passed
+
+pytestmark = pytest.mark.kernel
+
+CHECK = "checks_copilot.check_copilot_merges_grabs_rejoins_and_rumbles"
+
+
+def test_the_mouse_profile_makes_no_joystick_node_and_profile_use_default_makes_one(guest):
+    details = passed(guest, CHECK)
+    assert details["pads_with_mouse_profile"] == []
+    assert details["use_default"].startswith("switched to profile default")
+    assert details["pads"] == 1 and details["ID_INPUT_JOYSTICK"] == "1"
+
+
+def test_the_helpers_buttons_and_stick_arrive_on_the_one_pad_by_the_axis_policies(guest):
+    details = passed(guest, CHECK)
+    gel = details["gel_alone"]
+    assert gel["ABS_X"] > 30000 and gel["buttons"] == []
+    # ABS_X "further": the helper's -20000 loses to the gel's push, its -32768 wins; ABS_Y "sum"
+    assert details["helper_small"]["ABS_X"] == gel["ABS_X"]
+    assert details["helper_small"]["ABS_Y"] == gel["ABS_Y"] + 8000
+    assert details["helper_full"]["ABS_X"] == -32768 and details["helper_full"]["buttons"] == ["BTN_SOUTH"]
+    assert details["sdl_held"]["a"] and details["sdl_held"]["leftx"] <= -32767
+
+
+def test_a_grabbed_helper_reaches_no_other_reader_until_the_run_ends_neutral(guest):
+    details = passed(guest, CHECK)
+    assert details["helper_reader_while_grabbed"] == 0 and details["helper_reader_while_grabbed_again"] == 0
+    assert details["helper_reader_after_stop"]
+    assert details["windows"] > 0 and details["pad_last"] == {"ABS_X": 0, "ABS_Y": 0, "buttons": []}
+
+
+def test_an_unplugged_helper_lets_go_at_once_and_a_new_one_of_the_same_name_rejoins(guest):
+    details = passed(guest, CHECK)
+    gel = details["gel_alone"]
+    assert details["after_unplug"] == {"ABS_X": gel["ABS_X"], "ABS_Y": gel["ABS_Y"], "buttons": []}
+    assert details["rejoined"]["buttons"] == ["BTN_NORTH"]
+
+
+def test_a_profile_without_the_copilot_releases_the_grab_and_switching_back_grabs_it_again(guest):
+    details = passed(guest, CHECK)
+    assert details["use_plain"].startswith("switched to profile default")
+    assert details["helper_reader_after_switch"] >= 2
+    assert details["merged_again"]["buttons"] == ["BTN_NORTH"]
+
+
+def test_the_copilot_costs_nothing_at_rest(guest):
+    details = passed(guest, CHECK)
+    assert details["copilot_wakeups_idle_2s"] == 0
+    assert sum("merged Helper Pad" in line for line in details["said"]) == 3  # at start, rejoined, switched back
+
+
+def test_an_sdl_rumble_on_the_pad_is_played_on_the_helpers_device(guest):
+    details = passed(guest, CHECK)
+    assert details["sdl_rumble"]["rumble"]
+    assert any(entry[0] == "upload" for entry in details["helper_ff"])
+    assert any(entry[0] == "play" and entry[2] > 0 for entry in details["helper_ff"])
