@@ -39,7 +39,7 @@ Beside the pad (docs/profiles.md): keyboard keys (any evdev ``KEY_*`` name, or a
 ``KEY_LEFTSHIFT+KEY_TAB``) and mouse buttons (``BTN_LEFT`` ...) are button-like outputs; the
 mouse's ``pointer`` (a vector input -> REL_X/REL_Y velocity), ``REL_X``, ``REL_Y``, ``REL_WHEEL``
 and ``REL_HWHEEL`` (a scalar -> velocity) are analogue ones. Every button-like output has an
-activator (``mode``: hold, toggle, long_press, double_press, turbo); every analogue output an
+activator (``mode``: hold, tap, toggle, long_press, double_press, turbo); every analogue output an
 anti-deadzone. A mapping may belong to a ``layer``; ``layers:`` says which gesture switches to
 each layer.
 
@@ -135,7 +135,19 @@ ALL_OUTPUTS: tuple[str, ...] = tuple(STICKS) + ANALOG_AXES + (POINTER,) + REL_OU
 #: The layer every mapping without ``layer:`` belongs to, active while no other layer is.
 BASE_LAYER = "base"
 #: Activators (``mode``) of button-like outputs.
-MODES: tuple[str, ...] = ("hold", "toggle", "long_press", "double_press", "turbo")
+MODES: tuple[str, ...] = ("hold", "tap", "toggle", "long_press", "double_press", "turbo")
+#: The fields each activator reads: a field set under another mode would do nothing, so it is refused.
+MODE_FIELDS: dict[str, tuple[str, ...]] = {
+    "dwell_ms": ("long_press", "tap"),
+    "tap_ms": ("tap",),
+    "double_press_ms": ("double_press",),
+    "turbo_hz": ("turbo",),
+}
+#: ``tap``'s longest keystroke (ms): X11 and Wayland clients repeat a held key after ~500 ms (the
+#: X server's and libxkbcommon's usual repeat delay), so a tap stays well below that.
+MAX_TAP_MS = 250.0
+#: ``long_press``'s dwell (ms) when ``dwell_ms`` is not set; ``tap`` goes down at once then.
+DEFAULT_DWELL_MS = 500.0
 #: Turbo's highest rate (Hz): one press and one release need two windows of 10 ms.
 MAX_TURBO_HZ = 50.0
 #: Schema problems listed in one error (the rest are counted): a crafted profile may have thousands.
@@ -352,6 +364,9 @@ class ButtonMapping(_Hysteresis, _Layered):
     Activators (``mode``), all timed on the estimates' camera clock (us):
 
     - ``hold``: the output is down while the input is held (a plain press);
+    - ``tap``: one keystroke per press: down once the input has been held ``dwell_ms`` (0 when
+      not set: at once), for ``tap_ms`` (<= 250 ms, the desktop's key repeat never starts) or
+      until the input is let go, whichever comes first; a switch user's one gesture, one key;
     - ``toggle``: each press flips the output;
     - ``long_press``: down once the input has been held ``dwell_ms``, up when it is released
       (a dwell: tremor shorter than that never fires);
@@ -362,11 +377,37 @@ class ButtonMapping(_Hysteresis, _Layered):
 
     output: Any
     mode: Literal[MODES] = "hold"
-    dwell_ms: float = Field(500.0, gt=0, le=60_000, description="long_press: how long the input must be held (ms)")
+    dwell_ms: float | None = Field(
+        None,
+        gt=0,
+        le=60_000,
+        description="long_press, tap: how long the input must be held (ms); long_press 500, tap 0 when not set",
+    )
+    tap_ms: float = Field(100.0, gt=0, le=MAX_TAP_MS, description="tap: how long the key stays down (ms)")
     double_press_ms: float = Field(
         400.0, gt=0, le=5_000, description="double_press: longest time between the two presses' starts (ms)"
     )
     turbo_hz: float = Field(10.0, gt=0, le=MAX_TURBO_HZ, description="turbo: presses per second")
+
+    @field_validator(*MODE_FIELDS)
+    @classmethod
+    def _read_by_the_mode(cls, value: Any, info: ValidationInfo) -> Any:
+        mode = info.data.get("mode")
+        modes = MODE_FIELDS[info.field_name]
+        if mode is not None and mode not in modes:
+            reads = "reads" if len(modes) == 1 else "read"
+            raise ValueError(
+                f"no {info.field_name} under mode '{mode}': only {' and '.join(modes)} {reads} it "
+                f"(set mode: {modes[0]}, or remove {info.field_name})"
+            )
+        return value
+
+    @property
+    def dwell(self) -> float:
+        """The effective dwell (ms): ``dwell_ms``, else 500 for long_press and 0 for tap."""
+        if self.dwell_ms is not None:
+            return self.dwell_ms
+        return DEFAULT_DWELL_MS if self.mode == "long_press" else 0.0
 
     @field_validator("output")
     @classmethod
