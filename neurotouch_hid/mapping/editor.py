@@ -289,6 +289,33 @@ def _known_mapping(name: str, document: Any, key: str) -> None:
         )
 
 
+def _output_takes_the_fields(name: str, document: Any, key: str, value: Any) -> None:
+    """A new ``mappings.NAME.output`` of another kind (an axis made a button) must take every
+    field the mapping has: otherwise ProfileError names the fields it cannot take and the one
+    command that sets the whole mapping at once, without them."""
+    parts = key.split(".")
+    if len(parts) != 3 or parts[0] != "mappings" or parts[2] != "output" or not isinstance(value, str):
+        return
+    mapping = document["mappings"][parts[1]]
+    if not isinstance(mapping, CommentedMap):
+        return
+    kind = _output_kind({"output": value})
+    if kind == "unknown":
+        return  # the schema names the output and what it expected
+    allowed = _TAG_MODELS[kind].model_fields
+    refused = [str(f) for f in mapping if f not in allowed]
+    if not refused:
+        return
+    kept = {str(f): v for f, v in mapping.items() if f in allowed}
+    kept["output"] = value
+    whole = yaml_text(CommentedMap(kept))
+    raise ProfileError(
+        f"{key} {printable(value)}: a {kind} output takes no {', '.join(refused)} (the fields of what "
+        f"mapping '{parts[1]}' was); nothing was changed. To change the mapping in one command, without them:\n"
+        f"  neurotouch-hid profile set {name} mappings.{parts[1]} '{whole}'"
+    )
+
+
 def set_values(name: str, changes: dict[str, Any]) -> tuple[Path, dict[str, Any]]:
     """Set dotted keys (e.g. ``mappings.push.deadzone_mm``) in profile ``name`` and save it as the
     user's copy, comments and order kept. Missing intermediate mappings are created, except a
@@ -304,6 +331,7 @@ def set_values(name: str, changes: dict[str, Any]) -> tuple[Path, dict[str, Any]
     previous = {}
     for key, value in changes.items():
         _known_mapping(name, document, key)
+        _output_takes_the_fields(name, document, key, value)
         parent, last = _parent(document, key, create=True)
         if last in parent:
             previous[key] = parent[last]

@@ -205,10 +205,111 @@ def key_chord(output: str) -> tuple[str, ...]:
     return tuple(FACE_ALIASES.get(part, part) for part in output.split("+"))
 
 
+#: The pad's and mouse's names as the live view and docs show them (output/term.py's labels:
+#: ``LB``, ``RT``, ``Start``, ``L stick X``, ``d-pad up``, ``left click``) and the long spellings
+#: a player types, as a profile may write them -> the profile's own output names. Matched with
+#: :func:`_normalised` (case, spaces and hyphens ignored).
+PAD_ALIASES: dict[str, str] = {
+    "lb": "BTN_TL",
+    "rb": "BTN_TR",
+    "left_bumper": "BTN_TL",
+    "right_bumper": "BTN_TR",
+    "back": "BTN_SELECT",
+    "select": "BTN_SELECT",
+    "start": "BTN_START",
+    "guide": "BTN_MODE",
+    "ls": "BTN_THUMBL",
+    "rs": "BTN_THUMBR",
+    "left_stick_click": "BTN_THUMBL",
+    "right_stick_click": "BTN_THUMBR",
+    "lt": "ABS_Z",
+    "rt": "ABS_RZ",
+    "left_trigger": "ABS_Z",
+    "right_trigger": "ABS_RZ",
+    "l_stick": "left_stick",
+    "r_stick": "right_stick",
+    "l_stick_x": "ABS_X",
+    "l_stick_y": "ABS_Y",
+    "r_stick_x": "ABS_RX",
+    "r_stick_y": "ABS_RY",
+    "d_pad_up": "dpad_up",
+    "d_pad_down": "dpad_down",
+    "d_pad_left": "dpad_left",
+    "d_pad_right": "dpad_right",
+    "mouse_pointer": "pointer",
+    "mouse_x": "REL_X",
+    "mouse_y": "REL_Y",
+    "mouse_wheel": "REL_WHEEL",
+    "mouse_wheel_sideways": "REL_HWHEEL",
+    "left_click": "BTN_LEFT",
+    "right_click": "BTN_RIGHT",
+    "middle_click": "BTN_MIDDLE",
+    "mouse_side_button": "BTN_SIDE",
+    "mouse_extra_button": "BTN_EXTRA",
+    **{face.lower(): code for face, code in FACE_ALIASES.items()},
+}
+#: Key names a player types that evdev spells otherwise (the left one of a pair).
+KEY_ALIASES: dict[str, str] = {
+    "SHIFT": "KEY_LEFTSHIFT",
+    "CTRL": "KEY_LEFTCTRL",
+    "CONTROL": "KEY_LEFTCTRL",
+    "ALT": "KEY_LEFTALT",
+    "META": "KEY_LEFTMETA",
+    "SUPER": "KEY_LEFTMETA",
+    "ESCAPE": "KEY_ESC",
+    "RETURN": "KEY_ENTER",
+}
+#: The aliases offered when a name is not known (as the views write them).
+SHOWN_ALIASES: tuple[str, ...] = (
+    "LB", "RB", "LT", "RT", "Back", "Start", "Guide", "LS", "RS",
+    "left_trigger", "right_trigger", "left_bumper", "right_bumper",
+)  # fmt: skip
+
+
+def _normalised(name: str) -> str:
+    return name.strip().lower().replace("-", "_").replace(" ", "_")
+
+
+def resolve_output(written: str) -> str:
+    """The profile's output name for ``written``, a name as the views show it or a player types
+    it: an output name as it is (``ABS_RZ``, ``KEY_SPACE``); a pad or mouse name of
+    :data:`PAD_ALIASES` (``RT`` -> ``ABS_RZ``, ``Start`` -> ``BTN_START``, ``A`` stays ``A``); a
+    key without ``KEY_`` or as the view writes it (``SPACE``, ``space``, ``SPACE key`` ->
+    ``KEY_SPACE``; ``LEFTSHIFT+TAB key`` -> ``KEY_LEFTSHIFT+KEY_TAB``; ``Shift`` ->
+    ``KEY_LEFTSHIFT``). A name none of these knows is returned as written (the schema reports it).
+    """
+    if written in ALL_OUTPUTS:
+        return written
+    text = written.strip()
+    if text.lower().endswith(" key"):
+        text = text[: -len(" key")]
+    if "+" not in text:
+        return _resolve_part(text, written)
+    parts = [_resolve_part(p, p) for p in text.split("+")]
+    return "+".join(parts)
+
+
+def _resolve_part(text: str, unknown: str) -> str:
+    if text in BUTTON_LIKE or text.startswith("KEY_"):
+        return text
+    if text in FACE_ALIASES:
+        return text
+    pad = PAD_ALIASES.get(_normalised(text))
+    if pad is not None:
+        return pad
+    key = text.strip().upper().replace(" ", "").replace("-", "")
+    if key in KEY_ALIASES:
+        return KEY_ALIASES[key]
+    if key and f"KEY_{key}" in keyboard_keys():
+        return f"KEY_{key}"
+    return unknown
+
+
 def _expected_outputs() -> str:
     return (
         ", ".join(repr(o) for o in ALL_OUTPUTS)
-        + ", or an evdev key name such as 'KEY_SPACE' (several joined by '+': 'KEY_LEFTSHIFT+KEY_TAB')"
+        + ", or an evdev key name such as 'KEY_SPACE' (several joined by '+': 'KEY_LEFTSHIFT+KEY_TAB'), or a name "
+        "as the live view shows it ('LB', 'RT', 'Start', 'L stick', 'd-pad up', 'left click', 'SPACE key')"
     )
 
 
@@ -236,6 +337,13 @@ class OneEuroSmoothing(_Strict):
 
 class _Layered(_Strict):
     layer: str = Field(BASE_LAYER, description="the layer this mapping belongs to (see layers:)")
+
+    @field_validator("output", mode="before", check_fields=False)
+    @classmethod
+    def _as_shown(cls, value: Any) -> Any:
+        """A name as the views show it (``RT``, ``Start``, ``SPACE key``) is its output's
+        (:func:`resolve_output`)."""
+        return resolve_output(value) if isinstance(value, str) else value
 
     @field_validator("layer")
     @classmethod
@@ -419,10 +527,11 @@ class ButtonMapping(_Hysteresis, _Layered):
             raise ValueError(f"a chord of at most {MAX_CHORD_KEYS} keys or buttons (this one has {len(parts)})")
         for part in parts:
             if part not in BUTTON_LIKE and part not in keyboard_keys():
+                names = keyboard_keys() if part.startswith("KEY_") else BUTTON_LIKE + SHOWN_ALIASES
                 raise ValueError(
-                    f"a pad button (BTN_SOUTH ... BTN_THUMBR, A, B, X, Y, dpad_*), a mouse button "
-                    f"({', '.join(MOUSE_BUTTONS)}) or an evdev key name such as 'KEY_SPACE' "
-                    f"(several joined by '+'); {short(part)} is none of these"
+                    f"a pad button (BTN_SOUTH ... BTN_THUMBR, A, B, X, Y, LB, RB, Start, Back, Guide, LS, RS, "
+                    f"dpad_*), a mouse button ({', '.join(MOUSE_BUTTONS)}) or an evdev key name such as "
+                    f"'KEY_SPACE' (several joined by '+'); {short(part)} is none of these{did_you_mean(part, names)}"
                 )
         if len(parts) > 1 and any(not p.startswith("KEY_") and p not in MOUSE_BUTTONS for p in parts):
             raise ValueError("a chord of keyboard keys and mouse buttons only, such as 'KEY_LEFTSHIFT+KEY_TAB'")
@@ -462,7 +571,12 @@ _ANY_MAPPING_FIELDS = {
 
 
 def _no_such_output(cls, value: Any) -> Any:
-    raise ValueError(_expected_outputs() + (did_you_mean(value, ALL_OUTPUTS) if isinstance(value, str) else ""))
+    close = ""
+    if isinstance(value, str):
+        close = did_you_mean(value, ALL_OUTPUTS + SHOWN_ALIASES) or did_you_mean(
+            value.upper(), [k.removeprefix("KEY_") for k in keyboard_keys()]
+        )
+    raise ValueError(_expected_outputs() + close)
 
 
 #: Chosen only when ``output`` names no known output: reports it with the valid names, and still
@@ -481,6 +595,7 @@ def _output_kind(value: Any) -> str:
     output = value.get("output") if isinstance(value, dict) else getattr(value, "output", None)
     if not isinstance(output, str):
         return "unknown"
+    output = resolve_output(output)
     if output in STICKS:
         return "stick"
     if output in ANALOG_AXES:
@@ -773,4 +888,6 @@ def _describe(err: dict, root: Any, source: str | os.PathLike, lines: bool = Tru
     message = in_plain_words(err["msg"])
     expected = message[0].lower() + message[1:] if message else message
     expected = expected.removeprefix("expected ")
+    if kind == "literal_error" and path[-1:] == ("input",) and isinstance(err["input"], str):
+        expected += did_you_mean(err["input"], VECTOR_INPUTS + SCALAR_INPUTS)
     return line, f"{at}: {field}: found {short(err['input'])}; expected {expected}"
