@@ -98,3 +98,28 @@ def test_turning_an_axis_into_a_button_says_the_one_line_fix(cli):
     assert done.returncode == 0, done.stderr
     zoom = YAML().load((cli.user_dir / "default.yaml").read_text())["mappings"]["zoom"]
     assert zoom["output"] == "A" and zoom["input"] == "zoom" and "deadzone_mm" not in zoom
+
+
+def test_delete_and_reset_keep_a_backup_and_warn_about_games_pointing_at_the_profile(cli):
+    """``profile delete`` and ``reset`` acted at once, with no backup and no word about the games
+    mapped to the profile (``profile auto list`` showed them as fine)."""
+    assert cli("new", "racing").returncode == 0
+    mine = cli.user_dir / "racing.yaml"
+    text = mine.read_text()
+    assert cli("auto", "add", "4242", "racing").returncode == 0
+    assert cli("auto", "add", "supertuxkart", "default").returncode == 0
+    deleted = cli("delete", "racing")
+    assert deleted.returncode == 0, deleted.stderr
+    backup = cli.user_dir / "racing.yaml.bak"
+    assert not mine.exists() and backup.read_text() == text and f"kept as {backup}" in deleted.stdout
+    assert "Steam app 4242 -> racing, which no longer exists" in deleted.stderr
+    assert "profile auto remove 4242" in deleted.stderr
+    assert "racing" not in cli("list").stdout  # the backup is no profile
+    listed = cli("auto", "list")
+    assert "Steam app 4242 -> racing  NO SUCH PROFILE" in listed.stdout
+    assert "supertuxkart -> default\n" in listed.stdout
+    assert cli("set", "default", "mappings.push.deadzone_mm", "1.0").returncode == 0
+    copy = (cli.user_dir / "default.yaml").read_text()
+    reset = cli("reset", "default")
+    assert reset.returncode == 0 and (cli.user_dir / "default.yaml.bak").read_text() == copy
+    assert "supertuxkart -> default: that game now gets the shipped 'default'" in reset.stderr

@@ -132,9 +132,23 @@ def creates_shadow(name: str) -> bool:
     return shipped_profile(name) is not None and not user_profile_path(name).exists()
 
 
+def backup_path(target: Path) -> Path:
+    """Where ``delete`` and ``reset`` keep the profile they take away: ``NAME.yaml.bak`` beside it
+    (no profile: only ``*.yaml`` files are profiles); renaming it back restores it."""
+    return target.with_name(target.name + ".bak")
+
+
+def _keep_aside(target: Path) -> None:
+    try:
+        os.replace(target, backup_path(target))
+    except OSError as exc:
+        raise ProfileError(f"{target}: cannot move it aside to {backup_path(target).name}: {exc.strerror}") from None
+
+
 def delete_profile(name: str) -> tuple[Path, Path | None]:
-    """Delete the user's profile ``name``. Returns (the deleted file, the shipped profile that
-    applies again under that name, or None).
+    """Delete the user's profile ``name``, kept as :func:`backup_path` (an older backup
+    replaced). Returns (the deleted file, the shipped profile that applies again under that name,
+    or None).
 
     Raises:
         ProfileError: bad name, or no user profile of that name (a shipped one cannot be deleted).
@@ -144,13 +158,13 @@ def delete_profile(name: str) -> tuple[Path, Path | None]:
         if shipped_profile(name) is not None:
             raise ProfileError(f"'{name}' is a shipped profile: it cannot be deleted (and you have no copy of it)")
         raise ProfileError(f"no user profile named '{name}' in {target.parent}")
-    target.unlink()
+    _keep_aside(target)
     return target, shipped_profile(name)
 
 
 def reset_profile(name: str) -> tuple[Path | None, Path]:
-    """Put the shipped profile ``name`` back: delete the user's copy that shadows it. Returns (the
-    deleted copy, or None when there was none, the shipped file).
+    """Put the shipped profile ``name`` back: delete the user's copy that shadows it, kept as
+    :func:`backup_path`. Returns (the deleted copy, or None when there was none, the shipped file).
 
     Raises:
         ProfileError: ``name`` is not a shipped profile (nothing to go back to).
@@ -169,7 +183,7 @@ def reset_profile(name: str) -> tuple[Path | None, Path]:
     target = user_profile_path(name)
     if not target.is_file():
         return None, shipped
-    target.unlink()
+    _keep_aside(target)
     return target, shipped
 
 
