@@ -322,3 +322,20 @@ def test_log_lines_go_above_the_view_while_it_draws_and_back_after():
         assert terminal_stderr.getvalue() == "after\n"
     finally:
         root.removeHandler(handler)
+
+
+def test_the_compile_line_ticks_while_no_window_comes():
+    """The first run waits for the simulator's and tracker's kernels: no window comes for seconds
+    (~12 s under load), and the panel stood still at ``t 0.000 s``. The compile's line now ends
+    with a spinner and the seconds since the start, which move at every redraw."""
+    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.output.live import live_layout
+    from neurotouch_hid.stages import CompileProgress
+
+    record = record_for(load_profile("default"))._replace(
+        compile=CompileProgress("compiling the gesture pipeline, first run only: 10%, 0 s (interpreted meanwhile)", 0.1)
+    )
+    early = rendered(live_layout(ControllerState.neutral(), None, record, 1_000_000, wall_s=3.2))
+    later = rendered(live_layout(ControllerState.neutral(), None, record, 1_000_000, wall_s=12.6))
+    assert "3 s since the start" in early and "13 s since the start" in later
+    assert "⠴ 3 s" in early and "⠋ 13 s" in later  # the spinner moves an eighth of a second a step

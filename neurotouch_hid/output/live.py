@@ -30,6 +30,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from typing import IO, TYPE_CHECKING, Callable, Optional
 
 import numpy as np
@@ -65,6 +66,8 @@ ARROWS = "→↗↑↖←↙↓↘"
 ARROW_STYLES = ((REST_MM, "yellow"), (1.0, "bold yellow"), (2.5, "bold red"))
 #: Rows of each stick's grid in the live view (the plain view's are taller).
 PAD_STICK_ROWS = 3
+#: The compile line's spinner (one step every 1/8 s).
+SPINNER = "⠋⠙⠹⠸⠼⠴⠦⠧⠇⠏"
 #: Most lines of "what each gesture drives" (the last says "+N more" when there are more).
 MAPPINGS_SHOWN = 8
 #: The keys the view answers (on a terminal), as its help shows them.
@@ -207,13 +210,17 @@ def scene_panel(record: WindowRecord, estimate: GestureEstimate | None) -> Group
     return Group(*rows)
 
 
-def compile_line(progress: CompileProgress | None) -> Optional[Group]:
-    """While the first-run compile lasts: why the run is slow and a bar of its progress; else None."""
+def compile_line(progress: CompileProgress | None, wall_s: float | None = None) -> Optional[Group]:
+    """While the first-run compile lasts: why the run is slow and a bar of its progress; else
+    None. ``wall_s`` (s since the view started) ends the bar with a spinner and a clock that move
+    at every redraw, even while no window comes (the run waits for a kernel): nothing looks frozen."""
     if progress is None:
         return None
     done = round(progress.fraction * PROGRESS_WIDTH)
     bar = Text("━" * done, style="bold yellow")
     bar.append("─" * (PROGRESS_WIDTH - done), style="dim")
+    if wall_s is not None:
+        bar.append(f" {SPINNER[int(wall_s * 8) % len(SPINNER)]} {wall_s:.0f} s since the start", style="yellow")
     return Group(Text(progress.description, style="bold yellow"), bar)
 
 
@@ -256,13 +263,15 @@ def live_layout(
     *,
     help_shown: bool = False,
     held: bool = False,
+    wall_s: float | None = None,
 ) -> Panel:
     """The whole interactive view, 80x24 at most: the gel plot on the left; the gestures, the
     profile and the pad on the right; the compile's progress and the counters at the bottom.
     ``state`` and ``estimate`` are what the pad shows now (neutral after a release); ``record``
     is the last window's; ``first_t_us`` the first window's end (the counters' ``t`` is the time
     since, s of camera time, so that it goes with the windows); ``help_shown``: the keys' help
-    under it (h, ?); ``held``: the picture is held (Space), said in the footer."""
+    under it (h, ?); ``held``: the picture is held (Space), said in the footer; ``wall_s``: s
+    since the view started, for the compile's clock (:func:`compile_line`)."""
     from neurotouch_hid.sensor import SensorGeometry
 
     sensor = record.sensor if record.sensor is not None else SensorGeometry()
@@ -288,7 +297,7 @@ def live_layout(
     else:
         footer.append(f"   {KEYS_HINT}", style="dim")
     rows: list[ConsoleRenderable] = [top]
-    progress = compile_line(record.compile)
+    progress = compile_line(record.compile, wall_s)
     if progress is not None:
         rows.append(progress)
     if help_shown:
@@ -315,6 +324,7 @@ class LiveView(TermView):
         self._first_t_us: int | None = None
         self._help = False  # h, ?: the keys' help under the view
         self._held: tuple | None = None  # Space: the picture drawn while held (state, estimate, record)
+        self._started_s = time.monotonic()
         super().__init__(console, line_period_s=line_period_s, refresh_per_second=refresh_per_second)
         self.wants_markers = self.console.is_terminal
         self._keys: KeyReader | None = None
@@ -364,7 +374,15 @@ class LiveView(TermView):
             state, estimate, record = held
         if record is None:
             return super().__rich__()
-        return live_layout(state, estimate, record, first or 0, help_shown=help_shown, held=held is not None)
+        return live_layout(
+            state,
+            estimate,
+            record,
+            first or 0,
+            help_shown=help_shown,
+            held=held is not None,
+            wall_s=time.monotonic() - self._started_s,
+        )
 
 
 class KeyReader:
