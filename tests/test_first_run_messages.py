@@ -36,3 +36,39 @@ def test_run_davis_with_neither_camera_nor_uinput_says_both(no_uinput, monkeypat
     assert message.startswith(UINPUT)
     assert "and the camera: no DAVIS-346 (USB 152a:841a) found: plug the NeuroTouch's USB cable in" in message
     assert "--output term" not in message
+
+
+@pytest.mark.parametrize("content, says", [(None, "no such file"), (b"not a recording\n", "not an AEDAT4 recording")])
+def test_calibrate_reads_the_press_file_before_needing_a_camera(tmp_path, content, says):
+    """``calibrate --press FILE`` failed on the missing camera (after compiling) before it ever
+    read the file: a wrong file is said first, whatever the camera."""
+    from helpers import run_cli
+
+    press = tmp_path / "press.aedat4"
+    if content is not None:
+        press.write_bytes(content)
+    done = run_cli("calibrate", "--press", str(press), timeout=60)
+    assert done.returncode == 2 and f"{press}: {says}" in done.stderr, done.stderr
+    assert "DAVIS" not in done.stderr and "compiling" not in done.stderr
+
+
+def test_build_deb_says_every_missing_tool_before_it_starts(tmp_path):
+    """build-deb.sh stopped deep inside debian12-root.sh on a missing debootstrap: now every
+    missing tool is said at once, before anything is built."""
+    import os
+    import shutil
+    import subprocess
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "packaging" / "build-deb.sh"
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    for tool in ("sh", "dirname", "sed", "head", "dpkg", "id", "mount"):  # no debootstrap, dpkg-deb, chroot
+        found = shutil.which(tool)
+        assert found is not None, tool
+        os.symlink(found, bin_dir / tool)
+    env = {"PATH": str(bin_dir), "NEUROTOUCH_ROOTS": str(tmp_path / "roots"), "HOME": str(tmp_path)}
+    done = subprocess.run([str(bin_dir / "sh"), str(script)], env=env, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 1
+    assert "missing: dpkg-deb chroot debootstrap (Debian: apt-get install debootstrap" in done.stderr, done.stderr
+    assert not (tmp_path / "roots").exists() and "building" not in done.stderr
