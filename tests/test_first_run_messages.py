@@ -72,3 +72,24 @@ def test_build_deb_says_every_missing_tool_before_it_starts(tmp_path):
     assert done.returncode == 1
     assert "missing: dpkg-deb chroot debootstrap (Debian: apt-get install debootstrap" in done.stderr, done.stderr
     assert not (tmp_path / "roots").exists() and "building" not in done.stderr
+
+
+def test_install_user_says_the_services_first_start_compiles(tmp_path):
+    """The service's first camera start compiled the pipeline again (the package's folder is
+    read-only under the unit) for a minute, with nothing saying so: the pad just did not come."""
+    import os
+    import subprocess
+    from pathlib import Path
+
+    install = Path(__file__).resolve().parents[1] / "packaging" / "install.sh"
+    shim = tmp_path / "bin" / "neurotouch-hid"
+    shim.parent.mkdir()
+    shim.write_text("#!/bin/sh\nexit 0\n")
+    shim.chmod(0o755)
+    home = tmp_path / "home"
+    env = dict(os.environ, HOME=str(home), XDG_CONFIG_HOME="", XDG_CACHE_HOME="", PATH=f"{shim.parent}:/usr/bin:/bin")
+    done = subprocess.run(["sh", str(install), "--user"], capture_output=True, text=True, env=env, timeout=60)
+    assert done.returncode == 0, done.stderr
+    said = done.stdout.splitlines()[-1]
+    assert said.startswith("its first start compiles the gesture pipeline once more")
+    assert f"{home}/.cache/neurotouch-hid" in said and "journalctl --user -u neurotouch-hid -f" in said
