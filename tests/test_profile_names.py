@@ -123,3 +123,18 @@ def test_delete_and_reset_keep_a_backup_and_warn_about_games_pointing_at_the_pro
     reset = cli("reset", "default")
     assert reset.returncode == 0 and (cli.user_dir / "default.yaml.bak").read_text() == copy
     assert "supertuxkart -> default: that game now gets the shipped 'default'" in reset.stderr
+
+
+@pytest.mark.parametrize(
+    "text, line",
+    [
+        ("mappings:\n  m:\n    input pinch\n    output: KEY_A\n", 3),  # the mapping's first key
+        ("mappings\n  m:\n    input: pinch\n    output: KEY_A\n", 1),
+        ("mappings:\n  m:\n    # the trigger\n    input pinch\n\n    output: KEY_A\n", 4),
+        ("mappings:\n  m:\n    input: pinch\n    output KEY_A\n    mode: hold\n", 4),  # already right
+    ],
+)
+def test_a_key_without_its_colon_is_reported_on_its_own_line(text, line):
+    with pytest.raises(ProfileError) as err:
+        parse_profile(text, "q.yaml")
+    assert str(err.value).startswith(f"q.yaml:{line}: not valid YAML: could not find expected ':'"), str(err.value)
