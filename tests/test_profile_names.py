@@ -138,3 +138,18 @@ def test_a_key_without_its_colon_is_reported_on_its_own_line(text, line):
     with pytest.raises(ProfileError) as err:
         parse_profile(text, "q.yaml")
     assert str(err.value).startswith(f"q.yaml:{line}: not valid YAML: could not find expected ':'"), str(err.value)
+
+
+def test_ctrl_alt_delete_is_refused_in_a_sentence_not_a_dict():
+    text = (
+        "mappings:\n  a: {input: pinch, output: KEY_LEFTCTRL}\n  b: {input: zoom, output: KEY_LEFTALT}\n"
+        "  c: {input: push_intensity, output: KEY_DELETE}\n"
+    )
+    with pytest.raises(ProfileError) as err:
+        parse_profile(text, "q.yaml")
+    problem = str(err.value).splitlines()[1].strip()
+    assert problem == (
+        "q.yaml:1: This profile could hold Ctrl, Alt and Delete at once (it presses KEY_DELETE, KEY_LEFTALT, "
+        "KEY_LEFTCTRL), and the console reboots the machine on Ctrl+Alt+Delete: map one of them to another key"
+    )
+    assert "{" not in problem

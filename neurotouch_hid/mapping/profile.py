@@ -673,8 +673,9 @@ class Profile(_Strict):
         keys = self.keyboard_keys
         if keys & _CTRL and keys & _ALT and keys & _DELETE:
             raise ValueError(
-                "keys that cannot make Ctrl+Alt+Delete: the console reboots the machine on it; this "
-                f"profile presses {', '.join(sorted(keys & (_CTRL | _ALT | _DELETE)))}"
+                "this profile could hold Ctrl, Alt and Delete at once (it presses "
+                f"{', '.join(sorted(keys & (_CTRL | _ALT | _DELETE)))}), and the console reboots the machine "
+                "on Ctrl+Alt+Delete: map one of them to another key"
             )
         return self
 
@@ -882,6 +883,11 @@ def _describe(err: dict, root: Any, source: str | os.PathLike, lines: bool = Tru
         return line, (
             f"{at}: {field}: found the name {short(err['input'])}; expected a name of letters, "
             "digits and '_' that does not start with a digit"
+        )
+    if kind == "value_error" and not path and isinstance(err["input"], dict):  # about the whole profile
+        message = in_plain_words(err["msg"])
+        return line, f"{at}: {message[:1].upper()}{message[1:]}" if message.startswith("this ") else (
+            f"{at}: the profile: expected {message.removeprefix('expected ')}"
         )
     if kind in ("model_type", "model_attributes_type", "dict_type"):
         return line, f"{at}: {field}: found {short(err['input'])}; expected a mapping (key: value lines)"
