@@ -93,3 +93,30 @@ def test_install_user_says_the_services_first_start_compiles(tmp_path):
     said = done.stdout.splitlines()[-1]
     assert said.startswith("its first start compiles the gesture pipeline once more")
     assert f"{home}/.cache/neurotouch-hid" in said and "journalctl --user -u neurotouch-hid -f" in said
+
+
+def test_eval_on_a_folder_without_recordings_says_so_not_the_sensor(tmp_path):
+    from helpers import run_cli
+
+    done = run_cli("eval", str(tmp_path), timeout=60)
+    assert done.returncode == 2 and f"{tmp_path}: no recording in it" in done.stderr, done.stderr
+    assert "sensor.yaml" not in done.stderr
+
+
+def test_doctor_shows_the_calibration_in_use():
+    from neurotouch_hid import doctor
+    from neurotouch_hid.sensor import SensorGeometry, user_sensor_path
+
+    none = doctor.check_calibration()
+    assert (
+        none.status == doctor.WARN and str(user_sensor_path()) in none.detail and none.fix == "neurotouch-hid calibrate"
+    )
+    user_sensor_path().parent.mkdir(parents=True, exist_ok=True)
+    SensorGeometry(gel_center_px=(170.0, 128.0), rotation_deg=90.0, creep=(0.3, 0.8)).save(user_sensor_path())
+    mine = doctor.check_calibration()
+    assert mine.status == doctor.OK and mine.detail.startswith(f"{user_sensor_path()}: gel at (170, 128) px")
+    assert "rotation 90 deg" in mine.detail and "creep q 0.30, tau 0.80 s" in mine.detail
+    user_sensor_path().write_text("gel_radius_px: lots\n")
+    broken = doctor.check_calibration()
+    assert broken.status == doctor.FAIL and "calibrate" in broken.fix
+    assert "calibration" in [c.name for c in doctor.run_checks()]
