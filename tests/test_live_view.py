@@ -339,3 +339,27 @@ def test_the_compile_line_ticks_while_no_window_comes():
     later = rendered(live_layout(ControllerState.neutral(), None, record, 1_000_000, wall_s=12.6))
     assert "3 s since the start" in early and "13 s since the start" in later
     assert "⠴ 3 s" in early and "⠋ 13 s" in later  # the spinner moves an eighth of a second a step
+
+
+def test_keys_are_read_from_a_terminal_only_in_the_foreground():
+    """A run started in the background (``run &``) that put the terminal in cbreak mode would be
+    stopped by SIGTTOU: the view reads keys only as the terminal's foreground job."""
+    import io
+    import os
+
+    from rich.console import Console
+
+    from neurotouch_hid.output.live import LiveView, in_foreground
+
+    primary, secondary = os.openpty()
+    try:
+        terminal = os.fdopen(secondary, "r", closefd=False)
+        assert terminal.isatty() and not in_foreground(terminal)  # a new pty: no foreground job of ours
+        view = LiveView(Console(file=io.StringIO(), force_terminal=True, width=100), keys=terminal)
+        try:
+            assert view._keys is None
+        finally:
+            view.close()
+    finally:
+        os.close(primary)
+        os.close(secondary)

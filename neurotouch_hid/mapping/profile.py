@@ -292,8 +292,6 @@ def resolve_output(written: str) -> str:
 def _resolve_part(text: str, unknown: str) -> str:
     if text in BUTTON_LIKE or text.startswith("KEY_"):
         return text
-    if text in FACE_ALIASES:
-        return text
     pad = PAD_ALIASES.get(_normalised(text))
     if pad is not None:
         return pad

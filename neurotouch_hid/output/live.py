@@ -330,7 +330,7 @@ class LiveView(TermView):
         self._keys: KeyReader | None = None
         if self.console.is_terminal:
             stream = keys if keys is not None else sys.stdin
-            if stream is not None and stream.isatty():
+            if stream is not None and stream.isatty() and in_foreground(stream):
                 self._keys = KeyReader(stream, self.key)
 
     def key(self, char: str) -> None:
@@ -385,6 +385,15 @@ class LiveView(TermView):
         )
 
 
+def in_foreground(stream: IO[str]) -> bool:
+    """Whether this process is the terminal's foreground job: a background one (``run &``) that
+    changed the terminal's mode or read it would be stopped (SIGTTOU, SIGTTIN: termios(3))."""
+    try:
+        return os.tcgetpgrp(stream.fileno()) == os.getpgrp()
+    except OSError:
+        return False
+
+
 class KeyReader:
     """Single keys typed on a terminal, each handed to ``on_key`` (from a thread of its own):
     the terminal is put in cbreak mode (keys come without Enter, Ctrl-C and Ctrl-Z still send
@@ -415,8 +424,11 @@ class KeyReader:
             if not ready:
                 continue
             try:
+                if os.tcgetpgrp(self._fd) != os.getpgrp():  # sent to the background (Ctrl-Z, bg): not ours
+                    self._stop.wait(0.5)
+                    continue
                 data = os.read(self._fd, 64)
-            except OSError:
+            except OSError:  # the terminal is gone
                 return
             if not data:
                 return
