@@ -195,7 +195,8 @@ def test_adapt_learns_a_hand_whose_twists_read_the_other_way(mirrored):
     lines = summary(adaptation)
     assert any(line.startswith("your unseen gestures read right: shipped") for line in lines)
     assert any("the learned gesture type refitted" in line for line in lines)
-    assert any(line.startswith("what changes for you: which gesture it reads") for line in lines)
+    changes = next(line for line in lines if line.startswith("what changes for you: "))
+    assert "which gesture it reads from how your gel moves" in changes
 
 
 def test_adapt_keeps_the_shipped_value_where_the_fit_does_not_beat_it(records):
