@@ -33,7 +33,9 @@ the triggers ``ABS_Z``, ``ABS_RZ`` (0..255, only the positive side of the input)
 ``BTN_SOUTH`` .. ``BTN_THUMBR`` and the d-pad directions ``dpad_up``, ``dpad_down``,
 ``dpad_left``, ``dpad_right`` (ABS_HAT0X/Y). A stick's user +y (up) becomes evdev's negative y.
 Several mappings may drive one output: axis contributions add up (then clamp), buttons are OR-ed.
-``A``, ``B``, ``X``, ``Y`` are aliases of the face buttons (:data:`FACE_ALIASES`).
+``A``, ``B``, ``X``, ``Y`` are aliases of the face buttons (:data:`FACE_ALIASES`), and the names
+the views show (``LB``, ``RT``, ``Start``, ``L stick``, ``d-pad up``, ``SPACE key``) are taken for
+their outputs (:func:`resolve_output`).
 
 Beside the pad (docs/profiles.md): keyboard keys (any evdev ``KEY_*`` name, or a chord such as
 ``KEY_LEFTSHIFT+KEY_TAB``) and mouse buttons (``BTN_LEFT`` ...) are button-like outputs; the
