@@ -185,11 +185,14 @@ def list_sequences(dataset: str | Path) -> list[str]:
     dataset = Path(dataset)
     if not dataset.is_dir():
         raise DatasetError(f"{dataset}: not a dataset folder (docs/dataset.md)")
-    dataset_sensor_file(dataset)
     names = sorted(p.name[: -len(".aedat4")] for p in dataset.glob("*.aedat4"))
     names = [n for n in names if (dataset / f"{n}.labels.csv").exists()]
-    if not names:
-        raise DatasetError(f"{dataset}: no SEQUENCE.aedat4 with its SEQUENCE.labels.csv")
+    if not names:  # said before the sensor: a folder without recordings needs recordings first
+        raise DatasetError(
+            f"{dataset}: no recording in it: no SEQUENCE.aedat4 with its SEQUENCE.labels.csv (docs/dataset.md; "
+            "`neurotouch-hid enrol` or `neurotouch-hid simulate` writes such a folder)"
+        )
+    dataset_sensor_file(dataset)
     return names
 
 

@@ -266,6 +266,36 @@ def check_copilot(profiles: dict[str, object] | None = None, devices: list | Non
     return Check("copilot devices", OK, detail)
 
 
+def check_calibration() -> Check:
+    """Which gel geometry the camera's runs (``run``, the service, ``enrol``) use: the user's
+    calibration (``calibrate``'s sensor.yaml, :func:`~neurotouch_hid.sensor.user_sensor_path`)
+    with its values, or the built-in one (a warning: a real gel differs); a failure when the file
+    is there but invalid (:class:`~neurotouch_hid.errors.SensorError`'s message)."""
+    from neurotouch_hid.errors import SensorError
+    from neurotouch_hid.sensor import SensorGeometry, user_sensor_path
+
+    path = user_sensor_path()
+    if not path.exists():
+        return Check(
+            "calibration",
+            WARN,
+            f"none ({path} does not exist): the camera's runs use the built-in geometry, not your gel's",
+            "neurotouch-hid calibrate",
+        )
+    try:
+        g = SensorGeometry.load(path)
+    except SensorError as exc:
+        return Check("calibration", FAIL, str(exc), f"neurotouch-hid calibrate\nor remove {path}")
+    creep = "creep not measured" if g.creep is None else f"creep q {g.creep[0]:.2f}, tau {g.creep[1]:.2f} s"
+    return Check(
+        "calibration",
+        OK,
+        f"{path}: gel at ({g.gel_center_px[0]:.0f}, {g.gel_center_px[1]:.0f}) px, radius {g.gel_radius_px:.0f} px, "
+        f"{g.px_per_mm:.2f} px/mm, {'mirrored' if g.mirror else 'not mirrored'}, rotation {g.rotation_deg:g} deg, "
+        f"{creep}",
+    )
+
+
 def run_checks() -> list[Check]:
     """Every check, in the order the report shows them."""
     found = discover()
@@ -278,6 +308,7 @@ def run_checks() -> list[Check]:
         *(check_library(m, d) for m, d in LIBRARIES),
         check_jit_cache(),
         check_service(),
+        check_calibration(),
         check_model(),
         check_copilot(),
     ]

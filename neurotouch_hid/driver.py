@@ -392,9 +392,12 @@ def run_driver(
     with contextlib.ExitStack() as stack:
         subscribers = outputs
         if subscribers is None:
-            made = open_output(
-                output, loaded, stack, out=out, console=console, say=say, inputs=inputs, on_feedback=copilot
-            )
+            try:
+                made = open_output(
+                    output, loaded, stack, out=out, console=console, say=say, inputs=inputs, on_feedback=copilot
+                )
+            except DeviceError as exc:
+                raise DeviceError(_and_the_source(str(exc), source, davis)) from None
             subscribers = open_outputs(made, output, stack, console)
         say = said_above(subscribers, say)
         assembly = RunAssembly(
@@ -438,6 +441,21 @@ def copilot_relay(output: str, say: Callable[[str], None]) -> FeedbackRelay | No
     from neurotouch_hid.inputs.copilot import FeedbackRelay
 
     return FeedbackRelay(say=say)
+
+
+def _and_the_source(problem: str, source: str, davis: DavisConfig | None) -> str:
+    """The gamepad cannot be made (``problem``, /dev/uinput's): with the live camera, whether it
+    can be opened either (the user learns both problems at once, not the second after fixing
+    the first); with any other source, that ``--output term`` shows the pad in the terminal."""
+    if source == SourceKind.DAVIS:
+        from neurotouch_hid.sources.discovery import UsbAccess, discover, explain
+
+        found = discover(dv=False)  # pyusb only: quick, and says what keeps a camera from being opened
+        if not any(c.usb is not None and c.usb.access == UsbAccess.OK for c in found.davis346):
+            serial = davis.serial if davis is not None else None
+            return f"{problem}\nand the camera: {explain(found, serial)}"
+        return problem
+    return f"{problem}\nor, without the virtual pad, show it in the terminal: --output term"
 
 
 def said_above(subscribers: list[Subscriber], say: Callable[[str], None]) -> Callable[[str], None]:

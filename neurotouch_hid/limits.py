@@ -164,6 +164,20 @@ def _hint(problem: str) -> str:
     return ""
 
 
+def _keyless_line_before(text: str, line: int) -> int:
+    """The 1-based line before ``line`` (blank and comment lines skipped) when it holds a plain
+    word with no ``:`` (a key whose ``:`` is missing: YAML reads it as the start of a value and
+    stumbles on the next line's ``:``), else 0."""
+    lines = text.split("\n")
+    for index in range(line - 2, -1, -1):
+        content = lines[index].split(" #")[0].strip()
+        if not content or content.startswith("#"):
+            continue
+        plain = ":" not in content and not content.startswith(("-", "'", '"', "[", "{", "|", ">", "&", "*", "!"))
+        return index + 1 if plain else 0
+    return 0
+
+
 def _lines(text: str) -> int:
     """The number of lines of ``text`` (at least 1; a final newline ends the last line)."""
     return max(1, text.count("\n") + (not text.endswith("\n")))
@@ -290,6 +304,9 @@ def load_yaml(text: str) -> tuple[Any, Any]:
             problem = f"nested more than {MAX_YAML_DEPTH} levels deep (docs/limits.md)"
         # a problem found at the end of the text is on its last line, never past it
         line = min(mark.line + 1, _lines(text)) if mark is not None else 0
+        keyless = _keyless_line_before(text, line) if "mapping values are not allowed" in problem else 0
+        if keyless:  # `input pinch` then `output: A`: the ':' is missing on the line before
+            line, problem = keyless, "could not find expected ':'"
         raise YamlError(line, problem + _hint(problem)) from None
     except YAMLError as exc:
         raise YamlError(0, " ".join(str(exc).split())[:200]) from None

@@ -65,8 +65,12 @@ T = TypeVar("T")
 COMPILING = "compiling the gesture pipeline, first run only"
 #: What the first run's compile costs, as measured (docs/performance.md, "Start-up"): ~25 s of
 #: CPU (simulator 3 s, tracker 3 s, the rest of the pipeline 19 s); the first gesture ~5 s and
-#: full speed ~25 s after the start on two idle cores; longer on a busy machine.
-COMPILE_COST = "about 25 s of CPU: full speed after ~25 s on two idle cores, longer on a busy machine"
+#: full speed ~25 s after the start on two idle cores; the children share the CPU with whatever
+#: else runs, so 80-90 s were seen on a busy two-core machine.
+COMPILE_COST = (
+    "about 25 s of CPU: full speed after ~25 s on two idle cores, a minute or more on a busy machine "
+    "(the progress shows below; nothing is frozen)"
+)
 
 
 @dataclass(frozen=True)

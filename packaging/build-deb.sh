@@ -82,7 +82,20 @@ if [ -n "$stage_only" ]; then
     exit 0
 fi
 
-[ "$(id -u)" = 0 ] || die "needs root (a Debian 12 root, chroot): sudo $0"
+# What the build needs, all said at once before it starts (debootstrap only when the Debian 12
+# root is not cached yet: debian12-root.sh's cache).
+roots=${NEUROTOUCH_ROOTS:-${XDG_CACHE_HOME:-$HOME/.cache}/neurotouch-hid/debian12}
+missing=""
+for tool in dpkg-deb chroot mount; do
+    command -v "$tool" > /dev/null || missing="$missing $tool"
+done
+[ -x "$roots/base/usr/bin/apt-get" ] || command -v debootstrap > /dev/null || missing="$missing debootstrap"
+problems=""
+[ "$(id -u)" = 0 ] || problems="needs root (a Debian 12 root, chroot): sudo $0"
+[ -z "$missing" ] || problems="${problems:+$problems; }missing:$missing (Debian: apt-get install debootstrap dpkg coreutils mount)"
+[ -z "$problems" ] || die "$problems"
+[ -x "$roots/base/usr/bin/apt-get" ] \
+    || echo "build-deb.sh: a first build: making a Debian 12 root with debootstrap in $roots (minutes; reused later)" >&2
 root=$("$here/debian12-root.sh" build)
 work=$(mktemp -d "${TMPDIR:-/tmp}/neurotouch-deb.XXXXXX")
 cleanup() {

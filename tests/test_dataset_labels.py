@@ -56,11 +56,13 @@ def test_bad_label_rows_name_line_and_column(tmp_path, row, message):
 
 
 def test_list_sequences_needs_sensor_yaml_and_pairs(tmp_path):
+    with pytest.raises(DatasetError, match="no recording in it"):  # the recordings are said first
+        list_sequences(tmp_path)
+    (tmp_path / "a.aedat4").write_bytes(b"")
+    (tmp_path / "a.labels.csv").write_text(DATASET_MD_HEADER + "\n")
     with pytest.raises(DatasetError, match="no sensor.yaml"):
         list_sequences(tmp_path)
     (tmp_path / "sensor.yaml").write_text("width: 346\n")
-    (tmp_path / "a.aedat4").write_bytes(b"")
-    (tmp_path / "a.labels.csv").write_text(DATASET_MD_HEADER + "\n")
     (tmp_path / "b.aedat4").write_bytes(b"")  # no labels: not a sequence
     assert list_sequences(tmp_path) == ["a"]
 

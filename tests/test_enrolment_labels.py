@@ -108,3 +108,23 @@ def test_labelling_in_place_writes_over_no_input(performed, tmp_path):
         assert (work / name).read_bytes() == data
         assert os.stat(work / name).st_ino == stats[name]
     assert (work / "enrolment.labels.csv").exists()
+
+
+def test_a_recording_that_does_not_follow_the_plan_fails_and_writes_nothing(performed, tmp_path):
+    """``enrol --from`` with a plan whose cues all fall after the recording's gestures: no
+    prompt's gesture is found, so no "labelled 0 of 7" dataset that ``adapt`` then refuses: exit
+    2, what to do, and no folder."""
+    folder, plan, _ = performed
+    last = plan.prompts[-1].end_s + 10.0
+    elsewhere = Plan(tuple(dataclasses.replace(p, cue_s=p.cue_s + last) for p in plan.prompts))
+    plan_file = write_plan(elsewhere, tmp_path / "other.plan.json")
+    out = tmp_path / "dataset"
+    env = {**os.environ, "PYTHONPATH": os.getcwd()}
+    argv = ["enrol", "--from", str(folder / "enrolment.aedat4"), "--plan", str(plan_file), "--out", str(out)]
+    result = subprocess.run(
+        [sys.executable, "-m", "neurotouch_hid.cli", *argv], capture_output=True, text=True, env=env, timeout=600
+    )
+    assert result.returncode == 2, (result.stdout, result.stderr)
+    assert f"no gesture near any of the plan's {len(plan.prompts)} cues" in result.stderr
+    assert "labelled 0" not in result.stdout and "adapt" not in result.stdout
+    assert not out.exists()

@@ -84,6 +84,8 @@ def test_a_prompt_missed_twice_is_said_and_left_out_and_the_dataset_goes_to_the_
         for line in lines
     )
     assert any(line.startswith(f"labelled 2 of 4 prompts -> {folder} ") for line in lines)
+    # the simulated hand's enrolment is adapted only into a file of its own, never as the user's model
+    assert f"`neurotouch-hid adapt {folder} --out sim-model.yaml`" in result.stdout
     # the folder is a dataset eval reads, labelled from the prompts asked
     assert list_sequences(folder) == ["enrolment"]
     asked = read_plan(folder / "enrolment.plan.json")

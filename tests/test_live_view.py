@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from kernel.vm import installed
 
+from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.mapping.profile import load_profile
 from neurotouch_hid.output.live import gel_cells, mapping_lines
 
@@ -190,3 +191,181 @@ def test_a_run_s_lines_go_above_the_view_drawn_on_a_terminal_else_where_they_wen
         assert said_above([piped], elsewhere.append) == elsewhere.append
     finally:
         piped.close()
+
+
+def test_the_live_view_answers_q_h_and_space_in_a_real_terminal(tmp_path):
+    """``demo`` drawn in tmux: ``h`` shows the keys, Space holds the picture, ``q`` ends the run
+    cleanly, with the run's summary (Ctrl-C printed none), and the terminal's mode is restored."""
+    tmux = _tmux()
+    session = f"nt-keys-{uuid.uuid4().hex[:8]}"
+    env = {
+        "PYTHONPATH": os.pathsep.join(sys.path),
+        "XDG_CONFIG_HOME": os.environ.get("XDG_CONFIG_HOME", str(tmp_path / "config")),
+        "TERM": "xterm-256color",
+    }
+    done = tmp_path / "exit"
+    command = " ".join(f"{k}={v}" for k, v in env.items())
+    command += f" {sys.executable} -m neurotouch_hid.cli demo --seconds 300; echo $? > {done}; stty -a; sleep 60"
+
+    def screen() -> str:
+        return subprocess.run([tmux, "capture-pane", "-p", "-J", "-t", session], capture_output=True, text=True).stdout
+
+    def wait_for(pattern: str, seconds: float = 300) -> str:
+        shown = ""
+        for _ in range(int(seconds * 4)):
+            shown = screen()
+            if re.search(pattern, shown):
+                return shown
+            time.sleep(0.25)
+        raise AssertionError(f"{pattern!r} never shown:\n{shown}")
+
+    subprocess.run([tmux, "new-session", "-d", "-s", session, "-x", "80", "-y", "24", command], check=True)
+    try:
+        shown = wait_for(r"windows [1-9]")
+        assert "q quit  h help" in shown
+        subprocess.run([tmux, "send-keys", "-t", session, "h"], check=True)
+        assert "Space hold the picture" in wait_for(r"q quit \(with the run's summary\)", 10)
+        subprocess.run([tmux, "send-keys", "-t", session, "Space"], check=True)
+        held = wait_for(r"held \(Space lets go\)", 10)
+        time.sleep(1.0)
+        assert re.search(r"t [0-9.]+ s", screen()).group() == re.search(r"t [0-9.]+ s", held).group()
+        subprocess.run([tmux, "send-keys", "-t", session, "q"], check=True)
+        for _ in range(120):
+            if done.exists():
+                break
+            time.sleep(0.25)
+        assert done.read_text().strip() == "0"
+        shown = wait_for(r"icanon", 10)  # stty: the terminal back in canonical mode, not -icanon
+        assert re.search(r"\d+ windows, \d+ events", shown), shown  # the run's summary
+        assert "-icanon" not in shown and "Traceback" not in shown
+    finally:
+        subprocess.run([tmux, "send-keys", "-t", session, "C-c"], capture_output=True)
+        time.sleep(1)
+        subprocess.run([tmux, "kill-session", "-t", session], capture_output=True)
+
+
+def record_for(profile, game: str = ""):
+    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.estimate import GestureEstimate
+    from neurotouch_hid.stages import WindowRecord
+    from neurotouch_hid.stats import RunStats
+
+    stats = RunStats()
+    stats.game = game
+    estimate = GestureEstimate(1_000_000, GestureType.NONE, True, 0.0)
+    return WindowRecord(
+        estimate=estimate,
+        state=ControllerState.neutral(1_000_000),
+        state_changed=False,
+        gesture_changed=False,
+        profile=profile,
+        profile_name="many",
+        sensor=None,
+        markers=None,
+        performed=None,
+        labelled=False,
+        stats=stats,
+        compile=None,
+    )
+
+
+def rendered(panel, width: int = 80) -> str:
+    import io
+
+    from rich.console import Console
+
+    console = Console(file=io.StringIO(), width=width, force_terminal=False)
+    console.print(panel)
+    return console.file.getvalue()
+
+
+def test_a_profile_with_more_mappings_than_lines_says_how_many_more_and_the_game_it_follows():
+    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.mapping.profile import Profile
+    from neurotouch_hid.output.live import MAPPINGS_SHOWN, live_layout
+
+    keys = [f"KEY_F{n}" for n in range(1, 11)]
+    profile = Profile.model_validate(
+        {"mappings": {f"m{n}": {"input": "pinch", "output": k} for n, k in enumerate(keys)}}
+    )
+    shown = rendered(live_layout(ControllerState.neutral(), None, record_for(profile, "Portal 2 (620)")))
+    assert f"+{10 - (MAPPINGS_SHOWN - 1)} more" in shown
+    assert "F7 key" in shown and "F8 key" not in shown
+    assert "profile many  for Portal 2 (620)" in shown
+    few = rendered(live_layout(ControllerState.neutral(), None, record_for(load_profile("default"))))
+    assert "more" not in few and "for " not in few.split("profile many")[1].splitlines()[0]
+
+
+def test_log_lines_go_above_the_view_while_it_draws_and_back_after():
+    """A profile switch is said by ``logging``, whose handler writes to the terminal's stderr:
+    around rich's Live that line was drawn over, leaving stale frames. While the view draws it
+    goes through the view (above it); after, to the terminal again."""
+    import io
+    import logging
+
+    from rich.console import Console
+
+    from neurotouch_hid.output.term import TermView
+
+    class Tty(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    terminal_stderr = Tty()
+    handler = logging.StreamHandler(terminal_stderr)
+    root = logging.getLogger()
+    root.addHandler(handler)
+    screen = io.StringIO()
+    try:
+        view = TermView(Console(file=screen, force_terminal=True, width=100))
+        try:
+            logging.getLogger("neurotouch_hid.runtime").warning("switched to profile mouse (Portal 2 is running)")
+        finally:
+            view.close()
+        assert terminal_stderr.getvalue() == ""
+        assert "switched to profile mouse (Portal 2 is running)" in screen.getvalue()
+        logging.getLogger("neurotouch_hid.runtime").warning("after")
+        assert terminal_stderr.getvalue() == "after\n"
+    finally:
+        root.removeHandler(handler)
+
+
+def test_the_compile_line_ticks_while_no_window_comes():
+    """The first run waits for the simulator's and tracker's kernels: no window comes for seconds
+    (~12 s under load), and the panel stood still at ``t 0.000 s``. The compile's line now ends
+    with a spinner and the seconds since the start, which move at every redraw."""
+    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.output.live import live_layout
+    from neurotouch_hid.stages import CompileProgress
+
+    record = record_for(load_profile("default"))._replace(
+        compile=CompileProgress("compiling the gesture pipeline, first run only: 10%, 0 s (interpreted meanwhile)", 0.1)
+    )
+    early = rendered(live_layout(ControllerState.neutral(), None, record, 1_000_000, wall_s=3.2))
+    later = rendered(live_layout(ControllerState.neutral(), None, record, 1_000_000, wall_s=12.6))
+    assert "3 s since the start" in early and "13 s since the start" in later
+    assert "⠴ 3 s" in early and "⠋ 13 s" in later  # the spinner moves an eighth of a second a step
+
+
+def test_keys_are_read_from_a_terminal_only_in_the_foreground():
+    """A run started in the background (``run &``) that put the terminal in cbreak mode would be
+    stopped by SIGTTOU: the view reads keys only as the terminal's foreground job."""
+    import io
+    import os
+
+    from rich.console import Console
+
+    from neurotouch_hid.output.live import LiveView, in_foreground
+
+    primary, secondary = os.openpty()
+    try:
+        terminal = os.fdopen(secondary, "r", closefd=False)
+        assert terminal.isatty() and not in_foreground(terminal)  # a new pty: no foreground job of ours
+        view = LiveView(Console(file=io.StringIO(), force_terminal=True, width=100), keys=terminal)
+        try:
+            assert view._keys is None
+        finally:
+            view.close()
+    finally:
+        os.close(primary)
+        os.close(secondary)

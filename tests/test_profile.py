@@ -70,7 +70,7 @@ def test_shipped_profiles_map_each_gesture_where_docs_profiles_says():
     access = load_profile(shipped_profiles_dir() / "accessibility.yaml")
     digital = [m for m in access.mappings.values() if isinstance(m, ButtonMapping)]
     assert {m.output for m in digital} >= {"dpad_up", "dpad_down", "dpad_left", "dpad_right"}
-    assert any(m.mode == "toggle" for m in digital)
+    assert any(m.mode == "tap" for m in digital)  # one press per twist: nothing left latched
     assert all(m.smoothing is not None for m in access.mappings.values())
     analog = [m for m in access.mappings.values() if isinstance(m, StickMapping)]
     assert all(m.deadzone_mm >= 2.0 for m in analog)
@@ -126,7 +126,7 @@ def test_a_bad_profile_lists_every_problem_with_file_line_field_value_and_expect
         "mappings.fire.mode": (
             "mode: sometimes",
             "'sometimes'",
-            "'hold', 'toggle', 'long_press', 'double_press' or 'turbo'",
+            "'hold', 'tap', 'toggle', 'long_press', 'double_press' or 'turbo'",
         ),
     }
     for field, (needle, value, expectation) in expected.items():

@@ -67,11 +67,20 @@ def rising_edges(down: list[bool]) -> int:
     return sum(1 for a, b in zip([False, *down], down) if b and not a)
 
 
+def accessibility_with_toggles() -> Profile:
+    """The shipped accessibility profile with its twists toggling A and B instead of tapping."""
+    from neurotouch_hid.mapping.profile import find_profile, parse_profile
+
+    text = find_profile("accessibility").read_text(encoding="utf-8")
+    assert text.count("mode: tap") == 2
+    return parse_profile(text.replace("mode: tap", "mode: toggle").replace("    tap_ms: 150\n", ""), "toggles.yaml")
+
+
 def test_a_toggle_flips_once_however_the_type_flickers():
-    """accessibility: a counter-clockwise twist toggles A. One twist read as pinch for 150 ms in
+    """accessibility with toggles: a counter-clockwise twist toggles A. One twist read as pinch for 150 ms in
     its middle: A toggles on once and stays on (the twist's return is no new press)."""
     est = windows((G.TWIST_CCW, 4.0, 30), (G.PINCH, 4.0, 15), (G.TWIST_CCW, 4.0, 30))
-    down = ["BTN_SOUTH" in pressed(s) for s in replay(load_profile("accessibility"), est)]
+    down = ["BTN_SOUTH" in pressed(s) for s in replay(accessibility_with_toggles(), est)]
     assert rising_edges(down) == 1 and down[-1]
 
 
@@ -97,7 +106,7 @@ def test_the_same_type_after_the_gesture_ended_is_a_new_press():
     """A twist read as pinch at its end, the fingers off (none windows, the gel not yet at rest),
     then a new twist: the toggle flips again (twice in all: off at the end)."""
     est = windows((G.TWIST_CCW, 4.0, 30), (G.PINCH, 4.0, 10), (G.NONE, 0.5, 5), (G.TWIST_CCW, 4.0, 30))
-    down = ["BTN_SOUTH" in pressed(s) for s in replay(load_profile("accessibility"), est)]
+    down = ["BTN_SOUTH" in pressed(s) for s in replay(accessibility_with_toggles(), est)]
     assert rising_edges(down) == 1 and not down[-1]
 
 

@@ -332,6 +332,11 @@ def calibrate(
             "--mirror/--no-mirror and --rotation go together with the camera or simulator (both instead of the "
             "guided pushes): give both or neither"
         )
+    if press is not None:  # read before the camera and the compile are needed: a wrong file fails now
+        from neurotouch_hid.sources.recording import RecordingReader
+
+        with RecordingReader(press):
+            pass
     if source in (SourceKind.DAVIS, SourceKind.SIM) and (check or mirror is None):
         from neurotouch_hid.warmup import compile_before, compile_pipeline  # the guided pushes and the check use it
 

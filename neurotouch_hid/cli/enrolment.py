@@ -122,7 +122,7 @@ def _session(plan, source, out, sensor, seed, serial, physics, sim_miss, sim_mis
         )  # fmt: skip
     if result.stopped:
         console.print("stopped: what was recorded is labelled", highlight=False, soft_wrap=True)
-    say_labelled(result.labelled, dict(result.asked_again))
+    say_labelled(result.labelled, dict(result.asked_again), simulated=source == "sim")
 
 
 def _at(found) -> str:
@@ -152,14 +152,16 @@ def _label(recording: Path, plan_path: Optional[Path], plan, out: Optional[Path]
     say_labelled(done)
 
 
-def say_labelled(done, again: dict[int, int] | None = None) -> None:
+def say_labelled(done, again: dict[int, int] | None = None, simulated: bool = False) -> None:
     """Print where a labelled enrolment went (``enrolment.label.Labelled``) and each prompt left
     out; ``again`` (a session's: prompt index -> the index of the prompt that asked it again) says
-    how each prompt not seen fared when asked again."""
+    how each prompt not seen fared when asked again; ``simulated``: the simulated hand's (its
+    model is written only where ``adapt --out`` says)."""
     seen = len(done.found) - len(done.missed)
+    adapt = f"adapt {done.folder} --out sim-model.yaml" if simulated else f"adapt {done.folder}"
     console.print(
         f"labelled {seen} of {len(done.found)} prompts -> {done.folder} ({done.name}.aedat4, "
-        f"{done.name}.labels.csv, sensor.yaml); `neurotouch-hid adapt {done.folder}` fits the recogniser to it, "
+        f"{done.name}.labels.csv, sensor.yaml); `neurotouch-hid {adapt}` fits the recogniser to it, "
         f"`neurotouch-hid eval {done.folder}` scores it",
         highlight=False,
         soft_wrap=True,
@@ -189,22 +191,46 @@ def say_labelled(done, again: dict[int, int] | None = None) -> None:
 
 @app.command()
 def adapt(
-    datasets: list[Path] = typer.Argument(..., help="enrolment datasets (docs/dataset.md folders), one or more"),
+    datasets: Optional[list[Path]] = typer.Argument(
+        None, help="enrolment datasets (docs/dataset.md folders), one or more"
+    ),
     out: Optional[Path] = typer.Option(
         None, "--out", help="the model file to write (default: your model.yaml beside sensor.yaml, used by default)"
     ),
     jobs: int = typer.Option(2, "--jobs", min=1, help="sequences run in parallel processes"),
+    reset: bool = typer.Option(
+        False, "--reset", help="go back to the shipped recogniser: your model.yaml is renamed model.yaml.bak"
+    ),
 ) -> None:
     """Fit the recogniser to your gel and hand from enrolment datasets; hold part out to check it.
 
     Refits the learned gesture type (the shipped one as its prior), the contact and resting
     thresholds, the wait for a second finger and the intensity scale; keeps the shipped value
     wherever the fit does not beat it on the held-out gestures, and says what it changed
-    (docs/method.md, "Adaptation")."""
+    (docs/method.md, "Adaptation"). An enrolment from the simulated camera (--source sim) is
+    written only where --out says, never as your model. --reset goes back to the shipped one."""
     from neurotouch_hid.enrolment.adapt import adapt as fit
-    from neurotouch_hid.enrolment.adapt import check_output, fitted_info, record_datasets, summary
-    from neurotouch_hid.enrolment.model import Model, user_model_path
+    from neurotouch_hid.enrolment.adapt import check_output, fitted_info, record_datasets, simulated_sequences, summary
+    from neurotouch_hid.enrolment.model import Model, reset_user_model, user_model_path
 
+    if reset:
+        if datasets or out is not None:
+            raise NeurotouchError("--reset goes back to the shipped recogniser: give it without datasets or --out")
+        console.print(reset_user_model(), highlight=False, soft_wrap=True, markup=False)
+        return
+    if not datasets:
+        raise NeurotouchError(
+            "adapt needs enrolment datasets (the folders `neurotouch-hid enrol` wrote), or --reset to go back to the "
+            "shipped recogniser"
+        )
+    if out is None:
+        simulated = simulated_sequences(datasets)
+        if simulated:
+            raise NeurotouchError(
+                f"{simulated[0]} was recorded from the simulated camera (enrol --source sim): a model fitted to the "
+                "simulated hand would make every command read your gel as the simulation moves, so it does not "
+                "become your model; give --out FILE to write it elsewhere (and try it with --model FILE)"
+            )
     target = check_output(out if out is not None else user_model_path(), datasets)
 
     records = record_datasets(datasets, jobs=jobs, on_sequence=lambda name: say_err(f"recorded {name}"))
@@ -214,3 +240,11 @@ def adapt(
     model = adaptation.model
     written = Model(model.settings, model.classifier, fitted_info(adaptation, datasets)).save(target)
     console.print(f"-> {written}", highlight=False, soft_wrap=True, markup=False)
+    if out is None:
+        console.print(
+            "run, the service and every command use it from now on (--model none on one of them: the shipped one); "
+            "`neurotouch-hid adapt --reset` goes back to the shipped recogniser",
+            highlight=False,
+            soft_wrap=True,
+            markup=False,
+        )

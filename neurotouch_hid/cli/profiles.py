@@ -20,6 +20,7 @@ from neurotouch_hid.cli.common import (
     duration,
     err_console,
     finite,
+    say_err,
 )
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.limits import printable
@@ -183,23 +184,56 @@ def profile_unset(
 @profile_app.command("delete")
 def profile_delete(name: str = typer.Argument(..., help="user profile name")) -> None:
     """Delete one of your profiles (a copy of a shipped one: the shipped one applies again)."""
-    from neurotouch_hid.mapping.editor import delete_profile
+    from neurotouch_hid.mapping.editor import backup_path, delete_profile
 
     path, shipped = delete_profile(name)
     again = f"; the shipped '{name}' ({shipped}) applies again" if shipped is not None else ""
-    console.print(f"deleted {path}{again}", highlight=False, soft_wrap=True)
+    console.print(f"deleted {path} (kept as {backup_path(path)}){again}", highlight=False, soft_wrap=True)
+    _games_pointing_at(name, path, "gone" if shipped is None else f"the shipped '{name}'")
 
 
 @profile_app.command("reset")
 def profile_reset(name: str = typer.Argument(..., help="shipped profile name")) -> None:
     """Put a shipped profile back as shipped: delete your copy of it."""
-    from neurotouch_hid.mapping.editor import reset_profile
+    from neurotouch_hid.mapping.editor import backup_path, reset_profile
 
     path, shipped = reset_profile(name)
     if path is None:
         console.print(f"'{name}' is already the shipped one ({shipped}): nothing to reset", highlight=False)
     else:
-        console.print(f"deleted {path}: '{name}' is the shipped one again ({shipped})", highlight=False)
+        console.print(
+            f"deleted {path} (kept as {backup_path(path)}): '{name}' is the shipped one again ({shipped})",
+            highlight=False,
+            soft_wrap=True,
+        )
+        _games_pointing_at(name, path, f"the shipped '{name}'")
+
+
+def _games_pointing_at(name: str, path: Path, now: str) -> None:
+    """Warn (stderr) about the games.yaml entries that name profile ``name`` or its file
+    ``path``, just taken away: what those games get now (``now``: ``gone`` or the profile that
+    applies) and the commands that change it."""
+    from neurotouch_hid.games import EXECUTABLE, STEAM, games_file, load_game_map
+
+    try:
+        game_map = load_game_map(games_file())
+    except NeurotouchError:
+        return  # a broken map is said by `profile auto list` and the driver
+    entries = [(STEAM, k, v) for k, v in game_map.steam.items()] + [
+        (EXECUTABLE, k, v) for k, v in game_map.executable.items()
+    ]
+    for section, key, profile in entries:
+        if profile != name and profile != str(path):
+            continue
+        game = _game_label(section, key)
+        if now == "gone":
+            say_err(
+                f"warning: {games_file()} maps {game} -> {printable(profile, None)}, which no longer exists: when "
+                f"that game starts the driver stays on its profile; `neurotouch-hid profile auto remove {key}` "
+                "removes the entry, or rename the backup back"
+            )
+        else:
+            say_err(f"note: {games_file()} maps {game} -> {printable(profile, None)}: that game now gets {now}")
 
 
 @profile_app.command("validate")
@@ -302,7 +336,9 @@ def profile_auto_remove(
 @auto_app.command("list")
 def profile_auto_list() -> None:
     """List the map, and which mapped game runs now (the one the driver follows)."""
+    from neurotouch_hid.errors import ProfileError
     from neurotouch_hid.games import EXECUTABLE, STEAM, ProcessScanner, games_file, load_game_map
+    from neurotouch_hid.mapping.profile import find_profile
 
     path = games_file()
     game_map = load_game_map(path)
@@ -317,6 +353,10 @@ def profile_auto_list() -> None:
     for section, key, profile in entries:
         pids = [str(g.pid) for g in running if g.section == section and g.key == key]
         now = f"  running: pid {', '.join(pids)}" if pids else ""
+        try:
+            find_profile(profile)
+        except ProfileError:
+            now += "  NO SUCH PROFILE: the driver stays on its profile when this game runs"
         typer.echo(f"  {_game_label(section, key)} -> {printable(profile, None)}{now}")
     if running:
         typer.echo(f"matched now: {running[0].label()} -> {printable(running[0].profile, None)}")

@@ -697,22 +697,74 @@ def adapt(records: Sequence[Record], rerun: Callable[..., list[Record]] | None =
     return Adaptation(model, checks, len(held), len(every), windows, before, current)
 
 
+#: What each fitted setting means to the player, and what its value is in their words.
+_FOR_PLAYERS: dict[str, tuple[str, Callable[[str], str]]] = {
+    "classifier": ("which gesture it reads from how your gel moves", lambda v: "refitted to your hand"),
+    "gesture.min_intensity_mm": ("how firm a touch must be to count", lambda v: f"{float(v):g} mm"),
+    "episode.first_finger_us": (
+        "how long it waits for your second finger before it answers",
+        lambda v: f"{float(v) / 1000:g} ms",
+    ),
+    "resting.centroid_threshold_mm2": (
+        "when the gel counts as let go",
+        lambda v: f"{float(v):g} mm^2 of marker motion",
+    ),
+    "gesture.intensity_gain": ("how strong your gestures read (sticks, triggers)", lambda v: f"x{float(v):g}"),
+}
+
+
 def summary(adaptation: Adaptation) -> list[str]:
-    """The report for people, one line each: what changed and the held-out accuracy before and after."""
+    """The report for players, one line each: what was tried, in their words, and whether it
+    changes anything for them (and why a small held-out gain is not taken); then what changed
+    and how many of their held-out gestures are read right before and after. The settings'
+    names (docs/method.md, "Adaptation") close each line in brackets."""
     a = adaptation
-    lines = [f"held out {a.held_out} of {a.gestures} gestures ({a.windows} windows), by prompt: the fit never saw them"]
+    lines = [
+        f"checked on {a.held_out} of your {a.gestures} gestures ({a.windows} windows) that the fit never saw "
+        "(every third of each type): a change is taken only where it reads those better"
+    ]
     if a.note:
         lines.append(a.note)
     for c in a.checks:
+        words, value = _FOR_PLAYERS.get(c.what, (c.what, str))
         pct = "%" in c.metric or "accuracy" in c.metric or "F1" in c.metric
-        fmt = (lambda v: f"{100 * v:.2f} %") if pct else (lambda v: f"{v:.3f}")
-        verdict = "kept" if c.kept else "not better held out: the shipped value stays"
-        lines.append(f"{c.what}: {c.value}; {c.metric} held out {fmt(c.shipped)} -> {fmt(c.fitted)}: {verdict}")
+        fmt = (lambda v: f"{100 * v:.2f} %") if pct else (lambda v: f"{v:.3f} mm")
+        measured = f"{'read right' if pct else 'strength off by'} {fmt(c.shipped)} -> {fmt(c.fitted)}"
+        better = (c.fitted > c.shipped) == c.higher_is_better and c.fitted != c.shipped
+        small = c.fitted - c.shipped <= MIN_GAIN if pct else c.fitted >= (1.0 - MIN_MAE_GAIN) * c.shipped
+        if c.kept:
+            verdict = f"changed to {value(c.value)}: {measured} of your unseen gestures"
+        elif better and small:
+            limit = f"{100 * MIN_GAIN:g} points" if pct else f"{100 * MIN_MAE_GAIN:g} %"
+            verdict = (
+                f"left as shipped: {measured} of your unseen gestures with {value(c.value)}, a gain under "
+                f"{limit}, which another choice of unseen gestures could undo; not worth changing how it feels"
+            )
+        elif better:
+            verdict = (
+                f"left as shipped: with {value(c.value)} {measured} of your unseen gestures, but it did worse "
+                "on another thing checked (in brackets)"
+            )
+        else:
+            verdict = f"left as shipped: {value(c.value)} did no better ({measured} of your unseen gestures)"
+        lines.append(f"{words}: {verdict} [{c.what}, {c.metric}]")
     changes = a.model.changes()
-    lines.append("changed: " + ("; ".join(changes) if changes else "nothing (the shipped method is kept)"))
+    if changes:
+        lines.append(
+            "what changes for you: "
+            + "; ".join(_FOR_PLAYERS.get(k, (k,))[0] for k in _changed(a.model))
+            + f" [{'; '.join(changes)}]"
+        )
+    else:
+        lines.append("what changes for you: nothing, the shipped recogniser already reads your hand as well")
     before, after = 100 * a.accuracy_before, 100 * a.accuracy_after
-    lines.append(f"held-out gesture type accuracy: shipped {before:.2f} % -> adapted {after:.2f} %")
+    lines.append(f"your unseen gestures read right: shipped {before:.2f} % -> adapted {after:.2f} % of their windows")
     return lines
+
+
+def _changed(model) -> list[str]:
+    """The :data:`_FOR_PLAYERS` keys a model changes, in its order."""
+    return [*model.settings, *(["classifier"] if model.classifier is not None else [])]
 
 
 def fitted_info(adaptation: Adaptation, datasets: Sequence[str | Path]) -> dict:
@@ -724,6 +776,27 @@ def fitted_info(adaptation: Adaptation, datasets: Sequence[str | Path]) -> dict:
         "held_out_accuracy_shipped": round(float(adaptation.accuracy_before), 4),
         "held_out_accuracy_adapted": round(float(adaptation.accuracy_after), 4),
     }
+
+
+#: The camera name the simulated gel writes into its recordings (``enrol --source sim``,
+#: ``simulate``, ``record --source sim``): ``NeuroTouch-sim_DAVIS346``.
+SIMULATED_CAMERA_PREFIX = "NeuroTouch-sim"
+
+
+def simulated_sequences(datasets: Sequence[str | Path]) -> list[str]:
+    """The sequences (``DATASET/NAME``) of ``datasets`` recorded from the simulated camera (their
+    AEDAT4 header's camera name starts with :data:`SIMULATED_CAMERA_PREFIX`). Reads only the
+    headers. Raises what ``dataset.list_sequences`` and the recording reader raise."""
+    from neurotouch_hid.dataset import list_sequences
+    from neurotouch_hid.sources.recording import RecordingReader
+
+    found = []
+    for d in datasets:
+        for name in list_sequences(d):
+            with RecordingReader(Path(d) / f"{name}.aedat4") as reader:
+                if reader.camera_name.startswith(SIMULATED_CAMERA_PREFIX):
+                    found.append(f"{d}/{name}")
+    return found
 
 
 def check_output(out: str | Path, datasets: Sequence[str | Path]) -> Path:

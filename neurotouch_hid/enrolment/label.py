@@ -276,7 +276,7 @@ def label_recording(
 
     Raises:
         RecordingError, SensorError: the recording cannot be read or shows no gel (nothing written).
-        DatasetError: the folder cannot be written.
+        DatasetError: the folder cannot be written, or the recording does not follow ``plan``.
     """
     motion = measure_motion(recording, sensor, on_progress)
     return write_dataset(out_dir, recording, plan, motion, sensor, inputs=inputs)
@@ -298,13 +298,20 @@ def write_dataset(
     ``inputs`` (the plan and sensor files read) is not written: it already holds what it would.
 
     Raises:
-        DatasetError: the folder cannot be written.
+        DatasetError: the folder cannot be written, or no prompt's gesture is found near its cue
+            (the recording does not follow ``plan``; nothing written).
     """
     from neurotouch_hid.enrolment.plan import write_plan
 
     recording = Path(recording)
     out = Path(out_dir)
     found = find_gestures(plan, motion)
+    if found and not any(f.seen for f in found):
+        raise DatasetError(
+            f"{recording}: no gesture near any of the plan's {len(found)} cues: it does not follow this plan "
+            "(record it while this plan's prompts are shown, from their start, or give the plan it followed "
+            "with --plan); no dataset written"
+        )
     rows = label_frames(motion, found)
     try:
         out.mkdir(parents=True, exist_ok=True)

@@ -126,6 +126,28 @@ def user_model_path() -> Path:
     return Path(platformdirs.user_config_dir("neurotouch-hid")) / "model.yaml"
 
 
+def reset_user_model() -> str:
+    """Go back to the shipped method: the user's model (:func:`user_model_path`) is renamed
+    ``model.yaml.bak`` (an older backup replaced), so nothing is lost and renaming it back
+    restores it. Returns what was done, one line for people.
+
+    Raises:
+        ModelError: the file cannot be renamed (its folder's permissions).
+    """
+    path = user_model_path()
+    if not path.exists():
+        return f"no adapted model ({path} does not exist): the shipped recogniser is already in use"
+    backup = path.with_name(path.name + ".bak")
+    try:
+        os.replace(path, backup)
+    except OSError as exc:
+        raise ModelError(f"{path}: cannot move it aside: {exc.strerror or exc}") from None
+    return (
+        f"the shipped recogniser is in use again; your adapted model is kept as {backup} "
+        f"(rename it back to {path.name} to use it again)"
+    )
+
+
 def _lines(root: Any, prefix: str = "") -> dict[str, int]:
     """The 1-based line of every key of a YAML mapping node, nested keys as ``a.b``."""
     from ruamel.yaml.nodes import MappingNode

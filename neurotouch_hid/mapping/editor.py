@@ -132,9 +132,23 @@ def creates_shadow(name: str) -> bool:
     return shipped_profile(name) is not None and not user_profile_path(name).exists()
 
 
+def backup_path(target: Path) -> Path:
+    """Where ``delete`` and ``reset`` keep the profile they take away: ``NAME.yaml.bak`` beside it
+    (no profile: only ``*.yaml`` files are profiles); renaming it back restores it."""
+    return target.with_name(target.name + ".bak")
+
+
+def _keep_aside(target: Path) -> None:
+    try:
+        os.replace(target, backup_path(target))
+    except OSError as exc:
+        raise ProfileError(f"{target}: cannot move it aside to {backup_path(target).name}: {exc.strerror}") from None
+
+
 def delete_profile(name: str) -> tuple[Path, Path | None]:
-    """Delete the user's profile ``name``. Returns (the deleted file, the shipped profile that
-    applies again under that name, or None).
+    """Delete the user's profile ``name``, kept as :func:`backup_path` (an older backup
+    replaced). Returns (the deleted file, the shipped profile that applies again under that name,
+    or None).
 
     Raises:
         ProfileError: bad name, or no user profile of that name (a shipped one cannot be deleted).
@@ -144,13 +158,13 @@ def delete_profile(name: str) -> tuple[Path, Path | None]:
         if shipped_profile(name) is not None:
             raise ProfileError(f"'{name}' is a shipped profile: it cannot be deleted (and you have no copy of it)")
         raise ProfileError(f"no user profile named '{name}' in {target.parent}")
-    target.unlink()
+    _keep_aside(target)
     return target, shipped_profile(name)
 
 
 def reset_profile(name: str) -> tuple[Path | None, Path]:
-    """Put the shipped profile ``name`` back: delete the user's copy that shadows it. Returns (the
-    deleted copy, or None when there was none, the shipped file).
+    """Put the shipped profile ``name`` back: delete the user's copy that shadows it, kept as
+    :func:`backup_path`. Returns (the deleted copy, or None when there was none, the shipped file).
 
     Raises:
         ProfileError: ``name`` is not a shipped profile (nothing to go back to).
@@ -169,7 +183,7 @@ def reset_profile(name: str) -> tuple[Path | None, Path]:
     target = user_profile_path(name)
     if not target.is_file():
         return None, shipped
-    target.unlink()
+    _keep_aside(target)
     return target, shipped
 
 
@@ -289,6 +303,33 @@ def _known_mapping(name: str, document: Any, key: str) -> None:
         )
 
 
+def _output_takes_the_fields(name: str, document: Any, key: str, value: Any) -> None:
+    """A new ``mappings.NAME.output`` of another kind (an axis made a button) must take every
+    field the mapping has: otherwise ProfileError names the fields it cannot take and the one
+    command that sets the whole mapping at once, without them."""
+    parts = key.split(".")
+    if len(parts) != 3 or parts[0] != "mappings" or parts[2] != "output" or not isinstance(value, str):
+        return
+    mapping = document["mappings"][parts[1]]
+    if not isinstance(mapping, CommentedMap):
+        return
+    kind = _output_kind({"output": value})
+    if kind == "unknown":
+        return  # the schema names the output and what it expected
+    allowed = _TAG_MODELS[kind].model_fields
+    refused = [str(f) for f in mapping if f not in allowed]
+    if not refused:
+        return
+    kept = {str(f): v for f, v in mapping.items() if f in allowed}
+    kept["output"] = value
+    whole = yaml_text(CommentedMap(kept))
+    raise ProfileError(
+        f"{key} {printable(value)}: a {kind} output takes no {', '.join(refused)} (the fields of what "
+        f"mapping '{parts[1]}' was); nothing was changed. To change the mapping in one command, without them:\n"
+        f"  neurotouch-hid profile set {name} mappings.{parts[1]} '{whole}'"
+    )
+
+
 def set_values(name: str, changes: dict[str, Any]) -> tuple[Path, dict[str, Any]]:
     """Set dotted keys (e.g. ``mappings.push.deadzone_mm``) in profile ``name`` and save it as the
     user's copy, comments and order kept. Missing intermediate mappings are created, except a
@@ -304,6 +345,7 @@ def set_values(name: str, changes: dict[str, Any]) -> tuple[Path, dict[str, Any]
     previous = {}
     for key, value in changes.items():
         _known_mapping(name, document, key)
+        _output_takes_the_fields(name, document, key, value)
         parent, last = _parent(document, key, create=True)
         if last in parent:
             previous[key] = parent[last]

@@ -127,7 +127,8 @@ class Activator:
     The input is *held* from reaching ``press_mm`` (>=) until it falls below ``release_mm`` (<).
     ``update(value_mm, t_us) -> bool`` is the output's state at ``t_us`` (int us, camera clock,
     never decreasing) for the modes of :class:`~neurotouch_hid.mapping.profile.ButtonMapping`:
-    ``hold``, ``toggle``, ``long_press`` (down from ``dwell_ms`` after the hold began),
+    ``hold``, ``tap`` (down from ``dwell_ms`` after the hold began for at most ``tap_ms``, once
+    per hold), ``toggle``, ``long_press`` (down from ``dwell_ms`` after the hold began),
     ``double_press`` (a second hold that starts within ``double_press_ms`` of the first one's
     start is down while held), ``turbo`` (while held: down for the first half of each
     ``1 / turbo_hz`` period, up for the second).
@@ -142,12 +143,15 @@ class Activator:
         dwell_ms: float = 500.0,
         double_press_ms: float = 400.0,
         turbo_hz: float = 10.0,
+        tap_ms: float = 100.0,
     ) -> None:
         self.mode = mode
         self.press_mm, self.release_mm = press_mm, release_mm
         self.dwell_us = int(round(dwell_ms * 1000))
         self.double_us = int(round(double_press_ms * 1000))
         self.half_period_us = 1e6 / (2.0 * turbo_hz)
+        self.tap_us = int(round(tap_ms * 1000))
+        self._tap_from_us: int | None = None  # tap: when this hold's keystroke went down
         self.held = False
         self._since_us = 0  # start of the current hold
         self._first_us: int | None = None  # start of a press that may be the first of a double
@@ -161,6 +165,7 @@ class Activator:
         output shows no release-and-press."""
         if not self.held:
             self.held, self._since_us = True, int(t_us)
+            self._tap_from_us = int(t_us) - self.tap_us  # a hold going on: no new keystroke
 
     def suspend(self) -> None:
         """The input is gone because the gesture's type changed: if the type comes back within
@@ -180,9 +185,10 @@ class Activator:
             mapping.mode,
             mapping.press_mm,
             mapping.release_mm,
-            dwell_ms=mapping.dwell_ms,
+            dwell_ms=mapping.dwell,
             double_press_ms=mapping.double_press_ms,
             turbo_hz=mapping.turbo_hz,
+            tap_ms=mapping.tap_ms,
         )
 
     def update(self, value_mm: float, t_us: int) -> bool:
@@ -199,6 +205,12 @@ class Activator:
         mode = self.mode
         if mode == "hold":
             return self.held
+        if mode == "tap":
+            if pressed:
+                self._tap_from_us = None
+            if self.held and self._tap_from_us is None and t_us - self._since_us >= self.dwell_us:
+                self._tap_from_us = t_us
+            return self.held and self._tap_from_us is not None and t_us - self._tap_from_us < self.tap_us
         if mode == "toggle":
             if pressed:
                 self._toggled = not self._toggled

@@ -33,13 +33,15 @@ the triggers ``ABS_Z``, ``ABS_RZ`` (0..255, only the positive side of the input)
 ``BTN_SOUTH`` .. ``BTN_THUMBR`` and the d-pad directions ``dpad_up``, ``dpad_down``,
 ``dpad_left``, ``dpad_right`` (ABS_HAT0X/Y). A stick's user +y (up) becomes evdev's negative y.
 Several mappings may drive one output: axis contributions add up (then clamp), buttons are OR-ed.
-``A``, ``B``, ``X``, ``Y`` are aliases of the face buttons (:data:`FACE_ALIASES`).
+``A``, ``B``, ``X``, ``Y`` are aliases of the face buttons (:data:`FACE_ALIASES`), and the names
+the views show (``LB``, ``RT``, ``Start``, ``L stick``, ``d-pad up``, ``SPACE key``) are taken for
+their outputs (:func:`resolve_output`).
 
 Beside the pad (docs/profiles.md): keyboard keys (any evdev ``KEY_*`` name, or a chord such as
 ``KEY_LEFTSHIFT+KEY_TAB``) and mouse buttons (``BTN_LEFT`` ...) are button-like outputs; the
 mouse's ``pointer`` (a vector input -> REL_X/REL_Y velocity), ``REL_X``, ``REL_Y``, ``REL_WHEEL``
 and ``REL_HWHEEL`` (a scalar -> velocity) are analogue ones. Every button-like output has an
-activator (``mode``: hold, toggle, long_press, double_press, turbo); every analogue output an
+activator (``mode``: hold, tap, toggle, long_press, double_press, turbo); every analogue output an
 anti-deadzone. A mapping may belong to a ``layer``; ``layers:`` says which gesture switches to
 each layer.
 
@@ -136,7 +138,19 @@ ALL_OUTPUTS: tuple[str, ...] = tuple(STICKS) + ANALOG_AXES + (POINTER,) + REL_OU
 #: The layer every mapping without ``layer:`` belongs to, active while no other layer is.
 BASE_LAYER = "base"
 #: Activators (``mode``) of button-like outputs.
-MODES: tuple[str, ...] = ("hold", "toggle", "long_press", "double_press", "turbo")
+MODES: tuple[str, ...] = ("hold", "tap", "toggle", "long_press", "double_press", "turbo")
+#: The fields each activator reads: a field set under another mode would do nothing, so it is refused.
+MODE_FIELDS: dict[str, tuple[str, ...]] = {
+    "dwell_ms": ("long_press", "tap"),
+    "tap_ms": ("tap",),
+    "double_press_ms": ("double_press",),
+    "turbo_hz": ("turbo",),
+}
+#: ``tap``'s longest keystroke (ms): X11 and Wayland clients repeat a held key after ~500 ms (the
+#: X server's and libxkbcommon's usual repeat delay), so a tap stays well below that.
+MAX_TAP_MS = 250.0
+#: ``long_press``'s dwell (ms) when ``dwell_ms`` is not set; ``tap`` goes down at once then.
+DEFAULT_DWELL_MS = 500.0
 #: Turbo's highest rate (Hz): one press and one release need two windows of 10 ms.
 MAX_TURBO_HZ = 50.0
 #: Schema problems listed in one error (the rest are counted): a crafted profile may have thousands.
@@ -200,10 +214,109 @@ def key_chord(output: str) -> tuple[str, ...]:
     return tuple(FACE_ALIASES.get(part, part) for part in output.split("+"))
 
 
+#: The pad's and mouse's names as the live view and docs show them (output/term.py's labels:
+#: ``LB``, ``RT``, ``Start``, ``L stick X``, ``d-pad up``, ``left click``) and the long spellings
+#: a player types, as a profile may write them -> the profile's own output names. Matched with
+#: :func:`_normalised` (case, spaces and hyphens ignored).
+PAD_ALIASES: dict[str, str] = {
+    "lb": "BTN_TL",
+    "rb": "BTN_TR",
+    "left_bumper": "BTN_TL",
+    "right_bumper": "BTN_TR",
+    "back": "BTN_SELECT",
+    "select": "BTN_SELECT",
+    "start": "BTN_START",
+    "guide": "BTN_MODE",
+    "ls": "BTN_THUMBL",
+    "rs": "BTN_THUMBR",
+    "left_stick_click": "BTN_THUMBL",
+    "right_stick_click": "BTN_THUMBR",
+    "lt": "ABS_Z",
+    "rt": "ABS_RZ",
+    "left_trigger": "ABS_Z",
+    "right_trigger": "ABS_RZ",
+    "l_stick": "left_stick",
+    "r_stick": "right_stick",
+    "l_stick_x": "ABS_X",
+    "l_stick_y": "ABS_Y",
+    "r_stick_x": "ABS_RX",
+    "r_stick_y": "ABS_RY",
+    "d_pad_up": "dpad_up",
+    "d_pad_down": "dpad_down",
+    "d_pad_left": "dpad_left",
+    "d_pad_right": "dpad_right",
+    "mouse_pointer": "pointer",
+    "mouse_x": "REL_X",
+    "mouse_y": "REL_Y",
+    "mouse_wheel": "REL_WHEEL",
+    "mouse_wheel_sideways": "REL_HWHEEL",
+    "left_click": "BTN_LEFT",
+    "right_click": "BTN_RIGHT",
+    "middle_click": "BTN_MIDDLE",
+    "mouse_side_button": "BTN_SIDE",
+    "mouse_extra_button": "BTN_EXTRA",
+    **{face.lower(): code for face, code in FACE_ALIASES.items()},
+}
+#: Key names a player types that evdev spells otherwise (the left one of a pair).
+KEY_ALIASES: dict[str, str] = {
+    "SHIFT": "KEY_LEFTSHIFT",
+    "CTRL": "KEY_LEFTCTRL",
+    "CONTROL": "KEY_LEFTCTRL",
+    "ALT": "KEY_LEFTALT",
+    "META": "KEY_LEFTMETA",
+    "SUPER": "KEY_LEFTMETA",
+    "ESCAPE": "KEY_ESC",
+    "RETURN": "KEY_ENTER",
+}
+#: The aliases offered when a name is not known (as the views write them).
+SHOWN_ALIASES: tuple[str, ...] = (
+    "LB", "RB", "LT", "RT", "Back", "Start", "Guide", "LS", "RS",
+    "left_trigger", "right_trigger", "left_bumper", "right_bumper",
+)  # fmt: skip
+
+
+def _normalised(name: str) -> str:
+    return name.strip().lower().replace("-", "_").replace(" ", "_")
+
+
+def resolve_output(written: str) -> str:
+    """The profile's output name for ``written``, a name as the views show it or a player types
+    it: an output name as it is (``ABS_RZ``, ``KEY_SPACE``); a pad or mouse name of
+    :data:`PAD_ALIASES` (``RT`` -> ``ABS_RZ``, ``Start`` -> ``BTN_START``, ``A`` stays ``A``); a
+    key without ``KEY_`` or as the view writes it (``SPACE``, ``space``, ``SPACE key`` ->
+    ``KEY_SPACE``; ``LEFTSHIFT+TAB key`` -> ``KEY_LEFTSHIFT+KEY_TAB``; ``Shift`` ->
+    ``KEY_LEFTSHIFT``). A name none of these knows is returned as written (the schema reports it).
+    """
+    if written in ALL_OUTPUTS:
+        return written
+    text = written.strip()
+    if text.lower().endswith(" key"):
+        text = text[: -len(" key")]
+    if "+" not in text:
+        return _resolve_part(text, written)
+    parts = [_resolve_part(p, p) for p in text.split("+")]
+    return "+".join(parts)
+
+
+def _resolve_part(text: str, unknown: str) -> str:
+    if text in BUTTON_LIKE or text.startswith("KEY_"):
+        return text
+    pad = PAD_ALIASES.get(_normalised(text))
+    if pad is not None:
+        return pad
+    key = text.strip().upper().replace(" ", "").replace("-", "")
+    if key in KEY_ALIASES:
+        return KEY_ALIASES[key]
+    if key and f"KEY_{key}" in keyboard_keys():
+        return f"KEY_{key}"
+    return unknown
+
+
 def _expected_outputs() -> str:
     return (
         ", ".join(repr(o) for o in ALL_OUTPUTS)
-        + ", or an evdev key name such as 'KEY_SPACE' (several joined by '+': 'KEY_LEFTSHIFT+KEY_TAB')"
+        + ", or an evdev key name such as 'KEY_SPACE' (several joined by '+': 'KEY_LEFTSHIFT+KEY_TAB'), or a name "
+        "as the live view shows it ('LB', 'RT', 'Start', 'L stick', 'd-pad up', 'left click', 'SPACE key')"
     )
 
 
@@ -231,6 +344,13 @@ class OneEuroSmoothing(_Strict):
 
 class _Layered(_Strict):
     layer: str = Field(BASE_LAYER, description="the layer this mapping belongs to (see layers:)")
+
+    @field_validator("output", mode="before", check_fields=False)
+    @classmethod
+    def _as_shown(cls, value: Any) -> Any:
+        """A name as the views show it (``RT``, ``Start``, ``SPACE key``) is its output's
+        (:func:`resolve_output`)."""
+        return resolve_output(value) if isinstance(value, str) else value
 
     @field_validator("layer")
     @classmethod
@@ -359,6 +479,9 @@ class ButtonMapping(_Hysteresis, _Layered):
     Activators (``mode``), all timed on the estimates' camera clock (us):
 
     - ``hold``: the output is down while the input is held (a plain press);
+    - ``tap``: one keystroke per press: down once the input has been held ``dwell_ms`` (0 when
+      not set: at once), for ``tap_ms`` (<= 250 ms, the desktop's key repeat never starts) or
+      until the input is let go, whichever comes first; a switch user's one gesture, one key;
     - ``toggle``: each press flips the output;
     - ``long_press``: down once the input has been held ``dwell_ms``, up when it is released
       (a dwell: tremor shorter than that never fires);
@@ -369,11 +492,37 @@ class ButtonMapping(_Hysteresis, _Layered):
 
     output: Any
     mode: Literal[MODES] = "hold"
-    dwell_ms: float = Field(500.0, gt=0, le=60_000, description="long_press: how long the input must be held (ms)")
+    dwell_ms: float | None = Field(
+        None,
+        gt=0,
+        le=60_000,
+        description="long_press, tap: how long the input must be held (ms); long_press 500, tap 0 when not set",
+    )
+    tap_ms: float = Field(100.0, gt=0, le=MAX_TAP_MS, description="tap: how long the key stays down (ms)")
     double_press_ms: float = Field(
         400.0, gt=0, le=5_000, description="double_press: longest time between the two presses' starts (ms)"
     )
     turbo_hz: float = Field(10.0, gt=0, le=MAX_TURBO_HZ, description="turbo: presses per second")
+
+    @field_validator(*MODE_FIELDS)
+    @classmethod
+    def _read_by_the_mode(cls, value: Any, info: ValidationInfo) -> Any:
+        mode = info.data.get("mode")
+        modes = MODE_FIELDS[info.field_name]
+        if mode is not None and mode not in modes:
+            reads = "reads" if len(modes) == 1 else "read"
+            raise ValueError(
+                f"no {info.field_name} under mode '{mode}': only {' and '.join(modes)} {reads} it "
+                f"(set mode: {modes[0]}, or remove {info.field_name})"
+            )
+        return value
+
+    @property
+    def dwell(self) -> float:
+        """The effective dwell (ms): ``dwell_ms``, else 500 for long_press and 0 for tap."""
+        if self.dwell_ms is not None:
+            return self.dwell_ms
+        return DEFAULT_DWELL_MS if self.mode == "long_press" else 0.0
 
     @field_validator("output")
     @classmethod
@@ -385,10 +534,11 @@ class ButtonMapping(_Hysteresis, _Layered):
             raise ValueError(f"a chord of at most {MAX_CHORD_KEYS} keys or buttons (this one has {len(parts)})")
         for part in parts:
             if part not in BUTTON_LIKE and part not in keyboard_keys():
+                names = keyboard_keys() if part.startswith("KEY_") else BUTTON_LIKE + SHOWN_ALIASES
                 raise ValueError(
-                    f"a pad button (BTN_SOUTH ... BTN_THUMBR, A, B, X, Y, dpad_*), a mouse button "
-                    f"({', '.join(MOUSE_BUTTONS)}) or an evdev key name such as 'KEY_SPACE' "
-                    f"(several joined by '+'); {short(part)} is none of these"
+                    f"a pad button (BTN_SOUTH ... BTN_THUMBR, A, B, X, Y, LB, RB, Start, Back, Guide, LS, RS, "
+                    f"dpad_*), a mouse button ({', '.join(MOUSE_BUTTONS)}) or an evdev key name such as "
+                    f"'KEY_SPACE' (several joined by '+'); {short(part)} is none of these{did_you_mean(part, names)}"
                 )
         if len(parts) > 1 and any(not p.startswith("KEY_") and p not in MOUSE_BUTTONS for p in parts):
             raise ValueError("a chord of keyboard keys and mouse buttons only, such as 'KEY_LEFTSHIFT+KEY_TAB'")
@@ -428,7 +578,12 @@ _ANY_MAPPING_FIELDS = {
 
 
 def _no_such_output(cls, value: Any) -> Any:
-    raise ValueError(_expected_outputs() + (did_you_mean(value, ALL_OUTPUTS) if isinstance(value, str) else ""))
+    close = ""
+    if isinstance(value, str):
+        close = did_you_mean(value, ALL_OUTPUTS + SHOWN_ALIASES) or did_you_mean(
+            value.upper(), [k.removeprefix("KEY_") for k in keyboard_keys()]
+        )
+    raise ValueError(_expected_outputs() + close)
 
 
 #: Chosen only when ``output`` names no known output: reports it with the valid names, and still
@@ -447,6 +602,7 @@ def _output_kind(value: Any) -> str:
     output = value.get("output") if isinstance(value, dict) else getattr(value, "output", None)
     if not isinstance(output, str):
         return "unknown"
+    output = resolve_output(output)
     if output in STICKS:
         return "stick"
     if output in ANALOG_AXES:
@@ -658,8 +814,9 @@ class Profile(_Strict):
         keys = self.keyboard_keys
         if keys & _CTRL and keys & _ALT and keys & _DELETE:
             raise ValueError(
-                "keys that cannot make Ctrl+Alt+Delete: the console reboots the machine on it; this "
-                f"profile presses {', '.join(sorted(keys & (_CTRL | _ALT | _DELETE)))}"
+                "this profile could hold Ctrl, Alt and Delete at once (it presses "
+                f"{', '.join(sorted(keys & (_CTRL | _ALT | _DELETE)))}), and the console reboots the machine "
+                "on Ctrl+Alt+Delete: map one of them to another key"
             )
         return self
 
@@ -885,9 +1042,16 @@ def _describe(err: dict, root: Any, source: str | os.PathLike, lines: bool = Tru
             f"{at}: {field}: found the name {short(err['input'])}; expected a name of letters, "
             "digits and '_' that does not start with a digit"
         )
+    if kind == "value_error" and not path and isinstance(err["input"], dict):  # about the whole profile
+        message = in_plain_words(err["msg"])
+        return line, f"{at}: {message[:1].upper()}{message[1:]}" if message.startswith("this ") else (
+            f"{at}: the profile: expected {message.removeprefix('expected ')}"
+        )
     if kind in ("model_type", "model_attributes_type", "dict_type"):
         return line, f"{at}: {field}: found {short(err['input'])}; expected a mapping (key: value lines)"
     message = in_plain_words(err["msg"])
     expected = message[0].lower() + message[1:] if message else message
     expected = expected.removeprefix("expected ")
+    if kind == "literal_error" and path[-1:] == ("input",) and isinstance(err["input"], str):
+        expected += did_you_mean(err["input"], VECTOR_INPUTS + SCALAR_INPUTS)
     return line, f"{at}: {field}: found {short(err['input'])}; expected {expected}"

@@ -12,6 +12,9 @@
 * while the kernels compile on a first run (:mod:`neurotouch_hid.warmup`), why the run is slow
   and how far the compile is.
 
+On a terminal it answers keys (:data:`HELP`): ``q`` stops the run cleanly (as SIGTERM: outputs
+neutral, the run's summary), ``h`` or ``?`` shows the keys, Space holds the picture.
+
 The view is a subscriber of the run (:class:`~neurotouch_hid.stages.Subscriber`): it draws the
 last :class:`~neurotouch_hid.stages.WindowRecord` the runtime published (the markers the
 pipeline saw, the gesture the source performed, the profile, the counters, the compile's
@@ -21,8 +24,14 @@ stay as they are (:func:`neurotouch_hid.output.term.state_line`).
 
 from __future__ import annotations
 
+import contextlib
 import math
-from typing import TYPE_CHECKING, Optional
+import os
+import signal
+import sys
+import threading
+import time
+from typing import IO, TYPE_CHECKING, Callable, Optional
 
 import numpy as np
 from rich.console import Console, ConsoleRenderable, Group
@@ -57,6 +66,14 @@ ARROWS = "→↗↑↖←↙↓↘"
 ARROW_STYLES = ((REST_MM, "yellow"), (1.0, "bold yellow"), (2.5, "bold red"))
 #: Rows of each stick's grid in the live view (the plain view's are taller).
 PAD_STICK_ROWS = 3
+#: The compile line's spinner (one step every 1/8 s).
+SPINNER = "⠋⠙⠹⠸⠼⠴⠦⠧⠇⠏"
+#: Most lines of "what each gesture drives" (the last says "+N more" when there are more).
+MAPPINGS_SHOWN = 8
+#: The keys the view answers (on a terminal), as its help shows them.
+HELP = "keys: q quit (with the run's summary)  Space hold the picture  h/? help"
+#: The footer's reminder of them.
+KEYS_HINT = "q quit  h help"
 #: Width of the compile's progress bar (characters).
 PROGRESS_WIDTH = 40
 
@@ -176,13 +193,21 @@ def scene_panel(record: WindowRecord, estimate: GestureEstimate | None) -> Group
     else:
         rows.append(_gesture_line("gesture", recognised, intensity, contacts, "bold green"))
     rows.append(Text(""))
-    rows.append(Text.assemble(("profile ", "bold"), (record.profile_name, "bold cyan")))
+    profile_line = Text.assemble(("profile ", "bold"), (record.profile_name, "bold cyan"))
+    game = getattr(record.stats, "game", "")
+    if game:
+        profile_line.append(f"  for {game}", style="cyan")
+    rows.append(profile_line)
     if record.profile.copilot:
         rows.append(copilot_line(record.stats.merged, record.stats.missing))
     drives = Table.grid(padding=(0, 1))
-    for gesture, output in mapping_lines(record.profile)[:8]:
+    lines = mapping_lines(record.profile)
+    shown = lines if len(lines) <= MAPPINGS_SHOWN else lines[: MAPPINGS_SHOWN - 1]
+    for gesture, output in shown:
         style = "bold reverse" if gesture == recognised.value or recognised.value.startswith(gesture) else ""
         drives.add_row(Text(gesture, style=style), Text("→", style="dim"), Text(output))
+    if len(shown) < len(lines):
+        drives.add_row(Text(f"+{len(lines) - len(shown)} more", style="dim"), Text(""), Text(""))
     rows.append(drives)
     return Group(*rows)
 
@@ -197,13 +222,17 @@ def copilot_line(merged: tuple[str, ...], missing: tuple[str, ...]) -> Text:
     return text
 
 
-def compile_line(progress: CompileProgress | None) -> Optional[Group]:
-    """While the first-run compile lasts: why the run is slow and a bar of its progress; else None."""
+def compile_line(progress: CompileProgress | None, wall_s: float | None = None) -> Optional[Group]:
+    """While the first-run compile lasts: why the run is slow and a bar of its progress; else
+    None. ``wall_s`` (s since the view started) ends the bar with a spinner and a clock that move
+    at every redraw, even while no window comes (the run waits for a kernel): nothing looks frozen."""
     if progress is None:
         return None
     done = round(progress.fraction * PROGRESS_WIDTH)
     bar = Text("━" * done, style="bold yellow")
     bar.append("─" * (PROGRESS_WIDTH - done), style="dim")
+    if wall_s is not None:
+        bar.append(f" {SPINNER[int(wall_s * 8) % len(SPINNER)]} {wall_s:.0f} s since the start", style="yellow")
     return Group(Text(progress.description, style="bold yellow"), bar)
 
 
@@ -239,13 +268,22 @@ def pad_text(state: ControllerState) -> Group:
 
 
 def live_layout(
-    state: ControllerState, estimate: GestureEstimate | None, record: WindowRecord, first_t_us: int = 0
+    state: ControllerState,
+    estimate: GestureEstimate | None,
+    record: WindowRecord,
+    first_t_us: int = 0,
+    *,
+    help_shown: bool = False,
+    held: bool = False,
+    wall_s: float | None = None,
 ) -> Panel:
     """The whole interactive view, 80x24 at most: the gel plot on the left; the gestures, the
     profile and the pad on the right; the compile's progress and the counters at the bottom.
     ``state`` and ``estimate`` are what the pad shows now (neutral after a release); ``record``
     is the last window's; ``first_t_us`` the first window's end (the counters' ``t`` is the time
-    since, s of camera time, so that it goes with the windows)."""
+    since, s of camera time, so that it goes with the windows); ``help_shown``: the keys' help
+    under it (h, ?); ``held``: the picture is held (Space), said in the footer; ``wall_s``: s
+    since the view started, for the compile's clock (:func:`compile_line`)."""
     from neurotouch_hid.sensor import SensorGeometry
 
     sensor = record.sensor if record.sensor is not None else SensorGeometry()
@@ -266,10 +304,16 @@ def live_layout(
         f"   windows {stats.windows}   dropped {stats.dropped_items} items",
         style="bold red" if stats.dropped_items else "dim",
     )
+    if held:
+        footer.append("   held (Space lets go)", style="bold yellow")
+    else:
+        footer.append(f"   {KEYS_HINT}", style="dim")
     rows: list[ConsoleRenderable] = [top]
-    progress = compile_line(record.compile)
+    progress = compile_line(record.compile, wall_s)
     if progress is not None:
         rows.append(progress)
+    if help_shown:
+        rows.append(Text(HELP, style="bold"))
     rows.append(footer)
     return Panel(Group(*rows), title="NeuroTouch", expand=False, padding=(0, 1))
 
@@ -280,11 +324,51 @@ class LiveView(TermView):
     subscriber of the run: it draws the last record published (before the first one, the pad
     alone), and asks for the markers only when it draws them (on a terminal)."""
 
-    def __init__(self, console: Console | None = None, *, line_period_s: float = 1.0, refresh_per_second: float = 20.0):
+    def __init__(
+        self,
+        console: Console | None = None,
+        *,
+        line_period_s: float = 1.0,
+        refresh_per_second: float = 20.0,
+        keys: IO[str] | None = None,
+    ):
         self._record: WindowRecord | None = None  # before super().__init__: a terminal draws at once
         self._first_t_us: int | None = None
+        self._help = False  # h, ?: the keys' help under the view
+        self._held: tuple | None = None  # Space: the picture drawn while held (state, estimate, record)
+        self._started_s = time.monotonic()
         super().__init__(console, line_period_s=line_period_s, refresh_per_second=refresh_per_second)
         self.wants_markers = self.console.is_terminal
+        self._keys: KeyReader | None = None
+        if self.console.is_terminal:
+            stream = keys if keys is not None else sys.stdin
+            if stream is not None and stream.isatty() and in_foreground(stream):
+                self._keys = KeyReader(stream, self.key)
+
+    def key(self, char: str) -> None:
+        """A key typed on the terminal: ``q`` ends the run as SIGTERM does (a clean stop, every
+        output neutral, the run's summary printed, exit 0); ``h`` or ``?`` shows or hides the
+        keys' help; Space holds the picture (to read it; the pad goes on) and lets it go."""
+        if char in ("q", "Q"):
+            self.say("q: stopping")
+            os.kill(os.getpid(), signal.SIGTERM)
+        elif char in ("h", "H", "?"):
+            with self._lock:
+                self._help = not self._help
+        elif char == " ":
+            with self._lock:
+                self._held = None if self._held is not None else (self._state, self._estimate, self._record)
+        else:
+            return
+        if self._live is not None:
+            self._live.refresh()
+
+    def close(self) -> None:
+        """Stop reading keys (the terminal's mode restored), then as :meth:`TermView.close`."""
+        if self._keys is not None:
+            self._keys.close()
+            self._keys = None
+        super().close()
 
     def publish(self, record: WindowRecord) -> None:
         """Keep ``record`` to draw (the pad's state as :class:`TermView` shows it)."""
@@ -297,6 +381,78 @@ class LiveView(TermView):
     def __rich__(self) -> Panel:
         with self._lock:
             state, estimate, record, first = self._state, self._estimate, self._record, self._first_t_us
+            help_shown, held = self._help, self._held
+        if held is not None and held[2] is not None:
+            state, estimate, record = held
         if record is None:
             return super().__rich__()
-        return live_layout(state, estimate, record, first or 0)
+        return live_layout(
+            state,
+            estimate,
+            record,
+            first or 0,
+            help_shown=help_shown,
+            held=held is not None,
+            wall_s=time.monotonic() - self._started_s,
+        )
+
+
+def in_foreground(stream: IO[str]) -> bool:
+    """Whether this process is the terminal's foreground job: a background one (``run &``) that
+    changed the terminal's mode or read it would be stopped (SIGTTOU, SIGTTIN: termios(3))."""
+    try:
+        return os.tcgetpgrp(stream.fileno()) == os.getpgrp()
+    except OSError:
+        return False
+
+
+class KeyReader:
+    """Single keys typed on a terminal, each handed to ``on_key`` (from a thread of its own):
+    the terminal is put in cbreak mode (keys come without Enter, Ctrl-C and Ctrl-Z still send
+    their signals: termios(3), ``tty.setcbreak``) and restored by :meth:`close`.
+
+    Args:
+        stream: the terminal (a text stream on a tty).
+        on_key: called with each character read.
+    """
+
+    def __init__(self, stream: IO[str], on_key: Callable[[str], None]) -> None:
+        import termios
+        import tty
+
+        self._fd = stream.fileno()
+        self._on_key = on_key
+        self._saved = termios.tcgetattr(self._fd)
+        tty.setcbreak(self._fd)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._read, name="nt-keys", daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        import select
+
+        while not self._stop.is_set():
+            ready, _, _ = select.select([self._fd], [], [], 0.1)
+            if not ready:
+                continue
+            try:
+                if os.tcgetpgrp(self._fd) != os.getpgrp():  # sent to the background (Ctrl-Z, bg): not ours
+                    self._stop.wait(0.5)
+                    continue
+                data = os.read(self._fd, 64)
+            except OSError:  # the terminal is gone
+                return
+            if not data:
+                return
+            for char in data.decode("utf-8", "replace"):
+                self._on_key(char)
+
+    def close(self) -> None:
+        """Stop reading and restore the terminal's mode."""
+        import termios
+
+        self._stop.set()
+        if threading.current_thread() is not self._thread:
+            self._thread.join(1.0)
+        with contextlib.suppress(termios.error, OSError):
+            termios.tcsetattr(self._fd, termios.TCSADRAIN, self._saved)

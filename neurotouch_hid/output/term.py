@@ -15,9 +15,11 @@ BTN_EAST B, BTN_NORTH X, BTN_WEST Y.
 from __future__ import annotations
 
 import dataclasses
+import io
+import logging
 import threading
 import time
-from typing import TYPE_CHECKING, Optional
+from typing import TYPE_CHECKING, Callable, Optional
 
 from rich.console import Console, Group
 from rich.live import Live
@@ -173,6 +175,37 @@ def discrete_outputs(state: ControllerState) -> tuple:
     return pressed, tuple(sorted(state.keys)), state.axes["ABS_HAT0X"], state.axes["ABS_HAT0Y"]
 
 
+class _LinesTo(io.TextIOBase):
+    """A text stream that hands each whole line written to ``say``."""
+
+    def __init__(self, say: Callable[[str], None]) -> None:
+        self._say = say
+        self._partial = ""
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, text: str) -> int:
+        self._partial += text
+        while "\n" in self._partial:
+            line, self._partial = self._partial.split("\n", 1)
+            self._say(line)
+        return len(text)
+
+
+def logs_above(say: Callable[[str], None]) -> list[tuple[logging.StreamHandler, object]]:
+    """While a view is drawn on a terminal: the root logger's handlers that write to a terminal
+    (a profile switch, a camera lost, said by ``logging``) write through ``say`` instead, above
+    the view (a line written around rich's Live is drawn over and leaves stale frames). Returns
+    (handler, its stream) to put back (``handler.setStream``)."""
+    swapped = []
+    for handler in logging.getLogger().handlers:
+        stream = getattr(handler, "stream", None)
+        if type(handler) is logging.StreamHandler and stream is not None and getattr(stream, "isatty", bool)():
+            swapped.append((handler, handler.setStream(_LinesTo(say))))
+    return swapped
+
+
 class TermView:
     """The gamepad state drawn in the terminal.
 
@@ -208,9 +241,11 @@ class TermView:
         self._timer: threading.Timer | None = None
         self._lock = threading.Lock()
         self._live: Live | None = None
+        self._logs: list[tuple[logging.StreamHandler, object]] = []
         if self.console.is_terminal:
             self._live = Live(self, console=self.console, refresh_per_second=refresh_per_second, transient=False)
             self._live.start()
+            self._logs = logs_above(self.say)
 
     def say(self, line: str) -> None:
         """Print one line for the user: above the view while it is drawn on a terminal (rich's
@@ -266,6 +301,9 @@ class TermView:
         if self._live is not None:
             self._live.stop()
             self._live = None
+        for handler, stream in self._logs:
+            handler.setStream(stream)
+        self._logs = []
 
     def __enter__(self) -> "TermView":
         return self

@@ -63,15 +63,29 @@ def check_default_stick_and_trigger_never_both_held() -> dict:
     return {"reports": len(reports), "both_held": len(both), "max_trigger": trigger, "max_stick": stick}
 
 
+def toggle_profile(folder: Path) -> str:
+    """The shipped accessibility profile with its twists toggling A and B (``mode: toggle``
+    instead of its one-press ``tap``): the file's path."""
+    from neurotouch_hid.mapping.profile import find_profile
+
+    text = find_profile("accessibility").read_text(encoding="utf-8")
+    assert text.count("mode: tap") == 2, "accessibility.yaml no longer taps A and B"
+    path = folder / "accessibility-toggle.yaml"
+    path.write_text(text.replace("mode: tap", "mode: toggle").replace("    tap_ms: 150\n", ""), encoding="utf-8")
+    return str(path)
+
+
 def check_accessibility_toggle_flips_once_per_gesture() -> dict:
-    """``run --profile accessibility``: a counter-clockwise twist (toggles A) read as pinch for
-    0.16 s in its middle, then a clockwise twist (toggles B): A goes down once and stays down
-    until B has gone down (the twist's return after the pinch is no second press); the run's
-    end releases both."""
+    """``run --profile`` accessibility with toggles: a counter-clockwise twist (toggles A) read
+    as pinch for 0.16 s in its middle, then a clockwise twist (toggles B): A goes down once and
+    stays down until B has gone down (the twist's return after the pinch is no second press);
+    the run's end releases both."""
     twist_read_as_pinch = one_gesture((G.TWIST_CCW, 0.4), (G.PINCH, 0.16), (G.TWIST_CCW, 0.4))
     estimates = timeline(LEAD_IN + twist_read_as_pinch + one_gesture((G.TWIST_CW, 0.4)), STEP_US)
-    assert _expected("accessibility", estimates)[-1].buttons["BTN_SOUTH"], "the Mapper itself flips A twice"
-    watchers, stats, _ = _run_in_process("accessibility", estimates, Path(tempfile.mkdtemp(prefix="handover-")))
+    folder = Path(tempfile.mkdtemp(prefix="handover-"))
+    profile = toggle_profile(folder)
+    assert _expected(profile, estimates)[-1].buttons["BTN_SOUTH"], "the Mapper itself flips A twice"
+    watchers, stats, _ = _run_in_process(profile, estimates, folder)
     names = {ecodes.BTN_SOUTH: "BTN_SOUTH", ecodes.BTN_EAST: "BTN_EAST"}
     keys = [(names.get(c, str(c)), v) for t, c, v in watchers["pad"].events if t == ecodes.EV_KEY and v in (0, 1)]
     assert stats.dropped_items == 0, f"the runtime dropped {stats.dropped_items} items"

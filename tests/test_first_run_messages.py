@@ -1,0 +1,122 @@
+"""What a new user reads when a step cannot be done: every problem at once, and the way around."""
+
+from __future__ import annotations
+
+import pytest
+
+from neurotouch_hid import driver
+from neurotouch_hid.errors import DeviceError
+
+UINPUT = "/dev/uinput does not exist (the kernel's uinput module is not loaded)"
+
+
+@pytest.fixture()
+def no_uinput(monkeypatch):
+    def refuse(kind, *args, **kwargs):
+        raise DeviceError(UINPUT)
+
+    monkeypatch.setattr(driver, "open_output", refuse)
+
+
+def test_run_sim_without_uinput_mentions_the_terminal_view(no_uinput):
+    with pytest.raises(DeviceError) as err:
+        driver.run_driver("sim", "default", "gamepad", seconds=1)
+    lines = str(err.value).splitlines()
+    assert lines[0] == UINPUT and lines[-1].endswith("--output term")
+
+
+def test_run_davis_with_neither_camera_nor_uinput_says_both(no_uinput, monkeypatch):
+    """The camera's problem used to come only after the uinput one was fixed."""
+    from neurotouch_hid.sources import discovery
+
+    monkeypatch.setattr(discovery, "discover", lambda dv=True: discovery.Discovery())
+    with pytest.raises(DeviceError) as err:
+        driver.run_driver("davis", "default", "gamepad", seconds=1)
+    message = str(err.value)
+    assert message.startswith(UINPUT)
+    assert "and the camera: no DAVIS-346 (USB 152a:841a) found: plug the NeuroTouch's USB cable in" in message
+    assert "--output term" not in message
+
+
+@pytest.mark.parametrize("content, says", [(None, "no such file"), (b"not a recording\n", "not an AEDAT4 recording")])
+def test_calibrate_reads_the_press_file_before_needing_a_camera(tmp_path, content, says):
+    """``calibrate --press FILE`` failed on the missing camera (after compiling) before it ever
+    read the file: a wrong file is said first, whatever the camera."""
+    from helpers import run_cli
+
+    press = tmp_path / "press.aedat4"
+    if content is not None:
+        press.write_bytes(content)
+    done = run_cli("calibrate", "--press", str(press), timeout=60)
+    assert done.returncode == 2 and f"{press}: {says}" in done.stderr, done.stderr
+    assert "DAVIS" not in done.stderr and "compiling" not in done.stderr
+
+
+def test_build_deb_says_every_missing_tool_before_it_starts(tmp_path):
+    """build-deb.sh stopped deep inside debian12-root.sh on a missing debootstrap: now every
+    missing tool is said at once, before anything is built."""
+    import os
+    import shutil
+    import subprocess
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "packaging" / "build-deb.sh"
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    for tool in ("sh", "dirname", "sed", "head", "dpkg", "id", "mount"):  # no debootstrap, dpkg-deb, chroot
+        found = shutil.which(tool)
+        assert found is not None, tool
+        os.symlink(found, bin_dir / tool)
+    env = {"PATH": str(bin_dir), "NEUROTOUCH_ROOTS": str(tmp_path / "roots"), "HOME": str(tmp_path)}
+    done = subprocess.run([str(bin_dir / "sh"), str(script)], env=env, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 1
+    assert "missing: dpkg-deb chroot debootstrap (Debian: apt-get install debootstrap" in done.stderr, done.stderr
+    assert not (tmp_path / "roots").exists() and "building" not in done.stderr
+
+
+def test_install_user_says_the_services_first_start_compiles(tmp_path):
+    """The service's first camera start compiled the pipeline again (the package's folder is
+    read-only under the unit) for a minute, with nothing saying so: the pad just did not come."""
+    import os
+    import subprocess
+    from pathlib import Path
+
+    install = Path(__file__).resolve().parents[1] / "packaging" / "install.sh"
+    shim = tmp_path / "bin" / "neurotouch-hid"
+    shim.parent.mkdir()
+    shim.write_text("#!/bin/sh\nexit 0\n")
+    shim.chmod(0o755)
+    home = tmp_path / "home"
+    env = dict(os.environ, HOME=str(home), XDG_CONFIG_HOME="", XDG_CACHE_HOME="", PATH=f"{shim.parent}:/usr/bin:/bin")
+    done = subprocess.run(["sh", str(install), "--user"], capture_output=True, text=True, env=env, timeout=60)
+    assert done.returncode == 0, done.stderr
+    said = done.stdout.splitlines()[-1]
+    assert said.startswith("its first start compiles the gesture pipeline once more")
+    assert f"{home}/.cache/neurotouch-hid" in said and "journalctl --user -u neurotouch-hid -f" in said
+
+
+def test_eval_on_a_folder_without_recordings_says_so_not_the_sensor(tmp_path):
+    from helpers import run_cli
+
+    done = run_cli("eval", str(tmp_path), timeout=60)
+    assert done.returncode == 2 and f"{tmp_path}: no recording in it" in done.stderr, done.stderr
+    assert "sensor.yaml" not in done.stderr
+
+
+def test_doctor_shows_the_calibration_in_use():
+    from neurotouch_hid import doctor
+    from neurotouch_hid.sensor import SensorGeometry, user_sensor_path
+
+    none = doctor.check_calibration()
+    assert (
+        none.status == doctor.WARN and str(user_sensor_path()) in none.detail and none.fix == "neurotouch-hid calibrate"
+    )
+    user_sensor_path().parent.mkdir(parents=True, exist_ok=True)
+    SensorGeometry(gel_center_px=(170.0, 128.0), rotation_deg=90.0, creep=(0.3, 0.8)).save(user_sensor_path())
+    mine = doctor.check_calibration()
+    assert mine.status == doctor.OK and mine.detail.startswith(f"{user_sensor_path()}: gel at (170, 128) px")
+    assert "rotation 90 deg" in mine.detail and "creep q 0.30, tau 0.80 s" in mine.detail
+    user_sensor_path().write_text("gel_radius_px: lots\n")
+    broken = doctor.check_calibration()
+    assert broken.status == doctor.FAIL and "calibrate" in broken.fix
+    assert "calibration" in [c.name for c in doctor.run_checks()]
