@@ -113,6 +113,7 @@ TRACKER_KERNELS = (
         for name in ("_track", "_check_lost", "_claim", "_release", "_repaint", "_lose", "_paint_all")
     ),
     "neurotouch_hid.pipeline.noise.background_activity_keep",
+    "neurotouch_hid.pipeline.rest_window.rest_window",
 )
 
 TRACKER = KernelGroup(

@@ -402,6 +402,26 @@ class BlobTracker:
             self._cell, self._label, self._offs, self._n_offs, self._neigh, self._valid, self._state, self._params
         )
 
+    def _kernel_state(self) -> tuple:
+        """The arrays :meth:`update` hands the event kernels (``_track``, ``_check_lost``), in
+        ``_track``'s order after the events: for a compiled caller that runs them itself
+        (``rest_window.py``)."""
+        return (
+            self._state,
+            self._cov,
+            self._t_upd,
+            self._t_seen,
+            self._rate,
+            self._valid,
+            self._cell,
+            self._label,
+            self._offs,
+            self._n_offs,
+            self._neigh,
+            self._params,
+            self._counts,
+        )
+
     @property
     def positions_px(self) -> np.ndarray:
         """(N, 2) float64 copy of the blobs' positions (x, y), image frame, px."""
