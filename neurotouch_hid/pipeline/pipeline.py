@@ -349,7 +349,7 @@ class GesturePipeline(FramePath):
             or events.dtype != EVENT_DTYPE
             or not events.flags.c_contiguous
             or len(tracker._state) == 0
-            or (noise is not None and (noise._surface is None or (noise._last_us is not None and first_us < noise._last_us)))
+            or (noise is not None and (noise._surface is None or first_us < (noise._last_us or first_us)))
         ):
             return None
         c = self.config
