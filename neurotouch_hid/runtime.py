@@ -333,6 +333,9 @@ class Runtime:
         self._every_window = self._wants_markers or any(getattr(s, "every_window", False) for s in self._subscribers)
         #: the last resting estimate not handed to the mapper (:meth:`_unchanged_at_rest`)
         self._skipped: GestureEstimate | None = None
+        #: the mapper known to rest at the state last published (:meth:`_unchanged_at_rest`);
+        #: forgotten when a record is published or the state forgotten
+        self._quiet_mapper: MapperStage | None = None
         self._first_us: int | None = None  # the first item's end (us), for ``stats.stream_us``
         self._sensor = sensor
         self._compile_progress = compile_progress
@@ -403,6 +406,7 @@ class Runtime:
     def _forget_state(self) -> None:
         """The subscribers were neutralised or the mapping starts afresh: the next state is
         compared with a neutral one (caller holds ``self._lock``)."""
+        self._quiet_mapper = None
         self._last_state = ControllerState.neutral(self._last_state.t_us)
         self._last_gesture = None
 
@@ -774,6 +778,9 @@ class Runtime:
         last such estimate when the rest ends (:meth:`_emit`), as if it had had every one."""
         if not estimate.resting or self._every_window or estimate.gesture is not self._last_gesture:
             return False
+        if self._quiet_mapper is self._mapper:  # known since the rest's first skipped window
+            self._skipped = estimate
+            return True
         with self._lock:
             kept = getattr(self._mapper, "resting_state", None)
             last = self._last_state
@@ -786,6 +793,7 @@ class Runtime:
             )
             if unchanged:
                 self._skipped = estimate
+                self._quiet_mapper = self._mapper
         return unchanged
 
     def _resume(self) -> None:
@@ -816,6 +824,7 @@ class Runtime:
         with self._lock:
             if self._stop.is_set() or self._paused or self._suspended:  # run() neutralises (under this
                 return  # lock): nothing after that; a lost camera, Ctrl-Z: nothing until back
+            self._quiet_mapper = None
             if self._skipped is not None:  # the rest it skipped ends: the mapper's clocks to its end
                 skipped, self._skipped = self._skipped, None
                 self._mapper.update(skipped)
