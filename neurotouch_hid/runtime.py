@@ -344,6 +344,7 @@ class Runtime:
         self._performed: LabelRow | None = None
         self._resting = resting
         self._pace = pace and not live
+        self._live = live
         self._realtime = pace or live
         self._profile_ref = profile_ref
         self._profile_loader = profile_loader
@@ -376,6 +377,11 @@ class Runtime:
         #: (the last window's end, the window's length) (us) while the gel rests, else None:
         #: set by the worker, read by the source thread (:meth:`_hand_on_us`)
         self._rest_windows: tuple[int, int] | None = None
+        #: a resting gel's items, held by the source's thread until ``_held_us`` (camera time,
+        #: us; a live source: until its poll brings nothing new), then handed on at once
+        self._held: list[StreamItem] = []
+        self._held_us = 0
+        self._read_us = self._read_ns = 0  # a live source's last item: its end (us), when read (pacer ns)
         self._last_end_us: int | None = None
 
     @property
@@ -584,9 +590,13 @@ class Runtime:
         if self._waits:  # its stream starts now, even when its first item takes a while
             self._clock.anchor_now()
         iterator = iter(self._source)
-        held: list[np.ndarray] = []  # event batches of a resting gel, joined, handed on at held_us
-        held_us = 0
+        held = self._held  # items of a resting gel, handed on at self._held_us, batches joined
+        # a live source's polls that bring nothing wait as the runtime decides (:meth:`_live_pause`)
+        pause = getattr(iterator, "poll_pause", None) if self._live else None
+        holds = self._pace or pause is not None
         try:
+            if pause is not None:
+                pause.decide = self._live_pause
             for item in iterator:
                 if self._stop.is_set():
                     break
@@ -601,23 +611,27 @@ class Runtime:
                     self._clock.due_ns(t_us)  # the first item anchors the clock
                     if self._limit_us is not None and t_us - self._clock.first_us >= self._limit_us:
                         break
-                    if self._pace:
+                    if pause is not None:
+                        self._read_us, self._read_ns = t_us, self._clock.now_ns()
+                    if holds:
                         due_us = self._hand_on_us(t_us)
-                        joins = due_us > t_us or bool(held and due_us == held_us)
-                        if held and not (joins and due_us == held_us) and self._hand_on_held(held, held_us):
+                        joins = due_us > t_us or bool(held and due_us == self._held_us)
+                        if held and not (joins and due_us == self._held_us) and self._hand_on_held():
                             break
                         if joins:
                             held.append(item)
-                            held_us = due_us
+                            self._held_us = due_us
                             continue
-                        if self._clock.wait(due_us, self._stop):
+                        if self._pace and self._clock.wait(due_us, self._stop):
                             break
                 self._hand_on(item)
             if held and not self._stop.is_set():
-                self._hand_on_held(held, held_us)
+                self._hand_on_held()
         except BaseException as exc:  # a truncated recording, a lost camera: what was read is
             self._errors.append(exc)  # still processed, then run() neutralises and re-raises
         finally:
+            if pause is not None:
+                pause.decide = None
             close = getattr(iterator, "close", None)
             if close is not None:
                 with contextlib.suppress(Exception):
@@ -635,13 +649,14 @@ class Runtime:
         wake = end + REST_WAKE_AFTER_END_US
         return t_us if t_us <= wake else wake + -(-(t_us - wake) // window_us) * window_us
 
-    def _hand_on_held(self, held: list[StreamItem], at_us: int) -> bool:
-        """Source thread: at ``at_us`` (camera time), the ``held`` items, each run of event
-        batches as one (in order; the pipeline's windows close inside a batch as between
-        batches), ``held`` emptied. While nothing is queued or being processed (a resting gel),
-        this thread processes them itself (:meth:`_inline`): one wake-up a window.
-        Returns whether the run was stopped meanwhile (nothing is handed on then)."""
-        if self._clock.wait(at_us, self._stop):
+    def _hand_on_held(self) -> bool:
+        """Source thread: the held items (a paced source: at ``self._held_us``, camera time),
+        each run of event batches as one (in order; the pipeline's windows close inside a batch
+        as between batches), the held list emptied. While nothing is queued or being processed
+        (a resting gel), this thread processes them itself (:meth:`_inline`): one wake-up a
+        window. Returns whether the run was stopped meanwhile (nothing is handed on then)."""
+        held = self._held
+        if self._pace and self._clock.wait(self._held_us, self._stop):
             return True
         items: list[StreamItem] = []
         run: list[np.ndarray] = []
@@ -659,6 +674,21 @@ class Runtime:
         for item in items:
             self._hand_on(item)
         return False
+
+    def _live_pause(self) -> float:
+        """Source thread, a live source's poll brought nothing new: what it holds handed on, and
+        how long its next poll waits (s): while the gel rests, until the camera's clock reaches
+        the next window's end + :data:`REST_WAKE_AFTER_END_US` (estimated from when the last
+        item was read, at most a window and that), else the source's own pause."""
+        if self._held:
+            self._hand_on_held()
+        rest = self._rest_windows
+        if rest is None or self._stop.is_set():
+            return self._source.poll_pause.default_s
+        end, window_us = rest
+        camera_us = self._read_us + (self._clock.now_ns() - self._read_ns) // 1000  # about now
+        wake_us = end + window_us + REST_WAKE_AFTER_END_US
+        return max(0.0, min(wake_us - end, wake_us - camera_us) / 1e6)
 
     def _hand_on(self, item: StreamItem) -> None:
         """Source thread: one item to the pipeline: processed here while nothing is queued or
@@ -692,6 +722,7 @@ class Runtime:
                 self._neutralise()
                 self._forget_state()
             self._items.clear()
+            self._held.clear()
             self.stats.camera_losses += 1
         elif status.kind == StatusKind.RESUMED:
             self._restart.set()

@@ -600,3 +600,48 @@ def join_all(times):
     from neurotouch_hid.sources import join_events
 
     return join_events([batch(t, n=1) for t in times])
+
+
+def test_a_resting_gel_polls_the_live_camera_once_per_window_and_a_touch_at_once():
+    """A live source (its polls wait by a PollPause): while the gel rests, each poll's items are
+    held and handed on (processed in the source's thread) when a poll brings nothing, and the
+    next poll waits for the next window's end; from the touch on, the source's own pause."""
+    from neurotouch_hid.sources import PausingStream, PollPause
+
+    pipeline = WindowedPipeline(touch_us=60_000)
+    times = [k * 1000 + 500 for k in range(100)]  # one event per 1 ms batch; windows end at 10 500 + 10 000 j
+    pause = PollPause(0.0002)
+    pauses: list[tuple[int, float]] = []  # (camera time, the pause asked) after each poll
+
+    def camera():
+        now_us, sent = 0, 0
+        while sent < len(times):
+            while sent < len(times) and times[sent] <= now_us:  # one poll: everything due
+                yield batch(times[sent], n=1)
+                sent += 1
+            # a camera slower than the pipeline: what was handed on is processed (no race on the
+            # rest); then the poll brought nothing new, and the camera's time goes on meanwhile
+            assert wait_until(lambda n=sent: len(pipeline.seen) + sum(len(item) for item in rt._held) >= n)
+            waited = pause()
+            pauses.append((now_us, waited))
+            now_us += max(200, round(waited * 1e6))
+            clock.now_ns = now_us * 1000
+
+    clock = ManualClock()  # the camera's time, moved on by the fake camera
+    rt = Runtime(
+        PausingStream(camera(), pause),
+        pipeline,
+        {"sign": 1},
+        [RecordingOutput()],
+        mapper_factory=FakeMapper,
+        live=True,
+        pacer=Pacer(clock=lambda: clock.now_ns, sleep=clock.sleep),
+    )
+    rt.run()
+    assert pipeline.seen == times and pause.decide is None  # everything, in order; the pause given back
+    resting = [(t, p) for t, p in pauses if 21_500 <= t < 60_000]
+    assert resting and all(p > 0.005 for _, p in resting)  # about a window each
+    assert len(resting) <= 5  # one poll a window, not one per 1 ms batch
+    assert all(p == 0.0002 for t, p in pauses if t >= 72_500)  # after the touch, the source's own
+    at_rest = [n for n, thread in pipeline.threads if thread == "nt-source"]
+    assert at_rest and all(n >= 9 for n in at_rest[1:])  # a window's batches at once, in the source's thread
