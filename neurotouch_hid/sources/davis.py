@@ -296,9 +296,7 @@ class DavisSource:
             batches.append(events_from_store(store))
         return in_time_order(frames, batches), None
 
-    def stream(
-        self, seconds: float | None = None, batch_us: int = 1000, *, reconnect: bool = False
-    ) -> PausingStream:
+    def stream(self, seconds: float | None = None, batch_us: int = 1000, *, reconnect: bool = False) -> PausingStream:
         """Event batches and APS frames as the camera delivers them, until ``seconds`` have passed.
 
         Yields the same kinds of items as :meth:`RecordingReader.stream`: event batches (EVENT_DTYPE,
