@@ -382,22 +382,7 @@ class BlobTracker:
             events = np.ascontiguousarray(events)
         if len(events) == 0 or len(self._state) == 0:
             return
-        _track(
-            events,
-            self._state,
-            self._cov,
-            self._t_upd,
-            self._t_seen,
-            self._rate,
-            self._valid,
-            self._cell,
-            self._label,
-            self._offs,
-            self._n_offs,
-            self._neigh,
-            self._params,
-            self._counts,
-        )
+        _track(events, *self._kernel_state())
         _check_lost(
             self._cell, self._label, self._offs, self._n_offs, self._neigh, self._valid, self._state, self._params
         )
