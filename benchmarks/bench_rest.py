@@ -1,26 +1,24 @@
 """What the driver costs while the gel rests: CPU of a core at steady state, wake-ups and memory
 (docs/performance.md, "At rest").
 
-    python3 benchmarks/bench_rest.py [--workdir DIR] [--short 10] [--long 40] [--repeat 1] [--sim]
+    python3 benchmarks/bench_rest.py [--workdir DIR] [--seconds 40] [--repeat 1] [--sim]
 
 A resting gel's recording is made once by the simulator (``GelSimulator`` with an empty script:
 the markers at rest, the camera's noise events, 25 APS frames a second; 45 s, seed 0) and kept in
 ``--workdir`` (default: a fresh temporary folder). It is replayed in real time through
 ``neurotouch-hid run --source REC --output jsonl --out /dev/null --seconds S`` in a child
-process, once for ``--short`` and once for ``--long`` seconds. The child's CPU time (user + sys,
-all its threads, from ``os.wait4``) of the long run minus the short one, over the seconds
-between them, is the steady state's share of a core: the start (imports, loading the compiled
-pipeline, the first frame's markers) cancels out. Context switches are counted the same way: the
-child's threads' ``voluntary_ctxt_switches`` + ``nonvoluntary_ctxt_switches``
-(``/proc/PID/task/*/status``, read every 0.5 s while it runs: the last reading), long minus short,
-per second. Memory: the child's peak resident set (``ru_maxrss``) and its anonymous memory, the
-process's own pages (``Anonymous:`` of ``/proc/PID/smaps_rollup``, the largest reading), the
-larger of the two runs. ``--repeat N`` runs each N times, interleaved, and prints every pair and
-the median.
+process. Its steady state, from :data:`STEADY_AFTER_S` after its start (imports, the compiled
+pipeline loaded, the first frame's markers) to the last reading with all its threads: its CPU
+time (user + sys of all its threads, ``/proc/PID/stat``) and its threads' context switches
+(``voluntary_ctxt_switches`` + ``nonvoluntary_ctxt_switches`` of ``/proc/PID/task/*/status``),
+read every 0.5 s, per second of that span. Memory: the child's peak resident set
+(``ru_maxrss``) and its anonymous memory, the process's own pages (``Anonymous:`` of
+``/proc/PID/smaps_rollup``, the largest reading). ``--repeat N`` runs each N times and prints
+every run and the medians.
 
 ``--sim``: also the simulated gel at rest (``GelSimulator`` with an empty script, seed 0) through
 the same runtime, pipeline and output as ``run --source sim`` (paced; the simulated gel waits
-rather than drops), in a child of this script, short and long as above; and the simulator alone
+rather than drops), in a child of this script, measured as above; and the simulator alone
 (its stream read back to back, CPU per second of gel), which that figure includes.
 
 ``--work``: also the stages' own CPU at rest, without the runtime's threads: the same recording's
@@ -53,6 +51,9 @@ import numpy as np
 
 #: Length of the resting recording (s): the longest run plus the start's margin.
 RECORDING_S = 45.0
+#: A run's steady state is measured from this long after its start (s): imports, the pipeline
+#: loaded, the first frame's markers are over by then.
+STEADY_AFTER_S = 12.0
 
 
 def make_rest_recording(folder: Path, seconds: float = RECORDING_S, seed: int = 0) -> Path:
@@ -76,12 +77,17 @@ def make_rest_recording(folder: Path, seconds: float = RECORDING_S, seed: int = 
 
 
 def proc_reading(pid: int) -> dict[str, float] | None:
-    """A running process's context switches so far, summed over its threads
-    (``/proc/PID/task/*/status``), and its anonymous memory (MiB, ``Anonymous:`` of
-    ``/proc/PID/smaps_rollup``); None once it is gone."""
+    """A running process's CPU time so far (s, user + sys of all its threads, ``/proc/PID/stat``),
+    its context switches so far, summed over its threads (``/proc/PID/task/*/status``), its
+    threads, and its anonymous memory (MiB, ``Anonymous:`` of ``/proc/PID/smaps_rollup``); None
+    once it is gone."""
     switches = 0
     try:
-        for task in os.listdir(f"/proc/{pid}/task"):
+        with open(f"/proc/{pid}/stat") as file:
+            fields = file.read().rsplit(")", 1)[1].split()
+        cpu = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        tasks = os.listdir(f"/proc/{pid}/task")
+        for task in tasks:
             with contextlib.suppress(FileNotFoundError):  # a thread that just ended
                 with open(f"/proc/{pid}/task/{task}/status") as file:
                     for line in file:
@@ -91,12 +97,13 @@ def proc_reading(pid: int) -> dict[str, float] | None:
             anon = next(int(line.split()[1]) for line in file if line.startswith("Anonymous:"))
     except (FileNotFoundError, ProcessLookupError, StopIteration):
         return None
-    return {"switches": switches, "anon_mib": anon / 1024}
+    return {"t": time.perf_counter(), "cpu": cpu, "switches": switches, "threads": len(tasks), "anon_mib": anon / 1024}
 
 
-def measure(command: list[str]) -> dict[str, float]:
+def measure(command: list[str], settle_s: float = STEADY_AFTER_S) -> dict[str, float]:
     """One real-time run of ``command`` (a child): CPU s (user + sys), peak RSS and largest
-    anonymous memory (MiB), context switches of its threads (the last reading), wall s."""
+    anonymous memory (MiB), wall s, and over its steady state (from ``settle_s`` after its start
+    to the last reading with all its threads) CPU s per s and context switches per s."""
     start = time.perf_counter()
     child = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     readings = []
@@ -112,12 +119,18 @@ def measure(command: list[str]) -> dict[str, float]:
     child.returncode = os.waitstatus_to_exitcode(status)
     if child.returncode != 0:
         sys.exit(f"bench_rest.py: {' '.join(command)} failed ({child.returncode}): {err.strip()}")
+    steady = [r for r in readings if r["t"] - start >= settle_s]
+    steady = [r for r in steady if r["threads"] >= max((r["threads"] for r in steady), default=0)]
+    first, last = (steady[0], steady[-1]) if len(steady) >= 2 else ({"t": 0, "cpu": 0, "switches": 0},) * 2
+    span = last["t"] - first["t"]
     return {
         "cpu": usage.ru_utime + usage.ru_stime,
         "rss_mib": usage.ru_maxrss / 1024,
         "anon_mib": max((r["anon_mib"] for r in readings), default=float("nan")),
-        "switches": readings[-1]["switches"] if readings else float("nan"),
         "wall": wall,
+        "share": (last["cpu"] - first["cpu"]) / span if span > 0 else float("nan"),
+        "switches_per_s": (last["switches"] - first["switches"]) / span if span > 0 else float("nan"),
+        "span_s": span,
     }
 
 
@@ -283,20 +296,20 @@ def measure_wakes(n: int = 1000, period_s: float = 0.01) -> dict[str, float]:
     return out
 
 
-def steady(name: str, command, short_s: float, long_s: float, repeat: int) -> None:
-    """Print the steady state of ``command(seconds)`` (CPU share, context switches a second, peak
-    RSS and anonymous memory) from ``repeat`` pairs of a short and a long run, and their medians."""
+def steady(name: str, command, seconds: float, repeat: int) -> None:
+    """Print the steady state of ``repeat`` runs of ``command(seconds)`` (CPU share, context
+    switches a second, peak RSS and anonymous memory), and their medians."""
     shares, rates, peaks, anons = [], [], [], []
     for _ in range(repeat):
-        short, long = measure(command(short_s)), measure(command(long_s))
-        shares.append((long["cpu"] - short["cpu"]) / (long_s - short_s))
-        rates.append((long["switches"] - short["switches"]) / (long_s - short_s))
-        peaks.append(max(short["rss_mib"], long["rss_mib"]))
-        anons.append(max(short["anon_mib"], long["anon_mib"]))
+        run = measure(command(seconds))
+        shares.append(run["share"])
+        rates.append(run["switches_per_s"])
+        peaks.append(run["rss_mib"])
+        anons.append(run["anon_mib"])
         print(
-            f"{name}: run {short_s:g} s: {short['cpu']:.2f} s CPU; run {long_s:g} s: {long['cpu']:.2f} s CPU; "
-            f"steady state {100 * shares[-1]:.1f} % of a core, {rates[-1]:.0f} context switches/s; "
-            f"peak RSS {peaks[-1]:.0f} MiB, anonymous {anons[-1]:.0f} MiB; load average {os.getloadavg()[0]:.1f}",
+            f"{name}: run {seconds:g} s: {run['cpu']:.2f} s CPU; steady state over {run['span_s']:.0f} s: "
+            f"{100 * shares[-1]:.1f} % of a core, {rates[-1]:.0f} context switches/s; peak RSS {peaks[-1]:.0f} MiB, "
+            f"anonymous {anons[-1]:.0f} MiB; load average {os.getloadavg()[0]:.1f}",
             flush=True,
         )
     print(
@@ -310,8 +323,7 @@ def steady(name: str, command, short_s: float, long_s: float, repeat: int) -> No
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--workdir", type=Path, default=None, help="keep the recording here")
-    ap.add_argument("--short", type=float, default=10.0, help="the short run (s)")
-    ap.add_argument("--long", type=float, default=40.0, help="the long run (s)")
+    ap.add_argument("--seconds", type=float, default=40.0, help="each run (s)")
     ap.add_argument("--repeat", type=int, default=1, help="pairs of runs")
     ap.add_argument("--work", action="store_true", help="also the stages' own CPU, hot and spread")
     ap.add_argument("--gap-ms", type=float, default=8.0, help="--work: sleep after each item (ms)")
@@ -322,8 +334,8 @@ def main() -> None:
     if args.child_sim is not None:
         run_sim(args.child_sim)
         return
-    if not 0 < args.short < args.long <= RECORDING_S:
-        sys.exit(f"bench_rest.py: expected 0 < --short < --long <= {RECORDING_S:g}")
+    if not STEADY_AFTER_S + 5 < args.seconds <= RECORDING_S:
+        sys.exit(f"bench_rest.py: expected {STEADY_AFTER_S + 5:g} < --seconds <= {RECORDING_S:g}")
     folder = args.workdir or Path(tempfile.mkdtemp(prefix="bench-rest-"))
     folder.mkdir(parents=True, exist_ok=True)
     recording = make_rest_recording(folder)
@@ -332,7 +344,7 @@ def main() -> None:
     if args.sim:
         cases.append(("simulated gel", sim_command))
     for name, command in cases:
-        steady(name, command, args.short, args.long, args.repeat)
+        steady(name, command, args.seconds, args.repeat)
     if args.sim:
         print(f"the simulated gel at rest alone: {100 * simulator_alone():.1f} % of a core", flush=True)
     if args.work:

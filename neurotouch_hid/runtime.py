@@ -381,6 +381,8 @@ class Runtime:
         #: us; a live source: until its poll brings nothing new), then handed on at once
         self._held: list[StreamItem] = []
         self._held_us = 0
+        self._held_for: tuple[int, int] | None = None  # the ``_rest_windows`` they were held at
+        self._held_before_us = 2**62  # a batch ending there or later is past the run's ``seconds``
         self._read_us = self._read_ns = 0  # a live source's last item: its end (us), when read (pacer ns)
         self._last_end_us: int | None = None
 
@@ -598,6 +600,14 @@ class Runtime:
             if pause is not None:
                 pause.decide = self._live_pause
             for item in iterator:
+                rest = self._rest_windows
+                if held and rest is not None and rest is self._held_for and type(item) is np.ndarray and len(item):
+                    t_us = int(item["timestamp"][-1])  # an event batch of the resting window being held:
+                    if t_us <= self._held_us and t_us < self._held_before_us:  # as below, in fewer steps
+                        held.append(item)
+                        if pause is not None:
+                            self._read_us, self._read_ns = t_us, self._clock.now_ns()
+                        continue
                 if self._stop.is_set():
                     break
                 if isinstance(item, SourceStatus):
@@ -620,7 +630,9 @@ class Runtime:
                             break
                         if joins:
                             held.append(item)
-                            self._held_us = due_us
+                            self._held_us, self._held_for = due_us, self._rest_windows
+                            if self._limit_us is not None:  # (a batch from there on ends the run)
+                                self._held_before_us = self._clock.first_us + self._limit_us
                             continue
                         if self._pace and self._clock.wait(due_us, self._stop):
                             break
