@@ -136,6 +136,21 @@ class PausingStream:
             close()
 
 
+#: Waits up to this long (s) are slept through (``time.sleep``; a stop is seen after it), longer
+#: ones wait on the stop event: a wake-up from a plain sleep costs ~15 us less CPU on this VM
+#: (docs/performance.md, "At rest"), and a paced source waits about a window at a time.
+SHORT_SLEEP_S = 0.02
+
+
+def _sleep_or_stop(stop: threading.Event, seconds: float) -> bool:
+    """Wait ``seconds`` or until ``stop`` is set (a short wait: until it is over); returns whether
+    ``stop`` is set."""
+    if seconds <= SHORT_SLEEP_S:
+        time.sleep(seconds)
+        return stop.is_set()
+    return stop.wait(seconds)
+
+
 class Pacer:
     """Keeps a stream on time: item timestamps (us, camera clock) follow wall time
     (``time.perf_counter_ns``) from the first item on, as a camera delivers them. One pacing
@@ -144,7 +159,8 @@ class Pacer:
     Args:
         clock: the clock (ns) items are paced on; ``time.perf_counter_ns``, or one a test controls.
         sleep: ``sleep(stop, seconds)`` waits up to ``seconds`` on ``clock`` or until ``stop`` is
-            set, returning whether it was; None = ``stop.wait(seconds)`` (wall time).
+            set, returning whether it was; None = wall time: ``time.sleep`` up to
+            :data:`SHORT_SLEEP_S`, ``stop.wait(seconds)`` beyond.
 
     Attributes:
         first_us: the first item's timestamp (us), the anchor; None before the first item.
@@ -160,7 +176,7 @@ class Pacer:
         self.first_ns = 0
         self._clock = clock
         self._anchor_ns: int | None = None  # anchor_now's
-        self._sleep = sleep if sleep is not None else lambda stop, seconds: stop.wait(seconds)
+        self._sleep = sleep if sleep is not None else _sleep_or_stop
 
     def now_ns(self) -> int:
         """The clock's time now (ns)."""
