@@ -4,12 +4,14 @@ in one process, the way ``run`` takes them (docs/performance.md, "track").
     python3 benchmarks/bench_memory.py
 
 Per step: resident MiB (``/proc/self/status`` VmRSS), of it the process's own pages (RssAnon) and
-pages mapped from files (RssFile: shared libraries), the peak so far (VmHWM), and the resident
-MiB of LLVM's library (``libllvmlite.so``, ``/proc/self/smaps``). The steps: the interpreter,
-numpy, numba, OpenCV, the CLI and the driver, the warm pipeline loaded as ``run`` loads it
-(``warmup.Warmup``: its kernels from numba's cache, the mapped files' pages released as they
-load, ``neurotouch_hid/resident.py``), dv-processing (the live camera's source only). Run it once
-before on a warm cache (``run`` or ``track`` once): a cold cache compiles first.
+pages mapped from files (RssFile: shared libraries), the peak so far (VmHWM), the resident MiB of
+LLVM's library (``libllvmlite.so``, ``/proc/self/smaps``), and the anonymous memory
+(``Anonymous:`` of ``/proc/self/smaps_rollup``: the process's own pages, what the kernel cannot
+reclaim by dropping a file's page; the figure the driver's memory target is on). The steps: the
+interpreter, numpy, numba, OpenCV, the CLI and the driver, the warm pipeline loaded as ``run``
+loads it (``warmup.Warmup``: its kernels from numba's cache), dv-processing (the live camera's
+source only). Run it once before on a warm cache (``run`` or ``track`` once): a cold cache
+compiles first.
 """
 
 from __future__ import annotations
@@ -22,6 +24,12 @@ def status() -> dict[str, float]:
     with open("/proc/self/status") as file:
         fields = dict(line.split(":", 1) for line in file if ":" in line)
     return {key: int(fields[key].split()[0]) / 1024 for key in ("VmRSS", "RssAnon", "RssFile", "VmHWM")}
+
+
+def anonymous_mib(pid: int | str = "self") -> float:
+    """MiB of ``Anonymous:`` in ``/proc/PID/smaps_rollup``."""
+    with open(f"/proc/{pid}/smaps_rollup") as file:
+        return next(int(line.split()[1]) for line in file if line.startswith("Anonymous:")) / 1024
 
 
 def llvm_mib() -> float:
@@ -41,7 +49,7 @@ def show(step: str) -> None:
     s = status()
     print(
         f"{step:28s} {s['VmRSS']:6.1f} MiB resident: own {s['RssAnon']:5.1f}, files {s['RssFile']:5.1f} "
-        f"(LLVM {llvm_mib():4.1f}); peak so far {s['VmHWM']:6.1f}",
+        f"(LLVM {llvm_mib():4.1f}); peak so far {s['VmHWM']:6.1f}; anonymous {anonymous_mib():5.1f}",
         flush=True,
     )
 

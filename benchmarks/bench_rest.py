@@ -1,18 +1,25 @@
-"""What the driver costs while the gel rests: CPU of a core at steady state and peak memory
+"""What the driver costs while the gel rests: CPU of a core at steady state, wake-ups and memory
 (docs/performance.md, "At rest").
 
-    python3 benchmarks/bench_rest.py [--workdir DIR] [--short 10] [--long 40] [--repeat 1]
+    python3 benchmarks/bench_rest.py [--workdir DIR] [--seconds 40] [--repeat 1] [--sim]
 
 A resting gel's recording is made once by the simulator (``GelSimulator`` with an empty script:
 the markers at rest, the camera's noise events, 25 APS frames a second; 45 s, seed 0) and kept in
 ``--workdir`` (default: a fresh temporary folder). It is replayed in real time through
 ``neurotouch-hid run --source REC --output jsonl --out /dev/null --seconds S`` in a child
-process, once for ``--short`` and once for ``--long`` seconds. The child's CPU time (user + sys,
-all its threads, from ``os.wait4``) of the long run minus the short one, over the seconds
-between them, is the steady state's share of a core: the start (imports, loading the compiled
-pipeline, the first frame's markers) cancels out. Peak resident memory is the child's
-``ru_maxrss``, the larger of the two runs. ``--repeat N`` runs each N times, interleaved, and
-prints every pair and the median.
+process. Its steady state, from :data:`STEADY_AFTER_S` after its start (imports, the compiled
+pipeline loaded, the first frame's markers) to the last reading with all its threads: its CPU
+time (user + sys of all its threads, ``/proc/PID/stat``) and its threads' context switches
+(``voluntary_ctxt_switches`` + ``nonvoluntary_ctxt_switches`` of ``/proc/PID/task/*/status``),
+read every 0.5 s, per second of that span. Memory: the child's peak resident set
+(``ru_maxrss``) and its anonymous memory, the process's own pages (``Anonymous:`` of
+``/proc/PID/smaps_rollup``, the largest reading). ``--repeat N`` runs each N times and prints
+every run and the medians.
+
+``--sim``: also the simulated gel at rest (``GelSimulator`` with an empty script, seed 0) through
+the same runtime, pipeline and output as ``run --source sim`` (paced; the simulated gel waits
+rather than drops), in a child of this script, measured as above; and the simulator alone
+(its stream read back to back, CPU per second of gel), which that figure includes.
 
 ``--work``: also the stages' own CPU at rest, without the runtime's threads: the same recording's
 items as the runtime hands them at rest (a window's event batches joined, APS frames between
@@ -31,6 +38,7 @@ the floor under a driver that wakes once or twice per window.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import statistics
 import subprocess
@@ -39,8 +47,13 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 #: Length of the resting recording (s): the longest run plus the start's margin.
 RECORDING_S = 45.0
+#: A run's steady state is measured from this long after its start (s): imports, the pipeline
+#: loaded, the first frame's markers are over by then.
+STEADY_AFTER_S = 12.0
 
 
 def make_rest_recording(folder: Path, seconds: float = RECORDING_S, seed: int = 0) -> Path:
@@ -63,12 +76,42 @@ def make_rest_recording(folder: Path, seconds: float = RECORDING_S, seed: int = 
     return path
 
 
-def measure(recording: Path, seconds: float) -> dict[str, float]:
-    """One real-time ``run`` of ``seconds``: CPU s (user + sys), peak RSS (MiB), wall s."""
-    command = [sys.executable, "-m", "neurotouch_hid.cli", "run", "--source", str(recording)]
-    command += ["--output", "jsonl", "--out", os.devnull, "--seconds", f"{seconds:g}"]
+def proc_reading(pid: int) -> dict[str, float] | None:
+    """A running process's CPU time so far (s, user + sys of all its threads, ``/proc/PID/stat``),
+    its context switches so far, summed over its threads (``/proc/PID/task/*/status``), its
+    threads, and its anonymous memory (MiB, ``Anonymous:`` of ``/proc/PID/smaps_rollup``); None
+    once it is gone."""
+    switches = 0
+    try:
+        with open(f"/proc/{pid}/stat") as file:
+            fields = file.read().rsplit(")", 1)[1].split()
+        cpu = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        tasks = os.listdir(f"/proc/{pid}/task")
+        for task in tasks:
+            with contextlib.suppress(FileNotFoundError):  # a thread that just ended
+                with open(f"/proc/{pid}/task/{task}/status") as file:
+                    for line in file:
+                        if line.startswith(("voluntary_ctxt_switches:", "nonvoluntary_ctxt_switches:")):
+                            switches += int(line.split()[1])
+        with open(f"/proc/{pid}/smaps_rollup") as file:
+            anon = next(int(line.split()[1]) for line in file if line.startswith("Anonymous:"))
+    except (FileNotFoundError, ProcessLookupError, StopIteration):
+        return None
+    return {"t": time.perf_counter(), "cpu": cpu, "switches": switches, "threads": len(tasks), "anon_mib": anon / 1024}
+
+
+def measure(command: list[str], settle_s: float = STEADY_AFTER_S) -> dict[str, float]:
+    """One real-time run of ``command`` (a child): CPU s (user + sys), peak RSS and largest
+    anonymous memory (MiB), wall s, and over its steady state (from ``settle_s`` after its start
+    to the last reading with all its threads) CPU s per s and context switches per s."""
     start = time.perf_counter()
     child = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    readings = []
+    while os.waitid(os.P_PID, child.pid, os.WEXITED | os.WNOWAIT | os.WNOHANG) is None:  # not reaped:
+        reading = proc_reading(child.pid)  # wait4 below gets its usage
+        if reading is not None:
+            readings.append(reading)
+        time.sleep(0.5)
     _, status, usage = os.wait4(child.pid, 0)
     wall = time.perf_counter() - start
     err = child.stderr.read().decode(errors="replace")
@@ -76,7 +119,76 @@ def measure(recording: Path, seconds: float) -> dict[str, float]:
     child.returncode = os.waitstatus_to_exitcode(status)
     if child.returncode != 0:
         sys.exit(f"bench_rest.py: {' '.join(command)} failed ({child.returncode}): {err.strip()}")
-    return {"cpu": usage.ru_utime + usage.ru_stime, "rss_mib": usage.ru_maxrss / 1024, "wall": wall}
+    steady = [r for r in readings if r["t"] - start >= settle_s]
+    steady = [r for r in steady if r["threads"] >= max((r["threads"] for r in steady), default=0)]
+    first, last = (steady[0], steady[-1]) if len(steady) >= 2 else ({"t": 0, "cpu": 0, "switches": 0},) * 2
+    span = last["t"] - first["t"]
+    return {
+        "cpu": usage.ru_utime + usage.ru_stime,
+        "rss_mib": usage.ru_maxrss / 1024,
+        "anon_mib": max((r["anon_mib"] for r in readings), default=float("nan")),
+        "wall": wall,
+        "share": (last["cpu"] - first["cpu"]) / span if span > 0 else float("nan"),
+        "switches_per_s": (last["switches"] - first["switches"]) / span if span > 0 else float("nan"),
+        "span_s": span,
+    }
+
+
+def run_command(recording: Path, seconds: float) -> list[str]:
+    """``neurotouch-hid run`` of ``seconds`` of ``recording``, paced, to JSON lines in /dev/null."""
+    command = [sys.executable, "-m", "neurotouch_hid.cli", "run", "--source", str(recording)]
+    return command + ["--output", "jsonl", "--out", os.devnull, "--seconds", f"{seconds:g}"]
+
+
+def sim_command(seconds: float) -> list[str]:
+    """This script's child that runs the simulated gel at rest for ``seconds`` (:func:`run_sim`)."""
+    return [sys.executable, __file__, "--child-sim", f"{seconds:g}"]
+
+
+def rest_stream(seconds: float, seed: int = 0):
+    """The simulated gel at rest, as ``SimulatedSource.stream`` yields a gel: per APS frame
+    period the frame, then its events in 1 ms batches."""
+    from neurotouch_hid.sensor import SensorGeometry
+    from neurotouch_hid.sources.recording import split_batches
+    from neurotouch_hid.sources.simulator import GelSimulator
+
+    sim = GelSimulator(SensorGeometry(), seed=seed, script=())
+    for chunk in sim.run(seconds):
+        yield chunk.frame
+        yield from split_batches(chunk.events, 1000)
+
+
+def run_sim(seconds: float) -> None:
+    """The simulated gel at rest through the runtime as ``run --source sim --output jsonl`` runs
+    it (the warm pipeline loaded first, as ``run`` does; paced, the source waits rather than drops)."""
+    from neurotouch_hid.driver import build_pipeline
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.output.jsonl import StateJsonlWriter
+    from neurotouch_hid.runtime import Runtime
+    from neurotouch_hid.sensor import SensorGeometry
+    from neurotouch_hid.warmup import PIPELINE_OF, SIMULATOR, Warmup
+
+    Warmup([SIMULATOR, *PIPELINE_OF["default"]], say=lambda line: None, interpreted=False).start()
+    sensor = SensorGeometry()
+    pipeline, resting = build_pipeline(sensor, 10_000)
+    with StateJsonlWriter(os.devnull) as out:
+        runtime = Runtime(
+            rest_stream(seconds + 1.0), pipeline, load_profile("default"), [out], resting=resting, waits=True
+        )
+        runtime.run(seconds)
+
+
+def simulator_alone(seconds: float = 10.0) -> float:
+    """CPU s per s of gel of the simulated gel at rest alone (its stream read back to back, after
+    its first second)."""
+    stream = rest_stream(seconds + 1.0)
+    for item in stream:  # the first second: its kernels loaded
+        if not isinstance(item, np.ndarray) and item.t_us >= 1_000_000:
+            break
+    begin = time.process_time()
+    for _ in stream:
+        pass
+    return (time.process_time() - begin) / seconds
 
 
 def rest_items(recording: Path, window_us: int = 10_000) -> list:
@@ -184,39 +296,57 @@ def measure_wakes(n: int = 1000, period_s: float = 0.01) -> dict[str, float]:
     return out
 
 
+def steady(name: str, command, seconds: float, repeat: int) -> None:
+    """Print the steady state of ``repeat`` runs of ``command(seconds)`` (CPU share, context
+    switches a second, peak RSS and anonymous memory), and their medians."""
+    shares, rates, peaks, anons = [], [], [], []
+    for _ in range(repeat):
+        run = measure(command(seconds))
+        shares.append(run["share"])
+        rates.append(run["switches_per_s"])
+        peaks.append(run["rss_mib"])
+        anons.append(run["anon_mib"])
+        print(
+            f"{name}: run {seconds:g} s: {run['cpu']:.2f} s CPU; steady state over {run['span_s']:.0f} s: "
+            f"{100 * shares[-1]:.1f} % of a core, {rates[-1]:.0f} context switches/s; peak RSS {peaks[-1]:.0f} MiB, "
+            f"anonymous {anons[-1]:.0f} MiB; load average {os.getloadavg()[0]:.1f}",
+            flush=True,
+        )
+    print(
+        f"{name} at rest: {100 * statistics.median(shares):.1f} % of a core, {statistics.median(rates):.0f} "
+        f"context switches/s (medians of {len(shares)}); peak RSS {max(peaks):.0f} MiB, anonymous "
+        f"{max(anons):.0f} MiB",
+        flush=True,
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--workdir", type=Path, default=None, help="keep the recording here")
-    ap.add_argument("--short", type=float, default=10.0, help="the short run (s)")
-    ap.add_argument("--long", type=float, default=40.0, help="the long run (s)")
+    ap.add_argument("--seconds", type=float, default=40.0, help="each run (s)")
     ap.add_argument("--repeat", type=int, default=1, help="pairs of runs")
     ap.add_argument("--work", action="store_true", help="also the stages' own CPU, hot and spread")
     ap.add_argument("--gap-ms", type=float, default=8.0, help="--work: sleep after each item (ms)")
     ap.add_argument("--wakes", action="store_true", help="also the CPU of a wake-up with no work")
+    ap.add_argument("--sim", action="store_true", help="also the simulated gel at rest")
+    ap.add_argument("--child-sim", type=float, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
-    if not 0 < args.short < args.long <= RECORDING_S:
-        sys.exit(f"bench_rest.py: expected 0 < --short < --long <= {RECORDING_S:g}")
+    if args.child_sim is not None:
+        run_sim(args.child_sim)
+        return
+    if not STEADY_AFTER_S + 5 < args.seconds <= RECORDING_S:
+        sys.exit(f"bench_rest.py: expected {STEADY_AFTER_S + 5:g} < --seconds <= {RECORDING_S:g}")
     folder = args.workdir or Path(tempfile.mkdtemp(prefix="bench-rest-"))
     folder.mkdir(parents=True, exist_ok=True)
     recording = make_rest_recording(folder)
     print(f"recording {recording}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores", flush=True)
-    shares, peaks = [], []
-    for _ in range(args.repeat):
-        short, long = measure(recording, args.short), measure(recording, args.long)
-        share = (long["cpu"] - short["cpu"]) / (args.long - args.short)
-        shares.append(share)
-        peaks.append(max(short["rss_mib"], long["rss_mib"]))
-        print(
-            f"run {args.short:g} s: {short['cpu']:.2f} s CPU, {short['rss_mib']:.0f} MiB; "
-            f"run {args.long:g} s: {long['cpu']:.2f} s CPU, {long['rss_mib']:.0f} MiB; "
-            f"steady state {100 * share:.1f} % of a core; load average {os.getloadavg()[0]:.1f}",
-            flush=True,
-        )
-    print(
-        f"at rest: {100 * statistics.median(shares):.1f} % of a core (median of {len(shares)}), "
-        f"peak RSS {max(peaks):.0f} MiB",
-        flush=True,
-    )
+    cases = [("recording", lambda seconds: run_command(recording, seconds))]
+    if args.sim:
+        cases.append(("simulated gel", sim_command))
+    for name, command in cases:
+        steady(name, command, args.seconds, args.repeat)
+    if args.sim:
+        print(f"the simulated gel at rest alone: {100 * simulator_alone():.1f} % of a core", flush=True)
     if args.work:
         work = measure_work(recording, args.gap_ms / 1e3)
         print(

@@ -97,6 +97,11 @@ DEFAULT_FRAME_QUEUE = 2
 REALTIME_SWITCH_INTERVAL_S = 0.0005
 
 _POLL_S = 0.05
+#: How often the main thread looks at the run (a reload or Ctrl-Z asked by a signal, a stalled
+#: source's deadline), s: it sleeps in between (a signal's handler cannot wake it safely).
+_MAIN_POLL_S = 0.25
+#: A thread waiting for queued items wakes at least this often (s); closing the queue wakes it.
+_IDLE_WAIT_S = 1.0
 _JOIN_S = 2.0
 _GRACE_S = 2.0
 
@@ -151,6 +156,7 @@ class DropOldestQueue:
         self._span_waits = span_waits
         self._cond = threading.Condition()
         self._closed = False
+        self._taken = False  # an item is being processed (:meth:`done` ends it)
 
     def _too_long(self, item: StreamItem) -> bool:
         if self._max_span_us is None or not (self._drop_oldest or self._span_waits) or not self._items:
@@ -190,6 +196,7 @@ class DropOldestQueue:
             if not self._items:
                 return None
             arrival_ns, item = self._items.popleft()
+            self._taken = True
             parts = [item]
             if isinstance(item, np.ndarray):
                 n = len(item)
@@ -200,6 +207,21 @@ class DropOldestQueue:
                     n += len(parts[-1])
             self._cond.notify_all()
         return arrival_ns, (join_events(parts) if len(parts) > 1 else item)
+
+    def done(self) -> None:
+        """The consumer is done with the entry it took (:meth:`get_joined`, :meth:`claim`)."""
+        with self._cond:
+            self._taken = False
+
+    def claim(self) -> bool:
+        """Whether the caller may process an item itself, in the consumer's place: nothing is
+        queued or being processed (then the queue counts it as taken until :meth:`done`, and the
+        consumer takes nothing meanwhile)."""
+        with self._cond:
+            if self._items or self._taken or self._closed:
+                return False
+            self._taken = True
+            return True
 
     def clear(self) -> None:
         """Drop every queued item (each counted like a drop-oldest one)."""
@@ -315,6 +337,14 @@ class Runtime:
         self._mapper = mapper_factory(profile)
         self._subscribers = tuple(subscribers)
         self._wants_markers = any(s.wants_markers for s in self._subscribers)
+        #: a subscriber wants every window's record, even one that changes nothing
+        self._every_window = self._wants_markers or any(getattr(s, "every_window", False) for s in self._subscribers)
+        #: the last resting estimate not handed to the mapper (:meth:`_unchanged_at_rest`)
+        self._skipped: GestureEstimate | None = None
+        #: the mapper known to rest at the state last published (:meth:`_unchanged_at_rest`);
+        #: forgotten when a record is published or the state forgotten
+        self._quiet_mapper: MapperStage | None = None
+        self._first_us: int | None = None  # the first item's end (us), for ``stats.stream_us``
         self._sensor = sensor
         self._compile_progress = compile_progress
         self._labelled = labelled
@@ -322,6 +352,7 @@ class Runtime:
         self._performed: LabelRow | None = None
         self._resting = resting
         self._pace = pace and not live
+        self._live = live
         self._realtime = pace or live
         self._profile_ref = profile_ref
         self._profile_loader = profile_loader
@@ -354,6 +385,13 @@ class Runtime:
         #: (the last window's end, the window's length) (us) while the gel rests, else None:
         #: set by the worker, read by the source thread (:meth:`_hand_on_us`)
         self._rest_windows: tuple[int, int] | None = None
+        #: a resting gel's items, held by the source's thread until ``_held_us`` (camera time,
+        #: us; a live source: until its poll brings nothing new), then handed on at once
+        self._held: list[StreamItem] = []
+        self._held_us = 0
+        self._held_for: tuple[int, int] | None = None  # the ``_rest_windows`` they were held at
+        self._held_before_us = 2**62  # a batch ending there or later is past the run's ``seconds``
+        self._read_us = self._read_ns = 0  # a live source's last item: its end (us), when read (pacer ns)
         self._last_end_us: int | None = None
 
     @property
@@ -386,6 +424,7 @@ class Runtime:
     def _forget_state(self) -> None:
         """The subscribers were neutralised or the mapping starts afresh: the next state is
         compared with a neutral one (caller holds ``self._lock``)."""
+        self._quiet_mapper = None
         self._last_state = ControllerState.neutral(self._last_state.t_us)
         self._last_gel = ControllerState.neutral(self._last_state.t_us)
         self._last_record = None  # a merged device's input waits for the next window's record
@@ -474,7 +513,7 @@ class Runtime:
                     t.start()
                 worker = threads[1]
                 while worker.is_alive():
-                    worker.join(_POLL_S)
+                    worker.join(_MAIN_POLL_S)
                     if self._reload.is_set():
                         self._reload.clear()
                         self.reload_profile()
@@ -570,10 +609,22 @@ class Runtime:
         if self._waits:  # its stream starts now, even when its first item takes a while
             self._clock.anchor_now()
         iterator = iter(self._source)
-        held: list[np.ndarray] = []  # event batches of a resting gel, joined, handed on at held_us
-        held_us = 0
+        held = self._held  # items of a resting gel, handed on at self._held_us, batches joined
+        # a live source's polls that bring nothing wait as the runtime decides (:meth:`_live_pause`)
+        pause = getattr(iterator, "poll_pause", None) if self._live else None
+        holds = self._pace or pause is not None
         try:
+            if pause is not None:
+                pause.decide = self._live_pause
             for item in iterator:
+                rest = self._rest_windows
+                if held and rest is not None and rest is self._held_for and type(item) is np.ndarray and len(item):
+                    t_us = int(item["timestamp"][-1])  # an event batch of the resting window being held:
+                    if t_us <= self._held_us and t_us < self._held_before_us:  # as below, in fewer steps
+                        held.append(item)
+                        if pause is not None:
+                            self._read_us, self._read_ns = t_us, self._clock.now_ns()
+                        continue
                 if self._stop.is_set():
                     break
                 if isinstance(item, SourceStatus):
@@ -587,26 +638,29 @@ class Runtime:
                     self._clock.due_ns(t_us)  # the first item anchors the clock
                     if self._limit_us is not None and t_us - self._clock.first_us >= self._limit_us:
                         break
-                    if self._pace:
+                    if pause is not None:
+                        self._read_us, self._read_ns = t_us, self._clock.now_ns()
+                    if holds:
                         due_us = self._hand_on_us(t_us)
-                        joins = isinstance(item, np.ndarray) and (due_us > t_us or (held and due_us == held_us))
-                        if held and not (joins and due_us == held_us) and self._hand_on_held(held, held_us):
+                        joins = due_us > t_us or bool(held and due_us == self._held_us)
+                        if held and not (joins and due_us == self._held_us) and self._hand_on_held():
                             break
                         if joins:
                             held.append(item)
-                            held_us = due_us
+                            self._held_us, self._held_for = due_us, self._rest_windows
+                            if self._limit_us is not None:  # (a batch from there on ends the run)
+                                self._held_before_us = self._clock.first_us + self._limit_us
                             continue
-                        if self._clock.wait(due_us, self._stop):
+                        if self._pace and self._clock.wait(due_us, self._stop):
                             break
-                entry = (time.perf_counter_ns(), item)
-                if isinstance(item, Frame) and self._resting is not None:
-                    self._frames.put(entry)
-                self._items.put(entry)
+                self._hand_on(item)
             if held and not self._stop.is_set():
-                self._hand_on_held(held, held_us)
+                self._hand_on_held()
         except BaseException as exc:  # a truncated recording, a lost camera: what was read is
             self._errors.append(exc)  # still processed, then run() neutralises and re-raises
         finally:
+            if pause is not None:
+                pause.decide = None
             close = getattr(iterator, "close", None)
             if close is not None:
                 with contextlib.suppress(Exception):
@@ -624,16 +678,69 @@ class Runtime:
         wake = end + REST_WAKE_AFTER_END_US
         return t_us if t_us <= wake else wake + -(-(t_us - wake) // window_us) * window_us
 
-    def _hand_on_held(self, held: list[np.ndarray], at_us: int) -> bool:
-        """Source thread: at ``at_us`` (camera time), the ``held`` event batches as one (in order;
-        the pipeline's windows close inside a batch as between batches), ``held`` emptied.
-        Returns whether the run was stopped meanwhile (nothing is handed on then)."""
-        if self._clock.wait(at_us, self._stop):
+    def _hand_on_held(self) -> bool:
+        """Source thread: the held items (a paced source: at ``self._held_us``, camera time),
+        each run of event batches as one (in order; the pipeline's windows close inside a batch
+        as between batches), the held list emptied. While nothing is queued or being processed
+        (a resting gel), this thread processes them itself (:meth:`_inline`): one wake-up a
+        window. Returns whether the run was stopped meanwhile (nothing is handed on then)."""
+        held = self._held
+        if self._pace and self._clock.wait(self._held_us, self._stop):
             return True
-        batch = join_events(held)
+        items: list[StreamItem] = []
+        run: list[np.ndarray] = []
+        for item in held:
+            if isinstance(item, np.ndarray):
+                run.append(item)
+                continue
+            if run:
+                items.append(join_events(run))
+                run = []
+            items.append(item)
+        if run:
+            items.append(join_events(run))
         held.clear()
-        self._items.put((time.perf_counter_ns(), batch))
+        for item in items:
+            self._hand_on(item)
         return False
+
+    def _live_pause(self) -> float:
+        """Source thread, a live source's poll brought nothing new: what it holds handed on, and
+        how long its next poll waits (s): while the gel rests, until the camera's clock reaches
+        the next window's end + :data:`REST_WAKE_AFTER_END_US` (estimated from when the last
+        item was read, at most a window and that), else the source's own pause."""
+        if self._held:
+            self._hand_on_held()
+        rest = self._rest_windows
+        if rest is None or self._stop.is_set():
+            return self._source.poll_pause.default_s
+        end, window_us = rest
+        camera_us = self._read_us + (self._clock.now_ns() - self._read_ns) // 1000  # about now
+        wake_us = end + window_us + REST_WAKE_AFTER_END_US
+        return max(0.0, min(wake_us - end, wake_us - camera_us) / 1e6)
+
+    def _hand_on(self, item: StreamItem) -> None:
+        """Source thread: one item to the pipeline: processed here while nothing is queued or
+        being processed and the gel rests (:meth:`_inline`), else queued for the pipeline's
+        thread (an APS frame also for the resting thread's)."""
+        entry = (time.perf_counter_ns(), item)
+        if self._rest_windows is not None and self._items.claim():
+            try:
+                self._inline(entry)
+            finally:
+                self._items.done()
+            return
+        if isinstance(item, Frame) and self._resting is not None:
+            self._frames.put(entry)
+        self._items.put(entry)
+
+    def _inline(self, entry: tuple[int, StreamItem]) -> None:
+        """Source thread, the gel at rest, the pipeline's thread idle: the item processed in this
+        thread, an APS frame's resting verdict first (the resting thread is not woken)."""
+        item = entry[1]
+        if isinstance(item, Frame) and self._resting is not None:
+            self._rest_verdict(item)
+        self._handle(entry)
 
     def _source_status(self, status: SourceStatus) -> None:
         """Source thread: the live camera was lost (neutralise now, drop the stale queue) or is
@@ -644,6 +751,7 @@ class Runtime:
                 self._neutralise()
                 self._forget_state()
             self._items.clear()
+            self._held.clear()
             self.stats.camera_losses += 1
         elif status.kind == StatusKind.RESUMED:
             self._restart.set()
@@ -653,65 +761,102 @@ class Runtime:
         """Resting thread: run the detector on APS frames, hand each verdict to the pipeline."""
         try:
             while not self._stop.is_set():
-                entry = self._frames.get()
+                entry = self._frames.get(_IDLE_WAIT_S)
                 if entry is None:
                     if self._frames.finished:
                         break
                     continue
-                frame = entry[1]
-                result = self._resting.update(frame)
-                if result is not None:
-                    self._pipeline.set_resting(result, int(frame.t_us))
-                    self.stats.resting_updates += 1
+                self._rest_verdict(entry[1])
         except BaseException as exc:
             self._errors.append(exc)
             self.stop()
 
+    def _rest_verdict(self, frame: Frame) -> None:
+        """The resting detector's verdict on ``frame``, handed to the pipeline."""
+        result = self._resting.update(frame)
+        if result is not None:
+            self._pipeline.set_resting(result, int(frame.t_us))
+            self.stats.resting_updates += 1
+
     def _work(self) -> None:
         """Pipeline thread: items -> estimates -> controller states -> records published."""
-        stats = self.stats
-        first_us: int | None = None
         # real time only: there the alternative is dropping data; a --fast run waits for the
         # pipeline and keeps its batches as the source made them
         joined_max = MAX_JOINED_EVENTS if self._realtime else 0
         try:
             while not self._stop.is_set():
-                entry = self._items.get_joined(max_events=joined_max)
+                entry = self._items.get_joined(_IDLE_WAIT_S, max_events=joined_max)
                 if entry is None:
                     if self._items.finished:
                         break
                     continue
-                arrival_ns, item = entry
-                if self._restart.is_set():
-                    self._resume()
-                estimates = self._pipeline.process(item)
-                if isinstance(item, Frame):
-                    stats.frames += 1
-                elif isinstance(item, np.ndarray):
-                    stats.events += len(item)
-                t_us = item_end_us(item)
-                if t_us is not None:
-                    first_us = t_us if first_us is None else first_us
-                    stats.stream_us = t_us - first_us
-                for estimate in estimates:
-                    self._emit(estimate)
-                    stats.windows += 1
-                    previous, self._last_end_us = self._last_end_us, estimate.t_us
-                    resting = estimate.resting and previous is not None and estimate.t_us > previous
-                    self._rest_windows = (estimate.t_us, estimate.t_us - previous) if resting else None
-                if estimates:
-                    done_ns = time.perf_counter_ns()
-                    compiling = self._compile_progress is not None and self._compile_progress() is not None
-                    stats.add_latency(
-                        len(estimates), done_ns - arrival_ns, compiling=compiling, waiting=len(self._items)
-                    )
-                    if self._pace:
-                        for estimate in estimates:
-                            end_ns = self._clock.due_ns(estimate.t_us)
-                            stats.window_latency.add(done_ns - end_ns)
+                try:
+                    self._handle(entry)
+                finally:
+                    self._items.done()
         except BaseException as exc:
             self._errors.append(exc)
             self.stop()
+
+    def _handle(self, entry: tuple[int, StreamItem]) -> None:
+        """One item -> estimates -> controller states -> records published: in the pipeline's
+        thread, or in the source's while the gel rests (:meth:`_hand_on`), never both at once."""
+        stats = self.stats
+        arrival_ns, item = entry
+        if self._restart.is_set():
+            self._resume()
+        estimates = self._pipeline.process(item)
+        if isinstance(item, Frame):
+            stats.frames += 1
+        elif isinstance(item, np.ndarray):
+            stats.events += len(item)
+        t_us = item_end_us(item)
+        if t_us is not None:
+            self._first_us = t_us if self._first_us is None else self._first_us
+            stats.stream_us = t_us - self._first_us
+        for estimate in estimates:
+            if not self._unchanged_at_rest(estimate):
+                self._emit(estimate)
+            stats.windows += 1
+            previous, self._last_end_us = self._last_end_us, estimate.t_us
+            resting = estimate.resting and previous is not None and estimate.t_us > previous
+            self._rest_windows = (estimate.t_us, estimate.t_us - previous) if resting else None
+        if estimates:
+            done_ns = time.perf_counter_ns()
+            compiling = self._compile_progress is not None and self._compile_progress() is not None
+            stats.add_latency(len(estimates), done_ns - arrival_ns, compiling=compiling, waiting=len(self._items))
+            if self._pace:
+                for estimate in estimates:
+                    end_ns = self._clock.due_ns(estimate.t_us)
+                    stats.window_latency.add(done_ns - end_ns)
+
+    def _unchanged_at_rest(self, estimate: GestureEstimate) -> bool:
+        """Whether ``estimate`` changes nothing: the gel rests, the mapper rests at its fixed point
+        (``Mapper.resting_state``: a resting estimate gives that state again) and that state is
+        the one last published, no subscriber wants every window (markers drawn), nothing
+        compiles. Then neither the mapper nor a subscriber is called; the mapper is handed the
+        last such estimate when the rest ends (:meth:`_emit`), as if it had had every one."""
+        if not estimate.resting or self._every_window or estimate.gesture is not self._last_gesture:
+            return False
+        if self._quiet_mapper is self._mapper:  # known since the rest's first skipped window
+            self._skipped = estimate
+            return True
+        with self._lock:
+            kept = getattr(self._mapper, "resting_state", None)
+            last = self._last_state
+            unchanged = (
+                kept is not None
+                and kept.axes == last.axes
+                and kept.buttons == last.buttons
+                and kept.keys == last.keys
+                and (self._compile_progress is None or self._compile_progress() is None)
+                # a merged device's input is published with the last window's record: one must exist
+                and (self._merge is None or self._last_record is not None)
+            )
+            if unchanged:
+                self._skipped = estimate
+                self._quiet_mapper = self._mapper
+        return unchanged
 
     def _resume(self) -> None:
         """Worker thread, first item after the camera came back: a new session of the pipeline
@@ -741,6 +886,10 @@ class Runtime:
         with self._lock:
             if self._stop.is_set() or self._paused or self._suspended:  # run() neutralises (under this
                 return  # lock): nothing after that; a lost camera, Ctrl-Z: nothing until back
+            self._quiet_mapper = None
+            if self._skipped is not None:  # the rest it skipped ends: the mapper's clocks to its end
+                skipped, self._skipped = self._skipped, None
+                self._mapper.update(skipped)
             state = self._last_gel = self._mapper.update(estimate)
             if self._merge is not None:
                 state = self._merge.merge(state)

@@ -50,7 +50,7 @@ from typing import TYPE_CHECKING, Callable, ContextManager, Iterable, Iterator, 
 
 import numpy as np
 
-from neurotouch_hid import jit_cache, resident
+from neurotouch_hid import jit_cache
 from neurotouch_hid.stages import CompileProgress
 
 if TYPE_CHECKING:
@@ -87,8 +87,7 @@ class KernelGroup:
             before it starts (~2 s for the pipeline, which the first window would otherwise wait
             for): ``"call"`` runs ``warm`` (the signatures a run calls: the pipeline's cache also
             holds other commands'), ``"cache"`` loads every signature numba's cache holds (the
-            simulator's: one a kernel). Either releases the mapped files' pages as it loads
-            (:func:`_releasing_file_pages`).
+            simulator's: one a kernel).
         only: when given, the group's kernels are these (``module.name``) alone.
         excludes: kernels (``module.name``) left to another group.
         background: in a run that goes on while it compiles, the child starts once the other
@@ -117,6 +116,7 @@ TRACKER_KERNELS = (
         for name in ("_track", "_check_lost", "_claim", "_release", "_repaint", "_lose", "_paint_all")
     ),
     "neurotouch_hid.pipeline.noise.background_activity_keep",
+    "neurotouch_hid.pipeline.rest_window.rest_window",
 )
 
 TRACKER = KernelGroup(
@@ -393,11 +393,10 @@ class Warmup:
         for group in self._groups:
             found = kernels(group)
             if not any(not cached_signatures(d) for d in found.values()):
-                with _releasing_file_pages():
-                    if group.load_when_warm == "call":
-                        _call(group.warm)
-                    else:
-                        _load_cached(found)
+                if group.load_when_warm == "call":
+                    _call(group.warm)
+                else:
+                    _load_cached(found)
                 self._settled[group.name].set()
                 continue
             self._kernels[group.name] = found
@@ -613,32 +612,6 @@ def _on_each_compiled(group_kernels: dict[str, object], on_kernel: Callable[[str
                 on_kernel(name)
 
     return event.install_listener("numba:compile", Reporting())
-
-
-@contextlib.contextmanager
-def _releasing_file_pages() -> Iterator[None]:
-    """A context that releases the process's clean file pages (:func:`resident.release_file_pages`)
-    at its start, once numba has loaded its first kernel from the cache, and at its end: numba's
-    set-up at the first kernel reads ~50 MB of LLVM's library, the other kernels ~15 MB more, and
-    the loaded kernels never read it again; released as they go, they do not add up."""
-    from numba.core import event
-    from numba.core.compiler_lock import global_compiler_lock
-
-    class FirstLoaded(event.Listener):
-        done = False
-
-        def on_start(self, ev):
-            pass
-
-        def on_end(self, ev):
-            if not self.done and not global_compiler_lock.is_locked():  # the outermost: loaded
-                self.done = True
-                resident.release_file_pages()
-
-    resident.release_file_pages()
-    with event.install_listener("numba:compiler_lock", FirstLoaded()):
-        yield
-    resident.release_file_pages()
 
 
 def _load_cached(group_kernels: dict[str, object]) -> None:

@@ -68,3 +68,52 @@ def held_push(estimates) -> int:
     """The first window of the first five in a row that report the push (us)."""
     kinds = [e.gesture for e in estimates]
     return next(e.t_us for k, e in enumerate(estimates) if kinds[k : k + 5] == [GestureType.PUSH] * 5)
+
+
+class GeneralPath(GesturePipeline):
+    """The pipeline with every window on the general path (a window estimate of its own)."""
+
+    def _moving(self, current, valid):
+        return super()._moving(current, valid)
+
+
+def joined_per_window(items, window_us: int = 10_000) -> list:
+    """The items as a paced run hands them on at rest: the event batches up to each window's end
+    plus one batch joined into one, frames in between."""
+    from neurotouch_hid.sources import Frame, join_events
+
+    out, held = [], []
+    for item in items:
+        if isinstance(item, Frame):
+            out += [join_events(held), item] if held else [item]
+            held = []
+            continue
+        held.append(item)
+        last = int(item["timestamp"][-1])
+        if last // window_us != (last + 1000) // window_us:
+            out.append(join_events(held))
+            held = []
+    return out + ([join_events(held)] if held else [])
+
+
+@pytest.mark.parametrize("joined", [False, True], ids=["1 ms batches", "a window's batches joined"])
+def test_the_compiled_resting_window_gives_the_general_paths_estimates_and_state(rest_push_rest, joined):
+    sensor, items = rest_push_rest
+    items = joined_per_window(items) if joined else items
+    fast, general = GesturePipeline(sensor), GeneralPath(sensor)
+    taken = []
+    rest_window = fast._resting_events
+
+    def counted(events):
+        taken.append(rest_window(events))
+        return taken[-1]
+
+    fast._resting_events = counted
+    ours = [e for item in items for e in fast.process(item)]
+    theirs = [e for item in items for e in general.process(item)]
+    assert sum(answer is not None for answer in taken) > 100  # the resting windows took the compiled path
+    assert any(e.resting for e in ours) and any(e.gesture is GestureType.PUSH for e in ours)
+    assert [repr(e) for e in ours] == [repr(e) for e in theirs]
+    assert fast.tracker.positions_px.tobytes() == general.tracker.positions_px.tobytes()
+    assert fast.tracker.counts == general.tracker.counts
+    assert (fast.noise_filter.n_in, fast.noise_filter.n_out) == (general.noise_filter.n_in, general.noise_filter.n_out)

@@ -228,10 +228,12 @@ class WindowedPipeline:
         self.touch_us = touch_us
         self.seen: list[int] = []  # each event's timestamp, in the order processed
         self.next_end: int | None = None
+        self.threads: list[tuple[int, str]] = []  # each item's length and the thread that processed it
 
     def process(self, item):
         if isinstance(item, Frame):
             return []
+        self.threads.append((len(item), threading.current_thread().name))
         out = []
         for t in item["timestamp"].tolist():
             self.next_end = t + 10_000 if self.next_end is None else self.next_end
@@ -260,14 +262,14 @@ def test_a_resting_gel_wakes_the_paced_source_once_per_window_and_a_touch_at_onc
 
     def source():
         for t in times:  # each batch once what was handed on is processed: no race on the clock
-            assert wait_until(lambda: len(pipeline.seen) >= sum(len(e[1]) for e in puts))
+            assert wait_until(lambda: len(pipeline.seen) >= sum(len(item) for item in puts))
             yield batch(t, n=1)
 
     rt = Runtime(
         source(), pipeline, {"sign": 1}, [RecordingOutput()], mapper_factory=FakeMapper, pace=True, pacer=pacer
     )
-    put = rt._items.put
-    rt._items.put = lambda entry: (puts.append(entry), put(entry))[1]
+    hand_on = rt._hand_on
+    rt._hand_on = lambda item: (puts.append(item), hand_on(item))[1]
     rt.run()
     assert pipeline.seen == times  # everything, in order
     woke = (np.cumsum(clock.slept) * 1e6 + times[0]).round().astype(int).tolist()  # camera time of each wake
@@ -279,9 +281,11 @@ def test_a_resting_gel_wakes_the_paced_source_once_per_window_and_a_touch_at_onc
     # the window the touch began in closed when it would have; after it, every batch on its own
     assert 61_500 in woke and 71_500 in woke
     assert moving == times[times.index(72_500) :]
-    # at rest the batches of a window went on as one: the pipeline ran once per window
-    sizes = [len(e[1]) for e in puts]
-    assert sizes == [1] * 22 + [10] * 4 + [1] * 38
+    # at rest the batches of a window went on as one: the pipeline ran once per window, in the
+    # source's thread (the pipeline's thread not woken); from the touch on, in the pipeline's
+    assert [len(item) for item in puts] == [1] * 22 + [10] * 4 + [1] * 38
+    assert pipeline.threads[22:26] == [(10, "nt-source")] * 4
+    assert set(pipeline.threads[27:]) == {(1, "nt-pipeline")}
 
 
 def test_without_pacing_nothing_waits():
@@ -361,7 +365,11 @@ class FakeResting:
         return ("rest", frame.t_us)
 
 
-def test_resting_results_reach_the_pipeline_from_their_own_thread():
+@pytest.mark.parametrize("push_batches", [10**9, 5], ids=["moving", "resting after a push"])
+def test_resting_results_reach_the_pipeline_from_their_own_thread(push_batches):
+    """While the gel moves, from the resting thread; while it rests, the source's thread computes
+    them as it hands the frames on (one thread wakes)."""
+
     def source():
         for i in range(10):
             yield Frame(i * 40_000, np.zeros((260, 346), np.uint8))
@@ -369,9 +377,11 @@ def test_resting_results_reach_the_pipeline_from_their_own_thread():
                 yield batch(i * 40_000 + k * 1000 + 1)
 
     resting = FakeResting()
-    rt, pipeline, _ = make_runtime(source(), resting=resting)
+    rt, pipeline, _ = make_runtime(source(), resting=resting, pipeline=FakePipeline(push_batches=push_batches))
     stats = rt.run()
-    assert resting.thread_names == {"nt-resting"}
+    # (at rest, a frame goes to the resting thread still when the pipeline's is busy)
+    allowed = {"nt-resting"} if push_batches > 400 else {"nt-resting", "nt-source"}
+    assert "nt-resting" in resting.thread_names <= allowed
     # every frame's verdict reaches the pipeline (set_resting) with its frame's time, in order,
     # except possibly the last ones if the stream ended before the resting thread was done
     ts = [t for _, t in pipeline.resting]
@@ -546,3 +556,92 @@ def test_the_run_s_pipeline_runs_opencv_without_its_thread_pool():
         assert cv2.getNumThreads() == 1
     finally:
         cv2.setNumThreads(previous)
+
+
+def test_at_rest_neither_mapper_nor_subscribers_are_called_and_the_states_stay_the_mappers():
+    """While the gel rests and the mapper rests at its fixed point, a window changes nothing: the
+    mapper and the subscribers are not called; the mapper gets the rest's last estimate when it
+    ends, so every state published is the one a mapper fed every window gives."""
+    from neurotouch_hid.mapping.mapper import Mapper
+    from neurotouch_hid.mapping.profile import load_profile
+
+    profile = load_profile("default")
+    pipeline = WindowedPipeline(touch_us=400_000)
+    calls: list[GestureEstimate] = []
+
+    class CountedMapper(Mapper):
+        def update(self, estimate):
+            calls.append(estimate)
+            return super().update(estimate)
+
+    class Every(RecordingOutput):
+        def publish(self, record):
+            self.calls.append(("publish", record.state))
+            super().publish(record)
+
+    times = [k * 1000 + 500 for k in range(600)]
+    out = Every()
+    rt = Runtime((batch(t, n=1) for t in times), pipeline, profile, [out], mapper_factory=CountedMapper, pace=False)
+    rt.run()
+    resting = [e for e in calls if e.resting]
+    assert rt.stats.windows == 59 and len(calls) < 59 - 30  # most resting windows skipped
+    assert resting[-1].t_us == 390_500  # the rest's last window, handed over when it ended
+    published = [s for k, s in out.calls if k == "publish"]
+    assert len(published) < 59 - 30
+
+    whole = Mapper(profile)  # every window's estimate, in order
+    fed = [whole.update(e) for e in WindowedPipeline(touch_us=400_000).process(join_all(times))]
+    by_time = {s.t_us: s for s in fed}
+    for state in published:
+        assert state == by_time[state.t_us]
+
+
+def join_all(times):
+    from neurotouch_hid.sources import join_events
+
+    return join_events([batch(t, n=1) for t in times])
+
+
+def test_a_resting_gel_polls_the_live_camera_once_per_window_and_a_touch_at_once():
+    """A live source (its polls wait by a PollPause): while the gel rests, each poll's items are
+    held and handed on (processed in the source's thread) when a poll brings nothing, and the
+    next poll waits for the next window's end; from the touch on, the source's own pause."""
+    from neurotouch_hid.sources import PausingStream, PollPause
+
+    pipeline = WindowedPipeline(touch_us=60_000)
+    times = [k * 1000 + 500 for k in range(100)]  # one event per 1 ms batch; windows end at 10 500 + 10 000 j
+    pause = PollPause(0.0002)
+    pauses: list[tuple[int, float]] = []  # (camera time, the pause asked) after each poll
+
+    def camera():
+        now_us, sent = 0, 0
+        while sent < len(times):
+            while sent < len(times) and times[sent] <= now_us:  # one poll: everything due
+                yield batch(times[sent], n=1)
+                sent += 1
+            # a camera slower than the pipeline: what was handed on is processed (no race on the
+            # rest); then the poll brought nothing new, and the camera's time goes on meanwhile
+            assert wait_until(lambda n=sent: len(pipeline.seen) + sum(len(item) for item in rt._held) >= n)
+            waited = pause()
+            pauses.append((now_us, waited))
+            now_us += max(200, round(waited * 1e6))
+            clock.now_ns = now_us * 1000
+
+    clock = ManualClock()  # the camera's time, moved on by the fake camera
+    rt = Runtime(
+        PausingStream(camera(), pause),
+        pipeline,
+        {"sign": 1},
+        [RecordingOutput()],
+        mapper_factory=FakeMapper,
+        live=True,
+        pacer=Pacer(clock=lambda: clock.now_ns, sleep=clock.sleep),
+    )
+    rt.run()
+    assert pipeline.seen == times and pause.decide is None  # everything, in order; the pause given back
+    resting = [(t, p) for t, p in pauses if 21_500 <= t < 60_000]
+    assert resting and all(p > 0.005 for _, p in resting)  # about a window each
+    assert len(resting) <= 5  # one poll a window, not one per 1 ms batch
+    assert all(p == 0.0002 for t, p in pauses if t >= 72_500)  # after the touch, the source's own
+    at_rest = [n for n, thread in pipeline.threads if thread == "nt-source"]
+    assert at_rest and all(n >= 9 for n in at_rest[1:])  # a window's batches at once, in the source's thread

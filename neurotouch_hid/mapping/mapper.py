@@ -470,6 +470,13 @@ class Mapper:
         layer = [self._filters[name] for name, m in mappings.items() if m.layer == self.layer]
         return [*self._switch_filters.values(), *layer]
 
+    @property
+    def resting_state(self) -> ControllerState | None:
+        """The state a resting estimate gives while the mapper rests at its fixed point (at that
+        estimate's time), else None: a caller may then skip resting estimates and hand it only
+        the last one before the rest ends (:meth:`update`), with the same states after."""
+        return self._quiet
+
     def _rest_again(self, t_us: int) -> ControllerState:
         """:meth:`update` of a resting estimate at the fixed point: the kept state at ``t_us``.
         The clocks (filters, pointer, wheels) are not moved here, only noted: a zero sample moves

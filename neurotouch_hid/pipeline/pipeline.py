@@ -57,15 +57,19 @@ from neurotouch_hid.pipeline.gesture import (
 from neurotouch_hid.pipeline.learned import gesture_features, learned_gesture
 from neurotouch_hid.pipeline.markers import MARKER_SPACING_MM
 from neurotouch_hid.pipeline.moves import _largest_move_sq, _unchanged
-from neurotouch_hid.pipeline.noise import EventNoiseFilter
+from neurotouch_hid.pipeline.noise import EventNoiseFilter, time_surface
 from neurotouch_hid.pipeline.override import grid_neighbours, overrules_rest, shared_distances
+from neurotouch_hid.pipeline.rest_window import OPEN, TOUCHED, rest_window
 from neurotouch_hid.pipeline.resting import compile_resting_kernels
 from neurotouch_hid.pipeline.synthetic import synthetic_windows
 from neurotouch_hid.pipeline.tracker import BlobTracker, swapped_blobs
 from neurotouch_hid.sensor import SensorGeometry
-from neurotouch_hid.sources import Frame, StreamItem
+from neurotouch_hid.sources import EVENT_DTYPE, Frame, StreamItem
 
 __all__ = ["MIN_WINDOW_US", "PipelineConfig", "GesturePipeline", "RESUME_MATCH_FRAMES", "STAGES"]
+
+#: No noise filter's time surface, for :func:`rest_window`.
+_NO_SURFACE = np.zeros((0, 0), dtype=np.int64)
 
 #: The stages :attr:`GesturePipeline.timings` measures.
 STAGES = ("noise_filter", "tracker", "contacts", "gesture", "resting", "frame_correction")
@@ -217,6 +221,9 @@ class GesturePipeline(FramePath):
         tracker.update(events)  # the batch whole: one version for batches of any length
         if self.noise_filter is not None:  # a fresh one: this pipeline's keeps its state
             self._noise_filter()(events)
+        surface = time_surface(self.sensor.width, self.sensor.height)  # a resting window's one call
+        end = int(events["timestamp"][-1])
+        rest_window(events, surface, 1, end, True, *tracker._kernel_state(), rest, 1.0, len(rest) + 1)
 
     def compile_window_kernels(self) -> None:
         """The per-window part of :meth:`compile_kernels`: resting detection, gel motion, the
@@ -294,6 +301,10 @@ class GesturePipeline(FramePath):
     def _process_events(self, events: np.ndarray, *, filtered: bool = False) -> list[GestureEstimate]:
         if self.tracker is None or len(events) == 0:
             return []
+        if not filtered and self._resting.resting and self._rests_compiled:
+            out = self._resting_events(events)
+            if out is not None:
+                return out
         if self.noise_filter is not None and not filtered:
             # the tracker gets the kept events; the windows start and close on the unfiltered
             # timestamps, as without a filter (a batch of noise only still ends its windows)
@@ -319,6 +330,63 @@ class GesturePipeline(FramePath):
                 return out
             out.append(self._close_window())
             start = cut
+
+    def _resting_events(self, events: np.ndarray) -> list[GestureEstimate] | None:
+        """:meth:`_process_events` of a batch while the resting verdict stands, as one compiled
+        call (``rest_window.py``: noise filter, tracker, the override's first test at the window's
+        end); the same estimates and state. None (nothing done) when the batch is not one it
+        takes: another layout, a clock gone back, more than one window end reached, stage
+        timings asked for."""
+        tracker, noise = self.tracker, self.noise_filter
+        ts = events["timestamp"]
+        first_us, last_us = int(ts[0]), int(ts[-1])
+        if self._next_end is None:
+            self._next_end = first_us + self.config.window_us
+        end = self._next_end
+        if (
+            last_us >= end + self.config.window_us
+            or self.timings is not None
+            or events.dtype != EVENT_DTYPE
+            or not events.flags.c_contiguous
+            or len(tracker._state) == 0
+            or (noise is not None and (noise._surface is None or first_us < (noise._last_us or first_us)))
+        ):
+            return None
+        c = self.config
+        answer, kept, cut = rest_window(
+            events,
+            _NO_SURFACE if noise is None else noise._surface,
+            0 if noise is None else noise.time_us,
+            end,
+            last_us >= end,
+            *tracker._kernel_state(),
+            self.rest_px,
+            c.motion_override_px * c.motion_override_px,
+            c.override_min_markers,
+        )
+        if noise is not None:
+            noise._last_us = last_us
+            noise.n_in += len(events)
+            noise.n_out += len(kept)
+        if answer == OPEN:
+            return []
+        if answer == TOUCHED:  # the first sign of a touch: the window as the general path closes it
+            return [self._close_window(), *self._process_events(kept[cut:], filtered=True)]
+        self._next_end = end + c.window_us
+        estimate = self._none(end, resting=True)
+        if self.on_window is not None:
+            self.on_window(estimate)
+        return [estimate]
+
+    @property
+    def _rests_compiled(self) -> bool:
+        """Whether a resting window may take the compiled path (:meth:`_resting_events`): the
+        window's estimate is this class's (a method whose override or window estimate differs,
+        e.g. the paper's, takes the general path)."""
+        return (
+            getattr(self._moving, "__func__", None) is GesturePipeline._moving
+            and getattr(self._estimate, "__func__", None) is GesturePipeline._estimate
+        )
 
     def _close_window(self) -> GestureEstimate:
         t_us = self._next_end

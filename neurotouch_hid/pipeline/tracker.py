@@ -382,8 +382,16 @@ class BlobTracker:
             events = np.ascontiguousarray(events)
         if len(events) == 0 or len(self._state) == 0:
             return
-        _track(
-            events,
+        _track(events, *self._kernel_state())
+        _check_lost(
+            self._cell, self._label, self._offs, self._n_offs, self._neigh, self._valid, self._state, self._params
+        )
+
+    def _kernel_state(self) -> tuple:
+        """The arrays :meth:`update` hands the event kernels (``_track``, ``_check_lost``), in
+        ``_track``'s order after the events: for a compiled caller that runs them itself
+        (``rest_window.py``)."""
+        return (
             self._state,
             self._cov,
             self._t_upd,
@@ -397,9 +405,6 @@ class BlobTracker:
             self._neigh,
             self._params,
             self._counts,
-        )
-        _check_lost(
-            self._cell, self._label, self._offs, self._n_offs, self._neigh, self._valid, self._state, self._params
         )
 
     @property

@@ -95,6 +95,62 @@ StreamItem = Union[np.ndarray, Frame, SourceStatus]
 Stream = Iterator[StreamItem]
 
 
+class PollPause:
+    """How long a live source waits after a poll of its device that brought nothing new (s):
+    ``default_s``, unless its consumer set ``decide`` (called, in the source's thread, each time
+    instead). The runtime does while the gel rests: it hands on what it holds and waits until
+    the next window's end, one wake-up a window (docs/performance.md, "At rest").
+
+    Attributes:
+        default_s: the source's own pause (s).
+        decide: None, or the consumer's ``() -> seconds``.
+    """
+
+    def __init__(self, default_s: float) -> None:
+        self.default_s = default_s
+        self.decide: Callable[[], float] | None = None
+
+    def __call__(self) -> float:
+        decide = self.decide
+        return self.default_s if decide is None else decide()
+
+
+class PausingStream:
+    """A live source's stream (an iterator of :data:`StreamItem`, closed with ``close()``) and
+    the :class:`PollPause` its polls wait by, ``poll_pause``, for its consumer to set."""
+
+    def __init__(self, items: Iterator[StreamItem], poll_pause: PollPause) -> None:
+        self._items = items
+        self.poll_pause = poll_pause
+
+    def __iter__(self) -> "PausingStream":
+        return self
+
+    def __next__(self) -> StreamItem:
+        return next(self._items)
+
+    def close(self) -> None:
+        """Close the underlying generator (its source's ``finally``)."""
+        close = getattr(self._items, "close", None)
+        if close is not None:
+            close()
+
+
+#: Waits up to this long (s) are slept through (``time.sleep``; a stop is seen after it), longer
+#: ones wait on the stop event: a wake-up from a plain sleep costs ~15 us less CPU on this VM
+#: (docs/performance.md, "At rest"), and a paced source waits about a window at a time.
+SHORT_SLEEP_S = 0.02
+
+
+def _sleep_or_stop(stop: threading.Event, seconds: float) -> bool:
+    """Wait ``seconds`` or until ``stop`` is set (a short wait: until it is over); returns whether
+    ``stop`` is set."""
+    if seconds <= SHORT_SLEEP_S:
+        time.sleep(seconds)
+        return stop.is_set()
+    return stop.wait(seconds)
+
+
 class Pacer:
     """Keeps a stream on time: item timestamps (us, camera clock) follow wall time
     (``time.perf_counter_ns``) from the first item on, as a camera delivers them. One pacing
@@ -103,7 +159,8 @@ class Pacer:
     Args:
         clock: the clock (ns) items are paced on; ``time.perf_counter_ns``, or one a test controls.
         sleep: ``sleep(stop, seconds)`` waits up to ``seconds`` on ``clock`` or until ``stop`` is
-            set, returning whether it was; None = ``stop.wait(seconds)`` (wall time).
+            set, returning whether it was; None = wall time: ``time.sleep`` up to
+            :data:`SHORT_SLEEP_S`, ``stop.wait(seconds)`` beyond.
 
     Attributes:
         first_us: the first item's timestamp (us), the anchor; None before the first item.
@@ -119,7 +176,11 @@ class Pacer:
         self.first_ns = 0
         self._clock = clock
         self._anchor_ns: int | None = None  # anchor_now's
-        self._sleep = sleep if sleep is not None else lambda stop, seconds: stop.wait(seconds)
+        self._sleep = sleep if sleep is not None else _sleep_or_stop
+
+    def now_ns(self) -> int:
+        """The clock's time now (ns)."""
+        return self._clock()
 
     def anchor_now(self) -> None:
         """Anchor the clock now, before the first item: it is due now whenever it comes, and a

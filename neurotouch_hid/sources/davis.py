@@ -45,7 +45,7 @@ from typing import Any, Callable, Iterator
 import numpy as np
 
 from neurotouch_hid.errors import DeviceError
-from neurotouch_hid.sources import Frame, SourceStatus, StatusKind, StreamItem
+from neurotouch_hid.sources import Frame, PausingStream, PollPause, SourceStatus, StatusKind, StreamItem
 from neurotouch_hid.sources.dv import DV_ERRORS, dv_error_text, events_from_store
 from neurotouch_hid.sources.recording import DAVIS346_RESOLUTION, grey_image, split_batches
 
@@ -296,9 +296,7 @@ class DavisSource:
             batches.append(events_from_store(store))
         return in_time_order(frames, batches), None
 
-    def stream(
-        self, seconds: float | None = None, batch_us: int = 1000, *, reconnect: bool = False
-    ) -> Iterator[StreamItem]:
+    def stream(self, seconds: float | None = None, batch_us: int = 1000, *, reconnect: bool = False) -> PausingStream:
         """Event batches and APS frames as the camera delivers them, until ``seconds`` have passed.
 
         Yields the same kinds of items as :meth:`RecordingReader.stream`: event batches (EVENT_DTYPE,
@@ -312,10 +310,19 @@ class DavisSource:
         camera, ``"lost"`` as soon as the camera stops, fails or stalls, ``"resumed"`` before the
         first data of a camera that is back), retrying with :func:`backoff_delays` in between.
 
+        A poll that brings nothing new waits ``poll_pause()`` (the returned stream's
+        :class:`~neurotouch_hid.sources.PollPause`: :data:`_IDLE_SLEEP_S` unless its consumer
+        decides; the runtime, while the gel rests, until the next window's end).
+
         Raises:
             DeviceError: without ``reconnect``, the camera is missing, stops (unplugged), fails or
                 stalls before ``seconds`` are over.
         """
+        pause = PollPause(_IDLE_SLEEP_S)
+        return PausingStream(self._items(seconds, batch_us, reconnect, pause), pause)
+
+    def _items(self, seconds: float | None, batch_us: int, reconnect: bool, pause: PollPause) -> Iterator[StreamItem]:
+        """:meth:`stream`'s items."""
         cfg = self.config
         deadline = None if seconds is None else self._clock() + seconds
 
@@ -363,7 +370,7 @@ class DavisSource:
             if failure is None and now - last_data > cfg.stall_timeout_s:
                 failure = f"sent no data for {now - last_data:.1f} s (stalled)"
             if failure is None:
-                self._sleep(_IDLE_SLEEP_S)
+                self._sleep(pause())
                 continue
             name = self.camera_name
             self.close()
