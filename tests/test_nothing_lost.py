@@ -135,3 +135,67 @@ def test_profile_set_writes_through_a_symlinked_profile_and_keeps_the_link(cli, 
     assert done.returncode == 0, done.stderr
     assert (cli.user_dir / "mine.yaml").is_symlink()
     assert "deadzone_mm: 1.5" in kept.read_text()
+
+
+# --- recordings: a full disk, the terminal closed ---------------------------------------------
+RECORD = ("record", "--source", "sim", "--seconds", "30", "--fast")
+
+
+def _no_hidden(folder: Path) -> None:
+    assert not [p.name for p in folder.iterdir() if p.name.startswith(".") and p.name != ".filler"], "a part file"
+
+
+def test_record_on_a_full_disk_is_one_line_and_keeps_an_existing_recording(tmp_path, sim_gel_short_recording):
+    """dv-processing's writer thread threw on a full disk (std::terminate, exit 134); ``record
+    --force`` replaced a recording by a truncated one."""
+    from neurotouch_hid.sources.recording import read_info
+
+    old = sim_gel_short_recording.read_bytes()
+
+    def put_old(folder: Path) -> None:
+        (folder / "old.aedat4").write_bytes(old)
+
+    with full_disk(tmp_path / "full", 8192, put_old) as full:
+        assert_refused(cli(RECORD[0], str(full / "new.aedat4"), *RECORD[1:], timeout_s=120), "the disk is full")
+        assert_refused(cli(RECORD[0], str(full / "old.aedat4"), *RECORD[1:], "--force", timeout_s=120), "disk is full")
+        assert (full / "old.aedat4").read_bytes() == old
+        assert not (full / "new.aedat4").exists()
+        _no_hidden(full)
+    roomy = tmp_path / "roomy"  # a disk that fills during the recording: 8 MB, 4 MB kept free
+    roomy.mkdir()
+    _mount("-t", "tmpfs", "-o", "size=8m", "tmpfs", str(roomy))
+    try:
+        put_old(roomy)
+        assert_refused(cli(RECORD[0], str(roomy / "old.aedat4"), *RECORD[1:], "--force", timeout_s=120), "as it was")
+        assert (roomy / "old.aedat4").read_bytes() == old
+        _no_hidden(roomy)
+        code, _, err, _ = cli(RECORD[0], str(roomy / "new.aedat4"), *RECORD[1:], timeout_s=120)
+        assert code == 2 and len(err.strip().splitlines()) == 1 and "complete in" in err, err
+        info = read_info(roomy / "new.aedat4")  # whole: its index table is there
+        assert info.n_frames > 0 and info.duration_s < 30
+        _no_hidden(roomy)
+    finally:
+        subprocess.run(["umount", "-l", str(roomy)], check=False)
+
+
+def test_a_closed_terminal_ends_a_recording_complete(tmp_path):
+    """SIGHUP (the terminal closed) ends ``record`` as Ctrl-C does: exit 0, a whole file."""
+    import signal
+
+    from helpers import wait_until
+
+    from neurotouch_hid.sources.recording import read_info
+
+    out = tmp_path / "hup.aedat4"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "neurotouch_hid.cli", "record", str(out), "--source", "sim"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(tmp_path / "config"), cwd=ROOT,
+    )  # fmt: skip
+    try:
+        assert wait_until(lambda: proc.poll() is not None or (out.exists() and out.stat().st_size > 200_000), 120)
+        proc.send_signal(signal.SIGHUP)
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, stderr
+    assert read_info(out).n_frames > 0

@@ -110,7 +110,7 @@ def _session(plan, source, out, sensor, seed, serial, physics, sim_miss, sim_mis
     folder = out if out is not None else enrolment_folder()
     stop = threading.Event()
     with contextlib.ExitStack() as stack:
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # SIGHUP: the terminal closed
             stack.callback(signal.signal, sig, signal.signal(sig, lambda *_: stop.set()))
         if isinstance(guide, CameraSource):
             stack.enter_context(guide)
