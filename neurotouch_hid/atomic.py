@@ -304,3 +304,35 @@ class AtomicFile:
                 raise
         if isinstance(exc, OSError) and exc.errno in DISK_ERRNOS:  # a write in the block
             raise disk_error(self.path, exc) from None
+
+
+#: ``renameat2``'s flag that swaps two paths in one step (linux/fs.h).
+_RENAME_EXCHANGE = 2
+
+
+def exchange(a: str | os.PathLike, b: str | os.PathLike) -> None:
+    """Swap the two existing paths ``a`` and ``b`` (folders too) in one step: no moment when
+    either name is missing (``renameat2(RENAME_EXCHANGE)``, Linux 3.15; ext4, xfs, btrfs, tmpfs).
+    Where the file system cannot, ``b`` is moved aside, ``a`` renamed to it and the old ``b``
+    put at ``a``: each step atomic, ``b`` missing for a moment.
+
+    Raises OSError as ``rename`` does.
+
+    Library: glibc's ``renameat2`` through ``ctypes`` (the standard library has no wrapper).
+    """
+    import ctypes
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    renameat2 = getattr(libc, "renameat2", None)
+    if renameat2 is not None:
+        at_fdcwd = -100
+        if renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+            return
+        code = ctypes.get_errno()
+        if code not in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP):
+            raise OSError(code, os.strerror(code), str(b))
+    aside = Path(tempfile.mkdtemp(dir=Path(b).parent, prefix=f".{Path(b).name}.", suffix=".old"))
+    os.replace(b, aside / "x")
+    os.replace(a, b)
+    os.replace(aside / "x", a)
+    aside.rmdir()

@@ -199,3 +199,89 @@ def test_a_closed_terminal_ends_a_recording_complete(tmp_path):
         proc.kill()
     assert proc.returncode == 0, stderr
     assert read_info(out).n_frames > 0
+
+
+# --- datasets: a folder that holds one is replaced only on --force, whole ----------------------
+SIMULATE = ("simulate", "--preset", "quick", "--users", "0", "--minutes", "0.01")
+
+
+def test_a_dataset_folder_is_replaced_only_on_force_and_then_whole(tmp_path):
+    """``simulate --out DS`` over a dataset replaced its sensor.yaml and sequences silently."""
+    ds = tmp_path / "ds"
+    assert cli(*SIMULATE, "--out", str(ds), "--seed", "1", timeout_s=300)[0] == 0
+    (ds / "u9_old.labels.csv").write_text("an earlier sequence's labels\n")
+    before = _snapshot(ds)
+    assert_refused(cli(*SIMULATE, "--out", str(ds), timeout_s=300), "holds a dataset already", "--force")
+    assert _snapshot(ds) == before
+    code, _, err, _ = cli(*SIMULATE, "--out", str(ds), "--force", timeout_s=300)
+    assert code == 0, err
+    after = _snapshot(ds)
+    assert "u9_old.labels.csv" not in after and after["sensor.yaml"] and after != before  # whole: nothing old left
+    home = tmp_path / "home"
+    home.mkdir()
+    (home / "notes.txt").write_text("not a dataset\n")
+    assert_refused(cli(*SIMULATE, "--out", str(home), "--force", timeout_s=300), "no dataset's")
+    assert _snapshot(home) == {"notes.txt": b"not a dataset\n"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds", "home"], "a part folder was left"
+
+
+def test_two_writers_into_one_new_folder_one_wins_whole_the_other_says_it_lost(tmp_path):
+    from neurotouch_hid.dataset import DatasetOut
+    from neurotouch_hid.errors import DatasetError
+
+    out = tmp_path / "enrolment"
+    first, second = DatasetOut(out), DatasetOut(out)
+    (first.work / "enrolment.labels.csv").write_text("first\n")
+    (second.work / "enrolment.labels.csv").write_text("second\n")
+    assert first.commit() == out
+    with pytest.raises(DatasetError, match="another command wrote a dataset there meanwhile"):
+        second.commit()
+    assert _snapshot(out) == {"enrolment.labels.csv": b"first\n"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["enrolment"]
+    forced = DatasetOut(out, force=True)
+    (forced.work / "sensor.yaml").write_text("new\n")
+    forced.commit()
+    assert _snapshot(out) == {"sensor.yaml": b"new\n"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["enrolment"]
+
+
+def test_enrol_from_a_recording_inside_the_dataset_keeps_its_labels_unless_forced(tmp_path, sim_quick_dataset):
+    ds = tmp_path / "ds"
+    ds.mkdir()
+    for name in ("u0_push.aedat4", "u0_push.labels.csv", "sensor.yaml"):
+        (ds / name).write_bytes((sim_quick_dataset / name).read_bytes())
+    plan = tmp_path / "plan.json"
+    assert cli("enrol", "--plan-out", str(plan))[0] == 0
+    before = _snapshot(ds)
+    args = ("enrol", "--from", str(ds / "u0_push.aedat4"), "--plan", str(plan), "--out", str(ds))
+    assert_refused(cli(*args, timeout_s=300), "holds a dataset already")
+    assert _snapshot(ds) == before
+
+
+# --- outputs of enrol --plan-out and adapt --out ---------------------------------------------
+def test_plan_out_and_adapt_out_refuse_links_write_devices_in_place_and_dash_is_stdout(tmp_path):
+    """``--plan-out /dev/null`` replaced the device node by a file (as root); ``--plan-out -``
+    wrote a file named ``-``; a link was replaced by a file."""
+    from neurotouch_hid.enrolment.model import Model
+
+    device = tmp_path / "null"
+    os.mknod(device, 0o666 | 0o020000, os.makedev(1, 3))  # a character device: /dev/null's numbers
+    assert cli("enrol", "--plan-out", str(device))[0] == 0
+    assert device.is_char_device()
+    code, out, err, _ = cli("enrol", "--plan-out", "-")
+    assert code == 0 and out.startswith('{"prompts": [') and "prompts over" in err, (out, err)
+    assert not (ROOT / "-").exists()
+    precious, link = tmp_path / "precious.json", tmp_path / "link.json"
+    precious.write_text("keep me\n")
+    link.symlink_to(precious)
+    assert_refused(cli("enrol", "--plan-out", str(link)), "symbolic link")
+    assert_refused(cli("adapt", str(tmp_path), "--out", str(link)), "symbolic link")
+    assert precious.read_text() == "keep me\n" and link.is_symlink()
+    Model({"gesture.intensity_gain": 1.1}).save(device)
+    assert device.is_char_device()
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    reader = subprocess.Popen(["cat", str(fifo)], stdout=subprocess.PIPE)
+    assert cli("enrol", "--plan-out", str(fifo))[0] == 0
+    assert reader.communicate(timeout=30)[0].startswith(b'{"prompts": [')
+    assert fifo.is_fifo()

@@ -191,8 +191,11 @@ def simulate(
         "per sequence); "
         "see docs/accuracy.md",
     ),
+    force: bool = typer.Option(False, "--force", help="replace the dataset OUT holds, whole"),
 ) -> None:
-    """Simulate the NeuroTouch gel and write a labelled dataset (docs/dataset.md)."""
+    """Simulate the NeuroTouch gel and write a labelled dataset (docs/dataset.md).
+
+    OUT is written whole at the end: a dataset there is refused unless --force, then replaced."""
     from neurotouch_hid.sources.simulator import write_dataset
 
     user_ids = None
@@ -210,6 +213,7 @@ def simulate(
         progress=True,
         noise_hz=noise_hz,
         physics=physics,
+        force=force,
     )
     console.print(f"wrote {folder}")
 

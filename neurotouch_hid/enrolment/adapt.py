@@ -729,7 +729,12 @@ def fitted_info(adaptation: Adaptation, datasets: Sequence[str | Path]) -> dict:
 def check_output(out: str | Path, datasets: Sequence[str | Path]) -> Path:
     """``out`` if writing there destroys no input: not a folder, not a file of an enrolment
     dataset. Raises NeurotouchError naming the clash."""
+    from neurotouch_hid.atomic import check_output as outside_checks
+
     out = Path(out).expanduser()
+    if str(out) == "-":  # standard output
+        return out
+    outside_checks(out, (), what="model")  # a symbolic link is never written through
     if out.is_dir():
         raise NeurotouchError(f"--out {out}: a folder; give the model's file name, e.g. {out / 'model.yaml'}")
     resolved = out.resolve()

@@ -25,8 +25,7 @@ file and a rename.
 
 from __future__ import annotations
 
-import os
-import tempfile
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -100,19 +99,25 @@ class Model:
 
     def save(self, path: str | Path) -> Path:
         """Write the model to ``path`` through a temporary file in the same folder and a rename
-        (a reader never sees half a file; an interrupted write leaves the old one). Creates the
-        folder. Raises ModelError when it cannot be written."""
+        (a reader never sees half a file; an interrupted write leaves the old one); ``-`` is
+        standard output, a FIFO or a character device is written as it is
+        (``atomic.AtomicFile``). Creates the folder.
+
+        Raises:
+            OutputError: ``path`` is a symbolic link or a folder, or the disk refuses the write.
+            ModelError: it cannot be written otherwise.
+        """
+        from neurotouch_hid.atomic import AtomicFile
+
         path = Path(path)
+        if str(path) == "-":
+            sys.stdout.write(self.to_yaml())
+            sys.stdout.flush()
+            return path
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-            try:
-                with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                    fh.write(self.to_yaml())
-                os.replace(tmp, path)
-            except BaseException:
-                Path(tmp).unlink(missing_ok=True)
-                raise
+            with AtomicFile(path, what="model") as fh:
+                fh.write(self.to_yaml())
         except OSError as exc:
             raise ModelError(f"{path}: cannot write the model: {exc.strerror or exc}") from None
         return path
