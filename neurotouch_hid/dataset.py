@@ -32,7 +32,7 @@ import numpy as np
 from neurotouch_hid.atomic import DISK_ERRNOS, AtomicFile, _umask, disk_error, exchange
 from neurotouch_hid.errors import DatasetError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.limits import printable, read_outside_text, short
+from neurotouch_hid.limits import MAX_SENSOR_PX, printable, read_outside_text, short
 from neurotouch_hid.sensor import user_sensor_path
 
 #: Largest predictions file read (bytes; read whole): an hour of 10 ms windows is ~100 MB.
@@ -53,6 +53,13 @@ LABEL_COLUMNS: tuple[str, ...] = (
     "y3_px",
 )
 MAX_CONTACTS = 3
+#: Largest labels file read (bytes) and most rows in it: a row per APS frame, 25 a second, is
+#: 40-80 bytes of text and ~0.7 KB once read; 250 000 rows are 2.8 hours of frames, ~180 MB read.
+MAX_LABELS_BYTES = 32 << 20
+MAX_LABEL_ROWS = 250_000
+#: Largest labelled intensity (mm): the dome is 60 mm across; a displacement larger than that is
+#: no gel's (``eval`` sizes its intensity histograms by it).
+MAX_LABEL_INTENSITY_MM = 60.0
 
 
 @dataclass(frozen=True)
@@ -120,8 +127,8 @@ def read_labels(path: str | Path) -> list[LabelRow]:
     """
     path = Path(path)
     rows: list[LabelRow] = []
-    # bounded as a predictions file: a regular file (a FIFO would hang), at most 1 GiB
-    text = read_outside_text(path, MAX_PREDICTIONS_BYTES, "labels file", DatasetError)
+    # a regular file (a FIFO would hang), at most MAX_LABELS_BYTES
+    text = read_outside_text(path, MAX_LABELS_BYTES, "labels file", DatasetError)
     with io.StringIO(text, newline="") as fh:
         reader = csv.reader(fh)
         header = next(reader, None)
@@ -136,8 +143,12 @@ def read_labels(path: str | Path) -> list[LabelRow]:
             if len(cells) != len(LABEL_COLUMNS):
                 raise DatasetError(f"{path}:{line_no}: expected {len(LABEL_COLUMNS)} columns, found {len(cells)}")
             col = "t_us"
+            if len(rows) >= MAX_LABEL_ROWS:
+                raise DatasetError(f"{path}:{line_no}: more than {MAX_LABEL_ROWS:,} rows (docs/limits.md, Labels)")
             try:
                 t_us = int(cells[0])
+                if not 0 <= t_us <= MAX_T_US:
+                    raise ValueError(f"expected a time in microseconds from 0 to 2^62, found {short(cells[0])}")
                 col = "gesture"
                 gesture = GestureType(cells[1])
                 col = "resting"
@@ -145,6 +156,8 @@ def read_labels(path: str | Path) -> list[LabelRow]:
                     raise ValueError("expected 0 or 1")
                 col = "intensity_mm"
                 intensity = float(cells[3])
+                if not 0.0 <= intensity <= MAX_LABEL_INTENSITY_MM:  # NaN fails too
+                    raise ValueError(f"expected mm from 0 to {MAX_LABEL_INTENSITY_MM:g}, found {short(cells[3])}")
                 col = "n_contacts"
                 n = int(cells[4])
                 if not 0 <= n <= MAX_CONTACTS:
@@ -153,12 +166,16 @@ def read_labels(path: str | Path) -> list[LabelRow]:
                 contacts = np.array(
                     [[float(cells[5 + 2 * k]), float(cells[6 + 2 * k])] for k in range(n)], dtype=np.float64
                 ).reshape(n, 2)
+                if not np.all(np.abs(contacts) <= MAX_SENSOR_PX):  # NaN fails too
+                    raise ValueError(f"expected image pixels from -{MAX_SENSOR_PX} to {MAX_SENSOR_PX}")
             except ValueError as exc:
                 raise DatasetError(f"{path}:{line_no}: column {col!r}: {printable(exc, 200)}") from None
             if t_us < last:
                 raise DatasetError(f"{path}:{line_no}: rows must be ordered by time (t_us {t_us} < {last})")
             last = t_us
             rows.append(LabelRow(t_us, gesture, cells[2] == "1", intensity, contacts))
+    if not rows:
+        raise DatasetError(f"{path}:2: no labelled frame after the header (docs/dataset.md): nothing to score")
     return rows
 
 

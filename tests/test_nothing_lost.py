@@ -285,3 +285,83 @@ def test_plan_out_and_adapt_out_refuse_links_write_devices_in_place_and_dash_is_
     assert cli("enrol", "--plan-out", str(fifo))[0] == 0
     assert reader.communicate(timeout=30)[0].startswith(b'{"prompts": [')
     assert fifo.is_fifo()
+
+
+# --- models and labels: every number within what a gel can be --------------------------------
+_MODEL = "format: neurotouch-hid model\nversion: 1\n"
+
+
+@pytest.mark.parametrize(
+    "text, line, field",
+    [
+        (_MODEL + "settings:\n  gesture.intensity_gain: 1.7e308\n", 4, "settings.gesture.intensity_gain"),
+        (_MODEL + "settings:\n  gesture.intensity_gain: 999\n", 4, "settings.gesture.intensity_gain"),
+        (_MODEL + "settings:\n  gesture.min_intensity_mm: -1\n", 4, "settings.gesture.min_intensity_mm"),
+        (_MODEL + "settings:\n  episode.first_finger_us: 1e12\n", 4, "settings.episode.first_finger_us"),
+        ("format: neurotouch-hid model\nversion: true\n", 2, "version"),
+    ],
+)
+def test_a_model_number_outside_what_a_gel_can_be_is_refused_with_file_line_and_field(tmp_path, text, line, field):
+    from neurotouch_hid.enrolment.model import ModelError, load_model
+
+    path = tmp_path / "model.yaml"
+    path.write_text(text)
+    with pytest.raises(ModelError) as caught:
+        load_model(path)
+    said = str(caught.value)
+    assert said.startswith(f"{path}:{line}: ") and (field in said or "version" in said), said
+
+
+def test_classifier_weights_of_1e308_are_refused(tmp_path):
+    from neurotouch_hid.enrolment.model import Model, ModelError, load_model
+    from neurotouch_hid.pipeline.learned import Classifier
+
+    c = Classifier.shipped()
+    weights = c.weights.copy()
+    weights[0, 3] = 1e308
+    parts = {"mean": c.mean.tolist(), "scale": c.scale.tolist(), "weights": weights.tolist()}
+    path = Model({}, {**parts, "intercept": c.intercept.tolist()}).save(tmp_path / "model.yaml")
+    with pytest.raises(ModelError, match=r"model.yaml:\d+: field 'classifier.weights': found 1e\+308"):
+        load_model(path)
+    assert_refused(cli("track", "x.aedat4", "--out", str(tmp_path / "p.jsonl"), "--model", str(path)), "1e+308")
+
+
+_HEADER = "t_us,gesture,resting,intensity_mm,n_contacts,x1_px,y1_px,x2_px,y2_px,x3_px,y3_px\n"
+
+
+@pytest.mark.parametrize(
+    "row, column",
+    [
+        ("1000000000000000000000000000000,none,1,0,0,,,,,,", "t_us"),
+        ("-5,none,1,0,0,,,,,,", "t_us"),
+        ("40000,push,0,nan,0,,,,,,", "intensity_mm"),
+        ("40000,push,0,inf,0,,,,,,", "intensity_mm"),
+        ("40000,push,0,5e7,0,,,,,,", "intensity_mm"),
+        ("40000,push,0,-1,0,,,,,,", "intensity_mm"),
+        ("40000,push,0,1,1,nan,3,,,,", "contacts"),
+        ("40000,push,0,1,1,1e300,3,,,,", "contacts"),
+    ],
+)
+def test_a_labels_number_out_of_bounds_is_one_line_with_file_line_and_column(tmp_path, row, column):
+    from neurotouch_hid.dataset import read_labels
+    from neurotouch_hid.errors import DatasetError
+
+    path = tmp_path / "seq.labels.csv"
+    path.write_text(_HEADER + "0,none,1,0,0,,,,,,\n" + row + "\n")
+    with pytest.raises(DatasetError) as caught:
+        read_labels(path)
+    assert str(caught.value).startswith(f"{path}:3: column '{column}'"), caught.value
+
+
+def test_a_labels_file_with_a_header_alone_or_too_many_rows_is_one_line(tmp_path, monkeypatch):
+    from neurotouch_hid import dataset
+    from neurotouch_hid.errors import DatasetError
+
+    path = tmp_path / "seq.labels.csv"
+    path.write_text(_HEADER)
+    with pytest.raises(DatasetError, match=r"seq.labels.csv:2: no labelled frame"):
+        dataset.read_labels(path)
+    monkeypatch.setattr(dataset, "MAX_LABEL_ROWS", 10)
+    path.write_text(_HEADER + "".join(f"{i * 40000},none,1,0,0,,,,,,\n" for i in range(11)))
+    with pytest.raises(DatasetError, match=r"seq.labels.csv:12: more than 10 rows"):
+        dataset.read_labels(path)

@@ -45,7 +45,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.errors import DatasetError, NeurotouchError
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
 from neurotouch_hid.evaluation.metrics import outside_collar
@@ -527,9 +527,11 @@ def adapt(records: Sequence[Record], rerun: Callable[..., list[Record]] | None =
     resting threshold, which only a new run can check, stays the shipped one.
 
     Raises:
-        NeurotouchError: the enrolments hold no labelled gesture.
+        NeurotouchError: the enrolments hold no labelled gesture. DatasetError: the labels'
+            intensities are out of scale with the gel's (an intensity gain outside
+            ``model.SETTING_RANGES``: labels in micrometres).
     """
-    from neurotouch_hid.enrolment.model import Model
+    from neurotouch_hid.enrolment.model import SETTING_RANGES, Model, out_of_range
     from neurotouch_hid.pipeline.config import GestureConfig, RestingConfig
 
     held = held_out_prompts(records)
@@ -654,6 +656,12 @@ def adapt(records: Sequence[Record], rerun: Callable[..., list[Record]] | None =
     gain = None
     if den > 0 and math.isfinite(num / den) and num > 0:
         fitted_gain = round(num / den, 4)
+        if out_of_range("gesture.intensity_gain", fitted_gain) is not None:
+            low, high = SETTING_RANGES["gesture.intensity_gain"]
+            raise DatasetError(
+                f"the labels' intensities are {fitted_gain:.4g} times what the gel measures, outside the {low:g} to "
+                f"{high:g} a gel can be: are they in another unit? intensity_mm is in millimetres (docs/dataset.md)"
+            )
         if fitted_gain != 1.0:
             mae_shipped, _ = _mae(records, held, 1.0)
             mae_fitted, _ = _mae(records, held, fitted_gain)
