@@ -365,3 +365,29 @@ def test_a_labels_file_with_a_header_alone_or_too_many_rows_is_one_line(tmp_path
     path.write_text(_HEADER + "".join(f"{i * 40000},none,1,0,0,,,,,,\n" for i in range(11)))
     with pytest.raises(DatasetError, match=r"seq.labels.csv:12: more than 10 rows"):
         dataset.read_labels(path)
+
+
+# --- tracebacks: a closed standard output, windows past int64, long numbers -------------------
+def test_a_closed_standard_output_is_no_traceback(tmp_path, sim_gel_short_recording):
+    """``neurotouch-hid ... >&-`` failed at import (``sys.stdout`` is None)."""
+    for args in (["info", str(sim_gel_short_recording)], ["profile", "list"]):
+        done = subprocess.run(
+            ["sh", "-c", 'exec "$@" >&-', "sh", sys.executable, "-m", "neurotouch_hid.cli", *args],
+            capture_output=False, stderr=subprocess.PIPE, text=True, env=_env(tmp_path / "config"), cwd=ROOT,
+            timeout=120,
+        )  # fmt: skip
+        assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr
+
+
+@pytest.mark.parametrize("window", [str(2**63), str(2**63 - 1), "9" * 301])
+def test_a_window_past_a_second_is_one_line(tmp_path, sim_gel_short_recording, window):
+    """``--window-us`` of 2^63 overflowed; 2^63-1 ran no window at all and exited 0."""
+    result = cli("track", str(sim_gel_short_recording), "--out", str(tmp_path / "p.jsonl"), "--window-us", window)
+    assert_refused(result, "at most 1000000 us")
+    assert len(result[2]) < 400 and not (tmp_path / "p.jsonl").exists()
+
+
+def test_a_301_digit_exposure_is_not_echoed_whole(tmp_path):
+    result = cli("record", str(tmp_path / "r.aedat4"), "--exposure-us", "9" * 301)
+    assert_refused(result, "--exposure-us")
+    assert "9" * 100 not in result[2]
