@@ -391,3 +391,44 @@ def test_a_301_digit_exposure_is_not_echoed_whole(tmp_path):
     result = cli("record", str(tmp_path / "r.aedat4"), "--exposure-us", "9" * 301)
     assert_refused(result, "--exposure-us")
     assert "9" * 100 not in result[2]
+
+
+# --- a gap in the clock costs what the data costs ---------------------------------------------
+YEAR_US = 365 * 24 * 3600 * 10**6
+
+
+def test_a_years_gap_in_a_recording_costs_no_more_than_its_data(tmp_path, sim_gel_chunks):
+    """Every empty window of a gap was made: a year's gap ended in MemoryError in ``track``,
+    ``run --fast`` and ``eval``. The windows of the gap's first second are emitted, the rest
+    skipped (the predictions format asks for no empty window)."""
+    from neurotouch_hid.dataset import LabelRow, read_predictions, write_labels
+    from neurotouch_hid.estimate import GestureType
+    from neurotouch_hid.sources import Frame
+    from neurotouch_hid.sources.recording import RecordingWriter
+    from neurotouch_hid.sources.simulator import SimulatedSource
+
+    ds = tmp_path / "ds"
+    ds.mkdir()
+    SimulatedSource(seed=0).sensor.save(ds / "sensor.yaml")
+    recording, frames = ds / "gap.aedat4", []
+    with RecordingWriter(recording) as writer:
+        for shift in (0, YEAR_US):
+            for chunk in sim_gel_chunks[:15]:  # 0.6 s of rest, then the same a year later
+                frames.append(chunk.frame.t_us + shift)
+                writer.write_frame(Frame(frames[-1], chunk.frame.image))
+                events = chunk.events.copy()
+                events["timestamp"] += shift
+                writer.write_events(events)
+    write_labels(ds / "gap.labels.csv", [LabelRow(t, GestureType.NONE, True, 0.0) for t in frames])
+    out = tmp_path / "pred.jsonl"
+    code, _, err, rss = cli("track", str(recording), "--out", str(out), timeout_s=180)
+    assert code == 0 and rss < 512 * 1024, (code, rss, err[-500:])
+    times = [e.t_us for e in read_predictions(out)]
+    assert 100 <= len(times) < 400 and times[-1] > YEAR_US, len(times)  # both sides, a second of the gap
+    assert max(b - a for a, b in zip(times, times[1:])) > YEAR_US - 10**7
+    states = tmp_path / "states.jsonl"
+    run = ("run", "--fast", "--profile", "default", "--output", "jsonl", "--out", str(states))
+    code, _, err, rss = cli(*run, "--source", str(recording), timeout_s=180)
+    assert code == 0 and rss < 512 * 1024, (code, rss, err[-500:])
+    code, _, err, rss = cli("eval", str(ds), timeout_s=180)
+    assert code == 0 and rss < 512 * 1024, (code, rss, err[-500:])
