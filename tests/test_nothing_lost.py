@@ -432,3 +432,46 @@ def test_a_years_gap_in_a_recording_costs_no_more_than_its_data(tmp_path, sim_ge
     assert code == 0 and rss < 512 * 1024, (code, rss, err[-500:])
     code, _, err, rss = cli("eval", str(ds), timeout_s=180)
     assert code == 0 and rss < 512 * 1024, (code, rss, err[-500:])
+
+
+# --- the control socket: many `profile use` at once --------------------------------------------
+def test_parallel_profile_use_all_get_their_answer(tmp_path):
+    """The backlog of 4 made ten `profile use` at once fail with "Resource temporarily
+    unavailable"; over the clients served at once they were answered busy."""
+    import threading
+    import time
+
+    from neurotouch_hid.control import ControlServer, request_use
+
+    folder = tmp_path / "run"
+    folder.mkdir(mode=0o700)
+    (folder / "neurotouch-hid").mkdir(mode=0o700)
+    gate = threading.Event()
+
+    def use(ref: str) -> str:
+        gate.wait(5)  # every client waits here: the backlog and the served ones fill up
+        time.sleep(0.01)
+        return f"switched to {ref}"
+
+    server = ControlServer(use, path=folder / "neurotouch-hid" / "control.sock")
+    assert server.start()
+    answers, errors = [], []
+
+    def ask(i: int) -> None:
+        try:
+            answers.append(request_use(f"p{i}", path=server.path, timeout_s=20))
+        except Exception as exc:  # noqa: BLE001 (each failure is collected and shown)
+            errors.append(repr(exc))
+
+    try:
+        threads = [threading.Thread(target=ask, args=(i,)) for i in range(40)]
+        for t in threads:
+            t.start()
+        time.sleep(0.5)
+        gate.set()
+        for t in threads:
+            t.join(60)
+    finally:
+        server.stop()
+    assert not errors, errors[:3]
+    assert sorted(answers) == sorted(f"switched to p{i}" for i in range(40))
