@@ -475,3 +475,43 @@ def test_parallel_profile_use_all_get_their_answer(tmp_path):
         server.stop()
     assert not errors, errors[:3]
     assert sorted(answers) == sorted(f"switched to p{i}" for i in range(40))
+
+
+# --- messages that misled ----------------------------------------------------------------------
+def test_a_dataset_given_twice_to_adapt_is_read_once_and_said(tmp_path, sim_rest_dataset):
+    """``adapt D D D`` said its held-out gestures were never seen by the fit: they were copies of
+    fitted ones."""
+    out = tmp_path / "model.yaml"
+    d = str(sim_rest_dataset)
+    code, _, err, _ = cli("adapt", d, d, f"{d}/.", "--out", str(out), "--jobs", "1", timeout_s=300)
+    assert err.count("given more than once: read once") == 2, err
+
+
+def test_an_adaptation_with_nothing_held_out_says_no_nan():
+    import math
+
+    from neurotouch_hid.enrolment.adapt import Adaptation, Check, summary
+    from neurotouch_hid.enrolment.model import Model
+
+    nan = math.nan
+    checks = [Check("classifier", "gesture type accuracy", nan, nan, False, "refitted", False)]
+    lines = summary(Adaptation(Model(), checks, 0, 0, 0, nan, nan))
+    assert not [line for line in lines if "nan" in line.lower()], lines
+
+
+def test_plan_cues_past_the_recordings_end_are_said_once(tmp_path, sim_push_only_recording):
+    """A plan whose cues run past the recording: one line for them (it was a line per prompt);
+    a plan entirely past it is refused in one line."""
+    import json
+
+    late = [{"gesture": "pinch", "cue_s": 100.0 + 5 * i, "seconds": 0.5} for i in range(30)]
+    plan = tmp_path / "plan.json"
+    plan.write_text(json.dumps({"prompts": [{"gesture": "push", "cue_s": 0.5, "seconds": 1.0}, *late]}))
+    args = ("enrol", "--from", str(sim_push_only_recording), "--plan", str(plan))
+    code, out, err, _ = cli(*args, "--out", str(tmp_path / "ds"), timeout_s=300)
+    assert code == 0, err
+    assert "prompts 2 to 31 are cued after the recording's end: left out" in out
+    assert len(out.strip().splitlines()) <= 3, out
+    plan.write_text(json.dumps({"prompts": late}))
+    assert_refused(cli(*args, "--out", str(tmp_path / "ds2"), timeout_s=300), "every one of the plan's 30 prompts")
+    assert not (tmp_path / "ds2").exists()

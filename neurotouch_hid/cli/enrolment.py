@@ -161,7 +161,9 @@ def _label(
     target = DatasetOut(out, force=force)  # before the work: a dataset there is never at risk
     try:
         with recording_progress(err_console, "labelling") as report:
-            done = label_recording(recording, plan, target.work, geometry, inputs=inputs, on_progress=report)
+            done = label_recording(
+                recording, plan, target.work, geometry, inputs=inputs, on_progress=report, past_end=True
+            )
     except BaseException:
         target.discard()
         raise
@@ -194,6 +196,13 @@ def say_labelled(done, again: dict[int, int] | None = None) -> None:
                 line += f"; asked again as prompt {j + 1} ({_at(done.found[j])}): {fared}"
             console.print(line, highlight=False, soft_wrap=True)
         return
+    if done.past_end:
+        first = len(done.found) + 1
+        console.print(
+            f"prompts {first} to {first + done.past_end - 1} are cued after the recording's end: left out",
+            highlight=False,
+            soft_wrap=True,
+        )
     for f in done.missed:
         n = done.found.index(f) + 1
         console.print(
@@ -222,6 +231,7 @@ def adapt(
     from neurotouch_hid.enrolment.model import Model, user_model_path
 
     target = check_output(out if out is not None else user_model_path(), datasets)
+    datasets = _once(datasets)
 
     records = record_datasets(datasets, jobs=jobs, on_sequence=lambda name: say_err(f"recorded {name}"))
     adaptation = fit(records, rerun=lambda config: record_datasets(datasets, jobs=jobs, config=config))
@@ -230,3 +240,23 @@ def adapt(
     model = adaptation.model
     written = Model(model.settings, model.classifier, fitted_info(adaptation, datasets)).save(target)
     console.print(f"-> {written}", highlight=False, soft_wrap=True, markup=False)
+
+
+def _once(datasets: list[Path]) -> list[Path]:
+    """``datasets`` with each folder once (the same folder by its device and inode, however it is
+    spelled), the others said: a copy of a fitted gesture would be held out as unseen."""
+    import os
+
+    kept, seen = [], set()
+    for d in datasets:
+        try:
+            info = os.stat(d)
+            key: object = (info.st_dev, info.st_ino)
+        except OSError:
+            key = d  # missing: the reader says so
+        if key in seen:
+            say_err(f"{d}: given more than once: read once (a copy's gestures would be held out as never seen)")
+            continue
+        seen.add(key)
+        kept.append(d)
+    return kept

@@ -638,7 +638,7 @@ def adapt(records: Sequence[Record], rerun: Callable[..., list[Record]] | None =
         checks.append(
             Check(
                 "resting.centroid_threshold_mm2",
-                f"gesture type accuracy (resting F1 of the frames {100 * f_shipped:.2f} -> {100 * f_fitted:.2f} %)",
+                f"gesture type accuracy (resting F1 of the frames {_percent(f_shipped)} -> {_percent(f_fitted)})",
                 current,
                 after,
                 kept,
@@ -713,14 +713,19 @@ def summary(adaptation: Adaptation) -> list[str]:
         lines.append(a.note)
     for c in a.checks:
         pct = "%" in c.metric or "accuracy" in c.metric or "F1" in c.metric
-        fmt = (lambda v: f"{100 * v:.2f} %") if pct else (lambda v: f"{v:.3f}")
+        fmt = (lambda v: _percent(v)) if pct else (lambda v: f"{v:.3f}")
         verdict = "kept" if c.kept else "not better held out: the shipped value stays"
         lines.append(f"{c.what}: {c.value}; {c.metric} held out {fmt(c.shipped)} -> {fmt(c.fitted)}: {verdict}")
     changes = a.model.changes()
     lines.append("changed: " + ("; ".join(changes) if changes else "nothing (the shipped method is kept)"))
-    before, after = 100 * a.accuracy_before, 100 * a.accuracy_after
-    lines.append(f"held-out gesture type accuracy: shipped {before:.2f} % -> adapted {after:.2f} %")
+    before, after = _percent(a.accuracy_before), _percent(a.accuracy_after)
+    lines.append(f"held-out gesture type accuracy: shipped {before} -> adapted {after}")
     return lines
+
+
+def _percent(share: float) -> str:
+    """A share as ``12.34 %``; ``-`` when there was nothing to count (NaN: no held-out window)."""
+    return f"{100 * share:.2f} %" if math.isfinite(share) else "- (no held-out window)"
 
 
 def fitted_info(adaptation: Adaptation, datasets: Sequence[str | Path]) -> dict:
