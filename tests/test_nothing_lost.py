@@ -515,3 +515,43 @@ def test_plan_cues_past_the_recordings_end_are_said_once(tmp_path, sim_push_only
     plan.write_text(json.dumps({"prompts": late}))
     assert_refused(cli(*args, "--out", str(tmp_path / "ds2"), timeout_s=300), "every one of the plan's 30 prompts")
     assert not (tmp_path / "ds2").exists()
+
+
+def test_every_command_on_a_full_disk_is_one_line_and_keeps_what_was_there(tmp_path, sim_gel_short_recording):
+    """``track``, ``run --output jsonl --out`` and ``simulate`` ended in tracebacks (``run`` left
+    a 0-byte temporary file); ``enrol`` aborted in dv-processing's thread."""
+    from neurotouch_hid.enrolment.model import Model
+    from neurotouch_hid.errors import NeurotouchError
+
+    preds = tmp_path / "pred.jsonl"
+    assert cli("track", str(sim_gel_short_recording), "--out", str(preds), timeout_s=300)[0] == 0
+
+    def earlier(folder: Path) -> None:
+        (folder / "p.jsonl").write_text('{"earlier": "predictions"}\n')
+        (folder / "s.jsonl").write_text('{"earlier": "states"}\n')
+        (folder / "plan.json").write_text('{"prompts": []}\n')
+        (folder / "model.yaml").write_text("# an earlier model\n")
+        (folder / "ds").mkdir()
+        (folder / "ds" / "sensor.yaml").write_text("# an earlier dataset's\n")
+        (folder / "ds" / "old.labels.csv").write_text(_HEADER)
+
+    with full_disk(tmp_path / "full", 256, earlier) as full:
+        before = _snapshot(full)
+        commands = [
+            ("track", str(sim_gel_short_recording), "--out", str(full / "p.jsonl")),
+            ("run", "--fast", "--profile", "default", "--source", str(preds), "--output", "jsonl"),
+            (*SIMULATE, "--out", str(full / "ds"), "--force"),
+            (*SIMULATE, "--out", str(full / "new")),
+            ("enrol", "--source", "sim", "--fast", "--out", str(full / "ds"), "--force"),
+            ("enrol", "--plan-out", str(full / "plan.json")),
+        ]
+        commands[1] = (*commands[1], "--out", str(full / "s.jsonl"))
+        for args in commands:
+            code, _, err, _ = cli(*args, timeout_s=300)
+            assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, (args, code, err)
+            assert "No space left on device" in err or "disk is full" in err, err
+            assert _snapshot(full) == before, args
+            assert sorted(p.name for p in full.iterdir()) == sorted({p.split("/")[0] for p in before}), "a part left"
+        with pytest.raises(NeurotouchError, match="No space left on device"):
+            Model({"gesture.intensity_gain": 1.1}).save(full / "model.yaml")
+        assert _snapshot(full) == before

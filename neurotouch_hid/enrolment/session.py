@@ -41,7 +41,7 @@ from neurotouch_hid.dataset import DatasetOut
 from neurotouch_hid.enrolment.label import SEARCH_S, GelMotion, Labelled, find_gestures, label_recording
 from neurotouch_hid.enrolment.plan import MAX_SESSION_S, Plan, Prompt, Script, rest_after_s, temp_beside
 from neurotouch_hid.enrolment.prompt_view import clock, seen_in
-from neurotouch_hid.errors import DatasetError
+from neurotouch_hid.errors import DatasetError, RecordingError
 from neurotouch_hid.runtime import item_end_us, item_start_us
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import StreamItem
@@ -297,6 +297,11 @@ def run_session(
                 pace=pace, waits=pace, queue_items=QUEUE_ITEMS, sensor=sensor,
             )  # fmt: skip
             runtime.run()
+    except RecordingError as exc:  # the disk: said of the folder asked for, what was kept with it
+        kept = _keep_recording(target, partial, recording)
+        said = str(exc).replace(str(partial), str(target.out / recording.name)).replace(str(out), str(target.out))
+        where = f"the session until then is kept in {target.out / recording.name}" if kept else "nothing was kept"
+        raise RecordingError(f"{said}; {where}") from None
     except BaseException:  # the writer has closed the file complete: keep what was recorded, however it ended
         _keep_recording(target, partial, recording)
         raise
@@ -310,23 +315,24 @@ def run_session(
     return SessionResult(labelled, judge.asked_again, not script.finished)
 
 
-def _keep_recording(target: DatasetOut, partial: Path, recording: Path, commit: bool = True) -> None:
+def _keep_recording(target: DatasetOut, partial: Path, recording: Path, commit: bool = True) -> bool:
     """The session's recording (complete once its writer is closed) in place in ``target``'s
     folder, and (``commit``) that folder put in place when there is a recording to keep and
-    nothing to lose there; otherwise it is removed. A failing commit says nothing more: the
-    error that ended the session is the one said."""
+    nothing to lose there (True then); otherwise it is removed. A failing commit says nothing
+    more: the error that ended the session is the one said."""
     if partial.exists():
         if partial.stat().st_size:
             os.replace(partial, recording)
         else:
             partial.unlink()
     if not commit:
-        return
+        return False
     if recording.exists() and not target.force:
         with contextlib.suppress(DatasetError):
             target.commit()
-    else:
-        target.discard()
+            return True
+    target.discard()
+    return False
 
 
 def enrolment_folder(now: str | None = None) -> Path:
