@@ -918,6 +918,7 @@ def record_stream(
         # nothing there: the file is published at its first item (a crash keeps what was recorded);
         # a recording there (--force) is replaced only once the new one is complete
         early = not os.path.lexists(path)
+        writer_failed = False
         try:
             writer = RecordingWriter(out.tmp, camera_name=camera_name)
         except RecordingError as exc:
@@ -938,11 +939,12 @@ def record_stream(
                         writer.close()
                     said = str(exc).replace(str(out.tmp), str(path))
                     if not out.published:
-                        raise RecordingError(f"{said}; nothing recorded is kept, {path} is as it was") from None
-                    seconds = ((last_us or 0) - (first_us or 0)) / 1e6
-                    raise RecordingError(
-                        f"{said}; the {seconds:.1f} s recorded until then are complete in {path}"
-                    ) from None
+                        said = f"{said}; nothing recorded is kept, {path} is as it was"
+                    else:
+                        seconds = ((last_us or 0) - (first_us or 0)) / 1e6
+                        said = f"{said}; the {seconds:.1f} s recorded until then are complete in {path}"
+                    writer_failed = True  # not published below: what was there stays
+                    raise RecordingError(said) from None
                 if early:
                     out.publish()  # the writer goes on in the same file
                 first_us = t_us if first_us is None else min(first_us, t_us)
@@ -953,12 +955,10 @@ def record_stream(
                     clock.wait(last_us, stop)
                 if stop.is_set():
                     break
-        except RecordingError:
-            raise
         except BaseException:  # the source's error (a lost camera): the file is closed complete and kept
             with contextlib.suppress(RecordingError):
                 writer.close()
-            if events or frames:
+            if not writer_failed and (events or frames):
                 out.publish()
             raise
         writer.close()
