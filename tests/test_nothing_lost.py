@@ -555,3 +555,33 @@ def test_every_command_on_a_full_disk_is_one_line_and_keeps_what_was_there(tmp_p
         with pytest.raises(NeurotouchError, match="No space left on device"):
             Model({"gesture.intensity_gain": 1.1}).save(full / "model.yaml")
         assert _snapshot(full) == before
+
+
+def test_two_simulations_into_one_new_folder_one_wins_whole_the_other_says_it_lost(tmp_path):
+    """Two writers into one folder both said they succeeded, and one was lost."""
+    out = tmp_path / "ds"
+    runs = [
+        subprocess.Popen(
+            [sys.executable, "-m", "neurotouch_hid.cli", *SIMULATE, "--out", str(out), "--seed", str(seed)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=_env(tmp_path / "config"),
+            cwd=ROOT,
+        )  # fmt: skip
+        for seed in (1, 2)
+    ]
+    done = [(p.wait(timeout=600), *p.communicate()) for p in runs]
+    assert sorted(code for code, _, _ in done) == [0, 2], done
+    lost = next(err for code, _, err in done if code == 2)
+    assert "meanwhile" in lost or "holds a dataset already" in lost, lost
+    names = sorted(p.name for p in out.iterdir())
+    assert names == sorted(
+        ["sensor.yaml", "physics.json"]
+        + [
+            f"u0_{g}{s}"
+            for g in ("pinch", "push", "twist_ccw", "twist_cw", "zoom")
+            for s in (".aedat4", ".labels.csv", ".markers.npz")
+        ]
+    ), names
+    assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(".")], "a part folder was left"
