@@ -14,9 +14,12 @@ Library: the standard library (``tempfile.mkstemp``, ``os.replace``).
 from __future__ import annotations
 
 import contextlib
+import errno
+import fcntl
 import os
 import stat
 import tempfile
+import time
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO
@@ -27,6 +30,60 @@ from neurotouch_hid.limits import printable, read_proc_file
 
 class OutputError(NeurotouchError):
     """An output path that may not be written: a symbolic link, a folder, or one of the inputs."""
+
+
+#: The errors of a write that the disk refuses (full, over quota, read-only, a file too large
+#: for it, a failing device): one line and exit 2, what was there kept.
+DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG, errno.EIO})
+#: Longest wait for another command's lock on a folder (s) before saying so.
+LOCK_WAIT_S = 10.0
+
+
+def disk_error(path: str | os.PathLike, exc: OSError, what: str = "output") -> OutputError:
+    """``exc`` (a write that failed) as one line naming ``path``, what happened and what to do."""
+    return OutputError(
+        f"{printable(path, 200)}: cannot write the {what}: {exc.strerror or exc}; nothing was replaced "
+        "(free some space or write elsewhere)"
+    )
+
+
+@contextlib.contextmanager
+def locked(folder: str | os.PathLike, what: str) -> Iterator[None]:
+    """Hold an exclusive ``flock`` on ``folder`` (created) for a read-modify-write of the files in
+    it, so that commands run side by side change them one after the other and none of their
+    changes is lost. No lock file is made: the lock is on the folder itself, and the kernel drops
+    it when the process ends, however it ends.
+
+    Raises:
+        OutputError: the folder cannot be made or opened, or another process held it for
+            :data:`LOCK_WAIT_S` (``what`` names what was being changed; nothing was changed).
+
+    Library: ``fcntl.flock`` (flock(2)).
+    """
+    folder = Path(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    except OSError as exc:
+        raise OutputError(
+            f"{printable(folder, 200)}: cannot change {what}: {exc.strerror or exc}; nothing was changed"
+        ) from None
+    try:
+        end = time.monotonic() + LOCK_WAIT_S
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() > end:
+                    raise OutputError(
+                        f"{printable(folder, 200)}: another neurotouch-hid command has been changing {what} for "
+                        f"{LOCK_WAIT_S:.0f} s: nothing was changed; try again when it is done"
+                    ) from None
+                time.sleep(0.02)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
 
 
 def _umask() -> int:
@@ -217,18 +274,65 @@ class AtomicFile:
             self._tmp = None
 
     def close(self, keep: bool = True) -> None:
-        """Close; publish when ``keep``, else remove the file if it was never published."""
+        """Close; publish when ``keep``, else remove the file if it was never published. A write
+        the disk refuses (full, read-only: :data:`DISK_ERRNOS`) raises OutputError naming the file,
+        and what was at ``path`` stays as it was."""
         try:
-            if keep:
-                self.publish()
-        finally:
-            self.file.close()
-            if self._tmp is not None:
-                self._tmp.unlink(missing_ok=True)
-                self._tmp = None
+            try:
+                if keep:
+                    self.publish()
+            finally:
+                try:
+                    self.file.close()
+                finally:
+                    if self._tmp is not None:
+                        self._tmp.unlink(missing_ok=True)
+                        self._tmp = None
+        except OSError as exc:
+            if exc.errno in DISK_ERRNOS:
+                raise disk_error(self.path, exc) from None
+            raise
 
     def __enter__(self) -> IO:
         return self.file
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        self.close(keep=exc_type is None)
+        try:
+            self.close(keep=exc_type is None)
+        except OutputError:
+            if exc_type is None:
+                raise
+        if isinstance(exc, OSError) and exc.errno in DISK_ERRNOS:  # a write in the block
+            raise disk_error(self.path, exc) from None
+
+
+#: ``renameat2``'s flag that swaps two paths in one step (linux/fs.h).
+_RENAME_EXCHANGE = 2
+
+
+def exchange(a: str | os.PathLike, b: str | os.PathLike) -> None:
+    """Swap the two existing paths ``a`` and ``b`` (folders too) in one step: no moment when
+    either name is missing (``renameat2(RENAME_EXCHANGE)``, Linux 3.15; ext4, xfs, btrfs, tmpfs).
+    Where the file system cannot, ``b`` is moved aside, ``a`` renamed to it and the old ``b``
+    put at ``a``: each step atomic, ``b`` missing for a moment.
+
+    Raises OSError as ``rename`` does.
+
+    Library: glibc's ``renameat2`` through ``ctypes`` (the standard library has no wrapper).
+    """
+    import ctypes
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    renameat2 = getattr(libc, "renameat2", None)
+    if renameat2 is not None:
+        at_fdcwd = -100
+        if renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+            return
+        code = ctypes.get_errno()
+        if code not in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP):
+            raise OSError(code, os.strerror(code), str(b))
+    aside = Path(tempfile.mkdtemp(dir=Path(b).parent, prefix=f".{Path(b).name}.", suffix=".old"))
+    os.replace(b, aside / "x")
+    os.replace(a, b)
+    os.replace(aside / "x", a)
+    aside.rmdir()

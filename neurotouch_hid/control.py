@@ -46,6 +46,12 @@ ANSWER_TIMEOUT_S = 10.0
 REQUEST_TIMEOUT_S = 2.0
 #: Clients served at once; more are answered "busy" and closed (threads and memory bounded).
 MAX_CLIENTS = 8
+#: Connections the kernel holds for the driver before it accepts them (``listen``'s backlog):
+#: with 4, ten `profile use` run at once failed with "Resource temporarily unavailable". A
+#: client finding it full, or answered busy, tries again until its answer's deadline.
+BACKLOG = 128
+#: The answer to a client over :data:`MAX_CLIENTS`.
+BUSY = "the driver is busy; try again"
 #: Deepest JSON nesting in a request (a request is a flat object).
 MAX_JSON_DEPTH = 4
 _ACCEPT_POLL_S = 0.2
@@ -191,7 +197,7 @@ class ControlServer:
         try:
             sock.bind(str(self.path))
             os.chmod(self.path, 0o600)
-            sock.listen(4)
+            sock.listen(BACKLOG)
         except OSError as exc:
             sock.close()
             log.warning("no control socket at %s (%s): `profile use` cannot reach this driver", self.path, exc.strerror)
@@ -215,7 +221,7 @@ class ControlServer:
                 log.warning("control socket: more than %d clients at once; one refused", MAX_CLIENTS)
                 with conn, contextlib.suppress(OSError):
                     conn.settimeout(REQUEST_TIMEOUT_S)
-                    conn.sendall(json.dumps({"ok": False, "message": "the driver is busy; try again"}).encode() + b"\n")
+                    conn.sendall(json.dumps({"ok": False, "message": BUSY}).encode() + b"\n")
                 continue
             threading.Thread(target=self._client, args=(conn,), name="nt-control-client", daemon=True).start()
 
@@ -307,17 +313,38 @@ def request_use(profile: str, path: Path | None = None, timeout_s: float = ANSWE
         pass  # no driver: said when connecting
     except OSError as exc:
         raise NeurotouchError(f"cannot reach the driver at {path}: {exc.strerror or exc}") from None
+    deadline = time.monotonic() + timeout_s
+    while True:
+        ok, message = _ask(path, profile, timeout_s)
+        if ok or message != BUSY or time.monotonic() > deadline:
+            break
+        time.sleep(0.02)  # the driver serves MAX_CLIENTS at once: wait for one to finish
+    if not ok:
+        raise NeurotouchError(message)
+    return message
+
+
+def _ask(path: Path, profile: str, timeout_s: float) -> tuple[bool, str]:
+    """One request to the driver at ``path``: (ok, its message). A full backlog (``EAGAIN`` at
+    connect) is tried again until ``timeout_s``. Raises NeurotouchError as :func:`request_use`."""
+    deadline = time.monotonic() + timeout_s
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
         sock.settimeout(timeout_s)
-        try:
-            sock.connect(str(path))
-        except (FileNotFoundError, ConnectionRefusedError):
-            raise NeurotouchError(
-                f"no neurotouch-hid driver is running (nothing listens on {path}); "
-                f"start one with `neurotouch-hid run --profile {printable(profile, 200)}`"
-            ) from None
-        except OSError as exc:
-            raise NeurotouchError(f"cannot reach the driver at {path}: {exc.strerror}") from None
+        while True:
+            try:
+                sock.connect(str(path))
+                break
+            except BlockingIOError:  # the listen backlog is full: the driver accepts them in turn
+                if time.monotonic() > deadline:
+                    raise NeurotouchError(f"the driver at {path} is busy: no connection in {timeout_s:.0f} s") from None
+                time.sleep(0.02)
+            except (FileNotFoundError, ConnectionRefusedError):
+                raise NeurotouchError(
+                    f"no neurotouch-hid driver is running (nothing listens on {path}); "
+                    f"start one with `neurotouch-hid run --profile {printable(profile, 200)}`"
+                ) from None
+            except OSError as exc:
+                raise NeurotouchError(f"cannot reach the driver at {path}: {exc.strerror}") from None
         uid = peer_uid(sock)
         if uid != os.getuid():
             raise NeurotouchError(
@@ -334,9 +361,6 @@ def request_use(profile: str, path: Path | None = None, timeout_s: float = ANSWE
             raise NeurotouchError(f"the driver at {path} did not answer: {why}") from None
     try:
         answer = json.loads(line)
-        ok, message = bool(answer["ok"]), str(answer["message"])
+        return bool(answer["ok"]), str(answer["message"])
     except (ValueError, KeyError, TypeError):
         raise NeurotouchError(f"the driver at {path} gave no valid answer") from None
-    if not ok:
-        raise NeurotouchError(message)
-    return message

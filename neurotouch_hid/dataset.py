@@ -14,10 +14,14 @@ predictions, ``run`` replays them, evaluation reads all of them.
 from __future__ import annotations
 
 import csv
+import errno
 import io
 import json
 import math
+import os
+import shutil
 import sys
+import tempfile
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,10 +29,10 @@ from typing import IO, Sequence
 
 import numpy as np
 
-from neurotouch_hid.atomic import AtomicFile
+from neurotouch_hid.atomic import DISK_ERRNOS, AtomicFile, _umask, disk_error, exchange
 from neurotouch_hid.errors import DatasetError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.limits import printable, read_outside_text, short
+from neurotouch_hid.limits import MAX_SENSOR_PX, printable, read_outside_text, short
 from neurotouch_hid.sensor import user_sensor_path
 
 #: Largest predictions file read (bytes; read whole): an hour of 10 ms windows is ~100 MB.
@@ -49,6 +53,13 @@ LABEL_COLUMNS: tuple[str, ...] = (
     "y3_px",
 )
 MAX_CONTACTS = 3
+#: Largest labels file read (bytes) and most rows in it: a row per APS frame, 25 a second, is
+#: 40-80 bytes of text and ~0.7 KB once read; 250 000 rows are 2.8 hours of frames, ~180 MB read.
+MAX_LABELS_BYTES = 32 << 20
+MAX_LABEL_ROWS = 250_000
+#: Largest labelled intensity (mm): the dome is 60 mm across; a displacement larger than that is
+#: no gel's (``eval`` sizes its intensity histograms by it).
+MAX_LABEL_INTENSITY_MM = 60.0
 
 
 @dataclass(frozen=True)
@@ -116,8 +127,8 @@ def read_labels(path: str | Path) -> list[LabelRow]:
     """
     path = Path(path)
     rows: list[LabelRow] = []
-    # bounded as a predictions file: a regular file (a FIFO would hang), at most 1 GiB
-    text = read_outside_text(path, MAX_PREDICTIONS_BYTES, "labels file", DatasetError)
+    # a regular file (a FIFO would hang), at most MAX_LABELS_BYTES
+    text = read_outside_text(path, MAX_LABELS_BYTES, "labels file", DatasetError)
     with io.StringIO(text, newline="") as fh:
         reader = csv.reader(fh)
         header = next(reader, None)
@@ -132,8 +143,12 @@ def read_labels(path: str | Path) -> list[LabelRow]:
             if len(cells) != len(LABEL_COLUMNS):
                 raise DatasetError(f"{path}:{line_no}: expected {len(LABEL_COLUMNS)} columns, found {len(cells)}")
             col = "t_us"
+            if len(rows) >= MAX_LABEL_ROWS:
+                raise DatasetError(f"{path}:{line_no}: more than {MAX_LABEL_ROWS:,} rows (docs/limits.md, Labels)")
             try:
                 t_us = int(cells[0])
+                if not 0 <= t_us <= MAX_T_US:
+                    raise ValueError(f"expected a time in microseconds from 0 to 2^62, found {short(cells[0])}")
                 col = "gesture"
                 gesture = GestureType(cells[1])
                 col = "resting"
@@ -141,6 +156,8 @@ def read_labels(path: str | Path) -> list[LabelRow]:
                     raise ValueError("expected 0 or 1")
                 col = "intensity_mm"
                 intensity = float(cells[3])
+                if not 0.0 <= intensity <= MAX_LABEL_INTENSITY_MM:  # NaN fails too
+                    raise ValueError(f"expected mm from 0 to {MAX_LABEL_INTENSITY_MM:g}, found {short(cells[3])}")
                 col = "n_contacts"
                 n = int(cells[4])
                 if not 0 <= n <= MAX_CONTACTS:
@@ -149,12 +166,16 @@ def read_labels(path: str | Path) -> list[LabelRow]:
                 contacts = np.array(
                     [[float(cells[5 + 2 * k]), float(cells[6 + 2 * k])] for k in range(n)], dtype=np.float64
                 ).reshape(n, 2)
+                if not np.all(np.abs(contacts) <= MAX_SENSOR_PX):  # NaN fails too
+                    raise ValueError(f"expected image pixels from -{MAX_SENSOR_PX} to {MAX_SENSOR_PX}")
             except ValueError as exc:
                 raise DatasetError(f"{path}:{line_no}: column {col!r}: {printable(exc, 200)}") from None
             if t_us < last:
                 raise DatasetError(f"{path}:{line_no}: rows must be ordered by time (t_us {t_us} < {last})")
             last = t_us
             rows.append(LabelRow(t_us, gesture, cells[2] == "1", intensity, contacts))
+    if not rows:
+        raise DatasetError(f"{path}:2: no labelled frame after the header (docs/dataset.md): nothing to score")
     return rows
 
 
@@ -239,6 +260,102 @@ def labels_at(labels: Sequence[LabelRow], t_us: np.ndarray) -> list[LabelRow | N
     return out
 
 
+# --- writing a dataset folder whole ----------------------------------------------------------
+#: The files a dataset folder holds (docs/dataset.md, and what the commands write beside it: the
+#: simulator's true markers and families, an enrolment's plan): a folder holding anything else
+#: is never replaced, even with ``--force``.
+DATASET_FILES = ("sensor.yaml", "physics.json")
+DATASET_SUFFIXES = (".aedat4", ".labels.csv", ".plan.json", ".markers.npz")
+
+
+def _held(folder: Path) -> list[str]:
+    """The names in ``folder`` (none when it is missing or not a folder)."""
+    try:
+        return sorted(os.listdir(folder))
+    except (FileNotFoundError, NotADirectoryError):
+        return []
+    except OSError as exc:
+        raise DatasetError(f"{printable(folder, 200)}: cannot read the folder: {exc.strerror or exc}") from None
+
+
+class DatasetOut:
+    """A dataset folder written whole: the files go to a new hidden folder beside ``out``
+    (``.OUT.RANDOM.part``), which :meth:`commit` puts in ``out``'s place in one step, or
+    :meth:`discard` removes. An ``out`` that holds a dataset is refused unless ``force``, and
+    then replaced whole (``renameat2`` exchange: a reader sees the old dataset or the new one);
+    a folder holding other files is never replaced. Two commands writing into one new folder
+    at once: the first to commit wins whole, the other says it lost and leaves it as it is.
+
+    Args:
+        out: the dataset folder to write (docs/dataset.md).
+        force: replace a dataset already in ``out``.
+        what: the command's option, for the messages (``--out``).
+    Raises:
+        DatasetError: ``out`` holds a dataset (and not ``force``) or other files, is a file, or
+            its parent cannot be written (full, read-only); nothing is changed then.
+    """
+
+    def __init__(self, out: str | Path, *, force: bool = False, what: str = "--out") -> None:
+        self.out = Path(out)
+        self.force = force
+        shown = printable(self.out, 200)
+        if self.out.is_symlink() or (self.out.exists() and not self.out.is_dir()):
+            raise DatasetError(f"{shown}: {what} is not a folder: give a folder for the dataset (docs/dataset.md)")
+        self._check(_held(self.out), what)
+        try:
+            self.out.parent.mkdir(parents=True, exist_ok=True)
+            self.work = Path(tempfile.mkdtemp(dir=self.out.parent, prefix=f".{self.out.name}.", suffix=".part"))
+            os.chmod(self.work, 0o777 & ~_umask())
+        except OSError as exc:
+            raise DatasetError(
+                f"{shown}: cannot write the dataset: {exc.strerror or exc}; nothing was changed"
+            ) from None
+
+    def _check(self, names: list[str], what: str) -> None:
+        shown = printable(self.out, 200)
+        other = [n for n in names if n not in DATASET_FILES and not n.endswith(DATASET_SUFFIXES)]
+        if other:
+            raise DatasetError(
+                f"{shown}: the folder holds files that are no dataset's ({printable(', '.join(other[:3]), 120)}"
+                f"{', ...' if len(other) > 3 else ''}): give another {what} folder; nothing was changed"
+            )
+        if names and not self.force:
+            raise DatasetError(
+                f"{shown}: the folder holds a dataset already ({printable(', '.join(names[:3]), 120)}"
+                f"{', ...' if len(names) > 3 else ''}): give another {what} folder, or add --force to replace it whole"
+            )
+
+    def commit(self) -> Path:
+        """Put the written folder in ``out``'s place; returns ``out``.
+
+        Raises:
+            DatasetError: another command wrote a dataset into ``out`` meanwhile (without
+                ``force``: it is kept, and what was written here is removed), or the rename
+                failed (the disk).
+        """
+        try:
+            if self.force and _held(self.out):
+                exchange(self.work, self.out)
+                shutil.rmtree(self.work, ignore_errors=True)  # the old dataset, now here
+            else:
+                os.rename(self.work, self.out)  # fails when another command put a dataset there first
+        except OSError as exc:
+            self.discard()
+            if exc.errno in (errno.ENOTEMPTY, errno.EEXIST):
+                raise DatasetError(
+                    f"{printable(self.out, 200)}: another command wrote a dataset there meanwhile: it is kept, and "
+                    "this one is not written (run it again into another folder)"
+                ) from None
+            raise DatasetError(
+                f"{printable(self.out, 200)}: cannot put the dataset in place: {exc.strerror or exc}; nothing changed"
+            ) from None
+        return self.out
+
+    def discard(self) -> None:
+        """Remove what was written (``out`` is as it was)."""
+        shutil.rmtree(self.work, ignore_errors=True)
+
+
 # --- predictions (JSON lines) ---------------------------------------------------------------
 class JsonlWriter:
     """Writes one JSON object a line. Context manager.
@@ -281,10 +398,16 @@ class JsonlWriter:
             self._fh, self._owned = out, False
 
     def write_dict(self, data: dict) -> None:
-        """Write ``data`` as one compact JSON line."""
-        self._fh.write(json.dumps(data, separators=(", ", ": ")) + "\n")
-        if self._flush:
-            self._fh.flush()
+        """Write ``data`` as one compact JSON line. Raises OutputError naming the file when the
+        disk refuses it (full, read-only)."""
+        try:
+            self._fh.write(json.dumps(data, separators=(", ", ": ")) + "\n")
+            if self._flush:
+                self._fh.flush()
+        except OSError as exc:
+            if self._atomic is None or exc.errno not in DISK_ERRNOS:
+                raise
+            raise disk_error(self._atomic.path, exc) from None
         if self._live and self._atomic is not None and not self._atomic.published:
             self._atomic.publish()
 

@@ -245,14 +245,17 @@ def add_game(game: str, profile: str, path: Path | None = None) -> tuple[str, in
     if _is_path(profile):
         profile = str(Path(profile).resolve())
     path = path if path is not None else games_file()
-    data = _load_document(path, round_trip=True)
-    if data is None:
-        data = CommentedMap()
-        data.yaml_set_start_comment(HEADER.replace("# ", "").rstrip("\n"))
-    if data.get(section) is None:
-        data[section] = CommentedMap()
-    data[section][key] = profile
-    _save(path, data)
+    from neurotouch_hid.mapping.editor import _editing
+
+    with _editing(path.parent, "the per-game profiles"):  # side by side, every entry lands
+        data = _load_document(path, round_trip=True)
+        if data is None:
+            data = CommentedMap()
+            data.yaml_set_start_comment(HEADER.replace("# ", "").rstrip("\n"))
+        if data.get(section) is None:
+            data[section] = CommentedMap()
+        data[section][key] = profile
+        _save(path, data)
     return section, key, profile
 
 
@@ -264,6 +267,13 @@ def remove_game(game: str, path: Path | None = None) -> tuple[str, int | str, st
     """
     section, key = parse_game(game)
     path = path if path is not None else games_file()
+    from neurotouch_hid.mapping.editor import _editing
+
+    with _editing(path.parent, "the per-game profiles"):
+        return _remove_entry(path, game, section, key)
+
+
+def _remove_entry(path: Path, game: str, section: str, key: int | str) -> tuple[str, int | str, str]:
     data = _load_document(path, round_trip=True)
     entries = (data or {}).get(section) or {}
     if key not in entries:

@@ -120,7 +120,7 @@ def test_an_empty_model_is_the_shipped_method(tmp_path):
         ),
         (
             "format: neurotouch-hid model\nversion: 1\nsettings:\n  gesture.intensity_gain: -2\n",
-            ["intensity_gain", "positive"],
+            ["intensity_gain", "from 0.2 to 5"],
         ),
         ("format: neurotouch-hid model\nversion: 1\nextra: 1\n", ["'extra'", "only format"]),
         ("- a\n- list\n", ["expected a mapping"]),
@@ -222,6 +222,16 @@ def test_adapt_keeps_the_shipped_value_where_the_fit_does_not_beat_it(records):
     assert not by_name["gesture.intensity_gain"].kept and float(by_name["gesture.intensity_gain"].value) > 1.5
     assert adaptation.model.classifier is None and "gesture.intensity_gain" not in adaptation.model.settings
     assert any(": left as shipped: " in line for line in summary(adaptation))
+
+
+def test_adapt_refuses_labels_in_micrometres(records):
+    """Labels whose intensities are 1000x what the gel reads (micrometres): the fit refuses the
+    scale (it kept 999, and a light pinch was a full trigger)."""
+    from neurotouch_hid.errors import DatasetError
+
+    micrometres = [dataclasses.replace(r, label_intensity_mm=1000 * r.label_intensity_mm) for r in records]
+    with pytest.raises(DatasetError, match="in another unit"):
+        adapt(micrometres)
 
 
 def test_the_replay_with_another_first_finger_wait_answers_what_the_pipeline_answers(enrolment, records):

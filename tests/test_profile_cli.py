@@ -165,7 +165,7 @@ def test_new_from_a_broken_profile_says_file_line_field_and_writes_nothing(cli, 
     not_yaml = cli("new", "mine", "--from", str(tabs))
     assert not_yaml.returncode == 2 and f"{tabs}:2: not valid YAML" in not_yaml.stderr, not_yaml.stderr
     assert not (cli.user_dir / "mine.yaml").exists()
-    cli.user_dir.mkdir(parents=True)
+    cli.user_dir.mkdir(parents=True, exist_ok=True)  # the edits above locked it: made, empty
     (cli.user_dir / "broken.yaml").write_text(bad.read_text())  # written by hand, never validated
     by_name = cli("new", "mine", "--from", "broken")
     assert by_name.returncode == 2 and "broken.yaml:5: mappings.push.deadzone_mm" in by_name.stderr, by_name.stderr

@@ -187,6 +187,19 @@ def main() -> None:
         sys.exit(2)
     except KeyboardInterrupt:
         sys.exit(130)
+    except OSError as exc:  # a write the disk refused where no stage said it in its own words
+        from neurotouch_hid.atomic import DISK_ERRNOS
+        from neurotouch_hid.limits import printable
+
+        if exc.errno not in DISK_ERRNOS:
+            raise
+        where = f"{printable(exc.filename, 200)}: " if exc.filename else ""
+        err_console.print(
+            f"error: {where}cannot write: {exc.strerror or exc}; what was there before is kept (free some space or "
+            "write elsewhere)",
+            highlight=False, markup=False, soft_wrap=True,
+        )  # fmt: skip
+        sys.exit(2)
     sys.exit(code if isinstance(code, int) else 0)
 
 

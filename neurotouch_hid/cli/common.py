@@ -14,6 +14,25 @@ import typer
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.output.console import make_console
 
+
+def _closed_streams_to_null() -> None:
+    """A standard stream the caller closed (``cmd >&-``: Python's ``sys.stdout`` is None) becomes
+    /dev/null, its file descriptor too, so that the consoles and typer start, what would have
+    been printed is dropped, and no file a command opens later takes descriptor 1 or 2 (a library
+    writing there would write into it)."""
+    import os
+    import sys
+
+    for fd, name, mode in ((0, "stdin", "r"), (1, "stdout", "w"), (2, "stderr", "w")):
+        if getattr(sys, name) is None:
+            null = os.open(os.devnull, os.O_RDWR)
+            if null != fd:
+                os.dup2(null, fd)
+                os.close(null)
+            setattr(sys, name, open(fd, mode, encoding="utf-8", closefd=False))  # noqa: SIM115
+
+
+_closed_streams_to_null()
 console = make_console()
 err_console = make_console(stderr=True)
 
@@ -99,8 +118,12 @@ def davis_config(serial: Optional[str], exposure_us: str, stall_timeout: float):
     """The live camera's settings from the command line (sources/davis.py DavisConfig)."""
     from neurotouch_hid.sources.davis import DavisConfig
 
-    if exposure_us != "auto" and not exposure_us.isdigit():
-        raise NeurotouchError(f"--exposure-us {exposure_us!r}: expected a whole number of microseconds or 'auto'")
+    if exposure_us != "auto" and not (exposure_us.isdigit() and len(exposure_us) <= 9):
+        from neurotouch_hid.limits import short
+
+        raise NeurotouchError(
+            f"--exposure-us {short(exposure_us)}: expected a whole number of microseconds (at most 9 digits) or 'auto'"
+        )
     try:
         return DavisConfig(
             serial=serial,

@@ -51,26 +51,28 @@ def enrol(
         1 / 20, "--sim-miss-rate", hidden=True, min=0.0, max=1.0, help="with --source sim: the share of prompts missed"
     ),
     fast: bool = typer.Option(False, "--fast", hidden=True, help="with --source sim: do not pace in real time"),
+    force: bool = typer.Option(False, "--force", help="replace the dataset --out holds, whole"),
 ) -> None:
     """Teach the driver your gel and your hand: a guided session of at most 3 minutes.
 
     --plan-out FILE writes the session's prompts without running it. --from REC.aedat4 --plan FILE
     --out DIR labels a recording made by following that plan elsewhere: the type from each prompt,
     the moments, contacts and intensity from the gel; a prompt with no gesture near its cue is
-    left out and said. The folder written is a dataset (docs/dataset.md) that `eval DIR` reads."""
+    left out and said. The folder written is a dataset (docs/dataset.md) that `eval DIR` reads,
+    written whole at the end: a dataset there is refused unless --force, then replaced."""
     from neurotouch_hid.enrolment.plan import MAX_SESSION_S, make_plan, read_plan, write_plan
 
     chosen = read_plan(plan) if plan is not None else make_plan(seed)
     if plan_out is not None:
         if from_recording is not None:
             raise NeurotouchError("--plan-out writes a plan and stops: give it without --from")
-        write_plan(chosen, plan_out)
-        console.print(
+        write_plan(chosen, plan_out, inputs=(plan,))
+        (err_console if str(plan_out) == "-" else console).print(  # standard output holds the plan
             f"{len(chosen.prompts)} prompts over {chosen.end_s:.0f} s -> {plan_out}", highlight=False, soft_wrap=True
         )
         return
     if from_recording is not None:
-        _label(from_recording, plan, chosen, out, sensor)
+        _label(from_recording, plan, chosen, out, sensor, force)
         return
     if source not in ("davis", "sim"):
         raise NeurotouchError(f"--source {source!r}: expected davis (the live camera) or sim (the simulated hand)")
@@ -78,10 +80,10 @@ def enrol(
         raise NeurotouchError(
             f"{plan}: the plan lasts {chosen.end_s:.0f} s, more than an enrolment's {MAX_SESSION_S:.0f} s"
         )
-    _session(chosen, source, out, sensor, seed, serial, physics, sim_miss, sim_miss_rate, fast)
+    _session(chosen, source, out, sensor, seed, serial, physics, sim_miss, sim_miss_rate, fast, force)
 
 
-def _session(plan, source, out, sensor, seed, serial, physics, sim_miss, sim_miss_rate, fast) -> None:
+def _session(plan, source, out, sensor, seed, serial, physics, sim_miss, sim_miss_rate, fast, force=False) -> None:
     """The guided session: prompts on the terminal while the camera records; the dataset written."""
     import contextlib
     import signal
@@ -107,17 +109,20 @@ def _session(plan, source, out, sensor, seed, serial, physics, sim_miss, sim_mis
             guide = CameraSource(davis_config(serial, "4000", 1.0))
         compile_before(say_err, simulator=source == "sim")  # a first run: compiled in child processes, said
         GesturePipeline(geometry).compile_kernels()  # before the camera opens: nothing waits for it
-    folder = out if out is not None else enrolment_folder()
+    from neurotouch_hid.dataset import DatasetOut
+
+    target = DatasetOut(out if out is not None else enrolment_folder(), force=force)  # before the session
     stop = threading.Event()
     with contextlib.ExitStack() as stack:
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        stack.callback(target.discard)  # what is left of it when the session did not put it in place
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # SIGHUP: the terminal closed
             stack.callback(signal.signal, sig, signal.signal(sig, lambda *_: stop.set()))
         if isinstance(guide, CameraSource):
             stack.enter_context(guide)
         script = Script(plan)
         view = stack.enter_context(PromptView(console, script, by_hand=guide.by_hand))
         result = run_session(
-            script, guide, folder, geometry, [view],
+            script, guide, target, geometry, [view],
             pace=source == "sim" and not fast, stop=stop, on_progress=view.labelling,
         )  # fmt: skip
     if result.stopped:
@@ -131,8 +136,14 @@ def _at(found) -> str:
     return f"{found.prompt.name} at {clock(found.prompt.cue_s)}"
 
 
-def _label(recording: Path, plan_path: Optional[Path], plan, out: Optional[Path], sensor: Optional[Path]) -> None:
+def _label(
+    recording: Path, plan_path: Optional[Path], plan, out: Optional[Path], sensor: Optional[Path], force: bool = False
+) -> None:
     """``enrol --from``: label ``recording`` with ``plan`` into ``out``, say what was left out."""
+    import dataclasses
+
+    from neurotouch_hid.dataset import DatasetOut
+
     if plan_path is None or out is None:
         raise NeurotouchError("--from REC.aedat4 needs the plan it followed (--plan FILE) and --out DIR")
     with long_lived_start_up():
@@ -147,9 +158,16 @@ def _label(recording: Path, plan_path: Optional[Path], plan, out: Optional[Path]
         GesturePipeline(geometry).compile_kernels()
     beside = recording.with_name("sensor.yaml")
     inputs = [plan_path, sensor if sensor is not None else beside]
-    with recording_progress(err_console, "labelling") as report:
-        done = label_recording(recording, plan, out, geometry, inputs=inputs, on_progress=report)
-    say_labelled(done)
+    target = DatasetOut(out, force=force)  # before the work: a dataset there is never at risk
+    try:
+        with recording_progress(err_console, "labelling") as report:
+            done = label_recording(
+                recording, plan, target.work, geometry, inputs=inputs, on_progress=report, past_end=True
+            )
+    except BaseException:
+        target.discard()
+        raise
+    say_labelled(dataclasses.replace(done, folder=target.commit()))
 
 
 def say_labelled(done, again: dict[int, int] | None = None, simulated: bool = False) -> None:
@@ -180,6 +198,13 @@ def say_labelled(done, again: dict[int, int] | None = None, simulated: bool = Fa
                 line += f"; asked again as prompt {j + 1} ({_at(done.found[j])}): {fared}"
             console.print(line, highlight=False, soft_wrap=True)
         return
+    if done.past_end:
+        first = len(done.found) + 1
+        console.print(
+            f"prompts {first} to {first + done.past_end - 1} are cued after the recording's end: left out",
+            highlight=False,
+            soft_wrap=True,
+        )
     for f in done.missed:
         n = done.found.index(f) + 1
         console.print(
@@ -232,6 +257,7 @@ def adapt(
                 "become your model; give --out FILE to write it elsewhere (and try it with --model FILE)"
             )
     target = check_output(out if out is not None else user_model_path(), datasets)
+    datasets = _once(datasets)
 
     records = record_datasets(datasets, jobs=jobs, on_sequence=lambda name: say_err(f"recorded {name}"))
     adaptation = fit(records, rerun=lambda config: record_datasets(datasets, jobs=jobs, config=config))
@@ -248,3 +274,23 @@ def adapt(
             soft_wrap=True,
             markup=False,
         )
+
+
+def _once(datasets: list[Path]) -> list[Path]:
+    """``datasets`` with each folder once (the same folder by its device and inode, however it is
+    spelled), the others said: a copy of a fitted gesture would be held out as unseen."""
+    import os
+
+    kept, seen = [], set()
+    for d in datasets:
+        try:
+            info = os.stat(d)
+            key: object = (info.st_dev, info.st_ino)
+        except OSError:
+            key = d  # missing: the reader says so
+        if key in seen:
+            say_err(f"{d}: given more than once: read once (a copy's gestures would be held out as never seen)")
+            continue
+        seen.add(key)
+        kept.append(d)
+    return kept

@@ -81,8 +81,10 @@ def record(
 ) -> None:
     """Record what the camera sees (events and APS frames) as AEDAT4, readable by DV and `info`.
 
-    Ctrl-C (or SIGTERM) ends the recording with a complete, readable file (exit 0); a camera that
-    is unplugged ends it too, keeping what was recorded (exit 2)."""
+    Ctrl-C (or SIGTERM, or the terminal closed) ends the recording with a complete, readable file
+    (exit 0); a camera that is unplugged ends it too, keeping what was recorded (exit 2). A disk
+    that fills up ends it with the file complete up to then (exit 2); with --force, the recording
+    there is replaced only by a complete one."""
     import contextlib
     import signal
     import threading
@@ -112,7 +114,7 @@ def record(
                 "NeuroTouch-sim_DAVIS346",
             )
         stop = threading.Event()
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # SIGHUP: the terminal closed
             stack.callback(signal.signal, sig, signal.signal(sig, lambda *_: stop.set()))
         columns = [
             TextColumn(f"recording {source} -> {out}"),
@@ -189,8 +191,11 @@ def simulate(
         "per sequence); "
         "see docs/accuracy.md",
     ),
+    force: bool = typer.Option(False, "--force", help="replace the dataset OUT holds, whole"),
 ) -> None:
-    """Simulate the NeuroTouch gel and write a labelled dataset (docs/dataset.md)."""
+    """Simulate the NeuroTouch gel and write a labelled dataset (docs/dataset.md).
+
+    OUT is written whole at the end: a dataset there is refused unless --force, then replaced."""
     from neurotouch_hid.sources.simulator import write_dataset
 
     user_ids = None
@@ -208,6 +213,7 @@ def simulate(
         progress=True,
         noise_hz=noise_hz,
         physics=physics,
+        force=force,
     )
     console.print(f"wrote {folder}")
 

@@ -45,7 +45,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.errors import DatasetError, NeurotouchError
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
 from neurotouch_hid.evaluation.metrics import outside_collar
@@ -527,9 +527,11 @@ def adapt(records: Sequence[Record], rerun: Callable[..., list[Record]] | None =
     resting threshold, which only a new run can check, stays the shipped one.
 
     Raises:
-        NeurotouchError: the enrolments hold no labelled gesture.
+        NeurotouchError: the enrolments hold no labelled gesture. DatasetError: the labels'
+            intensities are out of scale with the gel's (an intensity gain outside
+            ``model.SETTING_RANGES``: labels in micrometres).
     """
-    from neurotouch_hid.enrolment.model import Model
+    from neurotouch_hid.enrolment.model import SETTING_RANGES, Model, out_of_range
     from neurotouch_hid.pipeline.config import GestureConfig, RestingConfig
 
     held = held_out_prompts(records)
@@ -636,7 +638,7 @@ def adapt(records: Sequence[Record], rerun: Callable[..., list[Record]] | None =
         checks.append(
             Check(
                 "resting.centroid_threshold_mm2",
-                f"gesture type accuracy (resting F1 of the frames {100 * f_shipped:.2f} -> {100 * f_fitted:.2f} %)",
+                f"gesture type accuracy (resting F1 of the frames {_percent(f_shipped)} -> {_percent(f_fitted)})",
                 current,
                 after,
                 kept,
@@ -654,6 +656,12 @@ def adapt(records: Sequence[Record], rerun: Callable[..., list[Record]] | None =
     gain = None
     if den > 0 and math.isfinite(num / den) and num > 0:
         fitted_gain = round(num / den, 4)
+        if out_of_range("gesture.intensity_gain", fitted_gain) is not None:
+            low, high = SETTING_RANGES["gesture.intensity_gain"]
+            raise DatasetError(
+                f"the labels' intensities are {fitted_gain:.4g} times what the gel measures, outside the {low:g} to "
+                f"{high:g} a gel can be: are they in another unit? intensity_mm is in millimetres (docs/dataset.md)"
+            )
         if fitted_gain != 1.0:
             mae_shipped, _ = _mae(records, held, 1.0)
             mae_fitted, _ = _mae(records, held, fitted_gain)
@@ -728,7 +736,7 @@ def summary(adaptation: Adaptation) -> list[str]:
     for c in a.checks:
         words, value = _FOR_PLAYERS.get(c.what, (c.what, str))
         pct = "%" in c.metric or "accuracy" in c.metric or "F1" in c.metric
-        fmt = (lambda v: f"{100 * v:.2f} %") if pct else (lambda v: f"{v:.3f} mm")
+        fmt = _percent if pct else (lambda v: f"{v:.3f} mm")
         measured = f"{'read right' if pct else 'strength off by'} {fmt(c.shipped)} -> {fmt(c.fitted)}"
         better = (c.fitted > c.shipped) == c.higher_is_better and c.fitted != c.shipped
         small = c.fitted - c.shipped <= MIN_GAIN if pct else c.fitted >= (1.0 - MIN_MAE_GAIN) * c.shipped
@@ -757,14 +765,19 @@ def summary(adaptation: Adaptation) -> list[str]:
         )
     else:
         lines.append("what changes for you: nothing, the shipped recogniser already reads your hand as well")
-    before, after = 100 * a.accuracy_before, 100 * a.accuracy_after
-    lines.append(f"your unseen gestures read right: shipped {before:.2f} % -> adapted {after:.2f} % of their windows")
+    before, after = _percent(a.accuracy_before), _percent(a.accuracy_after)
+    lines.append(f"your unseen gestures read right: shipped {before} -> adapted {after} of their windows")
     return lines
 
 
 def _changed(model) -> list[str]:
     """The :data:`_FOR_PLAYERS` keys a model changes, in its order."""
     return [*model.settings, *(["classifier"] if model.classifier is not None else [])]
+
+
+def _percent(share: float) -> str:
+    """A share as ``12.34 %``; ``-`` when there was nothing to count (NaN: no held-out window)."""
+    return f"{100 * share:.2f} %" if math.isfinite(share) else "- (no held-out window)"
 
 
 def fitted_info(adaptation: Adaptation, datasets: Sequence[str | Path]) -> dict:
@@ -802,7 +815,12 @@ def simulated_sequences(datasets: Sequence[str | Path]) -> list[str]:
 def check_output(out: str | Path, datasets: Sequence[str | Path]) -> Path:
     """``out`` if writing there destroys no input: not a folder, not a file of an enrolment
     dataset. Raises NeurotouchError naming the clash."""
+    from neurotouch_hid.atomic import check_output as outside_checks
+
     out = Path(out).expanduser()
+    if str(out) == "-":  # standard output
+        return out
+    outside_checks(out, (), what="model")  # a symbolic link is never written through
     if out.is_dir():
         raise NeurotouchError(f"--out {out}: a folder; give the model's file name, e.g. {out / 'model.yaml'}")
     resolved = out.resolve()

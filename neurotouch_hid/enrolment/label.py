@@ -25,6 +25,7 @@ the motion as intensity); outside, ``none``, resting when the motion is within :
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 from collections.abc import Callable, Sequence
@@ -255,6 +256,7 @@ class Labelled:
     folder: Path
     name: str
     found: list[Found]
+    past_end: int = 0  # prompts of the plan cued after the recording's end, left out
 
     @property
     def missed(self) -> list[Found]:
@@ -270,16 +272,31 @@ def label_recording(
     *,
     inputs: Sequence[str | Path] = (),
     on_progress: Callable[[int, int], None] | None = None,
+    past_end: bool = False,
 ) -> Labelled:
     """Label ``recording`` from ``plan`` (:func:`measure_motion`) and write it as a dataset
     (:func:`write_dataset`).
 
+    With ``past_end``, prompts cued after the recording's end are left out (counted in
+    ``Labelled.past_end``): a recording made by following a plan, stopped before its end.
+
     Raises:
         RecordingError, SensorError: the recording cannot be read or shows no gel (nothing written).
-        DatasetError: the folder cannot be written, or the recording does not follow ``plan``.
+        DatasetError: the folder cannot be written, the recording does not follow ``plan``, or every
+            prompt is cued after the recording's end.
     """
     motion = measure_motion(recording, sensor, on_progress)
-    return write_dataset(out_dir, recording, plan, motion, sensor, inputs=inputs)
+    if not past_end:
+        return write_dataset(out_dir, recording, plan, motion, sensor, inputs=inputs)
+    end_us = max([int(motion.start_us), *motion.t_us[-1:].tolist(), *motion.frames_us[-1:].tolist()])
+    within = tuple(p for p in plan.prompts if motion.start_us + int(round(p.cue_s * 1e6)) < end_us)
+    if plan.prompts and not within:
+        raise DatasetError(
+            f"{recording}: every one of the plan's {len(plan.prompts)} prompts is cued after the recording's end "
+            f"({(end_us - motion.start_us) / 1e6:.1f} s): was it made by following this plan? Nothing written"
+        )
+    labelled = write_dataset(out_dir, recording, Plan(within), motion, sensor, inputs=inputs)
+    return dataclasses.replace(labelled, past_end=len(plan.prompts) - len(within))
 
 
 def write_dataset(

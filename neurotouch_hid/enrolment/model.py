@@ -26,7 +26,7 @@ file and a rename.
 from __future__ import annotations
 
 import os
-import tempfile
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -49,6 +49,35 @@ ADAPTABLE = (
 )
 #: ``--model none``: the shipped method.
 NONE = "none"
+#: The range of each setting a model may hold (inclusive; the field's units), what a gel can be:
+#: a contact threshold from 0 to 5 mm (gestures reach 2-10 mm); an intensity scale from 0.2 to 5
+#: (another gel of the same make is within a few tens of percent; 999 is labels in micrometres);
+#: resting thresholds up to 1 mm^2 per marker (1 mm of every marker is a pressed gel); a wait for
+#: the second finger of at most 1 s.
+SETTING_RANGES: dict[str, tuple[float, float]] = {
+    "gesture.min_intensity_mm": (0.0, 5.0),
+    "gesture.intensity_gain": (0.2, 5.0),
+    "resting.centroid_threshold_mm2": (0.0, 1.0),
+    "resting.centroid_reset_threshold_mm2": (0.0, 1.0),
+    "episode.first_finger_us": (0.0, 1_000_000.0),
+}
+#: The range of the learned type's numbers (``pipeline/learned.py``): the features' means (shares
+#: in [-1, 1], a contact count up to 3, the log of an intensity in px up to log 4096) and scales,
+#: and the weights and intercepts over standardised features (the shipped ones are under 3; 100
+#: already turns a twentieth of a standard deviation into a factor e^5 of odds).
+CLASSIFIER_RANGES: dict[str, tuple[float, float]] = {
+    "mean": (-10.0, 10.0),
+    "scale": (1e-3, 10.0),
+    "weights": (-100.0, 100.0),
+    "intercept": (-100.0, 100.0),
+}
+
+
+def out_of_range(key: str, value: float, ranges: dict[str, tuple[float, float]] = SETTING_RANGES) -> str | None:
+    """What is wrong with ``value`` for ``key`` (``expected LOW to HIGH``), or None when it is in
+    :data:`SETTING_RANGES` (or ``ranges``)."""
+    low, high = ranges[key]
+    return None if low <= value <= high else f"a number from {low:g} to {high:g}"
 
 
 class ModelError(NeurotouchError):
@@ -100,19 +129,25 @@ class Model:
 
     def save(self, path: str | Path) -> Path:
         """Write the model to ``path`` through a temporary file in the same folder and a rename
-        (a reader never sees half a file; an interrupted write leaves the old one). Creates the
-        folder. Raises ModelError when it cannot be written."""
+        (a reader never sees half a file; an interrupted write leaves the old one); ``-`` is
+        standard output, a FIFO or a character device is written as it is
+        (``atomic.AtomicFile``). Creates the folder.
+
+        Raises:
+            OutputError: ``path`` is a symbolic link or a folder, or the disk refuses the write.
+            ModelError: it cannot be written otherwise.
+        """
+        from neurotouch_hid.atomic import AtomicFile
+
         path = Path(path)
+        if str(path) == "-":
+            sys.stdout.write(self.to_yaml())
+            sys.stdout.flush()
+            return path
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-            try:
-                with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                    fh.write(self.to_yaml())
-                os.replace(tmp, path)
-            except BaseException:
-                Path(tmp).unlink(missing_ok=True)
-                raise
+            with AtomicFile(path, what="model") as fh:
+                fh.write(self.to_yaml())
         except OSError as exc:
             raise ModelError(f"{path}: cannot write the model: {exc.strerror or exc}") from None
         return path
@@ -192,7 +227,7 @@ def load_model(path: str | Path) -> Model:
     if data.get("format") != FORMAT:
         raise bad("format", data.get("format"), f"{FORMAT!r} (is this a model written by `neurotouch-hid adapt`?)")
     version = data.get("version")
-    if version != VERSION:
+    if isinstance(version, bool) or version != VERSION:  # ``true`` is no version (True == 1 in Python)
         raise ModelError(
             f"{where(path, lines.get('version', 0))}: model format version {short(version)} is not one this "
             f"neurotouch-hid reads (it reads version {VERSION}): run `neurotouch-hid adapt` again to write one, "
@@ -215,6 +250,9 @@ def load_model(path: str | Path) -> Model:
             or abs(value) == float("inf")
         ):
             raise bad(f"settings.{key}", value, "a finite number")
+        expected = out_of_range(key, float(value))
+        if expected is not None:
+            raise bad(f"settings.{key}", value, f"{expected} (docs/limits.md, Models)")
         out[key] = float(value)
     classifier = data.get("classifier")
     if classifier is not None:
@@ -228,6 +266,12 @@ def load_model(path: str | Path) -> Model:
             key = f"classifier.{loc}" if loc else "classifier"
             message = err["msg"].removeprefix("Value error, ")
             raise bad(key, err["input"], message[:1].lower() + message[1:]) from None
+        for part, values in classifier.items():
+            flat = [x for row in values for x in row] if part == "weights" else list(values)
+            wrong = next((x for x in flat if out_of_range(part, float(x), CLASSIFIER_RANGES)), None)
+            if wrong is not None:
+                expected = out_of_range(part, float(wrong), CLASSIFIER_RANGES)
+                raise bad(f"classifier.{part}", wrong, f"{expected} (docs/limits.md, Models)")
     fitted = data.get("fitted") or {}
     if not isinstance(fitted, dict):
         raise bad("fitted", fitted, "a mapping")

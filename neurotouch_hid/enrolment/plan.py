@@ -16,7 +16,9 @@ import json
 import math
 import os
 import secrets
+import sys
 import threading
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -268,17 +270,29 @@ def _shuffled_apart(items: list, rng: np.random.Generator) -> list:
     return out
 
 
-def write_plan(plan: Plan, path: str | Path) -> Path:
+def write_plan(plan: Plan, path: str | Path, inputs: Sequence[str | Path | None] = ()) -> Path:
     """Write ``plan`` as JSON (one prompt a line) to ``path`` through a temporary file in the same
-    folder, renamed over it at the end (a reader never sees half a plan).
+    folder, renamed over it at the end (a reader never sees half a plan); ``-`` is standard
+    output, a FIFO or a character device is written as it is (``atomic.AtomicFile``).
 
     Raises:
+        OutputError: ``path`` is a symbolic link, a folder or one of ``inputs``.
         DatasetError: the folder does not exist or cannot be written.
     """
+    from neurotouch_hid.atomic import AtomicFile
+
     path = Path(path)
     lines = ",\n".join("  " + json.dumps(p.to_json()) for p in plan.prompts)
     text = '{"prompts": [\n' + lines + "\n]}\n" if plan.prompts else '{"prompts": []}\n'
-    write_atomic(path, text.encode())
+    if str(path) == "-":
+        sys.stdout.write(text)
+        sys.stdout.flush()
+        return path
+    try:
+        with AtomicFile(path, inputs, what="plan") as fh:
+            fh.write(text)
+    except OSError as exc:  # the folder missing or unwritable (the disk's refusals are OutputError)
+        raise DatasetError(f"{path}: cannot write: {exc.strerror or exc}") from None
     return path
 
 

@@ -37,10 +37,11 @@ from typing import Protocol
 
 import numpy as np
 
+from neurotouch_hid.dataset import DatasetOut
 from neurotouch_hid.enrolment.label import SEARCH_S, GelMotion, Labelled, find_gestures, label_recording
 from neurotouch_hid.enrolment.plan import MAX_SESSION_S, Plan, Prompt, Script, rest_after_s, temp_beside
 from neurotouch_hid.enrolment.prompt_view import clock, seen_in
-from neurotouch_hid.errors import RecordingError
+from neurotouch_hid.errors import DatasetError, RecordingError
 from neurotouch_hid.runtime import item_end_us, item_start_us
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import StreamItem
@@ -246,7 +247,7 @@ def _until_over(items: Iterable[StreamItem], script: Script, stop: threading.Eve
 def run_session(
     script: Script,
     source: EnrolSource,
-    out_dir: str | Path,
+    out_dir: str | Path | DatasetOut,
     sensor: SensorGeometry,
     views: Sequence[Subscriber],
     *,
@@ -256,7 +257,8 @@ def run_session(
 ) -> SessionResult:
     """Run a guided enrolment (module docstring) and write its dataset into ``out_dir`` (created):
     ``enrolment.aedat4``, ``enrolment.labels.csv``, ``enrolment.plan.json`` (the prompts asked)
-    and ``sensor.yaml``.
+    and ``sensor.yaml``. The folder is written whole (:class:`~neurotouch_hid.dataset.DatasetOut`;
+    give one to replace a dataset with ``force``): a folder that holds a dataset is refused.
 
     Args:
         script: the session's prompts (a new :class:`~neurotouch_hid.enrolment.plan.Script` of
@@ -270,7 +272,8 @@ def run_session(
     Returns:
         :class:`SessionResult`.
     Raises:
-        RecordingError: the recording cannot be written; SensorError: no gel in view; the
+        DatasetError: ``out_dir`` holds a dataset or other files, or another session wrote
+        there meanwhile. RecordingError: the recording cannot be written; SensorError: no gel in view; the
         source's own errors (e.g. DeviceError). The recording is complete and kept on any of them
         raised after it started.
     """
@@ -280,11 +283,8 @@ def run_session(
     from neurotouch_hid.sources.recording import RecordingWriter, recorded
 
     stop = stop or threading.Event()
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise RecordingError(f"{out}: cannot create the enrolment folder: {exc.strerror}") from None
+    target = out_dir if isinstance(out_dir, DatasetOut) else DatasetOut(out_dir)
+    out = target.work
     recording = out / f"{SEQUENCE}.aedat4"
     partial = temp_beside(recording, ".aedat4")
     judge = Judge(script)
@@ -297,13 +297,42 @@ def run_session(
                 pace=pace, waits=pace, queue_items=QUEUE_ITEMS, sensor=sensor,
             )  # fmt: skip
             runtime.run()
-    finally:  # the writer has closed the file complete: keep what was recorded, however it ended
+    except RecordingError as exc:  # the disk: said of the folder asked for, what was kept with it
+        kept = _keep_recording(target, partial, recording)
+        said = str(exc).replace(str(partial), str(target.out / recording.name)).replace(str(out), str(target.out))
+        where = f"the session until then is kept in {target.out / recording.name}" if kept else "nothing was kept"
+        raise RecordingError(f"{said}; {where}") from None
+    except BaseException:  # the writer has closed the file complete: keep what was recorded, however it ended
+        _keep_recording(target, partial, recording)
+        raise
+    _keep_recording(target, partial, recording, commit=False)
+    try:
+        labelled = label_recording(recording, script.asked(), out, sensor, on_progress=on_progress)
+    except BaseException:
+        _keep_recording(target, partial, recording)
+        raise
+    labelled = dataclasses.replace(labelled, folder=target.commit())
+    return SessionResult(labelled, judge.asked_again, not script.finished)
+
+
+def _keep_recording(target: DatasetOut, partial: Path, recording: Path, commit: bool = True) -> bool:
+    """The session's recording (complete once its writer is closed) in place in ``target``'s
+    folder, and (``commit``) that folder put in place when there is a recording to keep and
+    nothing to lose there (True then); otherwise it is removed. A failing commit says nothing
+    more: the error that ended the session is the one said."""
+    if partial.exists():
         if partial.stat().st_size:
             os.replace(partial, recording)
         else:
             partial.unlink()
-    labelled = label_recording(recording, script.asked(), out, sensor, on_progress=on_progress)
-    return SessionResult(labelled, judge.asked_again, not script.finished)
+    if not commit:
+        return False
+    if recording.exists() and not target.force:
+        with contextlib.suppress(DatasetError):
+            target.commit()
+            return True
+    target.discard()
+    return False
 
 
 def enrolment_folder(now: str | None = None) -> Path:

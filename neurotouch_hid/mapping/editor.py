@@ -13,6 +13,7 @@ temporary copy and saves it only when valid, asking to edit again otherwise, as 
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import re
@@ -64,22 +65,51 @@ def user_profile_path(name: str) -> Path:
     that is not a plain file name (letters, digits, ``_``, ``-``)."""
     if len(name) > MAX_PROFILE_NAME_CHARS:
         raise ProfileError(f"profile name '{printable(name)}' is too long: at most {MAX_PROFILE_NAME_CHARS} characters")
-    if not _NAME.match(name):
+    if not _NAME.fullmatch(name):
         raise ProfileError(f"profile name '{printable(name)}' is not allowed: use letters, digits, '_' and '-' only")
     return user_profiles_dir() / f"{name}.yaml"
 
 
 def _write(path: Path, text: str) -> None:
-    """Replace ``path`` by ``text`` atomically (a crash leaves the old or the new file)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".yaml")
+    """Replace ``path`` by ``text`` atomically (a crash leaves the old or the new file). A
+    symbolic link is written through: the file it points to is replaced, the link kept.
+
+    Raises ProfileError (the file, why, and that nothing was changed) when the folder cannot be
+    made or written: full, read-only, or a file where a folder should be."""
+    if path.is_symlink():
+        path = Path(os.path.realpath(path))
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".yaml")
+    except OSError as exc:
+        raise ProfileError(
+            f"{printable(path, 200)}: cannot write: {exc.strerror or exc}; nothing was changed"
+        ) from None
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as handle:
             handle.write(text)
         os.replace(tmp, path)
+    except OSError as exc:
+        Path(tmp).unlink(missing_ok=True)
+        raise ProfileError(
+            f"{printable(path, 200)}: cannot write: {exc.strerror or exc}; nothing was changed"
+        ) from None
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+@contextlib.contextmanager
+def _editing(folder: Path, what: str):
+    """The lock around a read-modify-write of the files in ``folder`` (:func:`~neurotouch_hid.atomic.locked`):
+    commands run side by side land one after the other. Raises ProfileError when it cannot be taken."""
+    from neurotouch_hid.atomic import OutputError, locked
+
+    try:
+        with locked(folder, what):
+            yield
+    except OutputError as exc:
+        raise ProfileError(str(exc)) from None
 
 
 def shipped_profile(name: str) -> Path | None:
@@ -112,6 +142,11 @@ def new_profile(name: str, from_name: str = "default") -> Path:
             expected ...``, as ``profile validate`` says it); nothing is written then.
     """
     target = user_profile_path(name)
+    with _editing(target.parent, f"profile '{name}'"):
+        return _new_profile(target, name, from_name)
+
+
+def _new_profile(target: Path, name: str, from_name: str) -> Path:
     if target.exists():
         raise ProfileError(f"profile '{name}' already exists: {target} (edit it, or delete it first)")
     source = find_profile(from_name)
@@ -341,16 +376,17 @@ def set_values(name: str, changes: dict[str, Any]) -> tuple[Path, dict[str, Any]
         ProfileError: bad key, a mapping the profile does not have (its mappings named), or the
             result is not a valid profile (the file is left unchanged).
     """
-    _, document = _load_rt(name)
-    previous = {}
-    for key, value in changes.items():
-        _known_mapping(name, document, key)
-        _output_takes_the_fields(name, document, key, value)
-        parent, last = _parent(document, key, create=True)
-        if last in parent:
-            previous[key] = parent[last]
-        parent[last] = value
-    return _save_validated(name, document), previous
+    with _editing(user_profile_path(name).parent, f"profile '{name}'"):
+        _, document = _load_rt(name)
+        previous = {}
+        for key, value in changes.items():
+            _known_mapping(name, document, key)
+            _output_takes_the_fields(name, document, key, value)
+            parent, last = _parent(document, key, create=True)
+            if last in parent:
+                previous[key] = parent[last]
+            parent[last] = value
+        return _save_validated(name, document), previous
 
 
 def unset_value(name: str, key: str) -> tuple[Path, Any, Any]:
@@ -364,30 +400,31 @@ def unset_value(name: str, key: str) -> tuple[Path, Any, Any]:
         ProfileError: a key that is not there, or the result is invalid (the file is left
             unchanged).
     """
-    _, document = _load_rt(name)
-    parent, last = _parent(document, key, create=False)
-    if last not in parent:
-        fields = schema_fields(key.split(".")[:-1], parent)
-        if fields is not None and last not in fields:
-            raise ProfileError(
-                f"key '{printable(key)}': '{printable(last)}' is not a field there{did_you_mean(last, fields)} "
-                f"(fields: {', '.join(fields)})"
-            )
-        raise ProfileError(f"key '{printable(key)}' is not set in profile '{name}': its default applies already")
-    removed = parent[last]
-    shipped = _MISSING
-    base = shipped_base(name)
-    if base is not None:
-        try:
-            base_parent, base_last = _parent(_yaml().load(read_profile_text(base)), key, create=False)
-            shipped = base_parent.get(base_last, _MISSING)
-        except ProfileError:  # the shipped profile does not have that part: the default applies
-            pass
-    if shipped is _MISSING:
-        del parent[last]
-    else:
-        parent[last] = shipped
-    return _save_validated(name, document), removed, None if shipped is _MISSING else shipped
+    with _editing(user_profile_path(name).parent, f"profile '{name}'"):
+        _, document = _load_rt(name)
+        parent, last = _parent(document, key, create=False)
+        if last not in parent:
+            fields = schema_fields(key.split(".")[:-1], parent)
+            if fields is not None and last not in fields:
+                raise ProfileError(
+                    f"key '{printable(key)}': '{printable(last)}' is not a field there{did_you_mean(last, fields)} "
+                    f"(fields: {', '.join(fields)})"
+                )
+            raise ProfileError(f"key '{printable(key)}' is not set in profile '{name}': its default applies already")
+        removed = parent[last]
+        shipped = _MISSING
+        base = shipped_base(name)
+        if base is not None:
+            try:
+                base_parent, base_last = _parent(_yaml().load(read_profile_text(base)), key, create=False)
+                shipped = base_parent.get(base_last, _MISSING)
+            except ProfileError:  # the shipped profile does not have that part: the default applies
+                pass
+        if shipped is _MISSING:
+            del parent[last]
+        else:
+            parent[last] = shipped
+        return _save_validated(name, document), removed, None if shipped is _MISSING else shipped
 
 
 def rejected_path(name: str) -> Path:

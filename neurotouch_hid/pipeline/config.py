@@ -23,6 +23,10 @@ from neurotouch_hid.sensor import MARKER_SPACING_MM, SensorGeometry
 
 #: Shortest window accepted (us).
 MIN_WINDOW_US = 1_000
+#: Longest window accepted (us): a second is 100 of the paper's 10 ms windows, longer than any
+#: gesture's onset; a window past the recording's length gave no window at all, and one of 2^63 us
+#: overflowed the int64 clock.
+MAX_WINDOW_US = 1_000_000
 #: Longest intensity lead accepted (us): a lead is a few ms of the tracker's lag, not a forecast.
 MAX_LEAD_US = 50_000
 
@@ -320,9 +324,12 @@ class PipelineConfig(BaseModel):
 
 
 def check_window(window_us: int) -> None:
-    """Raise ValueError when ``window_us`` is below :data:`MIN_WINDOW_US`."""
+    """Raise ValueError when ``window_us`` is below :data:`MIN_WINDOW_US` or above :data:`MAX_WINDOW_US`."""
     if window_us < MIN_WINDOW_US:
         raise ValueError(f"window_us must be at least {MIN_WINDOW_US} us, got {window_us}")
+    if window_us > MAX_WINDOW_US:
+        shown = str(window_us) if len(str(window_us)) <= 20 else f"a number of {len(str(window_us))} digits"
+        raise ValueError(f"window_us must be at most {MAX_WINDOW_US} us (1 s), got {shown}")
 
 
 def check_homography(method: str, r: float, a: float, n_min: int) -> None:

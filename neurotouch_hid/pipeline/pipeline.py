@@ -22,8 +22,11 @@ with the paper's steps in place of the product's (``paper.py``).
 
 Windows: ``window_us`` long, aligned on multiples of ``window_us`` from the first event after the
 reference frame. An estimate is emitted for every window end crossed, even by a window without
-events, with ``t_us`` = the window's end; events at ``t`` belong to the window ending after ``t``.
-Events before the reference frame are dropped.
+events, with ``t_us`` = the window's end; events at ``t`` belong to the window ending after ``t``;
+but for a gap in the timestamps longer than :data:`GAP_US`: its first second of windows is
+emitted (the gel settling as the last events left it), the rest skipped (a year's gap made 3
+billion windows; the predictions format asks for no empty window). Events before the reference
+frame are dropped.
 
 Threads: the resting detector may run in another thread (paper: "operating in parallel to the
 main pipeline"): ``detect_resting=False`` and hand its results to
@@ -73,6 +76,10 @@ _NO_SURFACE = np.zeros((0, 0), dtype=np.int64)
 
 #: The stages :attr:`GesturePipeline.timings` measures.
 STAGES = ("noise_filter", "tracker", "contacts", "gesture", "resting", "frame_correction")
+#: A gap in the data (us) past which empty windows are no longer emitted but for the first
+#: second of it (module docstring): a live DAVIS-346 sends background activity many times a
+#: second, so only a recording's clock jumping (or a camera stalled for a second) makes one.
+GAP_US = 1_000_000
 
 
 def _same_held(a: tuple[np.ndarray, np.ndarray] | None, b: tuple[np.ndarray, np.ndarray] | None) -> bool:
@@ -293,9 +300,22 @@ class GesturePipeline(FramePath):
 
     # --- internals --------------------------------------------------------------------------
     def _close_windows_until(self, t_us: int) -> list[GestureEstimate]:
-        out = []
+        out = self._across_gap(t_us)
         while self._next_end is not None and self._next_end <= t_us:
             out.append(self._close_window())
+        return out
+
+    def _across_gap(self, t_us: int) -> list[GestureEstimate]:
+        """Before data at ``t_us``: when more than :data:`GAP_US` of window ends lie before it
+        with no data, the windows of the first :data:`GAP_US` closed (emitted), the others
+        skipped, keeping the windows' alignment. Memory and time follow the data, not the clock."""
+        if self._next_end is None or t_us - self._next_end < GAP_US:
+            return []
+        w = self.config.window_us
+        crossed = (t_us - self._next_end) // w + 1  # window ends at or before t_us
+        keep = max(1, GAP_US // w)
+        out = [self._close_window() for _ in range(keep)]
+        self._next_end += (crossed - keep) * w
         return out
 
     def _process_events(self, events: np.ndarray, *, filtered: bool = False) -> list[GestureEstimate]:
@@ -318,7 +338,7 @@ class GesturePipeline(FramePath):
         ts = events["timestamp"]
         if self._next_end is None:
             self._next_end = int(ts[0]) + self.config.window_us
-        out: list[GestureEstimate] = []
+        out: list[GestureEstimate] = self._across_gap(int(ts[0]))
         start = 0
         while True:
             cut = start + int(np.searchsorted(ts[start:], self._next_end, side="left"))

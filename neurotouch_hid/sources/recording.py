@@ -22,6 +22,7 @@ Time is int64 microseconds of the camera clock everywhere.
 from __future__ import annotations
 
 import collections
+import contextlib
 import itertools
 import os
 import struct
@@ -71,6 +72,14 @@ MAX_PACKET_BYTES = 64 << 20
 MAX_INFLATE_RATIO = 4096
 #: Inflated bytes any recording may reach before :data:`MAX_INFLATE_RATIO` applies.
 MIN_INFLATE_BUDGET = 1 << 30
+#: Space a recording keeps free on its disk (bytes) beyond twice the data handed to
+#: dv-processing at once: its writer thread writes behind the caller, and a write it cannot make
+#: (a full disk) throws in that thread, which aborts the process (``std::terminate``). The writer
+#: stops, with a RecordingError, before the disk is that full; the index table written at the end
+#: takes :data:`TABLE_BYTES_PER_PACKET` per packet on top.
+DISK_RESERVE_BYTES = 4 << 20
+#: The index table's bytes per packet (an offset, a size and two timestamps, with framing).
+TABLE_BYTES_PER_PACKET = 64
 
 
 @dataclass(frozen=True)
@@ -125,12 +134,9 @@ def split_batches(events: np.ndarray, batch_us: int) -> list[np.ndarray]:
     """
     if len(events) == 0:
         return []
-    ts = np.ascontiguousarray(events["timestamp"])
-    first, last = int(ts[0]) // batch_us + 1, int(ts[-1]) // batch_us
-    if last < first:
-        return [events]
-    cuts = np.searchsorted(ts, np.arange(first, last + 1, dtype=np.int64) * batch_us, side="left")
-    return [piece for piece in np.split(events, cuts) if len(piece)]
+    batch = np.ascontiguousarray(events["timestamp"]) // batch_us  # per event: a gap costs nothing
+    cuts = np.flatnonzero(batch[1:] != batch[:-1]) + 1
+    return np.split(events, cuts)
 
 
 def grey_image(image: np.ndarray) -> np.ndarray:
@@ -692,6 +698,8 @@ class RecordingWriter:
                 f"compression {compression!r}: expected one of {', '.join(dv.CompressionType.__members__)}"
             )
         config.compression = dv.CompressionType.__members__[compression]
+        self._packets = 0
+        self._room(0)
         try:
             self._writer = dv.io.MonoCameraWriter(str(self.path), config)
         except DV_ERRORS as exc:
@@ -755,6 +763,7 @@ class RecordingWriter:
         # Keep event packets interleaved with frames in time, as DV records them.
         self._flush(final=True)
         self._last_frame_us = int(frame.t_us)
+        self._room(image.nbytes)
         try:
             self._writer.writeFrame(dv.Frame(int(frame.t_us), np.ascontiguousarray(image)))
         except DV_ERRORS as exc:
@@ -768,9 +777,14 @@ class RecordingWriter:
         stop = len(events) if final else len(events) - len(events) % PACKET_EVENTS
         try:
             for start in range(0, stop, PACKET_EVENTS):
-                self._writer.writeEvents(store_from_events(events[start : min(start + PACKET_EVENTS, stop)]))
+                packet = events[start : min(start + PACKET_EVENTS, stop)]
+                self._room(packet.nbytes)
+                self._writer.writeEvents(store_from_events(packet))
         except DV_ERRORS as exc:
             raise RecordingError(f"{self.path}: cannot write events ({dv_error_text(str(exc))})") from None
+        except RecordingError:  # no room: what was not written is dropped, the file ends before it
+            self._pending, self._n_pending = [], 0
+            raise
         rest = events[stop:]
         self._pending = [rest] if len(rest) else []
         self._n_pending = len(rest)
@@ -778,6 +792,25 @@ class RecordingWriter:
     def _check_open(self) -> None:
         if self._writer is None:
             raise RecordingError(f"{self.path}: the writer is closed")
+
+    def _room(self, nbytes: int) -> None:
+        """Before ``nbytes`` of data go to dv-processing: the disk must have room for twice that,
+        the index table and :data:`DISK_RESERVE_BYTES` (``os.statvfs``, the space an
+        unprivileged user may use). Raises RecordingError naming the disk's free space otherwise:
+        a write that fails in dv-processing's own thread would abort the process. Another process
+        filling the disk faster than the reserve between two checks is not caught."""
+        self._packets += 1
+        need = 2 * nbytes + DISK_RESERVE_BYTES + TABLE_BYTES_PER_PACKET * self._packets
+        try:
+            info = os.statvfs(self.path.parent)
+        except OSError as exc:
+            raise RecordingError(f"{self.path}: cannot write ({exc.strerror or exc})") from None
+        free = info.f_bavail * info.f_frsize
+        if free < need:
+            raise RecordingError(
+                f"{self.path}: the disk is full ({free / 1e6:.1f} MB free in {self.path.parent}; a recording stops "
+                f"when less than {need / 1e6:.1f} MB is left): free some space or record elsewhere"
+            )
 
     def close(self) -> None:
         """Write pending events and finish the file (index table); idempotent."""
@@ -868,9 +901,12 @@ def record_stream(
         of the source such as a lost camera), the file is closed complete and readable first.
 
     Raises:
-        RecordingError: the file cannot be written (it is written beside ``path``, renamed over
-            it at the first item: one that cannot start leaves what was there); OutputError:
-            ``path`` is a link or a folder; the source's own errors once the file is in place.
+        RecordingError: the file cannot be written, or the disk is nearly full
+            (:data:`DISK_RESERVE_BYTES`). It is written beside ``path``: renamed over it at the
+            first item when nothing was there (a recording cut by the disk is then complete up to
+            the cut), at the end only when a recording was there (``record --force``: it is kept
+            as it was unless the new one is complete). OutputError: ``path`` is a link or a
+            folder; the source's own errors once the file is in place.
     """
     if Path(path).suffix != AEDAT4_SUFFIX:  # said of ``path``, not of the temporary file beside it
         raise RecordingError(f"{path}: a recording's name must end in '{AEDAT4_SUFFIX}' (dv-processing requires it)")
@@ -878,23 +914,52 @@ def record_stream(
     events = frames = 0
     first_us = last_us = None
     clock = Pacer()
-    with PathBeside(path, what="recording") as out, RecordingWriter(out.tmp, camera_name=camera_name) as writer:
-        for item in stream:
-            if isinstance(item, Frame):
-                writer.write_frame(item)
-                frames += 1
-                t_us = item.t_us
-            else:
-                writer.write_events(item)
-                events += len(item)
-                t_us = int(item["timestamp"][-1])
-            out.publish()  # at the first item: the writer goes on in the same file
-            first_us = t_us if first_us is None else min(first_us, t_us)
-            last_us = t_us if last_us is None else max(last_us, t_us)
-            if on_progress is not None:
-                on_progress(last_us - first_us, events, frames)
-            if pace:
-                clock.wait(last_us, stop)
-            if stop.is_set():
-                break
+    with PathBeside(path, what="recording") as out:
+        # nothing there: the file is published at its first item (a crash keeps what was recorded);
+        # a recording there (--force) is replaced only once the new one is complete
+        early = not os.path.lexists(path)
+        writer_failed = False
+        try:
+            writer = RecordingWriter(out.tmp, camera_name=camera_name)
+        except RecordingError as exc:
+            raise RecordingError(str(exc).replace(str(out.tmp), str(path))) from None
+        try:
+            for item in stream:
+                try:
+                    if isinstance(item, Frame):
+                        writer.write_frame(item)
+                        frames += 1
+                        t_us = item.t_us
+                    else:
+                        writer.write_events(item)
+                        events += len(item)
+                        t_us = int(item["timestamp"][-1])
+                except RecordingError as exc:  # the disk: the file ends before this item
+                    with contextlib.suppress(RecordingError):
+                        writer.close()
+                    said = str(exc).replace(str(out.tmp), str(path))
+                    if not out.published:
+                        said = f"{said}; nothing recorded is kept, {path} is as it was"
+                    else:
+                        seconds = ((last_us or 0) - (first_us or 0)) / 1e6
+                        said = f"{said}; the {seconds:.1f} s recorded until then are complete in {path}"
+                    writer_failed = True  # not published below: what was there stays
+                    raise RecordingError(said) from None
+                if early:
+                    out.publish()  # the writer goes on in the same file
+                first_us = t_us if first_us is None else min(first_us, t_us)
+                last_us = t_us if last_us is None else max(last_us, t_us)
+                if on_progress is not None:
+                    on_progress(last_us - first_us, events, frames)
+                if pace:
+                    clock.wait(last_us, stop)
+                if stop.is_set():
+                    break
+        except BaseException:  # the source's error (a lost camera): the file is closed complete and kept
+            with contextlib.suppress(RecordingError):
+                writer.close()
+            if not writer_failed and (events or frames):
+                out.publish()
+            raise
+        writer.close()
     return RecordSummary(Path(path), events, frames, 0 if first_us is None else last_us - first_us, stop.is_set())

@@ -1216,7 +1216,27 @@ def save_npz(path: Path, **arrays: np.ndarray) -> None:
                 np.lib.format.write_array(fh, np.asanyarray(value), allow_pickle=False)
 
 
-def write_dataset(
+def write_dataset(out_dir: str | Path, *args, force: bool = False, **kw) -> Path:
+    """:func:`write_whole_dataset` written whole (:class:`~neurotouch_hid.dataset.DatasetOut`):
+    into a new folder beside ``out_dir``, put in its place at the end; a dataset already in
+    ``out_dir`` is refused unless ``force`` (then replaced whole), any other file there always.
+
+    Raises:
+        DatasetError: ``out_dir`` holds a dataset or other files, or cannot be written (nothing
+            changed); and what :func:`write_whole_dataset` raises (nothing changed either).
+    """
+    from neurotouch_hid.dataset import DatasetOut
+
+    target = DatasetOut(out_dir, force=force)
+    try:
+        write_whole_dataset(target.work, *args, **kw)
+    except BaseException:
+        target.discard()
+        raise
+    return target.commit()
+
+
+def write_whole_dataset(
     out_dir: str | Path,
     preset: str = "quick",
     seed: int = 0,
