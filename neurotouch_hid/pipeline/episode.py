@@ -30,6 +30,15 @@ REPRESS_SHARE = 0.5
 #: (docs/method.md, "Episode vote"). Above the ~0.25 mm a tracked tail rises between two APS
 #: frames' corrections; one contact is left out, as its intensity jumps where fingers merge.
 REPRESS_MM = 0.3
+#: At or above this intensity (mm), well above every dead zone of the built-in profiles, a type
+#: answered in the window before changes to another only when two windows in a row read it
+#: (otherwise it holds): one window of another type inside a firm gesture is
+#: a misreading (a finger's field merging for a window, a single ``none`` restarting the episode),
+#: and at 4-9 mm it moves an output for a game frame (docs/method.md, "Episode vote").
+FIRM_MM = 2.0
+#: A type answered within this time (us) before still holds the next window at or above
+#: ``FIRM_MM``, across a ``none`` window that restarted the episode: one APS frame period.
+FIRM_GAP_US = 40_000
 
 
 class EpisodeVote:
@@ -55,6 +64,10 @@ class EpisodeVote:
     below ``repress_share`` of the peak, begins a new episode (a new press after the fingers had mostly left: a creeping
     gel's release tail can still be read as the last gesture when the next one begins in it).
 
+    Whatever the above answers, at or above ``firm_mm`` a type answered within ``FIRM_GAP_US``
+    before (in this episode or the one a ``none`` window just ended) changes to another type only
+    when that window and the one before it both read that type; otherwise the type before holds.
+
     Args:
         first_finger_us: how long one contact alone stays undecided (us, >= 0).
         correction_us: how long after the onset the one correction may come (us, >= 0).
@@ -65,6 +78,8 @@ class EpisodeVote:
             below before a new press can begin a new episode.
         repress_mm: how far (mm, > 0) above its lowest since the peak a window of another type that
             sees two contacts or more must rise to begin one.
+        firm_mm: from this intensity (mm, >= 0; inf: never) on, a type answered the window before
+            changes only when two windows in a row say so.
     """
 
     def __init__(
@@ -75,6 +90,7 @@ class EpisodeVote:
         counted_mm: float = COUNTED_MM,
         repress_share: float = REPRESS_SHARE,
         repress_mm: float = REPRESS_MM,
+        firm_mm: float = FIRM_MM,
     ) -> None:
         self.first_finger_us = first_finger_us
         self.correction_us = correction_us
@@ -82,6 +98,10 @@ class EpisodeVote:
         self.counted_mm = counted_mm
         self.repress_share = repress_share
         self.repress_mm = repress_mm
+        self.firm_mm = firm_mm
+        self._held: GestureType | None = None  # the type last answered (not NONE) ...
+        self._held_us = 0  # ... when
+        self._said = GestureType.NONE  # the window before's own type
         self.reset()
 
     def reset(self) -> None:
@@ -100,7 +120,26 @@ class EpisodeVote:
         """The answer after one window ending at ``t_us`` (us, increasing) of type ``gesture``,
         intensity ``intensity_mm`` (mm, >= 0) and ``n_contacts`` contact points: the committed
         type; while undecided, the vote so far below ``provisional_mm`` and ``NONE`` at or above
-        it. A ``NONE`` window ends the episode and is returned as is."""
+        it; at or above ``firm_mm``, the type answered before until two windows in a row answer
+        another. A ``NONE`` window ends the episode and is returned as is."""
+        answer = self._vote(gesture, intensity_mm, n_contacts, t_us)
+        said_before, self._said = self._said, gesture
+        if answer is GestureType.NONE:
+            return answer
+        held = self._held
+        if (
+            held is not None
+            and answer is not held
+            and intensity_mm >= self.firm_mm
+            and t_us - self._held_us <= FIRM_GAP_US
+            and not (gesture is answer and said_before is answer)
+        ):
+            answer = held  # another type, not said by two windows in a row: the type before holds
+        self._held, self._held_us = answer, t_us
+        return answer
+
+    def _vote(self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int) -> GestureType:
+        """:meth:`update` without the firm type."""
         if gesture is GestureType.NONE:
             self.reset()
             return gesture
