@@ -268,3 +268,25 @@ def test_a_firm_type_does_not_flip_for_a_single_window():
     # below FIRM_MM nothing changes: the correction answers push at once
     weak = [(T, 0.5, 2), (T, 1.0, 2), (P, 1.5, 3), (T, 1.5, 2)]
     assert answers(weak)[2] is P and 1.5 < FIRM_MM
+
+
+def test_a_finger_found_late_in_a_slow_attack_nobody_felt_restarts_the_vote():
+    """A slow twist whose second finger presses 0.44 s after the first: the first finger alone
+    reads push on one contact (committed after the wait, never at a dead zone). When the second
+    finger is found, the one-contact votes no longer count, so the twist is answered as soon as
+    it outweighs the push read on two contacts, not after it outweighs 0.4 s of push. Once a
+    window of the episode has reached ``COUNTED_MM`` (felt), past the correction time, the
+    votes stand as before."""
+    T = GestureType.TWIST_CCW
+    alone = [(P, 0.1 + 0.015 * k, 1) for k in range(44)]  # 0.1 -> 0.75 mm in 0.44 s
+    found = [(P, 0.75, 2)] + [(T, 0.76 + 0.002 * k, 2) for k in range(16)]
+
+    def answers(windows) -> list[GestureType]:
+        vote = EpisodeVote()
+        return [vote.update(g, mm, n, 10_000 * (k + 1)) for k, (g, mm, n) in enumerate(windows)]
+
+    got = answers(alone + found)
+    assert got[43] is P and got[44] is P  # the push so far, then the first window on two contacts
+    assert got[45:] == [T] * 16  # the twist outweighs the 0.75 mm of push on two contacts at once
+    felt = [(P, 0.1 + 0.02 * k, 1) for k in range(44)]  # the same to 0.96 mm: felt
+    assert answers(felt + [(P, 0.97, 2)] + [(T, 0.98 + 0.002 * k, 2) for k in range(16)])[45] is P

@@ -56,13 +56,15 @@ class EpisodeVote:
 
     Once committed, each window adds its intensity to its own type's votes, twice when it sees two
     contacts or more at or above ``counted_mm``, and the answer changes only when another type
-    outweighs it, with two exceptions: within ``correction_us`` of the onset,
-    once per episode, a window that sees more contacts than every earlier window and reads
-    another type is answered at once and the votes restart from it (the fingers seen before were
-    fewer than the gesture has); and a window of another type that sees two contacts or more,
-    whose intensity has risen ``repress_mm`` above the lowest since the episode's peak, that lowest
-    below ``repress_share`` of the peak, begins a new episode (a new press after the fingers had mostly left: a creeping
-    gel's release tail can still be read as the last gesture when the next one begins in it).
+    outweighs it, with two exceptions. Within ``correction_us`` of the onset, or later while no
+    window of the episode has reached ``counted_mm`` (a slow attack nobody has felt yet), once per
+    episode, a window that sees more contacts than every earlier window and reads another type is
+    answered at once and the votes restart from it (the fingers seen before were fewer than the
+    gesture has; such a window of the committed type restarts the votes too). And a window of
+    another type that sees two contacts or more, whose intensity has risen ``repress_mm`` above
+    the lowest since the episode's peak, that lowest below ``repress_share`` of the peak, begins
+    a new episode (a new press after the fingers had mostly left: a creeping gel's release tail
+    can still be read as the last gesture when the next one begins in it).
 
     Whatever the above answers, at or above ``firm_mm`` a type answered within ``FIRM_GAP_US``
     before (in this episode or the one a ``none`` window just ended) changes to another type only
@@ -151,6 +153,7 @@ class EpisodeVote:
             and intensity_mm - self._low >= self.repress_mm
         ):
             self.reset()  # a new press: a new episode from this window
+        unfelt = self._peak < self.counted_mm  # no window of the episode has reached a dead zone yet
         if intensity_mm >= self._peak:
             self._peak, self._low = float(intensity_mm), math.inf
         else:
@@ -171,13 +174,11 @@ class EpisodeVote:
                 return GestureType.NONE
             self._decision = max(self._votes, key=self._votes.get)
             return self._decision
-        if (
-            not self._corrected
-            and gesture is not self._decision
-            and n_contacts > self._most_contacts
-            and t_us - self._onset_us <= self.correction_us
-        ):
-            self._decision, self._corrected, self._votes = gesture, True, {}
+        if n_contacts > self._most_contacts and (t_us - self._onset_us <= self.correction_us or unfelt):
+            if gesture is not self._decision and not self._corrected:
+                self._decision, self._corrected, self._votes = gesture, True, {}
+            elif gesture is self._decision:
+                self._votes = {}  # the votes cast on fewer fingers than the gesture has no longer count
         if n_contacts >= 2 and intensity_mm >= self.counted_mm:
             weight *= 2.0
         self._most_contacts = max(self._most_contacts, n_contacts)
