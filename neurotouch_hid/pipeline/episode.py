@@ -103,7 +103,6 @@ class EpisodeVote:
         self.firm_mm = firm_mm
         self._held: GestureType | None = None  # the type last answered (not NONE) ...
         self._held_us = 0  # ... when
-        self._said = GestureType.NONE  # the window before's own type
         self.reset()
 
     def reset(self) -> None:
@@ -117,6 +116,7 @@ class EpisodeVote:
         self._corrected = False
         self._peak = 0.0  # the episode's highest intensity (mm) ...
         self._low = math.inf  # ... and its lowest since (mm)
+        self._said = GestureType.NONE  # the window before's own type
 
     def update(self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int) -> GestureType:
         """The answer after one window ending at ``t_us`` (us, increasing) of type ``gesture``,
@@ -124,8 +124,12 @@ class EpisodeVote:
         type; while undecided, the vote so far below ``provisional_mm`` and ``NONE`` at or above
         it; at or above ``firm_mm``, the type answered before until two windows in a row answer
         another. A ``NONE`` window ends the episode and is returned as is."""
+        if gesture is GestureType.NONE:  # as cheap as before for a resting window
+            self.reset()
+            return gesture
+        said_before = self._said
         answer = self._vote(gesture, intensity_mm, n_contacts, t_us)
-        said_before, self._said = self._said, gesture
+        self._said = gesture
         if answer is GestureType.NONE:
             return answer
         held = self._held
@@ -141,10 +145,7 @@ class EpisodeVote:
         return answer
 
     def _vote(self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int) -> GestureType:
-        """:meth:`update` without the firm type."""
-        if gesture is GestureType.NONE:
-            self.reset()
-            return gesture
+        """:meth:`update` of a window with a gesture, without the firm type."""
         if (
             self._decision is not None
             and gesture is not self._decision
