@@ -1,10 +1,12 @@
 """The per-gesture metrics (docs/dataset.md, "Per-gesture metrics") on hand-made labels and
 predictions, every expected value worked out by hand in the comments."""
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
+from test_recognition_failures import uneven_pinch
 
 from neurotouch_hid.dataset import LabelRow
 from neurotouch_hid.estimate import GestureEstimate, GestureType
@@ -239,26 +241,9 @@ def test_the_simulation_writes_and_reads_back_when_each_lagging_gesture_s_last_f
 
 
 def test_the_simulator_says_when_the_gel_under_a_lagging_finger_has_moved_03_mm():
-    from neurotouch_hid.sources.simulator import PRESSED_MM, GelSimulator, SimGesture, deform
+    from neurotouch_hid.sources.simulator import PRESSED_MM, GelSimulator, deform
 
-    pinch = SimGesture(
-        gesture=G.PINCH,
-        t_start_us=1_100_000,
-        attack_us=300_000,
-        hold_us=400_000,
-        release_us=200_000,
-        fingers_mm=np.array([[-8.0, 0.0], [8.0, 0.0]]),
-        amplitude_mm=3.0,
-        direction=np.zeros(2),
-        finger_mm=6.0,
-        press=0.7,
-        tremor=(0.0, 5.0, 0.0),
-        global_mm=np.zeros(2),
-        global_rad=0.0,
-        residual=0.0,
-        creep_us=80_000,
-        lags_us=(0, 150_000),  # the second finger starts 150 ms after the first
-    )
+    pinch = dataclasses.replace(uneven_pinch(), lags_us=(0, 150_000))  # the second finger starts 150 ms late
     sim = GelSimulator(script=[pinch])
     sim.step()
     pressed = sim.pressed_us(pinch)

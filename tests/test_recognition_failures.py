@@ -33,7 +33,7 @@ def _run(gestures: list[SimGesture], seconds: float, family: str = "default"):
     return estimates, labels
 
 
-def _uneven_pinch() -> SimGesture:
+def uneven_pinch() -> SimGesture:
     """Two fingers of contact radius 6 mm at (-4.3, -1.7) mm (near the apex) and (15.2, 1.4) mm,
     user frame, moving 4.1 mm and 2.3 mm towards each other, pressed firmly; attack 0.2 s, hold
     2.1 s, release 0.36 s."""
@@ -58,13 +58,13 @@ def _uneven_pinch() -> SimGesture:
 
 
 @pytest.mark.parametrize("family", ["default", "pasternak"])
-def test_an_uneven_pinch_with_one_finger_near_the_apex_reads_pinch_on_two_contacts_throughout(family):
+def test_anuneven_pinch_with_one_finger_near_the_apex_reads_pinch_on_two_contacts_throughout(family):
     """Reported on a gel the project has not seen: this pinch read as a one-contact push near the
     apex in every window above the dead zone (the weaker finger's field lost after the tracker).
     On the simulated gel, with a Gaussian and with a Pasternak (long-tailed) falloff, where the
     gel under the weaker finger moves 1.6-2.2 mm, every window above the dead zone must answer
     pinch on two contacts, one on each finger."""
-    estimates, labels = _run([_uneven_pinch()], 3.3, family)
+    estimates, labels = _run([uneven_pinch()], 3.3, family)
     truth = labels_at(labels, np.array([e.t_us for e in estimates], dtype=np.int64))
     felt = [(e, t) for e, t in zip(estimates, truth) if e.intensity_mm >= DEFAULT_DEADZONE_MM]
     assert len(felt) > 200  # the hold is above the dead zone
