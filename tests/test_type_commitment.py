@@ -268,6 +268,10 @@ def test_a_firm_type_does_not_flip_for_a_single_window():
     # below FIRM_MM nothing changes: the correction answers push at once
     weak = [(T, 0.5, 2), (T, 1.0, 2), (P, 1.5, 3), (T, 1.5, 2)]
     assert answers(weak)[2] is P and 1.5 < FIRM_MM
+    # a type answered only below FIRM_MM is not firm: a fast push tap's attack read pinch on three
+    # contacts at 0.6 mm, then push at 2.8 mm, is answered push at once
+    tap = [(Q, 0.62, 3), (P, 2.77, 1), (P, 3.3, 1)]
+    assert answers(tap) == [Q, P, P]
 
 
 def test_a_finger_found_late_in_a_slow_attack_nobody_felt_restarts_the_vote():

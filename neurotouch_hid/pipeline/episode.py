@@ -31,8 +31,8 @@ REPRESS_SHARE = 0.5
 #: frames' corrections; one contact is left out, as its intensity jumps where fingers merge.
 REPRESS_MM = 0.3
 #: At or above this intensity (mm), well above every dead zone of the built-in profiles, a type
-#: answered in the window before changes to another only when two windows in a row read it
-#: (otherwise it holds): one window of another type inside a firm gesture is
+#: answered at this intensity in the window before changes to another only when two windows in a
+#: row read it (otherwise it holds): one window of another type inside a firm gesture is
 #: a misreading (a finger's field merging for a window, a single ``none`` restarting the episode),
 #: and at 4-9 mm it moves an output for a game frame (docs/method.md, "Episode vote").
 FIRM_MM = 2.0
@@ -66,9 +66,10 @@ class EpisodeVote:
     a new episode (a new press after the fingers had mostly left: a creeping gel's release tail
     can still be read as the last gesture when the next one begins in it).
 
-    Whatever the above answers, at or above ``firm_mm`` a type answered within ``FIRM_GAP_US``
-    before (in this episode or the one a ``none`` window just ended) changes to another type only
-    when that window and the one before it both read that type; otherwise the type before holds.
+    Whatever the above answers, a type answered at or above ``firm_mm`` within ``FIRM_GAP_US``
+    before (in this episode or the one a ``none`` window just ended) changes, in a window at or
+    above ``firm_mm``, to another type only when that window and the one before it both read that
+    type; otherwise the type before holds.
 
     Args:
         first_finger_us: how long one contact alone stays undecided (us, >= 0).
@@ -101,7 +102,7 @@ class EpisodeVote:
         self.repress_share = repress_share
         self.repress_mm = repress_mm
         self.firm_mm = firm_mm
-        self._held: GestureType | None = None  # the type last answered (not NONE) ...
+        self._held: GestureType | None = None  # the type last answered at or above firm_mm ...
         self._held_us = 0  # ... when
         self.reset()
 
@@ -141,7 +142,8 @@ class EpisodeVote:
             and not (gesture is answer and said_before is answer)
         ):
             answer = held  # another type, not said by two windows in a row: the type before holds
-        self._held, self._held_us = answer, t_us
+        if intensity_mm >= self.firm_mm:
+            self._held, self._held_us = answer, t_us
         return answer
 
     def _vote(self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int) -> GestureType:
