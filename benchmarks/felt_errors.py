@@ -36,7 +36,7 @@ import numpy as np
 import typer
 from workdir import families_in
 
-from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions
+from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions, read_pressed
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.evaluation.felt import (
     DEFAULT_DEADZONE_MM,
@@ -44,6 +44,7 @@ from neurotouch_hid.evaluation.felt import (
     deadzone_crossing,
     gesture_records,
     gesture_spans,
+    pressed_at,
 )
 from neurotouch_hid.output.console import command_app
 from neurotouch_hid.pipeline.episode import PROVISIONAL_MM
@@ -82,11 +83,11 @@ class Tally:
         self.onsets += other.onsets
 
 
-def tally_sequence(labels, predictions, deadzone_mm: float) -> Tally:
+def tally_sequence(labels, predictions, deadzone_mm: float, pressed=()) -> Tally:
     t = Tally()
     t_pred = np.array([p.t_us for p in predictions], dtype=np.int64)
     label_times = np.array([r.t_us for r in labels], dtype=np.int64)
-    latencies = gesture_records(labels, predictions, deadzone_mm).deadzone_latency_ms
+    latencies = gesture_records(labels, predictions, deadzone_mm, pressed).deadzone_latency_ms
     for k, (kind, t0, t1) in enumerate(gesture_spans(labels)):
         rows = [r for r in labels if t0 <= r.t_us <= t1]
         n_true = max(r.n_contacts for r in rows)
@@ -99,7 +100,8 @@ def tally_sequence(labels, predictions, deadzone_mm: float) -> Tally:
         truth = labels_at(labels, t_pred[lo:hi]) if len(label_times) else []
         answered = [(p, r) for p, r in zip(inside, truth) if p.gesture is not GestureType.NONE]
         felt = [(p, r) for p, r in answered if p.intensity_mm >= deadzone_mm]
-        wrong = [(p, r) for p, r in felt if p.gesture is not kind]
+        felt_from = pressed_at(pressed, t0, t1)
+        wrong = [(p, r) for p, r in felt if p.gesture is not kind and (felt_from is None or p.t_us >= felt_from)]
         if onset is not None:
             at = labels_at(labels, np.array([onset], dtype=np.int64))[0]
             moved = next((r.t_us for r in rows if r.intensity_mm >= MOVED_MM), t1)
@@ -197,7 +199,7 @@ def main(
         for seq in list_sequences(out / fam):
             labels = read_labels(out / fam / f"{seq}.labels.csv")
             preds = read_predictions(out / "predictions" / fam / method / f"{seq}.jsonl")
-            t.add(tally_sequence(labels, preds, deadzone_mm))
+            t.add(tally_sequence(labels, preds, deadzone_mm, read_pressed(out / fam / f"{seq}.pressed.csv")))
         total.add(t)
         print("\n".join(lines_for(fam, t)))
     print("\n".join(lines_for(f"all {len(names)} families", total)))

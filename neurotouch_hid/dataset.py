@@ -179,6 +179,59 @@ def read_labels(path: str | Path) -> list[LabelRow]:
     return rows
 
 
+#: The columns of ``SEQUENCE.pressed.csv`` (docs/dataset.md, "Per-gesture metrics").
+PRESSED_COLUMNS: tuple[str, ...] = ("t_start_us", "pressed_us")
+
+
+def write_pressed(path: str | Path, rows: Sequence[tuple[int, int]]) -> None:
+    """Write ``SEQUENCE.pressed.csv``: per simulated gesture whose fingers start apart, its
+    attack's first instant and when the gel under its last finger to press has moved 0.3 mm
+    (both int us, recording clock; docs/dataset.md, "Per-gesture metrics"), ordered by time."""
+    with AtomicFile(path, what="pressed file", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(PRESSED_COLUMNS)
+        for start, pressed in rows:
+            writer.writerow([str(int(start)), str(int(pressed))])
+
+
+def read_pressed(path: str | Path) -> list[tuple[int, int]]:
+    """Read a ``SEQUENCE.pressed.csv`` (:func:`write_pressed`): (t_start_us, pressed_us) rows;
+    an empty list when the file does not exist (a recording, not a simulation).
+
+    Raises:
+        DatasetError: naming the file, the line and the column, when the header differs, a value
+            is not an integer, a row's pressed_us is before its t_start_us, or rows are not
+            ordered by time.
+    """
+    path = Path(path)
+    if not path.exists():
+        return []
+    text = read_outside_text(path, MAX_PREDICTIONS_BYTES, "pressed file", DatasetError)
+    rows: list[tuple[int, int]] = []
+    with io.StringIO(text, newline="") as fh:
+        reader = csv.reader(fh)
+        header = next(reader, None)
+        if header is None or tuple(h.strip() for h in header) != PRESSED_COLUMNS:
+            raise DatasetError(f"{path}:1: header must be {','.join(PRESSED_COLUMNS)}, found {short(header)}")
+        for line_no, cells in enumerate(reader, start=2):
+            if not cells:
+                continue
+            if len(cells) != len(PRESSED_COLUMNS):
+                raise DatasetError(f"{path}:{line_no}: expected {len(PRESSED_COLUMNS)} columns, found {len(cells)}")
+            values = []
+            for col, cell in zip(PRESSED_COLUMNS, cells):
+                try:
+                    values.append(int(cell))
+                except ValueError:
+                    raise DatasetError(
+                        f"{path}:{line_no}: column {col!r}: expected an integer (us), found {short(cell)}"
+                    ) from None
+            if values[1] < values[0] or (rows and values[0] < rows[-1][0]):
+                raise DatasetError(f"{path}:{line_no}: pressed_us before t_start_us, or rows not ordered by time")
+            rows.append((values[0], values[1]))
+    return rows
+
+
 def dataset_sensor_file(dataset: str | Path) -> Path:
     """The sensor.yaml that applies to a dataset folder: its own (docs/dataset.md), else the user's
     calibration (``neurotouch-hid calibrate``; :func:`~neurotouch_hid.sensor.user_sensor_path`).

@@ -1,14 +1,16 @@
 """The per-gesture metrics (docs/dataset.md, "Per-gesture metrics") on hand-made labels and
 predictions, every expected value worked out by hand in the comments."""
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
+from test_recognition_failures import uneven_pinch
 
 from neurotouch_hid.dataset import LabelRow
 from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.evaluation.felt import FeltRecords, gesture_records, gesture_spans, summarise
+from neurotouch_hid.evaluation.felt import FeltRecords, gesture_records, gesture_spans, pressed_at, summarise
 from neurotouch_hid.evaluation.metrics import align, evaluate
 from neurotouch_hid.evaluation.report import felt_rows
 from neurotouch_hid.sensor import SensorGeometry
@@ -201,3 +203,53 @@ def test_eval_refuses_a_negative_dead_zone_before_running_anything(tmp_path):
 
     result = CliRunner().invoke(app, ["eval", str(tmp_path), "--deadzone-mm", "-0.5"])
     assert result.exit_code == 2 and "--deadzone-mm" in result.output
+
+
+def test_a_gesture_whose_fingers_start_apart_is_felt_wrong_only_once_its_last_finger_has_pressed():
+    """The push's (80-160 ms) wrong answer, pinch at 1.0 mm, is at 120 ms. The simulation says its
+    last finger's gel moved 0.3 mm at 130 ms (the attack began at 60 ms, before the first labelled
+    frame): the pinch at 120 ms no longer makes it felt wrong. The pinch (640-720 ms) has its own
+    row at 700 ms: its push at 0.9 mm (660 ms) is before it, not felt; no row for the zoom."""
+    pressed = [(60_000, 130_000), (640_000, 700_000)]
+    rec = gesture_records(labels(), predictions(), deadzone_mm=0.8, pressed=pressed)
+    assert list(rec.felt_wrong) == [False, False, False]
+    # one ms earlier the pinch at 120 ms counts again; the other figures never depend on the rows
+    early = gesture_records(labels(), predictions(), deadzone_mm=0.8, pressed=[(60_000, 120_000)])
+    assert list(early.felt_wrong) == [True, True, False]
+    plain = gesture_records(labels(), predictions(), deadzone_mm=0.8)
+    assert list(rec.felt_changes) == list(plain.felt_changes)
+    assert np.array_equal(rec.deadzone_latency_ms, plain.deadzone_latency_ms, equal_nan=True)
+    # a row whose attack starts a frame period or more before the gesture's first frame is another's
+    assert pressed_at([(40_000, 130_000)], 80_000, 160_000) is None
+    assert pressed_at([(41_000, 130_000)], 80_000, 160_000) == 130_000
+
+
+def test_the_simulation_writes_and_reads_back_when_each_lagging_gesture_s_last_finger_pressed(tmp_path):
+    from neurotouch_hid.dataset import read_pressed, write_pressed
+    from neurotouch_hid.errors import DatasetError
+
+    path = tmp_path / "u0_session0.pressed.csv"
+    assert read_pressed(path) == []  # a recording has none
+    write_pressed(path, [(1_000_000, 1_120_000), (2_000_000, 2_050_000)])
+    assert read_pressed(path) == [(1_000_000, 1_120_000), (2_000_000, 2_050_000)]
+    path.write_text("t_start_us,pressed_us\n1000,x\n")
+    with pytest.raises(DatasetError, match=r":2: column 'pressed_us'"):
+        read_pressed(path)
+    path.write_text("t_start_us,pressed_us\n1000,900\n")
+    with pytest.raises(DatasetError, match=":2: pressed_us before"):
+        read_pressed(path)
+
+
+def test_the_simulator_says_when_the_gel_under_a_lagging_finger_has_moved_03_mm():
+    from neurotouch_hid.sources.simulator import PRESSED_MM, GelSimulator, deform
+
+    pinch = dataclasses.replace(uneven_pinch(), lags_us=(0, 150_000))  # the second finger starts 150 ms late
+    sim = GelSimulator(script=[pinch])
+    sim.step()
+    pressed = sim.pressed_us(pinch)
+    assert pinch.t_start_us + 150_000 < pressed < pinch.t_start_us + pinch.attack_us
+    t = np.array([pinch.t_start_us, pressed - 1000, pressed], dtype=np.int64)
+    pts = deform([pinch], pinch.fingers_mm, t, sim.sensor.gel_radius_mm)[0]
+    moved = np.linalg.norm(pts - pts[:1], axis=-1)  # (3, 2)
+    assert moved[1, 1] < PRESSED_MM <= moved[2, 1]  # the second finger's gel, to the ms
+    assert moved[1, 0] > PRESSED_MM  # the first's had moved further before

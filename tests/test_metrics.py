@@ -242,3 +242,39 @@ def test_collared_resting_f1_scores_only_predictions_outside_the_collar():
     predictions[20] = GestureEstimate(t_us=200_000, gesture=NONE, resting=True)
     missed = evaluate(align(labels, predictions, sensor))
     assert missed.resting_collared_precision < 1.0
+
+
+# --- gesture type and contact count outside their collars -----------------------------------
+def test_gesture_and_count_accuracy_outside_their_collars_leave_out_40_ms_about_each_labelled_change():
+    sensor = SensorGeometry(px_per_mm=2.5)
+    # none; push on one contact from 100 ms; pinch on two contacts from 200 ms (no rest between);
+    # at 260 ms the pinch's labels count three contacts; none from 300 ms
+    labels = [
+        LabelRow(0, NONE, True, 0.0, _pts()),
+        LabelRow(100_000, PUSH, False, 1.0, _pts((173, 130))),
+        LabelRow(200_000, PINCH, False, 1.0, _pts((160, 130), (186, 130))),
+        LabelRow(260_000, PINCH, False, 1.5, _pts((160, 130), (186, 130), (173, 140))),
+        LabelRow(300_000, NONE, True, 0.0, _pts()),
+    ]
+
+    def answer(t: int) -> GestureEstimate:
+        # each type answered 30 ms late; the count two contacts from 230 ms on
+        kind = NONE if t < 130_000 else PUSH if t < 230_000 else PINCH if t < 330_000 else NONE
+        n = 0 if kind is NONE else 1 if t < 230_000 else 2
+        return GestureEstimate(t_us=t, gesture=kind, resting=kind is NONE, contacts_px=_pts(*[(173, 130)] * n))
+
+    result = evaluate(align(labels, [answer(t) for t in range(0, 400_001, 10_000)], sensor))
+    # 41 windows; the type is wrong at 100-120, 200-220 and 300-320 ms: 9 windows
+    assert result.gesture_accuracy == pytest.approx(32 / 41)
+    # outside 60-140, 160-240, 260-340 ms (the type's changes at 100, 200, 300 ms) all right:
+    # 41 - 27 = 14 windows scored
+    assert result.gesture_collared_accuracy == pytest.approx(1.0)
+    # the count is wrong at 100-120 (0 for 1), 200-220 (1 for 2), 260-290 (2 for 3) and
+    # 300-320 (2 for 0) ms: 13 windows
+    assert result.contact_count_accuracy == pytest.approx(28 / 41)
+    # the count's changes at 100, 200, 260, 300 ms leave out 60-340 ms but 150 ms: of the
+    # windows scored (0-50, 150, 350-400 ms: 13) all right
+    assert result.contact_count_collared_accuracy == pytest.approx(1.0)
+    push = GESTURE_ORDER.index(PUSH)
+    assert result.contact_count_collared_accuracy_by_gesture[push] == pytest.approx(1.0)  # the 150 ms window
+    assert math.isnan(result.contact_count_collared_accuracy_by_gesture[GESTURE_ORDER.index(PINCH)])

@@ -629,8 +629,8 @@ def test_the_one_correction_needs_more_contacts_than_before_and_comes_once():
     assert vote.update(Q, 1.0, 3, 40_000) is Q and vote.update(P, 0.5, 3, 50_000) is Q  # the 10 mm of push are gone
     assert vote.update(T, 0.5, 4, 60_000) is Q  # a second correction is not taken
     vote.update(GestureType.NONE, 0.0, 0, 70_000)
-    assert vote.update(Z, 5.0, 2, 80_000) is Z
-    assert vote.update(T, 1.0, 3, 80_000 + vote.correction_us + 10_000) is Z  # too late to correct
+    assert vote.update(Z, 5.0, 2, 200_000) is Z
+    assert vote.update(T, 1.0, 3, 200_000 + vote.correction_us + 10_000) is Z  # too late to correct
 
 
 def _calibrated(points_px) -> SensorGeometry:

@@ -12,7 +12,7 @@ from test_pipeline import SENSOR, _WindowByWindow, events_at, gel_image
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
 from neurotouch_hid.mapping.profile import available_profiles, load_profile
-from neurotouch_hid.pipeline.episode import PROVISIONAL_MM, EpisodeVote
+from neurotouch_hid.pipeline.episode import FIRM_MM, PROVISIONAL_MM, EpisodeVote
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 from neurotouch_hid.sources import Frame
 
@@ -162,7 +162,7 @@ def test_once_committed_a_window_that_sees_several_fingers_outweighs_one_that_se
         return [vote.update(g, mm, n, 10_000 * (k + 1)) for k, (g, mm, n) in enumerate(windows)]
 
     assert answers(EpisodeVote(), held) == [T] * 7
-    assert answers(EpisodeVote(counted_mm=math.inf), held)[4] is P  # every window once: push felt
+    assert answers(EpisodeVote(counted_mm=math.inf, firm_mm=1e9), held)[4] is P  # every window once: push felt
     # a push's attack read as a zoom under a flickering light, two contacts below counted_mm
     attack = [(GestureType.ZOOM, 0.5, 2), (GestureType.ZOOM, 0.5, 2), (P, 1.2, 1)]
     assert answers(EpisodeVote(), attack)[2] is P
@@ -239,3 +239,58 @@ def test_a_pinch_with_one_finger_at_the_apex_is_felt_as_a_pinch_not_a_push_after
     assert felt and all(e.gesture in (N, Q) for e in felt)
     assert [e.gesture for e in estimates[10:]] == [Q] * 20
     assert all(e.n_contacts == 2 for e in estimates[10:])
+
+
+def test_a_firm_type_does_not_flip_for_a_single_window():
+    """A twist held at 4-9 mm: one window of push inside it, whether read in the committed episode
+    (a correction to more contacts) or after one ``none`` window restarted the episode (two
+    contacts commit their own type at once), is answered twist; two windows in a row of another
+    type change the answer from the second. Below ``FIRM_MM`` the first window changes it, as before."""
+    T = GestureType.TWIST_CW
+
+    def answers(windows, vote=None) -> list[GestureType]:
+        vote = vote or EpisodeVote()
+        return [vote.update(g, mm, n, 10_000 * (k + 1)) for k, (g, mm, n) in enumerate(windows)]
+
+    start = [(T, 0.5, 2), (T, 2.5, 2), (T, 5.0, 2)]
+    # within the correction time: three contacts, push, answered at once before
+    corrected = start + [(P, 6.0, 3), (T, 6.0, 2), (T, 6.0, 2)]
+    assert answers(corrected) == [T] * 6
+    assert answers(corrected, EpisodeVote(firm_mm=1e9))[3] is P  # without it: the flip
+    # 790 ms in: one window of nothing restarts the episode, then push on two contacts
+    restarted = start + [(T, 8.0, 2)] * 76 + [(N, 0.0, 0), (P, 8.5, 2), (T, 8.0, 2), (T, 8.0, 2)]
+    got = answers(restarted)
+    assert got[-4:] == [N, T, T, T]
+    assert answers(restarted, EpisodeVote(firm_mm=1e9))[-3] is P
+    # a real change, two windows in a row: answered from the second, one window later
+    changed = start + [(T, 5.0, 2)] * 20 + [(N, 0.0, 0), (P, 5.0, 2), (P, 5.0, 2), (P, 5.0, 2)]
+    assert answers(changed)[-3:] == [T, P, P]
+    # below FIRM_MM nothing changes: the correction answers push at once
+    weak = [(T, 0.5, 2), (T, 1.0, 2), (P, 1.5, 3), (T, 1.5, 2)]
+    assert answers(weak)[2] is P and 1.5 < FIRM_MM
+    # a type answered only below FIRM_MM is not firm: a fast push tap's attack read pinch on three
+    # contacts at 0.6 mm, then push at 2.8 mm, is answered push at once
+    tap = [(Q, 0.62, 3), (P, 2.77, 1), (P, 3.3, 1)]
+    assert answers(tap) == [Q, P, P]
+
+
+def test_a_finger_found_late_in_a_slow_attack_nobody_felt_restarts_the_vote():
+    """A slow twist whose second finger presses 0.44 s after the first: the first finger alone
+    reads push on one contact (committed after the wait, never at a dead zone). When the second
+    finger is found, the one-contact votes no longer count, so the twist is answered as soon as
+    it outweighs the push read on two contacts, not after it outweighs 0.4 s of push. Once a
+    window of the episode has reached ``COUNTED_MM`` (felt), past the correction time, the
+    votes stand as before."""
+    T = GestureType.TWIST_CCW
+    alone = [(P, 0.1 + 0.015 * k, 1) for k in range(44)]  # 0.1 -> 0.75 mm in 0.44 s
+    found = [(P, 0.75, 2)] + [(T, 0.76 + 0.002 * k, 2) for k in range(16)]
+
+    def answers(windows) -> list[GestureType]:
+        vote = EpisodeVote()
+        return [vote.update(g, mm, n, 10_000 * (k + 1)) for k, (g, mm, n) in enumerate(windows)]
+
+    got = answers(alone + found)
+    assert got[43] is P and got[44] is P  # the push so far, then the first window on two contacts
+    assert got[45:] == [T] * 16  # the twist outweighs the 0.75 mm of push on two contacts at once
+    felt = [(P, 0.1 + 0.02 * k, 1) for k in range(44)]  # the same to 0.96 mm: felt
+    assert answers(felt + [(P, 0.97, 2)] + [(T, 0.98 + 0.002 * k, 2) for k in range(16)])[45] is P

@@ -9,6 +9,8 @@ frames with the same type other than ``none``, from its first labelled frame ``t
 - type changes: in its predictions other than ``none``, in time order, the neighbours whose types
   differ; felt type changes: the same over those whose ``intensity_mm`` is at least the dead zone;
 - felt wrong: one of its predictions has another type (not ``none``) at or above the dead zone;
+  where the simulation says when the gel under the gesture's last finger to press has moved
+  0.3 mm (``SEQUENCE.pressed.csv``, fingers starting apart), only its predictions from then on;
 - dead-zone latency: when the labelled intensity reaches the dead zone (linear between the two
   labelled frames around it), the first of its predictions with the labelled type at or above
   the dead zone, minus that instant (ms; negative when the answer comes first): how late the
@@ -162,8 +164,20 @@ def deadzone_crossing(t_us: np.ndarray, intensity_mm: np.ndarray, deadzone_mm: f
     return float(t_us[k - 1]) + (deadzone_mm - i0) / (i1 - i0) * float(t_us[k] - t_us[k - 1])
 
 
+def pressed_at(pressed: Sequence[tuple[int, int]], t0_us: int, t1_us: int) -> int | None:
+    """When the gel under the last finger of the labelled gesture ``t0_us``..``t1_us`` (us) has
+    moved 0.3 mm: the ``pressed_us`` of the row of ``pressed`` ((t_start_us, pressed_us) rows,
+    :func:`~neurotouch_hid.dataset.read_pressed`) whose attack starts within one APS frame period
+    before ``t0_us`` or up to ``t1_us`` (the labels' first frame of a gesture is at or after its
+    start); None when there is none (fingers pressing together, or not a simulation)."""
+    return next((p for start, p in pressed if t0_us - FRAME_PERIOD_US < start <= t1_us), None)
+
+
 def gesture_records(
-    labels: Sequence[LabelRow], predictions: Sequence[GestureEstimate], deadzone_mm: float = DEFAULT_DEADZONE_MM
+    labels: Sequence[LabelRow],
+    predictions: Sequence[GestureEstimate],
+    deadzone_mm: float = DEFAULT_DEADZONE_MM,
+    pressed: Sequence[tuple[int, int]] = (),
 ) -> FeltRecords:
     """The per-gesture records of one sequence (docs/dataset.md, "Per-gesture metrics").
 
@@ -171,6 +185,9 @@ def gesture_records(
         labels: the sequence's label rows, ordered by time.
         predictions: its predictions (``t_us``, ``gesture``, ``intensity_mm``), ordered by time.
         deadzone_mm: the dead zone of the felt figures (mm, >= 0).
+        pressed: (t_start_us, pressed_us) per simulated gesture whose fingers start apart
+            (:func:`~neurotouch_hid.dataset.read_pressed`): such a gesture is felt wrong only by
+            its predictions from ``pressed_us`` on (:func:`pressed_at`).
     Raises:
         ValueError: a negative or non-finite dead zone.
     """
@@ -205,7 +222,8 @@ def gesture_records(
         felt = [p for p in answered if p.intensity_mm >= deadzone_mm]
         rec.changes[k] = _changes([p.gesture for p in answered])
         rec.felt_changes[k] = _changes([p.gesture for p in felt])
-        wrong = next((p for p in felt if p.gesture is not kind), None)
+        felt_from = pressed_at(pressed, t0, t1)
+        wrong = next((p for p in felt if p.gesture is not kind and (felt_from is None or p.t_us >= felt_from)), None)
         if wrong is not None:
             rec.felt_wrong[k], rec.wrong_as[k] = True, _INDEX[wrong.gesture]
         f0, f1 = np.searchsorted(t_lab, t0, "left"), np.searchsorted(t_lab, t1, "right")

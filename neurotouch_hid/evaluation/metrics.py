@@ -14,7 +14,9 @@ The metric functions themselves are pure functions on numpy arrays:
 - :func:`mean_absolute_error` (intensity);
 - :func:`accuracy_by_bin` (accuracy against ground-truth intensity, 0.6 mm bins);
 - :func:`outside_resting_collar` (which predictions the collared resting F1 scores), through
-  :func:`outside_collar` (the times outside a collar about each change of any labelled value).
+  :func:`outside_collar` (the times outside a collar about each change of any labelled value),
+  which also picks the predictions the collared gesture type and contact count accuracies score
+  (outside 40 ms of each change of the labelled type, of the labelled count).
 
 Undefined values (a precision with no prediction of the class, a mean over nothing) are NaN in
 arrays and ``None`` in :meth:`EvaluationResult.to_dict`.
@@ -40,6 +42,10 @@ INTENSITY_BIN_MM = 0.6
 #: Half-width of the collar about each change of the labelled resting flag whose predictions the
 #: collared resting F1 leaves out (us): one APS frame period at 25 Hz (docs/dataset.md).
 RESTING_COLLAR_US = 40_000
+#: Half-width of the collar about each change of the labelled gesture type (of the labelled
+#: contact count) whose predictions the collared gesture type (contact count) accuracy leaves out
+#: (us): the same APS frame period (docs/dataset.md, "Predictions (JSON lines)").
+TYPE_COLLAR_US = RESTING_COLLAR_US
 
 _GESTURE_INDEX = {g: i for i, g in enumerate(GESTURE_ORDER)}
 _NONE = _GESTURE_INDEX[GestureType.NONE]
@@ -255,6 +261,9 @@ class Observations:
         resting_true, resting_pred: bool.
         resting_scored: bool, outside the collar about every change of the labelled resting flag
             (:func:`outside_resting_collar`): what the collared resting F1 scores.
+        gesture_scored, count_scored: bool, outside the 40 ms collar about every change of the
+            labelled gesture type, of the labelled contact count (:func:`outside_collar`): what
+            the collared gesture type and contact count accuracies score.
         count_true, count_pred: int64 contact counts.
         intensity_true, intensity_pred: float64 intensity (mm).
         distance_sum_mm: float64 sum of the observation's contact distance errors (mm, user frame).
@@ -271,6 +280,8 @@ class Observations:
     resting_true: np.ndarray
     resting_pred: np.ndarray
     resting_scored: np.ndarray
+    gesture_scored: np.ndarray
+    count_scored: np.ndarray
     count_true: np.ndarray
     count_pred: np.ndarray
     intensity_true: np.ndarray
@@ -288,6 +299,8 @@ class Observations:
         "resting_true",
         "resting_pred",
         "resting_scored",
+        "gesture_scored",
+        "count_scored",
         "count_true",
         "count_pred",
         "intensity_true",
@@ -325,6 +338,7 @@ def align(
     sensor: SensorGeometry,
     deadzone_mm: float = DEFAULT_DEADZONE_MM,
     profiles: Sequence[ProfileUnderTest] = (),
+    pressed: Sequence[tuple[int, int]] = (),
 ) -> Observations:
     """Pair one sequence's predictions with its labels (docs/dataset.md "Predictions (JSON lines)"),
     score them per gesture (:func:`.felt.gesture_records`, with ``deadzone_mm``, mm), and through
@@ -343,6 +357,8 @@ def align(
         sensor: the dataset's geometry.
         deadzone_mm: the dead zone of the per-gesture figures (mm).
         profiles: the profiles to replay the predictions through.
+        pressed: the simulation's (t_start_us, pressed_us) rows of gestures whose fingers start
+            apart (:func:`~neurotouch_hid.dataset.read_pressed`; :func:`.felt.gesture_records`).
     """
     truth = (
         labels_at(labels, np.array([p.t_us for p in predictions], dtype=np.int64))
@@ -351,15 +367,19 @@ def align(
     )
     kept = [(p, t) for p, t in zip(predictions, truth) if t is not None]
     m = len(kept)
+    label_t = np.array([row.t_us for row in labels], dtype=np.int64)
+    kept_t = np.array([p.t_us for p, _ in kept], dtype=np.int64)
     obs = Observations(
         gesture_true=np.empty(m, np.int64),
         gesture_pred=np.empty(m, np.int64),
         resting_true=np.empty(m, bool),
         resting_pred=np.empty(m, bool),
-        resting_scored=outside_resting_collar(
-            np.array([row.t_us for row in labels], dtype=np.int64),
-            np.array([row.resting for row in labels], dtype=bool),
-            np.array([p.t_us for p, _ in kept], dtype=np.int64),
+        resting_scored=outside_resting_collar(label_t, np.array([row.resting for row in labels], dtype=bool), kept_t),
+        gesture_scored=outside_collar(
+            label_t, np.array([_GESTURE_INDEX[row.gesture] for row in labels], dtype=np.int64), kept_t, TYPE_COLLAR_US
+        ),
+        count_scored=outside_collar(
+            label_t, np.array([row.n_contacts for row in labels], dtype=np.int64), kept_t, TYPE_COLLAR_US
         ),
         count_true=np.empty(m, np.int64),
         count_pred=np.empty(m, np.int64),
@@ -368,7 +388,7 @@ def align(
         distance_sum_mm=np.zeros(m, np.float64),
         distance_n=np.zeros(m, np.int64),
         n_skipped=len(predictions) - m,
-        felt=gesture_records(labels, predictions, deadzone_mm),
+        felt=gesture_records(labels, predictions, deadzone_mm, pressed),
         through_profiles={tested.name: tally(tested, labels, predictions, sensor) for tested in profiles},
     )
     for k, (pred, true) in enumerate(kept):
@@ -415,11 +435,16 @@ class EvaluationResult:
         n_sequences, n_predictions, n_observations, n_skipped: sequences evaluated, predictions
             made, predictions evaluated, predictions before the first label (skipped).
         n_gesture_observations: observations labelled with a gesture (not ``none``).
-        gesture_accuracy: gesture type accuracy over all observations.
+        gesture_accuracy: gesture type accuracy over all observations (the paper's figure).
+        gesture_collared_accuracy: the same over the observations outside the 40 ms collar about
+            each change of the labelled type.
         precision, recall, f1, support: (K,) per gesture type (support: labelled observations).
         confusion: (K, K) int64 counts, rows ground truth, columns prediction.
         balanced_confusion: (K, K) mean of row- and column-normalised ``confusion``.
-        contact_count_accuracy: contact count accuracy over all observations.
+        contact_count_accuracy: contact count accuracy over all observations (the paper's figure).
+        contact_count_collared_accuracy: the same outside the 40 ms collar about each change of
+            the labelled count.
+        contact_count_collared_accuracy_by_gesture: (K,) that per labelled gesture type.
         contact_count_accuracy_by_gesture: (K,) the same per labelled gesture type.
         contact_distance_mm: mean Euclidean contact distance error over all contact pairs (mm).
         n_contact_pairs: contact pairs behind it.
@@ -444,6 +469,7 @@ class EvaluationResult:
     n_skipped: int
     n_gesture_observations: int
     gesture_accuracy: float
+    gesture_collared_accuracy: float
     precision: np.ndarray
     recall: np.ndarray
     f1: np.ndarray
@@ -452,6 +478,8 @@ class EvaluationResult:
     balanced_confusion: np.ndarray
     contact_count_accuracy: float
     contact_count_accuracy_by_gesture: np.ndarray
+    contact_count_collared_accuracy: float
+    contact_count_collared_accuracy_by_gesture: np.ndarray
     contact_distance_mm: float
     n_contact_pairs: int
     contact_distance_by_gesture_mm: np.ndarray
@@ -484,6 +512,8 @@ def evaluate(obs: Observations) -> EvaluationResult:
     """Compute every metric of the paper (sections "Metrics" and "Results") on observations.
 
     - gesture type: accuracy, precision/recall/F1 per class, confusion and balanced confusion;
+    - gesture type and contact count accuracy outside the 40 ms collar about each change of the
+      labelled type, of the labelled count (``Observations.gesture_scored``, ``count_scored``);
     - contact count accuracy (all observations, and per labelled gesture type);
     - contact distance error: mean over every contact pair of :func:`contact_distances`, over
       observations where both sides have a contact;
@@ -502,6 +532,7 @@ def evaluate(obs: Observations) -> EvaluationResult:
     scored = obs.resting_scored
     collared = confusion_matrix(obs.resting_true[scored].astype(np.int64), obs.resting_pred[scored].astype(np.int64), 2)
     c_precision, c_recall, c_f1 = (float(v[1]) for v in precision_recall_f1(collared))
+    g_in, c_in = obs.gesture_scored, obs.count_scored
     gesture_ok = obs.gesture_true == obs.gesture_pred
     count_ok = obs.count_true == obs.count_pred
     active = obs.gesture_true != _NONE
@@ -519,6 +550,7 @@ def evaluate(obs: Observations) -> EvaluationResult:
         n_skipped=obs.n_skipped,
         n_gesture_observations=int(active.sum()),
         gesture_accuracy=accuracy(obs.gesture_true, obs.gesture_pred),
+        gesture_collared_accuracy=accuracy(obs.gesture_true[g_in], obs.gesture_pred[g_in]),
         precision=precision,
         recall=recall,
         f1=f1,
@@ -527,6 +559,10 @@ def evaluate(obs: Observations) -> EvaluationResult:
         balanced_confusion=balanced_confusion_matrix(counts),
         contact_count_accuracy=accuracy(obs.count_true, obs.count_pred),
         contact_count_accuracy_by_gesture=by_gesture(lambda m: accuracy(obs.count_true[m], obs.count_pred[m])),
+        contact_count_collared_accuracy=accuracy(obs.count_true[c_in], obs.count_pred[c_in]),
+        contact_count_collared_accuracy_by_gesture=by_gesture(
+            lambda m: accuracy(obs.count_true[m & c_in], obs.count_pred[m & c_in])
+        ),
         contact_distance_mm=_pairs_mean(obs.distance_sum_mm, obs.distance_n),
         n_contact_pairs=int(obs.distance_n.sum()),
         contact_distance_by_gesture_mm=by_gesture(lambda m: _pairs_mean(obs.distance_sum_mm[m], obs.distance_n[m])),

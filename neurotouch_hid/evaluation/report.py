@@ -65,7 +65,9 @@ def summary_rows(result: EvaluationResult) -> list[tuple[str, str, str]]:
     paper = PAPER_RESULTS
     return [
         ("Gesture type accuracy", _pct(result.gesture_accuracy), _pct(paper["gesture_accuracy"])),
+        ("Gesture type accuracy outside the 40 ms collar", _pct(result.gesture_collared_accuracy), "-"),
         ("Contact count accuracy", _pct(result.contact_count_accuracy), _pct(paper["contact_count_accuracy"])),
+        ("Contact count accuracy outside the 40 ms collar", _pct(result.contact_count_collared_accuracy), "-"),
         ("Contact distance error", _mm(result.contact_distance_mm), _mm(paper["contact_distance_mm"])),
         ("Intensity MAE", _mm(result.intensity_mae_mm), _mm(paper["intensity_mae_mm"])),
         ("Resting precision", _pct(result.resting_precision), "-"),

@@ -17,7 +17,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Callable, Sequence
 
-from neurotouch_hid.dataset import dataset_sensor_file, list_sequences, read_labels, write_predictions
+from neurotouch_hid.dataset import dataset_sensor_file, list_sequences, read_labels, read_pressed, write_predictions
 from neurotouch_hid.errors import NeurotouchError, in_plain_words
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
 from neurotouch_hid.evaluation.metrics import EvaluationResult, Observations, align, evaluate
@@ -132,7 +132,7 @@ def run_sequence(
     if predictions_dir is not None:
         Path(predictions_dir).mkdir(parents=True, exist_ok=True)
         write_predictions(Path(predictions_dir) / f"{name}.jsonl", predictions)
-    return align(labels, predictions, sensor, deadzone_mm, profiles)
+    return align(labels, predictions, sensor, deadzone_mm, profiles, read_pressed(dataset / f"{name}.pressed.csv"))
 
 
 def evaluate_dataset(

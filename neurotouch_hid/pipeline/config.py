@@ -15,7 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validat
 
 from neurotouch_hid.limits import short
 from neurotouch_hid.pipeline.contacts import HOMOGRAPHY_METHODS
-from neurotouch_hid.pipeline.episode import CORRECTION_US, FIRST_FINGER_US, PROVISIONAL_MM
+from neurotouch_hid.pipeline.episode import CORRECTION_US, FIRM_MM, FIRST_FINGER_US, PROVISIONAL_MM
 from neurotouch_hid.pipeline.learned import CLASSES, FEATURES, Classifier
 from neurotouch_hid.pipeline.noise import check_noise_filter
 from neurotouch_hid.pipeline.tracker import TrackerConfig
@@ -213,6 +213,8 @@ class EpisodeConfig(BaseModel):
         first_finger_us: how long an episode that shows one contact stays undecided (us, >= 0).
         correction_us: how long after the onset the one correction may come (us, >= 0).
         provisional_mm: below this intensity (mm, >= 0) an undecided window answers the vote so far.
+        firm_mm: from this intensity (mm, >= 0) on, a type answered the window before changes
+            only when two windows in a row say so.
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -220,10 +222,11 @@ class EpisodeConfig(BaseModel):
     first_finger_us: int = FIRST_FINGER_US
     correction_us: int = CORRECTION_US
     provisional_mm: float = PROVISIONAL_MM
+    firm_mm: float = FIRM_MM
 
     @model_validator(mode="after")
     def _consistent(self) -> "EpisodeConfig":
-        for name in ("first_finger_us", "correction_us", "provisional_mm"):
+        for name in ("first_finger_us", "correction_us", "provisional_mm", "firm_mm"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         return self

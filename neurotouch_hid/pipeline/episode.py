@@ -30,6 +30,15 @@ REPRESS_SHARE = 0.5
 #: (docs/method.md, "Episode vote"). Above the ~0.25 mm a tracked tail rises between two APS
 #: frames' corrections; one contact is left out, as its intensity jumps where fingers merge.
 REPRESS_MM = 0.3
+#: At or above this intensity (mm), well above every dead zone of the built-in profiles, a type
+#: answered at this intensity in the window before changes to another only when two windows in a
+#: row read it (otherwise it holds): one window of another type inside a firm gesture is
+#: a misreading (a finger's field merging for a window, a single ``none`` restarting the episode),
+#: and at 4-9 mm it moves an output for a game frame (docs/method.md, "Episode vote").
+FIRM_MM = 2.0
+#: A type answered within this time (us) before still holds the next window at or above
+#: ``FIRM_MM``, across a ``none`` window that restarted the episode: one APS frame period.
+FIRM_GAP_US = 40_000
 
 
 class EpisodeVote:
@@ -47,13 +56,20 @@ class EpisodeVote:
 
     Once committed, each window adds its intensity to its own type's votes, twice when it sees two
     contacts or more at or above ``counted_mm``, and the answer changes only when another type
-    outweighs it, with two exceptions: within ``correction_us`` of the onset,
-    once per episode, a window that sees more contacts than every earlier window and reads
-    another type is answered at once and the votes restart from it (the fingers seen before were
-    fewer than the gesture has); and a window of another type that sees two contacts or more,
-    whose intensity has risen ``repress_mm`` above the lowest since the episode's peak, that lowest
-    below ``repress_share`` of the peak, begins a new episode (a new press after the fingers had mostly left: a creeping
-    gel's release tail can still be read as the last gesture when the next one begins in it).
+    outweighs it, with two exceptions. Within ``correction_us`` of the onset, or later while no
+    window of the episode has reached ``counted_mm`` (a slow attack nobody has felt yet), once per
+    episode, a window that sees more contacts than every earlier window and reads another type is
+    answered at once and the votes restart from it (the fingers seen before were fewer than the
+    gesture has; such a window of the committed type restarts the votes too). And a window of
+    another type that sees two contacts or more, whose intensity has risen ``repress_mm`` above
+    the lowest since the episode's peak, that lowest below ``repress_share`` of the peak, begins
+    a new episode (a new press after the fingers had mostly left: a creeping gel's release tail
+    can still be read as the last gesture when the next one begins in it).
+
+    Whatever the above answers, a type answered at or above ``firm_mm`` within ``FIRM_GAP_US``
+    before (in this episode or the one a ``none`` window just ended) changes, in a window at or
+    above ``firm_mm``, to another type only when that window and the one before it both read that
+    type; otherwise the type before holds.
 
     Args:
         first_finger_us: how long one contact alone stays undecided (us, >= 0).
@@ -65,6 +81,8 @@ class EpisodeVote:
             below before a new press can begin a new episode.
         repress_mm: how far (mm, > 0) above its lowest since the peak a window of another type that
             sees two contacts or more must rise to begin one.
+        firm_mm: from this intensity (mm, >= 0; inf: never) on, a type answered the window before
+            changes only when two windows in a row say so.
     """
 
     def __init__(
@@ -75,6 +93,7 @@ class EpisodeVote:
         counted_mm: float = COUNTED_MM,
         repress_share: float = REPRESS_SHARE,
         repress_mm: float = REPRESS_MM,
+        firm_mm: float = FIRM_MM,
     ) -> None:
         self.first_finger_us = first_finger_us
         self.correction_us = correction_us
@@ -82,6 +101,9 @@ class EpisodeVote:
         self.counted_mm = counted_mm
         self.repress_share = repress_share
         self.repress_mm = repress_mm
+        self.firm_mm = firm_mm
+        self._held: GestureType | None = None  # the type last answered at or above firm_mm ...
+        self._held_us = 0  # ... when
         self.reset()
 
     def reset(self) -> None:
@@ -95,15 +117,37 @@ class EpisodeVote:
         self._corrected = False
         self._peak = 0.0  # the episode's highest intensity (mm) ...
         self._low = math.inf  # ... and its lowest since (mm)
+        self._said = GestureType.NONE  # the window before's own type
 
     def update(self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int) -> GestureType:
         """The answer after one window ending at ``t_us`` (us, increasing) of type ``gesture``,
         intensity ``intensity_mm`` (mm, >= 0) and ``n_contacts`` contact points: the committed
         type; while undecided, the vote so far below ``provisional_mm`` and ``NONE`` at or above
-        it. A ``NONE`` window ends the episode and is returned as is."""
-        if gesture is GestureType.NONE:
+        it; at or above ``firm_mm``, the type answered before until two windows in a row answer
+        another. A ``NONE`` window ends the episode and is returned as is."""
+        if gesture is GestureType.NONE:  # as cheap as before for a resting window
             self.reset()
             return gesture
+        said_before = self._said
+        answer = self._vote(gesture, intensity_mm, n_contacts, t_us)
+        self._said = gesture
+        if answer is GestureType.NONE:
+            return answer
+        held = self._held
+        if (
+            held is not None
+            and answer is not held
+            and intensity_mm >= self.firm_mm
+            and t_us - self._held_us <= FIRM_GAP_US
+            and not (gesture is answer and said_before is answer)
+        ):
+            answer = held  # another type, not said by two windows in a row: the type before holds
+        if intensity_mm >= self.firm_mm:
+            self._held, self._held_us = answer, t_us
+        return answer
+
+    def _vote(self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int) -> GestureType:
+        """:meth:`update` of a window with a gesture, without the firm type."""
         if (
             self._decision is not None
             and gesture is not self._decision
@@ -112,6 +156,7 @@ class EpisodeVote:
             and intensity_mm - self._low >= self.repress_mm
         ):
             self.reset()  # a new press: a new episode from this window
+        unfelt = self._peak < self.counted_mm  # no window of the episode has reached a dead zone yet
         if intensity_mm >= self._peak:
             self._peak, self._low = float(intensity_mm), math.inf
         else:
@@ -132,13 +177,11 @@ class EpisodeVote:
                 return GestureType.NONE
             self._decision = max(self._votes, key=self._votes.get)
             return self._decision
-        if (
-            not self._corrected
-            and gesture is not self._decision
-            and n_contacts > self._most_contacts
-            and t_us - self._onset_us <= self.correction_us
-        ):
-            self._decision, self._corrected, self._votes = gesture, True, {}
+        if n_contacts > self._most_contacts and (t_us - self._onset_us <= self.correction_us or unfelt):
+            if gesture is not self._decision and not self._corrected:
+                self._decision, self._corrected, self._votes = gesture, True, {}
+            elif gesture is self._decision:
+                self._votes = {}  # the votes cast on fewer fingers than the gesture has no longer count
         if n_contacts >= 2 and intensity_mm >= self.counted_mm:
             weight *= 2.0
         self._most_contacts = max(self._most_contacts, n_contacts)

@@ -170,7 +170,7 @@ class GesturePipeline(FramePath):
     def _episode_vote(self) -> EpisodeVote:
         """The episode vote with the settings' ``episode`` group (docs/method.md, "Episode vote")."""
         e = self.settings.episode
-        return EpisodeVote(e.first_finger_us, e.correction_us, e.provisional_mm)
+        return EpisodeVote(e.first_finger_us, e.correction_us, e.provisional_mm, firm_mm=e.firm_mm)
 
     def _creep_filter(self, sensor: SensorGeometry) -> CreepFilter | None:
         """The fingers' load behind the deformation when ``sensor.creep`` is measured, else None

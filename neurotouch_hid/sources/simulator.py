@@ -61,7 +61,7 @@ from typing import Iterable, Iterator, Sequence
 import numba
 import numpy as np
 
-from neurotouch_hid.dataset import LabelRow, write_labels
+from neurotouch_hid.dataset import LabelRow, write_labels, write_pressed
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.sensor import DOME_SPHERE_MM, MARKER_SPACING_MM, SensorGeometry
@@ -115,6 +115,9 @@ EXPOSURE_US = 4_000
 START_US = 1_000_000
 #: The gel is at rest when every marker is within this of its rest position (mm).
 REST_TOLERANCE_MM = 0.1
+#: A finger has pressed once the gel under it has moved this far (mm): about where the tracker
+#: sees a finger (docs/dataset.md, "Per-gesture metrics").
+PRESSED_MM = 0.3
 #: Grey levels: gel background (at the centre), outside the gel, marker peak above background.
 BACKGROUND_GREY = 20.0
 OUTSIDE_GREY = 6.0
@@ -983,6 +986,7 @@ class GelSimulator:
         )
         self._flicker_phase = float(np.random.default_rng(gel_ss).uniform(0, 2 * math.pi))
         self._known: list[SimGesture] = []
+        self.performed: list[SimGesture] = []  # every gesture begun so far, in order
         self._carry = np.zeros(0, dtype=EVENT_DTYPE)
         self.t_us = int(start_us)
         self.user = user
@@ -994,6 +998,7 @@ class GelSimulator:
                 self._script = None
             else:
                 self._known.append(nxt)
+                self.performed.append(nxt)
         self._known = [g for g in self._known if g.t_settled_us >= t0_us]
         return [g for g in self._known if g.t_start_us <= t1_us and g.t_settled_us >= t0_us]
 
@@ -1011,6 +1016,19 @@ class GelSimulator:
                 "or before the previous gesture settled"
             )
         self._known.append(gesture)
+        self.performed.append(gesture)
+
+    def pressed_us(self, gesture: SimGesture) -> int | None:
+        """When the gel under the last of ``gesture``'s fingers to press has moved
+        :data:`PRESSED_MM` since the gesture's start (us, on the 1 ms grid; docs/dataset.md,
+        "Per-gesture metrics": felt wrong counts from there), or None when no finger's gel moves
+        that far. Reads every gesture begun so far (``performed``: a creeping one may overlap)."""
+        t_us = np.arange(gesture.t_start_us, gesture.t_end_us + 1, 1000, dtype=np.int64)
+        near = [g for g in self.performed if g.t_start_us <= gesture.t_end_us and g.t_settled_us >= gesture.t_start_us]
+        pts = deform(near, gesture.fingers_mm, t_us, self.sensor.gel_radius_mm, self.physics)[0]  # (T, K, 2)
+        moved = np.linalg.norm(pts - pts[:1], axis=-1) >= PRESSED_MM  # (T, K)
+        pressed = [int(t_us[np.argmax(m)]) for m in moved.T if m.any()]
+        return max(pressed) if pressed else None
 
     def light(self, t_us: np.ndarray) -> np.ndarray:
         """(T,) float64 relative brightness of the LED ring at t_us (1 unless the family flickers)."""
@@ -1167,7 +1185,11 @@ def sequence_name(user_id: int, gesture: GestureType) -> str:
 
 def write_sequence(out_dir: Path, name: str, sim: GelSimulator, seconds: float, on_chunk=None) -> None:
     """Simulate ``seconds`` (then on until the gel rests again) and write ``NAME.aedat4``,
-    ``NAME.labels.csv`` and ``NAME.markers.npz`` into ``out_dir``.
+    ``NAME.labels.csv``, ``NAME.pressed.csv`` and ``NAME.markers.npz`` into ``out_dir``.
+
+    ``NAME.pressed.csv`` (docs/dataset.md, "Per-gesture metrics") gives, for each gesture whose
+    fingers start apart (a finger lags), when the gel under its last finger to press has moved
+    0.3 mm (:meth:`GelSimulator.pressed_us`).
 
     ``NAME.markers.npz`` holds the true marker positions: ``t_us`` (T,) int64 (every 1 ms, which
     includes every APS frame), ``positions_px`` (T, N, 2) float32 image px and ``rest_px`` (N, 2)
@@ -1192,6 +1214,11 @@ def write_sequence(out_dir: Path, name: str, sim: GelSimulator, seconds: float, 
             if sim.t_us >= end_us and chunk.label.resting:
                 break
     write_labels(out_dir / f"{name}.labels.csv", labels)
+    apart = [g for g in sim.performed if g.t_start_us < sim.t_us and any(lag > 0 for lag in g.lags_us)]
+    write_pressed(
+        out_dir / f"{name}.pressed.csv",
+        [(g.t_start_us, t) for g in apart if (t := sim.pressed_us(g)) is not None],
+    )
     save_npz(
         out_dir / f"{name}.markers.npz",
         t_us=np.concatenate(times),
