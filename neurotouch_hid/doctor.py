@@ -27,6 +27,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.markup import escape
 
+from neurotouch_hid.extras import EXTRAS, missing_message
 from neurotouch_hid.output.gamepad import uinput_problem
 from neurotouch_hid.sources.discovery import (
     CAMERA_USB_ID,
@@ -131,18 +132,35 @@ def check_rules(dirs: tuple[str, ...] = RULES_DIRS) -> Check:
     return Check("udev rules", FAIL, f"{RULES_NAME} is not in {', '.join(dirs)}", RULES_INSTALL)
 
 
+def _import_failed(module: str, dist: str, exc: Exception) -> Check:
+    return Check(
+        dist,
+        FAIL,
+        f"import {module} failed: {type(exc).__name__}: {exc}",
+        f"{pip_command()} install --upgrade {dist}",
+    )
+
+
 def check_library(module: str, dist: str) -> Check:
     """``module`` imports; the detail is its distribution's version (else the version of the
     distribution that did install ``module``: an older environment's evdev, say)."""
     try:
         importlib.import_module(module)
-    except Exception as exc:  # an ImportError, or a broken native library underneath
+    except ModuleNotFoundError as exc:
+        extra = next((name for name, modules in EXTRAS.items() if module in modules), None)
+        if extra is None or exc.name != module:
+            return _import_failed(module, dist, exc)
+        # an optional extra's module (python-evdev on aarch64): only the outputs that use it need it
         return Check(
             dist,
-            FAIL,
-            f"import {module} failed: {type(exc).__name__}: {exc}",
-            f"{pip_command()} install --upgrade {dist}",
+            WARN,
+            missing_message(extra, "--output gamepad, the uinput keyboard and mouse and copilot:", module)
+            + "; --output hid makes its pad without it",
+            f"pipx inject neurotouch-hid {' '.join(EXTRAS[extra].values())}\n"
+            f"or: {pip_command()} install 'neurotouch-hid[{extra}]'",
         )
+    except Exception as exc:  # an ImportError, or a broken native library underneath
+        return _import_failed(module, dist, exc)
     version = "version unknown"
     for name in (dist, *importlib.metadata.packages_distributions().get(module.split(".")[0], ())):
         try:
