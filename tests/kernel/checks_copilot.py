@@ -34,6 +34,7 @@ from evdev import AbsInfo, UInput, ecodes
 
 from neurotouch_hid.controller import BUTTONS
 from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.inputs.hide import HIDDEN_DIR
 from neurotouch_hid.output.desktop import MOUSE_PHYS
 from neurotouch_hid.output.gamepad import PHYS
 
@@ -264,9 +265,22 @@ def check_copilot_merges_grabs_rejoins_and_rumbles() -> dict:
     assert details["pad_last"] == {"ABS_X": 0, "ABS_Y": 0, "buttons": []}, details["pad_last"]
     assert details["helper_reader_after_stop"], "the helper's node delivers nothing after the run"
     assert details["helper_reader_while_grabbed"] == 0 and details["helper_reader_while_grabbed_again"] == 0, details
+    assert details["hidden_after_stop"] == [] and details["helper_node_readable_after_stop"], details
     details["said"] = [line for line in scenario.said if "merged" in line or "went away" in line]
     details["seconds"] = round(time.monotonic() - started, 1)
     return details
+
+
+def _hidden() -> list[str]:
+    """The nodes this process's driver has hidden now (relative to /dev)."""
+    folder = HIDDEN_DIR / str(os.getpid())
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if not p.is_dir()) if folder.is_dir() else []
+
+
+def _node(path: str) -> str:
+    """``path`` (/dev/input/eventN), or where this process's driver hid it."""
+    hidden = HIDDEN_DIR / str(os.getpid()) / "input" / Path(path).name
+    return path if os.path.exists(path) else str(hidden)
 
 
 def _wakeups(name: str, seconds: float) -> int:
@@ -298,6 +312,7 @@ class Scenario:
         guestlib.settle()
         self.helper_reader = Watcher(self.helper.device.path)
         self.pad: Watcher | None = None
+        self.late_sdl: Sdl | None = None
         self.grabbed_from = 0  # the helper's reader's events when it was grabbed the last time
         self.sdl = Sdl("028e")  # SDL's ~12 s start overlaps the driver's
         self.before = {phys: set(_devices(phys)) for phys in (PHYS, MOUSE_PHYS)}
@@ -351,6 +366,11 @@ class Scenario:
         merged = guestlib.wait_for(lambda: self.count("merged Helper Pad") and self.count("merged Switch Box"), 30.0)
         assert merged, f"the devices were not merged: {self.said[-10:]}"
         details["merged_s"] = round(time.monotonic() - self.started, 1)
+        # merged as root: the helper's nodes left /dev/input; an SDL started now lists one pad (its
+        # ~12 s start overlaps the next steps)
+        details["hidden"] = _hidden()
+        details["helper_node_in_dev_while_merged"] = os.path.exists(helper.device.path)
+        self.late_sdl = Sdl("028e")
         grabbed_at = len(self.helper_reader.events)
         gel_held = guestlib.wait_for(lambda: pad.reader.axes.get(ecodes.ABS_X, 0) > 30000, 60.0)
         assert gel_held, f"the gel's push does not show on the pad: {_pad(pad)}"
@@ -388,6 +408,10 @@ class Scenario:
         played = guestlib.wait_for(lambda: any(s[0] == "play" and s[2] > 0 for s in answerer.seen), 15.0)
         details["helper_ff"] = answerer.seen[:6]
         assert rumble.get("rumble") and played, f"the rumble did not reach the helper: {rumble} {answerer.seen}"
+        late = self.late_sdl.next_with("opened", 200.0)
+        details["late_sdl"] = {"count": late.get("count"), "guids": late.get("guids"), "error": late.get("error")}
+        self.late_sdl.close()
+        assert late.get("opened") and late["count"] == 1, f"an SDL started while merged lists: {late}"
         details["helper_reader_while_grabbed"] = len(self.helper_reader.events) - grabbed_at
 
         # unplugged mid-press: the pad lets go at once, the run goes on
@@ -406,7 +430,7 @@ class Scenario:
         rejoined = guestlib.wait_for(lambda: self.count("merged Helper Pad") >= 2, 30.0)
         assert rejoined, f"the new Helper Pad was not merged: {self.said[-5:]}"
         self.helper_reader.stop()
-        self.helper_reader = Watcher(helper.device.path)
+        self.helper_reader = Watcher(_node(helper.device.path))  # hidden by now: read from where it is
         press(helper, (ecodes.EV_KEY, ecodes.BTN_NORTH, 1))
         assert guestlib.wait_for(lambda: ecodes.BTN_NORTH in pad.pressed, 10.0), _pad(pad)
         details["rejoined"] = _pad(pad)
@@ -419,6 +443,7 @@ class Scenario:
         press(helper, (ecodes.EV_KEY, ecodes.BTN_EAST, 0))
         guestlib.wait_for(lambda: len(self.helper_reader.events) >= free_from + 2, 10.0)
         details["helper_reader_after_switch"] = len(self.helper_reader.events) - free_from
+        details["helper_node_in_dev_after_switch"] = os.path.exists(helper.device.path)
         assert let_go and details["helper_reader_after_switch"] >= 2, details
         # back: grabbed again, and the button it holds shows on the pad
         request_use(str(self.profile), path=self.socket)
@@ -445,9 +470,19 @@ class Scenario:
             guestlib.wait_for(lambda: len(self.helper_reader.events) > grabbed_events, 10.0)
         )
         details["helper_reader_while_grabbed_again"] = grabbed_events - self.grabbed_from
+        # its node back in /dev/input (nothing left hidden), and a new reader of it receives its events
+        details["hidden_after_stop"] = _hidden()
+        back = Watcher(self.helper.device.path)
+        try:
+            press(self.helper, (ecodes.EV_KEY, ecodes.BTN_EAST, 1))
+            details["helper_node_readable_after_stop"] = bool(guestlib.wait_for(lambda: back.events, 10.0))
+        finally:
+            back.stop()
 
     def close(self) -> None:
         self.details["sdl_stderr"] = self.sdl.close()[-300:]
+        if self.late_sdl is not None:
+            self.late_sdl.close()
         self.answerer.stop()
         for watcher in (self.helper_reader, self.pad):
             if watcher is not None:
