@@ -33,8 +33,10 @@ from pathlib import Path
 
 log = logging.getLogger(__name__)
 
-#: Where hidden nodes wait, one folder per driver process (its pid).
-HIDDEN_DIR = Path("/run/neurotouch-hid/hidden")
+#: Where hidden nodes wait, one folder per driver process (its pid). Not /run/neurotouch-hid: a
+#: system unit's ``RuntimeDirectory=neurotouch-hid`` is removed when the unit stops, crashed or
+#: not, and would take nodes not yet put back with it.
+HIDDEN_DIR = Path("/run/neurotouch-hid-hidden")
 DEV_DIR = Path("/dev")
 SYSFS = Path("/sys")
 #: How many folders up from an input device its USB device is looked for (input -> interface -> device).
