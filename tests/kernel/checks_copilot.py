@@ -384,8 +384,10 @@ class Scenario:
         details["hidden"] = _hidden()
         details["helper_node_in_dev_while_merged"] = os.path.exists(helper.device.path)
         # a udev "change" event of the hidden device (udevadm trigger's default action) makes no node again
+        changed_at = time.monotonic()
         guestlib.sh(["udevadm", "trigger", "--action=change", f"/sys/class/input/{Path(helper.device.path).name}"])
         guestlib.settle()
+        details["udev_change_s"] = round(time.monotonic() - changed_at, 1)
         details["helper_node_in_dev_after_udev_change"] = os.path.exists(helper.device.path)
         grabbed_at = len(self.helper_reader.events)
         gel_held = guestlib.wait_for(lambda: pad.reader.axes.get(ecodes.ABS_X, 0) > 30000, 60.0)
@@ -426,7 +428,9 @@ class Scenario:
         assert rumble.get("rumble") and played, f"the rumble did not reach the helper: {rumble} {answerer.seen}"
         # SDL enumerating afresh now (its joystick subsystems started again: a game started now)
         details["sdl_before_merge"] = {"count": opened["count"], "guids": opened["guids"]}
+        relisted_at = time.monotonic()
         late = self.sdl.ask("relist", "relisted").get("relisted", {})
+        details["relist_s"] = round(time.monotonic() - relisted_at, 1)
         details["late_sdl"] = late
         assert late.get("found") and late["count"] == 1, f"an SDL started while merged lists: {late}"
         details["helper_reader_while_grabbed"] = len(self.helper_reader.events) - grabbed_at
