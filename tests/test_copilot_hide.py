@@ -89,7 +89,10 @@ def test_a_node_that_cannot_be_made_is_left_where_it_was(box, monkeypatch):
     def refuse(*args):
         raise PermissionError(errno.EPERM, "Operation not permitted")
 
-    monkeypatch.setattr(hide.os, "rename", lambda s, d: (_ for _ in ()).throw(OSError(errno.EXDEV, "x")))
+    def across(src, dst):
+        raise OSError(errno.EXDEV, "Invalid cross-device link")
+
+    monkeypatch.setattr(hide.os, "rename", across)
     monkeypatch.setattr(hide.os, "mknod", refuse)
     h, dev = hider(box), box["dev"]
     assert h.hide(str(dev / "input/event5")) == []
@@ -137,3 +140,20 @@ def test_a_dead_drivers_hidden_nodes_are_put_back_at_the_next_start_and_a_live_o
 def test_the_note_for_a_user_who_cannot_hide_names_the_sdl_variable_with_the_devices_ids():
     note = unhidden_note(InputInfo(path="/dev/input/event5", name="Helper Pad", vendor=0x045E, product=0x02EA))
     assert "SDL_GAMECONTROLLER_IGNORE_DEVICES=0x045e/0x02ea" in note and "root" in note
+
+
+def test_the_relay_hides_where_it_may_and_otherwise_says_once_why_a_game_may_list_the_helper():
+    from neurotouch_hid.inputs.copilot import FeedbackRelay
+    from neurotouch_hid.mapping.profile import parse_profile
+
+    profile = parse_profile('copilot:\n  - device: "Helper Pad"\n', "p.yaml")
+    assert isinstance(FeedbackRelay(hide=True).merge_for(profile)._hider, Hider)
+    said: list[str] = []
+    relay = FeedbackRelay(said.append, hide=False)
+    copilot = relay.merge_for(profile)
+    assert copilot._hider is None
+    helper = InputInfo(path="/dev/input/event5", name="Helper Pad", vendor=0x045E, product=0x02EA)
+    for _ in range(2):
+        copilot._unhidden(helper)
+        relay.merge_for(profile)._unhidden(helper)  # a profile switch: still said once
+    assert said == [unhidden_note(helper)]
