@@ -27,6 +27,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.markup import escape
 
+from neurotouch_hid.extras import EXTRAS, missing_message
 from neurotouch_hid.output.gamepad import uinput_problem
 from neurotouch_hid.sources.discovery import (
     CAMERA_USB_ID,
@@ -131,18 +132,35 @@ def check_rules(dirs: tuple[str, ...] = RULES_DIRS) -> Check:
     return Check("udev rules", FAIL, f"{RULES_NAME} is not in {', '.join(dirs)}", RULES_INSTALL)
 
 
+def _import_failed(module: str, dist: str, exc: Exception) -> Check:
+    return Check(
+        dist,
+        FAIL,
+        f"import {module} failed: {type(exc).__name__}: {exc}",
+        f"{pip_command()} install --upgrade {dist}",
+    )
+
+
 def check_library(module: str, dist: str) -> Check:
     """``module`` imports; the detail is its distribution's version (else the version of the
     distribution that did install ``module``: an older environment's evdev, say)."""
     try:
         importlib.import_module(module)
-    except Exception as exc:  # an ImportError, or a broken native library underneath
+    except ModuleNotFoundError as exc:
+        extra = next((name for name, modules in EXTRAS.items() if module in modules), None)
+        if extra is None or exc.name != module:
+            return _import_failed(module, dist, exc)
+        # an optional extra's module (python-evdev on aarch64): only the outputs that use it need it
         return Check(
             dist,
-            FAIL,
-            f"import {module} failed: {type(exc).__name__}: {exc}",
-            f"{pip_command()} install --upgrade {dist}",
+            WARN,
+            missing_message(extra, "--output gamepad, the uinput keyboard and mouse and copilot:", module)
+            + "; --output hid makes its pad without it",
+            f"pipx inject neurotouch-hid {' '.join(EXTRAS[extra].values())}\n"
+            f"or: {pip_command()} install 'neurotouch-hid[{extra}]'",
         )
+    except Exception as exc:  # an ImportError, or a broken native library underneath
+        return _import_failed(module, dist, exc)
     version = "version unknown"
     for name in (dist, *importlib.metadata.packages_distributions().get(module.split(".")[0], ())):
         try:
@@ -221,11 +239,17 @@ def check_model() -> Check:
     return Check("gesture model", OK, describe(model))
 
 
-def check_copilot(profiles: dict[str, object] | None = None, devices: list | None = None) -> Check:
+def check_copilot(
+    profiles: dict[str, object] | None = None, devices: list | None = None, hiding: bool | None = None
+) -> Check:
     """The devices the profiles' ``copilot:`` sections name (the shipped and the user's,
     ``profiles``: name -> loaded profile): which are plugged in (``devices``: the input devices now,
     :func:`~neurotouch_hid.inputs.match.mergeable_devices`) and which the driver would wait for.
-    A present device this user cannot open read-write fails (the driver could not grab it)."""
+    A present device this user cannot open read-write fails (the driver could not grab it); a
+    warning when the driver could not hide them from games (``hiding``: default
+    :func:`~neurotouch_hid.inputs.hide.may_hide`, root only) or a device is missing."""
+    from neurotouch_hid.inputs.copilot import unhidden_note
+    from neurotouch_hid.inputs.hide import may_hide
     from neurotouch_hid.inputs.match import mergeable_devices, presence
 
     if profiles is None:
@@ -242,9 +266,10 @@ def check_copilot(profiles: dict[str, object] | None = None, devices: list | Non
     if not with_copilot:
         return Check("copilot devices", SKIP, "no profile merges other devices (copilot:)")
     devices = mergeable_devices() if devices is None else devices
-    parts, missing, closed = [], [], []
+    parts, missing, closed, present = [], [], [], []
     for name, profile in with_copilot.items():
         found = presence([c.device for c in profile.copilot], devices)
+        present += [info for _, info in found if info is not None]
         for rule, info in found:
             if info is None:
                 missing.append(rule)
@@ -261,8 +286,10 @@ def check_copilot(profiles: dict[str, object] | None = None, devices: list | Non
             "could not grab them; after the command below, log out and in again)",
             "sudo usermod -aG input $USER",
         )
-    if missing:
-        return Check("copilot devices", WARN, f"{detail} (a missing device is waited for and merged when it comes)")
+    note = "" if (may_hide() if hiding is None else hiding) else unhidden_note(present[0] if present else None)
+    if missing or note:
+        waited = " (a missing device is waited for and merged when it comes)" if missing else ""
+        return Check("copilot devices", WARN, f"{detail}{waited}", note)
     return Check("copilot devices", OK, detail)
 
 

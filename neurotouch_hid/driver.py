@@ -435,7 +435,11 @@ def run_driver(
 def copilot_relay(output: str, say: Callable[[str], None]) -> FeedbackRelay | None:
     """What merges a profile's ``copilot:`` devices into the pad and forwards the pad's rumble to
     them (:class:`~neurotouch_hid.inputs.copilot.FeedbackRelay`): for the ``gamepad`` output only
-    (the other outputs make no pad to merge into); None otherwise."""
+    (the other outputs make no pad to merge into); None otherwise. Puts back first the nodes a
+    driver that did not stop cleanly left hidden (:func:`~neurotouch_hid.inputs.hide.put_back_stale`)."""
+    from neurotouch_hid.inputs.hide import put_back_stale
+
+    put_back_stale(say)
     if output != OutputKind.GAMEPAD:
         return None
     from neurotouch_hid.inputs.copilot import FeedbackRelay

@@ -63,3 +63,17 @@ def test_an_sdl_rumble_on_the_pad_is_played_on_the_helpers_device(guest):
     assert details["sdl_rumble"]["rumble"]
     assert any(entry[0] == "upload" for entry in details["helper_ff"])
     assert any(entry[0] == "play" and entry[2] > 0 for entry in details["helper_ff"])
+
+
+def test_merged_as_root_the_helpers_nodes_are_hidden_so_a_game_started_then_lists_one_pad(guest):
+    details = passed(guest, CHECK)
+    hidden = details["hidden"]
+    # the helper pad's event and joystick nodes and the switch box's event node left /dev/input
+    assert sum(n.startswith("input/event") for n in hidden) == 2 and sum(n.startswith("input/js") for n in hidden) == 1
+    assert not details["helper_node_in_dev_while_merged"] and not details["helper_node_in_dev_after_udev_change"]
+    assert details["late_sdl"]["count"] == 1 and len(details["late_sdl"]["guids"]) == 1
+    assert details["late_sdl"]["guids"][0][16:20] == "8e02"  # the gel's pad (product 028e)
+    # released by a profile switch, and by SIGTERM: back in /dev/input, readable, nothing left hidden
+    assert details["helper_node_in_dev_after_switch"]
+    assert details["hidden_after_stop"] == [] and details["helper_node_readable_after_stop"]
+    assert details["box_node_as_before"]  # the switch box's node: the same number, mode, owner and ACL

@@ -4,6 +4,7 @@ camera checks also on small records of sources/discovery.py)."""
 from __future__ import annotations
 
 import importlib.metadata
+import io
 import os
 from pathlib import Path
 
@@ -113,3 +114,17 @@ def test_cli_doctor_on_this_machine_reports_no_camera_and_exits_1():
     assert "no DAVIS-346 (152a:841a) on USB" in proc.stdout
     if not os.path.exists("/dev/uinput"):
         assert "/dev/uinput does not exist" in proc.stdout and doctor.RULES_INSTALL in proc.stdout
+
+
+def test_evdev_missing_is_a_warning_naming_the_uinput_extra(monkeypatch):
+    import sys
+
+    # as on aarch64 without the [uinput] extra: `import evdev` finds no module
+    monkeypatch.setitem(sys.modules, "evdev", None)
+    check = doctor.check_library("evdev", doctor.EVDEV_DIST)
+    assert check.status == WARN and "[uinput]" in check.detail and "--output hid" in check.detail
+    assert "pipx inject neurotouch-hid evdev" in check.fix.splitlines()
+    assert doctor.report([check], Console(file=io.StringIO())) == 0
+    # a module of no extra that is missing is still a failure
+    monkeypatch.setitem(sys.modules, "numba", None)
+    assert doctor.check_library("numba", "numba").status == FAIL

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Sequence
 
 from neurotouch_hid.inputs.device import GONE_ERRNOS, MergedInput
+from neurotouch_hid.inputs.hide import Hider, may_hide
 from neurotouch_hid.inputs.match import INPUT_DIR, STABLE_DIRS, SYSFS_INPUT, InputInfo, input_devices, matches
 from neurotouch_hid.mapping.merge import merge_state
 
@@ -49,6 +50,9 @@ class Copilot:
             mapping.merge.merge_state`).
         say: one line for the user when a device is merged, goes away or cannot be opened.
         input_dir, sysfs: where the nodes and their descriptions are (tests point elsewhere).
+        hider: moves a merged device's nodes out of ``/dev`` while merged, so that games do not
+            list it (:mod:`~neurotouch_hid.inputs.hide`; root only); None: grabbed only.
+        unhidden: called with each device merged without being hidden (the note for the user).
     """
 
     def __init__(
@@ -58,6 +62,8 @@ class Copilot:
         say: Callable[[str], None] = log.warning,
         input_dir: Path = INPUT_DIR,
         sysfs: Path = SYSFS_INPUT,
+        hider: Hider | None = None,
+        unhidden: Callable[[InputInfo], None] = lambda info: None,
     ) -> None:
         self._specs = list(devices)
         self._say = say
@@ -72,6 +78,8 @@ class Copilot:
         self._inotify = None
         self._watches: dict[int, Path] = {}
         self._on_input: Callable[[], None] = lambda: None
+        self._hider = hider
+        self._unhidden = unhidden
 
     # --- the Merge seam ------------------------------------------------------------------------
     def start(self, on_input: Callable[[], None]) -> None:
@@ -118,8 +126,10 @@ class Copilot:
         with self._lock:
             for i, device in enumerate(self._open):
                 if device is not None:
-                    device.close()
+                    self._let_go(device)
                     self._open[i] = None
+        if self._hider is not None:
+            self._hider.restore_all()
         if self._inotify is not None:
             with contextlib.suppress(OSError):
                 self._inotify.close()
@@ -170,6 +180,10 @@ class Copilot:
                 self._open[i] = device
             joined = True
             self._say(f"merged {spec.device} ({info.path}) into the pad")
+            if self._hider is not None:
+                self._hider.hide(info.path)
+            else:
+                self._unhidden(info)
         return joined
 
     def _open_one(self, spec: CopilotDevice, info: InputInfo) -> MergedInput | None:
@@ -193,7 +207,7 @@ class Copilot:
             with self._lock:
                 devices, self._open = [d for d in self._open if d is not None], [None] * len(self._specs)
             for device in devices:
-                device.close()
+                self._let_go(device)
             self._on_input()
 
     def _serve(self) -> None:
@@ -217,6 +231,8 @@ class Copilot:
                     folder = self._watches.get(event.wd)
                     if folder == self._input_dir and event.name in STABLE_DIRS and event.mask & flags.CREATE:
                         self._watch(folder / event.name)
+                if events and self._hider is not None:
+                    self._hider.rehide()  # a hidden node made again: games still list one pad
                 if events:
                     changed |= self._scan()
             for fd in ready:
@@ -232,10 +248,16 @@ class Copilot:
             gone = exc.errno in GONE_ERRNOS
             with self._lock:
                 self._open[index] = None
-            device.close()
+            self._let_go(device)
             why = "went away" if gone else f"failed ({exc.strerror or exc})"
             self._say(f"{device.spec.device} {why}: its controls are released; waiting for it to come back")
             return True
+
+    def _let_go(self, device: MergedInput) -> None:
+        """Release and close ``device``, then put its hidden nodes back (a gone device's are removed)."""
+        device.close()
+        if self._hider is not None:
+            self._hider.restore(device.info.path)
 
 
 class FeedbackRelay:
@@ -245,16 +267,43 @@ class FeedbackRelay:
     (:meth:`merge_for`, which the runtime calls at start and at each switch). Calling the relay
     with a :class:`~neurotouch_hid.stages.Feedback` hands it to that copilot's ``feedback``."""
 
-    def __init__(self, say: Callable[[str], None] = log.warning) -> None:
+    def __init__(self, say: Callable[[str], None] = log.warning, *, hide: bool | None = None) -> None:
         self._say = say
         self.merge: Copilot | None = None
+        self._hide = may_hide() if hide is None else hide
+        self._told = False
 
     def merge_for(self, profile: Profile) -> Copilot | None:
-        """The copilot of ``profile`` (None when it merges nothing), remembered for the rumble."""
-        self.merge = Copilot(profile.copilot, say=self._say) if profile.copilot else None
+        """The copilot of ``profile`` (None when it merges nothing), remembered for the rumble; it
+        hides the merged devices from games where this process may (:func:`~neurotouch_hid.inputs.
+        hide.may_hide`), else says once that a game may still list them."""
+        if not profile.copilot:
+            self.merge = None
+            return None
+        hider = Hider() if self._hide else None
+        self.merge = Copilot(profile.copilot, say=self._say, hider=hider, unhidden=self._not_hidden)
         return self.merge
+
+    def _not_hidden(self, info: InputInfo) -> None:
+        if self._told:
+            return
+        self._told = True
+        self._say(unhidden_note(info))
 
     def __call__(self, request: Feedback) -> None:
         merge = self.merge
         if merge is not None:
             merge.feedback(request)
+
+
+def unhidden_note(info: InputInfo | None = None) -> str:
+    """What a user who is not root is told (once, and by ``doctor``): the merged devices are
+    grabbed but not hidden, so a game that lists controllers at its start may still show them;
+    how to avoid it (``info``: a merged device, whose USB ids the SDL variable then names)."""
+    ids = f"0x{info.vendor:04x}/0x{info.product:04x}" if info is not None and info.vendor else "0xVVVV/0xPPPP"
+    return (
+        "the merged devices are grabbed (silent to games) but not hidden (that needs root): a game that "
+        "lists controllers when it starts may still show the helper's pad as a second one; to avoid it, "
+        "run the driver as root (a system service), or start the game with "
+        f"SDL_GAMECONTROLLER_IGNORE_DEVICES={ids}"
+    )

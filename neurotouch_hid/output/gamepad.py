@@ -26,7 +26,6 @@ from __future__ import annotations
 import logging
 import os
 import select
-import stat
 import threading
 import time
 from dataclasses import dataclass
@@ -34,7 +33,7 @@ from typing import TYPE_CHECKING, Callable
 
 from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
 from neurotouch_hid.errors import DeviceError
-from neurotouch_hid.udev import uinput_help
+from neurotouch_hid.udev import char_device_problem, uinput_help
 
 if TYPE_CHECKING:
     from evdev import UInput
@@ -102,18 +101,9 @@ def create_uinput(what: str, capabilities: dict, devnode: str = "/dev/uinput", *
 
 def uinput_problem(devnode: str = "/dev/uinput") -> str | None:
     """Why ``devnode`` cannot be used to create a gamepad (missing, not a character device, not
-    readable and writable by this process), or None when it can."""
-    try:
-        mode = os.stat(devnode).st_mode
-    except FileNotFoundError:
-        return f"{devnode} does not exist (the kernel's uinput module is not loaded)"
-    except OSError as exc:
-        return f"cannot stat {devnode}: {exc.strerror}"
-    if not stat.S_ISCHR(mode):
-        return f"{devnode} is not a character device, so not the uinput device"
-    if not os.access(devnode, os.R_OK | os.W_OK):
-        return f"no permission to open {devnode} for reading and writing (uid {os.getuid()})"
-    return None
+    readable and writable by this process), or None when it can
+    (:func:`neurotouch_hid.udev.char_device_problem` for the uinput module)."""
+    return char_device_problem(devnode, "uinput")
 
 
 def capabilities() -> dict[int, list]:

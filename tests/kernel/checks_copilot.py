@@ -34,6 +34,7 @@ from evdev import AbsInfo, UInput, ecodes
 
 from neurotouch_hid.controller import BUTTONS
 from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.inputs.hide import HIDDEN_DIR
 from neurotouch_hid.output.desktop import MOUSE_PHYS
 from neurotouch_hid.output.gamepad import PHYS
 
@@ -216,10 +217,13 @@ def check_copilot_merges_grabs_rejoins_and_rumbles() -> dict:
     pad (evdev and SDL), its stick follows the policies against the gel's push (``further`` on
     ABS_X, ``sum`` on ABS_Y), Space on the switch box presses the mapped button; an SDL rumble on
     the pad is played on the helper's device; the helper destroyed mid-press leaves its controls
-    neutral at once and the run goes on; a new device of that name rejoins; ``profile use default``
+    neutral at once and the run goes on; a new device of that name rejoins; merged by root, the
+    devices' nodes leave /dev/input (a udev "change" event makes none again), so an SDL started
+    then lists one GameController, the gel's pad; ``profile use default``
     (no copilot) lets go of it and releases the grab, the copilot profile again grabs it and shows
     the button it holds; SIGTERM: the run ends cleanly, the pad's last state neutral, the helper's
-    node delivers to other readers again.
+    node is back in /dev/input and delivers to other readers again, a new one included (the switch
+    box's node as it was before: number, mode, owner, ACL), nothing left hidden.
 
     The driver runs in this process (``run_driver``, what ``neurotouch-hid run`` calls, in the main
     thread, where SIGTERM's handler runs): a second Python start would cost minutes here. The steps
@@ -264,9 +268,33 @@ def check_copilot_merges_grabs_rejoins_and_rumbles() -> dict:
     assert details["pad_last"] == {"ABS_X": 0, "ABS_Y": 0, "buttons": []}, details["pad_last"]
     assert details["helper_reader_after_stop"], "the helper's node delivers nothing after the run"
     assert details["helper_reader_while_grabbed"] == 0 and details["helper_reader_while_grabbed_again"] == 0, details
+    assert details["hidden_after_stop"] == [] and details["helper_node_readable_after_stop"], details
+    assert details["box_node_as_before"] and not details["helper_node_in_dev_after_udev_change"], details
     details["said"] = [line for line in scenario.said if "merged" in line or "went away" in line]
     details["seconds"] = round(time.monotonic() - started, 1)
     return details
+
+
+def _hidden() -> list[str]:
+    """The nodes this process's driver has hidden now (relative to /dev)."""
+    folder = HIDDEN_DIR / str(os.getpid())
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if not p.is_dir()) if folder.is_dir() else []
+
+
+def _node_stat(path: str) -> tuple[int, int, int, int, bytes]:
+    """A node's device number, mode, owner, group and POSIX ACL (b"" without one)."""
+    st = os.stat(path)
+    try:
+        acl = os.getxattr(path, "system.posix_acl_access")
+    except OSError:
+        acl = b""
+    return st.st_rdev, st.st_mode, st.st_uid, st.st_gid, acl
+
+
+def _node(path: str) -> str:
+    """``path`` (/dev/input/eventN), or where this process's driver hid it."""
+    hidden = HIDDEN_DIR / str(os.getpid()) / "input" / Path(path).name
+    return path if os.path.exists(path) else str(hidden)
 
 
 def _wakeups(name: str, seconds: float) -> int:
@@ -347,10 +375,20 @@ class Scenario:
         details["pads"] = len(self.new(PHYS))
         details["ID_INPUT_JOYSTICK"] = guestlib.udev_properties(self.new(PHYS)[0]).get("ID_INPUT_JOYSTICK")
 
+        self.box_node = _node_stat(box.device.path)  # merged from here to the end (hidden, back, hidden, back)
         details["use_copilot"] = request_use(str(self.profile), path=self.socket)
         merged = guestlib.wait_for(lambda: self.count("merged Helper Pad") and self.count("merged Switch Box"), 30.0)
         assert merged, f"the devices were not merged: {self.said[-10:]}"
         details["merged_s"] = round(time.monotonic() - self.started, 1)
+        # merged as root: the helper's nodes left /dev/input
+        details["hidden"] = _hidden()
+        details["helper_node_in_dev_while_merged"] = os.path.exists(helper.device.path)
+        # a udev "change" event of the hidden device (udevadm trigger's default action) makes no node again
+        changed_at = time.monotonic()
+        guestlib.sh(["udevadm", "trigger", "--action=change", f"/sys/class/input/{Path(helper.device.path).name}"])
+        guestlib.settle()
+        details["udev_change_s"] = round(time.monotonic() - changed_at, 1)
+        details["helper_node_in_dev_after_udev_change"] = os.path.exists(helper.device.path)
         grabbed_at = len(self.helper_reader.events)
         gel_held = guestlib.wait_for(lambda: pad.reader.axes.get(ecodes.ABS_X, 0) > 30000, 60.0)
         assert gel_held, f"the gel's push does not show on the pad: {_pad(pad)}"
@@ -388,6 +426,13 @@ class Scenario:
         played = guestlib.wait_for(lambda: any(s[0] == "play" and s[2] > 0 for s in answerer.seen), 15.0)
         details["helper_ff"] = answerer.seen[:6]
         assert rumble.get("rumble") and played, f"the rumble did not reach the helper: {rumble} {answerer.seen}"
+        # SDL enumerating afresh now (its joystick subsystems started again: a game started now)
+        details["sdl_before_merge"] = {"count": opened["count"], "guids": opened["guids"]}
+        relisted_at = time.monotonic()
+        late = self.sdl.ask("relist", "relisted").get("relisted", {})
+        details["relist_s"] = round(time.monotonic() - relisted_at, 1)
+        details["late_sdl"] = late
+        assert late.get("found") and late["count"] == 1, f"an SDL started while merged lists: {late}"
         details["helper_reader_while_grabbed"] = len(self.helper_reader.events) - grabbed_at
 
         # unplugged mid-press: the pad lets go at once, the run goes on
@@ -406,7 +451,7 @@ class Scenario:
         rejoined = guestlib.wait_for(lambda: self.count("merged Helper Pad") >= 2, 30.0)
         assert rejoined, f"the new Helper Pad was not merged: {self.said[-5:]}"
         self.helper_reader.stop()
-        self.helper_reader = Watcher(helper.device.path)
+        self.helper_reader = Watcher(_node(helper.device.path))  # hidden by now: read from where it is
         press(helper, (ecodes.EV_KEY, ecodes.BTN_NORTH, 1))
         assert guestlib.wait_for(lambda: ecodes.BTN_NORTH in pad.pressed, 10.0), _pad(pad)
         details["rejoined"] = _pad(pad)
@@ -419,6 +464,7 @@ class Scenario:
         press(helper, (ecodes.EV_KEY, ecodes.BTN_EAST, 0))
         guestlib.wait_for(lambda: len(self.helper_reader.events) >= free_from + 2, 10.0)
         details["helper_reader_after_switch"] = len(self.helper_reader.events) - free_from
+        details["helper_node_in_dev_after_switch"] = os.path.exists(helper.device.path)
         assert let_go and details["helper_reader_after_switch"] >= 2, details
         # back: grabbed again, and the button it holds shows on the pad
         request_use(str(self.profile), path=self.socket)
@@ -445,6 +491,15 @@ class Scenario:
             guestlib.wait_for(lambda: len(self.helper_reader.events) > grabbed_events, 10.0)
         )
         details["helper_reader_while_grabbed_again"] = grabbed_events - self.grabbed_from
+        # its node back in /dev/input (nothing left hidden), and a new reader of it receives its events
+        details["hidden_after_stop"] = _hidden()
+        details["box_node_as_before"] = _node_stat(self.box.device.path) == self.box_node
+        back = Watcher(self.helper.device.path)
+        try:
+            press(self.helper, (ecodes.EV_KEY, ecodes.BTN_EAST, 1))
+            details["helper_node_readable_after_stop"] = bool(guestlib.wait_for(lambda: back.events, 10.0))
+        finally:
+            back.stop()
 
     def close(self) -> None:
         self.details["sdl_stderr"] = self.sdl.close()[-300:]

@@ -25,7 +25,10 @@ SECONDS pass; last ``{"done": ...}``.
 4 hex digits as written: ``028e``) is PRODUCT, print ``{"opened": ...}`` (with every controller's
 GUID), then answer one line per command read on stdin: ``state`` -> ``{"v": {...}}`` (what SDL
 reads now, as ``--watch``), ``rumble`` -> ``{"rumble": bool, ...}`` (a 300 ms rumble played),
-``quit`` (or the end of stdin) -> the ``{"done": ...}`` line.
+``relist`` -> ``{"relisted": {"count": N, "guids": [...]}}`` (SDL's joystick and game controller
+subsystems quit and started again: SDL forgets every device and enumerates afresh, as a game
+started now would; PRODUCT's controller is then opened again), ``quit`` (or the end of stdin) ->
+the ``{"done": ...}`` line.
 
 Run with SDL_VIDEODRIVER=dummy.
 """
@@ -257,19 +260,23 @@ def serve(seconds: float, product: str) -> dict:
     say({"ready": True})
     # the GUID's bytes 8..9 are the product id, little-endian: 028e -> "8e02"
     wanted = product[2:4] + product[0:2]
-    end = time.monotonic() + seconds
-    index = None
-    while index is None and time.monotonic() < end:
-        pygame.event.pump()
-        index = next(
-            (
-                i
-                for i in range(controller.get_count())
-                if controller.is_controller(i) and pygame.joystick.Joystick(i).get_guid()[16:20] == wanted
-            ),
-            None,
-        )
-        time.sleep(0.01)
+
+    def find(seconds: float):
+        end, index = time.monotonic() + seconds, None
+        while index is None and time.monotonic() < end:
+            pygame.event.pump()
+            index = next(
+                (
+                    i
+                    for i in range(controller.get_count())
+                    if controller.is_controller(i) and pygame.joystick.Joystick(i).get_guid()[16:20] == wanted
+                ),
+                None,
+            )
+            time.sleep(0.01)
+        return index
+
+    index = find(seconds)
     if index is None:
         return {"done": True, "error": f"no GameController with product {product} within {seconds} s"}
     ctl = controller.Controller(index)
@@ -284,6 +291,18 @@ def serve(seconds: float, product: str) -> dict:
             values = {name: ctl.get_axis(code) for name, code in axes}
             values.update((name, ctl.get_button(code)) for name, code in buttons)
             say({"v": values})
+        elif command == "relist":
+            ctl.quit()
+            controller.quit()
+            pygame.joystick.quit()
+            pygame.joystick.init()
+            controller.init()
+            index = find(10.0)
+            count = controller.get_count()
+            guids = [pygame.joystick.Joystick(i).get_guid() for i in range(count)]
+            if index is not None:
+                ctl = controller.Controller(index)
+            say({"relisted": {"count": count, "guids": guids, "found": index is not None}})
         elif command == "rumble":
             played = ctl.rumble(0.5, 1.0, 300)
             say({"rumble": bool(played), "sdl_error": None if played else pygame.get_error()})

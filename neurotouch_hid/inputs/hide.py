@@ -1,0 +1,219 @@
+"""Merged devices hidden from games: their nodes moved out of ``/dev`` while merged, put back after.
+
+A grab (EVIOCGRAB) silences a device for every other reader, but a game still lists it: SDL's
+Linux joystick backend enumerates through udev (``udev_enumerate`` of the ``input`` subsystem,
+then ``open`` of the device's node) or, without udev (a container, ``SDL_JOYSTICK_DISABLE_UDEV``),
+through the ``event*`` names under ``/dev/input`` and inotify there; either way a node that cannot
+be opened is skipped. So, where this process may (root: the system service, a test guest), each
+merged device's nodes are moved into :data:`HIDDEN_DIR` ``/<pid>/``: its ``input/eventN``, its
+joystick ``input/jsN`` and the ``hidrawN`` of the same USB device (SDL's HIDAPI drivers open
+those), as InputPlumber (``/dev/inputplumber/sources``) and Handheld Daemon do. A game started
+after the merge lists one controller; one started before keeps its open descriptor of the helper's
+node, which the grab keeps silent.
+
+The move is a rename where the hidden folder is on the node's file system, else (``/run`` is a
+tmpfs, ``/dev`` a devtmpfs) a new node with the same device number, mode, owner and extended
+attributes (the POSIX ACL udev's ``uaccess`` wrote) made first, then the old one removed: a node
+is never lost. Putting back is the same move the other way; a node whose device is gone (its
+``/sys/class/<subsystem>/<name>/dev`` no longer has that number) is only removed. Each process
+hides into its own ``<pid>`` folder; :func:`restore_stale` puts back what a process that died
+without putting back (SIGKILL, a power cut of the process) left there, at the next start.
+
+Library: the standard library (os.mknod, os.rename, xattrs); the node numbers: sysfs-rules.rst.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import logging
+import os
+import stat
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+#: Where hidden nodes wait, one folder per driver process (its pid). Not /run/neurotouch-hid: a
+#: system unit's ``RuntimeDirectory=neurotouch-hid`` is removed when the unit stops, crashed or
+#: not, and would take nodes not yet put back with it.
+HIDDEN_DIR = Path("/run/neurotouch-hid-hidden")
+DEV_DIR = Path("/dev")
+SYSFS = Path("/sys")
+#: How many folders up from an input device its USB device is looked for (input -> interface -> device).
+_USB_DEPTH = 6
+
+
+def may_hide(dev: Path = DEV_DIR) -> bool:
+    """Whether this process may move device nodes: root (mknod needs CAP_MKNOD) with ``dev``/input
+    writable."""
+    return os.geteuid() == 0 and os.access(dev / "input", os.W_OK)
+
+
+def related_nodes(event_node: str, sysfs: Path = SYSFS) -> list[str]:
+    """The nodes of the input device whose event node is ``event_node`` (``/dev/input/eventN``),
+    relative to ``/dev``: ``input/eventN``, its joystick ``input/jsN`` (joydev) and the
+    ``hidrawN`` of the same USB device, as sysfs shows them; just the event node when sysfs has
+    nothing for it."""
+    name = Path(event_node).name
+    nodes = [f"input/{name}"]
+    try:
+        device = (sysfs / "class" / "input" / name / "device").resolve(strict=True)
+        nodes += sorted(f"input/{c.name}" for c in device.iterdir() if c.name.startswith("js"))
+    except OSError:
+        return nodes
+    for parent in list(device.parents)[:_USB_DEPTH]:
+        if (parent / "idVendor").is_file():  # the USB device: its interfaces' HID devices' hidraw
+            nodes += sorted({p.name for p in parent.glob("*/*/hidraw/hidraw*")})
+            break
+    return nodes
+
+
+def _number(path: Path) -> int:
+    return os.lstat(path).st_rdev
+
+
+def _alive(relative: str, rdev: int, sysfs: Path) -> bool:
+    """Whether the device of node ``relative`` still has device number ``rdev`` (sysfs' ``dev``)."""
+    name = Path(relative).name
+    subsystem = "input" if relative.startswith("input/") else "hidraw"
+    try:
+        text = (sysfs / "class" / subsystem / name / "dev").read_text(errors="replace")[:32]
+    except OSError:
+        return False
+    return text.strip() == f"{os.major(rdev)}:{os.minor(rdev)}"
+
+
+def _move(src: Path, dst: Path) -> None:
+    """Move node ``src`` to ``dst``: a rename, or across file systems a copy of the node (number,
+    mode, owner, extended attributes) made before ``src`` is removed. Raises OSError (``src``
+    is then untouched)."""
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        os.rename(src, dst)
+        return
+    except OSError as exc:
+        if exc.errno != errno.EXDEV:
+            raise
+    st = os.lstat(src)
+    os.mknod(dst, st.st_mode, st.st_rdev)
+    try:
+        os.chown(dst, st.st_uid, st.st_gid)
+        os.chmod(dst, stat.S_IMODE(st.st_mode))
+        with contextlib.suppress(OSError):  # a file system without xattrs: mode and owner only
+            for attr in os.listxattr(src, follow_symlinks=False):
+                os.setxattr(dst, attr, os.getxattr(src, attr, follow_symlinks=False), follow_symlinks=False)
+        os.unlink(src)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(dst)
+        raise
+
+
+class Hider:
+    """One process's hidden nodes: :meth:`hide` a merged device's, :meth:`restore` them.
+
+    Args:
+        root: the hidden folders' parent (:data:`HIDDEN_DIR`); dev: ``/dev``; sysfs: ``/sys``;
+        pid: whose folder (this process).
+    """
+
+    def __init__(self, root: Path = HIDDEN_DIR, dev: Path = DEV_DIR, sysfs: Path = SYSFS, pid: int | None = None):
+        self.dev, self.sysfs = Path(dev), Path(sysfs)
+        self.folder = Path(root) / str(os.getpid() if pid is None else pid)
+        self._hidden: dict[str, list[str]] = {}  # event node -> the nodes hidden with it (relative to dev)
+
+    def hide(self, event_node: str) -> list[str]:
+        """Move ``event_node``'s nodes (:func:`related_nodes`) into this process's folder; the ones
+        moved (relative to ``/dev``). A node that cannot be moved stays (logged)."""
+        moved = []
+        for relative in related_nodes(event_node, self.sysfs):
+            src = self.dev / relative
+            if not os.path.lexists(src) or os.path.lexists(self.folder / relative):
+                continue
+            try:
+                _move(src, self.folder / relative)
+            except OSError as exc:
+                log.warning("cannot hide %s from games: %s", src, exc.strerror or exc)
+                continue
+            moved.append(relative)
+        if moved:
+            self._hidden.setdefault(event_node, []).extend(moved)
+        return moved
+
+    def restore(self, event_node: str) -> list[str]:
+        """Put ``event_node``'s hidden nodes back; the ones put back (a gone device's are removed)."""
+        return [r for r in self._hidden.pop(event_node, []) if self._put_back(r)]
+
+    def restore_all(self) -> list[str]:
+        """Put back everything in this process's folder (also what an earlier process of this pid
+        left), then remove the folder; the nodes put back."""
+        self._hidden.clear()
+        back = []
+        if self.folder.is_dir():
+            for path in sorted(self.folder.rglob("*")):
+                if not path.is_dir() and self._put_back(str(path.relative_to(self.folder))):
+                    back.append(str(path.relative_to(self.folder)))
+            for path in sorted(self.folder.rglob("*"), reverse=True):
+                with contextlib.suppress(OSError):
+                    path.rmdir()
+            with contextlib.suppress(OSError):
+                self.folder.rmdir()
+        return back
+
+    def rehide(self) -> list[str]:
+        """Remove a hidden node that reappeared in ``/dev`` with the same number (made again by
+        someone while merged): games must still list one pad; the removed nodes."""
+        removed = []
+        for relative in [r for nodes in self._hidden.values() for r in nodes]:
+            again, hidden = self.dev / relative, self.folder / relative
+            with contextlib.suppress(OSError):
+                if _number(again) == _number(hidden):
+                    os.unlink(again)
+                    removed.append(relative)
+        return removed
+
+    def _put_back(self, relative: str) -> bool:
+        hidden, target = self.folder / relative, self.dev / relative
+        try:
+            rdev = _number(hidden)
+        except OSError:
+            return False
+        try:
+            if _alive(relative, rdev, self.sysfs) and not os.path.lexists(target):
+                _move(hidden, target)
+                return True
+            os.unlink(hidden)  # the device is gone, or its node is there again: nothing to put back
+        except OSError as exc:
+            log.warning("cannot put %s back in %s: %s", relative, self.dev, exc.strerror or exc)
+        return False
+
+
+def _running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def restore_stale(root: Path = HIDDEN_DIR, dev: Path = DEV_DIR, sysfs: Path = SYSFS) -> list[str]:
+    """Put back the nodes that driver processes no longer running left hidden in ``root`` (a
+    crash, SIGKILL); the nodes put back. Nothing when ``root`` is absent."""
+    back = []
+    with contextlib.suppress(OSError):
+        for folder in sorted(Path(root).iterdir()):
+            if folder.name.isdigit() and (int(folder.name) == os.getpid() or not _running(int(folder.name))):
+                back += Hider(root, dev, sysfs, pid=int(folder.name)).restore_all()
+    return back
+
+
+def put_back_stale(say=log.warning) -> None:
+    """At a driver's start, where this process may (:func:`may_hide`): :func:`restore_stale`, and
+    one line for the user naming what was put back."""
+    if not may_hide():
+        return
+    back = restore_stale()
+    if back:
+        say(f"put back {', '.join('/dev/' + n for n in back)}, left hidden by a driver that did not stop cleanly")
