@@ -15,6 +15,7 @@ ORDER = {
     "evaluation": 3,
     "enrolment": 5,
     "output": 4,
+    "targets": 4,
     "stages": 3,
     "runtime": 5,
     "control": 5,
