@@ -152,3 +152,7 @@ class SwitchFormat:
     def neutral(self) -> bytes:
         """The report of :meth:`ControllerState.neutral`: ``00 00 08 80 80 80 80 00``."""
         return self.pack(ControllerState.neutral())
+
+
+#: The Switch report's format.
+SWITCH = SwitchFormat()

@@ -106,6 +106,10 @@ class XInputFormat:
         return self.pack(ControllerState.neutral())
 
 
+#: The Xbox 360 report's format.
+XINPUT = XInputFormat()
+
+
 def parse_output(data: bytes, source: str = "") -> Feedback | None:
     """One output report the host sent on the OUT endpoint (``data``: at most
     :data:`MAX_OUTPUT_REPORT` bytes are looked at) as :class:`Feedback`: rumble
