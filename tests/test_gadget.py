@@ -136,3 +136,26 @@ def test_read_attr_is_bounded(tmp_path):
     big = tmp_path / "attr"
     big.write_text("x" * (configfs.MAX_ATTR_BYTES * 3) + "\n")
     assert configfs.read_attr(big) == "x" * configfs.MAX_ATTR_BYTES
+
+
+def test_install_script_installs_the_gadget_unit_for_a_protocol_and_user(tmp_path):
+    """install.sh --gadget PROTOCOL:USER writes the oneshot unit with both filled in (DESTDIR:
+    nothing live is touched); an unknown protocol is refused with the ones there are."""
+    import subprocess
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "packaging" / "install.sh"
+    env = {**os.environ, "DESTDIR": str(tmp_path)}
+    done = subprocess.run(
+        ["sh", str(script), "--gadget", "switch:alice", "--bin", "/usr/bin/neurotouch-hid"],
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    unit = (tmp_path / "etc/systemd/system/neurotouch-hid-gadget.service").read_text()
+    assert "ExecStart=/usr/bin/neurotouch-hid gadget setup --protocol switch --user alice\n" in unit
+    assert "ExecStop=/usr/bin/neurotouch-hid gadget remove\n" in unit
+    assert "Type=oneshot" in unit and "RemainAfterExit=yes" in unit
+    bad = subprocess.run(["sh", str(script), "--gadget", "ps5:bob"], env=env, capture_output=True, text=True)
+    assert bad.returncode == 2 and "hid, switch or xinput" in bad.stderr
