@@ -159,3 +159,30 @@ def test_install_script_installs_the_gadget_unit_for_a_protocol_and_user(tmp_pat
     assert "Type=oneshot" in unit and "RemainAfterExit=yes" in unit
     bad = subprocess.run(["sh", str(script), "--gadget", "ps5:bob"], env=env, capture_output=True, text=True)
     assert bad.returncode == 2 and "hid, switch or xinput" in bad.stderr
+
+
+def test_module_state_reads_sys_module_then_builtin_then_dep(tmp_path):
+    from neurotouch_hid.targets.gadget.support import module_state
+
+    mods, sysmod = tmp_path / "lib", tmp_path / "sys"
+    mods.mkdir()
+    (sysmod / "usb_f_hid").mkdir(parents=True)
+    (mods / "modules.builtin").write_text("kernel/drivers/usb/gadget/libcomposite.ko\n")
+    (mods / "modules.dep").write_text(
+        "kernel/drivers/usb/gadget/function/usb_f_fs.ko.xz: kernel/drivers/usb/gadget/libcomposite.ko.xz\n"
+    )
+    assert module_state("usb_f_hid", mods, sysmod) == "loaded"
+    assert module_state("libcomposite", mods, sysmod) == "built in"
+    assert module_state("usb-f-fs", mods, sysmod) == "available"
+    assert module_state("dummy_hcd", mods, sysmod) == "missing"
+
+
+def test_raspberry_pi_is_told_by_its_device_tree_model(tmp_path):
+    from neurotouch_hid.targets.gadget.support import is_raspberry_pi
+
+    model = tmp_path / "model"
+    model.write_bytes(b"Raspberry Pi 5 Model B Rev 1.0\0")
+    assert is_raspberry_pi(model)
+    model.write_bytes(b"Generic x86\0")
+    assert not is_raspberry_pi(model)
+    assert not is_raspberry_pi(tmp_path / "none")
