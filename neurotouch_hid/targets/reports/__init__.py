@@ -1,0 +1,65 @@
+"""The wire formats of the HID outputs, as data: for each protocol, the report descriptor and the
+input report that carries a :class:`~neurotouch_hid.controller.ControllerState`.
+
+Every encoder follows :class:`ReportFormat` (structurally, no base class): a ``name``, the HID
+report descriptor (HID 1.11, section 6.2.2; ``b""`` for a protocol without one, the Xbox 360's
+vendor interface), the length of one input report, :meth:`ReportFormat.pack` and
+:meth:`ReportFormat.neutral`. The same bytes go to a UHID device on this machine
+(:mod:`neurotouch_hid.targets.uhid`) and to a USB gadget's HID function; the layouts, byte by byte,
+are in docs/reports.md. :data:`FORMATS` names them all; :func:`format_for` finds one.
+
+Sources: Device Class Definition for HID 1.11 (usb.org), HID Usage Tables 1.4 (usb.org).
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+from neurotouch_hid.controller import ControllerState
+from neurotouch_hid.errors import NeurotouchError
+
+
+class ReportFormat(Protocol):
+    """One protocol's input report for a controller state.
+
+    Attributes:
+        name: ``"hid"``, ``"keyboard"``, ``"mouse"``, ``"switch"``, ``"xinput"``.
+        descriptor: the HID report descriptor (HID 1.11, 6.2.2), ``b""`` where the protocol has none.
+        report_length: bytes of one input report (:meth:`pack`'s length, always).
+    """
+
+    name: str
+    descriptor: bytes
+    report_length: int
+
+    def pack(self, state: ControllerState) -> bytes:
+        """The input report (``report_length`` bytes) for ``state``; values outside a field's
+        range are clamped, names the format has no field for are left out."""
+
+    def neutral(self) -> bytes:
+        """``pack(ControllerState.neutral())``: axes centred, triggers 0, nothing pressed."""
+
+
+def _formats() -> dict[str, ReportFormat]:
+    from neurotouch_hid.targets.reports.hid import HID_JOYSTICK
+    from neurotouch_hid.targets.reports.keyboard import BOOT_KEYBOARD
+    from neurotouch_hid.targets.reports.mouse import MOUSE
+
+    formats: list[ReportFormat] = [HID_JOYSTICK, BOOT_KEYBOARD, MOUSE]
+    return {f.name: f for f in formats}
+
+
+#: Every format by name.
+FORMATS: dict[str, ReportFormat] = _formats()
+
+
+def format_for(name: str) -> ReportFormat:
+    """The format called ``name`` (a key of :data:`FORMATS`).
+
+    Raises:
+        NeurotouchError: no such format; the message lists those there are.
+    """
+    try:
+        return FORMATS[name]
+    except KeyError:
+        raise NeurotouchError(f"unknown report format {name!r} (expected one of: {', '.join(FORMATS)})") from None
