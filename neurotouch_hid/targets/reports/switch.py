@@ -1,7 +1,8 @@
 """The wired HORIPAD-style report a Nintendo Switch accepts from a USB HID gamepad.
 
 The Switch takes a plain HID gamepad (no handshake) when it has HORI's ids, 0f0d:00c1 ("HORIPAD
-S"), and sends one 8-byte input report, no report id (docs/reports.md, "switch"):
+S"), and sends one 8-byte input report, no report id (docs/reports.md, "switch: the
+HORIPAD-style Switch pad"):
 
 ====== =========================================================================================
 byte   field
@@ -29,14 +30,13 @@ from __future__ import annotations
 import struct
 
 from neurotouch_hid.controller import AXES, ControllerState
+from neurotouch_hid.targets.reports.fields import axis
+from neurotouch_hid.targets.reports.hid import hat_value
 
 #: USB ids the Switch accepts a wired pad under: HORI, HORIPAD S.
 VENDOR, PRODUCT = 0x0F0D, 0x00C1
 #: A trigger at or above this (0..255) presses ZL / ZR: the Switch's triggers are buttons.
 TRIGGER_PRESS = 128
-#: Hat value for "nothing pressed" (the descriptor's null state).
-HAT_CENTRED = 8
-
 #: Report bit -> the controller state's button (or trigger axis) that sets it.
 BITS: tuple[tuple[int, str], ...] = (
     (0, "BTN_NORTH"),  # Y (left face button)
@@ -101,30 +101,6 @@ DESCRIPTOR = bytes(
     ]
 )  # fmt: skip
 
-#: (HAT0X, HAT0Y) -> hat value (HAT0Y -1 is up), clockwise from up.
-HAT: dict[tuple[int, int], int] = {
-    (0, -1): 0,
-    (1, -1): 1,
-    (1, 0): 2,
-    (1, 1): 3,
-    (0, 1): 4,
-    (-1, 1): 5,
-    (-1, 0): 6,
-    (-1, -1): 7,
-}
-
-
-def axis(state: ControllerState, name: str) -> int:
-    """``state``'s axis ``name`` as an int clamped to its range (:data:`~neurotouch_hid.controller.AXES`);
-    missing: its neutral value."""
-    lo, hi, neutral = AXES[name]
-    return min(max(int(state.axes.get(name, neutral)), lo), hi)
-
-
-def hat(state: ControllerState) -> int:
-    """The d-pad (ABS_HAT0X/Y, -1..1) as a HID hat switch: 0 up, clockwise to 7, 8 centred."""
-    return HAT.get((axis(state, "ABS_HAT0X"), axis(state, "ABS_HAT0Y")), HAT_CENTRED)
-
 
 def stick_byte(value: int) -> int:
     """A stick axis (-32768..32767, evdev) as an unsigned byte, 128 centred: the high byte + 128."""
@@ -147,7 +123,8 @@ class SwitchFormat:
             pressed = axis(state, name) >= TRIGGER_PRESS if name in AXES else state.buttons.get(name, False)
             buttons |= bool(pressed) << bit
         sticks = (stick_byte(axis(state, name)) for name in ("ABS_X", "ABS_Y", "ABS_RX", "ABS_RY"))
-        return struct.pack("<HB4BB", buttons, hat(state), *sticks, 0)
+        hat = hat_value(axis(state, "ABS_HAT0X"), axis(state, "ABS_HAT0Y"))
+        return struct.pack("<HB4BB", buttons, hat, *sticks, 0)
 
     def neutral(self) -> bytes:
         """The report of :meth:`ControllerState.neutral`: ``00 00 08 80 80 80 80 00``."""

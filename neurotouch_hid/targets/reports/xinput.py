@@ -2,7 +2,8 @@
 
 The pad is a vendor interface (class FF, subclass 5D, protocol 01) with an interrupt IN and an
 interrupt OUT endpoint, no HID report descriptor. Input report, 20 bytes (docs/reports.md,
-"xinput"; the layout xpad's ``xpad360_process_packet`` reads, linux/drivers/input/joystick/xpad.c):
+"xinput: the Xbox 360 wired pad"; the layout xpad's ``xpad360_process_packet`` reads,
+linux/drivers/input/joystick/xpad.c):
 
 ======= ========================================================================================
 byte    field
@@ -30,7 +31,7 @@ import struct
 
 from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.stages import Feedback
-from neurotouch_hid.targets.reports.switch import axis
+from neurotouch_hid.targets.reports.fields import axis
 
 #: USB ids of the wired Xbox 360 controller (Microsoft), and its bcdDevice.
 VENDOR, PRODUCT, VERSION = 0x045E, 0x028E, 0x0114
