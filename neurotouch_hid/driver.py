@@ -72,38 +72,75 @@ def open_output(
     say: Callable[[str], None] | None = None,
     inputs: tuple[str | Path | None, ...] = (),
 ) -> Subscriber:
-    """Create one output: ``gamepad`` (the uinput pad with the profile's name and ids, and the
-    keyboard and mouse if the profile uses them), ``jsonl`` (one state line per change to ``out``
-    or stdout; ``out`` may not be one of the run's ``inputs``) or ``term`` (the terminal view; on a
-    terminal the live view of :mod:`neurotouch_hid.output.live`: the gel, the gestures, the
-    profile, beside the pad). ``say``
+    """Create one output (:data:`OPENERS` has one opener per kind): ``gamepad`` (the uinput pad
+    with the profile's name and ids, and the keyboard and mouse if the profile uses them), ``hid``
+    (the generic HID joystick on UHID, docs/reports.md; the keyboard and mouse on uinput where it
+    can be used), ``jsonl`` (one state line per change to ``out`` or stdout; ``out`` may not be
+    one of the run's ``inputs``) or ``term`` (the terminal view; on a terminal the live view of
+    :mod:`neurotouch_hid.output.live`: the gel, the gestures, the profile, beside the pad). ``say``
     tells the user about rumble effects games send to the pad (the gel has no motor; default: the
-    log). Closed by ``stack``. Raises DeviceError when /dev/uinput cannot be used."""
-    if kind == OutputKind.GAMEPAD:
-        from neurotouch_hid.output.desktop import UinputOutputs
-        from neurotouch_hid.output.gamepad import GamepadIdentity, VirtualGamepad
+    log). Closed by ``stack``. Raises DeviceError when /dev/uinput (``gamepad``) or /dev/uhid
+    (``hid``) cannot be used."""
+    return OPENERS[OutputKind(kind)](profile, stack, out=out, console=console, say=say, inputs=inputs)
 
-        dev = profile.device
-        identity = GamepadIdentity(name=dev.name, vendor=dev.vendor, product=dev.product, version=dev.version)
-        on_effect = None if say is None else (lambda line: say(f"rumble (the gel has no motor): {line}"))
-        pad = VirtualGamepad(identity, on_effect=on_effect)
-        return stack.enter_context(UinputOutputs(pad, profile, known=known_profiles()))
-    if kind == OutputKind.JSONL:
-        from neurotouch_hid.output.jsonl import StateJsonlWriter
 
-        return stack.enter_context(StateJsonlWriter(out, inputs))
+def _open_gamepad(profile: Profile, stack: contextlib.ExitStack, *, say, **_) -> Subscriber:
+    from neurotouch_hid.output.desktop import UinputOutputs
+    from neurotouch_hid.output.gamepad import GamepadIdentity, VirtualGamepad
+
+    dev = profile.device
+    identity = GamepadIdentity(name=dev.name, vendor=dev.vendor, product=dev.product, version=dev.version)
+    on_effect = None if say is None else (lambda line: say(f"rumble (the gel has no motor): {line}"))
+    pad = VirtualGamepad(identity, on_effect=on_effect)
+    return stack.enter_context(UinputOutputs(pad, profile, known=known_profiles()))
+
+
+def _open_hid(profile: Profile, stack: contextlib.ExitStack, *, say, **_) -> Subscriber:
+    from neurotouch_hid.targets import TargetOutputs
+    from neurotouch_hid.targets.desktop import UinputDesktop
+    from neurotouch_hid.targets.reports.hid import HID_JOYSTICK
+    from neurotouch_hid.targets.uhid import UhidDevice, hid_identity
+
+    with contextlib.ExitStack() as made:  # each target closed if a later one fails
+        joystick = made.enter_context(UhidDevice(HID_JOYSTICK, hid_identity(profile.device)))
+        desktop = UinputDesktop(profile, known_profiles(), say=say or log.warning)
+        made.callback(desktop.close)
+        outputs = TargetOutputs([joystick, desktop], say=say)
+        made.pop_all()
+    return stack.enter_context(outputs)
+
+
+def _open_jsonl(profile: Profile, stack: contextlib.ExitStack, *, out, inputs, **_) -> Subscriber:
+    from neurotouch_hid.output.jsonl import StateJsonlWriter
+
+    return stack.enter_context(StateJsonlWriter(out, inputs))
+
+
+def _open_term(profile: Profile, stack: contextlib.ExitStack, *, console, **_) -> Subscriber:
     from neurotouch_hid.output.live import LiveView
 
     return stack.enter_context(LiveView(console))
 
 
+#: One opener per output kind: ``opener(profile, stack, *, out, console, say, inputs)`` -> the
+#: subscriber, entered into ``stack`` (:func:`open_output`).
+OPENERS: dict[OutputKind, Callable[..., Subscriber]] = {
+    OutputKind.GAMEPAD: _open_gamepad,
+    OutputKind.HID: _open_hid,
+    OutputKind.JSONL: _open_jsonl,
+    OutputKind.TERM: _open_term,
+}
+#: The outputs that are devices: on a terminal, the live view is drawn beside them.
+DEVICE_OUTPUTS = (OutputKind.GAMEPAD, OutputKind.HID)
+
+
 def open_outputs(
     output: Subscriber, kind: str, stack: contextlib.ExitStack, console: Console | None = None
 ) -> list[Subscriber]:
-    """The run's subscribers: ``output`` (what :func:`open_output` made for ``kind``) and, for the
-    virtual gamepad on a terminal (``console.is_terminal``), the live view drawn beside it, closed
-    by ``stack``."""
-    if kind != OutputKind.GAMEPAD or console is None or not console.is_terminal:
+    """The run's subscribers: ``output`` (what :func:`open_output` made for ``kind``) and, for a
+    device output (the virtual gamepad, the HID joystick) on a terminal (``console.is_terminal``),
+    the live view drawn beside it, closed by ``stack``."""
+    if kind not in DEVICE_OUTPUTS or console is None or not console.is_terminal:
         return [output]
     from neurotouch_hid.output.live import LiveView
 

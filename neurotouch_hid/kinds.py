@@ -12,6 +12,7 @@ class OutputKind(StrEnum):
     """Where ``run`` sends the controller states (``--output``)."""
 
     GAMEPAD = "gamepad"  #: the uinput pad (and the keyboard and mouse a profile uses)
+    HID = "hid"  #: the generic HID joystick on UHID (the keyboard and mouse stay on uinput)
     JSONL = "jsonl"  #: one JSON line per state change (``--out`` or stdout)
     TERM = "term"  #: the terminal view
 

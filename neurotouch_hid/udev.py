@@ -29,6 +29,9 @@ RULES_INSTALL = f"sudo sh {INSTALL_SCRIPT} --system"
 #: The rule that gives the seated user access to /dev/uinput (udev/60-neurotouch.rules carries the
 #: same line; tests/test_packaging.py checks they agree).
 UINPUT_RULE = 'KERNEL=="uinput", SUBSYSTEM=="misc", TAG+="uaccess", OPTIONS+="static_node=uinput"'
+#: The rule that gives the seated user access to /dev/uhid (``run --output hid``; the rules file
+#: carries the same line).
+UHID_RULE = 'KERNEL=="uhid", SUBSYSTEM=="misc", TAG+="uaccess", OPTIONS+="static_node=uhid"'
 #: A camera rule for machines without a seated user (headless, over SSH): uaccess only serves the
 #: user logged in at the machine itself, so give a group access instead.
 GROUP_RULE = 'SUBSYSTEM=="usb", ATTR{idVendor}=="152a", ATTR{idProduct}=="841a", GROUP="plugdev", MODE="0660"'
@@ -66,3 +69,34 @@ def uinput_help() -> str:
         f"{RULES_INSTALL}\n"
         "then log out and in, and check with: neurotouch-hid doctor"
     )
+
+
+def uhid_help() -> str:
+    """The fix for a missing or unwritable /dev/uhid, a few short lines: load the module, install
+    the udev rule (which gives the seated user access), log out and in, check."""
+    return (
+        "to fix it, load the uhid module and install the udev rule:\n"
+        "sudo modprobe uhid\n"
+        f"{RULES_INSTALL}\n"
+        "then log out and in, and check with: neurotouch-hid doctor"
+    )
+
+
+def char_device_problem(devnode: str, module: str) -> str | None:
+    """Why ``devnode`` (a misc character device such as /dev/uhid) cannot be used: missing (the
+    kernel's ``module`` is not loaded), not a character device, not readable and writable by this
+    process; None when it can."""
+    import os
+    import stat
+
+    try:
+        mode = os.stat(devnode).st_mode
+    except FileNotFoundError:
+        return f"{devnode} does not exist (the kernel's {module} module is not loaded)"
+    except OSError as exc:
+        return f"cannot stat {devnode}: {exc.strerror}"
+    if not stat.S_ISCHR(mode):
+        return f"{devnode} is not a character device, so not the {module} device"
+    if not os.access(devnode, os.R_OK | os.W_OK):
+        return f"no permission to open {devnode} for reading and writing (uid {os.getuid()})"
+    return None

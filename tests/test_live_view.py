@@ -138,7 +138,13 @@ def test_the_gamepad_with_the_view_beside_it_both_get_every_record_and_are_neutr
 
 @pytest.mark.parametrize(
     ("kind", "terminal", "beside"),
-    [("gamepad", True, True), ("gamepad", False, False), ("jsonl", True, False), ("term", True, False)],
+    [
+        ("gamepad", True, True),
+        ("hid", True, True),
+        ("gamepad", False, False),
+        ("jsonl", True, False),
+        ("term", True, False),
+    ],
 )
 def test_the_live_view_goes_beside_the_pad_only_on_a_terminal(kind, terminal, beside):
     """``open_outputs`` keeps the output it is given first and adds the live view only beside the

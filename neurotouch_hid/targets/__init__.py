@@ -1,1 +1,192 @@
-"""The devices the system sees, fed from the controller state: :class:`~neurotouch_hid.stages.Target` s."""
+"""The devices the system sees, fed from the controller state, behind one subscriber.
+
+A :class:`~neurotouch_hid.stages.Target` is one device (a UHID joystick here, a USB gadget's
+function, ...); :class:`TargetOutputs` is the one :class:`~neurotouch_hid.stages.Subscriber`
+over a run's targets: each window's changed state goes to every target (each writes only what
+changed for it), a profile switch neutralises and prepares them all, and :meth:`TargetOutputs.close`
+sends every target its neutral report before any is removed, releasing each even when another
+fails. What games and hosts send back (rumble, player LEDs: :class:`~neurotouch_hid.stages.Feedback`)
+is read by one thread that sleeps in ``select`` on the targets' :meth:`~neurotouch_hid.stages.Target.fileno`
+and a wake-up pipe, so nothing runs at rest, and is told to the user as the uinput pad tells rumble
+(the gel has no motor, no LED). The wire formats are :mod:`neurotouch_hid.targets.reports`;
+docs/architecture.md, "Targets and inputs".
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import selectors
+import threading
+import time
+from typing import TYPE_CHECKING, Callable, Iterable
+
+from neurotouch_hid.controller import ControllerState
+from neurotouch_hid.stages import Feedback, Target
+
+if TYPE_CHECKING:
+    from neurotouch_hid.mapping.profile import Profile
+    from neurotouch_hid.stages import WindowRecord
+
+log = logging.getLogger(__name__)
+
+#: The same feedback line is told to the user at most this often (s): a game may send its rumble
+#: every frame (the uinput pad's rule, ``output.gamepad.EFFECT_REPEAT_S``).
+FEEDBACK_REPEAT_S = 1.0
+
+
+def describe_feedback(feedback: Feedback) -> str:
+    """One line for the user about ``feedback``: what was asked, that the gel cannot do it, and
+    which target received it, e.g. ``rumble (the gel has no motor): strong 0.50 weak 0.25 for
+    200 ms, on UHID joystick``."""
+    where = f", on {feedback.source}" if feedback.source else ""
+    if feedback.kind == "rumble":
+        if feedback.strong == 0 and feedback.weak == 0:
+            what = "stop"
+        else:
+            what = f"strong {feedback.strong:.2f} weak {feedback.weak:.2f}"
+            what += "" if feedback.duration_ms is None else f" for {feedback.duration_ms} ms"
+        return f"rumble (the gel has no motor): {what}{where}"
+    if feedback.kind == "led":
+        return f"player LED (the gel has none): pattern {feedback.led}{where}"
+    return f"{feedback.kind} (not handled){where}"
+
+
+class TargetOutputs:
+    """The run's targets as one :class:`~neurotouch_hid.stages.Subscriber`.
+
+    Args:
+        targets: the devices, in the order they are written; at least one. They are owned from
+            here on: :meth:`close` closes them (also when this constructor fails).
+        say: one line for the user per feedback (:func:`describe_feedback`; the same line at most
+            once per :data:`FEEDBACK_REPEAT_S`); default: the log.
+        forward: called with every :class:`~neurotouch_hid.stages.Feedback` too (e.g. the merged
+            pads' rumble, :meth:`~neurotouch_hid.stages.Merge.feedback`), from the feedback thread.
+
+    Thread-safe: :meth:`close` may come from a signal handler's thread while :meth:`write` runs.
+    """
+
+    #: Draws no markers (:class:`~neurotouch_hid.stages.Subscriber`).
+    wants_markers = False
+
+    def __init__(
+        self,
+        targets: Iterable[Target],
+        *,
+        say: Callable[[str], None] | None = None,
+        forward: Callable[[Feedback], None] | None = None,
+    ) -> None:
+        self.targets: list[Target] = list(targets)
+        self.say = say or log.info
+        self.forward = forward
+        self.feedbacks = 0  # feedback values received (rumble, LED)
+        self._lock = threading.RLock()
+        self._closed = False
+        self._wake_r, self._wake_w = os.pipe()
+        self._thread = threading.Thread(target=self._read_feedback, name="nt-feedback", daemon=True)
+        try:
+            self._selector = selectors.DefaultSelector()
+            self._selector.register(self._wake_r, selectors.EVENT_READ, None)
+            for target in self.targets:
+                fd = target.fileno()
+                if fd is not None:
+                    self._selector.register(fd, selectors.EVENT_READ, target)
+            self._thread.start()
+        except BaseException:
+            self.close()
+            raise
+
+    def publish(self, record: WindowRecord) -> None:
+        """A window's record: its state written to every target when it changed."""
+        if record.state_changed:
+            self.write(record.state)
+
+    def write(self, state: ControllerState) -> None:
+        """``state`` to every target (each sends only what changed for it); nothing after :meth:`close`."""
+        with self._lock:
+            if self._closed:
+                return
+            for target in self.targets:
+                target.write(state)
+
+    def neutralise(self) -> None:
+        """Every target's neutral report; all are tried, the first failure is raised after."""
+        self._each(lambda target: target.neutralise())
+
+    def prepare(self, profile: Profile) -> None:
+        """Every target readied for ``profile`` (after :meth:`neutralise`)."""
+        self._each(lambda target: target.prepare(profile))
+
+    def close(self) -> None:
+        """Stop reading feedback, send every target its neutral report, then close each (neutral
+        again, then removed). Every target is released even when another fails; the first failure
+        is raised after. Idempotent."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        os.write(self._wake_w, b"x")
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join(1.0)
+        elif not self._thread.is_alive() and hasattr(self, "_selector"):
+            self._selector.close()  # never started, or already gone: closing again does nothing
+        errors = self._try_each(lambda target: target.neutralise())
+        errors += self._try_each(lambda target: target.close())
+        for fd in (self._wake_r, self._wake_w):
+            os.close(fd)
+        if errors:
+            raise errors[0]
+
+    def _each(self, action: Callable[[Target], None]) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            errors = self._try_each(action)
+        if errors:
+            raise errors[0]
+
+    def _try_each(self, action: Callable[[Target], None]) -> list[Exception]:
+        errors = []
+        for target in self.targets:
+            try:
+                action(target)
+            except Exception as exc:  # the next target must still be released
+                log.warning("%s: %s", target.what, exc)
+                errors.append(exc)
+        return errors
+
+    def _read_feedback(self) -> None:
+        """Thread: sleep in select until a target's side is readable (or the wake-up pipe: stop),
+        then let that target read it, and tell the user."""
+        said, said_at = "", 0.0
+        while True:
+            try:
+                ready = self._selector.select()
+            except (OSError, ValueError):  # closed under us
+                return
+            for key, _ in ready:
+                target: Target | None = key.data
+                if target is None or self._closed:
+                    self._selector.close()
+                    return
+                try:
+                    received = target.feedback()
+                except Exception as exc:  # one device's failure stops only its own feedback
+                    log.warning("%s: reading what the host sent failed, no longer read: %s", target.what, exc)
+                    self._selector.unregister(key.fd)
+                    continue
+                for feedback in received:
+                    self.feedbacks += 1
+                    line = describe_feedback(feedback)
+                    now = time.monotonic()
+                    if line != said or now - said_at >= FEEDBACK_REPEAT_S:
+                        said, said_at = line, now
+                        self.say(line)
+                    if self.forward is not None:
+                        self.forward(feedback)
+
+    def __enter__(self) -> TargetOutputs:
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()

@@ -444,6 +444,10 @@ class ProbeLines:
     def samples(self) -> list[dict]:
         return [d for d in list(self.lines) if "v" in d]
 
+    def samples_raw(self) -> list[dict]:
+        """``--joystick``'s samples (their ``axes``, ``buttons``, ``hats``)."""
+        return [d for d in list(self.lines) if "axes" in d and "t" in d]
+
 
 def check_sdl_reads_run_like_the_profile() -> dict:
     """A game's view of ``neurotouch-hid run --output gamepad``: SDL2 (pygame), started beside the

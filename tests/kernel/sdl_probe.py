@@ -15,6 +15,12 @@ has rumble and play a rumble (SDL_GameControllerRumble: uploads an FF_RUMBLE eff
 it); print one ``{"done": ...}`` line with ``has_rumble`` and ``rumble`` (True = SDL accepted
 it), SDL's error otherwise.
 
+``--joystick SECONDS``: like ``--watch``, for a plain joystick (one SDL has no GameController
+mapping for, e.g. the generic HID joystick of ``run --output hid``): print ``{"opened": ...}``
+(name, GUID, how many axes, buttons and hats), then one ``{"t": s, "axes": [...], "buttons":
+[...], "hats": [...]}`` line per change of what SDL's joystick API reads, until it is unplugged or
+SECONDS pass; last ``{"done": ...}``.
+
 Run with SDL_VIDEODRIVER=dummy.
 """
 
@@ -196,7 +202,56 @@ def rumble(seconds: float) -> dict:
     }
 
 
+def joystick(seconds: float) -> dict:
+    """``--joystick``: see the module docstring. Returns the ``done`` line."""
+    pygame, _ = start_sdl()
+    pygame.joystick.init()
+    say({"ready": True, "sdl": ".".join(map(str, pygame.get_sdl_version()))})
+    end = time.monotonic() + seconds
+    joy = None
+    while joy is None and time.monotonic() < end:
+        for event in pygame.event.get():
+            if event.type == pygame.JOYDEVICEADDED:
+                joy = pygame.joystick.Joystick(event.device_index)
+        time.sleep(0.01)
+    if joy is None:
+        return {"done": True, "error": f"no joystick appeared within {seconds} s"}
+    say(
+        {
+            "opened": round(time.monotonic(), 3),
+            "name": joy.get_name(),
+            "guid": joy.get_guid(),
+            "axes": joy.get_numaxes(),
+            "buttons": joy.get_numbuttons(),
+            "hats": joy.get_numhats(),
+        }
+    )
+    last, samples, removed = None, 0, False
+    while time.monotonic() < end:
+        events = pygame.event.get()
+        if any(e.type == pygame.JOYDEVICEREMOVED for e in events):
+            removed = True
+            break
+        values = {
+            "axes": [joy.get_axis(i) for i in range(joy.get_numaxes())],
+            "buttons": [joy.get_button(i) for i in range(joy.get_numbuttons())],
+            "hats": [list(joy.get_hat(i)) for i in range(joy.get_numhats())],
+        }
+        if values != last:
+            say({"t": round(time.monotonic(), 3), **values})
+            last, samples = values, samples + 1
+        time.sleep(0.005)
+    return {"done": True, "removed": removed, "changes": samples, "error": None}
+
+
 if __name__ == "__main__":
+    if sys.argv[1:2] == ["--joystick"]:
+        try:
+            out = joystick(float(sys.argv[2]))
+        except Exception as exc:
+            out = {"done": True, "error": f"{type(exc).__name__}: {exc}"}
+        say(out)
+        sys.exit(0)
     if sys.argv[1:2] == ["--rumble"]:
         try:
             out = rumble(float(sys.argv[2]))

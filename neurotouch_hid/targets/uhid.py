@@ -1,0 +1,386 @@
+"""A HID device on this machine made from user space through ``/dev/uhid``: the kernel's HID
+drivers bind to it (hid-generic for the joystick), and it appears as an input device (evdev) and a
+``/dev/hidrawN`` node that hidapi, SDL's HIDAPI drivers and Steam read.
+
+The interface is the kernel's Documentation/hid/uhid.rst and include/uapi/linux/uhid.h, written
+here as the packed little-endian ``struct uhid_event`` (a u32 type, then the request): the device
+is made with ``UHID_CREATE2`` (name, phys, uniq, bus BUS_USB, vendor, product, version, the report
+descriptor), fed with ``UHID_INPUT2`` (one input report each) and removed with ``UHID_DESTROY``.
+The kernel answers with ``UHID_START`` when a HID driver binds (input reports are refused before
+it: EINVAL) and ``UHID_STOP`` when it unbinds, ``UHID_OPEN``/``UHID_CLOSE`` as readers come and
+go, ``UHID_OUTPUT`` with an output report, and ``UHID_GET_REPORT``/``UHID_SET_REPORT`` requests
+that must be answered (``*_REPLY`` with the request's id; uhid.rst: the kernel gives up after 5 s
+and the caller gets EIO). Every event the kernel sends is read by one reader,
+:func:`read_event`, bounded to the struct's size and its data fields to ``UHID_DATA_MAX``.
+
+:class:`UhidDevice` is a :class:`~neurotouch_hid.stages.Target`: it writes a state's report only
+when the report changed, keeps the last one while no driver is bound and sends it when one
+binds, answers a GET_REPORT of its input report with the current report (other types, and every
+SET_REPORT, with EIO: the joystick has no feature or output report), and on :meth:`UhidDevice.close`
+sends the neutral report, waits :data:`RELEASE_GRACE_S` for readers to see it, then destroys
+the device. No library: hid-tools (GPL) is not used at run time.
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+import os
+import select
+import struct
+import threading
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from neurotouch_hid.controller import ControllerState
+from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.udev import char_device_problem, uhid_help
+
+if TYPE_CHECKING:
+    from neurotouch_hid.mapping.profile import DeviceSpec, Profile
+    from neurotouch_hid.stages import Feedback
+    from neurotouch_hid.targets.reports import ReportFormat
+
+log = logging.getLogger(__name__)
+
+# enum uhid_event_type (include/uapi/linux/uhid.h)
+UHID_DESTROY = 1
+UHID_START = 2
+UHID_STOP = 3
+UHID_OPEN = 4
+UHID_CLOSE = 5
+UHID_OUTPUT = 6
+UHID_GET_REPORT = 9
+UHID_GET_REPORT_REPLY = 10
+UHID_CREATE2 = 11
+UHID_INPUT2 = 12
+UHID_SET_REPORT = 13
+UHID_SET_REPORT_REPLY = 14
+#: Names of the event types, for messages.
+EVENT_NAMES = {
+    UHID_DESTROY: "DESTROY",
+    UHID_START: "START",
+    UHID_STOP: "STOP",
+    UHID_OPEN: "OPEN",
+    UHID_CLOSE: "CLOSE",
+    UHID_OUTPUT: "OUTPUT",
+    UHID_GET_REPORT: "GET_REPORT",
+    UHID_SET_REPORT: "SET_REPORT",
+}
+# enum uhid_report_type
+UHID_FEATURE_REPORT, UHID_OUTPUT_REPORT, UHID_INPUT_REPORT = 0, 1, 2
+#: Largest data of one report, and of the report descriptor (UHID_DATA_MAX, HID_MAX_DESCRIPTOR_SIZE).
+UHID_DATA_MAX = 4096
+#: BUS_USB (include/uapi/linux/input.h).
+BUS_USB = 0x03
+#: struct uhid_create2_req: name[128] phys[64] uniq[64] rd_size bus vendor product version country
+_CREATE2 = struct.Struct("<I128s64s64sHHIIII")
+#: sizeof(struct uhid_event): the type and the largest request, uhid_create2_req (its rd_data last).
+UHID_EVENT_SIZE = _CREATE2.size + UHID_DATA_MAX
+_INPUT2 = struct.Struct("<IH")  # type, size; the data follows
+_GET_REPORT = struct.Struct("<IBB")  # id, rnum, rtype
+_GET_REPORT_REPLY = struct.Struct("<IIHH")  # type, id, err, size; the data follows
+_SET_REPORT = struct.Struct("<IBBH")  # id, rnum, rtype, size; the data follows
+_SET_REPORT_REPLY = struct.Struct("<IIH")  # type, id, err
+_OUTPUT_TAIL = struct.Struct("<HB")  # after data[UHID_DATA_MAX]: size, rtype
+_START = struct.Struct("<Q")  # dev_flags
+
+#: ``phys`` of the UHID devices (the udev rule's ``neurotouch-hid/*`` marks them
+#: ID_NEUROTOUCH_VIRTUAL=1, like the uinput pad).
+PHYS = "neurotouch-hid/uhid"
+#: How long :class:`UhidDevice` waits for a HID driver to bind before its first report (s); past
+#: it the device stays and its report is sent when a driver binds.
+START_WAIT_S = 2.0
+#: Pause between the neutral report and destroying the device (s), so readers see the release.
+RELEASE_GRACE_S = 0.05
+
+
+@dataclass(frozen=True)
+class UhidEvent:
+    """One event the kernel sent (:func:`read_event`).
+
+    Attributes:
+        type: the ``UHID_*`` type.
+        id: GET_REPORT/SET_REPORT: the request's id, to copy into the reply.
+        rnum: GET_REPORT/SET_REPORT: the report number (0 without report IDs).
+        rtype: OUTPUT/GET_REPORT/SET_REPORT: ``UHID_FEATURE_REPORT``, ``UHID_OUTPUT_REPORT`` or
+            ``UHID_INPUT_REPORT``.
+        data: OUTPUT/SET_REPORT: the report, at most ``UHID_DATA_MAX`` bytes.
+        dev_flags: START: the ``UHID_DEV_NUMBERED_*`` flags.
+    """
+
+    type: int
+    id: int = 0
+    rnum: int = 0
+    rtype: int = 0
+    data: bytes = b""
+    dev_flags: int = 0
+
+
+def parse_event(raw: bytes) -> UhidEvent:
+    """The :class:`UhidEvent` in ``raw`` (what one read of /dev/uhid returned). A short event is
+    extended with zeros (uhid.h: "If the kernel writes short events, user-space shall extend them
+    with 0s"), a longer one cut at ``UHID_EVENT_SIZE``; data sizes are bounded by UHID_DATA_MAX.
+
+    Raises:
+        DeviceError: fewer than 4 bytes (no type).
+    """
+    if len(raw) < 4:
+        raise DeviceError(f"/dev/uhid returned {len(raw)} bytes, not an event")
+    body = raw[4:UHID_EVENT_SIZE].ljust(UHID_EVENT_SIZE - 4, b"\0")
+    kind = int.from_bytes(raw[:4], "little")
+    if kind == UHID_START:
+        return UhidEvent(kind, dev_flags=_START.unpack_from(body)[0])
+    if kind == UHID_OUTPUT:
+        size, rtype = _OUTPUT_TAIL.unpack_from(body, UHID_DATA_MAX)
+        return UhidEvent(kind, rtype=rtype, data=body[: min(size, UHID_DATA_MAX)])
+    if kind == UHID_GET_REPORT:
+        request, rnum, rtype = _GET_REPORT.unpack_from(body)
+        return UhidEvent(kind, id=request, rnum=rnum, rtype=rtype)
+    if kind == UHID_SET_REPORT:
+        request, rnum, rtype, size = _SET_REPORT.unpack_from(body)
+        start = _SET_REPORT.size
+        return UhidEvent(kind, id=request, rnum=rnum, rtype=rtype, data=body[start : start + min(size, UHID_DATA_MAX)])
+    return UhidEvent(kind)
+
+
+def read_event(fd: int) -> UhidEvent:
+    """Read one event from the /dev/uhid file descriptor ``fd`` (one read of at most
+    ``UHID_EVENT_SIZE`` bytes; the kernel hands one event per read) and parse it.
+
+    Raises:
+        OSError: the read failed (EAGAIN on a non-blocking ``fd`` with nothing queued).
+        DeviceError: the kernel returned no event.
+    """
+    return parse_event(os.read(fd, UHID_EVENT_SIZE))
+
+
+def create2_event(
+    descriptor: bytes, name: str, *, vendor: int, product: int, version: int, phys: str = PHYS, uniq: str = ""
+) -> bytes:
+    """The ``UHID_CREATE2`` event for a device with the report ``descriptor`` (at most
+    HID_MAX_DESCRIPTOR_SIZE bytes), ``name`` (at most 127 bytes of UTF-8), ``phys`` and ``uniq``
+    (at most 63), on bus BUS_USB with the USB ids ``vendor``, ``product`` and ``version``
+    (0..0xFFFF), country 0.
+
+    Raises:
+        DeviceError: a field does not fit.
+    """
+    fields = {"name": (name, 128), "phys": (phys, 64), "uniq": (uniq, 64)}
+    encoded = {}
+    for key, (text, size) in fields.items():
+        encoded[key] = text.encode()
+        if len(encoded[key]) >= size:
+            raise DeviceError(f"the UHID device's {key} {text!r} must be under {size} bytes")
+    if not 0 < len(descriptor) <= UHID_DATA_MAX:
+        raise DeviceError(f"a report descriptor of {len(descriptor)} bytes (1..{UHID_DATA_MAX})")
+    for key, value in (("vendor", vendor), ("product", product), ("version", version)):
+        if not 0 <= value <= 0xFFFF:
+            raise DeviceError(f"the UHID device's {key} id {value} is not a 16-bit number")
+    head = _CREATE2.pack(
+        UHID_CREATE2,
+        encoded["name"],
+        encoded["phys"],
+        encoded["uniq"],
+        len(descriptor),
+        BUS_USB,
+        vendor,
+        product,
+        version,
+        0,
+    )
+    return head + descriptor
+
+
+@dataclass(frozen=True)
+class HidIdentity:
+    """What the UHID device tells the system it is: name and USB ids (vendor, product, version)."""
+
+    name: str
+    vendor: int
+    product: int
+    version: int
+
+
+#: The identity of the HID joystick when the profile names the Xbox 360 pad's ids: pid.codes'
+#: vendor 0x1209 and its test product 0x0001 (https://pid.codes, for open hardware and software).
+#: Hosts and SDL know 045e:028e as an Xbox 360 pad speaking XInput, and would read the generic
+#: joystick's report with an Xbox 360 pad's mapping, so those ids are never given to it.
+HID_DEFAULT = HidIdentity("NeuroTouch HID joystick", 0x1209, 0x0001, 0x0100)
+_XBOX_360 = (0x045E, 0x028E)
+
+
+def hid_identity(device: DeviceSpec) -> HidIdentity:
+    """The HID joystick's identity for a profile's ``device:`` section: its name and ids, unless
+    they are the Xbox 360 pad's (every shipped profile's), which give :data:`HID_DEFAULT`'s ids
+    (and its name when the profile's is the Xbox pad's own)."""
+    if (device.vendor, device.product) != _XBOX_360:
+        return HidIdentity(device.name, device.vendor, device.product, device.version)
+    name = HID_DEFAULT.name if "X-Box 360" in device.name else device.name
+    return HidIdentity(name, HID_DEFAULT.vendor, HID_DEFAULT.product, HID_DEFAULT.version)
+
+
+def uhid_problem(devnode: str = "/dev/uhid") -> str | None:
+    """Why ``devnode`` cannot be used to create a HID device (missing, not a character device,
+    not readable and writable), or None when it can."""
+    return char_device_problem(devnode, "uhid")
+
+
+class UhidDevice:
+    """One UHID device speaking ``fmt`` (a :class:`~neurotouch_hid.targets.reports.ReportFormat`
+    with a descriptor), as a :class:`~neurotouch_hid.stages.Target`.
+
+    Args:
+        fmt: the report format (its descriptor and :meth:`pack`).
+        identity: name and USB ids (:func:`hid_identity`).
+        devnode: the uhid node.
+        start_wait_s: how long to wait for a HID driver to bind (UHID_START) before returning.
+
+    Raises:
+        DeviceError: ``devnode`` is missing or not writable (the message's next lines say how to
+            fix it: :func:`~neurotouch_hid.udev.uhid_help`), or the kernel refuses the device.
+    """
+
+    def __init__(
+        self,
+        fmt: ReportFormat,
+        identity: HidIdentity,
+        devnode: str = "/dev/uhid",
+        *,
+        start_wait_s: float = START_WAIT_S,
+    ) -> None:
+        self.fmt = fmt
+        self.identity = identity
+        self.what = f"UHID {fmt.name} device"
+        problem = uhid_problem(devnode)
+        if problem:
+            raise DeviceError(f"{problem}\n{uhid_help()}")
+        event = create2_event(
+            fmt.descriptor, identity.name, vendor=identity.vendor, product=identity.product, version=identity.version
+        )
+        self._lock = threading.RLock()
+        self._closed = False
+        self.started = False  # a HID driver is bound (UHID_START .. UHID_STOP)
+        self.opened = 0  # readers the kernel reported (UHID_OPEN - UHID_CLOSE)
+        self.events = 0  # events read from the kernel
+        self._last = fmt.neutral()
+        try:
+            self._fd = os.open(devnode, os.O_RDWR | os.O_CLOEXEC | os.O_NONBLOCK)
+        except OSError as exc:
+            raise DeviceError(f"cannot open {devnode}: {exc.strerror}\n{uhid_help()}") from None
+        try:
+            os.write(self._fd, event)
+        except OSError as exc:
+            os.close(self._fd)
+            raise DeviceError(f"the kernel refused to create the UHID device on {devnode}: {exc.strerror}") from None
+        self._wait_for_start(start_wait_s)
+
+    def _wait_for_start(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while not self.started:
+            left = end - time.monotonic()
+            if left <= 0 or not select.select([self._fd], [], [], left)[0]:
+                log.warning("no HID driver bound the %s within %.1f s; its reports wait for one", self.what, seconds)
+                return
+            self.feedback()
+
+    def fileno(self) -> int | None:
+        """The /dev/uhid descriptor: readable when the kernel sent an event."""
+        return None if self._closed else self._fd
+
+    def write(self, state: ControllerState) -> None:
+        """Send ``state``'s input report (``UHID_INPUT2``) if it differs from the last one; while
+        no driver is bound it is kept and sent when one binds. Nothing after :meth:`close`.
+
+        Raises:
+            DeviceError: the kernel refused the report for another reason than an unbound device.
+        """
+        report = self.fmt.pack(state)
+        with self._lock:
+            if self._closed or report == self._last:
+                return
+            self._last = report
+            if self.started:
+                self._send(report)
+
+    def _send(self, report: bytes) -> None:
+        try:
+            os.write(self._fd, _INPUT2.pack(UHID_INPUT2, len(report)) + report)
+        except OSError as exc:
+            if exc.errno == errno.EINVAL:  # no driver bound (between STOP and START)
+                self.started = False
+                return
+            raise DeviceError(f"writing to the {self.what} failed: {exc.strerror}") from None
+
+    def neutralise(self) -> None:
+        """Send the neutral report: sticks centred, triggers 0, hat centred, nothing pressed."""
+        self.write(ControllerState.neutral())
+
+    def prepare(self, profile: Profile) -> None:
+        """Nothing: the device keeps its identity and layout for the whole run (programs keep their handle)."""
+
+    def feedback(self) -> list[Feedback]:
+        """Read the events the kernel queued (:func:`read_event`, non-blocking, at most 64 per
+        call) and handle them: START sends the current report, GET_REPORT and SET_REPORT are
+        answered, OUTPUT is logged. Returns no feedback: the joystick has no output report."""
+        for _ in range(64):
+            with self._lock:
+                if self._closed:
+                    return []
+                try:
+                    event = read_event(self._fd)
+                except BlockingIOError:
+                    return []
+                except OSError as exc:
+                    raise DeviceError(f"reading the {self.what}'s events failed: {exc.strerror}") from None
+                self.events += 1
+                self._handle(event)
+        return []
+
+    def _handle(self, event: UhidEvent) -> None:
+        if event.type == UHID_START:
+            self.started = True
+            self._send(self._last)
+        elif event.type == UHID_STOP:
+            self.started = False
+        elif event.type == UHID_OPEN:
+            self.opened += 1
+        elif event.type == UHID_CLOSE:
+            self.opened = max(0, self.opened - 1)
+        elif event.type == UHID_GET_REPORT:
+            if event.rtype == UHID_INPUT_REPORT and event.rnum == 0:
+                reply = _GET_REPORT_REPLY.pack(UHID_GET_REPORT_REPLY, event.id, 0, len(self._last)) + self._last
+            else:
+                reply = _GET_REPORT_REPLY.pack(UHID_GET_REPORT_REPLY, event.id, errno.EIO, 0)
+            os.write(self._fd, reply)
+        elif event.type == UHID_SET_REPORT:
+            os.write(self._fd, _SET_REPORT_REPLY.pack(UHID_SET_REPORT_REPLY, event.id, errno.EIO))
+        elif event.type == UHID_OUTPUT:
+            log.debug("%s: an output report of %d bytes (none is defined): ignored", self.what, len(event.data))
+        else:
+            log.debug("%s: event type %d ignored", self.what, event.type)
+
+    def close(self) -> None:
+        """Send the neutral report, wait :data:`RELEASE_GRACE_S`, then destroy the device
+        (``UHID_DESTROY``) and close /dev/uhid. Idempotent; the device goes even if the neutral
+        report fails."""
+        with self._lock:
+            if self._closed:
+                return
+            try:
+                self.neutralise()
+                time.sleep(RELEASE_GRACE_S)
+            finally:
+                self._closed = True
+                try:
+                    os.write(self._fd, UHID_DESTROY.to_bytes(4, "little"))
+                except OSError as exc:
+                    log.warning("%s: UHID_DESTROY failed (%s); closing /dev/uhid removes it", self.what, exc)
+                os.close(self._fd)
+
+    def __enter__(self) -> UhidDevice:
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
