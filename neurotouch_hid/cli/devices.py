@@ -75,6 +75,11 @@ def run(
     ),
     method: str = typer.Option("default", "--method", help=METHOD_HELP),
     model: Optional[str] = MODEL_OPTION,
+    protocol: Optional[str] = typer.Option(
+        None,
+        "--protocol",
+        help="with --output usb: hid, switch or xinput (default: the profile's device: protocol, else hid)",
+    ),
 ) -> None:
     """Run the driver: source -> pipeline -> profile -> virtual gamepad.
 
@@ -100,6 +105,7 @@ def run(
         max_lag_us=round(max_lag_ms * 1000),
         method=method,
         model=chosen_model(model),
+        protocol=protocol,
     )
     err_console.print(stats.summary(), highlight=False, soft_wrap=True)
 
