@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import os
 import pwd
-import time
 from typing import Optional
 
 import typer
@@ -20,9 +19,6 @@ from neurotouch_hid.errors import NeurotouchError
 gadget_app = typer.Typer(
     help="Make or remove the USB gadget that run --output usb uses (as root).", no_args_is_help=True
 )
-
-#: How long setup waits for udev to make the /dev/hidgN nodes (s).
-NODE_WAIT_S = 5.0
 
 
 def _owner(user: Optional[str]) -> tuple[int, int]:
@@ -58,15 +54,7 @@ def setup(
     if not plan.ffs:
         configfs.bind()
     for function in plan.hid:
-        deadline = time.monotonic() + NODE_WAIT_S
-        while True:
-            try:
-                node = configfs.hidg_node(function.instance)
-                break
-            except NeurotouchError:
-                if time.monotonic() > deadline:
-                    raise
-                time.sleep(0.05)
+        node = configfs.hidg_node(function.instance)
         os.chown(node, uid, gid)
         os.chmod(node, 0o660)
         console.print(f"{node}: {function.format}, owned by uid {uid}", highlight=False)

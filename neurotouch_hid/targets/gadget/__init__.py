@@ -93,17 +93,17 @@ class UsbGadget:
         from neurotouch_hid.targets.reports import format_for
 
         functions = configfs.gadget_dir(self.name) / "functions"
-        if self.protocol == "xinput":
+        if self.protocol == "xinput":  # its descriptors first: the gadget binds only then
             pad = XInputTarget(configfs.FFS_ROOT / configfs.FFS_INSTANCE, format_for("xinput"))
             self.targets.append(pad)
+        if not configfs.bound_udc(self.name):
+            configfs.bind(self.name)
         for instance in sorted(p.name.removeprefix("hid.") for p in functions.glob("hid.*")):
             kind = INSTANCES.get(instance, self.protocol)
             node = configfs.hidg_node(instance, self.name)
             self.targets.append(HidgTarget(node, format_for(kind), f"USB gadget ({kind}, {node})"))
         if self.profile.uses_keyboard and not (functions / "hid.usb1").is_dir():
             log.warning("the profile presses keys but the USB gadget has no keyboard: gadget setup --keyboard")
-        if not configfs.bound_udc(self.name):
-            configfs.bind(self.name)
 
     def __exit__(self, *exc: object) -> None:
         for target in reversed(self.targets):

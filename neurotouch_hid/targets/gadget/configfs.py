@@ -23,6 +23,7 @@ from __future__ import annotations
 import errno
 import os
 import subprocess
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,6 +42,8 @@ FFS_INSTANCE = "xinput"
 MAX_ATTR_BYTES = 4096
 #: The kernel modules a gadget needs (doctor names them).
 MODULES = ("libcomposite", "usb_f_hid", "usb_f_fs")
+#: How long :func:`hidg_node` waits for a function's /dev/hidgN (s).
+NODE_WAIT_S = 5.0
 #: The protocols ``--protocol`` offers.
 PROTOCOLS = ("hid", "switch", "xinput")
 #: Ids of the generic joystick: the Linux Foundation's "Multifunction Composite Gadget"
@@ -162,13 +165,26 @@ def bound_udc(name: str = GADGET_NAME) -> str:
         return ""
 
 
-def hidg_node(instance: str, name: str = GADGET_NAME) -> Path:
+def hidg_node(instance: str, name: str = GADGET_NAME, wait_s: float = NODE_WAIT_S) -> Path:
     """The ``/dev/hidgN`` of the gadget's ``hid.INSTANCE`` function: the node whose device
-    number is the function's ``dev`` attribute (``MAJOR:MINOR``).
+    number is the function's ``dev`` attribute (``MAJOR:MINOR``), waited for up to ``wait_s``
+    (the kernel makes it when the function is linked or bound, depending on its version; udev or
+    devtmpfs then makes the node).
 
     Raises:
-        DeviceError: the function has no ``dev`` yet, or no node in /dev has that number.
+        DeviceError: the function has no ``dev``, or no node in /dev has that number, in time.
     """
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            return _hidg_node(instance, name)
+        except DeviceError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)
+
+
+def _hidg_node(instance: str, name: str) -> Path:
     attr = gadget_dir(name) / "functions" / f"hid.{instance}" / "dev"
     try:
         major, minor = (int(x) for x in read_attr(attr).split(":"))
