@@ -78,8 +78,9 @@ def open_output(
     (the generic HID joystick on UHID, docs/reports.md; the keyboard and mouse on uinput where it
     can be used), ``usb`` (a USB gadget speaking ``protocol``, else the profile's, else ``hid``:
     :mod:`neurotouch_hid.targets.gadget`), ``jsonl`` (one state line per change to ``out`` or
-    stdout; ``out`` may not be one of the run's ``inputs``) or ``term`` (the terminal view; on a terminal the live view of
-    :mod:`neurotouch_hid.output.live`: the gel, the gestures, the profile, beside the pad). ``say``
+    stdout; ``out`` may not be one of the run's ``inputs``) or ``term`` (the terminal view; on a
+    terminal the live view of :mod:`neurotouch_hid.output.live`: the gel, the gestures, the
+    profile, beside the pad). ``say``
     tells the user about rumble effects games send to the pad (the gel has no motor; default: the
     log). Closed by ``stack``. Raises DeviceError when /dev/uinput (``gamepad``) or /dev/uhid
     (``hid``) cannot be used."""
