@@ -44,6 +44,8 @@ MAX_ATTR_BYTES = 4096
 MODULES = ("libcomposite", "usb_f_hid", "usb_f_fs")
 #: How long :func:`hidg_node` waits for a function's /dev/hidgN (s).
 NODE_WAIT_S = 5.0
+#: umount attempts of the FunctionFS mount in :func:`remove`, 0.1 s apart.
+UMOUNT_TRIES = 30
 #: The protocols ``--protocol`` offers.
 PROTOCOLS = ("hid", "switch", "xinput")
 #: Ids of the generic joystick: the Linux Foundation's "Multifunction Composite Gadget"
@@ -330,7 +332,11 @@ def remove(name: str = GADGET_NAME) -> None:
     for function in sorted((folder / "functions").glob("*.*")):
         if function.name.startswith("ffs."):
             mount = FFS_ROOT / function.name.removeprefix("ffs.")
-            subprocess.run(["umount", str(mount)], check=False, capture_output=True)
+            for _ in range(UMOUNT_TRIES):  # busy while a closed endpoint's last read returns
+                if not os.path.ismount(mount):
+                    break
+                subprocess.run(["umount", str(mount)], check=False, capture_output=True)
+                time.sleep(0.1)
             _rmdir(mount)
             _rmdir(FFS_ROOT)
         _rmdir(function)

@@ -204,8 +204,9 @@ class XInputTarget:
         return taken
 
     def close(self) -> None:
-        """Neutral report, wait for the host to take it (up to :data:`NEUTRAL_WAIT_S`); the
-        endpoints close with the process (a thread may still be blocked in a read of them)."""
+        """Neutral report, wait for the host to take it (up to :data:`NEUTRAL_WAIT_S`), then
+        close the endpoints and ``ep0``: FunctionFS then unbinds the gadget from its UDC (a
+        thread blocked in a read keeps its file until that read returns, at the unbind)."""
         with self._lock:
             if self._closed:
                 return
@@ -215,6 +216,11 @@ class XInputTarget:
         if not self._writer.flush(NEUTRAL_WAIT_S):
             log.info("%s: the host did not take the neutral report within %.1f s", self.what, NEUTRAL_WAIT_S)
         self._writer.stop()
+        for fd in (self._in, self._out, self._ep0, self._wake_r, self._wake_w):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
 
     def _announce(self, request: Feedback) -> None:
         with self._lock:
