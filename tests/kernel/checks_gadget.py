@@ -66,9 +66,11 @@ mappings:
 
 
 def _kernel() -> dict:
-    """Load the gadget's and the host side's modules, mount configfs; the UDC must be there."""
+    """Load the gadget's and the host side's modules, mount configfs, remove what a failed
+    check before left (its run killed, so it could not remove its gadget); the UDC must be there."""
     loaded = {m: guestlib.sh(["modprobe", m]).returncode == 0 for m in MODULES}
     configfs.mount_configfs()
+    configfs.remove()
     guestlib.settle()
     assert (Path("/sys/class/udc") / UDC).exists(), f"no {UDC} after modprobe: {loaded}"
     return loaded
@@ -125,7 +127,8 @@ def _input_device(ids: tuple[int, int], code: int, kind: int) -> str | None:
     for path in list_devices():
         try:
             dev = InputDevice(path)
-            if (dev.info.vendor, dev.info.product) == ids and code in dev.capabilities().get(kind, []):
+            codes = [c[0] if isinstance(c, tuple) else c for c in dev.capabilities().get(kind, [])]
+            if (dev.info.vendor, dev.info.product) == ids and code in codes:  # EV_ABS: (code, AbsInfo)
                 return path
         except OSError:
             pass
@@ -146,6 +149,28 @@ def _kill(*procs) -> None:
     for proc in procs:
         if proc is not None and proc.poll() is None:
             proc.kill()
+
+
+def _command(*args: str) -> tuple[int, str]:
+    """``neurotouch-hid ARGS`` in this process (the CLI's own main: no Python start, which costs
+    tens of seconds under emulation): (exit code, what it printed)."""
+    import contextlib
+    import io
+
+    from neurotouch_hid.cli import main
+
+    out = io.StringIO()
+    argv, sys.argv = sys.argv, ["neurotouch-hid", *args]
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
+            try:
+                main()
+                code = 0
+            except SystemExit as exc:
+                code = exc.code if isinstance(exc.code, int) else 1
+    finally:
+        sys.argv = argv
+    return code, out.getvalue()
 
 
 def _setup(profile_text: str) -> tuple[Path, Path, object]:
@@ -255,7 +280,9 @@ def check_usb_switch() -> dict:
     run = reader = None
     try:
         run = _run(preds, profile, "--protocol", "switch")
+        t_run = time.monotonic()
         _hidraw(SWITCH_IDS, run)
+        device_s = time.monotonic() - t_run
         guestlib.settle()
         sysfs_name, driver = _hid_driver(SWITCH_IDS)
         device = _open(SWITCH_IDS)
@@ -293,6 +320,7 @@ def check_usb_switch() -> dict:
         "seen_report": seen.hex(),
         "decoded": decoded,
         "last_report": reader.reports[-1].hex(),
+        "device_after_start_s": round(device_s, 1),
         "seconds": round(time.monotonic() - t0, 1),
     }
 
@@ -314,7 +342,9 @@ def check_usb_xinput() -> dict:
     run = watcher = None
     try:
         run = _run(preds, profile, "--protocol", "xinput")
+        t_run = time.monotonic()
         interface = guestlib.wait_for(lambda: _xpad_interface() or run.poll() is not None, 150.0, 0.1)
+        device_s = time.monotonic() - t_run
         assert isinstance(interface, str), f"xpad did not bind: {_err(run) if run.poll() is not None else ''}"
         klass = [
             configfs.read_attr(Path("/sys/bus/usb/devices") / interface / name)
@@ -353,6 +383,7 @@ def check_usb_xinput() -> dict:
         "sdl_rumble": rumble,
         "rumble_lines": heard[:2],
         "led_lines": leds[:2],
+        "device_after_start_s": round(device_s, 1),
         "seconds": round(time.monotonic() - t0, 1),
     }
 
@@ -366,8 +397,9 @@ def check_usb_switch_access_keyboard() -> dict:
     _kernel()
     folder = Path(tempfile.mkdtemp(prefix="gadget-keys-"))
     preds, _ = _write(folder, _push_right(120.0), "description: unused\n")
-    setup = guestlib.sh(_cli("gadget", "setup", "--protocol", "hid", "--keyboard", "--user", "root"), env=_env())
-    assert setup.returncode == 0, f"gadget setup: {setup.stdout} {setup.stderr}"
+    setup = _command("gadget", "setup", "--protocol", "hid", "--keyboard", "--user", "root")
+    assert setup[0] == 0, f"gadget setup: {setup}"
+    t_run = time.monotonic()
     run = watcher = None
     try:
         run = _run(preds, Path("switch-access"))
@@ -375,6 +407,7 @@ def check_usb_switch_access_keyboard() -> dict:
             lambda: _input_device(HID_IDS, ecodes.KEY_SPACE, ecodes.EV_KEY) or run.poll() is not None, 150.0, 0.1
         )
         assert isinstance(node, str), f"no USB keyboard on the host side: {_err(run) if run.poll() is not None else ''}"
+        device_s = time.monotonic() - t_run
         props = guestlib.udev_properties(node)
         watcher = guestlib.EventReader(node)
         watcher.pump(timeout_s=60.0, until=lambda r: ecodes.KEY_SPACE in r.keys, max_s=150.0)
@@ -387,15 +420,16 @@ def check_usb_switch_access_keyboard() -> dict:
         if watcher is not None:
             watcher.close()
     kept = configfs.gadget_dir().exists()
-    remove = guestlib.sh(_cli("gadget", "remove"), env=_env())
+    remove = _command("gadget", "remove")
     assert run.returncode == 0, f"run exit code {run.returncode}: {err[-2000:]}"
     assert props.get("ID_INPUT_KEYBOARD") == "1", f"udev: {props}"
     assert pressed, "the push never arrived as KEY_SPACE"
     assert released, "KEY_SPACE still down after SIGTERM"
     assert kept, "the run removed the gadget that gadget setup made"
-    assert remove.returncode == 0 and not configfs.gadget_dir().exists(), f"gadget remove: {remove.stderr}"
+    assert remove[0] == 0 and not configfs.gadget_dir().exists(), f"gadget remove: {remove}"
     return {
-        "setup": setup.stdout.strip().splitlines(),
+        "setup": setup[1].strip().splitlines(),
+        "device_after_start_s": round(device_s, 1),
         "keyboard": node,
         "ID_INPUT_KEYBOARD": props.get("ID_INPUT_KEYBOARD"),
         "seconds": round(time.monotonic() - t0, 1),
