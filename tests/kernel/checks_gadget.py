@@ -38,7 +38,7 @@ import time
 from pathlib import Path
 
 import guestlib
-from checks_runtime import NO_DROP_LAG_MS, ProbeLines, _cli, _env, _write
+from checks_runtime import NO_DROP_LAG_MS, ProbeLines, _env, _write
 from checks_uhid import PROFILE, HidrawReader, _held_state, _push_right
 
 from neurotouch_hid.targets.gadget import configfs
@@ -76,10 +76,18 @@ def _kernel() -> dict:
     return loaded
 
 
+#: The CLI with a traceback of every thread on stderr when SIGTERM comes outside the runtime's own
+#: handler (which replaces this one while it runs): where a run was when it was stopped too early.
+_CLI = (
+    "import faulthandler, signal, sys; faulthandler.register(signal.SIGTERM, chain=True); "
+    "sys.argv[0] = 'neurotouch-hid'; from neurotouch_hid.cli import main; main()"
+)
+
+
 def _run(preds: Path, profile: Path, *args: str) -> subprocess.Popen:
     return subprocess.Popen(
-        _cli("run", "--source", str(preds), "--profile", str(profile), "--output", "usb",
-             "--max-lag-ms", NO_DROP_LAG_MS, *args),
+        [sys.executable, "-c", _CLI, "run", "--source", str(preds), "--profile", str(profile), "--output", "usb",
+         "--max-lag-ms", NO_DROP_LAG_MS, *args],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(),
     )  # fmt: skip
 
@@ -205,7 +213,8 @@ def check_usb_hid() -> dict:
         assert node, "no input device for the joystick"
         props = guestlib.udev_properties(node)
         watcher = guestlib.EventReader(node)
-        watcher.pump(timeout_s=60.0, until=lambda r: r.axes.get(ecodes.ABS_X, 0) > 0, max_s=150.0)
+        held_x = held.axes["ABS_X"]
+        watcher.pump(timeout_s=60.0, until=lambda r: r.axes.get(ecodes.ABS_X) == held_x, max_s=150.0)
         evdev_held = watcher.axes.get(ecodes.ABS_X)
         got_held = guestlib.wait_for(lambda: held_report in reader.reports, 30.0)
         sdl_held = guestlib.wait_for(
@@ -354,7 +363,8 @@ def check_usb_xinput() -> dict:
         assert node, "no input device for the XInput pad"
         name = guestlib.EventReader(node).device.name
         watcher = guestlib.EventReader(node)
-        watcher.pump(timeout_s=60.0, until=lambda r: r.axes.get(ecodes.ABS_X, 0) > 0, max_s=150.0)
+        held_x = held.axes["ABS_X"]
+        watcher.pump(timeout_s=60.0, until=lambda r: r.axes.get(ecodes.ABS_X) == held_x, max_s=150.0)
         evdev_held = watcher.axes.get(ecodes.ABS_X)
         sdl_held = guestlib.wait_for(lambda: next((d for d in lines.samples() if d["v"]["leftx"] > 32000), None), 60.0)
         rumble = guestlib.wait_for(lambda: lines.first("rumble"), 60.0)
