@@ -43,9 +43,12 @@ def _read_all(fd: int) -> bytes:
     out = b""
     while True:
         try:
-            out += os.read(fd, 65536)
+            data = os.read(fd, 65536)
         except BlockingIOError:
             return out
+        if not data:  # the writer closed its end
+            return out
+        out += data
 
 
 def test_writer_keeps_the_latest_report_while_the_host_is_away_and_sends_it_when_back():
@@ -186,3 +189,31 @@ def test_raspberry_pi_is_told_by_its_device_tree_model(tmp_path):
     model.write_bytes(b"Generic x86\0")
     assert not is_raspberry_pi(model)
     assert not is_raspberry_pi(tmp_path / "none")
+
+
+def test_hidg_target_sends_changes_only_and_ends_on_the_neutral_report(tmp_path):
+    """A FIFO stands for /dev/hidgN (the host reading it): the held state's report once however
+    often it is written, then close() sends the neutral report before the node is closed."""
+    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.targets.gadget.targets import HidgTarget
+    from neurotouch_hid.targets.reports.switch import SWITCH
+
+    node = tmp_path / "hidg0"
+    os.mkfifo(node)
+    host = os.open(node, os.O_RDONLY | os.O_NONBLOCK)
+    target = HidgTarget(node, SWITCH, "test")
+    held = ControllerState.neutral()
+    held.axes["ABS_X"] = 32767
+    for _ in range(5):
+        target.write(held)
+    time.sleep(0.05)
+    got = _read_all(host)
+    assert (
+        got.endswith(SWITCH.pack(held)) and got.count(SWITCH.pack(held)) == 1
+    )  # the neutral first, if not yet replaced
+    target.close()
+    got = _read_all(host)
+    assert got.endswith(SWITCH.neutral()) and len(got) % 8 == 0
+    assert target.fileno() is None
+    target.close()  # idempotent
+    os.close(host)

@@ -66,3 +66,9 @@ def test_xinput_gadget_is_bound_by_xpad_read_by_sdl_and_hears_its_rumble(guest):
 def test_switch_access_profile_types_on_a_usb_keyboard(guest):
     details = passed(guest, "checks_gadget.check_usb_switch_access_keyboard")
     assert details["ID_INPUT_KEYBOARD"] == "1"
+
+
+def test_latency_from_decision_to_host_event_is_measured(guest):
+    """The figures docs/performance.md gives ("USB gadget latency"); every move arrived."""
+    details = passed(guest, "checks_gadget.check_usb_latency")
+    assert details["samples"] == 100 and details["p50_ms"] <= details["p99_ms"]

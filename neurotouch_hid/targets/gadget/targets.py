@@ -52,26 +52,17 @@ ERROR_PAUSE_S = 0.05
 XINPUT_ENDPOINTS = (functionfs.Endpoint(0x81, interval=4), functionfs.Endpoint(0x02, interval=8))
 
 
-class HidgTarget:
-    """One ``hid`` function's ``/dev/hidgN`` (module docstring), fed with ``format``'s reports.
+class _ReportTarget:
+    """What both targets share: reports packed from the state, queued on a
+    :class:`~neurotouch_hid.targets.gadget.writer.ReportWriter` only when they change (a mouse's
+    motion always), the neutral report on :meth:`neutralise` and first in :meth:`close`."""
 
-    Raises:
-        DeviceError: the node cannot be opened (missing, or not this user's: the fix says how).
-    """
-
-    def __init__(self, node: str | os.PathLike, fmt: ReportFormat, what: str):
+    def _start(self, fd: int, fmt: ReportFormat, what: str) -> None:
         self.what = what
         self.format = fmt
-        try:
-            self._fd = os.open(node, os.O_RDWR | os.O_NONBLOCK | os.O_CLOEXEC)
-        except OSError as exc:
-            raise DeviceError(
-                f"cannot open {node} ({exc.strerror}): the gadget's device nodes are not this user's\n"
-                "sudo neurotouch-hid gadget setup --user $USER"
-            ) from None
-        motion = fmt.name == "mouse"
-        self._writer = ReportWriter(self._fd, what, depth=QUEUE_MOTION if motion else QUEUE_STATE, resend=not motion)
-        self._motion = motion
+        self._motion = fmt.name == "mouse"
+        depth = QUEUE_MOTION if self._motion else QUEUE_STATE
+        self._writer = ReportWriter(fd, what, depth=depth, resend=not self._motion)
         self._last: bytes | None = None
         self._lock = threading.Lock()
         self._closed = False
@@ -96,6 +87,38 @@ class HidgTarget:
     def prepare(self, profile: Profile) -> None:
         """Nothing to change: the function's report layout is the same for every profile."""
 
+    def _close_neutral(self) -> bool:
+        """Send the neutral report, wait up to :data:`NEUTRAL_WAIT_S` for the host to take it,
+        stop the writer; False when already closed."""
+        with self._lock:
+            if self._closed:
+                return False
+            self._last = self.format.neutral()
+            self._writer.submit(self._last)
+            self._closed = True
+        if not self._writer.flush(NEUTRAL_WAIT_S):
+            log.info("%s: the host did not take the neutral report within %.1f s", self.what, NEUTRAL_WAIT_S)
+        self._writer.stop()
+        return True
+
+
+class HidgTarget(_ReportTarget):
+    """One ``hid`` function's ``/dev/hidgN`` (module docstring), fed with ``format``'s reports.
+
+    Raises:
+        DeviceError: the node cannot be opened (missing, or not this user's: the fix says how).
+    """
+
+    def __init__(self, node: str | os.PathLike, fmt: ReportFormat, what: str):
+        try:
+            self._fd = os.open(node, os.O_RDWR | os.O_NONBLOCK | os.O_CLOEXEC)
+        except OSError as exc:
+            raise DeviceError(
+                f"cannot open {node} ({exc.strerror}): the gadget's device nodes are not this user's\n"
+                "sudo neurotouch-hid gadget setup --user $USER"
+            ) from None
+        self._start(self._fd, fmt, what)
+
     def fileno(self) -> int | None:
         """The node: readable when the host sent an output report."""
         return None if self._closed else self._fd
@@ -116,19 +139,11 @@ class HidgTarget:
 
     def close(self) -> None:
         """Neutral report, wait for the host to take it (up to :data:`NEUTRAL_WAIT_S`), close the node."""
-        with self._lock:
-            if self._closed:
-                return
-            self._last = self.format.neutral()
-            self._writer.submit(self._last)
-            self._closed = True
-        if not self._writer.flush(NEUTRAL_WAIT_S):
-            log.info("%s: the host did not take the neutral report within %.1f s", self.what, NEUTRAL_WAIT_S)
-        self._writer.stop()
-        os.close(self._fd)
+        if self._close_neutral():
+            os.close(self._fd)
 
 
-class XInputTarget:
+class XInputTarget(_ReportTarget):
     """The Xbox 360 pad on the FunctionFS mount ``mount`` (module docstring).
 
     ``ready`` (set once the descriptors are written) lets the caller bind the gadget to its UDC:
@@ -141,8 +156,6 @@ class XInputTarget:
     def __init__(self, mount: str | os.PathLike, fmt: ReportFormat, what: str = "USB gadget (xinput)"):
         from neurotouch_hid.targets.reports.xinput import INTERFACE_CLASS
 
-        self.what = what
-        self.format = fmt
         mount = Path(mount)
         try:
             self._ep0 = os.open(mount / "ep0", os.O_RDWR | os.O_CLOEXEC)
@@ -161,33 +174,10 @@ class XInputTarget:
             raise DeviceError(f"{mount}: the kernel refused the XInput pad's descriptors ({exc.strerror})") from None
         self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
         self._pending: list[Feedback] = []
-        self._lock = threading.Lock()
-        self._closed = False
-        self._last: bytes | None = None
         self.enabled = threading.Event()
-        self._writer = ReportWriter(self._in, what)
+        self._start(self._in, fmt, what)
         for target, name in ((self._read_events, "ep0 events"), (self._read_out, "OUT endpoint")):
             threading.Thread(target=target, name=f"{what}: {name}", daemon=True).start()
-        self.neutralise()
-
-    def write(self, state: ControllerState) -> None:
-        """Queue ``state``'s 20-byte report when it differs from the last one."""
-        report = self.format.pack(state)
-        with self._lock:
-            if self._closed or report == self._last:
-                return
-            self._last = report
-            self._writer.submit(report)
-
-    def neutralise(self) -> None:
-        """Queue the neutral report now."""
-        with self._lock:
-            if not self._closed:
-                self._last = self.format.neutral()
-                self._writer.submit(self._last)
-
-    def prepare(self, profile: Profile) -> None:
-        """Nothing to change: the pad is the same for every profile."""
 
     def fileno(self) -> int | None:
         """A pipe that becomes readable when the host sent rumble or LED requests."""
@@ -207,15 +197,8 @@ class XInputTarget:
         """Neutral report, wait for the host to take it (up to :data:`NEUTRAL_WAIT_S`), then
         close the endpoints and ``ep0``: FunctionFS then unbinds the gadget from its UDC (a
         thread blocked in a read keeps its file until that read returns, at the unbind)."""
-        with self._lock:
-            if self._closed:
-                return
-            self._last = self.format.neutral()
-            self._writer.submit(self._last)
-            self._closed = True
-        if not self._writer.flush(NEUTRAL_WAIT_S):
-            log.info("%s: the host did not take the neutral report within %.1f s", self.what, NEUTRAL_WAIT_S)
-        self._writer.stop()
+        if not self._close_neutral():
+            return
         for fd in (self._in, self._out, self._ep0, self._wake_r, self._wake_w):
             try:
                 os.close(fd)
