@@ -26,6 +26,7 @@ for ``hid`` and one for ``xinput``:
   --keyboard``, then ``run --profile switch-access``: a USB keyboard appears on the host side
   and the push arrives as KEY_SPACE, released on SIGTERM; the gadget stays (setup made it)
   until ``gadget remove``.
+* latency (:func:`check_usb_latency`): benchmarks/bench_gadget_latency.py's figures, in this kernel.
 """
 
 from __future__ import annotations
@@ -147,8 +148,12 @@ def _err(run: subprocess.Popen) -> str:
     return run.stderr.read()[-2000:] if run.stderr else ""
 
 
-def _stop(run: subprocess.Popen) -> str:
+def _stop(run: subprocess.Popen, watcher=None) -> str:
+    """SIGTERM, reading ``watcher``'s events meanwhile (once the run removes its gadget, evdev
+    drops what a reader had not read), then the run's stderr."""
     run.send_signal(signal.SIGTERM)
+    if watcher is not None:
+        watcher.pump(timeout_s=30.0, until=lambda r: run.poll() is not None, max_s=90.0)
     _, err = run.communicate(timeout=90)
     return err
 
@@ -258,8 +263,7 @@ def check_usb_hid() -> dict:
         node = guestlib.wait_for(lambda: _input_device(HID_IDS, ecodes.ABS_X, ecodes.EV_ABS), 20.0)
         evdev_back = guestlib.wait_for(lambda: InputDevice(node).absinfo(ecodes.ABS_X).value or None, 10.0)
         watcher = guestlib.EventReader(node)
-        err = _stop(run)
-        watcher.pump(timeout_s=1.0, max_s=5.0)
+        err = _stop(run, watcher)
         time.sleep(0.5)
         reader.stop()
         opened = lines.first("opened")
@@ -388,8 +392,7 @@ def check_usb_xinput() -> dict:
         sdl_held = guestlib.wait_for(lambda: next((d for d in lines.samples() if d["v"]["leftx"] > 32000), None), 60.0)
         rumble = guestlib.wait_for(lambda: lines.first("rumble"), 60.0)
         time.sleep(1.0)  # the rumble's report on its way to the gadget's OUT endpoint
-        err = _stop(run)
-        watcher.pump(timeout_s=1.0, max_s=5.0)
+        err = _stop(run, watcher)
         opened = lines.first("opened")
     finally:
         _kill(run, probe)
@@ -441,8 +444,7 @@ def check_usb_switch_access_keyboard() -> dict:
         watcher = guestlib.EventReader(node)
         watcher.pump(timeout_s=400.0, until=lambda r: ecodes.KEY_SPACE in r.keys, max_s=400.0)
         pressed = ecodes.KEY_SPACE in watcher.keys
-        err = _stop(run)
-        watcher.pump(timeout_s=1.0, max_s=5.0)
+        err = _stop(run, watcher)
         released = ecodes.KEY_SPACE not in watcher.keys
     finally:
         _kill(run)

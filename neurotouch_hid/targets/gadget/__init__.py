@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import logging
 import os
+import time
 from typing import TYPE_CHECKING
 
 from neurotouch_hid.errors import DeviceError
@@ -34,6 +35,10 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
+#: Pause between the neutral report taken by the host and the removal of a gadget the run made:
+#: once the host's input device is gone, evdev drops what a game had not read yet (the uinput
+#: pad's RELEASE_GRACE_S).
+RELEASE_GRACE_S = 0.05
 #: Which hid function instance carries which report format, whatever the gadget's protocol.
 INSTANCES = {"usb1": "keyboard", "usb2": "mouse"}
 
@@ -113,5 +118,6 @@ class UsbGadget:
                 log.warning("%s: closing failed: %s", target.what, error)
         self.targets = []
         if self.made:
+            time.sleep(RELEASE_GRACE_S)  # the host's readers take the neutral report before the device goes
             configfs.remove(self.name)
             self.made = False
