@@ -217,3 +217,24 @@ def test_hidg_target_sends_changes_only_and_ends_on_the_neutral_report(tmp_path)
     assert target.fileno() is None
     target.close()  # idempotent
     os.close(host)
+
+
+def test_the_protocol_comes_from_the_option_then_the_profile_then_hid():
+    from neurotouch_hid.mapping.profile import Profile
+    from neurotouch_hid.targets.gadget import protocol_for
+
+    plain = Profile()
+    switch = Profile.model_validate({"device": {"protocol": "switch"}})
+    assert protocol_for(None, plain) == "hid"
+    assert protocol_for(None, switch) == "switch"
+    assert protocol_for("xinput", switch) == "xinput"
+    with pytest.raises(DeviceError, match="unknown USB protocol 'ps5'"):
+        protocol_for("ps5", plain)
+
+
+def test_protocol_is_refused_without_output_usb():
+    from neurotouch_hid.driver import run_driver
+    from neurotouch_hid.errors import NeurotouchError
+
+    with pytest.raises(NeurotouchError, match="--protocol switch: only with --output usb"):
+        run_driver("sim", "default", "jsonl", protocol="switch")
