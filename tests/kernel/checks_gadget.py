@@ -20,8 +20,8 @@ for ``hid`` and one for ``xinput``:
   the last report is neutral.
 * ``xinput`` (:func:`check_usb_xinput`): xpad binds the FF/5D/01 interface of 045e:028e; SDL opens
   it as a GameController and reads the push on the left stick, then plays a rumble, which reaches
-  the gadget's OUT endpoint and is handled (the run says it: "rumble (the gel has no motor)"),
-  as is xpad's player LED; SIGTERM: evdev reads the stick centred.
+  the gadget's OUT endpoint and is handled (the run says it: "rumble (the gel has no motor)";
+  xpad's player LED lines are recorded, not asserted); SIGTERM: evdev reads the stick centred.
 * the keyboard (:func:`check_usb_switch_access_keyboard`): ``gadget setup --protocol hid
   --keyboard``, then ``run --profile switch-access``: a USB keyboard appears on the host side
   and the push arrives as KEY_SPACE, released on SIGTERM; the gadget stays (setup made it)
@@ -119,6 +119,18 @@ def _open(ids: tuple[int, int]):
     device = hidraw.device()
     device.open(*ids)
     return device
+
+
+def _host_side(ids: tuple[int, int], run: subprocess.Popen) -> tuple:
+    """Once the host side has the device with ``ids``: (hidapi's entry, seconds it took from
+    now, sysfs name, HID driver, the report descriptor hidapi reads, a reader of its reports)."""
+    t_run = time.monotonic()
+    info = _hidraw(ids, run)
+    device_s = time.monotonic() - t_run
+    guestlib.settle()
+    sysfs_name, driver = _hid_driver(ids)
+    device = _open(ids)
+    return info, device_s, sysfs_name, driver, bytes(device.get_report_descriptor()), HidrawReader(device)
 
 
 def _hid_driver(ids: tuple[int, int]) -> tuple[str | None, str | None]:
@@ -225,14 +237,7 @@ def check_usb_hid() -> dict:
     run = reader = watcher = None
     try:
         run = _run(preds, profile, "--protocol", "hid")
-        t_run = time.monotonic()
-        info = _hidraw(HID_IDS, run)
-        device_s = time.monotonic() - t_run
-        guestlib.settle()
-        sysfs_name, driver = _hid_driver(HID_IDS)
-        device = _open(HID_IDS)
-        descriptor = bytes(device.get_report_descriptor())
-        reader = HidrawReader(device)
+        info, device_s, sysfs_name, driver, descriptor, reader = _host_side(HID_IDS, run)
         node = guestlib.wait_for(lambda: _input_device(HID_IDS, ecodes.ABS_X, ecodes.EV_ABS), 20.0)
         assert node, "no input device for the joystick"
         props = guestlib.udev_properties(node)
@@ -312,14 +317,7 @@ def check_usb_switch() -> dict:
     run = reader = None
     try:
         run = _run(preds, profile, "--protocol", "switch")
-        t_run = time.monotonic()
-        _hidraw(SWITCH_IDS, run)
-        device_s = time.monotonic() - t_run
-        guestlib.settle()
-        sysfs_name, driver = _hid_driver(SWITCH_IDS)
-        device = _open(SWITCH_IDS)
-        descriptor = bytes(device.get_report_descriptor())
-        reader = HidrawReader(device)
+        info, device_s, sysfs_name, driver, descriptor, reader = _host_side(SWITCH_IDS, run)
         got_held = guestlib.wait_for(lambda: held_report in reader.reports, 400.0)
         seen = reader.reports[-1]  # the report the host read last while the push is held
         err = _stop(run)
