@@ -89,6 +89,9 @@ def open_output(
 
 
 def _open_gamepad(profile: Profile, stack: contextlib.ExitStack, *, say, **_) -> Subscriber:
+    from neurotouch_hid.extras import require
+
+    require("uinput", "the virtual gamepad (--output gamepad)")
     from neurotouch_hid.output.desktop import UinputOutputs
     from neurotouch_hid.output.gamepad import GamepadIdentity, VirtualGamepad
 

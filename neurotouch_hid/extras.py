@@ -5,7 +5,9 @@ The driver (``run``, ``track``, ``eval`` without ``--report``) needs neither plo
 * ``plots``: matplotlib, for ``eval --report`` and ``profile test --plot``;
 * ``video``: imageio (gif, through Pillow) and imageio-ffmpeg (mp4, through an ffmpeg program:
   its own, or the system's ``ffmpeg`` when the package carries none, as the .deb's), for
-  ``view --out FILE.gif`` / ``FILE.mp4``.
+  ``view --out FILE.gif`` / ``FILE.mp4``;
+* ``uinput``: python-evdev where its precompiled twin evdev-binary has no wheel (aarch64), for the
+  uinput devices (``run --output gamepad``, the keyboard and mouse beside ``--output hid``).
 
 :func:`require` is called before the work starts, so a missing extra costs nothing but one line.
 """
@@ -20,10 +22,11 @@ from neurotouch_hid.errors import NeurotouchError
 EXTRAS: dict[str, dict[str, str]] = {
     "plots": {"matplotlib": "matplotlib"},
     "video": {"imageio": "imageio", "imageio_ffmpeg": "imageio-ffmpeg"},
+    "uinput": {"evdev": "evdev"},
 }
 
 #: Debian's package for each import name, for a system Python.
-DEBIAN: dict[str, str] = {"matplotlib": "python3-matplotlib", "imageio": "python3-imageio"}
+DEBIAN: dict[str, str] = {"matplotlib": "python3-matplotlib", "imageio": "python3-imageio", "evdev": "python3-evdev"}
 
 
 class MissingExtraError(NeurotouchError):

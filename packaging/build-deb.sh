@@ -7,7 +7,7 @@
 # (packaging/debian12-root.sh build, cached), at its final place /opt/neurotouch-hid (a venv
 # holds its own path), from the checkout's files (tracked and new, not ignored); numba,
 # OpenCV, dv-processing & co. come from PyPI as wheels built for that interpreter (evdev as
-# evdev-binary on amd64; compiled there elsewhere), with the extras plots and video (eval
+# evdev-binary on amd64; compiled there elsewhere: the uinput extra), with the extras plots and video (eval
 # --report, view), but not imageio-ffmpeg's own ffmpeg: Debian's (Recommends). The package holds:
 #   /opt/neurotouch-hid/                         the venv (python3 -> /usr/bin/python3.11)
 #   /usr/bin/neurotouch-hid                      -> /opt/neurotouch-hid/bin/neurotouch-hid
@@ -106,7 +106,7 @@ cp "$here/man_commands.py" "$root/build/"
 echo "build-deb.sh: building the venv in $root (Debian 12, python3.11) ..." >&2
 "$here/debian12-root.sh" chroot "$root" "set -e
     python3.11 -m venv $prefix
-    $prefix/bin/pip install --no-cache-dir --quiet '/build/src[plots,video]'
+    $prefix/bin/pip install --no-cache-dir --quiet '/build/src[plots,video,uinput]'
     # imageio-ffmpeg's own ffmpeg (~170 MB): view --out FILE.mp4 runs Debian's (Recommends: ffmpeg)
     rm -f $prefix/lib/python3.11/site-packages/imageio_ffmpeg/binaries/ffmpeg-*
     $prefix/bin/pip uninstall --yes --quiet pip setuptools wheel 2>/dev/null || true

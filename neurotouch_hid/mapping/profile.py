@@ -181,8 +181,14 @@ _DELETE = frozenset({"KEY_DELETE", "KEY_KPDOT"})
 
 @functools.cache
 def keyboard_keys() -> frozenset[str]:
-    """Every evdev ``KEY_*`` name python-evdev knows (linux/input-event-codes.h)."""
-    from evdev import ecodes
+    """Every evdev ``KEY_*`` name python-evdev knows (linux/input-event-codes.h); without
+    python-evdev (an aarch64 install without the ``uinput`` extra), :data:`~neurotouch_hid.key_names.KEY_NAMES`."""
+    try:
+        from evdev import ecodes
+    except ImportError:
+        from neurotouch_hid.key_names import KEY_NAMES
+
+        return KEY_NAMES
 
     return frozenset(name for name in ecodes.ecodes if name.startswith("KEY_") and name not in ("KEY_MAX", "KEY_CNT"))
 

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Callable, Iterable
 
 from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.extras import MissingExtraError, require
 
 if TYPE_CHECKING:
     from neurotouch_hid.mapping.profile import Profile
@@ -57,17 +58,19 @@ class UinputDesktop:
             return
         if self.outputs is None and self.unavailable is None:
             try:
+                require("uinput", "the uinput keyboard and mouse")
+            except MissingExtraError as exc:
+                self.unavailable = str(exc)
+            else:
                 from neurotouch_hid.output.desktop import UinputOutputs
 
                 # no pad: the joystick is another target's (UinputOutputs skips a missing device)
                 self.outputs = UinputOutputs(None, None, self._devnode, known=self._known)  # type: ignore[arg-type]
-            except (DeviceError, ImportError) as exc:
-                self.unavailable = str(exc).splitlines()[0]
         if self.outputs is not None:
             try:
                 self.outputs.prepare(profile)
                 return
-            except (DeviceError, ImportError) as exc:
+            except DeviceError as exc:
                 self.unavailable = str(exc).splitlines()[0]
         what = " and ".join(
             n for n, used in (("keyboard", profile.keyboard_keys), ("mouse", profile.mouse_outputs)) if used

@@ -16,9 +16,10 @@ and the caller gets EIO). Every event the kernel sends is read by one reader,
 :class:`UhidDevice` is a :class:`~neurotouch_hid.stages.Target`: it writes a state's report only
 when the report changed, keeps the last one while no driver is bound and sends it when one
 binds, answers a GET_REPORT of its input report with the current report (other types, and every
-SET_REPORT, with EIO: the joystick has no feature or output report), and on :meth:`UhidDevice.close`
-sends the neutral report, waits :data:`RELEASE_GRACE_S` for readers to see it, then destroys
-the device. No library: hid-tools (GPL) is not used at run time.
+SET_REPORT, with EIO: the joystick has no feature or output report), and on ``close`` sends the
+neutral report, waits ``RELEASE_GRACE_S`` for readers to see it, then destroys the device (the
+uinput devices' :class:`~neurotouch_hid.output.gamepad.NeutralOnClose`). No library: hid-tools
+(GPL) is not used at run time.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ from typing import TYPE_CHECKING
 
 from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.output.gamepad import NeutralOnClose
 from neurotouch_hid.udev import char_device_problem, uhid_help
 
 if TYPE_CHECKING:
@@ -92,8 +94,6 @@ PHYS = "neurotouch-hid/uhid"
 #: How long :class:`UhidDevice` waits for a HID driver to bind before its first report (s); past
 #: it the device stays and its report is sent when a driver binds.
 START_WAIT_S = 2.0
-#: Pause between the neutral report and destroying the device (s), so readers see the release.
-RELEASE_GRACE_S = 0.05
 
 
 @dataclass(frozen=True)
@@ -227,7 +227,7 @@ def uhid_problem(devnode: str = "/dev/uhid") -> str | None:
     return char_device_problem(devnode, "uhid")
 
 
-class UhidDevice:
+class UhidDevice(NeutralOnClose):
     """One UHID device speaking ``fmt`` (a :class:`~neurotouch_hid.targets.reports.ReportFormat`
     with a descriptor), as a :class:`~neurotouch_hid.stages.Target`.
 
@@ -361,23 +361,15 @@ class UhidDevice:
         else:
             log.debug("%s: event type %d ignored", self.what, event.type)
 
-    def close(self) -> None:
-        """Send the neutral report, wait :data:`RELEASE_GRACE_S`, then destroy the device
-        (``UHID_DESTROY``) and close /dev/uhid. Idempotent; the device goes even if the neutral
-        report fails."""
-        with self._lock:
-            if self._closed:
-                return
-            try:
-                self.neutralise()
-                time.sleep(RELEASE_GRACE_S)
-            finally:
-                self._closed = True
-                try:
-                    os.write(self._fd, UHID_DESTROY.to_bytes(4, "little"))
-                except OSError as exc:
-                    log.warning("%s: UHID_DESTROY failed (%s); closing /dev/uhid removes it", self.what, exc)
-                os.close(self._fd)
+    def _destroy(self) -> None:
+        """``UHID_DESTROY``, then close /dev/uhid (which alone would remove the device too).
+        :meth:`close` (:class:`~neurotouch_hid.output.gamepad.NeutralOnClose`) calls it after the
+        neutral report and the release grace."""
+        try:
+            os.write(self._fd, UHID_DESTROY.to_bytes(4, "little"))
+        except OSError as exc:
+            log.warning("%s: UHID_DESTROY failed (%s); closing /dev/uhid removes it", self.what, exc)
+        os.close(self._fd)
 
     def __enter__(self) -> UhidDevice:
         return self

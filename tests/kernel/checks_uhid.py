@@ -34,7 +34,7 @@ from pathlib import Path
 
 import guestlib
 import numpy as np
-from checks_runtime import NO_DROP_LAG_MS, ProbeLines, _cli, _env, _write, timeline
+from checks_runtime import NO_DROP_LAG_MS, PadWatcher, ProbeLines, _cli, _env, _write, timeline
 
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.targets.reports.hid import HID_JOYSTICK
@@ -75,8 +75,8 @@ def _push_right(hold_s: float) -> list:
 
 
 def _held_state(folder: Path, profile: Path):
-    """The profile's state for the held push: the last line of ``run --output jsonl --fast`` over
-    the push held 0.4 s (the driver's own run_driver, in this process)."""
+    """The profile's state for the held push: the last push line of ``run --output jsonl --fast``
+    over the push held 0.4 s (the driver's own run_driver, in this process)."""
     from neurotouch_hid.controller import ControllerState
     from neurotouch_hid.dataset import write_predictions
     from neurotouch_hid.driver import run_driver
@@ -85,7 +85,8 @@ def _held_state(folder: Path, profile: Path):
     write_predictions(preds, _push_right(0.4))
     out = folder / "expected.jsonl"
     run_driver(str(preds), profile, "jsonl", fast=True, out=out)
-    last = json.loads(out.read_text().splitlines()[-1])
+    # the last line of the push (the run's neutral line at its end follows it)
+    last = [d for d in map(json.loads, out.read_text().splitlines()) if d["gesture"] == "push"][-1]
     return ControllerState(axes=last["axes"], buttons=last["buttons"])
 
 
@@ -146,11 +147,7 @@ def check_run_output_hid() -> dict:
     assert Path("/dev/uhid").exists(), f"no /dev/uhid after modprobe: {modprobe}"
     folder = Path(tempfile.mkdtemp(prefix="uhid-check-"))
     preds, profile = _write(folder, _push_right(120.0), PROFILE)
-    held = _held_state(folder, profile)
-    assert held.axes["ABS_X"] > 0 and held.buttons["BTN_SOUTH"], f"the profile's held push: {held}"
-    held_report = HID_JOYSTICK.pack(held)
-
-    t0 = time.monotonic()
+    t0 = time.monotonic()  # SDL, the run and the expected state start together (each a Python start here)
     probe = subprocess.Popen(
         [sys.executable, str(Path(__file__).resolve().parent / "sdl_probe.py"), "--joystick", "240"],
         stdout=subprocess.PIPE,
@@ -162,17 +159,20 @@ def check_run_output_hid() -> dict:
     run = None
     reader = watcher = None
     try:
-        ready = guestlib.wait_for(
-            lambda: lines.first("ready") or lines.first("done") or probe.poll() is not None, 150.0
-        )
-        assert isinstance(ready, dict) and ready.get("ready"), f"SDL did not start: {lines.lines} {probe.poll()}"
-        sdl_ready_s = time.monotonic() - t0
         run = subprocess.Popen(
             _cli("run", "--source", str(preds), "--profile", str(profile), "--output", "hid",
                  "--max-lag-ms", NO_DROP_LAG_MS),
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(),
         )  # fmt: skip
         t_run = time.monotonic()
+        held = _held_state(folder, profile)
+        assert held.axes["ABS_X"] > 0 and held.buttons["BTN_SOUTH"], f"the profile's held push: {held}"
+        held_report = HID_JOYSTICK.pack(held)
+        ready = guestlib.wait_for(
+            lambda: lines.first("ready") or lines.first("done") or probe.poll() is not None, 150.0
+        )
+        assert isinstance(ready, dict) and ready.get("ready"), f"SDL did not start: {lines.lines} {probe.poll()}"
+        sdl_ready_s = time.monotonic() - t0
         found = guestlib.wait_for(
             lambda: hidraw.enumerate(HID_DEFAULT.vendor, HID_DEFAULT.product) or run.poll() is not None, 150.0, 0.1
         )
@@ -188,19 +188,20 @@ def check_run_output_hid() -> dict:
         node = guestlib.wait_for(_our_input_device, 10.0)
         assert node, "no input device with our phys"
         props = guestlib.udev_properties(node)
-        watcher = guestlib.EventReader(node)
-        x_max = watcher.device.absinfo(ecodes.ABS_X).max
-        watcher.pump(timeout_s=1.0, until=lambda r: r.axes.get(ecodes.ABS_X, 0) > 0, max_s=120.0)
-        evdev_held = dict(watcher.axes)
-        evdev_south = ecodes.BTN_TRIGGER in watcher.keys  # button 1 of a Joystick: BTN_TRIGGER
+        watcher = PadWatcher(node)  # reads in a thread, like a game: a gone device's queue is lost
+        x_max = watcher.reader.device.absinfo(ecodes.ABS_X).max
+        guestlib.wait_for(lambda: watcher.reader.axes.get(ecodes.ABS_X) == held.axes["ABS_X"], 120.0)
+        evdev_held = dict(watcher.reader.axes)
+        evdev_south = ecodes.BTN_TRIGGER in watcher.reader.keys  # button 1 of a Joystick: BTN_TRIGGER
         got_held = guestlib.wait_for(lambda: held_report in reader.reports, 30.0)
+        held_s = time.monotonic() - t_run
         asked = bytes(device.get_input_report(0, 64))
         sdl_held = guestlib.wait_for(
             lambda: next((d for d in lines.samples_raw() if d["axes"] and d["axes"][0] > 0.99), None), 60.0
         )
         run.send_signal(signal.SIGTERM)
         _, err = run.communicate(timeout=60)
-        watcher.pump(timeout_s=1.0, max_s=5.0)
+        guestlib.wait_for(lambda: watcher.reader.gone, 10.0)
         time.sleep(0.5)
         reader.stop()
         opened = lines.first("opened")
@@ -209,7 +210,7 @@ def check_run_output_hid() -> dict:
             if proc is not None and proc.poll() is None:
                 proc.kill()
         if watcher is not None:
-            watcher.close()
+            watcher.stop()
     assert run.returncode == 0, f"run exit code {run.returncode}: {err[-2000:]}"
     assert driver == "hid-generic", f"the HID driver of {sysfs_name}: {driver}"
     assert descriptor == HID_JOYSTICK.descriptor, f"descriptor read back: {descriptor.hex()}"
@@ -218,7 +219,7 @@ def check_run_output_hid() -> dict:
     assert reader.reports[-1] == HID_JOYSTICK.neutral(), f"last report after SIGTERM: {reader.reports[-1].hex()}"
     assert evdev_held.get(ecodes.ABS_X) == held.axes["ABS_X"] > 0, f"evdev ABS_X {evdev_held.get(ecodes.ABS_X)}"
     assert evdev_south, "button A (HID button 1) is not BTN_TRIGGER on evdev"
-    assert watcher.axes.get(ecodes.ABS_X) == 0, f"evdev after SIGTERM: ABS_X {watcher.axes.get(ecodes.ABS_X)}"
+    assert watcher.states[-1][0] == 0, f"evdev after SIGTERM: ABS_X {watcher.states[-1][0]}"  # ABS_X first
     assert props.get("ID_INPUT_JOYSTICK") == "1", f"udev: {props}"
     assert sdl_held, f"SDL never read axis 0 at full right: {lines.lines[-5:]}"
     return {
@@ -236,5 +237,7 @@ def check_run_output_hid() -> dict:
         "sdl_held_axes": sdl_held["axes"],
         "sdl_ready_s": round(sdl_ready_s, 1),
         "device_after_start_s": round(device_s, 1),
+        "held_after_start_s": round(held_s, 1),
+        "check_s": round(time.monotonic() - t0, 1),
         "stderr_tail": err.strip().splitlines()[-2:],
     }  # fmt: skip

@@ -250,24 +250,15 @@ def joystick(seconds: float) -> dict:
     return {"done": True, "removed": removed, "changes": samples, "error": None}
 
 
+#: The modes that watch a device another process makes: each returns its ``done`` line.
+MODES = {"--joystick": joystick, "--rumble": rumble, "--watch": watch}
+
+
 if __name__ == "__main__":
-    if sys.argv[1:2] == ["--joystick"]:
+    if sys.argv[1:2] and sys.argv[1] in MODES:
         try:
-            out = joystick(float(sys.argv[2]))
-        except Exception as exc:
-            out = {"done": True, "error": f"{type(exc).__name__}: {exc}"}
-        say(out)
-        sys.exit(0)
-    if sys.argv[1:2] == ["--rumble"]:
-        try:
-            out = rumble(float(sys.argv[2]))
-        except Exception as exc:
-            out = {"done": True, "error": f"{type(exc).__name__}: {exc}"}
-        say(out)
-        sys.exit(0)
-    if sys.argv[1:2] == ["--watch"]:
-        try:
-            out = watch(float(sys.argv[2]), rumble_on_push="--rumble-on-push" in sys.argv[3:])
+            extra = {"rumble_on_push": True} if "--rumble-on-push" in sys.argv[3:] else {}  # --watch only
+            out = MODES[sys.argv[1]](float(sys.argv[2]), **extra)
         except Exception as exc:
             out = {"done": True, "error": f"{type(exc).__name__}: {exc}"}
         say(out)

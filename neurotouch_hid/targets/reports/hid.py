@@ -33,24 +33,12 @@ from __future__ import annotations
 
 import struct
 
-from neurotouch_hid.controller import ControllerState
+from neurotouch_hid.controller import BUTTONS, ControllerState
 from neurotouch_hid.targets.reports.fields import axis
 
-#: The controller's buttons (evdev names) as HID buttons 1..11, in this order: A, B, X, Y (the
-#: evdev names xpad gives them), the bumpers, back, start, the stick clicks, the guide.
-BUTTON_ORDER: tuple[str, ...] = (
-    "BTN_SOUTH",
-    "BTN_EAST",
-    "BTN_NORTH",
-    "BTN_WEST",
-    "BTN_TL",
-    "BTN_TR",
-    "BTN_SELECT",
-    "BTN_START",
-    "BTN_THUMBL",
-    "BTN_THUMBR",
-    "BTN_MODE",
-)
+#: The controller's buttons (evdev names) as HID buttons 1..11: A, B, X, Y (the evdev names xpad
+#: gives them), the bumpers, back, start, the stick clicks (the controller's order), then the guide.
+BUTTON_ORDER: tuple[str, ...] = tuple(b for b in BUTTONS if b != "BTN_MODE") + ("BTN_MODE",)
 #: HID buttons in the report (usages 1..BUTTON_COUNT); those past BUTTON_ORDER are always 0.
 BUTTON_COUNT = 16
 #: The hat's value for each (ABS_HAT0X, ABS_HAT0Y) (evdev: -1 left / up): 0 north, clockwise.
