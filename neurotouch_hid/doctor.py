@@ -3,7 +3,9 @@
 Checks: the DAVIS-346 is on USB, each camera's /dev/bus/usb node is readable and writable and not
 held by another program, dv-processing lists the camera (all three from one
 :func:`neurotouch_hid.sources.discovery.discover`, the same look-up as ``neurotouch-hid devices``),
-/dev/uinput exists and is writable, the udev rules are installed, dv-processing / numba / evdev
+/dev/uinput exists and is writable, whether /dev/uhid is usable (``--output hid``) and this machine
+can be a USB gadget (``--output usb``: a UDC, configfs, libcomposite, usb_f_hid, usb_f_fs; warnings
+only), the udev rules are installed, dv-processing / numba / evdev
 import (with versions), where numba caches the compiled pipeline (a warning when nowhere: it compiles
 in memory at every start), and (a warning only) the plug-and-play systemd user unit is installed.
 
@@ -323,6 +325,34 @@ def check_calibration() -> Check:
     )
 
 
+def check_gadget() -> Check:
+    """This machine can be a USB gadget for ``run --output usb`` (a UDC, configfs, libcomposite,
+    usb_f_hid, usb_f_fs: :mod:`neurotouch_hid.targets.gadget.support`); a warning when not (the
+    uinput pad does not need it)."""
+    from neurotouch_hid.targets.gadget.support import gadget_support
+
+    found = gadget_support()
+    modules = ", ".join(f"{name} {state}" for name, state in found.modules.items())
+    if not found.possible:
+        return Check(
+            "USB gadget (--output usb)", WARN, "; ".join(found.problems) + f" ({modules})", "\n".join(found.fixes)
+        )
+    set_up = f"gadget set up: {found.gadget}" if found.gadget else "no gadget set up yet"
+    return Check(
+        "USB gadget (--output usb)", OK, f"UDC {', '.join(found.udcs)}; {modules}; {set_up}", "\n".join(found.fixes)
+    )
+
+
+def check_uhid() -> Check:
+    """/dev/uhid is usable for ``run --output hid``; a warning when not."""
+    from neurotouch_hid.targets.gadget.support import UHID, uhid_problem
+
+    problem = uhid_problem()
+    if problem:
+        return Check("HID device here (--output hid)", WARN, problem, "sudo modprobe uhid")
+    return Check("HID device here (--output hid)", OK, f"{UHID} is readable and writable")
+
+
 def run_checks() -> list[Check]:
     """Every check, in the order the report shows them."""
     found = discover()
@@ -331,6 +361,8 @@ def run_checks() -> list[Check]:
         check_camera_access(found),
         check_camera_dv(found),
         check_uinput(),
+        check_uhid(),
+        check_gadget(),
         check_rules(),
         *(check_library(m, d) for m, d in LIBRARIES),
         check_jit_cache(),

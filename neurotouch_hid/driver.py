@@ -73,19 +73,24 @@ def open_output(
     say: Callable[[str], None] | None = None,
     inputs: tuple[str | Path | None, ...] = (),
     on_feedback: Callable[[Feedback], None] | None = None,
+    protocol: str | None = None,
 ) -> Subscriber:
     """Create one output (:data:`OPENERS` has one opener per kind): ``gamepad`` (the uinput pad
     with the profile's name and ids, and the keyboard and mouse if the profile uses them), ``hid``
     (the generic HID joystick on UHID, docs/reports.md; the keyboard and mouse on uinput where it
-    can be used), ``jsonl`` (one state line per change to ``out`` or stdout; ``out`` may not be
-    one of the run's ``inputs``) or ``term`` (the terminal view; on a terminal the live view of
-    :mod:`neurotouch_hid.output.live`: the gel, the gestures, the profile, beside the pad). ``say``
+    can be used), ``usb`` (a USB gadget speaking ``protocol``, else the profile's, else ``hid``:
+    :mod:`neurotouch_hid.targets.gadget`), ``jsonl`` (one state line per change to ``out`` or
+    stdout; ``out`` may not be one of the run's ``inputs``) or ``term`` (the terminal view; on a
+    terminal the live view of :mod:`neurotouch_hid.output.live`: the gel, the gestures, the
+    profile, beside the pad). ``say``
     tells the user about rumble effects games send to the pad (the gel has no motor; default: the
     log); ``on_feedback`` gets each rumble the pad is sent (the copilot's merged pads play it). The
     uinput pad is made when the profile first drives a pad control. Closed by ``stack``. Raises
     DeviceError when /dev/uinput (``gamepad``) or /dev/uhid (``hid``) cannot be used."""
     opener = OPENERS[OutputKind(kind)]
-    return opener(profile, stack, out=out, console=console, say=say, inputs=inputs, on_feedback=on_feedback)
+    return opener(
+        profile, stack, out=out, console=console, say=say, inputs=inputs, on_feedback=on_feedback, protocol=protocol
+    )
 
 
 def _open_gamepad(profile: Profile, stack: contextlib.ExitStack, *, say, on_feedback=None, **_) -> Subscriber:
@@ -120,6 +125,14 @@ def _open_hid(profile: Profile, stack: contextlib.ExitStack, *, say, **_) -> Sub
     return stack.enter_context(outputs)
 
 
+def _open_usb(profile: Profile, stack: contextlib.ExitStack, *, say, protocol, **_) -> Subscriber:
+    from neurotouch_hid.targets import TargetOutputs
+    from neurotouch_hid.targets.gadget import UsbGadget, protocol_for
+
+    gadget = stack.enter_context(UsbGadget(protocol_for(protocol, profile), profile))
+    return stack.enter_context(TargetOutputs(gadget.targets, say=say))
+
+
 def _open_jsonl(profile: Profile, stack: contextlib.ExitStack, *, out, inputs, **_) -> Subscriber:
     from neurotouch_hid.output.jsonl import StateJsonlWriter
 
@@ -137,11 +150,12 @@ def _open_term(profile: Profile, stack: contextlib.ExitStack, *, console, **_) -
 OPENERS: dict[OutputKind, Callable[..., Subscriber]] = {
     OutputKind.GAMEPAD: _open_gamepad,
     OutputKind.HID: _open_hid,
+    OutputKind.USB: _open_usb,
     OutputKind.JSONL: _open_jsonl,
     OutputKind.TERM: _open_term,
 }
 #: The outputs that are devices: on a terminal, the live view is drawn beside them.
-DEVICE_OUTPUTS = (OutputKind.GAMEPAD, OutputKind.HID)
+DEVICE_OUTPUTS = (OutputKind.GAMEPAD, OutputKind.HID, OutputKind.USB)
 
 
 def open_outputs(
@@ -358,6 +372,7 @@ def run_driver(
     method: str = "default",
     model: Model | None = None,
     finish_gesture: bool = False,
+    protocol: str | None = None,
 ) -> RunStats:
     """``neurotouch-hid run``: load the profile (a bad one raises ProfileError before any device
     exists), open the outputs, then run: the engine opens the source and builds the pipeline
@@ -375,11 +390,15 @@ def run_driver(
     (``pipeline.methods``: ``default`` or ``paper``); ``model``: an adapted model's values over
     it (``enrolment/model.py``; None: the shipped method). ``finish_gesture`` (the simulated
     gel): past ``seconds`` its hand finishes the gesture it performs (:class:`RunAssembly`).
+    ``protocol``: with ``output`` ``usb``, the USB gadget's (``hid``, ``switch``, ``xinput``; None:
+    the profile's ``device: protocol``, else ``hid``).
     Raises NeurotouchError subclasses for bad input (ProfileError, RecordingError, DeviceError,
     SensorError).
     """
     if output not in tuple(OutputKind):
         raise NeurotouchError(f"unknown output '{output}' (expected one of: {', '.join(OutputKind)})")
+    if protocol is not None and output != OutputKind.USB:
+        raise NeurotouchError(f"--protocol {protocol}: only with --output usb (the USB gadget)")
     if window_us < 1000:
         raise NeurotouchError(f"--window-us {window_us}: windows must be at least 1000 us")
     if max_lag_us < 1000:
@@ -394,7 +413,15 @@ def run_driver(
         if subscribers is None:
             try:
                 made = open_output(
-                    output, loaded, stack, out=out, console=console, say=say, inputs=inputs, on_feedback=copilot
+                    output,
+                    loaded,
+                    stack,
+                    out=out,
+                    console=console,
+                    say=say,
+                    inputs=inputs,
+                    on_feedback=copilot,
+                    protocol=protocol,
                 )
             except DeviceError as exc:
                 raise DeviceError(_and_the_source(str(exc), source, davis)) from None

@@ -13,6 +13,7 @@ class OutputKind(StrEnum):
 
     GAMEPAD = "gamepad"  #: the uinput pad (and the keyboard and mouse a profile uses)
     HID = "hid"  #: the generic HID joystick on UHID (the keyboard and mouse stay on uinput)
+    USB = "usb"  #: a USB gadget for the host at the other end of the cable (``--protocol``)
     JSONL = "jsonl"  #: one JSON line per state change (``--out`` or stdout)
     TERM = "term"  #: the terminal view
 

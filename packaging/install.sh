@@ -1,7 +1,7 @@
 #!/bin/sh
 # Install neurotouch-hid's udev rules (system-wide, root) and its systemd user unit (per user).
 #
-# usage: install.sh [--system] [--user] [--bin PATH]
+# usage: install.sh [--system] [--user] [--bin PATH] [--gadget PROTOCOL:USER]
 #   --system  udev/60-neurotouch.rules -> /etc/udev/rules.d/, "uinput" -> /etc/modules-load.d/
 #             (loaded at every boot), then reload udev, re-trigger devices and load uinput now.
 #             Needs root.
@@ -9,6 +9,9 @@
 #             with ExecStart/ExecReload set to the neurotouch-hid on PATH, else pipx's
 #             ~/.local/bin/neurotouch-hid (or --bin PATH), a ~/.config/neurotouch-hid/service.env
 #             to pick the profile, and `systemctl --user daemon-reload`. Run as yourself, not root.
+#   --gadget PROTOCOL:USER  (root) neurotouch-hid-gadget.service -> /etc/systemd/system/, enabled
+#             and started: at every boot it makes the USB gadget for run --output usb (hid,
+#             switch or xinput; docs/any-host.md) and hands its device nodes to USER.
 #   neither   both: the system part through sudo, the user part as you.
 # DESTDIR=DIR stages the system files under DIR and touches nothing live (packagers, tests).
 # The script ships inside the installed package too: `neurotouch-hid doctor` prints its path.
@@ -16,17 +19,37 @@ set -eu
 
 here=$(cd "$(dirname "$0")" && pwd)
 src=$(dirname "$here")
-do_system=0 do_user=0 bin=""
+do_system=0 do_user=0 bin="" gadget=""
 while [ $# -gt 0 ]; do
     case "$1" in
         --system) do_system=1 ;;
         --user) do_user=1 ;;
         --bin) shift; bin=${1:?--bin needs a path} ;;
+        --gadget) shift; gadget=${1:?--gadget needs PROTOCOL:USER, e.g. hid:$USER} ;;
         -h|--help) sed -n '2,/^[^#]/{/^#/s/^# \{0,1\}//p}' "$0"; exit 0 ;;
         *) echo "install.sh: unknown option $1 (see --help)" >&2; exit 2 ;;
     esac
     shift
 done
+if [ -n "$gadget" ]; then
+    protocol=${gadget%%:*} owner=${gadget#*:}
+    case "$protocol" in hid|switch|xinput) ;; *) echo "install.sh: --gadget $gadget: the protocol is hid, switch or xinput" >&2; exit 2 ;; esac
+    [ "$(id -u)" = 0 ] || [ -n "${DESTDIR:-}" ] || { echo "install.sh: --gadget needs root: sudo sh $0 --gadget $gadget" >&2; exit 1; }
+    [ -n "$bin" ] || bin=$(command -v neurotouch-hid || true)
+    case "$bin" in /*) ;; *) echo "install.sh: neurotouch-hid is not on PATH; pass --bin /path/to/neurotouch-hid" >&2; exit 1 ;; esac
+    unit="${DESTDIR:-}/etc/systemd/system/neurotouch-hid-gadget.service"
+    install -d -m 755 "$(dirname "$unit")"
+    sed -e "s|^\(Exec[A-Za-z]*\)=/usr/bin/env neurotouch-hid |\1=$bin |" \
+        -e "s|--protocol hid --user root|--protocol $protocol --user $owner|" \
+        "$here/neurotouch-hid-gadget.service" > "$unit"
+    chmod 644 "$unit"
+    if [ -z "${DESTDIR:-}" ]; then
+        printf '%s\n' libcomposite usb_f_hid usb_f_fs > /etc/modules-load.d/neurotouch-hid-gadget.conf
+        systemctl daemon-reload && systemctl enable --now neurotouch-hid-gadget.service
+    fi
+    echo "installed $unit (protocol $protocol, for $owner)"
+    [ $do_system = 1 ] || [ $do_user = 1 ] || exit 0
+fi
 if [ $do_system = 0 ] && [ $do_user = 0 ]; then
     if [ "$(id -u)" = 0 ]; then
         do_system=1

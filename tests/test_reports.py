@@ -140,7 +140,7 @@ def test_the_registry_names_every_format_and_refuses_others():
         format_for("nes")
 
 
-@pytest.mark.parametrize("name", ["hid", "keyboard", "mouse"])
+@pytest.mark.parametrize("name", ["hid", "keyboard", "mouse", "switch"])
 def test_the_descriptor_walks_and_its_input_report_is_report_length_long(name):
     fmt = FORMATS[name]
     _, fields = walk(fmt.descriptor)
@@ -274,7 +274,7 @@ def test_mouse_motion_is_int8_clamped_and_hi_res_wheels_count_detents():
 
 def test_docs_give_each_descriptor_byte_for_byte():
     text = DOCS.read_text()
-    for name in ("hid", "keyboard", "mouse"):
+    for name in ("hid", "keyboard", "mouse", "switch"):
         block = re.search(rf"<!-- descriptor {name} -->\n```\n(.*?)```", text, re.S)
         assert block, f"docs/reports.md has no descriptor block for {name}"
         assert bytes.fromhex(block.group(1)) == FORMATS[name].descriptor, name

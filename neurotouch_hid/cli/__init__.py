@@ -21,7 +21,7 @@ import sys
 import typer
 from typer.core import TyperGroup
 
-from neurotouch_hid.cli import devices, enrolment, profiles, recordings
+from neurotouch_hid.cli import devices, enrolment, gadget, profiles, recordings
 from neurotouch_hid.cli.common import err_console
 from neurotouch_hid.errors import NeurotouchError, did_you_mean, in_plain_words
 from neurotouch_hid.output.console import command_app
@@ -51,6 +51,7 @@ app.add_typer(devices.app)
 app.add_typer(recordings.app)
 app.add_typer(enrolment.app)
 app.add_typer(profiles.profile_app, name="profile")
+app.add_typer(gadget.gadget_app, name="gadget")
 
 #: One example per command, shown at the end of its help (``-h``); tests check that each one's
 #: options are the command's.
@@ -92,6 +93,9 @@ EXAMPLES: dict[str, tuple[str, ...]] = {
     "profile auto add": ("neurotouch-hid profile auto add supertuxkart spacecraft",),
     "profile auto remove": ("neurotouch-hid profile auto remove 4242",),
     "profile auto list": ("neurotouch-hid profile auto list",),
+    "gadget": ("sudo neurotouch-hid gadget setup --protocol hid",),
+    "gadget setup": ("sudo neurotouch-hid gadget setup --protocol xinput --user alice",),
+    "gadget remove": ("sudo neurotouch-hid gadget remove",),
 }
 
 

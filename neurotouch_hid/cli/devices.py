@@ -75,6 +75,11 @@ def run(
     ),
     method: str = typer.Option("default", "--method", help=METHOD_HELP),
     model: Optional[str] = MODEL_OPTION,
+    protocol: Optional[str] = typer.Option(
+        None,
+        "--protocol",
+        help="with --output usb: hid, switch or xinput (default: the profile's device: protocol, else hid)",
+    ),
 ) -> None:
     """Run the driver: source -> pipeline -> profile -> virtual gamepad.
 
@@ -100,6 +105,7 @@ def run(
         max_lag_us=round(max_lag_ms * 1000),
         method=method,
         model=chosen_model(model),
+        protocol=protocol,
     )
     err_console.print(stats.summary(), highlight=False, soft_wrap=True)
 
@@ -124,7 +130,8 @@ def demo(
 
 @app.command()
 def devices(json_out: bool = typer.Option(False, "--json", help="print JSON (for scripts) instead of a table")) -> None:
-    """List the DAVIS-346 cameras: every USB 152a:841a device (pyusb) and what dv-processing sees.
+    """List the DAVIS-346 cameras: every USB 152a:841a device (pyusb) and what dv-processing sees;
+    then which outputs are possible here (uinput pad, UHID device, USB gadget).
 
     For each: where it is, whether this user can open it and, if not, why and what to do (the
     udev rule, another program holding it, firmware). Exit code 0 when a camera is ready to use,
@@ -135,10 +142,12 @@ def devices(json_out: bool = typer.Option(False, "--json", help="print JSON (for
     from rich.table import Table
 
     from neurotouch_hid.sources.discovery import discover, explain
+    from neurotouch_hid.targets.gadget.support import possible_outputs
 
     found = discover()
+    outputs = possible_outputs()
     if json_out:
-        typer.echo(json.dumps({**found.to_json(), "inputs": _mergeable_json()}, indent=1))
+        typer.echo(json.dumps({**found.to_json(), "outputs": outputs, "inputs": _mergeable_json()}, indent=1))
     elif not found.cameras:
         console.print(escape(explain(found)), style="bold red", highlight=False, soft_wrap=True)
     else:
@@ -178,6 +187,9 @@ def devices(json_out: bool = typer.Option(False, "--json", help="print JSON (for
         for what, error in (("pyusb", found.usb_error), ("dv-processing", found.dv_error)):
             if error:
                 console.print(f"[yellow]{what}: {escape(error)}[/]", highlight=False, soft_wrap=True)
+        for kind, why in outputs.items():
+            said = "[green]possible[/]" if why is None else f"[yellow]not here[/] ({escape(why)})"
+            console.print(f"--output {kind}: {said}", highlight=False, soft_wrap=True)
         _say_mergeable()
     if not found.ready:
         sys.exit(1)

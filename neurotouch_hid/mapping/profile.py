@@ -644,6 +644,9 @@ class DeviceSpec(_Strict):
     vendor: int = Field(0x045E, ge=0, le=0xFFFF, description="USB vendor id")
     product: int = Field(0x028E, ge=0, le=0xFFFF, description="USB product id")
     version: int = Field(0x0114, ge=0, le=0xFFFF, description="device version")
+    protocol: Literal["hid", "switch", "xinput"] | None = Field(
+        None, description="with run --output usb: the USB protocol (default hid; --protocol overrides it)"
+    )
 
 
 _Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")]

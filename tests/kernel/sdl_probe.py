@@ -8,7 +8,9 @@ stick right, right trigger) and after neutralise().
 to be plugged in (another process creates it, e.g. ``neurotouch-hid run --output gamepad``), print
 ``{"opened": ...}`` (names, GUID, mapping), then one ``{"t": s, "v": {...}}`` line per change of
 what SDL reads (every controller axis and button, SDL's scale), until the controller is unplugged
-or SECONDS pass; last ``{"done": ...}``.
+or SECONDS pass; last ``{"done": ...}``. ``--watch SECONDS --rumble-on-push``: the same, and the
+first time the left stick is past half way, play a rumble (as ``--rumble``) and print
+``{"rumble": True/False, "sdl_error": ...}``.
 
 ``--rumble SECONDS``: like ``--watch``, but once the GameController is open, ask SDL whether it
 has rumble and play a rumble (SDL_GameControllerRumble: uploads an FF_RUMBLE effect and plays
@@ -129,7 +131,7 @@ def say(line: dict) -> None:
     print(json.dumps(line, default=str), flush=True)
 
 
-def watch(seconds: float) -> dict:
+def watch(seconds: float, rumble_on_push: bool = False) -> dict:
     """``--watch``: see the module docstring. Returns the ``done`` line."""
     t0 = time.monotonic()
     pygame, controller = start_sdl()
@@ -175,6 +177,10 @@ def watch(seconds: float) -> dict:
         if values != last:
             say({"t": round(time.monotonic(), 3), "v": values})
             last, samples = values, samples + 1
+        if rumble_on_push and abs(values["leftx"]) > 16384:
+            played = ctl.rumble(0.5, 1.0, 300)
+            say({"rumble": bool(played), "sdl_error": None if played else pygame.get_error()})
+            rumble_on_push = False
         time.sleep(0.005)
     return {"done": True, "removed": removed, "changes": samples, "error": None}
 
@@ -325,7 +331,8 @@ if __name__ == "__main__":
         sys.exit(0)
     if sys.argv[1:2] and sys.argv[1] in MODES:
         try:
-            out = MODES[sys.argv[1]](float(sys.argv[2]))
+            extra = {"rumble_on_push": True} if "--rumble-on-push" in sys.argv[3:] else {}  # --watch only
+            out = MODES[sys.argv[1]](float(sys.argv[2]), **extra)
         except Exception as exc:
             out = {"done": True, "error": f"{type(exc).__name__}: {exc}"}
         say(out)

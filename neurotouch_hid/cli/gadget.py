@@ -1,0 +1,85 @@
+"""``neurotouch-hid gadget setup`` and ``gadget remove``: the privileged step of ``run --output usb``.
+
+``setup`` (as root, once per boot: packaging/neurotouch-hid-gadget.service runs it) makes the
+configfs gadget (:mod:`neurotouch_hid.targets.gadget.configfs`) and hands its device nodes to a
+user, so that ``run --output usb`` never runs as root; ``remove`` takes it away again.
+"""
+
+from __future__ import annotations
+
+import os
+import pwd
+from typing import Optional
+
+import typer
+
+from neurotouch_hid.cli.common import console
+from neurotouch_hid.errors import NeurotouchError
+
+gadget_app = typer.Typer(
+    help="Make or remove the USB gadget that run --output usb uses (as root).", no_args_is_help=True
+)
+
+
+def _owner(user: Optional[str]) -> tuple[int, int]:
+    """(uid, gid) of ``user``, else of the user who ran sudo, else root's."""
+    if user:
+        try:
+            entry = pwd.getpwnam(user) if not user.isdigit() else pwd.getpwuid(int(user))
+        except KeyError:
+            raise NeurotouchError(f"--user {user}: no such user on this machine") from None
+        return entry.pw_uid, entry.pw_gid
+    return int(os.environ.get("SUDO_UID", "0")), int(os.environ.get("SUDO_GID", "0"))
+
+
+@gadget_app.command("setup")
+def setup(
+    protocol: str = typer.Option("hid", "--protocol", help="hid, switch or xinput (docs/any-host.md)"),
+    user: Optional[str] = typer.Option(None, "--user", help="who may use the gadget (default: the user who ran sudo)"),
+    keyboard: bool = typer.Option(False, "--keyboard", help="add a USB keyboard (profiles that press keys)"),
+    mouse: bool = typer.Option(False, "--mouse", help="add a USB mouse (profiles that move the pointer)"),
+) -> None:
+    """Make the USB gadget (configfs) and hand its device nodes to a user; as root.
+
+    The hid and switch gadgets are bound to the first USB device controller at once; the xinput
+    gadget binds when run --output usb has written its descriptors."""
+    from neurotouch_hid.targets.gadget import configfs
+
+    if os.geteuid() != 0:
+        raise NeurotouchError(f"gadget setup needs root:\nsudo {_self()} gadget setup --protocol {protocol}")
+    uid, gid = _owner(user)
+    plan = configfs.plan(protocol, keyboard, mouse)
+    configfs.remove()
+    folder = configfs.create(plan, uid=uid, gid=gid)
+    if not plan.ffs:
+        configfs.bind()
+    for function in plan.hid:
+        node = configfs.hidg_node(function.instance)
+        os.chown(node, uid, gid)
+        os.chmod(node, 0o660)
+        console.print(f"{node}: {function.format}, owned by uid {uid}", highlight=False)
+    if plan.ffs:
+        console.print(
+            f"{configfs.FFS_ROOT / configfs.FFS_INSTANCE}: the XInput pad, owned by uid {uid}", highlight=False
+        )
+    console.print(
+        f"gadget {folder} ({protocol}) ready; bound to: {configfs.bound_udc() or 'none yet'}", highlight=False
+    )
+
+
+@gadget_app.command("remove")
+def remove() -> None:
+    """Unbind and remove the USB gadget; as root."""
+    from neurotouch_hid.targets.gadget import configfs
+
+    if os.geteuid() != 0:
+        raise NeurotouchError(f"gadget remove needs root:\nsudo {_self()} gadget remove")
+    configfs.remove()
+    console.print(f"gadget {configfs.gadget_dir()} removed", highlight=False)
+
+
+def _self() -> str:
+    import shutil
+    import sys
+
+    return shutil.which("neurotouch-hid") or f"{sys.executable} -m neurotouch_hid.cli"

@@ -1,0 +1,123 @@
+"""The controller as a USB device for another computer or a console: a configfs USB gadget.
+
+A Linux board with a USB device-mode port (a UDC: a Raspberry Pi 4 or 5's USB-C port with
+``dtoverlay=dwc2``) presents the controller to the host at the other end of the cable, in one
+of three protocols (docs/reports.md has their reports, docs/any-host.md the set-up):
+
+* ``hid``: a generic USB HID joystick (``hid.usb0``), for Windows, macOS, Linux, Android and the
+  Xbox Adaptive Controller;
+* ``switch``: the HORIPAD-style pad a Nintendo Switch accepts (``hid.usb0``, HORI's ids);
+* ``xinput``: the Xbox 360 wired pad (``ffs.xinput``, FunctionFS), which Windows' XInput driver
+  and Linux's ``xpad`` bind to;
+
+plus a boot keyboard (``hid.usb1``) and a mouse (``hid.usb2``) in the same composite gadget when
+the profile uses keys or the mouse (an iPad's or an Android tablet's switch access takes a USB
+keyboard).
+
+:class:`UsbGadget` opens a run's targets: it uses the gadget a privileged ``neurotouch-hid
+gadget setup`` made (:mod:`~neurotouch_hid.targets.gadget.configfs`), or, run as root with none
+there, makes it itself and removes it when the run ends.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from typing import TYPE_CHECKING
+
+from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.targets.gadget import configfs
+
+if TYPE_CHECKING:
+    from neurotouch_hid.mapping.profile import Profile
+    from neurotouch_hid.stages import Target
+
+log = logging.getLogger(__name__)
+
+#: Pause between the neutral report taken by the host and the removal of a gadget the run made:
+#: once the host's input device is gone, evdev drops what a game had not read yet (the uinput
+#: pad's RELEASE_GRACE_S).
+RELEASE_GRACE_S = 0.05
+#: Which hid function instance carries which report format, whatever the gadget's protocol.
+INSTANCES = {"usb1": "keyboard", "usb2": "mouse"}
+
+
+def protocol_for(requested: str | None, profile: Profile) -> str:
+    """The protocol of a run: ``--protocol`` when given, else the profile's ``device: protocol``,
+    else ``hid``. Raises DeviceError for an unknown one."""
+    protocol = requested or getattr(profile.device, "protocol", None) or "hid"
+    if protocol not in configfs.PROTOCOLS:
+        raise DeviceError(f"unknown USB protocol {protocol!r} (expected one of: {', '.join(configfs.PROTOCOLS)})")
+    return protocol
+
+
+class UsbGadget:
+    """The run's gadget and its targets (module docstring), as a context manager.
+
+    ``protocol``: ``hid``, ``switch`` or ``xinput``; ``profile``: whether a keyboard and a mouse
+    function are made (when this run makes the gadget). :attr:`targets` are ready after
+    ``__enter__``; ``__exit__`` closes them (neutral first) and removes a gadget this run made.
+
+    Raises (from ``__enter__``):
+        DeviceError: no gadget of this protocol and not root; no UDC; the nodes are not this user's.
+    """
+
+    def __init__(self, protocol: str, profile: Profile, *, name: str = configfs.GADGET_NAME):
+        self.protocol = protocol
+        self.profile = profile
+        self.name = name
+        self.targets: list[Target] = []
+        self.made = False
+
+    def __enter__(self) -> "UsbGadget":
+        found = configfs.protocol_of(self.name)
+        if found is None:
+            if os.geteuid() != 0:
+                raise DeviceError(
+                    f"no USB gadget is set up for --output usb (no {configfs.gadget_dir(self.name)})\n"
+                    f"sudo neurotouch-hid gadget setup --protocol {self.protocol} --user $USER"
+                )
+            plan = configfs.plan(self.protocol, self.profile.uses_keyboard, self.profile.uses_mouse)
+            configfs.create(plan, name=self.name)
+            self.made = True
+        elif found != self.protocol:
+            raise DeviceError(
+                f"the USB gadget set up here speaks {found}, not {self.protocol}\n"
+                f"sudo neurotouch-hid gadget setup --protocol {self.protocol} --user $USER"
+            )
+        try:
+            self._open()
+        except BaseException:
+            self.__exit__(None, None, None)
+            raise
+        return self
+
+    def _open(self) -> None:
+        from neurotouch_hid.targets.gadget.targets import HidgTarget, XInputTarget
+        from neurotouch_hid.targets.reports import format_for
+
+        functions = configfs.gadget_dir(self.name) / "functions"
+        if self.protocol == "xinput":  # its descriptors first: the gadget binds only then
+            pad = XInputTarget(configfs.FFS_ROOT / configfs.FFS_INSTANCE, format_for("xinput"))
+            self.targets.append(pad)
+        if not configfs.bound_udc(self.name):
+            configfs.bind(self.name)
+        for instance in sorted(p.name.removeprefix("hid.") for p in functions.glob("hid.*")):
+            kind = INSTANCES.get(instance, self.protocol)
+            node = configfs.hidg_node(instance, self.name)
+            self.targets.append(HidgTarget(node, format_for(kind), f"USB gadget ({kind}, {node})"))
+        if self.profile.uses_keyboard and not (functions / "hid.usb1").is_dir():
+            log.warning("the profile presses keys but the USB gadget has no keyboard: gadget setup --keyboard")
+
+    def __exit__(self, *exc: object) -> None:
+        for target in reversed(self.targets):
+            try:
+                target.close()
+            except OSError as error:
+                log.warning("%s: closing failed: %s", target.what, error)
+        self.targets = []
+        if self.made:
+            time.sleep(RELEASE_GRACE_S)  # the host's readers take the neutral report before the device goes
+            configfs.remove(self.name)
+            self.made = False

@@ -1,0 +1,351 @@
+"""The USB gadget in configfs: made, found, bound to a UDC, unbound and removed.
+
+Everything here is the kernel's documented file interface, nothing more:
+Documentation/usb/gadget_configfs.rst (a gadget is a folder under
+``/sys/kernel/config/usb_gadget``: ``idVendor``, ``idProduct``, ``bcdDevice``, ``strings/0x409``,
+``configs/c.1``, ``functions/TYPE.INSTANCE`` linked into the configuration, and ``UDC``, which
+binds it to a USB device controller named in ``/sys/class/udc``), Documentation/usb/gadget_hid.rst
+(the ``hid`` function: ``protocol``, ``subclass``, ``report_length``, ``report_desc``; its
+``/dev/hidgN`` node) and Documentation/usb/functionfs.rst (the ``ffs`` function: a FunctionFS
+mount named like the instance, whose ``ep0`` takes the descriptors).
+
+The gadget of a run is one composite device (:func:`plan`): the controller (``hid.usb0`` for the
+``hid`` and ``switch`` protocols, ``ffs.xinput`` for ``xinput``), and ``hid.usb1`` (boot keyboard)
+and ``hid.usb2`` (mouse) when the profile uses keys or the mouse. Its vendor and product ids say
+which protocol it speaks (:func:`protocol_of`), so that a run finds what a ``gadget setup`` made.
+
+Every attribute read from sysfs or configfs goes through :func:`read_attr`, at most
+:data:`MAX_ATTR_BYTES`.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import subprocess
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from neurotouch_hid.errors import DeviceError
+
+#: Where configfs keeps the gadgets, and the controllers' class in sysfs.
+CONFIGFS = Path("/sys/kernel/config")
+UDC_CLASS = Path("/sys/class/udc")
+#: The gadget's folder name under ``usb_gadget``.
+GADGET_NAME = "neurotouch"
+#: Where the XInput function's FunctionFS is mounted (one folder per instance).
+FFS_ROOT = Path("/dev/ffs-neurotouch")
+#: The FunctionFS instance (and mount source) of the XInput pad.
+FFS_INSTANCE = "xinput"
+#: Largest sysfs/configfs attribute read (bytes): they are one short line; a page at most.
+MAX_ATTR_BYTES = 4096
+#: The kernel modules a gadget needs (doctor names them).
+MODULES = ("libcomposite", "usb_f_hid", "usb_f_fs")
+#: How long :func:`hidg_node` waits for a function's /dev/hidgN (s).
+NODE_WAIT_S = 5.0
+#: umount attempts of the FunctionFS mount in :func:`remove`, 0.1 s apart.
+UMOUNT_TRIES = 30
+#: The protocols ``--protocol`` offers.
+PROTOCOLS = ("hid", "switch", "xinput")
+#: Ids of the generic joystick: the Linux Foundation's "Multifunction Composite Gadget"
+#: (1d6b:0104), which gadget_configfs.rst's example uses.
+HID_IDS = (0x1D6B, 0x0104, 0x0100)
+
+
+@dataclass(frozen=True)
+class HidFunction:
+    """One ``hid`` function of the gadget: its instance, report format name
+    (:mod:`neurotouch_hid.targets.reports`), interface subclass (1: boot) and protocol (1
+    keyboard, 2 mouse, 0 none)."""
+
+    instance: str
+    format: str
+    subclass: int = 0
+    protocol: int = 0
+
+
+@dataclass(frozen=True)
+class GadgetPlan:
+    """What a gadget is made of: ids, strings, its ``hid`` functions and whether it has the
+    XInput FunctionFS function."""
+
+    protocol: str
+    vendor: int
+    product: int
+    version: int
+    manufacturer: str
+    product_name: str
+    hid: tuple[HidFunction, ...]
+    ffs: bool
+
+
+def plan(protocol: str, keyboard: bool = False, mouse: bool = False) -> GadgetPlan:
+    """The gadget for ``protocol`` (``hid``, ``switch``, ``xinput``), with a keyboard and a mouse
+    function when asked. Raises DeviceError for an unknown protocol."""
+    from neurotouch_hid.targets.reports.switch import PRODUCT as SWITCH_PRODUCT
+    from neurotouch_hid.targets.reports.switch import VENDOR as SWITCH_VENDOR
+    from neurotouch_hid.targets.reports.xinput import PRODUCT as XBOX_PRODUCT
+    from neurotouch_hid.targets.reports.xinput import VENDOR as XBOX_VENDOR
+    from neurotouch_hid.targets.reports.xinput import VERSION as XBOX_VERSION
+
+    if protocol not in PROTOCOLS:
+        raise DeviceError(f"unknown USB protocol {protocol!r} (expected one of: {', '.join(PROTOCOLS)})")
+    extra = []
+    if keyboard:
+        extra.append(HidFunction("usb1", "keyboard", subclass=1, protocol=1))
+    if mouse:
+        extra.append(HidFunction("usb2", "mouse", subclass=1, protocol=2))
+    if protocol == "xinput":
+        ids = (XBOX_VENDOR, XBOX_PRODUCT, XBOX_VERSION, "Microsoft", "Controller (NeuroTouch)")
+        return GadgetPlan(protocol, *ids, tuple(extra), True)
+    if protocol == "switch":
+        ids = (SWITCH_VENDOR, SWITCH_PRODUCT, 0x0100, "HORI CO.,LTD.", "HORIPAD S (NeuroTouch)")
+    else:
+        ids = (*HID_IDS, "neurotouch-hid", "NeuroTouch Joystick")
+    return GadgetPlan(protocol, *ids, (HidFunction("usb0", protocol), *extra), False)
+
+
+def read_attr(path: str | os.PathLike) -> str:
+    """A sysfs or configfs attribute's text, at most :data:`MAX_ATTR_BYTES`, stripped.
+
+    Raises:
+        OSError: as ``open`` and ``read`` do (FileNotFoundError when there is no such file).
+    """
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    try:
+        return os.read(fd, MAX_ATTR_BYTES).decode(errors="replace").strip()
+    finally:
+        os.close(fd)
+
+
+def write_attr(path: Path, value: str | bytes) -> None:
+    """Write one configfs attribute (one ``write``, as the kernel expects). Raises OSError."""
+    data = value.encode() if isinstance(value, str) else value
+    fd = os.open(path, os.O_WRONLY | os.O_CLOEXEC)
+    try:
+        os.write(fd, data)
+    finally:
+        os.close(fd)
+
+
+def gadget_dir(name: str = GADGET_NAME) -> Path:
+    """The gadget's folder in configfs."""
+    return CONFIGFS / "usb_gadget" / name
+
+
+def udcs() -> list[str]:
+    """The USB device controllers of this machine (``/sys/class/udc``), sorted; [] when none."""
+    try:
+        return sorted(p.name for p in UDC_CLASS.iterdir())
+    except OSError:
+        return []
+
+
+def protocol_of(name: str = GADGET_NAME) -> str | None:
+    """The protocol of the gadget ``name`` from its ids and functions (``xinput`` when it has
+    the FunctionFS pad, ``switch`` for HORI's ids, else ``hid``); None when there is no such gadget."""
+    from neurotouch_hid.targets.reports.switch import VENDOR as SWITCH_VENDOR
+
+    folder = gadget_dir(name)
+    if not folder.is_dir():
+        return None
+    if (folder / "functions" / f"ffs.{FFS_INSTANCE}").is_dir():
+        return "xinput"
+    try:
+        vendor = int(read_attr(folder / "idVendor"), 16)
+    except (OSError, ValueError):
+        return "hid"
+    return "switch" if vendor == SWITCH_VENDOR else "hid"
+
+
+def bound_udc(name: str = GADGET_NAME) -> str:
+    """The UDC the gadget is bound to, "" when none."""
+    try:
+        return read_attr(gadget_dir(name) / "UDC")
+    except OSError:
+        return ""
+
+
+def hidg_node(instance: str, name: str = GADGET_NAME, wait_s: float = NODE_WAIT_S) -> Path:
+    """The ``/dev/hidgN`` of the gadget's ``hid.INSTANCE`` function: the node whose device
+    number is the function's ``dev`` attribute (``MAJOR:MINOR``), waited for up to ``wait_s``
+    (the kernel makes it when the function is linked or bound, depending on its version; udev or
+    devtmpfs then makes the node).
+
+    Raises:
+        DeviceError: the function has no ``dev``, or no node in /dev has that number, in time.
+    """
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            return _hidg_node(instance, name)
+        except DeviceError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)
+
+
+def _hidg_node(instance: str, name: str) -> Path:
+    attr = gadget_dir(name) / "functions" / f"hid.{instance}" / "dev"
+    try:
+        major, minor = (int(x) for x in read_attr(attr).split(":"))
+    except (OSError, ValueError) as exc:
+        raise DeviceError(f"{attr}: no device number ({exc})") from None
+    want = os.makedev(major, minor)
+    for node in sorted(Path("/dev").glob("hidg*")):
+        try:
+            if node.stat().st_rdev == want:
+                return node
+        except OSError:
+            continue
+    raise DeviceError(f"no /dev/hidg* node is {major}:{minor} (the gadget's hid.{instance}); is udev running?")
+
+
+def load_modules() -> None:
+    """``modprobe`` the gadget's modules (a module built in, or already loaded, is fine)."""
+    for module in MODULES:
+        subprocess.run(["modprobe", module], check=False, capture_output=True)
+
+
+def mount_configfs() -> None:
+    """Mount configfs at /sys/kernel/config when it is not mounted yet."""
+    if not (CONFIGFS / "usb_gadget").is_dir():
+        subprocess.run(["mount", "-t", "configfs", "none", str(CONFIGFS)], check=False, capture_output=True)
+    if not (CONFIGFS / "usb_gadget").is_dir():
+        raise DeviceError(
+            f"{CONFIGFS}/usb_gadget does not exist: configfs or libcomposite is missing\n"
+            "sudo modprobe libcomposite\nsudo mount -t configfs none /sys/kernel/config"
+        )
+
+
+def create(gadget: GadgetPlan, *, name: str = GADGET_NAME, uid: int = -1, gid: int = -1) -> Path:
+    """Make the gadget in configfs (not bound: :func:`bind`), its ``hid`` functions with their
+    descriptors, the FunctionFS function mounted at ``FFS_ROOT/xinput`` (owned by ``uid``/``gid``
+    when given), everything linked into configuration ``c.1``. The ``UDC`` file is handed to
+    ``uid``/``gid`` too, so that the user's run can bind the XInput pad once its descriptors are
+    written. Root only. Returns the gadget's folder.
+
+    Raises:
+        DeviceError: configfs is missing, a gadget of that name exists, or the kernel refused a
+            step (the message names the file).
+    """
+    from neurotouch_hid.targets.reports import format_for
+
+    load_modules()
+    mount_configfs()
+    folder = gadget_dir(name)
+    if folder.exists():
+        raise DeviceError(f"{folder} exists already: remove it first (neurotouch-hid gadget remove)")
+    try:
+        folder.mkdir()
+        write_attr(folder / "idVendor", f"0x{gadget.vendor:04x}")
+        write_attr(folder / "idProduct", f"0x{gadget.product:04x}")
+        write_attr(folder / "bcdDevice", f"0x{gadget.version:04x}")
+        write_attr(folder / "bcdUSB", "0x0200")
+        strings = folder / "strings" / "0x409"
+        strings.mkdir()
+        write_attr(strings / "manufacturer", gadget.manufacturer)
+        write_attr(strings / "product", gadget.product_name)
+        write_attr(strings / "serialnumber", "00000001")
+        config = folder / "configs" / "c.1"
+        config.mkdir()
+        (config / "strings" / "0x409").mkdir()
+        write_attr(config / "strings" / "0x409" / "configuration", "neurotouch-hid")
+        write_attr(config / "MaxPower", "100")
+        functions = []
+        for hid in gadget.hid:
+            fmt = format_for(hid.format)
+            function = folder / "functions" / f"hid.{hid.instance}"
+            function.mkdir()
+            write_attr(function / "protocol", str(hid.protocol))
+            write_attr(function / "subclass", str(hid.subclass))
+            write_attr(function / "report_length", str(fmt.report_length))
+            write_attr(function / "report_desc", fmt.descriptor)
+            functions.append(function)
+        if gadget.ffs:
+            function = folder / "functions" / f"ffs.{FFS_INSTANCE}"
+            function.mkdir()
+            mount = FFS_ROOT / FFS_INSTANCE
+            mount.mkdir(parents=True, exist_ok=True)
+            options = [f"uid={uid}"] if uid >= 0 else []
+            options += [f"gid={gid}"] if gid >= 0 else []
+            cmd = ["mount", "-t", "functionfs", *(["-o", ",".join(options)] if options else []), FFS_INSTANCE]
+            subprocess.run([*cmd, str(mount)], check=True, capture_output=True)
+            if uid >= 0 or gid >= 0:
+                os.chown(mount, uid, gid)
+            functions.insert(0, function)
+        for function in functions:
+            (config / function.name).symlink_to(function)
+        if uid >= 0 or gid >= 0:
+            os.chown(folder / "UDC", uid, gid)
+    except (OSError, subprocess.CalledProcessError) as exc:
+        remove(name)
+        raise DeviceError(f"making the USB gadget {folder} failed: {exc}") from None
+    return folder
+
+
+def bind(name: str = GADGET_NAME, udc: str | None = None) -> str:
+    """Bind the gadget to ``udc`` (default: the first of :func:`udcs`); returns its name.
+
+    Raises:
+        DeviceError: no UDC on this machine, or the kernel refused (e.g. the controller is in
+            use by another gadget, or a FunctionFS function has no descriptors yet).
+    """
+    names = udcs()
+    if udc is None:
+        if not names:
+            raise DeviceError("no USB device controller in /sys/class/udc: see `neurotouch-hid doctor`")
+        udc = names[0]
+    try:
+        write_attr(gadget_dir(name) / "UDC", udc)
+    except OSError as exc:
+        if exc.errno == errno.EBUSY and bound_udc(name) == udc:
+            return udc
+        raise DeviceError(f"binding the USB gadget to {udc} failed: {exc.strerror}") from None
+    return udc
+
+
+def unbind(name: str = GADGET_NAME) -> None:
+    """Unbind the gadget from its UDC (the host sees it unplugged); nothing when it is not bound."""
+    if bound_udc(name):
+        try:
+            write_attr(gadget_dir(name) / "UDC", "\n")
+        except OSError:
+            pass
+
+
+def remove(name: str = GADGET_NAME) -> None:
+    """Unbind and remove the gadget, in the reverse order of gadget_configfs.rst's "Cleaning
+    up": links, configuration strings, configurations, functions (a FunctionFS one unmounted
+    first), gadget strings, the gadget. Missing parts are skipped; safe to call again."""
+    folder = gadget_dir(name)
+    if not folder.exists():
+        return
+    unbind(name)
+    config = folder / "configs" / "c.1"
+    for link in sorted(config.glob("*.*")) if config.is_dir() else []:
+        if link.is_symlink():
+            link.unlink()
+    for path in (config / "strings" / "0x409", config):
+        _rmdir(path)
+    for function in sorted((folder / "functions").glob("*.*")):
+        if function.name.startswith("ffs."):
+            mount = FFS_ROOT / function.name.removeprefix("ffs.")
+            for _ in range(UMOUNT_TRIES):  # busy while a closed endpoint's last read returns
+                if not os.path.ismount(mount):
+                    break
+                subprocess.run(["umount", str(mount)], check=False, capture_output=True)
+                time.sleep(0.1)
+            _rmdir(mount)
+            _rmdir(FFS_ROOT)
+        _rmdir(function)
+    _rmdir(folder / "strings" / "0x409")
+    _rmdir(folder)
+
+
+def _rmdir(path: Path) -> None:
+    try:
+        path.rmdir()
+    except OSError:
+        pass

@@ -1,0 +1,126 @@
+"""Can this machine be a USB gadget, or make a UHID device? What ``doctor`` and ``devices`` say.
+
+A gadget needs a USB device controller (a UDC in ``/sys/class/udc``: a board's device-mode or
+OTG port, e.g. a Raspberry Pi 4 or 5's USB-C port with ``dtoverlay=dwc2``), configfs mounted at
+``/sys/kernel/config`` and the kernel's ``libcomposite``, ``usb_f_hid`` and ``usb_f_fs`` (loaded:
+``/sys/module``; built in: ``modules.builtin``; loadable: ``modules.dep``, both in
+``/lib/modules/RELEASE``). ``--output hid`` needs ``/dev/uhid`` readable and writable
+(Documentation/hid/uhid.rst). Each missing piece comes with a command that fixes it.
+"""
+
+from __future__ import annotations
+
+import platform
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from neurotouch_hid.limits import FileLimitError, read_text_file
+from neurotouch_hid.targets.gadget import configfs
+
+#: Largest modules.dep / modules.builtin read (bytes): a distribution kernel's is ~1 MB.
+MAX_MODULES_FILE = 16 * 1024 * 1024
+#: Where a Raspberry Pi names its model (device tree).
+PI_MODEL = Path("/proc/device-tree/model")
+#: The UHID node.
+UHID = "/dev/uhid"
+
+
+def module_state(name: str, modules_dir: Path | None = None, sys_module: Path = Path("/sys/module")) -> str:
+    """``loaded``, ``built in``, ``available`` (a module file is there to load) or ``missing``,
+    for kernel module ``name`` (``-`` and ``_`` alike)."""
+    name = name.replace("-", "_")
+    if (sys_module / name).is_dir():
+        return "loaded"
+    modules_dir = modules_dir or Path("/lib/modules") / platform.release()
+    for listing, state in (("modules.builtin", "built in"), ("modules.dep", "available")):
+        try:
+            text = read_text_file(modules_dir / listing, MAX_MODULES_FILE, listing)
+        except (OSError, FileLimitError, UnicodeDecodeError):
+            continue
+        for line in text.splitlines():
+            base = line.split(":", 1)[0].rsplit("/", 1)[-1]
+            if base.split(".ko", 1)[0].replace("-", "_") == name:
+                return state
+    return "missing"
+
+
+def uhid_problem(devnode: str = UHID) -> str | None:
+    """Why ``devnode`` cannot be used for ``--output hid`` (missing, not a character device, not
+    readable and writable: the same tests as uinput's node), or None when it can."""
+    from neurotouch_hid.output.gamepad import uinput_problem
+
+    problem = uinput_problem(devnode)
+    return None if problem is None else problem.replace("uinput", "uhid")
+
+
+def is_raspberry_pi(model: Path = PI_MODEL) -> bool:
+    """The device tree names a Raspberry Pi."""
+    try:
+        return read_text_file(model, 4096, "device-tree model").startswith("Raspberry Pi")
+    except (OSError, FileLimitError, UnicodeDecodeError):
+        return False
+
+
+@dataclass(frozen=True)
+class GadgetSupport:
+    """What this machine has for ``--output usb``: its UDCs, configfs, the three modules' states
+    (:func:`module_state`), the gadget set up (its protocol, None when none) and, when something
+    is missing, ``problems`` (one line each) and ``fixes`` (commands, one a line)."""
+
+    udcs: list[str]
+    configfs: bool
+    modules: dict[str, str]
+    gadget: str | None
+    problems: list[str] = field(default_factory=list)
+    fixes: list[str] = field(default_factory=list)
+
+    @property
+    def possible(self) -> bool:
+        """A gadget can be made here."""
+        return not self.problems
+
+
+def gadget_support() -> GadgetSupport:
+    """Look at this machine (module docstring)."""
+    udcs = configfs.udcs()
+    mounted = (configfs.CONFIGFS / "usb_gadget").is_dir()
+    modules = {name: module_state(name) for name in configfs.MODULES}
+    problems, fixes = [], []
+    if not udcs:
+        problems.append("no USB device controller (/sys/class/udc is empty): this board cannot be a USB device")
+        if is_raspberry_pi():
+            fixes += [
+                "echo dtoverlay=dwc2,dr_mode=peripheral | sudo tee -a /boot/firmware/config.txt",
+                "sudo reboot   # then plug the Pi's USB-C port into the host",
+            ]
+        else:
+            fixes.append(
+                "# a board with a USB device-mode (OTG) port is needed, e.g. a Raspberry Pi 4 or 5 (docs/any-host.md)"
+            )
+    missing = [name for name, state in modules.items() if state == "missing"]
+    if missing:
+        problems.append(f"the kernel has no {', '.join(missing)}")
+        fixes.append(
+            "# a kernel built with CONFIG_USB_LIBCOMPOSITE, CONFIG_USB_CONFIGFS_F_HID and CONFIG_USB_CONFIGFS_F_FS"
+        )
+    loadable = [name for name, state in modules.items() if state == "available"]
+    if loadable:
+        fixes.append(f"sudo modprobe {' '.join(loadable)}")
+    if not mounted and "libcomposite" not in missing:
+        if not loadable:
+            problems.append("configfs is not mounted at /sys/kernel/config")
+        fixes.append("sudo mount -t configfs none /sys/kernel/config")
+    return GadgetSupport(udcs, mounted, modules, configfs.protocol_of(), problems, fixes)
+
+
+def possible_outputs() -> dict[str, str | None]:
+    """Each ``--output`` that needs a kernel interface -> None when it works here, else why not:
+    ``gamepad`` (uinput), ``hid`` (UHID), ``usb`` (a gadget)."""
+    from neurotouch_hid.output.gamepad import uinput_problem
+
+    support = gadget_support()
+    return {
+        "gamepad": uinput_problem(),
+        "hid": uhid_problem(),
+        "usb": None if support.possible else "; ".join(support.problems),
+    }

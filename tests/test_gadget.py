@@ -1,0 +1,240 @@
+"""The USB gadget's pieces that need no kernel: FunctionFS structs, the report writer, the plan.
+The gadget itself is checked in a real kernel (tests/test_gadget_kernel.py)."""
+
+import os
+import struct
+import time
+
+import pytest
+
+from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.targets.gadget import configfs, functionfs
+from neurotouch_hid.targets.gadget.targets import XINPUT_ENDPOINTS
+from neurotouch_hid.targets.gadget.writer import RESEND_S, ReportWriter
+
+
+def test_functionfs_descriptors_of_the_xinput_pad():
+    """functionfs.h's v2 head (magic 3, length, full+high speed), then per speed the interface
+    FF/5D/01 with 2 endpoints and the endpoints 0x81 IN and 0x02 OUT, interrupt."""
+    data = functionfs.descriptors((0xFF, 0x5D, 0x01), XINPUT_ENDPOINTS)
+    magic, length, flags, fs_count, hs_count = struct.unpack_from("<5I", data)
+    assert (magic, length, flags, fs_count, hs_count) == (3, len(data), 3, 3, 3)
+    speed = bytes.fromhex("0904000002ff5d01010705810320000407050203200008")
+    assert data[20:43] == speed
+    # high speed: the same in microframes, 2^(n-1) x 125 us: 4 ms -> 6, 8 ms -> 7
+    assert data[43:] == speed[:-8] + bytes([0x06]) + speed[-7:-1] + bytes([0x07])
+
+
+def test_functionfs_strings():
+    data = functionfs.strings("pad")
+    assert data == struct.pack("<IIIIH", 2, 22, 1, 1, 0x0409) + b"pad\0"
+
+
+def test_functionfs_events_are_read_whole_only():
+    setup = struct.pack("<BBHHHB3x", 0xC1, 0x01, 0x0100, 0, 20, functionfs.SETUP)
+    enable = struct.pack("<8xB3x", functionfs.ENABLE)
+    events = functionfs.parse_events(setup + enable + b"\x01\x02")
+    assert [e.name for e in events] == ["setup", "enable"]
+    assert (events[0].request_type, events[0].request, events[0].value, events[0].length) == (0xC1, 1, 0x100, 20)
+    assert functionfs.Event(9).name == "unknown 9"
+
+
+def _read_all(fd: int) -> bytes:
+    out = b""
+    while True:
+        try:
+            data = os.read(fd, 65536)
+        except BlockingIOError:
+            return out
+        if not data:  # the writer closed its end
+            return out
+        out += data
+
+
+def test_writer_keeps_the_latest_report_while_the_host_is_away_and_sends_it_when_back():
+    """A full pipe stands for a host that does not read (EAGAIN): the driver's submits return
+    at once, and once the host reads again it gets the latest report, not the ones between."""
+    r, w = os.pipe2(os.O_NONBLOCK)
+    filler = b"\0" * 65536
+    while True:
+        try:
+            os.write(w, filler)
+        except BlockingIOError:
+            break
+    writer = ReportWriter(w, "test")
+    try:
+        start = time.monotonic()
+        for i in range(100):
+            writer.submit(bytes([i]) * 8)
+        assert time.monotonic() - start < 1.0  # never blocked by the absent host
+        assert writer.flush(0.05) is False
+        _read_all(r)  # the host is back
+        assert writer.flush(2.0) is True
+        time.sleep(0.05)
+        got = _read_all(r)
+        assert got.startswith(bytes([99]) * 8)
+        assert set(got) == {99}
+    finally:
+        writer.stop()
+        os.close(r)
+        os.close(w)
+
+
+def test_writer_sends_the_current_report_again_after_a_while():
+    """A host that re-enumerated the gadget gets the current state without a change."""
+    r, w = os.pipe2(os.O_NONBLOCK)
+    writer = ReportWriter(w, "test")
+    try:
+        writer.submit(b"abc")
+        assert writer.flush(1.0)
+        time.sleep(RESEND_S * 2.5)
+        got = _read_all(r)
+        assert got.count(b"abc") >= 2 and set(got) == set(b"abc")
+    finally:
+        writer.stop()
+        os.close(r)
+        os.close(w)
+
+
+def test_writer_for_motion_keeps_every_report_in_order():
+    r, w = os.pipe2(os.O_NONBLOCK)
+    writer = ReportWriter(w, "mouse", depth=64, resend=False)
+    try:
+        for i in range(10):
+            writer.submit(bytes([i]))
+        assert writer.flush(1.0)
+        time.sleep(RESEND_S * 1.5)
+        assert _read_all(r) == bytes(range(10))
+    finally:
+        writer.stop()
+        os.close(r)
+        os.close(w)
+
+
+@pytest.mark.parametrize(
+    ("protocol", "ids", "functions", "ffs"),
+    [
+        ("hid", (0x1D6B, 0x0104), [("usb0", "hid", 0, 0)], False),
+        ("switch", (0x0F0D, 0x00C1), [("usb0", "switch", 0, 0)], False),
+        ("xinput", (0x045E, 0x028E), [], True),
+    ],
+)
+def test_plan(protocol, ids, functions, ffs):
+    plan = configfs.plan(protocol)
+    assert (plan.vendor, plan.product) == ids and plan.ffs is ffs
+    assert [(f.instance, f.format, f.subclass, f.protocol) for f in plan.hid] == functions
+    with_keys = configfs.plan(protocol, keyboard=True, mouse=True)
+    assert [(f.instance, f.format, f.subclass, f.protocol) for f in with_keys.hid] == functions + [
+        ("usb1", "keyboard", 1, 1),
+        ("usb2", "mouse", 1, 2),
+    ]
+
+
+def test_plan_refuses_an_unknown_protocol():
+    with pytest.raises(DeviceError, match="expected one of: hid, switch, xinput"):
+        configfs.plan("ps5")
+
+
+def test_read_attr_is_bounded(tmp_path):
+    big = tmp_path / "attr"
+    big.write_text("x" * (configfs.MAX_ATTR_BYTES * 3) + "\n")
+    assert configfs.read_attr(big) == "x" * configfs.MAX_ATTR_BYTES
+
+
+def test_install_script_installs_the_gadget_unit_for_a_protocol_and_user(tmp_path):
+    """install.sh --gadget PROTOCOL:USER writes the oneshot unit with both filled in (DESTDIR:
+    nothing live is touched); an unknown protocol is refused with the ones there are."""
+    import subprocess
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "packaging" / "install.sh"
+    env = {**os.environ, "DESTDIR": str(tmp_path)}
+    done = subprocess.run(
+        ["sh", str(script), "--gadget", "switch:alice", "--bin", "/usr/bin/neurotouch-hid"],
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    unit = (tmp_path / "etc/systemd/system/neurotouch-hid-gadget.service").read_text()
+    assert "ExecStart=/usr/bin/neurotouch-hid gadget setup --protocol switch --user alice\n" in unit
+    assert "ExecStop=/usr/bin/neurotouch-hid gadget remove\n" in unit
+    assert "Type=oneshot" in unit and "RemainAfterExit=yes" in unit
+    bad = subprocess.run(["sh", str(script), "--gadget", "ps5:bob"], env=env, capture_output=True, text=True)
+    assert bad.returncode == 2 and "hid, switch or xinput" in bad.stderr
+
+
+def test_module_state_reads_sys_module_then_builtin_then_dep(tmp_path):
+    from neurotouch_hid.targets.gadget.support import module_state
+
+    mods, sysmod = tmp_path / "lib", tmp_path / "sys"
+    mods.mkdir()
+    (sysmod / "usb_f_hid").mkdir(parents=True)
+    (mods / "modules.builtin").write_text("kernel/drivers/usb/gadget/libcomposite.ko\n")
+    (mods / "modules.dep").write_text(
+        "kernel/drivers/usb/gadget/function/usb_f_fs.ko.xz: kernel/drivers/usb/gadget/libcomposite.ko.xz\n"
+    )
+    assert module_state("usb_f_hid", mods, sysmod) == "loaded"
+    assert module_state("libcomposite", mods, sysmod) == "built in"
+    assert module_state("usb-f-fs", mods, sysmod) == "available"
+    assert module_state("dummy_hcd", mods, sysmod) == "missing"
+
+
+def test_raspberry_pi_is_told_by_its_device_tree_model(tmp_path):
+    from neurotouch_hid.targets.gadget.support import is_raspberry_pi
+
+    model = tmp_path / "model"
+    model.write_bytes(b"Raspberry Pi 5 Model B Rev 1.0\0")
+    assert is_raspberry_pi(model)
+    model.write_bytes(b"Generic x86\0")
+    assert not is_raspberry_pi(model)
+    assert not is_raspberry_pi(tmp_path / "none")
+
+
+def test_hidg_target_sends_changes_only_and_ends_on_the_neutral_report(tmp_path):
+    """A FIFO stands for /dev/hidgN (the host reading it): the held state's report once however
+    often it is written, then close() sends the neutral report before the node is closed."""
+    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.targets.gadget.targets import HidgTarget
+    from neurotouch_hid.targets.reports.switch import SWITCH
+
+    node = tmp_path / "hidg0"
+    os.mkfifo(node)
+    host = os.open(node, os.O_RDONLY | os.O_NONBLOCK)
+    target = HidgTarget(node, SWITCH, "test")
+    held = ControllerState.neutral()
+    held.axes["ABS_X"] = 32767
+    for _ in range(5):
+        target.write(held)
+    time.sleep(0.05)
+    got = _read_all(host)
+    assert (
+        got.endswith(SWITCH.pack(held)) and got.count(SWITCH.pack(held)) == 1
+    )  # the neutral first, if not yet replaced
+    target.close()
+    got = _read_all(host)
+    assert got.endswith(SWITCH.neutral()) and len(got) % 8 == 0
+    assert target.fileno() is None
+    target.close()  # idempotent
+    os.close(host)
+
+
+def test_the_protocol_comes_from_the_option_then_the_profile_then_hid():
+    from neurotouch_hid.mapping.profile import Profile
+    from neurotouch_hid.targets.gadget import protocol_for
+
+    plain = Profile()
+    switch = Profile.model_validate({"device": {"protocol": "switch"}})
+    assert protocol_for(None, plain) == "hid"
+    assert protocol_for(None, switch) == "switch"
+    assert protocol_for("xinput", switch) == "xinput"
+    with pytest.raises(DeviceError, match="unknown USB protocol 'ps5'"):
+        protocol_for("ps5", plain)
+
+
+def test_protocol_is_refused_without_output_usb():
+    from neurotouch_hid.driver import run_driver
+    from neurotouch_hid.errors import NeurotouchError
+
+    with pytest.raises(NeurotouchError, match="--protocol switch: only with --output usb"):
+        run_driver("sim", "default", "jsonl", protocol="switch")

@@ -1,0 +1,120 @@
+"""The Switch (HORIPAD) and Xbox 360 (XInput) reports, byte for byte (docs/reports.md)."""
+
+import pytest
+
+from neurotouch_hid.controller import ControllerState
+from neurotouch_hid.stages import Feedback
+from neurotouch_hid.targets.reports.switch import DESCRIPTOR, SwitchFormat
+from neurotouch_hid.targets.reports.xinput import XInputFormat, parse_output
+
+
+def state(**changes) -> ControllerState:
+    s = ControllerState.neutral()
+    for name, value in changes.items():
+        if name.startswith("BTN_"):
+            s.buttons[name] = value
+        else:
+            s.axes[name] = value
+    return s
+
+
+# --- switch ----------------------------------------------------------------------------------
+
+
+def test_switch_neutral_report():
+    assert SwitchFormat().neutral() == bytes.fromhex("0000 08 80808080 00")
+    assert SwitchFormat().report_length == len(SwitchFormat().neutral()) == 8
+
+
+@pytest.mark.parametrize(
+    ("changes", "report"),
+    [
+        ({"BTN_SOUTH": True}, "0200 08 80808080 00"),  # B
+        ({"BTN_EAST": True}, "0400 08 80808080 00"),  # A
+        ({"BTN_NORTH": True}, "0100 08 80808080 00"),  # Y
+        ({"BTN_WEST": True}, "0800 08 80808080 00"),  # X
+        ({"BTN_TL": True, "BTN_TR": True}, "3000 08 80808080 00"),
+        ({"ABS_Z": 128, "ABS_RZ": 127}, "4000 08 80808080 00"),  # ZL pressed, ZR not yet
+        ({"BTN_SELECT": True, "BTN_START": True}, "0003 08 80808080 00"),
+        ({"BTN_THUMBL": True, "BTN_THUMBR": True, "BTN_MODE": True}, "001c 08 80808080 00"),
+        ({"ABS_X": 32767}, "0000 08 ff808080 00"),
+        ({"ABS_X": -32768, "ABS_Y": 32767}, "0000 08 00ff8080 00"),
+        ({"ABS_RX": 256, "ABS_RY": -257}, "0000 08 80 80 81 7e 00"),
+        ({"ABS_HAT0Y": -1}, "0000 00 80808080 00"),  # up
+        ({"ABS_HAT0X": 1, "ABS_HAT0Y": -1}, "0000 01 80808080 00"),
+        ({"ABS_HAT0X": 1}, "0000 02 80808080 00"),
+        ({"ABS_HAT0X": 1, "ABS_HAT0Y": 1}, "0000 03 80808080 00"),
+        ({"ABS_HAT0Y": 1}, "0000 04 80808080 00"),
+        ({"ABS_HAT0X": -1, "ABS_HAT0Y": 1}, "0000 05 80808080 00"),
+        ({"ABS_HAT0X": -1}, "0000 06 80808080 00"),
+        ({"ABS_HAT0X": -1, "ABS_HAT0Y": -1}, "0000 07 80808080 00"),
+        ({"ABS_X": 10**9, "ABS_Y": -(10**9)}, "0000 08 ff008080 00"),  # out of range: clamped
+    ],
+)
+def test_switch_report(changes, report):
+    assert SwitchFormat().pack(state(**changes)) == bytes.fromhex(report)
+
+
+def test_switch_descriptor_is_horis_length():
+    """86 bytes, the length HORI's HID class descriptor gives (its walk: tests/test_reports.py)."""
+    assert len(DESCRIPTOR) == 86
+
+
+# --- xinput ----------------------------------------------------------------------------------
+
+
+def test_xinput_neutral_report():
+    assert XInputFormat().neutral() == bytes.fromhex("0014") + bytes(18)
+    assert XInputFormat().descriptor == b"" and XInputFormat().report_length == 20
+
+
+def _x(low: str, high: str, lt: str = "00", rt: str = "00", sticks: str = "0000" * 4) -> bytes:
+    return bytes.fromhex("0014" + low + high + lt + rt + sticks) + bytes(6)
+
+
+@pytest.mark.parametrize(
+    ("changes", "report"),
+    [
+        ({"ABS_HAT0Y": -1}, _x("01", "00")),
+        ({"ABS_HAT0Y": 1}, _x("02", "00")),
+        ({"ABS_HAT0X": -1}, _x("04", "00")),
+        ({"ABS_HAT0X": 1, "ABS_HAT0Y": -1}, _x("09", "00")),
+        ({"BTN_START": True, "BTN_SELECT": True}, _x("30", "00")),
+        ({"BTN_THUMBL": True, "BTN_THUMBR": True}, _x("c0", "00")),
+        ({"BTN_TL": True, "BTN_TR": True, "BTN_MODE": True}, _x("00", "07")),
+        ({"BTN_SOUTH": True}, _x("00", "10")),
+        ({"BTN_EAST": True}, _x("00", "20")),
+        ({"BTN_NORTH": True}, _x("00", "40")),
+        ({"BTN_WEST": True}, _x("00", "80")),
+        ({"ABS_Z": 255, "ABS_RZ": 1}, _x("00", "00", "ff", "01")),
+        ({"ABS_X": 32767}, _x("00", "00", sticks="ff7f" + "0000" * 3)),
+        ({"ABS_X": -32768}, _x("00", "00", sticks="0080" + "0000" * 3)),
+        ({"ABS_Y": -32768}, _x("00", "00", sticks="0000" + "ff7f" + "0000" * 2)),  # up: +32767
+        ({"ABS_Y": 32767}, _x("00", "00", sticks="0000" + "0180" + "0000" * 2)),  # down: -32767
+        ({"ABS_RX": 258, "ABS_RY": 1}, _x("00", "00", sticks="0000" * 2 + "0201" + "ffff")),
+    ],
+)
+def test_xinput_report(changes, report):
+    assert XInputFormat().pack(state(**changes)) == report
+
+
+@pytest.mark.parametrize(
+    ("data", "feedback"),
+    [
+        (bytes.fromhex("0008 00 ff 80 000000"), Feedback("rumble", strong=1.0, weak=128 / 255, source="x")),
+        (bytes.fromhex("0008 00 00 00 000000"), Feedback("rumble", source="x")),
+        (bytes.fromhex("010302"), Feedback("led", led=2, source="x")),
+        (bytes.fromhex("0103f6"), Feedback("led", led=6, source="x")),
+        (
+            bytes.fromhex("0008 00 ff 80 000000") + bytes(1000),
+            Feedback("rumble", strong=1.0, weak=128 / 255, source="x"),
+        ),
+        (b"", None),
+        (b"\x01\x03", None),  # LED without its pattern
+        (b"\x00\x08\x00\xff", None),  # rumble cut short
+        (b"\x02\x08\x00\xff\xff", None),  # unknown type
+        (bytes(range(256)) * 4, None),
+    ],
+)
+def test_xinput_output_reports(data, feedback):
+    assert parse_output(data, "x") == feedback
