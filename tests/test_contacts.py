@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from neurotouch_hid.pipeline import contacts as contacts_module
 from neurotouch_hid.pipeline.contacts import (
     HELD_PEAK_SHARE,
     _maxima,
@@ -859,3 +860,34 @@ def test_a_finger_held_earlier_in_the_press_outlasts_a_window_without_its_maximu
     if still_held:
         assert found.held[1][found.held[0].tolist().index(weak)] == pytest.approx(level)
     assert len(found.held[0]) == len(set(found.held[0].tolist()))  # the strong finger once, not twice
+
+
+def _held_reference(held, idx, magnitudes, now):
+    """The held peaks written with NumPy, as they were before their kernels: (levels, still held)."""
+    levels = np.zeros(len(idx))
+    at = np.minimum(np.searchsorted(idx, held[0]), len(idx) - 1)
+    found = idx[at] == held[0]
+    levels[at[found]] = held[1][found]
+    again = (held[0][:, None] == now[0][None, :]).any(axis=1)
+    still = (idx[at] == held[0]) & (magnitudes[at] >= contacts_module.HELD_PEAK_SHARE * held[1]) & ~again
+    return levels, (np.concatenate([now[0], held[0][still]]), np.concatenate([now[1], held[1][still]]))
+
+
+def test_the_held_peaks_kernels_match_numpy():
+    """Lost markers, peaks beyond the last valid marker, held again or easing off, a marker held twice."""
+    rng = np.random.default_rng(7)
+    for _ in range(500):
+        idx = np.flatnonzero(rng.random(40) < rng.uniform(0.3, 1.0))
+        if not len(idx):
+            continue
+        magnitudes = rng.uniform(0.0, 8.0, len(idx))
+        held = (rng.integers(0, 42, rng.integers(1, 6)), rng.uniform(0.0, 9.0, 0))
+        held = (held[0], rng.uniform(0.0, 9.0, len(held[0])))
+        now = (rng.choice(idx, rng.integers(0, min(4, len(idx)) + 1), replace=False), rng.uniform(0, 9, 0))
+        now = (now[0].astype(np.int64), rng.uniform(0.0, 9.0, len(now[0])))
+        levels, still = _held_reference(held, idx, magnitudes, now)
+        got = contacts_module._still_held(held, idx, magnitudes, now)
+        np.testing.assert_array_equal(contacts_module._held_levels(held, idx), levels)
+        np.testing.assert_array_equal(got[0], still[0])
+        np.testing.assert_array_equal(got[1], still[1])
+        assert got[0].dtype == np.int64 and got[1].dtype == np.float64

@@ -362,21 +362,83 @@ def _still_held(
     float64 px, at least :data:`HELD_PEAK_SHARE` of what it is held at (docs/method.md, "Contacts")."""
     if held is None or not len(held[0]):
         return now
-    at = np.minimum(np.searchsorted(idx, held[0]), len(idx) - 1)
-    again = (held[0][:, None] == now[0][None, :]).any(axis=1)  # held again this window: ``now``'s level
-    still = (idx[at] == held[0]) & (magnitudes[at] >= HELD_PEAK_SHARE * held[1]) & ~again
-    return np.concatenate([now[0], held[0][still]]), np.concatenate([now[1], held[1][still]])
+    return _still_held_kernel(
+        np.ascontiguousarray(held[0], dtype=np.int64),
+        np.ascontiguousarray(held[1], dtype=np.float64),
+        idx,
+        magnitudes,
+        np.ascontiguousarray(now[0], dtype=np.int64),
+        np.ascontiguousarray(now[1], dtype=np.float64),
+    )
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _found_at(idx: np.ndarray, marker: int) -> int:
+    """The row of ``marker`` among the ascending marker indices ``idx`` (M,) int64, M >= 1; -1
+    when it is not among them."""
+    at = min(np.searchsorted(idx, marker), len(idx) - 1)
+    return at if idx[at] == marker else -1
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _still_held_kernel(
+    held_at: np.ndarray,
+    held_level: np.ndarray,
+    idx: np.ndarray,
+    magnitudes: np.ndarray,
+    now_at: np.ndarray,
+    now_level: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_still_held` on a non-empty ``held`` (H,) int64 and (H,) float64: ``now``'s peaks,
+    then the held ones still held, in ``held``'s order; (K + H',) int64 and float64."""
+    k_n = len(now_at)
+    out_at = np.empty(k_n + len(held_at), dtype=np.int64)
+    out_level = np.empty(k_n + len(held_at))
+    out_at[:k_n] = now_at
+    out_level[:k_n] = now_level
+    n = k_n
+    for h in range(len(held_at)):
+        again = False  # held again this window: ``now``'s level
+        for q in range(k_n):
+            if now_at[q] == held_at[h]:
+                again = True
+        at = _found_at(idx, held_at[h])
+        if at >= 0 and not again and magnitudes[at] >= HELD_PEAK_SHARE * held_level[h]:
+            out_at[n] = held_at[h]
+            out_level[n] = held_level[h]
+            n += 1
+    return out_at[:n].copy(), out_level[:n].copy()
 
 
 def _held_levels(held: tuple[np.ndarray, np.ndarray] | None, idx: np.ndarray) -> np.ndarray:
     """(M,) float64: the ||v|| (px) each of the valid markers ``idx`` (M,) int64 (ascending) is held at
     by ``held`` (:attr:`Contacts.held`), 0 where none."""
+    if held is None or not len(held[0]):
+        return np.zeros(len(idx))
+    return _held_levels_kernel(
+        np.ascontiguousarray(held[0], dtype=np.int64), np.ascontiguousarray(held[1], dtype=np.float64), idx
+    )
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _held_levels_kernel(held_at: np.ndarray, held_level: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """:func:`_held_levels` on a non-empty ``held`` (H,) int64 and (H,) float64 (a marker held twice:
+    the later level)."""
     levels = np.zeros(len(idx))
-    if held is not None and len(held[0]):
-        at = np.minimum(np.searchsorted(idx, held[0]), len(idx) - 1)
-        found = idx[at] == held[0]
-        levels[at[found]] = held[1][found]
+    for h in range(len(held_at)):
+        at = _found_at(idx, held_at[h])
+        if at >= 0:
+            levels[at] = held_level[h]
     return levels
+
+
+def compile_held_kernels() -> None:
+    """Compile (or load from numba's cache) the kernels of a press's held peaks
+    (:func:`_held_levels`, :func:`_still_held`) now: the warm-up's synthetic windows hold none."""
+    held = (np.array([1, 2], dtype=np.int64), np.array([1.0, 1.0]))
+    idx = np.arange(4, dtype=np.int64)
+    _held_levels(held, idx)
+    _still_held(held, idx, np.ones(4), (held[0][:1], held[1][:1]))
 
 
 def outlier_candidates(

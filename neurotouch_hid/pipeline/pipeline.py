@@ -45,7 +45,7 @@ import numpy as np
 from neurotouch_hid.errors import SensorError
 from neurotouch_hid.estimate import GestureEstimate, GestureType, MarkerPositions
 from neurotouch_hid.pipeline.config import MIN_WINDOW_US, PipelineConfig, PixelSettings, scaled_to_sensor
-from neurotouch_hid.pipeline.contacts import Contacts, detect_contacts
+from neurotouch_hid.pipeline.contacts import Contacts, compile_held_kernels, detect_contacts
 from neurotouch_hid.pipeline.contacts_plateau import rest_neighbours
 from neurotouch_hid.pipeline.creep import TAIL_PRESS_MARKERS, TAIL_PRESS_SHARE, CreepFilter, TailWatch
 from neurotouch_hid.pipeline.episode import EpisodeVote
@@ -242,6 +242,7 @@ class GesturePipeline(FramePath):
         compile_resting_kernels()  # its frames come later, possibly in the runtime's thread
         compile_gel_motion_kernels()  # the grid's rim barely moves: its fits stop before them
         compile_camera_model_kernels()  # the sensor gets its camera model at the rest frame
+        compile_held_kernels()  # a press's held peaks: the synthetic windows below hold none
         _largest_move_sq(moved, all_valid, rest)  # every window's checks before a fit
         overrules_rest(moved, all_valid, rest, grid_neighbours(rest), 0.5, 1)  # the motion override's, at rest
         _unchanged(moved, flat, all_valid, all_valid)
