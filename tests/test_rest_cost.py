@@ -4,10 +4,14 @@ reported within one window of a pipeline that never skips them."""
 
 from __future__ import annotations
 
+import copy
+
 import pytest
 
 from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.pipeline import tracker as tracker_module
 from neurotouch_hid.pipeline.pipeline import GesturePipeline
+from neurotouch_hid.pipeline.tracker import BlobTracker
 from neurotouch_hid.sources.simulator import SimulatedSource
 
 
@@ -117,3 +121,41 @@ def test_the_compiled_resting_window_gives_the_general_paths_estimates_and_state
     assert fast.tracker.positions_px.tobytes() == general.tracker.positions_px.tobytes()
     assert fast.tracker.counts == general.tracker.counts
     assert (fast.noise_filter.n_in, fast.noise_filter.n_out) == (general.noise_filter.n_in, general.noise_filter.n_out)
+
+
+def test_the_reanchoring_at_rest_without_a_repaint_gives_the_full_resets_state(rest_push_rest):
+    """At each APS frame at rest the tracker is re-anchored at the same rest positions; while its
+    label images are those that reset painted, the reset is one compiled pass over the blobs'
+    state. Each such reset leaves every array as the full reset does (state, covariance, times,
+    rates, validity, cells, label images, counters), and the whole run's estimates are those of
+    a pipeline that always resets in full."""
+    sensor, items = rest_push_rest
+    full_reset = BlobTracker.reset
+    arrays = ("_state", "_cov", "_t_upd", "_t_seen", "_rate", "_valid", "_cell", "_label", "_neigh", "_counts")
+    taken = []
+
+    def checked(tracker, positions_px):
+        before, painted = copy.deepcopy(tracker), tracker._painted
+        full_reset(tracker, positions_px)
+        if painted is None or tracker._painted is not painted:
+            return  # the full reset ran
+        taken.append(True)
+        before._painted = None
+        full_reset(before, positions_px)
+        for name in arrays:
+            assert getattr(tracker, name).tobytes() == getattr(before, name).tobytes(), name
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(BlobTracker, "reset", checked)
+        pipeline = GesturePipeline(sensor)
+        ours = [e for item in items for e in pipeline.process(item)]
+    assert len(taken) > 30  # the frames at rest took the compiled pass
+    assert pipeline._anchorings > len(taken)  # ... and not those after a frame correction or a repaint
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(tracker_module, "_reset_if_painted", lambda *args: False)
+        always_full = GesturePipeline(sensor)
+        theirs = [e for item in items for e in always_full.process(item)]
+    assert [repr(e) for e in ours] == [repr(e) for e in theirs]
+    for name in arrays:
+        assert getattr(pipeline.tracker, name).tobytes() == getattr(always_full.tracker, name).tobytes(), name

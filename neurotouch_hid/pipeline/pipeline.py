@@ -255,6 +255,7 @@ class GesturePipeline(FramePath):
         finally:
             self.timings = timings
         tracker = BlobTracker(rest, self.sensor.width, self.sensor.height, self.settings.tracker, sensor=self.sensor)
+        tracker.reset(rest)  # the re-anchoring at every APS frame at rest
         pitch = MARKER_SPACING_MM * self.sensor.px_per_mm  # the paper's settings have no pitch of their own
         swapped_blobs(tracker.positions_px, tracker.valid, rest, rest_neighbours(rest, pitch), rest + 0.5, pitch)
         tracker.correct(rest + 0.5, int(events["timestamp"][-1]))  # the frame correction's fusion

@@ -43,8 +43,9 @@ _N_NEIGHBOURS = 12
 _PX, _PY, _VX, _VY, _QX, _QY = range(6)
 # Columns of the shared per-axis covariance [p, v, q]: P00 P01 P02 P11 P12 P22.
 _C00, _C01, _C02, _C11, _C12, _C22 = range(6)
-# Counters: events applied, gated out by the rate gate, noise (no blob owns the pixel).
-_N_APPLIED, _N_GATED, _N_NOISE = range(3)
+# Counters: events applied, gated out by the rate gate, noise (no blob owns the pixel); and the
+# event loop's repaints (a label image changed: ``BlobTracker.reset`` at the same rest).
+_N_APPLIED, _N_GATED, _N_NOISE, _N_REPAINTS = range(4)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -300,6 +301,7 @@ def _track(events, state, cov, t_upd, t_seen, rate, valid, cell, label, offs, n_
             or abs(px - qx - cell[i, 0, 0]) > _HYSTERESIS_PX
             or abs(py - qy - cell[i, 0, 1]) > _HYSTERESIS_PX
         ):
+            counts[_N_REPAINTS] += 1
             _repaint(i, cell, label, offs, n_offs, neigh, valid, state, assoc2)
 
 
@@ -329,6 +331,35 @@ def _check_lost(cell, label, offs, n_offs, neigh, valid, state, prm):
                 lost = True
         if lost:
             _lose(i, cell, label, offs, n_offs, neigh, valid, state, assoc2)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _reset_if_painted(p, rest, rest_valid, repaints, counts, state, cov, t_upd, t_seen, rate, valid, p0):
+    """Re-initialise every blob at ``p`` (N, 2) float64 px as ``BlobTracker.reset`` does, in
+    place, when its label images and cells are still those painted at that reset: ``p`` equals
+    ``rest`` (the positions of that reset), no blob was lost since (``valid`` equals
+    ``rest_valid``, the reset's) and the event loop repainted none (``counts[_N_REPAINTS]`` is
+    still ``repaints``). The state's other arrays get the reset's values: zero velocity and
+    offset, the initial covariance ``p0`` = (position, velocity, offset) px^2, no event seen.
+    Returns whether it did (False: nothing changed, the caller repaints)."""
+    if counts[_N_REPAINTS] != repaints or p.shape != rest.shape:
+        return False
+    for i in range(len(rest)):
+        if valid[i] != rest_valid[i] or p[i, 0] != rest[i, 0] or p[i, 1] != rest[i, 1]:
+            return False
+    for i in range(len(rest)):
+        for k in range(6):
+            state[i, k] = 0.0
+            cov[i, k] = 0.0
+        state[i, _PX] = p[i, 0]
+        state[i, _PY] = p[i, 1]
+        cov[i, _C00] = p0[0]
+        cov[i, _C11] = p0[1]
+        cov[i, _C22] = p0[2]
+        t_upd[i] = -1
+        t_seen[i] = -1
+        rate[i] = 0.0
+    return True
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
