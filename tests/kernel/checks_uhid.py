@@ -39,6 +39,10 @@ from neurotouch_hid.targets.uhid import HID_DEFAULT, PHYS
 
 TIMEOUT_S = 300
 IDS = (HID_DEFAULT.vendor, HID_DEFAULT.product)
+#: Seconds of gel at rest before the push: the driver starts its source as soon as the device
+#: exists, and UHID (unlike a USB host, which polls) delivers a report on a change only, so
+#: hidapi's reader must be open before the push to read it (it opens within a second or two).
+REST_S = 3.0
 
 
 def _our_input_device() -> str | None:
@@ -62,7 +66,8 @@ def check_run_output_hid() -> dict:
     guestlib.settle()
     assert Path("/dev/uhid").exists(), f"no /dev/uhid after modprobe: {modprobe}"
     folder = Path(tempfile.mkdtemp(prefix="uhid-check-"))
-    preds, profile = _write(folder, push_right(120.0), PROFILE)
+    # the rest: hidapi's reader is open before the push (the run's first report after its start)
+    preds, profile = _write(folder, push_right(120.0, rest_s=REST_S), PROFILE)
     t0 = time.monotonic()  # SDL's start (a Python start) overlaps the expected state's and the run's
     probe = subprocess.Popen(
         [sys.executable, str(Path(__file__).resolve().parent / "sdl_probe.py"), "--joystick", "240"],
@@ -80,21 +85,16 @@ def check_run_output_hid() -> dict:
 
     def steps(run: InProcessRun) -> None:
         t_run = time.monotonic()
-        ready = guestlib.wait_for(
-            lambda: lines.first("ready") or lines.first("done") or probe.poll() is not None, 150.0
-        )
-        seen["sdl_ready_s"] = time.monotonic() - t0
-        assert isinstance(ready, dict) and ready.get("ready"), f"SDL did not start: {lines.lines} {probe.poll()}"
         found = guestlib.wait_for(lambda: hidraw.enumerate(*IDS) or not run.alive(), 150.0, 0.1)
         assert found and run.alive(), f"no hidraw device: {run.said[-5:]}"
         seen["device_s"] = time.monotonic() - t_run
         seen["info"] = found[0]
-        guestlib.settle()
-        seen["sysfs_name"], seen["driver"] = hid_driver(IDS)
         device = hidraw.device()
         device.open(*IDS)
+        seen["reader"] = reader = HidrawReader(device)  # UHID sends a report on a change only
+        guestlib.settle()
+        seen["sysfs_name"], seen["driver"] = hid_driver(IDS)
         seen["descriptor"] = bytes(device.get_report_descriptor())
-        seen["reader"] = reader = HidrawReader(device)
         node = guestlib.wait_for(_our_input_device, 10.0)
         assert node, "no input device with our phys"
         seen["props"] = guestlib.udev_properties(node)
@@ -106,6 +106,11 @@ def check_run_output_hid() -> dict:
         seen["got_held"] = guestlib.wait_for(lambda: held_report in reader.reports, 30.0)
         seen["held_s"] = time.monotonic() - t_run
         seen["asked"] = bytes(device.get_input_report(0, 64))
+        ready = guestlib.wait_for(
+            lambda: lines.first("ready") or lines.first("done") or probe.poll() is not None, 150.0
+        )
+        seen["sdl_ready_s"] = time.monotonic() - t0
+        assert isinstance(ready, dict) and ready.get("ready"), f"SDL did not start: {lines.lines} {probe.poll()}"
         seen["sdl_held"] = guestlib.wait_for(
             lambda: next((d for d in lines.samples_raw() if d["axes"] and d["axes"][0] > 0.99), None), 60.0
         )

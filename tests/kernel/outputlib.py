@@ -25,13 +25,13 @@ mappings:
 """
 
 
-def push_right(hold_s: float) -> list:
-    """Rest 1 s, then a push straight to the right (the user frame's +x only) ramped to 6 mm in
+def push_right(hold_s: float, rest_s: float = 1.0) -> list:
+    """Rest ``rest_s``, then a push straight to the right (the user frame's +x only) ramped to 6 mm in
     0.3 s and held ``hold_s``: a list of GestureEstimate."""
     from neurotouch_hid.estimate import GestureEstimate
 
     estimates = timeline(
-        [(1.0, GestureType.NONE, lambda f: 0.0), (0.3, GestureType.PUSH, lambda f: 6.0 * f)]
+        [(rest_s, GestureType.NONE, lambda f: 0.0), (0.3, GestureType.PUSH, lambda f: 6.0 * f)]
         + [(hold_s, GestureType.PUSH, lambda f: 6.0)]
     )
     return [
