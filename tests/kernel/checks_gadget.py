@@ -7,14 +7,16 @@ pipeline in real time): the gel at rest 1 s, then pushed to the right and held u
 Everything after the pipeline is real: the runtime, the profile, the configfs gadget, dummy_hcd's
 controller, and on the host side usbhid, hid-generic, hid-input, hidraw, xpad, evdev and SDL.
 The runs are root with no gadget set up, so ``run`` makes the gadget and removes it on exit;
-the keyboard's run uses one ``gadget setup`` made. One driver start per protocol, one SDL start
-for ``hid`` and one for ``xinput``:
+the keyboard's run uses one ``gadget setup`` made. The driver runs in this process
+(``run_driver``, what ``run`` calls, in the main thread where the runtime's SIGTERM handler is)
+and every run is ended by a real SIGTERM to this process: a second Python start costs 30 to 120 s
+under emulation. One SDL start for ``hid`` and one for ``xinput``:
 
 * ``hid`` (:func:`check_usb_hid`): hid-generic binds 1d6b:0104; hidapi (hidraw backend) opens it
   by its ids, reads the documented descriptor and the held push as ``HID_JOYSTICK.pack`` makes
   it; evdev reads ABS_X at the push; SDL's joystick axis 0 goes full right. Then the UDC is
   unbound (the host sees the cable pulled) and bound again: the driver keeps running and the
-  re-enumerated device reads the held push again. SIGTERM: exit 0, the last report is neutral.
+  re-enumerated device reads the held push again. SIGTERM: the run returns normally, the last report is neutral.
 * ``switch`` (:func:`check_usb_switch`): HORI's 0f0d:00c1; the held push's report decodes field
   by field as docs/reports.md says (B, ZR, the hat right, LX 255, the rest centred); SIGTERM:
   the last report is neutral.
@@ -31,7 +33,6 @@ for ``hid`` and one for ``xinput``:
 
 from __future__ import annotations
 
-import signal
 import subprocess
 import sys
 import tempfile
@@ -39,8 +40,8 @@ import time
 from pathlib import Path
 
 import guestlib
-from checks_runtime import NO_DROP_LAG_MS, ProbeLines, _env, _write
-from checks_uhid import PROFILE, HidrawReader, _push_right
+from checks_runtime import ProbeLines, _write
+from outputlib import PROFILE, HidrawReader, InProcessRun, held_state, hid_driver, push_right
 
 from neurotouch_hid.targets.gadget import configfs
 from neurotouch_hid.targets.reports.hid import HID_JOYSTICK
@@ -77,39 +78,26 @@ def _kernel() -> dict:
     return loaded
 
 
-#: The CLI with a traceback of every thread on stderr when SIGTERM comes outside the runtime's own
-#: handler (which replaces this one while it runs): where a run was when it was stopped too early.
-_CLI = (
-    "import faulthandler, signal, sys; faulthandler.register(signal.SIGTERM, chain=True); "
-    "sys.argv[0] = 'neurotouch-hid'; from neurotouch_hid.cli import main; main()"
-)
-
-
-def _run(preds: Path, profile: Path, *args: str) -> subprocess.Popen:
-    return subprocess.Popen(
-        [sys.executable, "-c", _CLI, "run", "--source", str(preds), "--profile", str(profile), "--output", "usb",
-         "--max-lag-ms", NO_DROP_LAG_MS, *args],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(),
-    )  # fmt: skip
-
-
 def _sdl(*args: str) -> tuple[subprocess.Popen, ProbeLines]:
+    """SDL's probe (sdl_probe.py ARGS) started: its start overlaps the driver's."""
     probe = subprocess.Popen(
         [sys.executable, str(Path(__file__).resolve().parent / "sdl_probe.py"), *args],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=guestlib.sdl_env(),
     )  # fmt: skip
-    lines = ProbeLines(probe)
+    return probe, ProbeLines(probe)
+
+
+def _sdl_ready(probe: subprocess.Popen, lines: ProbeLines) -> None:
     ready = guestlib.wait_for(lambda: lines.first("ready") or lines.first("done") or probe.poll() is not None, 150.0)
     assert isinstance(ready, dict) and ready.get("ready"), f"SDL did not start: {lines.lines} {probe.poll()}"
-    return probe, lines
 
 
-def _hidraw(ids: tuple[int, int], run: subprocess.Popen, timeout_s: float = 400.0) -> dict:
+def _hidraw(ids: tuple[int, int], run: InProcessRun, timeout_s: float = 400.0) -> dict:
     """hidapi's entry for the device with ``ids``, once the host side has enumerated it."""
     import hidraw
 
-    found = guestlib.wait_for(lambda: hidraw.enumerate(*ids) or run.poll() is not None, timeout_s, 0.1)
-    assert found and run.poll() is None, f"no hidraw {ids}: {_err(run) if run.poll() is not None else found}"
+    found = guestlib.wait_for(lambda: hidraw.enumerate(*ids) or not run.alive(), timeout_s, 0.1)
+    assert found and run.alive(), f"no hidraw {ids}: {run.said[-5:]}"
     return found[0]
 
 
@@ -121,24 +109,19 @@ def _open(ids: tuple[int, int]):
     return device
 
 
-def _host_side(ids: tuple[int, int], run: subprocess.Popen) -> tuple:
-    """Once the host side has the device with ``ids``: (hidapi's entry, seconds it took from
-    now, sysfs name, HID driver, the report descriptor hidapi reads, a reader of its reports)."""
+def _host_side(ids: tuple[int, int], run: InProcessRun, seen: dict) -> HidrawReader:
+    """Once the host side has the device with ``ids``: into ``seen`` hidapi's entry (``info``),
+    the seconds it took from now (``device_s``), the sysfs name and HID driver, the report
+    descriptor hidapi reads; returns a reader of its reports (also ``seen["reader"]``)."""
     t_run = time.monotonic()
-    info = _hidraw(ids, run)
-    device_s = time.monotonic() - t_run
+    seen["info"] = _hidraw(ids, run)
+    seen["device_s"] = time.monotonic() - t_run
     guestlib.settle()
-    sysfs_name, driver = _hid_driver(ids)
+    seen["sysfs_name"], seen["driver"] = hid_driver(ids)
     device = _open(ids)
-    return info, device_s, sysfs_name, driver, bytes(device.get_report_descriptor()), HidrawReader(device)
-
-
-def _hid_driver(ids: tuple[int, int]) -> tuple[str | None, str | None]:
-    """(sysfs name, bound driver) of the HID device with ``ids``: /sys/bus/hid/devices/0003:VID:PID.N."""
-    for dev in sorted(Path("/sys/bus/hid/devices").glob(f"0003:{ids[0]:04X}:{ids[1]:04X}.*")):
-        driver = dev / "driver"
-        return dev.name, (driver.resolve().name if driver.exists() else None)
-    return None, None
+    seen["descriptor"] = bytes(device.get_report_descriptor())
+    seen["reader"] = HidrawReader(device)
+    return seen["reader"]
 
 
 def _input_device(ids: tuple[int, int], code: int, kind: int) -> str | None:
@@ -154,26 +137,6 @@ def _input_device(ids: tuple[int, int], code: int, kind: int) -> str | None:
         except OSError:
             pass
     return None
-
-
-def _err(run: subprocess.Popen) -> str:
-    return run.stderr.read()[-2000:] if run.stderr else ""
-
-
-def _stop(run: subprocess.Popen, watcher=None) -> str:
-    """SIGTERM, reading ``watcher``'s events meanwhile (once the run removes its gadget, evdev
-    drops what a reader had not read), then the run's stderr."""
-    run.send_signal(signal.SIGTERM)
-    if watcher is not None:
-        watcher.pump(timeout_s=30.0, until=lambda r: run.poll() is not None, max_s=90.0)
-    _, err = run.communicate(timeout=90)
-    return err
-
-
-def _kill(*procs) -> None:
-    for proc in procs:
-        if proc is not None and proc.poll() is None:
-            proc.kill()
 
 
 def _command(*args: str) -> tuple[int, str]:
@@ -198,113 +161,109 @@ def _command(*args: str) -> tuple[int, str]:
     return code, out.getvalue()
 
 
-def _held(folder: Path, profile: Path):
-    """The profile's state for the held push: the last push line of ``run --output jsonl --fast``
-    over the push held 0.4 s (its very last line is the neutral state written at the end)."""
-    import json
-
-    from neurotouch_hid.controller import ControllerState
-    from neurotouch_hid.dataset import write_predictions
-    from neurotouch_hid.driver import run_driver
-
-    preds = folder / "held.jsonl"
-    write_predictions(preds, _push_right(0.4))
-    out = folder / "expected.jsonl"
-    run_driver(str(preds), profile, "jsonl", fast=True, out=out)
-    last = [json.loads(line) for line in out.read_text().splitlines() if '"gesture": "push"' in line][-1]
-    return ControllerState(axes=last["axes"], buttons=last["buttons"])
-
-
 def _setup(profile_text: str) -> tuple[Path, Path, object]:
     folder = Path(tempfile.mkdtemp(prefix="gadget-check-"))
-    preds, profile = _write(folder, _push_right(120.0), profile_text)
-    held = _held(folder, profile)
+    preds, profile = _write(folder, push_right(120.0), profile_text)
+    held = held_state(folder, profile)
     assert held.axes["ABS_X"] > 0, f"the profile's held push: {held}"
     return preds, profile, held
+
+
+def _close(*things) -> None:
+    """Stop SDL's probes still running, close readers left open by a failed check."""
+    for thing in things:
+        if isinstance(thing, subprocess.Popen):
+            if thing.poll() is None:
+                thing.kill()
+        elif thing is not None:
+            thing.close()
 
 
 def check_usb_hid() -> dict:
     """See the module docstring: ``hid`` through sysfs, hidapi, evdev and SDL; unplugged and
     plugged again mid-run; SIGTERM."""
+    import hidraw
     from evdev import InputDevice, ecodes
 
     t0 = time.monotonic()
     loaded = _kernel()
+    probe, lines = _sdl("--joystick", "300")
     preds, profile, held = _setup(PROFILE)
     held_report = HID_JOYSTICK.pack(held)
-    probe, lines = _sdl("--joystick", "300")
-    sdl_ready_s = time.monotonic() - t0
-    run = reader = watcher = None
-    try:
-        run = _run(preds, profile, "--protocol", "hid")
-        info, device_s, sysfs_name, driver, descriptor, reader = _host_side(HID_IDS, run)
+    run = InProcessRun(preds, profile, "usb", protocol="hid")
+    seen: dict = {}
+
+    def steps(run: InProcessRun) -> None:
+        _sdl_ready(probe, lines)
+        seen["sdl_ready_s"] = time.monotonic() - t0
+        reader = _host_side(HID_IDS, run, seen)
         node = guestlib.wait_for(lambda: _input_device(HID_IDS, ecodes.ABS_X, ecodes.EV_ABS), 20.0)
         assert node, "no input device for the joystick"
-        props = guestlib.udev_properties(node)
-        watcher = guestlib.EventReader(node)
+        seen["props"] = guestlib.udev_properties(node)
+        seen["watcher"] = watcher = guestlib.EventReader(node)
         held_x = held.axes["ABS_X"]
         watcher.pump(timeout_s=400.0, until=lambda r: r.axes.get(ecodes.ABS_X) == held_x, max_s=400.0)
-        evdev_held = watcher.axes.get(ecodes.ABS_X)
-        got_held = guestlib.wait_for(lambda: held_report in reader.reports, 60.0)
-        sdl_held = guestlib.wait_for(
+        seen["evdev_held"] = watcher.axes.get(ecodes.ABS_X)
+        seen["got_held"] = guestlib.wait_for(lambda: held_report in reader.reports, 60.0)
+        seen["sdl_held"] = guestlib.wait_for(
             lambda: next((d for d in lines.samples_raw() if d["axes"] and d["axes"][0] > 0.99), None), 60.0
         )
         # the cable pulled and put back: the UDC unbound, then bound again
         reader.stop()
         watcher.close()
         configfs.write_attr(configfs.gadget_dir() / "UDC", "\n")
-        import hidraw
-
-        gone = guestlib.wait_for(lambda: not hidraw.enumerate(*HID_IDS), 20.0, 0.1)
+        seen["gone"] = guestlib.wait_for(lambda: not hidraw.enumerate(*HID_IDS), 20.0, 0.1)
         time.sleep(1.0)
-        running_unplugged = run.poll() is None
+        seen["running_unplugged"] = run.alive()
         configfs.write_attr(configfs.gadget_dir() / "UDC", UDC)
         t_plug = time.monotonic()
         _hidraw(HID_IDS, run, 60.0)
-        device = _open(HID_IDS)
-        reader = HidrawReader(device)
-        got_back = guestlib.wait_for(lambda: held_report in reader.reports, 20.0)
-        back_s = time.monotonic() - t_plug
+        seen["reader"] = reader = HidrawReader(_open(HID_IDS))
+        seen["got_back"] = guestlib.wait_for(lambda: held_report in reader.reports, 20.0)
+        seen["back_s"] = time.monotonic() - t_plug
         node = guestlib.wait_for(lambda: _input_device(HID_IDS, ecodes.ABS_X, ecodes.EV_ABS), 20.0)
-        evdev_back = guestlib.wait_for(lambda: InputDevice(node).absinfo(ecodes.ABS_X).value or None, 10.0)
-        watcher = guestlib.EventReader(node)
-        err = _stop(run, watcher)
+        seen["evdev_back"] = guestlib.wait_for(lambda: InputDevice(node).absinfo(ecodes.ABS_X).value or None, 10.0)
+        seen["watcher"] = watcher = guestlib.EventReader(node)
+        run.stop(watcher)
         time.sleep(0.5)
         reader.stop()
+
+    try:
+        run(steps)
         opened = lines.first("opened")
     finally:
-        _kill(run, probe)
-        if watcher is not None:
-            watcher.close()
-    assert run.returncode == 0, f"run exit code {run.returncode}: {err[-2000:]}"
-    assert driver == "hid-generic", f"the HID driver of {sysfs_name}: {driver}"
+        _close(probe, seen.get("watcher"))
+    reader, watcher, props, descriptor = seen["reader"], seen["watcher"], seen["props"], seen["descriptor"]
+    assert run.returned, f"the run did not return after SIGTERM: {run.said[-5:]}"
+    assert seen["driver"] == "hid-generic", f"the HID driver of {seen['sysfs_name']}: {seen['driver']}"
     assert descriptor == HID_JOYSTICK.descriptor, f"descriptor read back: {descriptor.hex()}"
-    assert got_held, f"the held push never arrived as {held_report.hex()}"
-    assert evdev_held == held.axes["ABS_X"] > 0, f"evdev ABS_X {evdev_held}"
+    assert seen["got_held"], f"the held push never arrived as {held_report.hex()}"
+    assert seen["evdev_held"] == held.axes["ABS_X"] > 0, f"evdev ABS_X {seen['evdev_held']}"
     assert props.get("ID_INPUT_JOYSTICK") == "1", f"udev: {props}"
-    assert sdl_held, f"SDL never read axis 0 at full right: {lines.lines[-5:]}"
-    assert gone and running_unplugged, f"unplugged: hidraw gone {gone}, driver running {running_unplugged}"
-    assert got_back, f"after the re-plug the host never read the held push: {[r.hex() for r in reader.reports[-3:]]}"
-    assert evdev_back == held.axes["ABS_X"], f"evdev ABS_X after the re-plug: {evdev_back}"
+    assert seen["sdl_held"], f"SDL never read axis 0 at full right: {lines.lines[-5:]}"
+    assert seen["gone"] and seen["running_unplugged"], f"unplugged: {seen['gone']}, {seen['running_unplugged']}"
+    assert seen["got_back"], f"after the re-plug no held push: {[r.hex() for r in reader.reports[-3:]]}"
+    assert seen["evdev_back"] == held.axes["ABS_X"], f"evdev ABS_X after the re-plug: {seen['evdev_back']}"
     assert reader.reports[-1] == HID_JOYSTICK.neutral(), f"last report after SIGTERM: {reader.reports[-1].hex()}"
     assert watcher.axes.get(ecodes.ABS_X) == 0, f"evdev after SIGTERM: ABS_X {watcher.axes.get(ecodes.ABS_X)}"
     assert not configfs.gadget_dir().exists(), "the run made the gadget and did not remove it"
+    info = seen["info"]
     return {
         "modprobe": loaded,
-        "hid_device": sysfs_name,
-        "driver": driver,
+        "hid_device": seen["sysfs_name"],
+        "driver": seen["driver"],
         "hidapi": {"path": info["path"].decode(), "product": info["product_string"], "usage_page": info["usage_page"],
                    "usage": info["usage"]},
         "descriptor_bytes": len(descriptor),
         "held_report": held_report.hex(),
         "last_report": reader.reports[-1].hex(),
         "sdl_opened": opened,
-        "sdl_held_axes": sdl_held["axes"],
-        "replug_report_s": round(back_s, 2),
-        "sdl_ready_s": round(sdl_ready_s, 1),
-        "device_after_start_s": round(device_s, 1),
+        "sdl_held_axes": seen["sdl_held"]["axes"],
+        "replug_report_s": round(seen["back_s"], 2),
+        "sdl_ready_s": round(seen["sdl_ready_s"], 1),
+        "device_after_start_s": round(seen["device_s"], 1),
         "seconds": round(time.monotonic() - t0, 1),
-        "stderr_tail": err.strip().splitlines()[-2:],
+        "said_tail": run.said[-2:],
     }  # fmt: skip
 
 
@@ -314,43 +273,47 @@ def check_usb_switch() -> dict:
     _kernel()
     preds, profile, held = _setup(SWITCH_PROFILE)
     held_report = SWITCH.pack(held)
-    run = reader = None
-    try:
-        run = _run(preds, profile, "--protocol", "switch")
-        info, device_s, sysfs_name, driver, descriptor, reader = _host_side(SWITCH_IDS, run)
-        got_held = guestlib.wait_for(lambda: held_report in reader.reports, 400.0)
-        seen = reader.reports[-1]  # the report the host read last while the push is held
-        err = _stop(run)
+    run = InProcessRun(preds, profile, "usb", protocol="switch")
+    seen: dict = {}
+
+    def steps(run: InProcessRun) -> None:
+        reader = _host_side(SWITCH_IDS, run, seen)
+        seen["got_held"] = guestlib.wait_for(lambda: held_report in reader.reports, 400.0)
+        seen["seen"] = reader.reports[-1]  # the report the host read last while the push is held
+        run.stop()
         time.sleep(0.5)
         reader.stop()
-    finally:
-        _kill(run)
-    assert run.returncode == 0, f"run exit code {run.returncode}: {err[-2000:]}"
+
+    run(steps)
+    reader, descriptor, last = seen["reader"], seen["descriptor"], seen["seen"]
+    assert run.returned, f"the run did not return after SIGTERM: {run.said[-5:]}"
     assert descriptor == SWITCH.descriptor, f"descriptor read back: {descriptor.hex()}"
-    assert got_held, f"the held push never arrived as {held_report.hex()}: {[r.hex() for r in reader.reports[-3:]]}"
-    buttons = int.from_bytes(seen[0:2], "little")
+    assert seen["got_held"], (
+        f"the held push never arrived as {held_report.hex()}: {[r.hex() for r in reader.reports[-3:]]}"
+    )
+    buttons = int.from_bytes(last[0:2], "little")
     decoded = {
         "B": bool(buttons & 1 << 1),
         "ZR": bool(buttons & 1 << 7),
         "others": buttons & ~(1 << 1 | 1 << 7),
-        "hat": seen[2] & 0x0F,
-        "padding": seen[2] >> 4,
-        "LX": seen[3],
-        "LY": seen[4],
-        "RX": seen[5],
-        "RY": seen[6],
-        "vendor": seen[7],
+        "hat": last[2] & 0x0F,
+        "padding": last[2] >> 4,
+        "LX": last[3],
+        "LY": last[4],
+        "RX": last[5],
+        "RY": last[6],
+        "vendor": last[7],
     }
     assert reader.reports[-1] == SWITCH.neutral(), f"last report after SIGTERM: {reader.reports[-1].hex()}"
     return {
-        "hid_device": sysfs_name,
-        "driver": driver,
+        "hid_device": seen["sysfs_name"],
+        "driver": seen["driver"],
         "descriptor_bytes": len(descriptor),
         "held_report": held_report.hex(),
-        "seen_report": seen.hex(),
+        "seen_report": last.hex(),
         "decoded": decoded,
         "last_report": reader.reports[-1].hex(),
-        "device_after_start_s": round(device_s, 1),
+        "device_after_start_s": round(seen["device_s"], 1),
         "seconds": round(time.monotonic() - t0, 1),
     }
 
@@ -367,53 +330,60 @@ def check_usb_xinput() -> dict:
 
     t0 = time.monotonic()
     _kernel()
-    preds, profile, held = _setup(PROFILE)
     probe, lines = _sdl("--watch", "300", "--rumble-on-push")
-    run = watcher = None
-    try:
-        run = _run(preds, profile, "--protocol", "xinput")
+    preds, profile, held = _setup(PROFILE)
+    run = InProcessRun(preds, profile, "usb", protocol="xinput")
+    seen: dict = {}
+
+    def steps(run: InProcessRun) -> None:
+        _sdl_ready(probe, lines)
         t_run = time.monotonic()
-        interface = guestlib.wait_for(lambda: _xpad_interface() or run.poll() is not None, 400.0, 0.1)
-        device_s = time.monotonic() - t_run
-        assert isinstance(interface, str), f"xpad did not bind: {_err(run) if run.poll() is not None else ''}"
-        klass = [
+        interface = guestlib.wait_for(lambda: _xpad_interface() or not run.alive(), 400.0, 0.1)
+        seen["device_s"] = time.monotonic() - t_run
+        assert isinstance(interface, str), f"xpad did not bind: {run.said[-5:]}"
+        seen["interface"] = interface
+        seen["klass"] = [
             configfs.read_attr(Path("/sys/bus/usb/devices") / interface / name)
             for name in ("bInterfaceClass", "bInterfaceSubClass", "bInterfaceProtocol")
         ]
         node = guestlib.wait_for(lambda: _input_device(XBOX_IDS, ecodes.ABS_X, ecodes.EV_ABS), 30.0)
         assert node, "no input device for the XInput pad"
-        name = guestlib.EventReader(node).device.name
-        watcher = guestlib.EventReader(node)
+        seen["watcher"] = watcher = guestlib.EventReader(node)
+        seen["name"] = watcher.device.name
         held_x = held.axes["ABS_X"]
         watcher.pump(timeout_s=400.0, until=lambda r: r.axes.get(ecodes.ABS_X) == held_x, max_s=400.0)
-        evdev_held = watcher.axes.get(ecodes.ABS_X)
-        sdl_held = guestlib.wait_for(lambda: next((d for d in lines.samples() if d["v"]["leftx"] > 32000), None), 60.0)
-        rumble = guestlib.wait_for(lambda: lines.first("rumble"), 60.0)
+        seen["evdev_held"] = watcher.axes.get(ecodes.ABS_X)
+        seen["sdl_held"] = guestlib.wait_for(
+            lambda: next((d for d in lines.samples() if d["v"]["leftx"] > 32000), None), 60.0
+        )
+        seen["rumble"] = guestlib.wait_for(lambda: lines.first("rumble"), 60.0)
         time.sleep(1.0)  # the rumble's report on its way to the gadget's OUT endpoint
-        err = _stop(run, watcher)
+        run.stop(watcher)
+
+    try:
+        run(steps)
         opened = lines.first("opened")
     finally:
-        _kill(run, probe)
-        if watcher is not None:
-            watcher.close()
-    assert run.returncode == 0, f"run exit code {run.returncode}: {err[-2000:]}"
-    assert evdev_held == held.axes["ABS_X"] > 0, f"evdev ABS_X {evdev_held}"
+        _close(probe, seen.get("watcher"))
+    watcher, rumble, sdl_held = seen["watcher"], seen["rumble"], seen["sdl_held"]
+    assert run.returned, f"the run did not return after SIGTERM: {run.said[-5:]}"
+    assert seen["evdev_held"] == held.axes["ABS_X"] > 0, f"evdev ABS_X {seen['evdev_held']}"
     assert sdl_held, f"SDL never read the left stick at full right: {lines.lines[-5:]}"
     assert rumble and rumble["rumble"], f"SDL's rumble: {rumble}"
-    heard = [line for line in err.splitlines() if "rumble (the gel has no motor)" in line]
-    leds = [line for line in err.splitlines() if "player LED" in line]
-    assert heard, f"the run never heard the rumble: {err[-2000:]}"
+    heard = [line for line in run.said if "rumble (the gel has no motor)" in line]
+    leds = [line for line in run.said if "player LED" in line]
+    assert heard, f"the run never heard the rumble: {run.said[-10:]}"
     assert watcher.axes.get(ecodes.ABS_X) == 0, f"evdev after SIGTERM: ABS_X {watcher.axes.get(ecodes.ABS_X)}"
     return {
-        "xpad_interface": interface,
-        "interface_class": klass,
-        "evdev_name": name,
+        "xpad_interface": seen["interface"],
+        "interface_class": seen["klass"],
+        "evdev_name": seen["name"],
         "sdl_opened": opened,
         "sdl_held": sdl_held["v"],
         "sdl_rumble": rumble,
         "rumble_lines": heard[:2],
         "led_lines": leds[:2],
-        "device_after_start_s": round(device_s, 1),
+        "device_after_start_s": round(seen["device_s"], 1),
         "seconds": round(time.monotonic() - t0, 1),
     }
 
@@ -426,40 +396,44 @@ def check_usb_switch_access_keyboard() -> dict:
     t0 = time.monotonic()
     _kernel()
     folder = Path(tempfile.mkdtemp(prefix="gadget-keys-"))
-    preds, _ = _write(folder, _push_right(120.0), "description: unused\n")
+    preds, _ = _write(folder, push_right(120.0), "description: unused\n")
     setup = _command("gadget", "setup", "--protocol", "hid", "--keyboard", "--user", "root")
     assert setup[0] == 0, f"gadget setup: {setup}"
-    t_run = time.monotonic()
-    run = watcher = None
-    try:
-        run = _run(preds, Path("switch-access"))
+    run = InProcessRun(preds, "switch-access", "usb")
+    seen: dict = {}
+
+    def steps(run: InProcessRun) -> None:
+        t_run = time.monotonic()
         node = guestlib.wait_for(
-            lambda: _input_device(HID_IDS, ecodes.KEY_SPACE, ecodes.EV_KEY) or run.poll() is not None, 400.0, 0.1
+            lambda: _input_device(HID_IDS, ecodes.KEY_SPACE, ecodes.EV_KEY) or not run.alive(), 400.0, 0.1
         )
-        assert isinstance(node, str), f"no USB keyboard on the host side: {_err(run) if run.poll() is not None else ''}"
-        device_s = time.monotonic() - t_run
-        props = guestlib.udev_properties(node)
-        watcher = guestlib.EventReader(node)
+        assert isinstance(node, str), f"no USB keyboard on the host side: {run.said[-5:]}"
+        seen["device_s"] = time.monotonic() - t_run
+        seen["node"] = node
+        seen["props"] = guestlib.udev_properties(node)
+        seen["watcher"] = watcher = guestlib.EventReader(node)
         watcher.pump(timeout_s=400.0, until=lambda r: ecodes.KEY_SPACE in r.keys, max_s=400.0)
-        pressed = ecodes.KEY_SPACE in watcher.keys
-        err = _stop(run, watcher)
-        released = ecodes.KEY_SPACE not in watcher.keys
+        seen["pressed"] = ecodes.KEY_SPACE in watcher.keys
+        run.stop(watcher)
+        seen["released"] = ecodes.KEY_SPACE not in watcher.keys
+
+    try:
+        run(steps)
     finally:
-        _kill(run)
-        if watcher is not None:
-            watcher.close()
+        _close(seen.get("watcher"))
     kept = configfs.gadget_dir().exists()
     remove = _command("gadget", "remove")
-    assert run.returncode == 0, f"run exit code {run.returncode}: {err[-2000:]}"
+    props = seen["props"]
+    assert run.returned, f"the run did not return after SIGTERM: {run.said[-5:]}"
     assert props.get("ID_INPUT_KEYBOARD") == "1", f"udev: {props}"
-    assert pressed, "the push never arrived as KEY_SPACE"
-    assert released, "KEY_SPACE still down after SIGTERM"
+    assert seen["pressed"], "the push never arrived as KEY_SPACE"
+    assert seen["released"], "KEY_SPACE still down after SIGTERM"
     assert kept, "the run removed the gadget that gadget setup made"
     assert remove[0] == 0 and not configfs.gadget_dir().exists(), f"gadget remove: {remove}"
     return {
         "setup": setup[1].strip().splitlines(),
-        "device_after_start_s": round(device_s, 1),
-        "keyboard": node,
+        "device_after_start_s": round(seen["device_s"], 1),
+        "keyboard": seen["node"],
         "ID_INPUT_KEYBOARD": props.get("ID_INPUT_KEYBOARD"),
         "seconds": round(time.monotonic() - t0, 1),
     }

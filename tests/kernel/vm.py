@@ -50,9 +50,21 @@ CAMERA_MODULES = ("checks_davis",)
 #: guest took 171 s and the other 610 s without them, 435 s and 315 s with them. The longer a
 #: guest, the nearer its timeout on a slow machine; the host's tests took about 600 s either way.
 #: They never touch the camera (their sources are files) and run after checks_davis.py unplugged it.
+#: Later, beside the host's tests at load 7-10: the camera's, gamepad's and runtime's checks took
+#: 150, 55 and 354 s in the first guest; the copilot's, devices', packaging's, remaps' and UHID's
+#: 54, 108, 5, 312 and 104 s in the second; with the driver run in the checks' own process, the
+#: USB gadget's took 245 s and the UHID output's 26 s in focused boots. So the UHID output's
+#: check (no camera, no gadget) runs in the first guest.
 #: The second guest runs every other module; the modules that plug gadgets of their own into
-#: dummy_hcd (checks_packaging.py) or list the cameras (checks_devices.py) are among them.
-FIRST_GUEST_ALSO = ("checks_gamepad", "checks_runtime", "checks_runtime_remap_games", "checks_type_handover")
+#: dummy_hcd (checks_packaging.py, checks_gadget.py) or list the cameras (checks_devices.py) are
+#: among them, and so is checks_copilot.py (name order would run it before the camera's).
+FIRST_GUEST_ALSO = (
+    "checks_gamepad",
+    "checks_runtime",
+    "checks_runtime_remap_games",
+    "checks_type_handover",
+    "checks_uhid",
+)
 #: Guest check modules of the slow tier only (``pytest -m slow``, :func:`slow_guest_results`, a
 #: guest of their own): the gesture pipeline's numba code on the emulated camera, about 5 minutes
 #: under emulation on an idle host, 8 to 17 on a loaded one.

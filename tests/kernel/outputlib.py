@@ -1,0 +1,162 @@
+"""Helpers of the output checks (checks_uhid.py, checks_gadget.py; run inside the qemu guest):
+the pushed gel's predictions, the profile's state for it, hidapi's reader, and the driver run in
+the check's own process (a second Python start costs 30 to 120 s under emulation)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import threading
+from pathlib import Path
+
+import guestlib
+import numpy as np
+from checks_runtime import NO_DROP_LAG_MS, timeline
+
+from neurotouch_hid.estimate import GestureType
+
+#: The push to the right: the left stick and button A (2 mm of push presses it).
+PROFILE = """\
+description: guest check of neurotouch-hid run --output hid
+mappings:
+  push: {input: push, output: left_stick, deadzone_mm: 0.5, saturation_mm: 6.0}
+  fire: {input: push_intensity, output: BTN_SOUTH, press_mm: 2.0, release_mm: 1.0}
+"""
+
+
+def push_right(hold_s: float, rest_s: float = 1.0) -> list:
+    """Rest ``rest_s``, then a push straight to the right (the user frame's +x only) ramped to 6 mm in
+    0.3 s and held ``hold_s``: a list of GestureEstimate."""
+    from neurotouch_hid.estimate import GestureEstimate
+
+    estimates = timeline(
+        [(rest_s, GestureType.NONE, lambda f: 0.0), (0.3, GestureType.PUSH, lambda f: 6.0 * f)]
+        + [(hold_s, GestureType.PUSH, lambda f: 6.0)]
+    )
+    return [
+        GestureEstimate(
+            t_us=e.t_us,
+            gesture=e.gesture,
+            resting=False,
+            intensity_mm=e.intensity_mm,
+            translation_mm=np.array([e.intensity_mm, 0.0]),
+        )
+        if e.gesture is GestureType.PUSH
+        else e
+        for e in estimates
+    ]
+
+
+def held_state(folder: Path, profile: Path):
+    """The profile's ControllerState for the held push: the last push line of ``run --output
+    jsonl --fast`` over the push held 0.4 s (the driver's own run_driver, in this process; the
+    run's very last line is the neutral state written at its end)."""
+    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.dataset import write_predictions
+    from neurotouch_hid.driver import run_driver
+
+    preds = folder / "held.jsonl"
+    write_predictions(preds, push_right(0.4))
+    out = folder / "expected.jsonl"
+    run_driver(str(preds), profile, "jsonl", fast=True, out=out)
+    last = [d for d in map(json.loads, out.read_text().splitlines()) if d["gesture"] == "push"][-1]
+    return ControllerState(axes=last["axes"], buttons=last["buttons"])
+
+
+class HidrawReader:
+    """Reads a device's input reports through hidapi (hidraw backend) in a thread: ``reports``,
+    bytes each; ``error``: why reading ended (the device went away), else None."""
+
+    def __init__(self, device) -> None:
+        self.device = device
+        self.reports: list[bytes] = []
+        self.error: str | None = None
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self._loop, daemon=True)
+        self.thread.start()
+
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                data = self.device.read(64, 200)
+            except (OSError, ValueError) as exc:  # the device went away
+                self.error = str(exc)
+                return
+            if data:
+                self.reports.append(bytes(data))
+
+    def stop(self) -> None:
+        self._stop.set()
+        self.thread.join(5)
+
+
+def hid_driver(ids: tuple[int, int]) -> tuple[str | None, str | None]:
+    """(sysfs name, bound driver) of the HID device with ``ids``: /sys/bus/hid/devices/0003:VID:PID.N."""
+    for dev in sorted(Path("/sys/bus/hid/devices").glob(f"0003:{ids[0]:04X}:{ids[1]:04X}.*")):
+        driver = dev / "driver"
+        return dev.name, (driver.resolve().name if driver.exists() else None)
+    return None, None
+
+
+def _ignore(*_) -> None:
+    """SIGTERM outside the run's own handler (before it installed it, after it restored ours)."""
+
+
+class InProcessRun:
+    """``neurotouch-hid run`` as the CLI runs it (``run_driver``), in this process's main thread,
+    where the runtime installs its SIGTERM handler; ``steps(self)`` run in a thread beside it and
+    end it with :meth:`stop`, a real SIGTERM to this process. ``said``: the lines the run told
+    the user (the CLI's stderr); ``done``: set once ``run_driver`` returned."""
+
+    def __init__(self, preds: Path, profile: Path | str, output: str, protocol: str | None = None) -> None:
+        self.args = (str(preds), profile, output)
+        self.protocol = protocol
+        self.said: list[str] = []
+        self.done = threading.Event()
+        self.returned = False
+
+    def alive(self) -> bool:
+        return not self.done.is_set()
+
+    def stop(self, watcher=None, timeout_s: float = 90.0) -> None:
+        """SIGTERM to this process once the runtime's handler replaced ours, reading ``watcher``'s
+        events (a guestlib.EventReader) until the run returned: once the run removes its device,
+        evdev drops what a reader had not read."""
+        installed = guestlib.wait_for(
+            lambda: signal.getsignal(signal.SIGTERM) is not _ignore or self.done.is_set(), 300
+        )
+        if installed and not self.done.is_set():
+            os.kill(os.getpid(), signal.SIGTERM)
+        if watcher is not None:
+            watcher.pump(timeout_s=30.0, until=lambda r: self.done.is_set(), max_s=timeout_s)
+        self.done.wait(timeout_s)
+
+    def __call__(self, steps):
+        """Run the driver and ``steps``; return what ``steps`` returned, raise what it raised."""
+        from neurotouch_hid.driver import run_driver
+
+        box: dict = {}
+
+        def beside() -> None:
+            try:
+                box["value"] = steps(self)
+            except BaseException as exc:  # noqa: BLE001 - re-raised in the main thread
+                box["error"] = exc
+            finally:
+                if not self.done.is_set():
+                    self.stop()
+
+        previous = signal.signal(signal.SIGTERM, _ignore)
+        thread = threading.Thread(target=beside, daemon=True)
+        try:
+            thread.start()
+            run_driver(*self.args, protocol=self.protocol, max_lag_us=int(NO_DROP_LAG_MS) * 1000, say=self.said.append)
+            self.returned = True
+        finally:
+            self.done.set()
+            thread.join(180)
+            signal.signal(signal.SIGTERM, previous)
+        if "error" in box:
+            raise box["error"]
+        return box.get("value")
