@@ -318,7 +318,7 @@ def labels_at(labels: Sequence[LabelRow], t_us: np.ndarray) -> list[LabelRow | N
 #: simulator's true markers and families, an enrolment's plan): a folder holding anything else
 #: is never replaced, even with ``--force``.
 DATASET_FILES = ("sensor.yaml", "physics.json")
-DATASET_SUFFIXES = (".aedat4", ".labels.csv", ".plan.json", ".markers.npz")
+DATASET_SUFFIXES = (".aedat4", ".labels.csv", ".pressed.csv", ".plan.json", ".markers.npz")
 
 
 def _held(folder: Path) -> list[str]:

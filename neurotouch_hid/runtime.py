@@ -371,6 +371,8 @@ class Runtime:
         self._stop = threading.Event()
         self._reload = threading.Event()
         self._lock = threading.Lock()  # mapper + output: the worker vs. profile switches
+        self._verdict_lock = threading.Lock()  # the resting detector: its thread vs. the source's at rest
+        self._last_verdict_us: int | None = None
         self._errors: list[BaseException] = []
         self._last_state = ControllerState.neutral()
         self._last_gesture: GestureType | None = None
@@ -772,11 +774,19 @@ class Runtime:
             self.stop()
 
     def _rest_verdict(self, frame: Frame) -> None:
-        """The resting detector's verdict on ``frame``, handed to the pipeline."""
-        result = self._resting.update(frame)
-        if result is not None:
-            self._pipeline.set_resting(result, int(frame.t_us))
-            self.stats.resting_updates += 1
+        """The resting detector's verdict on ``frame``, handed to the pipeline. The resting thread
+        and, at rest, the source's thread both call this: one at a time (the detector keeps state),
+        and a frame older than the last one judged is passed over (its verdict would replace a
+        newer one's)."""
+        t_us = int(frame.t_us)
+        with self._verdict_lock:
+            if self._last_verdict_us is not None and t_us <= self._last_verdict_us:
+                return
+            self._last_verdict_us = t_us
+            result = self._resting.update(frame)
+            if result is not None:
+                self._pipeline.set_resting(result, t_us)
+                self.stats.resting_updates += 1
 
     def _work(self) -> None:
         """Pipeline thread: items -> estimates -> controller states -> records published."""
@@ -863,6 +873,8 @@ class Runtime:
         and the mapper; writing resumes."""
         self._restart.clear()
         self._pipeline.restart()
+        with self._verdict_lock:
+            self._last_verdict_us = None  # a new session's frames may start its clock again
         with self._lock:
             self._mapper = self._mapper_factory(self.profile)
             self._forget_state()

@@ -581,7 +581,7 @@ def test_two_simulations_into_one_new_folder_one_wins_whole_the_other_says_it_lo
         + [
             f"u0_{g}{s}"
             for g in ("pinch", "push", "twist_ccw", "twist_cw", "zoom")
-            for s in (".aedat4", ".labels.csv", ".markers.npz")
+            for s in (".aedat4", ".labels.csv", ".markers.npz", ".pressed.csv")
         ]
     ), names
     assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(".")], "a part folder was left"

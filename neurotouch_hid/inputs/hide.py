@@ -11,8 +11,8 @@ those), as InputPlumber (``/dev/inputplumber/sources``) and Handheld Daemon do. 
 after the merge lists one controller; one started before keeps its open descriptor of the helper's
 node, which the grab keeps silent.
 
-The move is a rename where the hidden folder is on the node's file system, else (``/run`` is a
-tmpfs, ``/dev`` a devtmpfs) a new node with the same device number, mode, owner and extended
+The move is a rename (the hidden folder is on ``/dev``, the node's own devtmpfs), else (a folder on
+another file system, as in the tests) a new node with the same device number, mode, owner and extended
 attributes (the POSIX ACL udev's ``uaccess`` wrote) made first, then the old one removed: a node
 is never lost. Putting back is the same move the other way; a node whose device is gone (its
 ``/sys/class/<subsystem>/<name>/dev`` no longer has that number) is only removed. Each process
@@ -33,10 +33,14 @@ from pathlib import Path
 
 log = logging.getLogger(__name__)
 
-#: Where hidden nodes wait, one folder per driver process (its pid). Not /run/neurotouch-hid: a
-#: system unit's ``RuntimeDirectory=neurotouch-hid`` is removed when the unit stops, crashed or
-#: not, and would take nodes not yet put back with it.
-HIDDEN_DIR = Path("/run/neurotouch-hid-hidden")
+#: Where hidden nodes wait, one folder per driver process (its pid): on ``/dev`` itself (devtmpfs),
+#: as InputPlumber's ``/dev/inputplumber/sources``, so that hiding and putting back are renames of
+#: the kernel's own node. A copy made with mknod elsewhere and put back would be a node devtmpfs
+#: does not own (``drivers/base/devtmpfs.c``: it removes only the nodes it made) and would stay in
+#: ``/dev/input`` after its device is unplugged, a dead node that breaks every program listing the
+#: input devices. Not /run/neurotouch-hid either: a system unit's ``RuntimeDirectory`` is removed
+#: when the unit stops, and would take nodes not yet put back with it.
+HIDDEN_DIR = Path("/dev/neurotouch-hid-hidden")
 DEV_DIR = Path("/dev")
 SYSFS = Path("/sys")
 #: How many folders up from an input device its USB device is looked for (input -> interface -> device).
@@ -181,7 +185,10 @@ class Hider:
         try:
             if _alive(relative, rdev, self.sysfs) and not os.path.lexists(target):
                 _move(hidden, target)
-                return True
+                if _alive(relative, rdev, self.sysfs):
+                    return True
+                os.unlink(target)  # unplugged while it was put back: no dead node in /dev
+                return False
             os.unlink(hidden)  # the device is gone, or its node is there again: nothing to put back
         except OSError as exc:
             log.warning("cannot put %s back in %s: %s", relative, self.dev, exc.strerror or exc)
