@@ -31,6 +31,8 @@ import os
 import stat
 from pathlib import Path
 
+from neurotouch_hid.limits import read_proc_file
+
 log = logging.getLogger(__name__)
 
 #: Where hidden nodes wait, one folder per driver process (its pid): on ``/dev`` itself (devtmpfs),
@@ -81,10 +83,10 @@ def _alive(relative: str, rdev: int, sysfs: Path) -> bool:
     name = Path(relative).name
     subsystem = "input" if relative.startswith("input/") else "hidraw"
     try:
-        text = (sysfs / "class" / subsystem / name / "dev").read_text(errors="replace")[:32]
+        data, _ = read_proc_file(sysfs / "class" / subsystem / name / "dev", 32)
     except OSError:
         return False
-    return text.strip() == f"{os.major(rdev)}:{os.minor(rdev)}"
+    return data.decode("ascii", "replace").strip() == f"{os.major(rdev)}:{os.minor(rdev)}"
 
 
 def _move(src: Path, dst: Path) -> None:

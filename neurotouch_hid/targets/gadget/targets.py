@@ -25,7 +25,7 @@ import os
 import threading
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.errors import DeviceError
@@ -213,24 +213,33 @@ class XInputTarget(_ReportTarget):
         except OSError:
             pass  # the pipe is full: the reader is already told
 
-    def _read_events(self) -> None:
+    def _read_loop(self, fd: int, size: int, where: str, handle: Callable[[bytes], None]) -> None:
+        """Thread: read at most ``size`` bytes at a time from ``fd`` and ``handle`` them, until
+        the function is closed; a read the kernel refuses meanwhile (host gone) is retried after
+        :data:`ERROR_PAUSE_S`."""
         while True:
             try:
-                data = os.read(self._ep0, 4 * functionfs.EVENT.size)
+                data = os.read(fd, size)
             except OSError as exc:
                 if self._closed:
                     return
-                log.debug("%s: ep0: %s", self.what, exc)
+                log.debug("%s: %s: %s", self.what, where, exc)
                 time.sleep(ERROR_PAUSE_S)
                 continue
-            for event in functionfs.parse_events(data):
-                log.debug("%s: %s", self.what, event.name)
-                if event.type == functionfs.ENABLE:
-                    self.enabled.set()
-                elif event.type in (functionfs.DISABLE, functionfs.UNBIND):
-                    self.enabled.clear()
-                elif event.type == functionfs.SETUP:
-                    self._stall(event)
+            handle(data)
+
+    def _read_events(self) -> None:
+        self._read_loop(self._ep0, 4 * functionfs.EVENT.size, "ep0", self._on_events)
+
+    def _on_events(self, data: bytes) -> None:
+        for event in functionfs.parse_events(data):
+            log.debug("%s: %s", self.what, event.name)
+            if event.type == functionfs.ENABLE:
+                self.enabled.set()
+            elif event.type in (functionfs.DISABLE, functionfs.UNBIND):
+                self.enabled.clear()
+            elif event.type == functionfs.SETUP:
+                self._stall(event)
 
     def _stall(self, event: functionfs.Event) -> None:
         """Refuse a control request the pad does not answer: I/O in the wrong direction on
@@ -245,19 +254,13 @@ class XInputTarget(_ReportTarget):
             pass  # EL2HLT: the stall done
 
     def _read_out(self) -> None:
+        self._read_loop(self._out, MAX_OUTPUT_REPORT, "OUT endpoint", self._on_output)
+
+    def _on_output(self, data: bytes) -> None:
         from neurotouch_hid.targets.reports.xinput import parse_output
 
-        while True:
-            try:
-                data = os.read(self._out, MAX_OUTPUT_REPORT)
-            except OSError as exc:
-                if self._closed:
-                    return
-                log.debug("%s: OUT endpoint: %s", self.what, exc)
-                time.sleep(ERROR_PAUSE_S)
-                continue
-            request = parse_output(data, self.what)
-            if request is not None:
-                self._announce(request)
-            else:
-                log.debug("%s: output report %s not understood", self.what, data[:MAX_OUTPUT_REPORT].hex())
+        request = parse_output(data, self.what)
+        if request is not None:
+            self._announce(request)
+        else:
+            log.debug("%s: output report %s not understood", self.what, data[:MAX_OUTPUT_REPORT].hex())
