@@ -776,14 +776,13 @@ class Runtime:
     def _rest_verdict(self, frame: Frame) -> None:
         """The resting detector's verdict on ``frame``, handed to the pipeline. The resting thread
         and, at rest, the source's thread both call this: one at a time (the detector keeps state),
-        and a frame older than the last one judged is passed over (its verdict would replace a
-        newer one's)."""
+        and an older frame's verdict is not handed on after a newer one's (it would replace it)."""
         t_us = int(frame.t_us)
         with self._verdict_lock:
+            result = self._resting.update(frame)
             if self._last_verdict_us is not None and t_us <= self._last_verdict_us:
                 return
             self._last_verdict_us = t_us
-            result = self._resting.update(frame)
             if result is not None:
                 self._pipeline.set_resting(result, t_us)
                 self.stats.resting_updates += 1
