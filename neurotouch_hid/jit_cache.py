@@ -150,3 +150,62 @@ def _compile_in_memory(dispatcher) -> None:
 def chosen() -> JitCache:
     """The choice :func:`configure` made (making it now if it has not run)."""
     return configure()
+
+
+def release_linking_modules(dispatchers) -> int:
+    """Free the parsed LLVM modules numba keeps beside each kernel loaded from its cache; give
+    the C heap's free pages back. Returns the number of modules released.
+
+    numba's ``CPUCodeLibrary._unserialize`` (numba/core/codegen.py) loads a cached kernel's
+    machine code and also parses the bitcode stored with it into an LLVM module
+    (``_shared_module``), kept in case a later compile links the kernel into another one.
+    The running pipeline never compiles again, yet those modules were ~13 MiB of the run's
+    anonymous memory (docs/performance.md, "Memory"). Each is replaced by its bitcode (bytes,
+    ~1.5 MiB for the whole pipeline) and a per-library ``_get_module_for_linking`` that parses it
+    again if a compile ever links that library: numba's own path, the same module. Then glibc's
+    ``malloc_trim(0)`` returns the freed heap pages to the system (a no-op elsewhere).
+
+    Args:
+        dispatchers: numba ``Dispatcher`` objects; those with no compiled overload, or a numba
+            whose libraries are laid out otherwise, are left as they are.
+    """
+    released = 0
+    for dispatcher in dispatchers:
+        for result in list(getattr(dispatcher, "overloads", {}).values()):
+            library = getattr(result, "library", None)
+            module = getattr(library, "_shared_module", None)
+            if module is None or not hasattr(library, "_get_module_for_linking"):
+                continue
+            library._get_module_for_linking = _linking_from_bitcode(library, module.as_bitcode())
+            library._shared_module = None
+            released += 1
+    if released:
+        _trim_heap()
+    return released
+
+
+def _linking_from_bitcode(library, bitcode: bytes):
+    """A ``_get_module_for_linking`` for ``library`` that parses ``bitcode`` back when asked."""
+
+    def module_for_linking():
+        if library._shared_module is None:
+            import llvmlite.binding as ll
+
+            library._shared_module = ll.parse_bitcode(bitcode)
+        return library._shared_module
+
+    return module_for_linking
+
+
+def _trim_heap() -> None:
+    """glibc's ``malloc_trim(0)``: free pages at the heap's top and inside it go back to the kernel."""
+    import ctypes
+    import ctypes.util
+
+    name = ctypes.util.find_library("c")
+    try:
+        trim = ctypes.CDLL(name).malloc_trim if name else None
+    except (OSError, AttributeError):  # not glibc (musl has no malloc_trim)
+        return
+    if trim is not None:
+        trim(0)

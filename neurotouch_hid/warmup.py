@@ -419,7 +419,15 @@ class Warmup:
                     self._compile_here(group)
         elif not self._interpreted:
             self.wait()
+        if not self.compiling:
+            self._release_linking()
         return self
+
+    def _release_linking(self) -> None:
+        """Every group is loaded: free what numba keeps only for later compiles
+        (:func:`~neurotouch_hid.jit_cache.release_linking_modules`)."""
+        for group in self._groups:
+            jit_cache.release_linking_modules(kernels(group).values())
 
     def wait(self, timeout: float | None = None) -> bool:
         """Wait for every child and the switch to compiled code; whether all ended in time."""
@@ -523,6 +531,8 @@ class Warmup:
             progress.state = "ready"
         self._settled[group.name].set()
         if not self.compiling:
+            if self._interpreted:  # (else start() releases, after the last child)
+                self._release_linking()
             done = "full speed now" if self._interpreted else "starting"
             self._say(f"compiled in {time.monotonic() - self.started_s:.0f} s, cached for next time: {done}")
 

@@ -376,3 +376,41 @@ def test_a_command_that_runs_the_pipeline_at_once_has_a_cold_cache_compiled_by_t
     assert done.returncode == 0, err
     assert sorted(children) == ["pipeline", "tracker"]
     assert err.startswith(f"{warmup.COMPILING}: before the run starts"), err
+
+
+RELEASE_CHILD = """
+import numba, numpy as np
+from neurotouch_hid import jit_cache
+from neurotouch_hid.pipeline.moves import _largest_move_sq
+rng = np.random.default_rng(0)
+current, rest = rng.normal(size=(40, 2)), rng.normal(size=(40, 2))
+valid = np.ones(40, dtype=np.bool_)
+before = _largest_move_sq(current, valid, rest)
+(library,) = [result.library for result in _largest_move_sq.overloads.values()]
+assert library._shared_module is not None
+assert jit_cache.release_linking_modules([_largest_move_sq]) == 1
+assert library._shared_module is None
+assert jit_cache.release_linking_modules([_largest_move_sq]) == 0
+assert _largest_move_sq(current, valid, rest) == before
+
+@numba.njit
+def twice(current, valid, rest):
+    return 2.0 * _largest_move_sq(current, valid, rest)
+
+assert twice(current, valid, rest) == 2.0 * before
+assert library._shared_module is not None
+print("loaded" if sum(_largest_move_sq.stats.cache_hits.values()) else "compiled")
+"""
+
+
+def test_released_linking_modules_leave_kernels_working_and_linkable(tmp_path):
+    """After :func:`jit_cache.release_linking_modules` a kernel runs as before, and a compile
+    that links it (a new kernel calling it) parses its module back from the kept bitcode: a
+    kernel compiled here, then the same loaded from numba's cache (whose library has no other
+    module to link from)."""
+    for expected in ("compiled", "loaded"):
+        out = subprocess.run(
+            [sys.executable, "-c", RELEASE_CHILD], capture_output=True, text=True, env=_env(tmp_path / "numba"), timeout=300
+        )
+        assert out.returncode == 0, out.stderr[-2000:]
+        assert out.stdout.strip() == expected
