@@ -19,6 +19,7 @@ from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
 from neurotouch_hid.sources.esim import EventCamera
+from neurotouch_hid.sources.physics import PHYSICS
 from neurotouch_hid.sources.simulator import (
     SIM_GESTURES,
     START_US,
@@ -28,6 +29,7 @@ from neurotouch_hid.sources.simulator import (
     SimulatedSource,
     deform,
     draw_gesture,
+    guided_gesture,
     preset_users,
     write_dataset,
 )
@@ -167,12 +169,79 @@ def test_events_stay_in_their_interval_when_a_pixel_starts_beyond_its_off_thresh
         last = events["timestamp"][-1]
 
 
+def test_the_camera_left_out_while_the_marker_holds_still_makes_the_events_of_esim():
+    """A marker that moves, holds still, jumps (a still state away from where it is rendered),
+    dims and holds still again: a camera that leaves ESIM out while it holds still where it is
+    rendered makes the same events, and ends in the same state, as one that runs ESIM on every call."""
+    cams = [one_marker_camera(skip_still=skip) for skip in (True, False)]
+    t0, still = 0, []
+    for x, amp in [((20.0, 23.0), 200.0), (23.0, 200.0), (23.0, 200.0), (23.02, 200.0), (25.0, 200.0),
+                   (25.0, 200.0), (25.0, 100.0), (25.0, 100.0), (25.0, 100.0)]:  # fmt: skip
+        t = np.arange(t0, t0 + 10_001, 1000, dtype=np.int64)
+        xs = np.linspace(*x, len(t)) if isinstance(x, tuple) else np.full(len(t), x)
+        pos = np.stack([xs, np.full_like(xs, 20.0)], axis=1)[:, None, :]
+        amps = np.full((len(t), 1), amp)
+        a, b = (cam.events(t, pos, amps, np.random.default_rng(t0)) for cam in cams)
+        assert a.tobytes() == b.tobytes()
+        still.append(len(a) == 0)
+        t0 = int(t[-1])
+    for name in ("img", "lin_prev", "log_prev", "log_ref", "last_t", "rend_pos", "rend_amp", "rend_sigma"):
+        assert np.array_equal(getattr(cams[0], name), getattr(cams[1], name)), name
+    assert still == [False, True, True, True, False, True, False, True, True]
+
+
 def test_gel_at_rest_makes_only_sparse_noise_events():
     sim = GelSimulator(seed=5)
     chunk = sim.step()  # the first 40 ms are a rest
     assert chunk.label.resting
     rate_per_pixel = len(chunk.events) / (346 * 260) / 0.04
     assert rate_per_pixel < 2.0  # Hz per pixel: background activity and hot pixels only
+
+
+def _same_chunks(reused: GelSimulator, scratch: GelSimulator, seconds: float) -> int:
+    """Step both simulators over ``seconds`` and assert every chunk is the same; the number of
+    chunks labelled resting."""
+    resting = 0
+    for a, b in zip(reused.run(seconds), scratch.run(seconds), strict=True):
+        assert a.frame.t_us == b.frame.t_us and np.array_equal(a.frame.image, b.frame.image)
+        assert a.events.dtype == b.events.dtype and a.events.tobytes() == b.events.tobytes()
+        assert (a.label.t_us, a.label.gesture, a.label.resting, a.label.intensity_mm) == (
+            b.label.t_us,
+            b.label.gesture,
+            b.label.resting,
+            b.label.intensity_mm,
+        )
+        assert a.label.contacts_px.tobytes() == b.label.contacts_px.tobytes()
+        assert np.array_equal(a.t_us, b.t_us) and a.positions_px.tobytes() == b.positions_px.tobytes()
+        resting += a.label.resting
+    return resting
+
+
+@pytest.mark.parametrize(
+    "physics, script, seconds",
+    [
+        ("default", (), 1.0),
+        ("default", None, 4.0),  # a drawn script: rests, gestures, their creep, rests again
+        ("markers", None, 3.0),
+        ("exposure", None, 3.0),
+    ],
+)
+def test_a_resting_gel_reused_gives_the_chunks_computed_from_scratch(physics, script, seconds):
+    def sim(reuse: bool) -> GelSimulator:
+        return GelSimulator(user=USERS[3], seed=4, script=script, physics=PHYSICS[physics], reuse_rest=reuse)
+
+    reused = sim(True)
+    resting = _same_chunks(reused, sim(False), seconds)
+    assert resting >= 5 and reused._rest is not None  # the rest was reused, and more than once
+
+
+def test_a_guided_gesture_after_a_reused_rest_gives_the_chunks_computed_from_scratch():
+    sims = [GelSimulator(seed=2, script=(), reuse_rest=reuse) for reuse in (True, False)]
+    assert _same_chunks(*sims, 0.4) == 10
+    gesture = guided_gesture(GestureType.TWIST_CW, sims[0].t_us + 3_000)
+    for sim in sims:  # told as it goes, as a calibration does
+        sim.perform(gesture)
+    assert _same_chunks(*sims, (gesture.t_settled_us - sims[0].t_us) / 1e6 + 0.4) >= 10  # and at rest again
 
 
 # --- motion and labels ------------------------------------------------------------------------

@@ -102,29 +102,16 @@ def splat(
 
 
 @numba.njit(cache=True, nogil=True)
-def render_frame(
-    background: np.ndarray,
-    pos: np.ndarray,
-    amp: np.ndarray,
-    sigma: np.ndarray,
-    read_noise: float,
-    shot_noise: float,
-    noise_bank: np.ndarray,
-    offset: int,
-) -> np.ndarray:
-    """An APS frame: the average of renders over the exposure, plus noise, as uint8.
+def render_exposure(background: np.ndarray, pos: np.ndarray, amp: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """The light an APS frame's pixels gather: the average of renders over the exposure.
 
     Args:
         background: (H, W) float64 grey levels without markers.
         pos: (S, N, 2) float64 marker positions (image px) at S instants of the exposure.
         amp: (S, N) float64 marker peak brightness above the background (grey levels).
         sigma: (S, N) float64 marker blob sigma (px) at those instants.
-        read_noise: sigma of the read noise (grey levels); shot_noise: sigma of the shot noise
-            at grey level 1 (it grows with the square root of the grey level).
-        noise_bank: (B,) float32 standard normal values; offset: where this frame's noise starts
-            in the bank (0 <= offset <= B - H * W), drawn per frame by the caller.
     Returns:
-        (H, W) uint8 image.
+        (H, W) float64 grey levels, before the read-out's noise (:func:`read_out`).
     """
     img = background.copy()
     no_dirty = np.zeros(0, dtype=np.uint8)
@@ -138,16 +125,66 @@ def render_frame(
             splat(
                 img, pos[s, n, 0], pos[s, n, 1], amp[s, n] / s_count, sigma[s, n], no_dirty, no_list, none_dirty, gx, gy
             )
+    return img
+
+
+@numba.njit(cache=True, nogil=True)
+def noise_sigma(img: np.ndarray, read_noise: float, shot_noise: float) -> np.ndarray:
+    """(H, W) float64 sigma of each pixel's read-out noise (grey levels): read noise
+    ``read_noise`` and shot noise ``shot_noise`` at grey level 1, growing with the square root of
+    the grey level of ``img`` (H, W) float64 (:func:`render_exposure`)."""
+    out = np.empty(img.shape)
+    h, w = img.shape
+    for y in range(h):
+        for x in range(w):
+            out[y, x] = math.sqrt(read_noise * read_noise + shot_noise * shot_noise * max(img[y, x], 0.0))
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def read_out(img: np.ndarray, sigma: np.ndarray, noise_bank: np.ndarray, offset: int) -> np.ndarray:
+    """An APS frame's read-out: ``img`` (H, W) float64 grey levels plus ``sigma`` (H, W) float64
+    (:func:`noise_sigma`) times standard normal noise, rounded and clipped to (H, W) uint8.
+    ``noise_bank``: (B,) float32 standard normal values; ``offset``: where this frame's noise
+    starts in the bank (0 <= offset <= B - H * W), drawn per frame by the caller."""
     out = np.empty(img.shape, dtype=np.uint8)
     h, w = img.shape
     noise = noise_bank[offset : offset + h * w]
     for y in range(h):
         for x in range(w):
-            v = img[y, x]
-            z = noise[y * w + x]
-            v += math.sqrt(read_noise * read_noise + shot_noise * shot_noise * max(v, 0.0)) * z
+            v = img[y, x] + sigma[y, x] * noise[y * w + x]
             out[y, x] = min(255, max(0, int(math.floor(v + 0.5))))
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def render_frame(
+    background: np.ndarray,
+    pos: np.ndarray,
+    amp: np.ndarray,
+    sigma: np.ndarray,
+    read_noise: float,
+    shot_noise: float,
+    noise_bank: np.ndarray,
+    offset: int,
+) -> np.ndarray:
+    """An APS frame: the average of renders over the exposure, plus noise, as uint8
+    (:func:`render_exposure`, :func:`noise_sigma`, :func:`read_out`).
+
+    Args:
+        background: (H, W) float64 grey levels without markers.
+        pos: (S, N, 2) float64 marker positions (image px) at S instants of the exposure.
+        amp: (S, N) float64 marker peak brightness above the background (grey levels).
+        sigma: (S, N) float64 marker blob sigma (px) at those instants.
+        read_noise: sigma of the read noise (grey levels); shot_noise: sigma of the shot noise
+            at grey level 1 (it grows with the square root of the grey level).
+        noise_bank: (B,) float32 standard normal values; offset: where this frame's noise starts
+            in the bank (0 <= offset <= B - H * W), drawn per frame by the caller.
+    Returns:
+        (H, W) uint8 image.
+    """
+    img = render_exposure(background, pos, amp, sigma)
+    return read_out(img, noise_sigma(img, read_noise, shot_noise), noise_bank, offset)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -278,6 +315,48 @@ def esim_chunk(
     return n_out, k
 
 
+@numba.njit(cache=True, nogil=True)
+def held_still(
+    pos: np.ndarray,
+    amp: np.ndarray,
+    sigma: np.ndarray,
+    rend_pos: np.ndarray,
+    rend_amp: np.ndarray,
+    rend_sigma: np.ndarray,
+    eps_px: float,
+) -> bool:
+    """Whether :func:`esim_chunk` would neither render nor fire over these samples: every sample
+    equals the first, and there every marker is within the deferral test of how it is rendered.
+
+    Then each interval has one render (no marker moves), each marker's interpolated state is the
+    sample itself (``p + a * 0.0``) and passes the deferral test, so nothing is rendered, no pixel
+    is evaluated, no state changes and no event is made: the call can be left out.
+
+    Args:
+        pos (T, N, 2), amp (T, N), sigma (T, N): float64 samples as :func:`esim_chunk` takes them.
+        rend_pos (N, 2), rend_amp (N,), rend_sigma (N,): float64, how the markers are rendered.
+        eps_px: smaller motions are deferred (px).
+    """
+    for k in range(1, pos.shape[0]):
+        for n in range(pos.shape[1]):
+            if (
+                pos[k, n, 0] != pos[0, n, 0]
+                or pos[k, n, 1] != pos[0, n, 1]
+                or amp[k, n] != amp[0, n]
+                or sigma[k, n] != sigma[0, n]
+            ):
+                return False
+    for n in range(pos.shape[1]):
+        if not (
+            abs(pos[0, n, 0] - rend_pos[n, 0]) < eps_px
+            and abs(pos[0, n, 1] - rend_pos[n, 1]) < eps_px
+            and abs(amp[0, n] - rend_amp[n]) < 0.002 * rend_amp[n]
+            and abs(sigma[0, n] - rend_sigma[n]) < 0.002 * rend_sigma[n]
+        ):
+            return False
+    return True
+
+
 class EventCamera:
     """The DAVIS-346's event pixels watching the rendered markers (ESIM), with its noise.
 
@@ -294,6 +373,8 @@ class EventCamera:
             :data:`NOISE_RATE_HZ`).
         n_hot: number of hot pixels; hot_rate_hz: their event rate (Hz).
         max_step_px: largest marker motion between two renders (px).
+        skip_still: leave ESIM out of :meth:`events` while the markers hold still where they are
+            rendered (:func:`held_still`: the same events, sooner); False runs it on every call.
     Raises:
         ValueError: ``noise_rate_hz`` is negative (or NaN).
     """
@@ -314,6 +395,7 @@ class EventCamera:
         hot_rate_hz: float = 40.0,
         max_step_px: float = 0.25,
         eps_px: float = 0.05,
+        skip_still: bool = True,
     ) -> None:
         h, w = background.shape
         self.height, self.width = h, w
@@ -355,6 +437,7 @@ class EventCamera:
         self.hot_rate_hz = float(hot_rate_hz)
         self.max_step_px = float(max_step_px)
         self.eps_px = float(eps_px)
+        self.skip_still = bool(skip_still)
         self._dirty = np.zeros(h * w, dtype=np.uint8)
         self._dirty_list = np.zeros(h * w, dtype=np.int32)
         self._cap = 1 << 20
@@ -392,7 +475,10 @@ class EventCamera:
             sigma = np.broadcast_to(self.sigma, amp.shape)
         sigma = np.ascontiguousarray(sigma, dtype=np.float64)
         parts = []
-        k = 0
+        still = self.skip_still and held_still(
+            pos, amp, sigma, self.rend_pos, self.rend_amp, self.rend_sigma, self.eps_px
+        )
+        k = len(t_us) - 1 if still else 0  # held still: ESIM would make nothing and change nothing
         while k < len(t_us) - 1:
             n, k = esim_chunk(
                 t_us,

@@ -66,7 +66,16 @@ from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.sensor import DOME_SPHERE_MM, MARKER_SPACING_MM, SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame, StreamItem
-from neurotouch_hid.sources.esim import CONTRAST, CONTRAST_SIGMA, NOISE_RATE_HZ, EventCamera, render_frame
+from neurotouch_hid.sources.esim import (
+    CONTRAST,
+    CONTRAST_SIGMA,
+    NOISE_RATE_HZ,
+    EventCamera,
+    noise_sigma,
+    read_out,
+    render_exposure,
+    render_frame,
+)
 from neurotouch_hid.sources.physics import (
     PHYSICS,
     DomeCamera,
@@ -905,6 +914,30 @@ class SimChunk:
     positions_px: np.ndarray
 
 
+@dataclass(frozen=True)
+class RestPeriod:
+    """What an APS frame period of the gel at rest is made of, the same for every such period
+    (no gesture deforms the gel, the light is steady): computed once, reused while the gel rests.
+
+    Attributes:
+        positions_px, amp, sigma, positions_mm: :meth:`GelSimulator.marker_state` on a frame
+            period's 1 ms grid (T samples): (T, N, 2) float64 image px, (T, N) grey levels, (T, N)
+            px, (T, N, 2) float64 user mm.
+        image: (H, W) float64 the light of the APS frame's exposure (:func:`esim.render_exposure`);
+            image_sigma: (H, W) float64 its read-out noise (:func:`esim.noise_sigma`).
+        settled: every marker within :data:`REST_TOLERANCE_MM` of its rest position (the label's
+            ``resting``).
+    """
+
+    positions_px: np.ndarray
+    amp: np.ndarray
+    sigma: np.ndarray
+    positions_mm: np.ndarray
+    image: np.ndarray
+    image_sigma: np.ndarray
+    settled: bool
+
+
 class GelSimulator:
     """Runs a gesture script through the gel and the camera, one APS frame period at a time.
 
@@ -928,6 +961,10 @@ class GelSimulator:
         physics: the gel and camera family (:mod:`neurotouch_hid.sources.physics`; default
             today's model). Its own draws come from a separate random stream, so the default
             family's files do not change.
+        reuse_rest: while the gel rests (no gesture deforms it, the light is steady) reuse what
+            does not change from one APS frame period to the next (:class:`RestPeriod`; the
+            camera's ESIM left out while the markers hold still, ``EventCamera(skip_still=)``): the
+            same chunks, sooner. False computes every period from scratch.
     Raises:
         ValueError: ``noise_rate_hz`` < 0.
     """
@@ -944,6 +981,7 @@ class GelSimulator:
         noise_rate_hz: float = NOISE_RATE_HZ,
         physics: Physics = PHYSICS["default"],
         hand: str = "drawn",
+        reuse_rest: bool = True,
     ) -> None:
         self.sensor = sensor or SensorGeometry()
         self.physics = physics
@@ -966,7 +1004,10 @@ class GelSimulator:
             noise_rate_hz=rate,
             n_hot=physics.n_hot,
             hot_rate_hz=physics.hot_rate_hz,
+            skip_still=reuse_rest,
         )
+        self.reuse_rest = bool(reuse_rest)
+        self._rest: RestPeriod | None = None
         self._noise_rng = np.random.default_rng(noise_ss)
         self._noise_bank = camera_rng.standard_normal(1 << 20, dtype=np.float32)
         self._script = (
@@ -1051,22 +1092,30 @@ class GelSimulator:
         sigma = self.gel.sigma_px[None] * (1.0 + grow)
         return self.gel.camera.project(pos_mm), amp, sigma, pos_mm
 
+    def _settled(self, pos_mm: np.ndarray) -> bool:
+        """Whether every marker at pos_mm (N, 2) user mm is within :data:`REST_TOLERANCE_MM` of
+        its rest position."""
+        return bool(np.linalg.norm(pos_mm - self.gel.rest_mm, axis=-1).max() < REST_TOLERANCE_MM)
+
     def _label(self, t_us: int, gestures: Sequence[SimGesture], pos_mm: np.ndarray) -> LabelRow:
         active = [g for g in gestures if g.t_start_us <= t_us < g.t_end_us]
         if not active:
-            moved_mm = np.linalg.norm(pos_mm - self.gel.rest_mm, axis=-1)
-            return LabelRow(t_us, GestureType.NONE, bool(moved_mm.max() < REST_TOLERANCE_MM), 0.0, np.zeros((0, 2)))
+            return LabelRow(t_us, GestureType.NONE, self._settled(pos_mm), 0.0, np.zeros((0, 2)))
         g = active[0]
         times = np.array([g.t_start_us, t_us], dtype=np.int64)
         pts_mm = deform(gestures, g.fingers_mm, times, self.sensor.gel_radius_mm, self.physics)[0]  # (2, K, 2)
         intensity = float(np.linalg.norm(pts_mm[1] - pts_mm[0], axis=-1).mean())
         return LabelRow(t_us, g.gesture, False, intensity, self.gel.camera.project(pts_mm[1]))
 
-    def _frame(self, grid_us: np.ndarray, grid_pos: np.ndarray, grid_amp: np.ndarray, grid_sigma: np.ndarray) -> Frame:
-        """The APS frame exposed from grid_us[0] for the family's exposure (EXPOSURE_US unless
-        ``physics.exposure_us``): the average of renders at instants spaced so that no marker
-        moves more than 0.3 px between them (positions interpolated linearly in the 1 ms grid;
-        at most 6 renders per ms of exposure), plus read and shot noise, as uint8."""
+    def _exposure(
+        self, grid_us: np.ndarray, grid_pos: np.ndarray, grid_amp: np.ndarray, grid_sigma: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """What the APS frame exposed from grid_us[0] sees, for the family's exposure
+        (EXPOSURE_US unless ``physics.exposure_us``): renders at instants spaced so that no
+        marker moves more than 0.3 px between them (positions interpolated linearly in the 1 ms
+        grid; at most 6 renders per ms of exposure). Returns the background (H, W) float64 grey
+        levels (the light averaged over the exposure) and the renders' marker positions (S, N, 2)
+        float64 px, brightness (S, N) and sigma (S, N) px (:func:`esim.render_exposure`)."""
         t_us = int(grid_us[0])
         exposure = EXPOSURE_US if self.physics.exposure_us is None else self.physics.exposure_us
         last = int(np.searchsorted(grid_us, t_us + exposure))
@@ -1076,14 +1125,39 @@ class GelSimulator:
         k = np.clip(np.searchsorted(grid_us, times, side="right") - 1, 0, last - 1)
         a = ((times - grid_us[k]) / (grid_us[k + 1] - grid_us[k]))[:, None]
         pos = grid_pos[k] + a[..., None] * (grid_pos[k + 1] - grid_pos[k])
-        img_size = self.sensor.width * self.sensor.height
         amp = grid_amp[k] + a * (grid_amp[k + 1] - grid_amp[k])
         sigma = grid_sigma[k] + a * (grid_sigma[k + 1] - grid_sigma[k])
-        offset = int(self._noise_rng.integers(0, len(self._noise_bank) - img_size))
         background = self.gel.background
         if self.physics.flicker > 0:  # the exposure integrates the light over its duration
             background = background * float(self.light(np.linspace(t_us, t_us + exposure, 9)).mean())
-        return Frame(t_us, render_frame(background, pos, amp, sigma, READ_NOISE, SHOT_NOISE, self._noise_bank, offset))
+        return background, pos, amp, sigma
+
+    def _noise_offset(self) -> int:
+        """Where the next APS frame's read-out noise starts in the noise bank (one draw)."""
+        return int(self._noise_rng.integers(0, len(self._noise_bank) - self.sensor.width * self.sensor.height))
+
+    def _frame(self, grid_us: np.ndarray, grid_pos: np.ndarray, grid_amp: np.ndarray, grid_sigma: np.ndarray) -> Frame:
+        """The APS frame exposed from grid_us[0] (:meth:`_exposure`), plus read and shot noise,
+        as uint8."""
+        background, pos, amp, sigma = self._exposure(grid_us, grid_pos, grid_amp, grid_sigma)
+        offset = self._noise_offset()
+        return Frame(
+            int(grid_us[0]),
+            render_frame(background, pos, amp, sigma, READ_NOISE, SHOT_NOISE, self._noise_bank, offset),
+        )
+
+    def _rest_period(self, grid_us: np.ndarray) -> RestPeriod:
+        """The gel at rest over a frame period's 1 ms grid ``grid_us`` (T,) int64 us, computed on
+        the first call (:meth:`marker_state` with no gesture, :meth:`_exposure`, the exposure's
+        image and noise sigma) and reused by later ones with as many samples: at rest nothing of
+        it depends on the time (no gesture; the caller checks that the light is steady)."""
+        if self._rest is None or len(self._rest.positions_px) != len(grid_us):
+            pos, amp, sigma, pos_mm = self.marker_state(grid_us, ())
+            background, f_pos, f_amp, f_sigma = self._exposure(grid_us, pos, amp, sigma)
+            image = render_exposure(background, f_pos, f_amp, f_sigma)
+            image_sigma = noise_sigma(image, READ_NOISE, SHOT_NOISE)
+            self._rest = RestPeriod(pos, amp, sigma, pos_mm, image, image_sigma, self._settled(pos_mm[0]))
+        return self._rest
 
     def step(self) -> SimChunk:
         """Simulate the next APS frame period."""
@@ -1091,16 +1165,26 @@ class GelSimulator:
         t1 = t0 + FRAME_PERIOD_US
         grid = np.arange(t0, t1 + 1, 1000, dtype=np.int64)
         gestures = self._gestures_between(t0, t1)
-        pos, amp, sigma, pos_mm = self.marker_state(grid, gestures)
+        rest = self._rest_period(grid) if self.reuse_rest and not gestures and self.physics.flicker <= 0 else None
+        if rest is None:
+            pos, amp, sigma, pos_mm = self.marker_state(grid, gestures)
+        else:
+            pos, amp, sigma, pos_mm = rest.positions_px, rest.amp, rest.sigma, rest.positions_mm
         events = self.camera.events(grid, pos, amp, self._noise_rng, sigma)
         if len(self._carry):
             events = np.concatenate([self._carry, events])
         cut = int(np.searchsorted(events["timestamp"], t1, side="left"))
         self._carry = events[cut:]
+        if rest is None:
+            frame = self._frame(grid, pos, amp, sigma)
+            label = self._label(t0, gestures, pos_mm[0])
+        else:
+            frame = Frame(t0, read_out(rest.image, rest.image_sigma, self._noise_bank, self._noise_offset()))
+            label = LabelRow(t0, GestureType.NONE, rest.settled, 0.0, np.zeros((0, 2)))
         chunk = SimChunk(
-            frame=self._frame(grid, pos, amp, sigma),
+            frame=frame,
             events=events[:cut],
-            label=self._label(t0, gestures, pos_mm[0]),
+            label=label,
             t_us=grid[:-1],
             positions_px=pos[:-1].astype(np.float32),
         )
