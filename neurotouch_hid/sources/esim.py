@@ -357,6 +357,75 @@ def held_still(
     return True
 
 
+@numba.njit(cache=True, nogil=True)
+def time_ordered(
+    first: np.ndarray,
+    noise_t: np.ndarray,
+    noise_x: np.ndarray,
+    noise_y: np.ndarray,
+    noise_p: np.ndarray,
+    hot_n: np.ndarray,
+    hot_x: np.ndarray,
+    hot_y: np.ndarray,
+) -> np.ndarray:
+    """``first``'s events followed by the noise events, stable-sorted by timestamp.
+
+    Args:
+        first: EVENT_DTYPE events (ESIM's).
+        noise_t (M,), noise_p (M,): int64 timestamps (us) and polarities of the noise events:
+            the background activity's, then each hot pixel's ``hot_n[i]`` in turn.
+        noise_x, noise_y: (B,) int64 pixels of the background activity's B events (px).
+        hot_n: (K,) int64 the hot pixels' events' counts; hot_x, hot_y: (K,) int16 the hot
+            pixels (px).
+    Returns:
+        (len(first) + M,) EVENT_DTYPE, the concatenation's stable sort by timestamp (a
+        timestamp's events in the concatenation's order).
+    Raises:
+        ValueError: the counts do not add up (M != B + sum(hot_n)), or the arrays' lengths differ.
+    """
+    n_first = first.shape[0]
+    total = n_first + noise_t.shape[0]
+    if (
+        noise_p.shape[0] != noise_t.shape[0]
+        or noise_y.shape[0] != noise_x.shape[0]
+        or not hot_n.shape[0] == hot_x.shape[0] == hot_y.shape[0]
+        or noise_x.shape[0] + hot_n.sum() != noise_t.shape[0]
+        or (hot_n.shape[0] and hot_n.min() < 0)
+    ):
+        raise ValueError("noise events: the counts and the arrays' lengths do not match")
+    t = np.empty(total, dtype=np.int64)
+    x = np.empty(total, dtype=np.int16)
+    y = np.empty(total, dtype=np.int16)
+    p = np.empty(total, dtype=np.int8)
+    for i in range(n_first):
+        t[i] = first[i]["timestamp"]
+        x[i] = first[i]["x"]
+        y[i] = first[i]["y"]
+        p[i] = first[i]["polarity"]
+    i = n_first
+    for k in range(noise_x.shape[0]):
+        x[i] = noise_x[k]
+        y[i] = noise_y[k]
+        i += 1
+    for h in range(hot_n.shape[0]):
+        for _ in range(hot_n[h]):
+            x[i] = hot_x[h]
+            y[i] = hot_y[h]
+            i += 1
+    for k in range(noise_t.shape[0]):
+        t[n_first + k] = noise_t[k]
+        p[n_first + k] = noise_p[k]
+    order = np.argsort(t, kind="mergesort")  # stable
+    out = np.empty(total, dtype=EVENT_DTYPE)
+    for i in range(total):
+        j = order[i]
+        out[i]["timestamp"] = t[j]
+        out[i]["x"] = x[j]
+        out[i]["y"] = y[j]
+        out[i]["polarity"] = p[j]
+    return out
+
+
 class EventCamera:
     """The DAVIS-346's event pixels watching the rendered markers (ESIM), with its noise.
 
@@ -438,6 +507,7 @@ class EventCamera:
         self.max_step_px = float(max_step_px)
         self.eps_px = float(eps_px)
         self.skip_still = bool(skip_still)
+        self._no_events = np.zeros(0, dtype=EVENT_DTYPE)
         self._dirty = np.zeros(h * w, dtype=np.uint8)
         self._dirty_list = np.zeros(h * w, dtype=np.int32)
         self._cap = 1 << 20
@@ -507,21 +577,25 @@ class EventCamera:
             for name, buf in zip(EVENT_DTYPE.names, self._buf):
                 ev[name] = buf[:n]
             parts.append(ev)
-        parts.append(self.noise_events(int(t_us[0]), int(t_us[-1]), rng))
-        events = np.concatenate(parts)
-        return events[np.argsort(events["timestamp"], kind="stable")]
+        first = self._no_events if not parts else parts[0] if len(parts) == 1 else np.concatenate(parts)
+        return time_ordered(first, *self._noise_draws(int(t_us[0]), int(t_us[-1]), rng), self.hot_x, self.hot_y)
 
-    def noise_events(self, t0_us: int, t1_us: int, rng: np.random.Generator) -> np.ndarray:
-        """Background activity (Poisson, ``noise_rate_hz`` per pixel, random polarity) and hot
-        pixels in (t0_us, t1_us]; unsorted EVENT_DTYPE."""
+    def _noise_draws(
+        self, t0_us: int, t1_us: int, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The noise events' draws in (t0_us, t1_us] (:meth:`noise_events`): timestamps (M,),
+        the background activity's pixels x, y (B,), polarities (M,), all int64, and the hot
+        pixels' counts (K,) int64."""
         span = t1_us - t0_us
         n_ba = rng.poisson(self.noise_rate_hz * self.width * self.height * span * 1e-6)
         n_hot = rng.poisson(self.hot_rate_hz * span * 1e-6, size=len(self.hot_x))
-        ev = np.empty(n_ba + int(n_hot.sum()), dtype=EVENT_DTYPE)
-        ev["timestamp"] = rng.integers(t0_us + 1, t1_us + 1, size=len(ev))
-        ev["x"][:n_ba] = rng.integers(0, self.width, size=n_ba)
-        ev["y"][:n_ba] = rng.integers(0, self.height, size=n_ba)
-        ev["x"][n_ba:] = np.repeat(self.hot_x, n_hot)
-        ev["y"][n_ba:] = np.repeat(self.hot_y, n_hot)
-        ev["polarity"] = rng.integers(0, 2, size=len(ev))
-        return ev
+        n = n_ba + int(n_hot.sum())
+        t = rng.integers(t0_us + 1, t1_us + 1, size=n)
+        x = rng.integers(0, self.width, size=n_ba)
+        y = rng.integers(0, self.height, size=n_ba)
+        return t, x, y, rng.integers(0, 2, size=n), n_hot
+
+    def noise_events(self, t0_us: int, t1_us: int, rng: np.random.Generator) -> np.ndarray:
+        """Background activity (Poisson, ``noise_rate_hz`` per pixel, random polarity) and hot
+        pixels in (t0_us, t1_us]; EVENT_DTYPE, stable-sorted by timestamp."""
+        return time_ordered(self._no_events, *self._noise_draws(t0_us, t1_us, rng), self.hot_x, self.hot_y)
