@@ -18,7 +18,7 @@ import yaml
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
-from neurotouch_hid.sources.esim import EventCamera
+from neurotouch_hid.sources.esim import EventCamera, time_ordered
 from neurotouch_hid.sources.physics import PHYSICS
 from neurotouch_hid.sources.simulator import (
     SIM_GESTURES,
@@ -188,6 +188,26 @@ def test_the_camera_left_out_while_the_marker_holds_still_makes_the_events_of_es
     for name in ("img", "lin_prev", "log_prev", "log_ref", "last_t", "rend_pos", "rend_amp", "rend_sigma"):
         assert np.array_equal(getattr(cams[0], name), getattr(cams[1], name)), name
     assert still == [False, True, True, True, False, True, False, True, True]
+
+
+def test_events_in_time_order_are_numpys_stable_sort_of_esims_then_the_noise():
+    rng = np.random.default_rng(7)
+    first = np.zeros(300, dtype=EVENT_DTYPE)
+    for name, high in (("timestamp", 50), ("x", 346), ("y", 260), ("polarity", 2)):
+        first[name] = rng.integers(0, high, len(first))
+    hot_n = np.array([3, 0, 5])
+    hot_x, hot_y = np.array([7, 8, 9], dtype=np.int16), np.array([1, 2, 3], dtype=np.int16)
+    ba_x, ba_y = rng.integers(0, 346, 200), rng.integers(0, 260, 200)
+    t, p = rng.integers(0, 50, 208), rng.integers(0, 2, 208)  # few timestamps: many ties
+    noise = np.zeros(208, dtype=EVENT_DTYPE)
+    noise["timestamp"], noise["polarity"] = t, p
+    noise["x"], noise["y"] = np.r_[ba_x, np.repeat(hot_x, hot_n)], np.r_[ba_y, np.repeat(hot_y, hot_n)]
+    joined = np.concatenate([first, noise])
+    expected = joined[np.argsort(joined["timestamp"], kind="stable")]
+    got = time_ordered(first, t, ba_x, ba_y, p, hot_n, hot_x, hot_y)
+    assert got.dtype == EVENT_DTYPE and got.tobytes() == expected.tobytes()
+    with pytest.raises(ValueError, match="counts"):  # a hot pixel's count that does not add up
+        time_ordered(first, t, ba_x, ba_y, p, hot_n + 1, hot_x, hot_y)
 
 
 def test_gel_at_rest_makes_only_sparse_noise_events():
