@@ -157,7 +157,6 @@ def read_out(img: np.ndarray, sigma: np.ndarray, noise_bank: np.ndarray, offset:
     return out
 
 
-@numba.njit(cache=True, nogil=True)
 def render_frame(
     background: np.ndarray,
     pos: np.ndarray,
