@@ -615,11 +615,17 @@ class Runtime:
         # a live source's polls that bring nothing wait as the runtime decides (:meth:`_live_pause`)
         pause = getattr(iterator, "poll_pause", None) if self._live else None
         holds = self._pace or pause is not None
+        # a source whose batches may be cut at the resting windows' ends (one batch a window)
+        cut = getattr(iterator, "batch_cut", None) if self._pace else None
+        cut_for = None
         try:
             if pause is not None:
                 pause.decide = self._live_pause
             for item in iterator:
                 rest = self._rest_windows
+                if cut is not None and rest is not cut_for:
+                    cut_for = rest
+                    cut.follow(rest, REST_WAKE_AFTER_END_US)  # each batch then closes a window
                 if held and rest is not None and rest is self._held_for and type(item) is np.ndarray and len(item):
                     t_us = int(item["timestamp"][-1])  # an event batch of the resting window being held:
                     if t_us <= self._held_us and t_us < self._held_before_us:  # as below, in fewer steps
