@@ -679,6 +679,7 @@ def _paced_run_of(recording, *, cut: bool) -> tuple[TimedOutput, list[int]]:
     pacer = Pacer(clock=lambda: clock.now_ns, sleep=clock.sleep)
     output = TimedOutput(clock)
     handed: list[int] = []
+    done: list[int] = []
     read: list[int] = []
     with contextlib.ExitStack() as stack:
         opened = open_source(str(recording), stack, batch_us=1000)
@@ -689,7 +690,7 @@ def _paced_run_of(recording, *, cut: bool) -> tuple[TimedOutput, list[int]]:
         def synchronised():
             for item in stream:
                 deadline = time.monotonic() + 60  # (only ends a hang)
-                while rt.stats.events + rt.stats.frames < sum(handed) and time.monotonic() < deadline:
+                while sum(done) < sum(handed) and time.monotonic() < deadline:
                     time.sleep(0.0002)  # the pipeline's thread is at it: a short poll
                 read.append(size(item))
                 yield item
@@ -706,8 +707,9 @@ def _paced_run_of(recording, *, cut: bool) -> tuple[TimedOutput, list[int]]:
 
         pipeline.process = timed_process
         rt = Runtime(source, pipeline, load_profile("default"), [output], pace=True, pacer=pacer)
-        hand_on = rt._hand_on
+        hand_on, handle = rt._hand_on, rt._handle
         rt._hand_on = lambda item: (handed.append(size(item)), hand_on(item))[1]
+        rt._handle = lambda entry: (handle(entry), done.append(size(entry[1])))[0]  # published, rest state set
         rt.run()
     return output, read
 
