@@ -88,8 +88,11 @@ def items(events: np.ndarray, frames: list[Frame], batch_us: int) -> list:
 
 
 def looped(events: np.ndarray, frames: list[Frame], batch_us: int, total_us: int):
-    """The recording again and again, timestamps shifted by its length, for ``total_us``."""
-    span = int(events["timestamp"][-1]) - frames[0].t_us + 40_000
+    """The recording again and again, timestamps shifted by its length, for ``total_us``: the
+    next loop's first APS frame one batch after the last event, as a camera streaming this fast
+    never falls silent (a pause would leave its windows waiting for the next loop's data to close
+    them, a latency the driver does not make)."""
+    span = int(events["timestamp"][-1]) - frames[0].t_us + batch_us
     base = items(events, frames, batch_us)
     shift = 0
     while shift < total_us:
@@ -140,6 +143,7 @@ def show(name: str, stats: RunStats) -> None:
     line = (
         f"{name}: {stats.windows} windows, {stats.events} events in {stats.wall_s:.1f} s wall "
         f"({rate / 1e6:.2f} M events/s), dropped {stats.dropped_items} items ({stats.dropped_events} events), "
+        f"{stats.coalesced_windows} queued windows decided with a newer one, "
         f"resting detector skipped {stats.resting_dropped_frames} frames; "
         f"processing latency p50 {stats.latency.percentile_us(50):.0f} us p99 {stats.latency.percentile_us(99):.0f} us"
     )

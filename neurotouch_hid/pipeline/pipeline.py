@@ -216,9 +216,9 @@ class GesturePipeline(FramePath):
             :meth:`process` emits them).
         """
         w = self.config.window_us
-        end = self._next_end
         last_us = int(events["timestamp"][-1]) if len(events) else 0
-        if self.tracker is None or end is None or last_us < end + w or last_us - end >= GAP_US:
+        end = self._next_end if self._next_end is not None or not len(events) else int(events["timestamp"][0]) + w
+        if self.tracker is None or last_us < end + w or last_us - end >= GAP_US:
             return self.process(events), []
         newest = end + (last_us - end) // w * w  # the last window end the batch reaches
         ends = np.arange(end, newest, w, dtype=np.int64)  # the windows closed without a decision
