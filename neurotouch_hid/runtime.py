@@ -9,7 +9,10 @@ GIL in their heavy parts, so on two cores the resting detection does not hold up
 
 Between the threads sit bounded queues. When the pipeline falls behind a live or paced source, it
 takes the event batches queued meanwhile in one call (the same events, its per-call cost paid
-once: :meth:`DropOldestQueue.get_joined`); when the queue is full all the same, it drops its
+once: :meth:`DropOldestQueue.get_joined`), and of the windows they close only the newest is
+decided and published (``Pipeline.process_newest``: every event tracked, the contact and gesture
+steps run once, on the latest state, as a game reads the newest report; the others counted in
+``RunStats.coalesced_windows``); when the queue is full all the same, it drops its
 OLDEST items (counted in :class:`RunStats`) instead of letting the controller lag;
 with ``pace=False`` (``--fast``) nothing is dropped: the source waits for the pipeline instead,
 and the pipeline runs the resting detection inline so that a replay is deterministic.
