@@ -22,13 +22,18 @@ GROUP = 4  # batches joined, as a queue behind the pipeline hands them on (1 ms 
 @pytest.fixture(scope="module")
 def push(sim_push_only_recording):
     """The simulated push's sensor and its stream in 1 ms batches and APS frames."""
-    sensor = SensorGeometry.load(sim_push_only_recording.parent / "sensor.yaml")
-    with RecordingReader(sim_push_only_recording) as reader:
+    return _stream(sim_push_only_recording)
+
+
+def _stream(path):
+    """A recording's sensor (sensor.yaml beside it) and its stream in 1 ms batches and APS frames."""
+    sensor = SensorGeometry.load(path.parent / "sensor.yaml")
+    with RecordingReader(path) as reader:
         events, frames = reader.read_all()
     return sensor, list(merge_stream([events], frames, 1_000))
 
 
-def _pipeline(sensor, seen: dict[int, np.ndarray]) -> GesturePipeline:
+def _pipeline(sensor, seen: dict[int, np.ndarray], window_us: int) -> GesturePipeline:
     """The product's pipeline (noise filter on, resting detection inline: deterministic), keeping
     the tracked markers at each window it decides."""
     pipeline: GesturePipeline
@@ -36,23 +41,23 @@ def _pipeline(sensor, seen: dict[int, np.ndarray]) -> GesturePipeline:
     def keep(estimate: GestureEstimate) -> None:
         seen[estimate.t_us] = pipeline.marker_positions()
 
-    pipeline = GesturePipeline(sensor, PipelineConfig(window_us=WINDOW_US), on_window=keep)
+    pipeline = GesturePipeline(sensor, PipelineConfig(window_us=window_us), on_window=keep)
     return pipeline
 
 
-def _reference(push):
+def _reference(push, window_us: int = WINDOW_US):
     sensor, items = push
     seen: dict[int, np.ndarray] = {}
-    pipeline = _pipeline(sensor, seen)
+    pipeline = _pipeline(sensor, seen, window_us)
     estimates = [e for item in items for e in pipeline.process(item)]
     return pipeline, estimates, seen
 
 
-def _coalesced(push):
-    """The same stream with every run of ``GROUP`` event batches joined and fed to ``process_newest``."""
+def _coalesced(push, window_us: int = WINDOW_US, group: int = GROUP):
+    """The same stream with every run of ``group`` event batches joined and fed to ``process_newest``."""
     sensor, items = push
     seen: dict[int, np.ndarray] = {}
-    pipeline = _pipeline(sensor, seen)
+    pipeline = _pipeline(sensor, seen, window_us)
     estimates: list[GestureEstimate] = []
     skipped: list[int] = []
     run: list[np.ndarray] = []
@@ -70,19 +75,20 @@ def _coalesced(push):
             estimates.extend(pipeline.process(item))
             continue
         run.append(item)
-        if len(run) == GROUP:
+        if len(run) == group:
             flush()
     flush()
     return pipeline, estimates, skipped, seen
 
 
-def _episodes(estimates: list[GestureEstimate]) -> list[tuple[GestureType, int, int]]:
-    """(type, first window end, last window end) of each run of windows answering one gesture."""
+def _episodes(estimates: list[GestureEstimate], gap_us: int) -> list[tuple[GestureType, int, int]]:
+    """(type, first window end, last window end) of each run of windows answering one gesture,
+    windows of a type at most ``gap_us`` apart in one run (the coalesced windows between them)."""
     out: list[tuple[GestureType, int, int]] = []
     for e in estimates:
         if e.gesture is GestureType.NONE:
             continue
-        if out and out[-1][0] is e.gesture and e.t_us - out[-1][2] <= GROUP * WINDOW_US:
+        if out and out[-1][0] is e.gesture and e.t_us - out[-1][2] <= gap_us:
             out[-1] = (e.gesture, out[-1][1], e.t_us)
         else:
             out.append((e.gesture, e.t_us, e.t_us))
@@ -108,18 +114,37 @@ def test_joined_batches_track_every_event_and_decide_only_the_newest_window(push
     assert moved > 100  # the push moved the markers in many of the decided windows
 
 
+def _same_episodes(ref: list[GestureEstimate], out: list[GestureEstimate], joined_us: int) -> list:
+    """The uncoalesced run's episodes, asserted to be the coalesced run's: the same types in the
+    same order, each beginning and ending within the time joined of the other's."""
+    expected, got = _episodes(ref, joined_us), _episodes(out, joined_us)
+    assert [g for g, _, _ in got] == [g for g, _, _ in expected]
+    for (_, start, end), (_, got_start, got_end) in zip(expected, got):
+        assert abs(got_start - start) <= joined_us and abs(got_end - end) <= joined_us
+    return expected
+
+
 def test_deciding_only_the_newest_window_keeps_the_gesture_episodes(push):
     """The episode vote and the creep filter key on camera time: told every fourth window or so,
     they give the same episodes, each within the windows joined of the uncoalesced run's."""
     _, ref, _ = _reference(push)
     _, out, _, _ = _coalesced(push)
-    expected, got = _episodes(ref), _episodes(out)
+    expected = _same_episodes(ref, out, GROUP * 1_000)
     assert {g for g, _, _ in expected} == {GestureType.PUSH}  # the recording's push: held over a second
     assert any(end - start > 1_000_000 for _, start, end in expected)
-    assert [g for g, _, _ in got] == [g for g, _, _ in expected]
-    tolerance = GROUP * WINDOW_US
-    for (_, start, end), (_, got_start, got_end) in zip(expected, got):
-        assert abs(got_start - start) <= tolerance and abs(got_end - end) <= tolerance
+
+
+@pytest.mark.parametrize("gesture", ["push", "pinch", "twist_cw", "twist_ccw", "zoom"])
+def test_every_gesture_keeps_its_type_when_four_10_ms_windows_are_joined(sim_quick_dataset, gesture):
+    """The quick dataset's sequences (one user, 3 s each), the product's 10 ms windows, 40 ms of
+    batches a call: the same gesture episodes, of the sequence's own type."""
+    stream = _stream(sim_quick_dataset / f"u0_{gesture}.aedat4")
+    _, ref, _ = _reference(stream, 10_000)
+    _, out, skipped, _ = _coalesced(stream, 10_000, 40)
+    assert len(skipped) > len(ref) // 2
+    expected = _same_episodes(ref, out, 40_000)
+    longest = max(expected, key=lambda episode: episode[2] - episode[1])
+    assert longest[0] is GestureType(gesture) and longest[2] - longest[1] > 1_000_000
 
 
 class _Estimates:
@@ -164,3 +189,17 @@ def test_a_run_behind_its_source_coalesces_queued_windows_and_drops_nothing(push
     ends = [e.t_us for e in out.estimates]  # (those published: a resting gel's unchanged windows are not)
     assert ends == sorted(set(ends)) and set(ends) <= {e.t_us for e in ref}
     assert GestureType.PUSH in {e.gesture for e in out.estimates}
+
+
+def test_a_fast_replay_never_coalesces(push):
+    """``--fast`` (neither paced nor live): the source waits for the pipeline, no batch is joined,
+    every window is decided as the pipeline alone decides it."""
+    sensor, items = push
+    _, ref, _ = _reference(push)
+    out = _Estimates()
+    pipeline = GesturePipeline(sensor, PipelineConfig(window_us=WINDOW_US))
+    stats = Runtime(iter(items), pipeline, load_profile("default"), [out], pace=False).run()
+    assert stats.coalesced_windows == 0 and stats.windows == len(ref)
+    published = {e.t_us: e.gesture for e in out.estimates}
+    assert published == {e.t_us: e.gesture for e in ref if e.t_us in published}
+    assert GestureType.PUSH in published.values()
