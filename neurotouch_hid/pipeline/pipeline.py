@@ -26,7 +26,8 @@ events, with ``t_us`` = the window's end; events at ``t`` belong to the window e
 but for a gap in the timestamps longer than :data:`GAP_US`: its first second of windows is
 emitted (the gel settling as the last events left it), the rest skipped (a year's gap made 3
 billion windows; the predictions format asks for no empty window). Events before the reference
-frame are dropped.
+frame are dropped. :meth:`GesturePipeline.process_newest` (batches that queued up behind a
+real-time run) decides only the newest window a batch closes.
 
 Threads: the resting detector may run in another thread (paper: "operating in parallel to the
 main pipeline"): ``detect_resting=False`` and hand its results to
