@@ -9,7 +9,10 @@ GIL in their heavy parts, so on two cores the resting detection does not hold up
 
 Between the threads sit bounded queues. When the pipeline falls behind a live or paced source, it
 takes the event batches queued meanwhile in one call (the same events, its per-call cost paid
-once: :meth:`DropOldestQueue.get_joined`); when the queue is full all the same, it drops its
+once: :meth:`DropOldestQueue.get_joined`), and of the windows they close only the newest is
+decided and published (``Pipeline.process_newest``: every event tracked, the contact and gesture
+steps run once, on the latest state, as a game reads the newest report; the others counted in
+``RunStats.coalesced_windows``); when the queue is full all the same, it drops its
 OLDEST items (counted in :class:`RunStats`) instead of letting the controller lag;
 with ``pace=False`` (``--fast``) nothing is dropped: the source waits for the pipeline instead,
 and the pipeline runs the resting detection inline so that a replay is deterministic.
@@ -157,6 +160,8 @@ class DropOldestQueue:
         self._cond = threading.Condition()
         self._closed = False
         self._taken = False  # an item is being processed (:meth:`done` ends it)
+        #: how many queued items the last :meth:`get_joined` returned as one (the consumer's to read)
+        self.joined = 0
 
     def _too_long(self, item: StreamItem) -> bool:
         if self._max_span_us is None or not (self._drop_oldest or self._span_waits) or not self._items:
@@ -205,6 +210,7 @@ class DropOldestQueue:
                         break
                     parts.append(self._items.popleft()[1])
                     n += len(parts[-1])
+            self.joined = len(parts)
             self._cond.notify_all()
         return arrival_ns, (join_events(parts) if len(parts) > 1 else item)
 
@@ -806,21 +812,29 @@ class Runtime:
                         break
                     continue
                 try:
-                    self._handle(entry)
+                    self._handle(entry, newest=self._items.joined > 1)
                 finally:
                     self._items.done()
         except BaseException as exc:
             self._errors.append(exc)
             self.stop()
 
-    def _handle(self, entry: tuple[int, StreamItem]) -> None:
+    def _handle(self, entry: tuple[int, StreamItem], newest: bool = False) -> None:
         """One item -> estimates -> controller states -> records published: in the pipeline's
-        thread, or in the source's while the gel rests (:meth:`_hand_on`), never both at once."""
+        thread, or in the source's while the gel rests (:meth:`_hand_on`), never both at once.
+        ``newest``: the item joins event batches that queued up behind the pipeline: of the
+        windows it closes only the newest is decided and published (``Pipeline.process_newest``:
+        every event tracked, nothing dropped; the others are counted in ``stats.coalesced_windows``
+        and their latency runs to this output, which covers them)."""
         stats = self.stats
         arrival_ns, item = entry
         if self._restart.is_set():
             self._resume()
-        estimates = self._pipeline.process(item)
+        skipped: Sequence[int] = ()
+        if newest and isinstance(item, np.ndarray):
+            estimates, skipped = self._pipeline.process_newest(item)
+        else:
+            estimates = self._pipeline.process(item)
         if isinstance(item, Frame):
             stats.frames += 1
         elif isinstance(item, np.ndarray):
@@ -829,6 +843,9 @@ class Runtime:
         if t_us is not None:
             self._first_us = t_us if self._first_us is None else self._first_us
             stats.stream_us = t_us - self._first_us
+        if skipped:
+            stats.coalesced_windows += len(skipped)
+            self._last_end_us = skipped[-1]
         for estimate in estimates:
             if not self._unchanged_at_rest(estimate):
                 self._emit(estimate)
@@ -841,9 +858,8 @@ class Runtime:
             compiling = self._compile_progress is not None and self._compile_progress() is not None
             stats.add_latency(len(estimates), done_ns - arrival_ns, compiling=compiling, waiting=len(self._items))
             if self._pace:
-                for estimate in estimates:
-                    end_ns = self._clock.due_ns(estimate.t_us)
-                    stats.window_latency.add(done_ns - end_ns)
+                for end_us in [*skipped, *(estimate.t_us for estimate in estimates)]:
+                    stats.window_latency.add(done_ns - self._clock.due_ns(end_us))
 
     def _unchanged_at_rest(self, estimate: GestureEstimate) -> bool:
         """Whether ``estimate`` changes nothing: the gel rests, the mapper rests at its fixed point

@@ -562,6 +562,11 @@ class GuardedPipeline:
         with self._guard():
             return self._pipeline.process(item)
 
+    def process_newest(self, events: np.ndarray) -> tuple[list[GestureEstimate], list[int]]:
+        """The wrapped pipeline's ``process_newest``."""
+        with self._guard():
+            return self._pipeline.process_newest(events)
+
     def set_resting(self, result: RestingResult | None, t_us: int) -> None:
         """Hands the resting verdict on."""
         self._pipeline.set_resting(result, t_us)

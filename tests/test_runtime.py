@@ -249,6 +249,10 @@ class WindowedPipeline:
             self.seen.append(t)
         return out
 
+    def process_newest(self, events):
+        """Joined batches: every window they close, as :meth:`process` (nothing coalesced)."""
+        return self.process(events), []
+
     def set_resting(self, result, t_us):
         pass
 

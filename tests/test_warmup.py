@@ -149,6 +149,9 @@ class _SlowPipeline:
         self.events += len(item)
         return [GestureEstimate(t_us=int(item["timestamp"][-1]))]
 
+    def process_newest(self, events):
+        return self.process(events), []
+
     def set_resting(self, result, t_us):
         pass
 

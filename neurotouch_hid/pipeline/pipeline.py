@@ -26,7 +26,8 @@ events, with ``t_us`` = the window's end; events at ``t`` belong to the window e
 but for a gap in the timestamps longer than :data:`GAP_US`: its first second of windows is
 emitted (the gel settling as the last events left it), the rest skipped (a year's gap made 3
 billion windows; the predictions format asks for no empty window). Events before the reference
-frame are dropped.
+frame are dropped. :meth:`GesturePipeline.process_newest` (batches that queued up behind a
+real-time run) decides only the newest window a batch closes.
 
 Threads: the resting detector may run in another thread (paper: "operating in parallel to the
 main pipeline"): ``detect_resting=False`` and hand its results to
@@ -199,6 +200,44 @@ class GesturePipeline(FramePath):
         if isinstance(item, Frame):
             return self._process_frame(item)
         return self._process_events(item)
+
+    def process_newest(self, events: np.ndarray) -> tuple[list[GestureEstimate], list[int]]:
+        """Feed an event batch that joins several queued ones (a real-time run fell behind the
+        source): every event goes through the noise filter and the tracker, window by window, but
+        of the windows the batch closes only the newest gets a decision (the contact and gesture
+        steps, the episode vote, the creep filter), on the tracker's state at its end, as
+        :meth:`process` would make it; the windows before it close without one (no estimate).
+
+        Args:
+            events: (E,) EVENT_DTYPE, time-ordered.
+        Returns:
+            (the estimates, the ends (us, time order) of the windows closed without a decision):
+            ``(process(events), [])`` when the batch closes at most one window, or reaches
+            :data:`GAP_US` past the next window's end (a gap's windows are emitted as
+            :meth:`process` emits them).
+        """
+        w = self.config.window_us
+        last_us = int(events["timestamp"][-1]) if len(events) else 0
+        end = self._next_end if self._next_end is not None or not len(events) else int(events["timestamp"][0]) + w
+        if self.tracker is None or last_us < end + w or last_us - end >= GAP_US:
+            return self.process(events), []
+        newest = end + (last_us - end) // w * w  # the last window end the batch reaches
+        ends = np.arange(end, newest, w, dtype=np.int64)  # the windows closed without a decision
+        self._apply_pending()
+        cut = int(np.searchsorted(events["timestamp"], newest - w, side="left"))  # the newest window's first
+        head = events[:cut]
+        if self.noise_filter is not None and len(head):
+            begin = self._clock()
+            head = self.noise_filter(head)
+            self._record("noise_filter", begin)
+        # the tracker's calls cut at the window ends, as :meth:`_process_events` cuts them
+        for part in np.split(head, np.searchsorted(head["timestamp"], ends[:-1], side="left")):
+            if len(part):
+                begin = self._clock()
+                self.tracker.update(part)
+                self._record("tracker", begin)
+        self._next_end = newest
+        return self._process_events(events[cut:]), ends.tolist()
 
     def run(self, stream: Iterable[StreamItem]) -> Iterator[GestureEstimate]:
         """Process a whole stream, yielding each window's estimate as it closes.
