@@ -25,6 +25,10 @@ Per family, and over all of them, it prints:
   how many of them waited out the episode vote's undecided lone contact (a window answered
   ``none`` with one contact at or above its provisional limit between the label passing the
   dead zone and the answer; docs/method.md, "Episode vote").
+
+``--traces``: also, for each such gesture, its windows from 20 ms before its first labelled frame
+to one past its answer: ms from that frame, the label's type, intensity (mm) and contact count,
+and the answer's type, intensity and contact count (``*`` marks a resting window).
 """
 
 from __future__ import annotations
@@ -73,6 +77,7 @@ class Tally:
         self.fewer = [0, 0]  # answered windows of multi-finger gestures with fewer contacts, all
         self.onsets: list[tuple[float, float, float, float]] = []  # ms; label mm at onset; ms past 0.1 mm, dz
         self.slow = Counter()  # (label type, waited as an undecided lone contact) -> gestures past SLOW_MS
+        self.traces: list[str] = []  # their windows (slow_trace)
 
     def add(self, other: "Tally") -> None:
         for name in ("gestures", "wrong", "pairs", "phases", "slow"):
@@ -81,9 +86,26 @@ class Tally:
         self.one_contact += other.one_contact
         self.fewer = [a + b for a, b in zip(self.fewer, other.fewer)]
         self.onsets += other.onsets
+        self.traces += other.traces
 
 
-def tally_sequence(labels, predictions, deadzone_mm: float, pressed=()) -> Tally:
+def slow_trace(labels, predictions, t0: int, answer_us: float, seq: str) -> list[str]:
+    """The windows of a gesture begun at ``t0`` (us) whose answer came at ``answer_us`` (us), one
+    line each (the module docstring's ``--traces``)."""
+    window = [p for p in predictions if t0 - 20_000 <= p.t_us <= answer_us + FRAME_PERIOD_US / 4]
+    truth = labels_at(labels, np.array([p.t_us for p in window], dtype=np.int64))
+    lines = []
+    for p, r in zip(window, truth):
+        lab = "-" if r is None else f"{r.gesture.value} {r.intensity_mm:.2f} mm n{r.n_contacts}"
+        rest = "*" if p.resting else ""
+        lines.append(
+            f"    {seq} {(p.t_us - t0) / 1e3:5.0f} ms  label {lab:22s} answer {p.gesture.value} "
+            f"{p.intensity_mm:.2f} mm n{p.n_contacts}{rest}"
+        )
+    return lines
+
+
+def tally_sequence(labels, predictions, deadzone_mm: float, pressed=(), seq: str = "") -> Tally:
     t = Tally()
     t_pred = np.array([p.t_us for p in predictions], dtype=np.int64)
     label_times = np.array([r.t_us for r in labels], dtype=np.int64)
@@ -118,6 +140,8 @@ def tally_sequence(labels, predictions, deadzone_mm: float, pressed=()) -> Tally
                 if crossing <= p.t_us < answer
             )
             t.slow[(kind.value, waited)] += 1
+            t.traces.append(f"  {kind.value}, {latencies[k]:.0f} ms late:")
+            t.traces += slow_trace(labels, predictions, t0, answer, seq)
         t.gestures[(multi, tap)] += 1
         t.wrong[(multi, tap)] += bool(wrong)
         for p, r in wrong:
@@ -191,6 +215,7 @@ def main(
     method: str = typer.Option("ours", "--method", help="whose predictions (DIR/predictions/FAMILY/METHOD)"),
     families: str = typer.Option("", "--families", help="comma-separated (default: every family with predictions)"),
     deadzone_mm: float = typer.Option(DEFAULT_DEADZONE_MM, "--deadzone-mm", min=0.0),
+    traces: bool = typer.Option(False, "--traces", help=f"each gesture past {SLOW_MS:.0f} ms, window by window"),
 ) -> None:
     names = families_in(out, families, method)
     total = Tally()
@@ -199,9 +224,11 @@ def main(
         for seq in list_sequences(out / fam):
             labels = read_labels(out / fam / f"{seq}.labels.csv")
             preds = read_predictions(out / "predictions" / fam / method / f"{seq}.jsonl")
-            t.add(tally_sequence(labels, preds, deadzone_mm, read_pressed(out / fam / f"{seq}.pressed.csv")))
+            t.add(tally_sequence(labels, preds, deadzone_mm, read_pressed(out / fam / f"{seq}.pressed.csv"), seq))
         total.add(t)
         print("\n".join(lines_for(fam, t)))
+        if traces and t.traces:
+            print("\n".join(["Gestures answered late above the dead zone:", *t.traces, ""]))
     print("\n".join(lines_for(f"all {len(names)} families", total)))
 
 

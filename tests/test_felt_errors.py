@@ -44,3 +44,21 @@ def test_a_push_held_undecided_past_the_dead_zone_is_listed_as_waiting(felt_erro
         "- dead-zone latency above 40 ms: 2 gestures; pinch 1 (of them waiting as an undecided lone contact 0); "
         "push 1 (of them waiting as an undecided lone contact 1)"
     )
+
+
+def test_a_late_gesture_is_traced_window_by_window_up_to_its_answer(felt_errors):
+    # the push above: its windows from 20 ms before its first labelled frame (40 ms) to its
+    # answer (100 ms), with the label (its intensity interpolated between two labelled frames) and
+    # the answer of each.
+    labels = [row(0, G.NONE, 0.0), row(40, G.PUSH, 1.0), row(80, G.PUSH, 1.0), row(120, G.PUSH, 1.0)]
+    labels += [row(160, G.NONE, 0.0)]
+    preds = [pred(20, G.NONE, 0.0, 0), pred(50, G.NONE, 0.9), pred(70, G.NONE, 1.5), pred(100, G.PUSH, 2.0)]
+    preds += [pred(130, G.PUSH, 2.0)]
+    tally = felt_errors.tally_sequence(labels, preds, 0.8, seq="u0")
+    assert tally.traces[0] == "  push, 60 ms late:"
+    assert [line.split() for line in tally.traces[1:]] == [
+        ["u0", "-20", "ms", "label", "none", "0.50", "mm", "n0", "answer", "none", "0.00", "mm", "n0"],
+        ["u0", "10", "ms", "label", "push", "1.00", "mm", "n1", "answer", "none", "0.90", "mm", "n1"],
+        ["u0", "30", "ms", "label", "push", "1.00", "mm", "n1", "answer", "none", "1.50", "mm", "n1"],
+        ["u0", "60", "ms", "label", "push", "1.00", "mm", "n1", "answer", "push", "2.00", "mm", "n1"],
+    ]
