@@ -713,7 +713,7 @@ def _paced_run_of(recording, *, cut: bool) -> tuple[TimedOutput, list[int]]:
         rt = Runtime(source, pipeline, load_profile("default"), [output], pace=True, pacer=pacer)
         hand_on, handle = rt._hand_on, rt._handle
         rt._hand_on = lambda item: (handed.append(size(item)), hand_on(item))[1]
-        rt._handle = lambda entry: (handle(entry), done.append(size(entry[1])))[0]  # published, rest state set
+        rt._handle = lambda entry, **kw: (handle(entry, **kw), done.append(size(entry[1])))[0]  # published, rest set
         rt.run()
     return output, read
 
