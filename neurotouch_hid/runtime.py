@@ -855,11 +855,21 @@ class Runtime:
             self._rest_windows = (estimate.t_us, estimate.t_us - previous) if resting else None
         if estimates:
             done_ns = time.perf_counter_ns()
-            compiling = self._compile_progress is not None and self._compile_progress() is not None
+            compiling = self._compiling() is not None
             stats.add_latency(len(estimates), done_ns - arrival_ns, compiling=compiling, waiting=len(self._items))
             if self._pace:
                 for end_us in [*skipped, *(estimate.t_us for estimate in estimates)]:
                     stats.window_latency.add(done_ns - self._clock.due_ns(end_us))
+
+    def _compiling(self) -> CompileProgress | None:
+        """The first run's compile while it lasts (``compile_progress``); once it has answered
+        None it is over for good (``warmup.Warmup.progress_now``) and is not asked again."""
+        if self._compile_progress is None:
+            return None
+        progress = self._compile_progress()
+        if progress is None:
+            self._compile_progress = None
+        return progress
 
     def _unchanged_at_rest(self, estimate: GestureEstimate) -> bool:
         """Whether ``estimate`` changes nothing: the gel rests, the mapper rests at its fixed point
@@ -880,7 +890,7 @@ class Runtime:
                 and kept.axes == last.axes
                 and kept.buttons == last.buttons
                 and kept.keys == last.keys
-                and (self._compile_progress is None or self._compile_progress() is None)
+                and self._compiling() is None
                 # a merged device's input is published with the last window's record: one must exist
                 and (self._merge is None or self._last_record is not None)
             )
@@ -931,7 +941,7 @@ class Runtime:
                 state.axes != last.axes or state.buttons != last.buttons or state.keys != last.keys or bool(state.rel)
             )
             markers = self._pipeline.markers() if self._wants_markers else None
-            progress = self._compile_progress() if self._compile_progress is not None else None
+            progress = self._compiling()
             record = WindowRecord(
                 estimate=estimate,
                 state=state,

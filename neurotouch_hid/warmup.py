@@ -475,8 +475,13 @@ class Warmup:
                     stack.enter_context(self.guard(group))
                 yield
 
+        done = False  # every group settled: for good
+
         def guard() -> ContextManager[None]:
-            return _UNGUARDED if all(event.is_set() for event in settled) else guard_all()
+            nonlocal done
+            if not done:
+                done = all(event.is_set() for event in settled)
+            return _UNGUARDED if done else guard_all()
 
         return guard
 
