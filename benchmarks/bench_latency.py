@@ -88,8 +88,11 @@ def items(events: np.ndarray, frames: list[Frame], batch_us: int) -> list:
 
 
 def looped(events: np.ndarray, frames: list[Frame], batch_us: int, total_us: int):
-    """The recording again and again, timestamps shifted by its length, for ``total_us``."""
-    span = int(events["timestamp"][-1]) - frames[0].t_us + 40_000
+    """The recording again and again, timestamps shifted by its length, for ``total_us``: the
+    next loop's first APS frame one batch after the last event, as a camera streaming this fast
+    never falls silent (a pause would leave its windows waiting for the next loop's data to close
+    them, a latency the driver does not make)."""
+    span = int(events["timestamp"][-1]) - frames[0].t_us + batch_us
     base = items(events, frames, batch_us)
     shift = 0
     while shift < total_us:
@@ -140,6 +143,7 @@ def show(name: str, stats: RunStats) -> None:
     line = (
         f"{name}: {stats.windows} windows, {stats.events} events in {stats.wall_s:.1f} s wall "
         f"({rate / 1e6:.2f} M events/s), dropped {stats.dropped_items} items ({stats.dropped_events} events), "
+        f"{stats.coalesced_windows} queued windows decided with a newer one, "
         f"resting detector skipped {stats.resting_dropped_frames} frames; "
         f"processing latency p50 {stats.latency.percentile_us(50):.0f} us p99 {stats.latency.percentile_us(99):.0f} us"
     )
@@ -165,7 +169,12 @@ def busy_process():
 
 
 def stages(
-    events: np.ndarray, frames: list[Frame], sensor: SensorGeometry, window_us: int, idle_s: float = 0.0
+    events: np.ndarray,
+    frames: list[Frame],
+    sensor: SensorGeometry,
+    window_us: int,
+    idle_s: float = 0.0,
+    join: int = 1,
 ) -> None:
     """Where the pipeline's time goes on this data (GesturePipeline's own per-stage CPU timings),
     and the CPU time of each ``process`` call that closes a window (p50/p99): the processing
@@ -174,16 +183,32 @@ def stages(
 
     ``idle_s`` > 0: the thread sleeps that long after each 1 ms batch, as the running driver
     waits for the camera's next one. Its caches are then cold when a window closes: on this
-    machine class every step costs 2-4x its back-to-back CPU time (docs/performance.md, "Runtime latency")."""
+    machine class every step costs 2-4x its back-to-back CPU time (docs/performance.md, "Runtime latency").
+
+    ``join`` > 1: every ``join`` event batches (none across an APS frame) go to the pipeline as
+    one, as the runtime hands on batches that queued up behind it, and of the windows they close
+    only the newest is decided (``process_newest``): the CPU a run that fell behind needs."""
     from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
+    from neurotouch_hid.sources import join_events
 
     pipeline = GesturePipeline(sensor, PipelineConfig(window_us=window_us), profile=True)
     closing: list[int] = []
-    windows = 0
+    windows = coalesced = 0
+    run: list[np.ndarray] = []
+    stream = items(events, frames, 1000)
     t0 = time.process_time()
-    for item in items(events, frames, 1000):
+    for k, item in enumerate(stream):
         c = time.thread_time_ns()
-        n = len(pipeline.process(item))
+        if join > 1 and not isinstance(item, Frame):
+            run.append(item)
+            last = k + 1 == len(stream) or isinstance(stream[k + 1], Frame)
+            if len(run) < join and not last:
+                continue
+            out, skipped = pipeline.process_newest(join_events(run))
+            run, n = [], len(out)
+            coalesced += len(skipped)
+        else:
+            n = len(pipeline.process(item))
         if n:
             closing.append(time.thread_time_ns() - c)
             windows += n
@@ -193,8 +218,10 @@ def stages(
     parts = ", ".join(f"{name} {sum(v) / 1e9:.3f} s" for name, v in pipeline.cpu_timings.items())
     per = np.array(closing) / 1e3
     print(
-        f"pipeline alone, {window_us} us windows{f', idle {idle_s * 1e3:g} ms after each batch' if idle_s else ''}: "
-        f"{len(events)} events, {windows} windows in {cpu:.2f} s CPU "
+        f"pipeline alone, {window_us} us windows{f', idle {idle_s * 1e3:g} ms after each batch' if idle_s else ''}"
+        f"{f', {join} batches a call, the newest window decided' if join > 1 else ''}: "
+        f"{len(events)} events, {windows} windows{f' (+ {coalesced} coalesced)' if coalesced else ''} "
+        f"in {cpu:.2f} s CPU "
         f"({len(events) / cpu / 1e6:.2f} M events/s); CPU per stage: {parts}; CPU per item closing a window "
         f"p50 {np.percentile(per, 50):.0f} us p99 {np.percentile(per, 99):.0f} us",
         flush=True,
@@ -274,11 +301,13 @@ def main() -> None:
             f"= {args.rate / 1e6:.1f} M events/s, {len(fr)} frames; looped for {args.rate_seconds:g} s",
             flush=True,
         )
-        show(
-            f"real time, 1 ms windows, {args.rate / 1e6:.1f} M events/s",
-            run(looped(ev, fr, 1000, int(args.rate_seconds * 1e6)), sensor, 1000, pace=True),
-        )
+        cpu = time.process_time()
+        stats = run(looped(ev, fr, 1000, int(args.rate_seconds * 1e6)), sensor, 1000, pace=True)
+        cpu = time.process_time() - cpu
+        show(f"real time, 1 ms windows, {args.rate / 1e6:.1f} M events/s", stats)
+        print(f"  the process's CPU: {cpu:.2f} s, {cpu / stats.wall_s:.2f} of a core (all threads)", flush=True)
         stages(ev, fr, sensor, 1000)
+        stages(ev, fr, sensor, 1000, join=2)
 
     if "latency" not in args.skip:
         stages(events, frames, sensor, 10_000)

@@ -2,7 +2,7 @@
 
     python3 benchmarks/family_eval.py --out DIR [--families powerlaw,camera,...] [--users 0,3]
         [--seconds 4] [--seed 2] [--jobs 2] [--method NAME=PRESET[:NAME=VALUE;...]] [--final-run]
-        [--sessions] [--deadzone-mm 0.8]
+        [--sessions] [--deadzone-mm 0.8] [--rotation-deg 35 --centre-px 203,105]
 
 Protocol (docs/accuracy.md, "How it is measured"):
 
@@ -22,6 +22,11 @@ Protocol (docs/accuracy.md, "How it is measured"):
   even ``--seed`` (test users, never the tuning seed). ``mix`` is one family per sequence.
   ``--sessions``: instead, one 10 s game session per test user (``simulate --preset
   sessions``: the type changes from one gesture to the next, taps, holds, short rests).
+
+``--rotation-deg`` and ``--centre-px``: the simulated camera turned about its axis and the gel's
+centre moved in the image (a camera mounted as a user's enclosure puts it), written into each
+dataset's sensor.yaml as ``calibrate`` would measure them (a separate ``--out``: the folder's
+datasets are made once).
 
 Beside the paper's five metrics (and the contact count per labelled gesture type, a second
 table), every method is scored per gesture (docs/dataset.md,
@@ -149,6 +154,12 @@ def main(
         help="calibrate each family's creep on a simulated press of a tuning user (calibrate --press) "
         "and write it into the family's sensor.yaml (not for mix: no one gel to calibrate)",
     ),
+    rotation_deg: float = typer.Option(
+        0.0, "--rotation-deg", help="the simulated camera's rotation (degrees, counter-clockwise; sensor.yaml)"
+    ),
+    centre_px: Optional[str] = typer.Option(
+        None, "--centre-px", help="X,Y: the gel's centre in the simulated image (px; default the image's centre)"
+    ),
     vote_of: Optional[str] = typer.Option(
         None,
         "--vote-of",
@@ -164,12 +175,15 @@ def main(
             "add --final-run"
         )
     user_ids = parse_users(users)
+    sensor = camera(rotation_deg, centre_px)
     out.mkdir(parents=True, exist_ok=True)
     cache_path = out / "results.json"
     cache = json.loads(cache_path.read_text()) if cache_path.exists() else {}
     methods = [parse_method(m) for m in method]
     for fam in names:
-        folder = family_dataset(out, fam, sessions=sessions, seed=seed, users=user_ids, seconds=seconds, creep=creep)
+        folder = family_dataset(
+            out, fam, sessions=sessions, seed=seed, users=user_ids, seconds=seconds, creep=creep, sensor=sensor
+        )
         for name, preset, sets in methods:
             key = f"{fam}/{name}"
             if key in cache and not rerun and cache[key].get("settings") == [preset, *sets, deadzone_mm]:
@@ -211,20 +225,53 @@ def main(
     console.print(f"-> {out / 'families.md'}")
 
 
+def camera(rotation_deg: float, centre_px: Optional[str]) -> SensorGeometry:
+    """The simulated camera of ``--rotation-deg`` and ``--centre-px`` (``X,Y``, px): the default
+    geometry turned and moved (docs/dataset.md's sensor.yaml).
+
+    Raises:
+        typer.BadParameter: (a usage error naming the value) ``centre_px`` is not two numbers, or
+            puts part of the gel's disc outside the image.
+    """
+    base = SensorGeometry()
+    if centre_px is None:
+        return replace(base, rotation_deg=rotation_deg)
+    try:
+        cx, cy = (float(v) for v in centre_px.split(","))
+    except ValueError:
+        raise typer.BadParameter(f"expected X,Y in px, got {centre_px!r}") from None
+    r = base.gel_radius_px
+    if not (r <= cx <= base.width - r and r <= cy <= base.height - r):
+        raise typer.BadParameter(
+            f"the gel's disc (radius {r:g} px) about {centre_px} leaves the {base.width} x {base.height} image"
+        )
+    return replace(base, rotation_deg=rotation_deg, gel_center_px=(cx, cy))
+
+
 def family_dataset(
-    out: Path, fam: str, *, sessions: bool, seed: int, users: list[int], seconds: float = 4.0, creep: bool = True
+    out: Path,
+    fam: str,
+    *,
+    sessions: bool,
+    seed: int,
+    users: list[int],
+    seconds: float = 4.0,
+    creep: bool = True,
+    sensor: SensorGeometry | None = None,
 ) -> Path:
     """The family's test dataset ``out/FAM``, written once (``done`` marks it): game sessions
     (``simulate --preset sessions``) or ``seconds`` per user and gesture type, of the ``users``
-    with ``seed``; with ``creep`` (not for mix), the family's creep calibrated on a tuning user's
-    press (:func:`press_creep`) and written into its sensor.yaml."""
+    with ``seed``, seen by the camera ``sensor`` (default the built-in geometry); with ``creep``
+    (not for mix), the family's creep calibrated on a tuning user's press (:func:`press_creep`)
+    and written into its sensor.yaml."""
     folder = out / fam
     if not (folder / "done").exists():
         if sessions:
-            write_dataset(folder, preset="sessions", seed=seed, users=users, physics=fam, progress=False)
+            write_dataset(folder, preset="sessions", seed=seed, users=users, physics=fam, progress=False, sensor=sensor)
         else:
             n_seq = len(users) * 5
-            write_dataset(folder, seed=seed, users=users, minutes=seconds * n_seq / 60.0, physics=fam, progress=False)
+            minutes = seconds * n_seq / 60.0
+            write_dataset(folder, seed=seed, users=users, minutes=minutes, physics=fam, progress=False, sensor=sensor)
         (folder / "done").write_text("")
     if creep and fam != "mix" and not (folder / "creep.done").exists():
         measured = press_creep(out / "presses" / fam, fam, folder / "sensor.yaml")
@@ -239,13 +286,21 @@ def press_creep(press_dir: Path, family: str, sensor_file: Path) -> tuple[float,
     of the tuning user :data:`PRESS_USER` (seed :data:`PRESS_SEED`, odd: never a test draw, 6 s)
     simulated with the family's physics into ``press_dir``, tracked with the dataset's sensor,
     fitted (:func:`neurotouch_hid.calibration.measure_creep`); written into ``sensor_file`` as
-    its ``creep``. Returns (q, tau s), or None: the press shows no creep (none written)."""
-    if not (press_dir / f"u{PRESS_USER}_push.aedat4").exists():
-        users, gestures = [PRESS_USER], ["push"]
-        write_dataset(
-            press_dir, seed=PRESS_SEED, users=users, gestures=gestures, minutes=0.1, physics=family, progress=False
-        )
+    its ``creep``. The press is seen by the dataset's camera. Returns (q, tau s), or None: the
+    press shows no creep (none written)."""
     sensor = SensorGeometry.load(sensor_file)
+    if not (press_dir / f"u{PRESS_USER}_push.aedat4").exists():
+        users, gestures, seen_by = [PRESS_USER], ["push"], replace(sensor, creep=None)
+        write_dataset(
+            press_dir,
+            seed=PRESS_SEED,
+            users=users,
+            gestures=gestures,
+            minutes=0.1,
+            physics=family,
+            progress=False,
+            sensor=seen_by,
+        )
     creep = measure_creep(press_dir / f"u{PRESS_USER}_push.aedat4", sensor)
     replace(sensor, creep=creep).save(sensor_file)
     return creep

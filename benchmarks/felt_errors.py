@@ -25,6 +25,16 @@ Per family, and over all of them, it prints:
   how many of them waited out the episode vote's undecided lone contact (a window answered
   ``none`` with one contact at or above its provisional limit between the label passing the
   dead zone and the answer; docs/method.md, "Episode vote").
+
+The gesture type outside the 40 ms collar (docs/dataset.md) is also split: its windows scored, those
+answered wrong, and of these the ones no detector could answer right, in a gesture whose last finger
+had not yet moved the gel under it 0.3 mm (``SEQUENCE.pressed.csv``, fingers starting apart: the
+fingers seen are fewer than the type has) or whose label is below 0.1 mm (the gel has not moved),
+with the accuracy were every other window right.
+
+``--traces``: also, for each such gesture, its windows from 20 ms before its first labelled frame
+to one past its answer: ms from that frame, the label's type, intensity (mm) and contact count,
+and the answer's type, intensity and contact count (``*`` marks a resting window).
 """
 
 from __future__ import annotations
@@ -37,7 +47,7 @@ import typer
 from workdir import families_in
 
 from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions, read_pressed
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.estimate import GESTURE_ORDER, GestureType
 from neurotouch_hid.evaluation.felt import (
     DEFAULT_DEADZONE_MM,
     FRAME_PERIOD_US,
@@ -46,6 +56,7 @@ from neurotouch_hid.evaluation.felt import (
     gesture_spans,
     pressed_at,
 )
+from neurotouch_hid.evaluation.metrics import TYPE_COLLAR_US, outside_collar
 from neurotouch_hid.output.console import command_app
 from neurotouch_hid.pipeline.episode import PROVISIONAL_MM
 
@@ -73,18 +84,63 @@ class Tally:
         self.fewer = [0, 0]  # answered windows of multi-finger gestures with fewer contacts, all
         self.onsets: list[tuple[float, float, float, float]] = []  # ms; label mm at onset; ms past 0.1 mm, dz
         self.slow = Counter()  # (label type, waited as an undecided lone contact) -> gestures past SLOW_MS
+        self.traces: list[str] = []  # their windows (slow_trace)
+        self.collared = Counter()  # "scored", and the wrong windows outside the collar by cause
 
     def add(self, other: "Tally") -> None:
-        for name in ("gestures", "wrong", "pairs", "phases", "slow"):
+        for name in ("gestures", "wrong", "pairs", "phases", "slow", "collared"):
             getattr(self, name).update(getattr(other, name))
         self.onset_push += other.onset_push
         self.one_contact += other.one_contact
         self.fewer = [a + b for a, b in zip(self.fewer, other.fewer)]
         self.onsets += other.onsets
+        self.traces += other.traces
 
 
-def tally_sequence(labels, predictions, deadzone_mm: float, pressed=()) -> Tally:
+def slow_trace(labels, predictions, t0: int, answer_us: float, seq: str) -> list[str]:
+    """The windows of a gesture begun at ``t0`` (us) whose answer came at ``answer_us`` (us), one
+    line each (the module docstring's ``--traces``)."""
+    window = [p for p in predictions if t0 - 20_000 <= p.t_us <= answer_us + FRAME_PERIOD_US / 4]
+    truth = labels_at(labels, np.array([p.t_us for p in window], dtype=np.int64))
+    lines = []
+    for p, r in zip(window, truth):
+        lab = "-" if r is None else f"{r.gesture.value} {r.intensity_mm:.2f} mm n{r.n_contacts}"
+        rest = "*" if p.resting else ""
+        lines.append(
+            f"    {seq} {(p.t_us - t0) / 1e3:5.0f} ms  label {lab:22s} answer {p.gesture.value} "
+            f"{p.intensity_mm:.2f} mm n{p.n_contacts}{rest}"
+        )
+    return lines
+
+
+def tally_collared(t: "Tally", labels, predictions, pressed) -> None:
+    """Add the gesture type's windows outside the collar to ``t.collared`` (the module docstring):
+    ``scored``, and the wrong ones as ``unpressed``, ``unmoved`` or ``seen``."""
+    label_t = np.array([r.t_us for r in labels], dtype=np.int64)
+    kept = [p for p in predictions if len(label_t) and p.t_us >= label_t[0]]
+    t_pred = np.array([p.t_us for p in kept], dtype=np.int64)
+    kinds = np.array([GESTURE_ORDER.index(r.gesture) for r in labels], dtype=np.int64)
+    scored = outside_collar(label_t, kinds, t_pred, TYPE_COLLAR_US)
+    spans = gesture_spans(labels)
+    for p, r, s in zip(kept, labels_at(labels, t_pred), scored):
+        if not s or r is None:
+            continue
+        t.collared["scored"] += 1
+        if p.gesture is r.gesture:
+            continue
+        span = next(((t0, t1) for g, t0, t1 in spans if g is r.gesture and t0 <= p.t_us <= t1), None)
+        felt_from = None if span is None else pressed_at(pressed, *span)
+        if felt_from is not None and p.t_us < felt_from:
+            t.collared["unpressed"] += 1
+        elif r.gesture is not GestureType.NONE and r.intensity_mm < MOVED_MM:
+            t.collared["unmoved"] += 1
+        else:
+            t.collared["seen"] += 1
+
+
+def tally_sequence(labels, predictions, deadzone_mm: float, pressed=(), seq: str = "") -> Tally:
     t = Tally()
+    tally_collared(t, labels, predictions, pressed)
     t_pred = np.array([p.t_us for p in predictions], dtype=np.int64)
     label_times = np.array([r.t_us for r in labels], dtype=np.int64)
     latencies = gesture_records(labels, predictions, deadzone_mm, pressed).deadzone_latency_ms
@@ -118,6 +174,8 @@ def tally_sequence(labels, predictions, deadzone_mm: float, pressed=()) -> Tally
                 if crossing <= p.t_us < answer
             )
             t.slow[(kind.value, waited)] += 1
+            t.traces.append(f"  {kind.value}, {latencies[k]:.0f} ms late:")
+            t.traces += slow_trace(labels, predictions, t0, answer, seq)
         t.gestures[(multi, tap)] += 1
         t.wrong[(multi, tap)] += bool(wrong)
         for p, r in wrong:
@@ -172,6 +230,15 @@ def lines_for(name: str, t: Tally) -> list[str]:
             f"{np.median(mm):.2f} / {np.percentile(mm, 90):.2f} mm; {mp(after_moved, 'ms')} after the label "
             f"reaches {MOVED_MM} mm; {mp(after_felt, 'ms')} after it reaches the dead zone (negative: before)"
         )
+    c = t.collared
+    if c["scored"]:
+        wrong = c["unpressed"] + c["unmoved"] + c["seen"]
+        out.append(
+            f"- gesture type outside the collar: {c['scored']} windows, {wrong} wrong "
+            f"({100 * (1 - wrong / c['scored']):.2f} % right); of the wrong, before the gesture's last finger "
+            f"pressed {c['unpressed']}, label below {MOVED_MM} mm {c['unmoved']}, the rest {c['seen']}: "
+            f"{100 * (1 - (c['unpressed'] + c['unmoved']) / c['scored']):.2f} % were the rest right"
+        )
     slow = sum(t.slow.values())
     out.append(
         f"- dead-zone latency above {SLOW_MS:.0f} ms: {slow} gestures"
@@ -191,6 +258,7 @@ def main(
     method: str = typer.Option("ours", "--method", help="whose predictions (DIR/predictions/FAMILY/METHOD)"),
     families: str = typer.Option("", "--families", help="comma-separated (default: every family with predictions)"),
     deadzone_mm: float = typer.Option(DEFAULT_DEADZONE_MM, "--deadzone-mm", min=0.0),
+    traces: bool = typer.Option(False, "--traces", help=f"each gesture past {SLOW_MS:.0f} ms, window by window"),
 ) -> None:
     names = families_in(out, families, method)
     total = Tally()
@@ -199,9 +267,11 @@ def main(
         for seq in list_sequences(out / fam):
             labels = read_labels(out / fam / f"{seq}.labels.csv")
             preds = read_predictions(out / "predictions" / fam / method / f"{seq}.jsonl")
-            t.add(tally_sequence(labels, preds, deadzone_mm, read_pressed(out / fam / f"{seq}.pressed.csv")))
+            t.add(tally_sequence(labels, preds, deadzone_mm, read_pressed(out / fam / f"{seq}.pressed.csv"), seq))
         total.add(t)
         print("\n".join(lines_for(fam, t)))
+        if traces and t.traces:
+            print("\n".join(["Gestures answered late above the dead zone:", *t.traces, ""]))
     print("\n".join(lines_for(f"all {len(names)} families", total)))
 
 

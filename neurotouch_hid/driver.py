@@ -30,6 +30,7 @@ from neurotouch_hid.stages import Feedback, MarkerPositions, Subscriber
 from neurotouch_hid.stats import RunStats
 
 if TYPE_CHECKING:
+    import numpy as np
     from rich.console import Console
 
     from neurotouch_hid.enrolment.model import Model
@@ -51,6 +52,9 @@ class EstimateReplay:
 
     def process(self, item: GestureEstimate) -> list[GestureEstimate]:
         return [item]
+
+    def process_newest(self, events: np.ndarray) -> tuple[list[GestureEstimate], list[int]]:  # pragma: no cover
+        raise TypeError("a predictions file has no events")  # its items are estimates, never joined
 
     def restart(self) -> None:  # pragma: no cover - a predictions file is never interrupted
         pass

@@ -9,7 +9,10 @@ GIL in their heavy parts, so on two cores the resting detection does not hold up
 
 Between the threads sit bounded queues. When the pipeline falls behind a live or paced source, it
 takes the event batches queued meanwhile in one call (the same events, its per-call cost paid
-once: :meth:`DropOldestQueue.get_joined`); when the queue is full all the same, it drops its
+once: :meth:`DropOldestQueue.get_joined`), and of the windows they close only the newest is
+decided and published (``Pipeline.process_newest``: every event tracked, the contact and gesture
+steps run once, on the latest state, as a game reads the newest report; the others counted in
+``RunStats.coalesced_windows``); when the queue is full all the same, it drops its
 OLDEST items (counted in :class:`RunStats`) instead of letting the controller lag;
 with ``pace=False`` (``--fast``) nothing is dropped: the source waits for the pipeline instead,
 and the pipeline runs the resting detection inline so that a replay is deterministic.
@@ -157,6 +160,8 @@ class DropOldestQueue:
         self._cond = threading.Condition()
         self._closed = False
         self._taken = False  # an item is being processed (:meth:`done` ends it)
+        #: how many queued items the last :meth:`get_joined` returned as one (the consumer's to read)
+        self.joined = 0
 
     def _too_long(self, item: StreamItem) -> bool:
         if self._max_span_us is None or not (self._drop_oldest or self._span_waits) or not self._items:
@@ -205,6 +210,7 @@ class DropOldestQueue:
                         break
                     parts.append(self._items.popleft()[1])
                     n += len(parts[-1])
+            self.joined = len(parts)
             self._cond.notify_all()
         return arrival_ns, (join_events(parts) if len(parts) > 1 else item)
 
@@ -615,11 +621,17 @@ class Runtime:
         # a live source's polls that bring nothing wait as the runtime decides (:meth:`_live_pause`)
         pause = getattr(iterator, "poll_pause", None) if self._live else None
         holds = self._pace or pause is not None
+        # a source whose batches may be cut at the resting windows' ends (one batch a window)
+        cut = getattr(iterator, "batch_cut", None) if self._pace else None
+        cut_for = None
         try:
             if pause is not None:
                 pause.decide = self._live_pause
             for item in iterator:
                 rest = self._rest_windows
+                if cut is not None and rest is not cut_for:
+                    cut_for = rest
+                    cut.follow(rest, REST_WAKE_AFTER_END_US)  # each batch then closes a window
                 if held and rest is not None and rest is self._held_for and type(item) is np.ndarray and len(item):
                     t_us = int(item["timestamp"][-1])  # an event batch of the resting window being held:
                     if t_us <= self._held_us and t_us < self._held_before_us:  # as below, in fewer steps
@@ -800,21 +812,29 @@ class Runtime:
                         break
                     continue
                 try:
-                    self._handle(entry)
+                    self._handle(entry, newest=self._items.joined > 1)
                 finally:
                     self._items.done()
         except BaseException as exc:
             self._errors.append(exc)
             self.stop()
 
-    def _handle(self, entry: tuple[int, StreamItem]) -> None:
+    def _handle(self, entry: tuple[int, StreamItem], newest: bool = False) -> None:
         """One item -> estimates -> controller states -> records published: in the pipeline's
-        thread, or in the source's while the gel rests (:meth:`_hand_on`), never both at once."""
+        thread, or in the source's while the gel rests (:meth:`_hand_on`), never both at once.
+        ``newest``: the item joins event batches that queued up behind the pipeline: of the
+        windows it closes only the newest is decided and published (``Pipeline.process_newest``:
+        every event tracked, nothing dropped; the others are counted in ``stats.coalesced_windows``
+        and their latency runs to this output, which covers them)."""
         stats = self.stats
         arrival_ns, item = entry
         if self._restart.is_set():
             self._resume()
-        estimates = self._pipeline.process(item)
+        skipped: Sequence[int] = ()
+        if newest and isinstance(item, np.ndarray):
+            estimates, skipped = self._pipeline.process_newest(item)
+        else:
+            estimates = self._pipeline.process(item)
         if isinstance(item, Frame):
             stats.frames += 1
         elif isinstance(item, np.ndarray):
@@ -823,6 +843,9 @@ class Runtime:
         if t_us is not None:
             self._first_us = t_us if self._first_us is None else self._first_us
             stats.stream_us = t_us - self._first_us
+        if skipped:
+            stats.coalesced_windows += len(skipped)
+            self._last_end_us = skipped[-1]
         for estimate in estimates:
             if not self._unchanged_at_rest(estimate):
                 self._emit(estimate)
@@ -832,12 +855,21 @@ class Runtime:
             self._rest_windows = (estimate.t_us, estimate.t_us - previous) if resting else None
         if estimates:
             done_ns = time.perf_counter_ns()
-            compiling = self._compile_progress is not None and self._compile_progress() is not None
+            compiling = self._compiling() is not None
             stats.add_latency(len(estimates), done_ns - arrival_ns, compiling=compiling, waiting=len(self._items))
             if self._pace:
-                for estimate in estimates:
-                    end_ns = self._clock.due_ns(estimate.t_us)
-                    stats.window_latency.add(done_ns - end_ns)
+                for end_us in [*skipped, *(estimate.t_us for estimate in estimates)]:
+                    stats.window_latency.add(done_ns - self._clock.due_ns(end_us))
+
+    def _compiling(self) -> CompileProgress | None:
+        """The first run's compile while it lasts (``compile_progress``); once it has answered
+        None it is over for good (``warmup.Warmup.progress_now``) and is not asked again."""
+        if self._compile_progress is None:
+            return None
+        progress = self._compile_progress()
+        if progress is None:
+            self._compile_progress = None
+        return progress
 
     def _unchanged_at_rest(self, estimate: GestureEstimate) -> bool:
         """Whether ``estimate`` changes nothing: the gel rests, the mapper rests at its fixed point
@@ -858,7 +890,7 @@ class Runtime:
                 and kept.axes == last.axes
                 and kept.buttons == last.buttons
                 and kept.keys == last.keys
-                and (self._compile_progress is None or self._compile_progress() is None)
+                and self._compiling() is None
                 # a merged device's input is published with the last window's record: one must exist
                 and (self._merge is None or self._last_record is not None)
             )
@@ -909,7 +941,7 @@ class Runtime:
                 state.axes != last.axes or state.buttons != last.buttons or state.keys != last.keys or bool(state.rel)
             )
             markers = self._pipeline.markers() if self._wants_markers else None
-            progress = self._compile_progress() if self._compile_progress is not None else None
+            progress = self._compiling()
             record = WindowRecord(
                 estimate=estimate,
                 state=state,

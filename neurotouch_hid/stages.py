@@ -25,6 +25,8 @@ from neurotouch_hid.estimate import GestureEstimate, MarkerPositions
 from neurotouch_hid.sources import Frame, Performed, StreamItem
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from neurotouch_hid.dataset import LabelRow
     from neurotouch_hid.mapping.profile import Profile
     from neurotouch_hid.pipeline.resting import RestingResult
@@ -93,6 +95,11 @@ class Pipeline(Protocol):
 
     def process(self, item: StreamItem | GestureEstimate) -> list[GestureEstimate]:
         """The estimates of every window that ``item`` closes (often none)."""
+
+    def process_newest(self, events: np.ndarray) -> tuple[list[GestureEstimate], list[int]]:
+        """Event batches that queued up behind the pipeline, joined: every event tracked, only
+        the newest window they close decided; (its estimates, the ends (us) of the windows closed
+        without one)."""
 
     def set_resting(self, result: RestingResult | None, t_us: int) -> None:
         """A resting verdict for the APS frame at ``t_us`` (us), from another thread."""

@@ -42,7 +42,10 @@ class RunStats:
     """What a run did. Counters are updated live (the terminal view shows them).
 
     Attributes:
-        windows: gesture estimates produced (one per window).
+        windows: gesture estimates produced (one per window, but for ``coalesced_windows``).
+        coalesced_windows: windows closed without an estimate of their own because event batches
+            had queued up behind the pipeline: their events were tracked and the newest window
+            of the queue was decided and published for them (``Pipeline.process_newest``).
         events: events handed to the pipeline.
         frames: APS frames handed to the pipeline.
         states_written: controller states written to the output (state changes only).
@@ -80,6 +83,7 @@ class RunStats:
     dropped_frames: int = 0
     resting_updates: int = 0
     resting_dropped_frames: int = 0
+    coalesced_windows: int = 0
     camera_losses: int = 0
     profile: str = ""
     game: str = ""
@@ -135,6 +139,7 @@ class RunStats:
             f" ({self.stream_us / 1e6:.1f} s of data); dropped {self.dropped_items} items"
             f" ({self.dropped_events} events, {self.dropped_frames} frames),"
             f" resting detector skipped {self.resting_dropped_frames} frames"
+            + (f", {self.coalesced_windows} queued windows decided with a newer one" if self.coalesced_windows else "")
             + (f", camera lost {self.camera_losses} time(s)" if self.camera_losses else "")
             + lat
         )

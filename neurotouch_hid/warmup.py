@@ -475,8 +475,13 @@ class Warmup:
                     stack.enter_context(self.guard(group))
                 yield
 
+        done = False  # every group settled: for good
+
         def guard() -> ContextManager[None]:
-            return _UNGUARDED if all(event.is_set() for event in settled) else guard_all()
+            nonlocal done
+            if not done:
+                done = all(event.is_set() for event in settled)
+            return _UNGUARDED if done else guard_all()
 
         return guard
 
@@ -561,6 +566,11 @@ class GuardedPipeline:
         """The wrapped pipeline's estimates for ``item``."""
         with self._guard():
             return self._pipeline.process(item)
+
+    def process_newest(self, events: np.ndarray) -> tuple[list[GestureEstimate], list[int]]:
+        """The wrapped pipeline's ``process_newest``."""
+        with self._guard():
+            return self._pipeline.process_newest(events)
 
     def set_resting(self, result: RestingResult | None, t_us: int) -> None:
         """Hands the resting verdict on."""

@@ -49,6 +49,10 @@ class FakePipeline:
             ]
         return [GestureEstimate(t_us=item_end_us(item))]
 
+    def process_newest(self, events):
+        """Joined batches: one estimate, as for one batch (nothing coalesced)."""
+        return self.process(events), []
+
     def set_resting(self, result, t_us):
         self.resting.append((result, t_us))
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+import typer
 from helpers import load_benchmark
 
 
@@ -78,3 +79,13 @@ def test_the_report_marks_the_dead_zone_latency_against_its_target_and_a_missed_
     cells = [c.strip() for c in lines[2].strip("|").split("|")]
     assert cells[head.index("dead-zone latency median ms")] == "24 *"
     assert cells[head.index("dead-zone latency p90 ms")] == "80 *"
+
+
+def test_a_mounted_camera_is_turned_and_moved_and_its_gel_stays_in_the_image(family_eval):
+    mounted = family_eval.camera(35.0, "203,105")
+    assert (mounted.rotation_deg, mounted.gel_center_px) == (35.0, (203.0, 105.0))
+    assert family_eval.camera(-20.0, None).gel_center_px == (173.0, 130.0)  # the image's centre
+    with pytest.raises(typer.BadParameter, match="leaves the 346 x 260 image"):
+        family_eval.camera(0.0, "300,130")  # the disc's 75 px radius would cross the right edge
+    with pytest.raises(typer.BadParameter, match="expected X,Y in px"):
+        family_eval.camera(0.0, "203")

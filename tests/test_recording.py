@@ -348,3 +348,27 @@ def test_missing_frame_stream_and_wrong_resolution(tmp_path):
     with pytest.raises(RecordingError, match="640x480 px but 346x260 is required") as caught:
         RecordingReader(big, require_resolution=(346, 260))
     assert str(big) in str(caught.value)
+
+
+def test_a_batch_cut_follows_a_rest_s_windows_and_a_stream_cuts_again_at_the_base_length():
+    """``BatchCut``: 1 ms batches, then while a rest's 10 ms windows (ending at 12 345 us) last one
+    batch a window, cut 1 ms after each window end; back at 1 ms, what was cut longer is cut
+    again at the 1 ms boundaries."""
+    from neurotouch_hid.sources.recording import BatchCut, CuttingStream, split_batches
+
+    events = np.zeros(60, EVENT_DTYPE)
+    events["timestamp"] = np.arange(60) * 500  # 0 .. 29.5 ms
+    cut = BatchCut(1000)
+    assert [len(b) for b in split_batches(events[:6], cut)] == [2, 2, 2]
+    cut.follow((12_345, 10_000), 1000)
+    batches = split_batches(events, cut)
+    firsts = [int(b["timestamp"][0]) for b in batches]
+    assert firsts == [0, 3500, 13500, 23500]  # cuts at 3 345, 13 345, 23 345 us
+    assert cut.longer_until_us == 29_500
+    cut.follow(None)
+    stream = CuttingStream(iter(batches), cut)
+    again = list(stream)
+    assert np.array_equal(np.concatenate(again), events)
+    # no batch spans a 1 ms boundary any more (the window ends' cuts stay)
+    assert all(int(b["timestamp"][0]) // 1000 == int(b["timestamp"][-1]) // 1000 for b in again)
+    assert cut.longer_until_us == 29_500  # until a batch past it comes

@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import signal
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -247,6 +248,10 @@ class WindowedPipeline:
                 self.next_end += 10_000
             self.seen.append(t)
         return out
+
+    def process_newest(self, events):
+        """Joined batches: every window they close, as :meth:`process` (nothing coalesced)."""
+        return self.process(events), []
 
     def set_resting(self, result, t_us):
         pass
@@ -645,3 +650,83 @@ def test_a_resting_gel_polls_the_live_camera_once_per_window_and_a_touch_at_once
     assert all(p == 0.0002 for t, p in pauses if t >= 72_500)  # after the touch, the source's own
     at_rest = [n for n, thread in pipeline.threads if thread == "nt-source"]
     assert at_rest and all(n >= 9 for n in at_rest[1:])  # a window's batches at once, in the source's thread
+
+
+class TimedOutput(RecordingOutput):
+    """Remembers each changed state with its window's end and the paced clock when it came."""
+
+    def __init__(self, clock: ManualClock):
+        super().__init__()
+        self.clock = clock
+        self.timed: list[tuple[int, ControllerState, int]] = []
+        self.closed: list[tuple[int, int]] = []  # every window: its end (us), the clock (ns)
+
+    def publish(self, record):
+        if record.state_changed:
+            self.timed.append((record.estimate.t_us, record.state, self.clock.now_ns))
+
+
+def _paced_run_of(recording, *, cut: bool) -> tuple[TimedOutput, list[int]]:
+    """``recording`` through the real pipeline and default profile, paced on a manual clock, each
+    item read once everything handed on is processed; the published states with the clock when
+    they came, and the length of every item the source yielded (events; a frame counts 1)."""
+    import contextlib
+
+    from neurotouch_hid.driver import build_pipeline
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.sources.open import open_source
+
+    def size(item) -> int:
+        return len(item) if isinstance(item, np.ndarray) else 1
+
+    clock = ManualClock()
+    pacer = Pacer(clock=lambda: clock.now_ns, sleep=clock.sleep)
+    output = TimedOutput(clock)
+    handed: list[int] = []
+    done: list[int] = []
+    read: list[int] = []
+    with contextlib.ExitStack() as stack:
+        opened = open_source(str(recording), stack, batch_us=1000)
+        pipeline, _ = build_pipeline(opened.sensor, 10_000, resting_beside=False)
+        stream = opened.stream
+        rt = None
+
+        def synchronised():
+            for item in stream:
+                deadline = time.monotonic() + 60  # (only ends a hang)
+                while sum(done) < sum(handed) and time.monotonic() < deadline:
+                    time.sleep(0.0002)  # the pipeline's thread is at it: a short poll
+                read.append(size(item))
+                yield item
+
+        source = synchronised()
+        if cut:  # the stream's cut, handed on as the runtime finds it
+            source = type(stream)(source, stream.batch_cut)
+        process = pipeline.process
+
+        def timed_process(item):  # every window's end, with the paced clock when it closed
+            out = process(item)
+            output.closed += [(estimate.t_us, clock.now_ns) for estimate in out]
+            return out
+
+        pipeline.process = timed_process
+        rt = Runtime(source, pipeline, load_profile("default"), [output], pace=True, pacer=pacer)
+        hand_on, handle = rt._hand_on, rt._handle
+        rt._hand_on = lambda item: (handed.append(size(item)), hand_on(item))[1]
+        rt._handle = lambda entry, **kw: (handle(entry, **kw), done.append(size(entry[1])))[0]  # published, rest set
+        rt.run()
+    return output, read
+
+
+def test_a_resting_gel_s_batches_are_cut_at_its_window_ends_with_the_same_states_at_the_same_time(
+    sim_push_only_recording,
+):
+    """While the gel rests, the paced recording's batches follow the windows (``BatchCut``): the
+    same states, published at the same (paced) time, from about one batch a window instead of ten."""
+    with_cut, read_cut = _paced_run_of(sim_push_only_recording, cut=True)
+    without, read_plain = _paced_run_of(sim_push_only_recording, cut=False)
+    assert with_cut.timed and any(state.axes != ControllerState.neutral().axes for _, state, _ in with_cut.timed)
+    assert with_cut.timed == without.timed
+    assert len(with_cut.closed) > 400 and with_cut.closed == without.closed  # every window closed as soon
+    assert sum(read_cut) == sum(read_plain)  # every event and frame
+    assert len(read_cut) < 0.6 * len(read_plain)

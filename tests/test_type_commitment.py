@@ -294,3 +294,25 @@ def test_a_finger_found_late_in_a_slow_attack_nobody_felt_restarts_the_vote():
     assert got[45:] == [T] * 16  # the twist outweighs the 0.75 mm of push on two contacts at once
     felt = [(P, 0.1 + 0.02 * k, 1) for k in range(44)]  # the same to 0.96 mm: felt
     assert answers(felt + [(P, 0.97, 2)] + [(T, 0.98 + 0.002 * k, 2) for k in range(16)])[45] is P
+
+
+def test_a_finger_just_found_and_missed_for_one_window_keeps_its_type():
+    """A twist on `fingers` seen by a turned camera (test user 3's session): its first finger
+    alone reads push on one contact, committed after the wait; the second finger is found at
+    0.50 mm (twist, two contacts: the correction), missed in the next window (push at 1.30 mm on
+    one contact) and found again. The missed window does not vote: the twist holds. Later than one
+    APS frame period after the correction, fewer contacts vote again as before."""
+    T = GestureType.TWIST_CW
+    alone = [(P, mm, 1) for mm in (0.23, 0.28, 0.32, 0.33, 0.5, 0.49, 0.5, 0.55, 0.83, 0.81, 0.75, 0.87, 1.17)]
+    found = [(T, 0.5, 2), (P, 1.3, 1), (T, 0.46, 2), (T, 0.96, 2), (T, 0.95, 2)]
+
+    def answers(windows) -> list[GestureType]:
+        vote = EpisodeVote()
+        return [vote.update(g, mm, n, 10_000 * (k + 1)) for k, (g, mm, n) in enumerate(windows)]
+
+    got = answers(alone + found)
+    assert got[12] is P  # committed on the first finger alone
+    assert got[13:] == [T] * 5  # found, missed for a window, found again: twist throughout
+    # one contact again more than 40 ms after the finger was found votes: push outweighs
+    later = alone + [(T, 0.5, 2)] + [(T, 0.5, 2)] * 4 + [(P, 1.3, 1)] * 3
+    assert answers(later)[-1] is P

@@ -149,6 +149,9 @@ class _SlowPipeline:
         self.events += len(item)
         return [GestureEstimate(t_us=int(item["timestamp"][-1]))]
 
+    def process_newest(self, events):
+        return self.process(events), []
+
     def set_resting(self, result, t_us):
         pass
 
@@ -410,7 +413,11 @@ def test_released_linking_modules_leave_kernels_working_and_linkable(tmp_path):
     module to link from)."""
     for expected in ("compiled", "loaded"):
         out = subprocess.run(
-            [sys.executable, "-c", RELEASE_CHILD], capture_output=True, text=True, env=_env(tmp_path / "numba"), timeout=300
+            [sys.executable, "-c", RELEASE_CHILD],
+            capture_output=True,
+            text=True,
+            env=_env(tmp_path / "numba"),
+            timeout=300,
         )
         assert out.returncode == 0, out.stderr[-2000:]
         assert out.stdout.strip() == expected

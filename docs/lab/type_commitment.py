@@ -32,7 +32,13 @@ import typer
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))  # workdir.py, a benchmark's helper
 from workdir import families_in, numbers  # noqa: E402
 
-from neurotouch_hid.dataset import list_sequences, read_labels, read_predictions, write_predictions  # noqa: E402
+from neurotouch_hid.dataset import (  # noqa: E402
+    list_sequences,
+    read_labels,
+    read_predictions,
+    read_pressed,
+    write_predictions,
+)
 from neurotouch_hid.estimate import GestureType  # noqa: E402
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM, gesture_spans  # noqa: E402
 from neurotouch_hid.evaluation.metrics import Observations, align, evaluate  # noqa: E402
@@ -164,7 +170,8 @@ def replay(
         answers = read_predictions(raw / f"{name}.jsonl")
         voted = [replace(p, gesture=vote.update(p.gesture, p.intensity_mm, p.n_contacts, p.t_us)) for p in answers]
         labels = read_labels(dataset / f"{name}.labels.csv")
-        parts.append(align(labels, voted, sensor, deadzone_mm))
+        pressed = read_pressed(dataset / f"{name}.pressed.csv")  # felt wrong from the last finger's 0.3 mm
+        parts.append(align(labels, voted, sensor, deadzone_mm, pressed=pressed))
         waits += push_waits_ms(labels, answers, voted, deadzone_mm)
     result = evaluate(Observations.concatenate(parts)).to_dict()
     nan = float("nan")

@@ -37,7 +37,9 @@ REPRESS_MM = 0.3
 #: and at 4-9 mm it moves an output for a game frame (docs/method.md, "Episode vote").
 FIRM_MM = 2.0
 #: A type answered within this time (us) before still holds the next window at or above
-#: ``FIRM_MM``, across a ``none`` window that restarted the episode: one APS frame period.
+#: ``FIRM_MM``, across a ``none`` window that restarted the episode: one APS frame period. For as
+#: long after the window that found a lone first finger's next finger, a window that sees fewer
+#: contacts again and reads another type casts no vote: the finger just found is missed, not gone.
 FIRM_GAP_US = 40_000
 
 
@@ -65,6 +67,11 @@ class EpisodeVote:
     the lowest since the episode's peak, that lowest below ``repress_share`` of the peak, begins
     a new episode (a new press after the fingers had mostly left: a creeping gel's release tail
     can still be read as the last gesture when the next one begins in it).
+
+    A window that, within ``FIRM_GAP_US`` after the one correction found the next finger of an
+    episode that had shown one contact, sees fewer contacts than that window and reads another
+    type, answers the committed type and casts no vote (a finger just found and missed for a
+    window is still there).
 
     Whatever the above answers, a type answered at or above ``firm_mm`` within ``FIRM_GAP_US``
     before (in this episode or the one a ``none`` window just ended) changes, in a window at or
@@ -118,6 +125,8 @@ class EpisodeVote:
         self._peak = 0.0  # the episode's highest intensity (mm) ...
         self._low = math.inf  # ... and its lowest since (mm)
         self._said = GestureType.NONE  # the window before's own type
+        self._found = 0  # the contacts of the window that found a lone first finger's next finger ...
+        self._found_us = 0  # ... and when
 
     def update(self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int) -> GestureType:
         """The answer after one window ending at ``t_us`` (us, increasing) of type ``gesture``,
@@ -149,6 +158,13 @@ class EpisodeVote:
     def _vote(self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int) -> GestureType:
         """:meth:`update` of a window with a gesture, without the firm type."""
         if (
+            n_contacts < self._found
+            and t_us - self._found_us <= FIRM_GAP_US
+            and gesture is not self._decision
+            and self._decision is not None
+        ):
+            return self._decision  # the finger just found, missed for a window: no vote
+        if (
             self._decision is not None
             and gesture is not self._decision
             and n_contacts >= 2
@@ -179,6 +195,8 @@ class EpisodeVote:
             return self._decision
         if n_contacts > self._most_contacts and (t_us - self._onset_us <= self.correction_us or unfelt):
             if gesture is not self._decision and not self._corrected:
+                if self._most_contacts <= 1:  # the lone first finger's next finger
+                    self._found, self._found_us = n_contacts, t_us
                 self._decision, self._corrected, self._votes = gesture, True, {}
             elif gesture is self._decision:
                 self._votes = {}  # the votes cast on fewer fingers than the gesture has no longer count

@@ -193,6 +193,21 @@ class EventNoiseFilter:
         self._last_us = None
         self.n_in = self.n_out = 0
 
+    def kernel_surface(self, first_us: int) -> np.ndarray | None:
+        """The numba filter's time surface, for a compiled caller that filters a batch starting at
+        ``first_us`` (us) itself (``rest_window.py``), then reports it (:meth:`count`); None when
+        it cannot: the library's filter, or a clock gone back (this filter would reset first)."""
+        if self._surface is None or (self._last_us is not None and first_us < self._last_us):
+            return None
+        return self._surface
+
+    def count(self, last_us: int, n_in: int, n_out: int) -> None:
+        """A batch a compiled caller filtered on :meth:`kernel_surface`: its last timestamp (us),
+        the events offered and kept."""
+        self._last_us = int(last_us)
+        self.n_in += n_in
+        self.n_out += n_out
+
     def filter_store(self, store: "dv.EventStore") -> "dv.EventStore":
         """Filter one batch as dv-processing holds it (no copy: what the live camera delivers).
 
@@ -243,4 +258,6 @@ class EventNoiseFilter:
         n = background_activity_keep(events, self._surface, self.time_us, keep)
         self.n_in += len(events)
         self.n_out += n
-        return events[keep]
+        # through a same-size void view: a structured dtype's boolean index costs ~10x more
+        # (60 against 5 us for a 1 ms batch at 4.5 M events/s); the same bytes
+        return events.view(f"V{events.dtype.itemsize}")[keep].view(events.dtype)

@@ -26,7 +26,8 @@ events, with ``t_us`` = the window's end; events at ``t`` belong to the window e
 but for a gap in the timestamps longer than :data:`GAP_US`: its first second of windows is
 emitted (the gel settling as the last events left it), the rest skipped (a year's gap made 3
 billion windows; the predictions format asks for no empty window). Events before the reference
-frame are dropped.
+frame are dropped. :meth:`GesturePipeline.process_newest` (batches that queued up behind a
+real-time run) decides only the newest window a batch closes.
 
 Threads: the resting detector may run in another thread (paper: "operating in parallel to the
 main pipeline"): ``detect_resting=False`` and hand its results to
@@ -62,17 +63,15 @@ from neurotouch_hid.pipeline.markers import MARKER_SPACING_MM
 from neurotouch_hid.pipeline.moves import _largest_move_sq, _unchanged
 from neurotouch_hid.pipeline.noise import EventNoiseFilter, time_surface
 from neurotouch_hid.pipeline.override import grid_neighbours, overrules_rest, shared_distances
-from neurotouch_hid.pipeline.rest_window import OPEN, TOUCHED, rest_window
+from neurotouch_hid.pipeline.rest_window import OPEN, TOUCHED, rest_batch, rest_window
 from neurotouch_hid.pipeline.resting import compile_resting_kernels
 from neurotouch_hid.pipeline.synthetic import synthetic_windows
 from neurotouch_hid.pipeline.tracker import BlobTracker, swapped_blobs
 from neurotouch_hid.sensor import SensorGeometry
-from neurotouch_hid.sources import EVENT_DTYPE, Frame, StreamItem
+from neurotouch_hid.sources import Frame, StreamItem
 
 __all__ = ["MIN_WINDOW_US", "PipelineConfig", "GesturePipeline", "RESUME_MATCH_FRAMES", "STAGES"]
 
-#: No noise filter's time surface, for :func:`rest_window`.
-_NO_SURFACE = np.zeros((0, 0), dtype=np.int64)
 
 #: The stages :attr:`GesturePipeline.timings` measures.
 STAGES = ("noise_filter", "tracker", "contacts", "gesture", "resting", "frame_correction")
@@ -200,6 +199,44 @@ class GesturePipeline(FramePath):
             return self._process_frame(item)
         return self._process_events(item)
 
+    def process_newest(self, events: np.ndarray) -> tuple[list[GestureEstimate], list[int]]:
+        """Feed an event batch that joins several queued ones (a real-time run fell behind the
+        source): every event goes through the noise filter and the tracker, window by window, but
+        of the windows the batch closes only the newest gets a decision (the contact and gesture
+        steps, the episode vote, the creep filter), on the tracker's state at its end, as
+        :meth:`process` would make it; the windows before it close without one (no estimate).
+
+        Args:
+            events: (E,) EVENT_DTYPE, time-ordered.
+        Returns:
+            (the estimates, the ends (us, time order) of the windows closed without a decision):
+            ``(process(events), [])`` when the batch closes at most one window, or reaches
+            :data:`GAP_US` past the next window's end (a gap's windows are emitted as
+            :meth:`process` emits them).
+        """
+        w = self.config.window_us
+        last_us = int(events["timestamp"][-1]) if len(events) else 0
+        end = self._next_end if self._next_end is not None or not len(events) else int(events["timestamp"][0]) + w
+        if self.tracker is None or last_us < end + w or last_us - end >= GAP_US:
+            return self.process(events), []
+        newest = end + (last_us - end) // w * w  # the last window end the batch reaches
+        ends = np.arange(end, newest, w, dtype=np.int64)  # the windows closed without a decision
+        self._apply_pending()
+        cut = int(np.searchsorted(events["timestamp"], newest - w, side="left"))  # the newest window's first
+        head = events[:cut]
+        if self.noise_filter is not None and len(head):
+            begin = self._clock()
+            head = self.noise_filter(head)
+            self._record("noise_filter", begin)
+        # the tracker's calls cut at the window ends, as :meth:`_process_events` cuts them
+        for part in np.split(head, np.searchsorted(head["timestamp"], ends[:-1], side="left")):
+            if len(part):
+                begin = self._clock()
+                self.tracker.update(part)
+                self._record("tracker", begin)
+        self._next_end = newest
+        return self._process_events(events[cut:]), ends.tolist()
+
     def run(self, stream: Iterable[StreamItem]) -> Iterator[GestureEstimate]:
         """Process a whole stream, yielding each window's estimate as it closes.
 
@@ -230,7 +267,7 @@ class GesturePipeline(FramePath):
             self._noise_filter()(events)
         surface = time_surface(self.sensor.width, self.sensor.height)  # a resting window's one call
         end = int(events["timestamp"][-1])
-        rest_window(events, surface, 1, end, True, *tracker._kernel_state(), rest, 1.0, len(rest) + 1)
+        rest_window(events, surface, 1, end, True, *tracker.kernel_state(), rest, 1.0, len(rest) + 1)
 
     def compile_window_kernels(self) -> None:
         """The per-window part of :meth:`compile_kernels`: resting detection, gel motion, the
@@ -355,41 +392,21 @@ class GesturePipeline(FramePath):
 
     def _resting_events(self, events: np.ndarray) -> list[GestureEstimate] | None:
         """:meth:`_process_events` of a batch while the resting verdict stands, as one compiled
-        call (``rest_window.py``: noise filter, tracker, the override's first test at the window's
-        end); the same estimates and state. None (nothing done) when the batch is not one it
-        takes: another layout, a clock gone back, more than one window end reached, stage
-        timings asked for."""
-        tracker, noise = self.tracker, self.noise_filter
-        ts = events["timestamp"]
-        first_us, last_us = int(ts[0]), int(ts[-1])
+        call (``rest_window.rest_batch``: noise filter, tracker, the override's first test at the
+        window's end); the same estimates and state. None (nothing done) when the batch is not one
+        it takes (``rest_batch``) or stage timings are asked for."""
         if self._next_end is None:
-            self._next_end = first_us + self.config.window_us
-        end = self._next_end
-        if (
-            last_us >= end + self.config.window_us
-            or self.timings is not None
-            or events.dtype != EVENT_DTYPE
-            or not events.flags.c_contiguous
-            or len(tracker._state) == 0
-            or (noise is not None and (noise._surface is None or first_us < (noise._last_us or first_us)))
-        ):
+            self._next_end = int(events["timestamp"][0]) + self.config.window_us
+        end, c = self._next_end, self.config
+        if self.timings is not None:
             return None
-        c = self.config
-        answer, kept, cut = rest_window(
-            events,
-            _NO_SURFACE if noise is None else noise._surface,
-            0 if noise is None else noise.time_us,
-            end,
-            last_us >= end,
-            *tracker._kernel_state(),
-            self.rest_px,
-            c.motion_override_px * c.motion_override_px,
-            c.override_min_markers,
+        moved_sq = c.motion_override_px * c.motion_override_px
+        done = rest_batch(
+            events, self.noise_filter, self.tracker, self.rest_px, end, c.window_us, moved_sq, c.override_min_markers
         )
-        if noise is not None:
-            noise._last_us = last_us
-            noise.n_in += len(events)
-            noise.n_out += len(kept)
+        if done is None:
+            return None
+        answer, kept, cut = done
         if answer == OPEN:
             return []
         if answer == TOUCHED:  # the first sign of a touch: the window as the general path closes it

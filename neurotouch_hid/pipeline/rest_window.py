@@ -14,14 +14,73 @@ on in Python, within the same window.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numba
 import numpy as np
 
 from neurotouch_hid.pipeline.noise import background_activity_keep
 from neurotouch_hid.pipeline.tracker_kernels import _check_lost, _track
+from neurotouch_hid.sources import EVENT_DTYPE
+
+if TYPE_CHECKING:
+    from neurotouch_hid.pipeline.noise import EventNoiseFilter
+    from neurotouch_hid.pipeline.tracker import BlobTracker
 
 #: What :func:`rest_window` answers.
 OPEN, RESTING, TOUCHED = 0, 1, 2
+#: The time surface :func:`rest_window` takes for "no noise filter".
+NO_SURFACE = np.zeros((0, 0), dtype=np.int64)
+
+
+def rest_batch(
+    events: np.ndarray,
+    noise: EventNoiseFilter | None,
+    tracker: BlobTracker,
+    rest_px: np.ndarray,
+    end_us: int,
+    window_us: int,
+    threshold_sq: float,
+    min_markers: int,
+) -> tuple[int, np.ndarray, int] | None:
+    """A resting gel's batch through :func:`rest_window`, on the noise filter's and the tracker's
+    own state (both updated, the filter's counts too).
+
+    Args:
+        events: (E,) EVENT_DTYPE, time-ordered, E >= 1.
+        noise: the pipeline's noise filter, or None; tracker: its blob tracker.
+        rest_px: (N, 2) float64 the markers at rest (px). end_us: the open window's end (us);
+            window_us: the window's length (us). threshold_sq, min_markers: the motion
+            override's first test (px^2, markers).
+    Returns:
+        :func:`rest_window`'s ``(answer, kept, cut)``, or None (nothing done) for a batch it does
+        not take: another layout, more than one window end reached, a clock gone back, no blob,
+        a noise filter of the library's.
+    """
+    ts = events["timestamp"]
+    first_us, last_us = int(ts[0]), int(ts[-1])
+    if last_us >= end_us + window_us or events.dtype != EVENT_DTYPE or not events.flags.c_contiguous:
+        return None
+    state = tracker.kernel_state()
+    if len(state[0]) == 0:
+        return None
+    surface = NO_SURFACE if noise is None else noise.kernel_surface(first_us)
+    if surface is None:
+        return None
+    answer, kept, cut = rest_window(
+        events,
+        surface,
+        0 if noise is None else noise.time_us,
+        end_us,
+        last_us >= end_us,
+        *state,
+        rest_px,
+        threshold_sq,
+        min_markers,
+    )
+    if noise is not None:
+        noise.count(last_us, len(events), len(kept))
+    return answer, kept, cut
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")

@@ -402,12 +402,12 @@ class BlobTracker:
             events = np.ascontiguousarray(events)
         if len(events) == 0 or len(self._state) == 0:
             return
-        _track(events, *self._kernel_state())
+        _track(events, *self.kernel_state())
         _check_lost(
             self._cell, self._label, self._offs, self._n_offs, self._neigh, self._valid, self._state, self._params
         )
 
-    def _kernel_state(self) -> tuple:
+    def kernel_state(self) -> tuple:
         """The arrays :meth:`update` hands the event kernels (``_track``, ``_check_lost``), in
         ``_track``'s order after the events: for a compiled caller that runs them itself
         (``rest_window.py``)."""

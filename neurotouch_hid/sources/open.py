@@ -21,6 +21,7 @@ from neurotouch_hid.sources import Performed, StreamItem
 if TYPE_CHECKING:
     from neurotouch_hid.sensor import SensorGeometry
     from neurotouch_hid.sources.davis import DavisConfig
+    from neurotouch_hid.sources.recording import BatchCut
     from neurotouch_hid.sources.simulator import SimulatedSource
 
 #: What an opened source yields (``stages.SourceStream``).
@@ -109,10 +110,13 @@ def open_source(
         from neurotouch_hid.sources.simulator import SimulatedSource
 
         sim = SimulatedSource(seed=seed) if sensor is None else SimulatedSource(SensorGeometry.load(sensor), seed=seed)
-        stream = simulated_items(sim, seconds, batch_us, labelled=labelled, guard=guard, finish=finish)
-        return OpenedSource(stream, sim.sensor, False, labelled=labelled)
+        from neurotouch_hid.sources.recording import BatchCut, CuttingStream
+
+        cut = BatchCut(batch_us)
+        stream = simulated_items(sim, seconds, cut, labelled=labelled, guard=guard, finish=finish)
+        return OpenedSource(CuttingStream(stream, cut), sim.sensor, False, labelled=labelled)
     from neurotouch_hid.errors import RecordingError
-    from neurotouch_hid.sources.recording import RecordingReader
+    from neurotouch_hid.sources.recording import BatchCut, CuttingStream, RecordingReader
 
     path = Path(spec)
     if not path.is_file():
@@ -120,7 +124,8 @@ def open_source(
             f"{path}: no such recording (--source takes davis, sim, an AEDAT4 file or a predictions .jsonl)"
         )
     reader = stack.enter_context(RecordingReader(path))
-    return OpenedSource(reader.stream(batch_us=batch_us), find_sensor_file(path, sensor), False)
+    cut = BatchCut(batch_us)
+    return OpenedSource(CuttingStream(reader.stream(batch_us=cut), cut), find_sensor_file(path, sensor), False)
 
 
 #: How long past its ``seconds`` a labelled simulation may go on for the hand to finish (s).
@@ -133,7 +138,7 @@ FINISHED_REST_US = 500_000
 def simulated_items(
     sim: SimulatedSource,
     seconds: float | None,
-    batch_us: int,
+    batch_us: int | BatchCut,
     *,
     labelled: bool = False,
     guard: Callable[[], ContextManager[None]] | None = None,
@@ -141,7 +146,8 @@ def simulated_items(
 ) -> Iterator[StreamItem | Performed]:
     """The simulated gel's stream (as ``SimulatedSource.stream``): per frame period, the label of
     what the hand performs (when ``labelled``), the APS frame, then its events in ``batch_us``
-    batches; each period simulated inside ``guard()`` when given.
+    batches (or as a :class:`~neurotouch_hid.sources.recording.BatchCut` says); each period
+    simulated inside ``guard()`` when given.
 
     ``finish`` (the demo): past ``seconds`` the hand finishes the gesture it is performing, so
     that the last frame shows the gel at rest, not a gesture cut off before it was recognised:

@@ -127,14 +127,92 @@ class RecordingInfo:
         }
 
 
-def split_batches(events: np.ndarray, batch_us: int) -> list[np.ndarray]:
-    """Cut time-ordered events at every multiple of ``batch_us`` (us); empty pieces are dropped.
+class BatchCut:
+    """Where a source cuts its event batches: at every ``phase_us + k * length_us`` (us, camera
+    time), read each time a source cuts a chunk of events, so its reader may change it as it
+    goes. The runtime does while the gel rests (``runtime.Runtime``): one batch a window, cut at
+    the window ends, instead of a window's worth of short batches, each a few microseconds of
+    Python in every stage it passes (docs/performance.md, "At rest").
+
+    Args:
+        length_us: the batch length outside a rest (us), > 0.
+    Attributes:
+        value: (length_us, phase_us) now; set as one tuple, so a reader in another thread sees
+            either the old cut or the new one.
+    """
+
+    def __init__(self, length_us: int) -> None:
+        if length_us <= 0:
+            raise ValueError(f"batch length must be positive, got {length_us} us")
+        self.base_us = int(length_us)
+        self.value = (self.base_us, 0)
+        #: the last timestamp (us) of events cut otherwise than at the base length; -1: none
+        #: waiting (:class:`CuttingStream` cuts those again once the base length is back)
+        self.longer_until_us = -1
+
+    def follow(self, rest: tuple[int, int] | None, after_us: int = 0) -> None:
+        """Cut once a window of a rest, ``(window end, window length)`` in us, ``after_us`` after
+        each window end (a batch then closes its window, as the 1 ms batch after the end did), or
+        at the base length outside a rest (None)."""
+        self.value = (self.base_us, 0) if rest is None else (rest[1], (rest[0] + after_us) % rest[1])
+
+    def index(self, ts: np.ndarray) -> np.ndarray:
+        """(N,) int64: the batch each timestamp of ``ts`` ((N,) int64 us) falls in."""
+        length_us, phase_us = self.value
+        if length_us != self.base_us and len(ts):
+            self.longer_until_us = max(self.longer_until_us, int(ts[-1]))
+        return (ts - phase_us) // length_us if phase_us else ts // length_us
+
+
+class CuttingStream:
+    """A source's stream whose batches are cut as ``batch_cut`` (:class:`BatchCut`) says, for its
+    consumer to change (``runtime.Runtime``, while the gel rests), as ``PausingStream`` carries
+    its ``poll_pause``. A source cuts a chunk of events (a file's packet, a simulated APS
+    frame's events) at once: when the base length is back, the longer batches of a chunk cut
+    before are cut again here at the base length, so that from then on every batch is as
+    without a rest."""
+
+    def __init__(self, items: Iterator[StreamItem], batch_cut: BatchCut) -> None:
+        self._items = items
+        self.batch_cut = batch_cut
+        self._parts: collections.deque = collections.deque()
+
+    def __iter__(self) -> "CuttingStream":
+        return self
+
+    def __next__(self) -> StreamItem:
+        if self._parts:
+            return self._parts.popleft()
+        item = next(self._items)
+        cut = self.batch_cut
+        if cut.longer_until_us < 0 or type(item) is not np.ndarray or cut.value[0] != cut.base_us:
+            return item
+        if int(item["timestamp"][0]) > cut.longer_until_us:
+            cut.longer_until_us = -1
+            return item
+        self._parts.extend(split_batches(item, cut.base_us))
+        return self._parts.popleft()
+
+    def close(self) -> None:
+        """Close the underlying generator (its source's ``finally``)."""
+        close = getattr(self._items, "close", None)
+        if close is not None:
+            close()
+
+
+def _cut_of(batch: int | BatchCut) -> BatchCut:
+    return batch if isinstance(batch, BatchCut) else BatchCut(batch)
+
+
+def split_batches(events: np.ndarray, batch_us: int | BatchCut) -> list[np.ndarray]:
+    """Cut time-ordered events at every multiple of ``batch_us`` (us), or where a
+    :class:`BatchCut` says; empty pieces are dropped.
 
     Returns views of ``events``. Used for the batches every source yields.
     """
     if len(events) == 0:
         return []
-    batch = np.ascontiguousarray(events["timestamp"]) // batch_us  # per event: a gap costs nothing
+    batch = _cut_of(batch_us).index(np.ascontiguousarray(events["timestamp"]))  # a gap costs nothing
     cuts = np.flatnonzero(batch[1:] != batch[:-1]) + 1
     return np.split(events, cuts)
 
@@ -442,7 +520,7 @@ class RecordingReader:
             self.path, self.camera_name, self.width, self.height, start, end, end - start, n_events, n_frames
         )
 
-    def stream(self, batch_us: int = 10_000) -> Iterator[StreamItem]:
+    def stream(self, batch_us: int | BatchCut = 10_000) -> Iterator[StreamItem]:
         """Events and APS frames merged in time order, as every source yields them.
 
         Yields:
@@ -454,7 +532,7 @@ class RecordingReader:
             RecordingError: after yielding everything readable, when the file is truncated or
                 damaged.
         """
-        if batch_us <= 0:
+        if isinstance(batch_us, int) and batch_us <= 0:
             raise ValueError(f"batch_us must be positive, got {batch_us}")
         damage = _Damage()
         events, frames = _by_kind(self._packets(damage), with_frames=self.has_frames)
@@ -590,19 +668,23 @@ def _by_kind(items: Iterator[np.ndarray | Frame], *, with_frames: bool) -> tuple
     return side(False), side(True) if with_frames else iter(())
 
 
-def merge_stream(event_chunks: Iterable[np.ndarray], frames: Iterable[Frame], batch_us: int) -> Iterator[StreamItem]:
+def merge_stream(
+    event_chunks: Iterable[np.ndarray], frames: Iterable[Frame], batch_us: int | BatchCut
+) -> Iterator[StreamItem]:
     """Merge time-ordered event chunks and frames into the stream every source yields.
 
     Args:
         event_chunks: time-ordered EVENT_DTYPE arrays of any size (e.g. one per file packet).
         frames: time-ordered :class:`Frame` values.
-        batch_us: batch length, us: batches are cut at multiples of it and at frame timestamps.
+        batch_us: batch length, us: batches are cut at multiples of it (or where a
+            :class:`BatchCut` says when a chunk is cut) and at frame timestamps.
 
     Yields event batches (non-empty EVENT_DTYPE arrays, views of the chunks) and frames; a frame
     comes before the events with timestamp >= its ``t_us``. The last batch of a chunk is held
     back until a later chunk shows it is complete, or the events end. Cut positions are found
     for a whole chunk at once (numpy), so a batch costs about a microsecond.
     """
+    cutter = _cut_of(batch_us)
     frame_iter = iter(frames)
     pending = next(frame_iter, None)
     leftover = np.zeros(0, EVENT_DTYPE)
@@ -623,7 +705,7 @@ def merge_stream(event_chunks: Iterable[np.ndarray], frames: Iterable[Frame], ba
             taken.append(pending)
             pending = next(frame_iter, None)
         frame_at = np.searchsorted(ts, np.array([f.t_us for f in taken], dtype=np.int64), side="left")
-        batch = ts // batch_us
+        batch = cutter.index(ts)
         batch_starts = np.flatnonzero(batch[1:] != batch[:-1]) + 1
         if final:
             stop = n
