@@ -145,9 +145,9 @@ def sim_command(seconds: float) -> list[str]:
     return [sys.executable, __file__, "--child-sim", f"{seconds:g}"]
 
 
-def rest_stream(seconds: float, seed: int = 0):
+def rest_stream(seconds: float, seed: int = 0, batch_us=1000):
     """The simulated gel at rest, as ``SimulatedSource.stream`` yields a gel: per APS frame
-    period the frame, then its events in 1 ms batches."""
+    period the frame, then its events in 1 ms batches (or as a ``BatchCut`` says)."""
     from neurotouch_hid.sensor import SensorGeometry
     from neurotouch_hid.sources.recording import split_batches
     from neurotouch_hid.sources.simulator import GelSimulator
@@ -155,7 +155,7 @@ def rest_stream(seconds: float, seed: int = 0):
     sim = GelSimulator(SensorGeometry(), seed=seed, script=())
     for chunk in sim.run(seconds):
         yield chunk.frame
-        yield from split_batches(chunk.events, 1000)
+        yield from split_batches(chunk.events, batch_us)
 
 
 def run_sim(seconds: float) -> None:
@@ -166,15 +166,16 @@ def run_sim(seconds: float) -> None:
     from neurotouch_hid.output.jsonl import StateJsonlWriter
     from neurotouch_hid.runtime import Runtime
     from neurotouch_hid.sensor import SensorGeometry
+    from neurotouch_hid.sources.recording import BatchCut, CuttingStream
     from neurotouch_hid.warmup import PIPELINE_OF, SIMULATOR, Warmup
 
     Warmup([SIMULATOR, *PIPELINE_OF["default"]], say=lambda line: None, interpreted=False).start()
     sensor = SensorGeometry()
     pipeline, resting = build_pipeline(sensor, 10_000)
+    cut = BatchCut(1000)  # as run --source sim: one batch a window while the gel rests
+    stream = CuttingStream(rest_stream(seconds + 1.0, batch_us=cut), cut)
     with StateJsonlWriter(os.devnull) as out:
-        runtime = Runtime(
-            rest_stream(seconds + 1.0), pipeline, load_profile("default"), [out], resting=resting, waits=True
-        )
+        runtime = Runtime(stream, pipeline, load_profile("default"), [out], resting=resting, waits=True)
         runtime.run(seconds)
 
 
