@@ -29,7 +29,9 @@ is enumerated.
   11/12 reset/signal column start, 13 column end, 10 frame end); code 4 an APS ADC sample (12
   bits); code 5 misc-8 data (sub-codes 1/2: the frame's ROI, high and low byte).
 * **Pacing.** Events and frames leave at the recording's own pace (real time, in slices of about
-  1 ms, like the FX3's 1 ms "early packet" delay): a recording of T seconds takes T seconds.
+  1 ms): a recording of T seconds takes T seconds. As on the FX3, data that does not fill a
+  transfer waits at most the USB early packet delay the host wrote (module 9, parameter 1, in
+  cycles of the 80 MHz USB clock; libcaer's 1 ms until then), then goes as one short transfer.
   The stream starts when the host sets USB "run" (module 9, parameter 0); DVS events flow while DVS
   "run" (1/3) is set, APS frames while APS "run" (2/4) is set. The recording starts over each
   time the host starts the stream, and with ``--loop`` it repeats (timestamps keep increasing).
