@@ -722,7 +722,9 @@ class Runtime:
         """Source thread, a live source's poll brought nothing new: what it holds handed on, and
         how long its next poll waits (s): while the gel rests, until the camera's clock reaches
         the next window's end + :data:`REST_WAKE_AFTER_END_US` (estimated from when the last
-        item was read, at most a window and that), else the source's own pause."""
+        item was read, at most a window and that; at least that much when the window's closing
+        data are late, which a camera sends at its own pace: not at once, again and again),
+        else the source's own pause."""
         if self._held:
             self._hand_on_held()
         rest = self._rest_windows
@@ -731,7 +733,7 @@ class Runtime:
         end, window_us = rest
         camera_us = self._read_us + (self._clock.now_ns() - self._read_ns) // 1000  # about now
         wake_us = end + window_us + REST_WAKE_AFTER_END_US
-        return max(0.0, min(wake_us - end, wake_us - camera_us) / 1e6)
+        return max(REST_WAKE_AFTER_END_US, min(wake_us - end, wake_us - camera_us)) / 1e6
 
     def _hand_on(self, item: StreamItem) -> None:
         """Source thread: one item to the pipeline: processed here while nothing is queued or

@@ -14,7 +14,19 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent / "kernel"))
 
-from davis_gadget import HEIGHT, WIDTH, Replay, Stream, WordEncoder, process_events  # noqa: E402
+from davis_gadget import (  # noqa: E402
+    CHUNK_BYTES,
+    HEIGHT,
+    USB,
+    USB_CLOCK_MHZ,
+    USB_EARLY_PACKET_DELAY,
+    WIDTH,
+    DavisDevice,
+    Replay,
+    Stream,
+    WordEncoder,
+    process_events,
+)
 
 
 def decode(words: np.ndarray) -> tuple[list[tuple[int, int, int, int]], list[tuple[int, int, int, np.ndarray]]]:
@@ -225,3 +237,22 @@ def test_other_errors_and_a_read_that_keeps_failing_still_end_the_gadget():
     with pytest.raises(OSError) as exc:
         process_events(function, _Device(), attempts=3)
     assert exc.value.errno == errno.EIDRM and function.calls == 3
+
+
+def test_short_data_waits_the_early_packet_delay_the_host_wrote_and_full_transfers_go_at_once(tmp_path):
+    """The FX3's early packet delay (USB module, parameter 1, in USB clock cycles as libcaer writes
+    it): words that do not fill a transfer are held that long, then sent as one short transfer;
+    a full transfer's worth goes at once; before the host writes it, libcaer's default 1 ms."""
+    device = DavisDevice(Replay(_recording(tmp_path / "r.aedat4"), loop=True), verbose=False)
+    assert device.early_packet_delay_s() == pytest.approx(0.001)
+    device.registers.write(USB, USB_EARLY_PACKET_DELAY, 20_000 * USB_CLOCK_MHZ)  # 20 ms
+    assert device.early_packet_delay_s() == pytest.approx(0.020)
+    for _ in range(3):  # three short pumps' words: held, together
+        device._queue(np.arange(10, dtype=np.uint16))
+    device._flush(device.pending_since + 0.019)
+    assert not device.backlog and len(device.pending) == 60
+    device._flush(device.pending_since + 0.020)
+    assert [len(chunk) for chunk in device.backlog] == [60] and not device.pending
+    device.backlog.clear()
+    device._queue(np.zeros(CHUNK_BYTES // 2 + 5, np.uint16))  # a transfer and 10 bytes
+    assert [len(chunk) for chunk in device.backlog] == [CHUNK_BYTES] and len(device.pending) == 10

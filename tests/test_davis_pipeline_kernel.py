@@ -65,6 +65,24 @@ def test_run_on_the_camera_gives_estimates_from_the_hosts_compiled_pipeline(pipe
 
 
 @pytest.mark.xfail(
+    reason="not met, open (docs/performance.md, 'At rest'): in 3 guest runs `run --source davis` made "
+    "1.74, 1.81 and 3.60x the context switches a second of the same stream's recording (189, 195, 410 against "
+    "109, 108, 114; the last on a quiet host, where the emulated camera sends more): dv-processing's reader "
+    "thread wakes once per USB transfer of the emulated camera (57-132 a second), the source thread more "
+    "than once a window (79-247 against 81-99), and it is preempted about 50 times a second",
+    strict=False,
+)
+def test_the_live_camera_rests_like_the_same_stream_from_a_recording(pipeline_guest):
+    """With the camera streaming the gel at rest, ``run --source davis`` makes at most 1.5 times the
+    context switches per second (its threads summed, steady state) of ``run`` on the same stream as
+    a recording, in the same guest (docs/performance.md, "At rest")."""
+    details = passed_part(pipeline_guest, ON_THE_CAMERA, "at_rest")
+    davis, recording = details["davis"], details["recording"]
+    assert 0 < davis["switches_per_s"] <= 1.5 * recording["switches_per_s"], details
+    assert davis["span_s"] >= 10 and recording["span_s"] >= 10, details
+
+
+@pytest.mark.xfail(
     reason="flaky under emulation, open (failed in 3 of 4 guest runs on a loaded host): the emulated "
     "camera's cued push did not reach the pad in 120 s; in two runs every event of the push was dropped "
     "as lag (about 108k of 133k events), in one only 24k events arrived in 132 s of camera time (1.1k "

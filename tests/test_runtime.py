@@ -607,6 +607,30 @@ def join_all(times):
     return join_events([batch(t, n=1) for t in times])
 
 
+def test_a_resting_gel_whose_next_window_is_late_polls_the_live_camera_every_ms_not_at_once():
+    """While the gel rests, a poll that brings nothing once the next window's end + 1 ms has passed
+    (the camera's data for it are late: it sends them at its own pace) waits 1 ms, not 0: in the
+    test kernel the source's thread spun through 3,709 polls of no wait in 22 s of rest."""
+    from neurotouch_hid.runtime import REST_WAKE_AFTER_END_US
+    from neurotouch_hid.sources import PausingStream, PollPause
+
+    clock = ManualClock()
+    rt = Runtime(
+        PausingStream(iter(()), PollPause(0.0002)),
+        WindowedPipeline(touch_us=60_000),
+        {"sign": 1},
+        [RecordingOutput()],
+        mapper_factory=FakeMapper,
+        live=True,
+        pacer=Pacer(clock=lambda: clock.now_ns, sleep=clock.sleep),
+    )
+    rt._rest_windows = (20_000, 10_000)  # the last window ended at 20 ms: the next ends at 30 ms
+    rt._read_us, rt._read_ns = 29_000, 0  # the last item read, camera time 29 ms
+    assert rt._live_pause() == pytest.approx(0.002)  # camera time 29 ms: until 31 ms
+    clock.now_ns = 5_000_000  # camera time about 34 ms, the next window's data not here yet
+    assert rt._live_pause() == REST_WAKE_AFTER_END_US / 1e6 == 0.001
+
+
 def test_a_resting_gel_polls_the_live_camera_once_per_window_and_a_touch_at_once():
     """A live source (its polls wait by a PollPause): while the gel rests, each poll's items are
     held and handed on (processed in the source's thread) when a poll brings nothing, and the

@@ -9,8 +9,10 @@ finally SIGTERM, which must unplug it. Two sets, two guest checks:
 - :data:`PARTS` (here, in every test run): the USB descriptors, ``neurotouch-hid devices`` and
   ``record --source davis``;
 - :data:`PIPELINE_PARTS` (checks_davis_pipeline.py, the slow tier, ``pytest -m slow``):
-  ``calibrate --source davis``, ``run --source davis --output jsonl``, and ``run --source davis``
-  on the gamepad with the camera unplugged (SIGUSR1) and plugged in again (SIGUSR2) mid-run.
+  ``calibrate --source davis``, ``run --source davis --output jsonl``, the same stream as a
+  recording through ``run --source FILE`` (the live camera rests as a recording does: context
+  switches per second of both runs' steady states), and ``run --source davis`` on the gamepad with
+  the camera unplugged (SIGUSR1) and plugged in again (SIGUSR2) mid-run.
 
 Two things make the commands work under software emulation (tests/kernel/README.md has the
 details): the pipeline's numba code is compiled on the host before the boot, for LLVM's generic
@@ -319,32 +321,6 @@ def _calibrate(camera: EmulatedCamera) -> dict:
 RUN_START_S = 300
 
 
-def _run_jsonl(camera: EmulatedCamera) -> dict:
-    """``run --source davis --output jsonl``: estimates (the gel at rest: gesture "none") come out
-    of the pipeline that numba loaded from the host's cache, compiling nothing in the guest."""
-    out = Path("/tmp/davis-run.jsonl")
-    out.unlink(missing_ok=True)
-    cmd = [CLI, "run", "--source", "davis", "--output", "jsonl", "--out", str(out), "--seconds", "10"]
-    proc = _run(cmd, timeout=RUN_START_S + 60, cache_log=True)
-    states = [json.loads(line) for line in out.read_text().splitlines()] if out.exists() else []
-    assert proc.returncode == 0 and states, f"exit {proc.returncode}, {len(states)} states: {proc.stderr[-2000:]}"
-    compiled = _compiled_in_guest(proc.stdout)
-    assert not compiled, f"numba compiled in the guest (the host's cache was not used): {compiled}"
-    assert all({"t_us", "gesture", "intensity_mm", "axes", "buttons"} <= set(s) for s in states), states[0]
-    summary = re.search(r"(\d+) windows, (\d+) events, (\d+) frames", proc.stderr)
-    assert summary and int(summary.group(1)) > 0, f"no windows processed: {proc.stderr[-1000:]}"
-    return {
-        "states": len(states),
-        "gestures": sorted({s["gesture"] for s in states}),
-        "first": {k: states[0][k] for k in ("t_us", "gesture", "intensity_mm")},
-        "windows": int(summary.group(1)),
-        "events": int(summary.group(2)),
-        "frames": int(summary.group(3)),
-        "cache_loads": sum("data loaded from" in line for line in proc.stdout.splitlines()),
-        "summary": proc.stderr.strip().splitlines()[-1][-400:],
-    }
-
-
 class _Lines:
     """A child's stderr, read without blocking, each line with the time it was read."""
 
@@ -498,6 +474,182 @@ def _run_gamepad_unplug(camera: EmulatedCamera) -> dict:
     }
 
 
+# --- at rest: the live camera's wake-ups against the same recording's ------------------------------
+#: A run's steady state starts this long after its first state was written (s): the camera's or
+#: the file's first window, the markers found on the first APS frame, the rest recognised.
+REST_SETTLE_S = 5.0
+#: Its context switches are counted over this long (s).
+REST_MEASURE_S = 15.0
+#: The live camera's run may make at most this many times the context switches per second of the
+#: same recording's run (docs/performance.md, "At rest").
+REST_RATIO = 1.5
+#: Passes of the replayed rest in the recording ``run --source FILE`` plays: longer than its start
+#: to its end (REST_SETTLE_S + REST_MEASURE_S after its first window), with a margin.
+REST_PASSES = 60
+
+
+def _rest_recording(period_us: int) -> Path:
+    """What the emulated camera streams, as an AEDAT4 file: the replayed rest (the recording's
+    first REST_TO_S, one APS frame per pass, FRAME_EVERY) REST_PASSES times, ``period_us`` apart
+    (the gadget's loop), in a folder without a sensor.yaml (``run`` then uses the built-in one, as
+    on the camera)."""
+    from neurotouch_hid.sources import Frame
+    from neurotouch_hid.sources.recording import RecordingReader, RecordingWriter
+
+    with RecordingReader(replay_path()) as reader:
+        events, frames = reader.read_all()
+    first = min(int(events["timestamp"][0]), frames[0].t_us)
+    end = first + int(REST_TO_S * 1e6)
+    events = events[events["timestamp"] < end]
+    frames = [f for f in frames if f.t_us < end][::FRAME_EVERY]
+    out = Path("/tmp/davis-rest/rest.aedat4")
+    out.parent.mkdir(exist_ok=True)
+    with RecordingWriter(out) as writer:
+        for k in range(REST_PASSES):
+            shift = k * period_us
+            for frame in frames:
+                writer.write_frame(Frame(frame.t_us + shift, frame.image))
+            lap = events.copy()
+            lap["timestamp"] += shift
+            writer.write_events(lap)
+    return out
+
+
+def _thread_switches(pid: int) -> dict[str, tuple[int, int]]:
+    """Context switches so far of each thread of process ``pid``: ``"TID COMM"`` -> (voluntary,
+    nonvoluntary) (``/proc/PID/task/TID/status``, ``comm``); a thread that ended meanwhile is left out."""
+    counts = {}
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            comm = (task / "comm").read_text().strip()
+            fields = dict(line.split(":", 1) for line in (task / "status").read_text().splitlines() if ":" in line)
+        except OSError:
+            continue
+        counts[f"{task.name} {comm}"] = (
+            int(fields["voluntary_ctxt_switches"]),
+            int(fields["nonvoluntary_ctxt_switches"]),
+        )
+    return counts
+
+
+def _cpu_s(pid: int) -> float:
+    """CPU time so far of process ``pid`` (s, user + system of all its threads, ``/proc/PID/stat``)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _measured_run(source: str, name: str, camera: EmulatedCamera, cache_log: bool = False) -> dict:
+    """``run --source SOURCE --output jsonl`` until SIGTERM, and its steady state from
+    REST_SETTLE_S after its first state to REST_MEASURE_S later: context switches per second
+    summed over its threads (``/proc/PID/task/*/status``, voluntary + nonvoluntary), per thread
+    (voluntary, nonvoluntary), and the share of a CPU it and the emulated camera took. Its states
+    go to a file (the first one says the run has started: under emulation Python and numba take
+    one to three minutes). Returns ``{"rest": those figures, "states": [...], "stdout": ...,
+    "stderr": ...}``; raises AssertionError when no state comes in RUN_START_S or SIGTERM does not
+    end it with exit 0."""
+    out = Path(f"/tmp/davis-rest/{name}.jsonl")
+    out.parent.mkdir(exist_ok=True)
+    out.unlink(missing_ok=True)
+    err_path, stdout_path = out.with_suffix(".err"), out.with_suffix(".out")
+    with open(err_path, "w") as err, open(stdout_path, "w") as stdout:
+        proc = subprocess.Popen(
+            [CLI, "run", "--source", source, "--output", "jsonl", "--out", str(out)],
+            stdout=stdout,
+            stderr=err,
+            cwd="/tmp",
+            env=_env(cache_log),
+            stdin=subprocess.DEVNULL,
+        )
+    try:
+        t0 = time.monotonic()
+        started = guestlib.wait_for(
+            lambda: proc.poll() is not None or (out.exists() and out.stat().st_size > 0), RUN_START_S, interval_s=0.5
+        )
+        assert started and proc.poll() is None, (
+            f"no state within {RUN_START_S} s (exit {proc.poll()}): {err_path.read_text()[-1500:]}"
+        )
+        start_s = time.monotonic() - t0
+        time.sleep(REST_SETTLE_S)
+        cpu = (_cpu_s(proc.pid), _cpu_s(camera.proc.pid))
+        before, t_before = _thread_switches(proc.pid), time.monotonic()
+        time.sleep(REST_MEASURE_S)
+        after, t_after = _thread_switches(proc.pid), time.monotonic()
+        cpu = (_cpu_s(proc.pid) - cpu[0], _cpu_s(camera.proc.pid) - cpu[1])
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    span = t_after - t_before
+    rates = {
+        tid: [round((n - before.get(tid, (0, 0))[k]) / span, 1) for k, n in enumerate(counts)]
+        for tid, counts in after.items()
+    }
+    stderr = err_path.read_text()
+    assert code == 0, f"run --source {source} ended with {code} on SIGTERM: {stderr[-1500:]}"
+    rest = {
+        "switches_per_s": round(sum(sum(r) for r in rates.values()), 1),
+        "voluntary_per_s": round(sum(r[0] for r in rates.values()), 1),
+        "per_thread": {tid: r for tid, r in sorted(rates.items(), key=lambda kv: -sum(kv[1])) if sum(r)},
+        "threads_gone": sorted(set(before) - set(after)),
+        "span_s": round(span, 1),
+        "cpu_share": round(cpu[0] / span, 3),
+        "camera_cpu_share": round(cpu[1] / span, 3),
+        "first_state_after_s": round(start_s, 1),
+        "summary": stderr.strip().splitlines()[-1][-400:] if stderr.strip() else "",
+    }
+    states = [json.loads(line) for line in out.read_text().splitlines()]
+    return {"rest": rest, "states": states, "stdout": stdout_path.read_text(), "stderr": stderr}
+
+
+#: ``run --source davis``'s steady state, measured by :func:`_run_jsonl` for :func:`_at_rest`.
+_MEASURED: dict[str, dict] = {}
+
+
+def _run_jsonl(camera: EmulatedCamera) -> dict:
+    """``run --source davis --output jsonl`` until SIGTERM: estimates (the gel at rest: gesture
+    "none") come out of the pipeline that numba loaded from the host's cache, compiling nothing
+    in the guest; its steady state's context switches are kept for :func:`_at_rest` (one Python
+    start for both)."""
+    run = _measured_run("davis", "davis", camera, cache_log=True)
+    states = run["states"]
+    assert states, f"no states: {run['stderr'][-2000:]}"
+    compiled = _compiled_in_guest(run["stdout"])
+    assert not compiled, f"numba compiled in the guest (the host's cache was not used): {compiled}"
+    assert all({"t_us", "gesture", "intensity_mm", "axes", "buttons"} <= set(s) for s in states), states[0]
+    summary = re.search(r"(\d+) windows, (\d+) events, (\d+) frames", run["stderr"])
+    assert summary and int(summary.group(1)) > 0, f"no windows processed: {run['stderr'][-1000:]}"
+    _MEASURED["davis"] = run["rest"]
+    return {
+        "states": len(states),
+        "gestures": sorted({s["gesture"] for s in states}),
+        "first": {k: states[0][k] for k in ("t_us", "gesture", "intensity_mm")},
+        "windows": int(summary.group(1)),
+        "events": int(summary.group(2)),
+        "frames": int(summary.group(3)),
+        "cache_loads": sum("data loaded from" in line for line in run["stdout"].splitlines()),
+        "summary": run["rest"]["summary"],
+        "at_rest": run["rest"],
+    }
+
+
+def _at_rest(camera: EmulatedCamera) -> dict:
+    """``run --source davis`` (:func:`_run_jsonl`'s) with the camera streaming the gel at rest
+    made at most REST_RATIO times the context switches per second (its threads summed) of ``run``
+    on the same stream as a recording, in the same guest: the live camera rests the way a
+    recording does (one wake-up a window, docs/performance.md "At rest")."""
+    davis = _MEASURED.get("davis")
+    assert davis is not None, "run --source davis was not measured (see the run_jsonl part's error)"
+    period = re.search(r"looped every (\d+) us", camera.log())  # said once a stream started
+    assert period, "the gadget did not say its loop period"
+    recording = _measured_run(str(_rest_recording(int(period.group(1)))), "recording", camera)["rest"]
+    ratio = davis["switches_per_s"] / recording["switches_per_s"]
+    result = {"ratio": round(ratio, 2), "davis": davis, "recording": recording}
+    assert ratio <= REST_RATIO, result
+    return result
+
+
 #: The parts of the default test run: the camera's USB path, no gesture pipeline (one Python
 #: start each, about a minute under emulation).
 PARTS = {
@@ -510,6 +662,7 @@ PARTS = {
 PIPELINE_PARTS = {
     "calibrate": _calibrate,
     "run_jsonl": _run_jsonl,
+    "at_rest": _at_rest,
     "run_gamepad_unplug": _run_gamepad_unplug,
 }
 

@@ -29,7 +29,9 @@ is enumerated.
   11/12 reset/signal column start, 13 column end, 10 frame end); code 4 an APS ADC sample (12
   bits); code 5 misc-8 data (sub-codes 1/2: the frame's ROI, high and low byte).
 * **Pacing.** Events and frames leave at the recording's own pace (real time, in slices of about
-  1 ms, like the FX3's 1 ms "early packet" delay): a recording of T seconds takes T seconds.
+  1 ms): a recording of T seconds takes T seconds. As on the FX3, data that does not fill a
+  transfer waits at most the USB early packet delay the host wrote (module 9, parameter 1, in
+  cycles of the 80 MHz USB clock; libcaer's 1 ms until then), then goes as one short transfer.
   The stream starts when the host sets USB "run" (module 9, parameter 0); DVS events flow while DVS
   "run" (1/3) is set, APS frames while APS "run" (2/4) is set. The recording starts over each
   time the host starts the stream, and with ``--loop`` it repeats (timestamps keep increasing).
@@ -162,6 +164,13 @@ CHUNK_BYTES = 16384
 MAX_IN_FLIGHT = 16
 #: Pending data beyond this (bytes) is dropped, like an FX3 whose host does not read.
 MAX_BACKLOG_BYTES = 4 << 20
+#: USB module parameter 1, the early packet delay: data that does not fill a transfer waits at most
+#: this long before it is sent as a short one. libcaer writes it in cycles of the USB clock (its
+#: 125 us slices x 125 x USB_CLOCK_MHZ, src/davis.c ``davisFX3ConfigSet``); until the host writes
+#: it, libcaer's default: 8 slices, 1 ms.
+USB_EARLY_PACKET_DELAY = 1
+USB_CLOCK_MHZ = READ_ONLY[(SYSINFO, 5)]
+DEFAULT_EARLY_PACKET_DELAY_US = 1000
 #: FunctionFS's errors for a control transfer the host gave up on, or for a gadget unbound meanwhile
 CANCELLED = (errno.EIDRM, errno.ESHUTDOWN)
 
@@ -501,6 +510,9 @@ class DavisDevice:
         self.in_flight = 0
         self.backlog: deque[memoryview] = deque()
         self.backlog_bytes = 0
+        self.pending = bytearray()  # less than a transfer, held for the early packet delay
+        self.pending_since = 0.0  # when its first byte was queued (time.monotonic())
+        self.transfers = 0
         self.dropped_bytes = 0
         self.clock0 = time.monotonic()  # device time 0 (timestamp reset)
         self.stream: Stream | None = None
@@ -549,9 +561,11 @@ class DavisDevice:
             self.clock0 = time.monotonic()
             if self.stream is not None:  # what is due goes out before; device time restarts at 0
                 self.pump(submit=False)
+                self._flush(time.monotonic(), force=True)
                 self.stream.t_dev0 = -int((self.clock0 - self.stream_wall0) * 1e6)
                 self.stream.encoder.reset(0)
             self._queue(np.asarray([SP_TS_RESET], np.uint16))
+            self._flush(time.monotonic(), force=True)  # the host waits for it (time synchronisation)
         elif (module, param) == (USB, 0):
             if value and self.stream is None:
                 self._start_stream()
@@ -578,10 +592,14 @@ class DavisDevice:
 
     def _stop_stream(self, why: str) -> None:
         if self.stream is not None:
-            log(f"stream stopped: {why}; {self.sent_bytes} bytes sent, {self.dropped_bytes} dropped")
+            log(
+                f"stream stopped: {why}; {self.sent_bytes} bytes sent in {self.transfers} transfers, "
+                f"{self.dropped_bytes} dropped"
+            )
         self.stream = None
         self.backlog.clear()
         self.backlog_bytes = 0
+        self.pending.clear()
         if self.function is not None and self.in_flight:
             # what the host has not read yet must not reach its next session (an FX3 flushes too);
             # functionfs has no public call for this, its AIO context has
@@ -598,15 +616,38 @@ class DavisDevice:
         for key in [k for k in self.registers.values if k not in READ_ONLY]:
             del self.registers.values[key]
 
+    def early_packet_delay_s(self) -> float:
+        """How long data that does not fill a transfer is held (s): the host's USB early packet
+        delay (:data:`USB_EARLY_PACKET_DELAY`), or libcaer's default before it writes one."""
+        cycles = self.registers.read(USB, USB_EARLY_PACKET_DELAY)
+        return (cycles / USB_CLOCK_MHZ if cycles else DEFAULT_EARLY_PACKET_DELAY_US) / 1e6
+
     def _queue(self, words: np.ndarray) -> None:
+        """Words to send: every full transfer (CHUNK_BYTES) at once, the rest held (:meth:`_flush`)."""
         data = words.astype("<u2").tobytes()
-        if self.backlog_bytes + len(data) > MAX_BACKLOG_BYTES:
+        if self.backlog_bytes + len(self.pending) + len(data) > MAX_BACKLOG_BYTES:
             self.dropped_bytes += len(data)
             return
+        if not self.pending:
+            self.pending_since = time.monotonic()
+        self.pending += data
+        full = len(self.pending) - len(self.pending) % CHUNK_BYTES
+        if full:
+            self._to_backlog(self.pending[:full])
+            del self.pending[:full]
+            self.pending_since = time.monotonic()
+
+    def _to_backlog(self, data: bytes | bytearray) -> None:
         view = memoryview(bytearray(data))
         for start in range(0, len(view), CHUNK_BYTES):
             self.backlog.append(view[start : start + CHUNK_BYTES])
         self.backlog_bytes += len(data)
+
+    def _flush(self, now: float, force: bool = False) -> None:
+        """The held data as a short transfer once it waited the early packet delay (or ``force``)."""
+        if self.pending and (force or now - self.pending_since >= self.early_packet_delay_s()):
+            self._to_backlog(self.pending)
+            self.pending.clear()
 
     def pump(self, submit: bool = True) -> None:
         """Queue what is due now; submit queued data while transfers are free."""
@@ -617,6 +658,7 @@ class DavisDevice:
             words = stream.until(t_rel, dvs=bool(regs.read(DVS, 3)), aps=bool(regs.read(APS, 4)))
             if words:
                 self._queue(np.concatenate(words))
+        self._flush(time.monotonic())
         if self.function is None or not submit:
             return
         endpoint = self.function.getEndpointByAddress(DATA_ENDPOINT)
@@ -630,6 +672,7 @@ class DavisDevice:
                 continue
             self.in_flight += 1
             self.sent_bytes += len(chunk)
+            self.transfers += 1
 
 
 # --- the gadget in configfs --------------------------------------------------------------------
