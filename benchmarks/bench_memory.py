@@ -9,7 +9,8 @@ LLVM's library (``libllvmlite.so``, ``/proc/self/smaps``), and the anonymous mem
 (``Anonymous:`` of ``/proc/self/smaps_rollup``: the process's own pages, what the kernel cannot
 reclaim by dropping a file's page; the figure the driver's memory target is on). The steps: the
 interpreter, numpy, numba, OpenCV, the CLI and the driver, the warm pipeline loaded as ``run``
-loads it (``warmup.Warmup``: its kernels from numba's cache), dv-processing (the live camera's
+loads it (``warmup.Warmup``: its kernels from numba's cache), the same once numba's linking
+modules are freed (``jit_cache.release_linking_modules``, a few seconds later), dv-processing (the live camera's
 source only). Run it once before on a warm cache (``run`` or ``track`` once): a cold cache
 compiles first.
 """
@@ -69,10 +70,14 @@ def main() -> None:
     import neurotouch_hid.driver  # noqa: F401
 
     show("CLI and driver")
-    from neurotouch_hid.warmup import PIPELINE_OF, Warmup
+    import time
+
+    from neurotouch_hid.warmup import PIPELINE_OF, RELEASE_AFTER_S, Warmup
 
     Warmup(list(PIPELINE_OF["default"]), say=print, interpreted=False).start()
     show("pipeline loaded")
+    time.sleep(RELEASE_AFTER_S + 1.0)  # numba's linking modules freed meanwhile, as in a run
+    show("linking modules freed")
     import dv_processing  # noqa: F401
 
     show("dv-processing")

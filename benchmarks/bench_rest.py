@@ -13,8 +13,8 @@ time (user + sys of all its threads, ``/proc/PID/stat``) and its threads' contex
 (``voluntary_ctxt_switches`` + ``nonvoluntary_ctxt_switches`` of ``/proc/PID/task/*/status``),
 read every 0.5 s, per second of that span. Memory: the child's peak resident set
 (``ru_maxrss``) and its anonymous memory, the process's own pages (``Anonymous:`` of
-``/proc/PID/smaps_rollup``, the largest reading). ``--repeat N`` runs each N times and prints
-every run and the medians.
+``/proc/PID/smaps_rollup``, the largest reading of the steady state, and of the whole run).
+``--repeat N`` runs each N times and prints every run and the medians.
 
 ``--sim``: also the simulated gel at rest (``GelSimulator`` with an empty script, seed 0) through
 the same runtime, pipeline and output as ``run --source sim`` (paced; the simulated gel waits
@@ -101,9 +101,11 @@ def proc_reading(pid: int) -> dict[str, float] | None:
 
 
 def measure(command: list[str], settle_s: float = STEADY_AFTER_S) -> dict[str, float]:
-    """One real-time run of ``command`` (a child): CPU s (user + sys), peak RSS and largest
-    anonymous memory (MiB), wall s, and over its steady state (from ``settle_s`` after its start
-    to the last reading with all its threads) CPU s per s and context switches per s."""
+    """One real-time run of ``command`` (a child): CPU s (user + sys), peak RSS, the largest
+    anonymous memory (MiB) over the whole run (``anon_start_mib``: the start's peak, before
+    numba's linking modules are freed) and over its steady state (``anon_mib``), wall s, and over
+    its steady state (from ``settle_s`` after its start to the last reading with all its threads)
+    CPU s per s and context switches per s."""
     start = time.perf_counter()
     child = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     readings = []
@@ -126,7 +128,8 @@ def measure(command: list[str], settle_s: float = STEADY_AFTER_S) -> dict[str, f
     return {
         "cpu": usage.ru_utime + usage.ru_stime,
         "rss_mib": usage.ru_maxrss / 1024,
-        "anon_mib": max((r["anon_mib"] for r in readings), default=float("nan")),
+        "anon_mib": max((r["anon_mib"] for r in steady), default=float("nan")),
+        "anon_start_mib": max((r["anon_mib"] for r in readings), default=float("nan")),
         "wall": wall,
         "share": (last["cpu"] - first["cpu"]) / span if span > 0 else float("nan"),
         "switches_per_s": (last["switches"] - first["switches"]) / span if span > 0 else float("nan"),
@@ -310,13 +313,14 @@ def steady(name: str, command, seconds: float, repeat: int) -> None:
         print(
             f"{name}: run {seconds:g} s: {run['cpu']:.2f} s CPU; steady state over {run['span_s']:.0f} s: "
             f"{100 * shares[-1]:.1f} % of a core, {rates[-1]:.0f} context switches/s; peak RSS {peaks[-1]:.0f} MiB, "
-            f"anonymous {anons[-1]:.0f} MiB; load average {os.getloadavg()[0]:.1f}",
+            f"anonymous {anons[-1]:.0f} MiB steady, {run['anon_start_mib']:.0f} MiB at most; "
+            f"load average {os.getloadavg()[0]:.1f}",
             flush=True,
         )
     print(
         f"{name} at rest: {100 * statistics.median(shares):.1f} % of a core, {statistics.median(rates):.0f} "
         f"context switches/s (medians of {len(shares)}); peak RSS {max(peaks):.0f} MiB, anonymous "
-        f"{max(anons):.0f} MiB",
+        f"{max(anons):.0f} MiB in the steady state",
         flush=True,
     )
 

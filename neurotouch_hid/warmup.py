@@ -61,6 +61,9 @@ if TYPE_CHECKING:
 
 T = TypeVar("T")
 
+#: How long after every kernel group is loaded numba's linking modules are freed (s;
+#: :meth:`Warmup._release_linking`).
+RELEASE_AFTER_S = 3.0
 #: What the user is told while the kernels compile.
 COMPILING = "compiling the gesture pipeline, first run only"
 #: What the first run's compile costs, as measured (docs/performance.md, "Start-up"): ~25 s of
@@ -349,6 +352,7 @@ class Warmup:
         self._children: list[subprocess.Popen] = []
         self.started_s = time.monotonic()
         self._closing = False
+        self._release_cancelled = threading.Event()  # (set by close: the run is over)
 
     # --- what the run sees -------------------------------------------------------------------
     @property
@@ -425,9 +429,16 @@ class Warmup:
 
     def _release_linking(self) -> None:
         """Every group is loaded: free what numba keeps only for later compiles
-        (:func:`~neurotouch_hid.jit_cache.release_linking_modules`)."""
-        for group in self._groups:
-            jit_cache.release_linking_modules(kernels(group).values())
+        (:func:`~neurotouch_hid.jit_cache.release_linking_modules`), :data:`RELEASE_AFTER_S`
+        later in a thread of its own: off the start's path (~0.1 s of CPU here, more on a slow
+        board), and never for a process that ends before (a short ``track``)."""
+        dispatchers = [d for group in self._groups for d in kernels(group).values()]
+
+        def release() -> None:
+            if not self._release_cancelled.wait(RELEASE_AFTER_S):
+                jit_cache.release_linking_modules(dispatchers)
+
+        threading.Thread(target=release, name="nt-release", daemon=True).start()
 
     def wait(self, timeout: float | None = None) -> bool:
         """Wait for every child and the switch to compiled code; whether all ended in time."""
@@ -441,6 +452,7 @@ class Warmup:
         point the names of the groups still interpreted back at the compiled kernels (a later run
         in this process compiles or loads them when it first calls them)."""
         self._closing = True
+        self._release_cancelled.set()
         for child in self._children:
             if child.poll() is None:
                 child.terminate()
