@@ -2,9 +2,9 @@
 runs as written, page by page in a new user's home, and every message docs/troubleshooting.md
 lists is one the code can print.
 
-A command is run as written, through the shell (``~`` is the sandbox's home), with three
-changes a test needs, each listed in :data:`CHANGED`: a live run is cut short, files under /tmp
-go to the sandbox, and the files a page assumes the user has (a recording, a predictions file)
+A command is run as written, through the shell (``~`` is the sandbox's home), with the
+changes a test needs, each listed in :data:`CHANGED`: a live run or a simulated enrolment is cut
+short, files under /tmp go to the sandbox, and the files a page assumes the user has (a recording, a predictions file)
 are made first (:func:`user_files`). The commands not run are listed in :data:`NOT_RUN`, each
 with the reason.
 """
@@ -22,6 +22,8 @@ import sys
 from pathlib import Path
 
 import pytest
+
+from neurotouch_hid.enrolment.plan import Plan, make_plan, write_plan
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
@@ -46,11 +48,16 @@ NOT_RUN: list[tuple[str, str]] = [
     (r"sim-40s-seed0\.aedat4", "a benchmark's recording (benchmarks/), made by the benchmark"),
     (r"^neurotouch-hid eval ", "needs a labelled dataset (tests/test_through_profile.py runs eval on a simulated one)"),
 ]
+#: How many of its plan's prompts a simulated enrolment follows here (:data:`CHANGED`).
+ENROL_PROMPTS = 4
 #: What the test changes in a command as written, and why.
 CHANGED = {
     "--seconds N of demo and run -> --seconds 2": "the same run, shorter",
     "run --source sim without --seconds -> with --seconds 2": "it runs until Ctrl-C",
     "enrol --source sim -> with --fast": "the same session and dataset, not paced in real time (~2 min)",
+    "enrol --source sim -> with --plan of the first ENROL_PROMPTS prompts of its seed's plan": (
+        "the same session, shorter (the whole plan: ~20 s of CPU; tests/test_enrolment_session.py runs its paths)"
+    ),
     "/tmp/ -> the sandbox's folder": "no file outside the test's folder",
 }
 #: Commands documented to fail here, with the message troubleshooting.md must list for them.
@@ -103,9 +110,15 @@ def as_run(command: str, sandbox: Path) -> str:
         command = re.sub(r"--seconds \S+", "--seconds 2", command)
         if "--seconds" not in command:
             command += " --seconds 2"
-    if re.match(r"neurotouch-hid enrol\b.*--source sim\b", command) and "--fast" not in command:
-        command += " --fast"
-    return command.replace("/tmp/", f"{sandbox}/")
+    plan = ""
+    if re.match(r"neurotouch-hid enrol\b.*--source sim\b", command):
+        if "--fast" not in command:
+            command += " --fast"
+        if "--plan" not in command:  # the same seed's plan, its first prompts
+            seed = re.search(r"--seed (\d+)", command)
+            prompts = make_plan(int(seed.group(1)) if seed else 0).prompts[:ENROL_PROMPTS]
+            plan = f" --plan {write_plan(Plan(prompts), sandbox / 'first-prompts.json')}"
+    return command.replace("/tmp/", f"{sandbox}/") + plan
 
 
 def user_files(home: Path, recording: Path) -> None:
