@@ -8,14 +8,14 @@ the resting detector (``resting.py``); at rest, or near it unless a press is gro
 the tracker is re-anchored at the rest positions, otherwise the frame's marker centroids correct
 the blobs (``tracker.py``).
 
-The window path (:meth:`GesturePipeline._process_events`, :meth:`GesturePipeline._estimate`):
-events pass the noise filter (``noise.py``) to the event-blob tracker (``tracker.py``); at each
-window's end: a resting verdict answers ``none`` unless the event path overrules it
-(``override.py``); a gel that has not moved answers ``none``; else the gel's motion in its mount
-is removed (``gel_motion.py``), the contacts are found (``contacts.py``), the gesture's
-similarity, type and intensity fitted (``gesture.py``, ``learned.py``); the gel's creep says
-whether the fingers have left (``creep.py``), and the episode's vote gives the type
-(``episode.py``).
+The window path (``window_path.py``, :class:`~neurotouch_hid.pipeline.window_path.WindowPath`,
+and :meth:`GesturePipeline._estimate`): events pass the noise filter (``noise.py``) to the
+event-blob tracker (``tracker.py``); at each window's end: a resting verdict answers ``none``
+unless the event path overrules it (``override.py``); a gel that has not moved answers
+``none``; else the gel's motion in its mount is removed (``gel_motion.py``), the contacts are
+found (``contacts.py``), the gesture's similarity, type and intensity fitted (``gesture.py``,
+``learned.py``); the gel's creep says whether the fingers have left (``creep.py``), and the
+episode's vote gives the type (``episode.py``).
 
 The paper's method is :class:`~neurotouch_hid.pipeline.paper.PaperPipeline`, this composition
 with the paper's steps in place of the product's (``paper.py``).
@@ -63,22 +63,19 @@ from neurotouch_hid.pipeline.markers import MARKER_SPACING_MM
 from neurotouch_hid.pipeline.moves import _largest_move_sq, _unchanged
 from neurotouch_hid.pipeline.noise import EventNoiseFilter, time_surface
 from neurotouch_hid.pipeline.override import grid_neighbours, overrules_rest, shared_distances
-from neurotouch_hid.pipeline.rest_window import OPEN, TOUCHED, rest_batch, rest_window
+from neurotouch_hid.pipeline.rest_window import rest_window
 from neurotouch_hid.pipeline.resting import compile_resting_kernels
 from neurotouch_hid.pipeline.synthetic import synthetic_windows
 from neurotouch_hid.pipeline.tracker import BlobTracker, swapped_blobs
+from neurotouch_hid.pipeline.window_path import GAP_US, WindowPath
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import Frame, StreamItem
 
-__all__ = ["MIN_WINDOW_US", "PipelineConfig", "GesturePipeline", "RESUME_MATCH_FRAMES", "STAGES"]
+__all__ = ["GAP_US", "MIN_WINDOW_US", "PipelineConfig", "GesturePipeline", "RESUME_MATCH_FRAMES", "STAGES"]
 
 
 #: The stages :attr:`GesturePipeline.timings` measures.
 STAGES = ("noise_filter", "tracker", "contacts", "gesture", "resting", "frame_correction")
-#: A gap in the data (us) past which empty windows are no longer emitted but for the first
-#: second of it (module docstring): a live DAVIS-346 sends background activity many times a
-#: second, so only a recording's clock jumping (or a camera stalled for a second) makes one.
-GAP_US = 1_000_000
 
 
 def _same_held(a: tuple[np.ndarray, np.ndarray] | None, b: tuple[np.ndarray, np.ndarray] | None) -> bool:
@@ -89,7 +86,7 @@ def _same_held(a: tuple[np.ndarray, np.ndarray] | None, b: tuple[np.ndarray, np.
     return a[0].tobytes() == b[0].tobytes() and a[1].tobytes() == b[1].tobytes()
 
 
-class GesturePipeline(FramePath):
+class GesturePipeline(WindowPath, FramePath):
     """Events and APS frames -> one :class:`GestureEstimate` per window (paper, "Methodology").
 
     Args:
@@ -199,44 +196,6 @@ class GesturePipeline(FramePath):
             return self._process_frame(item)
         return self._process_events(item)
 
-    def process_newest(self, events: np.ndarray) -> tuple[list[GestureEstimate], list[int]]:
-        """Feed an event batch that joins several queued ones (a real-time run fell behind the
-        source): every event goes through the noise filter and the tracker, window by window, but
-        of the windows the batch closes only the newest gets a decision (the contact and gesture
-        steps, the episode vote, the creep filter), on the tracker's state at its end, as
-        :meth:`process` would make it; the windows before it close without one (no estimate).
-
-        Args:
-            events: (E,) EVENT_DTYPE, time-ordered.
-        Returns:
-            (the estimates, the ends (us, time order) of the windows closed without a decision):
-            ``(process(events), [])`` when the batch closes at most one window, or reaches
-            :data:`GAP_US` past the next window's end (a gap's windows are emitted as
-            :meth:`process` emits them).
-        """
-        w = self.config.window_us
-        last_us = int(events["timestamp"][-1]) if len(events) else 0
-        end = self._next_end if self._next_end is not None or not len(events) else int(events["timestamp"][0]) + w
-        if self.tracker is None or last_us < end + w or last_us - end >= GAP_US:
-            return self.process(events), []
-        newest = end + (last_us - end) // w * w  # the last window end the batch reaches
-        ends = np.arange(end, newest, w, dtype=np.int64)  # the windows closed without a decision
-        self._apply_pending()
-        cut = int(np.searchsorted(events["timestamp"], newest - w, side="left"))  # the newest window's first
-        head = events[:cut]
-        if self.noise_filter is not None and len(head):
-            begin = self._clock()
-            head = self.noise_filter(head)
-            self._record("noise_filter", begin)
-        # the tracker's calls cut at the window ends, as :meth:`_process_events` cuts them
-        for part in np.split(head, np.searchsorted(head["timestamp"], ends[:-1], side="left")):
-            if len(part):
-                begin = self._clock()
-                self.tracker.update(part)
-                self._record("tracker", begin)
-        self._next_end = newest
-        return self._process_events(events[cut:]), ends.tolist()
-
     def run(self, stream: Iterable[StreamItem]) -> Iterator[GestureEstimate]:
         """Process a whole stream, yielding each window's estimate as it closes.
 
@@ -338,85 +297,6 @@ class GesturePipeline(FramePath):
         return MarkerPositions(np.array(self.rest_px, dtype=np.float64), self.marker_positions().astype(np.float64))
 
     # --- internals --------------------------------------------------------------------------
-    def _close_windows_until(self, t_us: int) -> list[GestureEstimate]:
-        out = self._across_gap(t_us)
-        while self._next_end is not None and self._next_end <= t_us:
-            out.append(self._close_window())
-        return out
-
-    def _across_gap(self, t_us: int) -> list[GestureEstimate]:
-        """Before data at ``t_us``: when more than :data:`GAP_US` of window ends lie before it
-        with no data, the windows of the first :data:`GAP_US` closed (emitted), the others
-        skipped, keeping the windows' alignment. Memory and time follow the data, not the clock."""
-        if self._next_end is None or t_us - self._next_end < GAP_US:
-            return []
-        w = self.config.window_us
-        crossed = (t_us - self._next_end) // w + 1  # window ends at or before t_us
-        keep = max(1, GAP_US // w)
-        out = [self._close_window() for _ in range(keep)]
-        self._next_end += (crossed - keep) * w
-        return out
-
-    def _process_events(self, events: np.ndarray, *, filtered: bool = False) -> list[GestureEstimate]:
-        if self.tracker is None or len(events) == 0:
-            return []
-        if not filtered and self._resting.resting and self._rests_compiled:
-            out = self._resting_events(events)
-            if out is not None:
-                return out
-        if self.noise_filter is not None and not filtered:
-            # the tracker gets the kept events; the windows start and close on the unfiltered
-            # timestamps, as without a filter (a batch of noise only still ends its windows)
-            last_us = int(events["timestamp"][-1])
-            if self._next_end is None:
-                self._next_end = int(events["timestamp"][0]) + self.config.window_us
-            begin = self._clock()
-            kept = self.noise_filter(events)
-            self._record("noise_filter", begin)
-            return self._process_events(kept, filtered=True) + self._close_windows_until(last_us)
-        ts = events["timestamp"]
-        if self._next_end is None:
-            self._next_end = int(ts[0]) + self.config.window_us
-        out: list[GestureEstimate] = self._across_gap(int(ts[0]))
-        start = 0
-        while True:
-            cut = start + int(np.searchsorted(ts[start:], self._next_end, side="left"))
-            if cut > start:
-                begin = self._clock()
-                self.tracker.update(events[start:cut])
-                self._record("tracker", begin)
-            if cut >= len(events):
-                return out
-            out.append(self._close_window())
-            start = cut
-
-    def _resting_events(self, events: np.ndarray) -> list[GestureEstimate] | None:
-        """:meth:`_process_events` of a batch while the resting verdict stands, as one compiled
-        call (``rest_window.rest_batch``: noise filter, tracker, the override's first test at the
-        window's end); the same estimates and state. None (nothing done) when the batch is not one
-        it takes (``rest_batch``) or stage timings are asked for."""
-        if self._next_end is None:
-            self._next_end = int(events["timestamp"][0]) + self.config.window_us
-        end, c = self._next_end, self.config
-        if self.timings is not None:
-            return None
-        moved_sq = c.motion_override_px * c.motion_override_px
-        done = rest_batch(
-            events, self.noise_filter, self.tracker, self.rest_px, end, c.window_us, moved_sq, c.override_min_markers
-        )
-        if done is None:
-            return None
-        answer, kept, cut = done
-        if answer == OPEN:
-            return []
-        if answer == TOUCHED:  # the first sign of a touch: the window as the general path closes it
-            return [self._close_window(), *self._process_events(kept[cut:], filtered=True)]
-        self._next_end = end + c.window_us
-        estimate = self._none(end, resting=True)
-        if self.on_window is not None:
-            self.on_window(estimate)
-        return [estimate]
-
     @property
     def _rests_compiled(self) -> bool:
         """Whether a resting window may take the compiled path (:meth:`_resting_events`): the
@@ -426,14 +306,6 @@ class GesturePipeline(FramePath):
             getattr(self._moving, "__func__", None) is GesturePipeline._moving
             and getattr(self._estimate, "__func__", None) is GesturePipeline._estimate
         )
-
-    def _close_window(self) -> GestureEstimate:
-        t_us = self._next_end
-        self._next_end += self.config.window_us
-        estimate = self._estimate(t_us)
-        if self.on_window is not None:
-            self.on_window(estimate)
-        return estimate
 
     def _moving(self, current: np.ndarray, valid: np.ndarray) -> bool:
         """Whether the event path overrules the resting verdict: enough markers moved

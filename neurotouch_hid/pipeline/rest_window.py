@@ -6,8 +6,8 @@ While the resting verdict stands, a window's whole event path is the noise filte
 and, at the window's end, the motion override's first test (``override.py``: do at least
 ``min_markers`` markers lie further than the threshold from rest?). :func:`rest_window` does all
 of it in one numba call, in the order and with the kernels the general path
-(``GesturePipeline._process_events``) calls one by one from Python: the same kept events, the
-same tracker state, the same answer. When the override's first test passes (the first sign of a
+(``WindowPath._process_events``, ``window_path.py``) calls one by one from Python: the same kept
+events, the same tracker state, the same answer. When the override's first test passes (the first sign of a
 touch), it stops at the window's end and hands the rest of the batch back, and the pipeline goes
 on in Python, within the same window.
 """
