@@ -28,6 +28,14 @@ thread, once back to back ("hot") and once with ``--gap-ms`` of sleep after each
 driver idles between windows ("spread"), CPU of this thread per window and as a share of a core
 at 100 windows a second, and what as many sleeps alone cost.
 
+``--parts``: also where a resting run's CPU goes: ``run`` on the same recording in a child of this
+script whose runtime, reader, pipeline and resting detector have each step wrapped to add up the
+CPU time of its thread (``time.thread_time_ns``) around every call; per step over the steady
+state, its share of a core, calls a second and CPU per call (a step's figure includes the steps
+it calls: the reader's next item, the source thread's hand-on of what it held, each item's
+handling, the pipeline's resting window and its compiled call, the estimate ``none``, the
+resting verdict). The wrappers add a little to each figure.
+
 ``--wakes``: also what this machine charges for waking a thread, with no work at all: one thread
 sleeping to a deadline every 10 ms (``threading.Event.wait``, as the paced source waits), and one
 thread waking another every 10 ms through a ``threading.Condition`` (as the source hands a window
@@ -300,6 +308,70 @@ def measure_wakes(n: int = 1000, period_s: float = 0.01) -> dict[str, float]:
     return out
 
 
+#: The steps ``--parts`` wraps: (module, class or None, attribute, name printed).
+PARTS = (
+    ("neurotouch_hid.sources.recording", "CuttingStream", "__next__", "reader: next item"),
+    ("neurotouch_hid.runtime", "Runtime", "_hand_on_held", "source: the held items handed on"),
+    ("neurotouch_hid.runtime", "Runtime", "_hand_on", "source: one item handed on"),
+    ("neurotouch_hid.runtime", "Runtime", "_handle", "an item handled"),
+    ("neurotouch_hid.runtime", "Runtime", "_rest_verdict", "the resting verdict, handed over"),
+    ("neurotouch_hid.pipeline.pipeline", "GesturePipeline", "process", "pipeline: an item"),
+    ("neurotouch_hid.pipeline.pipeline", "GesturePipeline", "_resting_events", "pipeline: a resting batch"),
+    ("neurotouch_hid.pipeline.window_path", None, "rest_batch", "pipeline: its compiled call"),
+    ("neurotouch_hid.pipeline.pipeline", "GesturePipeline", "_none", "pipeline: the estimate none"),
+    ("neurotouch_hid.pipeline.resting", "RestingDetector", "update", "resting detector: a frame"),
+)
+
+
+def run_parts(recording: Path, seconds: float) -> None:
+    """``--parts``' child: ``run`` on ``recording`` for ``seconds`` with :data:`PARTS` wrapped;
+    prints each step's CPU over the steady state (from :data:`STEADY_AFTER_S` to 3 s before the
+    end)."""
+    import importlib
+    import threading
+
+    totals: dict[str, list[int]] = {}
+
+    def wrap(owner, attr: str, name: str) -> None:
+        inner = getattr(owner, attr)
+        total = totals.setdefault(name, [0, 0])
+
+        def timed(*args, **kwargs):
+            begin = time.thread_time_ns()
+            try:
+                return inner(*args, **kwargs)
+            finally:
+                total[0] += time.thread_time_ns() - begin
+                total[1] += 1
+
+        setattr(owner, attr, timed)
+
+    for module, cls, attr, name in PARTS:
+        owner = importlib.import_module(module)
+        wrap(owner if cls is None else getattr(owner, cls), attr, name)
+    marks: list[tuple[float, dict[str, tuple[int, int]]]] = []
+
+    def sample() -> None:
+        for delay in (STEADY_AFTER_S, seconds - 3 - STEADY_AFTER_S):
+            time.sleep(delay)
+            marks.append((time.monotonic(), {k: (v[0], v[1]) for k, v in totals.items()}))
+
+    threading.Thread(target=sample, daemon=True).start()
+    from neurotouch_hid.cli import app
+
+    with contextlib.suppress(SystemExit):
+        app(run_command(recording, seconds)[3:], standalone_mode=False)
+    (t0, before), (t1, after) = marks
+    span = t1 - t0
+    for name, (cpu, calls) in after.items():
+        d_cpu, d_calls = cpu - before[name][0], calls - before[name][1]
+        print(
+            f"  {name:34s} {100 * d_cpu / 1e9 / span:5.2f} % of a core, {d_calls / span:6.1f} calls/s, "
+            f"{d_cpu / max(d_calls, 1) / 1e3:6.1f} us a call",
+            flush=True,
+        )
+
+
 def steady(name: str, command, seconds: float, repeat: int) -> None:
     """Print the steady state of ``repeat`` runs of ``command(seconds)`` (CPU share, context
     switches a second, peak RSS and anonymous memory), and their medians."""
@@ -334,10 +406,15 @@ def main() -> None:
     ap.add_argument("--gap-ms", type=float, default=8.0, help="--work: sleep after each item (ms)")
     ap.add_argument("--wakes", action="store_true", help="also the CPU of a wake-up with no work")
     ap.add_argument("--sim", action="store_true", help="also the simulated gel at rest")
+    ap.add_argument("--parts", action="store_true", help="also where the recording's run spends its CPU, step by step")
     ap.add_argument("--child-sim", type=float, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--child-parts", type=Path, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child_sim is not None:
         run_sim(args.child_sim)
+        return
+    if args.child_parts is not None:
+        run_parts(args.child_parts, args.seconds)
         return
     if not STEADY_AFTER_S + 5 < args.seconds <= RECORDING_S:
         sys.exit(f"bench_rest.py: expected {STEADY_AFTER_S + 5:g} < --seconds <= {RECORDING_S:g}")
@@ -361,6 +438,9 @@ def main() -> None:
             f"x{work['spread'] / work['hot']:.1f}, of which the sleeps themselves {work['sleeps'] * 1e6:.0f} us",
             flush=True,
         )
+    if args.parts:
+        print("the recording's run, step by step (each step's CPU includes the steps it calls):", flush=True)
+        subprocess.run([sys.executable, __file__, "--child-parts", str(recording), "--seconds", f"{args.seconds:g}"])
     if args.wakes:
         wakes = measure_wakes()
         print(
