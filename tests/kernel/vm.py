@@ -301,18 +301,6 @@ GUEST_START_TIMEOUT_S = 600
 GUEST_STARTED = "guest-started"
 
 
-def compile_bytecode() -> None:
-    """The package's and the guest checks' bytecode (``__pycache__``) written here, before a boot:
-    the guest sees this tree read-only, so a module without it is compiled again in every Python
-    the guest starts, under emulation ~100 times slower than here (a run's ~55 modules: seconds
-    each start). Also where PYTHONDONTWRITEBYTECODE kept the host's imports from writing it.
-    ``compileall`` writes a file only where it is missing or stale."""
-    import compileall
-
-    for folder in (HERE.parents[1] / "neurotouch_hid", HERE):
-        compileall.compile_dir(str(folder), quiet=2)
-
-
 def boot(
     guest_script: Path = GUEST_SCRIPT,
     timeout_s: int = BOOT_TIMEOUT_S,
@@ -338,7 +326,6 @@ def boot(
     ensure_host_packages()
     kdir, kver = ensure_kernel()
     vmlinuz = kdir / "boot" / f"vmlinuz-{kver}"
-    compile_bytecode()
     cancelled = cancelled or threading.Event()
     out = Path(tempfile.mkdtemp(prefix="boot-", dir=cache_dir()))
     if not modules or any(m in CAMERA_MODULES + SLOW_MODULES for m in modules):
