@@ -200,12 +200,7 @@ def _linking_from_bitcode(library, bitcode: bytes):
 def _trim_heap() -> None:
     """glibc's ``malloc_trim(0)``: free pages at the heap's top and inside it go back to the kernel."""
     import ctypes
-    import ctypes.util
 
-    name = ctypes.util.find_library("c")
-    try:
-        trim = ctypes.CDLL(name).malloc_trim if name else None
-    except (OSError, AttributeError):  # not glibc (musl has no malloc_trim)
-        return
-    if trim is not None:
+    trim = getattr(ctypes.CDLL(None), "malloc_trim", None)  # the process's libc, as atomic.py's renameat2
+    if trim is not None:  # (not glibc: musl has no malloc_trim)
         trim(0)

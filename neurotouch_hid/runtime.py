@@ -860,8 +860,10 @@ class Runtime:
             compiling = self._compiling() is not None
             stats.add_latency(len(estimates), done_ns - arrival_ns, compiling=compiling, waiting=len(self._items))
             if self._pace:
-                for end_us in [*skipped, *(estimate.t_us for estimate in estimates)]:
+                for end_us in skipped:
                     stats.window_latency.add(done_ns - self._clock.due_ns(end_us))
+                for estimate in estimates:
+                    stats.window_latency.add(done_ns - self._clock.due_ns(estimate.t_us))
 
     def _compiling(self) -> CompileProgress | None:
         """The first run's compile while it lasts (``compile_progress``); once it has answered

@@ -115,15 +115,15 @@ class PollPause:
         return self.default_s if decide is None else decide()
 
 
-class PausingStream:
-    """A live source's stream (an iterator of :data:`StreamItem`, closed with ``close()``) and
-    the :class:`PollPause` its polls wait by, ``poll_pause``, for its consumer to set."""
+class WrappedStream:
+    """A source's stream (an iterator of :data:`StreamItem`, closed with ``close()``) with a
+    handle its consumer sets (:class:`PausingStream`'s poll pause, ``recording.CuttingStream``'s
+    batch cut): the items of ``items``, as they come."""
 
-    def __init__(self, items: Iterator[StreamItem], poll_pause: PollPause) -> None:
+    def __init__(self, items: Iterator[StreamItem]) -> None:
         self._items = items
-        self.poll_pause = poll_pause
 
-    def __iter__(self) -> "PausingStream":
+    def __iter__(self) -> "WrappedStream":
         return self
 
     def __next__(self) -> StreamItem:
@@ -134,6 +134,15 @@ class PausingStream:
         close = getattr(self._items, "close", None)
         if close is not None:
             close()
+
+
+class PausingStream(WrappedStream):
+    """A live source's stream and the :class:`PollPause` its polls wait by, ``poll_pause``, for
+    its consumer to set."""
+
+    def __init__(self, items: Iterator[StreamItem], poll_pause: PollPause) -> None:
+        super().__init__(items)
+        self.poll_pause = poll_pause
 
 
 #: Waits up to this long (s) are slept through (``time.sleep``; a stop is seen after it), longer

@@ -36,7 +36,7 @@ import numpy as np
 
 from neurotouch_hid.atomic import PathBeside
 from neurotouch_hid.errors import RecordingError
-from neurotouch_hid.sources import EVENT_DTYPE, Frame, Pacer, StreamItem, join_events
+from neurotouch_hid.sources import EVENT_DTYPE, Frame, Pacer, StreamItem, WrappedStream, join_events
 from neurotouch_hid.sources.dv import DV_ERRORS, dv_error_text, store_from_events
 from neurotouch_hid.sources.packet_bounds import Unbounded, inflated_bound
 
@@ -164,7 +164,7 @@ class BatchCut:
         return (ts - phase_us) // length_us if phase_us else ts // length_us
 
 
-class CuttingStream:
+class CuttingStream(WrappedStream):
     """A source's stream whose batches are cut as ``batch_cut`` (:class:`BatchCut`) says, for its
     consumer to change (``runtime.Runtime``, while the gel rests), as ``PausingStream`` carries
     its ``poll_pause``. A source cuts a chunk of events (a file's packet, a simulated APS
@@ -173,12 +173,9 @@ class CuttingStream:
     without a rest."""
 
     def __init__(self, items: Iterator[StreamItem], batch_cut: BatchCut) -> None:
-        self._items = items
+        super().__init__(items)
         self.batch_cut = batch_cut
         self._parts: collections.deque = collections.deque()
-
-    def __iter__(self) -> "CuttingStream":
-        return self
 
     def __next__(self) -> StreamItem:
         if self._parts:
@@ -192,12 +189,6 @@ class CuttingStream:
             return item
         self._parts.extend(split_batches(item, cut.base_us))
         return self._parts.popleft()
-
-    def close(self) -> None:
-        """Close the underlying generator (its source's ``finally``)."""
-        close = getattr(self._items, "close", None)
-        if close is not None:
-            close()
 
 
 def _cut_of(batch: int | BatchCut) -> BatchCut:
