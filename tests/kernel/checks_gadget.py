@@ -139,28 +139,6 @@ def _input_device(ids: tuple[int, int], code: int, kind: int) -> str | None:
     return None
 
 
-def _command(*args: str) -> tuple[int, str]:
-    """``neurotouch-hid ARGS`` in this process (the CLI's own main: no Python start, which costs
-    tens of seconds under emulation): (exit code, what it printed)."""
-    import contextlib
-    import io
-
-    from neurotouch_hid.cli import main
-
-    out = io.StringIO()
-    argv, sys.argv = sys.argv, ["neurotouch-hid", *args]
-    try:
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
-            try:
-                main()
-                code = 0
-            except SystemExit as exc:
-                code = exc.code if isinstance(exc.code, int) else 1
-    finally:
-        sys.argv = argv
-    return code, out.getvalue()
-
-
 def _setup(profile_text: str) -> tuple[Path, Path, object]:
     folder = Path(tempfile.mkdtemp(prefix="gadget-check-"))
     preds, profile = _write(folder, push_right(120.0), profile_text)
@@ -397,7 +375,7 @@ def check_usb_switch_access_keyboard() -> dict:
     _kernel()
     folder = Path(tempfile.mkdtemp(prefix="gadget-keys-"))
     preds, _ = _write(folder, push_right(120.0), "description: unused\n")
-    setup = _command("gadget", "setup", "--protocol", "hid", "--keyboard", "--user", "root")
+    setup = guestlib.cli_in_process("gadget", "setup", "--protocol", "hid", "--keyboard", "--user", "root")
     assert setup[0] == 0, f"gadget setup: {setup}"
     # The profile types Space once (mode: tap, 100 ms down) ~0.4 s into the push. The keyboard
     # is there from ``gadget setup`` on, so it is opened before the run starts: opened after
@@ -427,7 +405,7 @@ def check_usb_switch_access_keyboard() -> dict:
     finally:
         _close(seen.get("watcher"))
     kept = configfs.gadget_dir().exists()
-    remove = _command("gadget", "remove")
+    remove = guestlib.cli_in_process("gadget", "remove")
     props = seen["props"]
     assert run.returned, f"the run did not return after SIGTERM: {run.said[-5:]}"
     assert props.get("ID_INPUT_KEYBOARD") == "1", f"udev: {props}"
@@ -436,7 +414,7 @@ def check_usb_switch_access_keyboard() -> dict:
     assert kept, "the run removed the gadget that gadget setup made"
     assert remove[0] == 0 and not configfs.gadget_dir().exists(), f"gadget remove: {remove}"
     return {
-        "setup": setup[1].strip().splitlines(),
+        "setup": (setup[1] + setup[2]).strip().splitlines(),
         "device_after_setup_s": round(seen["device_s"], 1),
         "keyboard": seen["node"],
         "ID_INPUT_KEYBOARD": props.get("ID_INPUT_KEYBOARD"),

@@ -55,6 +55,29 @@ def udev_info(devnode: str) -> str:
     return sh(["udevadm", "info", f"--name={devnode}"]).stdout
 
 
+def cli_in_process(*args: str) -> tuple[int, str, str]:
+    """``neurotouch-hid ARGS`` run by the CLI's own ``main`` in this process: (exit code, stdout,
+    stderr). No Python start, which costs tens of seconds under emulation; a check that is about
+    the process itself (its signals, its exit, the devices it leaves) starts a real one instead."""
+    import contextlib
+    import io
+
+    from neurotouch_hid.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    argv, sys.argv = sys.argv, ["neurotouch-hid", *args]
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                main()
+                code = 0
+            except SystemExit as exc:
+                code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    finally:
+        sys.argv = argv
+    return code, out.getvalue(), err.getvalue()
+
+
 def wait_for(predicate, timeout_s: float = 10.0, interval_s: float = 0.05):
     """Poll ``predicate()`` until it returns a truthy value (returned) or the timeout (None)."""
     end = time.monotonic() + timeout_s
