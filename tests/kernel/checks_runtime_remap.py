@@ -6,14 +6,16 @@ checks_runtime.py, the runtime is fed the pipeline's output (a predictions file)
 software-emulated guest cannot run the pipeline in real time; everything after it is real: the
 runtime's threads and pacing, the shipped profiles and the Mapper, the uinput keyboard, mouse and
 pad, the control socket, SIGTERM. Expected values come from the same estimates through the
-Mapper (``mapping.replay``) in the check's own process.
+Mapper (``mapping.replay``) in the check's own process. The driver runs in the check's process
+too (``run_driver``, what ``run`` calls; ``outputlib.InProcessRun``, ended by a real SIGTERM): a
+Python start of ``run`` costs 20 to 60 s under emulation, and checks_runtime.py's SDL check
+starts ``run`` as its own process, as a user does.
 """
 
 from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
 import tempfile
@@ -22,8 +24,9 @@ import time
 from pathlib import Path
 
 import guestlib
-from checks_runtime import NO_DROP_LAG_MS, _env, _start_run_on_pad, timeline
+from checks_runtime import NO_DROP_LAG_MS, timeline
 from evdev import InputDevice, ecodes, list_devices
+from outputlib import InProcessRun
 
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.output.desktop import KEYBOARD_PHYS, MOUSE_PHYS
@@ -267,23 +270,20 @@ mappings:
 """
 
 
-def _start_run(preds: Path, profile: Path, env: dict) -> tuple[subprocess.Popen, dict[str, Watcher]]:
-    """``neurotouch-hid run --output gamepad`` in its own process; a watcher on each of its devices."""
+def watch_run(run: InProcessRun) -> dict[str, Watcher]:
+    """A watcher on each device a gamepad run (pad, keyboard, mouse) makes, once all three are
+    there (in ``run``'s steps thread); AssertionError when the run ended first."""
     before = {phys: set(_devices(phys)) for phys in (PHYS, KEYBOARD_PHYS, MOUSE_PHYS)}
-    proc = _start_run_on_pad(preds, profile, env)
     new = lambda phys: sorted(set(_devices(phys)) - before[phys])  # noqa: E731
     found = guestlib.wait_for(
-        lambda: (new(PHYS) and new(KEYBOARD_PHYS) and new(MOUSE_PHYS)) or proc.poll() is not None, 150.0, 0.05
+        lambda: (new(PHYS) and new(KEYBOARD_PHYS) and new(MOUSE_PHYS)) or not run.alive(), 150.0, 0.05
     )
-    assert found and proc.poll() is None, (
-        f"the devices did not appear: {proc.stderr.read()[-2000:] if proc.poll() is not None else 'timeout'}"
-    )
-    watchers = {
+    assert found and run.alive(), f"the devices did not appear: {run.said[-5:] if not run.alive() else 'timeout'}"
+    return {
         "pad": Watcher(new(PHYS)[0]),
         "keyboard": Watcher(new(KEYBOARD_PHYS)[0]),
         "mouse": Watcher(new(MOUSE_PHYS)[0]),
     }
-    return proc, watchers
 
 
 def holds_everything(w: dict[str, Watcher]) -> bool:
@@ -297,15 +297,15 @@ def holds_everything(w: dict[str, Watcher]) -> bool:
     )
 
 
-def stop_run(proc: subprocess.Popen, w: dict[str, Watcher]) -> str:
-    """SIGTERM the run, wait for it and for its devices to go, stop the watchers; its stderr."""
-    proc.send_signal(signal.SIGTERM)
-    _, err = proc.communicate(timeout=60)
+def stop_run(run: InProcessRun, w: dict[str, Watcher]) -> str:
+    """SIGTERM the run, wait for it and for its devices to go, stop the watchers; what it said
+    (the lines ``run`` prints on stderr)."""
+    run.stop()
     guestlib.wait_for(lambda: all(x.reader.gone for x in w.values()), 10.0)
     time.sleep(0.2)
     for watcher in w.values():
         watcher.stop()
-    return err
+    return "\n".join(run.said)
 
 
 def check_layer_switch_profile_use_and_sigterm_leave_nothing_pressed() -> dict:
@@ -321,27 +321,30 @@ def check_layer_switch_profile_use_and_sigterm_leave_nothing_pressed() -> dict:
     folder = Path(tempfile.mkdtemp(prefix="remap-layers-"))
     runtime_dir = folder / "xdg"
     runtime_dir.mkdir(mode=0o700)
-    env = dict(_env(), XDG_RUNTIME_DIR=str(runtime_dir), XDG_CONFIG_HOME=str(folder / "config"))
+    env = {"XDG_RUNTIME_DIR": str(runtime_dir), "XDG_CONFIG_HOME": str(folder / "config")}
     profile, everything = folder / "layered.yaml", folder / "config" / "neurotouch-hid" / "profiles" / "everything.yaml"
     everything.parent.mkdir(parents=True)
     profile.write_text(LAYERED)
     everything.write_text(EVERYTHING)
-    preds = _write_preds(folder, sequence((G.ZOOM, 4.0, 0.3), (G.PINCH, 4.0, 0.3), (G.PUSH, 4.0, 120.0), lead_in_s=4.0))
-    proc, w = _start_run(preds, profile, env)
+    preds = _write_preds(folder, sequence((G.ZOOM, 4.0, 0.3), (G.PINCH, 4.0, 0.3), (G.PUSH, 4.0, 120.0), lead_in_s=2.0))
+    run = InProcessRun(preds, profile, "gamepad", env=env)
     codes = ecodes.ecodes
-    try:
+    box: dict = {}
+
+    def steps(run: InProcessRun) -> None:
+        box["w"] = w = watch_run(run)
         # the latch lasts well under a second of a slow guest: judged from the event logs, not polled
         held = guestlib.wait_for(
             lambda: codes["KEY_ENTER"] in w["keyboard"].pressed and codes["BTN_SOUTH"] in w["pad"].pressed, 90.0
         )
         assert held, f"the push in layer alt pressed nothing: {w['keyboard'].keys_log()} {w['pad'].keys_log()}"
-        before_use = {"keyboard": w["keyboard"].keys_log(), "mouse": w["mouse"].keys_log()}
-        answer = request_use(str(everything), path=runtime_dir / SOCKET_NAME)  # what `profile use FILE` sends
-        all_held = guestlib.wait_for(lambda: holds_everything(w), 30.0)
-        err = stop_run(proc, w)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+        box["before_use"] = {"keyboard": w["keyboard"].keys_log(), "mouse": w["mouse"].keys_log()}
+        box["answer"] = request_use(str(everything), path=runtime_dir / SOCKET_NAME)  # what `profile use FILE` sends
+        box["all_held"] = guestlib.wait_for(lambda: holds_everything(w), 30.0)
+        box["err"] = stop_run(run, w)
+
+    run(steps)
+    w, before_use, answer, all_held, err = (box[k] for k in ("w", "before_use", "answer", "all_held", "err"))
     kb_log, pad_log = w["keyboard"].keys_log(), w["pad"].keys_log()
     # the zoom latched KEY_A and BTN_RIGHT; the layer switch released both before alt pressed KEY_ENTER
     assert before_use == {
@@ -354,7 +357,7 @@ def check_layer_switch_profile_use_and_sigterm_leave_nothing_pressed() -> dict:
     assert all_held, (
         f"the new profile did not hold something on every device: {kb_log} {w['mouse'].keys_log()} {pad_log}"
     )
-    assert proc.returncode == 0, f"exit code {proc.returncode}: {err[-2000:]}"
+    assert run.returned, f"the run did not return after SIGTERM: {err[-2000:]}"
     leftover = {name: sorted(watcher.pressed) for name, watcher in w.items() if watcher.pressed}
     assert not leftover, f"after SIGTERM still pressed: {leftover}"
     assert w["pad"].reader.axes.get(ecodes.ABS_X) == 0, w["pad"].reader.axes
@@ -366,7 +369,7 @@ def check_layer_switch_profile_use_and_sigterm_leave_nothing_pressed() -> dict:
         "mouse": w["mouse"].keys_log(),
         "pad": pad_log,
         "profile_use": answer,
-        "exit_code": proc.returncode,
+        "returned": run.returned,
         "pointer_x": w["mouse"].total(ecodes.REL_X),
     }
 
@@ -396,18 +399,21 @@ def check_profile_use_of_new_keys_makes_the_keyboard_again() -> dict:
     folder = Path(tempfile.mkdtemp(prefix="remap-newkey-"))
     runtime_dir = folder / "xdg"
     runtime_dir.mkdir(mode=0o700)
-    env = dict(_env(), XDG_RUNTIME_DIR=str(runtime_dir), XDG_CONFIG_HOME=str(folder / "config"))
+    env = {"XDG_RUNTIME_DIR": str(runtime_dir), "XDG_CONFIG_HOME": str(folder / "config")}
     profile, new_key = folder / "layered.yaml", folder / "new-key.yaml"
     profile.write_text(LAYERED)
     new_key.write_text(NEW_KEY)
-    preds = _write_preds(folder, sequence((G.PINCH, 4.0, 0.3), (G.PUSH, 4.0, 120.0), lead_in_s=4.0))
-    proc, w = _start_run(preds, profile, env)
+    preds = _write_preds(folder, sequence((G.PINCH, 4.0, 0.3), (G.PUSH, 4.0, 120.0), lead_in_s=2.0))
+    run = InProcessRun(preds, profile, "gamepad", env=env)
     codes = ecodes.ecodes
-    old_keyboard = _devices(KEYBOARD_PHYS)
-    try:
+    box: dict = {}
+
+    def steps(run: InProcessRun) -> None:
+        box["w"] = w = watch_run(run)
+        old_keyboard = _devices(KEYBOARD_PHYS)
         held = guestlib.wait_for(lambda: codes["KEY_ENTER"] in w["keyboard"].pressed, 90.0)
         assert held, f"the push in layer alt pressed nothing: {w['keyboard'].keys_log()}"
-        answer = request_use(str(new_key), path=runtime_dir / SOCKET_NAME)
+        box["answer"] = answer = request_use(str(new_key), path=runtime_dir / SOCKET_NAME)
         # the new keyboard may get the old one's /dev/input/eventN: told apart by the old one's
         # reader seeing it go and by the new one offering F9
         remade = guestlib.wait_for(
@@ -420,29 +426,24 @@ def check_profile_use_of_new_keys_makes_the_keyboard_again() -> dict:
         )
         assert remade, f"no new keyboard: {_devices(KEYBOARD_PHYS)} (was {old_keyboard}, answer {answer!r})"
         new_path = _devices(KEYBOARD_PHYS)[0]
-        offered = set(InputDevice(new_path).capabilities().get(ecodes.EV_KEY, []))
-        new = Watcher(new_path)
-        f9_held = guestlib.wait_for(lambda: codes["KEY_F9"] in new.pressed, 30.0)
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=60)
-        guestlib.wait_for(lambda: new.reader.gone, 10.0)
-        time.sleep(0.2)
-        for watcher in (*w.values(), new):
-            watcher.stop()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+        box["offered"] = set(InputDevice(new_path).capabilities().get(ecodes.EV_KEY, []))
+        box["new"] = new = Watcher(new_path)
+        box["f9_held"] = guestlib.wait_for(lambda: codes["KEY_F9"] in new.pressed, 30.0)
+        box["err"] = stop_run(run, {**w, "new": new})
+
+    run(steps)
+    w, answer, offered, new, f9_held, err = (box[k] for k in ("w", "answer", "offered", "new", "f9_held", "err"))
     old_log = w["keyboard"].keys_log()
     assert old_log[-1] == ("KEY_ENTER", 0) and w["keyboard"].reader.gone, old_log
     assert codes["KEY_F9"] in offered and codes["KEY_ENTER"] in offered and codes["KEY_SYSRQ"] not in offered
     assert f9_held, f"F9 not held on the new keyboard: {new.keys_log()}"
-    assert proc.returncode == 0, f"exit code {proc.returncode}: {err[-2000:]}"
+    assert run.returned, f"the run did not return after SIGTERM: {err[-2000:]}"
     assert not new.pressed and new.keys_log()[-1] == ("KEY_F9", 0), new.keys_log()
     return {
         "profile_use": answer,
         "old_keyboard": old_log,
         "new_keyboard": new.keys_log(),
-        "exit_code": proc.returncode,
+        "returned": run.returned,
     }
 
 

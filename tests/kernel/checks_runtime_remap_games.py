@@ -3,8 +3,9 @@ running driver's profile mid-push, and nothing stays held on any virtual device.
 
 Run by tests/kernel/guest.py inside qemu (after checks_runtime_remap.py, whose helpers it uses);
 asserted on by tests/test_game_profiles_kernel.py. As there, the runtime is fed estimates (a
-predictions file: a push held two minutes); everything else is real: `neurotouch-hid run` in its
-own process with the user's games.yaml, a real process with SteamAppId in its environment,
+predictions file: a push held two minutes); everything else is real: the driver (``run_driver``,
+what `neurotouch-hid run` calls, in the check's process, ended by a real SIGTERM:
+``outputlib.InProcessRun``) with the user's games.yaml, a real process with SteamAppId in its environment,
 psutil reading /proc, the switch through `profile use`'s path, the uinput keyboard, mouse and pad
 read back with evdev.
 """
@@ -17,9 +18,9 @@ import tempfile
 from pathlib import Path
 
 import guestlib
-from checks_runtime import _env
-from checks_runtime_remap import EVERYTHING, G, _start_run, _write_preds, holds_everything, sequence, stop_run
+from checks_runtime_remap import EVERYTHING, G, _write_preds, holds_everything, sequence, stop_run, watch_run
 from evdev import ecodes
+from outputlib import InProcessRun
 
 TIMEOUT_S = 300
 
@@ -49,13 +50,15 @@ def check_a_game_switches_profiles_leaving_nothing_held() -> dict:
     base.write_text(BASE)
     (config / "neurotouch-hid" / "profiles" / "everything.yaml").write_text(EVERYTHING)
     (config / "neurotouch-hid" / "games.yaml").write_text("steam:\n  4242: everything\n")
-    env = dict(_env(), XDG_RUNTIME_DIR=str(runtime_dir), XDG_CONFIG_HOME=str(config))
-    preds = _write_preds(folder, sequence((G.PUSH, 4.0, 120.0), lead_in_s=4.0))
-    proc, w = _start_run(preds, base, env)
+    env = {"XDG_RUNTIME_DIR": str(runtime_dir), "XDG_CONFIG_HOME": str(config)}
+    preds = _write_preds(folder, sequence((G.PUSH, 4.0, 120.0), lead_in_s=2.0))
+    run = InProcessRun(preds, base, "gamepad", env=env)
     codes = ecodes.ecodes
     chord = {codes["KEY_LEFTCTRL"], codes["KEY_B"]}
-    game = None
-    try:
+    box: dict = {}
+
+    def steps(run: InProcessRun) -> None:
+        box["w"] = w = watch_run(run)
         base_held = guestlib.wait_for(
             lambda: (
                 codes["KEY_ENTER"] in w["keyboard"].pressed
@@ -65,12 +68,14 @@ def check_a_game_switches_profiles_leaving_nothing_held() -> dict:
             90.0,
         )
         assert base_held, f"the push held nothing: {w['keyboard'].keys_log()} {w['pad'].keys_log()}"
-        game = subprocess.Popen(["sleep", "600"], env=dict(os.environ, SteamAppId="4242"))
-        game_held = guestlib.wait_for(lambda: holds_everything(w), 60.0)
-        during = {name: sorted(watcher.pressed) for name, watcher in w.items()}
-        game.kill()
-        game.wait(10)
-        back = guestlib.wait_for(
+        box["game"] = game = subprocess.Popen(["sleep", "600"], env=dict(os.environ, SteamAppId="4242"))
+        try:
+            box["game_held"] = guestlib.wait_for(lambda: holds_everything(w), 60.0)
+            box["during"] = {name: sorted(watcher.pressed) for name, watcher in w.items()}
+        finally:
+            game.kill()
+            game.wait(10)
+        box["back"] = guestlib.wait_for(
             lambda: (
                 codes["KEY_ENTER"] in w["keyboard"].pressed
                 and codes["BTN_RIGHT"] in w["mouse"].pressed
@@ -79,12 +84,13 @@ def check_a_game_switches_profiles_leaving_nothing_held() -> dict:
             ),
             60.0,
         )
-        stick_after = w["pad"].reader.axes.get(ecodes.ABS_X)
-        err = stop_run(proc, w)
-    finally:
-        for p in (game, proc):
-            if p is not None and p.poll() is None:
-                p.kill()
+        box["stick_after"] = w["pad"].reader.axes.get(ecodes.ABS_X)
+        box["err"] = stop_run(run, w)
+
+    run(steps)
+    w, game, game_held, during, back, stick_after, err = (
+        box[k] for k in ("w", "game", "game_held", "during", "back", "stick_after", "err")
+    )
     kb, mouse, pad = w["keyboard"].keys_log(), w["mouse"].keys_log(), w["pad"].keys_log()
     assert game_held, f"the game's profile held nothing: {kb} {mouse} {pad}\n{err[-2000:]}"
     assert back, f"not back on the base profile: {kb} {mouse} {pad}\n{err[-2000:]}"
@@ -106,7 +112,7 @@ def check_a_game_switches_profiles_leaving_nothing_held() -> dict:
     east = str(ecodes.BTN_EAST)  # the watcher logs a code with several names (B, EAST) by number
     assert pad == [(east, 1), (east, 0), ("BTN_SOUTH", 1), ("BTN_SOUTH", 0), (east, 1), (east, 0)], pad
     assert stick_after == 0, f"the stick stayed off centre after the game exited: ABS_X {stick_after}"
-    assert proc.returncode == 0, f"exit code {proc.returncode}: {err[-2000:]}"
+    assert run.returned, f"the run did not return after SIGTERM: {err[-2000:]}"
     leftover = {name: sorted(watcher.pressed) for name, watcher in w.items() if watcher.pressed}
     assert not leftover, f"after SIGTERM still pressed: {leftover}"
     said = [line for line in err.splitlines() if line.startswith("switched to profile")]

@@ -5,6 +5,7 @@ the check's own process (a second Python start costs 30 to 120 s under emulation
 from __future__ import annotations
 
 import json
+import logging
 import os
 import signal
 import threading
@@ -103,15 +104,32 @@ def _ignore(*_) -> None:
     """SIGTERM outside the run's own handler (before it installed it, after it restored ours)."""
 
 
+class _Said(logging.Handler):
+    """The driver's log lines of WARNING and above (what ``run`` prints on stderr), into a list."""
+
+    def __init__(self, lines: list[str]) -> None:
+        super().__init__(logging.WARNING)
+        self.lines = lines
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.lines.append(record.getMessage())
+
+
 class InProcessRun:
     """``neurotouch-hid run`` as the CLI runs it (``run_driver``), in this process's main thread,
     where the runtime installs its SIGTERM handler; ``steps(self)`` run in a thread beside it and
     end it with :meth:`stop`, a real SIGTERM to this process. ``said``: the lines the run told
-    the user (the CLI's stderr); ``done``: set once ``run_driver`` returned."""
+    the user (``say``'s, and the driver's log lines of WARNING and above, as the CLI prints them
+    on stderr); ``done``: set once ``run_driver`` returned. ``env``: environment variables set
+    for the run (XDG_RUNTIME_DIR for its control socket, XDG_CONFIG_HOME for the user's
+    profiles), restored after it."""
 
-    def __init__(self, preds: Path, profile: Path | str, output: str, protocol: str | None = None) -> None:
+    def __init__(
+        self, preds: Path, profile: Path | str, output: str, protocol: str | None = None, env: dict | None = None
+    ) -> None:
         self.args = (str(preds), profile, output)
         self.protocol = protocol
+        self.env = env or {}
         self.said: list[str] = []
         self.done = threading.Event()
         self.returned = False
@@ -149,6 +167,10 @@ class InProcessRun:
 
         previous = signal.signal(signal.SIGTERM, _ignore)
         thread = threading.Thread(target=beside, daemon=True)
+        environ = {name: os.environ.get(name) for name in self.env}
+        os.environ.update(self.env)
+        said = _Said(self.said)
+        logging.getLogger("neurotouch_hid").addHandler(said)
         try:
             thread.start()
             run_driver(*self.args, protocol=self.protocol, max_lag_us=int(NO_DROP_LAG_MS) * 1000, say=self.said.append)
@@ -157,6 +179,12 @@ class InProcessRun:
             self.done.set()
             thread.join(180)
             signal.signal(signal.SIGTERM, previous)
+            logging.getLogger("neurotouch_hid").removeHandler(said)
+            for name, value in environ.items():
+                if value is None:
+                    os.environ.pop(name, None)
+                else:
+                    os.environ[name] = value
         if "error" in box:
             raise box["error"]
         return box.get("value")
