@@ -249,9 +249,11 @@ def test_short_data_waits_the_early_packet_delay_the_host_wrote_and_full_transfe
     assert device.early_packet_delay_s() == pytest.approx(0.020)
     for _ in range(3):  # three short pumps' words: held, together
         device._queue(np.arange(10, dtype=np.uint16))
-    device._flush(device.pending_since + 0.019)
+    # 0.1 ms either side of the delay: (t + 0.020) - t is below 0.020 for about a third of the
+    # values time.monotonic() takes, so the boundary itself is not a time a test can give
+    device._flush(device.pending_since + 0.0199)
     assert not device.backlog and len(device.pending) == 60
-    device._flush(device.pending_since + 0.020)
+    device._flush(device.pending_since + 0.0201)
     assert [len(chunk) for chunk in device.backlog] == [60] and not device.pending
     device.backlog.clear()
     device._queue(np.zeros(CHUNK_BYTES // 2 + 5, np.uint16))  # a transfer and 10 bytes
