@@ -9,6 +9,7 @@ import logging
 import os
 import signal
 import threading
+import time
 from pathlib import Path
 
 import guestlib
@@ -147,7 +148,12 @@ class InProcessRun:
         if installed and not self.done.is_set():
             os.kill(os.getpid(), signal.SIGTERM)
         if watcher is not None:
-            watcher.pump(timeout_s=30.0, until=lambda r: self.done.is_set(), max_s=timeout_s)
+            # in short reads: a device that stays after the run (a gadget ``gadget setup`` made)
+            # sends nothing more, and one long read would wait out its whole timeout
+            deadline = time.monotonic() + timeout_s
+            while not watcher.gone and not self.done.is_set() and time.monotonic() < deadline:
+                watcher.pump(timeout_s=0.5, until=lambda r: self.done.is_set(), max_s=timeout_s)
+            watcher.pump(timeout_s=0.2, max_s=2.0)  # what the run wrote as it ended
         self.done.wait(timeout_s)
 
     def __call__(self, steps):
