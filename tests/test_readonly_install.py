@@ -47,8 +47,9 @@ def _namespaces_work() -> str | None:
 pytestmark = pytest.mark.skipif(_namespaces_work() is not None, reason=str(_namespaces_work()))
 
 
-def run_read_only(tmp_path: Path, *args: str, env: dict[str, str]) -> subprocess.CompletedProcess:
-    """``python -m neurotouch_hid.cli ARGS`` with the package, sys.prefix and HOME mounted read-only."""
+def start_read_only(tmp_path: Path, *args: str, env: dict[str, str]) -> subprocess.Popen:
+    """``python -m neurotouch_hid.cli ARGS`` started with the package, sys.prefix and HOME mounted
+    read-only (text pipes for stdout and stderr)."""
     home = tmp_path / "home"
     home.mkdir(exist_ok=True)
     read_only = [
@@ -62,15 +63,71 @@ def run_read_only(tmp_path: Path, *args: str, env: dict[str, str]) -> subprocess
     )
     command = " ".join(shlex.quote(a) for a in (sys.executable, "-m", "neurotouch_hid.cli", *args))
     full_env = {"PATH": "/usr/bin:/bin", "HOME": str(home), "LANG": "C.UTF-8", **env}
-    return subprocess.run(
+    return subprocess.Popen(
         ["unshare", "-rm", "sh", "-c", f"{mounts} && exec {command}"],
-        capture_output=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
         text=True,
         env=full_env,
         cwd=tmp_path,
         stdin=subprocess.DEVNULL,
-        timeout=600,
     )
+
+
+def finish(proc: subprocess.Popen, timeout: float = 600) -> subprocess.CompletedProcess:
+    """Wait for ``proc`` (from :func:`start_read_only`) and return what it did."""
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        raise
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+
+
+def run_read_only(tmp_path: Path, *args: str, env: dict[str, str]) -> subprocess.CompletedProcess:
+    """:func:`start_read_only`, waited for."""
+    return finish(start_read_only(tmp_path, *args, env=env))
+
+
+@pytest.fixture(scope="module")
+def first_compiles(tmp_path_factory, sim_gel_short_recording):
+    """The two tests' compiles from nothing, started together (each ~35 s of one core, so the
+    pair takes the time of one on two cores): ``run`` with no writable folder (compiles in
+    memory), and ``track`` with a writable $XDG_RUNTIME_DIR (compiles into it). Each test waits
+    for its own and goes on from there; both are killed if a test never took its own."""
+    recording = str(sim_gel_short_recording)
+    memory = tmp_path_factory.mktemp("memory")
+    cached = tmp_path_factory.mktemp("cached")
+    runtime = cached / "run-user"
+    runtime.mkdir()
+    procs = {
+        "memory": (
+            memory,
+            start_read_only(
+                memory,
+                "run",
+                "--source",
+                recording,
+                "--output",
+                "jsonl",
+                "--fast",
+                "--out",
+                str(memory / "states.jsonl"),
+                env={},
+            ),
+        ),
+        "cached": (
+            cached,
+            start_read_only(
+                cached, "track", recording, "--out", str(cached / "pred.jsonl"), env={"XDG_RUNTIME_DIR": str(runtime)}
+            ),
+        ),
+    }
+    yield procs
+    for _, proc in procs.values():
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
 
 
 def assert_clean(result: subprocess.CompletedProcess) -> None:
@@ -83,31 +140,27 @@ def assert_states(path: Path) -> None:
     assert lines and all("axes" in json.loads(line) for line in lines), path
 
 
-def test_no_writable_folder_compiles_at_start_and_runs(tmp_path, sim_gel_short_recording):
+def test_no_writable_folder_compiles_at_start_and_runs(first_compiles):
     """Nothing writable but the output's folder: `run` starts, says so in one line, and works."""
-    recording = str(sim_gel_short_recording)
-    out = tmp_path / "states.jsonl"
-    result = run_read_only(
-        tmp_path, "run", "--source", recording, "--output", "jsonl", "--fast", "--out", str(out), env={}
-    )
+    tmp_path, proc = first_compiles["memory"]
+    result = finish(proc)
     assert_clean(result)
     assert result.stderr.count(MEMORY_LINE) == 1, result.stderr
-    assert_states(out)
+    assert_states(tmp_path / "states.jsonl")
     doctor = run_read_only(tmp_path, "doctor", env={})
     assert MEMORY_LINE in doctor.stdout and "removed at exit" in doctor.stdout, doctor.stdout
 
 
-def test_runtime_dir_caches_track_and_run(tmp_path, sim_gel_short_recording):
+def test_runtime_dir_caches_track_and_run(first_compiles, sim_gel_short_recording):
     """With $XDG_RUNTIME_DIR writable, `track` compiles once into it, and `run` reuses that."""
     recording = str(sim_gel_short_recording)
+    tmp_path, proc = first_compiles["cached"]
     runtime = tmp_path / "run-user"
-    runtime.mkdir()
     env = {"XDG_RUNTIME_DIR": str(runtime)}
-    predictions = tmp_path / "pred.jsonl"
-    track = run_read_only(tmp_path, "track", recording, "--out", str(predictions), env=env)
+    track = finish(proc)
     assert_clean(track)
     assert MEMORY_LINE not in track.stderr
-    assert len(predictions.read_text().splitlines()) > 50
+    assert len((tmp_path / "pred.jsonl").read_text().splitlines()) > 50
     cache = runtime / "neurotouch-hid" / "numba"
     assert list(cache.rglob("*.nbi")), f"nothing cached in {cache}"
     states = tmp_path / "states.jsonl"
