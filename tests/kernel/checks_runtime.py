@@ -125,7 +125,7 @@ def _env() -> dict:
 NO_DROP_LAG_MS = "600000"
 
 
-def _start_run_on_pad(preds: Path, profile: Path, env: dict | None = None) -> subprocess.Popen:
+def _start_run_on_pad(preds: Path, profile: Path) -> subprocess.Popen:
     """``neurotouch-hid run --source PREDS --profile PROFILE --output gamepad`` in its own
     process (text pipes for stdout and stderr), lagging rather than dropping (NO_DROP_LAG_MS)."""
     return subprocess.Popen(
@@ -143,7 +143,7 @@ def _start_run_on_pad(preds: Path, profile: Path, env: dict | None = None) -> su
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        env=env or _env(),
+        env=_env(),
         cwd=str(REPO),
     )
 

@@ -32,7 +32,6 @@ from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.output.desktop import KEYBOARD_PHYS, MOUSE_PHYS
 from neurotouch_hid.output.gamepad import PHYS
 
-REPO = Path(__file__).resolve().parent.parent.parent
 HERE = Path(__file__).resolve().parent
 TIMEOUT_S = 300
 G = GestureType
@@ -329,22 +328,20 @@ def check_layer_switch_profile_use_and_sigterm_leave_nothing_pressed() -> dict:
     preds = _write_preds(folder, sequence((G.ZOOM, 4.0, 0.3), (G.PINCH, 4.0, 0.3), (G.PUSH, 4.0, 120.0), lead_in_s=2.0))
     run = InProcessRun(preds, profile, "gamepad", env=env)
     codes = ecodes.ecodes
-    box: dict = {}
 
-    def steps(run: InProcessRun) -> None:
-        box["w"] = w = watch_run(run)
+    def steps(run: InProcessRun) -> tuple:
+        w = watch_run(run)
         # the latch lasts well under a second of a slow guest: judged from the event logs, not polled
         held = guestlib.wait_for(
             lambda: codes["KEY_ENTER"] in w["keyboard"].pressed and codes["BTN_SOUTH"] in w["pad"].pressed, 90.0
         )
         assert held, f"the push in layer alt pressed nothing: {w['keyboard'].keys_log()} {w['pad'].keys_log()}"
-        box["before_use"] = {"keyboard": w["keyboard"].keys_log(), "mouse": w["mouse"].keys_log()}
-        box["answer"] = request_use(str(everything), path=runtime_dir / SOCKET_NAME)  # what `profile use FILE` sends
-        box["all_held"] = guestlib.wait_for(lambda: holds_everything(w), 30.0)
-        box["err"] = stop_run(run, w)
+        before_use = {"keyboard": w["keyboard"].keys_log(), "mouse": w["mouse"].keys_log()}
+        answer = request_use(str(everything), path=runtime_dir / SOCKET_NAME)  # what `profile use FILE` sends
+        all_held = guestlib.wait_for(lambda: holds_everything(w), 30.0)
+        return w, before_use, answer, all_held, stop_run(run, w)
 
-    run(steps)
-    w, before_use, answer, all_held, err = (box[k] for k in ("w", "before_use", "answer", "all_held", "err"))
+    w, before_use, answer, all_held, err = run(steps)
     kb_log, pad_log = w["keyboard"].keys_log(), w["pad"].keys_log()
     # the zoom latched KEY_A and BTN_RIGHT; the layer switch released both before alt pressed KEY_ENTER
     assert before_use == {
@@ -406,14 +403,13 @@ def check_profile_use_of_new_keys_makes_the_keyboard_again() -> dict:
     preds = _write_preds(folder, sequence((G.PINCH, 4.0, 0.3), (G.PUSH, 4.0, 120.0), lead_in_s=2.0))
     run = InProcessRun(preds, profile, "gamepad", env=env)
     codes = ecodes.ecodes
-    box: dict = {}
 
-    def steps(run: InProcessRun) -> None:
-        box["w"] = w = watch_run(run)
+    def steps(run: InProcessRun) -> tuple:
+        w = watch_run(run)
         old_keyboard = _devices(KEYBOARD_PHYS)
         held = guestlib.wait_for(lambda: codes["KEY_ENTER"] in w["keyboard"].pressed, 90.0)
         assert held, f"the push in layer alt pressed nothing: {w['keyboard'].keys_log()}"
-        box["answer"] = answer = request_use(str(new_key), path=runtime_dir / SOCKET_NAME)
+        answer = request_use(str(new_key), path=runtime_dir / SOCKET_NAME)
         # the new keyboard may get the old one's /dev/input/eventN: told apart by the old one's
         # reader seeing it go and by the new one offering F9
         remade = guestlib.wait_for(
@@ -426,13 +422,12 @@ def check_profile_use_of_new_keys_makes_the_keyboard_again() -> dict:
         )
         assert remade, f"no new keyboard: {_devices(KEYBOARD_PHYS)} (was {old_keyboard}, answer {answer!r})"
         new_path = _devices(KEYBOARD_PHYS)[0]
-        box["offered"] = set(InputDevice(new_path).capabilities().get(ecodes.EV_KEY, []))
-        box["new"] = new = Watcher(new_path)
-        box["f9_held"] = guestlib.wait_for(lambda: codes["KEY_F9"] in new.pressed, 30.0)
-        box["err"] = stop_run(run, {**w, "new": new})
+        offered = set(InputDevice(new_path).capabilities().get(ecodes.EV_KEY, []))
+        new = Watcher(new_path)
+        f9_held = guestlib.wait_for(lambda: codes["KEY_F9"] in new.pressed, 30.0)
+        return w, answer, offered, new, f9_held, stop_run(run, {**w, "new": new})
 
-    run(steps)
-    w, answer, offered, new, f9_held, err = (box[k] for k in ("w", "answer", "offered", "new", "f9_held", "err"))
+    w, answer, offered, new, f9_held, err = run(steps)
     old_log = w["keyboard"].keys_log()
     assert old_log[-1] == ("KEY_ENTER", 0) and w["keyboard"].reader.gone, old_log
     assert codes["KEY_F9"] in offered and codes["KEY_ENTER"] in offered and codes["KEY_SYSRQ"] not in offered

@@ -55,10 +55,9 @@ def check_a_game_switches_profiles_leaving_nothing_held() -> dict:
     run = InProcessRun(preds, base, "gamepad", env=env)
     codes = ecodes.ecodes
     chord = {codes["KEY_LEFTCTRL"], codes["KEY_B"]}
-    box: dict = {}
 
-    def steps(run: InProcessRun) -> None:
-        box["w"] = w = watch_run(run)
+    def steps(run: InProcessRun) -> tuple:
+        w = watch_run(run)
         base_held = guestlib.wait_for(
             lambda: (
                 codes["KEY_ENTER"] in w["keyboard"].pressed
@@ -68,14 +67,14 @@ def check_a_game_switches_profiles_leaving_nothing_held() -> dict:
             90.0,
         )
         assert base_held, f"the push held nothing: {w['keyboard'].keys_log()} {w['pad'].keys_log()}"
-        box["game"] = game = subprocess.Popen(["sleep", "600"], env=dict(os.environ, SteamAppId="4242"))
+        game = subprocess.Popen(["sleep", "600"], env=dict(os.environ, SteamAppId="4242"))
         try:
-            box["game_held"] = guestlib.wait_for(lambda: holds_everything(w), 60.0)
-            box["during"] = {name: sorted(watcher.pressed) for name, watcher in w.items()}
+            game_held = guestlib.wait_for(lambda: holds_everything(w), 60.0)
+            during = {name: sorted(watcher.pressed) for name, watcher in w.items()}
         finally:
             game.kill()
             game.wait(10)
-        box["back"] = guestlib.wait_for(
+        back = guestlib.wait_for(
             lambda: (
                 codes["KEY_ENTER"] in w["keyboard"].pressed
                 and codes["BTN_RIGHT"] in w["mouse"].pressed
@@ -84,13 +83,10 @@ def check_a_game_switches_profiles_leaving_nothing_held() -> dict:
             ),
             60.0,
         )
-        box["stick_after"] = w["pad"].reader.axes.get(ecodes.ABS_X)
-        box["err"] = stop_run(run, w)
+        stick_after = w["pad"].reader.axes.get(ecodes.ABS_X)
+        return w, game, game_held, during, back, stick_after, stop_run(run, w)
 
-    run(steps)
-    w, game, game_held, during, back, stick_after, err = (
-        box[k] for k in ("w", "game", "game_held", "during", "back", "stick_after", "err")
-    )
+    w, game, game_held, during, back, stick_after, err = run(steps)
     kb, mouse, pad = w["keyboard"].keys_log(), w["mouse"].keys_log(), w["pad"].keys_log()
     assert game_held, f"the game's profile held nothing: {kb} {mouse} {pad}\n{err[-2000:]}"
     assert back, f"not back on the base profile: {kb} {mouse} {pad}\n{err[-2000:]}"
