@@ -282,10 +282,25 @@ def serve(seconds: float, product: str) -> dict:
             time.sleep(0.01)
         return index
 
-    index = find(seconds)
-    if index is None:
+    def open_wanted(seconds: float):
+        """PRODUCT's controller opened, or None: found again when SDL listed a device whose node
+        went before it was opened (another process made and removed devices meanwhile), as a
+        game waits for the next device added."""
+        end = time.monotonic() + seconds
+        while True:
+            index = find(max(0.0, end - time.monotonic()))
+            if index is None:
+                return None
+            try:
+                return controller.Controller(index)
+            except pygame.error:
+                if time.monotonic() >= end:
+                    raise
+                time.sleep(0.1)
+
+    ctl = open_wanted(seconds)
+    if ctl is None:
         return {"done": True, "error": f"no GameController with product {product} within {seconds} s"}
-    ctl = controller.Controller(index)
     count = controller.get_count()
     say({"opened": True, "count": count, "guids": [pygame.joystick.Joystick(i).get_guid() for i in range(count)]})
     axes = [(name.lower(), getattr(pygame, "CONTROLLER_AXIS_" + name)) for name in WATCH_AXES]
@@ -303,12 +318,12 @@ def serve(seconds: float, product: str) -> dict:
             pygame.joystick.quit()
             pygame.joystick.init()
             controller.init()
-            index = find(10.0)
+            found = open_wanted(10.0)
             count = controller.get_count()
             guids = [pygame.joystick.Joystick(i).get_guid() for i in range(count)]
-            if index is not None:
-                ctl = controller.Controller(index)
-            say({"relisted": {"count": count, "guids": guids, "found": index is not None}})
+            if found is not None:
+                ctl = found
+            say({"relisted": {"count": count, "guids": guids, "found": found is not None}})
         elif command == "rumble":
             played = ctl.rumble(0.5, 1.0, 300)
             say({"rumble": bool(played), "sdl_error": None if played else pygame.get_error()})
