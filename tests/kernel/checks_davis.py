@@ -64,7 +64,7 @@ PUSH_S, HELD_S, GESTURE_SLOW = (REST_TO_S, 2.0), (1.6, 2.0), 10
 #: ``run``'s window on the gamepad (us): under emulation a window's estimate with the gel pushed
 #: (homography, contacts, gesture) takes ~100x the host's ~1 ms, so the paper's 10 ms windows
 #: fall far behind the camera; 200 ms ones keep up (on the host the same cued push, 10x slower,
-#: gives a full left stick with 10 to 200 ms windows).
+#: gives the stick at full deflection with 10 to 200 ms windows).
 RUN_WINDOW_US = 200_000
 #: ``run``'s allowed lag (ms): a pushed window's estimate takes up to ~0.25 s under emulation, more
 #: than the default 200 ms of data that may wait meanwhile; with less, the pipeline dropped 58 %
@@ -73,9 +73,16 @@ RUN_WINDOW_US = 200_000
 #: pad never moved: the emulated camera, its gadget and the pipeline share one emulated CPU. The
 #: check is of the camera's path and the unplug, not of the emulator's speed: the run may lag.
 RUN_MAX_LAG_MS = 30_000
-#: The push counts as on the pad once the left stick is this far left (of 32767: the default
-#: profile maps a push's intensity to ABS_X), at most this many seconds after the cue.
-PUSHED_X, PUSH_WAIT_S = 16_000, 120
+#: The push counts as on the pad once the left stick is this far from the centre on either axis
+#: (of 32767: the default profile maps a push's direction times its intensity to the left stick;
+#: which way the replay's push goes, tests/test_davis_pipeline_kernel.py compares with the host's
+#: run), at most this many seconds after the cue.
+PUSHED, PUSH_WAIT_S = 16_000, 120
+#: The gadget's log lines when the host starts its stream and when it plays the cue (davis_gadget.py).
+STREAM_STARTED, CUE_TAKEN = "stream started", "SIGHUP: playing the cued gesture"
+#: The cue is given this long after the run's stream started (s): its first passes (0.55 s of
+#: camera time each, an APS frame of the gel at rest first) reach the pipeline before the push.
+CUE_AFTER_STREAM_S = 3.0
 #: Name of the replayed recording in the boot's shared folder (vm.py puts it there).
 REPLAY_NAME = "davis_replay.aedat4"
 
@@ -125,6 +132,10 @@ class EmulatedCamera:
         if not self._log.closed:
             self._log.flush()
         return self.log_path.read_text(errors="replace")
+
+    def said(self, text: str) -> int:
+        """How many lines of the gadget's log contain ``text``."""
+        return sum(text in line for line in self.log().splitlines())
 
     def stop(self) -> int | None:
         if self.proc.poll() is None:
@@ -364,6 +375,11 @@ def _pad_path(proc: subprocess.Popen, timeout_s: float) -> str:
     return path
 
 
+def _stick_off_centre(reader: guestlib.EventReader) -> int:
+    """How far the left stick is from the centre on its farther axis (of 32767)."""
+    return max(abs(reader.axes.get(ecodes.ABS_X, 0)), abs(reader.axes.get(ecodes.ABS_Y, 0)))
+
+
 def _neutral(reader: guestlib.EventReader) -> bool:
     return not reader.keys and all(value == 0 for value in reader.axes.values())
 
@@ -371,15 +387,18 @@ def _neutral(reader: guestlib.EventReader) -> bool:
 def _run_gamepad_unplug(camera: EmulatedCamera) -> dict:
     """``run --source davis`` on the gamepad with the gel pushed, the camera then unplugged
     (SIGUSR1) mid-push: the pad (read back through evdev) showed the push (the default profile's
-    full left stick) and is neutral by the time the driver reports the camera lost ("gamepad
+    left stick, at least PUSHED off centre) and is neutral by the time the driver reports the camera lost ("gamepad
     centred and released"); nothing is written while the camera is away; plugged in again
     (SIGUSR2), the driver says it is back (it has read data again) and keeps running until SIGTERM
     (exit 0).
 
     The push is the gadget's cue (SIGHUP: PUSH_S, then HELD_S looped, GESTURE_SLOW times slower),
-    given once the pad exists, i.e. once the pipeline has its markers from a frame at rest; ``run``
-    uses RUN_WINDOW_US windows so that the emulated pipeline keeps up."""
+    given CUE_AFTER_STREAM_S after this run's stream started (the gadget ignores a cue while no
+    stream runs: the pad exists before ``run`` has opened the camera), so that the stream's first
+    APS frame, the pipeline's reference, shows the gel at rest; ``run`` uses RUN_WINDOW_US windows
+    so that the emulated pipeline keeps up."""
     out_path = Path("/tmp/davis-run-gamepad.out")
+    streams = camera.said(STREAM_STARTED)
     with open(out_path, "w") as out:
         proc = subprocess.Popen(
             [
@@ -418,12 +437,17 @@ def _run_gamepad_unplug(camera: EmulatedCamera) -> dict:
         t_start = time.monotonic()
         reader = guestlib.EventReader(_pad_path(proc, RUN_START_S))
         pad_after_s = time.monotonic() - t_start
-        # the camera is open and data reached the pipeline: the pad was made after both
-        reader.pump(1.0)
+        streaming = pump_until(lambda: camera.said(STREAM_STARTED) > streams, RUN_START_S)
+        assert streaming, f"run did not start the camera's stream: {camera.log()[-1000:]}"
+        stream_after_s = time.monotonic() - t_start
+        pump_until(lambda: False, CUE_AFTER_STREAM_S)  # the stream's first passes: the gel at rest
         assert _neutral(reader), f"not neutral at rest: {reader.axes} {reader.keys}"
+        cues = camera.said(CUE_TAKEN)
         t_cue = time.monotonic()
         camera.proc.send_signal(signal.SIGHUP)
-        if not pump_until(lambda: reader.axes.get(ecodes.ABS_X, 0) <= -PUSHED_X, PUSH_WAIT_S):
+        taken = guestlib.wait_for(lambda: camera.said(CUE_TAKEN) > cues, 30.0)
+        assert taken, f"the gadget did not play the cue: {camera.log()[-1000:]}"
+        if not pump_until(lambda: _stick_off_centre(reader) >= PUSHED, PUSH_WAIT_S):
             proc.send_signal(signal.SIGTERM)  # its summary says what the pipeline processed and dropped
             proc.wait(120)
             err.poll()
@@ -463,6 +487,7 @@ def _run_gamepad_unplug(camera: EmulatedCamera) -> dict:
     assert not compiled, f"numba compiled in the guest (the host's cache was not used): {compiled}"
     return {
         "pad_after_s": round(pad_after_s, 1),
+        "stream_after_s": round(stream_after_s, 1),
         "pushed_after_cue_s": round(pushed_after_s, 1),
         "pushed_axes": {ecodes.ABS[code]: value for code, value in pushed_axes.items() if value},
         "lost": lost,
