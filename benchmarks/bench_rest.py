@@ -22,11 +22,16 @@ rather than drops), in a child of this script, measured as above; and the simula
 (its stream read back to back, CPU per second of gel), which that figure includes.
 
 ``--work``: also the stages' own CPU at rest, without the runtime's threads: the same recording's
-items as the runtime hands them at rest (a window's event batches joined, APS frames between
-them), through the pipeline, its resting detector and the default profile's mapper in this
-thread, once back to back ("hot") and once with ``--gap-ms`` of sleep after each item, as the
-driver idles between windows ("spread"), CPU of this thread per window and as a share of a core
-at 100 windows a second, and what as many sleeps alone cost.
+items as the runtime hands them at rest (a window's event batches joined, APS frames between them),
+through the pipeline, its resting detector and the default profile's mapper in this thread, once
+back to back ("hot") and once with ``--gap-ms`` of sleep after each item, as the driver idles
+between windows ("spread"), the items' own CPU of this thread per window (the sleeps apart) and as
+a share of a core at 100 windows a second, and what as many sleeps alone cost. Two more passes say
+what a sleep costs the work after it: "evicted", back to back but with the data caches evicted
+before each item (a pass over 64 MiB, not counted), and "spun", the sleep then 1 ms of busy waiting
+before each item (not counted: the core awake and at its clock, but what ran elsewhere meanwhile
+still evicted). Only the items' own CPU is counted in each; each pass is also split into the
+resting window's compiled call, the resting verdict and the rest (the Python around them).
 
 ``--parts``: also where a resting run's CPU goes: ``run`` on the same recording in a child of this
 script whose runtime, reader, pipeline and resting detector have each step wrapped to add up the
@@ -223,12 +228,14 @@ def rest_items(recording: Path, window_us: int = 10_000) -> list:
 
 
 def measure_work(recording: Path, gap_s: float) -> dict[str, float]:
-    """The stages' CPU (this thread's, s) per window at rest, hot and with ``gap_s`` of sleep
-    after each item, each on its own 10 s of the recording after its first 5 s (the stages warmed
-    up on those)."""
+    """The stages' CPU (this thread's, s) per window at rest, per pass (module docstring,
+    ``--work``: hot, spread with ``gap_s`` of sleep after each item, evicted, spun), each on its own
+    part of the recording after a first part that warms the stages up; ``PASS/call`` and
+    ``PASS/verdict``: of it the resting window's compiled call and the resting verdict."""
     from neurotouch_hid.driver import build_pipeline
     from neurotouch_hid.mapping.mapper import Mapper
     from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.pipeline import window_path
     from neurotouch_hid.sensor import SensorGeometry
     from neurotouch_hid.sources import Frame
     from neurotouch_hid.warmup import compile_pipeline
@@ -238,30 +245,64 @@ def measure_work(recording: Path, gap_s: float) -> dict[str, float]:
     pipeline, resting = build_pipeline(SensorGeometry.load(recording.parent / "sensor.yaml"), 10_000)
     mapper = Mapper(load_profile("default"))
 
-    def run(part: list, gap: float) -> tuple[int, float]:
-        windows, begin = 0, time.thread_time()
+    junk = np.ones(64 << 17)  # 64 MiB: more than any cache of the machine
+
+    def spin(seconds: float) -> None:
+        until = time.perf_counter() + seconds
+        while time.perf_counter() < until:
+            pass
+
+    spent = {"call": 0.0, "verdict": 0.0}
+    rest_batch = window_path.rest_batch
+
+    def timed_call(*args):  # the compiled resting call, as the window path makes it
+        begin = time.thread_time()
+        try:
+            return rest_batch(*args)
+        finally:
+            spent["call"] += time.thread_time() - begin
+
+    def run(part: list, gap: float, before=None) -> tuple[int, float]:
+        windows, cpu = 0, 0.0
+        spent.update(call=0.0, verdict=0.0)
         for item in part:
+            if before is not None:
+                before()
+            begin = time.thread_time()
             if isinstance(item, Frame):
                 verdict = resting.update(item)
+                spent["verdict"] += time.thread_time() - begin
                 if verdict is not None:
                     pipeline.set_resting(verdict, item.t_us)
             for estimate in pipeline.process(item):
                 mapper.update(estimate)
                 windows += 1
+            cpu += time.thread_time() - begin
             if gap:
                 time.sleep(gap)
-        return windows, time.thread_time() - begin
+        return windows, cpu
 
-    part = len(items) // 9  # ~5 s of the 45: the warm-up, then 10 s hot, then 10 s spread
+    passes = (
+        ("hot", 0.0, None),
+        ("spread", gap_s, None),
+        ("evicted", 0.0, junk.sum),
+        ("spun", gap_s, lambda: spin(1e-3)),
+    )
+    part = len(items) // (2 * len(passes) + 1)  # the warm-up, then each pass on its own part
     run(items[:part], 0.0)
-    out = {}
-    for k, (name, gap) in enumerate((("hot", 0.0), ("spread", gap_s))):
-        windows, cpu = run(items[(1 + 2 * k) * part : (3 + 2 * k) * part], gap)  # time goes on
-        out[name] = cpu / windows
+    out, windows_of = {}, {}
+    window_path.rest_batch = timed_call
+    try:
+        for k, (name, gap, before) in enumerate(passes):
+            windows_of[name], cpu = run(items[(1 + 2 * k) * part : (3 + 2 * k) * part], gap, before)  # time goes on
+            out[name] = cpu / windows_of[name]
+            out.update({f"{name}/{key}": value / windows_of[name] for key, value in spent.items()})
+    finally:
+        window_path.rest_batch = rest_batch
     begin = time.thread_time()
-    for _ in range(2 * part):  # the sleeps alone, as many
+    for _ in range(2 * part):  # the sleeps alone, as many as the spread pass's
         time.sleep(gap_s)
-    out["sleeps"] = (time.thread_time() - begin) / windows
+    out["sleeps"] = (time.thread_time() - begin) / windows_of["spread"]
     return out
 
 
@@ -435,9 +476,19 @@ def main() -> None:
             f"the stages alone, one thread: hot {work['hot'] * 1e6:.0f} us a window "
             f"({100 * work['hot'] * 100:.2f} % of a core at 100 windows/s); spread ({args.gap_ms:g} ms of "
             f"sleep after each item) {work['spread'] * 1e6:.0f} us ({100 * work['spread'] * 100:.2f} %), "
-            f"x{work['spread'] / work['hot']:.1f}, of which the sleeps themselves {work['sleeps'] * 1e6:.0f} us",
+            f"x{work['spread'] / work['hot']:.1f}, the sleeps themselves (not in it) {work['sleeps'] * 1e6:.0f} us; "
+            f"evicted caches, no sleep, {work['evicted'] * 1e6:.0f} us (x{work['evicted'] / work['hot']:.1f}); "
+            f"sleep then 1 ms spun {work['spun'] * 1e6:.0f} us (x{work['spun'] / work['hot']:.1f})",
             flush=True,
         )
+        for name in ("hot", "spread", "evicted", "spun"):
+            call, verdict = work[f"{name}/call"], work[f"{name}/verdict"]
+            print(
+                f"  {name}: the compiled resting call {call * 1e6:.0f} us a window, the resting verdict "
+                f"{verdict * 1e6:.0f} us (a frame every fourth window), "
+                f"the rest {(work[name] - call - verdict) * 1e6:.0f} us",
+                flush=True,
+            )
     if args.parts:
         print("the recording's run, step by step (each step's CPU includes the steps it calls):", flush=True)
         subprocess.run([sys.executable, __file__, "--child-parts", str(recording), "--seconds", f"{args.seconds:g}"])
