@@ -1,6 +1,7 @@
 """What many test modules share that is not a fixture: the one way to run the CLI in a fresh
 process (:func:`run_cli`) and in this one (:func:`run_main`), reading its JSON-lines states
-(:func:`read_states`), and waiting for what a test waits on (:func:`wait_until`). Fixtures (the
+(:func:`read_states`), waiting for what a test waits on (:func:`wait_until`), and pyproject.toml's
+requirements on a platform (:func:`project_requirements`). Fixtures (the
 simulated recordings, the real street recording) are in tests/conftest.py."""
 
 from __future__ import annotations
@@ -11,8 +12,12 @@ import os
 import subprocess
 import sys
 import time
+import tomllib
 import types
 from pathlib import Path
+
+from packaging.markers import default_environment
+from packaging.requirements import Requirement
 
 #: The real DAVIS-346 street recording (the shared dataset beside the repository, docs/dataset.md);
 #: tests read it through the ``street_recording`` fixture (tests/conftest.py), which skips without it.
@@ -20,6 +25,9 @@ STREET = Path(__file__).resolve().parents[2] / "shared" / "data" / "davis346-str
 
 #: The repository's benchmark scripts (not a package: tests load them with :func:`load_benchmark`).
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+#: The repository (pyproject.toml's folder).
+REPO = Path(__file__).resolve().parents[1]
 
 #: ``neurotouch-hid`` as a command: this interpreter, this tree's package.
 CLI = (sys.executable, "-m", "neurotouch_hid.cli")
@@ -116,3 +124,14 @@ def load_benchmark(name: str) -> types.ModuleType:
     sys.modules[name] = module
     spec.loader.exec_module(module)
     return module
+
+
+def project_requirements(extras: tuple[str, ...] = (), environment: dict[str, str] | None = None) -> list[Requirement]:
+    """pyproject.toml's dependencies (and those of ``extras``) whose environment markers hold in
+    ``environment`` (PEP 508 marker values; None: this machine's, ``packaging``)."""
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
+    lines = list(project["dependencies"])
+    for extra in extras:
+        lines += project["optional-dependencies"][extra]
+    where = {**(environment if environment is not None else default_environment()), "extra": ""}
+    return [r for r in map(Requirement, lines) if r.marker is None or r.marker.evaluate(where)]

@@ -21,15 +21,13 @@ import json
 import os
 import subprocess
 import sys
-import tomllib
 import urllib.request
-from pathlib import Path
 
 import pytest
+from helpers import project_requirements
 from packaging.requirements import Requirement
 from test_extras import assert_names_the_extra, cli_without
 
-ROOT = Path(__file__).resolve().parents[1]
 #: The environment markers of a Raspberry Pi OS (Debian 12) board with CPython 3.11.
 AARCH64 = {
     "sys_platform": "linux",
@@ -52,16 +50,6 @@ PLATFORMS = [
 ]
 
 
-def project_requirements(extras: tuple[str, ...] = ()) -> list[Requirement]:
-    """pyproject.toml's dependencies (and those of ``extras``) that apply on aarch64 Linux."""
-    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
-    lines = list(project["dependencies"])
-    for extra in extras:
-        lines += project["optional-dependencies"][extra]
-    reqs = [Requirement(line) for line in lines]
-    return [r for r in reqs if r.marker is None or r.marker.evaluate(AARCH64 | {"extra": ""})]
-
-
 def _pypi_reachable() -> str | None:
     try:
         urllib.request.urlopen("https://pypi.org/simple/pip/", timeout=15).close()
@@ -74,7 +62,7 @@ def test_every_dependency_installs_as_a_wheel_on_aarch64(tmp_path):
     problem = _pypi_reachable()
     if problem and not os.environ.get("CI"):
         pytest.skip(f"PyPI cannot be reached from here: {problem}")
-    reqs = project_requirements()
+    reqs = project_requirements(environment=AARCH64)
     names = {r.name for r in reqs}
     assert "evdev" not in names and "evdev-binary" not in names  # the uinput extra's, there
     plain = [str(Requirement(f"{r.name}{r.specifier}")) for r in reqs]
@@ -96,11 +84,9 @@ def test_every_dependency_installs_as_a_wheel_on_aarch64(tmp_path):
 
 
 def test_the_uinput_extra_brings_python_evdev_on_aarch64_only():
-    assert [r.name for r in project_requirements(("uinput",)) if r.name.startswith("evdev")] == ["evdev"]
-    x86 = AARCH64 | {"platform_machine": "x86_64", "extra": ""}
-    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
-    on_x86 = [Requirement(line) for line in project["dependencies"] + project["optional-dependencies"]["uinput"]]
-    assert [r.name for r in on_x86 if r.name.startswith("evdev") and r.marker.evaluate(x86)] == ["evdev-binary"]
+    assert [r.name for r in project_requirements(("uinput",), AARCH64) if r.name.startswith("evdev")] == ["evdev"]
+    x86 = AARCH64 | {"platform_machine": "x86_64"}
+    assert [r.name for r in project_requirements(("uinput",), x86) if r.name.startswith("evdev")] == ["evdev-binary"]
 
 
 def test_the_key_names_are_python_evdevs():

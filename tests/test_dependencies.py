@@ -10,12 +10,8 @@ from __future__ import annotations
 
 import ast
 import importlib.metadata
-import tomllib
-from pathlib import Path
 
-from packaging.requirements import Requirement
-
-REPO = Path(__file__).resolve().parents[1]
+from helpers import REPO, project_requirements
 
 
 def import_names(distribution: str) -> set[str]:
@@ -52,13 +48,9 @@ def test_import_names_come_from_the_distributions_files():
 
 
 def test_every_runtime_dependency_is_imported_by_the_driver():
-    project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
     used = imported_by_the_package()
     unused = {}
-    for line in project["dependencies"]:
-        requirement = Requirement(line)
-        if requirement.marker is not None and not requirement.marker.evaluate():
-            continue  # not installed on this platform
+    for requirement in project_requirements():  # those installed on this platform
         names = import_names(requirement.name)
         assert names, f"{requirement.name} is not installed, or installed no module"
         if not names & used:
