@@ -40,6 +40,7 @@ def test_devices_lists_it_as_ready_and_dv_processing_lists_a_davis(guest):
 def test_record_writes_the_replayed_events_and_frames_exactly(guest):
     details = passed_part(guest, AT_REST, "record")
     assert details["found_in_source"] == details["recorded_events"] > 100
+    assert details["recorded_events"] == details["sent_outside_holes"], details["holes"]
     assert details["frame_shapes"] == [[260, 346]] and set(details["frame_max_diff"]) == {0}
 
 

@@ -56,6 +56,8 @@ REST_TO_S = 0.55
 FRAME_EVERY = 14
 #: How many runs of 32 recorded events :func:`_match` tries to locate in the source.
 HEAD_TRIES = 16
+#: ``record``'s event batches (us, its ``batch_us``): a hole in a recording is longer than one.
+RECORD_BATCH_US = 10_000
 #: The push the gadget plays on SIGHUP (s of the recording: the simulated session's push, from
 #: the rest before it to its end), then the part of it held, again and again; both GESTURE_SLOW
 #: times slower than recorded (the gel's ~70k events/s at real speed are more than the emulated
@@ -271,6 +273,22 @@ def _match(source: tuple, recorded: tuple, period_us: int) -> dict:
     span_us = int(b["timestamp"][-1] - b["timestamp"][0])
     expected = len(a) * span_us / period_us  # events the replay sent in that span, about
     frames = [min(int(np.abs(src.image.astype(int) - f.image.astype(int)).max()) for src in fa) for f in fb]
+    # the recorded events on the replay's own time axis (us, loops unwrapped), cut into stretches at
+    # every hole: a stretch of camera time longer than a recorded batch (10 ms) and the replay's
+    # longest quiet (its loop's seam included) where nothing was recorded though the replay sent
+    # events. Within each stretch every event the replay sent must be there.
+    t_b = (b["timestamp"].astype(np.int64) - int(b["timestamp"][head_at])) + int(rel_a[start])
+    sorted_a = np.sort(rel_a.astype(np.int64))
+    quiet_us = int(max(np.diff(sorted_a).max(initial=0), period_us - sorted_a[-1] + sorted_a[0]))
+    gaps = np.diff(t_b)
+    holes = np.flatnonzero(gaps > quiet_us + RECORD_BATCH_US)
+    firsts, lasts = np.r_[0, holes + 1], np.r_[holes, len(t_b) - 1]
+
+    def sent_until(t_us: np.ndarray) -> np.ndarray:  # events the replay sent at or before t_us
+        loops, within = np.divmod(t_us, period_us)
+        return loops * len(a) + np.searchsorted(sorted_a, within, side="right")
+
+    in_stretches = int((sent_until(t_b[lasts]) - sent_until(t_b[firsts] - 1)).sum())
     return {
         "source_events": len(a),
         "period_us": period_us,
@@ -281,6 +299,10 @@ def _match(source: tuple, recorded: tuple, period_us: int) -> dict:
         "found_in_source": int(found.sum()),
         "first_not_found": int(np.argmin(found)) if not found.all() else None,
         "sent_in_span_about": round(expected),
+        "holes": [(int(t_b[i] - t_b[0]), int(gaps[i])) for i in holes[:8]],
+        "hole_us": int(gaps[holes].sum()),
+        "sent_outside_holes": in_stretches,
+        "frame_t_us": [int(f.t_us - b["timestamp"][0]) for f in fb],
         "recorded_frames": len(fb),
         "frame_shapes": sorted({tuple(f.image.shape) for f in fb}),
         "frame_max_diff": frames,
@@ -302,11 +324,11 @@ def _record(camera: EmulatedCamera) -> dict:
     match = _match(source, recorded, int(period.group(1)))
     assert match["found_in_source"] == match["recorded_events"], match
     assert match["frame_shapes"] == [(260, 346)], match
-    # most of what the replay sent over the recorded span arrived (the emulated host reads slower
-    # than real time, so 3 s of recording hold less than 3 s of camera time, and under load the
-    # consumer falls behind dv-processing's queue: 78-100 % seen; reading one event batch a poll
-    # kept about 10 %)
-    assert match["recorded_events"] >= 0.5 * match["sent_in_span_about"], match
+    # between holes, every event the replay sent was recorded. A hole is what dv-processing dropped
+    # when its queue was full: a guest starved by a loaded host reads slower than real time (one CI
+    # run recorded 41 % of the span, the rest of it lost in holes; an idle host none). How much of
+    # the span arrives is the host's load, not record's, and is reported, not asserted
+    assert match["recorded_events"] == match["sent_outside_holes"], f"{match} {proc.stderr[-800:]}"
     # one frame per 0.55 s pass: every recorded frame is a replayed one, pixel for pixel
     assert match["recorded_frames"] >= 1 and all(d == 0 for d in match["frame_max_diff"]), match
     return {**match, "stderr": proc.stderr[-500:]}
