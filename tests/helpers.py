@@ -23,11 +23,11 @@ from packaging.requirements import Requirement
 #: tests read it through the ``street_recording`` fixture (tests/conftest.py), which skips without it.
 STREET = Path(__file__).resolve().parents[2] / "shared" / "data" / "davis346-street" / "recording.aedat4"
 
-#: The repository's benchmark scripts (not a package: tests load them with :func:`load_benchmark`).
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
-
 #: The repository (pyproject.toml's folder).
 REPO = Path(__file__).resolve().parents[1]
+
+#: The repository's benchmark scripts (not a package: tests load them with :func:`load_benchmark`).
+BENCHMARKS = REPO / "benchmarks"
 
 #: ``neurotouch-hid`` as a command: this interpreter, this tree's package.
 CLI = (sys.executable, "-m", "neurotouch_hid.cli")

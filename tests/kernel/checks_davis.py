@@ -324,10 +324,10 @@ def _record(camera: EmulatedCamera) -> dict:
     match = _match(source, recorded, int(period.group(1)))
     assert match["found_in_source"] == match["recorded_events"], match
     assert match["frame_shapes"] == [(260, 346)], match
-    # between holes, every event the replay sent was recorded. A hole is what dv-processing dropped
-    # when its queue was full: a guest starved by a loaded host reads slower than real time (one CI
-    # run recorded 41 % of the span, the rest of it lost in holes; an idle host none). How much of
-    # the span arrives is the host's load, not record's, and is reported, not asserted
+    # between holes, every event the replay sent was recorded. Holes are where nothing arrived: a
+    # guest starved by a loaded host reads slower than the camera sends and dv-processing's queue
+    # drops what it cannot hold (41 % of the span has arrived under load). How much of the span
+    # arrives is the host's load, not record's: reported, not asserted
     assert match["recorded_events"] == match["sent_outside_holes"], f"{match} {proc.stderr[-800:]}"
     # one frame per 0.55 s pass: every recorded frame is a replayed one, pixel for pixel
     assert match["recorded_frames"] >= 1 and all(d == 0 for d in match["frame_max_diff"]), match
