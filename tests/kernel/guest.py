@@ -1,8 +1,8 @@
 """Runs INSIDE the qemu guest (tests/kernel/vm.py boots it): every guest check, one JSON file.
 
 Usage (by vm.py): ``python3 tests/kernel/guest.py OUT/result.json [MODULE ...]``: with MODULEs
-(e.g. ``checks_davis``), only those check modules (vm.py boots two guests side by side, each with
-its share of the modules, ``vm.guest_parts()``), in name order.
+(e.g. ``checks_davis``), only those check modules (vm.py boots two guests one after the other, each
+with its share of the modules, ``vm.guest_parts()``), in name order.
 
 0. Write ``OUT/guest-started`` (``vm.GUEST_STARTED``): the host then knows the boot reached this
    script (a boot that never does is booted again). Every check prints a line as it starts and as it

@@ -2,10 +2,11 @@
 
 This machine's own kernel has no uinput (tests/kernel/README.md, "Why a kernel under qemu"), so the tests boot
 Debian's generic ``linux-image-*-amd64`` under qemu with virtme-ng (``vng``), sharing the host's
-root file system read-only, and run ``tests/kernel/guest.py`` inside. Two guests boot side by
-side (:func:`guest_parts`: each qemu emulates on one core), each running its share of the guest
-checks (``tests/kernel/checks_*.py``) and writing a JSON file into a ``--rwdir`` folder; the tests
-assert on the two merged.
+root file system read-only, and run ``tests/kernel/guest.py`` inside. Two guests boot one after
+the other (:func:`guest_parts`; each qemu emulates on one core, beside the host's tests on the
+other: :class:`BackgroundBoot`), each running its share of the guest checks
+(``tests/kernel/checks_*.py``) and writing a JSON file into a ``--rwdir`` folder; the tests assert
+on the two merged.
 
 Everything is owned by the tests: host packages are apt-installed when qemu is missing (as root),
 the kernel is downloaded with ``apt-get download`` and extracted into a cache folder
@@ -45,7 +46,7 @@ HOST_COMMANDS = {
 #: The guest checks that need the emulated camera (checks_davis.py: three Python starts, a few
 #: minutes under emulation): the boot's shared folder then holds the replay recording.
 CAMERA_MODULES = ("checks_davis",)
-#: The first of the two guests booted side by side runs the camera's checks, then these, so that
+#: The first of the two guests booted runs the camera's checks, then these, so that
 #: neither guest runs much longer than the other: beside the host's tests on 2 cores, the camera's
 #: guest took 171 s and the other 610 s without them, 435 s and 315 s with them. The longer a
 #: guest, the nearer its timeout on a slow machine; the host's tests took about 600 s either way.
@@ -471,38 +472,35 @@ def merge_results(parts: list[dict]) -> dict:
 
 
 class BackgroundBoot:
-    """The guests of :func:`guest_parts`, each :func:`boot` in a thread of its own, started as the
-    test session starts so that the host's tests run while the guests do (a boot takes minutes
-    under software emulation)."""
+    """The guests of :func:`guest_parts`, booted one after the other (:func:`boot`) in one thread
+    started as the test session starts, so that the host's tests run while the guests do (a boot
+    takes minutes under software emulation).
+
+    One after the other, not side by side: each qemu emulates on one core, so one guest and the
+    host's tests keep both cores busy, where two guests beside the host's tests made three on two
+    cores until the guests ended, then left a core idle for the rest of the host's tests."""
 
     def __init__(self) -> None:
         self._cancelled = threading.Event()
         self._parts = guest_parts()
         self._results: list[dict | None] = [None] * len(self._parts)
-        self._first_error: BaseException | None = None  # not the other guest's cancellation after it
-        self._lock = threading.Lock()
-        self._threads = [
-            threading.Thread(target=self._boot, args=(i,), name=f"kernel-boot-{i}", daemon=True)
-            for i in range(len(self._parts))
-        ]
-        for thread in self._threads:
-            thread.start()
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._boot_all, name="kernel-boot", daemon=True)
+        self._thread.start()
 
-    def _boot(self, index: int) -> None:
+    def _boot_all(self) -> None:
         try:
-            self._results[index] = boot(cancelled=self._cancelled, modules=self._parts[index])
+            for index, modules in enumerate(self._parts):
+                self._results[index] = boot(cancelled=self._cancelled, modules=modules)
         except BaseException as exc:  # noqa: BLE001 - handed to the thread that asks for the result
-            with self._lock:
-                self._first_error = self._first_error or exc
-            self._cancelled.set()  # the other guest's result alone would not do
+            self._error = exc  # the guests after it are not booted: one guest's result alone would not do
 
     def result(self) -> dict:
         """The guests' merged JSON once both are done (:func:`merge_results`); raises what a
         :func:`boot` raised."""
-        for thread in self._threads:
-            thread.join()
-        if self._first_error is not None:
-            raise self._first_error
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
         return merge_results([r for r in self._results if r is not None])
 
     @property
@@ -515,8 +513,7 @@ class BackgroundBoot:
     def cancel(self) -> None:
         """Stop qemu if it still runs (the session ended before any test asked for the result)."""
         self._cancelled.set()
-        for thread in self._threads:
-            thread.join(timeout=30)
+        self._thread.join(timeout=30)
 
 
 _background: BackgroundBoot | None = None
