@@ -40,7 +40,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 def pytest_collection_finish(session: pytest.Session) -> None:
     if not session.config.option.collectonly and any(_needs_guest(item) for item in session.items):
-        start_background_boot()
+        # with no host test to run beside them, the guests take a core each
+        start_background_boot(side_by_side=all(_needs_guest(item) for item in session.items))
 
 
 def pytest_terminal_summary(terminalreporter, exitstatus: int, config: pytest.Config) -> None:

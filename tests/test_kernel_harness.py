@@ -48,6 +48,52 @@ def test_a_part_failing_inside_a_check_that_passed_counts_as_a_failure():
     )
 
 
+def _booted(
+    monkeypatch, parts: list[tuple[str, ...]], fail: str | None = None, hold_s: float = 0.2
+) -> tuple[list, list[str]]:
+    """Replace vm.boot by one that lasts ``hold_s`` (less once every part is running), records how
+    many guests run at once at each start, and raises for the part whose first module is ``fail``;
+    returns (that record, the parts booted in order)."""
+    running, at_once, booted = set(), [], []
+    lock, all_running = threading.Lock(), threading.Event()
+
+    def boot(cancelled, modules):
+        with lock:
+            running.add(modules)
+            at_once.append(len(running))
+            booted.append(modules[0])
+            if len(running) == len(parts):
+                all_running.set()
+        all_running.wait(hold_s)
+        with lock:
+            running.discard(modules)
+        if modules[0] == fail:
+            raise RuntimeError(f"{fail} wrote no result")
+        return {f"{modules[0]}.check": {"ok": True, "seconds": hold_s}, "_boot": {"seconds": hold_s}}
+
+    monkeypatch.setattr(vm, "guest_parts", lambda: parts)
+    monkeypatch.setattr(vm, "boot", boot)
+    return at_once, booted
+
+
+def test_the_guests_boot_one_after_the_other_beside_the_hosts_tests_and_side_by_side_alone(monkeypatch):
+    parts = [("checks_a",), ("checks_b",)]
+    at_once, booted = _booted(monkeypatch, parts)
+    result = vm.BackgroundBoot().result()
+    assert at_once == [1, 1] and booted == ["checks_a", "checks_b"]  # in guest_parts' order: the camera's guest first
+    assert result["checks_a.check"]["ok"] and result["checks_b.check"]["ok"]
+    at_once, _ = _booted(monkeypatch, parts, hold_s=30.0)  # ends as soon as both run
+    result = vm.BackgroundBoot(side_by_side=True).result()
+    assert max(at_once) == 2 and result["checks_b.check"]["ok"]
+
+
+def test_a_guest_that_fails_fails_the_result_and_boots_no_other(monkeypatch):
+    at_once, booted = _booted(monkeypatch, [("checks_a",), ("checks_b",)], fail="checks_a")
+    with pytest.raises(RuntimeError, match="checks_a wrote no result"):
+        vm.BackgroundBoot().result()
+    assert booted == ["checks_a"]
+
+
 @pytest.mark.skipif(
     os.geteuid() != 0 or shutil.which("apt-get") is None, reason="apt-get runs as root only (CI's user)"
 )

@@ -472,35 +472,45 @@ def merge_results(parts: list[dict]) -> dict:
 
 
 class BackgroundBoot:
-    """The guests of :func:`guest_parts`, booted one after the other (:func:`boot`) in one thread
-    started as the test session starts, so that the host's tests run while the guests do (a boot
-    takes minutes under software emulation).
+    """The guests of :func:`guest_parts`, each :func:`boot` in a thread started as the test session
+    starts, so that the host's tests run while the guests do (a boot takes minutes under software
+    emulation): one after the other in one thread, or side by side, a thread each.
 
-    One after the other, not side by side: each qemu emulates on one core, so one guest and the
-    host's tests keep both cores busy, where two guests beside the host's tests made three on two
-    cores until the guests ended, then left a core idle for the rest of the host's tests."""
+    Each qemu emulates on one core. One guest at a time beside the host's tests keeps both cores
+    busy; two guests beside them made three on two cores until the guests ended, then left a core
+    idle for the rest of the host's tests. With no host test to run (a session of kernel tests
+    only), side by side uses both cores."""
 
-    def __init__(self) -> None:
+    def __init__(self, side_by_side: bool = False) -> None:
         self._cancelled = threading.Event()
         self._parts = guest_parts()
         self._results: list[dict | None] = [None] * len(self._parts)
-        self._error: BaseException | None = None
-        self._thread = threading.Thread(target=self._boot_all, name="kernel-boot", daemon=True)
-        self._thread.start()
+        self._first_error: BaseException | None = None  # not the other guest's cancellation after it
+        self._lock = threading.Lock()
+        indices = [[i] for i in range(len(self._parts))] if side_by_side else [list(range(len(self._parts)))]
+        self._threads = [
+            threading.Thread(target=self._boot, args=(each,), name=f"kernel-boot-{each[0]}", daemon=True)
+            for each in indices
+        ]
+        for thread in self._threads:
+            thread.start()
 
-    def _boot_all(self) -> None:
+    def _boot(self, indices: list[int]) -> None:
         try:
-            for index, modules in enumerate(self._parts):
-                self._results[index] = boot(cancelled=self._cancelled, modules=modules)
+            for index in indices:
+                self._results[index] = boot(cancelled=self._cancelled, modules=self._parts[index])
         except BaseException as exc:  # noqa: BLE001 - handed to the thread that asks for the result
-            self._error = exc  # the guests after it are not booted: one guest's result alone would not do
+            with self._lock:
+                self._first_error = self._first_error or exc
+            self._cancelled.set()  # the other guests' results alone would not do
 
     def result(self) -> dict:
         """The guests' merged JSON once both are done (:func:`merge_results`); raises what a
         :func:`boot` raised."""
-        self._thread.join()
-        if self._error is not None:
-            raise self._error
+        for thread in self._threads:
+            thread.join()
+        if self._first_error is not None:
+            raise self._first_error
         return merge_results([r for r in self._results if r is not None])
 
     @property
@@ -513,17 +523,19 @@ class BackgroundBoot:
     def cancel(self) -> None:
         """Stop qemu if it still runs (the session ended before any test asked for the result)."""
         self._cancelled.set()
-        self._thread.join(timeout=30)
+        for thread in self._threads:
+            thread.join(timeout=30)
 
 
 _background: BackgroundBoot | None = None
 
 
-def start_background_boot() -> None:
-    """Start the one boot of this process now, in the background (:class:`BackgroundBoot`)."""
+def start_background_boot(side_by_side: bool = False) -> None:
+    """Start the one boot of this process now, in the background (:class:`BackgroundBoot`: the
+    guests one after the other, or ``side_by_side``)."""
     global _background
     if _background is None:
-        _background = BackgroundBoot()
+        _background = BackgroundBoot(side_by_side)
 
 
 def boot_summary() -> str | None:
@@ -570,4 +582,4 @@ def guest_results() -> dict:
     background ones' when they were started, else both booted now; later calls get the same dict.
 
     Raises KernelUnavailable (tests skip with its message) or RuntimeError (tests fail)."""
-    return (_background if _background is not None else BackgroundBoot()).result()
+    return (_background if _background is not None else BackgroundBoot(side_by_side=True)).result()
