@@ -294,8 +294,8 @@ def compile_guest_numba_cache(folder: Path) -> None:
 
 
 #: How long a guest may take to start ``guest.py`` (the :data:`GUEST_STARTED` file it writes first
-#: in the shared folder): about 20 s on an idle host, a few minutes beside the other guest and the
-#: host's tests. A guest that has not started it by then is stuck in the kernel's boot or in
+#: in the shared folder): about 20 s on an idle host, a few minutes beside the host's tests or the
+#: other guest. A guest that has not started it by then is stuck in the kernel's boot or in
 #: virtme-ng's init, before any of the project's code runs: it is stopped and booted once more.
 GUEST_START_TIMEOUT_S = 600
 #: The file ``guest.py`` writes into the shared folder before anything else.
