@@ -1,8 +1,8 @@
 """Shared fixtures: the real-kernel boots of a test session (tests/kernel/vm.py: two guests one
-after the other, their results merged), a user config folder in tmp for every other test, ``cli``: the
-profile commands run in this process, and the recordings many test modules read: each simulated
-once per session, the real street recording where it is, and a simulated street for a clone
-without it (../shared).
+after the other, their results merged), a user config folder in tmp for every other test,
+``cli``: the profile commands run in this process, and the recordings many test modules read:
+each simulated once per session, the real street recording where it is, and a simulated street
+for a clone without it (../shared).
 
 The boots start in the background as soon as the tests are collected, when any test needs them,
 and the tests that need them run last: the host's tests run while the guests boot and check."""

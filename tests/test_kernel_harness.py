@@ -88,7 +88,7 @@ def test_the_guests_boot_one_after_the_other_beside_the_hosts_tests_and_side_by_
 
 
 def test_a_guest_that_fails_fails_the_result_and_boots_no_other(monkeypatch):
-    at_once, booted = _booted(monkeypatch, [("checks_a",), ("checks_b",)], fail="checks_a")
+    _, booted = _booted(monkeypatch, [("checks_a",), ("checks_b",)], fail="checks_a")
     with pytest.raises(RuntimeError, match="checks_a wrote no result"):
         vm.BackgroundBoot().result()
     assert booted == ["checks_a"]
