@@ -6,6 +6,7 @@ independent source), not from this code.
 
 from __future__ import annotations
 
+import itertools
 import json
 import shutil
 from pathlib import Path
@@ -372,3 +373,65 @@ def test_a_batch_cut_follows_a_rest_s_windows_and_a_stream_cuts_again_at_the_bas
     # no batch spans a 1 ms boundary any more (the window ends' cuts stay)
     assert all(int(b["timestamp"][0]) // 1000 == int(b["timestamp"][-1]) // 1000 for b in again)
     assert cut.longer_until_us == 29_500  # until a batch past it comes
+
+
+def test_read_ahead_reads_in_bursts_only_while_the_gel_rests_and_keeps_every_item_and_error():
+    """``read_ahead``: one item a read outside a rest; while the cut says the gel rests, the next
+    items at once up to the span (us) or the bytes; the same items in the same order; an error
+    met in a burst raised after the items read before it."""
+    from neurotouch_hid.sources.recording import BatchCut, item_span, read_ahead
+
+    def batch(t_us: int, n: int = 4) -> np.ndarray:
+        events = np.zeros(n, EVENT_DTYPE)
+        events["timestamp"] = t_us + np.arange(n)
+        return events
+
+    items = [batch(t) if t % 40_000 else Frame(t, np.zeros((260, 346), np.uint8)) for t in range(0, 400_000, 10_000)]
+    pulled: list[int] = []
+
+    def source(fail_at: int | None = None):
+        for k, item in enumerate(items):
+            if k == fail_at:
+                raise RecordingError("damaged packet")
+            pulled.append(k)
+            yield item
+
+    cut = BatchCut(1000)
+    stream = read_ahead(source(), cut, item_span, span_us=50_000)
+    got = [next(stream), next(stream)]
+    assert len(pulled) == 2  # not resting: one at a time
+    cut.follow((20_000, 10_000), 1000)
+    got.append(next(stream))
+    assert len(pulled) == 2 + 6  # items at 20 .. 70 ms: the last one 50 ms past the burst's first
+    got.append(next(stream))
+    assert len(pulled) == 8
+    cut.follow(None)
+    got += list(stream)
+    assert len(got) == len(items) and all(a is b for a, b in zip(got, items))
+
+    cut.follow((20_000, 10_000), 1000)  # bounded by bytes: two APS frames' pixels
+    pulled.clear()
+    stream = read_ahead(source(), cut, item_span, max_bytes=2 * 260 * 346)
+    next(stream)
+    assert len(pulled) == 5  # frame, 3 batches, frame
+
+    pulled.clear()
+    stream = read_ahead(source(fail_at=3), cut, item_span)
+    assert all(next(stream) is item for item in items[:3])  # read in the burst that failed
+    assert pulled == [0, 1, 2]
+    with pytest.raises(RecordingError, match="damaged packet"):
+        next(stream)
+
+    closed = []
+
+    def endless():
+        try:
+            yield from itertools.cycle(items)
+        finally:
+            closed.append(True)
+
+    source_ = endless()  # held here too: collected, it would close anyway
+    stream = read_ahead(source_, cut, item_span)
+    next(stream)
+    stream.close()
+    assert closed == [True]  # the source's own finally, at once

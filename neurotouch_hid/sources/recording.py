@@ -30,7 +30,7 @@ import threading
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Iterable, Iterator, TypeVar
+from typing import TYPE_CHECKING, Callable, Iterable, Iterator, TypeVar
 
 import numpy as np
 
@@ -80,6 +80,11 @@ MIN_INFLATE_BUDGET = 1 << 30
 DISK_RESERVE_BYTES = 4 << 20
 #: The index table's bytes per packet (an offset, a size and two timestamps, with framing).
 TABLE_BYTES_PER_PACKET = 64
+#: While the gel rests, a paced source reads this far ahead (us of camera time) in one go
+#: (:func:`read_ahead`): 5 APS frame periods.
+REST_READ_AHEAD_US = 200_000
+#: The most one read ahead holds (bytes of events and APS frames' pixels).
+REST_READ_AHEAD_BYTES = 4 << 20
 
 
 @dataclass(frozen=True)
@@ -156,6 +161,11 @@ class BatchCut:
         at the base length outside a rest (None)."""
         self.value = (self.base_us, 0) if rest is None else (rest[1], (rest[0] + after_us) % rest[1])
 
+    @property
+    def resting(self) -> bool:
+        """Whether batches are cut once a window of a rest now (:meth:`follow`)."""
+        return self.value[0] != self.base_us
+
     def index(self, ts: np.ndarray) -> np.ndarray:
         """(N,) int64: the batch each timestamp of ``ts`` ((N,) int64 us) falls in."""
         length_us, phase_us = self.value
@@ -189,6 +199,87 @@ class CuttingStream(WrappedStream):
             return item
         self._parts.extend(split_batches(item, cut.base_us))
         return self._parts.popleft()
+
+
+def read_ahead(
+    items: Iterable[_Item],
+    cut: BatchCut,
+    span_of: Callable[[_Item], tuple[int, int] | None],
+    *,
+    span_us: int = REST_READ_AHEAD_US,
+    max_bytes: int = REST_READ_AHEAD_BYTES,
+) -> Iterator[_Item]:
+    """``items`` in the same order, read in bursts while the gel rests.
+
+    Whenever none is left over and ``cut`` says the gel rests (:attr:`BatchCut.resting`), the
+    next items are read at once until they span ``span_us`` (us of camera time) or hold
+    ``max_bytes``; otherwise one at a time. A paced source waits between windows, and what it
+    reads after a wait runs on a cold core, several times its cost back to back (an AEDAT4
+    packet's decoding 340 against 80 us, docs/performance.md, "At rest"): read in a burst, the
+    items after the first are read hot. The items are handed on as paced as before.
+
+    Args:
+        items: the source's items (an AEDAT4 file's event arrays and APS frames, a simulation's
+            frame periods), in time order.
+        cut: the source's :class:`BatchCut`, which the runtime sets while the gel rests.
+        span_of: an item's (first timestamp in us, bytes it holds), or None for an item without
+            time (read on with the others).
+        span_us, max_bytes: a burst's bounds: it ends with the first item that starts
+            ``span_us`` or more after its first one, or brings what it holds to ``max_bytes``.
+    Yields:
+        the items; an error raised while reading a burst is raised once the items read before it
+        are yielded. Closing this closes ``items``.
+    """
+    source = iter(items)
+    ahead: collections.deque = collections.deque()
+    try:
+        while True:
+            if not ahead:
+                try:
+                    ahead.append(next(source))
+                    if cut.resting:
+                        first = None
+                        held = 0
+                        while True:
+                            span = span_of(ahead[-1])
+                            if span is not None:
+                                first = span[0] if first is None else first
+                                held += span[1]
+                                if span[0] - first >= span_us or held >= max_bytes:
+                                    break
+                            ahead.append(next(source))
+                except StopIteration:
+                    if not ahead:
+                        return
+                except BaseException as exc:
+                    if not ahead:
+                        raise
+                    ahead.append(_Raised(exc))
+            item = ahead.popleft()
+            if type(item) is _Raised:
+                raise item.exc
+            yield item
+    finally:
+        close = getattr(source, "close", None)
+        if close is not None:
+            close()  # the source's own ``finally`` now, not when collected
+
+
+@dataclass(frozen=True)
+class _Raised:
+    """An error met in a burst of :func:`read_ahead`, raised after the items read before it."""
+
+    exc: BaseException
+
+
+def item_span(item: object) -> tuple[int, int] | None:
+    """A stream item's first timestamp (us) and the bytes it holds (an event batch's, an APS
+    frame's pixels), None for any other item (:func:`read_ahead`'s ``span_of``)."""
+    if type(item) is np.ndarray:
+        return (int(item["timestamp"][0]), item.nbytes) if len(item) else None
+    if type(item) is Frame:
+        return item.t_us, item.image.nbytes
+    return None
 
 
 def _cut_of(batch: int | BatchCut) -> BatchCut:
