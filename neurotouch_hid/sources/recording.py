@@ -219,8 +219,8 @@ def read_ahead(
     items after the first are read hot. The items are handed on as paced as before.
 
     Args:
-        items: the source's items (an AEDAT4 file's event arrays and APS frames, a simulation's
-            frame periods), in time order.
+        items: a source's stream items (event batches, APS frames, a simulation's labels), in
+            time order.
         cut: the source's :class:`BatchCut`, which the runtime sets while the gel rests.
         span_of: an item's (first timestamp in us, bytes it holds), or None for an item without
             time (read on with the others).
@@ -251,7 +251,7 @@ def read_ahead(
                 except StopIteration:
                     if not ahead:
                         return
-                except BaseException as exc:
+                except Exception as exc:  # (an interrupt is not held back)
                     if not ahead:
                         raise
                     ahead.append(_Raised(exc))
@@ -269,7 +269,7 @@ def read_ahead(
 class _Raised:
     """An error met in a burst of :func:`read_ahead`, raised after the items read before it."""
 
-    exc: BaseException
+    exc: Exception
 
 
 def item_span(item: object) -> tuple[int, int] | None:
