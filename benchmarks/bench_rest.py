@@ -182,14 +182,14 @@ def run_sim(seconds: float) -> None:
     from neurotouch_hid.output.jsonl import StateJsonlWriter
     from neurotouch_hid.runtime import Runtime
     from neurotouch_hid.sensor import SensorGeometry
-    from neurotouch_hid.sources.recording import BatchCut, CuttingStream, item_span, read_ahead
+    from neurotouch_hid.sources.recording import BatchCut, CuttingStream, read_ahead
     from neurotouch_hid.warmup import PIPELINE_OF, SIMULATOR, Warmup
 
     Warmup([SIMULATOR, *PIPELINE_OF["default"]], say=lambda line: None, interpreted=False).start()
     sensor = SensorGeometry()
     pipeline, resting = build_pipeline(sensor, 10_000)
     cut = BatchCut(1000)  # as run --source sim: one batch a window while the gel rests
-    stream = CuttingStream(read_ahead(rest_stream(seconds + 1.0, batch_us=cut), cut, item_span), cut)
+    stream = CuttingStream(read_ahead(rest_stream(seconds + 1.0, batch_us=cut), cut), cut)
     with StateJsonlWriter(os.devnull) as out:
         runtime = Runtime(stream, pipeline, load_profile("default"), [out], resting=resting, waits=True)
         runtime.run(seconds)

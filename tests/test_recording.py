@@ -379,7 +379,7 @@ def test_read_ahead_reads_in_bursts_only_while_the_gel_rests_and_keeps_every_ite
     """``read_ahead``: one item a read outside a rest; while the cut says the gel rests, the next
     items at once up to the span (us) or the bytes; the same items in the same order; an error
     met in a burst raised after the items read before it."""
-    from neurotouch_hid.sources.recording import BatchCut, item_span, read_ahead
+    from neurotouch_hid.sources.recording import BatchCut, read_ahead
 
     def batch(t_us: int, n: int = 4) -> np.ndarray:
         events = np.zeros(n, EVENT_DTYPE)
@@ -397,7 +397,7 @@ def test_read_ahead_reads_in_bursts_only_while_the_gel_rests_and_keeps_every_ite
             yield item
 
     cut = BatchCut(1000)
-    stream = read_ahead(source(), cut, item_span, span_us=50_000)
+    stream = read_ahead(source(), cut, span_us=50_000)
     got = [next(stream), next(stream)]
     assert len(pulled) == 2  # not resting: one at a time
     cut.follow((20_000, 10_000), 1000)
@@ -411,12 +411,12 @@ def test_read_ahead_reads_in_bursts_only_while_the_gel_rests_and_keeps_every_ite
 
     cut.follow((20_000, 10_000), 1000)  # bounded by bytes: two APS frames' pixels
     pulled.clear()
-    stream = read_ahead(source(), cut, item_span, max_bytes=2 * 260 * 346)
+    stream = read_ahead(source(), cut, max_bytes=2 * 260 * 346)
     next(stream)
     assert len(pulled) == 5  # frame, 3 batches, frame
 
     pulled.clear()
-    stream = read_ahead(source(fail_at=3), cut, item_span)
+    stream = read_ahead(source(fail_at=3), cut)
     assert all(next(stream) is item for item in items[:3])  # read in the burst that failed
     assert pulled == [0, 1, 2]
     with pytest.raises(RecordingError, match="damaged packet"):
@@ -431,7 +431,7 @@ def test_read_ahead_reads_in_bursts_only_while_the_gel_rests_and_keeps_every_ite
             closed.append(True)
 
     source_ = endless()  # held here too: collected, it would close anyway
-    stream = read_ahead(source_, cut, item_span)
+    stream = read_ahead(source_, cut)
     next(stream)
     stream.close()
     assert closed == [True]  # the source's own finally, at once

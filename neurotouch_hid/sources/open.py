@@ -110,14 +110,14 @@ def open_source(
         from neurotouch_hid.sources.simulator import SimulatedSource
 
         sim = SimulatedSource(seed=seed) if sensor is None else SimulatedSource(SensorGeometry.load(sensor), seed=seed)
-        from neurotouch_hid.sources.recording import BatchCut, CuttingStream, item_span, read_ahead
+        from neurotouch_hid.sources.recording import BatchCut, CuttingStream, read_ahead
 
         cut = BatchCut(batch_us)
         stream = simulated_items(sim, seconds, cut, labelled=labelled, guard=guard, finish=finish)
-        stream = read_ahead(stream, cut, item_span)  # at rest, frame periods simulated in bursts
+        stream = read_ahead(stream, cut)  # at rest, frame periods simulated in bursts
         return OpenedSource(CuttingStream(stream, cut), sim.sensor, False, labelled=labelled)
     from neurotouch_hid.errors import RecordingError
-    from neurotouch_hid.sources.recording import BatchCut, CuttingStream, RecordingReader, item_span, read_ahead
+    from neurotouch_hid.sources.recording import BatchCut, CuttingStream, RecordingReader, read_ahead
 
     path = Path(spec)
     if not path.is_file():
@@ -126,7 +126,7 @@ def open_source(
         )
     reader = stack.enter_context(RecordingReader(path))
     cut = BatchCut(batch_us)
-    stream = read_ahead(reader.stream(batch_us=cut), cut, item_span)  # at rest, decoded in bursts
+    stream = read_ahead(reader.stream(batch_us=cut), cut)  # at rest, decoded in bursts
     return OpenedSource(CuttingStream(stream, cut), find_sensor_file(path, sensor), False)
 
 

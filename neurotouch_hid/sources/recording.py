@@ -30,7 +30,7 @@ import threading
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Iterable, Iterator, TypeVar
+from typing import TYPE_CHECKING, Iterable, Iterator, TypeVar
 
 import numpy as np
 
@@ -192,7 +192,7 @@ class CuttingStream(WrappedStream):
             return self._parts.popleft()
         item = next(self._items)
         cut = self.batch_cut
-        if cut.longer_until_us < 0 or type(item) is not np.ndarray or cut.value[0] != cut.base_us:
+        if cut.longer_until_us < 0 or type(item) is not np.ndarray or cut.resting:
             return item
         if int(item["timestamp"][0]) > cut.longer_until_us:
             cut.longer_until_us = -1
@@ -202,28 +202,25 @@ class CuttingStream(WrappedStream):
 
 
 def read_ahead(
-    items: Iterable[_Item],
+    items: Iterable[StreamItem],
     cut: BatchCut,
-    span_of: Callable[[_Item], tuple[int, int] | None],
     *,
     span_us: int = REST_READ_AHEAD_US,
     max_bytes: int = REST_READ_AHEAD_BYTES,
-) -> Iterator[_Item]:
+) -> Iterator[StreamItem]:
     """``items`` in the same order, read in bursts while the gel rests.
 
     Whenever none is left over and ``cut`` says the gel rests (:attr:`BatchCut.resting`), the
     next items are read at once until they span ``span_us`` (us of camera time) or hold
-    ``max_bytes``; otherwise one at a time. A paced source waits between windows, and what it
-    reads after a wait runs on a cold core, several times its cost back to back (an AEDAT4
-    packet's decoding 340 against 80 us, docs/performance.md, "At rest"): read in a burst, the
-    items after the first are read hot. The items are handed on as paced as before.
+    ``max_bytes`` (:func:`item_span`); otherwise one at a time. A paced source waits between
+    windows, and what it reads after a wait runs on a cold core, several times its cost back to
+    back (an AEDAT4 packet's decoding 340 against 80 us, docs/performance.md, "At rest"): read in
+    a burst, the items after the first are read hot. The items are handed on as paced as before.
 
     Args:
         items: a source's stream items (event batches, APS frames, a simulation's labels), in
             time order.
         cut: the source's :class:`BatchCut`, which the runtime sets while the gel rests.
-        span_of: an item's (first timestamp in us, bytes it holds), or None for an item without
-            time (read on with the others).
         span_us, max_bytes: a burst's bounds: it ends with the first item that starts
             ``span_us`` or more after its first one, or brings what it holds to ``max_bytes``.
     Yields:
@@ -232,16 +229,19 @@ def read_ahead(
     """
     source = iter(items)
     ahead: collections.deque = collections.deque()
+    failed: Exception | None = None  # met in the last burst, raised once its items are yielded
     try:
         while True:
             if not ahead:
+                if failed is not None:
+                    raise failed
                 try:
                     ahead.append(next(source))
                     if cut.resting:
                         first = None
                         held = 0
                         while True:
-                            span = span_of(ahead[-1])
+                            span = item_span(ahead[-1])
                             if span is not None:
                                 first = span[0] if first is None else first
                                 held += span[1]
@@ -254,27 +254,17 @@ def read_ahead(
                 except Exception as exc:  # (an interrupt is not held back)
                     if not ahead:
                         raise
-                    ahead.append(_Raised(exc))
-            item = ahead.popleft()
-            if type(item) is _Raised:
-                raise item.exc
-            yield item
+                    failed = exc
+            yield ahead.popleft()
     finally:
         close = getattr(source, "close", None)
         if close is not None:
             close()  # the source's own ``finally`` now, not when collected
 
 
-@dataclass(frozen=True)
-class _Raised:
-    """An error met in a burst of :func:`read_ahead`, raised after the items read before it."""
-
-    exc: Exception
-
-
 def item_span(item: object) -> tuple[int, int] | None:
     """A stream item's first timestamp (us) and the bytes it holds (an event batch's, an APS
-    frame's pixels), None for any other item (:func:`read_ahead`'s ``span_of``)."""
+    frame's pixels), None for any other item (a burst's bounds in :func:`read_ahead`)."""
     if type(item) is np.ndarray:
         return (int(item["timestamp"][0]), item.nbytes) if len(item) else None
     if type(item) is Frame:
