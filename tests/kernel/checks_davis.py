@@ -21,8 +21,10 @@ numpy's AVX2 code is turned off (NUMPY_GUEST_ENV: qemu's emulated AVX2 crashed `
 ``np.argsort``).
 
 The guest is emulated and slow: the gadget replays the recording's first 0.55 s (the gel at rest)
-in a loop with one APS frame per pass (``--to-s 0.55 --frame-every 14``), and each command is one
-Python process (tens of seconds to start here). Run by tests/kernel/guest.py; asserted on by
+in a loop with one APS frame per pass (``--to-s 0.55 --frame-every 14``). A Python start takes
+tens of seconds here, so ``devices`` and ``record`` run by the CLI's ``main`` in this process
+(``guestlib.cli_in_process``); the commands that run the gesture pipeline are each a process of
+their own (numba's and numpy's settings for the guest, :func:`_env`). Run by tests/kernel/guest.py; asserted on by
 tests/test_davis_kernel.py.
 """
 
@@ -177,6 +179,13 @@ def _env(cache_log: bool = False) -> dict:
     )
 
 
+def _command_env() -> dict[str, str]:
+    """What :func:`_env` sets that a command run in this process (``guestlib.cli_in_process``)
+    can take: numba's and numpy's settings are read when they are imported, so a command that
+    runs the pipeline is a process of its own."""
+    return {"HOME": "/tmp", "COLUMNS": "200", "XDG_CONFIG_HOME": "/tmp/davis-config"}
+
+
 def _compiled_in_guest(cache_log: str) -> list[str]:
     """numba's cache log (``_env(cache_log=True)``): the functions compiled here, not loaded."""
     return sorted({line.rsplit("/", 1)[-1].rstrip("'") for line in cache_log.splitlines() if "data saved to" in line})
@@ -233,9 +242,9 @@ def _descriptors(camera: EmulatedCamera) -> dict:
 def _devices(camera: EmulatedCamera) -> dict:
     """``neurotouch-hid devices --json`` as root: the emulated camera is present, accessible and ready, and
     dv-processing lists it."""
-    proc = _run([CLI, "devices", "--json"])
-    data = json.loads(proc.stdout)
-    assert proc.returncode == 0 and data["ready"] == 1, data
+    code, out, _ = guestlib.cli_in_process("devices", "--json", env=_command_env())
+    data = json.loads(out)
+    assert code == 0 and data["ready"] == 1, data
     (cam,) = data["cameras"]
     assert cam["status"] == "ready" and cam["dv"]["model"] == "DAVIS" and cam["dv"]["firmware"] == 6, cam
     assert cam["usb"]["access"] == "ok" and cam["usb"]["reason"] == "" and cam["serial"] == "00000001", cam
@@ -315,8 +324,10 @@ def _record(camera: EmulatedCamera) -> dict:
 
     out = Path("/tmp/davis-record.aedat4")
     out.unlink(missing_ok=True)
-    proc = _run([CLI, "record", "--source", "davis", "--seconds", "3", str(out)])
-    assert proc.returncode == 0 and out.exists(), f"exit {proc.returncode}: {proc.stderr[-2000:]}"
+    code, said, err = guestlib.cli_in_process(
+        "record", "--source", "davis", "--seconds", "3", str(out), env=_command_env()
+    )
+    assert code == 0 and out.exists(), f"exit {code}: {said[-1000:]}{err[-2000:]}"
     with RecordingReader(replay_path()) as src, RecordingReader(out) as rec:
         source, recorded = src.read_all(), rec.read_all()
     period = re.search(r"looped every (\d+) us", camera.log())
@@ -328,10 +339,10 @@ def _record(camera: EmulatedCamera) -> dict:
     # guest starved by a loaded host reads slower than the camera sends and dv-processing's queue
     # drops what it cannot hold (41 % of the span has arrived under load). How much of the span
     # arrives is the host's load, not record's: reported, not asserted
-    assert match["recorded_events"] == match["sent_outside_holes"], f"{match} {proc.stderr[-800:]}"
+    assert match["recorded_events"] == match["sent_outside_holes"], f"{match} {err[-800:]}"
     # one frame per 0.55 s pass: every recorded frame is a replayed one, pixel for pixel
     assert match["recorded_frames"] >= 1 and all(d == 0 for d in match["frame_max_diff"]), match
-    return {**match, "stderr": proc.stderr[-500:]}
+    return {**match, "said": said[-500:], "stderr": err[-500:]}
 
 
 def _calibrate(camera: EmulatedCamera) -> dict:

@@ -2,14 +2,15 @@
 
 The camera is the emulated one of checks_packaging.py (dummy_hcd + a configfs gadget with the
 DAVIS-346's ids 152a:841a; it speaks the kernel's SourceSink test protocol, not the DAVIS one).
-The camera is plugged in once, and the command runs as a separate process, as a user would run
-it, with a timeout, as the unprivileged user nobody (present but not accessible: the udev-rule
-fix). While this process holds the camera's interface, the discovery finds it busy, and who holds
-it. What dv-processing makes of a device with the camera's ids that is no DAVIS, asked to open
-it, is recorded. ``devices`` as root on a camera that dv-processing opens is checked on the
-emulated DAVIS-346 (checks_davis.py, part "devices"). Under software emulation every Python
-process takes tens of seconds to start, so there are only two; each part's verdict is kept on its
-own.
+The camera is plugged in once, and the command runs as a process of its own, with a timeout, as
+the unprivileged user nobody (present but not accessible: the udev-rule fix). While this process
+holds the camera's interface, the discovery finds it busy, and who holds it. What dv-processing
+makes of a device with the camera's ids that is no DAVIS, asked to open it, is recorded, in a
+process of its own too. ``devices`` as root on a camera that dv-processing opens is checked on the
+emulated DAVIS-346 (checks_davis.py, part "devices"). Under software emulation every Python start
+takes tens of seconds, so those processes are forks of this one (``guestlib.forked``): this
+process never opens a USB context itself, which a fork could not share. Each part's verdict is
+kept on its own.
 Run by tests/kernel/guest.py; asserted on by tests/test_kernel.py.
 """
 
@@ -18,7 +19,6 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -26,51 +26,36 @@ import guestlib
 from checks_packaging import _plug_camera, _unplug_camera
 
 TIMEOUT_S = 600
-#: Per command: python and dv-processing take ~20 s to start under software emulation, minutes on
-#: a loaded host.
+#: Per command: dv-processing takes ~10 s to import under software emulation, minutes on a loaded
+#: host.
 COMMAND_TIMEOUT_S = 300
-CLI = str(Path(sys.executable).parent / "neurotouch-hid")
-NOBODY = ("setpriv", "--reuid=65534", "--regid=65534", "--clear-groups")
+#: The environment of each command's process.
+COMMAND_ENV = {"HOME": "/tmp", "COLUMNS": "200"}
 RULES = Path("/run/udev/rules.d/60-neurotouch.rules")  # where guest.py's setup installs them
-#: What dv-processing says when it is asked to open the emulated camera, through explain_no_camera.
-OPEN = """
-import dv_processing as dv
-from neurotouch_hid.sources.discovery import explain_no_camera
-from neurotouch_hid.sources.dv import DV_ERRORS, dv_error_text
-found = dv.io.camera.discover()
-try:
-    camera = dv.io.camera.open(found[0])
-    print("OPENED", camera.getCameraName())
-except DV_ERRORS as exc:
-    print("ERROR", dv_error_text(str(exc)))
-    print("EXPLAIN", explain_no_camera(error=dv_error_text(str(exc))))
-"""
 
 
-def _run(cmd: list[str], as_nobody: bool = False) -> subprocess.CompletedProcess:
-    prefix = list(NOBODY) if as_nobody else []
-    env = dict(os.environ, HOME="/tmp", COLUMNS="200")
+def _open_first_camera() -> dict[str, str]:
+    """What dv-processing says when it is asked to open the first camera it finds (the emulated
+    one), through explain_no_camera: ``{"OPENED": name}`` or ``{"ERROR": ..., "EXPLAIN": ...}``."""
+    import dv_processing as dv
+
+    from neurotouch_hid.sources.discovery import explain_no_camera
+    from neurotouch_hid.sources.dv import DV_ERRORS, dv_error_text
+
+    found = dv.io.camera.discover()
     try:
-        return subprocess.run(
-            prefix + cmd,
-            capture_output=True,
-            text=True,
-            timeout=COMMAND_TIMEOUT_S,
-            cwd="/tmp",
-            env=env,
-            stdin=subprocess.DEVNULL,
-        )
-    except subprocess.TimeoutExpired as exc:
-        raise AssertionError(
-            f"{' '.join(cmd)} did not finish in {COMMAND_TIMEOUT_S} s: {exc.stdout!r} {exc.stderr!r}"
-        ) from None
+        camera = dv.io.camera.open(found[0])
+        return {"OPENED": camera.getCameraName()}
+    except DV_ERRORS as exc:
+        return {"ERROR": dv_error_text(str(exc)), "EXPLAIN": explain_no_camera(error=dv_error_text(str(exc)))}
 
 
 @contextlib.contextmanager
 def _python_for_nobody():
-    """Let the user nobody run this Python: when it lives under a /root that others may not
-    traverse (0700, as on the host whose root the guest shares read-only), lay a throw-away overlay
-    over /root for the block and make it 0711."""
+    """Let the user nobody read this Python's files (a child forked as nobody imports what this
+    process has not imported yet): when it lives under a /root that others may not traverse (0700,
+    as on the host whose root the guest shares read-only), lay a throw-away overlay over /root for
+    the block and make it 0711."""
     root = Path("/root")
     if not str(Path(sys.executable).resolve()).startswith("/root/") or root.stat().st_mode & 0o001:
         yield
@@ -101,13 +86,18 @@ def _python_for_nobody():
 
 
 def _devices_json(as_nobody: bool = False) -> tuple[int, dict]:
-    proc = _run([CLI, "devices", "--json"], as_nobody)
+    """``neurotouch-hid devices --json`` in a process of its own (as nobody when ``as_nobody``):
+    its exit code and JSON."""
+    code, out, err = guestlib.forked(
+        lambda: guestlib.cli_in_process("devices", "--json"),
+        as_nobody=as_nobody,
+        env=COMMAND_ENV,
+        timeout_s=COMMAND_TIMEOUT_S,
+    )
     try:
-        return proc.returncode, json.loads(proc.stdout)
+        return code, json.loads(out)
     except ValueError:
-        raise AssertionError(
-            f"devices --json printed no JSON (exit {proc.returncode}): {proc.stdout[-2000:]}\n{proc.stderr[-2000:]}"
-        ) from None
+        raise AssertionError(f"devices --json printed no JSON (exit {code}): {out[-2000:]}\n{err[-2000:]}") from None
 
 
 def _node(sysdev: str) -> tuple[int, int, str]:
@@ -126,9 +116,8 @@ def _only_camera(data: dict, node: str) -> dict:
 def _dv_open(bus: int, address: int, node: str) -> dict:
     """dv-processing asked to open the emulated camera (it is no DAVIS: it refuses it) and the line
     explain_no_camera(error=...) makes of its error; in a process of its own, with a timeout."""
-    opened = _run([sys.executable, "-c", OPEN])
-    lines = {line.split(" ", 1)[0]: line.split(" ", 1)[-1] for line in opened.stdout.splitlines() if line}
-    assert opened.returncode == 0 and ("OPENED" in lines or "EXPLAIN" in lines), opened.stdout + opened.stderr
+    lines = guestlib.forked(_open_first_camera, env=COMMAND_ENV, timeout_s=COMMAND_TIMEOUT_S)
+    assert "OPENED" in lines or "EXPLAIN" in lines, lines
     if "EXPLAIN" in lines:
         assert lines["EXPLAIN"].startswith(f"DAVIS-346 at bus {bus} device {address} ({node})"), lines
         assert f"opening it failed: {lines['ERROR']}" in lines["EXPLAIN"], lines

@@ -55,10 +55,11 @@ def udev_info(devnode: str) -> str:
     return sh(["udevadm", "info", f"--name={devnode}"]).stdout
 
 
-def cli_in_process(*args: str) -> tuple[int, str, str]:
+def cli_in_process(*args: str, env: dict[str, str] | None = None) -> tuple[int, str, str]:
     """``neurotouch-hid ARGS`` run by the CLI's own ``main`` in this process: (exit code, stdout,
-    stderr). No Python start, which costs tens of seconds under emulation; a check that is about
-    the process itself (its signals, its exit, the devices it leaves) starts a real one instead."""
+    stderr), with ``env``'s variables set in ``os.environ`` for the call. No Python start, which
+    costs tens of seconds under emulation; a check that is about the process itself (its signals,
+    its exit, the devices it leaves) starts a real one instead."""
     import contextlib
     import io
 
@@ -66,6 +67,8 @@ def cli_in_process(*args: str) -> tuple[int, str, str]:
 
     out, err = io.StringIO(), io.StringIO()
     argv, sys.argv = sys.argv, ["neurotouch-hid", *args]
+    saved = {name: os.environ.get(name) for name in env or {}}
+    os.environ.update(env or {})
     try:
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
             try:
@@ -75,7 +78,70 @@ def cli_in_process(*args: str) -> tuple[int, str, str]:
                 code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
     finally:
         sys.argv = argv
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
     return code, out.getvalue(), err.getvalue()
+
+
+#: The user and group nobody (Debian's 65534).
+NOBODY = 65534
+
+
+def forked(func, *, as_nobody: bool = False, env: dict[str, str] | None = None, timeout_s: float = 300.0) -> dict:
+    """``func()`` in a forked child of this process, as a process of its own (its own pid, its own
+    user when ``as_nobody``: groups dropped, gid and uid 65534) without a Python start, which costs
+    tens of seconds under emulation: the child has what this process imported. ``env`` is set in
+    the child's ``os.environ`` first. Returns what ``func`` returned (JSON-able). Raises
+    AssertionError with the child's error when it raised, exited without an answer or did not
+    answer within ``timeout_s`` (it is killed then). The child must not need a library this
+    process has already started threads or a USB context in (libusb is not fork-safe)."""
+    import json
+    import traceback
+
+    read_fd, write_fd = os.pipe()
+    child = os.fork()
+    if child == 0:
+        try:
+            os.close(read_fd)
+            os.environ.update(env or {})
+            if as_nobody:
+                os.setgroups([])
+                os.setgid(NOBODY)
+                os.setuid(NOBODY)
+            try:
+                answer = {"ok": True, "value": func()}
+            except BaseException as exc:  # noqa: BLE001 - handed to the parent
+                answer = {"ok": False, "error": f"{type(exc).__name__}: {exc}\n{traceback.format_exc()[-3000:]}"}
+            data = json.dumps(answer, default=str).encode()
+            while data:
+                data = data[os.write(write_fd, data) :]
+        finally:
+            os._exit(0)
+    os.close(write_fd)
+    chunks: list[bytes] = []
+    end = time.monotonic() + timeout_s
+    try:
+        while True:
+            left = end - time.monotonic()
+            if left <= 0 or not select.select([read_fd], [], [], left)[0]:
+                os.kill(child, 9)
+                raise AssertionError(f"{getattr(func, '__name__', func)} did not answer in {timeout_s:.0f} s")
+            chunk = os.read(read_fd, 65536)
+            if not chunk:
+                break
+            chunks.append(chunk)
+    finally:
+        os.close(read_fd)
+        os.waitpid(child, 0)
+    if not chunks:
+        raise AssertionError(f"{getattr(func, '__name__', func)}'s process ended without an answer")
+    answer = json.loads(b"".join(chunks))
+    if not answer["ok"]:
+        raise AssertionError(answer["error"])
+    return answer["value"]
 
 
 def wait_for(predicate, timeout_s: float = 10.0, interval_s: float = 0.05):
