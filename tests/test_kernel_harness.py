@@ -1,5 +1,6 @@
 """The real-kernel harness's own bookkeeping (tests/kernel/vm.py), on the host: which guest runs
-which checks, and when a boot's folder is kept for a look."""
+which checks, and when a boot's folder is kept for a look; and the guest checks' forked commands
+(tests/kernel/guestlib.py, ``forked``)."""
 
 from __future__ import annotations
 
@@ -246,3 +247,49 @@ def test_a_killed_test_process_leaves_no_guest_running(fake_vng, monkeypatch, tm
         booting.wait()
         with contextlib.suppress(ProcessLookupError, ValueError):
             os.killpg(int(fake_vng.read_text().split()[0]), signal.SIGKILL)
+
+
+def _own_ids() -> dict:
+    return {
+        "pid": os.getpid(),
+        "uid": os.getuid(),
+        "gid": os.getgid(),
+        "groups": os.getgroups(),
+        "env": os.environ["X_K"],
+    }
+
+
+def _fails() -> None:
+    raise ValueError("the child's own error")
+
+
+def test_a_forked_command_is_a_process_of_its_own_with_its_env_and_answers_or_raises():
+    from kernel import guestlib
+
+    ids = guestlib.forked(_own_ids, env={"X_K": "set in the child"})
+    assert ids["pid"] != os.getpid() and ids["env"] == "set in the child"
+    assert "X_K" not in os.environ
+    with pytest.raises(AssertionError, match="ValueError: the child's own error"):
+        guestlib.forked(_fails)
+
+
+def test_a_forked_command_that_hangs_is_killed_at_its_timeout():
+    from kernel import guestlib
+
+    began = time.monotonic()
+    with pytest.raises(AssertionError, match="did not answer in 1 s"):
+        guestlib.forked(lambda: time.sleep(60), timeout_s=1.0)
+    assert time.monotonic() - began < 30  # killed and reaped, not waited for
+
+
+def test_a_forked_command_as_nobody_runs_as_uid_and_gid_65534_without_groups():
+    """As root (the guest): the child is nobody. As another user the child cannot become nobody,
+    and says why instead of running as that user."""
+    from kernel import guestlib
+
+    if os.geteuid() != 0:
+        with pytest.raises(AssertionError, match="PermissionError"):
+            guestlib.forked(_own_ids, as_nobody=True, env={"X_K": "x"})
+        return
+    ids = guestlib.forked(_own_ids, as_nobody=True, env={"X_K": "x"})
+    assert (ids["uid"], ids["gid"], ids["groups"]) == (65534, 65534, [])
