@@ -54,6 +54,22 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     cancel_background_boot()  # an interrupted or -x session leaves no qemu behind
 
 
+@pytest.fixture(scope="session", autouse=True)
+def started_early(request):
+    """Work some test modules start at the session's start, in the background, for their tests to
+    take later: each module among the session's tests that defines ``start_early(request)`` (given
+    this fixture's request, for session fixtures) has it called once, before the first test, and
+    its ``stop_early()`` at the session's end (what its tests did not take: a ``-x`` or ``-k``
+    session stops it). A module's own fixture waits for what it started, or starts it then when it
+    was not started early (the module run alone still starts it at once)."""
+    modules = list(dict.fromkeys(item.module for item in request.session.items if hasattr(item, "module")))
+    starters = [m for m in modules if hasattr(m, "start_early")]
+    for module in starters:
+        request.addfinalizer(module.stop_early)
+        module.start_early(request)
+    yield
+
+
 @pytest.fixture(autouse=True)
 def user_config_in_tmp(request, tmp_path, monkeypatch) -> Path | None:
     """Every test's user config folder (profiles, calibrated sensor.yaml) is an empty folder in

@@ -47,9 +47,9 @@ def _namespaces_work() -> str | None:
 pytestmark = pytest.mark.skipif(_namespaces_work() is not None, reason=str(_namespaces_work()))
 
 
-def start_read_only(tmp_path: Path, *args: str, env: dict[str, str]) -> subprocess.Popen:
+def start_read_only(tmp_path: Path, *args: str, env: dict[str, str], nice: int = 0) -> subprocess.Popen:
     """``python -m neurotouch_hid.cli ARGS`` started with the package, sys.prefix and HOME mounted
-    read-only (text pipes for stdout and stderr)."""
+    read-only (text pipes for stdout and stderr), at niceness ``nice`` (0: as this process)."""
     home = tmp_path / "home"
     home.mkdir(exist_ok=True)
     read_only = [
@@ -64,7 +64,7 @@ def start_read_only(tmp_path: Path, *args: str, env: dict[str, str]) -> subproce
     command = " ".join(shlex.quote(a) for a in (sys.executable, "-m", "neurotouch_hid.cli", *args))
     full_env = {"PATH": "/usr/bin:/bin", "HOME": str(home), "LANG": "C.UTF-8", **env}
     return subprocess.Popen(
-        ["unshare", "-rm", "sh", "-c", f"{mounts} && exec {command}"],
+        [*(["nice", "-n", str(nice)] if nice else []), "unshare", "-rm", "sh", "-c", f"{mounts} && exec {command}"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -89,45 +89,80 @@ def run_read_only(tmp_path: Path, *args: str, env: dict[str, str]) -> subprocess
     return finish(start_read_only(tmp_path, *args, env=env))
 
 
-@pytest.fixture(scope="module")
-def first_compiles(tmp_path_factory, sim_gel_short_recording):
-    """The two tests' compiles from nothing, started together (each ~35 s of one core, so the
-    pair takes the time of one on two cores): ``run`` with no writable folder (compiles in
-    memory), and ``track`` with a writable $XDG_RUNTIME_DIR (compiles into it). Each test waits
-    for its own and goes on from there; both are killed if a test never took its own."""
-    recording = str(sim_gel_short_recording)
+#: The two compiles from nothing, once started: (folder, process) by name.
+_compiles: dict[str, tuple[Path, subprocess.Popen]] = {}
+#: Their niceness when started at the session's start: they then take the cores the other tests
+#: leave idle (the guests' boots and the host's tests keep them busy until the guests are done).
+EARLY_NICE = 19
+
+
+def _start_compiles(tmp_path_factory, recording: Path, nice: int = 0) -> None:
+    """The two tests' compiles from nothing (each ~40 s of one core), started together: ``run``
+    with no writable folder (compiles in memory), and ``track`` with a writable $XDG_RUNTIME_DIR
+    (compiles into it)."""
     memory = tmp_path_factory.mktemp("memory")
     cached = tmp_path_factory.mktemp("cached")
     runtime = cached / "run-user"
     runtime.mkdir()
-    procs = {
-        "memory": (
+    _compiles["memory"] = (
+        memory,
+        start_read_only(
             memory,
-            start_read_only(
-                memory,
-                "run",
-                "--source",
-                recording,
-                "--output",
-                "jsonl",
-                "--fast",
-                "--out",
-                str(memory / "states.jsonl"),
-                env={},
-            ),
+            "run",
+            "--source",
+            str(recording),
+            "--output",
+            "jsonl",
+            "--fast",
+            "--out",
+            str(memory / "states.jsonl"),
+            env={},
+            nice=nice,
         ),
-        "cached": (
+    )
+    _compiles["cached"] = (
+        cached,
+        start_read_only(
             cached,
-            start_read_only(
-                cached, "track", recording, "--out", str(cached / "pred.jsonl"), env={"XDG_RUNTIME_DIR": str(runtime)}
-            ),
+            "track",
+            str(recording),
+            "--out",
+            str(cached / "pred.jsonl"),
+            env={"XDG_RUNTIME_DIR": str(runtime)},
+            nice=nice,
         ),
-    }
-    yield procs
-    for _, proc in procs.values():
+    )
+
+
+def start_early(request) -> None:
+    """The compiles started at the session's start (conftest.py, ``started_early``), niced: in a
+    whole test run they are done, or nearly, when these tests come."""
+    if _namespaces_work() is None:
+        _start_compiles(
+            request.getfixturevalue("tmp_path_factory"),
+            request.getfixturevalue("sim_gel_short_recording"),
+            nice=EARLY_NICE,
+        )
+
+
+def stop_early() -> None:
+    """Kill the compiles that are still running (their tests never came) and forget them."""
+    for _, proc in _compiles.values():
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+    _compiles.clear()
+
+
+@pytest.fixture(scope="module")
+def first_compiles(tmp_path_factory, sim_gel_short_recording):
+    """The two tests' compiles from nothing (:func:`_start_compiles`), started at the session's
+    start (:func:`start_early`) or now; each test waits for its own and goes on from there; both
+    are killed if a test never took its own."""
+    if not _compiles:
+        _start_compiles(tmp_path_factory, sim_gel_short_recording)
+    yield dict(_compiles)
+    stop_early()
 
 
 def assert_clean(result: subprocess.CompletedProcess) -> None:
