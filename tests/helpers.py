@@ -31,6 +31,14 @@ BENCHMARKS = REPO / "benchmarks"
 
 #: ``neurotouch-hid`` as a command: this interpreter, this tree's package.
 CLI = (sys.executable, "-m", "neurotouch_hid.cli")
+#: The niceness of what a test module starts at the session's start (conftest.py,
+#: ``started_early``): it takes the cores the other tests leave idle.
+EARLY_NICE = 19
+
+
+def niced(command: list[str], nice: int) -> list[str]:
+    """``command`` run at niceness ``nice`` (``nice -n``; 0: unchanged)."""
+    return ["nice", "-n", str(nice), *command] if nice else list(command)
 
 
 def run_cli(

@@ -8,6 +8,7 @@ and a kiosk account, or a service with ProtectSystem=strict and ProtectHome=read
 
 from __future__ import annotations
 
+import functools
 import json
 import shlex
 import shutil
@@ -16,6 +17,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from helpers import EARLY_NICE, niced
 
 import neurotouch_hid
 
@@ -23,6 +25,7 @@ PACKAGE = Path(neurotouch_hid.__file__).resolve().parent
 MEMORY_LINE = "no writable cache folder (package, XDG cache, $XDG_RUNTIME_DIR): numba compiles the pipeline"
 
 
+@functools.cache
 def _namespaces_work() -> str | None:
     if shutil.which("unshare") is None:
         return "util-linux's unshare is not installed"
@@ -64,7 +67,7 @@ def start_read_only(tmp_path: Path, *args: str, env: dict[str, str], nice: int =
     command = " ".join(shlex.quote(a) for a in (sys.executable, "-m", "neurotouch_hid.cli", *args))
     full_env = {"PATH": "/usr/bin:/bin", "HOME": str(home), "LANG": "C.UTF-8", **env}
     return subprocess.Popen(
-        [*(["nice", "-n", str(nice)] if nice else []), "unshare", "-rm", "sh", "-c", f"{mounts} && exec {command}"],
+        niced(["unshare", "-rm", "sh", "-c", f"{mounts} && exec {command}"], nice),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -91,9 +94,6 @@ def run_read_only(tmp_path: Path, *args: str, env: dict[str, str]) -> subprocess
 
 #: The two compiles from nothing, once started: (folder, process) by name.
 _compiles: dict[str, tuple[Path, subprocess.Popen]] = {}
-#: Their niceness when started at the session's start: they then take the cores the other tests
-#: leave idle (the guests' boots and the host's tests keep them busy until the guests are done).
-EARLY_NICE = 19
 
 
 def _start_compiles(tmp_path_factory, recording: Path, nice: int = 0) -> None:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import run_main
+from helpers import EARLY_NICE, niced, run_main
 
 from neurotouch_hid import warmup
 from neurotouch_hid.estimate import GestureEstimate
@@ -88,13 +88,17 @@ def test_a_group_is_cold_until_its_child_compiled_it_into_the_cache(tmp_path):
 _paper_child: list[tuple[Path, subprocess.Popen]] = []
 
 
+def _paper_stderr(cache: Path) -> Path:
+    """Where the paper pipeline's child compiling into ``cache`` writes its stderr: a file, not a
+    pipe, which could fill while nobody reads it."""
+    return cache.parent / f"{cache.name}-stderr.txt"
+
+
 def _start_paper_child(cache: Path, nice: int = 0) -> None:
     """The paper pipeline's group compiled from nothing (~35 s of one core) into ``cache``, by its
     child (``warmup.child_command``), at niceness ``nice``."""
-    command = warmup.child_command(warmup.PAPER_PIPELINE)
-    if nice:
-        command = ["nice", "-n", str(nice), *command]
-    with open(cache.parent / f"{cache.name}-stderr.txt", "w") as stderr:  # no pipe to fill while nobody reads it
+    command = niced(warmup.child_command(warmup.PAPER_PIPELINE), nice)
+    with open(_paper_stderr(cache), "w") as stderr:
         proc = subprocess.Popen(command, env=_env(cache), stdout=subprocess.DEVNULL, stderr=stderr)
     _paper_child.append((cache, proc))
 
@@ -102,7 +106,7 @@ def _start_paper_child(cache: Path, nice: int = 0) -> None:
 def start_early(request) -> None:
     """The paper pipeline's child started at the session's start (conftest.py, ``started_early``),
     niced: in a whole test run it takes the cores the other tests leave idle."""
-    _start_paper_child(request.getfixturevalue("tmp_path_factory").mktemp("paper-cache"), nice=19)
+    _start_paper_child(request.getfixturevalue("tmp_path_factory").mktemp("paper-cache"), nice=EARLY_NICE)
 
 
 def stop_early() -> None:
@@ -125,7 +129,7 @@ def test_the_paper_pipeline_s_child_leaves_no_kernel_of_its_group_cold(tmp_path)
         child.wait(timeout=600)
     finally:
         stop_early()
-    assert child.returncode == 0, (cache.parent / f"{cache.name}-stderr.txt").read_text()
+    assert child.returncode == 0, _paper_stderr(cache).read_text()
     assert subprocess.run(check, env=_env(cache), capture_output=True, text=True).stdout.strip() == "False"
 
 

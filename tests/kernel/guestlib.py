@@ -90,7 +90,7 @@ def cli_in_process(*args: str, env: dict[str, str] | None = None) -> tuple[int, 
 NOBODY = 65534
 
 
-def forked(func, *, as_nobody: bool = False, env: dict[str, str] | None = None, timeout_s: float = 300.0) -> dict:
+def forked(func, *, as_nobody: bool = False, env: dict[str, str] | None = None, timeout_s: float = 300.0) -> object:
     """``func()`` in a forked child of this process, as a process of its own (its own pid, its own
     user when ``as_nobody``: groups dropped, gid and uid 65534) without a Python start, which costs
     tens of seconds under emulation: the child has what this process imported. ``env`` is set in
