@@ -41,6 +41,16 @@ it calls: the reader's next item, the source thread's hand-on of what it held, e
 handling, the pipeline's resting window and its compiled call, the estimate ``none``, the
 resting verdict). The wrappers add a little to each figure.
 
+``--floor``: also what the design at rest costs with nothing around it, in this process: the same
+recording's items as ``--work`` takes them, in real time, one wake-up a window (at its end +
+``runtime.REST_WAKE_AFTER_END_US``, a ``time.sleep`` to that deadline), handing on the items that
+ended before it, in three parts of :data:`FLOOR_PART_S` each after a warm-up: "stages", each
+item through the pipeline (an APS frame's resting verdict first) as ``--work`` does; "compiled",
+only a window's compiled call (``rest_window.rest_batch``) per event batch and the resting verdict
+per APS frame, nothing else; "wake", the wake-ups and the loop over the items, no work. CPU of this
+process per second of each part: the floor under ``run`` at rest, with no reader, no runtime, no
+Python around the compiled call. ``--repeat`` repeats it.
+
 ``--wakes``: also what this machine charges for waking a thread, with no work at all: one thread
 sleeping to a deadline every 10 ms (``threading.Event.wait``, as the paced source waits), and one
 thread waking another every 10 ms through a ``threading.Condition`` (as the source hands a window
@@ -306,6 +316,90 @@ def measure_work(recording: Path, gap_s: float) -> dict[str, float]:
     return out
 
 
+#: Each part of ``--floor`` (s of the recording, in real time).
+FLOOR_PART_S = 10.0
+#: ``--floor``'s parts, in their order.
+FLOOR_PARTS = ("stages", "compiled", "wake")
+
+
+def measure_floor(recording: Path) -> dict[str, float]:
+    """``--floor`` (module docstring): CPU of this process (s per s) in each of
+    :data:`FLOOR_PARTS`, one wake-up a window on ``recording`` (a resting gel's, 10 ms windows)
+    in real time. Raises RuntimeError when a window of it does not rest."""
+    from neurotouch_hid.driver import build_pipeline
+    from neurotouch_hid.pipeline.rest_window import OPEN, RESTING, rest_batch
+    from neurotouch_hid.runtime import REST_WAKE_AFTER_END_US
+    from neurotouch_hid.sensor import SensorGeometry
+    from neurotouch_hid.sources import Frame
+    from neurotouch_hid.warmup import compile_pipeline
+
+    window_us = 10_000
+    compile_pipeline()
+    items = rest_items(recording, window_us)
+    pipeline, resting = build_pipeline(SensorGeometry.load(recording.parent / "sensor.yaml"), window_us)
+    config = pipeline.config
+    moved_sq = config.motion_override_px**2
+
+    def end_of(item) -> int:
+        return int(item.t_us) if isinstance(item, Frame) else int(item["timestamp"][-1])
+
+    def stages(item) -> None:
+        if isinstance(item, Frame):
+            verdict = resting.update(item)
+            if verdict is not None:
+                pipeline.set_resting(verdict, item.t_us)
+        pipeline.process(item)
+
+    def compiled(item) -> None:
+        if isinstance(item, Frame):
+            verdict = resting.update(item)
+            if verdict is not None:
+                pipeline.set_resting(verdict, item.t_us)
+            return
+        end = pipeline._next_end
+        done = rest_batch(
+            item,
+            pipeline.noise_filter,
+            pipeline.tracker,
+            pipeline.rest_px,
+            end,
+            window_us,
+            moved_sq,
+            config.override_min_markers,
+        )
+        if done is None or done[0] not in (OPEN, RESTING):
+            raise RuntimeError(f"{recording}: the window ending at {end} us does not rest")
+        if done[0] == RESTING:
+            pipeline._next_end = end + window_us
+
+    work = {"stages": stages, "compiled": compiled, "wake": None}
+    k, t0_us = 0, end_of(items[0])
+    while end_of(items[k]) < t0_us + 2_000_000:  # the warm-up: the markers found, the rest settled
+        stages(items[k])
+        k += 1
+    first_us = end_of(items[k])
+    wake_us = (first_us // window_us + 1) * window_us + REST_WAKE_AFTER_END_US
+    start_ns = time.monotonic_ns()
+    out = {}
+    for name in FLOOR_PARTS:
+        handle = work[name]
+        until_us = wake_us + int(FLOOR_PART_S * 1e6)
+        wall, cpu = time.monotonic(), time.process_time()
+        while wake_us < until_us:
+            delay_ns = start_ns + (wake_us - first_us) * 1000 - time.monotonic_ns()
+            if delay_ns > 0:
+                time.sleep(delay_ns / 1e9)
+            while k < len(items) and end_of(items[k]) < wake_us:
+                if handle is not None:
+                    handle(items[k])
+                k += 1
+            wake_us += window_us
+        if k >= len(items):
+            raise RuntimeError(f"{recording}: shorter than --floor's {len(FLOOR_PARTS)} parts")
+        out[name] = (time.process_time() - cpu) / (time.monotonic() - wall)
+    return out
+
+
 def measure_wakes(n: int = 1000, period_s: float = 0.01) -> dict[str, float]:
     """CPU s of the process per wake-up with no work: ``sleep``, one thread waking at ``n``
     deadlines ``period_s`` apart; ``handoff``, a second thread woken at each one through a
@@ -446,6 +540,7 @@ def main() -> None:
     ap.add_argument("--work", action="store_true", help="also the stages' own CPU, hot and spread")
     ap.add_argument("--gap-ms", type=float, default=8.0, help="--work: sleep after each item (ms)")
     ap.add_argument("--wakes", action="store_true", help="also the CPU of a wake-up with no work")
+    ap.add_argument("--floor", action="store_true", help="also the design at rest with nothing around it")
     ap.add_argument("--sim", action="store_true", help="also the simulated gel at rest")
     ap.add_argument("--parts", action="store_true", help="also where the recording's run spends its CPU, step by step")
     ap.add_argument("--child-sim", type=float, default=None, help=argparse.SUPPRESS)
@@ -492,6 +587,15 @@ def main() -> None:
     if args.parts:
         print("the recording's run, step by step (each step's CPU includes the steps it calls):", flush=True)
         subprocess.run([sys.executable, __file__, "--child-parts", str(recording), "--seconds", f"{args.seconds:g}"])
+    if args.floor:
+        floors = [measure_floor(recording) for _ in range(args.repeat)]
+        for floor in floors:
+            print(
+                "the design at rest alone, one wake-up a window: "
+                + ", ".join(f"{name} {100 * floor[name]:.2f} %" for name in FLOOR_PARTS)
+                + f" of a core; load average {os.getloadavg()[0]:.1f}",
+                flush=True,
+            )
     if args.wakes:
         wakes = measure_wakes()
         print(
