@@ -46,10 +46,11 @@ recording's items as ``--work`` takes them, in real time, one wake-up a window (
 ``runtime.REST_WAKE_AFTER_END_US``, a ``time.sleep`` to that deadline), handing on the items that
 ended before it, in three parts of :data:`FLOOR_PART_S` each after a warm-up: "stages", each
 item through the pipeline (an APS frame's resting verdict first) as ``--work`` does; "compiled",
-only a window's compiled call (``rest_window.rest_batch``) per event batch and the resting verdict
-per APS frame, nothing else; "wake", the wake-ups and the loop over the items, no work. CPU of this
-process per second of each part: the floor under ``run`` at rest, with no reader, no runtime, no
-Python around the compiled call. ``--repeat`` repeats it.
+only a window's compiled call (``rest_window.rest_batch``) per event batch, the resting verdict
+per APS frame and its re-anchoring of the tracker (``_apply_pending``), nothing else; "wake", the
+wake-ups and the loop over the items, no work. CPU of this process per second of each part: the
+floor under ``run`` at rest, with no reader, no runtime, no Python around the compiled call.
+``--repeat`` repeats it.
 
 ``--wakes``: also what this machine charges for waking a thread, with no work at all: one thread
 sleeping to a deadline every 10 ms (``threading.Event.wait``, as the paced source waits), and one
@@ -356,6 +357,7 @@ def measure_floor(recording: Path) -> dict[str, float]:
             if verdict is not None:
                 pipeline.set_resting(verdict, item.t_us)
             return
+        pipeline._apply_pending()  # the last verdict's re-anchoring, as every item applies it
         end = pipeline._next_end
         done = rest_batch(
             item,
