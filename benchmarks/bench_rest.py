@@ -321,12 +321,15 @@ def measure_work(recording: Path, gap_s: float) -> dict[str, float]:
 FLOOR_PART_S = 10.0
 #: ``--floor``'s parts, in their order.
 FLOOR_PARTS = ("stages", "compiled", "wake")
+#: ``--floor``'s warm-up before its parts, back to back (us of the recording).
+FLOOR_WARM_UP_US = 2_000_000
 
 
 def measure_floor(recording: Path) -> dict[str, float]:
     """``--floor`` (module docstring): CPU of this process (s per s) in each of
     :data:`FLOOR_PARTS`, one wake-up a window on ``recording`` (a resting gel's, 10 ms windows)
-    in real time. Raises RuntimeError when a window of it does not rest."""
+    in real time. Raises RuntimeError when a window of it does not rest, or it is shorter than
+    :data:`FLOOR_WARM_UP_US` and the parts."""
     from neurotouch_hid.driver import build_pipeline
     from neurotouch_hid.pipeline.rest_window import OPEN, RESTING, rest_batch
     from neurotouch_hid.runtime import REST_WAKE_AFTER_END_US
@@ -375,8 +378,12 @@ def measure_floor(recording: Path) -> dict[str, float]:
             pipeline._next_end = end + window_us
 
     work = {"stages": stages, "compiled": compiled, "wake": None}
-    k, t0_us = 0, end_of(items[0])
-    while end_of(items[k]) < t0_us + 2_000_000:  # the warm-up: the markers found, the rest settled
+    t0_us = end_of(items[0])
+    needed_us = FLOOR_WARM_UP_US + int(len(FLOOR_PARTS) * FLOOR_PART_S * 1e6) + 2 * window_us
+    if end_of(items[-1]) - t0_us < needed_us:
+        raise RuntimeError(f"{recording}: shorter than --floor's warm-up and parts ({needed_us / 1e6:g} s)")
+    k = 0
+    while end_of(items[k]) < t0_us + FLOOR_WARM_UP_US:  # the markers found, the rest settled
         stages(items[k])
         k += 1
     first_us = end_of(items[k])
@@ -396,8 +403,6 @@ def measure_floor(recording: Path) -> dict[str, float]:
                     handle(items[k])
                 k += 1
             wake_us += window_us
-        if k >= len(items):
-            raise RuntimeError(f"{recording}: shorter than --floor's {len(FLOOR_PARTS)} parts")
         out[name] = (time.process_time() - cpu) / (time.monotonic() - wall)
     return out
 

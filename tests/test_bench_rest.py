@@ -1,0 +1,38 @@
+"""bench_rest.py's ``--floor`` (docs/performance.md, "At rest"): it runs the design at rest on a
+resting gel's recording part by part, and refuses a recording that does not rest or is too short
+for it. No speed is asserted."""
+
+from __future__ import annotations
+
+import pytest
+from helpers import load_benchmark
+
+
+@pytest.fixture(scope="module")
+def bench_rest():
+    return load_benchmark("bench_rest")
+
+
+@pytest.fixture
+def short_parts(bench_rest, monkeypatch):
+    monkeypatch.setattr(bench_rest, "FLOOR_PART_S", 0.2)
+    return bench_rest
+
+
+def test_the_floor_runs_every_part_on_a_resting_gel(short_parts, tmp_path):
+    recording = short_parts.make_rest_recording(tmp_path, 3.0)
+    floor = short_parts.measure_floor(recording)
+    assert list(floor) == list(short_parts.FLOOR_PARTS)
+    assert all(0.0 <= share < 1.5 for share in floor.values())  # CPU seconds per second, two cores at most
+
+
+def test_the_floor_refuses_a_recording_too_short_for_its_parts(short_parts, tmp_path):
+    recording = short_parts.make_rest_recording(tmp_path, 2.0)
+    with pytest.raises(RuntimeError, match="shorter than --floor's warm-up and parts"):
+        short_parts.measure_floor(recording)
+
+
+def test_the_floor_refuses_a_gel_that_does_not_rest(short_parts, tmp_path):
+    recording = load_benchmark("bench_latency").make_recording(tmp_path, 4.0)  # gestures from the start
+    with pytest.raises(RuntimeError, match="does not rest"):
+        short_parts.measure_floor(recording)
