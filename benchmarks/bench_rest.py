@@ -347,18 +347,19 @@ def measure_floor(recording: Path) -> dict[str, float]:
     def end_of(item) -> int:
         return int(item.t_us) if isinstance(item, Frame) else int(item["timestamp"][-1])
 
+    def verdict(frame: Frame) -> None:  # the resting verdict, handed to the pipeline as run does
+        result = resting.update(frame)
+        if result is not None:
+            pipeline.set_resting(result, frame.t_us)
+
     def stages(item) -> None:
         if isinstance(item, Frame):
-            verdict = resting.update(item)
-            if verdict is not None:
-                pipeline.set_resting(verdict, item.t_us)
+            verdict(item)
         pipeline.process(item)
 
     def compiled(item) -> None:
         if isinstance(item, Frame):
-            verdict = resting.update(item)
-            if verdict is not None:
-                pipeline.set_resting(verdict, item.t_us)
+            verdict(item)
             return
         pipeline._apply_pending()  # the last verdict's re-anchoring, as every item applies it
         end = pipeline._next_end
