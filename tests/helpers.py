@@ -14,6 +14,7 @@ import sys
 import time
 import tomllib
 import types
+from collections.abc import Iterable
 from pathlib import Path
 
 from packaging.markers import default_environment
@@ -39,6 +40,15 @@ EARLY_NICE = 19
 def niced(command: list[str], nice: int) -> list[str]:
     """``command`` run at niceness ``nice`` (``nice -n``; 0: unchanged)."""
     return ["nice", "-n", str(nice), *command] if nice else list(command)
+
+
+def reap(procs: Iterable[subprocess.Popen]) -> None:
+    """Each of ``procs`` killed if it still runs, and waited for (what a module started early
+    and its tests did not take: conftest.py, ``started_early``)."""
+    for proc in procs:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
 
 
 def run_cli(

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from helpers import EARLY_NICE, niced
+from helpers import EARLY_NICE, niced, reap
 
 import neurotouch_hid
 
@@ -147,10 +147,7 @@ def start_early(request) -> None:
 
 def stop_early() -> None:
     """Kill the compiles that are still running (their tests never came) and forget them."""
-    for _, proc in _compiles.values():
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+    reap(proc for _, proc in _compiles.values())
     _compiles.clear()
 
 

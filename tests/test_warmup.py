@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import EARLY_NICE, niced, run_main
+from helpers import EARLY_NICE, niced, reap, run_main
 
 from neurotouch_hid import warmup
 from neurotouch_hid.estimate import GestureEstimate
@@ -111,10 +111,7 @@ def start_early(request) -> None:
 
 def stop_early() -> None:
     """Kill the child if it still runs (its test never came) and forget it."""
-    for _, proc in _paper_child:
-        if proc.poll() is None:
-            proc.kill()
-        proc.wait()
+    reap(proc for _, proc in _paper_child)
     _paper_child.clear()
 
 
