@@ -51,6 +51,25 @@ def reap(procs: Iterable[subprocess.Popen]) -> None:
         proc.wait()
 
 
+def started(proc: subprocess.Popen, timeout_s: float = 60.0) -> subprocess.Popen:
+    """``proc`` once its program has started, as another process sees it: ``Popen`` returns when
+    the child's exec has replaced its memory, before the kernel has written its arguments and
+    environment there (``/proc/PID/environ`` then reads empty: in ``fs/exec.c`` ``begin_new_exec``
+    closes the close-on-exec pipe ``Popen`` waits on, then ``fs/binfmt_elf.c`` fills the stack).
+    A game is looked for when it runs, not in the microseconds of its exec.
+
+    Raises:
+        AssertionError: the environment is still empty after ``timeout_s`` (s), or ``proc`` ended.
+    """
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end and proc.poll() is None:
+        with open(f"/proc/{proc.pid}/environ", "rb") as file:
+            if file.read(1):
+                return proc
+        time.sleep(0.001)
+    raise AssertionError(f"pid {proc.pid} showed no environment within {timeout_s} s (exit code {proc.poll()})")
+
+
 def run_cli(
     *args: str,
     home: Path | None = None,

@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers import started
 
 from neurotouch_hid.control import SOCKET_NAME
 from neurotouch_hid.errors import ProfileError
@@ -67,16 +68,17 @@ def _wait_for(condition, timeout_s: float = WAIT_S, step_s: float = 0.05) -> boo
 
 @pytest.fixture
 def children():
-    """Start real processes; every one still running is killed at the end."""
-    started: list[subprocess.Popen] = []
+    """Start real processes, each returned once its program runs (``helpers.started``); every one
+    still running is killed at the end."""
+    procs: list[subprocess.Popen] = []
 
     def start(argv: list[str], env: dict | None = None) -> subprocess.Popen:
         proc = subprocess.Popen(argv, env=env if env is not None else dict(os.environ))
-        started.append(proc)
-        return proc
+        procs.append(proc)
+        return started(proc)
 
     yield start
-    for proc in started:
+    for proc in procs:
         if proc.poll() is None:
             proc.kill()
         proc.wait(10)
@@ -435,3 +437,25 @@ def test_a_steam_game_that_execs_while_it_is_read_is_never_named_as_its_parent(m
     state["execd"] = True
     seen = games._read_process(os.getpid(), os.getuid())
     assert seen.app_id == APP_ID and seen.name == "sleep"
+
+
+def test_a_steam_game_read_before_its_exec_wrote_its_environment_is_found_at_the_next_scan(children, monkeypatch):
+    """Right after an exec the kernel has not yet written the new program's environment (its
+    ``/proc/PID/environ`` reads empty, a few microseconds: ``helpers.started``): a game read then
+    shows no SteamAppId, and is read again while young."""
+    import neurotouch_hid.games as games
+
+    real = games._steam_app_id
+    reads: list[int] = []
+
+    def first_read_mid_exec(pid: int) -> int | None:
+        reads.append(pid)
+        return None if reads.count(pid) == 1 else real(pid)
+
+    monkeypatch.setattr(games, "_steam_app_id", first_read_mid_exec)
+    scanner = ProcessScanner()
+    game_map = GameMap({APP_ID: "mouse"}, {})
+    steam = _steam_game(children)
+    assert scanner.games(game_map) == []
+    assert _wait_for(lambda: [g.pid for g in scanner.games(game_map)] == [steam.pid], 10.0)
+    assert reads.count(steam.pid) == 2

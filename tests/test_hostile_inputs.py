@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 import pytest
-from helpers import wait_until
+from helpers import started, wait_until
 from hostile_inputs import ALIAS_BOMB, DEEP_YAML, bomb_recording
 from test_control import runtime_dir  # noqa: F401 (a fixture)
 
@@ -641,6 +641,8 @@ def test_a_process_with_a_huge_steam_app_id_does_not_hide_the_game_beside_it(tmp
         subprocess.Popen(sleeper, env=dict(base, SteamAppId=str(game))),
     ]
     try:
+        for proc in procs:
+            started(proc)
         game_map = GameMap({game: "mouse", padded: "spacecraft", int("9" * 10): "x"}, {})
         found = ProcessScanner().games(game_map)
         assert [(g.key, g.pid) for g in found] == [(game, procs[2].pid)], found
@@ -735,6 +737,7 @@ def test_the_shipped_unit_lets_the_driver_see_the_users_games():
         [sys.executable, "-c", "import time; time.sleep(120)"], env={"PATH": os.environ["PATH"], "SteamAppId": "4242"}
     )
     try:
+        started(game)
         found = subprocess.run(
             [*wrap, sys.executable, "-c", _SCAN], env=_env(), capture_output=True, text=True, timeout=60, cwd=ROOT
         )
