@@ -540,6 +540,9 @@ class Runtime:
                 for t in threads:
                     t.join(_JOIN_S)
                 self.stats.wall_s = time.perf_counter() - start
+                unfinished = self._compiling()
+                if unfinished is not None:  # it stops with the run: say how far it got
+                    self.stats.compile_ended_at = unfinished.fraction
                 if self._merge is not None:
                     self._merge.stop()
                 with self._lock:

@@ -69,6 +69,9 @@ class RunStats:
             compile's too.
         compiled_latency: ``latency`` of the windows made once the pipeline was compiled and the
             queue it left was worked off: what every later run sees.
+        compile_ended_at: how far the first run's compile was (0..1) when the run ended before
+            it; None when it was done or there was none. The compile stops with the run (what it
+            cached stays: :meth:`neurotouch_hid.warmup.Warmup.close`); the next run goes on with it.
         window_latency: paced sources only: from the window's end in wall time (the camera clock
             mapped to wall time by the pacing) to the output being up to date; adds the wait for
             the source batch that shows the window is over (up to one batch).
@@ -96,6 +99,7 @@ class RunStats:
     interpreted_windows: int = 0
     queued_windows: int = 0
     compiled_latency: LatencyRing = field(default_factory=LatencyRing, repr=False)
+    compile_ended_at: float | None = None
     _behind_compile: bool = field(default=False, repr=False)
 
     def add_latency(self, windows: int, latency_ns: int, *, compiling: bool, waiting: int) -> None:
@@ -123,16 +127,22 @@ class RunStats:
                 f" p99 {self.latency.percentile_us(99) / 1e3:.2f} ms"
             )
         if self.interpreted_windows:  # say why the latency is what it is
+            if self.compile_ended_at is not None:
+                after = (
+                    f": the run ended with the compile {self.compile_ended_at * 100:.0f} % done: what it compiled"
+                    " is cached, the next run compiles the rest)"
+                )
+            elif len(self.compiled_latency):
+                after = (
+                    f": first run only; once compiled: p50 {self.compiled_latency.percentile_us(50) / 1e3:.2f} ms"
+                    f" p99 {self.compiled_latency.percentile_us(99) / 1e3:.2f} ms)"
+                )
+            else:
+                after = ": first run only; the next run starts compiled)"
             lat += (
                 f" ({self.interpreted_windows} windows ran interpreted, slowly, while the pipeline compiled"
                 + (f", {self.queued_windows} more from the items queued meanwhile" if self.queued_windows else "")
-                + ": first run only"
-                + (
-                    f"; once compiled: p50 {self.compiled_latency.percentile_us(50) / 1e3:.2f} ms"
-                    f" p99 {self.compiled_latency.percentile_us(99) / 1e3:.2f} ms)"
-                    if len(self.compiled_latency)
-                    else "; the next run starts compiled)"
-                )
+                + after
             )
         return (
             f"{self.windows} windows, {self.events} events, {self.frames} frames in {self.wall_s:.1f} s"

@@ -398,6 +398,31 @@ def test_the_closing_line_says_which_windows_ran_interpreted_while_compiling():
     assert f"{stats.interpreted_windows} windows ran interpreted" in stats.summary()
 
 
+def test_a_run_that_ends_before_its_compile_does_not_promise_a_compiled_next_run():
+    """A short demo on a fresh two-core machine ends before its ~30 s compile: the compile's
+    children are stopped with the run (what they cached stays), so the next run goes on compiling.
+    The closing line says how far it got, not that the next run starts compiled."""
+    from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, batch
+
+    from neurotouch_hid.runtime import Runtime
+    from neurotouch_hid.stages import CompileProgress
+
+    stats = Runtime(
+        [batch(k * 1000) for k in range(12)],
+        FakePipeline(),
+        {"sign": 1},
+        [RecordingOutput()],
+        mapper_factory=FakeMapper,
+        pace=False,
+        compile_progress=lambda: CompileProgress("compiling", 0.625),  # never done
+    ).run()
+    line = stats.summary()
+    assert stats.interpreted_windows == 12 and stats.compile_ended_at == 0.625
+    assert "the next run starts compiled" not in line and "first run only" not in line, line
+    said = "the run ended with the compile 62 % done: what it compiled is cached, the next run compiles the rest"
+    assert said in line, line
+
+
 def test_the_queue_the_compile_left_is_kept_out_of_the_compiled_latency():
     from neurotouch_hid.stats import RunStats
 
