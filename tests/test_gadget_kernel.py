@@ -68,6 +68,13 @@ def test_switch_access_profile_types_on_a_usb_keyboard(guest):
     assert details["ID_INPUT_KEYBOARD"] == "1"
 
 
+def test_a_run_killed_by_sigkill_leaves_the_host_the_neutral_report(guest):
+    """Nothing in a process catches SIGKILL (or the OOM killer, or a crash in native code): the
+    host, whose device stays, still reads the neutral report last (the gadget's guard)."""
+    details = passed(guest, "checks_gadget.check_usb_killed")
+    assert details["last_report"] == HID_JOYSTICK.neutral().hex() != details["held_report"]
+
+
 def test_latency_from_decision_to_host_event_is_measured(guest):
     """The figures docs/performance.md gives ("USB gadget latency"); every move arrived."""
     details = passed(guest, "checks_gadget.check_usb_latency")

@@ -28,11 +28,16 @@ under emulation. One SDL start for ``hid`` and one for ``xinput``:
   --keyboard``, then ``run --profile switch-access``: a USB keyboard appears on the host side
   and the push arrives as KEY_SPACE, released on SIGTERM; the gadget stays (setup made it)
   until ``gadget remove``.
+* killed (:func:`check_usb_killed`): a ``hid`` run in a forked child, SIGKILLed while it holds
+  the push: the gadget stays bound and the host's last report is the neutral one, which the run's
+  guard sends (evdev reads the stick centred).
 * latency (:func:`check_usb_latency`): benchmarks/bench_gadget_latency.py's figures, in this kernel.
 """
 
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -418,6 +423,86 @@ def check_usb_switch_access_keyboard() -> dict:
         "device_after_setup_s": round(seen["device_s"], 1),
         "keyboard": seen["node"],
         "ID_INPUT_KEYBOARD": props.get("ID_INPUT_KEYBOARD"),
+        "seconds": round(time.monotonic() - t0, 1),
+    }
+
+
+class _ForkedRun:
+    """``run --output usb`` (``run_driver``) in a forked child of this process (no Python start):
+    it can be killed with SIGKILL, which nothing in it can catch."""
+
+    def __init__(self, preds: Path, profile: Path) -> None:
+        from neurotouch_hid.driver import run_driver
+
+        self.said: list[str] = []
+        self.status: int | None = None
+        self.pid = os.fork()
+        if self.pid == 0:
+            code = 1
+            try:
+                run_driver(str(preds), str(profile), "usb", protocol="hid", say=lambda line: None)
+                code = 0
+            finally:
+                os._exit(code)
+
+    def alive(self) -> bool:
+        if self.status is None:
+            pid, status = os.waitpid(self.pid, os.WNOHANG)
+            if pid:
+                self.status = status
+        return self.status is None
+
+    def kill(self) -> None:
+        if self.alive():
+            os.kill(self.pid, signal.SIGKILL)
+            self.status = os.waitpid(self.pid, 0)[1]
+
+
+def check_usb_killed() -> dict:
+    """A ``hid`` run killed by SIGKILL while it holds the push: it cannot close its gadget, which
+    stays bound (the host's device stays), and its guard sends the neutral report: hidapi reads it
+    last and evdev reads the stick centred. The check removes the gadget the killed run made."""
+    import hidraw
+    from evdev import ecodes
+
+    t0 = time.monotonic()
+    _kernel()
+    preds, profile, held = _setup(PROFILE)
+    held_report = HID_JOYSTICK.pack(held)
+    run = _ForkedRun(preds, profile)
+    reader = watcher = None
+    try:
+        _hidraw(HID_IDS, run)
+        guestlib.settle()
+        reader = HidrawReader(_open(HID_IDS))
+        node = guestlib.wait_for(lambda: _input_device(HID_IDS, ecodes.ABS_X, ecodes.EV_ABS), 20.0)
+        assert node, "no input device for the joystick"
+        watcher = guestlib.EventReader(node)
+        held_x = held.axes["ABS_X"]
+        watcher.pump(timeout_s=400.0, until=lambda r: r.axes.get(ecodes.ABS_X) == held_x, max_s=400.0)
+        got_held = guestlib.wait_for(lambda: held_report in reader.reports, 60.0)
+        evdev_held = watcher.axes.get(ecodes.ABS_X)
+        t_kill = time.monotonic()
+        run.kill()
+        neutral = guestlib.wait_for(lambda: reader.reports[-1:] == [HID_JOYSTICK.neutral()], 30.0, 0.05)
+        neutral_s = time.monotonic() - t_kill
+        watcher.pump(timeout_s=5.0, until=lambda r: r.axes.get(ecodes.ABS_X) == 0, max_s=30.0)
+        still_there = bool(hidraw.enumerate(*HID_IDS)) and configfs.gadget_dir().exists()
+    finally:
+        run.kill()
+        if reader is not None:
+            reader.stop()
+        _close(watcher)
+        configfs.remove()
+    assert got_held and evdev_held == held_x > 0, f"the held push: hidraw {got_held}, evdev ABS_X {evdev_held}"
+    assert os.WIFSIGNALED(run.status) and os.WTERMSIG(run.status) == signal.SIGKILL, f"wait status {run.status}"
+    assert still_there, "the killed run's gadget went away: the host did not keep the device"
+    assert neutral, f"after SIGKILL the host's last report is {reader.reports[-1].hex()}, not the neutral one"
+    assert watcher.axes.get(ecodes.ABS_X) == 0, f"evdev after SIGKILL: ABS_X {watcher.axes.get(ecodes.ABS_X)}"
+    return {
+        "held_report": held_report.hex(),
+        "last_report": reader.reports[-1].hex(),
+        "neutral_after_kill_s": round(neutral_s, 2),
         "seconds": round(time.monotonic() - t0, 1),
     }
 

@@ -16,7 +16,9 @@ keyboard).
 
 :class:`UsbGadget` opens a run's targets: it uses the gadget a privileged ``neurotouch-hid
 gadget setup`` made (:mod:`~neurotouch_hid.targets.gadget.configfs`), or, run as root with none
-there, makes it itself and removes it when the run ends.
+there, makes it itself and removes it when the run ends. Beside the ``hid`` functions it starts
+a guard (:mod:`~neurotouch_hid.targets.gadget.guard`) that sends their neutral reports if the
+driver dies without closing them (SIGKILL, a crash).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from typing import TYPE_CHECKING
 
 from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.targets.gadget import configfs
+from neurotouch_hid.targets.gadget.guard import NeutralGuard
 
 if TYPE_CHECKING:
     from neurotouch_hid.mapping.profile import Profile
@@ -69,6 +72,7 @@ class UsbGadget:
         self.name = name
         self.targets: list[Target] = []
         self.made = False
+        self._guard: NeutralGuard | None = None
 
     def __enter__(self) -> "UsbGadget":
         found = configfs.protocol_of(self.name)
@@ -109,6 +113,16 @@ class UsbGadget:
             self.targets.append(HidgTarget(node, format_for(kind), f"USB gadget ({kind}, {node})"))
         if self.profile.uses_keyboard and not (functions / "hid.usb1").is_dir():
             log.warning("the profile presses keys but the USB gadget has no keyboard: gadget setup --keyboard")
+        nodes = [target.guarded() for target in self.targets if isinstance(target, HidgTarget)]
+        if nodes:
+            try:
+                self._guard = NeutralGuard(nodes)
+            except OSError as exc:
+                log.warning(
+                    "the USB gadget's guard could not start (%s): if the driver is killed, the host keeps its last"
+                    " report until the gadget is unplugged",
+                    exc.strerror or exc,
+                )
 
     def __exit__(self, *exc: object) -> None:
         for target in reversed(self.targets):
@@ -117,6 +131,9 @@ class UsbGadget:
             except OSError as error:
                 log.warning("%s: closing failed: %s", target.what, error)
         self.targets = []
+        if self._guard is not None:  # after the neutral reports, before the nodes can go
+            self._guard.release()
+            self._guard = None
         if self.made:
             time.sleep(RELEASE_GRACE_S)  # the host's readers take the neutral report before the device goes
             configfs.remove(self.name)

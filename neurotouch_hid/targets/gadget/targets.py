@@ -123,6 +123,11 @@ class HidgTarget(_ReportTarget):
         """The node: readable when the host sent an output report."""
         return None if self._closed else self._fd
 
+    def guarded(self) -> tuple[int, bytes]:
+        """The node's descriptor and its neutral report, for the guard that sends it if the
+        driver dies (:class:`~neurotouch_hid.targets.gadget.guard.NeutralGuard`)."""
+        return self._fd, self.format.neutral()
+
     def feedback(self) -> list[Feedback]:
         """Read the host's output reports waiting on the node (bounded: at most 16 reads of
         :data:`MAX_OUTPUT_REPORT` bytes); logged, no rumble or LED in them (none of these

@@ -1,0 +1,86 @@
+"""What the USB gadget's guard costs while the driver runs (docs/performance.md, "Memory").
+
+The guard (``neurotouch_hid.targets.gadget.guard.NeutralGuard``) is a process of its own beside
+every ``run --output usb`` with a ``hid`` function; it waits for the driver's end in a read. This
+starts one over a pipe standing for a ``/dev/hidgN`` node, then reads from ``/proc/PID``: its
+anonymous memory and resident set (``smaps_rollup``, KiB), the CPU time of its start and the CPU
+time and context switches over ``--seconds`` of rest after it (``stat``, ``status``). Needs no
+gadget and no root.
+
+Run: ``python3 benchmarks/bench_gadget_guard.py [--seconds 10]``; prints one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+
+#: Clock ticks a second, the unit of /proc/PID/stat's utime and stime.
+TICKS = os.sysconf("SC_CLK_TCK")
+
+
+def _cpu_s(pid: int) -> float:
+    with open(f"/proc/{pid}/stat") as stat:
+        fields = stat.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / TICKS  # utime, stime
+
+
+def _switches(pid: int) -> int:
+    with open(f"/proc/{pid}/status") as status:
+        return sum(int(line.split()[1]) for line in status if "ctxt_switches:" in line)  # voluntary + not
+
+
+def _kib(pid: int, field: str) -> int:
+    with open(f"/proc/{pid}/smaps_rollup") as rollup:
+        return next(int(line.split()[1]) for line in rollup if line.startswith(field + ":"))
+
+
+def _asleep_in_read(pid: int) -> bool:
+    """Whether process ``pid`` waits in a pipe's read (``/proc/PID/wchan``: ``pipe_read``, or
+    ``anon_pipe_read`` in newer kernels)."""
+    with open(f"/proc/{pid}/wchan") as wchan:
+        return "pipe_read" in wchan.read()
+
+
+def measure(seconds: float = 10.0, start_timeout_s: float = 60.0) -> dict:
+    """The guard's costs (module docstring): a dict of its anonymous memory and RSS (KiB), its
+    start's CPU (s) and, over ``seconds`` of rest, its CPU (s) and context switches. The rest
+    starts once the guard waits in its read. Raises RuntimeError if it does not within
+    ``start_timeout_s``."""
+    from neurotouch_hid.targets.gadget.guard import NeutralGuard
+
+    host, node = os.pipe()
+    guard = NeutralGuard([(node, bytes(13))])
+    try:
+        end = time.monotonic() + start_timeout_s
+        while not _asleep_in_read(guard.pid):
+            if time.monotonic() > end:
+                raise RuntimeError(f"the guard (pid {guard.pid}) did not reach its read in {start_timeout_s} s")
+            time.sleep(0.01)
+        start_cpu, switches = _cpu_s(guard.pid), _switches(guard.pid)
+        time.sleep(seconds)
+        result = {
+            "anonymous_kib": _kib(guard.pid, "Anonymous"),
+            "rss_kib": _kib(guard.pid, "Rss"),
+            "start_cpu_s": start_cpu,
+            "rest_s": seconds,
+            "rest_cpu_s": _cpu_s(guard.pid) - start_cpu,
+            "rest_context_switches": _switches(guard.pid) - switches,
+        }
+    finally:
+        guard.release()
+        os.close(host)
+        os.close(node)
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=10.0, help="rest measured after the start (s)")
+    print(json.dumps(measure(parser.parse_args().seconds)))
+
+
+if __name__ == "__main__":
+    main()
