@@ -6,6 +6,7 @@ import struct
 import time
 
 import pytest
+from helpers import wait_until
 
 from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.targets.gadget import configfs, functionfs
@@ -74,6 +75,39 @@ def test_writer_keeps_the_latest_report_while_the_host_is_away_and_sends_it_when
         got = _read_all(r)
         assert got.startswith(bytes([99]) * 8)
         assert set(got) == {99}
+    finally:
+        writer.stop()
+        os.close(r)
+        os.close(w)
+
+
+def _wake_ups(thread) -> int:
+    """The context switches of ``thread`` (a threading.Thread) so far: one each time it slept."""
+    with open(f"/proc/self/task/{thread.native_id}/status") as status:
+        return sum(int(line.split()[1]) for line in status if "ctxt_switches:" in line)
+
+
+def test_writer_waiting_for_an_absent_host_wakes_a_few_times_a_second_not_every_retry():
+    """A host asleep or unplugged for hours while the board runs: the report it has not taken is
+    tried again less and less often (up to every RESEND_S), not every RETRY_S; a host back finds
+    it within RESEND_S of its next try."""
+    r, w = os.pipe2(os.O_NONBLOCK)
+    while True:
+        try:
+            os.write(w, b"\0" * 65536)
+        except BlockingIOError:
+            break
+    writer = ReportWriter(w, "test")
+    try:
+        writer.submit(b"held")
+        assert wait_until(lambda: writer._away, 30.0)
+        before, start = _wake_ups(writer._thread), time.monotonic()
+        time.sleep(2.0)
+        woke, seconds = _wake_ups(writer._thread) - before, time.monotonic() - start
+        assert woke <= 2 * seconds / RESEND_S + 8, f"{woke} wake-ups in {seconds:.1f} s with the host away"
+        _read_all(r)  # the host is back
+        assert writer.flush(30.0)
+        assert _read_all(r).startswith(b"held")
     finally:
         writer.stop()
         os.close(r)

@@ -8,7 +8,9 @@ endpoint waits for the host (Documentation/usb/functionfs.rst). None of that may
 the driver: :class:`ReportWriter` keeps the reports to send and writes them from its own thread,
 retrying while the host is away, and sends the current report again every :data:`RESEND_S`, so
 that a host that re-enumerated the gadget (and so lost what it had) gets the current state
-without waiting for the next change.
+without waiting for the next change. A host away for long (asleep, unplugged, not yet there
+when the board starts) costs a few wake-ups a second: the pause between tries doubles from
+:data:`RETRY_S` up to :data:`RESEND_S`, and a new report tries at once.
 """
 
 from __future__ import annotations
@@ -24,7 +26,8 @@ log = logging.getLogger(__name__)
 
 #: The current report is sent again after this long without a change (s).
 RESEND_S = 0.25
-#: Pause before a write is retried while the host is away (s).
+#: Pause before a write is first retried while the host is away (s); doubled at each failed try
+#: after it, up to :data:`RESEND_S`.
 RETRY_S = 0.004
 #: Reports kept while the host does not take them: 1 for a state (only the latest matters),
 #: more for a mouse, whose reports carry motion that adds up.
@@ -93,6 +96,7 @@ class ReportWriter:
             return None, False
 
     def _run(self) -> None:
+        pause = RETRY_S
         while True:
             report, queued = self._next()
             if report is None:
@@ -108,8 +112,10 @@ class ReportWriter:
                 with self._cond:
                     self._away = True
                     self._sent_at = time.monotonic()  # a re-send waits its turn again
-                    self._cond.wait(RETRY_S)
+                    self._cond.wait(pause)  # a new report (submit) ends it early
+                    pause = min(pause * 2, RESEND_S)
                 continue
+            pause = RETRY_S
             with self._cond:
                 if self._away:
                     log.info("%s: the host reads again", self.what)
