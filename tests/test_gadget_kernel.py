@@ -75,6 +75,11 @@ def test_a_run_killed_by_sigkill_leaves_the_host_the_neutral_report(guest):
     assert details["last_report"] == HID_JOYSTICK.neutral().hex() != details["held_report"]
 
 
+def test_an_xinput_run_killed_by_sigkill_unplugs_the_pad(guest):
+    """The XInput pad needs no guard: the kernel unbinds the gadget when its FunctionFS files close."""
+    passed(guest, "checks_gadget.check_usb_killed_xinput")  # the guest asserts the pad went away
+
+
 def test_latency_from_decision_to_host_event_is_measured(guest):
     """The figures docs/performance.md gives ("USB gadget latency"); every move arrived."""
     details = passed(guest, "checks_gadget.check_usb_latency")

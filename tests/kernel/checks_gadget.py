@@ -30,7 +30,8 @@ under emulation. One SDL start for ``hid`` and one for ``xinput``:
   until ``gadget remove``.
 * killed (:func:`check_usb_killed`): a ``hid`` run in a forked child, SIGKILLed while it holds
   the push: the gadget stays bound and the host's last report is the neutral one, which the run's
-  guard sends (evdev reads the stick centred).
+  guard sends (evdev reads the stick centred); an ``xinput`` run SIGKILLed: the host's pad goes away
+  (the kernel unbinds a gadget whose FunctionFS files closed).
 * latency (:func:`check_usb_latency`): benchmarks/bench_gadget_latency.py's figures, in this kernel.
 """
 
@@ -431,7 +432,7 @@ class _ForkedRun:
     """``run --output usb`` (``run_driver``) in a forked child of this process (no Python start):
     it can be killed with SIGKILL, which nothing in it can catch."""
 
-    def __init__(self, preds: Path, profile: Path) -> None:
+    def __init__(self, preds: Path, profile: Path, protocol: str = "hid") -> None:
         from neurotouch_hid.driver import run_driver
 
         self.said: list[str] = []
@@ -440,7 +441,7 @@ class _ForkedRun:
         if self.pid == 0:
             code = 1
             try:
-                run_driver(str(preds), str(profile), "usb", protocol="hid", say=lambda line: None)
+                run_driver(str(preds), str(profile), "usb", protocol=protocol, say=lambda line: None)
                 code = 0
             finally:
                 os._exit(code)
@@ -505,6 +506,41 @@ def check_usb_killed() -> dict:
         "neutral_after_kill_s": round(neutral_s, 2),
         "seconds": round(time.monotonic() - t0, 1),
     }
+
+
+def check_usb_killed_xinput() -> dict:
+    """An ``xinput`` run killed by SIGKILL while it holds the push: its FunctionFS files close
+    with it, the kernel unbinds the gadget (``ffs_closed()``), and the host's pad goes away: no
+    guard is needed there. The check removes the gadget the killed run made."""
+    from evdev import ecodes
+
+    t0 = time.monotonic()
+    _kernel()
+    preds, profile, held = _setup(PROFILE)
+    run = _ForkedRun(preds, profile, "xinput")
+    watcher = None
+    try:
+        interface = guestlib.wait_for(lambda: _xpad_interface() or not run.alive(), 400.0, 0.1)
+        assert isinstance(interface, str), "xpad did not bind"
+        node = guestlib.wait_for(lambda: _input_device(XBOX_IDS, ecodes.ABS_X, ecodes.EV_ABS), 30.0)
+        assert node, "no input device for the XInput pad"
+        watcher = guestlib.EventReader(node)
+        held_x = held.axes["ABS_X"]
+        watcher.pump(timeout_s=400.0, until=lambda r: r.axes.get(ecodes.ABS_X) == held_x, max_s=400.0)
+        evdev_held = watcher.axes.get(ecodes.ABS_X)
+        t_kill = time.monotonic()
+        run.kill()
+        unplugged = guestlib.wait_for(lambda: _xpad_interface() is None, 30.0, 0.05)
+        unplugged_s = time.monotonic() - t_kill
+        watcher.pump(timeout_s=5.0, max_s=30.0)
+    finally:
+        run.kill()
+        _close(watcher)
+        configfs.remove()
+    assert evdev_held == held_x > 0, f"the held push: evdev ABS_X {evdev_held}"
+    assert os.WIFSIGNALED(run.status) and os.WTERMSIG(run.status) == signal.SIGKILL, f"wait status {run.status}"
+    assert unplugged and watcher.gone, f"after SIGKILL the XInput pad is still there (evdev gone: {watcher.gone})"
+    return {"unplugged_after_kill_s": round(unplugged_s, 2), "seconds": round(time.monotonic() - t0, 1)}
 
 
 def check_usb_latency() -> dict:

@@ -6,9 +6,9 @@ Documentation/usb/gadget_hid.rst), so a driver killed by SIGKILL, by the OOM kil
 crash in native code would leave the host's game with the stick held and the buttons pressed
 until the next report, which would never come. (A FunctionFS function is not affected: when the
 last of its files closes, the kernel unbinds the whole gadget from its UDC, ``ffs_closed()`` in
-drivers/usb/gadget/function/f_fs.c, and the host sees the device unplugged.) Closing the targets in an orderly way (SIGTERM,
-Ctrl-C, an error) already sends the neutral report; this covers the deaths nothing in the
-process can catch.
+drivers/usb/gadget/function/f_fs.c, and the host sees the device unplugged.) Closing the
+targets in an orderly way (SIGTERM, Ctrl-C, an error) already sends the neutral report; this
+covers the deaths nothing in the process can catch.
 
 :class:`NeutralGuard` starts a small process beside the driver: this Python, isolated and
 without ``site`` (``-I -S``, about 3 MiB of its own memory), running :data:`GUARD_CODE`. It
