@@ -30,6 +30,15 @@ def _node() -> tuple[int, int]:
     return host, node
 
 
+def _fill(node: int) -> None:
+    """The host has not read: the node refuses the next write (EAGAIN)."""
+    while True:
+        try:
+            os.write(node, b"\xff" * 4096)
+        except BlockingIOError:
+            return
+
+
 def _read(fd: int, until, timeout_s: float = 30.0) -> bytes:
     """What the host's end reads until ``until(data)`` holds or ``timeout_s`` passes."""
     got = b""
@@ -124,11 +133,7 @@ def test_the_guard_outlives_ctrl_c_and_sigterm_and_waits_for_the_host_to_take_th
     """Ctrl-C and systemd's stop signal the guard too: it stays to do its work. The host has
     not taken the last report (the node refuses with EAGAIN): the neutral one follows once it has."""
     host, node = _node()
-    while True:  # the host has not read: the node is full
-        try:
-            os.write(node, b"\xff" * 4096)
-        except BlockingIOError:
-            break
+    _fill(node)
     guard = NeutralGuard([(node, NEUTRAL)])
     os.close(node)
     assert wait_until(lambda: _ignored(guard.pid) & STOP_SIGNALS == STOP_SIGNALS, 30.0), "the guard ignores no signal"
@@ -146,11 +151,7 @@ def test_the_guard_outlives_ctrl_c_and_sigterm_and_waits_for_the_host_to_take_th
 
 def test_the_guard_gives_up_on_a_host_that_never_reads():
     host, node = _node()
-    while True:
-        try:
-            os.write(node, b"\xff" * 4096)
-        except BlockingIOError:
-            break
+    _fill(node)
     guard = NeutralGuard([(node, NEUTRAL)], give_up_s=0.2)
     os.close(node)
     os.close(guard._write_end)
