@@ -259,6 +259,20 @@ def joystick(seconds: float) -> dict:
     return {"done": True, "removed": removed, "changes": samples, "error": None}
 
 
+def _guid(pygame, index: int) -> str | None:
+    """The GUID of SDL's device ``index``, or None when its node went after SDL listed it (the
+    driver hid a merged device's node meanwhile): opening it fails, and a game skips it."""
+    try:
+        return pygame.joystick.Joystick(index).get_guid()
+    except pygame.error:
+        return None
+
+
+def _guids(pygame, count: int) -> list[str]:
+    """The GUIDs of SDL's devices 0..count-1 that could be opened."""
+    return [guid for guid in (_guid(pygame, i) for i in range(count)) if guid is not None]
+
+
 def serve(seconds: float, product: str) -> dict:
     """``--serve``: see the module docstring. Returns the ``done`` line."""
     pygame, controller = start_sdl()
@@ -275,7 +289,7 @@ def serve(seconds: float, product: str) -> dict:
                 (
                     i
                     for i in range(controller.get_count())
-                    if controller.is_controller(i) and pygame.joystick.Joystick(i).get_guid()[16:20] == wanted
+                    if controller.is_controller(i) and (_guid(pygame, i) or "")[16:20] == wanted
                 ),
                 None,
             )
@@ -302,7 +316,7 @@ def serve(seconds: float, product: str) -> dict:
     if ctl is None:
         return {"done": True, "error": f"no GameController with product {product} within {seconds} s"}
     count = controller.get_count()
-    say({"opened": True, "count": count, "guids": [pygame.joystick.Joystick(i).get_guid() for i in range(count)]})
+    say({"opened": True, "count": count, "guids": _guids(pygame, count)})
     axes = [(name.lower(), getattr(pygame, "CONTROLLER_AXIS_" + name)) for name in WATCH_AXES]
     buttons = [(name.lower(), getattr(pygame, "CONTROLLER_BUTTON_" + name)) for name in WATCH_BUTTONS]
     for line in sys.stdin:
@@ -320,7 +334,7 @@ def serve(seconds: float, product: str) -> dict:
             controller.init()
             found = open_wanted(10.0)
             count = controller.get_count()
-            guids = [pygame.joystick.Joystick(i).get_guid() for i in range(count)]
+            guids = _guids(pygame, count)
             if found is not None:
                 ctl = found
             say({"relisted": {"count": count, "guids": guids, "found": found is not None}})
