@@ -4,7 +4,7 @@ The guard (``neurotouch_hid.targets.gadget.guard.NeutralGuard``) is a process of
 every ``run --output usb`` with a ``hid`` function; it waits for the driver's end in a read. This
 starts one over a pipe standing for a ``/dev/hidgN`` node, then reads from ``/proc/PID``: its
 anonymous memory and resident set (``smaps_rollup``, KiB), the CPU time of its start and the CPU
-time and context switches over ``--seconds`` of rest after it (``stat``, ``status``). Needs no
+time and context switches over ``--seconds`` of rest after it (``bench_rest.proc_reading``). Needs no
 gadget and no root.
 
 Run: ``python3 benchmarks/bench_gadget_guard.py [--seconds 10]``; prints one JSON object.
@@ -15,26 +15,18 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
+from pathlib import Path
 
-#: Clock ticks a second, the unit of /proc/PID/stat's utime and stime.
-TICKS = os.sysconf("SC_CLK_TCK")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-
-def _cpu_s(pid: int) -> float:
-    with open(f"/proc/{pid}/stat") as stat:
-        fields = stat.read().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICKS  # utime, stime
+from bench_rest import proc_reading  # noqa: E402
 
 
-def _switches(pid: int) -> int:
-    with open(f"/proc/{pid}/status") as status:
-        return sum(int(line.split()[1]) for line in status if "ctxt_switches:" in line)  # voluntary + not
-
-
-def _kib(pid: int, field: str) -> int:
+def _rss_kib(pid: int) -> int:
     with open(f"/proc/{pid}/smaps_rollup") as rollup:
-        return next(int(line.split()[1]) for line in rollup if line.startswith(field + ":"))
+        return next(int(line.split()[1]) for line in rollup if line.startswith("Rss:"))
 
 
 def _asleep_in_read(pid: int) -> bool:
@@ -59,15 +51,16 @@ def measure(seconds: float = 10.0, start_timeout_s: float = 60.0) -> dict:
             if time.monotonic() > end:
                 raise RuntimeError(f"the guard (pid {guard.pid}) did not reach its read in {start_timeout_s} s")
             time.sleep(0.01)
-        start_cpu, switches = _cpu_s(guard.pid), _switches(guard.pid)
+        before = proc_reading(guard.pid)
         time.sleep(seconds)
+        after = proc_reading(guard.pid)
         result = {
-            "anonymous_kib": _kib(guard.pid, "Anonymous"),
-            "rss_kib": _kib(guard.pid, "Rss"),
-            "start_cpu_s": start_cpu,
+            "anonymous_kib": round(after["anon_mib"] * 1024),
+            "rss_kib": _rss_kib(guard.pid),
+            "start_cpu_s": before["cpu"],
             "rest_s": seconds,
-            "rest_cpu_s": _cpu_s(guard.pid) - start_cpu,
-            "rest_context_switches": _switches(guard.pid) - switches,
+            "rest_cpu_s": after["cpu"] - before["cpu"],
+            "rest_context_switches": after["switches"] - before["switches"],
         }
     finally:
         guard.release()

@@ -70,6 +70,16 @@ def started(proc: subprocess.Popen, timeout_s: float = 60.0) -> subprocess.Popen
     raise AssertionError(f"pid {proc.pid} showed no environment within {timeout_s} s (exit code {proc.poll()})")
 
 
+def fill_unread(fd: int) -> None:
+    """Write to the non-blocking pipe end ``fd`` until it is full: it stands for a node whose
+    reader (a USB host) has not read, and refuses the next write with EAGAIN."""
+    while True:
+        try:
+            os.write(fd, b"\xff" * 65536)
+        except BlockingIOError:
+            return
+
+
 def run_cli(
     *args: str,
     home: Path | None = None,

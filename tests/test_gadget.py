@@ -6,7 +6,7 @@ import struct
 import time
 
 import pytest
-from helpers import wait_until
+from helpers import fill_unread, wait_until
 
 from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.targets.gadget import configfs, functionfs
@@ -56,12 +56,7 @@ def test_writer_keeps_the_latest_report_while_the_host_is_away_and_sends_it_when
     """A full pipe stands for a host that does not read (EAGAIN): the driver's submits return
     at once, and once the host reads again it gets the latest report, not the ones between."""
     r, w = os.pipe2(os.O_NONBLOCK)
-    filler = b"\0" * 65536
-    while True:
-        try:
-            os.write(w, filler)
-        except BlockingIOError:
-            break
+    fill_unread(w)
     writer = ReportWriter(w, "test")
     try:
         start = time.monotonic()
@@ -92,11 +87,7 @@ def test_writer_waiting_for_an_absent_host_wakes_a_few_times_a_second_not_every_
     tried again less and less often (up to every RESEND_S), not every RETRY_S; a host back finds
     it within RESEND_S of its next try."""
     r, w = os.pipe2(os.O_NONBLOCK)
-    while True:
-        try:
-            os.write(w, b"\0" * 65536)
-        except BlockingIOError:
-            break
+    fill_unread(w)
     writer = ReportWriter(w, "test")
     try:
         writer.submit(b"held")

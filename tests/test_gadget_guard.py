@@ -13,7 +13,7 @@ import sys
 import time
 from pathlib import Path
 
-from helpers import wait_until
+from helpers import fill_unread, wait_until
 
 from neurotouch_hid.targets.gadget.guard import NeutralGuard
 
@@ -28,15 +28,6 @@ def _node() -> tuple[int, int]:
     os.set_blocking(node, False)
     os.set_blocking(host, False)
     return host, node
-
-
-def _fill(node: int) -> None:
-    """The host has not read: the node refuses the next write (EAGAIN)."""
-    while True:
-        try:
-            os.write(node, b"\xff" * 4096)
-        except BlockingIOError:
-            return
 
 
 def _read(fd: int, until, timeout_s: float = 30.0) -> bytes:
@@ -133,7 +124,7 @@ def test_the_guard_outlives_ctrl_c_and_sigterm_and_waits_for_the_host_to_take_th
     """Ctrl-C and systemd's stop signal the guard too: it stays to do its work. The host has
     not taken the last report (the node refuses with EAGAIN): the neutral one follows once it has."""
     host, node = _node()
-    _fill(node)
+    fill_unread(node)
     guard = NeutralGuard([(node, NEUTRAL)])
     os.close(node)
     assert wait_until(lambda: _ignored(guard.pid) & STOP_SIGNALS == STOP_SIGNALS, 30.0), "the guard ignores no signal"
@@ -151,7 +142,7 @@ def test_the_guard_outlives_ctrl_c_and_sigterm_and_waits_for_the_host_to_take_th
 
 def test_the_guard_gives_up_on_a_host_that_never_reads():
     host, node = _node()
-    _fill(node)
+    fill_unread(node)
     guard = NeutralGuard([(node, NEUTRAL)], give_up_s=0.2)
     os.close(node)
     os.close(guard._write_end)
