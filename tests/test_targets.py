@@ -134,10 +134,17 @@ def _context_switches(tid: int) -> int:
     return int(fields["voluntary_ctxt_switches"]) + int(fields["nonvoluntary_ctxt_switches"])
 
 
+def _settled(tid: int) -> int:
+    """The thread's context switches after 50 ms: equal to those before when it slept throughout."""
+    time.sleep(0.05)
+    return _context_switches(tid)
+
+
 def test_the_feedback_thread_sleeps_at_rest():
     with TargetOutputs([PipeTarget("a", [])]) as outputs:
         thread = next(t for t in threading.enumerate() if t.name == "nt-feedback")
-        time.sleep(0.05)  # let it reach select
+        # let it reach select (on a loaded machine its start may take more than a moment)
+        assert _until(lambda: _context_switches(thread.native_id) == _settled(thread.native_id))
         before = _context_switches(thread.native_id)
         time.sleep(0.3)
         assert _context_switches(thread.native_id) == before  # blocked in select: never woken
