@@ -1,6 +1,6 @@
 """What the USB gadget's guard costs while the driver runs (docs/performance.md, "Memory").
 
-The guard (``neurotouch_hid.targets.gadget.guard.NeutralGuard``) is a process of its own beside
+The guard (``neurotouch_hid.guard.Guard``) is a process of its own beside
 every ``run --output usb`` with a ``hid`` function; it waits for the driver's end in a read. This
 starts one over a pipe standing for a ``/dev/hidgN`` node, then reads from ``/proc/PID``: its
 anonymous memory and resident set (``smaps_rollup``, KiB), the CPU time of its start and the CPU
@@ -41,10 +41,10 @@ def measure(seconds: float = 10.0, start_timeout_s: float = 60.0) -> dict:
     start's CPU (s) and, over ``seconds`` of rest, its CPU (s) and context switches. The rest
     starts once the guard waits in its read. Raises RuntimeError if it does not within
     ``start_timeout_s``."""
-    from neurotouch_hid.targets.gadget.guard import NeutralGuard
+    from neurotouch_hid.guard import Guard
 
     host, node = os.pipe()
-    guard = NeutralGuard([(node, bytes(13))])
+    guard = Guard([(node, bytes(13))])
     try:
         end = time.monotonic() + start_timeout_s
         while not _asleep_in_read(guard.pid):

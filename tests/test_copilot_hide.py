@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from helpers import wait_until
 
 from neurotouch_hid.inputs import hide
 from neurotouch_hid.inputs.copilot import unhidden_note
@@ -157,3 +158,66 @@ def test_the_relay_hides_where_it_may_and_otherwise_says_once_why_a_game_may_lis
         copilot._unhidden(helper)
         relay.merge_for(profile)._unhidden(helper)  # a profile switch: still said once
     assert said == [unhidden_note(helper)]
+
+
+def _exited(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().rsplit(")", 1)[1].split()[0] == "Z"  # a zombie waits to be reaped
+    except FileNotFoundError:
+        return True
+
+
+def test_a_driver_killed_with_devices_hidden_has_its_guard_put_them_back_at_once(box):
+    """SIGKILL (the OOM killer, a crash in native code): nothing in the driver runs, its guard puts
+    the helper's nodes back and says so on the driver's standard error, with no next start."""
+    code = (
+        "import sys\n"
+        "from neurotouch_hid.inputs.hide import Hider\n"
+        "h = Hider(sys.argv[1], sys.argv[2], sys.argv[3], guarded=True)\n"
+        "print(h.hide(sys.argv[2] + '/input/event5'), h._guard.pid, flush=True)\n"
+        "sys.stdin.read()\n"
+    )
+    driver = subprocess.Popen(
+        [sys.executable, "-c", code, str(box["run"]), str(box["dev"]), str(box["sys"])],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        line = driver.stdout.readline()
+        assert line.startswith("['input/event5', 'input/js0', 'hidraw2'] "), line
+        guard_pid = int(line.split()[-1])
+        assert not (box["dev"] / "input/event5").exists()
+        driver.kill()
+        driver.wait()
+        assert wait_until(lambda: _exited(guard_pid), 30.0), "the guard did not end"
+    finally:
+        driver.kill()
+        driver.wait()
+    for name in ("input/event5", "input/js0", "hidraw2"):
+        assert (box["dev"] / name).read_text() == name
+    assert list(box["run"].iterdir()) == []
+    assert (
+        driver.stderr.read()
+        .strip()
+        .endswith(
+            "the driver died with merged devices hidden; put back /dev/hidraw2, /dev/input/event5, /dev/input/js0"
+        )
+    )
+
+
+def test_a_driver_that_puts_its_nodes_back_ends_its_guard_which_does_nothing(box, monkeypatch):
+    h = Hider(box["run"], box["dev"], box["sys"], guarded=True)
+    h.hide(str(box["dev"] / "input/event5"))
+    guard = h._guard
+    assert guard is not None and not _exited(guard.pid)
+    h.hide(str(box["dev"] / "input/event6"))
+    assert h._guard is guard  # one guard for the process's folder
+    assert h.restore_all() == ["hidraw2", "input/event5", "input/event6", "input/js0"]
+    assert h._guard is None and guard._proc.returncode == 0
+    unguarded = hider(box)
+    unguarded.hide(str(box["dev"] / "input/event5"))
+    assert unguarded._guard is None  # only the driver's own Hider is guarded
+    unguarded.restore_all()

@@ -77,3 +77,12 @@ def test_merged_as_root_the_helpers_nodes_are_hidden_so_a_game_started_then_list
     assert details["helper_node_in_dev_after_switch"]
     assert details["hidden_after_stop"] == [] and details["helper_node_readable_after_stop"]
     assert details["box_node_as_before"]  # the switch box's node: the same number, mode, owner and ACL
+
+
+def test_a_driver_killed_while_it_hides_the_helpers_pad_leaves_the_pad_listed_and_readable(guest):
+    details = passed(guest, "checks_copilot.check_a_killed_driver_leaves_no_device_hidden")
+    assert details["hid"].startswith("['input/event") and not details["in_dev_while_hidden"]
+    assert details["in_dev_after_kill"] and details["node_as_before"] and not details["left_hidden"]
+    assert details["reader_after_kill"] == [["BTN_SOUTH", 1], ["BTN_SOUTH", 0]]
+    said = "the driver died with merged devices hidden; put back /dev/input/event"
+    assert details["said"] and said in details["said"][0]

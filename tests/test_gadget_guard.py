@@ -1,4 +1,4 @@
-"""The gadget's guard (neurotouch_hid.targets.gadget.guard): a driver killed without closing its
+"""The gadget's guard (neurotouch_hid.guard): a driver killed without closing its
 ``/dev/hidgN`` nodes still leaves the host the neutral reports; a run that ends in order leaves
 nothing more. Here a pipe stands for the node (non-blocking, as the driver opens /dev/hidgN: a
 full pipe refuses a write with EAGAIN as a node whose last report the host has not taken does);
@@ -15,7 +15,7 @@ from pathlib import Path
 
 from helpers import fill_unread, wait_until
 
-from neurotouch_hid.targets.gadget.guard import NeutralGuard
+from neurotouch_hid.guard import Guard
 
 REPO = Path(__file__).resolve().parent.parent
 NEUTRAL = bytes.fromhex("00000080008000800080")
@@ -79,8 +79,8 @@ def test_a_driver_killed_by_sigkill_leaves_the_host_every_nodes_neutral_report(t
     keys_host, keys = _node()
     code = (
         "import os, sys, time\n"
-        "from neurotouch_hid.targets.gadget.guard import NeutralGuard\n"
-        f"guard = NeutralGuard([(int(sys.argv[1]), {NEUTRAL!r}), (int(sys.argv[2]), {KEYBOARD_NEUTRAL!r})])\n"
+        "from neurotouch_hid.guard import Guard\n"
+        f"guard = Guard([(int(sys.argv[1]), {NEUTRAL!r}), (int(sys.argv[2]), {KEYBOARD_NEUTRAL!r})])\n"
         "print(guard.pid, flush=True)\n"
         "time.sleep(600)\n"
     )
@@ -111,7 +111,7 @@ def test_a_driver_killed_by_sigkill_leaves_the_host_every_nodes_neutral_report(t
 
 def test_a_run_that_ends_in_order_releases_its_guard_which_sends_nothing():
     host, node = _node()
-    guard = NeutralGuard([(node, NEUTRAL)])
+    guard = Guard([(node, NEUTRAL)])
     os.close(node)  # the guard has its own copy
     guard.release()
     assert guard._proc.returncode == 0
@@ -125,7 +125,7 @@ def test_the_guard_outlives_ctrl_c_and_sigterm_and_waits_for_the_host_to_take_th
     not taken the last report (the node refuses with EAGAIN): the neutral one follows once it has."""
     host, node = _node()
     fill_unread(node)
-    guard = NeutralGuard([(node, NEUTRAL)])
+    guard = Guard([(node, NEUTRAL)])
     os.close(node)
     assert wait_until(lambda: _ignored(guard.pid) & STOP_SIGNALS == STOP_SIGNALS, 30.0), "the guard ignores no signal"
     for number in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
@@ -143,7 +143,7 @@ def test_the_guard_outlives_ctrl_c_and_sigterm_and_waits_for_the_host_to_take_th
 def test_the_guard_gives_up_on_a_host_that_never_reads():
     host, node = _node()
     fill_unread(node)
-    guard = NeutralGuard([(node, NEUTRAL)], give_up_s=0.2)
+    guard = Guard([(node, NEUTRAL)], give_up_s=0.2)
     os.close(node)
     os.close(guard._write_end)
     guard._write_end = -1

@@ -280,7 +280,7 @@ class FeedbackRelay:
         if not profile.copilot:
             self.merge = None
             return None
-        hider = Hider() if self._hide else None
+        hider = Hider(guarded=True) if self._hide else None
         self.merge = Copilot(profile.copilot, say=self._say, hider=hider, unhidden=self._not_hidden)
         return self.merge
 

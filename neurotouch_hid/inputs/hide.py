@@ -16,8 +16,10 @@ another file system, as in the tests) a new node with the same device number, mo
 attributes (the POSIX ACL udev's ``uaccess`` wrote) made first, then the old one removed: a node
 is never lost. Putting back is the same move the other way; a node whose device is gone (its
 ``/sys/class/<subsystem>/<name>/dev`` no longer has that number) is only removed. Each process
-hides into its own ``<pid>`` folder; :func:`restore_stale` puts back what a process that died
-without putting back (SIGKILL, a power cut of the process) left there, at the next start.
+hides into its own ``<pid>`` folder. A driver killed without putting back (SIGKILL, the OOM killer,
+a crash in native code) has its guard (:class:`~neurotouch_hid.guard.Guard`, a small process
+started at the first node hidden) put its folder back at once (:data:`RESTORE_CODE`); what is left
+even so (the guard killed too, a power cut) :func:`restore_stale` puts back at the next start.
 
 Library: the standard library (os.mknod, os.rename, xattrs); the node numbers: sysfs-rules.rst.
 """
@@ -29,8 +31,10 @@ import errno
 import logging
 import os
 import stat
+import sys
 from pathlib import Path
 
+from neurotouch_hid.guard import Guard
 from neurotouch_hid.limits import read_proc_file
 
 log = logging.getLogger(__name__)
@@ -47,6 +51,18 @@ DEV_DIR = Path("/dev")
 SYSFS = Path("/sys")
 #: How many folders up from an input device its USB device is looked for (input -> interface -> device).
 _USB_DEPTH = 6
+#: What a :class:`Hider`'s guard runs when the driver died (``python -I -c``): argv is the folder
+#: holding the package, then the root, ``/dev``, ``/sys`` and the dead driver's pid; one line on
+#: standard error (the driver's: the terminal or the journal) names the nodes put back.
+RESTORE_CODE = """
+import sys
+sys.path.insert(0, sys.argv[1])
+from neurotouch_hid.inputs.hide import Hider
+back = Hider(*sys.argv[2:5], pid=int(sys.argv[5])).restore_all()
+if back:
+    names = ", ".join("/dev/" + n for n in back)
+    print(f"neurotouch-hid: the driver died with merged devices hidden; put back {names}", file=sys.stderr)
+"""
 
 
 def may_hide(dev: Path = DEV_DIR) -> bool:
@@ -121,12 +137,24 @@ class Hider:
     Args:
         root: the hidden folders' parent (:data:`HIDDEN_DIR`); dev: ``/dev``; sysfs: ``/sys``;
         pid: whose folder (this process).
+        guarded: start a guard at the first node hidden, which puts the folder back if this
+            process dies before :meth:`restore_all` (module docstring); released by it.
     """
 
-    def __init__(self, root: Path = HIDDEN_DIR, dev: Path = DEV_DIR, sysfs: Path = SYSFS, pid: int | None = None):
+    def __init__(
+        self,
+        root: Path = HIDDEN_DIR,
+        dev: Path = DEV_DIR,
+        sysfs: Path = SYSFS,
+        pid: int | None = None,
+        *,
+        guarded: bool = False,
+    ):
         self.dev, self.sysfs = Path(dev), Path(sysfs)
         self.folder = Path(root) / str(os.getpid() if pid is None else pid)
         self._hidden: dict[str, list[str]] = {}  # event node -> the nodes hidden with it (relative to dev)
+        self._guarded = guarded
+        self._guard: Guard | None = None
 
     def hide(self, event_node: str) -> list[str]:
         """Move ``event_node``'s nodes (:func:`related_nodes`) into this process's folder; the ones
@@ -144,7 +172,24 @@ class Hider:
             moved.append(relative)
         if moved:
             self._hidden.setdefault(event_node, []).extend(moved)
+            self._start_guard()
         return moved
+
+    def _start_guard(self) -> None:
+        if not self._guarded or self._guard is not None:
+            return
+        package_parent = str(Path(__file__).resolve().parents[2])
+        root, pid = self.folder.parent, self.folder.name
+        paths = [package_parent, str(root), str(self.dev), str(self.sysfs)]
+        then = [sys.executable, "-I", "-c", RESTORE_CODE, *paths, pid]
+        try:
+            self._guard = Guard(then=then, what="the hidden devices")
+        except OSError as exc:
+            log.warning(
+                "the hidden devices' guard could not start (%s): if the driver is killed, the merged "
+                "devices stay hidden from games until its next start",
+                exc.strerror or exc,
+            )
 
     def restore(self, event_node: str) -> list[str]:
         """Put ``event_node``'s hidden nodes back; the ones put back (a gone device's are removed)."""
@@ -164,6 +209,9 @@ class Hider:
                     path.rmdir()
             with contextlib.suppress(OSError):
                 self.folder.rmdir()
+        if self._guard is not None:  # everything is back: nothing left for it to do
+            self._guard.release()
+            self._guard = None
         return back
 
     def rehide(self) -> list[str]:

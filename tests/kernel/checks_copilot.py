@@ -512,3 +512,66 @@ class Scenario:
                 device.close()
             except OSError:
                 pass
+
+
+#: A driver process that hides a merged device as the copilot does (its ``Hider(guarded=True)``),
+#: says what it hid, then waits to be killed: not ``neurotouch-hid run`` itself, whose start costs
+#: minutes here (check_copilot_merges_grabs_rejoins_and_rumbles runs that one in this process).
+HIDING_DRIVER = """\
+import sys
+from neurotouch_hid.inputs.hide import Hider
+hider = Hider(guarded=True)
+print(hider.hide(sys.argv[1]), flush=True)
+sys.stdin.read()
+"""
+
+
+def check_a_killed_driver_leaves_no_device_hidden() -> dict:
+    """A driver SIGKILLed while it hides the helper's pad (the OOM killer, a crash in native code:
+    nothing in it runs): its guard puts the pad's nodes back on devtmpfs at once, the same node
+    (number, mode, owner, ACL), nothing left in the hidden folder, and a reader of the node gets
+    the pad's events again; the guard's line on the driver's standard error names them."""
+    helper = helper_pad()
+    guestlib.settle()
+    path = helper.device.path
+    before = _node_stat(path)
+    driver = subprocess.Popen(
+        [sys.executable, "-c", HIDING_DRIVER, path],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    details: dict = {}
+    try:
+        details["hid"] = driver.stdout.readline().strip()
+        details["in_dev_while_hidden"] = os.path.exists(path)
+        killed = time.monotonic()
+        driver.kill()
+        driver.wait()
+        deadline = killed + 30
+        while not os.path.exists(path) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        details["back_after_s"] = round(time.monotonic() - killed, 2)
+        details["in_dev_after_kill"] = os.path.exists(path)
+        details["node_as_before"] = details["in_dev_after_kill"] and _node_stat(path) == before
+        deadline = time.monotonic() + 30  # the guard's own line comes once its folder is empty
+        while (HIDDEN_DIR / str(driver.pid)).exists() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        details["left_hidden"] = (HIDDEN_DIR / str(driver.pid)).exists()
+        watcher = Watcher(path)
+        try:
+            press(helper, (ecodes.EV_KEY, ecodes.BTN_SOUTH, 1))
+            press(helper, (ecodes.EV_KEY, ecodes.BTN_SOUTH, 0))
+            deadline = time.monotonic() + 10
+            while len(watcher.keys_log()) < 2 and time.monotonic() < deadline:
+                time.sleep(0.02)
+            details["reader_after_kill"] = watcher.keys_log()
+        finally:
+            watcher.stop()
+    finally:
+        driver.kill()
+        driver.wait()
+        details["said"] = driver.stderr.read().strip().splitlines()[-1:]
+        helper.close()
+    return details

@@ -17,7 +17,7 @@ keyboard).
 :class:`UsbGadget` opens a run's targets: it uses the gadget a privileged ``neurotouch-hid
 gadget setup`` made (:mod:`~neurotouch_hid.targets.gadget.configfs`), or, run as root with none
 there, makes it itself and removes it when the run ends. Beside the ``hid`` functions it starts
-a guard (:mod:`~neurotouch_hid.targets.gadget.guard`) that sends their neutral reports if the
+a guard (:mod:`~neurotouch_hid.guard`) that sends their neutral reports if the
 driver dies without closing them (SIGKILL, a crash).
 """
 
@@ -29,8 +29,8 @@ import time
 from typing import TYPE_CHECKING
 
 from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.guard import Guard
 from neurotouch_hid.targets.gadget import configfs
-from neurotouch_hid.targets.gadget.guard import NeutralGuard
 
 if TYPE_CHECKING:
     from neurotouch_hid.mapping.profile import Profile
@@ -72,7 +72,7 @@ class UsbGadget:
         self.name = name
         self.targets: list[Target] = []
         self.made = False
-        self._guard: NeutralGuard | None = None
+        self._guard: Guard | None = None
 
     def __enter__(self) -> "UsbGadget":
         found = configfs.protocol_of(self.name)
@@ -116,7 +116,7 @@ class UsbGadget:
         nodes = [target.guarded() for target in self.targets if isinstance(target, HidgTarget)]
         if nodes:
             try:
-                self._guard = NeutralGuard(nodes)
+                self._guard = Guard(nodes)
             except OSError as exc:
                 log.warning(
                     "the USB gadget's guard could not start (%s): if the driver is killed, the host keeps its last"

@@ -125,7 +125,7 @@ class HidgTarget(_ReportTarget):
 
     def guarded(self) -> tuple[int, bytes]:
         """The node's descriptor and its neutral report, for the guard that sends it if the
-        driver dies (:class:`~neurotouch_hid.targets.gadget.guard.NeutralGuard`)."""
+        driver dies (:class:`~neurotouch_hid.guard.Guard`)."""
         return self._fd, self.format.neutral()
 
     def feedback(self) -> list[Feedback]:

@@ -1,0 +1,144 @@
+"""What is undone for the driver when it dies without undoing it itself.
+
+Closing in an orderly way (SIGTERM, Ctrl-C, an error) undoes everything the driver did outside
+itself; a driver killed by SIGKILL, by the OOM killer or by a crash in native code runs nothing
+more. The kernel undoes most of it (a uinput or UHID device goes with its descriptor, a grab with
+its device's), not all:
+
+* a ``hid`` gadget function stays bound to its UDC when the process writing to its ``/dev/hidgN``
+  ends: the host keeps the last report it read (an interrupt IN endpoint with nothing new only
+  NAKs, Documentation/usb/gadget_hid.rst), so the host's game would keep the stick held and the
+  buttons pressed. (A FunctionFS function is not affected: when the last of its files closes,
+  the kernel unbinds the whole gadget from its UDC, ``ffs_closed()`` in
+  drivers/usb/gadget/function/f_fs.c, and the host sees the device unplugged.)
+* a merged device's nodes moved out of ``/dev`` (:mod:`~neurotouch_hid.inputs.hide`) stay there:
+  no game would list the helper's pad until the driver's next start.
+
+:class:`Guard` starts a small process beside the driver: this Python, isolated and without
+``site`` (``-I -S``, about 3 MiB of its own memory), running :data:`GUARD_CODE`. It holds its own
+descriptors of the ``hid`` nodes and blocks in a read of a pipe whose only writer is the driver,
+so at rest it costs no CPU and no wake-up. When the driver ends its run it writes one byte and the
+guard exits with nothing done. When the driver dies, the kernel closes the pipe's write end and
+the read returns end-of-file: the guard writes each node's neutral report, retrying every
+:data:`RETRY_S` while the host has not taken the one before (EAGAIN, the node being non-blocking)
+or is away, for at most :data:`GIVE_UP_S`; then it runs its command, if it has one, in its place
+(``execv``: the nodes put back). It ignores SIGINT, SIGTERM and SIGHUP, and so does its command:
+Ctrl-C signals the terminal's whole process group and systemd's stop the unit's whole cgroup,
+and the guard's own end is decided by the driver's pipe alone.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import subprocess
+import sys
+from collections.abc import Sequence
+
+log = logging.getLogger(__name__)
+
+#: How long the guard keeps trying to hand the host the neutral reports (s).
+GIVE_UP_S = 2.0
+#: Pause between two tries while the host has not taken a report (s).
+RETRY_S = 0.004
+#: How long :meth:`Guard.release` waits for the guard to exit before killing it (s).
+RELEASE_WAIT_S = 2.0
+#: The guard's program (``python -I -S -c``): argv is the pipe's read end, how long to try (s),
+#: one ``FD:HEXREPORT`` per node, then ``--`` and the command to run after them, if any. Only
+#: the os, signal and time modules.
+GUARD_CODE = f"""
+import os, signal, sys, time
+for number in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+    signal.signal(number, signal.SIG_IGN)
+pipe, give_up_s = int(sys.argv[1]), float(sys.argv[2])
+args = sys.argv[3:]
+cut = args.index("--") if "--" in args else len(args)
+left = [(int(fd), bytes.fromhex(report)) for fd, report in (a.split(":") for a in args[:cut])]
+then = args[cut + 1 :]
+while True:
+    try:
+        said = os.read(pipe, 1)
+        break
+    except InterruptedError:
+        continue
+if said:
+    sys.exit(0)
+end = time.monotonic() + give_up_s
+while left and time.monotonic() < end:
+    for node in list(left):
+        try:
+            os.write(*node)
+            left.remove(node)
+        except OSError:
+            pass
+    if left:
+        time.sleep({RETRY_S!r})
+if then:
+    os.execv(then[0], then)
+"""
+
+
+class Guard:
+    """The guard process (module docstring) for ``nodes``, each an open ``/dev/hidgN`` descriptor
+    and the neutral report to write there if the driver dies, and ``then``, a command run after
+    them.
+
+    Args:
+        nodes: (descriptor, report bytes) pairs; the descriptors stay the caller's, the guard
+            gets copies of them.
+        then: argv of the command the guard becomes once the reports are written (its first item
+            an absolute path: ``execv`` does not search PATH); empty: none.
+        give_up_s: how long the guard tries to hand the host the reports once the driver died (s).
+        what: whose guard, in the log's lines.
+    Raises:
+        OSError: the guard could not be started (no process or descriptor left).
+    """
+
+    def __init__(
+        self,
+        nodes: Sequence[tuple[int, bytes]] = (),
+        *,
+        then: Sequence[str] = (),
+        give_up_s: float = GIVE_UP_S,
+        what: str = "the USB gadget",
+    ):
+        self.what = what
+        read_end, self._write_end = os.pipe()  # not inherited: only the guard gets the read end
+        try:
+            args = [str(read_end), repr(give_up_s), *(f"{fd}:{report.hex()}" for fd, report in nodes)]
+            if then:
+                args += ["--", *then]
+            self._proc = subprocess.Popen(
+                [sys.executable, "-I", "-S", "-c", GUARD_CODE, *args],
+                pass_fds=(read_end, *(fd for fd, _ in nodes)),
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.DEVNULL,
+            )
+        except BaseException:
+            os.close(self._write_end)
+            raise
+        finally:
+            os.close(read_end)
+
+    @property
+    def pid(self) -> int:
+        return self._proc.pid
+
+    def release(self) -> None:
+        """The run ended in order (it undid what it did itself): the guard exits with nothing
+        done; waited for up to :data:`RELEASE_WAIT_S`, killed after that. Its
+        descriptors of the nodes are closed when this returns. Idempotent."""
+        if self._write_end < 0:
+            return
+        try:
+            os.write(self._write_end, b"\0")
+        except OSError:
+            pass  # the guard is gone already
+        os.close(self._write_end)
+        self._write_end = -1
+        try:
+            self._proc.wait(RELEASE_WAIT_S)
+        except subprocess.TimeoutExpired:
+            log.warning("%s's guard (pid %d) did not exit; killed", self.what, self._proc.pid)
+            self._proc.kill()
+            self._proc.wait()
