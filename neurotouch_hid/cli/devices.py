@@ -78,7 +78,10 @@ def run(
     protocol: Optional[str] = typer.Option(
         None,
         "--protocol",
-        help="with --output usb: hid, switch or xinput (default: the profile's device: protocol, else hid)",
+        help=(
+            "with --output usb: hid, switch or xinput "
+            "(default: the profile's device: protocol, else the gadget set up here's, else hid)"
+        ),
     ),
 ) -> None:
     """Run the driver: source -> pipeline -> profile -> virtual gamepad.

@@ -46,10 +46,12 @@ RELEASE_GRACE_S = 0.05
 INSTANCES = {"usb1": "keyboard", "usb2": "mouse"}
 
 
-def protocol_for(requested: str | None, profile: Profile) -> str:
+def protocol_for(requested: str | None, profile: Profile, name: str = configfs.GADGET_NAME) -> str:
     """The protocol of a run: ``--protocol`` when given, else the profile's ``device: protocol``,
-    else ``hid``. Raises DeviceError for an unknown one."""
-    protocol = requested or getattr(profile.device, "protocol", None) or "hid"
+    else that of the gadget set up here (``gadget setup``, or the boot unit that runs it:
+    :func:`~neurotouch_hid.targets.gadget.configfs.protocol_of`), else ``hid``. Raises
+    DeviceError for an unknown one."""
+    protocol = requested or getattr(profile.device, "protocol", None) or configfs.protocol_of(name) or "hid"
     if protocol not in configfs.PROTOCOLS:
         raise DeviceError(f"unknown USB protocol {protocol!r} (expected one of: {', '.join(configfs.PROTOCOLS)})")
     return protocol
