@@ -109,7 +109,10 @@ if [ $do_user = 1 ]; then
     env_file="$config/neurotouch-hid/service.env"
     if [ ! -e "$env_file" ]; then
         printf '%s\n' "# The profile neurotouch-hid.service runs: a name (default, accessibility, ...) or a path." \
-            "NEUROTOUCH_PROFILE=default" > "$env_file"
+            "NEUROTOUCH_PROFILE=default" \
+            "# Its output: gamepad (the default), hid, or usb (this board as a USB controller for another" \
+            "# computer or a console, docs/any-host.md); uncomment to change it." \
+            "#NEUROTOUCH_OUTPUT=usb" > "$env_file"
     fi
     systemctl --user daemon-reload 2>/dev/null \
         || echo "install.sh: no systemd user manager reachable; it reads the unit at your next login" >&2

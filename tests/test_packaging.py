@@ -77,13 +77,20 @@ HARDENING = (
 
 
 def test_unit_is_hardened():
-    """The sandbox: read-only system and home, private /tmp, only uinput and the camera, its own
-    state and cache folders; no other device is allowed."""
+    """The sandbox: read-only system and home, private /tmp, only the camera and the outputs'
+    devices (uinput, uhid, the USB gadget's), its own state and cache folders; no other device is
+    allowed."""
     lines = set(_rule_lines(UNIT.read_text()))
     assert set(HARDENING) <= lines
     assert {line for line in lines if line.startswith("DeviceAllow=")} == {
         "DeviceAllow=/dev/uinput rw",
         "DeviceAllow=/dev/neurotouch rw",
+        "DeviceAllow=/dev/uhid rw",  # --output hid
+        "DeviceAllow=char-hidg rw",  # --output usb: the gadget's /dev/hidgN
+    }
+    # writable: the unit's own folders, and the gadget's configfs folder (an xinput gadget's UDC)
+    assert {line for line in lines if line.startswith("ReadWritePaths=")} == {
+        "ReadWritePaths=-/sys/kernel/config/usb_gadget/neurotouch"
     }
 
 
