@@ -17,7 +17,8 @@ under emulation. One SDL start for ``hid`` and one for ``xinput``:
   it; evdev reads ABS_X at the push; SDL's joystick axis 0 goes full right. Then the UDC is
   unbound (the host sees the cable pulled) and bound again: the driver keeps running and the
   re-enumerated device reads the held push again. SIGTERM: the run returns normally, the last report is neutral.
-* ``switch`` (:func:`check_usb_switch`): HORI's 0f0d:00c1; the held push's report decodes field
+* ``switch`` (:func:`check_usb_switch`): ``gadget setup --protocol switch``, then a run given no
+  protocol speaks the gadget's: HORI's 0f0d:00c1; the held push's report decodes field
   by field as docs/reports.md says (B, ZR, the hat right, LX 255, the rest centred); SIGTERM:
   the last report is neutral.
 * ``xinput`` (:func:`check_usb_xinput`): xpad binds the FF/5D/01 interface of 045e:028e; SDL opens
@@ -64,7 +65,7 @@ XBOX_IDS = (XINPUT.vendor, XINPUT.product)
 #: The Switch's check: the push on the left stick, B (BTN_SOUTH), ZR from the right trigger and
 #: the d-pad's right, so that the report has a field of each kind set.
 SWITCH_PROFILE = """\
-description: guest check of neurotouch-hid run --output usb --protocol switch
+description: guest check of neurotouch-hid run --output usb on a switch gadget
 mappings:
   push: {input: push, output: left_stick, deadzone_mm: 0.5, saturation_mm: 6.0}
   fire: {input: push_intensity, output: BTN_SOUTH, press_mm: 2.0, release_mm: 1.0}
@@ -257,7 +258,10 @@ def check_usb_switch() -> dict:
     _kernel()
     preds, profile, held = _setup(SWITCH_PROFILE)
     held_report = SWITCH.pack(held)
-    run = InProcessRun(preds, profile, "usb", protocol="switch")
+    # made as the boot unit makes it; the run, given no protocol, speaks the gadget's
+    setup = guestlib.cli_in_process("gadget", "setup", "--protocol", "switch", "--user", "root")
+    assert setup[0] == 0, f"gadget setup: {setup}"
+    run = InProcessRun(preds, profile, "usb")
     seen: dict = {}
 
     def steps(run: InProcessRun) -> None:
@@ -269,6 +273,8 @@ def check_usb_switch() -> dict:
         reader.stop()
 
     run(steps)
+    remove = guestlib.cli_in_process("gadget", "remove")
+    assert remove[0] == 0, f"gadget remove: {remove}"
     reader, descriptor, last = seen["reader"], seen["descriptor"], seen["seen"]
     assert run.returned, f"the run did not return after SIGTERM: {run.said[-5:]}"
     assert descriptor == SWITCH.descriptor, f"descriptor read back: {descriptor.hex()}"
