@@ -70,6 +70,15 @@ def started(proc: subprocess.Popen, timeout_s: float = 60.0) -> subprocess.Popen
     raise AssertionError(f"pid {proc.pid} showed no environment within {timeout_s} s (exit code {proc.poll()})")
 
 
+def exited(pid: int) -> bool:
+    """Whether process ``pid`` has ended (gone, or a zombie waiting to be reaped)."""
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().rsplit(")", 1)[1].split()[0] == "Z"
+    except FileNotFoundError:
+        return True
+
+
 def fill_unread(fd: int) -> None:
     """Write to the non-blocking pipe end ``fd`` until it is full: it stands for a node whose
     reader (a USB host) has not read, and refuses the next write with EAGAIN."""

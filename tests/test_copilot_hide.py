@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from helpers import wait_until
+from helpers import exited, wait_until
 
 from neurotouch_hid.inputs import hide
 from neurotouch_hid.inputs.copilot import unhidden_note
@@ -160,14 +160,6 @@ def test_the_relay_hides_where_it_may_and_otherwise_says_once_why_a_game_may_lis
     assert said == [unhidden_note(helper)]
 
 
-def _exited(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as stat:
-            return stat.read().rsplit(")", 1)[1].split()[0] == "Z"  # a zombie waits to be reaped
-    except FileNotFoundError:
-        return True
-
-
 def test_a_driver_killed_with_devices_hidden_has_its_guard_put_them_back_at_once(box):
     """SIGKILL (the OOM killer, a crash in native code): nothing in the driver runs, its guard puts
     the helper's nodes back and says so on the driver's standard error, with no next start."""
@@ -192,7 +184,7 @@ def test_a_driver_killed_with_devices_hidden_has_its_guard_put_them_back_at_once
         assert not (box["dev"] / "input/event5").exists()
         driver.kill()
         driver.wait()
-        assert wait_until(lambda: _exited(guard_pid), 30.0), "the guard did not end"
+        assert wait_until(lambda: exited(guard_pid), 30.0), "the guard did not end"
     finally:
         driver.kill()
         driver.wait()
@@ -212,7 +204,7 @@ def test_a_driver_that_puts_its_nodes_back_ends_its_guard_which_does_nothing(box
     h = Hider(box["run"], box["dev"], box["sys"], guarded=True)
     h.hide(str(box["dev"] / "input/event5"))
     guard = h._guard
-    assert guard is not None and not _exited(guard.pid)
+    assert guard is not None and not exited(guard.pid)
     h.hide(str(box["dev"] / "input/event6"))
     assert h._guard is guard  # one guard for the process's folder
     assert h.restore_all() == ["hidraw2", "input/event5", "input/event6", "input/js0"]

@@ -13,7 +13,7 @@ import sys
 import time
 from pathlib import Path
 
-from helpers import fill_unread, wait_until
+from helpers import exited, fill_unread, wait_until
 
 from neurotouch_hid.guard import Guard
 
@@ -64,14 +64,6 @@ def _ignored(pid: int) -> int:
         return next(int(line.split()[1], 16) for line in status if line.startswith("SigIgn:"))
 
 
-def _gone(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as stat:
-            return stat.read().rsplit(")", 1)[1].split()[0] == "Z"  # a zombie waits to be reaped
-    except FileNotFoundError:
-        return True
-
-
 def test_a_driver_killed_by_sigkill_leaves_the_host_every_nodes_neutral_report(tmp_path):
     """A real process holding the nodes and its guard, killed with SIGKILL (nothing in it runs):
     each node gets its neutral report, and the guard exits."""
@@ -100,7 +92,7 @@ def test_a_driver_killed_by_sigkill_leaves_the_host_every_nodes_neutral_report(t
         driver.wait(30)
         assert _read(pad_host, _ends_with(NEUTRAL)) == NEUTRAL
         assert _read(keys_host, _ends_with(KEYBOARD_NEUTRAL)) == KEYBOARD_NEUTRAL
-        assert wait_until(lambda: _gone(guard_pid), 30.0), "the guard did not exit once it had sent them"
+        assert wait_until(lambda: exited(guard_pid), 30.0), "the guard did not exit once it had sent them"
     finally:
         if driver.poll() is None:
             driver.kill()
