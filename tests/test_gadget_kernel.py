@@ -84,3 +84,14 @@ def test_latency_from_decision_to_host_event_is_measured(guest):
     """The figures docs/performance.md gives ("USB gadget latency"); every move arrived."""
     details = passed(guest, "checks_gadget.check_usb_latency")
     assert details["samples"] == 100 and details["p50_ms"] <= details["p99_ms"]
+
+
+def test_the_packaged_user_unit_runs_the_usb_output_in_its_sandbox(guest):
+    """NEUROTOUCH_OUTPUT=usb in service.env, the unit under a real systemd --user (the guest check
+    says what it changes for this guest: no camera, no journald)."""
+    details = passed(guest, "checks_gadget.check_usb_from_the_user_unit")
+    assert "DeviceAllow=char-hidg rw" in details["sandbox"] and "DevicePolicy=closed" in details["sandbox"]
+    assert "ProtectKernelTunables=yes" in details["sandbox"]
+    assert f"--output usb --profile {details['profile']}" in details["cmdline"]  # service.env's choices
+    assert sorted(details["result"]) == ["ExecMainStatus=0", "Result=success"]  # stopped in order
+    assert details["last_report"] != details["held_report"]  # the guest checks it is the neutral one

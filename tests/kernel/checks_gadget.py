@@ -38,6 +38,7 @@ under emulation. One SDL start for ``hid`` and one for ``xinput``:
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -47,7 +48,7 @@ import time
 from pathlib import Path
 
 import guestlib
-from checks_runtime import ProbeLines, _write
+from checks_runtime import REPO, ProbeLines, _write
 from outputlib import PROFILE, HidrawReader, InProcessRun, held_state, hid_driver, push_right
 
 from neurotouch_hid.targets.gadget import configfs
@@ -547,6 +548,144 @@ def check_usb_killed_xinput() -> dict:
     assert os.WIFSIGNALED(run.status) and os.WTERMSIG(run.status) == signal.SIGKILL, f"wait status {run.status}"
     assert unplugged and watcher.gone, f"after SIGKILL the XInput pad is still there (evdev gone: {watcher.gone})"
     return {"unplugged_after_kill_s": round(unplugged_s, 2), "seconds": round(time.monotonic() - t0, 1)}
+
+
+#: Where the user unit's check keeps its files: /run (a tmpfs here), since the unit's /tmp is its own.
+UNIT_FOLDER = Path("/run/neurotouch-unit-check")
+
+
+def _systemd_runtime() -> None:
+    """What systemd as PID 1 makes at boot and this guest's init does not: the flag that the
+    system runs systemd (``sd_booted``, checked by ``systemd --user``) and the inaccessible nodes
+    the sandbox mounts over what it hides (``/proc/kallsyms``, ``ProtectKernelTunables``)."""
+    import stat as stat_module
+
+    Path("/run/systemd/system").mkdir(parents=True, exist_ok=True)
+    nodes = Path("/run/systemd/inaccessible")
+    nodes.mkdir(parents=True, exist_ok=True)
+    if not (nodes / "reg").exists():
+        (nodes / "reg").touch(mode=0)
+        (nodes / "dir").mkdir(mode=0)
+        os.mkfifo(nodes / "fifo", 0)
+        os.mknod(nodes / "chr", stat_module.S_IFCHR, os.makedev(0, 0))
+        os.mknod(nodes / "blk", stat_module.S_IFBLK, os.makedev(0, 0))
+
+
+def check_usb_from_the_user_unit() -> dict:
+    """The packaged user unit with ``NEUROTOUCH_OUTPUT=usb`` under a real systemd user manager
+    (``systemd --user``, the guest's root): installed by ``install.sh --user``, its sandbox as
+    shipped (DevicePolicy=closed with the gadget's ``char-hidg``, ProtectSystem=strict,
+    ProtectKernelTunables, ...), on a gadget made by ``gadget setup`` as the boot unit makes it. Only
+    what this guest has not is changed: no camera (the device unit's BindsTo= and After= are taken
+    out, and the source is a predictions file instead of ``davis``) and no journald (the run's
+    output and error go to a file). The host reads the push; ``systemctl --user stop`` leaves it
+    the neutral report."""
+    import shutil
+
+    import hidraw
+    from evdev import ecodes
+
+    t0 = time.monotonic()
+    _kernel()
+    shutil.rmtree(UNIT_FOLDER, ignore_errors=True)
+    folder = UNIT_FOLDER
+    (folder / "home").mkdir(parents=True)
+    preds, profile, held = _setup(PROFILE)
+    preds, profile = Path(shutil.copy(preds, folder)), Path(shutil.copy(profile, folder))
+    held_report = HID_JOYSTICK.pack(held)
+    setup = guestlib.cli_in_process("gadget", "setup", "--protocol", "hid", "--user", "root")
+    assert setup[0] == 0, f"gadget setup: {setup}"
+    _systemd_runtime()
+    runtime = Path("/run/user/0")
+    runtime.mkdir(parents=True, exist_ok=True, mode=0o700)
+    env = dict(
+        os.environ, XDG_RUNTIME_DIR=str(runtime), XDG_CONFIG_HOME=str(folder / "config"), HOME=str(folder / "home")
+    )
+    env.pop("XDG_CACHE_HOME", None)
+    command = Path(sys.executable).with_name("neurotouch-hid")
+    install = subprocess.run(
+        ["sh", str(REPO / "packaging/install.sh"), "--user", "--bin", str(command)],
+        env=env, capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert install.returncode == 0, f"install.sh --user: {install.stderr}"
+    unit = folder / "config" / "systemd" / "user" / "neurotouch-hid.service"
+    text = unit.read_text()
+    shipped_sandbox = [line for line in text.splitlines() if line.startswith(("Device", "Protect", "ReadWrite"))]
+    text = "\n".join(line for line in text.splitlines() if not line.startswith(("BindsTo=", "After=")))
+    unit.write_text(text.replace(" run --source davis ", f" run --source {preds} ") + "\n")
+    errors = folder / "run.err"
+    drop_in = unit.with_name("neurotouch-hid.service.d")
+    drop_in.mkdir()
+    (drop_in / "guest.conf").write_text(f"[Service]\nStandardOutput=file:{errors}\nStandardError=file:{errors}\n")
+    env_file = folder / "config" / "neurotouch-hid" / "service.env"
+    env_file.write_text(env_file.read_text() + f"NEUROTOUCH_PROFILE={profile}\nNEUROTOUCH_OUTPUT=usb\n")
+    manager = subprocess.Popen(
+        ["/usr/lib/systemd/systemd", "--user"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+
+    def systemctl(*args: str) -> str:
+        done = subprocess.run(["systemctl", "--user", *args], env=env, capture_output=True, text=True, timeout=120)
+        return (done.stdout + done.stderr).strip()
+
+    class Unit:  # what _hidraw asks of a run
+        said: list[str] = []
+
+        @staticmethod
+        def alive() -> bool:
+            return systemctl("is-active", "neurotouch-hid.service") in ("active", "activating")
+
+    reader = watcher = None
+    seen: dict = {}
+    try:
+        assert guestlib.wait_for(lambda: (runtime / "systemd" / "private").exists(), 60.0), (
+            "systemd --user did not start"
+        )
+        seen["start"] = systemctl("start", "neurotouch-hid.service")
+        _hidraw(HID_IDS, Unit, 300.0)
+        pid = systemctl("show", "-p", "MainPID", "--value", "neurotouch-hid.service")
+        with contextlib.suppress(OSError):  # what service.env chose
+            seen["cmdline"] = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+        guestlib.settle()
+        reader = HidrawReader(_open(HID_IDS))
+        node = guestlib.wait_for(lambda: _input_device(HID_IDS, ecodes.ABS_X, ecodes.EV_ABS), 20.0)
+        assert node, "no input device for the joystick"
+        watcher = guestlib.EventReader(node)
+        held_x = held.axes["ABS_X"]
+        watcher.pump(timeout_s=300.0, until=lambda r: r.axes.get(ecodes.ABS_X) == held_x, max_s=300.0)
+        seen["got_held"] = guestlib.wait_for(lambda: held_report in reader.reports, 60.0)
+        seen["evdev_held"] = watcher.axes.get(ecodes.ABS_X)
+        seen["stop"] = systemctl("stop", "neurotouch-hid.service")
+        seen["result"] = systemctl("show", "-p", "Result", "-p", "ExecMainStatus", "neurotouch-hid.service")
+        watcher.pump(timeout_s=5.0, until=lambda r: r.axes.get(ecodes.ABS_X) == 0, max_s=30.0)
+    finally:
+        with contextlib.suppress(Exception):
+            systemctl("stop", "neurotouch-hid.service")
+        manager.terminate()
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            manager.wait(30)
+        if manager.poll() is None:
+            manager.kill()
+            manager.wait()
+        if reader is not None:
+            reader.stop()
+        _close(watcher)
+        removed = guestlib.cli_in_process("gadget", "remove")
+        said = errors.read_text().splitlines()[-30:] if errors.exists() else []
+    assert seen.get("got_held") and seen["evdev_held"] == held_x > 0, f"the held push: {seen}, the run: {said}"
+    assert reader.reports[-1] == HID_JOYSTICK.neutral(), f"after the unit stopped: {reader.reports[-1].hex()}"
+    assert watcher.axes.get(ecodes.ABS_X) == 0, f"evdev after the unit stopped: ABS_X {watcher.axes.get(ecodes.ABS_X)}"
+    assert "Result=success" in seen["result"] and "ExecMainStatus=0" in seen["result"], f"{seen['result']}: {said}"
+    assert removed[0] == 0 and not hidraw.enumerate(*HID_IDS), f"gadget remove: {removed}"
+    return {
+        "sandbox": shipped_sandbox,
+        "held_report": held_report.hex(),
+        "last_report": reader.reports[-1].hex(),
+        "result": seen["result"].splitlines(),
+        "said": said,
+        "cmdline": seen.get("cmdline", ""),
+        "profile": str(profile),
+        "seconds": round(time.monotonic() - t0, 1),
+    }
 
 
 def check_usb_latency() -> dict:
