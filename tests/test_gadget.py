@@ -1,6 +1,7 @@
 """The USB gadget's pieces that need no kernel: FunctionFS structs, the report writer, the plan.
 The gadget itself is checked in a real kernel (tests/test_gadget_kernel.py)."""
 
+import errno
 import os
 import struct
 import time
@@ -281,3 +282,26 @@ def test_protocol_is_refused_without_output_usb():
 
     with pytest.raises(NeurotouchError, match="--protocol switch: only with --output usb"):
         run_driver("sim", "default", "jsonl", protocol="switch")
+
+
+@pytest.mark.parametrize(
+    ("number", "said"),
+    [
+        (errno.EACCES, "the gadget's device nodes are not this user's\nsudo neurotouch-hid gadget setup --user $USER"),
+        (errno.EPERM, "a device policy denies it (a systemd unit's DevicePolicy=closed without DeviceAllow=char-hidg"),
+        (errno.ENOENT, "no such node: the gadget is not set up"),
+    ],
+)
+def test_a_hidg_node_that_does_not_open_says_why_by_its_errno(monkeypatch, number, said):
+    """EPERM is what a systemd unit's device policy gives (seen in the test kernel's check of the
+    packaged unit without its DeviceAllow=char-hidg), EACCES the node's owner, ENOENT no gadget."""
+    from neurotouch_hid.targets.gadget.targets import HidgTarget
+    from neurotouch_hid.targets.reports import format_for
+
+    def refused(*args, **kwargs):
+        raise OSError(number, os.strerror(number))
+
+    monkeypatch.setattr(os, "open", refused)
+    with pytest.raises(DeviceError) as raised:
+        HidgTarget("/dev/hidg0", format_for("hid"), "test")
+    assert said in str(raised.value) and str(raised.value).startswith("cannot open /dev/hidg0 (")

@@ -20,6 +20,7 @@ Whatever stops the driver, :meth:`close` sends the neutral report first and wait
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import threading
@@ -102,6 +103,20 @@ class _ReportTarget:
         return True
 
 
+def _why_not(number: int | None) -> str:
+    """Why a ``/dev/hidgN`` would not open, and the fix, by the open's errno: EPERM is a device
+    policy (the device cgroup: a systemd unit's ``DevicePolicy=``, Documentation/admin-guide/
+    cgroup-v1/devices.rst), not the node's owner, which is EACCES."""
+    if number == errno.ENOENT:
+        return "no such node: the gadget is not set up (or not bound)\nsudo neurotouch-hid gadget setup --user $USER"
+    if number == errno.EPERM:
+        return (
+            "a device policy denies it (a systemd unit's DevicePolicy=closed without DeviceAllow=char-hidg rw, "
+            "which packaging/neurotouch-hid.service has)"
+        )
+    return "the gadget's device nodes are not this user's\nsudo neurotouch-hid gadget setup --user $USER"
+
+
 class HidgTarget(_ReportTarget):
     """One ``hid`` function's ``/dev/hidgN`` (module docstring), fed with ``format``'s reports.
 
@@ -113,10 +128,7 @@ class HidgTarget(_ReportTarget):
         try:
             self._fd = os.open(node, os.O_RDWR | os.O_NONBLOCK | os.O_CLOEXEC)
         except OSError as exc:
-            raise DeviceError(
-                f"cannot open {node} ({exc.strerror}): the gadget's device nodes are not this user's\n"
-                "sudo neurotouch-hid gadget setup --user $USER"
-            ) from None
+            raise DeviceError(f"cannot open {node} ({exc.strerror}): {_why_not(exc.errno)}") from None
         self._start(self._fd, fmt, what)
 
     def fileno(self) -> int | None:
