@@ -466,6 +466,23 @@ class _ForkedRun:
             self.status = os.waitpid(self.pid, 0)[1]
 
 
+def _held_on_the_host(held, held_report: bytes, opened: dict, timeout_s: float) -> tuple[bool, int | None]:
+    """Once the host has the ``hid`` gadget: hidapi's reader and evdev's of its joystick (into
+    ``opened``, ``reader`` and ``watcher``, as soon as each is open), until evdev reads the held
+    push's ABS_X (``held``, the profile's held state) or ``timeout_s`` passes; whether hidapi
+    read ``held_report``, and evdev's ABS_X."""
+    from evdev import ecodes
+
+    guestlib.settle()
+    reader = opened["reader"] = HidrawReader(_open(HID_IDS))
+    node = guestlib.wait_for(lambda: _input_device(HID_IDS, ecodes.ABS_X, ecodes.EV_ABS), 20.0)
+    assert node, "no input device for the joystick"
+    watcher = opened["watcher"] = guestlib.EventReader(node)
+    held_x = held.axes["ABS_X"]
+    watcher.pump(timeout_s=timeout_s, until=lambda r: r.axes.get(ecodes.ABS_X) == held_x, max_s=timeout_s)
+    return bool(guestlib.wait_for(lambda: held_report in reader.reports, 60.0)), watcher.axes.get(ecodes.ABS_X)
+
+
 def check_usb_killed() -> dict:
     """A ``hid`` run killed by SIGKILL while it holds the push: it cannot close its gadget, which
     stays bound (the host's device stays), and its guard sends the neutral report: hidapi reads it
@@ -481,15 +498,12 @@ def check_usb_killed() -> dict:
     reader = watcher = None
     try:
         _hidraw(HID_IDS, run)
-        guestlib.settle()
-        reader = HidrawReader(_open(HID_IDS))
-        node = guestlib.wait_for(lambda: _input_device(HID_IDS, ecodes.ABS_X, ecodes.EV_ABS), 20.0)
-        assert node, "no input device for the joystick"
-        watcher = guestlib.EventReader(node)
+        opened: dict = {}
+        try:
+            got_held, evdev_held = _held_on_the_host(held, held_report, opened, 400.0)
+        finally:
+            reader, watcher = opened.get("reader"), opened.get("watcher")
         held_x = held.axes["ABS_X"]
-        watcher.pump(timeout_s=400.0, until=lambda r: r.axes.get(ecodes.ABS_X) == held_x, max_s=400.0)
-        got_held = guestlib.wait_for(lambda: held_report in reader.reports, 60.0)
-        evdev_held = watcher.axes.get(ecodes.ABS_X)
         t_kill = time.monotonic()
         run.kill()
         neutral = guestlib.wait_for(lambda: reader.reports[-1:] == [HID_JOYSTICK.neutral()], 30.0, 0.05)
@@ -577,8 +591,9 @@ def check_usb_from_the_user_unit() -> dict:
     shipped (DevicePolicy=closed with the gadget's ``char-hidg``, ProtectSystem=strict,
     ProtectKernelTunables, ...), on a gadget made by ``gadget setup`` as the boot unit makes it. Only
     what this guest has not is changed: no camera (the device unit's BindsTo= and After= are taken
-    out, and the source is a predictions file instead of ``davis``) and no journald (the run's
-    output and error go to a file). The host reads the push; ``systemctl --user stop`` leaves it
+    out, and the source is a predictions file instead of ``davis``), no journald (the run's
+    output and error go to a file), and the project may live under /tmp (a CI clone), which the
+    unit's private /tmp hides: it is bound in. The host reads the push; ``systemctl --user stop`` leaves it
     the neutral report."""
     import shutil
 
@@ -616,7 +631,10 @@ def check_usb_from_the_user_unit() -> dict:
     errors = folder / "run.err"
     drop_in = unit.with_name("neurotouch-hid.service.d")
     drop_in.mkdir()
-    (drop_in / "guest.conf").write_text(f"[Service]\nStandardOutput=file:{errors}\nStandardError=file:{errors}\n")
+    guest = f"[Service]\nStandardOutput=file:{errors}\nStandardError=file:{errors}\n"
+    if REPO.is_relative_to("/tmp"):  # a CI clone: the unit's own /tmp (PrivateTmp=yes) would hide the driver
+        guest += f"BindReadOnlyPaths={REPO}\n"
+    (drop_in / "guest.conf").write_text(guest)
     env_file = folder / "config" / "neurotouch-hid" / "service.env"
     env_file.write_text(env_file.read_text() + f"NEUROTOUCH_PROFILE={profile}\nNEUROTOUCH_OUTPUT=usb\n")
     manager = subprocess.Popen(
@@ -640,20 +658,18 @@ def check_usb_from_the_user_unit() -> dict:
         assert guestlib.wait_for(lambda: (runtime / "systemd" / "private").exists(), 60.0), (
             "systemd --user did not start"
         )
-        seen["start"] = systemctl("start", "neurotouch-hid.service")
+        seen["start"] = systemctl("start", "neurotouch-hid.service")  # nothing said: started
+        assert not seen["start"], f"{seen['start']}: {errors.read_text() if errors.exists() else ''}"
         _hidraw(HID_IDS, Unit, 300.0)
         pid = systemctl("show", "-p", "MainPID", "--value", "neurotouch-hid.service")
         with contextlib.suppress(OSError):  # what service.env chose
             seen["cmdline"] = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
-        guestlib.settle()
-        reader = HidrawReader(_open(HID_IDS))
-        node = guestlib.wait_for(lambda: _input_device(HID_IDS, ecodes.ABS_X, ecodes.EV_ABS), 20.0)
-        assert node, "no input device for the joystick"
-        watcher = guestlib.EventReader(node)
+        opened: dict = {}
+        try:
+            seen["got_held"], seen["evdev_held"] = _held_on_the_host(held, held_report, opened, 300.0)
+        finally:
+            reader, watcher = opened.get("reader"), opened.get("watcher")
         held_x = held.axes["ABS_X"]
-        watcher.pump(timeout_s=300.0, until=lambda r: r.axes.get(ecodes.ABS_X) == held_x, max_s=300.0)
-        seen["got_held"] = guestlib.wait_for(lambda: held_report in reader.reports, 60.0)
-        seen["evdev_held"] = watcher.axes.get(ecodes.ABS_X)
         seen["stop"] = systemctl("stop", "neurotouch-hid.service")
         seen["result"] = systemctl("show", "-p", "Result", "-p", "ExecMainStatus", "neurotouch-hid.service")
         watcher.pump(timeout_s=5.0, until=lambda r: r.axes.get(ecodes.ABS_X) == 0, max_s=30.0)
