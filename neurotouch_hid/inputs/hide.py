@@ -52,16 +52,13 @@ SYSFS = Path("/sys")
 #: How many folders up from an input device its USB device is looked for (input -> interface -> device).
 _USB_DEPTH = 6
 #: What a :class:`Hider`'s guard runs when the driver died (``python -I -c``): argv is the folder
-#: holding the package, then the root, ``/dev``, ``/sys`` and the dead driver's pid; one line on
-#: standard error (the driver's: the terminal or the journal) names the nodes put back.
+#: holding the package, then the dead driver's pid, the root, ``/dev`` and ``/sys``
+#: (:func:`put_back_dead`).
 RESTORE_CODE = """
 import sys
 sys.path.insert(0, sys.argv[1])
-from neurotouch_hid.inputs.hide import Hider
-back = Hider(*sys.argv[2:5], pid=int(sys.argv[5])).restore_all()
-if back:
-    names = ", ".join("/dev/" + n for n in back)
-    print(f"neurotouch-hid: the driver died with merged devices hidden; put back {names}", file=sys.stderr)
+from neurotouch_hid.inputs.hide import put_back_dead
+put_back_dead(int(sys.argv[2]), *sys.argv[3:6])
 """
 
 
@@ -179,9 +176,8 @@ class Hider:
         if not self._guarded or self._guard is not None:
             return
         package_parent = str(Path(__file__).resolve().parents[2])
-        root, pid = self.folder.parent, self.folder.name
-        paths = [package_parent, str(root), str(self.dev), str(self.sysfs)]
-        then = [sys.executable, "-I", "-c", RESTORE_CODE, *paths, pid]
+        where = [str(self.folder.parent), str(self.dev), str(self.sysfs)]
+        then = [sys.executable, "-I", "-c", RESTORE_CODE, package_parent, self.folder.name, *where]
         try:
             self._guard = Guard(then=then, what="the hidden devices")
         except OSError as exc:
@@ -273,4 +269,19 @@ def put_back_stale(say=log.warning) -> None:
         return
     back = restore_stale()
     if back:
-        say(f"put back {', '.join('/dev/' + n for n in back)}, left hidden by a driver that did not stop cleanly")
+        say(f"put back {_named(back)}, left hidden by a driver that did not stop cleanly")
+
+
+def put_back_dead(pid: int, root: Path = HIDDEN_DIR, dev: Path = DEV_DIR, sysfs: Path = SYSFS) -> list[str]:
+    """What a dead driver's guard runs (:data:`RESTORE_CODE`): driver ``pid``'s hidden nodes put
+    back (:meth:`Hider.restore_all`), and one line on standard error (the driver's: the terminal
+    or the journal) naming them; the nodes put back."""
+    back = Hider(root, dev, sysfs, pid=pid).restore_all()
+    if back:
+        print(f"neurotouch-hid: the driver died with merged devices hidden; put back {_named(back)}", file=sys.stderr)
+    return back
+
+
+def _named(back: list[str]) -> str:
+    """Nodes relative to ``/dev``, as the user names them."""
+    return ", ".join("/dev/" + n for n in back)
