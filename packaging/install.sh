@@ -66,12 +66,6 @@ if [ $do_user = 1 ] && [ "$(id -u)" = 0 ] && { [ -n "${SUDO_USER:-}" ] || [ "$HO
     exit 1
 fi
 
-if [ $do_user = 1 ] && [ "$(id -u)" = 0 ] && { [ -n "${SUDO_USER:-}" ] || [ "$HOME" = /root ]; }; then
-    # the unit would go to root's folders and the service run as root, not for the user at the seat
-    echo "install.sh: --user installs the service for the user who runs it, and this is root: run 'sh $0 --user' as yourself, without sudo" >&2
-    exit 1
-fi
-
 if [ $do_system = 1 ]; then
     dest=${DESTDIR:-}
     if [ -z "$dest" ] && [ "$(id -u)" != 0 ]; then
