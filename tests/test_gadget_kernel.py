@@ -91,7 +91,7 @@ def test_the_packaged_user_unit_runs_the_usb_output_in_its_sandbox(guest):
     says what it changes for this guest: no camera, no journald)."""
     details = passed(guest, "checks_gadget.check_usb_from_the_user_unit")
     assert "DeviceAllow=char-hidg rw" in details["sandbox"] and "DevicePolicy=closed" in details["sandbox"]
-    assert "ProtectKernelTunables=yes" in details["sandbox"]
+    assert "SystemCallFilter=@system-service" in details["sandbox"]
     assert f"--output usb --profile {details['profile']}" in details["cmdline"]  # service.env's choices
     assert sorted(details["result"]) == ["ExecMainStatus=0", "Result=success"]  # stopped in order
     assert details["last_report"] != details["held_report"]  # the guest checks it is the neutral one

@@ -65,21 +65,20 @@ def test_unit_binds_to_the_device_unit_the_rules_create():
 
 HARDENING = (
     "NoNewPrivileges=yes",
-    "ProtectSystem=strict",
-    "ProtectHome=read-only",
-    "PrivateTmp=yes",
     "DevicePolicy=closed",
     "DeviceAllow=/dev/uinput rw",
     "DeviceAllow=/dev/neurotouch rw",
+    "SystemCallFilter=@system-service",
+    "RestrictAddressFamilies=AF_UNIX AF_NETLINK",
     "StateDirectory=neurotouch-hid",
     "CacheDirectory=neurotouch-hid",
 )
 
 
 def test_unit_is_hardened():
-    """The sandbox: read-only system and home, private /tmp, only the camera and the outputs'
-    devices (uinput, uhid, the USB gadget's), its own state and cache folders; no other device is
-    allowed."""
+    """The sandbox a user's own process can be held to: no new privileges, seccomp's system
+    calls and socket families, only the camera and the outputs' devices (uinput, uhid, the USB
+    gadget's) where the manager can filter devices, its own state and cache folders."""
     lines = set(_rule_lines(UNIT.read_text()))
     assert set(HARDENING) <= lines
     assert {line for line in lines if line.startswith("DeviceAllow=")} == {
@@ -88,10 +87,47 @@ def test_unit_is_hardened():
         "DeviceAllow=/dev/uhid rw",  # --output hid
         "DeviceAllow=char-hidg rw",  # --output usb: the gadget's /dev/hidgN
     }
-    # writable: the unit's own folders, and the gadget's configfs folder (an xinput gadget's UDC)
-    assert {line for line in lines if line.startswith("ReadWritePaths=")} == {
-        "ReadWritePaths=-/sys/kernel/config/usb_gadget/neurotouch"
-    }
+
+
+#: The options that need a mount, UTS or user namespace, which a user's manager (not root) cannot
+#: make by itself: systemd 252 skips them, from 253 it runs the unit in a user namespace of its own
+#: to make them (systemd.exec(5), PrivateUsers=). Measured in the test kernel under systemd 254 as a
+#: user: each mount option kept the unit from starting (226/NAMESPACE); PrivateUsers= and
+#: ProtectHostname= ran it where a game's /proc/PID/environ is refused (EACCES).
+NAMESPACE_OPTIONS = {
+    "ProtectSystem",
+    "ProtectHome",
+    "PrivateTmp",
+    "PrivateMounts",
+    "PrivateDevices",
+    "PrivateNetwork",
+    "PrivateIPC",
+    "PrivateUsers",
+    "ProtectKernelTunables",
+    "ProtectControlGroups",
+    "ProtectHostname",
+    "ProtectProc",
+    "ProcSubset",
+    "ReadWritePaths",
+    "ReadOnlyPaths",
+    "InaccessiblePaths",
+    "ExecPaths",
+    "NoExecPaths",
+    "BindPaths",
+    "BindReadOnlyPaths",
+    "TemporaryFileSystem",
+    "MountAPIVFS",
+    "RootDirectory",
+    "RootImage",
+}
+
+
+def test_the_user_unit_asks_for_no_namespace():
+    """In a user namespace of its own the driver cannot read a game's environment, and per-game
+    profiles never switch: the user unit asks for nothing that makes a user's systemd (253 and
+    later) put it in one (tests/kernel/checks_user_unit.py runs it as a user under 252 and 254)."""
+    keys = {line.split("=", 1)[0] for line in _rule_lines(UNIT.read_text())}
+    assert keys & NAMESPACE_OPTIONS == set()
 
 
 def test_the_user_unit_drops_no_capability_an_unprivileged_manager_cannot():
@@ -111,8 +147,9 @@ def test_the_user_unit_drops_no_capability_an_unprivileged_manager_cannot():
 
 
 def test_security_exposure_is_low_and_documented(systemd_analyze, tmp_path):
-    """`systemd-analyze security` rates the user unit below 5 (it counts the bounding-set
-    capabilities a user manager cannot drop, packaging/README.md), the figure the README gives."""
+    """`systemd-analyze security` rates the user unit as it would a system service: it counts the
+    bounding-set capabilities a user manager cannot drop and the namespace options a user unit must
+    not ask for (packaging/README.md). The figure is the one the README gives, and does not grow."""
     runtime = tmp_path / "runtime"
     runtime.mkdir(mode=0o700)
     proc = subprocess.run(
@@ -125,7 +162,7 @@ def test_security_exposure_is_low_and_documented(systemd_analyze, tmp_path):
     found = re.search(r"Overall exposure level for neurotouch-hid.service: (\d+\.\d) (\w+)", proc.stdout)
     assert found, proc.stdout + proc.stderr
     level = float(found.group(1))
-    assert level < 5.0, proc.stdout
+    assert level <= 6.1, proc.stdout
     readme = (ROOT / "packaging" / "README.md").read_text()
     assert f"overall exposure level {found.group(1)} {found.group(2)}" in readme
 

@@ -564,7 +564,7 @@ def check_usb_killed_xinput() -> dict:
     return {"unplugged_after_kill_s": round(unplugged_s, 2), "seconds": round(time.monotonic() - t0, 1)}
 
 
-#: Where the user unit's check keeps its files: /run (a tmpfs here), since the unit's /tmp is its own.
+#: Where the user unit's check keeps its files: /run (a tmpfs here).
 UNIT_FOLDER = Path("/run/neurotouch-unit-check")
 
 
@@ -587,14 +587,13 @@ def _systemd_runtime() -> None:
 
 def check_usb_from_the_user_unit() -> dict:
     """The packaged user unit with ``NEUROTOUCH_OUTPUT=usb`` under a real systemd user manager
-    (``systemd --user``, the guest's root): installed by ``install.sh --user``, its sandbox as
-    shipped (DevicePolicy=closed with the gadget's ``char-hidg``, ProtectSystem=strict,
-    ProtectKernelTunables, ...), on a gadget made by ``gadget setup`` as the boot unit makes it. Only
-    what this guest has not is changed: no camera (the device unit's BindsTo= and After= are taken
-    out, and the source is a predictions file instead of ``davis``), no journald (the run's
-    output and error go to a file), and the project may live under /tmp (a CI clone), which the
-    unit's private /tmp hides: it is bound in. The host reads the push; ``systemctl --user stop`` leaves it
-    the neutral report."""
+    (``systemd --user``, the guest's root, whose manager attaches the unit's device filter):
+    installed by ``install.sh --user``, its sandbox as shipped (DevicePolicy=closed with the
+    gadget's ``char-hidg``, the seccomp filters), on a gadget made by ``gadget setup`` as the boot
+    unit makes it. Only what this guest has not is changed: no camera (the device unit's BindsTo=
+    and After= are taken out, and the source is a predictions file instead of ``davis``), no
+    journald (the run's output and error go to a file). The host reads the push; ``systemctl
+    --user stop`` leaves it the neutral report. (A user's own manager: checks_user_unit.py.)"""
     import shutil
 
     import hidraw
@@ -625,16 +624,13 @@ def check_usb_from_the_user_unit() -> dict:
     assert install.returncode == 0, f"install.sh --user: {install.stderr}"
     unit = folder / "config" / "systemd" / "user" / "neurotouch-hid.service"
     text = unit.read_text()
-    shipped_sandbox = [line for line in text.splitlines() if line.startswith(("Device", "Protect", "ReadWrite"))]
+    shipped_sandbox = [line for line in text.splitlines() if line.startswith(("Device", "SystemCall", "Restrict"))]
     text = "\n".join(line for line in text.splitlines() if not line.startswith(("BindsTo=", "After=")))
     unit.write_text(text.replace(" run --source davis ", f" run --source {preds} ") + "\n")
     errors = folder / "run.err"
     drop_in = unit.with_name("neurotouch-hid.service.d")
     drop_in.mkdir()
-    guest = f"[Service]\nStandardOutput=file:{errors}\nStandardError=file:{errors}\n"
-    if REPO.is_relative_to("/tmp"):  # a CI clone: the unit's own /tmp (PrivateTmp=yes) would hide the driver
-        guest += f"BindReadOnlyPaths={REPO}\n"
-    (drop_in / "guest.conf").write_text(guest)
+    (drop_in / "guest.conf").write_text(f"[Service]\nStandardOutput=file:{errors}\nStandardError=file:{errors}\n")
     env_file = folder / "config" / "neurotouch-hid" / "service.env"
     env_file.write_text(env_file.read_text() + f"NEUROTOUCH_PROFILE={profile}\nNEUROTOUCH_OUTPUT=usb\n")
     manager = subprocess.Popen(

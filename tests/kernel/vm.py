@@ -238,6 +238,63 @@ def ensure_kernel() -> tuple[Path, str]:
         return kdir, kver
 
 
+#: A newer systemd than the host's (Debian 12's 252) for checks_user_unit.py: Debian 12's backports
+#: (254). From systemd 253 a user's manager runs a unit that asks for namespaces in a user
+#: namespace of its own, which 252 never does: the user unit must be checked under both.
+NEWER_SYSTEMD_SOURCE = (
+    "deb [signed-by=/usr/share/keyrings/debian-archive-keyring.gpg] "
+    "http://deb.debian.org/debian bookworm-backports main"
+)
+NEWER_SYSTEMD_PACKAGES = ("systemd/bookworm-backports", "libsystemd-shared/bookworm-backports")
+#: Its folder's name in :func:`cache_dir` and in a boot's shared folder (the packages extracted).
+NEWER_SYSTEMD = "systemd-newer"
+#: The check modules that need it in their boot's shared folder.
+NEWER_SYSTEMD_MODULES = ("checks_user_unit",)
+
+
+def ensure_newer_systemd() -> Path:
+    """The folder with :data:`NEWER_SYSTEMD_PACKAGES` extracted (``lib/systemd/systemd``,
+    ``bin/systemctl``, ``usr/lib/x86_64-linux-gnu/systemd/libsystemd-shared-*.so``), downloaded
+    on the first call by apt-get with a sources list of its own (signatures checked against
+    Debian's keyring; the host's apt configuration is not touched), then cached.
+
+    Raises RuntimeError with apt-get's words when the download fails."""
+    root = cache_dir()
+    folder = root / NEWER_SYSTEMD
+    with open(root / ".lock-systemd", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if (folder / ".complete").exists():
+            return folder
+        with tempfile.TemporaryDirectory(dir=root) as tmp:
+            work = Path(tmp)
+            for sub in ("lists/partial", "cache/archives/partial", "parts"):
+                (work / sub).mkdir(parents=True)
+            (work / "sources.list").write_text(NEWER_SYSTEMD_SOURCE + "\n")
+            options = []
+            for key, value in (
+                ("Dir::Etc::SourceList", work / "sources.list"),
+                ("Dir::Etc::SourceParts", work / "parts"),
+                ("Dir::State::Lists", work / "lists"),
+                ("Dir::Cache", work / "cache"),
+                ("APT::Sandbox::User", "root"),
+            ):
+                options += ["-o", f"{key}={value}"]
+            for args in (["update"], ["download", *NEWER_SYSTEMD_PACKAGES]):
+                done = apt_get([*options, *args], cwd=tmp)
+                if done.returncode != 0:
+                    raise RuntimeError(f"apt-get {args[0]} ({NEWER_SYSTEMD_SOURCE}) failed: {done.stderr[-800:]}")
+            debs = sorted(work.glob("*.deb"))
+            if len(debs) != len(NEWER_SYSTEMD_PACKAGES):
+                raise RuntimeError(f"apt-get download {NEWER_SYSTEMD_PACKAGES} gave {[d.name for d in debs]}")
+            extracted = work / "root"
+            for deb in debs:
+                subprocess.run(["dpkg-deb", "-x", str(deb), str(extracted)], check=True)
+            shutil.rmtree(folder, ignore_errors=True)
+            extracted.rename(folder)
+        (folder / ".complete").write_text("".join(d.name + "\n" for d in debs))
+        return folder
+
+
 def _vng() -> str:
     bindir = Path(sys.executable).parent
     found = shutil.which("vng", path=str(bindir)) or shutil.which("vng")
@@ -333,6 +390,8 @@ def boot(
         shutil.copyfile(ensure_replay_recording(), out / "davis_replay.aedat4")  # checks_davis.py's camera
     if not modules or any(m in SLOW_MODULES for m in modules):
         compile_guest_numba_cache(out / GUEST_NUMBA_CACHE)  # the pipeline's code for its runs
+    if not modules or any(m in NEWER_SYSTEMD_MODULES for m in modules):  # checks_user_unit.py's manager
+        shutil.copytree(ensure_newer_systemd(), out / NEWER_SYSTEMD, symlinks=True)
     result = out / "result.json"
     inner = " ".join(shlex.quote(s) for s in (sys.executable, str(guest_script), str(result), *modules))
     cmd = [
