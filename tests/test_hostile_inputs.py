@@ -725,10 +725,11 @@ _SCAN = (
 
 
 def test_the_shipped_unit_lets_the_driver_see_the_users_games():
-    """The scanner run in the user namespace the unit's ``PrivateUsers=`` makes (``unshare
-    --user --map-current-user``, the same mapping: the user to itself): a Steam game of the same
-    user beside it is found. With PrivateUsers=yes the kernel refuses to show the driver any
-    other process's environment and executable, so no game was ever found under the service."""
+    """The scanner run as the unit runs it (in the user namespace ``PrivateUsers=`` would make,
+    ``unshare --user --map-current-user``, if the unit asked for it): a Steam game of the same
+    user beside it is found. In such a namespace the kernel refuses to show the driver any other
+    process's environment and executable, so no game was ever found under the service; the unit
+    asks for no namespace (test_packaging.py, tests/kernel/checks_user_unit.py)."""
     from test_packaging import UNIT, _rule_lines
 
     private_users = "PrivateUsers=yes" in set(_rule_lines(UNIT.read_text()))
