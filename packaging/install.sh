@@ -111,5 +111,5 @@ if [ $do_user = 1 ]; then
     systemctl --user daemon-reload 2>/dev/null \
         || echo "install.sh: no systemd user manager reachable; it reads the unit at your next login" >&2
     echo "installed $units/neurotouch-hid.service (ExecStart: $bin); it starts when the camera is plugged in"
-    echo "its first start compiles the gesture pipeline once more, into its own cache ${XDG_CACHE_HOME:-$HOME/.cache}/neurotouch-hid (the package's folder is read-only to the service): the pad appears after ~25 s of CPU, a minute or more on a busy machine; journalctl --user -u neurotouch-hid -f shows the progress"
+    echo "it shares the compiled pipeline your own runs cached when the package's folder is yours (pipx); a system-wide install's is not, and its first start compiles once more, into ${XDG_CACHE_HOME:-$HOME/.cache}/neurotouch-hid: the pad appears after ~25 s of CPU, a minute or more on a busy machine; journalctl --user -u neurotouch-hid -f shows the progress"
 fi
