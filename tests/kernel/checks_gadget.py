@@ -585,6 +585,19 @@ def _systemd_runtime() -> None:
         os.mknod(nodes / "blk", stat_module.S_IFBLK, os.makedev(0, 0))
 
 
+def stop_unit_and_manager(systemctl, manager: subprocess.Popen) -> None:
+    """A check's end, whatever happened: the unit stopped (``systemctl("stop", ...)``, errors
+    ignored), then the ``systemd --user`` process ``manager`` terminated (killed after 30 s)."""
+    with contextlib.suppress(Exception):
+        systemctl("stop", "neurotouch-hid.service")
+    manager.terminate()
+    with contextlib.suppress(subprocess.TimeoutExpired):
+        manager.wait(30)
+    if manager.poll() is None:
+        manager.kill()
+        manager.wait()
+
+
 def check_usb_from_the_user_unit() -> dict:
     """The packaged user unit with ``NEUROTOUCH_OUTPUT=usb`` under a real systemd user manager
     (``systemd --user``, the guest's root, whose manager attaches the unit's device filter):
@@ -670,14 +683,7 @@ def check_usb_from_the_user_unit() -> dict:
         seen["result"] = systemctl("show", "-p", "Result", "-p", "ExecMainStatus", "neurotouch-hid.service")
         watcher.pump(timeout_s=5.0, until=lambda r: r.axes.get(ecodes.ABS_X) == 0, max_s=30.0)
     finally:
-        with contextlib.suppress(Exception):
-            systemctl("stop", "neurotouch-hid.service")
-        manager.terminate()
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            manager.wait(30)
-        if manager.poll() is None:
-            manager.kill()
-            manager.wait()
+        stop_unit_and_manager(systemctl, manager)
         if reader is not None:
             reader.stop()
         _close(watcher)

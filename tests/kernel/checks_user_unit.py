@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 
 import guestlib
-from checks_gadget import _systemd_runtime
+from checks_gadget import _systemd_runtime, stop_unit_and_manager
 from checks_runtime_remap import EVERYTHING, G, _write_preds, sequence
 from vm import NEWER_SYSTEMD
 
@@ -179,14 +179,7 @@ def _unit_as_a_user(systemd: Path, systemctl_path: Path, libs: Path | None) -> d
         if game is not None and game.poll() is None:
             game.kill()
             game.wait()
-        with contextlib.suppress(Exception):
-            systemctl("stop", "neurotouch-hid.service")
-        manager.terminate()
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            manager.wait(30)
-        if manager.poll() is None:
-            manager.kill()
-            manager.wait()
+        stop_unit_and_manager(systemctl, manager)
     lines = [line for line in log().splitlines() if line.startswith("switched to profile")]
     assert seen["to_game"] and seen["back"], f"the game's profile: {seen}, the run said: {log()[-1500:]}"
     assert "Result=success" in seen["result"] and "ExecMainStatus=0" in seen["result"], f"{seen}: {log()[-1500:]}"

@@ -44,10 +44,17 @@ def settle() -> None:
     sh(["udevadm", "settle", "--timeout=30"])
 
 
-def udev_properties(devnode: str) -> dict[str, str]:
-    """``udevadm info --query=property`` of a device node, as a dict."""
-    out = sh(["udevadm", "info", "--query=property", f"--name={devnode}"]).stdout
-    return dict(line.split("=", 1) for line in out.splitlines() if "=" in line)
+def udev_properties(devnode: str, timeout_s: float = 30.0) -> dict[str, str]:
+    """``udevadm info --query=property`` of a device node, as a dict, once udev has processed it
+    (``USEC_INITIALIZED`` set; the node exists on devtmpfs before udev's rules have run, and a
+    fast guest read only the kernel's five properties then). After ``timeout_s``, what it has."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        out = sh(["udevadm", "info", "--query=property", f"--name={devnode}"]).stdout
+        props = dict(line.split("=", 1) for line in out.splitlines() if "=" in line)
+        if "USEC_INITIALIZED" in props or time.monotonic() >= deadline:
+            return props
+        time.sleep(0.05)
 
 
 def udev_info(devnode: str) -> str:
