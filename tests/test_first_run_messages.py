@@ -75,8 +75,9 @@ def test_build_deb_says_every_missing_tool_before_it_starts(tmp_path):
 
 
 def test_install_user_says_the_services_first_start_compiles(tmp_path):
-    """The service's first camera start compiled the pipeline again (the package's folder is
-    read-only under the unit) for a minute, with nothing saying so: the pad just did not come."""
+    """The service's first camera start compiled the pipeline again when the package's folder was
+    not the user's (a system-wide install) for a minute, with nothing saying so: the pad just did
+    not come. install.sh says when it shares the user's compiled code and when it compiles."""
     import os
     import subprocess
     from pathlib import Path
@@ -91,7 +92,8 @@ def test_install_user_says_the_services_first_start_compiles(tmp_path):
     done = subprocess.run(["sh", str(install), "--user"], capture_output=True, text=True, env=env, timeout=60)
     assert done.returncode == 0, done.stderr
     said = done.stdout.splitlines()[-1]
-    assert said.startswith("its first start compiles the gesture pipeline once more")
+    assert said.startswith("it shares the compiled pipeline your own runs cached")
+    assert "first start compiles once more" in said
     assert f"{home}/.cache/neurotouch-hid" in said and "journalctl --user -u neurotouch-hid -f" in said
 
 
