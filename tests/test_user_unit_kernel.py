@@ -28,3 +28,13 @@ def test_a_users_unit_switches_to_a_steam_games_profile_and_back(guest, check, v
     assert game.startswith("switched to profile everything (Steam app 4242 (pid ") and game.endswith("is running)")
     assert base.startswith("switched to profile ") and base.endswith("exited)")
     assert sorted(details["result"].splitlines()) == ["ExecMainStatus=0", "Result=success"]
+
+
+def test_plugging_the_camera_in_starts_a_users_unit_and_unplugging_stops_it(guest):
+    """The unit as installed (BindsTo= the camera's device unit, the udev rule's
+    SYSTEMD_USER_WANTS), under the user's own systemd --user: the emulated camera's plug-in starts
+    it, its unplugging stops it."""
+    details = passed(guest, "checks_user_unit.check_plugging_the_camera_in_starts_a_users_unit")
+    assert details["before"] == "inactive" and not details["invocation_before"]
+    assert details["device"] and details["started"]
+    assert details["stopped"] and details["after_unplug"] in ("inactive", "failed")

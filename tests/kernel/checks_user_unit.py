@@ -201,3 +201,81 @@ def check_the_user_unit_of_a_user_under_a_newer_systemd() -> dict:
         shutil.copytree(shared, newer, symlinks=True)
     libs = newer / "usr" / "lib" / "x86_64-linux-gnu" / "systemd"
     return _unit_as_a_user(newer / "lib" / "systemd" / "systemd", newer / "bin" / "systemctl", libs)
+
+
+def check_plugging_the_camera_in_starts_a_users_unit() -> dict:
+    """The unit as ``install.sh --user`` installs it, nothing taken out, under the user's own
+    ``systemd --user`` (252): the emulated camera plugged in (checks_packaging.py's 152a:841a
+    gadget on dummy_hcd, tagged by the udev rule with SYSTEMD_USER_WANTS) starts it, and
+    unplugging it stops it (``BindsTo=dev-neurotouch.device``). The emulated camera is no DAVIS,
+    so the run itself does not stream; what is checked is that the camera starts and stops it."""
+    from checks_packaging import _plug_camera, _unplug_camera
+
+    t0 = time.monotonic()
+    _systemd_runtime()
+    cgroup = _the_user()
+    home = FOLDER / "home"
+    shutil.rmtree(home, ignore_errors=True)
+    home.mkdir(parents=True)
+    runtime = Path(f"/run/user/{UID}")
+    env = {"HOME": str(home), "USER": NAME, "LOGNAME": NAME, "XDG_RUNTIME_DIR": str(runtime), "PATH": "/usr/bin:/bin"}
+    os.chown(home, UID, UID)
+    command = Path(sys.executable).with_name("neurotouch-hid")
+    install = subprocess.run(
+        ["sh", str(REPO / "packaging/install.sh"), "--user", "--bin", str(command)],
+        env=env, capture_output=True, text=True, timeout=60, preexec_fn=_as_user,
+    )  # fmt: skip
+    assert install.returncode == 0, f"install.sh --user as {NAME}: {install.stderr}"
+    unit = home / ".config" / "systemd" / "user" / "neurotouch-hid.service"
+    said = home / "run.err"
+    drop_in = unit.with_name("neurotouch-hid.service.d")
+    drop_in.mkdir()
+    (drop_in / "guest.conf").write_text(f"[Service]\nStandardOutput=file:{said}\nStandardError=file:{said}\n")
+    subprocess.run(["chown", "-R", f"{UID}:{UID}", str(home)], check=True)
+    script = MANAGER_MOUNTS.format(folder=FOLDER, uid=UID, systemd="/usr/lib/systemd/systemd")
+    manager = subprocess.Popen(
+        ["unshare", "-m", "sh", "-c", script], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        preexec_fn=lambda: (cgroup / "cgroup.procs").write_text(f"{os.getpid()}\n"),
+    )  # fmt: skip
+
+    def systemctl(*args: str) -> str:
+        done = subprocess.run(
+            ["systemctl", "--user", *args], env=env, capture_output=True, text=True, timeout=120, preexec_fn=_as_user
+        )
+        return (done.stdout + done.stderr).strip()
+
+    def invocation() -> str:
+        return systemctl("show", "-p", "InvocationID", "--value", "neurotouch-hid.service")
+
+    seen: dict = {}
+    plugged = False
+    try:
+        assert guestlib.wait_for(lambda: (runtime / "systemd" / "private").exists(), 60.0), "no systemd --user"
+        time.sleep(1.0)  # the manager's first enumeration of udev's devices
+        seen["before"] = systemctl("is-active", "neurotouch-hid.service")
+        seen["invocation_before"] = invocation()
+        _plug_camera()
+        plugged = True
+        seen["device"] = bool(
+            guestlib.wait_for(lambda: systemctl("is-active", "dev-neurotouch.device") == "active", 60.0, 0.2)
+        )
+        seen["started"] = bool(guestlib.wait_for(invocation, 60.0, 0.2))
+        seen["after_plug"] = systemctl("show", "-p", "ActiveState", "-p", "ExecMainStartTimestampMonotonic",
+                                       "neurotouch-hid.service")  # fmt: skip
+        _unplug_camera()
+        plugged = False
+        seen["stopped"] = bool(
+            guestlib.wait_for(
+                lambda: systemctl("is-active", "neurotouch-hid.service") in ("inactive", "failed"), 60.0, 0.2
+            )
+        )
+        seen["after_unplug"] = systemctl("is-active", "neurotouch-hid.service")
+    finally:
+        if plugged:
+            _unplug_camera()
+        stop_unit_and_manager(systemctl, manager)
+    log = said.read_text()[-1500:] if said.exists() else ""
+    assert seen["before"] == "inactive" and not seen["invocation_before"], f"running before the plug: {seen}"
+    assert seen["device"] and seen["started"], f"plugging the camera in did not start the unit: {seen}, {log}"
+    assert seen["stopped"], f"unplugging the camera left the unit running: {seen}, {log}"
+    return {**seen, "said": log.splitlines()[-5:], "seconds": round(time.monotonic() - t0, 1)}
