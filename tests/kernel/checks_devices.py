@@ -16,10 +16,8 @@ Run by tests/kernel/guest.py; asserted on by tests/test_kernel.py.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
-import sys
 from pathlib import Path
 
 import guestlib
@@ -48,41 +46,6 @@ def _open_first_camera() -> dict[str, str]:
         return {"OPENED": camera.getCameraName()}
     except DV_ERRORS as exc:
         return {"ERROR": dv_error_text(str(exc)), "EXPLAIN": explain_no_camera(error=dv_error_text(str(exc)))}
-
-
-@contextlib.contextmanager
-def _python_for_nobody():
-    """Let the user nobody read this Python's files (a child forked as nobody imports what this
-    process has not imported yet): when it lives under a /root that others may not traverse (0700,
-    as on the host whose root the guest shares read-only), lay a throw-away overlay over /root for
-    the block and make it 0711."""
-    root = Path("/root")
-    if not str(Path(sys.executable).resolve()).startswith("/root/") or root.stat().st_mode & 0o001:
-        yield
-        return
-    scratch = Path("/run/neurotouch-rootov")
-    scratch.mkdir(exist_ok=True)
-    assert guestlib.sh(["mount", "-t", "tmpfs", "none", str(scratch)]).returncode == 0
-    (scratch / "up").mkdir()
-    (scratch / "work").mkdir()
-    mount = guestlib.sh(
-        [
-            "mount",
-            "-t",
-            "overlay",
-            "overlay",
-            "-o",
-            f"lowerdir=/root,upperdir={scratch}/up,workdir={scratch}/work",
-            "/root",
-        ]
-    )
-    assert mount.returncode == 0, f"overlay on /root: {mount.stderr}"
-    try:
-        os.chmod("/root", 0o711)
-        yield
-    finally:
-        guestlib.sh(["umount", "-l", "/root"])
-        guestlib.sh(["umount", "-l", str(scratch)])
 
 
 def _devices_json(as_nobody: bool = False) -> tuple[int, dict]:
@@ -172,7 +135,7 @@ def _unprivileged(bus: int, address: int, node: str) -> dict:
     is to install the udev rule (with the rule installed the fix explains uaccess instead: a
     unit test on the host covers that wording)."""
     aside = RULES.with_name(RULES.name + ".aside")
-    with _python_for_nobody():
+    with guestlib.python_readable_by_all():
         RULES.rename(aside)
         try:
             code, data = _devices_json(as_nobody=True)

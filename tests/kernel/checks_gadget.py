@@ -585,6 +585,18 @@ def _systemd_runtime() -> None:
         os.mknod(nodes / "blk", stat_module.S_IFBLK, os.makedev(0, 0))
 
 
+def unit_in_this_guest(unit: Path, said: Path, source: Path | None = None) -> None:
+    """The installed ``unit`` as this guest can run it: its output and error to the file ``said``
+    (a drop-in: the guest has no journald); with ``source`` (no camera here), without the camera's
+    device unit (``BindsTo=``, ``After=``) and running ``run --source SOURCE``."""
+    if source is not None:
+        text = "\n".join(line for line in unit.read_text().splitlines() if not line.startswith(("BindsTo=", "After=")))
+        unit.write_text(text.replace(" run --source davis ", f" run --source {source} ") + "\n")
+    drop_in = unit.with_name(unit.name + ".d")
+    drop_in.mkdir()
+    (drop_in / "guest.conf").write_text(f"[Service]\nStandardOutput=file:{said}\nStandardError=file:{said}\n")
+
+
 def stop_unit_and_manager(systemctl, manager: subprocess.Popen) -> None:
     """A check's end, whatever happened: the unit stopped (``systemctl("stop", ...)``, errors
     ignored), then the ``systemd --user`` process ``manager`` terminated (killed after 30 s)."""
@@ -638,12 +650,8 @@ def check_usb_from_the_user_unit() -> dict:
     unit = folder / "config" / "systemd" / "user" / "neurotouch-hid.service"
     text = unit.read_text()
     shipped_sandbox = [line for line in text.splitlines() if line.startswith(("Device", "SystemCall", "Restrict"))]
-    text = "\n".join(line for line in text.splitlines() if not line.startswith(("BindsTo=", "After=")))
-    unit.write_text(text.replace(" run --source davis ", f" run --source {preds} ") + "\n")
     errors = folder / "run.err"
-    drop_in = unit.with_name("neurotouch-hid.service.d")
-    drop_in.mkdir()
-    (drop_in / "guest.conf").write_text(f"[Service]\nStandardOutput=file:{errors}\nStandardError=file:{errors}\n")
+    unit_in_this_guest(unit, errors, source=preds)
     env_file = folder / "config" / "neurotouch-hid" / "service.env"
     env_file.write_text(env_file.read_text() + f"NEUROTOUCH_PROFILE={profile}\nNEUROTOUCH_OUTPUT=usb\n")
     manager = subprocess.Popen(

@@ -14,8 +14,8 @@ What this guest lacks is stood in for: no camera (the device unit's ``BindsTo=``
 out and the source is a predictions file), no journald (the run's output goes to a file), no login
 (the check makes the user, ``/run/user/UID`` and the user's delegated cgroup as logind would, and
 gives the user ``/dev/uinput`` as the udev rule's uaccess would). This test machine's Python lives
-under /root (mode 0700): the user's manager runs in a mount namespace where /root is a readable
-folder with that Python in it.
+under /root (mode 0700): /root is made traversable while the user's manager runs
+(``guestlib.python_readable_by_all``).
 Run by tests/kernel/guest.py; asserted on by tests/test_user_unit_kernel.py.
 """
 
@@ -27,10 +27,11 @@ import shutil
 import subprocess
 import sys
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import guestlib
-from checks_gadget import _systemd_runtime, stop_unit_and_manager
+from checks_gadget import _systemd_runtime, stop_unit_and_manager, unit_in_this_guest
 from checks_runtime_remap import EVERYTHING, G, _write_preds, sequence
 from vm import NEWER_SYSTEMD
 
@@ -42,12 +43,6 @@ NAME = "player"
 FOLDER = Path("/run/neurotouch-user-unit")
 #: The profile the unit starts with (service.env's NEUROTOUCH_PROFILE): a held push holds B.
 BASE = "description: base\nmappings:\n  pad: {input: push_intensity, output: B, press_mm: 2.0, release_mm: 1.0}\n"
-#: What the user's manager runs in: /root made readable, with this machine's Python in it.
-MANAGER_MOUNTS = (
-    "set -e; mount --make-rprivate /; mkdir -p {folder}/python; mount --bind /root/.pyenv {folder}/python; "
-    "mount -t tmpfs -o mode=755 tmpfs /root; mkdir /root/.pyenv; mount --bind {folder}/python /root/.pyenv; "
-    "exec setpriv --reuid {uid} --regid {uid} --clear-groups {systemd} --user"
-)
 
 
 def _as_user() -> None:
@@ -91,104 +86,135 @@ def _the_user() -> Path:
     return cgroup
 
 
-def _unit_as_a_user(systemd: Path, systemctl_path: Path, libs: Path | None) -> dict:
-    """The user unit under ``systemd`` run by the user: see the module docstring."""
-    t0 = time.monotonic()
+#: This system's systemd (Debian 12's 252).
+THIS_SYSTEMD = (Path("/usr/lib/systemd/systemd"), Path("/usr/bin/systemctl"), None)
+
+
+class UsersUnit:
+    """The unit installed for the user, and the user's ``systemd --user`` running. (Not a
+    dataclass: guest.py loads check modules outside ``sys.modules``.)"""
+
+    def __init__(self, env: dict[str, str], config: Path, said: Path, systemctl_path: Path):
+        self.env, self.config, self.said, self.systemctl_path = env, config, said, systemctl_path
+
+    def systemctl(self, *args: str) -> str:
+        """``systemctl --user ARGS`` as the user: what it printed."""
+        done = subprocess.run(
+            [str(self.systemctl_path), "--user", *args],
+            env=self.env, capture_output=True, text=True, timeout=120, preexec_fn=_as_user,
+        )  # fmt: skip
+        return (done.stdout + done.stderr).strip()
+
+    def log(self) -> str:
+        """What the run said (its output and error)."""
+        return self.said.read_text() if self.said.exists() else ""
+
+
+@contextlib.contextmanager
+def _users_unit(
+    systemd: tuple[Path, Path, Path | None], edit: Callable[[UsersUnit, Path], None]
+) -> Iterator[UsersUnit]:
+    """The unit installed by ``install.sh --user`` as the user, ``edit(unit, unit_file)`` applied
+    (the user's files are the user's afterwards), then the user's own ``systemd --user``
+    (``systemd``: the manager, its systemctl, the folder of its libraries or None) started in
+    the user's cgroup; at the end the unit stopped and the manager ended."""
+    manager_path, systemctl_path, libs = systemd
     _systemd_runtime()
     cgroup = _the_user()
     home = FOLDER / "home"
     shutil.rmtree(home, ignore_errors=True)
     home.mkdir(parents=True)
-    data = FOLDER / "data"
-    data.mkdir(exist_ok=True)
-    preds = _write_preds(data, sequence((G.PUSH, 4.0, 600.0), lead_in_s=2.0))
-    base = data / "base.yaml"
-    base.write_text(BASE)
-    for path in (data, preds, base):
-        os.chmod(path, 0o755 if path.is_dir() else 0o644)
+    os.chown(home, UID, UID)
     runtime = Path(f"/run/user/{UID}")
     env = {"HOME": str(home), "USER": NAME, "LOGNAME": NAME, "XDG_RUNTIME_DIR": str(runtime), "PATH": "/usr/bin:/bin"}
     if libs is not None:
         env["LD_LIBRARY_PATH"] = str(libs)
-    os.chown(home, UID, UID)
     command = Path(sys.executable).with_name("neurotouch-hid")
     install = subprocess.run(
         ["sh", str(REPO / "packaging/install.sh"), "--user", "--bin", str(command)],
         env=env, capture_output=True, text=True, timeout=60, preexec_fn=_as_user,
     )  # fmt: skip
     assert install.returncode == 0, f"install.sh --user as {NAME}: {install.stderr}"
-    config = home / ".config"
-    unit = config / "systemd" / "user" / "neurotouch-hid.service"
-    text = "\n".join(line for line in unit.read_text().splitlines() if not line.startswith(("BindsTo=", "After=")))
-    unit.write_text(text.replace(" run --source davis ", f" run --source {preds} ") + "\n")
-    said = home / "run.err"
-    drop_in = unit.with_name("neurotouch-hid.service.d")
-    drop_in.mkdir()
-    (drop_in / "guest.conf").write_text(f"[Service]\nStandardOutput=file:{said}\nStandardError=file:{said}\n")
-    (config / "neurotouch-hid" / "profiles").mkdir(parents=True)
-    (config / "neurotouch-hid" / "profiles" / "everything.yaml").write_text(EVERYTHING)
-    (config / "neurotouch-hid" / "games.yaml").write_text("steam:\n  4242: everything\n")
-    env_file = config / "neurotouch-hid" / "service.env"
-    env_file.write_text(env_file.read_text() + f"NEUROTOUCH_PROFILE={base}\n")
+    unit = UsersUnit(env, home / ".config", home / "run.err", systemctl_path)
+    edit(unit, unit.config / "systemd" / "user" / "neurotouch-hid.service")
     subprocess.run(["chown", "-R", f"{UID}:{UID}", str(home)], check=True)
-    script = MANAGER_MOUNTS.format(folder=FOLDER, uid=UID, systemd=systemd)
-    manager = subprocess.Popen(
-        ["unshare", "-m", "sh", "-c", script], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-        preexec_fn=lambda: (cgroup / "cgroup.procs").write_text(f"{os.getpid()}\n"),
-    )  # fmt: skip
 
-    def systemctl(*args: str) -> str:
-        done = subprocess.run(
-            [str(systemctl_path), "--user", *args],
-            env=env, capture_output=True, text=True, timeout=120, preexec_fn=_as_user,
+    def in_the_users_cgroup() -> None:
+        (cgroup / "cgroup.procs").write_text(f"{os.getpid()}\n")
+        _as_user()
+
+    with guestlib.python_readable_by_all():
+        manager = subprocess.Popen(
+            [str(manager_path), "--user"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            preexec_fn=in_the_users_cgroup,
         )  # fmt: skip
-        return (done.stdout + done.stderr).strip()
+        try:
+            assert guestlib.wait_for(lambda: (runtime / "systemd" / "private").exists(), 60.0), "no systemd --user"
+            yield unit
+        finally:
+            stop_unit_and_manager(unit.systemctl, manager)
 
-    def log() -> str:
-        return said.read_text() if said.exists() else ""
+
+def _a_game_switches_the_profile(systemd: tuple[Path, Path, Path | None]) -> dict:
+    """The user unit under ``systemd`` run by the user: see the module docstring."""
+    t0 = time.monotonic()
+    data = FOLDER / "data"
+    data.mkdir(parents=True, exist_ok=True)
+    preds = _write_preds(data, sequence((G.PUSH, 4.0, 600.0), lead_in_s=2.0))
+    base = data / "base.yaml"
+    base.write_text(BASE)
+    for path in (data, preds, base):
+        os.chmod(path, 0o755 if path.is_dir() else 0o644)
+
+    def edit(unit: UsersUnit, unit_file: Path) -> None:
+        unit_in_this_guest(unit_file, unit.said, source=preds)
+        ours = unit.config / "neurotouch-hid"
+        (ours / "profiles").mkdir(parents=True)
+        (ours / "profiles" / "everything.yaml").write_text(EVERYTHING)
+        (ours / "games.yaml").write_text("steam:\n  4242: everything\n")
+        env_file = ours / "service.env"
+        env_file.write_text(env_file.read_text() + f"NEUROTOUCH_PROFILE={base}\n")
 
     seen: dict = {}
     game = None
-    try:
-        assert guestlib.wait_for(lambda: (runtime / "systemd" / "private").exists(), 60.0), "no systemd --user"
-        seen["version"] = systemctl("--version").splitlines()[0]
-        seen["start"] = systemctl("start", "neurotouch-hid.service")
-        seen["running"] = bool(
-            guestlib.wait_for(
-                lambda: (
-                    (runtime / "neurotouch-hid" / "control.sock").exists()
-                    or systemctl("is-failed", "neurotouch-hid.service") == "failed"
-                ),
-                240.0,
-                interval_s=0.5,
+    with _users_unit(systemd, edit) as unit:
+        socket = Path(unit.env["XDG_RUNTIME_DIR"]) / "neurotouch-hid" / "control.sock"
+        try:
+            seen["version"] = unit.systemctl("--version").splitlines()[0]
+            seen["start"] = unit.systemctl("start", "neurotouch-hid.service")
+            seen["running"] = bool(
+                guestlib.wait_for(
+                    lambda: socket.exists() or unit.systemctl("is-failed", "neurotouch-hid.service") == "failed",
+                    240.0,
+                    interval_s=0.5,
+                )
+                and socket.exists()
             )
-            and (runtime / "neurotouch-hid" / "control.sock").exists()
-        )
-        pid = systemctl("show", "-p", "MainPID", "--value", "neurotouch-hid.service")
-        seen["status"] = systemctl("show", "-p", "ExecMainStatus", "-p", "Result", "neurotouch-hid.service")
-        assert seen["running"], f"the unit did not run: {seen}, its log: {log()[-1500:]}"
-        seen["own_user_namespace"] = os.readlink(f"/proc/{pid}/ns/user") != os.readlink("/proc/1/ns/user")
-        game = subprocess.Popen(["sleep", "600"], env=dict(env, SteamAppId="4242"), preexec_fn=_as_user)
-        seen["to_game"] = bool(guestlib.wait_for(lambda: "switched to profile everything" in log(), 90.0, 0.2))
-        game.kill()
-        game.wait()
-        seen["back"] = bool(guestlib.wait_for(lambda: f"switched to profile {base}" in log(), 60.0, 0.2))
-        seen["stop"] = systemctl("stop", "neurotouch-hid.service")
-        seen["result"] = systemctl("show", "-p", "Result", "-p", "ExecMainStatus", "neurotouch-hid.service")
-    finally:
-        if game is not None and game.poll() is None:
+            pid = unit.systemctl("show", "-p", "MainPID", "--value", "neurotouch-hid.service")
+            seen["status"] = unit.systemctl("show", "-p", "ExecMainStatus", "-p", "Result", "neurotouch-hid.service")
+            assert seen["running"], f"the unit did not run: {seen}, its log: {unit.log()[-1500:]}"
+            seen["own_user_namespace"] = os.readlink(f"/proc/{pid}/ns/user") != os.readlink("/proc/1/ns/user")
+            game = subprocess.Popen(["sleep", "600"], env=dict(unit.env, SteamAppId="4242"), preexec_fn=_as_user)
+            seen["to_game"] = bool(guestlib.wait_for(lambda: "switched to profile everything" in unit.log(), 90.0, 0.2))
             game.kill()
             game.wait()
-        stop_unit_and_manager(systemctl, manager)
-    lines = [line for line in log().splitlines() if line.startswith("switched to profile")]
-    assert seen["to_game"] and seen["back"], f"the game's profile: {seen}, the run said: {log()[-1500:]}"
-    assert "Result=success" in seen["result"] and "ExecMainStatus=0" in seen["result"], f"{seen}: {log()[-1500:]}"
+            seen["back"] = bool(guestlib.wait_for(lambda: f"switched to profile {base}" in unit.log(), 60.0, 0.2))
+            seen["stop"] = unit.systemctl("stop", "neurotouch-hid.service")
+            seen["result"] = unit.systemctl("show", "-p", "Result", "-p", "ExecMainStatus", "neurotouch-hid.service")
+        finally:
+            if game is not None and game.poll() is None:
+                game.kill()
+                game.wait()
+    log = unit.log()
+    lines = [line for line in log.splitlines() if line.startswith("switched to profile")]
+    assert seen["to_game"] and seen["back"], f"the game's profile: {seen}, the run said: {log[-1500:]}"
+    assert "Result=success" in seen["result"] and "ExecMainStatus=0" in seen["result"], f"{seen}: {log[-1500:]}"
     return {**seen, "said": lines, "seconds": round(time.monotonic() - t0, 1)}
 
 
 def check_the_user_unit_of_a_user_under_this_systemd() -> dict:
     """Debian 12's systemd (252)."""
-    return _unit_as_a_user(Path("/usr/lib/systemd/systemd"), Path(shutil.which("systemctl") or "systemctl"), None)
+    return _a_game_switches_the_profile(THIS_SYSTEMD)
 
 
 def check_the_user_unit_of_a_user_under_a_newer_systemd() -> dict:
@@ -200,7 +226,7 @@ def check_the_user_unit_of_a_user_under_a_newer_systemd() -> dict:
         FOLDER.mkdir(parents=True, exist_ok=True)
         shutil.copytree(shared, newer, symlinks=True)
     libs = newer / "usr" / "lib" / "x86_64-linux-gnu" / "systemd"
-    return _unit_as_a_user(newer / "lib" / "systemd" / "systemd", newer / "bin" / "systemctl", libs)
+    return _a_game_switches_the_profile((newer / "lib" / "systemd" / "systemd", newer / "bin" / "systemctl", libs))
 
 
 def check_plugging_the_camera_in_starts_a_users_unit() -> dict:
@@ -212,69 +238,38 @@ def check_plugging_the_camera_in_starts_a_users_unit() -> dict:
     from checks_packaging import _plug_camera, _unplug_camera
 
     t0 = time.monotonic()
-    _systemd_runtime()
-    cgroup = _the_user()
-    home = FOLDER / "home"
-    shutil.rmtree(home, ignore_errors=True)
-    home.mkdir(parents=True)
-    runtime = Path(f"/run/user/{UID}")
-    env = {"HOME": str(home), "USER": NAME, "LOGNAME": NAME, "XDG_RUNTIME_DIR": str(runtime), "PATH": "/usr/bin:/bin"}
-    os.chown(home, UID, UID)
-    command = Path(sys.executable).with_name("neurotouch-hid")
-    install = subprocess.run(
-        ["sh", str(REPO / "packaging/install.sh"), "--user", "--bin", str(command)],
-        env=env, capture_output=True, text=True, timeout=60, preexec_fn=_as_user,
-    )  # fmt: skip
-    assert install.returncode == 0, f"install.sh --user as {NAME}: {install.stderr}"
-    unit = home / ".config" / "systemd" / "user" / "neurotouch-hid.service"
-    said = home / "run.err"
-    drop_in = unit.with_name("neurotouch-hid.service.d")
-    drop_in.mkdir()
-    (drop_in / "guest.conf").write_text(f"[Service]\nStandardOutput=file:{said}\nStandardError=file:{said}\n")
-    subprocess.run(["chown", "-R", f"{UID}:{UID}", str(home)], check=True)
-    script = MANAGER_MOUNTS.format(folder=FOLDER, uid=UID, systemd="/usr/lib/systemd/systemd")
-    manager = subprocess.Popen(
-        ["unshare", "-m", "sh", "-c", script], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-        preexec_fn=lambda: (cgroup / "cgroup.procs").write_text(f"{os.getpid()}\n"),
-    )  # fmt: skip
-
-    def systemctl(*args: str) -> str:
-        done = subprocess.run(
-            ["systemctl", "--user", *args], env=env, capture_output=True, text=True, timeout=120, preexec_fn=_as_user
-        )
-        return (done.stdout + done.stderr).strip()
-
-    def invocation() -> str:
-        return systemctl("show", "-p", "InvocationID", "--value", "neurotouch-hid.service")
-
     seen: dict = {}
-    plugged = False
-    try:
-        assert guestlib.wait_for(lambda: (runtime / "systemd" / "private").exists(), 60.0), "no systemd --user"
-        time.sleep(1.0)  # the manager's first enumeration of udev's devices
-        seen["before"] = systemctl("is-active", "neurotouch-hid.service")
-        seen["invocation_before"] = invocation()
-        _plug_camera()
-        plugged = True
-        seen["device"] = bool(
-            guestlib.wait_for(lambda: systemctl("is-active", "dev-neurotouch.device") == "active", 60.0, 0.2)
-        )
-        seen["started"] = bool(guestlib.wait_for(invocation, 60.0, 0.2))
-        seen["after_plug"] = systemctl("show", "-p", "ActiveState", "-p", "ExecMainStartTimestampMonotonic",
-                                       "neurotouch-hid.service")  # fmt: skip
-        _unplug_camera()
+    with _users_unit(THIS_SYSTEMD, lambda unit, unit_file: unit_in_this_guest(unit_file, unit.said)) as unit:
+
+        def invocation() -> str:
+            return unit.systemctl("show", "-p", "InvocationID", "--value", "neurotouch-hid.service")
+
         plugged = False
-        seen["stopped"] = bool(
-            guestlib.wait_for(
-                lambda: systemctl("is-active", "neurotouch-hid.service") in ("inactive", "failed"), 60.0, 0.2
+        try:
+            time.sleep(1.0)  # the manager's first enumeration of udev's devices
+            seen["before"] = unit.systemctl("is-active", "neurotouch-hid.service")
+            seen["invocation_before"] = invocation()
+            _plug_camera()
+            plugged = True
+            seen["device"] = bool(
+                guestlib.wait_for(lambda: unit.systemctl("is-active", "dev-neurotouch.device") == "active", 60.0, 0.2)
             )
-        )
-        seen["after_unplug"] = systemctl("is-active", "neurotouch-hid.service")
-    finally:
-        if plugged:
+            seen["started"] = bool(guestlib.wait_for(invocation, 60.0, 0.2))
+            seen["after_plug"] = unit.systemctl(
+                "show", "-p", "ActiveState", "-p", "ExecMainStartTimestampMonotonic", "neurotouch-hid.service"
+            )
             _unplug_camera()
-        stop_unit_and_manager(systemctl, manager)
-    log = said.read_text()[-1500:] if said.exists() else ""
+            plugged = False
+            seen["stopped"] = bool(
+                guestlib.wait_for(
+                    lambda: unit.systemctl("is-active", "neurotouch-hid.service") in ("inactive", "failed"), 60.0, 0.2
+                )
+            )
+            seen["after_unplug"] = unit.systemctl("is-active", "neurotouch-hid.service")
+        finally:
+            if plugged:
+                _unplug_camera()
+    log = unit.log()[-1500:]
     assert seen["before"] == "inactive" and not seen["invocation_before"], f"running before the plug: {seen}"
     assert seen["device"] and seen["started"], f"plugging the camera in did not start the unit: {seen}, {log}"
     assert seen["stopped"], f"unplugging the camera left the unit running: {seen}, {log}"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import select
@@ -9,6 +10,7 @@ import shutil
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 
 def sh(cmd: list[str], timeout: float = 60, **kw) -> subprocess.CompletedProcess:
@@ -222,3 +224,39 @@ def sdl_env() -> dict[str, str]:
         PYGAME_HIDE_SUPPORT_PROMPT="1",
         PYTHONPATH=os.pathsep.join(sys.path),
     )
+
+
+@contextlib.contextmanager
+def python_readable_by_all():
+    """Let other users (nobody, a check's user) run and read this Python's files (a child forked
+    as nobody imports what this process has not imported yet; a user's systemd starts the
+    driver): when it lives under a /root that others may not traverse (0700, as on the host whose
+    root the guest shares read-only), lay a throw-away overlay over /root for the block and make
+    it 0711."""
+    root = Path("/root")
+    if not str(Path(sys.executable).resolve()).startswith("/root/") or root.stat().st_mode & 0o001:
+        yield
+        return
+    scratch = Path("/run/neurotouch-rootov")
+    scratch.mkdir(exist_ok=True)
+    assert sh(["mount", "-t", "tmpfs", "none", str(scratch)]).returncode == 0
+    (scratch / "up").mkdir()
+    (scratch / "work").mkdir()
+    mount = sh(
+        [
+            "mount",
+            "-t",
+            "overlay",
+            "overlay",
+            "-o",
+            f"lowerdir=/root,upperdir={scratch}/up,workdir={scratch}/work",
+            "/root",
+        ]
+    )
+    assert mount.returncode == 0, f"overlay on /root: {mount.stderr}"
+    try:
+        os.chmod("/root", 0o711)
+        yield
+    finally:
+        sh(["umount", "-l", "/root"])
+        sh(["umount", "-l", str(scratch)])
