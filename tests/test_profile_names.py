@@ -100,6 +100,21 @@ def test_turning_an_axis_into_a_button_says_the_one_line_fix(cli):
     assert zoom["output"] == "A" and zoom["input"] == "zoom" and "deadzone_mm" not in zoom
 
 
+def test_the_one_line_fix_is_printed_only_when_it_would_work(cli):
+    """A push made a button cannot work whatever its fields (a direction drives no button), and a
+    mistyped key stays mistyped in the command printed: the fix printed was refused when run. Now
+    the refusal says what is wrong with the change itself, and no command that fails is offered."""
+    result = cli("set", "default", "mappings.push.output", "A")
+    assert result.returncode == 2
+    assert "mappings.push.input: found 'push'" in result.stderr, result.stderr
+    assert "neurotouch-hid profile set default mappings.push '" not in result.stderr, result.stderr
+    typo = cli("set", "default", "mappings.zoom.output", "KEY_SPCE")
+    assert typo.returncode == 2
+    assert "did you mean 'KEY_SPACE'?" in typo.stderr, typo.stderr
+    assert "KEY_SPCE, " not in typo.stderr and "profile set default mappings.zoom '" not in typo.stderr, typo.stderr
+    assert not (cli.user_dir / "default.yaml").exists()
+
+
 def test_delete_and_reset_keep_a_backup_and_warn_about_games_pointing_at_the_profile(cli):
     """``profile delete`` and ``reset`` acted at once, with no backup and no word about the games
     mapped to the profile (``profile auto list`` showed them as fine)."""

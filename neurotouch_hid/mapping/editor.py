@@ -14,6 +14,7 @@ temporary copy and saves it only when valid, asking to edit again otherwise, as 
 from __future__ import annotations
 
 import contextlib
+import copy
 import io
 import os
 import re
@@ -357,6 +358,14 @@ def _output_takes_the_fields(name: str, document: Any, key: str, value: Any) -> 
         return
     kept = {str(f): v for f, v in mapping.items() if f in allowed}
     kept["output"] = value
+    candidate = copy.deepcopy(document)
+    candidate["mappings"][parts[1]] = CommentedMap(kept)
+    target = user_profile_path(name)
+    try:  # the command printed must work: else what is wrong with the change itself is said
+        parse_profile(_dump(candidate), target, lines=False)
+    except ProfileError as exc:
+        problem = str(exc).replace(f"profile {target} is invalid", f"{key} {printable(value)} cannot work", 1)
+        raise ProfileError(f"{problem}\n  nothing was changed") from None
     whole = yaml_text(CommentedMap(kept))
     raise ProfileError(
         f"{key} {printable(value)}: a {kind} output takes no {', '.join(refused)} (the fields of what "
