@@ -124,3 +124,18 @@ def test_a_field_the_mode_does_not_read_is_refused_on_its_line(fields, line, exp
 @pytest.mark.parametrize("mode, field", [("long_press", "dwell_ms"), ("tap", "dwell_ms"), ("tap", "tap_ms")])
 def test_a_field_the_mode_reads_is_taken(mode, field):
     parse_profile(mapping(input="pinch", output="KEY_A", mode=mode, **{field: 120}), "q.yaml")
+
+
+def test_a_chords_key_is_not_counted_as_a_press_of_that_key_alone():
+    """``profile test switch-access`` said KEY_TAB "2 presses" for one clockwise twist: the
+    counter-clockwise twist's Shift+Tab holds Tab too. A key down inside a chord the profile maps
+    is that chord's press, not the key's."""
+    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.mapping.replay import reach
+
+    keys = [(), ("KEY_LEFTSHIFT", "KEY_TAB"), (), ("KEY_TAB",), (), ("KEY_LEFTSHIFT", "KEY_TAB"), ()]
+    states = [ControllerState(t_us=i * 10_000, keys=frozenset(k)) for i, k in enumerate(keys)]
+    detail = {r.output: r.detail for r in reach(load_profile("switch-access"), states)}
+    assert detail["KEY_TAB"] == "1 press", detail
+    assert detail["KEY_LEFTSHIFT+KEY_TAB"] == "2 presses", detail
+    assert detail["KEY_SPACE"] == "0 presses", detail

@@ -126,20 +126,26 @@ def _span_text(low: float, high: float) -> str:
 
 def reach(profile: Profile, states: list[ControllerState]) -> list[OutputReach]:
     """Every output ``profile`` maps, in the order of its mappings (several mappings of one output
-    listed together), with what it did over ``states`` (:class:`OutputReach`)."""
+    listed together), with what it did over ``states`` (:class:`OutputReach`). A button's presses
+    are its keys' rising edges, except where a longer chord the profile maps holds them too (Tab
+    inside Shift+Tab is the chord's press)."""
     outputs: dict[str, list[str]] = {}
     kinds: dict[str, object] = {}
     for name, m in profile.mappings.items():
         outputs.setdefault(m.output, []).append(name)
         kinds.setdefault(m.output, m)
+    chords_of = [tuple(m.presses) for m in kinds.values() if isinstance(m, ButtonMapping)]
     result = []
     for output, names in outputs.items():
         m = kinds[output]
         if isinstance(m, ButtonMapping):
             parts = m.presses
+            # a chord the profile maps that holds these keys and more is that chord's press
+            chords = [c for c in chords_of if set(parts) < set(c)]
             count, before = 0, False
             for state in states:
                 now = all(_is_down(state, p) for p in parts)
+                now = now and not any(all(_is_down(state, p) for p in c) for c in chords)
                 count += now and not before
                 before = now
             reached, detail = count > 0, f"{count} press{'es' * (count != 1)}"
