@@ -207,6 +207,19 @@ def test_tune_sets_saturation_from_what_the_user_reaches(cli, pushes):
     assert after["max_deflection"]["ABS_Y"] == 1.0  # the weak push now reaches full travel
 
 
+@pytest.mark.parametrize("source", ["sim", "davis", "nofile.aedat4"])
+def test_tune_takes_only_the_users_own_recording_or_predictions(cli, source):
+    """``profile tune mine --from sim`` wrote the simulated hand's reach into the user's profile
+    (exit 0), and a missing file was answered about ``--source``, an option tune has not."""
+    assert cli("new", "mine").returncode == 0
+    before = (cli.user_dir / "mine.yaml").read_text()
+    result = cli("tune", "mine", "--from", source)
+    assert result.returncode == 2, result.stdout
+    assert f"--from {source}" in result.stderr and "--source" not in result.stderr, result.stderr
+    assert "recording" in result.stderr and "your own" in result.stderr, result.stderr
+    assert (cli.user_dir / "mine.yaml").read_text() == before
+
+
 def test_bad_predictions_file_names_its_line(cli, tmp_path):
     bad = tmp_path / "bad.jsonl"
     bad.write_text(

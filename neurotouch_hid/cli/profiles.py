@@ -472,6 +472,15 @@ def profile_tune(
 
     if not 0 < percentile <= 100:
         raise NeurotouchError(f"--percentile {percentile}: expected a value in (0, 100]")
+    takes = (
+        "tune takes a recording (AEDAT4) or predictions (.jsonl) of your own gestures; record some with "
+        "`neurotouch-hid record me.aedat4`, then `profile tune NAME --from me.aedat4`"
+    )
+    if from_source in ("sim", "davis"):
+        reach = "the simulated hand's reach is not yours" if from_source == "sim" else "not the live camera"
+        raise NeurotouchError(f"--from {from_source}: {reach}; {takes}")
+    if not Path(from_source).is_file():
+        raise NeurotouchError(f"--from {from_source}: no such file; {takes}")
     tuned = tuned_saturations(load_profile(name), estimates_from_source(from_source), percentile)
     if not tuned:
         raise NeurotouchError(
