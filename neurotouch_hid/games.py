@@ -40,6 +40,7 @@ import psutil
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.limits import (
     YamlError,
+    key_line,
     load_yaml,
     printable,
     read_outside_text,
@@ -144,26 +145,33 @@ def _app_id(text: str) -> int | None:
     return value if value <= MAX_STEAM_APP_ID else None
 
 
-def _check_section(path: Path, data: dict, section: str) -> dict:
+def _check_section(path: Path, data: dict, section: str, root: Any) -> dict:
     value = data.get(section) or {}
     if not isinstance(value, dict):
-        raise GameMapError(f"{path}: '{section}' must map games to profiles (GAME: PROFILE), found {short(value)}")
+        raise GameMapError(
+            f"{where(path, key_line(root, section))}: '{section}' must map games to profiles (GAME: PROFILE), "
+            f"found {short(value)}"
+        )
     if len(value) > MAX_GAMES:
-        raise GameMapError(f"{path}: {section}: {len(value)} games (at most {MAX_GAMES}, docs/limits.md)")
+        raise GameMapError(
+            f"{where(path, key_line(root, section))}: {section}: {len(value)} games "
+            f"(at most {MAX_GAMES}, docs/limits.md)"
+        )
     for game, profile in value.items():
+        at = where(path, key_line(root, section, game))
         if not isinstance(profile, str) or not profile.strip():
             raise GameMapError(
-                f"{path}: {section}.{printable(game)}: expected a profile name or path, found {short(profile)}"
+                f"{at}: {section}.{printable(game)}: expected a profile name or path, found {short(profile)}"
             )
         if section == STEAM and not (isinstance(game, int) and 0 <= game <= MAX_STEAM_APP_ID):
             raise GameMapError(
-                f"{path}: steam: '{printable(game)}' is not a Steam app id (a whole number up to {MAX_STEAM_APP_ID})"
+                f"{at}: steam: '{printable(game)}' is not a Steam app id (a whole number up to {MAX_STEAM_APP_ID})"
             )
         if section == EXECUTABLE and not isinstance(game, str):
-            raise GameMapError(f"{path}: executable: '{printable(game)}' is not a name (quote it)")
+            raise GameMapError(f"{at}: executable: '{printable(game)}' is not a name (quote it)")
         if section == EXECUTABLE and (len(game) > MAX_NAME_CHARS or not game.isprintable()):
             raise GameMapError(
-                f"{path}: executable: '{printable(game)}' is not a name (at most {MAX_NAME_CHARS} printable characters)"
+                f"{at}: executable: '{printable(game)}' is not a name (at most {MAX_NAME_CHARS} printable characters)"
             )
     return value
 
@@ -179,18 +187,23 @@ def _load_document(path: Path, round_trip: bool = False) -> Any:
     except FileNotFoundError:
         return None
     try:
-        data, _ = load_yaml(text)
+        data, root = load_yaml(text)
     except YamlError as exc:
         raise GameMapError(f"{where(path, exc.line)}: not valid YAML: {exc.problem}; fix or delete it") from None
     if data is not None and not isinstance(data, dict):
-        raise GameMapError(f"{path}: expected the sections 'steam:' and 'executable:', found {type(data).__name__}")
-    unknown = sorted(printable(k) for k in (data or {}) if k not in (STEAM, EXECUTABLE))
-    if unknown:
         raise GameMapError(
-            f"{path}: unknown section(s) {printable(', '.join(unknown), 200)} (expected 'steam:' and 'executable:')"
+            f"{where(path, key_line(root))}: expected the sections 'steam:' and 'executable:', "
+            f"found {type(data).__name__}"
+        )
+    unknown = [k for k in (data or {}) if k not in (STEAM, EXECUTABLE)]
+    if unknown:
+        names = printable(", ".join(sorted(printable(k) for k in unknown)), 200)
+        raise GameMapError(
+            f"{where(path, key_line(root, unknown[0]))}: unknown section(s) {names} "
+            "(expected 'steam:' and 'executable:')"
         )
     for section in (STEAM, EXECUTABLE):
-        _check_section(path, data or {}, section)
+        _check_section(path, data or {}, section, root)
     if not round_trip:
         return data
     from ruamel.yaml import YAML

@@ -368,6 +368,22 @@ def read_proc_file(path: str | os.PathLike, max_bytes: int) -> tuple[bytes, bool
     return data[:max_bytes], size > max_bytes
 
 
+def key_line(root: Any, *keys: object) -> int:
+    """The 1-based line of the key reached by ``keys`` from ``root`` (a node of :func:`load_yaml`;
+    each key compared as its text, e.g. ``4242``), else of the deepest node reached; 0 for no
+    root (an empty document). For error messages (:func:`where`)."""
+    if root is None:
+        return 0
+    node, line = root, root.start_mark.line + 1
+    for key in keys:
+        pairs = node.value if node is not None and node.id == "mapping" else ()
+        match = next((pair for pair in pairs if pair[0].id == "scalar" and pair[0].value == str(key)), None)
+        if match is None:
+            break
+        line, node = match[0].start_mark.line + 1, match[1]
+    return line
+
+
 def where(source: str | os.PathLike | Path, line: int) -> str:
     """``FILE:LINE`` (or ``FILE`` when the line is unknown) for messages."""
     return f"{source}:{line}" if line else str(source)

@@ -151,23 +151,26 @@ def test_adding_an_unknown_or_invalid_profile_changes_nothing(tmp_path):
 
 
 @pytest.mark.parametrize(
-    ("text", "says"),
+    ("text", "says", "line"),
     [
-        ("steam:\n\t4242: mouse\n", ":2: not valid YAML"),
-        ("- 4242\n", "expected the sections"),
-        ("games:\n  4242: mouse\n", "unknown section(s) games"),
-        ("steam:\n  abc: mouse\n", "'abc' is not a Steam app id"),
-        ("steam:\n  4242: 7\n", "steam.4242: expected a profile name or path"),
-        ("executable: mouse\n", "'executable' must map games to profiles"),
+        ("steam:\n\t4242: mouse\n", "not valid YAML", 2),
+        ("- 4242\n", "expected the sections", 1),
+        ("# mine\ngames:\n  4242: mouse\n", "unknown section(s) games", 2),
+        ("# mine\nsteam:\n  1: mouse\n  abc: mouse\n", "'abc' is not a Steam app id", 4),
+        ("steam:\n  4242: 7\n", "steam.4242: expected a profile name or path", 2),
+        ("# mine\nexecutable: mouse\n", "'executable' must map games to profiles", 2),
+        ("executable:\n  supertux: mouse\n  42: mouse\n", "'42' is not a name", 3),
     ],
 )
-def test_a_broken_games_yaml_is_one_line_naming_the_file_exit_2(text, says):
+def test_a_broken_games_yaml_is_one_line_naming_the_file_and_line_exit_2(text, says, line):
+    """The file, the line and what was expected (docs/profiles.md): a wrong section or game once
+    named only the file."""
     path = games_file()
     path.parent.mkdir(parents=True)
     path.write_text(text)
     with pytest.raises(GameMapError) as caught:
         load_game_map()
-    assert str(path) in str(caught.value) and says in str(caught.value)
+    assert f"{path}:{line}: " in str(caught.value) and says in str(caught.value), str(caught.value)
     result = _cli("profile", "auto", "list", env={"XDG_CONFIG_HOME": os.environ["XDG_CONFIG_HOME"]})
     assert result.returncode == 2, result
     assert "Traceback" not in result.stderr and says in result.stderr
