@@ -76,6 +76,25 @@ def test_a_second_driver_leaves_the_first_ones_socket_alone(runtime_dir):
         first.stop()
 
 
+def test_profile_use_of_a_broken_profile_file_prints_why_and_asks_no_driver(runtime_dir, tmp_path):
+    """``profile use ./broken.yaml`` answered only that it was invalid and to run ``profile
+    validate``: the driver does not echo a file it was pointed at (it may be any file the driver
+    can read). The command reads the file as its user first and prints the problem itself, line
+    and field (docs/profiles.md: "prints why")."""
+    asked = []
+    server = ControlServer(lambda ref: asked.append(ref) or f"switched to {ref}")
+    assert server.start()
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("mappings:\n  push:\n    input: push\n    output: left_stick\n    deadzone_mm: lots\n")
+    try:
+        proc = run_cli("profile", "use", str(broken))
+    finally:
+        server.stop()
+    assert proc.returncode == 2, proc
+    assert f"{broken}:5: mappings.push.deadzone_mm" in " ".join(proc.stderr.split()), proc.stderr
+    assert "Traceback" not in proc.stderr and asked == []
+
+
 def test_profile_use_switches_a_running_runtime_outputs_neutral_first(runtime_dir):
     loads = []
 

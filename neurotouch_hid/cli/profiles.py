@@ -75,9 +75,13 @@ def profile_use(name: str = typer.Argument(..., help="profile name or path")) ->
     """Switch the running driver (`neurotouch-hid run`) to this profile, every output neutral first.
 
     Talks to the driver over $XDG_RUNTIME_DIR/neurotouch-hid/control.sock; with no driver running, says so
-    (exit 2)."""
+    (exit 2). A profile given by path is read here first, as this user: a bad one is refused
+    with its problems (file, line, field), the driver not asked."""
     from neurotouch_hid.control import request_use
+    from neurotouch_hid.mapping.profile import _is_path, load_profile
 
+    if _is_path(name):
+        load_profile(name)  # ProfileError: the driver would refuse it without echoing the file
     console.print(request_use(name), highlight=False, soft_wrap=True)
 
 
