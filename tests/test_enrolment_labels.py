@@ -79,6 +79,8 @@ def test_a_prompt_with_no_gesture_is_left_out_and_said(performed, tmp_path):
     )
     assert result.returncode == 0, result.stderr
     assert "labelled 6 of 7 prompts" in result.stdout
+    # recorded from the simulated camera: adapt keeps such a model out of the user's (it needs --out)
+    assert f"neurotouch-hid adapt {out} --out sim-model.yaml" in " ".join(result.stdout.split()), result.stdout
     assert (
         f"prompt 4 (zoom at {with_extra.prompts[3].cue_s:g} s): no gesture seen near its cue, left out" in result.stdout
     )

@@ -167,7 +167,12 @@ def _label(
     except BaseException:
         target.discard()
         raise
-    say_labelled(dataclasses.replace(done, folder=target.commit()))
+    from neurotouch_hid.enrolment.adapt import SIMULATED_CAMERA_PREFIX
+    from neurotouch_hid.sources.recording import RecordingReader
+
+    with RecordingReader(recording) as reader:  # adapt refuses a simulated enrolment as the user's model
+        simulated = reader.camera_name.startswith(SIMULATED_CAMERA_PREFIX)
+    say_labelled(dataclasses.replace(done, folder=target.commit()), simulated=simulated)
 
 
 def say_labelled(done, again: dict[int, int] | None = None, simulated: bool = False) -> None:
