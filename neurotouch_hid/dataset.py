@@ -510,6 +510,15 @@ def _no_constant(name: str) -> float:
     raise ValueError(f"{name} is not a finite number")
 
 
+def _finite_float(text: str) -> float:
+    """``json.loads``' hook for a JSON number with a fraction or exponent: 1e999 is no constant
+    but reads as infinity, no number of a predictions file either."""
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"{short(text)} is past a float's range")
+    return value
+
+
 def read_predictions(path: str | Path) -> list[GestureEstimate]:
     """Read a predictions file (docs/dataset.md) back into estimates.
 
@@ -526,7 +535,7 @@ def read_predictions(path: str | Path) -> list[GestureEstimate]:
         if not line.strip():
             continue
         try:
-            data = json.loads(line, parse_constant=_no_constant)
+            data = json.loads(line, parse_constant=_no_constant, parse_float=_finite_float)
         except json.JSONDecodeError as exc:
             raise DatasetError(f"{path}:{number}: not a JSON object: {exc.msg}") from None
         except (ValueError, RecursionError):  # a number of thousands of digits, nesting too deep

@@ -969,6 +969,25 @@ def test_a_predictions_time_past_int64_is_one_line(tmp_path, t_us):
     assert_refused(cli("run", "--source", str(preds), "--fast", "--output", "jsonl"), f"{preds}:2:")
 
 
+@pytest.mark.parametrize(
+    "field",
+    [
+        '"intensity_mm": 1e999',
+        '"intensity_mm": 1.0, "translation_mm": [-1e400, 0.0]',
+        '"intensity_mm": 1.0, "rotation_rad": 1e309',
+    ],
+)
+def test_a_predictions_number_past_a_float_is_refused_with_its_line(tmp_path, field):
+    """JSON's 1e999 is no constant: it read as infinity, and ``profile test`` went on (exit 0)
+    with a push of infinite intensity that moved nothing."""
+    preds = tmp_path / "p.jsonl"
+    preds.write_text(
+        '{"t_us": 0, "gesture": "none", "resting": true, "intensity_mm": 0.0}\n'
+        f'{{"t_us": 10000, "gesture": "push", "resting": false, {field}}}\n'
+    )
+    assert_refused(cli("profile", "test", "default", "--source", str(preds)), f"{preds}:2:")
+
+
 def test_relative_counts_per_step_stay_within_an_event():
     """2000 wheel mappings at the highest speed sum to more hi-res counts in a step than an
     event's signed 32 bits hold (python-evdev raised OverflowError): the step is clamped."""
