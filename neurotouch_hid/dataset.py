@@ -25,7 +25,7 @@ import tempfile
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Sequence
+from typing import IO, Any, Sequence
 
 import numpy as np
 
@@ -519,6 +519,42 @@ def _finite_float(text: str) -> float:
     return value
 
 
+def _number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _points(value: Any, bound: float) -> bool:
+    return isinstance(value, list) and all(
+        isinstance(p, list) and len(p) == 2 and all(_number(v) and abs(v) <= bound for v in p) for p in value
+    )
+
+
+def _prediction_field_problem(data: dict) -> str | None:
+    """``FIELD: expected ..., found ...`` for the first field of a predictions line of the wrong
+    type or range (docs/dataset.md, Predictions; the similarity's terms optional), else None."""
+    checks = (
+        ("resting", lambda v: isinstance(v, bool) or (type(v) is int and v in (0, 1)), "true or false (or 1 or 0)"),
+        (
+            "intensity_mm",
+            lambda v: _number(v) and 0 <= v <= MAX_LABEL_INTENSITY_MM,
+            f"mm from 0 to {MAX_LABEL_INTENSITY_MM:g}",
+        ),
+        ("contacts_px", lambda v: _points(v, MAX_SENSOR_PX), f"a list of [x, y] image pixels within {MAX_SENSOR_PX}"),
+        (
+            "contacts_mm",
+            lambda v: _points(v, MAX_LABEL_INTENSITY_MM),
+            f"a list of [x, y] mm within {MAX_LABEL_INTENSITY_MM:g}",
+        ),
+        ("translation_mm", lambda v: _points([v], MAX_LABEL_INTENSITY_MM), "[x, y] in mm"),
+        ("rotation_rad", _number, "a finite number (rad)"),
+        ("scale", _number, "a finite number"),
+    )
+    for name, fits, expected in checks:
+        if name in data and data[name] is not None and not fits(data[name]):
+            return f"{name}: expected {expected}, found {short(data[name])}"
+    return None
+
+
 def read_predictions(path: str | Path) -> list[GestureEstimate]:
     """Read a predictions file (docs/dataset.md) back into estimates.
 
@@ -550,6 +586,9 @@ def read_predictions(path: str | Path) -> list[GestureEstimate]:
             raise DatasetError(
                 f"{path}:{number}: t_us: expected a time in microseconds from 0 to 2^62, found {short(t_us)}"
             )
+        problem = _prediction_field_problem(data)
+        if problem is not None:
+            raise DatasetError(f"{path}:{number}: {problem} (docs/dataset.md, Predictions)")
         try:
             estimate = GestureEstimate.from_json_dict(data)
         except (TypeError, ValueError, KeyError, OverflowError) as exc:

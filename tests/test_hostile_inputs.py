@@ -988,6 +988,30 @@ def test_a_predictions_number_past_a_float_is_refused_with_its_line(tmp_path, fi
     assert_refused(cli("profile", "test", "default", "--source", str(preds)), f"{preds}:2:")
 
 
+@pytest.mark.parametrize(
+    ("field", "named"),
+    [
+        ('"resting": "no", "intensity_mm": 1.0', "resting"),
+        ('"resting": false, "intensity_mm": -5', "intensity_mm"),
+        ('"resting": false, "intensity_mm": "5"', "intensity_mm"),
+        ('"resting": false, "intensity_mm": 1.0, "translation_mm": [1, 2, 3]', "translation_mm"),
+        ('"resting": false, "intensity_mm": 1.0, "contacts_mm": [[1, "a"]], "contacts_px": [[1, 2]]', "contacts_mm"),
+        ('"resting": false, "intensity_mm": 1.0, "scale": true', "scale"),
+    ],
+)
+def test_a_predictions_field_of_the_wrong_type_is_refused_by_name(tmp_path, field, named):
+    """``"resting": "no"`` read as resting (a non-empty string is true), a negative or quoted
+    intensity and a three-number translation were taken as they came: each is refused with its
+    line and field (docs/dataset.md, Predictions)."""
+    preds = tmp_path / "p.jsonl"
+    preds.write_text(
+        '{"t_us": 0, "gesture": "none", "resting": true, "intensity_mm": 0.0}\n'
+        f'{{"t_us": 10000, "gesture": "push", {field}}}\n'
+    )
+    result = cli("profile", "test", "default", "--source", str(preds))
+    assert_refused(result, f"{preds}:2: {named}")
+
+
 def test_relative_counts_per_step_stay_within_an_event():
     """2000 wheel mappings at the highest speed sum to more hi-res counts in a step than an
     event's signed 32 bits hold (python-evdev raised OverflowError): the step is clamped."""
