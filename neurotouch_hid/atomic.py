@@ -139,6 +139,11 @@ def check_output(
                     f"{shown}: the {what} is the same file as the input {printable(source, 200)}; "
                     "writing it would destroy what is read: give another name"
                 )
+            if stat.S_ISDIR(other.st_mode) and os.path.samefile(path.parent, source):  # a dataset's folder
+                raise OutputError(
+                    f"{shown}: the {what} would replace a file of the input folder {printable(source, 200)}; "
+                    "writing it could destroy what is read: give a name outside it, or a new one"
+                )
     return path
 
 

@@ -258,6 +258,31 @@ def test_enrol_from_a_recording_inside_the_dataset_keeps_its_labels_unless_force
     assert _snapshot(ds) == before
 
 
+@pytest.mark.parametrize("name", ["u0_push.aedat4", "u0_push.labels.csv", "sensor.yaml"])
+def test_eval_writes_no_output_over_a_file_of_the_dataset_it_reads(tmp_path, sim_quick_dataset, name):
+    """``eval DS --json DS/u0_push.aedat4`` replaced the 5.7 MB recording with 5.9 KB of JSON
+    (exit 0): only the folder was an input, not its files."""
+    ds = tmp_path / "ds"
+    ds.mkdir()
+    for part in ("u0_push.aedat4", "u0_push.labels.csv", "sensor.yaml"):
+        (ds / part).write_bytes((sim_quick_dataset / part).read_bytes())
+    before = _snapshot(ds)
+    assert_refused(cli("eval", str(ds), "--json", str(ds / name), timeout_s=300), "a file of the input folder")
+    assert _snapshot(ds) == before
+
+
+@pytest.mark.parametrize("flag", ["--json", "--report", "--predictions"])
+def test_eval_says_before_its_work_when_an_outputs_folder_is_a_file(tmp_path, sim_quick_dataset, flag):
+    """``eval DS --report one.json`` (a file there) ran the whole evaluation, then ended in a
+    FileExistsError traceback."""
+    blocker = tmp_path / "one.json"
+    blocker.write_text("{}\n")
+    target = blocker / "x.json" if flag == "--json" else blocker
+    result = cli("eval", str(sim_quick_dataset), flag, str(target), timeout_s=300)
+    assert_refused(result, f"{flag}: {blocker} is a file, not a folder")
+    assert blocker.read_text() == "{}\n"
+
+
 # --- outputs of enrol --plan-out and adapt --out ---------------------------------------------
 def test_plan_out_and_adapt_out_refuse_links_write_devices_in_place_and_dash_is_stdout(tmp_path):
     """``--plan-out /dev/null`` replaced the device node by a file (as root); ``--plan-out -``

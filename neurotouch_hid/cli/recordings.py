@@ -26,6 +26,7 @@ from neurotouch_hid.cli.common import (
 )
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.kinds import SourceKind
+from neurotouch_hid.limits import printable
 
 app = typer.Typer()
 
@@ -325,6 +326,13 @@ def eval_cmd(
 
     if report is not None:  # before the evaluation, not after it
         require("plots", "eval --report")
+    from neurotouch_hid.atomic import check_output
+
+    for flag, folder in (("--report", report), ("--predictions", predictions), ("--json", json_out)):
+        if folder is not None:  # outputs checked before the evaluation, not after it
+            _no_file_on_the_way(flag, folder.parent if flag == "--json" else folder)
+    if json_out is not None:
+        check_output(json_out, (dataset,), what="JSON summary")
     from neurotouch_hid.enrolment.model import apply_model
 
     config = pipeline_config(settings, method, **({} if window_us is None else {"window_us": window_us}))
@@ -378,6 +386,16 @@ def eval_cmd(
     if report is not None:
         summary = write_report(result, report, command=command, config=hyper)
         console.print(f"report: {summary}")
+
+
+def _no_file_on_the_way(flag: str, folder: Path) -> None:
+    """Raises NeurotouchError when ``folder`` (an output's folder, made when missing) or the
+    nearest of its parents that exists is a file: the folder could not be made."""
+    for part in (folder, *folder.parents):
+        if part.exists():
+            if not part.is_dir():
+                raise NeurotouchError(f"{flag}: {printable(part, 200)} is a file, not a folder; give another path")
+            return
 
 
 @app.command()
