@@ -283,6 +283,19 @@ def test_eval_says_before_its_work_when_an_outputs_folder_is_a_file(tmp_path, si
     assert blocker.read_text() == "{}\n"
 
 
+def test_calibrate_replaces_no_recording_given_as_its_output(tmp_path, sim_gel_short_recording):
+    """``calibrate --source REC --out REC`` replaced the 6.4 MB recording with a 3.9 KB
+    sensor.yaml ("which was not a valid sensor.yaml"); any other recording given as --out too."""
+    rec = tmp_path / "c.aedat4"
+    rec.write_bytes(sim_gel_short_recording.read_bytes())
+    other = tmp_path / "other.aedat4"
+    other.write_bytes(sim_gel_short_recording.read_bytes())
+    before = _snapshot(tmp_path)
+    assert_refused(cli("calibrate", "--source", str(rec), "--out", str(rec)), "the same file as the input")
+    assert_refused(cli("calibrate", "--source", str(rec), "--out", str(other)), "is not a sensor.yaml")
+    assert _snapshot(tmp_path) == before
+
+
 # --- outputs of enrol --plan-out and adapt --out ---------------------------------------------
 def test_plan_out_and_adapt_out_refuse_links_write_devices_in_place_and_dash_is_stdout(tmp_path):
     """``--plan-out /dev/null`` replaced the device node by a file (as root); ``--plan-out -``

@@ -267,6 +267,28 @@ def _say_rest_geometry(say, source: str, result, markers: int) -> None:
     say(f"markers: {result.n_markers} found, {markers} expected")
 
 
+def _sensor_file_replaceable(path: Path, inputs) -> None:
+    """Before any work: ``path`` (calibrate's output) may be written: no link, folder or input
+    (``atomic.check_output``), and when it exists, a YAML mapping (a sensor.yaml, even a broken
+    one). Raises NeurotouchError for any other file (a recording given as --out by mistake)."""
+    from neurotouch_hid.atomic import check_output
+    from neurotouch_hid.errors import SensorError
+    from neurotouch_hid.limits import MAX_YAML_BYTES, YamlError, load_yaml, printable, read_outside_text
+
+    check_output(path, inputs, what="sensor file")
+    if not path.exists():
+        return
+    try:
+        data, _ = load_yaml(read_outside_text(path, MAX_YAML_BYTES, "sensor file", SensorError))
+    except (SensorError, YamlError):
+        data = None
+    if not isinstance(data, dict):
+        raise NeurotouchError(
+            f"{printable(path, 200)} is not a sensor.yaml: calibrate replaces only a sensor file; "
+            "give --out another name"
+        )
+
+
 @app.command()
 def calibrate(
     source: str = typer.Option(
@@ -347,6 +369,10 @@ def calibrate(
             "--mirror/--no-mirror and --rotation go together with the camera or simulator (both instead of the "
             "guided pushes): give both or neither"
         )
+    _sensor_file_replaceable(
+        user_sensor_path() if out is None else (out / "sensor.yaml" if out.is_dir() else out),
+        (source if source not in (SourceKind.DAVIS, SourceKind.SIM) else None, press),
+    )
     if press is not None:  # read before the camera and the compile are needed: a wrong file fails now
         from neurotouch_hid.sources.recording import RecordingReader
 
