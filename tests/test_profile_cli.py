@@ -186,6 +186,27 @@ def test_edit_validates_and_reports_non_interactively(cli, tmp_path):
     assert missing.returncode == 2 and "EDITOR" in missing.stderr
 
 
+def test_an_edit_saved_as_latin_1_is_kept_for_the_user_not_deleted(cli, tmp_path):
+    """An editor that saved the change with a Latin-1 'é' got "not a profile (not UTF-8 text)",
+    and the edited file was deleted with the user's change in it: it is kept, byte for byte, in
+    the .rejected file the message names, and the next edit says how to go on from it."""
+    script = tmp_path / "latin1-editor"
+    script.write_text(
+        "#!/bin/sh\nsed -i 's/deadzone_mm: 0.8/deadzone_mm: 1.3/' \"$1\"\nprintf '# caf\\351\\n' >> \"$1\"\n"
+    )
+    script.chmod(0o755)
+    result = cli("edit", "default", editor=str(script))
+    assert result.returncode == 2, result.stderr
+    rejected = cli.user_dir / "default.yaml.rejected"
+    assert "not UTF-8" in result.stderr and str(rejected) in " ".join(result.stderr.split()), result.stderr
+    kept = rejected.read_bytes()
+    assert b"deadzone_mm: 1.3" in kept and kept.endswith(b"# caf\xe9\n")
+    assert not (cli.user_dir / "default.yaml").exists()
+    again = cli("edit", "default", editor="true")
+    assert again.returncode == 2 and str(rejected) in " ".join(again.stderr.split()), again.stderr
+    assert "delete it" in again.stderr and rejected.read_bytes() == kept
+
+
 def test_test_prints_a_timeline_and_plots(cli, pushes, tmp_path):
     png = tmp_path / "t.png"
     result = cli("test", "default", "--source", str(pushes), "--plot", str(png))

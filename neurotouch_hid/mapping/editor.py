@@ -19,6 +19,7 @@ import io
 import os
 import re
 import shlex
+import shutil
 import subprocess
 import tempfile
 from collections.abc import Callable
@@ -29,6 +30,7 @@ from ruamel.yaml import YAML
 from ruamel.yaml.comments import CommentedMap
 from ruamel.yaml.error import YAMLError
 
+from neurotouch_hid.atomic import temporary_beside
 from neurotouch_hid.errors import NeurotouchError, ProfileError, did_you_mean, nearest
 from neurotouch_hid.limits import YamlError, load_yaml, printable, short, where
 from neurotouch_hid.mapping.profile import (
@@ -464,16 +466,36 @@ def edit_profile(
     original = read_profile_text(find_profile(name))
     text = original
     if rejected.is_file():
-        text = read_profile_text(rejected)
+        try:
+            text = read_profile_text(rejected)
+        except ProfileError as exc:
+            raise ProfileError(
+                f"{exc}\nyour earlier edit, as the editor saved it, is in {rejected}: make it UTF-8 text there "
+                "(or copy what you need from it), or delete it to start from the profile"
+            ) from None
         note(f"starting from your earlier edit that was not saved, {rejected} (delete it to start from the profile)")
     fd, tmp = tempfile.mkstemp(prefix=f"neurotouch-hid-{name}.", suffix=".yaml")
     os.close(fd)
-    work = Path(tmp)
+    work: Path | None = Path(tmp)
     try:
         while True:
             work.write_text(text, encoding="utf-8")
             run_editor(work)
-            text = read_profile_text(work)
+            try:
+                text = read_profile_text(work)
+            except ProfileError as exc:  # not text, or too large: the edit is kept byte for byte
+                kept = f"{target} kept as it was" if target.exists() else f"no user copy of '{name}' made"
+                try:
+                    rejected.parent.mkdir(parents=True, exist_ok=True)
+                    part = temporary_beside(rejected)
+                    shutil.copyfile(work, part)
+                    os.replace(part, rejected)
+                except (OSError, NeurotouchError) as why:
+                    work = None  # not deleted: the edit stays where the editor saved it
+                    raise ProfileError(f"{exc}\nnot saved: {kept}; your edit stays in {tmp} ({why})") from None
+                raise ProfileError(
+                    f"{exc}\nnot saved: {kept}; your edit is in {rejected}, as the editor saved it"
+                ) from None
             try:
                 parse_profile(text, work)
             except ProfileError as exc:
@@ -493,7 +515,8 @@ def edit_profile(
             rejected.unlink(missing_ok=True)
             return target if text != original else None
     finally:
-        work.unlink(missing_ok=True)
+        if work is not None:
+            work.unlink(missing_ok=True)
 
 
 def run_editor(path: Path) -> None:
