@@ -22,7 +22,7 @@ import os
 import shutil
 import sys
 import tempfile
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, Sequence
@@ -118,6 +118,20 @@ def write_labels(path: str | Path, rows: list[LabelRow]) -> None:
             writer.writerow(cells)
 
 
+def _csv_rows(fh: IO[str], path: Path) -> Iterator[list[str]]:
+    """The rows of a CSV text (``csv.reader``); a row the reader refuses (a field over its
+    128 KiB limit, a NUL) is a DatasetError naming the file and line, not a ``csv.Error``."""
+    reader = csv.reader(fh)
+    while True:
+        try:
+            row = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            raise DatasetError(f"{path}:{reader.line_num}: not a CSV row ({printable(exc, 200)})") from None
+        yield row
+
+
 def read_labels(path: str | Path) -> list[LabelRow]:
     """Read a ``SEQUENCE.labels.csv``.
 
@@ -130,7 +144,7 @@ def read_labels(path: str | Path) -> list[LabelRow]:
     # a regular file (a FIFO would hang), at most MAX_LABELS_BYTES
     text = read_outside_text(path, MAX_LABELS_BYTES, "labels file", DatasetError)
     with io.StringIO(text, newline="") as fh:
-        reader = csv.reader(fh)
+        reader = _csv_rows(fh, path)
         header = next(reader, None)
         if header is None or tuple(h.strip() for h in header) != LABEL_COLUMNS:
             raise DatasetError(
@@ -209,7 +223,7 @@ def read_pressed(path: str | Path) -> list[tuple[int, int]]:
     text = read_outside_text(path, MAX_PREDICTIONS_BYTES, "pressed file", DatasetError)
     rows: list[tuple[int, int]] = []
     with io.StringIO(text, newline="") as fh:
-        reader = csv.reader(fh)
+        reader = _csv_rows(fh, path)
         header = next(reader, None)
         if header is None or tuple(h.strip() for h in header) != PRESSED_COLUMNS:
             raise DatasetError(f"{path}:1: header must be {','.join(PRESSED_COLUMNS)}, found {short(header)}")

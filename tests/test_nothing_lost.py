@@ -296,6 +296,19 @@ def test_calibrate_replaces_no_recording_given_as_its_output(tmp_path, sim_gel_s
     assert _snapshot(tmp_path) == before
 
 
+@pytest.mark.parametrize("kind", ["labels", "pressed"])
+def test_a_csv_field_past_the_readers_limit_is_one_line_with_file_and_line(tmp_path, kind):
+    """A labels row with a 200 000-character field ended ``eval`` in a ``_csv.Error`` traceback."""
+    from neurotouch_hid.dataset import LABEL_COLUMNS, PRESSED_COLUMNS, read_labels, read_pressed
+    from neurotouch_hid.errors import DatasetError
+
+    path = tmp_path / f"s.{kind}.csv"
+    columns = LABEL_COLUMNS if kind == "labels" else PRESSED_COLUMNS
+    path.write_text(",".join(columns) + "\n" + "1," * (len(columns) - 1) + "x" * 200_000 + "\n")
+    with pytest.raises(DatasetError, match=rf"{path}:2: not a CSV row"):
+        (read_labels if kind == "labels" else read_pressed)(path)
+
+
 # --- outputs of enrol --plan-out and adapt --out ---------------------------------------------
 def test_plan_out_and_adapt_out_refuse_links_write_devices_in_place_and_dash_is_stdout(tmp_path):
     """``--plan-out /dev/null`` replaced the device node by a file (as root); ``--plan-out -``
