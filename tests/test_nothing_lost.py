@@ -309,6 +309,33 @@ def test_a_csv_field_past_the_readers_limit_is_one_line_with_file_and_line(tmp_p
         (read_labels if kind == "labels" else read_pressed)(path)
 
 
+@pytest.mark.parametrize("signum", [15, 1])  # SIGTERM, SIGHUP (the terminal closed)
+def test_a_terminated_command_leaves_no_part_folder_and_dies_by_the_signal(tmp_path, signum):
+    """``simulate`` stopped by SIGTERM or SIGHUP left its hidden ``.ds.XXXX.part`` folder (tens of
+    MB each time; nothing cleans them up): the signal now unwinds it as Ctrl-C does, and the
+    process still ends by that signal, as its parent (a shell, systemd) expects."""
+    import signal
+    import time
+
+    child = subprocess.Popen(
+        [sys.executable, "-m", "neurotouch_hid.cli", "simulate", "--out", str(tmp_path / "ds"), "--preset", "paper"],
+        env=dict(os.environ, PYTHONPATH=str(ROOT), HOME=str(tmp_path)),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while not any(p.name.endswith(".part") for p in tmp_path.iterdir()) and time.monotonic() < deadline:
+            assert child.poll() is None, child.returncode
+            time.sleep(0.1)
+        time.sleep(1.0)  # into its work
+        child.send_signal(signal.Signals(signum))
+        assert child.wait(timeout=60) == -signum
+    finally:
+        child.kill()
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name != ".cache") == [], list(tmp_path.iterdir())
+
+
 # --- outputs of enrol --plan-out and adapt --out ---------------------------------------------
 def test_plan_out_and_adapt_out_refuse_links_write_devices_in_place_and_dash_is_stdout(tmp_path):
     """``--plan-out /dev/null`` replaced the device node by a file (as root); ``--plan-out -``

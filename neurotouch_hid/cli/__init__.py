@@ -149,6 +149,30 @@ def _options(
     """NeuroTouch soft tactile sensor -> standard game controller."""
 
 
+class _Terminated(BaseException):
+    """SIGTERM or SIGHUP arrived: unwinds the command as Ctrl-C does (an output's temporary file
+    removed, ``atomic``), then :func:`main` ends the process by that signal, as it would have
+    died without a handler (its parent, systemd or a shell, sees the same status)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _unwind_on_termination() -> None:
+    """SIGTERM and SIGHUP (a closed terminal) raise :class:`_Terminated` in the main thread where
+    their action is the default one (ignored, as under nohup, they stay ignored). Commands that
+    handle them themselves (``run``, ``record``, ``enrol``) set their own while they run."""
+    import signal
+
+    def unwind(signum: int, _frame) -> None:
+        raise _Terminated(signum)
+
+    for number in (signal.SIGTERM, signal.SIGHUP):
+        if signal.getsignal(number) is signal.SIG_DFL:
+            signal.signal(number, unwind)
+
+
 def main() -> None:
     """Console-script entry point: user errors become one line on stderr and exit code 2.
 
@@ -169,6 +193,7 @@ def main() -> None:
     logs.setFormatter(PrintableFormatter("%(message)s"))
     logging.basicConfig(level=logging.WARNING, handlers=[logs])
     click_exception = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException")
+    _unwind_on_termination()
     try:
         code = app(standalone_mode=False)  # usage errors come back here, to be said in plain words
     except typer.BadParameter as exc:
@@ -191,6 +216,12 @@ def main() -> None:
         sys.exit(2)
     except KeyboardInterrupt:
         sys.exit(130)
+    except _Terminated as exc:  # unwound: now end by the signal itself
+        import signal
+
+        sys.stdout.flush()
+        signal.signal(exc.signum, signal.SIG_DFL)
+        os.kill(os.getpid(), exc.signum)
     except OSError as exc:  # a write the disk refused where no stage said it in its own words
         from neurotouch_hid.atomic import DISK_ERRNOS
         from neurotouch_hid.limits import printable
