@@ -115,6 +115,17 @@ def test_the_one_line_fix_is_printed_only_when_it_would_work(cli):
     assert not (cli.user_dir / "default.yaml").exists()
 
 
+@pytest.mark.parametrize("parts", [40, 400])
+def test_a_key_deeper_than_any_profiles_is_one_line(cli, parts):
+    """``profile set mine a.a.(x400).x 1`` ended in a RecursionError traceback, and a 40-part key
+    was said to be "nested more than 32 levels" at a line the file does not have."""
+    key = ".".join(["a"] * parts)
+    result = cli("set", "default", key, "1")
+    assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
+    assert f"{parts} parts; a profile's keys have at most 8" in result.stderr, result.stderr
+    assert not (cli.user_dir / "default.yaml").exists()
+
+
 def test_delete_and_reset_keep_a_backup_and_warn_about_games_pointing_at_the_profile(cli):
     """``profile delete`` and ``reset`` acted at once, with no backup and no word about the games
     mapped to the profile (``profile auto list`` showed them as fine)."""

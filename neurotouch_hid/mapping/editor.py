@@ -274,11 +274,20 @@ def schema_fields(parts: list[str], node: Any = None) -> tuple[str, ...] | None:
     return None
 
 
+#: Most parts a dotted key of ``profile set``/``unset`` may have: the schema's deepest key has 6.
+MAX_KEY_PARTS = 8
+
+
 def _parent(document: Any, key: str, create: bool) -> tuple[CommentedMap, str]:
     """The mapping holding the last part of a dotted ``key``, and that part."""
     parts = key.split(".")
     if not key or any(not p for p in parts):
         raise ProfileError(f"key '{printable(key)}': expected a dotted path like mappings.push.deadzone_mm")
+    if len(parts) > MAX_KEY_PARTS:
+        raise ProfileError(
+            f"key '{printable(key, 200)}': {len(parts)} parts; a profile's keys have at most {MAX_KEY_PARTS} "
+            "(the deepest: layers.NAME.mappings.NAME.smoothing.beta)"
+        )
     node = document
     for depth, part in enumerate(parts):
         where = ".".join(parts[:depth]) or "the top level"
