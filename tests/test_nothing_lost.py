@@ -336,6 +336,17 @@ def test_a_terminated_command_leaves_no_part_folder_and_dies_by_the_signal(tmp_p
     assert sorted(p.name for p in tmp_path.iterdir() if p.name != ".cache") == [], list(tmp_path.iterdir())
 
 
+def test_a_plan_cue_past_a_day_is_refused_with_its_field(tmp_path):
+    """A cue of 1e308 s ended ``enrol --from`` in an OverflowError traceback (its microseconds)."""
+    from neurotouch_hid.enrolment.plan import read_plan
+    from neurotouch_hid.errors import DatasetError
+
+    plan = tmp_path / "p.json"
+    plan.write_text('{"prompts": [{"gesture": "push", "cue_s": 1e308, "seconds": 1}]}')
+    with pytest.raises(DatasetError, match="prompt 1: field 'cue_s'.*from 0 to 86400"):
+        read_plan(plan)
+
+
 # --- outputs of enrol --plan-out and adapt --out ---------------------------------------------
 def test_plan_out_and_adapt_out_refuse_links_write_devices_in_place_and_dash_is_stdout(tmp_path):
     """``--plan-out /dev/null`` replaced the device node by a file (as root); ``--plan-out -``

@@ -61,6 +61,9 @@ MAX_PLAN_BYTES = 1 << 20
 #: Most prompts a plan file may hold, and the longest prompt (s).
 MAX_PROMPTS = 10_000
 MAX_PROMPT_S = 60.0
+#: Latest cue of a plan's prompt (s from the recording's start): a day; past it no recording
+#: reaches (a cue of 1e308 s overflowed the labelling's microseconds).
+MAX_CUE_S = 86_400.0
 
 
 def rest_after_s(seconds: float) -> float:
@@ -364,7 +367,7 @@ def read_plan(path: str | Path) -> Plan:
             names = ", ".join(g.value for g in PLAN_GESTURES)
             found = "nothing" if "gesture" not in item else short(gesture)
             raise DatasetError(f"{at}: field 'gesture': expected one of {names}, found {found}")
-        cue = _number(item, "cue_s", at, "a time in seconds >= 0", lambda v: v >= 0)
+        cue = _number(item, "cue_s", at, f"a time in seconds from 0 to {MAX_CUE_S:g}", lambda v: 0 <= v <= MAX_CUE_S)
         seconds = _number(
             item, "seconds", at, f"a duration in seconds, > 0 and <= {MAX_PROMPT_S:g}", lambda v: 0 < v <= MAX_PROMPT_S
         )
