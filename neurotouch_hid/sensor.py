@@ -27,7 +27,16 @@ from typing import Annotated, Any
 
 import numpy as np
 import yaml
-from pydantic import AfterValidator, ConfigDict, Field, StrictBool, TypeAdapter, ValidationError, with_config
+from pydantic import (
+    AfterValidator,
+    ConfigDict,
+    Field,
+    StrictBool,
+    StrictInt,
+    TypeAdapter,
+    ValidationError,
+    with_config,
+)
 from ruamel.yaml.nodes import MappingNode
 from typing_extensions import TypedDict  # pydantic needs typing_extensions' TypedDict before 3.12
 
@@ -86,8 +95,8 @@ class SensorFile(TypedDict, total=False):
     sizes and positions at most :data:`~neurotouch_hid.limits.MAX_SENSOR_PX`, a rotation within
     one turn, a creep time at most an hour (docs/limits.md)."""
 
-    width: Annotated[int, Field(gt=0, le=MAX_SENSOR_PX)]
-    height: Annotated[int, Field(gt=0, le=MAX_SENSOR_PX)]
+    width: Annotated[StrictInt, Field(gt=0, le=MAX_SENSOR_PX)]
+    height: Annotated[StrictInt, Field(gt=0, le=MAX_SENSOR_PX)]
     px_per_mm: Annotated[float, Field(gt=0, le=MAX_SENSOR_PX)]
     gel_center_px: tuple[_Px, _Px]
     gel_radius_px: Annotated[float, Field(gt=0, le=MAX_SENSOR_PX)]

@@ -82,6 +82,16 @@ def test_every_bad_field_is_named_with_its_line_and_what_was_expected(tmp_path):
     assert f"{bad}:3: field 'mirror': found 1" in message and "boolean" in message
 
 
+@pytest.mark.parametrize("value", ["true", "346.5"])
+def test_an_image_size_that_is_no_whole_number_is_named_not_blamed_on_the_recording(tmp_path, value):
+    """``width: true`` read as 1, and the error then blamed the recording ("346x260 px but 1x260
+    is required")."""
+    bad = tmp_path / "sensor.yaml"
+    bad.write_text(f"height: 260\nwidth: {value}\n")
+    with pytest.raises(SensorError, match=rf"{bad}:2: field 'width': found .*valid integer"):
+        SensorGeometry.load(bad)
+
+
 def test_undistorted_px_are_base_plane_mm_at_the_centres_scale_and_distort_inverts_them():
     """``undistort``: the camera model's radial gain taken out of the image, so one px is one
     base-plane mm / px_per_mm near the rim as at the centre; ``distort`` puts it back."""
