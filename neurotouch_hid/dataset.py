@@ -581,7 +581,7 @@ def read_predictions(path: str | Path) -> list[GestureEstimate]:
     path = Path(path)
     text = read_outside_text(path, MAX_PREDICTIONS_BYTES, "predictions file", DatasetError)
     estimates: list[GestureEstimate] = []
-    for number, line in enumerate(text.splitlines(), start=1):
+    for number, line in enumerate(text.split("\n"), start=1):
         if not line.strip():
             continue
         try:

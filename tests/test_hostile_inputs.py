@@ -1012,6 +1012,18 @@ def test_a_predictions_field_of_the_wrong_type_is_refused_by_name(tmp_path, fiel
     assert_refused(result, f"{preds}:2: {named}")
 
 
+def test_a_line_separator_inside_a_predictions_string_is_no_line_break(tmp_path):
+    """JSON lines end at "\\n" only: a raw U+2028 inside a string split the line in two (refused as
+    an unterminated string), and every line number after it was off."""
+    preds = tmp_path / "p.jsonl"
+    preds.write_text(
+        '{"t_us": 0, "gesture": "none", "resting": true, "intensity_mm": 0.0, "note": "a\u2028b"}\r\n'
+        '{"t_us": 10000, "gesture": "wave", "resting": true, "intensity_mm": 0.0}\n',
+        encoding="utf-8",
+    )
+    assert_refused(cli("profile", "test", "default", "--source", str(preds)), f"{preds}:2:", "wave")
+
+
 def test_relative_counts_per_step_stay_within_an_event():
     """2000 wheel mappings at the highest speed sum to more hi-res counts in a step than an
     event's signed 32 bits hold (python-evdev raised OverflowError): the step is clamped."""
