@@ -141,8 +141,8 @@ def check_output(
                 )
             if stat.S_ISDIR(other.st_mode) and os.path.samefile(path.parent, source):  # a dataset's folder
                 raise OutputError(
-                    f"{shown}: the {what} would replace a file of the input folder {printable(source, 200)}; "
-                    "writing it could destroy what is read: give a name outside it, or a new one"
+                    f"{shown}: a file of the input folder {printable(source, 200)}; the {what} never overwrites "
+                    "an input: give a name outside that folder, or a new one"
                 )
     return path
 

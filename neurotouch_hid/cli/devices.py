@@ -369,10 +369,8 @@ def calibrate(
             "--mirror/--no-mirror and --rotation go together with the camera or simulator (both instead of the "
             "guided pushes): give both or neither"
         )
-    _sensor_file_replaceable(
-        user_sensor_path() if out is None else (out / "sensor.yaml" if out.is_dir() else out),
-        (source if source not in (SourceKind.DAVIS, SourceKind.SIM) else None, press),
-    )
+    path = user_sensor_path() if out is None else (out / "sensor.yaml" if out.is_dir() else out)
+    _sensor_file_replaceable(path, (source if source not in (SourceKind.DAVIS, SourceKind.SIM) else None, press))
     if press is not None:  # read before the camera and the compile are needed: a wrong file fails now
         from neurotouch_hid.sources.recording import RecordingReader
 
@@ -445,7 +443,6 @@ def calibrate(
             "folder (--out FILE to keep it)"
         )
         sys.exit(1 if checked_wrong else 0)
-    path = user_sensor_path() if out is None else (out / "sensor.yaml" if out.is_dir() else out)
     if press is not None:
         creep = calibration.measure_creep(press, geometry)
         geometry = dataclasses.replace(geometry, creep=creep)

@@ -167,12 +167,10 @@ def _label(
     except BaseException:
         target.discard()
         raise
-    from neurotouch_hid.enrolment.adapt import SIMULATED_CAMERA_PREFIX
-    from neurotouch_hid.sources.recording import RecordingReader
+    from neurotouch_hid.enrolment.adapt import simulated_sequences
 
-    with RecordingReader(recording) as reader:  # adapt refuses a simulated enrolment as the user's model
-        simulated = reader.camera_name.startswith(SIMULATED_CAMERA_PREFIX)
-    say_labelled(dataclasses.replace(done, folder=target.commit()), simulated=simulated)
+    folder = target.commit()  # adapt refuses a simulated enrolment as the user's model: say --out then
+    say_labelled(dataclasses.replace(done, folder=folder), simulated=bool(simulated_sequences([folder])))
 
 
 def say_labelled(done, again: dict[int, int] | None = None, simulated: bool = False) -> None:

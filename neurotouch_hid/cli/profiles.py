@@ -23,6 +23,7 @@ from neurotouch_hid.cli.common import (
     say_err,
 )
 from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.kinds import SourceKind
 from neurotouch_hid.limits import printable
 
 profile_app = typer.Typer(
@@ -480,8 +481,8 @@ def profile_tune(
         "tune takes a recording (AEDAT4) or predictions (.jsonl) of your own gestures; record some with "
         "`neurotouch-hid record me.aedat4`, then `profile tune NAME --from me.aedat4`"
     )
-    if from_source in ("sim", "davis"):
-        reach = "the simulated hand's reach is not yours" if from_source == "sim" else "not the live camera"
+    if from_source in (SourceKind.SIM, SourceKind.DAVIS):
+        reach = "the simulated hand's reach is not yours" if from_source == SourceKind.SIM else "not the live camera"
         raise NeurotouchError(f"--from {from_source}: {reach}; {takes}")
     if not Path(from_source).is_file():
         raise NeurotouchError(f"--from {from_source}: no such file; {takes}")

@@ -820,14 +820,5 @@ def check_output(out: str | Path, datasets: Sequence[str | Path]) -> Path:
     out = Path(out).expanduser()
     if str(out) == "-":  # standard output
         return out
-    outside_checks(out, (), what="model")  # a symbolic link is never written through
-    if out.is_dir():
-        raise NeurotouchError(f"--out {out}: a folder; give the model's file name, e.g. {out / 'model.yaml'}")
-    resolved = out.resolve()
-    for d in datasets:
-        d = Path(d).resolve()
-        if resolved.parent == d and resolved.exists():
-            raise NeurotouchError(
-                f"--out {out}: a file of the enrolment dataset {d}; the model never overwrites an input"
-            )
-    return out
+    # a symbolic link is never written through; a folder, or an existing file of a dataset, never replaced
+    return outside_checks(out, datasets, what="model")
