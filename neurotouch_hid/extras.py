@@ -3,7 +3,7 @@
 The driver (``run``, ``track``, ``eval`` without ``--report``) needs neither plots nor video:
 
 * ``plots``: matplotlib, for ``eval --report`` and ``profile test --plot``;
-* ``video``: imageio (gif, through Pillow) and imageio-ffmpeg (mp4, through an ffmpeg program:
+* ``video``: Pillow (gif) and imageio with imageio-ffmpeg (mp4, through an ffmpeg program:
   its own, or the system's ``ffmpeg`` when the package carries none, as the .deb's), for
   ``view --out FILE.gif`` / ``FILE.mp4``;
 * ``uinput``: python-evdev where its precompiled twin evdev-binary has no wheel (aarch64), for the
@@ -21,12 +21,17 @@ from neurotouch_hid.errors import NeurotouchError
 #: Each extra's import names and their distributions (``pyproject.toml``'s optional dependencies).
 EXTRAS: dict[str, dict[str, str]] = {
     "plots": {"matplotlib": "matplotlib"},
-    "video": {"imageio": "imageio", "imageio_ffmpeg": "imageio-ffmpeg"},
+    "video": {"imageio": "imageio", "imageio_ffmpeg": "imageio-ffmpeg", "PIL": "pillow"},
     "uinput": {"evdev": "evdev"},
 }
 
 #: Debian's package for each import name, for a system Python.
-DEBIAN: dict[str, str] = {"matplotlib": "python3-matplotlib", "imageio": "python3-imageio", "evdev": "python3-evdev"}
+DEBIAN: dict[str, str] = {
+    "matplotlib": "python3-matplotlib",
+    "imageio": "python3-imageio",
+    "PIL": "python3-pil",
+    "evdev": "python3-evdev",
+}
 
 
 class MissingExtraError(NeurotouchError):

@@ -4,14 +4,14 @@ One picture per APS frame: the frame (grey), the events of the last 10 ms (ON gr
 as the paper's Figure "APS frame and EVS events"), the tracked markers, their displacement
 from rest as arrows (scaled up to be visible, never past the neighbouring marker), the contact
 points, the gesture type and intensity, and a key to the colours. Drawing is OpenCV's; so is
-writing a png (one picture: the frame with the largest gesture intensity); gif and mp4 are
-imageio's (Pillow, ffmpeg), the optional extra ``video`` (:mod:`neurotouch_hid.extras`).
+writing a png (one picture: the frame with the largest gesture intensity); a gif is Pillow's and
+an mp4 imageio's (ffmpeg), the optional extra ``video`` (:mod:`neurotouch_hid.extras`).
 """
 
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import cv2
@@ -28,6 +28,10 @@ from neurotouch_hid.track import pipeline_over
 
 #: Output kinds by file suffix.
 VIEW_SUFFIXES = (".mp4", ".gif", ".png")
+
+#: The most pictures a gif takes: Pillow holds each until the file is written (0.4 MiB a picture
+#: at scale 2, so 750 pictures, 30 s at 25 frames a second, are ~300 MiB); mp4 has no bound.
+MAX_GIF_PICTURES = 750
 
 #: Colours (RGB).
 ON_RGB, OFF_RGB = (0, 220, 0), (230, 0, 0)
@@ -177,47 +181,85 @@ def render_view(
     if suffix == ".mp4":
         require_ffmpeg("view --out FILE.mp4")
     elif suffix == ".gif":
-        require("video", "view --out FILE.gif", ("imageio",))
+        require("video", "view --out FILE.gif", ("PIL",))
     pipeline = pipeline_for(sensor, config)
-    recent: deque[np.ndarray] = deque()
     latest: GestureEstimate | None = None
-    best: tuple[float, np.ndarray] | None = None
+
+    def pictures() -> Iterator[np.ndarray]:
+        """One picture per APS frame once the rest is known, each drawn when asked for."""
+        nonlocal latest
+        recent: deque[np.ndarray] = deque()
+        for item, estimates in pipeline_over(recording, pipeline, on_progress=on_progress):
+            if estimates:
+                latest = estimates[-1]
+            if not isinstance(item, Frame):
+                recent.append(item)
+                while recent and recent[0]["timestamp"][-1] < item["timestamp"][-1] - event_span_us:
+                    recent.popleft()
+                continue
+            if pipeline.rest_px is None:
+                continue
+            events = np.concatenate(list(recent)) if recent else np.zeros(0, dtype=EVENT_DTYPE)
+            events = events[events["timestamp"] >= item.t_us - event_span_us]
+            yield draw_view(item.image, events, pipeline.marker_positions(), pipeline.rest_px, latest, scale=scale)
+
     drawn = 0
-    writer = None
+
+    def counted(limit: int | None = None) -> Iterator[np.ndarray]:
+        nonlocal drawn
+        for pic in pictures():
+            drawn += 1
+            if limit is not None and drawn > limit:
+                raise NeurotouchError(
+                    f"{out}: a gif holds every picture in memory until it is written, and this recording has "
+                    f"more than {limit} ({limit / fps:g} s at {fps:g} pictures a second); "
+                    "write a .mp4, which is written picture by picture, or cut the recording"
+                )
+            yield pic
+
     with replacing(out, (recording,), "view") as target:  # renamed into place when complete
         try:
-            if suffix != ".png":
-                kwargs = (
-                    {"fps": fps, "macro_block_size": 1} if suffix == ".mp4" else {"duration": 1000.0 / fps, "loop": 0}
-                )
+            if suffix == ".mp4":
                 import imageio.v2 as imageio
 
-                writer = imageio.get_writer(target, **kwargs)
-            for item, estimates in pipeline_over(recording, pipeline, on_progress=on_progress):
-                if estimates:
-                    latest = estimates[-1]
-                if not isinstance(item, Frame):
-                    recent.append(item)
-                    while recent and recent[0]["timestamp"][-1] < item["timestamp"][-1] - event_span_us:
-                        recent.popleft()
-                    continue
-                if pipeline.rest_px is None:
-                    continue
-                events = np.concatenate(list(recent)) if recent else np.zeros(0, dtype=EVENT_DTYPE)
-                events = events[events["timestamp"] >= item.t_us - event_span_us]
-                pic = draw_view(item.image, events, pipeline.marker_positions(), pipeline.rest_px, latest, scale=scale)
-                drawn += 1
-                if writer is not None:
-                    writer.append_data(pic)
-                else:
+                writer = imageio.get_writer(target, fps=fps, macro_block_size=1)
+                try:
+                    for pic in counted():
+                        writer.append_data(pic)
+                finally:
+                    writer.close()
+            elif suffix == ".gif":
+                _write_gif(target, counted(MAX_GIF_PICTURES), fps)
+            else:
+                best: tuple[float, np.ndarray] | None = None
+                for pic in counted():
                     intensity = latest.intensity_mm if latest is not None else 0.0
                     if best is None or intensity > best[0] or intensity == best[0] == 0.0:
                         best = (intensity, pic)
-            if best is not None and not cv2.imwrite(str(target), cv2.cvtColor(best[1], cv2.COLOR_RGB2BGR)):
-                raise NeurotouchError(f"{out}: cannot write the view (OpenCV's imwrite failed)")
+                if best is not None and not cv2.imwrite(str(target), cv2.cvtColor(best[1], cv2.COLOR_RGB2BGR)):
+                    raise NeurotouchError(f"{out}: cannot write the view (OpenCV's imwrite failed)")
         except OSError as exc:
             raise NeurotouchError(f"{out}: cannot write the view: {exc}") from None
-        finally:
-            if writer is not None:
-                writer.close()
     return drawn
+
+
+def _write_gif(target: Path, pictures: Iterator[np.ndarray], fps: float) -> None:
+    """Write ``pictures`` (uint8 (H, W, 3) RGB) as an endlessly looping gif, through Pillow.
+
+    Pillow asks for each picture when it comes to it (``append_images`` is iterated once) and keeps
+    each one, reduced to an adaptive 256-colour palette (one byte a pixel), until the file is
+    written: the caller bounds their number (:data:`MAX_GIF_PICTURES`).
+    """
+    from PIL import Image
+
+    first = next(pictures, None)
+    if first is None:
+        return
+    Image.fromarray(first).save(
+        target,
+        format="GIF",
+        save_all=True,
+        append_images=(Image.fromarray(pic) for pic in pictures),
+        duration=1000.0 / fps,
+        loop=0,
+    )

@@ -70,10 +70,15 @@ def test_view_mp4_and_gif_without_imageio_name_the_video_extra(sim_rest_dataset,
     recording = sim_rest_dataset / "u0_push.aedat4"
     for suffix in (".mp4", ".gif"):
         out = tmp_path / f"v{suffix}"
-        result = cli_without(["imageio", "imageio_ffmpeg"], "view", str(recording), "--out", str(out))
-        assert_names_the_extra(result, "video", "imageio imageio-ffmpeg")
+        result = cli_without(["imageio", "imageio_ffmpeg", "PIL"], "view", str(recording), "--out", str(out))
+        assert_names_the_extra(result, "video", "imageio imageio-ffmpeg pillow")
         assert f"view --out FILE{suffix}" in result.stderr
         assert not out.exists()
+    gif = tmp_path / "v.gif"
+    result = cli_without(["PIL"], "view", str(recording), "--out", str(gif))
+    assert_names_the_extra(result, "video", "imageio imageio-ffmpeg pillow")
+    assert "needs pillow" in result.stderr and "python3-pil" in result.stderr
+    assert not gif.exists()
 
 
 def test_view_png_needs_no_extra(sim_rest_dataset, tmp_path):

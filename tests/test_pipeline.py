@@ -13,7 +13,7 @@ import pytest
 from helpers import run_cli
 
 from neurotouch_hid.dataset import read_predictions, write_predictions
-from neurotouch_hid.errors import DatasetError, SensorError
+from neurotouch_hid.errors import DatasetError, NeurotouchError, SensorError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.pipeline.episode import EpisodeVote
 from neurotouch_hid.pipeline.paper import PaperPipeline
@@ -491,6 +491,20 @@ def test_view_writes_a_picture_of_the_right_size(push_dataset, tmp_path, suffix,
     assert pictures.shape[1:3] == (scale * sensor.height, scale * sensor.width)
     assert len(pictures) == (drawn if suffix == ".gif" else 1)
     assert pictures[..., :3].std() > 5  # not a blank picture
+
+
+def test_a_gif_longer_than_its_bound_is_refused_and_what_was_there_is_kept(push_dataset, tmp_path, monkeypatch):
+    from neurotouch_hid import view
+    from neurotouch_hid.sensor import find_sensor_file
+
+    sensor = find_sensor_file(push_dataset)
+    out = tmp_path / "view.gif"
+    out.write_bytes(b"an earlier view")
+    monkeypatch.setattr(view, "MAX_GIF_PICTURES", 5)
+    with pytest.raises(NeurotouchError, match=r"more than 5 \(0.2 s at 25 pictures a second\).*write a \.mp4"):
+        view.render_view(push_dataset, out, sensor, scale=1)
+    assert out.read_bytes() == b"an earlier view"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["view.gif"]
 
 
 # --- a new session after the camera was lost (GesturePipeline.restart) -----------------------------
