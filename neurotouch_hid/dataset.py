@@ -32,11 +32,14 @@ import numpy as np
 from neurotouch_hid.atomic import DISK_ERRNOS, AtomicFile, _umask, disk_error, exchange
 from neurotouch_hid.errors import DatasetError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.limits import MAX_SENSOR_PX, printable, read_outside_text, short
+from neurotouch_hid.limits import MAX_SENSOR_PX, printable, read_outside_lines, read_outside_text, short
 from neurotouch_hid.sensor import user_sensor_path
 
-#: Largest predictions file read (bytes; read whole): an hour of 10 ms windows is ~100 MB.
+#: Largest predictions file read (bytes; read line by line): an hour of 10 ms windows is ~80 MB.
 MAX_PREDICTIONS_BYTES = 1 << 30
+#: Longest line of a predictions file (bytes): a window's line is 180-400 bytes, ~20 bytes more a
+#: contact point.
+MAX_PREDICTION_LINE_BYTES = 64 << 10
 
 #: The columns of ``SEQUENCE.labels.csv``, in docs/dataset.md's order.
 LABEL_COLUMNS: tuple[str, ...] = (
@@ -220,7 +223,7 @@ def read_pressed(path: str | Path) -> list[tuple[int, int]]:
     path = Path(path)
     if not path.exists():
         return []
-    text = read_outside_text(path, MAX_PREDICTIONS_BYTES, "pressed file", DatasetError)
+    text = read_outside_text(path, MAX_LABELS_BYTES, "pressed file", DatasetError)
     rows: list[tuple[int, int]] = []
     with io.StringIO(text, newline="") as fh:
         reader = _csv_rows(fh, path)
@@ -242,6 +245,8 @@ def read_pressed(path: str | Path) -> list[tuple[int, int]]:
                     ) from None
             if values[1] < values[0] or (rows and values[0] < rows[-1][0]):
                 raise DatasetError(f"{path}:{line_no}: pressed_us before t_start_us, or rows not ordered by time")
+            if len(rows) >= MAX_LABEL_ROWS:
+                raise DatasetError(f"{path}:{line_no}: more than {MAX_LABEL_ROWS:,} rows (docs/limits.md, Labels)")
             rows.append((values[0], values[1]))
     return rows
 
@@ -569,49 +574,78 @@ def _prediction_field_problem(data: dict) -> str | None:
     return None
 
 
-def read_predictions(path: str | Path) -> list[GestureEstimate]:
-    """Read a predictions file (docs/dataset.md) back into estimates.
+def iter_predictions(path: str | Path) -> Iterator[GestureEstimate]:
+    """The estimates of a predictions file (docs/dataset.md), read line by line as they are asked
+    for: the memory held is one line's, whatever the file's length (at most
+    :data:`MAX_PREDICTIONS_BYTES`, a line at most :data:`MAX_PREDICTION_LINE_BYTES`).
 
     Blank lines are skipped.
     Raises:
-        DatasetError: the file cannot be read, a line is not JSON, lacks a field or has a bad
-            value (the message names the file, the line number and the problem), or the lines
-            are not ordered by time.
+        DatasetError: when the line that breaks a rule is reached: the file cannot be read, a line
+            is not JSON, lacks a field or has a bad value (the message names the file, the line
+            number and the problem), or the lines are not ordered by time.
     """
     path = Path(path)
-    text = read_outside_text(path, MAX_PREDICTIONS_BYTES, "predictions file", DatasetError)
-    estimates: list[GestureEstimate] = []
-    for number, line in enumerate(text.split("\n"), start=1):
+    previous: int | None = None
+    lines = read_outside_lines(path, MAX_PREDICTIONS_BYTES, MAX_PREDICTION_LINE_BYTES, "predictions file", DatasetError)
+    for number, line in lines:
         if not line.strip():
             continue
-        try:
-            data = json.loads(line, parse_constant=_no_constant, parse_float=_finite_float)
-        except json.JSONDecodeError as exc:
-            raise DatasetError(f"{path}:{number}: not a JSON object: {exc.msg}") from None
-        except (ValueError, RecursionError):  # a number of thousands of digits, nesting too deep
-            raise DatasetError(f"{path}:{number}: not a predictions line (a number or nesting out of bounds)") from None
-        if not isinstance(data, dict):
-            raise DatasetError(f"{path}:{number}: expected a JSON object, found {type(data).__name__}")
-        missing = [k for k in ("t_us", "gesture", "resting", "intensity_mm") if k not in data]
-        if missing:
-            raise DatasetError(f"{path}:{number}: missing field(s) {', '.join(missing)} (docs/dataset.md, Predictions)")
-        t_us = data["t_us"]
-        if isinstance(t_us, bool) or not isinstance(t_us, (int, float)) or not 0 <= t_us <= MAX_T_US:
-            raise DatasetError(
-                f"{path}:{number}: t_us: expected a time in microseconds from 0 to 2^62, found {short(t_us)}"
-            )
-        problem = _prediction_field_problem(data)
-        if problem is not None:
-            raise DatasetError(f"{path}:{number}: {problem} (docs/dataset.md, Predictions)")
-        try:
-            estimate = GestureEstimate.from_json_dict(data)
-        except (TypeError, ValueError, KeyError, OverflowError) as exc:
-            raise DatasetError(f"{path}:{number}: bad value: {short(str(exc))}") from None
-        if estimate.contacts_px.shape != estimate.contacts_mm.shape:
-            raise DatasetError(f"{path}:{number}: contacts_px and contacts_mm have different numbers of points")
-        if estimates and estimate.t_us < estimates[-1].t_us:
-            raise DatasetError(
-                f"{path}:{number}: t_us {estimate.t_us} goes back in time (previous line: {estimates[-1].t_us})"
-            )
-        estimates.append(estimate)
-    return estimates
+        estimate = _prediction_line(path, number, line)
+        if previous is not None and estimate.t_us < previous:
+            raise DatasetError(f"{path}:{number}: t_us {estimate.t_us} goes back in time (previous line: {previous})")
+        previous = estimate.t_us
+        yield estimate
+
+
+def _prediction_line(path: Path, number: int, line: str) -> GestureEstimate:
+    """One line of a predictions file as an estimate, or a DatasetError naming ``path:number``."""
+    try:
+        data = json.loads(line, parse_constant=_no_constant, parse_float=_finite_float)
+    except json.JSONDecodeError as exc:
+        raise DatasetError(f"{path}:{number}: not a JSON object: {exc.msg}") from None
+    except (ValueError, RecursionError):  # a number of thousands of digits, nesting too deep
+        raise DatasetError(f"{path}:{number}: not a predictions line (a number or nesting out of bounds)") from None
+    if not isinstance(data, dict):
+        raise DatasetError(f"{path}:{number}: expected a JSON object, found {type(data).__name__}")
+    missing = [k for k in ("t_us", "gesture", "resting", "intensity_mm") if k not in data]
+    if missing:
+        raise DatasetError(f"{path}:{number}: missing field(s) {', '.join(missing)} (docs/dataset.md, Predictions)")
+    t_us = data["t_us"]
+    if isinstance(t_us, bool) or not isinstance(t_us, (int, float)) or not 0 <= t_us <= MAX_T_US:
+        raise DatasetError(
+            f"{path}:{number}: t_us: expected a time in microseconds from 0 to 2^62, found {short(t_us)}"
+        )
+    problem = _prediction_field_problem(data)
+    if problem is not None:
+        raise DatasetError(f"{path}:{number}: {problem} (docs/dataset.md, Predictions)")
+    try:
+        estimate = GestureEstimate.from_json_dict(data)
+    except (TypeError, ValueError, KeyError, OverflowError) as exc:
+        raise DatasetError(f"{path}:{number}: bad value: {short(str(exc))}") from None
+    if estimate.contacts_px.shape != estimate.contacts_mm.shape:
+        raise DatasetError(f"{path}:{number}: contacts_px and contacts_mm have different numbers of points")
+    return estimate
+
+
+def read_predictions(path: str | Path) -> list[GestureEstimate]:
+    """Every estimate of a predictions file (:func:`iter_predictions`), in a list.
+
+    Raises:
+        DatasetError: as :func:`iter_predictions`.
+    """
+    return list(iter_predictions(path))
+
+
+def open_predictions(path: str | Path) -> Iterator[GestureEstimate]:
+    """A predictions file checked whole first (every line, as :func:`iter_predictions` reads it,
+    nothing kept), then its estimates read again line by line as they are asked for: a replay
+    refuses a bad file before it starts and holds one line at a time.
+
+    Raises:
+        DatasetError: the file breaks a rule (:func:`iter_predictions`); when it is changed
+            between the check and the replay, at the changed line during the replay.
+    """
+    for _ in iter_predictions(path):
+        pass
+    return iter_predictions(path)

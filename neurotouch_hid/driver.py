@@ -554,9 +554,9 @@ def estimates_from_source(
         DatasetError, RecordingError, SensorError: unreadable source.
     """
     if source.endswith(".jsonl"):
-        from neurotouch_hid.dataset import read_predictions
+        from neurotouch_hid.dataset import open_predictions
 
-        yield from _first_seconds(iter(read_predictions(source)), seconds)
+        yield from _first_seconds(open_predictions(source), seconds)
         return
     from neurotouch_hid.enrolment.model import apply_model
     from neurotouch_hid.pipeline.pipeline import GesturePipeline

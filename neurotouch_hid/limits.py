@@ -25,12 +25,14 @@ Library: ruamel.yaml (``YAML(typ="safe", pure=True)``, ``max_depth``, ``allow_du
 
 from __future__ import annotations
 
+import itertools
 import logging
 import os
 import reprlib
 import stat
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 #: Largest profile or sensor.yaml read (bytes). The shipped profiles are 1-4 KB; a profile with
 #: every possible mapping stays under 64 KB.
@@ -73,6 +75,25 @@ class FileLimitError(OSError):
     """A file is not a regular file, or is larger than allowed; the message says which."""
 
 
+def _open_regular(path: str | os.PathLike, max_bytes: int, what: str) -> tuple[BinaryIO, FileLimitError]:
+    """``path`` opened for reading in binary without blocking, checked with ``fstat`` on the open
+    descriptor to be a regular file of at most ``max_bytes``; with the error to raise when more
+    than ``max_bytes`` are read from it after all (it grew)."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    too_large = FileLimitError(f"{path}: larger than {max_bytes // 1024} KB, the most a {what} may be (docs/limits.md)")
+    fh = os.fdopen(fd, "rb")
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise FileLimitError(f"{path}: not a regular file (a {what} must be a file, not a pipe or a device)")
+        if info.st_size > max_bytes:
+            raise too_large
+    except BaseException:
+        fh.close()
+        raise
+    return fh, too_large
+
+
 def read_text_file(path: str | os.PathLike, max_bytes: int, what: str) -> str:
     """The UTF-8 text of ``path``, a regular file of at most ``max_bytes`` bytes.
 
@@ -84,14 +105,8 @@ def read_text_file(path: str | os.PathLike, max_bytes: int, what: str) -> str:
         FileLimitError: not a regular file, or larger than ``max_bytes`` (message names ``what``).
         UnicodeDecodeError: the bytes are not UTF-8.
     """
-    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
-    too_large = FileLimitError(f"{path}: larger than {max_bytes // 1024} KB, the most a {what} may be (docs/limits.md)")
-    with os.fdopen(fd, "rb") as fh:
-        info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode):
-            raise FileLimitError(f"{path}: not a regular file (a {what} must be a file, not a pipe or a device)")
-        if info.st_size > max_bytes:
-            raise too_large
+    fh, too_large = _open_regular(path, max_bytes, what)
+    with fh:
         chunks, size = [], 0  # in pieces: read(n) reserves n bytes before it reads
         while size <= max_bytes:
             chunk = fh.read(min(1 << 20, max_bytes + 1 - size))
@@ -103,6 +118,23 @@ def read_text_file(path: str | os.PathLike, max_bytes: int, what: str) -> str:
         raise too_large
     data = b"".join(chunks)
     return data.decode("utf-8")
+
+
+def _outside_read_error(exc: BaseException, path: str | os.PathLike, kind: str, missing: str | None) -> str:
+    """The one-line message of :func:`read_outside_text` for a failed read; re-raises a
+    ``FileNotFoundError`` when ``missing`` is None."""
+    shown = printable(path, None)
+    if isinstance(exc, FileLimitError):
+        return printable(exc, None)
+    if isinstance(exc, UnicodeDecodeError):
+        return f"{shown}: not a {kind} (not UTF-8 text)"
+    assert isinstance(exc, OSError)
+    gone = isinstance(exc, FileNotFoundError)
+    if gone and missing is None:
+        raise exc
+    if gone and missing:
+        return f"{shown}: no such {kind} ({missing})"
+    return f"{shown}: cannot read the {kind}: {exc.strerror or exc}"
 
 
 def read_outside_text(
@@ -128,22 +160,54 @@ def read_outside_text(
         error: as above.
         FileNotFoundError: ``missing`` is None and there is no file at ``path``.
     """
-    shown = printable(path, None)
     try:
         return read_text_file(path, max_bytes, kind)
-    except FileLimitError as exc:
-        message = printable(exc, None)
-    except OSError as exc:
-        gone = isinstance(exc, FileNotFoundError)
-        if gone and missing is None:
-            raise
-        if gone and missing:
-            message = f"{shown}: no such {kind} ({missing})"
-        else:
-            message = f"{shown}: cannot read the {kind}: {exc.strerror or exc}"
-    except UnicodeDecodeError:
-        message = f"{shown}: not a {kind} (not UTF-8 text)"
+    except (OSError, UnicodeDecodeError) as exc:
+        message = _outside_read_error(exc, path, kind, missing)
     raise error(message)
+
+
+def read_outside_lines(
+    path: str | os.PathLike, max_bytes: int, max_line_bytes: int, kind: str, error: type[Exception]
+) -> Iterator[tuple[int, str]]:
+    """The lines of ``path``'s UTF-8 text, read as they are asked for: ``(number from 1, line
+    without its newline)``; lines end at a newline only (as JSON lines do: U+2028 inside a string
+    is no line end). The file is opened and checked as :func:`read_text_file` does when the first
+    line is asked for; what is held at once is one line.
+
+    Raises:
+        error: as :func:`read_outside_text` says (a missing file is one that cannot be read), and
+            ``FILE:LINE: not a KIND (not UTF-8 text)``, ``FILE:LINE: longer than N bytes, the most
+            a line of a KIND may be (docs/limits.md)``, or the file over ``max_bytes``.
+    """
+    try:
+        fh, too_large = _open_regular(path, max_bytes, kind)
+    except OSError as exc:
+        raise error(_outside_read_error(exc, path, kind, "")) from None
+    shown = printable(path, None)
+    with fh:
+        size = 0
+        for number in itertools.count(1):
+            try:
+                raw = fh.readline(max_line_bytes + 1)
+            except OSError as exc:
+                raise error(f"{shown}:{number}: cannot read the {kind}: {exc.strerror or exc}") from None
+            if not raw:
+                return
+            size += len(raw)
+            if size > max_bytes:  # the file grew while read
+                raise error(printable(too_large, None))
+            line = raw[:-1] if raw.endswith(b"\n") else raw
+            if len(line) > max_line_bytes:
+                raise error(
+                    f"{shown}:{number}: longer than {max_line_bytes // 1024} KB, the most a line of a {kind} "
+                    "may be (docs/limits.md)"
+                )
+            try:
+                text = line.decode("utf-8")
+            except UnicodeDecodeError:
+                raise error(f"{shown}:{number}: not a {kind} (not UTF-8 text)") from None
+            yield number, text
 
 
 def _hint(problem: str) -> str:

@@ -1024,6 +1024,46 @@ def test_a_line_separator_inside_a_predictions_string_is_no_line_break(tmp_path)
     assert_refused(cli("profile", "test", "default", "--source", str(preds)), f"{preds}:2:", "wave")
 
 
+def _prediction_line(t_us: int, gesture: str = "none") -> str:
+    return json.dumps({"t_us": t_us, "gesture": gesture, "resting": True, "intensity_mm": 0.0}) + "\n"
+
+
+def test_a_predictions_file_is_read_a_line_at_a_time_and_a_replay_refuses_it_before_it_starts(tmp_path):
+    """An hour of predictions (80 MB) was read whole, split and kept as estimates: 0.6 GB. The
+    estimates come now as they are asked for, each line bounded; a replay checks the file first."""
+    from neurotouch_hid.dataset import MAX_PREDICTION_LINE_BYTES, iter_predictions, open_predictions
+    from neurotouch_hid.errors import DatasetError
+
+    preds = tmp_path / "p.jsonl"
+    preds.write_text(_prediction_line(0) + _prediction_line(10_000, "wave"))
+    estimates = iter_predictions(preds)
+    assert next(estimates).t_us == 0  # the first line's estimate before the second is read
+    with pytest.raises(DatasetError, match=rf"^{preds}:2: bad value: .*wave"):
+        next(estimates)
+    with pytest.raises(DatasetError, match=rf"^{preds}:2: bad value: .*wave"):
+        open_predictions(preds)  # nothing handed on from a file that breaks a rule
+
+    padded = '{"t_us": 0, "gesture": "none", "resting": true, "intensity_mm": 0.0, "note": "%s"}\n'
+    preds.write_text(_prediction_line(0) + padded % ("x" * MAX_PREDICTION_LINE_BYTES))
+    with pytest.raises(DatasetError, match=rf"^{preds}:2: longer than 64 KB, the most a line of a predictions file"):
+        open_predictions(preds)
+    preds.write_text(_prediction_line(0) + padded % ("x" * (MAX_PREDICTION_LINE_BYTES - 100)))
+    assert [e.t_us for e in open_predictions(preds)] == [0, 0]  # a long line within the bound is read
+
+
+def test_a_pressed_file_has_at_most_as_many_rows_as_a_labels_file(tmp_path, monkeypatch):
+    from neurotouch_hid import dataset
+    from neurotouch_hid.errors import DatasetError
+
+    monkeypatch.setattr(dataset, "MAX_LABEL_ROWS", 3)
+    pressed = tmp_path / "s.pressed.csv"
+    pressed.write_text("t_start_us,pressed_us\n" + "".join(f"{t},{t + 5}\n" for t in range(0, 30, 10)))
+    assert len(dataset.read_pressed(pressed)) == 3
+    pressed.write_text("t_start_us,pressed_us\n" + "".join(f"{t},{t + 5}\n" for t in range(0, 40, 10)))
+    with pytest.raises(DatasetError, match=rf"^{pressed}:5: more than 3 rows"):
+        dataset.read_pressed(pressed)
+
+
 def test_relative_counts_per_step_stay_within_an_event():
     """2000 wheel mappings at the highest speed sum to more hi-res counts in a step than an
     event's signed 32 bits hold (python-evdev raised OverflowError): the step is clamped."""

@@ -57,7 +57,9 @@ def test_every_outside_reader_tells_a_failed_read_in_one_line_naming_file_and_ki
         with pytest.raises(error) as caught:
             read(path)
         message = str(caught.value)
-        assert message.startswith(f"{path}: "), (way, message)
+        # a reader line by line names the line where the text stops being UTF-8
+        at = f"{path}:1: " if (name, way) == ("predictions", "not UTF-8") else f"{path}: "
+        assert message.startswith(at), (way, message)
         assert says.format(kind=kind) in message, (way, message)
         assert kind in message and "\n" not in message, (way, message)
 

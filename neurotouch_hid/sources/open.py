@@ -94,9 +94,9 @@ def open_source(
     from neurotouch_hid.sensor import SensorGeometry, default_sensor, find_sensor_file
 
     if spec.endswith(".jsonl"):
-        from neurotouch_hid.dataset import read_predictions
+        from neurotouch_hid.dataset import open_predictions
 
-        return OpenedSource(iter(read_predictions(spec)), None, False)
+        return OpenedSource(open_predictions(spec), None, False)
     if spec == SourceKind.DAVIS:
         from neurotouch_hid.sources.davis import DavisSource
 
