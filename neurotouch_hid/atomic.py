@@ -107,17 +107,31 @@ def is_stream(path: str | os.PathLike) -> bool:
 
 
 def check_output(
-    path: str | os.PathLike, inputs: Iterable[str | os.PathLike | None] = (), what: str = "output"
+    path: str | os.PathLike,
+    inputs: Iterable[str | os.PathLike | None] = (),
+    what: str = "output",
+    others: Iterable[tuple[str, str | os.PathLike]] = (),
 ) -> Path:
-    """``path`` as a :class:`Path`, once it is known that writing it destroys no input.
+    """``path`` as a :class:`Path`, once it is known that writing it destroys no input and no
+    other output of the same command.
 
+    Args:
+        path: the output file.
+        inputs: the command's input files and folders (None entries are skipped).
+        what: the output's name for the user (``"markers file"``).
+        others: the command's other outputs, as (name, path): none may be ``path``, whether or
+            not it exists yet.
     Raises:
-        OutputError: ``path`` is a symbolic link, a folder, or the same file as one of
-            ``inputs`` (compared by device and inode, so a hard link or another spelling of
-            the same path is caught too); the message names it and the input.
+        OutputError: ``path`` is a symbolic link, a folder, the same file as one of ``inputs``
+            (compared by device and inode, so a hard link or another spelling of the same path
+            is caught too) or an existing file of an input folder, or names one of ``others``'
+            files (resolved: another spelling too); the message names it and the other file.
     """
     path = Path(path)
     shown = printable(path, 200)
+    for name, other_path in others:
+        if path.resolve() == Path(other_path).resolve():
+            raise OutputError(f"{shown}: the {what} is also the {name}; give each its own name")
     if path.is_symlink():
         raise OutputError(
             f"{shown}: the {what} is a symbolic link (to {printable(os.readlink(path), 200)}); "

@@ -189,7 +189,7 @@ def track_recording(
     pipeline = pipeline_for(sensor, config, on_window=keep_markers if markers_out is not None else None)
     inputs = (recording, sensor_file)
     if markers_out is not None:
-        check_output(markers_out, (*inputs, out), "markers file")
+        check_output(markers_out, (*inputs, out), "markers file", (("predictions file", out),))
     windows = events = frames = 0
     first_us = last_us = first_window_us = None
     writer = PredictionsWriter(out, inputs=inputs)

@@ -476,6 +476,26 @@ def test_track_command_writes_predictions_and_markers(push_dataset, push_tracked
     assert "x real time" in done.stdout
 
 
+def test_track_refuses_markers_and_predictions_under_one_name_before_it_writes(push_dataset, tmp_path):
+    """Both were written to the one file: the predictions first, then the markers were refused as
+    "the same file as the input", and the file held the predictions; an earlier file there was lost."""
+    from neurotouch_hid.atomic import OutputError
+    from neurotouch_hid.sensor import find_sensor_file
+    from neurotouch_hid.track import track_recording
+
+    out = tmp_path / "both.npz"
+    out.write_bytes(b"earlier markers")
+    done = run_cli("track", str(push_dataset), "--out", str(out), "--markers", str(tmp_path / "." / "both.npz"))
+    assert done.returncode == 2
+    assert "the markers file is also the predictions file; give each its own name" in done.stderr, done.stderr
+    assert out.read_bytes() == b"earlier markers"
+    with pytest.raises(OutputError, match="the markers file is also the predictions file"):
+        track_recording(
+            push_dataset, tmp_path / "new.jsonl", find_sensor_file(push_dataset), markers_out=tmp_path / "new.jsonl"
+        )
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["both.npz"]
+
+
 @pytest.mark.parametrize("suffix, scale", [(".png", 2), (".gif", 1)])
 def test_view_writes_a_picture_of_the_right_size(push_dataset, tmp_path, suffix, scale):
     import imageio.v3 as iio

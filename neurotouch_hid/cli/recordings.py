@@ -234,9 +234,9 @@ def track(
     """Run the gesture pipeline on a recording and write one prediction per window."""
     from neurotouch_hid.atomic import check_output
 
-    for output in (out, markers):  # before the pipeline's start-up: an input is never at risk
-        if output is not None:
-            check_output(output, (recording, sensor, out if output is markers else None))
+    check_output(out, (recording, sensor), "predictions file")  # before the pipeline's start-up
+    if markers is not None:
+        check_output(markers, (recording, sensor, out), "markers file", (("predictions file", out),))
     with long_lived_start_up():
         from neurotouch_hid.enrolment.model import apply_model
         from neurotouch_hid.evaluation.runner import pipeline_config
