@@ -153,6 +153,20 @@ def test_dead_zone_latency_is_counted_from_where_the_labelled_intensity_crosses_
     assert early.deadzone_latency_ms[0] == pytest.approx(-5.0)
 
 
+def test_a_gesture_s_dead_zone_is_crossed_in_its_own_frames_even_where_another_s_share_a_time():
+    """A run of frames is its rows: a pinch frame and a push frame labelled at the same time made
+    the push take the pinch's 3 mm frame and reach the dead zone it never reached."""
+
+    def row(ms, gesture, mm):
+        return LabelRow(ms * 1000, gesture, gesture is G.NONE, mm, NO_POINTS)
+
+    rows = [row(0, G.NONE, 0.0), row(40, G.PINCH, 1.0), row(80, G.PINCH, 3.0)]
+    rows += [row(80, G.PUSH, 0.3), row(120, G.PUSH, 0.3), row(160, G.NONE, 0.0)]
+    rec = gesture_records(rows, [pred(60, G.PINCH, 2.0)], deadzone_mm=0.8)
+    assert list(rec.reaches_deadzone) == [True, False]  # the push's 0.3 mm frames never reach 0.8 mm
+    assert summarise(rec).missed_above_deadzone == 0
+
+
 def test_false_activations_past_the_dead_zone_are_counted_apart():
     """At rest (> 300 ms from every gesture frame): 1400 ms none, 1450 ms push 0.9 mm, 1500 ms
     twist_ccw 0.2 mm: two false activations; the push is past a 0.8 mm dead zone (mapped), not

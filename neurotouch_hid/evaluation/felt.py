@@ -113,19 +113,25 @@ class FeltRecords:
         )
 
 
-def gesture_spans(labels: Sequence[LabelRow]) -> list[tuple[GestureType, int, int]]:
-    """The gestures of a sequence: (type, t0, t1) per maximal run of labelled frames of one type
-    other than ``none`` (t0, t1: its first and last frame's ``t_us``, us)."""
-    spans: list[tuple[GestureType, int, int]] = []
+def gesture_runs(labels: Sequence[LabelRow]) -> list[tuple[GestureType, int, int]]:
+    """The gestures of a sequence as rows: (type, first, last) per maximal run of labelled frames
+    of one type other than ``none`` (indices into ``labels``, the last included)."""
+    runs: list[tuple[GestureType, int, int]] = []
     prev: GestureType | None = None
-    for row in labels:
+    for i, row in enumerate(labels):
         if row.gesture is not GestureType.NONE:
             if row.gesture is prev:
-                spans[-1] = (row.gesture, spans[-1][1], row.t_us)
+                runs[-1] = (row.gesture, runs[-1][1], i)
             else:
-                spans.append((row.gesture, row.t_us, row.t_us))
+                runs.append((row.gesture, i, i))
         prev = row.gesture
-    return spans
+    return runs
+
+
+def gesture_spans(labels: Sequence[LabelRow]) -> list[tuple[GestureType, int, int]]:
+    """The gestures of a sequence: (type, t0, t1) per maximal run of labelled frames of one type
+    other than ``none`` (:func:`gesture_runs`; t0, t1: its first and last frame's ``t_us``, us)."""
+    return [(kind, labels[first].t_us, labels[last].t_us) for kind, first, last in gesture_runs(labels)]
 
 
 def at_rest(labels: Sequence[LabelRow], t_us: np.ndarray) -> np.ndarray:
@@ -194,8 +200,8 @@ def gesture_records(
     if not (math.isfinite(deadzone_mm) and deadzone_mm >= 0):
         raise ValueError(f"the dead zone must be a finite number of mm >= 0, got {deadzone_mm}")
     t_pred = np.array([p.t_us for p in predictions], dtype=np.int64)
-    spans = gesture_spans(labels)
-    g = len(spans)
+    runs = gesture_runs(labels)
+    g = len(runs)
     rec = FeltRecords(
         gesture=np.empty(g, np.int64),
         duration_ms=np.empty(g, np.float64),
@@ -210,7 +216,8 @@ def gesture_records(
     )
     t_lab = np.array([r.t_us for r in labels], dtype=np.int64)
     i_lab = np.array([r.intensity_mm for r in labels], dtype=np.float64)
-    for k, (kind, t0, t1) in enumerate(spans):
+    for k, (kind, first, last) in enumerate(runs):
+        t0, t1 = int(t_lab[first]), int(t_lab[last])
         lo, hi = np.searchsorted(t_pred, t0, "left"), np.searchsorted(t_pred, t1 + FRAME_PERIOD_US, "left")
         inside = predictions[lo:hi]
         rec.gesture[k] = _INDEX[kind]
@@ -226,8 +233,7 @@ def gesture_records(
         wrong = next((p for p in felt if p.gesture is not kind and (felt_from is None or p.t_us >= felt_from)), None)
         if wrong is not None:
             rec.felt_wrong[k], rec.wrong_as[k] = True, _INDEX[wrong.gesture]
-        f0, f1 = np.searchsorted(t_lab, t0, "left"), np.searchsorted(t_lab, t1, "right")
-        crossing = deadzone_crossing(t_lab[f0:f1], i_lab[f0:f1], deadzone_mm)
+        crossing = deadzone_crossing(t_lab[first : last + 1], i_lab[first : last + 1], deadzone_mm)  # its own rows
         if crossing is not None:
             rec.reaches_deadzone[k] = True
             out = next((p for p in felt if p.gesture is kind), None)
