@@ -139,3 +139,30 @@ def test_a_plan_that_is_not_a_readable_file_is_refused_clearly(tmp_path):
     binary.write_bytes(b"\xff\xfe{}")
     with pytest.raises(DatasetError, match="not UTF-8"):
         read_plan(binary)
+
+
+def test_cues_count_from_the_stream_s_first_event_not_its_first_frame():
+    """docs/dataset.md: ``cue_s`` counts from the recording's first event. The first APS frame
+    came 30 ms before it here; the cues counted from the frame, 30 ms early."""
+    import numpy as np
+
+    from neurotouch_hid.enrolment.label import MotionMeter
+    from neurotouch_hid.enrolment.plan import NOT_YET_US, Plan, Prompt, Script
+    from neurotouch_hid.sensor import default_sensor
+    from neurotouch_hid.sources import EVENT_DTYPE, Frame
+
+    script = Script(Plan((Prompt(GestureType.PUSH, 2.0, 1.0),)))
+    prompt = script.prompts()[0]
+    script.reach(1_000_000, 1_000_000, events=False)  # an APS frame
+    assert script.start_us is None and script.cue_us(prompt) == NOT_YET_US  # no cue is due yet
+    script.reach(1_030_000, 1_031_000)  # the first event batch
+    script.reach(1_031_000, 1_032_000)
+    assert script.start_us == 1_030_000 and script.cue_us(prompt) == 3_030_000
+
+    meter = MotionMeter(default_sensor())
+    events = np.zeros(3, dtype=EVENT_DTYPE)
+    events["timestamp"] = [1_030_000, 1_030_500, 1_031_000]
+    meter.note(Frame(1_000_000, np.zeros((260, 346), np.uint8)), [])
+    meter.note(events, [])
+    assert meter.motion().start_us == 1_030_000
+

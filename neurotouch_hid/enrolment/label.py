@@ -65,7 +65,8 @@ class GelMotion:
         moved_mm: (W,) float64 the gel's motion at each window's end (mm; module docstring).
         estimates: the W windows' estimates.
         frames_us: (F,) int64 APS frame timestamps (us).
-        start_us: the recording's first timestamp (event or frame, us): plans' cues count from it.
+        start_us: the recording's first event's timestamp (us; with no event, its first frame's):
+            plans' cues count from it (docs/dataset.md).
     """
 
     t_us: np.ndarray
@@ -125,15 +126,12 @@ class MotionMeter:
         return self._moved[-1] if self._moved else 0.0
 
     def note(self, item: StreamItem, closed: Sequence[GestureEstimate]) -> None:
-        """Keep ``item``'s time (a frame's timestamp, an event batch's first) and the estimates it closed."""
+        """Keep ``item``'s time (a frame's timestamp, an event batch's first: the first event is
+        where a plan's cues count from) and the estimates it closed."""
         if isinstance(item, Frame):
             self._frames.append(item.t_us)
-            first = item.t_us
         elif len(item):
             first = int(item["timestamp"][0])
-        else:
-            first = None
-        if first is not None:
             self.start_us = first if self.start_us is None else min(self.start_us, first)
         self.estimates.extend(closed)
 
@@ -145,7 +143,7 @@ class MotionMeter:
             np.asarray(self._moved[:n], dtype=np.float64),
             list(self.estimates),
             np.asarray(self._frames, dtype=np.int64),
-            int(self.start_us or 0),
+            int(self.start_us if self.start_us is not None else (self._frames[0] if self._frames else 0)),
         )
 
 

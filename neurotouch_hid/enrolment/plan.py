@@ -157,6 +157,10 @@ class Plan:
         return {"prompts": [p.to_json() for p in self.prompts]}
 
 
+#: A cue before the stream's first event (us): later than any camera time, so never due.
+NOT_YET_US = 2**62
+
+
 class Script:
     """A plan as a guided session runs it, read and written from the session's threads: the
     prompts (the plan's, then those asked again), where the stream's time starts, the notes said
@@ -166,8 +170,8 @@ class Script:
     Args:
         plan: the prompts asked first.
     Attributes:
-        start_us: the stream's first timestamp (us, camera clock), from which the cues count;
-            None before the first item.
+        start_us: the stream's first event's timestamp (us, camera clock), from which the cues
+            count; None before the first event.
         reached_us: the last timestamp the stream reached (us); None before the first item.
     """
 
@@ -179,11 +183,12 @@ class Script:
         self.start_us: int | None = None
         self.reached_us: int | None = None
 
-    def reach(self, first_us: int, last_us: int) -> None:
-        """The stream passed an item from ``first_us`` to ``last_us`` (us): the first item
-        anchors :attr:`start_us`."""
+    def reach(self, first_us: int, last_us: int, events: bool = True) -> None:
+        """The stream passed an item from ``first_us`` to ``last_us`` (us); ``events``: it is an
+        event batch, and the first anchors :attr:`start_us` (cues count from the recording's
+        first event, docs/dataset.md)."""
         with self._lock:
-            if self.start_us is None:
+            if self.start_us is None and events:
                 self.start_us = int(first_us)
             self.reached_us = int(last_us)
 
@@ -193,8 +198,11 @@ class Script:
             return tuple(self._prompts)
 
     def cue_us(self, prompt: Prompt) -> int:
-        """``prompt``'s cue on the camera clock (us); after the first item (:meth:`reach`)."""
-        return int(self.start_us or 0) + int(round(prompt.cue_s * 1e6))
+        """``prompt``'s cue on the camera clock (us); :data:`NOT_YET_US`, later than any
+        camera time, before the stream's first event (:meth:`reach`)."""
+        if self.start_us is None:
+            return NOT_YET_US
+        return self.start_us + int(round(prompt.cue_s * 1e6))
 
     def ask_again(self, prompt: Prompt) -> int:
         """Append ``prompt`` (cued after the last one); returns its index."""

@@ -92,7 +92,7 @@ class SimulatedHandSource:
     def stream(self, script: Script) -> Iterator[StreamItem]:
         """The simulated gel's frames and event batches (1000 events at most); once an item has
         been taken, each prompt of ``script`` cued by its end (:attr:`Script.start_us`, set as
-        the first item passes, plus the cue) is performed, as a person starts on a cue."""
+        the first event batch passes, plus the cue) is performed, as a person starts on a cue."""
         from neurotouch_hid.sources.recording import split_batches
 
         cued = 0
@@ -196,7 +196,8 @@ class Judge:
             self._judge(prompts, self._judged, t_us)
             self._judged += 1
             prompts = self.script.prompts()
-        if self._judged == len(prompts) and (t_us - int(self.script.start_us or 0)) * 1e-6 >= Plan(prompts).end_s:
+        start_us = self.script.start_us
+        if self._judged == len(prompts) and start_us is not None and (t_us - start_us) * 1e-6 >= Plan(prompts).end_s:
             self.script.finish()
 
     def _judge(self, prompts: Sequence[Prompt], i: int, t_us: int) -> None:
@@ -238,7 +239,7 @@ def _until_over(items: Iterable[StreamItem], script: Script, stop: threading.Eve
     for item in items:
         first, last = item_start_us(item), item_end_us(item)
         if first is not None and last is not None:
-            script.reach(first, last)
+            script.reach(first, last, events=isinstance(item, np.ndarray))
         yield item
         if script.finished or stop.is_set():
             return
