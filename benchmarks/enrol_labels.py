@@ -45,9 +45,10 @@ def main() -> None:
         folder = args.out / family
         start = time.perf_counter()
         performed = simulate_enrolment(plan, folder, seed=args.seed, physics=family, miss_rate=args.miss_rate)
-        motion = measure_motion(folder / "enrolment.aedat4", SensorGeometry.load(folder / "sensor.yaml"))
+        sensor = SensorGeometry.load(folder / "sensor.yaml")
+        motion = measure_motion(folder / "enrolment.aedat4", sensor)
         found = find_gestures(plan, motion)
-        score = agreement(read_labels(folder / "enrolment.labels.csv"), label_frames(motion, found))
+        score = agreement(read_labels(folder / "enrolment.labels.csv"), label_frames(motion, found, sensor.px_per_mm))
         missed = [i + 1 for i, p in enumerate(performed) if p.gesture is None]
         left_out = [i + 1 for i, f in enumerate(found) if not f.seen]
         print(

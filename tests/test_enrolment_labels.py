@@ -43,10 +43,11 @@ def performed(tmp_path_factory):
 
 def test_labels_from_the_plan_agree_with_the_simulators(performed):
     folder, plan, _ = performed
-    motion = measure_motion(folder / "enrolment.aedat4", SensorGeometry.load(folder / "sensor.yaml"))
+    sensor = SensorGeometry.load(folder / "sensor.yaml")
+    motion = measure_motion(folder / "enrolment.aedat4", sensor)
     found = find_gestures(plan, motion)
     assert all(f.seen for f in found)
-    score = agreement(read_labels(folder / "enrolment.labels.csv"), label_frames(motion, found))
+    score = agreement(read_labels(folder / "enrolment.labels.csv"), label_frames(motion, found, sensor.px_per_mm))
     print(score)
     assert score.frames > 300
     assert score.gesture >= 0.95
@@ -133,3 +134,41 @@ def test_a_recording_that_does_not_follow_the_plan_fails_and_writes_nothing(perf
     )
     assert "labelled 0" not in result.stdout and "adapt" not in result.stdout
     assert not out.exists()
+
+
+def test_an_intensity_is_the_displacement_of_the_labelled_contact_points_since_the_gesture_s_start():
+    """docs/dataset.md: a label's intensity is the mean displacement of its contact points since
+    the gesture's start. Points held from an earlier window were labelled with another window's
+    intensity (0 mm beside a held point), and a frame with no point with the gel's motion."""
+    import numpy as np
+
+    from neurotouch_hid.enrolment.label import Found, GelMotion, contact_displacement_mm
+    from neurotouch_hid.estimate import GestureEstimate
+
+    start = np.array([[100.0, 100.0], [110.0, 100.0], [200.0, 200.0]], np.float32)
+    pressed = start + np.array([[3.0, 4.0], [0.0, 1.0], [0.0, 0.0]], np.float32)  # 5 px and 1 px moved
+    assert contact_displacement_mm(pressed, start, np.array([[103.0, 104.0]]), 2.5) == pytest.approx(2.0)
+    both = np.array([[103.0, 104.0], [110.0, 101.0]])
+    assert contact_displacement_mm(pressed, start, both, 2.5) == pytest.approx((5.0 + 1.0) / 2 / 2.5)
+    assert contact_displacement_mm(pressed, start, np.zeros((0, 2)), 2.5) == 0.0
+    lost = pressed.copy()
+    lost[0] = np.nan  # the nearest marker lost: the next nearest tracked one
+    assert contact_displacement_mm(lost, start, np.array([[103.0, 104.0]]), 2.5) == pytest.approx(0.4)
+
+    # windows at 10, 20, 30 ms; the push starts at 10 ms; frames at 15 and 25 ms
+    point = np.array([[103.0, 104.0]])
+    own = GestureEstimate(20_000, GestureType.PUSH, False, 1.9, point, point / 2.5)
+    none = GestureEstimate(30_000, GestureType.PUSH, False, 0.0)  # no contact point in this window
+    motion = GelMotion(
+        t_us=np.array([10_000, 20_000, 30_000]),
+        moved_mm=np.array([0.0, 2.0, 2.0]),
+        estimates=[GestureEstimate(10_000, GestureType.NONE, True, 0.0), own, none],
+        frames_us=np.array([15_000, 25_000]),
+        start_us=0,
+        positions_px=np.stack([start, pressed, pressed]),
+    )
+    prompt = Prompt(GestureType.PUSH, 0.0, 1.0)
+    rows = label_frames(motion, [Found(prompt, 10_000, 40_000, 2.0)], 2.5)
+    assert rows[0].intensity_mm == pytest.approx(1.9)  # the window's own point: the pipeline's measure
+    np.testing.assert_allclose(rows[1].contacts_px, point)  # held from the window before
+    assert rows[1].intensity_mm == pytest.approx(2.0)  # measured at the held point's marker, not 0

@@ -17,10 +17,13 @@ lost or mis-tracked marker). For each prompt, in order (:func:`find_gestures`):
 - a prompt with no such motion is left out (not labelled) and reported.
 
 Every APS frame is labelled (docs/dataset.md, "SEQUENCE.labels.csv"): within a gesture
-(start <= t < end), the prompt's type, not resting, and the contact points and intensity that
-the pipeline's contact and intensity stages measure in the window holding the frame (when a
-window has none -- a gesture's first or last few ms -- the gesture's last contact points and
-the motion as intensity); outside, ``none``, resting when the motion is within :data:`REST_MM`.
+(start <= t < end), the prompt's type, not resting, the contact points that the pipeline's
+contact stage finds in the window holding the frame (when a window has none, or another count
+than most of the gesture's windows, the gesture's last ones), and as intensity the displacement
+of those contact points since the gesture's start (docs/dataset.md): the pipeline's intensity
+stage's measure where the points are that window's own, else the mean displacement of the
+tracked marker nearest each (:func:`contact_displacement_mm`), 0 before the gesture's first
+contact points; outside, ``none``, resting when the motion is within :data:`REST_MM`.
 """
 
 from __future__ import annotations
@@ -67,6 +70,9 @@ class GelMotion:
         frames_us: (F,) int64 APS frame timestamps (us).
         start_us: the recording's first event's timestamp (us; with no event, its first frame's):
             plans' cues count from it (docs/dataset.md).
+        positions_px: (W, N, 2) float32 the N tracked markers at each window's end (image px,
+            NaN rows lost; 1.4 KB a window, 8 MB for a three-minute session); (0, 0, 2) when
+            not kept (the session's own judge).
     """
 
     t_us: np.ndarray
@@ -74,6 +80,7 @@ class GelMotion:
     estimates: list[GestureEstimate]
     frames_us: np.ndarray
     start_us: int
+    positions_px: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 0, 2), np.float32))
 
 
 @dataclass(frozen=True)
@@ -113,12 +120,15 @@ class MotionMeter:
         self.sensor = sensor
         self.pipeline = GesturePipeline(sensor, on_window=self._keep)
         self._moved: list[float] = []
+        self._positions: list[np.ndarray] = []
         self.estimates: list[GestureEstimate] = []
         self._frames: list[int] = []
         self.start_us: int | None = None
 
     def _keep(self, estimate: GestureEstimate) -> None:
-        self._moved.append(motion_mm(self.pipeline.marker_positions(), self.pipeline.rest_px, self.sensor.px_per_mm))
+        positions = self.pipeline.marker_positions()
+        self._moved.append(motion_mm(positions, self.pipeline.rest_px, self.sensor.px_per_mm))
+        self._positions.append(np.asarray(positions, dtype=np.float32))
 
     @property
     def moved_mm(self) -> float:
@@ -144,6 +154,7 @@ class MotionMeter:
             list(self.estimates),
             np.asarray(self._frames, dtype=np.int64),
             int(self.start_us if self.start_us is not None else (self._frames[0] if self._frames else 0)),
+            np.stack(self._positions[:n]) if n else np.zeros((0, 0, 2), np.float32),
         )
 
 
@@ -210,14 +221,16 @@ def find_gestures(plan: Plan, motion: GelMotion) -> list[Found]:
     return found
 
 
-def label_frames(motion: GelMotion, found: Sequence[Found]) -> list[LabelRow]:
-    """One label per APS frame of the recording (module docstring)."""
+def label_frames(motion: GelMotion, found: Sequence[Found], px_per_mm: float) -> list[LabelRow]:
+    """One label per APS frame of the recording (module docstring); ``px_per_mm``: the sensor's
+    scale at the centre, for the intensity (docs/dataset.md: the mean displacement of the
+    labelled contact points since the gesture's start, :func:`contact_displacement_mm`)."""
     spans = [(f.start_us, f.end_us, f.prompt.gesture) for f in found if f.seen]
     starts = np.asarray([s[0] for s in spans], dtype=np.int64)
     counts = [_finger_count(motion, a, b) for a, b, _ in spans]
     rows: list[LabelRow] = []
     last_contacts = np.zeros((0, 2))
-    current = -1
+    current = start_w = -1
     for f_us in motion.frames_us.tolist():
         w = min(int(np.searchsorted(motion.t_us, f_us, side="right")), len(motion.t_us) - 1)
         moved = float(motion.moved_mm[w]) if w >= 0 else 0.0
@@ -227,15 +240,42 @@ def label_frames(motion: GelMotion, found: Sequence[Found]) -> list[LabelRow]:
             continue
         if s != current:
             current, last_contacts = s, np.zeros((0, 2))
+            start_w = min(int(np.searchsorted(motion.t_us, spans[s][0], side="left")), w)
         estimate = motion.estimates[w]
-        if estimate.n_contacts:
+        own = bool(estimate.n_contacts) and (estimate.n_contacts == counts[s] or len(last_contacts) == 0)
+        if own:
+            last_contacts = np.asarray(estimate.contacts_px[:MAX_CONTACTS], dtype=np.float64)
+        if own and estimate.intensity_mm > 0:  # the contact stage's own measure of these points
             intensity = float(estimate.intensity_mm)
-            if estimate.n_contacts == counts[s] or len(last_contacts) == 0:
-                last_contacts = np.asarray(estimate.contacts_px[:MAX_CONTACTS], dtype=np.float64)
-        else:
-            intensity = moved
+        else:  # points held from an earlier window: measured at their markers
+            intensity = contact_displacement_mm(
+                motion.positions_px[w], motion.positions_px[start_w], last_contacts, px_per_mm
+            )
         rows.append(LabelRow(int(f_us), spans[s][2], False, intensity, last_contacts))
     return rows
+
+
+def contact_displacement_mm(
+    positions_px: np.ndarray, start_px: np.ndarray, contacts_px: np.ndarray, px_per_mm: float
+) -> float:
+    """The mean displacement of contact points since a gesture's start (mm): for each contact
+    point, the tracked marker nearest to it now, and how far that marker has moved since the
+    start; 0 with no contact point or no marker tracked at both times.
+
+    Args:
+        positions_px: (N, 2) the markers now (image px, NaN rows lost).
+        start_px: (N, 2) the same markers at the gesture's start.
+        contacts_px: (C, 2) the contact points (image px).
+        px_per_mm: the sensor's scale at the centre (px/mm).
+    """
+    if not len(contacts_px):
+        return 0.0
+    moved = np.linalg.norm(positions_px.astype(np.float64) - start_px, axis=1)
+    seen = np.flatnonzero(np.isfinite(moved))
+    if not len(seen):
+        return 0.0
+    gap = np.linalg.norm(positions_px[seen][None, :, :] - contacts_px[:, None, :], axis=2)  # (C, seen)
+    return float(moved[seen[np.argmin(gap, axis=1)]].mean()) / px_per_mm
 
 
 def _finger_count(motion: GelMotion, start_us: int, end_us: int) -> int:
@@ -327,7 +367,7 @@ def write_dataset(
             "(record it while this plan's prompts are shown, from their start, or give the plan it followed "
             "with --plan); no dataset written"
         )
-    rows = label_frames(motion, found)
+    rows = label_frames(motion, found, sensor.px_per_mm)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
