@@ -165,4 +165,3 @@ def test_cues_count_from_the_stream_s_first_event_not_its_first_frame():
     meter.note(Frame(1_000_000, np.zeros((260, 346), np.uint8)), [])
     meter.note(events, [])
     assert meter.motion().start_us == 1_030_000
-
