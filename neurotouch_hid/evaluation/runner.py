@@ -193,8 +193,10 @@ def evaluate_dataset(
                 pool.submit(run_sequence, dataset, n, config, predictions_dir, None, deadzone_mm, profiles): n
                 for n in names
             }
+            finished: dict[str, Observations] = {}
             for future in as_completed(futures):
-                parts.append(future.result())
+                finished[futures[future]] = future.result()
                 if task is not None:
                     progress.advance(task, durations[futures[future]] / 1e6)
+            parts = [finished[n] for n in names]  # in the sequences' order: the same sums, to the last bit
     return evaluate(Observations.concatenate(parts))
