@@ -305,3 +305,32 @@ def test_a_hidg_node_that_does_not_open_says_why_by_its_errno(monkeypatch, numbe
     with pytest.raises(DeviceError) as raised:
         HidgTarget("/dev/hidg0", format_for("hid"), "test")
     assert said in str(raised.value) and str(raised.value).startswith("cannot open /dev/hidg0 (")
+
+
+def test_gadget_remove_says_so_when_there_is_no_gadget(tmp_path, monkeypatch, capsys):
+    """It said "gadget ... removed" and exited 0 where there was none."""
+    from typer.testing import CliRunner
+
+    from neurotouch_hid.cli import app
+
+    monkeypatch.setattr(configfs, "CONFIGFS", tmp_path)
+    monkeypatch.setattr(os, "geteuid", lambda: 0)
+    result = CliRunner().invoke(app, ["gadget", "remove"])
+    assert result.exit_code == 0, result.output
+    assert f"no gadget at {tmp_path / 'usb_gadget' / configfs.GADGET_NAME}: nothing to remove" in result.output
+    assert "removed" not in result.output
+
+
+def test_no_configfs_on_a_board_without_a_device_controller_says_the_board_first(tmp_path, monkeypatch):
+    """The advice was modprobe and mount only, which cannot help a machine with no USB device port."""
+    from neurotouch_hid.targets.gadget import support
+
+    monkeypatch.setattr(configfs, "CONFIGFS", tmp_path)
+    monkeypatch.setattr(configfs.subprocess, "run", lambda *args, **kwargs: None)  # no mount here
+    monkeypatch.setattr(configfs, "udcs", lambda: [])
+    monkeypatch.setattr(support, "is_raspberry_pi", lambda: False)
+    with pytest.raises(DeviceError) as caught:
+        configfs.mount_configfs()
+    lines = str(caught.value).splitlines()
+    assert lines[0].startswith(f"{tmp_path}/usb_gadget does not exist: no USB device controller")
+    assert "a board with a USB device-mode (OTG) port is needed" in str(caught.value)

@@ -74,8 +74,12 @@ def remove() -> None:
 
     if os.geteuid() != 0:
         raise NeurotouchError(f"gadget remove needs root:\nsudo {_self()} gadget remove")
+    folder = configfs.gadget_dir()
+    if not folder.exists():
+        console.print(f"no gadget at {folder}: nothing to remove", highlight=False)
+        return
     configfs.remove()
-    console.print(f"gadget {configfs.gadget_dir()} removed", highlight=False)
+    console.print(f"gadget {folder} removed", highlight=False)
 
 
 def _self() -> str:
