@@ -36,6 +36,7 @@ import numpy as np
 
 from neurotouch_hid.atomic import PathBeside
 from neurotouch_hid.errors import RecordingError
+from neurotouch_hid.limits import printable
 from neurotouch_hid.sources import EVENT_DTYPE, Frame, Pacer, StreamItem, WrappedStream, join_events
 from neurotouch_hid.sources.dv import DV_ERRORS, dv_error_text, store_from_events
 from neurotouch_hid.sources.packet_bounds import Unbounded, inflated_bound
@@ -490,6 +491,13 @@ class RecordingReader:
 
         if not self._open:
             raise RecordingError(f"{self.path}: the reader is closed")
+        try:
+            str(self.path).encode("utf-8")
+        except UnicodeEncodeError:  # aedat takes a Rust string: such a name reads as no file
+            raise RecordingError(
+                f"{printable(self.path, 200)}: a file name that is not UTF-8 cannot be opened by the AEDAT4 "
+                "decoder; rename the file"
+            ) from None
         try:
             return aedat.Decoder(str(self.path))
         except BaseException as exc:
