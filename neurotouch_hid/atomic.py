@@ -133,6 +133,8 @@ def check_output(
         if path.resolve() == Path(other_path).resolve():
             raise OutputError(f"{shown}: the {what} is also the {name}; give each its own name")
     if path.is_symlink():
+        if is_stream(path):  # /dev/stdout, /dev/fd/N, >(...) of a pipe or a terminal: written in place
+            return path
         raise OutputError(
             f"{shown}: the {what} is a symbolic link (to {printable(os.readlink(path), 200)}); "
             "give the file itself, or another name: a link is never written through"

@@ -381,7 +381,7 @@ def report(checks: list[Check], console: Console) -> int:
     width = max(len(c.name) for c in checks) if checks else 0
 
     def say(line: str) -> None:
-        console.print(line, highlight=False, soft_wrap=True)
+        console.print(line, highlight=False, markup=True, soft_wrap=True)
 
     for c in checks:
         say(f"[{style[c.status]}]{c.status:<4}[/] {escape(c.name):<{width}}  {escape(c.detail)}")

@@ -212,7 +212,7 @@ def main() -> None:
         from neurotouch_hid.limits import printable  # a file name's escape sequences never reach the terminal
 
         message = "\n".join(printable(line, None) for line in str(exc).split("\n"))
-        err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
+        err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, markup=True, soft_wrap=True)
         sys.exit(2)
     except KeyboardInterrupt:
         sys.exit(130)

@@ -37,6 +37,29 @@ console = make_console()
 err_console = make_console(stderr=True)
 
 
+def to_stdout(out: object) -> bool:
+    """Whether an output option is standard output: ``-``, or another name of the file open there
+    (``/dev/stdout``, ``/dev/fd/1``); the command's human lines then go to stderr
+    (:func:`human_console`), so that standard output holds its result only."""
+    import os
+
+    if out is None:
+        return False
+    if str(out) == "-":
+        return True
+    try:
+        here, there = os.fstat(1), os.stat(out)  # type: ignore[arg-type]
+    except (OSError, TypeError, ValueError):
+        return False
+    return (here.st_dev, here.st_ino) == (there.st_dev, there.st_ino)
+
+
+def human_console(*outs: object):
+    """The console for a command's human lines: stderr when one of ``outs`` is ``-`` (standard
+    output holds the result, exactly), else stdout."""
+    return err_console if any(to_stdout(out) for out in outs) else console
+
+
 def say_err(line: str) -> None:
     """One line for the user on stderr, exactly as given: no markup, no highlighting, never
     wrapped (a pipe or a file gets the whole line)."""

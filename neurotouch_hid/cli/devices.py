@@ -24,9 +24,11 @@ from neurotouch_hid.cli.common import (
     err_console,
     finite,
     say_err,
+    to_stdout,
 )
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.kinds import OutputKind, SourceKind
+from neurotouch_hid.output.console import print_table
 
 app = typer.Typer()
 
@@ -143,6 +145,7 @@ def devices(json_out: bool = typer.Option(False, "--json", help="print JSON (for
 
     from rich.markup import escape
     from rich.table import Table
+    from rich.text import Text
 
     from neurotouch_hid.sources.discovery import discover, explain
     from neurotouch_hid.targets.gadget.support import possible_outputs
@@ -152,7 +155,7 @@ def devices(json_out: bool = typer.Option(False, "--json", help="print JSON (for
     if json_out:
         typer.echo(json.dumps({**found.to_json(), "outputs": outputs, "inputs": _mergeable_json()}, indent=1))
     elif not found.cameras:
-        console.print(escape(explain(found)), style="bold red", highlight=False, soft_wrap=True)
+        console.print(explain(found), style="bold red", highlight=False, soft_wrap=True)
     else:
         style = {"ready": "green", "other-camera": "yellow"}
         table = Table(
@@ -173,26 +176,26 @@ def devices(json_out: bool = typer.Option(False, "--json", help="print JSON (for
             table.add_row(
                 f"bus {c.bus} device {c.address}\n{c.node}",
                 c.serial or "?",
-                escape(usb),
-                escape(dv),
-                f"[{style.get(c.status, 'bold red')}]{c.status}[/]",
+                usb,
+                dv,
+                Text(c.status, style=style.get(c.status, "bold red")),
             )
-        console.print(table)
+        print_table(console, table)
         for c in found.cameras:
             if c.ready:
-                console.print(f"[green]ready:[/] {escape(c.label())}", highlight=False, soft_wrap=True)
+                console.print(f"[green]ready:[/] {escape(c.label())}", highlight=False, markup=True, soft_wrap=True)
             else:
                 fix = "".join(f"\n  {escape(step)}" for step in c.fix.splitlines())
-                console.print(f"[bold red]{escape(c.problem)}[/]{fix}", highlight=False, soft_wrap=True)
+                console.print(f"[bold red]{escape(c.problem)}[/]{fix}", highlight=False, markup=True, soft_wrap=True)
     if not json_out:
         for line in found.dv_log:
-            console.print(f"[dim]dv-processing said: {escape(line)}[/]", highlight=False, soft_wrap=True)
+            console.print(f"[dim]dv-processing said: {escape(line)}[/]", highlight=False, markup=True, soft_wrap=True)
         for what, error in (("pyusb", found.usb_error), ("dv-processing", found.dv_error)):
             if error:
-                console.print(f"[yellow]{what}: {escape(error)}[/]", highlight=False, soft_wrap=True)
+                console.print(f"[yellow]{what}: {escape(error)}[/]", highlight=False, markup=True, soft_wrap=True)
         for kind, why in outputs.items():
             said = "[green]possible[/]" if why is None else f"[yellow]not here[/] ({escape(why)})"
-            console.print(f"--output {kind}: {said}", highlight=False, soft_wrap=True)
+            console.print(f"--output {kind}: {said}", highlight=False, markup=True, soft_wrap=True)
         _say_mergeable()
     if not found.ready:
         sys.exit(1)
@@ -208,7 +211,6 @@ def _mergeable_json() -> list[dict]:
 def _say_mergeable() -> None:
     """The input devices a profile's ``copilot:`` could merge into the pad, with what to write
     there: the name, the USB ids, or a stable path (docs/profiles.md, "Copilot")."""
-    from rich.markup import escape
     from rich.table import Table
 
     from neurotouch_hid.inputs.match import mergeable_devices
@@ -219,8 +221,8 @@ def _say_mergeable() -> None:
         return
     table = Table("device: (name)", "or ids", "or stable path", "node", title="input devices a copilot: can merge")
     for info in inputs:
-        table.add_row(escape(f'"{info.name}"'), info.ids, escape("\n".join(info.links) or "-"), info.path)
-    console.print(table)
+        table.add_row(f'"{info.name}"', info.ids, "\n".join(info.links) or "-", info.path)
+    print_table(console, table)
 
 
 @app.command()
@@ -368,6 +370,11 @@ def calibrate(
         raise NeurotouchError(
             "--mirror/--no-mirror and --rotation go together with the camera or simulator (both instead of the "
             "guided pushes): give both or neither"
+        )
+    if to_stdout(out):
+        raise NeurotouchError(
+            "--out -: calibrate writes a sensor file that run, track and eval read, not standard output; "
+            "give a file or a folder"
         )
     path = user_sensor_path() if out is None else (out / "sensor.yaml" if out.is_dir() else out)
     _sensor_file_replaceable(path, (source if source not in (SourceKind.DAVIS, SourceKind.SIM) else None, press))

@@ -13,7 +13,7 @@ from typing import Optional
 
 import typer
 
-from neurotouch_hid.cli.common import console, err_console, long_lived_start_up, say_err
+from neurotouch_hid.cli.common import console, err_console, human_console, long_lived_start_up, say_err
 from neurotouch_hid.errors import NeurotouchError
 
 app = typer.Typer()
@@ -67,7 +67,7 @@ def enrol(
         if from_recording is not None:
             raise NeurotouchError("--plan-out writes a plan and stops: give it without --from")
         write_plan(chosen, plan_out, inputs=(plan,))
-        (err_console if str(plan_out) == "-" else console).print(  # standard output holds the plan
+        human_console(plan_out).print(  # standard output holds the plan
             f"{len(chosen.prompts)} prompts over {chosen.end_s:.0f} s -> {plan_out}", highlight=False, soft_wrap=True
         )
         return
@@ -264,11 +264,12 @@ def adapt(
 
     records = record_datasets(datasets, jobs=jobs, on_sequence=lambda name: say_err(f"recorded {name}"))
     adaptation = fit(records, rerun=lambda config: record_datasets(datasets, jobs=jobs, config=config))
+    said = human_console(out)  # stderr when the model goes to standard output
     for line in summary(adaptation):
-        console.print(line, highlight=False, soft_wrap=True, markup=False)
+        said.print(line, highlight=False, soft_wrap=True, markup=False)
     model = adaptation.model
     written = Model(model.settings, model.classifier, fitted_info(adaptation, datasets)).save(target)
-    console.print(f"-> {written}", highlight=False, soft_wrap=True, markup=False)
+    said.print(f"-> {written}", highlight=False, soft_wrap=True, markup=False)
     if out is None:
         console.print(
             "run, the service and every command use it from now on (--model none on one of them: the shipped one); "

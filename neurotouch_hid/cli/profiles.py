@@ -25,6 +25,7 @@ from neurotouch_hid.cli.common import (
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.kinds import SourceKind
 from neurotouch_hid.limits import printable
+from neurotouch_hid.output.console import print_table
 
 profile_app = typer.Typer(
     help="List, show, create, edit, validate, test, tune, delete, reset and use (switch the running driver to) "
@@ -44,8 +45,8 @@ profile_app.add_typer(auto_app, name="auto")
 @profile_app.command("list")
 def profile_list() -> None:
     """List the profiles: shipped ones and the user's (a user copy shadows a shipped one)."""
-    from rich.markup import escape
     from rich.table import Table
+    from rich.text import Text
 
     from neurotouch_hid.errors import ProfileError
     from neurotouch_hid.mapping.profile import (
@@ -60,15 +61,14 @@ def profile_list() -> None:
     for name, path in available_profiles().items():
         user = path.parent != shipped_profiles_dir()
         where = ("user (shadows shipped)" if name in shipped else "user") if user else "shipped"
-        shown = escape(printable(name, MAX_PROFILE_NAME_CHARS))  # file names and descriptions are text, escaped
+        shown = printable(name, MAX_PROFILE_NAME_CHARS)  # file names and descriptions are text (no markup)
         try:
             loaded = load_profile(path)
-            table.add_row(shown, where, escape(printable(loaded.description, 200)), "[green]ok[/]")
+            table.add_row(shown, where, printable(loaded.description, 200), Text("ok", style="green"))
         except ProfileError:
-            table.add_row(
-                shown, where, "", f"[red]invalid[/] (neurotouch-hid profile validate {escape(printable(path, None))})"
-            )
-    console.print(table)
+            status = Text("invalid", style="red") + f" (neurotouch-hid profile validate {printable(path, None)})"
+            table.add_row(shown, where, "", status)
+    print_table(console, table)
 
 
 @profile_app.command("use")
@@ -445,11 +445,11 @@ def profile_test(
             *(f"{deflection(a, row.state.axes[a]):+.2f}" for a in moved),
             down,
         )
-    console.print(table)
+    print_table(console, table)
     totals = Table("output", "mapping", "reached", title=f"summary: every output {name} maps")
     for r in reached:
         totals.add_row(r.output, ", ".join(r.mappings), r.detail if r.reached else f"never reached ({r.detail})")
-    console.print(totals)
+    print_table(console, totals)
     missed = [r.output for r in reached if not r.reached]
     if missed:
         console.print(

@@ -21,12 +21,15 @@ from neurotouch_hid.cli.common import (
     duration,
     err_console,
     finite,
+    human_console,
     long_lived_start_up,
     say_err,
+    to_stdout,
 )
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.kinds import SourceKind
 from neurotouch_hid.limits import printable
+from neurotouch_hid.output.console import print_table
 
 app = typer.Typer()
 
@@ -57,7 +60,7 @@ def info(
     table.add_row("events", f"{rec.n_events:,}")
     table.add_row("APS frames", f"{rec.n_frames:,}")
     table.add_row("time range", f"{rec.start_us} .. {rec.end_us} us")
-    console.print(table)
+    print_table(console, table)
 
 
 @app.command()
@@ -118,14 +121,14 @@ def record(
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # SIGHUP: the terminal closed
             stack.callback(signal.signal, sig, signal.signal(sig, lambda *_: stop.set()))
         columns = [
-            TextColumn(f"recording {source} -> {out}"),
+            TextColumn("{task.fields[title]}", markup=False),  # a file name is text (no markup, no format field)
             *([BarColumn()] if seconds else []),
             TextColumn("{task.fields[what]}"),
             TimeElapsedColumn(),
         ]
         done = {"us": 0, "events": 0, "frames": 0}
         with Progress(*columns, console=err_console, transient=True) as progress:
-            task = progress.add_task("record", total=seconds, what="")
+            task = progress.add_task("record", total=seconds, what="", title=f"recording {source} -> {out}")
 
             def report(duration_us: int, events: int, frames: int) -> None:
                 done.update(us=duration_us, events=events, frames=frames)
@@ -264,7 +267,7 @@ def track(
             markup=False,
             soft_wrap=True,
         )
-    console.print(
+    human_console(out).print(  # on stderr when the predictions go to standard output
         f"{summary.windows} windows of {config.window_us} us over {summary.duration_us * 1e-6:.2f} s "
         f"({summary.events} events, {summary.frames} frames) in {summary.elapsed_s:.2f} s, "
         f"{summary.realtime_factor:.1f}x real time -> {out}"
@@ -315,6 +318,7 @@ def eval_cmd(
     """Run the pipeline over a labelled dataset; print the paper's metrics and the per-gesture ones."""
     import json
     import shlex
+    import sys
 
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
@@ -331,7 +335,7 @@ def eval_cmd(
     for flag, folder in (("--report", report), ("--predictions", predictions), ("--json", json_out)):
         if folder is not None:  # outputs checked before the evaluation, not after it
             _no_file_on_the_way(flag, folder.parent if flag == "--json" else folder)
-    if json_out is not None:
+    if json_out is not None and not to_stdout(json_out):
         check_output(json_out, (dataset,), what="JSON summary")
     from neurotouch_hid.enrolment.model import apply_model
 
@@ -340,7 +344,7 @@ def eval_cmd(
     config = apply_model(config, chosen_model(model), keep=given)
     tested = [ProfileUnderTest.probe(name, load_profile(name)) for name in dict.fromkeys(profiles)]  # each once
     columns = (
-        TextColumn("{task.description}"),
+        TextColumn("{task.description}", markup=False),  # a sequence's name is text
         BarColumn(),
         TextColumn("{task.completed:.1f}/{task.total:.1f} s recorded"),
         TimeElapsedColumn(),
@@ -356,7 +360,7 @@ def eval_cmd(
             deadzone_mm=deadzone_mm,
             profiles=tested,
         )
-    print_tables(result, console)
+    print_tables(result, human_console(json_out))  # on stderr when the JSON goes to standard output
     argv = (
         ["eval", str(dataset)]
         + ([f"--method={method}"] if method != "default" else [])
@@ -380,12 +384,17 @@ def eval_cmd(
         data = {"dataset": str(dataset), "command": command, "config": hyper, **result.to_dict()}
         from neurotouch_hid.atomic import AtomicFile
 
-        json_out.parent.mkdir(parents=True, exist_ok=True)
-        with AtomicFile(json_out, (dataset,), what="JSON summary") as fh:
-            fh.write(json.dumps(data, indent=1, allow_nan=False, default=str) + "\n")
+        text = json.dumps(data, indent=1, allow_nan=False, default=str) + "\n"
+        if to_stdout(json_out):
+            sys.stdout.write(text)
+            sys.stdout.flush()
+        else:
+            json_out.parent.mkdir(parents=True, exist_ok=True)
+            with AtomicFile(json_out, (dataset,), what="JSON summary") as fh:
+                fh.write(text)
     if report is not None:
         summary = write_report(result, report, command=command, config=hyper)
-        console.print(f"report: {summary}")
+        human_console(json_out).print(f"report: {summary}", highlight=False, soft_wrap=True)
 
 
 def _no_file_on_the_way(flag: str, folder: Path) -> None:

@@ -19,6 +19,7 @@ from rich.table import Table
 from neurotouch_hid.atomic import AtomicFile, replacing
 from neurotouch_hid.evaluation.metrics import EvaluationResult
 from neurotouch_hid.extras import require
+from neurotouch_hid.output.console import print_table
 
 #: The paper's results (section "Results"), to print beside ours.
 PAPER_RESULTS: dict[str, float] = {
@@ -167,7 +168,7 @@ def _print_table(console: Console, title: str, header: list[str], rows) -> None:
         table.add_column(col, justify="right" if k else "left")
     for row in rows:
         table.add_row(*row)
-    console.print(table)
+    print_table(console, table)
 
 
 def print_tables(result: EvaluationResult, console: Console) -> None:
@@ -204,14 +205,14 @@ def print_tables(result: EvaluationResult, console: Console) -> None:
         confusion.add_column(DISPLAY_NAMES.get(name, name), justify="right")
     for k, name in enumerate(result.classes):
         confusion.add_row(DISPLAY_NAMES.get(name, name), *(f"{v:.2f}" for v in result.balanced_confusion[k]))
-    console.print(confusion)
+    print_table(console, confusion)
 
     by_intensity = Table(title="Accuracy against ground-truth intensity (gesture observations)")
     for col in ("Intensity (mm)", "Observations", "Gesture type acc.", "Contact count acc."):
         by_intensity.add_column(col, justify="right")
     for row in intensity_rows(result):
         by_intensity.add_row(*row)
-    console.print(by_intensity)
+    print_table(console, by_intensity)
 
 
 def write_figures(result: EvaluationResult, out_dir: str | Path) -> list[Path]:

@@ -19,6 +19,7 @@ from rich.console import Console
 
 if TYPE_CHECKING:
     import typer
+    from rich.table import Table
 
 #: Columns of a console that does not write to a terminal: wider than any line this package
 #: prints, so rich never wraps or crops (a table is as wide as its content, not this).
@@ -27,9 +28,29 @@ PIPE_WIDTH = 10_000
 
 def make_console(*, stderr: bool = False) -> Console:
     """A rich Console on stdout (or stderr): the terminal's width on a terminal, else
-    :data:`PIPE_WIDTH` columns, so that what goes to a pipe or a file is never cut (rich)."""
-    console = Console(stderr=stderr)
-    return console if console.is_terminal else Console(stderr=stderr, width=PIPE_WIDTH)
+    :data:`PIPE_WIDTH` columns, so that what goes to a pipe or a file is never cut (rich).
+
+    Its markup is off: a file name or a message with ``[`` in it is printed as it is (with
+    markup, ``q[/]p.jsonl`` raised rich's MarkupError after the command's work, and ``[b]``
+    vanished from a name); a line that styles itself says ``markup=True`` and escapes the text
+    it holds (``rich.markup.escape``)."""
+    console = Console(stderr=stderr, markup=False)
+    return console if console.is_terminal else Console(stderr=stderr, width=PIPE_WIDTH, markup=False)
+
+
+def print_table(console: Console, table: Table) -> None:
+    """Print a rich table; to a pipe or a file its title goes on a line of its own, whole (rich
+    wraps a title to the table's width: ``eval | head -2`` broke a sentence in two, ``info`` a long
+    path at 40 columns). On a terminal, rich's own layout."""
+    if console.is_terminal or table.title is None:
+        console.print(table)
+        return
+    title, table.title = table.title, None
+    try:
+        console.print(title, highlight=False, soft_wrap=True)
+        console.print(table)
+    finally:
+        table.title = title
 
 
 def command_app(**options: object) -> typer.Typer:

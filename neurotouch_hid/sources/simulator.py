@@ -1436,13 +1436,16 @@ def write_whole_dataset(
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     columns = (
-        TextColumn("[bold]{task.description}"),
+        TextColumn("{task.description}", style="bold", markup=False),
         BarColumn(),
         TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
         TimeElapsedColumn(),
         TimeRemainingColumn(),
     )
-    with Progress(*columns, disable=not progress, transient=False) as bar:
+    from neurotouch_hid.output.console import make_console
+
+    # on stderr: what goes to stdout is the command's result only (a pipe got the bar's last frame)
+    with Progress(*columns, console=make_console(stderr=True), disable=not progress, transient=False) as bar:
         task = bar.add_task("simulating", total=n_seq * seconds)
         for k, ((uid, kind), name) in enumerate(zip(pairs, names)):
             bar.update(task, description=name)
