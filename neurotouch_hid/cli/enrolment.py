@@ -223,7 +223,10 @@ def adapt(
         None, help="enrolment datasets (docs/dataset.md folders), one or more"
     ),
     out: Optional[Path] = typer.Option(
-        None, "--out", help="the model file to write (default: your model.yaml beside sensor.yaml, used by default)"
+        None,
+        "--out",
+        help="the model file to write (default: your model.yaml beside sensor.yaml, used by default; "
+        "- : standard output)",
     ),
     jobs: int = typer.Option(2, "--jobs", min=1, help="sequences run in parallel processes"),
     reset: bool = typer.Option(

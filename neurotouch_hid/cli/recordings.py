@@ -226,7 +226,7 @@ def simulate(
 @app.command()
 def track(
     recording: Path = typer.Argument(..., help="AEDAT4 recording"),
-    out: Path = typer.Option(..., "--out", help="predictions, JSON lines (docs/dataset.md)"),
+    out: Path = typer.Option(..., "--out", help="predictions, JSON lines (docs/dataset.md; - : standard output)"),
     sensor: Optional[Path] = typer.Option(None, "--sensor", help="sensor.yaml (default: the one beside the recording)"),
     window_us: int = typer.Option(10_000, "--window-us", help="window length in microseconds (>= 1000)"),
     markers: Optional[Path] = typer.Option(None, "--markers", help="also write tracked marker positions (.npz)"),
@@ -282,7 +282,7 @@ def track(
 def eval_cmd(
     dataset: Path = typer.Argument(..., help="dataset folder (docs/dataset.md)"),
     report: Optional[Path] = typer.Option(None, "--report", help="write PNG figures and a Markdown summary here"),
-    json_out: Optional[Path] = typer.Option(None, "--json", help="write the metrics as JSON"),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="write the metrics as JSON (- : standard output)"),
     window_us: Optional[int] = typer.Option(
         None, "--window-us", help="window length in microseconds (default: PipelineConfig's)"
     ),
