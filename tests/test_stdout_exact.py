@@ -48,10 +48,25 @@ def test_simulate_draws_its_progress_on_stderr(tmp_path):
     assert done.stdout == f"wrote {tmp_path / 'ds'}\n"
 
 
-def test_calibrate_refuses_standard_output_before_any_work(tmp_path):
-    done = run_cli("calibrate", "--source", "sim", "--no-check", "--out", "-", cwd=tmp_path)
-    assert done.returncode == 2
-    assert "--out -: calibrate writes a sensor file" in done.stderr and "Traceback" not in done.stderr
+@pytest.mark.parametrize(
+    "args, says",
+    [
+        (["calibrate", "--source", "sim", "--no-check", "--out", "-"], "--out -: calibrate writes a sensor file"),
+        (["track", "REC", "--out", "p.jsonl", "--markers", "-"], "--markers -: the markers are an .npz file"),
+        (["simulate", "--out", "-", "--preset", "quick"], "--out -: a dataset is a folder"),
+        (["eval", "DS", "--report", "-"], "--report -: the report is a folder"),
+        (["eval", "DS", "--predictions", "-"], "--predictions -: the predictions are a folder"),
+        (["enrol", "--source", "sim", "--out", "-"], "--out -: an enrolment is a dataset folder"),
+    ],
+)
+def test_an_output_that_cannot_be_standard_output_refuses_dash_before_any_work(sim_quick_dataset, tmp_path, args, says):
+    """A file or a folder named ``-`` was written instead (``track --markers -``: 117 KB of .npz)."""
+    args = [str(sim_quick_dataset / "u0_push.aedat4") if a == "REC" else a for a in args]
+    args = [str(sim_quick_dataset) if a == "DS" else a for a in args]
+    done = run_cli(*args, cwd=tmp_path)
+    assert done.returncode == 2, done.stderr
+    assert says in done.stderr and "not standard output; give a path" in done.stderr
+    assert "Traceback" not in done.stderr and done.stdout == ""
     assert list(tmp_path.iterdir()) == []
 
 

@@ -54,6 +54,17 @@ def to_stdout(out: object) -> bool:
     return (here.st_dev, here.st_ino) == (there.st_dev, there.st_ino)
 
 
+def no_stdout(flag: str, out: object, what: str) -> None:
+    """Refuse ``-`` for an output that cannot be standard output (``what`` says why: a folder, a
+    binary file another command reads), before any work; a file named ``-`` was written instead.
+
+    Raises:
+        NeurotouchError: ``out`` is ``-``.
+    """
+    if out is not None and str(out) == "-":
+        raise NeurotouchError(f"{flag} -: {what}, not standard output; give a path")
+
+
 def human_console(*outs: object):
     """The console for a command's human lines: stderr when one of ``outs`` is ``-`` (standard
     output holds the result, exactly), else stdout."""

@@ -23,8 +23,8 @@ from neurotouch_hid.cli.common import (
     duration,
     err_console,
     finite,
+    no_stdout,
     say_err,
-    to_stdout,
 )
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.kinds import OutputKind, SourceKind
@@ -371,11 +371,7 @@ def calibrate(
             "--mirror/--no-mirror and --rotation go together with the camera or simulator (both instead of the "
             "guided pushes): give both or neither"
         )
-    if to_stdout(out):
-        raise NeurotouchError(
-            "--out -: calibrate writes a sensor file that run, track and eval read, not standard output; "
-            "give a file or a folder"
-        )
+    no_stdout("--out", out, "calibrate writes a sensor file that run, track and eval read")
     path = user_sensor_path() if out is None else (out / "sensor.yaml" if out.is_dir() else out)
     _sensor_file_replaceable(path, (source if source not in (SourceKind.DAVIS, SourceKind.SIM) else None, press))
     if press is not None:  # read before the camera and the compile are needed: a wrong file fails now

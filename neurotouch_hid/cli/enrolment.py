@@ -13,7 +13,7 @@ from typing import Optional
 
 import typer
 
-from neurotouch_hid.cli.common import console, err_console, human_console, long_lived_start_up, say_err
+from neurotouch_hid.cli.common import console, err_console, human_console, long_lived_start_up, no_stdout, say_err
 from neurotouch_hid.errors import NeurotouchError
 
 app = typer.Typer()
@@ -62,6 +62,7 @@ def enrol(
     written whole at the end: a dataset there is refused unless --force, then replaced."""
     from neurotouch_hid.enrolment.plan import MAX_SESSION_S, make_plan, read_plan, write_plan
 
+    no_stdout("--out", out, "an enrolment is a dataset folder")
     chosen = read_plan(plan) if plan is not None else make_plan(seed)
     if plan_out is not None:
         if from_recording is not None:

@@ -23,6 +23,7 @@ from neurotouch_hid.cli.common import (
     finite,
     human_console,
     long_lived_start_up,
+    no_stdout,
     say_err,
     to_stdout,
 )
@@ -202,6 +203,7 @@ def simulate(
     OUT is written whole at the end: a dataset there is refused unless --force, then replaced."""
     from neurotouch_hid.sources.simulator import write_dataset
 
+    no_stdout("--out", out, "a dataset is a folder")
     user_ids = None
     if users is not None:
         try:
@@ -237,6 +239,7 @@ def track(
     """Run the gesture pipeline on a recording and write one prediction per window."""
     from neurotouch_hid.atomic import check_output
 
+    no_stdout("--markers", markers, "the markers are an .npz file")
     check_output(out, (recording, sensor), "predictions file")  # before the pipeline's start-up
     if markers is not None:
         check_output(markers, (recording, sensor, out), "markers file", (("predictions file", out),))
@@ -328,6 +331,8 @@ def eval_cmd(
     from neurotouch_hid.extras import require
     from neurotouch_hid.mapping.profile import load_profile
 
+    no_stdout("--report", report, "the report is a folder of figures")
+    no_stdout("--predictions", predictions, "the predictions are a folder of one file a sequence")
     if report is not None:  # before the evaluation, not after it
         require("plots", "eval --report")
     from neurotouch_hid.atomic import check_output
