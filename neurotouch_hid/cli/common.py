@@ -66,8 +66,8 @@ def no_stdout(flag: str, out: object, what: str) -> None:
 
 
 def human_console(*outs: object):
-    """The console for a command's human lines: stderr when one of ``outs`` is ``-`` (standard
-    output holds the result, exactly), else stdout."""
+    """The console for a command's human lines: stderr when one of ``outs`` is standard output
+    (:func:`to_stdout`; it holds the result, exactly), else stdout."""
     return err_console if any(to_stdout(out) for out in outs) else console
 
 
