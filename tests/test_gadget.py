@@ -323,14 +323,14 @@ def test_gadget_remove_says_so_when_there_is_no_gadget(tmp_path, monkeypatch, ca
 
 def test_no_configfs_on_a_board_without_a_device_controller_says_the_board_first(tmp_path, monkeypatch):
     """The advice was modprobe and mount only, which cannot help a machine with no USB device port."""
-    from neurotouch_hid.targets.gadget import support
-
     monkeypatch.setattr(configfs, "CONFIGFS", tmp_path)
     monkeypatch.setattr(configfs.subprocess, "run", lambda *args, **kwargs: None)  # no mount here
     monkeypatch.setattr(configfs, "udcs", lambda: [])
-    monkeypatch.setattr(support, "is_raspberry_pi", lambda: False)
     with pytest.raises(DeviceError) as caught:
         configfs.mount_configfs()
-    lines = str(caught.value).splitlines()
-    assert lines[0].startswith(f"{tmp_path}/usb_gadget does not exist: no USB device controller")
-    assert "a board with a USB device-mode (OTG) port is needed" in str(caught.value)
+    said = str(caught.value)
+    assert said.startswith(f"{tmp_path}/usb_gadget does not exist, and this machine has no USB device controller")
+    assert "neurotouch-hid doctor" in said and "modprobe" not in said
+    monkeypatch.setattr(configfs, "udcs", lambda: ["dummy_udc.0"])  # a board that has one: load and mount
+    with pytest.raises(DeviceError, match="configfs or libcomposite is missing\nsudo modprobe libcomposite"):
+        configfs.mount_configfs()

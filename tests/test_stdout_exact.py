@@ -30,6 +30,9 @@ def test_eval_json_to_standard_output_is_the_json_alone_and_the_tables_go_to_std
         summary = json.loads(done.stdout)
         assert summary["command"].endswith(f"--json={out}") and "gesture_accuracy" in summary
         assert "Gesture type accuracy" in done.stderr
+        # the title whole on its own line (rich wrapped it to the table's width)
+        title = next(line for line in done.stderr.splitlines() if line.startswith("NeuroTouch evaluation:"))
+        assert title.endswith("before the first label skipped)"), title
     assert list(tmp_path.iterdir()) == []
 
 

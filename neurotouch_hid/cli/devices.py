@@ -28,7 +28,7 @@ from neurotouch_hid.cli.common import (
 )
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.kinds import OutputKind, SourceKind
-from neurotouch_hid.output.console import print_table
+from neurotouch_hid.tables import print_table
 
 app = typer.Typer()
 

@@ -25,7 +25,7 @@ from neurotouch_hid.cli.common import (
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.kinds import SourceKind
 from neurotouch_hid.limits import printable
-from neurotouch_hid.output.console import print_table
+from neurotouch_hid.tables import print_table
 
 profile_app = typer.Typer(
     help="List, show, create, edit, validate, test, tune, delete, reset and use (switch the running driver to) "

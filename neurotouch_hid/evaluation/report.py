@@ -19,7 +19,7 @@ from rich.table import Table
 from neurotouch_hid.atomic import AtomicFile, replacing
 from neurotouch_hid.evaluation.metrics import EvaluationResult
 from neurotouch_hid.extras import require
-from neurotouch_hid.output.console import print_table
+from neurotouch_hid.tables import print_table
 
 #: The paper's results (section "Results"), to print beside ours.
 PAPER_RESULTS: dict[str, float] = {

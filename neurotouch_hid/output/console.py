@@ -19,7 +19,6 @@ from rich.console import Console
 
 if TYPE_CHECKING:
     import typer
-    from rich.table import Table
 
 #: Columns of a console that does not write to a terminal: wider than any line this package
 #: prints, so rich never wraps or crops (a table is as wide as its content, not this).
@@ -36,21 +35,6 @@ def make_console(*, stderr: bool = False) -> Console:
     it holds (``rich.markup.escape``)."""
     console = Console(stderr=stderr, markup=False)
     return console if console.is_terminal else Console(stderr=stderr, width=PIPE_WIDTH, markup=False)
-
-
-def print_table(console: Console, table: Table) -> None:
-    """Print a rich table; to a pipe or a file its title goes on a line of its own, whole (rich
-    wraps a title to the table's width: ``eval | head -2`` broke a sentence in two, ``info`` a long
-    path at 40 columns). On a terminal, rich's own layout."""
-    if console.is_terminal or table.title is None:
-        console.print(table)
-        return
-    title, table.title = table.title, None
-    try:
-        console.print(title, highlight=False, soft_wrap=True)
-        console.print(table)
-    finally:
-        table.title = title
 
 
 def command_app(**options: object) -> typer.Typer:

@@ -1442,10 +1442,10 @@ def write_whole_dataset(
         TimeElapsedColumn(),
         TimeRemainingColumn(),
     )
-    from neurotouch_hid.output.console import make_console
+    from rich.console import Console
 
     # on stderr: what goes to stdout is the command's result only (a pipe got the bar's last frame)
-    with Progress(*columns, console=make_console(stderr=True), disable=not progress, transient=False) as bar:
+    with Progress(*columns, console=Console(stderr=True), disable=not progress, transient=False) as bar:
         task = bar.add_task("simulating", total=n_seq * seconds)
         for k, ((uid, kind), name) in enumerate(zip(pairs, names)):
             bar.update(task, description=name)

@@ -213,12 +213,16 @@ def mount_configfs() -> None:
     if not (CONFIGFS / "usb_gadget").is_dir():
         subprocess.run(["mount", "-t", "configfs", "none", str(CONFIGFS)], check=False, capture_output=True)
     if not (CONFIGFS / "usb_gadget").is_dir():
-        from neurotouch_hid.targets.gadget.support import gadget_support
-
-        support = gadget_support()  # what is missing here, the board's controller first, and the fixes
-        problems = "; ".join(support.problems) or "configfs or libcomposite is missing"
-        fixes = support.fixes or ["sudo modprobe libcomposite", "sudo mount -t configfs none /sys/kernel/config"]
-        raise DeviceError("\n".join([f"{CONFIGFS}/usb_gadget does not exist: {problems}", *fixes]))
+        if not udcs():  # no module or mount makes this machine a USB device: the board comes first
+            raise DeviceError(
+                f"{CONFIGFS}/usb_gadget does not exist, and this machine has no USB device controller "
+                "(/sys/class/udc is empty): it cannot be a USB device; `neurotouch-hid doctor` says what a "
+                "board needs (docs/any-host.md)"
+            )
+        raise DeviceError(
+            f"{CONFIGFS}/usb_gadget does not exist: configfs or libcomposite is missing\n"
+            "sudo modprobe libcomposite\nsudo mount -t configfs none /sys/kernel/config"
+        )
 
 
 def create(gadget: GadgetPlan, *, name: str = GADGET_NAME, uid: int = -1, gid: int = -1) -> Path:
