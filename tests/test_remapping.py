@@ -3,6 +3,8 @@ table by table, on the estimates' camera clock (no wall clock anywhere)."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -337,3 +339,20 @@ def test_shipped_switch_access_profile_needs_a_dwell_and_releases(gesture, keys)
     # typed once: down at the dwell for tap_ms (100 ms), then up while the gesture is still held
     assert down[0] == 300 * MS and down[-1] == 390 * MS and not states[-1].keys
     assert not any(any(s.buttons.values()) for s in states)
+
+
+@pytest.mark.parametrize(
+    "mapping, says",
+    [
+        ("{input: pinch, output: KEY_ENTER, press_mm: 0.6}", "press_mm (0.6) is below release_mm (1, the default)"),
+        ("{input: twist, output: ABS_RX, deadzone_mm: 8.0}", "deadzone_mm (8) must be below the saturation (8 mm"),
+    ],
+)
+def test_a_default_that_breaks_the_given_value_is_refused_with_what_to_give(mapping, says):
+    """press_mm 0.6 under the default release_mm 1 pressed and released every window of a steady
+    pinch (50 presses a second); a dead zone at the default saturation divided by zero."""
+    from neurotouch_hid.errors import ProfileError
+    from neurotouch_hid.mapping.profile import parse_profile
+
+    with pytest.raises(ProfileError, match=re.escape(says)):
+        parse_profile(f"mappings:\n  a: {mapping}\n", "p.yaml")

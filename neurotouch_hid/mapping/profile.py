@@ -390,6 +390,17 @@ class _Analog(_Layered):
             raise ValueError(f"a value > deadzone_mm ({deadzone})")
         return value
 
+    @model_validator(mode="after")
+    def _deadzone_below_default_saturation(self):
+        """A dead zone at or past the input's default saturation divided by zero (a crash at
+        the first window past it) or left the output dead for good."""
+        if self.saturation_mm is None and self.deadzone_mm >= self.saturation:
+            raise ValueError(
+                f"deadzone_mm ({self.deadzone_mm:g}) must be below the saturation ({self.saturation:g} mm, "
+                "this input's default): give saturation_mm above it"
+            )
+        return self
+
     @property
     def saturation(self) -> float:
         """The effective saturation (mm): ``saturation_mm`` or the input's default."""
@@ -469,6 +480,17 @@ class _Hysteresis(_Strict):
         if press is not None and value > press:
             raise ValueError(f"a value <= press_mm ({press})")
         return value
+
+    @model_validator(mode="after")
+    def _default_release_not_above_press(self):
+        """``press_mm`` lowered under the default ``release_mm`` (1 mm) made the button press and
+        release every window of a steady press: hysteresis needs release <= press."""
+        if self.release_mm > self.press_mm:
+            raise ValueError(
+                f"press_mm ({self.press_mm:g}) is below release_mm ({self.release_mm:g}, the default): "
+                f"give release_mm too, at most {self.press_mm:g}"
+            )
+        return self
 
 
 class ButtonMapping(_Hysteresis, _Layered):
