@@ -32,6 +32,8 @@ from neurotouch_hid.errors import DeviceError
 #: Where configfs keeps the gadgets, and the controllers' class in sysfs.
 CONFIGFS = Path("/sys/kernel/config")
 UDC_CLASS = Path("/sys/class/udc")
+#: What a machine with no USB device controller is told, wherever a gadget needs one.
+NO_UDC = "this machine has no USB device controller (/sys/class/udc is empty): it cannot be a USB device"
 #: The gadget's folder name under ``usb_gadget``.
 GADGET_NAME = "neurotouch"
 #: Where the XInput function's FunctionFS is mounted (one folder per instance).
@@ -215,9 +217,8 @@ def mount_configfs() -> None:
     if not (CONFIGFS / "usb_gadget").is_dir():
         if not udcs():  # no module or mount makes this machine a USB device: the board comes first
             raise DeviceError(
-                f"{CONFIGFS}/usb_gadget does not exist, and this machine has no USB device controller "
-                "(/sys/class/udc is empty): it cannot be a USB device; `neurotouch-hid doctor` says what a "
-                "board needs (docs/any-host.md)"
+                f"{CONFIGFS}/usb_gadget does not exist, and {NO_UDC}; `neurotouch-hid doctor` says what a board "
+                "needs (docs/any-host.md)"
             )
         raise DeviceError(
             f"{CONFIGFS}/usb_gadget does not exist: configfs or libcomposite is missing\n"
@@ -301,7 +302,7 @@ def bind(name: str = GADGET_NAME, udc: str | None = None) -> str:
     names = udcs()
     if udc is None:
         if not names:
-            raise DeviceError("no USB device controller in /sys/class/udc: see `neurotouch-hid doctor`")
+            raise DeviceError(f"{NO_UDC}; see `neurotouch-hid doctor`")
         udc = names[0]
     try:
         write_attr(gadget_dir(name) / "UDC", udc)

@@ -87,7 +87,7 @@ def gadget_support() -> GadgetSupport:
     modules = {name: module_state(name) for name in configfs.MODULES}
     problems, fixes = [], []
     if not udcs:
-        problems.append("no USB device controller (/sys/class/udc is empty): this board cannot be a USB device")
+        problems.append(configfs.NO_UDC)
         if is_raspberry_pi():
             fixes += [
                 "echo dtoverlay=dwc2,dr_mode=peripheral | sudo tee -a /boot/firmware/config.txt",
