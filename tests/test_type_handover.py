@@ -146,3 +146,67 @@ def test_an_undecided_window_moves_no_output_of_a_type():
     assert not any(s.axes["ABS_X"] or s.axes["ABS_Y"] for s in states)
     trigger = [s.axes["ABS_Z"] > 0 for s in states]
     assert not any(trigger[:9]) and trigger[9]
+
+
+def two_types_one_button_timed(mode: str, **timing) -> Profile:
+    button = {"output": "BTN_SOUTH", "mode": mode, "press_mm": 2.0, "release_mm": 1.0, **timing}
+    return Profile.model_validate({"mappings": {"a": {"input": "pinch", **button}, "b": {"input": "zoom", **button}}})
+
+
+def down_windows(profile: Profile, est: list[GestureEstimate]) -> list[bool]:
+    return ["BTN_SOUTH" in pressed(s) for s in replay(profile, est)]
+
+
+def test_a_long_press_goes_on_through_the_change():
+    """Two long presses (300 ms) on A: a pinch held 490 ms that the pipeline then reads as zoom
+    for 400 ms. A is down from 300 ms to the end of the gesture, one press (not let go at the
+    change and pressed again 300 ms later)."""
+    est = windows((G.PINCH, 3.0, 49), (G.ZOOM, 3.0, 40))
+    down = down_windows(two_types_one_button_timed("long_press", dwell_ms=300), est)
+    assert not any(down[:30]) and all(down[30:89]) and not down[89]
+    assert rising_edges(down) == 1
+
+
+def test_a_long_press_dwell_under_way_counts_from_the_hold_start():
+    """The type changes 200 ms into a 300 ms dwell: A goes down 300 ms after the hold began, not
+    300 ms after the change (a flicker must not lengthen the wait)."""
+    est = windows((G.PINCH, 3.0, 20), (G.ZOOM, 3.0, 40))
+    down = down_windows(two_types_one_button_timed("long_press", dwell_ms=300), est)
+    assert not any(down[:30]) and all(down[30:60])
+    assert rising_edges(down) == 1
+
+
+def test_a_tap_keystroke_keeps_its_length_through_the_change():
+    """Taps of 150 ms: the type changes 50 ms into the keystroke. It lasts its 150 ms, once."""
+    down = down_windows(two_types_one_button_timed("tap", tap_ms=150), windows((G.PINCH, 3.0, 5), (G.ZOOM, 3.0, 30)))
+    assert all(down[:15]) and not any(down[15:])
+    assert rising_edges(down) == 1
+
+
+def test_a_tap_is_one_keystroke_per_gesture_whatever_the_type():
+    """The keystroke is over when the type changes: the new type gives no second one."""
+    down = down_windows(two_types_one_button_timed("tap"), windows((G.PINCH, 3.0, 30), (G.ZOOM, 3.0, 30)))
+    assert all(down[:10]) and rising_edges(down) == 1
+
+
+def test_a_double_press_second_press_goes_on_through_the_change():
+    """A double press: a pinch, let go (0.5 mm, the gel not at rest), a second pinch that turns to
+    zoom half-way: A is down for the whole second press, once."""
+    est = windows((G.PINCH, 3.0, 10), (G.NONE, 0.5, 5), (G.PINCH, 3.0, 10), (G.ZOOM, 3.0, 10))
+    down = down_windows(two_types_one_button_timed("double_press"), est)
+    assert not any(down[:15]) and all(down[15:35]) and not down[35]
+    assert rising_edges(down) == 1
+
+
+def test_the_old_type_back_below_its_press_threshold_goes_on_holding():
+    """Hysteresis holds through the flicker: a pinch eased to 1.5 mm (between release 1.0 and
+    press 2.0), read as zoom, then as pinch again at 1.5 mm: A stays down throughout, one press."""
+    est = windows((G.PINCH, 3.0, 10), (G.PINCH, 1.5, 10), (G.ZOOM, 1.5, 10), (G.PINCH, 1.5, 10), (G.PINCH, 3.0, 10))
+    down = down_windows(two_types_one_button_timed("hold"), est)
+    assert all(down[:50]) and not down[50]
+    assert rising_edges(down) == 1
+    # zoom on another button: A is let go while zoom is read, and pinch's return at 1.5 mm is its hold going on
+    a = {"input": "pinch", "output": "BTN_SOUTH", "press_mm": 2.0, "release_mm": 1.0}
+    b = {"input": "zoom", "output": "BTN_EAST", "press_mm": 2.0, "release_mm": 1.0}
+    down = down_windows(Profile.model_validate({"mappings": {"a": a, "b": b}}), est)
+    assert all(down[:20]) and not any(down[20:30]) and all(down[30:50])

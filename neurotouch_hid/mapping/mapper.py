@@ -159,13 +159,21 @@ class Activator:
         self._toggled = False
         self._suspended = False  # released by a type change: the next press goes on with this hold
 
-    def carry(self, t_us: int) -> None:
-        """Go on with a hold that another mapping of the same output began (a gesture's type
-        changed under it): held from ``t_us`` with no press, so a toggle does not flip and the
-        output shows no release-and-press."""
-        if not self.held:
-            self.held, self._since_us = True, int(t_us)
-            self._tap_from_us = int(t_us) - self.tap_us  # a hold going on: no new keystroke
+    def carry(self, source: "Activator") -> None:
+        """Go on with the hold ``source`` (another mapping's activator of the same output) began,
+        when a gesture's type changed under it: held with no press, so a toggle does not flip and
+        the output shows no release-and-press. The hold keeps its timing: a long press's dwell
+        and turbo's phase count from where ``source``'s hold began, a tap's keystroke goes on for
+        what is left of it (or, given, is not given again), a double press's second press stays
+        the second."""
+        if self.held:
+            return
+        self.held, self._since_us = True, source._since_us
+        self._first_us, self._double = source._first_us, source._double
+        if source.mode == "tap":
+            self._tap_from_us = source._tap_from_us
+        else:  # the hold's output was down already: no new keystroke
+            self._tap_from_us = source._since_us - self.tap_us
 
     def suspend(self) -> None:
         """The input is gone because the gesture's type changed: if the type comes back within
@@ -195,7 +203,7 @@ class Activator:
         """The output's state for the input ``value_mm`` (mm) at ``t_us`` (us, camera clock)."""
         t_us = int(t_us)
         was, resumed = self.held, False
-        if not self.held and value_mm >= self.press_mm:
+        if not self.held and (value_mm >= self.press_mm or (self._suspended and value_mm >= self.release_mm)):
             self.held, resumed = True, self._suspended
             self._since_us = self._since_us if resumed else t_us
             self._suspended = False
@@ -347,11 +355,17 @@ class Mapper:
         for name in gone:
             if name in self._activators:
                 self._activators[name].suspend()
-        left = {out for name in gone if self._held.get(name) for out in mappings[name].presses}
-        for name in set(typed) - set(gone):
+        left: dict[str, Activator] = {}  # output -> the hold of a mapping whose input is gone
+        for name in gone:
+            if name in self._activators and self._activators[name].held:
+                left.update(dict.fromkeys(mappings[name].presses, self._activators[name]))
+        for name in typed:
             m = mappings[name]
-            if name in self._activators and left & set(m.presses) and float(inputs[m.input]) >= m.release_mm:
-                self._activators[name].carry(estimate.t_us)
+            if name in gone or name not in self._activators or float(inputs[m.input]) < m.release_mm:
+                continue
+            source = next((left[out] for out in m.presses if out in left), None)
+            if source is not None:
+                self._activators[name].carry(source)
 
     def reset(self) -> None:
         """Forget filters, activators, motion remainders and layers (the next update starts from scratch)."""
