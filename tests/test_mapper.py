@@ -80,12 +80,28 @@ def test_axis_response(extra, gesture, mm, fraction):
         ("pinch", "ABS_Z", G.ZOOM, 5.0, 0),
         ("pinch_zoom", "ABS_RZ", G.PINCH, 5.0, 0),  # a trigger only takes the positive side
         ("pinch_zoom", "ABS_RZ", G.ZOOM, 5.0, 255),
-        ("pinch_zoom", "ABS_RY", G.PINCH, 5.0, STICK_MIN),  # a stick axis takes both
+        ("pinch_zoom", "ABS_RX", G.PINCH, 5.0, STICK_MIN),  # a stick axis takes both
+        ("pinch_zoom", "ABS_RY", G.ZOOM, 5.0, STICK_MIN),  # a positive value on a y axis is up
+        ("pinch_zoom", "ABS_RY", G.PINCH, 5.0, 32767),
     ],
 )
 def test_triggers_and_signed_scalars(input_name, output, gesture, mm, expected):
     m = dict(input=input_name, output=output, deadzone_mm=0.0, saturation_mm=5.0)
     assert Mapper(profile(m=m)).update(est(gesture, mm)).axes[output] == expected
+
+
+@pytest.mark.parametrize("output", ["ABS_Y", "ABS_RY", "l_stick_y", "r_stick_y", "REL_Y"])
+def test_a_scalar_on_a_y_axis_goes_the_way_a_stick_mapping_goes(output):
+    """push_y on one stick axis moves it as ``push`` on the stick does: a push up is up (evdev's
+    negative ABS_Y / ABS_RY, as the pointer's negative REL_Y)."""
+    scalar = dict(input="push_y", output=output, deadzone_mm=1.0, saturation_mm=5.0)
+    stick = dict(input="push", output="left_stick", deadzone_mm=1.0, saturation_mm=5.0)
+    up = est(G.PUSH, 5.0, direction=(0.0, 1.0))
+    mapper = Mapper(profile(m=scalar))
+    mapper.update(up)
+    state = mapper.update(est(G.PUSH, 5.0, t_us=10_000, direction=(0.0, 1.0)))  # the pointer moves from the second
+    moved = state.rel.get("REL_Y", 0) if output == "REL_Y" else min(state.axes["ABS_Y"], state.axes["ABS_RY"])
+    assert moved < 0 and Mapper(profile(m=stick)).update(up).axes["ABS_Y"] < 0
 
 
 # --- sticks: direction in the user frame, y flipped to evdev ------------------------------------

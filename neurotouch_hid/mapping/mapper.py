@@ -95,6 +95,11 @@ TYPE_INPUTS = frozenset(
     + ("twist", "twist_ccw", "twist_cw", "pinch", "zoom", "pinch_zoom")
 )
 
+#: The evdev axes whose up is negative (the kernel's gamepad.rst and REL_Y's convention): a
+#: positive scalar mapped onto one of them (``push_y``, ``contact_y``, ``pinch_zoom``...) moves
+#: it up, as a stick mapping's user +y does.
+UP_IS_NEGATIVE = frozenset(("ABS_Y", "ABS_RY", "REL_Y"))
+
 #: Longest camera-time step (us) the pointer and wheels integrate over: a gap in the data (a
 #: dropped batch, a pause) must not turn into one long jump.
 MAX_MOTION_STEP_US = 100_000
@@ -292,7 +297,8 @@ class Mapper:
     invert; :func:`~neurotouch_hid.mapping.filters.response`) for sticks, axes, the pointer and
     the wheels, or passed through its :class:`Activator` for button-like outputs. Contributions
     to one axis add up and clamp; buttons and keys are OR-ed; a stick's user +y (up) becomes a
-    negative evdev y, the pointer's a negative REL_Y. Pointer and wheel velocities become counts
+    negative evdev y, the pointer's a negative REL_Y, and so does a positive scalar on a y axis
+    (:data:`UP_IS_NEGATIVE`). Pointer and wheel velocities become counts
     over the camera time since the last estimate (:class:`RelMotion`).
 
     Layers: the profile's layer switches are evaluated first; the current layer is the first
@@ -435,11 +441,11 @@ class Mapper:
                 scalar = float(value)
                 shaped = math.copysign(_shape(mapping, abs(scalar)), scalar)
                 shaped = -shaped if mapping.invert else shaped
+                shaped = -shaped if mapping.output in UP_IS_NEGATIVE else shaped  # user +y (up) -> up
                 if isinstance(mapping, AxisMapping):
                     analog[mapping.output] += shaped
                 else:
-                    up = -1.0 if mapping.output == "REL_Y" else 1.0  # user +y (up) -> pointer up
-                    velocity[mapping.output] += up * shaped * mapping.velocity_scale
+                    velocity[mapping.output] += shaped * mapping.velocity_scale
             else:
                 self._held[name] = self._activators[name].update(float(value), t_us)
                 if not self._held[name]:
