@@ -293,6 +293,19 @@ def test_a_0_to_255_stick_is_centred_at_its_middle_and_dpad_buttons_drive_the_ha
     assert device.levels(set(), {ecodes.ABS_RX: 255}).axes["ABS_RX"] == 32767
 
 
+@pytest.mark.parametrize("resting", [127, 128])
+def test_a_stick_with_an_even_count_of_values_rests_centred_on_either_middle_value(resting):
+    """0..255 with no flat has no middle value: 127 and 128 are its centre, so under ``helper``
+    the gel's stick goes on while the helper's stick rests (not locked out by half a unit)."""
+    device = DeviceMap(_entry("{device: Pad}"), {}, {ecodes.ABS_RX: (["ABS_RX"], AxisRange(0, 255))})
+    rest = device.levels(set(), {ecodes.ABS_RX: resting})
+    assert rest.axes == {"ABS_RX": 0}
+    gel = ControllerState.neutral(0)
+    gel.axes["ABS_RX"] = 9000
+    assert merge_state(gel, [(rest, {"ABS_RX": "helper"})]).axes["ABS_RX"] == 9000
+    assert device.levels(set(), {ecodes.ABS_RX: resting + (1 if resting == 128 else -1)}).axes["ABS_RX"] != 0
+
+
 def test_a_switch_box_key_presses_what_its_map_says_and_nothing_else():
     box = DeviceMap(
         _entry("{device: Box, map: {KEY_SPACE: BTN_SOUTH, KEY_ENTER: KEY_TAB, KEY_1: dpad_right}}"),

@@ -78,7 +78,8 @@ class AxisRange:
 
 def _fraction(name: str, value: int, info: AxisRange) -> float:
     """``value`` of source axis ``name`` as a fraction of its travel: 0..1 for a one-sided axis
-    (:data:`ONE_SIDED_AXES`), -1..1 around the centre otherwise (0 within ``flat``)."""
+    (:data:`ONE_SIDED_AXES`), -1..1 around the centre otherwise (0 within ``flat``, and at both
+    middle values of a range with an even count of them: 0..255 rests at 127 or 128)."""
     lo, hi = info.minimum, info.maximum
     if hi <= lo:
         return 0.0
@@ -87,7 +88,7 @@ def _fraction(name: str, value: int, info: AxisRange) -> float:
         return (value - lo) / (hi - lo)
     centre = (lo + hi) / 2
     offset = value - centre
-    if abs(offset) <= info.flat or offset == 0:
+    if abs(offset) <= max(info.flat, 0.5):
         return 0.0
     return offset / (hi - centre) if offset > 0 else offset / (centre - lo)
 
