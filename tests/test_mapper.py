@@ -382,3 +382,11 @@ def test_a_resting_gel_is_not_mapped_again_and_the_next_touch_is():
         assert len(calls) == 2 and touched.axes["ABS_Y"] < AXES["ABS_Y"][2]  # pushed up at once
     finally:
         mapper_module.gesture_inputs = saved
+
+
+def test_the_pointer_from_the_contact_point_saturates_at_the_gel_radius():
+    """A finger 15 mm right of the centre (half the 30 mm radius, no dead zone) moves the pointer at
+    half its speed: 5 px in 10 ms at 1000 px/s (with the 8 mm of the other inputs it would be 10)."""
+    mapper = Mapper(profile(p=dict(input="contact", output="pointer", deadzone_mm=0.0)))
+    mapper.update(est(G.PUSH, 2.0, contact=(15.0, 0.0)))
+    assert mapper.update(est(G.PUSH, 2.0, t_us=10_000, contact=(15.0, 0.0))).rel == {"REL_X": 5}
