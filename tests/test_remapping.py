@@ -34,6 +34,17 @@ def times_down(samples, outputs) -> list[int]:
 
 
 # --- activators ---------------------------------------------------------------------------------
+@pytest.mark.parametrize("dwell", [{}, {"dwell_ms": 0}])
+def test_a_tap_with_its_documented_default_dwell_written_out_taps_at_once(dwell):
+    """``dwell_ms: 0`` is tap's default written out: accepted, and the same keystroke."""
+    profile = Profile.model_validate(
+        {"mappings": {"t": {"input": "pinch", "output": "KEY_ENTER", "mode": "tap", **dwell}}}
+    )
+    activator = Activator.of(profile.mappings["t"])
+    samples = held((0, 300), until=400)
+    assert times_down(samples, [int(activator.update(v, t * MS)) for t, v in samples]) == list(range(0, 100, 10))
+
+
 @pytest.mark.parametrize(
     "values, expected",
     [

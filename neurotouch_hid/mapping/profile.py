@@ -516,7 +516,7 @@ class ButtonMapping(_Hysteresis, _Layered):
     mode: Literal[MODES] = "hold"
     dwell_ms: float | None = Field(
         None,
-        gt=0,
+        ge=0,
         le=60_000,
         description="long_press, tap: how long the input must be held (ms); long_press 500, tap 0 when not set",
     )
