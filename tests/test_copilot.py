@@ -57,32 +57,32 @@ def test_ids_are_kept_in_lower_case_and_aliases_resolved():
     [
         (  # a device named twice (ids in another case are the same device)
             'copilot:\n  - device: "045e:02ea"\n  - device: "Box"\n  - device: "045E:02EA"\n',
-            "copilot:",
-            "copilot",
+            '"045E:02EA"',
+            "copilot.2.device",
             "each device once: '045e:02ea' is named by entries 0 and 2",
         ),
         (  # the driver's own pad, by its name
             'device: {name: "My Pad"}\ncopilot:\n  - device: "My Pad"\n',
-            "copilot:",
-            "copilot",
+            '  - device: "My Pad"',
+            "copilot.0.device",
             "a device other than the driver's own",
         ),
         (  # the driver's keyboard
             'copilot:\n  - device: "NeuroTouch keyboard"\n',
-            "copilot:",
-            "copilot",
+            "device:",
+            "copilot.0.device",
             "a device other than the driver's own",
         ),
         (  # an axis policy on a button
             'copilot:\n  - device: "Pad"\n    policy: {BTN_SOUTH: further}\n',
             "policy:",
-            "copilot.0.policy",
-            "the policy either for BTN_SOUTH (a button), not 'further'",
+            "copilot.0.policy.BTN_SOUTH",
+            "found 'further'; expected the policy either for BTN_SOUTH (a button)",
         ),
         (  # a policy on a control a switch box without passthrough does not drive
             'copilot:\n  - device: "Box"\n    passthrough: false\n    map: {KEY_SPACE: A}\n    policy: {ABS_X: sum}\n',
             "policy:",
-            "copilot.0.policy",
+            "copilot.0.policy.ABS_X",
             "a policy only on a control this device drives; ABS_X is not one of them",
         ),
         (  # a policy no one knows
@@ -94,20 +94,20 @@ def test_ids_are_kept_in_lower_case_and_aliases_resolved():
         (  # a key the device cannot have
             'copilot:\n  - device: "Box"\n    map: {KEY_SPACEBAR: A}\n',
             "map:",
-            "copilot.0.map",
+            "copilot.0.map.KEY_SPACEBAR",
             "did you mean 'KEY_SPACE'",
         ),
         (  # an axis mapped to a button
             'copilot:\n  - device: "Pad"\n    map: {ABS_X: A}\n',
             "map:",
-            "copilot.0.map",
-            "a pad axis (ABS_X, ABS_Y, ABS_RX, ABS_RY, ABS_Z, ABS_RZ, ABS_HAT0X, ABS_HAT0Y) for the axis ABS_X; "
-            "found 'A'",
+            "copilot.0.map.ABS_X",
+            "found 'A'; expected a pad axis (ABS_X, ABS_Y, ABS_RX, ABS_RY, ABS_Z, ABS_RZ, ABS_HAT0X, ABS_HAT0Y) "
+            "for the axis ABS_X",
         ),
         (  # a key the system acts on
             'copilot:\n  - device: "Box"\n    map: {KEY_A: KEY_POWER}\n',
             "map:",
-            "copilot.0.map",
+            "copilot.0.map.KEY_A",
             "a key other than KEY_POWER",
         ),
         (  # a path outside /dev/input
@@ -133,6 +133,44 @@ def test_a_bad_copilot_entry_names_file_line_field_and_what_was_expected(tmp_pat
     assert len(hits) == 1, str(info.value)
     assert hits[0].startswith(f"{path}:{line_of(text, needle)}: {field}:"), hits[0]
     assert expected in hits[0], hits[0]
+
+
+def test_every_problem_of_a_copilot_section_is_listed_at_once_each_on_its_line(tmp_path):
+    """Three bad map lines and two bad policies in one entry, a device named twice and the
+    driver's mouse in the list: every one is named, on its own line."""
+    text = (
+        "copilot:\n"
+        "  - device: Box\n"
+        "    map:\n"
+        "      KEY_SPACEBAR: A\n"
+        "      KEY_B: KEY_POWER\n"
+        "      ABS_X: A\n"
+        "    policy:\n"
+        "      BTN_SOUTH: further\n"
+        "      WOBBLE: sum\n"
+        "  - device: Pad\n"
+        "  - device: Pad\n"
+        "  - device: NeuroTouch mouse\n"
+    )
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(ProfileError) as info:
+        load_profile(path)
+    entry = [line.strip() for line in str(info.value).splitlines()[1:]]
+    assert [line.split(": ")[0] for line in entry] == [f"{path}:{n}" for n in (4, 5, 6, 8, 9)], entry
+    path.write_text(
+        text.replace("KEY_SPACEBAR", "KEY_SPACE")
+        .replace("KEY_POWER", "KEY_C")
+        .replace("ABS_X: A", "ABS_X: ABS_Y")
+        .replace("      BTN_SOUTH: further\n      WOBBLE: sum\n", "      ABS_Y: sum\n")
+    )
+    with pytest.raises(ProfileError) as info:
+        load_profile(path)
+    lists = [line.strip() for line in str(info.value).splitlines()[1:]]
+    assert [line.split(": ")[:2] for line in lists] == [
+        [f"{path}:10", "copilot.2.device"],
+        [f"{path}:11", "copilot.3.device"],
+    ]
 
 
 def test_the_names_refused_are_those_of_the_keyboard_and_mouse_the_driver_makes():

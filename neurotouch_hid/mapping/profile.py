@@ -71,6 +71,7 @@ from pydantic import (
     field_validator,
     model_validator,
 )
+from pydantic_core import InitErrorDetails, PydanticCustomError
 from ruamel.yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
 from neurotouch_hid.controller import AXES, BUTTONS, MOUSE_BUTTONS
@@ -689,6 +690,25 @@ OWN_INPUT_NAMES: tuple[str, ...] = ("NeuroTouch keyboard", "NeuroTouch mouse")
 STABLE_PATH_PREFIX = "/dev/input/"
 
 
+def _refuse_each(model: str, problems: list[tuple[tuple, Any, str]]) -> None:
+    """Raise every problem a validator found at once, each at its own place (so each gets its own
+    line): ``problems`` is a list of (loc under the field, the value found, what was expected).
+
+    Raises:
+        ValidationError: when ``problems`` is not empty (pydantic prefixes the field's loc).
+    """
+    if problems:
+        raise ValidationError.from_exception_data(
+            model,
+            [
+                InitErrorDetails(
+                    type=PydanticCustomError("value_error", "{expected}", {"expected": expected}), loc=loc, input=found
+                )
+                for loc, found, expected in problems
+            ],
+        )
+
+
 @functools.cache
 def _device_codes() -> frozenset[str]:
     """Every evdev key, button and absolute-axis name (``KEY_*``, ``BTN_*``, ``ABS_*``) python-evdev knows."""
@@ -735,25 +755,41 @@ class CopilotDevice(_Strict):
     @field_validator("map")
     @classmethod
     def _known_controls(cls, value: dict[str, str]) -> dict[str, str]:
-        out = {}
+        out, problems = {}, []
         for source, target in value.items():
             if source not in _device_codes():
-                raise ValueError(
-                    f"a control of the device (an evdev name such as 'KEY_SPACE', 'BTN_SOUTH' or 'ABS_X'); "
-                    f"{short(source)} is none{did_you_mean(source, _device_codes())}"
+                problems.append(
+                    (
+                        (source,),
+                        source,
+                        "a control of the device (an evdev name such as 'KEY_SPACE', 'BTN_SOUTH' or 'ABS_X'); "
+                        f"{short(source)} is none{did_you_mean(source, _device_codes())}",
+                    )
                 )
+                continue
             written, target = target, FACE_ALIASES.get(target, target)
             if source.startswith("ABS_"):
                 if target not in AXES:
-                    raise ValueError(f"a pad axis ({', '.join(AXES)}) for the axis {source}; found {short(written)}")
+                    problems.append(((source,), written, f"a pad axis ({', '.join(AXES)}) for the axis {source}"))
             elif target in KERNEL_COMMAND_KEYS:
-                raise ValueError(f"a key other than {target}: the system acts on it, so no profile may press it")
+                problems.append(
+                    (
+                        (source,),
+                        written,
+                        f"a key other than {target}: the system acts on it, so no profile may press it",
+                    )
+                )
             elif target not in DIGITAL_OUTPUTS and target not in keyboard_keys():
-                raise ValueError(
-                    f"a pad button (BTN_SOUTH ... BTN_THUMBR, A, B, X, Y), a d-pad direction (dpad_*) or a "
-                    f"keyboard key such as 'KEY_SPACE' for {source}; found {short(written)}"
+                problems.append(
+                    (
+                        (source,),
+                        written,
+                        "a pad button (BTN_SOUTH ... BTN_THUMBR, A, B, X, Y), a d-pad direction (dpad_*) or a "
+                        f"keyboard key such as 'KEY_SPACE' for {source}",
+                    )
                 )
             out[source] = target
+        _refuse_each("CopilotDevice", problems)
         return out
 
     @field_validator("policy")
@@ -762,22 +798,31 @@ class CopilotDevice(_Strict):
         mapped = info.data.get("map") or {}
         passthrough = info.data.get("passthrough", True)
         reach = set(AXES) | set(BUTTONS) if passthrough else {control_of(t) for t in mapped.values()}
+        problems = []
         for control, policy in value.items():
             pad = control_of(control)
             if pad not in AXES and pad not in BUTTONS:
-                raise ValueError(
-                    "a pad control (an axis ABS_X .. ABS_HAT0Y, a button BTN_SOUTH .. BTN_THUMBR, A, B, X, Y or "
-                    f"dpad_*) for each policy; {short(control)} is none"
+                problems.append(
+                    (
+                        (control,),
+                        control,
+                        "a pad control (an axis ABS_X .. ABS_HAT0Y, a button BTN_SOUTH .. BTN_THUMBR, A, B, X, Y "
+                        f"or dpad_*) for each policy; {short(control)} is none",
+                    )
                 )
-            if pad not in reach:
-                raise ValueError(
-                    f"a policy only on a control this device drives; {control} is not one of them (passthrough "
-                    f"is off and map: drives {', '.join(sorted(reach)) or 'nothing'})"
+            elif pad not in reach:
+                problems.append(
+                    (
+                        (control,),
+                        policy,
+                        f"a policy only on a control this device drives; {control} is not one of them (passthrough "
+                        f"is off and map: drives {', '.join(sorted(reach)) or 'nothing'})",
+                    )
                 )
-            allowed = BUTTON_POLICIES if pad in BUTTONS else AXIS_POLICIES
-            if policy not in allowed:
+            elif policy not in (allowed := BUTTON_POLICIES if pad in BUTTONS else AXIS_POLICIES):
                 kind = "a button" if pad in BUTTONS else "an axis"
-                raise ValueError(f"the policy {' or '.join(allowed)} for {control} ({kind}), not {short(policy)}")
+                problems.append(((control,), policy, f"the policy {' or '.join(allowed)} for {control} ({kind})"))
+        _refuse_each("CopilotDevice", problems)
         return value
 
     @property
@@ -803,19 +848,29 @@ class Profile(_Strict):
         own = info.data.get("device")
         ours = set(OWN_INPUT_NAMES) | ({own.name} if isinstance(own, DeviceSpec) else set())
         seen: dict[str, int] = {}
+        problems = []
         for i, entry in enumerate(value):
             if entry.device in seen:
-                raise ValueError(
-                    f"each device once: {short(entry.device)} is named by entries {seen[entry.device]} and {i} "
-                    "(one entry per device; put every map: line of it in one entry)"
+                problems.append(
+                    (
+                        (i, "device"),
+                        entry.device,
+                        f"each device once: {short(entry.device)} is named by entries {seen[entry.device]} and {i} "
+                        "(one entry per device; put every map: line of it in one entry)",
+                    )
                 )
-            seen[entry.device] = i
+            seen.setdefault(entry.device, i)
             if entry.device in ours:
-                raise ValueError(
-                    f"a device other than the driver's own: {short(entry.device)} is the name of the pad, "
-                    "keyboard or mouse this profile makes (a helper's pad of the same model: name it by its "
-                    "/dev/input/by-id/ path, or give this profile's pad another name under device:)"
+                problems.append(
+                    (
+                        (i, "device"),
+                        entry.device,
+                        "a device other than the driver's own: this is the name of the pad, keyboard or mouse this "
+                        "profile makes (a helper's pad of the same model: name it by its /dev/input/by-id/ path, "
+                        "or give this profile's pad another name under device:)",
+                    )
                 )
+        _refuse_each("Profile", problems)
         return value
 
     @field_validator("layers")
