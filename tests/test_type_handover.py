@@ -210,3 +210,46 @@ def test_the_old_type_back_below_its_press_threshold_goes_on_holding():
     b = {"input": "zoom", "output": "BTN_EAST", "press_mm": 2.0, "release_mm": 1.0}
     down = down_windows(Profile.model_validate({"mappings": {"a": a, "b": b}}), est)
     assert all(down[:20]) and not any(down[20:30]) and all(down[30:50])
+
+
+ARROWS = """
+layers:
+  arrows: {input: pinch, mode: toggle, press_mm: 2.5, release_mm: 1.2}
+mappings:
+  scroll: {input: twist, output: REL_WHEEL}
+  up: {input: twist_ccw, output: KEY_UP, layer: arrows}
+  down: {input: twist_cw, output: KEY_DOWN, layer: arrows}
+"""
+
+
+def layers_of(profile: Profile, est: list[GestureEstimate]) -> list[str]:
+    mapper, out = Mapper(profile), []
+    for e in est:
+        mapper.update(e)
+        out.append(mapper.layer)
+    return out
+
+
+def test_a_layer_toggle_flips_once_however_the_type_flickers():
+    """docs/profiles.md's layer example: one pinch read as push for 20 ms in its middle turns the
+    layer on once (not on, then off at the pinch's return); the next pinch turns it off."""
+    from neurotouch_hid.mapping.profile import parse_profile
+
+    profile = parse_profile(ARROWS, "arrows.yaml")
+    one = windows((G.PINCH, 3.0, 5), (G.PUSH, 3.0, 2), (G.PINCH, 3.0, 5))
+    layers = layers_of(profile, one)
+    assert layers[0] == "arrows" and set(layers) == {"arrows"}
+    later = windows((G.PINCH, 3.0, 5))
+    again = one + [GestureEstimate(e.t_us + 1_000_000, e.gesture, e.resting, e.intensity_mm) for e in later]
+    assert layers_of(profile, again)[-1] == "base"
+
+
+def test_a_held_layer_stays_through_a_flicker_of_its_gesture():
+    """A layer held by zoom: one window read as pinch does not drop the layer (each drop releases
+    everything: the trigger would fall to 0 for that window)."""
+    from neurotouch_hid.mapping.profile import parse_profile
+
+    text = "layers:\n  aim: {input: zoom, mode: hold}\nmappings:\n  fire: {input: intensity, output: RT, layer: aim}\n"
+    states = replay(parse_profile(text, "aim.yaml"), windows((G.ZOOM, 3.0, 5), (G.PINCH, 3.0, 1), (G.ZOOM, 3.0, 5)))
+    trigger = [s.axes["ABS_RZ"] for s in states]
+    assert trigger[0] == 0 and all(v > 0 for v in trigger[1:11]) and trigger[-1] == 0

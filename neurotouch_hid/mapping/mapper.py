@@ -381,12 +381,19 @@ class Mapper:
         self._fresh_mappings()
 
     def _current_layer(self, inputs: dict, t_us: int) -> str:
+        """The layer of this estimate. A switch held by a gesture of one type stays held while the
+        gesture goes on under another (its input at 0, the gesture's intensity at or above the
+        switch's ``release_mm``): a flicker of the type neither drops a held layer nor flips a
+        toggled one twice (a layer change releases everything)."""
         layer = BASE_LAYER
         for name, switch in self._switches.items():
-            value = inputs[self.profile.layers[name].input]
+            spec = self.profile.layers[name]
+            raw = value = inputs[spec.input]
             smoother = self._switch_filters[name]
             if smoother is not None:
                 value = smoother(value, t_us)
+            if switch.held and spec.input in TYPE_INPUTS and raw == 0 and inputs["intensity"] >= spec.release_mm:
+                value = max(float(value), spec.release_mm)  # the gesture goes on under another type
             if switch.update(float(value), t_us) and layer == BASE_LAYER:
                 layer = name
         return layer
