@@ -390,3 +390,23 @@ def test_the_pointer_from_the_contact_point_saturates_at_the_gel_radius():
     mapper = Mapper(profile(p=dict(input="contact", output="pointer", deadzone_mm=0.0)))
     mapper.update(est(G.PUSH, 2.0, contact=(15.0, 0.0)))
     assert mapper.update(est(G.PUSH, 2.0, t_us=10_000, contact=(15.0, 0.0))).rel == {"REL_X": 5}
+
+
+def test_a_trigger_takes_only_the_positive_side_of_each_mapping_before_they_add_up():
+    """``intensity`` and ``pinch_zoom`` both on RT, a 4 mm pinch: pinch_zoom's negative side is
+    nothing on a trigger, so RT is intensity's half travel, not cancelled to 0."""
+    a = dict(input="intensity", output="ABS_RZ", deadzone_mm=0.0, saturation_mm=8.0)
+    b = dict(input="pinch_zoom", output="ABS_RZ", deadzone_mm=0.0, saturation_mm=8.0)
+    assert Mapper(profile(a=a, b=b)).update(est(G.PINCH, 4.0)).axes["ABS_RZ"] == round(0.5 * 255)
+
+
+@pytest.mark.parametrize("extra", [{}, {"c": dict(input="push_intensity", output="dpad_up")}])
+def test_dpad_directions_are_or_ed_like_buttons(extra):
+    """A push up presses d-pad up (push_up) and d-pad down (intensity): opposite directions at
+    once leave the hat centred, however many mappings press each."""
+    up = dict(input="push_up", output="dpad_up")
+    down = dict(input="intensity", output="dpad_down")
+    state = Mapper(profile(a=up, b=down, **extra)).update(est(G.PUSH, 3.0, direction=(0.0, 1.0)))
+    assert state.axes["ABS_HAT0Y"] == 0
+    alone = Mapper(profile(a=up, **extra)).update(est(G.PUSH, 3.0, direction=(0.0, 1.0)))
+    assert alone.axes["ABS_HAT0Y"] == -1

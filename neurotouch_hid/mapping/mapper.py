@@ -296,7 +296,8 @@ class Mapper:
     if the mapping has one), then shaped (dead zone, saturation, curve, gain, anti-deadzone,
     invert; :func:`~neurotouch_hid.mapping.filters.response`) for sticks, axes, the pointer and
     the wheels, or passed through its :class:`Activator` for button-like outputs. Contributions
-    to one axis add up and clamp; buttons and keys are OR-ed; a stick's user +y (up) becomes a
+    to one axis add up and clamp (a trigger's each from its positive side only); buttons, keys and
+    d-pad directions are OR-ed (opposite directions: the hat centred); a stick's user +y (up) becomes a
     negative evdev y, the pointer's a negative REL_Y, and so does a positive scalar on a y axis
     (:data:`UP_IS_NEGATIVE`). Pointer and wheel velocities become counts
     over the camera time since the last estimate (:class:`RelMotion`).
@@ -421,7 +422,7 @@ class Mapper:
         self._hand_over(estimate, inputs, layer)
         analog = dict.fromkeys(ANALOG_AXES, 0.0)
         velocity = dict.fromkeys(("REL_X", "REL_Y", "REL_WHEEL", "REL_HWHEEL"), 0.0)
-        hats = {"ABS_HAT0X": 0, "ABS_HAT0Y": 0}
+        directions: set[str] = set()  # the d-pad directions pressed (OR-ed, as buttons)
         buttons = dict.fromkeys(BUTTONS, False)
         keys: set[str] = set()
         for name, mapping in self.profile.mappings.items():
@@ -450,6 +451,8 @@ class Mapper:
                 shaped = -shaped if mapping.invert else shaped
                 shaped = -shaped if mapping.output in UP_IS_NEGATIVE else shaped  # user +y (up) -> up
                 if isinstance(mapping, AxisMapping):
+                    if AXES[mapping.output][0] == AXES[mapping.output][2]:  # a trigger: the positive side only
+                        shaped = max(shaped, 0.0)
                     analog[mapping.output] += shaped
                 else:
                     velocity[mapping.output] += shaped * mapping.velocity_scale
@@ -459,14 +462,17 @@ class Mapper:
                     continue
                 for out in mapping.presses:
                     if out in DPAD:
-                        hat, direction = DPAD[out]
-                        hats[hat] += direction
+                        directions.add(out)
                     elif out in buttons:
                         buttons[out] = True
                     else:
                         keys.add(out)
         axes = {name: _to_axis(name, v) for name, v in analog.items()}
-        axes.update({name: max(-1, min(1, v)) for name, v in hats.items()})
+        hats = {"ABS_HAT0X": 0, "ABS_HAT0Y": 0}
+        for out in directions:  # opposite directions together: centred
+            hat, direction = DPAD[out]
+            hats[hat] += direction
+        axes.update(hats)
         rel = {name: self._pointer[name].step(velocity[name], t_us) for name in ("REL_X", "REL_Y")}
         for name, wheel in self._wheels.items():
             rel[name + "_HI_RES"], rel[name] = wheel.step(velocity[name], t_us)
