@@ -220,6 +220,52 @@ def test_twist_scrolls_in_hi_res_units_and_whole_detents():
     assert sum(s.rel.get("REL_WHEEL", 0) for s in states) == -2
 
 
+def test_short_twists_add_up_to_whole_detents_as_the_kernel_counts_them():
+    """Four counter-clockwise twists of 0.6-0.7 detent each, the gel resting in between: 324 hi-res
+    units and the 2 detents a program reading only REL_WHEEL scrolls (the kernel's hid-input keeps
+    the remainder between turns the same way); back by half a detent after 1.5: no detent down."""
+    m = {"input": "twist", "output": "REL_WHEEL", "deadzone_mm": 0.0, "saturation_mm": 4.0, "speed": 10.0}
+    mapper = Mapper(profile(m=m))
+    hi, detents, t = 0, 0, 0
+    for _ in range(4):
+        for k in range(7):  # 70 ms at 10 detents/s, 84 hi-res units (60 ms, 72, the very first)
+            state = mapper.update(est(G.TWIST_CCW, 4.0, t + k * 10 * MS))
+            hi += state.rel.get("REL_WHEEL_HI_RES", 0)
+            detents += state.rel.get("REL_WHEEL", 0)
+        for k in range(7, 30):
+            state = mapper.update(est(G.NONE, 0.0, t + k * 10 * MS))
+            assert not state.rel
+        t += 300 * MS
+    assert hi == 72 + 3 * 84 and detents == 2 == hi // HI_RES_PER_DETENT
+    back = Mapper(profile(m=m))
+    states = [back.update(est(G.TWIST_CCW, 4.0, k * 10 * MS)) for k in range(16)]  # 180 units: 1 detent
+    states += [back.update(est(G.TWIST_CW, 4.0, (16 + k) * 10 * MS)) for k in range(6)]  # 60 back (50 counted)
+    assert sum(s.rel.get("REL_WHEEL", 0) for s in states) == 1
+
+
+def test_profile_test_counts_a_wheel_that_scrolled_less_than_a_detent_as_reached():
+    """The summary of ``profile test``: a twist of half a detent moved the hi-res wheel (what
+    desktops scroll by), so the wheel is reached, its hi-res units named."""
+    from neurotouch_hid.mapping.replay import reach, replay
+
+    m = {"input": "twist", "output": "REL_WHEEL", "deadzone_mm": 0.0, "saturation_mm": 4.0, "speed": 10.0}
+    states = replay(profile(m=m), [est(G.TWIST_CCW, 4.0, k * 10 * MS) for k in range(6)])
+    (wheel,) = reach(profile(m=m), states)
+    assert wheel.reached and wheel.detail == "REL_WHEEL 0 counts, REL_WHEEL_HI_RES 60 counts"
+
+
+def test_tune_sets_a_triggers_saturation_from_the_side_the_trigger_takes():
+    """pinch_zoom on RT (zoom pulls it, pinch does nothing): a user's zooms of 2 mm and pinches of
+    9 mm give a saturation of 2 mm, not 9 (the zoom would then pull RT to a fifth)."""
+    from neurotouch_hid.mapping.replay import tuned_saturations
+
+    rt = {"input": "pinch_zoom", "output": "ABS_RZ", "deadzone_mm": 0.5}
+    gestures = [est(G.ZOOM, 2.0, k * 10 * MS) for k in range(20)] + [est(G.PINCH, 9.0, k * 10 * MS) for k in range(20)]
+    assert tuned_saturations(profile(rt=rt), gestures)["rt"] == (8.0, 2.0)
+    inverted = tuned_saturations(profile(rt={**rt, "invert": True}), gestures)["rt"]
+    assert inverted == (8.0, 9.0)
+
+
 # --- layers -------------------------------------------------------------------------------------
 LAYERED = dict(
     layers={"nav": {"input": "pinch", "mode": "hold", "press_mm": 2.0, "release_mm": 1.0}},

@@ -271,21 +271,24 @@ class RelMotion:
 
 
 class _Wheel:
-    """One wheel: hi-res counts (1/120 detent) and the legacy detents they cross."""
+    """One wheel: hi-res counts (1/120 detent) and the legacy detents they make, counted as the
+    kernel's HID input driver counts them for a hi-res wheel (``hidinput_handle_scroll`` in
+    drivers/hid/hid-input.c): the hi-res units accumulate, each whole 120 of them (towards zero)
+    is a detent, the remainder is kept, through a pause and a turn back alike."""
 
     def __init__(self) -> None:
         self.motion = RelMotion()
-        self._hi_res = 0  # hi-res units since the wheel started turning
+        self._accumulated = 0  # hi-res units not yet reported as a detent (|x| < 120)
 
     def step(self, detents_per_s: float, t_us: int) -> tuple[int, int]:
         """(hi-res units, whole detents) moved since the previous step."""
         hi = self.motion.step(detents_per_s * HI_RES_PER_DETENT, t_us)
-        if detents_per_s == 0:
-            self._hi_res = 0
+        if hi == 0:
             return 0, 0
-        before = self._hi_res
-        self._hi_res += hi
-        return hi, int(self._hi_res / HI_RES_PER_DETENT) - int(before / HI_RES_PER_DETENT)
+        self._accumulated += hi
+        detents = int(self._accumulated / HI_RES_PER_DETENT)  # towards zero, as C's division
+        self._accumulated -= detents * HI_RES_PER_DETENT
+        return hi, detents
 
 
 class Mapper:
@@ -486,14 +489,14 @@ class Mapper:
         """Whether this resting estimate's update left the mapper at its fixed point: another
         resting estimate (every input 0) would change nothing but the clocks. So: no motion, no
         activator held or suspended (a held one may be released, a long press or turbo moves
-        with time), every filter called at exactly zero, the wheels' counts at zero, the type
-        forgotten."""
+        with time), every filter called at exactly zero, the type forgotten (a wheel's
+        remainder short of a detent waits as it is)."""
         if state.rel or self._kind is not None:
             return False
         activators = [*self._activators.values(), *self._switches.values()]
         if any(a.held or a._suspended for a in activators):
             return False
-        if any(w._hi_res or w.motion._rest for w in self._wheels.values()):
+        if any(w.motion._rest for w in self._wheels.values()):  # the detents' remainder waits: no clock
             return False
         return all(f is None or f.at_zero() for f in self._called_filters())
 

@@ -19,6 +19,7 @@ from neurotouch_hid.mapping.profile import (
     DIGITAL_OUTPUTS,
     DPAD,
     STICKS,
+    AxisMapping,
     ButtonMapping,
     PointerMapping,
     Profile,
@@ -150,7 +151,12 @@ def reach(profile: Profile, states: list[ControllerState]) -> list[OutputReach]:
                 before = now
             reached, detail = count > 0, f"{count} press{'es' * (count != 1)}"
         elif isinstance(m, (PointerMapping, RelMapping)):
-            axes = ("REL_X", "REL_Y") if isinstance(m, PointerMapping) else (m.output,)
+            if isinstance(m, PointerMapping):
+                axes: tuple[str, ...] = ("REL_X", "REL_Y")
+            elif m.output in ("REL_WHEEL", "REL_HWHEEL"):  # detents, and the hi-res units desktops scroll by
+                axes = (m.output, m.output + "_HI_RES")
+            else:
+                axes = (m.output,)
             moved = {a: sum(abs(s.rel.get(a, 0)) for s in states) for a in axes}
             reached, detail = any(moved.values()), ", ".join(f"{a} {v} counts" for a, v in moved.items())
         else:
@@ -213,8 +219,10 @@ def tuned_saturations(
     """Saturations that give full deflection at what this user reaches.
 
     For every analogue mapping (stick or axis) whose input is an intensity (not ``contact``), the
-    ``percentile`` of the input's magnitude (mm) over the estimates where it is non-zero. A value
-    not above the mapping's dead zone is raised to 1.25 x the dead zone (the stick must move).
+    ``percentile`` of the input's magnitude (mm) over the estimates where it is non-zero; for a
+    trigger, of the side it takes (the input's positive side, its negative one with ``invert``).
+    A value not above the mapping's dead zone is raised to 1.25 x the dead zone (the stick must
+    move).
 
     Returns:
         mapping name -> (current saturation mm, suggested saturation mm), only for mappings the
@@ -229,7 +237,10 @@ def tuned_saturations(
     for estimate in estimates:
         inputs = gesture_inputs(estimate)
         for name, m in analog.items():
-            magnitude = float(np.linalg.norm(inputs[m.input]))
+            if isinstance(m, AxisMapping) and AXES[m.output][0] == AXES[m.output][2]:  # a trigger
+                magnitude = max(-float(inputs[m.input]) if m.invert else float(inputs[m.input]), 0.0)
+            else:
+                magnitude = float(np.linalg.norm(inputs[m.input]))
             if magnitude > 0:
                 samples.setdefault(name, []).append(magnitude)
     result = {}
