@@ -183,3 +183,53 @@ def test_keyboard_close_releases_held_keys_once_and_destroys_even_if_release_fai
     keyboard.close()  # idempotent
     keyboard.write(held)  # a write after close is ignored
     assert fake.closed == 1
+
+
+class _SharedLog:
+    """uinput devices that write into one log, as a reader of both devices sees the order."""
+
+    def __init__(self) -> None:
+        self.events: list[tuple[str, int, int]] = []
+
+    def make(self, what, caps, *args, **kwargs):
+        log = self
+
+        class _Device:
+            device = None
+
+            def write(self, etype, code, value):
+                log.events.append((what, code, value))
+
+            def syn(self):
+                pass
+
+            def close(self):
+                pass
+
+        return _Device()
+
+
+@pytest.mark.parametrize("stop", ["release", "neutralise", "close"])
+def test_a_ctrl_click_chord_lets_the_mouse_button_go_before_ctrl(monkeypatch, stop):
+    """KEY_LEFTCTRL+BTN_LEFT across the keyboard and the mouse: Ctrl down before the button, and
+    the button up before Ctrl (a Ctrl-click, not a click, whatever lets it go)."""
+    from evdev import ecodes
+
+    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.mapping.profile import Profile
+    from neurotouch_hid.output import desktop
+
+    log = _SharedLog()
+    monkeypatch.setattr(desktop, "create_uinput", log.make)
+    chord = Profile.model_validate({"mappings": {"c": {"input": "zoom", "output": "KEY_LEFTCTRL+BTN_LEFT"}}})
+    outputs = desktop.UinputOutputs(None, chord)
+    outputs.write(ControllerState(keys=frozenset({"KEY_LEFTCTRL", "BTN_LEFT"})))
+    stops = {"release": lambda: outputs.write(ControllerState()), "neutralise": outputs.neutralise}
+    stops.get(stop, outputs.close)()
+    ctrl, left = ("keyboard", ecodes.KEY_LEFTCTRL), ("mouse", ecodes.BTN_LEFT)
+    assert [(what, code, value) for what, code, value in log.events if (what, code) in (ctrl, left)] == [
+        (*ctrl, 1),
+        (*left, 1),
+        (*left, 0),
+        (*ctrl, 0),
+    ]

@@ -169,6 +169,10 @@ class VirtualKeyboard(_UinputDevice):
     def write(self, state: ControllerState) -> None:
         self._emit(state.keys & self.offers, {})
 
+    def lets_go(self, state: ControllerState) -> bool:
+        """Whether writing ``state`` releases a key it holds now."""
+        return bool(self._down - (state.keys & self.offers))
+
 
 class VirtualMouse(_UinputDevice):
     """A uinput mouse driving ``outputs`` (mouse buttons, REL_* names; :func:`mouse_capabilities`);
@@ -236,7 +240,15 @@ class UinputOutputs:
 
     @property
     def devices(self) -> list:
+        """The devices in the order a press is written: the keyboard first (a modifier is down
+        before the mouse button of a chord such as Ctrl+click), then the mouse, then the pad."""
         return [d for d in (self.keyboard, self.mouse, self.pad) if d is not None]
+
+    @property
+    def _releasing(self) -> list:
+        """The devices in the order a release is written: the mouse before the keyboard (a
+        chord's modifier up last), the pad last (a game sees its release even if another fails)."""
+        return [d for d in (self.mouse, self.keyboard, self.pad) if d is not None]
 
     def prepare(self, profile: Profile) -> None:
         """Make the pad, keyboard and/or mouse ``profile`` uses: the pad once a profile drives it
@@ -269,16 +281,17 @@ class UinputOutputs:
             self.write(record.state)
 
     def write(self, state: ControllerState) -> None:
-        for device in self.devices:
+        releasing = self.keyboard is not None and self.keyboard.lets_go(state)
+        for device in self._releasing if releasing else self.devices:
             device.write(state)
 
     def neutralise(self) -> None:
-        for device in self.devices:
+        for device in self._releasing:
             device.neutralise()
 
     def close(self) -> None:
         errors = []
-        for device in self.devices:
+        for device in self._releasing:
             try:
                 device.close()
             except Exception as exc:  # the next device must still be released
