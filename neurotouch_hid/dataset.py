@@ -17,6 +17,7 @@ import csv
 import errno
 import io
 import json
+import logging
 import math
 import os
 import shutil
@@ -34,6 +35,8 @@ from neurotouch_hid.errors import DatasetError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.limits import MAX_SENSOR_PX, printable, read_outside_lines, read_outside_text, short
 from neurotouch_hid.sensor import user_sensor_path
+
+log = logging.getLogger(__name__)
 
 #: Largest predictions file read (bytes; read line by line): an hour of 10 ms windows is ~80 MB.
 MAX_PREDICTIONS_BYTES = 1 << 30
@@ -642,10 +645,23 @@ def open_predictions(path: str | Path) -> Iterator[GestureEstimate]:
     nothing kept), then its estimates read again line by line as they are asked for: a replay
     refuses a bad file before it starts and holds one line at a time.
 
+    A push window with an intensity and no ``translation_mm`` (optional in docs/dataset.md) is
+    said once, as a warning: its direction, and so the push inputs of a profile, are unknown.
+
     Raises:
         DatasetError: the file breaks a rule (:func:`iter_predictions`); when it is changed
             between the check and the replay, at the changed line during the replay.
     """
-    for _ in iter_predictions(path):
-        pass
+    blind = 0  # push windows with an intensity and no direction
+    for estimate in iter_predictions(path):
+        if estimate.gesture is GestureType.PUSH and estimate.intensity_mm > 0 and not np.any(estimate.translation_mm):
+            blind += 1
+    if blind:
+        log.warning(
+            "%s: %d push windows give no translation_mm (the field is optional): their direction is unknown, "
+            "so a profile's push, push_x, push_y and push_up/down/left/right read 0 there (track and "
+            "run --output jsonl write it)",
+            path,
+            blind,
+        )
     return iter_predictions(path)

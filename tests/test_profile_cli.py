@@ -217,6 +217,18 @@ def test_test_prints_a_timeline_and_plots(cli, pushes, tmp_path):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_test_says_when_the_predictions_give_no_push_direction(cli, pushes, tmp_path):
+    """Predictions written without the optional translation_mm (another tool's): the pushes have no
+    direction, so the stick stays centred; the replay says why on stderr, the JSON stays whole."""
+    bare = tmp_path / "bare.jsonl"
+    lines = [json.loads(line) for line in pushes.read_text().splitlines()]
+    bare.write_text("".join(json.dumps({k: v for k, v in d.items() if k != "translation_mm"}) + "\n" for d in lines))
+    result = run_cli("profile", "test", "default", "--source", str(bare), "--json")
+    assert summary(result)["max_deflection"]["ABS_Y"] == 0
+    assert f"{bare}: 100 push windows give no translation_mm" in result.stderr
+    assert "translation_mm" not in run_cli("profile", "test", "default", "--source", str(pushes), "--json").stderr
+
+
 def test_tune_sets_saturation_from_what_the_user_reaches(cli, pushes):
     result = cli("tune", "default", "--from", str(pushes))
     assert result.returncode == 0, result.stderr
