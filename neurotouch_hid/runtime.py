@@ -762,13 +762,16 @@ class Runtime:
         self._handle(entry)
 
     def _source_status(self, status: SourceStatus) -> None:
-        """Source thread: the live camera was lost (neutralise now, drop the stale queue) or is
-        back (the worker restarts the pipeline before its data); tell the user."""
+        """Source thread: the live camera was lost (neutralise now, drop the stale queue; merged
+        devices go on driving the pad) or is back (the worker restarts the pipeline before its
+        data); tell the user."""
         if status.kind == StatusKind.LOST:
             with self._lock:
                 self._paused = True
                 self._neutralise()
                 self._forget_state()
+                if self._merge is not None:  # what a merged device holds goes on over a gel at rest
+                    self._publish_merged(self._merge)
             self._items.clear()
             self._held.clear()
             self.stats.camera_losses += 1
@@ -974,23 +977,50 @@ class Runtime:
     def _on_input(self) -> None:
         """A merged device's controls changed, or a device came or went (the merge's thread):
         publish the merged state of the gel's last one at once, when it changed (the last window's
-        record with that state; the gel's relative motion is not repeated)."""
+        record with that state; the gel's relative motion is not repeated). With no window of the
+        gel to go on (no camera yet, the camera lost, a profile just switched to), over a gel at
+        rest: the merged devices are grabbed, so they must drive the pad meanwhile."""
         with self._lock:
-            merge, record = self._merge, self._last_record
+            merge = self._merge
             if merge is None:
                 return
             self.stats.merged, self.stats.missing = merge.status()
-            if self._stop.is_set() or self._paused or self._suspended or record is None:
-                return
-            state = merge.merge(dataclasses.replace(self._last_gel, rel={}))
-            last = self._last_state
-            if state.axes == last.axes and state.buttons == last.buttons and state.keys == last.keys:
-                return
-            record = record._replace(state=state, state_changed=True, gesture_changed=False)
-            for subscriber in self._subscribers:
-                subscriber.publish(record)
-            self.stats.states_written += 1
-            self._last_state = state
+            self._publish_merged(merge)
+
+    def _publish_merged(self, merge) -> None:
+        """Publish ``merge``'s devices over the gel's last state, if that changes what was written
+        (caller holds ``self._lock``; see :meth:`_on_input`)."""
+        if self._stop.is_set() or self._suspended:
+            return
+        state = merge.merge(dataclasses.replace(self._last_gel, rel={}))
+        last = self._last_state
+        if state.axes == last.axes and state.buttons == last.buttons and state.keys == last.keys:
+            return
+        record = self._last_record if self._last_record is not None else self._record_at_rest()
+        record = record._replace(state=state, state_changed=True, gesture_changed=False)
+        for subscriber in self._subscribers:
+            subscriber.publish(record)
+        self.stats.states_written += 1
+        self._last_state = state
+
+    def _record_at_rest(self) -> WindowRecord:
+        """A record for a gel with no window to go on: a resting estimate at the last state's time
+        (us, camera clock), the gel's state neutral (caller holds ``self._lock``)."""
+        t_us = self._last_state.t_us
+        return WindowRecord(
+            estimate=GestureEstimate(t_us=t_us),
+            state=ControllerState.neutral(t_us),
+            state_changed=False,
+            gesture_changed=False,
+            profile=self.profile,
+            profile_name=self.profile_name,
+            sensor=self._sensor,
+            markers=None,
+            performed=None,
+            labelled=self._labelled,
+            stats=self.stats,
+            compile=self._compiling(),
+        )
 
     def _switch_merge(self, profile: Profile) -> None:
         """Release the merged devices of the profile in use, grab those of ``profile`` (outside

@@ -530,6 +530,39 @@ def test_a_profile_switch_releases_the_old_merge_and_starts_the_new_ones():
     assert made[2].events == ["start", "stop"]
 
 
+@pytest.mark.parametrize("camera", ["waiting", "lost"])
+def test_the_helpers_pad_drives_the_pad_while_the_gels_camera_is_missing(camera):
+    """No camera yet, or the camera lost after a window: the helper's pad is merged (grabbed, so
+    the game does not see it apart) and its press and stick reach the pad at once, over a gel at
+    rest; the driver's stop leaves the pad neutral."""
+    from helpers import wait_until
+
+    from neurotouch_hid.sources import SourceStatus, StatusKind
+
+    profile = parse_profile(SHORT_FORM, "p.yaml")
+    merge, out = ScriptedMerge(), Written()
+    gate = threading.Event()
+
+    def source():
+        if camera == "waiting":
+            yield SourceStatus(StatusKind.WAITING, "waiting for a camera")
+        else:
+            yield GestureEstimate(t_us=10_000)
+            yield SourceStatus(StatusKind.LOST, "camera lost")
+        gate.wait(30)
+
+    rt = Runtime(source(), _Replay(), profile, [out], pace=False, merge=merge, live=True)
+    thread = threading.Thread(target=rt.run)
+    thread.start()
+    wait_until(lambda: merge.on_input is not None and (camera == "waiting" or rt.stats.camera_losses == 1), 30)
+    merge.press(Levels(axes={"ABS_X": -32768}, buttons=frozenset({"BTN_SOUTH"})))
+    gate.set()
+    thread.join(30)
+    pressed = [s for s in out.states if s.buttons["BTN_SOUTH"]]
+    assert pressed and pressed[0].axes["ABS_X"] == -32768 and pressed[0].axes["ABS_Y"] == 0
+    assert out.calls[-1] == "neutralise"
+
+
 # --- what the user is told ------------------------------------------------------------------------
 def test_presence_names_what_is_plugged_in_and_what_is_waited_for():
     from neurotouch_hid.inputs.match import presence, presence_line
