@@ -344,6 +344,28 @@ def test_a_stick_with_an_even_count_of_values_rests_centred_on_either_middle_val
     assert device.levels(set(), {ecodes.ABS_RX: resting + (1 if resting == 128 else -1)}).axes["ABS_RX"] != 0
 
 
+def test_a_right_stick_on_abs_z_and_abs_rz_mapped_to_the_right_stick_rests_centred():
+    """A DirectInput-style pad (hid-generic) reports its right stick as ABS_Z / ABS_RZ, 0..255
+    resting at 128: mapped to ABS_RX / ABS_RY it is a stick, centred at rest and full at its
+    ends; passed through to the triggers it stays a trigger (0 at its minimum)."""
+    axes = {ecodes.ABS_Z: (["ABS_Z"], AxisRange(0, 255, 15)), ecodes.ABS_RZ: (["ABS_RZ"], AxisRange(0, 255, 15))}
+    mapped = DeviceMap(_entry("{device: Pad, map: {ABS_Z: ABS_RX, ABS_RZ: ABS_RY}}"), {}, axes)
+    assert mapped.levels(set(), {ecodes.ABS_Z: 128, ecodes.ABS_RZ: 127}).axes == {"ABS_RX": 0, "ABS_RY": 0}
+    assert mapped.levels(set(), {ecodes.ABS_Z: 0, ecodes.ABS_RZ: 255}).axes == {"ABS_RX": -32768, "ABS_RY": 32767}
+    passed = DeviceMap(_entry("{device: Pad}"), {}, axes)
+    assert passed.levels(set(), {ecodes.ABS_Z: 0, ecodes.ABS_RZ: 255}).axes == {"ABS_Z": 0, "ABS_RZ": 255}
+
+
+def test_a_pedal_mapped_to_a_stick_axis_counts_from_its_rest():
+    """A foot pedal (ABS_GAS, resting at its minimum) on ABS_X: at rest the stick is centred,
+    pressed down it is full right."""
+    pedal = DeviceMap(
+        _entry("{device: Pedal, map: {ABS_GAS: ABS_X}}"), {}, {ecodes.ABS_GAS: (["ABS_GAS"], AxisRange(0, 1023))}
+    )
+    assert pedal.levels(set(), {ecodes.ABS_GAS: 0}).axes == {"ABS_X": 0}
+    assert pedal.levels(set(), {ecodes.ABS_GAS: 1023}).axes == {"ABS_X": 32767}
+
+
 def test_a_switch_box_key_presses_what_its_map_says_and_nothing_else():
     box = DeviceMap(
         _entry("{device: Box, map: {KEY_SPACE: BTN_SOUTH, KEY_ENTER: KEY_TAB, KEY_1: dpad_right}}"),

@@ -38,6 +38,10 @@ DPAD_BUTTONS: dict[str, str] = {
 #: Source axes that rest at their minimum (triggers, pedals): read as 0..1 of their range; every
 #: other axis rests at its centre and is read as -1..1.
 ONE_SIDED_AXES = frozenset({"ABS_Z", "ABS_RZ", "ABS_GAS", "ABS_BRAKE", "ABS_THROTTLE", "ABS_RUDDER"})
+#: Of those, the two that are a trigger on one pad (xpad) and the right stick on another (a
+#: DirectInput pad through hid-generic, resting at its middle): one-sided only when they drive a
+#: trigger; mapped to a stick axis (``map: {ABS_Z: ABS_RX, ABS_RZ: ABS_RY}``) they are a stick.
+TRIGGER_OR_STICK_AXES = frozenset({"ABS_Z", "ABS_RZ"})
 _DPAD_HAT = {
     "dpad_left": ("ABS_HAT0X", -1),
     "dpad_right": ("ABS_HAT0X", 1),
@@ -76,15 +80,24 @@ class AxisRange:
     flat: int = 0
 
 
-def _fraction(name: str, value: int, info: AxisRange) -> float:
-    """``value`` of source axis ``name`` as a fraction of its travel: 0..1 for a one-sided axis
-    (:data:`ONE_SIDED_AXES`), -1..1 around the centre otherwise (0 within ``flat``, and at both
+def one_sided(source: str, target: str) -> bool:
+    """Whether source axis ``source`` driving pad axis ``target`` rests at its minimum (a pedal,
+    or a trigger driving a trigger: :data:`ONE_SIDED_AXES`, :data:`TRIGGER_OR_STICK_AXES`)."""
+    if source in TRIGGER_OR_STICK_AXES:
+        lo, _, neutral = AXES[target]
+        return lo == neutral
+    return source in ONE_SIDED_AXES
+
+
+def _fraction(one_side: bool, value: int, info: AxisRange) -> float:
+    """``value`` of a source axis as a fraction of its travel: 0..1 for a one-sided axis
+    (:func:`one_sided`), -1..1 around the centre otherwise (0 within ``flat``, and at both
     middle values of a range with an even count of them: 0..255 rests at 127 or 128)."""
     lo, hi = info.minimum, info.maximum
     if hi <= lo:
         return 0.0
     value = min(max(value, lo), hi)
-    if name in ONE_SIDED_AXES:
+    if one_side:
         return (value - lo) / (hi - lo)
     centre = (lo + hi) / 2
     offset = value - centre
@@ -173,7 +186,7 @@ class DeviceMap:
                 buttons.add(target)
         axes: dict[str, int] = {axis: AXES[axis][2] for _, axis, _ in self.axes.values()}
         for code, (source, axis, info) in self.axes.items():
-            value = _pad_value(axis, _fraction(source, int(abs_values.get(code, info.minimum)), info))
+            value = _pad_value(axis, _fraction(one_sided(source, axis), int(abs_values.get(code, info.minimum)), info))
             neutral = AXES[axis][2]
             if abs(value - neutral) > abs(axes[axis] - neutral):
                 axes[axis] = value
