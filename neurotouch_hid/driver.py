@@ -299,10 +299,17 @@ class RunAssembly:
         :func:`~neurotouch_hid.sources.open.open_source` raises."""
         from neurotouch_hid.warmup import PIPELINE_OF, SIMULATOR, GuardedPipeline, GuardedResting
 
+        live_camera = self.source == SourceKind.DAVIS
+        if live_camera and not self.wait:  # no camera: said now, not after a first run's compile
+            from neurotouch_hid.sources.davis import require_camera_listed
+
+            try:
+                require_camera_listed(self.davis, self.capture)
+            except DeviceError as exc:
+                raise DeviceError(f"{exc}\nor start with --wait to wait for a camera") from None
         warmup = start_warmup(self.source, fast=self.fast, say=self.say, method=self.method)
         if warmup is not None:
             stack.callback(warmup.close)
-        live_camera = self.source == SourceKind.DAVIS
         opened = open_source(
             self.source,
             stack,

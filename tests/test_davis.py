@@ -71,6 +71,33 @@ def test_the_real_library_without_a_camera_gives_the_same_clear_error():
         DavisSource()
 
 
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["run", "--source", "davis", "--output", "jsonl", "--out", "-"],
+        ["calibrate"],
+        ["enrol", "--out", "enrolled"],
+    ],
+)
+def test_no_camera_is_said_before_a_first_runs_compile(monkeypatch, capsys, tmp_path, street, args):
+    """The live camera's commands with no camera plugged in: the error (and what to do) comes at
+    once, not after the first run's compile (about 30 s) and its "compiling" lines."""
+    import dv_processing as dv
+    from helpers import run_main
+
+    from neurotouch_hid import warmup
+
+    world = replay(street, Fault("unplug", 0.0))
+    monkeypatch.setattr(dv.io.camera, "discover", world.discover)
+    compiled = []
+    monkeypatch.setattr(warmup.Warmup, "start", lambda self: compiled.append(self) or self)
+    monkeypatch.setattr(warmup, "compile_before", lambda *a, **k: compiled.append(a))
+    monkeypatch.chdir(tmp_path)
+    done = run_main(monkeypatch, capsys, args)
+    assert done.returncode == 2 and "no DAVIS-346" in done.stderr and "neurotouch-hid devices" in done.stderr
+    assert compiled == [] and "compiling" not in done.stderr and "keep your hands off" not in done.stderr
+
+
 def test_a_camera_of_another_resolution_is_refused(street):
     class SmallCamera(ReplayWorld):
         def open(self, descriptor):

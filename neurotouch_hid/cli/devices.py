@@ -379,6 +379,10 @@ def calibrate(
 
         with RecordingReader(press):
             pass
+    if source == SourceKind.DAVIS:  # no camera: said now, not after a first run's compile
+        from neurotouch_hid.sources.davis import require_camera_listed
+
+        require_camera_listed()
     if source in (SourceKind.DAVIS, SourceKind.SIM) and (check or mirror is None):
         from neurotouch_hid.warmup import compile_before, compile_pipeline  # the guided pushes and the check use it
 

@@ -105,8 +105,10 @@ def _session(plan, source, out, sensor, seed, serial, physics, sim_miss, sim_mis
             geometry = guide.sensor
         else:
             from neurotouch_hid.cli.common import davis_config
+            from neurotouch_hid.sources.davis import require_camera_listed
 
             geometry = SensorGeometry.load(sensor) if sensor is not None else default_sensor()
+            require_camera_listed(davis_config(serial, "4000", 1.0))  # not after a first run's compile
             guide = CameraSource(davis_config(serial, "4000", 1.0))
         compile_before(say_err, simulator=source == "sim")  # a first run: compiled in child processes, said
         GesturePipeline(geometry).compile_kernels()  # before the camera opens: nothing waits for it

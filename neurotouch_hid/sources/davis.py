@@ -156,6 +156,28 @@ def _fix_hint(serial: str | None, problems: str | None = None) -> str:
     return f"{hint}; `neurotouch-hid devices` lists what is plugged in"
 
 
+def require_camera_listed(config: "DavisConfig | None" = None, backend: Any = None) -> None:
+    """Fail now, before a first run's compile (about 30 s), when dv-processing lists no DAVIS-346
+    (with ``config.serial``, that one): only a look at what is plugged in, nothing opened
+    (:class:`DavisSource` opens it later and says what else can be wrong).
+
+    Raises:
+        DeviceError: none listed, with the fix (sources/discovery.py looks at the USB bus).
+    """
+    if backend is None:
+        import dv_processing as dv
+
+        backend = dv.io.camera
+    serial = config.serial if config is not None else None
+    try:
+        found = backend.discover()
+    except DV_ERRORS as exc:
+        raise DeviceError(_fix_hint(serial, f"cannot search for a DAVIS camera ({dv_error_text(str(exc))})")) from None
+    found = [d for d in found if getattr(d.cameraModel, "name", "") in _DAVIS_MODELS]
+    if not any(serial is None or d.serialNumber == serial for d in found):
+        raise DeviceError(_fix_hint(serial))
+
+
 class DavisSource:
     """A live DAVIS-346: events and APS frames as they arrive, through unplugs and stalls.
 
