@@ -497,7 +497,8 @@ class Runtime:
         SIGTERM or Ctrl-C; neutralise every subscriber on every way out.
 
         Returns the :class:`RunStats`. Re-raises the first exception of any stage (after
-        neutralising); a KeyboardInterrupt is re-raised too. SIGTERM returns normally. Installs
+        neutralising); a KeyboardInterrupt is re-raised too, its ``stats`` attribute the run's
+        :class:`RunStats`. SIGTERM returns normally. Installs
         SIGTERM and SIGHUP handlers while running when called from the main thread.
         """
         if self._ran:
@@ -538,7 +539,8 @@ class Runtime:
             finally:
                 self.stop()
                 for t in threads:
-                    t.join(_JOIN_S)
+                    if t.ident is not None:  # a Ctrl-C while they were being started: not all were
+                        t.join(_JOIN_S)
                 self.stats.wall_s = time.perf_counter() - start
                 unfinished = self._compiling()
                 if unfinished is not None:  # it stops with the run: say how far it got
@@ -550,7 +552,9 @@ class Runtime:
         if self._errors:
             raise self._errors[0]
         if interrupted:
-            raise KeyboardInterrupt
+            interrupt = KeyboardInterrupt()
+            interrupt.stats = self.stats  # what the run did, for its summary (how far the compile got)
+            raise interrupt
         return self.stats
 
     @contextlib.contextmanager

@@ -122,3 +122,45 @@ def test_doctor_shows_the_calibration_in_use():
     broken = doctor.check_calibration()
     assert broken.status == doctor.FAIL and "calibrate" in broken.fix
     assert "calibration" in [c.name for c in doctor.run_checks()]
+
+
+def test_ctrl_c_during_a_run_prints_its_summary_before_exit_130(monkeypatch, capsys):
+    """Ctrl-C in a demo whose first compile is not done: the run stops, says how far the compile
+    got (the summary), then exits 130. The interrupt reaches the runtime's main thread as Python
+    delivers SIGINT; the runtime hands its stats on with it."""
+    import _thread
+    import threading
+
+    from helpers import run_main
+
+    from neurotouch_hid.estimate import GestureEstimate
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.runtime import Runtime
+
+    class Replay:
+        def process(self, item):
+            return [item]
+
+        def set_resting(self, result, t_us):
+            pass
+
+        def restart(self):
+            pass
+
+        def markers(self):
+            return None
+
+    def source():
+        yield GestureEstimate(t_us=10_000)
+        _thread.interrupt_main()  # Ctrl-C
+        threading.Event().wait(30)
+
+    def demo(seconds, console, say):
+        runtime = Runtime(source(), Replay(), load_profile("default"), [], pace=False)
+        runtime.stats.interpreted_windows, runtime._compiling = 12, lambda: type("P", (), {"fraction": 0.49})()
+        return runtime.run(seconds)
+
+    monkeypatch.setattr(driver, "run_demo", demo)
+    done = run_main(monkeypatch, capsys, ["demo", "--seconds", "5"])
+    assert done.returncode == 130
+    assert "the run ended with the compile 49 % done" in done.stderr

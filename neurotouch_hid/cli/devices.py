@@ -10,7 +10,7 @@ import contextlib
 import math
 import sys
 from pathlib import Path
-from typing import Optional
+from typing import Iterator, Optional
 
 import typer
 
@@ -93,26 +93,40 @@ def run(
     is unplugged or stalls centres the gamepad at once; the driver reconnects when it is back."""
     from neurotouch_hid.driver import run_driver
 
-    stats = run_driver(
-        source,
-        profile,
-        output,
-        seconds=seconds,
-        fast=fast,
-        out=out,
-        window_us=window_us,
-        sensor=sensor,
-        seed=seed,
-        console=console,
-        wait=wait,
-        davis=davis_config(serial, exposure_us, stall_timeout),
-        say=say_err,
-        max_lag_us=round(max_lag_ms * 1000),
-        method=method,
-        model=chosen_model(model),
-        protocol=protocol,
-    )
+    with _summary_on_interrupt():
+        stats = run_driver(
+            source,
+            profile,
+            output,
+            seconds=seconds,
+            fast=fast,
+            out=out,
+            window_us=window_us,
+            sensor=sensor,
+            seed=seed,
+            console=console,
+            wait=wait,
+            davis=davis_config(serial, exposure_us, stall_timeout),
+            say=say_err,
+            max_lag_us=round(max_lag_ms * 1000),
+            method=method,
+            model=chosen_model(model),
+            protocol=protocol,
+        )
     err_console.print(stats.summary(), highlight=False, soft_wrap=True)
+
+
+@contextlib.contextmanager
+def _summary_on_interrupt() -> Iterator[None]:
+    """A run ended by Ctrl-C still prints its summary (how far a first run's compile got) before
+    the interrupt goes on (exit 130)."""
+    try:
+        yield
+    except KeyboardInterrupt as exc:
+        stats = getattr(exc, "stats", None)
+        if stats is not None:
+            err_console.print(stats.summary(), highlight=False, soft_wrap=True)
+        raise
 
 
 @app.command()
@@ -125,11 +139,8 @@ def demo(
     why); without a terminal, a line at each button or key change and at most one a second otherwise."""
     from neurotouch_hid.driver import run_demo
 
-    stats = run_demo(
-        seconds,
-        console=console,
-        say=say_err,
-    )
+    with _summary_on_interrupt():
+        stats = run_demo(seconds, console=console, say=say_err)
     err_console.print(stats.summary(), highlight=False, soft_wrap=True)
 
 
