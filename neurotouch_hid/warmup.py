@@ -338,12 +338,25 @@ class Warmup:
             same children (in this process where numba cannot cache), with the same progress
             (for sources that cannot wait, and deterministic ``--fast`` replays, which must not
             mix the two forms' rounding).
+        lines: say how far the compile is at each quarter (:meth:`describe`), for a log or a
+            pipe that shows no progress bar (a service's journal); None: when stderr is no
+            terminal.
     """
 
-    def __init__(self, groups: list[KernelGroup], *, say: Callable[[str], None] = print, interpreted: bool = True):
+    def __init__(
+        self,
+        groups: list[KernelGroup],
+        *,
+        say: Callable[[str], None] = print,
+        interpreted: bool = True,
+        lines: bool | None = None,
+    ):
         self._groups = groups
         self._say = say
         self._interpreted = interpreted
+        self._lines = not sys.stderr.isatty() if lines is None else lines
+        self._said_quarter = 0  # the last quarter of the compile said (:meth:`_progressed`)
+        self._said_lock = threading.Lock()
         self._locks = {g.name: threading.Lock() for g in groups}
         self._settled = {g.name: threading.Event() for g in groups}  # ready or failed
         self._kernels: dict[str, dict[str, object]] = {}
@@ -508,6 +521,17 @@ class Warmup:
             f"compiled the {group.name} kernels in {time.monotonic() - self.started_s:.0f} s; cached for next time"
         )
 
+    def _progressed(self) -> None:
+        """A kernel was compiled: with ``lines``, say how far the compile is when it passes 25,
+        50 or 75 % (any child's thread)."""
+        if not self._lines:
+            return
+        with self._said_lock:
+            quarter = int(self.fraction() * 4)
+            if 0 < quarter < 4 and quarter > self._said_quarter:
+                self._said_quarter = quarter
+                self._say(self.describe())
+
     def _child(self, group: KernelGroup) -> None:
         """Thread: run the group's child (a background group's once the others are settled),
         count its progress lines, then switch to its code."""
@@ -533,6 +557,7 @@ class Warmup:
         for line in child.stdout:
             if line.strip() in self._kernels[group.name]:
                 progress.add(line.strip())
+                self._progressed()
         error = child.stderr.read().strip()
         if child.wait() != 0 and self._closing:  # the run ended first: what it cached stays
             return

@@ -457,3 +457,17 @@ def test_released_linking_modules_leave_kernels_working_and_linkable(tmp_path):
         )
         assert out.returncode == 0, out.stderr[-2000:]
         assert out.stdout.strip() == expected
+
+
+@pytest.mark.parametrize("lines", [True, False])
+def test_a_compile_seen_in_a_log_says_how_far_it_is_at_each_quarter(lines):
+    """Without a terminal (a service's journal, a pipe) no progress bar shows: the compile says
+    its progress at 25, 50 and 75 %, once each, whichever child's kernel passes it."""
+    said: list[str] = []
+    run = warmup.Warmup([warmup.TRACKER, warmup.PIPELINE], say=said.append, lines=lines)
+    run.progress = {"tracker": warmup.GroupProgress("tracker", 4), "pipeline": warmup.GroupProgress("pipeline", 8)}
+    for k in range(8):
+        for name in ("tracker", "pipeline") if k < 4 else ("pipeline",):
+            run.progress[name].add(f"kernel{k}")
+            run._progressed()
+    assert [line.split(": ")[1].split(",")[0] for line in said] == (["25%", "50%", "75%"] if lines else [])
