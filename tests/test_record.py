@@ -100,7 +100,8 @@ def test_a_lost_camera_ends_the_recording_but_keeps_the_file_whole(any_street, t
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--source", "sim", "--fast"], "--fast is for --source sim with --seconds"),
+        (["--source", "sim", "--fast"], "--fast needs --seconds: how much of the simulated gel to record"),
+        (["--source", "davis", "--fast", "--seconds", "1"], "--fast is for --source sim (a camera cannot"),
         (["--source", "street"], "expected davis or sim"),
         (["--source", "sim", "--seconds", "-1"], "expected a positive duration"),
     ],

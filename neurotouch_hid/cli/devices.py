@@ -131,7 +131,9 @@ def _summary_on_interrupt() -> Iterator[None]:
 
 @app.command()
 def demo(
-    seconds: Optional[float] = typer.Option(30.0, "--seconds", help="how long to run", callback=duration),
+    seconds: Optional[float] = typer.Option(
+        30.0, "--seconds", help="how long to run (the gesture under way then is finished)", callback=duration
+    ),
 ) -> None:
     """A simulated gel performing every gesture, through the default profile, to the gamepad.
 

@@ -103,8 +103,10 @@ def record(
         raise NeurotouchError(f"--source {source!r}: expected davis or sim (to replay a recording, copy the file)")
     if out.exists() and not force:
         raise NeurotouchError(f"{out} exists: choose another name, or add --force to overwrite it")
-    if fast and (source != SourceKind.SIM or seconds is None):
-        raise NeurotouchError("--fast is for --source sim with --seconds (a camera cannot go faster than time)")
+    if fast and source != SourceKind.SIM:
+        raise NeurotouchError("--fast is for --source sim (a camera cannot go faster than time)")
+    if fast and seconds is None:
+        raise NeurotouchError("--fast needs --seconds: how much of the simulated gel to record")
     with contextlib.ExitStack() as stack:
         if source == SourceKind.DAVIS:
             from neurotouch_hid.sources.davis import DavisSource
