@@ -178,6 +178,7 @@ def test_calibrate_command_writes_sensor_yaml_where_track_finds_it(shifted_datas
     shutil.copy(shifted_dataset / "u0_push.aedat4", recording)
 
     out = tmp_path / "out" / "sensor.yaml"
+    out.parent.mkdir()  # an --out folder is not made (a typo in it is refused); your config folder is
     done = run_cli(
         "calibrate", "--source", str(recording), "--out", str(out), "--no-mirror", "--rotation", "30", columns=200
     )

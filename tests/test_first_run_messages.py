@@ -164,3 +164,14 @@ def test_ctrl_c_during_a_run_prints_its_summary_before_exit_130(monkeypatch, cap
     done = run_main(monkeypatch, capsys, ["demo", "--seconds", "5"])
     assert done.returncode == 130
     assert "the run ended with the compile 49 % done" in done.stderr
+
+
+def test_calibrate_into_a_folder_that_does_not_exist_is_refused_before_the_session(tmp_path):
+    """A typo in --out's folder: said at once (before the compile and the session), nothing made;
+    the default, your config folder, is made on the first calibration."""
+    from helpers import run_cli
+
+    out = tmp_path / "typo" / "sensor.yaml"
+    done = run_cli("calibrate", "--source", "sim", "--out", str(out), timeout=60)
+    assert done.returncode == 2 and f"cannot write in {out.parent}: no such folder" in done.stderr, done.stderr
+    assert not out.parent.exists() and "compiling" not in done.stderr

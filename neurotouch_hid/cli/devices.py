@@ -289,8 +289,13 @@ def _sensor_file_replaceable(path: Path, inputs) -> None:
     from neurotouch_hid.atomic import check_output
     from neurotouch_hid.errors import SensorError
     from neurotouch_hid.limits import MAX_YAML_BYTES, YamlError, load_yaml, printable, read_outside_text
+    from neurotouch_hid.sensor import user_sensor_path
 
     check_output(path, inputs, what="sensor file")
+    if not path.parent.is_dir() and path != user_sensor_path():  # a typo in --out: said before the session
+        raise NeurotouchError(
+            f"{printable(path, 200)}: cannot write in {printable(path.parent, 200)}: no such folder (create it first)"
+        )
     if not path.exists():
         return
     try:
@@ -493,7 +498,8 @@ def calibrate(
             say("nothing written")
             return
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        if path == user_sensor_path():  # your config folder, made on the first calibration
+            path.parent.mkdir(parents=True, exist_ok=True)
         geometry.save(path)
     except OSError as exc:
         raise SensorError(f"{path}: cannot write the sensor file: {exc.strerror}") from None
