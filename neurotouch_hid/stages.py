@@ -163,6 +163,9 @@ class Feedback:
         duration_ms: how long the rumble lasts (None: until the next one).
         led: the player LED pattern as the protocol numbers it (xpad's 0..15), for ``"led"``.
         source: the target that received it (its ``what``), for the user's log line.
+        effect: the game's effect id on an evdev pad (the EV_FF code it plays and stops it with;
+            several may play at once, Documentation/input/ff.rst); None from a target whose rumble
+            is one state (a USB host's output report), each request replacing the last.
     """
 
     kind: str
@@ -171,6 +174,7 @@ class Feedback:
     duration_ms: int | None = None
     led: int | None = None
     source: str = ""
+    effect: int | None = None
 
 
 class Target(Protocol):

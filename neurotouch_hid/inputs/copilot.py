@@ -4,7 +4,8 @@
 (:mod:`neurotouch_hid.inputs.match`, :class:`~neurotouch_hid.inputs.device.MergedInput`) and starts
 one thread. The thread sleeps in ``select`` on the merged devices' nodes, an inotify descriptor
 watching ``/dev/input`` (and its ``by-id``/``by-path`` folders) and a wake-up pipe: nothing runs
-while nobody touches a merged device and no device comes or goes (no polling). When a merged
+while nobody touches a merged device and no device comes or goes (no polling), save the two
+time-outs below, each only while it is needed. When a merged
 device's controls change (at its SYN_REPORT) the thread calls ``on_input``; the runtime then
 publishes :meth:`Copilot.merge` of the gel's last state at once.
 
@@ -12,8 +13,17 @@ Hot-plug: a device that goes away (its read fails with ENODEV) is closed and its
 neutral at once (``on_input`` is called, so the pad lets go of what it held); a device named but
 missing, at start or since, is waited for: each new node under ``/dev/input`` (inotify IN_CREATE,
 and IN_ATTRIB when udev sets its permissions) is matched again, so a device plugged back in, or a
-new one with the same name, rejoins. :meth:`Copilot.stop` releases every grab and closes
-everything; the merged controls are neutral from then on.
+new one with the same name, rejoins. After a device goes away the devices already there are
+matched again at once (another device of the same name is taken). A device another program grabbed
+(EVIOCGRAB fails with EBUSY) is tried again every :data:`BUSY_RETRY_S` while it is: that program
+letting go makes no inotify event. :meth:`Copilot.stop` releases every grab and closes everything;
+the merged controls are neutral from then on.
+
+Rumble: a game may play several effects at once on the gel's pad. Each playing one is kept (by the
+effect id the sender gives, its end time from its duration); the merged pads play the strongest of
+them (each motor's magnitude, the largest among them), uploaded again when that changes, as an
+effect changes it or ends (the thread wakes at the next end while one has an end), and stopped
+when none plays.
 
 Library: inotify_simple (inotify(7)); python-evdev for the devices.
 """
@@ -26,6 +36,7 @@ import logging
 import os
 import select
 import threading
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Sequence
 
@@ -40,6 +51,14 @@ if TYPE_CHECKING:
     from neurotouch_hid.stages import Feedback
 
 log = logging.getLogger(__name__)
+
+#: A device another program grabbed (EBUSY) is tried again this often (s) while it is: letting go of
+#: a grab makes no inotify event, and 1.5 s is a short wait for a user who just quit that program
+#: while an open-and-grab attempt (two syscalls) that often costs nothing. No time-out otherwise.
+BUSY_RETRY_S = 1.5
+
+#: (strong, weak magnitudes 0..1, end on time.monotonic() or None: until stopped) of a playing effect.
+_Effect = tuple[float, float, float | None]
 
 
 class Copilot:
@@ -80,6 +99,11 @@ class Copilot:
         self._on_input: Callable[[], None] = lambda: None
         self._hider = hider
         self._unhidden = unhidden
+        self._busy: set[str] = set()  # nodes another program holds (EBUSY at the last scan)
+        self._retry_at = 0.0  # when to try them again (time.monotonic())
+        self._rumble_lock = threading.Lock()
+        self._effects: dict[int | None, _Effect] = {}  # the effects playing, by the sender's id
+        self._rumbling: _Effect | None = None  # what the merged pads were given last
 
     # --- the Merge seam ------------------------------------------------------------------------
     def start(self, on_input: Callable[[], None]) -> None:
@@ -104,15 +128,31 @@ class Copilot:
         return merge_state(gel, levels) if levels else gel
 
     def feedback(self, request: Feedback) -> None:
-        """A game's rumble on the pad, played on every merged device that can rumble (a failure
-        is logged, never raised: the game's request was answered already)."""
-        with self._lock:
-            targets = [d for d in self._open if d is not None and d.can_rumble]
-        for device in targets:
-            try:
-                device.rumble(request)
-            except OSError as exc:
-                log.warning("could not rumble %s: %s", device.spec.device, exc)
+        """A game's rumble on the pad, played on every merged device that can rumble.
+
+        Args:
+            request: a ``"rumble"`` plays its ``effect`` (the game's effect id on the pad,
+                several may play at once; None: the sender's requests are one effect, each
+                replacing the last) with its magnitudes (0..1) for its ``duration_ms`` (ms; None
+                or 0: until it is stopped); magnitudes 0 stop it; any other kind is ignored.
+
+        The merged devices play the strongest of the effects playing (:meth:`_update_rumble`).
+        A failure is logged, never raised: the game's request was answered already.
+        """
+        if request.kind != "rumble":
+            return
+        now, effect = time.monotonic(), request.effect
+        with self._rumble_lock:
+            first = self._next_effect_end()
+            if request.strong <= 0 and request.weak <= 0:
+                self._effects.pop(effect, None)
+            else:
+                end = now + request.duration_ms / 1000 if request.duration_ms else None
+                self._effects[effect] = (min(request.strong, 1.0), min(request.weak, 1.0), end)
+            self._update_rumble(now)
+            sooner = self._next_effect_end()
+        if sooner is not None and (first is None or sooner < first):
+            self._nudge()  # the thread sleeps past this effect's end: it wakes and sleeps again until then
 
     def stop(self) -> None:
         """Stop the thread, release every grab, close every node; idempotent."""
@@ -126,8 +166,14 @@ class Copilot:
         with self._lock:
             for i, device in enumerate(self._open):
                 if device is not None:
-                    self._let_go(device)
                     self._open[i] = None
+                    try:
+                        self._let_go(device)
+                    except Exception:  # the other devices are let go all the same
+                        log.exception("could not let %s go", device.spec.device)
+        with self._rumble_lock:
+            self._effects.clear()
+            self._rumbling = None
         if self._hider is not None:
             self._hider.restore_all()
         if self._inotify is not None:
@@ -158,22 +204,25 @@ class Copilot:
         except OSError:
             pass  # by-id/ appears with the first device that has one: watched from then on
 
-    def _scan(self) -> bool:
-        """Open and grab each missing device that is there now; returns whether any joined."""
+    def _scan(self, skip: frozenset[str] = frozenset()) -> bool:
+        """Open and grab each missing device that is there now (a node of ``skip`` is not tried:
+        a device that just went away, whose node udev has not removed yet); returns whether any
+        joined. Of several nodes matching one entry the first that opens is taken. The nodes
+        another program holds (EBUSY) are remembered, to be tried again."""
         with self._lock:
             missing = [i for i, d in enumerate(self._open) if d is None]
-            if not missing:
-                return False
             taken = {d.info.path for d in self._open if d is not None}
+        busy: set[str] = set()
         joined = False
-        infos = [info for info in input_devices(self._input_dir, self._sysfs) if info.path not in taken]
+        there = input_devices(self._input_dir, self._sysfs) if missing else []
+        infos = [info for info in there if info.path not in taken and info.path not in skip]
         for i in missing:
             spec = self._specs[i]
-            info = next((info for info in infos if matches(spec.device, info)), None)
-            if info is None:
-                continue
-            device = self._open_one(spec, info)
-            if device is None:
+            for info in [info for info in infos if matches(spec.device, info)]:
+                device = self._open_one(spec, info, busy)
+                if device is not None:
+                    break
+            else:
                 continue
             infos.remove(info)
             with self._lock:
@@ -184,13 +233,22 @@ class Copilot:
                 self._hider.hide(info.path)
             else:
                 self._unhidden(info)
+        self._busy = busy
+        if busy:
+            self._retry_at = time.monotonic() + BUSY_RETRY_S
+        if joined:
+            with self._rumble_lock:
+                self._rumbling = None  # a device that joined is given the rumble playing now, if any
+                self._update_rumble(time.monotonic())
         return joined
 
-    def _open_one(self, spec: CopilotDevice, info: InputInfo) -> MergedInput | None:
+    def _open_one(self, spec: CopilotDevice, info: InputInfo, busy: set[str]) -> MergedInput | None:
         try:
             device = MergedInput(spec, info)
         except OSError as exc:
             reason = exc.strerror or str(exc)
+            if exc.errno == errno.EBUSY:
+                busy.add(info.path)
             if self._failed.get(info.path) != reason:
                 self._failed[info.path] = reason
                 hint = " (another program grabbed it)" if exc.errno == errno.EBUSY else ""
@@ -219,12 +277,15 @@ class Copilot:
             with self._lock:
                 opened = {d.fd: (i, d) for i, d in enumerate(self._open) if d is not None}
             try:
-                ready, _, _ = select.select([wake, notify, *opened], [], [])
+                ready, _, _ = select.select([wake, notify, *opened], [], [], self._timeout())
             except (OSError, ValueError):  # a node closed under us: look again
                 continue
             if self._stopping.is_set():
                 break
-            changed = False
+            if wake in ready:
+                with contextlib.suppress(OSError):
+                    os.read(wake, 512)
+            changed = scanned = False
             if notify in ready:
                 events = list(self._inotify.read(timeout=0))
                 for event in events:
@@ -235,23 +296,88 @@ class Copilot:
                     self._hider.rehide()  # a hidden node made again: games still list one pad
                 if events:
                     changed |= self._scan()
+                    scanned = True
+            gone: set[str] = set()
             for fd in ready:
                 if fd in opened:
-                    changed |= self._read(*opened[fd])
+                    changed |= self._read(*opened[fd], gone)
+            if gone:  # another device of the same name may be there already: taken at once
+                changed |= self._scan(frozenset(gone))
+            elif self._busy and not scanned and time.monotonic() >= self._retry_at:
+                changed |= self._scan()
+            with self._rumble_lock:
+                if self._effects:
+                    self._update_rumble(time.monotonic())  # an effect may have ended
             if changed and not self._stopping.is_set():
                 self._on_input()
 
-    def _read(self, index: int, device: MergedInput) -> bool:
+    def _timeout(self) -> float | None:
+        """How long the thread may sleep (s): None (until a node or inotify wakes it) unless a
+        device is busy (:data:`BUSY_RETRY_S`) or a playing effect ends (then until it does)."""
+        with self._rumble_lock:
+            due = [end for end in (self._next_effect_end(),) if end is not None]
+        if self._busy:
+            due.append(self._retry_at)
+        return max(min(due) - time.monotonic(), 0.0) if due else None
+
+    def _read(self, index: int, device: MergedInput, gone: set[str]) -> bool:
+        """Read ``device``; one that fails is let go (its node added to ``gone``)."""
         try:
             return device.read()
         except OSError as exc:
-            gone = exc.errno in GONE_ERRNOS
             with self._lock:
                 self._open[index] = None
             self._let_go(device)
-            why = "went away" if gone else f"failed ({exc.strerror or exc})"
+            gone.add(device.info.path)
+            why = "went away" if exc.errno in GONE_ERRNOS else f"failed ({exc.strerror or exc})"
             self._say(f"{device.spec.device} {why}: its controls are released; waiting for it to come back")
             return True
+
+    # --- rumble ------------------------------------------------------------------------------------
+    def _next_effect_end(self) -> float | None:
+        """The soonest end of a playing effect (time.monotonic()), None if none has an end."""
+        ends = [end for _, _, end in self._effects.values() if end is not None]
+        return min(ends) if ends else None
+
+    def _update_rumble(self, now: float) -> None:
+        """The effects that ended are dropped; when the strongest of those left changed, the
+        merged devices that can rumble are given it (:meth:`~neurotouch_hid.inputs.device.
+        MergedInput.rumble`): each motor's largest magnitude, until the last of them ends (or
+        until stopped when one plays until stopped); a stop when none plays. Called with
+        ``_rumble_lock`` held. A device's failure is logged, never raised."""
+        from neurotouch_hid.stages import Feedback
+
+        self._effects = {k: e for k, e in self._effects.items() if e[2] is None or e[2] > now}
+        playing: _Effect | None = None
+        if self._effects:
+            ends = [end for _, _, end in self._effects.values()]
+            playing = (
+                max(strong for strong, _, _ in self._effects.values()),
+                max(weak for _, weak, _ in self._effects.values()),
+                None if None in ends else max(ends),
+            )
+        if playing == self._rumbling:
+            return
+        self._rumbling = playing
+        if playing is None:
+            request = Feedback("rumble", source="copilot")
+        else:
+            strong, weak, end = playing
+            duration = None if end is None else max(round((end - now) * 1000), 1)
+            request = Feedback("rumble", strong, weak, duration, source="copilot")
+        with self._lock:
+            targets = [d for d in self._open if d is not None and d.can_rumble]
+        for device in targets:
+            try:
+                device.rumble(request)
+            except Exception as exc:  # OSError from the kernel; whatever else, the game's request stands
+                log.warning("could not rumble %s: %s", device.spec.device, exc)
+
+    def _nudge(self) -> None:
+        """Wake the thread (it computes its time-out again)."""
+        if self._wake is not None and self._thread is not None:
+            with contextlib.suppress(OSError):
+                os.write(self._wake[1], b"r")
 
     def _let_go(self, device: MergedInput) -> None:
         """Release and close ``device``, then put its hidden nodes back (a gone device's are removed)."""
@@ -291,6 +417,8 @@ class FeedbackRelay:
         self._say(unhidden_note(info))
 
     def __call__(self, request: Feedback) -> None:
+        """Hand ``request`` to the copilot in use (:meth:`Copilot.feedback`); nothing when the
+        profile merges nothing."""
         merge = self.merge
         if merge is not None:
             merge.feedback(request)

@@ -277,6 +277,8 @@ class VirtualGamepad(NeutralOnClose):
                         erase.retval = 0
                         line = f"erased effect {erase.effect_id}"
                         self._ui.end_erase(erase)
+                        self._forward_rumble(erase.effect_id, 0)  # an erased effect plays no more
+                        self._rumbles.pop(erase.effect_id, None)
                     elif ev.type == ecodes.EV_FF and ev.code < MAX_EFFECTS:
                         line = f"{'play' if ev.value else 'stop'} effect {ev.code}"
                         self._forward_rumble(ev.code, ev.value)
@@ -312,7 +314,9 @@ class VirtualGamepad(NeutralOnClose):
         from neurotouch_hid.stages import Feedback
 
         strong, weak, length = rumble if value > 0 else (0, 0, 0)
-        request = Feedback("rumble", strong / 0xFFFF, weak / 0xFFFF, length or None, source="uinput pad")
+        request = Feedback(
+            "rumble", strong / 0xFFFF, weak / 0xFFFF, length or None, source="uinput pad", effect=effect_id
+        )
         try:
             self.on_feedback(request)
         except Exception as exc:  # the game's request is answered whatever a merged pad does
