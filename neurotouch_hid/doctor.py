@@ -186,7 +186,13 @@ def check_jit_cache() -> Check:
             cache.describe(),
             "make ~/.cache writable, or set XDG_CACHE_HOME (or NUMBA_CACHE_DIR) to a writable folder",
         )
-    return Check("compiled-code cache (numba)", OK, cache.describe())
+    from neurotouch_hid.warmup import PIPELINE_OF, is_cold
+
+    if any(is_cold(group) for group in PIPELINE_OF["default"]):
+        detail = f"{cache.describe()}; empty yet: the first run compiles the pipeline into it (about 25 s of CPU, once)"
+    else:
+        detail = f"{cache.describe()}; the pipeline is compiled: runs start at once"
+    return Check("compiled-code cache (numba)", OK, detail)
 
 
 def this_command() -> str | None:

@@ -128,3 +128,15 @@ def test_evdev_missing_is_a_warning_naming_the_uinput_extra(monkeypatch):
     # a module of no extra that is missing is still a failure
     monkeypatch.setitem(sys.modules, "numba", None)
     assert doctor.check_library("numba", "numba").status == FAIL
+
+
+def test_doctor_says_whether_the_first_run_still_has_to_compile(monkeypatch, tmp_path):
+    """A cache with nothing compiled in it (a fresh install) is fine but says the first run
+    compiles, so a slow first start is expected; a compiled one says runs start at once."""
+    from neurotouch_hid import warmup
+
+    monkeypatch.setattr(warmup, "is_cold", lambda group: True)
+    cold = doctor.check_jit_cache()
+    assert cold.status == OK and "empty yet: the first run compiles the pipeline" in cold.detail
+    monkeypatch.setattr(warmup, "is_cold", lambda group: False)
+    assert "the pipeline is compiled" in doctor.check_jit_cache().detail
