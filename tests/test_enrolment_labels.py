@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 import subprocess
 import sys
 
@@ -172,3 +173,23 @@ def test_an_intensity_is_the_displacement_of_the_labelled_contact_points_since_t
     assert rows[0].intensity_mm == pytest.approx(1.9)  # the window's own point: the pipeline's measure
     np.testing.assert_allclose(rows[1].contacts_px, point)  # held from the window before
     assert rows[1].intensity_mm == pytest.approx(2.0)  # measured at the held point's marker, not 0
+
+
+@pytest.mark.parametrize(
+    "of, says", [(None, "any of the plan's 2 cues"), (24, "any of the 2 cues within it (of the plan's 24 prompts)")]
+)
+def test_a_recording_that_follows_no_cue_says_how_many_cues_it_covers(tmp_path, of, says):
+    """A 5 s recording of a 24-prompt plan covers 2 of its cues: the message counts those two
+    and names the plan's 24, not '1 cues' of a plan the user knows as 24 prompts."""
+    import numpy as np
+
+    from neurotouch_hid.enrolment.label import GelMotion, write_dataset
+    from neurotouch_hid.errors import DatasetError
+    from neurotouch_hid.estimate import GestureEstimate
+
+    t = np.arange(10_000, 5_000_001, 10_000)
+    still = GelMotion(t, np.zeros(len(t)), [GestureEstimate(int(x)) for x in t], np.array([0]), 0)
+    plan = Plan((Prompt(GestureType.PUSH, 1.0, 2.0), Prompt(GestureType.PINCH, 3.0, 4.0)))
+    with pytest.raises(DatasetError, match=r"no gesture near " + re.escape(says)):
+        write_dataset(tmp_path / "out", tmp_path / "rec.aedat4", plan, still, SensorGeometry(), of=of)
+    assert not (tmp_path / "out").exists()

@@ -333,7 +333,7 @@ def label_recording(
             f"{recording}: every one of the plan's {len(plan.prompts)} prompts is cued after the recording's end "
             f"({(end_us - motion.start_us) / 1e6:.1f} s): was it made by following this plan? Nothing written"
         )
-    labelled = write_dataset(out_dir, recording, Plan(within), motion, sensor, inputs=inputs)
+    labelled = write_dataset(out_dir, recording, Plan(within), motion, sensor, inputs=inputs, of=len(plan.prompts))
     return dataclasses.replace(labelled, past_end=len(plan.prompts) - len(within))
 
 
@@ -345,12 +345,15 @@ def write_dataset(
     sensor: SensorGeometry,
     *,
     inputs: Sequence[str | Path] = (),
+    of: int | None = None,
 ) -> Labelled:
     """Label ``recording``, which the pipeline saw as ``motion``, from ``plan`` and write it as a
     dataset (docs/dataset.md) into ``out_dir`` (created): ``NAME.aedat4`` (a copy, unless it is
     there already), ``NAME.labels.csv``, ``NAME.plan.json`` and ``sensor.yaml`` (``sensor``), each
     through a temporary file renamed at the end. An output that is the recording or one of
     ``inputs`` (the plan and sensor files read) is not written: it already holds what it would.
+    ``of``: the prompts of the whole plan when ``plan`` is its part cued within the recording
+    (for the messages).
 
     Raises:
         DatasetError: the folder cannot be written, or no prompt's gesture is found near its cue
@@ -363,7 +366,13 @@ def write_dataset(
     found = find_gestures(plan, motion)
     if found and not any(f.seen for f in found):
         raise DatasetError(
-            f"{recording}: no gesture near any of the plan's {len(found)} cues: it does not follow this plan "
+            f"{recording}: no gesture near any of "
+            + (
+                f"the plan's {len(found)} cues"
+                if of is None or of == len(found)
+                else f"the {len(found)} cues within it (of the plan's {of} prompts)"
+            )
+            + ": it does not follow this plan "
             "(record it while this plan's prompts are shown, from their start, or give the plan it followed "
             "with --plan); no dataset written"
         )
