@@ -253,9 +253,10 @@ def check_copilot(
     """The devices the profiles' ``copilot:`` sections name (the shipped and the user's,
     ``profiles``: name -> loaded profile): which are plugged in (``devices``: the input devices now,
     :func:`~neurotouch_hid.inputs.match.mergeable_devices`) and which the driver would wait for.
-    A present device this user cannot open read-write fails (the driver could not grab it); a
-    warning when the driver could not hide them from games (``hiding``: default
-    :func:`~neurotouch_hid.inputs.hide.may_hide`, root only) or a device is missing."""
+    A present device this user cannot read fails (the driver cannot merge it), one it cannot write
+    warns (merged, but no rumble: python-evdev opens it read-only); a warning when the driver could
+    not hide them from games (``hiding``: default :func:`~neurotouch_hid.inputs.hide.may_hide`,
+    root only) or a device is missing."""
     from neurotouch_hid.inputs.copilot import unhidden_note
     from neurotouch_hid.inputs.hide import may_hide
     from neurotouch_hid.inputs.match import mergeable_devices, presence
@@ -274,15 +275,17 @@ def check_copilot(
     if not with_copilot:
         return Check("copilot devices", SKIP, "no profile merges other devices (copilot:)")
     devices = mergeable_devices() if devices is None else devices
-    parts, missing, closed, present = [], [], [], []
+    parts, missing, closed, read_only, present = [], [], [], [], []
     for name, profile in with_copilot.items():
         found = presence([c.device for c in profile.copilot], devices)
         present += [info for _, info in found if info is not None]
         for rule, info in found:
             if info is None:
                 missing.append(rule)
-            elif not os.access(info.path, os.R_OK | os.W_OK):
+            elif not os.access(info.path, os.R_OK):
                 closed.append(f"{rule} ({info.path})")
+            elif not os.access(info.path, os.W_OK):
+                read_only.append(f"{rule} ({info.path})")
         shown = ", ".join(f"{rule} at {info.path}" if info else f"{rule} missing" for rule, info in found)
         parts.append(f"{name}: {shown}")
     detail = "; ".join(parts)
@@ -290,8 +293,16 @@ def check_copilot(
         return Check(
             "copilot devices",
             FAIL,
-            f"{detail}; not readable and writable by this user: {', '.join(closed)} (the driver "
-            "could not grab them; after the command below, log out and in again)",
+            f"{detail}; not readable by this user: {', '.join(closed)} (the driver cannot merge them; "
+            "after the command below, log out and in again)",
+            "sudo usermod -aG input $USER",
+        )
+    if read_only:
+        return Check(
+            "copilot devices",
+            WARN,
+            f"{detail}; not writable by this user: {', '.join(read_only)} (merged, but a game's rumble is "
+            "not played on them; after the command below, log out and in again)",
             "sudo usermod -aG input $USER",
         )
     note = "" if (may_hide() if hiding is None else hiding) else unhidden_note(present[0] if present else None)

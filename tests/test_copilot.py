@@ -5,6 +5,7 @@ tests/kernel/checks_copilot.py."""
 
 from __future__ import annotations
 
+import os
 import threading
 from pathlib import Path
 
@@ -601,7 +602,7 @@ def test_presence_names_what_is_plugged_in_and_what_is_waited_for():
     ]
 
 
-def test_doctor_says_which_copilot_devices_are_there_and_which_are_waited_for(tmp_path):
+def test_doctor_says_which_copilot_devices_are_there_and_which_are_waited_for(tmp_path, monkeypatch):
     from neurotouch_hid.doctor import FAIL, OK, SKIP, WARN, check_copilot
 
     node = tmp_path / "event7"
@@ -619,6 +620,15 @@ def test_doctor_says_which_copilot_devices_are_there_and_which_are_waited_for(tm
     closed = InputInfo("/nonexistent/event9", "Switch Box", "usb-3/input0", 0x1234, 0x5678)
     denied = check_copilot({"mine": profile}, [helper, closed])
     assert denied.status == FAIL and "sudo usermod -aG input $USER" in denied.fix
+    assert "not readable by this user" in denied.detail
+    import neurotouch_hid.doctor as doctor
+
+    readable = InputInfo(str(node), "Switch Box", "usb-3/input0", 0x1234, 0x5678)
+    # a node this user may read but not write (root may write anything: the test says which)
+    monkeypatch.setattr(doctor.os, "access", lambda path, mode: mode == os.R_OK)
+    read_only = check_copilot({"mine": profile}, [helper, readable], hiding=True)
+    monkeypatch.undo()
+    assert read_only.status == WARN and "merged, but a game's rumble is not played on them" in read_only.detail
     assert check_copilot({"default": load_profile("default")}, []).status == SKIP
 
 
