@@ -1,5 +1,6 @@
-"""Small fakes for the runtime's stages (unit tests of tests/test_runtime.py and
-tests/test_control.py only: acceptance runs the real stages), and waits on what a runtime did."""
+"""Small fakes for the runtime's stages (unit tests of the runtime: tests/test_runtime.py,
+tests/test_control.py, tests/test_copilot.py, tests/test_first_run_messages.py; acceptance runs the
+real stages), and waits on what a runtime did."""
 
 from __future__ import annotations
 
@@ -55,6 +56,23 @@ class FakePipeline:
 
     def set_resting(self, result, t_us):
         self.resting.append((result, t_us))
+
+
+class EstimatesThrough:
+    """A pipeline a source of estimates goes through as it is (what a predictions file's replay
+    is): each estimate is its own window."""
+
+    def process(self, item):
+        return [item]
+
+    def set_resting(self, result, t_us):
+        pass
+
+    def restart(self):
+        pass
+
+    def markers(self):
+        return None
 
 
 class FakeMapper:

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 from evdev import ecodes
+from runtime_fakes import EstimatesThrough
 
 from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.errors import ProfileError
@@ -474,20 +475,6 @@ class Written:
         self.calls.append("prepare")
 
 
-class _Replay:
-    def process(self, item):
-        return [item]
-
-    def set_resting(self, result, t_us):
-        pass
-
-    def restart(self):
-        pass
-
-    def markers(self):
-        return None
-
-
 def test_the_runtime_merges_each_window_and_publishes_a_helpers_press_at_once():
     profile = parse_profile(SHORT_FORM, "p.yaml")
     merge, out = ScriptedMerge(), Written()
@@ -500,7 +487,7 @@ def test_the_runtime_merges_each_window_and_publishes_a_helpers_press_at_once():
         gate.wait(30)  # the gel holds its push: no window comes meanwhile
         yield GestureEstimate(t_us=20_000)
 
-    rt = Runtime(source(), _Replay(), profile, [out], pace=False, merge=merge)
+    rt = Runtime(source(), EstimatesThrough(), profile, [out], pace=False, merge=merge)
 
     def helper():
         from helpers import wait_until
@@ -538,7 +525,7 @@ def test_a_profile_switch_releases_the_old_merge_and_starts_the_new_ones():
         yield GestureEstimate(t_us=10_000)
         started.wait(30)
 
-    rt = Runtime(source(), _Replay(), with_copilot, [out], pace=False, merge_for=merge_for)
+    rt = Runtime(source(), EstimatesThrough(), with_copilot, [out], pace=False, merge_for=merge_for)
     thread = threading.Thread(target=rt.run)
     thread.start()
     from helpers import wait_until
@@ -574,7 +561,7 @@ def test_the_helpers_pad_drives_the_pad_while_the_gels_camera_is_missing(camera)
             yield SourceStatus(StatusKind.LOST, "camera lost")
         gate.wait(30)
 
-    rt = Runtime(source(), _Replay(), profile, [out], pace=False, merge=merge, live=True)
+    rt = Runtime(source(), EstimatesThrough(), profile, [out], pace=False, merge=merge, live=True)
     thread = threading.Thread(target=rt.run)
     thread.start()
     wait_until(lambda: merge.on_input is not None and (camera == "waiting" or rt.stats.camera_losses == 1), 30)

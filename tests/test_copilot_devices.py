@@ -13,6 +13,7 @@ tests/test_copilot.py. The real kernel's devices are checked in tests/kernel/che
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import logging
 import os
@@ -395,34 +396,36 @@ def test_when_the_merged_one_of_two_same_named_devices_goes_the_other_is_taken_a
 
 
 # --- 5. rumble with several effects --------------------------------------------------------------------
-def test_a_rumble_of_length_0_plays_until_stopped(rig):
-    """ff-memless plays an effect of replay length 0 until it is stopped: so does the helper's."""
+@contextlib.contextmanager
+def _game_on_the_pad(rig):
+    """(the helper's pad, the gel's pad as a game rumbles it), the copilot merging the helper's."""
     pad = rig.add("Helper Pad", "event3", _rumbler())
     copilot = rig.copilot()
     copilot.start(lambda: None)
     try:
         game = _pad_rumble(FeedbackRelay(hide=False))
         game.on_feedback.merge = copilot
+        yield pad, game
+    finally:
+        copilot.stop()
+
+
+def test_a_rumble_of_length_0_plays_until_stopped(rig):
+    """ff-memless plays an effect of replay length 0 until it is stopped: so does the helper's."""
+    with _game_on_the_pad(rig) as (pad, game):
         game._remember_rumble(_effect(0, 0x4000, 0x4000, 0))
         game._forward_rumble(0, 1)
         assert rig.uploads() == [(0, 0x4000, 0x4000, 0)]
         assert pad.written == [(ecodes.EV_FF, 0, 1)]
         game._forward_rumble(0, 0)
         assert pad.written[-1] == (ecodes.EV_FF, 0, 0)
-    finally:
-        copilot.stop()
 
 
 def test_the_pads_effects_reach_the_helper_by_their_ids(rig):
     """Through the gel's pad as a game drives it: effect 0 (strong) and effect 1 (weak) played,
     effect 1 stopped: the helper's pad goes on with effect 0's; effect 0 stopped: so is the
     helper's rumble."""
-    pad = rig.add("Helper Pad", "event3", _rumbler())
-    copilot = rig.copilot()
-    copilot.start(lambda: None)
-    try:
-        game = _pad_rumble(FeedbackRelay(hide=False))
-        game.on_feedback.merge = copilot
+    with _game_on_the_pad(rig) as (pad, game):
         game._remember_rumble(_effect(0, 0xFFFF, 0, 0))
         game._remember_rumble(_effect(1, 0, 0x8000, 0))
         game._forward_rumble(0, 1)
@@ -432,8 +435,6 @@ def test_the_pads_effects_reach_the_helper_by_their_ids(rig):
         assert rig.uploads()[-1][1:3] == (0xFFFF, 0) and pad.written[-1] == (ecodes.EV_FF, 0, 1)
         game._forward_rumble(0, 0)
         assert pad.written[-1] == (ecodes.EV_FF, 0, 0)
-    finally:
-        copilot.stop()
 
 
 def test_the_strongest_of_the_playing_effects_is_played_and_a_stop_ends_only_its_effect(rig):

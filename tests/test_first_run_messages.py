@@ -132,23 +132,11 @@ def test_ctrl_c_during_a_run_prints_its_summary_before_exit_130(monkeypatch, cap
     import threading
 
     from helpers import run_main
+    from runtime_fakes import EstimatesThrough
 
     from neurotouch_hid.estimate import GestureEstimate
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.runtime import Runtime
-
-    class Replay:
-        def process(self, item):
-            return [item]
-
-        def set_resting(self, result, t_us):
-            pass
-
-        def restart(self):
-            pass
-
-        def markers(self):
-            return None
 
     def source():
         yield GestureEstimate(t_us=10_000)
@@ -156,7 +144,7 @@ def test_ctrl_c_during_a_run_prints_its_summary_before_exit_130(monkeypatch, cap
         threading.Event().wait(30)
 
     def demo(seconds, console, say):
-        runtime = Runtime(source(), Replay(), load_profile("default"), [], pace=False)
+        runtime = Runtime(source(), EstimatesThrough(), load_profile("default"), [], pace=False)
         runtime.stats.interpreted_windows, runtime._compiling = 12, lambda: type("P", (), {"fraction": 0.49})()
         return runtime.run(seconds)
 
