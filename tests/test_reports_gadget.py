@@ -1,5 +1,7 @@
 """The Switch (HORIPAD) and Xbox 360 (XInput) reports, byte for byte (docs/reports.md)."""
 
+import os
+
 import pytest
 
 from neurotouch_hid.controller import ControllerState
@@ -112,9 +114,37 @@ def test_xinput_report(changes, report):
         (b"", None),
         (b"\x01\x03", None),  # LED without its pattern
         (b"\x00\x08\x00\xff", None),  # rumble cut short
+        (b"\x00\x08\x00\xff\xff", None),  # its length byte says 8: cut short too
+        (b"\x01\x05\x02", None),  # an LED report saying 5 bytes in 3
         (b"\x02\x08\x00\xff\xff", None),  # unknown type
         (bytes(range(256)) * 4, None),
     ],
 )
 def test_xinput_output_reports(data, feedback):
     assert parse_output(data, "x") == feedback
+
+
+def test_the_xinput_out_endpoint_is_read_a_packet_at_a_time():
+    """The OUT endpoint's packets are 32 bytes: a host's full 32-byte report followed by a rumble
+    must be read as two reports (a 64-byte read joined them and the rumble was lost). A pipe
+    stands in for the endpoint's file."""
+    import threading
+
+    from helpers import wait_until
+
+    from neurotouch_hid.targets.gadget.targets import XInputTarget
+
+    target = object.__new__(XInputTarget)
+    read_end, write_end = os.pipe()
+    target._out, target._closed, target.what = read_end, False, "x"
+    announced: list[Feedback] = []
+    target._announce = announced.append
+    reader = threading.Thread(target=target._read_out, daemon=True)
+    reader.start()
+    os.write(write_end, bytes.fromhex("0220") + bytes(30) + bytes.fromhex("0008 00 ff 80 000000"))
+    wait_until(lambda: announced, 10)
+    target._closed = True
+    os.close(read_end)
+    os.close(write_end)
+    reader.join(10)
+    assert announced == [Feedback("rumble", strong=1.0, weak=128 / 255, source="x")]

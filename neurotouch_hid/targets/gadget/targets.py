@@ -271,7 +271,11 @@ class XInputTarget(_ReportTarget):
             pass  # EL2HLT: the stall done
 
     def _read_out(self) -> None:
-        self._read_loop(self._out, MAX_OUTPUT_REPORT, "OUT endpoint", self._on_output)
+        """OUT endpoint reader: one read a packet (its wMaxPacketSize, 32 bytes: a longer read would
+        join a full packet and the next, whose report would be lost)."""
+        from neurotouch_hid.targets.reports.xinput import MAX_OUTPUT_REPORT as PACKET
+
+        self._read_loop(self._out, PACKET, "OUT endpoint", self._on_output)
 
     def _on_output(self, data: bytes) -> None:
         from neurotouch_hid.targets.reports.xinput import parse_output

@@ -115,10 +115,11 @@ def parse_output(data: bytes, source: str = "") -> Feedback | None:
     """One output report the host sent on the OUT endpoint (``data``: at most
     :data:`MAX_OUTPUT_REPORT` bytes are looked at) as :class:`Feedback`: rumble
     (``00 08 00 STRONG WEAK ...`` -> strong, weak in 0..1) or LED (``01 03 NN`` -> led NN & 0x0F);
-    None for anything else (too short, an unknown type). Never raises on any bytes."""
+    None for anything else (too short, shorter than its own length byte says, an unknown type).
+    Never raises on any bytes."""
     data = bytes(data[:MAX_OUTPUT_REPORT])
-    if len(data) >= 5 and data[0] == 0x00 and data[1] >= 5:
+    if len(data) >= 5 and data[0] == 0x00 and 5 <= data[1] <= len(data):
         return Feedback("rumble", strong=data[3] / 255, weak=data[4] / 255, source=source)
-    if len(data) >= 3 and data[0] == 0x01 and data[1] >= 3:
+    if len(data) >= 3 and data[0] == 0x01 and 3 <= data[1] <= len(data):
         return Feedback("led", led=data[2] & 0x0F, source=source)
     return None
