@@ -148,3 +148,38 @@ def test_the_xinput_out_endpoint_is_read_a_packet_at_a_time():
     os.close(write_end)
     reader.join(10)
     assert announced == [Feedback("rumble", strong=1.0, weak=128 / 255, source="x")]
+
+
+@pytest.mark.parametrize(
+    "profile, functions, says",
+    [
+        ("mouse", ["hid.usb0"], ["the profile moves the pointer or clicks but the USB gadget has no mouse"]),
+        ("mouse", ["hid.usb0", "hid.usb2"], []),
+        ("switch-access", ["hid.usb0"], ["the profile presses keys but the USB gadget has no keyboard"]),
+        ("switch-access", ["hid.usb0", "hid.usb1"], []),
+        ("default", ["hid.usb0"], []),
+    ],
+)
+def test_the_gadget_says_what_of_a_profile_it_cannot_carry(tmp_path, profile, functions, says):
+    """A gadget set up without a mouse (or a keyboard) function: a profile that needs it is told,
+    not silently dropped (the boot unit's gadget has the pad only)."""
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.targets.gadget import say_what_cannot_go
+
+    for name in functions:
+        (tmp_path / name).mkdir()
+    said = say_what_cannot_go(load_profile(profile), tmp_path)
+    assert [line.split(":")[0] for line in said] == says
+
+
+def test_the_gadget_names_the_keys_its_keyboard_cannot_carry(tmp_path):
+    from neurotouch_hid.mapping.profile import parse_profile
+    from neurotouch_hid.targets.gadget import say_what_cannot_go
+
+    (tmp_path / "hid.usb1").mkdir()
+    profile = parse_profile(
+        "mappings:\n  p: {input: pinch, output: KEY_PLAYPAUSE}\n  e: {input: zoom, output: KEY_ENTER}\n", "p.yaml"
+    )
+    assert say_what_cannot_go(profile, tmp_path) == [
+        "the USB keyboard has no usage for KEY_PLAYPAUSE: the host gets nothing for them"
+    ]

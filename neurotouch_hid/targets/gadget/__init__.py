@@ -33,6 +33,8 @@ from neurotouch_hid.guard import Guard
 from neurotouch_hid.targets.gadget import configfs
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
     from neurotouch_hid.mapping.profile import Profile
     from neurotouch_hid.stages import Target
 
@@ -44,6 +46,25 @@ log = logging.getLogger(__name__)
 RELEASE_GRACE_S = 0.05
 #: Which hid function instance carries which report format, whatever the gadget's protocol.
 INSTANCES = {"usb1": "keyboard", "usb2": "mouse"}
+
+
+def say_what_cannot_go(profile: Profile, functions: Path) -> list[str]:
+    """Warn (the log) of what of ``profile`` the gadget (its configfs ``functions`` folder) cannot
+    carry to the host: keys with no keyboard function, the pointer or mouse buttons with no mouse
+    function, keys the boot keyboard's report has no usage for (docs/reports.md). Returns the
+    lines said."""
+    from neurotouch_hid.targets.reports.keyboard import unrepresentable
+
+    lines = []
+    if profile.uses_keyboard and not (functions / "hid.usb1").is_dir():
+        lines.append("the profile presses keys but the USB gadget has no keyboard: gadget setup --keyboard")
+    elif profile.uses_keyboard and (dropped := unrepresentable(profile.keyboard_keys)):
+        lines.append(f"the USB keyboard has no usage for {', '.join(dropped)}: the host gets nothing for them")
+    if profile.uses_mouse and not (functions / "hid.usb2").is_dir():
+        lines.append("the profile moves the pointer or clicks but the USB gadget has no mouse: gadget setup --mouse")
+    for line in lines:
+        log.warning(line)
+    return lines
 
 
 def protocol_for(requested: str | None, profile: Profile, name: str = configfs.GADGET_NAME) -> str:
@@ -113,8 +134,9 @@ class UsbGadget:
             kind = INSTANCES.get(instance, self.protocol)
             node = configfs.hidg_node(instance, self.name)
             self.targets.append(HidgTarget(node, format_for(kind), f"USB gadget ({kind}, {node})"))
-        if self.profile.uses_keyboard and not (functions / "hid.usb1").is_dir():
-            log.warning("the profile presses keys but the USB gadget has no keyboard: gadget setup --keyboard")
+        if self.targets:
+            self.targets[0].lacks = lambda profile: say_what_cannot_go(profile, functions)  # on each profile
+        say_what_cannot_go(self.profile, functions)
         nodes = [target.guarded() for target in self.targets if isinstance(target, HidgTarget)]
         if nodes:
             try:

@@ -85,8 +85,15 @@ class _ReportTarget:
                 self._last = self.format.neutral()
                 self._writer.submit(self._last)
 
+    #: Said on each profile readied: what of it the gadget cannot carry (set by the gadget on its
+    #: first target; :func:`~neurotouch_hid.targets.gadget.say_what_cannot_go`).
+    lacks: Callable[[Profile], object] | None = None
+
     def prepare(self, profile: Profile) -> None:
-        """Nothing to change: the function's report layout is the same for every profile."""
+        """The function's report layout is the same for every profile; what of ``profile`` the
+        gadget cannot carry is said (:attr:`lacks`)."""
+        if self.lacks is not None:
+            self.lacks(profile)
 
     def _close_neutral(self) -> bool:
         """Send the neutral report, wait up to :data:`NEUTRAL_WAIT_S` for the host to take it,
