@@ -158,10 +158,12 @@ class Feedback:
     """What a game or a host sent back to a target: rumble or a player LED.
 
     Attributes:
-        kind: ``"rumble"`` or ``"led"``.
+        kind: ``"rumble"``, ``"led"`` (a pad's player LED) or ``"keyboard_leds"`` (a USB
+            keyboard's Num/Caps/Scroll Lock, Compose, Kana bits in ``led``).
         strong, weak: rumble magnitudes 0..1 (the low- and high-frequency motors; 0 stops).
         duration_ms: how long the rumble lasts (None: until the next one).
-        led: the player LED pattern as the protocol numbers it (xpad's 0..15), for ``"led"``.
+        led: the player LED pattern as the protocol numbers it (xpad's 0..15), for ``"led"``; the
+            LED bits (0..31), for ``"keyboard_leds"``.
         source: the target that received it (its ``what``), for the user's log line.
         effect: the game's effect id on an evdev pad (the EV_FF code it plays and stops it with;
             several may play at once, Documentation/input/ff.rst); None from a target whose rumble

@@ -183,3 +183,25 @@ def test_the_gadget_names_the_keys_its_keyboard_cannot_carry(tmp_path):
     assert say_what_cannot_go(profile, tmp_path) == [
         "the USB keyboard has no usage for KEY_PLAYPAUSE: the host gets nothing for them"
     ]
+
+
+def test_a_hosts_keyboard_leds_are_said():
+    """The host lights Caps Lock on the gadget's keyboard: read (bounded) and said, as a pad's
+    rumble is; a joystick's node gives nothing back."""
+    from neurotouch_hid.targets import describe_feedback
+    from neurotouch_hid.targets.gadget.targets import HidgTarget
+    from neurotouch_hid.targets.reports import format_for
+
+    def node_with(fmt: str, data: bytes) -> HidgTarget:
+        target = object.__new__(HidgTarget)
+        read_end, write_end = os.pipe()
+        os.set_blocking(read_end, False)
+        os.write(write_end, data)
+        os.close(write_end)
+        target._fd, target.format, target.what = read_end, format_for(fmt), f"USB gadget ({fmt})"
+        return target
+
+    keyboard = node_with("keyboard", b"\x02")
+    (leds,) = keyboard.feedback()
+    assert describe_feedback(leds) == "keyboard LEDs (the gel has none): Caps Lock, on USB gadget (keyboard)"
+    assert node_with("hid", b"\x02").feedback() == []

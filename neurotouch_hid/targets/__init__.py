@@ -35,6 +35,10 @@ log = logging.getLogger(__name__)
 FEEDBACK_REPEAT_S = 1.0
 
 
+#: The boot keyboard's LED bits, lowest first (HID Usage Tables, LED page: Num Lock 1 ... Kana 5).
+KEYBOARD_LEDS = ("Num Lock", "Caps Lock", "Scroll Lock", "Compose", "Kana")
+
+
 def describe_feedback(feedback: Feedback) -> str:
     """One line for the user about ``feedback``: what was asked, that the gel cannot do it, and
     which target received it, e.g. ``rumble (the gel has no motor): strong 0.50 weak 0.25 for
@@ -49,6 +53,9 @@ def describe_feedback(feedback: Feedback) -> str:
         return f"rumble (the gel has no motor): {what}{where}"
     if feedback.kind == "led":
         return f"player LED (the gel has none): pattern {feedback.led}{where}"
+    if feedback.kind == "keyboard_leds":
+        lit = [name for bit, name in enumerate(KEYBOARD_LEDS) if (feedback.led or 0) >> bit & 1]
+        return f"keyboard LEDs (the gel has none): {', '.join(lit) or 'all off'}{where}"
     return f"{feedback.kind} (not handled){where}"
 
 

@@ -149,8 +149,11 @@ class HidgTarget(_ReportTarget):
 
     def feedback(self) -> list[Feedback]:
         """Read the host's output reports waiting on the node (bounded: at most 16 reads of
-        :data:`MAX_OUTPUT_REPORT` bytes); logged, no rumble or LED in them (none of these
-        formats has one)."""
+        :data:`MAX_OUTPUT_REPORT` bytes): a keyboard's LED report (its first byte, the five LED
+        bits of the boot keyboard: HID 1.11 appendix B.1) as a ``"keyboard_leds"``
+        :class:`Feedback`; anything else logged only (the joystick, Switch and mouse formats have
+        no output report)."""
+        out = []
         for _ in range(16):
             try:
                 data = os.read(self._fd, MAX_OUTPUT_REPORT)
@@ -158,8 +161,11 @@ class HidgTarget(_ReportTarget):
                 break
             if not data:
                 break
-            log.debug("%s: output report %s from the host", self.what, data.hex())
-        return []
+            if self.format.name == "keyboard":
+                out.append(Feedback("keyboard_leds", led=data[0] & 0x1F, source=self.what))
+            else:
+                log.debug("%s: output report %s from the host", self.what, data.hex())
+        return out
 
     def close(self) -> None:
         """Neutral report, wait for the host to take it (up to :data:`NEUTRAL_WAIT_S`), close the node."""
