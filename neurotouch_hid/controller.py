@@ -27,6 +27,8 @@ AXES: dict[str, tuple[int, int, int]] = {
     "ABS_HAT0X": (-1, 1, 0),
     "ABS_HAT0Y": (-1, 1, 0),
 }
+#: The axes that rest at their minimum (the triggers): they take only the positive side of a value.
+TRIGGERS = frozenset(name for name, (low, _, neutral) in AXES.items() if low == neutral)
 
 #: The mouse's buttons (evdev names); every other key-like output name is a keyboard key.
 MOUSE_BUTTONS: tuple[str, ...] = ("BTN_LEFT", "BTN_RIGHT", "BTN_MIDDLE", "BTN_SIDE", "BTN_EXTRA")

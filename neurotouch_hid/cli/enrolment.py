@@ -108,8 +108,9 @@ def _session(plan, source, out, sensor, seed, serial, physics, sim_miss, sim_mis
             from neurotouch_hid.sources.davis import require_camera_listed
 
             geometry = SensorGeometry.load(sensor) if sensor is not None else default_sensor()
-            require_camera_listed(davis_config(serial, "4000", 1.0))  # not after a first run's compile
-            guide = CameraSource(davis_config(serial, "4000", 1.0))
+            config = davis_config(serial, "4000", 1.0)
+            require_camera_listed(config)  # not after a first run's compile
+            guide = CameraSource(config)
         compile_before(say_err, simulator=source == "sim")  # a first run: compiled in child processes, said
         GesturePipeline(geometry).compile_kernels()  # before the camera opens: nothing waits for it
     from neurotouch_hid.dataset import DatasetOut

@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from neurotouch_hid.controller import AXES, BUTTONS, MOUSE_REL, ControllerState
+from neurotouch_hid.controller import AXES, BUTTONS, MOUSE_REL, TRIGGERS, ControllerState
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.mapping.filters import OneEuroFilter, response
 from neurotouch_hid.mapping.profile import (
@@ -339,7 +339,6 @@ class Mapper:
         self._pointer = {"REL_X": RelMotion(), "REL_Y": RelMotion()}
         self._wheels = {"REL_WHEEL": _Wheel(), "REL_HWHEEL": _Wheel()}
         self._kind: GestureType | None = None  # the gesture's type (None at rest)
-        self._held: dict[str, bool] = {}  # per button-like mapping: its output in the last state
 
     def _hand_over(self, estimate: GestureEstimate, inputs: dict, layer: str) -> None:
         """A type change: the type's mappings restart their smoothing; a button held by a mapping
@@ -454,14 +453,13 @@ class Mapper:
                 shaped = -shaped if mapping.invert else shaped
                 shaped = -shaped if mapping.output in UP_IS_NEGATIVE else shaped  # user +y (up) -> up
                 if isinstance(mapping, AxisMapping):
-                    if AXES[mapping.output][0] == AXES[mapping.output][2]:  # a trigger: the positive side only
+                    if mapping.output in TRIGGERS:  # the positive side only
                         shaped = max(shaped, 0.0)
                     analog[mapping.output] += shaped
                 else:
                     velocity[mapping.output] += shaped * mapping.velocity_scale
             else:
-                self._held[name] = self._activators[name].update(float(value), t_us)
-                if not self._held[name]:
+                if not self._activators[name].update(float(value), t_us):
                     continue
                 for out in mapping.presses:
                     if out in DPAD:

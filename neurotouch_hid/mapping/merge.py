@@ -22,7 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Iterable, Mapping
 
-from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
+from neurotouch_hid.controller import AXES, BUTTONS, TRIGGERS, ControllerState
 
 if TYPE_CHECKING:
     from neurotouch_hid.mapping.profile import CopilotDevice
@@ -84,8 +84,7 @@ def one_sided(source: str, target: str) -> bool:
     """Whether source axis ``source`` driving pad axis ``target`` rests at its minimum (a pedal,
     or a trigger driving a trigger: :data:`ONE_SIDED_AXES`, :data:`TRIGGER_OR_STICK_AXES`)."""
     if source in TRIGGER_OR_STICK_AXES:
-        lo, _, neutral = AXES[target]
-        return lo == neutral
+        return target in TRIGGERS
     return source in ONE_SIDED_AXES
 
 

@@ -11,7 +11,7 @@ from typing import Iterable
 
 import numpy as np
 
-from neurotouch_hid.controller import AXES, ControllerState
+from neurotouch_hid.controller import AXES, TRIGGERS, ControllerState
 from neurotouch_hid.estimate import GestureEstimate
 from neurotouch_hid.extras import require
 from neurotouch_hid.mapping.mapper import Mapper, gesture_inputs
@@ -237,7 +237,7 @@ def tuned_saturations(
     for estimate in estimates:
         inputs = gesture_inputs(estimate)
         for name, m in analog.items():
-            if isinstance(m, AxisMapping) and AXES[m.output][0] == AXES[m.output][2]:  # a trigger
+            if isinstance(m, AxisMapping) and m.output in TRIGGERS:
                 magnitude = max(-float(inputs[m.input]) if m.invert else float(inputs[m.input]), 0.0)
             else:
                 magnitude = float(np.linalg.norm(inputs[m.input]))

@@ -169,13 +169,22 @@ def require_camera_listed(config: "DavisConfig | None" = None, backend: Any = No
 
         backend = dv.io.camera
     serial = config.serial if config is not None else None
+    found = _listed(backend, serial)
+    if isinstance(found, str):
+        raise DeviceError(_fix_hint(serial, found))
+    if not found:
+        raise DeviceError(_fix_hint(serial))
+
+
+def _listed(backend: Any, serial: str | None) -> list | str:
+    """The DAVIS-346 descriptors dv-processing lists (``backend.discover()``; with ``serial``,
+    that one only), or why it could not search."""
     try:
         found = backend.discover()
     except DV_ERRORS as exc:
-        raise DeviceError(_fix_hint(serial, f"cannot search for a DAVIS camera ({dv_error_text(str(exc))})")) from None
+        return f"cannot search for a DAVIS camera ({dv_error_text(str(exc))})"
     found = [d for d in found if getattr(d.cameraModel, "name", "") in _DAVIS_MODELS]
-    if not any(serial is None or d.serialNumber == serial for d in found):
-        raise DeviceError(_fix_hint(serial))
+    return [d for d in found if serial is None or d.serialNumber == serial]
 
 
 class DavisSource:
@@ -247,13 +256,9 @@ class DavisSource:
         """Open and set up the first usable DAVIS-346: None on success, else why each camera
         dv-processing listed could not be used (empty: none was listed). Cheap enough to retry
         in a loop: it explains nothing (:meth:`_open_or_raise` does, for the user)."""
-        try:
-            found = self._backend.discover()
-        except DV_ERRORS as exc:
-            return [f"cannot search for a DAVIS camera ({dv_error_text(str(exc))})"]
-        found = [d for d in found if getattr(d.cameraModel, "name", "") in _DAVIS_MODELS]
-        if self.config.serial is not None:
-            found = [d for d in found if d.serialNumber == self.config.serial]
+        found = _listed(self._backend, self.config.serial)
+        if isinstance(found, str):
+            return [found]
         problems = []
         for descriptor in found:
             try:
