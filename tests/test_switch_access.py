@@ -123,7 +123,8 @@ def test_a_field_the_mode_does_not_read_is_refused_on_its_line(fields, line, exp
 
 @pytest.mark.parametrize("mode, field", [("long_press", "dwell_ms"), ("tap", "dwell_ms"), ("tap", "tap_ms")])
 def test_a_field_the_mode_reads_is_taken(mode, field):
-    parse_profile(mapping(input="pinch", output="KEY_A", mode=mode, **{field: 120}), "q.yaml")
+    profile = parse_profile(mapping(input="pinch", output="KEY_A", mode=mode, **{field: 120}), "q.yaml")
+    assert getattr(profile.mappings["m"], field) == 120.0
 
 
 def test_a_chords_key_is_not_counted_as_a_press_of_that_key_alone():
