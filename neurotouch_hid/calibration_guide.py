@@ -40,7 +40,8 @@ from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import Frame, StreamItem
 
-#: How long to wait for a gesture after asking for it, and for its release (s of stream time).
+#: How long to wait for a gesture after asking for it (s of stream time); one started in that
+#: time is watched until its release, for at most STEP_S more.
 STEP_S = 12.0
 #: A gesture ends when the pipeline has seen no gesture for this long (s of stream time).
 RELEASE_S = 0.3
@@ -304,8 +305,10 @@ class Watcher:
 
     def watch(self) -> list[GestureEstimate]:
         """The windows of the next gesture: from its first window read as a gesture to its
-        release (:data:`RELEASE_S` without one), or what there is of it when :data:`STEP_S` of
-        stream time (frames' and events' timestamps) have passed; [] when none started."""
+        release (:data:`RELEASE_S` without one); [] when none started within :data:`STEP_S` of
+        stream time (frames' and events' timestamps). A gesture started late is watched to its
+        release (not cut at STEP_S, its rest would be read as the next gesture asked), or what
+        there is of it after 2 STEP_S."""
         start = None
         episode: list[GestureEstimate] = []
         last_moving = 0
@@ -320,7 +323,7 @@ class Watcher:
                     episode.append(estimate)
                     if estimate.t_us - last_moving >= RELEASE_S * 1e6:
                         return episode
-            if start is not None and t_us is not None and t_us - start > STEP_S * 1e6:
+            if start is not None and t_us is not None and t_us - start > (2 if episode else 1) * STEP_S * 1e6:
                 break
         return episode
 

@@ -285,7 +285,9 @@ def _say_rest_geometry(say, source: str, result, markers: int) -> None:
 def _sensor_file_replaceable(path: Path, inputs) -> None:
     """Before any work: ``path`` (calibrate's output) may be written: no link, folder or input
     (``atomic.check_output``), and when it exists, a YAML mapping (a sensor.yaml, even a broken
-    one). Raises NeurotouchError for any other file (a recording given as --out by mistake)."""
+    one) or the config folder's sensor.yaml (``user_sensor_path``, replaced even when it is not
+    YAML: doctor's fix for a broken one is calibrate). Raises NeurotouchError for any other file
+    (a recording given as --out by mistake)."""
     from neurotouch_hid.atomic import check_output
     from neurotouch_hid.errors import SensorError
     from neurotouch_hid.limits import MAX_YAML_BYTES, YamlError, load_yaml, printable, read_outside_text
@@ -296,7 +298,7 @@ def _sensor_file_replaceable(path: Path, inputs) -> None:
         raise NeurotouchError(
             f"{printable(path, 200)}: cannot write in {printable(path.parent, 200)}: no such folder (create it first)"
         )
-    if not path.exists():
+    if not path.exists() or path == user_sensor_path():
         return
     try:
         data, _ = load_yaml(read_outside_text(path, MAX_YAML_BYTES, "sensor file", SensorError))
@@ -368,10 +370,10 @@ def calibrate(
     look at it from two guided pushes, check each gesture, and save sensor.yaml (docs/dataset.md).
     A calibration the check finds wrong is not written (exit 1) unless --force.
 
-    Keep your hands off the gel until asked to push. Nothing is typed: each gesture is watched
-    for up to 12 s. With --press, also measure the gel's creep (how slowly it relaxes after a
-    release) on a recorded press; without it, a creep already in the sensor.yaml being replaced
-    is kept."""
+    Keep your hands off the gel until asked to push. Nothing is typed: each gesture is waited
+    for up to 12 s, and one started is watched to its end. With --press, also measure the gel's
+    creep (how slowly it relaxes after a release) on a recorded press; without it, a creep
+    already in the sensor.yaml being replaced is kept."""
     import dataclasses
 
     from neurotouch_hid import calibration, calibration_guide
@@ -444,17 +446,24 @@ def calibrate(
         if guide is not None and check:
             say("guided check: each gesture, read with this calibration")
             results = calibration_guide.guided_check(guide, items, geometry, say, orientation_given=given)
-            wrong = [r for r in results if not r.right]
+            wrong = [r for r in results if not r.right and not r.again]  # read wrong: the calibration's fault
+            undone = [r for r in results if not r.right and r.again]  # not done as asked, twice: not checked
             say(
-                f"guided check: {len(results) - len(wrong)} of {len(results)} gestures right"
+                f"guided check: {sum(r.right for r in results)} of {len(results)} gestures right"
                 + (f"; wrong: {', '.join(r.step.name for r in wrong)}" if wrong else "")
+                + (f"; not done as asked: {', '.join(r.step.name for r in undone)}" if undone else "")
             )
+            if undone and not wrong:
+                say(
+                    "gestures not done as asked say nothing against this calibration: they do not keep it "
+                    "from being written (calibrate again to check them)"
+                )
             advice = calibration_guide.check_advice(results, geometry, orientation_given=given)
             if advice:
                 say(f"what to do: {advice}")
     for note in result.notes:
         say(f"note: {note}")
-    checked_wrong = any(not r.right for r in results)  # nothing written unless --force; exit 1
+    checked_wrong = any(not r.right and not r.again for r in results)  # nothing written unless --force; exit 1
     if checked_wrong and not force:
         say(
             "nothing written: the guided check read gestures wrong with this calibration "
@@ -494,9 +503,6 @@ def calibrate(
             say(f"replacing {path}: " + ("; ".join(changes) if changes else "the same values"))
         except SensorError as exc:
             say(f"replacing {path}, which was not a valid sensor.yaml ({exc})")
-        if sys.stdin.isatty() and not typer.confirm(f"Replace {path}?", default=True):
-            say("nothing written")
-            return
     try:
         if path == user_sensor_path():  # your config folder, made on the first calibration
             path.parent.mkdir(parents=True, exist_ok=True)
