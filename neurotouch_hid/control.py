@@ -264,6 +264,8 @@ class ControlServer:
             or not isinstance(request.get("profile"), str)
         ):
             return {"ok": False, "message": 'expected {"command": "use", "profile": NAME}'}
+        if "\0" in request["profile"]:  # no file name holds one: the OS refuses it (ValueError)
+            return {"ok": False, "message": "a profile's name or path has no NUL character"}
         refused = _not_a_profile(request["profile"])
         if refused is not None:
             return {"ok": False, "message": refused}

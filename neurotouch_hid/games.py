@@ -173,6 +173,12 @@ def _check_section(path: Path, data: dict, section: str, root: Any) -> dict:
             raise GameMapError(
                 f"{at}: executable: '{printable(game)}' is not a name (at most {MAX_NAME_CHARS} printable characters)"
             )
+        if section == EXECUTABLE and ("/" in game or "\\" in game):
+            name = PureWindowsPath(game).name or "Game.exe"
+            raise GameMapError(
+                f"{at}: executable: '{printable(game)}' is a path: a process is matched by its executable's name, "
+                f"written without its folder (e.g. {printable(name)})"
+            )
     return value
 
 
@@ -321,6 +327,12 @@ class Game:
         """The process (a pid is reused only by a later process)."""
         return self.pid, self.started
 
+    @property
+    def entry(self) -> tuple[str, int | str]:
+        """The map's entry it matched, ``(section, key)``: the same for every process of the game
+        (a launcher, the game it starts, their helpers)."""
+        return self.section, self.key
+
     def label(self) -> str:
         """How the user is told, e.g. ``Steam app 4242 (pid 1234, sleep)``."""
         what = f"Steam app {self.key}" if self.section == STEAM else printable(self.key)
@@ -366,9 +378,11 @@ def _first_word(pid: int) -> str:
 def _read_process(pid: int, uid: int) -> _Seen | None:
     """What the scanner needs of one process: None when it is gone or unreadable.
 
-    psutil gives its start time, owner, kernel name (``comm``, 15 bytes) and executable (a
-    ``readlink``, at most PATH_MAX); the environment and the command line, which the process
-    itself fills and may make megabytes long, are read bounded (:func:`read_proc_file`)."""
+    psutil gives its start time and owner; the kernel name (``comm``, 15 bytes) and the
+    executable (``readlink`` of ``/proc/PID/exe``, at most PATH_MAX; refused for a process that
+    is not dumpable, where psutil's ``exe()`` would read the whole command line instead) are read
+    here; the environment and the command line, which the process itself fills and may make
+    megabytes long, are read bounded (:func:`read_proc_file`)."""
     try:
         proc = psutil.Process(pid)
         seen = _Seen(started=proc.create_time(), read_at=time.time())
@@ -380,14 +394,24 @@ def _read_process(pid: int, uid: int) -> _Seen | None:
         seen.app_id = _steam_app_id(pid)
         seen.name = _comm(pid)
         names = {seen.name, _first_word(pid)}
-        with contextlib.suppress(psutil.AccessDenied, psutil.ZombieProcess):
-            exe = proc.exe()
-            if exe:
-                names.add(os.path.basename(exe)[:MAX_NAME_CHARS])
+        with contextlib.suppress(OSError):  # a game updated while it runs: its file "game (deleted)"
+            exe = os.readlink(f"/proc/{pid}/exe").removesuffix(" (deleted)")
+            names.add(os.path.basename(exe)[:MAX_NAME_CHARS])
         seen.names = frozenset(n for n in names if n)
         return seen
     except (psutil.NoSuchProcess, psutil.AccessDenied, psutil.ZombieProcess, OSError):
         return None
+
+
+def _running(pid: int) -> bool:
+    """Whether process ``pid`` still runs: False when it is gone or a zombie (it exited and its
+    parent has not yet waited for it: it stays in ``/proc`` under its name). The state is the
+    field after the name in ``/proc/PID/stat`` (proc(5)), within its first 256 bytes."""
+    try:
+        data, _ = read_proc_file(f"/proc/{pid}/stat", 256)
+    except OSError:
+        return False
+    return data.rpartition(b")")[2][1:2] not in (b"Z", b"X", b"x")
 
 
 def _comm(pid: int) -> str:
@@ -434,6 +458,7 @@ class ProcessScanner:
             hit = game_map.profile_for_name(set(seen.names))
             if hit is not None:
                 found.append(Game(EXECUTABLE, hit[0], hit[1], pid, seen.name, seen.started))
+        found = [game for game in found if _running(game.pid)]
         return sorted(found, key=lambda g: (g.started, g.pid), reverse=True)
 
 
@@ -469,7 +494,7 @@ class GameProfiles:
         self._map = GameMap({}, {})
         self._map_stamp: tuple[int, int] | None = None
         self._game: Game | None = None  # the game whose profile was asked for
-        self._manual_during: tuple[int, float] | None = None  # a `profile use` while this game ran
+        self._manual_during: tuple[str, int | str] | None = None  # a `profile use` while this game ran
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -486,7 +511,7 @@ class GameProfiles:
             message = self._use(ref, None)
             self._current = ref
             if self._game is not None:
-                self._manual_during = self._game.ident
+                self._manual_during = self._game.entry
                 message += f" (until {self._game.label()} exits)"
             else:
                 self._base = ref
@@ -514,8 +539,8 @@ class GameProfiles:
         games = self._scanner.games(game_map) if game_map else []
         with self._lock:
             if self._manual_during is not None:
-                if any(g.ident == self._manual_during for g in games):
-                    return  # the user chose a profile during this game: theirs until it exits
+                if any(g.entry == self._manual_during for g in games):
+                    return  # the user chose a profile during this game: theirs until all of it exits
                 self._manual_during = None
             game = games[0] if games else None
             if game == self._game:
