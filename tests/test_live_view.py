@@ -369,3 +369,35 @@ def test_keys_are_read_from_a_terminal_only_in_the_foreground():
     finally:
         os.close(primary)
         os.close(secondary)
+
+
+def test_the_drawn_gesture_and_contacts_are_the_latest_windows_while_the_pad_holds_still():
+    """A push held with its stick at the end of its travel (or a button held, or a gesture the
+    profile does not map) leaves the pad's state unchanged: the view kept drawing the intensity
+    and the contacts of the window the state last changed in, beside the markers of now."""
+    import io
+
+    from rich.console import Console
+
+    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.estimate import GestureEstimate
+    from neurotouch_hid.output.live import LiveView
+
+    def push(t_us: int, mm: float, x_mm: float) -> GestureEstimate:
+        at = np.array([[x_mm, 0.0]])
+        return GestureEstimate(t_us, GestureType.PUSH, False, mm, contacts_px=at, contacts_mm=at)
+
+    view = LiveView(Console(file=io.StringIO(), force_terminal=True, width=100), refresh_per_second=50)
+    try:
+        state = ControllerState.neutral(10_000)
+        state.axes["ABS_X"] = 32767
+        first = record_for(load_profile("default"))
+        view.publish(first._replace(estimate=push(10_000, 2.0, -20.0), state=state, state_changed=True))
+        view.publish(first._replace(estimate=push(20_000, 6.0, 20.0), state=state, gesture_changed=False))
+        shown = rendered(view.__rich__(), 100)
+    finally:
+        view.close()
+    gesture = next(line for line in shown.splitlines() if "gesture" in line and "push" in line)
+    assert "6.00 mm" in gesture, shown
+    gel = [line[:34] for line in shown.splitlines() if "●" in line[:34]]  # the gel's column
+    assert len(gel) == 1 and gel[0].index("●") > 17, shown  # the contact at +20 mm: right of the centre

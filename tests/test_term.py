@@ -110,3 +110,22 @@ def test_the_view_keeps_the_last_estimate_for_states_written_without_one():
     view.write(ControllerState.neutral(2))
     lines = console.file.getvalue().splitlines()
     assert all("zoom 1.50 mm" in line for line in lines) and len(lines) == 2
+
+
+@pytest.mark.parametrize("encoding", ["latin-1", "ascii"])
+def test_on_a_terminal_that_is_not_utf8_the_pad_is_drawn_in_characters_it_has(encoding):
+    """A latin-1 or ASCII terminal (LANG=de_DE.ISO-8859-1, PYTHONIOENCODING): the view's dots,
+    arrows and bars raised UnicodeEncodeError, and ``run --output term`` and ``demo`` ended in a
+    traceback with nothing drawn."""
+    out = io.BytesIO()
+    console = Console(file=io.TextIOWrapper(out, encoding=encoding), force_terminal=True, width=120)
+    with TermView(console, stats=RunStats(windows=3, profile="jeu-ß-ゲーム"), refresh_per_second=50) as view:
+        state = ControllerState.neutral(1_000_000)
+        state.axes["ABS_X"], state.axes["ABS_HAT0Y"], state.axes["ABS_Z"] = HI, -1, 255
+        view.write(state, GestureEstimate(t_us=1_000_000, gesture=GestureType.PUSH, resting=False, intensity_mm=2.0))
+        view.say("switched to profile ゲーム → mouse")
+    console.file.flush()
+    text = out.getvalue().decode(encoding)
+    assert "left stick" in text and "push" in text and "2.00 mm" in text
+    assert "o" in text and "^" in text  # the stick's position and the d-pad's up, in ASCII
+    assert "switched to profile ?????? > mouse" in text and "profile jeu-" in text

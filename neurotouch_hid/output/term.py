@@ -10,6 +10,10 @@ line, and a last one when it is neutralised or closed.
 
 Buttons are labelled as the Xbox 360 pad (and Linux' xpad driver) names them: BTN_SOUTH A,
 BTN_EAST B, BTN_NORTH X, BTN_WEST Y.
+
+On a terminal whose encoding is not UTF-8 (a latin-1 or ASCII locale) every character it lacks is
+drawn as its ASCII stand-in (:data:`ASCII_FALLBACK`, else ``?``; :func:`encodable`), the boxes
+as rich draws them there (ASCII).
 """
 
 from __future__ import annotations
@@ -21,10 +25,12 @@ import threading
 import time
 from typing import TYPE_CHECKING, Callable, Optional
 
-from rich.console import Console, Group
+from rich.cells import cell_len
+from rich.console import Console, ConsoleOptions, Group, RenderableType, RenderResult
 from rich.live import Live
 from rich.panel import Panel
 from rich.progress_bar import ProgressBar
+from rich.segment import Segment
 from rich.table import Table
 from rich.text import Text
 
@@ -92,6 +98,66 @@ def pad_name(output: str) -> str:
 
 STICK_COLUMNS = 11
 STICK_ROWS = 5
+
+#: What the views draw for one of their characters where the terminal's encoding lacks it
+#: (:func:`encodable`): dots, arrows (the d-pad's and the gel's markers'), bars, the spinner.
+ASCII_FALLBACK: dict[str, str] = {
+    "●": "o",
+    "·": ".",
+    "░": ":",
+    "━": "=",
+    "─": "-",
+    "█": "#",
+    "…": ".",
+    "←": "<",
+    "↑": "^",
+    "↓": "v",
+    "→": ">",
+    "↗": "/",
+    "↖": "\\",
+    "↙": "/",
+    "↘": "\\",
+    **dict(zip("⠋⠙⠹⠸⠼⠴⠦⠧⠇⠏", "|/-\\|/-\\|/")),
+}
+
+
+def encodable(text: str, encoding: str) -> str:
+    """``text`` as a terminal in ``encoding`` (a codec name, e.g. ``latin-1``) can show it: each
+    character the encoding lacks replaced by its :data:`ASCII_FALLBACK`, else by ``?`` as many as
+    the columns it takes. An encoding Python does not know: ``text`` unchanged."""
+    try:
+        text.encode(encoding)
+        return text
+    except LookupError:
+        return text
+    except UnicodeEncodeError:
+        pass
+    kept = []
+    for char in text:
+        try:
+            char.encode(encoding)
+            kept.append(char)
+        except UnicodeEncodeError:
+            kept.append(ASCII_FALLBACK.get(char, "?" * max(1, cell_len(char))))
+    return "".join(kept)
+
+
+class _InEncoding:
+    """``renderable`` drawn with only the characters the console's encoding has (:func:`encodable`):
+    rich writes text as it is, and a character the terminal's encoding lacks raised
+    UnicodeEncodeError."""
+
+    def __init__(self, renderable: RenderableType) -> None:
+        self.renderable = renderable
+
+    def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
+        if options.encoding.startswith("utf"):  # rich's own test (ConsoleOptions.ascii_only)
+            yield self.renderable
+            return
+        for segment in console.render(self.renderable, options):
+            if segment.control is None and segment.text:
+                segment = Segment(encodable(segment.text, options.encoding), segment.style)
+            yield segment
 
 
 def axis_fraction(name: str, value: int) -> float:
@@ -243,14 +309,17 @@ class TermView:
         self._live: Live | None = None
         self._logs: list[tuple[logging.StreamHandler, object]] = []
         if self.console.is_terminal:
-            self._live = Live(self, console=self.console, refresh_per_second=refresh_per_second, transient=False)
+            self._live = Live(
+                _InEncoding(self), console=self.console, refresh_per_second=refresh_per_second, transient=False
+            )
             self._live.start()
             self._logs = logs_above(self.say)
 
     def say(self, line: str) -> None:
         """Print one line for the user: above the view while it is drawn on a terminal (rich's
-        Live; a line written to stderr meanwhile would be drawn over), else to this console."""
-        self.console.print(line, markup=False, highlight=False, soft_wrap=True)
+        Live; a line written to stderr meanwhile would be drawn over), else to this console;
+        in characters its encoding has (:func:`encodable`)."""
+        self.console.print(encodable(line, self.console.encoding), markup=False, highlight=False, soft_wrap=True)
 
     def write(self, state: ControllerState, estimate: GestureEstimate | None = None) -> None:
         """Show ``state`` (and the estimate's gesture and intensity)."""
@@ -271,10 +340,14 @@ class TermView:
 
     def publish(self, record: WindowRecord) -> None:
         """A window's record (:class:`~neurotouch_hid.stages.Subscriber`): shown when its state or
-        its gesture changed."""
+        its gesture changed; drawn on a terminal, its estimate (intensity, contacts) is drawn
+        whatever changed (a stick held at the end of its travel, a button held)."""
         self.stats = record.stats
         if record.state_changed or record.gesture_changed:
             self.write(record.state, record.estimate)
+        elif self._live is not None:
+            with self._lock:
+                self._estimate = record.estimate
 
     def prepare(self, profile: Profile) -> None:
         """Nothing to get ready: every profile's states draw alike (:class:`~neurotouch_hid.stages.Subscriber`)."""
@@ -335,7 +408,7 @@ class TermView:
             state = dataclasses.replace(self._state, rel={k: v for k, v in self._rel_since_line.items() if v})
             self._rel_since_line = {}
             self._printed_discrete = discrete_outputs(state)
-            line = state_line(state, self._estimate, self.stats)
+            line = encodable(state_line(state, self._estimate, self.stats), self.console.encoding)
         self.console.print(line, highlight=False, markup=False, soft_wrap=True)
 
     def __rich__(self) -> Panel:
