@@ -138,12 +138,22 @@ def _csv_rows(fh: IO[str], path: Path) -> Iterator[list[str]]:
         yield row
 
 
+def _label_cell(convert, cell: str, expected: str):
+    """``convert(cell)``, or a ValueError saying what was ``expected`` and what was found."""
+    try:
+        return convert(cell)
+    except ValueError:
+        raise ValueError(f"expected {expected}, found {short(cell)}") from None
+
+
 def read_labels(path: str | Path) -> list[LabelRow]:
     """Read a ``SEQUENCE.labels.csv``.
 
     Raises:
-        DatasetError: naming the file, the line and the column, when the header differs from
-            docs/dataset.md's, a value has the wrong type, or rows are not ordered by time.
+        DatasetError: naming the file, the line, the column and what was expected, when the file
+            is empty, the header differs from docs/dataset.md's, a value has the wrong type or
+            range, a ``none`` row has an intensity other than 0, a contact cell after the first
+            ``n_contacts`` points is filled, or rows are not ordered by time.
     """
     path = Path(path)
     rows: list[LabelRow] = []
@@ -152,7 +162,11 @@ def read_labels(path: str | Path) -> list[LabelRow]:
     with io.StringIO(text, newline="") as fh:
         reader = _csv_rows(fh, path)
         header = next(reader, None)
-        if header is None or tuple(h.strip() for h in header) != LABEL_COLUMNS:
+        if header is None:
+            raise DatasetError(
+                f"{path}:1: the file is empty; expected the header {','.join(LABEL_COLUMNS)} (docs/dataset.md)"
+            )
+        if tuple(h.strip() for h in header) != LABEL_COLUMNS:
             raise DatasetError(
                 f"{path}:1: header must be {','.join(LABEL_COLUMNS)} (docs/dataset.md), found {short(header)}"
             )
@@ -166,28 +180,36 @@ def read_labels(path: str | Path) -> list[LabelRow]:
             if len(rows) >= MAX_LABEL_ROWS:
                 raise DatasetError(f"{path}:{line_no}: more than {MAX_LABEL_ROWS:,} rows (docs/limits.md, Labels)")
             try:
-                t_us = int(cells[0])
+                t_us = _label_cell(int, cells[0], "an integer time in microseconds from 0 to 2^62")
                 if not 0 <= t_us <= MAX_T_US:
                     raise ValueError(f"expected a time in microseconds from 0 to 2^62, found {short(cells[0])}")
                 col = "gesture"
-                gesture = GestureType(cells[1])
+                gesture = _label_cell(GestureType, cells[1], f"one of {', '.join(g.value for g in GestureType)}")
                 col = "resting"
                 if cells[2] not in ("0", "1"):
                     raise ValueError("expected 0 or 1")
                 col = "intensity_mm"
-                intensity = float(cells[3])
+                mm = f"mm from 0 to {MAX_LABEL_INTENSITY_MM:g}"
+                intensity = _label_cell(float, cells[3], mm)
                 if not 0.0 <= intensity <= MAX_LABEL_INTENSITY_MM:  # NaN fails too
-                    raise ValueError(f"expected mm from 0 to {MAX_LABEL_INTENSITY_MM:g}, found {short(cells[3])}")
+                    raise ValueError(f"expected {mm}, found {short(cells[3])}")
+                if gesture is GestureType.NONE and intensity != 0.0:
+                    raise ValueError(f"expected 0 for gesture none, found {short(cells[3])}")
                 col = "n_contacts"
-                n = int(cells[4])
+                n = _label_cell(int, cells[4], f"an integer from 0 to {MAX_CONTACTS}")
                 if not 0 <= n <= MAX_CONTACTS:
                     raise ValueError(f"expected 0 to {MAX_CONTACTS}")
-                col = "contacts"
-                contacts = np.array(
-                    [[float(cells[5 + 2 * k]), float(cells[6 + 2 * k])] for k in range(n)], dtype=np.float64
-                ).reshape(n, 2)
-                if not np.all(np.abs(contacts) <= MAX_SENSOR_PX):  # NaN fails too
-                    raise ValueError(f"expected image pixels from -{MAX_SENSOR_PX} to {MAX_SENSOR_PX}")
+                values = []
+                for k, cell in enumerate(cells[5:]):
+                    col = LABEL_COLUMNS[5 + k]
+                    if k < 2 * n:
+                        px = f"image pixels from -{MAX_SENSOR_PX} to {MAX_SENSOR_PX}"
+                        values.append(_label_cell(float, cell, px))
+                        if not abs(values[-1]) <= MAX_SENSOR_PX:  # NaN fails too
+                            raise ValueError(f"expected {px}, found {short(cell)}")
+                    elif cell.strip():  # the points after the first n_contacts: dropped unsaid else
+                        raise ValueError(f"expected empty (n_contacts is {n}), found {short(cell)}")
+                contacts = np.array(values, dtype=np.float64).reshape(n, 2)
             except ValueError as exc:
                 raise DatasetError(f"{path}:{line_no}: column {col!r}: {printable(exc, 200)}") from None
             if t_us < last:
@@ -197,6 +219,31 @@ def read_labels(path: str | Path) -> list[LabelRow]:
     if not rows:
         raise DatasetError(f"{path}:2: no labelled frame after the header (docs/dataset.md): nothing to score")
     return rows
+
+
+def check_labels_clock(
+    labels: Sequence[LabelRow], path: str | Path, recording: str | Path, start_us: int, end_us: int
+) -> None:
+    """Refuse labels none of whose frames lies within their recording's time range: labels on
+    another clock, or in another unit than microseconds (docs/dataset.md: ``t_us`` is on the
+    recording's clock), would score every prediction against the last label, or skip them all.
+
+    Args:
+        labels: the rows of ``path`` (:func:`read_labels`), ordered by time, at least one.
+        path: the labels file, for the message.
+        recording: the recording, for the message.
+        start_us, end_us: the recording's first and last timestamp (us); nothing is checked when
+            ``end_us <= start_us`` (an empty recording, refused by its reader).
+    Raises:
+        DatasetError: naming both files and both time ranges.
+    """
+    first, last = labels[0].t_us, labels[-1].t_us
+    if end_us > start_us and (last < start_us or first > end_us):
+        raise DatasetError(
+            f"{path}:2: t_us: the labels run from {first} to {last} us, the recording {recording} from {start_us} "
+            f"to {end_us} us: no labelled frame lies within it; expected the recording's clock, in microseconds "
+            "(docs/dataset.md)"
+        )
 
 
 #: The columns of ``SEQUENCE.pressed.csv`` (docs/dataset.md, "Per-gesture metrics").
@@ -527,20 +574,6 @@ def write_predictions(path: str | Path, estimates: Iterable[GestureEstimate]) ->
 MAX_T_US = 2**62
 
 
-def _no_constant(name: str) -> float:
-    """``json.loads``' hook for ``NaN`` and ``Infinity``: no number of a predictions file."""
-    raise ValueError(f"{name} is not a finite number")
-
-
-def _finite_float(text: str) -> float:
-    """``json.loads``' hook for a JSON number with a fraction or exponent: 1e999 is no constant
-    but reads as infinity, no number of a predictions file either."""
-    value = float(text)
-    if not math.isfinite(value):
-        raise ValueError(f"{short(text)} is past a float's range")
-    return value
-
-
 def _number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
@@ -551,9 +584,14 @@ def _points(value: Any, bound: float) -> bool:
     )
 
 
+#: The fields every predictions line has (docs/dataset.md, Predictions): null is no value of them.
+REQUIRED_PREDICTION_FIELDS = ("t_us", "gesture", "resting", "intensity_mm")
+
+
 def _prediction_field_problem(data: dict) -> str | None:
     """``FIELD: expected ..., found ...`` for the first field of a predictions line of the wrong
-    type or range (docs/dataset.md, Predictions; the similarity's terms optional), else None."""
+    type or range (docs/dataset.md, Predictions; the similarity's terms optional, null where
+    optional), else None."""
     checks = (
         ("resting", lambda v: isinstance(v, bool) or (type(v) is int and v in (0, 1)), "true or false (or 1 or 0)"),
         (
@@ -572,7 +610,8 @@ def _prediction_field_problem(data: dict) -> str | None:
         ("scale", _number, "a finite number"),
     )
     for name, fits, expected in checks:
-        if name in data and data[name] is not None and not fits(data[name]):
+        given = name in data and (data[name] is not None or name in REQUIRED_PREDICTION_FIELDS)
+        if given and not fits(data[name]):
             return f"{name}: expected {expected}, found {short(data[name])}"
     return None
 
@@ -604,20 +643,27 @@ def iter_predictions(path: str | Path) -> Iterator[GestureEstimate]:
 def _prediction_line(path: Path, number: int, line: str) -> GestureEstimate:
     """One line of a predictions file as an estimate, or a DatasetError naming ``path:number``."""
     try:
-        data = json.loads(line, parse_constant=_no_constant, parse_float=_finite_float)
+        # NaN, Infinity and 1e999 read as floats: the fields' checks below refuse them, by name
+        data = json.loads(line)
     except json.JSONDecodeError as exc:
         raise DatasetError(f"{path}:{number}: not a JSON object: {exc.msg}") from None
     except (ValueError, RecursionError):  # a number of thousands of digits, nesting too deep
         raise DatasetError(f"{path}:{number}: not a predictions line (a number or nesting out of bounds)") from None
     if not isinstance(data, dict):
         raise DatasetError(f"{path}:{number}: expected a JSON object, found {type(data).__name__}")
-    missing = [k for k in ("t_us", "gesture", "resting", "intensity_mm") if k not in data]
+    missing = [k for k in REQUIRED_PREDICTION_FIELDS if k not in data]
     if missing:
         raise DatasetError(f"{path}:{number}: missing field(s) {', '.join(missing)} (docs/dataset.md, Predictions)")
     t_us = data["t_us"]
-    if isinstance(t_us, bool) or not isinstance(t_us, (int, float)) or not 0 <= t_us <= MAX_T_US:
+    whole = isinstance(t_us, int) or (isinstance(t_us, float) and t_us.is_integer())  # 1e6 is; 1.25 (s) is not
+    if isinstance(t_us, bool) or not whole or not 0 <= t_us <= MAX_T_US:
         raise DatasetError(
-            f"{path}:{number}: t_us: expected a time in microseconds from 0 to 2^62, found {short(t_us)}"
+            f"{path}:{number}: t_us: expected a whole number of microseconds from 0 to 2^62, found {short(t_us)}"
+        )
+    names = tuple(g.value for g in GestureType)
+    if not (isinstance(data["gesture"], str) and data["gesture"] in names):
+        raise DatasetError(
+            f"{path}:{number}: bad value: gesture: expected one of {', '.join(names)}, found {short(data['gesture'])}"
         )
     problem = _prediction_field_problem(data)
     if problem is not None:

@@ -44,7 +44,7 @@ def test_labels_round_trip(tmp_path):
     [
         ("40000,wave,0,1.0,0,,,,,,", r":3: column 'gesture'"),
         ("40000,push,2,1.0,0,,,,,,", r":3: column 'resting'"),
-        ("40000,push,0,1.0,1,,,,,,", r":3: column 'contacts'"),
+        ("40000,push,0,1.0,1,,,,,,", r":3: column 'x1_px'"),
         ("10,push,0,1.0,0,,,,,,", r":3: rows must be ordered by time"),
     ],
 )

@@ -427,8 +427,8 @@ _HEADER = "t_us,gesture,resting,intensity_mm,n_contacts,x1_px,y1_px,x2_px,y2_px,
         ("40000,push,0,inf,0,,,,,,", "intensity_mm"),
         ("40000,push,0,5e7,0,,,,,,", "intensity_mm"),
         ("40000,push,0,-1,0,,,,,,", "intensity_mm"),
-        ("40000,push,0,1,1,nan,3,,,,", "contacts"),
-        ("40000,push,0,1,1,1e300,3,,,,", "contacts"),
+        ("40000,push,0,1,1,nan,3,,,,", "x1_px"),
+        ("40000,push,0,1,1,1e300,3,,,,", "x1_px"),
     ],
 )
 def test_a_labels_number_out_of_bounds_is_one_line_with_file_line_and_column(tmp_path, row, column):

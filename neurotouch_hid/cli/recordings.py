@@ -343,7 +343,13 @@ def eval_cmd(
         if folder is not None:  # outputs checked before the evaluation, not after it
             _no_file_on_the_way(flag, folder.parent if flag == "--json" else folder)
     if json_out is not None and not to_stdout(json_out):
-        check_output(json_out, (dataset,), what="JSON summary")
+        from neurotouch_hid.dataset import list_sequences
+        from neurotouch_hid.evaluation.report import FIGURES
+
+        others = [(f"report's {name}", report / name) for name in ("summary.md", *FIGURES) if report is not None]
+        if predictions is not None:  # the JSON, written last, would replace one of them
+            others += [(f"predictions of {n}", predictions / f"{n}.jsonl") for n in list_sequences(dataset)]
+        check_output(json_out, (dataset,), what="JSON summary", others=others)
     from neurotouch_hid.enrolment.model import apply_model
 
     config = pipeline_config(settings, method, **({} if window_us is None else {"window_us": window_us}))
@@ -379,6 +385,7 @@ def eval_cmd(
                 ("--window-us", window_us),
                 ("--jobs", jobs if jobs > 1 else None),
                 ("--deadzone-mm", deadzone_mm if deadzone_mm != 0.8 else None),
+                ("--model", model),
                 ("--report", report),
                 ("--json", json_out),
             )

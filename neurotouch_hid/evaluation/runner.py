@@ -17,7 +17,14 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Callable, Sequence
 
-from neurotouch_hid.dataset import dataset_sensor_file, list_sequences, read_labels, read_pressed, write_predictions
+from neurotouch_hid.dataset import (
+    check_labels_clock,
+    dataset_sensor_file,
+    list_sequences,
+    read_labels,
+    read_pressed,
+    write_predictions,
+)
 from neurotouch_hid.errors import NeurotouchError, in_plain_words
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
 from neurotouch_hid.evaluation.metrics import EvaluationResult, Observations, align, evaluate
@@ -113,18 +120,22 @@ def run_sequence(
         deadzone_mm: the dead zone of the per-gesture figures (mm; :mod:`.felt`).
         profiles: profiles to replay the predictions through (:mod:`.through_profile`).
     Raises:
-        DatasetError, RecordingError, SensorError: bad labels, recording or geometry.
+        DatasetError, RecordingError, SensorError: bad labels (among them labels none of whose
+            frames lies within the recording's time range: :func:`~neurotouch_hid.dataset.check_labels_clock`),
+            recording or geometry.
     """
     from neurotouch_hid.pipeline.methods import pipeline_for
     from neurotouch_hid.sources.recording import RecordingReader
 
     dataset = Path(dataset)
     sensor = SensorGeometry.load(dataset_sensor_file(dataset))
-    labels = read_labels(dataset / f"{name}.labels.csv")
+    labels_path, recording = dataset / f"{name}.labels.csv", dataset / f"{name}.aedat4"
+    labels = read_labels(labels_path)
     pipeline = pipeline_for(sensor, config)
     predictions = []
-    with RecordingReader(dataset / f"{name}.aedat4") as reader:
+    with RecordingReader(recording) as reader:
         start = reader.info.start_us
+        check_labels_clock(labels, labels_path, recording, start, reader.info.end_us)
         for estimate in pipeline.run(reader.stream()):
             predictions.append(estimate)
             if on_time is not None and len(predictions) % 50 == 0:

@@ -151,10 +151,10 @@ def outputs_by_type(profile: Profile) -> dict[GestureType, frozenset[str]]:
 
 
 def ideal_estimates(labels: Sequence[LabelRow], times: np.ndarray, geometry: SensorGeometry) -> list[GestureEstimate]:
-    """What a pipeline without error would answer at ``times``: each window the most recent
-    labelled frame's type, resting flag, intensity and contact points
-    (:func:`~neurotouch_hid.dataset.labels_at`), a push's direction the labelled contacts' mean
-    shift (user frame, mm) since the gesture's first frame.
+    """What a pipeline without error would answer at ``times``: each window the label at its time
+    (:func:`~neurotouch_hid.dataset.labels_at`: the most recent labelled frame's type, resting flag
+    and contact count, the intensity and contact points interpolated), a push's direction the
+    labelled contacts' mean shift (user frame, mm) since the gesture's first frame.
 
     Args:
         labels: the sequence's label rows, ordered by time.
