@@ -163,9 +163,13 @@ def _check_section(path: Path, data: dict, section: str, root: Any) -> dict:
             raise GameMapError(
                 f"{at}: {section}.{printable(game)}: expected a profile name or path, found {short(profile)}"
             )
-        if section == STEAM and not (isinstance(game, int) and 0 <= game <= MAX_STEAM_APP_ID):
+        if section == STEAM and not (
+            isinstance(game, int) and not isinstance(game, bool) and 0 <= game <= MAX_STEAM_APP_ID
+        ):
+            quoted = isinstance(game, str) and _app_id(game) is not None
             raise GameMapError(
                 f"{at}: steam: '{printable(game)}' is not a Steam app id (a whole number up to {MAX_STEAM_APP_ID})"
+                + ("; write it without quotes" if quoted else "")
             )
         if section == EXECUTABLE and not isinstance(game, str):
             raise GameMapError(f"{at}: executable: '{printable(game)}' is not a name (quote it)")

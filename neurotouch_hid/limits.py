@@ -434,14 +434,16 @@ def read_proc_file(path: str | os.PathLike, max_bytes: int) -> tuple[bytes, bool
 
 def key_line(root: Any, *keys: object) -> int:
     """The 1-based line of the key reached by ``keys`` from ``root`` (a node of :func:`load_yaml`;
-    each key compared as its text, e.g. ``4242``), else of the deepest node reached; 0 for no
-    root (an empty document). For error messages (:func:`where`)."""
+    each key compared as its text, e.g. ``4242``, a boolean as YAML writes it, ``true`` in any
+    case), else of the deepest node reached; 0 for no root (an empty document). For error
+    messages (:func:`where`)."""
     if root is None:
         return 0
     node, line = root, root.start_mark.line + 1
     for key in keys:
         pairs = node.value if node is not None and node.id == "mapping" else ()
-        match = next((pair for pair in pairs if pair[0].id == "scalar" and pair[0].value == str(key)), None)
+        text, fold = (str(key).lower(), str.lower) if isinstance(key, bool) else (str(key), str)
+        match = next((pair for pair in pairs if pair[0].id == "scalar" and fold(pair[0].value) == text), None)
         if match is None:
             break
         line, node = match[0].start_mark.line + 1, match[1]

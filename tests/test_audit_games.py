@@ -185,3 +185,22 @@ def test_a_profile_path_with_a_nul_gets_an_answer_and_the_server_keeps_serving(t
         assert server._answer(b'{"command": "use", "profile": "default"}') == {"ok": True, "message": "switched"}
     finally:
         server.stop()
+
+
+@pytest.mark.parametrize(
+    "text, expected",
+    [
+        ("steam:\n  true: mouse\n", "is not a Steam app id"),  # YAML's true is no app id 1
+        ('steam:\n  "4242": mouse\n', "write it without quotes"),
+    ],
+)
+def test_a_steam_key_that_is_no_number_is_refused_saying_what_to_write(text, expected):
+    """``true`` was taken as Steam app 1; a quoted id was refused without saying the quotes were
+    the problem."""
+    path = games_file()
+    path.parent.mkdir(parents=True)
+    path.write_text(text)
+    with pytest.raises(GameMapError) as caught:
+        load_game_map()
+    message = str(caught.value)
+    assert message.startswith(f"{path}:2: ") and expected in message, message
