@@ -5,7 +5,11 @@ device itself is checked in a real kernel (tests/test_uhid_kernel.py)."""
 from __future__ import annotations
 
 import os
+import shutil
 import struct
+import subprocess
+import tempfile
+from pathlib import Path
 
 import pytest
 
@@ -34,8 +38,19 @@ from neurotouch_hid.udev import RULES_FILE, UHID_RULE
 
 
 def test_the_event_size_is_the_kernels():
-    # sizeof(struct uhid_event): u32 type + uhid_create2_req (128+64+64+2+2+4+4+4+4+4096), packed
-    assert UHID_EVENT_SIZE == 4 + 128 + 64 + 64 + 2 + 2 + 4 * 4 + 4096 == 4376
+    # sizeof(struct uhid_event): u32 type + the union, whose largest member uhid_create2_req
+    # (128+64+64+2+2+4+4+4+4+4096 = 4372) is padded to the union's 8-byte alignment
+    assert UHID_EVENT_SIZE == 4 + 4376 == 4380
+    header = Path("/usr/include/linux/uhid.h")
+    if header.exists() and shutil.which("cc"):  # the kernel's own header, as the C compiler reads it
+        with tempfile.TemporaryDirectory() as folder:
+            source = Path(folder) / "size.c"
+            source.write_text(
+                "#include <linux/uhid.h>\n#include <stdio.h>\n"
+                'int main(void) { printf("%zu", sizeof(struct uhid_event)); }\n'
+            )
+            subprocess.run(["cc", str(source), "-o", f"{folder}/size"], check=True)
+            assert subprocess.run([f"{folder}/size"], capture_output=True, text=True, check=True).stdout == "4380"
 
 
 def test_create2_puts_every_field_at_its_offset():

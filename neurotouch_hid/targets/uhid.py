@@ -78,8 +78,10 @@ UHID_DATA_MAX = 4096
 BUS_USB = 0x03
 #: struct uhid_create2_req: name[128] phys[64] uniq[64] rd_size bus vendor product version country
 _CREATE2 = struct.Struct("<I128s64s64sHHIIII")
-#: sizeof(struct uhid_event): the type and the largest request, uhid_create2_req (its rd_data last).
-UHID_EVENT_SIZE = _CREATE2.size + UHID_DATA_MAX
+#: sizeof(struct uhid_event): the type and its union of requests, whose largest is uhid_create2_req
+#: (its rd_data last, 4372 bytes), padded to the union's 8-byte alignment (uhid_create_req's
+#: rd_data pointer): 4 + 4376 = 4380, as gcc gives for linux/uhid.h on x86_64 and aarch64.
+UHID_EVENT_SIZE = 4 + -(-(_CREATE2.size - 4 + UHID_DATA_MAX) // 8) * 8
 _INPUT2 = struct.Struct("<IH")  # type, size; the data follows
 _GET_REPORT = struct.Struct("<IBB")  # id, rnum, rtype
 _GET_REPORT_REPLY = struct.Struct("<IIHH")  # type, id, err, size; the data follows
