@@ -419,7 +419,14 @@ class Runtime:
         """Neutralise every subscriber, then map with ``profile`` from the next window on.
         The output devices are kept (the pad's name and ids stay those it was created with); a
         keyboard or mouse the new profile needs is created (``prepare(profile)``). The old
-        profile's merged devices are released, the new one's grabbed."""
+        profile's merged devices are released, the new one's grabbed.
+
+        Raises:
+            NeurotouchError: the run is stopping or over (every output released, the merged
+                devices let go): nothing is switched.
+        """
+        if self._stop.is_set():
+            raise NeurotouchError("the driver is stopping: the profile is not switched")
         self._switch_merge(profile)
         with self._lock:
             self._neutralise()
@@ -1038,6 +1045,8 @@ class Runtime:
         if new is not None and self._ran:
             new.start(self._on_input)
         self._merge = new
+        if new is not None and self._stop.is_set():  # the run stopped meanwhile: it may not have seen this one
+            new.stop()
         self.stats.merged, self.stats.missing = new.status() if new is not None else ((), ())
 
 

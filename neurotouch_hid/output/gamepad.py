@@ -251,7 +251,8 @@ class VirtualGamepad(NeutralOnClose):
         self._ff_thread.start()
 
     def _answer_force_feedback(self) -> None:
-        """Thread: answer EV_UINPUT upload/erase requests at once (success), report plays."""
+        """Thread: answer EV_UINPUT upload/erase requests at once (success), report plays (an
+        ``on_effect`` that fails is logged: the next request is answered all the same)."""
         from evdev import UInputError, ecodes
 
         fd = self._ui.fd
@@ -291,7 +292,10 @@ class VirtualGamepad(NeutralOnClose):
                 now = time.monotonic()
                 if line != said or now - said_at >= EFFECT_REPEAT_S:
                     said, said_at = line, now
-                    self.on_effect(line)
+                    try:  # the game's next request must still be answered
+                        self.on_effect(line)
+                    except Exception as exc:
+                        log.warning("could not report a force-feedback request (%s): %s", line, exc)
 
     def _remember_rumble(self, effect) -> None:
         """An uploaded effect (python-evdev ``ff.Effect``): a rumble's magnitudes and length kept

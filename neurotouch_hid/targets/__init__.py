@@ -164,7 +164,8 @@ class TargetOutputs:
 
     def _read_feedback(self) -> None:
         """Thread: sleep in select until a target's side is readable (or the wake-up pipe: stop),
-        then let that target read it, and tell the user."""
+        then let that target read it, and tell the user. A ``say`` or ``forward`` that fails is
+        logged: the thread goes on reading every target."""
         said, said_at = "", 0.0
         while True:
             try:
@@ -186,11 +187,14 @@ class TargetOutputs:
                     self.feedbacks += 1
                     line = describe_feedback(feedback)
                     now = time.monotonic()
-                    if line != said or now - said_at >= FEEDBACK_REPEAT_S:
-                        said, said_at = line, now
-                        self.say(line)
-                    if self.forward is not None:
-                        self.forward(feedback)
+                    try:  # the targets' requests (a GET_REPORT, a driver binding) must still be read
+                        if line != said or now - said_at >= FEEDBACK_REPEAT_S:
+                            said, said_at = line, now
+                            self.say(line)
+                        if self.forward is not None:
+                            self.forward(feedback)
+                    except Exception as exc:
+                        log.warning("%s: could not tell or forward %r: %s", target.what, line, exc)
 
     def __enter__(self) -> TargetOutputs:
         return self
