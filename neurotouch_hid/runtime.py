@@ -552,10 +552,12 @@ class Runtime:
                 unfinished = self._compiling()
                 if unfinished is not None:  # it stops with the run: say how far it got
                     self.stats.compile_ended_at = unfinished.fraction
-                if self._merge is not None:
-                    self._merge.stop()
-                with self._lock:
-                    self._neutralise()
+                try:
+                    if self._merge is not None:
+                        self._merge.stop()
+                finally:  # the outputs neutral even when a merged device's release fails
+                    with self._lock:
+                        self._neutralise()
         if self._errors:
             raise self._errors[0]
         if interrupted:
@@ -933,9 +935,16 @@ class Runtime:
             self._paused = False
 
     def _neutralise(self) -> None:
-        """Every subscriber neutral at once (caller holds ``self._lock``)."""
+        """Every subscriber neutral at once (caller holds ``self._lock``): each one, even when an
+        earlier one fails; the first failure is raised after."""
+        failure: BaseException | None = None
         for subscriber in self._subscribers:
-            subscriber.neutralise()
+            try:
+                subscriber.neutralise()
+            except Exception as exc:
+                failure = failure or exc
+        if failure is not None:
+            raise failure
 
     def _performed_at(self, t_us: int) -> LabelRow | None:
         """The source's label in force at ``t_us`` (us): the last one at or before it."""

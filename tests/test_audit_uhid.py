@@ -223,3 +223,35 @@ def test_a_profile_switch_that_lands_after_the_run_stopped_grabs_nothing_and_say
         rt.use_profile("other")
     assert not any(m.grabbed for m in merges)
     assert out.calls[-1] == ("neutralise", None)
+
+
+class FailingOutput(RecordingOutput):
+    """An output whose neutral report cannot be sent (a USB host gone, a closed node)."""
+
+    def neutralise(self):
+        super().neutralise()
+        raise OSError(5, "Input/output error")
+
+
+class FailingMerge(FakeMerge):
+    def stop(self) -> None:
+        super().stop()
+        raise OSError(19, "No such device")
+
+
+def test_the_runs_last_neutral_reaches_every_output_when_one_or_a_merged_device_fails():
+    """Whatever stops the driver, every output is sent neutral: one output's failing neutral
+    report, or merged devices whose release fails, must not keep the others from theirs."""
+    first, second = FailingOutput(), RecordingOutput()
+    rt = Runtime(
+        (batch(i * 1000) for i in range(5)),
+        FakePipeline(),
+        {"sign": 1},
+        [first, second],
+        mapper_factory=FakeMapper,
+        pace=False,
+        merge_for=lambda profile: FailingMerge(),
+    )
+    with pytest.raises(OSError):
+        rt.run()
+    assert second.calls[-1] == ("neutralise", None), second.calls
