@@ -242,8 +242,9 @@ def adapt(
     Refits the learned gesture type (the shipped one as its prior), the contact and resting
     thresholds, the wait for a second finger and the intensity scale; keeps the shipped value
     wherever the fit does not beat it on the held-out gestures, and says what it changed
-    (docs/method.md, "Adaptation"). An enrolment from the simulated camera (--source sim) is
-    written only where --out says, never as your model. --reset goes back to the shipped one."""
+    (docs/method.md, "Adaptation"); with too few gestures to hold 3 out, it replaces no model. An
+    enrolment from the simulated camera (--source sim) is written only where --out says, never as
+    your model. --reset goes back to the shipped one."""
     from neurotouch_hid.enrolment.adapt import adapt as fit
     from neurotouch_hid.enrolment.adapt import check_output, fitted_info, record_datasets, simulated_sequences, summary
     from neurotouch_hid.enrolment.model import Model, reset_user_model, user_model_path
@@ -274,6 +275,11 @@ def adapt(
     said = human_console(out)  # stderr when the model goes to standard output
     for line in summary(adaptation):
         said.print(line, highlight=False, soft_wrap=True, markup=False)
+    if adaptation.note and target.is_file():  # nothing fitted: a model of nothing would replace one fitted before
+        raise NeurotouchError(
+            f"no model written to {target} (the one there is left as it was): too few gestures to check a change "
+            "on (above)"
+        )
     model = adaptation.model
     written = Model(model.settings, model.classifier, fitted_info(adaptation, datasets)).save(target)
     said.print(f"-> {written}", highlight=False, soft_wrap=True, markup=False)

@@ -508,7 +508,9 @@ class Adaptation:
         windows: held-out labelled windows.
         accuracy_before, accuracy_after: the held-out windows' gesture type accuracy with the
             shipped method and with the model (replayed).
-        note: why nothing was fitted, when so.
+        note: why nothing was fitted, when so (then nothing is worth writing: ``adapt`` writes no model).
+        missing: the gesture types (CLASSES values) with no labelled gesture in the enrolments:
+            nothing was checked on them.
     """
 
     model: "Model"  # noqa: F821 (model.py)
@@ -519,6 +521,7 @@ class Adaptation:
     accuracy_before: float
     accuracy_after: float
     note: str = ""
+    missing: tuple[str, ...] = ()
 
 
 def adapt(records: Sequence[Record], rerun: Callable[..., list[Record]] | None = None) -> Adaptation:
@@ -538,6 +541,8 @@ def adapt(records: Sequence[Record], rerun: Callable[..., list[Record]] | None =
     every = {p for r in records for p in r.prompt_type}
     if not every:
         raise NeurotouchError("the enrolment datasets hold no labelled gesture: nothing to fit (docs/dataset.md)")
+    kinds = {k for r in records for k in r.prompt_type.values()}
+    missing = tuple(c.value for i, c in enumerate(CLASSES) if i not in kinds)
     fit_part = {p for r in records for p in np.unique(np.concatenate([r.prompt, r.frame_prompt])).tolist()} - held
     shipped_answers = [replay(r) for r in records]
     before, windows = _accuracy(records, shipped_answers, held)
@@ -550,8 +555,10 @@ def adapt(records: Sequence[Record], rerun: Callable[..., list[Record]] | None =
             windows,
             before,
             before,
-            f"only {len(held)} gesture(s) could be held out (at least {MIN_HELD_OUT}): the shipped method is kept; "
-            "enrol again with more prompts",
+            f"only {len(held)} gesture(s) could be held out (at least {MIN_HELD_OUT}): no change can be checked, "
+            "so nothing is fitted; enrol again (`neurotouch-hid enrol`) and give adapt all your enrolment folders "
+            "together",
+            missing,
         )
     checks: list[Check] = []
     # the learned type
@@ -702,7 +709,7 @@ def adapt(records: Sequence[Record], rerun: Callable[..., list[Record]] | None =
             "intercept": classifier.intercept.tolist(),
         },
     )
-    return Adaptation(model, checks, len(held), len(every), windows, before, current)
+    return Adaptation(model, checks, len(held), len(every), windows, before, current, missing=missing)
 
 
 #: What each fitted setting means to the player, and what its value is in their words.
@@ -733,6 +740,10 @@ def summary(adaptation: Adaptation) -> list[str]:
     ]
     if a.note:
         lines.append(a.note)
+    if a.missing:
+        kinds = " or ".join([", ".join(a.missing[:-1]), a.missing[-1]] if len(a.missing) > 1 else a.missing)
+        worse = "" if a.note else ", and what changes may read them worse"
+        lines.append(f"your enrolment has no {kinds} gesture: nothing is checked on them{worse}")
     for c in a.checks:
         words, value = _FOR_PLAYERS.get(c.what, (c.what, str))
         pct = "%" in c.metric or "accuracy" in c.metric or "F1" in c.metric
@@ -763,6 +774,8 @@ def summary(adaptation: Adaptation) -> list[str]:
             + "; ".join(_FOR_PLAYERS.get(k, (k,))[0] for k in _changed(a.model))
             + f" [{'; '.join(changes)}]"
         )
+    elif a.note:
+        lines.append("what changes for you: nothing, too few gestures to check a change on")
     else:
         lines.append("what changes for you: nothing, the shipped recogniser already reads your hand as well")
     before, after = _percent(a.accuracy_before), _percent(a.accuracy_after)

@@ -59,6 +59,10 @@ MOTION_RANK = 3
 LEVEL_S = 0.3
 
 
+class NoGestureError(DatasetError):
+    """No prompt of a plan has a gesture near its cue (:func:`write_dataset`): nothing is labelled."""
+
+
 @dataclass(frozen=True)
 class GelMotion:
     """What the pipeline saw of a recording.
@@ -356,8 +360,8 @@ def write_dataset(
     (for the messages).
 
     Raises:
-        DatasetError: the folder cannot be written, or no prompt's gesture is found near its cue
-            (the recording does not follow ``plan``; nothing written).
+        DatasetError: the folder cannot be written; NoGestureError (a DatasetError): no prompt's
+            gesture is found near its cue (the recording does not follow ``plan``; nothing written).
     """
     from neurotouch_hid.enrolment.plan import write_plan
 
@@ -365,7 +369,7 @@ def write_dataset(
     out = Path(out_dir)
     found = find_gestures(plan, motion)
     if found and not any(f.seen for f in found):
-        raise DatasetError(
+        raise NoGestureError(
             f"{recording}: no gesture near any of "
             + (
                 f"the plan's {len(found)} cues"

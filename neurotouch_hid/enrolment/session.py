@@ -38,7 +38,15 @@ from typing import Protocol
 import numpy as np
 
 from neurotouch_hid.dataset import DatasetOut
-from neurotouch_hid.enrolment.label import SEARCH_S, GelMotion, Labelled, find_gestures, label_recording
+from neurotouch_hid.enrolment.label import (
+    ONSET_MM,
+    SEARCH_S,
+    GelMotion,
+    Labelled,
+    NoGestureError,
+    find_gestures,
+    label_recording,
+)
 from neurotouch_hid.enrolment.plan import MAX_SESSION_S, Plan, Prompt, Script, rest_after_s, temp_beside
 from neurotouch_hid.enrolment.prompt_view import clock, seen_in
 from neurotouch_hid.errors import DatasetError, RecordingError
@@ -274,7 +282,8 @@ def run_session(
         :class:`SessionResult`.
     Raises:
         DatasetError: ``out_dir`` holds a dataset or other files, or another session wrote
-        there meanwhile. RecordingError: the recording cannot be written; SensorError: no gel in view; the
+        there meanwhile, or no gesture was seen for any prompt asked (nothing labelled).
+        RecordingError: the recording cannot be written; SensorError: no gel in view; the
         source's own errors (e.g. DeviceError). The recording is complete and kept on any of them
         raised after it started.
     """
@@ -309,6 +318,15 @@ def run_session(
     _keep_recording(target, partial, recording, commit=False)
     try:
         labelled = label_recording(recording, script.asked(), out, sensor, on_progress=on_progress)
+    except NoGestureError:  # the person followed these prompts: say what to do, not another plan
+        kept = _keep_recording(target, partial, recording)
+        where = f"the recording is kept in {target.out / recording.name}" if kept else "nothing was kept"
+        raise DatasetError(
+            f"no gesture was seen for any of the {len(script.asked().prompts)} prompts asked: nothing to label, "
+            f"no dataset written ({where}). A gesture is seen when the gel moves at least {ONSET_MM:g} mm within "
+            f"{SEARCH_S:g} s of its prompt: start as each prompt appears, press until the panel says "
+            "'gel: moving', then run `neurotouch-hid enrol` again"
+        ) from None
     except BaseException:
         _keep_recording(target, partial, recording)
         raise
