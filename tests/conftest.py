@@ -9,6 +9,7 @@ and the tests that need them run last: the host's tests run while the guests boo
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -18,7 +19,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from helpers import STREET, run_main  # noqa: E402
+from helpers import STREET, run_main, started  # noqa: E402
 from kernel.vm import (  # noqa: E402
     KernelUnavailable,
     boot_summary,
@@ -295,3 +296,21 @@ def sim_rest_dataset(tmp_path_factory) -> Path:
     from neurotouch_hid.sources.simulator import write_dataset
 
     return write_dataset(tmp_path_factory.mktemp("rest"), users=[0], gestures=["push"], minutes=0.01, progress=False)
+
+
+@pytest.fixture
+def children():
+    """Start real processes, each returned once its program runs (``helpers.started``); every one
+    still running is killed at the end."""
+    procs: list[subprocess.Popen] = []
+
+    def start(argv: list[str], env: dict | None = None) -> subprocess.Popen:
+        proc = subprocess.Popen(argv, env=env if env is not None else dict(os.environ))
+        procs.append(proc)
+        return started(proc)
+
+    yield start
+    for proc in procs:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait(10)

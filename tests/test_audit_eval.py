@@ -14,30 +14,6 @@ from neurotouch_hid.errors import DatasetError
 HEADER = "t_us,gesture,resting,intensity_mm,n_contacts,x1_px,y1_px,x2_px,y2_px,x3_px,y3_px"
 
 
-@pytest.mark.parametrize(
-    "row, message",
-    [
-        # a time in seconds: microseconds are integers
-        ("0.04,none,1,0,0,,,,,,", r"column 't_us': expected an integer time in microseconds.*found '0\.04'"),
-        (",none,1,0,0,,,,,,", r"column 't_us': expected an integer time in microseconds.*found ''"),
-        ("40000,Push,0,1.0,1,10,10,,,,", r"column 'gesture': expected one of none, push, pinch.*found 'Push'"),
-        ("40000,push,0,abc,1,10,10,,,,", r"column 'intensity_mm': expected mm from 0 to 60, found 'abc'"),
-        ("40000,push,0,1.0,1.0,10,10,,,,", r"column 'n_contacts': expected an integer from 0 to 3, found '1\.0'"),
-        # two contacts said, one given: the column that is missing is named
-        ("40000,push,0,1.0,2,10,10,,,,", r"column 'x2_px': expected image pixels from -4096 to 4096, found ''"),
-        # one contact said, two given: the second would be dropped without a word
-        ("40000,push,0,1.0,1,10,10,20,20,,", r"column 'x2_px': expected empty \(n_contacts is 1\), found '20'"),
-        # `none` has no intensity (docs/dataset.md: 0 for none)
-        ("40000,none,1,3.0,0,,,,,,", r"column 'intensity_mm': expected 0 for gesture none, found '3\.0'"),
-    ],
-)
-def test_a_bad_label_cell_names_its_column_and_what_was_expected(tmp_path, row, message):
-    path = tmp_path / "bad.labels.csv"
-    path.write_text(f"{HEADER}\n0,none,1,0,0,,,,,,\n{row}\n")
-    with pytest.raises(DatasetError, match=r"bad\.labels\.csv:3: " + message):
-        read_labels(path)
-
-
 def test_an_empty_labels_file_is_said_empty(tmp_path):
     path = tmp_path / "empty.labels.csv"
     path.write_text("")

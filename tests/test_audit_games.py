@@ -15,7 +15,6 @@ from pathlib import Path
 
 import psutil
 import pytest
-from helpers import started
 
 from neurotouch_hid.control import ControlServer
 from neurotouch_hid.errors import ProfileError
@@ -44,22 +43,6 @@ class Switches:
     def __call__(self, ref: str, reason: str | None) -> str:
         self.calls.append((ref, reason))
         return f"switched to profile {ref}"
-
-
-@pytest.fixture
-def children():
-    procs: list[subprocess.Popen] = []
-
-    def start(argv: list[str], env: dict | None = None) -> subprocess.Popen:
-        proc = subprocess.Popen(argv, env=env if env is not None else dict(os.environ))
-        procs.append(proc)
-        return started(proc)
-
-    yield start
-    for proc in procs:
-        if proc.poll() is None:
-            proc.kill()
-        proc.wait(10)
 
 
 def _steam(start) -> subprocess.Popen:
@@ -140,6 +123,17 @@ def test_a_process_whose_executable_is_refused_has_its_command_line_read_bounded
     assert Path(sys.executable).name[:15] in seen.names or "python" in " ".join(seen.names)
 
 
+def _refused(text: str) -> tuple[Path, str]:
+    """games.yaml written as ``text``: its path and the error loading it."""
+    path = games_file()
+    path.parent.mkdir(parents=True)
+    path.write_text(text)
+    with pytest.raises(GameMapError) as caught:
+        load_game_map()
+    message = str(caught.value)
+    return path, message
+
+
 @pytest.mark.parametrize(
     ("text", "line"),
     [
@@ -150,12 +144,7 @@ def test_a_process_whose_executable_is_refused_has_its_command_line_read_bounded
 def test_an_executable_written_as_a_path_in_games_yaml_is_refused_with_its_line(text, line):
     """A name is matched, not a path: a path written by hand in games.yaml never matched any
     process, and nothing said so (``profile auto add`` refuses it)."""
-    path = games_file()
-    path.parent.mkdir(parents=True)
-    path.write_text(text)
-    with pytest.raises(GameMapError) as caught:
-        load_game_map()
-    message = str(caught.value)
+    path, message = _refused(text)
     assert message.startswith(f"{path}:{line}: ") and "without its folder" in message, message
 
 
@@ -197,10 +186,5 @@ def test_a_profile_path_with_a_nul_gets_an_answer_and_the_server_keeps_serving(t
 def test_a_steam_key_that_is_no_number_is_refused_saying_what_to_write(text, expected):
     """``true`` was taken as Steam app 1; a quoted id was refused without saying the quotes were
     the problem."""
-    path = games_file()
-    path.parent.mkdir(parents=True)
-    path.write_text(text)
-    with pytest.raises(GameMapError) as caught:
-        load_game_map()
-    message = str(caught.value)
+    path, message = _refused(text)
     assert message.startswith(f"{path}:2: ") and expected in message, message

@@ -46,6 +46,18 @@ def test_labels_round_trip(tmp_path):
         ("40000,push,2,1.0,0,,,,,,", r":3: column 'resting'"),
         ("40000,push,0,1.0,1,,,,,,", r":3: column 'x1_px'"),
         ("10,push,0,1.0,0,,,,,,", r":3: rows must be ordered by time"),
+        # a time in seconds: microseconds are integers
+        ("0.04,none,1,0,0,,,,,,", r":3: column 't_us': expected an integer time in microseconds.*found '0\.04'"),
+        (",none,1,0,0,,,,,,", r":3: column 't_us': expected an integer time in microseconds.*found ''"),
+        ("40000,Push,0,1.0,1,10,10,,,,", r":3: column 'gesture': expected one of none, push, pinch.*found 'Push'"),
+        ("40000,push,0,abc,1,10,10,,,,", r":3: column 'intensity_mm': expected mm from 0 to 60, found 'abc'"),
+        ("40000,push,0,1.0,1.0,10,10,,,,", r":3: column 'n_contacts': expected an integer from 0 to 3, found '1\.0'"),
+        # two contacts said, one given: the column that is missing is named
+        ("40000,push,0,1.0,2,10,10,,,,", r":3: column 'x2_px': expected image pixels from -4096 to 4096, found ''"),
+        # one contact said, two given: the second would be dropped without a word
+        ("40000,push,0,1.0,1,10,10,20,20,,", r":3: column 'x2_px': expected empty \(n_contacts is 1\), found '20'"),
+        # `none` has no intensity (docs/dataset.md: 0 for none)
+        ("40000,none,1,3.0,0,,,,,,", r":3: column 'intensity_mm': expected 0 for gesture none, found '3\.0'"),
     ],
 )
 def test_bad_label_rows_name_line_and_column(tmp_path, row, message):

@@ -16,7 +16,6 @@ import time
 from pathlib import Path
 
 import pytest
-from helpers import started
 
 from neurotouch_hid.control import SOCKET_NAME
 from neurotouch_hid.errors import ProfileError
@@ -64,24 +63,6 @@ def _wait_for(condition, timeout_s: float = WAIT_S, step_s: float = 0.05) -> boo
             return True
         time.sleep(step_s)
     return condition()
-
-
-@pytest.fixture
-def children():
-    """Start real processes, each returned once its program runs (``helpers.started``); every one
-    still running is killed at the end."""
-    procs: list[subprocess.Popen] = []
-
-    def start(argv: list[str], env: dict | None = None) -> subprocess.Popen:
-        proc = subprocess.Popen(argv, env=env if env is not None else dict(os.environ))
-        procs.append(proc)
-        return started(proc)
-
-    yield start
-    for proc in procs:
-        if proc.poll() is None:
-            proc.kill()
-        proc.wait(10)
 
 
 def _steam_game(start, app_id: int = APP_ID) -> subprocess.Popen:
