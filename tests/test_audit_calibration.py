@@ -4,6 +4,7 @@ right calibration from being written (docs/calibration.md)."""
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 
 from helpers import run_main
@@ -119,3 +120,23 @@ def test_a_push_started_late_is_watched_to_its_end_not_cut_into_the_next_step(mo
     mirror, rotation = calibration_guide.measure_orientation(source, source.stream(), rest, said.append)
     assert mirror is True and abs(rotation - 30.0) < 3.0, said
     assert not any("not used" in line for line in said), said
+
+
+def test_what_looks_off_at_rest_is_said_before_the_guided_pushes(tmp_path, monkeypatch, capsys):
+    """A note on the rest frames (markers missing, the gel off-centre) is said as soon as they are
+    read, so that the person can fix the camera before doing every push, not after them all."""
+    from neurotouch_hid import calibration
+
+    real = calibration.calibrate
+
+    def with_a_note(*args, **kwargs):
+        result = real(*args, **kwargs)
+        return dataclasses.replace(result, notes=(*result.notes, "152 markers found, 177 expected"))
+
+    monkeypatch.setattr(calibration, "calibrate", with_a_note)
+    out = tmp_path / "sensor.yaml"
+    done = run_main(monkeypatch, capsys, ["calibrate", "--source", "sim", "--no-check", "--out", str(out)])
+    assert done.returncode == 0, done.stdout + done.stderr
+    said = done.stdout
+    assert said.count("note: 152 markers found") == 1, said
+    assert said.index("note: 152 markers found") < said.index("which way you look at the gel"), said

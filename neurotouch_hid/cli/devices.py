@@ -422,6 +422,8 @@ def calibrate(
         result = calibration.calibrate(rest, expected_markers=markers, n_frames=frames)
         geometry = result.sensor
         _say_rest_geometry(say, source, result, markers)
+        for note in result.notes:  # said now: what looks off can be fixed before any push
+            say(f"note: {note}")
         items = guide.stream() if guide is not None else None
         given = mirror is not None and rotation is not None  # no guided pushes: the options say
         if guide is None or given:
@@ -461,8 +463,6 @@ def calibrate(
             advice = calibration_guide.check_advice(results, geometry, orientation_given=given)
             if advice:
                 say(f"what to do: {advice}")
-    for note in result.notes:
-        say(f"note: {note}")
     checked_wrong = any(not r.right and not r.again for r in results)  # nothing written unless --force; exit 1
     if checked_wrong and not force:
         say(
