@@ -46,17 +46,28 @@ def setup(
     from neurotouch_hid.targets.gadget import configfs
 
     if os.geteuid() != 0:
-        raise NeurotouchError(f"gadget setup needs root:\nsudo {_self()} gadget setup --protocol {protocol}")
+        given = [f"--user {user}"] if user else []
+        given += [flag for flag, wanted in (("--keyboard", keyboard), ("--mouse", mouse)) if wanted]
+        raise NeurotouchError(
+            f"gadget setup needs root:\nsudo {_self()} gadget setup --protocol {' '.join([protocol, *given])}"
+        )
     uid, gid = _owner(user)
     plan = configfs.plan(protocol, keyboard, mouse)
     configfs.remove()
     folder = configfs.create(plan, uid=uid, gid=gid)
-    if not plan.ffs:
-        configfs.bind()
-    for function in plan.hid:
-        node = configfs.hidg_node(function.instance)
-        os.chown(node, uid, gid)
-        os.chmod(node, 0o660)
+    try:  # a step that fails leaves no gadget half made (unbound, or its nodes not the user's)
+        if not plan.ffs:
+            configfs.bind()
+        nodes = []
+        for function in plan.hid:
+            node = configfs.hidg_node(function.instance)
+            os.chown(node, uid, gid)
+            os.chmod(node, 0o660)
+            nodes.append((node, function))
+    except BaseException:
+        configfs.remove()
+        raise
+    for node, function in nodes:
         console.print(f"{node}: {function.format}, owned by uid {uid}", highlight=False)
     if plan.ffs:
         console.print(
@@ -79,6 +90,11 @@ def remove() -> None:
         console.print(f"no gadget at {folder}: nothing to remove", highlight=False)
         return
     configfs.remove()
+    if folder.exists():
+        raise NeurotouchError(
+            f"gadget {folder} could not be removed: something still uses it (a run --output usb: stop it), "
+            f"then again:\nsudo {_self()} gadget remove"
+        )
     console.print(f"gadget {folder} removed", highlight=False)
 
 

@@ -235,7 +235,8 @@ def create(gadget: GadgetPlan, *, name: str = GADGET_NAME, uid: int = -1, gid: i
 
     Raises:
         DeviceError: configfs is missing, a gadget of that name exists, or the kernel refused a
-            step (the message names the file).
+            step (the message names the file, and the module when the kernel has no function of a
+            type). The gadget is removed again first.
     """
     from neurotouch_hid.targets.reports import format_for
 
@@ -288,8 +289,26 @@ def create(gadget: GadgetPlan, *, name: str = GADGET_NAME, uid: int = -1, gid: i
             os.chown(folder / "UDC", uid, gid)
     except (OSError, subprocess.CalledProcessError) as exc:
         remove(name)
-        raise DeviceError(f"making the USB gadget {folder} failed: {exc}") from None
+        raise DeviceError(f"making the USB gadget {folder} failed: {exc}{_module_missing(exc)}") from None
     return folder
+
+
+#: The kernel module of each configfs function type, and the option that builds it in.
+FUNCTION_MODULES = {"hid": ("usb_f_hid", "CONFIG_USB_CONFIGFS_F_HID"), "ffs": ("usb_f_fs", "CONFIG_USB_CONFIGFS_F_FS")}
+
+
+def _module_missing(exc: BaseException) -> str:
+    """What to do when ``exc`` is configfs refusing ``functions/TYPE.INSTANCE`` with ENOENT: the
+    kernel has no function driver of that type (gadget_configfs.rst, "Creating the functions");
+    "" otherwise."""
+    path = Path(str(getattr(exc, "filename", "") or ""))
+    module = FUNCTION_MODULES.get(path.name.split(".")[0]) if path.parent.name == "functions" else None
+    if not isinstance(exc, FileNotFoundError) or module is None:
+        return ""
+    return (
+        f"\nthe kernel has no {module[0]}: sudo modprobe {module[0]} (a kernel built with {module[1]}); "
+        "`neurotouch-hid doctor` says what this machine has"
+    )
 
 
 def bind(name: str = GADGET_NAME, udc: str | None = None) -> str:
@@ -309,6 +328,14 @@ def bind(name: str = GADGET_NAME, udc: str | None = None) -> str:
     except OSError as exc:
         if exc.errno == errno.EBUSY and bound_udc(name) == udc:
             return udc
+        gadgets = sorted((CONFIGFS / "usb_gadget").glob("*"))
+        holders = [g for g in gadgets if g.name != name and bound_udc(g.name) == udc]  # only read
+        if exc.errno == errno.EBUSY and holders:
+            raise DeviceError(
+                f"{udc} is used by another gadget, {holders[0]}: this machine's USB device port is one device at a "
+                f"time. Unbind that gadget (its program's own way, or sudo sh -c 'echo > {holders[0]}/UDC'), then "
+                "try again"
+            ) from None
         raise DeviceError(f"binding the USB gadget to {udc} failed: {exc.strerror}") from None
     return udc
 
