@@ -21,6 +21,7 @@ import importlib
 import importlib.metadata
 import os
 import platform
+import shlex
 import shutil
 import sys
 from dataclasses import dataclass
@@ -38,7 +39,15 @@ from neurotouch_hid.sources.discovery import (
     discover,
     pip_command,
 )
-from neurotouch_hid.udev import INSTALL_SCRIPT, RULES_DIRS, RULES_INSTALL, RULES_NAME, installed_rules, uinput_help
+from neurotouch_hid.udev import (
+    INSTALL_SCRIPT,
+    RULES_DIRS,
+    RULES_INSTALL,
+    RULES_NAME,
+    installed_rules,
+    uhid_help,
+    uinput_help,
+)
 
 SERVICE_NAME = "neurotouch-hid.service"
 #: The distribution that brings ``import evdev`` here, as pyproject.toml chooses it: the
@@ -211,18 +220,49 @@ def user_config_dir() -> Path:
 
 def check_service(config: Path | None = None) -> Check:
     """The plug-and-play systemd user unit is installed in ``config``/systemd/user (default:
-    :func:`user_config_dir`) or system-wide (a warning only: `run` works without)."""
+    :func:`user_config_dir`) or system-wide, and the command its ExecStart names is there (a
+    warning only: `run` works without)."""
     config = config or user_config_dir()
     dirs = (config / "systemd/user", Path("/etc/systemd/user"), Path("/usr/lib/systemd/user"))
     found = [str(d / SERVICE_NAME) for d in dirs if (d / SERVICE_NAME).is_file()]
+    fix = f"sh {shlex.quote(str(INSTALL_SCRIPT))} --user" + (
+        f" --bin {shlex.quote(command)}" if (command := this_command()) else ""
+    )
     if found:
+        gone = _missing_exec(Path(found[0]))
+        if gone:
+            return Check(
+                "plug-and-play service", WARN, f"{found[0]} runs {gone}, which is not there (it cannot start)", fix
+            )
         return Check("plug-and-play service", OK, found[0])
     return Check(
         "plug-and-play service",
         WARN,
         f"{SERVICE_NAME} is not installed (start by hand with `neurotouch-hid run`)",
-        f"sh {INSTALL_SCRIPT} --user" + (f" --bin {command}" if (command := this_command()) else ""),
+        fix,
     )
+
+
+def _missing_exec(unit: Path) -> str | None:
+    """The absolute command the unit's ExecStart= runs when it is not an executable file (install.sh
+    quotes a path with a space and doubles its %), else None."""
+    from neurotouch_hid.limits import MAX_YAML_BYTES, read_outside_text
+
+    try:
+        text = read_outside_text(unit, MAX_YAML_BYTES, "systemd unit", ValueError)
+    except ValueError:  # unreadable, too large, not text: the unit's own problem, not told here
+        return None
+    for line in text.splitlines():
+        if line.startswith("ExecStart="):
+            try:
+                words = shlex.split(line.removeprefix("ExecStart="))
+            except ValueError:
+                return None
+            command = words[0].replace("%%", "%") if words else ""
+            if command.startswith("/") and not (os.path.isfile(command) and os.access(command, os.X_OK)):
+                return command
+            return None
+    return None
 
 
 def check_model() -> Check:
@@ -366,7 +406,7 @@ def check_uhid() -> Check:
 
     problem = uhid_problem()
     if problem:
-        return Check("HID device here (--output hid)", WARN, problem, "sudo modprobe uhid")
+        return Check("HID device here (--output hid)", WARN, problem, uhid_help())
     return Check("HID device here (--output hid)", OK, f"{UHID} is readable and writable")
 
 

@@ -13,6 +13,7 @@ Rule syntax and folders: udev(7).
 
 from __future__ import annotations
 
+import shlex
 from pathlib import Path
 
 #: The project's udev rules file (udev/60-neurotouch.rules).
@@ -25,7 +26,7 @@ DATA_DIR = Path(__file__).parent / "data"
 RULES_FILE = (DATA_DIR / "udev" / RULES_NAME).resolve()
 INSTALL_SCRIPT = (DATA_DIR / "packaging" / "install.sh").resolve()
 #: How to install the rules (and load uinput now and at every boot): one command.
-RULES_INSTALL = f"sudo sh {INSTALL_SCRIPT} --system"
+RULES_INSTALL = f"sudo sh {shlex.quote(str(INSTALL_SCRIPT))} --system"
 #: The rule that gives the seated user access to /dev/uinput (udev/60-neurotouch.rules carries the
 #: same line; tests/test_packaging.py checks they agree).
 UINPUT_RULE = 'KERNEL=="uinput", SUBSYSTEM=="misc", TAG+="uaccess", OPTIONS+="static_node=uinput"'
@@ -56,8 +57,11 @@ def camera_access_fix(rules: str | None = None) -> str:
     return (
         f"the udev rule is installed ({rules}) but it gives access only to the user logged in at this "
         "computer itself (uaccess): log in there (not over SSH), then unplug and replug the camera\n"
-        "for headless use, add this group rule to /etc/udev/rules.d/ and join that group:\n"
-        f"{GROUP_RULE}"
+        "for headless use, give the plugdev group the camera and join that group:\n"
+        f"echo '{GROUP_RULE}' | sudo tee /etc/udev/rules.d/61-neurotouch-group.rules\n"
+        "sudo udevadm control --reload\n"
+        "sudo usermod -aG plugdev $USER\n"
+        "then log out and in, and unplug and replug the camera"
     )
 
 

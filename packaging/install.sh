@@ -12,7 +12,8 @@
 #   --gadget PROTOCOL:USER  (root) neurotouch-hid-gadget.service -> /etc/systemd/system/, enabled
 #             and started: at every boot it makes the USB gadget for run --output usb (hid,
 #             switch or xinput; docs/any-host.md) and hands its device nodes to USER.
-#   neither   both: the system part through sudo, the user part as you.
+#   neither   both: the system part through sudo, the user part as you (with DESTDIR: the
+#             system part only, staged).
 # DESTDIR=DIR stages the system files under DIR and touches nothing live (packagers, tests).
 # The script ships inside the installed package too: `neurotouch-hid doctor` prints its path.
 set -eu
@@ -31,7 +32,30 @@ while [ $# -gt 0 ]; do
     esac
     shift
 done
+case "$bin" in ""|/*) ;; *) bin="$(pwd)/$bin" ;; esac  # --bin relative to where you are
+
+# the neurotouch-hid the units run: --bin, else the one on PATH, else pipx's; exits when none
+find_bin() {
+    if [ -z "$bin" ]; then
+        bin=$(command -v neurotouch-hid || true)
+        if [ -z "$bin" ] && [ -x "$HOME/.local/bin/neurotouch-hid" ]; then
+            bin=$HOME/.local/bin/neurotouch-hid  # pipx's, before ~/.local/bin is on PATH
+        fi
+    fi
+    case "$bin" in
+        /*) [ -x "$bin" ] || { echo "install.sh: $bin is not executable" >&2; exit 1; } ;;
+        *) echo "install.sh: neurotouch-hid is not on PATH; install it (pipx install .) or pass --bin /path/to/neurotouch-hid" >&2; exit 1 ;;
+    esac
+}
+# $bin as a unit's Exec line's command, and escaped for sed's replacement: quoted when it has a
+# space, % doubled (systemd's specifiers)
+exec_bin() {
+    case "$bin" in *[[:space:]]*) set -- "\"$bin\"" ;; *) set -- "$bin" ;; esac
+    printf '%s\n' "$1" | sed -e 's/%/%%/g' -e 's/[\\|&]/\\&/g'
+}
+
 if [ -n "$gadget" ]; then
+    case "$gadget" in *:?*) ;; *) echo "install.sh: --gadget $gadget: give PROTOCOL:USER, e.g. hid:${USER:-you}" >&2; exit 2 ;; esac
     protocol=${gadget%%:*} owner=${gadget#*:}
     case "$protocol" in hid|switch|xinput) ;; *) echo "install.sh: --gadget $gadget: the protocol is hid, switch or xinput" >&2; exit 2 ;; esac
     [ "$(id -u)" = 0 ] || [ -n "${DESTDIR:-}" ] || { echo "install.sh: --gadget needs root: sudo sh $0 --gadget $gadget" >&2; exit 1; }
@@ -39,7 +63,7 @@ if [ -n "$gadget" ]; then
     case "$bin" in /*) ;; *) echo "install.sh: neurotouch-hid is not on PATH; pass --bin /path/to/neurotouch-hid" >&2; exit 1 ;; esac
     unit="${DESTDIR:-}/etc/systemd/system/neurotouch-hid-gadget.service"
     install -d -m 755 "$(dirname "$unit")"
-    sed -e "s|^\(Exec[A-Za-z]*\)=/usr/bin/env neurotouch-hid |\1=$bin |" \
+    sed -e "s|^\(Exec[A-Za-z]*\)=/usr/bin/env neurotouch-hid |\1=$(exec_bin) |" \
         -e "s|--protocol hid --user root|--protocol $protocol --user $owner|" \
         "$here/neurotouch-hid-gadget.service" > "$unit"
     chmod 644 "$unit"
@@ -54,7 +78,10 @@ if [ $do_system = 0 ] && [ $do_user = 0 ]; then
     if [ "$(id -u)" = 0 ]; then
         do_system=1
         echo "install.sh: running as root: system part only; run 'sh $0 --user' as your own user" >&2
+    elif [ -n "${DESTDIR:-}" ]; then
+        do_system=1  # staged, nothing live: no sudo, no user part
     else
+        find_bin  # before sudo: stop with nothing installed when the user part cannot be done
         sudo sh "$0" --system
         do_user=1
     fi
@@ -84,20 +111,11 @@ if [ $do_system = 1 ]; then
 fi
 
 if [ $do_user = 1 ]; then
-    if [ -z "$bin" ]; then
-        bin=$(command -v neurotouch-hid || true)
-        if [ -z "$bin" ] && [ -x "$HOME/.local/bin/neurotouch-hid" ]; then
-            bin=$HOME/.local/bin/neurotouch-hid  # pipx's, before ~/.local/bin is on PATH
-        fi
-    fi
-    case "$bin" in
-        /*) [ -x "$bin" ] || { echo "install.sh: $bin is not executable" >&2; exit 1; } ;;
-        *) echo "install.sh: neurotouch-hid is not on PATH; install it (pipx install .) or pass --bin /path/to/neurotouch-hid" >&2; exit 1 ;;
-    esac
+    find_bin
     config=${XDG_CONFIG_HOME:-$HOME/.config}
     units="$config/systemd/user"
     install -d -m 755 "$units" "$config/neurotouch-hid"
-    sed "s|^\(Exec[A-Za-z]*\)=/usr/bin/env neurotouch-hid |\1=$bin |" \
+    sed "s|^\(Exec[A-Za-z]*\)=/usr/bin/env neurotouch-hid |\1=$(exec_bin) |" \
         "$here/neurotouch-hid.service" > "$units/neurotouch-hid.service"
     chmod 644 "$units/neurotouch-hid.service"
     env_file="$config/neurotouch-hid/service.env"
