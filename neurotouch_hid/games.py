@@ -391,7 +391,7 @@ def _read_process(pid: int, uid: int) -> _Seen | None:
         proc = psutil.Process(pid)
         seen = _Seen(started=proc.create_time(), read_at=time.time())
         if proc.uids().real != uid:
-            return seen  # another user's: never a game of ours, never read again
+            return seen  # another user's: no game of ours (read again only while young)
         seen.ours = True
         # the environment first: a fork that exec's meanwhile shows its new environment only
         # once it has its new name, so a game found by SteamAppId is never named as its parent
@@ -430,7 +430,8 @@ class ProcessScanner:
 
     A process is read once (name, executable, command line, ``SteamAppId``), when a scan first
     sees it, and again while it is younger than :data:`YOUNG_S` (a fork that has not yet
-    exec'ed its program carries its parent's name); later scans only list ``/proc``. The
+    exec'ed its program carries its parent's name, and its parent's user until it drops to
+    this one's); later scans only list ``/proc``. The
     scanner's own process is never a game (a driver started from Steam inherits SteamAppId).
     """
 
@@ -449,7 +450,9 @@ class ProcessScanner:
         found = []
         for pid in pids:
             seen = self._seen.get(pid)
-            if seen is None or (seen.ours and seen.read_at - seen.started < YOUNG_S and now - seen.read_at > 0.1):
+            # a young process is read again, another user's too: a fork that has not yet
+            # exec'ed, or dropped to this user's uid (a launcher running as root, sudo -u)
+            if seen is None or (seen.read_at - seen.started < YOUNG_S and now - seen.read_at > 0.1):
                 seen = _read_process(pid, self._uid)
                 if seen is None:
                     continue

@@ -188,3 +188,25 @@ def test_a_steam_key_that_is_no_number_is_refused_saying_what_to_write(text, exp
     the problem."""
     path, message = _refused(text)
     assert message.startswith(f"{path}:2: ") and expected in message, message
+
+
+def test_a_young_process_read_before_it_became_ours_is_read_again(monkeypatch):
+    """A game started for the player by a process of another user (root forks, drops to the
+    player's uid, then execs the game: a launcher, ``sudo -u``, a service) is read first while it
+    still is the other user's; it must be read again while young, as a fork that has not exec'ed."""
+    from neurotouch_hid import games
+
+    started = time.time()
+    reads = [
+        games._Seen(started=started, read_at=started + 0.05),  # root's still: not ours
+        games._Seen(started=started, read_at=started + 0.6, name="sleep", app_id=APP_ID, ours=True),
+    ]
+    monkeypatch.setattr(games.psutil, "pids", lambda: [4321])
+    monkeypatch.setattr(games, "_read_process", lambda pid, uid: reads.pop(0) if reads else None)
+    monkeypatch.setattr(games, "_running", lambda pid: True)
+    monkeypatch.setattr(games.time, "time", lambda: started + 0.6)
+    game_map = GameMap({APP_ID: "mouse"}, {})
+    scanner = ProcessScanner(uid=os.getuid())
+    assert scanner.games(game_map) == []
+    found = scanner.games(game_map)
+    assert [(g.key, g.profile) for g in found] == [(APP_ID, "mouse")], found
