@@ -444,7 +444,7 @@ def calibrate(
                 f"{'a mirror of' if mirror else 'the same as'} your view), rotation {rotation:g} deg"
             )
         geometry = dataclasses.replace(geometry, mirror=mirror, rotation_deg=float(rotation))
-        results = []
+        results, wrong = [], []
         if guide is not None and check:
             say("guided check: each gesture, read with this calibration")
             results = calibration_guide.guided_check(guide, items, geometry, say, orientation_given=given)
@@ -463,8 +463,7 @@ def calibrate(
             advice = calibration_guide.check_advice(results, geometry, orientation_given=given)
             if advice:
                 say(f"what to do: {advice}")
-    checked_wrong = any(not r.right and not r.again for r in results)  # nothing written unless --force; exit 1
-    if checked_wrong and not force:
+    if wrong and not force:  # nothing written unless --force; exit 1
         say(
             "nothing written: the guided check read gestures wrong with this calibration "
             "(do what is said above, or --force to write it anyway)"
@@ -476,7 +475,7 @@ def calibrate(
             "nothing written: a simulated camera's calibration does not replace your sensor's in your config "
             "folder (--out FILE to keep it)"
         )
-        sys.exit(1 if checked_wrong else 0)
+        sys.exit(1 if wrong else 0)
     if press is not None:
         creep = calibration.measure_creep(press, geometry)
         geometry = dataclasses.replace(geometry, creep=creep)
@@ -515,8 +514,8 @@ def calibrate(
             "run, track, view and eval use it when no --sensor is given and no sensor.yaml is beside the recording "
             "or in the dataset"
         )
-    elif not checked_wrong:
+    elif not wrong:
         say(f"use it with --sensor {path}, or calibrate without --out to make it your default")
-    if checked_wrong:
+    if wrong:
         say("written with --force although the guided check read gestures wrong: gestures may come out turned")
         sys.exit(1)
