@@ -59,7 +59,9 @@ if [ -n "$gadget" ]; then
     protocol=${gadget%%:*} owner=${gadget#*:}
     case "$protocol" in hid|switch|xinput) ;; *) echo "install.sh: --gadget $gadget: the protocol is hid, switch or xinput" >&2; exit 2 ;; esac
     [ "$(id -u)" = 0 ] || [ -n "${DESTDIR:-}" ] || { echo "install.sh: --gadget needs root: sudo sh $0 --gadget $gadget" >&2; exit 1; }
-    find_bin
+    # not find_bin: a staged unit (DESTDIR) may name the command of the system it is for
+    [ -n "$bin" ] || bin=$(command -v neurotouch-hid || true)
+    case "$bin" in /*) ;; *) echo "install.sh: neurotouch-hid is not on PATH; pass --bin /path/to/neurotouch-hid" >&2; exit 1 ;; esac
     unit="${DESTDIR:-}/etc/systemd/system/neurotouch-hid-gadget.service"
     install -d -m 755 "$(dirname "$unit")"
     sed -e "s|^\(Exec[A-Za-z]*\)=/usr/bin/env neurotouch-hid |\1=$(exec_bin) |" \
