@@ -115,3 +115,71 @@ def test_a_missing_function_module_is_named_with_what_to_do(root, monkeypatch, p
         configfs.create(configfs.plan(protocol))
     assert said in str(caught.value)
     assert "neurotouch-hid doctor" in str(caught.value)
+
+
+def _chowns(monkeypatch) -> list[tuple[str, int, int]]:
+    """os.chown recorded (a test need not be root to say whom a node is handed to)."""
+    calls: list[tuple[str, int, int]] = []
+    monkeypatch.setattr(os, "chown", lambda path, uid, gid: calls.append((str(path), uid, gid)))
+    return calls
+
+
+def test_the_gadget_nodes_are_the_users_alone_not_their_primary_groups(root, monkeypatch):
+    """/dev/hidgN was made mode 0660 with the user's primary group (``users`` where that is the
+    default): another user in that group wrote a report and the host read it."""
+    import pwd
+    import stat
+
+    user = pwd.getpwnam("nobody")
+    node = root / "hidg0"
+    node.write_bytes(b"")
+    os.chmod(node, 0o666)
+    monkeypatch.setattr(configfs, "create", lambda plan, **kwargs: configfs.gadget_dir())
+    monkeypatch.setattr(configfs, "bind", lambda *args, **kwargs: "dummy_udc.0")
+    monkeypatch.setattr(configfs, "hidg_node", lambda instance, *args, **kwargs: node)
+    chowns = _chowns(monkeypatch)
+    code, said = _cli("setup", "--protocol", "hid", "--user", "nobody")
+    assert code == 0, said
+    assert stat.S_IMODE(node.stat().st_mode) == 0o600
+    assert chowns == [(str(node), user.pw_uid, 0)]
+    assert "mode 0600, owned by uid %d (nobody)" % user.pw_uid in said
+
+
+def test_the_xinput_functionfs_files_are_the_users_alone(root, monkeypatch, tmp_path):
+    """The FunctionFS mount (the XInput pad's endpoints) took the user's primary group too."""
+    mounts: list[list[str]] = []
+    monkeypatch.setattr(configfs, "CONFIGFS", _Configfs(root))
+    monkeypatch.setattr(configfs, "FFS_ROOT", tmp_path / "ffs")
+    monkeypatch.setattr(configfs, "write_attr", lambda path, value: None)
+    monkeypatch.setattr(configfs, "load_modules", lambda *args, **kwargs: None)
+    monkeypatch.setattr(configfs, "mount_configfs", lambda *args, **kwargs: None)
+    monkeypatch.setattr(configfs.subprocess, "run", lambda cmd, **kwargs: mounts.append(cmd))
+    chowns = _chowns(monkeypatch)
+    configfs.create(configfs.plan("xinput"), uid=4242)
+    (options,) = [cmd[cmd.index("-o") + 1] for cmd in mounts if cmd[:3] == ["mount", "-t", "functionfs"]]
+    assert sorted(options.split(",")) == ["fmode=0600", "rmode=0500", "uid=4242"]
+    assert {(uid, gid) for _, uid, gid in chowns} == {(4242, 0)}
+
+
+@pytest.mark.parametrize("user", ["", " "])
+def test_an_empty_user_is_refused_not_handed_to_whoever_ran_sudo(root, monkeypatch, user):
+    """``--user ''`` handed the gadget to SUDO_UID or root without a word."""
+    made = []
+    monkeypatch.setattr(configfs, "create", lambda plan, **kwargs: made.append(kwargs))
+    monkeypatch.setenv("SUDO_UID", "1000")
+    code, said = _cli("setup", "--protocol", "hid", "--user", user)
+    assert code != 0 and made == []
+    assert "--user is empty" in said
+
+
+def test_without_user_it_says_whom_it_hands_the_gadget_to(root, monkeypatch):
+    node = root / "hidg0"
+    node.write_bytes(b"")
+    monkeypatch.setattr(configfs, "create", lambda plan, **kwargs: configfs.gadget_dir())
+    monkeypatch.setattr(configfs, "bind", lambda *args, **kwargs: "dummy_udc.0")
+    monkeypatch.setattr(configfs, "hidg_node", lambda instance, *args, **kwargs: node)
+    _chowns(monkeypatch)
+    monkeypatch.delenv("SUDO_UID", raising=False)
+    code, said = _cli("setup", "--protocol", "hid")
+    assert code == 0, said
+    assert "owned by uid 0 (root: no --user given and not run through sudo)" in said

@@ -21,15 +21,30 @@ gadget_app = typer.Typer(
 )
 
 
-def _owner(user: Optional[str]) -> tuple[int, int]:
-    """(uid, gid) of ``user``, else of the user who ran sudo, else root's."""
-    if user:
+def _owner(user: Optional[str]) -> tuple[int, str]:
+    """The uid the gadget is handed to and who that is, in words: ``user`` (a name or a uid of
+    this machine's passwd), else the user who ran sudo (``SUDO_UID``), else root.
+
+    Raises:
+        NeurotouchError: ``user`` is empty or names no user here.
+    """
+    if user is not None:
+        if not user.strip():
+            raise NeurotouchError("--user is empty: give the name of the user who runs run --output usb")
         try:
             entry = pwd.getpwnam(user) if not user.isdigit() else pwd.getpwuid(int(user))
         except KeyError:
-            raise NeurotouchError(f"--user {user}: no such user on this machine") from None
-        return entry.pw_uid, entry.pw_gid
-    return int(os.environ.get("SUDO_UID", "0")), int(os.environ.get("SUDO_GID", "0"))
+            raise NeurotouchError(f"--user {user!r}: no such user on this machine") from None
+        return entry.pw_uid, f"uid {entry.pw_uid} ({entry.pw_name})"
+    sudo = os.environ.get("SUDO_UID", "")
+    if sudo.isdigit():
+        uid = int(sudo)
+        try:
+            name = pwd.getpwuid(uid).pw_name
+        except KeyError:
+            name = "no name in passwd"
+        return uid, f"uid {uid} ({name}, who ran sudo; --user NAME for another)"
+    return 0, "uid 0 (root: no --user given and not run through sudo)"
 
 
 @gadget_app.command("setup")
@@ -51,31 +66,43 @@ def setup(
         raise NeurotouchError(
             f"gadget setup needs root:\nsudo {_self()} gadget setup --protocol {' '.join([protocol, *given])}"
         )
-    uid, gid = _owner(user)
+    uid, whom = _owner(user)
     plan = configfs.plan(protocol, keyboard, mouse)
     configfs.remove()
-    folder = configfs.create(plan, uid=uid, gid=gid)
+    folder = configfs.create(plan, uid=uid)
     try:  # a step that fails leaves no gadget half made (unbound, or its nodes not the user's)
         if not plan.ffs:
             configfs.bind()
         nodes = []
         for function in plan.hid:
             node = configfs.hidg_node(function.instance)
-            os.chown(node, uid, gid)
-            os.chmod(node, 0o660)
+            hand_over(node, uid)
             nodes.append((node, function))
     except BaseException:
         configfs.remove()
         raise
     for node, function in nodes:
-        console.print(f"{node}: {function.format}, owned by uid {uid}", highlight=False)
+        console.print(f"{node}: {function.format}, mode 0600, owned by {whom}", highlight=False)
     if plan.ffs:
         console.print(
-            f"{configfs.FFS_ROOT / configfs.FFS_INSTANCE}: the XInput pad, owned by uid {uid}", highlight=False
+            f"{configfs.FFS_ROOT / configfs.FFS_INSTANCE}: the XInput pad, mode 0600, owned by {whom}",
+            highlight=False,
         )
     console.print(
         f"gadget {folder} ({protocol}) ready; bound to: {configfs.bound_udc() or 'none yet'}", highlight=False
     )
+
+
+def hand_over(node, uid: int) -> None:
+    """Make ``node`` (a ``/dev/hidgN``: whoever writes it is the host's controller) the user
+    ``uid``'s alone: owner ``uid``, group root, mode 0600. Not the user's primary group, which
+    other users share (``users`` on many distributions) and would let them drive the host.
+
+    Raises:
+        OSError: the node is gone or cannot be changed (not root).
+    """
+    os.chown(node, uid, 0)
+    os.chmod(node, 0o600)
 
 
 @gadget_app.command("remove")

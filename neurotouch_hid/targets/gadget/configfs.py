@@ -226,12 +226,14 @@ def mount_configfs() -> None:
         )
 
 
-def create(gadget: GadgetPlan, *, name: str = GADGET_NAME, uid: int = -1, gid: int = -1) -> Path:
+def create(gadget: GadgetPlan, *, name: str = GADGET_NAME, uid: int = -1) -> Path:
     """Make the gadget in configfs (not bound: :func:`bind`), its ``hid`` functions with their
-    descriptors, the FunctionFS function mounted at ``FFS_ROOT/xinput`` (owned by ``uid``/``gid``
-    when given), everything linked into configuration ``c.1``. The ``UDC`` file is handed to
-    ``uid``/``gid`` too, so that the user's run can bind the XInput pad once its descriptors are
-    written. Root only. Returns the gadget's folder.
+    descriptors, the FunctionFS function mounted at ``FFS_ROOT/xinput`` (owned by ``uid`` when
+    given; its folder mode 0500 and its files 0600, group root: the mount options ``rmode``,
+    ``fmode`` of Documentation/usb/functionfs.rst), everything linked into configuration
+    ``c.1``. The ``UDC`` file (configfs mode 0644) is handed to ``uid`` too, so that the user's run
+    can bind the XInput pad once its descriptors are written. Root only. Returns the gadget's
+    folder.
 
     Raises:
         DeviceError: configfs is missing, a gadget of that name exists, or the kernel refused a
@@ -276,17 +278,16 @@ def create(gadget: GadgetPlan, *, name: str = GADGET_NAME, uid: int = -1, gid: i
             function.mkdir()
             mount = FFS_ROOT / FFS_INSTANCE
             mount.mkdir(parents=True, exist_ok=True)
-            options = [f"uid={uid}"] if uid >= 0 else []
-            options += [f"gid={gid}"] if gid >= 0 else []
-            cmd = ["mount", "-t", "functionfs", *(["-o", ",".join(options)] if options else []), FFS_INSTANCE]
+            options = ["rmode=0500", "fmode=0600", *([f"uid={uid}"] if uid >= 0 else [])]
+            cmd = ["mount", "-t", "functionfs", "-o", ",".join(options), FFS_INSTANCE]
             subprocess.run([*cmd, str(mount)], check=True, capture_output=True)
-            if uid >= 0 or gid >= 0:
-                os.chown(mount, uid, gid)
+            if uid >= 0:
+                os.chown(mount, uid, 0)
             functions.insert(0, function)
         for function in functions:
             (config / function.name).symlink_to(function)
-        if uid >= 0 or gid >= 0:
-            os.chown(folder / "UDC", uid, gid)
+        if uid >= 0:
+            os.chown(folder / "UDC", uid, 0)
     except (OSError, subprocess.CalledProcessError) as exc:
         remove(name)
         raise DeviceError(f"making the USB gadget {folder} failed: {exc}{_module_missing(exc)}") from None
