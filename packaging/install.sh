@@ -11,7 +11,8 @@
 #             to pick the profile, and `systemctl --user daemon-reload`. Run as yourself, not root.
 #   --gadget PROTOCOL:USER  (root) neurotouch-hid-gadget.service -> /etc/systemd/system/, enabled
 #             and started: at every boot it makes the USB gadget for run --output usb (hid,
-#             switch or xinput; docs/any-host.md) and hands its device nodes to USER.
+#             switch or xinput; docs/any-host.md) and hands its device nodes to USER (an
+#             existing user's name: letters, digits, _ . -; anything else is refused).
 #   neither   both: the system part through sudo, the user part as you (with DESTDIR: the
 #             system part only, staged).
 # DESTDIR=DIR stages the system files under DIR and touches nothing live (packagers, tests).
@@ -58,6 +59,19 @@ if [ -n "$gadget" ]; then
     case "$gadget" in *:?*) ;; *) echo "install.sh: --gadget $gadget: give PROTOCOL:USER, e.g. hid:${USER:-you}" >&2; exit 2 ;; esac
     protocol=${gadget%%:*} owner=${gadget#*:}
     case "$protocol" in hid|switch|xinput) ;; *) echo "install.sh: --gadget $gadget: the protocol is hid, switch or xinput" >&2; exit 2 ;; esac
+    # USER goes into a root unit's command line: only a user name of this machine (or, staged, of
+    # DESTDIR's /etc/passwd), never text sed, systemd (%, $, ;) or the shell would read
+    case "$owner" in
+        *[!A-Za-z0-9_.-]*|-*|.*) echo "install.sh: --gadget $protocol:USER: '$owner' is not a user name (letters, digits, _ . -)" >&2; exit 2 ;;
+    esac
+    [ ${#owner} -le 32 ] || { echo "install.sh: --gadget: '$owner' is longer than a user name (32)" >&2; exit 2; }
+    entry=$(getent passwd "$owner" || true)
+    if [ -z "$entry" ] && [ -n "${DESTDIR:-}" ] && [ -f "$DESTDIR/etc/passwd" ]; then
+        entry=$(awk -F: -v u="$owner" '$1 == u || $3 == u { print; exit }' "$DESTDIR/etc/passwd")
+    fi
+    [ -n "$entry" ] || { echo "install.sh: --gadget $protocol:$owner: no user $owner on this machine${DESTDIR:+ nor in $DESTDIR/etc/passwd}" >&2; exit 2; }
+    owner=${entry%%:*}  # the name, also when a uid was given
+    case "$owner" in ""|*[!A-Za-z0-9_.-]*|-*|.*) echo "install.sh: --gadget: the passwd entry's name '$owner' is not a plain user name" >&2; exit 2 ;; esac
     [ "$(id -u)" = 0 ] || [ -n "${DESTDIR:-}" ] || { echo "install.sh: --gadget needs root: sudo sh $0 --gadget $gadget" >&2; exit 1; }
     # not find_bin: a staged unit (DESTDIR) may name the command of the system it is for
     [ -n "$bin" ] || bin=$(command -v neurotouch-hid || true)

@@ -182,6 +182,8 @@ def test_install_script_installs_the_gadget_unit_for_a_protocol_and_user(tmp_pat
 
     script = Path(__file__).resolve().parents[1] / "packaging" / "install.sh"
     env = {**os.environ, "DESTDIR": str(tmp_path)}
+    (tmp_path / "etc").mkdir()
+    (tmp_path / "etc" / "passwd").write_text("alice:x:1000:1000::/home/alice:/bin/sh\n")  # the staged system's
     done = subprocess.run(
         ["sh", str(script), "--gadget", "switch:alice", "--bin", "/usr/bin/neurotouch-hid"],
         env=env,
@@ -195,6 +197,59 @@ def test_install_script_installs_the_gadget_unit_for_a_protocol_and_user(tmp_pat
     assert "Type=oneshot" in unit and "RemainAfterExit=yes" in unit
     bad = subprocess.run(["sh", str(script), "--gadget", "ps5:bob"], env=env, capture_output=True, text=True)
     assert bad.returncode == 2 and "hid, switch or xinput" in bad.stderr
+
+
+@pytest.mark.parametrize(
+    "owner",
+    [
+        "bob\nExecStartPre=/bin/touch /tmp/owned",
+        "root&x",
+        "root|x",
+        "%u",
+        "root;id",
+        "root x",
+        "$USER",
+        "-root",
+        "..",
+        "no_such_user_here",
+        "x" * 40,
+    ],
+)
+def test_install_script_refuses_a_gadget_user_that_is_not_a_user_name(tmp_path, owner):
+    """USER went into the root unit unchecked: a newline added an ExecStartPre= line, & spliced
+    text, | left the unit empty; %u, ;, spaces and unknown users were accepted."""
+    import subprocess
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "packaging" / "install.sh"
+    env = {**os.environ, "DESTDIR": str(tmp_path)}
+    done = subprocess.run(
+        ["sh", str(script), "--gadget", f"hid:{owner}", "--bin", "/usr/bin/neurotouch-hid"],
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert "user" in done.stderr
+    assert not (tmp_path / "etc/systemd/system/neurotouch-hid-gadget.service").exists()
+
+
+def test_install_script_writes_the_name_of_an_existing_user_given_by_uid(tmp_path):
+    """A uid names its user; the unit gets the name from passwd, not the text given."""
+    import subprocess
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "packaging" / "install.sh"
+    env = {**os.environ, "DESTDIR": str(tmp_path)}
+    done = subprocess.run(
+        ["sh", str(script), "--gadget", "hid:0", "--bin", "/usr/bin/neurotouch-hid"],
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    unit = (tmp_path / "etc/systemd/system/neurotouch-hid-gadget.service").read_text()
+    assert "ExecStart=/usr/bin/neurotouch-hid gadget setup --protocol hid --user root\n" in unit
 
 
 def test_module_state_reads_sys_module_then_builtin_then_dep(tmp_path):
