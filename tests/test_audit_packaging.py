@@ -36,6 +36,8 @@ def test_gadget_without_a_user_is_refused(tmp_path):
         proc = _run(["--gadget", wrong], env)
         assert proc.returncode == 2, (wrong, proc.stdout, proc.stderr)
         assert not (tmp_path / "dest/etc/systemd/system/neurotouch-hid-gadget.service").exists()
+    (tmp_path / "dest/etc").mkdir(parents=True)
+    (tmp_path / "dest/etc/passwd").write_text("alice:x:1000:1000::/home/alice:/bin/sh\n")  # the staged system's
     proc = _run(["--gadget", "switch:alice"], env)
     assert proc.returncode == 0, proc.stderr
     unit = (tmp_path / "dest/etc/systemd/system/neurotouch-hid-gadget.service").read_text()
