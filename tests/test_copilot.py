@@ -118,6 +118,13 @@ def test_ids_are_kept_in_lower_case_and_aliases_resolved():
             "copilot.0.device",
             "a path under /dev/input/",
         ),
+        (  # a path that only starts under /dev/input: .. takes it out (never opened, still refused)
+            'copilot:\n  - device: "/dev/input/../../etc/shadow"\n',
+            "device:",
+            "copilot.0.device",
+            "a path under /dev/input/ (such as /dev/input/by-id/usb-...-event-joystick); "
+            "'/dev/input/../../etc/shadow' is '/etc/shadow'",
+        ),
         (  # an unknown field of an entry lists the known ones
             'copilot:\n  - device: "Pad"\n    wobble: 1\n',
             "wobble:",

@@ -228,3 +228,39 @@ def test_wrong_shapes_are_reported_in_plain_words(text, expected):
         parse_profile(text, "q.yaml")
     assert expected in str(info.value)
     assert "_UnknownOutput" not in str(info.value) and "[key]" not in str(info.value)
+
+
+@pytest.mark.parametrize(
+    "name, expected",
+    [
+        ('"Pad\\nN: Name=\\"made up\\""', "a device name of printable characters (no newline, tab, escape"),
+        ('"Pad\\x1b[31m"', "a device name of printable characters"),
+        ('"Pad\\u202eevil"', "a device name of printable characters"),
+        (
+            '"' + "\U0001f3ae" * 79 + '"',
+            "at most 79 bytes of UTF-8 (uinput's limit, 80 with the terminating NUL; "
+            "UHID's is 128): this one is 316 bytes",
+        ),
+        ('"' + "x" * 80 + '"', "at most 79 bytes of UTF-8"),
+    ],
+    ids=["newline", "escape", "bidi-override", "316-bytes", "80-ascii"],
+)
+def test_the_device_name_is_refused_where_the_kernel_would_take_it_as_other_lines_or_refuse_it(
+    tmp_path, name, expected
+):
+    """A newline or escape in ``device: name`` added a made-up ``N: Name=`` line to
+    /proc/bus/input/devices and a ``HID_NAME=`` line to the UHID device's uevent; a 316-byte name
+    passed validation and then run exited 2."""
+    text = f"description: mine\ndevice:\n  name: {name}\n"
+    path = tmp_path / "named.yaml"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(ProfileError) as info:
+        load_profile(path)
+    (hit,) = [line.strip() for line in str(info.value).splitlines()[1:] if " device.name:" in line]
+    assert hit.startswith(f"{path}:3: device.name: found "), hit
+    assert expected in hit, hit
+
+
+def test_a_device_name_of_79_bytes_of_printable_utf8_loads():
+    name = "\u00e9" * 39 + "x"  # 79 bytes
+    assert parse_profile(f"device:\n  name: {name}\n", "ok.yaml").device.name == name

@@ -180,6 +180,9 @@ KERNEL_COMMAND_KEYS = frozenset(
         "KEY_WWAN",
     }
 )
+#: Longest ``device: name`` (bytes of UTF-8): UINPUT_MAX_NAME_SIZE (80, linux/uinput.h) less its
+#: NUL, the smaller of the kernel's two limits (struct uhid_create2_req's name is 128, linux/uhid.h).
+DEVICE_NAME_MAX_BYTES = 79
 #: Longest profile name (characters): a file name in the user's folder, typed on command lines.
 MAX_PROFILE_NAME_CHARS = 64
 #: Most keys and buttons in one chord (``KEY_LEFTCTRL+KEY_LEFTSHIFT+KEY_LEFTALT+KEY_LEFTMETA+KEY_T``
@@ -663,13 +666,33 @@ _TAG_MODELS: dict[str, type[BaseModel]] = {
 class DeviceSpec(_Strict):
     """The virtual device (uinput): its name and USB ids (Xbox 360 pad by default)."""
 
-    name: str = Field(DEFAULT_DEVICE_NAME, min_length=1, max_length=79, description="device name (uinput: < 80 bytes)")
+    name: str = Field(
+        DEFAULT_DEVICE_NAME, min_length=1, description=f"device name (printable, <= {DEVICE_NAME_MAX_BYTES} bytes)"
+    )
     vendor: int = Field(0x045E, ge=0, le=0xFFFF, description="USB vendor id")
     product: int = Field(0x028E, ge=0, le=0xFFFF, description="USB product id")
     version: int = Field(0x0114, ge=0, le=0xFFFF, description="device version")
     protocol: Literal["hid", "switch", "xinput"] | None = Field(
         None, description="with run --output usb: the USB protocol (default hid; --protocol overrides it)"
     )
+
+    @field_validator("name")
+    @classmethod
+    def _kernel_name(cls, value: str) -> str:
+        """The name reaches the kernel as is: ``/proc/bus/input/devices``' ``N: Name=`` line and the
+        UHID device's uevent ``HID_NAME=`` line, which libudev and hidapi parse line by line; a
+        newline or escape there would add a line of its own."""
+        if not value.isprintable():
+            raise ValueError(
+                "a device name of printable characters (no newline, tab, escape or other control character)"
+            )
+        size = len(value.encode())
+        if size > DEVICE_NAME_MAX_BYTES:
+            raise ValueError(
+                f"a device name of at most {DEVICE_NAME_MAX_BYTES} bytes of UTF-8 (uinput's limit, 80 with the "
+                f"terminating NUL; UHID's is 128): this one is {size} bytes"
+            )
+        return value
 
 
 _Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")]
@@ -748,8 +771,11 @@ class CopilotDevice(_Strict):
     def _device_form(cls, value: str) -> str:
         if not value.isprintable():
             raise ValueError("a device name of printable characters")
-        if value.startswith("/") and not value.startswith(STABLE_PATH_PREFIX):
-            raise ValueError(f"a path under {STABLE_PATH_PREFIX} (such as /dev/input/by-id/usb-...-event-joystick)")
+        if value.startswith("/") and not os.path.normpath(value).startswith(STABLE_PATH_PREFIX):
+            raise ValueError(
+                f"a path under {STABLE_PATH_PREFIX} (such as /dev/input/by-id/usb-...-event-joystick); "
+                f"{short(value)} is {short(os.path.normpath(value))}"
+            )
         return value.lower() if re.match(_IDS_PATTERN, value) else value
 
     @field_validator("map")
