@@ -23,6 +23,7 @@ from neurotouch_hid.inputs.hide import Hider, related_nodes, restore_stale
 from neurotouch_hid.inputs.match import InputInfo
 
 HID = "usb1/1-1/1-1:1.0/0003:045E:02EA.0001"
+KEYBOARD_HID = "usb1/1-1/1-1:1.1/0003:045E:02EA.0002"
 
 
 @pytest.fixture
@@ -39,6 +40,10 @@ def box(tmp_path: Path) -> dict[str, Path]:
     for child in ("event5", "js0"):
         (input5 / child).mkdir(parents=True)
     (usb / "hidraw" / "hidraw2").mkdir(parents=True)
+    # the same USB device's keyboard interface (a chat pad): its own HID device, input and hidraw
+    keyboard = sysfs / "devices" / KEYBOARD_HID
+    (keyboard / "input" / "input6" / "event7").mkdir(parents=True)
+    (keyboard / "hidraw" / "hidraw3").mkdir(parents=True)
     (sysfs / "devices/usb1/1-1/idVendor").write_text("045e\n")
     for subsystem, name in (("input", "event5"), ("input", "js0"), ("hidraw", "hidraw2"), ("input", "event6")):
         entry = sysfs / "class" / subsystem / name
@@ -52,10 +57,25 @@ def hider(box: dict[str, Path], pid: int | None = None) -> Hider:
     return Hider(box["run"], box["dev"], box["sys"], pid=pid)
 
 
-def test_a_devices_nodes_are_its_event_node_its_joystick_and_the_hidraw_of_its_usb_device(box):
+def test_a_devices_nodes_are_its_event_node_its_joystick_and_the_hidraw_of_its_hid_device(box):
+    """Merging the joystick interface hid the keyboard interface's hidraw node too (every
+    interface's of the USB device): a headset's keys or a security key would have gone with it."""
     assert related_nodes("/dev/input/event5", box["sys"]) == ["input/event5", "input/js0", "hidraw2"]
     # no sysfs link to follow: the event node alone
     assert related_nodes("/dev/input/event6", box["sys"]) == ["input/event6"]
+
+
+def test_the_other_interfaces_hidraw_nodes_stay_whichever_interface_is_merged(box):
+    sysfs = box["sys"]
+    (sysfs / "class/input/event7").mkdir()
+    (sysfs / "class/input/event7/device").symlink_to(sysfs / "devices" / KEYBOARD_HID / "input" / "input6")
+    assert related_nodes("/dev/input/event7", sysfs) == ["input/event7", "hidraw3"]
+    # an interface with no HID device (xpad's): its nodes, no interface's hidraw
+    xpad = sysfs / "devices/usb1/1-1/1-1:1.2/input/input8"
+    (xpad / "event8").mkdir(parents=True)
+    (sysfs / "class/input/event8").mkdir()
+    (sysfs / "class/input/event8/device").symlink_to(xpad)
+    assert related_nodes("/dev/input/event8", sysfs) == ["input/event8"]
 
 
 def test_hidden_nodes_leave_dev_and_come_back_as_they_were(box):

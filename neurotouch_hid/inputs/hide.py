@@ -6,10 +6,10 @@ then ``open`` of the device's node) or, without udev (a container, ``SDL_JOYSTIC
 through the ``event*`` names under ``/dev/input`` and inotify there; either way a node that cannot
 be opened is skipped. So, where this process may (root: the system service, a test guest), each
 merged device's nodes are moved into :data:`HIDDEN_DIR` ``/<pid>/``: its ``input/eventN``, its
-joystick ``input/jsN`` and the ``hidrawN`` of the same USB device (SDL's HIDAPI drivers open
-those), as InputPlumber (``/dev/inputplumber/sources``) and Handheld Daemon do. A game started
-after the merge lists one controller; one started before keeps its open descriptor of the helper's
-node, which the grab keeps silent.
+joystick ``input/jsN`` and the ``hidrawN`` of its own HID device, that interface's only (SDL's
+HIDAPI drivers open those; :func:`related_nodes`), as InputPlumber (``/dev/inputplumber/sources``)
+and Handheld Daemon do. A game started after the merge lists one controller; one started before
+keeps its open descriptor of the helper's node, which the grab keeps silent.
 
 The move is a rename (the hidden folder is on ``/dev``, the node's own devtmpfs), else (a folder on
 another file system, as in the tests) a new node with the same device number, mode, owner and extended
@@ -49,7 +49,8 @@ log = logging.getLogger(__name__)
 HIDDEN_DIR = Path("/dev/neurotouch-hid-hidden")
 DEV_DIR = Path("/dev")
 SYSFS = Path("/sys")
-#: How many folders up from an input device its USB device is looked for (input -> interface -> device).
+#: How many folders up from an input device its HID device is looked for (input -> HID device ->
+#: interface -> USB device).
 _USB_DEPTH = 6
 #: What a :class:`Hider`'s guard runs when the driver died (``python -I -c``): argv is the folder
 #: holding the package, then the dead driver's pid, the root, ``/dev`` and ``/sys``
@@ -71,8 +72,13 @@ def may_hide(dev: Path = DEV_DIR) -> bool:
 def related_nodes(event_node: str, sysfs: Path = SYSFS) -> list[str]:
     """The nodes of the input device whose event node is ``event_node`` (``/dev/input/eventN``),
     relative to ``/dev``: ``input/eventN``, its joystick ``input/jsN`` (joydev) and the
-    ``hidrawN`` of the same USB device, as sysfs shows them; just the event node when sysfs has
-    nothing for it."""
+    ``hidrawN`` of the HID device it belongs to (the sysfs folder ``BUS:VVVV:PPPP.NNNN`` above
+    ``inputN`` that has a ``hidraw`` folder: the one interface that was merged), as sysfs shows
+    them; just the event node when sysfs has nothing for it. The other interfaces of the same USB
+    device (a headset's keys, a security key, the keyboard of a pad with a chat pad) keep their
+    hidraw nodes: the search stops at the USB device (its ``idVendor``) without looking across.
+    Other input devices of the same HID device (a DualSense's touchpad and motion sensors) share
+    that hidraw node, whose reports they are."""
     name = Path(event_node).name
     nodes = [f"input/{name}"]
     try:
@@ -81,8 +87,10 @@ def related_nodes(event_node: str, sysfs: Path = SYSFS) -> list[str]:
     except OSError:
         return nodes
     for parent in list(device.parents)[:_USB_DEPTH]:
-        if (parent / "idVendor").is_file():  # the USB device: its interfaces' HID devices' hidraw
-            nodes += sorted({p.name for p in parent.glob("*/*/hidraw/hidraw*")})
+        if (parent / "hidraw").is_dir():  # the HID device the input belongs to
+            nodes += sorted(p.name for p in (parent / "hidraw").glob("hidraw*"))
+            break
+        if (parent / "idVendor").is_file():  # the USB device: not a HID input (xpad), no hidraw
             break
     return nodes
 
