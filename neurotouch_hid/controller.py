@@ -9,7 +9,8 @@ Beside the pad, a profile may drive a keyboard and a mouse (uinput devices of th
 ``*_HI_RES`` twins in 1/120 detent). Motion is an impulse, not a level: a state with motion is
 always written, and the neutral state has none.
 A :class:`ControllerState` is a plain value; the neutral state (:meth:`ControllerState.neutral`)
-is what every output writes before it stops.
+is what every output writes before it stops. What comes back the other way, from a game or a host
+to a device (rumble, LEDs), is a :class:`Feedback`.
 """
 
 from __future__ import annotations
@@ -84,3 +85,29 @@ class ControllerState:
             and not self.keys
             and not any(self.rel.values())
         )
+
+
+@dataclass(frozen=True)
+class Feedback:
+    """What a game or a host sent back to a target: rumble or a player LED.
+
+    Attributes:
+        kind: ``"rumble"``, ``"led"`` (a pad's player LED) or ``"keyboard_leds"`` (a USB
+            keyboard's Num/Caps/Scroll Lock, Compose, Kana bits in ``led``).
+        strong, weak: rumble magnitudes 0..1 (the low- and high-frequency motors; 0 stops).
+        duration_ms: how long the rumble lasts (None: until the next one).
+        led: the player LED pattern as the protocol numbers it (xpad's 0..15), for ``"led"``; the
+            LED bits (0..31), for ``"keyboard_leds"``.
+        source: the target that received it (its ``what``), for the user's log line.
+        effect: the game's effect id on an evdev pad (the EV_FF code it plays and stops it with;
+            several may play at once, Documentation/input/ff.rst); None from a target whose rumble
+            is one state (a USB host's output report), each request replacing the last.
+    """
+
+    kind: str
+    strong: float = 0.0
+    weak: float = 0.0
+    duration_ms: int | None = None
+    led: int | None = None
+    source: str = ""
+    effect: int | None = None

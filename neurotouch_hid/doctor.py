@@ -39,6 +39,7 @@ from neurotouch_hid.sources.discovery import (
     discover,
     pip_command,
 )
+from neurotouch_hid.targets.protocols import names as protocol_names
 from neurotouch_hid.udev import (
     INSTALL_SCRIPT,
     RULES_DIRS,
@@ -395,8 +396,12 @@ def check_gadget() -> Check:
             "USB gadget (--output usb)", WARN, "; ".join(found.problems) + f" ({modules})", "\n".join(found.fixes)
         )
     set_up = f"gadget set up: {found.gadget}" if found.gadget else "no gadget set up yet"
+    speaks = f"protocols: {', '.join(protocol_names('gadget'))}"
     return Check(
-        "USB gadget (--output usb)", OK, f"UDC {', '.join(found.udcs)}; {modules}; {set_up}", "\n".join(found.fixes)
+        "USB gadget (--output usb)",
+        OK,
+        f"UDC {', '.join(found.udcs)}; {modules}; {set_up}; {speaks}",
+        "\n".join(found.fixes),
     )
 
 
@@ -407,7 +412,8 @@ def check_uhid() -> Check:
     problem = uhid_problem()
     if problem:
         return Check("HID device here (--output hid)", WARN, problem, uhid_help())
-    return Check("HID device here (--output hid)", OK, f"{UHID} is readable and writable")
+    speaks = ", ".join(protocol_names("uhid"))
+    return Check("HID device here (--output hid)", OK, f"{UHID} is readable and writable; protocols: {speaks}")
 
 
 def run_checks() -> list[Check]:

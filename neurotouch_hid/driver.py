@@ -81,8 +81,9 @@ def open_output(
 ) -> Subscriber:
     """Create one output (:data:`OPENERS` has one opener per kind): ``gamepad`` (the uinput pad
     with the profile's name and ids, and the keyboard and mouse if the profile uses them), ``hid``
-    (the generic HID joystick on UHID, docs/reports.md; the keyboard and mouse on uinput where it
-    can be used), ``usb`` (a USB gadget speaking ``protocol``, else the profile's, else ``hid``:
+    (a HID device on UHID speaking ``protocol``, else the profile's, else ``hid``, the generic
+    joystick, docs/reports.md; the keyboard and mouse on uinput where it can be used), ``usb``
+    (a USB gadget speaking ``protocol``, else the profile's, else ``hid``:
     :mod:`neurotouch_hid.targets.gadget`), ``jsonl`` (one state line per change to ``out`` or
     stdout; ``out`` may not be one of the run's ``inputs``) or ``term`` (the terminal view; on a
     terminal the live view of :mod:`neurotouch_hid.output.live`: the gel, the gestures, the
@@ -114,14 +115,14 @@ def _open_gamepad(profile: Profile, stack: contextlib.ExitStack, *, say, on_feed
     return stack.enter_context(UinputOutputs(None, profile, known=known_profiles(), make_pad=make_pad))
 
 
-def _open_hid(profile: Profile, stack: contextlib.ExitStack, *, say, **_) -> Subscriber:
+def _open_hid(profile: Profile, stack: contextlib.ExitStack, *, say, protocol=None, **_) -> Subscriber:
     from neurotouch_hid.targets import TargetOutputs
     from neurotouch_hid.targets.desktop import UinputDesktop
-    from neurotouch_hid.targets.reports.hid import HID_JOYSTICK
-    from neurotouch_hid.targets.uhid import UhidDevice, hid_identity
+    from neurotouch_hid.targets.uhid import UhidDevice, uhid_identity, uhid_protocol
 
+    row = uhid_protocol(protocol, profile)
     with contextlib.ExitStack() as made:  # each target closed if a later one fails
-        joystick = made.enter_context(UhidDevice(HID_JOYSTICK, hid_identity(profile.device)))
+        joystick = made.enter_context(UhidDevice(row.report, uhid_identity(row, profile.device)))
         desktop = UinputDesktop(profile, known_profiles(), say=say or log.warning)
         made.callback(desktop.close)
         outputs = TargetOutputs([joystick, desktop], say=say)
@@ -401,15 +402,16 @@ def run_driver(
     (``pipeline.methods``: ``default`` or ``paper``); ``model``: an adapted model's values over
     it (``enrolment/model.py``; None: the shipped method). ``finish_gesture`` (the simulated
     gel): past ``seconds`` its hand finishes the gesture it performs (:class:`RunAssembly`).
-    ``protocol``: with ``output`` ``usb``, the USB gadget's (``hid``, ``switch``, ``xinput``; None:
+    ``protocol``: with ``output`` ``usb`` or ``hid``, the protocol the controller speaks (a row of
+    :data:`~neurotouch_hid.targets.protocols.PROTOCOLS` that runs on the gadget or on UHID; None:
     the profile's ``device: protocol``, else ``hid``).
     Raises NeurotouchError subclasses for bad input (ProfileError, RecordingError, DeviceError,
     SensorError).
     """
     if output not in tuple(OutputKind):
         raise NeurotouchError(f"unknown output '{output}' (expected one of: {', '.join(OutputKind)})")
-    if protocol is not None and output != OutputKind.USB:
-        raise NeurotouchError(f"--protocol {protocol}: only with --output usb (the USB gadget)")
+    if protocol is not None and output not in (OutputKind.USB, OutputKind.HID):
+        raise NeurotouchError(f"--protocol {protocol}: only with --output usb (the USB gadget) or --output hid (UHID)")
     if window_us < 1000:
         raise NeurotouchError(f"--window-us {window_us}: windows must be at least 1000 us")
     if max_lag_us < 1000:

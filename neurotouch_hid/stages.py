@@ -20,7 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable, Iterable, NamedTuple, Protocol, Union
 
-from neurotouch_hid.controller import ControllerState
+from neurotouch_hid.controller import ControllerState, Feedback
 from neurotouch_hid.estimate import GestureEstimate, MarkerPositions
 from neurotouch_hid.sources import Frame, Performed, StreamItem
 
@@ -151,32 +151,6 @@ class Subscriber(Protocol):
 # --- the output and input seams ---------------------------------------------------------------
 # Every device the system sees is a Target behind one subscriber; every device merged into the
 # gel's pad is an InputDevice behind one Merge. docs/architecture.md, "Targets and inputs".
-
-
-@dataclass(frozen=True)
-class Feedback:
-    """What a game or a host sent back to a target: rumble or a player LED.
-
-    Attributes:
-        kind: ``"rumble"``, ``"led"`` (a pad's player LED) or ``"keyboard_leds"`` (a USB
-            keyboard's Num/Caps/Scroll Lock, Compose, Kana bits in ``led``).
-        strong, weak: rumble magnitudes 0..1 (the low- and high-frequency motors; 0 stops).
-        duration_ms: how long the rumble lasts (None: until the next one).
-        led: the player LED pattern as the protocol numbers it (xpad's 0..15), for ``"led"``; the
-            LED bits (0..31), for ``"keyboard_leds"``.
-        source: the target that received it (its ``what``), for the user's log line.
-        effect: the game's effect id on an evdev pad (the EV_FF code it plays and stops it with;
-            several may play at once, Documentation/input/ff.rst); None from a target whose rumble
-            is one state (a USB host's output report), each request replacing the last.
-    """
-
-    kind: str
-    strong: float = 0.0
-    weak: float = 0.0
-    duration_ms: int | None = None
-    led: int | None = None
-    source: str = ""
-    effect: int | None = None
 
 
 class Target(Protocol):

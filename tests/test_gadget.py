@@ -310,7 +310,7 @@ def test_hidg_target_sends_changes_only_and_ends_on_the_neutral_report(tmp_path)
 def test_the_protocol_comes_from_the_option_then_the_profile_then_the_gadget_set_up_then_hid(tmp_path, monkeypatch):
     from neurotouch_hid.mapping.profile import Profile
     from neurotouch_hid.targets.gadget import protocol_for
-    from neurotouch_hid.targets.reports.switch import VENDOR
+    from neurotouch_hid.targets.reports.switch import PRODUCT, VENDOR
 
     monkeypatch.setattr(configfs, "CONFIGFS", tmp_path)  # no gadget set up
     plain = Profile()
@@ -318,12 +318,13 @@ def test_the_protocol_comes_from_the_option_then_the_profile_then_the_gadget_set
     assert protocol_for(None, plain) == "hid"
     assert protocol_for(None, switch) == "switch"
     assert protocol_for("xinput", switch) == "xinput"
-    with pytest.raises(DeviceError, match="unknown USB protocol 'ps5'"):
+    with pytest.raises(DeviceError, match="unknown protocol 'ps5'"):
         protocol_for("ps5", plain)
     # a Switch gadget made at boot (gadget setup --protocol switch): a plain run speaks it
     gadget = tmp_path / "usb_gadget" / configfs.GADGET_NAME
     gadget.mkdir(parents=True)
     (gadget / "idVendor").write_text(f"0x{VENDOR:04x}\n")
+    (gadget / "idProduct").write_text(f"0x{PRODUCT:04x}\n")
     assert protocol_for(None, plain) == "switch"
     assert protocol_for("hid", plain) == "hid"  # the option still wins (the gadget then refuses it)
     (gadget / "functions" / f"ffs.{configfs.FFS_INSTANCE}").mkdir(parents=True)
@@ -331,11 +332,11 @@ def test_the_protocol_comes_from_the_option_then_the_profile_then_the_gadget_set
     assert protocol_for(None, switch) == "switch"  # and the profile
 
 
-def test_protocol_is_refused_without_output_usb():
+def test_protocol_is_refused_without_output_usb_or_hid():
     from neurotouch_hid.driver import run_driver
     from neurotouch_hid.errors import NeurotouchError
 
-    with pytest.raises(NeurotouchError, match="--protocol switch: only with --output usb"):
+    with pytest.raises(NeurotouchError, match="--protocol switch: only with --output usb .* or --output hid"):
         run_driver("sim", "default", "jsonl", protocol="switch")
 
 

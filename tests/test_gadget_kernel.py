@@ -8,10 +8,11 @@ from __future__ import annotations
 import pytest
 from conftest import passed
 
-from neurotouch_hid.targets.gadget.configfs import HID_IDS
+from neurotouch_hid.targets.protocols import PROTOCOLS
 from neurotouch_hid.targets.reports.hid import HID_JOYSTICK
 from neurotouch_hid.targets.reports.switch import SWITCH
 
+HID_IDS = (PROTOCOLS["hid"].vendor, PROTOCOLS["hid"].product)
 pytestmark = pytest.mark.kernel
 
 

@@ -27,6 +27,11 @@ ORDER = {
     "view": 3,
     "doctor": 7,
     "cli": 7,
+    # the wire formats and the protocol table are data (descriptors, report layouts, ids): base
+    # values, so that a profile names a protocol and the CLI lists them without the devices
+    "targets.reports": 0,
+    "targets.protocols": 0,
+    "targets.identity": 0,
 }
 
 
@@ -54,8 +59,11 @@ def _imports(modules: dict[str, Path]) -> dict[str, set[str]]:
 
 
 def _rank(module: str) -> int:
-    parts = module.split(".")
-    return ORDER.get(parts[1], 0) if len(parts) > 1 else 0
+    parts = module.split(".")[1:]
+    for depth in range(len(parts), 0, -1):  # the most specific entry: targets.reports before targets
+        if ".".join(parts[:depth]) in ORDER:
+            return ORDER[".".join(parts[:depth])]
+    return 0
 
 
 def test_no_stage_imports_a_later_stage():

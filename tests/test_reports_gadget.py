@@ -133,10 +133,11 @@ def test_the_xinput_out_endpoint_is_read_a_packet_at_a_time():
     from helpers import wait_until
 
     from neurotouch_hid.targets.gadget.targets import XInputTarget
+    from neurotouch_hid.targets.reports.xinput import XINPUT
 
     target = object.__new__(XInputTarget)
     read_end, write_end = os.pipe()
-    target._out, target._closed, target.what = read_end, False, "x"
+    target._out, target._closed, target.what, target.format = read_end, False, "x", XINPUT
     announced: list[Feedback] = []
     target._announce = announced.append
     reader = threading.Thread(target=target._read_out, daemon=True)

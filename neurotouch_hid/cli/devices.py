@@ -29,6 +29,11 @@ from neurotouch_hid.cli.common import (
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.kinds import OutputKind, SourceKind
 from neurotouch_hid.tables import print_table
+from neurotouch_hid.targets.protocols import choices as protocol_choices
+from neurotouch_hid.targets.protocols import help_text as protocol_help
+
+#: The protocols of ``run --protocol`` (the protocol table's).
+Protocol = protocol_choices()
 
 app = typer.Typer()
 
@@ -77,11 +82,11 @@ def run(
     ),
     method: str = typer.Option("default", "--method", help=METHOD_HELP),
     model: Optional[str] = MODEL_OPTION,
-    protocol: Optional[str] = typer.Option(
+    protocol: Optional[Protocol] = typer.Option(
         None,
         "--protocol",
         help=(
-            "with --output usb: hid, switch or xinput "
+            f"with --output usb or hid, the protocol the controller speaks: {protocol_help()} "
             "(default: the profile's device: protocol, else the gadget set up here's, else hid)"
         ),
     ),
@@ -111,7 +116,7 @@ def run(
             max_lag_us=round(max_lag_ms * 1000),
             method=method,
             model=chosen_model(model),
-            protocol=protocol,
+            protocol=None if protocol is None else str(protocol),
         )
     err_console.print(stats.summary(), highlight=False, soft_wrap=True)
 

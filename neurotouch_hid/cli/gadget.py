@@ -15,6 +15,11 @@ import typer
 
 from neurotouch_hid.cli.common import console
 from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.targets.protocols import choices as protocol_choices
+from neurotouch_hid.targets.protocols import help_text as protocol_help
+
+#: The protocols a gadget speaks (the protocol table's).
+GadgetProtocol = protocol_choices("gadget")
 
 gadget_app = typer.Typer(
     help="Make or remove the USB gadget that run --output usb uses (as root).", no_args_is_help=True
@@ -49,7 +54,11 @@ def _owner(user: Optional[str]) -> tuple[int, str]:
 
 @gadget_app.command("setup")
 def setup(
-    protocol: str = typer.Option("hid", "--protocol", help="hid, switch or xinput (docs/any-host.md)"),
+    protocol: GadgetProtocol = typer.Option(
+        "hid",
+        "--protocol",
+        help=f"{protocol_help('gadget')} (docs/any-host.md)",
+    ),
     user: Optional[str] = typer.Option(None, "--user", help="who may use the gadget (default: the user who ran sudo)"),
     keyboard: bool = typer.Option(False, "--keyboard", help="add a USB keyboard (profiles that press keys)"),
     mouse: bool = typer.Option(False, "--mouse", help="add a USB mouse (profiles that move the pointer)"),
@@ -60,6 +69,7 @@ def setup(
     gadget binds when run --output usb has written its descriptors."""
     from neurotouch_hid.targets.gadget import configfs
 
+    protocol = str(protocol)
     if os.geteuid() != 0:
         given = [f"--user {user}"] if user else []
         given += [flag for flag, wanted in (("--keyboard", keyboard), ("--mouse", mouse)) if wanted]

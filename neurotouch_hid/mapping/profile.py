@@ -85,6 +85,7 @@ from neurotouch_hid.limits import (
     short,
     where,
 )
+from neurotouch_hid.targets.protocols import PROTOCOLS
 
 #: The gel dome's radius (mm); the default saturation of the ``contact`` inputs.
 GEL_RADIUS_MM = 30.0
@@ -663,6 +664,11 @@ _TAG_MODELS: dict[str, type[BaseModel]] = {
 }
 
 
+#: The protocols a profile's ``device: protocol`` may name: the protocol table's
+#: (:data:`~neurotouch_hid.targets.protocols.PROTOCOLS`).
+PROTOCOL_NAMES = tuple(PROTOCOLS)
+
+
 class DeviceSpec(_Strict):
     """The virtual device (uinput): its name and USB ids (Xbox 360 pad by default)."""
 
@@ -672,8 +678,10 @@ class DeviceSpec(_Strict):
     vendor: int = Field(0x045E, ge=0, le=0xFFFF, description="USB vendor id")
     product: int = Field(0x028E, ge=0, le=0xFFFF, description="USB product id")
     version: int = Field(0x0114, ge=0, le=0xFFFF, description="device version")
-    protocol: Literal["hid", "switch", "xinput"] | None = Field(
-        None, description="with run --output usb: the USB protocol (default hid; --protocol overrides it)"
+    protocol: Literal[PROTOCOL_NAMES] | None = Field(  # type: ignore[valid-type]
+        None,
+        description="with run --output usb or hid: the protocol the controller speaks (default hid; --protocol "
+        "overrides it; targets/protocols.py)",
     )
 
     @field_validator("name")

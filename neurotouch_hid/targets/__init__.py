@@ -21,12 +21,11 @@ import threading
 import time
 from typing import TYPE_CHECKING, Callable, Iterable
 
-from neurotouch_hid.controller import ControllerState
-from neurotouch_hid.stages import Feedback, Target
+from neurotouch_hid.controller import ControllerState, Feedback
 
 if TYPE_CHECKING:
     from neurotouch_hid.mapping.profile import Profile
-    from neurotouch_hid.stages import WindowRecord
+    from neurotouch_hid.stages import Target, WindowRecord
 
 log = logging.getLogger(__name__)
 

@@ -35,13 +35,14 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from neurotouch_hid.controller import ControllerState
-from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.errors import DeviceError, NeurotouchError
 from neurotouch_hid.output.gamepad import NeutralOnClose
 from neurotouch_hid.udev import char_device_problem, uhid_help
 
 if TYPE_CHECKING:
     from neurotouch_hid.mapping.profile import DeviceSpec, Profile
     from neurotouch_hid.stages import Feedback
+    from neurotouch_hid.targets.protocols import ProtocolRow
     from neurotouch_hid.targets.reports import ReportFormat
 
 log = logging.getLogger(__name__)
@@ -221,6 +222,35 @@ def hid_identity(device: DeviceSpec) -> HidIdentity:
         return HidIdentity(device.name, device.vendor, device.product, device.version)
     name = HID_DEFAULT.name if "X-Box 360" in device.name else device.name
     return HidIdentity(name, HID_DEFAULT.vendor, HID_DEFAULT.product, HID_DEFAULT.version)
+
+
+def uhid_protocol(requested: str | None, profile: Profile) -> ProtocolRow:
+    """The protocol of a UHID run: ``requested`` (``--protocol``) when given, else the profile's
+    ``device: protocol`` when it runs on UHID, else ``hid`` (a profile written for a USB gadget's
+    Switch or XInput pad still runs here, as the generic joystick).
+
+    Raises:
+        DeviceError: ``requested`` is unknown or does not run on UHID (the message lists those that do).
+    """
+    from neurotouch_hid.targets.protocols import DEFAULT_PROTOCOL, PROTOCOLS, protocol
+
+    if requested is None:
+        named = getattr(profile.device, "protocol", None)
+        ok = named in PROTOCOLS and "uhid" in PROTOCOLS[named].transports
+        requested = named if ok else DEFAULT_PROTOCOL
+    try:
+        return protocol(requested, "uhid")
+    except NeurotouchError as exc:
+        raise DeviceError(str(exc)) from None
+
+
+def uhid_identity(row: ProtocolRow, device: DeviceSpec) -> HidIdentity:
+    """The UHID device's name and ids for the protocol ``row``: the profile's ``device:``
+    (:func:`hid_identity`) where the row lets a profile choose them, else the row's own (a host
+    driver binds by them)."""
+    if row.profile_ids:
+        return hid_identity(device)
+    return HidIdentity(row.product_name, row.vendor, row.product, row.bcd_device)
 
 
 def uhid_problem(devnode: str = "/dev/uhid") -> str | None:

@@ -52,6 +52,7 @@ from checks_runtime import REPO, ProbeLines, _write
 from outputlib import PROFILE, HidrawReader, InProcessRun, held_state, hid_driver, push_right
 
 from neurotouch_hid.targets.gadget import configfs
+from neurotouch_hid.targets.protocols import PROTOCOLS
 from neurotouch_hid.targets.reports.hid import HID_JOYSTICK
 from neurotouch_hid.targets.reports.switch import SWITCH
 from neurotouch_hid.targets.reports.xinput import XINPUT
@@ -59,7 +60,7 @@ from neurotouch_hid.targets.reports.xinput import XINPUT
 TIMEOUT_S = 1200
 UDC = "dummy_udc.0"
 MODULES = ("dummy_hcd", "libcomposite", "usb_f_hid", "usb_f_fs", "usbhid", "hid-generic", "xpad")
-HID_IDS = configfs.HID_IDS[:2]
+HID_IDS = (PROTOCOLS["hid"].vendor, PROTOCOLS["hid"].product)
 SWITCH_IDS = (SWITCH.vendor, SWITCH.product)
 XBOX_IDS = (XINPUT.vendor, XINPUT.product)
 

@@ -72,10 +72,14 @@ def protocol_for(requested: str | None, profile: Profile, name: str = configfs.G
     else that of the gadget set up here (``gadget setup``, or the boot unit that runs it:
     :func:`~neurotouch_hid.targets.gadget.configfs.protocol_of`), else ``hid``. Raises
     DeviceError for an unknown one."""
+    from neurotouch_hid.errors import NeurotouchError
+    from neurotouch_hid.targets.protocols import protocol as protocol_row
+
     protocol = requested or getattr(profile.device, "protocol", None) or configfs.protocol_of(name) or "hid"
-    if protocol not in configfs.PROTOCOLS:
-        raise DeviceError(f"unknown USB protocol {protocol!r} (expected one of: {', '.join(configfs.PROTOCOLS)})")
-    return protocol
+    try:
+        return protocol_row(protocol, "gadget").name
+    except NeurotouchError as exc:
+        raise DeviceError(str(exc)) from None
 
 
 class UsbGadget:
@@ -122,18 +126,20 @@ class UsbGadget:
 
     def _open(self) -> None:
         from neurotouch_hid.targets.gadget.targets import HidgTarget, XInputTarget
+        from neurotouch_hid.targets.protocols import protocol as protocol_row
         from neurotouch_hid.targets.reports import format_for
 
         functions = configfs.gadget_dir(self.name) / "functions"
-        if self.protocol == "xinput":  # its descriptors first: the gadget binds only then
-            pad = XInputTarget(configfs.FFS_ROOT / configfs.FFS_INSTANCE, format_for("xinput"))
+        row = protocol_row(self.protocol, "gadget")
+        if row.gadget_function == "xinput":  # its descriptors first: the gadget binds only then
+            pad = XInputTarget(configfs.FFS_ROOT / configfs.FFS_INSTANCE, row.report)
             self.targets.append(pad)
         if not configfs.bound_udc(self.name):
             configfs.bind(self.name)
         for instance in sorted(p.name.removeprefix("hid.") for p in functions.glob("hid.*")):
-            kind = INSTANCES.get(instance, self.protocol)
+            fmt = format_for(INSTANCES[instance]) if instance in INSTANCES else row.report
             node = configfs.hidg_node(instance, self.name)
-            self.targets.append(HidgTarget(node, format_for(kind), f"USB gadget ({kind}, {node})"))
+            self.targets.append(HidgTarget(node, fmt, f"USB gadget ({fmt.name}, {node})"))
         if self.targets:
             self.targets[0].lacks = lambda profile: say_what_cannot_go(profile, functions)  # on each profile
         say_what_cannot_go(self.profile, functions)

@@ -48,11 +48,6 @@ MODULES = ("libcomposite", "usb_f_hid", "usb_f_fs")
 NODE_WAIT_S = 5.0
 #: umount attempts of the FunctionFS mount in :func:`remove`, 0.1 s apart.
 UMOUNT_TRIES = 30
-#: The protocols ``--protocol`` offers.
-PROTOCOLS = ("hid", "switch", "xinput")
-#: Ids of the generic joystick: the Linux Foundation's "Multifunction Composite Gadget"
-#: (1d6b:0104), which gadget_configfs.rst's example uses.
-HID_IDS = (0x1D6B, 0x0104, 0x0100)
 
 
 @dataclass(frozen=True)
@@ -83,29 +78,25 @@ class GadgetPlan:
 
 
 def plan(protocol: str, keyboard: bool = False, mouse: bool = False) -> GadgetPlan:
-    """The gadget for ``protocol`` (``hid``, ``switch``, ``xinput``), with a keyboard and a mouse
-    function when asked. Raises DeviceError for an unknown protocol."""
-    from neurotouch_hid.targets.reports.switch import PRODUCT as SWITCH_PRODUCT
-    from neurotouch_hid.targets.reports.switch import VENDOR as SWITCH_VENDOR
-    from neurotouch_hid.targets.reports.xinput import PRODUCT as XBOX_PRODUCT
-    from neurotouch_hid.targets.reports.xinput import VENDOR as XBOX_VENDOR
-    from neurotouch_hid.targets.reports.xinput import VERSION as XBOX_VERSION
+    """The gadget for ``protocol`` (a row of :data:`~neurotouch_hid.targets.protocols.PROTOCOLS`
+    that runs on a gadget: its ids, strings and function), with a keyboard and a mouse function
+    when asked. Raises DeviceError for an unknown protocol or one that does not run on a gadget."""
+    from neurotouch_hid.errors import NeurotouchError
+    from neurotouch_hid.targets.protocols import protocol as protocol_row
 
-    if protocol not in PROTOCOLS:
-        raise DeviceError(f"unknown USB protocol {protocol!r} (expected one of: {', '.join(PROTOCOLS)})")
+    try:
+        row = protocol_row(protocol, "gadget")
+    except NeurotouchError as exc:
+        raise DeviceError(str(exc)) from None
     extra = []
     if keyboard:
         extra.append(HidFunction("usb1", "keyboard", subclass=1, protocol=1))
     if mouse:
         extra.append(HidFunction("usb2", "mouse", subclass=1, protocol=2))
-    if protocol == "xinput":
-        ids = (XBOX_VENDOR, XBOX_PRODUCT, XBOX_VERSION, "Microsoft", "Controller (NeuroTouch)")
+    ids = (row.vendor, row.product, row.bcd_device, row.manufacturer, row.product_name)
+    if row.gadget_function == "xinput":
         return GadgetPlan(protocol, *ids, tuple(extra), True)
-    if protocol == "switch":
-        ids = (SWITCH_VENDOR, SWITCH_PRODUCT, 0x0100, "HORI CO.,LTD.", "HORIPAD S (NeuroTouch)")
-    else:
-        ids = (*HID_IDS, "neurotouch-hid", "NeuroTouch Joystick")
-    return GadgetPlan(protocol, *ids, (HidFunction("usb0", protocol), *extra), False)
+    return GadgetPlan(protocol, *ids, (HidFunction("usb0", row.report.name), *extra), False)
 
 
 def read_attr(path: str | os.PathLike) -> str:
@@ -145,9 +136,10 @@ def udcs() -> list[str]:
 
 
 def protocol_of(name: str = GADGET_NAME) -> str | None:
-    """The protocol of the gadget ``name`` from its ids and functions (``xinput`` when it has
-    the FunctionFS pad, ``switch`` for HORI's ids, else ``hid``); None when there is no such gadget."""
-    from neurotouch_hid.targets.reports.switch import VENDOR as SWITCH_VENDOR
+    """The protocol of the gadget ``name``: ``xinput`` when it has the FunctionFS pad, else the row
+    of :data:`~neurotouch_hid.targets.protocols.PROTOCOLS` with its ids (``idVendor``,
+    ``idProduct``), else ``hid``; None when there is no such gadget."""
+    from neurotouch_hid.targets.protocols import by_ids
 
     folder = gadget_dir(name)
     if not folder.is_dir():
@@ -155,10 +147,10 @@ def protocol_of(name: str = GADGET_NAME) -> str | None:
     if (folder / "functions" / f"ffs.{FFS_INSTANCE}").is_dir():
         return "xinput"
     try:
-        vendor = int(read_attr(folder / "idVendor"), 16)
+        row = by_ids(int(read_attr(folder / "idVendor"), 16), int(read_attr(folder / "idProduct"), 16))
     except (OSError, ValueError):
-        return "hid"
-    return "switch" if vendor == SWITCH_VENDOR else "hid"
+        row = None
+    return "hid" if row is None else row.name
 
 
 def bound_udc(name: str = GADGET_NAME) -> str:

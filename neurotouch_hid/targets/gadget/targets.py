@@ -20,6 +20,7 @@ Whatever stops the driver, :meth:`close` sends the neutral report first and wait
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import logging
 import os
@@ -28,9 +29,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
-from neurotouch_hid.controller import ControllerState
+from neurotouch_hid.controller import ControllerState, Feedback
 from neurotouch_hid.errors import DeviceError
-from neurotouch_hid.stages import Feedback
 from neurotouch_hid.targets.gadget import functionfs
 from neurotouch_hid.targets.gadget.writer import QUEUE_MOTION, QUEUE_STATE, ReportWriter
 
@@ -149,10 +149,9 @@ class HidgTarget(_ReportTarget):
 
     def feedback(self) -> list[Feedback]:
         """Read the host's output reports waiting on the node (bounded: at most 16 reads of
-        :data:`MAX_OUTPUT_REPORT` bytes): a keyboard's LED report (its first byte, the five LED
-        bits of the boot keyboard: HID 1.11 appendix B.1) as a ``"keyboard_leds"``
-        :class:`Feedback`; anything else logged only (the joystick, Switch and mouse formats have
-        no output report)."""
+        :data:`MAX_OUTPUT_REPORT` bytes), each parsed by the function's format
+        (:meth:`~neurotouch_hid.targets.reports.ReportFormat.parse_output`: a keyboard's LED
+        report as a ``"keyboard_leds"`` :class:`Feedback`); one that asks nothing is logged only."""
         out = []
         for _ in range(16):
             try:
@@ -161,10 +160,10 @@ class HidgTarget(_ReportTarget):
                 break
             if not data:
                 break
-            if self.format.name == "keyboard":
-                out.append(Feedback("keyboard_leds", led=data[0] & 0x1F, source=self.what))
-            else:
+            received = self.format.parse_output(data)
+            if not received:
                 log.debug("%s: output report %s from the host", self.what, data.hex())
+            out += [dataclasses.replace(request, source=self.what) for request in received]
         return out
 
     def close(self) -> None:
@@ -291,10 +290,8 @@ class XInputTarget(_ReportTarget):
         self._read_loop(self._out, PACKET, "OUT endpoint", self._on_output)
 
     def _on_output(self, data: bytes) -> None:
-        from neurotouch_hid.targets.reports.xinput import parse_output
-
-        request = parse_output(data, self.what)
-        if request is not None:
-            self._announce(request)
-        else:
+        received = self.format.parse_output(data)
+        for request in received:
+            self._announce(dataclasses.replace(request, source=self.what))
+        if not received:
             log.debug("%s: output report %s not understood", self.what, data[:MAX_OUTPUT_REPORT].hex())

@@ -1,10 +1,13 @@
-"""The wire formats of the HID outputs, as data: for each protocol, the report descriptor and the
-input report that carries a :class:`~neurotouch_hid.controller.ControllerState`.
+"""The wire formats of the HID outputs, as data: for each protocol, the report descriptor, the
+input report that carries a :class:`~neurotouch_hid.controller.ControllerState`, the feature
+reports a host reads and the output reports it sends.
 
-Every encoder follows :class:`ReportFormat` (structurally, no base class): a ``name``, the HID
-report descriptor (HID 1.11, section 6.2.2; ``b""`` for a protocol without one, the Xbox 360's
-vendor interface), the length of one input report, :meth:`ReportFormat.pack` and
-:meth:`ReportFormat.neutral`. The same bytes go to a UHID device on this machine
+Every encoder follows :class:`ReportFormat` (structurally; a format without feature or output
+reports takes :class:`~neurotouch_hid.targets.reports.fields.InputOnly`'s answers): a ``name``,
+the HID report descriptor (HID 1.11, section 6.2.2; ``b""`` for a protocol without one, the
+Xbox 360's vendor interface), the length of one input report, :meth:`ReportFormat.pack`,
+:meth:`ReportFormat.neutral`, the feature reports (:attr:`ReportFormat.feature_ids`,
+:meth:`ReportFormat.feature`) and :meth:`ReportFormat.parse_output`. The same bytes go to a UHID device on this machine
 (:mod:`neurotouch_hid.targets.uhid`) and to a USB gadget's HID function; the layouts, byte by byte,
 are in docs/reports.md. :data:`FORMATS` names them all; :func:`format_for` finds one.
 
@@ -13,10 +16,13 @@ Sources: Device Class Definition for HID 1.11 (usb.org), HID Usage Tables 1.4 (u
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
-from neurotouch_hid.controller import ControllerState
+from neurotouch_hid.controller import ControllerState, Feedback
 from neurotouch_hid.errors import NeurotouchError
+
+if TYPE_CHECKING:
+    from neurotouch_hid.targets.identity import Identity
 
 
 class ReportFormat(Protocol):
@@ -26,11 +32,14 @@ class ReportFormat(Protocol):
         name: ``"hid"``, ``"keyboard"``, ``"mouse"``, ``"switch"``, ``"xinput"``.
         descriptor: the HID report descriptor (HID 1.11, 6.2.2), ``b""`` where the protocol has none.
         report_length: bytes of one input report (:meth:`pack`'s length, always).
+        feature_ids: the report ids of the feature reports a host may read (GET_REPORT, HID 1.11
+            7.2.1), each answered by :meth:`feature`; ``()`` for a format without any.
     """
 
     name: str
     descriptor: bytes
     report_length: int
+    feature_ids: tuple[int, ...]
 
     def pack(self, state: ControllerState) -> bytes:
         """The input report (``report_length`` bytes) for ``state``; values outside a field's
@@ -38,6 +47,19 @@ class ReportFormat(Protocol):
 
     def neutral(self) -> bytes:
         """``pack(ControllerState.neutral())``: axes centred, triggers 0, nothing pressed."""
+
+    def feature(self, report_id: int, identity: Identity) -> bytes:
+        """The answer to a host's GET_REPORT(Feature, ``report_id``): the report with its id as
+        byte 0, for the device of ``identity`` (a MAC, a serial).
+
+        Raises:
+            KeyError: ``report_id`` is not one of :attr:`feature_ids`.
+        """
+
+    def parse_output(self, data: bytes) -> list[Feedback]:
+        """A host's output report (``data``, any length; the caller bounds it, a UHID or gadget
+        read) as the rumble and LED requests in it; ``[]`` for one that asks nothing or is not
+        understood. Never raises on any bytes."""
 
 
 def _formats() -> dict[str, ReportFormat]:

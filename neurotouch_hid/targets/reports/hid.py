@@ -34,7 +34,7 @@ from __future__ import annotations
 import struct
 
 from neurotouch_hid.controller import BUTTONS, ControllerState
-from neurotouch_hid.targets.reports.fields import axis
+from neurotouch_hid.targets.reports.fields import InputOnly, axis
 
 #: The controller's buttons (evdev names) as HID buttons 1..11: A, B, X, Y (the evdev names xpad
 #: gives them), the bumpers, back, start, the stick clicks (the controller's order), then the guide.
@@ -114,8 +114,9 @@ def hat_value(x: int, y: int) -> int:
     return HAT_VALUES.get((max(-1, min(1, x)), max(-1, min(1, y))), HAT_NULL)
 
 
-class HidJoystick:
-    """The generic HID joystick's report format (:class:`~neurotouch_hid.targets.reports.ReportFormat`)."""
+class HidJoystick(InputOnly):
+    """The generic HID joystick's report format (:class:`~neurotouch_hid.targets.reports.ReportFormat`):
+    no feature report, no output report."""
 
     name = "hid"
     descriptor = DESCRIPTOR

@@ -22,8 +22,12 @@ Sources: Device Class Definition for HID 1.11 (usb.org), Appendix B.1 and C; HID
 from __future__ import annotations
 
 from collections.abc import Iterable
+from typing import TYPE_CHECKING
 
-from neurotouch_hid.controller import ControllerState
+from neurotouch_hid.controller import ControllerState, Feedback
+
+if TYPE_CHECKING:
+    from neurotouch_hid.targets.identity import Identity
 
 #: The modifier keys, bit 0 .. bit 7 of byte 0 (usages 0xE0..0xE7).
 MODIFIER_BITS: tuple[str, ...] = (
@@ -124,6 +128,17 @@ class BootKeyboard:
     name = "keyboard"
     descriptor = DESCRIPTOR
     report_length = 2 + KEY_SLOTS
+    feature_ids: tuple[int, ...] = ()
+
+    def feature(self, report_id: int, identity: Identity) -> bytes:
+        """Raises KeyError: the boot keyboard has no feature report."""
+        raise KeyError(report_id)
+
+    def parse_output(self, data: bytes) -> list[Feedback]:
+        """The host's LED report (its first byte: Num Lock, Caps Lock, Scroll Lock, Compose, Kana in
+        bits 0..4; HID 1.11 appendix B.1) as one ``"keyboard_leds"`` :class:`Feedback`; ``[]``
+        for an empty report."""
+        return [Feedback("keyboard_leds", led=data[0] & 0x1F)] if data else []
 
     def pack(self, state: ControllerState) -> bytes:
         """The 8-byte input report for ``state.keys`` (docs/reports.md, "keyboard: the boot keyboard"): modifier

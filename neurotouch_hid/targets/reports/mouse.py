@@ -20,7 +20,7 @@ from __future__ import annotations
 import struct
 
 from neurotouch_hid.controller import MOUSE_BUTTONS, ControllerState
-from neurotouch_hid.targets.reports.fields import clamp
+from neurotouch_hid.targets.reports.fields import InputOnly, clamp
 
 #: One motion field's range (8-bit signed, the boot mouse's -127..127).
 REL_MIN, REL_MAX = -127, 127
@@ -72,8 +72,9 @@ def _wheel(rel: dict[str, int], name: str) -> int:
     return int(rel.get(f"{name}_HI_RES", 0) / HI_RES_PER_DETENT)
 
 
-class Mouse:
-    """The mouse's report format (:class:`~neurotouch_hid.targets.reports.ReportFormat`)."""
+class Mouse(InputOnly):
+    """The mouse's report format (:class:`~neurotouch_hid.targets.reports.ReportFormat`): no
+    feature report, no output report."""
 
     name = "mouse"
     descriptor = DESCRIPTOR

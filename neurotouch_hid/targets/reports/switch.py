@@ -30,7 +30,7 @@ from __future__ import annotations
 import struct
 
 from neurotouch_hid.controller import AXES, ControllerState
-from neurotouch_hid.targets.reports.fields import axis
+from neurotouch_hid.targets.reports.fields import InputOnly, axis
 from neurotouch_hid.targets.reports.hid import hat_value
 
 #: USB ids the Switch accepts a wired pad under: HORI, HORIPAD S.
@@ -107,9 +107,10 @@ def stick_byte(value: int) -> int:
     return (value >> 8) + 128
 
 
-class SwitchFormat:
+class SwitchFormat(InputOnly):
     """The HORIPAD report (module docstring): ``pack`` gives 8 bytes; ``neutral`` the report with
-    nothing pressed, the hat centred (8) and the sticks at 128."""
+    nothing pressed, the hat centred (8) and the sticks at 128. No feature report; the vendor
+    output report asks nothing of the driver."""
 
     name = "switch"
     descriptor = DESCRIPTOR

@@ -28,10 +28,13 @@ xpad inverts them bitwise (``~y``), so an evdev reader sees the state's Y minus 
 from __future__ import annotations
 
 import struct
+from typing import TYPE_CHECKING
 
-from neurotouch_hid.controller import ControllerState
-from neurotouch_hid.stages import Feedback
+from neurotouch_hid.controller import ControllerState, Feedback
 from neurotouch_hid.targets.reports.fields import axis
+
+if TYPE_CHECKING:
+    from neurotouch_hid.targets.identity import Identity
 
 #: USB ids of the wired Xbox 360 controller (Microsoft), and its bcdDevice.
 VENDOR, PRODUCT, VERSION = 0x045E, 0x028E, 0x0114
@@ -105,6 +108,19 @@ class XInputFormat:
     def neutral(self) -> bytes:
         """``00 14`` and 18 zero bytes: nothing pressed, sticks centred, triggers 0."""
         return self.pack(ControllerState.neutral())
+
+    #: The Xbox 360 pad has no feature report (a vendor interface: no GET_REPORT).
+    feature_ids: tuple[int, ...] = ()
+
+    def feature(self, report_id: int, identity: Identity) -> bytes:
+        """Raises KeyError: the pad has no feature report."""
+        raise KeyError(report_id)
+
+    def parse_output(self, data: bytes) -> list[Feedback]:
+        """The rumble or LED request in the host's output report (:func:`parse_output`); ``[]``
+        for anything else."""
+        request = parse_output(data)
+        return [] if request is None else [request]
 
 
 #: The Xbox 360 report's format.
