@@ -36,15 +36,26 @@ def _asleep_in_read(pid: int) -> bool:
         return "pipe_read" in wchan.read()
 
 
-def measure(seconds: float = 10.0, start_timeout_s: float = 60.0) -> dict:
+def measure(seconds: float = 10.0, start_timeout_s: float = 60.0, hidden: bool = False) -> dict:
     """The guard's costs (module docstring): a dict of its anonymous memory and RSS (KiB), its
     start's CPU (s) and, over ``seconds`` of rest, its CPU (s) and context switches. The rest
-    starts once the guard waits in its read. Raises RuntimeError if it does not within
-    ``start_timeout_s``."""
+    starts once the guard waits in its read. ``hidden``: the guard as a root run that hides merged
+    devices starts it, with the put-back of the hidden nodes imported at its start
+    (``inputs/hide.py``'s ``RESTORE_CODE``; folders of its own, nothing hidden). Raises
+    RuntimeError if it does not reach its read within ``start_timeout_s``."""
+    import tempfile
+
     from neurotouch_hid.guard import Guard
+    from neurotouch_hid.inputs import hide
 
     host, node = os.pipe()
-    guard = Guard([(node, bytes(13))])
+    if hidden:
+        where = tempfile.mkdtemp(prefix="bench-guard-")
+        package_parent = str(Path(hide.__file__).resolve().parents[2])
+        then = ["-c", hide.RESTORE_CODE, package_parent, str(os.getpid()), where, where, where]
+        guard = Guard(then=then, what="the hidden devices")
+    else:
+        guard = Guard([(node, bytes(13))])
     try:
         end = time.monotonic() + start_timeout_s
         while not _asleep_in_read(guard.pid):
@@ -72,7 +83,9 @@ def measure(seconds: float = 10.0, start_timeout_s: float = 60.0) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0, help="rest measured after the start (s)")
-    print(json.dumps(measure(parser.parse_args().seconds)))
+    parser.add_argument("--hidden", action="store_true", help="the guard of a run that hides merged devices")
+    args = parser.parse_args()
+    print(json.dumps(measure(args.seconds, hidden=args.hidden)))
 
 
 if __name__ == "__main__":

@@ -21,8 +21,9 @@ so at rest it costs no CPU and no wake-up. When the driver ends its run it write
 guard exits with nothing done. When the driver dies, the kernel closes the pipe's write end and
 the read returns end-of-file: the guard writes each node's neutral report, retrying every
 :data:`RETRY_S` while the host has not taken the one before (EAGAIN, the node being non-blocking)
-or is away, for at most :data:`GIVE_UP_S`; then it runs its command, if it has one, in its place
-(``execv``: the nodes put back). It ignores SIGINT, SIGTERM and SIGHUP, and so does its command:
+or is away, for at most :data:`GIVE_UP_S`; then it runs what it was given: Python prepared at its
+start (the hidden nodes put back: the imports are paid while the driver lives, about 5 MiB more),
+or a command in its place (``execv``). It ignores SIGINT, SIGTERM and SIGHUP, and so does its command:
 Ctrl-C signals the terminal's whole process group and systemd's stop the unit's whole cgroup,
 and the guard's own end is decided by the driver's pipe alone.
 """
@@ -55,6 +56,16 @@ args = sys.argv[3:]
 cut = args.index("--") if "--" in args else len(args)
 left = [(int(fd), bytes.fromhex(report)) for fd, report in (a.split(":") for a in args[:cut])]
 then = args[cut + 1 :]
+call = None
+if then[:1] == ["-c"]:  # Python to run here: prepared (imported) now, called once the driver died
+    code, sys.argv[1:] = then[1], then[2:]
+    then = [sys.executable, "-I", "-c", code, *then[2:]]  # if it cannot be prepared: as a command
+    try:
+        scope = {{"__name__": "__guard__"}}
+        exec(code, scope)
+        call, then = scope["then"], []
+    except Exception as exc:
+        print("neurotouch-hid guard: cannot prepare what it runs after the driver:", exc, file=sys.stderr)
 while True:
     try:
         said = os.read(pipe, 1)
@@ -73,6 +84,8 @@ while left and time.monotonic() < end:
             pass
     if left:
         time.sleep({RETRY_S!r})
+if call is not None:
+    call()
 if then:
     os.execv(then[0], then)
 """
@@ -87,7 +100,12 @@ class Guard:
         nodes: (descriptor, report bytes) pairs; the descriptors stay the caller's, the guard
             gets copies of them.
         then: argv of the command the guard becomes once the reports are written (its first item
-            an absolute path: ``execv`` does not search PATH); empty: none.
+            an absolute path: ``execv`` does not search PATH); empty: none. ``("-c", CODE, *ARGS)``
+            is Python run in the guard itself: CODE runs at the guard's start with ``sys.argv[1:]``
+            = ARGS (its imports paid while the driver lives) and defines ``then()``, which is called
+            once the reports are written: nothing to start when the driver died (a new Python and
+            its imports took seconds in an emulated, loaded machine). CODE failing at the start is
+            said on standard error, and it is then run as ``python -I -c CODE ARGS`` instead.
         give_up_s: how long the guard tries to hand the host the reports once the driver died (s).
         what: whose guard, in the log's lines.
     Raises:

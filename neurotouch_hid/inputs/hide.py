@@ -52,14 +52,17 @@ SYSFS = Path("/sys")
 #: How many folders up from an input device its HID device is looked for (input -> HID device ->
 #: interface -> USB device).
 _USB_DEPTH = 6
-#: What a :class:`Hider`'s guard runs when the driver died (``python -I -c``): argv is the folder
-#: holding the package, then the dead driver's pid, the root, ``/dev`` and ``/sys``
-#: (:func:`put_back_dead`).
+#: What a :class:`Hider`'s guard prepares at its start and calls when the driver died (Python run
+#: in the guard: :class:`~neurotouch_hid.guard.Guard`'s ``then``): argv is the folder holding the
+#: package, then the dead driver's pid, the root, ``/dev`` and ``/sys`` (:func:`put_back_dead`).
 RESTORE_CODE = """
 import sys
 sys.path.insert(0, sys.argv[1])
 from neurotouch_hid.inputs.hide import put_back_dead
-put_back_dead(int(sys.argv[2]), *sys.argv[3:6])
+def then():
+    put_back_dead(int(sys.argv[2]), *sys.argv[3:6])
+if __name__ == "__main__":
+    then()
 """
 
 
@@ -185,7 +188,7 @@ class Hider:
             return
         package_parent = str(Path(__file__).resolve().parents[2])
         where = [str(self.folder.parent), str(self.dev), str(self.sysfs)]
-        then = [sys.executable, "-I", "-c", RESTORE_CODE, package_parent, self.folder.name, *where]
+        then = ["-c", RESTORE_CODE, package_parent, self.folder.name, *where]
         try:
             self._guard = Guard(then=then, what="the hidden devices")
         except OSError as exc:
