@@ -89,10 +89,44 @@ def peer_uid(conn: socket.socket) -> int:
     return struct.unpack("3i", creds)[1]
 
 
-def socket_path() -> Path | None:
-    """``$XDG_RUNTIME_DIR/neurotouch-hid/control.sock``, or None when XDG_RUNTIME_DIR is not set."""
+def socket_path(serial: str | None = None) -> Path | None:
+    """``$XDG_RUNTIME_DIR/neurotouch-hid/control.sock``, or for the driver of the camera
+    ``serial`` ``control-SERIAL.sock`` beside it (two drivers, one per camera, each its own);
+    None when XDG_RUNTIME_DIR is not set. Raises ValueError for an invalid serial."""
     runtime_dir = os.environ.get("XDG_RUNTIME_DIR")
-    return Path(runtime_dir) / SOCKET_NAME if runtime_dir else None
+    if not runtime_dir:
+        return None
+    if serial is None:
+        return Path(runtime_dir) / SOCKET_NAME
+    from neurotouch_hid.serials import check_serial
+
+    return (Path(runtime_dir) / SOCKET_NAME).with_name(f"control-{check_serial(serial)}.sock")
+
+
+def running_serials() -> list[str]:
+    """The serials whose driver has a control socket file now (``control-SERIAL.sock``), sorted;
+    a file may be left by a driver that was killed (:func:`request_use` then says nobody listens)."""
+    path = socket_path()
+    if path is None or not path.parent.is_dir():
+        return []
+    return sorted(p.name[len("control-") : -len(".sock")] for p in path.parent.glob("control-*.sock"))
+
+
+def _chosen_socket(serial: str | None) -> Path | None:
+    """The socket ``profile use`` talks to: the driver of ``serial``; without one, the driver
+    started without a serial, else the one driver that has a serial. Raises NeurotouchError when
+    several drivers with serials run and none was named."""
+    path = socket_path(serial)
+    if serial is not None or path is None or path.exists():
+        return path
+    serials = running_serials()
+    if len(serials) == 1:
+        return socket_path(serials[0])
+    if len(serials) > 1:
+        raise NeurotouchError(
+            f"a driver runs for each of the cameras {', '.join(serials)}: say which with --serial SERIAL"
+        )
+    return path
 
 
 def _read_line(conn: socket.socket, within_s: float) -> bytes | None:
@@ -291,9 +325,12 @@ class ControlServer:
             self._sock = None
 
 
-def request_use(profile: str, path: Path | None = None, timeout_s: float = ANSWER_TIMEOUT_S) -> str:
-    """Ask the running driver to switch to ``profile`` (a name, or a path made absolute here);
-    returns its one-line answer.
+def request_use(
+    profile: str, path: Path | None = None, timeout_s: float = ANSWER_TIMEOUT_S, serial: str | None = None
+) -> str:
+    """Ask the running driver (the camera ``serial``'s, :func:`socket_path`; None: the one
+    driver there is) to switch to ``profile`` (a name, or a path made absolute here); returns its
+    one-line answer.
 
     Raises:
         NeurotouchError: no driver is running (no socket, or nobody listening), the socket's
@@ -301,7 +338,7 @@ def request_use(profile: str, path: Path | None = None, timeout_s: float = ANSWE
             (:func:`check_folder`, :func:`peer_uid`), or the driver refused (a missing or
             invalid profile: its message).
     """
-    path = path if path is not None else socket_path()
+    path = path if path is not None else _chosen_socket(serial)
     if path is None:
         raise NeurotouchError(
             "no neurotouch-hid driver is running: XDG_RUNTIME_DIR is not set, so there is no "

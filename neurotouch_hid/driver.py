@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Iterator
 
@@ -28,6 +28,7 @@ from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.open import CameraBackend, open_source
 from neurotouch_hid.stages import Feedback, MarkerPositions, Subscriber
 from neurotouch_hid.stats import RunStats
+from neurotouch_hid.targets.identity import Identity, identity_for
 
 if TYPE_CHECKING:
     import numpy as np
@@ -78,6 +79,7 @@ def open_output(
     inputs: tuple[str | Path | None, ...] = (),
     on_feedback: Callable[[Feedback], None] | None = None,
     protocol: str | None = None,
+    identity: Identity | None = None,
 ) -> Subscriber:
     """Create one output (:data:`OPENERS` has one opener per kind): ``gamepad`` (the uinput pad
     with the profile's name and ids, and the keyboard and mouse if the profile uses them), ``hid``
@@ -90,39 +92,60 @@ def open_output(
     profile, beside the pad). ``say``
     tells the user about rumble effects games send to the pad (the gel has no motor; default: the
     log); ``on_feedback`` gets each rumble the pad is sent (the copilot's merged pads play it). The
-    uinput pad is made when the profile first drives a pad control. Closed by ``stack``. Raises
-    DeviceError when /dev/uinput (``gamepad``) or /dev/uhid (``hid``) cannot be used."""
+    uinput pad is made when the profile first drives a pad control. ``identity``: the camera's
+    (:func:`~neurotouch_hid.targets.identity.identity_for`): the pad's ``phys``, the UHID device's
+    ``phys`` and ``uniq``, the gadget's serial (None: the default identity, whose devices keep
+    the ``phys`` of each output and no ``uniq``). Closed by ``stack``.
+    Raises DeviceError when /dev/uinput (``gamepad``) or /dev/uhid (``hid``) cannot be used."""
     opener = OPENERS[OutputKind(kind)]
     return opener(
-        profile, stack, out=out, console=console, say=say, inputs=inputs, on_feedback=on_feedback, protocol=protocol
+        profile,
+        stack,
+        out=out,
+        console=console,
+        say=say,
+        inputs=inputs,
+        on_feedback=on_feedback,
+        protocol=protocol,
+        identity=identity if identity is not None else identity_for(None),
     )
 
 
-def _open_gamepad(profile: Profile, stack: contextlib.ExitStack, *, say, on_feedback=None, **_) -> Subscriber:
+def _open_gamepad(
+    profile: Profile, stack: contextlib.ExitStack, *, say, identity: Identity, on_feedback=None, **_
+) -> Subscriber:
     from neurotouch_hid.extras import require
 
     require("uinput", "the virtual gamepad (--output gamepad)")
     from neurotouch_hid.output.desktop import UinputOutputs
-    from neurotouch_hid.output.gamepad import GamepadIdentity, VirtualGamepad
+    from neurotouch_hid.output.gamepad import PHYS, GamepadIdentity, VirtualGamepad
 
     on_effect = None if say is None else (lambda line: say(f"rumble (the gel has no motor): {line}"))
 
     def make_pad(using: Profile) -> VirtualGamepad:
         dev = using.device
-        identity = GamepadIdentity(name=dev.name, vendor=dev.vendor, product=dev.product, version=dev.version)
-        return VirtualGamepad(identity, on_effect=on_effect, on_feedback=on_feedback)
+        pad = GamepadIdentity(
+            name=dev.name,
+            vendor=dev.vendor,
+            product=dev.product,
+            version=dev.version,
+            phys=identity.phys if identity.serial else PHYS,  # without a serial: the pad's phys as always
+        )
+        return VirtualGamepad(pad, on_effect=on_effect, on_feedback=on_feedback)
 
     return stack.enter_context(UinputOutputs(None, profile, known=known_profiles(), make_pad=make_pad))
 
 
-def _open_hid(profile: Profile, stack: contextlib.ExitStack, *, say, protocol=None, **_) -> Subscriber:
+def _open_hid(
+    profile: Profile, stack: contextlib.ExitStack, *, say, identity: Identity, protocol=None, **_
+) -> Subscriber:
     from neurotouch_hid.targets import TargetOutputs
     from neurotouch_hid.targets.desktop import UinputDesktop
     from neurotouch_hid.targets.uhid import UhidDevice, uhid_identity, uhid_protocol
 
     row = uhid_protocol(protocol, profile)
     with contextlib.ExitStack() as made:  # each target closed if a later one fails
-        joystick = made.enter_context(UhidDevice(row.report, uhid_identity(row, profile.device)))
+        joystick = made.enter_context(UhidDevice(row.report, uhid_identity(row, profile.device, identity)))
         desktop = UinputDesktop(profile, known_profiles(), say=say or log.warning)
         made.callback(desktop.close)
         outputs = TargetOutputs([joystick, desktop], say=say)
@@ -130,11 +153,11 @@ def _open_hid(profile: Profile, stack: contextlib.ExitStack, *, say, protocol=No
     return stack.enter_context(outputs)
 
 
-def _open_usb(profile: Profile, stack: contextlib.ExitStack, *, say, protocol, **_) -> Subscriber:
+def _open_usb(profile: Profile, stack: contextlib.ExitStack, *, say, protocol, identity: Identity, **_) -> Subscriber:
     from neurotouch_hid.targets import TargetOutputs
     from neurotouch_hid.targets.gadget import UsbGadget, protocol_for
 
-    gadget = stack.enter_context(UsbGadget(protocol_for(protocol, profile), profile))
+    gadget = stack.enter_context(UsbGadget(protocol_for(protocol, profile), profile, serial=identity.usb_serial))
     return stack.enter_context(TargetOutputs(gadget.targets, say=say))
 
 
@@ -364,7 +387,7 @@ def camera_noise_filter() -> object:
 
 def run_driver(
     source: str = "davis",
-    profile: str | Path = "default",
+    profile: str | Path | None = "default",
     output: str = "gamepad",
     *,
     seconds: float | None = None,
@@ -385,6 +408,7 @@ def run_driver(
     model: Model | None = None,
     finish_gesture: bool = False,
     protocol: str | None = None,
+    serial: str | None = None,
 ) -> RunStats:
     """``neurotouch-hid run``: load the profile (a bad one raises ProfileError before any device
     exists), open the outputs, then run: the engine opens the source and builds the pipeline
@@ -405,6 +429,11 @@ def run_driver(
     ``protocol``: with ``output`` ``usb`` or ``hid``, the protocol the controller speaks (a row of
     :data:`~neurotouch_hid.targets.protocols.PROTOCOLS` that runs on the gadget or on UHID; None:
     the profile's ``device: protocol``, else ``hid``).
+    ``serial``: the camera the run stands for (:func:`camera_serial`): the outputs' identity
+    (:func:`~neurotouch_hid.targets.identity.identity_for`), its control socket, and its own
+    config where it has one (:mod:`neurotouch_hid.serials`): ``profile`` None is its
+    ``profile.yaml``, else ``default``; ``sensor`` None (the camera, the simulated gel) its
+    ``sensor.yaml``, else the shared one; its ``games.yaml``, else the shared one.
     Raises NeurotouchError subclasses for bad input (ProfileError, RecordingError, DeviceError,
     SensorError).
     """
@@ -418,6 +447,13 @@ def run_driver(
         raise NeurotouchError(f"--max-lag-ms {max_lag_us / 1000:g}: the lag allowed must be at least 1 ms")
     if method not in tuple(MethodKind):
         raise NeurotouchError(f"--method {method!r}: expected one of {', '.join(MethodKind)}")
+    serial = camera_serial(source, serial, davis, say)
+    if source == SourceKind.DAVIS and serial is not None:  # reopened after an unplug: the same camera
+        from neurotouch_hid.sources.davis import DavisConfig
+
+        davis = replace(davis or DavisConfig(), serial=serial)
+    identity = identity_for(serial)
+    profile, sensor = own_config(source, serial, profile, sensor)
     loaded = load_profile(profile)
     inputs = (None if source in tuple(SourceKind) else source, find_profile(profile), sensor)
     copilot = copilot_relay(output, say)
@@ -435,6 +471,7 @@ def run_driver(
                     inputs=inputs,
                     on_feedback=copilot,
                     protocol=protocol,
+                    identity=identity,
                 )
             except DeviceError as exc:
                 raise DeviceError(_and_the_source(str(exc), source, davis)) from None
@@ -469,7 +506,70 @@ def run_driver(
             max_lag_us=max_lag_us,
             waits=source == SourceKind.SIM,
             merge_for=None if copilot is None else copilot.merge_for,
+            serial=serial,
         )
+
+
+def camera_serial(
+    source: str,
+    serial: str | None,
+    davis: DavisConfig | None = None,
+    say: Callable[[str], None] = log.warning,
+) -> str | None:
+    """The serial of the camera a run stands for: ``serial`` (``--serial``: the live camera to
+    open, the simulated camera's, or the camera a recording is replayed as), else the live
+    camera's ``davis.serial``, else, for the live camera, the USB serial number of the one
+    DAVIS-346 on the bus (:func:`~neurotouch_hid.sources.discovery.discover` without
+    dv-processing; several: None, said once; none: None, the run waits or fails as before).
+    None: no serial, the default identity and the shared config.
+
+    Raises:
+        NeurotouchError: ``serial`` is not a valid serial
+            (:func:`~neurotouch_hid.serials.check_serial`).
+    """
+    from neurotouch_hid.serials import check_serial
+
+    given = serial if serial is not None else (davis.serial if davis is not None else None)
+    if given is not None:
+        try:
+            return check_serial(given)
+        except ValueError as exc:
+            raise NeurotouchError(f"--serial: {exc}") from None
+    if source != SourceKind.DAVIS:
+        return None
+    from neurotouch_hid.sources.discovery import discover
+
+    # pyusb and sysfs (the USB serial string, readable by anyone), not dv-processing: nothing opened
+    serials = [c.serial for c in discover(dv=False).davis346 if c.serial]
+    if len(serials) > 1:
+        say(
+            f"{len(serials)} DAVIS-346 cameras ({', '.join(serials)}): this run opens the first it can and its "
+            "controller has the default identity; give --serial SERIAL to run one per camera"
+        )
+        return None
+    if serials:
+        try:
+            return check_serial(serials[0])
+        except ValueError as exc:
+            say(f"the camera's serial is not used for its controller's identity: {exc}")
+    return None
+
+
+def own_config(
+    source: str, serial: str | None, profile: str | Path | None, sensor: str | Path | None
+) -> tuple[str | Path, str | Path | None]:
+    """``(profile, sensor)`` for a run of the camera ``serial``: ``profile`` as given, else the
+    camera's own ``profile.yaml``, else ``"default"``; ``sensor`` as given, else (the live camera
+    and the simulated gel, whose geometry is the camera's) its own ``sensor.yaml``, else None
+    (the shared calibration, as before; a recording's own sensor.yaml beside it comes first).
+    (:mod:`neurotouch_hid.serials`; docs/several-sensors.md.)"""
+    from neurotouch_hid.serials import own_file
+
+    if profile is None:
+        profile = own_file(serial, "profile") or "default"
+    if sensor is None and source in (SourceKind.DAVIS, SourceKind.SIM):
+        sensor = own_file(serial, "sensor")
+    return profile, sensor
 
 
 def copilot_relay(output: str, say: Callable[[str], None]) -> FeedbackRelay | None:

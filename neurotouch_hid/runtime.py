@@ -291,6 +291,9 @@ class Runtime:
         control: serve the control socket while running (``profile use``, :meth:`use_profile`).
         games: with ``control``, switch to a game's profile while it runs
             (:class:`~neurotouch_hid.games.GameProfiles`, the user's games.yaml).
+        serial: the camera's serial (None: none known): its own control socket
+            (:func:`~neurotouch_hid.control.socket_path`) and its own games.yaml where it has one
+            (:mod:`neurotouch_hid.serials`).
         stats: where the run is counted (:class:`RunStats`; e.g. shared with the terminal view
             that shows it); a new one by default.
         pacer: the :class:`~neurotouch_hid.sources.Pacer` that paces and times the run (one on
@@ -328,7 +331,9 @@ class Runtime:
         labelled: bool = False,
         merge: Merge | None = None,
         merge_for: Callable[[Profile], Merge | None] | None = None,
+        serial: str | None = None,
     ):
+        self._serial = serial
         self._merge_for = merge_for  # the copilot of a profile switched to (None: merges nothing)
         self._merge = merge if merge is not None or merge_for is None else merge_for(profile)
         self._last_gel = ControllerState.neutral()  # the mapped state before the merge
@@ -575,11 +580,15 @@ class Runtime:
 
         games = None
         if self._games and self._profile_ref is not None:
-            from neurotouch_hid.games import GameProfiles
+            from neurotouch_hid.games import GameProfiles, games_file
+            from neurotouch_hid.serials import sensor_file
 
-            games = GameProfiles(self.use_profile, str(self._profile_ref), on_game=self._follow_game)
+            path = sensor_file(self._serial, "games", games_file())
+            games = GameProfiles(self.use_profile, str(self._profile_ref), path=path, on_game=self._follow_game)
             games.start()
-        server = ControlServer(games.manual_use if games is not None else self.use_profile)
+        from neurotouch_hid.control import socket_path
+
+        server = ControlServer(games.manual_use if games is not None else self.use_profile, socket_path(self._serial))
         server.start()
         try:
             yield

@@ -49,6 +49,9 @@ stage_files() {
     sed "s|^\(Exec[A-Za-z]*\)=/usr/bin/env neurotouch-hid |\1=/usr/bin/neurotouch-hid |" \
         "$src/packaging/neurotouch-hid.service" > "$stage/usr/lib/systemd/user/neurotouch-hid.service"
     chmod 644 "$stage/usr/lib/systemd/user/neurotouch-hid.service"
+    sed "s|^\(Exec[A-Za-z]*\)=/usr/bin/env neurotouch-hid |\1=/usr/bin/neurotouch-hid |" \
+        "$src/packaging/neurotouch-hid@.service" > "$stage/usr/lib/systemd/user/neurotouch-hid@.service"
+    chmod 644 "$stage/usr/lib/systemd/user/neurotouch-hid@.service"
     ln -sf "$prefix/bin/neurotouch-hid" "$stage/usr/bin/neurotouch-hid"
     doc="$stage/usr/share/doc/neurotouch-hid"
     install -d -m 755 "$doc"

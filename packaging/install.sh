@@ -5,7 +5,8 @@
 #   --system  udev/60-neurotouch.rules -> /etc/udev/rules.d/, "uinput" -> /etc/modules-load.d/
 #             (loaded at every boot), then reload udev, re-trigger devices and load uinput now.
 #             Needs root.
-#   --user    neurotouch-hid.service -> ~/.config/systemd/user/ (or $XDG_CONFIG_HOME/systemd/user/)
+#   --user    neurotouch-hid.service and neurotouch-hid@.service (one driver per camera,
+#             docs/several-sensors.md) -> ~/.config/systemd/user/ (or $XDG_CONFIG_HOME/systemd/user/)
 #             with ExecStart/ExecReload set to the neurotouch-hid on PATH, else pipx's
 #             ~/.local/bin/neurotouch-hid (or --bin PATH), a ~/.config/neurotouch-hid/service.env
 #             to pick the profile, and `systemctl --user daemon-reload`. Run as yourself, not root.
@@ -133,6 +134,9 @@ if [ $do_user = 1 ]; then
     sed "s|^\(Exec[A-Za-z]*\)=/usr/bin/env neurotouch-hid |\1=$(exec_bin) |" \
         "$here/neurotouch-hid.service" > "$units/neurotouch-hid.service"
     chmod 644 "$units/neurotouch-hid.service"
+    sed "s|^\(Exec[A-Za-z]*\)=/usr/bin/env neurotouch-hid |\1=$(exec_bin) |" \
+        "$here/neurotouch-hid@.service" > "$units/neurotouch-hid@.service"
+    chmod 644 "$units/neurotouch-hid@.service"
     env_file="$config/neurotouch-hid/service.env"
     if [ ! -e "$env_file" ]; then
         printf '%s\n' "# The profile neurotouch-hid.service runs: a name (default, accessibility, ...) or a path." \

@@ -207,9 +207,11 @@ def test_rules_give_access_only_to_the_seated_user():
         for mode in re.findall(r'MODE\s*[:+]?=\s*"(\d+)"', line):
             assert not int(mode, 8) & 0o002, f"world-writable: {line}"
     camera = [line for line in lines if 'ATTR{idVendor}=="152a"' in line]
-    assert len(camera) == 1 and 'ATTR{idProduct}=="841a"' in camera[0]
+    assert len(camera) == 2 and all('ATTR{idProduct}=="841a"' in line for line in camera)
     for needed in ('TAG+="uaccess"', 'TAG+="systemd"', f'ENV{{SYSTEMD_USER_WANTS}}+="{UNIT.name}"'):
         assert needed in camera[0]
+    # each camera by its serial too (tests/test_sensor_units.py): no access given there
+    assert 'SYMLINK+="neurotouch-$attr{serial}"' in camera[1] and "uaccess" not in camera[1]
     virtual = [line for line in lines if "ID_NEUROTOUCH_VIRTUAL" in line]
     assert len(virtual) == 1
     pattern = re.search(r'ATTRS\{phys\}=="([^"]+)"', virtual[0]).group(1)

@@ -46,7 +46,12 @@ def run(
         help="davis (live camera), sim (simulated gel), a recording path, or predictions PRED.jsonl "
         "(replayed without the pipeline)",
     ),
-    profile: str = typer.Option("default", "--profile", help="profile name or path"),
+    profile: Optional[str] = typer.Option(
+        None,
+        "--profile",
+        help="profile name or path (default, or empty: the camera's own profile.yaml when --serial has one, "
+        "else default)",
+    ),
     output: OutputKind = typer.Option(OutputKind.GAMEPAD, "--output", help="where the states go"),
     seconds: Optional[float] = typer.Option(None, "--seconds", help="stop after this many seconds", callback=duration),
     fast: bool = typer.Option(False, "--fast", help="do not pace recordings in real time"),
@@ -62,7 +67,11 @@ def run(
         False, "--wait", help="with --source davis: wait for a camera to be plugged in instead of failing"
     ),
     serial: Optional[str] = typer.Option(
-        None, "--serial", help="with --source davis: the camera's serial number (default: the first DAVIS-346)"
+        None,
+        "--serial",
+        help="the camera's serial number: with --source davis the camera to open (default: the only DAVIS-346), "
+        "with sim the simulated camera's, with a recording the camera it is replayed as; its controller's "
+        "identity and its own config folder follow from it (docs/several-sensors.md)",
     ),
     exposure_us: str = typer.Option(
         "4000", "--exposure-us", help="with --source davis: APS exposure in microseconds, or 'auto'"
@@ -101,7 +110,7 @@ def run(
     with _summary_on_interrupt():
         stats = run_driver(
             source,
-            profile,
+            profile or None,  # an empty --profile (the templated unit's default) is not given
             output,
             seconds=seconds,
             fast=fast,
@@ -117,6 +126,7 @@ def run(
             method=method,
             model=chosen_model(model),
             protocol=None if protocol is None else str(protocol),
+            serial=serial,
         )
     err_console.print(stats.summary(), highlight=False, soft_wrap=True)
 

@@ -62,22 +62,31 @@ def setup(
     user: Optional[str] = typer.Option(None, "--user", help="who may use the gadget (default: the user who ran sudo)"),
     keyboard: bool = typer.Option(False, "--keyboard", help="add a USB keyboard (profiles that press keys)"),
     mouse: bool = typer.Option(False, "--mouse", help="add a USB mouse (profiles that move the pointer)"),
+    serial: Optional[str] = typer.Option(
+        None, "--serial", help="the camera whose pad this is: the gadget's USB serial number derives from it"
+    ),
 ) -> None:
     """Make the USB gadget (configfs) and hand its device nodes to a user; as root.
 
     The hid and switch gadgets are bound to the first USB device controller at once; the xinput
     gadget binds when run --output usb has written its descriptors."""
     from neurotouch_hid.targets.gadget import configfs
+    from neurotouch_hid.targets.identity import identity_for
 
     protocol = str(protocol)
+    try:
+        usb_serial = identity_for(serial).usb_serial
+    except ValueError as exc:
+        raise NeurotouchError(f"--serial: {exc}") from None
     if os.geteuid() != 0:
         given = [f"--user {user}"] if user else []
         given += [flag for flag, wanted in (("--keyboard", keyboard), ("--mouse", mouse)) if wanted]
+        given += [f"--serial {serial}"] if serial else []
         raise NeurotouchError(
             f"gadget setup needs root:\nsudo {_self()} gadget setup --protocol {' '.join([protocol, *given])}"
         )
     uid, whom = _owner(user)
-    plan = configfs.plan(protocol, keyboard, mouse)
+    plan = configfs.plan(protocol, keyboard, mouse, usb_serial)
     configfs.remove()
     folder = configfs.create(plan, uid=uid)
     try:  # a step that fails leaves no gadget half made (unbound, or its nodes not the user's)

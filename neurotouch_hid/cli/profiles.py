@@ -72,18 +72,28 @@ def profile_list() -> None:
 
 
 @profile_app.command("use")
-def profile_use(name: str = typer.Argument(..., help="profile name or path")) -> None:
+def profile_use(
+    name: str = typer.Argument(..., help="profile name or path"),
+    serial: Optional[str] = typer.Option(
+        None, "--serial", help="the driver of this camera (needed when a driver runs for each of several)"
+    ),
+) -> None:
     """Switch the running driver (`neurotouch-hid run`) to this profile, every output neutral first.
 
-    Talks to the driver over $XDG_RUNTIME_DIR/neurotouch-hid/control.sock; with no driver running, says so
-    (exit 2). A profile given by path is read here first, as this user: a bad one is refused
-    with its problems (file, line, field), the driver not asked."""
+    Talks to the driver over $XDG_RUNTIME_DIR/neurotouch-hid/control.sock (control-SERIAL.sock for
+    a driver run with --serial); with no driver running, says so (exit 2). A profile given by path
+    is read here first, as this user: a bad one is refused with its problems (file, line, field),
+    the driver not asked."""
     from neurotouch_hid.control import request_use
     from neurotouch_hid.mapping.profile import _is_path, load_profile
 
     if _is_path(name):
         load_profile(name)  # ProfileError: the driver would refuse it without echoing the file
-    console.print(request_use(name), highlight=False, soft_wrap=True)
+    try:
+        answer = request_use(name, serial=serial)
+    except ValueError as exc:  # an invalid serial
+        raise NeurotouchError(f"--serial: {exc}") from None
+    console.print(answer, highlight=False, soft_wrap=True)
 
 
 @profile_app.command("show")

@@ -65,7 +65,7 @@ _NAME_MAX = 79  # UINPUT_MAX_NAME_SIZE (80) minus the terminating NUL
 
 @dataclass(frozen=True)
 class GamepadIdentity:
-    """What the device tells the system it is (uinput_setup): name, USB ids, version, bus.
+    """What the device tells the system it is (uinput_setup): name, USB ids, version, bus, phys.
 
     Defaults are the wired Xbox 360 pad's, which SDL's controller database knows as
     ``030000005e0400008e02000014010000``."""
@@ -75,6 +75,8 @@ class GamepadIdentity:
     product: int = 0x028E
     version: int = 0x0114
     bustype: int = 0x03  # BUS_USB
+    #: the camera's (``targets.identity.Identity.phys``): SDL and Steam tell two pads apart by it
+    phys: str = PHYS
 
 
 def create_uinput(what: str, capabilities: dict, devnode: str = "/dev/uinput", **setup: object) -> UInput:
@@ -238,7 +240,7 @@ class VirtualGamepad(NeutralOnClose):
             product=self.identity.product,
             version=self.identity.version,
             bustype=self.identity.bustype,
-            phys=PHYS,
+            phys=self.identity.phys,
             max_effects=MAX_EFFECTS,
         )
         self._lock = threading.RLock()

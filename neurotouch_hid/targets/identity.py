@@ -14,26 +14,25 @@ uhid_create2_req``, include/uapi/linux/uhid.h; ``struct hid_device``), so a seri
 :data:`MAX_SERIAL_CHARS` ASCII characters, and the gadget's serial string stays far under the
 126 UTF-16 characters of a USB string descriptor (USB 2.0 section 9.6.7). A serial is also a
 device link (``/dev/neurotouch-SERIAL``), a systemd instance name and a folder name, so it is
-made of letters, digits, ``_`` and ``-`` only (:func:`check_serial`).
+made of letters, digits and ``_`` only (:func:`neurotouch_hid.serials.check_serial`).
 """
 
 from __future__ import annotations
 
 import hashlib
-import re
 from dataclasses import dataclass
 
-#: Longest serial taken (characters). A DAVIS camera's is 8 (libcaer's
-#: ``SERIAL_NUMBER_MAX_LENGTH``); 32 leaves ``phys`` with a suffix (``/keyboard``) under 64 bytes.
-MAX_SERIAL_CHARS = 32
-#: A serial: letters, digits, ``_`` and ``-``, not starting with ``-`` (it would read as an option).
-SERIAL_PATTERN = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]*")
+from neurotouch_hid.serials import MAX_SERIAL_CHARS, check_serial
+
+__all__ = ["MAX_SERIAL_CHARS", "Identity", "check_serial", "identity_for", "mac_for"]
+
 #: Prefix of every ``phys`` the driver sets (the udev rule's ``neurotouch-hid/*`` tags them
 #: ID_NEUROTOUCH_VIRTUAL=1, and the remapper never grabs them).
 PHYS_PREFIX = "neurotouch-hid/"
 #: The gadget's iSerialNumber when no serial is known (the one every board had before serials).
 DEFAULT_USB_SERIAL = "00000001"
-#: ``phys`` when no serial is known.
+#: ``phys`` when no serial is known (the driver's outputs then keep each their own phys:
+#: ``neurotouch-hid/gamepad``, ``neurotouch-hid/uhid``, as they always had).
 DEFAULT_PHYS = PHYS_PREFIX + "default"
 #: Salt of the MAC hash: changing it changes every MAC, and hosts would forget paired pads.
 _MAC_SALT = b"neurotouch-hid mac v1\0"
@@ -62,33 +61,6 @@ class Identity:
     uniq: str
     phys: str
     usb_serial: str
-
-
-def check_serial(serial: str) -> str:
-    """``serial`` if it can name a camera's devices, links, service instance and config folder.
-
-    Args:
-        serial: a camera serial (``str``), e.g. ``"00000499"``.
-
-    Returns:
-        ``serial`` unchanged.
-
-    Raises:
-        ValueError: empty, longer than :data:`MAX_SERIAL_CHARS`, or with a character other
-            than letters, digits, ``_`` and ``-`` (or starting with ``-``); the message quotes it.
-    """
-    if not isinstance(serial, str):
-        raise ValueError(f"a camera serial is text, got {type(serial).__name__}")
-    if not serial:
-        raise ValueError("a camera serial is empty; expected letters, digits, '_' or '-'")
-    if len(serial) > MAX_SERIAL_CHARS:
-        raise ValueError(f"camera serial {serial[:40]!r}... has {len(serial)} characters; at most {MAX_SERIAL_CHARS}")
-    if not SERIAL_PATTERN.fullmatch(serial):
-        raise ValueError(
-            f"camera serial {serial!r} has a character other than letters, digits, '_' and '-' "
-            "(or starts with '-'); it names a device link, a service and a folder"
-        )
-    return serial
 
 
 def mac_for(serial: str) -> bytes:

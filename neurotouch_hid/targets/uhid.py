@@ -42,6 +42,7 @@ from neurotouch_hid.udev import char_device_problem, uhid_help
 if TYPE_CHECKING:
     from neurotouch_hid.mapping.profile import DeviceSpec, Profile
     from neurotouch_hid.stages import Feedback
+    from neurotouch_hid.targets.identity import Identity
     from neurotouch_hid.targets.protocols import ProtocolRow
     from neurotouch_hid.targets.reports import ReportFormat
 
@@ -198,12 +199,16 @@ def create2_event(
 
 @dataclass(frozen=True)
 class HidIdentity:
-    """What the UHID device tells the system it is: name and USB ids (vendor, product, version)."""
+    """What the UHID device tells the system it is: name and USB ids (vendor, product, version),
+    ``phys`` and ``uniq`` (the camera's, :class:`~neurotouch_hid.targets.identity.Identity`: SDL
+    and Steam tell two devices of the same ids apart by them)."""
 
     name: str
     vendor: int
     product: int
     version: int
+    phys: str = PHYS
+    uniq: str = ""
 
 
 #: The identity of the HID joystick when the profile names the Xbox 360 pad's ids: pid.codes'
@@ -214,14 +219,17 @@ HID_DEFAULT = HidIdentity("NeuroTouch HID joystick", 0x1209, 0x0001, 0x0100)
 _XBOX_360 = (0x045E, 0x028E)
 
 
-def hid_identity(device: DeviceSpec) -> HidIdentity:
+def hid_identity(device: DeviceSpec, camera: Identity | None = None) -> HidIdentity:
     """The HID joystick's identity for a profile's ``device:`` section: its name and ids, unless
     they are the Xbox 360 pad's (every shipped profile's), which give :data:`HID_DEFAULT`'s ids
-    (and its name when the profile's is the Xbox pad's own)."""
+    (and its name when the profile's is the Xbox pad's own); ``phys`` and ``uniq`` from the
+    camera's :class:`~neurotouch_hid.targets.identity.Identity` (None, or one without a serial:
+    :data:`PHYS` and no uniq, as runs without a serial always had)."""
+    where = {} if camera is None or not camera.serial else {"phys": camera.phys, "uniq": camera.uniq}
     if (device.vendor, device.product) != _XBOX_360:
-        return HidIdentity(device.name, device.vendor, device.product, device.version)
+        return HidIdentity(device.name, device.vendor, device.product, device.version, **where)
     name = HID_DEFAULT.name if "X-Box 360" in device.name else device.name
-    return HidIdentity(name, HID_DEFAULT.vendor, HID_DEFAULT.product, HID_DEFAULT.version)
+    return HidIdentity(name, HID_DEFAULT.vendor, HID_DEFAULT.product, HID_DEFAULT.version, **where)
 
 
 def uhid_protocol(requested: str | None, profile: Profile) -> ProtocolRow:
@@ -244,13 +252,14 @@ def uhid_protocol(requested: str | None, profile: Profile) -> ProtocolRow:
         raise DeviceError(str(exc)) from None
 
 
-def uhid_identity(row: ProtocolRow, device: DeviceSpec) -> HidIdentity:
+def uhid_identity(row: ProtocolRow, device: DeviceSpec, camera: Identity | None = None) -> HidIdentity:
     """The UHID device's name and ids for the protocol ``row``: the profile's ``device:``
     (:func:`hid_identity`) where the row lets a profile choose them, else the row's own (a host
-    driver binds by them)."""
+    driver binds by them); ``phys`` and ``uniq`` from ``camera`` as :func:`hid_identity` says."""
     if row.profile_ids:
-        return hid_identity(device)
-    return HidIdentity(row.product_name, row.vendor, row.product, row.bcd_device)
+        return hid_identity(device, camera)
+    where = {} if camera is None or not camera.serial else {"phys": camera.phys, "uniq": camera.uniq}
+    return HidIdentity(row.product_name, row.vendor, row.product, row.bcd_device, **where)
 
 
 def uhid_problem(devnode: str = "/dev/uhid") -> str | None:
@@ -289,7 +298,13 @@ class UhidDevice(NeutralOnClose):
         if problem:
             raise DeviceError(f"{problem}\n{uhid_help()}")
         event = create2_event(
-            fmt.descriptor, identity.name, vendor=identity.vendor, product=identity.product, version=identity.version
+            fmt.descriptor,
+            identity.name,
+            vendor=identity.vendor,
+            product=identity.product,
+            version=identity.version,
+            phys=identity.phys,
+            uniq=identity.uniq,
         )
         self._lock = threading.RLock()
         self._closed = False

@@ -86,17 +86,19 @@ class UsbGadget:
     """The run's gadget and its targets (module docstring), as a context manager.
 
     ``protocol``: ``hid``, ``switch`` or ``xinput``; ``profile``: whether a keyboard and a mouse
-    function are made (when this run makes the gadget). :attr:`targets` are ready after
+    function are made (when this run makes the gadget); ``serial``: the iSerialNumber of a gadget
+    this run makes (the camera's ``Identity.usb_serial``; None: the default). :attr:`targets` are ready after
     ``__enter__``; ``__exit__`` closes them (neutral first) and removes a gadget this run made.
 
     Raises (from ``__enter__``):
         DeviceError: no gadget of this protocol and not root; no UDC; the nodes are not this user's.
     """
 
-    def __init__(self, protocol: str, profile: Profile, *, name: str = configfs.GADGET_NAME):
+    def __init__(self, protocol: str, profile: Profile, *, name: str = configfs.GADGET_NAME, serial: str | None = None):
         self.protocol = protocol
         self.profile = profile
         self.name = name
+        self.serial = serial or configfs.DEFAULT_USB_SERIAL  # iSerialNumber of a gadget this run makes
         self.targets: list[Target] = []
         self.made = False
         self._guard: Guard | None = None
@@ -109,7 +111,7 @@ class UsbGadget:
                     f"no USB gadget is set up for --output usb (no {configfs.gadget_dir(self.name)})\n"
                     f"sudo neurotouch-hid gadget setup --protocol {self.protocol} --user $USER"
                 )
-            plan = configfs.plan(self.protocol, self.profile.uses_keyboard, self.profile.uses_mouse)
+            plan = configfs.plan(self.protocol, self.profile.uses_keyboard, self.profile.uses_mouse, self.serial)
             configfs.create(plan, name=self.name)
             self.made = True
         elif found != self.protocol:

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.targets.identity import DEFAULT_USB_SERIAL
 
 #: Where configfs keeps the gadgets, and the controllers' class in sysfs.
 CONFIGFS = Path("/sys/kernel/config")
@@ -75,12 +76,15 @@ class GadgetPlan:
     product_name: str
     hid: tuple[HidFunction, ...]
     ffs: bool
+    #: iSerialNumber: the camera's (``targets.identity.Identity.usb_serial``), so a host tells
+    #: two boards' pads apart and remembers each
+    serial: str = DEFAULT_USB_SERIAL
 
 
-def plan(protocol: str, keyboard: bool = False, mouse: bool = False) -> GadgetPlan:
+def plan(protocol: str, keyboard: bool = False, mouse: bool = False, serial: str = DEFAULT_USB_SERIAL) -> GadgetPlan:
     """The gadget for ``protocol`` (a row of :data:`~neurotouch_hid.targets.protocols.PROTOCOLS`
     that runs on a gadget: its ids, strings and function), with a keyboard and a mouse function
-    when asked. Raises DeviceError for an unknown protocol or one that does not run on a gadget."""
+    when asked, and ``serial`` as its iSerialNumber. Raises DeviceError for an unknown protocol or one that does not run on a gadget."""
     from neurotouch_hid.errors import NeurotouchError
     from neurotouch_hid.targets.protocols import protocol as protocol_row
 
@@ -95,8 +99,8 @@ def plan(protocol: str, keyboard: bool = False, mouse: bool = False) -> GadgetPl
         extra.append(HidFunction("usb2", "mouse", subclass=1, protocol=2))
     ids = (row.vendor, row.product, row.bcd_device, row.manufacturer, row.product_name)
     if row.gadget_function == "xinput":
-        return GadgetPlan(protocol, *ids, tuple(extra), True)
-    return GadgetPlan(protocol, *ids, (HidFunction("usb0", row.report.name), *extra), False)
+        return GadgetPlan(protocol, *ids, tuple(extra), True, serial)
+    return GadgetPlan(protocol, *ids, (HidFunction("usb0", row.report.name), *extra), False, serial)
 
 
 def read_attr(path: str | os.PathLike) -> str:
@@ -249,7 +253,7 @@ def create(gadget: GadgetPlan, *, name: str = GADGET_NAME, uid: int = -1) -> Pat
         strings.mkdir()
         write_attr(strings / "manufacturer", gadget.manufacturer)
         write_attr(strings / "product", gadget.product_name)
-        write_attr(strings / "serialnumber", "00000001")
+        write_attr(strings / "serialnumber", gadget.serial)
         config = folder / "configs" / "c.1"
         config.mkdir()
         (config / "strings" / "0x409").mkdir()

@@ -1,0 +1,180 @@
+"""Several cameras on one machine: each run stands for one camera (its serial), whose outputs carry
+an identity of their own and whose own config folder is used where it has one
+(neurotouch_hid/serials.py, driver.camera_serial, driver.own_config, control.socket_path).
+The two pads in a real kernel: tests/kernel/checks_sensors.py."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from helpers import read_states, run_main
+
+from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.serials import config_dir, configured_serials, own_file, sensor_dir, sensor_file
+
+
+def _own(serial: str, name: str, text: str = "") -> None:
+    folder = sensor_dir(serial)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / name).write_text(text)
+
+
+def test_a_camera_uses_its_own_file_where_it_has_one_else_the_shared_one(tmp_path):
+    shared = tmp_path / "games.yaml"
+    assert sensor_file("A1", "games", shared) == shared
+    _own("A1", "games.yaml")
+    assert sensor_file("A1", "games", shared) == config_dir() / "sensors" / "A1" / "games.yaml"
+    assert sensor_file("B2", "games", shared) == shared  # another camera keeps the shared one
+    assert sensor_file(None, "games", shared) == shared
+    assert own_file("A1", "profile") is None
+    with pytest.raises(KeyError):
+        own_file("A1", "model")
+    with pytest.raises(ValueError, match="character other than"):
+        own_file("../A1", "games")
+
+
+def test_configured_serials_lists_the_camera_folders_only():
+    assert configured_serials() == []
+    _own("B2", "profile.yaml")
+    _own("A1", "sensor.yaml")
+    (config_dir() / "sensors" / "not a serial").mkdir()
+    (config_dir() / "sensors" / "file").write_text("")
+    assert configured_serials() == ["A1", "B2"]
+
+
+def _on_the_bus(monkeypatch, *serials):
+    """pyusb's view of the bus (sources/discovery.py) as DAVIS-346 cameras with ``serials``."""
+    from neurotouch_hid.sources import discovery
+
+    cameras = [SimpleNamespace(serial=s or None) for s in serials]
+    monkeypatch.setattr(discovery, "discover", lambda dv=True: SimpleNamespace(davis346=cameras))
+
+
+def test_the_run_serial_is_the_given_one_else_the_only_camera_on_the_bus(monkeypatch):
+    from neurotouch_hid.driver import camera_serial
+    from neurotouch_hid.sources.davis import DavisConfig
+
+    said = []
+    _on_the_bus(monkeypatch, "00000499")
+    assert camera_serial("sim", "left_1", say=said.append) == "left_1"
+    assert camera_serial("sim", None, say=said.append) is None  # the bus is the live camera's only
+    assert camera_serial("davis", None, DavisConfig(serial="00000500"), say=said.append) == "00000500"
+    assert camera_serial("davis", None, None, say=said.append) == "00000499"
+    assert said == []
+    _on_the_bus(monkeypatch, "")  # a serial string nobody could read
+    assert camera_serial("davis", None, None, say=said.append) is None
+    _on_the_bus(monkeypatch, "00000499", "00000500")
+    assert camera_serial("davis", None, None, say=said.append) is None
+    assert "00000499, 00000500" in said[-1] and "--serial" in said[-1]
+    _on_the_bus(monkeypatch, "0000 499")
+    assert camera_serial("davis", None, None, say=said.append) is None
+    assert "not used for its controller's identity" in said[-1]
+    with pytest.raises(NeurotouchError, match="--serial: camera serial 'a/b'"):
+        camera_serial("sim", "a/b")
+
+
+def test_own_config_takes_the_camera_profile_and_sensor_else_the_shared_ones():
+    from neurotouch_hid.driver import own_config
+
+    assert own_config("sim", "A1", None, None) == ("default", None)
+    _own("A1", "profile.yaml")
+    _own("A1", "sensor.yaml")
+    folder = config_dir() / "sensors" / "A1"
+    assert own_config("sim", "A1", None, None) == (folder / "profile.yaml", folder / "sensor.yaml")
+    assert own_config("davis", "A1", "mouse", "/x/sensor.yaml") == ("mouse", "/x/sensor.yaml")  # given wins
+    assert own_config("rec.aedat4", "A1", None, None) == (folder / "profile.yaml", None)  # the recording's own
+    assert own_config("sim", None, None, None) == ("default", None)
+
+
+def _push_right(path):
+    from neurotouch_hid.dataset import write_predictions
+
+    estimates = [
+        GestureEstimate(
+            t_us=1_000_000 + 10_000 * k,
+            gesture=GestureType.PUSH,
+            resting=False,
+            intensity_mm=6.0,
+            translation_mm=np.array([3.0, 0.0]),
+        )
+        for k in range(40)
+    ]
+    estimates += [GestureEstimate(t_us=1_400_000 + 10_000 * k) for k in range(10)]
+    write_predictions(path, estimates)
+
+
+def test_a_run_with_a_serial_maps_with_that_camera_profile(tmp_path):
+    """Two runs of the same push, one per camera: the camera with a profile.yaml of its own
+    (the shipped ``mouse``) moves the pointer, the other one (no folder) the default's stick."""
+    from neurotouch_hid.driver import run_driver
+    from neurotouch_hid.mapping.profile import find_profile
+
+    preds = tmp_path / "push.jsonl"
+    _push_right(preds)
+    _own("LEFT", "profile.yaml", find_profile("mouse").read_text())
+    left, right = tmp_path / "left.jsonl", tmp_path / "right.jsonl"
+    run_driver(str(preds), None, "jsonl", fast=True, out=left, serial="LEFT")
+    run_driver(str(preds), None, "jsonl", fast=True, out=right, serial="RIGHT")
+    left_states, right_states = read_states(left.read_text()), read_states(right.read_text())
+    assert sum(d["rel"].get("REL_X", 0) for d in left_states) > 100
+    assert all(d["axes"]["ABS_X"] == 0 for d in left_states)
+    assert max(d["axes"]["ABS_X"] for d in right_states) > 16000
+    assert all(not d["rel"] for d in right_states)
+
+
+def test_run_refuses_a_serial_that_cannot_name_a_camera(monkeypatch, capsys, tmp_path):
+    preds = tmp_path / "push.jsonl"
+    _push_right(preds)
+    done = run_main(monkeypatch, capsys, ["run", "--source", str(preds), "--output", "jsonl", "--serial", "a b"])
+    assert done.returncode == 2
+    assert "--serial: camera serial 'a b' has a character other than" in done.stderr
+
+
+def test_each_camera_driver_has_its_own_control_socket(tmp_path, monkeypatch):
+    from neurotouch_hid import control
+
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
+    folder = tmp_path / "neurotouch-hid"
+    assert control.socket_path() == folder / "control.sock"
+    assert control.socket_path("A1") == folder / "control-A1.sock"
+    with pytest.raises(ValueError):
+        control.socket_path("../x")
+    folder.mkdir(mode=0o700)
+    assert control._chosen_socket(None) == folder / "control.sock"  # nobody runs: said on connecting
+    (folder / "control-A1.sock").write_text("")
+    assert control.running_serials() == ["A1"]
+    assert control._chosen_socket(None) == folder / "control-A1.sock"  # the one camera's driver
+    (folder / "control-B2.sock").write_text("")
+    with pytest.raises(NeurotouchError, match="cameras A1, B2: say which with --serial"):
+        control.request_use("default")
+    assert control._chosen_socket("B2") == folder / "control-B2.sock"
+    (folder / "control.sock").write_text("")
+    assert control._chosen_socket(None) == folder / "control.sock"  # the driver without a serial
+
+
+def test_outputs_carry_the_camera_identity():
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.output.gamepad import PHYS, GamepadIdentity
+    from neurotouch_hid.targets.gadget import configfs
+    from neurotouch_hid.targets.identity import identity_for
+    from neurotouch_hid.targets.uhid import _CREATE2, create2_event, hid_identity
+    from neurotouch_hid.targets.uhid import PHYS as UHID_PHYS
+
+    camera = identity_for("00000499")
+    hid = hid_identity(load_profile("default").device, camera)
+    assert (hid.phys, hid.uniq) == ("neurotouch-hid/00000499", camera.uniq)
+    plain = hid_identity(load_profile("default").device)
+    assert (plain.phys, plain.uniq) == (UHID_PHYS, "")
+    event = create2_event(b"\x05\x01", hid.name, vendor=1, product=2, version=3, phys=hid.phys, uniq=hid.uniq)
+    _, _, phys, uniq, *_ = _CREATE2.unpack_from(event)
+    assert phys.rstrip(b"\0") == b"neurotouch-hid/00000499" and uniq.rstrip(b"\0") == camera.uniq.encode()
+    assert GamepadIdentity().phys == PHYS
+    assert configfs.plan("hid", serial=camera.usb_serial).serial == "00000499"
+    assert configfs.plan("xinput").serial == "00000001"
+
+
+def test_gadget_setup_refuses_a_bad_serial(monkeypatch, capsys):
+    done = run_main(monkeypatch, capsys, ["gadget", "setup", "--serial", "x y"])
+    assert done.returncode == 2
+    assert "--serial: camera serial 'x y' has a character other than" in done.stderr
