@@ -84,7 +84,8 @@ class GadgetPlan:
 def plan(protocol: str, keyboard: bool = False, mouse: bool = False, serial: str = DEFAULT_USB_SERIAL) -> GadgetPlan:
     """The gadget for ``protocol`` (a row of :data:`~neurotouch_hid.targets.protocols.PROTOCOLS`
     that runs on a gadget: its ids, strings and function), with a keyboard and a mouse function
-    when asked, and ``serial`` as its iSerialNumber. Raises DeviceError for an unknown protocol or one that does not run on a gadget."""
+    when asked, and ``serial`` as its iSerialNumber. Raises DeviceError for an unknown protocol
+    or one that does not run on a gadget."""
     from neurotouch_hid.errors import NeurotouchError
     from neurotouch_hid.targets.protocols import protocol as protocol_row
 
