@@ -8,6 +8,9 @@ Beside the pad, a profile may drive a keyboard and a mouse (uinput devices of th
 (``REL_X``/``REL_Y`` in pointer counts, ``REL_WHEEL``/``REL_HWHEEL`` in detents and their
 ``*_HI_RES`` twins in 1/120 detent). Motion is an impulse, not a level: a state with motion is
 always written, and the neutral state has none.
+A touchpad (the DualSense's, docs/profiles.md "Touchpad") has up to :data:`TOUCH_SLOTS` touch
+points, :attr:`ControllerState.touches`, and a click, :attr:`ControllerState.touch_click`; outputs
+without a touchpad ignore both.
 A :class:`ControllerState` is a plain value; the neutral state (:meth:`ControllerState.neutral`)
 is what every output writes before it stops. What comes back the other way, from a game or a host
 to a device (rumble, LEDs), is a :class:`Feedback`.
@@ -52,6 +55,33 @@ BUTTONS: tuple[str, ...] = (
 )
 
 
+#: The touchpad's size in its own units, the DualSense's (hid-playstation's DS_TOUCHPAD_WIDTH and
+#: DS_TOUCHPAD_HEIGHT): x 0..1919 from the left, y 0..1079 from the top.
+TOUCHPAD_WIDTH, TOUCHPAD_HEIGHT = 1920, 1080
+#: Touch points a touchpad reports at once (the DualSense's two).
+TOUCH_SLOTS = 2
+#: Tracking ids run 0..TRACKING_IDS - 1 (the DualSense's 7 bits) and then wrap to 0.
+TRACKING_IDS = 128
+
+
+@dataclass(frozen=True)
+class TouchPoint:
+    """One touch point of the touchpad.
+
+    Attributes:
+        id: tracking id, 0..127: the same while its contact lasts, a new one for a new touch.
+        x: 0..1919 (:data:`TOUCHPAD_WIDTH` - 1), from the left edge.
+        y: 0..1079 (:data:`TOUCHPAD_HEIGHT` - 1), from the top edge.
+        active: touching; False once lifted (``id``, ``x`` and ``y`` are then the last ones, which
+            hosts ignore: the DualSense's inactive bit).
+    """
+
+    id: int
+    x: int
+    y: int
+    active: bool = True
+
+
 def _neutral_axes() -> dict[str, int]:
     return {name: neutral for name, (_, _, neutral) in AXES.items()}
 
@@ -64,27 +94,39 @@ def _released_buttons() -> dict[str, bool]:
 class ControllerState:
     """Axes (evdev name -> int in the axis' range) and buttons (evdev name -> pressed) of the pad;
     ``keys``: keyboard keys and mouse buttons that are down (evdev names); ``rel``: this step's
-    relative motion (evdev name -> int counts, zero entries left out)."""
+    relative motion (evdev name -> int counts, zero entries left out); ``touches``: the
+    touchpad's slots in order (slot 0 first, at most :data:`TOUCH_SLOTS`; None or a missing slot
+    has no point), ``touch_click``: the touchpad pressed down."""
 
     t_us: int = 0
     axes: dict[str, int] = field(default_factory=_neutral_axes)
     buttons: dict[str, bool] = field(default_factory=_released_buttons)
     keys: frozenset[str] = frozenset()
     rel: dict[str, int] = field(default_factory=dict)
+    touches: tuple[TouchPoint | None, ...] = ()
+    touch_click: bool = False
 
     @classmethod
     def neutral(cls, t_us: int = 0) -> "ControllerState":
-        """All axes centred (triggers at 0), all buttons released."""
+        """All axes centred (triggers at 0), all buttons released, no touch point, no click."""
         return cls(t_us=t_us)
 
     def is_neutral(self) -> bool:
-        """True when every axis is at its neutral value, no button or key is pressed and nothing moves."""
+        """True when every axis is at its neutral value, no button or key is pressed, nothing
+        moves and nothing touches the touchpad."""
         return (
             all(self.axes[n] == AXES[n][2] for n in AXES)
             and not any(self.buttons.values())
             and not self.keys
             and not any(self.rel.values())
+            and not self.touching
+            and not self.touch_click
         )
+
+    @property
+    def touching(self) -> bool:
+        """A touch point is active."""
+        return any(point is not None and point.active for point in self.touches)
 
 
 @dataclass(frozen=True)
@@ -92,12 +134,14 @@ class Feedback:
     """What a game or a host sent back to a target: rumble or a player LED.
 
     Attributes:
-        kind: ``"rumble"``, ``"led"`` (a pad's player LED) or ``"keyboard_leds"`` (a USB
-            keyboard's Num/Caps/Scroll Lock, Compose, Kana bits in ``led``).
+        kind: ``"rumble"``, ``"led"`` (a pad's player LED), ``"lightbar"`` (a DualSense's light
+            bar's colour in ``led``) or ``"keyboard_leds"`` (a USB keyboard's Num/Caps/Scroll Lock,
+            Compose, Kana bits in ``led``).
         strong, weak: rumble magnitudes 0..1 (the low- and high-frequency motors; 0 stops).
         duration_ms: how long the rumble lasts (None: until the next one).
-        led: the player LED pattern as the protocol numbers it (xpad's 0..15), for ``"led"``; the
-            LED bits (0..31), for ``"keyboard_leds"``.
+        led: the player LED pattern as the protocol numbers it (xpad's 0..15; the DualSense's
+            five LEDs as bits 0-4), for ``"led"``; the LED bits (0..31), for ``"keyboard_leds"``;
+            the colour as 0xRRGGBB, for ``"lightbar"`` (the DualSense's light bar).
         source: the target that received it (its ``what``), for the user's log line.
         effect: the game's effect id on an evdev pad (the EV_FF code it plays and stops it with;
             several may play at once, Documentation/input/ff.rst); None from a target whose rumble

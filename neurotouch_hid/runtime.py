@@ -922,6 +922,8 @@ class Runtime:
                 and kept.axes == last.axes
                 and kept.buttons == last.buttons
                 and kept.keys == last.keys
+                and kept.touches == last.touches
+                and kept.touch_click == last.touch_click
                 and self._compiling() is None
                 # a merged device's input is published with the last window's record: one must exist
                 and (self._merge is None or self._last_record is not None)
@@ -977,7 +979,12 @@ class Runtime:
                 state = self._merge.merge(state)
             last = self._last_state
             state_changed = (
-                state.axes != last.axes or state.buttons != last.buttons or state.keys != last.keys or bool(state.rel)
+                state.axes != last.axes
+                or state.buttons != last.buttons
+                or state.keys != last.keys
+                or bool(state.rel)
+                or state.touches != last.touches
+                or state.touch_click != last.touch_click
             )
             markers = self._pipeline.markers() if self._wants_markers else None
             progress = self._compiling()

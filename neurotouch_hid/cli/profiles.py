@@ -257,7 +257,8 @@ def profile_validate(path: str = typer.Argument(..., help="profile file (or name
     from neurotouch_hid.mapping.profile import find_profile, load_profile
 
     loaded = load_profile(path)
-    console.print(f"{find_profile(path)}: ok ({len(loaded.mappings)} mappings)", highlight=False)
+    touchpad = ", a touchpad" if loaded.touchpad is not None else ""
+    console.print(f"{find_profile(path)}: ok ({len(loaded.mappings)} mappings{touchpad})", highlight=False)
 
 
 def _edit_again(problem: str) -> bool:

@@ -41,6 +41,8 @@ from neurotouch_hid.mapping.profile import (
     LayerSwitch,
     OneEuroSmoothing,
     Profile,
+    TouchClick,
+    TouchpadMapping,
     _output_kind,
     find_profile,
     parse_profile,
@@ -266,6 +268,10 @@ def schema_fields(parts: list[str], node: Any = None) -> tuple[str, ...] | None:
         return tuple(OneEuroSmoothing.model_fields)
     if parts == ["device"]:
         return tuple(DeviceSpec.model_fields)
+    if parts == ["touchpad"]:
+        return tuple(TouchpadMapping.model_fields)
+    if parts == ["touchpad", "click"]:
+        return tuple(TouchClick.model_fields)
     if len(parts) == 2 and parts[0] == "mappings":
         kind = _output_kind(dict(node)) if isinstance(node, dict) else "unknown"
         return tuple(_ANY_MAPPING_FIELDS if kind == "unknown" else _TAG_MODELS[kind].model_fields)

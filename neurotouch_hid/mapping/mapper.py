@@ -30,7 +30,9 @@ from neurotouch_hid.mapping.profile import (
     Profile,
     RelMapping,
     StickMapping,
+    TouchClick,
 )
+from neurotouch_hid.mapping.touchpad import TouchTracker
 
 _ZERO2 = np.zeros(2)
 
@@ -190,10 +192,12 @@ class Activator:
         self._suspended = False
 
     @classmethod
-    def of(cls, mapping: ButtonMapping | LayerSwitch) -> "Activator":
-        """The activator a mapping (or a layer switch) describes."""
+    def of(cls, mapping: ButtonMapping | LayerSwitch | TouchClick) -> "Activator":
+        """The activator a mapping (or a layer switch, or the touchpad's click) describes."""
         if isinstance(mapping, LayerSwitch):
             return cls(mapping.mode, mapping.press_mm, mapping.release_mm)
+        if isinstance(mapping, TouchClick):
+            return cls(mapping.mode, mapping.press_mm, mapping.release_mm, dwell_ms=mapping.dwell)
         return cls(
             mapping.mode,
             mapping.press_mm,
@@ -319,6 +323,10 @@ class Mapper:
     and if the old type comes back within the gesture (the intensity, whatever the type, never
     below the mapping's ``release_mm`` in between), its holds go on without a new press
     (:meth:`Activator.suspend`): a toggle flips once per gesture, however the type flickers.
+
+    The touchpad (a profile's ``touchpad:``): the contact points become touch points
+    (:class:`~neurotouch_hid.mapping.touchpad.TouchTracker`) and the click's input goes through
+    its activator, in every layer; a layer change lifts every touch (its neutral state has none).
     """
 
     def __init__(self, profile: Profile) -> None:
@@ -326,6 +334,12 @@ class Mapper:
         self._switches = {name: Activator.of(s) for name, s in profile.layers.items()}
         self._switch_filters = {name: _filter_for(s.smoothing) for name, s in profile.layers.items()}
         self.layer = BASE_LAYER
+        pad = profile.touchpad
+        self._touch = TouchTracker(pad) if pad is not None else None
+        click = pad.click if pad is not None else None
+        self._click = Activator.of(click) if click is not None else None
+        self._click_input = click.input if click is not None else ""
+        self._click_filter = _filter_for(click.smoothing) if click is not None else None
         self._fresh_mappings()
 
     def _fresh_mappings(self) -> None:
@@ -381,6 +395,11 @@ class Mapper:
         self._switches = {name: Activator.of(s) for name, s in self.profile.layers.items()}
         self._switch_filters = {name: _filter_for(s.smoothing) for name, s in self.profile.layers.items()}
         self.layer = BASE_LAYER
+        if self._touch is not None:
+            self._touch.lift()
+        if self._click is not None:
+            self._click = Activator.of(self.profile.touchpad.click)  # type: ignore[union-attr]
+            self._click_filter = _filter_for(self.profile.touchpad.click.smoothing)  # type: ignore[union-attr]
         self._fresh_mappings()
 
     def _current_layer(self, inputs: dict, t_us: int) -> str:
@@ -420,6 +439,8 @@ class Mapper:
         if layer != self.layer:
             self.layer = layer
             self._fresh_mappings()
+            if self._touch is not None:
+                self._touch.lift()
             return ControllerState.neutral(t_us)
         self._hand_over(estimate, inputs, layer)
         analog = dict.fromkeys(ANALOG_AXES, 0.0)
@@ -478,7 +499,18 @@ class Mapper:
         for name, wheel in self._wheels.items():
             rel[name + "_HI_RES"], rel[name] = wheel.step(velocity[name], t_us)
         rel = {name: rel[name] for name in MOUSE_REL if rel[name]}
-        state = ControllerState(t_us=t_us, axes=axes, buttons=buttons, keys=frozenset(keys), rel=rel)
+        touches: tuple = ()
+        if self._touch is not None:
+            touches = self._touch.update(estimate.contacts_mm, estimate.intensity_mm, estimate.resting)
+        click = False
+        if self._click is not None:
+            value = float(inputs[self._click_input])
+            if self._click_filter is not None:
+                value = self._click_filter(value, t_us)
+            click = self._click.update(float(value), t_us)
+        state = ControllerState(
+            t_us=t_us, axes=axes, buttons=buttons, keys=frozenset(keys), rel=rel, touches=touches, touch_click=click
+        )
         if estimate.resting and self._quiet_after(state):
             self._quiet = state
         return state
@@ -494,6 +526,8 @@ class Mapper:
         activators = [*self._activators.values(), *self._switches.values()]
         if any(a.held or a._suspended for a in activators):
             return False
+        if (self._touch is not None and self._touch.active) or (self._click is not None and self._click.held):
+            return False
         if any(w.motion._rest for w in self._wheels.values()):  # the detents' remainder waits: no clock
             return False
         return all(f is None or f.at_zero() for f in self._called_filters())
@@ -502,7 +536,7 @@ class Mapper:
         """The filters an update calls: every layer switch's, and the current layer's mappings'."""
         mappings = self.profile.mappings
         layer = [self._filters[name] for name, m in mappings.items() if m.layer == self.layer]
-        return [*self._switch_filters.values(), *layer]
+        return [*self._switch_filters.values(), *layer, self._click_filter]
 
     @property
     def resting_state(self) -> ControllerState | None:
@@ -518,7 +552,15 @@ class Mapper:
         (:meth:`_wake_clocks`) gives what moving them every window gives."""
         self._quiet_us = t_us
         last = self._quiet
-        return ControllerState(t_us=t_us, axes=dict(last.axes), buttons=dict(last.buttons), keys=last.keys, rel={})
+        return ControllerState(
+            t_us=t_us,
+            axes=dict(last.axes),
+            buttons=dict(last.buttons),
+            keys=last.keys,
+            rel={},
+            touches=last.touches,
+            touch_click=last.touch_click,
+        )
 
     def _wake_clocks(self) -> None:
         """The rest at the fixed point ends: its clocks moved on to the last resting window."""

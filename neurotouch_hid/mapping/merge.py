@@ -216,8 +216,8 @@ def combine_axis(policy: str, gel: int, device: int, axis: str) -> int:
 def merge_state(gel: ControllerState, devices: Iterable[tuple[Levels, Mapping[str, str]]]) -> ControllerState:
     """The pad's state: ``gel`` combined with each device's (:class:`Levels`, policies) in order
     (policies: pad control -> ``either``/``further``/``gel``/``helper``/``sum``, ``further`` for an
-    axis not named). Buttons and keys: pressed while either presses. The gel's relative motion and
-    time are kept; ``gel`` itself is not changed."""
+    axis not named). Buttons and keys: pressed while either presses. The gel's relative motion,
+    touch points, touchpad click and time are kept; ``gel`` itself is not changed."""
     axes = dict(gel.axes)
     buttons = dict(gel.buttons)
     keys = gel.keys
@@ -227,4 +227,12 @@ def merge_state(gel: ControllerState, devices: Iterable[tuple[Levels, Mapping[st
         for button in levels.buttons:
             buttons[button] = True
         keys = keys | levels.keys
-    return ControllerState(t_us=gel.t_us, axes=axes, buttons=buttons, keys=keys, rel=dict(gel.rel))
+    return ControllerState(
+        t_us=gel.t_us,
+        axes=axes,
+        buttons=buttons,
+        keys=keys,
+        rel=dict(gel.rel),
+        touches=gel.touches,
+        touch_click=gel.touch_click,
+    )

@@ -45,6 +45,10 @@ activator (``mode``: hold, tap, toggle, long_press, double_press, turbo); every 
 anti-deadzone. A mapping may belong to a ``layer``; ``layers:`` says which gesture switches to
 each layer.
 
+A ``touchpad:`` section (:class:`TouchpadMapping`) maps the contact points themselves, up to two,
+to a touchpad's touch points, and a scalar input to its click, for an output with a touchpad
+(the DualSense's); outputs without one ignore it.
+
 The YAML is read within the bounds of :mod:`neurotouch_hid.limits` (size, depth, aliases, number
 length, duplicate keys; ruamel.yaml's safe loader); the schema is pydantic v2 (``extra="forbid"``,
 strict types, finite numbers) and every problem is reported at once as one :class:`ProfileError`.
@@ -74,7 +78,7 @@ from pydantic import (
 from pydantic_core import InitErrorDetails, PydanticCustomError
 from ruamel.yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
-from neurotouch_hid.controller import AXES, BUTTONS, MOUSE_BUTTONS
+from neurotouch_hid.controller import AXES, BUTTONS, MOUSE_BUTTONS, TOUCH_SLOTS
 from neurotouch_hid.errors import ProfileError, did_you_mean, in_plain_words
 from neurotouch_hid.limits import (
     MAX_YAML_BYTES,
@@ -703,6 +707,77 @@ class DeviceSpec(_Strict):
         return value
 
 
+# --- touchpad: the gel's contacts as a touchpad's touch points --------------------------------------
+#: Activators the touchpad's click takes.
+CLICK_MODES: tuple[str, ...] = ("hold", "toggle", "long_press")
+
+
+class TouchClick(_Hysteresis):
+    """A scalar input -> the touchpad's click, through hysteresis and an activator: ``hold``
+    (pressed while the input is held), ``toggle`` (each press flips it) or ``long_press``
+    (pressed once the input has been held ``dwell_ms``, 500 when not set)."""
+
+    mode: Literal[CLICK_MODES] = "hold"
+    dwell_ms: float | None = Field(
+        None, ge=0, le=60_000, description="long_press: how long the input must be held (ms); 500 when not set"
+    )
+
+    @field_validator("dwell_ms")
+    @classmethod
+    def _long_press_only(cls, value: float | None, info: ValidationInfo) -> float | None:
+        mode = info.data.get("mode")
+        if value is not None and mode is not None and mode != "long_press":
+            raise ValueError(
+                f"no dwell_ms under mode '{mode}': only long_press reads it (set mode: long_press, or remove dwell_ms)"
+            )
+        return value
+
+    @property
+    def dwell(self) -> float:
+        """The effective dwell (ms): ``dwell_ms``, else 500."""
+        return DEFAULT_DWELL_MS if self.dwell_ms is None else self.dwell_ms
+
+
+class TouchpadMapping(_Strict):
+    """The gel's contact points (``contacts_mm``, user frame, strongest first) -> the touchpad's
+    touch points (``mapping/touchpad.py``), for an output with a touchpad (``--protocol
+    dualsense``; the others ignore it).
+
+    The rectangle of ``width_mm`` x ``height_mm`` centred on (``centre_x_mm``, ``centre_y_mm``)
+    fills the pad (1920 x 1080): its left edge is x 0, its top edge (user +y is up) y 0; contacts
+    past it are held at the edge. The contacts touch from the window whose gesture intensity
+    reaches ``press_mm`` until it falls below ``release_mm``; each keeps its touch point and
+    tracking id while it moves less than ``match_mm`` between windows, a new contact gets the
+    next id, and a contact that is gone lifts its point. ``click`` presses the touchpad.
+    """
+
+    max_points: int = Field(2, ge=1, le=TOUCH_SLOTS, description="touch points at most (the strongest contacts)")
+    centre_x_mm: float = Field(
+        0.0, ge=-GEL_RADIUS_MM, le=GEL_RADIUS_MM, description="the pad's centre on the gel, x (mm)"
+    )
+    centre_y_mm: float = Field(
+        0.0, ge=-GEL_RADIUS_MM, le=GEL_RADIUS_MM, description="the pad's centre on the gel, y (mm)"
+    )
+    width_mm: float = Field(2 * GEL_RADIUS_MM, gt=0, le=200, description="the gel's width the pad's width covers (mm)")
+    height_mm: float = Field(
+        2 * GEL_RADIUS_MM, gt=0, le=200, description="the gel's height the pad's height covers (mm)"
+    )
+    press_mm: float = Field(0.5, gt=0, description="gesture intensity (mm) at or above which the contacts touch")
+    release_mm: float = Field(0.25, gt=0, description="gesture intensity (mm) below which they lift")
+    match_mm: float = Field(
+        10.0, gt=0, le=100, description="farthest a contact moves in a window and stays the same touch (mm)"
+    )
+    click: TouchClick | None = None
+
+    @field_validator("release_mm")
+    @classmethod
+    def _not_above_press(cls, value: float, info: ValidationInfo) -> float:
+        press = info.data.get("press_mm")
+        if press is not None and value > press:
+            raise ValueError(f"a value <= press_mm ({press})")
+        return value
+
+
 _Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")]
 
 # --- copilot: devices merged into the pad ---------------------------------------------------------
@@ -875,6 +950,7 @@ class Profile(_Strict):
     layers: dict[_Name, LayerSwitch] = Field(default_factory=dict)
     mappings: dict[_Name, Mapping] = Field(default_factory=dict)
     copilot: list[CopilotDevice] = Field(default_factory=list, max_length=MAX_COPILOT_DEVICES)
+    touchpad: TouchpadMapping | None = None
 
     @field_validator("copilot")
     @classmethod
@@ -954,13 +1030,16 @@ class Profile(_Strict):
 
     @property
     def uses_pad(self) -> bool:
-        """A mapping drives a pad control (stick, axis, trigger, pad button, d-pad) or a merged
-        device does (``passthrough`` or a ``map:`` to a pad control): the pad is made only then."""
+        """A mapping drives a pad control (stick, axis, trigger, pad button, d-pad), the profile
+        maps the touchpad, or a merged device does (``passthrough`` or a ``map:`` to a pad
+        control): the pad is made only then."""
         for m in self.mappings.values():
             if isinstance(m, (StickMapping, AxisMapping)):
                 return True
             if isinstance(m, ButtonMapping) and any(p in DIGITAL_OUTPUTS for p in m.presses):
                 return True
+        if self.touchpad is not None:
+            return True
         return any(c.passthrough or any(not t.startswith("KEY_") for t in c.map.values()) for c in self.copilot)
 
     @property
@@ -1130,7 +1209,9 @@ def _model_at(loc: tuple) -> type[BaseModel] | None:
         return LayerSwitch
     if len(parent) == 2 and parent[0] == "copilot":
         return CopilotDevice
-    return {"device": DeviceSpec, "smoothing": OneEuroSmoothing}.get(str(parent[-1]))
+    if parent == ("touchpad", "click"):
+        return TouchClick
+    return {"device": DeviceSpec, "smoothing": OneEuroSmoothing, "touchpad": TouchpadMapping}.get(str(parent[-1]))
 
 
 def _describe(err: dict, root: Any, source: str | os.PathLike, lines: bool = True) -> tuple[int, str]:
