@@ -316,3 +316,31 @@ def test_a_finger_just_found_and_missed_for_one_window_keeps_its_type():
     # one contact again more than 40 ms after the finger was found votes: push outweighs
     later = alone + [(T, 0.5, 2)] + [(T, 0.5, 2)] * 4 + [(P, 1.3, 1)] * 3
     assert answers(later)[-1] is P
+
+
+def test_a_weak_window_on_several_contacts_commits_nothing():
+    """A twist whose attack's first window reads push at 0.19 mm on three contacts (the count of a
+    gel that has barely moved, ``PROVISIONAL_MM``), then push on its first finger alone: the weak
+    window answers its vote (nothing a profile maps) but commits no type, so the lone finger waits
+    and the twist is answered from the window that sees two fingers. Before, the weak window
+    committed push at once and the lone finger's push was felt for 30 ms."""
+    T = GestureType.TWIST_CCW
+    windows = [(P, 0.19, 3), (P, 0.80, 1), (P, 1.39, 1), (P, 1.96, 1), (T, 1.76, 2), (T, 2.12, 2)]
+    vote = EpisodeVote()
+    got = [vote.update(g, mm, n, 10_000 * (k + 1)) for k, (g, mm, n) in enumerate(windows)]
+    assert 0.19 < PROVISIONAL_MM
+    assert got == [P, N, N, N, T, T]
+
+
+def test_once_several_fingers_are_felt_one_contact_of_another_type_casts_no_vote():
+    """A twist committed on two contacts at 0.9 mm (felt), then four windows on one contact read
+    push, deeper: a multi-finger gesture shows one contact when a finger is missed or fingers merge,
+    never the reverse, so they answer the twist and do not vote. Committed on two contacts below
+    ``COUNTED_MM`` (a flickering attack's count), one contact votes as before."""
+    W = GestureType.TWIST_CW
+    windows = [(W, 0.90, 2), (P, 1.61, 1), (P, 1.67, 1), (P, 1.79, 1), (P, 1.71, 1), (W, 1.73, 2)]
+    vote = EpisodeVote()
+    assert [vote.update(g, mm, n, 10_000 * (k + 1)) for k, (g, mm, n) in enumerate(windows)] == [W] * 6
+    weak = [(W, 0.60, 2), (P, 1.61, 1), (P, 1.67, 1)]
+    vote = EpisodeVote()
+    assert [vote.update(g, mm, n, 10_000 * (k + 1)) for k, (g, mm, n) in enumerate(weak)] == [W, P, P]

@@ -52,9 +52,17 @@ class EpisodeVote:
     leads reads as a one-finger push until the next finger moves the gel (paper, "Results"). An
     undecided window whose intensity is below ``provisional_mm`` (too weak for a profile to map
     it) answers the vote so far (below); from there on it answers ``none`` (no output for the
-    mapper). The type is committed at the first window that sees two contacts or more, or once one
-    contact has held for ``first_finger_us``: the type with the most intensity-weighted votes (mm)
-    since the contact count last changed.
+    mapper). The type is committed at the first window at or above ``provisional_mm`` that sees
+    two contacts or more, or once one contact has held for ``first_finger_us``: the type with the
+    most intensity-weighted votes (mm) since the contact count last changed. A window below
+    ``provisional_mm`` commits nothing whatever its count (a gel that has barely moved shows
+    spurious contacts: one such window committing push on three contacts made a twist's lone
+    first finger felt as push).
+
+    Once the episode has been committed on two contacts or more at or above ``counted_mm``, or a
+    window of the committed type has seen them there, a window on one contact of another type
+    answers the committed type and casts no vote: a multi-finger gesture shows one contact when a
+    finger is missed or its fingers merge, never the reverse.
 
     Once committed, each window adds its intensity to its own type's votes, twice when it sees two
     contacts or more at or above ``counted_mm``, and the answer changes only when another type
@@ -127,6 +135,7 @@ class EpisodeVote:
         self._said = GestureType.NONE  # the window before's own type
         self._found = 0  # the contacts of the window that found a lone first finger's next finger ...
         self._found_us = 0  # ... and when
+        self._multi = False  # the type was committed on two contacts or more (or corrected to them)
 
     def update(self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int) -> GestureType:
         """The answer after one window ending at ``t_us`` (us, increasing) of type ``gesture``,
@@ -185,14 +194,18 @@ class EpisodeVote:
                 self._votes = {}
         weight = max(float(intensity_mm), 1e-6)
         if self._decision is None:
-            self._most_contacts = max(self._most_contacts, n_contacts)
+            weak = intensity_mm < self.provisional_mm  # its contact count is not yet to be trusted
+            self._most_contacts = max(self._most_contacts, 0 if weak else n_contacts)
             self._votes[gesture] = self._votes.get(gesture, 0.0) + weight
+            if weak:
+                return max(self._votes, key=self._votes.get)
             if n_contacts <= 1 and t_us - self._count_since_us < self.first_finger_us:
-                if intensity_mm < self.provisional_mm:
-                    return max(self._votes, key=self._votes.get)
                 return GestureType.NONE
             self._decision = max(self._votes, key=self._votes.get)
+            self._multi = n_contacts >= 2 and intensity_mm >= self.counted_mm
             return self._decision
+        if self._multi and n_contacts <= 1 and gesture is not self._decision:
+            return self._decision  # a finger of a multi-finger episode merged or missed: no vote
         if n_contacts > self._most_contacts and (t_us - self._onset_us <= self.correction_us or unfelt):
             if gesture is not self._decision and not self._corrected:
                 if self._most_contacts <= 1:  # the lone first finger's next finger
@@ -202,6 +215,7 @@ class EpisodeVote:
                 self._votes = {}  # the votes cast on fewer fingers than the gesture has no longer count
         if n_contacts >= 2 and intensity_mm >= self.counted_mm:
             weight *= 2.0
+            self._multi = self._multi or gesture is self._decision
         self._most_contacts = max(self._most_contacts, n_contacts)
         self._votes[gesture] = self._votes.get(gesture, 0.0) + weight
         if self._votes.get(self._decision, 0.0) < max(self._votes.values()):

@@ -1,0 +1,142 @@
+"""Recognition failures of a second, independent simulator's game sessions, replayed from its
+recordings (../shared/data/second-simulator: AEDAT4, labels and sensor.yaml as docs/dataset.md
+says; docs/method.md, "Episode vote").
+
+Each gesture of each session is one test: no window of it (from its first labelled frame to one
+APS frame period after its last) may answer another type (not ``none``) at or above the default
+profile's dead zone, the "felt wrong" of docs/dataset.md. A failure names the recording, the
+window (ms after the gesture's first labelled frame), what was read and what was labelled. The
+pipeline runs once per session (module-scoped), ~10 s each on an idle core.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from neurotouch_hid.dataset import LabelRow, labels_at, read_labels
+from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM, FRAME_PERIOD_US
+from neurotouch_hid.pipeline.pipeline import GesturePipeline
+from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.sources.recording import RecordingReader
+
+#: The sessions: the shared data beside the repository (as tests/helpers.py's STREET), or where
+#: NEUROTOUCH_SECOND_SIMULATOR says (a checkout elsewhere).
+DATA = Path(
+    os.environ.get("NEUROTOUCH_SECOND_SIMULATOR")
+    or Path(__file__).resolve().parents[2] / "shared/data/second-simulator"
+)
+G = GestureType
+
+#: Every gesture of the three sessions: (session, start s from the first label, type), as the
+#: folder's README lists them.
+GESTURES = [
+    ("session_a", 0.88, G.TWIST_CW),
+    ("session_a", 1.56, G.PUSH),
+    ("session_a", 3.20, G.TWIST_CCW),
+    ("session_b", 0.80, G.TWIST_CW),
+    ("session_b", 1.32, G.ZOOM),
+    ("session_b", 2.76, G.PUSH),
+    ("session_c", 0.72, G.TWIST_CW),
+    ("session_c", 2.52, G.ZOOM),
+    ("session_c", 4.16, G.TWIST_CCW),
+    ("session_c", 4.88, G.PUSH),
+]
+
+
+@dataclass
+class Session:
+    labels: list[LabelRow]
+    estimates: list[GestureEstimate]
+
+
+_RUNS: dict[str, Session] = {}
+
+
+@pytest.fixture(scope="module")
+def sessions():
+    """name -> :class:`Session`, the pipeline run once per session for the whole module."""
+    if not (DATA / "sensor.yaml").is_file():
+        pytest.skip(reason=f"{DATA} (the second simulator's sessions in shared/) is not on this machine")
+
+    def run(name: str) -> Session:
+        if name not in _RUNS:
+            pipeline = GesturePipeline(SensorGeometry.load(DATA / "sensor.yaml"))
+            with RecordingReader(DATA / f"{name}.aedat4") as reader:
+                estimates = list(pipeline.run(reader.stream()))
+            _RUNS[name] = Session(read_labels(DATA / f"{name}.labels.csv"), estimates)
+        return _RUNS[name]
+
+    yield run
+    _RUNS.clear()
+
+
+def _gesture_span(labels: list[LabelRow], start_s: float, kind: GestureType) -> tuple[int, int]:
+    """(t0, t1) us of the labelled gesture of type ``kind`` whose first frame is ``start_s`` after
+    the first label (to one APS frame period)."""
+    first = labels[0].t_us
+    runs: list[list] = []
+    for row in labels:
+        if runs and runs[-1][0] is row.gesture:
+            runs[-1][2] = row.t_us
+        else:
+            runs.append([row.gesture, row.t_us, row.t_us])
+    for gesture, t0, t1 in runs:
+        if gesture is kind and abs((t0 - first) / 1e6 - start_s) <= 0.04:
+            return t0, t1
+    raise AssertionError(f"no {kind.value} labelled {start_s} s after the first label")
+
+
+def _felt_wrong(session: Session, start_s: float, kind: GestureType) -> list[str]:
+    """The gesture's windows answering another type at or above the dead zone, described."""
+    t0, t1 = _gesture_span(session.labels, start_s, kind)
+    window = [e for e in session.estimates if t0 <= e.t_us < t1 + FRAME_PERIOD_US]
+    assert window, "the pipeline answered no window during the gesture"
+    truth = labels_at(session.labels, np.array([e.t_us for e in window], dtype=np.int64))
+    return [
+        f"{(e.t_us - t0) / 1000:.0f} ms: read {e.gesture.value} at {e.intensity_mm:.2f} mm on {e.n_contacts} "
+        f"contact(s), labelled {t.gesture.value} at {t.intensity_mm:.2f} mm on {t.n_contacts}"
+        for e, t in zip(window, truth)
+        if e.gesture not in (G.NONE, kind) and e.intensity_mm >= DEFAULT_DEADZONE_MM
+    ]
+
+
+@pytest.mark.parametrize(
+    ("name", "start_s", "kind"),
+    [
+        pytest.param(
+            *g,
+            id=f"{g[0]}-{g[1]:.2f}s-{g[2].value}",
+            marks=[
+                pytest.mark.xfail(
+                    strict=True,
+                    reason="a three-finger twist read zoom: its contacts are found ~3 mm off the fingers' "
+                    "centres, where the markers' rotation is below their scale (docs/accuracy.md)",
+                )
+            ]
+            if g[:2] == ("session_c", 0.72)
+            else [],
+        )
+        for g in GESTURES
+    ],
+)
+def test_no_gesture_of_the_second_simulators_sessions_is_felt_wrong(sessions, name, start_s, kind):
+    """Reported at main 175fcfe: session_a's twist_ccw read push in 4 windows from 10 ms (a first
+    window at 0.19 mm on three contacts committed the type before any finger was counted), and
+    session_b's twist_cw push in 5 from its first (committed on two contacts, then outvoted by
+    windows on one contact); session_c's twist_cw read push or zoom in 138 of 141 felt windows."""
+    wrong = _felt_wrong(sessions(name), start_s, kind)
+    assert not wrong, f"{DATA / name}.aedat4, {kind.value} from {start_s} s:\n" + "\n".join(wrong)
+
+
+def test_the_three_finger_twist_of_session_c_reads_no_push(sessions):
+    """session_c's twist_cw, whose whole hold is read zoom (above), also read push in its first
+    windows, on the one contact found before the others: those are gone."""
+    wrong = _felt_wrong(sessions("session_c"), 0.72, G.TWIST_CW)
+    assert wrong  # the zoom is still read: the xfail above holds
+    assert not [w for w in wrong if "read push" in w], "\n".join(w for w in wrong if "read push" in w)
