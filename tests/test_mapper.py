@@ -410,3 +410,63 @@ def test_dpad_directions_are_or_ed_like_buttons(extra):
     assert state.axes["ABS_HAT0Y"] == 0
     alone = Mapper(profile(a=up, **extra)).update(est(G.PUSH, 3.0, direction=(0.0, 1.0)))
     assert alone.axes["ABS_HAT0Y"] == -1
+
+
+# --- one window of another type (Mapper._confirmed) -----------------------------------------------
+TWO_BUTTONS = dict(
+    t=dict(input="twist_cw", output="BTN_EAST", press_mm=1.0, release_mm=0.5),
+    p=dict(input="push_intensity", output="BTN_SOUTH", press_mm=1.0, release_mm=0.5),
+)
+
+
+def _buttons(mapper: Mapper, kinds: list[tuple[GestureType, float]]) -> list[tuple[bool, bool]]:
+    """(BTN_EAST, BTN_SOUTH) of 10 ms windows of (type, mm), the gel never at rest between them."""
+    out = []
+    for k, (kind, mm) in enumerate(kinds):
+        state = mapper.update(est(kind, mm, t_us=10_000 * (k + 1), resting=False))
+        out.append((state.buttons["BTN_EAST"], state.buttons["BTN_SOUTH"]))
+    return out
+
+
+def test_one_window_of_another_type_presses_none_of_its_outputs():
+    """A twist held on BTN_EAST with one window read push at 3 mm (a flip the vote let through):
+    BTN_SOUTH (push) is never pressed and BTN_EAST stays down, one press. Two windows of push in a
+    row are a change: push presses from the second, the twist is let go there."""
+    twist, push = (G.TWIST_CW, 3.0), (G.PUSH, 3.0)
+    got = _buttons(Mapper(profile(**TWO_BUTTONS)), [twist] * 5 + [push] + [twist] * 5)
+    assert got == [(True, False)] * 11
+    got = _buttons(Mapper(profile(**TWO_BUTTONS)), [twist] * 5 + [push] * 3)
+    assert got == [(True, False)] * 6 + [(False, True)] * 2
+
+
+def test_a_new_type_is_followed_at_once_where_the_type_before_moved_nothing():
+    """Below the profile's lowest typed level (here the buttons' release 0.5 mm) the type before
+    moved no output: an onset's provisional push at 0.3 mm, then the twist at 3 mm, presses the
+    twist's button from its first window; after the fingers are off (a window without intensity),
+    or after reset (a profile switch starts a new mapper), a push is followed from its first
+    window too."""
+    mapper = Mapper(profile(**TWO_BUTTONS))
+    assert _buttons(mapper, [(G.PUSH, 0.3), (G.TWIST_CW, 3.0)])[1] == (True, False)
+    mapper = Mapper(profile(**TWO_BUTTONS))
+    got = _buttons(mapper, [(G.TWIST_CW, 3.0), (G.NONE, 0.0), (G.PUSH, 3.0)])
+    assert got == [(True, False), (False, False), (False, True)]
+    mapper = Mapper(profile(**TWO_BUTTONS))
+    _buttons(mapper, [(G.TWIST_CW, 3.0)])
+    mapper.reset()
+    assert _buttons(mapper, [(G.PUSH, 3.0)]) == [(False, True)]
+
+
+@pytest.mark.parametrize("name", ["default", "accessibility", "spacecraft", "mouse", "switch-access"])
+def test_no_shipped_profile_follows_a_single_window_of_another_type(name):
+    """Every shipped profile, a twist held at 3 mm with a window of each other type inside it: the
+    states are those of the twist held throughout (the flip window is the twist's)."""
+    others = [G.PUSH, G.PINCH, G.ZOOM, G.TWIST_CCW]
+    held = [est(G.TWIST_CW, 3.0, t_us=10_000 * (k + 1), resting=False) for k in range(30)]
+    flicked = list(held)
+    for j, kind in enumerate(others):
+        k = 5 + 6 * j
+        flicked[k] = est(kind, 3.0, t_us=held[k].t_us, resting=False)
+    plain, flips = Mapper(load_profile(name)), Mapper(load_profile(name))
+    for a, b in zip(held, flicked):
+        sa, sb = plain.update(a), flips.update(b)
+        assert (sa.axes, sa.buttons, sa.keys, sa.rel) == (sb.axes, sb.buttons, sb.keys, sb.rel), b.t_us

@@ -35,17 +35,18 @@ def test_default_profile_stick_and_trigger_never_both_held():
     stick = [s.axes["ABS_Y"] != 0 or s.axes["ABS_X"] != 0 for s in states]
     trigger = [s.axes["ABS_Z"] > 0 for s in states]
     assert not any(a and b for a, b in zip(stick, trigger))
-    # and no gap: the first pinch window pulls the trigger, the first push window after it moves the stick
-    assert trigger[40] and not stick[40]
-    assert stick[80] and not trigger[80]
-    assert all(stick[:40]) and all(trigger[40:80]) and all(stick[80:120])
+    # and no gap: the second pinch window in a row pulls the trigger (the first is still the push,
+    # Mapper._confirmed), the second push window after it moves the stick
+    assert stick[40] and not trigger[40] and trigger[41] and not stick[41]
+    assert trigger[80] and not stick[80] and stick[81] and not trigger[81]
+    assert all(stick[:41]) and all(trigger[41:81]) and all(stick[81:120])
 
 
 def test_a_none_window_inside_the_gesture_does_not_leave_both_held():
     est = windows((G.TWIST_CCW, 4.0, 30), (G.NONE, 4.0, 2), (G.ZOOM, 4.0, 30))
     states = replay(load_profile("default"), est)
     assert not any(s.axes["ABS_RX"] != 0 and s.axes["ABS_RZ"] > 0 for s in states)
-    assert states[32].axes["ABS_RZ"] > 0
+    assert states[32].axes["ABS_RX"] != 0 and states[33].axes["ABS_RZ"] > 0  # from the second zoom window
 
 
 def two_types_one_button(mode: str) -> Profile:
@@ -209,7 +210,7 @@ def test_the_old_type_back_below_its_press_threshold_goes_on_holding():
     a = {"input": "pinch", "output": "BTN_SOUTH", "press_mm": 2.0, "release_mm": 1.0}
     b = {"input": "zoom", "output": "BTN_EAST", "press_mm": 2.0, "release_mm": 1.0}
     down = down_windows(Profile.model_validate({"mappings": {"a": a, "b": b}}), est)
-    assert all(down[:20]) and not any(down[20:30]) and all(down[30:50])
+    assert all(down[:21]) and not any(down[21:31]) and all(down[31:50])  # each type from its second window
 
 
 ARROWS = """

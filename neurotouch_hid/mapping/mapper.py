@@ -10,6 +10,7 @@ pointer's motion are table-testable. The input quantities are those of
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -295,6 +296,23 @@ class _Wheel:
         return hi, detents
 
 
+def felt_level(profile: Profile) -> float:
+    """The lowest input (mm) at which an output of one gesture type (:data:`TYPE_INPUTS`) can be
+    on in ``profile``: the dead zone of an axis, stick, pointer or wheel, the ``release_mm`` of a
+    button or layer switch (a held one stays held down to it); ``inf`` when no mapping or switch
+    takes a typed input."""
+    levels = [
+        m.release_mm if isinstance(m, ButtonMapping) else m.deadzone_mm
+        for m in profile.mappings.values()
+        if m.input in TYPE_INPUTS
+    ]
+    levels += [s.release_mm for s in profile.layers.values() if s.input in TYPE_INPUTS]
+    click = profile.touchpad.click if profile.touchpad is not None else None
+    if click is not None and click.input in TYPE_INPUTS:
+        levels.append(click.release_mm)
+    return min(levels, default=math.inf)
+
+
 class Mapper:
     """Applies a profile to a stream of estimates.
 
@@ -323,6 +341,9 @@ class Mapper:
     and if the old type comes back within the gesture (the intensity, whatever the type, never
     below the mapping's ``release_mm`` in between), its holds go on without a new press
     (:meth:`Activator.suspend`): a toggle flips once per gesture, however the type flickers.
+    Before all of this, within one press a new type is followed only from the second window in a
+    row that reads it (:meth:`_confirmed`): one window of another type, at whatever intensity,
+    presses none of its outputs.
 
     The touchpad (a profile's ``touchpad:``): the contact points become touch points
     (:class:`~neurotouch_hid.mapping.touchpad.TouchTracker`) and the click's input goes through
@@ -341,6 +362,46 @@ class Mapper:
         self._click_input = click.input if click is not None else ""
         self._click_filter = _filter_for(click.smoothing) if click is not None else None
         self._fresh_mappings()
+        self._fresh_types()
+        self._felt_mm = felt_level(profile)
+
+    def _fresh_types(self) -> None:
+        #: the type the outputs follow within the current press (None: none since the gel let go),
+        #: the last estimate of that type, and another type read by the window before (unconfirmed)
+        self._shown: GestureType | None = None
+        self._shown_estimate: GestureEstimate | None = None
+        self._unconfirmed: GestureType | None = None
+
+    def _confirmed(self, estimate: GestureEstimate) -> GestureEstimate:
+        """The estimate the outputs follow: within one press (the gel moving, its intensity above
+        0, whatever ``none`` windows of an undecided type come between), a type other than the one
+        the outputs follow reaches them only from the second window in a row that reads it; the
+        first is mapped as the type before, with its push direction (one window of another type
+        is a misreading as often as a change, and 10 ms of another output is a tap a game takes
+        for a press). This holds once the type followed has reached the profile's lowest level
+        of a typed input (:func:`felt_level`): below it the type before moved nothing, and the
+        new one is followed at once (an onset's provisional type, docs/method.md, "Episode
+        vote"). A resting window or one without intensity ends the press: the next type is
+        followed from its first window."""
+        gesture = estimate.gesture
+        if estimate.resting or not (estimate.intensity_mm > 0):  # NaN too: the gel let go
+            self._fresh_types()
+            return estimate
+        if gesture is GestureType.NONE:
+            return estimate
+        before = self._shown_estimate
+        felt = before is not None and before.intensity_mm >= self._felt_mm
+        if not felt or gesture is self._shown or gesture is self._unconfirmed:
+            self._shown, self._shown_estimate, self._unconfirmed = gesture, estimate, None
+            return estimate
+        self._unconfirmed = gesture
+        return dataclasses.replace(
+            estimate,
+            gesture=self._shown,
+            translation_mm=before.translation_mm,
+            rotation_rad=before.rotation_rad,
+            scale=before.scale,
+        )
 
     def _fresh_mappings(self) -> None:
         mappings = self.profile.mappings
@@ -401,6 +462,7 @@ class Mapper:
             self._click = Activator.of(self.profile.touchpad.click)  # type: ignore[union-attr]
             self._click_filter = _filter_for(self.profile.touchpad.click.smoothing)  # type: ignore[union-attr]
         self._fresh_mappings()
+        self._fresh_types()
 
     def _current_layer(self, inputs: dict, t_us: int) -> str:
         """The layer of this estimate. A switch held by a gesture of one type stays held while the
@@ -434,6 +496,7 @@ class Mapper:
             return self._rest_again(t_us)
         self._wake_clocks()
         self._quiet = None
+        estimate = self._confirmed(estimate)
         inputs = gesture_inputs(estimate)
         layer = self._current_layer(inputs, t_us)
         if layer != self.layer:
