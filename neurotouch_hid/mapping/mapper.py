@@ -376,7 +376,8 @@ class Mapper:
         """The estimate the outputs follow: within one press (the gel moving, its intensity above
         0, whatever ``none`` windows of an undecided type come between), a type other than the one
         the outputs follow reaches them only from the second window in a row that reads it; the
-        first is mapped as the type before, with its push direction (one window of another type
+        first is mapped as the type before, with its push direction, at no more than its last
+        intensity (so it moves no output further than the type before had; one window of another type
         is a misreading as often as a change, and 10 ms of another output is a tap a game takes
         for a press). This holds once the type followed has reached the profile's lowest level
         of a typed input (:func:`felt_level`): below it the type before moved nothing, and the
@@ -398,6 +399,7 @@ class Mapper:
         return dataclasses.replace(
             estimate,
             gesture=self._shown,
+            intensity_mm=min(float(estimate.intensity_mm), float(before.intensity_mm)),
             translation_mm=before.translation_mm,
             rotation_rad=before.rotation_rad,
             scale=before.scale,
