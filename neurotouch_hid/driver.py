@@ -145,7 +145,8 @@ def _open_hid(
 
     row = uhid_protocol(protocol, profile)
     with contextlib.ExitStack() as made:  # each target closed if a later one fails
-        joystick = made.enter_context(UhidDevice(row.report, uhid_identity(row, profile.device, identity)))
+        device = UhidDevice(row.report, uhid_identity(row, profile.device, identity), camera=identity)
+        joystick = made.enter_context(device)
         desktop = UinputDesktop(profile, known_profiles(), say=say or log.warning)
         made.callback(desktop.close)
         outputs = TargetOutputs([joystick, desktop], say=say)

@@ -15,8 +15,13 @@ and the caller gets EIO). Every event the kernel sends is read by one reader,
 
 :class:`UhidDevice` is a :class:`~neurotouch_hid.stages.Target`: it writes a state's report only
 when the report changed, keeps the last one while no driver is bound and sends it when one
-binds, answers a GET_REPORT of its input report with the current report (other types, and every
-SET_REPORT, with EIO: the joystick has no feature or output report), and on ``close`` sends the
+binds (``UHID_START``) or a reader opens it (``UHID_OPEN``: a driver rebound, a game started),
+answers a GET_REPORT of its input report with the current report and of each feature report of
+its format (:attr:`~neurotouch_hid.targets.reports.ReportFormat.feature_ids`) with
+:meth:`~neurotouch_hid.targets.reports.ReportFormat.feature` (other requests with EIO), reads the
+host's output reports (``UHID_OUTPUT``, and a SET_REPORT of an output report, answered 0) through
+:meth:`~neurotouch_hid.targets.reports.ReportFormat.parse_output` into
+:class:`~neurotouch_hid.controller.Feedback`, and on ``close`` sends the
 neutral report, waits ``RELEASE_GRACE_S`` for readers to see it, then destroys the device (the
 uinput devices' :class:`~neurotouch_hid.output.gamepad.NeutralOnClose`). No library: hid-tools
 (GPL) is not used at run time.
@@ -24,6 +29,7 @@ uinput devices' :class:`~neurotouch_hid.output.gamepad.NeutralOnClose`). No libr
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import logging
 import os
@@ -72,6 +78,8 @@ EVENT_NAMES = {
     UHID_GET_REPORT: "GET_REPORT",
     UHID_SET_REPORT: "SET_REPORT",
 }
+#: UHID_START's dev_flags: the descriptor numbers its input reports (the report id is byte 0).
+UHID_DEV_NUMBERED_INPUT_REPORTS = 1 << 2
 # enum uhid_report_type
 UHID_FEATURE_REPORT, UHID_OUTPUT_REPORT, UHID_INPUT_REPORT = 0, 1, 2
 #: Largest data of one report, and of the report descriptor (UHID_DATA_MAX, HID_MAX_DESCRIPTOR_SIZE).
@@ -277,6 +285,9 @@ class UhidDevice(NeutralOnClose):
         identity: name and USB ids (:func:`hid_identity`).
         devnode: the uhid node.
         start_wait_s: how long to wait for a HID driver to bind (UHID_START) before returning.
+        camera: the camera's identity (:func:`~neurotouch_hid.targets.identity.identity_for`): what
+            the feature reports carry (a MAC); None: the default one. (``phys`` and ``uniq`` are
+            ``identity``'s.)
 
     Raises:
         DeviceError: ``devnode`` is missing or not writable (the message's next lines say how to
@@ -290,38 +301,69 @@ class UhidDevice(NeutralOnClose):
         devnode: str = "/dev/uhid",
         *,
         start_wait_s: float = START_WAIT_S,
+        camera: Identity | None = None,
     ) -> None:
-        self.fmt = fmt
-        self.identity = identity
-        self.what = f"UHID {fmt.name} device"
         problem = uhid_problem(devnode)
         if problem:
             raise DeviceError(f"{problem}\n{uhid_help()}")
-        event = create2_event(
-            fmt.descriptor,
-            identity.name,
-            vendor=identity.vendor,
-            product=identity.product,
-            version=identity.version,
-            phys=identity.phys,
-            uniq=identity.uniq,
-        )
+        try:
+            fd = os.open(devnode, os.O_RDWR | os.O_CLOEXEC | os.O_NONBLOCK)
+        except OSError as exc:
+            raise DeviceError(f"cannot open {devnode}: {exc.strerror}\n{uhid_help()}") from None
+        self._begin(fd, fmt, identity, camera, start_wait_s, devnode)
+
+    @classmethod
+    def on_fd(
+        cls,
+        fd: int,
+        fmt: ReportFormat,
+        identity: HidIdentity,
+        *,
+        start_wait_s: float = START_WAIT_S,
+        camera: Identity | None = None,
+    ) -> UhidDevice:
+        """The device made on ``fd``, an open, non-blocking /dev/uhid descriptor (or what stands
+        in for it: a SOCK_SEQPACKET socket keeps one event per read, as /dev/uhid does), owned
+        from here on. Raises DeviceError as the constructor does."""
+        device = cls.__new__(cls)
+        device._begin(fd, fmt, identity, camera, start_wait_s, f"fd {fd}")
+        return device
+
+    def _begin(
+        self, fd: int, fmt: ReportFormat, identity: HidIdentity, camera: Identity | None, wait_s: float, where: str
+    ) -> None:
+        from neurotouch_hid.targets.identity import identity_for
+
+        self.fmt = fmt
+        self.identity = identity
+        self.camera = camera or identity_for(None)
+        self.what = f"UHID {fmt.name} device"
         self._lock = threading.RLock()
         self._closed = False
         self.started = False  # a HID driver is bound (UHID_START .. UHID_STOP)
         self.opened = 0  # readers the kernel reported (UHID_OPEN - UHID_CLOSE)
         self.events = 0  # events read from the kernel
+        self.dev_flags = 0  # UHID_START's UHID_DEV_NUMBERED_* flags
         self._last = fmt.neutral()
+        self._fd = fd
         try:
-            self._fd = os.open(devnode, os.O_RDWR | os.O_CLOEXEC | os.O_NONBLOCK)
-        except OSError as exc:
-            raise DeviceError(f"cannot open {devnode}: {exc.strerror}\n{uhid_help()}") from None
-        try:
+            event = create2_event(
+                fmt.descriptor,
+                identity.name,
+                vendor=identity.vendor,
+                product=identity.product,
+                version=identity.version,
+                phys=identity.phys,
+                uniq=identity.uniq,
+            )
             os.write(self._fd, event)
+        except DeviceError:
+            os.close(self._fd)
+            raise
         except OSError as exc:
             os.close(self._fd)
-            raise DeviceError(f"the kernel refused to create the UHID device on {devnode}: {exc.strerror}") from None
-        self._wait_for_start(start_wait_s)
+            raise DeviceError(f"the kernel refused to create the UHID device on {where}: {exc.strerror}") from None
+        self._wait_for_start(wait_s)
 
     def _wait_for_start(self, seconds: float) -> None:
         end = time.monotonic() + seconds
@@ -369,44 +411,73 @@ class UhidDevice(NeutralOnClose):
 
     def feedback(self) -> list[Feedback]:
         """Read the events the kernel queued (:func:`read_event`, non-blocking, at most 64 per
-        call) and handle them: START sends the current report, GET_REPORT and SET_REPORT are
-        answered, OUTPUT is logged. Returns no feedback: the joystick has no output report."""
+        call) and handle them: START and OPEN send the current report, GET_REPORT and SET_REPORT
+        are answered, OUTPUT is parsed. Returns the rumble and LED requests of the output reports
+        read (:meth:`~neurotouch_hid.targets.reports.ReportFormat.parse_output`), each with this
+        device as its ``source``."""
+        received: list[Feedback] = []
         for _ in range(64):
             with self._lock:
                 if self._closed:
-                    return []
+                    break
                 try:
                     event = read_event(self._fd)
                 except BlockingIOError:
-                    return []
+                    break
                 except OSError as exc:
                     raise DeviceError(f"reading the {self.what}'s events failed: {exc.strerror}") from None
                 self.events += 1
-                self._handle(event)
-        return []
+                received += self._handle(event)
+        return [dataclasses.replace(request, source=self.what) for request in received]
 
-    def _handle(self, event: UhidEvent) -> None:
+    def _handle(self, event: UhidEvent) -> list[Feedback]:
         if event.type == UHID_START:
-            self.started = True
+            self.started, self.dev_flags = True, event.dev_flags
             self._send(self._last)
         elif event.type == UHID_STOP:
             self.started = False
         elif event.type == UHID_OPEN:
             self.opened += 1
+            if self.started:  # a reader (re)opened it, e.g. after its driver was rebound: the current state
+                self._send(self._last)
         elif event.type == UHID_CLOSE:
             self.opened = max(0, self.opened - 1)
         elif event.type == UHID_GET_REPORT:
-            if event.rtype == UHID_INPUT_REPORT and event.rnum == 0:
-                reply = _GET_REPORT_REPLY.pack(UHID_GET_REPORT_REPLY, event.id, 0, len(self._last)) + self._last
-            else:
+            answer = self._report(event.rtype, event.rnum)
+            if answer is None:
                 reply = _GET_REPORT_REPLY.pack(UHID_GET_REPORT_REPLY, event.id, errno.EIO, 0)
+            else:
+                reply = _GET_REPORT_REPLY.pack(UHID_GET_REPORT_REPLY, event.id, 0, len(answer)) + answer
             os.write(self._fd, reply)
         elif event.type == UHID_SET_REPORT:
-            os.write(self._fd, _SET_REPORT_REPLY.pack(UHID_SET_REPORT_REPLY, event.id, errno.EIO))
+            error = 0 if event.rtype == UHID_OUTPUT_REPORT else errno.EIO
+            os.write(self._fd, _SET_REPORT_REPLY.pack(UHID_SET_REPORT_REPLY, event.id, error))
+            if event.rtype == UHID_OUTPUT_REPORT:
+                return self._parse(event.data)
         elif event.type == UHID_OUTPUT:
-            log.debug("%s: an output report of %d bytes (none is defined): ignored", self.what, len(event.data))
+            return self._parse(event.data)
         else:
             log.debug("%s: event type %d ignored", self.what, event.type)
+        return []
+
+    def _report(self, rtype: int, rnum: int) -> bytes | None:
+        """The answer to GET_REPORT(``rtype``, ``rnum``), None when there is none: the current
+        input report (number 0, or its own id, byte 0, when START said the input reports are
+        numbered), or a feature report of
+        the format's ``feature_ids`` for :attr:`camera`."""
+        numbered = bool(self.dev_flags & UHID_DEV_NUMBERED_INPUT_REPORTS)
+        if rtype == UHID_INPUT_REPORT and rnum == (self._last[0] if numbered else 0):
+            return self._last
+        if rtype == UHID_FEATURE_REPORT and rnum in self.fmt.feature_ids:
+            return self.fmt.feature(rnum, self.camera)[:UHID_DATA_MAX]
+        return None
+
+    def _parse(self, data: bytes) -> list[Feedback]:
+        """An output report through the format; one that asks nothing is logged only."""
+        received = self.fmt.parse_output(data)
+        if not received:
+            log.debug("%s: an output report of %d bytes asks nothing: ignored", self.what, len(data))
+        return received
 
     def _destroy(self) -> None:
         """``UHID_DESTROY``, then close /dev/uhid (which alone would remove the device too).

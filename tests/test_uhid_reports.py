@@ -1,0 +1,158 @@
+"""The UHID device answers what a host driver asks of its protocol's row, without a kernel device:
+GET_REPORT of every feature report of its format, of its numbered input report, output reports
+(UHID_OUTPUT, SET_REPORT of an output report) parsed into Feedback, the current report sent again
+when a reader opens it. A socket pair (SOCK_SEQPACKET: one ``struct uhid_event`` a read, as
+/dev/uhid hands them, include/uapi/linux/uhid.h) stands in for /dev/uhid. The real kernel's
+answers are checked in tests/test_uhid_kernel.py."""
+
+from __future__ import annotations
+
+import errno
+import socket
+import struct
+
+import pytest
+
+from neurotouch_hid.controller import ControllerState, Feedback
+from neurotouch_hid.targets.identity import identity_for
+from neurotouch_hid.targets.reports.hid import DESCRIPTOR
+from neurotouch_hid.targets.uhid import (
+    HID_DEFAULT,
+    UHID_EVENT_SIZE,
+    UHID_FEATURE_REPORT,
+    UHID_GET_REPORT,
+    UHID_GET_REPORT_REPLY,
+    UHID_INPUT2,
+    UHID_INPUT_REPORT,
+    UHID_OPEN,
+    UHID_OUTPUT,
+    UHID_OUTPUT_REPORT,
+    UHID_SET_REPORT,
+    UHID_SET_REPORT_REPLY,
+    UHID_START,
+    UhidDevice,
+)
+
+CAMERA = identity_for("00000499")
+
+
+class NumberedFormat:
+    """A format with a numbered input report (id 1: the left stick's X high byte), feature reports
+    5 and 9 (9 carries the MAC) and an output report 2 (``02 STRONG WEAK``)."""
+
+    name = "numbered"
+    descriptor = DESCRIPTOR  # the fake kernel does not parse it
+    report_length = 3
+    feature_ids = (5, 9)
+
+    def pack(self, state: ControllerState) -> bytes:
+        return bytes([1, (state.axes["ABS_X"] >> 8) & 0xFF, 0])
+
+    def neutral(self) -> bytes:
+        return self.pack(ControllerState.neutral())
+
+    def feature(self, report_id: int, identity) -> bytes:
+        if report_id == 5:
+            return bytes([5]) + bytes(40)
+        if report_id == 9:
+            return bytes([9]) + identity.mac[::-1] + bytes(13)
+        raise KeyError(report_id)
+
+    def parse_output(self, data: bytes) -> list[Feedback]:
+        if len(data) >= 3 and data[0] == 2:
+            return [Feedback("rumble", strong=data[1] / 255, weak=data[2] / 255)]
+        return []
+
+
+class Kernel:
+    """The kernel's end of the socket pair, and the device on the other end."""
+
+    def __init__(self) -> None:
+        ours, self.end = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+        ours.setblocking(False)
+        self.end.settimeout(5.0)
+        self.device = UhidDevice.on_fd(ours.detach(), NumberedFormat(), HID_DEFAULT, start_wait_s=0, camera=CAMERA)
+        self.created = self.end.recv(UHID_EVENT_SIZE + 64)
+
+    def send(self, kind: int, body: bytes = b"") -> list[Feedback]:
+        self.end.send(kind.to_bytes(4, "little") + body)
+        return self.device.feedback()
+
+    def next(self, kind: int) -> bytes:
+        while True:
+            event = self.end.recv(UHID_EVENT_SIZE + 64)
+            if int.from_bytes(event[:4], "little") == kind:
+                return event
+
+    def close(self) -> None:
+        self.device.close()
+        self.end.close()
+
+
+@pytest.fixture
+def kernel():
+    made = Kernel()
+    yield made
+    made.close()
+
+
+def _get(kernel: Kernel, rtype: int, rnum: int) -> tuple[int, bytes]:
+    kernel.end.send(UHID_GET_REPORT.to_bytes(4, "little") + struct.pack("<IBB", 7, rnum, rtype))
+    kernel.device.feedback()
+    reply = kernel.next(UHID_GET_REPORT_REPLY)
+    _, request, err, size = struct.unpack_from("<IIHH", reply)
+    assert request == 7
+    return err, reply[12 : 12 + size]
+
+
+def test_every_feature_report_of_the_format_is_answered_with_its_id_first(kernel):
+    assert _get(kernel, UHID_FEATURE_REPORT, 5) == (0, bytes([5]) + bytes(40))
+    err, pairing = _get(kernel, UHID_FEATURE_REPORT, 9)
+    assert err == 0 and pairing[0] == 9 and pairing[1:7] == CAMERA.mac[::-1]
+    assert _get(kernel, UHID_FEATURE_REPORT, 0x20) == (errno.EIO, b"")  # not one of the format's
+
+
+def test_the_numbered_input_report_is_answered_by_its_id_once_a_driver_said_so(kernel):
+    kernel.send(UHID_START, (1 << 2).to_bytes(8, "little"))  # UHID_DEV_NUMBERED_INPUT_REPORTS
+    state = ControllerState.neutral()
+    state.axes["ABS_X"] = 0x4000
+    kernel.device.write(state)
+    assert _get(kernel, UHID_INPUT_REPORT, 1) == (0, bytes([1, 0x40, 0]))
+    assert _get(kernel, UHID_INPUT_REPORT, 0)[0] == errno.EIO
+
+
+def test_an_input_report_the_driver_does_not_number_is_report_zero(kernel):
+    kernel.send(UHID_START, bytes(8))
+    assert _get(kernel, UHID_INPUT_REPORT, 0) == (0, bytes([1, 0, 0]))
+    assert _get(kernel, UHID_INPUT_REPORT, 1)[0] == errno.EIO
+
+
+def test_output_reports_become_feedback_from_this_device(kernel):
+    body = bytes.fromhex("02ff80").ljust(4096, b"\0") + struct.pack("<HB", 3, UHID_OUTPUT_REPORT)
+    (rumble,) = kernel.send(UHID_OUTPUT, body)
+    assert (rumble.kind, rumble.strong, rumble.source) == ("rumble", 1.0, kernel.device.what)
+    assert kernel.send(UHID_OUTPUT, bytes(4096) + struct.pack("<HB", 5, UHID_OUTPUT_REPORT)) == []  # asks nothing
+    # hidraw's write of an output report on a device without an OUT endpoint comes as SET_REPORT
+    (again,) = kernel.send(
+        UHID_SET_REPORT, struct.pack("<IBBH", 11, 2, UHID_OUTPUT_REPORT, 3) + bytes.fromhex("020040")
+    )
+    assert again.weak == pytest.approx(0x40 / 255)
+    _, request, err = struct.unpack_from("<IIH", kernel.next(UHID_SET_REPORT_REPLY))
+    assert (request, err) == (11, 0)
+    kernel.send(UHID_SET_REPORT, struct.pack("<IBBH", 12, 5, UHID_FEATURE_REPORT, 1) + b"\5")
+    _, request, err = struct.unpack_from("<IIH", kernel.next(UHID_SET_REPORT_REPLY))
+    assert (request, err) == (12, errno.EIO)  # no feature report is written to
+
+
+def test_a_reader_that_opens_it_gets_the_current_report_again(kernel):
+    """After a driver is rebound (unbind, bind: STOP, START) and a game opens it, the current
+    state is sent again, not left at the kernel's zeros until the next change."""
+    kernel.send(UHID_START, bytes(8))
+    assert kernel.next(UHID_INPUT2)[6:9] == bytes([1, 0, 0])  # the report held until a driver bound
+    state = ControllerState.neutral()
+    state.axes["ABS_X"] = 0x2000
+    kernel.device.write(state)
+    first = kernel.next(UHID_INPUT2)
+    kernel.send(UHID_OPEN)
+    again = kernel.next(UHID_INPUT2)
+    assert again == first and again[6:9] == bytes([1, 0x20, 0])
