@@ -15,7 +15,7 @@ A game is recognised among the processes of the user running the driver (psutil 
 game inherits it, Proton's included), any program by its name (the kernel's process name, the
 file name of its executable or of its command line's first word: ``Game.exe`` under Wine). So it
 works the same on X11, Wayland and a console, without asking the desktop which window has focus.
-When several mapped games run, the one started last counts.
+When several mapped games run, the one started last counts. A game a wrapper execs late is found.
 
 The watcher (:class:`GameProfiles`) polls every :data:`POLL_S`: when a mapped game starts, the
 driver switches to its profile by the same path as ``neurotouch-hid profile use`` (every output
@@ -45,6 +45,7 @@ from neurotouch_hid.limits import (
     printable,
     read_outside_text,
     read_proc_file,
+    read_proc_once,
     short,
     where,
 )
@@ -246,8 +247,7 @@ def _save(path: Path, data: Any) -> None:
 
     yaml = YAML()
     yaml.width = 4096
-    buffer = io.StringIO()
-    yaml.dump(data, buffer)
+    yaml.dump(data, buffer := io.StringIO())
     _write(path, buffer.getvalue())
 
 
@@ -302,10 +302,8 @@ def _remove_entry(path: Path, game: str, section: str, key: int | str) -> tuple[
     if key not in entries:
         known = load_game_map(path)
         listed = [str(k) for k in known.steam] + list(known.executable)
-        raise GameMapError(
-            f"'{game}' is not in {path} (mapped: {', '.join(listed) or 'nothing'}; "
-            "see `neurotouch-hid profile auto list`)"
-        )
+        mapped = ", ".join(listed) or "nothing"
+        raise GameMapError(f"'{game}' is not in {path} (mapped: {mapped}; see `neurotouch-hid profile auto list`)")
     profile = str(entries.pop(key))
     if not entries:  # no empty section left behind (ruamel would write "{}" after its comment)
         del data[section]
@@ -347,6 +345,7 @@ class Game:
 class _Seen:
     started: float
     read_at: float
+    comm: bytes | None = None  # /proc/PID/comm as read then: another one means the process exec'ed
     name: str = ""
     names: frozenset[str] = frozenset()
     app_id: int | None = None
@@ -388,8 +387,8 @@ def _read_process(pid: int, uid: int) -> _Seen | None:
     here; the environment and the command line, which the process itself fills and may make
     megabytes long, are read bounded (:func:`read_proc_file`)."""
     try:
-        proc = psutil.Process(pid)
-        seen = _Seen(started=proc.create_time(), read_at=time.time())
+        proc = psutil.Process(pid)  # comm first: an exec during this read changes it again
+        seen = _Seen(comm=_comm_bytes(pid), started=proc.create_time(), read_at=time.time())
         if proc.uids().real != uid:
             return seen  # another user's: no game of ours (read again only while young)
         seen.ours = True
@@ -418,6 +417,11 @@ def _running(pid: int) -> bool:
     return data.rpartition(b")")[2][1:2] not in (b"Z", b"X", b"x")
 
 
+def _comm_bytes(pid: int) -> bytes | None:
+    """``/proc/PID/comm`` (None: unreadable): what a scan pays per process to notice an exec."""
+    return read_proc_once(f"/proc/{pid}/comm", 64)
+
+
 def _comm(pid: int) -> str:
     """The kernel's name of process ``pid`` (``/proc/PID/comm``, at most 15 bytes; psutil's
     ``name()`` would read the whole command line to complete a 15-byte one)."""
@@ -428,12 +432,11 @@ def _comm(pid: int) -> str:
 class ProcessScanner:
     """The mapped games among the processes of this user (psutil).
 
-    A process is read once (name, executable, command line, ``SteamAppId``), when a scan first
-    sees it, and again while it is younger than :data:`YOUNG_S` (a fork that has not yet
-    exec'ed its program carries its parent's name, and its parent's user until it drops to
-    this one's); later scans only list ``/proc``. The
-    scanner's own process is never a game (a driver started from Steam inherits SteamAppId).
-    """
+    A process is read (name, executable, command line, ``SteamAppId``) when a scan first sees it,
+    again while it is younger than :data:`YOUNG_S` (a fork not yet exec'ed has its parent's name
+    and user), and whenever its ``/proc/PID/comm``, read at every scan, changed: an exec however
+    late (a wrapper that execs the game after seconds), another user's process too. The scanner's
+    own process is never a game (a driver started from Steam inherits SteamAppId)."""
 
     def __init__(self, uid: int | None = None):
         self._uid = os.getuid() if uid is None else uid
@@ -450,9 +453,9 @@ class ProcessScanner:
         found = []
         for pid in pids:
             seen = self._seen.get(pid)
-            # a young process is read again, another user's too: a fork that has not yet
-            # exec'ed, or dropped to this user's uid (a launcher running as root, sudo -u)
-            if seen is None or (seen.read_at - seen.started < YOUNG_S and now - seen.read_at > 0.1):
+            # read again while young (a fork not yet exec'ed or dropped to this uid, sudo -u) or exec'ed
+            young = seen is not None and seen.read_at - seen.started < YOUNG_S and now - seen.read_at > 0.1
+            if seen is None or young or _comm_bytes(pid) != seen.comm:
                 seen = _read_process(pid, self._uid)
                 if seen is None:
                     continue

@@ -432,6 +432,22 @@ def read_proc_file(path: str | os.PathLike, max_bytes: int) -> tuple[bytes, bool
     return data[:max_bytes], size > max_bytes
 
 
+def read_proc_once(path: str | os.PathLike, max_bytes: int) -> bytes | None:
+    """One read of at most ``max_bytes`` of a small ``/proc`` file (``/proc/PID/comm``: a process's
+    name, 15 bytes and a newline), or None when it cannot be read (the process gone, or hidden by
+    ``hidepid``): an open, a read and a close, for what is read often (a scan of every process);
+    :func:`read_proc_file` reads to the end."""
+    fd = -1
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+        return os.read(fd, max_bytes)
+    except OSError:
+        return None
+    finally:
+        if fd >= 0:
+            os.close(fd)
+
+
 def key_line(root: Any, *keys: object) -> int:
     """The 1-based line of the key reached by ``keys`` from ``root`` (a node of :func:`load_yaml`;
     each key compared as its text, e.g. ``4242``, a boolean as YAML writes it, ``true`` in any

@@ -210,3 +210,39 @@ def test_a_young_process_read_before_it_became_ours_is_read_again(monkeypatch):
     assert scanner.games(game_map) == []
     found = scanner.games(game_map)
     assert [(g.key, g.profile) for g in found] == [(APP_ID, "mouse")], found
+
+
+def test_a_game_a_wrapper_execs_after_it_is_no_longer_young_is_followed(tmp_path, monkeypatch):
+    """A game started by a wrapper (a script, a launcher) that execs it after 2 s or more was never
+    followed: the wrapper was read while young, under its own name, and never again."""
+    import types
+
+    from neurotouch_hid import games
+
+    game_name = f"ntgame{os.getpid() % 100000}"  # the kernel's name: at most 15 bytes
+    game = tmp_path / game_name
+    game.symlink_to(os.path.realpath(sys.executable))
+    wrapper = subprocess.Popen(
+        [sys.executable, "-c", "import os, sys; sys.stdin.read(1); os.execv(sys.argv[1], sys.argv[1:])", str(game)]
+        + ["-c", "import time; time.sleep(600)"],
+        stdin=subprocess.PIPE,
+    )
+    try:
+        scanner = ProcessScanner()
+        game_map = GameMap({}, {game_name: "mouse"})
+        # every read from now on is taken as made long after the wrapper started: no longer young
+        monkeypatch.setattr(games, "time", types.SimpleNamespace(time=lambda: time.time() + 10 * games.YOUNG_S))
+        deadline = time.monotonic() + 30
+        while wrapper.pid not in scanner._seen or not scanner._seen[wrapper.pid].ours:
+            assert scanner.games(game_map) == [] and time.monotonic() < deadline
+        wrapper.stdin.write(b"x")
+        wrapper.stdin.flush()
+        comm = Path(f"/proc/{wrapper.pid}/comm")
+        while comm.read_text().strip() != game_name:  # the exec happened
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        found = scanner.games(game_map)
+        assert [(g.pid, g.key, g.profile) for g in found] == [(wrapper.pid, game_name, "mouse")], found
+    finally:
+        wrapper.kill()
+        wrapper.wait(10)
