@@ -62,6 +62,7 @@ import numpy as np
 from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.mapping.commitment import waits_for_type
 from neurotouch_hid.mapping.mapper import Mapper
 from neurotouch_hid.mapping.profile import Profile, load_profile
 from neurotouch_hid.sources import Frame, Pacer, Performed, SourceStatus, StatusKind, StreamItem, join_events
@@ -344,6 +345,7 @@ class Runtime:
         self._source = source
         self._pipeline = pipeline
         self.profile = profile
+        self._commit_for(profile)
         self._mapper_factory = mapper_factory
         self._mapper = mapper_factory(profile)
         self._subscribers = tuple(subscribers)
@@ -439,7 +441,16 @@ class Runtime:
                 subscriber.prepare(profile)
             self._mapper = self._mapper_factory(profile)
             self.profile = profile
+            self._commit_for(profile)
             self._forget_state()
+
+    def _commit_for(self, profile: Profile) -> None:
+        """The pipeline waits for the fingers before committing a type only where ``profile``
+        reads the difference (``mapping/commitment.py``; a pipeline without the setting, or a
+        profile that is not a :class:`Profile`, is left as it is)."""
+        set_wait = getattr(self._pipeline, "set_type_wait", None)
+        if set_wait is not None and isinstance(profile, Profile):
+            set_wait(waits_for_type(profile))
 
     def _forget_state(self) -> None:
         """The subscribers were neutralised or the mapping starts afresh: the next state is

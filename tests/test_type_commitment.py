@@ -25,9 +25,11 @@ def rest_image() -> np.ndarray:
     return gel_image()
 
 
-def _run(frames_of, n_windows: int, cls: type = GesturePipeline) -> list[GestureEstimate]:
-    """Each 10 ms window's estimate when the markers sit at ``frames_of(k, rest)`` in window k."""
+def _run(frames_of, n_windows: int, cls: type = GesturePipeline, wait: bool = True) -> list[GestureEstimate]:
+    """Each 10 ms window's estimate when the markers sit at ``frames_of(k, rest)`` in window k
+    (``wait``: :meth:`GesturePipeline.set_type_wait`)."""
     pipeline = cls(SENSOR, NEVER_RESTING)
+    pipeline.set_type_wait(wait)
     pipeline.process(Frame(0, gel_image()))
     pipeline.process(events_at(1))
     rest = pipeline.rest_px
@@ -344,3 +346,20 @@ def test_once_several_fingers_are_felt_one_contact_of_another_type_casts_no_vote
     weak = [(W, 0.60, 2), (P, 1.61, 1), (P, 1.67, 1)]
     vote = EpisodeVote()
     assert [vote.update(g, mm, n, 10_000 * (k + 1)) for k, (g, mm, n) in enumerate(weak)] == [W, P, P]
+
+
+def test_without_the_type_wait_one_finger_is_answered_at_once(rest_image):
+    """The same quarter-second push tap under a profile that reads no difference between the types
+    the wait tells apart (``GesturePipeline.set_type_wait(False)``): from the provisional limit on
+    every window answers a type (committed at once: the vote so far, then push), none undecided;
+    the wait set back on waits again."""
+    c = np.asarray(SENSOR.gel_center_px)
+
+    def push_tap(k: int, rest: np.ndarray) -> np.ndarray:
+        return rest + _bump(rest, c) * [6.0 * min(1.0, (k + 1) / 5, (25 - k) / 5), 0.0]
+
+    at_once = _run(push_tap, 25, wait=False)
+    felt = [e.gesture for e in at_once if e.intensity_mm >= PROVISIONAL_MM]
+    assert len(felt) >= 15 and N not in felt and felt[-1] is P
+    waited = _run(push_tap, 25, wait=True)
+    assert N in [e.gesture for e in waited if e.intensity_mm >= PROVISIONAL_MM]

@@ -256,6 +256,14 @@ class GesturePipeline(WindowPath, FramePath):
         swapped_blobs(tracker.positions_px, tracker.valid, rest, rest_neighbours(rest, pitch), rest + 0.5, pitch)
         tracker.correct(rest + 0.5, int(events["timestamp"][-1]))  # the frame correction's fusion
 
+    def set_type_wait(self, wait: bool) -> None:
+        """Whether a gesture whose windows show one contact stays undecided for the settings'
+        ``episode.first_finger_us`` (True, the default) or commits its type at once (False: no
+        wait, for a profile that reads no difference between the types the wait tells apart,
+        ``mapping/commitment.py``). Takes effect from the next window; may be called from another
+        thread than the one feeding the pipeline (one attribute written)."""
+        self._episode.first_finger_us = self.settings.episode.first_finger_us if wait else 0
+
     def restart(self) -> None:
         """Start a new session after the source was interrupted (the camera was unplugged or
         stalled). A DAVIS stamps Unix time (us), so the new session's clock carries on.
