@@ -26,6 +26,7 @@ import stat
 import struct
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -200,8 +201,11 @@ class ControlServer:
     a control socket. A stale socket file (nobody listening) is replaced.
     """
 
-    def __init__(self, use: Callable[[str], str], path: Path | None = None) -> None:
+    def __init__(
+        self, use: Callable[[str], str], path: Path | None = None, status: Callable[[], str] | None = None
+    ) -> None:
         self._use = use
+        self._status = status  # ``{"command": "status"}``'s answer: one line on what runs
         self.path = path if path is not None else socket_path()
         self._sock: socket.socket | None = None
         self._stop = threading.Event()
@@ -292,12 +296,14 @@ class ControlServer:
             return {"ok": False, "message": "not a JSON request"}
         if _json_depth(request, MAX_JSON_DEPTH) > MAX_JSON_DEPTH:
             return {"ok": False, "message": f"request nested deeper than {MAX_JSON_DEPTH} levels"}
+        if isinstance(request, dict) and request.get("command") == "status" and len(request) == 1:
+            return {"ok": True, "message": _fit(self._status() if self._status is not None else "running")}
         if (
             not isinstance(request, dict)
             or request.get("command") != "use"
             or not isinstance(request.get("profile"), str)
         ):
-            return {"ok": False, "message": 'expected {"command": "use", "profile": NAME}'}
+            return {"ok": False, "message": 'expected {"command": "use", "profile": NAME} or {"command": "status"}'}
         if "\0" in request["profile"]:  # no file name holds one: the OS refuses it (ValueError)
             return {"ok": False, "message": "a profile's name or path has no NUL character"}
         refused = _not_a_profile(request["profile"])
@@ -323,6 +329,94 @@ class ControlServer:
                 if self.path is not None and os.stat(self.path).st_ino == self._inode:
                     self.path.unlink()
             self._sock = None
+
+
+@dataclass(frozen=True)
+class RunningDriver:
+    """A driver that answers on a control socket (:func:`running_drivers`).
+
+    Attributes:
+        serial: the camera it runs for (``control-SERIAL.sock``), None for ``control.sock``.
+        pid: its process id (the socket's peer credentials, ``SO_PEERCRED``).
+        status: its one-line answer to ``status`` (the profile it maps with).
+        unit: the systemd unit it runs in (``/proc/PID/cgroup``), None when none or unreadable.
+    """
+
+    serial: str | None
+    pid: int
+    status: str
+    unit: str | None
+
+    def to_json(self) -> dict:
+        return {"serial": self.serial, "pid": self.pid, "status": self.status, "unit": self.unit}
+
+
+#: How long :func:`running_drivers` waits for each driver's answer (s).
+STATUS_TIMEOUT_S = 2.0
+
+
+def running_drivers(timeout_s: float = STATUS_TIMEOUT_S) -> list[RunningDriver]:
+    """The drivers of this user that answer on their control socket now: the one started without
+    a serial first, then one per camera serial, sorted. A socket file nobody answers on (a driver
+    that was killed) is left out; so is one in a folder that is not this user's alone."""
+    path = socket_path()
+    if path is None:
+        return []
+    try:
+        check_folder(path.parent)
+    except (OSError, NeurotouchError):  # no folder (no driver ever ran), or one not ours: nothing asked there
+        return []
+    found = []
+    for serial in [None, *running_serials()]:
+        try:
+            where = socket_path(serial)
+        except ValueError:  # a file name that is no serial: not one of ours
+            continue
+        if where is None or not where.exists():
+            continue
+        try:
+            pid, line = _ask_status(where, timeout_s)
+        except (OSError, NeurotouchError, ValueError):
+            continue
+        found.append(RunningDriver(serial, pid, line, _unit_of(pid)))
+    return found
+
+
+def _ask_status(path: Path, timeout_s: float) -> tuple[int, str]:
+    """``(pid, status line)`` of the driver serving ``path``. Raises OSError when nobody
+    listens, NeurotouchError when it refuses or answers nothing readable."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
+        sock.settimeout(timeout_s)
+        sock.connect(str(path))
+        creds = sock.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, struct.calcsize("3i"))
+        pid, uid, _ = struct.unpack("3i", creds)
+        if uid != os.getuid():
+            raise NeurotouchError(f"{path} is served by another user (uid {uid})")
+        sock.sendall(json.dumps({"command": "status"}).encode() + b"\n")
+        line = _read_line(sock, timeout_s)
+    try:
+        answer = json.loads(line or b"")
+    except (ValueError, UnicodeDecodeError):
+        raise NeurotouchError(f"{path}: no answer") from None
+    if not isinstance(answer, dict) or not answer.get("ok") or not isinstance(answer.get("message"), str):
+        raise NeurotouchError(f"{path}: no status")
+    return pid, printable(answer["message"], 200)
+
+
+def _unit_of(pid: int) -> str | None:
+    """The systemd unit process ``pid`` runs in: the last ``*.service`` of its cgroup path
+    (``/proc/PID/cgroup``, cgroup v2's ``0::/user.slice/.../neurotouch-hid@X.service``), or None."""
+    from neurotouch_hid.limits import read_proc_file
+
+    try:
+        data, _ = read_proc_file(f"/proc/{pid}/cgroup", 4096)
+    except OSError:
+        return None
+    for line in data.decode(errors="replace").splitlines():
+        parts = [p for p in line.rsplit(":", 1)[-1].split("/") if p.endswith(".service")]
+        if parts:
+            return printable(parts[-1], 120)
+    return None
 
 
 def request_use(

@@ -416,6 +416,82 @@ def check_uhid() -> Check:
     return Check("HID device here (--output hid)", OK, f"{UHID} is readable and writable; protocols: {speaks}")
 
 
+def camera_drivers(found: Discovery, drivers: list | None = None) -> list[dict]:
+    """What runs for each camera: one row per DAVIS-346 on the bus, then one per running driver
+    whose camera is not on the bus (the simulated gel, a recording, a camera unplugged). A row:
+    ``serial`` (None: unknown), ``camera`` (where it is, None when not on the bus), ``driver``
+    (:meth:`~neurotouch_hid.control.RunningDriver.to_json`, None when none runs for it) and
+    ``config`` (the files of its own config folder, :mod:`neurotouch_hid.serials`; empty: the
+    shared ones). ``drivers``: :func:`~neurotouch_hid.control.running_drivers` (asked when None)."""
+    from neurotouch_hid.control import running_drivers
+    from neurotouch_hid.serials import SENSOR_FILES, own_file
+
+    drivers = running_drivers() if drivers is None else drivers
+    by_serial = {d.serial: d for d in drivers}
+    unnamed = by_serial.pop(None, None)  # a driver started without --serial: the only camera's
+
+    def own(serial: str | None) -> list[str]:
+        try:
+            return [name for role, name in SENSOR_FILES.items() if own_file(serial, role) is not None]
+        except ValueError:  # a serial that cannot name a folder has none
+            return []
+
+    rows = []
+    cameras = found.davis346
+    for camera in cameras:
+        driver = by_serial.pop(camera.serial, None) if camera.serial else None
+        if driver is None and unnamed is not None and len(cameras) == 1:
+            driver, unnamed = unnamed, None
+        rows.append(
+            {
+                "serial": camera.serial,
+                "camera": f"bus {camera.bus} device {camera.address}",
+                "driver": driver.to_json() if driver else None,
+                "config": own(camera.serial),
+            }
+        )
+    for driver in ([unnamed] if unnamed else []) + sorted(by_serial.values(), key=lambda d: d.serial or ""):
+        rows.append({"serial": driver.serial, "camera": None, "driver": driver.to_json(), "config": own(driver.serial)})
+    return rows
+
+
+def describe_camera_driver(row: dict) -> str:
+    """One line of :func:`camera_drivers`: the camera, what runs for it and its config."""
+    who = f"camera {row['serial']}" if row["serial"] else "camera (serial unknown)"
+    where = f" ({row['camera']})" if row["camera"] else " (not on the bus)"
+    driver = row["driver"]
+    if driver is None:
+        runs = "no driver runs for it"
+    else:
+        unit = f" in {driver['unit']}" if driver["unit"] else ""
+        runs = f"driver pid {driver['pid']}{unit}, {driver['status']}"
+    config = f"own {', '.join(row['config'])}" if row["config"] else "shared config"
+    return f"{who}{where}: {runs}; {config}"
+
+
+def check_drivers(found: Discovery, drivers: list | None = None) -> Check:
+    """Which driver runs for each camera, and which config it uses (:func:`camera_drivers`); a
+    warning when several cameras are plugged in and none has a folder of its own (the single
+    plug-and-play unit then drives only one of them: docs/several-sensors.md)."""
+    from neurotouch_hid.serials import configured_serials, sensor_dir
+
+    rows = camera_drivers(found, drivers)
+    if not rows:
+        return Check("drivers per camera", SKIP, "no camera and no driver running")
+    detail = "; ".join(describe_camera_driver(r) for r in rows)
+    serials = [c.serial for c in found.davis346 if c.serial]
+    if len(found.davis346) > 1 and not configured_serials():
+        fix = "\n".join(f"mkdir -p {shlex.quote(str(sensor_dir(s)))}" for s in serials[:4])
+        return Check(
+            "drivers per camera",
+            WARN,
+            f"{detail} ({len(found.davis346)} cameras and none has a config folder of its own: the plug-and-play "
+            "service drives one of them; a folder each gives each its own, docs/several-sensors.md)",
+            fix,
+        )
+    return Check("drivers per camera", OK, detail)
+
+
 def run_checks() -> list[Check]:
     """Every check, in the order the report shows them."""
     found = discover()
@@ -423,6 +499,7 @@ def run_checks() -> list[Check]:
         check_camera(found),
         check_camera_access(found),
         check_camera_dv(found),
+        check_drivers(found),
         check_uinput(),
         check_uhid(),
         check_gadget(),

@@ -599,7 +599,11 @@ class Runtime:
             games.start()
         from neurotouch_hid.control import socket_path
 
-        server = ControlServer(games.manual_use if games is not None else self.use_profile, socket_path(self._serial))
+        server = ControlServer(
+            games.manual_use if games is not None else self.use_profile,
+            socket_path(self._serial),
+            status=lambda: f"profile {self.profile_name}",
+        )
         server.start()
         try:
             yield

@@ -178,3 +178,86 @@ def test_gadget_setup_refuses_a_bad_serial(monkeypatch, capsys):
     done = run_main(monkeypatch, capsys, ["gadget", "setup", "--serial", "x y"])
     assert done.returncode == 2
     assert "--serial: camera serial 'x y' has a character other than" in done.stderr
+
+
+def test_devices_and_doctor_say_which_driver_runs_for_which_camera(tmp_path, monkeypatch):
+    """A runtime for camera A1 (its control socket, real Unix sockets) answers ``status``: the
+    camera on the bus with that serial shows its driver (this process) and its own config, the
+    other camera shows none, and the doctor's line says both."""
+    import os
+    import threading
+
+    from helpers import wait_until
+    from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, endless
+
+    from neurotouch_hid.control import running_drivers, socket_path
+    from neurotouch_hid.doctor import OK, camera_drivers, check_drivers
+    from neurotouch_hid.runtime import Runtime
+
+    folder = tmp_path / "run"
+    folder.mkdir(mode=0o700)
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(folder))
+    _own("A1", "profile.yaml")
+    rt = Runtime(
+        endless(),
+        FakePipeline(push_batches=10**9),
+        {"sign": 1},
+        [RecordingOutput()],
+        mapper_factory=FakeMapper,
+        pace=True,
+        profile_ref="left",
+        control=True,
+        serial="A1",
+    )
+    seen: dict = {}
+
+    def client():
+        try:
+            assert wait_until(lambda: socket_path("A1").exists(), 30.0)
+            seen["drivers"] = running_drivers()
+            found = SimpleNamespace(davis346=[_camera("A1", 3), _camera("B2", 4)])
+            seen["rows"] = camera_drivers(found)
+            seen["check"] = check_drivers(found)
+        finally:
+            rt.stop()
+
+    thread = threading.Thread(target=client)
+    thread.start()
+    rt.run()
+    thread.join(10)
+    (driver,) = seen["drivers"]
+    assert (driver.serial, driver.pid, driver.status) == ("A1", os.getpid(), "profile left")
+    a1, b2 = seen["rows"]
+    assert a1["serial"] == "A1" and a1["driver"]["pid"] == os.getpid() and a1["config"] == ["profile.yaml"]
+    assert b2["serial"] == "B2" and b2["driver"] is None and b2["config"] == []
+    check = seen["check"]
+    assert check.status == OK
+    assert "camera A1 (bus 1 device 3): driver pid" in check.detail and "profile left; own profile.yaml" in check.detail
+    assert "camera B2 (bus 1 device 4): no driver runs for it; shared config" in check.detail
+    assert running_drivers() == []  # the socket went with the run
+
+
+def _camera(serial: str, address: int):
+    return SimpleNamespace(serial=serial, bus=1, address=address)
+
+
+def test_doctor_warns_when_several_cameras_share_the_single_service(monkeypatch):
+    from neurotouch_hid.doctor import WARN, check_drivers
+
+    found = SimpleNamespace(davis346=[_camera("A1", 3), _camera("B2", 4)])
+    check = check_drivers(found, drivers=[])
+    assert check.status == WARN and "2 cameras and none has a config folder" in check.detail
+    assert f"mkdir -p {sensor_dir('A1')}" in check.fix.splitlines()
+    _own("A1", "sensor.yaml")
+    assert check_drivers(found, drivers=[]).status != WARN
+
+
+def test_a_driver_of_no_camera_on_the_bus_is_listed_too():
+    from neurotouch_hid.control import RunningDriver
+    from neurotouch_hid.doctor import camera_drivers, describe_camera_driver
+
+    sim = RunningDriver("SIM1", 42, "profile default", "neurotouch-hid@SIM1.service")
+    (row,) = camera_drivers(SimpleNamespace(davis346=[]), drivers=[sim])
+    assert describe_camera_driver(row) == (
+        "camera SIM1 (not on the bus): driver pid 42 in neurotouch-hid@SIM1.service, profile default; shared config"
+    )

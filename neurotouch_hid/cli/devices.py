@@ -167,21 +167,25 @@ def devices(json_out: bool = typer.Option(False, "--json", help="print JSON (for
     then which outputs are possible here (uinput pad, UHID device, USB gadget).
 
     For each: where it is, whether this user can open it and, if not, why and what to do (the
-    udev rule, another program holding it, firmware). Exit code 0 when a camera is ready to use,
-    1 otherwise."""
+    udev rule, another program holding it, firmware); then which driver runs for each camera (and
+    for a simulated or replayed one) and which config it uses (docs/several-sensors.md). Exit code
+    0 when a camera is ready to use, 1 otherwise."""
     import json
 
     from rich.markup import escape
     from rich.table import Table
     from rich.text import Text
 
+    from neurotouch_hid.doctor import camera_drivers, describe_camera_driver
     from neurotouch_hid.sources.discovery import discover, explain
     from neurotouch_hid.targets.gadget.support import possible_outputs
 
     found = discover()
     outputs = possible_outputs()
+    drivers = camera_drivers(found)
     if json_out:
-        typer.echo(json.dumps({**found.to_json(), "outputs": outputs, "inputs": _mergeable_json()}, indent=1))
+        listed = {**found.to_json(), "drivers": drivers, "outputs": outputs, "inputs": _mergeable_json()}
+        typer.echo(json.dumps(listed, indent=1))
     elif not found.cameras:
         console.print(explain(found), style="bold red", highlight=False, soft_wrap=True)
     else:
@@ -221,6 +225,8 @@ def devices(json_out: bool = typer.Option(False, "--json", help="print JSON (for
         for what, error in (("pyusb", found.usb_error), ("dv-processing", found.dv_error)):
             if error:
                 console.print(f"[yellow]{what}: {escape(error)}[/]", highlight=False, markup=True, soft_wrap=True)
+        for row in drivers:
+            console.print(escape(describe_camera_driver(row)), highlight=False, markup=True, soft_wrap=True)
         for kind, why in outputs.items():
             said = "[green]possible[/]" if why is None else f"[yellow]not here[/] ({escape(why)})"
             console.print(f"--output {kind}: {said}", highlight=False, markup=True, soft_wrap=True)
