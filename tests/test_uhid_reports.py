@@ -156,3 +156,111 @@ def test_a_reader_that_opens_it_gets_the_current_report_again(kernel):
     kernel.send(UHID_OPEN)
     again = kernel.next(UHID_INPUT2)
     assert again == first and again[6:9] == bytes([1, 0x20, 0])
+
+
+class FakeClock:
+    """``time`` for the device: ``monotonic`` that moves only when ``sleep`` is called."""
+
+    def __init__(self) -> None:
+        self.now = 1000.0
+        self.slept = 0.0
+
+    def monotonic(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.now += seconds
+        self.slept += seconds
+
+
+@pytest.fixture
+def clocked(monkeypatch):
+    """A device on a fake kernel whose clock moves only when it sleeps."""
+    import types
+
+    from neurotouch_hid.targets import uhid
+
+    clock = FakeClock()
+    monkeypatch.setattr(uhid, "time", types.SimpleNamespace(monotonic=clock.monotonic, sleep=clock.sleep))
+    made = Kernel()
+    made.clock = clock
+    yield made
+    made.close()
+
+
+def _flood(kernel: Kernel, events: list[bytes], replies: int = 0) -> tuple[list[list[Feedback]], list[bytes]]:
+    """Send ``events`` from a thread (the socket holds a few dozen) while the device's feedback is
+    read until all were handled: what each call returned, and the ``replies`` the device wrote
+    back, read from another thread."""
+    import threading
+
+    got: list[bytes] = []
+
+    def send() -> None:
+        for event in events:
+            kernel.end.send(event)
+
+    def receive() -> None:
+        while len(got) < replies:
+            got.append(kernel.end.recv(UHID_EVENT_SIZE + 64))
+
+    threads = [threading.Thread(target=send), threading.Thread(target=receive)]
+    for thread in threads:
+        thread.start()
+    received: list[list[Feedback]] = []
+    before = kernel.device.events
+    while kernel.device.events - before < len(events):
+        received.append(kernel.device.feedback())
+    for thread in threads:
+        thread.join(10)
+    return received, got
+
+
+def test_a_flood_of_output_reports_is_handled_at_a_bounded_rate_each_batch_giving_its_last(clocked):
+    """A hidraw reader writing output reports 10 k times a second made the UHID device cost a core:
+    every event was read, parsed and handed on as soon as it came."""
+    from neurotouch_hid.targets.uhid import EVENT_BATCH, HOST_EVENTS_PER_S
+
+    count = 3000
+    events = [UHID_OUTPUT.to_bytes(4, "little") + bytes([2, i % 256, 0]) for i in range(count)]
+    for index, event in enumerate(events):
+        body = event[4:].ljust(4096, b"\0") + struct.pack("<HB", 3, UHID_OUTPUT_REPORT)
+        events[index] = event[:4] + body
+    received, _ = _flood(clocked, events)
+    # no more than the rate allows over the time it took (the device slept, not spun)
+    assert count <= HOST_EVENTS_PER_S * clocked.clock.slept + EVENT_BATCH
+    assert clocked.clock.slept >= (count - EVENT_BATCH) / HOST_EVENTS_PER_S * 0.99
+    # one rumble a call at most, the last one the host sent: the flood's very last is there
+    assert max(len(said) for said in received) == 1
+    last = [said for said in received if said][-1][0]
+    assert (last.kind, last.strong) == ("rumble", ((count - 1) % 256) / 255)
+
+
+def test_a_flood_of_get_reports_is_answered_every_one_in_order_at_a_bounded_rate(clocked):
+    """HIDIOCGINPUT in a loop: each request is answered (the caller waits for it), none faster than
+    the rate."""
+    from neurotouch_hid.targets.uhid import EVENT_BATCH, HOST_EVENTS_PER_S
+
+    count = 500
+    requests = [
+        UHID_GET_REPORT.to_bytes(4, "little") + struct.pack("<IBB", n, 1, UHID_INPUT_REPORT) for n in range(count)
+    ]
+    clocked.send(UHID_START, struct.pack("<Q", 1 << 2))  # numbered input reports
+    clocked.next(UHID_INPUT2)
+    _, replies = _flood(clocked, requests, replies=count)
+    answered = [struct.unpack_from("<IIHH", reply) for reply in replies]
+    assert [(kind, request, err) for kind, request, err, _ in answered] == [
+        (UHID_GET_REPORT_REPLY, n, 0) for n in range(count)
+    ]
+    assert count <= HOST_EVENTS_PER_S * clocked.clock.slept + EVENT_BATCH
+
+
+def test_a_host_at_a_games_pace_is_never_made_to_wait(clocked):
+    """Tens of output reports a second, each read as it comes: no sleep, each one handed on."""
+    for n in range(50):
+        clocked.clock.now += 0.016  # a frame apart
+        said = clocked.send(
+            UHID_OUTPUT, bytes([2, n, 0]).ljust(4096, b"\0") + struct.pack("<HB", 3, UHID_OUTPUT_REPORT)
+        )
+        assert [f.strong for f in said] == [n / 255]
+    assert clocked.clock.slept == 0

@@ -11,7 +11,9 @@ it: EINVAL) and ``UHID_STOP`` when it unbinds, ``UHID_OPEN``/``UHID_CLOSE`` as r
 go, ``UHID_OUTPUT`` with an output report, and ``UHID_GET_REPORT``/``UHID_SET_REPORT`` requests
 that must be answered (``*_REPLY`` with the request's id; uhid.rst: the kernel gives up after 5 s
 and the caller gets EIO). Every event the kernel sends is read by one reader,
-:func:`read_event`, bounded to the struct's size and its data fields to ``UHID_DATA_MAX``.
+:func:`read_event`, bounded to the struct's size and its data fields to ``UHID_DATA_MAX``, in
+batches of :data:`EVENT_BATCH` and at most :data:`HOST_EVENTS_PER_S` a second (a flooding host
+waits; :meth:`UhidDevice.feedback`).
 
 :class:`UhidDevice` is a :class:`~neurotouch_hid.stages.Target`: it writes a state's report only
 when the report changed, keeps the last one while no driver is bound and sends it when one
@@ -106,6 +108,15 @@ PHYS = "neurotouch-hid/uhid"
 #: How long :class:`UhidDevice` waits for a HID driver to bind before its first report (s); past
 #: it the device stays and its report is sent when a driver binds.
 START_WAIT_S = 2.0
+#: Most events from the kernel the device handles a second (OUTPUT, GET_REPORT, SET_REPORT, ...): a
+#: game's rumble and a driver's requests are tens a second. A hidraw reader flooding it (output
+#: writes, HIDIOCGINPUT) is answered at this rate and no faster: the feedback thread sleeps
+#: meanwhile, a GET_REPORT's caller waits for its answer (the kernel holds one request at a time
+#: per device), and output reports beyond the kernel's queue (UHID_BUFSIZE, 32 events) are dropped
+#: by the kernel, so a flood costs the process a bounded share of a core, not the pipeline's.
+HOST_EVENTS_PER_S = 1000
+#: Most events handled in one call of :meth:`UhidDevice.feedback` (one wake-up of the feedback thread).
+EVENT_BATCH = 64
 
 
 @dataclass(frozen=True)
@@ -345,6 +356,7 @@ class UhidDevice(NeutralOnClose):
         self.events = 0  # events read from the kernel
         self.dev_flags = 0  # UHID_START's UHID_DEV_NUMBERED_* flags
         self._last = fmt.neutral()
+        self._budget, self._budget_at = float(EVENT_BATCH), time.monotonic()  # events it may handle now
         self._fd = fd
         try:
             event = create2_event(
@@ -410,13 +422,22 @@ class UhidDevice(NeutralOnClose):
         """Nothing: the device keeps its identity and layout for the whole run (programs keep their handle)."""
 
     def feedback(self) -> list[Feedback]:
-        """Read the events the kernel queued (:func:`read_event`, non-blocking, at most 64 per
-        call) and handle them: START and OPEN send the current report, GET_REPORT and SET_REPORT
-        are answered, OUTPUT is parsed. Returns the rumble and LED requests of the output reports
-        read (:meth:`~neurotouch_hid.targets.reports.ReportFormat.parse_output`), each with this
-        device as its ``source``."""
-        received: list[Feedback] = []
-        for _ in range(64):
+        """Read the events the kernel queued (:func:`read_event`, non-blocking, at most
+        :data:`EVENT_BATCH` per call) and handle them: START and OPEN send the current report,
+        GET_REPORT and SET_REPORT are answered, OUTPUT is parsed. At most :data:`HOST_EVENTS_PER_S`
+        are handled a second: past that the call first sleeps until a batch may be handled (at
+        most ``EVENT_BATCH / HOST_EVENTS_PER_S``, 64 ms). Returns the rumble and LED requests of
+        the output reports read (:meth:`~neurotouch_hid.targets.reports.ReportFormat.parse_output`),
+        each with this device as its ``source``, the last of each kind only: a batch's earlier
+        ones were already replaced by the host."""
+        now = time.monotonic()
+        self._budget = min(float(EVENT_BATCH), self._budget + (now - self._budget_at) * HOST_EVENTS_PER_S)
+        self._budget_at = now
+        if self._budget < 1:  # a flood: wait for a whole batch, in this (the feedback) thread
+            time.sleep((EVENT_BATCH - self._budget) / HOST_EVENTS_PER_S)
+            self._budget, self._budget_at = float(EVENT_BATCH), time.monotonic()
+        latest: dict[str, Feedback] = {}
+        for _ in range(int(self._budget)):
             with self._lock:
                 if self._closed:
                     break
@@ -427,8 +448,11 @@ class UhidDevice(NeutralOnClose):
                 except OSError as exc:
                     raise DeviceError(f"reading the {self.what}'s events failed: {exc.strerror}") from None
                 self.events += 1
-                received += self._handle(event)
-        return [dataclasses.replace(request, source=self.what) for request in received]
+                self._budget -= 1
+                for request in self._handle(event):
+                    latest.pop(request.kind, None)
+                    latest[request.kind] = request
+        return [dataclasses.replace(request, source=self.what) for request in latest.values()]
 
     def _handle(self, event: UhidEvent) -> list[Feedback]:
         if event.type == UHID_START:
