@@ -30,7 +30,7 @@ from neurotouch_hid.sources.physics import (
     mix_families,
     pasternak_falloff,
 )
-from neurotouch_hid.sources.simulator import START_US, USERS, GelSimulator, draw_gesture, session_gesture
+from neurotouch_hid.sources.simulator import START_US, USERS, GelSimulator, deform, draw_gesture, session_gesture
 
 SENSOR = SensorGeometry()
 
@@ -239,6 +239,39 @@ def test_late_fingers_land_up_to_100_ms_after_the_first_however_slow_the_attack(
     assert max(max(g.lags_us) for g in short) > 50_000  # not shrunk with the tap's attack
 
 
+def test_starts_late_second_fingers_a_push_like_slide_and_short_multi_finger_taps():
+    """``starts``: fingers but the first land 60-160 ms late (at most 0.8 of the attack); about half
+    the multi-finger gestures slide first (every finger on the gel moving together, push-like, for
+    20-40 ms, 10-160 ms in), which moves the labelled contacts, and pushes never slide; in game
+    sessions most multi-finger gestures are taps of 240-360 ms."""
+    rng, prng = np.random.default_rng(5), np.random.default_rng(6)
+    twists = [draw_gesture(rng, USERS[0], GestureType.TWIST_CW, 0, SENSOR, PHYSICS["starts"], prng) for _ in range(60)]
+    second = [sorted(g.lags_us)[1] for g in twists]
+    assert all(
+        min(60_000, 0.8 * g.attack_us) <= lag <= min(160_000, 0.8 * g.attack_us) + 1 for g, lag in zip(twists, second)
+    )
+    slid = [g for g in twists if g.slide]
+    assert 0.3 < len(slid) / len(twists) < 0.7
+    assert all(10_000 <= g.slide[0] <= 160_000 and 20_000 <= g.slide[1] <= 40_000 for g in slid)
+    g = slid[0]
+    t = np.array([g.t_start_us + g.slide[0] + g.slide[1] // 2], dtype=np.int64)
+    common = g.slide_displacement(t)[0]
+    assert np.hypot(*common) == pytest.approx(np.hypot(g.slide[2], g.slide[3]))
+    with_slide = deform([g], g.fingers_mm, t, SENSOR.gel_radius_mm, PHYSICS["starts"])[0][0]
+    without = deform([dataclasses.replace(g, slide=())], g.fingers_mm, t, SENSOR.gel_radius_mm, PHYSICS["starts"])[0][0]
+    on = g.finger_levels(t)[0] > 0
+    assert np.allclose((with_slide - without)[on], common, atol=0.05 * np.hypot(*common))
+    pushes = [draw_gesture(rng, USERS[0], GestureType.PUSH, 0, SENSOR, PHYSICS["starts"], prng) for _ in range(30)]
+    assert not any(p.slide for p in pushes)
+    taps = []
+    for seed in range(40):
+        rng, prng = np.random.default_rng(seed), np.random.default_rng(seed + 100)
+        taps.append(session_gesture(rng, USERS[0], [GestureType.PINCH], None, 0, SENSOR, PHYSICS["starts"], prng))
+    lengths = [g.attack_us + g.hold_us + g.release_us for g in taps]
+    short = [n for n in lengths if 240_000 <= n <= 360_000]
+    assert len(short) / len(taps) > 0.45
+
+
 def test_viscoelastic_gel_creeps_under_a_hold_and_relaxes_slowly_after_release():
     """The standard linear solid: 70 % of the load's deformation at once, the rest with tau = 0.3 s;
     after the release the gel is still deformed (labelled none, not resting, until every marker is
@@ -344,7 +377,12 @@ def test_flicker_changes_aps_brightness_and_markers_family_spreads_marker_sizes(
 def test_mix_covers_every_family_and_simulate_writes_physics_json(tmp_path):
     fams = mix_families(len(MIX_FAMILIES), seed=4)
     assert sorted(f.name for f in fams) == sorted(MIX_FAMILIES)
-    assert set(PHYSICS) - set(MIX_FAMILIES) == {"late", "compound", "compound2"}  # drawn by no mix: none changed
+    assert set(PHYSICS) - set(MIX_FAMILIES) == {
+        "late",
+        "starts",
+        "compound",
+        "compound2",
+    }  # drawn by no mix: none changed
     assert "late" not in {f.name for f in mix_families(300, seed=2)}
     out = tmp_path / "mix"
     result = CliRunner().invoke(

@@ -95,6 +95,13 @@ late          late fingers whatever the attack: each finger of a multi-finger ge
               second finger may land ~100 ms after the first (libinput debounces a change of
               finger count for 100 ms; Android's tap timeout is 100 ms). Equal fingers. A
               development family, not in ``mix``.
+starts        multi-finger starts as a second, independent simulator's game sessions showed them:
+              each finger but the first lands 60-160 ms after it (at most 0.8 of the attack);
+              half the multi-finger gestures slide first, every finger on the gel moving
+              together by 40-80 % of the gesture's amplitude and back within 20-40 ms, 10-160 ms
+              after the start (a push-like moment inside a twist, pinch or zoom); in game
+              sessions 60 % of the multi-finger gestures are short taps of 240-360 ms. Equal
+              fingers. A development family, not in ``mix``.
 compound      several of the above at once, as one real gel and camera may have them: the
               ``pasternak`` falloff, ``indent`` (35 %), the ``camera`` (k1 = -0.10, vignetting),
               the ``markers``' spread, a noisier sensor (1 Hz per pixel, 20 hot pixels at 150
@@ -151,9 +158,14 @@ class Physics:
         global_mm: sigma and clip of the whole gel's translation per gesture (mm);
             global_rad: sigma and clip of its rotation (rad).
         lag: largest onset lag of a finger as a fraction of the attack; lag_ms: largest onset lag
-            of a finger in ms whatever the attack (at most 0.8 of it; 0: none); strength_min:
+            of a finger in ms whatever the attack (at most 0.8 of it; 0: none); lag_ms_min: the
+            smallest such lag of a finger but the first (ms); strength_min:
             weakest finger's strength relative to the strongest (1 = equal fingers).
         strong: fraction of gestures drawn with a hold intensity of 12-20 mm.
+        slide: fraction of multi-finger gestures whose fingers first slide together, push-like
+            (``SimGesture.slide``).
+        short_taps: in game sessions, the fraction of multi-finger gestures made taps, and the
+            taps' shortest and longest length (us); empty: the sessions' own taps.
         squeeze: radial contraction of the markers under a pressing finger (mm; 0 = the default
             radial spread of 0.35 mm).
         size_spread: sigma of the log-normal spread of marker blob sizes; brightness_spread: sigma
@@ -179,8 +191,11 @@ class Physics:
     global_rad: tuple[float, float] = (0.003, math.inf)
     lag: float = 0.0
     lag_ms: float = 0.0
+    lag_ms_min: float = 0.0
     strength_min: float = 1.0
     strong: float = 0.0
+    slide: float = 0.0
+    short_taps: tuple[float, int, int] = ()
     squeeze: float = 0.0
     size_spread: float = 0.0
     brightness_spread: float = 0.03
@@ -203,6 +218,8 @@ class Physics:
             or self.lag_ms > 0
             or self.strength_min < 1
             or self.strong > 0
+            or self.slide > 0
+            or bool(self.short_taps)
             or self.global_mm != (0.15, 0.3)
             or self.global_rad != (0.003, math.inf)
         )
@@ -228,6 +245,7 @@ PHYSICS: dict[str, Physics] = {
         Physics("exposure", exposure_us=15_000),
         Physics("contrast", contrast=0.45, contrast_sigma=0.09),
         Physics("late", lag_ms=100.0),
+        Physics("starts", lag_ms=160.0, lag_ms_min=60.0, slide=0.5, short_taps=(0.6, 240_000, 360_000)),
         Physics(
             "compound",
             falloff=FALLOFF_PASTERNAK,
@@ -266,7 +284,9 @@ PHYSICS: dict[str, Physics] = {
 }
 #: The families ``mix`` draws: every family but ``late`` and the compounds, which came after the
 #: mix's sets were measured (drawing them would change every mixed sequence).
-MIX_FAMILIES: tuple[str, ...] = tuple(name for name in PHYSICS if name not in ("late", "compound", "compound2"))
+MIX_FAMILIES: tuple[str, ...] = tuple(
+    name for name in PHYSICS if name not in ("late", "starts", "compound", "compound2")
+)
 #: ``--physics`` names: every family, and ``mix`` (one family per sequence).
 PHYSICS_CHOICES: tuple[str, ...] = (*PHYSICS, "mix")
 

@@ -291,6 +291,10 @@ class SimGesture:
             spread) -- the ``strong`` family.
         sls: (delayed share q, retardation time tau us) of the gel's standard linear solid, or
             empty for an elastic gel -- the ``viscoelastic`` family (:func:`physics.sls_deformation`).
+        slide: (start us after t_start_us, duration us, dx mm, dy mm): every finger on the gel
+            moves together by (dx, dy) x sin(pi u), u from 0 to 1 over the duration, on top of the
+            gesture's own motion (a hand sliding for a moment: push-like), or empty -- the
+            ``starts`` family.
     """
 
     gesture: GestureType
@@ -312,6 +316,19 @@ class SimGesture:
     strengths: tuple[float, ...] = ()
     squeeze: float = 0.0
     sls: tuple[float, int] = ()
+    slide: tuple[int, int, float, float] = ()
+
+    def slide_displacement(self, t_us: np.ndarray) -> np.ndarray:
+        """(T, 2) float64 the common slide of the fingers at t_us (T,) int64 us (user mm; zeros
+        without a slide)."""
+        out = np.zeros((len(t_us), 2))
+        if not self.slide:
+            return out
+        start, duration, dx, dy = self.slide
+        u = (np.asarray(t_us, dtype=np.float64) - self.t_start_us - start) / duration
+        m = (u > 0) & (u < 1)
+        out[m] = np.sin(math.pi * u[m])[:, None] * np.array([dx, dy])
+        return out
 
     @property
     def t_end_us(self) -> int:
@@ -528,6 +545,8 @@ def deform(
             continue
         f_levels = g.finger_levels(t_us)  # (T, K)
         d_f = g.finger_displacements(f_levels)  # (T, K, 2)
+        if g.slide:  # the fingers on the gel slide together (the ``starts`` family)
+            d_f = d_f + g.slide_displacement(t_us)[:, None, :] * (f_levels > 0)[..., None]
         local = np.zeros_like(disp)
         drag = np.zeros_like(disp)
         weight = np.zeros_like(dim)
@@ -657,9 +676,15 @@ def draw_gesture(
     extra: dict = {}
     if physics.lag > 0 or physics.lag_ms > 0:
         top = physics.lag * attack if physics.lag > 0 else min(physics.lag_ms * 1000.0, LATEST_LAG * attack)
-        lags = prng.uniform(0.0, top, n_fingers)
+        low = min(physics.lag_ms_min * 1000.0, top)
+        lags = prng.uniform(low, top, n_fingers)
         lags[int(prng.integers(n_fingers))] = 0.0  # the first finger starts the gesture
         extra["lags_us"] = tuple(int(v) for v in lags)
+    if physics.slide > 0 and gesture is not GestureType.PUSH and prng.random() < physics.slide:
+        angle = prng.uniform(0, 2 * math.pi)
+        size = prng.uniform(0.4, 0.8) * amplitude
+        start, duration = int(prng.uniform(10e3, 160e3)), int(prng.uniform(20e3, 40e3))
+        extra["slide"] = (start, duration, size * math.cos(angle), size * math.sin(angle))
     if physics.strength_min < 1:
         strengths = prng.uniform(physics.strength_min, 1.0, n_fingers)
         extra["strengths"] = tuple(float(v) for v in strengths / strengths.max())
@@ -775,6 +800,11 @@ def session_gesture(
     g = draw_gesture(rng, user, kind, t_start_us, sensor, physics, physics_rng)
     names = list(SESSION_KINDS)
     length = names[int(rng.choice(len(names), p=list(SESSION_KINDS.values())))]
+    if physics.short_taps and kind is not GestureType.PUSH:  # the family's own taps (``starts``)
+        prng = physics_rng if physics_rng is not None else np.random.default_rng(0)
+        share, shortest, longest = physics.short_taps
+        if prng.random() < share:
+            return as_tap(g, int(prng.uniform(shortest, longest)), physics)
     if length == "tap":
         return as_tap(g, int(rng.uniform(*TAP_US)), physics)
     if length == "hold":
