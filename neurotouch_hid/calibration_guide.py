@@ -186,6 +186,7 @@ class LiveCamera:
         wait_s: how long to wait for the rest frames (s of the camera's clock).
         backend: the capture backend of :class:`~neurotouch_hid.sources.davis.DavisSource`
             (None: dv-processing's cameras).
+        serial: the camera's serial number (None: the first DAVIS-346 that opens).
 
     Raises:
         DeviceError: no camera (on entering).
@@ -193,16 +194,17 @@ class LiveCamera:
 
     by_hand = True
 
-    def __init__(self, wait_s: float, backend: object = None) -> None:
+    def __init__(self, wait_s: float, backend: object = None, serial: str | None = None) -> None:
         self._wait_s = wait_s
         self._backend = backend
+        self._serial = serial
         self._stack = contextlib.ExitStack()
         self._items: Iterator[StreamItem] | None = None
 
     def __enter__(self) -> "LiveCamera":
-        from neurotouch_hid.sources.davis import DavisSource
+        from neurotouch_hid.sources.davis import DavisConfig, DavisSource
 
-        camera = self._stack.enter_context(DavisSource(backend=self._backend))
+        camera = self._stack.enter_context(DavisSource(DavisConfig(serial=self._serial), backend=self._backend))
         self._items = self._stack.enter_context(contextlib.closing(camera.stream()))
         return self
 

@@ -261,3 +261,61 @@ def test_a_driver_of_no_camera_on_the_bus_is_listed_too():
     assert describe_camera_driver(row) == (
         "camera SIM1 (not on the bus): driver pid 42 in neurotouch-hid@SIM1.service, profile default; shared config"
     )
+
+
+def test_calibrate_with_a_serial_writes_that_camera_sensor_yaml(monkeypatch, capsys, sim_push_only_recording):
+    """``calibrate --serial S1`` (here on a recording of the gel at rest first) writes
+    sensors/S1/sensor.yaml, which a run of camera S1 then reads; the shared one is not made."""
+    from neurotouch_hid.driver import own_config
+    from neurotouch_hid.sensor import SensorGeometry, user_sensor_path
+
+    args = ["calibrate", "--source", str(sim_push_only_recording), "--serial", "S1", "--no-mirror", "--rotation", "0"]
+    done = run_main(monkeypatch, capsys, args)
+    assert done.returncode == 0, done.stderr
+    written = sensor_dir("S1") / "sensor.yaml"
+    assert SensorGeometry.load(written).mirror is False
+    assert not user_sensor_path().exists()
+    assert own_config("sim", "S1", None, None)[1] == written
+    bad = run_main(monkeypatch, capsys, ["calibrate", "--source", str(sim_push_only_recording), "--serial", "S 1"])
+    assert bad.returncode == 2 and "--serial: camera serial 'S 1'" in bad.stderr
+
+
+def test_run_hands_the_serial_of_the_simulated_camera_to_the_driver(monkeypatch, capsys):
+    """``run --source sim --serial S1`` without --profile: the driver gets the serial and no
+    profile (the camera's own, else default: :func:`driver.own_config`)."""
+    from neurotouch_hid import driver
+    from neurotouch_hid.stats import RunStats
+
+    seen = {}
+
+    def fake_run(source, profile, output, **kw):
+        seen.update(source=source, profile=profile, output=output, serial=kw["serial"])
+        return RunStats()
+
+    monkeypatch.setattr(driver, "run_driver", fake_run)
+    done = run_main(monkeypatch, capsys, ["run", "--source", "sim", "--serial", "S1", "--output", "jsonl"])
+    assert done.returncode == 0, done.stderr
+    assert seen == {"source": "sim", "profile": None, "output": "jsonl", "serial": "S1"}
+    run_main(monkeypatch, capsys, ["run", "--source", "sim", "--serial", "S1", "--profile", ""])
+    assert seen["profile"] is None  # the templated unit's empty NEUROTOUCH_PROFILE
+
+
+def test_profile_auto_with_a_serial_edits_that_camera_games_table(monkeypatch, capsys):
+    """``profile auto add --serial S1`` writes sensors/S1/games.yaml (the table S1's driver then
+    reads, :class:`~neurotouch_hid.runtime.Runtime`'s games watcher); the shared one stays as it
+    was, and ``list`` without a serial shows the shared one."""
+    from neurotouch_hid.games import games_file, load_game_map
+
+    done = run_main(monkeypatch, capsys, ["profile", "auto", "add", "4242", "mouse", "--serial", "S1"])
+    assert done.returncode == 0, done.stderr
+    own = sensor_dir("S1") / "games.yaml"
+    assert load_game_map(own).steam == {4242: "mouse"} and not games_file().exists()
+    assert sensor_file("S1", "games", games_file()) == own
+    listed = run_main(monkeypatch, capsys, ["profile", "auto", "list", "--serial", "S1"])
+    assert "Steam app 4242 -> mouse" in listed.stdout and str(own) in listed.stdout
+    shared = run_main(monkeypatch, capsys, ["profile", "auto", "list"])
+    assert "no game is mapped" in shared.stdout
+    run_main(monkeypatch, capsys, ["profile", "auto", "remove", "4242", "--serial", "S1"])
+    assert load_game_map(own).steam == {}
+    bad = run_main(monkeypatch, capsys, ["profile", "auto", "list", "--serial", "../x"])
+    assert bad.returncode == 2 and "--serial: camera serial '../x'" in bad.stderr

@@ -386,6 +386,12 @@ def calibrate(
     force: bool = typer.Option(
         False, "--force", help="write the sensor.yaml even when the guided check reads gestures wrong"
     ),
+    serial: Optional[str] = typer.Option(
+        None,
+        "--serial",
+        help="the camera to calibrate (--source davis); its sensor.yaml goes to its own config folder "
+        "(sensors/SERIAL/, docs/several-sensors.md) unless --out",
+    ),
 ) -> None:
     """Measure the gel's circle and scale on rest frames, and (camera or simulator) which way you
     look at it from two guided pushes, check each gesture, and save sensor.yaml (docs/dataset.md).
@@ -413,6 +419,16 @@ def calibrate(
             "guided pushes): give both or neither"
         )
     no_stdout("--out", out, "calibrate writes a sensor file that run, track and eval read")
+    if serial is not None:
+        from neurotouch_hid.serials import SENSOR_FILES, check_serial, sensor_dir
+
+        try:
+            check_serial(serial)
+        except ValueError as exc:
+            raise NeurotouchError(f"--serial: {exc}") from None
+        if out is None:
+            sensor_dir(serial).mkdir(parents=True, exist_ok=True)
+            out = sensor_dir(serial) / SENSOR_FILES["sensor"]
     path = user_sensor_path() if out is None else (out / "sensor.yaml" if out.is_dir() else out)
     _sensor_file_replaceable(path, (source if source not in (SourceKind.DAVIS, SourceKind.SIM) else None, press))
     if press is not None:  # read before the camera and the compile are needed: a wrong file fails now
@@ -421,9 +437,9 @@ def calibrate(
         with RecordingReader(press):
             pass
     if source == SourceKind.DAVIS:  # no camera: said now, not after a first run's compile
-        from neurotouch_hid.sources.davis import require_camera_listed
+        from neurotouch_hid.sources.davis import DavisConfig, require_camera_listed
 
-        require_camera_listed()
+        require_camera_listed(DavisConfig(serial=serial))
     if source in (SourceKind.DAVIS, SourceKind.SIM) and (check or mirror is None):
         from neurotouch_hid.warmup import compile_before, compile_pipeline  # the guided pushes and the check use it
 
@@ -438,7 +454,7 @@ def calibrate(
             )
         elif source == SourceKind.DAVIS:
             err_console.print("reading rest frames from the camera: keep your hands off the gel", highlight=False)
-            guide = stack.enter_context(calibration_guide.LiveCamera(calibration.CAMERA_WAIT_S))
+            guide = stack.enter_context(calibration_guide.LiveCamera(calibration.CAMERA_WAIT_S, serial=serial))
         rest = guide.rest_frames(frames) if guide is not None else calibration.read_rest_frames(source, frames)
         result = calibration.calibrate(rest, expected_markers=markers, n_frames=frames)
         geometry = result.sensor

@@ -305,6 +305,29 @@ def _game_label(section: str, key: object) -> str:
     return f"Steam app {key}" if section == "steam" else printable(key, None)
 
 
+#: ``profile auto``'s ``--serial``: the table of one camera's driver (docs/several-sensors.md).
+SERIAL_OPTION = typer.Option(
+    None, "--serial", help="the per-game table of this camera (its own games.yaml, else the shared one)"
+)
+
+
+def _games_path(serial: Optional[str], own: bool = False) -> Path:
+    """The games.yaml ``profile auto`` reads or edits: the shared one; with ``serial``, the one
+    that camera's driver reads (its own, else the shared one), or (``own``: an edit) its own."""
+    from neurotouch_hid.games import games_file
+    from neurotouch_hid.serials import SENSOR_FILES, sensor_dir, sensor_file
+
+    if serial is None:
+        return games_file()
+    try:
+        if own:
+            sensor_dir(serial).mkdir(parents=True, exist_ok=True)
+            return sensor_dir(serial) / SENSOR_FILES["games"]
+        return sensor_file(serial, "games", games_file())
+    except ValueError as exc:
+        raise NeurotouchError(f"--serial: {exc}") from None
+
+
 @auto_app.callback()
 def profile_auto(ctx: typer.Context) -> None:
     """A profile per game: `add GAME PROFILE`, `remove GAME`, `list` (also without a command).
@@ -314,49 +337,54 @@ def profile_auto(ctx: typer.Context) -> None:
     game's profile (every output released first) and back when it exits. `profile use` during a
     game wins until the game exits."""
     if ctx.invoked_subcommand is None:
-        profile_auto_list()
+        profile_auto_list(None)
 
 
 @auto_app.command("add")
 def profile_auto_add(
     game: str = typer.Argument(..., help="Steam app id (a number) or executable name (e.g. supertuxkart)"),
     profile: str = typer.Argument(..., help="profile name or path"),
+    serial: Optional[str] = SERIAL_OPTION,
 ) -> None:
-    """Map a game to a profile (an entry already there is replaced)."""
-    from neurotouch_hid.games import STEAM, add_game, games_file, load_game_map, parse_game
+    """Map a game to a profile (an entry already there is replaced); with --serial, in that
+    camera's own games.yaml (made if needed: that camera then no longer reads the shared one)."""
+    from neurotouch_hid.games import STEAM, add_game, load_game_map, parse_game
 
+    path = _games_path(serial, own=True)
     section, key = parse_game(game)
-    known = load_game_map(games_file())
+    known = load_game_map(path)
     before = (known.steam if section == STEAM else known.executable).get(key)
-    section, key, profile = add_game(game, profile)
+    section, key, profile = add_game(game, profile, path)
     replaced = (
         f", replacing {_game_label(section, key)} -> {printable(before, None)}" if before not in (None, profile) else ""
     )
     typer.echo(
-        f"{_game_label(section, key)} -> {printable(profile, None)} (in {games_file()}{replaced}); "
-        "a running driver follows it"
+        f"{_game_label(section, key)} -> {printable(profile, None)} (in {path}{replaced}); a running driver follows it"
     )
 
 
 @auto_app.command("remove")
 def profile_auto_remove(
     game: str = typer.Argument(..., help="Steam app id or executable name, as added"),
+    serial: Optional[str] = SERIAL_OPTION,
 ) -> None:
-    """Remove a game's entry."""
-    from neurotouch_hid.games import games_file, remove_game
+    """Remove a game's entry (with --serial, from the table that camera reads)."""
+    from neurotouch_hid.games import remove_game
 
-    section, key, profile = remove_game(game)
-    typer.echo(f"removed {_game_label(section, key)} -> {printable(profile, None)} (from {games_file()})")
+    path = _games_path(serial)
+    section, key, profile = remove_game(game, path)
+    typer.echo(f"removed {_game_label(section, key)} -> {printable(profile, None)} (from {path})")
 
 
 @auto_app.command("list")
-def profile_auto_list() -> None:
-    """List the map, and which mapped game runs now (the one the driver follows)."""
+def profile_auto_list(serial: Optional[str] = SERIAL_OPTION) -> None:
+    """List the map (with --serial, the one that camera's driver reads), and which mapped game
+    runs now (the one the driver follows)."""
     from neurotouch_hid.errors import ProfileError
-    from neurotouch_hid.games import EXECUTABLE, STEAM, ProcessScanner, games_file, load_game_map
+    from neurotouch_hid.games import EXECUTABLE, STEAM, ProcessScanner, load_game_map
     from neurotouch_hid.mapping.profile import find_profile
 
-    path = games_file()
+    path = _games_path(serial)
     game_map = load_game_map(path)
     if not game_map:
         typer.echo(f"no game is mapped ({path} has no entry); add one: neurotouch-hid profile auto add 4242 mouse")
