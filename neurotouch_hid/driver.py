@@ -133,7 +133,8 @@ def _open_gamepad(
         )
         return VirtualGamepad(pad, on_effect=on_effect, on_feedback=on_feedback)
 
-    return stack.enter_context(UinputOutputs(None, profile, known=known_profiles(), make_pad=make_pad))
+    phys = identity.phys if identity.serial else None  # the keyboard's and mouse's prefix
+    return stack.enter_context(UinputOutputs(None, profile, known=known_profiles(), make_pad=make_pad, phys=phys))
 
 
 def _open_hid(
@@ -147,7 +148,8 @@ def _open_hid(
     with contextlib.ExitStack() as made:  # each target closed if a later one fails
         device = UhidDevice(row.report, uhid_identity(row, profile.device, identity), camera=identity)
         joystick = made.enter_context(device)
-        desktop = UinputDesktop(profile, known_profiles(), say=say or log.warning)
+        phys = identity.phys if identity.serial else None
+        desktop = UinputDesktop(profile, known_profiles(), say=say or log.warning, phys=phys)
         made.callback(desktop.close)
         outputs = TargetOutputs([joystick, desktop], say=say)
         made.pop_all()

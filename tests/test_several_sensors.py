@@ -319,3 +319,35 @@ def test_profile_auto_with_a_serial_edits_that_camera_games_table(monkeypatch, c
     assert load_game_map(own).steam == {}
     bad = run_main(monkeypatch, capsys, ["profile", "auto", "list", "--serial", "../x"])
     assert bad.returncode == 2 and "--serial: camera serial '../x'" in bad.stderr
+
+
+def test_the_keyboard_and_mouse_of_a_camera_carry_its_phys(monkeypatch):
+    """The uinput keyboard and mouse a profile uses: ``neurotouch-hid/SERIAL/keyboard`` and
+    ``/mouse`` for a camera's run, their own phys without one (the devices themselves need
+    /dev/uinput: here stand-ins record what they are made with)."""
+    from neurotouch_hid.mapping.profile import parse_profile
+    from neurotouch_hid.output import desktop
+
+    made = []
+
+    class Stand:
+        def __init__(self, keys, devnode, phys="own"):
+            self.offers, self.phys = frozenset(keys), phys
+            made.append(phys)
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(desktop, "VirtualKeyboard", type("Kb", (Stand,), {}))
+    monkeypatch.setattr(desktop, "VirtualMouse", type("Mouse", (Stand,), {}))
+    both = parse_profile(
+        "description: keys and clicks\nmappings:\n"
+        "  enter: {input: push_intensity, output: KEY_ENTER, press_mm: 2.0, release_mm: 1.0}\n"
+        "  click: {input: push_intensity, output: BTN_RIGHT, press_mm: 2.0, release_mm: 1.0}\n",
+        "both.yaml",
+    )
+    desktop.UinputOutputs(None, both, phys="neurotouch-hid/S1")
+    assert made == ["neurotouch-hid/S1/keyboard", "neurotouch-hid/S1/mouse"]
+    made.clear()
+    desktop.UinputOutputs(None, both)
+    assert made == ["own", "own"]

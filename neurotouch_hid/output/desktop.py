@@ -27,6 +27,7 @@ the hi-res wheel convention is the kernel's (Documentation/input/event-codes.rst
 
 from __future__ import annotations
 
+import functools
 import logging
 import threading
 from typing import TYPE_CHECKING, Callable, Iterable, TypeVar
@@ -155,14 +156,15 @@ class _UinputDevice(NeutralOnClose):
 
 class VirtualKeyboard(_UinputDevice):
     """A uinput keyboard offering ``keys`` (``KEY_*`` names; :func:`keyboard_codes`);
-    :meth:`write` presses those of ``state.keys`` it offers (``self.offers``). Raises DeviceError
+    :meth:`write` presses those of ``state.keys`` it offers (``self.offers``); ``phys``: the
+    camera's (``neurotouch-hid/SERIAL/keyboard``) or :data:`KEYBOARD_PHYS`. Raises DeviceError
     like :class:`VirtualGamepad`."""
 
-    def __init__(self, keys: Iterable[str] = (), devnode: str = "/dev/uinput") -> None:
+    def __init__(self, keys: Iterable[str] = (), devnode: str = "/dev/uinput", phys: str = KEYBOARD_PHYS) -> None:
         from evdev import ecodes
 
         codes = keyboard_codes(keys)
-        super().__init__("keyboard", {ecodes.EV_KEY: list(codes)}, KEYBOARD_NAME, KEYBOARD_PHYS, devnode)
+        super().__init__("keyboard", {ecodes.EV_KEY: list(codes)}, KEYBOARD_NAME, phys, devnode)
         offered = set(codes)
         self.offers = frozenset(n for n, c in ecodes.ecodes.items() if n.startswith("KEY_") and c in offered)
 
@@ -177,13 +179,14 @@ class VirtualKeyboard(_UinputDevice):
 class VirtualMouse(_UinputDevice):
     """A uinput mouse driving ``outputs`` (mouse buttons, REL_* names; :func:`mouse_capabilities`);
     :meth:`write` presses the buttons of ``state.keys`` it offers and moves by ``state.rel``'s
-    codes it offers (``self.offers``). Raises DeviceError like :class:`VirtualGamepad`."""
+    codes it offers (``self.offers``); ``phys``: the camera's (``neurotouch-hid/SERIAL/mouse``)
+    or :data:`MOUSE_PHYS`. Raises DeviceError like :class:`VirtualGamepad`."""
 
-    def __init__(self, outputs: Iterable[str] = (), devnode: str = "/dev/uinput") -> None:
+    def __init__(self, outputs: Iterable[str] = (), devnode: str = "/dev/uinput", phys: str = MOUSE_PHYS) -> None:
         from evdev import ecodes
 
         caps = mouse_capabilities(outputs)
-        super().__init__("mouse", caps, MOUSE_NAME, MOUSE_PHYS, devnode)
+        super().__init__("mouse", caps, MOUSE_NAME, phys, devnode)
         offered = {c for codes in caps.values() for c in codes}
         self.offers = frozenset(n for n in (*MOUSE_BUTTONS, *MOUSE_REL) if ecodes.ecodes[n] in offered)
 
@@ -217,9 +220,11 @@ class UinputOutputs:
         devnode: str = "/dev/uinput",
         known: Iterable[Profile] = (),
         make_pad: Callable[[Profile], VirtualGamepad] | None = None,
+        phys: str | None = None,
     ) -> None:
         self.pad = pad
         self._make_pad = make_pad
+        self._phys = phys  # the camera's (``neurotouch-hid/SERIAL``): the keyboard's and mouse's prefix
         self.keyboard: VirtualKeyboard | None = None
         self.mouse: VirtualMouse | None = None
         self._devnode = devnode
@@ -258,8 +263,12 @@ class UinputOutputs:
         Raises DeviceError when the kernel refuses."""
         if self.pad is None and self._make_pad is not None and profile.uses_pad:
             self.pad = self._make_pad(profile)
-        self.keyboard = self._made(self.keyboard, profile.keyboard_keys, self._known_keys, VirtualKeyboard)
-        self.mouse = self._made(self.mouse, profile.mouse_outputs, self._known_mouse, VirtualMouse)
+        keyboard, mouse = VirtualKeyboard, VirtualMouse
+        if self._phys is not None:  # the camera's: two gels' keyboards and mice told apart too
+            keyboard = functools.partial(VirtualKeyboard, phys=f"{self._phys}/keyboard")
+            mouse = functools.partial(VirtualMouse, phys=f"{self._phys}/mouse")
+        self.keyboard = self._made(self.keyboard, profile.keyboard_keys, self._known_keys, keyboard)
+        self.mouse = self._made(self.mouse, profile.mouse_outputs, self._known_mouse, mouse)
 
     def _made(
         self, device: D | None, needed: frozenset[str], known: frozenset[str], make: Callable[[frozenset[str], str], D]

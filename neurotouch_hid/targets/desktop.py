@@ -32,6 +32,8 @@ class UinputDesktop:
             start, so a switch keeps them).
         say: one line for the user (what is not sent, and why).
         devnode: the uinput node.
+        phys: the camera's (``neurotouch-hid/SERIAL``): the keyboard's and mouse's prefix
+            (None: their own, ``neurotouch-hid/keyboard`` and ``/mouse``).
     """
 
     what = "uinput keyboard and mouse"
@@ -42,8 +44,10 @@ class UinputDesktop:
         known: Iterable[Profile] = (),
         say: Callable[[str], None] = log.warning,
         devnode: str = "/dev/uinput",
+        phys: str | None = None,
     ) -> None:
         self.say = say
+        self._phys = phys
         self.outputs: UinputOutputs | None = None
         self.unavailable: str | None = None  # why uinput cannot be used, once found
         self._known = list(known)
@@ -65,7 +69,7 @@ class UinputDesktop:
                 from neurotouch_hid.output.desktop import UinputOutputs
 
                 # no pad: the joystick is another target's (UinputOutputs skips a missing device)
-                self.outputs = UinputOutputs(None, None, self._devnode, known=self._known)  # type: ignore[arg-type]
+                self.outputs = UinputOutputs(None, None, self._devnode, known=self._known, phys=self._phys)  # type: ignore[arg-type]
         if self.outputs is not None:
             try:
                 self.outputs.prepare(profile)
