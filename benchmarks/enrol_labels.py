@@ -24,7 +24,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from neurotouch_hid.dataset import read_labels  # noqa: E402
 from neurotouch_hid.enrolment.hand import simulate_enrolment  # noqa: E402
-from neurotouch_hid.enrolment.label import agreement, find_gestures, label_frames, measure_motion  # noqa: E402
+from neurotouch_hid.enrolment.label import (  # noqa: E402
+    agreement,
+    check_gestures,
+    find_gestures,
+    label_frames,
+    measure_motion,
+)
 from neurotouch_hid.enrolment.plan import Plan, make_plan  # noqa: E402
 from neurotouch_hid.sensor import SensorGeometry  # noqa: E402
 
@@ -47,10 +53,10 @@ def main() -> None:
         performed = simulate_enrolment(plan, folder, seed=args.seed, physics=family, miss_rate=args.miss_rate)
         sensor = SensorGeometry.load(folder / "sensor.yaml")
         motion = measure_motion(folder / "enrolment.aedat4", sensor)
-        found = find_gestures(plan, motion)
+        found = check_gestures(find_gestures(plan, motion), motion, sensor)  # as enrol --from
         score = agreement(read_labels(folder / "enrolment.labels.csv"), label_frames(motion, found, sensor.px_per_mm))
         missed = [i + 1 for i, p in enumerate(performed) if p.gesture is None]
-        left_out = [i + 1 for i, f in enumerate(found) if not f.seen]
+        left_out = [i + 1 for i, f in enumerate(found) if not f.labelled]
         print(
             f"| {family} | {score.frames} | {100 * score.gesture:.1f} % | {100 * score.contacts:.1f} % | "
             f"{score.intensity_mae_mm:.2f} | {missed} | {left_out} |",

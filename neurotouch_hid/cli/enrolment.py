@@ -37,8 +37,10 @@ def enrol(
         None, "--sensor", help="sensor.yaml (default: beside the recording, or the calibrated one)"
     ),
     seed: int = typer.Option(0, "--seed", min=0, help="the plan's seed (and the simulated hand's)"),
-    source: str = typer.Option(
-        "davis", "--source", help="davis (the live camera: you follow the prompts) or sim (the simulated hand does)"
+    source: Optional[str] = typer.Option(
+        None,
+        "--source",
+        help="davis (the live camera: you follow the prompts; the default) or sim (the simulated hand does)",
     ),
     serial: Optional[str] = typer.Option(
         None, "--serial", help="with --source davis: the camera's serial number (default: the first DAVIS-346)"
@@ -57,8 +59,9 @@ def enrol(
 
     --plan-out FILE writes the session's prompts without running it. --from REC.aedat4 --plan FILE
     --out DIR labels a recording made by following that plan elsewhere: the type from each prompt,
-    the moments, contacts and intensity from the gel; a prompt with no gesture near its cue is
-    left out and said. The folder written is a dataset (docs/dataset.md) that `eval DIR` reads,
+    the moments, contacts and intensity from the gel; a prompt with no gesture near its cue, or
+    whose gesture is not what it asked, is left out and said; a recording that does not follow
+    the plan is refused (docs/dataset.md). The folder written is a dataset (docs/dataset.md) that `eval DIR` reads,
     written whole at the end: a dataset there is refused unless --force, then replaced."""
     from neurotouch_hid.enrolment.plan import MAX_SESSION_S, make_plan, read_plan, write_plan
 
@@ -73,8 +76,24 @@ def enrol(
         )
         return
     if from_recording is not None:
+        session_only = {
+            "--source": source is not None,
+            "--serial": serial is not None,
+            "--physics": physics != "default",
+            "--sim-miss": bool(sim_miss),
+            "--sim-miss-rate": sim_miss_rate != 1 / 20,
+            "--fast": fast,
+        }
+        given = [name for name, on in session_only.items() if on]
+        if given:
+            raise NeurotouchError(
+                f"{', '.join(given)}: for a guided session, not for --from (which labels a recording made "
+                "elsewhere, by the camera that recorded it): give --from without "
+                + ("it" if len(given) == 1 else "them")
+            )
         _label(from_recording, plan, chosen, out, sensor, force)
         return
+    source = source if source is not None else "davis"
     if source not in ("davis", "sim"):
         raise NeurotouchError(f"--source {source!r}: expected davis (the live camera) or sim (the simulated hand)")
     if chosen.end_s > MAX_SESSION_S:
@@ -153,11 +172,20 @@ def _label(
     with long_lived_start_up():
         from neurotouch_hid.enrolment.label import label_recording
         from neurotouch_hid.pipeline.pipeline import GesturePipeline
-        from neurotouch_hid.sensor import find_sensor_file
+        from neurotouch_hid.sensor import chosen_sensor_file, find_sensor_file, user_sensor_path
         from neurotouch_hid.track import recording_progress
         from neurotouch_hid.warmup import compile_before
 
         geometry = find_sensor_file(recording, sensor)
+        chosen = chosen_sensor_file(recording, sensor)
+        if chosen is None:
+            say_err(
+                f"{recording}: no sensor.yaml beside it, no --sensor and no calibration of yours: labelled with the "
+                "built-in geometry, not the gel's that recorded it (give --sensor FILE, or put its sensor.yaml "
+                "beside the recording)"
+            )
+        elif sensor is None and chosen == user_sensor_path():
+            say_err(f"{recording}: no sensor.yaml beside it: labelled with your calibration ({chosen})")
         compile_before(say_err)  # a first run: compiled in child processes, said
         GesturePipeline(geometry).compile_kernels()
     beside = recording.with_name("sensor.yaml")
@@ -166,7 +194,7 @@ def _label(
     try:
         with recording_progress(err_console, "labelling") as report:
             done = label_recording(
-                recording, plan, target.work, geometry, inputs=inputs, on_progress=report, past_end=True
+                recording, plan, target.work, geometry, inputs=inputs, on_progress=report, past_end=True, strict=True
             )
     except BaseException:
         target.discard()
@@ -182,15 +210,34 @@ def say_labelled(done, again: dict[int, int] | None = None, simulated: bool = Fa
     out; ``again`` (a session's: prompt index -> the index of the prompt that asked it again) says
     how each prompt not seen fared when asked again; ``simulated``: the simulated hand's (its
     model is written only where ``adapt --out`` says)."""
-    seen = len(done.found) - len(done.missed)
     adapt = f"adapt {done.folder} --out sim-model.yaml" if simulated else f"adapt {done.folder}"
     console.print(
-        f"labelled {seen} of {len(done.found)} prompts -> {done.folder} ({done.name}.aedat4, "
+        f"labelled {done.labelled} of {len(done.found)} prompts -> {done.folder} ({done.name}.aedat4, "
         f"{done.name}.labels.csv, sensor.yaml); `neurotouch-hid {adapt}` fits the recogniser to it, "
         f"`neurotouch-hid eval {done.folder}` scores it",
         highlight=False,
         soft_wrap=True,
     )
+    if done.kept == "linked":
+        console.print(
+            f"{done.name}.aedat4 there is a second name (a hard link) of the recording, not a copy: no space taken",
+            highlight=False,
+            soft_wrap=True,
+        )
+    elif done.kept == "referred":
+        console.print(
+            f"{done.name}.aedat4 there refers to the recording (a symbolic link, on another file system): keep the "
+            "recording where it is, or copy it into the folder",
+            highlight=False,
+            soft_wrap=True,
+        )
+    for i, f in enumerate(done.found):
+        if f.seen and not f.labelled:
+            console.print(
+                f"prompt {i + 1} ({_at(f)}): {f.disagrees}, not the {f.prompt.name} asked: left out",
+                highlight=False,
+                soft_wrap=True,
+            )
     if again is not None:
         retries = set(again.values())
         for i, f in enumerate(done.found):
@@ -201,7 +248,13 @@ def say_labelled(done, again: dict[int, int] | None = None, simulated: bool = Fa
                 line += ", no time left to ask again: left out"
             else:
                 j = again[i]
-                fared = "seen" if done.found[j].seen else "not seen either: left out"
+                redone = done.found[j]
+                if redone.labelled:
+                    fared = "seen"
+                elif redone.seen:
+                    fared = "seen, but not the gesture asked (above): left out"
+                else:
+                    fared = "not seen either: left out"
                 line += f"; asked again as prompt {j + 1} ({_at(done.found[j])}): {fared}"
             console.print(line, highlight=False, soft_wrap=True)
         return
@@ -244,9 +297,17 @@ def adapt(
     wherever the fit does not beat it on the held-out gestures, and says what it changed
     (docs/method.md, "Adaptation"); with too few gestures to hold 3 out, it replaces no model. An
     enrolment from the simulated camera (--source sim) is written only where --out says, never as
-    your model. --reset goes back to the shipped one."""
+    your model. Labels that the shipped recogniser reads as other types for most gestures are
+    refused (they follow a plan the recording did not). --reset goes back to the shipped one."""
     from neurotouch_hid.enrolment.adapt import adapt as fit
-    from neurotouch_hid.enrolment.adapt import check_output, fitted_info, record_datasets, simulated_sequences, summary
+    from neurotouch_hid.enrolment.adapt import (
+        check_output,
+        contradiction,
+        fitted_info,
+        record_datasets,
+        simulated_sequences,
+        summary,
+    )
     from neurotouch_hid.enrolment.model import Model, reset_user_model, user_model_path
 
     if reset:
@@ -271,6 +332,9 @@ def adapt(
     datasets = _once(datasets)
 
     records = record_datasets(datasets, jobs=jobs, on_sequence=lambda name: say_err(f"recorded {name}"))
+    wrong = contradiction(records)
+    if wrong is not None:
+        raise NeurotouchError(f"{', '.join(map(str, datasets))}: {wrong}")
     adaptation = fit(records, rerun=lambda config: record_datasets(datasets, jobs=jobs, config=config))
     said = human_console(out)  # stderr when the model goes to standard output
     for line in summary(adaptation):

@@ -320,7 +320,10 @@ def eval_cmd(
     ),
     model: Optional[str] = MODEL_OPTION,
 ) -> None:
-    """Run the pipeline over a labelled dataset; print the paper's metrics and the per-gesture ones."""
+    """Run the pipeline over a labelled dataset; print the paper's metrics and the per-gesture ones.
+
+    Says when the labels were partly read by this pipeline (an enrolment's) and when the model in
+    use was fitted on the dataset: the figures are then not an independent score."""
     import json
     import shlex
     import sys
@@ -354,7 +357,9 @@ def eval_cmd(
 
     config = pipeline_config(settings, method, **({} if window_us is None else {"window_us": window_us}))
     given = [item.partition("=")[0].strip() for item in settings]  # --set wins over the model
-    config = apply_model(config, chosen_model(model), keep=given)
+    chosen = chosen_model(model)
+    config = apply_model(config, chosen, keep=given)
+    cautions = eval_cautions(dataset, chosen, model)
     tested = [ProfileUnderTest.probe(name, load_profile(name)) for name in dict.fromkeys(profiles)]  # each once
     columns = (
         TextColumn("{task.description}", markup=False),  # a sequence's name is text
@@ -374,6 +379,8 @@ def eval_cmd(
             profiles=tested,
         )
     print_tables(result, human_console(json_out))  # on stderr when the JSON goes to standard output
+    for line in cautions:
+        say_err(f"caution: {line}")
     argv = (
         ["eval", str(dataset)]
         + ([f"--method={method}"] if method != "default" else [])
@@ -395,7 +402,7 @@ def eval_cmd(
     command = "neurotouch-hid " + shlex.join(argv)
     hyper = config.model_dump()
     if json_out is not None:
-        data = {"dataset": str(dataset), "command": command, "config": hyper, **result.to_dict()}
+        data = {"dataset": str(dataset), "command": command, "config": hyper, "cautions": cautions, **result.to_dict()}
         from neurotouch_hid.atomic import AtomicFile
 
         text = json.dumps(data, indent=1, allow_nan=False, default=str) + "\n"
@@ -409,6 +416,32 @@ def eval_cmd(
     if report is not None:
         summary = write_report(result, report, command=command, config=hyper)
         human_console(json_out).print(f"report: {summary}", highlight=False, soft_wrap=True)
+
+
+def eval_cautions(dataset: Path, model, option: Optional[str]) -> list[str]:
+    """What makes ``eval``'s figures on ``dataset`` not an independent score: labels made by
+    ``enrol`` (a sequence with its ``NAME.plan.json``: the prompt gave the type, this pipeline's
+    tracker and contact stage the moments, contacts and intensity), and a ``model`` (the
+    adapted one in use, ``--model``'s ``option`` or the user's) fitted on ``dataset``."""
+    from neurotouch_hid.dataset import list_sequences
+    from neurotouch_hid.enrolment.model import fitted_on
+
+    said = []
+    enrolled = [name for name in list_sequences(dataset) if (dataset / f"{name}.plan.json").is_file()]
+    if enrolled:
+        said.append(
+            f"{', '.join(enrolled[:3])}{' ...' if len(enrolled) > 3 else ''}: labelled by enrol from a plan: the "
+            "moments, contacts and intensity of its labels were read by this pipeline's own tracker and contact "
+            "stage, so these figures share their source with the labels (onset latency, contacts and intensity "
+            "agree by construction) and do not compare with the paper's"
+        )
+    if fitted_on(model, dataset):
+        which = f"--model {option}" if option is not None else f"your model ({model.path})"
+        said.append(
+            f"{which} was fitted on {dataset}: it has seen most of these gestures (adapt held out every third), so "
+            "these figures overstate how it reads gestures it has not seen; score it on another enrolment"
+        )
+    return said
 
 
 def _no_file_on_the_way(flag: str, folder: Path) -> None:

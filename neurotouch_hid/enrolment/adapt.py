@@ -272,6 +272,47 @@ def record_datasets(
     return records
 
 
+#: ``adapt`` refuses labels when the shipped recogniser reads more than this share of the
+#: labelled gestures it reads at all as one other type each (:func:`contradiction`).
+CONTRADICTED_SHARE = 0.5
+#: ... and at least this many gestures (fewer tell nothing).
+MIN_CONTRADICTED = 3
+
+
+def read_as(records: Sequence[Record]) -> list[tuple[int, int]]:
+    """(labelled type, the type the shipped pipeline answered most over that gesture's labelled
+    windows) for each labelled gesture it answered a gesture for at all (CLASSES indices)."""
+    pairs: list[tuple[int, int]] = []
+    for r in records:
+        for prompt, kind in sorted(r.prompt_type.items()):
+            answers = r.answered[(r.prompt == prompt) & (r.label == kind) & (r.answered >= 0)]
+            if len(answers):
+                pairs.append((kind, int(np.bincount(answers.astype(np.int64)).argmax())))
+    return pairs
+
+
+def contradiction(records: Sequence[Record]) -> str | None:
+    """Why the labels look wrong, or None: the shipped recogniser, which reads most gestures of
+    most hands right, reads more than :data:`CONTRADICTED_SHARE` of the labelled gestures it
+    answers at all (at least :data:`MIN_CONTRADICTED` of them) as another type: labels made
+    from a plan the recording did not follow, not a hand to adapt to. Names the commonest
+    confusions."""
+    pairs = read_as(records)
+    wrong = [(k, a) for k, a in pairs if k != a]
+    if len(wrong) < MIN_CONTRADICTED or len(wrong) <= CONTRADICTED_SHARE * len(pairs):
+        return None
+    counts: dict[tuple[int, int], int] = {}
+    for pair in wrong:
+        counts[pair] = counts.get(pair, 0) + 1
+    common = sorted(counts.items(), key=lambda item: -item[1])[:3]
+    named = "; ".join(f"{n} labelled {CLASSES[k].value} read as {CLASSES[a].value}" for (k, a), n in common)
+    return (
+        f"the shipped recogniser reads {len(wrong)} of the {len(pairs)} labelled gestures it reads at all as "
+        f"another type ({named}): the labels, not the hand, look wrong (a recording labelled with a plan it did "
+        "not follow?); no model is fitted to them"
+    )
+
+
 def held_out_prompts(records: Sequence[Record]) -> set[int]:
     """The prompt ids held out: per labelled type, in time, every :data:`HOLD_EVERY`-th from
     the second on (the rest before a gesture goes with it)."""
@@ -796,7 +837,7 @@ def _percent(share: float) -> str:
 def fitted_info(adaptation: Adaptation, datasets: Sequence[str | Path]) -> dict:
     """The model file's ``fitted`` mapping: sources and the held-out check (plain values)."""
     return {
-        "from": [str(Path(d)) for d in datasets],
+        "from": [str(Path(d).resolve()) for d in datasets],
         "held_out_gestures": int(adaptation.held_out),
         "gestures": int(adaptation.gestures),
         "held_out_accuracy_shipped": round(float(adaptation.accuracy_before), 4),

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import shutil
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -63,6 +62,11 @@ class NoGestureError(DatasetError):
     """No prompt of a plan has a gesture near its cue (:func:`write_dataset`): nothing is labelled."""
 
 
+class NotFollowedError(DatasetError):
+    """A recording does not follow its plan (:func:`write_dataset` with ``strict``): most of its
+    gestures are not what their prompts asked, or fewer than half the prompts are labelled."""
+
+
 @dataclass(frozen=True)
 class GelMotion:
     """What the pipeline saw of a recording.
@@ -93,17 +97,26 @@ class Found:
 
     Attributes:
         prompt: the prompt; start_us, end_us: the gesture's start and end (us, camera clock),
-        None when missed; peak_mm: its largest motion (mm; 0 when missed).
+        None when missed; peak_mm: its largest motion (mm; 0 when missed); disagrees: why what
+        the gel did there is not what the prompt asked (:func:`check_gestures`), None when it
+        agrees or was not checked.
     """
 
     prompt: Prompt
     start_us: int | None
     end_us: int | None
     peak_mm: float = 0.0
+    disagrees: str | None = None
 
     @property
     def seen(self) -> bool:
+        """A gesture was found near the prompt's cue."""
         return self.start_us is not None
+
+    @property
+    def labelled(self) -> bool:
+        """Found, and what the gel did agrees with the prompt (:mod:`neurotouch_hid.enrolment.agree`)."""
+        return self.seen and self.disagrees is None
 
 
 class MotionMeter:
@@ -225,11 +238,38 @@ def find_gestures(plan: Plan, motion: GelMotion) -> list[Found]:
     return found
 
 
+def check_gestures(found: Sequence[Found], motion: GelMotion, sensor: SensorGeometry) -> list[Found]:
+    """``found`` with, for each gesture found, whether what the gel did at its peak (its window
+    of largest motion) since its start agrees with the prompt
+    (:func:`neurotouch_hid.enrolment.agree.disagreement`; the contact count at the peak is the
+    contact stage's, else the gesture's most frequent). Without the markers' positions
+    (``motion.positions_px`` empty) nothing is checked."""
+    from neurotouch_hid.enrolment.agree import disagreement, gel_did
+    from neurotouch_hid.enrolment.plan import DIRECTIONS
+
+    if not len(motion.positions_px):
+        return list(found)
+    checked: list[Found] = []
+    for f in found:
+        if not f.seen:
+            checked.append(f)
+            continue
+        a, b = np.searchsorted(motion.t_us, [f.start_us, f.end_us], side="left")
+        a = min(int(a), len(motion.t_us) - 1)
+        b = max(int(b), a + 1)
+        peak = a + int(np.argmax(motion.moved_mm[a:b]))
+        contacts = motion.estimates[peak].n_contacts or _finger_count(motion, f.start_us, f.end_us)
+        did = gel_did(motion.positions_px[peak], motion.positions_px[a], contacts, sensor)
+        direction = DIRECTIONS.get(f.prompt.direction or "")
+        checked.append(dataclasses.replace(f, disagrees=disagreement(f.prompt.gesture, direction, did)))
+    return checked
+
+
 def label_frames(motion: GelMotion, found: Sequence[Found], px_per_mm: float) -> list[LabelRow]:
     """One label per APS frame of the recording (module docstring); ``px_per_mm``: the sensor's
     scale at the centre, for the intensity (docs/dataset.md: the mean displacement of the
     labelled contact points since the gesture's start, :func:`contact_displacement_mm`)."""
-    spans = [(f.start_us, f.end_us, f.prompt.gesture) for f in found if f.seen]
+    spans = [(f.start_us, f.end_us, f.prompt.gesture) for f in found if f.labelled]
     starts = np.asarray([s[0] for s in spans], dtype=np.int64)
     counts = [_finger_count(motion, a, b) for a, b, _ in spans]
     rows: list[LabelRow] = []
@@ -299,11 +339,22 @@ class Labelled:
     name: str
     found: list[Found]
     past_end: int = 0  # prompts of the plan cued after the recording's end, left out
+    kept: str = "in place"  # how the recording is in the folder (:func:`link_atomic`'s word)
 
     @property
     def missed(self) -> list[Found]:
         """The prompts with no gesture near their cue (left out of the labels)."""
         return [f for f in self.found if not f.seen]
+
+    @property
+    def disagreeing(self) -> list[Found]:
+        """The prompts whose gesture is not what they asked (left out of the labels)."""
+        return [f for f in self.found if f.seen and not f.labelled]
+
+    @property
+    def labelled(self) -> int:
+        """How many prompts are labelled."""
+        return sum(f.labelled for f in self.found)
 
 
 def label_recording(
@@ -315,12 +366,14 @@ def label_recording(
     inputs: Sequence[str | Path] = (),
     on_progress: Callable[[int, int], None] | None = None,
     past_end: bool = False,
+    strict: bool = False,
 ) -> Labelled:
     """Label ``recording`` from ``plan`` (:func:`measure_motion`) and write it as a dataset
     (:func:`write_dataset`).
 
     With ``past_end``, prompts cued after the recording's end are left out (counted in
     ``Labelled.past_end``): a recording made by following a plan, stopped before its end.
+    ``strict``: as :func:`write_dataset`'s (a recording made elsewhere, ``enrol --from``).
 
     Raises:
         RecordingError, SensorError: the recording cannot be read or shows no gel (nothing written).
@@ -329,7 +382,7 @@ def label_recording(
     """
     motion = measure_motion(recording, sensor, on_progress)
     if not past_end:
-        return write_dataset(out_dir, recording, plan, motion, sensor, inputs=inputs)
+        return write_dataset(out_dir, recording, plan, motion, sensor, inputs=inputs, strict=strict)
     end_us = max([int(motion.start_us), *motion.t_us[-1:].tolist(), *motion.frames_us[-1:].tolist()])
     within = tuple(p for p in plan.prompts if motion.start_us + int(round(p.cue_s * 1e6)) < end_us)
     if plan.prompts and not within:
@@ -337,7 +390,9 @@ def label_recording(
             f"{recording}: every one of the plan's {len(plan.prompts)} prompts is cued after the recording's end "
             f"({(end_us - motion.start_us) / 1e6:.1f} s): was it made by following this plan? Nothing written"
         )
-    labelled = write_dataset(out_dir, recording, Plan(within), motion, sensor, inputs=inputs, of=len(plan.prompts))
+    labelled = write_dataset(
+        out_dir, recording, Plan(within), motion, sensor, inputs=inputs, of=len(plan.prompts), strict=strict
+    )
     return dataclasses.replace(labelled, past_end=len(plan.prompts) - len(within))
 
 
@@ -350,24 +405,33 @@ def write_dataset(
     *,
     inputs: Sequence[str | Path] = (),
     of: int | None = None,
+    strict: bool = False,
 ) -> Labelled:
     """Label ``recording``, which the pipeline saw as ``motion``, from ``plan`` and write it as a
-    dataset (docs/dataset.md) into ``out_dir`` (created): ``NAME.aedat4`` (a copy, unless it is
-    there already), ``NAME.labels.csv``, ``NAME.plan.json`` and ``sensor.yaml`` (``sensor``), each
-    through a temporary file renamed at the end. An output that is the recording or one of
+    dataset (docs/dataset.md) into ``out_dir`` (created): ``NAME.aedat4`` (a link to the
+    recording, :func:`link_atomic`, unless it is there already), ``NAME.labels.csv``,
+    ``NAME.plan.json`` and ``sensor.yaml`` (``sensor``), each through a temporary file renamed at
+    the end. An output that is the recording or one of
     ``inputs`` (the plan and sensor files read) is not written: it already holds what it would.
     ``of``: the prompts of the whole plan when ``plan`` is its part cued within the recording
-    (for the messages).
+    (for the messages). A gesture that is not what its prompt asked is left out
+    (:func:`check_gestures`). ``strict`` (a recording made elsewhere): the recording must follow
+    ``plan``: at least one prompt, most of the gestures found what their prompts asked, and at
+    least half the prompts labelled.
 
     Raises:
         DatasetError: the folder cannot be written; NoGestureError (a DatasetError): no prompt's
-            gesture is found near its cue (the recording does not follow ``plan``; nothing written).
+            gesture is found near its cue (the recording does not follow ``plan``; nothing
+            written); NotFollowedError (a DatasetError): with ``strict``, the recording does not
+            follow ``plan`` (nothing written).
     """
     from neurotouch_hid.enrolment.plan import write_plan
 
     recording = Path(recording)
     out = Path(out_dir)
-    found = find_gestures(plan, motion)
+    found = check_gestures(find_gestures(plan, motion), motion, sensor)
+    if strict:
+        _require_following(recording, found, of)
     if found and not any(f.seen for f in found):
         raise NoGestureError(
             f"{recording}: no gesture near any of "
@@ -392,8 +456,9 @@ def write_dataset(
         return path.exists() and any(p.exists() and os.path.samefile(path, p) for p in given)
 
     target = out / f"{name}.aedat4"
+    kept = "in place"
     if not is_input(target):
-        copy_atomic(recording, target)
+        kept = link_atomic(recording, target)
     labels = out / f"{name}.labels.csv"
     if is_input(labels):
         raise DatasetError(f"{labels}: an input of this run: write the dataset elsewhere (--out)")
@@ -409,19 +474,66 @@ def write_dataset(
         import yaml
 
         write_atomic(out / "sensor.yaml", yaml.safe_dump(sensor.to_dict(), sort_keys=False).encode())
-    return Labelled(out, name, found)
+    return Labelled(out, name, found, kept=kept)
 
 
-def copy_atomic(source: Path, target: Path) -> None:
-    """Copy ``source`` to ``target`` through a temporary file beside ``target``, renamed over it.
+def _require_following(recording: Path, found: Sequence[Found], of: int | None) -> None:
+    """Raise NotFollowedError unless ``found`` (the prompts within ``recording``, of the plan's
+    ``of``) shows a recording made by following its plan (:func:`write_dataset`)."""
+    n = len(found)
+    if n == 0:
+        raise NotFollowedError(
+            f"{recording}: the plan has no prompt"
+            + (f" cued within the recording (of its {of})" if of else "")
+            + ": nothing to label, no dataset written (give the plan the recording followed with --plan)"
+        )
+    seen = [f for f in found if f.seen]
+    wrong = [f for f in seen if not f.labelled]
+    labelled = len(seen) - len(wrong)
+    if not seen or (len(wrong) * 2 <= len(seen) and labelled * 2 >= n):
+        return  # no gesture at all: NoGestureError says so
+    why = (
+        f"{len(wrong)} of the {len(seen)} gestures found are not what their prompts asked"
+        if len(wrong) * 2 > len(seen)
+        else f"only {labelled} of the {n} prompts within it have the gesture asked"
+    )
+    left = [(i, f) for i, f in enumerate(found) if not f.labelled][:3]
+    named = "; ".join(
+        f"prompt {i + 1} ({f.prompt.name} at {f.prompt.cue_s:g} s): "
+        + ((f.disagrees or "") if f.seen else "no gesture near its cue")
+        for i, f in left
+    )
+    raise NotFollowedError(
+        f"{recording}: it does not follow this plan: {why} ({'first ' if len(left) < n - labelled else ''}"
+        f"left out: {named}); no dataset written. Record it while this plan's prompts are shown, from "
+        "their start, or give the plan it followed with --plan"
+    )
 
-    Raises DatasetError (naming the files) when it cannot be copied."""
+
+def link_atomic(source: Path, target: Path) -> str:
+    """Put ``source`` at ``target`` without copying it, through a temporary name beside
+    ``target`` renamed over it: a hard link (the same file under a second name: no space taken,
+    and it outlives ``source``'s name being removed or replaced; recordings are written whole
+    and renamed, never changed in place) where ``source`` is on ``target``'s file system, else a
+    symbolic link to ``source``'s absolute path (the dataset then needs ``source`` where it is).
+
+    Returns:
+        ``"linked"`` or ``"referred"`` (the symbolic link).
+    Raises:
+        DatasetError (naming the files) when neither can be made."""
     tmp = temp_beside(target)
+    tmp.unlink()  # a free name beside the target, for the link
     try:
-        shutil.copyfile(source, tmp)
+        try:
+            os.link(source, tmp, follow_symlinks=True)
+            how = "linked"
+        except OSError:  # another file system, or one without hard links
+            os.symlink(Path(source).resolve(), tmp)
+            how = "referred"
         os.replace(tmp, target)
+        return how
     except OSError as exc:
-        raise DatasetError(f"{target}: cannot copy {source} there: {exc.strerror}") from None
+        raise DatasetError(f"{target}: cannot link {source} there: {exc.strerror}") from None
     finally:
         tmp.unlink(missing_ok=True)
 

@@ -327,6 +327,21 @@ def resolve_model(option: str | None) -> Model | None:
     return load_model(path) if path.exists() else None
 
 
+def fitted_on(model: Model | None, dataset: str | Path) -> bool:
+    """True when ``model`` was fitted on ``dataset`` (its ``fitted.from`` names that folder, by
+    device and inode however it is spelled; a relative name as the folder it names from here)."""
+    if model is None:
+        return False
+    sources = model.fitted.get("from") if isinstance(model.fitted, dict) else None
+    for source in sources if isinstance(sources, list) else []:
+        try:
+            if os.path.samefile(str(source), dataset):
+                return True
+        except (OSError, TypeError, ValueError):
+            continue
+    return False
+
+
 def describe(model: Model | None) -> str:
     """One line for people: which model is in use and what it changes."""
     if model is None:
