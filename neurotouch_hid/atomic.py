@@ -294,8 +294,13 @@ class AtomicFile:
             os.replace(self._tmp, self.path)
             self._tmp = None
 
-    def close(self, keep: bool = True) -> None:
-        """Close; publish when ``keep``, else remove the file if it was never published. A write
+    def pending(self) -> Path | None:
+        """The temporary file being written, None once published (or for a stream)."""
+        return self._tmp
+
+    def close(self, keep: bool = True, leave: bool = False) -> None:
+        """Close; publish when ``keep``, else remove the file if it was never published (with
+        ``leave``, the temporary file (:meth:`pending`) is left for the caller to move). A write
         the disk refuses (full, read-only: :data:`DISK_ERRNOS`) raises OutputError naming the file,
         and what was at ``path`` stays as it was."""
         try:
@@ -307,7 +312,8 @@ class AtomicFile:
                     self.file.close()
                 finally:
                     if self._tmp is not None:
-                        self._tmp.unlink(missing_ok=True)
+                        if not leave:
+                            self._tmp.unlink(missing_ok=True)
                         self._tmp = None
         except OSError as exc:
             if exc.errno in DISK_ERRNOS:

@@ -30,8 +30,8 @@ from typing import IO, Any, Sequence
 
 import numpy as np
 
-from neurotouch_hid.atomic import DISK_ERRNOS, AtomicFile, _umask, disk_error, exchange
-from neurotouch_hid.errors import DatasetError
+from neurotouch_hid.atomic import DISK_ERRNOS, AtomicFile, _umask, check_output, disk_error, exchange, is_stream
+from neurotouch_hid.errors import DatasetError, NeurotouchError
 from neurotouch_hid.estimate import GestureEstimate, GestureType
 from neurotouch_hid.limits import MAX_SENSOR_PX, printable, read_outside_lines, read_outside_text, short
 from neurotouch_hid.sensor import user_sensor_path
@@ -485,7 +485,13 @@ class JsonlWriter:
     A file is written as a temporary file beside it and renamed over it when the writer is
     closed without an error (:class:`~neurotouch_hid.atomic.AtomicFile`): a command that fails
     leaves what was there. With ``live``, it is renamed at its first line instead, so that another
-    process can follow it from then on. A FIFO or a character device is written in place.
+    process can follow it from then on, when there is no file at its name to lose (a file there
+    is replaced only at a clean end). A FIFO or a character device is written in place.
+
+    With ``keep_partial``, a writer closed by an error (:meth:`__exit__`) after lines were
+    written puts them beside the file, as ``NAME.partial`` (replacing an earlier one), and never
+    at ``NAME`` (a live file published there goes to ``NAME.partial`` too): what was at ``NAME``
+    stays byte-identical, and the error gets a note (PEP 678, printed by the CLI) saying both.
 
     Args:
         out: a file path, ``"-"`` for stdout, or an open text stream (not closed by
@@ -493,6 +499,9 @@ class JsonlWriter:
         flush: flush after every line (for live outputs read by another process).
         live: publish the file at its first line (see above) rather than at the end.
         inputs: the command's input files: ``out`` may not be one of them.
+        keep_partial: keep what was written before an error as ``NAME.partial`` (see above).
+        stops: the exceptions that end the writer as a stop asked for, not a failure (a live
+            run's Ctrl-C): the file is closed as at a clean end.
     Raises:
         DatasetError: the file cannot be opened for writing (names it and why).
         OutputError: ``out`` is a symbolic link, a folder, or one of ``inputs``.
@@ -505,9 +514,17 @@ class JsonlWriter:
         flush: bool = False,
         live: bool = False,
         inputs: Iterable[str | Path | None] = (),
+        keep_partial: bool = False,
+        stops: tuple[type[BaseException], ...] = (),
     ) -> None:
         self._flush, self._live = flush, live
+        self._keep_partial, self._stops = keep_partial, stops
         self._atomic: AtomicFile | None = None
+        #: lines written
+        self.lines = 0
+        #: where the lines written before an error went (``NAME.partial``), None when nowhere
+        self.partial: Path | None = None
+        self._had_file = False
         if isinstance(out, (str, Path)) and str(out) == "-":
             self._fh, self._owned = sys.stdout, False
         elif isinstance(out, (str, Path)):
@@ -515,6 +532,7 @@ class JsonlWriter:
                 self._atomic = AtomicFile(out, inputs, what="output file")
             except OSError as exc:
                 raise DatasetError(f"{out}: cannot write JSON lines: {exc.strerror or exc}") from None
+            self._had_file = not self._atomic.published and os.path.lexists(self._atomic.path)
             self._fh, self._owned = self._atomic.file, True
         else:
             self._fh, self._owned = out, False
@@ -530,24 +548,63 @@ class JsonlWriter:
             if self._atomic is None or exc.errno not in DISK_ERRNOS:
                 raise
             raise disk_error(self._atomic.path, exc) from None
-        if self._live and self._atomic is not None and not self._atomic.published:
+        self.lines += 1
+        if self._live and self._atomic is not None and not self._atomic.published and not self._had_file:
             self._atomic.publish()
 
     def close(self, keep: bool = True) -> None:
-        """Flush, and close the file if this writer opened it: renamed into place when ``keep``,
-        else removed unless it was already published (a live file)."""
-        if self._atomic is not None:
+        """Flush, and close the file if this writer opened it: renamed into place when ``keep``;
+        else, with ``keep_partial`` and lines written, moved to ``NAME.partial``
+        (:attr:`partial`), otherwise removed unless it was already published (a live file)."""
+        if self._atomic is None:
+            if self._owned:
+                self._fh.close()
+            else:
+                self._fh.flush()
+            return
+        if keep or not self._keep_partial or not self.lines:
             self._atomic.close(keep=keep)
-        elif self._owned:
-            self._fh.close()
-        else:
-            self._fh.flush()
+            return
+        target = self._atomic.path
+        partial = target.with_name(target.name + ".partial")
+        if self._atomic.published:  # a live file with nothing before it: not left as a whole output
+            self._atomic.close(keep=True)
+            if not is_stream(target):
+                os.replace(target, partial)
+                self.partial = partial
+            return
+        tmp = self._atomic.pending()
+        try:
+            self._atomic.close(keep=False, leave=True)
+            self.lines = _count_lines(tmp)  # what reached the file (a full disk keeps less)
+            if not self.lines:
+                raise OSError("nothing reached the file")
+            check_output(partial, (), "partial output")
+            os.replace(tmp, partial)
+            self.partial = partial
+        except (OSError, NeurotouchError):
+            tmp.unlink(missing_ok=True)
 
     def __enter__(self):
         return self
 
-    def __exit__(self, exc_type, *exc) -> None:
-        self.close(keep=exc_type is None)
+    def __exit__(self, exc_type, exc, tb) -> None:
+        stopped = exc_type is not None and issubclass(exc_type, self._stops)
+        self.close(keep=exc_type is None or stopped)
+        if self.partial is not None and exc is not None and self._atomic is not None:
+            kept = "is left as it was" if self._had_file else "was not written"
+            exc.add_note(
+                f"{self._atomic.path} {kept}; the {self.lines} lines written before the error are in {self.partial}"
+            )
+
+
+def _count_lines(path: Path) -> int:
+    """The complete lines of ``path`` (its newlines), read 1 MiB at a time."""
+    count = 0
+    with open(path, "rb") as fh:
+        while chunk := fh.read(1 << 20):
+            count += chunk.count(b"\n")
+    return count
 
 
 class PredictionsWriter(JsonlWriter):

@@ -10,6 +10,7 @@ format: ``t_us`` int64 (T,), ``positions_px`` float32 (T, N, 2) with NaN for a l
 from __future__ import annotations
 
 import contextlib
+import os
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -172,9 +173,10 @@ def track_recording(
         :class:`TrackSummary`.
     Raises:
         RecordingError, SensorError: see :func:`pipeline_over`. ``out`` is written as a
-            temporary file beside it, renamed over it at the end: on an error, what was there
-            is left as it was, except after a damaged or cut recording, whose windows before the
-            damage are kept (the error says how many and where).
+            temporary file beside it, renamed over it at the end: on an error (a damaged or cut
+            recording, Ctrl-C too), what was there is left byte-identical and the windows
+            computed before it are in ``OUT.partial``; the error says so (in its message or a
+            note, :class:`~neurotouch_hid.dataset.JsonlWriter`).
         OutputError: ``out`` or ``markers_out`` is a symbolic link, a folder, the recording or
             ``sensor_file``.
     """
@@ -192,7 +194,7 @@ def track_recording(
         check_output(markers_out, (*inputs, out), "markers file", (("predictions file", out),))
     windows = events = frames = 0
     first_us = last_us = first_window_us = None
-    writer = PredictionsWriter(out, inputs=inputs)
+    writer = PredictionsWriter(out, inputs=inputs, keep_partial=True)
     try:
         for item, estimates in pipeline_over(recording, pipeline, on_progress=on_progress, sensor_file=sensor_file):
             if isinstance(item, Frame):
@@ -206,14 +208,13 @@ def track_recording(
                 writer.write(estimate)
                 first_window_us = estimate.t_us if first_window_us is None else first_window_us
             windows += len(estimates)
-    except RecordingError as exc:
-        # a damaged or cut file: every window before the damage is kept, and the error says so
-        writer.close(keep=windows > 0)
-        if windows == 0:
-            raise
-        raise RecordingError(f"{exc}; the {windows} windows before it are in {out}") from None
-    except BaseException:  # no gel, Ctrl-C, a full disk: what was at ``out`` is left as it was
-        writer.close(keep=False)
+    except BaseException as exc:  # a damaged or cut file, no gel, Ctrl-C, a full disk
+        writer.__exit__(type(exc), exc, exc.__traceback__)  # what was at ``out`` is left as it was
+        if isinstance(exc, RecordingError) and writer.partial is not None:
+            raise RecordingError(
+                f"{exc}; the {windows} windows before it are in {writer.partial}"
+                + (f" ({out} is left as it was)" if os.path.lexists(out) else "")
+            ) from None
         raise
     writer.close()
     if markers_out is not None:

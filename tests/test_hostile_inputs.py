@@ -686,16 +686,18 @@ def test_track_never_writes_over_its_recording_a_link_or_what_a_failure_would_lo
 
 
 def test_a_cut_recording_keeps_every_window_before_the_cut_and_says_where(tmp_path, sim_gel_short_recording):
-    """A recording cut short: ``track`` writes the windows before the cut, exits 2, and says how
-    many and up to when."""
+    """A recording cut short: ``track`` writes the windows before the cut beside its output
+    (``NAME.partial``: a failed run is never the output), exits 2, and says how many and up to
+    when."""
     cut = tmp_path / "cut.aedat4"
     data = sim_gel_short_recording.read_bytes()
     cut.write_bytes(data[: len(data) * 2 // 3])
     out = tmp_path / "pred.jsonl"
     code, _, err, _ = cli("track", str(cut), "--out", str(out), timeout_s=300)
     assert code == 2 and "Traceback" not in err, err
-    windows = len(out.read_text().splitlines())
-    assert windows > 10 and f"the {windows} windows before it are in {out}" in err and "up to t=" in err, err
+    windows = len(out.with_name("pred.jsonl.partial").read_text().splitlines())
+    assert not out.exists(), "a failed run's windows at the output's name"
+    assert windows > 10 and f"the {windows} windows before it are in {out}.partial" in err and "up to t=" in err, err
 
 
 def test_run_never_writes_its_states_over_its_source_or_through_a_link(tmp_path):

@@ -211,14 +211,17 @@ def main() -> None:
 
         from neurotouch_hid.limits import printable  # a file name's escape sequences never reach the terminal
 
-        message = "\n".join(printable(line, None) for line in str(exc).split("\n"))
+        said = "; ".join([str(exc), *getattr(exc, "__notes__", ())])  # an output kept aside says where
+        message = "\n".join(printable(line, None) for line in said.split("\n"))
         err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, markup=True, soft_wrap=True)
         sys.exit(2)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
+        _say_notes(exc)
         sys.exit(130)
     except _Terminated as exc:  # unwound: now end by the signal itself
         import signal
 
+        _say_notes(exc)
         sys.stdout.flush()
         signal.signal(exc.signum, signal.SIG_DFL)
         os.kill(os.getpid(), exc.signum)
@@ -236,6 +239,15 @@ def main() -> None:
         )  # fmt: skip
         sys.exit(2)
     sys.exit(code if isinstance(code, int) else 0)
+
+
+def _say_notes(exc: BaseException) -> None:
+    """The notes an interrupted command's outputs added to ``exc`` (where what was computed went,
+    :class:`~neurotouch_hid.dataset.JsonlWriter`), one line each on stderr."""
+    from neurotouch_hid.limits import printable
+
+    for note in getattr(exc, "__notes__", ()):
+        err_console.print(printable(note, None), highlight=False, markup=False, soft_wrap=True)
 
 
 def usage_in_plain_words(message: str) -> str:

@@ -28,8 +28,10 @@ class StateJsonlWriter(JsonlWriter):
     ``gesture`` and ``intensity_mm`` are those of the window's estimate. :meth:`neutralise`
     writes a neutral line (gesture ``none``), so a stopped run always ends on one. Lines are
     flushed as written (another process reads them live). A file is written beside its name and
-    renamed over it at the first line (a run that fails before its first state leaves what was
-    there); a FIFO is written in place.
+    renamed over it at the first line when nothing is there, else at the run's end (Ctrl-C and
+    SIGTERM end it too); a run that fails part-way leaves what was there byte-identical and its
+    lines in ``NAME.partial``, and says both (:class:`~neurotouch_hid.dataset.JsonlWriter`); a
+    FIFO is written in place.
 
     Args:
         out: a file path, ``"-"`` or None for stdout, or an open text stream.
@@ -43,7 +45,14 @@ class StateJsonlWriter(JsonlWriter):
     wants_markers = False
 
     def __init__(self, out: str | Path | IO[str] | None = None, inputs: Iterable[str | Path | None] = ()) -> None:
-        super().__init__("-" if out is None else out, flush=True, live=True, inputs=inputs)
+        super().__init__(
+            "-" if out is None else out,
+            flush=True,
+            live=True,
+            inputs=inputs,
+            keep_partial=True,
+            stops=(KeyboardInterrupt,),
+        )
         self._t_us = 0
 
     def write(self, state: ControllerState, estimate: GestureEstimate | None = None) -> None:
