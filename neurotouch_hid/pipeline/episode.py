@@ -57,7 +57,10 @@ class EpisodeVote:
     most intensity-weighted votes (mm) since the contact count last changed. A window below
     ``provisional_mm`` commits nothing whatever its count (a gel that has barely moved shows
     spurious contacts: one such window committing push on three contacts made a twist's lone
-    first finger felt as push).
+    first finger felt as push). Within ``first_finger_us`` of the onset, a window that reads push
+    on two contacts or more commits only when the window before saw two or more too: the fingers
+    of a twist, pinch or zoom sliding together for a moment read push, on contacts the next
+    window may not see (a two-finger push is answered one window later).
 
     Once the episode has been committed on two contacts or more at or above ``counted_mm``, or a
     window of the committed type has seen them there, a window on one contact of another type
@@ -84,7 +87,7 @@ class EpisodeVote:
     Whatever the above answers, a type answered at or above ``firm_mm`` within ``FIRM_GAP_US``
     before (in this episode or the one a ``none`` window just ended) changes, in a window at or
     above ``firm_mm``, to another type only when that window and the one before it both read that
-    type; otherwise the type before holds.
+    type; otherwise the type before holds (an undecided window too).
 
     Args:
         first_finger_us: how long one contact alone stays undecided (us, >= 0).
@@ -149,9 +152,12 @@ class EpisodeVote:
         said_before = self._said
         answer = self._vote(gesture, intensity_mm, n_contacts, t_us)
         self._said = gesture
-        if answer is GestureType.NONE:
-            return answer
         held = self._held
+        if answer is GestureType.NONE:
+            if held is not None and intensity_mm >= self.firm_mm and t_us - self._held_us <= FIRM_GAP_US:
+                self._held_us = t_us  # undecided inside a firm type (an episode restarted): it holds
+                return held
+            return answer
         if (
             held is not None
             and answer is not held
@@ -188,6 +194,7 @@ class EpisodeVote:
             self._low = min(self._low, float(intensity_mm))
         if self._most_contacts < 0:
             self._onset_us = t_us
+        count_before = self._count
         if n_contacts != self._count:
             self._count, self._count_since_us = n_contacts, t_us
             if self._decision is None:
@@ -201,6 +208,12 @@ class EpisodeVote:
                 return max(self._votes, key=self._votes.get)
             if n_contacts <= 1 and t_us - self._count_since_us < self.first_finger_us:
                 return GestureType.NONE
+            if (
+                gesture is GestureType.PUSH
+                and count_before < 2 <= n_contacts
+                and t_us - self._onset_us < self.first_finger_us
+            ):
+                return GestureType.NONE  # several contacts read push, not seen the window before
             self._decision = max(self._votes, key=self._votes.get)
             self._multi = n_contacts >= 2 and intensity_mm >= self.counted_mm
             return self._decision
