@@ -32,8 +32,8 @@ def _rss_kib(pid: int) -> int:
 def _asleep_in_read(pid: int) -> bool:
     """Whether process ``pid`` waits in a pipe's read (``/proc/PID/wchan``: ``pipe_read``, or
     ``anon_pipe_read`` in newer kernels)."""
-    with open(f"/proc/{pid}/wchan") as wchan:
-        return "pipe_read" in wchan.read()
+    with open(f"/proc/{pid}/wchan") as wchan:  # and no thread left preparing (``--hidden``)
+        return "pipe_read" in wchan.read() and len(os.listdir(f"/proc/{pid}/task")) == 1
 
 
 def measure(seconds: float = 10.0, start_timeout_s: float = 60.0, hidden: bool = False) -> dict:

@@ -44,8 +44,9 @@ def _tree(root: Path) -> tuple[Path, Path, Path]:
 
 
 def _asleep_in_read(pid: int) -> bool:
+    """The guard ready: its main thread asleep in its pipe's read, its preparing thread ended."""
     with open(f"/proc/{pid}/wchan") as wchan:
-        return "pipe_read" in wchan.read()
+        return "pipe_read" in wchan.read() and len(os.listdir(f"/proc/{pid}/task")) == 1
 
 
 def once(timeout_s: float = 60.0) -> float:

@@ -21,11 +21,11 @@ so at rest it costs no CPU and no wake-up. When the driver ends its run it write
 guard exits with nothing done. When the driver dies, the kernel closes the pipe's write end and
 the read returns end-of-file: the guard writes each node's neutral report, retrying every
 :data:`RETRY_S` while the host has not taken the one before (EAGAIN, the node being non-blocking)
-or is away, for at most :data:`GIVE_UP_S`; then it runs what it was given: Python prepared at its
-start (the hidden nodes put back: the imports are paid while the driver lives, about 5 MiB more),
-or a command in its place (``execv``). It ignores SIGINT, SIGTERM and SIGHUP, and so does its command:
-Ctrl-C signals the terminal's whole process group and systemd's stop the unit's whole cgroup,
-and the guard's own end is decided by the driver's pipe alone.
+or is away, for at most :data:`GIVE_UP_S`; then it runs what it was given: Python prepared from
+its start in a thread at nice 19 (the hidden nodes put back: the imports are paid while the driver
+lives, about 5 MiB more), or a command in its place (``execv``). It ignores SIGINT, SIGTERM and
+SIGHUP, and so does its command: Ctrl-C signals the terminal's whole process group and systemd's
+stop the unit's whole cgroup, and the guard's own end is decided by the driver's pipe alone.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ RETRY_S = 0.004
 RELEASE_WAIT_S = 2.0
 #: The guard's program (``python -I -S -c``): argv is the pipe's read end, how long to try (s),
 #: one ``FD:HEXREPORT`` per node, then ``--`` and the command to run after them, if any. Only
-#: the os, signal and time modules.
+#: the os, signal and time modules (and threading for Python to prepare).
 GUARD_CODE = f"""
 import os, signal, sys, time
 for number in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
@@ -56,16 +56,23 @@ args = sys.argv[3:]
 cut = args.index("--") if "--" in args else len(args)
 left = [(int(fd), bytes.fromhex(report)) for fd, report in (a.split(":") for a in args[:cut])]
 then = args[cut + 1 :]
-call = None
-if then[:1] == ["-c"]:  # Python to run here: prepared (imported) now, called once the driver died
+preparing, prepared = None, {{}}
+if then[:1] == ["-c"]:  # Python to run here: prepared (imported) while the driver lives, called once it died
+    import threading
     code, sys.argv[1:] = then[1], then[2:]
     then = [sys.executable, "-I", "-c", code, *then[2:]]  # if it cannot be prepared: as a command
-    try:
-        scope = {{"__name__": "__guard__"}}
-        exec(code, scope)
-        call, then = scope["then"], []
-    except Exception as exc:
-        print("neurotouch-hid guard: cannot prepare what it runs after the driver:", exc, file=sys.stderr)
+
+    def prepare():
+        os.nice(19)  # this thread only (Linux): its imports take what the driver leaves idle
+        try:
+            scope = {{"__name__": "__guard__"}}
+            exec(code, scope)
+            prepared["then"] = scope["then"]
+        except Exception as exc:
+            prepared["error"] = exc
+
+    preparing = threading.Thread(target=prepare, daemon=True)
+    preparing.start()
 while True:
     try:
         said = os.read(pipe, 1)
@@ -73,7 +80,7 @@ while True:
     except InterruptedError:
         continue
 if said:
-    sys.exit(0)
+    os._exit(0)  # at once, even while it prepares
 end = time.monotonic() + give_up_s
 while left and time.monotonic() < end:
     for node in list(left):
@@ -84,8 +91,17 @@ while left and time.monotonic() < end:
             pass
     if left:
         time.sleep({RETRY_S!r})
-if call is not None:
-    call()
+if preparing is not None:
+    try:  # the driver died while it prepared: finish at the normal priority (root may raise it back)
+        os.setpriority(os.PRIO_PROCESS, preparing.native_id, 0)
+    except OSError:
+        pass
+    preparing.join()
+    if "then" in prepared:
+        prepared["then"]()
+        then = []
+    else:
+        print("neurotouch-hid guard: cannot prepare its work:", prepared.get("error"), file=sys.stderr)
 if then:
     os.execv(then[0], then)
 """
@@ -101,11 +117,13 @@ class Guard:
             gets copies of them.
         then: argv of the command the guard becomes once the reports are written (its first item
             an absolute path: ``execv`` does not search PATH); empty: none. ``("-c", CODE, *ARGS)``
-            is Python run in the guard itself: CODE runs at the guard's start with ``sys.argv[1:]``
-            = ARGS (its imports paid while the driver lives) and defines ``then()``, which is called
-            once the reports are written: nothing to start when the driver died (a new Python and
-            its imports took seconds in an emulated, loaded machine). CODE failing at the start is
-            said on standard error, and it is then run as ``python -I -c CODE ARGS`` instead.
+            is Python run in the guard itself: CODE runs in a thread of the guard from its start,
+            at nice 19, with ``sys.argv[1:]`` = ARGS (its imports paid while the driver lives, on
+            what the driver leaves idle) and defines ``then()``, called once the reports are written
+            (the thread waited for first, raised back to nice 0 where it may be): nothing to start
+            when the driver died (a new Python and its imports took seconds in an emulated, loaded
+            machine). :meth:`release` never waits for it. CODE failing is said on standard error,
+            and it is then run as ``python -I -c CODE ARGS`` instead.
         give_up_s: how long the guard tries to hand the host the reports once the driver died (s).
         what: whose guard, in the log's lines.
     Raises:

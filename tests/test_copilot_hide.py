@@ -236,9 +236,10 @@ def test_a_driver_that_puts_its_nodes_back_ends_its_guard_which_does_nothing(box
 
 
 def _waiting_on_its_pipe(pid: int) -> bool:
-    """Whether process ``pid`` sleeps in a read of a pipe (the kernel's wait channel)."""
+    """Whether guard ``pid`` is ready: its main thread sleeps in a read of its pipe (the kernel's
+    wait channel), started after its preparing thread, and that thread has ended."""
     try:
-        return "pipe_read" in Path(f"/proc/{pid}/wchan").read_text()
+        return "pipe_read" in Path(f"/proc/{pid}/wchan").read_text() and len(os.listdir(f"/proc/{pid}/task")) == 1
     except OSError:
         return False
 

@@ -150,3 +150,12 @@ def test_the_guard_costs_no_wake_up_while_the_driver_runs():
     figures = load_benchmark("bench_gadget_guard").measure(seconds=0.5)
     assert figures["rest_context_switches"] == 0 and figures["rest_cpu_s"] == 0.0, figures
     assert 0 < figures["anonymous_kib"] < figures["rss_kib"]
+
+
+def test_a_guard_released_while_it_still_prepares_its_work_exits_by_itself():
+    """The hidden devices' guard prepares what it runs after the driver's death (its imports) while
+    the driver lives; a run that lets its devices go meanwhile (a profile switch right after a
+    merge) must not wait for that, nor leave it to be killed."""
+    guard = Guard(then=["-c", "import time\ntime.sleep(60)\ndef then():\n    pass\n"], what="the hidden devices")
+    guard.release()
+    assert guard._proc.returncode == 0
