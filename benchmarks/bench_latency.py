@@ -283,7 +283,7 @@ def main() -> None:
             show(name, stats)
             p99[name] = stats.latency.percentile_us(99)
         if os.access("/dev/uinput", os.W_OK):
-            from neurotouch_hid.output.gamepad import VirtualGamepad
+            from neurotouch_hid.targets.uinput.gamepad import VirtualGamepad
 
             with VirtualGamepad() as pad:
                 show(

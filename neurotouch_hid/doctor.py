@@ -31,7 +31,6 @@ from rich.console import Console
 from rich.markup import escape
 
 from neurotouch_hid.extras import EXTRAS, missing_message
-from neurotouch_hid.output.gamepad import uinput_problem
 from neurotouch_hid.sources.discovery import (
     CAMERA_USB_ID,
     CameraStatus,
@@ -48,6 +47,7 @@ from neurotouch_hid.udev import (
     installed_rules,
     uhid_help,
     uinput_help,
+    uinput_problem,
 )
 
 SERVICE_NAME = "neurotouch-hid.service"
@@ -129,7 +129,7 @@ def check_camera_dv(found: Discovery) -> Check:
 
 
 def check_uinput(devnode: str = "/dev/uinput") -> Check:
-    """/dev/uinput exists, is a character device and is writable (see output/gamepad.py)."""
+    """/dev/uinput exists, is a character device and is writable (see targets/uinput/gamepad.py)."""
     problem = uinput_problem(devnode)
     if problem:
         return Check("virtual gamepad (uinput)", FAIL, problem, uinput_help())

@@ -89,13 +89,14 @@ def open_output(
     :mod:`neurotouch_hid.targets.gadget`), ``jsonl`` (one state line per change to ``out`` or
     stdout; ``out`` may not be one of the run's ``inputs``) or ``term`` (the terminal view; on a
     terminal the live view of :mod:`neurotouch_hid.output.live`: the gel, the gestures, the
-    profile, beside the pad). ``say``
-    tells the user about rumble effects games send to the pad (the gel has no motor; default: the
-    log); ``on_feedback`` gets each rumble the pad is sent (the copilot's merged pads play it). The
+    profile, beside the pad). Every device output is one
+    :class:`~neurotouch_hid.targets.TargetOutputs` over its targets: ``say`` tells the user about
+    what games and hosts send back (rumble, LEDs: the gel has no motor; default: the log), and
+    ``on_feedback`` gets each of them (the copilot's merged pads play the rumble). The
     uinput pad is made when the profile first drives a pad control. ``identity``: the camera's
     (:func:`~neurotouch_hid.targets.identity.identity_for`): the pad's ``phys``, the UHID device's
-    ``phys`` and ``uniq``, the gadget's serial (None: the default identity, whose devices keep
-    the ``phys`` of each output and no ``uniq``). Closed by ``stack``.
+    ``phys`` and ``uniq`` and feature reports, the gadget's serial (None: the default identity,
+    whose devices keep the ``phys`` of each output and no ``uniq``). Closed by ``stack``.
     Raises DeviceError when /dev/uinput (``gamepad``) or /dev/uhid (``hid``) cannot be used."""
     opener = OPENERS[OutputKind(kind)]
     return opener(
@@ -117,10 +118,9 @@ def _open_gamepad(
     from neurotouch_hid.extras import require
 
     require("uinput", "the virtual gamepad (--output gamepad)")
-    from neurotouch_hid.output.desktop import UinputOutputs
-    from neurotouch_hid.output.gamepad import PHYS, GamepadIdentity, VirtualGamepad
-
-    on_effect = None if say is None else (lambda line: say(f"rumble (the gel has no motor): {line}"))
+    from neurotouch_hid.targets import TargetOutputs
+    from neurotouch_hid.targets.uinput.desktop import UinputOutputs
+    from neurotouch_hid.targets.uinput.gamepad import PHYS, GamepadIdentity, VirtualGamepad
 
     def make_pad(using: Profile) -> VirtualGamepad:
         dev = using.device
@@ -131,18 +131,19 @@ def _open_gamepad(
             version=dev.version,
             phys=identity.phys if identity.serial else PHYS,  # without a serial: the pad's phys as always
         )
-        return VirtualGamepad(pad, on_effect=on_effect, on_feedback=on_feedback)
+        return VirtualGamepad(pad)
 
     phys = identity.phys if identity.serial else None  # the keyboard's and mouse's prefix
-    return stack.enter_context(UinputOutputs(None, profile, known=known_profiles(), make_pad=make_pad, phys=phys))
+    devices = UinputOutputs(None, profile, known=known_profiles(), make_pad=make_pad, phys=phys)
+    return stack.enter_context(TargetOutputs([devices], say=say, forward=on_feedback))
 
 
 def _open_hid(
-    profile: Profile, stack: contextlib.ExitStack, *, say, identity: Identity, protocol=None, **_
+    profile: Profile, stack: contextlib.ExitStack, *, say, identity: Identity, protocol=None, on_feedback=None, **_
 ) -> Subscriber:
     from neurotouch_hid.targets import TargetOutputs
-    from neurotouch_hid.targets.desktop import UinputDesktop
     from neurotouch_hid.targets.uhid import UhidDevice, uhid_identity, uhid_protocol
+    from neurotouch_hid.targets.uinput.desktop import UinputDesktop
 
     row = uhid_protocol(protocol, profile)
     with contextlib.ExitStack() as made:  # each target closed if a later one fails
@@ -151,17 +152,19 @@ def _open_hid(
         phys = identity.phys if identity.serial else None
         desktop = UinputDesktop(profile, known_profiles(), say=say or log.warning, phys=phys)
         made.callback(desktop.close)
-        outputs = TargetOutputs([joystick, desktop], say=say)
+        outputs = TargetOutputs([joystick, desktop], say=say, forward=on_feedback)
         made.pop_all()
     return stack.enter_context(outputs)
 
 
-def _open_usb(profile: Profile, stack: contextlib.ExitStack, *, say, protocol, identity: Identity, **_) -> Subscriber:
+def _open_usb(
+    profile: Profile, stack: contextlib.ExitStack, *, say, protocol, identity: Identity, on_feedback=None, **_
+) -> Subscriber:
     from neurotouch_hid.targets import TargetOutputs
     from neurotouch_hid.targets.gadget import UsbGadget, protocol_for
 
     gadget = stack.enter_context(UsbGadget(protocol_for(protocol, profile), profile, serial=identity.usb_serial))
-    return stack.enter_context(TargetOutputs(gadget.targets, say=say))
+    return stack.enter_context(TargetOutputs(gadget.targets, say=say, forward=on_feedback))
 
 
 def _open_jsonl(profile: Profile, stack: contextlib.ExitStack, *, out, inputs, **_) -> Subscriber:

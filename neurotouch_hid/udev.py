@@ -6,7 +6,7 @@ own virtual devices); ``packaging/install.sh`` installs it. Both ship inside the
 (``neurotouch_hid/data/udev`` and ``neurotouch_hid/data/packaging`` link to those folders, and
 pyproject.toml's package data copies them into every wheel), so the fixes name absolute paths that
 exist wherever the driver is installed, not only in a checkout. The camera's discovery
-(:mod:`neurotouch_hid.sources.discovery`), the virtual devices (:mod:`neurotouch_hid.output.gamepad`)
+(:mod:`neurotouch_hid.sources.discovery`), the virtual devices (:mod:`neurotouch_hid.targets.uinput.gamepad`)
 and ``doctor`` all take their rule names, folders and advice from here, so the three say the same.
 Rule syntax and folders: udev(7).
 """
@@ -104,3 +104,10 @@ def char_device_problem(devnode: str, module: str) -> str | None:
     if not os.access(devnode, os.R_OK | os.W_OK):
         return f"no permission to open {devnode} for reading and writing (uid {os.getuid()})"
     return None
+
+
+def uinput_problem(devnode: str = "/dev/uinput") -> str | None:
+    """Why ``devnode`` cannot be used to create a uinput device (missing, not a character device,
+    not readable and writable by this process), or None when it can (:func:`char_device_problem`
+    for the uinput module)."""
+    return char_device_problem(devnode, "uinput")

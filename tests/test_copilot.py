@@ -184,7 +184,7 @@ def test_every_problem_of_a_copilot_section_is_listed_at_once_each_on_its_line(t
 
 def test_the_names_refused_are_those_of_the_keyboard_and_mouse_the_driver_makes():
     from neurotouch_hid.mapping.profile import OWN_INPUT_NAMES
-    from neurotouch_hid.output.desktop import KEYBOARD_NAME, MOUSE_NAME
+    from neurotouch_hid.targets.uinput.desktop import KEYBOARD_NAME, MOUSE_NAME
 
     assert set(OWN_INPUT_NAMES) == {KEYBOARD_NAME, MOUSE_NAME}
 

@@ -224,15 +224,29 @@ def _buttons(state: ControllerState) -> set[str]:
     return {button for button, down in state.buttons.items() if down}
 
 
-def _pad_rumble(on_feedback):
-    """The gel's pad's force-feedback side (neurotouch_hid/output/gamepad.py) without uinput:
-    effects remembered as the pad's thread remembers an upload, plays forwarded as it forwards them."""
-    from neurotouch_hid.output.gamepad import VirtualGamepad
+class _PadRumble:
+    """The gel's pad's force-feedback side (neurotouch_hid/targets/uinput/gamepad.py) without uinput:
+    effects remembered as the pad remembers an upload, each play or stop handed to
+    ``on_feedback`` as the run's feedback path forwards what the pad returns."""
 
-    pad = object.__new__(VirtualGamepad)
-    pad._rumbles = {}
-    pad.on_feedback = on_feedback
-    return pad
+    def __init__(self, on_feedback) -> None:
+        from neurotouch_hid.targets.uinput.gamepad import VirtualGamepad
+
+        self.pad = object.__new__(VirtualGamepad)
+        self.pad._rumbles, self.pad.what = {}, "uinput pad"
+        self.on_feedback = on_feedback
+
+    def _remember_rumble(self, effect) -> None:
+        self.pad._remember_rumble(effect)
+
+    def _forward_rumble(self, effect_id: int, value: int) -> None:
+        request = self.pad._rumble_of(effect_id, value)
+        if request is not None:
+            self.on_feedback(request)
+
+
+def _pad_rumble(on_feedback) -> _PadRumble:
+    return _PadRumble(on_feedback)
 
 
 def _effect(effect_id: int, strong: int, weak: int, length_ms: int) -> ff.Effect:

@@ -309,7 +309,7 @@ def test_help_has_no_bool_placeholders_and_whole_sentences():
 
 def test_no_uinput_is_a_few_short_lines_with_the_command_alone(tmp_path):
     from neurotouch_hid.errors import DeviceError
-    from neurotouch_hid.output.gamepad import create_uinput
+    from neurotouch_hid.targets.uinput.gamepad import create_uinput
     from neurotouch_hid.udev import RULES_INSTALL
 
     with pytest.raises(DeviceError) as info:
@@ -369,8 +369,8 @@ def test_every_option_the_readme_shows_exists():
 
 
 def test_troubleshooting_lists_the_messages_the_driver_prints(tmp_path):
-    from neurotouch_hid.output.gamepad import uinput_problem
     from neurotouch_hid.sources.discovery import explain, merge
+    from neurotouch_hid.udev import uinput_problem
 
     text = (ROOT / "docs/troubleshooting.md").read_text()
     missing = uinput_problem(str(tmp_path / "uinput")).replace(str(tmp_path / "uinput"), "/dev/uinput")

@@ -14,8 +14,14 @@ from hypothesis import strategies as st
 
 from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
 from neurotouch_hid.errors import DeviceError
-from neurotouch_hid.output import gamepad
-from neurotouch_hid.output.gamepad import GamepadIdentity, VirtualGamepad, capabilities, changed_events, normalised
+from neurotouch_hid.targets.uinput import gamepad
+from neurotouch_hid.targets.uinput.gamepad import (
+    GamepadIdentity,
+    VirtualGamepad,
+    capabilities,
+    changed_events,
+    normalised,
+)
 from neurotouch_hid.udev import INSTALL_SCRIPT, RULES_FILE, RULES_INSTALL, UINPUT_RULE
 
 
@@ -126,7 +132,7 @@ def test_applying_the_changes_reaches_the_new_state(old, new):
 def test_a_rumble_effect_is_described_in_one_line():
     from evdev import ff
 
-    from neurotouch_hid.output.gamepad import describe_effect
+    from neurotouch_hid.targets.uinput.gamepad import describe_effect
 
     rumble = ff.Rumble(strong_magnitude=32767, weak_magnitude=65535)
     effect = ff.Effect(
@@ -162,7 +168,7 @@ def test_keyboard_close_releases_held_keys_once_and_destroys_even_if_release_fai
 
     from neurotouch_hid.controller import ControllerState
     from neurotouch_hid.errors import DeviceError
-    from neurotouch_hid.output import desktop
+    from neurotouch_hid.targets.uinput import desktop
 
     fake = _RecordingUinput()
     monkeypatch.setattr(desktop, "create_uinput", lambda *a, **k: fake)
@@ -217,7 +223,7 @@ def test_a_ctrl_click_chord_lets_the_mouse_button_go_before_ctrl(monkeypatch, st
 
     from neurotouch_hid.controller import ControllerState
     from neurotouch_hid.mapping.profile import Profile
-    from neurotouch_hid.output import desktop
+    from neurotouch_hid.targets.uinput import desktop
 
     log = _SharedLog()
     monkeypatch.setattr(desktop, "create_uinput", log.make)
@@ -233,3 +239,68 @@ def test_a_ctrl_click_chord_lets_the_mouse_button_go_before_ctrl(monkeypatch, st
         (*left, 0),
         (*ctrl, 0),
     ]
+
+
+class _ForceFeedbackUinput(_RecordingUinput):
+    """A uinput device whose reader side holds the game's force-feedback requests (EV_UINPUT
+    uploads, EV_FF plays), read as python-evdev's non-blocking read gives them."""
+
+    fd = 99
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.pending: list = []
+        self.answered: list[str] = []
+
+    def read(self):
+        if not self.pending:
+            raise BlockingIOError(11, "Resource temporarily unavailable")
+        events, self.pending = self.pending, []
+        return iter(events)
+
+    def end_upload(self, upload) -> None:
+        self.answered.append(f"upload {upload.effect.id} -> {upload.retval}")
+
+    def end_erase(self, erase) -> None:
+        self.answered.append(f"erase {erase.effect_id} -> {erase.retval}")
+
+
+def test_the_pad_answers_uploads_at_once_and_returns_its_rumble_on_the_feedback_path(monkeypatch):
+    """The pad is a Target: what a game sends (upload, play, stop, erase) is read when its fd is
+    readable (TargetOutputs' one feedback path), every upload answered in the same call, each
+    play or stop returned as a rumble Feedback (the merged pads play it). No thread of its own."""
+    from evdev import InputEvent, ff
+
+    fake = _ForceFeedbackUinput()
+    monkeypatch.setattr(gamepad, "create_uinput", lambda *a, **k: fake)
+    rumble = ff.Rumble(strong_magnitude=0xFFFF, weak_magnitude=0x8000)
+    effect = ff.Effect(
+        ecodes.FF_RUMBLE, 2, 0, ff.Trigger(0, 0), ff.Replay(300, 0), ff.EffectType(ff_rumble_effect=rumble)
+    )
+
+    def begin(ui, kind, request_id):
+        request = ff.UInputUpload() if kind == "upload" else ff.UInputErase()
+        request.request_id = request_id
+        if kind == "upload":
+            request.effect = effect
+        else:
+            request.effect_id = 2
+        return request
+
+    monkeypatch.setattr(gamepad, "_begin_ff_request", begin)
+    pad = VirtualGamepad()
+    assert pad.fileno() == 99 and pad.feedback() == []  # nothing waiting: no blocking read
+    fake.pending = [
+        InputEvent(0, 0, ecodes.EV_UINPUT, ecodes.UI_FF_UPLOAD, 0),
+        InputEvent(0, 0, ecodes.EV_FF, 2, 1),
+        InputEvent(0, 0, ecodes.EV_FF, 2, 0),
+        InputEvent(0, 0, ecodes.EV_UINPUT, ecodes.UI_FF_ERASE, 1),
+    ]
+    played, stopped, erased = pad.feedback()
+    assert fake.answered == ["upload 2 -> 0", "erase 2 -> 0"]
+    assert (played.kind, played.strong, round(played.weak, 3), played.duration_ms) == ("rumble", 1.0, 0.5, 300)
+    assert (played.effect, played.source) == (2, "uinput pad")
+    assert (stopped.strong, stopped.weak) == (erased.strong, erased.weak) == (0, 0)
+    assert pad.effects == 4
+    pad.close()
+    assert pad.fileno() is None and pad.feedback() == []

@@ -277,7 +277,7 @@ def test_keys_the_machine_acts_on_are_refused_and_never_offered(output):
     from evdev import ecodes
 
     from neurotouch_hid.mapping.profile import KERNEL_COMMAND_KEYS, keyboard_keys, parse_profile
-    from neurotouch_hid.output.desktop import keyboard_codes
+    from neurotouch_hid.targets.uinput.desktop import keyboard_codes
 
     with pytest.raises(ProfileError, match="the system acts on it"):
         parse_profile(f"mappings:\n  off: {{input: push_intensity, output: {output}}}\n", "power.yaml")
@@ -351,7 +351,7 @@ def test_keyboard_offers_only_the_profiles_keys_and_is_made_again_for_new_ones(m
 
     from neurotouch_hid.controller import ControllerState
     from neurotouch_hid.mapping.profile import parse_profile
-    from neurotouch_hid.output import desktop
+    from neurotouch_hid.targets.uinput import desktop
 
     made: list[_FakeUinput] = []
     monkeypatch.setattr(

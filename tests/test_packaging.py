@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from kernel.vm import installed
 
-from neurotouch_hid.output.gamepad import PHYS
+from neurotouch_hid.targets.uinput.gamepad import PHYS
 from neurotouch_hid.udev import UINPUT_RULE
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -116,19 +116,36 @@ def test_an_unlabelled_source_publishes_no_performed_gesture(sim_push_only_recor
 
 
 def test_every_output_is_a_subscriber():
-    """The pad, the keyboard and mouse, JSON lines, the terminal and live views: one interface."""
-    from neurotouch_hid.output.desktop import UinputOutputs
-    from neurotouch_hid.output.gamepad import VirtualGamepad
+    """The devices (behind TargetOutputs), JSON lines, the terminal and live views: one interface."""
     from neurotouch_hid.output.jsonl import StateJsonlWriter
     from neurotouch_hid.output.live import LiveView
     from neurotouch_hid.output.term import TermView
+    from neurotouch_hid.targets import TargetOutputs
 
     members = {name for name, _ in inspect.getmembers(Subscriber) if not name.startswith("_")}
     members |= set(Subscriber.__annotations__)
     assert members == {"publish", "neutralise", "prepare", "wants_markers"}
-    for output in (UinputOutputs, VirtualGamepad, StateJsonlWriter, TermView, LiveView):
+    for output in (TargetOutputs, StateJsonlWriter, TermView, LiveView):
         assert all(hasattr(output, m) for m in members - {"wants_markers"}), output
         assert "wants_markers" in vars(output) or "wants_markers" in inspect.getsource(output), output
+
+
+def test_every_device_is_a_target_and_none_is_a_subscriber_of_its_own():
+    """The uinput pad, keyboard and mouse, the UHID device, the gadget's functions: each a Target,
+    written to only through TargetOutputs (one output path, one feedback path)."""
+    from neurotouch_hid.stages import Target
+    from neurotouch_hid.targets.gadget.targets import HidgTarget, XInputTarget
+    from neurotouch_hid.targets.uhid import UhidDevice
+    from neurotouch_hid.targets.uinput.desktop import UinputDesktop, UinputOutputs, VirtualKeyboard, VirtualMouse
+    from neurotouch_hid.targets.uinput.gamepad import VirtualGamepad
+
+    members = {name for name, _ in inspect.getmembers(Target) if not name.startswith("_")}
+    assert members == {"write", "neutralise", "prepare", "fileno", "feedback", "close"}
+    devices = (VirtualGamepad, VirtualKeyboard, VirtualMouse, UinputOutputs, UinputDesktop, UhidDevice)
+    for device in (*devices, HidgTarget, XInputTarget):
+        assert all(callable(getattr(device, m, None)) for m in members), device
+        assert not hasattr(device, "publish"), f"{device.__name__} is a subscriber of its own"
+    assert "Thread(" not in inspect.getsource(VirtualGamepad), "a rumble thread of the pad's own"
 
 
 def _imported(module_folder: str) -> set[str]:

@@ -155,11 +155,11 @@ def test_each_camera_driver_has_its_own_control_socket(tmp_path, monkeypatch):
 
 def test_outputs_carry_the_camera_identity():
     from neurotouch_hid.mapping.profile import load_profile
-    from neurotouch_hid.output.gamepad import PHYS, GamepadIdentity
     from neurotouch_hid.targets.gadget import configfs
     from neurotouch_hid.targets.identity import identity_for
     from neurotouch_hid.targets.uhid import _CREATE2, create2_event, hid_identity
     from neurotouch_hid.targets.uhid import PHYS as UHID_PHYS
+    from neurotouch_hid.targets.uinput.gamepad import PHYS, GamepadIdentity
 
     camera = identity_for("00000499")
     hid = hid_identity(load_profile("default").device, camera)
@@ -326,7 +326,7 @@ def test_the_keyboard_and_mouse_of_a_camera_carry_its_phys(monkeypatch):
     ``/mouse`` for a camera's run, their own phys without one (the devices themselves need
     /dev/uinput: here stand-ins record what they are made with)."""
     from neurotouch_hid.mapping.profile import parse_profile
-    from neurotouch_hid.output import desktop
+    from neurotouch_hid.targets.uinput import desktop
 
     made = []
 

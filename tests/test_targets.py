@@ -157,3 +157,29 @@ def test_describe_feedback_says_stop_and_leds():
     assert describe_feedback(Feedback("led", led=2, source="xinput")) == (
         "player LED (the gel has none): pattern 2, on xinput"
     )
+
+
+class LateTarget(PipeTarget):
+    """A target whose device (and readable side) is made at its first prepare, as the uinput pad
+    is when a profile first drives a pad control."""
+
+    def __init__(self, what: str, log: list) -> None:
+        super().__init__(what, log)
+        self.made = False
+
+    def prepare(self, profile) -> None:
+        super().prepare(profile)
+        self.made = True
+
+    def fileno(self) -> int | None:
+        return self.read_fd if self.made else None
+
+
+def test_a_device_made_at_prepare_is_read_from_then_on():
+    forwarded: list[Feedback] = []
+    late = LateTarget("uinput pad", [])
+    with TargetOutputs([late], forward=forwarded.append) as outputs:
+        outputs.prepare(None)
+        os.write(late.write_fd, b"r")
+        assert _until(lambda: forwarded)
+    assert forwarded[0].source == "uinput pad"

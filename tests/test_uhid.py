@@ -17,7 +17,6 @@ from neurotouch_hid.driver import OPENERS, run_driver
 from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.kinds import OutputKind
 from neurotouch_hid.mapping.profile import DeviceSpec, load_profile
-from neurotouch_hid.targets.desktop import UinputDesktop
 from neurotouch_hid.targets.reports.hid import HID_JOYSTICK
 from neurotouch_hid.targets.uhid import (
     HID_DEFAULT,
@@ -34,6 +33,7 @@ from neurotouch_hid.targets.uhid import (
     parse_event,
     read_event,
 )
+from neurotouch_hid.targets.uinput.desktop import UinputDesktop
 from neurotouch_hid.udev import RULES_FILE, UHID_RULE
 
 

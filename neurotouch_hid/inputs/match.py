@@ -7,7 +7,7 @@ that listing needs no permission on the device nodes. udev's stable links
 (``/dev/input/by-id/*``, ``by-path/*``) are resolved to the nodes they name.
 
 The driver's own devices (the pad, keyboard and mouse it makes: ``phys`` ``neurotouch-hid/...``,
-:data:`~neurotouch_hid.output.gamepad.PHYS`) never match any rule.
+:data:`~neurotouch_hid.targets.uinput.gamepad.PHYS`) never match any rule.
 """
 
 from __future__ import annotations

@@ -790,7 +790,7 @@ AXIS_POLICIES: tuple[str, ...] = ("further", "gel", "helper", "sum")
 MAX_COPILOT_DEVICES = 8
 #: A device's ids as the user writes them: ``045e:02ea`` (USB vendor:product, hex).
 _IDS_PATTERN = r"^[0-9A-Fa-f]{4}:[0-9A-Fa-f]{4}$"
-#: The names of the keyboard and mouse the driver makes (``output/desktop.py``): never merged.
+#: The names of the keyboard and mouse the driver makes (``targets/uinput/desktop.py``): never merged.
 OWN_INPUT_NAMES: tuple[str, ...] = ("NeuroTouch keyboard", "NeuroTouch mouse")
 #: Where stable paths of input devices live (udev's persistent links).
 STABLE_PATH_PREFIX = "/dev/input/"

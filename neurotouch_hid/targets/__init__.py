@@ -1,19 +1,23 @@
 """The devices the system sees, fed from the controller state, behind one subscriber.
 
-A :class:`~neurotouch_hid.stages.Target` is one device (a UHID joystick here, a USB gadget's
-function, ...); :class:`TargetOutputs` is the one :class:`~neurotouch_hid.stages.Subscriber`
-over a run's targets: each window's changed state goes to every target (each writes only what
-changed for it), a profile switch neutralises and prepares them all, and :meth:`TargetOutputs.close`
-sends every target its neutral report before any is removed, releasing each even when another
-fails. What games and hosts send back (rumble, player LEDs: :class:`~neurotouch_hid.stages.Feedback`)
-is read by one thread that sleeps in ``select`` on the targets' :meth:`~neurotouch_hid.stages.Target.fileno`
-and a wake-up pipe, so nothing runs at rest, and is told to the user as the uinput pad tells rumble
-(the gel has no motor, no LED). The wire formats are :mod:`neurotouch_hid.targets.reports`;
-docs/architecture.md, "Targets and inputs".
+A :class:`~neurotouch_hid.stages.Target` is one device (the uinput pad, keyboard and mouse, a
+UHID device, a USB gadget's function, ...); :class:`TargetOutputs` is the one
+:class:`~neurotouch_hid.stages.Subscriber` over a run's targets, whatever the output: each
+window's changed state goes to every target (each writes only what changed for it), a profile
+switch neutralises and prepares them all, and :meth:`TargetOutputs.close` sends every target its
+neutral report before any is removed, releasing each even when another fails. What games and
+hosts send back (rumble, player LEDs: :class:`~neurotouch_hid.stages.Feedback`) is read by one
+thread that sleeps in ``select`` on the targets' :meth:`~neurotouch_hid.stages.Target.fileno`
+and a wake-up pipe, so nothing runs at rest (a target whose device is made later, the uinput pad
+when a profile first drives it, is watched from its :meth:`~neurotouch_hid.stages.Target.prepare`
+on), is told to the user (the gel has no motor, no LED) and is forwarded (the merged pads'
+rumble). The wire formats are :mod:`neurotouch_hid.targets.reports`; docs/architecture.md,
+"Targets and inputs".
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import selectors
@@ -30,7 +34,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 #: The same feedback line is told to the user at most this often (s): a game may send its rumble
-#: every frame (the uinput pad's rule, ``output.gamepad.EFFECT_REPEAT_S``).
+#: every frame (the uinput pad's rule, ``targets.uinput.gamepad.EFFECT_REPEAT_S``).
 FEEDBACK_REPEAT_S = 1.0
 
 
@@ -93,10 +97,9 @@ class TargetOutputs:
         try:
             self._selector = selectors.DefaultSelector()
             self._selector.register(self._wake_r, selectors.EVENT_READ, None)
-            for target in self.targets:
-                fd = target.fileno()
-                if fd is not None:
-                    self._selector.register(fd, selectors.EVENT_READ, target)
+            self._watched: dict[int, int] = {}  # target index -> its registered descriptor
+            self._given_up: set[int] = set()  # targets whose reading failed: no longer read
+            self._watch()
             self._thread.start()
         except BaseException:
             self.close()
@@ -120,8 +123,28 @@ class TargetOutputs:
         self._each(lambda target: target.neutralise())
 
     def prepare(self, profile: Profile) -> None:
-        """Every target readied for ``profile`` (after :meth:`neutralise`)."""
-        self._each(lambda target: target.prepare(profile))
+        """Every target readied for ``profile`` (after :meth:`neutralise`); a device made or
+        replaced meanwhile is watched from now on."""
+        try:
+            self._each(lambda target: target.prepare(profile))
+        finally:
+            with self._lock:
+                if not self._closed:
+                    os.write(self._wake_w, b"w")  # the feedback thread looks at the descriptors again
+
+    def _watch(self) -> None:
+        """Register each target's readable side, where it changed since the last look (feedback
+        thread, or the constructor before it starts)."""
+        for index, target in enumerate(self.targets):
+            fd = None if index in self._given_up else target.fileno()
+            if self._watched.get(index) == fd:
+                continue
+            if index in self._watched:
+                with contextlib.suppress(KeyError, ValueError, OSError):
+                    self._selector.unregister(self._watched.pop(index))
+            if fd is not None:
+                self._selector.register(fd, selectors.EVENT_READ, target)
+                self._watched[index] = fd
 
     def close(self) -> None:
         """Stop reading feedback, send every target its neutral report, then close each (neutral
@@ -173,14 +196,22 @@ class TargetOutputs:
                 return
             for key, _ in ready:
                 target: Target | None = key.data
-                if target is None or self._closed:
+                if self._closed:
                     self._selector.close()
                     return
+                if target is None:  # woken: a target's descriptor may have changed
+                    with contextlib.suppress(OSError):
+                        os.read(self._wake_r, 64)
+                    self._watch()
+                    continue
                 try:
                     received = target.feedback()
                 except Exception as exc:  # one device's failure stops only its own feedback
                     log.warning("%s: reading what the host sent failed, no longer read: %s", target.what, exc)
                     self._selector.unregister(key.fd)
+                    index = next(i for i, fd in self._watched.items() if fd == key.fd)
+                    self._watched.pop(index)
+                    self._given_up.add(index)
                     continue
                 for feedback in received:
                     self.feedbacks += 1

@@ -24,8 +24,8 @@ its format (:attr:`~neurotouch_hid.targets.reports.ReportFormat.feature_ids`) wi
 host's output reports (``UHID_OUTPUT``, and a SET_REPORT of an output report, answered 0) through
 :meth:`~neurotouch_hid.targets.reports.ReportFormat.parse_output` into
 :class:`~neurotouch_hid.controller.Feedback`, and on ``close`` sends the
-neutral report, waits ``RELEASE_GRACE_S`` for readers to see it, then destroys the device (the
-uinput devices' :class:`~neurotouch_hid.output.gamepad.NeutralOnClose`). No library: hid-tools
+neutral report, waits ``RELEASE_GRACE_S`` for readers to see it, then destroys the device
+(:class:`~neurotouch_hid.targets.closing.NeutralOnClose`, as the uinput devices do). No library: hid-tools
 (GPL) is not used at run time.
 """
 
@@ -44,7 +44,7 @@ from typing import TYPE_CHECKING
 
 from neurotouch_hid.controller import ControllerState
 from neurotouch_hid.errors import DeviceError, NeurotouchError
-from neurotouch_hid.output.gamepad import NeutralOnClose
+from neurotouch_hid.targets.closing import NeutralOnClose
 from neurotouch_hid.udev import char_device_problem, uhid_help
 
 if TYPE_CHECKING:
@@ -505,7 +505,7 @@ class UhidDevice(NeutralOnClose):
 
     def _destroy(self) -> None:
         """``UHID_DESTROY``, then close /dev/uhid (which alone would remove the device too).
-        :meth:`close` (:class:`~neurotouch_hid.output.gamepad.NeutralOnClose`) calls it after the
+        :meth:`close` (:class:`~neurotouch_hid.targets.closing.NeutralOnClose`) calls it after the
         neutral report and the release grace."""
         try:
             os.write(self._fd, UHID_DESTROY.to_bytes(4, "little"))

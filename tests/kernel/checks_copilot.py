@@ -35,8 +35,8 @@ from evdev import AbsInfo, UInput, ecodes
 from neurotouch_hid.controller import BUTTONS
 from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.inputs.hide import HIDDEN_DIR
-from neurotouch_hid.output.desktop import MOUSE_PHYS
-from neurotouch_hid.output.gamepad import PHYS
+from neurotouch_hid.targets.uinput.desktop import MOUSE_PHYS
+from neurotouch_hid.targets.uinput.gamepad import PHYS
 
 HERE = Path(__file__).resolve().parent
 TIMEOUT_S = 420
@@ -98,7 +98,7 @@ class RumbleAnswerer:
     what arrived: (``"upload"``, type, strong, weak) and (``"play"``, id, value)."""
 
     def __init__(self, ui: UInput):
-        from neurotouch_hid.output.gamepad import _begin_ff_request
+        from neurotouch_hid.targets.uinput.gamepad import _begin_ff_request
 
         self._begin = _begin_ff_request
         self.ui = ui

@@ -392,7 +392,7 @@ def _pad_path(proc: subprocess.Popen, timeout_s: float) -> str:
     """The event node of the gamepad ``run`` made (its phys), once it exists."""
     from evdev import InputDevice, list_devices
 
-    from neurotouch_hid.output.gamepad import PHYS
+    from neurotouch_hid.targets.uinput.gamepad import PHYS
 
     def find() -> str | None:
         for path in list_devices():

@@ -1,4 +1,4 @@
-"""Guest checks of the virtual gamepad (neurotouch_hid.output.gamepad) in a real kernel.
+"""Guest checks of the virtual gamepad (neurotouch_hid.targets.uinput.gamepad) in a real kernel.
 
 Run by tests/kernel/guest.py inside qemu; asserted on by tests/test_kernel.py.
 """
@@ -17,7 +17,7 @@ import guestlib
 from evdev import ecodes
 
 from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
-from neurotouch_hid.output.gamepad import PHYS, GamepadIdentity, VirtualGamepad, changed_events
+from neurotouch_hid.targets.uinput.gamepad import PHYS, GamepadIdentity, VirtualGamepad, changed_events
 
 HERE = Path(__file__).resolve().parent
 TIMEOUT_S = 300  # generous: a loaded host under software emulation is slow

@@ -32,7 +32,7 @@ from evdev import ecodes
 
 from neurotouch_hid.controller import AXES, BUTTONS
 from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.output.gamepad import PHYS
+from neurotouch_hid.targets.uinput.gamepad import PHYS
 
 REPO = Path(__file__).resolve().parent.parent.parent
 TIMEOUT_S = 300
@@ -238,7 +238,8 @@ def check_run_gamepad_matches_the_profile() -> dict:
     state, is what the same estimates give through ``--output jsonl``; the pad ends neutral."""
     from neurotouch_hid.driver import run_driver
     from neurotouch_hid.mapping.profile import load_profile
-    from neurotouch_hid.output.gamepad import GamepadIdentity, VirtualGamepad
+    from neurotouch_hid.targets import TargetOutputs
+    from neurotouch_hid.targets.uinput.gamepad import GamepadIdentity, VirtualGamepad
 
     folder = Path(tempfile.mkdtemp(prefix="runtime-check-"))
     preds, profile_path = _write(folder, gesture_sequence())
@@ -251,7 +252,10 @@ def check_run_gamepad_matches_the_profile() -> dict:
         guestlib.settle()
         props = guestlib.udev_properties(pad.device_path)
         watcher = PadWatcher(pad.device_path)
-        stats = run_driver(str(preds), profile_path, "gamepad", outputs=[pad], max_lag_us=int(NO_DROP_LAG_MS) * 1000)
+        with TargetOutputs([pad]) as outputs:  # the run's one output path, as run_driver's own
+            stats = run_driver(
+                str(preds), profile_path, "gamepad", outputs=[outputs], max_lag_us=int(NO_DROP_LAG_MS) * 1000
+            )
         guestlib.wait_for(lambda: watcher.states[-1] == NEUTRAL, 5.0)
         watcher.stop()
     got = _changes(watcher.states)

@@ -29,8 +29,8 @@ from evdev import InputDevice, ecodes, list_devices
 from outputlib import InProcessRun
 
 from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.output.desktop import KEYBOARD_PHYS, MOUSE_PHYS
-from neurotouch_hid.output.gamepad import PHYS
+from neurotouch_hid.targets.uinput.desktop import KEYBOARD_PHYS, MOUSE_PHYS
+from neurotouch_hid.targets.uinput.gamepad import PHYS
 
 HERE = Path(__file__).resolve().parent
 TIMEOUT_S = 300
@@ -153,19 +153,20 @@ def _run_in_process(
     preds = _write_preds(folder, estimates)
     with contextlib.ExitStack() as stack:
         outputs = open_output("gamepad", load_profile(profile), stack)
+        (devices,) = outputs.targets  # the uinput pad, keyboard and mouse: one target
         guestlib.settle()
         props = {
             d.what: dict(
                 guestlib.udev_properties(d.device_path),
                 KEY_CODES=set(InputDevice(d.device_path).capabilities().get(ecodes.EV_KEY, [])),
             )
-            for d in outputs.devices
+            for d in devices.devices
             if hasattr(d, "what")
         }
         watchers = {}
-        for device in (outputs.pad, outputs.keyboard, outputs.mouse):
+        for device in (devices.pad, devices.keyboard, devices.mouse):
             if device is not None:
-                watchers["pad" if device is outputs.pad else device.what] = Watcher(device.device_path)
+                watchers["pad" if device is devices.pad else device.what] = Watcher(device.device_path)
         stats = run_driver(str(preds), profile, "gamepad", outputs=[outputs], max_lag_us=int(NO_DROP_LAG_MS) * 1000)
     time.sleep(0.3)
     for w in watchers.values():
@@ -444,9 +445,11 @@ def check_profile_use_of_new_keys_makes_the_keyboard_again() -> dict:
 
 def check_sdl_sees_a_gamecontroller_with_rumble() -> dict:
     """SDL2 opens the virtual pad (made as ``run --output gamepad`` makes it, in this process) as a
-    GameController, says it has rumble and plays one: the pad answers the effect upload at once
-    and reports the upload and the play (``on_effect``, which ``run`` prints on stderr)."""
-    from neurotouch_hid.output.gamepad import GamepadIdentity, VirtualGamepad
+    GameController, says it has rumble and plays one: the pad, read by the run's one feedback path
+    (TargetOutputs), answers the effect upload at once, reports the upload and the play
+    (``on_effect``) and returns the play as a rumble the run says and forwards."""
+    from neurotouch_hid.targets import TargetOutputs
+    from neurotouch_hid.targets.uinput.gamepad import GamepadIdentity, VirtualGamepad
 
     said: list[str] = []
     sdl_env = dict(
@@ -456,7 +459,10 @@ def check_sdl_sees_a_gamecontroller_with_rumble() -> dict:
         PYGAME_HIDE_SUPPORT_PROMPT="1",
         PYTHONPATH=os.pathsep.join(sys.path),
     )
-    with VirtualGamepad(GamepadIdentity(), on_effect=said.append) as pad:
+    told: list[str] = []
+    forwarded: list = []
+    pad = VirtualGamepad(GamepadIdentity(), on_effect=said.append)
+    with TargetOutputs([pad], say=told.append, forward=forwarded.append):
         guestlib.settle()
         probe = subprocess.run(
             [sys.executable, str(HERE / "sdl_probe.py"), "--rumble", "120"],
@@ -474,4 +480,6 @@ def check_sdl_sees_a_gamecontroller_with_rumble() -> dict:
     assert done["rumble"], f"SDL could not rumble: {done}"
     assert any(line.startswith("uploaded effect") and "FF_RUMBLE" in line for line in said), said
     assert any(line.startswith("play effect") for line in said), said
-    return {**done, "pad_said": said[:6], "requests_answered": effects}
+    assert any(f.kind == "rumble" and f.strong > 0 and f.source == "uinput pad" for f in forwarded), forwarded
+    assert any(line.startswith("rumble (the gel has no motor): strong") for line in told), told
+    return {**done, "pad_said": said[:6], "requests_answered": effects, "run_said": told[:4]}

@@ -9,8 +9,14 @@ and desktops do not apply the keyboard layout to it), never KEY_SYSRQ, and write
 :attr:`ControllerState.keys` it offers; :class:`VirtualMouse` has BTN_LEFT and REL_X/REL_Y (what
 makes a mouse for udev) plus the buttons and wheels given (a wheel with its hi-res code, 120 per
 detent, kernel 5.0+), and writes its buttons in :attr:`ControllerState.keys` and the motion in
-:attr:`ControllerState.rel`. :class:`UinputOutputs` puts the pad and these together behind the
-one ``write`` / ``neutralise`` / ``close`` an output has. The pad too is made only when a profile
+:attr:`ControllerState.rel`. Each is a :class:`~neurotouch_hid.stages.Target` (the keyboard and
+mouse get nothing back: no ``fileno``). :class:`UinputOutputs` puts the pad and these together as
+one :class:`~neurotouch_hid.stages.Target` (written to through
+:class:`~neurotouch_hid.targets.TargetOutputs`, the run's one output path), so that a chord is
+written in order across them. :class:`UinputDesktop` is the keyboard and mouse alone beside a HID
+output (``run --output hid``: the joystick goes to UHID), or a plain "not sent" where uinput
+cannot be used (no /dev/uinput, no permission, python-evdev not installed), said once per
+profile that uses them. The pad too is made only when a profile
 uses it (:attr:`~neurotouch_hid.mapping.profile.Profile.uses_pad`: a mapping or a merged device
 drives a pad control), released and centred, so that a mouse or keyboard profile does not take
 a player slot from a real pad; once made it stays for the run (games keep their handle).
@@ -32,13 +38,14 @@ import logging
 import threading
 from typing import TYPE_CHECKING, Callable, Iterable, TypeVar
 
-from neurotouch_hid.controller import MOUSE_BUTTONS, MOUSE_REL, ControllerState
+from neurotouch_hid.controller import MOUSE_BUTTONS, MOUSE_REL, ControllerState, Feedback
 from neurotouch_hid.errors import DeviceError
-from neurotouch_hid.output.gamepad import NeutralOnClose, VirtualGamepad, create_uinput
+from neurotouch_hid.extras import MissingExtraError, require
+from neurotouch_hid.targets.closing import NeutralOnClose
+from neurotouch_hid.targets.uinput.gamepad import VirtualGamepad, create_uinput
 
 if TYPE_CHECKING:
     from neurotouch_hid.mapping.profile import Profile
-    from neurotouch_hid.stages import WindowRecord
 
 log = logging.getLogger(__name__)
 
@@ -150,6 +157,18 @@ class _UinputDevice(NeutralOnClose):
         """Release every key and button."""
         self._emit(frozenset(), {})
 
+    def prepare(self, profile: Profile) -> None:
+        """Nothing: what the device offers is fixed when it is made (:class:`UinputOutputs`
+        replaces one that lacks what a profile needs)."""
+
+    def fileno(self) -> int | None:
+        """None: a keyboard and a mouse get nothing back from games."""
+        return None
+
+    def feedback(self) -> list[Feedback]:
+        """Nothing (never called: :meth:`fileno` is None)."""
+        return []
+
     def _destroy(self) -> None:
         self._ui.close()
 
@@ -199,7 +218,7 @@ D = TypeVar("D", bound=_UinputDevice)
 
 
 class UinputOutputs:
-    """The pad, the keyboard and the mouse a profile uses, as one output.
+    """The pad, the keyboard and the mouse a profile uses, as one :class:`~neurotouch_hid.stages.Target`.
 
     ``write(state)`` writes each device's part; :meth:`neutralise` and :meth:`close` act on all
     (the pad last on close, so a game sees its release even if another device fails).
@@ -207,11 +226,11 @@ class UinputOutputs:
     needs, or replaces a keyboard or mouse that lacks some of its keys or buttons; the pad is never
     replaced (``pad``: one made already, kept whatever the profile), and the keyboard and mouse
     offer from the start what the ``known`` profiles use, so that switching between them keeps
-    every device (programs keep their handles).
+    every device (programs keep their handles). Its readable side is the pad's (force feedback;
+    :meth:`fileno` changes from None when :meth:`prepare` makes the pad).
     """
 
-    #: Draws no markers (:class:`~neurotouch_hid.stages.Subscriber`).
-    wants_markers = False
+    what = "uinput pad, keyboard and mouse"
 
     def __init__(
         self,
@@ -283,11 +302,13 @@ class UinputOutputs:
             device.close()
         return make(offered | needed, self._devnode)
 
-    def publish(self, record: WindowRecord) -> None:
-        """A window's record (:class:`~neurotouch_hid.stages.Subscriber`): each device's part of
-        its state written when the state changed."""
-        if record.state_changed:
-            self.write(record.state)
+    def fileno(self) -> int | None:
+        """The pad's descriptor (force-feedback requests), None while there is no pad."""
+        return self.pad.fileno() if self.pad is not None else None
+
+    def feedback(self) -> list[Feedback]:
+        """The pad's force-feedback requests answered, its rumble returned (:meth:`VirtualGamepad.feedback`)."""
+        return self.pad.feedback() if self.pad is not None else []
 
     def write(self, state: ControllerState) -> None:
         releasing = self.keyboard is not None and self.keyboard.lets_go(state)
@@ -313,3 +334,86 @@ class UinputOutputs:
 
     def __exit__(self, *exc_info) -> None:
         self.close()
+
+
+class UinputDesktop:
+    """The uinput keyboard and mouse the profiles use, or a plain "not sent" when uinput cannot be used.
+
+    Args:
+        profile: the profile mapping now (its keyboard and mouse are made at once).
+        known: every profile the run may switch to (the devices offer what they use from the
+            start, so a switch keeps them).
+        say: one line for the user (what is not sent, and why).
+        devnode: the uinput node.
+        phys: the camera's (``neurotouch-hid/SERIAL``): the keyboard's and mouse's prefix
+            (None: their own, ``neurotouch-hid/keyboard`` and ``/mouse``).
+    """
+
+    what = "uinput keyboard and mouse"
+
+    def __init__(
+        self,
+        profile: Profile,
+        known: Iterable[Profile] = (),
+        say: Callable[[str], None] = log.warning,
+        devnode: str = "/dev/uinput",
+        phys: str | None = None,
+    ) -> None:
+        self.say = say
+        self._phys = phys
+        self.outputs: UinputOutputs | None = None
+        self.unavailable: str | None = None  # why uinput cannot be used, once found
+        self._known = list(known)
+        self._devnode = devnode
+        self._told: set[str] = set()
+        self.prepare(profile)
+
+    def prepare(self, profile: Profile) -> None:
+        """Make the keyboard and mouse ``profile`` uses (on the first profile that uses one), or
+        say once per such profile that they are not sent."""
+        if not (profile.keyboard_keys or profile.mouse_outputs):
+            return
+        if self.outputs is None and self.unavailable is None:
+            try:
+                require("uinput", "the uinput keyboard and mouse")
+            except MissingExtraError as exc:
+                self.unavailable = str(exc)
+            else:
+                # no pad: the joystick is another target's (UinputOutputs skips a missing device)
+                self.outputs = UinputOutputs(None, None, self._devnode, known=self._known, phys=self._phys)  # type: ignore[arg-type]
+        if self.outputs is not None:
+            try:
+                self.outputs.prepare(profile)
+                return
+            except DeviceError as exc:
+                self.unavailable = str(exc).splitlines()[0]
+        what = " and ".join(
+            n for n, used in (("keyboard", profile.keyboard_keys), ("mouse", profile.mouse_outputs)) if used
+        )
+        line = f"the profile's {what} outputs are not sent: {self.unavailable} (see `neurotouch-hid doctor`)"
+        if line not in self._told:
+            self._told.add(line)
+            self.say(line)
+
+    def write(self, state: ControllerState) -> None:
+        """The keys and mouse motion of ``state`` to the devices there are."""
+        if self.outputs is not None:
+            self.outputs.write(state)
+
+    def neutralise(self) -> None:
+        """Release every key and button."""
+        if self.outputs is not None:
+            self.outputs.neutralise()
+
+    def fileno(self) -> int | None:
+        """None: a keyboard and a mouse get nothing back."""
+        return None
+
+    def feedback(self) -> list[Feedback]:
+        """Nothing (never called: :meth:`fileno` is None)."""
+        return []
+
+    def close(self) -> None:
+        """Release and remove the devices."""
+        if self.outputs is not None:
+            self.outputs.close()

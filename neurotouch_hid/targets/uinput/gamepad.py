@@ -4,15 +4,17 @@ Layout (docs/architecture.md, :mod:`neurotouch_hid.controller`): sticks ABS_X/Y/
 -32768..32767 (flat 128 like the kernel's xpad driver, but fuzz 0, see :data:`STICK_FUZZ`), triggers ABS_Z/RZ in 0..255,
 d-pad ABS_HAT0X/Y in -1..1, and the 11 buttons BTN_SOUTH .. BTN_THUMBR. Nothing mouse- or
 touch-like, so udev classes it as a joystick (ID_INPUT_JOYSTICK=1) and SDL as a GameController.
-Like xpad it advertises force feedback ``FF_RUMBLE`` (Wine and SDL offer rumble only then): a
-thread answers every effect upload and erase at once (the kernel blocks the game's EVIOCSFF
-until uinput answers) and reports uploads and plays to ``on_effect`` -- the gel has no motor --
-and each rumble played or stopped to ``on_feedback`` as a :class:`~neurotouch_hid.stages.Feedback`
-(the copilot plays it on a merged pad that can rumble).
+Like xpad it advertises force feedback ``FF_RUMBLE`` (Wine and SDL offer rumble only then). The
+pad is a :class:`~neurotouch_hid.stages.Target`: its uinput descriptor (:meth:`VirtualGamepad.fileno`)
+is readable when a game uploads, erases or plays an effect, and :meth:`VirtualGamepad.feedback`,
+called then by the run's one feedback path (:class:`~neurotouch_hid.targets.TargetOutputs`),
+answers every upload and erase at once (the kernel blocks the game's EVIOCSFF until uinput
+answers) and returns each rumble played or stopped as a :class:`~neurotouch_hid.stages.Feedback`
+(said to the user -- the gel has no motor -- and played on the merged pads that can rumble).
 By default it presents itself as "Microsoft X-Box 360 pad", USB 045e:028e version 0x0114: the ids
 SDL's controller database maps without configuration.
 
-The device is made when a profile first drives it (``output/desktop.py``) and kept for the rest
+The device is made when a profile first drives it (``targets/uinput/desktop.py``) and kept for the rest
 of the run (a profile switch calls :meth:`VirtualGamepad.neutralise`, not a new device: games
 keep their handle). The runtime owns
 signal handling; on SIGTERM/SIGINT it must call :meth:`VirtualGamepad.close`, which centres every
@@ -25,21 +27,20 @@ from __future__ import annotations
 
 import logging
 import os
-import select
 import threading
 import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable
 
-from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
+from neurotouch_hid.controller import AXES, BUTTONS, ControllerState, Feedback
 from neurotouch_hid.errors import DeviceError
-from neurotouch_hid.udev import char_device_problem, uinput_help
+from neurotouch_hid.targets.closing import NeutralOnClose
+from neurotouch_hid.udev import uinput_help, uinput_problem
 
 if TYPE_CHECKING:
     from evdev import UInput
 
     from neurotouch_hid.mapping.profile import Profile
-    from neurotouch_hid.stages import Feedback, WindowRecord
 
 #: ``phys`` of every device we create; the udev rule tags devices with it ID_NEUROTOUCH_VIRTUAL=1.
 PHYS = "neurotouch-hid/gamepad"
@@ -50,12 +51,11 @@ PHYS = "neurotouch-hid/gamepad"
 STICK_FUZZ = 0
 #: Stick dead band hint for games (what xpad reports).
 STICK_FLAT = 128
-#: Pause between the neutral report and destroying the device in :meth:`VirtualGamepad.close`:
-#: once a device is gone, evdev answers a reader's read() with ENODEV and drops what it had not
-#: read yet, so a game polling every frame must get the chance to read the release.
-RELEASE_GRACE_S = 0.05
-#: The same force-feedback report (e.g. "play effect 0") is passed to ``on_effect`` at most this often (s).
+#: The same force-feedback line (e.g. "play effect 0") is passed to ``on_effect`` at most this often (s).
 EFFECT_REPEAT_S = 1.0
+#: Most events read from the pad in one :meth:`VirtualGamepad.feedback` call (the rest wait for
+#: the next: the descriptor stays readable).
+MAX_FF_EVENTS = 64
 #: Force-feedback effects the pad keeps at once (xpad's memless force feedback: FF_MEMLESS_EFFECTS).
 MAX_EFFECTS = 16
 _STICKS = ("ABS_X", "ABS_Y", "ABS_RX", "ABS_RY")
@@ -99,13 +99,6 @@ def create_uinput(what: str, capabilities: dict, devnode: str = "/dev/uinput", *
         raise DeviceError(
             f"the kernel refused to create the virtual {what} on {devnode}: {exc}\n" + uinput_help()
         ) from None
-
-
-def uinput_problem(devnode: str = "/dev/uinput") -> str | None:
-    """Why ``devnode`` cannot be used to create a gamepad (missing, not a character device, not
-    readable and writable by this process), or None when it can
-    (:func:`neurotouch_hid.udev.char_device_problem` for the uinput module)."""
-    return char_device_problem(devnode, "uinput")
 
 
 def capabilities() -> dict[int, list]:
@@ -181,32 +174,14 @@ def _begin_ff_request(ui, kind: str, request_id: int):
     return request
 
 
-class NeutralOnClose:
-    """``close()`` for a uinput device: neutralise it, wait :data:`RELEASE_GRACE_S` so readers
-    see the release, then ``_destroy()`` it. Idempotent; never leaves a key, button or axis held,
-    even if neutralising fails. Subclasses set ``_lock`` (an RLock) and ``_closed`` and define ``neutralise()`` and
-    ``_destroy()``."""
-
-    _lock: threading.RLock
-    _closed: bool
-
-    def close(self) -> None:
-        with self._lock:
-            if self._closed:
-                return
-            try:
-                self.neutralise()
-                time.sleep(RELEASE_GRACE_S)
-            finally:
-                self._closed = True
-                self._destroy()
-
-
 class VirtualGamepad(NeutralOnClose):
-    """A uinput gamepad (Xbox 360 layout) that mirrors :class:`ControllerState` values.
+    """A uinput gamepad (Xbox 360 layout) that mirrors :class:`ControllerState` values, as a
+    :class:`~neurotouch_hid.stages.Target`.
 
     Use as a context manager, or call :meth:`close`. Thread-safe: :meth:`close` may be called
-    from a signal handler or another thread while :meth:`write` runs.
+    from a signal handler or another thread while :meth:`write` runs. ``on_effect`` is told each
+    upload, erase and play, one line each (the same line at most once per
+    :data:`EFFECT_REPEAT_S`; default: the debug log).
 
     Raises:
         DeviceError: ``devnode`` (default /dev/uinput) is missing, not a character device or not
@@ -220,11 +195,11 @@ class VirtualGamepad(NeutralOnClose):
         devnode: str = "/dev/uinput",
         *,
         on_effect: Callable[[str], None] | None = None,
-        on_feedback: Callable[[Feedback], None] | None = None,
     ) -> None:
         self.identity = identity or GamepadIdentity()
-        self.on_effect = on_effect or (lambda line: log.info("rumble (the gel has no motor): %s", line))
-        self.on_feedback = on_feedback
+        self.what = "uinput pad"
+        self.on_effect = on_effect or (lambda line: log.debug("rumble (the gel has no motor): %s", line))
+        self._said, self._said_at = "", 0.0  # a game replaying one effect every frame is told once a second
         self._rumbles: dict[int, tuple[int, int, int]] = {}  # effect id -> (strong, weak 0..65535, length ms)
         if not 0 < len(self.identity.name.encode()) <= _NAME_MAX:
             raise DeviceError(f"gamepad name {self.identity.name!r} must be 1..{_NAME_MAX} bytes long")
@@ -247,26 +222,32 @@ class VirtualGamepad(NeutralOnClose):
         self._last: ControllerState | None = None
         self._closed = False
         self.effects = 0  # force-feedback requests answered (uploads, erases, plays)
-        self._ff_stop = threading.Event()
         self.write(ControllerState.neutral())
-        self._ff_thread = threading.Thread(target=self._answer_force_feedback, name="nt-rumble", daemon=True)
-        self._ff_thread.start()
 
-    def _answer_force_feedback(self) -> None:
-        """Thread: answer EV_UINPUT upload/erase requests at once (success), report plays (an
-        ``on_effect`` that fails is logged: the next request is answered all the same)."""
+    def fileno(self) -> int | None:
+        """The uinput descriptor: readable when a game uploads, erases or plays an effect (None
+        once closed)."""
+        return None if self._closed else self._ui.fd
+
+    def feedback(self) -> list[Feedback]:
+        """Read the force-feedback requests waiting (at most :data:`MAX_FF_EVENTS`, non-blocking),
+        answer every upload and erase at once (success: the kernel blocks the game's EVIOCSFF until
+        then, Documentation/input/uinput.rst), and return each rumble played or stopped as a
+        ``"rumble"`` :class:`~neurotouch_hid.stages.Feedback` (magnitudes 0..1, the game's effect id;
+        a stop, or an erase, has both 0). An ``on_effect`` that fails is logged: the next request
+        is answered all the same."""
         from evdev import UInputError, ecodes
 
-        fd = self._ui.fd
-        said, said_at = "", 0.0  # a game replaying one effect every frame is reported once a second
-        while not self._ff_stop.is_set():
+        received: list[Feedback] = []
+        with self._lock:
+            if self._closed:
+                return received
             try:
-                ready, _, _ = select.select([fd], [], [], 0.1)
-                if not ready:
-                    continue
-                events = list(self._ui.read())
-            except (OSError, ValueError):  # the device is being closed
-                return
+                events = [ev for ev, _ in zip(self._ui.read(), range(MAX_FF_EVENTS))]
+            except BlockingIOError:
+                return received
+            except OSError as exc:
+                raise DeviceError(f"reading the virtual gamepad's force-feedback requests failed: {exc}") from None
             for ev in events:
                 try:
                     if ev.type == ecodes.EV_UINPUT and ev.code == ecodes.UI_FF_UPLOAD:
@@ -275,29 +256,37 @@ class VirtualGamepad(NeutralOnClose):
                         line = "uploaded " + describe_effect(upload.effect)
                         self._remember_rumble(upload.effect)
                         self._ui.end_upload(upload)
+                        request = None
                     elif ev.type == ecodes.EV_UINPUT and ev.code == ecodes.UI_FF_ERASE:
                         erase = _begin_ff_request(self._ui, "erase", ev.value)
                         erase.retval = 0
                         line = f"erased effect {erase.effect_id}"
                         self._ui.end_erase(erase)
-                        self._forward_rumble(erase.effect_id, 0)  # an erased effect plays no more
+                        request = self._rumble_of(erase.effect_id, 0)  # an erased effect plays no more
                         self._rumbles.pop(erase.effect_id, None)
                     elif ev.type == ecodes.EV_FF and ev.code < MAX_EFFECTS:
                         line = f"{'play' if ev.value else 'stop'} effect {ev.code}"
-                        self._forward_rumble(ev.code, ev.value)
+                        request = self._rumble_of(ev.code, ev.value)
                     else:
                         continue
                 except (OSError, UInputError) as exc:
                     log.warning("could not answer a force-feedback request: %s", exc)
                     continue
                 self.effects += 1
-                now = time.monotonic()
-                if line != said or now - said_at >= EFFECT_REPEAT_S:
-                    said, said_at = line, now
-                    try:  # the game's next request must still be answered
-                        self.on_effect(line)
-                    except Exception as exc:
-                        log.warning("could not report a force-feedback request (%s): %s", line, exc)
+                if request is not None:
+                    received.append(request)
+                self._tell(line)
+        return received
+
+    def _tell(self, line: str) -> None:
+        now = time.monotonic()
+        if line == self._said and now - self._said_at < EFFECT_REPEAT_S:
+            return
+        self._said, self._said_at = line, now
+        try:  # the game's next request must still be answered
+            self.on_effect(line)
+        except Exception as exc:
+            log.warning("could not report a force-feedback request (%s): %s", line, exc)
 
     def _remember_rumble(self, effect) -> None:
         """An uploaded effect (python-evdev ``ff.Effect``): a rumble's magnitudes and length kept
@@ -310,23 +299,15 @@ class VirtualGamepad(NeutralOnClose):
         else:
             self._rumbles.pop(effect.id, None)
 
-    def _forward_rumble(self, effect_id: int, value: int) -> None:
-        """A play (``value`` > 0, the repeat count) or stop (0) of effect ``effect_id``, handed to
-        ``on_feedback`` as a ``"rumble"`` :class:`~neurotouch_hid.stages.Feedback` (magnitudes
-        0..1; a stop has both 0); nothing for an effect that is no rumble. Its failure is logged."""
+    def _rumble_of(self, effect_id: int, value: int) -> Feedback | None:
+        """A play (``value`` > 0, the repeat count) or stop (0) of effect ``effect_id`` as a
+        ``"rumble"`` :class:`~neurotouch_hid.stages.Feedback` (magnitudes 0..1; a stop has both 0);
+        None for an effect that is no rumble."""
         rumble = self._rumbles.get(effect_id)
-        if self.on_feedback is None or rumble is None:
-            return
-        from neurotouch_hid.stages import Feedback
-
+        if rumble is None:
+            return None
         strong, weak, length = rumble if value > 0 else (0, 0, 0)
-        request = Feedback(
-            "rumble", strong / 0xFFFF, weak / 0xFFFF, length or None, source="uinput pad", effect=effect_id
-        )
-        try:
-            self.on_feedback(request)
-        except Exception as exc:  # the game's request is answered whatever a merged pad does
-            log.warning("could not forward a rumble: %s", exc)
+        return Feedback("rumble", strong / 0xFFFF, weak / 0xFFFF, length or None, source=self.what, effect=effect_id)
 
     @property
     def device_path(self) -> str | None:
@@ -334,22 +315,13 @@ class VirtualGamepad(NeutralOnClose):
         device = self._ui.device
         return device.path if device is not None else None
 
-    #: Draws no markers (:class:`~neurotouch_hid.stages.Subscriber`).
-    wants_markers = False
-
     @property
     def closed(self) -> bool:
         return self._closed
 
     def prepare(self, profile: Profile) -> None:
         """Nothing to get ready: the pad's layout is the same for every profile, and its name and ids
-        stay those it was created with (games keep their handle) (:class:`~neurotouch_hid.stages.Subscriber`)."""
-
-    def publish(self, record: WindowRecord) -> None:
-        """A window's record (:class:`~neurotouch_hid.stages.Subscriber`): its state written when
-        it changed."""
-        if record.state_changed:
-            self.write(record.state)
+        stay those it was created with (games keep their handle)."""
 
     def write(self, state: ControllerState) -> None:
         """Write the axes and buttons that changed since the last write, then one SYN_REPORT.
@@ -378,9 +350,8 @@ class VirtualGamepad(NeutralOnClose):
         self.write(ControllerState.neutral())
 
     def _destroy(self) -> None:
-        """Stop the force-feedback thread, then destroy the uinput device."""
-        self._ff_stop.set()
-        self._ff_thread.join(1.0)
+        """Destroy the uinput device (a game's request still waiting is answered by the kernel:
+        the device is gone)."""
         self._ui.close()
 
     def __enter__(self) -> "VirtualGamepad":
