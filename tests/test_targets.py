@@ -183,3 +183,25 @@ def test_a_device_made_at_prepare_is_read_from_then_on():
         os.write(late.write_fd, b"r")
         assert _until(lambda: forwarded)
     assert forwarded[0].source == "uinput pad"
+
+
+def test_feedback_lines_are_bounded_per_source_with_a_count_of_those_held_back():
+    """A game rumbling every frame with new magnitudes: one line a second per target, the next
+    saying how many were held back; another target's lines are not held back by the first's."""
+    from neurotouch_hid.targets import FeedbackLines
+
+    now = [0.0]
+    said: list[str] = []
+    lines = FeedbackLines(said.append, repeat_s=1.0, clock=lambda: now[0])
+    for frame in range(100):  # 100 frames in 0.99 s, each a new magnitude
+        now[0] = frame / 100
+        lines.tell(Feedback("rumble", strong=(frame + 1) / 100, source="uinput pad"))
+        if frame == 50:
+            lines.tell(Feedback("led", led=2, source="xinput"))
+    now[0] = 1.0
+    lines.tell(Feedback("rumble", source="uinput pad"))
+    assert said == [
+        "rumble (the gel has no motor): strong 0.01 weak 0.00, on uinput pad",
+        "player LED (the gel has none): pattern 2, on xinput",
+        "rumble (the gel has no motor): stop, on uinput pad (99 more since the last line)",
+    ]

@@ -18,6 +18,7 @@ rumble). The wire formats are :mod:`neurotouch_hid.targets.reports`; docs/archit
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import os
 import selectors
@@ -33,8 +34,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-#: The same feedback line is told to the user at most this often (s): a game may send its rumble
-#: every frame (the uinput pad's rule, ``targets.uinput.gamepad.EFFECT_REPEAT_S``).
+#: Feedback lines of one source are told to the user at most this often (s): a game may send its
+#: rumble every frame, with new magnitudes each time (:class:`FeedbackLines`).
 FEEDBACK_REPEAT_S = 1.0
 
 
@@ -62,14 +63,48 @@ def describe_feedback(feedback: Feedback) -> str:
     return f"{feedback.kind} (not handled){where}"
 
 
+class FeedbackLines:
+    """The user's lines about feedback, bounded: per source (the target that received it), at most
+    one line per ``repeat_s``; the lines held back meanwhile are counted, and the next line of that
+    source says how many (``... (3 more since the last line)``). So a game that rumbles every frame
+    gives a line a second, not a hundred, whatever the magnitudes.
+
+    Args:
+        say: where a line goes.
+        repeat_s: the least time between two lines of one source (s).
+        clock: the time (s), ``time.monotonic`` by default (a test's own).
+    """
+
+    def __init__(
+        self,
+        say: Callable[[str], None],
+        repeat_s: float = FEEDBACK_REPEAT_S,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.say, self.repeat_s, self.clock = say, repeat_s, clock
+        self._told: dict[str, tuple[float, int]] = {}  # source -> (when its last line was said, lines held back)
+
+    def tell(self, feedback: Feedback) -> None:
+        """Say ``feedback`` (:func:`describe_feedback`) unless its source had a line less than
+        ``repeat_s`` ago (then it is counted). Raises what ``say`` raises (counted as said)."""
+        now, source = self.clock(), feedback.source
+        said_at, held = self._told.get(source, (None, 0))
+        if said_at is not None and now - said_at < self.repeat_s:
+            self._told[source] = (said_at, held + 1)
+            return
+        self._told[source] = (now, 0)
+        line = describe_feedback(feedback)
+        self.say(line if not held else f"{line} ({held} more since the last line)")
+
+
 class TargetOutputs:
     """The run's targets as one :class:`~neurotouch_hid.stages.Subscriber`.
 
     Args:
         targets: the devices, in the order they are written; at least one. They are owned from
             here on: :meth:`close` closes them (also when this constructor fails).
-        say: one line for the user per feedback (:func:`describe_feedback`; the same line at most
-            once per :data:`FEEDBACK_REPEAT_S`); default: the log.
+        say: one line for the user per feedback (:func:`describe_feedback`; of one source at most
+            one per :data:`FEEDBACK_REPEAT_S`, :class:`FeedbackLines`); default: the log.
         forward: called with every :class:`~neurotouch_hid.stages.Feedback` too (e.g. the merged
             pads' rumble, :meth:`~neurotouch_hid.stages.Merge.feedback`), from the feedback thread.
 
@@ -188,7 +223,7 @@ class TargetOutputs:
         """Thread: sleep in select until a target's side is readable (or the wake-up pipe: stop),
         then let that target read it, and tell the user. A ``say`` or ``forward`` that fails is
         logged: the thread goes on reading every target."""
-        said, said_at = "", 0.0
+        lines = FeedbackLines(self.say)
         while True:
             try:
                 ready = self._selector.select()
@@ -213,18 +248,17 @@ class TargetOutputs:
                     self._watched.pop(index)
                     self._given_up.add(index)
                     continue
-                for feedback in received:
+                for feedback in received:  # a GET_REPORT, a driver binding: the targets must still be read
                     self.feedbacks += 1
-                    line = describe_feedback(feedback)
-                    now = time.monotonic()
-                    try:  # the targets' requests (a GET_REPORT, a driver binding) must still be read
-                        if line != said or now - said_at >= FEEDBACK_REPEAT_S:
-                            said, said_at = line, now
-                            self.say(line)
-                        if self.forward is not None:
-                            self.forward(feedback)
+                    try:
+                        lines.tell(feedback if feedback.source else dataclasses.replace(feedback, source=target.what))
                     except Exception as exc:
-                        log.warning("%s: could not tell or forward %r: %s", target.what, line, exc)
+                        log.warning("%s: could not tell %s: %s", target.what, feedback, exc)
+                    if self.forward is not None:
+                        try:
+                            self.forward(feedback)
+                        except Exception as exc:
+                            log.warning("%s: could not forward %s: %s", target.what, feedback, exc)
 
     def __enter__(self) -> TargetOutputs:
         return self
