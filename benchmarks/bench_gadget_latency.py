@@ -60,6 +60,7 @@ def measure(samples: int = 200, every_ms: float = 10.0) -> dict:
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.targets import TargetOutputs
     from neurotouch_hid.targets.gadget import UsbGadget, configfs
+    from neurotouch_hid.targets.protocols import PROTOCOLS
 
     for module in MODULES:
         subprocess.run(["modprobe", module], check=False, capture_output=True)
@@ -67,7 +68,8 @@ def measure(samples: int = 200, every_ms: float = 10.0) -> dict:
     configfs.remove()
     latencies, lost = [], 0
     with UsbGadget("hid", load_profile("default")) as gadget, TargetOutputs(gadget.targets) as outputs:
-        device = InputDevice(_joystick_node(configfs.HID_IDS[:2], 60.0))
+        hid = PROTOCOLS["hid"]
+        device = InputDevice(_joystick_node((hid.vendor, hid.product), 60.0))
         fcntl.ioctl(device.fd, EVIOCSCLOCKID, struct.pack("i", CLOCK_MONOTONIC))
         state = ControllerState.neutral()
         for i in range(samples):

@@ -385,7 +385,8 @@ def check_calibration() -> Check:
 
 def check_gadget() -> Check:
     """This machine can be a USB gadget for ``run --output usb`` (a UDC, configfs, libcomposite,
-    usb_f_hid, usb_f_fs: :mod:`neurotouch_hid.targets.gadget.support`); a warning when not (the
+    usb_f_hid, usb_f_fs: :mod:`neurotouch_hid.targets.gadget.support`), with what only some
+    protocols need (its notes: the ``xac`` protocol's polling interval); a warning when not (the
     uinput pad does not need it)."""
     from neurotouch_hid.targets.gadget.support import gadget_support
 
@@ -397,10 +398,11 @@ def check_gadget() -> Check:
         )
     set_up = f"gadget set up: {found.gadget}" if found.gadget else "no gadget set up yet"
     speaks = f"protocols: {', '.join(protocol_names('gadget'))}"
+    notes = "".join(f"; {note}" for note in found.notes)
     return Check(
         "USB gadget (--output usb)",
         OK,
-        f"UDC {', '.join(found.udcs)}; {modules}; {set_up}; {speaks}",
+        f"UDC {', '.join(found.udcs)}; {modules}; {set_up}; {speaks}{notes}",
         "\n".join(found.fixes),
     )
 

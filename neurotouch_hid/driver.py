@@ -163,7 +163,8 @@ def _open_usb(
     from neurotouch_hid.targets import TargetOutputs
     from neurotouch_hid.targets.gadget import UsbGadget, protocol_for
 
-    gadget = stack.enter_context(UsbGadget(protocol_for(protocol, profile), profile, serial=identity.usb_serial))
+    chosen = protocol_for(protocol, profile)
+    gadget = stack.enter_context(UsbGadget(chosen, profile, serial=identity.usb_serial, identity=identity))
     return stack.enter_context(TargetOutputs(gadget.targets, say=say, forward=on_feedback))
 
 

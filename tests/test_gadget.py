@@ -11,7 +11,7 @@ from helpers import fill_unread, wait_until
 
 from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.targets.gadget import configfs, functionfs
-from neurotouch_hid.targets.gadget.targets import XINPUT_ENDPOINTS
+from neurotouch_hid.targets.gadget.ffs import XINPUT_ENDPOINTS
 from neurotouch_hid.targets.gadget.writer import RESEND_S, ReportWriter
 
 
@@ -147,20 +147,72 @@ def test_writer_for_motion_keeps_every_report_in_order():
 @pytest.mark.parametrize(
     ("protocol", "ids", "functions", "ffs"),
     [
-        ("hid", (0x1D6B, 0x0104), [("usb0", "hid", 0, 0)], False),
-        ("switch", (0x0F0D, 0x00C1), [("usb0", "switch", 0, 0)], False),
-        ("xinput", (0x045E, 0x028E), [], True),
+        ("hid", (0x1D6B, 0x0104), [("usb0", "hid", 0, 0)], ""),
+        ("switch", (0x0F0D, 0x00C1), [("usb0", "switch", 0, 0)], ""),
+        ("xinput", (0x045E, 0x028E), [], "xinput"),
+        ("xac", (0x1D6B, 0x0104), [("usb0", "xac", 0, 0)], ""),
     ],
 )
 def test_plan(protocol, ids, functions, ffs):
     plan = configfs.plan(protocol)
-    assert (plan.vendor, plan.product) == ids and plan.ffs is ffs
+    assert (plan.vendor, plan.product) == ids and plan.ffs == ffs
     assert [(f.instance, f.format, f.subclass, f.protocol) for f in plan.hid] == functions
+    if protocol in ("xinput", "xac"):
+        return
     with_keys = configfs.plan(protocol, keyboard=True, mouse=True)
     assert [(f.instance, f.format, f.subclass, f.protocol) for f in with_keys.hid] == functions + [
         ("usb1", "keyboard", 1, 1),
         ("usb2", "mouse", 1, 2),
     ]
+
+
+@pytest.mark.parametrize(("keyboard", "mouse"), [(True, False), (False, True)])
+@pytest.mark.parametrize("protocol", ["xinput", "xac"])
+def test_an_xinput_or_xac_gadget_never_gets_a_keyboard_or_a_mouse(protocol, keyboard, mouse):
+    """Windows' XInput driver ignores a pad with other interfaces beside it, and the Adaptive
+    Controller a joystick with more in its device: the plan is refused, naming the protocol to use
+    instead."""
+    with pytest.raises(DeviceError, match="carries the pad alone.*use --protocol hid"):
+        configfs.plan(protocol, keyboard=keyboard, mouse=mouse)
+
+
+def test_the_switch_pad_has_64_byte_endpoints_and_the_xac_joystick_a_1_ms_interval():
+    """HORI's wired pads' 64-byte endpoints (f_hid: report_length), the Adaptive Controller's 1 ms."""
+    (switch,) = configfs.plan("switch").hid
+    (xac,) = configfs.plan("xac").hid
+    assert (switch.max_packet, switch.interval_ms) == (64, 0)
+    assert (xac.max_packet, xac.interval_ms) == (0, 1)
+
+
+def test_the_xac_and_hid_gadgets_share_ids_and_are_told_apart_by_their_release(tmp_path, monkeypatch):
+    for protocol in ("hid", "xac"):
+        plan = configfs.plan(protocol)
+        gadget = tmp_path / protocol
+        (gadget / "functions").mkdir(parents=True)
+        for attr, value in (("idVendor", plan.vendor), ("idProduct", plan.product), ("bcdDevice", plan.version)):
+            (gadget / attr).write_text(f"0x{value:04x}\n")
+    monkeypatch.setattr(configfs, "gadget_dir", lambda name=configfs.GADGET_NAME: tmp_path / name)
+    assert (configfs.protocol_of("hid"), configfs.protocol_of("xac")) == ("hid", "xac")
+
+
+def test_a_run_of_a_profile_with_keys_on_the_xinput_gadget_is_refused_before_any_gadget_is_made(monkeypatch):
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.targets.gadget import UsbGadget
+
+    monkeypatch.setattr(configfs, "create", lambda *a, **k: pytest.fail("a gadget was made"))
+    monkeypatch.setattr(configfs, "protocol_of", lambda *a, **k: "xinput")
+    with pytest.raises(DeviceError, match="presses keys or moves the pointer.*use --protocol hid"):
+        UsbGadget("xinput", load_profile("switch-access")).__enter__()
+
+
+def test_a_profile_with_keys_switched_to_on_the_xinput_gadget_is_told_to_use_hid(tmp_path):
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.targets.gadget import say_what_cannot_go
+
+    (tmp_path / "ffs.xinput").mkdir()
+    said = say_what_cannot_go(load_profile("switch-access"), tmp_path, "xinput")
+    assert len(said) == 1 and "use --protocol hid" in said[0]
+    assert say_what_cannot_go(load_profile("default"), tmp_path, "xinput") == []
 
 
 def test_plan_refuses_an_unknown_protocol():
@@ -390,3 +442,22 @@ def test_no_configfs_on_a_board_without_a_device_controller_says_the_board_first
     monkeypatch.setattr(configfs, "udcs", lambda: ["dummy_udc.0"])  # a board that has one: load and mount
     with pytest.raises(DeviceError, match="configfs or libcomposite is missing\nsudo modprobe libcomposite"):
         configfs.mount_configfs()
+
+
+@pytest.mark.parametrize(
+    ("release", "has"),
+    [("6.1.0-56-amd64", False), ("6.15.9", False), ("6.16.0-rc1", True), ("6.17.2+rpt-rpi-v8", True)],
+)
+def test_doctor_says_whether_the_hid_function_can_poll_every_1_ms(tmp_path, release, has):
+    """The xac protocol's 1 ms interval needs the hid function's ``interval`` attribute (Linux
+    6.16): known from a hid function of a gadget here, else from the kernel release."""
+    from neurotouch_hid.targets.gadget.support import hid_interval, protocol_notes
+
+    assert hid_interval(release, tmp_path)[0] is has
+    (note,) = protocol_notes(release, tmp_path)
+    assert ("cannot set its polling interval" in note) is not has
+    function = tmp_path / "neurotouch" / "functions" / "hid.usb0"
+    function.mkdir(parents=True)
+    assert hid_interval(release, tmp_path) == (False, f"seen in {function}")
+    (function / "interval").write_text("4\n")
+    assert hid_interval(release, tmp_path)[0] is True

@@ -96,3 +96,23 @@ def test_the_packaged_user_unit_runs_the_usb_output_in_its_sandbox(guest):
     assert f"--output usb --profile {details['profile']}" in details["cmdline"]  # service.env's choices
     assert sorted(details["result"]) == ["ExecMainStatus=0", "Result=success"]  # stopped in order
     assert details["last_report"] != details["held_report"]  # the guest checks it is the neutral one
+
+
+def test_switch_gadget_has_64_byte_endpoints_as_a_wired_hori_pad(guest):
+    """wMaxPacketSize 64 on both endpoints, as GP2040-CE's copy of HORI's descriptors has; the
+    rest of what the host read is recorded beside it (docs/any-host.md compares it)."""
+    usb = passed(guest, "checks_gadget.check_usb_switch")["usb"]
+    assert [e["wMaxPacketSize"] for e in usb["endpoints"]] == [64, 64]
+    assert usb["interfaces"] == [["03", "00", "00"]] and usb["configuration"]["bmAttributes"] == "80"
+
+
+def test_xac_gadget_is_one_joystick_function_read_as_the_documented_report(guest):
+    from neurotouch_hid.targets.reports.xac import XAC
+
+    details = passed(guest, "checks_gadget.check_usb_xac")
+    assert details["functions"] == ["hid.usb0"] and len(details["usb"]["interfaces"]) == 1
+    held = bytes.fromhex(details["held_report"])
+    assert held[0] == 255 and held[5] & 1  # X full right, button 1
+    assert details["last_report"] == XAC.neutral().hex()
+    # Debian 12's 6.1 has no interval attribute: doctor's note says so
+    assert details["interval"] is None and "cannot set its polling interval" in details["notes"][0]

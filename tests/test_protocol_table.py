@@ -29,6 +29,7 @@ GOLDEN: dict[str, tuple[str, str]] = {
         "0014000000000000000000000000000000000000",
         "0014081400ffff7fff7f00000000000000000000",
     ),
+    "xac": ("80808080080000", "ff008080020104"),
 }
 #: Per protocol: report id -> the feature report for :data:`SERIAL`'s identity, hex (id first).
 GOLDEN_FEATURES: dict[str, dict[int, str]] = {}
@@ -98,7 +99,7 @@ def test_rows_are_well_formed():
     for name, row in PROTOCOLS.items():
         assert row.name == name and row.summary and row.report.name in FORMATS
         assert row.transports <= set(TRANSPORTS) and row.gadget_function in GADGET_FUNCTIONS
-        assert by_ids(row.vendor, row.product) is row, "two rows with the same USB ids"
+        assert by_ids(row.vendor, row.product, row.bcd_device) is row, "two rows with the same USB ids and release"
         if "uhid" in row.transports:
             assert row.report.descriptor, name
     with pytest.raises(ValueError, match="transports"):
@@ -143,11 +144,14 @@ def test_the_gadget_plan_is_the_rows_ids_strings_and_function():
 
     for name in names("gadget"):
         row = PROTOCOLS[name]
-        plan = configfs.plan(name, keyboard=True)
+        plan = configfs.plan(name, keyboard=not row.alone)
         assert (plan.vendor, plan.product, plan.version) == (row.vendor, row.product, row.bcd_device)
         assert (plan.manufacturer, plan.product_name) == (row.manufacturer, row.product_name)
-        assert plan.ffs == (row.gadget_function == "xinput")
-        assert [h.format for h in plan.hid] == ([] if plan.ffs else [row.report.name]) + ["keyboard"]
+        assert plan.ffs == configfs.FFS_INSTANCES.get(row.gadget_function, "")
+        keyboard = [] if row.alone else ["keyboard"]
+        assert [h.format for h in plan.hid] == ([] if plan.ffs else [row.report.name]) + keyboard
+        if not plan.ffs:
+            assert (plan.hid[0].max_packet, plan.hid[0].interval_ms) == (row.max_packet or 0, row.interval_ms or 0)
 
 
 def test_doctor_names_the_protocols_each_transport_carries(monkeypatch):

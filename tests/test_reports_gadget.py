@@ -132,14 +132,14 @@ def test_the_xinput_out_endpoint_is_read_a_packet_at_a_time():
 
     from helpers import wait_until
 
-    from neurotouch_hid.targets.gadget.targets import XInputTarget
+    from neurotouch_hid.targets.gadget.ffs import XInputTarget
     from neurotouch_hid.targets.reports.xinput import XINPUT
 
     target = object.__new__(XInputTarget)
     read_end, write_end = os.pipe()
     target._out, target._closed, target.what, target.format = read_end, False, "x", XINPUT
     announced: list[Feedback] = []
-    target._announce = announced.append
+    target._announce = announced.extend
     reader = threading.Thread(target=target._read_out, daemon=True)
     reader.start()
     os.write(write_end, bytes.fromhex("0220") + bytes(30) + bytes.fromhex("0008 00 ff 80 000000"))

@@ -60,16 +60,16 @@ def setup(
         help=f"{protocol_help('gadget')} (docs/any-host.md)",
     ),
     user: Optional[str] = typer.Option(None, "--user", help="who may use the gadget (default: the user who ran sudo)"),
-    keyboard: bool = typer.Option(False, "--keyboard", help="add a USB keyboard (profiles that press keys)"),
-    mouse: bool = typer.Option(False, "--mouse", help="add a USB mouse (profiles that move the pointer)"),
+    keyboard: bool = typer.Option(False, "--keyboard", help="add a USB keyboard (keys; not with xinput, xac)"),
+    mouse: bool = typer.Option(False, "--mouse", help="add a USB mouse (the pointer; not with xinput, xac)"),
     serial: Optional[str] = typer.Option(
         None, "--serial", help="the camera whose pad this is: the gadget's USB serial number derives from it"
     ),
 ) -> None:
     """Make the USB gadget (configfs) and hand its device nodes to a user; as root.
 
-    The hid and switch gadgets are bound to the first USB device controller at once; the xinput
-    gadget binds when run --output usb has written its descriptors."""
+    The hid, switch and xac gadgets are bound to the first USB device controller at once; a
+    FunctionFS one (xinput, dualsense) binds when run --output usb has written its descriptors."""
     from neurotouch_hid.targets.gadget import configfs
     from neurotouch_hid.targets.identity import identity_for
 
@@ -104,7 +104,7 @@ def setup(
         console.print(f"{node}: {function.format}, mode 0600, owned by {whom}", highlight=False)
     if plan.ffs:
         console.print(
-            f"{configfs.FFS_ROOT / configfs.FFS_INSTANCE}: the XInput pad, mode 0600, owned by {whom}",
+            f"{configfs.FFS_ROOT / plan.ffs}: the {protocol} pad (FunctionFS), mode 0600, owned by {whom}",
             highlight=False,
         )
     console.print(

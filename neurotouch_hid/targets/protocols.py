@@ -26,6 +26,7 @@ from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.targets.reports import ReportFormat
 from neurotouch_hid.targets.reports.hid import HID_JOYSTICK
 from neurotouch_hid.targets.reports.switch import SWITCH
+from neurotouch_hid.targets.reports.xac import XAC
 from neurotouch_hid.targets.reports.xinput import VERSION as XINPUT_VERSION
 from neurotouch_hid.targets.reports.xinput import XINPUT
 
@@ -55,6 +56,8 @@ class ProtocolRow:
         max_packet: the interrupt endpoints' wMaxPacketSize (bytes); None: the input report's
             length.
         interval_ms: the interrupt endpoints' polling interval (ms); None: the function's default.
+        alone: why the protocol's gadget carries the pad alone, never a USB keyboard or mouse
+            beside it (a host that ignores a device with more); "" when they may join it.
     """
 
     name: str
@@ -70,6 +73,7 @@ class ProtocolRow:
     profile_ids: bool = False
     max_packet: int | None = None
     interval_ms: int | None = None
+    alone: str = ""
 
     def __post_init__(self) -> None:
         if not self.transports or not self.transports <= set(TRANSPORTS):
@@ -87,7 +91,7 @@ def _rows() -> list[ProtocolRow]:
     return [
         ProtocolRow(
             name="hid",
-            summary="a generic HID joystick: Windows, macOS, Linux, Android, the Xbox Adaptive Controller",
+            summary="a generic HID joystick: Windows, macOS, Linux, Android (Steam Input for XInput games)",
             report=HID_JOYSTICK,
             transports=frozenset({"uhid", "gadget"}),
             gadget_function="hid",
@@ -110,6 +114,9 @@ def _rows() -> list[ProtocolRow]:
             bcd_device=0x0100,
             manufacturer="HORI CO.,LTD.",
             product_name="HORIPAD S (NeuroTouch)",
+            # a wired HORI pad's 64-byte endpoints (GP2040-CE's SwitchDescriptors.h, which copies
+            # HORI's, github.com/OpenStickCommunity/GP2040-CE); its 8-byte report goes as it is
+            max_packet=64,
         ),
         ProtocolRow(
             name="xinput",
@@ -122,6 +129,23 @@ def _rows() -> list[ProtocolRow]:
             bcd_device=XINPUT_VERSION,
             manufacturer="Microsoft",
             product_name="Controller (NeuroTouch)",
+            # reported by ArduinoXInput's users (its tracker, github.com/dmadison/ArduinoXInput)
+            alone="Windows' XInput driver ignores an Xbox 360 pad with a keyboard or a mouse beside it",
+        ),
+        ProtocolRow(
+            name="xac",
+            summary="the joystick the Xbox Adaptive Controller takes on its side USB ports",
+            report=XAC,
+            transports=frozenset({"gadget"}),
+            gadget_function="hid",
+            # the Linux Foundation's (as hid's), a product of its own: a run finds the protocol by ids
+            vendor=0x1D6B,
+            product=0x0104,
+            bcd_device=0x0200,
+            manufacturer="neurotouch-hid",
+            product_name="NeuroTouch Adaptive Joystick",
+            interval_ms=1,
+            alone="the Xbox Adaptive Controller is reported to refuse a device with more than its joystick",
         ),
     ]
 
@@ -166,9 +190,8 @@ def protocol(name: str, transport: str | None = None) -> ProtocolRow:
     return row
 
 
-def by_ids(vendor: int, product: int) -> ProtocolRow | None:
-    """The row whose USB ids are ``vendor``:``product`` (a gadget found in configfs), or None."""
-    for row in PROTOCOLS.values():
-        if (row.vendor, row.product) == (vendor, product):
-            return row
-    return None
+def by_ids(vendor: int, product: int, bcd_device: int | None = None) -> ProtocolRow | None:
+    """The row whose USB ids are ``vendor``:``product`` (a gadget found in configfs) and, where two
+    rows share them, whose device release is ``bcd_device``; None when no row has them."""
+    found = [row for row in PROTOCOLS.values() if (row.vendor, row.product) == (vendor, product)]
+    return next((row for row in found if row.bcd_device == bcd_device), found[0] if found else None)

@@ -2,17 +2,22 @@
 
 A Linux board with a USB device-mode port (a UDC: a Raspberry Pi 4 or 5's USB-C port with
 ``dtoverlay=dwc2``) presents the controller to the host at the other end of the cable, in one
-of three protocols (docs/reports.md has their reports, docs/any-host.md the set-up):
+of the protocol table's protocols that run on a gadget (:mod:`neurotouch_hid.targets.protocols`;
+docs/reports.md has their reports, docs/any-host.md the hosts and the set-up), by the row's
+gadget function:
 
-* ``hid``: a generic USB HID joystick (``hid.usb0``), for Windows, macOS, Linux, Android and the
-  Xbox Adaptive Controller;
-* ``switch``: the HORIPAD-style pad a Nintendo Switch accepts (``hid.usb0``, HORI's ids);
-* ``xinput``: the Xbox 360 wired pad (``ffs.xinput``, FunctionFS), which Windows' XInput driver
-  and Linux's ``xpad`` bind to;
+* ``hid`` (the kernel's ``hid`` function, ``hid.usb0``, ``/dev/hidgN``): the generic joystick,
+  the HORIPAD-style Switch pad, the Adaptive Controller's joystick;
+* ``xinput`` (``ffs.xinput``, FunctionFS): the Xbox 360 wired pad, which Linux's ``xpad`` binds
+  to (:mod:`~neurotouch_hid.targets.gadget.ffs`);
+* ``ffs-hid`` (``ffs.pad``, FunctionFS): a HID interface that answers its host's requests itself,
+  for a protocol whose host reads feature reports (:mod:`~neurotouch_hid.targets.gadget.ffs`);
 
 plus a boot keyboard (``hid.usb1``) and a mouse (``hid.usb2``) in the same composite gadget when
 the profile uses keys or the mouse (an iPad's or an Android tablet's switch access takes a USB
-keyboard).
+keyboard), except beside a pad whose row says it goes alone (``xinput``, ``xac``: their hosts
+ignore a device with more): there a profile with keys or the pointer is refused, with the
+protocol to use instead.
 
 :class:`UsbGadget` opens a run's targets: it uses the gadget a privileged ``neurotouch-hid
 gadget setup`` made (:mod:`~neurotouch_hid.targets.gadget.configfs`), or, run as root with none
@@ -31,12 +36,14 @@ from typing import TYPE_CHECKING
 from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.guard import Guard
 from neurotouch_hid.targets.gadget import configfs
+from neurotouch_hid.targets.protocols import PROTOCOLS
 
 if TYPE_CHECKING:
     from pathlib import Path
 
     from neurotouch_hid.mapping.profile import Profile
     from neurotouch_hid.stages import Target
+    from neurotouch_hid.targets.identity import Identity
 
 log = logging.getLogger(__name__)
 
@@ -44,23 +51,35 @@ log = logging.getLogger(__name__)
 #: once the host's input device is gone, evdev drops what a game had not read yet (the uinput
 #: pad's RELEASE_GRACE_S).
 RELEASE_GRACE_S = 0.05
+#: What an ``xinput`` run says: FunctionFS cannot carry the 17-byte descriptor of type 0x21 that
+#: follows the FF/5D/01 interface of every XInput device Windows reads (``ffs_do_single_desc``
+#: takes a class descriptor after a HID, CCID or DFU interface only), and the projects that
+#: presented a 360 pad without it report that Windows binds its driver and reads no data.
+XINPUT_ON_WINDOWS = (
+    "the xinput pad is for Linux's xpad and SDL: Windows' own XInput driver will not read it from this board "
+    "(it lacks the 0x21 descriptor FunctionFS cannot carry); for Windows use --protocol hid with Steam Input"
+)
 #: Which hid function instance carries which report format, whatever the gadget's protocol.
 INSTANCES = {"usb1": "keyboard", "usb2": "mouse"}
 
 
-def say_what_cannot_go(profile: Profile, functions: Path) -> list[str]:
-    """Warn (the log) of what of ``profile`` the gadget (its configfs ``functions`` folder) cannot
-    carry to the host: keys with no keyboard function, the pointer or mouse buttons with no mouse
-    function, keys the boot keyboard's report has no usage for (docs/reports.md). Returns the
-    lines said."""
+def say_what_cannot_go(profile: Profile, functions: Path, protocol: str = "hid") -> list[str]:
+    """Warn (the log) of what of ``profile`` the gadget (its configfs ``functions`` folder, speaking
+    ``protocol``) cannot carry to the host: keys or the pointer beside a pad that goes alone (the
+    protocol table's ``alone``), keys with no keyboard function, the pointer or mouse buttons with
+    no mouse function, keys the boot keyboard's report has no usage for (docs/reports.md).
+    Returns the lines said."""
     from neurotouch_hid.targets.reports.keyboard import unrepresentable
 
     lines = []
-    if profile.uses_keyboard and not (functions / "hid.usb1").is_dir():
+    alone = protocol in PROTOCOLS and PROTOCOLS[protocol].alone
+    if alone and (profile.uses_keyboard or profile.uses_mouse):
+        lines.append(f"the profile presses keys or moves the pointer, but {configfs.alone(protocol)}")
+    elif profile.uses_keyboard and not (functions / "hid.usb1").is_dir():
         lines.append("the profile presses keys but the USB gadget has no keyboard: gadget setup --keyboard")
     elif profile.uses_keyboard and (dropped := unrepresentable(profile.keyboard_keys)):
         lines.append(f"the USB keyboard has no usage for {', '.join(dropped)}: the host gets nothing for them")
-    if profile.uses_mouse and not (functions / "hid.usb2").is_dir():
+    if profile.uses_mouse and not alone and not (functions / "hid.usb2").is_dir():
         lines.append("the profile moves the pointer or clicks but the USB gadget has no mouse: gadget setup --mouse")
     for line in lines:
         log.warning(line)
@@ -91,11 +110,22 @@ class UsbGadget:
     ``__enter__``; ``__exit__`` closes them (neutral first) and removes a gadget this run made.
 
     Raises (from ``__enter__``):
-        DeviceError: no gadget of this protocol and not root; no UDC; the nodes are not this user's.
+        DeviceError: no gadget of this protocol and not root; no UDC; the nodes are not this user's;
+            a profile with keys or the pointer on a protocol whose gadget carries the pad alone
+            (``xinput``, ``xac``: the protocol table's ``alone``).
     """
 
-    def __init__(self, protocol: str, profile: Profile, *, name: str = configfs.GADGET_NAME, serial: str | None = None):
+    def __init__(
+        self,
+        protocol: str,
+        profile: Profile,
+        *,
+        name: str = configfs.GADGET_NAME,
+        serial: str | None = None,
+        identity: Identity | None = None,
+    ):
         self.protocol = protocol
+        self.identity = identity  # the feature reports' (a DualSense's MAC); None: the default identity
         self.profile = profile
         self.name = name
         self.serial = serial or configfs.DEFAULT_USB_SERIAL  # iSerialNumber of a gadget this run makes
@@ -104,6 +134,8 @@ class UsbGadget:
         self._guard: Guard | None = None
 
     def __enter__(self) -> "UsbGadget":
+        if PROTOCOLS[self.protocol].alone and (self.profile.uses_keyboard or self.profile.uses_mouse):
+            raise DeviceError(f"the profile presses keys or moves the pointer, but {configfs.alone(self.protocol)}")
         found = configfs.protocol_of(self.name)
         if found is None:
             if os.geteuid() != 0:
@@ -127,14 +159,24 @@ class UsbGadget:
         return self
 
     def _open(self) -> None:
-        from neurotouch_hid.targets.gadget.targets import HidgTarget, XInputTarget
+        from neurotouch_hid.targets.gadget.ffs import HidInterfaceTarget, XInputTarget
+        from neurotouch_hid.targets.gadget.targets import HidgTarget
+        from neurotouch_hid.targets.identity import identity_for
         from neurotouch_hid.targets.protocols import protocol as protocol_row
         from neurotouch_hid.targets.reports import format_for
 
         functions = configfs.gadget_dir(self.name) / "functions"
         row = protocol_row(self.protocol, "gadget")
-        if row.gadget_function == "xinput":  # its descriptors first: the gadget binds only then
-            pad = XInputTarget(configfs.FFS_ROOT / configfs.FFS_INSTANCE, row.report)
+        # a FunctionFS function's descriptors first: the gadget binds only then
+        mount = configfs.FFS_ROOT / configfs.FFS_INSTANCES.get(row.gadget_function, "")
+        if row.gadget_function == "xinput":
+            log.warning(XINPUT_ON_WINDOWS)
+            self.targets.append(XInputTarget(mount, row.report))
+        elif row.gadget_function == "ffs-hid":
+            identity = self.identity or identity_for(None)
+            packet, interval = row.max_packet or row.report.report_length, row.interval_ms or 4
+            pad = HidInterfaceTarget(mount, row.report, identity, max_packet=packet, interval_ms=interval,
+                                     name=row.product_name)  # fmt: skip
             self.targets.append(pad)
         if not configfs.bound_udc(self.name):
             configfs.bind(self.name)
@@ -143,8 +185,8 @@ class UsbGadget:
             node = configfs.hidg_node(instance, self.name)
             self.targets.append(HidgTarget(node, fmt, f"USB gadget ({fmt.name}, {node})"))
         if self.targets:
-            self.targets[0].lacks = lambda profile: say_what_cannot_go(profile, functions)  # on each profile
-        say_what_cannot_go(self.profile, functions)
+            self.targets[0].lacks = lambda profile: say_what_cannot_go(profile, functions, self.protocol)  # each one
+        say_what_cannot_go(self.profile, functions, self.protocol)
         nodes = [target.guarded() for target in self.targets if isinstance(target, HidgTarget)]
         if nodes:
             try:

@@ -9,10 +9,11 @@ binds it to a USB device controller named in ``/sys/class/udc``), Documentation/
 ``/dev/hidgN`` node) and Documentation/usb/functionfs.rst (the ``ffs`` function: a FunctionFS
 mount named like the instance, whose ``ep0`` takes the descriptors).
 
-The gadget of a run is one composite device (:func:`plan`): the controller (``hid.usb0`` for the
-``hid`` and ``switch`` protocols, ``ffs.xinput`` for ``xinput``), and ``hid.usb1`` (boot keyboard)
-and ``hid.usb2`` (mouse) when the profile uses keys or the mouse. Its vendor and product ids say
-which protocol it speaks (:func:`protocol_of`), so that a run finds what a ``gadget setup`` made.
+The gadget of a run is one composite device (:func:`plan`): the controller (``hid.usb0`` for a
+protocol on the kernel's ``hid`` function, ``ffs.xinput`` for ``xinput``, ``ffs.pad`` for a HID
+interface on FunctionFS), and ``hid.usb1`` (boot keyboard) and ``hid.usb2`` (mouse) when the
+profile uses keys or the mouse. Its ids (and release, where two protocols share ids) say which
+protocol it speaks (:func:`protocol_of`), so that a run finds what a ``gadget setup`` made.
 
 Every attribute read from sysfs or configfs goes through :func:`read_attr`, at most
 :data:`MAX_ATTR_BYTES`.
@@ -21,6 +22,7 @@ Every attribute read from sysfs or configfs goes through :func:`read_attr`, at m
 from __future__ import annotations
 
 import errno
+import logging
 import os
 import subprocess
 import time
@@ -29,6 +31,8 @@ from pathlib import Path
 
 from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.targets.identity import DEFAULT_USB_SERIAL
+
+log = logging.getLogger(__name__)
 
 #: Where configfs keeps the gadgets, and the controllers' class in sysfs.
 CONFIGFS = Path("/sys/kernel/config")
@@ -55,18 +59,26 @@ UMOUNT_TRIES = 30
 class HidFunction:
     """One ``hid`` function of the gadget: its instance, report format name
     (:mod:`neurotouch_hid.targets.reports`), interface subclass (1: boot) and protocol (1
-    keyboard, 2 mouse, 0 none)."""
+    keyboard, 2 mouse, 0 none), its endpoints' wMaxPacketSize (bytes; 0: the format's report
+    length) and polling interval (``interval_ms``, written to the function's ``interval``
+    attribute where the kernel has it, Linux 6.16 and later; 0: the function's default, 10 ms at
+    full speed). f_hid makes both endpoints ``report_length`` bytes and sends each report as it is
+    written, so an 8-byte report on a 64-byte endpoint goes as one 8-byte packet
+    (Documentation/usb/gadget_hid.rst; drivers/usb/gadget/function/f_hid.c)."""
 
     instance: str
     format: str
     subclass: int = 0
     protocol: int = 0
+    max_packet: int = 0
+    interval_ms: int = 0
 
 
 @dataclass(frozen=True)
 class GadgetPlan:
-    """What a gadget is made of: ids, strings, its ``hid`` functions and whether it has the
-    XInput FunctionFS function."""
+    """What a gadget is made of: ids, strings, its ``hid`` functions and its FunctionFS function's
+    instance (``ffs``: ``xinput`` for the Xbox 360 pad, ``pad`` for a HID interface that answers
+    its host's requests itself, "" for none), mounted at ``FFS_ROOT/INSTANCE``."""
 
     protocol: str
     vendor: int
@@ -75,17 +87,23 @@ class GadgetPlan:
     manufacturer: str
     product_name: str
     hid: tuple[HidFunction, ...]
-    ffs: bool
+    ffs: str = ""
     #: iSerialNumber: the camera's (``targets.identity.Identity.usb_serial``), so a host tells
     #: two boards' pads apart and remembers each
     serial: str = DEFAULT_USB_SERIAL
 
 
+#: The FunctionFS instance of each gadget function carried by FunctionFS (the protocol table's
+#: ``gadget_function``): the Xbox 360 pad, and a HID interface that answers its host itself.
+FFS_INSTANCES = {"xinput": FFS_INSTANCE, "ffs-hid": "pad"}
+
+
 def plan(protocol: str, keyboard: bool = False, mouse: bool = False, serial: str = DEFAULT_USB_SERIAL) -> GadgetPlan:
     """The gadget for ``protocol`` (a row of :data:`~neurotouch_hid.targets.protocols.PROTOCOLS`
-    that runs on a gadget: its ids, strings and function), with a keyboard and a mouse function
-    when asked, and ``serial`` as its iSerialNumber. Raises DeviceError for an unknown protocol
-    or one that does not run on a gadget."""
+    that runs on a gadget: its ids, strings, function, endpoint size and interval), with a
+    keyboard and a mouse function when asked, and ``serial`` as its iSerialNumber. Raises
+    DeviceError for an unknown protocol or one that does not run on a gadget, and for a keyboard
+    or a mouse asked of a protocol whose gadget carries the pad alone (the row's ``alone``)."""
     from neurotouch_hid.errors import NeurotouchError
     from neurotouch_hid.targets.protocols import protocol as protocol_row
 
@@ -93,15 +111,29 @@ def plan(protocol: str, keyboard: bool = False, mouse: bool = False, serial: str
         row = protocol_row(protocol, "gadget")
     except NeurotouchError as exc:
         raise DeviceError(str(exc)) from None
+    if (keyboard or mouse) and row.alone:
+        raise DeviceError(alone(protocol))
     extra = []
     if keyboard:
         extra.append(HidFunction("usb1", "keyboard", subclass=1, protocol=1))
     if mouse:
         extra.append(HidFunction("usb2", "mouse", subclass=1, protocol=2))
     ids = (row.vendor, row.product, row.bcd_device, row.manufacturer, row.product_name)
-    if row.gadget_function == "xinput":
-        return GadgetPlan(protocol, *ids, tuple(extra), True, serial)
-    return GadgetPlan(protocol, *ids, (HidFunction("usb0", row.report.name), *extra), False, serial)
+    if row.gadget_function in FFS_INSTANCES:
+        return GadgetPlan(protocol, *ids, tuple(extra), FFS_INSTANCES[row.gadget_function], serial)
+    pad = HidFunction("usb0", row.report.name, max_packet=row.max_packet or 0, interval_ms=row.interval_ms or 0)
+    return GadgetPlan(protocol, *ids, (pad, *extra), "", serial)
+
+
+def alone(protocol: str) -> str:
+    """What a user is told who asks for a keyboard or a mouse beside a protocol whose gadget
+    carries the pad alone (the protocol table's ``alone``: why)."""
+    from neurotouch_hid.targets.protocols import PROTOCOLS
+
+    return (
+        f"a {protocol} gadget carries the pad alone, no USB keyboard or mouse ({PROTOCOLS[protocol].alone}): "
+        "for a profile that presses keys or moves the pointer, use --protocol hid"
+    )
 
 
 def read_attr(path: str | os.PathLike) -> str:
@@ -143,7 +175,8 @@ def udcs() -> list[str]:
 def protocol_of(name: str = GADGET_NAME) -> str | None:
     """The protocol of the gadget ``name``: ``xinput`` when it has the FunctionFS pad, else the row
     of :data:`~neurotouch_hid.targets.protocols.PROTOCOLS` with its ids (``idVendor``,
-    ``idProduct``), else ``hid``; None when there is no such gadget."""
+    ``idProduct``, ``bcdDevice`` where two rows share ids), else ``hid``; None when there is no
+    such gadget."""
     from neurotouch_hid.targets.protocols import by_ids
 
     folder = gadget_dir(name)
@@ -152,10 +185,19 @@ def protocol_of(name: str = GADGET_NAME) -> str | None:
     if (folder / "functions" / f"ffs.{FFS_INSTANCE}").is_dir():
         return "xinput"
     try:
-        row = by_ids(int(read_attr(folder / "idVendor"), 16), int(read_attr(folder / "idProduct"), 16))
+        ids = int(read_attr(folder / "idVendor"), 16), int(read_attr(folder / "idProduct"), 16)
+        row = by_ids(*ids, _release(folder))
     except (OSError, ValueError):
         row = None
     return "hid" if row is None else row.name
+
+
+def _release(folder: Path) -> int | None:
+    """The gadget's ``bcdDevice``, None when it cannot be read."""
+    try:
+        return int(read_attr(folder / "bcdDevice"), 16)
+    except (OSError, ValueError):
+        return None
 
 
 def bound_udc(name: str = GADGET_NAME) -> str:
@@ -225,12 +267,12 @@ def mount_configfs() -> None:
 
 def create(gadget: GadgetPlan, *, name: str = GADGET_NAME, uid: int = -1) -> Path:
     """Make the gadget in configfs (not bound: :func:`bind`), its ``hid`` functions with their
-    descriptors, the FunctionFS function mounted at ``FFS_ROOT/xinput`` (owned by ``uid`` when
+    descriptors, the FunctionFS function mounted at ``FFS_ROOT/INSTANCE`` (owned by ``uid`` when
     given; its folder mode 0500 and its files 0600, group root: the mount options ``rmode``,
     ``fmode`` of Documentation/usb/functionfs.rst), everything linked into configuration
     ``c.1``. The ``UDC`` file (configfs mode 0644) is handed to ``uid`` too, so that the user's run
-    can bind the XInput pad once its descriptors are written. Root only. Returns the gadget's
-    folder.
+    can bind a FunctionFS function once its descriptors are written. Root only. Returns the
+    gadget's folder.
 
     Raises:
         DeviceError: configfs is missing, a gadget of that name exists, or the kernel refused a
@@ -267,16 +309,25 @@ def create(gadget: GadgetPlan, *, name: str = GADGET_NAME, uid: int = -1) -> Pat
             function.mkdir()
             write_attr(function / "protocol", str(hid.protocol))
             write_attr(function / "subclass", str(hid.subclass))
-            write_attr(function / "report_length", str(fmt.report_length))
+            write_attr(function / "report_length", str(max(fmt.report_length, hid.max_packet)))
             write_attr(function / "report_desc", fmt.descriptor)
+            if hid.interval_ms and (function / "interval").exists():
+                write_attr(function / "interval", str(hid.interval_ms))
+            elif hid.interval_ms:
+                log.warning(
+                    "%s: this kernel's hid function has no interval attribute (Linux 6.16 and later): the host polls "
+                    "it at the function's default, not every %d ms",
+                    function,
+                    hid.interval_ms,
+                )
             functions.append(function)
         if gadget.ffs:
-            function = folder / "functions" / f"ffs.{FFS_INSTANCE}"
+            function = folder / "functions" / f"ffs.{gadget.ffs}"
             function.mkdir()
-            mount = FFS_ROOT / FFS_INSTANCE
+            mount = FFS_ROOT / gadget.ffs
             mount.mkdir(parents=True, exist_ok=True)
             options = ["rmode=0500", "fmode=0600", *([f"uid={uid}"] if uid >= 0 else [])]
-            cmd = ["mount", "-t", "functionfs", "-o", ",".join(options), FFS_INSTANCE]
+            cmd = ["mount", "-t", "functionfs", "-o", ",".join(options), gadget.ffs]
             subprocess.run([*cmd, str(mount)], check=True, capture_output=True)
             if uid >= 0:
                 os.chown(mount, uid, 0)

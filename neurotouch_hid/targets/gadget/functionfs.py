@@ -6,7 +6,9 @@ before anything else), and then gives the function's events (12 bytes each); ``e
 appear for the endpoints in the order the descriptors declare them. Written here rather than
 taken from the ``functionfs`` package (GPL-3.0+, and this project is MIT).
 
-Descriptors are USB 2.0 (chapter 9.6): interface, then endpoints; the same set for full and high
+Descriptors are USB 2.0 (chapter 9.6): interface, then a class descriptor where the class has one
+(HID's, HID 1.11 section 6.2.1: FunctionFS takes a class descriptor after an interface of the HID,
+CCID or DFU class only, ``ffs_do_single_desc``), then endpoints; the same set for full and high
 speed.
 """
 
@@ -52,13 +54,30 @@ def interface_descriptor(klass: tuple[int, int, int], endpoints: int, string_ind
     return struct.pack("<BBBBBBBBB", 9, 0x04, 0, 0, endpoints, *klass, string_index)
 
 
-def descriptors(klass: tuple[int, int, int], endpoints: tuple[Endpoint, ...]) -> bytes:
+#: HID class: interface class 3 (HID 1.11, 4.1); descriptor types HID 0x21 and Report 0x22 (7.1).
+HID_CLASS = (0x03, 0x00, 0x00)
+HID_DESCRIPTOR_TYPE, REPORT_DESCRIPTOR_TYPE = 0x21, 0x22
+#: bcdHID of the HID descriptor: HID 1.11.
+BCD_HID = 0x0111
+
+
+def hid_descriptor(report_descriptor_length: int) -> bytes:
+    """The 9-byte HID descriptor (HID 1.11, 6.2.1): bcdHID 1.11, no country code, one class
+    descriptor, the report descriptor of ``report_descriptor_length`` bytes."""
+    return struct.pack(
+        "<BBHBBBH", 9, HID_DESCRIPTOR_TYPE, BCD_HID, 0, 1, REPORT_DESCRIPTOR_TYPE, report_descriptor_length
+    )
+
+
+def descriptors(klass: tuple[int, int, int], endpoints: tuple[Endpoint, ...], class_descriptor: bytes = b"") -> bytes:
     """What is written first to ``ep0``: ``usb_functionfs_descs_head_v2`` (magic, length, flags),
-    the full- and high-speed counts, then each speed's interface and endpoint descriptors."""
+    the full- and high-speed counts, then each speed's interface, its ``class_descriptor`` (one
+    descriptor, e.g. :func:`hid_descriptor`; none when empty) and endpoint descriptors."""
     speeds = []
     for high in (False, True):
-        speeds.append(interface_descriptor(klass, len(endpoints)) + b"".join(e.descriptor(high) for e in endpoints))
-    count = 1 + len(endpoints)
+        head = interface_descriptor(klass, len(endpoints)) + class_descriptor
+        speeds.append(head + b"".join(e.descriptor(high) for e in endpoints))
+    count = 1 + bool(class_descriptor) + len(endpoints)
     body = struct.pack("<II", count, count) + b"".join(speeds)
     return struct.pack("<III", DESCRIPTORS_MAGIC_V2, 12 + len(body), HAS_FS_DESC | HAS_HS_DESC) + body
 

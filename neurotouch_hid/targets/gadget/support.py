@@ -6,6 +6,9 @@ OTG port, e.g. a Raspberry Pi 4 or 5's USB-C port with ``dtoverlay=dwc2``), conf
 ``/sys/module``; built in: ``modules.builtin``; loadable: ``modules.dep``, both in
 ``/lib/modules/RELEASE``). ``--output hid`` needs ``/dev/uhid`` readable and writable
 (Documentation/hid/uhid.rst). Each missing piece comes with a command that fixes it.
+
+What only some protocols need is said beside (``notes``): whether the kernel's ``hid`` function
+has the ``interval`` attribute (Linux 6.16 and later: the ``xac`` protocol's 1 ms polling).
 """
 
 from __future__ import annotations
@@ -23,6 +26,41 @@ MAX_MODULES_FILE = 16 * 1024 * 1024
 PI_MODEL = Path("/proc/device-tree/model")
 #: The UHID node.
 UHID = "/dev/uhid"
+#: The first kernel whose ``hid`` function has the ``interval`` attribute (configfs; the patch
+#: "usb: gadget: hid: allow dynamic interval configuration via configfs", Linux 6.16).
+HID_INTERVAL_SINCE = (6, 16)
+
+
+def release_tuple(release: str) -> tuple[int, int]:
+    """(major, minor) of a kernel release string (``6.1.0-56-amd64`` -> (6, 1)); (0, 0) when
+    it does not start so."""
+    parts = release.split(".")
+    try:
+        return int(parts[0]), int("".join(c for c in parts[1].split("-")[0] if c.isdigit()) or 0)
+    except (IndexError, ValueError):
+        return 0, 0
+
+
+def hid_interval(release: str | None = None, gadgets: Path | None = None) -> tuple[bool, str]:
+    """Whether the kernel's ``hid`` function has the ``interval`` attribute, and how that is
+    known: from a ``hid`` function of a gadget here (its folder lists the attribute), else from
+    the kernel release (:data:`HID_INTERVAL_SINCE`)."""
+    gadgets = gadgets or configfs.CONFIGFS / "usb_gadget"
+    for function in sorted(gadgets.glob("*/functions/hid.*"))[:16]:
+        return (function / "interval").exists(), f"seen in {function}"
+    release = release or platform.release()
+    return release_tuple(release) >= HID_INTERVAL_SINCE, f"kernel {release}"
+
+
+def protocol_notes(release: str | None = None, gadgets: Path | None = None) -> list[str]:
+    """What this kernel means for a protocol that needs more than a plain gadget (one line each)."""
+    has, how = hid_interval(release, gadgets)
+    if has:
+        return [f"xac: the hid function's interval is set to 1 ms ({how})"]
+    return [
+        f"xac: this kernel's hid function cannot set its polling interval ({how}; Linux 6.16 and later can): the "
+        "gadget is polled every 10 ms at full speed, which the Xbox Adaptive Controller may refuse"
+    ]
 
 
 def module_state(name: str, modules_dir: Path | None = None, sys_module: Path = Path("/sys/module")) -> str:
@@ -64,8 +102,9 @@ def is_raspberry_pi(model: Path = PI_MODEL) -> bool:
 @dataclass(frozen=True)
 class GadgetSupport:
     """What this machine has for ``--output usb``: its UDCs, configfs, the three modules' states
-    (:func:`module_state`), the gadget set up (its protocol, None when none) and, when something
-    is missing, ``problems`` (one line each) and ``fixes`` (commands, one a line)."""
+    (:func:`module_state`), the gadget set up (its protocol, None when none), when something
+    is missing, ``problems`` (one line each) and ``fixes`` (commands, one a line), and what only
+    some protocols need (``notes``: :func:`protocol_notes`)."""
 
     udcs: list[str]
     configfs: bool
@@ -73,6 +112,7 @@ class GadgetSupport:
     gadget: str | None
     problems: list[str] = field(default_factory=list)
     fixes: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
 
     @property
     def possible(self) -> bool:
@@ -110,7 +150,7 @@ def gadget_support() -> GadgetSupport:
         if not loadable:
             problems.append("configfs is not mounted at /sys/kernel/config")
         fixes.append("sudo mount -t configfs none /sys/kernel/config")
-    return GadgetSupport(udcs, mounted, modules, configfs.protocol_of(), problems, fixes)
+    return GadgetSupport(udcs, mounted, modules, configfs.protocol_of(), problems, fixes, protocol_notes())
 
 
 def possible_outputs() -> dict[str, str | None]:

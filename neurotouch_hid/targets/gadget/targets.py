@@ -1,18 +1,11 @@
-"""The gadget's functions as :class:`~neurotouch_hid.stages.Target` s: ``/dev/hidgN`` nodes and the
-XInput pad on FunctionFS.
+"""The gadget's ``hid`` functions as :class:`~neurotouch_hid.stages.Target` s: ``/dev/hidgN`` nodes
+(the FunctionFS functions: :mod:`~neurotouch_hid.targets.gadget.ffs`).
 
 * :class:`HidgTarget`: one ``hid`` function (the joystick, the Switch pad, the keyboard, the
   mouse). Reports go to ``/dev/hidgN`` (opened non-blocking) through a
   :class:`~neurotouch_hid.targets.gadget.writer.ReportWriter`; the host's output reports (a
   keyboard's LEDs, HORI's vendor report) are read from the same node when it is readable, at
   most :data:`MAX_OUTPUT_REPORT` bytes a read (Documentation/usb/gadget_hid.rst).
-* :class:`XInputTarget`: the Xbox 360 pad (interface FF/5D/01, interrupt IN 0x81 and OUT 0x02) on
-  a FunctionFS mount: descriptors and strings written to ``ep0``, then ``ep1`` (IN) and ``ep2``
-  (OUT) opened (Documentation/usb/functionfs.rst). Two daemon threads read, bounded: ``ep0``'s
-  events (a SETUP request for the function is refused by a stall, as functionfs.rst says: I/O
-  in the wrong direction) and ``ep2``'s output reports, whose rumble and LED requests
-  (:func:`~neurotouch_hid.targets.reports.xinput.parse_output`) become
-  :class:`~neurotouch_hid.stages.Feedback`, announced on a pipe (:meth:`XInputTarget.fileno`).
 
 Whatever stops the driver, :meth:`close` sends the neutral report first and waits up to
 :data:`NEUTRAL_WAIT_S` for the host to take it.
@@ -25,13 +18,10 @@ import errno
 import logging
 import os
 import threading
-import time
-from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
 from neurotouch_hid.controller import ControllerState, Feedback
 from neurotouch_hid.errors import DeviceError
-from neurotouch_hid.targets.gadget import functionfs
 from neurotouch_hid.targets.gadget.writer import QUEUE_MOTION, QUEUE_STATE, ReportWriter
 
 if TYPE_CHECKING:
@@ -44,13 +34,6 @@ log = logging.getLogger(__name__)
 MAX_OUTPUT_REPORT = 64
 #: How long :meth:`close` waits for the host to take the neutral report (s).
 NEUTRAL_WAIT_S = 0.5
-#: Feedback requests kept until :meth:`XInputTarget.feedback` takes them; older ones are dropped.
-MAX_PENDING_FEEDBACK = 64
-#: Pause after a failed read of ep0 or the OUT endpoint (the host went away) before the next (s).
-ERROR_PAUSE_S = 0.05
-#: The XInput pad's endpoints: interrupt IN 0x81 (32 bytes every 4 ms) and OUT 0x02 (every 8 ms),
-#: as a wired Xbox 360 controller declares them.
-XINPUT_ENDPOINTS = (functionfs.Endpoint(0x81, interval=4), functionfs.Endpoint(0x02, interval=8))
 
 
 class _ReportTarget:
@@ -170,128 +153,3 @@ class HidgTarget(_ReportTarget):
         """Neutral report, wait for the host to take it (up to :data:`NEUTRAL_WAIT_S`), close the node."""
         if self._close_neutral():
             os.close(self._fd)
-
-
-class XInputTarget(_ReportTarget):
-    """The Xbox 360 pad on the FunctionFS mount ``mount`` (module docstring).
-
-    ``ready`` (set once the descriptors are written) lets the caller bind the gadget to its UDC:
-    a configfs gadget with a FunctionFS function binds only then.
-
-    Raises:
-        DeviceError: ``mount``'s ``ep0`` cannot be opened, or the kernel refused the descriptors.
-    """
-
-    def __init__(self, mount: str | os.PathLike, fmt: ReportFormat, what: str = "USB gadget (xinput)"):
-        from neurotouch_hid.targets.reports.xinput import INTERFACE_CLASS
-
-        mount = Path(mount)
-        try:
-            self._ep0 = os.open(mount / "ep0", os.O_RDWR | os.O_CLOEXEC)
-        except OSError as exc:
-            raise DeviceError(
-                f"cannot open {mount / 'ep0'} ({exc.strerror}): the XInput gadget is not set up for this user\n"
-                "sudo neurotouch-hid gadget setup --protocol xinput --user $USER"
-            ) from None
-        try:
-            os.write(self._ep0, functionfs.descriptors(INTERFACE_CLASS, XINPUT_ENDPOINTS))
-            os.write(self._ep0, functionfs.strings("Xbox 360 pad (NeuroTouch)"))
-            self._in = os.open(mount / "ep1", os.O_RDWR | os.O_NONBLOCK | os.O_CLOEXEC)
-            self._out = os.open(mount / "ep2", os.O_RDWR | os.O_CLOEXEC)
-        except OSError as exc:
-            os.close(self._ep0)
-            raise DeviceError(f"{mount}: the kernel refused the XInput pad's descriptors ({exc.strerror})") from None
-        self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
-        self._pending: list[Feedback] = []
-        self.enabled = threading.Event()
-        self._start(self._in, fmt, what)
-        for target, name in ((self._read_events, "ep0 events"), (self._read_out, "OUT endpoint")):
-            threading.Thread(target=target, name=f"{what}: {name}", daemon=True).start()
-
-    def fileno(self) -> int | None:
-        """A pipe that becomes readable when the host sent rumble or LED requests."""
-        return None if self._closed else self._wake_r
-
-    def feedback(self) -> list[Feedback]:
-        """The host's rumble and LED requests that arrived since the last call."""
-        try:
-            os.read(self._wake_r, 4096)
-        except OSError:
-            pass
-        with self._lock:
-            taken, self._pending = self._pending, []
-        return taken
-
-    def close(self) -> None:
-        """Neutral report, wait for the host to take it (up to :data:`NEUTRAL_WAIT_S`), then
-        close the endpoints and ``ep0``: FunctionFS then unbinds the gadget from its UDC (a
-        thread blocked in a read keeps its file until that read returns, at the unbind)."""
-        if not self._close_neutral():
-            return
-        for fd in (self._in, self._out, self._ep0, self._wake_r, self._wake_w):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
-
-    def _announce(self, request: Feedback) -> None:
-        with self._lock:
-            self._pending = [*self._pending[-(MAX_PENDING_FEEDBACK - 1) :], request]
-        try:
-            os.write(self._wake_w, b"\0")
-        except OSError:
-            pass  # the pipe is full: the reader is already told
-
-    def _read_loop(self, fd: int, size: int, where: str, handle: Callable[[bytes], None]) -> None:
-        """Thread: read at most ``size`` bytes at a time from ``fd`` and ``handle`` them, until
-        the function is closed; a read the kernel refuses meanwhile (host gone) is retried after
-        :data:`ERROR_PAUSE_S`."""
-        while True:
-            try:
-                data = os.read(fd, size)
-            except OSError as exc:
-                if self._closed:
-                    return
-                log.debug("%s: %s: %s", self.what, where, exc)
-                time.sleep(ERROR_PAUSE_S)
-                continue
-            handle(data)
-
-    def _read_events(self) -> None:
-        self._read_loop(self._ep0, 4 * functionfs.EVENT.size, "ep0", self._on_events)
-
-    def _on_events(self, data: bytes) -> None:
-        for event in functionfs.parse_events(data):
-            log.debug("%s: %s", self.what, event.name)
-            if event.type == functionfs.ENABLE:
-                self.enabled.set()
-            elif event.type in (functionfs.DISABLE, functionfs.UNBIND):
-                self.enabled.clear()
-            elif event.type == functionfs.SETUP:
-                self._stall(event)
-
-    def _stall(self, event: functionfs.Event) -> None:
-        """Refuse a control request the pad does not answer: I/O in the wrong direction on
-        ``ep0`` stalls it (functionfs.rst)."""
-        log.debug("%s: refusing request %02x/%02x", self.what, event.request_type, event.request)
-        try:
-            if event.request_type & 0x80:
-                os.read(self._ep0, 0)
-            else:
-                os.write(self._ep0, b"")
-        except OSError:
-            pass  # EL2HLT: the stall done
-
-    def _read_out(self) -> None:
-        """OUT endpoint reader: one read a packet (its wMaxPacketSize, 32 bytes: a longer read would
-        join a full packet and the next, whose report would be lost)."""
-        from neurotouch_hid.targets.reports.xinput import MAX_OUTPUT_REPORT as PACKET
-
-        self._read_loop(self._out, PACKET, "OUT endpoint", self._on_output)
-
-    def _on_output(self, data: bytes) -> None:
-        received = self.format.parse_output(data)
-        for request in received:
-            self._announce(dataclasses.replace(request, source=self.what))
-        if not received:
-            log.debug("%s: output report %s not understood", self.what, data[:MAX_OUTPUT_REPORT].hex())

@@ -67,9 +67,10 @@ def _formats() -> dict[str, ReportFormat]:
     from neurotouch_hid.targets.reports.keyboard import BOOT_KEYBOARD
     from neurotouch_hid.targets.reports.mouse import MOUSE
     from neurotouch_hid.targets.reports.switch import SWITCH
+    from neurotouch_hid.targets.reports.xac import XAC
     from neurotouch_hid.targets.reports.xinput import XINPUT
 
-    formats: list[ReportFormat] = [HID_JOYSTICK, BOOT_KEYBOARD, MOUSE, SWITCH, XINPUT]
+    formats: list[ReportFormat] = [HID_JOYSTICK, BOOT_KEYBOARD, MOUSE, SWITCH, XINPUT, XAC]
     return {f.name: f for f in formats}
 
 

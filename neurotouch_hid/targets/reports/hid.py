@@ -1,14 +1,14 @@
 """The generic USB HID joystick: two sticks, two analogue triggers, a hat and 16 buttons.
 
 What any HID host reads without a driver of its own: Windows (DirectInput), macOS, Linux
-(hid-generic, hid-input), Android, and the Xbox Adaptive Controller, which takes only devices
-whose application collection is a Joystick and reads X/Y (left stick), Z/Rz (right stick), the
-hat (d-pad) and buttons 1-12. The layout, byte by byte, is docs/reports.md, "hid: the generic HID joystick".
+(hid-generic, hid-input), Android. (The Xbox Adaptive Controller takes a narrower joystick, four
+8-bit axes, a hat and 12 buttons: the ``xac`` layout, :mod:`~neurotouch_hid.targets.reports.xac`.)
+The layout, byte by byte, is docs/reports.md, "hid: the generic HID joystick".
 
 Choices, and why:
 
 * Application collection **Joystick** (Generic Desktop 0x04; HID Usage Tables 1.4, 4.1), not
-  Gamepad (0x05): the Adaptive Controller requires it. hid-input then names the buttons
+  Gamepad (0x05), as the Adaptive Controller's joysticks have it. hid-input then names the buttons
   BTN_TRIGGER..BTN_DEAD (its joystick range) and udev classes the device a joystick.
 * Sticks: X/Y (0x30/0x31) the left stick, **Z/Rz** (0x32/0x35) the right one, 16-bit signed,
   -32768..32767, the :class:`~neurotouch_hid.controller.ControllerState` values as they are

@@ -1,0 +1,25 @@
+"""The gadget's FunctionFS functions answering their host's control requests, in a REAL Linux
+kernel (Debian's, booted under qemu by tests/kernel/vm.py) on dummy_hcd; the guest checks are
+tests/kernel/checks_gadget_ffs.py. Skips, with the reason, only where qemu cannot be installed."""
+
+from __future__ import annotations
+
+import pytest
+from conftest import passed
+
+pytestmark = pytest.mark.kernel
+
+
+def test_a_hid_interface_on_functionfs_answers_get_feature_and_hears_output_reports(guest):
+    """What the kernel's f_hid of 6.1 cannot do (it answers GET_REPORT with zeros)."""
+    details = passed(guest, "checks_gadget_ffs.check_usb_hid_interface_answers_feature_reports")
+    assert details["driver"] == "hid-generic"
+    assert details["feature"] == "05" + bytes(range(40)).hex()
+    assert details["unknown_feature"].startswith("refused")
+    assert details["feedback"][0][:2] == ["rumble", 1.0]
+
+
+def test_the_xbox_360_pad_answers_the_vendor_requests_of_a_wired_pad(guest):
+    details = passed(guest, "checks_gadget_ffs.check_usb_xinput_answers_the_vendor_requests")
+    assert details["answers"] == {"0100": "00143ff7ffff00000000c0ffc0ff000000000000", "0000": "0008000000000000"}
+    assert details["interfaces"] == 1
