@@ -216,6 +216,12 @@ def test_rules_give_access_only_to_the_seated_user():
     assert len(virtual) == 1
     pattern = re.search(r'ATTRS\{phys\}=="([^"]+)"', virtual[0]).group(1)
     assert re.fullmatch(pattern.replace("*", ".*"), PHYS)  # matches the phys VirtualGamepad sets
+    # the DualSense's hidraw node (054c:0ce6: the HID device's name in sysfs is 0003:054C:0CE6.NNNN)
+    dualsense = [line for line in lines if "054C:0CE6" in line]
+    assert len(dualsense) == 1 and 'KERNEL=="hidraw*"' in dualsense[0] and 'TAG+="uaccess"' in dualsense[0]
+    assert re.fullmatch(
+        re.search(r'KERNELS=="([^"]+)"', dualsense[0]).group(1).replace("*", ".*"), "0003:054C:0CE6.0001"
+    )
 
 
 def _udevadm_test(rules_text: str, tmp_path: Path) -> str:

@@ -30,9 +30,22 @@ GOLDEN: dict[str, tuple[str, str]] = {
         "0014081400ffff7fff7f00000000000000000000",
     ),
     "xac": ("80808080080000", "ff008080020104"),
+    "dualsense": (
+        "0180808080000000080000000000000000000000000000000000000000000000"
+        "0080000000800000000000000000000000000000002a00000000000000000000",
+        "01ff00808000ff00220801000000000000000000000000000000000000000000"
+        "0080000000800000000000000000000000000000002a00000000000000000000",
+    ),
 }
 #: Per protocol: report id -> the feature report for :data:`SERIAL`'s identity, hex (id first).
-GOLDEN_FEATURES: dict[str, dict[int, str]] = {}
+GOLDEN_FEATURES: dict[str, dict[int, str]] = {
+    "dualsense": {
+        0x05: "05000000000000c02140dec02140dec02140de1c021c02002000e0002000e0002000e0000000000000",
+        0x09: "09c563117d1fee00000000000000000000000000",  # the MAC ee:1f:7d:11:63:c5, last octet first
+        0x20: "204a616e202031203230323630303a30303a3030000000000100000000000100000000000000000000000000"
+        "2402000000000000000000000000000000000000",
+    },
+}
 #: The formats of the gadget's other functions (keyboard, mouse): neutral report, hex.
 GOLDEN_OTHER = {"keyboard": "00" * 8, "mouse": "00" * 5}
 
@@ -80,7 +93,8 @@ def test_a_feature_id_not_answered_is_a_key_error(name):
 def test_odd_output_reports_are_never_an_error(name):
     fmt = FORMATS[name]
     for data in (b"", b"\x00", b"\xff" * 3, bytes(range(64)), b"\x00\x08\x00\xff\x80" + bytes(4000)):
-        assert all(f.kind in ("rumble", "led", "keyboard_leds") for f in fmt.parse_output(data)), (name, data)
+        kinds = ("rumble", "led", "lightbar", "keyboard_leds")
+        assert all(f.kind in kinds for f in fmt.parse_output(data)), (name, data)
 
 
 def test_output_reports_become_feedback():

@@ -24,6 +24,7 @@ from enum import StrEnum
 
 from neurotouch_hid.errors import NeurotouchError
 from neurotouch_hid.targets.reports import ReportFormat
+from neurotouch_hid.targets.reports.dualsense import DUALSENSE
 from neurotouch_hid.targets.reports.hid import HID_JOYSTICK
 from neurotouch_hid.targets.reports.switch import SWITCH
 from neurotouch_hid.targets.reports.xac import XAC
@@ -146,6 +147,21 @@ def _rows() -> list[ProtocolRow]:
             product_name="NeuroTouch Adaptive Joystick",
             interval_ms=1,
             alone="the Xbox Adaptive Controller is reported to refuse a device with more than its joystick",
+        ),
+        ProtocolRow(
+            name="dualsense",
+            summary="Sony's DualSense with its touchpad: Steam, SDL, Linux (hid-playstation), macOS, iOS, Android",
+            report=DUALSENSE,
+            transports=frozenset({"uhid", "gadget"}),
+            # its feature reports need answers of our own: the kernel's f_hid answers GET_REPORT with zeros
+            gadget_function="ffs-hid",
+            vendor=DUALSENSE.vendor,  # Sony Interactive Entertainment
+            product=DUALSENSE.product,  # DualSense Wireless Controller
+            bcd_device=0x0100,
+            manufacturer="Sony Interactive Entertainment",
+            product_name="DualSense Wireless Controller",
+            max_packet=64,
+            interval_ms=4,
         ),
     ]
 

@@ -29,7 +29,7 @@ class ReportFormat(Protocol):
     """One protocol's input report for a controller state.
 
     Attributes:
-        name: ``"hid"``, ``"keyboard"``, ``"mouse"``, ``"switch"``, ``"xinput"``.
+        name: ``"hid"``, ``"keyboard"``, ``"mouse"``, ``"switch"``, ``"xinput"``, ``"dualsense"``.
         descriptor: the HID report descriptor (HID 1.11, 6.2.2), ``b""`` where the protocol has none.
         report_length: bytes of one input report (:meth:`pack`'s length, always).
         feature_ids: the report ids of the feature reports a host may read (GET_REPORT, HID 1.11
@@ -63,6 +63,7 @@ class ReportFormat(Protocol):
 
 
 def _formats() -> dict[str, ReportFormat]:
+    from neurotouch_hid.targets.reports.dualsense import DUALSENSE
     from neurotouch_hid.targets.reports.hid import HID_JOYSTICK
     from neurotouch_hid.targets.reports.keyboard import BOOT_KEYBOARD
     from neurotouch_hid.targets.reports.mouse import MOUSE
@@ -70,7 +71,7 @@ def _formats() -> dict[str, ReportFormat]:
     from neurotouch_hid.targets.reports.xac import XAC
     from neurotouch_hid.targets.reports.xinput import XINPUT
 
-    formats: list[ReportFormat] = [HID_JOYSTICK, BOOT_KEYBOARD, MOUSE, SWITCH, XINPUT, XAC]
+    formats: list[ReportFormat] = [HID_JOYSTICK, BOOT_KEYBOARD, MOUSE, SWITCH, XINPUT, XAC, DUALSENSE]
     return {f.name: f for f in formats}
 
 

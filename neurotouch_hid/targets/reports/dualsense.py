@@ -221,6 +221,7 @@ class DualSenseFormat:
     input report 0x01, feature reports 0x05, 0x09, 0x20, output report 0x02 (and 0x31)."""
 
     name = "dualsense"
+    vendor, product = VENDOR, PRODUCT
     descriptor = DESCRIPTOR
     report_length = INPUT_LENGTH
     feature_ids: tuple[int, ...] = (CALIBRATION_ID, PAIRING_ID, FIRMWARE_ID)
