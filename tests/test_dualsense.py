@@ -202,13 +202,19 @@ def test_the_lightbar_setup_report_alone_is_no_feedback():
     assert DUALSENSE.parse_output(report) == []
 
 
-def test_a_bluetooth_report_is_read_past_its_header():
-    """SDL sends 0x31 (id, sequence and tag, then the same common part) when it takes the pad
-    for a Bluetooth one."""
-    report = bytearray(78)
-    report[0], report[2] = 0x31, 0x10
-    report[3], report[5], report[6] = 0x03, 0x11, 0x22
-    assert DUALSENSE.parse_output(bytes(report)) == [Feedback("rumble", strong=0x22 / 255, weak=0x11 / 255)]
+def test_bluetooth_reports_are_read_past_their_headers():
+    """0x31: hid-playstation writes id, sequence << 4, tag 0x10, then the common part; SDL (when
+    it takes the pad for a Bluetooth one) id, 0x02, then the common part."""
+    kernel = bytearray(78)
+    kernel[0], kernel[1], kernel[2] = 0x31, 0x30, 0x10
+    kernel[3], kernel[5], kernel[6] = 0x03, 0x11, 0x22
+    assert DUALSENSE.parse_output(bytes(kernel)) == [Feedback("rumble", strong=0x22 / 255, weak=0x11 / 255)]
+    sdl = bytearray(78)
+    sdl[0], sdl[1] = 0x31, 0x02
+    sdl[2], sdl[4], sdl[5], sdl[40] = 0x02, 0xFF, 0x80, 0x04  # haptics select, motors, valid_flag2 bit 2
+    assert DUALSENSE.parse_output(bytes(sdl)) == [Feedback("rumble", strong=0x80 / 255, weak=1.0)]
+    tickle = bytes([0x31, 0x02]) + bytes(76)  # SDL's Bluetooth "tickle": nothing asked
+    assert DUALSENSE.parse_output(tickle) == []
 
 
 @pytest.mark.parametrize("data", [b"", b"\x02", b"\x02\x01", b"\x02\x01\x00\x10", b"\x01" * 64, b"\x31\x00"])
@@ -228,3 +234,89 @@ def test_docs_give_the_descriptor_byte_for_byte():
     block = re.search(r"<!-- descriptor dualsense -->\n```\n(.*?)```", DOCS.read_text(), re.S)
     assert block, "docs/reports.md has no descriptor block for dualsense"
     assert bytes.fromhex(block.group(1)) == DESCRIPTOR
+
+
+def test_the_uhid_dualsense_has_its_rows_name_and_ids_and_the_mac_as_uniq():
+    """hid-playstation sets uniq from the pairing report's MAC; the UHID device carries the same
+    from its creation, with a camera's serial or without (the default identity)."""
+    from neurotouch_hid.mapping.profile import DeviceSpec
+    from neurotouch_hid.targets.protocols import PROTOCOLS
+    from neurotouch_hid.targets.uhid import uhid_identity
+
+    row = PROTOCOLS["dualsense"]
+    assert (row.vendor, row.product, row.manufacturer) == (0x054C, 0x0CE6, "Sony Interactive Entertainment")
+    assert row.transports == {"uhid", "gadget"}
+    for camera in (None, identity_for(None), identity_for("00000499")):
+        made = uhid_identity(row, DeviceSpec(name="Mine", vendor=0x1234, product=0x5678), camera)
+        assert (made.name, made.vendor, made.product) == ("DualSense Wireless Controller", 0x054C, 0x0CE6)
+        assert made.uniq == (camera or identity_for(None)).uniq
+    assert uhid_identity(row, DeviceSpec(), identity_for("A")).uniq != uhid_identity(row, DeviceSpec(), None).uniq
+
+
+def test_each_feedback_of_the_dualsense_is_told_in_one_line():
+    from neurotouch_hid.targets import describe_feedback
+
+    report = usb_output(flag0=0x02, flag2=0x04, left=0xFF, right=0, flag1=0x14, leds=0x04, r=0x12, g=0x34, b=0x56)
+    lines = [describe_feedback(f) for f in DUALSENSE.parse_output(report, source="UHID dualsense device")]
+    assert lines == [
+        "rumble (the gel has no motor): strong 1.00 weak 0.00, on UHID dualsense device",
+        "player LED (the gel has none): pattern 4, on UHID dualsense device",
+        "light bar (the gel has none): colour #123456, on UHID dualsense device",
+    ]
+
+
+def test_the_uhid_device_answers_the_feature_reports_hid_playstation_reads_as_it_binds():
+    """hid-playstation reads 0x09, 0x20 and 0x05 right after UHID_START, each given up after 5 s,
+    before any reader of the device runs: the device serves them before its constructor returns.
+    A socket pair (SOCK_SEQPACKET, one event a read) stands in for /dev/uhid."""
+    import socket
+    import threading
+
+    from neurotouch_hid.mapping.profile import DeviceSpec
+    from neurotouch_hid.targets.protocols import PROTOCOLS
+    from neurotouch_hid.targets.uhid import (
+        UHID_EVENT_SIZE,
+        UHID_FEATURE_REPORT,
+        UHID_GET_REPORT,
+        UHID_START,
+        UhidDevice,
+        uhid_identity,
+    )
+
+    ours, kernel = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+    ours.setblocking(False)
+    kernel.settimeout(10.0)
+    replies: list[bytes] = []
+
+    def probe() -> None:
+        kernel.recv(UHID_EVENT_SIZE + 64)  # UHID_CREATE2
+        kernel.send(UHID_START.to_bytes(4, "little") + bytes(8))
+        for request, rnum in enumerate((0x09, 0x20, 0x05), start=1):
+            kernel.send(struct.pack("<IIBB", UHID_GET_REPORT, request, rnum, UHID_FEATURE_REPORT))
+            while True:  # the START's report comes first
+                reply = kernel.recv(UHID_EVENT_SIZE)
+                if int.from_bytes(reply[:4], "little") == 10:  # UHID_GET_REPORT_REPLY
+                    replies.append(reply)
+                    break
+
+    thread = threading.Thread(target=probe, daemon=True)
+    thread.start()
+    camera = identity_for("00000499")
+    row = PROTOCOLS["dualsense"]
+    device = UhidDevice.on_fd(ours.detach(), row.report, uhid_identity(row, DeviceSpec(), camera), camera=camera)
+    try:
+        thread.join(10)
+        assert device.asked == {0x05, 0x09, 0x20}
+        answers = {}
+        for reply in replies:
+            _, request, error, size = struct.unpack_from("<IIHH", reply)
+            assert error == 0
+            answers[request] = reply[12 : 12 + size]
+        assert answers == {
+            1: DUALSENSE.feature(0x09, camera),
+            2: DUALSENSE.feature(0x20, camera),
+            3: DUALSENSE.feature(0x05, camera),
+        }
+    finally:
+        device.close()
+        kernel.close()

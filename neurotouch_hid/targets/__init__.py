@@ -57,6 +57,8 @@ def describe_feedback(feedback: Feedback) -> str:
         return f"rumble (the gel has no motor): {what}{where}"
     if feedback.kind == "led":
         return f"player LED (the gel has none): pattern {feedback.led}{where}"
+    if feedback.kind == "lightbar":
+        return f"light bar (the gel has none): colour #{(feedback.led or 0) & 0xFFFFFF:06x}{where}"
     if feedback.kind == "keyboard_leds":
         lit = [name for bit, name in enumerate(KEYBOARD_LEDS) if (feedback.led or 0) >> bit & 1]
         return f"keyboard LEDs (the gel has none): {', '.join(lit) or 'all off'}{where}"

@@ -118,6 +118,12 @@ HOST_EVENTS_PER_S = 1000
 #: Most events handled in one call of :meth:`UhidDevice.feedback` (one wake-up of the feedback thread).
 EVENT_BATCH = 64
 
+#: After UHID_START, how long the device waits for its driver's next request while the driver has
+#: not read every feature report of the format yet (s): hid-playstation reads the DualSense's
+#: pairing, firmware and calibration reports as it binds and gives each up after 5 s (uhid.rst),
+#: before any reader of the device runs; a driver that reads none (hid-generic) costs this once.
+PROBE_QUIET_S = 2.0
+
 
 @dataclass(frozen=True)
 class UhidEvent:
@@ -274,10 +280,17 @@ def uhid_protocol(requested: str | None, profile: Profile) -> ProtocolRow:
 def uhid_identity(row: ProtocolRow, device: DeviceSpec, camera: Identity | None = None) -> HidIdentity:
     """The UHID device's name and ids for the protocol ``row``: the profile's ``device:``
     (:func:`hid_identity`) where the row lets a profile choose them, else the row's own (a host
-    driver binds by them); ``phys`` and ``uniq`` from ``camera`` as :func:`hid_identity` says."""
+    driver binds by them); ``phys`` and ``uniq`` from ``camera`` as :func:`hid_identity` says,
+    except that a row with feature reports (the DualSense's, whose pairing report carries the
+    camera's MAC) always has that MAC as ``uniq``: the default identity's without a serial, as
+    hid-playstation would set it anyway."""
     if row.profile_ids:
         return hid_identity(device, camera)
     where = {} if camera is None or not camera.serial else {"phys": camera.phys, "uniq": camera.uniq}
+    if row.report.feature_ids:  # a device that tells its MAC (the DualSense): uniq is that MAC, always
+        from neurotouch_hid.targets.identity import identity_for
+
+        where["uniq"] = (camera or identity_for(None)).uniq
     return HidIdentity(row.product_name, row.vendor, row.product, row.bcd_device, **where)
 
 
@@ -355,6 +368,7 @@ class UhidDevice(NeutralOnClose):
         self.opened = 0  # readers the kernel reported (UHID_OPEN - UHID_CLOSE)
         self.events = 0  # events read from the kernel
         self.dev_flags = 0  # UHID_START's UHID_DEV_NUMBERED_* flags
+        self.asked: set[int] = set()  # the feature reports a driver or reader has asked for
         self._last = fmt.neutral()
         self._budget, self._budget_at = float(EVENT_BATCH), time.monotonic()  # events it may handle now
         self._fd = fd
@@ -383,6 +397,12 @@ class UhidDevice(NeutralOnClose):
             left = end - time.monotonic()
             if left <= 0 or not select.select([self._fd], [], [], left)[0]:
                 log.warning("no HID driver bound the %s within %.1f s; its reports wait for one", self.what, seconds)
+                return
+            self.feedback()
+        # the bound driver may read the feature reports now, before this device's reader runs
+        # (the run's feedback thread): serve it here until it has them all or is quiet
+        while not set(self.fmt.feature_ids) <= self.asked:
+            if not select.select([self._fd], [], [], PROBE_QUIET_S)[0]:
                 return
             self.feedback()
 
@@ -493,6 +513,7 @@ class UhidDevice(NeutralOnClose):
         if rtype == UHID_INPUT_REPORT and rnum == (self._last[0] if numbered else 0):
             return self._last
         if rtype == UHID_FEATURE_REPORT and rnum in self.fmt.feature_ids:
+            self.asked.add(rnum)
             return self.fmt.feature(rnum, self.camera)[:UHID_DATA_MAX]
         return None
 

@@ -21,7 +21,7 @@ github.com/nondebug/dualsense documents it. No code was copied.
   with the same MAC ("Duplicate device found"), so the MAC is the camera's
   (:class:`~neurotouch_hid.targets.identity.Identity`).
 * **Output report 0x02** (the host's rumble, lightbar and player LEDs; 0x31, the Bluetooth one,
-  is read too: SDL sends it when it takes the pad for a Bluetooth one) becomes
+  is read too: SDL sends it when no input report came in its first 16 ms, its sign of Bluetooth) becomes
   :class:`~neurotouch_hid.controller.Feedback`.
 
 The buttons map by position, as the other protocols do: BTN_SOUTH (Xbox A, bottom) is cross,
@@ -61,8 +61,11 @@ CALIBRATION_ID, PAIRING_ID, FIRMWARE_ID = 0x05, 0x09, 0x20
 INPUT_LENGTH = 64
 FEATURE_LENGTHS: dict[int, int] = {CALIBRATION_ID: 41, PAIRING_ID: 20, FIRMWARE_ID: 64}
 #: The output report's common part: hid-playstation's struct dualsense_output_report_common (47
-#: bytes), after the report id on USB and after id, sequence and tag on Bluetooth.
-OUTPUT_COMMON_AT = {OUTPUT_ID: 1, OUTPUT_ID_BT: 3}
+#: bytes), after the report id on USB; on Bluetooth after id, sequence and tag (0x10) as
+#: hid-playstation writes it, after id and 0x02 as SDL writes it.
+OUTPUT_COMMON_AT = {OUTPUT_ID: 1, OUTPUT_ID_BT: 2}
+#: hid-playstation's tag in byte 2 of a Bluetooth output report (DS_OUTPUT_TAG).
+BT_TAG = 0x10
 #: Longest output report looked at (the Bluetooth one, 78 bytes, is the longest there is).
 MAX_OUTPUT_REPORT = 78
 
@@ -289,12 +292,16 @@ class DualSenseFormat:
         - ``led`` when valid_flag1 bit 4 is set: the five player LEDs' bits (bit 0 leftmost);
         - ``lightbar`` when valid_flag1 bit 2 is set: ``led`` = 0xRRGGBB.
 
-        Report 0x02 (USB) and 0x31 (Bluetooth: its common part 2 bytes later) are read, anything
-        else or a report too short for a field gives nothing for it."""
+        Report 0x02 (USB) and 0x31 (Bluetooth: its common part from byte 3 after hid-playstation's
+        tag 0x10 in byte 2, else from byte 2 as SDL writes it) are read; anything else, or a
+        report too short for a field, gives nothing for it."""
         data = bytes(data[:MAX_OUTPUT_REPORT])
         if not data or data[0] not in OUTPUT_COMMON_AT:
             return []
-        common = data[OUTPUT_COMMON_AT[data[0]] :]
+        start = OUTPUT_COMMON_AT[data[0]]
+        if data[0] == OUTPUT_ID_BT and len(data) > 2 and data[2] == BT_TAG:
+            start = 3  # hid-playstation's: id, sequence << 4, tag
+        common = data[start:]
 
         def at(offset: int) -> int:
             return common[offset] if offset < len(common) else 0
