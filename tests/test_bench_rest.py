@@ -22,8 +22,7 @@ def short_parts(bench_rest, monkeypatch):
 def test_the_floor_runs_every_part_on_a_resting_gel(short_parts, tmp_path):
     recording = short_parts.make_rest_recording(tmp_path, 3.0)
     floor = short_parts.measure_floor(recording)
-    assert list(floor) == list(short_parts.FLOOR_PARTS)
-    assert all(0.0 <= share < 1.5 for share in floor.values())  # CPU seconds per second, two cores at most
+    assert list(floor) == list(short_parts.FLOOR_PARTS)  # each part ran (the CPU it took is the benchmark's)
 
 
 def test_the_floor_refuses_a_recording_too_short_for_its_parts(short_parts, tmp_path):

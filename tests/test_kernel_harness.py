@@ -273,13 +273,20 @@ def test_a_forked_command_is_a_process_of_its_own_with_its_env_and_answers_or_ra
         guestlib.forked(_fails)
 
 
-def test_a_forked_command_that_hangs_is_killed_at_its_timeout():
+def test_a_forked_command_that_hangs_is_killed_at_its_timeout(tmp_path):
+    """The child would mark its file after its 60 s: forked reaps it before returning, so an
+    unmarked file is a child killed, not waited for."""
     from kernel import guestlib
 
-    began = time.monotonic()
+    marker = tmp_path / "slept"
+
+    def sleeps() -> None:
+        time.sleep(60)
+        marker.write_text("the whole sleep")
+
     with pytest.raises(AssertionError, match="did not answer in 1 s"):
-        guestlib.forked(lambda: time.sleep(60), timeout_s=1.0)
-    assert time.monotonic() - began < 30  # killed and reaped, not waited for
+        guestlib.forked(sleeps, timeout_s=1.0)
+    assert not marker.exists()
 
 
 def test_a_forked_command_as_nobody_runs_as_uid_and_gid_65534_without_groups():
@@ -293,3 +300,34 @@ def test_a_forked_command_as_nobody_runs_as_uid_and_gid_65534_without_groups():
         return
     ids = guestlib.forked(_own_ids, as_nobody=True, env={"X_K": "x"})
     assert (ids["uid"], ids["gid"], ids["groups"]) == (65534, 65534, [])
+
+
+def test_a_thread_asleep_on_descriptors_with_no_timeout_is_told_from_one_with_a_timer():
+    """What the copilot's check reads of its thread at rest (/proc/self/task/TID/syscall)."""
+    import select
+    import threading
+
+    from helpers import wait_until
+    from kernel import guestlib
+
+    r, w = os.pipe()
+    try:
+        for timeout, expected in ((None, True), (60.0, False)):
+            asleep = threading.Thread(target=select.select, args=([r], [], [], timeout), daemon=True)
+            asleep.start()
+            tid = asleep.native_id
+            if expected:
+                assert wait_until(lambda tid=tid: guestlib.waits_without_timeout(tid), 60)
+            else:  # in its select (a system call's number), but with a timer
+                assert wait_until(lambda tid=tid: _in_a_call(tid), 60)
+                assert guestlib.waits_without_timeout(tid) is None
+            os.write(w, b"x")
+            asleep.join(60)
+            os.read(r, 1)
+    finally:
+        os.close(r)
+        os.close(w)
+
+
+def _in_a_call(native_id: int) -> bool:
+    return Path(f"/proc/self/task/{native_id}/syscall").read_text().split()[0].isdigit()

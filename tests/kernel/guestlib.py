@@ -153,6 +153,27 @@ def forked(func, *, as_nobody: bool = False, env: dict[str, str] | None = None, 
     return answer["value"]
 
 
+#: x86-64 system calls that wait on file descriptors (asm/unistd_64.h) and the argument that
+#: holds their timeout: a NULL pointer (select, pselect6, ppoll, epoll_pwait2) or -1 (poll,
+#: epoll_wait, epoll_pwait) waits with none.
+_FD_WAITS = {23: (4, 0), 270: (4, 0), 271: (2, 0), 441: (3, 0), 7: (2, -1), 232: (3, -1), 281: (3, -1)}
+
+
+def waits_without_timeout(native_id: int) -> str | None:
+    """How this process's thread ``native_id`` waits, when it sleeps on file descriptors with no
+    timeout (e.g. ``select(23) without a timeout``); None when it runs, waits with a timeout or in
+    another call. Read from ``/proc/self/task/TID/syscall`` (proc(5): the call's number and
+    arguments), x86-64 numbers: a thread with no timer of its own, whatever the machine's speed."""
+    fields = Path(f"/proc/self/task/{native_id}/syscall").read_text().split()
+    if not fields or not fields[0].isdigit() or int(fields[0]) not in _FD_WAITS:
+        return None
+    number = int(fields[0])
+    index, none = _FD_WAITS[number]
+    value = int(fields[1 + index], 16)
+    value = value - (1 << 64) if value >= 1 << 63 else value
+    return f"call {number} without a timeout" if value == none or (none == -1 and value < 0) else None
+
+
 def wait_for(predicate, timeout_s: float = 10.0, interval_s: float = 0.05):
     """Poll ``predicate()`` until it returns a truthy value (returned) or the timeout (None)."""
     end = time.monotonic() + timeout_s
