@@ -22,8 +22,6 @@ import importlib.metadata
 import os
 import platform
 import shlex
-import shutil
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,6 +43,7 @@ from neurotouch_hid.udev import (
     RULES_INSTALL,
     RULES_NAME,
     installed_rules,
+    this_command,
     uhid_help,
     uinput_help,
     uinput_problem,
@@ -203,15 +202,6 @@ def check_jit_cache() -> Check:
     else:
         detail = f"{cache.describe()}; the pipeline is compiled: runs start at once"
     return Check("compiled-code cache (numba)", OK, detail)
-
-
-def this_command() -> str | None:
-    """The absolute path of the ``neurotouch-hid`` command that is running (pipx's link, a venv's
-    script), else the one on PATH, else None."""
-    argv0 = Path(sys.argv[0])
-    if argv0.name == "neurotouch-hid" and argv0.exists():
-        return os.path.abspath(argv0)
-    return shutil.which("neurotouch-hid")
 
 
 def user_config_dir() -> Path:

@@ -13,7 +13,10 @@ Rule syntax and folders: udev(7).
 
 from __future__ import annotations
 
+import os
 import shlex
+import shutil
+import sys
 from pathlib import Path
 
 #: The project's udev rules file (udev/60-neurotouch.rules).
@@ -111,3 +114,23 @@ def uinput_problem(devnode: str = "/dev/uinput") -> str | None:
     not readable and writable by this process), or None when it can (:func:`char_device_problem`
     for the uinput module)."""
     return char_device_problem(devnode, "uinput")
+
+
+def this_command() -> str | None:
+    """The absolute path of the ``neurotouch-hid`` command that is running (pipx's link, a venv's
+    script), else the one on PATH, else None."""
+    argv0 = Path(sys.argv[0])
+    if argv0.name == "neurotouch-hid" and argv0.exists():
+        return os.path.abspath(argv0)
+    return shutil.which("neurotouch-hid")
+
+
+def sudo_command(args: str) -> str:
+    """``sudo /ABSOLUTE/neurotouch-hid ARGS``, the command given by its absolute path
+    (:func:`this_command`; else this Python's ``-m neurotouch_hid.cli``): sudo searches only its
+    ``secure_path`` (Debian's: /usr/local/sbin, /usr/local/bin, /usr/sbin, /usr/bin, /sbin,
+    /bin; sudoers(5)), not ~/.local/bin where pipx installs the command. ``args`` is appended as
+    given (shell text: ``$USER`` stays for the shell)."""
+    command = this_command()
+    parts = [command] if command is not None else [sys.executable, "-m", "neurotouch_hid.cli"]
+    return f"sudo {' '.join(shlex.quote(p) for p in parts)} {args}"

@@ -256,7 +256,7 @@ def test_every_command_takes_h_and_its_help_ends_with_an_example_of_its_own_opti
         for example in EXAMPLES[" ".join(path)]:
             assert f"    {example}" in page
             words = example.split()
-            words = words[words.index("neurotouch-hid") + 1 :]
+            words = words[next(i for i, w in enumerate(words) if "neurotouch-hid" in w) + 1 :]  # sudo "$(...)"
             assert " ".join(words).startswith(" ".join(path)), example
             command = root  # the command the example runs
             while words and words[0] in getattr(command, "commands", {}):

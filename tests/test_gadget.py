@@ -395,7 +395,7 @@ def test_protocol_is_refused_without_output_usb_or_hid():
 @pytest.mark.parametrize(
     ("number", "said"),
     [
-        (errno.EACCES, "the gadget's device nodes are not this user's\nsudo neurotouch-hid gadget setup --user $USER"),
+        (errno.EACCES, "the gadget's device nodes are not this user's\nsudo "),
         (errno.EPERM, "a device policy denies it (a systemd unit's DevicePolicy=closed without DeviceAllow=char-hidg"),
         (errno.ENOENT, "no such node: the gadget is not set up"),
     ],
@@ -461,3 +461,23 @@ def test_doctor_says_whether_the_hid_function_can_poll_every_1_ms(tmp_path, rele
     assert hid_interval(release, tmp_path) == (False, f"seen in {function}")
     (function / "interval").write_text("4\n")
     assert hid_interval(release, tmp_path)[0] is True
+
+
+def test_the_sudo_commands_given_name_the_command_by_its_absolute_path(tmp_path, monkeypatch):
+    """sudo searches only its secure_path, not ~/.local/bin where pipx puts the command: the
+    fixes name the running command by its absolute path (a space in it quoted)."""
+    import sys
+
+    from neurotouch_hid.targets.gadget.targets import _why_not
+    from neurotouch_hid.udev import sudo_command
+
+    command = tmp_path / "my bin" / "neurotouch-hid"
+    command.parent.mkdir()
+    command.write_text("#!/bin/sh\n")
+    monkeypatch.setattr(sys, "argv", [str(command), "run"])
+    assert sudo_command("gadget remove") == f"sudo '{command}' gadget remove"
+    assert _why_not(errno.EACCES).endswith(f"sudo '{command}' gadget setup --user $USER")
+    assert _why_not(errno.ENOENT).endswith(f"sudo '{command}' gadget setup --user $USER")
+    monkeypatch.setattr(sys, "argv", ["/nowhere/python", "-m"])
+    monkeypatch.setenv("PATH", "/nonexistent")
+    assert sudo_command("gadget remove") == f"sudo {sys.executable} -m neurotouch_hid.cli gadget remove"

@@ -93,9 +93,10 @@ EXAMPLES: dict[str, tuple[str, ...]] = {
     "profile auto add": ("neurotouch-hid profile auto add supertuxkart spacecraft",),
     "profile auto remove": ("neurotouch-hid profile auto remove 4242",),
     "profile auto list": ("neurotouch-hid profile auto list",),
-    "gadget": ("sudo neurotouch-hid gadget setup --protocol hid",),
-    "gadget setup": ("sudo neurotouch-hid gadget setup --protocol xinput --user alice",),
-    "gadget remove": ("sudo neurotouch-hid gadget remove",),
+    # sudo searches only its secure_path, not ~/.local/bin (pipx): the command by its absolute path
+    "gadget": ('sudo "$(command -v neurotouch-hid)" gadget setup --protocol hid',),
+    "gadget setup": ('sudo "$(command -v neurotouch-hid)" gadget setup --protocol xinput --user alice',),
+    "gadget remove": ('sudo "$(command -v neurotouch-hid)" gadget remove',),
 }
 
 

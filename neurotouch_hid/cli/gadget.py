@@ -83,7 +83,7 @@ def setup(
         given += [flag for flag, wanted in (("--keyboard", keyboard), ("--mouse", mouse)) if wanted]
         given += [f"--serial {serial}"] if serial else []
         raise NeurotouchError(
-            f"gadget setup needs root:\nsudo {_self()} gadget setup --protocol {' '.join([protocol, *given])}"
+            f"gadget setup needs root:\n{_sudo('gadget setup --protocol ' + ' '.join([protocol, *given]))}"
         )
     uid, whom = _owner(user)
     plan = configfs.plan(protocol, keyboard, mouse, usb_serial)
@@ -130,7 +130,7 @@ def remove() -> None:
     from neurotouch_hid.targets.gadget import configfs
 
     if os.geteuid() != 0:
-        raise NeurotouchError(f"gadget remove needs root:\nsudo {_self()} gadget remove")
+        raise NeurotouchError(f"gadget remove needs root:\n{_sudo('gadget remove')}")
     folder = configfs.gadget_dir()
     if not folder.exists():
         console.print(f"no gadget at {folder}: nothing to remove", highlight=False)
@@ -139,13 +139,12 @@ def remove() -> None:
     if folder.exists():
         raise NeurotouchError(
             f"gadget {folder} could not be removed: something still uses it (a run --output usb: stop it), "
-            f"then again:\nsudo {_self()} gadget remove"
+            f"then again:\n{_sudo('gadget remove')}"
         )
     console.print(f"gadget {folder} removed", highlight=False)
 
 
-def _self() -> str:
-    import shutil
-    import sys
+def _sudo(args: str) -> str:
+    from neurotouch_hid.udev import sudo_command
 
-    return shutil.which("neurotouch-hid") or f"{sys.executable} -m neurotouch_hid.cli"
+    return sudo_command(args)

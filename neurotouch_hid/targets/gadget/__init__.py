@@ -37,6 +37,7 @@ from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.guard import Guard
 from neurotouch_hid.targets.gadget import configfs
 from neurotouch_hid.targets.protocols import PROTOCOLS
+from neurotouch_hid.udev import sudo_command
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -141,7 +142,7 @@ class UsbGadget:
             if os.geteuid() != 0:
                 raise DeviceError(
                     f"no USB gadget is set up for --output usb (no {configfs.gadget_dir(self.name)})\n"
-                    f"sudo neurotouch-hid gadget setup --protocol {self.protocol} --user $USER"
+                    + sudo_command(f"gadget setup --protocol {self.protocol} --user $USER")
                 )
             plan = configfs.plan(self.protocol, self.profile.uses_keyboard, self.profile.uses_mouse, self.serial)
             configfs.create(plan, name=self.name)
@@ -149,7 +150,7 @@ class UsbGadget:
         elif found != self.protocol:
             raise DeviceError(
                 f"the USB gadget set up here speaks {found}, not {self.protocol}\n"
-                f"sudo neurotouch-hid gadget setup --protocol {self.protocol} --user $USER"
+                + sudo_command(f"gadget setup --protocol {self.protocol} --user $USER")
             )
         try:
             self._open()

@@ -37,6 +37,7 @@ from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.stages import Feedback
 from neurotouch_hid.targets.gadget import functionfs
 from neurotouch_hid.targets.gadget.targets import MAX_OUTPUT_REPORT, _ReportTarget
+from neurotouch_hid.udev import sudo_command
 
 if TYPE_CHECKING:
     from neurotouch_hid.targets.reports import ReportFormat
@@ -140,7 +141,7 @@ def hid_answer(event: functionfs.Event, fmt: ReportFormat, identity: object, sta
 
 
 def _fix(protocol: str) -> str:
-    setup = f"sudo neurotouch-hid gadget setup --protocol {protocol} --user $USER"
+    setup = sudo_command(f"gadget setup --protocol {protocol} --user $USER")
     return f"the {protocol} gadget is not set up for this user\n{setup}"
 
 

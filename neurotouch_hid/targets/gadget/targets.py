@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Callable
 from neurotouch_hid.controller import ControllerState, Feedback
 from neurotouch_hid.errors import DeviceError
 from neurotouch_hid.targets.gadget.writer import QUEUE_MOTION, QUEUE_STATE, ReportWriter
+from neurotouch_hid.udev import sudo_command
 
 if TYPE_CHECKING:
     from neurotouch_hid.mapping.profile import Profile
@@ -98,13 +99,13 @@ def _why_not(number: int | None) -> str:
     policy (the device cgroup: a systemd unit's ``DevicePolicy=``, Documentation/admin-guide/
     cgroup-v1/devices.rst), not the node's owner, which is EACCES."""
     if number == errno.ENOENT:
-        return "no such node: the gadget is not set up (or not bound)\nsudo neurotouch-hid gadget setup --user $USER"
+        return "no such node: the gadget is not set up (or not bound)\n" + sudo_command("gadget setup --user $USER")
     if number == errno.EPERM:
         return (
             "a device policy denies it (a systemd unit's DevicePolicy=closed without DeviceAllow=char-hidg rw, "
             "which packaging/neurotouch-hid.service has)"
         )
-    return "the gadget's device nodes are not this user's\nsudo neurotouch-hid gadget setup --user $USER"
+    return "the gadget's device nodes are not this user's\n" + sudo_command("gadget setup --user $USER")
 
 
 class HidgTarget(_ReportTarget):
