@@ -150,6 +150,39 @@ def test_unset_on_a_copy_of_a_shipped_profile_goes_back_to_the_shipped_value(cli
     assert mine["mappings"]["push"]["deadzone_mm"] == shipped and f"shipped value {shipped}" in undone.stdout
 
 
+def test_a_copys_mapping_and_key_can_be_removed_from_the_command_line(cli):
+    """unset on a copy put the shipped value back and, when it was there already, changed nothing
+    ('300 -> back to the shipped value 300'): the second unset removes the key, and set ... null
+    points at unset and edit."""
+    from ruamel.yaml import YAML
+
+    assert cli("new", "mine", "--from", "default").returncode == 0
+    key = "mappings.push.deadzone_mm"
+    first = cli("unset", "mine", key)  # the shipped value already: removed
+    assert first.returncode == 0 and "it was the shipped value already: removed" in first.stdout, first.stdout
+    assert "deadzone_mm" not in YAML().load((cli.user_dir / "mine.yaml").read_text())["mappings"]["push"]
+    gone = cli("unset", "mine", "mappings.zoom")
+    assert gone.returncode == 0 and "removed" in gone.stdout
+    assert "zoom" not in YAML().load((cli.user_dir / "mine.yaml").read_text())["mappings"]
+    null = cli("set", "mine", "mappings.pinch", "null")
+    assert null.returncode == 2
+    assert "`neurotouch-hid profile unset mine mappings.pinch`" in null.stderr, null.stderr
+    assert "`neurotouch-hid profile edit mine`" in null.stderr
+
+
+def test_text_that_yaml_reads_as_a_mapping_gets_the_quoted_command(cli):
+    assert cli("new", "mine", "--from", "default").returncode == 0
+    before = (cli.user_dir / "mine.yaml").read_text()
+    refused = cli("set", "mine", "description", "Client A: push = Space")
+    assert refused.returncode == 2 and (cli.user_dir / "mine.yaml").read_text() == before
+    hint = "read as YAML, as a mapping; for text, quote it"
+    assert hint in refused.stderr and "profile set mine description \"'Client A: push = Space'\"" in refused.stderr
+    done = cli("set", "mine", "description", "'Client A: push = Space'")  # what the hint gives the shell
+    assert done.returncode == 0 and "description: 'Client A: push = Space'" in (cli.user_dir / "mine.yaml").read_text()
+    number = cli("set", "mine", "mappings.push.deadzone_mm", "-1")  # a number where a number goes: no quoting hint
+    assert number.returncode == 2 and "quote it" not in number.stderr
+
+
 def test_a_key_of_a_mapping_the_profile_lacks_names_the_mappings_it_has(cli):
     assert cli("new", "mine", "--from", "accessibility").returncode == 0
     before = (cli.user_dir / "mine.yaml").read_text()

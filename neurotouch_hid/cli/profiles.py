@@ -22,9 +22,9 @@ from neurotouch_hid.cli.common import (
     finite,
     say_err,
 )
-from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.errors import NeurotouchError, ProfileError
 from neurotouch_hid.kinds import SourceKind
-from neurotouch_hid.limits import printable
+from neurotouch_hid.limits import printable, short
 from neurotouch_hid.tables import print_table
 
 profile_app = typer.Typer(
@@ -171,11 +171,40 @@ def profile_set(
 
     shadow = creates_shadow(name)
     new = parse_value(value)
-    path, previous = set_values(name, {key: new})
+    try:
+        path, previous = set_values(name, {key: new})
+    except ProfileError as exc:
+        hint = _set_hint(name, key, value, new, str(exc))
+        raise ProfileError(f"{exc}\n  {hint}" if hint else str(exc)) from None
     before = yaml_text(previous[key]) if key in previous else "(not set)"
     console.print(f"{path}: {key}: {before} -> {yaml_text(new)}", highlight=False, markup=False, soft_wrap=True)
     if shadow:
         _note_shadow(name, path)
+
+
+def _set_hint(name: str, key: str, text: str, value: object, problem: str) -> str:
+    """What to do when ``profile set NAME KEY TEXT`` (read as YAML: ``value``) was refused with
+    ``problem`` ("" when nothing more is to be said): null is not how a key is removed; text that
+    YAML reads as a mapping, list, number or boolean where a string was expected is quoted as a
+    YAML string."""
+    import shlex
+
+    if value is None:
+        return (
+            f"to remove a key: `neurotouch-hid profile unset {name} {key}` (on a copy of a shipped profile: once "
+            f"back to its value, again to remove it), or delete its lines in `neurotouch-hid profile edit {name}`"
+        )
+    if isinstance(value, str) or "string" not in problem:
+        return ""
+    kinds = ((dict, "a mapping"), (list, "a list"), (bool, "a boolean"))
+    kind = next((word for base, word in kinds if isinstance(value, base)), "a number")
+    as_yaml = "'" + text.replace("'", "''") + "'"  # a YAML single-quoted string
+    plain = not any(c in text for c in '"$`\\!')
+    quoted = f'"{as_yaml}"' if plain else shlex.quote(as_yaml)  # in the shell's double quotes where it can
+    return (
+        f"{short(text)} was read as YAML, as {kind}; for text, quote it for YAML inside the shell's quotes: "
+        f"neurotouch-hid profile set {name} {key} {quoted}"
+    )
 
 
 @profile_app.command("unset")
@@ -183,14 +212,21 @@ def profile_unset(
     name: str = typer.Argument(..., help="profile name"),
     key: str = typer.Argument(..., help="dotted key to undo"),
 ) -> None:
-    """Undo one key: the shipped profile's value when the profile is a copy of one, else the default.
+    """Undo one key: the shipped profile's value when the profile is a copy of one and holds
+    another value, else removed (its default applies; a mapping removed maps nothing): on a copy,
+    unset once goes back to the shipped value, twice removes the key.
 
     The profile is validated first and left unchanged if the result is invalid."""
     from neurotouch_hid.mapping.editor import creates_shadow, unset_value, yaml_text
 
     shadow = creates_shadow(name)
-    path, removed, shipped = unset_value(name, key)
-    now = "removed, its default applies" if shipped is None else f"back to the shipped value {yaml_text(shipped)}"
+    path, removed, shipped, already = unset_value(name, key)
+    if already:
+        now = "it was the shipped value already: removed, its default applies"
+    elif shipped is None:
+        now = "removed, its default applies"
+    else:
+        now = f"back to the shipped value {yaml_text(shipped)} (unset it again to remove it)"
     console.print(f"{path}: {key}: {yaml_text(removed)} -> {now}", highlight=False, markup=False, soft_wrap=True)
     if shadow:
         _note_shadow(name, path)

@@ -415,13 +415,15 @@ def set_values(name: str, changes: dict[str, Any]) -> tuple[Path, dict[str, Any]
         return _save_validated(name, document), previous
 
 
-def unset_value(name: str, key: str) -> tuple[Path, Any, Any]:
+def unset_value(name: str, key: str) -> tuple[Path, Any, Any, bool]:
     """Undo a dotted key of profile ``name``, saved as the user's copy: back to the value of the
-    shipped profile it is a copy of (:func:`shipped_base`) where that has the key, else removed
-    (the schema's default applies).
+    shipped profile it is a copy of (:func:`shipped_base`) where that has the key and the copy
+    holds another value, else removed (the schema's default applies; a mapping removed maps
+    nothing): on a copy, a first unset puts the shipped value back, a second removes the key.
 
     Returns:
-        (file, the value taken away, the shipped value put back or None when the key was removed).
+        (file, the value taken away, the shipped value put back or None when the key was removed,
+        whether it was removed because it held the shipped value already).
     Raises:
         ProfileError: a key that is not there, or the result is invalid (the file is left
             unchanged).
@@ -446,11 +448,12 @@ def unset_value(name: str, key: str) -> tuple[Path, Any, Any]:
                 shipped = base_parent.get(base_last, _MISSING)
             except ProfileError:  # the shipped profile does not have that part: the default applies
                 pass
-        if shipped is _MISSING:
+        already = shipped is not _MISSING and removed == shipped  # nothing to put back: remove it
+        if shipped is _MISSING or already:
             del parent[last]
-        else:
-            parent[last] = shipped
-        return _save_validated(name, document), removed, None if shipped is _MISSING else shipped
+            return _save_validated(name, document), removed, None, already
+        parent[last] = shipped
+        return _save_validated(name, document), removed, shipped, False
 
 
 def rejected_path(name: str) -> Path:
