@@ -82,6 +82,7 @@ def test_merged_as_root_the_helpers_nodes_are_hidden_so_a_game_started_then_list
 def test_a_driver_killed_while_it_hides_the_helpers_pad_leaves_the_pad_listed_and_readable(guest):
     details = passed(guest, "checks_copilot.check_a_killed_driver_leaves_no_device_hidden")
     assert details["hid"].startswith("['input/event") and not details["in_dev_while_hidden"]
+    assert details["guard_ready"]  # its put-back prepared before the kill
     assert details["in_dev_after_kill"] and details["node_as_before"] and not details["left_hidden"]
     assert details["reader_after_kill"] == [["BTN_SOUTH", 1], ["BTN_SOUTH", 0]]
     said = "the driver died with merged devices hidden; put back /dev/input/event"

@@ -510,15 +510,28 @@ import sys
 from neurotouch_hid.inputs.hide import Hider
 hider = Hider(guarded=True)
 print(hider.hide(sys.argv[1]), flush=True)
+print(hider._guard.pid, flush=True)
 sys.stdin.read()
 """
+
+
+def _guard_ready(pid: int) -> bool:
+    """Whether guard ``pid`` waits on its pipe with its put-back prepared (its main thread asleep
+    in the pipe's read, its preparing thread ended: neurotouch_hid/guard.py)."""
+    try:
+        return "pipe_read" in Path(f"/proc/{pid}/wchan").read_text() and len(os.listdir(f"/proc/{pid}/task")) == 1
+    except OSError:
+        return False
 
 
 def check_a_killed_driver_leaves_no_device_hidden() -> dict:
     """A driver SIGKILLed while it hides the helper's pad (the OOM killer, a crash in native code:
     nothing in it runs): its guard puts the pad's nodes back on devtmpfs at once, the same node
     (number, mode, owner, ACL), nothing left in the hidden folder, and a reader of the node gets
-    the pad's events again; the guard's line on the driver's standard error names them."""
+    the pad's events again; the guard's line on the driver's standard error names them. The kill
+    comes once the guard is ready (``guard_ready_s`` after the hiding: its Python's start and its
+    prepared imports), as a driver's death comes long after its merge; ``back_after_s`` is from the
+    kill to the node back in /dev."""
     helper = helper_pad()
     guestlib.settle()
     path = helper.device.path
@@ -534,6 +547,9 @@ def check_a_killed_driver_leaves_no_device_hidden() -> dict:
     try:
         details["hid"] = driver.stdout.readline().strip()
         details["in_dev_while_hidden"] = os.path.exists(path)
+        hidden, guard = time.monotonic(), int(driver.stdout.readline())
+        details["guard_ready"] = guestlib.wait_for(lambda: _guard_ready(guard), 120.0, 0.05)
+        details["guard_ready_s"] = round(time.monotonic() - hidden, 2)
         killed = time.monotonic()
         driver.kill()
         driver.wait()
