@@ -34,6 +34,7 @@ OWN_FILES = {
     "usr/lib/udev/rules.d/60-neurotouch.rules",
     "usr/lib/modules-load.d/neurotouch-hid.conf",
     "usr/lib/systemd/user/neurotouch-hid.service",
+    "usr/lib/systemd/user/neurotouch-hid@.service",
     "usr/share/doc/neurotouch-hid/README.md",
     "usr/share/doc/neurotouch-hid/changelog.Debian.gz",
     "usr/share/doc/neurotouch-hid/copyright",
@@ -77,6 +78,8 @@ def test_the_staged_package_has_its_files_control_fields_and_maintainer_scripts(
     unit = (stage / "usr/lib/systemd/user/neurotouch-hid.service").read_text()
     execs = re.findall(r"^Exec\w*=(\S+)", unit, re.M)
     assert execs and set(execs) == {"/usr/bin/neurotouch-hid"}, execs  # no PATH lookup, no checkout
+    template = (stage / "usr/lib/systemd/user/neurotouch-hid@.service").read_text()  # one driver per camera
+    assert re.search(r"^ExecStart=/usr/bin/neurotouch-hid run --source davis --serial %i ", template, re.M)
     arch = subprocess.run(["dpkg", "--print-architecture"], capture_output=True, text=True).stdout.strip()
     control = _control((stage / "DEBIAN/control").read_text())
     assert control["Package"] == "neurotouch-hid"
