@@ -57,8 +57,10 @@ class EpisodeVote:
     most intensity-weighted votes (mm) since the contact count last changed. A window below
     ``provisional_mm`` commits nothing whatever its count (a gel that has barely moved shows
     spurious contacts: one such window committing push on three contacts made a twist's lone
-    first finger felt as push). Within ``first_finger_us`` of the onset, a window that reads push
-    on two contacts or more commits only when the window before saw two or more too: the fingers
+    first finger felt as push). Within ``first_finger_us`` of the onset, a window at or above
+    ``counted_mm`` that reads push on two contacts or more commits only when the window before saw
+    two or more too (below it a flickering light's count jumps, and such a window commits at once,
+    as before): the fingers
     of a twist, pinch or zoom sliding together for a moment read push, on contacts the next
     window may not see (a two-finger push is answered one window later).
 
@@ -211,6 +213,7 @@ class EpisodeVote:
             if (
                 gesture is GestureType.PUSH
                 and count_before < 2 <= n_contacts
+                and intensity_mm >= self.counted_mm
                 and t_us - self._onset_us < self.first_finger_us
             ):
                 return GestureType.NONE  # several contacts read push, not seen the window before
