@@ -422,3 +422,17 @@ def test_pip_fixes_name_this_installation_python_not_the_distribution_one():
 
     fix = doctor.check_library("neurotouch_no_such_module", "no-such-dist").fix
     assert fix == f"{sys.executable} -m pip install --upgrade no-such-dist"  # python3 -m pip: PEP 668
+
+
+def test_profile_test_names_outputs_as_the_profile_writes_them(cli, tmp_path):
+    """A switch user's profile says ``space``; profile test said only ``KEY_SPACE``."""
+    from neurotouch_hid.dataset import write_predictions
+    from neurotouch_hid.estimate import GestureEstimate, GestureType
+
+    assert cli("new", "sw", "--from", "accessibility").returncode == 0
+    assert cli("set", "sw", "mappings.confirm.output", "space").returncode == 0
+    preds = tmp_path / "p.jsonl"
+    write_predictions(preds, [GestureEstimate(t_us=10_000 * i, gesture=GestureType.NONE) for i in range(5)])
+    done = cli("test", "sw", "--source", str(preds))
+    assert done.returncode == 0, done.stderr
+    assert "space (KEY_SPACE)" in done.stdout and "B (BTN_EAST)" in done.stdout, done.stdout

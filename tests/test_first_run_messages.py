@@ -165,3 +165,17 @@ def test_calibrate_into_a_folder_that_does_not_exist_is_refused_before_the_sessi
     done = run_cli("calibrate", "--source", "sim", "--out", str(out), timeout=60)
     assert done.returncode == 2 and f"cannot write in {out.parent}: no such folder" in done.stderr, done.stderr
     assert not out.parent.exists() and "compiling" not in done.stderr
+
+
+def test_ctrl_c_during_the_start_says_the_run_stopped_before_its_first_window(monkeypatch, capsys):
+    """Ctrl-C while a first run still imports and compiles (the view already drawn) ended in
+    silence: no summary, since the run had not begun. It says so, then exits 130."""
+    from helpers import run_main
+
+    def demo(seconds, console, say):
+        raise KeyboardInterrupt  # before the runtime: no stats
+
+    monkeypatch.setattr(driver, "run_demo", demo)
+    done = run_main(monkeypatch, capsys, ["demo", "--seconds", "5"])
+    assert done.returncode == 130
+    assert "stopped during the start, before the first window: no output was sent" in done.stderr

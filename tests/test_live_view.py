@@ -224,9 +224,9 @@ def test_the_live_view_answers_q_h_and_space_in_a_real_terminal(tmp_path):
         shown = wait_for(r"windows [1-9]")
         assert "q quit  h help" in shown
         subprocess.run([tmux, "send-keys", "-t", session, "h"], check=True)
-        assert "Space hold the picture" in wait_for(r"q quit \(with the run's summary\)", 10)
+        assert "Space hold the picture (the pad goes on)" in wait_for(r"Ctrl-C quit \(with the run's summary\)", 10)
         subprocess.run([tmux, "send-keys", "-t", session, "Space"], check=True)
-        held = wait_for(r"held \(Space lets go\)", 10)
+        held = wait_for(r"held: picture only \(Space\)", 10)
         time.sleep(1.0)
         assert re.search(r"t [0-9.]+ s", screen()).group() == re.search(r"t [0-9.]+ s", held).group()
         subprocess.run([tmux, "send-keys", "-t", session, "q"], check=True)

@@ -386,11 +386,11 @@ def test_a_settled_guard_costs_nothing_and_never_waits(monkeypatch):
         assert guard() is guard()  # one shared empty context, nothing made per call
 
 
-@pytest.mark.parametrize("command", ["track", "enrol --from"])
+@pytest.mark.parametrize("command", ["track", "enrol --from", "profile test"])
 def test_a_command_that_runs_the_pipeline_at_once_has_a_cold_cache_compiled_by_the_children_and_says_so(
     command, sim_push_only_recording, tmp_path, monkeypatch, capsys
 ):
-    """``track`` and ``enrol --from`` (like ``calibrate`` and ``enrol``) cannot interpret the
+    """``track``, ``enrol --from`` and ``profile test`` (like ``calibrate`` and ``enrol``) cannot interpret the
     pipeline: on a cold cache they wait for the same children as a camera run (both cores), and
     say so on stderr before anything else, instead of compiling in this process in silence."""
     children: list[str] = []
@@ -406,6 +406,8 @@ def test_a_command_that_runs_the_pipeline_at_once_has_a_cold_cache_compiled_by_t
     monkeypatch.setattr(warmup.Warmup, "_child", child)
     if command == "track":
         args = ["track", str(sim_push_only_recording), "--out", str(tmp_path / "p.jsonl")]
+    elif command == "profile test":  # it compiled for 77 s on its first run without a word
+        args = ["profile", "test", "default", "--source", str(sim_push_only_recording), "--seconds", "1"]
     else:
         plan = tmp_path / "plan.json"
         plan.write_text('{"prompts": [{"gesture": "push", "cue_s": 1.0, "seconds": 1.0}]}')

@@ -134,13 +134,18 @@ def run(
 @contextlib.contextmanager
 def _summary_on_interrupt() -> Iterator[None]:
     """A run ended by Ctrl-C still prints its summary (how far a first run's compile got) before
-    the interrupt goes on (exit 130)."""
+    the interrupt goes on (exit 130); one stopped before its first window (its start-up: a first
+    run's imports and compile, the source opening) says that instead."""
     try:
         yield
     except KeyboardInterrupt as exc:
         stats = getattr(exc, "stats", None)
-        if stats is not None:
-            err_console.print(stats.summary(), highlight=False, soft_wrap=True)
+        said = (
+            stats.summary()
+            if stats is not None
+            else "stopped during the start, before the first window: no output was sent"
+        )
+        err_console.print(said, highlight=False, soft_wrap=True)
         raise
 
 

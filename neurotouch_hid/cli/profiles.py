@@ -20,6 +20,7 @@ from neurotouch_hid.cli.common import (
     duration,
     err_console,
     finite,
+    long_lived_start_up,
     say_err,
 )
 from neurotouch_hid.errors import NeurotouchError, ProfileError
@@ -205,6 +206,37 @@ def _set_hint(name: str, key: str, text: str, value: object, problem: str) -> st
         f"{short(text)} was read as YAML, as {kind}; for text, quote it for YAML inside the shell's quotes: "
         f"neurotouch-hid profile set {name} {key} {quoted}"
     )
+
+
+def written_outputs(name: str) -> dict[str, str]:
+    """Each mapping's ``output:`` of profile ``name`` as its file writes it (``space``, ``A``,
+    ``RT``: the names a player chose, which loading turns into evdev names,
+    :func:`~neurotouch_hid.mapping.profile.resolve_output`); empty where the file cannot be read
+    again (the profile was loaded: it is only for display)."""
+    from neurotouch_hid.limits import load_yaml
+    from neurotouch_hid.mapping.profile import find_profile, read_profile_text
+
+    try:
+        data, _ = load_yaml(read_profile_text(find_profile(name)))
+    except Exception:  # noqa: BLE001 - display only: the evdev names stay
+        return {}
+    mappings = data.get("mappings") if isinstance(data, dict) else None
+    if not isinstance(mappings, dict):
+        return {}
+    return {
+        str(k): str(m["output"])
+        for k, m in mappings.items()
+        if isinstance(m, dict) and isinstance(m.get("output"), str)
+    }
+
+
+def _as_written(output: str, mappings: tuple[str, ...], written: dict[str, str]) -> str:
+    """``output`` as the profile's file writes it, with the evdev name beside when they differ
+    (``space (KEY_SPACE)``)."""
+    names = {written[m] for m in mappings if m in written}
+    if len(names) != 1 or output in names:
+        return output
+    return f"{names.pop()} ({output})"
 
 
 @profile_app.command("unset")
@@ -486,6 +518,11 @@ def profile_test(
 
         require("plots", "profile test --plot")
     loaded = load_profile(name)
+    if not source.endswith(".jsonl"):  # the pipeline runs from the first item: a first run compiles
+        with long_lived_start_up():
+            from neurotouch_hid.warmup import compile_before
+
+            compile_before(say_err, simulator=source == SourceKind.SIM)  # in child processes, said
     estimates = list(estimates_from_source(source, seconds, chosen_model(model)))
     states = replay(loaded, estimates)
     summary = summarise(states)
@@ -522,10 +559,12 @@ def profile_test(
         )
     print_table(console, table)
     totals = Table("output", "mapping", "reached", title=f"summary: every output {name} maps")
+    written = written_outputs(name)
     for r in reached:
-        totals.add_row(r.output, ", ".join(r.mappings), r.detail if r.reached else f"never reached ({r.detail})")
+        shown = _as_written(r.output, r.mappings, written)
+        totals.add_row(shown, ", ".join(r.mappings), r.detail if r.reached else f"never reached ({r.detail})")
     print_table(console, totals)
-    missed = [r.output for r in reached if not r.reached]
+    missed = [_as_written(r.output, r.mappings, written) for r in reached if not r.reached]
     if missed:
         console.print(
             f"never reached: {', '.join(missed)} (a longer --seconds, or a recording with those gestures, tries them)",

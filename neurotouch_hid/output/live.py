@@ -13,7 +13,9 @@
   and how far the compile is.
 
 On a terminal it answers keys (:data:`HELP`): ``q`` stops the run cleanly (as SIGTERM: outputs
-neutral, the run's summary), ``h`` or ``?`` shows the keys, Space holds the picture.
+neutral, the run's summary; Ctrl-C too), ``h`` or ``?`` shows the keys, Space holds the picture
+only: the pad goes on (a switch user's Space may be their switch, and an output frozen mid-press
+would hold a button; the footer says "held: picture only").
 
 The view is a subscriber of the run (:class:`~neurotouch_hid.stages.Subscriber`): it draws the
 last :class:`~neurotouch_hid.stages.WindowRecord` the runtime published (the markers the
@@ -71,7 +73,7 @@ SPINNER = "⠋⠙⠹⠸⠼⠴⠦⠧⠇⠏"
 #: Most lines of "what each gesture drives" (the last says "+N more" when there are more).
 MAPPINGS_SHOWN = 8
 #: The keys the view answers (on a terminal), as its help shows them.
-HELP = "keys: q quit (with the run's summary)  Space hold the picture  h/? help"
+HELP = "keys: q or Ctrl-C quit (with the run's summary)  h/? help\n      Space hold the picture (the pad goes on)"
 #: The footer's reminder of them.
 KEYS_HINT = "q quit  h help"
 #: Width of the compile's progress bar (characters).
@@ -305,7 +307,7 @@ def live_layout(
         style="bold red" if stats.dropped_items else "dim",
     )
     if held:
-        footer.append("   held (Space lets go)", style="bold yellow")
+        footer.append("   held: picture only (Space)", style="bold yellow")
     else:
         footer.append(f"   {KEYS_HINT}", style="dim")
     rows: list[ConsoleRenderable] = [top]
