@@ -51,3 +51,16 @@ def test_stopping_one_driver_leaves_the_other_running(guest):
     assert details["right_events_after_left_stopped"] > 20
     assert details["right_result"]["ok"] and details["right_result"]["exit"] == 0, details["right_result"]
     assert details["right_gone"] and details["right_axes_at_end"] == {}
+
+
+UNITS = "checks_sensor_units.check_a_camera_with_its_own_folder_starts_its_own_instance"
+
+
+def test_a_camera_with_its_own_folder_starts_its_own_instance_not_the_single_unit(guest):
+    seen = passed(guest, UNITS)
+    assert seen["link"], seen  # /dev/neurotouch-00000001 -> the camera's node
+    assert "neurotouch-hid@00000001.service" in seen["wants"].split() and "neurotouch-hid.service" in seen["wants"]
+    assert seen["device"] and seen["instance_started"], seen
+    assert "--serial 00000001" in seen["instance_exec"], seen
+    assert seen["single"]["invocation"] == "", seen  # it stepped aside: ConditionPathExists=!
+    assert seen["instance_stopped"] and seen["link_gone"], seen
