@@ -316,7 +316,7 @@ def serve(seconds: float, product: str) -> dict:
     if ctl is None:
         return {"done": True, "error": f"no GameController with product {product} within {seconds} s"}
     count = controller.get_count()
-    say({"opened": True, "count": count, "guids": _guids(pygame, count)})
+    say({"opened": True, "name": getattr(ctl, "name", None), "count": count, "guids": _guids(pygame, count)})
     axes = [(name.lower(), getattr(pygame, "CONTROLLER_AXIS_" + name)) for name in WATCH_AXES]
     buttons = [(name.lower(), getattr(pygame, "CONTROLLER_BUTTON_" + name)) for name in WATCH_BUTTONS]
     for line in sys.stdin:
