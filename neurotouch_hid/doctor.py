@@ -382,6 +382,9 @@ def check_gadget() -> Check:
 
     found = gadget_support()
     modules = ", ".join(f"{name} {state}" for name, state in found.modules.items())
+    if all(state == "unknown" for state in found.modules.values()):
+        modules = f"its modules not known: no /lib/modules/{platform.release()} to look in"
+        found.notes.remove(next(n for n in found.notes if n.startswith("the kernel's modules are not known")))
     if not found.possible:
         return Check(
             "USB gadget (--output usb)", WARN, "; ".join(found.problems) + f" ({modules})", "\n".join(found.fixes)
@@ -505,20 +508,42 @@ def run_checks() -> list[Check]:
     ]
 
 
+#: doctor's lines are wrapped at this many columns (or the terminal's width, when narrower), the
+#: continuation under the detail; a fix's command is never wrapped or cut (it is copied whole).
+REPORT_COLUMNS = 100
+
+
 def report(checks: list[Check], console: Console) -> int:
-    """Print the checks, one line each (status, name, detail) with each fix's lines indented under
-    it, and a last line that counts the problems; return the exit code (1 if any check failed,
-    else 0). Nothing is wrapped or cut: a fix is copied from its own line."""
+    """Print the checks (status, name, detail, wrapped at :data:`REPORT_COLUMNS` with the
+    continuation under the detail) with each fix's lines indented under it (a command whole, a
+    ``#`` comment wrapped as comments), and a last line that counts the problems; return the exit
+    code (1 if any check failed, else 0)."""
+    import textwrap
+
     style = {OK: "green", FAIL: "bold red", WARN: "yellow", SKIP: "dim"}
     width = max(len(c.name) for c in checks) if checks else 0
+    columns = min(REPORT_COLUMNS, console.width) if console.is_terminal else REPORT_COLUMNS
 
     def say(line: str) -> None:
         console.print(line, highlight=False, markup=True, soft_wrap=True)
 
     for c in checks:
-        say(f"[{style[c.status]}]{c.status:<4}[/] {escape(c.name):<{width}}  {escape(c.detail)}")
+        head = f"{c.status:<4} {c.name:<{width}}  "
+        lines = textwrap.wrap(
+            head + c.detail, columns, subsequent_indent=" " * len(head), break_on_hyphens=False, break_long_words=False
+        ) or [head]
+        say(f"[{style[c.status]}]{c.status:<4}[/]{escape(lines[0][4:])}")
+        for line in lines[1:]:
+            say(escape(line))
         for step in c.fix.splitlines():
-            say(f"      {escape(step)}")
+            if step.lstrip().startswith("#"):
+                wrapped = textwrap.wrap(
+                    step, columns - 6, subsequent_indent="# ", break_on_hyphens=False, break_long_words=False
+                )
+                for line in wrapped:
+                    say(f"      {escape(line)}")
+            else:
+                say(f"      {escape(step)}")
     failed = [c.name for c in checks if c.status == FAIL]
     problems = f"[bold red]{len(failed)} problem(s):[/] {escape(', '.join(failed))}"
     say(problems if failed else "[green]all checks passed[/]")

@@ -658,3 +658,17 @@ def test_profile_show_says_which_copilot_devices_are_plugged_in(cli, tmp_path):
     assert done.returncode == 0, done.stderr
     assert done.stdout == SHORT_FORM  # a pipe gets the file's exact bytes
     assert "# copilot: present: none; missing: Helper Pad, Switch Box" in done.stderr
+
+
+def test_the_unhidden_note_says_needs_root_only_to_a_user_who_is_not(monkeypatch):
+    """As root, doctor said hiding merged devices 'needs root': where root cannot hide them,
+    /dev/input is what is not writable."""
+    import os
+
+    from neurotouch_hid.inputs.copilot import unhidden_note
+
+    monkeypatch.setattr(os, "geteuid", lambda: 0)
+    as_root = unhidden_note()
+    assert "needs root" not in as_root and "/dev/input is not writable here" in as_root
+    monkeypatch.setattr(os, "geteuid", lambda: 1000)
+    assert "(that needs root)" in unhidden_note() and "run the driver as root" in unhidden_note()

@@ -289,8 +289,17 @@ def test_doctor_piped_is_plain_lines_with_each_fix_whole_on_its_own_line(tmp_pat
     unit = config / "systemd/user/neurotouch-hid.service"
     assert unit.is_file()
     again = run_cli("doctor", env={"XDG_CONFIG_HOME": str(config)})
-    service = [line for line in again.stdout.splitlines() if "plug-and-play service" in line]
-    assert service and service[0].startswith("ok") and str(unit) in service[0]
+    rows = again.stdout.replace("\n" + " " * 37, " ").splitlines()  # a detail's wrapped lines joined
+    service = [line for line in rows if "plug-and-play service" in line]
+    assert service and service[0].startswith("ok") and str(unit) in service[0].replace(" ", ""), again.stdout
+
+
+def test_doctor_piped_keeps_to_100_columns_but_for_a_whole_command(tmp_path):
+    """The gadget row was a 244-column line: details wrap under themselves, comments as comments;
+    only a command (copied whole) may be longer."""
+    proc = run_cli("doctor", env={"XDG_CONFIG_HOME": str(tmp_path / "xdg")})
+    long = [line for line in proc.stdout.splitlines() if len(line) > 100]
+    assert all(line.startswith("      ") and not line.strip().startswith("#") for line in long), long
 
 
 def test_install_script_finds_pipx_command_off_path(tmp_path):

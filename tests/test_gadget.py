@@ -318,6 +318,15 @@ def test_module_state_reads_sys_module_then_builtin_then_dep(tmp_path):
     assert module_state("libcomposite", mods, sysmod) == "built in"
     assert module_state("usb-f-fs", mods, sysmod) == "available"
     assert module_state("dummy_hcd", mods, sysmod) == "missing"
+    # no /lib/modules/RELEASE to look in (a container): not known, not "missing"
+    assert module_state("libcomposite", tmp_path / "nowhere", sysmod) == "unknown"
+
+
+def test_no_udc_says_whether_the_class_folder_is_empty_or_absent(tmp_path, monkeypatch):
+    monkeypatch.setattr(configfs, "UDC_CLASS", tmp_path / "udc")
+    assert "/udc does not exist" in configfs.no_udc()
+    (tmp_path / "udc").mkdir()
+    assert "/udc is empty" in configfs.no_udc()
 
 
 def test_raspberry_pi_is_told_by_its_device_tree_model(tmp_path):

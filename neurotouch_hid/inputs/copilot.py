@@ -429,9 +429,12 @@ def unhidden_note(info: InputInfo | None = None) -> str:
     grabbed but not hidden, so a game that lists controllers at its start may still show them;
     how to avoid it (``info``: a merged device, whose USB ids the SDL variable then names)."""
     ids = f"0x{info.vendor:04x}/0x{info.product:04x}" if info is not None and info.vendor else "0xVVVV/0xPPPP"
+    if os.geteuid() == 0:  # root, but /dev/input cannot be changed here (a container, a read-only /dev)
+        why, fix = "/dev/input is not writable here, even as root", "give the driver a writable /dev"
+    else:
+        why, fix = "that needs root", "run the driver as root (a system service)"
     return (
-        "the merged devices are grabbed (silent to games) but not hidden (that needs root): a game that "
+        f"the merged devices are grabbed (silent to games) but not hidden ({why}): a game that "
         "lists controllers when it starts may still show the helper's pad as a second one; to avoid it, "
-        "run the driver as root (a system service), or start the game with "
-        f"SDL_GAMECONTROLLER_IGNORE_DEVICES={ids}"
+        f"{fix}, or start the game with SDL_GAMECONTROLLER_IGNORE_DEVICES={ids}"
     )

@@ -164,6 +164,13 @@ def gadget_dir(name: str = GADGET_NAME) -> Path:
     return CONFIGFS / "usb_gadget" / name
 
 
+def no_udc() -> str:
+    """:data:`NO_UDC`, saying whether ``/sys/class/udc`` is empty or does not exist at all (no UDC
+    driver in this kernel, or a container without that part of /sys)."""
+    state = "is empty" if UDC_CLASS.is_dir() else "does not exist"
+    return f"this machine has no USB device controller ({UDC_CLASS} {state}): it cannot be a USB device"
+
+
 def udcs() -> list[str]:
     """The USB device controllers of this machine (``/sys/class/udc``), sorted; [] when none."""
     try:
@@ -256,7 +263,7 @@ def mount_configfs() -> None:
     if not (CONFIGFS / "usb_gadget").is_dir():
         if not udcs():  # no module or mount makes this machine a USB device: the board comes first
             raise DeviceError(
-                f"{CONFIGFS}/usb_gadget does not exist, and {NO_UDC}; `neurotouch-hid doctor` says what a board "
+                f"{CONFIGFS}/usb_gadget does not exist, and {no_udc()}; `neurotouch-hid doctor` says what a board "
                 "needs (docs/any-host.md)"
             )
         raise DeviceError(
@@ -370,7 +377,7 @@ def bind(name: str = GADGET_NAME, udc: str | None = None) -> str:
     names = udcs()
     if udc is None:
         if not names:
-            raise DeviceError(f"{NO_UDC}; see `neurotouch-hid doctor`")
+            raise DeviceError(f"{no_udc()}; see `neurotouch-hid doctor`")
         udc = names[0]
     try:
         write_attr(gadget_dir(name) / "UDC", udc)

@@ -64,12 +64,15 @@ def protocol_notes(release: str | None = None, gadgets: Path | None = None) -> l
 
 
 def module_state(name: str, modules_dir: Path | None = None, sys_module: Path = Path("/sys/module")) -> str:
-    """``loaded``, ``built in``, ``available`` (a module file is there to load) or ``missing``,
-    for kernel module ``name`` (``-`` and ``_`` alike)."""
+    """``loaded``, ``built in``, ``available`` (a module file is there to load), ``missing``, or
+    ``unknown`` where there is no ``/lib/modules/RELEASE`` to look in (a container, a kernel
+    installed without its modules), for kernel module ``name`` (``-`` and ``_`` alike)."""
     name = name.replace("-", "_")
     if (sys_module / name).is_dir():
         return "loaded"
     modules_dir = modules_dir or Path("/lib/modules") / platform.release()
+    if not modules_dir.is_dir():
+        return "unknown"
     for listing, state in (("modules.builtin", "built in"), ("modules.dep", "available")):
         try:
             text = read_text_file(modules_dir / listing, MAX_MODULES_FILE, listing)
@@ -127,7 +130,7 @@ def gadget_support() -> GadgetSupport:
     modules = {name: module_state(name) for name in configfs.MODULES}
     problems, fixes = [], []
     if not udcs:
-        problems.append(configfs.NO_UDC)
+        problems.append(configfs.no_udc())
         if is_raspberry_pi():
             fixes += [
                 "echo dtoverlay=dwc2,dr_mode=peripheral | sudo tee -a /boot/firmware/config.txt",
@@ -143,6 +146,9 @@ def gadget_support() -> GadgetSupport:
         fixes.append(
             "# a kernel built with CONFIG_USB_LIBCOMPOSITE, CONFIG_USB_CONFIGFS_F_HID and CONFIG_USB_CONFIGFS_F_FS"
         )
+    notes = protocol_notes()
+    if any(state == "unknown" for state in modules.values()):
+        notes.insert(0, f"the kernel's modules are not known: no /lib/modules/{platform.release()} to look in")
     loadable = [name for name, state in modules.items() if state == "available"]
     if loadable:
         fixes.append(f"sudo modprobe {' '.join(loadable)}")
@@ -150,7 +156,7 @@ def gadget_support() -> GadgetSupport:
         if not loadable:
             problems.append("configfs is not mounted at /sys/kernel/config")
         fixes.append("sudo mount -t configfs none /sys/kernel/config")
-    return GadgetSupport(udcs, mounted, modules, configfs.protocol_of(), problems, fixes, protocol_notes())
+    return GadgetSupport(udcs, mounted, modules, configfs.protocol_of(), problems, fixes, notes)
 
 
 def possible_outputs() -> dict[str, str | None]:
