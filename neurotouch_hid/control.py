@@ -404,8 +404,9 @@ def _ask_status(path: Path, timeout_s: float) -> tuple[int, str]:
 
 
 def _unit_of(pid: int) -> str | None:
-    """The systemd unit process ``pid`` runs in: the last ``*.service`` of its cgroup path
-    (``/proc/PID/cgroup``, cgroup v2's ``0::/user.slice/.../neurotouch-hid@X.service``), or None."""
+    """The systemd service process ``pid`` runs in: the last part of its cgroup path when it is a
+    ``*.service`` (``/proc/PID/cgroup``, cgroup v2's ``0::/user.slice/.../neurotouch-hid@X.service``),
+    else None (a terminal's scope, under ``user@UID.service``, is no unit of the driver's)."""
     from neurotouch_hid.limits import read_proc_file
 
     try:
@@ -413,9 +414,9 @@ def _unit_of(pid: int) -> str | None:
     except OSError:
         return None
     for line in data.decode(errors="replace").splitlines():
-        parts = [p for p in line.rsplit(":", 1)[-1].split("/") if p.endswith(".service")]
-        if parts:
-            return printable(parts[-1], 120)
+        last = line.rsplit(":", 1)[-1].rstrip("/").rsplit("/", 1)[-1]
+        if last.endswith(".service"):
+            return printable(last, 120)
     return None
 
 

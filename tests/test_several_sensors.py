@@ -351,3 +351,18 @@ def test_the_keyboard_and_mouse_of_a_camera_carry_its_phys(monkeypatch):
     made.clear()
     desktop.UinputOutputs(None, both)
     assert made == ["own", "own"]
+
+
+def test_the_unit_of_a_driver_is_its_own_service_only(monkeypatch):
+    """``/proc/PID/cgroup``'s last part names the service a driver runs in; a driver started in a
+    terminal (a scope under the user's manager, ``user@1000.service``) has none."""
+    from neurotouch_hid import control, limits
+
+    cgroups = {
+        1: b"0::/user.slice/user-1000.slice/user@1000.service/app.slice/neurotouch-hid@00000499.service\n",
+        2: b"0::/user.slice/user-1000.slice/user@1000.service/app.slice/app-gnome-term.slice/vte-spawn-1.scope\n",
+        3: b"0::/\n",
+    }
+    monkeypatch.setattr(limits, "read_proc_file", lambda path, n: (cgroups[int(str(path).split("/")[2])], False))
+    assert control._unit_of(1) == "neurotouch-hid@00000499.service"
+    assert control._unit_of(2) is None and control._unit_of(3) is None
