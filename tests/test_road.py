@@ -134,7 +134,8 @@ def test_every_device_is_a_target_and_none_is_a_subscriber_of_its_own():
     """The uinput pad, keyboard and mouse, the UHID device, the gadget's functions: each a Target,
     written to only through TargetOutputs (one output path, one feedback path)."""
     from neurotouch_hid.stages import Target
-    from neurotouch_hid.targets.gadget.targets import HidgTarget, XInputTarget
+    from neurotouch_hid.targets.gadget.ffs import HidInterfaceTarget, XInputTarget
+    from neurotouch_hid.targets.gadget.targets import HidgTarget
     from neurotouch_hid.targets.uhid import UhidDevice
     from neurotouch_hid.targets.uinput.desktop import UinputDesktop, UinputOutputs, VirtualKeyboard, VirtualMouse
     from neurotouch_hid.targets.uinput.gamepad import VirtualGamepad
@@ -142,7 +143,7 @@ def test_every_device_is_a_target_and_none_is_a_subscriber_of_its_own():
     members = {name for name, _ in inspect.getmembers(Target) if not name.startswith("_")}
     assert members == {"write", "neutralise", "prepare", "fileno", "feedback", "close"}
     devices = (VirtualGamepad, VirtualKeyboard, VirtualMouse, UinputOutputs, UinputDesktop, UhidDevice)
-    for device in (*devices, HidgTarget, XInputTarget):
+    for device in (*devices, HidgTarget, XInputTarget, HidInterfaceTarget):
         assert all(callable(getattr(device, m, None)) for m in members), device
         assert not hasattr(device, "publish"), f"{device.__name__} is a subscriber of its own"
     assert "Thread(" not in inspect.getsource(VirtualGamepad), "a rumble thread of the pad's own"
