@@ -50,6 +50,8 @@ from neurotouch_hid.udev import (
 )
 
 SERVICE_NAME = "neurotouch-hid.service"
+#: The per-camera unit template (packaging/neurotouch-hid@.service, docs/several-sensors.md).
+TEMPLATE_NAME = "neurotouch-hid@.service"
 #: The distribution that brings ``import evdev`` here, as pyproject.toml chooses it: the
 #: precompiled evdev-binary on x86_64 (its only wheels), the source evdev elsewhere.
 EVDEV_DIST = "evdev-binary" if platform.machine() == "x86_64" else "evdev"
@@ -212,7 +214,9 @@ def user_config_dir() -> Path:
 def check_service(config: Path | None = None) -> Check:
     """The plug-and-play systemd user unit is installed in ``config``/systemd/user (default:
     :func:`user_config_dir`) or system-wide, and the command its ExecStart names is there (a
-    warning only: `run` works without)."""
+    warning only: `run` works without). Where cameras have config folders of their own
+    (:func:`~neurotouch_hid.serials.configured_serials`) the single unit steps aside: then the
+    per-camera template must be installed too, or no driver starts on plug-in."""
     config = config or user_config_dir()
     dirs = (config / "systemd/user", Path("/etc/systemd/user"), Path("/usr/lib/systemd/user"))
     found = [str(d / SERVICE_NAME) for d in dirs if (d / SERVICE_NAME).is_file()]
@@ -225,7 +229,22 @@ def check_service(config: Path | None = None) -> Check:
             return Check(
                 "plug-and-play service", WARN, f"{found[0]} runs {gone}, which is not there (it cannot start)", fix
             )
-        return Check("plug-and-play service", OK, found[0])
+        from neurotouch_hid.serials import configured_serials
+
+        serials = configured_serials()
+        if not serials:
+            return Check("plug-and-play service", OK, found[0])
+        instances = ", ".join(f"neurotouch-hid@{s}.service" for s in serials)
+        if not any((d / TEMPLATE_NAME).is_file() for d in dirs):
+            return Check(
+                "plug-and-play service",
+                WARN,
+                f"{found[0]} steps aside for the cameras with a config folder of their own ({', '.join(serials)}), "
+                f"but {TEMPLATE_NAME}, which would start one driver for each, is not installed: nothing starts "
+                "when a camera is plugged in (docs/several-sensors.md)",
+                fix,
+            )
+        return Check("plug-and-play service", OK, f"one driver per camera with a config folder: {instances}")
     return Check(
         "plug-and-play service",
         WARN,

@@ -366,3 +366,22 @@ def test_the_unit_of_a_driver_is_its_own_service_only(monkeypatch):
     monkeypatch.setattr(limits, "read_proc_file", lambda path, n: (cgroups[int(str(path).split("/")[2])], False))
     assert control._unit_of(1) == "neurotouch-hid@00000499.service"
     assert control._unit_of(2) is None and control._unit_of(3) is None
+
+
+def test_doctor_says_when_camera_folders_need_the_unit_template():
+    """Once cameras have folders of their own the single unit steps aside: doctor warns while
+    the per-camera template is not installed (nothing would start on plug-in), and names each
+    camera's instance once it is."""
+    from neurotouch_hid.doctor import OK, WARN, check_service, user_config_dir
+
+    units = user_config_dir() / "systemd" / "user"
+    units.mkdir(parents=True)
+    (units / "neurotouch-hid.service").write_text("[Service]\nExecStart=/bin/sh -c true\n")
+    assert check_service().status == OK
+    _own("A1", "sensor.yaml")
+    warned = check_service()
+    assert warned.status == WARN and "neurotouch-hid@.service" in warned.detail and "(A1)" in warned.detail
+    assert "install.sh" in warned.fix
+    (units / "neurotouch-hid@.service").write_text("[Service]\nExecStart=/bin/sh -c true\n")
+    ok = check_service()
+    assert ok.status == OK and ok.detail == "one driver per camera with a config folder: neurotouch-hid@A1.service"
