@@ -116,8 +116,11 @@ def running_serials() -> list[str]:
 def _chosen_socket(serial: str | None) -> Path | None:
     """The socket ``profile use`` talks to: the driver of ``serial``; without one, the driver
     started without a serial, else the one driver that has a serial. Raises NeurotouchError when
-    several drivers with serials run and none was named."""
-    path = socket_path(serial)
+    several drivers with serials run and none was named, or for an invalid serial."""
+    try:
+        path = socket_path(serial)
+    except ValueError as exc:
+        raise NeurotouchError(f"--serial: {exc}") from None
     if serial is not None or path is None or path.exists():
         return path
     serials = running_serials()

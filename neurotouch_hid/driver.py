@@ -436,11 +436,9 @@ def run_driver(
     ``protocol``: with ``output`` ``usb`` or ``hid``, the protocol the controller speaks (a row of
     :data:`~neurotouch_hid.targets.protocols.PROTOCOLS` that runs on the gadget or on UHID; None:
     the profile's ``device: protocol``, else ``hid``).
-    ``serial``: the camera the run stands for (:func:`camera_serial`): the outputs' identity
-    (:func:`~neurotouch_hid.targets.identity.identity_for`), its control socket, and its own
-    config where it has one (:mod:`neurotouch_hid.serials`): ``profile`` None is its
-    ``profile.yaml``, else ``default``; ``sensor`` None (the camera, the simulated gel) its
-    ``sensor.yaml``, else the shared one; its ``games.yaml``, else the shared one.
+    ``serial``: the camera the run stands for (:mod:`neurotouch_hid.sources.serial`): the outputs'
+    identity, its control socket, its own config where it has one (``profile`` None: its
+    ``profile.yaml``, else ``default``; its ``sensor.yaml`` and ``games.yaml``, else the shared).
     Raises NeurotouchError subclasses for bad input (ProfileError, RecordingError, DeviceError,
     SensorError).
     """
@@ -454,6 +452,8 @@ def run_driver(
         raise NeurotouchError(f"--max-lag-ms {max_lag_us / 1000:g}: the lag allowed must be at least 1 ms")
     if method not in tuple(MethodKind):
         raise NeurotouchError(f"--method {method!r}: expected one of {', '.join(MethodKind)}")
+    from neurotouch_hid.sources.serial import camera_serial, own_config
+
     serial = camera_serial(source, serial, davis, say)
     if source == SourceKind.DAVIS and serial is not None:  # reopened after an unplug: the same camera
         from neurotouch_hid.sources.davis import DavisConfig
@@ -515,68 +515,6 @@ def run_driver(
             merge_for=None if copilot is None else copilot.merge_for,
             serial=serial,
         )
-
-
-def camera_serial(
-    source: str,
-    serial: str | None,
-    davis: DavisConfig | None = None,
-    say: Callable[[str], None] = log.warning,
-) -> str | None:
-    """The serial of the camera a run stands for: ``serial`` (``--serial``: the live camera to
-    open, the simulated camera's, or the camera a recording is replayed as), else the live
-    camera's ``davis.serial``, else, for the live camera, the USB serial number of the one
-    DAVIS-346 on the bus (:func:`~neurotouch_hid.sources.discovery.discover` without
-    dv-processing; several: None, said once; none: None, the run waits or fails as before).
-    None: no serial, the default identity and the shared config.
-
-    Raises:
-        NeurotouchError: ``serial`` is not a valid serial
-            (:func:`~neurotouch_hid.serials.check_serial`).
-    """
-    from neurotouch_hid.serials import check_serial
-
-    given = serial if serial is not None else (davis.serial if davis is not None else None)
-    if given is not None:
-        try:
-            return check_serial(given)
-        except ValueError as exc:
-            raise NeurotouchError(f"--serial: {exc}") from None
-    if source != SourceKind.DAVIS:
-        return None
-    from neurotouch_hid.sources.discovery import discover
-
-    # pyusb and sysfs (the USB serial string, readable by anyone), not dv-processing: nothing opened
-    serials = [c.serial for c in discover(dv=False).davis346 if c.serial]
-    if len(serials) > 1:
-        say(
-            f"{len(serials)} DAVIS-346 cameras ({', '.join(serials)}): this run opens the first it can and its "
-            "controller has the default identity; give --serial SERIAL to run one per camera"
-        )
-        return None
-    if serials:
-        try:
-            return check_serial(serials[0])
-        except ValueError as exc:
-            say(f"the camera's serial is not used for its controller's identity: {exc}")
-    return None
-
-
-def own_config(
-    source: str, serial: str | None, profile: str | Path | None, sensor: str | Path | None
-) -> tuple[str | Path, str | Path | None]:
-    """``(profile, sensor)`` for a run of the camera ``serial``: ``profile`` as given, else the
-    camera's own ``profile.yaml``, else ``"default"``; ``sensor`` as given, else (the live camera
-    and the simulated gel, whose geometry is the camera's) its own ``sensor.yaml``, else None
-    (the shared calibration, as before; a recording's own sensor.yaml beside it comes first).
-    (:mod:`neurotouch_hid.serials`; docs/several-sensors.md.)"""
-    from neurotouch_hid.serials import own_file
-
-    if profile is None:
-        profile = own_file(serial, "profile") or "default"
-    if sensor is None and source in (SourceKind.DAVIS, SourceKind.SIM):
-        sensor = own_file(serial, "sensor")
-    return profile, sensor
 
 
 def copilot_relay(output: str, say: Callable[[str], None]) -> FeedbackRelay | None:

@@ -97,6 +97,15 @@ def sensor_file(serial: str | None, role: str, shared: Path) -> Path:
     return own if own is not None else shared
 
 
+def own_path(serial: str, role: str) -> Path:
+    """Where the camera ``serial``'s own file for ``role`` goes (a command that writes it:
+    ``calibrate --serial``, ``profile auto add --serial``), its folder made. Raises ValueError for
+    an invalid serial, KeyError for an unknown role, OSError when the folder cannot be made."""
+    folder = sensor_dir(serial)
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder / SENSOR_FILES[role]
+
+
 def configured_serials() -> list[str]:
     """The serials that have a folder of their own under ``config_dir()/sensors`` (folders whose
     name is no valid serial are left out), sorted."""

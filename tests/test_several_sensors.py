@@ -1,6 +1,6 @@
 """Several cameras on one machine: each run stands for one camera (its serial), whose outputs carry
 an identity of their own and whose own config folder is used where it has one
-(neurotouch_hid/serials.py, driver.camera_serial, driver.own_config, control.socket_path).
+(neurotouch_hid/serials.py, sources/serial.py, control.socket_path).
 The two pads in a real kernel: tests/kernel/checks_sensors.py."""
 
 from types import SimpleNamespace
@@ -52,8 +52,8 @@ def _on_the_bus(monkeypatch, *serials):
 
 
 def test_the_run_serial_is_the_given_one_else_the_only_camera_on_the_bus(monkeypatch):
-    from neurotouch_hid.driver import camera_serial
     from neurotouch_hid.sources.davis import DavisConfig
+    from neurotouch_hid.sources.serial import camera_serial
 
     said = []
     _on_the_bus(monkeypatch, "00000499")
@@ -75,7 +75,7 @@ def test_the_run_serial_is_the_given_one_else_the_only_camera_on_the_bus(monkeyp
 
 
 def test_own_config_takes_the_camera_profile_and_sensor_else_the_shared_ones():
-    from neurotouch_hid.driver import own_config
+    from neurotouch_hid.sources.serial import own_config
 
     assert own_config("sim", "A1", None, None) == ("default", None)
     _own("A1", "profile.yaml")
@@ -266,8 +266,8 @@ def test_a_driver_of_no_camera_on_the_bus_is_listed_too():
 def test_calibrate_with_a_serial_writes_that_camera_sensor_yaml(monkeypatch, capsys, sim_push_only_recording):
     """``calibrate --serial S1`` (here on a recording of the gel at rest first) writes
     sensors/S1/sensor.yaml, which a run of camera S1 then reads; the shared one is not made."""
-    from neurotouch_hid.driver import own_config
     from neurotouch_hid.sensor import SensorGeometry, user_sensor_path
+    from neurotouch_hid.sources.serial import own_config
 
     args = ["calibrate", "--source", str(sim_push_only_recording), "--serial", "S1", "--no-mirror", "--rotation", "0"]
     done = run_main(monkeypatch, capsys, args)
@@ -282,7 +282,7 @@ def test_calibrate_with_a_serial_writes_that_camera_sensor_yaml(monkeypatch, cap
 
 def test_run_hands_the_serial_of_the_simulated_camera_to_the_driver(monkeypatch, capsys):
     """``run --source sim --serial S1`` without --profile: the driver gets the serial and no
-    profile (the camera's own, else default: :func:`driver.own_config`)."""
+    profile (the camera's own, else default: :func:`sources.serial.own_config`)."""
     from neurotouch_hid import driver
     from neurotouch_hid.stats import RunStats
 

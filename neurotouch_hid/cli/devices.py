@@ -425,15 +425,13 @@ def calibrate(
         )
     no_stdout("--out", out, "calibrate writes a sensor file that run, track and eval read")
     if serial is not None:
-        from neurotouch_hid.serials import SENSOR_FILES, check_serial, sensor_dir
+        from neurotouch_hid.serials import check_serial, own_path
 
         try:
             check_serial(serial)
+            out = own_path(serial, "sensor") if out is None else out
         except ValueError as exc:
             raise NeurotouchError(f"--serial: {exc}") from None
-        if out is None:
-            sensor_dir(serial).mkdir(parents=True, exist_ok=True)
-            out = sensor_dir(serial) / SENSOR_FILES["sensor"]
     path = user_sensor_path() if out is None else (out / "sensor.yaml" if out.is_dir() else out)
     _sensor_file_replaceable(path, (source if source not in (SourceKind.DAVIS, SourceKind.SIM) else None, press))
     if press is not None:  # read before the camera and the compile are needed: a wrong file fails now

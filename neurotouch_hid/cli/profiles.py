@@ -75,9 +75,7 @@ def profile_list() -> None:
 @profile_app.command("use")
 def profile_use(
     name: str = typer.Argument(..., help="profile name or path"),
-    serial: Optional[str] = typer.Option(
-        None, "--serial", help="the driver of this camera (needed when a driver runs for each of several)"
-    ),
+    serial: Optional[str] = typer.Option(None, "--serial", help="the driver of this camera (when several run)"),
 ) -> None:
     """Switch the running driver (`neurotouch-hid run`) to this profile, every output neutral first.
 
@@ -90,11 +88,7 @@ def profile_use(
 
     if _is_path(name):
         load_profile(name)  # ProfileError: the driver would refuse it without echoing the file
-    try:
-        answer = request_use(name, serial=serial)
-    except ValueError as exc:  # an invalid serial
-        raise NeurotouchError(f"--serial: {exc}") from None
-    console.print(answer, highlight=False, soft_wrap=True)
+    console.print(request_use(name, serial=serial), highlight=False, soft_wrap=True)
 
 
 @profile_app.command("show")
@@ -373,25 +367,16 @@ def _game_label(section: str, key: object) -> str:
     return f"Steam app {key}" if section == "steam" else printable(key, None)
 
 
-#: ``profile auto``'s ``--serial``: the table of one camera's driver (docs/several-sensors.md).
-SERIAL_OPTION = typer.Option(
-    None, "--serial", help="the per-game table of this camera (its own games.yaml, else the shared one)"
-)
+SERIAL_OPTION = typer.Option(None, "--serial", help="this camera's table (its own games.yaml, else the shared one)")
 
 
 def _games_path(serial: Optional[str], own: bool = False) -> Path:
-    """The games.yaml ``profile auto`` reads or edits: the shared one; with ``serial``, the one
-    that camera's driver reads (its own, else the shared one), or (``own``: an edit) its own."""
+    """The games.yaml ``profile auto`` reads (``serial``: the one its driver reads) or edits (``own``)."""
     from neurotouch_hid.games import games_file
-    from neurotouch_hid.serials import SENSOR_FILES, sensor_dir, sensor_file
+    from neurotouch_hid.serials import own_path, sensor_file
 
-    if serial is None:
-        return games_file()
-    try:
-        if own:
-            sensor_dir(serial).mkdir(parents=True, exist_ok=True)
-            return sensor_dir(serial) / SENSOR_FILES["games"]
-        return sensor_file(serial, "games", games_file())
+    try:  # the camera's own file, to edit; the one its driver reads; the shared one
+        return own_path(serial, "games") if own and serial else sensor_file(serial, "games", games_file())
     except ValueError as exc:
         raise NeurotouchError(f"--serial: {exc}") from None
 
@@ -414,8 +399,8 @@ def profile_auto_add(
     profile: str = typer.Argument(..., help="profile name or path"),
     serial: Optional[str] = SERIAL_OPTION,
 ) -> None:
-    """Map a game to a profile (an entry already there is replaced); with --serial, in that
-    camera's own games.yaml (made if needed: that camera then no longer reads the shared one)."""
+    """Map a game to a profile (an entry already there is replaced); with --serial, in that camera's
+    own games.yaml (made if needed: then that camera no longer reads the shared one)."""
     from neurotouch_hid.games import STEAM, add_game, load_game_map, parse_game
 
     path = _games_path(serial, own=True)
