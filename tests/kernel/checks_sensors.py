@@ -76,9 +76,6 @@ def _start(preds: Path, serial: str, env: dict[str, str]) -> tuple[int, int]:
 def _import_what_a_run_imports() -> None:
     """Import here, once, what ``run_driver`` imports as it goes: each forked child has it then
     (under emulation an import of these costs seconds, and each child would pay it)."""
-    import neurotouch_hid.output.desktop  # noqa: F401
-    import neurotouch_hid.output.gamepad  # noqa: F401
-
     import neurotouch_hid.control  # noqa: F401
     import neurotouch_hid.dataset  # noqa: F401
     import neurotouch_hid.games  # noqa: F401
@@ -86,6 +83,8 @@ def _import_what_a_run_imports() -> None:
     import neurotouch_hid.inputs.hide  # noqa: F401
     import neurotouch_hid.mapping.mapper  # noqa: F401
     import neurotouch_hid.runtime  # noqa: F401
+    import neurotouch_hid.targets.uinput.desktop  # noqa: F401
+    import neurotouch_hid.targets.uinput.gamepad  # noqa: F401
 
 
 def _result(pid: int, fd: int, timeout_s: float = 60.0) -> dict:
