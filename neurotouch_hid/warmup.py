@@ -19,8 +19,11 @@ changing them:
   wait for, are done. The child reports each kernel it compiled (one line on stdout), so
   :class:`Warmup` can show progress.
 * **waited for, or interpreted until compiled**: the simulator's and the tracker's groups compile
-  in ~3 s each, much sooner than their Python form would get anywhere, so the run waits for them
-  (:attr:`KernelGroup.waits`; the first state comes after ~4 s, the first gesture soon after).
+  in a few seconds each (3-5 s of CPU), much sooner than their Python form would get far, so the
+  run waits for them (:attr:`KernelGroup.waits`) once its first window is out: that window
+  (one APS frame, 10 ms of events) costs the Python form a fraction of a second, so a run shows
+  its first state at once instead of after the compile, then waits, leaving both cores to the
+  compiles, and the first gesture comes as soon as they are done.
   The rest of the pipeline is interpreted meanwhile: the run calls the kernels' pure-Python/NumPy
   form (numba's ``Dispatcher.py_func``; the same code, ~50x slower): every module's global name
   of a cold kernel points at its ``py_func`` (:func:`interpret`). A source that can wait (the
@@ -96,8 +99,9 @@ class KernelGroup:
         background: in a run that goes on while it compiles, the child starts once the other
             groups are compiled: what the first gestures do not wait for leaves both cores to
             what they do, then has one.
-        waits: never interpreted: a run waits for its compile (its Python form is so much
-            slower than its compile that waiting comes first sooner; the simulated gel).
+        waits: interpreted only until the run's first window is out (:meth:`Warmup.progress_now`
+            is first asked), then waited for: its Python form is so much slower than its
+            compile that waiting comes first sooner (the simulated gel, the tracker).
     """
 
     name: str
@@ -145,7 +149,7 @@ SIMULATOR = KernelGroup(
     "neurotouch_hid.sources.simulator",
     ("neurotouch_hid.sources.esim", "neurotouch_hid.sources.simulator"),
     "neurotouch_hid.warmup:simulate_briefly",
-    waits=True,  # ~3 s of CPU to compile, while interpreted it gives ~0.1 s of gel a second
+    waits=True,  # ~5 s of CPU to compile, while interpreted it gives ~0.1 s of gel a second
 )
 PAPER_PIPELINE = KernelGroup(
     "paper-pipeline",
@@ -359,6 +363,7 @@ class Warmup:
         self._said_lock = threading.Lock()
         self._locks = {g.name: threading.Lock() for g in groups}
         self._settled = {g.name: threading.Event() for g in groups}  # ready or failed
+        self._first_window = threading.Event()  # the run's first window is out: waits groups wait
         self._kernels: dict[str, dict[str, object]] = {}
         self.progress: dict[str, GroupProgress] = {}
         self._threads: list[threading.Thread] = []
@@ -395,7 +400,7 @@ class Warmup:
         if progress is None or progress.state in ("ready", "failed"):
             yield
             return
-        if group.waits:
+        if group.waits and self._first_window.is_set():
             self._settled[group.name].wait()
             yield
             return
@@ -425,7 +430,7 @@ class Warmup:
                 if self._interpreted:
                     how = "starting in seconds, partly interpreted (slowly) meanwhile"
                 self._say(f"{COMPILING}: {how}; {COMPILE_COST}")
-            if self._interpreted and not group.waits:
+            if self._interpreted:  # a waits group only until the first window (guard)
                 interpret(found)
             thread = threading.Thread(target=self._child, args=(group,), name=f"nt-compile-{group.name}", daemon=True)
             self._threads.append(thread)
@@ -480,7 +485,10 @@ class Warmup:
             self._settled[name].set()
 
     def progress_now(self) -> CompileProgress | None:
-        """The compile while it lasts (what the runtime publishes in each window's record), else None."""
+        """The compile while it lasts (what the runtime publishes in each window's record), else
+        None. Its first call means the run's first window is out: from then on a call of a
+        :attr:`KernelGroup.waits` group waits for its compile (:meth:`guard`)."""
+        self._first_window.set()
         if not self.compiling:
             return None
         return CompileProgress(self.describe(), self.fraction())
