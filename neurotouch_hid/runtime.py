@@ -345,7 +345,7 @@ class Runtime:
         self._source = source
         self._pipeline = pipeline
         self.profile = profile
-        self._commit_for(profile)
+        self._commit_for(self._type_wait(profile))
         self._mapper_factory = mapper_factory
         self._mapper = mapper_factory(profile)
         self._subscribers = tuple(subscribers)
@@ -435,22 +435,28 @@ class Runtime:
         if self._stop.is_set():
             raise NeurotouchError("the driver is stopping: the profile is not switched")
         self._switch_merge(profile)
+        wait = self._type_wait(profile)  # its probe (~0.1 s) outside the lock the worker maps under
         with self._lock:
             self._neutralise()
             for subscriber in self._subscribers:
                 subscriber.prepare(profile)
             self._mapper = self._mapper_factory(profile)
             self.profile = profile
-            self._commit_for(profile)
+            self._commit_for(wait)
             self._forget_state()
 
-    def _commit_for(self, profile: Profile) -> None:
-        """The pipeline waits for the fingers before committing a type only where ``profile``
-        reads the difference (``mapping/commitment.py``; a pipeline without the setting, or a
-        profile that is not a :class:`Profile`, is left as it is)."""
+    @staticmethod
+    def _type_wait(profile: Profile) -> bool | None:
+        """Whether the pipeline should wait for the fingers before committing a type under
+        ``profile`` (``mapping/commitment.py``), None for a profile that is not a :class:`Profile`."""
+        return waits_for_type(profile) if isinstance(profile, Profile) else None
+
+    def _commit_for(self, wait: bool | None) -> None:
+        """Set the pipeline's type wait (:meth:`_type_wait`; None, or a pipeline without the
+        setting: left as it is)."""
         set_wait = getattr(self._pipeline, "set_type_wait", None)
-        if set_wait is not None and isinstance(profile, Profile):
-            set_wait(waits_for_type(profile))
+        if set_wait is not None and wait is not None:
+            set_wait(wait)
 
     def _forget_state(self) -> None:
         """The subscribers were neutralised or the mapping starts afresh: the next state is
