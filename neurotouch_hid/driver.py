@@ -28,6 +28,7 @@ from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.open import CameraBackend, open_source
 from neurotouch_hid.stages import Feedback, MarkerPositions, Subscriber
 from neurotouch_hid.stats import RunStats
+from neurotouch_hid.stopping import EarlyStop, StopRequested
 from neurotouch_hid.targets.identity import Identity, identity_for
 
 if TYPE_CHECKING:
@@ -463,69 +464,83 @@ def run_driver(
     profile, sensor = own_config(source, serial, profile, sensor)
     loaded = load_profile(profile)
     inputs = (None if source in tuple(SourceKind) else source, find_profile(profile), sensor)
-    copilot = copilot_relay(output, say)
-    with contextlib.ExitStack() as stack:
-        subscribers = outputs
-        if subscribers is None:
+    try:
+        with EarlyStop() as early, contextlib.ExitStack() as stack:
             try:
-                made = open_output(
-                    output,
-                    loaded,
-                    stack,
-                    out=out,
-                    console=console,
+                copilot = copilot_relay(output, say)
+                first = None if copilot is None else copilot.merge_for(loaded)
+                if first is not None:  # before the pad or target device exists: games list one controller
+                    stack.callback(first.stop)
+                    first.grab()
+                subscribers = outputs
+                if subscribers is None:
+                    try:
+                        made = open_output(
+                            output,
+                            loaded,
+                            stack,
+                            out=out,
+                            console=console,
+                            say=say,
+                            inputs=inputs,
+                            on_feedback=copilot,
+                            protocol=protocol,
+                            identity=identity,
+                        )
+                    except DeviceError as exc:
+                        raise DeviceError(_and_the_source(str(exc), source, davis)) from None
+                    subscribers = open_outputs(made, output, stack, console)
+                say = said_above(subscribers, say)
+                assembly = RunAssembly(
+                    source,
+                    seconds=seconds,
+                    window_us=window_us,
+                    method=method,
+                    fast=fast,
+                    sensor=sensor,
+                    seed=seed,
+                    davis=davis,
+                    wait=wait,
+                    capture=capture,
                     say=say,
-                    inputs=inputs,
-                    on_feedback=copilot,
-                    protocol=protocol,
-                    identity=identity,
+                    model=model,
+                    finish_gesture=finish_gesture,
                 )
-            except DeviceError as exc:
-                raise DeviceError(_and_the_source(str(exc), source, davis)) from None
-            subscribers = open_outputs(made, output, stack, console)
-        say = said_above(subscribers, say)
-        assembly = RunAssembly(
-            source,
-            seconds=seconds,
-            window_us=window_us,
-            method=method,
-            fast=fast,
-            sensor=sensor,
-            seed=seed,
-            davis=davis,
-            wait=wait,
-            capture=capture,
-            say=say,
-            model=model,
-            finish_gesture=finish_gesture,
-        )
-        return run_assembled(
-            assembly,
-            loaded,
-            subscribers,
-            None if finish_gesture else seconds,  # the source ends it, at rest
-            pace=not fast,
-            profile_ref=profile,
-            say=say,
-            control=True,
-            games=not fast,
-            stats=stats,
-            max_lag_us=max_lag_us,
-            waits=source == SourceKind.SIM,
-            merge_for=None if copilot is None else copilot.merge_for,
-            serial=serial,
-        )
+                return run_assembled(
+                    assembly,
+                    loaded,
+                    subscribers,
+                    None if finish_gesture else seconds,  # the source ends it, at rest
+                    pace=not fast,
+                    profile_ref=profile,
+                    say=say,
+                    control=True,
+                    games=not fast,
+                    stats=stats,
+                    max_lag_us=max_lag_us,
+                    waits=source == SourceKind.SIM,
+                    merge=first,
+                    merge_for=None if copilot is None else copilot.merge_for,
+                    serial=serial,
+                    early_stop=early,
+                )
+            finally:  # the way out (devices neutral, grabs let go) is not cut short by a SIGTERM
+                early.quiet()
+    except StopRequested:
+        say("stopped (SIGTERM) before the run started: every output released")
+        return stats if stats is not None else RunStats()
 
 
 def copilot_relay(output: str, say: Callable[[str], None]) -> FeedbackRelay | None:
-    """What merges a profile's ``copilot:`` devices into the pad and forwards the pad's rumble to
-    them (:class:`~neurotouch_hid.inputs.copilot.FeedbackRelay`): for the ``gamepad`` output only
-    (the other outputs make no pad to merge into); None otherwise. Puts back first the nodes a
-    driver that did not stop cleanly left hidden (:func:`~neurotouch_hid.inputs.hide.put_back_stale`)."""
+    """What merges a profile's ``copilot:`` devices into the controller and forwards the rumble
+    any target receives to them (:class:`~neurotouch_hid.inputs.copilot.FeedbackRelay`): for every
+    device output (:data:`DEVICE_OUTPUTS`: the uinput pad, the UHID device, the USB gadget); None
+    for the views. Puts back first the nodes a driver that did not stop cleanly left hidden
+    (:func:`~neurotouch_hid.inputs.hide.put_back_stale`)."""
     from neurotouch_hid.inputs.hide import put_back_stale
 
     put_back_stale(say)
-    if output != OutputKind.GAMEPAD:
+    if output not in DEVICE_OUTPUTS:
         return None
     from neurotouch_hid.inputs.copilot import FeedbackRelay
 

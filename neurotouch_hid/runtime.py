@@ -74,6 +74,7 @@ if TYPE_CHECKING:
     from neurotouch_hid.dataset import LabelRow
     from neurotouch_hid.sensor import SensorGeometry
     from neurotouch_hid.stages import Merge
+    from neurotouch_hid.stopping import EarlyStop
 
 log = logging.getLogger(__name__)
 
@@ -295,6 +296,9 @@ class Runtime:
         serial: the camera's serial (None: none known): its own control socket
             (:func:`~neurotouch_hid.control.socket_path`) and its own games.yaml where it has one
             (:mod:`neurotouch_hid.serials`).
+        early_stop: the SIGTERM handler that stood before this run's own
+            (:class:`~neurotouch_hid.stopping.EarlyStop`): quieted when the run installs its own
+            handlers, and a SIGTERM it saw meanwhile stops the run at once.
         stats: where the run is counted (:class:`RunStats`; e.g. shared with the terminal view
             that shows it); a new one by default.
         pacer: the :class:`~neurotouch_hid.sources.Pacer` that paces and times the run (one on
@@ -333,8 +337,10 @@ class Runtime:
         merge: Merge | None = None,
         merge_for: Callable[[Profile], Merge | None] | None = None,
         serial: str | None = None,
+        early_stop: EarlyStop | None = None,
     ):
         self._serial = serial
+        self._early_stop = early_stop  # a SIGTERM before the run started (driver.run_driver)
         self._merge_for = merge_for  # the copilot of a profile switched to (None: merges nothing)
         self._merge = merge if merge is not None or merge_for is None else merge_for(profile)
         self._last_gel = ControllerState.neutral()  # the mapped state before the merge
@@ -544,6 +550,10 @@ class Runtime:
         start = time.perf_counter()
         with self._signal_handlers(), self._switch_interval(), self._control_socket():
             try:
+                if self._early_stop is not None:  # this run's handlers are in place: its SIGTERM only flags
+                    self._early_stop.quiet()
+                    if self._early_stop.requested.is_set():
+                        self.stop()
                 if self._merge is not None:
                     self._merge.start(self._on_input)
                     self.stats.merged, self.stats.missing = self._merge.status()

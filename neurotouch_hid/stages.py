@@ -194,8 +194,14 @@ class Merge(Protocol):
     changed, and the runtime then publishes ``merge(last gel state)`` at once, so a helper's
     press never waits for the gel's next window."""
 
+    def grab(self) -> None:
+        """Open and grab (and, where it may, hide) the devices there now and start reading them,
+        before the gel's pad or target device is made (a game that enumerates controllers then
+        sees one); idempotent. :meth:`start` does it when it was not done."""
+
     def start(self, on_input: Callable[[], None]) -> None:
-        """Open, grab and start reading the devices (a missing one is waited for)."""
+        """Open, grab and start reading the devices (a missing one is waited for), unless
+        :meth:`grab` did; from now on call ``on_input`` when their controls change."""
 
     def merge(self, gel: ControllerState) -> ControllerState:
         """The pad's state: ``gel`` combined with the merged devices' current controls."""

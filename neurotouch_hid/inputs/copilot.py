@@ -106,11 +106,14 @@ class Copilot:
         self._rumbling: _Effect | None = None  # what the merged pads were given last
 
     # --- the Merge seam ------------------------------------------------------------------------
-    def start(self, on_input: Callable[[], None]) -> None:
-        """Watch ``/dev/input``, open and grab what is there, start the reading thread."""
+    def grab(self) -> None:
+        """Watch ``/dev/input``, open and grab (and hide) what is there, start the reading thread;
+        nothing when that was done. Called before the pad exists (``run_driver``): a game that
+        lists controllers at its start sees the gel's pad only."""
+        if self._thread is not None:
+            return
         from inotify_simple import INotify
 
-        self._on_input = on_input
         self._stopping.clear()
         self._inotify = INotify(nonblocking=True)
         self._watch(self._input_dir)
@@ -120,6 +123,12 @@ class Copilot:
         self._scan()
         self._thread = threading.Thread(target=self._loop, name="nt-copilot", daemon=True)
         self._thread.start()
+
+    def start(self, on_input: Callable[[], None]) -> None:
+        """:meth:`grab` (if not done yet), then call ``on_input`` whenever a merged device's
+        controls change or a device comes or goes."""
+        self._on_input = on_input
+        self.grab()
 
     def merge(self, gel: ControllerState) -> ControllerState:
         """``gel`` combined with every merged device's controls, in the profile's order."""

@@ -123,14 +123,21 @@ class InProcessRun:
     the user (``say``'s, and the driver's log lines of WARNING and above, as the CLI prints them
     on stderr); ``done``: set once ``run_driver`` returned. ``env``: environment variables set
     for the run (XDG_RUNTIME_DIR for its control socket, XDG_CONFIG_HOME for the user's
-    profiles), restored after it."""
+    profiles), restored after it. ``options``: more of ``run_driver``'s arguments (``wait``)."""
 
     def __init__(
-        self, preds: Path, profile: Path | str, output: str, protocol: str | None = None, env: dict | None = None
+        self,
+        preds: Path | str,
+        profile: Path | str,
+        output: str,
+        protocol: str | None = None,
+        env: dict | None = None,
+        options: dict | None = None,
     ) -> None:
         self.args = (str(preds), profile, output)
         self.protocol = protocol
         self.env = env or {}
+        self.options = options or {}
         self.said: list[str] = []
         self.done = threading.Event()
         self.returned = False
@@ -139,7 +146,8 @@ class InProcessRun:
         return not self.done.is_set()
 
     def stop(self, watcher=None, timeout_s: float = 90.0) -> None:
-        """SIGTERM to this process once the runtime's handler replaced ours, reading ``watcher``'s
+        """SIGTERM to this process once the driver's handler replaced ours (from before its first
+        device: :class:`~neurotouch_hid.stopping.EarlyStop`, then the runtime's), reading ``watcher``'s
         events (a guestlib.EventReader) until the run returned: once the run removes its device,
         evdev drops what a reader had not read."""
         installed = guestlib.wait_for(
@@ -179,7 +187,13 @@ class InProcessRun:
         logging.getLogger("neurotouch_hid").addHandler(said)
         try:
             thread.start()
-            run_driver(*self.args, protocol=self.protocol, max_lag_us=int(NO_DROP_LAG_MS) * 1000, say=self.said.append)
+            run_driver(
+                *self.args,
+                protocol=self.protocol,
+                max_lag_us=int(NO_DROP_LAG_MS) * 1000,
+                say=self.said.append,
+                **self.options,
+            )
             self.returned = True
         finally:
             self.done.set()
