@@ -356,18 +356,10 @@ def held_still(
     return True
 
 
-@numba.njit(cache=True, nogil=True)
-def time_ordered(
-    first: np.ndarray,
-    noise_t: np.ndarray,
-    noise_x: np.ndarray,
-    noise_y: np.ndarray,
-    noise_p: np.ndarray,
-    hot_n: np.ndarray,
-    hot_x: np.ndarray,
-    hot_y: np.ndarray,
-) -> np.ndarray:
-    """``first``'s events followed by the noise events, stable-sorted by timestamp.
+def time_ordered(first, noise_t, noise_x, noise_y, noise_p, hot_n, hot_x, hot_y) -> np.ndarray:
+    """``first``'s events followed by the noise events, stable-sorted by timestamp: a compiled
+    concatenation (:func:`_concatenated`), then NumPy's stable sort (the order numba's mergesort
+    gave, which cost the simulator's first-run compile ~1.7 s that a first run's gestures wait for).
 
     Args:
         first: EVENT_DTYPE events (ESIM's).
@@ -377,11 +369,21 @@ def time_ordered(
         hot_n: (K,) int64 the hot pixels' events' counts; hot_x, hot_y: (K,) int16 the hot
             pixels (px).
     Returns:
-        (len(first) + M,) EVENT_DTYPE, the concatenation's stable sort by timestamp (a
-        timestamp's events in the concatenation's order).
+        (len(first) + M,) EVENT_DTYPE, the concatenation's stable sort by timestamp.
     Raises:
         ValueError: the counts do not add up (M != B + sum(hot_n)), or the arrays' lengths differ.
     """
+    t, x, y, p = _concatenated(first, noise_t, noise_x, noise_y, noise_p, hot_n, hot_x, hot_y)
+    order = np.argsort(t, kind="stable")
+    out = np.empty(len(t), dtype=EVENT_DTYPE)
+    out["timestamp"], out["x"], out["y"], out["polarity"] = t[order], x[order], y[order], p[order]
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _concatenated(first, noise_t, noise_x, noise_y, noise_p, hot_n, hot_x, hot_y):
+    """(t int64, x int16, y int16, p int8): ``first``'s events then the noise events
+    (:func:`time_ordered`'s arguments). Raises ValueError as it does."""
     n_first = first.shape[0]
     total = n_first + noise_t.shape[0]
     if (
@@ -414,15 +416,7 @@ def time_ordered(
     for k in range(noise_t.shape[0]):
         t[n_first + k] = noise_t[k]
         p[n_first + k] = noise_p[k]
-    order = np.argsort(t, kind="mergesort")  # stable
-    out = np.empty(total, dtype=EVENT_DTYPE)
-    for i in range(total):
-        j = order[i]
-        out[i]["timestamp"] = t[j]
-        out[i]["x"] = x[j]
-        out[i]["y"] = y[j]
-        out[i]["polarity"] = p[j]
-    return out
+    return t, x, y, p
 
 
 class EventCamera:
