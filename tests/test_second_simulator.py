@@ -126,7 +126,7 @@ def _felt_wrong(session: Session, start_s: float, kind: GestureType) -> list[str
     ],
 )
 def test_no_gesture_of_the_second_simulators_sessions_is_felt_wrong(sessions, name, start_s, kind):
-    """Reported at main 175fcfe: session_a's twist_ccw read push in 4 windows from 10 ms (a first
+    """Reported on these sessions: session_a's twist_ccw read push in 4 windows from 10 ms (a first
     window at 0.19 mm on three contacts committed the type before any finger was counted), and
     session_b's twist_cw push in 5 from its first (committed on two contacts, then outvoted by
     windows on one contact); session_c's twist_cw read push or zoom in 138 of 141 felt windows."""
