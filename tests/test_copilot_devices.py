@@ -424,15 +424,26 @@ def _game_on_the_pad(rig):
         copilot.stop()
 
 
+def _last_upload(rig) -> tuple | None:
+    """The last effect uploaded to the helper's pad (effect id, strong, weak, length), or None."""
+    uploads = rig.uploads()
+    return uploads[-1] if uploads else None
+
+
+def _last_written(pad) -> tuple | None:
+    return pad.written[-1] if pad.written else None
+
+
 def test_a_rumble_of_length_0_plays_until_stopped(rig):
-    """ff-memless plays an effect of replay length 0 until it is stopped: so does the helper's."""
+    """ff-memless plays an effect of replay length 0 until it is stopped: so does the helper's
+    (played by the copilot's thread, to which the game's rumble is handed)."""
     with _game_on_the_pad(rig) as (pad, game):
         game._remember_rumble(_effect(0, 0x4000, 0x4000, 0))
         game._forward_rumble(0, 1)
+        assert wait_until(lambda: pad.written == [(ecodes.EV_FF, 0, 1)], HANG_S), pad.written
         assert rig.uploads() == [(0, 0x4000, 0x4000, 0)]
-        assert pad.written == [(ecodes.EV_FF, 0, 1)]
         game._forward_rumble(0, 0)
-        assert pad.written[-1] == (ecodes.EV_FF, 0, 0)
+        assert wait_until(lambda: _last_written(pad) == (ecodes.EV_FF, 0, 0), HANG_S), pad.written
 
 
 def test_the_pads_effects_reach_the_helper_by_their_ids(rig):
@@ -444,17 +455,19 @@ def test_the_pads_effects_reach_the_helper_by_their_ids(rig):
         game._remember_rumble(_effect(1, 0, 0x8000, 0))
         game._forward_rumble(0, 1)
         game._forward_rumble(1, 1)
-        assert rig.uploads()[-1][1:3] == (0xFFFF, 0x8000)
+        assert wait_until(lambda: (_last_upload(rig) or (0,))[1:3] == (0xFFFF, 0x8000), HANG_S), rig.uploads()
         game._forward_rumble(1, 0)
-        assert rig.uploads()[-1][1:3] == (0xFFFF, 0) and pad.written[-1] == (ecodes.EV_FF, 0, 1)
+        assert wait_until(lambda: _last_upload(rig)[1:3] == (0xFFFF, 0), HANG_S), rig.uploads()
+        assert _last_written(pad) == (ecodes.EV_FF, 0, 1)
         game._forward_rumble(0, 0)
-        assert pad.written[-1] == (ecodes.EV_FF, 0, 0)
+        assert wait_until(lambda: _last_written(pad) == (ecodes.EV_FF, 0, 0), HANG_S), pad.written
 
 
 def test_the_strongest_of_the_playing_effects_is_played_and_a_stop_ends_only_its_effect(rig):
     """A game plays effect 0 (strong motor) and effect 1 (weak motor): the helper's pad plays both
     magnitudes; stopping 1 leaves 0's; stopping 0 stops it. A sender that names no effect (one
-    effect, played again with new magnitudes, as SDL does) replaces its last request."""
+    effect, played again with new magnitudes, as SDL does) replaces its last request. The relay
+    hands each request to the copilot's thread, which plays them in order."""
     pad = rig.add("Helper Pad", "event3", _rumbler())
     box = rig.add("Switch Box", "event4", FakeNode(keys=[ecodes.KEY_SPACE]), phys="usb-2/input0")
     copilot = rig.copilot(HELPER + '  - {device: "Switch Box", passthrough: false, map: {KEY_SPACE: A}}\n')
@@ -464,19 +477,55 @@ def test_the_strongest_of_the_playing_effects_is_played_and_a_stop_ends_only_its
     try:
         relay(Feedback("rumble", strong=1.0, duration_ms=5000, effect=0))
         relay(Feedback("rumble", weak=0.5, duration_ms=5000, effect=1))
-        assert rig.uploads()[-1][1:] == (0xFFFF, 0x8000, 5000)  # until the last of them ends
+        # until the last of them ends
+        assert wait_until(lambda: (_last_upload(rig) or (0,))[1:] == (0xFFFF, 0x8000, 5000), HANG_S), rig.uploads()
         relay(Feedback("rumble", effect=1))  # effect 1 stops; 0 still plays
-        assert rig.uploads()[-1][1:3] == (0xFFFF, 0) and pad.written[-1] == (ecodes.EV_FF, 0, 1)
+        assert wait_until(lambda: _last_upload(rig)[1:3] == (0xFFFF, 0), HANG_S), rig.uploads()
+        assert _last_written(pad) == (ecodes.EV_FF, 0, 1)
         relay(Feedback("rumble", effect=0))
-        assert pad.written[-1] == (ecodes.EV_FF, 0, 0)
+        assert wait_until(lambda: _last_written(pad) == (ecodes.EV_FF, 0, 0), HANG_S), pad.written
         assert box.written == []
 
         relay(Feedback("rumble", strong=1.0, duration_ms=1000))
         relay(Feedback("rumble", strong=0.25, duration_ms=1000))
-        assert rig.uploads()[-1][1:3] == (0x4000, 0)
+        assert wait_until(lambda: _last_upload(rig)[1:3] == (0x4000, 0), HANG_S), rig.uploads()
         relay(Feedback("rumble"))
-        assert pad.written[-1] == (ecodes.EV_FF, 0, 0)
+        assert wait_until(lambda: _last_written(pad) == (ecodes.EV_FF, 0, 0), HANG_S), pad.written
     finally:
+        copilot.stop()
+
+
+def test_a_merged_pad_that_never_takes_an_effect_does_not_hold_up_the_games_rumble(rig, monkeypatch):
+    """The merged pad's EVIOCSFF blocks (a uinput device whose owner never answers): the relay,
+    called from the run's one feedback path, returns at once each time, so that path goes on
+    answering the game's uploads on the gel's pad; the copilot's thread waits alone."""
+    import threading
+
+    rig.add("Helper Pad", "event3", _rumbler())
+    copilot = rig.copilot()
+    copilot.start(lambda: None)
+    stuck, entered = threading.Event(), threading.Event()
+
+    def never_answers(fd, request, arg, mutate=False):
+        entered.set()
+        stuck.wait()  # until the test ends
+        return rig.ioctl(fd, request, arg, mutate)
+
+    monkeypatch.setattr(device_module.fcntl, "ioctl", never_answers)
+    relay = FeedbackRelay(hide=False)
+    relay.merge = copilot
+
+    def game_rumbles() -> None:  # the game's rumble, frame after frame, as the feedback path forwards it
+        for k in range(5):
+            relay(Feedback("rumble", strong=0.2 * (k + 1), duration_ms=100, effect=0))
+
+    caller = threading.Thread(target=game_rumbles, daemon=True)
+    try:
+        caller.start()
+        assert wait_until(entered.is_set, HANG_S)  # the copilot's thread is in the merged pad's EVIOCSFF
+        assert wait_until(lambda: not caller.is_alive(), HANG_S)  # every call returned meanwhile
+    finally:
+        stuck.set()
         copilot.stop()
 
 

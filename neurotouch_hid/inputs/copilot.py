@@ -30,6 +30,7 @@ Library: inotify_simple (inotify(7)); python-evdev for the devices.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import errno
 import logging
@@ -56,6 +57,9 @@ log = logging.getLogger(__name__)
 #: a grab makes no inotify event, and 1.5 s is a short wait for a user who just quit that program
 #: while an open-and-grab attempt (two syscalls) that often costs nothing. No time-out otherwise.
 BUSY_RETRY_S = 1.5
+#: Rumble requests handed to the copilot's thread (:meth:`Copilot.post`) kept at most; a game
+#: sends one a frame at most, and the thread takes them as they come.
+MAX_POSTED = 64
 
 #: (strong, weak magnitudes 0..1, end on time.monotonic() or None: until stopped) of a playing effect.
 _Effect = tuple[float, float, float | None]
@@ -104,6 +108,7 @@ class Copilot:
         self._rumble_lock = threading.Lock()
         self._effects: dict[int | None, _Effect] = {}  # the effects playing, by the sender's id
         self._rumbling: _Effect | None = None  # what the merged pads were given last
+        self._posted: collections.deque[Feedback] = collections.deque(maxlen=MAX_POSTED)  # for the thread
 
     # --- the Merge seam ------------------------------------------------------------------------
     def grab(self) -> None:
@@ -162,6 +167,19 @@ class Copilot:
             sooner = self._next_effect_end()
         if sooner is not None and (first is None or sooner < first):
             self._nudge()  # the thread sleeps past this effect's end: it wakes and sleeps again until then
+
+    def post(self, request: Feedback) -> None:
+        """Hand ``request`` to the copilot's thread, which plays it there (:meth:`feedback`), and
+        return at once: a merged pad slow to take an effect (a uinput device answers EVIOCSFF
+        only when its owner does, Documentation/input/uinput.rst, up to 30 s) never holds up the
+        caller, the run's one feedback path, whose next read answers the game's next upload on the
+        gel's pad. At most :data:`MAX_POSTED` wait (the oldest go first); played here when the
+        thread is not running."""
+        if self._thread is None or self._wake is None:
+            self.feedback(request)
+            return
+        self._posted.append(request)
+        self._nudge()
 
     def stop(self) -> None:
         """Stop the thread, release every grab, close every node; idempotent."""
@@ -294,6 +312,8 @@ class Copilot:
             if wake in ready:
                 with contextlib.suppress(OSError):
                     os.read(wake, 512)
+            while self._posted and not self._stopping.is_set():  # the rumble handed over by post()
+                self.feedback(self._posted.popleft())
             changed = scanned = False
             if notify in ready:
                 events = list(self._inotify.read(timeout=0))
@@ -426,11 +446,11 @@ class FeedbackRelay:
         self._say(unhidden_note(info))
 
     def __call__(self, request: Feedback) -> None:
-        """Hand ``request`` to the copilot in use (:meth:`Copilot.feedback`); nothing when the
-        profile merges nothing."""
+        """Hand ``request`` to the copilot in use (:meth:`Copilot.post`: played on its thread, so
+        the caller never waits for a merged pad); nothing when the profile merges nothing."""
         merge = self.merge
         if merge is not None:
-            merge.feedback(request)
+            merge.post(request)
 
 
 def unhidden_note(info: InputInfo | None = None) -> str:
