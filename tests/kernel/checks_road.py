@@ -106,7 +106,7 @@ def _early_stop(output: str) -> dict:
         assert "gel" in seen, f"the {output} device never appeared: {run.said[-5:]}"
         seen["reader"] = reader = guestlib.EventReader(seen["gel"])
         reader.pump(timeout_s=0.5, max_s=2.0)
-        run.stop(reader)
+        run.stop(reader, early=True)
 
     from neurotouch_hid import driver
 

@@ -105,6 +105,16 @@ def _ignore(*_) -> None:
     """SIGTERM outside the run's own handler (before it installed it, after it restored ours)."""
 
 
+def _installed(early: bool) -> bool:
+    """The driver's SIGTERM handler is in place: the runtime's (``early``: or the one run_driver
+    installs before its first device, :class:`~neurotouch_hid.stopping.EarlyStop`)."""
+    from neurotouch_hid.stopping import EarlyStop
+
+    handler = signal.getsignal(signal.SIGTERM)
+    before_the_run = isinstance(getattr(handler, "__self__", None), EarlyStop)
+    return handler is not _ignore and (early or not before_the_run)
+
+
 class _Said(logging.Handler):
     """The driver's log lines of WARNING and above (what ``run`` prints on stderr), into a list."""
 
@@ -145,14 +155,13 @@ class InProcessRun:
     def alive(self) -> bool:
         return not self.done.is_set()
 
-    def stop(self, watcher=None, timeout_s: float = 90.0) -> None:
-        """SIGTERM to this process once the driver's handler replaced ours (from before its first
-        device: :class:`~neurotouch_hid.stopping.EarlyStop`, then the runtime's), reading ``watcher``'s
+    def stop(self, watcher=None, timeout_s: float = 90.0, early: bool = False) -> None:
+        """SIGTERM to this process once the runtime's handler replaced ours (``early``: once the
+        driver's from before its first device did, :class:`~neurotouch_hid.stopping.EarlyStop`:
+        a stop before the run starts), reading ``watcher``'s
         events (a guestlib.EventReader) until the run returned: once the run removes its device,
         evdev drops what a reader had not read."""
-        installed = guestlib.wait_for(
-            lambda: signal.getsignal(signal.SIGTERM) is not _ignore or self.done.is_set(), 300
-        )
+        installed = guestlib.wait_for(lambda: _installed(early) or self.done.is_set(), 300)
         if installed and not self.done.is_set():
             os.kill(os.getpid(), signal.SIGTERM)
         if watcher is not None:
