@@ -463,7 +463,7 @@ def test_doctor_says_whether_the_hid_function_can_poll_every_1_ms(tmp_path, rele
     from neurotouch_hid.targets.gadget.support import hid_interval, protocol_notes
 
     assert hid_interval(release, tmp_path)[0] is has
-    (note,) = protocol_notes(release, tmp_path)
+    note = protocol_notes(release, tmp_path, tmp_path)[0]
     assert ("cannot set its polling interval" in note) is not has
     function = tmp_path / "neurotouch" / "functions" / "hid.usb0"
     function.mkdir(parents=True)
@@ -490,3 +490,16 @@ def test_the_sudo_commands_given_name_the_command_by_its_absolute_path(tmp_path,
     monkeypatch.setattr(sys, "argv", ["/nowhere/python", "-m"])
     monkeypatch.setenv("PATH", "/nonexistent")
     assert sudo_command("gadget remove") == f"sudo {sys.executable} -m neurotouch_hid.cli gadget remove"
+
+
+def test_doctor_says_which_interface_for_a_whole_configuration_descriptor_this_kernel_has(tmp_path):
+    """Windows' XInput driver reads a 0x21 descriptor FunctionFS cannot carry: doctor names the
+    interfaces that could (gadgetfs, raw_gadget) and what to use on Windows meanwhile."""
+    from neurotouch_hid.targets.gadget.support import protocol_notes
+
+    (tmp_path / "modules.dep").write_text("kernel/drivers/usb/gadget/legacy/gadgetfs.ko: kernel/udc.ko\n")
+    note = protocol_notes("6.1.0", tmp_path / "none", tmp_path)[1]
+    assert note.startswith("xinput: gadgetfs available here, not used yet") and "Windows will not read xinput" in note
+    (tmp_path / "modules.dep").write_text("")
+    note = protocol_notes("6.1.0", tmp_path / "none", tmp_path)[1]
+    assert note.startswith("xinput: neither gadgetfs nor raw_gadget") and "Windows will not read xinput" in note

@@ -23,3 +23,17 @@ def test_the_xbox_360_pad_answers_the_vendor_requests_of_a_wired_pad(guest):
     details = passed(guest, "checks_gadget_ffs.check_usb_xinput_answers_the_vendor_requests")
     assert details["answers"] == {"0100": "00143ff7ffff00000000c0ffc0ff000000000000", "0000": "0008000000000000"}
     assert details["interfaces"] == 1
+
+
+def test_a_dualsense_over_usb_is_bound_by_hid_playstation_and_its_touchpad_follows_the_finger(guest):
+    """run --output usb --protocol dualsense: hid-playstation binds on the host side (it reads the
+    three feature reports before it binds, which the kernel's f_hid of 6.1 answers with zeros),
+    the Touchpad's slot 0 follows a stroke to the right, and SIGTERM leaves the touch inactive."""
+    from neurotouch_hid.targets.reports.dualsense import DUALSENSE
+
+    details = passed(guest, "checks_gadget_ffs.check_usb_dualsense")
+    assert details["driver"] == "playstation"
+    assert details["features"] == {"0x05": 41, "0x09": 20, "0x20": 64}
+    moved = details["slot0_x"]
+    assert len(moved) >= 3 and moved == sorted(moved) and moved[-1] > moved[0]
+    assert details["ids"][-1] == -1 and details["last_report"] == DUALSENSE.neutral().hex()

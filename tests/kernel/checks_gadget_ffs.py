@@ -3,6 +3,8 @@ the HID interface (``ffs.HidInterfaceTarget``) and the Xbox 360 pad's vendor req
 dummy_hcd, read on the same kernel's host side. Run by tests/kernel/guest.py in the same guest as
 checks_gadget.py; asserted on by tests/test_gadget_ffs_kernel.py.
 
+* :func:`check_usb_dualsense`: ``run --output usb --protocol dualsense`` read by hid-playstation
+  (its docstring);
 * :func:`check_usb_hid_interface_answers_feature_reports`: a HID interface with a small report
   format of this check's own (an input report 0x01, a feature report 0x05 of 41 bytes, an output
   report 0x02: the shape of a protocol whose host reads feature reports), made with configfs and
@@ -15,6 +17,7 @@ checks_gadget.py; asserted on by tests/test_gadget_ffs_kernel.py.
 from __future__ import annotations
 
 import struct
+import tempfile
 import time
 from pathlib import Path
 
@@ -200,5 +203,141 @@ def check_usb_xinput_answers_the_vendor_requests() -> dict:
         "answers": {key: seen[key].hex() for key in ("0100", "0000")},
         "other": seen["other"],
         "kernel_log": [line for line in log if "xpad" in line.lower() or "x-box" in line.lower()][-6:],
+        "seconds": round(time.monotonic() - t0, 1),
+    }
+
+
+def strokes(seconds: float = 200.0) -> list:
+    """Predictions (10 ms windows): the gel at rest 2 s, then one finger pressing 2 mm and moving
+    from (-10, 0) to (10, 5) mm in the user frame over 1.5 s, lifting for 0.5 s, again and again
+    for ``seconds``: a reader that opens late (a loaded emulated host enumerates the gadget in
+    10 to 100 s) still sees whole strokes. (The run reads the whole file before it starts: 20,000
+    windows take tens of seconds to read in the loaded emulated guest.)"""
+    import numpy as np
+
+    from neurotouch_hid.estimate import GestureEstimate, GestureType
+
+    window_us, out = 10_000, []
+    for i in range(int(seconds * 100)):
+        t_us = (i + 1) * window_us
+        phase = (i - 200) % 200
+        if i < 200 or phase >= 150:
+            out.append(GestureEstimate(t_us=t_us))
+            continue
+        f = phase / 149
+        mm = np.array([[-10.0 + 20.0 * f, 5.0 * f]])
+        out.append(
+            GestureEstimate(
+                t_us=t_us, gesture=GestureType.PUSH, resting=False, intensity_mm=2.0,
+                contacts_px=mm.copy(), contacts_mm=mm, translation_mm=np.array([2.0, 0.0]),
+            )
+        )  # fmt: skip
+    return out
+
+
+def _stroke(slot: list) -> list[int] | None:
+    """The x positions of the last whole stroke in ``slot``'s events (``(name, value)``: a
+    tracking id >= 0, its moves, the id -1), None before one was seen whole."""
+    ends = [i for i, event in enumerate(slot) if event == ("id", -1)]
+    for end in reversed(ends):
+        after = max([i for i in ends if i < end], default=-1)
+        starts = [i for i in range(after + 1, end) if slot[i][0] == "id" and slot[i][1] >= 0]
+        if starts:
+            return [value for name, value in slot[starts[0] : end] if name == "x"]
+    return None
+
+
+def check_usb_dualsense() -> dict:
+    """``run --output usb --protocol dualsense`` with the shipped ``touchpad`` profile, fed
+    :func:`strokes`: the HID interface on FunctionFS answers the host's requests itself, so the
+    host's hid-playstation binds with no "Failed to retrieve" (and no "Duplicate device") in the
+    kernel's log; HIDIOCGFEATURE gives 0x05, 0x09 and 0x20 their 41, 20 and 64 bytes, each with
+    its id first; the Touchpad's slot 0 follows a stroke to the right (a whole one, from its
+    touch to its lift); SIGTERM in the middle of a stroke: the touch point goes inactive
+    (tracking id -1) and hidraw's last report is the neutral one."""
+    import hidraw
+    from checks_dualsense import TouchWatcher, _devices, _uniq
+    from checks_runtime import _write
+    from outputlib import InProcessRun, hid_driver
+
+    from neurotouch_hid.targets.protocols import PROTOCOLS
+    from neurotouch_hid.targets.reports.dualsense import DUALSENSE
+
+    ids = (PROTOCOLS["dualsense"].vendor, PROTOCOLS["dualsense"].product)
+    t0 = time.monotonic()
+    _kernel()
+    modprobe = guestlib.sh(["modprobe", "hid-playstation"]).returncode == 0
+    before = len(_dmesg())
+    folder = Path(tempfile.mkdtemp(prefix="gadget-dualsense-"))
+    preds, _ = _write(folder, strokes())
+    run = InProcessRun(preds, "touchpad", "usb", protocol="dualsense")
+    seen: dict = {}
+
+    def steps(run: InProcessRun) -> None:
+        t_run = time.monotonic()
+        found = guestlib.wait_for(lambda: hidraw.enumerate(*ids) or not run.alive(), 400.0, 0.1)
+        assert found and run.alive(), f"no hidraw device: {run.said[-5:]}"
+        seen["device_s"] = time.monotonic() - t_run
+        device = hidraw.device()
+        device.open(*ids)
+        seen["reader"] = HidrawReader(device)
+        guestlib.settle()
+        seen["sysfs_name"], seen["driver"] = hid_driver(ids)
+        seen["uniq"] = _uniq(seen["sysfs_name"])
+        seen["features"] = {rid: bytes(device.get_feature_report(rid, 256)) for rid in DUALSENSE.feature_ids}
+        nodes = guestlib.wait_for(lambda: (d := _devices()) and len(d) >= 3 and d, 30.0)
+        seen["evdev"] = sorted(nodes or _devices())
+        pad = next((node for name, node in (nodes or {}).items() if name.endswith("Touchpad")), None)
+        assert pad, f"no Touchpad among the DualSense's evdev devices: {seen['evdev']}"
+        seen["touch"] = watcher = TouchWatcher(pad)
+        seen["watching_s"] = time.monotonic() - t_run
+        seen["stroke"] = guestlib.wait_for(lambda: _stroke(list(watcher.slots[0])), 180.0)
+        reports = seen["reader"].reports
+        assert seen["stroke"], (
+            f"no whole stroke on the Touchpad: {watcher.slots[0][-20:]}; hidraw read {len(reports)} reports, the "
+            f"last {reports[-1].hex() if reports else None}; the run said {run.said[-8:]}; "
+            f"kernel: {_dmesg()[before:][-10:]}; the device {seen['device_s']:.0f} s, the watcher "
+            f"{seen['watching_s']:.0f} s after the start"
+        )
+        down = guestlib.wait_for(lambda: watcher.ids(0)[-1:] not in ([], [-1]), 30.0, 0.02)
+        seen["down_at_sigterm"] = bool(down)
+        run.stop()
+        guestlib.wait_for(lambda: watcher.reader.gone, 10.0)
+        time.sleep(0.5)
+        seen["reader"].stop()
+
+    try:
+        run(steps)
+    finally:
+        if "touch" in seen:
+            seen["touch"].stop()
+        configfs.remove()
+    log = _dmesg()[before:]
+    reader, watcher = seen["reader"], seen["touch"]
+    moved = seen["stroke"]
+    bad = [line for line in log if "Failed to retrieve" in line or "Duplicate device" in line]
+    assert run.returned, f"the run did not return after SIGTERM: {run.said[-5:]}"
+    assert seen["driver"] == "playstation", f"the HID driver of {seen['sysfs_name']}: {seen['driver']}; {log[-8:]}"
+    assert not bad, f"the kernel's log: {bad}"
+    for rid, data in seen["features"].items():
+        assert data[0] == rid and len(data) == {0x05: 41, 0x09: 20, 0x20: 64}[rid], (rid, data.hex())
+    assert len(moved) >= 3 and moved == sorted(moved) and moved[-1] > moved[0], f"slot 0's x in a stroke: {moved}"
+    assert seen["down_at_sigterm"] and watcher.ids(0)[-1] == -1, f"a touch left down after SIGTERM: {watcher.ids(0)}"
+    assert reader.reports and reader.reports[-1] == DUALSENSE.neutral(), (
+        f"last report after SIGTERM: {reader.reports[-1].hex() if reader.reports else None}"
+    )
+    return {
+        "modprobe": modprobe,
+        "hid_device": seen["sysfs_name"],
+        "driver": seen["driver"],
+        "uniq": seen["uniq"],
+        "features": {f"{rid:#04x}": len(data) for rid, data in seen["features"].items()},
+        "evdev": seen["evdev"],
+        "slot0_x": moved[:40],
+        "ids": watcher.ids(0)[-6:],
+        "last_report": reader.reports[-1].hex(),
+        "kernel_log": [line for line in log if "playstation" in line or "DualSense" in line][-6:],
+        "device_after_start_s": round(seen["device_s"], 1),
+        "watching_after_start_s": round(seen["watching_s"], 1),
         "seconds": round(time.monotonic() - t0, 1),
     }

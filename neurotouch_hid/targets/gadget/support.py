@@ -52,15 +52,36 @@ def hid_interval(release: str | None = None, gadgets: Path | None = None) -> tup
     return release_tuple(release) >= HID_INTERVAL_SINCE, f"kernel {release}"
 
 
-def protocol_notes(release: str | None = None, gadgets: Path | None = None) -> list[str]:
-    """What this kernel means for a protocol that needs more than a plain gadget (one line each)."""
+#: The kernel interfaces that let user space write a whole configuration descriptor (the Xbox
+#: 360 pad's 0x21 descriptor included, which FunctionFS refuses): the legacy GadgetFS and
+#: raw-gadget (Documentation/usb/gadget_raw.rst), by module name.
+WHOLE_DESCRIPTOR_MODULES = ("gadgetfs", "raw_gadget")
+
+
+def protocol_notes(
+    release: str | None = None, gadgets: Path | None = None, modules_dir: Path | None = None
+) -> list[str]:
+    """What this kernel means for a protocol that needs more than a plain gadget (one line each):
+    the ``xac`` protocol's polling interval (:func:`hid_interval`), and which interface that takes
+    a whole configuration descriptor this kernel has (:data:`WHOLE_DESCRIPTOR_MODULES`), which
+    Windows' own XInput driver needs: the ``xinput`` pad is made on FunctionFS, without it."""
     has, how = hid_interval(release, gadgets)
     if has:
-        return [f"xac: the hid function's interval is set to 1 ms ({how})"]
-    return [
-        f"xac: this kernel's hid function cannot set its polling interval ({how}; Linux 6.16 and later can): the "
-        "gadget is polled every 10 ms at full speed, which the Xbox Adaptive Controller may refuse"
-    ]
+        notes = [f"xac: the hid function's interval is set to 1 ms ({how})"]
+    else:
+        notes = [
+            f"xac: this kernel's hid function cannot set its polling interval ({how}; Linux 6.16 and later can): "
+            "the gadget is polled every 10 ms at full speed, which the Xbox Adaptive Controller may refuse"
+        ]
+    kernel = modules_dir if modules_dir is not None else (Path("/lib/modules") / release if release else None)
+    found = [f"{m} {module_state(m, kernel)}" for m in WHOLE_DESCRIPTOR_MODULES]
+    found = [f for f in found if not f.endswith(" missing")] or ["neither gadgetfs nor raw_gadget"]
+    notes.append(
+        f"xinput: {', '.join(found)} here, not used yet: the pad is made on FunctionFS, which cannot carry the 0x21 "
+        "descriptor Windows' XInput driver reads: Windows will not read xinput from this board; use hid with Steam "
+        "Input"
+    )
+    return notes
 
 
 def module_state(name: str, modules_dir: Path | None = None, sys_module: Path = Path("/sys/module")) -> str:
