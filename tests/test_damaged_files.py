@@ -174,7 +174,8 @@ def test_mutated_profile_validate_cli(tmp_path, name, changes):
 
 def test_track_writes_what_is_readable_of_a_cut_recording_before_its_error(sim_push_recording, tmp_path):
     """The progress total's pass meets the damage first; the windows before it are still
-    tracked and written, then the one error (exit 2)."""
+    tracked and written beside the output (``OUT.partial``, never in its place), then the one
+    error (exit 2), which names both."""
     cut = tmp_path / "cut.aedat4"
     cut.write_bytes(sim_push_recording.read_bytes()[: int(sim_push_recording.stat().st_size * 0.7)])
     (tmp_path / "sensor.yaml").write_bytes((sim_push_recording.parent / "sensor.yaml").read_bytes())
@@ -182,4 +183,6 @@ def test_track_writes_what_is_readable_of_a_cut_recording_before_its_error(sim_p
     proc = run_cli("track", str(cut), "--out", str(out))
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert str(cut) in proc.stderr
-    assert out.exists() and len(out.read_text().splitlines()) > 10
+    partial = out.with_name(out.name + ".partial")
+    assert not out.exists() and str(partial) in proc.stderr, proc.stderr
+    assert len(partial.read_text().splitlines()) > 10
