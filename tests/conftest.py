@@ -1,5 +1,5 @@
-"""Shared fixtures: the real-kernel boots of a test session (tests/kernel/vm.py: two guests one
-after the other, their results merged), a user config folder in tmp for every other test,
+"""Shared fixtures: the real-kernel boots of a test session (tests/kernel/vm.py: two guests side
+by side, their results merged), a user config folder in tmp for every other test,
 ``cli``: the profile commands run in this process, and the recordings many test modules read:
 each simulated once per session, the real street recording where it is, and a simulated street
 for a clone without it (../shared).
@@ -41,8 +41,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 def pytest_collection_finish(session: pytest.Session) -> None:
     if not session.config.option.collectonly and any(_needs_guest(item) for item in session.items):
-        # with no host test to run beside them, the guests take a core each
-        start_background_boot(side_by_side=all(_needs_guest(item) for item in session.items))
+        # the guests' checks outlast the host's tests: both guests boot at once (vm.BackgroundBoot)
+        start_background_boot(side_by_side=True)
 
 
 def pytest_terminal_summary(terminalreporter, exitstatus: int, config: pytest.Config) -> None:
