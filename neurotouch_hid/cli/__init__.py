@@ -166,12 +166,41 @@ def _unwind_on_termination() -> None:
     handle them themselves (``run``, ``record``, ``enrol``) set their own while they run."""
     import signal
 
-    def unwind(signum: int, _frame) -> None:
+    def unwind(signum: int, frame) -> None:
+        if _in_finalizer(frame):  # raised there, it is printed and dropped: the command ran on
+            _deliver_again(signum)
+            return
         raise _Terminated(signum)
 
     for number in (signal.SIGTERM, signal.SIGHUP):
         if signal.getsignal(number) is signal.SIG_DFL:
             signal.signal(number, unwind)
+
+
+#: How soon a termination signal that arrived inside a finalizer is delivered again (s).
+REDELIVER_S = 0.05
+
+
+def _in_finalizer(frame) -> bool:
+    """Whether ``frame`` (where a signal handler interrupted the main thread) runs inside an
+    object's ``__del__``: an exception raised there is printed as "Exception ignored" and dropped
+    (Python's data model, ``object.__del__``), as a first run's compile does in llvmlite's
+    finalizers."""
+    while frame is not None:
+        if frame.f_code.co_name == "__del__":
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _deliver_again(signum: int) -> None:
+    """The signal ``signum`` sent to this process again in :data:`REDELIVER_S`, so that its handler
+    raises outside the finalizer it first met."""
+    import threading
+
+    timer = threading.Timer(REDELIVER_S, os.kill, (os.getpid(), signum))
+    timer.daemon = True
+    timer.start()
 
 
 def main() -> None:
