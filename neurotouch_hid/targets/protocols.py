@@ -121,7 +121,7 @@ def _rows() -> list[ProtocolRow]:
         ),
         ProtocolRow(
             name="xinput",
-            summary="the Xbox 360 wired pad: Windows' XInput, Linux's xpad, Steam",
+            summary="the Xbox 360 wired pad: Linux's xpad, SDL, Steam (not Windows from this board: docs/any-host.md)",
             report=XINPUT,
             transports=frozenset({"gadget"}),
             gadget_function="xinput",
