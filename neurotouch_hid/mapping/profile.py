@@ -473,6 +473,15 @@ class RelMapping(_Analog):
         return DEFAULT_WHEEL_SPEED if "WHEEL" in self.output else DEFAULT_POINTER_SPEED
 
 
+def _release_not_above_press(cls, value: float, info: ValidationInfo) -> float:
+    """A hysteresis's ``release_mm`` (the field being validated) is at most its ``press_mm``: the
+    one check of every mapping that presses at one level and releases at another."""
+    press = info.data.get("press_mm")
+    if press is not None and value > press:
+        raise ValueError(f"a value <= press_mm ({press})")
+    return value
+
+
 class _Hysteresis(_Strict):
     """Pressed when the input reaches ``press_mm`` (>=), released when it falls below
     ``release_mm`` (<)."""
@@ -482,13 +491,7 @@ class _Hysteresis(_Strict):
     release_mm: float = Field(1.0, gt=0, description="input (mm) below which it is released again")
     smoothing: OneEuroSmoothing | None = None
 
-    @field_validator("release_mm")
-    @classmethod
-    def _not_above_press(cls, value: float, info: ValidationInfo) -> float:
-        press = info.data.get("press_mm")
-        if press is not None and value > press:
-            raise ValueError(f"a value <= press_mm ({press})")
-        return value
+    _not_above_press = field_validator("release_mm")(_release_not_above_press)
 
     @model_validator(mode="after")
     def _default_release_not_above_press(self):
@@ -769,13 +772,7 @@ class TouchpadMapping(_Strict):
     )
     click: TouchClick | None = None
 
-    @field_validator("release_mm")
-    @classmethod
-    def _not_above_press(cls, value: float, info: ValidationInfo) -> float:
-        press = info.data.get("press_mm")
-        if press is not None and value > press:
-            raise ValueError(f"a value <= press_mm ({press})")
-        return value
+    _not_above_press = field_validator("release_mm")(_release_not_above_press)
 
 
 _Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")]
