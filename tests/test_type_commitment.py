@@ -387,3 +387,24 @@ def test_push_on_contacts_the_window_before_did_not_see_waits_a_window():
     vote = EpisodeVote()
     flicker = [vote.update(P, 1.5, 1 + k % 2, 10_000 * (k + 1)) for k in range(12)]
     assert flicker[-1] is P and flicker.index(P) * 10_000 <= EpisodeVote().first_finger_us
+
+
+def test_the_one_contact_wait_runs_from_the_onset_whatever_the_weak_windows_counted():
+    """A fast push under a flickering light: its first windows, below ``PROVISIONAL_MM``, read
+    pinch on three and two contacts (the spurious count of a gel that has barely moved), then push
+    on one contact from 0.98 mm. The weak windows' count is not trusted, so it does not restart the
+    one-contact wait: push is committed ``first_finger_us`` after the onset (before, after its
+    first window at or above the limit: 20 ms later, and a push whose weak windows lasted 40 ms
+    waited 40 ms more). A count change among trusted windows still restarts it."""
+    Q = GestureType.PINCH
+    windows = [(Q, 0.12, 3), (Q, 0.34, 2)] + [(P, 0.98 + 0.45 * k, 1) for k in range(12)]
+    vote = EpisodeVote()
+    wait = vote.first_finger_us
+    got = [vote.update(g, mm, n, 10_000 * k) for k, (g, mm, n) in enumerate(windows)]
+    assert got[:2] == [Q, Q]  # too weak to be felt: the vote so far
+    committed = got.index(P, 2)
+    assert committed * 10_000 == wait and N not in got[committed:]
+    vote = EpisodeVote()
+    trusted = [(P, 0.9, 2), (P, 1.2, 1)] + [(P, 1.5, 1)] * 12
+    got = [vote.update(g, mm, n, 10_000 * k) for k, (g, mm, n) in enumerate(trusted)]
+    assert got[0] is N and got.index(P, 1) * 10_000 == 10_000 + wait

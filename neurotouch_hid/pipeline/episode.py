@@ -57,7 +57,10 @@ class EpisodeVote:
     most intensity-weighted votes (mm) since the contact count last changed. A window below
     ``provisional_mm`` commits nothing whatever its count (a gel that has barely moved shows
     spurious contacts: one such window committing push on three contacts made a twist's lone
-    first finger felt as push). Within ``first_finger_us`` of the onset, a window at or above
+    first finger felt as push), and its count does not restart the one-contact wait either: that
+    runs from the last change of the count among the windows at or above ``provisional_mm``, for
+    the first of them from the onset (a fast push whose first windows show 2-3 spurious contacts
+    waits no longer than one without them). Within ``first_finger_us`` of the onset, a window at or above
     ``counted_mm`` that reads push on two contacts or more commits only when the window before saw
     two or more too (below it a flickering light's count jumps, and such a window commits at once,
     as before): the fingers
@@ -133,6 +136,8 @@ class EpisodeVote:
         self._onset_us = 0
         self._count = -1
         self._count_since_us = 0
+        self._trusted = -1  # the contact count of the last window at or above provisional_mm ...
+        self._trusted_since_us = 0  # ... since when (the onset for the first such window)
         self._most_contacts = -1
         self._corrected = False
         self._peak = 0.0  # the episode's highest intensity (mm) ...
@@ -208,7 +213,10 @@ class EpisodeVote:
             self._votes[gesture] = self._votes.get(gesture, 0.0) + weight
             if weak:
                 return max(self._votes, key=self._votes.get)
-            if n_contacts <= 1 and t_us - self._count_since_us < self.first_finger_us:
+            if n_contacts != self._trusted:
+                self._trusted_since_us = self._onset_us if self._trusted < 0 else t_us
+                self._trusted = n_contacts
+            if n_contacts <= 1 and t_us - self._trusted_since_us < self.first_finger_us:
                 return GestureType.NONE
             if (
                 gesture is GestureType.PUSH
