@@ -38,7 +38,7 @@ import typer
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from family_eval import HELD_BACK, family_dataset, parse_users  # noqa: E402  (the family protocol, reused)
 
-from neurotouch_hid.output.console import command_app, make_console  # noqa: E402
+from neurotouch_hid.views.console import command_app, make_console  # noqa: E402
 
 #: Families adaptation's choices were looked at on (never reported as held out).
 ADAPT_TUNING = ("default", "fingers")
@@ -57,10 +57,10 @@ app = command_app()
 
 def enrol(out: Path, fam: str, user: int, seed: int, creep) -> Path:
     """The labelled enrolment of ``user`` on ``fam``'s gel (module docstring), written once."""
+    from neurotouch_hid.core.sensor import SensorGeometry
     from neurotouch_hid.enrolment.hand import simulate_enrolment
     from neurotouch_hid.enrolment.label import label_recording
     from neurotouch_hid.enrolment.plan import make_plan
-    from neurotouch_hid.sensor import SensorGeometry
 
     raw, labelled = out / "raw", out / "labelled"
     if (labelled / "done").exists():
@@ -77,12 +77,12 @@ def enrol(out: Path, fam: str, user: int, seed: int, creep) -> Path:
 def family(out: Path, fam: str, users: list[int], seed: int, enrol_seed: int, labels: str = "enrol") -> dict:
     """One family: enrol and adapt each user, score the sessions both ways (module docstring);
     ``labels`` ``simulator``: adapt on the simulator's own labels of the enrolment instead."""
-    from neurotouch_hid.dataset import list_sequences
+    from neurotouch_hid.core.dataset import list_sequences
+    from neurotouch_hid.core.sensor import SensorGeometry
     from neurotouch_hid.enrolment.adapt import adapt, fitted_info, record_datasets, summary
     from neurotouch_hid.enrolment.model import Model, apply_model
     from neurotouch_hid.evaluation.metrics import Observations, evaluate
     from neurotouch_hid.evaluation.runner import run_sequence
-    from neurotouch_hid.sensor import SensorGeometry
 
     folder = family_dataset(out, fam, sessions=True, seed=seed, users=users, creep=fam != "mix")
     creep = SensorGeometry.load(folder / "sensor.yaml").creep

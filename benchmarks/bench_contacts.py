@@ -30,11 +30,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_latency import compressed, items, load, make_recording  # noqa: E402
 
+from neurotouch_hid.core.sensor import SensorGeometry  # noqa: E402
 from neurotouch_hid.pipeline import contacts as contacts_module  # noqa: E402
 from neurotouch_hid.pipeline import pipeline as pipeline_module  # noqa: E402
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig  # noqa: E402
-from neurotouch_hid.sensor import SensorGeometry  # noqa: E402
-from neurotouch_hid.warmup import compile_pipeline  # noqa: E402
+from neurotouch_hid.service.warmup import compile_pipeline  # noqa: E402
 
 #: the parts of ``detect_contacts`` timed, by their name in ``contacts.py``
 PARTS = (

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from neurotouch_hid.errors import RecordingError
+from neurotouch_hid.core.errors import RecordingError
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
 from neurotouch_hid.sources.dv import events_from_store
 from neurotouch_hid.sources.recording import RecordingReader, RecordingWriter

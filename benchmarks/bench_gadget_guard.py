@@ -1,6 +1,6 @@
 """What the USB gadget's guard costs while the driver runs (docs/performance.md, "Memory").
 
-The guard (``neurotouch_hid.guard.Guard``) is a process of its own beside
+The guard (``neurotouch_hid.service.guard.Guard``) is a process of its own beside
 every ``run --output usb`` with a ``hid`` function; it waits for the driver's end in a read. This
 starts one over a pipe standing for a ``/dev/hidgN`` node, then reads from ``/proc/PID``: its
 anonymous memory and resident set (``smaps_rollup``, KiB), the CPU time of its start and the CPU
@@ -45,8 +45,8 @@ def measure(seconds: float = 10.0, start_timeout_s: float = 60.0, hidden: bool =
     RuntimeError if it does not reach its read within ``start_timeout_s``."""
     import tempfile
 
-    from neurotouch_hid.guard import Guard
     from neurotouch_hid.inputs import hide
+    from neurotouch_hid.service.guard import Guard
 
     host, node = os.pipe()
     if hidden:

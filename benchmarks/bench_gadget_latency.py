@@ -56,7 +56,7 @@ def measure(samples: int = 200, every_ms: float = 10.0) -> dict:
     import numpy as np
     from evdev import InputDevice, ecodes
 
-    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.core.controller import ControllerState
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.targets import TargetOutputs
     from neurotouch_hid.targets.gadget import UsbGadget, configfs

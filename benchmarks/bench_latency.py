@@ -39,16 +39,16 @@ from pathlib import Path
 
 import numpy as np
 
+from neurotouch_hid.core.sensor import SensorGeometry
+from neurotouch_hid.core.stats import RunStats
 from neurotouch_hid.driver import build_pipeline
 from neurotouch_hid.mapping.profile import load_profile
-from neurotouch_hid.output.jsonl import StateJsonlWriter
 from neurotouch_hid.runtime import Runtime
-from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.service.warmup import compile_pipeline
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.recording import RecordingReader, RecordingWriter, merge_stream
 from neurotouch_hid.sources.simulator import SimulatedSource
-from neurotouch_hid.stats import RunStats
-from neurotouch_hid.warmup import compile_pipeline
+from neurotouch_hid.views.jsonl import StateJsonlWriter
 
 PAGE = os.sysconf("SC_PAGE_SIZE")
 

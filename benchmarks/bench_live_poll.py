@@ -23,7 +23,7 @@ from pathlib import Path
 import dv_processing as dv
 import numpy as np
 
-from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.core.errors import NeurotouchError
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.davis import DavisConfig, DavisSource, in_time_order
 from neurotouch_hid.sources.dv import store_from_events

@@ -22,12 +22,12 @@ import time
 
 import numpy as np
 
-from neurotouch_hid.dataset import LabelRow
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.dataset import LabelRow
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.evaluation.through_profile import ProfileUnderTest, tally
 from neurotouch_hid.mapping.mapper import Mapper
 from neurotouch_hid.mapping.profile import load_profile, shipped_profiles_dir
-from neurotouch_hid.sensor import SensorGeometry
 
 
 def estimates(n: int) -> list[GestureEstimate]:
@@ -96,8 +96,8 @@ def road_per_window(stream: list[GestureEstimate]) -> float:
     import os
 
     from neurotouch_hid.driver import EstimateReplay
-    from neurotouch_hid.output.jsonl import StateJsonlWriter
     from neurotouch_hid.runtime import Runtime
+    from neurotouch_hid.views.jsonl import StateJsonlWriter
 
     with StateJsonlWriter(os.devnull) as out:
         runtime = Runtime(iter(stream), EstimateReplay(), load_profile("default"), [out], pace=False)

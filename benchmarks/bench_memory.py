@@ -72,7 +72,7 @@ def main() -> None:
     show("CLI and driver")
     import time
 
-    from neurotouch_hid.warmup import PIPELINE_OF, RELEASE_AFTER_S, Warmup
+    from neurotouch_hid.service.warmup import PIPELINE_OF, RELEASE_AFTER_S, Warmup
 
     Warmup(list(PIPELINE_OF["default"]), say=print, interpreted=False).start()
     show("pipeline loaded")

@@ -40,13 +40,13 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from neurotouch_hid.output.console import make_console
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.noise import NOISE_FILTERS, EventNoiseFilter
 from neurotouch_hid.pipeline.tracker import BlobTracker
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.dv import events_from_store, store_from_events
 from neurotouch_hid.sources.recording import split_batches
 from neurotouch_hid.sources.simulator import SIM_GESTURES, USERS, GelSimulator
+from neurotouch_hid.views.console import make_console
 
 
 def simulate(sensor: SensorGeometry, seconds: float, noise_hz: float, seed: int) -> tuple[np.ndarray, np.ndarray]:

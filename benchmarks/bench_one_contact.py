@@ -18,10 +18,10 @@ import time
 import numpy as np
 import typer
 
-from neurotouch_hid.output.console import command_app
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.contacts import detect_contacts
 from neurotouch_hid.pipeline.contacts_plateau import rest_neighbours
-from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.views.console import command_app
 
 app = command_app()
 

@@ -26,13 +26,13 @@ from pathlib import Path
 import numpy as np
 from rich.table import Table
 
-from neurotouch_hid.dataset import list_sequences
-from neurotouch_hid.output.console import make_console
+from neurotouch_hid.core.dataset import list_sequences
+from neurotouch_hid.core.sensor import find_sensor_file
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
-from neurotouch_hid.sensor import find_sensor_file
+from neurotouch_hid.pipeline.track import track_recording
 from neurotouch_hid.sources.recording import RecordingReader
 from neurotouch_hid.sources.simulator import write_dataset
-from neurotouch_hid.track import track_recording
+from neurotouch_hid.views.console import make_console
 
 
 def profile_sequence(recording: Path, config: PipelineConfig) -> dict[str, list[tuple[float, float]]]:

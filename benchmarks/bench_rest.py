@@ -82,7 +82,7 @@ STEADY_AFTER_S = 12.0
 
 def make_rest_recording(folder: Path, seconds: float = RECORDING_S, seed: int = 0) -> Path:
     """A resting gel (noise events, 25 APS frames a second) as AEDAT4 with its sensor.yaml beside it."""
-    from neurotouch_hid.sensor import SensorGeometry
+    from neurotouch_hid.core.sensor import SensorGeometry
     from neurotouch_hid.sources.recording import RecordingWriter
     from neurotouch_hid.sources.simulator import GelSimulator
 
@@ -175,7 +175,7 @@ def sim_command(seconds: float) -> list[str]:
 def rest_stream(seconds: float, seed: int = 0, batch_us=1000):
     """The simulated gel at rest, as ``SimulatedSource.stream`` yields a gel: per APS frame
     period the frame, then its events in 1 ms batches (or as a ``BatchCut`` says)."""
-    from neurotouch_hid.sensor import SensorGeometry
+    from neurotouch_hid.core.sensor import SensorGeometry
     from neurotouch_hid.sources.recording import split_batches
     from neurotouch_hid.sources.simulator import GelSimulator
 
@@ -188,13 +188,13 @@ def rest_stream(seconds: float, seed: int = 0, batch_us=1000):
 def run_sim(seconds: float) -> None:
     """The simulated gel at rest through the runtime as ``run --source sim --output jsonl`` runs
     it (the warm pipeline loaded first, as ``run`` does; paced, the source waits rather than drops)."""
+    from neurotouch_hid.core.sensor import SensorGeometry
     from neurotouch_hid.driver import build_pipeline
     from neurotouch_hid.mapping.profile import load_profile
-    from neurotouch_hid.output.jsonl import StateJsonlWriter
     from neurotouch_hid.runtime import Runtime
-    from neurotouch_hid.sensor import SensorGeometry
+    from neurotouch_hid.service.warmup import PIPELINE_OF, SIMULATOR, Warmup
     from neurotouch_hid.sources.recording import BatchCut, CuttingStream, read_ahead
-    from neurotouch_hid.warmup import PIPELINE_OF, SIMULATOR, Warmup
+    from neurotouch_hid.views.jsonl import StateJsonlWriter
 
     Warmup([SIMULATOR, *PIPELINE_OF["default"]], say=lambda line: None, interpreted=False).start()
     sensor = SensorGeometry()
@@ -243,13 +243,13 @@ def measure_work(recording: Path, gap_s: float) -> dict[str, float]:
     ``--work``: hot, spread with ``gap_s`` of sleep after each item, evicted, spun), each on its own
     part of the recording after a first part that warms the stages up; ``PASS/call`` and
     ``PASS/verdict``: of it the resting window's compiled call and the resting verdict."""
+    from neurotouch_hid.core.sensor import SensorGeometry
     from neurotouch_hid.driver import build_pipeline
     from neurotouch_hid.mapping.mapper import Mapper
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.pipeline import window_path
-    from neurotouch_hid.sensor import SensorGeometry
+    from neurotouch_hid.service.warmup import compile_pipeline
     from neurotouch_hid.sources import Frame
-    from neurotouch_hid.warmup import compile_pipeline
 
     compile_pipeline()
     items = rest_items(recording)
@@ -330,12 +330,12 @@ def measure_floor(recording: Path) -> dict[str, float]:
     :data:`FLOOR_PARTS`, one wake-up a window on ``recording`` (a resting gel's, 10 ms windows)
     in real time. Raises RuntimeError when a window of it does not rest, or it is shorter than
     :data:`FLOOR_WARM_UP_US` and the parts."""
+    from neurotouch_hid.core.sensor import SensorGeometry
     from neurotouch_hid.driver import build_pipeline
     from neurotouch_hid.pipeline.rest_window import OPEN, RESTING, rest_batch
     from neurotouch_hid.runtime import REST_WAKE_AFTER_END_US
-    from neurotouch_hid.sensor import SensorGeometry
+    from neurotouch_hid.service.warmup import compile_pipeline
     from neurotouch_hid.sources import Frame
-    from neurotouch_hid.warmup import compile_pipeline
 
     window_us = 10_000
     compile_pipeline()

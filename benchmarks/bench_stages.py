@@ -62,16 +62,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_latency import items, load, make_recording  # noqa: E402
 
-from neurotouch_hid.estimate import GestureEstimate  # noqa: E402
+from neurotouch_hid.core.estimate import GestureEstimate  # noqa: E402
+from neurotouch_hid.core.sensor import SensorGeometry  # noqa: E402
 from neurotouch_hid.mapping.mapper import Mapper  # noqa: E402
 from neurotouch_hid.mapping.profile import load_profile  # noqa: E402
-from neurotouch_hid.output.console import make_console  # noqa: E402
 from neurotouch_hid.pipeline import contacts as contacts_module  # noqa: E402
 from neurotouch_hid.pipeline import pipeline as pipeline_module  # noqa: E402
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig  # noqa: E402
-from neurotouch_hid.sensor import SensorGeometry  # noqa: E402
+from neurotouch_hid.service.warmup import compile_pipeline  # noqa: E402
 from neurotouch_hid.sources import Frame  # noqa: E402
-from neurotouch_hid.warmup import compile_pipeline  # noqa: E402
+from neurotouch_hid.views.console import make_console  # noqa: E402
 
 #: (key, label, per what): the rows, in order. ``hook:`` keys come from the pipeline's
 #: ``cpu_timings``, the others from the benchmark's wrappers or its own clock.

@@ -12,7 +12,7 @@ for each, in wall seconds from the process's start:
 * ``full speed``: the line saying every compiled kernel took over (cold only);
 * ``end``, and the CPU seconds the run and its compile children used.
 
-Between the two runs the cache is completed (``python -m neurotouch_hid.warmup GROUP``) in case the
+Between the two runs the cache is completed (``python -m neurotouch_hid.service.warmup GROUP``) in case the
 cold run ended before its compile did. Usage::
 
     python benchmarks/bench_start.py [--seconds 20]
@@ -74,7 +74,7 @@ def main() -> None:
         cold = measure(cache, args.seconds)
         for group in ("simulator", "tracker", "pipeline"):  # the cold run may have ended before its compile
             subprocess.run(
-                [sys.executable, "-m", "neurotouch_hid.warmup", group],
+                [sys.executable, "-m", "neurotouch_hid.service.warmup", group],
                 env=dict(os.environ, NUMBA_CACHE_DIR=cache),
                 stdout=subprocess.DEVNULL,
                 check=True,

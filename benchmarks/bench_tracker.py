@@ -30,14 +30,14 @@ import cv2
 import numpy as np
 from rich.table import Table
 
-from neurotouch_hid.output.console import make_console
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.markers import detect_markers
 from neurotouch_hid.pipeline.tracker import BlobTracker, TrackerConfig
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE
 from neurotouch_hid.sources.dv import store_from_events
 from neurotouch_hid.sources.recording import RecordingReader
 from neurotouch_hid.sources.simulator import write_dataset
+from neurotouch_hid.views.console import make_console
 
 WINDOW_US = 10_000
 

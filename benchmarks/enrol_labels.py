@@ -22,7 +22,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from neurotouch_hid.dataset import read_labels  # noqa: E402
+from neurotouch_hid.core.dataset import read_labels  # noqa: E402
+from neurotouch_hid.core.sensor import SensorGeometry  # noqa: E402
 from neurotouch_hid.enrolment.hand import simulate_enrolment  # noqa: E402
 from neurotouch_hid.enrolment.label import (  # noqa: E402
     agreement,
@@ -32,7 +33,6 @@ from neurotouch_hid.enrolment.label import (  # noqa: E402
     measure_motion,
 )
 from neurotouch_hid.enrolment.plan import Plan, make_plan  # noqa: E402
-from neurotouch_hid.sensor import SensorGeometry  # noqa: E402
 
 
 def main() -> None:

@@ -49,17 +49,23 @@ from typing import Optional
 import typer
 from rich.table import Table
 
-from neurotouch_hid.calibration import measure_creep
-from neurotouch_hid.dataset import list_sequences, read_labels, read_predictions, read_pressed, write_predictions
-from neurotouch_hid.estimate import GESTURE_ORDER, GestureType
+from neurotouch_hid.calibration.measure import measure_creep
+from neurotouch_hid.core.dataset import (
+    list_sequences,
+    read_labels,
+    read_predictions,
+    read_pressed,
+    write_predictions,
+)
+from neurotouch_hid.core.estimate import GESTURE_ORDER, GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
 from neurotouch_hid.evaluation.metrics import Observations, align, evaluate
 from neurotouch_hid.evaluation.runner import evaluate_dataset, pipeline_config
-from neurotouch_hid.output.console import command_app, make_console
 from neurotouch_hid.pipeline.episode import EpisodeVote
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import PHYSICS
 from neurotouch_hid.sources.simulator import USERS, write_dataset
+from neurotouch_hid.views.console import command_app, make_console
 
 #: The press each family's creep is calibrated on: a tuning user (5-9, never a test user) and an
 #: odd seed (test datasets use even ones).
@@ -285,7 +291,7 @@ def press_creep(press_dir: Path, family: str, sensor_file: Path) -> tuple[float,
     """The family's creep as a user would measure it (``calibrate --press``): one push sequence
     of the tuning user :data:`PRESS_USER` (seed :data:`PRESS_SEED`, odd: never a test draw, 6 s)
     simulated with the family's physics into ``press_dir``, tracked with the dataset's sensor,
-    fitted (:func:`neurotouch_hid.calibration.measure_creep`); written into ``sensor_file`` as
+    fitted (:func:`neurotouch_hid.calibration.measure.measure_creep`); written into ``sensor_file`` as
     its ``creep``. The press is seen by the dataset's camera. Returns (q, tau s), or None: the
     press shows no creep (none written)."""
     sensor = SensorGeometry.load(sensor_file)

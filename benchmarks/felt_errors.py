@@ -46,8 +46,8 @@ import numpy as np
 import typer
 from workdir import families_in
 
-from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions, read_pressed
-from neurotouch_hid.estimate import GESTURE_ORDER, GestureType
+from neurotouch_hid.core.dataset import labels_at, list_sequences, read_labels, read_predictions, read_pressed
+from neurotouch_hid.core.estimate import GESTURE_ORDER, GestureType
 from neurotouch_hid.evaluation.felt import (
     DEFAULT_DEADZONE_MM,
     FRAME_PERIOD_US,
@@ -57,8 +57,8 @@ from neurotouch_hid.evaluation.felt import (
     pressed_at,
 )
 from neurotouch_hid.evaluation.metrics import TYPE_COLLAR_US, outside_collar
-from neurotouch_hid.output.console import command_app
 from neurotouch_hid.pipeline.episode import PROVISIONAL_MM
+from neurotouch_hid.views.console import command_app
 
 app = command_app()
 #: A gesture this short or shorter (first to last labelled frame, ms) counts as a tap.

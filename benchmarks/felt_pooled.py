@@ -23,9 +23,9 @@ import numpy as np
 import typer
 from workdir import families_in, usage_error
 
-from neurotouch_hid.dataset import list_sequences, read_labels, read_predictions
+from neurotouch_hid.core.dataset import list_sequences, read_labels, read_predictions
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM, FeltRecords, gesture_records, summarise
-from neurotouch_hid.output.console import command_app
+from neurotouch_hid.views.console import command_app
 
 app = command_app()
 

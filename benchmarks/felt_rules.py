@@ -27,8 +27,8 @@ import numpy as np
 import typer
 from workdir import families_in
 
-from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions, read_pressed
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.dataset import labels_at, list_sequences, read_labels, read_predictions, read_pressed
+from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.evaluation.felt import (
     DEFAULT_DEADZONE_MM,
     FRAME_PERIOD_US,
@@ -37,7 +37,7 @@ from neurotouch_hid.evaluation.felt import (
     pressed_at,
 )
 from neurotouch_hid.evaluation.metrics import TYPE_COLLAR_US, outside_collar
-from neurotouch_hid.output.console import command_app
+from neurotouch_hid.views.console import command_app
 
 app = command_app()
 

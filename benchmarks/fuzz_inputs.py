@@ -83,11 +83,11 @@ def _atheris_child(name: str, examples: int) -> None:
 
     with atheris.instrument_imports(include=["neurotouch_hid"]):
         import neurotouch_hid.control  # noqa: F401
+        import neurotouch_hid.core.limits  # noqa: F401
+        import neurotouch_hid.core.sensor  # noqa: F401
         import neurotouch_hid.evaluation.runner  # noqa: F401
         import neurotouch_hid.games  # noqa: F401
-        import neurotouch_hid.limits  # noqa: F401
         import neurotouch_hid.mapping.profile  # noqa: F401
-        import neurotouch_hid.sensor  # noqa: F401
         import neurotouch_hid.sources.packet_bounds  # noqa: F401
         import neurotouch_hid.sources.recording  # noqa: F401
     folder = Path(tempfile.mkdtemp(prefix="fuzz-atheris-"))

@@ -20,10 +20,10 @@ import numpy as np
 import typer
 from workdir import families_in, numbers
 
-from neurotouch_hid.dataset import list_sequences, read_labels
+from neurotouch_hid.core.dataset import list_sequences, read_labels
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.evaluation.felt import gesture_spans
-from neurotouch_hid.output.console import command_app
-from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.views.console import command_app
 
 app = command_app()
 

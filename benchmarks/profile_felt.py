@@ -19,12 +19,12 @@ from pathlib import Path
 import typer
 from workdir import families_in, usage_error
 
-from neurotouch_hid.dataset import list_sequences, read_labels, read_predictions
-from neurotouch_hid.errors import DatasetError, ProfileError
+from neurotouch_hid.core.dataset import list_sequences, read_labels, read_predictions
+from neurotouch_hid.core.errors import DatasetError, ProfileError
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.evaluation.through_profile import ProfileTally, ProfileUnderTest, tally
 from neurotouch_hid.mapping.profile import Profile, load_profile, shipped_profiles_dir
-from neurotouch_hid.output.console import command_app
-from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.views.console import command_app
 
 app = command_app()
 

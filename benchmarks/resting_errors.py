@@ -31,12 +31,12 @@ import numpy as np
 import typer
 from workdir import families_in, numbers
 
-from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.dataset import labels_at, list_sequences, read_labels, read_predictions
+from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.evaluation.metrics import RESTING_COLLAR_US, outside_resting_collar
-from neurotouch_hid.output.console import command_app
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.simulator import REST_TOLERANCE_MM
+from neurotouch_hid.views.console import command_app
 
 app = command_app()
 

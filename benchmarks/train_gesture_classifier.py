@@ -36,15 +36,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from family_eval import FINAL_FAMILY  # noqa: E402  (never trained on: docs/accuracy.md)
 from tune_pipeline import record_sequence  # noqa: E402
 
-from neurotouch_hid.dataset import labels_at, list_sequences, read_labels  # noqa: E402
-from neurotouch_hid.estimate import GestureType  # noqa: E402
+from neurotouch_hid.core.dataset import labels_at, list_sequences, read_labels  # noqa: E402
+from neurotouch_hid.core.estimate import GestureType  # noqa: E402
+from neurotouch_hid.core.sensor import SensorGeometry  # noqa: E402
 from neurotouch_hid.evaluation.runner import pipeline_config  # noqa: E402
-from neurotouch_hid.output.console import command_app
 from neurotouch_hid.pipeline.learned import CLASSES, FEATURES, gesture_features  # noqa: E402
 from neurotouch_hid.pipeline.pipeline import GesturePipeline  # noqa: E402
-from neurotouch_hid.sensor import SensorGeometry  # noqa: E402
 from neurotouch_hid.sources.physics import PHYSICS  # noqa: E402
 from neurotouch_hid.sources.simulator import write_dataset  # noqa: E402
+from neurotouch_hid.views.console import command_app
 
 MODEL_FILE = Path(__file__).resolve().parents[1] / "neurotouch_hid" / "pipeline" / "gesture_model.py"
 

@@ -37,7 +37,8 @@ import typer
 from rich.table import Table
 from workdir import numbers
 
-from neurotouch_hid.dataset import labels_at, list_sequences, read_labels
+from neurotouch_hid.core.dataset import labels_at, list_sequences, read_labels
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.evaluation.metrics import (
     EvaluationResult,
     Observations,
@@ -47,8 +48,7 @@ from neurotouch_hid.evaluation.metrics import (
     precision_recall_f1,
 )
 from neurotouch_hid.evaluation.runner import pipeline_config
-from neurotouch_hid.output.console import command_app, make_console
-from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.views.console import command_app, make_console
 
 #: Seeds of the tuning and test sets: the ``paper`` preset simulates its tuning users (5-9) for
 #: an odd seed and its test users (0-4) for an even seed (``simulator.preset_users``).

@@ -40,13 +40,13 @@ import numpy as np
 import typer
 from workdir import families_in, numbers, usage_error
 
-from neurotouch_hid.dataset import list_sequences, read_labels
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.dataset import list_sequences, read_labels
+from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
-from neurotouch_hid.output.console import command_app
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import PHYSICS
 from neurotouch_hid.sources.simulator import SESSION_STREAM, SIM_GESTURES, USERS, GelSimulator, deform
+from neurotouch_hid.views.console import command_app
 
 app = command_app()
 

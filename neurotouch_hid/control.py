@@ -30,8 +30,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from neurotouch_hid.errors import NeurotouchError
-from neurotouch_hid.limits import printable
+from neurotouch_hid.core.errors import NeurotouchError
+from neurotouch_hid.core.limits import printable
 
 log = logging.getLogger(__name__)
 
@@ -99,7 +99,7 @@ def socket_path(serial: str | None = None) -> Path | None:
         return None
     if serial is None:
         return Path(runtime_dir) / SOCKET_NAME
-    from neurotouch_hid.serials import check_serial
+    from neurotouch_hid.service.serials import check_serial
 
     return (Path(runtime_dir) / SOCKET_NAME).with_name(f"control-{check_serial(serial)}.sock")
 
@@ -178,7 +178,7 @@ def _not_a_profile(ref: str) -> str | None:
     """Why a profile given by path cannot be used, said without what the file holds (the path may
     name any file the driver can read: a key, a password file), or None when it loads. A profile
     given by name (the profile folders) is left to the driver, whose message is complete."""
-    from neurotouch_hid.errors import ProfileError
+    from neurotouch_hid.core.errors import ProfileError
     from neurotouch_hid.mapping.profile import _is_path, load_profile
 
     if not _is_path(ref):
@@ -410,7 +410,7 @@ def _unit_of(pid: int) -> str | None:
     """The systemd service process ``pid`` runs in: the last part of its cgroup path when it is a
     ``*.service`` (``/proc/PID/cgroup``, cgroup v2's ``0::/user.slice/.../neurotouch-hid@X.service``),
     else None (a terminal's scope, under ``user@UID.service``, is no unit of the driver's)."""
-    from neurotouch_hid.limits import read_proc_file
+    from neurotouch_hid.core.limits import read_proc_file
 
     try:
         data, _ = read_proc_file(f"/proc/{pid}/cgroup", 4096)

@@ -19,15 +19,15 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Iterator
 
-from neurotouch_hid.errors import DeviceError, NeurotouchError, ProfileError
-from neurotouch_hid.estimate import GestureEstimate
-from neurotouch_hid.kinds import MethodKind, OutputKind, SourceKind
+from neurotouch_hid.core.errors import DeviceError, NeurotouchError, ProfileError
+from neurotouch_hid.core.estimate import GestureEstimate
+from neurotouch_hid.core.kinds import MethodKind, OutputKind, SourceKind
+from neurotouch_hid.core.stats import RunStats
 from neurotouch_hid.mapping.profile import Profile, available_profiles, find_profile, load_profile
 from neurotouch_hid.runtime import DEFAULT_BATCH_US, DEFAULT_MAX_LAG_US, RunParts, run_assembled
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.open import CameraBackend, open_source
 from neurotouch_hid.stages import Feedback, MarkerPositions, Subscriber
-from neurotouch_hid.stats import RunStats
 from neurotouch_hid.stopping import EarlyStop, StopRequested
 from neurotouch_hid.targets.identity import Identity, identity_for
 
@@ -35,13 +35,13 @@ if TYPE_CHECKING:
     import numpy as np
     from rich.console import Console
 
+    from neurotouch_hid.core.sensor import SensorGeometry
     from neurotouch_hid.enrolment.model import Model
     from neurotouch_hid.inputs.copilot import FeedbackRelay
     from neurotouch_hid.pipeline.pipeline import GesturePipeline
     from neurotouch_hid.pipeline.resting import RestingResult
-    from neurotouch_hid.sensor import SensorGeometry
+    from neurotouch_hid.service.warmup import Warmup
     from neurotouch_hid.sources.davis import DavisConfig
-    from neurotouch_hid.warmup import Warmup
 
 log = logging.getLogger(__name__)
 
@@ -89,7 +89,7 @@ def open_output(
     (a USB gadget speaking ``protocol``, else the profile's, else ``hid``:
     :mod:`neurotouch_hid.targets.gadget`), ``jsonl`` (one state line per change to ``out`` or
     stdout; ``out`` may not be one of the run's ``inputs``) or ``term`` (the terminal view; on a
-    terminal the live view of :mod:`neurotouch_hid.output.live`: the gel, the gestures, the
+    terminal the live view of :mod:`neurotouch_hid.views.live`: the gel, the gestures, the
     profile, beside the pad). Every device output is one
     :class:`~neurotouch_hid.targets.TargetOutputs` over its targets: ``say`` tells the user about
     what games and hosts send back (rumble, LEDs: the gel has no motor; default: the log), and
@@ -116,7 +116,7 @@ def open_output(
 def _open_gamepad(
     profile: Profile, stack: contextlib.ExitStack, *, say, identity: Identity, on_feedback=None, **_
 ) -> Subscriber:
-    from neurotouch_hid.extras import require
+    from neurotouch_hid.service.extras import require
 
     require("uinput", "the virtual gamepad (--output gamepad)")
     from neurotouch_hid.targets import TargetOutputs
@@ -170,13 +170,13 @@ def _open_usb(
 
 
 def _open_jsonl(profile: Profile, stack: contextlib.ExitStack, *, out, inputs, **_) -> Subscriber:
-    from neurotouch_hid.output.jsonl import StateJsonlWriter
+    from neurotouch_hid.views.jsonl import StateJsonlWriter
 
     return stack.enter_context(StateJsonlWriter(out, inputs))
 
 
 def _open_term(profile: Profile, stack: contextlib.ExitStack, *, console, **_) -> Subscriber:
-    from neurotouch_hid.output.live import LiveView
+    from neurotouch_hid.views.live import LiveView
 
     return stack.enter_context(LiveView(console))
 
@@ -202,7 +202,7 @@ def open_outputs(
     the live view drawn beside it, closed by ``stack``."""
     if kind not in DEVICE_OUTPUTS or console is None or not console.is_terminal:
         return [output]
-    from neurotouch_hid.output.live import LiveView
+    from neurotouch_hid.views.live import LiveView
 
     return [output, stack.enter_context(LiveView(console))]
 
@@ -274,14 +274,14 @@ def build_pipeline(
 
 
 def start_warmup(source: str, *, fast: bool, say: Callable[[str], None], method: str = "default") -> Warmup | None:
-    """The first run's compile for ``source`` (:class:`~neurotouch_hid.warmup.Warmup`), started.
+    """The first run's compile for ``source`` (:class:`~neurotouch_hid.service.warmup.Warmup`), started.
 
     The simulated gel in real time (``demo``, ``run --source sim``) runs at once: its cold
     kernels are interpreted while child processes compile them, and it waits rather than drop
     data. Other sources (the camera cannot wait; ``--fast`` replays must be deterministic)
     compile the cold kernels here first, saying so. Warm kernels are loaded from the cache now
     (a first call would otherwise stall the run). None for a predictions file (no pipeline)."""
-    from neurotouch_hid.warmup import PIPELINE_OF, SIMULATOR, Warmup
+    from neurotouch_hid.service.warmup import PIPELINE_OF, SIMULATOR, Warmup
 
     if source.endswith(".jsonl"):
         return None
@@ -329,7 +329,7 @@ class RunAssembly:
         guarded while they are interpreted: a property of how it is built, not of who watches
         it). Everything opened is closed by ``stack``. Raises what
         :func:`~neurotouch_hid.sources.open.open_source` raises."""
-        from neurotouch_hid.warmup import PIPELINE_OF, SIMULATOR, GuardedPipeline, GuardedResting
+        from neurotouch_hid.service.warmup import PIPELINE_OF, SIMULATOR, GuardedPipeline, GuardedResting
 
         live_camera = self.source == SourceKind.DAVIS
         if live_camera and not self.wait:  # no camera: said now, not after a first run's compile
@@ -565,8 +565,8 @@ def _and_the_source(problem: str, source: str, davis: DavisConfig | None) -> str
 def said_above(subscribers: list[Subscriber], say: Callable[[str], None]) -> Callable[[str], None]:
     """Where a run's lines for the user go (the first run's compile, a camera lost and back):
     while a terminal view draws on a terminal, through it, above the view
-    (:meth:`~neurotouch_hid.output.term.TermView.say`); else ``say``."""
-    from neurotouch_hid.output.term import TermView
+    (:meth:`~neurotouch_hid.views.term.TermView.say`); else ``say``."""
+    from neurotouch_hid.views.term import TermView
 
     for subscriber in subscribers:
         if isinstance(subscriber, TermView) and subscriber.console.is_terminal:
@@ -623,7 +623,7 @@ def estimates_from_source(
         DatasetError, RecordingError, SensorError: unreadable source.
     """
     if source.endswith(".jsonl"):
-        from neurotouch_hid.dataset import open_predictions
+        from neurotouch_hid.core.dataset import open_predictions
 
         yield from _first_seconds(open_predictions(source), seconds)
         return

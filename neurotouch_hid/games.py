@@ -37,8 +37,8 @@ from typing import Any, Callable
 
 import psutil
 
-from neurotouch_hid.errors import NeurotouchError
-from neurotouch_hid.limits import (
+from neurotouch_hid.core.errors import NeurotouchError
+from neurotouch_hid.core.limits import (
     YamlError,
     key_line,
     load_yaml,
@@ -189,7 +189,7 @@ def _check_section(path: Path, data: dict, section: str, root: Any) -> dict:
 
 def _load_document(path: Path, round_trip: bool = False) -> Any:
     """games.yaml's document (None when there is no file): read and parsed within the bounds of
-    :mod:`neurotouch_hid.limits` (a regular file of at most :data:`MAX_GAMES_BYTES`, YAML depth,
+    :mod:`neurotouch_hid.core.limits` (a regular file of at most :data:`MAX_GAMES_BYTES`, YAML depth,
     aliases, numbers and strings bounded), then checked. ``round_trip``: ruamel's round-trip
     document (comments kept, for ``profile auto add/remove``), parsed only once the bounded
     parse passed; else plain Python data."""

@@ -59,20 +59,20 @@ from typing import TYPE_CHECKING, Any, Callable, Iterator, Optional, Protocol, S
 
 import numpy as np
 
-from neurotouch_hid.controller import ControllerState
-from neurotouch_hid.errors import NeurotouchError
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.controller import ControllerState
+from neurotouch_hid.core.errors import NeurotouchError
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.stats import RunStats
 from neurotouch_hid.mapping.commitment import waits_for_type
 from neurotouch_hid.mapping.mapper import Mapper
 from neurotouch_hid.mapping.profile import Profile, load_profile
 from neurotouch_hid.sources import Frame, Pacer, Performed, SourceStatus, StatusKind, StreamItem, join_events
 from neurotouch_hid.stages import CompileProgress, Pipeline, RestingDetection, SourceStream, Subscriber, WindowRecord
 from neurotouch_hid.stages import Mapper as MapperStage
-from neurotouch_hid.stats import RunStats
 
 if TYPE_CHECKING:
-    from neurotouch_hid.dataset import LabelRow
-    from neurotouch_hid.sensor import SensorGeometry
+    from neurotouch_hid.core.dataset import LabelRow
+    from neurotouch_hid.core.sensor import SensorGeometry
     from neurotouch_hid.stages import Merge
     from neurotouch_hid.stopping import EarlyStop
 
@@ -295,7 +295,7 @@ class Runtime:
             (:class:`~neurotouch_hid.games.GameProfiles`, the user's games.yaml).
         serial: the camera's serial (None: none known): its own control socket
             (:func:`~neurotouch_hid.control.socket_path`) and its own games.yaml where it has one
-            (:mod:`neurotouch_hid.serials`).
+            (:mod:`neurotouch_hid.service.serials`).
         early_stop: the SIGTERM handler that stood before this run's own
             (:class:`~neurotouch_hid.stopping.EarlyStop`): quieted when the run installs its own
             handlers, and a SIGTERM it saw meanwhile stops the run at once.
@@ -305,7 +305,7 @@ class Runtime:
             a clock a test controls); a new wall-clock one by default.
         sensor: the gel's geometry, handed on in each record (None: a predictions file).
         compile_progress: the first run's compile, asked after each window while it lasts
-            (:meth:`neurotouch_hid.warmup.Warmup.progress_now`); None when nothing compiles.
+            (:meth:`neurotouch_hid.service.warmup.Warmup.progress_now`); None when nothing compiles.
         labelled: the source says what it performs (:class:`~neurotouch_hid.sources.Performed`
             items: the simulated hand).
     """
@@ -608,7 +608,7 @@ class Runtime:
         games = None
         if self._games and self._profile_ref is not None:
             from neurotouch_hid.games import GameProfiles, games_file
-            from neurotouch_hid.serials import sensor_file
+            from neurotouch_hid.service.serials import sensor_file
 
             path = sensor_file(self._serial, "games", games_file())
             games = GameProfiles(self.use_profile, str(self._profile_ref), path=path, on_game=self._follow_game)

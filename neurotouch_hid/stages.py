@@ -20,18 +20,18 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable, Iterable, NamedTuple, Protocol, Union
 
-from neurotouch_hid.controller import ControllerState, Feedback
-from neurotouch_hid.estimate import GestureEstimate, MarkerPositions
+from neurotouch_hid.core.controller import ControllerState, Feedback
+from neurotouch_hid.core.estimate import GestureEstimate, MarkerPositions
 from neurotouch_hid.sources import Frame, Performed, StreamItem
 
 if TYPE_CHECKING:
     import numpy as np
 
-    from neurotouch_hid.dataset import LabelRow
+    from neurotouch_hid.core.dataset import LabelRow
+    from neurotouch_hid.core.sensor import SensorGeometry
+    from neurotouch_hid.core.stats import RunStats
     from neurotouch_hid.mapping.profile import Profile
     from neurotouch_hid.pipeline.resting import RestingResult
-    from neurotouch_hid.sensor import SensorGeometry
-    from neurotouch_hid.stats import RunStats
 
 #: What a source yields, in time order: event batches (``EVENT_DTYPE`` arrays) and APS
 #: :class:`~neurotouch_hid.sources.Frame` s, a live camera's
@@ -43,7 +43,7 @@ SourceStream = Iterable[Union[StreamItem, Performed, GestureEstimate]]
 
 @dataclass(frozen=True)
 class CompileProgress:
-    """A first run's compile of the numba kernels (:mod:`neurotouch_hid.warmup`), while it lasts.
+    """A first run's compile of the numba kernels (:mod:`neurotouch_hid.service.warmup`), while it lasts.
 
     Attributes:
         description: one line for the user: what compiles and why the run is slow meanwhile.

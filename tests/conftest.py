@@ -251,7 +251,7 @@ def sim_gel_short_recording(sim_gel_chunks, tmp_path_factory) -> Path:
 def sim_push_only_recording(tmp_path_factory) -> Path:
     """4.5 s of the simulated gel, seed 0, one push (rest, push, release, rest), as an AEDAT4
     recording with its sensor.yaml beside it, the way `neurotouch-hid simulate` stores sequences."""
-    from neurotouch_hid.estimate import GestureType
+    from neurotouch_hid.core.estimate import GestureType
     from neurotouch_hid.sources.simulator import SimulatedSource
 
     folder = tmp_path_factory.mktemp("push")

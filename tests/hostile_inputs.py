@@ -72,7 +72,7 @@ def check_message(exc: BaseException) -> None:
 
 def fuzz_profile(text: str) -> None:
     """A profile's YAML text: a Profile or one ProfileError."""
-    from neurotouch_hid.errors import ProfileError
+    from neurotouch_hid.core.errors import ProfileError
     from neurotouch_hid.mapping.profile import parse_profile
 
     try:
@@ -83,8 +83,8 @@ def fuzz_profile(text: str) -> None:
 
 def fuzz_sensor(text: str, folder: Path) -> None:
     """A sensor.yaml's text, read from a file: a SensorGeometry or one SensorError."""
-    from neurotouch_hid.errors import SensorError
-    from neurotouch_hid.sensor import SensorGeometry
+    from neurotouch_hid.core.errors import SensorError
+    from neurotouch_hid.core.sensor import SensorGeometry
 
     path = folder / "sensor.yaml"
     path.write_text(text, encoding="utf-8", errors="surrogatepass")
@@ -96,7 +96,7 @@ def fuzz_sensor(text: str, folder: Path) -> None:
 
 def fuzz_set(items: list[str]) -> None:
     """``--set NAME=VALUE`` strings, for each method: its config or one NeurotouchError."""
-    from neurotouch_hid.errors import NeurotouchError
+    from neurotouch_hid.core.errors import NeurotouchError
     from neurotouch_hid.evaluation.runner import pipeline_config
 
     for method in ("default", "paper"):
@@ -110,7 +110,7 @@ def fuzz_control(line: bytes) -> None:
     """One request line on the control socket: an answer ``{"ok": bool, "message": str}``, never
     an exception (the switch itself is a stand-in that refuses unknown profiles)."""
     from neurotouch_hid.control import ControlServer
-    from neurotouch_hid.errors import ProfileError
+    from neurotouch_hid.core.errors import ProfileError
 
     def use(ref: str) -> str:
         if ref != "default":
@@ -169,7 +169,7 @@ def control_server(folder: Path):
     """A started ControlServer on ``folder``/neurotouch-hid/control.sock whose switch accepts
     "default" only (the fuzzing's stand-in for the driver); stop it when done."""
     from neurotouch_hid.control import ControlServer
-    from neurotouch_hid.errors import ProfileError
+    from neurotouch_hid.core.errors import ProfileError
 
     def use(ref: str) -> str:
         if ref != "default":
@@ -185,7 +185,7 @@ def control_server(folder: Path):
 def fuzz_recording(original: bytes, edits: list[tuple[int, int]], cut: int | None, folder: Path) -> None:
     """A real recording with bytes replaced (position, value) and maybe cut: read by ``info`` and
     ``stream``, it gives data or one RecordingError, never anything else."""
-    from neurotouch_hid.errors import RecordingError
+    from neurotouch_hid.core.errors import RecordingError
     from neurotouch_hid.sources import Frame
     from neurotouch_hid.sources.packet_bounds import Unbounded, inflated_bound
     from neurotouch_hid.sources.recording import RecordingReader

@@ -9,8 +9,8 @@ import threading
 import numpy as np
 from helpers import wait_until
 
-from neurotouch_hid.controller import ControllerState
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.controller import ControllerState
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 from neurotouch_hid.runtime import item_end_us
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
 

@@ -92,7 +92,7 @@ def test_the_uinput_extra_brings_python_evdev_on_aarch64_only():
 def test_the_key_names_are_python_evdevs():
     from evdev import ecodes
 
-    from neurotouch_hid.key_names import KEY_NAMES
+    from neurotouch_hid.core.key_names import KEY_NAMES
 
     assert KEY_NAMES <= set(ecodes.ecodes)
     assert {"KEY_A", "KEY_SPACE", "KEY_LEFTSHIFT", "KEY_TAB", "KEY_VOLUMEUP"} <= KEY_NAMES

@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 from helpers import run_cli
 
+from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.enrolment.adapt import (
     Record,
     _felt_wrong,
@@ -31,11 +33,9 @@ from neurotouch_hid.enrolment.model import (
     resolve_model,
     user_model_path,
 )
-from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.pipeline.config import EpisodeConfig, PipelineConfig
 from neurotouch_hid.pipeline.episode import FIRST_FINGER_US
 from neurotouch_hid.pipeline.learned import CLASSES, Classifier, learned_gesture
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.simulator import write_dataset
 
 TWISTS = {"twist_cw": "twist_ccw", "twist_ccw": "twist_cw"}
@@ -156,7 +156,7 @@ def test_the_users_model_is_used_unless_none_is_asked(tmp_path):
 
 
 def test_doctor_names_the_model_in_use():
-    from neurotouch_hid.doctor import FAIL, OK, check_model
+    from neurotouch_hid.service.doctor import FAIL, OK, check_model
 
     assert check_model().status == OK and "shipped method" in check_model().detail
     Model({"gesture.intensity_gain": 1.1}).save(user_model_path())
@@ -227,7 +227,7 @@ def test_adapt_keeps_the_shipped_value_where_the_fit_does_not_beat_it(records):
 def test_adapt_refuses_labels_in_micrometres(records):
     """Labels whose intensities are 1000x what the gel reads (micrometres): the fit refuses the
     scale (it kept 999, and a light pinch was a full trigger)."""
-    from neurotouch_hid.errors import DatasetError
+    from neurotouch_hid.core.errors import DatasetError
 
     micrometres = [dataclasses.replace(r, label_intensity_mm=1000 * r.label_intensity_mm) for r in records]
     with pytest.raises(DatasetError, match="in another unit"):

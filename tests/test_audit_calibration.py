@@ -9,9 +9,9 @@ import sys
 
 from helpers import run_main
 
-from neurotouch_hid import calibration_guide
-from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.sensor import SensorGeometry, user_sensor_path
+from neurotouch_hid.calibration import guide as calibration_guide
+from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.sensor import SensorGeometry, user_sensor_path
 
 #: Mirror and rotation given, no check: the rest frames only (no gesture pipeline).
 REST_ONLY = ("calibrate", "--source", "sim", "--mirror", "--rotation", "0", "--no-check")
@@ -111,7 +111,7 @@ def test_a_gesture_read_the_wrong_way_still_keeps_the_calibration_from_being_wri
 def test_a_push_started_late_is_watched_to_its_end_not_cut_into_the_next_step(monkeypatch):
     """A slow person starts each push 11 s after being asked (within the 12 s watched) and holds
     it 1.5 s: it is read whole, and its end is not taken for the next push asked."""
-    from neurotouch_hid import calibration
+    from neurotouch_hid.calibration import measure as calibration
 
     monkeypatch.setattr(calibration_guide, "SIM_REACTION_US", 11_200_000)
     source = calibration_guide.SimulatedHand(SensorGeometry(mirror=True, rotation_deg=30.0))
@@ -125,7 +125,7 @@ def test_a_push_started_late_is_watched_to_its_end_not_cut_into_the_next_step(mo
 def test_what_looks_off_at_rest_is_said_before_the_guided_pushes(tmp_path, monkeypatch, capsys):
     """A note on the rest frames (markers missing, the gel off-centre) is said as soon as they are
     read, so that the person can fix the camera before doing every push, not after them all."""
-    from neurotouch_hid import calibration
+    from neurotouch_hid.calibration import measure as calibration
 
     real = calibration.calibrate
 

@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 from helpers import run_cli, run_main
 
+from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.enrolment.model import Model, load_model, user_model_path
 from neurotouch_hid.enrolment.plan import Plan, Prompt, Script, write_plan
-from neurotouch_hid.estimate import GestureType
 
 PLAN = Plan(
     (

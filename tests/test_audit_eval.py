@@ -8,8 +8,8 @@ import shutil
 
 import pytest
 
-from neurotouch_hid.dataset import read_labels, read_predictions
-from neurotouch_hid.errors import DatasetError
+from neurotouch_hid.core.dataset import read_labels, read_predictions
+from neurotouch_hid.core.errors import DatasetError
 
 HEADER = "t_us,gesture,resting,intensity_mm,n_contacts,x1_px,y1_px,x2_px,y2_px,x3_px,y3_px"
 

@@ -9,7 +9,7 @@ import os
 import pytest
 from typer.testing import CliRunner
 
-from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.core.errors import DeviceError
 from neurotouch_hid.targets.gadget import configfs
 
 

@@ -18,7 +18,7 @@ import pytest
 from helpers import wait_until
 
 from neurotouch_hid.control import ControlServer
-from neurotouch_hid.errors import ProfileError
+from neurotouch_hid.core.errors import ProfileError
 from neurotouch_hid.games import (
     GameMap,
     GameMapError,

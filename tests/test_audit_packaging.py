@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from neurotouch_hid import doctor
-from neurotouch_hid.doctor import WARN
-from neurotouch_hid.udev import RULES_INSTALL
+from neurotouch_hid.service import doctor
+from neurotouch_hid.service.doctor import WARN
+from neurotouch_hid.service.udev import RULES_INSTALL
 
 ROOT = Path(__file__).resolve().parent.parent
 INSTALL = ROOT / "packaging" / "install.sh"
@@ -125,7 +125,7 @@ def test_destdir_without_options_stages_and_never_asks_sudo(tmp_path):
 
 
 def test_headless_camera_fix_says_how_to_join_the_group_and_to_log_in_again():
-    from neurotouch_hid.udev import GROUP_RULE, camera_access_fix
+    from neurotouch_hid.service.udev import GROUP_RULE, camera_access_fix
 
     lines = camera_access_fix("/etc/udev/rules.d/60-neurotouch.rules").splitlines()
     assert "sudo usermod -aG plugdev $USER" in lines
@@ -140,9 +140,9 @@ def test_fixes_quote_an_install_script_path_with_a_space(tmp_path, monkeypatch):
     import importlib.util
     import shlex
 
-    copy = tmp_path / "My Projects" / "neurotouch_hid" / "udev.py"
+    copy = tmp_path / "My Projects" / "neurotouch_hid" / "service" / "udev.py"
     copy.parent.mkdir(parents=True)
-    copy.write_text((ROOT / "neurotouch_hid" / "udev.py").read_text())
+    copy.write_text((ROOT / "neurotouch_hid" / "service" / "udev.py").read_text())
     spec = importlib.util.spec_from_file_location("udev_copy", copy)
     udev_copy = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(udev_copy)

@@ -14,7 +14,7 @@ import pytest
 from helpers import wait_until
 from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, batch
 
-from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.core.errors import NeurotouchError
 from neurotouch_hid.runtime import Runtime
 from neurotouch_hid.stages import Feedback
 from neurotouch_hid.targets import TargetOutputs

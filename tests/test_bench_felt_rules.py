@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 from helpers import load_benchmark
 
-from neurotouch_hid.dataset import LabelRow, write_labels, write_predictions, write_pressed
-from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.core.dataset import LabelRow, write_labels, write_predictions, write_pressed
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 
 G = GestureType
 TWO = np.array([[160.0, 130.0], [186.0, 130.0]])

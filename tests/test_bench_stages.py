@@ -10,8 +10,8 @@ import cv2
 import pytest
 from helpers import BENCHMARKS, load_benchmark
 
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline import contacts, pipeline
-from neurotouch_hid.sensor import SensorGeometry
 
 SCRIPT = BENCHMARKS / "bench_stages.py"
 

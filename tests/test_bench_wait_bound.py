@@ -8,7 +8,7 @@ import pytest
 import typer
 from helpers import load_benchmark
 
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.estimate import GestureType
 
 
 @pytest.fixture(scope="module")

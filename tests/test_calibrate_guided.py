@@ -1,4 +1,4 @@
-"""``calibrate``'s guided pushes and guided check (neurotouch_hid/calibration_guide.py).
+"""``calibrate``'s guided pushes and guided check (neurotouch_hid/calibration/guide.py).
 
 Calibration used to ask "Rotation from the mirrored image to your view (counter-clockwise
 degrees)" with nothing to find it by, ``--source sim`` answered "sim: no such file", and nothing
@@ -18,8 +18,8 @@ import sys
 import numpy as np
 import pytest
 
-from neurotouch_hid import calibration
-from neurotouch_hid.calibration_guide import (
+from neurotouch_hid.calibration import measure as calibration
+from neurotouch_hid.calibration.guide import (
     CALIBRATION_PUSHES,
     CHECK_STEPS,
     SimulatedHand,
@@ -27,9 +27,9 @@ from neurotouch_hid.calibration_guide import (
     measure_orientation,
     orientation,
 )
-from neurotouch_hid.errors import SensorError
-from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.sensor import SensorGeometry, user_sensor_path
+from neurotouch_hid.core.errors import SensorError
+from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.sensor import SensorGeometry, user_sensor_path
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:
@@ -189,10 +189,10 @@ def test_a_person_at_the_camera_is_guided_by_prompts_alone(tmp_path):
     90 degrees pushes up, then right, as asked; nothing is typed and the mounting is found."""
     from camera_replay import ReplayWorld
 
-    from neurotouch_hid.calibration_guide import LiveCamera
+    from neurotouch_hid.calibration.guide import LiveCamera
+    from neurotouch_hid.service.warmup import compile_pipeline
     from neurotouch_hid.sources.recording import RecordingWriter
     from neurotouch_hid.sources.simulator import GelSimulator, guided_gesture
-    from neurotouch_hid.warmup import compile_pipeline
 
     camera = SensorGeometry(mirror=False, rotation_deg=90.0)
     sim = GelSimulator(camera, script=())
@@ -264,7 +264,7 @@ def test_the_checks_pushes_name_the_flags_that_would_make_them_right(mirror, rot
     """Pushes as a camera mounted (mirror, rotation) shows them, read with the default calibration
     (mirror, 0 degrees): the advice names that mounting. The reads are made with the sensor's own
     conversions."""
-    from neurotouch_hid.calibration_guide import Attempt, check_advice, judge
+    from neurotouch_hid.calibration.guide import Attempt, check_advice, judge
 
     truth = SensorGeometry(mirror=mirror, rotation_deg=rotation)
     told = SensorGeometry()
@@ -285,7 +285,7 @@ def test_the_checks_pushes_name_the_flags_that_would_make_them_right(mirror, rot
 def test_troubleshooting_lists_what_calibrate_says():
     from pathlib import Path
 
-    from neurotouch_hid.calibration_guide import Attempt, push_problem
+    from neurotouch_hid.calibration.guide import Attempt, push_problem
 
     text = (Path(__file__).resolve().parents[1] / "docs" / "troubleshooting.md").read_text()
     weak = push_problem(Attempt(((GestureType.PUSH, 40),), 0.4, np.array([0.3, 0.0]), 1.0, 0.0))

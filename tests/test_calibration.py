@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 from helpers import run_cli
 
-from neurotouch_hid.calibration import calibrate, read_rest_frames
-from neurotouch_hid.dataset import dataset_sensor_file
-from neurotouch_hid.errors import DatasetError, SensorError
-from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.sensor import SensorGeometry, default_sensor, find_sensor_file, user_sensor_path
+from neurotouch_hid.calibration.measure import calibrate, read_rest_frames
+from neurotouch_hid.core.dataset import dataset_sensor_file
+from neurotouch_hid.core.errors import DatasetError, SensorError
+from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.sensor import SensorGeometry, default_sensor, find_sensor_file, user_sensor_path
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.simulator import START_US, USERS, GelSimulator, gesture_script, write_dataset
 

@@ -8,9 +8,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from neurotouch_hid.camera_model import DOME_SPHERE_MM, MARKER_SPACING_MM, fit_camera_model, grid_orientation
+from neurotouch_hid.core.camera_model import DOME_SPHERE_MM, MARKER_SPACING_MM, fit_camera_model, grid_orientation
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.gesture import estimate_gesture
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import simulator
 from neurotouch_hid.sources.physics import PHYSICS, DomeCamera
 from neurotouch_hid.sources.simulator import Gel

@@ -7,11 +7,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.mapping.profile import load_profile
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 from neurotouch_hid.runtime import Runtime
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import Frame, join_events
 from neurotouch_hid.sources.recording import RecordingReader, merge_stream
 

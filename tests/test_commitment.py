@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import pytest
 
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.mapping.commitment import waits_for_type
 from neurotouch_hid.mapping.profile import Profile, available_profiles, load_profile
 from neurotouch_hid.pipeline.pipeline import GesturePipeline
 from neurotouch_hid.runtime import Runtime
-from neurotouch_hid.sensor import SensorGeometry
 
 A = {"output": "BTN_SOUTH", "press_mm": 1.0, "release_mm": 0.5}
 #: every type the wait tells apart on one button (a one-switch user's "any gesture is the switch")

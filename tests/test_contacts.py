@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline import contacts as contacts_module
 from neurotouch_hid.pipeline.contacts import (
     HELD_PEAK_SHARE,
@@ -16,7 +17,6 @@ from neurotouch_hid.pipeline.contacts import (
 from neurotouch_hid.pipeline.contacts_plateau import _valid_table, rest_neighbours
 from neurotouch_hid.pipeline.contacts_refine import refine_peak
 from neurotouch_hid.pipeline.paper import paper_contacts
-from neurotouch_hid.sensor import SensorGeometry
 
 SENSOR = SensorGeometry()
 #: A lone-marker fraction that takes no marker for a mistracked one (a marker would have to be

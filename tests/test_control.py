@@ -12,8 +12,8 @@ from helpers import read_states, run_cli, wait_until
 from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, endless, writes_of
 
 from neurotouch_hid.control import ControlServer, request_use, socket_path
-from neurotouch_hid.errors import NeurotouchError, ProfileError
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.errors import NeurotouchError, ProfileError
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 from neurotouch_hid.runtime import Runtime
 
 
@@ -155,7 +155,7 @@ def wait_for_socket(timeout_s: float = 5.0) -> bool:
 def test_mouse_profile_run_writes_every_motion_and_ends_neutral(tmp_path, runtime_dir):
     """``run --profile mouse --output jsonl`` on a push: one line per window with motion, the
     pointer moving right and up, the last line neutral with no motion."""
-    from neurotouch_hid.dataset import write_predictions
+    from neurotouch_hid.core.dataset import write_predictions
     from neurotouch_hid.driver import run_driver
 
     estimates = [

@@ -13,9 +13,9 @@ import pytest
 from evdev import ecodes
 from runtime_fakes import EstimatesThrough
 
-from neurotouch_hid.controller import ControllerState
-from neurotouch_hid.errors import ProfileError
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.controller import ControllerState
+from neurotouch_hid.core.errors import ProfileError
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 from neurotouch_hid.inputs.copilot import Copilot
 from neurotouch_hid.inputs.match import InputInfo, input_devices, matches
 from neurotouch_hid.mapping.merge import NEUTRAL, AxisRange, DeviceMap, Levels, combine_axis, merge_state
@@ -597,7 +597,7 @@ def test_presence_names_what_is_plugged_in_and_what_is_waited_for():
 
 
 def test_doctor_says_which_copilot_devices_are_there_and_which_are_waited_for(tmp_path, monkeypatch):
-    from neurotouch_hid.doctor import FAIL, OK, SKIP, WARN, check_copilot
+    from neurotouch_hid.service.doctor import FAIL, OK, SKIP, WARN, check_copilot
 
     node = tmp_path / "event7"
     node.write_text("")
@@ -615,7 +615,7 @@ def test_doctor_says_which_copilot_devices_are_there_and_which_are_waited_for(tm
     denied = check_copilot({"mine": profile}, [helper, closed])
     assert denied.status == FAIL and "sudo usermod -aG input $USER" in denied.fix
     assert "not readable by this user" in denied.detail
-    import neurotouch_hid.doctor as doctor
+    import neurotouch_hid.service.doctor as doctor
 
     readable = InputInfo(str(node), "Switch Box", "usb-3/input0", 0x1234, 0x5678)
     # a node this user may read but not write (root may write anything: the test says which)
@@ -627,7 +627,7 @@ def test_doctor_says_which_copilot_devices_are_there_and_which_are_waited_for(tm
 
 
 def test_the_live_view_says_what_is_merged_and_what_is_missing():
-    from neurotouch_hid.output.live import copilot_line
+    from neurotouch_hid.views.live import copilot_line
 
     assert copilot_line(("Helper Pad",), ("Switch Box",)).plain == "merged: Helper Pad; missing: Switch Box"
     assert copilot_line((), ()).plain == "merged: none; missing: none"

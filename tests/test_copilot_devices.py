@@ -30,7 +30,7 @@ from helpers import wait_until
 
 import neurotouch_hid.inputs.copilot as copilot_module
 import neurotouch_hid.inputs.device as device_module
-from neurotouch_hid.controller import ControllerState
+from neurotouch_hid.core.controller import ControllerState
 from neurotouch_hid.inputs.copilot import Copilot, FeedbackRelay
 from neurotouch_hid.inputs.device import EVIOCRMFF, MergedInput
 from neurotouch_hid.inputs.match import InputInfo

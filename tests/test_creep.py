@@ -14,7 +14,8 @@ from helpers import load_benchmark, run_cli
 from typer.testing import CliRunner
 
 from neurotouch_hid.cli import app
-from neurotouch_hid.errors import SensorError
+from neurotouch_hid.core.errors import SensorError
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.creep import (
     SHARES,
     TIMES_S,
@@ -25,7 +26,6 @@ from neurotouch_hid.pipeline.creep import (
     load_estimate,
 )
 from neurotouch_hid.pipeline.creep import at_search_edge as creep_at_search_edge
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import sls_deformation
 from neurotouch_hid.sources.simulator import write_dataset
 

@@ -23,7 +23,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from recording_damage import damage
 
-from neurotouch_hid.errors import ProfileError, RecordingError
+from neurotouch_hid.core.errors import ProfileError, RecordingError
 from neurotouch_hid.mapping.profile import load_profile, shipped_profiles_dir
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.recording import RecordingReader, RecordingWriter

@@ -5,9 +5,9 @@ import csv
 import numpy as np
 import pytest
 
-from neurotouch_hid.dataset import LabelRow, list_sequences, read_labels, write_labels
-from neurotouch_hid.errors import DatasetError
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.dataset import LabelRow, list_sequences, read_labels, write_labels
+from neurotouch_hid.core.errors import DatasetError
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 
 DATASET_MD_HEADER = "t_us,gesture,resting,intensity_mm,n_contacts,x1_px,y1_px,x2_px,y2_px,x3_px,y3_px"
 

@@ -19,9 +19,9 @@ import pytest
 from camera_replay import Fault, ManualClock, ReplayWorld
 from helpers import run_cli
 
-from neurotouch_hid.controller import ControllerState
-from neurotouch_hid.errors import DeviceError, SensorError
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.controller import ControllerState
+from neurotouch_hid.core.errors import DeviceError, SensorError
+from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.sources import EVENT_DTYPE, Frame, SourceStatus
 from neurotouch_hid.sources.davis import DavisConfig, DavisSource, backoff_delays
 
@@ -85,7 +85,7 @@ def test_no_camera_is_said_before_a_first_runs_compile(monkeypatch, capsys, tmp_
     import dv_processing as dv
     from helpers import run_main
 
-    from neurotouch_hid import warmup
+    from neurotouch_hid.service import warmup
 
     world = replay(street, Fault("unplug", 0.0))
     monkeypatch.setattr(dv.io.camera, "discover", world.discover)
@@ -358,8 +358,8 @@ def test_the_noise_filter_runs_on_the_camera_s_own_event_stores(street):
 
 
 def test_the_live_pipeline_leaves_the_noise_to_the_source(sim_gel_recording):
+    from neurotouch_hid.core.sensor import SensorGeometry
     from neurotouch_hid.driver import build_pipeline
-    from neurotouch_hid.sensor import SensorGeometry
 
     live, _ = build_pipeline(SensorGeometry(), 10_000, filter_noise=False)
     replay, _ = build_pipeline(SensorGeometry(), 10_000)

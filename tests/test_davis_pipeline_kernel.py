@@ -40,7 +40,7 @@ def test_calibrate_on_the_camera_measures_the_replayed_rest_frame(pipeline_guest
     (the values are rounded to 0.01 px and 0.0001 px/mm: one step of rounding apart at most)."""
     from kernel.vm import ensure_replay_recording
 
-    from neurotouch_hid.calibration import calibrate
+    from neurotouch_hid.calibration.measure import calibrate
     from neurotouch_hid.sources import Frame
     from neurotouch_hid.sources.recording import RecordingReader
 

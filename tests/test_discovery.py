@@ -21,6 +21,7 @@ import usb.core
 import usb.util
 from helpers import run_cli
 
+from neurotouch_hid.service.udev import RULES_INSTALL
 from neurotouch_hid.sources import discovery
 from neurotouch_hid.sources.discovery import (
     CameraStatus,
@@ -31,7 +32,6 @@ from neurotouch_hid.sources.discovery import (
     explain,
     merge,
 )
-from neurotouch_hid.udev import RULES_INSTALL
 
 
 def usb_cam(bus=1, address=5, access=UsbAccess.OK, reason="", serial="00000123", holders=()) -> UsbCamera:

@@ -127,7 +127,7 @@ def user_files(home: Path, recording: Path) -> None:
     for name in ("REC.aedat4", "my-recording.aedat4", "rec.aedat4"):
         shutil.copyfile(recording, home / name)
     predictions = home / "predictions.jsonl"
-    from neurotouch_hid.estimate import GestureEstimate, GestureType
+    from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 
     rows = []
     for i in range(200):
@@ -314,9 +314,9 @@ def test_the_message_check_tells_a_changed_message():
 
 def test_the_docs_put_the_compiled_code_where_numba_puts_it():
     """Installed with pipx or in a venv, the package's own folders are writable, so numba caches
-    there (neurotouch_hid/jit_cache.py): a page that names ``~/.cache/neurotouch-hid`` as the
+    there (neurotouch_hid/service/jit_cache.py): a page that names ``~/.cache/neurotouch-hid`` as the
     cache also names the package's ``__pycache__`` folders."""
-    from neurotouch_hid import jit_cache
+    from neurotouch_hid.service import jit_cache
 
     assert jit_cache.chosen().kind == jit_cache.PACKAGE  # this tree, as a pipx or venv install
     for page in PAGES:

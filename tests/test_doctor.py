@@ -11,8 +11,8 @@ from pathlib import Path
 from helpers import run_cli
 from rich.console import Console
 
-from neurotouch_hid import doctor
-from neurotouch_hid.doctor import FAIL, OK, SKIP, WARN, Check
+from neurotouch_hid.service import doctor
+from neurotouch_hid.service.doctor import FAIL, OK, SKIP, WARN, Check
 from neurotouch_hid.sources.discovery import DvCamera, UsbAccess, UsbCamera, discover, merge
 
 
@@ -133,7 +133,7 @@ def test_evdev_missing_is_a_warning_naming_the_uinput_extra(monkeypatch):
 def test_doctor_says_whether_the_first_run_still_has_to_compile(monkeypatch, tmp_path):
     """A cache with nothing compiled in it (a fresh install) is fine but says the first run
     compiles, so a slow first start is expected; a compiled one says runs start at once."""
-    from neurotouch_hid import warmup
+    from neurotouch_hid.service import warmup
 
     monkeypatch.setattr(warmup, "is_cold", lambda group: True)
     cold = doctor.check_jit_cache()

@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from neurotouch_hid.controller import ControllerState, Feedback, TouchPoint
+from neurotouch_hid.core.controller import ControllerState, Feedback, TouchPoint
 from neurotouch_hid.targets.identity import identity_for
 from neurotouch_hid.targets.reports.dualsense import DESCRIPTOR, DUALSENSE
 

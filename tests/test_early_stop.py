@@ -13,7 +13,7 @@ import pytest
 from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, batch
 
 from neurotouch_hid import driver
-from neurotouch_hid.kinds import OutputKind
+from neurotouch_hid.core.kinds import OutputKind
 from neurotouch_hid.runtime import RunParts, Runtime
 from neurotouch_hid.stopping import EarlyStop, StopRequested
 

@@ -10,12 +10,12 @@ import os
 import pytest
 from helpers import run_main
 
-from neurotouch_hid.dataset import read_labels
+from neurotouch_hid.core.dataset import read_labels
+from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.enrolment.hand import simulate_enrolment
 from neurotouch_hid.enrolment.label import check_gestures, find_gestures, measure_motion
 from neurotouch_hid.enrolment.plan import Plan, Prompt, write_plan
-from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.sensor import SensorGeometry
 
 G = GestureType
 PLAN = Plan(
@@ -154,7 +154,7 @@ def test_adapt_refuses_labels_the_shipped_recogniser_contradicts_wholesale(
     """A dataset whose labels call every gesture a push (the labels a plan of pushes would have
     given before they were checked): adapt writes no model and says why; the same recording
     labelled right passes the check."""
-    from neurotouch_hid.dataset import write_labels
+    from neurotouch_hid.core.dataset import write_labels
     from neurotouch_hid.enrolment.adapt import contradiction, record_datasets
     from neurotouch_hid.enrolment.label import label_frames, write_dataset
 

@@ -15,12 +15,12 @@ import sys
 
 import pytest
 
-from neurotouch_hid.dataset import list_sequences, read_labels
+from neurotouch_hid.core.dataset import list_sequences, read_labels
+from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.enrolment.hand import simulate_enrolment
 from neurotouch_hid.enrolment.label import agreement, find_gestures, label_frames, label_recording, measure_motion
 from neurotouch_hid.enrolment.plan import Plan, Prompt, make_plan, write_plan
-from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.simulator import START_US
 
 FAMILY, SEED, PROMPTS = "markers", 8, 6
@@ -143,8 +143,8 @@ def test_an_intensity_is_the_displacement_of_the_labelled_contact_points_since_t
     intensity (0 mm beside a held point), and a frame with no point with the gel's motion."""
     import numpy as np
 
+    from neurotouch_hid.core.estimate import GestureEstimate
     from neurotouch_hid.enrolment.label import Found, GelMotion, contact_displacement_mm
-    from neurotouch_hid.estimate import GestureEstimate
 
     start = np.array([[100.0, 100.0], [110.0, 100.0], [200.0, 200.0]], np.float32)
     pressed = start + np.array([[3.0, 4.0], [0.0, 1.0], [0.0, 0.0]], np.float32)  # 5 px and 1 px moved
@@ -183,9 +183,9 @@ def test_a_recording_that_follows_no_cue_says_how_many_cues_it_covers(tmp_path, 
     and names the plan's 24, not '1 cues' of a plan the user knows as 24 prompts."""
     import numpy as np
 
+    from neurotouch_hid.core.errors import DatasetError
+    from neurotouch_hid.core.estimate import GestureEstimate
     from neurotouch_hid.enrolment.label import GelMotion, write_dataset
-    from neurotouch_hid.errors import DatasetError
-    from neurotouch_hid.estimate import GestureEstimate
 
     t = np.arange(10_000, 5_000_001, 10_000)
     still = GelMotion(t, np.zeros(len(t)), [GestureEstimate(int(x)) for x in t], np.array([0]), 0)

@@ -9,6 +9,8 @@ from collections import Counter
 
 import pytest
 
+from neurotouch_hid.core.errors import DatasetError
+from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.enrolment.plan import (
     DIRECTIONS,
     HOLD_S,
@@ -21,8 +23,6 @@ from neurotouch_hid.enrolment.plan import (
     read_plan,
     write_plan,
 )
-from neurotouch_hid.errors import DatasetError
-from neurotouch_hid.estimate import GestureType
 
 
 @pytest.mark.parametrize("seed", [0, 1, 7, 123])
@@ -146,9 +146,9 @@ def test_cues_count_from_the_stream_s_first_event_not_its_first_frame():
     came 30 ms before it here; the cues counted from the frame, 30 ms early."""
     import numpy as np
 
+    from neurotouch_hid.core.sensor import default_sensor
     from neurotouch_hid.enrolment.label import MotionMeter
     from neurotouch_hid.enrolment.plan import NOT_YET_US, Plan, Prompt, Script
-    from neurotouch_hid.sensor import default_sensor
     from neurotouch_hid.sources import EVENT_DTYPE, Frame
 
     script = Script(Plan((Prompt(GestureType.PUSH, 2.0, 1.0),)))

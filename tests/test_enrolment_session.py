@@ -19,9 +19,9 @@ import pytest
 from helpers import run_cli
 from kernel.vm import installed
 
-from neurotouch_hid.dataset import list_sequences, read_labels
+from neurotouch_hid.core.dataset import list_sequences, read_labels
+from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.enrolment.plan import Plan, Prompt, Script, read_plan, write_plan
-from neurotouch_hid.estimate import GestureType
 
 PLAN = Plan(
     (
@@ -172,10 +172,10 @@ def test_a_person_at_the_camera_follows_the_prompts_and_is_labelled(tmp_path):
     is asked again."""
     from camera_replay import ManualClock, ReplayWorld
 
+    from neurotouch_hid.core.sensor import SensorGeometry
     from neurotouch_hid.enrolment.hand import simulate_enrolment
     from neurotouch_hid.enrolment.session import CameraSource, run_session
     from neurotouch_hid.pipeline.pipeline import GesturePipeline
-    from neurotouch_hid.sensor import SensorGeometry
     from neurotouch_hid.sources.davis import DavisConfig
 
     person = tmp_path / "person"

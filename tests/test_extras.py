@@ -12,7 +12,7 @@ import sys
 
 import pytest
 
-from neurotouch_hid.extras import MissingExtraError, require, require_ffmpeg
+from neurotouch_hid.service.extras import MissingExtraError, require, require_ffmpeg
 
 
 def cli_without(blocked: list[str], *args: str) -> subprocess.CompletedProcess:
@@ -40,7 +40,7 @@ def pushes(tmp_path):
     """A predictions file of 1 s: rest, then a push."""
     import json
 
-    from neurotouch_hid.estimate import GestureEstimate, GestureType
+    from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 
     lines = []
     for i in range(100):
@@ -117,7 +117,7 @@ def test_mp4_without_an_ffmpeg_program_says_to_install_ffmpeg(monkeypatch):
 def test_the_driver_commands_import_neither_extra():
     code = (
         "import sys\n"
-        "import neurotouch_hid.cli, neurotouch_hid.driver, neurotouch_hid.track\n"
+        "import neurotouch_hid.cli, neurotouch_hid.driver, neurotouch_hid.pipeline.track\n"
         "print(sorted(m for m in ('matplotlib', 'imageio', 'imageio_ffmpeg') if m in sys.modules))\n"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)

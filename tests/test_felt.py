@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from test_recognition_failures import uneven_pinch
 
-from neurotouch_hid.dataset import LabelRow
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.dataset import LabelRow
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.evaluation.felt import FeltRecords, gesture_records, gesture_spans, pressed_at, summarise
 from neurotouch_hid.evaluation.metrics import align, evaluate
 from neurotouch_hid.evaluation.report import felt_rows
-from neurotouch_hid.sensor import SensorGeometry
 
 G = GestureType
 NO_POINTS = np.zeros((0, 2))
@@ -239,8 +239,8 @@ def test_a_gesture_whose_fingers_start_apart_is_felt_wrong_only_once_its_last_fi
 
 
 def test_the_simulation_writes_and_reads_back_when_each_lagging_gesture_s_last_finger_pressed(tmp_path):
-    from neurotouch_hid.dataset import read_pressed, write_pressed
-    from neurotouch_hid.errors import DatasetError
+    from neurotouch_hid.core.dataset import read_pressed, write_pressed
+    from neurotouch_hid.core.errors import DatasetError
 
     path = tmp_path / "u0_session0.pressed.csv"
     assert read_pressed(path) == []  # a recording has none

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from helpers import load_benchmark
 
-from neurotouch_hid.dataset import LabelRow
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.dataset import LabelRow
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 
 G = GestureType
 ONE = np.zeros((1, 2))

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from neurotouch_hid.errors import ProfileError
-from neurotouch_hid.limits import YamlError, load_yaml
+from neurotouch_hid.core.errors import ProfileError
+from neurotouch_hid.core.limits import YamlError, load_yaml
 from neurotouch_hid.mapping.profile import load_profile, shipped_profiles_dir
 
 
@@ -170,7 +170,7 @@ def test_bad_option_values_are_said_in_the_projects_words_with_the_nearest_choic
 def test_profile_test_lists_every_mapped_output_and_marks_those_never_reached(cli, tmp_path):
     import json
 
-    from neurotouch_hid.estimate import GestureEstimate, GestureType
+    from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 
     path = tmp_path / "up.jsonl"  # rest, a 4 mm push up for 1 s, rest: nothing else
     rows = []
@@ -345,12 +345,12 @@ def test_the_live_views_t_counts_from_the_first_window_as_the_windows_do():
 
     from rich.console import Console
 
-    from neurotouch_hid.controller import ControllerState
-    from neurotouch_hid.estimate import GestureEstimate, GestureType
+    from neurotouch_hid.core.controller import ControllerState
+    from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+    from neurotouch_hid.core.stats import RunStats
     from neurotouch_hid.mapping.profile import load_profile
-    from neurotouch_hid.output.live import LiveView
     from neurotouch_hid.stages import WindowRecord
-    from neurotouch_hid.stats import RunStats
+    from neurotouch_hid.views.live import LiveView
 
     view = LiveView(Console(file=io.StringIO(), force_terminal=False, width=200))
     stats = RunStats()
@@ -424,7 +424,7 @@ def test_a_run_that_ends_before_its_compile_does_not_promise_a_compiled_next_run
 
 
 def test_the_queue_the_compile_left_is_kept_out_of_the_compiled_latency():
-    from neurotouch_hid.stats import RunStats
+    from neurotouch_hid.core.stats import RunStats
 
     stats = RunStats()
     for _ in range(3):  # interpreted, 500 ms each
@@ -444,7 +444,7 @@ def test_the_queue_the_compile_left_is_kept_out_of_the_compiled_latency():
 
 
 def test_a_run_that_compiled_before_its_first_window_counts_every_window_as_compiled():
-    from neurotouch_hid.stats import RunStats
+    from neurotouch_hid.core.stats import RunStats
 
     stats = RunStats()
     for waiting in (5, 0, 3):
@@ -470,7 +470,7 @@ def test_a_run_without_a_compile_says_nothing_of_it():
 
 
 def test_the_compile_message_states_the_measured_cost():
-    from neurotouch_hid.warmup import COMPILE_COST
+    from neurotouch_hid.service.warmup import COMPILE_COST
 
     performance = (Path(__file__).resolve().parents[1] / "docs" / "performance.md").read_text()
     assert "25 s of CPU" in COMPILE_COST and "busy machine" in COMPILE_COST and "two cores" not in COMPILE_COST
@@ -484,7 +484,7 @@ def test_install_user_refuses_root_run_through_sudo(tmp_path):
     import shutil
     import subprocess
 
-    from neurotouch_hid.udev import INSTALL_SCRIPT
+    from neurotouch_hid.service.udev import INSTALL_SCRIPT
 
     as_root = [] if os.geteuid() == 0 else [shutil.which("unshare") or "unshare", "--map-root-user"]
     env = {
@@ -531,7 +531,7 @@ def test_no_legend_of_the_eval_report_covers_data(monkeypatch, tmp_path):
 
 
 def test_no_legend_of_the_profile_test_plot_covers_data(monkeypatch, tmp_path):
-    from neurotouch_hid.estimate import GestureEstimate, GestureType
+    from neurotouch_hid.core.estimate import GestureEstimate, GestureType
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.mapping.replay import plot_timeline, replay
 
@@ -553,7 +553,7 @@ def test_no_legend_of_the_profile_test_plot_covers_data(monkeypatch, tmp_path):
 def test_views_picture_has_a_colour_key_and_arrows_that_stay_short_of_the_next_marker():
     import numpy as np
 
-    from neurotouch_hid.view import arrow_scale, colour_key, draw_view
+    from neurotouch_hid.views.pictures import arrow_scale, colour_key, draw_view
 
     grid = np.array([(x, y) for x in range(100, 200, 10) for y in range(80, 180, 10)], dtype=float)
     pushed = grid + [6.0, 0.0]  # a firm push: 6 px, 60 % of the 10 px pitch

@@ -18,10 +18,10 @@ import pytest
 from helpers import run_cli
 from rich.console import Console
 
-from neurotouch_hid.controller import ControllerState
+from neurotouch_hid.core.controller import ControllerState
 from neurotouch_hid.mapping.profile import shipped_profiles_dir
-from neurotouch_hid.output.jsonl import StateJsonlWriter
-from neurotouch_hid.output.term import TermView
+from neurotouch_hid.views.jsonl import StateJsonlWriter
+from neurotouch_hid.views.term import TermView
 
 
 def plain_console() -> Console:
@@ -249,7 +249,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_the_rule_and_the_install_script_ship_inside_the_package():
-    from neurotouch_hid.udev import INSTALL_SCRIPT, RULES_FILE
+    from neurotouch_hid.service.udev import INSTALL_SCRIPT, RULES_FILE
 
     for path in (RULES_FILE, INSTALL_SCRIPT, INSTALL_SCRIPT.with_name("neurotouch-hid.service")):
         assert path.is_absolute() and path.is_file()
@@ -261,7 +261,7 @@ def test_the_rule_and_the_install_script_ship_inside_the_package():
 
 
 def test_doctor_piped_is_plain_lines_with_each_fix_whole_on_its_own_line(tmp_path):
-    from neurotouch_hid.udev import INSTALL_SCRIPT, RULES_INSTALL
+    from neurotouch_hid.service.udev import INSTALL_SCRIPT, RULES_INSTALL
 
     config = tmp_path / "xdg"
     proc = run_cli("doctor", env={"XDG_CONFIG_HOME": str(config), "COLUMNS": "40"})
@@ -303,7 +303,7 @@ def test_doctor_piped_keeps_to_100_columns_but_for_a_whole_command(tmp_path):
 
 
 def test_install_script_finds_pipx_command_off_path(tmp_path):
-    from neurotouch_hid.udev import INSTALL_SCRIPT
+    from neurotouch_hid.service.udev import INSTALL_SCRIPT
 
     home = tmp_path / "home"
     pipx_bin = home / ".local/bin/neurotouch-hid"
@@ -317,7 +317,7 @@ def test_install_script_finds_pipx_command_off_path(tmp_path):
 
 
 def test_install_script_help_is_its_usage_not_its_code():
-    from neurotouch_hid.udev import INSTALL_SCRIPT
+    from neurotouch_hid.service.udev import INSTALL_SCRIPT
 
     proc = subprocess.run(["sh", str(INSTALL_SCRIPT), "--help"], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0 and "usage: install.sh" in proc.stdout
@@ -350,9 +350,9 @@ def test_help_has_no_bool_placeholders_and_whole_sentences():
 
 
 def test_no_uinput_is_a_few_short_lines_with_the_command_alone(tmp_path):
-    from neurotouch_hid.errors import DeviceError
+    from neurotouch_hid.core.errors import DeviceError
+    from neurotouch_hid.service.udev import RULES_INSTALL
     from neurotouch_hid.targets.uinput.gamepad import create_uinput
-    from neurotouch_hid.udev import RULES_INSTALL
 
     with pytest.raises(DeviceError) as info:
         create_uinput("gamepad", {}, devnode=str(tmp_path / "uinput"))
@@ -411,8 +411,8 @@ def test_every_option_the_readme_shows_exists():
 
 
 def test_troubleshooting_lists_the_messages_the_driver_prints(tmp_path):
+    from neurotouch_hid.service.udev import uinput_problem
     from neurotouch_hid.sources.discovery import explain, merge
-    from neurotouch_hid.udev import uinput_problem
 
     text = (ROOT / "docs/troubleshooting.md").read_text()
     missing = uinput_problem(str(tmp_path / "uinput")).replace(str(tmp_path / "uinput"), "/dev/uinput")
@@ -427,7 +427,7 @@ def test_troubleshooting_lists_the_messages_the_driver_prints(tmp_path):
 
 
 def test_pip_fixes_name_this_installation_python_not_the_distribution_one():
-    from neurotouch_hid import doctor
+    from neurotouch_hid.service import doctor
 
     fix = doctor.check_library("neurotouch_no_such_module", "no-such-dist").fix
     assert fix == f"{sys.executable} -m pip install --upgrade no-such-dist"  # python3 -m pip: PEP 668
@@ -435,8 +435,8 @@ def test_pip_fixes_name_this_installation_python_not_the_distribution_one():
 
 def test_profile_test_names_outputs_as_the_profile_writes_them(cli, tmp_path):
     """A switch user's profile says ``space``; profile test said only ``KEY_SPACE``."""
-    from neurotouch_hid.dataset import write_predictions
-    from neurotouch_hid.estimate import GestureEstimate, GestureType
+    from neurotouch_hid.core.dataset import write_predictions
+    from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 
     assert cli("new", "sw", "--from", "accessibility").returncode == 0
     assert cli("set", "sw", "mappings.confirm.output", "space").returncode == 0

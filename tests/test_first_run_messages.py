@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from neurotouch_hid import driver
-from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.core.errors import DeviceError
 
 UINPUT = "/dev/uinput does not exist (the kernel's uinput module is not loaded)"
 
@@ -106,8 +106,8 @@ def test_eval_on_a_folder_without_recordings_says_so_not_the_sensor(tmp_path):
 
 
 def test_doctor_shows_the_calibration_in_use():
-    from neurotouch_hid import doctor
-    from neurotouch_hid.sensor import SensorGeometry, user_sensor_path
+    from neurotouch_hid.core.sensor import SensorGeometry, user_sensor_path
+    from neurotouch_hid.service import doctor
 
     none = doctor.check_calibration()
     assert (
@@ -136,7 +136,7 @@ def test_ctrl_c_during_a_run_prints_its_summary_before_exit_130(monkeypatch, cap
     from helpers import run_main
     from runtime_fakes import EstimatesThrough
 
-    from neurotouch_hid.estimate import GestureEstimate
+    from neurotouch_hid.core.estimate import GestureEstimate
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.runtime import Runtime
 

@@ -10,7 +10,7 @@ import time
 import pytest
 from helpers import fill_unread, wait_until
 
-from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.core.errors import DeviceError
 from neurotouch_hid.targets.gadget import configfs, functionfs
 from neurotouch_hid.targets.gadget.ffs import XINPUT_ENDPOINTS
 from neurotouch_hid.targets.gadget.writer import RESEND_S, RETRY_S, ReportWriter
@@ -343,7 +343,7 @@ def test_raspberry_pi_is_told_by_its_device_tree_model(tmp_path):
 def test_hidg_target_sends_changes_only_and_ends_on_the_neutral_report(tmp_path):
     """A FIFO stands for /dev/hidgN (the host reading it): the held state's report once however
     often it is written, then close() sends the neutral report before the node is closed."""
-    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.core.controller import ControllerState
     from neurotouch_hid.targets.gadget.targets import HidgTarget
     from neurotouch_hid.targets.reports.switch import SWITCH
 
@@ -394,8 +394,8 @@ def test_the_protocol_comes_from_the_option_then_the_profile_then_the_gadget_set
 
 
 def test_protocol_is_refused_without_output_usb_or_hid():
+    from neurotouch_hid.core.errors import NeurotouchError
     from neurotouch_hid.driver import run_driver
-    from neurotouch_hid.errors import NeurotouchError
 
     with pytest.raises(NeurotouchError, match="--protocol switch: only with --output usb .* or --output hid"):
         run_driver("sim", "default", "jsonl", protocol="switch")
@@ -477,8 +477,8 @@ def test_the_sudo_commands_given_name_the_command_by_its_absolute_path(tmp_path,
     fixes name the running command by its absolute path (a space in it quoted)."""
     import sys
 
+    from neurotouch_hid.service.udev import sudo_command
     from neurotouch_hid.targets.gadget.targets import _why_not
-    from neurotouch_hid.udev import sudo_command
 
     command = tmp_path / "my bin" / "neurotouch-hid"
     command.parent.mkdir()

@@ -1,4 +1,4 @@
-"""The gadget's guard (neurotouch_hid.guard): a driver killed without closing its
+"""The gadget's guard (neurotouch_hid.service.guard): a driver killed without closing its
 ``/dev/hidgN`` nodes still leaves the host the neutral reports; a run that ends in order leaves
 nothing more. Here a pipe stands for the node (non-blocking, as the driver opens /dev/hidgN: a
 full pipe refuses a write with EAGAIN as a node whose last report the host has not taken does);
@@ -15,7 +15,7 @@ from pathlib import Path
 
 from helpers import exited, fill_unread, wait_until
 
-from neurotouch_hid.guard import Guard
+from neurotouch_hid.service.guard import Guard
 
 REPO = Path(__file__).resolve().parent.parent
 NEUTRAL = bytes.fromhex("00000080008000800080")
@@ -71,7 +71,7 @@ def test_a_driver_killed_by_sigkill_leaves_the_host_every_nodes_neutral_report(t
     keys_host, keys = _node()
     code = (
         "import os, sys, time\n"
-        "from neurotouch_hid.guard import Guard\n"
+        "from neurotouch_hid.service.guard import Guard\n"
         f"guard = Guard([(int(sys.argv[1]), {NEUTRAL!r}), (int(sys.argv[2]), {KEYBOARD_NEUTRAL!r})])\n"
         "print(guard.pid, flush=True)\n"
         "time.sleep(600)\n"

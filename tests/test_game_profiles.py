@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from neurotouch_hid.control import SOCKET_NAME
-from neurotouch_hid.errors import ProfileError
+from neurotouch_hid.core.errors import ProfileError
 from neurotouch_hid.games import (
     EXECUTABLE,
     STEAM,

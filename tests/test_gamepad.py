@@ -12,8 +12,9 @@ from evdev import ecodes
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
-from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.core.controller import AXES, BUTTONS, ControllerState
+from neurotouch_hid.core.errors import DeviceError
+from neurotouch_hid.service.udev import INSTALL_SCRIPT, RULES_FILE, RULES_INSTALL, UINPUT_RULE
 from neurotouch_hid.targets.uinput import gamepad
 from neurotouch_hid.targets.uinput.gamepad import (
     GamepadIdentity,
@@ -22,7 +23,6 @@ from neurotouch_hid.targets.uinput.gamepad import (
     changed_events,
     normalised,
 )
-from neurotouch_hid.udev import INSTALL_SCRIPT, RULES_FILE, RULES_INSTALL, UINPUT_RULE
 
 
 def _assert_says_how_to_fix(message: str) -> None:
@@ -166,8 +166,8 @@ class _RecordingUinput:
 def test_keyboard_close_releases_held_keys_once_and_destroys_even_if_release_fails(monkeypatch, fail_release):
     from evdev import ecodes
 
-    from neurotouch_hid.controller import ControllerState
-    from neurotouch_hid.errors import DeviceError
+    from neurotouch_hid.core.controller import ControllerState
+    from neurotouch_hid.core.errors import DeviceError
     from neurotouch_hid.targets.uinput import desktop
 
     fake = _RecordingUinput()
@@ -221,7 +221,7 @@ def test_a_ctrl_click_chord_lets_the_mouse_button_go_before_ctrl(monkeypatch, st
     the button up before Ctrl (a Ctrl-click, not a click, whatever lets it go)."""
     from evdev import ecodes
 
-    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.core.controller import ControllerState
     from neurotouch_hid.mapping.profile import Profile
     from neurotouch_hid.targets.uinput import desktop
 

@@ -9,7 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.gesture import (
     _area_mm,
     _area_motion,
@@ -21,7 +22,6 @@ from neurotouch_hid.pipeline.gesture import (
     points_to_user,
     weighted_intensity,
 )
-from neurotouch_hid.sensor import SensorGeometry
 
 SENSORS = {
     "mirrored": SensorGeometry(),

@@ -23,7 +23,7 @@ from hostile_inputs import ALIAS_BOMB, DEEP_YAML, bomb_recording
 from test_control import runtime_dir  # noqa: F401 (a fixture)
 
 import neurotouch_hid
-from neurotouch_hid.errors import ProfileError, SensorError
+from neurotouch_hid.core.errors import ProfileError, SensorError
 
 #: The tree whose package the tests import (children import the same one).
 ROOT = Path(neurotouch_hid.__file__).resolve().parents[1]
@@ -123,7 +123,7 @@ def test_a_bomb_behind_a_table_position_the_packets_skip_over_is_refused_too(tmp
 
 def test_the_reader_refuses_a_bomb_after_yielding_what_comes_before(tmp_path):
     """The stream every command reads gives the packets before the bomb, then one RecordingError."""
-    from neurotouch_hid.errors import RecordingError
+    from neurotouch_hid.core.errors import RecordingError
     from neurotouch_hid.sources.recording import RecordingReader
 
     path = bomb_recording(tmp_path / "bomb.aedat4", inflated=256 << 20)
@@ -187,7 +187,8 @@ def test_yaml_errors_carry_a_plain_hint_beside_file_and_line():
 
 def _load_sensor_in_child(path: Path):
     code = (
-        "import sys\nfrom neurotouch_hid.errors import SensorError\nfrom neurotouch_hid.sensor import SensorGeometry\n"
+        "import sys\nfrom neurotouch_hid.core.errors import SensorError\n"
+        "from neurotouch_hid.core.sensor import SensorGeometry\n"
         "try:\n    SensorGeometry.load(sys.argv[1])\nexcept SensorError as exc:\n"
         "    print(exc, file=sys.stderr)\n    sys.exit(2)\n"
     )
@@ -219,7 +220,7 @@ def test_a_fifo_as_sensor_yaml_does_not_hang(tmp_path):
     os.mkfifo(fifo)
     assert_refused(_load_sensor_in_child(fifo), "not a regular file")
     with pytest.raises(SensorError, match="not a regular file"):
-        from neurotouch_hid.sensor import SensorGeometry
+        from neurotouch_hid.core.sensor import SensorGeometry
 
         SensorGeometry.load(fifo)
 
@@ -238,7 +239,7 @@ def test_a_fifo_or_a_huge_file_as_profile_is_refused(tmp_path):
 
 
 def test_error_messages_do_not_echo_long_values():
-    from neurotouch_hid.errors import NeurotouchError
+    from neurotouch_hid.core.errors import NeurotouchError
     from neurotouch_hid.evaluation.runner import pipeline_config
     from neurotouch_hid.mapping.profile import parse_profile
 
@@ -349,7 +350,7 @@ def test_keyboard_offers_only_the_profiles_keys_and_is_made_again_for_new_ones(m
     profile needing more replaces it by one offering both, after releasing what was held."""
     from evdev import ecodes
 
-    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.core.controller import ControllerState
     from neurotouch_hid.mapping.profile import parse_profile
     from neurotouch_hid.targets.uinput import desktop
 
@@ -419,8 +420,8 @@ def test_control_socket_refuses_malformed_requests_and_keeps_answering():
 def _predictions(folder: Path, seconds: float) -> Path:
     """Estimates alternating a 2 s push and 0.3 s of rest: the states change all the time, and a
     push holds A long enough to stop the process while it is held."""
-    from neurotouch_hid.dataset import write_predictions
-    from neurotouch_hid.estimate import GestureEstimate, GestureType
+    from neurotouch_hid.core.dataset import write_predictions
+    from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 
     step_us, estimates = 10_000, []
     for i in range(int(seconds * 1e6 / step_us)):
@@ -455,7 +456,7 @@ def test_the_running_driver_survives_every_attack_and_ctrl_z_releases_everything
     and logged, the driver keeps writing states and then switches profile on request. SIGTSTP
     writes the neutral state before the process stops; SIGCONT resumes; SIGTERM exits 0."""
     from neurotouch_hid.control import SOCKET_NAME, request_use
-    from neurotouch_hid.errors import NeurotouchError
+    from neurotouch_hid.core.errors import NeurotouchError
 
     xdg = tmp_path / "xdg"
     xdg.mkdir(mode=0o700)
@@ -878,7 +879,7 @@ def test_the_control_socket_folder_and_its_peer_are_checked(shared_runtime_dir, 
     both sides; a socket served by another user's process (a forged driver) is not asked;
     a client of another user is not answered."""
     from neurotouch_hid.control import SOCKET_NAME, ControlServer, request_use
-    from neurotouch_hid.errors import NeurotouchError
+    from neurotouch_hid.core.errors import NeurotouchError
 
     shared = shared_runtime_dir
     folder = shared / SOCKET_NAME.split("/")[0]
@@ -1033,8 +1034,8 @@ def _prediction_line(t_us: int, gesture: str = "none") -> str:
 def test_a_predictions_file_is_read_a_line_at_a_time_and_a_replay_refuses_it_before_it_starts(tmp_path):
     """An hour of predictions (80 MB) was read whole, split and kept as estimates: 0.6 GB. The
     estimates come now as they are asked for, each line bounded; a replay checks the file first."""
-    from neurotouch_hid.dataset import MAX_PREDICTION_LINE_BYTES, iter_predictions, open_predictions
-    from neurotouch_hid.errors import DatasetError
+    from neurotouch_hid.core.dataset import MAX_PREDICTION_LINE_BYTES, iter_predictions, open_predictions
+    from neurotouch_hid.core.errors import DatasetError
 
     preds = tmp_path / "p.jsonl"
     preds.write_text(_prediction_line(0) + _prediction_line(10_000, "wave"))
@@ -1054,8 +1055,8 @@ def test_a_predictions_file_is_read_a_line_at_a_time_and_a_replay_refuses_it_bef
 
 
 def test_a_pressed_file_has_at_most_as_many_rows_as_a_labels_file(tmp_path, monkeypatch):
-    from neurotouch_hid import dataset
-    from neurotouch_hid.errors import DatasetError
+    from neurotouch_hid.core import dataset
+    from neurotouch_hid.core.errors import DatasetError
 
     monkeypatch.setattr(dataset, "MAX_LABEL_ROWS", 3)
     pressed = tmp_path / "s.pressed.csv"
@@ -1069,7 +1070,7 @@ def test_a_pressed_file_has_at_most_as_many_rows_as_a_labels_file(tmp_path, monk
 def test_relative_counts_per_step_stay_within_an_event():
     """2000 wheel mappings at the highest speed sum to more hi-res counts in a step than an
     event's signed 32 bits hold (python-evdev raised OverflowError): the step is clamped."""
-    from neurotouch_hid.estimate import GestureEstimate, GestureType
+    from neurotouch_hid.core.estimate import GestureEstimate, GestureType
     from neurotouch_hid.mapping.mapper import MAX_REL_COUNTS_PER_STEP, Mapper
     from neurotouch_hid.mapping.profile import parse_profile
 
@@ -1088,8 +1089,8 @@ def test_relative_counts_per_step_stay_within_an_event():
 def test_a_labels_file_that_is_a_fifo_or_a_huge_header_is_one_line(tmp_path):
     """Labels (``eval``, ``enrol``) are read through the bounded reader: a FIFO was waited on for
     ever; a header line of a million cells was quoted whole."""
-    from neurotouch_hid.dataset import read_labels
-    from neurotouch_hid.errors import DatasetError
+    from neurotouch_hid.core.dataset import read_labels
+    from neurotouch_hid.core.errors import DatasetError
 
     fifo = tmp_path / "x.labels.csv"
     os.mkfifo(fifo)

@@ -9,23 +9,21 @@ PACKAGE = Path(__file__).resolve().parents[1] / "neurotouch_hid"
 ORDER = {
     "sources": 1,
     "calibration": 2,
-    "calibration_guide": 2,
     "pipeline": 2,
     "mapping": 3,
     "evaluation": 3,
     "enrolment": 5,
-    "output": 4,
+    "views": 4,
     "targets": 4,
     "inputs": 4,
     "stages": 3,
     "runtime": 5,
     "control": 5,
     "games": 5,
-    "warmup": 5,
+    "service.warmup": 5,
     "driver": 6,
-    "track": 2,
-    "view": 3,
-    "doctor": 7,
+    "views.pictures": 3,
+    "service.doctor": 7,
     "cli": 7,
     # the wire formats and the protocol table are data (descriptors, report layouts, ids): base
     # values, so that a profile names a protocol and the CLI lists them without the devices
@@ -93,4 +91,4 @@ def test_there_is_no_import_circle():
 
 def test_the_rule_sees_an_upward_import():
     """The checker itself: a sources module importing the runtime would be reported."""
-    assert _rank("neurotouch_hid.runtime") > _rank("neurotouch_hid.sources.davis") > _rank("neurotouch_hid.sensor")
+    assert _rank("neurotouch_hid.runtime") > _rank("neurotouch_hid.sources.davis") > _rank("neurotouch_hid.core.sensor")

@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.gesture import estimate_gesture
 from neurotouch_hid.pipeline.learned import FEATURES, _relative_motion, gesture_features, learned_gesture
-from neurotouch_hid.sensor import SensorGeometry
 
 SENSOR = SensorGeometry()
 OPTIONS = dict(r_px=25.0, reproj_factor=2.0, min_intensity_px=0.3, intensity_sigma_px=3.0, origin_radius_px=10.0)

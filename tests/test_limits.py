@@ -8,14 +8,14 @@ from pathlib import Path
 
 import pytest
 
-from neurotouch_hid.dataset import read_labels, read_predictions
+from neurotouch_hid.core.dataset import read_labels, read_predictions
+from neurotouch_hid.core.errors import DatasetError, ProfileError, SensorError
+from neurotouch_hid.core.limits import read_outside_text
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.enrolment.model import ModelError, load_model
 from neurotouch_hid.enrolment.plan import read_plan
-from neurotouch_hid.errors import DatasetError, ProfileError, SensorError
 from neurotouch_hid.games import GameMapError, load_game_map
-from neurotouch_hid.limits import read_outside_text
 from neurotouch_hid.mapping.profile import read_profile_text
-from neurotouch_hid.sensor import SensorGeometry
 
 #: Every reader of an outside file: (its name, the function, the error it raises, the kind of
 #: file its messages name, its size bound in bytes).

@@ -1,4 +1,4 @@
-"""The live terminal view of run and demo (neurotouch_hid/output/live.py): the gel plot, the
+"""The live terminal view of run and demo (neurotouch_hid/views/live.py): the gel plot, the
 gestures performed and recognised, the profile, drawn in a real terminal (tmux) at 80x24."""
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from kernel.vm import installed
 
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.mapping.profile import load_profile
-from neurotouch_hid.output.live import gel_cells, mapping_lines
+from neurotouch_hid.views.live import gel_cells, mapping_lines
 
 
 def _grid(columns=9, rows=9):
@@ -121,8 +121,8 @@ def test_the_gamepad_with_the_view_beside_it_both_get_every_record_and_are_neutr
     from rich.console import Console
     from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, batch
 
-    from neurotouch_hid.output.live import LiveView
     from neurotouch_hid.runtime import Runtime
+    from neurotouch_hid.views.live import LiveView
 
     pad = RecordingOutput()
     view = LiveView(Console(file=io.StringIO(), force_terminal=False, width=200))
@@ -157,7 +157,7 @@ def test_the_live_view_goes_beside_the_pad_only_on_a_terminal(kind, terminal, be
     from runtime_fakes import RecordingOutput
 
     from neurotouch_hid.driver import open_outputs
-    from neurotouch_hid.output.live import LiveView
+    from neurotouch_hid.views.live import LiveView
 
     made = RecordingOutput()
     console = Console(file=io.StringIO(), force_terminal=terminal, width=120)
@@ -176,7 +176,7 @@ def test_a_run_s_lines_go_above_the_view_drawn_on_a_terminal_else_where_they_wen
     from rich.console import Console
 
     from neurotouch_hid.driver import said_above
-    from neurotouch_hid.output.term import TermView
+    from neurotouch_hid.views.term import TermView
 
     screen = io.StringIO()
     view = TermView(Console(file=screen, force_terminal=True, width=100))
@@ -245,10 +245,10 @@ def test_the_live_view_answers_q_h_and_space_in_a_real_terminal(tmp_path):
 
 
 def record_for(profile, game: str = ""):
-    from neurotouch_hid.controller import ControllerState
-    from neurotouch_hid.estimate import GestureEstimate
+    from neurotouch_hid.core.controller import ControllerState
+    from neurotouch_hid.core.estimate import GestureEstimate
+    from neurotouch_hid.core.stats import RunStats
     from neurotouch_hid.stages import WindowRecord
-    from neurotouch_hid.stats import RunStats
 
     stats = RunStats()
     stats.game = game
@@ -280,9 +280,9 @@ def rendered(panel, width: int = 80) -> str:
 
 
 def test_a_profile_with_more_mappings_than_lines_says_how_many_more_and_the_game_it_follows():
-    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.core.controller import ControllerState
     from neurotouch_hid.mapping.profile import Profile
-    from neurotouch_hid.output.live import MAPPINGS_SHOWN, live_layout
+    from neurotouch_hid.views.live import MAPPINGS_SHOWN, live_layout
 
     keys = [f"KEY_F{n}" for n in range(1, 11)]
     profile = Profile.model_validate(
@@ -305,7 +305,7 @@ def test_log_lines_go_above_the_view_while_it_draws_and_back_after():
 
     from rich.console import Console
 
-    from neurotouch_hid.output.term import TermView
+    from neurotouch_hid.views.term import TermView
 
     class Tty(io.StringIO):
         def isatty(self) -> bool:
@@ -334,9 +334,9 @@ def test_the_compile_line_ticks_while_no_window_comes():
     """The first run waits for the simulator's and tracker's kernels: no window comes for seconds
     (~12 s under load), and the panel stood still at ``t 0.000 s``. The compile's line now ends
     with a spinner and the seconds since the start, which move at every redraw."""
-    from neurotouch_hid.controller import ControllerState
-    from neurotouch_hid.output.live import live_layout
+    from neurotouch_hid.core.controller import ControllerState
     from neurotouch_hid.stages import CompileProgress
+    from neurotouch_hid.views.live import live_layout
 
     record = record_for(load_profile("default"))._replace(
         compile=CompileProgress("compiling the gesture pipeline, first run only: 10%, 0 s (interpreted meanwhile)", 0.1)
@@ -355,7 +355,7 @@ def test_keys_are_read_from_a_terminal_only_in_the_foreground():
 
     from rich.console import Console
 
-    from neurotouch_hid.output.live import LiveView, in_foreground
+    from neurotouch_hid.views.live import LiveView, in_foreground
 
     primary, secondary = os.openpty()
     try:
@@ -379,9 +379,9 @@ def test_the_drawn_gesture_and_contacts_are_the_latest_windows_while_the_pad_hol
 
     from rich.console import Console
 
-    from neurotouch_hid.controller import ControllerState
-    from neurotouch_hid.estimate import GestureEstimate
-    from neurotouch_hid.output.live import LiveView
+    from neurotouch_hid.core.controller import ControllerState
+    from neurotouch_hid.core.estimate import GestureEstimate
+    from neurotouch_hid.views.live import LiveView
 
     def push(t_us: int, mm: float, x_mm: float) -> GestureEstimate:
         at = np.array([[x_mm, 0.0]])

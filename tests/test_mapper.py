@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from neurotouch_hid.controller import AXES
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.controller import AXES
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 from neurotouch_hid.mapping.filters import OneEuroFilter, response
 from neurotouch_hid.mapping.mapper import Mapper, gesture_inputs
 from neurotouch_hid.mapping.profile import Profile, load_profile, shipped_profiles_dir

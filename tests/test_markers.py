@@ -6,9 +6,9 @@ import dv_processing as dv
 import numpy as np
 import pytest
 
-from neurotouch_hid.errors import SensorError
+from neurotouch_hid.core.errors import SensorError
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.markers import Markers, detect_markers, looks_like_marker_grid
-from neurotouch_hid.sensor import SensorGeometry
 
 SENSOR = SensorGeometry()
 

@@ -8,8 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from neurotouch_hid.dataset import LabelRow, labels_at
-from neurotouch_hid.estimate import GESTURE_ORDER, GestureEstimate, GestureType
+from neurotouch_hid.core.dataset import LabelRow, labels_at
+from neurotouch_hid.core.estimate import GESTURE_ORDER, GestureEstimate, GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.evaluation.metrics import (
     Observations,
     accuracy,
@@ -24,7 +25,6 @@ from neurotouch_hid.evaluation.metrics import (
     outside_resting_collar,
     precision_recall_f1,
 )
-from neurotouch_hid.sensor import SensorGeometry
 
 PUSH, NONE, PINCH = GestureType.PUSH, GestureType.NONE, GestureType.PINCH
 

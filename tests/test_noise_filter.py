@@ -10,12 +10,12 @@ import pytest
 from typer.testing import CliRunner
 
 from neurotouch_hid.cli import app
-from neurotouch_hid.errors import NeurotouchError
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.errors import NeurotouchError
+from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.evaluation.runner import pipeline_config
 from neurotouch_hid.pipeline.noise import EventNoiseFilter
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
 from neurotouch_hid.sources.dv import events_from_store, store_from_events
 from neurotouch_hid.sources.recording import RecordingReader, read_info, split_batches

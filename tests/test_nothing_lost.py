@@ -115,7 +115,7 @@ def test_parallel_profile_edits_all_land(tmp_path):
 
 
 def test_a_profile_name_ending_in_a_newline_is_refused(cli):
-    from neurotouch_hid.errors import ProfileError
+    from neurotouch_hid.core.errors import ProfileError
     from neurotouch_hid.mapping.editor import user_profile_path
 
     with pytest.raises(ProfileError, match="not allowed"):
@@ -226,8 +226,8 @@ def test_a_dataset_folder_is_replaced_only_on_force_and_then_whole(tmp_path):
 
 
 def test_two_writers_into_one_new_folder_one_wins_whole_the_other_says_it_lost(tmp_path):
-    from neurotouch_hid.dataset import DatasetOut
-    from neurotouch_hid.errors import DatasetError
+    from neurotouch_hid.core.dataset import DatasetOut
+    from neurotouch_hid.core.errors import DatasetError
 
     out = tmp_path / "enrolment"
     first, second = DatasetOut(out), DatasetOut(out)
@@ -299,8 +299,8 @@ def test_calibrate_replaces_no_recording_given_as_its_output(tmp_path, sim_gel_s
 @pytest.mark.parametrize("kind", ["labels", "pressed"])
 def test_a_csv_field_past_the_readers_limit_is_one_line_with_file_and_line(tmp_path, kind):
     """A labels row with a 200 000-character field ended ``eval`` in a ``_csv.Error`` traceback."""
-    from neurotouch_hid.dataset import LABEL_COLUMNS, PRESSED_COLUMNS, read_labels, read_pressed
-    from neurotouch_hid.errors import DatasetError
+    from neurotouch_hid.core.dataset import LABEL_COLUMNS, PRESSED_COLUMNS, read_labels, read_pressed
+    from neurotouch_hid.core.errors import DatasetError
 
     path = tmp_path / f"s.{kind}.csv"
     columns = LABEL_COLUMNS if kind == "labels" else PRESSED_COLUMNS
@@ -347,8 +347,8 @@ def test_a_terminated_command_leaves_no_part_folder_and_dies_by_the_signal(tmp_p
 
 def test_a_plan_cue_past_a_day_is_refused_with_its_field(tmp_path):
     """A cue of 1e308 s ended ``enrol --from`` in an OverflowError traceback (its microseconds)."""
+    from neurotouch_hid.core.errors import DatasetError
     from neurotouch_hid.enrolment.plan import read_plan
-    from neurotouch_hid.errors import DatasetError
 
     plan = tmp_path / "p.json"
     plan.write_text('{"prompts": [{"gesture": "push", "cue_s": 1e308, "seconds": 1}]}')
@@ -441,8 +441,8 @@ _HEADER = "t_us,gesture,resting,intensity_mm,n_contacts,x1_px,y1_px,x2_px,y2_px,
     ],
 )
 def test_a_labels_number_out_of_bounds_is_one_line_with_file_line_and_column(tmp_path, row, column):
-    from neurotouch_hid.dataset import read_labels
-    from neurotouch_hid.errors import DatasetError
+    from neurotouch_hid.core.dataset import read_labels
+    from neurotouch_hid.core.errors import DatasetError
 
     path = tmp_path / "seq.labels.csv"
     path.write_text(_HEADER + "0,none,1,0,0,,,,,,\n" + row + "\n")
@@ -452,8 +452,8 @@ def test_a_labels_number_out_of_bounds_is_one_line_with_file_line_and_column(tmp
 
 
 def test_a_labels_file_with_a_header_alone_or_too_many_rows_is_one_line(tmp_path, monkeypatch):
-    from neurotouch_hid import dataset
-    from neurotouch_hid.errors import DatasetError
+    from neurotouch_hid.core import dataset
+    from neurotouch_hid.core.errors import DatasetError
 
     path = tmp_path / "seq.labels.csv"
     path.write_text(_HEADER)
@@ -499,8 +499,8 @@ def test_a_years_gap_in_a_recording_costs_no_more_than_its_data(tmp_path, sim_ge
     """Every empty window of a gap was made: a year's gap ended in MemoryError in ``track``,
     ``run --fast`` and ``eval``. The windows of the gap's first second are emitted, the rest
     skipped (the predictions format asks for no empty window)."""
-    from neurotouch_hid.dataset import LabelRow, read_predictions, write_labels
-    from neurotouch_hid.estimate import GestureType
+    from neurotouch_hid.core.dataset import LabelRow, read_predictions, write_labels
+    from neurotouch_hid.core.estimate import GestureType
     from neurotouch_hid.sources import Frame
     from neurotouch_hid.sources.recording import RecordingWriter
     from neurotouch_hid.sources.simulator import SimulatedSource
@@ -618,8 +618,8 @@ def test_plan_cues_past_the_recordings_end_are_said_once(tmp_path, sim_push_only
 def test_every_command_on_a_full_disk_is_one_line_and_keeps_what_was_there(tmp_path, sim_gel_short_recording):
     """``track``, ``run --output jsonl --out`` and ``simulate`` ended in tracebacks (``run`` left
     a 0-byte temporary file); ``enrol`` aborted in dv-processing's thread."""
+    from neurotouch_hid.core.errors import NeurotouchError
     from neurotouch_hid.enrolment.model import Model
-    from neurotouch_hid.errors import NeurotouchError
 
     preds = tmp_path / "pred.jsonl"
     assert cli("track", str(sim_gel_short_recording), "--out", str(preds), timeout_s=300)[0] == 0

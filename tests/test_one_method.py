@@ -18,12 +18,12 @@ from pathlib import Path
 import numpy as np
 from pydantic import BaseModel
 
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.config import PipelineConfig
 from neurotouch_hid.pipeline.paper import PaperPipeline
 from neurotouch_hid.pipeline.pipeline import GesturePipeline
 from neurotouch_hid.pipeline.resting import RestingDetector
 from neurotouch_hid.pipeline.tracker import BlobTracker
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import Frame
 
 PACKAGE = Path(__file__).resolve().parent.parent / "neurotouch_hid"

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 from kernel.vm import installed
 
+from neurotouch_hid.service.udev import UINPUT_RULE
 from neurotouch_hid.targets.uinput.gamepad import PHYS
-from neurotouch_hid.udev import UINPUT_RULE
 
 ROOT = Path(__file__).resolve().parent.parent
 RULES = ROOT / "udev" / "60-neurotouch.rules"

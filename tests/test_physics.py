@@ -18,8 +18,8 @@ import pytest
 from typer.testing import CliRunner
 
 from neurotouch_hid.cli import app
-from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import (
     MIX_FAMILIES,
     PASTERNAK_LAMBDA,

@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 from helpers import run_cli
 
-from neurotouch_hid.dataset import read_predictions, write_predictions
-from neurotouch_hid.errors import DatasetError, NeurotouchError, SensorError
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.dataset import read_predictions, write_predictions
+from neurotouch_hid.core.errors import DatasetError, NeurotouchError, SensorError
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.episode import EpisodeVote
 from neurotouch_hid.pipeline.paper import PaperPipeline
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 from neurotouch_hid.pipeline.resting import RestingResult
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
 
 SENSOR = SensorGeometry()
@@ -335,8 +335,8 @@ def push_dataset(sim_push_recording):
 
 @pytest.fixture(scope="module")
 def push_tracked(push_dataset, tmp_path_factory):
-    from neurotouch_hid.sensor import find_sensor_file
-    from neurotouch_hid.track import track_recording
+    from neurotouch_hid.core.sensor import find_sensor_file
+    from neurotouch_hid.pipeline.track import track_recording
 
     out = tmp_path_factory.mktemp("track")
     summary = track_recording(
@@ -346,7 +346,7 @@ def push_tracked(push_dataset, tmp_path_factory):
 
 
 def test_track_finds_the_push_on_most_windows(push_dataset, push_tracked):
-    from neurotouch_hid.dataset import read_labels
+    from neurotouch_hid.core.dataset import read_labels
 
     summary, predictions, _ = push_tracked
     labels = read_labels(push_dataset.with_name(push_dataset.name.replace(".aedat4", ".labels.csv")))
@@ -390,7 +390,7 @@ def test_the_answered_intensity_leads_its_change_within_a_gesture_and_nothing_el
     """docs/method.md, "Intensity lead": each window's intensity goes ``intensity_lead_us`` ahead along its
     change since the window before when that one had a gesture; types, contacts and the first window of
     each gesture are those of the pipeline without a lead."""
-    from neurotouch_hid.sensor import find_sensor_file
+    from neurotouch_hid.core.sensor import find_sensor_file
     from neurotouch_hid.sources.recording import RecordingReader
 
     sensor = find_sensor_file(push_dataset)
@@ -428,7 +428,7 @@ class _AlwaysFits(GesturePipeline):
 
 
 def test_windows_whose_markers_did_not_move_reuse_the_fit_with_identical_estimates(push_dataset):
-    from neurotouch_hid.sensor import find_sensor_file
+    from neurotouch_hid.core.sensor import find_sensor_file
     from neurotouch_hid.sources.recording import RecordingReader
 
     sensor = find_sensor_file(push_dataset)
@@ -479,9 +479,9 @@ def test_track_command_writes_predictions_and_markers(push_dataset, push_tracked
 def test_track_refuses_markers_and_predictions_under_one_name_before_it_writes(push_dataset, tmp_path):
     """Both were written to the one file: the predictions first, then the markers were refused as
     "the same file as the input", and the file held the predictions; an earlier file there was lost."""
-    from neurotouch_hid.atomic import OutputError
-    from neurotouch_hid.sensor import find_sensor_file
-    from neurotouch_hid.track import track_recording
+    from neurotouch_hid.core.atomic import OutputError
+    from neurotouch_hid.core.sensor import find_sensor_file
+    from neurotouch_hid.pipeline.track import track_recording
 
     out = tmp_path / "both.npz"
     out.write_bytes(b"earlier markers")
@@ -500,8 +500,8 @@ def test_track_refuses_markers_and_predictions_under_one_name_before_it_writes(p
 def test_view_writes_a_picture_of_the_right_size(push_dataset, tmp_path, suffix, scale):
     import imageio.v3 as iio
 
-    from neurotouch_hid.sensor import find_sensor_file
-    from neurotouch_hid.view import render_view
+    from neurotouch_hid.core.sensor import find_sensor_file
+    from neurotouch_hid.views.pictures import render_view
 
     sensor = find_sensor_file(push_dataset)
     out = tmp_path / f"view{suffix}"
@@ -514,8 +514,8 @@ def test_view_writes_a_picture_of_the_right_size(push_dataset, tmp_path, suffix,
 
 
 def test_a_gif_longer_than_its_bound_is_refused_and_what_was_there_is_kept(push_dataset, tmp_path, monkeypatch):
-    from neurotouch_hid import view
-    from neurotouch_hid.sensor import find_sensor_file
+    from neurotouch_hid.core.sensor import find_sensor_file
+    from neurotouch_hid.views import pictures as view
 
     sensor = find_sensor_file(push_dataset)
     out = tmp_path / "view.gif"

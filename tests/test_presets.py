@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import pytest
 
-from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.core.errors import NeurotouchError
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.evaluation.runner import pipeline_config
 from neurotouch_hid.pipeline.config import PipelineConfig
 from neurotouch_hid.pipeline.methods import pipeline_for
 from neurotouch_hid.pipeline.paper import PaperConfig, PaperPipeline
 from neurotouch_hid.pipeline.pipeline import GesturePipeline
-from neurotouch_hid.sensor import SensorGeometry
 
 # the paper, section "Results" (r, a, N_min, Chamfer threshold)
 PAPER = {"r_px": 30.0, "a": 0.6, "n_min": 4, "chamfer_threshold": 2.5}

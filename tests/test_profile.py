@@ -7,8 +7,8 @@ import textwrap
 
 import pytest
 
-from neurotouch_hid.controller import AXES, BUTTONS
-from neurotouch_hid.errors import ProfileError
+from neurotouch_hid.core.controller import AXES, BUTTONS
+from neurotouch_hid.core.errors import ProfileError
 from neurotouch_hid.mapping.profile import (
     AxisMapping,
     ButtonMapping,

@@ -11,7 +11,7 @@ import pytest
 from helpers import run_cli
 from ruamel.yaml import YAML
 
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 from neurotouch_hid.mapping.profile import shipped_profiles_dir
 
 

@@ -6,15 +6,15 @@ from __future__ import annotations
 import pytest
 from ruamel.yaml import YAML
 
-from neurotouch_hid.errors import ProfileError
+from neurotouch_hid.core.errors import ProfileError
 from neurotouch_hid.mapping.profile import (
     AxisMapping,
     ButtonMapping,
     StickMapping,
     parse_profile,
 )
-from neurotouch_hid.output.live import mapping_lines
-from neurotouch_hid.output.term import BUTTON_LABELS, PAD_NAMES, pad_name
+from neurotouch_hid.views.live import mapping_lines
+from neurotouch_hid.views.term import BUTTON_LABELS, PAD_NAMES, pad_name
 
 
 def one(output: str, input: str = "pinch"):

@@ -13,8 +13,8 @@ import dataclasses
 
 import pytest
 
-from neurotouch_hid.controller import ControllerState
-from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.core.controller import ControllerState
+from neurotouch_hid.core.errors import NeurotouchError
 from neurotouch_hid.targets.protocols import GADGET_FUNCTIONS, PROTOCOLS, TRANSPORTS, by_ids, names, protocol
 from neurotouch_hid.targets.reports import FORMATS
 
@@ -169,7 +169,7 @@ def test_the_gadget_plan_is_the_rows_ids_strings_and_function():
 
 
 def test_doctor_names_the_protocols_each_transport_carries(monkeypatch):
-    from neurotouch_hid import doctor
+    from neurotouch_hid.service import doctor
     from neurotouch_hid.targets.gadget import support
 
     monkeypatch.setattr(support, "uhid_problem", lambda *a: None)

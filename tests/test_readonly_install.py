@@ -215,7 +215,7 @@ def test_cache_folder_choice(tmp_path, writable):
         env["XDG_CACHE_HOME"] = str(tmp_path / "cache")
     if writable == "service":
         env["CACHE_DIRECTORY"] = str(tmp_path / "unit-cache")
-    code = "from neurotouch_hid.jit_cache import chosen; c = chosen(); print(c.kind, c.folder)"
+    code = "from neurotouch_hid.service.jit_cache import chosen; c = chosen(); print(c.kind, c.folder)"
     home = tmp_path / "home"
     home.mkdir()
     mounts = " && ".join(

@@ -16,7 +16,7 @@ import pytest
 from camera_replay import Fault, ManualClock, ReplayWorld
 from helpers import CLI, run_cli, wait_until
 
-from neurotouch_hid.errors import DeviceError, RecordingError
+from neurotouch_hid.core.errors import DeviceError, RecordingError
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.davis import DavisConfig, DavisSource
 from neurotouch_hid.sources.recording import RecordingReader, read_info, record_stream

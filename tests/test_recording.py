@@ -17,7 +17,7 @@ from helpers import run_cli
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from neurotouch_hid.errors import RecordingError
+from neurotouch_hid.core.errors import RecordingError
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
 from neurotouch_hid.sources.recording import (
     RecordingReader,

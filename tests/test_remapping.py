@@ -8,9 +8,9 @@ import re
 import numpy as np
 import pytest
 
-from neurotouch_hid.controller import AXES
-from neurotouch_hid.errors import ProfileError
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.controller import AXES
+from neurotouch_hid.core.errors import ProfileError
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 from neurotouch_hid.mapping.mapper import HI_RES_PER_DETENT, Activator, Mapper, RelMotion
 from neurotouch_hid.mapping.profile import Profile, load_profile, parse_profile
 
@@ -411,7 +411,7 @@ def test_shipped_switch_access_profile_needs_a_dwell_and_releases(gesture, keys)
 def test_a_default_that_breaks_the_given_value_is_refused_with_what_to_give(mapping, says):
     """press_mm 0.6 under the default release_mm 1 pressed and released every window of a steady
     pinch (50 presses a second); a dead zone at the default saturation divided by zero."""
-    from neurotouch_hid.errors import ProfileError
+    from neurotouch_hid.core.errors import ProfileError
     from neurotouch_hid.mapping.profile import parse_profile
 
     with pytest.raises(ProfileError, match=re.escape(says)):

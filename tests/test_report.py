@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from neurotouch_hid.dataset import LabelRow
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.dataset import LabelRow
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.evaluation.metrics import align, evaluate
 from neurotouch_hid.evaluation.report import FIGURES, print_tables, write_report
-from neurotouch_hid.sensor import SensorGeometry
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +66,7 @@ def test_eval_command_writes_report_json_and_predictions(sim_quick_dataset, tmp_
     from typer.testing import CliRunner
 
     from neurotouch_hid.cli import app
-    from neurotouch_hid.dataset import list_sequences
+    from neurotouch_hid.core.dataset import list_sequences
     from neurotouch_hid.evaluation.metrics import EvaluationResult
 
     out_json = tmp_path / "metrics.json"
@@ -102,7 +102,7 @@ def test_eval_command_writes_report_json_and_predictions(sim_quick_dataset, tmp_
 
 
 def test_pipeline_config_rejects_unknown_or_bad_hyperparameter():
-    from neurotouch_hid.errors import NeurotouchError
+    from neurotouch_hid.core.errors import NeurotouchError
     from neurotouch_hid.evaluation.runner import pipeline_config
 
     with pytest.raises(NeurotouchError, match="no field 'radius'"):
@@ -130,7 +130,7 @@ def test_pipeline_config_rejects_unknown_or_bad_hyperparameter():
 
 
 def test_a_bad_set_value_names_the_setting_the_field_and_what_was_expected():
-    from neurotouch_hid.errors import NeurotouchError
+    from neurotouch_hid.core.errors import NeurotouchError
     from neurotouch_hid.evaluation.runner import pipeline_config
 
     with pytest.raises(NeurotouchError) as info:

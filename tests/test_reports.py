@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from neurotouch_hid.controller import BUTTONS, MOUSE_BUTTONS, ControllerState
-from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.core.controller import BUTTONS, MOUSE_BUTTONS, ControllerState
+from neurotouch_hid.core.errors import NeurotouchError
 from neurotouch_hid.targets.reports import FORMATS, format_for
 from neurotouch_hid.targets.reports.hid import BUTTON_ORDER, HID_JOYSTICK
 from neurotouch_hid.targets.reports.keyboard import BOOT_KEYBOARD, USAGES, unrepresentable

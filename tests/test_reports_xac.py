@@ -7,7 +7,7 @@ import re
 import pytest
 from test_reports import DOCS, input_bits, walk
 
-from neurotouch_hid.controller import ControllerState
+from neurotouch_hid.core.controller import ControllerState
 from neurotouch_hid.targets.reports.xac import XAC
 
 

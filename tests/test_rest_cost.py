@@ -8,7 +8,7 @@ import copy
 
 import pytest
 
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.pipeline import tracker as tracker_module
 from neurotouch_hid.pipeline.pipeline import GesturePipeline
 from neurotouch_hid.pipeline.tracker import BlobTracker

@@ -7,9 +7,9 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
-from neurotouch_hid.errors import SensorError
+from neurotouch_hid.core.errors import SensorError
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.resting import RestingDetector
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import Frame
 
 SENSOR = SensorGeometry()

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from helpers import load_benchmark
 
-from neurotouch_hid.dataset import LabelRow, write_labels, write_predictions
-from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.sensor import default_sensor
+from neurotouch_hid.core.dataset import LabelRow, write_labels, write_predictions
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.sensor import default_sensor
 
 
 @pytest.fixture(scope="module")

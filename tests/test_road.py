@@ -11,7 +11,7 @@ from pathlib import Path
 
 from runtime_fakes import FakeMapper, FakePipeline, batch
 
-from neurotouch_hid.estimate import GestureType, MarkerPositions
+from neurotouch_hid.core.estimate import GestureType, MarkerPositions
 from neurotouch_hid.mapping.profile import load_profile
 from neurotouch_hid.runtime import Runtime
 from neurotouch_hid.sources.open import open_source
@@ -117,10 +117,10 @@ def test_an_unlabelled_source_publishes_no_performed_gesture(sim_push_only_recor
 
 def test_every_output_is_a_subscriber():
     """The devices (behind TargetOutputs), JSON lines, the terminal and live views: one interface."""
-    from neurotouch_hid.output.jsonl import StateJsonlWriter
-    from neurotouch_hid.output.live import LiveView
-    from neurotouch_hid.output.term import TermView
     from neurotouch_hid.targets import TargetOutputs
+    from neurotouch_hid.views.jsonl import StateJsonlWriter
+    from neurotouch_hid.views.live import LiveView
+    from neurotouch_hid.views.term import TermView
 
     members = {name for name, _ in inspect.getmembers(Subscriber) if not name.startswith("_")}
     members |= set(Subscriber.__annotations__)
@@ -162,7 +162,7 @@ def _imported(module_folder: str) -> set[str]:
 
 def test_no_source_pipeline_or_mapper_module_knows_a_view():
     for folder in ("sources", "pipeline", "mapping"):
-        views = {m for m in _imported(folder) if m.startswith(("neurotouch_hid.output", "neurotouch_hid.stages"))}
+        views = {m for m in _imported(folder) if m.startswith(("neurotouch_hid.views", "neurotouch_hid.stages"))}
         views |= {m for m in _imported(folder) if m.startswith(("neurotouch_hid.runtime", "neurotouch_hid.driver"))}
         assert views == set(), folder
     for path in PACKAGE.joinpath("sources").rglob("*.py"):

@@ -13,9 +13,9 @@ import pytest
 from helpers import read_states, run_cli, wait_until
 from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, batch, endless, once, writes_of
 
-from neurotouch_hid.controller import ControllerState
-from neurotouch_hid.errors import ProfileError
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.controller import ControllerState
+from neurotouch_hid.core.errors import ProfileError
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 from neurotouch_hid.runtime import DropOldestQueue, Runtime, item_end_us
 from neurotouch_hid.sources import Frame, Pacer
 
@@ -148,7 +148,7 @@ def test_exception_in_the_pipeline_still_neutralises_the_output():
 
 
 def test_error_in_the_source_processes_what_was_read_then_neutralises_and_raises():
-    from neurotouch_hid.errors import RecordingError
+    from neurotouch_hid.core.errors import RecordingError
 
     def truncated():
         for i in range(4):
@@ -404,7 +404,7 @@ ENV = dict(os.environ, PYTHONUNBUFFERED="1", COLUMNS="160")
 
 
 def is_neutral(line: dict) -> bool:
-    from neurotouch_hid.controller import AXES
+    from neurotouch_hid.core.controller import AXES
 
     return all(line["axes"][n] == AXES[n][2] for n in AXES) and not any(line["buttons"].values())
 
@@ -492,7 +492,7 @@ def test_fast_replays_are_deterministic(sim_push_only_recording, tmp_path):
 def test_a_predictions_file_replays_through_the_mapper_state_for_state(tmp_path):
     """``--source FILE.jsonl`` (no pipeline): the states written are the Mapper's for the same
     estimates, one line per change, ending neutral."""
-    from neurotouch_hid.dataset import read_predictions, write_predictions
+    from neurotouch_hid.core.dataset import read_predictions, write_predictions
     from neurotouch_hid.driver import run_driver
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.mapping.replay import replay
@@ -551,8 +551,8 @@ def test_the_run_s_pipeline_runs_opencv_without_its_thread_pool():
     pool's thread, woken at every call, cost more than it shared out (25 times a second at rest)."""
     import cv2
 
+    from neurotouch_hid.core.sensor import SensorGeometry
     from neurotouch_hid.driver import build_pipeline
-    from neurotouch_hid.sensor import SensorGeometry
 
     previous = cv2.getNumThreads()
     cv2.setNumThreads(2)

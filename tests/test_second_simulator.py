@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from neurotouch_hid.dataset import LabelRow, labels_at, read_labels
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.dataset import LabelRow, labels_at, read_labels
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM, FRAME_PERIOD_US
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.recording import RecordingReader
 
 #: The sessions: the shared data beside the repository (as tests/helpers.py's STREET), or where

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from neurotouch_hid.errors import SensorError
-from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.core.errors import SensorError
+from neurotouch_hid.core.sensor import SensorGeometry
 
 
 def test_image_to_user_follows_dataset_formula_with_mirror():

@@ -80,7 +80,7 @@ def test_the_rule_wants_the_instance_of_each_camera_serial():
     line = lines[0]
     assert 'ATTR{idVendor}=="152a"' in line and 'ATTR{idProduct}=="841a"' in line
     assert 'ENV{SYSTEMD_USER_WANTS}+="neurotouch-hid@$attr{serial}.service"' in line
-    assert 'ATTR{serial}!="*[!A-Za-z0-9_]*"' in line  # the serials neurotouch_hid.serials takes
+    assert 'ATTR{serial}!="*[!A-Za-z0-9_]*"' in line  # the serials neurotouch_hid.service.serials takes
 
 
 def test_install_user_installs_the_template_with_an_absolute_execstart(systemd_analyze, tmp_path):

@@ -14,8 +14,8 @@ import pytest
 from typer.testing import CliRunner
 
 from neurotouch_hid.cli import app
-from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import PHYSICS
 from neurotouch_hid.sources.simulator import MAX_SPEED_MM_S, USERS, SimGesture, gesture_script
 

@@ -1,6 +1,6 @@
 """Several cameras on one machine: each run stands for one camera (its serial), whose outputs carry
 an identity of their own and whose own config folder is used where it has one
-(neurotouch_hid/serials.py, sources/serial.py, control.socket_path).
+(neurotouch_hid/service/serials.py, sources/serial.py, control.socket_path).
 The two pads in a real kernel: tests/kernel/checks_sensors.py."""
 
 from types import SimpleNamespace
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from helpers import read_states, run_main
 
-from neurotouch_hid.errors import NeurotouchError
-from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.serials import config_dir, configured_serials, own_file, sensor_dir, sensor_file
+from neurotouch_hid.core.errors import NeurotouchError
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+from neurotouch_hid.service.serials import config_dir, configured_serials, own_file, sensor_dir, sensor_file
 
 
 def _own(serial: str, name: str, text: str = "") -> None:
@@ -88,7 +88,7 @@ def test_own_config_takes_the_camera_profile_and_sensor_else_the_shared_ones():
 
 
 def _push_right(path):
-    from neurotouch_hid.dataset import write_predictions
+    from neurotouch_hid.core.dataset import write_predictions
 
     estimates = [
         GestureEstimate(
@@ -191,8 +191,8 @@ def test_devices_and_doctor_say_which_driver_runs_for_which_camera(tmp_path, mon
     from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, endless
 
     from neurotouch_hid.control import running_drivers, socket_path
-    from neurotouch_hid.doctor import OK, camera_drivers, check_drivers
     from neurotouch_hid.runtime import Runtime
+    from neurotouch_hid.service.doctor import OK, camera_drivers, check_drivers
 
     folder = tmp_path / "run"
     folder.mkdir(mode=0o700)
@@ -242,7 +242,7 @@ def _camera(serial: str, address: int):
 
 
 def test_doctor_warns_when_several_cameras_share_the_single_service(monkeypatch):
-    from neurotouch_hid.doctor import WARN, check_drivers
+    from neurotouch_hid.service.doctor import WARN, check_drivers
 
     found = SimpleNamespace(davis346=[_camera("A1", 3), _camera("B2", 4)])
     check = check_drivers(found, drivers=[])
@@ -254,7 +254,7 @@ def test_doctor_warns_when_several_cameras_share_the_single_service(monkeypatch)
 
 def test_a_driver_of_no_camera_on_the_bus_is_listed_too():
     from neurotouch_hid.control import RunningDriver
-    from neurotouch_hid.doctor import camera_drivers, describe_camera_driver
+    from neurotouch_hid.service.doctor import camera_drivers, describe_camera_driver
 
     sim = RunningDriver("SIM1", 42, "profile default", "neurotouch-hid@SIM1.service")
     (row,) = camera_drivers(SimpleNamespace(davis346=[]), drivers=[sim])
@@ -266,7 +266,7 @@ def test_a_driver_of_no_camera_on_the_bus_is_listed_too():
 def test_calibrate_with_a_serial_writes_that_camera_sensor_yaml(monkeypatch, capsys, sim_push_only_recording):
     """``calibrate --serial S1`` (here on a recording of the gel at rest first) writes
     sensors/S1/sensor.yaml, which a run of camera S1 then reads; the shared one is not made."""
-    from neurotouch_hid.sensor import SensorGeometry, user_sensor_path
+    from neurotouch_hid.core.sensor import SensorGeometry, user_sensor_path
     from neurotouch_hid.sources.serial import own_config
 
     args = ["calibrate", "--source", str(sim_push_only_recording), "--serial", "S1", "--no-mirror", "--rotation", "0"]
@@ -284,7 +284,7 @@ def test_run_hands_the_serial_of_the_simulated_camera_to_the_driver(monkeypatch,
     """``run --source sim --serial S1`` without --profile: the driver gets the serial and no
     profile (the camera's own, else default: :func:`sources.serial.own_config`)."""
     from neurotouch_hid import driver
-    from neurotouch_hid.stats import RunStats
+    from neurotouch_hid.core.stats import RunStats
 
     seen = {}
 
@@ -356,7 +356,8 @@ def test_the_keyboard_and_mouse_of_a_camera_carry_its_phys(monkeypatch):
 def test_the_unit_of_a_driver_is_its_own_service_only(monkeypatch):
     """``/proc/PID/cgroup``'s last part names the service a driver runs in; a driver started in a
     terminal (a scope under the user's manager, ``user@1000.service``) has none."""
-    from neurotouch_hid import control, limits
+    from neurotouch_hid import control
+    from neurotouch_hid.core import limits
 
     cgroups = {
         1: b"0::/user.slice/user-1000.slice/user@1000.service/app.slice/neurotouch-hid@00000499.service\n",
@@ -372,7 +373,7 @@ def test_doctor_says_when_camera_folders_need_the_unit_template():
     """Once cameras have folders of their own the single unit steps aside: doctor warns while
     the per-camera template is not installed (nothing would start on plug-in), and names each
     camera's instance once it is."""
-    from neurotouch_hid.doctor import OK, WARN, check_service, user_config_dir
+    from neurotouch_hid.service.doctor import OK, WARN, check_service, user_config_dir
 
     units = user_config_dir() / "systemd" / "user"
     units.mkdir(parents=True)

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 import yaml
 
-from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
 from neurotouch_hid.sources.esim import EventCamera, time_ordered
 from neurotouch_hid.sources.physics import PHYSICS

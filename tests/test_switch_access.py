@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from neurotouch_hid.errors import ProfileError
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.errors import ProfileError
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 from neurotouch_hid.mapping.mapper import Activator
 from neurotouch_hid.mapping.profile import MAX_TAP_MS, load_profile, parse_profile
 from neurotouch_hid.mapping.replay import pressed, replay
@@ -131,7 +131,7 @@ def test_a_chords_key_is_not_counted_as_a_press_of_that_key_alone():
     """``profile test switch-access`` said KEY_TAB "2 presses" for one clockwise twist: the
     counter-clockwise twist's Shift+Tab holds Tab too. A key down inside a chord the profile maps
     is that chord's press, not the key's."""
-    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.core.controller import ControllerState
     from neurotouch_hid.mapping.replay import reach
 
     keys = [(), ("KEY_LEFTSHIFT", "KEY_TAB"), (), ("KEY_TAB",), (), ("KEY_LEFTSHIFT", "KEY_TAB"), ()]

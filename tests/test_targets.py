@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from neurotouch_hid.controller import ControllerState
+from neurotouch_hid.core.controller import ControllerState
 from neurotouch_hid.stages import Feedback
 from neurotouch_hid.targets import TargetOutputs, describe_feedback
 

@@ -7,9 +7,10 @@ import io
 import pytest
 from rich.console import Console
 
-from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
-from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.output.term import (
+from neurotouch_hid.core.controller import AXES, BUTTONS, ControllerState
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.stats import RunStats
+from neurotouch_hid.views.term import (
     BUTTON_LABELS,
     STICK_COLUMNS,
     STICK_ROWS,
@@ -20,7 +21,6 @@ from neurotouch_hid.output.term import (
     stick_cell,
     stick_grid,
 )
-from neurotouch_hid.stats import RunStats
 
 LO, HI, _ = AXES["ABS_X"]
 

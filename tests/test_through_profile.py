@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from helpers import BENCHMARKS, run_cli
 
-from neurotouch_hid.dataset import LabelRow, list_sequences, read_labels, read_predictions, write_labels
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.dataset import LabelRow, list_sequences, read_labels, read_predictions, write_labels
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.evaluation.through_profile import ProfileTally, ProfileUnderTest, outputs_by_type, tally
 from neurotouch_hid.mapping.profile import load_profile
-from neurotouch_hid.sensor import SensorGeometry
 
 G = GestureType
 GEOMETRY = SensorGeometry()

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from neurotouch_hid.controller import ControllerState, TouchPoint
-from neurotouch_hid.errors import ProfileError
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.controller import ControllerState, TouchPoint
+from neurotouch_hid.core.errors import ProfileError
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 from neurotouch_hid.mapping.mapper import Mapper
 from neurotouch_hid.mapping.merge import merge_state
 from neurotouch_hid.mapping.profile import TouchpadMapping, load_profile, parse_profile

@@ -16,12 +16,12 @@ from helpers import run_cli
 from rich.console import Console
 
 from neurotouch_hid.cli.common import long_lived_start_up
+from neurotouch_hid.core.sensor import find_sensor_file
 from neurotouch_hid.pipeline.pipeline import GesturePipeline
 from neurotouch_hid.pipeline.resting import RestingDetector
-from neurotouch_hid.sensor import find_sensor_file
+from neurotouch_hid.pipeline.track import recording_progress, track_recording
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.recording import RecordingReader
-from neurotouch_hid.track import recording_progress, track_recording
 
 
 @pytest.fixture(scope="module")

@@ -5,9 +5,9 @@ event each time a pixel's log intensity crosses a contrast threshold."""
 import numpy as np
 import pytest
 
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.contacts_plateau import rest_neighbours
 from neurotouch_hid.pipeline.tracker import SWAP_PITCHES, BlobTracker, TrackerConfig, swapped_blobs
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE
 
 SENSOR = SensorGeometry()
@@ -280,7 +280,7 @@ def held_large_twist():
     9.2-11.4 s, with a shorter hold: markers squeezed together, then a tremor of a few Hz):
     events, the 1 ms truth grid, true marker positions (T, N, 2) image px, the markers detected
     on the first APS frame, and the attack's and hold's end (us)."""
-    from neurotouch_hid.estimate import GestureType
+    from neurotouch_hid.core.estimate import GestureType
     from neurotouch_hid.pipeline.markers import detect_markers
     from neurotouch_hid.sources.simulator import USERS, GelSimulator, SimGesture
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from test_pipeline import SENSOR, _WindowByWindow, events_at, gel_image
 
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
 from neurotouch_hid.mapping.profile import available_profiles, load_profile
 from neurotouch_hid.pipeline.episode import FIRM_MM, PROVISIONAL_MM, EpisodeVote

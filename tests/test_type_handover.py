@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 from neurotouch_hid.mapping.mapper import Mapper
 from neurotouch_hid.mapping.profile import Profile, load_profile
 from neurotouch_hid.mapping.replay import pressed, replay

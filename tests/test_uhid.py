@@ -13,10 +13,11 @@ from pathlib import Path
 
 import pytest
 
+from neurotouch_hid.core.errors import DeviceError
+from neurotouch_hid.core.kinds import OutputKind
 from neurotouch_hid.driver import OPENERS, run_driver
-from neurotouch_hid.errors import DeviceError
-from neurotouch_hid.kinds import OutputKind
 from neurotouch_hid.mapping.profile import DeviceSpec, load_profile
+from neurotouch_hid.service.udev import RULES_FILE, UHID_RULE
 from neurotouch_hid.targets.reports.hid import HID_JOYSTICK
 from neurotouch_hid.targets.uhid import (
     HID_DEFAULT,
@@ -34,7 +35,6 @@ from neurotouch_hid.targets.uhid import (
     read_event,
 )
 from neurotouch_hid.targets.uinput.desktop import UinputDesktop
-from neurotouch_hid.udev import RULES_FILE, UHID_RULE
 
 
 def test_the_event_size_is_the_kernels():

@@ -13,7 +13,7 @@ import struct
 
 import pytest
 
-from neurotouch_hid.controller import ControllerState, Feedback
+from neurotouch_hid.core.controller import ControllerState, Feedback
 from neurotouch_hid.targets.identity import identity_for
 from neurotouch_hid.targets.reports.hid import DESCRIPTOR
 from neurotouch_hid.targets.uhid import (

@@ -1,4 +1,4 @@
-"""A first run on a cold numba cache (neurotouch_hid/warmup.py): what is cold, the interpreted
+"""A first run on a cold numba cache (neurotouch_hid/service/warmup.py): what is cold, the interpreted
 kernels, the children that compile into the cache, the progress said before the first state,
 and a simulated source that waits instead of dropping data."""
 
@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from helpers import EARLY_NICE, niced, reap, run_main
 
-from neurotouch_hid import warmup
-from neurotouch_hid.estimate import GestureEstimate
+from neurotouch_hid.core.estimate import GestureEstimate
 from neurotouch_hid.mapping.profile import load_profile
 from neurotouch_hid.runtime import Runtime
+from neurotouch_hid.service import warmup
 from neurotouch_hid.sources import EVENT_DTYPE
 
 CLI = [sys.executable, "-m", "neurotouch_hid.cli"]
@@ -77,7 +77,10 @@ def test_a_group_is_cold_until_its_child_compiled_it_into_the_cache(tmp_path):
     check = [sys.executable, "-c", "from neurotouch_hid import warmup as w; print(w.is_cold(w.SIMULATOR))"]
     assert subprocess.run(check, env=_env(tmp_path), capture_output=True, text=True).stdout.strip() == "True"
     child = subprocess.run(
-        [sys.executable, "-m", "neurotouch_hid.warmup", "simulator"], env=_env(tmp_path), capture_output=True, text=True
+        [sys.executable, "-m", "neurotouch_hid.service.warmup", "simulator"],
+        env=_env(tmp_path),
+        capture_output=True,
+        text=True,
     )
     assert child.returncode == 0, child.stderr
     assert "neurotouch_hid.sources.esim.esim_chunk" in child.stdout.split()  # its progress lines
@@ -148,7 +151,9 @@ def test_the_child_compiles_the_installed_package_not_a_checkout_in_the_working_
 
 
 def test_the_child_refuses_an_unknown_group():
-    child = subprocess.run([sys.executable, "-m", "neurotouch_hid.warmup", "nope"], capture_output=True, text=True)
+    child = subprocess.run(
+        [sys.executable, "-m", "neurotouch_hid.service.warmup", "nope"], capture_output=True, text=True
+    )
     assert child.returncode == 2
     assert "pipeline" in child.stderr and "Traceback" not in child.stderr
 
@@ -433,7 +438,7 @@ def test_a_command_that_runs_the_pipeline_at_once_has_a_cold_cache_compiled_by_t
 
 RELEASE_CHILD = """
 import numba, numpy as np
-from neurotouch_hid import jit_cache
+from neurotouch_hid.service import jit_cache
 from neurotouch_hid.pipeline.moves import _largest_move_sq
 rng = np.random.default_rng(0)
 current, rest = rng.normal(size=(40, 2)), rng.normal(size=(40, 2))

@@ -30,9 +30,9 @@ import typer
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))  # workdir.py, a benchmark's helper
 from workdir import families_in  # noqa: E402
 
-from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions  # noqa: E402
-from neurotouch_hid.estimate import GestureType  # noqa: E402
-from neurotouch_hid.output.console import command_app  # noqa: E402
+from neurotouch_hid.core.dataset import labels_at, list_sequences, read_labels, read_predictions  # noqa: E402
+from neurotouch_hid.core.estimate import GestureType  # noqa: E402
+from neurotouch_hid.views.console import command_app  # noqa: E402
 
 app = command_app()
 

@@ -24,11 +24,11 @@ from typing import Callable
 import numpy as np
 import typer
 
-from neurotouch_hid.dataset import labels_at, list_sequences, read_labels
-from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.output.console import command_app
+from neurotouch_hid.core.dataset import labels_at, list_sequences, read_labels
+from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.pipeline import contacts as contacts_mod
 from neurotouch_hid.pipeline import pipeline as pipeline_mod
+from neurotouch_hid.views.console import command_app
 
 app = command_app()
 
@@ -37,9 +37,9 @@ def record_sequence(dataset: Path, name: str) -> dict:
     """One sequence's windows: t (W,) int64 us, emitted (W,) bool (the estimate had a gesture),
     rest and current (W, N, 2) float64 px (NaN where not fitted), valid (W, N) bool, fitted (W,)
     bool, and the labels' type (W,) str and count (W,) int64."""
+    from neurotouch_hid.core.sensor import SensorGeometry
     from neurotouch_hid.evaluation.runner import pipeline_config
     from neurotouch_hid.pipeline.methods import pipeline_for
-    from neurotouch_hid.sensor import SensorGeometry
     from neurotouch_hid.sources.recording import RecordingReader
 
     state: dict = {"last": None, "called": False}

@@ -60,7 +60,6 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 import contact_replay  # noqa: E402
 
-from neurotouch_hid.output.console import command_app  # noqa: E402
 from neurotouch_hid.pipeline import contacts as C  # noqa: E402
 from neurotouch_hid.pipeline import pipeline as P  # noqa: E402
 from neurotouch_hid.pipeline.contacts_bump import bump_fit  # noqa: E402
@@ -75,6 +74,7 @@ from neurotouch_hid.pipeline.contacts_plateau import (  # noqa: E402
     _split_along_axis,
     at_most_three,
 )
+from neurotouch_hid.views.console import command_app  # noqa: E402
 
 PRODUCT = C._maxima
 

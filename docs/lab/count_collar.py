@@ -28,11 +28,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))  # w
 from gesture_collar import scored_outside_collar  # noqa: E402
 from workdir import families_in  # noqa: E402
 
-from neurotouch_hid.dataset import list_sequences, read_labels, read_predictions  # noqa: E402
-from neurotouch_hid.estimate import GESTURE_ORDER, GestureType  # noqa: E402
+from neurotouch_hid.core.dataset import list_sequences, read_labels, read_predictions  # noqa: E402
+from neurotouch_hid.core.estimate import GESTURE_ORDER, GestureType  # noqa: E402
+from neurotouch_hid.core.sensor import SensorGeometry  # noqa: E402
 from neurotouch_hid.evaluation.metrics import align  # noqa: E402
-from neurotouch_hid.output.console import command_app
-from neurotouch_hid.sensor import SensorGeometry  # noqa: E402
+from neurotouch_hid.views.console import command_app
 
 
 def main(

@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from neurotouch_hid.calibration import PRESS_MARKERS, press_amplitude
-from neurotouch_hid.output.console import command_app
+from neurotouch_hid.calibration.measure import PRESS_MARKERS, press_amplitude
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.creep import SHARES, TIMES_S, creep_misfit, fit_creep
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import sls_deformation
+from neurotouch_hid.views.console import command_app
 
 #: The press family_eval.py simulates for each family (its PRESS_USER).
 PRESS = "u5_push"

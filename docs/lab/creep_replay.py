@@ -22,12 +22,12 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
-from neurotouch_hid.dataset import list_sequences, read_labels, read_predictions
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.dataset import list_sequences, read_labels, read_predictions
+from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.evaluation.metrics import Observations, align, evaluate
 from neurotouch_hid.pipeline.creep import CreepFilter
 from neurotouch_hid.pipeline.pipeline import PipelineConfig
-from neurotouch_hid.sensor import SensorGeometry
 
 METRICS = ("gesture_accuracy", "contact_count_accuracy", "contact_distance_mm", "intensity_mae_mm", "resting_f1")
 

@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from neurotouch_hid.dataset import read_labels, read_predictions
-from neurotouch_hid.estimate import GESTURE_ORDER
+from neurotouch_hid.core.dataset import read_labels, read_predictions
+from neurotouch_hid.core.estimate import GESTURE_ORDER
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.evaluation.metrics import align, outside_collar
-from neurotouch_hid.output.console import command_app
-from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.views.console import command_app
 
 USERS = (0, 3)
 

@@ -22,9 +22,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from neurotouch_hid.dataset import labels_at, read_labels
+from neurotouch_hid.core.dataset import labels_at, read_labels
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.methods import pipeline_for
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.recording import RecordingReader
 
 RADII_MM = (4, 6, 8, 10, 15)

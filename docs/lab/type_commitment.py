@@ -32,21 +32,21 @@ import typer
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))  # workdir.py, a benchmark's helper
 from workdir import families_in, numbers  # noqa: E402
 
-from neurotouch_hid.dataset import (  # noqa: E402
+from neurotouch_hid.core.dataset import (  # noqa: E402
     list_sequences,
     read_labels,
     read_predictions,
     read_pressed,
     write_predictions,
 )
-from neurotouch_hid.estimate import GestureType  # noqa: E402
+from neurotouch_hid.core.estimate import GestureType  # noqa: E402
+from neurotouch_hid.core.sensor import SensorGeometry  # noqa: E402
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM, gesture_spans  # noqa: E402
 from neurotouch_hid.evaluation.metrics import Observations, align, evaluate  # noqa: E402
-from neurotouch_hid.output.console import command_app  # noqa: E402
 from neurotouch_hid.pipeline.episode import COUNTED_MM, EpisodeVote  # noqa: E402
 from neurotouch_hid.pipeline.pipeline import GesturePipeline  # noqa: E402
-from neurotouch_hid.sensor import SensorGeometry  # noqa: E402
 from neurotouch_hid.sources.recording import RecordingReader  # noqa: E402
+from neurotouch_hid.views.console import command_app  # noqa: E402
 
 app = command_app()
 

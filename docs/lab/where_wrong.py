@@ -30,11 +30,11 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from neurotouch_hid.dataset import labels_at, list_sequences, read_labels, read_predictions
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.dataset import labels_at, list_sequences, read_labels, read_predictions
+from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.evaluation.runner import run_sequence
-from neurotouch_hid.output.console import command_app
 from neurotouch_hid.pipeline import pipeline as P
+from neurotouch_hid.views.console import command_app
 
 #: the stage that answered each window of the sequence being run, in order
 STAGES: list[str] = []

@@ -2,7 +2,7 @@
 
 Each command is a thin layer: it parses options, calls one function of the stage it belongs to,
 and prints. Heavy modules (numba, OpenCV, dv-processing) are imported inside the commands so
-``--help`` stays fast. Every :class:`~neurotouch_hid.errors.NeurotouchError` becomes one clear
+``--help`` stays fast. Every :class:`~neurotouch_hid.core.errors.NeurotouchError` becomes one clear
 line on stderr and exit code 2 (see :func:`main`).
 
 The commands live in one module per group, each a typer sub-application beside what it drives:
@@ -23,8 +23,8 @@ from typer.core import TyperGroup
 
 from neurotouch_hid.cli import devices, enrolment, gadget, profiles, recordings
 from neurotouch_hid.cli.common import err_console
-from neurotouch_hid.errors import NeurotouchError, did_you_mean, in_plain_words
-from neurotouch_hid.output.console import command_app
+from neurotouch_hid.core.errors import NeurotouchError, did_you_mean, in_plain_words
+from neurotouch_hid.views.console import command_app
 
 #: The main help's lead: where a new user starts.
 MAIN_HELP = (
@@ -217,7 +217,7 @@ def main() -> None:
         completion_init()
     import logging
 
-    from neurotouch_hid.limits import PrintableFormatter
+    from neurotouch_hid.core.limits import PrintableFormatter
 
     logs = logging.StreamHandler()  # what Python's last-resort handler prints, control characters escaped
     logs.setFormatter(PrintableFormatter("%(message)s"))
@@ -239,7 +239,7 @@ def main() -> None:
     except NeurotouchError as exc:
         from rich.markup import escape  # the message's own brackets (an extra's name) are text
 
-        from neurotouch_hid.limits import printable  # a file name's escape sequences never reach the terminal
+        from neurotouch_hid.core.limits import printable  # a file name's escape sequences never reach the terminal
 
         said = "; ".join([str(exc), *getattr(exc, "__notes__", ())])  # an output kept aside says where
         message = "\n".join(printable(line, None) for line in said.split("\n"))
@@ -256,8 +256,8 @@ def main() -> None:
         signal.signal(exc.signum, signal.SIG_DFL)
         os.kill(os.getpid(), exc.signum)
     except OSError as exc:  # a write the disk refused where no stage said it in its own words
-        from neurotouch_hid.atomic import DISK_ERRNOS
-        from neurotouch_hid.limits import printable
+        from neurotouch_hid.core.atomic import DISK_ERRNOS
+        from neurotouch_hid.core.limits import printable
 
         if exc.errno not in DISK_ERRNOS:
             raise
@@ -273,8 +273,8 @@ def main() -> None:
 
 def _say_notes(exc: BaseException) -> None:
     """The notes an interrupted command's outputs added to ``exc`` (where what was computed went,
-    :class:`~neurotouch_hid.dataset.JsonlWriter`), one line each on stderr."""
-    from neurotouch_hid.limits import printable
+    :class:`~neurotouch_hid.core.dataset.JsonlWriter`), one line each on stderr."""
+    from neurotouch_hid.core.limits import printable
 
     for note in getattr(exc, "__notes__", ()):
         err_console.print(printable(note, None), highlight=False, markup=False, soft_wrap=True)

@@ -11,8 +11,8 @@ from typing import Optional
 
 import typer
 
-from neurotouch_hid.errors import NeurotouchError
-from neurotouch_hid.output.console import make_console
+from neurotouch_hid.core.errors import NeurotouchError
+from neurotouch_hid.views.console import make_console
 
 
 def _closed_streams_to_null() -> None:
@@ -153,7 +153,7 @@ def davis_config(serial: Optional[str], exposure_us: str, stall_timeout: float):
     from neurotouch_hid.sources.davis import DavisConfig
 
     if exposure_us != "auto" and not (exposure_us.isdigit() and len(exposure_us) <= 9):
-        from neurotouch_hid.limits import short
+        from neurotouch_hid.core.limits import short
 
         raise NeurotouchError(
             f"--exposure-us {short(exposure_us)}: expected a whole number of microseconds (at most 9 digits) or 'auto'"

@@ -26,9 +26,9 @@ from neurotouch_hid.cli.common import (
     no_stdout,
     say_err,
 )
-from neurotouch_hid.errors import NeurotouchError
-from neurotouch_hid.kinds import OutputKind, SourceKind
-from neurotouch_hid.tables import print_table
+from neurotouch_hid.core.errors import NeurotouchError
+from neurotouch_hid.core.kinds import OutputKind, SourceKind
+from neurotouch_hid.core.tables import print_table
 from neurotouch_hid.targets.protocols import choices as protocol_choices
 from neurotouch_hid.targets.protocols import help_text as protocol_help
 
@@ -181,7 +181,7 @@ def devices(json_out: bool = typer.Option(False, "--json", help="print JSON (for
     from rich.table import Table
     from rich.text import Text
 
-    from neurotouch_hid.doctor import camera_drivers, describe_camera_driver
+    from neurotouch_hid.service.doctor import camera_drivers, describe_camera_driver
     from neurotouch_hid.sources.discovery import discover, explain
     from neurotouch_hid.targets.gadget.support import possible_outputs
 
@@ -267,7 +267,7 @@ def _say_mergeable() -> None:
 @app.command()
 def doctor() -> None:
     """Check the camera, permissions, /dev/uinput and libraries; print the fix for each failure."""
-    from neurotouch_hid.doctor import report, run_checks
+    from neurotouch_hid.service.doctor import report, run_checks
 
     code = report(run_checks(), console)
     if code:
@@ -314,10 +314,10 @@ def _sensor_file_replaceable(path: Path, inputs) -> None:
     one) or the config folder's sensor.yaml (``user_sensor_path``, replaced even when it is not
     YAML: doctor's fix for a broken one is calibrate). Raises NeurotouchError for any other file
     (a recording given as --out by mistake)."""
-    from neurotouch_hid.atomic import check_output
-    from neurotouch_hid.errors import SensorError
-    from neurotouch_hid.limits import MAX_YAML_BYTES, YamlError, load_yaml, printable, read_outside_text
-    from neurotouch_hid.sensor import user_sensor_path
+    from neurotouch_hid.core.atomic import check_output
+    from neurotouch_hid.core.errors import SensorError
+    from neurotouch_hid.core.limits import MAX_YAML_BYTES, YamlError, load_yaml, printable, read_outside_text
+    from neurotouch_hid.core.sensor import user_sensor_path
 
     check_output(path, inputs, what="sensor file")
     if not path.parent.is_dir() and path != user_sensor_path():  # a typo in --out: said before the session
@@ -408,10 +408,11 @@ def calibrate(
     already in the sensor.yaml being replaced is kept."""
     import dataclasses
 
-    from neurotouch_hid import calibration, calibration_guide
-    from neurotouch_hid.errors import SensorError
+    from neurotouch_hid.calibration import guide as calibration_guide
+    from neurotouch_hid.calibration import measure as calibration
+    from neurotouch_hid.core.errors import SensorError
+    from neurotouch_hid.core.sensor import SensorGeometry, user_sensor_path
     from neurotouch_hid.pipeline.creep import at_search_edge
-    from neurotouch_hid.sensor import SensorGeometry, user_sensor_path
 
     def say(line: str) -> None:
         console.print(line, highlight=False, markup=False, soft_wrap=True)
@@ -425,7 +426,7 @@ def calibrate(
         )
     no_stdout("--out", out, "calibrate writes a sensor file that run, track and eval read")
     if serial is not None:
-        from neurotouch_hid.serials import check_serial, own_path
+        from neurotouch_hid.service.serials import check_serial, own_path
 
         try:
             check_serial(serial)
@@ -444,7 +445,10 @@ def calibrate(
 
         require_camera_listed(DavisConfig(serial=serial))
     if source in (SourceKind.DAVIS, SourceKind.SIM) and (check or mirror is None):
-        from neurotouch_hid.warmup import compile_before, compile_pipeline  # the guided pushes and the check use it
+        from neurotouch_hid.service.warmup import (  # the guided pushes and the check use it
+            compile_before,
+            compile_pipeline,
+        )
 
         compile_before(say_err, simulator=source == SourceKind.SIM)  # a first run: compiled in child processes, said
         err_console.print("loading the gesture pipeline (compiled on the first run only)", highlight=False)

@@ -14,7 +14,7 @@ from typing import Optional
 import typer
 
 from neurotouch_hid.cli.common import console, err_console, human_console, long_lived_start_up, no_stdout, say_err
-from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.core.errors import NeurotouchError
 
 app = typer.Typer()
 
@@ -110,12 +110,12 @@ def _session(plan, source, out, sensor, seed, serial, physics, sim_miss, sim_mis
     import threading
 
     with long_lived_start_up():
+        from neurotouch_hid.core.sensor import SensorGeometry, default_sensor
         from neurotouch_hid.enrolment.plan import Script
         from neurotouch_hid.enrolment.prompt_view import PromptView
         from neurotouch_hid.enrolment.session import CameraSource, SimulatedHandSource, enrolment_folder, run_session
         from neurotouch_hid.pipeline.pipeline import GesturePipeline
-        from neurotouch_hid.sensor import SensorGeometry, default_sensor
-        from neurotouch_hid.warmup import compile_before
+        from neurotouch_hid.service.warmup import compile_before
 
         if source == "sim":
             if sensor is not None:
@@ -132,7 +132,7 @@ def _session(plan, source, out, sensor, seed, serial, physics, sim_miss, sim_mis
             guide = CameraSource(config)
         compile_before(say_err, simulator=source == "sim")  # a first run: compiled in child processes, said
         GesturePipeline(geometry).compile_kernels()  # before the camera opens: nothing waits for it
-    from neurotouch_hid.dataset import DatasetOut
+    from neurotouch_hid.core.dataset import DatasetOut
 
     target = DatasetOut(out if out is not None else enrolment_folder(), force=force)  # before the session
     stop = threading.Event()
@@ -165,16 +165,16 @@ def _label(
     """``enrol --from``: label ``recording`` with ``plan`` into ``out``, say what was left out."""
     import dataclasses
 
-    from neurotouch_hid.dataset import DatasetOut
+    from neurotouch_hid.core.dataset import DatasetOut
 
     if plan_path is None or out is None:
         raise NeurotouchError("--from REC.aedat4 needs the plan it followed (--plan FILE) and --out DIR")
     with long_lived_start_up():
+        from neurotouch_hid.core.sensor import chosen_sensor_file, find_sensor_file, user_sensor_path
         from neurotouch_hid.enrolment.label import label_recording
         from neurotouch_hid.pipeline.pipeline import GesturePipeline
-        from neurotouch_hid.sensor import chosen_sensor_file, find_sensor_file, user_sensor_path
-        from neurotouch_hid.track import recording_progress
-        from neurotouch_hid.warmup import compile_before
+        from neurotouch_hid.pipeline.track import recording_progress
+        from neurotouch_hid.service.warmup import compile_before
 
         geometry = find_sensor_file(recording, sensor)
         chosen = chosen_sensor_file(recording, sensor)

@@ -14,7 +14,7 @@ from typing import Optional
 import typer
 
 from neurotouch_hid.cli.common import console
-from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.core.errors import NeurotouchError
 from neurotouch_hid.targets.protocols import choices as protocol_choices
 from neurotouch_hid.targets.protocols import help_text as protocol_help
 
@@ -145,6 +145,6 @@ def remove() -> None:
 
 
 def _sudo(args: str) -> str:
-    from neurotouch_hid.udev import sudo_command
+    from neurotouch_hid.service.udev import sudo_command
 
     return sudo_command(args)

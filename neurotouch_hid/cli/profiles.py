@@ -23,10 +23,10 @@ from neurotouch_hid.cli.common import (
     long_lived_start_up,
     say_err,
 )
-from neurotouch_hid.errors import NeurotouchError, ProfileError
-from neurotouch_hid.kinds import SourceKind
-from neurotouch_hid.limits import printable, short
-from neurotouch_hid.tables import print_table
+from neurotouch_hid.core.errors import NeurotouchError, ProfileError
+from neurotouch_hid.core.kinds import SourceKind
+from neurotouch_hid.core.limits import printable, short
+from neurotouch_hid.core.tables import print_table
 
 profile_app = typer.Typer(
     help="List, show, create, edit, validate, test, tune, delete, reset and use (switch the running driver to) "
@@ -49,7 +49,7 @@ def profile_list() -> None:
     from rich.table import Table
     from rich.text import Text
 
-    from neurotouch_hid.errors import ProfileError
+    from neurotouch_hid.core.errors import ProfileError
     from neurotouch_hid.mapping.profile import (
         MAX_PROFILE_NAME_CHARS,
         available_profiles,
@@ -120,7 +120,7 @@ def _say_copilot(path: Path, to=None) -> None:
     """For a profile with ``copilot:``: which of its devices are plugged in now and which the
     driver would wait for (one line on ``to``, the console by default, after the file; nothing for
     a profile that does not load)."""
-    from neurotouch_hid.errors import ProfileError
+    from neurotouch_hid.core.errors import ProfileError
     from neurotouch_hid.inputs.match import mergeable_devices, presence_line
     from neurotouch_hid.mapping.profile import load_profile
 
@@ -207,7 +207,7 @@ def written_outputs(name: str) -> dict[str, str]:
     ``RT``: the names a player chose, which loading turns into evdev names,
     :func:`~neurotouch_hid.mapping.profile.resolve_output`); empty where the file cannot be read
     again (the profile was loaded: it is only for display)."""
-    from neurotouch_hid.limits import load_yaml
+    from neurotouch_hid.core.limits import load_yaml
     from neurotouch_hid.mapping.profile import find_profile, read_profile_text
 
     try:
@@ -373,7 +373,7 @@ SERIAL_OPTION = typer.Option(None, "--serial", help="this camera's table (its ow
 def _games_path(serial: Optional[str], own: bool = False) -> Path:
     """The games.yaml ``profile auto`` reads (``serial``: the one its driver reads) or edits (``own``)."""
     from neurotouch_hid.games import games_file
-    from neurotouch_hid.serials import own_path, sensor_file
+    from neurotouch_hid.service.serials import own_path, sensor_file
 
     try:  # the camera's own file, to edit; the one its driver reads; the shared one
         return own_path(serial, "games") if own and serial else sensor_file(serial, "games", games_file())
@@ -433,7 +433,7 @@ def profile_auto_remove(
 def profile_auto_list(serial: Optional[str] = SERIAL_OPTION) -> None:
     """List the map (with --serial, the one that camera's driver reads), and which mapped game
     runs now (the one the driver follows)."""
-    from neurotouch_hid.errors import ProfileError
+    from neurotouch_hid.core.errors import ProfileError
     from neurotouch_hid.games import EXECUTABLE, STEAM, ProcessScanner, load_game_map
     from neurotouch_hid.mapping.profile import find_profile
 
@@ -485,7 +485,7 @@ def profile_test(
 
     from rich.table import Table
 
-    from neurotouch_hid.controller import AXES
+    from neurotouch_hid.core.controller import AXES
     from neurotouch_hid.driver import estimates_from_source
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.mapping.replay import (
@@ -499,13 +499,13 @@ def profile_test(
     )
 
     if plot is not None:  # before the replay, not after it
-        from neurotouch_hid.extras import require
+        from neurotouch_hid.service.extras import require
 
         require("plots", "profile test --plot")
     loaded = load_profile(name)
     if not source.endswith(".jsonl"):  # the pipeline runs from the first item: a first run compiles
         with long_lived_start_up():
-            from neurotouch_hid.warmup import compile_before
+            from neurotouch_hid.service.warmup import compile_before
 
             compile_before(say_err, simulator=source == SourceKind.SIM)  # in child processes, said
     estimates = list(estimates_from_source(source, seconds, chosen_model(model)))

@@ -27,10 +27,10 @@ from neurotouch_hid.cli.common import (
     say_err,
     to_stdout,
 )
-from neurotouch_hid.errors import NeurotouchError
-from neurotouch_hid.kinds import SourceKind
-from neurotouch_hid.limits import printable
-from neurotouch_hid.tables import print_table
+from neurotouch_hid.core.errors import NeurotouchError
+from neurotouch_hid.core.kinds import SourceKind
+from neurotouch_hid.core.limits import printable
+from neurotouch_hid.core.tables import print_table
 
 app = typer.Typer()
 
@@ -96,7 +96,7 @@ def record(
 
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from neurotouch_hid.errors import DeviceError
+    from neurotouch_hid.core.errors import DeviceError
     from neurotouch_hid.sources.recording import record_stream
 
     if source not in tuple(SourceKind):
@@ -239,19 +239,19 @@ def track(
     preset: Optional[str] = PRESET_IS_NOT_A_METHOD,
 ) -> None:
     """Run the gesture pipeline on a recording and write one prediction per window."""
-    from neurotouch_hid.atomic import check_output
+    from neurotouch_hid.core.atomic import check_output
 
     no_stdout("--markers", markers, "the markers are an .npz file")
     check_output(out, (recording, sensor), "predictions file")  # before the pipeline's start-up
     if markers is not None:
         check_output(markers, (recording, sensor, out), "markers file", (("predictions file", out),))
     with long_lived_start_up():
+        from neurotouch_hid.core.sensor import chosen_sensor_file, find_sensor_file
         from neurotouch_hid.enrolment.model import apply_model
         from neurotouch_hid.evaluation.runner import pipeline_config
         from neurotouch_hid.pipeline.methods import pipeline_for
-        from neurotouch_hid.sensor import chosen_sensor_file, find_sensor_file
-        from neurotouch_hid.track import recording_progress, sensor_label, track_recording
-        from neurotouch_hid.warmup import compile_before
+        from neurotouch_hid.pipeline.track import recording_progress, sensor_label, track_recording
+        from neurotouch_hid.service.warmup import compile_before
 
         config = apply_model(pipeline_config(method=method, window_us=window_us), chosen_model(model))
         sensor_file = chosen_sensor_file(recording, sensor)
@@ -333,20 +333,20 @@ def eval_cmd(
     from neurotouch_hid.evaluation.report import print_tables, write_report
     from neurotouch_hid.evaluation.runner import evaluate_dataset, pipeline_config
     from neurotouch_hid.evaluation.through_profile import ProfileUnderTest
-    from neurotouch_hid.extras import require
     from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.service.extras import require
 
     no_stdout("--report", report, "the report is a folder of figures")
     no_stdout("--predictions", predictions, "the predictions are a folder of one file a sequence")
     if report is not None:  # before the evaluation, not after it
         require("plots", "eval --report")
-    from neurotouch_hid.atomic import check_output
+    from neurotouch_hid.core.atomic import check_output
 
     for flag, folder in (("--report", report), ("--predictions", predictions), ("--json", json_out)):
         if folder is not None:  # outputs checked before the evaluation, not after it
             _no_file_on_the_way(flag, folder.parent if flag == "--json" else folder)
     if json_out is not None and not to_stdout(json_out):
-        from neurotouch_hid.dataset import list_sequences
+        from neurotouch_hid.core.dataset import list_sequences
         from neurotouch_hid.evaluation.report import FIGURES
 
         others = [(f"report's {name}", report / name) for name in ("summary.md", *FIGURES) if report is not None]
@@ -403,7 +403,7 @@ def eval_cmd(
     hyper = config.model_dump()
     if json_out is not None:
         data = {"dataset": str(dataset), "command": command, "config": hyper, "cautions": cautions, **result.to_dict()}
-        from neurotouch_hid.atomic import AtomicFile
+        from neurotouch_hid.core.atomic import AtomicFile
 
         text = json.dumps(data, indent=1, allow_nan=False, default=str) + "\n"
         if to_stdout(json_out):
@@ -423,7 +423,7 @@ def eval_cautions(dataset: Path, model, option: Optional[str]) -> list[str]:
     ``enrol`` (a sequence with its ``NAME.plan.json``: the prompt gave the type, this pipeline's
     tracker and contact stage the moments, contacts and intensity), and a ``model`` (the
     adapted one in use, ``--model``'s ``option`` or the user's) fitted on ``dataset``."""
-    from neurotouch_hid.dataset import list_sequences
+    from neurotouch_hid.core.dataset import list_sequences
     from neurotouch_hid.enrolment.model import fitted_on
 
     said = []
@@ -461,9 +461,9 @@ def view(
     sensor: Optional[Path] = typer.Option(None, "--sensor", help="sensor.yaml (default: the one beside the recording)"),
 ) -> None:
     """Draw what the pipeline sees: APS frame, events, markers, displacements, contacts, gesture."""
-    from neurotouch_hid.sensor import find_sensor_file
-    from neurotouch_hid.track import recording_progress
-    from neurotouch_hid.view import render_view
+    from neurotouch_hid.core.sensor import find_sensor_file
+    from neurotouch_hid.pipeline.track import recording_progress
+    from neurotouch_hid.views.pictures import render_view
 
     geometry = find_sensor_file(recording, sensor)
     with recording_progress(err_console, "drawing") as report:

@@ -45,8 +45,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from neurotouch_hid.errors import DatasetError, NeurotouchError
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.errors import DatasetError, NeurotouchError
+from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
 from neurotouch_hid.evaluation.metrics import outside_collar
 from neurotouch_hid.pipeline.episode import FIRST_FINGER_US
@@ -174,9 +174,9 @@ def record_sequence(dataset: str | Path, name: str, config=None) -> Record:
     Raises:
         DatasetError, RecordingError, SensorError: bad labels, recording or geometry.
     """
-    from neurotouch_hid.dataset import dataset_sensor_file, labels_at, read_labels
+    from neurotouch_hid.core.dataset import dataset_sensor_file, labels_at, read_labels
+    from neurotouch_hid.core.sensor import SensorGeometry
     from neurotouch_hid.pipeline.config import PipelineConfig
-    from neurotouch_hid.sensor import SensorGeometry
     from neurotouch_hid.sources.recording import RecordingReader
 
     dataset = Path(dataset)
@@ -246,7 +246,7 @@ def record_datasets(
     Raises what :func:`record_sequence` and ``dataset.list_sequences`` raise."""
     import multiprocessing
 
-    from neurotouch_hid.dataset import list_sequences
+    from neurotouch_hid.core.dataset import list_sequences
 
     work = [(Path(d), n) for d in datasets for n in list_sequences(d)]
     if jobs <= 1 or len(work) == 1:
@@ -854,7 +854,7 @@ def simulated_sequences(datasets: Sequence[str | Path]) -> list[str]:
     """The sequences (``DATASET/NAME``) of ``datasets`` recorded from the simulated camera (their
     AEDAT4 header's camera name starts with :data:`SIMULATED_CAMERA_PREFIX`). Reads only the
     headers. Raises what ``dataset.list_sequences`` and the recording reader raise."""
-    from neurotouch_hid.dataset import list_sequences
+    from neurotouch_hid.core.dataset import list_sequences
     from neurotouch_hid.sources.recording import RecordingReader
 
     found = []
@@ -869,7 +869,7 @@ def simulated_sequences(datasets: Sequence[str | Path]) -> list[str]:
 def check_output(out: str | Path, datasets: Sequence[str | Path]) -> Path:
     """``out`` if writing there destroys no input: not a folder, not a file of an enrolment
     dataset. Raises NeurotouchError naming the clash."""
-    from neurotouch_hid.atomic import check_output as outside_checks
+    from neurotouch_hid.core.atomic import check_output as outside_checks
 
     out = Path(out).expanduser()
     if str(out) == "-":  # standard output

@@ -33,9 +33,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.gel_motion import estimate_gel_motion, rim_markers
-from neurotouch_hid.sensor import SensorGeometry
 
 #: The markers of a gesture: those that moved at least this share of the largest displacement.
 MOVED_SHARE = 0.3

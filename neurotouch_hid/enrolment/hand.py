@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.enrolment.plan import DIRECTIONS, Plan, Prompt
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources.physics import physics_family
 from neurotouch_hid.sources.simulator import (
     START_US,

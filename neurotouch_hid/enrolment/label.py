@@ -36,11 +36,11 @@ from pathlib import Path
 
 import numpy as np
 
-from neurotouch_hid.dataset import MAX_CONTACTS, LabelRow, write_labels
+from neurotouch_hid.core.dataset import MAX_CONTACTS, LabelRow, write_labels
+from neurotouch_hid.core.errors import DatasetError
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.enrolment.plan import Plan, Prompt, temp_beside, write_atomic
-from neurotouch_hid.errors import DatasetError
-from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import Frame, StreamItem
 
 #: How long after its cue a prompted gesture may start (s): people start a few hundred ms late.
@@ -124,7 +124,7 @@ class MotionMeter:
     windows' estimates, the APS frames' times and the stream's first timestamp.
 
     Feed each stream item to :attr:`pipeline` (its ``process``, or
-    :func:`neurotouch_hid.track.pipeline_over`), then hand the item and the estimates it closed to
+    :func:`neurotouch_hid.pipeline.track.pipeline_over`), then hand the item and the estimates it closed to
     :meth:`note`; :meth:`motion` is what was seen so far.
 
     Args:
@@ -181,9 +181,9 @@ def measure_motion(
     """Run the pipeline over ``recording`` and keep what it sees (:class:`MotionMeter`).
 
     Raises:
-        RecordingError, SensorError: as :func:`neurotouch_hid.track.pipeline_over`.
+        RecordingError, SensorError: as :func:`neurotouch_hid.pipeline.track.pipeline_over`.
     """
-    from neurotouch_hid.track import pipeline_over
+    from neurotouch_hid.pipeline.track import pipeline_over
 
     meter = MotionMeter(sensor)
     for item, closed in pipeline_over(recording, meter.pipeline, on_progress=on_progress):

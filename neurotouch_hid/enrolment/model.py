@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
-from neurotouch_hid.errors import NeurotouchError
-from neurotouch_hid.limits import YamlError, load_yaml, read_outside_text, short, where
+from neurotouch_hid.core.errors import NeurotouchError
+from neurotouch_hid.core.limits import YamlError, load_yaml, read_outside_text, short, where
 
 #: The format's name (the file's ``format``) and the version this code reads and writes.
 FORMAT = "neurotouch-hid model"
@@ -137,7 +137,7 @@ class Model:
             OutputError: ``path`` is a symbolic link or a folder, or the disk refuses the write.
             ModelError: it cannot be written otherwise.
         """
-        from neurotouch_hid.atomic import AtomicFile
+        from neurotouch_hid.core.atomic import AtomicFile
 
         path = Path(path)
         if str(path) == "-":

@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from neurotouch_hid.errors import DatasetError
-from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.limits import read_outside_text, short
+from neurotouch_hid.core.errors import DatasetError
+from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.limits import read_outside_text, short
 
 #: The gesture types a plan prompts (docs/dataset.md).
 PLAN_GESTURES: tuple[GestureType, ...] = (
@@ -290,7 +290,7 @@ def write_plan(plan: Plan, path: str | Path, inputs: Sequence[str | Path | None]
         OutputError: ``path`` is a symbolic link, a folder or one of ``inputs``.
         DatasetError: the folder does not exist or cannot be written.
     """
-    from neurotouch_hid.atomic import AtomicFile
+    from neurotouch_hid.core.atomic import AtomicFile
 
     path = Path(path)
     lines = ",\n".join("  " + json.dumps(p.to_json()) for p in plan.prompts)

@@ -23,9 +23,9 @@ from rich.console import Group
 from rich.panel import Panel
 from rich.text import Text
 
+from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.enrolment.label import REST_MM, motion_mm
 from neurotouch_hid.enrolment.plan import MAX_SESSION_S, Prompt, Script
-from neurotouch_hid.estimate import GestureType
 from neurotouch_hid.stages import WindowRecord
 
 #: The countdown before a cue (s): "in 3, 2, 1".
@@ -187,7 +187,7 @@ class PromptView:
 
     def labelling(self, done_us: int, total_us: int) -> None:
         """After the session: how far the labelling of its recording is (us of recording done, of
-        ``total_us``), an ``on_progress`` of :func:`~neurotouch_hid.track.pipeline_over`."""
+        ``total_us``), an ``on_progress`` of :func:`~neurotouch_hid.pipeline.track.pipeline_over`."""
         if self._live is None:
             if not self._said_labelling:
                 self._plain("labelling the recording")

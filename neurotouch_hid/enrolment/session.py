@@ -37,7 +37,9 @@ from typing import Protocol
 
 import numpy as np
 
-from neurotouch_hid.dataset import DatasetOut
+from neurotouch_hid.core.dataset import DatasetOut
+from neurotouch_hid.core.errors import DatasetError, RecordingError
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.enrolment.label import (
     ONSET_MM,
     SEARCH_S,
@@ -49,9 +51,7 @@ from neurotouch_hid.enrolment.label import (
 )
 from neurotouch_hid.enrolment.plan import MAX_SESSION_S, Plan, Prompt, Script, rest_after_s, temp_beside
 from neurotouch_hid.enrolment.prompt_view import clock, seen_in
-from neurotouch_hid.errors import DatasetError, RecordingError
 from neurotouch_hid.runtime import item_end_us, item_start_us
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import StreamItem
 from neurotouch_hid.stages import Subscriber, WindowRecord
 
@@ -266,7 +266,7 @@ def run_session(
 ) -> SessionResult:
     """Run a guided enrolment (module docstring) and write its dataset into ``out_dir`` (created):
     ``enrolment.aedat4``, ``enrolment.labels.csv``, ``enrolment.plan.json`` (the prompts asked)
-    and ``sensor.yaml``. The folder is written whole (:class:`~neurotouch_hid.dataset.DatasetOut`;
+    and ``sensor.yaml``. The folder is written whole (:class:`~neurotouch_hid.core.dataset.DatasetOut`;
     give one to replace a dataset with ``force``): a folder that holds a dataset is refused.
 
     Args:
@@ -277,7 +277,7 @@ def run_session(
         pace: keep the stream on wall time (the simulated gel; a camera paces itself).
         stop: set it (Ctrl-C) to end the session early; what was recorded is labelled.
         on_progress: how far the labelling of the recording is, after the session (as
-            :func:`~neurotouch_hid.track.pipeline_over`'s).
+            :func:`~neurotouch_hid.pipeline.track.pipeline_over`'s).
     Returns:
         :class:`SessionResult`.
     Raises:

@@ -33,8 +33,8 @@ from typing import Sequence
 
 import numpy as np
 
-from neurotouch_hid.dataset import LabelRow
-from neurotouch_hid.estimate import GESTURE_ORDER, GestureEstimate, GestureType
+from neurotouch_hid.core.dataset import LabelRow
+from neurotouch_hid.core.estimate import GESTURE_ORDER, GestureEstimate, GestureType
 
 #: Default dead zone (mm): the ``default`` profile's stick dead zone (profiles/default.yaml).
 DEFAULT_DEADZONE_MM = 0.8
@@ -173,7 +173,7 @@ def deadzone_crossing(t_us: np.ndarray, intensity_mm: np.ndarray, deadzone_mm: f
 def pressed_at(pressed: Sequence[tuple[int, int]], t0_us: int, t1_us: int) -> int | None:
     """When the gel under the last finger of the labelled gesture ``t0_us``..``t1_us`` (us) has
     moved 0.3 mm: the ``pressed_us`` of the row of ``pressed`` ((t_start_us, pressed_us) rows,
-    :func:`~neurotouch_hid.dataset.read_pressed`) whose attack starts within one APS frame period
+    :func:`~neurotouch_hid.core.dataset.read_pressed`) whose attack starts within one APS frame period
     before ``t0_us`` or up to ``t1_us`` (the labels' first frame of a gesture is at or after its
     start); None when there is none (fingers pressing together, or not a simulation)."""
     return next((p for start, p in pressed if t0_us - FRAME_PERIOD_US < start <= t1_us), None)
@@ -192,7 +192,7 @@ def gesture_records(
         predictions: its predictions (``t_us``, ``gesture``, ``intensity_mm``), ordered by time.
         deadzone_mm: the dead zone of the felt figures (mm, >= 0).
         pressed: (t_start_us, pressed_us) per simulated gesture whose fingers start apart
-            (:func:`~neurotouch_hid.dataset.read_pressed`): such a gesture is felt wrong only by
+            (:func:`~neurotouch_hid.core.dataset.read_pressed`): such a gesture is felt wrong only by
             its predictions from ``pressed_us`` on (:func:`pressed_at`).
     Raises:
         ValueError: a negative or non-finite dead zone.

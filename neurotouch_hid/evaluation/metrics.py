@@ -1,7 +1,7 @@
 """The paper's evaluation metrics (paper, sections "Metrics" and "Results").
 
-Predictions (:class:`~neurotouch_hid.estimate.GestureEstimate`, one per window) are compared
-with the ground truth at each prediction's time (:func:`~neurotouch_hid.dataset.labels_at`,
+Predictions (:class:`~neurotouch_hid.core.estimate.GestureEstimate`, one per window) are compared
+with the ground truth at each prediction's time (:func:`~neurotouch_hid.core.dataset.labels_at`,
 docs/dataset.md "Predictions (JSON lines)"). :func:`align` turns one sequence into :class:`Observations`: plain
 aligned arrays, one entry per evaluated prediction, that concatenate across sequences and cross
 process boundaries. :func:`evaluate` computes every metric into an :class:`EvaluationResult`.
@@ -30,11 +30,11 @@ from typing import Sequence
 
 import numpy as np
 
-from neurotouch_hid.dataset import LabelRow, labels_at
-from neurotouch_hid.estimate import GESTURE_ORDER, GestureEstimate, GestureType
+from neurotouch_hid.core.dataset import LabelRow, labels_at
+from neurotouch_hid.core.estimate import GESTURE_ORDER, GestureEstimate, GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM, FeltRecords, FeltSummary, gesture_records, summarise
 from neurotouch_hid.evaluation.through_profile import ProfileTally, ProfileUnderTest, tally
-from neurotouch_hid.sensor import SensorGeometry
 
 #: Width of the ground-truth intensity bins of the accuracy-vs-intensity analysis (mm), as the
 #: paper's intensity figures (section "Results").
@@ -203,7 +203,7 @@ def outside_collar(
     """Which of the times ``t_us`` lie more than ``collar_us`` from every change of a labelled value
     (the resting flag, a gesture type). A change is at the labelled time whose value differs from
     the one before it (from there on the label at a prediction's time says the new value,
-    :func:`~neurotouch_hid.dataset.labels_at`); a time at most ``collar_us`` before or after it is
+    :func:`~neurotouch_hid.core.dataset.labels_at`); a time at most ``collar_us`` before or after it is
     left out.
 
     Args:
@@ -345,7 +345,7 @@ def align(
     each of ``profiles`` (:func:`.through_profile.tally`).
 
     The ground truth at each prediction time comes from
-    :func:`~neurotouch_hid.dataset.labels_at`; predictions before the first label are
+    :func:`~neurotouch_hid.core.dataset.labels_at`; predictions before the first label are
     skipped (counted in ``n_skipped``). Contact points of both sides are converted from the image
     frame (px) to the user frame (mm) with :meth:`SensorGeometry.image_to_user`, so distance
     errors are in mm (with the linear model of sensor.yaml this is the px distance divided by
@@ -358,7 +358,7 @@ def align(
         deadzone_mm: the dead zone of the per-gesture figures (mm).
         profiles: the profiles to replay the predictions through.
         pressed: the simulation's (t_start_us, pressed_us) rows of gestures whose fingers start
-            apart (:func:`~neurotouch_hid.dataset.read_pressed`; :func:`.felt.gesture_records`).
+            apart (:func:`~neurotouch_hid.core.dataset.read_pressed`; :func:`.felt.gesture_records`).
     """
     truth = (
         labels_at(labels, np.array([p.t_us for p in predictions], dtype=np.int64))

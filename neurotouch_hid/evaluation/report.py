@@ -16,10 +16,10 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from neurotouch_hid.atomic import AtomicFile, replacing
+from neurotouch_hid.core.atomic import AtomicFile, replacing
+from neurotouch_hid.core.tables import print_table
 from neurotouch_hid.evaluation.metrics import EvaluationResult
-from neurotouch_hid.extras import require
-from neurotouch_hid.tables import print_table
+from neurotouch_hid.service.extras import require
 
 #: The paper's results (section "Results"), to print beside ours.
 PAPER_RESULTS: dict[str, float] = {

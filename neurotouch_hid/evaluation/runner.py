@@ -17,7 +17,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Callable, Sequence
 
-from neurotouch_hid.dataset import (
+from neurotouch_hid.core.dataset import (
     check_labels_clock,
     dataset_sensor_file,
     list_sequences,
@@ -25,12 +25,12 @@ from neurotouch_hid.dataset import (
     read_pressed,
     write_predictions,
 )
-from neurotouch_hid.errors import NeurotouchError, in_plain_words
+from neurotouch_hid.core.errors import NeurotouchError, in_plain_words
+from neurotouch_hid.core.limits import short
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
 from neurotouch_hid.evaluation.metrics import EvaluationResult, Observations, align, evaluate
 from neurotouch_hid.evaluation.through_profile import ProfileUnderTest
-from neurotouch_hid.limits import short
-from neurotouch_hid.sensor import SensorGeometry
 
 log = logging.getLogger(__name__)
 
@@ -121,8 +121,8 @@ def run_sequence(
         profiles: profiles to replay the predictions through (:mod:`.through_profile`).
     Raises:
         DatasetError, RecordingError, SensorError: bad labels (among them labels none of whose
-            frames lies within the recording's time range: :func:`~neurotouch_hid.dataset.check_labels_clock`),
-            recording or geometry.
+            frames lies within the recording's time range:
+            :func:`~neurotouch_hid.core.dataset.check_labels_clock`), recording or geometry.
     """
     from neurotouch_hid.pipeline.methods import pipeline_for
     from neurotouch_hid.sources.recording import RecordingReader
@@ -159,7 +159,7 @@ def evaluate_dataset(
     """Run the pipeline over every sequence of a dataset and compute the paper's metrics.
 
     A dataset folder without sensor.yaml is run with the user's calibration
-    (:func:`~neurotouch_hid.dataset.dataset_sensor_file`), which a logged warning says.
+    (:func:`~neurotouch_hid.core.dataset.dataset_sensor_file`), which a logged warning says.
 
     Args:
         dataset: the dataset folder (docs/dataset.md).

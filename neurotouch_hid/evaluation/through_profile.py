@@ -28,13 +28,13 @@ from typing import Sequence
 
 import numpy as np
 
-from neurotouch_hid.controller import AXES, ControllerState
-from neurotouch_hid.dataset import LabelRow, labels_at
-from neurotouch_hid.estimate import GESTURE_ORDER, GestureEstimate, GestureType
+from neurotouch_hid.core.controller import AXES, ControllerState
+from neurotouch_hid.core.dataset import LabelRow, labels_at
+from neurotouch_hid.core.estimate import GESTURE_ORDER, GestureEstimate, GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.evaluation.felt import at_rest, gesture_spans
 from neurotouch_hid.mapping.profile import DPAD, Profile
 from neurotouch_hid.mapping.replay import pressed, replay
-from neurotouch_hid.sensor import SensorGeometry
 
 #: After a gesture's last labelled frame its outputs stay its own this long (us): the answer
 #: outlasts the fingers while the gel relaxes, longest on a creeping gel (docs/method.md, "Creep";
@@ -152,7 +152,7 @@ def outputs_by_type(profile: Profile) -> dict[GestureType, frozenset[str]]:
 
 def ideal_estimates(labels: Sequence[LabelRow], times: np.ndarray, geometry: SensorGeometry) -> list[GestureEstimate]:
     """What a pipeline without error would answer at ``times``: each window the label at its time
-    (:func:`~neurotouch_hid.dataset.labels_at`: the most recent labelled frame's type, resting flag
+    (:func:`~neurotouch_hid.core.dataset.labels_at`: the most recent labelled frame's type, resting flag
     and contact count, the intensity and contact points interpolated), a push's direction the
     labelled contacts' mean shift (user frame, mm) since the gesture's first frame.
 

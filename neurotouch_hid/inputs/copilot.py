@@ -47,7 +47,7 @@ from neurotouch_hid.inputs.match import INPUT_DIR, STABLE_DIRS, SYSFS_INPUT, Inp
 from neurotouch_hid.mapping.merge import merge_state
 
 if TYPE_CHECKING:
-    from neurotouch_hid.controller import ControllerState
+    from neurotouch_hid.core.controller import ControllerState
     from neurotouch_hid.mapping.profile import CopilotDevice, Profile
     from neurotouch_hid.stages import Feedback
 

@@ -17,7 +17,7 @@ attributes (the POSIX ACL udev's ``uaccess`` wrote) made first, then the old one
 is never lost. Putting back is the same move the other way; a node whose device is gone (its
 ``/sys/class/<subsystem>/<name>/dev`` no longer has that number) is only removed. Each process
 hides into its own ``<pid>`` folder. A driver killed without putting back (SIGKILL, the OOM killer,
-a crash in native code) has its guard (:class:`~neurotouch_hid.guard.Guard`, a small process
+a crash in native code) has its guard (:class:`~neurotouch_hid.service.guard.Guard`, a small process
 started at the first node hidden) put its folder back at once (:data:`RESTORE_CODE`); what is left
 even so (the guard killed too, a power cut) :func:`restore_stale` puts back at the next start.
 
@@ -34,8 +34,8 @@ import stat
 import sys
 from pathlib import Path
 
-from neurotouch_hid.guard import Guard
-from neurotouch_hid.limits import read_proc_file
+from neurotouch_hid.core.limits import read_proc_file
+from neurotouch_hid.service.guard import Guard
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +53,7 @@ SYSFS = Path("/sys")
 #: interface -> USB device).
 _USB_DEPTH = 6
 #: What a :class:`Hider`'s guard prepares at its start and calls when the driver died (Python run
-#: in the guard: :class:`~neurotouch_hid.guard.Guard`'s ``then``): argv is the folder holding the
+#: in the guard: :class:`~neurotouch_hid.service.guard.Guard`'s ``then``): argv is the folder holding the
 #: package, then the dead driver's pid, the root, ``/dev`` and ``/sys`` (:func:`put_back_dead`).
 RESTORE_CODE = """
 import sys

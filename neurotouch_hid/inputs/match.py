@@ -2,7 +2,7 @@
 
 The system's input devices are read from sysfs (``/sys/class/input/eventN/device``: ``name``,
 ``phys``, ``id/vendor``, ``id/product``; Documentation/ABI/testing/sysfs-class-input), each
-attribute within :data:`MAX_ATTRIBUTE_BYTES` (:func:`~neurotouch_hid.limits.read_proc_file`), so
+attribute within :data:`MAX_ATTRIBUTE_BYTES` (:func:`~neurotouch_hid.core.limits.read_proc_file`), so
 that listing needs no permission on the device nodes. udev's stable links
 (``/dev/input/by-id/*``, ``by-path/*``) are resolved to the nodes they name.
 
@@ -17,7 +17,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from neurotouch_hid.limits import printable, read_proc_file
+from neurotouch_hid.core.limits import printable, read_proc_file
 
 #: Where evdev nodes live, and udev's stable links to them.
 INPUT_DIR = Path("/dev/input")

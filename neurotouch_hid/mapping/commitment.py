@@ -11,7 +11,7 @@ maps only push still reads it: a pinch must press nothing.
 
 from __future__ import annotations
 
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.mapping.profile import Profile
 
 #: The types the one-contact wait tells apart: push (one finger) from the multi-finger types.

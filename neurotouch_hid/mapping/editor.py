@@ -30,9 +30,9 @@ from ruamel.yaml import YAML
 from ruamel.yaml.comments import CommentedMap
 from ruamel.yaml.error import YAMLError
 
-from neurotouch_hid.atomic import temporary_beside
-from neurotouch_hid.errors import NeurotouchError, ProfileError, did_you_mean, nearest
-from neurotouch_hid.limits import YamlError, load_yaml, printable, short, where
+from neurotouch_hid.core.atomic import temporary_beside
+from neurotouch_hid.core.errors import NeurotouchError, ProfileError, did_you_mean, nearest
+from neurotouch_hid.core.limits import YamlError, load_yaml, printable, short, where
 from neurotouch_hid.mapping.profile import (
     _ANY_MAPPING_FIELDS,
     _TAG_MODELS,
@@ -106,9 +106,9 @@ def _write(path: Path, text: str) -> None:
 
 @contextlib.contextmanager
 def _editing(folder: Path, what: str):
-    """The lock around a read-modify-write of the files in ``folder`` (:func:`~neurotouch_hid.atomic.locked`):
+    """The lock around a read-modify-write of the files in ``folder`` (:func:`~neurotouch_hid.core.atomic.locked`):
     commands run side by side land one after the other. Raises ProfileError when it cannot be taken."""
-    from neurotouch_hid.atomic import OutputError, locked
+    from neurotouch_hid.core.atomic import OutputError, locked
 
     try:
         with locked(folder, what):

@@ -15,8 +15,8 @@ import math
 
 import numpy as np
 
-from neurotouch_hid.controller import AXES, BUTTONS, MOUSE_REL, TRIGGERS, ControllerState
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.controller import AXES, BUTTONS, MOUSE_REL, TRIGGERS, ControllerState
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 from neurotouch_hid.mapping.filters import OneEuroFilter, response
 from neurotouch_hid.mapping.profile import (
     ANALOG_AXES,

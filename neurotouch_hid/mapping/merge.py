@@ -4,7 +4,7 @@ A profile's ``copilot:`` (:class:`~neurotouch_hid.mapping.profile.CopilotDevice`
 merged into the gel's pad: a helper's gamepad, a switch box, a foot pedal. Each device's evdev
 controls become pad controls through a :class:`DeviceMap` (its ``map:``, and for a pad its own
 buttons, sticks, triggers and d-pad passed through to the same controls of the Xbox 360 layout of
-:mod:`neurotouch_hid.controller`); its :class:`Levels` are then combined with the gel's state by
+:mod:`neurotouch_hid.core.controller`); its :class:`Levels` are then combined with the gel's state by
 :func:`merge_state`, per control, by the entry's policy:
 
 - a button is pressed while either presses (``either``);
@@ -22,7 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Iterable, Mapping
 
-from neurotouch_hid.controller import AXES, BUTTONS, TRIGGERS, ControllerState
+from neurotouch_hid.core.controller import AXES, BUTTONS, TRIGGERS, ControllerState
 
 if TYPE_CHECKING:
     from neurotouch_hid.mapping.profile import CopilotDevice
@@ -126,8 +126,8 @@ class DeviceMap:
         axes: the device's EV_ABS codes -> (their names, :class:`AxisRange`).
 
     A control named in ``map:`` drives its target; else, with ``passthrough``, a pad control
-    (a button of :data:`~neurotouch_hid.controller.BUTTONS`, an axis of
-    :data:`~neurotouch_hid.controller.AXES`, a d-pad button of :data:`DPAD_BUTTONS`) drives the
+    (a button of :data:`~neurotouch_hid.core.controller.BUTTONS`, an axis of
+    :data:`~neurotouch_hid.core.controller.AXES`, a d-pad button of :data:`DPAD_BUTTONS`) drives the
     same control of the pad; anything else is ignored.
     """
 

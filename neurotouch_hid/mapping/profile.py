@@ -2,8 +2,8 @@
 file, the line, the field, the value found and what was expected.
 
 A profile says which virtual device to create (name, USB ids) and how each *input quantity*
-derived from a :class:`~neurotouch_hid.estimate.GestureEstimate` drives the gamepad's axes and
-buttons (:mod:`neurotouch_hid.controller`). The input quantities, all in millimetres and in the
+derived from a :class:`~neurotouch_hid.core.estimate.GestureEstimate` drives the gamepad's axes and
+buttons (:mod:`neurotouch_hid.core.controller`). The input quantities, all in millimetres and in the
 user frame (the gel seen from outside, x right, y up), are zero whenever the gel rests or the
 gesture is ``none``:
 
@@ -49,7 +49,7 @@ A ``touchpad:`` section (:class:`TouchpadMapping`) maps the contact points thems
 to a touchpad's touch points, and a scalar input to its click, for an output with a touchpad
 (the DualSense's); outputs without one ignore it.
 
-The YAML is read within the bounds of :mod:`neurotouch_hid.limits` (size, depth, aliases, number
+The YAML is read within the bounds of :mod:`neurotouch_hid.core.limits` (size, depth, aliases, number
 length, duplicate keys; ruamel.yaml's safe loader); the schema is pydantic v2 (``extra="forbid"``,
 strict types, finite numbers) and every problem is reported at once as one :class:`ProfileError`.
 """
@@ -78,9 +78,9 @@ from pydantic import (
 from pydantic_core import InitErrorDetails, PydanticCustomError
 from ruamel.yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
-from neurotouch_hid.controller import AXES, BUTTONS, MOUSE_BUTTONS, TOUCH_SLOTS
-from neurotouch_hid.errors import ProfileError, did_you_mean, in_plain_words
-from neurotouch_hid.limits import (
+from neurotouch_hid.core.controller import AXES, BUTTONS, MOUSE_BUTTONS, TOUCH_SLOTS
+from neurotouch_hid.core.errors import ProfileError, did_you_mean, in_plain_words
+from neurotouch_hid.core.limits import (
     MAX_YAML_BYTES,
     YamlError,
     load_yaml,
@@ -206,11 +206,11 @@ _DELETE = frozenset({"KEY_DELETE", "KEY_KPDOT"})
 @functools.cache
 def keyboard_keys() -> frozenset[str]:
     """Every evdev ``KEY_*`` name python-evdev knows (linux/input-event-codes.h); without
-    python-evdev (an aarch64 install without the ``uinput`` extra), :data:`~neurotouch_hid.key_names.KEY_NAMES`."""
+    python-evdev (an aarch64 install without the ``uinput`` extra), :data:`~neurotouch_hid.core.key_names.KEY_NAMES`."""
     try:
         from evdev import ecodes
     except ImportError:
-        from neurotouch_hid.key_names import KEY_NAMES
+        from neurotouch_hid.core.key_names import KEY_NAMES
 
         return KEY_NAMES
 
@@ -1119,8 +1119,8 @@ def find_profile(name_or_path: str | os.PathLike) -> Path:
 
 
 def read_profile_text(path: str | os.PathLike) -> str:
-    """The text of profile file ``path``, read within the bounds (:func:`~neurotouch_hid.limits.
-    read_outside_text`: a regular file of at most :data:`~neurotouch_hid.limits.MAX_YAML_BYTES`,
+    """The text of profile file ``path``, read within the bounds (:func:`~neurotouch_hid.core.limits.
+    read_outside_text`: a regular file of at most :data:`~neurotouch_hid.core.limits.MAX_YAML_BYTES`,
     opened without blocking: a FIFO or a link to ``/dev/zero`` is refused, not waited on).
 
     Raises:

@@ -11,9 +11,8 @@ from typing import Iterable
 
 import numpy as np
 
-from neurotouch_hid.controller import AXES, TRIGGERS, ControllerState
-from neurotouch_hid.estimate import GestureEstimate
-from neurotouch_hid.extras import require
+from neurotouch_hid.core.controller import AXES, TRIGGERS, ControllerState
+from neurotouch_hid.core.estimate import GestureEstimate
 from neurotouch_hid.mapping.mapper import Mapper, gesture_inputs
 from neurotouch_hid.mapping.profile import (
     DIGITAL_OUTPUTS,
@@ -25,6 +24,7 @@ from neurotouch_hid.mapping.profile import (
     Profile,
     RelMapping,
 )
+from neurotouch_hid.service.extras import require
 
 
 def replay(profile: Profile, estimates: Iterable[GestureEstimate]) -> list[ControllerState]:

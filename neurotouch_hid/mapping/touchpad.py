@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from neurotouch_hid.controller import TOUCH_SLOTS, TOUCHPAD_HEIGHT, TOUCHPAD_WIDTH, TRACKING_IDS, TouchPoint
+from neurotouch_hid.core.controller import TOUCH_SLOTS, TOUCHPAD_HEIGHT, TOUCHPAD_WIDTH, TRACKING_IDS, TouchPoint
 from neurotouch_hid.mapping.profile import TouchpadMapping
 
 

@@ -13,13 +13,13 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
-from neurotouch_hid.limits import short
+from neurotouch_hid.core.limits import short
+from neurotouch_hid.core.sensor import MARKER_SPACING_MM, SensorGeometry
 from neurotouch_hid.pipeline.contacts import HOMOGRAPHY_METHODS
 from neurotouch_hid.pipeline.episode import CORRECTION_US, FIRM_MM, FIRST_FINGER_US, PROVISIONAL_MM
 from neurotouch_hid.pipeline.learned import CLASSES, FEATURES, Classifier
 from neurotouch_hid.pipeline.noise import check_noise_filter
 from neurotouch_hid.pipeline.tracker import TrackerConfig
-from neurotouch_hid.sensor import MARKER_SPACING_MM, SensorGeometry
 
 #: Shortest window accepted (us).
 MIN_WINDOW_US = 1_000
@@ -388,7 +388,7 @@ def scaled_to_sensor(config: PipelineConfig, sensor: SensorGeometry) -> PixelSet
     """``config`` in pixels at the sensor's scale (docs/method.md, "Camera model").
 
     Lengths in mm are multiplied by ``sensor.px_per_mm``, areas by its square; the marker pitch is
-    :data:`~neurotouch_hid.sensor.MARKER_SPACING_MM` there, so that a camera nearer the gel or
+    :data:`~neurotouch_hid.core.sensor.MARKER_SPACING_MM` there, so that a camera nearer the gel or
     with more pixels keeps the same contact radius and thresholds on the gel. The tracker's
     settings are converted by the tracker itself, with the same sensor
     (:meth:`~neurotouch_hid.pipeline.tracker.TrackerConfig.in_pixels`)."""

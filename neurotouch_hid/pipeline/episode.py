@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.estimate import GestureType
 
 #: How long (us) an episode that shows one contact stays undecided: a second finger may land up
 #: to ~100 ms after the first and is seen a window or two later (docs/method.md, "Episode vote").

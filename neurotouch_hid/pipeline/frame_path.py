@@ -18,9 +18,9 @@ import threading
 
 import numpy as np
 
-from neurotouch_hid.camera_model import fit_camera_model
-from neurotouch_hid.errors import SensorError
-from neurotouch_hid.estimate import GestureEstimate
+from neurotouch_hid.core.camera_model import fit_camera_model
+from neurotouch_hid.core.errors import SensorError
+from neurotouch_hid.core.estimate import GestureEstimate
 from neurotouch_hid.pipeline.markers import MARKER_SPACING_MM, detect_markers, looks_like_marker_grid
 from neurotouch_hid.pipeline.moves import _off_layout
 from neurotouch_hid.pipeline.override import grid_neighbours

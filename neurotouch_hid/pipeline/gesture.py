@@ -29,10 +29,10 @@ import cv2
 import numba
 import numpy as np
 
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.gel_motion import GelMotion
 from neurotouch_hid.pipeline.markers import marker_arrays
-from neurotouch_hid.sensor import SensorGeometry
 
 
 @dataclass(frozen=True)

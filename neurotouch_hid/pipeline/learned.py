@@ -21,10 +21,10 @@ from functools import cache
 import numba
 import numpy as np
 
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline import gesture_model
 from neurotouch_hid.pipeline.gesture import GestureResult
-from neurotouch_hid.sensor import SensorGeometry
 
 #: The feature names, in order (:func:`gesture_features`).
 FEATURES = (

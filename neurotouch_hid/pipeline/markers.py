@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from neurotouch_hid.errors import SensorError
-from neurotouch_hid.sensor import MARKER_SPACING_MM, SensorGeometry
+from neurotouch_hid.core.errors import SensorError
+from neurotouch_hid.core.sensor import MARKER_SPACING_MM, SensorGeometry
 
 #: The gel's markers (paper, section System Overview): 1 mm white dots on a 4 mm grid
 #: (``sensor.MARKER_SPACING_MM``, imported here for the pipeline and calibrate).

@@ -9,11 +9,11 @@ docs/method.md, "Overview"); ``paper`` the paper's method exactly
 
 from __future__ import annotations
 
-from neurotouch_hid.kinds import MethodKind
+from neurotouch_hid.core.kinds import MethodKind
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.config import PipelineConfig
 from neurotouch_hid.pipeline.paper import PaperConfig, PaperPipeline
 from neurotouch_hid.pipeline.pipeline import GesturePipeline
-from neurotouch_hid.sensor import SensorGeometry
 
 #: Method name -> (its config model, its pipeline class).
 METHODS: dict[str, tuple[type[PipelineConfig] | type[PaperConfig], type[GesturePipeline]]] = {

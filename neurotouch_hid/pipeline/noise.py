@@ -46,7 +46,7 @@ from typing import TYPE_CHECKING
 import numba
 import numpy as np
 
-from neurotouch_hid.limits import short
+from neurotouch_hid.core.limits import short
 
 if TYPE_CHECKING:  # pragma: no cover
     import dv_processing as dv

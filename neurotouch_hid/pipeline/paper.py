@@ -17,7 +17,8 @@ from __future__ import annotations
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.config import check_attempts, check_homography, check_window
 from neurotouch_hid.pipeline.contacts import Contacts, _no_contacts, local_maxima, outlier_candidates
 from neurotouch_hid.pipeline.episode import EpisodeVote
@@ -26,7 +27,6 @@ from neurotouch_hid.pipeline.moves import _largest_move_sq
 from neurotouch_hid.pipeline.pipeline import GesturePipeline
 from neurotouch_hid.pipeline.resting import RestingDetector, RestingResult
 from neurotouch_hid.pipeline.tracker import TrackerConfig
-from neurotouch_hid.sensor import SensorGeometry
 
 
 class PaperConfig(BaseModel):

@@ -43,8 +43,9 @@ from collections.abc import Callable, Iterable, Iterator
 
 import numpy as np
 
-from neurotouch_hid.errors import SensorError
-from neurotouch_hid.estimate import GestureEstimate, GestureType, MarkerPositions
+from neurotouch_hid.core.errors import SensorError
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType, MarkerPositions
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.config import MIN_WINDOW_US, PipelineConfig, PixelSettings, scaled_to_sensor
 from neurotouch_hid.pipeline.contacts import Contacts, compile_held_kernels, detect_contacts
 from neurotouch_hid.pipeline.contacts_plateau import rest_neighbours
@@ -68,7 +69,6 @@ from neurotouch_hid.pipeline.resting import compile_resting_kernels
 from neurotouch_hid.pipeline.synthetic import synthetic_windows
 from neurotouch_hid.pipeline.tracker import BlobTracker, swapped_blobs
 from neurotouch_hid.pipeline.window_path import GAP_US, WindowPath
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import Frame, StreamItem
 
 __all__ = ["GAP_US", "MIN_WINDOW_US", "PipelineConfig", "GesturePipeline", "RESUME_MATCH_FRAMES", "STAGES"]

@@ -61,11 +61,11 @@ import cv2
 import numba
 import numpy as np
 
-from neurotouch_hid.errors import SensorError
+from neurotouch_hid.core.errors import SensorError
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.config import RestingConfig
 from neurotouch_hid.pipeline.order import median_head
 from neurotouch_hid.pipeline.override import grid_neighbours
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import Frame
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE
 
 

@@ -52,6 +52,7 @@ import numpy as np
 from numpy.lib import recfunctions
 from pydantic import BaseModel, ConfigDict
 
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.order import median_head
 from neurotouch_hid.pipeline.tracker_kernels import (
     _C00,
@@ -74,7 +75,6 @@ from neurotouch_hid.pipeline.tracker_kernels import (
     _reset_if_painted,
     _track,
 )
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE
 
 
@@ -211,7 +211,7 @@ class BlobTracker:
         config: :class:`TrackerConfig` (mm; the product's defaults if None).
         sensor: its ``px_per_mm`` converts ``config`` to pixels, and a blob farther than the gel
             radius + ``config.gel_margin_mm`` from the gel centre is lost. Without it: the default
-            :class:`~neurotouch_hid.sensor.SensorGeometry`'s scale, and only a blob beyond the
+            :class:`~neurotouch_hid.core.sensor.SensorGeometry`'s scale, and only a blob beyond the
             image's circumscribed circle is lost (a blob outside the image owns no pixel and gets
             no events).
 

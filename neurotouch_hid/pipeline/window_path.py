@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from neurotouch_hid.estimate import GestureEstimate
+from neurotouch_hid.core.estimate import GestureEstimate
 from neurotouch_hid.pipeline.rest_window import OPEN, TOUCHED, rest_batch
 
 __all__ = ["GAP_US", "WindowPath"]

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Callable, Iterator, Sequence, Union
 import numpy as np
 
 if TYPE_CHECKING:
-    from neurotouch_hid.dataset import LabelRow
+    from neurotouch_hid.core.dataset import LabelRow
 
 #: dv-processing's ``EventStore.numpy()`` fields: timestamp us (int64), x, y px (int16),
 #: polarity (int8, 1 = ON brighter, 0 = OFF darker). dv-processing pads each record to 16 bytes;
@@ -82,7 +82,7 @@ class Performed:
     in its stream just before the APS frame of that moment.
 
     Attributes:
-        label: the simulator's label (:class:`~neurotouch_hid.dataset.LabelRow`: type,
+        label: the simulator's label (:class:`~neurotouch_hid.core.dataset.LabelRow`: type,
             intensity in mm, contact points in image px; docs/dataset.md).
     """
 

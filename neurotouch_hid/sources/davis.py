@@ -6,7 +6,7 @@ class of older releases became this module). This module turns the camera's even
 frames into the stream every source yields (docs/architecture.md, sources), and keeps that stream
 alive through faults:
 
-* **No camera at start**: :class:`DavisSource` raises :class:`~neurotouch_hid.errors.DeviceError`
+* **No camera at start**: :class:`DavisSource` raises :class:`~neurotouch_hid.core.errors.DeviceError`
   with what to do (``sources/discovery.py`` says whether a 152a:841a device is on USB at all, or
   present but not accessible and which udev rule to install). dv-processing's own ``open()`` with
   no camera raises a raw IndexError; we never call it without a descriptor from ``discover()``.
@@ -44,7 +44,7 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.core.errors import DeviceError
 from neurotouch_hid.sources import Frame, PausingStream, PollPause, SourceStatus, StatusKind, StreamItem
 from neurotouch_hid.sources.dv import DV_ERRORS, dv_error_text, events_from_store
 from neurotouch_hid.sources.recording import DAVIS346_RESOLUTION, grey_image, split_batches

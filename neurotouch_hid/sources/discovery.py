@@ -33,9 +33,9 @@ from dataclasses import asdict, dataclass, field
 from enum import StrEnum
 from pathlib import Path
 
-from neurotouch_hid.errors import DeviceError
-from neurotouch_hid.limits import read_proc_file
-from neurotouch_hid.udev import camera_access_fix, installed_rules
+from neurotouch_hid.core.errors import DeviceError
+from neurotouch_hid.core.limits import read_proc_file
+from neurotouch_hid.service.udev import camera_access_fix, installed_rules
 
 #: USB ids of the DAVIS-346 (iniVation FX3 boards).
 CAMERA_VID, CAMERA_PID = 0x152A, 0x841A
@@ -304,7 +304,7 @@ def _sysfs_device(bus: int, address: int) -> Path | None:
 
 def _read(path: Path) -> str | None:
     """A small kernel file's text (a sysfs attribute, ``/proc/PID/comm``), stripped, read through
-    :func:`~neurotouch_hid.limits.read_proc_file`; None when it is missing, unreadable, empty,
+    :func:`~neurotouch_hid.core.limits.read_proc_file`; None when it is missing, unreadable, empty,
     longer than :data:`_KERNEL_FILE_BYTES` or not UTF-8."""
     try:
         data, more = read_proc_file(path, _KERNEL_FILE_BYTES)

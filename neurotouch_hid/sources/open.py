@@ -13,13 +13,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, ContextManager, Iterable, Iterator, Protocol, Union
 
-from neurotouch_hid.errors import DeviceError
-from neurotouch_hid.estimate import GestureEstimate
-from neurotouch_hid.kinds import SourceKind
+from neurotouch_hid.core.errors import DeviceError
+from neurotouch_hid.core.estimate import GestureEstimate
+from neurotouch_hid.core.kinds import SourceKind
 from neurotouch_hid.sources import Performed, StreamItem
 
 if TYPE_CHECKING:
-    from neurotouch_hid.sensor import SensorGeometry
+    from neurotouch_hid.core.sensor import SensorGeometry
     from neurotouch_hid.sources.davis import DavisConfig
     from neurotouch_hid.sources.recording import BatchCut
     from neurotouch_hid.sources.simulator import SimulatedSource
@@ -84,17 +84,17 @@ def open_source(
 
     The simulated gel also says what its hand performs when ``labelled``
     (:class:`~neurotouch_hid.sources.Performed` before each APS frame), and simulates each chunk
-    inside ``guard()`` when given (a first run's compile: :meth:`neurotouch_hid.warmup.Warmup.guard`);
+    inside ``guard()`` when given (a first run's compile: :meth:`neurotouch_hid.service.warmup.Warmup.guard`);
     with ``finish``, its hand finishes the gesture it performs at ``seconds`` (:func:`simulated_items`).
 
     Resources (camera, file) are closed by ``stack``. Raises RecordingError for a missing or
     unreadable recording, DatasetError for a bad predictions file, DeviceError when the camera
     cannot be opened (and ``wait`` is off).
     """
-    from neurotouch_hid.sensor import SensorGeometry, default_sensor, find_sensor_file
+    from neurotouch_hid.core.sensor import SensorGeometry, default_sensor, find_sensor_file
 
     if spec.endswith(".jsonl"):
-        from neurotouch_hid.dataset import open_predictions
+        from neurotouch_hid.core.dataset import open_predictions
 
         return OpenedSource(open_predictions(spec), None, False)
     if spec == SourceKind.DAVIS:
@@ -116,7 +116,7 @@ def open_source(
         stream = simulated_items(sim, seconds, cut, labelled=labelled, guard=guard, finish=finish)
         stream = read_ahead(stream, cut)  # at rest, frame periods simulated in bursts
         return OpenedSource(CuttingStream(stream, cut), sim.sensor, False, labelled=labelled)
-    from neurotouch_hid.errors import RecordingError
+    from neurotouch_hid.core.errors import RecordingError
     from neurotouch_hid.sources.recording import BatchCut, CuttingStream, RecordingReader, read_ahead
 
     path = Path(spec)

@@ -133,8 +133,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from neurotouch_hid.errors import NeurotouchError
-from neurotouch_hid.sensor import DOME_SPHERE_MM, SensorGeometry
+from neurotouch_hid.core.errors import NeurotouchError
+from neurotouch_hid.core.sensor import DOME_SPHERE_MM, SensorGeometry
 
 #: Distance of the ``camera`` family's pinhole below the dome's base plane (mm).
 CAMERA_MM = 60.0

@@ -7,7 +7,7 @@ SEQUENCE.aedat4). dv-processing 2.0's reader can hang for ever in LZ4 decompress
 a damaged file (docs/performance.md, "Recording I/O", has the measurements and the choice).
 This module adds:
 
-- one clear :class:`~neurotouch_hid.errors.RecordingError` per bad file (missing, not AEDAT4,
+- one clear :class:`~neurotouch_hid.core.errors.RecordingError` per bad file (missing, not AEDAT4,
   truncated, damaged, no frame stream, wrong resolution);
 - reading what is readable of a cut or damaged file: packets that do not decode, or whose events
   lie outside the sensor or go back in time, are skipped (the numba pipeline does not check
@@ -34,9 +34,9 @@ from typing import TYPE_CHECKING, Iterable, Iterator, TypeVar
 
 import numpy as np
 
-from neurotouch_hid.atomic import PathBeside
-from neurotouch_hid.errors import RecordingError
-from neurotouch_hid.limits import printable
+from neurotouch_hid.core.atomic import PathBeside
+from neurotouch_hid.core.errors import RecordingError
+from neurotouch_hid.core.limits import printable
 from neurotouch_hid.sources import EVENT_DTYPE, Frame, Pacer, StreamItem, WrappedStream, join_events
 from neurotouch_hid.sources.dv import DV_ERRORS, dv_error_text, store_from_events
 from neurotouch_hid.sources.packet_bounds import Unbounded, inflated_bound

@@ -4,7 +4,7 @@ A run (``neurotouch-hid run``) stands for one camera, known by its serial: the l
 (``--serial``, else the only one on the bus), the simulated one (``--source sim --serial X``) or
 the camera a recording is replayed as. The serial gives the outputs their identity
 (:func:`~neurotouch_hid.targets.identity.identity_for`) and picks the camera's own config
-folder (:mod:`neurotouch_hid.serials`, docs/several-sensors.md).
+folder (:mod:`neurotouch_hid.service.serials`, docs/several-sensors.md).
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ import logging
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
-from neurotouch_hid.errors import NeurotouchError
-from neurotouch_hid.kinds import SourceKind
+from neurotouch_hid.core.errors import NeurotouchError
+from neurotouch_hid.core.kinds import SourceKind
 
 if TYPE_CHECKING:
     from neurotouch_hid.sources.davis import DavisConfig
@@ -37,9 +37,9 @@ def camera_serial(
 
     Raises:
         NeurotouchError: ``serial`` is not a valid serial
-            (:func:`~neurotouch_hid.serials.check_serial`).
+            (:func:`~neurotouch_hid.service.serials.check_serial`).
     """
-    from neurotouch_hid.serials import check_serial
+    from neurotouch_hid.service.serials import check_serial
 
     given = serial if serial is not None else (davis.serial if davis is not None else None)
     if given is not None:
@@ -74,8 +74,8 @@ def own_config(
     camera's own ``profile.yaml``, else ``"default"``; ``sensor`` as given, else (the live camera
     and the simulated gel, whose geometry is the camera's) its own ``sensor.yaml``, else None
     (the shared calibration, as before; a recording's own sensor.yaml beside it comes first).
-    (:mod:`neurotouch_hid.serials`; docs/several-sensors.md.)"""
-    from neurotouch_hid.serials import own_file
+    (:mod:`neurotouch_hid.service.serials`; docs/several-sensors.md.)"""
+    from neurotouch_hid.service.serials import own_file
 
     if profile is None:
         profile = own_file(serial, "profile") or "default"

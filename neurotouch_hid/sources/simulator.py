@@ -61,10 +61,10 @@ from typing import Iterable, Iterator, Sequence
 import numba
 import numpy as np
 
-from neurotouch_hid.dataset import LabelRow, write_labels, write_pressed
-from neurotouch_hid.errors import NeurotouchError
-from neurotouch_hid.estimate import GestureType
-from neurotouch_hid.sensor import DOME_SPHERE_MM, MARKER_SPACING_MM, SensorGeometry
+from neurotouch_hid.core.dataset import LabelRow, write_labels, write_pressed
+from neurotouch_hid.core.errors import NeurotouchError
+from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.sensor import DOME_SPHERE_MM, MARKER_SPACING_MM, SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame, StreamItem
 from neurotouch_hid.sources.esim import (
     CONTRAST,
@@ -1346,7 +1346,7 @@ def save_npz(path: Path, **arrays: np.ndarray) -> None:
     a minute are ~85 MB raw; level 1 keeps the paper preset's writing time small)."""
     import zipfile
 
-    from neurotouch_hid.atomic import replacing
+    from neurotouch_hid.core.atomic import replacing
 
     with (
         replacing(path, what="arrays file") as tmp,
@@ -1358,7 +1358,7 @@ def save_npz(path: Path, **arrays: np.ndarray) -> None:
 
 
 def write_dataset(out_dir: str | Path, *args, force: bool = False, **kw) -> Path:
-    """:func:`write_whole_dataset` written whole (:class:`~neurotouch_hid.dataset.DatasetOut`):
+    """:func:`write_whole_dataset` written whole (:class:`~neurotouch_hid.core.dataset.DatasetOut`):
     into a new folder beside ``out_dir``, put in its place at the end; a dataset already in
     ``out_dir`` is refused unless ``force`` (then replaced whole), any other file there always.
 
@@ -1366,7 +1366,7 @@ def write_dataset(out_dir: str | Path, *args, force: bool = False, **kw) -> Path
         DatasetError: ``out_dir`` holds a dataset or other files, or cannot be written (nothing
             changed); and what :func:`write_whole_dataset` raises (nothing changed either).
     """
-    from neurotouch_hid.dataset import DatasetOut
+    from neurotouch_hid.core.dataset import DatasetOut
 
     target = DatasetOut(out_dir, force=force)
     try:
@@ -1455,7 +1455,7 @@ def write_whole_dataset(
     import json
 
     names = [f"u{u}_session{k}" if sessions else sequence_name(u, k) for u, k in pairs]
-    from neurotouch_hid.atomic import AtomicFile
+    from neurotouch_hid.core.atomic import AtomicFile
 
     with AtomicFile(out / "physics.json", what="physics file") as fh:
         fh.write(

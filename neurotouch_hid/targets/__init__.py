@@ -26,7 +26,7 @@ import threading
 import time
 from typing import TYPE_CHECKING, Callable, Iterable
 
-from neurotouch_hid.controller import ControllerState, Feedback
+from neurotouch_hid.core.controller import ControllerState, Feedback
 
 if TYPE_CHECKING:
     from neurotouch_hid.mapping.profile import Profile

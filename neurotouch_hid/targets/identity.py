@@ -14,7 +14,7 @@ uhid_create2_req``, include/uapi/linux/uhid.h; ``struct hid_device``), so a seri
 :data:`MAX_SERIAL_CHARS` ASCII characters, and the gadget's serial string stays far under the
 126 UTF-16 characters of a USB string descriptor (USB 2.0 section 9.6.7). A serial is also a
 device link (``/dev/neurotouch-SERIAL``), a systemd instance name and a folder name, so it is
-made of letters, digits and ``_`` only (:func:`neurotouch_hid.serials.check_serial`).
+made of letters, digits and ``_`` only (:func:`neurotouch_hid.service.serials.check_serial`).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass
 
-from neurotouch_hid.serials import MAX_SERIAL_CHARS, check_serial
+from neurotouch_hid.service.serials import MAX_SERIAL_CHARS, check_serial
 
 __all__ = ["MAX_SERIAL_CHARS", "Identity", "check_serial", "identity_for", "mac_for"]
 

@@ -2,7 +2,7 @@
 
 A row names a protocol (``run --protocol``, a profile's ``device: protocol``), its wire format
 (a :class:`~neurotouch_hid.targets.reports.ReportFormat`: the input report, the feature reports a
-host reads, the output reports parsed into :class:`~neurotouch_hid.controller.Feedback`), the
+host reads, the output reports parsed into :class:`~neurotouch_hid.core.controller.Feedback`), the
 transports it runs on (``"uhid"``: a HID device on this machine, :mod:`neurotouch_hid.targets.uhid`;
 ``"gadget"``: a USB gadget for another host, :mod:`neurotouch_hid.targets.gadget`), the gadget
 function that carries it, and the USB identity the host sees (ids and strings). The command line,
@@ -22,7 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import StrEnum
 
-from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.core.errors import NeurotouchError
 from neurotouch_hid.targets.reports import ReportFormat
 from neurotouch_hid.targets.reports.dualsense import DUALSENSE
 from neurotouch_hid.targets.reports.hid import HID_JOYSTICK

@@ -23,7 +23,7 @@ its format (:attr:`~neurotouch_hid.targets.reports.ReportFormat.feature_ids`) wi
 :meth:`~neurotouch_hid.targets.reports.ReportFormat.feature` (other requests with EIO), reads the
 host's output reports (``UHID_OUTPUT``, and a SET_REPORT of an output report, answered 0) through
 :meth:`~neurotouch_hid.targets.reports.ReportFormat.parse_output` into
-:class:`~neurotouch_hid.controller.Feedback`, and on ``close`` sends the
+:class:`~neurotouch_hid.core.controller.Feedback`, and on ``close`` sends the
 neutral report, waits ``RELEASE_GRACE_S`` for readers to see it, then destroys the device
 (:class:`~neurotouch_hid.targets.closing.NeutralOnClose`, as the uinput devices do). No library: hid-tools
 (GPL) is not used at run time.
@@ -42,10 +42,10 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from neurotouch_hid.controller import ControllerState
-from neurotouch_hid.errors import DeviceError, NeurotouchError
+from neurotouch_hid.core.controller import ControllerState
+from neurotouch_hid.core.errors import DeviceError, NeurotouchError
+from neurotouch_hid.service.udev import char_device_problem, uhid_help
 from neurotouch_hid.targets.closing import NeutralOnClose
-from neurotouch_hid.udev import char_device_problem, uhid_help
 
 if TYPE_CHECKING:
     from neurotouch_hid.mapping.profile import DeviceSpec, Profile
@@ -315,7 +315,7 @@ class UhidDevice(NeutralOnClose):
 
     Raises:
         DeviceError: ``devnode`` is missing or not writable (the message's next lines say how to
-            fix it: :func:`~neurotouch_hid.udev.uhid_help`), or the kernel refuses the device.
+            fix it: :func:`~neurotouch_hid.service.udev.uhid_help`), or the kernel refuses the device.
     """
 
     def __init__(

@@ -32,8 +32,8 @@ from checks_runtime import NO_DROP_LAG_MS, timeline
 from checks_runtime_remap import Watcher, _devices, _write_preds
 from evdev import AbsInfo, UInput, ecodes
 
-from neurotouch_hid.controller import BUTTONS
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.controller import BUTTONS
+from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.inputs.hide import HIDDEN_DIR
 from neurotouch_hid.targets.uinput.desktop import MOUSE_PHYS
 from neurotouch_hid.targets.uinput.gamepad import PHYS
@@ -517,7 +517,7 @@ sys.stdin.read()
 
 def _guard_ready(pid: int) -> bool:
     """Whether guard ``pid`` waits on its pipe with its put-back prepared (its main thread asleep
-    in the pipe's read, its preparing thread ended: neurotouch_hid/guard.py)."""
+    in the pipe's read, its preparing thread ended: neurotouch_hid/service/guard.py)."""
     try:
         return "pipe_read" in Path(f"/proc/{pid}/wchan").read_text() and len(os.listdir(f"/proc/{pid}/task")) == 1
     except OSError:

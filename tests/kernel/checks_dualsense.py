@@ -36,7 +36,7 @@ import numpy as np
 from checks_runtime import ProbeLines, _write
 from outputlib import HidrawReader, InProcessRun, hid_driver
 
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 from neurotouch_hid.mapping.profile import load_profile
 from neurotouch_hid.mapping.touchpad import pad_position
 from neurotouch_hid.targets.identity import identity_for

@@ -25,7 +25,7 @@ import guestlib
 from checks_gadget import UDC, _kernel
 from outputlib import HidrawReader
 
-from neurotouch_hid.controller import ControllerState
+from neurotouch_hid.core.controller import ControllerState
 from neurotouch_hid.stages import Feedback
 from neurotouch_hid.targets.gadget import configfs
 
@@ -152,7 +152,7 @@ def check_usb_xinput_answers_the_vendor_requests() -> dict:
     before any gadget is made."""
     import usb.core
 
-    from neurotouch_hid.errors import DeviceError
+    from neurotouch_hid.core.errors import DeviceError
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.targets.gadget import UsbGadget
     from neurotouch_hid.targets.gadget.ffs import XINPUT_CAPABILITIES, XInputTarget
@@ -215,7 +215,7 @@ def strokes(seconds: float = 200.0) -> list:
     windows take tens of seconds to read in the loaded emulated guest.)"""
     import numpy as np
 
-    from neurotouch_hid.estimate import GestureEstimate, GestureType
+    from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 
     window_us, out = 10_000, []
     for i in range(int(seconds * 100)):

@@ -16,7 +16,7 @@ from pathlib import Path
 import guestlib
 from evdev import ecodes
 
-from neurotouch_hid.controller import AXES, BUTTONS, ControllerState
+from neurotouch_hid.core.controller import AXES, BUTTONS, ControllerState
 from neurotouch_hid.targets.uinput.gamepad import PHYS, GamepadIdentity, VirtualGamepad, changed_events
 
 HERE = Path(__file__).resolve().parent

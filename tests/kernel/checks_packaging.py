@@ -14,7 +14,7 @@ from pathlib import Path
 
 import guestlib
 
-from neurotouch_hid import doctor
+from neurotouch_hid.service import doctor
 from neurotouch_hid.sources.discovery import discover
 
 TIMEOUT_S = 300

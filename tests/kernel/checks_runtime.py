@@ -30,8 +30,8 @@ import guestlib
 import numpy as np
 from evdev import ecodes
 
-from neurotouch_hid.controller import AXES, BUTTONS
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.controller import AXES, BUTTONS
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 from neurotouch_hid.targets.uinput.gamepad import PHYS
 
 REPO = Path(__file__).resolve().parent.parent.parent
@@ -102,7 +102,7 @@ def timeline(
 
 
 def _write(folder: Path, estimates: list[GestureEstimate], profile_text: str = PROFILE) -> tuple[Path, Path]:
-    from neurotouch_hid.dataset import write_predictions
+    from neurotouch_hid.core.dataset import write_predictions
 
     preds = folder / "gestures.jsonl"
     write_predictions(preds, estimates)
@@ -421,7 +421,7 @@ def check_sdl_reads_run_like_the_profile() -> dict:
     reads exactly those states. The run is a process of its own, as a user starts it: SIGTERM
     in the held push (A and START down, every axis off centre) ends it with exit code 0, evdev
     reads everything released and centred, and the device goes with the process."""
-    from neurotouch_hid.dataset import write_predictions
+    from neurotouch_hid.core.dataset import write_predictions
     from neurotouch_hid.mapping.profile import load_profile
 
     folder = Path(tempfile.mkdtemp(prefix="runtime-sdl-"))

@@ -28,7 +28,7 @@ from checks_runtime import NO_DROP_LAG_MS, timeline
 from evdev import InputDevice, ecodes, list_devices
 from outputlib import InProcessRun
 
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 from neurotouch_hid.targets.uinput.desktop import KEYBOARD_PHYS, MOUSE_PHYS
 from neurotouch_hid.targets.uinput.gamepad import PHYS
 
@@ -75,7 +75,7 @@ def sequence(*steps: tuple[GestureType, float, float], lead_in_s: float = 1.0) -
 
 
 def _write_preds(folder: Path, estimates: list[GestureEstimate]) -> Path:
-    from neurotouch_hid.dataset import write_predictions
+    from neurotouch_hid.core.dataset import write_predictions
 
     path = folder / "gestures.jsonl"
     write_predictions(path, estimates)

@@ -77,7 +77,7 @@ def _import_what_a_run_imports() -> None:
     """Import here, once, what ``run_driver`` imports as it goes: each forked child has it then
     (under emulation an import of these costs seconds, and each child would pay it)."""
     import neurotouch_hid.control  # noqa: F401
-    import neurotouch_hid.dataset  # noqa: F401
+    import neurotouch_hid.core.dataset  # noqa: F401
     import neurotouch_hid.games  # noqa: F401
     import neurotouch_hid.inputs.copilot  # noqa: F401
     import neurotouch_hid.inputs.hide  # noqa: F401

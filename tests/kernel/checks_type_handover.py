@@ -15,7 +15,7 @@ from checks_runtime import timeline
 from checks_runtime_remap import STEP_US, _expected, _run_in_process
 from evdev import ecodes
 
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.estimate import GestureType
 
 G = GestureType
 

@@ -16,7 +16,7 @@ import guestlib
 import numpy as np
 from checks_runtime import NO_DROP_LAG_MS, timeline
 
-from neurotouch_hid.estimate import GestureType
+from neurotouch_hid.core.estimate import GestureType
 
 #: The push to the right: the left stick and button A (2 mm of push presses it).
 PROFILE = """\
@@ -30,7 +30,7 @@ mappings:
 def push_right(hold_s: float, rest_s: float = 1.0) -> list:
     """Rest ``rest_s``, then a push straight to the right (the user frame's +x only) ramped to 6 mm in
     0.3 s and held ``hold_s``: a list of GestureEstimate."""
-    from neurotouch_hid.estimate import GestureEstimate
+    from neurotouch_hid.core.estimate import GestureEstimate
 
     estimates = timeline(
         [(rest_s, GestureType.NONE, lambda f: 0.0), (0.3, GestureType.PUSH, lambda f: 6.0 * f)]
@@ -54,8 +54,8 @@ def held_state(folder: Path, profile: Path):
     """The profile's ControllerState for the held push: the last push line of ``run --output
     jsonl --fast`` over the push held 0.4 s (the driver's own run_driver, in this process; the
     run's very last line is the neutral state written at its end)."""
-    from neurotouch_hid.controller import ControllerState
-    from neurotouch_hid.dataset import write_predictions
+    from neurotouch_hid.core.controller import ControllerState
+    from neurotouch_hid.core.dataset import write_predictions
     from neurotouch_hid.driver import run_driver
 
     preds = folder / "held.jsonl"

@@ -42,7 +42,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from neurotouch_hid.controller import ControllerState  # noqa: E402
+from neurotouch_hid.core.controller import ControllerState  # noqa: E402
 from neurotouch_hid.targets.uinput.gamepad import VirtualGamepad  # noqa: E402
 
 

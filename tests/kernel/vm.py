@@ -348,7 +348,7 @@ def compile_guest_numba_cache(folder: Path) -> None:
     the guest (GUEST_NUMBA_ENV). Raises RuntimeError with the output if that fails."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(folder), **GUEST_NUMBA_ENV)
     proc = _run(
-        [sys.executable, "-c", "from neurotouch_hid.warmup import compile_pipeline; compile_pipeline()"],
+        [sys.executable, "-c", "from neurotouch_hid.service.warmup import compile_pipeline; compile_pipeline()"],
         env=env,
         cwd=str(HERE.parent.parent),
     )

@@ -22,7 +22,7 @@ protocol to use instead.
 :class:`UsbGadget` opens a run's targets: it uses the gadget a privileged ``neurotouch-hid
 gadget setup`` made (:mod:`~neurotouch_hid.targets.gadget.configfs`), or, run as root with none
 there, makes it itself and removes it when the run ends. Beside the ``hid`` functions it starts
-a guard (:mod:`~neurotouch_hid.guard`) that sends their neutral reports if the
+a guard (:mod:`~neurotouch_hid.service.guard`) that sends their neutral reports if the
 driver dies without closing them (SIGKILL, a crash).
 """
 
@@ -33,11 +33,11 @@ import os
 import time
 from typing import TYPE_CHECKING
 
-from neurotouch_hid.errors import DeviceError
-from neurotouch_hid.guard import Guard
+from neurotouch_hid.core.errors import DeviceError
+from neurotouch_hid.service.guard import Guard
+from neurotouch_hid.service.udev import sudo_command
 from neurotouch_hid.targets.gadget import configfs
 from neurotouch_hid.targets.protocols import PROTOCOLS
-from neurotouch_hid.udev import sudo_command
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -92,7 +92,7 @@ def protocol_for(requested: str | None, profile: Profile, name: str = configfs.G
     else that of the gadget set up here (``gadget setup``, or the boot unit that runs it:
     :func:`~neurotouch_hid.targets.gadget.configfs.protocol_of`), else ``hid``. Raises
     DeviceError for an unknown one."""
-    from neurotouch_hid.errors import NeurotouchError
+    from neurotouch_hid.core.errors import NeurotouchError
     from neurotouch_hid.targets.protocols import protocol as protocol_row
 
     protocol = requested or getattr(profile.device, "protocol", None) or configfs.protocol_of(name) or "hid"

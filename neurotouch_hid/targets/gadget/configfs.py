@@ -29,7 +29,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.core.errors import DeviceError
 from neurotouch_hid.targets.identity import DEFAULT_USB_SERIAL
 
 log = logging.getLogger(__name__)
@@ -104,7 +104,7 @@ def plan(protocol: str, keyboard: bool = False, mouse: bool = False, serial: str
     keyboard and a mouse function when asked, and ``serial`` as its iSerialNumber. Raises
     DeviceError for an unknown protocol or one that does not run on a gadget, and for a keyboard
     or a mouse asked of a protocol whose gadget carries the pad alone (the row's ``alone``)."""
-    from neurotouch_hid.errors import NeurotouchError
+    from neurotouch_hid.core.errors import NeurotouchError
     from neurotouch_hid.targets.protocols import protocol as protocol_row
 
     try:

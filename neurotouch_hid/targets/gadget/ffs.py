@@ -33,11 +33,11 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
-from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.core.errors import DeviceError
+from neurotouch_hid.service.udev import sudo_command
 from neurotouch_hid.stages import Feedback
 from neurotouch_hid.targets.gadget import functionfs
 from neurotouch_hid.targets.gadget.targets import MAX_OUTPUT_REPORT, _ReportTarget
-from neurotouch_hid.udev import sudo_command
 
 if TYPE_CHECKING:
     from neurotouch_hid.targets.reports import ReportFormat

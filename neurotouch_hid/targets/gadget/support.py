@@ -17,7 +17,7 @@ import platform
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from neurotouch_hid.limits import FileLimitError, read_text_file
+from neurotouch_hid.core.limits import FileLimitError, read_text_file
 from neurotouch_hid.targets.gadget import configfs
 
 #: Largest modules.dep / modules.builtin read (bytes): a distribution kernel's is ~1 MB.
@@ -109,7 +109,7 @@ def module_state(name: str, modules_dir: Path | None = None, sys_module: Path = 
 def uhid_problem(devnode: str = UHID) -> str | None:
     """Why ``devnode`` cannot be used for ``--output hid`` (missing, not a character device, not
     readable and writable: the same tests as uinput's node), or None when it can."""
-    from neurotouch_hid.udev import uinput_problem
+    from neurotouch_hid.service.udev import uinput_problem
 
     problem = uinput_problem(devnode)
     return None if problem is None else problem.replace("uinput", "uhid")
@@ -183,7 +183,7 @@ def gadget_support() -> GadgetSupport:
 def possible_outputs() -> dict[str, str | None]:
     """Each ``--output`` that needs a kernel interface -> None when it works here, else why not:
     ``gamepad`` (uinput), ``hid`` (UHID), ``usb`` (a gadget)."""
-    from neurotouch_hid.udev import uinput_problem
+    from neurotouch_hid.service.udev import uinput_problem
 
     support = gadget_support()
     return {

@@ -20,10 +20,10 @@ import os
 import threading
 from typing import TYPE_CHECKING, Callable
 
-from neurotouch_hid.controller import ControllerState, Feedback
-from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.core.controller import ControllerState, Feedback
+from neurotouch_hid.core.errors import DeviceError
+from neurotouch_hid.service.udev import sudo_command
 from neurotouch_hid.targets.gadget.writer import QUEUE_MOTION, QUEUE_STATE, ReportWriter
-from neurotouch_hid.udev import sudo_command
 
 if TYPE_CHECKING:
     from neurotouch_hid.mapping.profile import Profile
@@ -128,7 +128,7 @@ class HidgTarget(_ReportTarget):
 
     def guarded(self) -> tuple[int, bytes]:
         """The node's descriptor and its neutral report, for the guard that sends it if the
-        driver dies (:class:`~neurotouch_hid.guard.Guard`)."""
+        driver dies (:class:`~neurotouch_hid.service.guard.Guard`)."""
         return self._fd, self.format.neutral()
 
     def feedback(self) -> list[Feedback]:

@@ -1,5 +1,5 @@
 """The wire formats of the HID outputs, as data: for each protocol, the report descriptor, the
-input report that carries a :class:`~neurotouch_hid.controller.ControllerState`, the feature
+input report that carries a :class:`~neurotouch_hid.core.controller.ControllerState`, the feature
 reports a host reads and the output reports it sends.
 
 Every encoder follows :class:`ReportFormat` (structurally; a format without feature or output
@@ -18,8 +18,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Protocol
 
-from neurotouch_hid.controller import ControllerState, Feedback
-from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.core.controller import ControllerState, Feedback
+from neurotouch_hid.core.errors import NeurotouchError
 
 if TYPE_CHECKING:
     from neurotouch_hid.targets.identity import Identity

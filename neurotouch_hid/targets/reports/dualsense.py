@@ -22,13 +22,13 @@ github.com/nondebug/dualsense documents it. No code was copied.
   (:class:`~neurotouch_hid.targets.identity.Identity`).
 * **Output report 0x02** (the host's rumble, lightbar and player LEDs; 0x31, the Bluetooth one,
   is read too: SDL sends it when no input report came in its first 16 ms, its sign of Bluetooth) becomes
-  :class:`~neurotouch_hid.controller.Feedback`.
+  :class:`~neurotouch_hid.core.controller.Feedback`.
 
 The buttons map by position, as the other protocols do: BTN_SOUTH (Xbox A, bottom) is cross,
 BTN_EAST circle, BTN_NORTH (Xbox X as xpad names it, left) square, BTN_WEST (Xbox Y, top)
 triangle; BTN_TL/BTN_TR L1/R1, BTN_SELECT create, BTN_START options, BTN_THUMBL/R L3/R3,
 BTN_MODE the PS button; the triggers' analogue values also set the L2/R2 bits when above 0;
-the touchpad click is :attr:`~neurotouch_hid.controller.ControllerState.touch_click`; nothing
+the touchpad click is :attr:`~neurotouch_hid.core.controller.ControllerState.touch_click`; nothing
 drives the mute button.
 """
 
@@ -37,7 +37,7 @@ from __future__ import annotations
 import struct
 from typing import TYPE_CHECKING
 
-from neurotouch_hid.controller import (
+from neurotouch_hid.core.controller import (
     TOUCH_SLOTS,
     TOUCHPAD_HEIGHT,
     TOUCHPAD_WIDTH,
@@ -284,7 +284,7 @@ class DualSenseFormat:
         return bytes([report_id]) + bytes(body).ljust(FEATURE_LENGTHS[report_id] - 1, b"\0")
 
     def parse_output(self, data: bytes, source: str = "") -> list[Feedback]:
-        """A host's output report as :class:`~neurotouch_hid.controller.Feedback` (at most
+        """A host's output report as :class:`~neurotouch_hid.core.controller.Feedback` (at most
         :data:`MAX_OUTPUT_REPORT` bytes are looked at; never raises):
 
         - ``rumble`` when valid_flag0 bit 0 or valid_flag2 bit 2 is set: strong = motor_left / 255

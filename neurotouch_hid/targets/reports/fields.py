@@ -1,4 +1,4 @@
-"""Values of a :class:`~neurotouch_hid.controller.ControllerState` as report fields: clamped to
+"""Values of a :class:`~neurotouch_hid.core.controller.ControllerState` as report fields: clamped to
 a field's logical range (HID 1.11, 5.8: a value outside Logical Minimum..Maximum is a null or an
 error, so it never goes on the wire), and :class:`InputOnly`, the feature and output answers of a
 format that has neither."""
@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from neurotouch_hid.controller import AXES, ControllerState, Feedback
+from neurotouch_hid.core.controller import AXES, ControllerState, Feedback
 
 if TYPE_CHECKING:
     from neurotouch_hid.targets.identity import Identity
@@ -19,7 +19,7 @@ def clamp(value: int, lo: int, hi: int) -> int:
 
 
 def axis(state: ControllerState, name: str) -> int:
-    """``state``'s axis ``name`` (an evdev name of :data:`~neurotouch_hid.controller.AXES`) clamped
+    """``state``'s axis ``name`` (an evdev name of :data:`~neurotouch_hid.core.controller.AXES`) clamped
     to its range; a missing axis is neutral."""
     lo, hi, neutral = AXES[name]
     return clamp(state.axes.get(name, neutral), lo, hi)

@@ -11,7 +11,7 @@ Choices, and why:
   Gamepad (0x05), as the Adaptive Controller's joysticks have it. hid-input then names the buttons
   BTN_TRIGGER..BTN_DEAD (its joystick range) and udev classes the device a joystick.
 * Sticks: X/Y (0x30/0x31) the left stick, **Z/Rz** (0x32/0x35) the right one, 16-bit signed,
-  -32768..32767, the :class:`~neurotouch_hid.controller.ControllerState` values as they are
+  -32768..32767, the :class:`~neurotouch_hid.core.controller.ControllerState` values as they are
   (+x right, +y down, HID's convention too). hid-input maps them to ABS_X/ABS_Y/ABS_Z/ABS_RZ.
 * Triggers: Simulation Controls **Brake** (0x02/0xC5, the left trigger) and **Accelerator**
   (0x02/0xC4, the right one), 0..255: what the Stadia controller and 8BitDo's DirectInput mode
@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import struct
 
-from neurotouch_hid.controller import BUTTONS, ControllerState
+from neurotouch_hid.core.controller import BUTTONS, ControllerState
 from neurotouch_hid.targets.reports.fields import InputOnly, axis
 
 #: The controller's buttons (evdev names) as HID buttons 1..11: A, B, X, Y (the evdev names xpad

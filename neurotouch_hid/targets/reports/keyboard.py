@@ -24,7 +24,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
-from neurotouch_hid.controller import ControllerState, Feedback
+from neurotouch_hid.core.controller import ControllerState, Feedback
 
 if TYPE_CHECKING:
     from neurotouch_hid.targets.identity import Identity

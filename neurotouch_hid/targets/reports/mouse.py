@@ -5,7 +5,7 @@ protocol hosts read it too; the wheel (Generic Desktop Wheel, 0x38) and the hori
 (Consumer page AC Pan, 0x0238, what hid-input maps to REL_HWHEEL) follow. The layout is
 docs/reports.md, "mouse: the mouse".
 
-From a :class:`~neurotouch_hid.controller.ControllerState`: buttons 1..5 are BTN_LEFT,
+From a :class:`~neurotouch_hid.core.controller.ControllerState`: buttons 1..5 are BTN_LEFT,
 BTN_RIGHT, BTN_MIDDLE, BTN_SIDE, BTN_EXTRA of ``state.keys``; X, Y, wheel and pan are
 ``state.rel``'s REL_X, REL_Y, REL_WHEEL, REL_HWHEEL (a wheel given only in hi-res units, 1/120
 detent, counts whole detents), each clamped to -127..127: a larger motion in one state is cut
@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import struct
 
-from neurotouch_hid.controller import MOUSE_BUTTONS, ControllerState
+from neurotouch_hid.core.controller import MOUSE_BUTTONS, ControllerState
 from neurotouch_hid.targets.reports.fields import InputOnly, clamp
 
 #: One motion field's range (8-bit signed, the boot mouse's -127..127).

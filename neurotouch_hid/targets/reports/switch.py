@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import struct
 
-from neurotouch_hid.controller import AXES, ControllerState
+from neurotouch_hid.core.controller import AXES, ControllerState
 from neurotouch_hid.targets.reports.fields import InputOnly, axis
 from neurotouch_hid.targets.reports.hid import hat_value
 

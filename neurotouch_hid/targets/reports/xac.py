@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import struct
 
-from neurotouch_hid.controller import ControllerState
+from neurotouch_hid.core.controller import ControllerState
 from neurotouch_hid.targets.reports.fields import InputOnly, axis
 from neurotouch_hid.targets.reports.hid import BUTTON_ORDER, hat_value
 from neurotouch_hid.targets.reports.switch import stick_byte

@@ -30,7 +30,7 @@ from __future__ import annotations
 import struct
 from typing import TYPE_CHECKING
 
-from neurotouch_hid.controller import ControllerState, Feedback
+from neurotouch_hid.core.controller import ControllerState, Feedback
 from neurotouch_hid.targets.reports.fields import axis
 
 if TYPE_CHECKING:

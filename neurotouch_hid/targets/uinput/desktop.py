@@ -38,9 +38,9 @@ import logging
 import threading
 from typing import TYPE_CHECKING, Callable, Iterable, TypeVar
 
-from neurotouch_hid.controller import MOUSE_BUTTONS, MOUSE_REL, ControllerState, Feedback
-from neurotouch_hid.errors import DeviceError
-from neurotouch_hid.extras import MissingExtraError, require
+from neurotouch_hid.core.controller import MOUSE_BUTTONS, MOUSE_REL, ControllerState, Feedback
+from neurotouch_hid.core.errors import DeviceError
+from neurotouch_hid.service.extras import MissingExtraError, require
 from neurotouch_hid.targets.closing import NeutralOnClose
 from neurotouch_hid.targets.uinput.gamepad import VirtualGamepad, create_uinput
 

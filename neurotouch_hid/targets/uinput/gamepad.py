@@ -1,6 +1,6 @@
 """The virtual gamepad: a uinput device with the Xbox 360 layout that SDL, Steam and browsers know.
 
-Layout (docs/architecture.md, :mod:`neurotouch_hid.controller`): sticks ABS_X/Y/RX/RY in
+Layout (docs/architecture.md, :mod:`neurotouch_hid.core.controller`): sticks ABS_X/Y/RX/RY in
 -32768..32767 (flat 128 like the kernel's xpad driver, but fuzz 0, see :data:`STICK_FUZZ`), triggers ABS_Z/RZ in 0..255,
 d-pad ABS_HAT0X/Y in -1..1, and the 11 buttons BTN_SOUTH .. BTN_THUMBR. Nothing mouse- or
 touch-like, so udev classes it as a joystick (ID_INPUT_JOYSTICK=1) and SDL as a GameController.
@@ -32,10 +32,10 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable
 
-from neurotouch_hid.controller import AXES, BUTTONS, ControllerState, Feedback
-from neurotouch_hid.errors import DeviceError
+from neurotouch_hid.core.controller import AXES, BUTTONS, ControllerState, Feedback
+from neurotouch_hid.core.errors import DeviceError
+from neurotouch_hid.service.udev import uinput_help, uinput_problem
 from neurotouch_hid.targets.closing import NeutralOnClose
-from neurotouch_hid.udev import uinput_help, uinput_problem
 
 if TYPE_CHECKING:
     from evdev import UInput
@@ -86,7 +86,7 @@ def create_uinput(what: str, capabilities: dict, devnode: str = "/dev/uinput", *
     Raises:
         DeviceError: ``devnode`` cannot be used (:func:`uinput_problem`) or the kernel refuses the
             device; the message's first line says why, the next ones the fix
-            (:func:`neurotouch_hid.udev.uinput_help`).
+            (:func:`neurotouch_hid.service.udev.uinput_help`).
     """
     problem = uinput_problem(devnode)
     if problem:

@@ -86,7 +86,7 @@ def _writable(folder: Path) -> bool:
 
 
 def _candidates() -> list[JitCache]:
-    package = Path(__file__).resolve().parent
+    package = Path(__file__).resolve().parents[1]  # the package folder, beside whose modules numba caches
     found = []
     if os.environ.get(CACHE_ENV):
         found.append(JitCache(ENV, Path(os.environ[CACHE_ENV])))

@@ -34,13 +34,13 @@ from rich.segment import Segment
 from rich.table import Table
 from rich.text import Text
 
-from neurotouch_hid.controller import AXES, ControllerState
-from neurotouch_hid.estimate import GestureEstimate
+from neurotouch_hid.core.controller import AXES, ControllerState
+from neurotouch_hid.core.estimate import GestureEstimate
 
 if TYPE_CHECKING:  # the runtime publishes its records; no import at run time (no cycle)
+    from neurotouch_hid.core.stats import RunStats
     from neurotouch_hid.mapping.profile import Profile
     from neurotouch_hid.stages import WindowRecord
-    from neurotouch_hid.stats import RunStats
 
 #: evdev button -> label on the pad.
 BUTTON_LABELS: dict[str, str] = {
@@ -277,7 +277,7 @@ class TermView:
 
     Args:
         console: where to draw (default: a new stdout :class:`rich.console.Console`).
-        stats: the runtime's live :class:`~neurotouch_hid.stats.RunStats` (windows, dropped
+        stats: the runtime's live :class:`~neurotouch_hid.core.stats.RunStats` (windows, dropped
             data), shown under the pad; the records published bring it too.
         line_period_s: without a terminal, the shortest time (s) between two printed lines when
             only analogue axes change (a button, key or d-pad change is printed at once).

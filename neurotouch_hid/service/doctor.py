@@ -12,7 +12,7 @@ in memory at every start), and (a warning only) the plug-and-play systemd user u
 The report is plain lines, one per check, each fix's steps on lines of their own (a command alone
 on its line, so it can be copied), never wrapped: the same text on a terminal (coloured) and in a
 pipe or a file. The fixes name the udev rule and install script shipped with this installation
-(absolute paths, :mod:`neurotouch_hid.udev`) and this installation's own Python and command.
+(absolute paths, :mod:`neurotouch_hid.service.udev`) and this installation's own Python and command.
 """
 
 from __future__ import annotations
@@ -28,16 +28,8 @@ from pathlib import Path
 from rich.console import Console
 from rich.markup import escape
 
-from neurotouch_hid.extras import EXTRAS, missing_message
-from neurotouch_hid.sources.discovery import (
-    CAMERA_USB_ID,
-    CameraStatus,
-    Discovery,
-    discover,
-    pip_command,
-)
-from neurotouch_hid.targets.protocols import names as protocol_names
-from neurotouch_hid.udev import (
+from neurotouch_hid.service.extras import EXTRAS, missing_message
+from neurotouch_hid.service.udev import (
     INSTALL_SCRIPT,
     RULES_DIRS,
     RULES_INSTALL,
@@ -48,6 +40,14 @@ from neurotouch_hid.udev import (
     uinput_help,
     uinput_problem,
 )
+from neurotouch_hid.sources.discovery import (
+    CAMERA_USB_ID,
+    CameraStatus,
+    Discovery,
+    discover,
+    pip_command,
+)
+from neurotouch_hid.targets.protocols import names as protocol_names
 
 SERVICE_NAME = "neurotouch-hid.service"
 #: The per-camera unit template (packaging/neurotouch-hid@.service, docs/several-sensors.md).
@@ -187,7 +187,7 @@ def check_library(module: str, dist: str) -> Check:
 def check_jit_cache() -> Check:
     """Where numba caches the pipeline's compiled code (jit_cache.py); a warning when it cannot
     cache anywhere lasting and compiles at every start."""
-    from neurotouch_hid.jit_cache import MEMORY, TEMPORARY, chosen
+    from neurotouch_hid.service.jit_cache import MEMORY, TEMPORARY, chosen
 
     cache = chosen()
     if cache.kind in (MEMORY, TEMPORARY):
@@ -197,7 +197,7 @@ def check_jit_cache() -> Check:
             cache.describe(),
             "make ~/.cache writable, or set XDG_CACHE_HOME (or NUMBA_CACHE_DIR) to a writable folder",
         )
-    from neurotouch_hid.warmup import PIPELINE_OF, is_cold
+    from neurotouch_hid.service.warmup import PIPELINE_OF, is_cold
 
     if any(is_cold(group) for group in PIPELINE_OF["default"]):
         detail = f"{cache.describe()}; empty yet: the first run compiles the pipeline into it (about 25 s of CPU, once)"
@@ -215,7 +215,7 @@ def check_service(config: Path | None = None) -> Check:
     """The plug-and-play systemd user unit is installed in ``config``/systemd/user (default:
     :func:`user_config_dir`) or system-wide, and the command its ExecStart names is there (a
     warning only: `run` works without). Where cameras have config folders of their own
-    (:func:`~neurotouch_hid.serials.configured_serials`) the single unit steps aside: then the
+    (:func:`~neurotouch_hid.service.serials.configured_serials`) the single unit steps aside: then the
     per-camera template must be installed too, or no driver starts on plug-in."""
     config = config or user_config_dir()
     dirs = (config / "systemd/user", Path("/etc/systemd/user"), Path("/usr/lib/systemd/user"))
@@ -229,7 +229,7 @@ def check_service(config: Path | None = None) -> Check:
             return Check(
                 "plug-and-play service", WARN, f"{found[0]} runs {gone}, which is not there (it cannot start)", fix
             )
-        from neurotouch_hid.serials import configured_serials
+        from neurotouch_hid.service.serials import configured_serials
 
         serials = configured_serials()
         if not serials:
@@ -256,7 +256,7 @@ def check_service(config: Path | None = None) -> Check:
 def _missing_exec(unit: Path) -> str | None:
     """The absolute command the unit's ExecStart= runs when it is not an executable file (install.sh
     quotes a path with a space and doubles its %), else None."""
-    from neurotouch_hid.limits import MAX_YAML_BYTES, read_outside_text
+    from neurotouch_hid.core.limits import MAX_YAML_BYTES, read_outside_text
 
     try:
         text = read_outside_text(unit, MAX_YAML_BYTES, "systemd unit", ValueError)
@@ -312,7 +312,7 @@ def check_copilot(
     from neurotouch_hid.inputs.match import mergeable_devices, presence
 
     if profiles is None:
-        from neurotouch_hid.errors import ProfileError
+        from neurotouch_hid.core.errors import ProfileError
         from neurotouch_hid.mapping.profile import available_profiles, load_profile
 
         profiles = {}
@@ -364,11 +364,11 @@ def check_copilot(
 
 def check_calibration() -> Check:
     """Which gel geometry the camera's runs (``run``, the service, ``enrol``) use: the user's
-    calibration (``calibrate``'s sensor.yaml, :func:`~neurotouch_hid.sensor.user_sensor_path`)
+    calibration (``calibrate``'s sensor.yaml, :func:`~neurotouch_hid.core.sensor.user_sensor_path`)
     with its values, or the built-in one (a warning: a real gel differs); a failure when the file
-    is there but invalid (:class:`~neurotouch_hid.errors.SensorError`'s message)."""
-    from neurotouch_hid.errors import SensorError
-    from neurotouch_hid.sensor import SensorGeometry, user_sensor_path
+    is there but invalid (:class:`~neurotouch_hid.core.errors.SensorError`'s message)."""
+    from neurotouch_hid.core.errors import SensorError
+    from neurotouch_hid.core.sensor import SensorGeometry, user_sensor_path
 
     path = user_sensor_path()
     if not path.exists():
@@ -435,10 +435,10 @@ def camera_drivers(found: Discovery, drivers: list | None = None) -> list[dict]:
     whose camera is not on the bus (the simulated gel, a recording, a camera unplugged). A row:
     ``serial`` (None: unknown), ``camera`` (where it is, None when not on the bus), ``driver``
     (:meth:`~neurotouch_hid.control.RunningDriver.to_json`, None when none runs for it) and
-    ``config`` (the files of its own config folder, :mod:`neurotouch_hid.serials`; empty: the
+    ``config`` (the files of its own config folder, :mod:`neurotouch_hid.service.serials`; empty: the
     shared ones). ``drivers``: :func:`~neurotouch_hid.control.running_drivers` (asked when None)."""
     from neurotouch_hid.control import running_drivers
-    from neurotouch_hid.serials import SENSOR_FILES, own_file
+    from neurotouch_hid.service.serials import SENSOR_FILES, own_file
 
     drivers = running_drivers() if drivers is None else drivers
     by_serial = {d.serial: d for d in drivers}
@@ -487,7 +487,7 @@ def check_drivers(found: Discovery, drivers: list | None = None) -> Check:
     """Which driver runs for each camera, and which config it uses (:func:`camera_drivers`); a
     warning when several cameras are plugged in and none has a folder of its own (the single
     plug-and-play unit then drives only one of them: docs/several-sensors.md)."""
-    from neurotouch_hid.serials import configured_serials, sensor_dir
+    from neurotouch_hid.service.serials import configured_serials, sensor_dir
 
     rows = camera_drivers(found, drivers)
     if not rows:

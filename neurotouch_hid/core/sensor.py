@@ -15,7 +15,7 @@ camera than its apex and the lens distorts, so px/mm is not one number over the 
 radial polynomial about the gel's centre (Brown-Conrady's radial terms, Brown 1966, here from
 image to gel) maps the image radius to the user frame's radius; ``calibrate`` (and the pipeline,
 from its rest frame, when sensor.yaml has none) fits it to the 4 mm marker grid at rest
-(:mod:`neurotouch_hid.camera_model`). Without it (None) the mapping is the linear one above.
+(:mod:`neurotouch_hid.core.camera_model`). Without it (None) the mapping is the linear one above.
 """
 
 from __future__ import annotations
@@ -40,9 +40,9 @@ from pydantic import (
 from ruamel.yaml.nodes import MappingNode
 from typing_extensions import TypedDict  # pydantic needs typing_extensions' TypedDict before 3.12
 
-from neurotouch_hid.atomic import AtomicFile
-from neurotouch_hid.errors import SensorError
-from neurotouch_hid.limits import (
+from neurotouch_hid.core.atomic import AtomicFile
+from neurotouch_hid.core.errors import SensorError
+from neurotouch_hid.core.limits import (
     MAX_SENSOR_PX,
     MAX_YAML_BYTES,
     YamlError,
@@ -92,7 +92,7 @@ class SensorFile(TypedDict, total=False):
     """The fields of a ``sensor.yaml`` as read from the file (docs/dataset.md), each optional (a
     missing one takes :class:`SensorGeometry`'s default), checked by pydantic (:data:`_SENSOR_FILE`):
     a whole number of px, a positive number, a pair of numbers, true/false; every number finite,
-    sizes and positions at most :data:`~neurotouch_hid.limits.MAX_SENSOR_PX`, a rotation within
+    sizes and positions at most :data:`~neurotouch_hid.core.limits.MAX_SENSOR_PX`, a rotation within
     one turn, a creep time at most an hour (docs/limits.md)."""
 
     width: Annotated[StrictInt, Field(gt=0, le=MAX_SENSOR_PX)]

@@ -1,6 +1,6 @@
 """JSON lines of controller states (``neurotouch-hid run --output jsonl``).
 
-Written with the line writer of the predictions files (:class:`neurotouch_hid.dataset.JsonlWriter`).
+Written with the line writer of the predictions files (:class:`neurotouch_hid.core.dataset.JsonlWriter`).
 """
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
-from neurotouch_hid.controller import ControllerState
-from neurotouch_hid.dataset import JsonlWriter
-from neurotouch_hid.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.controller import ControllerState
+from neurotouch_hid.core.dataset import JsonlWriter
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 
 if TYPE_CHECKING:
     from neurotouch_hid.mapping.profile import Profile
@@ -23,14 +23,14 @@ class StateJsonlWriter(JsonlWriter):
 
     Each line: ``{"t_us": int, "gesture": str, "intensity_mm": float, "axes": {evdev name: int},
     "buttons": {evdev name: bool}, "keys": [evdev name], "rel": {evdev name: int}}``, every axis
-    and button of the pad (:mod:`neurotouch_hid.controller`), the keyboard keys and mouse buttons
+    and button of the pad (:mod:`neurotouch_hid.core.controller`), the keyboard keys and mouse buttons
     that are down (sorted) and the mouse motion of this step (non-zero codes only);
     ``gesture`` and ``intensity_mm`` are those of the window's estimate. :meth:`neutralise`
     writes a neutral line (gesture ``none``), so a stopped run always ends on one. Lines are
     flushed as written (another process reads them live). A file is written beside its name and
     renamed over it at the first line when nothing is there, else at the run's end (Ctrl-C and
     SIGTERM end it too); a run that fails part-way leaves what was there byte-identical and its
-    lines in ``NAME.partial``, and says both (:class:`~neurotouch_hid.dataset.JsonlWriter`); a
+    lines in ``NAME.partial``, and says both (:class:`~neurotouch_hid.core.dataset.JsonlWriter`); a
     FIFO is written in place.
 
     Args:

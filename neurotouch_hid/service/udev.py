@@ -24,7 +24,7 @@ RULES_NAME = "60-neurotouch.rules"
 #: Where udev reads rules from (udev(7)), most specific first.
 RULES_DIRS = ("/etc/udev/rules.d", "/run/udev/rules.d", "/usr/lib/udev/rules.d", "/lib/udev/rules.d")
 #: The installed package's copies of udev/ and packaging/ (absolute; in a checkout, the folders).
-DATA_DIR = Path(__file__).parent / "data"
+DATA_DIR = Path(__file__).resolve().parents[1] / "data"
 #: The udev rules file and the install script that ship with this installation.
 RULES_FILE = (DATA_DIR / "udev" / RULES_NAME).resolve()
 INSTALL_SCRIPT = (DATA_DIR / "packaging" / "install.sh").resolve()

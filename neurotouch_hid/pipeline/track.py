@@ -18,13 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
-from neurotouch_hid.atomic import check_output, replacing
-from neurotouch_hid.dataset import PredictionsWriter
-from neurotouch_hid.errors import RecordingError, SensorError
-from neurotouch_hid.estimate import GestureEstimate
+from neurotouch_hid.core.atomic import check_output, replacing
+from neurotouch_hid.core.dataset import PredictionsWriter
+from neurotouch_hid.core.errors import RecordingError, SensorError
+from neurotouch_hid.core.estimate import GestureEstimate
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.methods import MethodConfig, pipeline_for
 from neurotouch_hid.pipeline.pipeline import GesturePipeline
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import Frame, StreamItem
 
 
@@ -163,7 +163,7 @@ def track_recording(
     Args:
         recording: AEDAT4 file with events and APS frames of ``sensor``'s resolution.
         out: predictions file to write (docs/dataset.md).
-        sensor: the geometry (e.g. :func:`neurotouch_hid.sensor.find_sensor_file`).
+        sensor: the geometry (e.g. :func:`neurotouch_hid.core.sensor.find_sensor_file`).
         config: the method's settings (window length included; its type picks the method,
             ``pipeline.methods``); None = the product's defaults (the paper's: ``PaperConfig``).
         markers_out: if given, also write the tracked marker positions at each window's end
@@ -176,7 +176,7 @@ def track_recording(
             temporary file beside it, renamed over it at the end: on an error (a damaged or cut
             recording, Ctrl-C too), what was there is left byte-identical and the windows
             computed before it are in ``OUT.partial``; the error says so (in its message or a
-            note, :class:`~neurotouch_hid.dataset.JsonlWriter`).
+            note, :class:`~neurotouch_hid.core.dataset.JsonlWriter`).
         OutputError: ``out`` or ``markers_out`` is a symbolic link, a folder, the recording or
             ``sensor_file``.
     """

@@ -25,7 +25,7 @@ step here is scale-free:
    towards the rim (in the simulator the median spacing over the whole grid is ~15 % short),
    so it is the median length of the :data:`CENTRE_PAIRS` neighbouring-marker pairs nearest the
    centre (the edges of the central 3x3 block of the grid), divided by 4 mm.
-   **Camera model** -- then the radial camera model of :mod:`neurotouch_hid.camera_model` is
+   **Camera model** -- then the radial camera model of :mod:`neurotouch_hid.core.camera_model` is
    fitted to the grid (each marker's index on the 4 mm grid laid on the dome, against its image
    radius): sensor.yaml gets its px_per_mm at the centre and ``radial_k``, which map image px to
    gel mm over the whole gel (not in the paper; a note says so when the markers do not index
@@ -43,7 +43,7 @@ step here is scale-free:
 
 Mirror and rotation cannot be seen on a rest frame: :func:`calibrate` leaves SensorGeometry's
 defaults (mirror, as the camera looks from inside; no rotation); ``calibrate`` measures them
-from two guided pushes and then checks every gesture (:mod:`neurotouch_hid.calibration_guide`).
+from two guided pushes and then checks every gesture (:mod:`neurotouch_hid.calibration.guide`).
 """
 
 from __future__ import annotations
@@ -59,8 +59,9 @@ import cv2
 import numpy as np
 import yaml
 
-from neurotouch_hid.camera_model import fit_camera_model
-from neurotouch_hid.errors import SensorError
+from neurotouch_hid.core.camera_model import fit_camera_model
+from neurotouch_hid.core.errors import SensorError
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.markers import (
     MARKER_SPACING_MM,
     Markers,
@@ -68,7 +69,6 @@ from neurotouch_hid.pipeline.markers import (
     looks_like_marker_grid,
     nearest_neighbour_distances,
 )
-from neurotouch_hid.sensor import SensorGeometry
 from neurotouch_hid.sources import Frame
 
 #: Markers on the paper's gel (section "System Overview"): the default expected count.
@@ -373,7 +373,7 @@ def _centre_spacing(points: np.ndarray, nn: np.ndarray, center: np.ndarray) -> f
 
 def read_rest_frames(source: str | Path, n_frames: int = REST_FRAMES) -> list[Frame]:
     """The first ``n_frames`` APS frames of the AEDAT4 recording ``source`` (the live camera's
-    and the simulator's: :mod:`neurotouch_hid.calibration_guide`, which keeps them open for the
+    and the simulator's: :mod:`neurotouch_hid.calibration.guide`, which keeps them open for the
     guided pushes).
 
     Returns:
@@ -411,7 +411,7 @@ def press_amplitude(recording: str | Path, sensor: SensorGeometry) -> tuple[np.n
         SensorError: no gel on its first APS frame.
     """
     from neurotouch_hid.pipeline.pipeline import GesturePipeline
-    from neurotouch_hid.track import pipeline_over
+    from neurotouch_hid.pipeline.track import pipeline_over
 
     times: list[int] = []
     amplitude: list[float] = []

@@ -5,7 +5,7 @@ nearer than its apex, and its lens distorts, so px/mm changes over the image (th
 physics family: 2.27 px/mm at the centre, ~2.9 px/mm radially at the rim, against sensor.yaml's
 nominal 2.5). The gel carries its own calibration target: 1 mm markers on a 4 mm grid (paper,
 section "System Overview"), laid on the dome's surface. :func:`fit_camera_model` recovers, from
-the markers of one rest frame, the radial model of :class:`~neurotouch_hid.sensor.SensorGeometry`
+the markers of one rest frame, the radial model of :class:`~neurotouch_hid.core.sensor.SensorGeometry`
 (``px_per_mm`` at the centre and ``radial_k``):
 
 1. the grid's orientation in the image: the directions to each marker's nearest neighbour
@@ -32,7 +32,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from neurotouch_hid.sensor import DOME_SPHERE_MM, MARKER_SPACING_MM, SensorGeometry, one_to_one
+from neurotouch_hid.core.sensor import DOME_SPHERE_MM, MARKER_SPACING_MM, SensorGeometry, one_to_one
 
 #: Largest RMS residual (mm) of an accepted fit: a tenth of the pitch.
 MAX_RESIDUAL_MM = 0.4
@@ -70,7 +70,7 @@ def fit_camera_model(points_px: np.ndarray, sensor: SensorGeometry) -> SensorGeo
         A copy of ``sensor`` with ``px_per_mm`` (at the centre, rounded to 1e-4) and
         ``radial_k`` fitted, or None when the markers do not index as the 4 mm grid (fewer than
         :data:`MIN_MARKERS`, two markers on one grid point, or an RMS residual above
-        :data:`MAX_RESIDUAL_MM`) or the fit folds (:func:`~neurotouch_hid.sensor.one_to_one`).
+        :data:`MAX_RESIDUAL_MM`) or the fit folds (:func:`~neurotouch_hid.core.sensor.one_to_one`).
     """
     points = np.asarray(points_px, dtype=np.float64).reshape(-1, 2)
     if len(points) < MIN_MARKERS:

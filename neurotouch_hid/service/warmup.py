@@ -10,7 +10,7 @@ changing them:
   every one of its kernels has code in numba's cache for this machine (numba's cache index,
   :func:`cached_signatures`); only cold groups are compiled, and only the groups the run needs.
 * **compiled in parallel processes into the cache**: each cold group is compiled by its own
-  child process (``python -P -m neurotouch_hid.warmup GROUP``, the same warm-up that
+  child process (``python -P -m neurotouch_hid.service.warmup GROUP``, the same warm-up that
   ``GesturePipeline.compile_kernels`` or a short simulation is), which writes numba's cache; the
   groups use both cores. The pipeline is two groups: the per-event tracker and noise filter
   (what an interpreted run spends most on) and the per-window rest (the tracker's APS-frame
@@ -36,7 +36,7 @@ changing them:
 
 A run that cannot be interpreted (the camera cannot wait; ``--fast`` replays must be
 deterministic) waits for the same children before it starts. Where numba cannot cache
-(:mod:`neurotouch_hid.jit_cache`, "memory"), a child's work would be lost: the run compiles
+(:mod:`neurotouch_hid.service.jit_cache`, "memory"), a child's work would be lost: the run compiles
 in-process before it starts instead, showing the same progress.
 """
 
@@ -53,11 +53,11 @@ from typing import TYPE_CHECKING, Callable, ContextManager, Iterable, Iterator, 
 
 import numpy as np
 
-from neurotouch_hid import jit_cache
+from neurotouch_hid.service import jit_cache
 from neurotouch_hid.stages import CompileProgress
 
 if TYPE_CHECKING:
-    from neurotouch_hid.estimate import GestureEstimate
+    from neurotouch_hid.core.estimate import GestureEstimate
     from neurotouch_hid.pipeline.resting import RestingResult
     from neurotouch_hid.sources import Frame, StreamItem
     from neurotouch_hid.stages import MarkerPositions, Pipeline, RestingDetection
@@ -130,7 +130,7 @@ TRACKER = KernelGroup(
     "tracker",
     "neurotouch_hid.pipeline.methods",
     ("neurotouch_hid.pipeline.",),
-    "neurotouch_hid.warmup:compile_tracker",
+    "neurotouch_hid.service.warmup:compile_tracker",
     load_when_warm="call",
     only=TRACKER_KERNELS,
     waits=True,  # ~3 s of CPU to compile; interpreted, ~2 s a second of events
@@ -139,7 +139,7 @@ PIPELINE = KernelGroup(
     "pipeline",
     "neurotouch_hid.pipeline.methods",
     ("neurotouch_hid.pipeline.",),
-    "neurotouch_hid.warmup:compile_windows",
+    "neurotouch_hid.service.warmup:compile_windows",
     load_when_warm="call",
     excludes=TRACKER_KERNELS,
     background=True,
@@ -148,14 +148,14 @@ SIMULATOR = KernelGroup(
     "simulator",
     "neurotouch_hid.sources.simulator",
     ("neurotouch_hid.sources.esim", "neurotouch_hid.sources.simulator"),
-    "neurotouch_hid.warmup:simulate_briefly",
+    "neurotouch_hid.service.warmup:simulate_briefly",
     waits=True,  # ~5 s of CPU to compile, while interpreted it gives ~0.1 s of gel a second
 )
 PAPER_PIPELINE = KernelGroup(
     "paper-pipeline",
     "neurotouch_hid.pipeline.methods",
     ("neurotouch_hid.pipeline.",),
-    "neurotouch_hid.warmup:compile_paper_windows",
+    "neurotouch_hid.service.warmup:compile_paper_windows",
     load_when_warm="call",
     excludes=TRACKER_KERNELS,
     background=True,
@@ -170,8 +170,8 @@ def compile_pipeline(method: str = "default") -> None:
     (:meth:`GesturePipeline.compile_kernels`, ``pipeline.methods``), on the default sensor: what
     a real-time run that cannot wait does before it opens its source, and a pipeline group's child
     does."""
+    from neurotouch_hid.core.sensor import SensorGeometry
     from neurotouch_hid.pipeline.methods import METHODS
-    from neurotouch_hid.sensor import SensorGeometry
 
     METHODS[method][1](SensorGeometry()).compile_kernels()
 
@@ -191,8 +191,8 @@ def compile_before(say: Callable[[str], None], method: str = "default", *, simul
 def compile_tracker() -> None:
     """The tracker group's warm-up: the per-event part of :func:`compile_pipeline`
     (:meth:`GesturePipeline.compile_tracker_kernels`), for both methods."""
+    from neurotouch_hid.core.sensor import SensorGeometry
     from neurotouch_hid.pipeline.methods import METHODS
-    from neurotouch_hid.sensor import SensorGeometry
 
     for _, pipeline in METHODS.values():
         pipeline(SensorGeometry()).compile_tracker_kernels()
@@ -201,8 +201,8 @@ def compile_tracker() -> None:
 def compile_windows(method: str = "default") -> None:
     """The pipeline group's warm-up: the per-window part of :func:`compile_pipeline`
     (:meth:`GesturePipeline.compile_window_kernels`) of ``method``."""
+    from neurotouch_hid.core.sensor import SensorGeometry
     from neurotouch_hid.pipeline.methods import METHODS
-    from neurotouch_hid.sensor import SensorGeometry
 
     METHODS[method][1](SensorGeometry()).compile_window_kernels()
 
@@ -219,7 +219,7 @@ def compile_paper_windows() -> None:
 def simulate_briefly() -> None:
     """The simulator's warm-up: the simulated gel up to its first gesture (its frame, event and
     finger kernels; ~1 s of simulated time)."""
-    from neurotouch_hid.estimate import GestureType
+    from neurotouch_hid.core.estimate import GestureType
     from neurotouch_hid.sources.simulator import SimulatedSource
 
     for chunk in SimulatedSource(seed=0).chunks(seconds=10.0):
@@ -228,12 +228,12 @@ def simulate_briefly() -> None:
 
 
 def child_command(group: KernelGroup) -> list[str]:
-    """The command of ``group``'s child: this Python on ``python -m neurotouch_hid.warmup GROUP``,
+    """The command of ``group``'s child: this Python on ``python -m neurotouch_hid.service.warmup GROUP``,
     with ``-P`` (Python 3.11) so that the working directory is not put first on ``sys.path``: run
     from a source checkout (as the README's first command is), ``-m`` alone imports the
     checkout's ``neurotouch_hid``, compiles its kernels into the checkout's cache and leaves the
     installed package's cold, so every later run compiles again."""
-    return [sys.executable, "-P", "-m", "neurotouch_hid.warmup", group.name]
+    return [sys.executable, "-P", "-m", "neurotouch_hid.service.warmup", group.name]
 
 
 def kernels(group: KernelGroup) -> dict[str, object]:
@@ -447,7 +447,7 @@ class Warmup:
 
     def _release_linking(self) -> None:
         """Every group is loaded: free what numba keeps only for later compiles
-        (:func:`~neurotouch_hid.jit_cache.release_linking_modules`), :data:`RELEASE_AFTER_S`
+        (:func:`~neurotouch_hid.service.jit_cache.release_linking_modules`), :data:`RELEASE_AFTER_S`
         later in a thread of its own: off the start's path (~0.1 s of CPU here, more on a slow
         board), and never for a process that ends before (a short ``track``)."""
         dispatchers = [d for group in self._groups for d in kernels(group).values()]

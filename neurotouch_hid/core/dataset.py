@@ -30,11 +30,11 @@ from typing import IO, Any, Sequence
 
 import numpy as np
 
-from neurotouch_hid.atomic import DISK_ERRNOS, AtomicFile, _umask, check_output, disk_error, exchange, is_stream
-from neurotouch_hid.errors import DatasetError, NeurotouchError
-from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.limits import MAX_SENSOR_PX, printable, read_outside_lines, read_outside_text, short
-from neurotouch_hid.sensor import user_sensor_path
+from neurotouch_hid.core.atomic import DISK_ERRNOS, AtomicFile, _umask, check_output, disk_error, exchange, is_stream
+from neurotouch_hid.core.errors import DatasetError, NeurotouchError
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.limits import MAX_SENSOR_PX, printable, read_outside_lines, read_outside_text, short
+from neurotouch_hid.core.sensor import user_sensor_path
 
 log = logging.getLogger(__name__)
 
@@ -303,7 +303,7 @@ def read_pressed(path: str | Path) -> list[tuple[int, int]]:
 
 def dataset_sensor_file(dataset: str | Path) -> Path:
     """The sensor.yaml that applies to a dataset folder: its own (docs/dataset.md), else the user's
-    calibration (``neurotouch-hid calibrate``; :func:`~neurotouch_hid.sensor.user_sensor_path`).
+    calibration (``neurotouch-hid calibrate``; :func:`~neurotouch_hid.core.sensor.user_sensor_path`).
 
     Raises DatasetError when there is neither.
     """
@@ -483,7 +483,7 @@ class JsonlWriter:
     """Writes one JSON object a line. Context manager.
 
     A file is written as a temporary file beside it and renamed over it when the writer is
-    closed without an error (:class:`~neurotouch_hid.atomic.AtomicFile`): a command that fails
+    closed without an error (:class:`~neurotouch_hid.core.atomic.AtomicFile`): a command that fails
     leaves what was there. With ``live``, it is renamed at its first line instead, so that another
     process can follow it from then on, when there is no file at its name to lose (a file there
     is replaced only at a clean end). A FIFO or a character device is written in place.

@@ -7,9 +7,9 @@
   and an arrow in the direction it moved, brighter the farther (mm); the contacts as ``●``;
 * the gesture recognised (type, intensity in mm, contacts), and in the demo the gesture the
   simulated hand is performing (the simulator's label) beside it;
-* the pad's outputs (sticks, triggers, d-pad, buttons, keys: :mod:`neurotouch_hid.output.term`);
+* the pad's outputs (sticks, triggers, d-pad, buttons, keys: :mod:`neurotouch_hid.views.term`);
 * the active profile and what each gesture drives in it;
-* while the kernels compile on a first run (:mod:`neurotouch_hid.warmup`), why the run is slow
+* while the kernels compile on a first run (:mod:`neurotouch_hid.service.warmup`), why the run is slow
   and how far the compile is.
 
 On a terminal it answers keys (:data:`HELP`): ``q`` stops the run cleanly (as SIGTERM: outputs
@@ -21,7 +21,7 @@ The view is a subscriber of the run (:class:`~neurotouch_hid.stages.Subscriber`)
 last :class:`~neurotouch_hid.stages.WindowRecord` the runtime published (the markers the
 pipeline saw, the gesture the source performed, the profile, the counters, the compile's
 progress) and reaches into no stage. A pipe or a file gets none of this: the plain state lines
-stay as they are (:func:`neurotouch_hid.output.term.state_line`).
+stay as they are (:func:`neurotouch_hid.views.term.state_line`).
 """
 
 from __future__ import annotations
@@ -41,9 +41,9 @@ from rich.panel import Panel
 from rich.table import Table
 from rich.text import Text
 
-from neurotouch_hid.controller import ControllerState
-from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.output.term import (
+from neurotouch_hid.core.controller import ControllerState
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+from neurotouch_hid.views.term import (
     BUTTON_LABELS,
     STICK_COLUMNS,
     TermView,
@@ -286,7 +286,7 @@ def live_layout(
     since, s of camera time, so that it goes with the windows); ``help_shown``: the keys' help
     under it (h, ?); ``held``: the picture is held (Space), said in the footer; ``wall_s``: s
     since the view started, for the compile's clock (:func:`compile_line`)."""
-    from neurotouch_hid.sensor import SensorGeometry
+    from neurotouch_hid.core.sensor import SensorGeometry
 
     sensor = record.sensor if record.sensor is not None else SensorGeometry()
     if record.markers is None:

@@ -1,6 +1,6 @@
 """The guided part of ``calibrate``: mirror and rotation from two guided pushes, then a guided check.
 
-A rest frame cannot show which way the user looks at the gel (:mod:`neurotouch_hid.calibration`):
+A rest frame cannot show which way the user looks at the gel (:mod:`neurotouch_hid.calibration.measure`):
 the image is a mirror of the user's view when the camera looks from inside, and the camera may
 be mounted turned. Both are measured from what the gel does when the user is told what to do:
 
@@ -8,7 +8,7 @@ be mounted turned. Both are measured from what the gel does when the user is tol
    right". The pipeline (:class:`~neurotouch_hid.pipeline.pipeline.GesturePipeline`, public
    entry points only) runs with the rest frames' geometry but no mirror and no rotation, so its
    ``translation_mm`` is the push as the image shows it (x right, y up). With the sensor's
-   convention (:mod:`neurotouch_hid.sensor`: user = rotate(mirror(image))), the handedness of
+   convention (:mod:`neurotouch_hid.core.sensor`: user = rotate(mirror(image))), the handedness of
    the two pushes gives the mirror -- right-then-up turns counter-clockwise in the user's view,
    so it turns clockwise in the image exactly when the image is mirrored -- and each push then
    gives the rotation; the two are averaged (circular mean). A push that is too weak, is read as
@@ -35,9 +35,9 @@ from typing import Callable, Iterator, Protocol, Sequence
 
 import numpy as np
 
-from neurotouch_hid.errors import SensorError
-from neurotouch_hid.estimate import GestureEstimate, GestureType
-from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.core.errors import SensorError
+from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.sources import Frame, StreamItem
 
 #: How long to wait for a gesture after asking for it (s of stream time); one started in that

@@ -1,7 +1,7 @@
 """What a run did: :class:`RunStats`, counted live by the runtime and shown by the terminal view.
 
 Its own module so that the engine (:mod:`neurotouch_hid.runtime`) and the outputs that show it
-(:mod:`neurotouch_hid.output.term`) both import it without importing each other.
+(:mod:`neurotouch_hid.views.term`) both import it without importing each other.
 """
 
 from __future__ import annotations
@@ -71,7 +71,7 @@ class RunStats:
             queue it left was worked off: what every later run sees.
         compile_ended_at: how far the first run's compile was (0..1) when the run ended before
             it; None when it was done or there was none. The compile stops with the run (what it
-            cached stays: :meth:`neurotouch_hid.warmup.Warmup.close`); the next run goes on with it.
+            cached stays: :meth:`neurotouch_hid.service.warmup.Warmup.close`); the next run goes on with it.
         window_latency: paced sources only: from the window's end in wall time (the camera clock
             mapped to wall time by the pacing) to the output being up to date; adds the wait for
             the source batch that shows the window is over (up to one batch).

@@ -24,8 +24,8 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO
 
-from neurotouch_hid.errors import NeurotouchError
-from neurotouch_hid.limits import printable, read_proc_file
+from neurotouch_hid.core.errors import NeurotouchError
+from neurotouch_hid.core.limits import printable, read_proc_file
 
 
 class OutputError(NeurotouchError):

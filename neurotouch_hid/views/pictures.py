@@ -5,7 +5,7 @@ as the paper's Figure "APS frame and EVS events"), the tracked markers, their di
 from rest as arrows (scaled up to be visible, never past the neighbouring marker), the contact
 points, the gesture type and intensity, and a key to the colours. Drawing is OpenCV's; so is
 writing a png (one picture: the frame with the largest gesture intensity); a gif is Pillow's and
-an mp4 imageio's (ffmpeg), the optional extra ``video`` (:mod:`neurotouch_hid.extras`).
+an mp4 imageio's (ffmpeg), the optional extra ``video`` (:mod:`neurotouch_hid.service.extras`).
 """
 
 from __future__ import annotations
@@ -17,14 +17,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from neurotouch_hid.atomic import replacing
-from neurotouch_hid.errors import NeurotouchError
-from neurotouch_hid.estimate import GestureEstimate
-from neurotouch_hid.extras import require, require_ffmpeg
+from neurotouch_hid.core.atomic import replacing
+from neurotouch_hid.core.errors import NeurotouchError
+from neurotouch_hid.core.estimate import GestureEstimate
+from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.methods import MethodConfig, pipeline_for
-from neurotouch_hid.sensor import SensorGeometry
+from neurotouch_hid.pipeline.track import pipeline_over
+from neurotouch_hid.service.extras import require, require_ffmpeg
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
-from neurotouch_hid.track import pipeline_over
 
 #: Output kinds by file suffix.
 VIEW_SUFFIXES = (".mp4", ".gif", ".png")
@@ -162,7 +162,7 @@ def render_view(
         scale: integer upscaling; pictures are (height*scale, width*scale).
         fps: frame rate of mp4/gif.
         event_span_us: how much recent event history each picture shows (us).
-        on_progress: see :func:`neurotouch_hid.track.pipeline_over`.
+        on_progress: see :func:`neurotouch_hid.pipeline.track.pipeline_over`.
     Returns:
         the number of pictures drawn.
     Raises:
@@ -170,7 +170,7 @@ def render_view(
             symbolic link, a folder or the recording. What was at ``out`` is kept until the
             view is complete.
         MissingExtraError: gif or mp4 without the extra ``video`` (mp4: or without an ffmpeg program).
-        RecordingError, SensorError: see :func:`neurotouch_hid.track.pipeline_over`.
+        RecordingError, SensorError: see :func:`neurotouch_hid.pipeline.track.pipeline_over`.
     """
     out = Path(out)
     suffix = out.suffix.lower()

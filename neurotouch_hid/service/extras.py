@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import importlib
 
-from neurotouch_hid.errors import NeurotouchError
+from neurotouch_hid.core.errors import NeurotouchError
 
 #: Each extra's import names and their distributions (``pyproject.toml``'s optional dependencies).
 EXTRAS: dict[str, dict[str, str]] = {
