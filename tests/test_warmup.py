@@ -74,7 +74,7 @@ def test_interpreted_pipeline_gives_the_compiled_pipelines_windows():
 
 
 def test_a_group_is_cold_until_its_child_compiled_it_into_the_cache(tmp_path):
-    check = [sys.executable, "-c", "from neurotouch_hid import warmup as w; print(w.is_cold(w.SIMULATOR))"]
+    check = [sys.executable, "-c", "from neurotouch_hid.service import warmup as w; print(w.is_cold(w.SIMULATOR))"]
     assert subprocess.run(check, env=_env(tmp_path), capture_output=True, text=True).stdout.strip() == "True"
     child = subprocess.run(
         [sys.executable, "-m", "neurotouch_hid.service.warmup", "simulator"],
@@ -121,7 +121,7 @@ def stop_early() -> None:
 def test_the_paper_pipeline_s_child_leaves_no_kernel_of_its_group_cold(tmp_path):
     # its group is every kernel of the pipeline's package, the product's too: compiled alone, the
     # paper's method left them cold, and every later ``run --method paper`` compiled again
-    check = [sys.executable, "-c", "from neurotouch_hid import warmup as w; print(w.is_cold(w.PAPER_PIPELINE))"]
+    check = [sys.executable, "-c", "from neurotouch_hid.service import warmup as w; print(w.is_cold(w.PAPER_PIPELINE))"]
     if not _paper_child:
         _start_paper_child(tmp_path)
     cache, child = _paper_child[0]
