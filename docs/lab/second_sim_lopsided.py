@@ -30,8 +30,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from neurotouch_hid.evaluation.dataset import labels_at, read_labels
 
+from neurotouch_hid.core.dataset import labels_at, read_labels
 from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.methods import pipeline_for
 from neurotouch_hid.sources.recording import RecordingReader
