@@ -8,7 +8,7 @@ refer to it, and docs/architecture.md sums up what the code takes from each sect
 __version__ = "0.1.0"
 
 # Before any module with numba-compiled code is imported: where numba may cache it (a read-only
-# install or home must not stop the driver; see jit_cache.py).
-from neurotouch_hid import jit_cache as _jit_cache  # noqa: E402
+# install or home must not stop the driver; see service/jit_cache.py).
+from neurotouch_hid.service import jit_cache as _jit_cache  # noqa: E402
 
 _jit_cache.configure()
