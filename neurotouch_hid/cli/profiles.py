@@ -1,7 +1,7 @@
 """Profiles: ``profile list|use|show|new|set|unset|delete|reset|validate|edit|path|test|tune`` and
 ``profile auto`` (a profile per game).
 
-Each command parses its options, calls one function of what it drives (mapping/profile.py,
+Each command parses its options, calls one function of what it drives (mapping/profile/,
 mapping/editor.py, games.py, control.py, mapping/replay.py) and prints.
 """
 

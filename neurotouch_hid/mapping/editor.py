@@ -34,8 +34,6 @@ from neurotouch_hid.core.atomic import temporary_beside
 from neurotouch_hid.core.errors import NeurotouchError, ProfileError, did_you_mean, nearest
 from neurotouch_hid.core.limits import YamlError, load_yaml, printable, short, where
 from neurotouch_hid.mapping.profile import (
-    _ANY_MAPPING_FIELDS,
-    _TAG_MODELS,
     MAX_PROFILE_NAME_CHARS,
     DeviceSpec,
     LayerSwitch,
@@ -43,13 +41,13 @@ from neurotouch_hid.mapping.profile import (
     Profile,
     TouchClick,
     TouchpadMapping,
-    _output_kind,
     find_profile,
     parse_profile,
     read_profile_text,
     shipped_profiles_dir,
     user_profiles_dir,
 )
+from neurotouch_hid.mapping.profile.models import _ANY_MAPPING_FIELDS, _TAG_MODELS, _output_kind
 
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_-]*$")
 _MISSING = object()
