@@ -73,6 +73,59 @@ def test_interpreted_pipeline_gives_the_compiled_pipelines_windows():
     np.testing.assert_allclose([e.intensity_mm for e in interpreted], [e.intensity_mm for e in compiled], atol=1e-6)
 
 
+INTERPRETED_CHILD = """
+import pickle, sys
+from numba.core import event
+from neurotouch_hid.service import warmup
+from neurotouch_hid.driver import build_pipeline
+from neurotouch_hid.core.sensor import SensorGeometry
+
+warmup.child_command = lambda group: [sys.executable, "-c", "import time; time.sleep(600)"]  # never done
+groups = list(warmup.PIPELINE_OF["default"])
+run = warmup.Warmup(groups, say=lambda line: None).start()
+compiled = []
+
+class Compiled(event.Listener):
+    def on_start(self, ev):
+        pass
+
+    def on_end(self, ev):
+        function = ev.data["dispatcher"].py_func
+        compiled.append(f"{function.__module__}.{function.__qualname__}")
+
+pipeline, _ = build_pipeline(SensorGeometry(), 10_000, resting_beside=False)  # resting inline
+guarded = warmup.GuardedPipeline(pipeline, run.guarded(*groups))
+with event.install_listener("numba:compile", Compiled()):
+    estimates = [e for item in pickle.load(open(sys.argv[1], "rb")) for e in guarded.process(item)]
+run.close()
+print(len(estimates), *sorted(set(compiled)))
+"""
+
+
+def test_a_cold_run_compiles_nothing_in_its_own_process_while_it_interprets(tmp_path):
+    """Nothing compiled, an empty cache, the children not done: the pipeline interpreted through
+    a push (its APS-frame correction, resting detection, contacts) makes numba compile nothing in
+    the run's process. The kernels inlined into others (``inline="always"``) were left compiled:
+    called from an interpreted kernel, numba compiled each in the run's own threads (0.5-1.4 s
+    apiece, before the first state and before the first gesture)."""
+    import pickle
+
+    from neurotouch_hid.sources.simulator import SimulatedSource
+
+    items = tmp_path / "items.pickle"
+    items.write_bytes(pickle.dumps(list(SimulatedSource(seed=3, gestures=["push"]).stream(seconds=0.4))))
+    out = subprocess.run(
+        [sys.executable, "-c", INTERPRETED_CHILD, str(items)],
+        capture_output=True,
+        text=True,
+        env=_env(tmp_path / "numba"),
+        timeout=600,
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    windows, *compiled = out.stdout.split()
+    assert int(windows) > 10 and compiled == []
+
+
 def test_a_group_is_cold_until_its_child_compiled_it_into_the_cache(tmp_path):
     check = [sys.executable, "-c", "from neurotouch_hid.service import warmup as w; print(w.is_cold(w.SIMULATOR))"]
     assert subprocess.run(check, env=_env(tmp_path), capture_output=True, text=True).stdout.strip() == "True"

@@ -240,26 +240,46 @@ def kernels(group: KernelGroup) -> dict[str, object]:
     """The group's numba dispatchers, by ``module.name``, importing the group's module.
 
     Kernels compiled only inside others (``inline="always"``) are left out: they have no cached
-    code of their own."""
+    code of their own (:func:`inlined_kernels`)."""
+    return {
+        name: dispatcher
+        for name, dispatcher in _dispatchers(group)
+        if dispatcher.targetoptions.get("inline", "never") == "never"
+        and (not group.only or name in group.only)
+        and name not in group.excludes
+    }
+
+
+def inlined_kernels(group: KernelGroup) -> dict[str, object]:
+    """The kernels of the group's packages compiled only inside others (``inline="always"``), by
+    ``module.name``, whatever ``only`` and ``excludes`` say (the tracker's and the rest's kernels
+    share them).
+
+    They have no cached code of their own, yet an interpreted kernel (its ``py_func``) calls them
+    from Python, where numba would compile each one in the run's own process, on the run's
+    thread (0.5-1.4 s of CPU apiece, four of them, before the first gesture and the first state):
+    :class:`Warmup` interprets them while any group is."""
+    return {
+        name: dispatcher
+        for name, dispatcher in _dispatchers(group)
+        if dispatcher.targetoptions.get("inline", "never") != "never"
+    }
+
+
+def _dispatchers(group: KernelGroup) -> Iterator[tuple[str, object]]:
+    """(``module.name``, dispatcher) of every numba kernel defined in the group's packages,
+    importing the group's module first."""
     import importlib
 
     from numba.core.registry import CPUDispatcher
 
     importlib.import_module(group.imports)
-    found: dict[str, object] = {}
     for name, module in list(sys.modules.items()):
         if module is None or not name.startswith(group.packages):
             continue
         for attr, value in list(vars(module).items()):
-            if (
-                isinstance(value, CPUDispatcher)
-                and value.py_func.__module__ == name
-                and value.targetoptions.get("inline", "never") == "never"
-                and (not group.only or f"{name}.{attr}" in group.only)
-                and f"{name}.{attr}" not in group.excludes
-            ):
-                found[f"{name}.{attr}"] = value
-    return found
+            if isinstance(value, CPUDispatcher) and value.py_func.__module__ == name:
+                yield f"{name}.{attr}", value
 
 
 def cached_signatures(dispatcher) -> list:
@@ -365,6 +385,8 @@ class Warmup:
         self._settled = {g.name: threading.Event() for g in groups}  # ready or failed
         self._first_window = threading.Event()  # the run's first window is out: waits groups wait
         self._kernels: dict[str, dict[str, object]] = {}
+        self._inlined: dict[str, object] = {}  # interpreted inline kernels (:func:`inlined_kernels`)
+        self._inlined_lock = threading.Lock()
         self.progress: dict[str, GroupProgress] = {}
         self._threads: list[threading.Thread] = []
         self._children: list[subprocess.Popen] = []
@@ -431,7 +453,10 @@ class Warmup:
                     how = "starting in seconds, partly interpreted (slowly) meanwhile"
                 self._say(f"{COMPILING}: {how}; {COMPILE_COST}")
             if self._interpreted:  # a waits group only until the first window (guard)
-                interpret(found)
+                with self._inlined_lock:
+                    inlined = inlined_kernels(group)  # (those interpreted already are not found again)
+                    self._inlined.update(inlined)
+                    interpret({**found, **inlined})
             thread = threading.Thread(target=self._child, args=(group,), name=f"nt-compile-{group.name}", daemon=True)
             self._threads.append(thread)
             thread.start()
@@ -483,6 +508,7 @@ class Warmup:
                     compiled(self._kernels[name])
                     progress.state = "failed"
             self._settled[name].set()
+        self._inlined_back()
 
     def progress_now(self) -> CompileProgress | None:
         """The compile while it lasts (what the runtime publishes in each window's record), else
@@ -517,6 +543,16 @@ class Warmup:
             return _UNGUARDED if done else guard_all()
 
         return guard
+
+    def _inlined_back(self) -> None:
+        """Point the inline kernels' names back at their dispatchers: every group is compiled,
+        or numba is to compile some here (a failed child, a kernel that did not load from the
+        cache, the run's end), whose typing needs them. A kernel still interpreted then has
+        numba compile the inline ones it calls, here: slower, never wrong."""
+        with self._inlined_lock:
+            if self._inlined:
+                compiled(self._inlined)
+                self._inlined = {}
 
     def _compile_here(self, group: KernelGroup) -> None:
         progress = self.progress[group.name]
@@ -575,18 +611,21 @@ class Warmup:
             return
         progress.state = "loading"
         group_kernels = self._kernels[group.name]
-        _load_cached(group_kernels)
+        if _load_cached(group_kernels):  # compiled at its first call, which types the inline kernels
+            self._inlined_back()
         with self._locks[group.name]:
             compiled(group_kernels)
             progress.state = "ready"
         self._settled[group.name].set()
         if not self.compiling:
+            self._inlined_back()
             if self._interpreted:  # (else start() releases, after the last child)
                 self._release_linking()
             done = "full speed now" if self._interpreted else "starting"
             self._say(f"compiled in {time.monotonic() - self.started_s:.0f} s, cached for next time: {done}")
 
     def _failed(self, group: KernelGroup, why: str) -> None:
+        self._inlined_back()  # numba compiles the group's kernels here: they inline these
         if not self._interpreted:  # nothing runs yet: compile here before it does
             self._say(f"{why}: compiling it in this process instead")
             self._compile_here(group)
@@ -679,13 +718,18 @@ def _on_each_compiled(group_kernels: dict[str, object], on_kernel: Callable[[str
     return event.install_listener("numba:compile", Reporting())
 
 
-def _load_cached(group_kernels: dict[str, object]) -> None:
+def _load_cached(group_kernels: dict[str, object]) -> int:
     """Load every signature numba's cache holds for these kernels (``Dispatcher.compile``, a cache
-    hit); one it cannot load is compiled at its first call."""
+    hit); one it cannot load is compiled at its first call. Returns how many could not be loaded
+    (numba compiled them here and failed: their inline kernels were interpreted)."""
+    failed = 0
     for dispatcher in group_kernels.values():
         for signature in cached_signatures(dispatcher):
-            with contextlib.suppress(Exception):
+            try:
                 dispatcher.compile(signature)
+            except Exception:
+                failed += 1
+    return failed
 
 
 def _call(spec: str) -> None:
