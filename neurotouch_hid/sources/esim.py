@@ -357,9 +357,9 @@ def held_still(
 
 
 def time_ordered(first, noise_t, noise_x, noise_y, noise_p, hot_n, hot_x, hot_y) -> np.ndarray:
-    """``first``'s events followed by the noise events, stable-sorted by timestamp: a compiled
-    concatenation (:func:`_concatenated`), then NumPy's stable sort (the order numba's mergesort
-    gave, which cost the simulator's first-run compile ~1.7 s that a first run's gestures wait for).
+    """``first``'s events followed by the noise events, stable-sorted by timestamp, in NumPy
+    (a concatenation and NumPy's stable sort; as numba kernels, the concatenation and a mergesort
+    cost the simulator's first-run compile ~2.6 s of CPU that a first run's gestures wait for).
 
     Args:
         first: EVENT_DTYPE events (ESIM's).
@@ -373,50 +373,22 @@ def time_ordered(first, noise_t, noise_x, noise_y, noise_p, hot_n, hot_x, hot_y)
     Raises:
         ValueError: the counts do not add up (M != B + sum(hot_n)), or the arrays' lengths differ.
     """
-    t, x, y, p = _concatenated(first, noise_t, noise_x, noise_y, noise_p, hot_n, hot_x, hot_y)
-    order = np.argsort(t, kind="stable")
-    out = np.empty(len(t), dtype=EVENT_DTYPE)
-    out["timestamp"], out["x"], out["y"], out["polarity"] = t[order], x[order], y[order], p[order]
-    return out
-
-
-@numba.njit(cache=True, nogil=True)
-def _concatenated(first, noise_t, noise_x, noise_y, noise_p, hot_n, hot_x, hot_y):
-    """(t int64, x int16, y int16, p int8): ``first``'s events then the noise events
-    (:func:`time_ordered`'s arguments). Raises ValueError as it does."""
-    n_first = first.shape[0]
-    total = n_first + noise_t.shape[0]
+    n_first, n_noise, n_activity = len(first), len(noise_t), len(noise_x)
     if (
-        noise_p.shape[0] != noise_t.shape[0]
-        or noise_y.shape[0] != noise_x.shape[0]
-        or not hot_n.shape[0] == hot_x.shape[0] == hot_y.shape[0]
-        or noise_x.shape[0] + hot_n.sum() != noise_t.shape[0]
-        or (hot_n.shape[0] and hot_n.min() < 0)
+        len(noise_p) != n_noise
+        or len(noise_y) != n_activity
+        or not len(hot_n) == len(hot_x) == len(hot_y)
+        or n_activity + int(np.sum(hot_n)) != n_noise
+        or (len(hot_n) and np.min(hot_n) < 0)
     ):
         raise ValueError("noise events: the counts and the arrays' lengths do not match")
-    t = np.empty(total, dtype=np.int64)
-    x = np.empty(total, dtype=np.int16)
-    y = np.empty(total, dtype=np.int16)
-    p = np.empty(total, dtype=np.int8)
-    for i in range(n_first):
-        t[i] = first[i]["timestamp"]
-        x[i] = first[i]["x"]
-        y[i] = first[i]["y"]
-        p[i] = first[i]["polarity"]
-    i = n_first
-    for k in range(noise_x.shape[0]):
-        x[i] = noise_x[k]
-        y[i] = noise_y[k]
-        i += 1
-    for h in range(hot_n.shape[0]):
-        for _ in range(hot_n[h]):
-            x[i] = hot_x[h]
-            y[i] = hot_y[h]
-            i += 1
-    for k in range(noise_t.shape[0]):
-        t[n_first + k] = noise_t[k]
-        p[n_first + k] = noise_p[k]
-    return t, x, y, p
+    joined = np.empty(n_first + n_noise, dtype=EVENT_DTYPE)
+    joined[:n_first] = first
+    noise = joined[n_first:]
+    noise["timestamp"], noise["polarity"] = noise_t, noise_p
+    noise["x"][:n_activity], noise["y"][:n_activity] = noise_x, noise_y
+    noise["x"][n_activity:], noise["y"][n_activity:] = np.repeat(hot_x, hot_n), np.repeat(hot_y, hot_n)
+    return joined[np.argsort(joined["timestamp"], kind="stable")]
 
 
 class EventCamera:
