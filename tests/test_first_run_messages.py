@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import sys
+
 import pytest
 
 from neurotouch_hid import driver
@@ -179,3 +182,43 @@ def test_ctrl_c_during_the_start_says_the_run_stopped_before_its_first_window(mo
     done = run_main(monkeypatch, capsys, ["demo", "--seconds", "5"])
     assert done.returncode == 130
     assert "stopped during the start, before the first window: no output was sent" in done.stderr
+
+
+@pytest.mark.parametrize("command", [["run", "--source", "sim", "--output", "term"], ["demo"]], ids=["run", "demo"])
+def test_ctrl_c_typed_in_the_live_view_after_its_first_windows_prints_the_summary_then_exit_130(command):
+    """The live view on a real terminal (a pty): once it has drawn some windows, Ctrl-C typed
+    there (the byte 0x03, which the terminal's line discipline turns into SIGINT for the
+    foreground job: the view's cbreak mode keeps ISIG) ends the run with its summary, then
+    exit 130, as ``q`` gives it with exit 0."""
+    import pty
+    import re
+    import select
+    import time
+
+    from helpers import CLI
+
+    pid, terminal = pty.fork()
+    if pid == 0:  # the child: the CLI on the pty (stdin, stdout and stderr)
+        os.execv(sys.executable, [*CLI, *command, "--seconds", "120"])
+    out, typed, deadline = b"", False, time.monotonic() + 300  # the bound only ends a hang
+    try:
+        while time.monotonic() < deadline:
+            if select.select([terminal], [], [], 0.2)[0]:
+                try:
+                    data = os.read(terminal, 65536)
+                except OSError:  # EIO: the child closed the terminal
+                    break
+                if not data:
+                    break
+                out += data
+            drawn = [int(n) for n in re.findall(rb"windows (\d+)", out)]
+            if not typed and drawn and max(drawn) >= 20:  # the view shows windows: the steady state
+                os.write(terminal, b"\x03")  # Ctrl-C, typed
+                typed, out = True, b""
+        _, status = os.waitpid(pid, 0)
+    finally:
+        os.close(terminal)
+    said = out.decode("utf-8", "replace")
+    assert typed and os.waitstatus_to_exitcode(status) == 130, said[-2000:]
+    assert re.search(r"\d+ windows, \d+ events, \d+ frames in", said), said[-2000:]
+    assert "Traceback" not in said
