@@ -188,3 +188,33 @@ def test_the_shipped_touchpad_profile_maps_the_touchpad():
     assert profile.touchpad is not None and profile.touchpad.click is not None
     assert profile.touchpad.width_mm / profile.touchpad.height_mm == pytest.approx(1920 / 1080)
     assert profile.uses_pad
+
+
+def test_run_output_jsonl_carries_the_touch_points_and_the_click(tmp_path, monkeypatch):
+    """``run --profile touchpad --output jsonl``: a line's ``touches`` are the active touch points
+    by slot (docs/dataset.md, "Controller states"), a lift leaves its slot out, a firm push sets
+    ``touch_click``, and the last line (the run's end) has neither."""
+    import json
+
+    from neurotouch_hid.core.dataset import write_predictions
+    from neurotouch_hid.driver import run_driver
+
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
+    spec = load_profile("touchpad").touchpad
+    one, two = (-10.0, 0.0), (12.0, 6.0)
+    estimates = [estimate(10 * k, [one], intensity=2.0, gesture=GestureType.PUSH) for k in range(1, 11)]
+    estimates += [estimate(100 + 10 * k, [one, two], intensity=5.0, gesture=GestureType.PUSH) for k in range(1, 11)]
+    estimates += [estimate(200 + 10 * k, [two], intensity=2.0, gesture=GestureType.PUSH) for k in range(1, 11)]
+    write_predictions(tmp_path / "p.jsonl", estimates)
+    out = tmp_path / "states.jsonl"
+    run_driver(str(tmp_path / "p.jsonl"), "touchpad", "jsonl", fast=True, out=out)
+    lines = [json.loads(line) for line in out.read_text().splitlines()]
+    touches = [line["touches"] for line in lines]
+    first = [t for t in touches if len(t) == 1 and t[0]["slot"] == 0][0][0]
+    assert (first["x"], first["y"]) == pad_position(spec, *one) and 0 <= first["id"] < 128
+    both = [t for t in touches if len(t) == 2][-1]
+    assert [p["slot"] for p in both] == [0, 1] and (both[1]["x"], both[1]["y"]) == pad_position(spec, *two)
+    assert both[0]["id"] == first["id"] != both[1]["id"]  # the first finger keeps its id
+    assert any(line["touch_click"] for line in lines)  # the 5 mm push clicks (from 4 mm)
+    assert [p["slot"] for p in touches[-2]] == [1]  # the first finger lifted: slot 0 left out
+    assert touches[-1] == [] and lines[-1]["touch_click"] is False

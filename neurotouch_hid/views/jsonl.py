@@ -22,10 +22,14 @@ class StateJsonlWriter(JsonlWriter):
     """Controller states as JSON lines (``neurotouch-hid run --output jsonl``), one per change.
 
     Each line: ``{"t_us": int, "gesture": str, "intensity_mm": float, "axes": {evdev name: int},
-    "buttons": {evdev name: bool}, "keys": [evdev name], "rel": {evdev name: int}}``, every axis
-    and button of the pad (:mod:`neurotouch_hid.core.controller`), the keyboard keys and mouse buttons
-    that are down (sorted) and the mouse motion of this step (non-zero codes only);
-    ``gesture`` and ``intensity_mm`` are those of the window's estimate. :meth:`neutralise`
+    "buttons": {evdev name: bool}, "keys": [evdev name], "rel": {evdev name: int}, "touches":
+    [{"slot": int, "id": int, "x": int, "y": int}], "touch_click": bool}``, every axis and button
+    of the pad (:mod:`neurotouch_hid.core.controller`), the keyboard keys and mouse buttons that are
+    down (sorted), the mouse motion of this step (non-zero codes only), the touchpad's active
+    touch points by slot (a profile's ``touchpad:``; ``id`` 0..127, ``x`` 0..1919 and ``y``
+    0..1079 in the DualSense's touchpad units, :class:`~neurotouch_hid.core.controller.TouchPoint`;
+    a lifted point is left out) and its click; ``gesture`` and ``intensity_mm`` are those of the
+    window's estimate. :meth:`neutralise`
     writes a neutral line (gesture ``none``), so a stopped run always ends on one. Lines are
     flushed as written (another process reads them live). A file is written beside its name and
     renamed over it at the first line when nothing is there, else at the run's end (Ctrl-C and
@@ -67,6 +71,12 @@ class StateJsonlWriter(JsonlWriter):
                 "buttons": {name: bool(v) for name, v in state.buttons.items()},
                 "keys": sorted(state.keys),
                 "rel": {name: int(v) for name, v in state.rel.items()},
+                "touches": [
+                    {"slot": slot, "id": int(point.id), "x": int(point.x), "y": int(point.y)}
+                    for slot, point in enumerate(state.touches)
+                    if point is not None and point.active
+                ],
+                "touch_click": bool(state.touch_click),
             }
         )
 
