@@ -499,7 +499,7 @@ def test_doctor_says_which_interface_for_a_whole_configuration_descriptor_this_k
 
     (tmp_path / "modules.dep").write_text("kernel/drivers/usb/gadget/legacy/gadgetfs.ko: kernel/udc.ko\n")
     note = protocol_notes("6.1.0", tmp_path / "none", tmp_path)[1]
-    assert note.startswith("xinput: gadgetfs available here, not used yet") and "Windows will not read xinput" in note
+    assert note.startswith("xinput: gadgetfs available here: a run as root") and "GadgetFS" in note
     (tmp_path / "modules.dep").write_text("")
     note = protocol_notes("6.1.0", tmp_path / "none", tmp_path)[1]
     assert note.startswith("xinput: neither gadgetfs nor raw_gadget") and "Windows will not read xinput" in note

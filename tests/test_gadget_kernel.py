@@ -64,6 +64,24 @@ def test_xinput_gadget_is_bound_by_xpad_read_by_sdl_and_hears_its_rumble(guest):
     assert details["rumble_lines"]
 
 
+def test_xinput_pad_on_gadgetfs_carries_the_wired_pads_0x21_descriptor(guest):
+    """What Windows' XInput driver reads and FunctionFS cannot carry: the host read the 17-byte
+    descriptor right after the FF/5D/01 interface, naming the endpoints it has (0x81, 0x02)."""
+    from test_gadgetfs import WIRED_PAD, WIRED_PAD_DEVICE
+
+    from neurotouch_hid.targets.gadget.gadgetfs import XINPUT_CLASS_DESCRIPTOR
+
+    usb = passed(guest, "checks_gadget.check_usb_xinput")["usb"]
+    read = bytes.fromhex(usb["raw_configuration"])  # byte for byte a wired pad's but for remote wake-up
+    assert read[:7] + read[8:] == WIRED_PAD[:7] + WIRED_PAD[8:] and (read[7], WIRED_PAD[7]) == (0x80, 0xA0)
+    device = bytes.fromhex(usb["raw_device"])  # but for ep0's packet size, which GadgetFS sets to the UDC's
+    assert device[:7] + device[8:] == WIRED_PAD_DEVICE[:7] + WIRED_PAD_DEVICE[8:]
+    assert usb["interfaces"] == [["ff", "5d", "01"]]
+    assert usb["class_descriptors"] == [XINPUT_CLASS_DESCRIPTOR.hex()]
+    assert [e["address"] for e in usb["endpoints"]] == ["81", "02"]
+    assert usb["configuration"]["bmAttributes"] == "80"  # a real pad's 0xA0 asks for remote wake-up: refused
+
+
 def test_switch_access_profile_types_on_a_usb_keyboard(guest):
     details = passed(guest, "checks_gadget.check_usb_switch_access_keyboard")
     assert details["ID_INPUT_KEYBOARD"] == "1"
@@ -116,3 +134,5 @@ def test_xac_gadget_is_one_joystick_function_read_as_the_documented_report(guest
     assert details["last_report"] == XAC.neutral().hex()
     # Debian 12's 6.1 has no interval attribute: doctor's note says so
     assert details["interval"] is None and "cannot set its polling interval" in details["notes"][0]
+    # and which interface for a whole configuration descriptor it has (the test kernel: gadgetfs.ko)
+    assert details["notes"][1].startswith("xinput: gadgetfs available"), details["notes"]

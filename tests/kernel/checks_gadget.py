@@ -21,8 +21,13 @@ under emulation. One SDL start for ``hid`` and one for ``xinput``:
   protocol speaks the gadget's: HORI's 0f0d:00c1; the held push's report decodes field
   by field as docs/reports.md says (B, ZR, the hat right, LX 255, the rest centred); SIGTERM:
   the last report is neutral.
-* ``xinput`` (:func:`check_usb_xinput`): xpad binds the FF/5D/01 interface of 045e:028e; SDL opens
-  it as a GameController and reads the push on the left stick, then plays a rumble, which reaches
+* ``xinput`` (:func:`check_usb_xinput`): the run (root, no gadget set up) makes the pad on
+  GadgetFS, whose configuration descriptor the host reads with the 17-byte 0x21 descriptor after
+  the FF/5D/01 interface and endpoints 0x81, 0x02: a wired pad's, byte for byte, at full speed,
+  but bmAttributes 0x80 (GadgetFS refuses remote wake-up); the vendor requests ``C1 01`` read
+  through usbfs give a wired pad's answers; no "unable to receive magic message" or "can't set
+  config" in the kernel's log; xpad binds the interface of 045e:028e; SDL opens it as a
+  GameController and reads the push on the left stick, then plays a rumble, which reaches
   the gadget's OUT endpoint and is handled (the run says it: "rumble (the gel has no motor)";
   xpad's player LED lines are recorded, not asserted); SIGTERM: evdev reads the stick centred.
 * the keyboard (:func:`check_usb_switch_access_keyboard`): ``gadget setup --protocol hid
@@ -32,7 +37,7 @@ under emulation. One SDL start for ``hid`` and one for ``xinput``:
 * killed (:func:`check_usb_killed`): a ``hid`` run in a forked child, SIGKILLed while it holds
   the push: the gadget stays bound and the host's last report is the neutral one, which the run's
   guard sends (evdev reads the stick centred); an ``xinput`` run SIGKILLed: the host's pad goes away
-  (the kernel unbinds a gadget whose FunctionFS files closed).
+  (the kernel unbinds a gadget whose GadgetFS or FunctionFS files closed).
 * latency (:func:`check_usb_latency`): benchmarks/bench_gadget_latency.py's figures, in this kernel.
 """
 
@@ -51,7 +56,9 @@ import guestlib
 from checks_runtime import REPO, ProbeLines, _write
 from outputlib import PROFILE, HidrawReader, InProcessRun, held_state, hid_driver, push_right
 
-from neurotouch_hid.targets.gadget import configfs
+from neurotouch_hid.targets.gadget import configfs, gadgetfs
+from neurotouch_hid.targets.gadget.ffs import XINPUT_CAPABILITIES
+from neurotouch_hid.targets.gadget.gadgetfs import XINPUT_CLASS_DESCRIPTOR
 from neurotouch_hid.targets.protocols import PROTOCOLS
 from neurotouch_hid.targets.reports.hid import HID_JOYSTICK
 from neurotouch_hid.targets.reports.switch import SWITCH
@@ -82,6 +89,7 @@ def _kernel() -> dict:
     loaded = {m: guestlib.sh(["modprobe", m]).returncode == 0 for m in MODULES}
     configfs.mount_configfs()
     configfs.remove()
+    gadgetfs.unmount()  # a killed xinput run's GadgetFS mount (its gadget went with its files)
     guestlib.settle()
     assert (Path("/sys/class/udc") / UDC).exists(), f"no {UDC} after modprobe: {loaded}"
     return loaded
@@ -368,7 +376,8 @@ def usb_descriptors(ids: tuple[int, int]) -> dict:
     enumeration; USB 2.0, 9.6), decoded: the device's class, bcdDevice, bMaxPacketSize0; the
     configuration's bmAttributes and bMaxPower (2 mA units); each interface's class, subclass,
     protocol; each class descriptor (type, bytes); each endpoint's address, attributes,
-    wMaxPacketSize and bInterval."""
+    wMaxPacketSize and bInterval; and the bytes as read (``raw_device``, ``raw_configuration``:
+    hex)."""
     for device in Path("/sys/bus/usb/devices").iterdir():
         try:
             found = (
@@ -383,7 +392,8 @@ def usb_descriptors(ids: tuple[int, int]) -> dict:
     else:
         raise AssertionError(f"no USB device {ids[0]:04x}:{ids[1]:04x} on the host side")
     out: dict = {"device": {"class": raw[4], "bMaxPacketSize0": raw[7], "bcdDevice": f"{raw[12] | raw[13] << 8:04x}"},
-                 "interfaces": [], "class_descriptors": [], "endpoints": []}  # fmt: skip
+                 "interfaces": [], "class_descriptors": [], "endpoints": [],
+                 "raw_device": raw[: raw[0]].hex(), "raw_configuration": raw[raw[0] :].hex()}  # fmt: skip
     at = raw[0]
     while at + 2 <= len(raw) and raw[at] >= 2:
         length, kind, body = raw[at], raw[at + 1], raw[at : at + raw[at]]
@@ -398,6 +408,19 @@ def usb_descriptors(ids: tuple[int, int]) -> dict:
             out["class_descriptors"].append(body.hex())
         at += length
     return out
+
+
+def _vendor_requests() -> dict[str, str]:
+    """The pad's answers to the vendor requests ``C1 01`` Windows asks (wValue 0x0100, 20 bytes;
+    0x0000, 8 bytes), read with pyusb through usbfs (hex)."""
+    import usb.core
+
+    device = usb.core.find(idVendor=XBOX_IDS[0], idProduct=XBOX_IDS[1])
+    assert device is not None, "pyusb does not find the pad"
+    return {
+        f"{v:04x}": bytes(device.ctrl_transfer(0xC1, 0x01, v, 0, n, timeout=5000)).hex()
+        for v, n in ((0x100, 20), (0, 8))
+    }
 
 
 def _xpad_interface() -> str | None:
@@ -416,6 +439,7 @@ def check_usb_xinput() -> dict:
     preds, profile, held = _setup(PROFILE)
     run = InProcessRun(preds, profile, "usb", protocol="xinput")
     seen: dict = {}
+    log_before = len(guestlib.sh(["dmesg"]).stdout.splitlines())
 
     def steps(run: InProcessRun) -> None:
         _sdl_ready(probe, lines)
@@ -424,6 +448,9 @@ def check_usb_xinput() -> dict:
         seen["device_s"] = time.monotonic() - t_run
         assert isinstance(interface, str), f"xpad did not bind: {run.said[-5:]}"
         seen["interface"] = interface
+        seen["usb"] = usb_descriptors(XBOX_IDS)
+        seen["gadgetfs"] = os.path.ismount("/dev/gadget")
+        seen["vendor_requests"] = _vendor_requests()
         seen["klass"] = [
             configfs.read_attr(Path("/sys/bus/usb/devices") / interface / name)
             for name in ("bInterfaceClass", "bInterfaceSubClass", "bInterfaceProtocol")
@@ -456,7 +483,20 @@ def check_usb_xinput() -> dict:
     leds = [line for line in run.said if "player LED" in line]
     assert heard, f"the run never heard the rumble: {run.said[-10:]}"
     assert watcher.axes.get(ecodes.ABS_X) == 0, f"evdev after SIGTERM: ABS_X {watcher.axes.get(ecodes.ABS_X)}"
+    usb = seen["usb"]
+    kernel_log = guestlib.sh(["dmesg"]).stdout.splitlines()[log_before:]
+    wanted = ("gadgetfs", "xpad", "usb 1-1", "X-Box")
+    kernel_log = [line for line in kernel_log if any(w in line for w in wanted)]
+    assert not [line for line in kernel_log if "magic message" in line or "can't set config" in line], kernel_log
+    assert seen["gadgetfs"] and usb["class_descriptors"] == [XINPUT_CLASS_DESCRIPTOR.hex()], usb
+    assert usb["raw_configuration"] == gadgetfs.configuration().hex(), usb  # full speed, as a wired pad
+    assert seen["vendor_requests"] == {f"{v:04x}": b.hex() for v, b in XINPUT_CAPABILITIES.items()}, seen
+    assert [e["address"] for e in usb["endpoints"]] == ["81", "02"] and usb["configuration"]["bmAttributes"] == "80"
+    assert not os.path.ismount("/dev/gadget"), "the run mounted GadgetFS and left it"
     return {
+        "usb": usb,
+        "vendor_requests": seen["vendor_requests"],
+        "kernel_log": kernel_log[-16:],
         "xpad_interface": seen["interface"],
         "interface_class": seen["klass"],
         "evdev_name": seen["name"],
@@ -621,9 +661,10 @@ def check_usb_killed() -> dict:
 
 
 def check_usb_killed_xinput() -> dict:
-    """An ``xinput`` run killed by SIGKILL while it holds the push: its FunctionFS files close
-    with it, the kernel unbinds the gadget (``ffs_closed()``), and the host's pad goes away: no
-    guard is needed there. The check removes the gadget the killed run made."""
+    """An ``xinput`` run killed by SIGKILL while it holds the push: its GadgetFS files close with
+    it, the kernel unbinds the gadget (GadgetFS's ``dev_release``; FunctionFS's ``ffs_closed()``
+    alike), and the host's pad goes away: no guard is needed there. The check removes the gadget
+    (or GadgetFS mount) the killed run made."""
     from evdev import ecodes
 
     t0 = time.monotonic()
@@ -649,6 +690,7 @@ def check_usb_killed_xinput() -> dict:
         run.kill()
         _close(watcher)
         configfs.remove()
+        gadgetfs.unmount()
     assert evdev_held == held_x > 0, f"the held push: evdev ABS_X {evdev_held}"
     assert os.WIFSIGNALED(run.status) and os.WTERMSIG(run.status) == signal.SIGKILL, f"wait status {run.status}"
     assert unplugged and watcher.gone, f"after SIGKILL the XInput pad is still there (evdev gone: {watcher.gone})"

@@ -57,8 +57,9 @@ RELEASE_GRACE_S = 0.05
 #: takes a class descriptor after a HID, CCID or DFU interface only), and the projects that
 #: presented a 360 pad without it report that Windows binds its driver and reads no data.
 XINPUT_ON_WINDOWS = (
-    "the xinput pad is for Linux's xpad and SDL: Windows' own XInput driver will not read it from this board "
-    "(it lacks the 0x21 descriptor FunctionFS cannot carry); for Windows use --protocol hid with Steam Input"
+    "the xinput pad is made on FunctionFS (GadgetFS is used only by a run as root that makes its own gadget, on a "
+    "kernel that has it): Windows' own XInput driver will not read it from this board (it lacks the 0x21 "
+    "descriptor FunctionFS cannot carry); for Windows use --protocol hid with Steam Input"
 )
 #: Which hid function instance carries which report format, whatever the gadget's protocol.
 INSTANCES = {"usb1": "keyboard", "usb2": "mouse"}
@@ -132,12 +133,16 @@ class UsbGadget:
         self.serial = serial or configfs.DEFAULT_USB_SERIAL  # iSerialNumber of a gadget this run makes
         self.targets: list[Target] = []
         self.made = False
+        self._gadgetfs = False  # this run mounted GadgetFS (the xinput pad on it)
         self._guard: Guard | None = None
 
     def __enter__(self) -> "UsbGadget":
         if PROTOCOLS[self.protocol].alone and (self.profile.uses_keyboard or self.profile.uses_mouse):
             raise DeviceError(f"the profile presses keys or moves the pointer, but {configfs.alone(self.protocol)}")
         found = configfs.protocol_of(self.name)
+        if found is None and os.geteuid() == 0 and PROTOCOLS[self.protocol].gadget_function == "xinput":
+            if self._open_gadgetfs():
+                return self
         if found is None:
             if os.geteuid() != 0:
                 raise DeviceError(
@@ -159,6 +164,32 @@ class UsbGadget:
             raise
         return self
 
+    def _open_gadgetfs(self) -> bool:
+        """The ``xinput`` pad on GadgetFS, where this kernel has it (root, no gadget set up): its
+        whole configuration descriptor, the 0x21 descriptor in place, as Windows' driver reads it
+        (:mod:`~neurotouch_hid.targets.gadget.gadgetfs`). False (said on the log) when it cannot
+        be had: the run then makes the pad on FunctionFS."""
+        from neurotouch_hid.targets.gadget import gadgetfs
+
+        row = PROTOCOLS[self.protocol]
+        try:
+            self._gadgetfs = gadgetfs.mount()
+            pad = gadgetfs.GadgetFsXInputTarget(
+                gadgetfs.ROOT,
+                row.report,
+                (row.vendor, row.product, row.bcd_device),
+                (row.manufacturer, row.product_name, self.serial),
+            )
+        except (DeviceError, OSError) as exc:
+            log.info("GadgetFS not used (%s): the xinput pad is made on FunctionFS", exc)
+            if self._gadgetfs:
+                gadgetfs.unmount()
+            self._gadgetfs = False
+            return False
+        pad.lacks = lambda profile: say_what_cannot_go(profile, gadgetfs.ROOT, self.protocol)  # on each profile
+        self.targets.append(pad)
+        return True
+
     def _open(self) -> None:
         from neurotouch_hid.targets.gadget.ffs import HidInterfaceTarget, XInputTarget
         from neurotouch_hid.targets.gadget.targets import HidgTarget
@@ -171,7 +202,7 @@ class UsbGadget:
         # a FunctionFS function's descriptors first: the gadget binds only then
         mount = configfs.FFS_ROOT / configfs.FFS_INSTANCES.get(row.gadget_function, "")
         if row.gadget_function == "xinput":
-            log.warning(XINPUT_ON_WINDOWS)
+            log.warning(XINPUT_ON_WINDOWS)  # GadgetFS could not be had (_open_gadgetfs)
             self.targets.append(XInputTarget(mount, row.report))
         elif row.gadget_function == "ffs-hid":
             identity = self.identity or identity_for(None)
@@ -209,6 +240,11 @@ class UsbGadget:
         if self._guard is not None:  # after the neutral reports, before the nodes can go
             self._guard.release()
             self._guard = None
+        if self._gadgetfs:
+            from neurotouch_hid.targets.gadget import gadgetfs
+
+            gadgetfs.unmount()
+            self._gadgetfs = False
         if self.made:
             time.sleep(RELEASE_GRACE_S)  # the host's readers take the neutral report before the device goes
             configfs.remove(self.name)

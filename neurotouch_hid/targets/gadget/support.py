@@ -64,7 +64,8 @@ def protocol_notes(
     """What this kernel means for a protocol that needs more than a plain gadget (one line each):
     the ``xac`` protocol's polling interval (:func:`hid_interval`), and which interface that takes
     a whole configuration descriptor this kernel has (:data:`WHOLE_DESCRIPTOR_MODULES`), which
-    Windows' own XInput driver needs: the ``xinput`` pad is made on FunctionFS, without it."""
+    Windows' own XInput driver needs: the ``xinput`` pad is made on GadgetFS where it is (a run as
+    root making its own gadget), else on FunctionFS, without the descriptor."""
     has, how = hid_interval(release, gadgets)
     if has:
         notes = [f"xac: the hid function's interval is set to 1 ms ({how})"]
@@ -76,11 +77,17 @@ def protocol_notes(
     kernel = modules_dir if modules_dir is not None else (Path("/lib/modules") / release if release else None)
     found = [f"{m} {module_state(m, kernel)}" for m in WHOLE_DESCRIPTOR_MODULES]
     found = [f for f in found if not f.endswith(" missing")] or ["neither gadgetfs nor raw_gadget"]
-    notes.append(
-        f"xinput: {', '.join(found)} here, not used yet: the pad is made on FunctionFS, which cannot carry the 0x21 "
-        "descriptor Windows' XInput driver reads: Windows will not read xinput from this board; use hid with Steam "
-        "Input"
-    )
+    if module_state("gadgetfs", kernel) != "missing":
+        notes.append(
+            f"xinput: {', '.join(found)} here: a run as root that makes its own gadget puts the pad on GadgetFS, with "
+            "the 0x21 descriptor Windows' XInput driver reads; on a gadget set up before (FunctionFS) it lacks it: "
+            "for Windows there, use hid with Steam Input"
+        )
+    else:
+        notes.append(
+            f"xinput: {', '.join(found)} here: the pad is made on FunctionFS, which cannot carry the 0x21 descriptor "
+            "Windows' XInput driver reads: Windows will not read xinput from this board; use hid with Steam Input"
+        )
     return notes
 
 

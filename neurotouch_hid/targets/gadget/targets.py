@@ -42,12 +42,12 @@ class _ReportTarget:
     :class:`~neurotouch_hid.targets.gadget.writer.ReportWriter` only when they change (a mouse's
     motion always), the neutral report on :meth:`neutralise` and first in :meth:`close`."""
 
-    def _start(self, fd: int, fmt: ReportFormat, what: str) -> None:
+    def _start(self, fd: int, fmt: ReportFormat, what: str, gate: threading.Event | None = None) -> None:
         self.what = what
         self.format = fmt
         self._motion = fmt.name == "mouse"
         depth = QUEUE_MOTION if self._motion else QUEUE_STATE
-        self._writer = ReportWriter(fd, what, depth=depth, resend=not self._motion)
+        self._writer = ReportWriter(fd, what, depth=depth, resend=not self._motion, gate=gate)
         self._last: bytes | None = None
         self._lock = threading.Lock()
         self._closed = False

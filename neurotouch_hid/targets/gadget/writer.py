@@ -42,10 +42,18 @@ class ReportWriter:
     ``submit`` queues a report (``depth`` kept: 1 keeps only the latest); the thread writes
     them in order, retrying every :data:`RETRY_S` while the host is away, and re-sends the
     last one written every :data:`RESEND_S` (``resend``: False for a mouse, whose reports are
-    motion). ``what`` names the target in log lines."""
+    motion). ``what`` names the target in log lines; ``gate``: see the attribute."""
 
-    def __init__(self, fd: int, what: str, *, depth: int = QUEUE_STATE, resend: bool = True):
+    def __init__(
+        self, fd: int, what: str, *, depth: int = QUEUE_STATE, resend: bool = True, gate: threading.Event | None = None
+    ):
         self.fd = fd
+        #: When given, nothing is written while it is clear (an endpoint not enabled yet: its file
+        #: takes its descriptors first), and a write that fails clears it: the endpoint's owner
+        #: sets it again once the host configured the device anew (GadgetFS: a bus reset ends
+        #: the configuration, and a write queued before the owner knows would wait for a host that
+        #: no longer reads that endpoint). Reports wait as they do for an absent host.
+        self.gate = gate
         self.what = what
         self._resend = resend
         self._queue: deque[bytes] = deque(maxlen=depth)
@@ -53,6 +61,8 @@ class ReportWriter:
         self._sent_at = 0.0
         self._away = False
         self._stop = False
+        #: True while the thread is in a write (:meth:`interrupt`'s owner waits for it to end).
+        self.writing = False
         self._cond = threading.Condition()
         self._thread = threading.Thread(target=self._run, name=f"report writer ({what})", daemon=True)
         self._thread.start()
@@ -81,6 +91,12 @@ class ReportWriter:
             self._stop = True
             self._cond.notify_all()
 
+    @property
+    def thread_id(self) -> int | None:
+        """The writing thread's id (``threading.get_ident``), for a signal that ends a write the
+        host will never take (GadgetFS: :mod:`~neurotouch_hid.targets.gadget.gadgetfs`)."""
+        return self._thread.ident
+
     def _next(self) -> tuple[bytes | None, bool]:
         with self._cond:
             while not self._stop:
@@ -101,12 +117,18 @@ class ReportWriter:
             report, queued = self._next()
             if report is None:
                 return
+            if self.gate is not None and not self.gate.wait(RESEND_S):
+                continue
+            self.writing = True
             try:
                 os.write(self.fd, report)
             except OSError as exc:
+                self.writing = False
                 if exc.errno not in HOST_AWAY:
                     log.warning("%s: writing a report failed: %s; the host gets no more reports", self.what, exc)
                     return
+                if self.gate is not None:
+                    self.gate.clear()
                 if not self._away:
                     log.info("%s: the host is not reading (%s); retrying", self.what, os.strerror(exc.errno))
                 with self._cond:
@@ -115,6 +137,7 @@ class ReportWriter:
                     self._cond.wait(pause)  # a new report (submit) ends it early
                     pause = min(pause * 2, RESEND_S)
                 continue
+            self.writing = False
             pause = RETRY_S
             with self._cond:
                 if self._away:

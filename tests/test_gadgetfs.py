@@ -1,0 +1,165 @@
+"""The Xbox 360 pad's descriptors on GadgetFS, byte for byte against a wired pad's (the
+configuration dumps the 360 raw-gadget and GP2040-CE-style projects copy), and its answers to
+the requests GadgetFS hands to user space. In a real kernel: tests/test_gadget_kernel.py."""
+
+import pytest
+
+from neurotouch_hid.targets.gadget import gadgetfs
+from neurotouch_hid.targets.gadget.functionfs import Event
+
+#: A wired Xbox 360 pad's first interface as its configuration descriptor carries it (49 bytes):
+#: config (bmAttributes 0xA0: remote wake-up), interface FF/5D/01, the 17-byte 0x21 descriptor
+#: naming endpoints 0x81 and 0x02, the interrupt endpoints (32 bytes, 4 and 8 ms).
+WIRED_PAD = bytes.fromhex(
+    "09 02 31 00 01 01 00 a0 fa  09 04 00 00 02 ff 5d 01 00"
+    " 11 21 00 01 01 25 81 14 00 00 00 00 13 02 08 00 00  07 05 81 03 20 00 04  07 05 02 03 20 00 08"
+)
+
+
+#: A wired pad's device descriptor (045e:028e, release 1.14, class FF/FF/FF, ep0 8 bytes).
+WIRED_PAD_DEVICE = bytes.fromhex("12 01 00 02 ff ff ff 08 5e 04 8e 02 14 01 01 02 03 01")
+
+
+def test_the_full_speed_configuration_is_a_wired_pads_but_for_remote_wake_up():
+    ours = gadgetfs.configuration()
+    assert len(ours) == len(WIRED_PAD) == 49
+    assert ours[7] == 0x80 and WIRED_PAD[7] == 0xA0  # GadgetFS refuses a configuration with remote wake-up
+    assert ours[:7] + ours[8:] == WIRED_PAD[:7] + WIRED_PAD[8:]
+    assert ours[18:35] == gadgetfs.XINPUT_CLASS_DESCRIPTOR and ours[18:20] == b"\x11\x21"
+
+
+def test_an_endpoints_high_speed_descriptor_counts_microframes():
+    """GadgetFS takes an endpoint's full- and high-speed descriptors together; at high speed
+    bInterval n means 2^(n-1) microframes of 125 us."""
+    assert gadgetfs.endpoint_descriptor(0x81, 4, True) == bytes.fromhex("07058103200006")  # 32 x 125 us
+    assert gadgetfs.endpoint_descriptor(0x02, 8, True) == bytes.fromhex("07050203200007")  # 64 x 125 us
+
+
+def test_the_device_descriptor_is_a_wired_pads():
+    assert gadgetfs.device_descriptor(0x045E, 0x028E, 0x0114) == WIRED_PAD_DEVICE
+
+
+@pytest.mark.parametrize(
+    ("asked", "answer"),
+    [
+        (Event(4, 0x80, 0x06, 0x0300, 0, 255), b"\x04\x03\x09\x04"),
+        (Event(4, 0x80, 0x06, 0x0302, 0x0409, 255), bytes([12, 3]) + "Pad 1".encode("utf-16-le")),
+        (Event(4, 0x80, 0x06, 0x0302, 0x0409, 4), bytes([12, 3, ord("P"), 0])),
+        (Event(4, 0x80, 0x06, 0x0304, 0x0409, 255), None),
+        (Event(4, 0x00, 0x09, 0x0001, 0, 0), b""),  # SET_CONFIGURATION: acknowledged
+        (Event(4, 0x80, 0x00, 0, 0, 2), b"\x00\x00"),  # GET_STATUS
+        (Event(4, 0xC1, 0x01, 0x0100, 0, 20), bytes.fromhex("00143ff7ffff00000000c0ffc0ff000000000000")),
+        (Event(4, 0x21, 0x09, 0x0200, 0, 8), None),
+    ],
+)
+def test_the_pad_answers_what_gadgetfs_hands_over(asked, answer):
+    pad = object.__new__(gadgetfs.GadgetFsXInputTarget)
+    pad._strings = ("Microsoft", "Pad 1", "00000001")
+    assert pad.answer(asked) == answer
+
+
+def test_endpoint_files_are_found_by_number_and_direction_whatever_the_controller_names_them(tmp_path):
+    for name in ("dummy_udc", "ep1in-bulk", "ep1out-bulk", "ep2out-bulk", "ep12out-bulk", "ep5in-int"):
+        (tmp_path / name).touch()
+    assert gadgetfs.endpoint_file(tmp_path, 1, "in").name == "ep1in-bulk"
+    assert gadgetfs.endpoint_file(tmp_path, 2, "out").name == "ep2out-bulk"
+    with pytest.raises(Exception, match="no endpoint 3 in"):
+        gadgetfs.endpoint_file(tmp_path, 3, "in")
+
+
+def _pad_on(root):
+    """The pad's endpoint handling alone (no UDC file, no events thread) on ``root``'s files."""
+    import os
+    import threading
+    import types
+
+    pad = object.__new__(gadgetfs.GadgetFsXInputTarget)
+    pad.root, pad.what, pad._closed = root, "test pad", False
+    pad._null = os.open(os.devnull, os.O_RDWR)
+    pad._in, pad._out = os.dup(pad._null), os.dup(pad._null)
+    pad._configured, pad._generation = False, 0
+    pad.connected, pad._lock, pad._pending = threading.Event(), threading.Lock(), []
+    pad._wake_r, pad._wake_w = os.pipe()
+    pad._reader, pad._can_interrupt = None, gadgetfs._install_interrupt()
+    pad._writer = types.SimpleNamespace(writing=False, thread_id=None)
+    return pad
+
+
+def test_the_endpoints_are_enabled_in_place_of_dev_null_and_put_back_when_the_configuration_ends(tmp_path):
+    """The report writer holds one descriptor number for the pad's life: an enabled endpoint's
+    file is put there, and /dev/null again when the host's configuration ends (a closed number
+    could be taken by any file the process opens next, and a report written into it). The OUT
+    endpoint's reader, blocked in a read no host will answer, is interrupted and ends (a
+    transfer under way holds GadgetFS's endpoint lock, which unbinding the gadget waits for)."""
+    import os
+
+    (tmp_path / "ep1in-bulk").touch()
+    os.mkfifo(tmp_path / "ep2out-bulk")  # the OUT endpoint's reader waits on it as on a real one
+    writer = os.open(tmp_path / "ep2out-bulk", os.O_RDWR)
+    pad = _pad_on(tmp_path)
+    numbers, null = (pad._in, pad._out), os.fstat(pad._null)
+    pad._enable()
+    assert pad.connected.is_set() and (pad._in, pad._out) == numbers
+    assert os.fstat(pad._in).st_ino == (tmp_path / "ep1in-bulk").stat().st_ino
+    tag_and_descriptors = (tmp_path / "ep1in-bulk").read_bytes()
+    assert tag_and_descriptors == b"\x01\0\0\0" + bytes.fromhex("0705810320000407058103200006")
+    pad._enable()  # SET_CONFIGURATION again, no reset between: kept as it is
+    assert os.fstat(pad._in).st_ino == (tmp_path / "ep1in-bulk").stat().st_ino
+    assert pad._reader.is_alive()  # blocked in its read: nothing comes
+    pad._disable()
+    assert not pad.connected.is_set() and (pad._in, pad._out) == numbers
+    assert all(os.fstat(fd).st_rdev == null.st_rdev for fd in numbers)
+    assert not pad._reader.is_alive()
+    os.close(writer)
+
+
+def test_an_endpoint_that_will_not_enable_leaves_no_file_open_and_the_pad_unconfigured(tmp_path):
+    """A file left open keeps GadgetFS's endpoint busy (EBUSY) for the next configuration."""
+    import os
+
+    pad = _pad_on(tmp_path)
+    (tmp_path / "ep1in-bulk").touch()  # no OUT endpoint: the second open fails
+    before = set(os.listdir("/proc/self/fd"))
+    with pytest.raises(Exception, match="no endpoint 2 out"):
+        pad._enable()
+    assert set(os.listdir("/proc/self/fd")) == before
+    assert not pad.connected.is_set() and not pad._configured
+
+
+def test_a_report_write_that_fails_closes_the_gate_until_the_endpoints_owner_opens_it_again():
+    """GadgetFS: a bus reset ends the configuration; a report written again before the pad knows
+    would wait on the old endpoint and keep it busy for the next configuration."""
+    import os
+    import threading
+
+    from helpers import wait_until
+
+    from neurotouch_hid.targets.gadget.writer import ReportWriter
+
+    gone_r, gone_w = os.pipe()
+    os.close(gone_r)  # EPIPE: the host is away
+    gate = threading.Event()
+    gate.set()
+    writer = ReportWriter(gone_w, "test", gate=gate)
+    try:
+        writer.submit(b"first")
+        assert wait_until(lambda: not gate.is_set(), 5.0)
+        back_r, back_w = os.pipe()
+        os.set_blocking(back_r, False)
+        writer.fd = back_w
+        writer.submit(b"second")
+        with pytest.raises(BlockingIOError):
+            os.read(back_r, 64)  # nothing while the gate is closed
+        gate.set()
+        assert wait_until(lambda: _read(back_r) == b"second", 5.0)
+    finally:
+        writer.stop()
+
+
+def _read(fd: int) -> bytes:
+    import os
+
+    try:
+        return os.read(fd, 64)
+    except BlockingIOError:
+        return b""
