@@ -159,3 +159,17 @@ def test_a_guard_released_while_it_still_prepares_its_work_exits_by_itself():
     guard = Guard(then=["-c", "import time\ntime.sleep(60)\ndef then():\n    pass\n"], what="the hidden devices")
     guard.release()
     assert guard._proc.returncode == 0
+
+
+def test_the_guard_gives_up_on_a_write_that_blocks():
+    """A FunctionFS endpoint's write returns once the host took the report: a host that never
+    polls would hold the guard, and the gadget with it, for ever; a timer cuts it short."""
+    host, node = _node()
+    fill_unread(node)
+    os.set_blocking(node, True)  # a write now blocks, as an endpoint's does
+    guard = Guard([(node, NEUTRAL)], give_up_s=0.3)
+    os.close(node)
+    os.close(guard._write_end)  # the driver dies
+    guard._write_end = -1
+    assert guard._proc.wait(30) == 0
+    os.close(host)

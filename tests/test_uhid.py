@@ -9,6 +9,7 @@ import shutil
 import struct
 import subprocess
 import tempfile
+import time
 from pathlib import Path
 
 import pytest
@@ -22,8 +23,10 @@ from neurotouch_hid.targets.reports.hid import HID_JOYSTICK
 from neurotouch_hid.targets.uhid import (
     HID_DEFAULT,
     UHID_CREATE2,
+    UHID_DESTROY,
     UHID_EVENT_SIZE,
     UHID_GET_REPORT,
+    UHID_INPUT2,
     UHID_INPUT_REPORT,
     UHID_OUTPUT,
     UHID_SET_REPORT,
@@ -155,3 +158,67 @@ def test_keyboard_and_mouse_without_uinput_are_said_not_sent(tmp_path):
     assert lines[0].startswith("the profile's keyboard outputs are not sent: ")
     assert "does not exist" in lines[0]
     desktop.close()
+
+
+def test_a_killed_driver_s_uhid_guard_sends_the_neutral_report_before_the_device_goes():
+    """A driver killed without closing (SIGKILL): the guard's copy of the descriptor keeps the
+    device, the guard sends the neutral report as UHID_INPUT2 and lingers before its copy goes
+    (a socket stands for /dev/uhid; tests/kernel/checks_dualsense.py kills a real run)."""
+    import socket
+
+    from neurotouch_hid.core.controller import ControllerState
+    from neurotouch_hid.service.guard import LINGER_S
+
+    ours, kernel = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+    ours.setblocking(False)
+    kernel.settimeout(10.0)
+    device = UhidDevice.on_fd(ours.detach(), HID_JOYSTICK, HID_DEFAULT, start_wait_s=0)
+    try:
+        assert int.from_bytes(kernel.recv(UHID_EVENT_SIZE)[:4], "little") == UHID_CREATE2
+        kernel.send(UHID_START.to_bytes(4, "little") + bytes(8))
+        device.feedback()
+        held = ControllerState.neutral()
+        held.axes["ABS_X"] = 32767
+        device.write(held)
+        device._start_guard()
+        got = [kernel.recv(UHID_EVENT_SIZE) for _ in range(2)]  # START's report, the held one
+        input2 = struct.Struct("<IH")
+        assert got[1][input2.size :] == HID_JOYSTICK.pack(held)
+        guard = device._guard
+        os.close(guard._write_end)  # the driver dies: the kernel closes its end of the pipe
+        guard._write_end = -1
+        sent = kernel.recv(UHID_EVENT_SIZE)
+        t_sent = time.monotonic()
+        assert input2.unpack_from(sent) == (UHID_INPUT2, len(HID_JOYSTICK.neutral()))
+        assert sent[input2.size :] == HID_JOYSTICK.neutral()
+        assert guard._proc.wait(30) == 0
+        assert time.monotonic() - t_sent >= LINGER_S * 0.5  # it stayed for the readers
+    finally:
+        device._guard = None
+        device.close()
+        kernel.close()
+
+
+def test_a_uhid_device_closed_in_order_releases_its_guard_which_sends_nothing():
+    import socket
+
+    ours, kernel = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+    ours.setblocking(False)
+    kernel.settimeout(10.0)
+    device = UhidDevice.on_fd(ours.detach(), HID_JOYSTICK, HID_DEFAULT, start_wait_s=0)
+    device._start_guard()
+    guard = device._guard
+    device.close()
+    assert guard._proc.returncode == 0 and device._guard is None
+    kernel.setblocking(False)
+    types = []
+    while True:
+        try:
+            event = kernel.recv(UHID_EVENT_SIZE)
+        except BlockingIOError:
+            break
+        if not event:  # every copy of the device's descriptor closed
+            break
+        types.append(int.from_bytes(event[:4], "little"))
+    assert types == [UHID_CREATE2, UHID_DESTROY]  # nothing from the guard
+    kernel.close()

@@ -8,9 +8,14 @@ its device's), not all:
 * a ``hid`` gadget function stays bound to its UDC when the process writing to its ``/dev/hidgN``
   ends: the host keeps the last report it read (an interrupt IN endpoint with nothing new only
   NAKs, Documentation/usb/gadget_hid.rst), so the host's game would keep the stick held and the
-  buttons pressed. (A FunctionFS function is not affected: when the last of its files closes,
-  the kernel unbinds the whole gadget from its UDC, ``ffs_closed()`` in
-  drivers/usb/gadget/function/f_fs.c, and the host sees the device unplugged.)
+  buttons pressed. (A FunctionFS function's gadget is unbound when the last of its files
+  closes, ``ffs_data_closed()`` in drivers/usb/gadget/function/f_fs.c: below.)
+* a UHID device goes with the driver's descriptor, and a FunctionFS function's gadget is unbound
+  when the function's files close: either way the host's readers last read the report before, a
+  DualSense's touch points active and its stick held, until the device is gone. The guard holds a
+  copy of the descriptor (:class:`~neurotouch_hid.targets.uhid.UhidDevice`) or of the IN
+  endpoint (:meth:`~neurotouch_hid.targets.gadget.ffs.FfsTarget.guarded`), sends the neutral
+  report, stays a moment for the readers, and the device goes when the guard ends.
 * a merged device's nodes moved out of ``/dev`` (:mod:`~neurotouch_hid.inputs.hide`) stay there:
   no game would list the helper's pad until the driver's next start.
 
@@ -21,11 +26,14 @@ so at rest it costs no CPU and no wake-up. When the driver ends its run it write
 guard exits with nothing done. When the driver dies, the kernel closes the pipe's write end and
 the read returns end-of-file: the guard writes each node's neutral report, retrying every
 :data:`RETRY_S` while the host has not taken the one before (EAGAIN, the node being non-blocking)
-or is away, for at most :data:`GIVE_UP_S`; then it runs what it was given: Python prepared from
-its start in a thread at nice 19 (the hidden nodes put back: the imports are paid while the driver
-lives, about 5 MiB more), or a command in its place (``execv``). It ignores SIGINT, SIGTERM and
-SIGHUP, and so does its command: Ctrl-C signals the terminal's whole process group and systemd's
-stop the unit's whole cgroup, and the guard's own end is decided by the driver's pipe alone.
+or is away, for at most :data:`GIVE_UP_S` (a timer cuts short a write that blocks: a FunctionFS
+endpoint's returns once the host took the report), and stays a moment when asked (a UHID device goes
+with the guard's copy of its descriptor, and evdev drops what its readers had not read); then it
+runs what it was given: Python prepared from its start in a thread at nice 19 (the hidden nodes
+put back: the imports are paid while the driver lives, about 5 MiB more), or a command in its
+place (``execv``). It ignores SIGINT, SIGTERM and SIGHUP, and so does its command: Ctrl-C signals
+the terminal's whole process group and systemd's stop the unit's whole cgroup, and the guard's
+own end is decided by the driver's pipe alone.
 """
 
 from __future__ import annotations
@@ -42,17 +50,22 @@ log = logging.getLogger(__name__)
 GIVE_UP_S = 2.0
 #: Pause between two tries while the host has not taken a report (s).
 RETRY_S = 0.004
+#: How long a guard whose end removes the device (UHID, FunctionFS) stays once it wrote the
+#: neutral reports (s): evdev drops what its readers had not read when the device goes; a crash is
+#: rare, and a loaded machine's readers are slow.
+LINGER_S = 0.5
 #: How long :meth:`Guard.release` waits for the guard to exit before killing it (s).
 RELEASE_WAIT_S = 2.0
 #: The guard's program (``python -I -S -c``): argv is the pipe's read end, how long to try (s),
-#: one ``FD:HEXREPORT`` per node, then ``--`` and the command to run after them, if any. Only
-#: the os, signal and time modules (and threading for Python to prepare).
+#: how long to stay once the reports are written (s), one ``FD:HEXREPORT`` per node, then ``--``
+#: and the command to run after them, if any. Only the os, signal and time modules (and
+#: threading for Python to prepare).
 GUARD_CODE = f"""
 import os, signal, sys, time
 for number in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
     signal.signal(number, signal.SIG_IGN)
-pipe, give_up_s = int(sys.argv[1]), float(sys.argv[2])
-args = sys.argv[3:]
+pipe, give_up_s, linger_s = int(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3])
+args = sys.argv[4:]
 cut = args.index("--") if "--" in args else len(args)
 left = [(int(fd), bytes.fromhex(report)) for fd, report in (a.split(":") for a in args[:cut])]
 then = args[cut + 1 :]
@@ -81,16 +94,32 @@ while True:
         continue
 if said:
     os._exit(0)  # at once, even while it prepares
+class GiveUp(Exception):
+    pass
+
+
+def give_up(*_):
+    raise GiveUp
+
+
+signal.signal(signal.SIGALRM, give_up)  # a write that blocks (a FunctionFS endpoint) is cut short too
 end = time.monotonic() + give_up_s
-while left and time.monotonic() < end:
-    for node in list(left):
-        try:
-            os.write(*node)
-            left.remove(node)
-        except OSError:
-            pass
-    if left:
-        time.sleep({RETRY_S!r})
+try:
+    signal.setitimer(signal.ITIMER_REAL, give_up_s)
+    while left and time.monotonic() < end:
+        for node in list(left):
+            try:
+                os.write(*node)
+                left.remove(node)
+            except OSError:
+                pass
+        if left:
+            time.sleep({RETRY_S!r})
+    signal.setitimer(signal.ITIMER_REAL, 0)
+except GiveUp:
+    pass
+if linger_s > 0:
+    time.sleep(linger_s)
 if preparing is not None:
     try:  # the driver died while it prepared: finish at the normal priority (root may raise it back)
         os.setpriority(os.PRIO_PROCESS, preparing.native_id, 0)
@@ -125,6 +154,9 @@ class Guard:
             machine). :meth:`release` never waits for it. CODE failing is said on standard error,
             and it is then run as ``python -I -c CODE ARGS`` instead.
         give_up_s: how long the guard tries to hand the host the reports once the driver died (s).
+        linger_s: how long the guard stays once it wrote them (s): its copies of the nodes stay
+            open meanwhile (a UHID device's readers take the neutral report before the device
+            goes with the guard's descriptor).
         what: whose guard, in the log's lines.
     Raises:
         OSError: the guard could not be started (no process or descriptor left).
@@ -136,12 +168,13 @@ class Guard:
         *,
         then: Sequence[str] = (),
         give_up_s: float = GIVE_UP_S,
+        linger_s: float = 0.0,
         what: str = "the USB gadget",
     ):
         self.what = what
         read_end, self._write_end = os.pipe()  # not inherited: only the guard gets the read end
         try:
-            args = [str(read_end), repr(give_up_s), *(f"{fd}:{report.hex()}" for fd, report in nodes)]
+            args = [str(read_end), repr(give_up_s), repr(linger_s), *(f"{fd}:{report.hex()}" for fd, report in nodes)]
             if then:
                 args += ["--", *then]
             self._proc = subprocess.Popen(

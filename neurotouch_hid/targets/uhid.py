@@ -25,8 +25,9 @@ host's output reports (``UHID_OUTPUT``, and a SET_REPORT of an output report, an
 :meth:`~neurotouch_hid.targets.reports.ReportFormat.parse_output` into
 :class:`~neurotouch_hid.core.controller.Feedback`, and on ``close`` sends the
 neutral report, waits ``RELEASE_GRACE_S`` for readers to see it, then destroys the device
-(:class:`~neurotouch_hid.targets.closing.NeutralOnClose`, as the uinput devices do). No library: hid-tools
-(GPL) is not used at run time.
+(:class:`~neurotouch_hid.targets.closing.NeutralOnClose`, as the uinput devices do); a driver killed
+without closing leaves that to its guard (:mod:`~neurotouch_hid.service.guard`), which holds a copy of the
+descriptor. No library: hid-tools (GPL) is not used at run time.
 """
 
 from __future__ import annotations
@@ -49,6 +50,7 @@ from neurotouch_hid.targets.closing import NeutralOnClose
 
 if TYPE_CHECKING:
     from neurotouch_hid.mapping.profile import DeviceSpec, Profile
+    from neurotouch_hid.service.guard import Guard
     from neurotouch_hid.stages import Feedback
     from neurotouch_hid.targets.identity import Identity
     from neurotouch_hid.targets.protocols import ProtocolRow
@@ -312,6 +314,11 @@ class UhidDevice(NeutralOnClose):
         camera: the camera's identity (:func:`~neurotouch_hid.targets.identity.identity_for`): what
             the feature reports carry (a MAC); None: the default one. (``phys`` and ``uniq`` are
             ``identity``'s.)
+        guard: start a :class:`~neurotouch_hid.service.guard.Guard` with its own copy of the
+            descriptor: if the driver dies without closing (SIGKILL), it sends the neutral report
+            and keeps the device :data:`~neurotouch_hid.service.guard.LINGER_S` more for the
+            readers to take it (the device goes with the last copy: without the guard the host's
+            readers would last have read the held report, a DualSense's touch points active).
 
     Raises:
         DeviceError: ``devnode`` is missing or not writable (the message's next lines say how to
@@ -326,6 +333,7 @@ class UhidDevice(NeutralOnClose):
         *,
         start_wait_s: float = START_WAIT_S,
         camera: Identity | None = None,
+        guard: bool = True,
     ) -> None:
         problem = uhid_problem(devnode)
         if problem:
@@ -335,6 +343,8 @@ class UhidDevice(NeutralOnClose):
         except OSError as exc:
             raise DeviceError(f"cannot open {devnode}: {exc.strerror}\n{uhid_help()}") from None
         self._begin(fd, fmt, identity, camera, start_wait_s, devnode)
+        if guard:
+            self._start_guard()
 
     @classmethod
     def on_fd(
@@ -369,6 +379,7 @@ class UhidDevice(NeutralOnClose):
         self.events = 0  # events read from the kernel
         self.dev_flags = 0  # UHID_START's UHID_DEV_NUMBERED_* flags
         self.asked: set[int] = set()  # the feature reports a driver or reader has asked for
+        self._guard: Guard | None = None
         self._last = fmt.neutral()
         self._budget, self._budget_at = float(EVENT_BATCH), time.monotonic()  # events it may handle now
         self._fd = fd
@@ -390,6 +401,22 @@ class UhidDevice(NeutralOnClose):
             os.close(self._fd)
             raise DeviceError(f"the kernel refused to create the UHID device on {where}: {exc.strerror}") from None
         self._wait_for_start(wait_s)
+
+    def _start_guard(self) -> None:
+        """The guard of the ``guard`` argument (class docstring); a guard that cannot start is
+        said, and the device works on without one."""
+        from neurotouch_hid.service.guard import LINGER_S, Guard
+
+        neutral = self.fmt.neutral()
+        try:
+            self._guard = Guard(
+                [(self._fd, _INPUT2.pack(UHID_INPUT2, len(neutral)) + neutral)],
+                linger_s=LINGER_S,
+                what=f"the {self.what}",
+            )
+        except OSError as exc:
+            log.warning("the %s's guard could not start (%s): if the driver is killed, the host's readers keep its "
+                        "last report until the device goes", self.what, exc)  # fmt: skip
 
     def _wait_for_start(self, seconds: float) -> None:
         end = time.monotonic() + seconds
@@ -533,6 +560,9 @@ class UhidDevice(NeutralOnClose):
         except OSError as exc:
             log.warning("%s: UHID_DESTROY failed (%s); closing /dev/uhid removes it", self.what, exc)
         os.close(self._fd)
+        if self._guard is not None:  # after the neutral report and the device: nothing left to send
+            self._guard.release()
+            self._guard = None
 
     def __enter__(self) -> UhidDevice:
         return self

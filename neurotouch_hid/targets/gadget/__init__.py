@@ -34,7 +34,7 @@ import time
 from typing import TYPE_CHECKING
 
 from neurotouch_hid.core.errors import DeviceError
-from neurotouch_hid.service.guard import Guard
+from neurotouch_hid.service.guard import LINGER_S, Guard
 from neurotouch_hid.service.udev import sudo_command
 from neurotouch_hid.targets.gadget import configfs
 from neurotouch_hid.targets.protocols import PROTOCOLS
@@ -219,10 +219,11 @@ class UsbGadget:
         if self.targets:
             self.targets[0].lacks = lambda profile: say_what_cannot_go(profile, functions, self.protocol)  # each one
         say_what_cannot_go(self.profile, functions, self.protocol)
-        nodes = [target.guarded() for target in self.targets if isinstance(target, HidgTarget)]
-        if nodes:
-            try:
-                self._guard = Guard(nodes)
+        guarded = [target for target in self.targets if hasattr(target, "guarded")]  # hidg nodes, FunctionFS
+        ffs = any(not isinstance(target, HidgTarget) for target in guarded)
+        if guarded:
+            try:  # a FunctionFS function's gadget goes when its guard ends: it stays for the host's readers
+                self._guard = Guard([target.guarded() for target in guarded], linger_s=LINGER_S if ffs else 0.0)
             except OSError as exc:
                 log.warning(
                     "the USB gadget's guard could not start (%s): if the driver is killed, the host keeps its last"

@@ -19,8 +19,10 @@ are the endpoints, in the order the descriptors declare them.
   :class:`~neurotouch_hid.stages.Feedback`.
 
 Two daemon threads per function read, bounded: ``ep0``'s events and the OUT endpoint. Feedback is
-announced on a pipe (:meth:`FfsTarget.fileno`). No guard is needed: when the function's files close
-(the driver killed included), the kernel unbinds the gadget and the host sees it unplugged.
+announced on a pipe (:meth:`FfsTarget.fileno`). When the function's files close (the driver killed
+included), the kernel unbinds the gadget and the host sees it unplugged, its readers having last
+read the report before; the gadget's guard (:meth:`FfsTarget.guarded`) holds a copy of the IN
+endpoint, so that a killed driver's host reads the neutral report first.
 """
 
 from __future__ import annotations
@@ -179,6 +181,12 @@ class FfsTarget(_ReportTarget):
         self._start(self._in, fmt, what)
         for target, part in ((self._read_events, "ep0 events"), (self._read_out, "OUT endpoint")):
             threading.Thread(target=target, name=f"{what}: {part}", daemon=True).start()
+
+    def guarded(self) -> tuple[int, bytes]:
+        """The IN endpoint's descriptor and the neutral report, for the guard that sends it if
+        the driver dies (:class:`~neurotouch_hid.service.guard.Guard`): its copy keeps the function open
+        (FunctionFS unbinds the gadget once every file of it is closed) until it has."""
+        return self._in, self.format.neutral()
 
     def fileno(self) -> int | None:
         """A pipe that becomes readable when the host sent rumble or LED requests."""
