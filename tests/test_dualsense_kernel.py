@@ -19,6 +19,11 @@ def details(guest):
     return passed(guest, "checks_dualsense.check_run_output_hid_dualsense")
 
 
+@pytest.fixture(scope="module")
+def killed(guest):
+    return passed(guest, "checks_dualsense.check_killed_dualsense_leaves_the_host_neutral")
+
+
 def test_hid_playstation_binds_without_complaint_and_makes_pad_touchpad_and_motion_sensors(details):
     assert details["modprobe"]["uhid"]
     assert details["driver"] == "playstation"
@@ -57,3 +62,23 @@ def test_sdl_opens_it_as_a_game_controller_and_its_rumble_comes_back_as_feedback
     assert any(guid[16:20] == "e60c" for guid in details["sdl_opened"]["guids"])  # 0ce6, little-endian
     assert details["sdl_rumble"]["rumble"] is True
     assert details["rumble_said"].startswith("rumble (the gel has no motor): strong")
+
+
+def test_sdls_rumble_on_the_dualsense_reaches_the_merged_pad(details):
+    """The profile merges a helper's pad (``copilot:``): SDL's rumble, Feedback from the UHID
+    device, is uploaded to the helper's pad as FF_RUMBLE and played."""
+    from evdev import ecodes
+
+    rumble = details["merged_rumble"]
+    assert rumble["plays"] and rumble["plays"][0][1] > 0
+    assert any(kind == ecodes.FF_RUMBLE and max(strong, weak) > 0 for kind, strong, weak in rumble["uploads"])
+
+
+def test_sigkill_leaves_every_touch_point_inactive_and_the_pad_at_rest_before_the_device_goes(killed):
+    """SIGKILL with two touches active, the stick pushed and the touchpad clicked: the guard's
+    neutral report is what hidraw and evdev read last (tracking ids -1, nothing pressed, the stick
+    at 128), then the device goes."""
+    assert min(killed["at_kill"]["touch_ids"]) >= 0 and killed["at_kill"]["pad_axes"]["0"] != 128
+    assert killed["touchpad_last"] == {"ids": [-1, -1], "keys": []}
+    assert killed["pad_last"]["axes"]["0"] == 128 and killed["pad_last"]["keys"] == []
+    assert killed["hidraw_after"][-1] == DUALSENSE.neutral().hex() and killed["gone"]

@@ -567,10 +567,12 @@ def check_usb_switch_access_keyboard() -> dict:
 
 
 class _ForkedRun:
-    """``run --output usb`` (``run_driver``) in a forked child of this process (no Python start):
+    """``run --output usb`` (or ``output``; ``run_driver``) in a forked child of this process (no Python start):
     it can be killed with SIGKILL, which nothing in it can catch."""
 
-    def __init__(self, preds: Path, profile: Path, protocol: str = "hid") -> None:
+    def __init__(
+        self, preds: Path, profile: Path | str, protocol: str = "hid", output: str = "usb", before=None
+    ) -> None:
         from neurotouch_hid.driver import run_driver
 
         self.said: list[str] = []
@@ -579,7 +581,9 @@ class _ForkedRun:
         if self.pid == 0:
             code = 1
             try:
-                run_driver(str(preds), str(profile), "usb", protocol=protocol, say=lambda line: None)
+                if before is not None:  # in the child, before the run (a check's variant)
+                    before()
+                run_driver(str(preds), str(profile), output, protocol=protocol, say=lambda line: None)
                 code = 0
             finally:
                 os._exit(code)

@@ -4,7 +4,7 @@ dummy_hcd, read on the same kernel's host side. Run by tests/kernel/guest.py in 
 checks_gadget.py; asserted on by tests/test_gadget_ffs_kernel.py.
 
 * :func:`check_usb_dualsense`: ``run --output usb --protocol dualsense`` read by hid-playstation
-  (its docstring);
+  (its docstring); :func:`check_usb_dualsense_killed`: the same killed by SIGKILL mid-press;
 * :func:`check_usb_hid_interface_answers_feature_reports`: a HID interface with a small report
   format of this check's own (an input report 0x01, a feature report 0x05 of 41 bytes, an output
   report 0x02: the shape of a protocol whose host reads feature reports), made with configfs and
@@ -247,16 +247,33 @@ def _stroke(slot: list) -> list[int] | None:
     return None
 
 
+#: A DualSense rumble as a host writes it: output report 0x02 (48 bytes), valid_flag0's compatible
+#: vibration, motor_right 0x40, motor_left 0xC0 (hid-playstation.c, struct dualsense_output_report_common).
+RUMBLE = bytes([0x02, 0x01, 0x00, 0x40, 0xC0]) + bytes(43)
+
+
 def check_usb_dualsense() -> dict:
     """``run --output usb --protocol dualsense`` with the shipped ``touchpad`` profile, fed
     :func:`strokes`: the HID interface on FunctionFS answers the host's requests itself, so the
     host's hid-playstation binds with no "Failed to retrieve" (and no "Duplicate device") in the
     kernel's log; HIDIOCGFEATURE gives 0x05, 0x09 and 0x20 their 41, 20 and 64 bytes, each with
     its id first; the Touchpad's slot 0 follows a stroke to the right (a whole one, from its
-    touch to its lift); SIGTERM in the middle of a stroke: the touch point goes inactive
-    (tracking id -1) and hidraw's last report is the neutral one."""
-    import hidraw
-    from checks_dualsense import TouchWatcher, _devices, _uniq
+    touch to its lift); a rumble the host writes on hidraw (output report 0x02, the OUT endpoint)
+    comes back as Feedback and reaches the pad the profile merges (``copilot:``); SIGTERM in the
+    middle of a stroke: the touch point goes inactive (tracking id -1) and hidraw's last report
+    is the neutral one."""
+    from checks_copilot import RumbleAnswerer, helper_pad
+    from checks_dualsense import (
+        _uniq,
+        assert_bound,
+        assert_merged_rumble,
+        merged_rumble,
+        merged_touchpad,
+        open_hidraw,
+        read_features,
+        stop_and_read_the_end,
+        watch_touchpad,
+    )
     from checks_runtime import _write
     from outputlib import InProcessRun, hid_driver
 
@@ -270,26 +287,20 @@ def check_usb_dualsense() -> dict:
     before = len(_dmesg())
     folder = Path(tempfile.mkdtemp(prefix="gadget-dualsense-"))
     preds, _ = _write(folder, strokes())
-    run = InProcessRun(preds, "touchpad", "usb", protocol="dualsense")
+    helper = helper_pad()  # merged (``copilot:``): the host's rumble on the gadget reaches it
+    answerer = RumbleAnswerer(helper)
+    guestlib.settle()
+    run = InProcessRun(preds, merged_touchpad(folder), "usb", protocol="dualsense")
     seen: dict = {}
 
     def steps(run: InProcessRun) -> None:
         t_run = time.monotonic()
-        found = guestlib.wait_for(lambda: hidraw.enumerate(*ids) or not run.alive(), 400.0, 0.1)
-        assert found and run.alive(), f"no hidraw device: {run.said[-5:]}"
-        seen["device_s"] = time.monotonic() - t_run
-        device = hidraw.device()
-        device.open(*ids)
-        seen["reader"] = HidrawReader(device)
+        device = open_hidraw(run.alive, seen, 400.0)
         guestlib.settle()
         seen["sysfs_name"], seen["driver"] = hid_driver(ids)
         seen["uniq"] = _uniq(seen["sysfs_name"])
-        seen["features"] = {rid: bytes(device.get_feature_report(rid, 256)) for rid in DUALSENSE.feature_ids}
-        nodes = guestlib.wait_for(lambda: (d := _devices()) and len(d) >= 3 and d, 30.0)
-        seen["evdev"] = sorted(nodes or _devices())
-        pad = next((node for name, node in (nodes or {}).items() if name.endswith("Touchpad")), None)
-        assert pad, f"no Touchpad among the DualSense's evdev devices: {seen['evdev']}"
-        seen["touch"] = watcher = TouchWatcher(pad)
+        read_features(device, seen, tries=1)
+        watcher = watch_touchpad(seen, 30.0)
         seen["watching_s"] = time.monotonic() - t_run
         seen["stroke"] = guestlib.wait_for(lambda: _stroke(list(watcher.slots[0])), 180.0)
         reports = seen["reader"].reports
@@ -299,28 +310,26 @@ def check_usb_dualsense() -> dict:
             f"kernel: {_dmesg()[before:][-10:]}; the device {seen['device_s']:.0f} s, the watcher "
             f"{seen['watching_s']:.0f} s after the start"
         )
+        device.write(RUMBLE)  # the host's rumble: the OUT endpoint, then Feedback, then the merged pad
+        seen["merged_rumble"] = merged_rumble(answerer)
         down = guestlib.wait_for(lambda: watcher.ids(0)[-1:] not in ([], [-1]), 30.0, 0.02)
         seen["down_at_sigterm"] = bool(down)
-        run.stop()
-        guestlib.wait_for(lambda: watcher.reader.gone, 10.0)
-        time.sleep(0.5)
-        seen["reader"].stop()
+        stop_and_read_the_end(run, seen)
 
     try:
         run(steps)
     finally:
         if "touch" in seen:
             seen["touch"].stop()
+        answerer.stop()
+        helper.close()
         configfs.remove()
     log = _dmesg()[before:]
     reader, watcher = seen["reader"], seen["touch"]
     moved = seen["stroke"]
-    bad = [line for line in log if "Failed to retrieve" in line or "Duplicate device" in line]
+    assert_merged_rumble(seen["merged_rumble"], answerer, run)
     assert run.returned, f"the run did not return after SIGTERM: {run.said[-5:]}"
-    assert seen["driver"] == "playstation", f"the HID driver of {seen['sysfs_name']}: {seen['driver']}; {log[-8:]}"
-    assert not bad, f"the kernel's log: {bad}"
-    for rid, data in seen["features"].items():
-        assert data[0] == rid and len(data) == {0x05: 41, 0x09: 20, 0x20: 64}[rid], (rid, data.hex())
+    assert_bound(seen, log)
     assert len(moved) >= 3 and moved == sorted(moved) and moved[-1] > moved[0], f"slot 0's x in a stroke: {moved}"
     assert seen["down_at_sigterm"] and watcher.ids(0)[-1] == -1, f"a touch left down after SIGTERM: {watcher.ids(0)}"
     assert reader.reports and reader.reports[-1] == DUALSENSE.neutral(), (
@@ -337,7 +346,26 @@ def check_usb_dualsense() -> dict:
         "ids": watcher.ids(0)[-6:],
         "last_report": reader.reports[-1].hex(),
         "kernel_log": [line for line in log if "playstation" in line or "DualSense" in line][-6:],
+        "merged_rumble": seen["merged_rumble"],
         "device_after_start_s": round(seen["device_s"], 1),
         "watching_after_start_s": round(seen["watching_s"], 1),
         "seconds": round(time.monotonic() - t0, 1),
     }
+
+
+def check_usb_dualsense_killed() -> dict:
+    """``run --output usb --protocol dualsense`` killed by SIGKILL mid-press (checks_dualsense's
+    :func:`~checks_dualsense.killed`): the gadget's guard, whose copy of the IN endpoint keeps the
+    function bound, hands the host the neutral report; then the gadget is unbound (FunctionFS,
+    every file closed) and the host's devices go (:func:`~checks_dualsense.assert_killed_neutral`).
+    The check removes the gadget the killed run made."""
+    from checks_dualsense import assert_killed_neutral, killed
+
+    _kernel()
+    guestlib.sh(["modprobe", "hid-playstation"])
+    try:
+        done = killed("usb")
+    finally:
+        configfs.remove()
+    assert_killed_neutral(done)
+    return done
