@@ -6,12 +6,14 @@ ended by a real SIGTERM), beside a stand-in for a helper's pad (checks_copilot.p
 045e:02ea, FF_RUMBLE, its uploads answered as its driver would).
 
 * :func:`check_sigterm_before_the_run_and_merged_first`: for ``--output gamepad``, ``hid`` and
-  ``usb`` (dummy_hcd), a run with a ``copilot:`` profile whose source's opening never ends (the
-  one stand-in here: ``RunAssembly.open`` sleeps, as a first run's compile of the pipeline does
-  for minutes under emulation, before the engine starts). The helper's pad is merged (grabbed, and
-  hidden: the guest runs as root) before the gel's device appears, seen by polling evdev every
-  10 ms; a SIGTERM then stops the driver as during a run: run_driver returns (``run``'s exit 0),
-  the device goes with nothing held, the helper's node comes back.
+  ``usb`` (dummy_hcd), a first run with a ``copilot:`` profile: the simulated gel with ``--fast``
+  and ``NUMBA_CACHE_DIR`` a new empty folder, so the engine waits for a real cold compile of the
+  pipeline's numba code (child processes; minutes under emulation), as a camera's first run
+  does. The helper's pad is merged before the gel's device appears, seen by polling evdev every
+  10 ms: at that moment the check's own EVIOCGRAB of it fails with EBUSY and its node is hidden
+  (the guest runs as root); once the run says it compiles, it is still grabbed. A SIGTERM then
+  stops the driver before the compile ends: run_driver returns (``run``'s exit 0), the device
+  goes with nothing held, the helper's node comes back.
 * :func:`check_copilot_merges_into_hid_and_usb_and_gets_the_hosts_rumble`: the same profile on
   ``--output hid`` (UHID, hid-generic) and ``--output usb --protocol xinput`` (dummy_hcd, xpad):
   a press on the helper's pad reaches the host's device; on the xpad side, a rumble the host
@@ -21,7 +23,9 @@ ended by a real SIGTERM), beside a stand-in for a helper's pad (checks_copilot.p
 
 from __future__ import annotations
 
+import errno
 import os
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -32,6 +36,7 @@ from checks_runtime_remap import _write_preds
 from evdev import InputDevice, ecodes, ff, list_devices
 from outputlib import InProcessRun, push_right
 
+from neurotouch_hid.service.warmup import COMPILING
 from neurotouch_hid.targets.gadget import configfs
 from neurotouch_hid.targets.protocols import PROTOCOLS
 from neurotouch_hid.targets.uhid import HID_DEFAULT
@@ -85,42 +90,53 @@ def _profile() -> Path:
     return folder / "copilot.yaml"
 
 
-def _early_stop(output: str) -> dict:
+def _grabbed_by_another(device: InputDevice) -> str:
+    """EVIOCGRAB of ``device`` from here: "EBUSY" when another holder grabbed it (the driver),
+    "grabbed" when this check could (then let go at once)."""
+    try:
+        device.grab()
+    except OSError as exc:
+        return errno.errorcode.get(exc.errno, str(exc.errno))
+    device.ungrab()
+    return "grabbed"
+
+
+def _early_stop(output: str, cold_cache: Path) -> dict:
     helper = helper_pad()
     answerer = RumbleAnswerer(helper)
     node = helper.device.path
     guestlib.settle()
-    folder = Path(tempfile.mkdtemp(prefix="road-early-"))
-    run = InProcessRun(_write_preds(folder, push_right(hold_s=1.0)), _profile(), output)
+    # the simulated gel, --fast: as the camera's first run, the engine starts once the pipeline's
+    # numba code is compiled, here into an empty cache (warmup.Warmup, interpreted=False)
+    env = {"NUMBA_CACHE_DIR": str(cold_cache), "PYTHONPATH": os.pathsep.join(sys.path)}  # the compiling children's
+    run = InProcessRun("sim", _profile(), output, env=env, options={"fast": True})
     seen: dict = {}
 
     def steps(run: InProcessRun) -> None:
         t0 = time.monotonic()
         while time.monotonic() - t0 < 600 and run.alive():
             gel = _gel_device("usb" if output == "usb" else output)
-            if gel is not None:  # the moment it is first seen: what was merged, what was hidden
+            if gel is not None:  # the moment it is first seen: what was merged, grabbed, hidden
                 seen.update(gel=gel, said_then=list(run.said), helper_there=os.path.exists(node))
+                seen["grab_then"] = _grabbed_by_another(helper.device)
                 seen["appeared_s"] = round(time.monotonic() - t0, 2)
                 break
             time.sleep(0.01)
         assert "gel" in seen, f"the {output} device never appeared: {run.said[-5:]}"
         seen["reader"] = reader = guestlib.EventReader(seen["gel"])
+        seen["compiling"] = guestlib.wait_for(
+            lambda: next((line for line in list(run.said) if line.startswith(COMPILING)), None) or not run.alive(),
+            300.0,
+            0.05,
+        )
+        seen["compiling_s"] = round(time.monotonic() - t0, 2)
+        seen["grab_compiling"] = _grabbed_by_another(helper.device)
         reader.pump(timeout_s=0.5, max_s=2.0)
         run.stop(reader, early=True)
 
-    from neurotouch_hid import driver
-
-    opening = driver.RunAssembly.open
-
-    def compiling(self, stack):  # the first run's compile: the engine has not started
-        while True:
-            time.sleep(1.0)
-
-    driver.RunAssembly.open = compiling
     try:
         run(steps)
     finally:
-        driver.RunAssembly.open = opening
         answerer.stop()
         back = guestlib.wait_for(lambda: os.path.exists(node), 10.0)
         helper.close()
@@ -129,24 +145,42 @@ def _early_stop(output: str) -> dict:
     reader = seen["reader"]
     merged_first = any(line.startswith("merged Helper Pad") for line in seen["said_then"])
     assert merged_first, f"the helper's pad was not merged before the {output} device appeared: {seen['said_then']}"
+    assert seen["grab_then"] == "EBUSY", (
+        f"EVIOCGRAB of the helper's pad as the {output} device appeared: {seen['grab_then']}"
+    )
     assert not seen["helper_there"], f"the helper's node {node} was still there when the {output} device appeared"
+    assert isinstance(seen["compiling"], str), f"no cold compile (numba cache {cold_cache}): {run.said[-6:]}"
+    assert not [line for line in run.said if "compile failed" in line], run.said[-6:]
+    assert seen["grab_compiling"] == "EBUSY", f"EVIOCGRAB during the compile: {seen['grab_compiling']}"
     assert run.returned, f"run_driver did not return after SIGTERM: {run.said[-5:]}"
     assert any("stopped (SIGTERM) before the run started" in line for line in run.said), run.said[-5:]
     gone = guestlib.wait_for(lambda: _gel_device("usb" if output == "usb" else output) is None, 20.0)
     assert gone, f"the {output} device stayed after the SIGTERM"
     assert not reader.keys, f"{output}: keys held at the end: {reader.keys}"
     assert back, f"the helper's node {node} did not come back"
-    return {"appeared_s": seen["appeared_s"], "said": run.said[-4:], "axes": dict(reader.axes)}
+    return {
+        "appeared_s": seen["appeared_s"],
+        "compiling_s": seen["compiling_s"],
+        "grab_then": seen["grab_then"],
+        "said": run.said[-4:],
+        "axes": dict(reader.axes),
+    }
 
 
 def check_sigterm_before_the_run_and_merged_first() -> dict:
     """See the module docstring."""
     loaded = _kernel()
-    done = {"modprobe": loaded}
+    done = {"modprobe": loaded, "numba_imported_before": "numba" in sys.modules}
+    cold_cache = Path(tempfile.mkdtemp(prefix="road-cold-numba-"))  # empty: every kernel group cold
+    if "numba" in sys.modules:  # numba read NUMBA_CACHE_DIR when imported: the pipeline's kernels, made later, use this
+        from numba.core import config
+
+        config.CACHE_DIR = str(cold_cache)
     for output in ("gamepad", "hid", "usb"):
         t0 = time.monotonic()
-        done[output] = _early_stop(output)
+        done[output] = _early_stop(output, cold_cache)
         done[output]["check_s"] = round(time.monotonic() - t0, 1)
+    done["cached_after"] = sorted(path.name for path in cold_cache.rglob("*.nbi"))[:8]
     return done
 
 
