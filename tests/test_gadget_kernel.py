@@ -136,3 +136,15 @@ def test_xac_gadget_is_one_joystick_function_read_as_the_documented_report(guest
     assert details["interval"] is None and "cannot set its polling interval" in details["notes"][0]
     # and which interface for a whole configuration descriptor it has (the test kernel: gadgetfs.ko)
     assert details["notes"][1].startswith("xinput: gadgetfs available"), details["notes"]
+
+
+def test_two_cameras_on_one_board_give_one_host_two_pads_each_driven_by_its_own_gel(guest):
+    """``gadget setup --serial LEFT1 --serial RIGHT1``: one gadget, a pad function per camera;
+    the two runs each write their own; stopping one leaves the other's pad moving."""
+    details = passed(guest, "checks_gadget_pads.check_usb_two_cameras_two_pads")
+    assert details["functions"] == ["hid.padLEFT1", "hid.padRIGHT1"]
+    left, right = details["LEFT1"], details["RIGHT1"]
+    assert left["phys"].endswith("/input0") and right["phys"].endswith("/input1")
+    assert left["uniq"] == right["uniq"] == "LEFT1-RIGHT1"  # one USB device: its serial names both cameras
+    assert details["left_after_stop"] == details["right_after_stop"] == {"x": 0, "keys": []}
+    assert details["right_pushes_after_left_stopped"] >= 2

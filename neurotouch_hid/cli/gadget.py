@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 import pwd
-from typing import Optional
+from typing import List, Optional
 
 import typer
 
@@ -62,31 +62,37 @@ def setup(
     user: Optional[str] = typer.Option(None, "--user", help="who may use the gadget (default: the user who ran sudo)"),
     keyboard: bool = typer.Option(False, "--keyboard", help="add a USB keyboard (keys; not with xinput, xac)"),
     mouse: bool = typer.Option(False, "--mouse", help="add a USB mouse (the pointer; not with xinput, xac)"),
-    serial: Optional[str] = typer.Option(
-        None, "--serial", help="the camera whose pad this is: the gadget's USB serial number derives from it"
+    serial: Optional[List[str]] = typer.Option(
+        None,
+        "--serial",
+        help="the camera whose pad this is: the gadget's USB serial number derives from it; given twice or more "
+        "(hid, switch), one pad per camera in one gadget, each run --serial finding its own",
     ),
 ) -> None:
     """Make the USB gadget (configfs) and hand its device nodes to a user; as root.
 
     The hid, switch and xac gadgets are bound to the first USB device controller at once; a
-    FunctionFS one (xinput, dualsense) binds when run --output usb has written its descriptors."""
+    FunctionFS one (xinput, dualsense) binds when run --output usb has written its descriptors.
+    Two gels on one board, one host: ``--serial A --serial B`` makes one pad per camera."""
     from neurotouch_hid.targets.gadget import configfs
     from neurotouch_hid.targets.identity import identity_for
 
     protocol = str(protocol)
+    serials = serial or []
     try:
-        usb_serial = identity_for(serial).usb_serial
+        usb_serials = [identity_for(s).usb_serial for s in serials] or [identity_for(None).usb_serial]
     except ValueError as exc:
         raise NeurotouchError(f"--serial: {exc}") from None
     if os.geteuid() != 0:
         given = [f"--user {user}"] if user else []
         given += [flag for flag, wanted in (("--keyboard", keyboard), ("--mouse", mouse)) if wanted]
-        given += [f"--serial {serial}"] if serial else []
+        given += [f"--serial {s}" for s in serials]
         raise NeurotouchError(
             f"gadget setup needs root:\n{_sudo('gadget setup --protocol ' + ' '.join([protocol, *given]))}"
         )
     uid, whom = _owner(user)
-    plan = configfs.plan(protocol, keyboard, mouse, usb_serial)
+    pads = tuple(usb_serials) if len(usb_serials) > 1 else ()
+    plan = configfs.plan(protocol, keyboard, mouse, usb_serials[0], pads=pads)
     configfs.remove()
     folder = configfs.create(plan, uid=uid)
     try:  # a step that fails leaves no gadget half made (unbound, or its nodes not the user's)
@@ -101,7 +107,9 @@ def setup(
         configfs.remove()
         raise
     for node, function in nodes:
-        console.print(f"{node}: {function.format}, mode 0600, owned by {whom}", highlight=False)
+        camera = function.instance.removeprefix(configfs.PAD_PREFIX) if pads else ""
+        whose = f" (camera {camera}'s pad)" if camera else ""
+        console.print(f"{node}: {function.format}{whose}, mode 0600, owned by {whom}", highlight=False)
     if plan.ffs:
         console.print(
             f"{configfs.FFS_ROOT / plan.ffs}: the {protocol} pad (FunctionFS), mode 0600, owned by {whom}",

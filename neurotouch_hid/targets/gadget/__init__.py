@@ -31,6 +31,7 @@ from __future__ import annotations
 import logging
 import os
 import time
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from neurotouch_hid.core.errors import DeviceError
@@ -40,8 +41,6 @@ from neurotouch_hid.targets.gadget import configfs
 from neurotouch_hid.targets.protocols import PROTOCOLS
 
 if TYPE_CHECKING:
-    from pathlib import Path
-
     from neurotouch_hid.mapping.profile import Profile
     from neurotouch_hid.stages import Target
     from neurotouch_hid.targets.identity import Identity
@@ -212,7 +211,7 @@ class UsbGadget:
             self.targets.append(pad)
         if not configfs.bound_udc(self.name):
             configfs.bind(self.name)
-        for instance in sorted(p.name.removeprefix("hid.") for p in functions.glob("hid.*")):
+        for instance in self._instances(functions):
             fmt = format_for(INSTANCES[instance]) if instance in INSTANCES else row.report
             node = configfs.hidg_node(instance, self.name)
             self.targets.append(HidgTarget(node, fmt, f"USB gadget ({fmt.name}, {node})"))
@@ -230,6 +229,29 @@ class UsbGadget:
                     " report until the gadget is unplugged",
                     exc.strerror or exc,
                 )
+
+    def _instances(self, functions: Path) -> list[str]:
+        """The gadget's ``hid`` function instances this run writes: all of them, but in a gadget
+        with a pad per camera (``gadget setup --serial A --serial B``) only this camera's pad
+        (:func:`~neurotouch_hid.targets.gadget.configfs.pad_instance` of :attr:`serial`).
+
+        Raises:
+            DeviceError: a gadget with a pad per camera has none for this one.
+        """
+        found = sorted(p.name.removeprefix("hid.") for p in functions.glob("hid.*"))
+        pads = [i for i in found if i.startswith(configfs.PAD_PREFIX)]
+        if not pads:
+            return found
+        mine = configfs.pad_instance(self.serial)
+        if mine not in pads:
+            cameras = [p.removeprefix(configfs.PAD_PREFIX) for p in pads]
+            given = " ".join(f"--serial {c}" for c in [*cameras, self.serial])
+            fix = sudo_command(f"gadget setup --protocol {self.protocol} {given}")
+            raise DeviceError(
+                f"the USB gadget set up here has a pad for each of the cameras {', '.join(cameras)}, none for this "
+                f"one ({self.serial}: run --serial gives it)\n{fix}"
+            )
+        return [i for i in found if i == mine or not i.startswith(configfs.PAD_PREFIX)]
 
     def __exit__(self, *exc: object) -> None:
         for target in reversed(self.targets):

@@ -98,12 +98,40 @@ class GadgetPlan:
 FFS_INSTANCES = {"xinput": FFS_INSTANCE, "ffs-hid": "pad"}
 
 
-def plan(protocol: str, keyboard: bool = False, mouse: bool = False, serial: str = DEFAULT_USB_SERIAL) -> GadgetPlan:
+#: Instance name prefix of a pad's ``hid`` function in a gadget with one pad per camera: the
+#: camera's gadget serial follows (:func:`pad_instance`).
+PAD_PREFIX = "pad"
+
+
+def pad_instance(usb_serial: str) -> str:
+    """The ``hid`` function instance of the pad of the camera whose gadget serial is
+    ``usb_serial`` (``Identity.usb_serial``: letters, digits and ``_``), in a gadget with one pad
+    per camera: ``pad`` + the serial. A run finds its own function by it."""
+    return PAD_PREFIX + usb_serial
+
+
+def plan(
+    protocol: str,
+    keyboard: bool = False,
+    mouse: bool = False,
+    serial: str = DEFAULT_USB_SERIAL,
+    pads: tuple[str, ...] = (),
+) -> GadgetPlan:
     """The gadget for ``protocol`` (a row of :data:`~neurotouch_hid.targets.protocols.PROTOCOLS`
     that runs on a gadget: its ids, strings, function, endpoint size and interval), with a
-    keyboard and a mouse function when asked, and ``serial`` as its iSerialNumber. Raises
-    DeviceError for an unknown protocol or one that does not run on a gadget, and for a keyboard
-    or a mouse asked of a protocol whose gadget carries the pad alone (the row's ``alone``)."""
+    keyboard and a mouse function when asked, and ``serial`` as its iSerialNumber.
+
+    ``pads``: two or more cameras' gadget serials for one gadget that carries a pad for each (two
+    gels on one board, one host): one ``hid`` function per camera (:func:`pad_instance`), in
+    that order (the host numbers their interfaces so), the serials joined by ``-`` as the
+    gadget's iSerialNumber, no keyboard or mouse (the runs of the cameras would share them).
+
+    Raises:
+        DeviceError: an unknown protocol or one that does not run on a gadget; a keyboard or a
+            mouse asked of a protocol whose gadget carries the pad alone (the row's ``alone``);
+            several pads of a protocol not on the kernel's ``hid`` function or that goes alone,
+            the same serial twice, or several pads with a keyboard or a mouse.
+    """
     from neurotouch_hid.core.errors import NeurotouchError
     from neurotouch_hid.targets.protocols import protocol as protocol_row
 
@@ -113,6 +141,8 @@ def plan(protocol: str, keyboard: bool = False, mouse: bool = False, serial: str
         raise DeviceError(str(exc)) from None
     if (keyboard or mouse) and row.alone:
         raise DeviceError(alone(protocol))
+    if len(pads) > 1:
+        return _plan_of_pads(row, pads, keyboard or mouse)
     extra = []
     if keyboard:
         extra.append(HidFunction("usb1", "keyboard", subclass=1, protocol=1))
@@ -123,6 +153,25 @@ def plan(protocol: str, keyboard: bool = False, mouse: bool = False, serial: str
         return GadgetPlan(protocol, *ids, tuple(extra), FFS_INSTANCES[row.gadget_function], serial)
     pad = HidFunction("usb0", row.report.name, max_packet=row.max_packet or 0, interval_ms=row.interval_ms or 0)
     return GadgetPlan(protocol, *ids, (pad, *extra), "", serial)
+
+
+def _plan_of_pads(row, pads: tuple[str, ...], extra: bool) -> GadgetPlan:
+    """:func:`plan`'s gadget of one pad per camera (its docstring)."""
+    if row.gadget_function != "hid" or row.alone:
+        why = f"it goes alone: {row.alone}" if row.alone else "its pad is not on the kernel's hid function"
+        raise DeviceError(f"a {row.name} gadget carries one pad ({why}): for several cameras use --protocol hid")
+    if len(set(pads)) != len(pads):
+        raise DeviceError(f"the same camera twice in {', '.join(pads)}: one pad per camera")
+    if extra:
+        raise DeviceError(
+            "a gadget with a pad per camera carries no USB keyboard or mouse: leave out --keyboard, --mouse"
+        )
+    functions = tuple(
+        HidFunction(pad_instance(p), row.report.name, max_packet=row.max_packet or 0, interval_ms=row.interval_ms or 0)
+        for p in pads
+    )
+    ids = (row.vendor, row.product, row.bcd_device, row.manufacturer, row.product_name)
+    return GadgetPlan(row.name, *ids, functions, "", "-".join(pads))
 
 
 def alone(protocol: str) -> str:
