@@ -95,7 +95,8 @@ def test_a_run_killed_by_sigkill_leaves_the_host_the_neutral_report(guest):
 
 
 def test_an_xinput_run_killed_by_sigkill_unplugs_the_pad(guest):
-    """The XInput pad needs no guard: the kernel unbinds the gadget when its FunctionFS files close."""
+    """The XInput pad needs no guard: the kernel unbinds the gadget when its GadgetFS (or
+    FunctionFS) files close."""
     passed(guest, "checks_gadget.check_usb_killed_xinput")  # the guest asserts the pad went away
 
 

@@ -163,3 +163,38 @@ def _read(fd: int) -> bytes:
         return os.read(fd, 64)
     except BlockingIOError:
         return b""
+
+
+def test_a_kernel_without_gadgetfs_leaves_the_pad_to_functionfs_and_nothing_mounted(monkeypatch, caplog):
+    """Where GadgetFS cannot be had, the run makes the pad on FunctionFS (which then says that
+    Windows will not read it): nothing of GadgetFS is left behind."""
+    import logging
+
+    from neurotouch_hid.core.errors import DeviceError
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.targets.gadget import UsbGadget
+
+    def no_gadgetfs(root=gadgetfs.ROOT):
+        raise DeviceError("mounting GadgetFS at /dev/gadget failed: unknown filesystem type 'gadgetfs'")
+
+    monkeypatch.setattr(gadgetfs, "mount", no_gadgetfs)
+    monkeypatch.setattr(gadgetfs, "unmount", lambda *a: pytest.fail("nothing was mounted"))
+    gadget = UsbGadget("xinput", load_profile("default"))
+    with caplog.at_level(logging.INFO):
+        assert gadget._open_gadgetfs() is False
+    assert gadget.targets == [] and gadget._gadgetfs is False
+    assert "the xinput pad is made on FunctionFS" in caplog.text and "unknown filesystem type" in caplog.text
+
+
+def test_a_pad_made_on_functionfs_says_windows_will_not_read_it(tmp_path, monkeypatch, caplog):
+    import logging
+
+    from neurotouch_hid.core.errors import DeviceError
+    from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.targets.gadget import XINPUT_ON_WINDOWS, UsbGadget, configfs
+
+    monkeypatch.setattr(configfs, "FFS_ROOT", tmp_path / "ffs")  # no FunctionFS mounted there
+    monkeypatch.setattr(configfs, "gadget_dir", lambda name=configfs.GADGET_NAME: tmp_path / name)
+    with caplog.at_level(logging.WARNING), pytest.raises(DeviceError):
+        UsbGadget("xinput", load_profile("default"))._open()
+    assert XINPUT_ON_WINDOWS in caplog.text and "use --protocol hid with Steam Input" in XINPUT_ON_WINDOWS
