@@ -159,3 +159,19 @@ def test_the_reanchoring_at_rest_without_a_repaint_gives_the_full_resets_state(r
     assert [repr(e) for e in ours] == [repr(e) for e in theirs]
     for name in arrays:
         assert getattr(pipeline.tracker, name).tobytes() == getattr(always_full.tracker, name).tobytes(), name
+
+
+def test_a_resting_batchs_window_end_is_cut_where_numpys_searchsorted_cuts_it():
+    """The resting window's cut (the first event at or after the window's end), written out
+    instead of numba's searchsorted: the same index, ties and both ends included."""
+    import numpy as np
+
+    from neurotouch_hid.pipeline.rest_window import _first_at_or_after
+
+    rng = np.random.default_rng(7)
+    for n in (0, 1, 2, 5, 64, 1000):
+        timestamps = np.sort(rng.integers(0, 50, n)).astype(np.int64)  # few values: many ties
+        for t_us in (-1, 0, 1, 17, 25, 49, 50, 51):
+            expected = int(np.searchsorted(timestamps, t_us))
+            assert _first_at_or_after(timestamps, t_us) == expected
+            assert _first_at_or_after.py_func(timestamps, t_us) == expected

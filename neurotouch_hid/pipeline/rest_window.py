@@ -83,6 +83,22 @@ def rest_batch(
     return answer, kept, cut
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _first_at_or_after(timestamps, t_us):
+    """The index of the first of the time-ordered ``timestamps`` (int64, us) at or after ``t_us``
+    (``len`` when none): ``np.searchsorted(timestamps, t_us)``'s binary search, written out:
+    numba's generic ``searchsorted`` cost the per-event kernels' first-run compile ~0.25 s of
+    CPU, which a first run's first gesture waits for."""
+    lo, hi = 0, len(timestamps)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if timestamps[mid] < t_us:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def rest_window(
     events,
@@ -133,7 +149,7 @@ def rest_window(
         kept = events[keep]
     else:
         kept = events[:]
-    cut = np.searchsorted(kept["timestamp"], window_end_us)
+    cut = _first_at_or_after(kept["timestamp"], window_end_us)
     if cut > 0:
         _track(kept[:cut], state, cov, t_upd, t_seen, rate, valid, cell, label, offs, n_offs, neigh, prm, counts)
         _check_lost(cell, label, offs, n_offs, neigh, valid, state, prm)
