@@ -159,14 +159,21 @@ def test_a_reader_that_opens_it_gets_the_current_report_again(kernel):
 
 
 class FakeClock:
-    """``time`` for the device: ``monotonic`` that moves only when ``sleep`` is called."""
+    """``time`` for the device: ``monotonic`` that moves only when ``sleep`` is called;
+    ``thread_time`` (the thread's CPU time): ``cpu_per_event`` for each of ``events()`` (none by
+    default: the device's own work costs nothing)."""
 
     def __init__(self) -> None:
         self.now = 1000.0
         self.slept = 0.0
+        self.cpu_per_event = 0.0
+        self.events = lambda: 0
 
     def monotonic(self) -> float:
         return self.now
+
+    def thread_time(self) -> float:
+        return self.cpu_per_event * self.events()
 
     def sleep(self, seconds: float) -> None:
         self.now += seconds
@@ -181,7 +188,8 @@ def clocked(monkeypatch):
     from neurotouch_hid.targets import uhid
 
     clock = FakeClock()
-    monkeypatch.setattr(uhid, "time", types.SimpleNamespace(monotonic=clock.monotonic, sleep=clock.sleep))
+    fake = types.SimpleNamespace(monotonic=clock.monotonic, sleep=clock.sleep, thread_time=clock.thread_time)
+    monkeypatch.setattr(uhid, "time", fake)
     made = Kernel()
     made.clock = clock
     yield made
@@ -264,3 +272,21 @@ def test_a_host_at_a_games_pace_is_never_made_to_wait(clocked):
         )
         assert [f.strong for f in said] == [n / 255]
     assert clocked.clock.slept == 0
+
+
+def test_a_flood_on_a_slow_machine_costs_the_feedback_thread_at_most_its_share_of_a_core(clocked):
+    """In the emulated test kernel an event cost ~0.6 ms: 1000 a second, the events' bound, still
+    took 0.64 of a core (tests/kernel/checks_hostile.py). Each event here costs 2 ms of the
+    thread's CPU: the device sleeps so that CPU over wall time stays within its share."""
+    from neurotouch_hid.targets.uhid import EVENT_BATCH, HOST_CPU_SHARE
+
+    clock = clocked.clock
+    clock.cpu_per_event, clock.events = 0.002, lambda: clocked.device.events
+    start_s, start_cpu = clock.now, clock.thread_time()
+    tail = struct.pack("<HB", 3, UHID_OUTPUT_REPORT)
+    events = [UHID_OUTPUT.to_bytes(4, "little") + bytes([2, i % 256, 0]).ljust(4096, b"\0") + tail for i in range(300)]
+    received, _ = _flood(clocked, events)
+    spent = clock.thread_time() - start_cpu
+    assert spent == pytest.approx(0.6) and len(received) > 1
+    # what the last call spent (a batch at most) is repaid at the next one
+    assert spent - EVENT_BATCH * clock.cpu_per_event <= HOST_CPU_SHARE * (clock.now - start_s)

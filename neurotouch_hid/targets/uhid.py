@@ -12,8 +12,8 @@ go, ``UHID_OUTPUT`` with an output report, and ``UHID_GET_REPORT``/``UHID_SET_RE
 that must be answered (``*_REPLY`` with the request's id; uhid.rst: the kernel gives up after 5 s
 and the caller gets EIO). Every event the kernel sends is read by one reader,
 :func:`read_event`, bounded to the struct's size and its data fields to ``UHID_DATA_MAX``, in
-batches of :data:`EVENT_BATCH` and at most :data:`HOST_EVENTS_PER_S` a second (a flooding host
-waits; :meth:`UhidDevice.feedback`).
+batches of :data:`EVENT_BATCH`, at most :data:`HOST_EVENTS_PER_S` a second and
+:data:`HOST_CPU_SHARE` of a core (a flooding host waits; :meth:`UhidDevice.feedback`).
 
 :class:`UhidDevice` is a :class:`~neurotouch_hid.stages.Target`: it writes a state's report only
 when the report changed, keeps the last one while no driver is bound and sends it when one
@@ -119,6 +119,14 @@ START_WAIT_S = 2.0
 HOST_EVENTS_PER_S = 1000
 #: Most events handled in one call of :meth:`UhidDevice.feedback` (one wake-up of the feedback thread).
 EVENT_BATCH = 64
+#: Most of one core handling the kernel's events may take (the CPU time of the calls that handle
+#: them, ``time.thread_time``, over the wall time): past it :meth:`UhidDevice.feedback` first
+#: sleeps. :data:`HOST_EVENTS_PER_S` bounds how many events a flood gets answered, this what they
+#: cost on any machine: in the emulated test kernel an event cost ~0.6 ms, so that 1000 a second
+#: still took 0.64 of a core from the pipeline (tests/kernel/checks_hostile.py).
+HOST_CPU_SHARE = 0.1
+#: Longest such sleep (s): a GET_REPORT's caller is answered well within the kernel's 5 s.
+MAX_REST_S = 0.5
 
 #: After UHID_START, how long the device waits for its driver's next request while the driver has
 #: not read every feature report of the format yet (s): hid-playstation reads the DualSense's
@@ -382,6 +390,7 @@ class UhidDevice(NeutralOnClose):
         self._guard: Guard | None = None
         self._last = fmt.neutral()
         self._budget, self._budget_at = float(EVENT_BATCH), time.monotonic()  # events it may handle now
+        self._spent, self._spent_since = 0.0, time.monotonic()  # CPU time handling events (s) since when
         self._fd = fd
         try:
             event = create2_event(
@@ -473,17 +482,22 @@ class UhidDevice(NeutralOnClose):
         :data:`EVENT_BATCH` per call) and handle them: START and OPEN send the current report,
         GET_REPORT and SET_REPORT are answered, OUTPUT is parsed. At most :data:`HOST_EVENTS_PER_S`
         are handled a second: past that the call first sleeps until a batch may be handled (at
-        most ``EVENT_BATCH / HOST_EVENTS_PER_S``, 64 ms). Returns the rumble and LED requests of
+        most ``EVENT_BATCH / HOST_EVENTS_PER_S``, 64 ms); and handling them takes at most
+        :data:`HOST_CPU_SHARE` of a core: past that the call first sleeps (:meth:`_rest`), and
+        handles nothing while more is owed. Returns the rumble and LED requests of
         the output reports read (:meth:`~neurotouch_hid.targets.reports.ReportFormat.parse_output`),
         each with this device as its ``source``, the last of each kind only: a batch's earlier
         ones were already replaced by the host."""
-        now = time.monotonic()
+        now = self._rest()
+        if now is None:  # still owed: nothing handled before the next call
+            return []
         self._budget = min(float(EVENT_BATCH), self._budget + (now - self._budget_at) * HOST_EVENTS_PER_S)
         self._budget_at = now
         if self._budget < 1:  # a flood: wait for a whole batch, in this (the feedback) thread
             time.sleep((EVENT_BATCH - self._budget) / HOST_EVENTS_PER_S)
             self._budget, self._budget_at = float(EVENT_BATCH), time.monotonic()
         latest: dict[str, Feedback] = {}
+        cpu = time.thread_time()
         for _ in range(int(self._budget)):
             with self._lock:
                 if self._closed:
@@ -499,7 +513,26 @@ class UhidDevice(NeutralOnClose):
                 for request in self._handle(event):
                     latest.pop(request.kind, None)
                     latest[request.kind] = request
+        self._spent += time.thread_time() - cpu
         return [dataclasses.replace(request, source=self.what) for request in latest.values()]
+
+    def _rest(self) -> float | None:
+        """Sleep as long as keeps the CPU time the previous calls spent handling events at most
+        :data:`HOST_CPU_SHARE` of the wall time since (at most :data:`MAX_REST_S` a call); the
+        time now (``time.monotonic``), or None when more is owed (the rest at the next call,
+        which handles nothing before). Only the handling is counted (the calling thread may do
+        other work between calls): events at a game's pace never wait."""
+        now = time.monotonic()
+        owed = self._spent / HOST_CPU_SHARE - (now - self._spent_since)
+        if owed > 0:
+            rest = min(owed, MAX_REST_S)
+            time.sleep(rest)
+            now = time.monotonic()
+            self._spent = (owed - rest) * HOST_CPU_SHARE  # not repaid yet: owed at the next call
+        else:
+            self._spent = 0.0
+        self._spent_since = now
+        return None if self._spent > 0 else now
 
     def _handle(self, event: UhidEvent) -> list[Feedback]:
         if event.type == UHID_START:
