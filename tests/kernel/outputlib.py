@@ -133,7 +133,8 @@ class InProcessRun:
     the user (``say``'s, and the driver's log lines of WARNING and above, as the CLI prints them
     on stderr); ``done``: set once ``run_driver`` returned. ``env``: environment variables set
     for the run (XDG_RUNTIME_DIR for its control socket, XDG_CONFIG_HOME for the user's
-    profiles), restored after it. ``options``: more of ``run_driver``'s arguments (``wait``)."""
+    profiles), restored after it. ``options``: more of ``run_driver``'s arguments (``wait``).
+    ``max_lag_ms``: the lag the run allows (``--max-lag-ms``; these checks' default: none dropped)."""
 
     def __init__(
         self,
@@ -143,11 +144,13 @@ class InProcessRun:
         protocol: str | None = None,
         env: dict | None = None,
         options: dict | None = None,
+        max_lag_ms: str = NO_DROP_LAG_MS,
     ) -> None:
         self.args = (str(preds), profile, output)
         self.protocol = protocol
         self.env = env or {}
         self.options = options or {}
+        self.max_lag_us = int(max_lag_ms) * 1000
         self.said: list[str] = []
         self.done = threading.Event()
         self.returned = False
@@ -199,7 +202,7 @@ class InProcessRun:
             run_driver(
                 *self.args,
                 protocol=self.protocol,
-                max_lag_us=int(NO_DROP_LAG_MS) * 1000,
+                max_lag_us=self.max_lag_us,
                 say=self.said.append,
                 **self.options,
             )
