@@ -19,15 +19,17 @@ changing them:
   wait for, are done. The child reports each kernel it compiled (one line on stdout), so
   :class:`Warmup` can show progress.
 * **waited for, or interpreted until compiled**: the simulator's and the tracker's groups compile
-  in a few seconds each (3-5 s of CPU), much sooner than their Python form would get far, so the
+  in a few seconds each (~3 s of CPU apiece), much sooner than their Python form would get far, so the
   run waits for them (:attr:`KernelGroup.waits`) once its first window is out: that window
   (one APS frame, 10 ms of events) costs the Python form a fraction of a second, so a run shows
   its first state at once instead of after the compile, then waits, leaving both cores to the
   compiles, and the first gesture comes as soon as they are done.
   The rest of the pipeline is interpreted meanwhile: the run calls the kernels' pure-Python/NumPy
   form (numba's ``Dispatcher.py_func``; the same code, ~50x slower): every module's global name
-  of a cold kernel points at its ``py_func`` (:func:`interpret`). A source that can wait (the
-  simulated gel) waits instead of dropping data.
+  of a cold kernel points at its ``py_func`` (:func:`interpret`), and so does each kernel
+  inlined into others (:func:`inlined_kernels`): called from an interpreted kernel, numba would
+  compile it in this process, on the run's threads. A source that can wait (the simulated gel)
+  waits instead of dropping data.
 * **switched back at a safe point**: when a child is done, a thread of this process loads the
   group's compiled code from the cache (``Dispatcher.compile(signature)``, a cache hit), then,
   while no call of the group runs (:meth:`Warmup.guard`, held by the callers around each call
@@ -133,7 +135,7 @@ TRACKER = KernelGroup(
     "neurotouch_hid.service.warmup:compile_tracker",
     load_when_warm="call",
     only=TRACKER_KERNELS,
-    waits=True,  # ~3 s of CPU to compile; interpreted, ~2 s a second of events
+    waits=True,  # ~3 s of CPU to compile; interpreted, ~0.5 s of events a second
 )
 PIPELINE = KernelGroup(
     "pipeline",
@@ -149,7 +151,7 @@ SIMULATOR = KernelGroup(
     "neurotouch_hid.sources.simulator",
     ("neurotouch_hid.sources.esim", "neurotouch_hid.sources.simulator"),
     "neurotouch_hid.service.warmup:simulate_briefly",
-    waits=True,  # ~5 s of CPU to compile, while interpreted it gives ~0.1 s of gel a second
+    waits=True,  # ~3 s of CPU to compile, while interpreted it gives ~0.1 s of gel a second
 )
 PAPER_PIPELINE = KernelGroup(
     "paper-pipeline",
