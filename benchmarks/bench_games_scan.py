@@ -1,6 +1,6 @@
 """What the per-game profiles' watcher costs at rest (docs/performance.md, "At rest").
 
-``neurotouch_hid.games.ProcessScanner`` lists ``/proc`` at every poll (``games.POLL_S``) and reads
+``neurotouch_hid.service.games.ProcessScanner`` lists ``/proc`` at every poll (``games.POLL_S``) and reads
 each process's ``comm`` to notice an exec (a game a wrapper starts late); a process is read in full
 only when new, young or renamed. This scans this machine's processes as the driver would, with a
 map of one Steam app and one executable that do not run: a first scan (every process read), then
@@ -19,7 +19,7 @@ import time
 
 import psutil
 
-from neurotouch_hid import games
+from neurotouch_hid.service import games
 
 
 def _per_scan(scanner: games.ProcessScanner, game_map: games.GameMap, scans: int) -> tuple[float, float]:

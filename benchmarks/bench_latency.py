@@ -5,7 +5,7 @@
         [--idle-ms 0.8]
 
 1. Event-to-output latency with 10 ms windows while a simulated-gel recording is replayed in
-   real time (``Runtime(pace=True)``, 1 ms source batches, the default pipeline (noise filter
+   real time (``Engine``, ``RunMode.PACED``, 1 ms source batches, the default pipeline (noise filter
    on), the default profile, the JSON-lines state writer into /dev/null; the uinput gamepad too
    where /dev/uinput is writable): p50/p99 of (a) processing latency: the item closing a window
    is read -> output up to date, and (b) window latency: the window's end in paced wall time ->
@@ -41,9 +41,10 @@ import numpy as np
 
 from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.core.stats import RunStats
-from neurotouch_hid.driver import build_pipeline
+from neurotouch_hid.engine.assembly import build_pipeline
+from neurotouch_hid.engine.engine import Engine, RunParts
+from neurotouch_hid.engine.mode import RunMode, RunOptions
 from neurotouch_hid.mapping.profile import load_profile
-from neurotouch_hid.runtime import Runtime
 from neurotouch_hid.service.warmup import compile_pipeline
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.recording import RecordingReader, RecordingWriter, merge_stream
@@ -135,7 +136,9 @@ def run(stream, sensor: SensorGeometry, window_us: int, *, pace: bool, output=No
     pipeline, resting = build_pipeline(sensor, window_us, resting_beside=pace)
     with StateJsonlWriter(os.devnull) as null:
         out = output if output is not None else null
-        return Runtime(stream, pipeline, profile, [out], resting=resting, pace=pace).run()
+        return Engine(
+            RunParts(stream, pipeline, resting=resting), profile, [out], RunOptions(mode=RunMode.of(pace=pace))
+        ).run()
 
 
 def show(name: str, stats: RunStats) -> None:

@@ -11,8 +11,8 @@ as its labels (one every 40 ms), counted through each profile
 (:func:`neurotouch_hid.evaluation.through_profile.tally`: the answers and the labels each through
 a fresh mapper). Last, the whole road of a window through the runtime with the default profile:
 the queue, the mapper, the record published to a JSON-lines subscriber
-(:class:`neurotouch_hid.runtime.Runtime` over the estimates replayed as a predictions file is,
-``driver.EstimateReplay``).
+(:class:`neurotouch_hid.engine.engine.Engine` over the estimates replayed as a predictions file is,
+``engine.assembly.EstimateReplay``).
 """
 
 from __future__ import annotations
@@ -95,12 +95,15 @@ def road_per_window(stream: list[GestureEstimate]) -> float:
     default profile, one JSON-lines subscriber writing to /dev/null."""
     import os
 
-    from neurotouch_hid.driver import EstimateReplay
-    from neurotouch_hid.runtime import Runtime
+    from neurotouch_hid.engine.assembly import EstimateReplay
+    from neurotouch_hid.engine.engine import Engine, RunParts
+    from neurotouch_hid.engine.mode import RunMode, RunOptions
     from neurotouch_hid.views.jsonl import StateJsonlWriter
 
     with StateJsonlWriter(os.devnull) as out:
-        runtime = Runtime(iter(stream), EstimateReplay(), load_profile("default"), [out], pace=False)
+        runtime = Engine(
+            RunParts(iter(stream), EstimateReplay()), load_profile("default"), [out], RunOptions(mode=RunMode.FAST)
+        )
         cpu = time.process_time()
         stats = runtime.run()
         return (time.process_time() - cpu) / stats.windows

@@ -67,7 +67,7 @@ def main() -> None:
 
     show("cv2")
     import neurotouch_hid.cli  # noqa: F401
-    import neurotouch_hid.driver  # noqa: F401
+    import neurotouch_hid.engine.driver  # noqa: F401
 
     show("CLI and driver")
     import time

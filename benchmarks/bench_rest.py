@@ -189,9 +189,10 @@ def run_sim(seconds: float) -> None:
     """The simulated gel at rest through the runtime as ``run --source sim --output jsonl`` runs
     it (the warm pipeline loaded first, as ``run`` does; paced, the source waits rather than drops)."""
     from neurotouch_hid.core.sensor import SensorGeometry
-    from neurotouch_hid.driver import build_pipeline
+    from neurotouch_hid.engine.assembly import build_pipeline
+    from neurotouch_hid.engine.engine import Engine, RunParts
+    from neurotouch_hid.engine.mode import RunMode, RunOptions
     from neurotouch_hid.mapping.profile import load_profile
-    from neurotouch_hid.runtime import Runtime
     from neurotouch_hid.service.warmup import PIPELINE_OF, SIMULATOR, Warmup
     from neurotouch_hid.sources.recording import BatchCut, CuttingStream, read_ahead
     from neurotouch_hid.views.jsonl import StateJsonlWriter
@@ -202,7 +203,12 @@ def run_sim(seconds: float) -> None:
     cut = BatchCut(1000)  # as run --source sim: one batch a window while the gel rests
     stream = CuttingStream(read_ahead(rest_stream(seconds + 1.0, batch_us=cut), cut), cut)
     with StateJsonlWriter(os.devnull) as out:
-        runtime = Runtime(stream, pipeline, load_profile("default"), [out], resting=resting, waits=True)
+        runtime = Engine(
+            RunParts(stream, pipeline, resting=resting),
+            load_profile("default"),
+            [out],
+            RunOptions(mode=RunMode.PACED_WAITING),
+        )
         runtime.run(seconds)
 
 
@@ -244,7 +250,7 @@ def measure_work(recording: Path, gap_s: float) -> dict[str, float]:
     part of the recording after a first part that warms the stages up; ``PASS/call`` and
     ``PASS/verdict``: of it the resting window's compiled call and the resting verdict."""
     from neurotouch_hid.core.sensor import SensorGeometry
-    from neurotouch_hid.driver import build_pipeline
+    from neurotouch_hid.engine.assembly import build_pipeline
     from neurotouch_hid.mapping.mapper import Mapper
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.pipeline import window_path
@@ -331,9 +337,9 @@ def measure_floor(recording: Path) -> dict[str, float]:
     in real time. Raises RuntimeError when a window of it does not rest, or it is shorter than
     :data:`FLOOR_WARM_UP_US` and the parts."""
     from neurotouch_hid.core.sensor import SensorGeometry
-    from neurotouch_hid.driver import build_pipeline
+    from neurotouch_hid.engine.assembly import build_pipeline
+    from neurotouch_hid.engine.rest import REST_WAKE_AFTER_END_US
     from neurotouch_hid.pipeline.rest_window import OPEN, RESTING, rest_batch
-    from neurotouch_hid.runtime import REST_WAKE_AFTER_END_US
     from neurotouch_hid.service.warmup import compile_pipeline
     from neurotouch_hid.sources import Frame
 
@@ -454,10 +460,10 @@ def measure_wakes(n: int = 1000, period_s: float = 0.01) -> dict[str, float]:
 #: The steps ``--parts`` wraps: (module, class or None, attribute, name printed).
 PARTS = (
     ("neurotouch_hid.sources.recording", "CuttingStream", "__next__", "reader: next item"),
-    ("neurotouch_hid.runtime", "Runtime", "_hand_on_held", "source: the held items handed on"),
-    ("neurotouch_hid.runtime", "Runtime", "_hand_on", "source: one item handed on"),
-    ("neurotouch_hid.runtime", "Runtime", "_handle", "an item handled"),
-    ("neurotouch_hid.runtime", "Runtime", "_rest_verdict", "the resting verdict, handed over"),
+    ("neurotouch_hid.engine.rest", "RestHandover", "release", "source: the held items handed on"),
+    ("neurotouch_hid.engine.engine", "Engine", "_hand_on", "source: one item handed on"),
+    ("neurotouch_hid.engine.engine", "Engine", "_handle", "an item handled"),
+    ("neurotouch_hid.engine.engine", "Engine", "_rest_verdict", "the resting verdict, handed over"),
     ("neurotouch_hid.pipeline.pipeline", "GesturePipeline", "process", "pipeline: an item"),
     ("neurotouch_hid.pipeline.pipeline", "GesturePipeline", "_resting_events", "pipeline: a resting batch"),
     ("neurotouch_hid.pipeline.window_path", None, "rest_batch", "pipeline: its compiled call"),

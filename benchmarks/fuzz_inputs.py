@@ -82,12 +82,12 @@ def _atheris_child(name: str, examples: int) -> None:
     import atheris
 
     with atheris.instrument_imports(include=["neurotouch_hid"]):
-        import neurotouch_hid.control  # noqa: F401
         import neurotouch_hid.core.limits  # noqa: F401
         import neurotouch_hid.core.sensor  # noqa: F401
         import neurotouch_hid.evaluation.runner  # noqa: F401
-        import neurotouch_hid.games  # noqa: F401
         import neurotouch_hid.mapping.profile  # noqa: F401
+        import neurotouch_hid.service.control  # noqa: F401
+        import neurotouch_hid.service.games  # noqa: F401
         import neurotouch_hid.sources.packet_bounds  # noqa: F401
         import neurotouch_hid.sources.recording  # noqa: F401
     folder = Path(tempfile.mkdtemp(prefix="fuzz-atheris-"))
@@ -140,7 +140,7 @@ def _atheris_child(name: str, examples: int) -> None:
 def main() -> None:
     import logging
 
-    logging.getLogger("neurotouch_hid.control").setLevel(logging.CRITICAL)  # every refusal is logged
+    logging.getLogger("neurotouch_hid.service.control").setLevel(logging.CRITICAL)  # every refusal is logged
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--examples", type=int, default=2000, help="inputs per target")
     parser.add_argument(

@@ -109,8 +109,8 @@ def fuzz_set(items: list[str]) -> None:
 def fuzz_control(line: bytes) -> None:
     """One request line on the control socket: an answer ``{"ok": bool, "message": str}``, never
     an exception (the switch itself is a stand-in that refuses unknown profiles)."""
-    from neurotouch_hid.control import ControlServer
     from neurotouch_hid.core.errors import ProfileError
+    from neurotouch_hid.service.control import ControlServer
 
     def use(ref: str) -> str:
         if ref != "default":
@@ -125,7 +125,7 @@ def fuzz_control(line: bytes) -> None:
 def fuzz_games(text: str, folder: Path) -> None:
     """A games.yaml's text, read from a file: the map, or one GameMapError; the round-trip path of
     ``profile auto remove`` too (it rewrites the file only when the entry is there)."""
-    from neurotouch_hid.games import GameMapError, load_game_map, remove_game
+    from neurotouch_hid.service.games import GameMapError, load_game_map, remove_game
 
     path = folder / "games.yaml"
     path.write_text(text, encoding="utf-8", errors="surrogatepass")
@@ -168,8 +168,8 @@ def fuzz_control_socket(path: Path, data: bytes) -> None:
 def control_server(folder: Path):
     """A started ControlServer on ``folder``/neurotouch-hid/control.sock whose switch accepts
     "default" only (the fuzzing's stand-in for the driver); stop it when done."""
-    from neurotouch_hid.control import ControlServer
     from neurotouch_hid.core.errors import ProfileError
+    from neurotouch_hid.service.control import ControlServer
 
     def use(ref: str) -> str:
         if ref != "default":

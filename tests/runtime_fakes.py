@@ -11,7 +11,7 @@ from helpers import wait_until
 
 from neurotouch_hid.core.controller import ControllerState
 from neurotouch_hid.core.estimate import GestureEstimate, GestureType
-from neurotouch_hid.runtime import item_end_us
+from neurotouch_hid.engine.queue import item_end_us
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
 
 
@@ -57,6 +57,9 @@ class FakePipeline:
     def set_resting(self, result, t_us):
         self.resting.append((result, t_us))
 
+    def set_type_wait(self, wait):
+        pass
+
 
 class EstimatesThrough:
     """A pipeline a source of estimates goes through as it is (what a predictions file's replay
@@ -71,12 +74,18 @@ class EstimatesThrough:
     def restart(self):
         pass
 
+    def set_type_wait(self, wait):
+        pass
+
     def markers(self):
         return None
 
 
 class FakeMapper:
     """ABS_X follows the intensity (x1000), BTN_SOUTH pressed during a push."""
+
+    #: never at a fixed point: every window is mapped
+    resting_state = None
 
     def __init__(self, profile):
         self.profile = profile

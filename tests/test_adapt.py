@@ -419,7 +419,7 @@ def test_a_simulated_enrolment_never_becomes_the_users_model_and_reset_goes_back
 
 
 def test_the_driver_and_profile_test_run_the_pipeline_with_the_model():
-    from neurotouch_hid.driver import build_pipeline
+    from neurotouch_hid.engine.assembly import build_pipeline
 
     model = Model({"gesture.intensity_gain": 1.3, "gesture.min_intensity_mm": 0.2}, swapped_classifier())
     pipeline, _ = build_pipeline(SensorGeometry(), 10_000, model=model)

@@ -17,9 +17,9 @@ import psutil
 import pytest
 from helpers import wait_until
 
-from neurotouch_hid.control import ControlServer
 from neurotouch_hid.core.errors import ProfileError
-from neurotouch_hid.games import (
+from neurotouch_hid.service.control import ControlServer
+from neurotouch_hid.service.games import (
     GameMap,
     GameMapError,
     GameProfiles,
@@ -100,7 +100,7 @@ def test_a_process_whose_executable_is_refused_has_its_command_line_read_bounded
     its executable: megabytes a process may choose, past the bounded reader."""
     import psutil._pslinux as pslinux
 
-    import neurotouch_hid.games as games
+    import neurotouch_hid.service.games as games
 
     proc = children([sys.executable, "-c", "import time; time.sleep(600)", *["x" * 100_000] * 12])
     real_readlink, read_whole = os.readlink, []
@@ -193,7 +193,7 @@ def test_a_young_process_read_before_it_became_ours_is_read_again(monkeypatch):
     """A game started for the player by a process of another user (root forks, drops to the
     player's uid, then execs the game: a launcher, ``sudo -u``, a service) is read first while it
     still is the other user's; it must be read again while young, as a fork that has not exec'ed."""
-    from neurotouch_hid import games
+    from neurotouch_hid.service import games
 
     started = time.time()
     reads = [
@@ -216,7 +216,7 @@ def test_a_game_a_wrapper_execs_after_it_is_no_longer_young_is_followed(tmp_path
     followed: the wrapper was read while young, under its own name, and never again."""
     import types
 
-    from neurotouch_hid import games
+    from neurotouch_hid.service import games
 
     game_name = f"ntgame{os.getpid() % 100000}"  # the kernel's name: at most 15 bytes
     game = tmp_path / game_name

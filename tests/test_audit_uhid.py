@@ -15,8 +15,9 @@ from helpers import wait_until
 from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, batch
 
 from neurotouch_hid.core.errors import NeurotouchError
-from neurotouch_hid.runtime import Runtime
-from neurotouch_hid.stages import Feedback
+from neurotouch_hid.core.stages import Feedback
+from neurotouch_hid.engine.engine import Engine, RunParts
+from neurotouch_hid.engine.mode import RunMode, RunOptions
 from neurotouch_hid.targets import TargetOutputs
 from neurotouch_hid.targets.reports.hid import HID_JOYSTICK
 from neurotouch_hid.targets.uhid import (
@@ -205,15 +206,13 @@ def test_a_profile_switch_that_lands_after_the_run_stopped_grabs_nothing_and_say
         return merges[-1]
 
     out = RecordingOutput()
-    rt = Runtime(
-        (batch(i * 1000) for i in range(5)),
-        FakePipeline(),
+    rt = Engine(
+        RunParts((batch(i * 1000) for i in range(5)), FakePipeline()),
         {"sign": 1},
         [out],
-        mapper_factory=FakeMapper,
-        pace=False,
-        merge_for=merge_for,
-        profile_loader=lambda ref: {"sign": -1},
+        RunOptions(
+            mode=RunMode.FAST, mapper_factory=FakeMapper, merge_for=merge_for, profile_loader=lambda ref: {"sign": -1}
+        ),
     )
     rt.run()
     assert out.calls[-1] == ("neutralise", None) and not any(m.grabbed for m in merges)
@@ -241,14 +240,11 @@ def test_the_runs_last_neutral_reaches_every_output_when_one_or_a_merged_device_
     """Whatever stops the driver, every output is sent neutral: one output's failing neutral
     report, or merged devices whose release fails, must not keep the others from theirs."""
     first, second = FailingOutput(), RecordingOutput()
-    rt = Runtime(
-        (batch(i * 1000) for i in range(5)),
-        FakePipeline(),
+    rt = Engine(
+        RunParts((batch(i * 1000) for i in range(5)), FakePipeline()),
         {"sign": 1},
         [first, second],
-        mapper_factory=FakeMapper,
-        pace=False,
-        merge_for=lambda profile: FailingMerge(),
+        RunOptions(mode=RunMode.FAST, mapper_factory=FakeMapper, merge_for=lambda profile: FailingMerge()),
     )
     with pytest.raises(OSError):
         rt.run()

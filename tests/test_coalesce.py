@@ -9,9 +9,10 @@ import pytest
 
 from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 from neurotouch_hid.core.sensor import SensorGeometry
+from neurotouch_hid.engine.engine import Engine, RunParts
+from neurotouch_hid.engine.mode import RunMode, RunOptions
 from neurotouch_hid.mapping.profile import load_profile
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
-from neurotouch_hid.runtime import Runtime
 from neurotouch_hid.sources import Frame, join_events
 from neurotouch_hid.sources.recording import RecordingReader, merge_stream
 
@@ -173,13 +174,11 @@ def test_a_run_behind_its_source_coalesces_queued_windows_and_drops_nothing(push
     _, ref, _ = _reference(push)
     out = _Estimates()
     pipeline = GesturePipeline(sensor, PipelineConfig(window_us=WINDOW_US))
-    runtime = Runtime(
-        iter(items),
-        pipeline,
+    runtime = Engine(
+        RunParts(iter(items), pipeline),
         load_profile("default"),
         [out],
-        live=True,
-        max_lag_us=10**12,  # the whole recording may queue: nothing is dropped
+        RunOptions(mode=RunMode.LIVE, max_lag_us=10**12),
     )
     stats = runtime.run()
     assert stats.dropped_items == 0
@@ -198,7 +197,7 @@ def test_a_fast_replay_never_coalesces(push):
     _, ref, _ = _reference(push)
     out = _Estimates()
     pipeline = GesturePipeline(sensor, PipelineConfig(window_us=WINDOW_US))
-    stats = Runtime(iter(items), pipeline, load_profile("default"), [out], pace=False).run()
+    stats = Engine(RunParts(iter(items), pipeline), load_profile("default"), [out], RunOptions(mode=RunMode.FAST)).run()
     assert stats.coalesced_windows == 0 and stats.windows == len(ref)
     published = {e.t_us: e.gesture for e in out.estimates}
     assert published == {e.t_us: e.gesture for e in ref if e.t_us in published}

@@ -7,10 +7,11 @@ from __future__ import annotations
 import pytest
 
 from neurotouch_hid.core.sensor import SensorGeometry
+from neurotouch_hid.engine.engine import Engine, RunParts
+from neurotouch_hid.engine.mode import RunMode, RunOptions
 from neurotouch_hid.mapping.commitment import waits_for_type
 from neurotouch_hid.mapping.profile import Profile, available_profiles, load_profile
 from neurotouch_hid.pipeline.pipeline import GesturePipeline
-from neurotouch_hid.runtime import Runtime
 
 A = {"output": "BTN_SOUTH", "press_mm": 1.0, "release_mm": 0.5}
 #: every type the wait tells apart on one button (a one-switch user's "any gesture is the switch")
@@ -45,7 +46,9 @@ def test_a_profile_switch_sets_the_pipelines_wait():
     pipeline = GesturePipeline(SensorGeometry())
     waited = pipeline.settings.episode.first_finger_us
     assert waited > 0
-    runtime = Runtime(iter(()), pipeline, Profile.model_validate(ONE_OUTPUT), [], pace=False)
+    runtime = Engine(
+        RunParts(iter(()), pipeline), Profile.model_validate(ONE_OUTPUT), [], RunOptions(mode=RunMode.FAST)
+    )
     assert pipeline._episode.first_finger_us == 0
     runtime.switch_profile(load_profile("default"))
     assert pipeline._episode.first_finger_us == waited

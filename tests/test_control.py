@@ -11,10 +11,12 @@ import pytest
 from helpers import read_states, run_cli, wait_until
 from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, endless, writes_of
 
-from neurotouch_hid.control import ControlServer, request_use, socket_path
 from neurotouch_hid.core.errors import NeurotouchError, ProfileError
 from neurotouch_hid.core.estimate import GestureEstimate, GestureType
-from neurotouch_hid.runtime import Runtime
+from neurotouch_hid.engine.engine import Engine, RunParts
+from neurotouch_hid.engine.mode import RunMode, RunOptions
+from neurotouch_hid.service.control import ControlServer, request_use, socket_path
+from neurotouch_hid.service.serve import served
 
 
 @pytest.fixture
@@ -105,15 +107,11 @@ def test_profile_use_switches_a_running_runtime_outputs_neutral_first(runtime_di
         return {"sign": -1}
 
     out = RecordingOutput()
-    rt = Runtime(
-        endless(),
-        FakePipeline(push_batches=10**9),
+    rt = Engine(
+        RunParts(endless(), FakePipeline(push_batches=10**9)),
         {"sign": 1},
         [out],
-        mapper_factory=FakeMapper,
-        pace=True,
-        profile_loader=loader,
-        control=True,
+        RunOptions(mode=RunMode.PACED, mapper_factory=FakeMapper, profile_loader=loader),
     )
     answers: dict = {}
 
@@ -137,7 +135,8 @@ def test_profile_use_switches_a_running_runtime_outputs_neutral_first(runtime_di
 
     thread = threading.Thread(target=client)
     thread.start()
-    rt.run()
+    with served(rt, None):
+        rt.run()
     thread.join(10)
     assert "broken.yaml:2" in answers["bad"] and answers["ok"] == "switched to profile mine"
     assert loads == ["broken", "mine"] and rt.profile == {"sign": -1}
@@ -156,7 +155,7 @@ def test_mouse_profile_run_writes_every_motion_and_ends_neutral(tmp_path, runtim
     """``run --profile mouse --output jsonl`` on a push: one line per window with motion, the
     pointer moving right and up, the last line neutral with no motion."""
     from neurotouch_hid.core.dataset import write_predictions
-    from neurotouch_hid.driver import run_driver
+    from neurotouch_hid.engine.driver import run_driver
 
     estimates = [
         GestureEstimate(

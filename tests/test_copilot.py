@@ -16,12 +16,13 @@ from runtime_fakes import EstimatesThrough
 from neurotouch_hid.core.controller import ControllerState
 from neurotouch_hid.core.errors import ProfileError
 from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.stages import Feedback
+from neurotouch_hid.engine.engine import Engine, RunParts
+from neurotouch_hid.engine.mode import RunMode, RunOptions
 from neurotouch_hid.inputs.copilot import Copilot
 from neurotouch_hid.inputs.match import InputInfo, input_devices, matches
 from neurotouch_hid.mapping.merge import NEUTRAL, AxisRange, DeviceMap, Levels, combine_axis, merge_state
 from neurotouch_hid.mapping.profile import load_profile, parse_profile
-from neurotouch_hid.runtime import Runtime
-from neurotouch_hid.stages import Feedback
 
 SHORT_FORM = """\
 mappings:
@@ -494,7 +495,7 @@ def test_the_runtime_merges_each_window_and_publishes_a_helpers_press_at_once():
         gate.wait(30)  # the gel holds its push: no window comes meanwhile
         yield GestureEstimate(t_us=20_000)
 
-    rt = Runtime(source(), EstimatesThrough(), profile, [out], pace=False, merge=merge)
+    rt = Engine(RunParts(source(), EstimatesThrough()), profile, [out], RunOptions(mode=RunMode.FAST, merge=merge))
 
     def helper():
         from helpers import wait_until
@@ -532,7 +533,9 @@ def test_a_profile_switch_releases_the_old_merge_and_starts_the_new_ones():
         yield GestureEstimate(t_us=10_000)
         started.wait(30)
 
-    rt = Runtime(source(), EstimatesThrough(), with_copilot, [out], pace=False, merge_for=merge_for)
+    rt = Engine(
+        RunParts(source(), EstimatesThrough()), with_copilot, [out], RunOptions(mode=RunMode.FAST, merge_for=merge_for)
+    )
     thread = threading.Thread(target=rt.run)
     thread.start()
     from helpers import wait_until
@@ -568,7 +571,7 @@ def test_the_helpers_pad_drives_the_pad_while_the_gels_camera_is_missing(camera)
             yield SourceStatus(StatusKind.LOST, "camera lost")
         gate.wait(30)
 
-    rt = Runtime(source(), EstimatesThrough(), profile, [out], pace=False, merge=merge, live=True)
+    rt = Engine(RunParts(source(), EstimatesThrough()), profile, [out], RunOptions(mode=RunMode.LIVE, merge=merge))
     thread = threading.Thread(target=rt.run)
     thread.start()
     wait_until(lambda: merge.on_input is not None and (camera == "waiting" or rt.stats.camera_losses == 1), 30)

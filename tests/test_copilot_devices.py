@@ -31,11 +31,11 @@ from helpers import wait_until
 import neurotouch_hid.inputs.copilot as copilot_module
 import neurotouch_hid.inputs.device as device_module
 from neurotouch_hid.core.controller import ControllerState
+from neurotouch_hid.core.stages import Feedback
 from neurotouch_hid.inputs.copilot import Copilot, FeedbackRelay
 from neurotouch_hid.inputs.device import EVIOCRMFF, MergedInput
 from neurotouch_hid.inputs.match import InputInfo
 from neurotouch_hid.mapping.profile import parse_profile
-from neurotouch_hid.stages import Feedback
 
 #: A wait that ends a hang only (helpers.wait_until): what is waited for is asserted, never a delay.
 HANG_S = 15.0

@@ -227,7 +227,7 @@ def moved(state: ControllerState) -> bool:
 
 
 def run_davis(world: ReplayWorld, seconds: float, log: Log):
-    from neurotouch_hid.driver import run_driver
+    from neurotouch_hid.engine.driver import run_driver
 
     return run_driver(
         "davis",
@@ -288,7 +288,7 @@ def test_a_camera_that_never_comes_back_still_ends_the_run_neutral(sim_gel_recor
 
 
 def test_run_with_wait_starts_when_the_camera_is_plugged_in(sim_gel_recording):
-    from neurotouch_hid.driver import run_driver
+    from neurotouch_hid.engine.driver import run_driver
 
     path, labels = sim_gel_recording
     plugged = 3.2  # the gel rests from 3.0 s, a pinch follows from 4.6 s
@@ -359,7 +359,7 @@ def test_the_noise_filter_runs_on_the_camera_s_own_event_stores(street):
 
 def test_the_live_pipeline_leaves_the_noise_to_the_source(sim_gel_recording):
     from neurotouch_hid.core.sensor import SensorGeometry
-    from neurotouch_hid.driver import build_pipeline
+    from neurotouch_hid.engine.assembly import build_pipeline
 
     live, _ = build_pipeline(SensorGeometry(), 10_000, filter_noise=False)
     replay, _ = build_pipeline(SensorGeometry(), 10_000)

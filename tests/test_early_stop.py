@@ -8,14 +8,16 @@ from __future__ import annotations
 
 import os
 import signal
+from dataclasses import replace
 
 import pytest
 from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, batch
 
-from neurotouch_hid import driver
 from neurotouch_hid.core.kinds import OutputKind
-from neurotouch_hid.runtime import RunParts, Runtime
-from neurotouch_hid.stopping import EarlyStop, StopRequested
+from neurotouch_hid.engine import driver
+from neurotouch_hid.engine.engine import Engine, RunParts
+from neurotouch_hid.engine.mode import RunMode, RunOptions
+from neurotouch_hid.engine.stopping import EarlyStop, StopRequested
 
 
 class Order:
@@ -133,8 +135,8 @@ def test_the_merged_devices_are_grabbed_before_the_device_and_started_by_the_run
 
 
 def _fake_mapper_run(real):
-    def run(assembly, profile, subscribers, seconds=None, **options):
-        return real(assembly, {"sign": 1}, subscribers, seconds, mapper_factory=FakeMapper, **options)
+    def run(assembly, profile, subscribers, seconds, options, **kw):
+        return real(assembly, {"sign": 1}, subscribers, seconds, replace(options, mapper_factory=FakeMapper), **kw)
 
     return run
 
@@ -148,14 +150,11 @@ def test_a_sigterm_after_the_devices_but_before_the_engine_stops_the_run_at_once
         os.kill(os.getpid(), signal.SIGTERM)
         assert early.requested.is_set()
         stream = [batch(k * 1000) for k in range(50)]
-        runtime = Runtime(
-            stream,
-            FakePipeline(push_batches=2),
+        runtime = Engine(
+            RunParts(stream, FakePipeline(push_batches=2)),
             {"sign": 1},
             [out],
-            mapper_factory=FakeMapper,
-            pace=False,
-            early_stop=early,
+            RunOptions(mode=RunMode.FAST, mapper_factory=FakeMapper, early_stop=early),
         )
         stats = runtime.run()
     assert stats.windows == 0 and out.calls[-1] == ("neutralise", None)

@@ -117,7 +117,7 @@ def test_mp4_without_an_ffmpeg_program_says_to_install_ffmpeg(monkeypatch):
 def test_the_driver_commands_import_neither_extra():
     code = (
         "import sys\n"
-        "import neurotouch_hid.cli, neurotouch_hid.driver, neurotouch_hid.pipeline.track\n"
+        "import neurotouch_hid.cli, neurotouch_hid.engine.driver, neurotouch_hid.pipeline.track\n"
         "print(sorted(m for m in ('matplotlib', 'imageio', 'imageio_ffmpeg') if m in sys.modules))\n"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)

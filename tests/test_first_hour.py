@@ -347,9 +347,9 @@ def test_the_live_views_t_counts_from_the_first_window_as_the_windows_do():
 
     from neurotouch_hid.core.controller import ControllerState
     from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+    from neurotouch_hid.core.stages import WindowRecord
     from neurotouch_hid.core.stats import RunStats
     from neurotouch_hid.mapping.profile import load_profile
-    from neurotouch_hid.stages import WindowRecord
     from neurotouch_hid.views.live import LiveView
 
     view = LiveView(Console(file=io.StringIO(), force_terminal=False, width=200))
@@ -373,8 +373,9 @@ def test_the_live_views_t_counts_from_the_first_window_as_the_windows_do():
 def test_the_closing_line_says_which_windows_ran_interpreted_while_compiling():
     from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, batch
 
-    from neurotouch_hid.runtime import Runtime
-    from neurotouch_hid.stages import CompileProgress
+    from neurotouch_hid.core.stages import CompileProgress
+    from neurotouch_hid.engine.engine import Engine, RunParts
+    from neurotouch_hid.engine.mode import RunMode, RunOptions
 
     compiling = iter([CompileProgress("compiling", k / 5) for k in range(5)])
 
@@ -382,14 +383,11 @@ def test_the_closing_line_says_which_windows_ran_interpreted_while_compiling():
         return next(compiling, None)
 
     stream = [batch(k * 1000) for k in range(12)]
-    runtime = Runtime(
-        stream,
-        FakePipeline(),
+    runtime = Engine(
+        RunParts(stream, FakePipeline(), compile_progress=progress),
         {"sign": 1},
         [RecordingOutput()],
-        mapper_factory=FakeMapper,
-        pace=False,
-        compile_progress=progress,
+        RunOptions(mode=RunMode.FAST, mapper_factory=FakeMapper),
     )
     stats = runtime.run()
     assert stats.windows == 12 and 1 <= stats.interpreted_windows < 12
@@ -404,17 +402,19 @@ def test_a_run_that_ends_before_its_compile_does_not_promise_a_compiled_next_run
     The closing line says how far it got, not that the next run starts compiled."""
     from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, batch
 
-    from neurotouch_hid.runtime import Runtime
-    from neurotouch_hid.stages import CompileProgress
+    from neurotouch_hid.core.stages import CompileProgress
+    from neurotouch_hid.engine.engine import Engine, RunParts
+    from neurotouch_hid.engine.mode import RunMode, RunOptions
 
-    stats = Runtime(
-        [batch(k * 1000) for k in range(12)],
-        FakePipeline(),
+    stats = Engine(
+        RunParts(
+            [batch(k * 1000) for k in range(12)],
+            FakePipeline(),
+            compile_progress=lambda: CompileProgress("compiling", 0.625),
+        ),
         {"sign": 1},
         [RecordingOutput()],
-        mapper_factory=FakeMapper,
-        pace=False,
-        compile_progress=lambda: CompileProgress("compiling", 0.625),  # never done
+        RunOptions(mode=RunMode.FAST, mapper_factory=FakeMapper),
     ).run()
     line = stats.summary()
     assert stats.interpreted_windows == 12 and stats.compile_ended_at == 0.625
@@ -456,15 +456,14 @@ def test_a_run_that_compiled_before_its_first_window_counts_every_window_as_comp
 def test_a_run_without_a_compile_says_nothing_of_it():
     from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, batch
 
-    from neurotouch_hid.runtime import Runtime
+    from neurotouch_hid.engine.engine import Engine, RunParts
+    from neurotouch_hid.engine.mode import RunMode, RunOptions
 
-    stats = Runtime(
-        [batch(k * 1000) for k in range(6)],
-        FakePipeline(),
+    stats = Engine(
+        RunParts([batch(k * 1000) for k in range(6)], FakePipeline()),
         {"sign": 1},
         [RecordingOutput()],
-        mapper_factory=FakeMapper,
-        pace=False,
+        RunOptions(mode=RunMode.FAST, mapper_factory=FakeMapper),
     ).run()
     assert stats.interpreted_windows == 0 and "interpreted" not in stats.summary()
 

@@ -88,7 +88,7 @@ def key_changes(keys_per_line: list[frozenset]) -> list[frozenset]:
 def test_piped_switch_access_run_shows_every_key_press_the_json_lines_show():
     import json
 
-    from neurotouch_hid.driver import run_driver
+    from neurotouch_hid.engine.driver import run_driver
 
     console, stream = plain_console(), io.StringIO()
     term = TermView(console)

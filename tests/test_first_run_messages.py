@@ -7,8 +7,8 @@ import sys
 
 import pytest
 
-from neurotouch_hid import driver
 from neurotouch_hid.core.errors import DeviceError
+from neurotouch_hid.engine import driver
 
 UINPUT = "/dev/uinput does not exist (the kernel's uinput module is not loaded)"
 
@@ -140,8 +140,10 @@ def test_ctrl_c_during_a_run_prints_its_summary_before_exit_130(monkeypatch, cap
     from runtime_fakes import EstimatesThrough
 
     from neurotouch_hid.core.estimate import GestureEstimate
+    from neurotouch_hid.core.stages import CompileProgress
+    from neurotouch_hid.engine.engine import Engine, RunParts
+    from neurotouch_hid.engine.mode import RunMode, RunOptions
     from neurotouch_hid.mapping.profile import load_profile
-    from neurotouch_hid.runtime import Runtime
 
     def source():
         yield GestureEstimate(t_us=10_000)
@@ -149,8 +151,10 @@ def test_ctrl_c_during_a_run_prints_its_summary_before_exit_130(monkeypatch, cap
         threading.Event().wait(300)  # only ends a hang: the interrupt ends the run
 
     def demo(seconds, console, say):
-        runtime = Runtime(source(), EstimatesThrough(), load_profile("default"), [], pace=False)
-        runtime.stats.interpreted_windows, runtime._compiling = 12, lambda: type("P", (), {"fraction": 0.49})()
+        compiling = CompileProgress("compiling the pipeline", 0.49)  # until the run ends
+        parts = RunParts(source(), EstimatesThrough(), compile_progress=lambda: compiling)
+        runtime = Engine(parts, load_profile("default"), [], RunOptions(mode=RunMode.FAST))
+        runtime.stats.interpreted_windows = 12
         return runtime.run(seconds)
 
     monkeypatch.setattr(driver, "run_demo", demo)

@@ -6,7 +6,7 @@ import struct
 import pytest
 
 from neurotouch_hid.core.controller import ControllerState
-from neurotouch_hid.stages import Feedback
+from neurotouch_hid.core.stages import Feedback
 from neurotouch_hid.targets.gadget import functionfs
 from neurotouch_hid.targets.gadget.ffs import ACCEPT, HidState, hid_answer, xinput_answer
 

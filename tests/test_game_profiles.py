@@ -17,9 +17,9 @@ from pathlib import Path
 
 import pytest
 
-from neurotouch_hid.control import SOCKET_NAME
 from neurotouch_hid.core.errors import ProfileError
-from neurotouch_hid.games import (
+from neurotouch_hid.service.control import SOCKET_NAME
+from neurotouch_hid.service.games import (
     EXECUTABLE,
     STEAM,
     GameMap,
@@ -228,7 +228,7 @@ def test_the_scanner_skips_its_own_process_even_with_steamappid(children):
     """A driver started from Steam inherits SteamAppId: it is not a game."""
     other = _steam_game(children)
     code = (
-        "import os; from neurotouch_hid.games import GameMap, ProcessScanner; "
+        "import os; from neurotouch_hid.service.games import GameMap, ProcessScanner; "
         f"print(os.getpid(), *[g.pid for g in ProcessScanner().games(GameMap({{{APP_ID}: 'mouse'}}, {{}}))])"
     )
     result = subprocess.run(
@@ -401,7 +401,7 @@ def test_a_steam_game_that_execs_while_it_is_read_is_never_named_as_its_parent(m
     """A fork exec's between two reads of it: whichever is read first sees the parent (its name
     ``python``, its environment without SteamAppId), what is read after sees the game. The
     environment is read first, so a game found by its SteamAppId has its own name."""
-    import neurotouch_hid.games as games
+    import neurotouch_hid.service.games as games
 
     state = {"execd": False}
 
@@ -427,7 +427,7 @@ def test_a_steam_game_read_before_its_exec_wrote_its_environment_is_found_at_the
     """Right after an exec the kernel has not yet written the new program's environment (its
     ``/proc/PID/environ`` reads empty, a few microseconds: ``helpers.started``): a game read then
     shows no SteamAppId, and is read again while young."""
-    import neurotouch_hid.games as games
+    import neurotouch_hid.service.games as games
 
     real = games._steam_app_id
     reads: list[int] = []

@@ -395,7 +395,7 @@ def _send(path: Path, data: bytes) -> bytes:
 
 @pytest.mark.usefixtures("runtime_dir")
 def test_control_socket_refuses_malformed_requests_and_keeps_answering():
-    from neurotouch_hid.control import ControlServer, request_use, socket_path
+    from neurotouch_hid.service.control import ControlServer, request_use, socket_path
 
     server = ControlServer(lambda ref: f"switched to {ref}")
     assert server.start()
@@ -455,8 +455,8 @@ def test_the_running_driver_survives_every_attack_and_ctrl_z_releases_everything
     alias-bomb profile through ``profile use``, a deeply nested profile on SIGHUP: each is refused
     and logged, the driver keeps writing states and then switches profile on request. SIGTSTP
     writes the neutral state before the process stops; SIGCONT resumes; SIGTERM exits 0."""
-    from neurotouch_hid.control import SOCKET_NAME, request_use
     from neurotouch_hid.core.errors import NeurotouchError
+    from neurotouch_hid.service.control import SOCKET_NAME, request_use
 
     xdg = tmp_path / "xdg"
     xdg.mkdir(mode=0o700)
@@ -529,7 +529,7 @@ def test_a_predictions_file_that_is_a_fifo_or_nests_deeply_is_one_line(tmp_path)
 @pytest.mark.usefixtures("runtime_dir")
 def test_a_client_sending_a_byte_now_and_then_is_dropped_at_the_request_deadline():
     """The request timeout is for the whole line: a byte every second does not keep a slot."""
-    from neurotouch_hid.control import REQUEST_TIMEOUT_S, ControlServer, socket_path
+    from neurotouch_hid.service.control import REQUEST_TIMEOUT_S, ControlServer, socket_path
 
     server = ControlServer(lambda ref: "switched")
     assert server.start()
@@ -602,7 +602,7 @@ def test_a_games_yaml_that_never_ends_blocks_neither_the_command_nor_the_watcher
     and goes on polling."""
     import threading
 
-    from neurotouch_hid.games import GameProfiles
+    from neurotouch_hid.service.games import GameProfiles
 
     path, env = _games_yaml(tmp_path)
     if kind == "fifo":
@@ -626,7 +626,7 @@ def test_a_process_with_a_huge_steam_app_id_does_not_hide_the_game_beside_it(tmp
     """A process whose SteamAppId is 5000 digits (Python refuses to convert it) and one whose
     environment is 800 KB of padding before SteamAppId: the game beside them is still found, and
     neither is taken for a game."""
-    from neurotouch_hid.games import GameMap, ProcessScanner
+    from neurotouch_hid.service.games import GameMap, ProcessScanner
 
     sleeper = [sys.executable, "-c", "import time; time.sleep(120)"]
     base = {"PATH": os.environ.get("PATH", "")}
@@ -722,7 +722,7 @@ def test_run_never_writes_its_states_over_its_source_or_through_a_link(tmp_path)
 
 # --- per-game profiles under the unit as shipped ------------------------------------------------
 _SCAN = (
-    "import sys\nfrom neurotouch_hid.games import GameMap, ProcessScanner\n"
+    "import sys\nfrom neurotouch_hid.service.games import GameMap, ProcessScanner\n"
     "print(' '.join(str(g.pid) for g in ProcessScanner().games(GameMap({4242: 'mouse'}, {}))))\n"
 )
 
@@ -878,8 +878,8 @@ def test_the_control_socket_folder_and_its_peer_are_checked(shared_runtime_dir, 
     """A folder open to others is made 0700 by the driver; another user's folder is refused by
     both sides; a socket served by another user's process (a forged driver) is not asked;
     a client of another user is not answered."""
-    from neurotouch_hid.control import SOCKET_NAME, ControlServer, request_use
     from neurotouch_hid.core.errors import NeurotouchError
+    from neurotouch_hid.service.control import SOCKET_NAME, ControlServer, request_use
 
     shared = shared_runtime_dir
     folder = shared / SOCKET_NAME.split("/")[0]
@@ -937,7 +937,7 @@ def test_the_control_socket_folder_and_its_peer_are_checked(shared_runtime_dir, 
 def test_profile_use_on_a_file_that_is_no_profile_does_not_quote_it(tmp_path):
     """The driver reads the file the client names: its answer says it is no profile without
     repeating what the file holds (a key, a password file)."""
-    from neurotouch_hid.control import ControlServer, socket_path
+    from neurotouch_hid.service.control import ControlServer, socket_path
 
     secrets = {
         "key": "-----BEGIN OPENSSH PRIVATE KEY-----\nb3BlbnNzaC1rZXktdjEAAAAABG5vbmUAAAAE\n-----END OPENSSH KEY-----\n",

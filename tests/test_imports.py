@@ -16,12 +16,13 @@ ORDER = {
     "views": 4,
     "targets": 4,
     "inputs": 4,
-    "stages": 3,
-    "runtime": 5,
-    "control": 5,
-    "games": 5,
+    "core.stages": 3,
+    "engine": 5,
+    "service.control": 5,
+    "service.games": 5,
+    "service.serve": 5,
     "service.warmup": 5,
-    "driver": 6,
+    "engine.driver": 6,
     "views.pictures": 3,
     "service.doctor": 7,
     "cli": 7,
@@ -91,4 +92,8 @@ def test_there_is_no_import_circle():
 
 def test_the_rule_sees_an_upward_import():
     """The checker itself: a sources module importing the runtime would be reported."""
-    assert _rank("neurotouch_hid.runtime") > _rank("neurotouch_hid.sources.davis") > _rank("neurotouch_hid.core.sensor")
+    assert (
+        _rank("neurotouch_hid.engine.engine")
+        > _rank("neurotouch_hid.sources.davis")
+        > _rank("neurotouch_hid.core.sensor")
+    )

@@ -14,8 +14,8 @@ from neurotouch_hid.core.limits import read_outside_text
 from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.enrolment.model import ModelError, load_model
 from neurotouch_hid.enrolment.plan import read_plan
-from neurotouch_hid.games import GameMapError, load_game_map
 from neurotouch_hid.mapping.profile import read_profile_text
+from neurotouch_hid.service.games import GameMapError, load_game_map
 
 #: Every reader of an outside file: (its name, the function, the error it raises, the kind of
 #: file its messages name, its size bound in bytes).

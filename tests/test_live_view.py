@@ -1,4 +1,4 @@
-"""The live terminal view of run and demo (neurotouch_hid/views/live.py): the gel plot, the
+"""The live terminal view of run and demo (neurotouch_hid/output/live.py): the gel plot, the
 gestures performed and recognised, the profile, drawn in a real terminal (tmux) at 80x24."""
 
 from __future__ import annotations
@@ -121,13 +121,19 @@ def test_the_gamepad_with_the_view_beside_it_both_get_every_record_and_are_neutr
     from rich.console import Console
     from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, batch
 
-    from neurotouch_hid.runtime import Runtime
+    from neurotouch_hid.engine.engine import Engine, RunParts
+    from neurotouch_hid.engine.mode import RunMode, RunOptions
     from neurotouch_hid.views.live import LiveView
 
     pad = RecordingOutput()
     view = LiveView(Console(file=io.StringIO(), force_terminal=False, width=200))
     stream = [batch(k * 1000) for k in range(8)]
-    Runtime(stream, FakePipeline(push_batches=3), {"sign": 1}, [pad, view], mapper_factory=FakeMapper, pace=False).run()
+    Engine(
+        RunParts(stream, FakePipeline(push_batches=3)),
+        {"sign": 1},
+        [pad, view],
+        RunOptions(mode=RunMode.FAST, mapper_factory=FakeMapper),
+    ).run()
     view.close()
     written = [state for kind, state in pad.calls if kind == "write"]
     assert [s.axes["ABS_X"] for s in written] == [1000, 2000, 3000, 0]
@@ -156,7 +162,7 @@ def test_the_live_view_goes_beside_the_pad_only_on_a_terminal(kind, terminal, be
     from rich.console import Console
     from runtime_fakes import RecordingOutput
 
-    from neurotouch_hid.driver import open_outputs
+    from neurotouch_hid.engine.driver import open_outputs
     from neurotouch_hid.views.live import LiveView
 
     made = RecordingOutput()
@@ -175,7 +181,7 @@ def test_a_run_s_lines_go_above_the_view_drawn_on_a_terminal_else_where_they_wen
 
     from rich.console import Console
 
-    from neurotouch_hid.driver import said_above
+    from neurotouch_hid.engine.driver import said_above
     from neurotouch_hid.views.term import TermView
 
     screen = io.StringIO()
@@ -247,8 +253,8 @@ def test_the_live_view_answers_q_h_and_space_in_a_real_terminal(tmp_path):
 def record_for(profile, game: str = ""):
     from neurotouch_hid.core.controller import ControllerState
     from neurotouch_hid.core.estimate import GestureEstimate
+    from neurotouch_hid.core.stages import WindowRecord
     from neurotouch_hid.core.stats import RunStats
-    from neurotouch_hid.stages import WindowRecord
 
     stats = RunStats()
     stats.game = game
@@ -319,12 +325,12 @@ def test_log_lines_go_above_the_view_while_it_draws_and_back_after():
     try:
         view = TermView(Console(file=screen, force_terminal=True, width=100))
         try:
-            logging.getLogger("neurotouch_hid.runtime").warning("switched to profile mouse (Portal 2 is running)")
+            logging.getLogger("neurotouch_hid.engine.engine").warning("switched to profile mouse (Portal 2 is running)")
         finally:
             view.close()
         assert terminal_stderr.getvalue() == ""
         assert "switched to profile mouse (Portal 2 is running)" in screen.getvalue()
-        logging.getLogger("neurotouch_hid.runtime").warning("after")
+        logging.getLogger("neurotouch_hid.engine.engine").warning("after")
         assert terminal_stderr.getvalue() == "after\n"
     finally:
         root.removeHandler(handler)
@@ -335,7 +341,7 @@ def test_the_compile_line_ticks_while_no_window_comes():
     (~12 s under load), and the panel stood still at ``t 0.000 s``. The compile's line now ends
     with a spinner and the seconds since the start, which move at every redraw."""
     from neurotouch_hid.core.controller import ControllerState
-    from neurotouch_hid.stages import CompileProgress
+    from neurotouch_hid.core.stages import CompileProgress
     from neurotouch_hid.views.live import live_layout
 
     record = record_for(load_profile("default"))._replace(

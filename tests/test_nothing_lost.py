@@ -104,8 +104,8 @@ def test_parallel_profile_edits_all_land(tmp_path):
         for i in range(10)
     ]
     assert [p.wait(timeout=300) for p in runs] == [0] * len(runs)
-    from neurotouch_hid.games import load_game_map
     from neurotouch_hid.mapping.profile import load_profile
+    from neurotouch_hid.service.games import load_game_map
 
     profile = load_profile(tmp_path / "config" / "neurotouch-hid" / "profiles" / "mine.yaml")
     for key, value in values.items():
@@ -539,7 +539,7 @@ def test_parallel_profile_use_all_get_their_answer(tmp_path):
     import threading
     import time
 
-    from neurotouch_hid.control import ControlServer, request_use
+    from neurotouch_hid.service.control import ControlServer, request_use
 
     folder = tmp_path / "run"
     folder.mkdir(mode=0o700)

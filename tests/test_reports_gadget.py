@@ -5,7 +5,7 @@ import os
 import pytest
 
 from neurotouch_hid.core.controller import ControllerState
-from neurotouch_hid.stages import Feedback
+from neurotouch_hid.core.stages import Feedback
 from neurotouch_hid.targets.reports.switch import DESCRIPTOR, SwitchFormat
 from neurotouch_hid.targets.reports.xinput import XInputFormat, parse_output
 

@@ -42,6 +42,7 @@ def replay(sensor, items, *, skip_at_rest: bool):
         return estimate(t_us)
 
     pipeline._estimate = estimate_at
+    pipeline.rests_compiled = False  # each window's estimate is watched: every one on the general path
     if not skip_at_rest:  # the event path always overrules the verdict: every window is searched
         pipeline._moving = lambda current, valid: True
     estimates = [e for item in items for e in pipeline.process(item)]
@@ -76,6 +77,8 @@ def held_push(estimates) -> int:
 
 class GeneralPath(GesturePipeline):
     """The pipeline with every window on the general path (a window estimate of its own)."""
+
+    rests_compiled = False
 
     def _moving(self, current, valid):
         return super()._moving(current, valid)
@@ -175,3 +178,21 @@ def test_a_resting_batchs_window_end_is_cut_where_numpys_searchsorted_cuts_it():
             expected = int(np.searchsorted(timestamps, t_us))
             assert _first_at_or_after(timestamps, t_us) == expected
             assert _first_at_or_after.py_func(timestamps, t_us) == expected
+
+
+def test_a_subclass_that_overrides_the_window_estimate_says_which_path_its_resting_windows_take():
+    """A pipeline whose motion override or window estimate is its own does not silently take the
+    compiled path at rest (which stands for the base class's): it must set ``rests_compiled``."""
+    with pytest.raises(TypeError, match="overrides _moving: set rests_compiled"):
+
+        class Silent(GesturePipeline):
+            def _moving(self, current, valid):
+                return True
+
+    class Said(GesturePipeline):
+        rests_compiled = False
+
+        def _moving(self, current, valid):
+            return True
+
+    assert GesturePipeline.rests_compiled and not Said.rests_compiled

@@ -12,10 +12,11 @@ from pathlib import Path
 from runtime_fakes import FakeMapper, FakePipeline, batch
 
 from neurotouch_hid.core.estimate import GestureType, MarkerPositions
+from neurotouch_hid.core.stages import Subscriber, WindowRecord
+from neurotouch_hid.engine.engine import Engine, RunParts
+from neurotouch_hid.engine.mode import RunMode, RunOptions
 from neurotouch_hid.mapping.profile import load_profile
-from neurotouch_hid.runtime import Runtime
 from neurotouch_hid.sources.open import open_source
-from neurotouch_hid.stages import Subscriber, WindowRecord
 
 PACKAGE = Path(__file__).resolve().parents[1] / "neurotouch_hid"
 
@@ -53,8 +54,11 @@ class MarkerPipeline(FakePipeline):
 def test_every_window_is_published_once_to_every_subscriber_with_what_changed():
     first, second = Collector(), Collector()
     stream = [batch(k * 1000) for k in range(5)]
-    stats = Runtime(
-        stream, FakePipeline(push_batches=2), {"sign": 1}, [first, second], mapper_factory=FakeMapper, pace=False
+    stats = Engine(
+        RunParts(stream, FakePipeline(push_batches=2)),
+        {"sign": 1},
+        [first, second],
+        RunOptions(mode=RunMode.FAST, mapper_factory=FakeMapper),
     ).run()
     assert len(first.records) == len(second.records) == stats.windows == 5
     assert [r is s for r, s in zip(first.records, second.records)] == [True] * 5  # the same record
@@ -66,32 +70,37 @@ def test_every_window_is_published_once_to_every_subscriber_with_what_changed():
 def test_markers_are_copied_only_when_a_subscriber_draws_them():
     pipeline = MarkerPipeline()
     blind = Collector()
-    Runtime([batch(0), batch(1000)], pipeline, {"sign": 1}, [blind], mapper_factory=FakeMapper, pace=False).run()
+    Engine(
+        RunParts([batch(0), batch(1000)], pipeline),
+        {"sign": 1},
+        [blind],
+        RunOptions(mode=RunMode.FAST, mapper_factory=FakeMapper),
+    ).run()
     assert pipeline.asked == 0 and all(r.markers is None for r in blind.records)
     pipeline = MarkerPipeline()
     drawing = Collector(wants_markers=True)
-    Runtime(
-        [batch(0), batch(1000)], pipeline, {"sign": 1}, [blind, drawing], mapper_factory=FakeMapper, pace=False
+    Engine(
+        RunParts([batch(0), batch(1000)], pipeline),
+        {"sign": 1},
+        [blind, drawing],
+        RunOptions(mode=RunMode.FAST, mapper_factory=FakeMapper),
     ).run()
     assert pipeline.asked == 2 and all(r.markers is not None for r in drawing.records)
 
 
 def test_the_simulated_hand_says_what_it_performs_and_the_record_carries_it():
     """The source's truth reaches a view through the record, not through the view's own hook."""
-    from neurotouch_hid.driver import build_pipeline
+    from neurotouch_hid.engine.assembly import build_pipeline
 
     collector = Collector()
     with contextlib.ExitStack() as stack:
         opened = open_source("sim", stack, seconds=4.0, labelled=True, batch_us=1000)
         pipeline, _ = build_pipeline(opened.sensor, 10_000, resting_beside=False)
-        Runtime(
-            opened.stream,
-            pipeline,
+        Engine(
+            RunParts(opened.stream, pipeline, sensor=opened.sensor, labelled=opened.labelled),
             load_profile("default"),
             [collector],
-            pace=False,
-            sensor=opened.sensor,
-            labelled=opened.labelled,
+            RunOptions(mode=RunMode.FAST),
         ).run()
     performed = [r.performed for r in collector.records]
     assert all(r.labelled for r in collector.records) and opened.labelled
@@ -105,11 +114,14 @@ def test_an_unlabelled_source_publishes_no_performed_gesture(sim_push_only_recor
     collector = Collector()
     with contextlib.ExitStack() as stack:
         opened = open_source(str(sim_push_only_recording), stack)
-        from neurotouch_hid.driver import build_pipeline
+        from neurotouch_hid.engine.assembly import build_pipeline
 
         pipeline, _ = build_pipeline(opened.sensor, 10_000, resting_beside=False)
-        Runtime(
-            opened.stream, pipeline, load_profile("default"), [collector], pace=False, labelled=opened.labelled
+        Engine(
+            RunParts(opened.stream, pipeline, labelled=opened.labelled),
+            load_profile("default"),
+            [collector],
+            RunOptions(mode=RunMode.FAST),
         ).run()
     assert collector.records and not opened.labelled
     assert all(r.performed is None and not r.labelled for r in collector.records)
@@ -133,7 +145,7 @@ def test_every_output_is_a_subscriber():
 def test_every_device_is_a_target_and_none_is_a_subscriber_of_its_own():
     """The uinput pad, keyboard and mouse, the UHID device, the gadget's functions: each a Target,
     written to only through TargetOutputs (one output path, one feedback path)."""
-    from neurotouch_hid.stages import Target
+    from neurotouch_hid.core.stages import Target
     from neurotouch_hid.targets.gadget.ffs import HidInterfaceTarget, XInputTarget
     from neurotouch_hid.targets.gadget.targets import HidgTarget
     from neurotouch_hid.targets.uhid import UhidDevice
@@ -162,8 +174,8 @@ def _imported(module_folder: str) -> set[str]:
 
 def test_no_source_pipeline_or_mapper_module_knows_a_view():
     for folder in ("sources", "pipeline", "mapping"):
-        views = {m for m in _imported(folder) if m.startswith(("neurotouch_hid.views", "neurotouch_hid.stages"))}
-        views |= {m for m in _imported(folder) if m.startswith(("neurotouch_hid.runtime", "neurotouch_hid.driver"))}
+        views = {m for m in _imported(folder) if m.startswith(("neurotouch_hid.views", "neurotouch_hid.core.stages"))}
+        views |= {m for m in _imported(folder) if m.startswith("neurotouch_hid.engine")}
         assert views == set(), folder
     for path in PACKAGE.joinpath("sources").rglob("*.py"):
         assert "scene" not in path.read_text(), path

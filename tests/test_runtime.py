@@ -16,16 +16,19 @@ from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, batch, endl
 from neurotouch_hid.core.controller import ControllerState
 from neurotouch_hid.core.errors import ProfileError
 from neurotouch_hid.core.estimate import GestureEstimate, GestureType
-from neurotouch_hid.runtime import DropOldestQueue, Runtime, item_end_us
+from neurotouch_hid.engine.engine import Engine, RunParts
+from neurotouch_hid.engine.mode import RunMode, RunOptions
+from neurotouch_hid.engine.queue import DropOldestQueue, item_end_us
 from neurotouch_hid.sources import Frame, Pacer
 
 
-def make_runtime(source, pipeline=None, output=None, **kw) -> tuple[Runtime, FakePipeline, RecordingOutput]:
+def make_runtime(
+    source, pipeline=None, output=None, *, resting=None, mode=RunMode.FAST, **options
+) -> tuple[Engine, FakePipeline, RecordingOutput]:
     pipeline = pipeline or FakePipeline()
     output = output or RecordingOutput()
-    kw.setdefault("pace", False)
-    rt = Runtime(source, pipeline, {"sign": 1}, [output], mapper_factory=FakeMapper, **kw)
-    return rt, pipeline, output
+    options = RunOptions(mode=mode, mapper_factory=FakeMapper, **options)
+    return Engine(RunParts(source, pipeline, resting=resting), {"sign": 1}, [output], options), pipeline, output
 
 
 def writes(output: RecordingOutput) -> list[ControllerState]:
@@ -59,7 +62,7 @@ def test_runtime_counts_dropped_oldest_batches_when_the_pipeline_falls_behind():
             yield batch(i * 1000)
         gate.set()  # ... until the source has handed over everything
 
-    rt, pipeline, _ = make_runtime(source(), pipeline=pipeline, live=True, queue_items=size)
+    rt, pipeline, _ = make_runtime(source(), pipeline=pipeline, mode=RunMode.LIVE, queue_items=size)
     stats = rt.run()
     # the pipeline held the first batch while the source filled the queue: all but the
     # newest `size` of the rest were dropped, oldest first; those `size` came in one call
@@ -113,7 +116,7 @@ def test_a_slow_pipeline_behind_a_live_source_gets_every_event_in_fewer_calls():
             yield batch(i * 1000)
         gate.set()
 
-    rt, pipeline, _ = make_runtime(source(), pipeline=pipeline, live=True, queue_items=size)
+    rt, pipeline, _ = make_runtime(source(), pipeline=pipeline, mode=RunMode.LIVE, queue_items=size)
     stats = rt.run()
     assert stats.dropped_items == 0 and stats.events == 3 * n == sum(pipeline.sizes)
     assert len(pipeline.sizes) < n and pipeline.seen[-1] == item_end_us(batch((n - 1) * 1000))
@@ -163,7 +166,7 @@ def test_error_in_the_source_processes_what_was_read_then_neutralises_and_raises
 
 
 def test_stop_from_another_thread_ends_a_paced_endless_source_neutral():
-    rt, pipeline, out = make_runtime(endless(), pace=True, pipeline=FakePipeline(push_batches=10**9))
+    rt, pipeline, out = make_runtime(endless(), mode=RunMode.PACED, pipeline=FakePipeline(push_batches=10**9))
     once(lambda: writes(out), rt.stop)
     rt.run()
     assert pipeline.seen and out.calls[-1] == ("neutralise", None)
@@ -171,7 +174,7 @@ def test_stop_from_another_thread_ends_a_paced_endless_source_neutral():
 
 
 def test_sigterm_is_a_clean_stop():
-    rt, pipeline, out = make_runtime(endless(), pace=True, pipeline=FakePipeline(push_batches=10**9))
+    rt, pipeline, out = make_runtime(endless(), mode=RunMode.PACED, pipeline=FakePipeline(push_batches=10**9))
     previous = signal.getsignal(signal.SIGTERM)
     once(lambda: writes(out), lambda: os.kill(os.getpid(), signal.SIGTERM))
     stats = rt.run()  # returns normally
@@ -195,7 +198,7 @@ class ManualClock:
 def test_pacing_follows_the_timestamps():
     clock = ManualClock()
     pacer = Pacer(clock=lambda: clock.now_ns, sleep=clock.sleep)
-    rt, pipeline, _ = make_runtime((batch(i * 50_000, n=1) for i in range(5)), pace=True, pacer=pacer)
+    rt, pipeline, _ = make_runtime((batch(i * 50_000, n=1) for i in range(5)), mode=RunMode.PACED, pacer=pacer)
     rt.run()
     # 5 batches 50 ms apart in camera time: each waited for, 200 ms of the clock in all
     assert clock.slept == pytest.approx([0.05] * 4)
@@ -214,7 +217,7 @@ def test_a_source_that_waits_starts_its_clock_with_the_run_and_catches_up_a_late
         clock.now_ns += 120_000_000  # 120 ms before the first item (a compile)
         yield from (batch(i * 50_000, n=1) for i in range(5))
 
-    rt, pipeline, _ = make_runtime(late_source(), pace=True, waits=True, pacer=pacer)
+    rt, pipeline, _ = make_runtime(late_source(), mode=RunMode.PACED_WAITING, pacer=pacer)
     rt.run()
     # items at 0, 50, ..., 200 ms of camera time: those due by 120 ms go at once, then on time
     assert clock.slept == pytest.approx([0.03, 0.05])
@@ -256,6 +259,9 @@ class WindowedPipeline:
     def set_resting(self, result, t_us):
         pass
 
+    def set_type_wait(self, wait):
+        pass
+
 
 def test_a_resting_gel_wakes_the_paced_source_once_per_window_and_a_touch_at_once():
     clock = ManualClock()
@@ -263,18 +269,13 @@ def test_a_resting_gel_wakes_the_paced_source_once_per_window_and_a_touch_at_onc
     pipeline = WindowedPipeline(touch_us=60_000)
     times = [k * 1000 + 500 for k in range(100)]  # one event per 1 ms batch; windows end at 10 500 + 10 000 j
 
-    puts = []
-
     def source():
         for t in times:  # each batch once what was handed on is processed: no race on the clock
-            assert wait_until(lambda: len(pipeline.seen) >= sum(len(item) for item in puts))
+            assert wait_until(lambda: not rt.busy)
             yield batch(t, n=1)
 
-    rt = Runtime(
-        source(), pipeline, {"sign": 1}, [RecordingOutput()], mapper_factory=FakeMapper, pace=True, pacer=pacer
-    )
-    hand_on = rt._hand_on
-    rt._hand_on = lambda item: (puts.append(item), hand_on(item))[1]
+    options = RunOptions(mode=RunMode.PACED, mapper_factory=FakeMapper, pacer=pacer)
+    rt = Engine(RunParts(source(), pipeline), {"sign": 1}, [RecordingOutput()], options)
     rt.run()
     assert pipeline.seen == times  # everything, in order
     woke = (np.cumsum(clock.slept) * 1e6 + times[0]).round().astype(int).tolist()  # camera time of each wake
@@ -288,15 +289,19 @@ def test_a_resting_gel_wakes_the_paced_source_once_per_window_and_a_touch_at_onc
     assert moving == times[times.index(72_500) :]
     # at rest the batches of a window went on as one: the pipeline ran once per window, in the
     # source's thread (the pipeline's thread not woken); from the touch on, in the pipeline's
-    assert [len(item) for item in puts] == [1] * 22 + [10] * 4 + [1] * 38
+    assert [n for n, _ in pipeline.threads[:26]] == [1] * 22 + [10] * 4
     assert pipeline.threads[22:26] == [(10, "nt-source")] * 4
-    assert set(pipeline.threads[27:]) == {(1, "nt-pipeline")}
+    # from the touch on, each batch on its own in the pipeline's thread (the first may be taken
+    # with the batch handed on right before it: two hand-ons back to back, one queue)
+    after = pipeline.threads[26:]
+    assert {thread for _, thread in after} == {"nt-pipeline"} and sum(n for n, _ in after) == 38
+    assert len(after) >= 37 and set(pipeline.threads[28:]) == {(1, "nt-pipeline")}
 
 
 def test_without_pacing_nothing_waits():
     clock = ManualClock()
     pacer = Pacer(clock=lambda: clock.now_ns, sleep=clock.sleep)
-    rt, pipeline, _ = make_runtime((batch(i * 50_000, n=1) for i in range(5)), pace=False, pacer=pacer)
+    rt, pipeline, _ = make_runtime((batch(i * 50_000, n=1) for i in range(5)), pacer=pacer)
     rt.run()
     assert clock.slept == [] and len(pipeline.seen) == 5
 
@@ -309,7 +314,7 @@ def test_seconds_limits_the_camera_time_read():
 
 # --- profiles -----------------------------------------------------------------------------------
 def test_switch_profile_neutralises_then_maps_with_the_new_profile():
-    rt, pipeline, out = make_runtime(endless(), pace=True, pipeline=FakePipeline(push_batches=10**9))
+    rt, pipeline, out = make_runtime(endless(), mode=RunMode.PACED, pipeline=FakePipeline(push_batches=10**9))
     seen_switch = threading.Event()
 
     def switch():
@@ -351,7 +356,11 @@ def test_sighup_reloads_the_profile():
         return {"sign": -1}
 
     rt, _, out = make_runtime(
-        endless(), pace=True, pipeline=FakePipeline(push_batches=10**9), profile_ref="mine.yaml", profile_loader=loader
+        endless(),
+        mode=RunMode.PACED,
+        pipeline=FakePipeline(push_batches=10**9),
+        profile_ref="mine.yaml",
+        profile_loader=loader,
     )
     once(lambda: len(writes(out)) >= 3, lambda: os.kill(os.getpid(), signal.SIGHUP))
     once(lambda: loads and len(writes(out)) >= 3 and writes(out)[-1].axes["ABS_X"] < 0, rt.stop)
@@ -465,11 +474,12 @@ def test_demo_without_uinput_shows_the_terminal_view_and_says_why(tmp_path):
 
 
 def test_a_bad_profile_raises_before_any_output_or_source_exists(tmp_path, monkeypatch):
-    import neurotouch_hid.driver as driver
+    import neurotouch_hid.engine.assembly as assembly
+    import neurotouch_hid.engine.driver as driver
 
     opened = []
     monkeypatch.setattr(driver, "open_output", lambda *a, **k: opened.append("output"))
-    monkeypatch.setattr(driver, "open_source", lambda *a, **k: opened.append("source"))
+    monkeypatch.setattr(assembly, "open_source", lambda *a, **k: opened.append("source"))
     bad = tmp_path / "bad.yaml"
     bad.write_text("mappings:\n  push: {input: nonsense, output: left_stick}\n")
     with pytest.raises(ProfileError, match="bad.yaml"):
@@ -478,7 +488,7 @@ def test_a_bad_profile_raises_before_any_output_or_source_exists(tmp_path, monke
 
 
 def test_fast_replays_are_deterministic(sim_push_only_recording, tmp_path):
-    from neurotouch_hid.driver import run_driver
+    from neurotouch_hid.engine.driver import run_driver
 
     runs = []
     for k in range(2):
@@ -493,7 +503,7 @@ def test_a_predictions_file_replays_through_the_mapper_state_for_state(tmp_path)
     """``--source FILE.jsonl`` (no pipeline): the states written are the Mapper's for the same
     estimates, one line per change, ending neutral."""
     from neurotouch_hid.core.dataset import read_predictions, write_predictions
-    from neurotouch_hid.driver import run_driver
+    from neurotouch_hid.engine.driver import run_driver
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.mapping.replay import replay
 
@@ -552,7 +562,7 @@ def test_the_run_s_pipeline_runs_opencv_without_its_thread_pool():
     import cv2
 
     from neurotouch_hid.core.sensor import SensorGeometry
-    from neurotouch_hid.driver import build_pipeline
+    from neurotouch_hid.engine.assembly import build_pipeline
 
     previous = cv2.getNumThreads()
     cv2.setNumThreads(2)
@@ -586,7 +596,12 @@ def test_at_rest_neither_mapper_nor_subscribers_are_called_and_the_states_stay_t
 
     times = [k * 1000 + 500 for k in range(600)]
     out = Every()
-    rt = Runtime((batch(t, n=1) for t in times), pipeline, profile, [out], mapper_factory=CountedMapper, pace=False)
+    rt = Engine(
+        RunParts((batch(t, n=1) for t in times), pipeline),
+        profile,
+        [out],
+        RunOptions(mode=RunMode.FAST, mapper_factory=CountedMapper),
+    )
     rt.run()
     resting = [e for e in calls if e.resting]
     assert rt.stats.windows == 59 and len(calls) < 59 - 30  # most resting windows skipped
@@ -611,24 +626,19 @@ def test_a_resting_gel_whose_next_window_is_late_polls_the_live_camera_every_ms_
     """While the gel rests, a poll that brings nothing once the next window's end + 1 ms has passed
     (the camera's data for it are late: it sends them at its own pace) waits 1 ms, not 0: in the
     test kernel the source's thread spun through 3,709 polls of no wait in 22 s of rest."""
-    from neurotouch_hid.runtime import REST_WAKE_AFTER_END_US
-    from neurotouch_hid.sources import PausingStream, PollPause
+    from neurotouch_hid.engine.rest import REST_WAKE_AFTER_END_US, RestHandover
 
     clock = ManualClock()
-    rt = Runtime(
-        PausingStream(iter(()), PollPause(0.0002)),
-        WindowedPipeline(touch_us=60_000),
-        {"sign": 1},
-        [RecordingOutput()],
-        mapper_factory=FakeMapper,
-        live=True,
-        pacer=Pacer(clock=lambda: clock.now_ns, sleep=clock.sleep),
-    )
-    rt._rest_windows = (20_000, 10_000)  # the last window ended at 20 ms: the next ends at 30 ms
-    rt._read_us, rt._read_ns = 29_000, 0  # the last item read, camera time 29 ms
-    assert rt._live_pause() == pytest.approx(0.002)  # camera time 29 ms: until 31 ms
+    pacer = Pacer(clock=lambda: clock.now_ns, sleep=clock.sleep)
+    handover = RestHandover(pacer, threading.Event(), lambda item: None, paced=False, default_pause_s=0.0002)
+    assert handover.live_pause() == 0.0002  # the gel moves: the source's own pause
+    for end_us in (10_000, 20_000):  # the last window ended at 20 ms, at rest: the next ends at 30 ms
+        handover.window_closed(GestureEstimate(t_us=end_us))
+    assert handover.windows == (20_000, 10_000)
+    handover.read(29_000)  # the last item read, camera time 29 ms, now
+    assert handover.live_pause() == pytest.approx(0.002)  # camera time 29 ms: until 31 ms
     clock.now_ns = 5_000_000  # camera time about 34 ms, the next window's data not here yet
-    assert rt._live_pause() == REST_WAKE_AFTER_END_US / 1e6 == 0.001
+    assert handover.live_pause() == REST_WAKE_AFTER_END_US / 1e6 == 0.001
 
 
 def test_a_resting_gel_polls_the_live_camera_once_per_window_and_a_touch_at_once():
@@ -650,21 +660,20 @@ def test_a_resting_gel_polls_the_live_camera_once_per_window_and_a_touch_at_once
                 sent += 1
             # a camera slower than the pipeline: what was handed on is processed (no race on the
             # rest); then the poll brought nothing new, and the camera's time goes on meanwhile
-            assert wait_until(lambda n=sent: len(pipeline.seen) + sum(len(item) for item in rt._held) >= n)
+            assert wait_until(lambda n=sent: len(pipeline.seen) + rt.rest.held_events >= n)
             waited = pause()
             pauses.append((now_us, waited))
             now_us += max(200, round(waited * 1e6))
             clock.now_ns = now_us * 1000
 
     clock = ManualClock()  # the camera's time, moved on by the fake camera
-    rt = Runtime(
-        PausingStream(camera(), pause),
-        pipeline,
+    rt = Engine(
+        RunParts(PausingStream(camera(), pause), pipeline),
         {"sign": 1},
         [RecordingOutput()],
-        mapper_factory=FakeMapper,
-        live=True,
-        pacer=Pacer(clock=lambda: clock.now_ns, sleep=clock.sleep),
+        RunOptions(
+            mode=RunMode.LIVE, mapper_factory=FakeMapper, pacer=Pacer(clock=lambda: clock.now_ns, sleep=clock.sleep)
+        ),
     )
     rt.run()
     assert pipeline.seen == times and pause.decide is None  # everything, in order; the pause given back
@@ -696,7 +705,7 @@ def _paced_run_of(recording, *, cut: bool) -> tuple[TimedOutput, list[int]]:
     they came, and the length of every item the source yielded (events; a frame counts 1)."""
     import contextlib
 
-    from neurotouch_hid.driver import build_pipeline
+    from neurotouch_hid.engine.assembly import build_pipeline
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.sources.open import open_source
 
@@ -706,8 +715,6 @@ def _paced_run_of(recording, *, cut: bool) -> tuple[TimedOutput, list[int]]:
     clock = ManualClock()
     pacer = Pacer(clock=lambda: clock.now_ns, sleep=clock.sleep)
     output = TimedOutput(clock)
-    handed: list[int] = []
-    done: list[int] = []
     read: list[int] = []
     with contextlib.ExitStack() as stack:
         opened = open_source(str(recording), stack, batch_us=1000)
@@ -718,7 +725,7 @@ def _paced_run_of(recording, *, cut: bool) -> tuple[TimedOutput, list[int]]:
         def synchronised():
             for item in stream:
                 deadline = time.monotonic() + 60  # (only ends a hang)
-                while sum(done) < sum(handed) and time.monotonic() < deadline:
+                while rt.busy and time.monotonic() < deadline:
                     time.sleep(0.0002)  # the pipeline's thread is at it: a short poll
                 read.append(size(item))
                 yield item
@@ -734,10 +741,9 @@ def _paced_run_of(recording, *, cut: bool) -> tuple[TimedOutput, list[int]]:
             return out
 
         pipeline.process = timed_process
-        rt = Runtime(source, pipeline, load_profile("default"), [output], pace=True, pacer=pacer)
-        hand_on, handle = rt._hand_on, rt._handle
-        rt._hand_on = lambda item: (handed.append(size(item)), hand_on(item))[1]
-        rt._handle = lambda entry, **kw: (handle(entry, **kw), done.append(size(entry[1])))[0]  # published, rest set
+        rt = Engine(
+            RunParts(source, pipeline), load_profile("default"), [output], RunOptions(mode=RunMode.PACED, pacer=pacer)
+        )
         rt.run()
     return output, read
 

@@ -1,6 +1,6 @@
 """Several cameras on one machine: each run stands for one camera (its serial), whose outputs carry
 an identity of their own and whose own config folder is used where it has one
-(neurotouch_hid/service/serials.py, sources/serial.py, control.socket_path).
+(neurotouch_hid/serials.py, sources/serial.py, control.socket_path).
 The two pads in a real kernel: tests/kernel/checks_sensors.py."""
 
 from types import SimpleNamespace
@@ -107,7 +107,7 @@ def _push_right(path):
 def test_a_run_with_a_serial_maps_with_that_camera_profile(tmp_path):
     """Two runs of the same push, one per camera: the camera with a profile.yaml of its own
     (the shipped ``mouse``) moves the pointer, the other one (no folder) the default's stick."""
-    from neurotouch_hid.driver import run_driver
+    from neurotouch_hid.engine.driver import run_driver
     from neurotouch_hid.mapping.profile import find_profile
 
     preds = tmp_path / "push.jsonl"
@@ -132,7 +132,7 @@ def test_run_refuses_a_serial_that_cannot_name_a_camera(monkeypatch, capsys, tmp
 
 
 def test_each_camera_driver_has_its_own_control_socket(tmp_path, monkeypatch):
-    from neurotouch_hid import control
+    from neurotouch_hid.service import control
 
     monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
     folder = tmp_path / "neurotouch-hid"
@@ -190,24 +190,21 @@ def test_devices_and_doctor_say_which_driver_runs_for_which_camera(tmp_path, mon
     from helpers import wait_until
     from runtime_fakes import FakeMapper, FakePipeline, RecordingOutput, endless
 
-    from neurotouch_hid.control import running_drivers, socket_path
-    from neurotouch_hid.runtime import Runtime
+    from neurotouch_hid.engine.engine import Engine, RunParts
+    from neurotouch_hid.engine.mode import RunMode, RunOptions
+    from neurotouch_hid.service.control import running_drivers, socket_path
     from neurotouch_hid.service.doctor import OK, camera_drivers, check_drivers
+    from neurotouch_hid.service.serve import served
 
     folder = tmp_path / "run"
     folder.mkdir(mode=0o700)
     monkeypatch.setenv("XDG_RUNTIME_DIR", str(folder))
     _own("A1", "profile.yaml")
-    rt = Runtime(
-        endless(),
-        FakePipeline(push_batches=10**9),
+    rt = Engine(
+        RunParts(endless(), FakePipeline(push_batches=10**9)),
         {"sign": 1},
         [RecordingOutput()],
-        mapper_factory=FakeMapper,
-        pace=True,
-        profile_ref="left",
-        control=True,
-        serial="A1",
+        RunOptions(mode=RunMode.PACED, mapper_factory=FakeMapper, profile_ref="left"),
     )
     seen: dict = {}
 
@@ -223,7 +220,8 @@ def test_devices_and_doctor_say_which_driver_runs_for_which_camera(tmp_path, mon
 
     thread = threading.Thread(target=client)
     thread.start()
-    rt.run()
+    with served(rt, "left", serial="A1"):
+        rt.run()
     thread.join(10)
     (driver,) = seen["drivers"]
     assert (driver.serial, driver.pid, driver.status) == ("A1", os.getpid(), "profile left")
@@ -253,7 +251,7 @@ def test_doctor_warns_when_several_cameras_share_the_single_service(monkeypatch)
 
 
 def test_a_driver_of_no_camera_on_the_bus_is_listed_too():
-    from neurotouch_hid.control import RunningDriver
+    from neurotouch_hid.service.control import RunningDriver
     from neurotouch_hid.service.doctor import camera_drivers, describe_camera_driver
 
     sim = RunningDriver("SIM1", 42, "profile default", "neurotouch-hid@SIM1.service")
@@ -283,8 +281,8 @@ def test_calibrate_with_a_serial_writes_that_camera_sensor_yaml(monkeypatch, cap
 def test_run_hands_the_serial_of_the_simulated_camera_to_the_driver(monkeypatch, capsys):
     """``run --source sim --serial S1`` without --profile: the driver gets the serial and no
     profile (the camera's own, else default: :func:`sources.serial.own_config`)."""
-    from neurotouch_hid import driver
     from neurotouch_hid.core.stats import RunStats
+    from neurotouch_hid.engine import driver
 
     seen = {}
 
@@ -302,9 +300,9 @@ def test_run_hands_the_serial_of_the_simulated_camera_to_the_driver(monkeypatch,
 
 def test_profile_auto_with_a_serial_edits_that_camera_games_table(monkeypatch, capsys):
     """``profile auto add --serial S1`` writes sensors/S1/games.yaml (the table S1's driver then
-    reads, :class:`~neurotouch_hid.runtime.Runtime`'s games watcher); the shared one stays as it
+    reads, :class:`~neurotouch_hid.engine.engine.Engine`'s games watcher); the shared one stays as it
     was, and ``list`` without a serial shows the shared one."""
-    from neurotouch_hid.games import games_file, load_game_map
+    from neurotouch_hid.service.games import games_file, load_game_map
 
     done = run_main(monkeypatch, capsys, ["profile", "auto", "add", "4242", "mouse", "--serial", "S1"])
     assert done.returncode == 0, done.stderr
@@ -356,8 +354,8 @@ def test_the_keyboard_and_mouse_of_a_camera_carry_its_phys(monkeypatch):
 def test_the_unit_of_a_driver_is_its_own_service_only(monkeypatch):
     """``/proc/PID/cgroup``'s last part names the service a driver runs in; a driver started in a
     terminal (a scope under the user's manager, ``user@1000.service``) has none."""
-    from neurotouch_hid import control
     from neurotouch_hid.core import limits
+    from neurotouch_hid.service import control
 
     cgroups = {
         1: b"0::/user.slice/user-1000.slice/user@1000.service/app.slice/neurotouch-hid@00000499.service\n",

@@ -10,7 +10,7 @@ import itertools
 import pytest
 
 from neurotouch_hid.core.estimate import GestureType
-from neurotouch_hid.driver import estimates_from_source
+from neurotouch_hid.engine.assembly import estimates_from_source
 from neurotouch_hid.mapping.profile import load_profile
 from neurotouch_hid.mapping.replay import deflection, reach, replay, summarise
 from neurotouch_hid.sources.simulator import SimulatedSource

@@ -11,7 +11,7 @@ import time
 import pytest
 
 from neurotouch_hid.core.controller import ControllerState
-from neurotouch_hid.stages import Feedback
+from neurotouch_hid.core.stages import Feedback
 from neurotouch_hid.targets import TargetOutputs, describe_feedback
 
 

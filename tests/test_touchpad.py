@@ -197,7 +197,7 @@ def test_run_output_jsonl_carries_the_touch_points_and_the_click(tmp_path, monke
     import json
 
     from neurotouch_hid.core.dataset import write_predictions
-    from neurotouch_hid.driver import run_driver
+    from neurotouch_hid.engine.driver import run_driver
 
     monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
     spec = load_profile("touchpad").touchpad

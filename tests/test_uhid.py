@@ -16,7 +16,7 @@ import pytest
 
 from neurotouch_hid.core.errors import DeviceError
 from neurotouch_hid.core.kinds import OutputKind
-from neurotouch_hid.driver import OPENERS, run_driver
+from neurotouch_hid.engine.driver import OPENERS, run_driver
 from neurotouch_hid.mapping.profile import DeviceSpec, load_profile
 from neurotouch_hid.service.udev import RULES_FILE, UHID_RULE
 from neurotouch_hid.targets.reports.hid import HID_JOYSTICK

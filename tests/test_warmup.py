@@ -15,8 +15,9 @@ import pytest
 from helpers import EARLY_NICE, niced, reap, run_main
 
 from neurotouch_hid.core.estimate import GestureEstimate
+from neurotouch_hid.engine.engine import Engine, RunParts
+from neurotouch_hid.engine.mode import RunMode, RunOptions
 from neurotouch_hid.mapping.profile import load_profile
-from neurotouch_hid.runtime import Runtime
 from neurotouch_hid.service import warmup
 from neurotouch_hid.sources import EVENT_DTYPE
 
@@ -77,7 +78,7 @@ INTERPRETED_CHILD = """
 import pickle, sys
 from numba.core import event
 from neurotouch_hid.service import warmup
-from neurotouch_hid.driver import build_pipeline
+from neurotouch_hid.engine.assembly import build_pipeline
 from neurotouch_hid.core.sensor import SensorGeometry
 
 warmup.child_command = lambda group: [sys.executable, "-c", "import time; time.sleep(600)"]  # never done
@@ -252,6 +253,9 @@ class _SlowPipeline:
     def restart(self):
         pass
 
+    def set_type_wait(self, wait):
+        pass
+
 
 class _Recorder:
     wants_markers = False
@@ -276,8 +280,11 @@ def _batches(n: int):
 @pytest.mark.parametrize("max_lag_us", [2_000, 50_000])
 def test_a_source_that_waits_loses_nothing_to_a_slow_pipeline(max_lag_us):
     pipeline = _SlowPipeline()
-    runtime = Runtime(
-        _batches(300), pipeline, load_profile("default"), [_Recorder()], pace=True, waits=True, max_lag_us=max_lag_us
+    runtime = Engine(
+        RunParts(_batches(300), pipeline),
+        load_profile("default"),
+        [_Recorder()],
+        RunOptions(mode=RunMode.PACED_WAITING, max_lag_us=max_lag_us),
     )
     stats = runtime.run()
     assert stats.dropped_items == 0 and stats.dropped_events == 0

@@ -105,7 +105,7 @@ def run(
     Stops at the end of the source, after --seconds, on Ctrl-C (exit 130) or SIGTERM (a clean
     stop, exit 0), always leaving the gamepad neutral. SIGHUP reloads the profile. A camera that
     is unplugged or stalls centres the gamepad at once; the driver reconnects when it is back."""
-    from neurotouch_hid.driver import run_driver
+    from neurotouch_hid.engine.driver import run_driver
 
     with _summary_on_interrupt():
         stats = run_driver(
@@ -159,7 +159,7 @@ def demo(
 
     Without a writable /dev/uinput the gamepad is shown in the terminal instead (one line says
     why); without a terminal, a line at each button or key change and at most one a second otherwise."""
-    from neurotouch_hid.driver import run_demo
+    from neurotouch_hid.engine.driver import run_demo
 
     with _summary_on_interrupt():
         stats = run_demo(seconds, console=console, say=say_err)

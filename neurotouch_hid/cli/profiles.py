@@ -83,8 +83,8 @@ def profile_use(
     a driver run with --serial); with no driver running, says so (exit 2). A profile given by path
     is read here first, as this user: a bad one is refused with its problems (file, line, field),
     the driver not asked."""
-    from neurotouch_hid.control import request_use
     from neurotouch_hid.mapping.profile import _is_path, load_profile
+    from neurotouch_hid.service.control import request_use
 
     if _is_path(name):
         load_profile(name)  # ProfileError: the driver would refuse it without echoing the file
@@ -290,7 +290,7 @@ def _games_pointing_at(name: str, path: Path, now: str) -> None:
     """Warn (stderr) about the games.yaml entries that name profile ``name`` or its file
     ``path``, just taken away: what those games get now (``now``: ``gone`` or the profile that
     applies) and the commands that change it."""
-    from neurotouch_hid.games import EXECUTABLE, STEAM, games_file, load_game_map
+    from neurotouch_hid.service.games import EXECUTABLE, STEAM, games_file, load_game_map
 
     try:
         game_map = load_game_map(games_file())
@@ -372,7 +372,7 @@ SERIAL_OPTION = typer.Option(None, "--serial", help="this camera's table (its ow
 
 def _games_path(serial: Optional[str], own: bool = False) -> Path:
     """The games.yaml ``profile auto`` reads (``serial``: the one its driver reads) or edits (``own``)."""
-    from neurotouch_hid.games import games_file
+    from neurotouch_hid.service.games import games_file
     from neurotouch_hid.service.serials import own_path, sensor_file
 
     try:  # the camera's own file, to edit; the one its driver reads; the shared one
@@ -401,7 +401,7 @@ def profile_auto_add(
 ) -> None:
     """Map a game to a profile (an entry already there is replaced); with --serial, in that camera's
     own games.yaml (made if needed: then that camera no longer reads the shared one)."""
-    from neurotouch_hid.games import STEAM, add_game, load_game_map, parse_game
+    from neurotouch_hid.service.games import STEAM, add_game, load_game_map, parse_game
 
     path = _games_path(serial, own=True)
     section, key = parse_game(game)
@@ -422,7 +422,7 @@ def profile_auto_remove(
     serial: Optional[str] = SERIAL_OPTION,
 ) -> None:
     """Remove a game's entry (with --serial, from the table that camera reads)."""
-    from neurotouch_hid.games import remove_game
+    from neurotouch_hid.service.games import remove_game
 
     path = _games_path(serial)
     section, key, profile = remove_game(game, path)
@@ -434,8 +434,8 @@ def profile_auto_list(serial: Optional[str] = SERIAL_OPTION) -> None:
     """List the map (with --serial, the one that camera's driver reads), and which mapped game
     runs now (the one the driver follows)."""
     from neurotouch_hid.core.errors import ProfileError
-    from neurotouch_hid.games import EXECUTABLE, STEAM, ProcessScanner, load_game_map
     from neurotouch_hid.mapping.profile import find_profile
+    from neurotouch_hid.service.games import EXECUTABLE, STEAM, ProcessScanner, load_game_map
 
     path = _games_path(serial)
     game_map = load_game_map(path)
@@ -486,7 +486,7 @@ def profile_test(
     from rich.table import Table
 
     from neurotouch_hid.core.controller import AXES
-    from neurotouch_hid.driver import estimates_from_source
+    from neurotouch_hid.engine.assembly import estimates_from_source
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.mapping.replay import (
         deflection,
@@ -569,7 +569,7 @@ def profile_tune(
     ),
 ) -> None:
     """Set each analogue mapping's saturation to what this user reaches (weak fingers, for one)."""
-    from neurotouch_hid.driver import estimates_from_source
+    from neurotouch_hid.engine.assembly import estimates_from_source
     from neurotouch_hid.mapping.editor import creates_shadow, set_values
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.mapping.replay import tuned_saturations

@@ -1,6 +1,6 @@
 """What a run did: :class:`RunStats`, counted live by the runtime and shown by the terminal view.
 
-Its own module so that the engine (:mod:`neurotouch_hid.runtime`) and the outputs that show it
+Its own module so that the engine (:mod:`neurotouch_hid.engine`) and the outputs that show it
 (:mod:`neurotouch_hid.views.term`) both import it without importing each other.
 """
 
@@ -55,7 +55,7 @@ class RunStats:
         resting_dropped_frames: APS frames the resting detector skipped (it was still busy).
         camera_losses: times the live camera was lost (unplugged, failing, stalled).
         profile: the profile mapping now (a name or path, as given).
-        game: the running game whose profile is on (``neurotouch_hid.games``), or "".
+        game: the running game whose profile is on (``neurotouch_hid.service.games``), or "".
         merged, missing: the profile's ``copilot:`` devices merged into the pad now, and those
             waited for (as the profile names them).
         wall_s: wall time of the run (s).

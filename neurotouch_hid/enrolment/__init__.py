@@ -9,7 +9,7 @@ One module per stage:
 - ``label.py``: labels a recording made by following a plan (the type from the prompt, the
   moments, contacts and intensity from the gel), and writes it as a dataset (docs/dataset.md);
 - ``session.py``: the guided session itself (prompts on the terminal while the camera records),
-  run by the runtime (:class:`~neurotouch_hid.runtime.Runtime`), ``prompt_view.py`` what it
+  run by the runtime (:class:`~neurotouch_hid.engine.engine.Engine`), ``prompt_view.py`` what it
   shows, a subscriber to the run;
 - ``adapt.py``: the recogniser fitted to the gel and hand from enrolment datasets, checked on
   held-out prompts (``neurotouch-hid adapt``), written as ``model.py``'s model file, which ``run``,

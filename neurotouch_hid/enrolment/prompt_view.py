@@ -1,7 +1,7 @@
 """What an enrolment shows: the prompts, with a countdown, what to do and for how long.
 
-A view that subscribes to the run (:class:`~neurotouch_hid.stages.Subscriber`): from each
-window's record (:class:`~neurotouch_hid.stages.WindowRecord`) and the session's script
+A view that subscribes to the run (:class:`~neurotouch_hid.core.stages.Subscriber`): from each
+window's record (:class:`~neurotouch_hid.core.stages.WindowRecord`) and the session's script
 (:class:`~neurotouch_hid.enrolment.plan.Script`) it draws the prompts (the plan's and those
 asked again) at the record's time (s from the stream's first event), what the pipeline sees
 (:class:`Seen`: the gel's motion from the record's markers, the gesture read) and the notes so
@@ -24,9 +24,9 @@ from rich.panel import Panel
 from rich.text import Text
 
 from neurotouch_hid.core.estimate import GestureType
+from neurotouch_hid.core.stages import WindowRecord
 from neurotouch_hid.enrolment.label import REST_MM, motion_mm
 from neurotouch_hid.enrolment.plan import MAX_SESSION_S, Prompt, Script
-from neurotouch_hid.stages import WindowRecord
 
 #: The countdown before a cue (s): "in 3, 2, 1".
 COUNTDOWN_S = 3.0

@@ -1,6 +1,6 @@
 """The guided enrolment: prompts while the camera records, then the labelled dataset.
 
-The session runs on the driver's one road (:class:`~neurotouch_hid.runtime.Runtime`): the
+The session runs on the driver's one road (:class:`~neurotouch_hid.engine.engine.Engine`): the
 source's stream, written to the recording as it passes (AEDAT4, through a temporary name renamed
 at the end: :func:`~neurotouch_hid.sources.recording.recorded`), goes through the gesture
 pipeline, and each window's record is published to the session's subscribers: the
@@ -40,6 +40,8 @@ import numpy as np
 from neurotouch_hid.core.dataset import DatasetOut
 from neurotouch_hid.core.errors import DatasetError, RecordingError
 from neurotouch_hid.core.sensor import SensorGeometry
+from neurotouch_hid.core.stages import Subscriber, WindowRecord
+from neurotouch_hid.engine.queue import item_end_us, item_start_us
 from neurotouch_hid.enrolment.label import (
     ONSET_MM,
     SEARCH_S,
@@ -51,9 +53,7 @@ from neurotouch_hid.enrolment.label import (
 )
 from neurotouch_hid.enrolment.plan import MAX_SESSION_S, Plan, Prompt, Script, rest_after_s, temp_beside
 from neurotouch_hid.enrolment.prompt_view import clock, seen_in
-from neurotouch_hid.runtime import item_end_us, item_start_us
 from neurotouch_hid.sources import StreamItem
-from neurotouch_hid.stages import Subscriber, WindowRecord
 
 #: The sequence name of an enrolment's recording in its dataset folder.
 SEQUENCE = "enrolment"
@@ -287,9 +287,10 @@ def run_session(
         source's own errors (e.g. DeviceError). The recording is complete and kept on any of them
         raised after it started.
     """
+    from neurotouch_hid.engine.engine import Engine, RunParts
+    from neurotouch_hid.engine.mode import RunMode, RunOptions
     from neurotouch_hid.mapping.profile import Profile
     from neurotouch_hid.pipeline.pipeline import GesturePipeline
-    from neurotouch_hid.runtime import Runtime
     from neurotouch_hid.sources.recording import RecordingWriter, recorded
 
     stop = stop or threading.Event()
@@ -302,11 +303,9 @@ def run_session(
         with RecordingWriter(partial, camera_name=source.camera_name) as writer:
             stream = _until_over(recorded(source.stream(script), writer), script, stop)
             # no profile maps anything here: the judge and the views read the estimates and markers
-            runtime = Runtime(
-                stream, GesturePipeline(sensor), Profile(), [judge, *views],
-                pace=pace, waits=pace, queue_items=QUEUE_ITEMS, sensor=sensor,
-            )  # fmt: skip
-            runtime.run()
+            options = RunOptions(mode=RunMode.of(pace=pace, waits=pace), queue_items=QUEUE_ITEMS)
+            parts = RunParts(stream, GesturePipeline(sensor), sensor=sensor)
+            Engine(parts, Profile(), [judge, *views], options).run()
     except RecordingError as exc:  # the disk: said of the folder asked for, what was kept with it
         kept = _keep_recording(target, partial, recording)
         said = str(exc).replace(str(partial), str(target.out / recording.name)).replace(str(out), str(target.out))

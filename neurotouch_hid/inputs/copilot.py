@@ -1,4 +1,5 @@
-"""The copilot: a profile's ``copilot:`` devices merged into the gel's pad (a :class:`~neurotouch_hid.stages.Merge`).
+"""The copilot: a profile's ``copilot:`` devices merged into the gel's pad (a
+:class:`~neurotouch_hid.core.stages.Merge`).
 
 :meth:`Copilot.start` opens and grabs every device the profile names that is there
 (:mod:`neurotouch_hid.inputs.match`, :class:`~neurotouch_hid.inputs.device.MergedInput`) and starts
@@ -48,8 +49,8 @@ from neurotouch_hid.mapping.merge import merge_state
 
 if TYPE_CHECKING:
     from neurotouch_hid.core.controller import ControllerState
+    from neurotouch_hid.core.stages import Feedback
     from neurotouch_hid.mapping.profile import CopilotDevice, Profile
-    from neurotouch_hid.stages import Feedback
 
 log = logging.getLogger(__name__)
 
@@ -374,7 +375,7 @@ class Copilot:
         MergedInput.rumble`): each motor's largest magnitude, until the last of them ends (or
         until stopped when one plays until stopped); a stop when none plays. Called with
         ``_rumble_lock`` held. A device's failure is logged, never raised."""
-        from neurotouch_hid.stages import Feedback
+        from neurotouch_hid.core.stages import Feedback
 
         self._effects = {k: e for k, e in self._effects.items() if e[2] is None or e[2] > now}
         playing: _Effect | None = None
@@ -420,7 +421,7 @@ class FeedbackRelay:
 
     The pad exists before the run and outlives profile switches; the copilot is made per profile
     (:meth:`merge_for`, which the runtime calls at start and at each switch). Calling the relay
-    with a :class:`~neurotouch_hid.stages.Feedback` hands it to that copilot's ``feedback``."""
+    with a :class:`~neurotouch_hid.core.stages.Feedback` hands it to that copilot's ``feedback``."""
 
     def __init__(self, say: Callable[[str], None] = log.warning, *, hide: bool | None = None) -> None:
         self._say = say

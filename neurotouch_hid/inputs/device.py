@@ -10,7 +10,7 @@ including the next SYN_REPORT is ignored, across reads, and the levels are then 
 axes' values queried from the device (EVIOCGKEY, EVIOCGABS), as Documentation/input/event-codes.rst
 asks.
 
-Rumble: a game's rumble on the gel's pad (:class:`~neurotouch_hid.stages.Feedback`) is uploaded
+Rumble: a game's rumble on the gel's pad (:class:`~neurotouch_hid.core.stages.Feedback`) is uploaded
 to a device that has FF_RUMBLE as one effect (EVIOCSFF) and played (an EV_FF write), or stopped
 (EVIOCRMFF erases it when the device is let go); a rumble without a duration plays until it is
 stopped (replay length 0, as drivers/input/ff-memless.c plays it). A node python-evdev could open
@@ -36,9 +36,9 @@ from typing import TYPE_CHECKING
 from neurotouch_hid.mapping.merge import NEUTRAL, AxisRange, DeviceMap, Levels
 
 if TYPE_CHECKING:
+    from neurotouch_hid.core.stages import Feedback
     from neurotouch_hid.inputs.match import InputInfo
     from neurotouch_hid.mapping.profile import CopilotDevice
-    from neurotouch_hid.stages import Feedback
 
 log = logging.getLogger(__name__)
 

@@ -1,6 +1,6 @@
 """The pipeline's methods by name (``track``/``eval``/``run --method NAME``): each a config model
 and the pipeline that runs it, both satisfying the same seams
-(:class:`~neurotouch_hid.stages.Pipeline`).
+(:class:`~neurotouch_hid.core.stages.Pipeline`).
 
 ``default`` is the product (:class:`~neurotouch_hid.pipeline.pipeline.GesturePipeline`,
 docs/method.md, "Overview"); ``paper`` the paper's method exactly

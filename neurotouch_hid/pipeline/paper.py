@@ -112,6 +112,9 @@ class PaperPipeline(GesturePipeline):
     (:class:`~neurotouch_hid.pipeline.pipeline.GesturePipeline`: arguments, attributes and
     errors the same; ``config`` a :class:`PaperConfig`)."""
 
+    #: its motion override differs (:meth:`_moving`): every window takes the general path
+    rests_compiled = False
+
     def __init__(self, sensor: SensorGeometry, config: PaperConfig | None = None, **kwargs) -> None:
         super().__init__(sensor, config, **kwargs)
 

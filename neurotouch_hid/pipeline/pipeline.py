@@ -153,6 +153,24 @@ class GesturePipeline(WindowPath, FramePath):
         #: batches; it starts afresh by itself when the clock goes back, ``noise.py``)
         self.noise_filter = self._noise_filter()
 
+    #: Whether a resting window may take the compiled path (``rest_window.py``, which does in one
+    #: call what this class's motion override and window estimate, ``_moving`` and ``_estimate``,
+    #: do at rest); False: every window takes the general path. A subclass that overrides either
+    #: must say which (:meth:`__init_subclass__`), and an instance may be set to False.
+    rests_compiled: bool = True
+
+    def __init_subclass__(cls, **kwargs) -> None:
+        """Refuse a subclass that overrides ``_moving`` or ``_estimate`` without setting
+        :attr:`rests_compiled`: the compiled path would silently stand for the methods it replaced
+        (TypeError naming the class and the methods)."""
+        super().__init_subclass__(**kwargs)
+        overrides = [name for name in ("_moving", "_estimate") if name in cls.__dict__]
+        if overrides and "rests_compiled" not in cls.__dict__:
+            raise TypeError(
+                f"{cls.__name__} overrides {' and '.join(overrides)}: set rests_compiled (False: its "
+                "resting windows take the general path; True: the compiled path computes the same)"
+            )
+
     @staticmethod
     def default_config() -> PipelineConfig:
         """The method's settings when none are given."""
@@ -297,7 +315,7 @@ class GesturePipeline(WindowPath, FramePath):
         return positions
 
     def markers(self) -> MarkerPositions | None:
-        """The markers at the last window's end (:class:`~neurotouch_hid.stages.Pipeline`): rest
+        """The markers at the last window's end (:class:`~neurotouch_hid.core.stages.Pipeline`): rest
         and tracked positions, (N, 2) float64 image px, NaN rows for lost markers; None before the
         first APS frame."""
         if self.tracker is None or self.rest_px is None:
@@ -305,15 +323,6 @@ class GesturePipeline(WindowPath, FramePath):
         return MarkerPositions(np.array(self.rest_px, dtype=np.float64), self.marker_positions().astype(np.float64))
 
     # --- internals --------------------------------------------------------------------------
-    @property
-    def _rests_compiled(self) -> bool:
-        """Whether a resting window may take the compiled path (:meth:`_resting_events`): the
-        window's estimate is this class's (a method whose override or window estimate differs,
-        e.g. the paper's, takes the general path)."""
-        return (
-            getattr(self._moving, "__func__", None) is GesturePipeline._moving
-            and getattr(self._estimate, "__func__", None) is GesturePipeline._estimate
-        )
 
     def _moving(self, current: np.ndarray, valid: np.ndarray) -> bool:
         """Whether the event path overrules the resting verdict: enough markers moved

@@ -20,7 +20,7 @@ import numba
 import numpy as np
 
 from neurotouch_hid.pipeline.noise import background_activity_keep
-from neurotouch_hid.pipeline.tracker_kernels import _check_lost, _track
+from neurotouch_hid.pipeline.tracker_kernels import check_lost, track_events
 from neurotouch_hid.sources import EVENT_DTYPE
 
 if TYPE_CHECKING:
@@ -133,7 +133,7 @@ def rest_window(
             duration (:func:`~neurotouch_hid.pipeline.noise.background_activity_keep`); a (0, 0)
             surface: no noise filter.
         state ... counts: the :class:`~neurotouch_hid.pipeline.tracker.BlobTracker`'s arrays
-            (updated), as its ``update`` passes them to ``_track`` and ``_check_lost``.
+            (updated), as its ``update`` passes them to the event kernels (``track_events``, ``check_lost``).
         rest: (N, 2) float64 the markers at rest (px); ``threshold_sq`` the override's threshold
             squared (px^2); ``min_markers`` how many markers beyond it overrule the verdict.
     Returns:
@@ -151,8 +151,8 @@ def rest_window(
         kept = events[:]
     cut = _first_at_or_after(kept["timestamp"], window_end_us)
     if cut > 0:
-        _track(kept[:cut], state, cov, t_upd, t_seen, rate, valid, cell, label, offs, n_offs, neigh, prm, counts)
-        _check_lost(cell, label, offs, n_offs, neigh, valid, state, prm)
+        track_events(kept[:cut], state, cov, t_upd, t_seen, rate, valid, cell, label, offs, n_offs, neigh, prm, counts)
+        check_lost(cell, label, offs, n_offs, neigh, valid, state, prm)
     if not closes:
         return OPEN, kept, cut
     moved = 0
@@ -165,6 +165,6 @@ def rest_window(
     if moved >= min_markers:
         return TOUCHED, kept, cut
     if cut < len(kept):
-        _track(kept[cut:], state, cov, t_upd, t_seen, rate, valid, cell, label, offs, n_offs, neigh, prm, counts)
-        _check_lost(cell, label, offs, n_offs, neigh, valid, state, prm)
+        track_events(kept[cut:], state, cov, t_upd, t_seen, rate, valid, cell, label, offs, n_offs, neigh, prm, counts)
+        check_lost(cell, label, offs, n_offs, neigh, valid, state, prm)
     return RESTING, kept, cut

@@ -333,6 +333,16 @@ def _check_lost(cell, label, offs, n_offs, neigh, valid, state, prm):
             _lose(i, cell, label, offs, n_offs, neigh, valid, state, assoc2)
 
 
+#: The tracker's event update, for a compiled caller that holds the tracker's arrays
+#: (``BlobTracker.kernel_state``; ``rest_window.py``): ``track_events(events, *kernel_state)``
+#: tracks one batch (``events`` (E,) EVENT_DTYPE), then ``check_lost(cell, label, offs, n_offs,
+#: neigh, valid, state, params)`` loses the blobs that left the gel or merged, as
+#: ``BlobTracker.update`` runs them. The same compiled kernels under their public names (the
+#: warmup's :func:`~neurotouch_hid.warmup.interpret` swaps every name bound to them).
+track_events = _track
+check_lost = _check_lost
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _reset_if_painted(p, rest, rest_valid, repaints, counts, state, cov, t_upd, t_seen, rate, valid, p0):
     """Re-initialise every blob at ``p`` (N, 2) float64 px as ``BlobTracker.reset`` does, in

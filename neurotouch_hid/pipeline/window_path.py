@@ -33,7 +33,7 @@ class WindowPath:
     :class:`~neurotouch_hid.pipeline.pipeline.GesturePipeline`, which provides ``config``,
     ``tracker``, ``noise_filter``, ``rest_px``, ``on_window``, ``timings``, the resting verdict in
     force (``_resting``, the frame path's), the window's estimate (``_estimate``, ``_none``),
-    whether a resting window may take the compiled path (``_rests_compiled``), the stage clock
+    whether a resting window may take the compiled path (``rests_compiled``), the stage clock
     (``_clock``, ``_record``) and ``process``.
 
     Attributes:
@@ -81,7 +81,7 @@ class WindowPath:
     def _process_events(self, events: np.ndarray, *, filtered: bool = False) -> list[GestureEstimate]:
         if self.tracker is None or len(events) == 0:
             return []
-        if not filtered and self._resting.resting and self._rests_compiled:
+        if not filtered and self._resting.resting and self.rests_compiled:
             out = self._resting_events(events)
             if out is not None:
                 return out

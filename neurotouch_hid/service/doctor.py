@@ -434,10 +434,10 @@ def camera_drivers(found: Discovery, drivers: list | None = None) -> list[dict]:
     """What runs for each camera: one row per DAVIS-346 on the bus, then one per running driver
     whose camera is not on the bus (the simulated gel, a recording, a camera unplugged). A row:
     ``serial`` (None: unknown), ``camera`` (where it is, None when not on the bus), ``driver``
-    (:meth:`~neurotouch_hid.control.RunningDriver.to_json`, None when none runs for it) and
+    (:meth:`~neurotouch_hid.service.control.RunningDriver.to_json`, None when none runs for it) and
     ``config`` (the files of its own config folder, :mod:`neurotouch_hid.service.serials`; empty: the
-    shared ones). ``drivers``: :func:`~neurotouch_hid.control.running_drivers` (asked when None)."""
-    from neurotouch_hid.control import running_drivers
+    shared ones). ``drivers``: :func:`~neurotouch_hid.service.control.running_drivers` (asked when None)."""
+    from neurotouch_hid.service.control import running_drivers
     from neurotouch_hid.service.serials import SENSOR_FILES, own_file
 
     drivers = running_drivers() if drivers is None else drivers

@@ -55,14 +55,14 @@ from typing import TYPE_CHECKING, Callable, ContextManager, Iterable, Iterator, 
 
 import numpy as np
 
+from neurotouch_hid.core.stages import CompileProgress
 from neurotouch_hid.service import jit_cache
-from neurotouch_hid.stages import CompileProgress
 
 if TYPE_CHECKING:
     from neurotouch_hid.core.estimate import GestureEstimate
+    from neurotouch_hid.core.stages import MarkerPositions, Pipeline, RestingDetection
     from neurotouch_hid.pipeline.resting import RestingResult
     from neurotouch_hid.sources import Frame, StreamItem
-    from neurotouch_hid.stages import MarkerPositions, Pipeline, RestingDetection
 
 T = TypeVar("T")
 
@@ -122,7 +122,9 @@ class KernelGroup:
 TRACKER_KERNELS = (
     *(
         f"neurotouch_hid.pipeline.tracker_kernels.{name}"
-        for name in ("_track", "_check_lost", "_claim", "_release", "_repaint", "_lose", "_paint_all")
+        # (track_events and check_lost: _track's and _check_lost's public names, the same kernels)
+        for name in ("_track", "_check_lost", "track_events", "check_lost", "_claim", "_release", "_repaint")
+        + ("_lose", "_paint_all")
     ),
     "neurotouch_hid.pipeline.noise.background_activity_keep",
     "neurotouch_hid.pipeline.rest_window.rest_window",
@@ -513,7 +515,7 @@ class Warmup:
         self._inlined_back()
 
     def progress_now(self) -> CompileProgress | None:
-        """The compile while it lasts (what the runtime publishes in each window's record), else
+        """The compile while it lasts (what the engine publishes in each window's record), else
         None. Its first call means the run's first window is out: from then on a call of a
         :attr:`KernelGroup.waits` group waits for its compile (:meth:`guard`)."""
         self._first_window.set()
@@ -642,7 +644,7 @@ class Warmup:
 class GuardedPipeline:
     """A pipeline built on kernels that may still be interpreted: each call runs inside ``guard()``
     (:meth:`Warmup.guard`), so the kernels never switch form within a call. A
-    :class:`~neurotouch_hid.stages.Pipeline` like the one it wraps."""
+    :class:`~neurotouch_hid.core.stages.Pipeline` like the one it wraps."""
 
     def __init__(self, pipeline: Pipeline, guard: Callable[[], ContextManager[None]]):
         self._pipeline = pipeline
@@ -666,6 +668,10 @@ class GuardedPipeline:
         """Restarts the wrapped pipeline."""
         with self._guard():
             self._pipeline.restart()
+
+    def set_type_wait(self, wait: bool) -> None:
+        """Hands the type wait on (``Pipeline.set_type_wait``)."""
+        self._pipeline.set_type_wait(wait)
 
     def markers(self) -> MarkerPositions | None:
         """The wrapped pipeline's markers."""

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Generator
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import TYPE_CHECKING, Callable, Iterator, Sequence, Union
@@ -16,6 +17,7 @@ import numpy as np
 
 if TYPE_CHECKING:
     from neurotouch_hid.core.dataset import LabelRow
+    from neurotouch_hid.sources.recording import BatchCut
 
 #: dv-processing's ``EventStore.numpy()`` fields: timestamp us (int64), x, y px (int16),
 #: polarity (int8, 1 = ON brighter, 0 = OFF darker). dv-processing pads each record to 16 bytes;
@@ -116,9 +118,15 @@ class PollPause:
 
 
 class WrappedStream:
-    """A source's stream (an iterator of :data:`StreamItem`, closed with ``close()``) with a
-    handle its consumer sets (:class:`PausingStream`'s poll pause, ``recording.CuttingStream``'s
-    batch cut): the items of ``items``, as they come."""
+    """A source's stream (:class:`~neurotouch_hid.core.stages.SourceStream`): the items of ``items``,
+    as they come, closed with :meth:`close`, and the hooks its consumer may set, None where the
+    source has none (:class:`PausingStream`'s poll pause, ``recording.CuttingStream``'s batch
+    cut)."""
+
+    #: a live source's pause between polls that bring nothing (:class:`PollPause`), or None
+    poll_pause: PollPause | None = None
+    #: where a source cuts its event batches (``recording.BatchCut``), or None
+    batch_cut: BatchCut | None = None
 
     def __init__(self, items: Iterator[StreamItem]) -> None:
         self._items = items
@@ -130,10 +138,9 @@ class WrappedStream:
         return next(self._items)
 
     def close(self) -> None:
-        """Close the underlying generator (its source's ``finally``)."""
-        close = getattr(self._items, "close", None)
-        if close is not None:
-            close()
+        """Close the underlying generator or stream (its source's ``finally``)."""
+        if isinstance(self._items, (Generator, WrappedStream)):
+            self._items.close()
 
 
 class PausingStream(WrappedStream):

@@ -197,7 +197,7 @@ class DavisSource:
         backend: the capture backend (module docstring); None = ``dv_processing.io.camera``.
         noise_filter: an :class:`~neurotouch_hid.pipeline.noise.EventNoiseFilter` run on the
             camera's own event stores before they become numpy batches (no copy: the pipeline's
-            noise filter then stays off, ``driver.build_pipeline``), or None.
+            noise filter then stays off, ``engine.assembly.build_pipeline``), or None.
         clock, sleep: the monotonic clock (s) that times the stream, stalls and outages, and how
             to wait on it; ``time.monotonic`` and ``time.sleep``, or a clock a test controls
             together with ``backend``.

@@ -1,15 +1,15 @@
 """The devices the system sees, fed from the controller state, behind one subscriber.
 
-A :class:`~neurotouch_hid.stages.Target` is one device (the uinput pad, keyboard and mouse, a
+A :class:`~neurotouch_hid.core.stages.Target` is one device (the uinput pad, keyboard and mouse, a
 UHID device, a USB gadget's function, ...); :class:`TargetOutputs` is the one
-:class:`~neurotouch_hid.stages.Subscriber` over a run's targets, whatever the output: each
+:class:`~neurotouch_hid.core.stages.Subscriber` over a run's targets, whatever the output: each
 window's changed state goes to every target (each writes only what changed for it), a profile
 switch neutralises and prepares them all, and :meth:`TargetOutputs.close` sends every target its
 neutral report before any is removed, releasing each even when another fails. What games and
-hosts send back (rumble, player LEDs: :class:`~neurotouch_hid.stages.Feedback`) is read by one
-thread that sleeps in ``select`` on the targets' :meth:`~neurotouch_hid.stages.Target.fileno`
+hosts send back (rumble, player LEDs: :class:`~neurotouch_hid.core.stages.Feedback`) is read by one
+thread that sleeps in ``select`` on the targets' :meth:`~neurotouch_hid.core.stages.Target.fileno`
 and a wake-up pipe, so nothing runs at rest (a target whose device is made later, the uinput pad
-when a profile first drives it, is watched from its :meth:`~neurotouch_hid.stages.Target.prepare`
+when a profile first drives it, is watched from its :meth:`~neurotouch_hid.core.stages.Target.prepare`
 on), is told to the user (the gel has no motor, no LED) and is forwarded (the merged pads'
 rumble). The wire formats are :mod:`neurotouch_hid.targets.reports`; docs/architecture.md,
 "Targets and inputs".
@@ -29,8 +29,8 @@ from typing import TYPE_CHECKING, Callable, Iterable
 from neurotouch_hid.core.controller import ControllerState, Feedback
 
 if TYPE_CHECKING:
+    from neurotouch_hid.core.stages import Target, WindowRecord
     from neurotouch_hid.mapping.profile import Profile
-    from neurotouch_hid.stages import Target, WindowRecord
 
 log = logging.getLogger(__name__)
 
@@ -100,20 +100,20 @@ class FeedbackLines:
 
 
 class TargetOutputs:
-    """The run's targets as one :class:`~neurotouch_hid.stages.Subscriber`.
+    """The run's targets as one :class:`~neurotouch_hid.core.stages.Subscriber`.
 
     Args:
         targets: the devices, in the order they are written; at least one. They are owned from
             here on: :meth:`close` closes them (also when this constructor fails).
         say: one line for the user per feedback (:func:`describe_feedback`; of one source at most
             one per :data:`FEEDBACK_REPEAT_S`, :class:`FeedbackLines`); default: the log.
-        forward: called with every :class:`~neurotouch_hid.stages.Feedback` too (e.g. the merged
-            pads' rumble, :meth:`~neurotouch_hid.stages.Merge.feedback`), from the feedback thread.
+        forward: called with every :class:`~neurotouch_hid.core.stages.Feedback` too (e.g. the merged
+            pads' rumble, :meth:`~neurotouch_hid.core.stages.Merge.feedback`), from the feedback thread.
 
     Thread-safe: :meth:`close` may come from a signal handler's thread while :meth:`write` runs.
     """
 
-    #: Draws no markers (:class:`~neurotouch_hid.stages.Subscriber`).
+    #: Draws no markers (:class:`~neurotouch_hid.core.stages.Subscriber`).
     wants_markers = False
 
     def __init__(

@@ -15,7 +15,7 @@ and the caller gets EIO). Every event the kernel sends is read by one reader,
 batches of :data:`EVENT_BATCH`, at most :data:`HOST_EVENTS_PER_S` a second and
 :data:`HOST_CPU_SHARE` of a core (a flooding host waits; :meth:`UhidDevice.feedback`).
 
-:class:`UhidDevice` is a :class:`~neurotouch_hid.stages.Target`: it writes a state's report only
+:class:`UhidDevice` is a :class:`~neurotouch_hid.core.stages.Target`: it writes a state's report only
 when the report changed, keeps the last one while no driver is bound and sends it when one
 binds (``UHID_START``) or a reader opens it (``UHID_OPEN``: a driver rebound, a game started),
 answers a GET_REPORT of its input report with the current report and of each feature report of
@@ -49,9 +49,9 @@ from neurotouch_hid.service.udev import char_device_problem, uhid_help
 from neurotouch_hid.targets.closing import NeutralOnClose
 
 if TYPE_CHECKING:
+    from neurotouch_hid.core.stages import Feedback
     from neurotouch_hid.mapping.profile import DeviceSpec, Profile
     from neurotouch_hid.service.guard import Guard
-    from neurotouch_hid.stages import Feedback
     from neurotouch_hid.targets.identity import Identity
     from neurotouch_hid.targets.protocols import ProtocolRow
     from neurotouch_hid.targets.reports import ReportFormat
@@ -312,7 +312,7 @@ def uhid_problem(devnode: str = "/dev/uhid") -> str | None:
 
 class UhidDevice(NeutralOnClose):
     """One UHID device speaking ``fmt`` (a :class:`~neurotouch_hid.targets.reports.ReportFormat`
-    with a descriptor), as a :class:`~neurotouch_hid.stages.Target`.
+    with a descriptor), as a :class:`~neurotouch_hid.core.stages.Target`.
 
     Args:
         fmt: the report format (its descriptor and :meth:`pack`).

@@ -14,8 +14,8 @@ from neurotouch_hid.core.dataset import JsonlWriter
 from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 
 if TYPE_CHECKING:
+    from neurotouch_hid.core.stages import WindowRecord
     from neurotouch_hid.mapping.profile import Profile
-    from neurotouch_hid.stages import WindowRecord
 
 
 class StateJsonlWriter(JsonlWriter):
@@ -45,7 +45,7 @@ class StateJsonlWriter(JsonlWriter):
         OutputError: ``out`` is a symbolic link, a folder or one of ``inputs``.
     """
 
-    #: Writes no markers (:class:`~neurotouch_hid.stages.Subscriber`).
+    #: Writes no markers (:class:`~neurotouch_hid.core.stages.Subscriber`).
     wants_markers = False
 
     def __init__(self, out: str | Path | IO[str] | None = None, inputs: Iterable[str | Path | None] = ()) -> None:
@@ -81,14 +81,14 @@ class StateJsonlWriter(JsonlWriter):
         )
 
     def publish(self, record: WindowRecord) -> None:
-        """A window's record (:class:`~neurotouch_hid.stages.Subscriber`): one line when its state
+        """A window's record (:class:`~neurotouch_hid.core.stages.Subscriber`): one line when its state
         or its gesture changed."""
         if record.state_changed or record.gesture_changed:
             self.write(record.state, record.estimate)
 
     def prepare(self, profile: Profile) -> None:
         """Nothing to get ready: every profile's states are written alike
-        (:class:`~neurotouch_hid.stages.Subscriber`)."""
+        (:class:`~neurotouch_hid.core.stages.Subscriber`)."""
 
     def neutralise(self) -> None:
         """Write the neutral state (all axes centred, all buttons released) at the last time."""

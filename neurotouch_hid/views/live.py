@@ -17,8 +17,8 @@ neutral, the run's summary; Ctrl-C too), ``h`` or ``?`` shows the keys, Space ho
 only: the pad goes on (a switch user's Space may be their switch, and an output frozen mid-press
 would hold a button; the footer says "held: picture only").
 
-The view is a subscriber of the run (:class:`~neurotouch_hid.stages.Subscriber`): it draws the
-last :class:`~neurotouch_hid.stages.WindowRecord` the runtime published (the markers the
+The view is a subscriber of the run (:class:`~neurotouch_hid.core.stages.Subscriber`): it draws the
+last :class:`~neurotouch_hid.core.stages.WindowRecord` the runtime published (the markers the
 pipeline saw, the gesture the source performed, the profile, the counters, the compile's
 progress) and reaches into no stage. A pipe or a file gets none of this: the plain state lines
 stay as they are (:func:`neurotouch_hid.views.term.state_line`).
@@ -54,8 +54,8 @@ from neurotouch_hid.views.term import (
 )
 
 if TYPE_CHECKING:
+    from neurotouch_hid.core.stages import CompileProgress, WindowRecord
     from neurotouch_hid.mapping.profile import Profile
-    from neurotouch_hid.stages import CompileProgress, WindowRecord
 
 #: The gel plot's size in characters (a terminal cell is about twice as tall as wide).
 GEL_COLUMNS = 31

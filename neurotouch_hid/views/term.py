@@ -38,9 +38,9 @@ from neurotouch_hid.core.controller import AXES, ControllerState
 from neurotouch_hid.core.estimate import GestureEstimate
 
 if TYPE_CHECKING:  # the runtime publishes its records; no import at run time (no cycle)
+    from neurotouch_hid.core.stages import WindowRecord
     from neurotouch_hid.core.stats import RunStats
     from neurotouch_hid.mapping.profile import Profile
-    from neurotouch_hid.stages import WindowRecord
 
 #: evdev button -> label on the pad.
 BUTTON_LABELS: dict[str, str] = {
@@ -284,7 +284,7 @@ class TermView:
         refresh_per_second: redraw rate on a terminal.
     """
 
-    #: Draws no markers (:class:`~neurotouch_hid.stages.Subscriber`).
+    #: Draws no markers (:class:`~neurotouch_hid.core.stages.Subscriber`).
     wants_markers = False
 
     def __init__(
@@ -339,7 +339,7 @@ class TermView:
                 self._print_later()
 
     def publish(self, record: WindowRecord) -> None:
-        """A window's record (:class:`~neurotouch_hid.stages.Subscriber`): shown when its state or
+        """A window's record (:class:`~neurotouch_hid.core.stages.Subscriber`): shown when its state or
         its gesture changed; drawn on a terminal, its estimate (intensity, contacts) is drawn
         whatever changed (a stick held at the end of its travel, a button held)."""
         self.stats = record.stats
@@ -350,7 +350,7 @@ class TermView:
                 self._estimate = record.estimate
 
     def prepare(self, profile: Profile) -> None:
-        """Nothing to get ready: every profile's states draw alike (:class:`~neurotouch_hid.stages.Subscriber`)."""
+        """Nothing to get ready: every profile's states draw alike (:class:`~neurotouch_hid.core.stages.Subscriber`)."""
 
     def neutralise(self) -> None:
         """Show all axes centred and all buttons released (and, without a terminal, print it)."""

@@ -228,8 +228,8 @@ def check_copilot_merges_grabs_rejoins_and_rumbles() -> dict:
     The driver runs in this process (``run_driver``, what ``neurotouch-hid run`` calls, in the main
     thread, where SIGTERM's handler runs): a second Python start would cost minutes here. The steps
     run in a thread beside it, and end it with a real SIGTERM to this process."""
-    from neurotouch_hid.control import SOCKET_NAME
-    from neurotouch_hid.driver import run_driver
+    from neurotouch_hid.engine.driver import run_driver
+    from neurotouch_hid.service.control import SOCKET_NAME
 
     started = time.monotonic()
     folder = Path(tempfile.mkdtemp(prefix="copilot-"))
@@ -340,7 +340,7 @@ class Scenario:
             self.error = exc
 
     def during(self) -> None:
-        from neurotouch_hid.control import request_use
+        from neurotouch_hid.service.control import request_use
 
         details, helper, box = self.details, self.helper, self.box
         mouse_up = guestlib.wait_for(lambda: self.new(MOUSE_PHYS) or self.driver_done.is_set(), 200.0, 0.1)

@@ -573,7 +573,7 @@ class _ForkedRun:
     def __init__(
         self, preds: Path, profile: Path | str, protocol: str = "hid", output: str = "usb", before=None
     ) -> None:
-        from neurotouch_hid.driver import run_driver
+        from neurotouch_hid.engine.driver import run_driver
 
         self.said: list[str] = []
         self.status: int | None = None

@@ -26,7 +26,7 @@ from checks_gadget import UDC, _kernel
 from outputlib import HidrawReader
 
 from neurotouch_hid.core.controller import ControllerState
-from neurotouch_hid.stages import Feedback
+from neurotouch_hid.core.stages import Feedback
 from neurotouch_hid.targets.gadget import configfs
 
 TIMEOUT_S = 600

@@ -74,10 +74,10 @@ def _start(preds: Path, profile: Path, serial: str) -> tuple[int, int]:
     forked child: (its pid, the read end of the pipe its answer comes on: JSON, what it said)."""
     # what a run imports as it goes, imported here once: each child has it then (an import costs
     # seconds under emulation, and each child would pay it)
+    import neurotouch_hid.engine.engine  # noqa: F401
     import neurotouch_hid.mapping.mapper  # noqa: F401
-    import neurotouch_hid.runtime  # noqa: F401
     import neurotouch_hid.targets.gadget.targets  # noqa: F401
-    from neurotouch_hid.driver import run_driver
+    from neurotouch_hid.engine.driver import run_driver
 
     read_fd, write_fd = os.pipe()
     child = os.fork()

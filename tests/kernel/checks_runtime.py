@@ -169,7 +169,7 @@ def _expected_lines(preds: Path, profile: Path, folder: Path) -> list[dict]:
     """The state lines the same estimates give through ``run --output jsonl --fast`` (into
     ``folder/expected.jsonl``): the driver's own :func:`run_driver`, in this process (a second
     Python start costs tens of seconds here)."""
-    from neurotouch_hid.driver import run_driver
+    from neurotouch_hid.engine.driver import run_driver
 
     out = folder / "expected.jsonl"
     run_driver(str(preds), profile, "jsonl", fast=True, out=out)
@@ -236,7 +236,7 @@ def _our_devices() -> list[str]:
 def check_run_gamepad_matches_the_profile() -> dict:
     """The runtime (paced, real threads) drives the uinput pad; what evdev reads back, state by
     state, is what the same estimates give through ``--output jsonl``; the pad ends neutral."""
-    from neurotouch_hid.driver import run_driver
+    from neurotouch_hid.engine.driver import run_driver
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.targets import TargetOutputs
     from neurotouch_hid.targets.uinput.gamepad import GamepadIdentity, VirtualGamepad

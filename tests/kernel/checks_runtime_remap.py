@@ -147,7 +147,7 @@ def _run_in_process(
     a watcher on each device before the run starts."""
     import contextlib
 
-    from neurotouch_hid.driver import open_output, run_driver
+    from neurotouch_hid.engine.driver import open_output, run_driver
     from neurotouch_hid.mapping.profile import load_profile
 
     preds = _write_preds(folder, estimates)
@@ -316,7 +316,7 @@ def check_layer_switch_profile_use_and_sigterm_leave_nothing_pressed() -> dict:
     new profile (in the user's folder at start, so the keyboard offers its keys: the same device)
     holds a Ctrl+B chord, BTN_LEFT, A and the stick with the same push. SIGTERM:
     exit 0, nothing pressed on any device, the stick centred, every device gone."""
-    from neurotouch_hid.control import SOCKET_NAME, request_use
+    from neurotouch_hid.service.control import SOCKET_NAME, request_use
 
     folder = Path(tempfile.mkdtemp(prefix="remap-layers-"))
     runtime_dir = folder / "xdg"
@@ -392,7 +392,7 @@ def check_profile_use_of_new_keys_makes_the_keyboard_again() -> dict:
     """``profile use`` of a profile file whose key the keyboard does not offer (KEY_F9): KEY_ENTER,
     held by the old profile, is released on the old keyboard, which goes; a new keyboard offering
     F9 (and not SysRq) comes, F9 is held on it; SIGTERM releases it. The pad stays the same device."""
-    from neurotouch_hid.control import SOCKET_NAME, request_use
+    from neurotouch_hid.service.control import SOCKET_NAME, request_use
 
     folder = Path(tempfile.mkdtemp(prefix="remap-newkey-"))
     runtime_dir = folder / "xdg"

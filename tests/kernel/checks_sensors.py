@@ -47,7 +47,7 @@ mappings:
 def _start(preds: Path, serial: str, env: dict[str, str]) -> tuple[int, int]:
     """``run --source PREDS --serial SERIAL --output gamepad`` (no --profile) in a forked child:
     (its pid, the read end of the pipe its result comes on: JSON, what it said and how it ended)."""
-    from neurotouch_hid.driver import run_driver
+    from neurotouch_hid.engine.driver import run_driver
 
     _import_what_a_run_imports()
     read_fd, write_fd = os.pipe()
@@ -76,13 +76,13 @@ def _start(preds: Path, serial: str, env: dict[str, str]) -> tuple[int, int]:
 def _import_what_a_run_imports() -> None:
     """Import here, once, what ``run_driver`` imports as it goes: each forked child has it then
     (under emulation an import of these costs seconds, and each child would pay it)."""
-    import neurotouch_hid.control  # noqa: F401
     import neurotouch_hid.core.dataset  # noqa: F401
-    import neurotouch_hid.games  # noqa: F401
+    import neurotouch_hid.engine.engine  # noqa: F401
     import neurotouch_hid.inputs.copilot  # noqa: F401
     import neurotouch_hid.inputs.hide  # noqa: F401
     import neurotouch_hid.mapping.mapper  # noqa: F401
-    import neurotouch_hid.runtime  # noqa: F401
+    import neurotouch_hid.service.control  # noqa: F401
+    import neurotouch_hid.service.games  # noqa: F401
     import neurotouch_hid.targets.uinput.desktop  # noqa: F401
     import neurotouch_hid.targets.uinput.gamepad  # noqa: F401
 

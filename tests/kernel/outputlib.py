@@ -56,7 +56,7 @@ def held_state(folder: Path, profile: Path):
     run's very last line is the neutral state written at its end)."""
     from neurotouch_hid.core.controller import ControllerState
     from neurotouch_hid.core.dataset import write_predictions
-    from neurotouch_hid.driver import run_driver
+    from neurotouch_hid.engine.driver import run_driver
 
     preds = folder / "held.jsonl"
     write_predictions(preds, push_right(0.4))
@@ -107,8 +107,8 @@ def _ignore(*_) -> None:
 
 def _installed(early: bool) -> bool:
     """The driver's SIGTERM handler is in place: the runtime's (``early``: or the one run_driver
-    installs before its first device, :class:`~neurotouch_hid.stopping.EarlyStop`)."""
-    from neurotouch_hid.stopping import EarlyStop
+    installs before its first device, :class:`~neurotouch_hid.engine.stopping.EarlyStop`)."""
+    from neurotouch_hid.engine.stopping import EarlyStop
 
     handler = signal.getsignal(signal.SIGTERM)
     before_the_run = isinstance(getattr(handler, "__self__", None), EarlyStop)
@@ -160,7 +160,7 @@ class InProcessRun:
 
     def stop(self, watcher=None, timeout_s: float = 90.0, early: bool = False) -> None:
         """SIGTERM to this process once the runtime's handler replaced ours (``early``: once the
-        driver's from before its first device did, :class:`~neurotouch_hid.stopping.EarlyStop`:
+        driver's from before its first device did, :class:`~neurotouch_hid.engine.stopping.EarlyStop`:
         a stop before the run starts), reading ``watcher``'s
         events (a guestlib.EventReader) until the run returned: once the run removes its device,
         evdev drops what a reader had not read."""
@@ -178,7 +178,7 @@ class InProcessRun:
 
     def __call__(self, steps):
         """Run the driver and ``steps``; return what ``steps`` returned, raise what it raised."""
-        from neurotouch_hid.driver import run_driver
+        from neurotouch_hid.engine.driver import run_driver
 
         box: dict = {}
 

@@ -41,8 +41,8 @@ from neurotouch_hid.targets.gadget import configfs
 from neurotouch_hid.targets.protocols import PROTOCOLS
 
 if TYPE_CHECKING:
+    from neurotouch_hid.core.stages import Target
     from neurotouch_hid.mapping.profile import Profile
-    from neurotouch_hid.stages import Target
     from neurotouch_hid.targets.identity import Identity
 
 log = logging.getLogger(__name__)

@@ -1,4 +1,4 @@
-"""The gadget's FunctionFS functions as :class:`~neurotouch_hid.stages.Target` s: the Xbox 360 pad
+"""The gadget's FunctionFS functions as :class:`~neurotouch_hid.core.stages.Target` s: the Xbox 360 pad
 and a HID interface that answers its host's control requests itself.
 
 A FunctionFS function (Documentation/usb/functionfs.rst) is user space's: its ``ep0`` takes the
@@ -16,7 +16,7 @@ are the endpoints, in the order the descriptors declare them.
   GET_DESCRIPTOR of the report descriptor, GET_REPORT (input and feature reports, the format's
   :meth:`feature`), SET_IDLE, GET_IDLE, GET/SET_PROTOCOL, SET_REPORT and the OUT endpoint's
   output reports, parsed by the format's ``parse_output`` into
-  :class:`~neurotouch_hid.stages.Feedback`.
+  :class:`~neurotouch_hid.core.stages.Feedback`.
 
 Two daemon threads per function read, bounded: ``ep0``'s events and the OUT endpoint. Feedback is
 announced on a pipe (:meth:`FfsTarget.fileno`). When the function's files close (the driver killed
@@ -36,8 +36,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
 from neurotouch_hid.core.errors import DeviceError
+from neurotouch_hid.core.stages import Feedback
 from neurotouch_hid.service.udev import sudo_command
-from neurotouch_hid.stages import Feedback
 from neurotouch_hid.targets.gadget import functionfs
 from neurotouch_hid.targets.gadget.targets import MAX_OUTPUT_REPORT, _ReportTarget
 

@@ -1,4 +1,4 @@
-"""The gadget's ``hid`` functions as :class:`~neurotouch_hid.stages.Target` s: ``/dev/hidgN`` nodes
+"""The gadget's ``hid`` functions as :class:`~neurotouch_hid.core.stages.Target` s: ``/dev/hidgN`` nodes
 (the FunctionFS functions: :mod:`~neurotouch_hid.targets.gadget.ffs`).
 
 * :class:`HidgTarget`: one ``hid`` function (the joystick, the Switch pad, the keyboard, the

@@ -19,7 +19,7 @@ byte    field
 Output reports from the host (xpad's ``xpad_play_effect`` and ``xpad_send_led_command``):
 rumble ``00 08 00 STRONG WEAK 00 00 00`` (the low- and high-frequency motors, 0..255) and LED
 ``01 03 NN`` (NN the pattern, 0..15: 0 off, 2-5 player 1-4 on, ...). :func:`parse_output` reads
-them, bounded, as :class:`~neurotouch_hid.stages.Feedback`.
+them, bounded, as :class:`~neurotouch_hid.core.stages.Feedback`.
 
 The Y axes are sent negated (``-y``, 32767 for -32768), so that the neutral state is all zeros;
 xpad inverts them bitwise (``~y``), so an evdev reader sees the state's Y minus one (-1 at rest).

@@ -9,9 +9,9 @@ and desktops do not apply the keyboard layout to it), never KEY_SYSRQ, and write
 :attr:`ControllerState.keys` it offers; :class:`VirtualMouse` has BTN_LEFT and REL_X/REL_Y (what
 makes a mouse for udev) plus the buttons and wheels given (a wheel with its hi-res code, 120 per
 detent, kernel 5.0+), and writes its buttons in :attr:`ControllerState.keys` and the motion in
-:attr:`ControllerState.rel`. Each is a :class:`~neurotouch_hid.stages.Target` (the keyboard and
+:attr:`ControllerState.rel`. Each is a :class:`~neurotouch_hid.core.stages.Target` (the keyboard and
 mouse get nothing back: no ``fileno``). :class:`UinputOutputs` puts the pad and these together as
-one :class:`~neurotouch_hid.stages.Target` (written to through
+one :class:`~neurotouch_hid.core.stages.Target` (written to through
 :class:`~neurotouch_hid.targets.TargetOutputs`, the run's one output path), so that a chord is
 written in order across them. :class:`UinputDesktop` is the keyboard and mouse alone beside a HID
 output (``run --output hid``: the joystick goes to UHID), or a plain "not sent" where uinput
@@ -218,7 +218,7 @@ D = TypeVar("D", bound=_UinputDevice)
 
 
 class UinputOutputs:
-    """The pad, the keyboard and the mouse a profile uses, as one :class:`~neurotouch_hid.stages.Target`.
+    """The pad, the keyboard and the mouse a profile uses, as one :class:`~neurotouch_hid.core.stages.Target`.
 
     ``write(state)`` writes each device's part; :meth:`neutralise` and :meth:`close` act on all
     (the pad last on close, so a game sees its release even if another device fails).

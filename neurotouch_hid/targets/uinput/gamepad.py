@@ -5,11 +5,11 @@ Layout (docs/architecture.md, :mod:`neurotouch_hid.core.controller`): sticks ABS
 d-pad ABS_HAT0X/Y in -1..1, and the 11 buttons BTN_SOUTH .. BTN_THUMBR. Nothing mouse- or
 touch-like, so udev classes it as a joystick (ID_INPUT_JOYSTICK=1) and SDL as a GameController.
 Like xpad it advertises force feedback ``FF_RUMBLE`` (Wine and SDL offer rumble only then). The
-pad is a :class:`~neurotouch_hid.stages.Target`: its uinput descriptor (:meth:`VirtualGamepad.fileno`)
+pad is a :class:`~neurotouch_hid.core.stages.Target`: its uinput descriptor (:meth:`VirtualGamepad.fileno`)
 is readable when a game uploads, erases or plays an effect, and :meth:`VirtualGamepad.feedback`,
 called then by the run's one feedback path (:class:`~neurotouch_hid.targets.TargetOutputs`),
 answers every upload and erase at once (the kernel blocks the game's EVIOCSFF until uinput
-answers) and returns each rumble played or stopped as a :class:`~neurotouch_hid.stages.Feedback`
+answers) and returns each rumble played or stopped as a :class:`~neurotouch_hid.core.stages.Feedback`
 (said to the user -- the gel has no motor -- and played on the merged pads that can rumble).
 By default it presents itself as "Microsoft X-Box 360 pad", USB 045e:028e version 0x0114: the ids
 SDL's controller database maps without configuration.
@@ -176,7 +176,7 @@ def _begin_ff_request(ui, kind: str, request_id: int):
 
 class VirtualGamepad(NeutralOnClose):
     """A uinput gamepad (Xbox 360 layout) that mirrors :class:`ControllerState` values, as a
-    :class:`~neurotouch_hid.stages.Target`.
+    :class:`~neurotouch_hid.core.stages.Target`.
 
     Use as a context manager, or call :meth:`close`. Thread-safe: :meth:`close` may be called
     from a signal handler or another thread while :meth:`write` runs. ``on_effect`` is told each
@@ -233,7 +233,7 @@ class VirtualGamepad(NeutralOnClose):
         """Read the force-feedback requests waiting (at most :data:`MAX_FF_EVENTS`, non-blocking),
         answer every upload and erase at once (success: the kernel blocks the game's EVIOCSFF until
         then, Documentation/input/uinput.rst), and return each rumble played or stopped as a
-        ``"rumble"`` :class:`~neurotouch_hid.stages.Feedback` (magnitudes 0..1, the game's effect id;
+        ``"rumble"`` :class:`~neurotouch_hid.core.stages.Feedback` (magnitudes 0..1, the game's effect id;
         a stop, or an erase, has both 0). An ``on_effect`` that fails is logged: the next request
         is answered all the same."""
         from evdev import UInputError, ecodes
@@ -301,7 +301,7 @@ class VirtualGamepad(NeutralOnClose):
 
     def _rumble_of(self, effect_id: int, value: int) -> Feedback | None:
         """A play (``value`` > 0, the repeat count) or stop (0) of effect ``effect_id`` as a
-        ``"rumble"`` :class:`~neurotouch_hid.stages.Feedback` (magnitudes 0..1; a stop has both 0);
+        ``"rumble"`` :class:`~neurotouch_hid.core.stages.Feedback` (magnitudes 0..1; a stop has both 0);
         None for an effect that is no rumble."""
         rumble = self._rumbles.get(effect_id)
         if rumble is None:

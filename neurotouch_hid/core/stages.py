@@ -1,8 +1,8 @@
-"""The typed seams between the stages: what the engine (:class:`~neurotouch_hid.runtime.Runtime`)
+"""The typed seams between the stages: what the engine (:class:`~neurotouch_hid.engine.engine.Engine`)
 asks of a source stream, a pipeline, a resting detector and a mapper, and what it publishes to its
 subscribers.
 
-The road goes one way: source -> pipeline -> mapper -> subscribers. The runtime is the one place
+The road goes one way: source -> pipeline -> mapper -> subscribers. The engine is the one place
 that knows them all. After each window it publishes one :class:`WindowRecord` (the estimate, the
 controller state, the markers the pipeline saw, the gesture the source performed when it knows it,
 the run's counters, the first run's compile progress) to every :class:`Subscriber`: the uinput
@@ -11,14 +11,14 @@ of who reads it; a subscriber knows only the record.
 
 Each concrete stage satisfies one of these :class:`typing.Protocol` s structurally (no base class
 to inherit): the gesture pipeline (:class:`~neurotouch_hid.pipeline.pipeline.GesturePipeline`) and
-the replay of a predictions file (:class:`~neurotouch_hid.driver.EstimateReplay`) are
+the replay of a predictions file (:class:`~neurotouch_hid.engine.assembly.EstimateReplay`) are
 :class:`Pipeline` s. A type checker holds them to it.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable, Iterable, NamedTuple, Protocol, Union
+from typing import TYPE_CHECKING, Callable, Iterator, NamedTuple, Protocol, Union
 
 from neurotouch_hid.core.controller import ControllerState, Feedback
 from neurotouch_hid.core.estimate import GestureEstimate, MarkerPositions
@@ -32,13 +32,42 @@ if TYPE_CHECKING:
     from neurotouch_hid.core.stats import RunStats
     from neurotouch_hid.mapping.profile import Profile
     from neurotouch_hid.pipeline.resting import RestingResult
+    from neurotouch_hid.sources import PollPause
+    from neurotouch_hid.sources.recording import BatchCut
 
-#: What a source yields, in time order: event batches (``EVENT_DTYPE`` arrays) and APS
-#: :class:`~neurotouch_hid.sources.Frame` s, a live camera's
-#: :class:`~neurotouch_hid.sources.SourceStatus` items, the simulated hand's
-#: :class:`~neurotouch_hid.sources.Performed` labels, or, from a predictions file, the windows'
-#: estimates themselves.
-SourceStream = Iterable[Union[StreamItem, Performed, GestureEstimate]]
+#: One item of a source's stream: an event batch (``EVENT_DTYPE`` array) or an APS
+#: :class:`~neurotouch_hid.sources.Frame`, a live camera's
+#: :class:`~neurotouch_hid.sources.SourceStatus`, the simulated hand's
+#: :class:`~neurotouch_hid.sources.Performed` label, or, from a predictions file, a window's
+#: estimate itself.
+SourceItem = Union[StreamItem, Performed, GestureEstimate]
+
+
+class SourceStream(Protocol):
+    """What a source yields, in time order (:data:`SourceItem` s), with the hooks the engine may
+    set while the gel rests (docs/performance.md, "At rest"). ``sources.WrappedStream`` is the
+    base every source's stream derives from (its hooks None); the engine wraps a plain iterable
+    in one.
+
+    Attributes:
+        poll_pause: a live source's pause between polls that bring nothing
+            (:class:`~neurotouch_hid.sources.PollPause`, whose ``decide`` the engine sets), or None.
+        batch_cut: where the source cuts its event batches
+            (:class:`~neurotouch_hid.sources.recording.BatchCut`, which the engine moves to the
+            resting windows' ends), or None.
+    """
+
+    poll_pause: PollPause | None
+    batch_cut: BatchCut | None
+
+    def __iter__(self) -> Iterator[SourceItem]:
+        """The stream itself."""
+
+    def __next__(self) -> SourceItem:
+        """The next item; StopIteration at the source's end."""
+
+    def close(self) -> None:
+        """Close the source (its ``finally``); idempotent."""
 
 
 @dataclass(frozen=True)
@@ -55,7 +84,7 @@ class CompileProgress:
 
 
 class WindowRecord(NamedTuple):
-    """What the runtime publishes after each window, the same object to every subscriber (an
+    """What the engine publishes after each window, the same object to every subscriber (an
     immutable tuple: made 100 times a second, it costs a tenth of a frozen dataclass).
 
     Attributes:
@@ -107,6 +136,11 @@ class Pipeline(Protocol):
     def restart(self) -> None:
         """A new session after the live camera came back (markers re-initialised at rest)."""
 
+    def set_type_wait(self, wait: bool) -> None:
+        """Whether a gesture whose windows show one contact waits for the fingers before its
+        type is committed (``mapping/commitment.py``: False for a profile that reads no
+        difference); from the next window, from any thread. A pipeline without types ignores it."""
+
     def markers(self) -> MarkerPositions | None:
         """The markers seen at the last window's end; None when there are none (before the
         first APS frame, or no tracker at all)."""
@@ -126,19 +160,25 @@ class Mapper(Protocol):
     def update(self, estimate: GestureEstimate) -> ControllerState:
         """The controller state for one estimate."""
 
+    @property
+    def resting_state(self) -> ControllerState | None:
+        """The state a resting estimate gives while the mapper rests at its fixed point, else
+        None (then every window is mapped): the engine may then skip resting estimates and hand
+        the mapper only the last one before the rest ends, with the same states after."""
+
 
 class Subscriber(Protocol):
     """What listens to the run: the uinput devices, JSON lines, the terminal and live views.
 
     Attributes:
-        wants_markers: the subscriber draws the markers: the runtime then copies them into
+        wants_markers: the subscriber draws the markers: the engine then copies them into
             each record (nothing is copied when no subscriber asks).
     """
 
     wants_markers: bool
 
     def publish(self, record: WindowRecord) -> None:
-        """One window's record, from the runtime's pipeline thread; return quickly."""
+        """One window's record, from the engine's publisher (one call at a time); return quickly."""
 
     def neutralise(self) -> None:
         """Centre every axis and release every button and key, at once."""
@@ -188,10 +228,10 @@ class Target(Protocol):
 class Merge(Protocol):
     """Devices merged into the gel's pad (a profile's ``copilot:``): read, grabbed, combined.
 
-    The runtime calls :meth:`merge` on each window's mapped state and publishes the result; the
+    The engine calls :meth:`merge` on each window's mapped state and publishes the result; the
     merge calls the ``on_input`` it was started with (from its own thread, which sleeps in
     ``select`` while no merged device sends anything) whenever a merged device's controls
-    changed, and the runtime then publishes ``merge(last gel state)`` at once, so a helper's
+    changed, and the engine then publishes ``merge(last gel state)`` at once, so a helper's
     press never waits for the gel's next window."""
 
     def grab(self) -> None:

@@ -1,6 +1,6 @@
 """The running driver's control socket: ``neurotouch-hid profile use NAME`` switches its profile.
 
-The driver (:class:`~neurotouch_hid.runtime.Runtime`) listens on the Unix stream socket
+The driver (:class:`~neurotouch_hid.engine.engine.Engine`) listens on the Unix stream socket
 :func:`socket_path` (``$XDG_RUNTIME_DIR/neurotouch-hid/control.sock``: per user, on a tmpfs only that user
 can write). Neither side trusts the place as found: the folder must be the user's own and closed
 to others (:func:`check_folder`; the driver repairs the mode of a folder of its own, and refuses
