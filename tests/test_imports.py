@@ -22,6 +22,7 @@ ORDER = {
     "service.games": 5,
     "service.serve": 5,
     "service.warmup": 5,
+    "service.kernel_groups": 5,
     "engine.driver": 6,
     "views.pictures": 3,
     "service.doctor": 7,
