@@ -204,6 +204,16 @@ def test_the_child_compiles_the_installed_package_not_a_checkout_in_the_working_
     assert "neurotouch_hid.sources.esim.esim_chunk" in child.stdout.split()
 
 
+def test_the_child_compiles_at_a_lower_priority_than_the_run_that_started_it(tmp_path):
+    """The run's first window (interpreted, 0.2-0.4 s of CPU) shared two cores with both
+    children: it now comes first, and the children lose nothing they would have had."""
+    niceness = "import os; from neurotouch_hid.service import warmup; "
+    niceness += "warmup._call = lambda spec: print(os.nice(0), flush=True); warmup.main(['simulator'])"
+    child = subprocess.run([sys.executable, "-c", niceness], env=_env(tmp_path), capture_output=True, text=True)
+    assert child.returncode == 0, child.stderr
+    assert int(child.stdout.split()[-1]) == min(os.nice(0) + warmup.CHILD_NICE, 19)
+
+
 def test_the_child_refuses_an_unknown_group():
     child = subprocess.run(
         [sys.executable, "-m", "neurotouch_hid.service.warmup", "nope"], capture_output=True, text=True

@@ -91,6 +91,10 @@ T = TypeVar("T")
 #: How long after every kernel group is loaded numba's linking modules are freed (s;
 #: :meth:`Warmup._release_linking`).
 RELEASE_AFTER_S = 3.0
+#: How much nicer than the run a compile's child is (``nice(2)``): while the run computes its
+#: first window (and later its interpreted windows) it has a core before the compiles do; the
+#: compiles lose no CPU they would have had (the run waits for them once its first window is out).
+CHILD_NICE = 5
 #: What the user is told while the kernels compile.
 COMPILING = "compiling the gesture pipeline, first run only"
 #: What the first run's compile costs, as measured (docs/performance.md, "Start-up"): ~25 s of
@@ -522,12 +526,15 @@ def _load_cached(group_kernels: dict[str, object]) -> int:
 
 
 def main(argv: list[str]) -> int:
-    """The child: compile one group (its name in ``argv``) into numba's cache, printing the
-    ``module.name`` of each of its kernels as it is compiled. Exit status 2 for an unknown group."""
+    """The child: compile one group (its name in ``argv``) into numba's cache, at
+    :data:`CHILD_NICE` more than it was started with, printing the ``module.name`` of each of
+    its kernels as it is compiled. Exit status 2 for an unknown group."""
     if len(argv) != 1 or argv[0] not in GROUPS:
         print(f"expected one group among: {', '.join(GROUPS)}", file=sys.stderr)
         return 2
     group = GROUPS[argv[0]]
+    with contextlib.suppress(OSError):
+        os.nice(CHILD_NICE)
     with _on_each_compiled(kernels(group), lambda name: print(name, flush=True)):
         _call(group.warm)
     return 0
