@@ -17,7 +17,7 @@ import contextlib
 import errno
 import logging
 import os
-import select
+import time
 import types
 from collections import deque
 from pathlib import Path
@@ -32,6 +32,7 @@ import neurotouch_hid.inputs.copilot as copilot_module
 import neurotouch_hid.inputs.device as device_module
 from neurotouch_hid.core.controller import ControllerState
 from neurotouch_hid.core.stages import Feedback
+from neurotouch_hid.engine.loop import Loop
 from neurotouch_hid.inputs.copilot import Copilot, FeedbackRelay
 from neurotouch_hid.inputs.device import EVIOCRMFF, MergedInput
 from neurotouch_hid.inputs.match import InputInfo
@@ -189,9 +190,10 @@ class Rig:
     def uploads(self) -> list[tuple]:
         return [call[1:] for call in self.ioctls if call[0] == "upload"]
 
-    def copilot(self, text: str = HELPER, said: list[str] | None = None) -> Copilot:
+    def copilot(self, text: str = HELPER, said: list[str] | None = None, loop: Loop | None = None) -> Copilot:
         said = [] if said is None else said
-        return Copilot(parse_profile(text, "p.yaml").copilot, input_dir=self.dev, sysfs=self.sys, say=said.append)
+        copilot = parse_profile(text, "p.yaml").copilot
+        return Copilot(copilot, input_dir=self.dev, sysfs=self.sys, say=said.append, loop=loop)
 
     def close(self) -> None:
         for node in self.nodes.values():
@@ -351,40 +353,42 @@ def test_a_read_only_node_that_rumbled_rejoins_when_plugged_back(rig):
 # --- 3. EBUSY -------------------------------------------------------------------------------------------
 def test_a_device_another_program_grabbed_is_taken_once_let_go_and_is_retried_only_while_busy(rig, monkeypatch):
     """Another program (Steam) holds the grab at start, then lets go, which makes no inotify
-    event: the copilot retries on its own, says "busy" once, and once nothing is busy its thread
-    sleeps with no time-out again (a missing device alone never wakes it)."""
+    event: the copilot retries on its own, says "busy" once, and once nothing is busy it sets no
+    timer on its loop again (a missing device alone never wakes it)."""
     monkeypatch.setattr(copilot_module, "BUSY_RETRY_S", 0.02, raising=False)  # many retries, at once
-    timeouts: list[float | None] = []
+    timers: list[float] = []
 
-    def watched_select(rlist, wlist, xlist, timeout=None):
-        timeouts.append(timeout)
-        return select.select(rlist, wlist, xlist, timeout)
+    class WatchedLoop(Loop):
+        def call_at(self, when, callback):
+            timers.append(when)
+            return super().call_at(when, callback)
 
-    monkeypatch.setattr(copilot_module, "select", types.SimpleNamespace(select=watched_select))
-    absent = rig.copilot('copilot:\n  - {device: "Switch Box"}\n')
+    loop = WatchedLoop()
+    loop.run_in_thread()
+    absent = rig.copilot('copilot:\n  - {device: "Switch Box"}\n', loop=loop)
     absent.start(lambda: None)
     try:
-        assert wait_until(lambda: timeouts, HANG_S)
+        time.sleep(0.1)
+        assert timers == [] and loop.next_timer is None  # nothing to retry: no timer
     finally:
         absent.stop()
-    assert set(timeouts) == {None}
 
     pad = rig.add("Helper Pad", "event3", FakeNode(keys=[ecodes.BTN_SOUTH]))
     pad.held_by_other = True
     said: list[str] = []
-    copilot = rig.copilot(said=said)
-    timeouts.clear()
+    copilot = rig.copilot(said=said, loop=loop)
     copilot.start(lambda: None)
     try:
         assert copilot.status() == ((), ("Helper Pad",))
-        assert wait_until(lambda: len(timeouts) > 3, HANG_S)  # retried while busy: no new node, no event
+        assert wait_until(lambda: len(timers) > 3, HANG_S)  # retried while busy: no new node, no event
         assert copilot.status() == ((), ("Helper Pad",)) and not pad.grabbed
         pad.held_by_other = False  # the other program lets go
         assert wait_until(lambda: copilot.status() == (("Helper Pad",), ()), HANG_S), said
         assert pad.grabbed
-        assert wait_until(lambda: timeouts[-1] is None, HANG_S), timeouts[-5:]
+        assert wait_until(lambda: loop.next_timer is None, HANG_S)  # nothing busy: no timer
     finally:
         copilot.stop()
+        loop.close()
     busy = [line for line in said if "another program grabbed it" in line]
     assert len(busy) == 1 and busy[0].endswith("waiting for it"), said
 

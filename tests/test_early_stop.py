@@ -87,7 +87,7 @@ class Device(RecordingOutput):
 @pytest.fixture
 def rig(monkeypatch):
     order = Order()
-    monkeypatch.setattr(driver, "copilot_relay", lambda output, say: FakeRelay(order))
+    monkeypatch.setattr(driver, "copilot_relay", lambda output, say, loop=None: FakeRelay(order))
 
     def opener(profile, stack, **_):
         return stack.enter_context(Device(order))

@@ -18,6 +18,8 @@ ORDER = {
     "inputs": 4,
     "core.stages": 3,
     "engine": 5,
+    # the one loop every descriptor waits on: a base value (the standard library's selectors)
+    "engine.loop": 0,
     "service.control": 5,
     "service.games": 5,
     "service.serve": 5,

@@ -24,6 +24,7 @@ from neurotouch_hid.core.kinds import MethodKind, OutputKind, SourceKind
 from neurotouch_hid.core.stages import Feedback, Subscriber
 from neurotouch_hid.core.stats import RunStats
 from neurotouch_hid.engine.assembly import RunAssembly, run_assembled
+from neurotouch_hid.engine.loop import Loop
 from neurotouch_hid.engine.mode import DEFAULT_MAX_LAG_US, RunMode, RunOptions
 from neurotouch_hid.engine.stopping import EarlyStop, StopRequested
 from neurotouch_hid.mapping.profile import Profile, available_profiles, find_profile, load_profile
@@ -55,6 +56,7 @@ def open_output(
     on_feedback: Callable[[Feedback], None] | None = None,
     protocol: str | None = None,
     identity: Identity | None = None,
+    loop: Loop | None = None,
 ) -> Subscriber:
     """Create one output (:data:`OPENERS` has one opener per kind): ``gamepad`` (the uinput pad
     with the profile's name and ids, and the keyboard and mouse if the profile uses them), ``hid``
@@ -71,7 +73,9 @@ def open_output(
     uinput pad is made when the profile first drives a pad control. ``identity``: the camera's
     (:func:`~neurotouch_hid.targets.identity.identity_for`): the pad's ``phys``, the UHID device's
     ``phys`` and ``uniq`` and feature reports, the gadget's serial (None: the default identity,
-    whose devices keep the ``phys`` of each output and no ``uniq``). Closed by ``stack``.
+    whose devices keep the ``phys`` of each output and no ``uniq``). ``loop``: where the targets'
+    readable sides wait (the run's :class:`~neurotouch_hid.engine.loop.Loop`; None: a thread of
+    their own). Closed by ``stack``.
     Raises DeviceError when /dev/uinput (``gamepad``) or /dev/uhid (``hid``) cannot be used."""
     opener = OPENERS[OutputKind(kind)]
     return opener(
@@ -84,11 +88,12 @@ def open_output(
         on_feedback=on_feedback,
         protocol=protocol,
         identity=identity if identity is not None else identity_for(None),
+        loop=loop,
     )
 
 
 def _open_gamepad(
-    profile: Profile, stack: contextlib.ExitStack, *, say, identity: Identity, on_feedback=None, **_
+    profile: Profile, stack: contextlib.ExitStack, *, say, identity: Identity, on_feedback=None, loop=None, **_
 ) -> Subscriber:
     from neurotouch_hid.service.extras import require
 
@@ -110,11 +115,19 @@ def _open_gamepad(
 
     phys = identity.phys if identity.serial else None  # the keyboard's and mouse's prefix
     devices = UinputOutputs(None, profile, known=known_profiles(), make_pad=make_pad, phys=phys)
-    return stack.enter_context(TargetOutputs([devices], say=say, forward=on_feedback))
+    return stack.enter_context(TargetOutputs([devices], say=say, forward=on_feedback, loop=loop))
 
 
 def _open_hid(
-    profile: Profile, stack: contextlib.ExitStack, *, say, identity: Identity, protocol=None, on_feedback=None, **_
+    profile: Profile,
+    stack: contextlib.ExitStack,
+    *,
+    say,
+    identity: Identity,
+    protocol=None,
+    on_feedback=None,
+    loop=None,
+    **_,
 ) -> Subscriber:
     from neurotouch_hid.targets import TargetOutputs
     from neurotouch_hid.targets.uhid import UhidDevice, uhid_identity, uhid_protocol
@@ -127,20 +140,28 @@ def _open_hid(
         phys = identity.phys if identity.serial else None
         desktop = UinputDesktop(profile, known_profiles(), say=say or log.warning, phys=phys)
         made.callback(desktop.close)
-        outputs = TargetOutputs([joystick, desktop], say=say, forward=on_feedback)
+        outputs = TargetOutputs([joystick, desktop], say=say, forward=on_feedback, loop=loop)
         made.pop_all()
     return stack.enter_context(outputs)
 
 
 def _open_usb(
-    profile: Profile, stack: contextlib.ExitStack, *, say, protocol, identity: Identity, on_feedback=None, **_
+    profile: Profile,
+    stack: contextlib.ExitStack,
+    *,
+    say,
+    protocol,
+    identity: Identity,
+    on_feedback=None,
+    loop=None,
+    **_,
 ) -> Subscriber:
     from neurotouch_hid.targets import TargetOutputs
     from neurotouch_hid.targets.gadget import UsbGadget, protocol_for
 
     chosen = protocol_for(protocol, profile)
     gadget = stack.enter_context(UsbGadget(chosen, profile, serial=identity.usb_serial, identity=identity))
-    return stack.enter_context(TargetOutputs(gadget.targets, say=say, forward=on_feedback))
+    return stack.enter_context(TargetOutputs(gadget.targets, say=say, forward=on_feedback, loop=loop))
 
 
 def _open_jsonl(profile: Profile, stack: contextlib.ExitStack, *, out, inputs, **_) -> Subscriber:
@@ -267,7 +288,12 @@ def run_driver(
     try:
         with EarlyStop() as early, contextlib.ExitStack() as stack:
             try:
-                copilot = copilot_relay(output, say)
+                # one loop for every descriptor the run waits on, served by a thread of its own until
+                # the run's main thread takes it over (a first run's compile: the devices answer meanwhile)
+                loop = Loop()
+                stack.callback(loop.close)
+                loop.run_in_thread("nt-loop")
+                copilot = copilot_relay(output, say, loop)
                 first = None if copilot is None else copilot.merge_for(loaded)
                 if first is not None:  # before the pad or target device exists: games list one controller
                     stack.callback(first.stop)
@@ -286,6 +312,7 @@ def run_driver(
                             on_feedback=copilot,
                             protocol=protocol,
                             identity=identity,
+                            loop=loop,
                         )
                     except DeviceError as exc:
                         raise DeviceError(_and_the_source(str(exc), source, davis)) from None
@@ -315,6 +342,7 @@ def run_driver(
                     merge=first,
                     merge_for=None if copilot is None else copilot.merge_for,
                     early_stop=early,
+                    loop=loop,
                 )
                 return run_assembled(
                     assembly,
@@ -331,11 +359,12 @@ def run_driver(
         return stats if stats is not None else RunStats()
 
 
-def copilot_relay(output: str, say: Callable[[str], None]) -> FeedbackRelay | None:
+def copilot_relay(output: str, say: Callable[[str], None], loop: Loop | None = None) -> FeedbackRelay | None:
     """What merges a profile's ``copilot:`` devices into the controller and forwards the rumble
     any target receives to them (:class:`~neurotouch_hid.inputs.copilot.FeedbackRelay`): for every
     device output (:data:`DEVICE_OUTPUTS`: the uinput pad, the UHID device, the USB gadget); None
-    for the views. Puts back first the nodes a driver that did not stop cleanly left hidden
+    for the views; the merged devices wait on ``loop`` (None: each copilot a thread of its own).
+    Puts back first the nodes a driver that did not stop cleanly left hidden
     (:func:`~neurotouch_hid.inputs.hide.put_back_stale`)."""
     from neurotouch_hid.inputs.hide import put_back_stale
 
@@ -344,7 +373,7 @@ def copilot_relay(output: str, say: Callable[[str], None]) -> FeedbackRelay | No
         return None
     from neurotouch_hid.inputs.copilot import FeedbackRelay
 
-    return FeedbackRelay(say=say)
+    return FeedbackRelay(say=say, loop=loop)
 
 
 def _and_the_source(problem: str, source: str, davis: DavisConfig | None) -> str:

@@ -34,21 +34,22 @@ import contextlib
 import logging
 import os
 import signal
-import sys
 import threading
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable, Iterable, Iterator
+from typing import TYPE_CHECKING, Callable, Iterable
 
 import numpy as np
 
 from neurotouch_hid.core.errors import NeurotouchError
 from neurotouch_hid.core.stages import CompileProgress, Pipeline, RestingDetection, SourceStream, Subscriber
 from neurotouch_hid.core.stats import RunStats
+from neurotouch_hid.engine.loop import Loop
 from neurotouch_hid.engine.mode import RunMode, RunOptions
 from neurotouch_hid.engine.publisher import CompileWatch, Publisher
 from neurotouch_hid.engine.queue import DEFAULT_FRAME_QUEUE, MAX_JOINED_EVENTS, DropOldestQueue, item_end_us
 from neurotouch_hid.engine.rest import REST_WAKE_AFTER_END_US, RestHandover
+from neurotouch_hid.engine.signals import handled, switch_interval
 from neurotouch_hid.mapping.commitment import waits_for_type
 from neurotouch_hid.mapping.profile import Profile
 from neurotouch_hid.sources import Frame, Pacer, Performed, SourceStatus, StatusKind, StreamItem, WrappedStream
@@ -58,15 +59,9 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-#: The interpreter's thread switch interval (s) during real-time runs, instead of Python's 5 ms:
-#: a thread waiting for the GIL (the pipeline, while the resting thread runs Python code) gets it
-#: within 0.5 ms. Measured (benchmarks/bench_latency.py): p99 processing latency 3.4 -> 1.7 ms.
-REALTIME_SWITCH_INTERVAL_S = 0.0005
-#: How often the main thread looks at the run (a reload or Ctrl-Z asked by a signal, a stalled
-#: source's deadline), s: it sleeps in between (a signal's handler cannot wake it safely).
-_MAIN_POLL_S = 0.25
-#: A thread waiting for queued items wakes at least this often (s); closing the queue wakes it.
-_IDLE_WAIT_S = 1.0
+#: A thread waiting for queued items waits until one comes or the queue closes (no time-out:
+#: nothing wakes at rest that has nothing to do).
+_IDLE_WAIT_S = None
 _JOIN_S = _GRACE_S = 2.0  # how long a thread's end is waited for; a stalled live run's grace
 
 
@@ -117,6 +112,10 @@ class Engine:
     ) -> None:
         self.options = options
         self.mode = mode = options.mode
+        #: what the main thread waits on during the run (signals, the merged devices, the targets'
+        #: feedback, the control socket, the games watcher): the driver's, or one of its own
+        self.loop = options.loop if options.loop is not None else Loop()
+        self._own_loop = options.loop is None  # closed when the run ends
         stream = parts.stream
         self._source: SourceStream = stream if isinstance(stream, WrappedStream) else WrappedStream(iter(stream))
         self._pipeline = parts.pipeline
@@ -125,8 +124,7 @@ class Engine:
         self.stats = options.stats if options.stats is not None else RunStats()
         self.stats.profile = str(options.profile_ref) if options.profile_ref is not None else ""
         self._stop = threading.Event()
-        self._reload = threading.Event()
-        self._suspend = threading.Event()  # SIGTSTP arrived: the main thread suspends the run
+        self._worked = threading.Event()  # the pipeline's thread is over: the main thread's loop ends
         self._restart = threading.Event()  # the camera is back: restart the pipeline before its data
         self._switching = threading.Lock()  # one profile switch at a time
         self._verdict_lock = threading.Lock()  # the resting detector: its thread vs. the source's at rest
@@ -195,6 +193,7 @@ class Engine:
         self._stop.set()
         self._items.close()
         self._frames.close()
+        self.loop.wake()
 
     def switch_profile(self, profile: Profile) -> None:
         """Neutralise every subscriber, then map with ``profile`` from the next window on. The
@@ -294,7 +293,8 @@ class Engine:
         interrupted = False
         start = time.perf_counter()
         early = self.options.early_stop
-        with self._signal_handlers(), self._switch_interval():
+        signals = {"SIGTERM": self.stop, "SIGHUP": self.reload_profile, "SIGTSTP": self.suspend}
+        with handled(self.loop, signals), switch_interval(self.mode.realtime):
             try:
                 if early is not None:  # this run's handlers are in place: its SIGTERM only flags
                     early.quiet()
@@ -306,19 +306,10 @@ class Engine:
                 for t in threads:
                     t.start()
                 worker = threads[1]
-                while worker.is_alive():
-                    worker.join(_MAIN_POLL_S)
-                    if self._reload.is_set():
-                        self._reload.clear()
-                        self.reload_profile()
-                    if self._suspend.is_set():
-                        self._suspend.clear()
-                        self.suspend()
-                    if seconds is not None and self.mode.drops:
-                        # a real-time source that stalls still ends: wall deadline from its first item
-                        first = self._clock.first_ns / 1e9 if self._clock.first_ns else start
-                        if time.perf_counter() > first + seconds + _GRACE_S:
-                            self.stop()
+                if seconds is not None and self.mode.drops:
+                    self._stop_at_deadline(start, seconds)
+                # the main thread: the loop, until the pipeline's thread ends (it wakes the loop)
+                self.loop.run_until(lambda: self._worked.is_set() or not worker.is_alive())
             except KeyboardInterrupt:
                 interrupted = True
             finally:
@@ -336,7 +327,11 @@ class Engine:
                     if merge is not None:
                         merge.stop()
                 finally:  # the outputs neutral even when a merged device's release fails
-                    self.publisher.neutralise()
+                    try:
+                        self.publisher.neutralise()
+                    finally:
+                        if self._own_loop:
+                            self.loop.close()
         if self._errors:
             raise self._errors[0]
         if interrupted:
@@ -345,31 +340,15 @@ class Engine:
             raise interrupt
         return self.stats
 
-    @contextlib.contextmanager
-    def _switch_interval(self) -> Iterator[None]:
-        previous = sys.getswitchinterval()
-        if self.mode.realtime:
-            sys.setswitchinterval(min(previous, REALTIME_SWITCH_INTERVAL_S))
-        try:
-            yield
-        finally:
-            sys.setswitchinterval(previous)
-
-    @contextlib.contextmanager
-    def _signal_handlers(self) -> Iterator[None]:
-        if threading.current_thread() is not threading.main_thread():
-            yield
+    def _stop_at_deadline(self, start: float, seconds: float) -> None:
+        """A real-time source that stalls still ends: ``seconds`` + a grace after its first item
+        (before it: after the run's start), a timer on the loop."""
+        first = self._clock.first_ns / 1e9 if self._clock.first_ns else start
+        left = first + seconds + _GRACE_S - time.perf_counter()
+        if left <= 0:
+            self.stop()
             return
-        previous = {signal.SIGTERM: signal.signal(signal.SIGTERM, lambda *_: self.stop())}
-        if hasattr(signal, "SIGHUP"):
-            previous[signal.SIGHUP] = signal.signal(signal.SIGHUP, lambda *_: self._reload.set())
-        if hasattr(signal, "SIGTSTP"):
-            previous[signal.SIGTSTP] = signal.signal(signal.SIGTSTP, lambda *_: self._suspend.set())
-        try:
-            yield
-        finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
+        self.loop.call_later(left, lambda: self._stop_at_deadline(start, seconds))
 
     # --- the source's thread ---------------------------------------------------------------------
     def _count_drop(self, item: StreamItem) -> None:  # the queues' on_drop
@@ -529,6 +508,9 @@ class Engine:
         except BaseException as exc:
             self._errors.append(exc)
             self.stop()
+        finally:
+            self._worked.set()
+            self.loop.wake()  # the main thread's loop ends with this thread
 
     def _handle(self, entry: tuple[int, StreamItem], newest: bool = False) -> None:
         """One item -> estimates -> records published, by whoever holds the queue (the pipeline's

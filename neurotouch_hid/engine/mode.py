@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from neurotouch_hid.core.stages import Mapper as MapperStage
     from neurotouch_hid.core.stages import Merge
     from neurotouch_hid.core.stats import RunStats
+    from neurotouch_hid.engine.loop import Loop
     from neurotouch_hid.engine.stopping import EarlyStop
     from neurotouch_hid.sources import Pacer
 
@@ -110,6 +111,8 @@ class RunOptions:
         early_stop: the SIGTERM handler that stood before this run's own
             (:class:`~neurotouch_hid.engine.stopping.EarlyStop`): quieted when the run installs its
             own handlers, and a SIGTERM it saw meanwhile stops the run at once.
+        loop: the :class:`~neurotouch_hid.engine.loop.Loop` the devices and services already wait
+            on (the driver's; the run's main thread takes it over); None: one of the run's own.
     """
 
     mode: RunMode = RunMode.PACED
@@ -124,3 +127,4 @@ class RunOptions:
     merge: Merge | None = None
     merge_for: Callable[[Profile], Merge | None] | None = None
     early_stop: EarlyStop | None = None
+    loop: Loop | None = None

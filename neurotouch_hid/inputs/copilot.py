@@ -2,13 +2,13 @@
 :class:`~neurotouch_hid.core.stages.Merge`).
 
 :meth:`Copilot.start` opens and grabs every device the profile names that is there
-(:mod:`neurotouch_hid.inputs.match`, :class:`~neurotouch_hid.inputs.device.MergedInput`) and starts
-one thread. The thread sleeps in ``select`` on the merged devices' nodes, an inotify descriptor
-watching ``/dev/input`` (and its ``by-id``/``by-path`` folders) and a wake-up pipe: nothing runs
-while nobody touches a merged device and no device comes or goes (no polling), save the two
-time-outs below, each only while it is needed. When a merged
-device's controls change (at its SYN_REPORT) the thread calls ``on_input``; the runtime then
-publishes :meth:`Copilot.merge` of the gel's last state at once.
+(:mod:`neurotouch_hid.inputs.match`, :class:`~neurotouch_hid.inputs.device.MergedInput`) and waits
+on a loop (:class:`~neurotouch_hid.engine.loop.Loop`: the driver's, which the run's main thread
+serves, or one of its own in a thread) for the merged devices' nodes and an inotify descriptor
+watching ``/dev/input`` (and its ``by-id``/``by-path`` folders): nothing runs while nobody touches
+a merged device and no device comes or goes (no polling), save the two timers below, each only
+while it is needed. When a merged device's controls change (at its SYN_REPORT) the loop calls
+``on_input``; the engine then publishes :meth:`Copilot.merge` of the gel's last state at once.
 
 Hot-plug: a device that goes away (its read fails with ENODEV) is closed and its controls count as
 neutral at once (``on_input`` is called, so the pad lets go of what it held); a device named but
@@ -23,7 +23,7 @@ the merged controls are neutral from then on.
 Rumble: a game may play several effects at once on the gel's pad. Each playing one is kept (by the
 effect id the sender gives, its end time from its duration); the merged pads play the strongest of
 them (each motor's magnitude, the largest among them), uploaded again when that changes, as an
-effect changes it or ends (the thread wakes at the next end while one has an end), and stopped
+effect changes it or ends (a timer at the next end while one has an end), and stopped
 when none plays.
 
 Library: inotify_simple (inotify(7)); python-evdev for the devices.
@@ -31,12 +31,10 @@ Library: inotify_simple (inotify(7)); python-evdev for the devices.
 
 from __future__ import annotations
 
-import collections
 import contextlib
 import errno
 import logging
 import os
-import select
 import threading
 import time
 from pathlib import Path
@@ -50,6 +48,7 @@ from neurotouch_hid.mapping.merge import merge_state
 if TYPE_CHECKING:
     from neurotouch_hid.core.controller import ControllerState
     from neurotouch_hid.core.stages import Feedback
+    from neurotouch_hid.engine.loop import Loop, Timer
     from neurotouch_hid.mapping.profile import CopilotDevice, Profile
 
 log = logging.getLogger(__name__)
@@ -58,9 +57,6 @@ log = logging.getLogger(__name__)
 #: a grab makes no inotify event, and 1.5 s is a short wait for a user who just quit that program
 #: while an open-and-grab attempt (two syscalls) that often costs nothing. No time-out otherwise.
 BUSY_RETRY_S = 1.5
-#: Rumble requests handed to the copilot's thread (:meth:`Copilot.post`) kept at most; a game
-#: sends one a frame at most, and the thread takes them as they come.
-MAX_POSTED = 64
 
 #: (strong, weak magnitudes 0..1, end on time.monotonic() or None: until stopped) of a playing effect.
 _Effect = tuple[float, float, float | None]
@@ -77,6 +73,8 @@ class Copilot:
         hider: moves a merged device's nodes out of ``/dev`` while merged, so that games do not
             list it (:mod:`~neurotouch_hid.inputs.hide`; root only); None: grabbed only.
         unhidden: called with each device merged without being hidden (the note for the user).
+        loop: where its descriptors wait (the driver's :class:`~neurotouch_hid.engine.loop.Loop`);
+            None: a loop of its own, in a thread (``nt-copilot``).
     """
 
     def __init__(
@@ -88,6 +86,7 @@ class Copilot:
         sysfs: Path = SYSFS_INPUT,
         hider: Hider | None = None,
         unhidden: Callable[[InputInfo], None] = lambda info: None,
+        loop: Loop | None = None,
     ) -> None:
         self._specs = list(devices)
         self._say = say
@@ -96,9 +95,11 @@ class Copilot:
         self._lock = threading.Lock()
         self._open: list[MergedInput | None] = [None] * len(self._specs)
         self._failed: dict[str, str] = {}  # node -> the last reason it could not be opened (said once)
-        self._thread: threading.Thread | None = None
+        self._loop = loop
+        self._own_loop = False
+        self._started = False  # grabbed and watched (:meth:`grab`), until :meth:`stop`
+        self._timer: Timer | None = None  # the next effect's end or busy device's retry
         self._stopping = threading.Event()
-        self._wake: tuple[int, int] | None = None
         self._inotify = None
         self._watches: dict[int, Path] = {}
         self._on_input: Callable[[], None] = lambda: None
@@ -109,26 +110,32 @@ class Copilot:
         self._rumble_lock = threading.Lock()
         self._effects: dict[int | None, _Effect] = {}  # the effects playing, by the sender's id
         self._rumbling: _Effect | None = None  # what the merged pads were given last
-        self._posted: collections.deque[Feedback] = collections.deque(maxlen=MAX_POSTED)  # for the thread
 
     # --- the Merge seam ------------------------------------------------------------------------
     def grab(self) -> None:
-        """Watch ``/dev/input``, open and grab (and hide) what is there, start the reading thread;
+        """Watch ``/dev/input``, open and grab (and hide) what is there, wait for them on the loop;
         nothing when that was done. Called before the pad exists (``run_driver``): a game that
         lists controllers at its start sees the gel's pad only."""
-        if self._thread is not None:
+        if self._started:
             return
         from inotify_simple import INotify
 
+        from neurotouch_hid.engine.loop import Loop
+
         self._stopping.clear()
+        if self._loop is None or self._own_loop:
+            self._own_loop = True
+            self._loop = Loop()
         self._inotify = INotify(nonblocking=True)
         self._watch(self._input_dir)
         for sub in STABLE_DIRS:
             self._watch(self._input_dir / sub)
-        self._wake = os.pipe()
+        self._started = True
         self._scan()
-        self._thread = threading.Thread(target=self._loop, name="nt-copilot", daemon=True)
-        self._thread.start()
+        self._loop.add_reader(self._inotify.fileno(), lambda: self._guarded(self._on_notify))
+        self._schedule()
+        if self._own_loop:
+            self._loop.run_in_thread("nt-copilot")
 
     def start(self, on_input: Callable[[], None]) -> None:
         """:meth:`grab` (if not done yet), then call ``on_input`` whenever a merged device's
@@ -167,30 +174,28 @@ class Copilot:
             self._update_rumble(now)
             sooner = self._next_effect_end()
         if sooner is not None and (first is None or sooner < first):
-            self._nudge()  # the thread sleeps past this effect's end: it wakes and sleeps again until then
+            self._nudge()  # the timer is past this effect's end: set again, to its end
 
     def post(self, request: Feedback) -> None:
-        """Hand ``request`` to the copilot's thread, which plays it there (:meth:`feedback`), and
-        return at once: a merged pad slow to take an effect (a uinput device answers EVIOCSFF
-        only when its owner does, Documentation/input/uinput.rst, up to 30 s) never holds up the
-        caller, the run's one feedback path, whose next read answers the game's next upload on the
-        gel's pad. At most :data:`MAX_POSTED` wait (the oldest go first); played here when the
-        thread is not running."""
-        if self._thread is None or self._wake is None:
+        """Play ``request`` (:meth:`feedback`) on the copilot's loop, after what the loop is doing
+        (the feedback path that received it), and return at once; played here when the copilot
+        is not started."""
+        loop = self._loop
+        if not self._started or loop is None:
             self.feedback(request)
             return
-        self._posted.append(request)
-        self._nudge()
+        loop.call_soon(lambda: self.feedback(request))
 
     def stop(self) -> None:
-        """Stop the thread, release every grab, close every node; idempotent."""
+        """Stop waiting for the devices, release every grab, close every node; idempotent."""
         self._stopping.set()
-        if self._wake is not None:
-            with contextlib.suppress(OSError):
-                os.write(self._wake[1], b"x")
-        if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(2.0)
-        self._thread = None
+        loop = self._loop
+        if self._started and loop is not None:
+            with contextlib.suppress(Exception):  # (a loop closed already: nothing waits)
+                loop.call_and_wait(self._unwatch)
+            if self._own_loop:
+                loop.close()
+        self._started = False
         with self._lock:
             for i, device in enumerate(self._open):
                 if device is not None:
@@ -208,11 +213,6 @@ class Copilot:
             with contextlib.suppress(OSError):
                 self._inotify.close()
             self._inotify = None
-        if self._wake is not None:
-            for fd in self._wake:
-                with contextlib.suppress(OSError):
-                    os.close(fd)
-            self._wake = None
 
     def status(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
         """(the devices merged now, the devices waited for), as the profile names them."""
@@ -255,6 +255,9 @@ class Copilot:
             infos.remove(info)
             with self._lock:
                 self._open[i] = device
+            self._loop.add_reader(
+                device.fd, lambda i=i, device=device: self._guarded(lambda: self._on_device(i, device))
+            )
             joined = True
             self._say(f"merged {spec.device} ({info.path}) into the pad")
             if self._hider is not None:
@@ -285,70 +288,91 @@ class Copilot:
         self._failed.pop(info.path, None)
         return device
 
-    def _loop(self) -> None:
+    def _unwatch(self) -> None:
+        """Nothing of this copilot waits on the loop any more (in the loop's thread)."""
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        if self._inotify is not None:
+            self._loop.remove_reader(self._inotify.fileno())
+        with self._lock:
+            for device in self._open:
+                if device is not None:
+                    self._loop.remove_reader(device.fd)
+
+    def _guarded(self, step: Callable[[], bool]) -> None:
+        """One of the loop's calls: ``step()`` (whether the merged controls changed), the rumble's
+        effects that ended dropped, the timer set again, ``on_input`` when they changed. A bug
+        here must not leave a device grabbed and silent: every device is let go."""
+        if self._stopping.is_set():
+            return
         try:
-            self._serve()
-        except Exception:  # a bug here must not leave a device grabbed and silent
+            changed = step()
+            with self._rumble_lock:
+                if self._effects:
+                    self._update_rumble(time.monotonic())  # an effect may have ended
+            self._schedule()
+        except Exception:
             log.exception("the copilot stopped reading its devices; they are released")
             with self._lock:
                 devices, self._open = [d for d in self._open if d is not None], [None] * len(self._specs)
             for device in devices:
+                self._loop.remove_reader(device.fd)
                 self._let_go(device)
+            changed = True
+        if changed and not self._stopping.is_set():
             self._on_input()
 
-    def _serve(self) -> None:
+    def _on_notify(self) -> bool:
+        """The loop: nodes appeared under ``/dev/input`` (or their permissions changed)."""
         from inotify_simple import flags
 
-        wake = self._wake[0]
-        notify = self._inotify.fileno()
-        while not self._stopping.is_set():
-            with self._lock:
-                opened = {d.fd: (i, d) for i, d in enumerate(self._open) if d is not None}
-            try:
-                ready, _, _ = select.select([wake, notify, *opened], [], [], self._timeout())
-            except (OSError, ValueError):  # a node closed under us: look again
-                continue
-            if self._stopping.is_set():
-                break
-            if wake in ready:
-                with contextlib.suppress(OSError):
-                    os.read(wake, 512)
-            while self._posted and not self._stopping.is_set():  # the rumble handed over by post()
-                self.feedback(self._posted.popleft())
-            changed = scanned = False
-            if notify in ready:
-                events = list(self._inotify.read(timeout=0))
-                for event in events:
-                    folder = self._watches.get(event.wd)
-                    if folder == self._input_dir and event.name in STABLE_DIRS and event.mask & flags.CREATE:
-                        self._watch(folder / event.name)
-                if events and self._hider is not None:
-                    self._hider.rehide()  # a hidden node made again: games still list one pad
-                if events:
-                    changed |= self._scan()
-                    scanned = True
-            gone: set[str] = set()
-            for fd in ready:
-                if fd in opened:
-                    changed |= self._read(*opened[fd], gone)
-            if gone:  # another device of the same name may be there already: taken at once
-                changed |= self._scan(frozenset(gone))
-            elif self._busy and not scanned and time.monotonic() >= self._retry_at:
-                changed |= self._scan()
-            with self._rumble_lock:
-                if self._effects:
-                    self._update_rumble(time.monotonic())  # an effect may have ended
-            if changed and not self._stopping.is_set():
-                self._on_input()
+        events = list(self._inotify.read(timeout=0))
+        for event in events:
+            folder = self._watches.get(event.wd)
+            if folder == self._input_dir and event.name in STABLE_DIRS and event.mask & flags.CREATE:
+                self._watch(folder / event.name)
+        if events and self._hider is not None:
+            self._hider.rehide()  # a hidden node made again: games still list one pad
+        return bool(events) and self._scan()
 
-    def _timeout(self) -> float | None:
-        """How long the thread may sleep (s): None (until a node or inotify wakes it) unless a
-        device is busy (:data:`BUSY_RETRY_S`) or a playing effect ends (then until it does)."""
+    def _on_device(self, index: int, device: MergedInput) -> bool:
+        """The loop: a merged device's node is readable (its events, or its going away)."""
+        if self._open[index] is not device:
+            return False
+        gone: set[str] = set()
+        fd = device.fd  # (a device let go has none: -1)
+        changed = self._read(index, device, gone)
+        if gone:  # another device of the same name may be there already: taken at once
+            self._loop.remove_reader(fd)
+            changed |= self._scan(frozenset(gone))
+        return changed
+
+    def _on_timer(self) -> bool:
+        """The loop: a busy device's retry is due, or a playing effect ends (``_guarded`` then
+        drops it)."""
+        self._timer = None
+        if self._busy and time.monotonic() >= self._retry_at:
+            return self._scan()
+        return False
+
+    def _schedule(self) -> None:
+        """The loop's timer for this copilot at :meth:`_due` (none when nothing is due)."""
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        due = self._due()
+        if due is not None and self._started and not self._stopping.is_set():
+            self._timer = self._loop.call_at(due, lambda: self._guarded(self._on_timer))
+
+    def _due(self) -> float | None:
+        """When the loop must call again (``time.monotonic()``): None (until a node or inotify is
+        readable) unless a device is busy (:data:`BUSY_RETRY_S`) or a playing effect ends."""
         with self._rumble_lock:
             due = [end for end in (self._next_effect_end(),) if end is not None]
         if self._busy:
             due.append(self._retry_at)
-        return max(min(due) - time.monotonic(), 0.0) if due else None
+        return min(due) if due else None
 
     def _read(self, index: int, device: MergedInput, gone: set[str]) -> bool:
         """Read ``device``; one that fails is let go (its node added to ``gone``)."""
@@ -404,10 +428,9 @@ class Copilot:
                 log.warning("could not rumble %s: %s", device.spec.device, exc)
 
     def _nudge(self) -> None:
-        """Wake the thread (it computes its time-out again)."""
-        if self._wake is not None and self._thread is not None:
-            with contextlib.suppress(OSError):
-                os.write(self._wake[1], b"r")
+        """Set the loop's timer again (an effect's end came sooner), in the loop's thread."""
+        if self._started and self._loop is not None:
+            self._loop.call_soon(self._schedule)
 
     def _let_go(self, device: MergedInput) -> None:
         """Release and close ``device``, then put its hidden nodes back (a gone device's are removed)."""
@@ -423,8 +446,11 @@ class FeedbackRelay:
     (:meth:`merge_for`, which the runtime calls at start and at each switch). Calling the relay
     with a :class:`~neurotouch_hid.core.stages.Feedback` hands it to that copilot's ``feedback``."""
 
-    def __init__(self, say: Callable[[str], None] = log.warning, *, hide: bool | None = None) -> None:
+    def __init__(
+        self, say: Callable[[str], None] = log.warning, *, hide: bool | None = None, loop: Loop | None = None
+    ) -> None:
         self._say = say
+        self._loop = loop  # where each copilot waits (None: each a loop of its own)
         self.merge: Copilot | None = None
         self._hide = may_hide() if hide is None else hide
         self._told = False
@@ -437,7 +463,7 @@ class FeedbackRelay:
             self.merge = None
             return None
         hider = Hider(guarded=True) if self._hide else None
-        self.merge = Copilot(profile.copilot, say=self._say, hider=hider, unhidden=self._not_hidden)
+        self.merge = Copilot(profile.copilot, say=self._say, hider=hider, unhidden=self._not_hidden, loop=self._loop)
         return self.merge
 
     def _not_hidden(self, info: InputInfo) -> None:
@@ -447,8 +473,8 @@ class FeedbackRelay:
         self._say(unhidden_note(info))
 
     def __call__(self, request: Feedback) -> None:
-        """Hand ``request`` to the copilot in use (:meth:`Copilot.post`: played on its thread, so
-        the caller never waits for a merged pad); nothing when the profile merges nothing."""
+        """Hand ``request`` to the copilot in use (:meth:`Copilot.post`: played on its loop after
+        the caller's turn); nothing when the profile merges nothing."""
         merge = self.merge
         if merge is not None:
             merge.post(request)

@@ -1,6 +1,6 @@
 """The running driver's control socket: ``neurotouch-hid profile use NAME`` switches its profile.
 
-The driver (:class:`~neurotouch_hid.engine.engine.Engine`) listens on the Unix stream socket
+The driver (:class:`~neurotouch_hid.engine.engine.Engine`'s loop) listens on the Unix stream socket
 :func:`socket_path` (``$XDG_RUNTIME_DIR/neurotouch-hid/control.sock``: per user, on a tmpfs only that user
 can write). Neither side trusts the place as found: the folder must be the user's own and closed
 to others (:func:`check_folder`; the driver repairs the mode of a folder of its own, and refuses
@@ -28,10 +28,13 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 from neurotouch_hid.core.errors import NeurotouchError
 from neurotouch_hid.core.limits import printable
+
+if TYPE_CHECKING:
+    from neurotouch_hid.engine.loop import Loop, Timer
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +46,7 @@ MAX_MESSAGE = 8192
 #: How long the client waits for the driver's answer (s): loading a profile takes milliseconds.
 ANSWER_TIMEOUT_S = 10.0
 #: How long the driver waits for a client's request line (s): a client sends it at once; a
-#: silent one is dropped after this, and never holds up the others (each has its own thread).
+#: silent one is dropped after this, and never holds up the others (each waits on the loop).
 REQUEST_TIMEOUT_S = 2.0
 #: Clients served at once; more are answered "busy" and closed (threads and memory bounded).
 MAX_CLIENTS = 8
@@ -55,7 +58,6 @@ BACKLOG = 128
 BUSY = "the driver is busy; try again"
 #: Deepest JSON nesting in a request (a request is a flat object).
 MAX_JSON_DEPTH = 4
-_ACCEPT_POLL_S = 0.2
 
 
 def check_folder(folder: Path, repair: bool = False) -> None:
@@ -196,12 +198,16 @@ def _not_a_profile(ref: str) -> str | None:
 
 
 class ControlServer:
-    """Serves :func:`socket_path` in a thread; ``use(profile) -> message`` does a switch and
-    raises NeurotouchError to refuse one (its message goes back to the client).
+    """Serves :func:`socket_path` on a :class:`~neurotouch_hid.engine.loop.Loop`; ``use(profile)
+    -> message`` does a switch and raises NeurotouchError to refuse one (its message goes back to
+    the client).
 
     :meth:`start` returns False (and logs why) when there is no XDG_RUNTIME_DIR, the socket
     cannot be made, or another running driver already serves it; the driver then runs without
-    a control socket. A stale socket file (nobody listening) is replaced.
+    a control socket. A stale socket file (nobody listening) is replaced. The listening socket
+    and each client's wait on the loop (no thread of their own): a client's request line is read
+    as it comes, bounded in size (:data:`MAX_MESSAGE`) and time (:data:`REQUEST_TIMEOUT_S`, a timer),
+    then answered and closed; at most :data:`MAX_CLIENTS` at once.
     """
 
     def __init__(
@@ -211,13 +217,14 @@ class ControlServer:
         self._status = status  # ``{"command": "status"}``'s answer: one line on what runs
         self.path = path if path is not None else socket_path()
         self._sock: socket.socket | None = None
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._loop: Loop | None = None
+        self._own_loop = False
         self._inode: int | None = None
-        self._clients = threading.BoundedSemaphore(MAX_CLIENTS)
+        self._clients: dict[int, _Client] = {}  # by descriptor
         self._switch = threading.Lock()  # one profile switch at a time
 
-    def start(self) -> bool:
+    def start(self, loop: Loop | None = None) -> bool:
+        """Listen and serve on ``loop`` (the driver's; None: a loop of its own, in a thread)."""
         if self.path is None:
             log.info("XDG_RUNTIME_DIR is not set: no control socket, `profile use` cannot reach this driver")
             return False
@@ -243,52 +250,87 @@ class ControlServer:
             sock.close()
             log.warning("no control socket at %s (%s): `profile use` cannot reach this driver", self.path, exc.strerror)
             return False
-        sock.settimeout(_ACCEPT_POLL_S)
+        from neurotouch_hid.engine.loop import Loop
+
+        sock.setblocking(False)
         self._sock, self._inode = sock, os.stat(self.path).st_ino
-        self._thread = threading.Thread(target=self._serve, name="nt-control", daemon=True)
-        self._thread.start()
+        self._own_loop = loop is None
+        self._loop = loop if loop is not None else Loop()
+        self._loop.add_reader(sock.fileno(), self._accept)
+        if self._own_loop:
+            self._loop.run_in_thread("nt-control")
         return True
 
-    def _serve(self) -> None:
-        assert self._sock is not None
-        while not self._stop.is_set():
-            try:
-                conn, _ = self._sock.accept()
-            except TimeoutError:
-                continue
-            except OSError:
-                return
-            if not self._clients.acquire(blocking=False):
-                log.warning("control socket: more than %d clients at once; one refused", MAX_CLIENTS)
-                with conn, contextlib.suppress(OSError):
-                    conn.settimeout(REQUEST_TIMEOUT_S)
-                    conn.sendall(json.dumps({"ok": False, "message": BUSY}).encode() + b"\n")
-                continue
-            threading.Thread(target=self._client, args=(conn,), name="nt-control-client", daemon=True).start()
-
-    def _client(self, conn: socket.socket) -> None:
-        """One client: read its request line (bounded in size and time), answer, close. A client
-        of another user is closed unanswered."""
+    def _accept(self) -> None:
+        """The loop: a client connected (one at each readiness; the others wake it again)."""
+        if self._sock is None:
+            return
         try:
-            with conn:
-                uid = peer_uid(conn)
-                if uid != os.getuid():
-                    log.warning("control socket: a process of another user (uid %d) connected; refused", uid)
-                    return
-                try:
-                    line = _read_line(conn, REQUEST_TIMEOUT_S)
-                except TimeoutError:
-                    log.warning("control socket: a client sent no request in %.0f s; dropped", REQUEST_TIMEOUT_S)
-                    return
-                answer = self._answer(line)
-                if not answer["ok"]:
-                    log.warning("control socket: request refused: %s", printable(answer["message"], 200))
-                conn.settimeout(ANSWER_TIMEOUT_S)
-                conn.sendall(json.dumps(answer).encode() + b"\n")
+            conn, _ = self._sock.accept()
+        except OSError:  # gone meanwhile, or nothing there after all
+            return
+        if len(self._clients) >= MAX_CLIENTS:
+            log.warning("control socket: more than %d clients at once; one refused", MAX_CLIENTS)
+            with conn, contextlib.suppress(OSError):
+                conn.setblocking(False)
+                conn.send(json.dumps({"ok": False, "message": BUSY}).encode() + b"\n")
+            return
+        try:
+            uid = peer_uid(conn)
+        except OSError:
+            conn.close()
+            return
+        if uid != os.getuid():
+            log.warning("control socket: a process of another user (uid %d) connected; refused", uid)
+            conn.close()
+            return
+        conn.setblocking(False)
+        fd = conn.fileno()
+        timer = self._loop.call_later(REQUEST_TIMEOUT_S, lambda: self._too_slow(fd))
+        self._clients[fd] = _Client(conn, timer)
+        self._loop.add_reader(fd, lambda: self._readable(fd))
+
+    def _too_slow(self, fd: int) -> None:
+        if fd in self._clients:
+            log.warning("control socket: a client sent no request in %.0f s; dropped", REQUEST_TIMEOUT_S)
+            self._drop(fd)
+
+    def _drop(self, fd: int) -> None:
+        client = self._clients.pop(fd, None)
+        if client is None:
+            return
+        client.timer.cancel()
+        self._loop.remove_reader(fd)
+        client.conn.close()
+
+    def _readable(self, fd: int) -> None:
+        """The loop: a client sent something: its line answered once complete (or once it is
+        longer than :data:`MAX_MESSAGE`, or the client closed its side)."""
+        client = self._clients.get(fd)
+        if client is None:
+            return
+        try:
+            chunk = client.conn.recv(MAX_MESSAGE)
+        except BlockingIOError:
+            return
         except OSError as exc:
             log.warning("control socket: %s", exc)
-        finally:
-            self._clients.release()
+            self._drop(fd)
+            return
+        client.data += chunk
+        if chunk and b"\n" not in client.data and len(client.data) <= MAX_MESSAGE:
+            return  # more to come
+        line = client.data.split(b"\n", 1)[0]
+        answer = self._answer(line if len(line) <= MAX_MESSAGE else None)
+        if not answer["ok"]:
+            log.warning("control socket: request refused: %s", printable(answer["message"], 200))
+        try:
+            client.conn.setblocking(True)
+            client.conn.settimeout(ANSWER_TIMEOUT_S)  # a line of at most MAX_MESSAGE: the socket takes it
+            client.conn.sendall(json.dumps(answer).encode() + b"\n")
+        except OSError as exc:
+            log.warning("control socket: %s", exc)
+        self._drop(fd)
 
     def _answer(self, line: bytes | None) -> dict:
         if line is None:
@@ -323,15 +365,30 @@ class ControlServer:
 
     def stop(self) -> None:
         """Stop serving and remove the socket file (if it is still ours)."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(2.0)
+        if self._loop is not None and self._sock is not None:
+            self._loop.call_and_wait(self._unwatch)
+        if self._own_loop and self._loop is not None:
+            self._loop.close()
         if self._sock is not None:
             self._sock.close()
             with contextlib.suppress(OSError):
                 if self.path is not None and os.stat(self.path).st_ino == self._inode:
                     self.path.unlink()
             self._sock = None
+
+    def _unwatch(self) -> None:
+        self._loop.remove_reader(self._sock.fileno())
+        for fd in list(self._clients):
+            self._drop(fd)
+
+
+@dataclass
+class _Client:
+    """A connected client: its socket, what it sent so far, its request's deadline (a timer)."""
+
+    conn: socket.socket
+    timer: Timer
+    data: bytes = b""
 
 
 @dataclass(frozen=True)

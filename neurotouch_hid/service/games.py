@@ -3,12 +3,7 @@ the running driver's watcher that switches to a game's profile while the game ru
 
 The map is ``games.yaml`` beside the user's profiles folder
 (``$XDG_CONFIG_HOME/neurotouch-hid/games.yaml``; ``neurotouch-hid profile auto add/remove`` edit
-it, comments kept)::
-
-    steam:           # Steam app id -> profile (Steam sets SteamAppId in a game's environment)
-      4242: mouse
-    executable:      # process name -> profile
-      supertuxkart: spacecraft
+it, comments kept): ``steam:`` maps a Steam app id, ``executable:`` a process name, to a profile.
 
 A game is recognised among the processes of the user running the driver (psutil reads
 ``/proc``): a Steam game by ``SteamAppId`` in its environment (every process Steam starts for a
@@ -17,11 +12,10 @@ file name of its executable or of its command line's first word: ``Game.exe`` un
 works the same on X11, Wayland and a console, without asking the desktop which window has focus.
 When several mapped games run, the one started last counts. A game a wrapper execs late is found.
 
-The watcher (:class:`GameProfiles`) polls every :data:`POLL_S`: when a mapped game starts, the
-driver switches to its profile by the same path as ``neurotouch-hid profile use`` (every output
-released and centred first); when the game exits, back to the profile it had before. A
-``profile use`` while a game runs wins until that game exits. ``games.yaml`` is read again when
-it changes, so ``profile auto add`` takes effect on a running driver.
+The watcher (:class:`GameProfiles`) polls every :data:`POLL_S`, a timer on the run's loop: when a
+mapped game starts, the driver switches to its profile by the same path as ``profile use`` (every
+output released and centred first); when it exits, back to the profile it had before. A ``profile
+use`` while a game runs wins until that game exits. ``games.yaml`` is read again when it changes.
 """
 
 from __future__ import annotations
@@ -33,7 +27,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path, PureWindowsPath
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import psutil
 
@@ -49,6 +43,9 @@ from neurotouch_hid.core.limits import (
     short,
     where,
 )
+
+if TYPE_CHECKING:
+    from neurotouch_hid.engine.loop import Loop
 
 log = logging.getLogger(__name__)
 
@@ -476,7 +473,7 @@ class GameProfiles:
     """The running driver's profile per game (see the module's docstring).
 
     Args:
-        use: switches the driver (``Runtime.use_profile(ref, reason)``: loads ``ref``, releases
+        use: switches the driver (``Engine.use_profile(ref, reason)``: loads ``ref``, releases
             every output, maps with the new profile, logs the switch; raises NeurotouchError
             and changes nothing for a bad profile).
         profile: the profile the driver runs now (a name or path): the one it returns to.
@@ -495,19 +492,16 @@ class GameProfiles:
         scanner: ProcessScanner | None = None,
         on_game: Callable[[Game | None], None] | None = None,
     ):
-        self._use = use
+        self._use, self._on_game, self._poll_s = use, on_game, poll_s
         self._base = self._current = profile
         self._path = path if path is not None else games_file()
-        self._poll_s = poll_s
         self._scanner = scanner if scanner is not None else ProcessScanner()
-        self._on_game = on_game
-        self._map = GameMap({}, {})
-        self._map_stamp: tuple[int, int] | None = None
+        self._map, self._map_stamp = GameMap({}, {}), None  # the map, its file's (mtime ns, size)
         self._game: Game | None = None  # the game whose profile was asked for
         self._manual_during: tuple[str, int | str] | None = None  # a `profile use` while this game ran
-        self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._lock, self._stop = threading.Lock(), threading.Event()
+        self._loop: Loop | None = None  # where it polls (:meth:`start`), its own or not
+        self._own_loop, self._timer, self._failed = False, None, ""  # (the last failure logged)
 
     @property
     def game(self) -> Game | None:
@@ -572,24 +566,34 @@ class GameProfiles:
                     "%s, but profile %s could not be used: %s (staying on %s)", reason, target, exc, self._current
                 )
 
-    def _loop(self) -> None:
-        failed = ""  # the last failure logged: the same one again at the next polls is not
-        while not self._stop.wait(self._poll_s):
-            try:
-                self.poll()
-                failed = ""
-            except Exception as exc:  # the driver keeps running; profiles stay as they are
-                why = printable(f"{type(exc).__name__}: {exc}", 200)
-                if why != failed:
-                    log.error("profiles per game: looking at the processes failed: %s", why)
-                failed = why
+    def _tick(self) -> None:
+        """A poll (a failure logged once while it stays the same: profiles stay as they are), the
+        next one ``poll_s`` later on the loop, until :meth:`stop`."""
+        if self._stop.is_set():
+            return
+        try:
+            self.poll()
+            self._failed = ""
+        except Exception as exc:
+            why = printable(f"{type(exc).__name__}: {exc}", 200)
+            if why != self._failed:
+                log.error("profiles per game: looking at the processes failed: %s", why)
+            self._failed = why
+        self._timer = None if self._stop.is_set() else self._loop.call_later(self._poll_s, self._tick)
 
-    def start(self) -> None:
-        """Poll in a thread until :meth:`stop`."""
-        self._thread = threading.Thread(target=self._loop, name="nt-games", daemon=True)
-        self._thread.start()
+    def start(self, loop: Loop | None = None) -> None:
+        """Poll every ``poll_s`` until :meth:`stop`: a timer on ``loop`` (the run's, no thread of
+        its own), else on a loop of its own in a thread."""
+        from neurotouch_hid.engine.loop import Loop
+
+        self._own_loop, self._loop = loop is None, loop if loop is not None else Loop()
+        self._timer = self._loop.call_later(self._poll_s, self._tick)
+        if self._own_loop:
+            self._loop.run_in_thread("nt-games")
 
     def stop(self) -> None:
         self._stop.set()
-        if self._thread is not None:
-            self._thread.join(2.0)
+        if self._timer is not None:
+            self._timer.cancel()
+        if self._own_loop:
+            self._loop.close()

@@ -12,12 +12,20 @@ from typing import TYPE_CHECKING, Iterator, Protocol
 
 if TYPE_CHECKING:
     from neurotouch_hid.core.stats import RunStats
+    from neurotouch_hid.engine.loop import Loop
 
 
 class Switchable(Protocol):
-    """What the services ask of a run (:class:`~neurotouch_hid.engine.engine.Engine`)."""
+    """What the services ask of a run (:class:`~neurotouch_hid.engine.engine.Engine`).
+
+    Attributes:
+        stats: the run's counters (the game followed).
+        loop: where the services wait (:class:`~neurotouch_hid.engine.loop.Loop`): the run's
+            main thread serves it.
+    """
 
     stats: RunStats
+    loop: Loop
 
     @property
     def profile_name(self) -> str:
@@ -35,8 +43,9 @@ def served(
     control.socket_path` of the camera ``serial``: its own socket) and, with ``games`` and a
     ``profile_ref`` to come back to (the profile the run started with), the games watcher on the
     camera's games.yaml (:func:`~neurotouch_hid.service.serials.sensor_file`; else the shared one).
-    Each is stopped on the way out. A control socket that cannot be made is logged (the run goes
-    on without it: :meth:`~neurotouch_hid.service.control.ControlServer.start`)."""
+    Both wait on the run's loop (no thread of their own); each is stopped on the way out. A
+    control socket that cannot be made is logged (the run goes on without it:
+    :meth:`~neurotouch_hid.service.control.ControlServer.start`)."""
     from neurotouch_hid.service.control import ControlServer, socket_path
 
     watcher = None
@@ -50,13 +59,13 @@ def served(
 
             path = sensor_file(serial, "games", games_file())
             watcher = GameProfiles(run.use_profile, str(profile_ref), path=path, on_game=follow)
-            watcher.start()
+            watcher.start(run.loop)
             stack.callback(watcher.stop)
         server = ControlServer(
             watcher.manual_use if watcher is not None else run.use_profile,
             socket_path(serial),
             status=lambda: f"profile {run.profile_name}",
         )
-        server.start()
+        server.start(run.loop)
         stack.callback(server.stop)
         yield

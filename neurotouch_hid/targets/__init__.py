@@ -6,13 +6,13 @@ UHID device, a USB gadget's function, ...); :class:`TargetOutputs` is the one
 window's changed state goes to every target (each writes only what changed for it), a profile
 switch neutralises and prepares them all, and :meth:`TargetOutputs.close` sends every target its
 neutral report before any is removed, releasing each even when another fails. What games and
-hosts send back (rumble, player LEDs: :class:`~neurotouch_hid.core.stages.Feedback`) is read by one
-thread that sleeps in ``select`` on the targets' :meth:`~neurotouch_hid.core.stages.Target.fileno`
-and a wake-up pipe, so nothing runs at rest (a target whose device is made later, the uinput pad
-when a profile first drives it, is watched from its :meth:`~neurotouch_hid.core.stages.Target.prepare`
-on), is told to the user (the gel has no motor, no LED) and is forwarded (the merged pads'
-rumble). The wire formats are :mod:`neurotouch_hid.targets.reports`; docs/architecture.md,
-"Targets and inputs".
+hosts send back (rumble, player LEDs: :class:`~neurotouch_hid.core.stages.Feedback`) is read on the
+run's loop (:class:`~neurotouch_hid.engine.loop.Loop`, which sleeps in ``select`` on the targets'
+:meth:`~neurotouch_hid.core.stages.Target.fileno` among the run's other descriptors, so nothing runs
+at rest; a target whose device is made later, the uinput pad when a profile first drives it, is
+watched from its :meth:`~neurotouch_hid.core.stages.Target.prepare` on), is told to the user (the
+gel has no motor, no LED) and is forwarded (the merged pads' rumble). The wire formats are
+:mod:`neurotouch_hid.targets.reports`; docs/architecture.md, "Targets and inputs".
 """
 
 from __future__ import annotations
@@ -20,8 +20,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import logging
-import os
-import selectors
 import threading
 import time
 from typing import TYPE_CHECKING, Callable, Iterable
@@ -30,6 +28,7 @@ from neurotouch_hid.core.controller import ControllerState, Feedback
 
 if TYPE_CHECKING:
     from neurotouch_hid.core.stages import Target, WindowRecord
+    from neurotouch_hid.engine.loop import Loop
     from neurotouch_hid.mapping.profile import Profile
 
 log = logging.getLogger(__name__)
@@ -108,7 +107,10 @@ class TargetOutputs:
         say: one line for the user per feedback (:func:`describe_feedback`; of one source at most
             one per :data:`FEEDBACK_REPEAT_S`, :class:`FeedbackLines`); default: the log.
         forward: called with every :class:`~neurotouch_hid.core.stages.Feedback` too (e.g. the merged
-            pads' rumble, :meth:`~neurotouch_hid.core.stages.Merge.feedback`), from the feedback thread.
+            pads' rumble, :meth:`~neurotouch_hid.core.stages.Merge.feedback`), in the loop's thread.
+        loop: where the targets' readable sides wait (the driver's
+            :class:`~neurotouch_hid.engine.loop.Loop`, served by the run's main thread); None: a
+            loop of its own, in a thread (``nt-feedback``).
 
     Thread-safe: :meth:`close` may come from a signal handler's thread while :meth:`write` runs.
     """
@@ -122,22 +124,25 @@ class TargetOutputs:
         *,
         say: Callable[[str], None] | None = None,
         forward: Callable[[Feedback], None] | None = None,
+        loop: Loop | None = None,
     ) -> None:
+        from neurotouch_hid.engine.loop import Loop
+
         self.targets: list[Target] = list(targets)
         self.say = say or log.info
         self.forward = forward
         self.feedbacks = 0  # feedback values received (rumble, LED)
         self._lock = threading.RLock()
         self._closed = False
-        self._wake_r, self._wake_w = os.pipe()
-        self._thread = threading.Thread(target=self._read_feedback, name="nt-feedback", daemon=True)
+        self._own_loop = loop is None
+        self._loop = loop if loop is not None else Loop()
+        self._lines = FeedbackLines(self.say)
+        self._watched: dict[int, int] = {}  # target index -> its registered descriptor
+        self._given_up: set[int] = set()  # targets whose reading failed: no longer read
         try:
-            self._selector = selectors.DefaultSelector()
-            self._selector.register(self._wake_r, selectors.EVENT_READ, None)
-            self._watched: dict[int, int] = {}  # target index -> its registered descriptor
-            self._given_up: set[int] = set()  # targets whose reading failed: no longer read
             self._watch()
-            self._thread.start()
+            if self._own_loop:
+                self._loop.run_in_thread("nt-feedback")
         except BaseException:
             self.close()
             raise
@@ -167,21 +172,27 @@ class TargetOutputs:
         finally:
             with self._lock:
                 if not self._closed:
-                    os.write(self._wake_w, b"w")  # the feedback thread looks at the descriptors again
+                    self._loop.call_soon(self._watch)  # the loop looks at the descriptors again
 
     def _watch(self) -> None:
-        """Register each target's readable side, where it changed since the last look (feedback
-        thread, or the constructor before it starts)."""
+        """Register each target's readable side on the loop, where it changed since the last look
+        (the loop's thread, or the constructor before the loop serves it)."""
+        if self._closed:
+            return
         for index, target in enumerate(self.targets):
             fd = None if index in self._given_up else target.fileno()
             if self._watched.get(index) == fd:
                 continue
             if index in self._watched:
-                with contextlib.suppress(KeyError, ValueError, OSError):
-                    self._selector.unregister(self._watched.pop(index))
+                self._loop.remove_reader(self._watched.pop(index))
             if fd is not None:
-                self._selector.register(fd, selectors.EVENT_READ, target)
+                self._loop.add_reader(fd, lambda index=index: self._read_feedback(index))
                 self._watched[index] = fd
+
+    def _unwatch(self) -> None:
+        for fd in self._watched.values():
+            self._loop.remove_reader(fd)
+        self._watched.clear()
 
     def close(self) -> None:
         """Stop reading feedback, send every target its neutral report, then close each (neutral
@@ -191,15 +202,12 @@ class TargetOutputs:
             if self._closed:
                 return
             self._closed = True
-        os.write(self._wake_w, b"x")
-        if self._thread.is_alive() and self._thread is not threading.current_thread():
-            self._thread.join(1.0)
-        elif not self._thread.is_alive() and hasattr(self, "_selector"):
-            self._selector.close()  # never started, or already gone: closing again does nothing
+        with contextlib.suppress(Exception):  # (a loop already closed: nothing is watched)
+            self._loop.call_and_wait(self._unwatch)
+        if self._own_loop:
+            self._loop.close()
         errors = self._try_each(lambda target: target.neutralise())
         errors += self._try_each(lambda target: target.close())
-        for fd in (self._wake_r, self._wake_w):
-            os.close(fd)
         if errors:
             raise errors[0]
 
@@ -221,46 +229,31 @@ class TargetOutputs:
                 errors.append(exc)
         return errors
 
-    def _read_feedback(self) -> None:
-        """Thread: sleep in select until a target's side is readable (or the wake-up pipe: stop),
-        then let that target read it, and tell the user. A ``say`` or ``forward`` that fails is
-        logged: the thread goes on reading every target."""
-        lines = FeedbackLines(self.say)
-        while True:
+    def _read_feedback(self, index: int) -> None:
+        """The loop: target ``index``'s side is readable: let it read and answer what arrived, and
+        tell the user. A target whose reading fails is no longer read; a ``say`` or ``forward``
+        that fails is logged: the other targets must still be read."""
+        if self._closed:
+            return
+        target = self.targets[index]
+        try:
+            received = target.feedback()
+        except Exception as exc:  # one device's failure stops only its own feedback
+            log.warning("%s: reading what the host sent failed, no longer read: %s", target.what, exc)
+            self._loop.remove_reader(self._watched.pop(index))
+            self._given_up.add(index)
+            return
+        for feedback in received:  # a GET_REPORT, a driver binding: the targets must still be read
+            self.feedbacks += 1
             try:
-                ready = self._selector.select()
-            except (OSError, ValueError):  # closed under us
-                return
-            for key, _ in ready:
-                target: Target | None = key.data
-                if self._closed:
-                    self._selector.close()
-                    return
-                if target is None:  # woken: a target's descriptor may have changed
-                    with contextlib.suppress(OSError):
-                        os.read(self._wake_r, 64)
-                    self._watch()
-                    continue
+                self._lines.tell(feedback if feedback.source else dataclasses.replace(feedback, source=target.what))
+            except Exception as exc:
+                log.warning("%s: could not tell %s: %s", target.what, feedback, exc)
+            if self.forward is not None:
                 try:
-                    received = target.feedback()
-                except Exception as exc:  # one device's failure stops only its own feedback
-                    log.warning("%s: reading what the host sent failed, no longer read: %s", target.what, exc)
-                    self._selector.unregister(key.fd)
-                    index = next(i for i, fd in self._watched.items() if fd == key.fd)
-                    self._watched.pop(index)
-                    self._given_up.add(index)
-                    continue
-                for feedback in received:  # a GET_REPORT, a driver binding: the targets must still be read
-                    self.feedbacks += 1
-                    try:
-                        lines.tell(feedback if feedback.source else dataclasses.replace(feedback, source=target.what))
-                    except Exception as exc:
-                        log.warning("%s: could not tell %s: %s", target.what, feedback, exc)
-                    if self.forward is not None:
-                        try:
-                            self.forward(feedback)
-                        except Exception as exc:
-                            log.warning("%s: could not forward %s: %s", target.what, feedback, exc)
+                    self.forward(feedback)
+                except Exception as exc:
+                    log.warning("%s: could not forward %s: %s", target.what, feedback, exc)
 
     def __enter__(self) -> TargetOutputs:
         return self

@@ -459,11 +459,10 @@ class Scenario:
         held = guestlib.wait_for(lambda: ecodes.BTN_NORTH in pad.pressed, 10.0)
         details["merged_again"] = _pad(pad)
         assert regrabbed and held, details["merged_again"]
-        # at rest (no device sends anything, none comes or goes) the copilot's thread sleeps on its
-        # descriptors with no timeout: no polling, whatever the machine's speed
-        copilot = next(t for t in threading.enumerate() if t.name == "nt-copilot")
-        details["copilot_at_rest"] = guestlib.wait_for(lambda: guestlib.waits_without_timeout(copilot.native_id), 30.0)
-        assert details["copilot_at_rest"], Path(f"/proc/self/task/{copilot.native_id}/syscall").read_text()
+        # the copilot has no thread of its own: its devices wait on the run's one loop, which the
+        # main thread serves (no polling: only the games watcher's documented timer wakes it)
+        details["threads"] = sorted(t.name for t in threading.enumerate())
+        assert "nt-copilot" not in details["threads"] and "nt-feedback" not in details["threads"], details["threads"]
         details["steps_s"] = round(time.monotonic() - self.started, 1)
 
     def after(self) -> None:

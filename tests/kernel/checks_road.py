@@ -27,6 +27,7 @@ import errno
 import os
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -211,6 +212,9 @@ def _merged_press(output: str, protocol: str | None = None) -> dict:
         press(helper, (ecodes.EV_KEY, ecodes.BTN_SOUTH, 0))
         reader.pump(timeout_s=60.0, until=lambda r: button not in r.keys, max_s=120.0)
         seen["released"] = button not in reader.keys
+        # the run's own Python threads (those this check had before it aside), and the process's tasks
+        seen["threads"] = sorted({t.name for t in threading.enumerate()} - before - {threading.current_thread().name})
+        seen["tasks"] = len(os.listdir("/proc/self/task"))
         if side == "xinput":  # the host plays a rumble on the gel's pad (xpad: an OUT report to the gadget)
             rumble = ff.Rumble(strong_magnitude=0xC000, weak_magnitude=0x4000)
             effect = ff.Effect(
@@ -224,6 +228,7 @@ def _merged_press(output: str, protocol: str | None = None) -> dict:
             writer.close()
         run.stop(reader)
 
+    before = {t.name for t in threading.enumerate()}
     try:
         run(steps)
     finally:
@@ -235,7 +240,9 @@ def _merged_press(output: str, protocol: str | None = None) -> dict:
     assert seen["gel_x"] > 0, f"{side}: the gel's push never reached the host: {run.said[-5:]}"
     assert seen["pressed"], f"{side}: the helper's press never reached the host: {run.said[-5:]}"
     assert seen["released"], f"{side}: the helper's release never reached the host"
-    result = {"said": run.said[-6:]}
+    if side == "hid":  # the main thread (the loop), the source's, the pipeline's, at most the resting detector's
+        assert set(seen["threads"]) <= {"nt-source", "nt-pipeline", "nt-resting"}, seen["threads"]
+    result = {"said": run.said[-6:], "threads": seen["threads"], "tasks": seen["tasks"]}
     if side == "xinput":
         assert seen["played"], f"the host's rumble never reached the helper's pad: {answerer.seen} {run.said[-8:]}"
         strong = [s[2] for s in seen["uploads"] if s[1] == ecodes.FF_RUMBLE]
