@@ -148,4 +148,5 @@ def test_two_cameras_on_one_board_give_one_host_two_pads_each_driven_by_its_own_
     assert left["phys"].endswith("/input0") and right["phys"].endswith("/input1")
     assert left["uniq"] == right["uniq"] == "LEFT1-RIGHT1"  # one USB device: its serial names both cameras
     assert details["left_after_stop"] == details["right_after_stop"] == {"x": 0, "keys": []}
-    assert details["right_pushes_after_left_stopped"] >= 2
+    assert details["right_pushes_after_left_stopped"] >= 2 and details["right_running_after_left_exited"]
+    assert details["left_result"]["exit"] == details["right_result"]["exit"] == 0

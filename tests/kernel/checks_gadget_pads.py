@@ -5,7 +5,8 @@ pad by their serial. The same kernel's host side sees two joysticks, told apart 
 interface (phys ``.../input0``, ``.../input1``; one USB device: the same name and serial), each
 driven by its own gel: LEFT1's holds a push (stick right, button 1 down), RIGHT1's pushes and
 rests again and again, and LEFT1's pad never lets go meanwhile. SIGTERM to LEFT1's driver: its pad
-is left centred, nothing pressed; RIGHT1's driver runs on and its pad keeps moving.
+is left centred, nothing pressed; RIGHT1's pad keeps moving meanwhile, and its driver still runs
+once LEFT1's has exited (0).
 
 Run by tests/kernel/guest.py inside qemu after checks_gadget.py (whose kernel set-up it uses);
 asserted on by tests/test_gadget_kernel.py. Each driver is ``run_driver`` (what `neurotouch-hid
@@ -38,6 +39,10 @@ LEFT, RIGHT = "LEFT1", "RIGHT1"
 HID_IDS = (PROTOCOLS["hid"].vendor, PROTOCOLS["hid"].product)
 #: ABS_X of the push held at 6 mm, the profile's saturation: the joystick's signed 16-bit maximum.
 FULL_RIGHT = 32767
+#: How long each gel's predictions last (s): a minute, several times what the check needs once
+#: both drivers run; no more, since each run reads its whole file before it starts, which costs
+#: guest time in proportion (tests/kernel/README.md, checks_gadget_ffs.py's DualSense).
+GEL_S = 60.0
 #: How long the two joysticks' first reports may take after the drivers are forked (s).
 WAIT_S = 120.0
 
@@ -101,10 +106,12 @@ def _start(preds: Path, profile: Path, serial: str) -> tuple[int, int]:
     return child, read_fd
 
 
-def _end(pid: int, fd: int, timeout_s: float = 60.0) -> dict:
-    """SIGTERM to the child, then its answer and exit code (killed after ``timeout_s``)."""
+def _end(pid: int, fd: int, timeout_s: float = 60.0, term: bool = True) -> dict:
+    """SIGTERM to the child (``term``: not when it was sent one already), then its answer and
+    exit code (killed after ``timeout_s``)."""
     try:
-        os.kill(pid, signal.SIGTERM)
+        if term:
+            os.kill(pid, signal.SIGTERM)
     except ProcessLookupError:
         pass
     chunks, end = [], time.monotonic() + timeout_s
@@ -164,10 +171,16 @@ def check_usb_two_cameras_two_pads() -> dict:
     runs: dict[str, tuple[int, int]] = {}
     readers: dict[str, guestlib.EventReader] = {}
     details: dict = {"setup": out.strip().splitlines(), "functions": functions}
+    phases = details["phases_s"] = {"set_up": round(time.monotonic() - t0, 1)}  # where the guest's time goes
+
+    def mark(name: str) -> None:
+        phases[name] = round(time.monotonic() - t0, 1)
+
     try:
-        for serial, (pushes, push_s, rest_s) in ((LEFT, (1, 300.0, 1.0)), (RIGHT, (150, 0.5, 0.5))):
+        for serial, (pushes, push_s, rest_s) in ((LEFT, (1, GEL_S, 1.0)), (RIGHT, (int(GEL_S / 0.8), 0.2, 0.3))):
             (folder / serial).mkdir()
             runs[serial] = _start(_preds(folder / serial, pushes, push_s, rest_s), profile, serial)
+        mark("forked")
         nodes = guestlib.wait_for(lambda: _joysticks() if len(_joysticks()) == 2 else None, 30.0)
         assert nodes and sorted(nodes) == ["input0", "input1"], f"the host's joysticks: {nodes}"
         for serial, interface in ((LEFT, "input0"), (RIGHT, "input1")):  # the gadget's pads in the serials' order
@@ -180,6 +193,7 @@ def check_usb_two_cameras_two_pads() -> dict:
         left.pump(timeout_s=WAIT_S, until=held, max_s=WAIT_S)
         assert held(left), f"LEFT1's held push: {left.axes}, {left.keys}"
         details["left_held_after_s"] = round(time.monotonic() - t_fork, 1)
+        mark("left_held")
         held_from = len(left.reports)
         right.pump(timeout_s=WAIT_S, until=lambda r: _pushes(r) >= 3, max_s=WAIT_S)
         assert _pushes(right) >= 3, f"RIGHT1's pushes: {right.reports[-5:]}"
@@ -188,13 +202,19 @@ def check_usb_two_cameras_two_pads() -> dict:
         assert not let_go and left.keys, f"LEFT1's pad let go while RIGHT1 pushed: {let_go}"
         details["right_pushes_while_left_held"] = _pushes(right)
 
-        details["left_result"] = _end(*runs.pop(LEFT))
+        mark("right_pushed")
+        os.kill(runs[LEFT][0], signal.SIGTERM)  # its driver ends while RIGHT1's pushes on
         left.pump(timeout_s=2.0, until=lambda r: not r.keys and r.axes.get(ecodes.ABS_X) == 0, max_s=30.0)
         details["left_after_stop"] = {"x": left.axes.get(ecodes.ABS_X), "keys": sorted(left.keys)}
         before = _pushes(right)
         right.pump(timeout_s=5.0, until=lambda r: _pushes(r) >= before + 2, max_s=30.0)
         details["right_pushes_after_left_stopped"] = _pushes(right) - before
+        mark("right_pushed_after_left_stop")
+        details["left_result"] = _end(*runs.pop(LEFT), term=False)
+        mark("left_exited")
+        details["right_running_after_left_exited"] = os.waitpid(runs[RIGHT][0], os.WNOHANG)[0] == 0
         details["right_result"] = _end(*runs.pop(RIGHT))
+        mark("right_exited")
         right.pump(timeout_s=2.0, until=lambda r: not r.keys and r.axes.get(ecodes.ABS_X) == 0, max_s=30.0)
         details["right_after_stop"] = {"x": right.axes.get(ecodes.ABS_X), "keys": sorted(right.keys)}
     finally:
@@ -207,6 +227,7 @@ def check_usb_two_cameras_two_pads() -> dict:
         assert result["ok"] and result["exit"] == 0, f"{serial}'s driver: {result}"
     assert details["left_after_stop"] == {"x": 0, "keys": []}, details["left_after_stop"]
     assert details["right_pushes_after_left_stopped"] >= 2, "RIGHT1's pad stopped moving when LEFT1's driver ended"
+    assert details["right_running_after_left_exited"], "RIGHT1's driver ended with LEFT1's"
     assert details["right_after_stop"] == {"x": 0, "keys": []}, details["right_after_stop"]
     assert details[LEFT]["phys"] != details[RIGHT]["phys"]
     details["seconds"] = round(time.monotonic() - t0, 1)
