@@ -8,6 +8,8 @@ answers are checked in tests/test_uhid_kernel.py."""
 from __future__ import annotations
 
 import errno
+import os
+import select
 import socket
 import struct
 
@@ -180,6 +182,24 @@ class FakeClock:
         self.slept += seconds
 
 
+class _KernelWrites:
+    """``os`` for the device, whose writes wait for the test's end to read: /dev/uhid takes every
+    write at once, but the socket pair's peer queue holds about ten messages
+    (net.unix.max_dgram_qlen), so a flood's replies written faster than the test's reader thread
+    is scheduled would fail with EAGAIN where the kernel never refuses one."""
+
+    def __getattr__(self, name: str):
+        return getattr(os, name)
+
+    @staticmethod
+    def write(fd: int, data: bytes) -> int:
+        while True:
+            try:
+                return os.write(fd, data)
+            except BlockingIOError:
+                select.select([], [fd], [], 5.0)
+
+
 @pytest.fixture
 def clocked(monkeypatch):
     """A device on a fake kernel whose clock moves only when it sleeps."""
@@ -190,6 +210,7 @@ def clocked(monkeypatch):
     clock = FakeClock()
     fake = types.SimpleNamespace(monotonic=clock.monotonic, sleep=clock.sleep, thread_time=clock.thread_time)
     monkeypatch.setattr(uhid, "time", fake)
+    monkeypatch.setattr(uhid, "os", _KernelWrites())
     made = Kernel()
     made.clock = clock
     yield made
