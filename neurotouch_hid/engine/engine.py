@@ -26,6 +26,9 @@ clean stop (``run`` returns normally, the CLI exits 0); SIGHUP reloads the profi
 (a bad profile keeps the old one and logs why); SIGTSTP (Ctrl-Z) releases every output before the
 process stops, and SIGCONT resumes from a neutral state (:meth:`Engine.suspend`). The control
 socket and the games watcher (``service/``) are the driver's: they call :meth:`Engine.use_profile`.
+During the run the main thread serves the run's one loop (:class:`~neurotouch_hid.engine.loop.Loop`:
+the signals, the devices' feedback, the merged devices, the control socket, the games watcher's
+timer) until the pipeline's thread ends.
 """
 
 from __future__ import annotations

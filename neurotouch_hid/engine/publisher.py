@@ -5,9 +5,10 @@ Every call to a subscriber (``publish``, ``neutralise``, ``prepare``) goes throu
 :class:`Publisher`, under its one lock: the mapper, the state last written, the merged devices'
 input and every subscriber are its own. It is called by the thread that holds the engine's
 queue (the pipeline's thread, or the source's while the gel rests; never both at once:
-:meth:`~neurotouch_hid.engine.queue.DropOldestQueue.claim`), and for a profile switch, a merged
-device's input, a lost camera and Ctrl-Z by the thread that learns of them; the lock makes them
-one after the other, and a subscriber never sees two calls at once.
+:meth:`~neurotouch_hid.engine.queue.DropOldestQueue.claim`); for a profile switch, a merged
+device's input and Ctrl-Z by the run's main thread (its loop, ``engine/loop.py``), for a lost
+camera by the source's; the lock makes them one after the other, and a subscriber never sees two
+calls at once.
 
 At rest it skips what changes nothing: a resting window whose mapper rests at its fixed point
 (``Mapper.resting_state``) and whose state is the one last published is neither mapped nor
