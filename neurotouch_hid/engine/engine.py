@@ -147,7 +147,7 @@ class Engine:
             subscribers,
             profile,
             options.mapper_factory(profile),
-            lambda: self.profile_name,
+            str(options.profile_ref) if options.profile_ref is not None else "(given)",
             self._pipeline,
             self.stats,
             self._stop,
@@ -182,7 +182,7 @@ class Engine:
     @property
     def profile_name(self) -> str:
         """The profile in use as the user named it (name or path), for display."""
-        return str(self._profile_ref) if self._profile_ref is not None else "(given)"
+        return self.publisher.profile_name
 
     @property
     def busy(self) -> bool:
@@ -198,11 +198,11 @@ class Engine:
         self._frames.close()
         self.loop.wake()
 
-    def switch_profile(self, profile: Profile) -> None:
-        """Neutralise every subscriber, then map with ``profile`` from the next window on. The
-        output devices are kept; a keyboard or mouse the new profile needs is made
-        (``prepare(profile)``). The old profile's merged devices are released, the new one's
-        grabbed.
+    def switch_profile(self, profile: Profile, name: str | None = None) -> None:
+        """Neutralise every subscriber, then map with ``profile`` (named ``name`` from now on;
+        None: the name stays) from the next window on. The output devices are kept; a keyboard
+        or mouse the new profile needs is made (``prepare(profile)``). The old profile's merged
+        devices are released, the new one's grabbed.
 
         Raises:
             NeurotouchError: the run is stopping or over: nothing is switched.
@@ -212,7 +212,7 @@ class Engine:
         with self._switching:
             self._switch_merge(profile)
             wait = self._type_wait(profile)  # its probe (~0.1 s) outside the lock the worker maps under
-            self.publisher.switch(profile, self.options.mapper_factory(profile))
+            self.publisher.switch(profile, self.options.mapper_factory(profile), name)
             self._set_type_wait(wait)
 
     @staticmethod
@@ -249,8 +249,8 @@ class Engine:
         the log (with ``reason``, e.g. the game that started). Raises ProfileError (nothing
         changes) for a missing or invalid profile."""
         profile = self.options.profile_loader(ref)
-        self.switch_profile(profile)
-        self._profile_ref = ref
+        self.switch_profile(profile, str(ref))
+        self._profile_ref = ref  # (the loop's thread only: reloaded on SIGHUP)
         self.stats.profile = str(ref)
         line = f"switched to profile {ref}" + (f" ({reason})" if reason else "")
         log.warning("%s", line)

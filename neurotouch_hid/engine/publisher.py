@@ -75,7 +75,7 @@ class Publisher:
         subscribers: who reads the run (:class:`~neurotouch_hid.core.stages.Subscriber`); not closed
             here (their owner does).
         profile: the profile mapping now; ``mapper`` its mapper.
-        profile_name: the profile's name as the user gave it, asked at each record.
+        profile_name: the profile's name as the user gave it (:attr:`profile_name`).
         pipeline: asked for its markers when a subscriber draws them.
         stats: the run's counters (``states_written``, the copilot's devices).
         stopped: set when the run stops: nothing is published from then on.
@@ -90,7 +90,7 @@ class Publisher:
         subscribers: Sequence[Subscriber],
         profile: Profile,
         mapper: Mapper,
-        profile_name: Callable[[], str],
+        profile_name: str,
         pipeline: Pipeline,
         stats: RunStats,
         stopped: threading.Event,
@@ -105,7 +105,7 @@ class Publisher:
         self._lock = threading.Lock()
         self.profile = profile
         self._mapper = mapper
-        self._profile_name = profile_name
+        self._profile_name = profile_name  # (under the lock: a switch from another thread renames it)
         self._pipeline = pipeline
         self._stats = stats
         self._stopped = stopped
@@ -187,7 +187,7 @@ class Publisher:
                 state_changed=state_changed,
                 gesture_changed=estimate.gesture != self._last_gesture,
                 profile=self.profile,
-                profile_name=self._profile_name(),
+                profile_name=self._profile_name,
                 sensor=self._sensor,
                 markers=self._pipeline.markers() if self._wants_markers else None,
                 performed=self._performed_at(estimate.t_us) if self._labelled else None,
@@ -246,7 +246,7 @@ class Publisher:
             state_changed=False,
             gesture_changed=False,
             profile=self.profile,
-            profile_name=self._profile_name(),
+            profile_name=self._profile_name,
             sensor=self._sensor,
             markers=None,
             performed=None,
@@ -281,15 +281,24 @@ class Publisher:
         self._last_record = None  # a merged device's input waits for the next window's record
         self._last_gesture = None
 
-    def switch(self, profile: Profile, mapper: Mapper) -> None:
+    @property
+    def profile_name(self) -> str:
+        """The profile in use as the user named it, for display."""
+        with self._lock:
+            return self._profile_name
+
+    def switch(self, profile: Profile, mapper: Mapper, name: str | None = None) -> None:
         """Every subscriber neutral, then prepared for ``profile`` (e.g. a keyboard it uses made),
-        which ``mapper`` maps from the next window on."""
+        which ``mapper`` maps from the next window on; ``name``: its name as the user gave it
+        (None: the name stays)."""
         with self._lock:
             self._neutralise()
             for subscriber in self._subscribers:
                 subscriber.prepare(profile)
             self._mapper = mapper
             self.profile = profile
+            if name is not None:
+                self._profile_name = name
             self._forget_state()
 
     def lost(self) -> None:
