@@ -80,7 +80,7 @@ def _pad_on(root):
     pad._configured, pad._generation = False, 0
     pad.connected, pad._lock, pad._pending = threading.Event(), threading.Lock(), []
     pad._wake_r, pad._wake_w = os.pipe()
-    pad._reader, pad._can_interrupt = None, gadgetfs._install_interrupt()
+    pad._reader, pad._reading, pad._can_interrupt = None, False, gadgetfs._install_interrupt()
     pad._writer = types.SimpleNamespace(writing=False, thread_id=None)
     return pad
 
@@ -105,10 +105,20 @@ def test_the_endpoints_are_enabled_in_place_of_dev_null_and_put_back_when_the_co
     assert tag_and_descriptors == b"\x01\0\0\0" + bytes.fromhex("0705810320000407058103200006")
     pad._enable()  # SET_CONFIGURATION again, no reset between: kept as it is
     assert os.fstat(pad._in).st_ino == (tmp_path / "ep1in-bulk").stat().st_ino
-    assert pad._reader.is_alive()  # blocked in its read: nothing comes
+    import fcntl
+    import termios
+
+    from helpers import wait_until
+
+    def waiting() -> bool:  # the tag and descriptors written to the FIFO read, the next read begun
+        left = fcntl.ioctl(writer, termios.FIONREAD, b"\0\0\0\0")
+        return pad._reading and int.from_bytes(left, "little") == 0
+
+    assert wait_until(waiting, 5.0)  # blocked in its read: nothing more comes
     pad._disable()
     assert not pad.connected.is_set() and (pad._in, pad._out) == numbers
     assert all(os.fstat(fd).st_rdev == null.st_rdev for fd in numbers)
+    pad._reader.join(5.0)
     assert not pad._reader.is_alive()
     os.close(writer)
 

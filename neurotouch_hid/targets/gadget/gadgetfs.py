@@ -168,6 +168,7 @@ class GadgetFsXInputTarget(_ReportTarget):
         self._configured = False
         self._generation = 0  # one more at each configuration and at each end of one
         self._reader: threading.Thread | None = None
+        self._reading = False  # the reader is in a read (so alive: a signal finds it)
         self._can_interrupt = _install_interrupt()
         self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
         self._stop_r, self._stop_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
@@ -263,7 +264,7 @@ class GadgetFsXInputTarget(_ReportTarget):
         stay in one (then closing the UDC's file may hang)."""
         deadline = time.monotonic() + UNBLOCK_S
         while True:
-            busy = [self._reader.ident] if self._reader is not None and self._reader.is_alive() else []
+            busy = [self._reader.ident] if self._reader is not None and self._reading else []
             busy += [self._writer.thread_id] if self._writer.writing else []
             if not busy:
                 return
@@ -346,11 +347,14 @@ class GadgetFsXInputTarget(_ReportTarget):
         from neurotouch_hid.targets.reports.xinput import parse_output
 
         while not self._closed and generation == self._generation:
+            self._reading = True
             try:
                 data = os.read(self._out, PACKET)
             except OSError as exc:
                 log.debug("%s: OUT endpoint: %s", self.what, exc)
                 return
+            finally:
+                self._reading = False
             if generation != self._generation:
                 return  # /dev/null's end of file, or the last report of an ended configuration
             request = parse_output(data, self.what) if data else None
