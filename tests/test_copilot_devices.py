@@ -318,7 +318,7 @@ def test_close_and_stop_never_raise_and_always_let_the_device_go(rig):
     copilot = rig.copilot()
     copilot.start(lambda: None)
     copilot.feedback(Feedback("rumble", strong=1.0, duration_ms=300))
-    assert pad.written == [(ecodes.EV_FF, 0, 1)]
+    assert wait_until(lambda: pad.written == [(ecodes.EV_FF, 0, 1)], HANG_S)  # written off the loop
     pad.read_only = True
     copilot.stop()
     assert not pad.grabbed and pad.closed == 1
@@ -533,6 +533,43 @@ def test_a_merged_pad_that_never_takes_an_effect_does_not_hold_up_the_games_rumb
         copilot.stop()
 
 
+def test_a_merged_pad_that_never_takes_an_effect_does_not_stop_the_runs_loop(rig, monkeypatch):
+    """As in a run: the copilot waits on the run's one loop, which also answers the game's uploads
+    on the gel's pad. The merged pad's EVIOCSFF blocks (a uinput device whose owner never
+    answers, up to uinput's 30 s): the loop must go on serving meanwhile, or the game's next upload
+    on the gel's pad waits for that pad."""
+    import threading
+
+    rig.add("Helper Pad", "event3", _rumbler())
+    loop = Loop()
+    loop.run_in_thread("test-run-loop")
+    copilot = rig.copilot(loop=loop)
+    copilot.start(lambda: None)
+    stuck, entered = threading.Event(), threading.Event()
+
+    def never_answers(fd, request, arg, mutate=False):
+        entered.set()
+        stuck.wait()  # until the test ends
+        return rig.ioctl(fd, request, arg, mutate)
+
+    monkeypatch.setattr(device_module.fcntl, "ioctl", never_answers)
+    relay = FeedbackRelay(hide=False, loop=loop)
+    relay.merge = copilot
+    answered = threading.Event()
+    try:
+        relay(Feedback("rumble", strong=0.5, duration_ms=100, effect=0))
+        assert wait_until(entered.is_set, HANG_S)  # the merged pad's EVIOCSFF is under way
+        loop.call_soon(answered.set)  # the gel's pad's next upload, answered on the same loop
+        assert wait_until(answered.is_set, HANG_S)
+        relay(Feedback("rumble", strong=0.9, duration_ms=100, effect=0))  # and the game goes on
+        loop.call_soon(answered.clear)
+        assert wait_until(lambda: not answered.is_set(), HANG_S)
+    finally:
+        stuck.set()
+        copilot.stop()
+        loop.close()
+
+
 def test_when_a_short_effect_ends_the_longer_ones_magnitudes_are_played(rig):
     """A short strong effect over a weak one that plays until stopped: when the short one ends,
     the helper's pad is given the weak one's magnitudes (it does not go on at the strong one's)."""
@@ -542,6 +579,7 @@ def test_when_a_short_effect_ends_the_longer_ones_magnitudes_are_played(rig):
     try:
         copilot.feedback(Feedback("rumble", weak=0.5, effect=0))
         copilot.feedback(Feedback("rumble", strong=1.0, duration_ms=30, effect=1))
+        assert wait_until(lambda: len(rig.uploads()) >= 2, HANG_S)  # written off the loop, in order
         assert [upload[1:] for upload in rig.uploads()[:2]] == [(0, 0x8000, 0), (0xFFFF, 0x8000, 0)]
         assert wait_until(lambda: rig.uploads()[-1][1:] == (0, 0x8000, 0) and len(rig.uploads()) == 3, HANG_S)
         assert pad.written[-1] == (ecodes.EV_FF, 0, 1)
@@ -558,7 +596,7 @@ def test_a_helper_pad_that_joins_while_an_effect_plays_is_given_it(rig):
     copilot.start(lambda: None)
     try:
         copilot.feedback(Feedback("rumble", strong=0.25, effect=0))
-        assert first.written == [(ecodes.EV_FF, 0, 1)]
+        assert wait_until(lambda: first.written == [(ecodes.EV_FF, 0, 1)], HANG_S)
         first.unplug()
         assert wait_until(lambda: copilot.status() == ((), ("Helper Pad",)), HANG_S)
         (rig.dev / "event3").unlink()

@@ -31,6 +31,7 @@ Library: inotify_simple (inotify(7)); python-evdev for the devices.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import errno
 import logging
@@ -110,6 +111,7 @@ class Copilot:
         self._rumble_lock = threading.Lock()
         self._effects: dict[int | None, _Effect] = {}  # the effects playing, by the sender's id
         self._rumbling: _Effect | None = None  # what the merged pads were given last
+        self._senders: dict[int, _RumbleSender] = {}  # each merged device's, by id(device)
 
     # --- the Merge seam ------------------------------------------------------------------------
     def grab(self) -> None:
@@ -196,6 +198,9 @@ class Copilot:
             if self._own_loop:
                 loop.close()
         self._started = False
+        deadline = time.monotonic() + _RumbleSender.SETTLE_S
+        for sender in list(self._senders.values()):  # the last rumble written before the stop
+            sender.settle(deadline)
         with self._lock:
             for i, device in enumerate(self._open):
                 if device is not None:
@@ -422,10 +427,10 @@ class Copilot:
         with self._lock:
             targets = [d for d in self._open if d is not None and d.can_rumble]
         for device in targets:
-            try:
-                device.rumble(request)
-            except Exception as exc:  # OSError from the kernel; whatever else, the game's request stands
-                log.warning("could not rumble %s: %s", device.spec.device, exc)
+            sender = self._senders.get(id(device))
+            if sender is None or sender.device is not device:
+                sender = self._senders[id(device)] = _RumbleSender(device)
+            sender.send(request)
 
     def _nudge(self) -> None:
         """Set the loop's timer again (an effect's end came sooner), in the loop's thread."""
@@ -434,9 +439,63 @@ class Copilot:
 
     def _let_go(self, device: MergedInput) -> None:
         """Release and close ``device``, then put its hidden nodes back (a gone device's are removed)."""
+        self._senders.pop(id(device), None)
         device.close()
         if self._hider is not None:
             self._hider.restore(device.info.path)
+
+
+class _RumbleSender:
+    """One merged device's rumble, written off the loop.
+
+    EVIOCSFF on a device made by uinput returns only once its owner has answered the upload, up
+    to uinput's 30 s time-out (drivers/input/misc/uinput.c, ``uinput_request_send``): written on
+    the run's one loop, a merged pad that never answers would hold up everything the loop serves,
+    the gel's pad's own uploads from the game among them. A thread writes the request while one
+    is pending and ends when none is: none at rest, at most one per device. Requests are written in
+    order; while one is written at most :data:`PENDING` more wait, the oldest dropped first (a pad
+    that never answers keeps only the latest magnitudes, which are what counts).
+    """
+
+    PENDING = 4
+    #: How long a stop waits for the requests under way (s): a pad that answers takes
+    #: milliseconds; one that never answers is let go without them.
+    SETTLE_S = 1.0
+
+    def __init__(self, device: MergedInput) -> None:
+        self.device = device
+        self._lock = threading.Lock()
+        self._pending: collections.deque[Feedback] = collections.deque(maxlen=self.PENDING)
+        self._busy = False
+        self._idle = threading.Condition(self._lock)  # notified when the writer ends
+
+    def send(self, request: Feedback) -> None:
+        """Write ``request`` (:meth:`~neurotouch_hid.inputs.device.MergedInput.rumble`) soon, in
+        this device's writer thread; returns at once."""
+        with self._lock:
+            self._pending.append(request)
+            if self._busy:
+                return
+            self._busy = True
+        threading.Thread(target=self._write, name="nt-rumble", daemon=True).start()
+
+    def settle(self, deadline: float) -> None:
+        """Wait until what was sent is written, or ``deadline`` (``time.monotonic()``) has come."""
+        with self._idle:
+            self._idle.wait_for(lambda: not self._busy, max(deadline - time.monotonic(), 0.0))
+
+    def _write(self) -> None:
+        while True:
+            with self._lock:
+                if not self._pending:
+                    self._busy = False
+                    self._idle.notify_all()
+                    return
+                request = self._pending.popleft()
+            try:
+                self.device.rumble(request)
+            except Exception as exc:  # OSError from the kernel; whatever else, the game's request stands
+                log.warning("could not rumble %s: %s", self.device.spec.device, exc)
 
 
 class FeedbackRelay:
