@@ -427,6 +427,7 @@ class KeyReader:
         self._saved = termios.tcgetattr(self._fd)
         tty.setcbreak(self._fd)
         self._stop = threading.Event()
+        self._wake_r, self._wake_w = os.pipe()  # written by close(): the reader waits on no timer
         self._thread = threading.Thread(target=self._read, name="nt-keys", daemon=True)
         self._thread.start()
 
@@ -434,8 +435,8 @@ class KeyReader:
         import select
 
         while not self._stop.is_set():
-            ready, _, _ = select.select([self._fd], [], [], 0.1)
-            if not ready:
+            ready, _, _ = select.select([self._fd, self._wake_r], [], [])
+            if self._fd not in ready:
                 continue
             try:
                 if os.tcgetpgrp(self._fd) != os.getpgrp():  # sent to the background (Ctrl-Z, bg): not ours
@@ -453,8 +454,15 @@ class KeyReader:
         """Stop reading and restore the terminal's mode."""
         import termios
 
+        if self._stop.is_set():
+            return
         self._stop.set()
+        with contextlib.suppress(OSError):
+            os.write(self._wake_w, b"x")
         if threading.current_thread() is not self._thread:
             self._thread.join(1.0)
+        for fd in (self._wake_r, self._wake_w):
+            with contextlib.suppress(OSError):
+                os.close(fd)
         with contextlib.suppress(termios.error, OSError):
             termios.tcsetattr(self._fd, termios.TCSADRAIN, self._saved)
