@@ -229,8 +229,9 @@ class Merge(Protocol):
     """Devices merged into the gel's pad (a profile's ``copilot:``): read, grabbed, combined.
 
     The engine calls :meth:`merge` on each window's mapped state and publishes the result; the
-    merge calls the ``on_input`` it was started with (from its own thread, which sleeps in
-    ``select`` while no merged device sends anything) whenever a merged device's controls
+    merge calls the ``on_input`` it was started with (from the run's loop,
+    :class:`~neurotouch_hid.engine.loop.Loop`, which sleeps in ``select`` while no merged device
+    sends anything) whenever a merged device's controls
     changed, and the engine then publishes ``merge(last gel state)`` at once, so a helper's
     press never waits for the gel's next window."""
 
