@@ -317,11 +317,12 @@ def test_a_terminated_command_leaves_no_part_folder_and_dies_by_the_signal(tmp_p
     import signal
     import time
 
+    said = tmp_path.parent / f"{tmp_path.name}.stderr"  # what the command said, for a failure's message
     child = subprocess.Popen(
         [sys.executable, "-m", "neurotouch_hid.cli", "simulate", "--out", str(tmp_path / "ds"), "--preset", "paper"],
         env=dict(os.environ, PYTHONPATH=str(ROOT), HOME=str(tmp_path)),
         stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
+        stderr=said.open("w"),
     )
 
     def recording_size() -> int:  # the first sequence's recording in the hidden folder, as written
@@ -339,7 +340,7 @@ def test_a_terminated_command_leaves_no_part_folder_and_dies_by_the_signal(tmp_p
             seen = recording_size()
             time.sleep(0.2)
         child.send_signal(signal.Signals(signum))
-        assert child.wait(timeout=300) == -signum
+        assert child.wait(timeout=300) == -signum, said.read_text()[-3000:]
     finally:
         child.kill()
     assert sorted(p.name for p in tmp_path.iterdir() if p.name != ".cache") == [], list(tmp_path.iterdir())
