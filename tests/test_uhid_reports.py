@@ -180,6 +180,7 @@ class FakeClock:
     def sleep(self, seconds: float) -> None:
         self.now += seconds
         self.slept += seconds
+        self.longest = max(getattr(self, "longest", 0.0), seconds)
 
 
 class _KernelWrites:
@@ -282,6 +283,22 @@ def test_a_flood_of_get_reports_is_answered_every_one_in_order_at_a_bounded_rate
         (UHID_GET_REPORT_REPLY, n, 0) for n in range(count)
     ]
     assert count <= HOST_EVENTS_PER_S * clocked.clock.slept + EVENT_BATCH
+
+
+def test_no_call_sleeps_longer_than_the_loop_may_wait_whatever_the_flood(clocked):
+    """The device's feedback is read on the run's one loop, which serves the merged devices and the
+    control socket between two calls: the rate's and the CPU share's sleeps are cut into calls of
+    at most MAX_REST_S (a whole batch's 64 ms, or a rest of 0.5 s, held them up that long)."""
+    from neurotouch_hid.targets.uhid import HOST_CPU_SHARE, MAX_REST_S
+
+    clock = clocked.clock
+    clock.cpu_per_event, clock.events = 0.002, lambda: clocked.device.events
+    tail = struct.pack("<HB", 3, UHID_OUTPUT_REPORT)
+    events = [UHID_OUTPUT.to_bytes(4, "little") + bytes([2, i % 256, 0]).ljust(4096, b"\0") + tail for i in range(300)]
+    start_s = clock.now
+    _flood(clocked, events)
+    assert 0 < clock.longest <= MAX_REST_S <= 0.01  # what the loop's other fds may wait, at most
+    assert clock.thread_time() <= HOST_CPU_SHARE * (clock.now - start_s) + 64 * clock.cpu_per_event  # bound kept
 
 
 def test_a_host_at_a_games_pace_is_never_made_to_wait(clocked):

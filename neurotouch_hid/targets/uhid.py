@@ -112,12 +112,12 @@ PHYS = "neurotouch-hid/uhid"
 START_WAIT_S = 2.0
 #: Most events from the kernel the device handles a second (OUTPUT, GET_REPORT, SET_REPORT, ...): a
 #: game's rumble and a driver's requests are tens a second. A hidraw reader flooding it (output
-#: writes, HIDIOCGINPUT) is answered at this rate and no faster: the feedback thread sleeps
-#: meanwhile, a GET_REPORT's caller waits for its answer (the kernel holds one request at a time
-#: per device), and output reports beyond the kernel's queue (UHID_BUFSIZE, 32 events) are dropped
-#: by the kernel, so a flood costs the process a bounded share of a core, not the pipeline's.
+#: writes, HIDIOCGINPUT) is answered at this rate and no faster: the call reading it sleeps
+#: meanwhile (:data:`MAX_REST_S` at a time), a GET_REPORT's caller waits for its answer (one
+#: request at a time per device), output reports beyond the kernel's queue (UHID_BUFSIZE, 32
+#: events) are dropped by the kernel: a flood costs a bounded share of a core, not the pipeline's.
 HOST_EVENTS_PER_S = 1000
-#: Most events handled in one call of :meth:`UhidDevice.feedback` (one wake-up of the feedback thread).
+#: Most events handled in one call of :meth:`UhidDevice.feedback` (one wake-up of the run's loop).
 EVENT_BATCH = 64
 #: Most of one core handling the kernel's events may take (the CPU time of the calls that handle
 #: them, ``time.thread_time``, over the wall time): past it :meth:`UhidDevice.feedback` first
@@ -125,8 +125,11 @@ EVENT_BATCH = 64
 #: cost on any machine: in the emulated test kernel an event cost ~0.6 ms, so that 1000 a second
 #: still took 0.64 of a core from the pipeline (tests/kernel/checks_hostile.py).
 HOST_CPU_SHARE = 0.1
-#: Longest such sleep (s): a GET_REPORT's caller is answered well within the kernel's 5 s.
-MAX_REST_S = 0.5
+#: Longest sleep of one :meth:`UhidDevice.feedback` call (s), for either bound: the call is made on
+#: the run's one loop (:mod:`neurotouch_hid.engine.loop`), which serves the merged devices, the
+#: control socket and the other targets between two calls, so a flood makes them wait this long
+#: at most; what is still owed is slept at the next calls.
+MAX_REST_S = 0.01
 
 #: After UHID_START, how long the device waits for its driver's next request while the driver has
 #: not read every feature report of the format yet (s): hid-playstation reads the DualSense's
@@ -436,7 +439,7 @@ class UhidDevice(NeutralOnClose):
                 return
             self.feedback()
         # the bound driver may read the feature reports now, before this device's reader runs
-        # (the run's feedback thread): serve it here until it has them all or is quiet
+        # (the run's loop): serve it here until it has them all or is quiet
         while not set(self.fmt.feature_ids) <= self.asked:
             if not select.select([self._fd], [], [], PROBE_QUIET_S)[0]:
                 return
@@ -481,10 +484,10 @@ class UhidDevice(NeutralOnClose):
         """Read the events the kernel queued (:func:`read_event`, non-blocking, at most
         :data:`EVENT_BATCH` per call) and handle them: START and OPEN send the current report,
         GET_REPORT and SET_REPORT are answered, OUTPUT is parsed. At most :data:`HOST_EVENTS_PER_S`
-        are handled a second: past that the call first sleeps until a batch may be handled (at
-        most ``EVENT_BATCH / HOST_EVENTS_PER_S``, 64 ms); and handling them takes at most
-        :data:`HOST_CPU_SHARE` of a core: past that the call first sleeps (:meth:`_rest`), and
-        handles nothing while more is owed. Returns the rumble and LED requests of
+        are handled a second: past that the call first sleeps (at most :data:`MAX_REST_S`) and
+        handles what that sleep allows; and handling them takes at most :data:`HOST_CPU_SHARE` of a
+        core: past that the call first sleeps (:meth:`_rest`), and handles nothing while more is
+        owed. Returns the rumble and LED requests of
         the output reports read (:meth:`~neurotouch_hid.targets.reports.ReportFormat.parse_output`),
         each with this device as its ``source``, the last of each kind only: a batch's earlier
         ones were already replaced by the host."""
@@ -493,9 +496,10 @@ class UhidDevice(NeutralOnClose):
             return []
         self._budget = min(float(EVENT_BATCH), self._budget + (now - self._budget_at) * HOST_EVENTS_PER_S)
         self._budget_at = now
-        if self._budget < 1:  # a flood: wait for a whole batch, in this (the feedback) thread
-            time.sleep((EVENT_BATCH - self._budget) / HOST_EVENTS_PER_S)
-            self._budget, self._budget_at = float(EVENT_BATCH), time.monotonic()
+        if self._budget < 1:  # a flood: wait for what MAX_REST_S allows (the loop serves the rest meanwhile)
+            wait = min((EVENT_BATCH - self._budget) / HOST_EVENTS_PER_S, MAX_REST_S)
+            time.sleep(wait)
+            self._budget, self._budget_at = self._budget + wait * HOST_EVENTS_PER_S, time.monotonic()
         latest: dict[str, Feedback] = {}
         cpu = time.thread_time()
         for _ in range(int(self._budget)):
