@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
+import time
 from dataclasses import replace
 
 import pytest
@@ -171,3 +173,30 @@ def test_the_early_handler_raises_once_and_is_put_back():
             os.kill(os.getpid(), signal.SIGTERM)
         os.kill(os.getpid(), signal.SIGTERM)  # on the way out: noted, not raised
     assert signal.getsignal(signal.SIGTERM) is previous
+
+
+def test_a_sigterm_during_an_import_is_raised_once_the_import_is_over(tmp_path, monkeypatch):
+    """A SIGTERM while the main thread imports a module (the first run imports the pipeline and
+    OpenCV after its first device): the import completes, then the stop is raised. Raised inside
+    it, the module would be left half-made (OpenCV's loader then refuses every later import of
+    cv2 in the process, "recursion is detected")."""
+    (tmp_path / "nt_slow_to_import.py").write_text(
+        "import os, signal, time\n"
+        "os.kill(os.getpid(), signal.SIGTERM)\n"
+        "for _ in range(20):\n"
+        "    time.sleep(0.01)\n"
+        "DONE = True\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, "nt_slow_to_import", raising=False)
+    imported = None
+    with pytest.raises(StopRequested):
+        with EarlyStop() as early:
+            import nt_slow_to_import
+
+            imported = nt_slow_to_import
+            time.sleep(10)  # the deferred SIGTERM interrupts this wait
+    assert early.requested.is_set()
+    assert imported is not None and imported.DONE
+    assert sys.modules["nt_slow_to_import"] is imported
+    monkeypatch.delitem(sys.modules, "nt_slow_to_import")

@@ -10,14 +10,35 @@ own handler, a SIGTERM raises :class:`StopRequested` in the main thread (so a wa
 ends at once and everything opened is closed on the way out); from then on it only sets
 :attr:`EarlyStop.requested`, which the engine reads when it starts.
 
+A SIGTERM that comes while the main thread is importing a module (the first run imports the
+pipeline and OpenCV after its first device is made) is raised only once the import has ended:
+raised inside it, it would leave the module half-made, and OpenCV's loader marked as still
+loading, so that every later import of ``cv2`` in the process fails.
+
 Source: Python's :mod:`signal` (handlers run in the main thread, between bytecodes; a blocking
-wait on a lock or ``select`` is interrupted, PEP 475).
+wait on a lock or ``select`` is interrupted, PEP 475); :mod:`importlib` (an import runs in the
+frames of ``importlib._bootstrap``).
 """
 
 from __future__ import annotations
 
+import os
 import signal
 import threading
+import types
+
+#: How soon a SIGTERM deferred during an import is delivered again (s).
+IMPORT_RETRY_S = 0.02
+
+
+def importing(frame: types.FrameType | None) -> bool:
+    """Whether ``frame`` (a signal handler's: the main thread's current one) runs inside an
+    import: one of its callers is in ``importlib._bootstrap``'s frames."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib._bootstrap"):
+            return True
+        frame = frame.f_back
+    return False
 
 
 class StopRequested(BaseException):
@@ -39,6 +60,8 @@ class EarlyStop:
         self._raising = False
         self._previous = None
         self._installed = False
+        self._timer: threading.Timer | None = None
+        self._sending = threading.Lock()  # the deferred signal is sent before the handler is put back, or not at all
 
     def __enter__(self) -> EarlyStop:
         if threading.current_thread() is threading.main_thread():
@@ -47,11 +70,23 @@ class EarlyStop:
             self._raising = True
         return self
 
-    def _handle(self, signum: int, frame: object) -> None:
+    def _handle(self, signum: int, frame: types.FrameType | None) -> None:
         self.requested.set()
-        if self._raising:
-            self._raising = False  # once: what runs on the way out is not interrupted again
-            raise StopRequested()
+        if not self._raising:
+            return
+        if importing(frame):  # raised once the import is over: the signal again, a moment later
+            self._timer = threading.Timer(IMPORT_RETRY_S, self._again)
+            self._timer.daemon = True
+            self._timer.start()
+            return
+        self._raising = False  # once: what runs on the way out is not interrupted again
+        raise StopRequested()
+
+    def _again(self) -> None:
+        """The SIGTERM deferred during an import, sent again while this handler still raises."""
+        with self._sending:
+            if self._raising and self._installed:
+                os.kill(os.getpid(), signal.SIGTERM)
 
     def quiet(self) -> None:
         """From now on a SIGTERM only sets :attr:`requested` (the engine has started, or the way
@@ -60,6 +95,9 @@ class EarlyStop:
 
     def __exit__(self, *exc_info: object) -> None:
         self._raising = False
-        if self._installed:
-            signal.signal(signal.SIGTERM, self._previous)
-            self._installed = False
+        if self._timer is not None:
+            self._timer.cancel()
+        with self._sending:
+            if self._installed:
+                signal.signal(signal.SIGTERM, self._previous)
+                self._installed = False
