@@ -6,7 +6,8 @@ Its own module so that the engine (:mod:`neurotouch_hid.engine`) and the outputs
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import threading
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -37,9 +38,32 @@ class LatencyRing:
         return float(np.percentile(self.values_us(), q)) if len(self) else float("nan")
 
 
+#: The counters of :class:`RunStats` that :meth:`RunStats.count` adds to.
+COUNTERS = frozenset(
+    {
+        "windows",
+        "events",
+        "frames",
+        "states_written",
+        "dropped_items",
+        "dropped_events",
+        "dropped_frames",
+        "resting_updates",
+        "resting_dropped_frames",
+        "coalesced_windows",
+        "camera_losses",
+    }
+)
+
+
 @dataclass
 class RunStats:
     """What a run did. Counters are updated live (the terminal view shows them).
+
+    Thread-safety: the engine's threads (the source's, the pipeline's, the resting detector's)
+    and the run's loop write here through :meth:`count`, :meth:`add_latency` and :meth:`note`,
+    each under one lock taken once per call (once per item or window, never per event); a
+    reader reads one attribute, or :attr:`copilot` for the two that go together.
 
     Attributes:
         windows: gesture estimates produced (one per window, but for ``coalesced_windows``).
@@ -101,22 +125,68 @@ class RunStats:
     compiled_latency: LatencyRing = field(default_factory=LatencyRing, repr=False)
     compile_ended_at: float | None = None
     _behind_compile: bool = field(default=False, repr=False)
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
 
-    def add_latency(self, windows: int, latency_ns: int, *, compiling: bool, waiting: int) -> None:
+    def count(self, stream_us: int | None = None, **increments: int) -> None:
+        """Add ``increments`` (counter name -> how many, ints >= 0, e.g. ``windows=1, events=512``)
+        to the counters, and set :attr:`stream_us` (us) when given, all under the lock at once.
+
+        Raises:
+            ValueError: a name that is not one of :data:`COUNTERS`.
+        """
+        unknown = increments.keys() - COUNTERS
+        if unknown:
+            raise ValueError(f"RunStats.count: not a counter: {', '.join(sorted(unknown))} (one of {sorted(COUNTERS)})")
+        with self._lock:
+            for name, n in increments.items():
+                setattr(self, name, getattr(self, name) + n)
+            if stream_us is not None:
+                self.stream_us = stream_us
+
+    def note(self, **values: object) -> None:
+        """Set what the run shows now (``profile``, ``game``, ``merged``, ``missing``, ``wall_s``,
+        ``compile_ended_at``: see the attributes) under the lock, all at once.
+
+        Raises:
+            ValueError: a name that is not one of those.
+        """
+        unknown = values.keys() - _NOTES
+        if unknown:
+            raise ValueError(
+                f"RunStats.note: not a noted value: {', '.join(sorted(unknown))} (one of {sorted(_NOTES)})"
+            )
+        with self._lock:
+            for name, value in values.items():
+                setattr(self, name, value)
+
+    @property
+    def copilot(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        """(:attr:`merged`, :attr:`missing`) as one consistent pair."""
+        with self._lock:
+            return self.merged, self.missing
+
+    def add_latency(
+        self, windows: int, latency_ns: int, *, compiling: bool, waiting: int, window_latencies_ns: tuple[int, ...] = ()
+    ) -> None:
         """Count the latency (ns) of one item that closed ``windows`` (>= 1) windows: in
         :attr:`latency`, and by when it was made: while the first run's compile went on
         (``compiling``: :attr:`interpreted_windows`), after it from the items that queued up behind
         it (:attr:`queued_windows`, until ``waiting``, the items still queued after this one, is
-        first 0), or once the pipeline is compiled and caught up (:attr:`compiled_latency`)."""
-        self.latency.add(latency_ns)
-        if compiling:
-            self.interpreted_windows += windows
-            self._behind_compile = True
-        elif self._behind_compile:
-            self.queued_windows += windows
-            self._behind_compile = waiting > 0
-        else:
-            self.compiled_latency.add(latency_ns)
+        first 0), or once the pipeline is compiled and caught up (:attr:`compiled_latency`).
+        ``window_latencies_ns``: the closed windows' :attr:`window_latency` samples (ns; paced
+        sources only). Under the lock, once for the item."""
+        with self._lock:
+            self.latency.add(latency_ns)
+            for sample in window_latencies_ns:
+                self.window_latency.add(sample)
+            if compiling:
+                self.interpreted_windows += windows
+                self._behind_compile = True
+            elif self._behind_compile:
+                self.queued_windows += windows
+                self._behind_compile = waiting > 0
+            else:
+                self.compiled_latency.add(latency_ns)
 
     def summary(self) -> str:
         """One line for the end of a run."""
@@ -153,3 +223,17 @@ class RunStats:
             + (f", camera lost {self.camera_losses} time(s)" if self.camera_losses else "")
             + lat
         )
+
+
+_NOTES = (
+    frozenset(f.name for f in fields(RunStats) if not f.name.startswith("_"))
+    - COUNTERS
+    - {
+        "stream_us",
+        "latency",
+        "window_latency",
+        "compiled_latency",
+        "interpreted_windows",
+        "queued_windows",
+    }
+)

@@ -125,7 +125,7 @@ class Engine:
         self._resting = parts.resting
         self._profile_ref = options.profile_ref
         self.stats = options.stats if options.stats is not None else RunStats()
-        self.stats.profile = str(options.profile_ref) if options.profile_ref is not None else ""
+        self.stats.note(profile=str(options.profile_ref) if options.profile_ref is not None else "")
         self._stop = threading.Event()
         self._worked = threading.Event()  # the pipeline's thread is over: the main thread's loop ends
         self._restart = threading.Event()  # the camera is back: restart the pipeline before its data
@@ -251,7 +251,7 @@ class Engine:
         profile = self.options.profile_loader(ref)
         self.switch_profile(profile, str(ref))
         self._profile_ref = ref  # (the loop's thread only: reloaded on SIGHUP)
-        self.stats.profile = str(ref)
+        self.stats.note(profile=str(ref))
         line = f"switched to profile {ref}" + (f" ({reason})" if reason else "")
         log.warning("%s", line)
         return line
@@ -305,7 +305,8 @@ class Engine:
                         self.stop()
                 if self._merge is not None:
                     self._merge.start(self.publisher.merged_input)
-                    self.stats.merged, self.stats.missing = self._merge.status()
+                    merged, missing = self._merge.status()
+                    self.stats.note(merged=merged, missing=missing)
                 for t in threads:
                     t.start()
                 worker = threads[1]
@@ -320,10 +321,10 @@ class Engine:
                 for t in threads:
                     if t.ident is not None:  # a Ctrl-C while they were being started: not all were
                         t.join(_JOIN_S)
-                self.stats.wall_s = time.perf_counter() - start
+                self.stats.note(wall_s=time.perf_counter() - start)
                 unfinished = self._compile.now()
                 if unfinished is not None:  # it stops with the run: say how far it got
-                    self.stats.compile_ended_at = unfinished.fraction
+                    self.stats.note(compile_ended_at=unfinished.fraction)
                 with self._switching:
                     merge = self._merge
                 try:
@@ -355,14 +356,15 @@ class Engine:
 
     # --- the source's thread ---------------------------------------------------------------------
     def _count_drop(self, item: StreamItem) -> None:  # the queues' on_drop
-        self.stats.dropped_items += 1
         if isinstance(item, Frame):
-            self.stats.dropped_frames += 1
+            self.stats.count(dropped_items=1, dropped_frames=1)
         elif isinstance(item, np.ndarray):
-            self.stats.dropped_events += len(item)
+            self.stats.count(dropped_items=1, dropped_events=len(item))
+        else:
+            self.stats.count(dropped_items=1)
 
     def _count_resting_drop(self, item: StreamItem) -> None:
-        self.stats.resting_dropped_frames += 1
+        self.stats.count(resting_dropped_frames=1)
 
     def _read_source(self) -> None:
         """Source thread: read, pace, stamp the arrival time, enqueue (held while the gel rests:
@@ -457,7 +459,7 @@ class Engine:
             self.publisher.lost()
             self._items.clear()
             self.rest.drop()
-            self.stats.camera_losses += 1
+            self.stats.count(camera_losses=1)
         elif status.kind == StatusKind.RESUMED:
             self._restart.set()
         self.options.say(status.message)
@@ -489,7 +491,7 @@ class Engine:
             self._last_verdict_us = t_us
             if result is not None:
                 self._pipeline.set_resting(result, t_us)
-                self.stats.resting_updates += 1
+                self.stats.count(resting_updates=1)
 
     # --- the pipeline's thread -------------------------------------------------------------------
     def _work(self) -> None:
@@ -531,30 +533,39 @@ class Engine:
             estimates, skipped = self._pipeline.process_newest(item)
         else:
             estimates = self._pipeline.process(item)
-        if isinstance(item, Frame):
-            stats.frames += 1
-        elif isinstance(item, np.ndarray):
-            stats.events += len(item)
         t_us = item_end_us(item)
+        stream_us = None
         if t_us is not None:
             self._first_us = t_us if self._first_us is None else self._first_us
-            stats.stream_us = t_us - self._first_us
+            stream_us = t_us - self._first_us
+        # counted once an item (the stats' lock once, not once an event)
+        if isinstance(item, Frame):
+            stats.count(stream_us, frames=1, coalesced_windows=len(skipped))
+        else:
+            stats.count(
+                stream_us, events=len(item) if isinstance(item, np.ndarray) else 0, coalesced_windows=len(skipped)
+            )
         if skipped:
-            stats.coalesced_windows += len(skipped)
             self.rest.windows_skipped(skipped[-1])
         for estimate in estimates:
             self.publisher.window(estimate)
-            stats.windows += 1
+            stats.count(windows=1)  # before the next window's record shows it
             self.rest.window_closed(estimate)
         if estimates:
             done_ns = time.perf_counter_ns()
             compiling = self._compile.now() is not None
-            stats.add_latency(len(estimates), done_ns - arrival_ns, compiling=compiling, waiting=len(self._items))
+            window_ns: tuple[int, ...] = ()
             if self.mode.paced:
-                for end_us in skipped:
-                    stats.window_latency.add(done_ns - self._clock.due_ns(end_us))
-                for estimate in estimates:
-                    stats.window_latency.add(done_ns - self._clock.due_ns(estimate.t_us))
+                due = self._clock.due_ns
+                window_ns = tuple(done_ns - due(end_us) for end_us in skipped)
+                window_ns += tuple(done_ns - due(estimate.t_us) for estimate in estimates)
+            stats.add_latency(
+                len(estimates),
+                done_ns - arrival_ns,
+                compiling=compiling,
+                waiting=len(self._items),
+                window_latencies_ns=window_ns,
+            )
 
     def _resume(self) -> None:
         """First item after the camera came back: a new session of the pipeline and the mapper."""
@@ -581,4 +592,5 @@ class Engine:
         self.publisher.set_merge(new)
         if new is not None and self._stop.is_set():  # the run stopped meanwhile: it may not have seen this one
             new.stop()
-        self.stats.merged, self.stats.missing = new.status() if new is not None else ((), ())
+        merged, missing = new.status() if new is not None else ((), ())
+        self.stats.note(merged=merged, missing=missing)

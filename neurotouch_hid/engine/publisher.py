@@ -198,7 +198,7 @@ class Publisher:
             for subscriber in self._subscribers:
                 subscriber.publish(record)
             if state_changed:
-                self._stats.states_written += 1
+                self._stats.count(states_written=1)
             self._last_state = state
             self._last_gesture = estimate.gesture
             self._last_record = record
@@ -218,7 +218,8 @@ class Publisher:
         with self._lock:
             if self._merge is None:
                 return
-            self._stats.merged, self._stats.missing = self._merge.status()
+            merged, missing = self._merge.status()
+            self._stats.note(merged=merged, missing=missing)
             self._publish_merged()
 
     def _publish_merged(self) -> None:
@@ -233,7 +234,7 @@ class Publisher:
         record = record._replace(state=state, state_changed=True, gesture_changed=False)
         for subscriber in self._subscribers:
             subscriber.publish(record)
-        self._stats.states_written += 1
+        self._stats.count(states_written=1)
         self._last_state = state
 
     def _record_at_rest(self) -> WindowRecord:

@@ -55,7 +55,7 @@ def served(
             from neurotouch_hid.service.serials import sensor_file
 
             def follow(game) -> None:
-                run.stats.game = game.label() if game is not None else ""
+                run.stats.note(game=game.label() if game is not None else "")
 
             path = sensor_file(serial, "games", games_file())
             watcher = GameProfiles(run.use_profile, str(profile_ref), path=path, on_game=follow)

@@ -201,7 +201,7 @@ def scene_panel(record: WindowRecord, estimate: GestureEstimate | None) -> Group
         profile_line.append(f"  for {game}", style="cyan")
     rows.append(profile_line)
     if record.profile.copilot:
-        rows.append(copilot_line(record.stats.merged, record.stats.missing))
+        rows.append(copilot_line(*record.stats.copilot))
     drives = Table.grid(padding=(0, 1))
     lines = mapping_lines(record.profile)
     shown = lines if len(lines) <= MAPPINGS_SHOWN else lines[: MAPPINGS_SHOWN - 1]
