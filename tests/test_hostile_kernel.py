@@ -18,18 +18,27 @@ HIDE = "checks_hostile.check_hiding_a_merged_interface_leaves_the_same_usb_devic
 
 def test_a_hidraw_reader_flooding_the_uhid_joystick_costs_the_driver_a_bounded_share_and_no_window(guest):
     """Output reports written as fast as another process can: the driver handles them within its
-    bounds (events a second, a share of a core), so the flood costs it a bounded share of a core on
-    top of the run's own, and the run drops no window. With the bounds lifted in the same run (what
-    it did before them) the same flood costs it more than that. In the emulated kernel an event
-    cost ~0.6 ms: with the events' bound alone (1000 a second) the flood took +0.64 of a core,
-    which fails here; with the share's too, +0.29 (the boots of 2026-11-29, load 5-11)."""
+    bounds (events a second, a share of a core), so the flood costs the run's loop, which reads
+    them, a bounded share of a core, and the run drops no window. With the bounds lifted in the
+    same run (what it did before them) it reads many more and the same flood costs the loop more.
+    In the emulated kernel an event cost ~1 ms: the share's bound held the loop to ~94 events a
+    second and +0.10 of a core; lifted, 1,033 a second and +0.51 (a boot of 2026-11-29, host load
+    11). The whole process's share is reported, not asserted: between two spans of one run without
+    a flood it moved by 0.2 with the host's load (the flood also takes a CPU from the other
+    threads). Before the console was quieted, the kernel's "Output queue is full" lines, printed
+    under the queue's spinlock, made the driver's own reads spin: +0.5 of a core."""
+    from neurotouch_hid.targets.uhid import EVENT_BATCH, HOST_EVENTS_PER_S
+
     details = passed(guest, FLOOD)
     said = json.dumps(details)
     quiet, flood, unbounded = details["quiet"], details["flood"], details["flood_unbounded"]
     assert flood["writes"] > 1000 and unbounded["writes"] > 1000, said  # a flood, each time
     assert flood["dropped_items"] == 0 and flood["windows"] >= 0.8 * quiet["windows"], said
-    assert flood["share"] - quiet["share"] <= 0.4, said
-    assert unbounded["share"] > flood["share"], said  # the bounds are what held the cost back
+    assert 0 < flood["events_per_s"] <= HOST_EVENTS_PER_S + EVENT_BATCH / details["span_s"], said
+    assert flood["main_thread_share"] - quiet["main_thread_share"] <= 0.25, said
+    # the bounds are what held the cost back
+    assert unbounded["events_per_s"] > 2 * flood["events_per_s"], said
+    assert unbounded["main_thread_share"] > flood["main_thread_share"], said
 
 
 def test_hiding_a_merged_joystick_interface_leaves_the_same_usb_devices_keyboard(guest):

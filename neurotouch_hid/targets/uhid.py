@@ -122,8 +122,8 @@ EVENT_BATCH = 64
 #: Most of one core handling the kernel's events may take (the CPU time of the calls that handle
 #: them, ``time.thread_time``, over the wall time): past it :meth:`UhidDevice.feedback` first
 #: sleeps. :data:`HOST_EVENTS_PER_S` bounds how many events a flood gets answered, this what they
-#: cost on any machine: in the emulated test kernel an event cost ~0.6 ms, so that 1000 a second
-#: still took 0.64 of a core from the pipeline (tests/kernel/checks_hostile.py).
+#: cost on any machine: in the emulated test kernel an event cost 0.5-1 ms, so that 1000 a second
+#: took half a core (tests/kernel/checks_hostile.py).
 HOST_CPU_SHARE = 0.1
 #: Longest sleep of one :meth:`UhidDevice.feedback` call (s), for either bound: the call is made on
 #: the run's one loop (:mod:`neurotouch_hid.engine.loop`), which serves the merged devices, the
