@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import signal
 import subprocess
 import sys
@@ -111,41 +110,18 @@ def _write(folder: Path, estimates: list[GestureEstimate], profile_text: str = P
     return preds, profile
 
 
-def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-m", "neurotouch_hid.cli", *args]
-
-
-def _env() -> dict:
-    return dict(os.environ, PYTHONPATH=str(REPO), PYTHONUNBUFFERED="1")
-
-
 #: ``run``'s allowed lag in these checks (ms): they compare every state the pad shows with the
 #: profile's, so the run must not drop estimates when the emulated guest is starved (with the
 #: default 200 ms, on a loaded host, the pad showed 77 of 101 states).
 NO_DROP_LAG_MS = "600000"
 
 
-def _start_run_on_pad(preds: Path, profile: Path) -> subprocess.Popen:
-    """``neurotouch-hid run --source PREDS --profile PROFILE --output gamepad`` in its own
-    process (text pipes for stdout and stderr), lagging rather than dropping (NO_DROP_LAG_MS)."""
-    return subprocess.Popen(
-        _cli(
-            "run",
-            "--source",
-            str(preds),
-            "--profile",
-            str(profile),
-            "--output",
-            "gamepad",
-            "--max-lag-ms",
-            NO_DROP_LAG_MS,
-        ),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=_env(),
-        cwd=str(REPO),
-    )
+def _start_run_on_pad(preds: Path, profile: Path) -> guestlib.ForkedCli:
+    """``neurotouch-hid run --source PREDS --profile PROFILE --output gamepad`` in a process of its
+    own (the CLI's ``main`` in a forked child: no Python start), lagging rather than dropping
+    (NO_DROP_LAG_MS)."""
+    args = ("run", "--source", str(preds), "--profile", str(profile), "--output", "gamepad")
+    return guestlib.ForkedCli(*args, "--max-lag-ms", NO_DROP_LAG_MS)
 
 
 def _state_key(axes: dict[str, int], buttons: dict[str, bool]) -> tuple:
@@ -418,7 +394,7 @@ def check_sdl_reads_run_like_the_profile() -> dict:
     and what it reads while the run replays a sequence (zoom, twist, then a push held with A and
     START pressed and every axis deflected, until SIGTERM) is, sample by sample and in order, one
     of the states the same sequence gives through ``--output jsonl``; evdev at the same time
-    reads exactly those states. The run is a process of its own, as a user starts it: SIGTERM
+    reads exactly those states. The run is a process of its own (the CLI's main, forked): SIGTERM
     in the held push (A and START down, every axis off centre) ends it with exit code 0, evdev
     reads everything released and centred, and the device goes with the process."""
     from neurotouch_hid.core.dataset import write_predictions
@@ -444,8 +420,8 @@ def check_sdl_reads_run_like_the_profile() -> dict:
     probe_lines = ProbeLines(probe)
     dev = load_profile(profile_path).device
     before = set(_our_devices())
-    # SDL (~5 s) and the run start side by side (a CLI start costs ~30 s here); the run's 3 s of
-    # rest at first leave SDL time to open the pad before it moves.
+    # SDL (~5 s) and the run start side by side; the run's 3 s of rest at first leave SDL time to
+    # open the pad before it moves.
     t_run = time.monotonic()
     run = _start_run_on_pad(preds, profile_path)
     watcher = None

@@ -153,6 +153,89 @@ def forked(func, *, as_nobody: bool = False, env: dict[str, str] | None = None, 
     return answer["value"]
 
 
+class _Text:
+    """What a :class:`ForkedCli` child wrote on its stderr so far (``read()``, as a pipe's)."""
+
+    def __init__(self) -> None:
+        self.chunks: list[bytes] = []
+
+    def read(self) -> str:
+        return b"".join(self.chunks).decode(errors="replace")
+
+
+class ForkedCli:
+    """``neurotouch-hid ARGS`` run by the CLI's own ``main`` in a forked child of this process: a
+    process of its own (its pid, its signal handlers, its exit code, its devices, which go with
+    it), without a Python start, which costs ~30 s under emulation (the child has what this process
+    imported). The shape of :class:`subprocess.Popen` that the checks use: ``poll``,
+    ``send_signal``, ``kill``, ``communicate`` (stdout is /dev/null: ``("", stderr)``),
+    ``returncode`` (negative: the signal that ended it) and ``stderr.read()``. ``env`` is set in
+    the child's ``os.environ`` first. The child must not need a library this process has already
+    started threads or a USB context in (libusb is not fork-safe)."""
+
+    def __init__(self, *args: str, env: dict[str, str] | None = None) -> None:
+        import threading
+
+        read_fd, write_fd = os.pipe()
+        self.pid = os.fork()
+        if self.pid == 0:
+            code = 1
+            try:
+                os.close(read_fd)
+                devnull = os.open(os.devnull, os.O_WRONLY)
+                os.dup2(devnull, 1)
+                os.dup2(write_fd, 2)
+                os.environ.update(env or {})
+                sys.argv = ["neurotouch-hid", *args]
+                from neurotouch_hid.cli import main
+
+                try:
+                    main()
+                    code = 0
+                except SystemExit as exc:
+                    code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+            finally:
+                with contextlib.suppress(Exception):
+                    sys.stdout.flush()
+                    sys.stderr.flush()
+                os._exit(code)
+        os.close(write_fd)
+        self.returncode: int | None = None
+        self.stderr = _Text()
+
+        def collect() -> None:
+            while chunk := os.read(read_fd, 65536):
+                self.stderr.chunks.append(chunk)
+            os.close(read_fd)
+
+        self._reader = threading.Thread(target=collect, daemon=True)
+        self._reader.start()
+
+    def poll(self) -> int | None:
+        if self.returncode is None:
+            pid, status = os.waitpid(self.pid, os.WNOHANG)
+            if pid:
+                self.returncode = os.waitstatus_to_exitcode(status)
+        return self.returncode
+
+    def send_signal(self, signum: int) -> None:
+        if self.poll() is None:
+            os.kill(self.pid, signum)
+
+    def kill(self) -> None:
+        if self.poll() is None:
+            os.kill(self.pid, 9)
+            self.returncode = os.waitstatus_to_exitcode(os.waitpid(self.pid, 0)[1])
+
+    def communicate(self, timeout: float) -> tuple[str, str]:
+        """Wait for the child to end (killed past ``timeout``: AssertionError); ("", its stderr)."""
+        if not wait_for(lambda: self.poll() is not None, timeout, 0.05):
+            self.kill()
+            raise AssertionError(f"the forked CLI did not end in {timeout:.0f} s: {self.stderr.read()[-1500:]}")
+        self._reader.join(10)
+        return "", self.stderr.read()
+
+
 #: x86-64 system calls that wait on file descriptors (asm/unistd_64.h) and the argument that
 #: holds their timeout: a NULL pointer (select, pselect6, ppoll, epoll_pwait2) or -1 (poll,
 #: epoll_wait, epoll_pwait) waits with none.
