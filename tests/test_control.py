@@ -155,7 +155,7 @@ def test_mouse_profile_run_writes_every_motion_and_ends_neutral(tmp_path, runtim
     """``run --profile mouse --output jsonl`` on a push: one line per window with motion, the
     pointer moving right and up, the last line neutral with no motion."""
     from neurotouch_hid.core.dataset import write_predictions
-    from neurotouch_hid.engine.driver import run_driver
+    from neurotouch_hid.engine.driver import DriverOptions, run_driver
 
     estimates = [
         GestureEstimate(
@@ -171,7 +171,7 @@ def test_mouse_profile_run_writes_every_motion_and_ends_neutral(tmp_path, runtim
     preds = tmp_path / "p.jsonl"
     write_predictions(preds, estimates)
     out = tmp_path / "states.jsonl"
-    run_driver(str(preds), "mouse", "jsonl", fast=True, out=out)
+    run_driver(str(preds), "mouse", "jsonl", DriverOptions(fast=True, out=out))
     lines = read_states(out.read_text())
     moving = [d for d in lines if d["rel"]]
     assert len(moving) > 30

@@ -227,17 +227,19 @@ def moved(state: ControllerState) -> bool:
 
 
 def run_davis(world: ReplayWorld, seconds: float, log: Log, davis: DavisConfig = QUICK):
-    from neurotouch_hid.engine.driver import run_driver
+    from neurotouch_hid.engine.driver import DriverOptions, run_driver
 
     return run_driver(
         "davis",
         "default",
         "gamepad",
-        seconds=seconds,
-        capture=world,
-        davis=davis,
-        outputs=[LoggedOutput(log)],
-        say=lambda line: log.add("say", line),
+        DriverOptions(
+            seconds=seconds,
+            capture=world,
+            davis=davis,
+            outputs=[LoggedOutput(log)],
+            say=lambda line: log.add("say", line),
+        ),
     )
 
 
@@ -291,7 +293,7 @@ def test_a_camera_that_never_comes_back_still_ends_the_run_neutral(sim_gel_recor
 
 
 def test_run_with_wait_starts_when_the_camera_is_plugged_in(sim_gel_recording):
-    from neurotouch_hid.engine.driver import run_driver
+    from neurotouch_hid.engine.driver import DriverOptions, run_driver
 
     path, labels = sim_gel_recording
     plugged = 3.2  # the gel rests from 3.0 s, a pinch follows from 4.6 s
@@ -302,12 +304,14 @@ def test_run_with_wait_starts_when_the_camera_is_plugged_in(sim_gel_recording):
         "davis",
         "default",
         "gamepad",
-        seconds=6.6,
-        capture=world,
-        davis=QUICK,
-        wait=True,
-        outputs=[LoggedOutput(log)],
-        say=lambda line: log.add("say", line),
+        DriverOptions(
+            seconds=6.6,
+            capture=world,
+            davis=QUICK,
+            wait=True,
+            outputs=[LoggedOutput(log)],
+            say=lambda line: log.add("say", line),
+        ),
     )
     waiting = log.index("say", "waiting for a DAVIS-346")
     found = log.index("say", "found after")

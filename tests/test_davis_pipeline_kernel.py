@@ -91,10 +91,10 @@ def _host_full_push(tmp_path: Path) -> dict[str, int]:
     it farthest from the centre on the replay recording's push (its first 3 s)."""
     from kernel.vm import ensure_replay_recording
 
-    from neurotouch_hid.engine.driver import run_driver
+    from neurotouch_hid.engine.driver import DriverOptions, run_driver
 
     out = tmp_path / "states.jsonl"
-    run_driver(str(ensure_replay_recording()), "default", "jsonl", seconds=3.0, fast=True, out=out)
+    run_driver(str(ensure_replay_recording()), "default", "jsonl", DriverOptions(seconds=3.0, fast=True, out=out))
     sticks = [{axis: state["axes"][axis] for axis in ("ABS_X", "ABS_Y")} for state in map(json.loads, out.open())]
     return max(sticks, key=lambda stick: max(map(abs, stick.values())))
 

@@ -114,7 +114,7 @@ def test_sigterm_while_the_run_is_being_opened_stops_cleanly_with_every_device_n
     monkeypatch.setattr(driver.RunAssembly, "open", open_and_wait)
     previous = signal.getsignal(signal.SIGTERM)
     said: list[str] = []
-    stats = driver.run_driver("sim", "default", output, seconds=1, say=said.append)
+    stats = driver.run_driver("sim", "default", output, driver.DriverOptions(seconds=1, say=said.append))
     assert stats.windows == 0
     assert rig.events == ["grab", "device made", "opening the source", "neutral", "device closed", "let go"]
     assert said[-1] == "stopped (SIGTERM) before the run started: every output released"
@@ -131,7 +131,7 @@ def test_the_merged_devices_are_grabbed_before_the_device_and_started_by_the_run
 
     monkeypatch.setattr(driver.RunAssembly, "open", open_parts)
     monkeypatch.setattr(driver, "run_assembled", _fake_mapper_run(driver.run_assembled))
-    driver.run_driver("sim", "default", "hid", seconds=1)
+    driver.run_driver("sim", "default", "hid", driver.DriverOptions(seconds=1))
     assert rig.events[:4] == ["grab", "device made", "source opened", "start"]
     assert rig.events.index("let go") < rig.events.index("device closed")
 

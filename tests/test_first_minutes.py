@@ -88,12 +88,12 @@ def key_changes(keys_per_line: list[frozenset]) -> list[frozenset]:
 def test_piped_switch_access_run_shows_every_key_press_the_json_lines_show():
     import json
 
-    from neurotouch_hid.engine.driver import run_driver
+    from neurotouch_hid.engine.driver import DriverOptions, run_driver
 
     console, stream = plain_console(), io.StringIO()
     term = TermView(console)
     jsonl = StateJsonlWriter(stream)
-    run_driver("sim", "switch-access", "term", seconds=8, fast=True, outputs=[Both(term, jsonl)])
+    run_driver("sim", "switch-access", "term", DriverOptions(seconds=8, fast=True, outputs=[Both(term, jsonl)]))
     term.close()
     from_json = [frozenset(json.loads(line)["keys"]) for line in stream.getvalue().splitlines()]
     from_term = []

@@ -23,7 +23,7 @@ def no_uinput(monkeypatch):
 
 def test_run_sim_without_uinput_mentions_the_terminal_view(no_uinput):
     with pytest.raises(DeviceError) as err:
-        driver.run_driver("sim", "default", "gamepad", seconds=1)
+        driver.run_driver("sim", "default", "gamepad", driver.DriverOptions(seconds=1))
     lines = str(err.value).splitlines()
     assert lines[0] == UINPUT and lines[-1].endswith("--output term")
 
@@ -34,7 +34,7 @@ def test_run_davis_with_neither_camera_nor_uinput_says_both(no_uinput, monkeypat
 
     monkeypatch.setattr(discovery, "discover", lambda dv=True: discovery.Discovery())
     with pytest.raises(DeviceError) as err:
-        driver.run_driver("davis", "default", "gamepad", seconds=1)
+        driver.run_driver("davis", "default", "gamepad", driver.DriverOptions(seconds=1))
     message = str(err.value)
     assert message.startswith(UINPUT)
     assert "and the camera: no DAVIS-346 (USB 152a:841a) found: plug the NeuroTouch's USB cable in" in message
@@ -226,3 +226,21 @@ def test_ctrl_c_typed_in_the_live_view_after_its_first_windows_prints_the_summar
     assert typed and os.waitstatus_to_exitcode(status) == 130, said[-2000:]
     assert re.search(r"\d+ windows, \d+ events, \d+ frames in", said), said[-2000:]
     assert "Traceback" not in said
+
+
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [
+        (["--window-us", "500"], "--window-us 500: windows must be at least 1000 us"),
+        (["--max-lag-ms", "0.5"], "--max-lag-ms 0.5: the lag allowed must be at least 1 ms"),
+    ],
+)
+def test_run_options_out_of_range_are_refused_before_any_device(monkeypatch, capsys, no_uinput, args, said):
+    """The run's options are one value the command line builds (``DriverOptions``): a value out
+    of range is refused as it is built, naming the option, before the driver opens anything."""
+    from helpers import run_main
+
+    done = run_main(monkeypatch, capsys, ["run", "--source", "sim", "--output", "jsonl", *args])
+    assert done.returncode != 0 and said in done.stderr
+    with pytest.raises(Exception, match="cannot assign"):
+        driver.DriverOptions().fast = True  # frozen: what the CLI built is what runs

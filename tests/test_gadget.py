@@ -395,10 +395,10 @@ def test_the_protocol_comes_from_the_option_then_the_profile_then_the_gadget_set
 
 def test_protocol_is_refused_without_output_usb_or_hid():
     from neurotouch_hid.core.errors import NeurotouchError
-    from neurotouch_hid.engine.driver import run_driver
+    from neurotouch_hid.engine.driver import DriverOptions, run_driver
 
     with pytest.raises(NeurotouchError, match="--protocol switch: only with --output usb .* or --output hid"):
-        run_driver("sim", "default", "jsonl", protocol="switch")
+        run_driver("sim", "default", "jsonl", DriverOptions(protocol="switch"))
 
 
 @pytest.mark.parametrize(

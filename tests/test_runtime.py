@@ -488,12 +488,12 @@ def test_a_bad_profile_raises_before_any_output_or_source_exists(tmp_path, monke
 
 
 def test_fast_replays_are_deterministic(sim_push_only_recording, tmp_path):
-    from neurotouch_hid.engine.driver import run_driver
+    from neurotouch_hid.engine.driver import DriverOptions, run_driver
 
     runs = []
     for k in range(2):
         out = tmp_path / f"states{k}.jsonl"
-        stats = run_driver(str(sim_push_only_recording), "default", "jsonl", fast=True, out=out)
+        stats = run_driver(str(sim_push_only_recording), "default", "jsonl", DriverOptions(fast=True, out=out))
         assert stats.dropped_items == 0 and stats.windows > 0
         runs.append(out.read_text())
     assert runs[0] == runs[1] and runs[0]
@@ -503,7 +503,7 @@ def test_a_predictions_file_replays_through_the_mapper_state_for_state(tmp_path)
     """``--source FILE.jsonl`` (no pipeline): the states written are the Mapper's for the same
     estimates, one line per change, ending neutral."""
     from neurotouch_hid.core.dataset import read_predictions, write_predictions
-    from neurotouch_hid.engine.driver import run_driver
+    from neurotouch_hid.engine.driver import DriverOptions, run_driver
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.mapping.replay import replay
 
@@ -523,7 +523,7 @@ def test_a_predictions_file_replays_through_the_mapper_state_for_state(tmp_path)
     preds = tmp_path / "p.jsonl"
     write_predictions(preds, estimates)
     out = tmp_path / "states.jsonl"
-    stats = run_driver(str(preds), "default", "jsonl", fast=True, out=out)
+    stats = run_driver(str(preds), "default", "jsonl", DriverOptions(fast=True, out=out))
     got = [(d["axes"], d["buttons"]) for d in read_states(out.read_text())]
     neutral = (ControllerState.neutral().axes, ControllerState.neutral().buttons)
     expected = [neutral]  # the runtime starts from the neutral state and writes changes only

@@ -107,15 +107,15 @@ def _push_right(path):
 def test_a_run_with_a_serial_maps_with_that_camera_profile(tmp_path):
     """Two runs of the same push, one per camera: the camera with a profile.yaml of its own
     (the shipped ``mouse``) moves the pointer, the other one (no folder) the default's stick."""
-    from neurotouch_hid.engine.driver import run_driver
+    from neurotouch_hid.engine.driver import DriverOptions, run_driver
     from neurotouch_hid.mapping.profile import find_profile
 
     preds = tmp_path / "push.jsonl"
     _push_right(preds)
     _own("LEFT", "profile.yaml", find_profile("mouse").read_text())
     left, right = tmp_path / "left.jsonl", tmp_path / "right.jsonl"
-    run_driver(str(preds), None, "jsonl", fast=True, out=left, serial="LEFT")
-    run_driver(str(preds), None, "jsonl", fast=True, out=right, serial="RIGHT")
+    run_driver(str(preds), None, "jsonl", DriverOptions(fast=True, out=left, serial="LEFT"))
+    run_driver(str(preds), None, "jsonl", DriverOptions(fast=True, out=right, serial="RIGHT"))
     left_states, right_states = read_states(left.read_text()), read_states(right.read_text())
     assert sum(d["rel"].get("REL_X", 0) for d in left_states) > 100
     assert all(d["axes"]["ABS_X"] == 0 for d in left_states)
@@ -286,8 +286,8 @@ def test_run_hands_the_serial_of_the_simulated_camera_to_the_driver(monkeypatch,
 
     seen = {}
 
-    def fake_run(source, profile, output, **kw):
-        seen.update(source=source, profile=profile, output=output, serial=kw["serial"])
+    def fake_run(source, profile, output, options):
+        seen.update(source=source, profile=profile, output=output, serial=options.serial)
         return RunStats()
 
     monkeypatch.setattr(driver, "run_driver", fake_run)

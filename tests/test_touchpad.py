@@ -197,7 +197,7 @@ def test_run_output_jsonl_carries_the_touch_points_and_the_click(tmp_path, monke
     import json
 
     from neurotouch_hid.core.dataset import write_predictions
-    from neurotouch_hid.engine.driver import run_driver
+    from neurotouch_hid.engine.driver import DriverOptions, run_driver
 
     monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
     spec = load_profile("touchpad").touchpad
@@ -207,7 +207,7 @@ def test_run_output_jsonl_carries_the_touch_points_and_the_click(tmp_path, monke
     estimates += [estimate(200 + 10 * k, [two], intensity=2.0, gesture=GestureType.PUSH) for k in range(1, 11)]
     write_predictions(tmp_path / "p.jsonl", estimates)
     out = tmp_path / "states.jsonl"
-    run_driver(str(tmp_path / "p.jsonl"), "touchpad", "jsonl", fast=True, out=out)
+    run_driver(str(tmp_path / "p.jsonl"), "touchpad", "jsonl", DriverOptions(fast=True, out=out))
     lines = [json.loads(line) for line in out.read_text().splitlines()]
     touches = [line["touches"] for line in lines]
     first = [t for t in touches if len(t) == 1 and t[0]["slot"] == 0][0][0]

@@ -16,7 +16,7 @@ import pytest
 
 from neurotouch_hid.core.errors import DeviceError
 from neurotouch_hid.core.kinds import OutputKind
-from neurotouch_hid.engine.driver import OPENERS, run_driver
+from neurotouch_hid.engine.driver import OPENERS, DriverOptions, run_driver
 from neurotouch_hid.mapping.profile import DeviceSpec, load_profile
 from neurotouch_hid.service.udev import RULES_FILE, UHID_RULE
 from neurotouch_hid.targets.reports.hid import HID_JOYSTICK
@@ -140,7 +140,7 @@ def test_run_output_hid_without_uhid_fails_before_any_device_exists():
     if os.path.exists("/dev/uhid"):
         pytest.skip("this machine has /dev/uhid: the kernel check covers it")
     with pytest.raises(DeviceError, match="/dev/uhid does not exist"):
-        run_driver("sim", "default", "hid", seconds=0.1)
+        run_driver("sim", "default", "hid", DriverOptions(seconds=0.1))
 
 
 def test_every_output_kind_has_one_opener():

@@ -105,28 +105,30 @@ def run(
     Stops at the end of the source, after --seconds, on Ctrl-C (exit 130) or SIGTERM (a clean
     stop, exit 0), always leaving the gamepad neutral. SIGHUP reloads the profile. A camera that
     is unplugged or stalls centres the gamepad at once; the driver reconnects when it is back."""
-    from neurotouch_hid.engine.driver import run_driver
+    from neurotouch_hid.engine.driver import DriverOptions, run_driver
 
     with _summary_on_interrupt():
         stats = run_driver(
             source,
             profile or None,  # an empty --profile (the templated unit's default) is not given
             output,
-            seconds=seconds,
-            fast=fast,
-            out=out,
-            window_us=window_us,
-            sensor=sensor,
-            seed=seed,
-            console=console,
-            wait=wait,
-            davis=davis_config(serial, exposure_us, stall_timeout),
-            say=say_err,
-            max_lag_us=round(max_lag_ms * 1000),
-            method=method,
-            model=chosen_model(model),
-            protocol=None if protocol is None else str(protocol),
-            serial=serial,
+            DriverOptions(
+                seconds=seconds,
+                fast=fast,
+                out=out,
+                window_us=window_us,
+                sensor=sensor,
+                seed=seed,
+                console=console,
+                wait=wait,
+                davis=davis_config(serial, exposure_us, stall_timeout),
+                say=say_err,
+                max_lag_us=round(max_lag_ms * 1000),
+                method=method,
+                model=chosen_model(model),
+                protocol=None if protocol is None else str(protocol),
+                serial=serial,
+            ),
         )
     err_console.print(stats.summary(), highlight=False, soft_wrap=True)
 

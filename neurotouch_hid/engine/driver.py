@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Callable, Sequence
 
 from neurotouch_hid.core.errors import DeviceError, NeurotouchError, ProfileError
 from neurotouch_hid.core.kinds import MethodKind, OutputKind, SourceKind
@@ -214,75 +214,107 @@ def known_profiles() -> list[Profile]:
     return known
 
 
+@dataclass(frozen=True)
+class DriverOptions:
+    """How ``neurotouch-hid run`` runs (:func:`run_driver`), as the command line gives it.
+
+    Attributes:
+        seconds: stop after this much camera time (s); None: at the source's end, Ctrl-C or SIGTERM.
+        fast: recordings and the simulated gel only: as fast as possible, nothing dropped, the
+            resting detection inline (the same input always gives the same states); else paced
+            in real time.
+        out: the ``jsonl`` output's file (None: standard output).
+        window_us: the gesture windows' length (us, >= 1000; the paper's 10 ms).
+        sensor: the gel's ``sensor.yaml`` (None: the camera's own, else the shared one).
+        seed: the simulated gel's random seed.
+        console: where the terminal and live views draw (rich); None: standard output.
+        outputs: subscribers that replace those ``output`` names (the demo's fallback, benchmarks).
+        davis: the live camera's settings (:class:`~neurotouch_hid.sources.davis.DavisConfig`).
+        wait: the live camera: wait for one to be plugged in instead of failing.
+        capture: the camera's backend (:class:`~neurotouch_hid.sources.open.CameraBackend`; None: dv-processing).
+        say: tells the user what happens (a camera lost and back, a first run's compile).
+        stats: where the run is counted (the one a given terminal view shows); None: a new one.
+        max_lag_us: real time: data is dropped, oldest first, once the pipeline falls this far
+            behind (us of camera time, >= 1000).
+        method: the gesture pipeline (``pipeline.methods``: ``default`` or ``paper``).
+        model: an adapted model's values over it (``enrolment/model.py``); None: the shipped method.
+        finish_gesture: the simulated gel: past ``seconds`` its hand finishes the gesture it
+            performs (:class:`~neurotouch_hid.engine.assembly.RunAssembly`).
+        protocol: with ``output`` ``usb`` or ``hid``, the protocol the controller speaks (a row of
+            :data:`~neurotouch_hid.targets.protocols.PROTOCOLS`; None: the profile's
+            ``device: protocol``, else ``hid``).
+        serial: the camera the run stands for (:mod:`neurotouch_hid.sources.serial`): the outputs'
+            identity, its control socket, its own config where it has one.
+
+    Raises:
+        NeurotouchError: ``window_us`` or ``max_lag_us`` under 1000 us, or an unknown ``method``.
+    """
+
+    seconds: float | None = None
+    fast: bool = False
+    out: str | Path | None = None
+    window_us: int = 10_000
+    sensor: str | Path | None = None
+    seed: int = 0
+    console: Console | None = None
+    outputs: Sequence[Subscriber] | None = None
+    davis: DavisConfig | None = None
+    wait: bool = False
+    capture: CameraBackend | None = None
+    say: Callable[[str], None] = log.warning
+    stats: RunStats | None = None
+    max_lag_us: int = DEFAULT_MAX_LAG_US
+    method: str = "default"
+    model: Model | None = None
+    finish_gesture: bool = False
+    protocol: str | None = None
+    serial: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.window_us < 1000:
+            raise NeurotouchError(f"--window-us {self.window_us}: windows must be at least 1000 us")
+        if self.max_lag_us < 1000:
+            raise NeurotouchError(f"--max-lag-ms {self.max_lag_us / 1000:g}: the lag allowed must be at least 1 ms")
+        if self.method not in tuple(MethodKind):
+            raise NeurotouchError(f"--method {self.method!r}: expected one of {', '.join(MethodKind)}")
+
+
 def run_driver(
     source: str = "davis",
     profile: str | Path | None = "default",
     output: str = "gamepad",
-    *,
-    seconds: float | None = None,
-    fast: bool = False,
-    out: str | Path | None = None,
-    window_us: int = 10_000,
-    sensor: str | Path | None = None,
-    seed: int = 0,
-    console: Console | None = None,
-    outputs: list[Subscriber] | None = None,
-    davis: DavisConfig | None = None,
-    wait: bool = False,
-    capture: CameraBackend | None = None,
-    say: Callable[[str], None] = log.warning,
-    stats: RunStats | None = None,
-    max_lag_us: int = DEFAULT_MAX_LAG_US,
-    method: str = "default",
-    model: Model | None = None,
-    finish_gesture: bool = False,
-    protocol: str | None = None,
-    serial: str | None = None,
+    options: DriverOptions = DriverOptions(),
 ) -> RunStats:
     """``neurotouch-hid run``: load the profile (a bad one raises ProfileError before any device
     exists), open the outputs, then run: the engine opens the source and builds the pipeline
     (:class:`RunAssembly`) and runs until the end.
 
-    Real time (the camera, or paced replays): the resting detector runs in its own thread, and
-    data is dropped, oldest first, if the pipeline falls more than ``max_lag_us`` (us of camera
-    time) behind. ``fast`` (recordings and the simulated gel only): as fast as possible, nothing
-    dropped, resting detection inline, so the same input always gives the same states.
+    ``source``: ``davis``, ``sim`` or a file (a recording, a predictions file); ``profile``: a
+    profile's name or path (None: the camera's own ``profile.yaml``, else ``default``);
+    ``output``: one of :class:`~neurotouch_hid.core.kinds.OutputKind`; the rest in ``options``
+    (:class:`DriverOptions`). Real time (the camera, or paced replays): the resting detector runs
+    in its own thread, and data is dropped, oldest first, if the pipeline falls more than
+    ``options.max_lag_us`` behind.
 
-    ``outputs`` replace the subscribers named by ``output`` (the demo's fallback, benchmarks);
-    ``stats`` is where the run is counted (the one a given terminal view shows).
-    ``davis``, ``wait``, ``capture``: the live camera's settings (:func:`open_source`); ``say``
-    tells the user when it is lost and back. ``method``: the gesture pipeline
-    (``pipeline.methods``: ``default`` or ``paper``); ``model``: an adapted model's values over
-    it (``enrolment/model.py``; None: the shipped method). ``finish_gesture`` (the simulated
-    gel): past ``seconds`` its hand finishes the gesture it performs (:class:`RunAssembly`).
-    ``protocol``: with ``output`` ``usb`` or ``hid``, the protocol the controller speaks (a row of
-    :data:`~neurotouch_hid.targets.protocols.PROTOCOLS` that runs on the gadget or on UHID; None:
-    the profile's ``device: protocol``, else ``hid``).
-    ``serial``: the camera the run stands for (:mod:`neurotouch_hid.sources.serial`): the outputs'
-    identity, its control socket, its own config where it has one (``profile`` None: its
-    ``profile.yaml``, else ``default``; its ``sensor.yaml`` and ``games.yaml``, else the shared).
     Raises NeurotouchError subclasses for bad input (ProfileError, RecordingError, DeviceError,
     SensorError).
     """
     if output not in tuple(OutputKind):
         raise NeurotouchError(f"unknown output '{output}' (expected one of: {', '.join(OutputKind)})")
+    protocol = options.protocol
     if protocol is not None and output not in (OutputKind.USB, OutputKind.HID):
         raise NeurotouchError(f"--protocol {protocol}: only with --output usb (the USB gadget) or --output hid (UHID)")
-    if window_us < 1000:
-        raise NeurotouchError(f"--window-us {window_us}: windows must be at least 1000 us")
-    if max_lag_us < 1000:
-        raise NeurotouchError(f"--max-lag-ms {max_lag_us / 1000:g}: the lag allowed must be at least 1 ms")
-    if method not in tuple(MethodKind):
-        raise NeurotouchError(f"--method {method!r}: expected one of {', '.join(MethodKind)}")
+    seconds, fast, davis, say, stats = options.seconds, options.fast, options.davis, options.say, options.stats
+    finish_gesture = options.finish_gesture
     from neurotouch_hid.sources.serial import camera_serial, own_config
 
-    serial = camera_serial(source, serial, davis, say)
+    serial = camera_serial(source, options.serial, davis, say)
     if source == SourceKind.DAVIS and serial is not None:  # reopened after an unplug: the same camera
         from neurotouch_hid.sources.davis import DavisConfig
 
         davis = replace(davis or DavisConfig(), serial=serial)
     identity = identity_for(serial)
-    profile, sensor = own_config(source, serial, profile, sensor)
+    profile, sensor = own_config(source, serial, profile, options.sensor)
     loaded = load_profile(profile)
     inputs = (None if source in tuple(SourceKind) else source, find_profile(profile), sensor)
     try:
@@ -298,15 +330,15 @@ def run_driver(
                 if first is not None:  # before the pad or target device exists: games list one controller
                     stack.callback(first.stop)
                     first.grab()
-                subscribers = outputs
+                subscribers = None if options.outputs is None else list(options.outputs)
                 if subscribers is None:
                     try:
                         made = open_output(
                             output,
                             loaded,
                             stack,
-                            out=out,
-                            console=console,
+                            out=options.out,
+                            console=options.console,
                             say=say,
                             inputs=inputs,
                             on_feedback=copilot,
@@ -316,21 +348,21 @@ def run_driver(
                         )
                     except DeviceError as exc:
                         raise DeviceError(_and_the_source(str(exc), source, davis)) from None
-                    subscribers = open_outputs(made, output, stack, console)
+                    subscribers = open_outputs(made, output, stack, options.console)
                 say = said_above(subscribers, say)
                 assembly = RunAssembly(
                     source,
                     seconds=seconds,
-                    window_us=window_us,
-                    method=method,
+                    window_us=options.window_us,
+                    method=options.method,
                     fast=fast,
                     sensor=sensor,
-                    seed=seed,
+                    seed=options.seed,
                     davis=davis,
-                    wait=wait,
-                    capture=capture,
+                    wait=options.wait,
+                    capture=options.capture,
                     say=say,
-                    model=model,
+                    model=options.model,
                     finish_gesture=finish_gesture,
                 )
                 options = RunOptions(
@@ -338,7 +370,7 @@ def run_driver(
                     profile_ref=profile,
                     say=say,
                     stats=stats,
-                    max_lag_us=max_lag_us,
+                    max_lag_us=options.max_lag_us,
                     merge=first,
                     merge_for=None if copilot is None else copilot.merge_for,
                     early_stop=early,
@@ -434,5 +466,8 @@ def run_demo(
     with contextlib.ExitStack() as stack:
         outputs = gamepad_or_terminal(profile, stack, console=console, say=say)
         return run_driver(
-            "sim", "default", "gamepad", seconds=seconds, console=console, outputs=outputs, finish_gesture=True
+            "sim",
+            "default",
+            "gamepad",
+            DriverOptions(seconds=seconds, console=console, outputs=outputs, finish_gesture=True),
         )

@@ -228,7 +228,7 @@ def check_copilot_merges_grabs_rejoins_and_rumbles() -> dict:
     The driver runs in this process (``run_driver``, what ``neurotouch-hid run`` calls, in the main
     thread, where SIGTERM's handler runs): a second Python start would cost minutes here. The steps
     run in a thread beside it, and end it with a real SIGTERM to this process."""
-    from neurotouch_hid.engine.driver import run_driver
+    from neurotouch_hid.engine.driver import DriverOptions, run_driver
     from neurotouch_hid.service.control import SOCKET_NAME
 
     started = time.monotonic()
@@ -250,7 +250,10 @@ def check_copilot_merges_grabs_rejoins_and_rumbles() -> dict:
     try:
         thread.start()
         stats = run_driver(
-            str(preds), "mouse", "gamepad", max_lag_us=int(NO_DROP_LAG_MS) * 1000, say=scenario.said.append
+            str(preds),
+            "mouse",
+            "gamepad",
+            DriverOptions(max_lag_us=int(NO_DROP_LAG_MS) * 1000, say=scenario.said.append),
         )
         scenario.details["windows"] = stats.windows
     finally:

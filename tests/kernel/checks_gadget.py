@@ -581,7 +581,7 @@ class _ForkedRun:
     def __init__(
         self, preds: Path, profile: Path | str, protocol: str = "hid", output: str = "usb", before=None
     ) -> None:
-        from neurotouch_hid.engine.driver import run_driver
+        from neurotouch_hid.engine.driver import DriverOptions, run_driver
 
         self.said: list[str] = []
         self.status: int | None = None
@@ -591,7 +591,7 @@ class _ForkedRun:
             try:
                 if before is not None:  # in the child, before the run (a check's variant)
                     before()
-                run_driver(str(preds), str(profile), output, protocol=protocol, say=lambda line: None)
+                run_driver(str(preds), str(profile), output, DriverOptions(protocol=protocol, say=lambda line: None))
                 code = 0
             finally:
                 os._exit(code)

@@ -82,7 +82,7 @@ def _start(preds: Path, profile: Path, serial: str) -> tuple[int, int]:
     import neurotouch_hid.engine.engine  # noqa: F401
     import neurotouch_hid.mapping.mapper  # noqa: F401
     import neurotouch_hid.targets.gadget.targets  # noqa: F401
-    from neurotouch_hid.engine.driver import run_driver
+    from neurotouch_hid.engine.driver import DriverOptions, run_driver
 
     read_fd, write_fd = os.pipe()
     child = os.fork()
@@ -92,7 +92,7 @@ def _start(preds: Path, profile: Path, serial: str) -> tuple[int, int]:
         try:
             os.close(read_fd)
             signal.signal(signal.SIGTERM, signal.SIG_DFL)
-            run_driver(str(preds), str(profile), "usb", protocol="hid", serial=serial, say=said.append)
+            run_driver(str(preds), str(profile), "usb", DriverOptions(protocol="hid", serial=serial, say=said.append))
             answer = {"ok": True}
         except BaseException as exc:  # noqa: BLE001 - handed to the parent
             answer = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}

@@ -145,10 +145,10 @@ def _expected_lines(preds: Path, profile: Path, folder: Path) -> list[dict]:
     """The state lines the same estimates give through ``run --output jsonl --fast`` (into
     ``folder/expected.jsonl``): the driver's own :func:`run_driver`, in this process (a second
     Python start costs tens of seconds here)."""
-    from neurotouch_hid.engine.driver import run_driver
+    from neurotouch_hid.engine.driver import DriverOptions, run_driver
 
     out = folder / "expected.jsonl"
-    run_driver(str(preds), profile, "jsonl", fast=True, out=out)
+    run_driver(str(preds), profile, "jsonl", DriverOptions(fast=True, out=out))
     return [json.loads(line) for line in out.read_text().splitlines() if line.strip()]
 
 
@@ -212,7 +212,7 @@ def _our_devices() -> list[str]:
 def check_run_gamepad_matches_the_profile() -> dict:
     """The runtime (paced, real threads) drives the uinput pad; what evdev reads back, state by
     state, is what the same estimates give through ``--output jsonl``; the pad ends neutral."""
-    from neurotouch_hid.engine.driver import run_driver
+    from neurotouch_hid.engine.driver import DriverOptions, run_driver
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.targets import TargetOutputs
     from neurotouch_hid.targets.uinput.gamepad import GamepadIdentity, VirtualGamepad
@@ -230,7 +230,10 @@ def check_run_gamepad_matches_the_profile() -> dict:
         watcher = PadWatcher(pad.device_path)
         with TargetOutputs([pad]) as outputs:  # the run's one output path, as run_driver's own
             stats = run_driver(
-                str(preds), profile_path, "gamepad", outputs=[outputs], max_lag_us=int(NO_DROP_LAG_MS) * 1000
+                str(preds),
+                profile_path,
+                "gamepad",
+                DriverOptions(outputs=[outputs], max_lag_us=int(NO_DROP_LAG_MS) * 1000),
             )
         guestlib.wait_for(lambda: watcher.states[-1] == NEUTRAL, 5.0)
         watcher.stop()

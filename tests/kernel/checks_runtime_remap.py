@@ -147,7 +147,7 @@ def _run_in_process(
     a watcher on each device before the run starts."""
     import contextlib
 
-    from neurotouch_hid.engine.driver import open_output, run_driver
+    from neurotouch_hid.engine.driver import DriverOptions, open_output, run_driver
     from neurotouch_hid.mapping.profile import load_profile
 
     preds = _write_preds(folder, estimates)
@@ -167,7 +167,9 @@ def _run_in_process(
         for device in (devices.pad, devices.keyboard, devices.mouse):
             if device is not None:
                 watchers["pad" if device is devices.pad else device.what] = Watcher(device.device_path)
-        stats = run_driver(str(preds), profile, "gamepad", outputs=[outputs], max_lag_us=int(NO_DROP_LAG_MS) * 1000)
+        stats = run_driver(
+            str(preds), profile, "gamepad", DriverOptions(outputs=[outputs], max_lag_us=int(NO_DROP_LAG_MS) * 1000)
+        )
     time.sleep(0.3)
     for w in watchers.values():
         w.stop()

@@ -47,7 +47,7 @@ mappings:
 def _start(preds: Path, serial: str, env: dict[str, str]) -> tuple[int, int]:
     """``run --source PREDS --serial SERIAL --output gamepad`` (no --profile) in a forked child:
     (its pid, the read end of the pipe its result comes on: JSON, what it said and how it ended)."""
-    from neurotouch_hid.engine.driver import run_driver
+    from neurotouch_hid.engine.driver import DriverOptions, run_driver
 
     _import_what_a_run_imports()
     read_fd, write_fd = os.pipe()
@@ -59,7 +59,9 @@ def _start(preds: Path, serial: str, env: dict[str, str]) -> tuple[int, int]:
             os.close(read_fd)
             os.environ.update(env)
             signal.signal(signal.SIGTERM, signal.SIG_DFL)
-            stats = run_driver(str(preds), None, "gamepad", serial=serial, say=said.append, max_lag_us=600_000_000)
+            stats = run_driver(
+                str(preds), None, "gamepad", DriverOptions(serial=serial, say=said.append, max_lag_us=600_000_000)
+            )
             answer = {"ok": True, "summary": stats.summary()}
         except BaseException as exc:  # noqa: BLE001 - handed to the parent
             answer = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}

@@ -56,12 +56,12 @@ def held_state(folder: Path, profile: Path):
     run's very last line is the neutral state written at its end)."""
     from neurotouch_hid.core.controller import ControllerState
     from neurotouch_hid.core.dataset import write_predictions
-    from neurotouch_hid.engine.driver import run_driver
+    from neurotouch_hid.engine.driver import DriverOptions, run_driver
 
     preds = folder / "held.jsonl"
     write_predictions(preds, push_right(0.4))
     out = folder / "expected.jsonl"
-    run_driver(str(preds), profile, "jsonl", fast=True, out=out)
+    run_driver(str(preds), profile, "jsonl", DriverOptions(fast=True, out=out))
     last = [d for d in map(json.loads, out.read_text().splitlines()) if d["gesture"] == "push"][-1]
     return ControllerState(axes=last["axes"], buttons=last["buttons"])
 
@@ -133,7 +133,8 @@ class InProcessRun:
     the user (``say``'s, and the driver's log lines of WARNING and above, as the CLI prints them
     on stderr); ``done``: set once ``run_driver`` returned. ``env``: environment variables set
     for the run (XDG_RUNTIME_DIR for its control socket, XDG_CONFIG_HOME for the user's
-    profiles), restored after it. ``options``: more of ``run_driver``'s arguments (``wait``).
+    profiles), restored after it. ``options``: more of the run's
+    :class:`~neurotouch_hid.engine.driver.DriverOptions` fields (``wait``).
     ``max_lag_ms``: the lag the run allows (``--max-lag-ms``; these checks' default: none dropped)."""
 
     def __init__(
@@ -178,7 +179,7 @@ class InProcessRun:
 
     def __call__(self, steps):
         """Run the driver and ``steps``; return what ``steps`` returned, raise what it raised."""
-        from neurotouch_hid.engine.driver import run_driver
+        from neurotouch_hid.engine.driver import DriverOptions, run_driver
 
         box: dict = {}
 
@@ -201,10 +202,7 @@ class InProcessRun:
             thread.start()
             run_driver(
                 *self.args,
-                protocol=self.protocol,
-                max_lag_us=self.max_lag_us,
-                say=self.said.append,
-                **self.options,
+                DriverOptions(protocol=self.protocol, max_lag_us=self.max_lag_us, say=self.said.append, **self.options),
             )
             self.returned = True
         finally:
