@@ -7,7 +7,14 @@ import pytest
 
 from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.contacts_plateau import rest_neighbours
-from neurotouch_hid.pipeline.tracker import SWAP_PITCHES, BlobTracker, TrackerConfig, swapped_blobs
+from neurotouch_hid.pipeline.tracker import (
+    SWAP_FOUND_PITCHES,
+    SWAP_PITCHES,
+    BlobTracker,
+    TrackerConfig,
+    _suspects,
+    swapped_blobs,
+)
 from neurotouch_hid.sources import EVENT_DTYPE
 
 SENSOR = SensorGeometry()
@@ -407,6 +414,35 @@ def test_a_chain_of_blobs_left_one_marker_along_is_put_back_on_its_own_markers()
     assert np.all(tracker.velocities_px_per_s == 0)
     x, y = np.round(truth[20]).astype(int)
     assert tracker.owner_image()[y, x] == 20
+
+
+def test_a_cluster_of_blobs_left_between_markers_is_put_back_on_its_own_markers():
+    """After a deep press's quick lift four blobs under the finger sat 0.5-0.7 pitch off their
+    markers, between two of them, for 0.6 s (a simulated viscoelastic gel). Each other's
+    neighbours, they lean their neighbours' median towards them: each reads less than
+    SWAP_PITCHES from it, but sits on no marker of the frame while its own marker, where the
+    median puts it, holds no blob."""
+    rest, truth = gel_grid()
+    neighbours = rest_neighbours(rest, PITCH)
+    valid = np.ones(len(rest), bool)
+    blobs = truth.copy()
+    cluster = [10, 11, 19, 20]  # on the drag's flank
+    blobs[cluster] += [0.0, 0.5 * PITCH]  # half a pitch across the drag: between two markers
+    shared = np.full((len(rest), 2), np.nan)
+    _suspects(blobs, valid, rest, neighbours, 0.0, shared)
+    off = np.hypot(*(blobs[cluster] - rest[cluster] - shared[cluster]).T)
+    assert np.all(off < SWAP_PITCHES * PITCH) and np.all(off > SWAP_FOUND_PITCHES * PITCH)
+    # as far off, but on a marker of the frame (a strained hold: the frame shows it there), it stays
+    moved, _ = swapped_blobs(blobs, valid, rest, neighbours, blobs, PITCH)
+    assert len(moved) == 0
+    # within two frames (those whose median leans least first) every one is on its own marker
+    back = []
+    for _frame in range(2):
+        moved, where = swapped_blobs(blobs, valid, rest, neighbours, truth, PITCH)
+        assert np.allclose(where, truth[moved])
+        blobs[moved] = where
+        back += moved.tolist()
+    assert sorted(back) == cluster and np.allclose(blobs, truth)
 
 
 def test_a_smooth_deep_drag_and_a_frame_without_the_marker_move_no_blob():

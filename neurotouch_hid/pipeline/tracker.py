@@ -487,7 +487,8 @@ def _suspects(positions, valid, rest, neighbours, limit, shared):
 #: A blob whose displacement from rest is this many marker pitches from the median of its
 #: neighbours' on the gel is on another marker than its own (:func:`swapped_blobs`) ...
 SWAP_PITCHES = 0.7
-#: ... when a detection of the frame lies within this many pitches of where that median puts it.
+#: ... when a detection of the frame lies within this many pitches of where that median puts it
+#: (and a blob this far from that median with no detection within this distance of it is a suspect too).
 SWAP_FOUND_PITCHES = 0.3
 
 
@@ -503,14 +504,18 @@ def swapped_blobs(
     APS frame (not in the paper; docs/method.md, "Frame correction").
 
     A fast, large motion (a deep press let go at once) can leave blobs on their neighbours'
-    markers, a chain of them each one pitch along; the frame correction then holds each on the
-    wrong marker, and only a frame at rest re-anchors them, which a creeping gel may not show for
-    seconds. The gel is continuous: a marker moves as its neighbours do. A valid blob whose
-    displacement from rest is more than :data:`SWAP_PITCHES` pitches from the median of its valid
-    neighbours' (at least 3) is a suspect; each suspect is assigned the frame's detection nearest
-    where that median puts it, when that detection is within :data:`SWAP_FOUND_PITCHES` pitches of
-    it and no blob that is not a suspect is as near to it (closest pairs first, each detection
-    once: markers lie more than twice that apart, so a chain is undone at once).
+    markers, a chain of them each one pitch along, or between two markers, a cluster of them
+    under the finger; the frame correction then holds each on the wrong marker or, beyond its
+    gate, leaves it where it is, and only a frame at rest re-anchors them, which a creeping gel may
+    not show for seconds. The gel is continuous: a marker moves as its neighbours do. A valid blob
+    whose displacement from rest is more than :data:`SWAP_PITCHES` pitches from the median of its
+    valid neighbours' (at least 3) is a suspect; so is one more than :data:`SWAP_FOUND_PITCHES`
+    pitches from that median that sits on no marker of the frame (no detection within that
+    distance of it: a cluster of blobs left between markers, each other's neighbours, leans their
+    median towards them). Each suspect is assigned the frame's detection nearest where that
+    median puts it, when that detection is within :data:`SWAP_FOUND_PITCHES` pitches of it and no
+    blob that is not a suspect is as near to it (closest pairs first, each detection once: markers
+    lie more than twice that apart, so a chain is undone at once).
 
     Args:
         positions_px: (N, 2) float64 the blobs' positions (px, image frame).
@@ -528,19 +533,26 @@ def swapped_blobs(
     if not len(det):
         return none
     shared = np.full((len(valid), 2), np.nan)
-    is_suspect = _suspects(
-        np.ascontiguousarray(positions_px, dtype=np.float64),
-        np.ascontiguousarray(valid, dtype=np.bool_),
-        np.ascontiguousarray(rest_px, dtype=np.float64),
-        np.ascontiguousarray(neighbours, dtype=np.int64),
-        SWAP_PITCHES * float(pitch_px),
-        shared,
+    reach = SWAP_FOUND_PITCHES * float(pitch_px)
+    off = np.flatnonzero(  # more than the reach from their neighbours' median
+        _suspects(
+            np.ascontiguousarray(positions_px, dtype=np.float64),
+            np.ascontiguousarray(valid, dtype=np.bool_),
+            np.ascontiguousarray(rest_px, dtype=np.float64),
+            np.ascontiguousarray(neighbours, dtype=np.int64),
+            reach,
+            shared,
+        )
     )
-    suspects = np.flatnonzero(is_suspect)
+    if not len(off):
+        return none
+    wanted = shared[off] + rest_px[off]  # (S, 2) where each one's marker should be
+    far = np.hypot(*(positions_px[off] - wanted).T) > SWAP_PITCHES * float(pitch_px)
+    astray = np.hypot(*(positions_px[off][:, None, :] - det[None, :, :]).transpose(2, 0, 1)).min(axis=1) > reach
+    keep = far | astray
+    suspects, wanted = off[keep], wanted[keep]
     if not len(suspects):
         return none
-    wanted = shared[suspects] + rest_px[suspects]  # (S, 2) where each suspect's marker should be
-    reach = SWAP_FOUND_PITCHES * float(pitch_px)
     cost = np.hypot(*(wanted[:, None, :] - det[None, :, :]).transpose(2, 0, 1))  # (S, M)
     near = np.flatnonzero((cost <= reach).any(axis=0))  # the detections within reach of one
     if not len(near):
