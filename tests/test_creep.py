@@ -364,3 +364,54 @@ def test_family_eval_calibrates_a_familys_creep_on_its_press(viscoelastic_press,
     written = SensorGeometry.load(sensor_file)
     assert written.creep == (share, time_s) and 0.2 <= share <= 0.4
     assert dataclasses.replace(written, creep=None) == SensorGeometry.load(viscoelastic_press / "sensor.yaml")
+
+
+def test_the_filter_reads_the_gels_amplitude_and_scales_the_intensity_by_its_load_share():
+    """The gesture's intensity is a mean about its contacts: a larger share of the gel's field in a
+    release tail (the fingers gone, the field relaxing about its peaks) than in the hold (0.64
+    against 1.0 on a simulated twist). Fed that intensity, a creep calibrated on the gel's
+    amplitude reads the tail as load for its first 0.3 s (a gesture answered where the fingers have
+    left); the pipeline feeds the filter the amplitude the creep was calibrated on, and reads the
+    intensity's share of load (load / amplitude), so the tail reads gone from the release on while
+    the hold never does."""
+    from types import SimpleNamespace
+
+    from neurotouch_hid.pipeline.creep import amplitude
+    from neurotouch_hid.pipeline.pipeline import GesturePipeline
+
+    load = press_load()
+    field = creeping(load, 0.3, 0.3) * 2.0  # the top markers' mean displacement (px)
+    pressed = load > 0
+    intensity = np.where(pressed, 0.64, 1.0) * field  # the intensity's share of it: hold, tail
+    t = np.arange(len(load)) * STEP_US
+    rest = np.zeros((20, 2))
+    gone_old, gone_new = [], []
+    old = CreepFilter(0.3, 0.3, floor=0.3)
+    new = SimpleNamespace(_creep=CreepFilter(0.3, 0.3, floor=0.3), rest_px=rest, _tail=TailWatch())
+    for a, i, ti in zip(field, intensity, t):
+        positions = np.column_stack([np.linspace(0.5, 1.0, 20) * a, np.zeros(20)])
+        positions[-10:, 0] = a  # the ten most displaced markers at the amplitude
+        new.tracker = SimpleNamespace(positions_px=positions, valid=np.ones(20, bool))
+        assert amplitude(positions, rest, np.ones(20, bool)) == pytest.approx(a)
+        gone_old.append(old.released(old.update(i, int(ti))))
+        gone_new.append(GesturePipeline._released(new, float(i), int(ti)))
+    gone_old, gone_new = np.array(gone_old), np.array(gone_new)
+    start, last = int(np.flatnonzero(pressed)[0]), int(np.flatnonzero(pressed)[-1])
+    tail = slice(last + 1, last + 31)  # the first 0.3 s after the fingers left
+    assert not gone_new[start:last].any() and not gone_old[start:last].any()  # the hold
+    assert gone_new[tail].all()
+    assert not gone_old[tail].any()
+
+
+def test_the_gels_amplitude_is_its_ten_most_displaced_valid_markers():
+    from neurotouch_hid.pipeline.creep import amplitude
+
+    rest = np.zeros((14, 2))
+    positions = np.column_stack([np.arange(14.0), np.zeros(14)])
+    valid = np.ones(14, bool)
+    assert amplitude(positions, rest, valid) == pytest.approx(np.arange(4.0, 14.0).mean())
+    valid[13] = False  # a lost marker does not count
+    positions[12] = np.nan
+    assert amplitude(positions, rest, valid) == pytest.approx(np.arange(2.0, 12.0).mean())
+    assert amplitude(positions[:3], rest[:3], valid[:3]) == pytest.approx(1.0)  # fewer than ten
+    assert amplitude(positions[:0], rest[:0], valid[:0]) == 0.0

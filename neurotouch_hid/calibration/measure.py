@@ -62,6 +62,7 @@ import yaml
 from neurotouch_hid.core.camera_model import fit_camera_model
 from neurotouch_hid.core.errors import SensorError
 from neurotouch_hid.core.sensor import SensorGeometry
+from neurotouch_hid.pipeline.creep import AMPLITUDE_MARKERS
 from neurotouch_hid.pipeline.markers import (
     MARKER_SPACING_MM,
     Markers,
@@ -73,8 +74,9 @@ from neurotouch_hid.sources import Frame
 
 #: Markers on the paper's gel (section "System Overview"): the default expected count.
 EXPECTED_MARKERS = 177
-#: A press's amplitude is the mean displacement of this many markers, the most displaced.
-PRESS_MARKERS = 10
+#: A press's amplitude is the mean displacement of this many markers, the most displaced (the
+#: creep filter reads the same: ``creep.amplitude``).
+PRESS_MARKERS = AMPLITUDE_MARKERS
 #: Rest frames averaged by default (0.4 s at the DAVIS-346's 25 Hz), and the fewest accepted.
 REST_FRAMES = 10
 MIN_REST_FRAMES = 3

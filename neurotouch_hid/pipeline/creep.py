@@ -15,10 +15,12 @@ simulated ``viscoelastic`` gel, q = 0.3 and tau = 0.3 s, ~0.4 s after the finger
 docs/method.md, "Creep"). The load follows from d alone when q and tau are known: eliminating
 f gives ``(1 - q) tau dy/dt = d - y``, so y is d low-passed with the time constant (1 - q) tau,
 and ``f = (d - q y) / (1 - q)``. The pipeline (with the gel's ``creep`` in
-sensor.yaml; docs/method.md, "Creep") answers ``none`` in a window whose load is below ``min_intensity_px``
-plus :data:`LOAD_MARGIN` times q y, the part of the deformation the load was separated from (and,
-once read gone, until the load is back at :data:`REARM` times that or the gel is seen still): the
-fingers have left, whatever the gel still shows. Without a creep model (an elastic gel,
+sensor.yaml; docs/method.md, "Creep") takes d as :func:`amplitude` (the measure the creep was
+calibrated on) and answers ``none`` in a window whose load, as a share f / d of the gesture's
+intensity, is below ``min_intensity_px`` plus :data:`LOAD_MARGIN` times q y, the part of the
+deformation the load was separated from, in the same share (and, once read gone, until the load
+is back at :data:`REARM` times that or the gel is seen still): the fingers have left, whatever
+the gel still shows. Without a creep model (an elastic gel,
 q = 0) the load is the deformation and nothing changes.
 
 q and tau are the gel's: ``calibrate --press`` measures them on a recording of one press
@@ -60,6 +62,26 @@ LOAD_MARGIN = 0.2
 #: times the threshold (or the gel was seen still): in a tail the load read rises ~0.25 mm between
 #: two APS frames' corrections and would switch the output on and off (docs/method.md, "Creep").
 REARM = 1.5
+
+
+#: The gel's deformation is read as the mean displacement of this many markers, the most displaced.
+AMPLITUDE_MARKERS = 10
+
+
+def amplitude(positions_px: np.ndarray, rest_px: np.ndarray, valid: np.ndarray) -> float:
+    """The gel's deformation amplitude (px): the mean displacement from rest of the
+    :data:`AMPLITUDE_MARKERS` most displaced valid markers (all of them when fewer; 0 when none).
+
+    What ``calibrate --press`` fits the creep on and the pipeline's filter reads: the same measure
+    for both, whatever the gesture (the gesture's intensity, a mean about its contacts, is another
+    share of the gel's field in a hold than in a tail). Args: (N, 2) float positions and rest
+    positions (px), (N,) bool valid."""
+    moved = np.hypot(*(np.asarray(positions_px, dtype=np.float64) - rest_px).T)[np.asarray(valid, dtype=bool)]
+    moved = moved[np.isfinite(moved)]
+    if not len(moved):
+        return 0.0
+    k = min(AMPLITUDE_MARKERS, len(moved))
+    return float(np.partition(moved, len(moved) - k)[-k:].mean())
 
 
 class CreepFilter:
@@ -125,11 +147,14 @@ class CreepFilter:
         floor plus ``margin`` times the delayed deformation q y the load was separated from."""
         return self.floor + self.margin * self.share * self._y
 
-    def released(self, load: float) -> bool:
-        """Whether ``load`` (the last :meth:`update`'s, same unit) says the fingers have left:
-        below :attr:`threshold`; once they have, until the load is back at :data:`REARM` times it
-        (hysteresis) or the gel was seen still."""
-        threshold = self.threshold
+    def released(self, load: float, scale: float = 1.0) -> bool:
+        """Whether ``load`` (the last :meth:`update`'s, times ``scale``) says the fingers have
+        left: below :attr:`threshold` (its delayed part times ``scale``); once they have, until
+        the load is back at :data:`REARM` times it (hysteresis) or the gel was seen still.
+        ``scale`` (> 0) takes the deformation :meth:`update` was given to the unit of the floor:
+        the pipeline gives the gel's :func:`amplitude` and reads the gesture's intensity, the
+        floor's unit (docs/method.md, "Creep")."""
+        threshold = self.floor + self.margin * self.share * self._y * scale
         self._gone = load < (REARM * threshold if self._gone else threshold)
         return self._gone
 

@@ -50,6 +50,7 @@ from neurotouch_hid.pipeline.config import MIN_WINDOW_US, PipelineConfig, PixelS
 from neurotouch_hid.pipeline.contacts import Contacts, compile_held_kernels, detect_contacts
 from neurotouch_hid.pipeline.contacts_plateau import rest_neighbours
 from neurotouch_hid.pipeline.creep import TAIL_PRESS_MARKERS, TAIL_PRESS_SHARE, CreepFilter, TailWatch
+from neurotouch_hid.pipeline.creep import amplitude as creep_amplitude
 from neurotouch_hid.pipeline.episode import EpisodeVote
 from neurotouch_hid.pipeline.frame_path import RESUME_MATCH_FRAMES, FramePath
 from neurotouch_hid.pipeline.gel_motion import compile_gel_motion_kernels, estimate_gel_motion, rim_markers
@@ -400,10 +401,15 @@ class GesturePipeline(WindowPath, FramePath):
     def _released(self, intensity_px: float, t_us: int) -> bool:
         """Whether the fingers' load behind the window's intensity (px) is below
         ``min_intensity_px`` plus the load's margin, with hysteresis (``CreepFilter.released``;
-        docs/method.md, "Creep"; False without the gel's creep)."""
+        docs/method.md, "Creep"; False without the gel's creep). The filter reads the gel's
+        deformation as ``calibrate --press`` measured its creep on (``creep.amplitude``), and the
+        share of it that is load scales the intensity."""
         if self._creep is None:
             return False
-        if not self._creep.released(self._creep.update(intensity_px, t_us)):
+        amplitude = creep_amplitude(self.tracker.positions_px, self.rest_px, self.tracker.valid)
+        load = self._creep.update(amplitude, t_us)
+        scale = intensity_px / amplitude if amplitude > 0.0 else 1.0
+        if not self._creep.released(load * scale, scale):
             self._tail.reset()
             return False
         return True
