@@ -8,8 +8,8 @@ multi-finger starts"; docs/method.md, "Creep").
 ``DIR`` is a ``benchmarks/family_eval.py --sessions`` folder (each family's sessions and its
 sensor.yaml with the creep calibrated on ``DIR/presses/FAMILY``). Each sequence is run once through
 the product's pipeline, recording per window what its episode vote is given, the gesture step's
-answer before the creep filter, and every step of the filter (its deformation in px, time, and
-whether it read the fingers gone). Printed per family:
+answer before the creep filter, and every step of the filter (the gel's amplitude in px it is
+given, time, the intensity's share of it, and whether it read the fingers gone). Printed per family:
 
 * **where the wrong windows are**: the product's windows scored for type (outside the 40 ms
   collar, under the 0.3 mm rule: ``benchmarks/felt_rules.py``) whose answer is not the label's,
@@ -79,9 +79,10 @@ class Recorded(GesturePipeline):
                     outer._window["steps"].append((float(deformation), int(t_us), self.floor))
                     return super().update(deformation, t_us)
 
-                def released(self, load: float) -> bool:
-                    gone = super().released(load)
+                def released(self, load: float, scale: float = 1.0) -> bool:
+                    gone = super().released(load, scale)
                     outer._window["gone"] = bool(gone)
+                    outer._window["scale"] = float(scale)
                     return gone
 
             inner.__class__ = Watched
@@ -177,7 +178,8 @@ def replayed(dataset: Path, recorded: dict, share: float, time_s: float, margin:
                 model.floor = floor
                 load = model.update(deformation, t_us)
             if "gone" in w and load is not None:
-                gone = model.released(load)
+                scale = w.get("scale", 1.0)
+                gone = model.released(load * scale, scale)
                 if gone and not w["gone"]:
                     gesture, intensity, n = NONE, 0.0, 0
                 elif w["gone"] and not gone:
