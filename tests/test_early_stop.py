@@ -200,3 +200,19 @@ def test_a_sigterm_during_an_import_is_raised_once_the_import_is_over(tmp_path, 
     assert imported is not None and imported.DONE
     assert sys.modules["nt_slow_to_import"] is imported
     monkeypatch.delitem(sys.modules, "nt_slow_to_import")
+
+
+def test_a_sigterm_inside_a_finalizer_still_stops_the_opening():
+    """Python drops an exception raised in ``__del__`` (a first run's compile runs llvmlite's
+    finalizers): raised there, the stop was lost and the run went on. It is raised after it."""
+
+    class Finalized:
+        def __del__(self):
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.2)  # the handler runs here, inside __del__
+
+    with pytest.raises(StopRequested):
+        with EarlyStop() as early:
+            Finalized()  # dropped at once: its __del__ runs now
+            time.sleep(10)  # the SIGTERM delivered again interrupts this wait
+    assert early.requested.is_set()

@@ -166,8 +166,10 @@ def _unwind_on_termination() -> None:
     handle them themselves (``run``, ``record``, ``enrol``) set their own while they run."""
     import signal
 
+    from neurotouch_hid.engine.stopping import raise_later
+
     def unwind(signum: int, frame) -> None:
-        if _in_finalizer(frame):  # raised there, it is printed and dropped: the command ran on
+        if raise_later(frame):  # in a finalizer (the stop would be dropped) or an import (left half-made)
             _deliver_again(signum)
             return
         raise _Terminated(signum)
@@ -177,28 +179,14 @@ def _unwind_on_termination() -> None:
             signal.signal(number, unwind)
 
 
-#: How soon a termination signal that arrived inside a finalizer is delivered again (s).
-REDELIVER_S = 0.05
-
-
-def _in_finalizer(frame) -> bool:
-    """Whether ``frame`` (where a signal handler interrupted the main thread) runs inside an
-    object's ``__del__``: an exception raised there is printed as "Exception ignored" and dropped
-    (Python's data model, ``object.__del__``), as a first run's compile does in llvmlite's
-    finalizers."""
-    while frame is not None:
-        if frame.f_code.co_name == "__del__":
-            return True
-        frame = frame.f_back
-    return False
-
-
 def _deliver_again(signum: int) -> None:
-    """The signal ``signum`` sent to this process again in :data:`REDELIVER_S`, so that its handler
-    raises outside the finalizer it first met."""
+    """The signal ``signum`` sent to this process again in ``RAISE_AGAIN_S``, so that its handler
+    raises outside the finalizer or import it first met (:func:`~neurotouch_hid.engine.stopping.raise_later`)."""
     import threading
 
-    timer = threading.Timer(REDELIVER_S, os.kill, (os.getpid(), signum))
+    from neurotouch_hid.engine.stopping import RAISE_AGAIN_S
+
+    timer = threading.Timer(RAISE_AGAIN_S, os.kill, (os.getpid(), signum))
     timer.daemon = True
     timer.start()
 

@@ -11,9 +11,8 @@ ends at once and everything opened is closed on the way out); from then on it on
 :attr:`EarlyStop.requested`, which the engine reads when it starts.
 
 A SIGTERM that comes while the main thread is importing a module (the first run imports the
-pipeline and OpenCV after its first device is made) is raised only once the import has ended:
-raised inside it, it would leave the module half-made, and OpenCV's loader marked as still
-loading, so that every later import of ``cv2`` in the process fails.
+pipeline and OpenCV after its first device is made) or running an object's finalizer is raised
+only once that is over (:func:`raise_later`).
 
 Source: Python's :mod:`signal` (handlers run in the main thread, between bytecodes; a blocking
 wait on a lock or ``select`` is interrupted, PEP 475); :mod:`importlib` (an import runs in the
@@ -27,8 +26,8 @@ import signal
 import threading
 import types
 
-#: How soon a SIGTERM deferred during an import is delivered again (s).
-IMPORT_RETRY_S = 0.02
+#: How soon a signal deferred by :func:`raise_later` is delivered again (s).
+RAISE_AGAIN_S = 0.02
 
 
 def importing(frame: types.FrameType | None) -> bool:
@@ -39,6 +38,26 @@ def importing(frame: types.FrameType | None) -> bool:
             return True
         frame = frame.f_back
     return False
+
+
+def in_finalizer(frame: types.FrameType | None) -> bool:
+    """Whether ``frame`` runs inside an object's ``__del__``: an exception raised there is printed
+    as "Exception ignored" and dropped (Python's data model, ``object.__del__``), as a first run's
+    compile does in llvmlite's finalizers."""
+    while frame is not None:
+        if frame.f_code.co_name == "__del__":
+            return True
+        frame = frame.f_back
+    return False
+
+
+def raise_later(frame: types.FrameType | None) -> bool:
+    """Whether a signal handler that would raise to unwind the main thread must not raise at
+    ``frame`` (where the signal interrupted it), but have the signal delivered again a moment later
+    (:data:`RAISE_AGAIN_S`): inside a finalizer the exception would be dropped and the stop lost;
+    inside an import it would leave the module half-made (OpenCV's loader then stays marked as
+    loading, and every later ``import cv2`` in the process fails with "recursion is detected")."""
+    return in_finalizer(frame) or importing(frame)
 
 
 class StopRequested(BaseException):
@@ -74,8 +93,8 @@ class EarlyStop:
         self.requested.set()
         if not self._raising:
             return
-        if importing(frame):  # raised once the import is over: the signal again, a moment later
-            self._timer = threading.Timer(IMPORT_RETRY_S, self._again)
+        if raise_later(frame):  # raised once the import or finalizer is over: the signal again, a moment later
+            self._timer = threading.Timer(RAISE_AGAIN_S, self._again)
             self._timer.daemon = True
             self._timer.start()
             return
@@ -83,7 +102,7 @@ class EarlyStop:
         raise StopRequested()
 
     def _again(self) -> None:
-        """The SIGTERM deferred during an import, sent again while this handler still raises."""
+        """The SIGTERM deferred by :func:`raise_later`, sent again while this handler still raises."""
         with self._sending:
             if self._raising and self._installed:
                 os.kill(os.getpid(), signal.SIGTERM)
