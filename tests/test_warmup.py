@@ -560,3 +560,39 @@ def test_a_compile_seen_in_a_log_says_how_far_it_is_at_each_quarter(lines):
             run.progress[name].add(f"kernel{k}")
             run._progressed()
     assert [line.split(": ")[1].split(",")[0] for line in said] == (["25%", "50%", "75%"] if lines else [])
+
+
+def test_a_stop_while_the_run_waits_for_its_compile_stops_the_children(monkeypatch):
+    """A SIGTERM while a run that cannot wait (the camera, ``--fast``) waits for its compile raises
+    in :meth:`Warmup.start`, before the run has its :meth:`Warmup.close`: the children compiled on
+    (80 MB each; in the test kernel three stopped first runs left six, and the guest ran out of
+    memory). They are stopped on the way out."""
+    from neurotouch_hid.engine.stopping import StopRequested
+
+    run = warmup.Warmup(list(warmup.PIPELINE_OF["default"]), say=lambda line: None, interpreted=False)
+    started = []
+
+    def child(group):  # a compile that takes its time, as under emulation
+        proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+        run._children.append(proc)
+        started.append(proc)
+        proc.wait()
+
+    def stopped(timeout=None):  # the SIGTERM's StopRequested, raised in the wait
+        while len(started) < len(run._threads):
+            time.sleep(0.01)
+        raise StopRequested()
+
+    monkeypatch.setattr(warmup, "cached_signatures", lambda dispatcher: [])
+    user_cache = warmup.jit_cache.JitCache(warmup.jit_cache.USER_CACHE, None)
+    monkeypatch.setattr(warmup.jit_cache, "chosen", lambda: user_cache)
+    monkeypatch.setattr(run, "_child", child)
+    monkeypatch.setattr(run, "wait", stopped)
+    try:
+        with pytest.raises(StopRequested):
+            run.start()
+        assert started and all(proc.poll() is not None for proc in started)  # stopped, and reaped
+    finally:
+        for proc in started:
+            proc.kill()
+            proc.wait()

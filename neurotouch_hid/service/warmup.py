@@ -240,42 +240,50 @@ class Warmup:
     # --- the compile -----------------------------------------------------------------------
     def start(self) -> "Warmup":
         """Find the cold groups and compile them (see the class), each group's child started as
-        soon as the group is found cold. Returns self."""
-        in_memory = jit_cache.chosen().kind == jit_cache.MEMORY
-        for group in self._groups:
-            found = kernels(group)
-            if not any(not cached_signatures(d) for d in found.values()):
-                if group.load_when_warm == "call":
-                    _call(group.warm)
-                else:
-                    _load_cached(found)
-                self._settled[group.name].set()
-                continue
-            self._kernels[group.name] = found
-            self.progress[group.name] = GroupProgress(group.name, len(found))
-            if in_memory:
-                continue
-            if len(self.progress) == 1:
-                how = "before the run starts"
-                if self._interpreted:
-                    how = "starting in seconds, partly interpreted (slowly) meanwhile"
-                self._say(f"{COMPILING}: {how}; {COMPILE_COST}")
-            if self._interpreted:  # a waits group only until the first window (guard)
-                with self._inlined_lock:
-                    inlined = inlined_kernels(group)  # (those interpreted already are not found again)
-                    self._inlined.update(inlined)
-                    interpret({**found, **inlined})
-            thread = threading.Thread(target=self._child, args=(group,), name=f"nt-compile-{group.name}", daemon=True)
-            self._threads.append(thread)
-            thread.start()
-        if in_memory:
+        soon as the group is found cold. Returns self. Whatever interrupts it (a SIGTERM's
+        :class:`~neurotouch_hid.engine.stopping.StopRequested` while a run that cannot wait
+        waits for its children, Ctrl-C) stops the children first (:meth:`close`), then goes on up."""
+        try:
+            in_memory = jit_cache.chosen().kind == jit_cache.MEMORY
             for group in self._groups:
-                if group.name in self.progress:
-                    self._compile_here(group)
-        elif not self._interpreted:
-            self.wait()
-        if not self.compiling:
-            self._release_linking()
+                found = kernels(group)
+                if not any(not cached_signatures(d) for d in found.values()):
+                    if group.load_when_warm == "call":
+                        _call(group.warm)
+                    else:
+                        _load_cached(found)
+                    self._settled[group.name].set()
+                    continue
+                self._kernels[group.name] = found
+                self.progress[group.name] = GroupProgress(group.name, len(found))
+                if in_memory:
+                    continue
+                if len(self.progress) == 1:
+                    how = "before the run starts"
+                    if self._interpreted:
+                        how = "starting in seconds, partly interpreted (slowly) meanwhile"
+                    self._say(f"{COMPILING}: {how}; {COMPILE_COST}")
+                if self._interpreted:  # a waits group only until the first window (guard)
+                    with self._inlined_lock:
+                        inlined = inlined_kernels(group)  # (those interpreted already are not found again)
+                        self._inlined.update(inlined)
+                        interpret({**found, **inlined})
+                thread = threading.Thread(
+                    target=self._child, args=(group,), name=f"nt-compile-{group.name}", daemon=True
+                )
+                self._threads.append(thread)
+                thread.start()
+            if in_memory:
+                for group in self._groups:
+                    if group.name in self.progress:
+                        self._compile_here(group)
+            elif not self._interpreted:
+                self.wait()
+            if not self.compiling:
+                self._release_linking()
+        except BaseException:  # a stop before the run (SIGTERM, Ctrl-C): the children go with it
+            self.close()
+            raise
         return self
 
     def _release_linking(self) -> None:
@@ -392,8 +400,8 @@ class Warmup:
             for other in self._groups:
                 if not other.background:
                     self._settled[other.name].wait()
-            if self._closing:
-                return
+        if self._closing:
+            return
         try:
             child = subprocess.Popen(
                 child_command(group),
@@ -406,6 +414,8 @@ class Warmup:
             self._failed(group, f"could not start the compile ({exc})")
             return
         self._children.append(child)
+        if self._closing:  # closed while the child started: it goes too
+            child.terminate()
         for line in child.stdout:
             if line.strip() in self._kernels[group.name]:
                 progress.add(line.strip())
