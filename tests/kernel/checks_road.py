@@ -102,6 +102,19 @@ def _grabbed_by_another(device: InputDevice) -> str:
     return "grabbed"
 
 
+def _compile_children() -> list[int]:
+    """The pids of the first run's compile children still alive (``python -P -m
+    neurotouch_hid.service.warmup GROUP``, /proc/PID/cmdline)."""
+    found = []
+    for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
+        try:
+            if b"neurotouch_hid.service.warmup" in cmdline.read_bytes():
+                found.append(int(cmdline.parent.name))
+        except OSError:
+            continue
+    return found
+
+
 def _early_stop(output: str, cold_cache: Path) -> dict:
     helper = helper_pad()
     answerer = RumbleAnswerer(helper)
@@ -155,6 +168,8 @@ def _early_stop(output: str, cold_cache: Path) -> dict:
     assert seen["grab_compiling"] == "EBUSY", f"EVIOCGRAB during the compile: {seen['grab_compiling']}"
     assert run.returned, f"run_driver did not return after SIGTERM: {run.said[-5:]}"
     assert any("stopped (SIGTERM) before the run started" in line for line in run.said), run.said[-5:]
+    children_gone = guestlib.wait_for(lambda: not _compile_children(), 20.0)
+    assert children_gone, f"the compile's children outlived the stopped run: {_compile_children()}"
     gone = guestlib.wait_for(lambda: _gel_device("usb" if output == "usb" else output) is None, 20.0)
     assert gone, f"the {output} device stayed after the SIGTERM"
     assert not reader.keys, f"{output}: keys held at the end: {reader.keys}"
