@@ -423,11 +423,7 @@ def check_sdl_reads_run_like_the_profile() -> dict:
     probe_lines = ProbeLines(probe)
     dev = load_profile(profile_path).device
     before = set(_our_devices())
-    # SDL (~5 s) and the run start side by side; the run's 3 s of rest at first leave SDL time to
-    # open the pad before it moves.
-    t_run = time.monotonic()
-    run = _start_run_on_pad(preds, profile_path)
-    watcher = None
+    run = watcher = None
     timings: dict = {}
     try:
         ready = guestlib.wait_for(
@@ -436,6 +432,10 @@ def check_sdl_reads_run_like_the_profile() -> dict:
         assert isinstance(ready, dict) and ready.get("ready"), (
             f"SDL did not start: {probe_lines.lines} {probe.stderr.read()[-2000:] if probe.poll() is not None else ''}"
         )
+        # the run once SDL waits for pads (a forked run has its pad in seconds, SDL took ~5 s to
+        # start): its 3 s of rest at first leave SDL and evdev time to open the pad before it moves
+        t_run = time.monotonic()
+        run = _start_run_on_pad(preds, profile_path)
         found = guestlib.wait_for(lambda: (set(_our_devices()) - before) or run.poll() is not None, 150.0, 0.05)
         assert found and run.poll() is None, (
             f"no gamepad appeared: {run.stderr.read()[-2000:] if run.poll() is not None else 'timeout'}"
@@ -489,7 +489,7 @@ def check_sdl_reads_run_like_the_profile() -> dict:
         watcher.stop()
     finally:
         for proc in (run, probe):
-            if proc.poll() is None:
+            if proc is not None and proc.poll() is None:
                 proc.kill()
     done = probe_lines.first("done") or {}
     assert done.get("error") is None, f"sdl_probe: {done}"
