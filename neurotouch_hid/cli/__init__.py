@@ -166,29 +166,17 @@ def _unwind_on_termination() -> None:
     handle them themselves (``run``, ``record``, ``enrol``) set their own while they run."""
     import signal
 
-    from neurotouch_hid.engine.stopping import raise_later
+    from neurotouch_hid.engine.stopping import deliver_again, raise_later
 
     def unwind(signum: int, frame) -> None:
         if raise_later(frame):  # in a finalizer (the stop would be dropped) or an import (left half-made)
-            _deliver_again(signum)
+            deliver_again(signum)
             return
         raise _Terminated(signum)
 
     for number in (signal.SIGTERM, signal.SIGHUP):
         if signal.getsignal(number) is signal.SIG_DFL:
             signal.signal(number, unwind)
-
-
-def _deliver_again(signum: int) -> None:
-    """The signal ``signum`` sent to this process again in ``RAISE_AGAIN_S``, so that its handler
-    raises outside the finalizer or import it first met (:func:`~neurotouch_hid.engine.stopping.raise_later`)."""
-    import threading
-
-    from neurotouch_hid.engine.stopping import RAISE_AGAIN_S
-
-    timer = threading.Timer(RAISE_AGAIN_S, os.kill, (os.getpid(), signum))
-    timer.daemon = True
-    timer.start()
 
 
 def main() -> None:

@@ -60,6 +60,15 @@ def raise_later(frame: types.FrameType | None) -> bool:
     return in_finalizer(frame) or importing(frame)
 
 
+def deliver_again(signum: int) -> None:
+    """The signal ``signum`` sent to this process again in :data:`RAISE_AGAIN_S` (from a timer
+    thread), so that its handler raises outside the import or finalizer it first met
+    (:func:`raise_later`)."""
+    timer = threading.Timer(RAISE_AGAIN_S, os.kill, (os.getpid(), signum))
+    timer.daemon = True
+    timer.start()
+
+
 class StopRequested(BaseException):
     """A SIGTERM before the run started (a BaseException, like KeyboardInterrupt: no ``except
     Exception`` on the way out swallows it)."""

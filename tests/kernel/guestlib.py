@@ -64,6 +64,18 @@ def udev_info(devnode: str) -> str:
     return sh(["udevadm", "info", f"--name={devnode}"]).stdout
 
 
+def _cli_main(args: tuple[str, ...]) -> int:
+    """``neurotouch-hid ARGS`` by the CLI's own ``main`` (``sys.argv`` set to it): its exit code."""
+    from neurotouch_hid.cli import main
+
+    sys.argv = ["neurotouch-hid", *args]
+    try:
+        main()
+        return 0
+    except SystemExit as exc:
+        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+
+
 def cli_in_process(*args: str, env: dict[str, str] | None = None) -> tuple[int, str, str]:
     """``neurotouch-hid ARGS`` run by the CLI's own ``main`` in this process: (exit code, stdout,
     stderr), with ``env``'s variables set in ``os.environ`` for the call. No Python start, which
@@ -72,19 +84,13 @@ def cli_in_process(*args: str, env: dict[str, str] | None = None) -> tuple[int, 
     import contextlib
     import io
 
-    from neurotouch_hid.cli import main
-
     out, err = io.StringIO(), io.StringIO()
-    argv, sys.argv = sys.argv, ["neurotouch-hid", *args]
+    argv = sys.argv
     saved = {name: os.environ.get(name) for name in env or {}}
     os.environ.update(env or {})
     try:
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            try:
-                main()
-                code = 0
-            except SystemExit as exc:
-                code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+            code = _cli_main(args)
     finally:
         sys.argv = argv
         for name, value in saved.items():
@@ -186,14 +192,7 @@ class ForkedCli:
                 os.dup2(devnull, 1)
                 os.dup2(write_fd, 2)
                 os.environ.update(env or {})
-                sys.argv = ["neurotouch-hid", *args]
-                from neurotouch_hid.cli import main
-
-                try:
-                    main()
-                    code = 0
-                except SystemExit as exc:
-                    code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+                code = _cli_main(args)
             finally:
                 with contextlib.suppress(Exception):
                     sys.stdout.flush()
