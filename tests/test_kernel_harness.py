@@ -331,3 +331,19 @@ def test_a_thread_asleep_on_descriptors_with_no_timeout_is_told_from_one_with_a_
 
 def _in_a_call(native_id: int) -> bool:
     return Path(f"/proc/self/task/{native_id}/syscall").read_text().split()[0].isdigit()
+
+
+def test_a_touchpad_stroke_is_whole_only_from_its_touch_to_its_lift_with_no_events_dropped_between(monkeypatch):
+    """The DualSense checks' reading of slot 0: a touch (tracking id >= 0), its moves and its lift
+    (-1). Where the kernel dropped events because the reader fell behind (SYN_DROPPED, marked
+    ``("dropped", 0)``), a lift and the next touch may be lost, and two strokes would read as one
+    that jumps back: that stroke is not whole, the one before it still is."""
+    monkeypatch.syspath_prepend(str(Path(__file__).parent / "kernel"))  # the guest's import path
+    from checks_gadget_ffs import _stroke
+
+    first = [("id", 1), ("x", 560), ("x", 900), ("id", -1)]
+    merged = [("id", 2), ("x", 600), ("x", 1343), ("dropped", 0), ("x", 603), ("x", 1354), ("id", -1)]
+    assert _stroke(first + merged) == [560, 900]
+    assert _stroke(merged) is None
+    assert _stroke(first + merged + [("id", 3), ("x", 610), ("x", 700), ("id", -1)]) == [610, 700]
+    assert _stroke([("id", 4), ("x", 610)]) is None

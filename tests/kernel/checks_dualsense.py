@@ -113,8 +113,9 @@ def touches(rest_s: float = REST_S, hold_s: float = 240.0) -> list[GestureEstima
 
 class TouchWatcher:
     """Reads the Touchpad's event node in a thread: per slot, its events in order, each
-    ``(code name, value)`` with ``id`` for ABS_MT_TRACKING_ID, ``x``/``y`` for the positions;
-    ``clicks``: BTN_LEFT's values."""
+    ``(code name, value)`` with ``id`` for ABS_MT_TRACKING_ID, ``x``/``y`` for the positions and
+    ``("dropped", 0)`` in every slot where the kernel dropped events because this reader fell behind
+    (:class:`guestlib.EventReader`); ``clicks``: BTN_LEFT's values."""
 
     def __init__(self, path: str) -> None:
         self.reader = guestlib.EventReader(path)
@@ -135,7 +136,11 @@ class TouchWatcher:
             for report in self.reader.reports[self._seen :]:
                 self.times.append(now)
                 for etype, code, value in report:
-                    if etype == 3 and code == ABS_MT_SLOT:
+                    if etype == 0 and code == guestlib.SYN_DROPPED:
+                        for events in self.slots.values():
+                            events.append(("dropped", 0))
+                        self.slot = self.reader.axes.get(ABS_MT_SLOT, self.slot)
+                    elif etype == 3 and code == ABS_MT_SLOT:
                         self.slot = value
                     elif etype == 3 and code in names:
                         self.slots.setdefault(self.slot, []).append((names[code], value))
@@ -413,7 +418,11 @@ def check_run_output_hid_dualsense() -> dict:
     assert ("x", second[0]) in slot1 and ("y", second[1]) in slot1, slot1
     ids0, ids1 = watcher.ids(0), watcher.ids(1)
     # each slot: a touch, its lift (-1), the held touch, its lift at SIGTERM
-    assert len(ids0) == len(ids1) == 4 and ids0[1] == ids1[1] == -1 and min(ids0[::2] + ids1[::2]) >= 0, (ids0, ids1)
+    assert len(ids0) == len(ids1) == 4 and ids0[1] == ids1[1] == -1 and min(ids0[::2] + ids1[::2]) >= 0, (
+        ids0,
+        ids1,
+        f"events the kernel dropped for the reader falling behind: {watcher.reader.dropped} times",
+    )
     assert watcher.ids(0)[-1] == -1 and watcher.ids(1)[-1] == -1, "a touch was left down after SIGTERM"
     assert reader.reports and reader.reports[-1] == DUALSENSE.neutral(), (
         f"last report after SIGTERM: {reader.reports[-1].hex() if reader.reports else None}"

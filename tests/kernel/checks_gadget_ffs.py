@@ -237,14 +237,20 @@ def strokes(seconds: float = 200.0) -> list:
 
 def _stroke(slot: list) -> list[int] | None:
     """The x positions of the last whole stroke in ``slot``'s events (``(name, value)``: a
-    tracking id >= 0, its moves, the id -1), None before one was seen whole."""
-    ends = [i for i, event in enumerate(slot) if event == ("id", -1)]
-    for end in reversed(ends):
-        after = max([i for i in ends if i < end], default=-1)
-        starts = [i for i in range(after + 1, end) if slot[i][0] == "id" and slot[i][1] >= 0]
-        if starts:
-            return [value for name, value in slot[starts[0] : end] if name == "x"]
-    return None
+    tracking id >= 0, its moves, the id -1), None before one was seen whole. A stroke with a
+    ``("dropped", 0)`` inside (the kernel dropped events because the reader fell behind) is not
+    whole: its lift or its next touch may be among the lost events."""
+    start, last = None, None
+    for i, (name, value) in enumerate(slot):
+        if name == "dropped":
+            start = None
+        elif name == "id" and value >= 0 and start is None:
+            start = i
+        elif name == "id" and value == -1:
+            if start is not None:
+                last = (start, i)
+            start = None
+    return None if last is None else [value for name, value in slot[last[0] : last[1]] if name == "x"]
 
 
 #: A DualSense rumble as a host writes it: output report 0x02 (48 bytes), valid_flag0's compatible

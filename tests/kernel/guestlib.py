@@ -268,11 +268,21 @@ def wait_for(predicate, timeout_s: float = 10.0, interval_s: float = 0.05):
         time.sleep(interval_s)
 
 
+#: EV_SYN's code for "the kernel dropped events: this reader fell behind" (linux/input-event-codes.h).
+SYN_DROPPED = 3
+
+
 class EventReader:
     """Reads an event node like a game: tracks key and axis state from the events themselves.
 
     ``keys``: set of codes pressed; ``axes``: code -> last value; ``reports``: list of reports,
-    each a list of (type, code, value) up to its SYN_REPORT; ``gone``: the device disappeared."""
+    each a list of (type, code, value) up to its SYN_REPORT; ``gone``: the device disappeared;
+    ``dropped``: how many times the kernel dropped events because this reader fell behind
+    (SYN_DROPPED). After a drop the reader does what Documentation/input/event-codes.rst asks of a
+    client: it ignores the events up to and including the next SYN_REPORT, reads the keys' and
+    axes' state from the device (EVIOCGKEY, EVIOCGABS), and records the report
+    ``[(EV_SYN, SYN_DROPPED, 0)]`` where the lost events were, so that a reader of ``reports``
+    knows that what came before and after is not continuous."""
 
     def __init__(self, path: str):
         from evdev import InputDevice
@@ -283,6 +293,8 @@ class EventReader:
         self.reports: list[list[tuple[int, int, int]]] = []
         self._pending: list[tuple[int, int, int]] = []
         self.gone = False
+        self.dropped = 0
+        self._dropping = False
 
     def pump(self, timeout_s: float = 0.5, until=None, max_s: float | None = None) -> None:
         """Read events until ``until(self)`` is true, the device is gone, ``timeout_s`` passes
@@ -300,15 +312,37 @@ class EventReader:
                     return
                 raise
             for ev in events:
+                if ev.type == 0 and ev.code == SYN_DROPPED:
+                    self.dropped += 1
+                    self._dropping, self._pending = True, []
+                    continue
                 if ev.type == 0 and ev.code == 0:  # SYN_REPORT
-                    self.reports.append(self._pending)
+                    if self._dropping:
+                        self._dropping = False
+                        self._resync()
+                        self.reports.append([(0, SYN_DROPPED, 0)])
+                    else:
+                        self.reports.append(self._pending)
                     self._pending = []
+                    continue
+                if self._dropping:
                     continue
                 self._pending.append((ev.type, ev.code, ev.value))
                 if ev.type == 1:
                     (self.keys.add if ev.value else self.keys.discard)(ev.code)
                 elif ev.type == 3:
                     self.axes[ev.code] = ev.value
+
+    def _resync(self) -> None:
+        """The keys' and axes' state read from the device after a SYN_DROPPED."""
+        try:
+            self.keys = set(self.device.active_keys())
+            for code in list(self.axes):
+                self.axes[code] = self.device.absinfo(code).value
+        except OSError as exc:
+            if exc.errno not in (errno.ENODEV, errno.EBADF):
+                raise
+            self.gone = True
 
     def close(self) -> None:
         try:
