@@ -350,6 +350,7 @@ def check_usb_dualsense() -> dict:
         "evdev": seen["evdev"],
         "slot0_x": moved[:40],
         "ids": watcher.ids(0)[-6:],
+        "events_dropped": watcher.reader.dropped,  # SYN_DROPPED: the reader fell behind
         "last_report": reader.reports[-1].hex(),
         "kernel_log": [line for line in log if "playstation" in line or "DualSense" in line][-6:],
         "merged_rumble": seen["merged_rumble"],
