@@ -609,21 +609,24 @@ def start_background_boot(side_by_side: bool = False) -> None:
 
 
 def boot_summary() -> str | None:
-    """One line on the finished background boot: its wall time and each guest check's seconds,
-    slowest first (None when no boot finished). For the test session's summary: CI shows where the
-    guest's minutes go."""
+    """One line on the finished background boot: its wall time and each guest check's seconds
+    (and the guest's CPU seconds meanwhile), slowest first (None when no boot finished). For the
+    test session's summary: CI shows where the guest's minutes go."""
     result = _background.finished if _background is not None else None
     if result is None:
         return None
     checks = sorted(
         (
-            (name, entry["seconds"])
+            (name, entry["seconds"], entry.get("cpu_s"))
             for name, entry in result.items()
             if isinstance(entry, dict) and "seconds" in entry and not name.startswith("_")
         ),
         key=lambda item: -item[1],
     )
-    listed = ", ".join(f"{name.split('.')[-1]} {seconds:.0f} s" for name, seconds in checks)
+    listed = ", ".join(
+        f"{name.split('.')[-1]} {seconds:.0f} s" + ("" if cpu is None else f" (cpu {cpu:.0f} s)")
+        for name, seconds, cpu in checks
+    )
     boots = ", ".join(
         f"{b.get('seconds', '?')} s ({' '.join(b.get('modules') or ['all'])})" for b in result["_boot"].get("parts", [])
     )
