@@ -92,6 +92,8 @@ class ReplayWorld:
         searches: seconds (from the start) of every ``discover()`` call: the source's attempts
             to find the camera.
         settings: the DAVIS settings the source applied, as (method name, value) pairs.
+        early_packet_delays: (seconds from the start, us) of every USB early packet delay the
+            source set: a camera holds events that long at least (:data:`PACKET_US` otherwise).
     """
 
     recording: Path
@@ -100,6 +102,7 @@ class ReplayWorld:
     serial: str = "00000499"
     searches: list[float] = field(default_factory=list)
     settings: list[tuple[str, object]] = field(default_factory=list)
+    early_packet_delays: list[tuple[float, int]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         with RecordingReader(self.recording) as reader:
@@ -160,6 +163,7 @@ class ReplayCamera:
         start = world.t_us(opened_s)
         self._event_at = int(np.searchsorted(world.event_ts, start, side="right"))
         self._frame_at = int(np.searchsorted(world.frame_ts, start, side="right"))
+        self._held_us = PACKET_US  # events are handed out once the oldest waited this long
 
     def getCameraName(self) -> str:
         return f"DAVIS346_{self._world.serial}"
@@ -185,7 +189,7 @@ class ReplayCamera:
             return None
         w = self._world
         now_us = w.t_us(w.now_s())
-        if self._event_at < len(w.event_ts) and now_us - w.event_ts[self._event_at] < PACKET_US:
+        if self._event_at < len(w.event_ts) and now_us - w.event_ts[self._event_at] < self._held_us:
             return None  # the packet is not full yet
         stop = int(np.searchsorted(w.event_ts, now_us, side="right"))
         if stop <= self._event_at:
@@ -216,3 +220,9 @@ class ReplayCamera:
 
     def setExposureDuration(self, duration: datetime.timedelta) -> None:
         self._world.settings.append(("setExposureDuration", duration))
+
+    def setUSBEarlyPacketDelay(self, delay: datetime.timedelta) -> None:
+        us = int(delay / datetime.timedelta(microseconds=1))
+        self._world.settings.append(("setUSBEarlyPacketDelay", delay))
+        self._world.early_packet_delays.append((self._world.now_s(), us))
+        self._held_us = max(PACKET_US, us)

@@ -300,6 +300,14 @@ def test_run_with_wait_starts_when_the_camera_is_plugged_in(sim_gel_recording):
     assert [r for t, _, r in labels if plugged <= t <= plugged + 0.3] == [True] * 8
     world = ReplayWorld(path, faults=(Fault("unplug", 0.0, plugged),))
     log = Log()
+    moved_at: list[float] = []  # the scene's seconds of every write that moves the pad
+
+    class TimedOutput(LoggedOutput):
+        def write(self, state: ControllerState) -> None:
+            if moved(state):
+                moved_at.append(world.now_s())
+            super().write(state)
+
     stats = run_driver(
         "davis",
         "default",
@@ -309,7 +317,7 @@ def test_run_with_wait_starts_when_the_camera_is_plugged_in(sim_gel_recording):
             capture=world,
             davis=QUICK,
             wait=True,
-            outputs=[LoggedOutput(log)],
+            outputs=[TimedOutput(log)],
             say=lambda line: log.add("say", line),
         ),
     )
@@ -319,6 +327,12 @@ def test_run_with_wait_starts_when_the_camera_is_plugged_in(sim_gel_recording):
     assert not [w for w, _ in log.entries[:found] if w == "write"]
     assert any(moved(s) for w, s in log.entries[found:] if w == "write")
     assert log.entries[-1] == ("neutralise", None)
+    # while the gel rested the camera held its events a 10 ms window (the early packet delay), and
+    # before the pinch moved the pad it was back at 1 ms
+    delays = world.early_packet_delays
+    assert delays and delays[0][1] == 10_000 and plugged <= delays[0][0] < 4.6, delays
+    back = next((t for t, us in delays if us == 1000), None)
+    assert back is not None and back <= moved_at[0], (delays, moved_at[:1])
 
 
 def test_the_street_in_view_is_no_gel(street):

@@ -381,6 +381,7 @@ class Engine:
         try:
             if pause is not None:
                 pause.decide = rest_handover.live_pause
+                pause.resting = rest_handover.window_us
             for item in source:
                 rest = rest_handover.windows
                 if cut is not None and rest is not cut_for:
@@ -423,7 +424,7 @@ class Engine:
             self._errors.append(exc)  # still processed, then run() neutralises and re-raises
         finally:
             if pause is not None:
-                pause.decide = None
+                pause.decide = pause.resting = None
             with contextlib.suppress(Exception):
                 source.close()
             self._items.close()

@@ -94,6 +94,12 @@ class RestHandover:
         with self._lock:
             return self._windows
 
+    def window_us(self) -> int | None:
+        """The resting windows' length (us) while the gel rests, else None (a live source's
+        :attr:`~neurotouch_hid.sources.PollPause.resting`)."""
+        with self._lock:
+            return None if self._windows is None else self._windows[1]
+
     # --- the source's side -----------------------------------------------------------------------
     def due_us(self, t_us: int, rest: RestWindows | None) -> int:
         """When (camera time, us) the item ending at ``t_us`` is handed on: then, or while the gel

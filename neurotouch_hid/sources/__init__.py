@@ -101,20 +101,31 @@ class PollPause:
     """How long a live source waits after a poll of its device that brought nothing new (s):
     ``default_s``, unless its consumer set ``decide`` (called, in the source's thread, each time
     instead). The runtime does while the gel rests: it hands on what it holds and waits until
-    the next window's end, one wake-up a window (docs/performance.md, "At rest").
+    the next window's end, one wake-up a window (docs/performance.md, "At rest"). The consumer
+    may also set ``resting``, which says whether the gel rests now, so that the source may let
+    its device send less often meanwhile (the camera's USB early packet delay,
+    ``sources/davis.py``).
 
     Attributes:
         default_s: the source's own pause (s).
         decide: None, or the consumer's ``() -> seconds``.
+        resting: None, or the consumer's ``() -> the resting windows' length (us), or None
+            while the gel does not rest``.
     """
 
     def __init__(self, default_s: float) -> None:
         self.default_s = default_s
         self.decide: Callable[[], float] | None = None
+        self.resting: Callable[[], int | None] | None = None
 
     def __call__(self) -> float:
         decide = self.decide
         return self.default_s if decide is None else decide()
+
+    def resting_window_us(self) -> int | None:
+        """The resting windows' length (us) while the consumer says the gel rests, else None."""
+        resting = self.resting
+        return None if resting is None else resting()
 
 
 class WrappedStream:

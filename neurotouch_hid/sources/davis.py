@@ -19,6 +19,13 @@ alive through faults:
 * **A consumer slower than the camera**: one poll takes everything queued, up to 64 event packets
   and 8 APS frames, each frame placed before the events at or after its timestamp
   (:func:`in_time_order`): the frames do not fall behind the events.
+* **A resting gel**: while the stream's consumer says the gel rests
+  (:attr:`~neurotouch_hid.sources.PollPause.resting`), the camera's USB early packet delay (how
+  long data that does not fill a USB transfer waits in the camera's FX3) is the resting windows'
+  length, at most :data:`REST_EARLY_PACKET_DELAY_US`, instead of :data:`EARLY_PACKET_DELAY_US`:
+  a resting gel's noise events come in one short transfer a window, not one a millisecond, and
+  the host's reader wakes as often. At the first window that does not rest it is set back, from
+  the source's thread at its next poll (what the camera held then goes at once).
 
 The capture interface
 ---------------------
@@ -31,8 +38,9 @@ replay of AEDAT4 recordings (tests/camera_replay.py) instead of a camera:
 * a *camera* with ``getCameraName()``, ``getEventResolution()`` ((width, height) or None),
   ``isFrameStreamAvailable()``, ``isRunning()``, ``getNextEventBatch()`` (None or an event store
   with ``len()`` and ``numpy()``), ``getNextFrame()`` (None or a frame with ``timestamp`` (us) and
-  ``image`` (uint8)) and, on a DAVIS, ``setFrameInterval``, ``setExposureDuration`` and
-  ``setAutoExposure`` (dv-processing ``io.camera.DAVIS``, durations as ``datetime.timedelta``).
+  ``image`` (uint8)) and, on a DAVIS, ``setFrameInterval``, ``setExposureDuration``,
+  ``setAutoExposure`` and ``setUSBEarlyPacketDelay`` (dv-processing ``io.camera.DAVIS``,
+  durations as ``datetime.timedelta``).
 """
 
 from __future__ import annotations
@@ -59,6 +67,13 @@ _MAX_BATCHES_PER_POLL = 64
 #: 25 Hz), so that frames do not fall behind the events when the consumer is slow: read one a poll,
 #: they did, and a frame at rest from before a push reached the pipeline in the middle of it.
 _MAX_FRAMES_PER_POLL = 8
+#: The USB early packet delay (us) dv-processing writes when it opens a DAVIS (libcaer's default:
+#: its FX3 sends data that does not fill a transfer after at most 1 ms).
+EARLY_PACKET_DELAY_US = 1000
+#: The longest early packet delay (us) while the gel rests: one 10 ms window. A touch's first events
+#: wait in the camera at most this long; on the families' game sessions that moves no family's
+#: dead-zone latency median or p90 (docs/performance.md, "At rest").
+REST_EARLY_PACKET_DELAY_US = 10_000
 #: dv-processing camera models that are DAVIS cameras (events + APS frames).
 _DAVIS_MODELS = ("DAVIS", "DAVIS_GEN2")
 
@@ -228,6 +243,7 @@ class DavisSource:
         self._noise = noise_filter
         self._clock, self._sleep = clock, sleep
         self._camera: Any = None
+        self._early_packet_delay_us = EARLY_PACKET_DELAY_US  # as the open camera has it
         self.camera_name: str | None = None
         self.has_frames = False
         if not wait:
@@ -276,6 +292,7 @@ class DavisSource:
                 continue
             self._configure(camera)
             self._camera = camera
+            self._early_packet_delay_us = EARLY_PACKET_DELAY_US
             self.camera_name = camera.getCameraName()
             self.has_frames = bool(camera.isFrameStreamAvailable())
             return None
@@ -292,6 +309,28 @@ class DavisSource:
         else:
             camera.setAutoExposure(False)
             camera.setExposureDuration(datetime.timedelta(microseconds=cfg.exposure_us))
+
+    def _follow_rest(self, pause: PollPause) -> None:
+        """The open camera's USB early packet delay as the gel rests or not (module docstring):
+        the resting windows' length, at most :data:`REST_EARLY_PACKET_DELAY_US`, while ``pause``
+        says the gel rests, else :data:`EARLY_PACKET_DELAY_US`. A camera that refuses is left as
+        it is (it then sends as before)."""
+        window_us = pause.resting_window_us()
+        want = (
+            EARLY_PACKET_DELAY_US
+            if window_us is None
+            else max(EARLY_PACKET_DELAY_US, min(window_us, REST_EARLY_PACKET_DELAY_US))
+        )
+        camera = self._camera
+        if want == self._early_packet_delay_us or camera is None:
+            return
+        self._early_packet_delay_us = want
+        setter = getattr(camera, "setUSBEarlyPacketDelay", None)  # a DAVIS's; the capture interface's others lack it
+        if setter is not None:
+            try:
+                setter(datetime.timedelta(microseconds=want))
+            except DV_ERRORS:
+                pass  # an unplug shows at the next poll; until then the camera sends as it did
 
     # --- reading ------------------------------------------------------------------------------
     def _read(self) -> tuple[list[StreamItem], str | None]:
@@ -374,6 +413,7 @@ class DavisSource:
                     self._sleep(max(0.0, min(next(delays), remaining())))
                     continue
                 last_data = self._clock()
+            self._follow_rest(pause)
             items, failure = self._read()
             now = self._clock()
             if items:
