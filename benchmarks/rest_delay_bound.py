@@ -13,6 +13,10 @@ back to 1 ms, at the latest ``e0 + D + S`` (S, ``--switch-ms``: the window's pro
 source's next poll and the control transfer), and the camera sends what it held at once. So a
 window ending at ``t`` is delivered at most ``min(t + D, e0 + D + S)`` instead of ``t + 1 ms``:
 late by ``max(0, min(D, e0 + D + S - t) - 1)`` ms, and a window while the gel rests by ``D - 1``.
+The same model bounds an engine that hands a paced source's items on once every k windows while
+the gel rests: the first window that does not rest is then up to k - 1 windows late and those after
+it on time, i.e. D = (k - 1) x the window + 1 ms and S = 0 (``--delay-ms 11 --switch-ms 0`` for two
+10 ms windows).
 
 Per gesture the dead-zone latency (docs/dataset.md, "Per-gesture metrics";
 ``neurotouch_hid.evaluation.felt``: from the labelled intensity's crossing to the first window of
