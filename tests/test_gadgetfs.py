@@ -208,3 +208,41 @@ def test_a_pad_made_on_functionfs_says_windows_will_not_read_it(tmp_path, monkey
     with caplog.at_level(logging.WARNING), pytest.raises(DeviceError):
         UsbGadget("xinput", load_profile("default"))._open()
     assert XINPUT_ON_WINDOWS in caplog.text and "use --protocol hid with Steam Input" in XINPUT_ON_WINDOWS
+
+
+def test_closing_hands_the_host_the_neutral_report_twice_before_the_pad_goes(tmp_path):
+    """The pad's close sends the neutral report, and once the host took it, once more (a host
+    that keeps one transfer queued, as xpad does, takes the second only after it handled the
+    first), and only then closes the UDC's file, which unbinds the pad (the host's readers lose
+    what they had not read). A pipe stands in for the IN endpoint, a socket for the UDC's file."""
+    import os
+    import socket
+    import threading
+
+    from neurotouch_hid.core.controller import ControllerState
+    from neurotouch_hid.targets.reports.xinput import XINPUT
+
+    host_in, pad_in = os.pipe()
+    host, udc = socket.socketpair()
+    pad = _pad_on(tmp_path)
+    os.dup2(pad_in, pad._in)
+    os.close(pad_in)
+    pad._dev = udc.detach()
+    pad._stop_r, pad._stop_w = os.pipe()
+    pad._events = threading.Thread(target=lambda: None)  # no events thread: one that has ended
+    pad._events.start()
+    pad.connected.set()  # the host configured the pad: reports go out
+    pad._start(pad._in, XINPUT, "test pad", gate=pad.connected)
+    pushed = ControllerState(axes={"ABS_X": 32767})
+    pad.write(pushed)
+    assert pad._writer.flush(5.0)  # the host took the push
+    pad.close()
+    data = b""
+    while chunk := os.read(host_in, 4096):  # to the end: the pad closed its side
+        data += chunk
+    reports = [data[at : at + 20] for at in range(0, len(data), 20)]
+    assert XINPUT.pack(pushed) in reports
+    assert reports[-2:] == [XINPUT.neutral()] * 2, [r.hex() for r in reports]
+    assert host.recv(64) == b""  # the UDC's file closed, after them
+    os.close(host_in)
+    host.close()

@@ -50,6 +50,7 @@ from typing import TYPE_CHECKING
 
 from neurotouch_hid.core.controller import Feedback
 from neurotouch_hid.core.errors import DeviceError
+from neurotouch_hid.targets.closing import RELEASE_GRACE_S
 from neurotouch_hid.targets.gadget.ffs import MAX_PENDING_FEEDBACK, xinput_answer
 from neurotouch_hid.targets.gadget.functionfs import Event
 from neurotouch_hid.targets.gadget.targets import _ReportTarget
@@ -193,11 +194,20 @@ class GadgetFsXInputTarget(_ReportTarget):
         return taken
 
     def close(self) -> None:
-        """Neutral report, wait for the host to take it, then stop the events thread (a read in
-        progress would keep the UDC's file open) and close the endpoints and that file: GadgetFS
-        unbinds the gadget (``dev_release``) and the host sees the pad unplugged."""
-        if not self._close_neutral():
+        """Neutral report, taken twice by the host (its driver handled the first,
+        ``_close_neutral``), then :data:`RELEASE_GRACE_S` for the host's readers to read it, then
+        stop the events thread (a read in progress would keep the UDC's file open) and close the
+        endpoints and that file: GadgetFS unbinds the gadget (``dev_release``) and the host sees
+        the pad unplugged."""
+        if not self._close_neutral(twice=True):
             return
+        # The order matters: closing the UDC's file unbinds the pad at once, and evdev then drops
+        # what its readers had not read (a read answers ENODEV). The neutral report reaches xpad
+        # after the writer's write returned (2-21 ms in the test kernel) and a reader after that
+        # (3-17 ms): without this pause the pad was unbound 16-102 ms after xpad had the report,
+        # with nothing meant to wait for the readers between (only this thread's end of the
+        # events thread), and a loaded machine's reader lost it.
+        time.sleep(RELEASE_GRACE_S)
         try:
             os.write(self._stop_w, b"\0")
         except OSError:

@@ -18,6 +18,7 @@ import errno
 import logging
 import os
 import threading
+import time
 from typing import TYPE_CHECKING, Callable
 
 from neurotouch_hid.core.controller import ControllerState, Feedback
@@ -79,16 +80,26 @@ class _ReportTarget:
         if self.lacks is not None:
             self.lacks(profile)
 
-    def _close_neutral(self) -> bool:
+    def _close_neutral(self, twice: bool = False) -> bool:
         """Send the neutral report, wait up to :data:`NEUTRAL_WAIT_S` for the host to take it,
-        stop the writer; False when already closed."""
+        stop the writer; False when already closed. ``twice``: once taken, the neutral report is
+        sent again and waited for (within the same time): an endpoint's write returns when the
+        host's controller took the report, before the host's driver has handled it (in the test
+        kernel xpad's input event came 2-21 ms after the write returned), while a host that keeps
+        one transfer queued (Linux's xpad queues the next once it handled the last) takes the
+        second only once it handled the first."""
         with self._lock:
             if self._closed:
                 return False
             self._last = self.format.neutral()
             self._writer.submit(self._last)
             self._closed = True
-        if not self._writer.flush(NEUTRAL_WAIT_S):
+        deadline = time.monotonic() + NEUTRAL_WAIT_S
+        taken = self._writer.flush(NEUTRAL_WAIT_S)
+        if taken and twice:
+            self._writer.submit(self._last)
+            taken = self._writer.flush(max(deadline - time.monotonic(), 0.0))
+        if not taken:
             log.info("%s: the host did not take the neutral report within %.1f s", self.what, NEUTRAL_WAIT_S)
         self._writer.stop()
         return True
