@@ -64,6 +64,15 @@ def test_xinput_gadget_is_bound_by_xpad_read_by_sdl_and_hears_its_rumble(guest):
     assert details["rumble_lines"]
 
 
+def test_an_xinput_run_on_gadgetfs_has_at_most_5_threads(guest):
+    """The pad's events are answered on the run's loop (its main thread), not a thread of their
+    own: the main thread, the source's, the pipeline's, the OUT endpoint's reader and the report
+    writer (GadgetFS's endpoint files cannot be polled: inode.c has no poll for them)."""
+    threads = passed(guest, "checks_gadget.check_usb_xinput")["threads"]
+    assert len(threads) <= 5, threads
+    assert not [name for name in threads if name.endswith(": events")], threads
+
+
 def test_xinput_pad_on_gadgetfs_carries_the_wired_pads_0x21_descriptor(guest):
     """What Windows' XInput driver reads and FunctionFS cannot carry: the host read the 17-byte
     descriptor right after the FF/5D/01 interface, naming the endpoints it has (0x81, 0x02)."""

@@ -78,8 +78,8 @@ def _pad_on(root):
     pad._null = os.open(os.devnull, os.O_RDWR)
     pad._in, pad._out = os.dup(pad._null), os.dup(pad._null)
     pad._configured, pad._generation = False, 0
-    pad.connected, pad._lock, pad._pending = threading.Event(), threading.Lock(), []
-    pad._wake_r, pad._wake_w = os.pipe()
+    pad.connected, pad._lock = threading.Event(), threading.Lock()
+    pad._open_announcements()
     pad._reader, pad._reading, pad._can_interrupt = None, False, gadgetfs._install_interrupt()
     pad._writer = types.SimpleNamespace(writing=False, thread_id=None)
     return pad
@@ -210,14 +210,56 @@ def test_a_pad_made_on_functionfs_says_windows_will_not_read_it(tmp_path, monkey
     assert XINPUT_ON_WINDOWS in caplog.text and "use --protocol hid with Steam Input" in XINPUT_ON_WINDOWS
 
 
+def test_the_hosts_requests_are_answered_on_the_loop_when_the_pads_descriptor_is_readable():
+    """No thread of its own waits for the UDC's file: its events make the pad's one descriptor
+    (an epoll over the UDC's file and the OUT endpoint's announcements) readable, and the loop's
+    call of ``feedback`` reads and answers them, then hands on the rumble the OUT endpoint's
+    reader announced. A socket stands in for the UDC's file (events in, answers out)."""
+    import select
+    import socket
+    import threading
+
+    from neurotouch_hid.core.controller import Feedback
+
+    host, udc = socket.socketpair()
+    pad = object.__new__(gadgetfs.GadgetFsXInputTarget)
+    pad.what, pad._closed, pad._strings = "test pad", False, ("Microsoft", "Pad 1", "00000001")
+    pad._dev, pad._lock = udc.fileno(), threading.Lock()
+    pad._open_announcements()
+    pad._ready = select.epoll()
+    pad._ready.register(pad._dev, select.EPOLLIN)
+    pad._ready.register(pad._wake_r, select.EPOLLIN)
+    pad._events_ready = select.poll()
+    pad._events_ready.register(pad._dev, select.POLLIN)
+
+    def readable() -> bool:
+        return bool(select.select([pad.fileno()], [], [], 0)[0])
+
+    assert not readable()
+    get_string = gadgetfs.EVENT.pack(0x80, 0x06, 0x0302, 0x0409, 255, gadgetfs.SETUP)
+    host.sendall(get_string * 2)
+    assert readable()
+    assert pad.feedback() == []
+    assert host.recv(256) == (bytes([12, 3]) + "Pad 1".encode("utf-16-le")) * 2  # both answered
+    assert not readable()
+    rumble = Feedback("rumble", strong=0.5, source="test pad")
+    threading.Thread(target=pad._announce, args=([rumble],)).start()  # as the OUT endpoint's reader does
+    assert select.select([pad.fileno()], [], [], 5.0)[0]
+    assert pad.feedback() == [rumble] and not readable()
+    pad._ready.close()
+    pad._close_announcements()
+    host.close()
+    udc.close()
+
+
 def test_closing_hands_the_host_the_neutral_report_twice_before_the_pad_goes(tmp_path):
     """The pad's close sends the neutral report, and once the host took it, once more (a host
     that keeps one transfer queued, as xpad does, takes the second only after it handled the
     first), and only then closes the UDC's file, which unbinds the pad (the host's readers lose
     what they had not read). A pipe stands in for the IN endpoint, a socket for the UDC's file."""
     import os
+    import select
     import socket
-    import threading
 
     from neurotouch_hid.core.controller import ControllerState
     from neurotouch_hid.targets.reports.xinput import XINPUT
@@ -227,10 +269,7 @@ def test_closing_hands_the_host_the_neutral_report_twice_before_the_pad_goes(tmp
     pad = _pad_on(tmp_path)
     os.dup2(pad_in, pad._in)
     os.close(pad_in)
-    pad._dev = udc.detach()
-    pad._stop_r, pad._stop_w = os.pipe()
-    pad._events = threading.Thread(target=lambda: None)  # no events thread: one that has ended
-    pad._events.start()
+    pad._dev, pad._ready = udc.detach(), select.epoll()
     pad.connected.set()  # the host configured the pad: reports go out
     pad._start(pad._in, XINPUT, "test pad", gate=pad.connected)
     pushed = ControllerState(axes={"ABS_X": 32767})

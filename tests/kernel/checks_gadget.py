@@ -49,6 +49,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -467,8 +468,14 @@ def check_usb_xinput() -> dict:
         )
         seen["rumble"] = guestlib.wait_for(lambda: lines.first("rumble"), 60.0)
         time.sleep(1.0)  # the rumble's report on its way to the gadget's OUT endpoint
+        # the run's Python threads while it is steady: this process's main thread (the run's),
+        # and those started since (this check's own aside)
+        seen["threads"] = ["MainThread"] + sorted(
+            t.name for t in threading.enumerate() if t not in before and t is not threading.current_thread()
+        )
         run.stop(watcher)
 
+    before = set(threading.enumerate())
     try:
         run(steps)
         opened = lines.first("opened")
@@ -506,6 +513,7 @@ def check_usb_xinput() -> dict:
         "rumble_lines": heard[:2],
         "led_lines": leds[:2],
         "device_after_start_s": round(seen["device_s"], 1),
+        "threads": seen["threads"],
         "seconds": round(time.monotonic() - t0, 1),
     }
 

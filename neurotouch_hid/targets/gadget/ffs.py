@@ -19,10 +19,11 @@ are the endpoints, in the order the descriptors declare them.
   :class:`~neurotouch_hid.core.stages.Feedback`.
 
 Two daemon threads per function read, bounded: ``ep0``'s events and the OUT endpoint. Feedback is
-announced on a pipe (:meth:`FfsTarget.fileno`). When the function's files close (the driver killed
-included), the kernel unbinds the gadget and the host sees it unplugged, its readers having last
-read the report before; the gadget's guard (:meth:`FfsTarget.guarded`) holds a copy of the IN
-endpoint, so that a killed driver's host reads the neutral report first.
+announced on a pipe (:meth:`FfsTarget.fileno`; the last 64 requests kept: ``targets._Announced``).
+When the function's files close (the driver killed included), the kernel unbinds the gadget and
+the host sees it unplugged, its readers having last read the report before; the gadget's guard
+(:meth:`FfsTarget.guarded`) holds a copy of the IN endpoint, so that a killed driver's host reads
+the neutral report first.
 """
 
 from __future__ import annotations
@@ -39,15 +40,13 @@ from neurotouch_hid.core.errors import DeviceError
 from neurotouch_hid.core.stages import Feedback
 from neurotouch_hid.service.udev import sudo_command
 from neurotouch_hid.targets.gadget import functionfs
-from neurotouch_hid.targets.gadget.targets import MAX_OUTPUT_REPORT, _ReportTarget
+from neurotouch_hid.targets.gadget.targets import MAX_OUTPUT_REPORT, _Announced, _ReportTarget
 
 if TYPE_CHECKING:
     from neurotouch_hid.targets.reports import ReportFormat
 
 log = logging.getLogger(__name__)
 
-#: Feedback requests kept until :meth:`FfsTarget.feedback` takes them; older ones are dropped.
-MAX_PENDING_FEEDBACK = 64
 #: Pause after a failed read of ep0 or the OUT endpoint (the host went away) before the next (s).
 ERROR_PAUSE_S = 0.05
 #: Largest data stage read from a host's control request (bytes); a longer one is stalled.
@@ -147,7 +146,7 @@ def _fix(protocol: str) -> str:
     return f"the {protocol} gadget is not set up for this user\n{setup}"
 
 
-class FfsTarget(_ReportTarget):
+class FfsTarget(_Announced, _ReportTarget):
     """A FunctionFS function on the mount ``mount`` (module docstring): ``descriptors`` and the
     interface's name written to ``ep0``, ``ep1`` (IN) and ``ep2`` (OUT) opened, the two reader
     threads started. Subclasses answer control requests (:meth:`answer`, :meth:`received`) and
@@ -175,8 +174,7 @@ class FfsTarget(_ReportTarget):
         except OSError as exc:
             os.close(self._ep0)
             raise DeviceError(f"{mount}: the kernel refused the {what}'s descriptors ({exc.strerror})") from None
-        self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
-        self._pending: list[Feedback] = []
+        self._open_announcements()
         self.enabled = threading.Event()
         self._start(self._in, fmt, what)
         for target, part in ((self._read_events, "ep0 events"), (self._read_out, "OUT endpoint")):
@@ -188,31 +186,18 @@ class FfsTarget(_ReportTarget):
         (FunctionFS unbinds the gadget once every file of it is closed) until it has."""
         return self._in, self.format.neutral()
 
-    def fileno(self) -> int | None:
-        """A pipe that becomes readable when the host sent rumble or LED requests."""
-        return None if self._closed else self._wake_r
-
-    def feedback(self) -> list[Feedback]:
-        """The host's rumble and LED requests that arrived since the last call."""
-        try:
-            os.read(self._wake_r, 4096)
-        except OSError:
-            pass
-        with self._lock:
-            taken, self._pending = self._pending, []
-        return taken
-
     def close(self) -> None:
         """Neutral report, wait for the host to take it (up to ``NEUTRAL_WAIT_S``), then close the
         endpoints and ``ep0``: FunctionFS then unbinds the gadget from its UDC (a thread blocked in
         a read keeps its file until that read returns, at the unbind)."""
         if not self._close_neutral():
             return
-        for fd in (self._in, self._out, self._ep0, self._wake_r, self._wake_w):
+        for fd in (self._in, self._out, self._ep0):
             try:
                 os.close(fd)
             except OSError:
                 pass
+        self._close_announcements()
 
     def answer(self, event: functionfs.Event) -> bytes | None:
         """The answer to a SETUP event: the data for a request that reads, :data:`ACCEPT` for
@@ -225,16 +210,6 @@ class FfsTarget(_ReportTarget):
     def parse(self, data: bytes) -> list[Feedback]:
         """One report from the OUT endpoint as feedback."""
         return []
-
-    def _announce(self, requests: list[Feedback]) -> None:
-        if not requests:
-            return
-        with self._lock:
-            self._pending = [*self._pending, *requests][-MAX_PENDING_FEEDBACK:]
-        try:
-            os.write(self._wake_w, b"\0")
-        except OSError:
-            pass  # the pipe is full: the reader is already told
 
     def _read_loop(self, fd: int, size: int, where: str, handle: Callable[[bytes], None]) -> None:
         """Thread: read at most ``size`` bytes at a time from ``fd`` and ``handle`` them, until

@@ -16,7 +16,14 @@ by writing the tag 1 and its full- and high-speed endpoint descriptors once the 
 configuration (the speed is known then; GadgetFS waits for the request's acknowledgement before
 the host goes on); then its reads and writes are the transfers. A bus reset or a disconnect ends
 the configuration: the transfers under way fail, the files are closed, and the next
-SET_CONFIGURATION opens them again (as GadgetFS's own example, usb.c, does). GadgetFS refuses a
+SET_CONFIGURATION opens them again (as GadgetFS's own example, usb.c, does).
+
+The UDC's file supports poll(2) (inode.c, ``ep0_poll``: readable while events are queued); the
+endpoint files do not (their reads and writes wait in the kernel until the host's transfer). So
+the events are read and answered on the run's loop, with the rumble and LED requests the OUT
+endpoint's reader thread announces: :meth:`GadgetFsXInputTarget.fileno` is an epoll descriptor
+over both, readable when either is; the OUT endpoint keeps its reader thread and the IN endpoint
+its report writer. GadgetFS refuses a
 configuration that asks for remote wake-up (``is_valid_config``), so bmAttributes is 0x80 where a
 real pad has 0xA0. Closing the UDC's file unbinds the gadget: the host sees the pad unplugged.
 
@@ -51,9 +58,9 @@ from typing import TYPE_CHECKING
 from neurotouch_hid.core.controller import Feedback
 from neurotouch_hid.core.errors import DeviceError
 from neurotouch_hid.targets.closing import RELEASE_GRACE_S
-from neurotouch_hid.targets.gadget.ffs import MAX_PENDING_FEEDBACK, xinput_answer
+from neurotouch_hid.targets.gadget.ffs import xinput_answer
 from neurotouch_hid.targets.gadget.functionfs import Event
-from neurotouch_hid.targets.gadget.targets import _ReportTarget
+from neurotouch_hid.targets.gadget.targets import _Announced, _ReportTarget
 
 if TYPE_CHECKING:
     from neurotouch_hid.targets.reports import ReportFormat
@@ -83,8 +90,9 @@ UNBLOCK_S = 2.0
 #: Longest wait for an endpoint's file that the last configuration left busy (s); well inside the
 #: 5 s a host gives SET_CONFIGURATION.
 BUSY_WAIT_S = 1.0
-#: Longest wait for the events thread to stop when the pad closes (s); it polls this often.
-STOP_WAIT_S = 1.0
+#: Most reads of the UDC's file in one call of ``feedback`` (4 events each): the loop's other
+#: descriptors are served between, and it comes back while events are queued.
+MAX_EVENT_READS = 8
 
 
 def endpoint_descriptor(address: int, interval_ms: int, high_speed: bool) -> bytes:
@@ -130,9 +138,11 @@ def endpoint_file(root: Path, number: int, direction: str) -> Path:
     return found[0]
 
 
-class GadgetFsXInputTarget(_ReportTarget):
+class GadgetFsXInputTarget(_Announced, _ReportTarget):
     """The Xbox 360 pad on GadgetFS mounted at ``root`` (module docstring), with the strings
-    ``manufacturer``, ``product``, ``serial``.
+    ``manufacturer``, ``product``, ``serial``. Its events are answered in :meth:`feedback`,
+    called by the run's loop when :meth:`fileno` is readable (the host's enumeration waits for
+    it: the driver's loop serves it from the pad's making on).
 
     Raises:
         DeviceError: no UDC file in ``root``, or the kernel refused the descriptors.
@@ -171,55 +181,61 @@ class GadgetFsXInputTarget(_ReportTarget):
         self._reader: threading.Thread | None = None
         self._reading = False  # the reader is in a read (so alive: a signal finds it)
         self._can_interrupt = _install_interrupt()
-        self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
-        self._stop_r, self._stop_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
-        self._pending: list[Feedback] = []
+        self._open_announcements()
+        # what the loop waits on: the UDC's file (its events) and the announcements' pipe
+        self._ready = select.epoll()
+        self._ready.register(self._dev, select.EPOLLIN)
+        self._ready.register(self._wake_r, select.EPOLLIN)
+        self._events_ready = select.poll()
+        self._events_ready.register(self._dev, select.POLLIN)
         self.connected = threading.Event()
         self._start(self._in, fmt, what, gate=self.connected)
-        self._events = threading.Thread(target=self._read_events, name=f"{what}: events", daemon=True)
-        self._events.start()
 
     def fileno(self) -> int | None:
-        """A pipe that becomes readable when the host sent rumble or LED requests."""
-        return None if self._closed else self._wake_r
+        """An epoll descriptor, readable when the host sent a request or an event (a connect, a
+        reset) to the UDC's file, or rumble or LED requests on the OUT endpoint."""
+        return None if self._closed else self._ready.fileno()
 
     def feedback(self) -> list[Feedback]:
-        """The host's rumble and LED requests that arrived since the last call."""
-        try:
-            os.read(self._wake_r, 4096)
-        except OSError:
-            pass
-        with self._lock:
-            taken, self._pending = self._pending, []
-        return taken
+        """The loop: the events queued on the UDC's file read and answered (the host's control
+        requests, its SET_CONFIGURATION enabling the endpoints: :meth:`_enable`, which may wait
+        up to :data:`BUSY_WAIT_S`; a reset or disconnect: :meth:`_disable`, up to
+        :data:`UNBLOCK_S`), then the rumble and LED requests that arrived since the last call."""
+        for _ in range(MAX_EVENT_READS):
+            if self._closed or not any(mask & select.POLLIN for _, mask in self._events_ready.poll(0)):
+                break  # (a poll that says only POLLHUP, an aborted request, has cleared it)
+            try:
+                data = os.read(self._dev, 4 * EVENT.size)
+            except OSError as exc:
+                log.debug("%s: events: %s", self.what, exc)
+                break
+            self._handle_events(data)
+        return self._take_announced()
 
     def close(self) -> None:
         """Neutral report, taken twice by the host (its driver handled the first,
         ``_close_neutral``), then :data:`RELEASE_GRACE_S` for the host's readers to read it, then
-        stop the events thread (a read in progress would keep the UDC's file open) and close the
-        endpoints and that file: GadgetFS unbinds the gadget (``dev_release``) and the host sees
-        the pad unplugged."""
+        close the endpoints and the UDC's file (its owner no longer asks for :meth:`feedback`):
+        GadgetFS unbinds the gadget (``dev_release``) and the host sees the pad unplugged."""
         if not self._close_neutral(twice=True):
             return
         # The order matters: closing the UDC's file unbinds the pad at once, and evdev then drops
         # what its readers had not read (a read answers ENODEV). The neutral report reaches xpad
         # after the writer's write returned (2-21 ms in the test kernel) and a reader after that
         # (3-17 ms): without this pause the pad was unbound 16-102 ms after xpad had the report,
-        # with nothing meant to wait for the readers between (only this thread's end of the
-        # events thread), and a loaded machine's reader lost it.
+        # with nothing meant to wait for the readers between, and a loaded machine's reader lost
+        # it. Nothing else waits for the host here: the UDC's events are the run's loop's, which
+        # stopped before the engine's neutral report.
         time.sleep(RELEASE_GRACE_S)
-        try:
-            os.write(self._stop_w, b"\0")
-        except OSError:
-            pass
-        self._events.join(STOP_WAIT_S)
         self._disable()  # no transfer left under way: the UDC's file can close (module docstring)
         self._generation += 1
-        for fd in (self._in, self._out, self._dev, self._null, self._wake_r, self._wake_w, self._stop_r, self._stop_w):
+        self._ready.close()
+        for fd in (self._in, self._out, self._dev, self._null):
             try:
                 os.close(fd)
             except OSError:
                 pass
+        self._close_announcements()
 
     def _enable(self) -> None:
         """Open and enable the two endpoints once the host set the configuration (GadgetFS's
@@ -288,29 +304,16 @@ class GadgetFsXInputTarget(_ReportTarget):
                     pass
             time.sleep(0.01)
 
-    def _read_events(self) -> None:
-        while not self._closed:
+    def _handle_events(self, data: bytes) -> None:
+        """The events read from the UDC's file (:data:`EVENT` each), in order."""
+        for request_type, request, value, index, length, kind in EVENT.iter_unpack(data[: len(data) // 12 * 12]):
             try:
-                ready, _, _ = select.select([self._dev, self._stop_r], [], [], STOP_WAIT_S)
-                if self._stop_r in ready or self._closed:
-                    return
-                if self._dev not in ready:
-                    continue
-                data = os.read(self._dev, 4 * EVENT.size)
+                if kind in (CONNECT, DISCONNECT):  # a connect purges a disconnect still queued
+                    self._disable()
+                elif kind == SETUP:
+                    self._setup(Event(4, request_type, request, value, index, length))
             except OSError as exc:
-                if self._closed:
-                    return
-                log.debug("%s: events: %s", self.what, exc)
-                time.sleep(ERROR_PAUSE_S)
-                continue
-            for request_type, request, value, index, length, kind in EVENT.iter_unpack(data[: len(data) // 12 * 12]):
-                try:
-                    if kind in (CONNECT, DISCONNECT):  # a connect purges a disconnect still queued
-                        self._disable()
-                    elif kind == SETUP:
-                        self._setup(Event(4, request_type, request, value, index, length))
-                except OSError as exc:
-                    log.info("%s: event %d: %s", self.what, kind, exc)
+                log.info("%s: event %d: %s", self.what, kind, exc)
 
     def answer(self, event: Event) -> bytes | None:
         """The answer to a request GadgetFS hands over: string descriptors, GET_STATUS,
@@ -369,12 +372,7 @@ class GadgetFsXInputTarget(_ReportTarget):
                 return  # /dev/null's end of file, or the last report of an ended configuration
             request = parse_output(data, self.what) if data else None
             if request is not None:
-                with self._lock:
-                    self._pending = [*self._pending, request][-MAX_PENDING_FEEDBACK:]
-                try:
-                    os.write(self._wake_w, b"\0")
-                except OSError:
-                    pass
+                self._announce([request])
 
 
 def _install_interrupt() -> bool:

@@ -36,6 +36,58 @@ log = logging.getLogger(__name__)
 MAX_OUTPUT_REPORT = 64
 #: How long :meth:`close` waits for the host to take the neutral report (s).
 NEUTRAL_WAIT_S = 0.5
+#: Feedback requests kept until a target's ``feedback`` takes them; older ones are dropped.
+MAX_PENDING_FEEDBACK = 64
+
+
+class _Announced:
+    """Feedback (rumble, LEDs) that a target's own reader thread receives, handed to the run's
+    loop: the last :data:`MAX_PENDING_FEEDBACK` requests kept, and announced on a pipe whose
+    reading end is the target's :meth:`fileno` (the Target Protocol: the loop calls
+    :meth:`feedback` when it is readable). Set up by :meth:`_open_announcements`, closed by
+    :meth:`_close_announcements`; ``_closed`` is the target's."""
+
+    _closed: bool
+
+    def _open_announcements(self) -> None:
+        self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
+        self._pending: list[Feedback] = []
+        self._pending_lock = threading.Lock()
+
+    def fileno(self) -> int | None:
+        """A pipe that becomes readable when the host sent rumble or LED requests."""
+        return None if self._closed else self._wake_r
+
+    def feedback(self) -> list[Feedback]:
+        """The host's rumble and LED requests that arrived since the last call."""
+        return self._take_announced()
+
+    def _take_announced(self) -> list[Feedback]:
+        try:
+            os.read(self._wake_r, 4096)
+        except OSError:
+            pass
+        with self._pending_lock:
+            taken, self._pending = self._pending, []
+        return taken
+
+    def _announce(self, requests: list[Feedback]) -> None:
+        """From the reader thread: ``requests`` kept, the loop woken."""
+        if not requests:
+            return
+        with self._pending_lock:
+            self._pending = [*self._pending, *requests][-MAX_PENDING_FEEDBACK:]
+        try:
+            os.write(self._wake_w, b"\0")
+        except OSError:
+            pass  # the pipe is full: the loop is already told
+
+    def _close_announcements(self) -> None:
+        for fd in (self._wake_r, self._wake_w):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
 
 
 class _ReportTarget:
