@@ -158,7 +158,13 @@ def test_ctrl_c_during_a_run_prints_its_summary_before_exit_130(monkeypatch, cap
         return runtime.run(seconds)
 
     monkeypatch.setattr(driver, "run_demo", demo)
-    done = run_main(monkeypatch, capsys, ["demo", "--seconds", "5"])
+    # Python's own Ctrl-C, as in a terminal's foreground job (a test session started in the
+    # background by a shell without job control inherits SIGINT ignored)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        done = run_main(monkeypatch, capsys, ["demo", "--seconds", "5"])
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert done.returncode == 130
     assert "the run ended with the compile 49 % done" in done.stderr
 
@@ -197,12 +203,16 @@ def test_ctrl_c_typed_in_the_live_view_after_its_first_windows_prints_the_summar
     import pty
     import re
     import select
+    import signal
     import time
 
     from helpers import CLI
 
     pid, terminal = pty.fork()
     if pid == 0:  # the child: the CLI on the pty (stdin, stdout and stderr)
+        # SIGINT's default action, as a terminal's foreground job has it (an ignored SIGINT, as a
+        # shell without job control gives a background job, would be inherited through execv)
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
         os.execv(sys.executable, [*CLI, *command, "--seconds", "120"])
     out, typed, deadline = b"", False, time.monotonic() + 300  # the bound only ends a hang
     try:
