@@ -157,7 +157,7 @@ def _users_unit(
 
 def _a_game_switches_the_profile(systemd: tuple[Path, Path, Path | None]) -> dict:
     """The user unit under ``systemd`` run by the user: see the module docstring."""
-    t0 = time.monotonic()
+    t0, busy0 = time.monotonic(), guestlib.busy_s()
     data = FOLDER / "data"
     data.mkdir(parents=True, exist_ok=True)
     preds = _write_preds(data, sequence((G.PUSH, 4.0, 600.0), lead_in_s=2.0))
@@ -183,6 +183,7 @@ def _a_game_switches_the_profile(systemd: tuple[Path, Path, Path | None]) -> dic
             seen["version"] = unit.systemctl("--version").splitlines()[0]
             seen["start"] = unit.systemctl("start", "neurotouch-hid.service")
             stamps = {"started": round(time.monotonic() - t0, 1)}
+            busy = {"started": round(guestlib.busy_s() - busy0, 1)}  # the guest's CPU (s) since the check began
             seen["running"] = bool(
                 guestlib.wait_for(
                     lambda: socket.exists() or unit.systemctl("is-failed", "neurotouch-hid.service") == "failed",
@@ -195,6 +196,7 @@ def _a_game_switches_the_profile(systemd: tuple[Path, Path, Path | None]) -> dic
             seen["status"] = unit.systemctl("show", "-p", "ExecMainStatus", "-p", "Result", "neurotouch-hid.service")
             assert seen["running"], f"the unit did not run: {seen}, its log: {unit.log()[-1500:]}"
             stamps["running"] = round(time.monotonic() - t0, 1)
+            busy["running"] = round(guestlib.busy_s() - busy0, 1)
             seen["own_user_namespace"] = os.readlink(f"/proc/{pid}/ns/user") != os.readlink("/proc/1/ns/user")
             game = subprocess.Popen(["sleep", "600"], env=dict(unit.env, SteamAppId="4242"), preexec_fn=_as_user)
             seen["to_game"] = bool(guestlib.wait_for(lambda: "switched to profile everything" in unit.log(), 90.0, 0.2))
@@ -205,7 +207,8 @@ def _a_game_switches_the_profile(systemd: tuple[Path, Path, Path | None]) -> dic
             stamps["back"] = round(time.monotonic() - t0, 1)
             seen["stop"] = unit.systemctl("stop", "neurotouch-hid.service")
             stamps["stopped"] = round(time.monotonic() - t0, 1)
-            seen["stamps_s"] = stamps
+            busy["stopped"] = round(guestlib.busy_s() - busy0, 1)
+            seen["stamps_s"], seen["cpu_s"] = stamps, busy
             seen["result"] = unit.systemctl("show", "-p", "Result", "-p", "ExecMainStatus", "neurotouch-hid.service")
         finally:
             if game is not None and game.poll() is None:

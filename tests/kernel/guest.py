@@ -92,20 +92,11 @@ def _checks(module) -> list:
     return sorted(funcs, key=lambda f: f.__code__.co_firstlineno)
 
 
-def _busy_s() -> float:
-    """The guest's CPU time so far, every process's (the first line of /proc/stat: user, nice,
-    system, irq, softirq; idle and iowait left out), in seconds: the host's core that qemu
-    emulates on is spent in proportion."""
-    fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]
-    user, nice, system, _idle, _iowait, irq, softirq = (int(v) for v in fields[:7])
-    return (user + nice + system + irq + softirq) / os.sysconf("SC_CLK_TCK")
-
-
 def run_one(func, timeout_s: int, name: str) -> dict:
     """Run one check under its alarm; its line on the console (vng's log on the host) before and
     after. The entry's ``seconds`` is its wall time, ``cpu_s`` the guest's CPU time meanwhile."""
     print(f"guest: {name} ...", flush=True)
-    t0, busy0 = time.monotonic(), _busy_s()
+    t0, busy0 = time.monotonic(), guestlib.busy_s()
     signal.signal(signal.SIGALRM, _on_alarm)
     signal.alarm(timeout_s)
     try:
@@ -116,7 +107,7 @@ def run_one(func, timeout_s: int, name: str) -> dict:
     finally:
         signal.alarm(0)
     entry["seconds"] = round(time.monotonic() - t0, 2)
-    entry["cpu_s"] = round(_busy_s() - busy0, 1)
+    entry["cpu_s"] = round(guestlib.busy_s() - busy0, 1)
     print(f"guest: {name} {'ok' if entry['ok'] else 'FAILED'} in {entry['seconds']} s", flush=True)
     return entry
 

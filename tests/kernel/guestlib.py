@@ -268,6 +268,15 @@ def wait_for(predicate, timeout_s: float = 10.0, interval_s: float = 0.05):
         time.sleep(interval_s)
 
 
+def busy_s() -> float:
+    """The guest's CPU time so far, every process's (the first line of /proc/stat: user, nice,
+    system, irq, softirq; idle and iowait left out), in seconds: the host's core that qemu
+    emulates on is spent in proportion."""
+    fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]
+    user, nice, system, _idle, _iowait, irq, softirq = (int(v) for v in fields[:7])
+    return (user + nice + system + irq + softirq) / os.sysconf("SC_CLK_TCK")
+
+
 #: EV_SYN's code for "the kernel dropped events: this reader fell behind" (linux/input-event-codes.h).
 SYN_DROPPED = 3
 
