@@ -208,23 +208,25 @@ def check_usb_xinput_answers_the_vendor_requests() -> dict:
 
 
 def strokes(seconds: float = 200.0) -> list:
-    """Predictions (10 ms windows): the gel at rest 2 s, then one finger pressing 2 mm and moving
-    from (-10, 0) to (10, 5) mm in the user frame over 1.5 s, lifting for 0.5 s, again and again
-    for ``seconds``: a reader that opens late (a loaded emulated host enumerates the gadget in
-    10 to 100 s) still sees whole strokes. (The run reads the whole file before it starts: 20,000
-    windows take tens of seconds to read in the loaded emulated guest.)"""
+    """Predictions (40 ms windows, as a DualSense's touches change in :func:`checks_dualsense.touches`):
+    the gel at rest 2 s, then one finger pressing 2 mm and moving from (-10, 0) to (10, 5) mm in
+    the user frame over 1.5 s, lifting for 0.5 s, again and again for ``seconds``: a reader that
+    opens late (a loaded emulated host enumerates the gadget in 10 to 100 s) or falls behind still
+    sees whole strokes. (The run reads the whole file before it starts: 20,000 windows of 10 ms
+    took tens of seconds of the emulated CPU; 5,000 of 40 ms take a quarter of that.)"""
     import numpy as np
 
     from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 
-    window_us, out = 10_000, []
-    for i in range(int(seconds * 100)):
+    window_us, out = 40_000, []
+    rest, cycle, stroke = 50, 50, 38  # windows: 2 s at rest; a 2 s cycle; its first 1.52 s pressed
+    for i in range(int(seconds * 1e6 / window_us)):
         t_us = (i + 1) * window_us
-        phase = (i - 200) % 200
-        if i < 200 or phase >= 150:
+        phase = (i - rest) % cycle
+        if i < rest or phase >= stroke:
             out.append(GestureEstimate(t_us=t_us))
             continue
-        f = phase / 149
+        f = phase / (stroke - 1)
         mm = np.array([[-10.0 + 20.0 * f, 5.0 * f]])
         out.append(
             GestureEstimate(
