@@ -596,6 +596,33 @@ def _cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+_COLD_SCRIPT = """
+import traceback
+from neurotouch_hid.service import warmup
+from neurotouch_hid.service.kernel_groups import kernels
+for group in warmup.PIPELINE_OF["default"]:
+    for name, d in kernels(group).items():
+        try:
+            magic = d.targetctx.codegen().magic_tuple()
+            index = d._cache._cache_file._load_index()
+            keys = [key[1] for key in index if len(key) > 1]
+            if magic not in keys:
+                print(group.name, name, "magic", magic, "index", keys[:2], type(d._cache).__name__)
+        except Exception:
+            print(group.name, name, traceback.format_exc()[-400:])
+"""
+
+
+def _cold_kernels() -> str:
+    """Which kernels of the pipeline's groups the warm-up (``warmup.cached_signatures``) finds no
+    code for in the host's cache, and why (the magic tuples, or the exception): said when a run
+    compiles in the guest."""
+    proc = subprocess.run(
+        [sys.executable, "-c", _COLD_SCRIPT], capture_output=True, text=True, cwd="/tmp", env=_env(), timeout=300
+    )
+    return (proc.stdout[:1500] or "none cold") + proc.stderr[-500:]
+
+
 def _measured_run(source: str, name: str, camera: EmulatedCamera, cache_log: bool = False) -> dict:
     """``run --source SOURCE --output jsonl`` until SIGTERM, and its steady state from
     REST_SETTLE_S after its first state to REST_MEASURE_S later: context switches per second
@@ -624,7 +651,9 @@ def _measured_run(source: str, name: str, camera: EmulatedCamera, cache_log: boo
             lambda: proc.poll() is not None or (out.exists() and out.stat().st_size > 0), RUN_START_S, interval_s=0.5
         )
         assert started and proc.poll() is None, (
-            f"no state within {RUN_START_S} s (exit {proc.poll()}): {err_path.read_text()[-1500:]}"
+            f"no state within {RUN_START_S} s (exit {proc.poll()}): {err_path.read_text()[-1500:]}; "
+            f"numba's cache log (NUMBA_DEBUG_CACHE, when asked): {stdout_path.read_text()[:1500]}; "
+            f"the run's warm-up reads its cache as: {_cold_kernels()}"
         )
         start_s = time.monotonic() - t0
         time.sleep(REST_SETTLE_S)
