@@ -167,6 +167,36 @@ def test_writer_buffers_small_writes_and_reader_restarts(tmp_path):
     assert np.array_equal(first, events) and np.array_equal(second, events) and frames == []
 
 
+def test_a_stop_raised_between_two_packets_of_a_flush_leaves_a_file_that_closes(tmp_path, monkeypatch):
+    """A termination signal unwinds ``simulate`` from wherever its main thread is (the CLI raises
+    it there, as Ctrl-C does): once it came between two packets of a flush, and the writer's
+    close wrote the first packet again, which dv-processing refused ("out-of-order timestamp"),
+    so the command exited 2 with that error instead of dying by the signal. The packets written
+    before the stop are not pending any more: the close writes only what was not written."""
+    from neurotouch_hid.sources import recording
+
+    events, _ = synthetic(n=3 * recording.PACKET_EVENTS)
+    path = tmp_path / "stopped.aedat4"
+    writes = []
+    real = recording.store_from_events
+
+    def stopped_at_the_second(packet):
+        writes.append(len(packet))
+        if len(writes) == 2:
+            raise KeyboardInterrupt  # the signal's exception, between the first packet and the second
+        return real(packet)
+
+    monkeypatch.setattr(recording, "store_from_events", stopped_at_the_second)
+    with pytest.raises(KeyboardInterrupt), RecordingWriter(path, frames=False) as writer:
+        writer.write_events(events)
+    with RecordingReader(path) as reader:  # no damaged packet: RecordingError otherwise
+        read, _ = reader.read_all()
+    first = recording.PACKET_EVENTS
+    assert np.array_equal(read[:first], events[:first])  # the packet written before the stop, once
+    # then what no write had begun (the stop came before the second packet's write: it is lost)
+    assert np.array_equal(read[first:], events[2 * first :])
+
+
 def test_writer_rejects_bad_data(tmp_path):
     events, frames = synthetic(n=100)
     with RecordingWriter(tmp_path / "bad.aedat4") as writer:

@@ -932,24 +932,33 @@ class RecordingWriter:
             raise RecordingError(f"{self.path}: cannot write an APS frame ({dv_error_text(str(exc))})") from None
 
     def _flush(self, final: bool) -> None:
-        """Write pending events in packets of PACKET_EVENTS (all of them when ``final``)."""
+        """Write pending events in packets of PACKET_EVENTS (all of them when ``final``).
+
+        A packet leaves the pending events as its write begins: an exception raised on the way
+        (a termination signal's, which the CLI raises wherever the main thread is) leaves pending
+        only what no write began, so :meth:`close` never writes a packet twice (dv-processing
+        refuses events out of time order). A packet whose write the exception came just before
+        is lost then: the run is stopping."""
         if not self._pending:
             return
         events = join_events(self._pending)
         stop = len(events) if final else len(events) - len(events) % PACKET_EVENTS
+        begun = 0
         try:
             for start in range(0, stop, PACKET_EVENTS):
                 packet = events[start : min(start + PACKET_EVENTS, stop)]
                 self._room(packet.nbytes)
+                begun = start + len(packet)
                 self._writer.writeEvents(store_from_events(packet))
         except DV_ERRORS as exc:
             raise RecordingError(f"{self.path}: cannot write events ({dv_error_text(str(exc))})") from None
         except RecordingError:  # no room: what was not written is dropped, the file ends before it
-            self._pending, self._n_pending = [], 0
+            begun = len(events)
             raise
-        rest = events[stop:]
-        self._pending = [rest] if len(rest) else []
-        self._n_pending = len(rest)
+        finally:
+            rest = events[begun:]
+            self._pending = [rest] if len(rest) else []
+            self._n_pending = len(rest)
 
     def _check_open(self) -> None:
         if self._writer is None:
