@@ -156,12 +156,16 @@ class Sdl:
             env=guestlib.sdl_env(),
         )
         self.replies: queue.Queue = queue.Queue()
+        self.started = time.monotonic()
+        self.said: list[tuple[float, list[str]]] = []  # each reply's seconds after the start and keys
         threading.Thread(target=self._read, daemon=True).start()
 
     def _read(self) -> None:
         for line in iter(self.proc.stdout.readline, ""):
             if line.startswith("{"):
-                self.replies.put(json.loads(line))
+                reply = json.loads(line)
+                self.said.append((round(time.monotonic() - self.started, 1), sorted(reply)[:4]))
+                self.replies.put(reply)
 
     def next_with(self, key: str, timeout_s: float) -> dict:
         end = time.monotonic() + timeout_s
@@ -397,7 +401,12 @@ class Scenario:
         details["helper_full"] = _pad(pad)
         assert further, details
         opened = self.sdl.next_with("opened", 200.0)
-        assert opened.get("opened"), f"SDL did not open the pad: {opened}"
+        if not opened.get("opened"):
+            alive = self.sdl.proc.poll() is None
+            raise AssertionError(
+                f"SDL did not open the pad: {opened}; the probe said {self.sdl.said[-8:]} (s after its start, "
+                f"keys), running {alive}, its stderr {self.sdl.close()[-600:]!r}; the pad: {_pad(pad)}"
+            )
         details["sdl_controllers"] = opened["count"]
         sdl_held = self.sdl.until(lambda v: v.get("a") and v.get("leftx", 0) <= -32767)
         details["sdl_held"] = {k: sdl_held.get(k) for k in ("a", "x", "leftx", "lefty")}
