@@ -74,25 +74,7 @@ def before(positions_px, valid, rest_px, neighbours, detections_px, pitch_px):
         return none
     reach = tracker.SWAP_FOUND_PITCHES * float(pitch_px)
     wanted = shared[suspects] + rest_px[suspects]
-    cost = np.hypot(*(wanted[:, None, :] - det[None, :, :]).transpose(2, 0, 1))
-    near = np.flatnonzero((cost <= reach).any(axis=0))
-    if not len(near):
-        return none
-    others = valid.copy()
-    others[suspects] = False
-    gap = np.hypot(*(positions_px[others][:, None, :] - det[near][None, :, :]).transpose(2, 0, 1))
-    free = near[~(gap <= reach).any(axis=0)] if len(gap) else near
-    pairs = sorted((cost[i, j], i, j) for i in range(len(suspects)) for j in free.tolist() if cost[i, j] <= reach)
-    taken_s, taken_d, rows, cols = set(), set(), [], []
-    for _, i, j in pairs:
-        if i not in taken_s and j not in taken_d:
-            taken_s.add(i)
-            taken_d.add(j)
-            rows.append(i)
-            cols.append(j)
-    rows_a, cols_a = np.array(rows, dtype=np.int64), np.array(cols, dtype=np.int64)
-    moved = np.hypot(*(positions_px[suspects[rows_a]] - det[cols_a]).reshape(-1, 2).T) > reach
-    return suspects[rows_a[moved]], det[cols_a[moved]].reshape(-1, 2)
+    return tracker.moves_to_free_detections(positions_px, valid, suspects, wanted, det, reach)
 
 
 @contextmanager

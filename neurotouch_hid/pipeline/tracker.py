@@ -553,6 +553,18 @@ def swapped_blobs(
     suspects, wanted = off[keep], wanted[keep]
     if not len(suspects):
         return none
+    return moves_to_free_detections(positions_px, valid, suspects, wanted, det, reach)
+
+
+def moves_to_free_detections(
+    positions_px: np.ndarray, valid: np.ndarray, suspects: np.ndarray, wanted: np.ndarray, det: np.ndarray, reach: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The second half of :func:`swapped_blobs`: each suspect blob (``suspects`` (S,) int64
+    indices into ``positions_px`` (N, 2) px; ``wanted`` (S, 2) px where its marker should be)
+    paired, nearest first, with a free detection (``det`` (M, 2) px: within ``reach`` px of
+    where it is wanted, and of no other valid blob), one each. Returns the indices of the blobs
+    that move (more than ``reach`` from where they were) and their new positions (K, 2) px."""
+    none = (np.zeros(0, dtype=np.int64), np.zeros((0, 2)))
     cost = np.hypot(*(wanted[:, None, :] - det[None, :, :]).transpose(2, 0, 1))  # (S, M)
     near = np.flatnonzero((cost <= reach).any(axis=0))  # the detections within reach of one
     if not len(near):
