@@ -9,9 +9,9 @@ LLVM's library (``libllvmlite.so``, ``/proc/self/smaps``), and the anonymous mem
 (``Anonymous:`` of ``/proc/self/smaps_rollup``: the process's own pages, what the kernel cannot
 reclaim by dropping a file's page; the figure the driver's memory target is on). The steps: the
 interpreter, numpy, numba, OpenCV, the CLI and the driver, the warm pipeline loaded as ``run``
-loads it (``warmup.Warmup``: its kernels from numba's cache), the same once numba's linking
-modules are freed (``jit_cache.release_linking_modules``, a few seconds later), dv-processing (the live camera's
-source only). Run it once before on a warm cache (``run`` or ``track`` once): a cold cache
+loads it (``warmup.Warmup``: its kernels from numba's cache, each group's linking modules freed
+as it is loaded, ``jit_cache.release_linking_modules``), dv-processing (the live camera's source
+only). Run it once before on a warm cache (``run`` or ``track`` once): a cold cache
 compiles first.
 """
 
@@ -70,14 +70,10 @@ def main() -> None:
     import neurotouch_hid.engine.driver  # noqa: F401
 
     show("CLI and driver")
-    import time
-
-    from neurotouch_hid.service.warmup import PIPELINE_OF, RELEASE_AFTER_S, Warmup
+    from neurotouch_hid.service.warmup import PIPELINE_OF, Warmup
 
     Warmup(list(PIPELINE_OF["default"]), say=print, interpreted=False).start()
     show("pipeline loaded")
-    time.sleep(RELEASE_AFTER_S + 1.0)  # numba's linking modules freed meanwhile, as in a run
-    show("linking modules freed")
     import dv_processing  # noqa: F401
 
     show("dv-processing")

@@ -548,6 +548,32 @@ def test_released_linking_modules_leave_kernels_working_and_linkable(tmp_path):
         assert out.stdout.strip() == expected
 
 
+def test_a_warm_group_s_linking_modules_are_freed_as_it_is_loaded_before_the_next_loads(monkeypatch):
+    """On a warm cache each group's linking modules are freed right after its own load and before
+    the next group loads (so that the start never holds two groups' modules: its peak memory),
+    not seconds after the last."""
+    seen: list[tuple[str, list]] = []
+    found = {g.name: {f"{g.name}.k{i}": object() for i in range(3)} for g in warmup.PIPELINE_OF["default"]}
+    monkeypatch.setattr(warmup, "kernels", lambda group: found[group.name])
+    monkeypatch.setattr(warmup, "cached_signatures", lambda dispatcher: ["(float64,)"])
+    monkeypatch.setattr(warmup, "_call", lambda where: seen.append(("load", [where])))
+    released = lambda dispatchers: seen.append(("release", list(dispatchers))) or 0  # noqa: E731
+    monkeypatch.setattr(warmup.jit_cache, "release_linking_modules", released)
+    run = warmup.Warmup(list(warmup.PIPELINE_OF["default"]), say=lambda line: None, interpreted=False)
+    try:
+        run.start()
+    finally:
+        run.close()
+    tracker, pipeline = warmup.PIPELINE_OF["default"]
+    assert seen[:4] == [
+        ("load", [tracker.warm]),
+        ("release", list(found["tracker"].values())),
+        ("load", [pipeline.warm]),
+        ("release", list(found["pipeline"].values())),
+    ], seen
+    assert not run.compiling
+
+
 @pytest.mark.parametrize("lines", [True, False])
 def test_a_compile_seen_in_a_log_says_how_far_it_is_at_each_quarter(lines):
     """Without a terminal (a service's journal, a pipe) no progress bar shows: the compile says

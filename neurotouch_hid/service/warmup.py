@@ -88,8 +88,8 @@ if TYPE_CHECKING:
 
 T = TypeVar("T")
 
-#: How long after every kernel group is loaded numba's linking modules are freed (s;
-#: :meth:`Warmup._release_linking`).
+#: How long after every compiled group is loaded numba's linking modules are freed (s;
+#: :meth:`Warmup._release_linking`); a group warm in the cache has them freed as it is loaded.
 RELEASE_AFTER_S = 3.0
 #: How much nicer than the run a compile's child is (``nice(2)``): while the run computes its
 #: first window (and later its interpreted windows) it has a core before the compiles do; the
@@ -252,6 +252,8 @@ class Warmup:
                         _call(group.warm)
                     else:
                         _load_cached(found)
+                    # freed now, before the next group loads: the start's peak (docs/performance.md, "Memory")
+                    jit_cache.release_linking_modules(found.values())
                     self._settled[group.name].set()
                     continue
                 self._kernels[group.name] = found
@@ -289,8 +291,10 @@ class Warmup:
     def _release_linking(self) -> None:
         """Every group is loaded: free what numba keeps only for later compiles
         (:func:`~neurotouch_hid.service.jit_cache.release_linking_modules`), :data:`RELEASE_AFTER_S`
-        later in a thread of its own: off the start's path (~0.1 s of CPU here, more on a slow
-        board), and never for a process that ends before (a short ``track``)."""
+        later in a thread of its own, for the groups compiled by this run's children (those warm
+        in the cache had theirs freed as :meth:`start` loaded them, one group after the other, so
+        that no two groups' modules are held at once: ~40 ms of the start's CPU here, and the
+        start's anonymous memory 10 MiB lower, docs/performance.md "Memory")."""
         dispatchers = [d for group in self._groups for d in kernels(group).values()]
 
         def release() -> None:
