@@ -235,6 +235,8 @@ def test_adapt_refuses_labels_in_micrometres(records):
 
 
 def test_the_replay_with_another_first_finger_wait_answers_what_the_pipeline_answers(enrolment, records):
+    for shipped in records:  # the shipped wait, a lone contact's field read as the pipeline read it
+        assert np.array_equal(replay(shipped), shipped.answered)
     wait = 0
     again = record_datasets([enrolment], config=PipelineConfig(episode=EpisodeConfig(first_finger_us=wait)))
     for shipped, rerun in zip(records, again):

@@ -110,6 +110,9 @@ class Record:
             per reference marker).
         frame_resting: (F,) bool, labelled resting; frame_prompt (F,) as ``prompt``.
         prompt_type: prompt id -> labelled type index (CLASSES) of that gesture.
+        counter_mm: (W,) float64 how far the gel moves against a lone contact's drag (mm,
+            ``pipeline/counter_drag.py``; inf where the window has not one contact), None: not
+            recorded (read as inf).
     """
 
     name: str
@@ -127,6 +130,7 @@ class Record:
     frame_resting: np.ndarray
     frame_prompt: np.ndarray
     prompt_type: dict[int, int] = field(default_factory=dict)
+    counter_mm: np.ndarray | None = None
 
 
 def _type_index(gesture: GestureType) -> int:
@@ -155,9 +159,11 @@ def _recorder(sensor, config):
             return super()._learned_type(result, contacts, rest_px, current, valid)
 
         def _vote(self, gesture, intensity_mm, n_contacts, t_us):
+            one = n_contacts == 1 and gesture is not GestureType.NONE
+            counter = self._counter_drag() if one else math.inf  # as the vote reads it, for the replay
             answer = super()._vote(gesture, intensity_mm, n_contacts, t_us)
             feats = self._features if gesture is not GestureType.NONE else None
-            self.rows.append((t_us, _type_index(gesture), intensity_mm, n_contacts, feats))
+            self.rows.append((t_us, _type_index(gesture), intensity_mm, n_contacts, feats, counter))
             return answer
 
         def _apply_resting(self, result, t_us):
@@ -222,6 +228,7 @@ def record_sequence(dataset: str | Path, name: str, config=None) -> Record:
         gesture=np.array([r[1] for r in rows], dtype=np.int8),
         intensity_mm=np.array([r[2] for r in rows], dtype=np.float64),
         n_contacts=np.array([r[3] for r in rows], dtype=np.int16),
+        counter_mm=np.array([r[5] for r in rows], dtype=np.float64),
         features=features,
         answered=np.array(answered, dtype=np.int8),
         label=np.array([-2 if lab is None else _type_index(lab.gesture) for lab in at], dtype=np.int8),
@@ -349,13 +356,20 @@ def replay(
     vote = EpisodeVote(first_finger_us=first_finger_us)
     types = (*CLASSES, GestureType.NONE)  # index -1: none
     out = np.empty(len(kinds), dtype=np.int8)
-    for i, (t, k, intensity, n) in enumerate(
-        zip(record.t_us.tolist(), kinds.tolist(), record.intensity_mm.tolist(), record.n_contacts.tolist())
+    counter = record.counter_mm if record.counter_mm is not None else np.full(len(kinds), math.inf)
+    for i, (t, k, intensity, n, c) in enumerate(
+        zip(
+            record.t_us.tolist(),
+            kinds.tolist(),
+            record.intensity_mm.tolist(),
+            record.n_contacts.tolist(),
+            counter.tolist(),
+        )
     ):
         if k < 0:
             answer = vote.update(GestureType.NONE, 0.0, 0, t)
         else:
-            answer = vote.update(types[k], intensity * gain, n, t)
+            answer = vote.update(types[k], intensity * gain, n, t, c)
         out[i] = _type_index(answer)
     return out
 

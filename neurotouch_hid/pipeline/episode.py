@@ -10,6 +10,17 @@ from neurotouch_hid.core.estimate import GestureType
 #: How long (us) an episode that shows one contact stays undecided: a second finger may land up
 #: to ~100 ms after the first and is seen a window or two later (docs/method.md, "Episode vote").
 FIRST_FINGER_US = 90_000
+#: A lone contact whose gel moves nowhere against its drag by ``QUIET_MM`` or more ends its wait
+#: this much (us) sooner: one window of the pipeline's 100 Hz. A second finger dragging another way
+#: moves the gel against the first's drag (``counter_drag.py``) by the window its gel has moved
+#: 0.3 mm, and the contact step finds it a median 5-7 ms after that: one window later. Two windows
+#: sooner commit the lone first fingers of late pinches, zooms and twists as push
+#: (docs/method.md, "A lone contact's field").
+QUIET_LEAD_US = 10_000
+#: ... below this counter-motion (mm) the field is one finger's: the labels' own tolerance for a
+#: gel at rest, above the 0-0.06 mm a lone finger's field shows against its drag on most gels
+#: (docs/method.md, "A lone contact's field").
+QUIET_MM = 0.1
 #: Within this time (us) of the onset one correction is allowed (libinput's 300 ms).
 CORRECTION_US = 300_000
 #: Below this intensity (mm) an undecided window answers the vote so far: it is below every dead zone
@@ -53,8 +64,10 @@ class EpisodeVote:
     undecided window whose intensity is below ``provisional_mm`` (too weak for a profile to map
     it) answers the vote so far (below); from there on it answers ``none`` (no output for the
     mapper). The type is committed at the first window at or above ``provisional_mm`` that sees
-    two contacts or more, or once one contact has held for ``first_finger_us``: the type with the
-    most intensity-weighted votes (mm) since the contact count last changed. A window below
+    two contacts or more, or once one contact has held for ``first_finger_us`` (``quiet_lead_us``
+    less in a window whose gel moves nowhere against the contact's drag: one finger's field,
+    :meth:`update`'s ``counter_mm``): the type with the most intensity-weighted votes (mm) since
+    the contact count last changed. A window below
     ``provisional_mm`` commits nothing whatever its count (a gel that has barely moved shows
     spurious contacts: one such window committing push on three contacts made a twist's lone
     first finger felt as push), and its count does not restart the one-contact wait either: that
@@ -106,6 +119,9 @@ class EpisodeVote:
             sees two contacts or more must rise to begin one.
         firm_mm: from this intensity (mm, >= 0; inf: never) on, a type answered the window before
             changes only when two windows in a row say so.
+        quiet_lead_us: how much sooner (us, >= 0) one contact commits in a window whose field is
+            one finger's.
+        quiet_mm: below this counter-motion (mm, >= 0) a window's field is one finger's.
     """
 
     def __init__(
@@ -117,6 +133,8 @@ class EpisodeVote:
         repress_share: float = REPRESS_SHARE,
         repress_mm: float = REPRESS_MM,
         firm_mm: float = FIRM_MM,
+        quiet_lead_us: int = QUIET_LEAD_US,
+        quiet_mm: float = QUIET_MM,
     ) -> None:
         self.first_finger_us = first_finger_us
         self.correction_us = correction_us
@@ -125,8 +143,11 @@ class EpisodeVote:
         self.repress_share = repress_share
         self.repress_mm = repress_mm
         self.firm_mm = firm_mm
+        self.quiet_lead_us = quiet_lead_us
+        self.quiet_mm = quiet_mm
         self._held: GestureType | None = None  # the type last answered at or above firm_mm ...
         self._held_us = 0  # ... when
+        self._quiet = False  # the window's field is one finger's (update's counter_mm)
         self.reset()
 
     def reset(self) -> None:
@@ -147,16 +168,27 @@ class EpisodeVote:
         self._found_us = 0  # ... and when
         self._multi = False  # the type was committed on two contacts or more (or corrected to them)
 
-    def update(self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int) -> GestureType:
+    @property
+    def undecided(self) -> bool:
+        """No type committed in this episode yet (a window of one contact may read the field,
+        :meth:`update`'s ``counter_mm``)."""
+        return self._decision is None
+
+    def update(
+        self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int, counter_mm: float = math.inf
+    ) -> GestureType:
         """The answer after one window ending at ``t_us`` (us, increasing) of type ``gesture``,
         intensity ``intensity_mm`` (mm, >= 0) and ``n_contacts`` contact points: the committed
         type; while undecided, the vote so far below ``provisional_mm`` and ``NONE`` at or above
         it; at or above ``firm_mm``, the type answered before until two windows in a row answer
-        another. A ``NONE`` window ends the episode and is returned as is."""
+        another. A ``NONE`` window ends the episode and is returned as is. ``counter_mm``: how
+        far the gel moves against a lone contact's drag (mm, ``counter_drag.counter_drag_mm``;
+        inf: not read), below ``quiet_mm`` the one-contact wait ends ``quiet_lead_us`` sooner."""
         if gesture is GestureType.NONE:  # as cheap as before for a resting window
             self.reset()
             return gesture
         said_before = self._said
+        self._quiet = counter_mm < self.quiet_mm
         answer = self._vote(gesture, intensity_mm, n_contacts, t_us)
         self._said = gesture
         held = self._held
@@ -216,7 +248,8 @@ class EpisodeVote:
             if n_contacts != self._trusted:
                 self._trusted_since_us = self._onset_us if self._trusted < 0 else t_us
                 self._trusted = n_contacts
-            if n_contacts <= 1 and t_us - self._trusted_since_us < self.first_finger_us:
+            wait = self.first_finger_us - (self.quiet_lead_us if self._quiet else 0)
+            if n_contacts <= 1 and t_us - self._trusted_since_us < wait:
                 return GestureType.NONE
             if (
                 gesture is GestureType.PUSH

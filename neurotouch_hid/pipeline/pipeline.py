@@ -38,6 +38,7 @@ its next item, so the tracker is never reset mid-batch).
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from collections.abc import Callable, Iterable, Iterator
 
@@ -49,6 +50,7 @@ from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.config import MIN_WINDOW_US, PipelineConfig, PixelSettings, scaled_to_sensor
 from neurotouch_hid.pipeline.contacts import Contacts, compile_held_kernels, detect_contacts
 from neurotouch_hid.pipeline.contacts_plateau import rest_neighbours
+from neurotouch_hid.pipeline.counter_drag import counter_drag_mm
 from neurotouch_hid.pipeline.creep import TAIL_PRESS_MARKERS, TAIL_PRESS_SHARE, CreepFilter, TailWatch
 from neurotouch_hid.pipeline.creep import amplitude as creep_amplitude
 from neurotouch_hid.pipeline.episode import EpisodeVote
@@ -150,6 +152,8 @@ class GesturePipeline(WindowPath, FramePath):
         self._of_rest_kept: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         #: the last window's fit: (rest_px, current, valid, long press, contacts, gesture result)
         self._last_fit: tuple | None = None
+        #: what the episode vote's window was fitted on: (rest reference, current, valid, contacts)
+        self._voted: tuple | None = None
         #: the noise filter in front of the tracker (one per pipeline, its state kept across
         #: batches; it starts afresh by itself when the clock goes back, ``noise.py``)
         self.noise_filter = self._noise_filter()
@@ -344,8 +348,34 @@ class GesturePipeline(WindowPath, FramePath):
 
     def _vote(self, gesture: GestureType, intensity_mm: float, n_contacts: int, t_us: int) -> GestureType:
         """The window's type: the episode's committed type, ``none`` while undecided
-        (docs/method.md, "Episode vote")."""
-        return self._episode.update(gesture, intensity_mm, n_contacts, t_us)
+        (docs/method.md, "Episode vote"); an undecided window of one contact felt at all also
+        reads how far the gel moves against that contact's drag (:meth:`_counter_drag`)."""
+        counter = math.inf
+        if (
+            n_contacts == 1
+            and gesture is not GestureType.NONE
+            and intensity_mm >= self._episode.provisional_mm
+            and self._episode.undecided
+        ):
+            counter = self._counter_drag()
+        return self._episode.update(gesture, intensity_mm, n_contacts, t_us, counter)
+
+    def _counter_drag(self) -> float:
+        """How far (mm) the gel moves against the drag of the lone contact of the window being
+        voted on (``counter_drag.counter_drag_mm``), on the positions the contact step read: undistorted
+        and without the gel's motion in its mount (docs/method.md, "Contacts", "Gel motion");
+        inf when that window is not known or has not one contact."""
+        if self._voted is None or len(self._voted[3].indices) != 1:
+            return math.inf
+        rest_px, current, valid, contacts = self._voted
+        centre = self.sensor.gel_center_px
+        rim = self._of_rest("rim", rest_px, lambda rest: rim_markers(rest, centre))
+        motion = estimate_gel_motion(rest_px, current, valid, rim, centre)
+        on_gel = self._of_rest("undistorted", rest_px, self.sensor.undistort)
+        now = self.sensor.undistort(current if motion is None else motion.remove(current))
+        return counter_drag_mm(
+            on_gel, now, valid, int(contacts.indices[0]), self.config.marker_pitch_px, self.sensor.px_per_mm
+        )
 
     def _estimate(self, t_us: int) -> GestureEstimate:
         current = self.tracker.positions_px
@@ -354,16 +384,18 @@ class GesturePipeline(WindowPath, FramePath):
             return self._none(t_us, resting=True)
         if self._still(current, valid):  # what the gesture step would answer, without its fits
             return self._none(t_us, resting=False)
-        contacts, result = self._contacts_and_gesture(self.rest_px, current, valid)
+        rest = self.rest_px
+        contacts, result = self._contacts_and_gesture(rest, current, valid)
         if result.gesture is GestureType.NONE:
             return self._none(t_us, resting=False)
         if self._released(result.intensity_px, t_us):
-            tail_rest = self._new_press_in_tail(current, valid)
-            if tail_rest is None:
+            rest = self._new_press_in_tail(current, valid)
+            if rest is None:
                 return self._none(t_us, resting=False, fed=True)
-            contacts, result = self._fit(tail_rest, current, valid)  # the new press alone
+            contacts, result = self._fit(rest, current, valid)  # the new press alone
             if result.gesture is GestureType.NONE:
                 return self._none(t_us, resting=False, fed=True)
+        self._voted = (rest, current, valid, contacts)
         return GestureEstimate(
             t_us=t_us,
             gesture=self._vote(result.gesture, result.intensity_mm, len(contacts.points_px), t_us),
