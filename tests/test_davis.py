@@ -471,3 +471,46 @@ def test_one_poll_takes_every_frame_queued_each_before_the_events_at_or_after_it
             last_event = int(item["timestamp"][-1])
     events = np.concatenate([i for i in items if not isinstance(i, Frame)])
     np.testing.assert_array_equal(events["timestamp"], np.concatenate([b["timestamp"] for b in batches]))
+
+
+def _polls_at_rest(recording: Path, resting_until_s: float, seconds: float = 1.0):
+    """DavisSource on ``recording`` (its clock the test's), its consumer saying the gel rests in
+    10 ms windows until ``resting_until_s`` and asking a late window's polls to wait 1 ms (as the
+    engine's rest hand-over does): the waits after polls that brought nothing (clock s, waited s)
+    and every batch read with the clock when it came (s)."""
+    world = replay(recording)
+    waits: list[tuple[float, float]] = []
+
+    def sleep(seconds_: float) -> None:
+        waits.append((world.now_s(), seconds_))
+        world.clock.sleep(seconds_)
+
+    source = DavisSource(QUICK, backend=world, clock=world.clock.monotonic, sleep=sleep)
+    stream = source.stream(seconds=seconds)
+    stream.poll_pause.resting = lambda: 10_000 if world.now_s() < resting_until_s else None
+    stream.poll_pause.decide = lambda: 0.001
+    came = [(world.now_s(), item) for item in stream if isinstance(item, np.ndarray)]
+    return world, waits, came
+
+
+def test_at_rest_a_poll_that_brings_nothing_waits_for_the_camera_s_next_transfer(sim_gel_recording):
+    """With the early packet delay at 10 ms the camera sends one transfer a delay: polls in
+    between find nothing, and used to wait 1 ms each (ten a window); they now wait for the next
+    transfer, and every event still comes within the delay and that poll's wait of being sent."""
+    world, waits, came = _polls_at_rest(sim_gel_recording[0], resting_until_s=10.0)
+    assert [us for _, us in world.early_packet_delays] == [10_000]
+    transfers = {t for t, _ in came}
+    assert 80 <= len(transfers) <= 105, len(transfers)  # one every 10 ms and a little
+    assert len(waits) <= 1.2 * len(transfers), (len(waits), len(transfers))
+    got = np.concatenate([batch["timestamp"] for _, batch in came])
+    sent = world.event_ts[(world.event_ts >= got[0]) & (world.event_ts <= got[-1])]
+    np.testing.assert_array_equal(got, sent)  # none lost, none twice
+    late_ms = max((t - (batch["timestamp"][0] - world.t0_us) / 1e6) * 1e3 for t, batch in came)
+    assert late_ms <= 10 + 1 + 1.5, late_ms  # the delay, the margin, a late transfer's 1 ms poll
+
+
+def test_when_the_rest_ends_polls_no_longer_wait_for_a_transfer(sim_gel_recording):
+    world, waits, _ = _polls_at_rest(sim_gel_recording[0], resting_until_s=0.5)
+    after = [w for t, w in waits if t >= 0.52]
+    assert after and max(after) <= 0.001, max(after)
+    assert (0.5 <= world.early_packet_delays[-1][0] < 0.52) and world.early_packet_delays[-1][1] == 1000

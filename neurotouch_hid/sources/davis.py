@@ -24,8 +24,10 @@ alive through faults:
   long data that does not fill a USB transfer waits in the camera's FX3) is the resting windows'
   length, at most :data:`REST_EARLY_PACKET_DELAY_US`, instead of :data:`EARLY_PACKET_DELAY_US`:
   a resting gel's noise events come in one short transfer a window, not one a millisecond, and
-  the host's reader wakes as often. At the first window that does not rest it is set back, from
-  the source's thread at its next poll (what the camera held then goes at once).
+  the host's reader wakes as often. Meanwhile a poll that brings nothing waits for the camera's
+  next transfer (the last one's arrival + that delay), not only for the window's end: polls
+  before it would find nothing. At the first window that does not rest the delay is set back,
+  from the source's thread at its next poll (what the camera held then goes at once).
 
 The capture interface
 ---------------------
@@ -74,6 +76,12 @@ EARLY_PACKET_DELAY_US = 1000
 #: wait in the camera at most this long; on the families' game sessions that moves no family's
 #: dead-zone latency median or p90 (docs/performance.md, "At rest").
 REST_EARLY_PACKET_DELAY_US = 10_000
+#: While the gel rests, a poll that brings nothing waits at least until the camera's next transfer
+#: is due: the last data's arrival + the early packet delay in force + this much (s). The FX3 sends
+#: a short transfer once its oldest data waited the delay, and that wait starts with the first event
+#: after the previous transfer, so transfers come a little more than a delay apart: waking at the
+#: delay itself polls too early about every time, then again (docs/performance.md, "At rest").
+_TRANSFER_MARGIN_S = 0.001
 #: dv-processing camera models that are DAVIS cameras (events + APS frames).
 _DAVIS_MODELS = ("DAVIS", "DAVIS_GEN2")
 
@@ -332,6 +340,20 @@ class DavisSource:
             except DV_ERRORS:
                 pass  # an unplug shows at the next poll; until then the camera sends as it did
 
+    def _poll_wait(self, pause: PollPause, last_data: float, now: float) -> float:
+        """How long (s) a poll that brought nothing waits: ``pause()`` (its consumer's decision,
+        which also hands on what it held), and while the gel still rests with the early packet
+        delay lengthened, at least until the camera's next transfer is due (the last data's
+        arrival ``last_data`` + that delay + :data:`_TRANSFER_MARGIN_S`, clock seconds): a resting
+        gel's data come one transfer a delay, not at a window's end, so polls before it find
+        nothing. A transfer later than that is polled for as ``pause()`` says. Not once the rest
+        ends: the delay is then set back at the next poll."""
+        wait = pause()
+        delay_us = self._early_packet_delay_us
+        if delay_us > EARLY_PACKET_DELAY_US and pause.resting_window_us() is not None:
+            wait = max(wait, last_data + delay_us / 1e6 + _TRANSFER_MARGIN_S - now)
+        return wait
+
     # --- reading ------------------------------------------------------------------------------
     def _read(self) -> tuple[list[StreamItem], str | None]:
         """One poll of the camera: ``(items, failure)``; ``failure`` says why the camera is lost."""
@@ -378,7 +400,8 @@ class DavisSource:
 
         A poll that brings nothing new waits ``poll_pause()`` (the returned stream's
         :class:`~neurotouch_hid.sources.PollPause`: :data:`_IDLE_SLEEP_S` unless its consumer
-        decides; the runtime, while the gel rests, until the next window's end).
+        decides; the runtime, while the gel rests, until the next window's end), and while the gel
+        rests at least until the camera's next transfer is due (:meth:`_poll_wait`).
 
         Raises:
             DeviceError: without ``reconnect``, the camera is missing, stops (unplugged), fails or
@@ -437,7 +460,7 @@ class DavisSource:
             if failure is None and now - last_data > cfg.stall_timeout_s:
                 failure = f"sent no data for {now - last_data:.1f} s (stalled)"
             if failure is None:
-                self._sleep(pause())
+                self._sleep(self._poll_wait(pause, last_data, now))
                 continue
             name = self.camera_name
             self.close()
