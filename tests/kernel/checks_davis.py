@@ -47,6 +47,7 @@ import vm
 from evdev import ecodes
 
 HERE = Path(__file__).resolve().parent
+REPO = HERE.parent.parent
 GADGET = HERE / "davis_gadget.py"
 TIMEOUT_S = 1200
 COMMAND_TIMEOUT_S = 300
@@ -87,6 +88,8 @@ STREAM_STARTED, CUE_TAKEN = "stream started", "SIGHUP: playing the cued gesture"
 #: The cue is given this long after the run's stream started (s): its first passes (0.55 s of
 #: camera time each, an APS frame of the gel at rest first) reach the pipeline before the push.
 CUE_AFTER_STREAM_S = 3.0
+#: The emulated camera's USB serial number (the gadget's ``--serial``).
+CAMERA_SERIAL = "00000001"
 #: Name of the replayed recording in the boot's shared folder (vm.py puts it there).
 REPLAY_NAME = "davis_replay.aedat4"
 
@@ -119,6 +122,8 @@ class EmulatedCamera:
                 "{}:{}".format(*HELD_S),
                 "--gesture-slow",
                 str(GESTURE_SLOW),
+                "--serial",
+                CAMERA_SERIAL,
             ],
             stdout=subprocess.PIPE,
             stderr=self._log,
@@ -166,9 +171,13 @@ def numba_cache() -> Path:
 
 def _env(cache_log: bool = False) -> dict:
     # the pipeline's code comes from the host's cache (compiling it under emulation takes longer
-    # than 600 s), which numba uses only for the same target CPU (vm.GUEST_NUMBA_ENV)
+    # than 600 s), which numba uses only for the same target CPU (vm.GUEST_NUMBA_ENV) and the same
+    # source files: the commands import this checkout's neurotouch_hid, the one vm.py compiled
+    # (the venv's console script would import the package it was installed from, another
+    # checkout's path, whose cache is missing: the run then compiled for minutes)
     return dict(
         os.environ,
+        PYTHONPATH=os.pathsep.join([str(REPO), *filter(None, [os.environ.get("PYTHONPATH")])]),
         HOME="/tmp",
         COLUMNS="200",
         XDG_CONFIG_HOME="/tmp/davis-config",
@@ -247,7 +256,7 @@ def _devices(camera: EmulatedCamera) -> dict:
     assert code == 0 and data["ready"] == 1, data
     (cam,) = data["cameras"]
     assert cam["status"] == "ready" and cam["dv"]["model"] == "DAVIS" and cam["dv"]["firmware"] == 6, cam
-    assert cam["usb"]["access"] == "ok" and cam["usb"]["reason"] == "" and cam["serial"] == "00000001", cam
+    assert cam["usb"]["access"] == "ok" and cam["usb"]["reason"] == "" and cam["serial"] == CAMERA_SERIAL, cam
     return {"message": data["message"], "dv": cam["dv"], "usb": cam["usb"]}
 
 
@@ -388,23 +397,33 @@ class _Lines:
         return next(((t, line) for t, line in self.lines if text in line and t >= after), None)
 
 
-def _pad_path(proc: subprocess.Popen, timeout_s: float) -> str:
-    """The event node of the gamepad ``run`` made (its phys), once it exists."""
+def _pad_path(proc: subprocess.Popen, err: "_Lines", timeout_s: float) -> str:
+    """The event node of the gamepad ``run`` made, once it exists: the pad of a run for a camera
+    carries the camera's identity (``phys`` ``neurotouch-hid/SERIAL``, targets/identity.py), and
+    ``run`` finds the emulated camera's serial on the bus (``sources/serial.py``). Raises
+    AssertionError with the run's last lines when none comes in ``timeout_s``."""
     from evdev import InputDevice, list_devices
 
-    from neurotouch_hid.targets.uinput.gamepad import PHYS
+    from neurotouch_hid.targets.identity import identity_for
+
+    phys = identity_for(CAMERA_SERIAL).phys
 
     def find() -> str | None:
+        err.poll()
         for path in list_devices():
             try:
-                if InputDevice(path).phys == PHYS:
+                if InputDevice(path).phys == phys:
                     return path
             except OSError:
                 continue
         return None
 
     path = guestlib.wait_for(lambda: proc.poll() is not None or find(), timeout_s, interval_s=0.5)
-    assert isinstance(path, str), f"no gamepad within {timeout_s} s (run exited: {proc.poll()})"
+    err.poll()
+    assert isinstance(path, str), (
+        f"no gamepad with phys {phys} within {timeout_s} s (run exited: {proc.poll()}): "
+        f"{[line for _, line in err.lines[-8:]]}"
+    )
     return path
 
 
@@ -468,7 +487,7 @@ def _run_gamepad_unplug(camera: EmulatedCamera) -> dict:
 
     try:
         t_start = time.monotonic()
-        reader = guestlib.EventReader(_pad_path(proc, RUN_START_S))
+        reader = guestlib.EventReader(_pad_path(proc, err, RUN_START_S))
         pad_after_s = time.monotonic() - t_start
         streaming = pump_until(lambda: camera.said(STREAM_STARTED) > streams, RUN_START_S)
         assert streaming, f"run did not start the camera's stream: {camera.log()[-1000:]}"
@@ -669,6 +688,7 @@ def _measured_run(source: str, name: str, camera: EmulatedCamera, cache_log: boo
             proc.kill()
             proc.wait()
     span = t_after - t_before
+    camera_sent = _camera_sent(camera.log(), t_before, t_after)
     rates = {
         tid: [round((n - before.get(tid, (0, 0))[k]) / span, 1) for k, n in enumerate(counts)]
         for tid, counts in after.items()
@@ -683,11 +703,32 @@ def _measured_run(source: str, name: str, camera: EmulatedCamera, cache_log: boo
         "span_s": round(span, 1),
         "cpu_share": round(cpu[0] / span, 3),
         "camera_cpu_share": round(cpu[1] / span, 3),
+        "camera_sent": camera_sent,
         "first_state_after_s": round(start_s, 1),
         "summary": stderr.strip().splitlines()[-1][-400:] if stderr.strip() else "",
     }
     states = [json.loads(line) for line in out.read_text().splitlines()]
     return {"rest": rest, "states": states, "stdout": stdout_path.read_text(), "stderr": stderr}
+
+
+_SENT = re.compile(r"davis_gadget: ([\d.]+) sent (\d+) transfers \((\d+) short\), (\d+) bytes")
+_DELAY = re.compile(r"davis_gadget: ([\d.]+) USB early packet delay ([\d.]+) us")
+
+
+def _camera_sent(log: str, t_from: float, t_to: float) -> dict:
+    """What the emulated camera sent between ``t_from`` and ``t_to`` (time.monotonic(), s), from
+    its log's counts (davis_gadget.py logs them once a second): transfers, short ones (the early
+    packet delay's) and bytes a second, and the early packet delay (us) the host last wrote
+    before ``t_to`` (None: libcaer's default, never written)."""
+    counts = [(float(m[1]), *map(int, m.groups()[1:])) for m in _SENT.finditer(log)]
+    counts = [c for c in counts if t_from <= c[0] <= t_to]
+    delays = [float(m[2]) for m in _DELAY.finditer(log) if float(m[1]) <= t_to]
+    sent: dict = {"early_packet_delay_us": delays[-1] if delays else None}
+    if len(counts) >= 2 and counts[-1][0] > counts[0][0]:
+        (t0, *first), (t1, *last) = counts[0], counts[-1]
+        per_s = [round((b - a) / (t1 - t0), 1) for a, b in zip(first, last)]
+        sent.update(transfers_per_s=per_s[0], short_per_s=per_s[1], bytes_per_s=per_s[2])
+    return sent
 
 
 #: ``run --source davis``'s steady state, measured by :func:`_run_jsonl` for :func:`_at_rest`.

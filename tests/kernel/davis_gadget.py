@@ -171,6 +171,8 @@ MAX_BACKLOG_BYTES = 4 << 20
 USB_EARLY_PACKET_DELAY = 1
 USB_CLOCK_MHZ = READ_ONLY[(SYSINFO, 5)]
 DEFAULT_EARLY_PACKET_DELAY_US = 1000
+#: While a stream runs, the data endpoint's counts are logged this often (s).
+STATS_EVERY_S = 1.0
 #: FunctionFS's errors for a control transfer the host gave up on, or for a gadget unbound meanwhile
 CANCELLED = (errno.EIDRM, errno.ESHUTDOWN)
 
@@ -513,6 +515,7 @@ class DavisDevice:
         self.pending = bytearray()  # less than a transfer, held for the early packet delay
         self.pending_since = 0.0  # when its first byte was queued (time.monotonic())
         self.transfers = 0
+        self.short_transfers = 0  # of them, sent before they were full (the early packet delay)
         self.dropped_bytes = 0
         self.clock0 = time.monotonic()  # device time 0 (timestamp reset)
         self.stream: Stream | None = None
@@ -566,6 +569,8 @@ class DavisDevice:
                 self.stream.encoder.reset(0)
             self._queue(np.asarray([SP_TS_RESET], np.uint16))
             self._flush(time.monotonic(), force=True)  # the host waits for it (time synchronisation)
+        elif (module, param) == (USB, USB_EARLY_PACKET_DELAY):
+            log(f"USB early packet delay {value / USB_CLOCK_MHZ:g} us")
         elif (module, param) == (USB, 0):
             if value and self.stream is None:
                 self._start_stream()
@@ -648,6 +653,12 @@ class DavisDevice:
         if self.pending and (force or now - self.pending_since >= self.early_packet_delay_s()):
             self._to_backlog(self.pending)
             self.pending.clear()
+            self.short_transfers += 1
+
+    def stats(self) -> str:
+        """The data endpoint's counts so far, as logged once a second while a stream runs (the
+        guest checks read the transfers a second from them)."""
+        return f"sent {self.transfers} transfers ({self.short_transfers} short), {self.sent_bytes} bytes"
 
     def pump(self, submit: bool = True) -> None:
         """Queue what is due now; submit queued data while transfers are free."""
@@ -825,6 +836,7 @@ def main(argv: list[str] | None = None) -> int:
     with gadget:
         device.function = ffs.function
         announced = False
+        next_stats = 0.0  # when the data endpoint's counts are logged next (time.monotonic())
         with select.epoll(1) as epoll:
             epoll.register(ffs.function.eventfd, select.EPOLLIN)
             while not stop:
@@ -849,6 +861,9 @@ def main(argv: list[str] | None = None) -> int:
                         print(f"READY bus {bus} device {dev}", flush=True)
                         announced = True
                 device.pump()
+                if device.stream is not None and time.monotonic() >= next_stats:
+                    log(device.stats())
+                    next_stats = time.monotonic() + STATS_EVERY_S
         device.disabled("exit")  # cancels queued transfers: they would keep FunctionFS busy
         log(f"{stop[0]}: unplugging; requests seen: {device.requests}")
     return 0
