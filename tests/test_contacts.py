@@ -14,6 +14,7 @@ from neurotouch_hid.pipeline.contacts import (
     local_maxima,
     outlier_candidates,
 )
+from neurotouch_hid.pipeline.contacts_bump import maxima_pushed_out
 from neurotouch_hid.pipeline.contacts_plateau import _valid_table, rest_neighbours
 from neurotouch_hid.pipeline.contacts_refine import refine_peak
 from neurotouch_hid.pipeline.paper import paper_contacts
@@ -495,6 +496,19 @@ def test_a_long_tailed_pinch_puts_the_maxima_outside_the_fingers_and_the_bump_fi
     _, old_error, new_error = _pinch_without_and_with_the_bump_fit()
     assert old_error.min() > 3.5  # 1.4-1.8 mm outward
     assert new_error.max() < 2.0  # 0.8 mm, after BUMP_ITERATIONS (3) rounds
+
+
+def test_maxima_pushed_out_says_whether_every_fitted_finger_lies_inside_its_maximum():
+    new, _, _ = _pinch_without_and_with_the_bump_fit()
+    assert maxima_pushed_out(new.peaks_px, new.points_px)  # the long-tailed pinch above
+    maxima = np.array([[100.0, 100.0], [140.0, 100.0], [120.0, 134.0]])
+    inside = maxima + 0.2 * (maxima.mean(axis=0) - maxima)
+    assert maxima_pushed_out(maxima, inside)
+    one_out = inside.copy()
+    one_out[2] = maxima[2] + [3.0, 4.0]  # 4 px further from the others than its maximum
+    assert not maxima_pushed_out(maxima, one_out)
+    assert not maxima_pushed_out(maxima[:1], inside[:1])  # one finger: nothing pushes it
+    assert not maxima_pushed_out(maxima, inside[:2])
 
 
 @pytest.mark.parametrize("tail", [lambda r: np.exp(-(r**2) / 288.0), lambda r: 1.0 / (1.0 + r / 12.0)])

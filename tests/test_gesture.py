@@ -185,6 +185,26 @@ def test_the_origin_radius_leaves_a_push_a_push():
     assert s.terms_px(30.0, 10.0)[2] == pytest.approx(np.hypot(*s.translation_px) - 10.0 * m)
 
 
+def test_the_type_is_read_about_the_type_centres_and_the_intensity_about_the_contacts():
+    # the gel turns within 40 px of CENTRE and spreads beyond: about the maxima found 65 px out
+    # (a field pushed outward) A holds the spread, about the fingers' fitted centres the turn
+    sensor = SENSORS["mirrored"]
+    rest = grid(sensor)
+    turned = move_in_user_frame(sensor, rest, CENTRE, angle=0.1)
+    spread = move_in_user_frame(sensor, rest, CENTRE, scale=1.08)
+    cur = np.where((np.linalg.norm(rest - CENTRE, axis=1) < 40.0)[:, None], turned, spread)
+    maxima = CENTRE + np.array([[-65.0, 0.0], [65.0, 0.0]])
+    centres = CENTRE + np.array([[-15.0, 0.0], [15.0, 0.0]])
+    about_maxima = uniform_gesture(rest, cur, None, maxima, sensor)
+    result = uniform_gesture(rest, cur, None, maxima, sensor, type_centres_px=centres)
+    assert about_maxima.gesture is GestureType.ZOOM
+    assert result.gesture is GestureType.TWIST_CCW
+    assert result.intensity_mm == about_maxima.intensity_mm
+    assert np.array_equal(result.area, about_maxima.area)
+    alone = uniform_gesture(rest, cur, None, centres, sensor).similarity
+    assert (result.similarity.scale, result.similarity.rotation_rad) == (alone.scale, alone.rotation_rad)
+
+
 # --- the numba kernels against NumPy written out (bit for bit where the kernel promises it) ---
 
 

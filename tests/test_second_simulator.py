@@ -92,18 +92,27 @@ def _gesture_span(labels: list[LabelRow], start_s: float, kind: GestureType) -> 
     raise AssertionError(f"no {kind.value} labelled {start_s} s after the first label")
 
 
-def _felt_wrong(session: Session, start_s: float, kind: GestureType) -> list[str]:
-    """The gesture's windows answering another type at or above the dead zone, described."""
+def _felt_wrong_windows(session: Session, start_s: float, kind: GestureType) -> list[tuple[float, str]]:
+    """The gesture's windows answering another type at or above the dead zone: (ms after the
+    gesture's first labelled frame, the window described)."""
     t0, t1 = _gesture_span(session.labels, start_s, kind)
     window = [e for e in session.estimates if t0 <= e.t_us < t1 + FRAME_PERIOD_US]
     assert window, "the pipeline answered no window during the gesture"
     truth = labels_at(session.labels, np.array([e.t_us for e in window], dtype=np.int64))
     return [
-        f"{(e.t_us - t0) / 1000:.0f} ms: read {e.gesture.value} at {e.intensity_mm:.2f} mm on {e.n_contacts} "
-        f"contact(s), labelled {t.gesture.value} at {t.intensity_mm:.2f} mm on {t.n_contacts}"
+        (
+            (e.t_us - t0) / 1000,
+            f"{(e.t_us - t0) / 1000:.0f} ms: read {e.gesture.value} at {e.intensity_mm:.2f} mm on {e.n_contacts} "
+            f"contact(s), labelled {t.gesture.value} at {t.intensity_mm:.2f} mm on {t.n_contacts}",
+        )
         for e, t in zip(window, truth)
         if e.gesture not in (G.NONE, kind) and e.intensity_mm >= DEFAULT_DEADZONE_MM
     ]
+
+
+def _felt_wrong(session: Session, start_s: float, kind: GestureType) -> list[str]:
+    """The gesture's windows answering another type at or above the dead zone, described."""
+    return [text for _, text in _felt_wrong_windows(session, start_s, kind)]
 
 
 @pytest.mark.parametrize(
@@ -115,8 +124,8 @@ def _felt_wrong(session: Session, start_s: float, kind: GestureType) -> list[str
             marks=[
                 pytest.mark.xfail(
                     strict=True,
-                    reason="a three-finger twist read zoom: its contacts are found ~3 mm off the fingers' "
-                    "centres, where the markers' rotation is below their scale (docs/accuracy.md)",
+                    reason="a three-finger twist read zoom in 8 windows 100-320 ms after its start: its "
+                    "fitted fingers lie ~3.5 mm ahead of the fingers along the turn (docs/accuracy.md)",
                 )
             ]
             if g[:2] == ("session_c", 0.72)
@@ -134,12 +143,17 @@ def test_no_gesture_of_the_second_simulators_sessions_is_felt_wrong(sessions, na
     assert not wrong, f"{DATA / name}.aedat4, {kind.value} from {start_s} s:\n" + "\n".join(wrong)
 
 
-def test_the_three_finger_twist_of_session_c_reads_no_push(sessions):
-    """session_c's twist_cw, whose whole hold is read zoom (above), also read push in its first
-    windows, on the one contact found before the others: those are gone."""
-    wrong = _felt_wrong(sessions("session_c"), 0.72, G.TWIST_CW)
-    assert wrong  # the zoom is still read: the xfail above holds
-    assert not [w for w in wrong if "read push" in w], "\n".join(w for w in wrong if "read push" in w)
+def test_the_three_finger_twist_of_session_c_reads_zoom_only_at_its_start(sessions):
+    """session_c's twist_cw read zoom in 136 of its 141 windows above the dead zone while its type
+    was read about the field's maxima, which close fingers push outward (docs/method.md,
+    "Gesture"), and push in its first windows, on the one contact found before the others. Read
+    about the bump fit's fingers, zoom is left in 8 windows of its first 350 ms (the xfail above),
+    no push."""
+    wrong = _felt_wrong_windows(sessions("session_c"), 0.72, G.TWIST_CW)
+    text = "\n".join(w for _, w in wrong)
+    assert wrong, "no window felt wrong: the xfail above is to go"
+    assert not [w for _, w in wrong if "read push" in w], text
+    assert len(wrong) <= 8 and all(ms <= 350 for ms, _ in wrong), text
 
 
 @pytest.mark.parametrize(("name", "start_s"), [(n, s) for n, s, k in GESTURES if k is G.PUSH], ids=lambda v: str(v))

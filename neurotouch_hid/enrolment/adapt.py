@@ -154,7 +154,14 @@ def _recorder(sensor, config):
             if result.gesture is not GestureType.NONE:
                 c = self.config
                 self._features = gesture_features(
-                    result, contacts.peaks_px, rest_px, current, valid, self.sensor, c.r_px, c.origin_radius_px
+                    result,
+                    self.type_centres_of(contacts),
+                    rest_px,
+                    current,
+                    valid,
+                    self.sensor,
+                    c.r_px,
+                    c.origin_radius_px,
                 )
             return super()._learned_type(result, contacts, rest_px, current, valid)
 

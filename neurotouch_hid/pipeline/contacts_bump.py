@@ -428,3 +428,22 @@ def field_at(rest: np.ndarray, v: np.ndarray, points: np.ndarray) -> np.ndarray:
         out[k, 0] = points[k, 0] + sx / sw
         out[k, 1] = points[k, 1] + sy / sw
     return out
+
+
+def maxima_pushed_out(maxima_px: np.ndarray, fingers_px: np.ndarray) -> bool:
+    """Whether every finger the bump fit placed lies inside its maximum: ``fingers_px - maxima_px``
+    points back towards the maxima's mean for each of the K >= 2 pairs (the other fingers' fields
+    pushed each maximum outward, the field the fit was made for; see the module docstring).
+
+    Args:
+        maxima_px: (K, 2) float, the field's maxima (``Contacts.peaks_px``, px).
+        fingers_px: (K, 2) float, the fitted fingers in the same order (``Contacts.points_px``, px).
+    Returns:
+        False for fewer than two pairs or sets of different lengths.
+    """
+    maxima = np.asarray(maxima_px, dtype=np.float64).reshape(-1, 2)
+    fingers = np.asarray(fingers_px, dtype=np.float64).reshape(-1, 2)
+    if len(maxima) < 2 or len(maxima) != len(fingers):
+        return False
+    outward = maxima - maxima.mean(axis=0)
+    return bool(np.all(np.einsum("kd,kd->k", fingers - maxima, outward) < 0.0))

@@ -267,6 +267,7 @@ def estimate_gesture(
     intensity_sigma_px: float = 3.0,
     origin_radius_px: float = 10.0,
     gel_motion: GelMotion | None = None,
+    type_centres_px: np.ndarray | None = None,
 ) -> GestureResult:
     """Gesture type and intensity from the markers around the contact points (the product's
     defaults; the paper's method passes its own, ``paper.py``).
@@ -290,6 +291,11 @@ def estimate_gesture(
             (:mod:`~neurotouch_hid.pipeline.gel_motion`): removed from A's current positions and
             from the origin before the similarity is fitted, so that the type and the
             similarity's terms are the fingers' own; A and the intensity stay as tracked.
+        type_centres_px: None, or (K', 2) float px: the centres about which the type is read
+            (the similarity's set A' of the markers within r of them and its origin, their mean)
+            while A, the intensity and ``NONE`` stay about ``contacts_px`` (the field's maxima):
+            the fitted fingers' centres where neighbouring fingers' fields push the maxima
+            outward (docs/method.md, "Gesture"). A' empty: about ``contacts_px``.
     Returns:
         :class:`GestureResult`; ``NONE`` with zero intensity when there is no contact, A is
         empty or the intensity is below ``min_intensity_px``.
@@ -304,12 +310,18 @@ def estimate_gesture(
     )
     if len(cur_a) == 0 or intensity_px < min_intensity_px:
         return _nothing(area)
+    rest_t, cur_t = rest_a, cur_a  # the similarity's set: A, or A' about type_centres_px
+    if type_centres_px is not None:
+        centres = np.ascontiguousarray(type_centres_px, dtype=np.float64).reshape(-1, 2)
+        _, rest_c, cur_c, _, mean_c, origin_c = _area_motion(rest, cur, valid, centres, float(r_px) ** 2, 0.0)
+        if len(cur_c):
+            rest_t, cur_t, mean_px, origin = rest_c, cur_c, mean_c, origin_c
     threshold = max(reproj_factor * mean_px, min_reproj_px)
     if gel_motion is None:
-        src, dst = _centred(rest_a, cur_a, origin)
+        src, dst = _centred(rest_t, cur_t, origin)
     else:
         origin = gel_motion.remove(origin)
-        src, dst = _centred(rest_a, gel_motion.remove(cur_a), origin)
+        src, dst = _centred(rest_t, gel_motion.remove(cur_t), origin)
     similarity = _ransac_similarity(src, dst, threshold)
     if sensor.radial_k is None:
         intensity_mm = intensity_px / sensor.px_per_mm

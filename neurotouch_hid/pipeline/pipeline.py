@@ -49,11 +49,12 @@ from neurotouch_hid.core.estimate import GestureEstimate, GestureType, MarkerPos
 from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.config import MIN_WINDOW_US, PipelineConfig, PixelSettings, scaled_to_sensor
 from neurotouch_hid.pipeline.contacts import Contacts, compile_held_kernels, detect_contacts
+from neurotouch_hid.pipeline.contacts_bump import maxima_pushed_out
 from neurotouch_hid.pipeline.contacts_plateau import rest_neighbours
 from neurotouch_hid.pipeline.counter_drag import counter_drag_mm
 from neurotouch_hid.pipeline.creep import TAIL_PRESS_MARKERS, TAIL_PRESS_SHARE, CreepFilter, TailWatch
 from neurotouch_hid.pipeline.creep import amplitude as creep_amplitude
-from neurotouch_hid.pipeline.episode import EpisodeVote
+from neurotouch_hid.pipeline.episode import PROVISIONAL_MM, EpisodeVote
 from neurotouch_hid.pipeline.frame_path import RESUME_MATCH_FRAMES, FramePath
 from neurotouch_hid.pipeline.gel_motion import compile_gel_motion_kernels, estimate_gel_motion, rim_markers
 from neurotouch_hid.pipeline.gesture import (
@@ -140,6 +141,8 @@ class GesturePipeline(WindowPath, FramePath):
         #: (rest reference, :attr:`Contacts.held`) of the window before in the current press: the
         #: maxima a finger held where the homography follows it keeps ("Contacts"; ends with the press)
         self._held: tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None = None
+        #: the centres the last fitted window read its type about, None: its maxima ("Gesture")
+        self._type_read_about: np.ndarray | None = None
         #: (t_us, intensity_mm) of the window before when it had a gesture ("Gesture": intensity lead)
         self._last_intensity: tuple[int, float] | None = None
         #: the fingers' load behind the deformation of a gel whose creep sensor.yaml has ("Creep")
@@ -545,34 +548,58 @@ class GesturePipeline(WindowPath, FramePath):
         contacts = dataclasses.replace(contacts, points_px=points, peaks_px=peaks)
         self._record("contacts", begin)
         begin = self._clock()
-        result = estimate_gesture(
-            rest_px,
-            current,
-            valid,
-            contacts.peaks_px,  # A and the intensity about the largest deformation (paper)
-            self.sensor,
-            r_px=c.r_px,
-            reproj_factor=c.gesture_reproj_factor,
-            min_reproj_px=c.min_gesture_reproj_px,
-            min_intensity_px=c.min_intensity_px,
-            intensity_sigma_px=c.intensity_sigma_px,
-            origin_radius_px=c.origin_radius_px,
-            gel_motion=motion,
-        )
+        centres = self._type_centres(contacts)
+
+        def gesture(type_centres_px: np.ndarray | None) -> GestureResult:
+            return estimate_gesture(
+                rest_px,
+                current,
+                valid,
+                contacts.peaks_px,  # A and the intensity about the largest deformation (paper)
+                self.sensor,
+                r_px=c.r_px,
+                reproj_factor=c.gesture_reproj_factor,
+                min_reproj_px=c.min_gesture_reproj_px,
+                min_intensity_px=c.min_intensity_px,
+                intensity_sigma_px=c.intensity_sigma_px,
+                origin_radius_px=c.origin_radius_px,
+                gel_motion=motion,
+                type_centres_px=type_centres_px,
+            )
+
+        result = gesture(centres)
+        if centres is not None and result.intensity_mm < PROVISIONAL_MM:  # a weak field places no finger
+            centres, result = None, gesture(None)
+        self._type_read_about = centres
         result = self._learned_type(result, contacts, rest_px, current, valid)
         if c.intensity_gain != 1.0:  # an adapted model's (docs/method.md, "Adaptation")
             result = dataclasses.replace(result, intensity_mm=result.intensity_mm * c.intensity_gain)
         self._record("gesture", begin)
         return contacts, result
 
+    @staticmethod
+    def _type_centres(contacts: Contacts) -> np.ndarray | None:
+        """The centres the type is read about (docs/method.md, "Gesture"): the bump fit's fingers
+        where they all lie inside their maxima (``contacts_bump.maxima_pushed_out``), else None
+        (about the maxima; so too, in :meth:`_fit`, below the episode vote's ``PROVISIONAL_MM``)."""
+        if contacts.points_px is contacts.peaks_px or not maxima_pushed_out(contacts.peaks_px, contacts.points_px):
+            return None
+        return contacts.points_px
+
+    def type_centres_of(self, contacts: Contacts) -> np.ndarray:
+        """(K, 2) px: the centres the window just fitted (``contacts``, its :class:`Contacts`) read
+        its type about: the fitted fingers or the maxima (:meth:`_type_centres`)."""
+        return contacts.peaks_px if self._type_read_about is None else self._type_read_about
+
     def _learned_type(self, result: GestureResult, contacts: Contacts, rest_px, current, valid) -> GestureResult:
         """A window the rule calls a gesture gets the type of the learned classifier
-        (``learned.py``, the settings' parameters; docs/method.md, "Gesture", "Adaptation")."""
+        (``learned.py``, the settings' parameters; docs/method.md, "Gesture", "Adaptation"), its
+        contact motion read about the centres the rule read the type about (:meth:`type_centres_of`)."""
         if result.gesture is GestureType.NONE:
             return result
         c = self.config
         features = gesture_features(
-            result, contacts.peaks_px, rest_px, current, valid, self.sensor, c.r_px, c.origin_radius_px
+            result, self.type_centres_of(contacts), rest_px, current, valid, self.sensor, c.r_px, c.origin_radius_px
         )
         return dataclasses.replace(result, gesture=learned_gesture(features, c.classifier))
 
