@@ -314,9 +314,10 @@ def press_creep(press_dir: Path, family: str, sensor_file: Path) -> tuple[float,
 
 def replay_vote(dataset: Path, predictions: Path, method: str, deadzone_mm: float = DEFAULT_DEADZONE_MM) -> dict:
     """METHOD's predictions (``predictions/METHOD``) through :class:`EpisodeVote`, written to
-    ``predictions/METHOD+vote`` and scored: the same per-window estimates as the product's
-    episode vote (docs/method.md, "Episode vote"; the vote only reads each window's type,
-    intensity, contact count and time, in order); the per-gesture metrics with ``deadzone_mm``."""
+    ``predictions/METHOD+vote`` and scored: the product's episode vote (docs/method.md, "Episode
+    vote") on each window's type, intensity, contact count and time, in order, but not a lone
+    contact's field, which predictions do not keep (read as unknown: such a contact waits the whole
+    ``first_finger_us``, "A lone contact's field"); the per-gesture metrics with ``deadzone_mm``."""
     sensor = SensorGeometry.load(dataset / "sensor.yaml")
     dst = predictions / f"{method}+vote"
     dst.mkdir(parents=True, exist_ok=True)
