@@ -427,6 +427,20 @@ def _pad_path(proc: subprocess.Popen, err: "_Lines", timeout_s: float) -> str:
     return path
 
 
+def _input_devices() -> list[tuple[str, str, str]]:
+    """Every input device now: (node, name, phys), for a failure's message."""
+    from evdev import InputDevice, list_devices
+
+    found = []
+    for path in list_devices():
+        try:
+            device = InputDevice(path)
+            found.append((path, device.name, device.phys))
+        except OSError:
+            continue
+    return found
+
+
 def _stick_off_centre(reader: guestlib.EventReader) -> int:
     """How far the left stick is from the centre on its farther axis (of 32767)."""
     return max(abs(reader.axes.get(ecodes.ABS_X, 0)), abs(reader.axes.get(ecodes.ABS_Y, 0)))
@@ -500,13 +514,16 @@ def _run_gamepad_unplug(camera: EmulatedCamera) -> dict:
         taken = guestlib.wait_for(lambda: camera.said(CUE_TAKEN) > cues, 30.0)
         assert taken, f"the gadget did not play the cue: {camera.log()[-1000:]}"
         if not pump_until(lambda: _stick_off_centre(reader) >= PUSHED, PUSH_WAIT_S):
+            devices = _input_devices()
             proc.send_signal(signal.SIGTERM)  # its summary says what the pipeline processed and dropped
             proc.wait(120)
             err.poll()
             compiled = _compiled_in_guest(out_path.read_text())
+            since_cue = [line for line in camera.log().splitlines()[-400:] if " sent " not in line][-12:]
             raise AssertionError(
-                f"no push on the pad {PUSH_WAIT_S} s after the cue: {reader.axes}; {err.lines[-5:]}; "
-                f"numba compiled in the guest: {compiled or 'nothing'}"
+                f"no push on the pad {PUSH_WAIT_S} s after the cue: {reader.axes}, {len(reader.reports)} reports; "
+                f"the run said {[line for _, line in err.lines[-12:]]}; input devices {devices}; "
+                f"the camera's log {since_cue}; numba compiled in the guest: {compiled or 'nothing'}"
             )
         pushed_after_s = time.monotonic() - t_cue
         pushed_axes = dict(reader.axes)
