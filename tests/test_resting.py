@@ -173,6 +173,36 @@ def test_the_centroid_kernels_give_the_weighted_means_of_each_marker():
     assert detector.update(image).distance == pytest.approx(brute, rel=1e-12)
 
 
+@pytest.mark.parametrize("radius", [75.0, 300.0])
+def test_the_centroids_are_the_same_whatever_the_labels_width_and_the_frames_layout(radius):
+    """16-bit labels where the gel's box cannot hold more regions (a DAVIS-346's), 32-bit ones
+    where it could (a 700 x 620 sensor's): the centroids of every region as with OpenCV's 32-bit
+    labels and the frame copied; a frame that is a view of a larger array (not contiguous) too."""
+    import cv2
+
+    sensor = SensorGeometry(width=700, height=620, gel_center_px=(350.0, 310.0), gel_radius_px=radius)
+    image = np.full((sensor.height, sensor.width), 10, dtype=np.uint8)
+    rng = np.random.default_rng(3)
+    ys, xs = np.nonzero(sensor.gel_mask())
+    pick = rng.choice(len(ys), size=400, replace=False)
+    image[ys[pick], xs[pick]] = rng.integers(130, 255, size=400)  # lone pixels and small clusters
+    detector = RestingDetector(image, sensor, binary_threshold=120)
+    assert detector._label_type == (cv2.CV_16U if radius == 75.0 else cv2.CV_32S)
+    _, labels = cv2.connectedComponents(detector.marker_mask(image), connectivity=8, ltype=cv2.CV_32S)
+    roi = image[detector._roi].astype(np.float64) - 120.0
+    expected = []
+    for k in range(1, labels.max() + 1):
+        y, x = np.nonzero(labels == k)
+        w = roi[y, x]
+        expected.append(((w * x).sum() / w.sum(), (w * y).sum() / w.sum()))
+    wide = np.zeros((sensor.height, sensor.width + 5), dtype=np.uint8)
+    wide[:, : sensor.width] = image
+    view = wide[:, : sensor.width]
+    assert not view.flags.c_contiguous
+    for frame in (image, view):
+        assert detector.marker_centroids(frame) == pytest.approx(np.array(expected), abs=1e-9)
+
+
 def test_the_chamfer_sweep_finds_every_nearest_neighbour_of_the_brute_force():
     """``_nearest_sq`` (a sweep in x that stops early) gives, for every point, exactly the minimum
     over all pairs: on random sets of different sizes, on whole-pixel points with many equal x

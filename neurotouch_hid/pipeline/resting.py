@@ -145,6 +145,11 @@ class RestingDetector:
             slice(max(0, int(cx - r)), min(sensor.width, int(cx + r) + 2)),
         )
         self._gel = np.ascontiguousarray(sensor.gel_mask()[self._roi])
+        # 16-bit labels when the box cannot hold more regions (8-connected regions are a pixel
+        # apart: at most one per 2 x 2 pixels; 6,241 in a DAVIS-346's gel box): half the memory
+        # of 32-bit ones to write and read back once a frame, the same labels
+        h, w = self._gel.shape
+        self._label_type = cv2.CV_16U if -(-h // 2) * -(-w // 2) < 2**16 else cv2.CV_32S
         ref = self._check(reference)
         if binary_threshold is None:
             level, _ = cv2.threshold(
@@ -185,8 +190,10 @@ class RestingDetector:
         each pixel weighs its grey level above ``binary_threshold``. OpenCV labels the regions
         and a numba kernel sums them (both without the GIL)."""
         mask = self.marker_mask(image)
-        n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
-        return _weighted_centroids(labels, np.ascontiguousarray(image[self._roi]), n, float(self.binary_threshold))
+        n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=self._label_type)
+        rows, cols = self._roi
+        image = image if image.flags.c_contiguous else np.ascontiguousarray(image)
+        return _weighted_centroids(labels, image, rows.start, cols.start, n, float(self.binary_threshold))
 
     def _centroid_verdict(self, image: np.ndarray) -> RestingResult:
         """The verdict from the Chamfer distance between the centroids of ``image`` and the
@@ -242,15 +249,18 @@ class RestingDetector:
 def compile_resting_kernels() -> None:
     """Compile (or load from numba's cache) the centroid kernels now, for the array types
     :meth:`RestingDetector.marker_centroids` passes them, instead of at the first APS frame."""
-    centroids = _weighted_centroids(np.zeros((2, 2), np.int32), np.zeros((2, 2), np.uint8), 2, 0.0)
+    image = np.zeros((2, 2), np.uint8)
+    _weighted_centroids(np.zeros((2, 2), np.int32), image, 0, 0, 2, 0.0)  # a box too large for 16 bits
+    centroids = _weighted_centroids(np.zeros((2, 2), np.uint16), image, 0, 0, 2, 0.0)
     _chamfer_and_press(centroids, centroids, np.zeros((len(centroids), 1), np.int64))
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _weighted_centroids(labels: np.ndarray, image: np.ndarray, n: int, level: float) -> np.ndarray:
-    """(n - 1, 2) float64: the centroids (x, y px) of regions 1 .. n-1 of ``labels`` (int32
-    (h, w), 0 = background), each pixel weighted by its grey level in ``image`` (uint8 (h, w))
-    minus ``level``; summed in row-major order."""
+def _weighted_centroids(labels: np.ndarray, image: np.ndarray, top: int, left: int, n: int, level: float) -> np.ndarray:
+    """(n - 1, 2) float64: the centroids (x, y px, relative to ``labels``) of regions 1 .. n-1 of
+    ``labels`` (uint16 or int32 (h, w), 0 = background, the box of ``image`` from row ``top`` and column
+    ``left``), each pixel weighted by its grey level in ``image`` (uint8 (H, W), the whole
+    frame: no copy of the box) minus ``level``; summed in row-major order."""
     total = np.zeros(n)
     sx = np.zeros(n)
     sy = np.zeros(n)
@@ -258,7 +268,7 @@ def _weighted_centroids(labels: np.ndarray, image: np.ndarray, n: int, level: fl
         for x in range(labels.shape[1]):
             k = labels[y, x]
             if k > 0:
-                w = np.float64(image[y, x]) - level
+                w = np.float64(image[top + y, left + x]) - level
                 total[k] += w
                 sx[k] += w * x
                 sy[k] += w * y
