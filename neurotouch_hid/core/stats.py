@@ -134,8 +134,8 @@ class RunStats:
         Raises:
             ValueError: a name that is not one of :data:`COUNTERS`.
         """
-        unknown = increments.keys() - COUNTERS
-        if unknown:
+        if not COUNTERS.issuperset(increments):  # (each item of a run comes here: no set made)
+            unknown = increments.keys() - COUNTERS
             raise ValueError(f"RunStats.count: not a counter: {', '.join(sorted(unknown))} (one of {sorted(COUNTERS)})")
         with self._lock:
             for name, n in increments.items():
@@ -166,7 +166,14 @@ class RunStats:
             return self.merged, self.missing
 
     def add_latency(
-        self, windows: int, latency_ns: int, *, compiling: bool, waiting: int, window_latencies_ns: tuple[int, ...] = ()
+        self,
+        windows: int,
+        latency_ns: int,
+        *,
+        compiling: bool,
+        waiting: int,
+        window_latencies_ns: tuple[int, ...] = (),
+        counted: int = 0,
     ) -> None:
         """Count the latency (ns) of one item that closed ``windows`` (>= 1) windows: in
         :attr:`latency`, and by when it was made: while the first run's compile went on
@@ -174,8 +181,10 @@ class RunStats:
         it (:attr:`queued_windows`, until ``waiting``, the items still queued after this one, is
         first 0), or once the pipeline is compiled and caught up (:attr:`compiled_latency`).
         ``window_latencies_ns``: the closed windows' :attr:`window_latency` samples (ns; paced
-        sources only). Under the lock, once for the item."""
+        sources only). ``counted``: windows added to :attr:`windows` too (the item's last
+        window, published). Under the lock, once for the item."""
         with self._lock:
+            self.windows += counted
             self.latency.add(latency_ns)
             for sample in window_latencies_ns:
                 self.window_latency.add(sample)

@@ -408,8 +408,8 @@ class Engine:
                         rest_handover.read(t_us)
                     if holds:
                         due_us = rest_handover.due_us(t_us, rest)
-                        joins = rest_handover.joins(t_us, due_us)
-                        if rest_handover.releases_before(due_us, joins) and rest_handover.release():
+                        releases, joins = rest_handover.place(t_us, due_us)
+                        if releases and rest_handover.release():
                             break
                         if joins:
                             limit = None if self._limit_us is None else clock.first_us + self._limit_us
@@ -548,9 +548,10 @@ class Engine:
             )
         if skipped:
             self.rest.windows_skipped(skipped[-1])
-        for estimate in estimates:
+        for k, estimate in enumerate(estimates, 1):
             self.publisher.window(estimate)
-            stats.count(windows=1)  # before the next window's record shows it
+            if k < len(estimates):  # the last one is counted with the latency, under the same lock
+                stats.count(windows=1)  # before the next window's record shows it
             self.rest.window_closed(estimate)
         if estimates:
             done_ns = time.perf_counter_ns()
@@ -558,14 +559,16 @@ class Engine:
             window_ns: tuple[int, ...] = ()
             if self.mode.paced:
                 due = self._clock.due_ns
-                window_ns = tuple(done_ns - due(end_us) for end_us in skipped)
-                window_ns += tuple(done_ns - due(estimate.t_us) for estimate in estimates)
+                window_ns = tuple(done_ns - due(end_us) for end_us in skipped) if skipped else ()
+                for estimate in estimates:  # (mostly one: no generator)
+                    window_ns += (done_ns - due(estimate.t_us),)
             stats.add_latency(
                 len(estimates),
                 done_ns - arrival_ns,
                 compiling=compiling,
                 waiting=len(self._items),
                 window_latencies_ns=window_ns,
+                counted=1,
             )
 
     def _resume(self) -> None:

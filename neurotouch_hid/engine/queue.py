@@ -77,7 +77,10 @@ class DropOldestQueue:
         self._on_drop = on_drop
         self._max_span_us = max_span_us
         self._span_waits = span_waits
-        self._cond = threading.Condition()
+        #: the condition's own lock, taken alone where nothing waits or is notified (each item of a
+        #: resting run is claimed and done: no Python-level ``Condition.__enter__`` then)
+        self._lock = threading.RLock()
+        self._cond = threading.Condition(self._lock)
         self._closed = False
         self._taken = False  # an item is being processed (:meth:`done` ends it)
         #: how many queued items the last :meth:`get_joined` returned as one (the consumer's to read)
@@ -136,14 +139,14 @@ class DropOldestQueue:
 
     def done(self) -> None:
         """The consumer is done with the entry it took (:meth:`get_joined`, :meth:`claim`)."""
-        with self._cond:
+        with self._lock:
             self._taken = False
 
     def claim(self) -> bool:
         """Whether the caller may process an item itself, in the consumer's place: nothing is
         queued or being processed (then the queue counts it as taken until :meth:`done`, and the
         consumer takes nothing meanwhile)."""
-        with self._cond:
+        with self._lock:
             if self._items or self._taken or self._closed:
                 return False
             self._taken = True

@@ -129,7 +129,10 @@ class RestHandover:
     def joins_held(self, item: StreamItem, rest: RestWindows | None) -> bool:
         """Holds ``item`` with the held ones when it is an event batch of the resting window being
         held, within the run's limit (the common case at rest, in fewer steps); returns whether."""
-        if rest is None or rest is not self._held_for or type(item) is not np.ndarray or not len(item):
+        # only the source's thread changes what is held: nothing held is seen before the lock
+        if rest is None or rest is not self._held_for or not self._held:
+            return False
+        if type(item) is not np.ndarray or not len(item):
             return False
         t_us = int(item["timestamp"][-1])
         if t_us > self._held_us or t_us >= self._held_before_us:
@@ -140,15 +143,13 @@ class RestHandover:
             self._held.append(item)
         return True
 
-    def joins(self, t_us: int, due_us: int) -> bool:
-        """Whether the item ending at ``t_us``, due at ``due_us``, waits with the held items."""
+    def place(self, t_us: int, due_us: int) -> tuple[bool, bool]:
+        """Where the item ending at ``t_us``, due at ``due_us``, goes: (whether the held items go
+        on before it (it does not join them), whether it waits with the held items)."""
         with self._lock:
-            return due_us > t_us or bool(self._held and due_us == self._held_us)
-
-    def releases_before(self, due_us: int, joins: bool) -> bool:
-        """Whether the held items go on before an item due at ``due_us`` (it does not join them)."""
-        with self._lock:
-            return bool(self._held) and not (joins and due_us == self._held_us)
+            held = bool(self._held)
+            joins = due_us > t_us or (held and due_us == self._held_us)
+            return held and not (joins and due_us == self._held_us), joins
 
     def hold(self, item: StreamItem, due_us: int, rest: RestWindows | None, before_us: int | None) -> None:
         """Hold ``item`` until ``due_us`` (camera time, us), at the windows ``rest``; a batch ending
@@ -167,6 +168,9 @@ class RestHandover:
             return True
         with self._lock:
             held, self._held = self._held, []
+        if len(held) == 1:  # a resting window's one batch (a batch cut at its end): as it is
+            self._hand_on(held[0])
+            return False
         items: list[StreamItem] = []
         run: list[np.ndarray] = []
         for item in held:

@@ -203,7 +203,9 @@ class FramePath:
 
     def _apply_pending(self) -> None:
         """Apply the latest handed-over verdict of a frame the stream has reached (:meth:`set_resting`)."""
-        with self._lock:  # every item comes here: nothing is allocated while nothing is reached
+        if not self._pending:  # every item comes here: no lock while nothing is handed over (a
+            return  # verdict handed over meanwhile is applied at the next item, as after the lock)
+        with self._lock:  # nothing is allocated while nothing is reached
             n = 0
             while n < len(self._pending) and self._pending[n][1] <= self._frame_t_us:
                 n += 1
