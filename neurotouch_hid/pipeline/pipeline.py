@@ -157,6 +157,8 @@ class GesturePipeline(WindowPath, FramePath):
         self._last_fit: tuple | None = None
         #: what the episode vote's window was fitted on: (rest reference, current, valid, contacts)
         self._voted: tuple | None = None
+        #: the last fit's positions on the gel: (its contacts, rest, current; :meth:`_on_gel`)
+        self._fitted_on_gel: tuple | None = None
         #: the noise filter in front of the tracker (one per pipeline, its state kept across
         #: batches; it starts afresh by itself when the clock goes back, ``noise.py``)
         self.noise_filter = self._noise_filter()
@@ -371,11 +373,11 @@ class GesturePipeline(WindowPath, FramePath):
         if self._voted is None or len(self._voted[3].indices) != 1:
             return math.inf
         rest_px, current, valid, contacts = self._voted
-        centre = self.sensor.gel_center_px
-        rim = self._of_rest("rim", rest_px, lambda rest: rim_markers(rest, centre))
-        motion = estimate_gel_motion(rest_px, current, valid, rim, centre)
-        on_gel = self._of_rest("undistorted", rest_px, self.sensor.undistort)
-        now = self.sensor.undistort(current if motion is None else motion.remove(current))
+        fitted = self._fitted_on_gel
+        if fitted is not None and fitted[0] is contacts:  # the fit's own (the common case)
+            on_gel, now = fitted[1], fitted[2]
+        else:  # contacts kept from an earlier fit: the same positions, computed again
+            on_gel, now, _ = self._on_gel(rest_px, current, valid)
         return counter_drag_mm(
             on_gel, now, valid, int(contacts.indices[0]), self.config.marker_pitch_px, self.sensor.px_per_mm
         )
@@ -512,13 +514,10 @@ class GesturePipeline(WindowPath, FramePath):
         back in the image, the gesture's similarity and a learned type ("Gesture")."""
         c = self.config
         begin = self._clock()
-        centre = self.sensor.gel_center_px
-        rim = self._of_rest("rim", rest_px, lambda rest: rim_markers(rest, centre))
-        motion = estimate_gel_motion(rest_px, current, valid, rim, centre)
-        on_gel = self._of_rest("undistorted", rest_px, self.sensor.undistort)
+        on_gel, now_on_gel, motion = self._on_gel(rest_px, current, valid)
         contacts = detect_contacts(
             on_gel,
-            self.sensor.undistort(current if motion is None else motion.remove(current)),
+            now_on_gel,
             valid,
             r_px=c.r_px,
             a=c.a,
@@ -546,6 +545,7 @@ class GesturePipeline(WindowPath, FramePath):
             points = motion.apply(points)
             peaks = points if contacts.peaks_px is contacts.points_px else motion.apply(peaks)
         contacts = dataclasses.replace(contacts, points_px=points, peaks_px=peaks)
+        self._fitted_on_gel = (contacts, on_gel, now_on_gel)
         self._record("contacts", begin)
         begin = self._clock()
         centres = self._type_centres(contacts)
@@ -576,6 +576,16 @@ class GesturePipeline(WindowPath, FramePath):
             result = dataclasses.replace(result, intensity_mm=result.intensity_mm * c.intensity_gain)
         self._record("gesture", begin)
         return contacts, result
+
+    def _on_gel(self, rest_px: np.ndarray, current: np.ndarray, valid: np.ndarray):
+        """The positions the contact step reads: ``(rest, current, motion)``, both (N, 2) float64
+        px undistorted by the camera model (docs/method.md, "Camera model"), ``current`` without
+        the gel's motion in its mount (``motion``, a ``GelMotion`` or None; "Gel motion")."""
+        centre = self.sensor.gel_center_px
+        rim = self._of_rest("rim", rest_px, lambda rest: rim_markers(rest, centre))
+        motion = estimate_gel_motion(rest_px, current, valid, rim, centre)
+        on_gel = self._of_rest("undistorted", rest_px, self.sensor.undistort)
+        return on_gel, self.sensor.undistort(current if motion is None else motion.remove(current)), motion
 
     @staticmethod
     def _type_centres(contacts: Contacts) -> np.ndarray | None:
