@@ -32,7 +32,7 @@ from bench_latency import compressed, items, load, make_recording  # noqa: E402
 
 from neurotouch_hid.core.sensor import SensorGeometry  # noqa: E402
 from neurotouch_hid.pipeline import contacts as contacts_module  # noqa: E402
-from neurotouch_hid.pipeline import pipeline as pipeline_module  # noqa: E402
+from neurotouch_hid.pipeline import fit_path as fit_module  # noqa: E402
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig  # noqa: E402
 from neurotouch_hid.service.warmup import compile_pipeline  # noqa: E402
 
@@ -62,19 +62,19 @@ def recorded_calls(folder: Path, rate: float) -> list[tuple[tuple, dict]]:
     span_s = (int(events["timestamp"][-1]) - frames[0].t_us) / 1e6
     ev, fr = compressed(events, frames, rate * span_s / len(events))
     calls: list[tuple[tuple, dict]] = []
-    real = pipeline_module.detect_contacts
+    real = fit_module.detect_contacts
 
     def kept(*args, **kwargs):
         calls.append((copy.deepcopy(args), copy.deepcopy(kwargs)))
         return real(*args, **kwargs)
 
-    pipeline_module.detect_contacts = kept
+    fit_module.detect_contacts = kept
     try:
         pipeline = GesturePipeline(sensor, PipelineConfig(window_us=1000))
         for item in items(ev, fr, 1000):
             pipeline.process(item)
     finally:
-        pipeline_module.detect_contacts = real
+        fit_module.detect_contacts = real
     return calls
 
 

@@ -67,7 +67,7 @@ from neurotouch_hid.core.sensor import SensorGeometry  # noqa: E402
 from neurotouch_hid.mapping.mapper import Mapper  # noqa: E402
 from neurotouch_hid.mapping.profile import load_profile  # noqa: E402
 from neurotouch_hid.pipeline import contacts as contacts_module  # noqa: E402
-from neurotouch_hid.pipeline import pipeline as pipeline_module  # noqa: E402
+from neurotouch_hid.pipeline import fit_path as fit_module  # noqa: E402
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig  # noqa: E402
 from neurotouch_hid.service.warmup import compile_pipeline  # noqa: E402
 from neurotouch_hid.sources import Frame  # noqa: E402
@@ -146,13 +146,11 @@ class Wrappers:
 
         patches = [
             mock.patch.object(
-                pipeline_module, "estimate_gel_motion", self.timed("gel_motion", pipeline_module.estimate_gel_motion)
+                fit_module, "estimate_gel_motion", self.timed("gel_motion", fit_module.estimate_gel_motion)
             ),
+            mock.patch.object(fit_module, "detect_contacts", self.timed("detect_contacts", fit_module.detect_contacts)),
             mock.patch.object(
-                pipeline_module, "detect_contacts", self.timed("detect_contacts", pipeline_module.detect_contacts)
-            ),
-            mock.patch.object(
-                pipeline_module, "estimate_gesture", self.timed("estimate_gesture", pipeline_module.estimate_gesture)
+                fit_module, "estimate_gesture", self.timed("estimate_gesture", fit_module.estimate_gesture)
             ),
             mock.patch.object(GesturePipeline, "_learned_type", self.timed("learned", GesturePipeline._learned_type)),
             mock.patch.object(contacts_module, "bump_fit", self.timed("bump_fit", contacts_module.bump_fit)),

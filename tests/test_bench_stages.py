@@ -11,7 +11,7 @@ import pytest
 from helpers import BENCHMARKS, load_benchmark
 
 from neurotouch_hid.core.sensor import SensorGeometry
-from neurotouch_hid.pipeline import contacts, pipeline
+from neurotouch_hid.pipeline import contacts, fit_path, pipeline
 
 SCRIPT = BENCHMARKS / "bench_stages.py"
 
@@ -33,9 +33,9 @@ def test_bad_arguments_are_refused_before_any_recording_is_made(args, tmp_path):
 
 def test_the_timers_wrap_existing_functions_and_are_removed_afterwards(bench_stages):
     targets = [
-        (pipeline, "estimate_gel_motion"),
-        (pipeline, "detect_contacts"),
-        (pipeline, "estimate_gesture"),
+        (fit_path, "estimate_gel_motion"),
+        (fit_path, "detect_contacts"),
+        (fit_path, "estimate_gesture"),
         (pipeline.GesturePipeline, "_learned_type"),
         (contacts, "bump_fit"),
         (contacts, "with_missed_finger"),

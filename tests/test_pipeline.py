@@ -908,9 +908,9 @@ def test_a_press_hands_each_window_s_held_maxima_to_the_next_until_it_ends(rest_
     """The maxima a window holds (:attr:`Contacts.held`) reach the next window of the same press,
     whether its fit is computed or reused, and no window after the press ends (docs/method.md,
     "Contacts": a finger held where the homography follows it)."""
-    from neurotouch_hid.pipeline import pipeline as pipeline_mod
+    from neurotouch_hid.pipeline import fit_path
 
-    heard, said, real = [], [], pipeline_mod.detect_contacts
+    heard, said, real = [], [], fit_path.detect_contacts
 
     def detect(*args, **kwargs):
         heard.append(kwargs["held"])
@@ -918,7 +918,7 @@ def test_a_press_hands_each_window_s_held_maxima_to_the_next_until_it_ends(rest_
         said.append(contacts.held)
         return contacts
 
-    monkeypatch.setattr(pipeline_mod, "detect_contacts", detect)
+    monkeypatch.setattr(fit_path, "detect_contacts", detect)
     pipeline = _WindowByWindow(SENSOR)
     pipeline.process(Frame(0, rest_image))
     pipeline.process(Frame(40_000, gel_image((4.0, 0.0), region_px=30)))

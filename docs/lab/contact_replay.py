@@ -27,6 +27,7 @@ import typer
 from neurotouch_hid.core.dataset import labels_at, list_sequences, read_labels
 from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.pipeline import contacts as contacts_mod
+from neurotouch_hid.pipeline import fit_path
 from neurotouch_hid.pipeline import pipeline as pipeline_mod
 from neurotouch_hid.views.console import command_app
 
@@ -43,7 +44,7 @@ def record_sequence(dataset: Path, name: str) -> dict:
     from neurotouch_hid.sources.recording import RecordingReader
 
     state: dict = {"last": None, "called": False}
-    original_detect = pipeline_mod.detect_contacts
+    original_detect = fit_path.detect_contacts
     original_cg = pipeline_mod.GesturePipeline._contacts_and_gesture
 
     def detect(rest_px, current_px, valid, **kw):
@@ -54,7 +55,7 @@ def record_sequence(dataset: Path, name: str) -> dict:
         state["called"] = True
         return original_cg(self, rest_px, current, valid)
 
-    pipeline_mod.detect_contacts = detect
+    fit_path.detect_contacts = detect
     pipeline_mod.GesturePipeline._contacts_and_gesture = cg
     try:
         sensor = SensorGeometry.load(dataset / "sensor.yaml")
@@ -71,7 +72,7 @@ def record_sequence(dataset: Path, name: str) -> dict:
                 fitted = state["called"] and state["last"] is not None
                 rows.append((est, state["last"] if fitted else None))
     finally:
-        pipeline_mod.detect_contacts = original_detect
+        fit_path.detect_contacts = original_detect
         pipeline_mod.GesturePipeline._contacts_and_gesture = original_cg
     labels = read_labels(dataset / f"{name}.labels.csv")
     t = np.array([e.t_us for e, _ in rows], dtype=np.int64)

@@ -61,6 +61,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 import contact_replay  # noqa: E402
 
 from neurotouch_hid.pipeline import contacts as C  # noqa: E402
+from neurotouch_hid.pipeline import fit_path as F  # noqa: E402
 from neurotouch_hid.pipeline import pipeline as P  # noqa: E402
 from neurotouch_hid.pipeline.contacts_bump import bump_fit  # noqa: E402
 from neurotouch_hid.pipeline.contacts_plateau import (  # noqa: E402
@@ -338,7 +339,7 @@ def _no_missed_finger(rest, v, centres, table, knot, n_knots, r):
 #: Variants patched in place of ``contacts.with_missed_finger`` (with the product's maxima).
 BUMPS = {"no_missed_finger": _no_missed_finger}
 
-ORIGINAL_DETECT = P.detect_contacts
+ORIGINAL_DETECT = F.detect_contacts
 ORIGINAL_NONE = P.GesturePipeline._none
 
 
@@ -385,7 +386,7 @@ app = command_app()
 def _use(variant: str) -> None:
     C.plateau_contacts = _one_window(PLATEAUS[variant]) if variant in PLATEAUS else ORIGINAL_PLATEAUS
     C.with_missed_finger = BUMPS.get(variant, ORIGINAL_MISSED)
-    P.detect_contacts, P.GesturePipeline._none = PRESS.get(variant, (ORIGINAL_DETECT, ORIGINAL_NONE))
+    F.detect_contacts, P.GesturePipeline._none = PRESS.get(variant, (ORIGINAL_DETECT, ORIGINAL_NONE))
     if variant in PLATEAUS or variant in BUMPS or variant in PRESS:
         C.homography_outliers = ORIGINAL_OUTLIERS
         C._maxima = PRODUCT

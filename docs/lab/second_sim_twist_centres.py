@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-import neurotouch_hid.pipeline.pipeline as product
+import neurotouch_hid.pipeline.fit_path as product
 from neurotouch_hid.core.dataset import labels_at, read_labels
 from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.core.sensor import SensorGeometry

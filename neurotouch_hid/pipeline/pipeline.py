@@ -12,10 +12,11 @@ The window path (``window_path.py``, :class:`~neurotouch_hid.pipeline.window_pat
 and :meth:`GesturePipeline._estimate`): events pass the noise filter (``noise.py``) to the
 event-blob tracker (``tracker.py``); at each window's end: a resting verdict answers ``none``
 unless the event path overrules it (``override.py``); a gel that has not moved answers
-``none``; else the gel's motion in its mount is removed (``gel_motion.py``), the contacts are
-found (``contacts.py``), the gesture's similarity, type and intensity fitted (``gesture.py``,
-``learned.py``); the gel's creep says whether the fingers have left (``creep.py``), and the
-episode's vote gives the type (``episode.py``).
+``none``; else the window is fitted (``fit_path.py``,
+:class:`~neurotouch_hid.pipeline.fit_path.FitPath`): the gel's motion in its mount is removed
+(``gel_motion.py``), the contacts are found (``contacts.py``), the gesture's similarity, type and
+intensity fitted (``gesture.py``, ``learned.py``); the gel's creep says whether the fingers
+have left (``creep.py``), and the episode's vote gives the type (``episode.py``).
 
 The paper's method is :class:`~neurotouch_hid.pipeline.paper.PaperPipeline`, this composition
 with the paper's steps in place of the product's (``paper.py``).
@@ -37,7 +38,6 @@ its next item, so the tracker is never reset mid-batch).
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -48,22 +48,18 @@ from neurotouch_hid.core.errors import SensorError
 from neurotouch_hid.core.estimate import GestureEstimate, GestureType, MarkerPositions
 from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.config import MIN_WINDOW_US, PipelineConfig, PixelSettings, scaled_to_sensor
-from neurotouch_hid.pipeline.contacts import Contacts, compile_held_kernels, detect_contacts
-from neurotouch_hid.pipeline.contacts_bump import maxima_pushed_out
+from neurotouch_hid.pipeline.contacts import compile_held_kernels
 from neurotouch_hid.pipeline.contacts_plateau import rest_neighbours
-from neurotouch_hid.pipeline.counter_drag import counter_drag_mm
 from neurotouch_hid.pipeline.creep import TAIL_PRESS_MARKERS, TAIL_PRESS_SHARE, CreepFilter, TailWatch
 from neurotouch_hid.pipeline.creep import amplitude as creep_amplitude
-from neurotouch_hid.pipeline.episode import PROVISIONAL_MM, EpisodeVote
+from neurotouch_hid.pipeline.episode import EpisodeVote
+from neurotouch_hid.pipeline.fit_path import FitPath
 from neurotouch_hid.pipeline.frame_path import RESUME_MATCH_FRAMES, FramePath
-from neurotouch_hid.pipeline.gel_motion import compile_gel_motion_kernels, estimate_gel_motion, rim_markers
+from neurotouch_hid.pipeline.gel_motion import compile_gel_motion_kernels
 from neurotouch_hid.pipeline.gesture import (
-    GestureResult,
     compile_camera_model_kernels,
-    estimate_gesture,
     points_to_user,
 )
-from neurotouch_hid.pipeline.learned import gesture_features, learned_gesture
 from neurotouch_hid.pipeline.markers import MARKER_SPACING_MM
 from neurotouch_hid.pipeline.moves import _largest_move_sq, _unchanged
 from neurotouch_hid.pipeline.noise import EventNoiseFilter, time_surface
@@ -90,7 +86,7 @@ def _same_held(a: tuple[np.ndarray, np.ndarray] | None, b: tuple[np.ndarray, np.
     return a[0].tobytes() == b[0].tobytes() and a[1].tobytes() == b[1].tobytes()
 
 
-class GesturePipeline(WindowPath, FramePath):
+class GesturePipeline(WindowPath, FramePath, FitPath):
     """Events and APS frames -> one :class:`GestureEstimate` per window (paper, "Methodology").
 
     Args:
@@ -365,23 +361,6 @@ class GesturePipeline(WindowPath, FramePath):
             counter = self._counter_drag()
         return self._episode.update(gesture, intensity_mm, n_contacts, t_us, counter)
 
-    def _counter_drag(self) -> float:
-        """How far (mm) the gel moves against the drag of the lone contact of the window being
-        voted on (``counter_drag.counter_drag_mm``), on the positions the contact step read: undistorted
-        and without the gel's motion in its mount (docs/method.md, "Contacts", "Gel motion");
-        inf when that window is not known or has not one contact."""
-        if self._voted is None or len(self._voted[3].indices) != 1:
-            return math.inf
-        rest_px, current, valid, contacts = self._voted
-        fitted = self._fitted_on_gel
-        if fitted is not None and fitted[0] is contacts:  # the fit's own (the common case)
-            on_gel, now = fitted[1], fitted[2]
-        else:  # contacts kept from an earlier fit: the same positions, computed again
-            on_gel, now, _ = self._on_gel(rest_px, current, valid)
-        return counter_drag_mm(
-            on_gel, now, valid, int(contacts.indices[0]), self.config.marker_pitch_px, self.sensor.px_per_mm
-        )
-
     def _estimate(self, t_us: int) -> GestureEstimate:
         current = self.tracker.positions_px
         valid = self.tracker.valid
@@ -499,119 +478,6 @@ class GesturePipeline(WindowPath, FramePath):
         self._long_press = long_before or contacts.long_flat_top
         self._held = (rest_px, contacts.held)
         return contacts, result
-
-    def _fit(
-        self,
-        rest_px: np.ndarray,
-        current: np.ndarray,
-        valid: np.ndarray,
-        held: tuple[np.ndarray, np.ndarray] | None = None,
-    ):
-        """:meth:`_contacts_and_gesture` computed afresh: the gel's motion in its mount removed
-        (docs/method.md, "Gel motion"), the contacts ("Contacts"; ``held``: the press's
-        :attr:`Contacts.held` of the window before) found on the positions undistorted by the
-        camera model ("Camera model": one px one base-plane mm / px_per_mm everywhere) and put
-        back in the image, the gesture's similarity and a learned type ("Gesture")."""
-        c = self.config
-        begin = self._clock()
-        on_gel, now_on_gel, motion = self._on_gel(rest_px, current, valid)
-        contacts = detect_contacts(
-            on_gel,
-            now_on_gel,
-            valid,
-            r_px=c.r_px,
-            a=c.a,
-            n_min=c.n_min,
-            max_iters=c.homography_max_iters,
-            method=c.homography_method,
-            refine_px=c.contact_refine_px,
-            plateau_fraction=c.plateau_fraction,
-            pitch_px=c.marker_pitch_px,
-            spike_fraction=c.spike_fraction,
-            bump_span_px=self.sensor.gel_radius_px,
-            min_move_px=c.min_move_px,
-            neighbours=self._of_rest(
-                "undistorted neighbours", on_gel, lambda rest: rest_neighbours(rest, c.marker_pitch_px)
-            ),
-            long_before=self._long_press,
-            held=held,
-        )
-        if contacts.peaks_px is contacts.points_px:  # back to the image
-            points = peaks = self.sensor.distort(contacts.points_px)
-        else:  # (one call: the camera model's inverse costs ~30 us a call)
-            both = self.sensor.distort(np.concatenate([contacts.points_px, contacts.peaks_px]))
-            points, peaks = both[: len(contacts.points_px)], both[len(contacts.points_px) :]
-        if motion is not None:  # the contact points where they are, the gel's motion included
-            points = motion.apply(points)
-            peaks = points if contacts.peaks_px is contacts.points_px else motion.apply(peaks)
-        contacts = dataclasses.replace(contacts, points_px=points, peaks_px=peaks)
-        self._fitted_on_gel = (contacts, on_gel, now_on_gel)
-        self._record("contacts", begin)
-        begin = self._clock()
-        centres = self._type_centres(contacts)
-
-        def gesture(type_centres_px: np.ndarray | None) -> GestureResult:
-            return estimate_gesture(
-                rest_px,
-                current,
-                valid,
-                contacts.peaks_px,  # A and the intensity about the largest deformation (paper)
-                self.sensor,
-                r_px=c.r_px,
-                reproj_factor=c.gesture_reproj_factor,
-                min_reproj_px=c.min_gesture_reproj_px,
-                min_intensity_px=c.min_intensity_px,
-                intensity_sigma_px=c.intensity_sigma_px,
-                origin_radius_px=c.origin_radius_px,
-                gel_motion=motion,
-                type_centres_px=type_centres_px,
-            )
-
-        result = gesture(centres)
-        if centres is not None and result.intensity_mm < PROVISIONAL_MM:  # a weak field places no finger
-            centres, result = None, gesture(None)
-        self._type_read_about = centres
-        result = self._learned_type(result, contacts, rest_px, current, valid)
-        if c.intensity_gain != 1.0:  # an adapted model's (docs/method.md, "Adaptation")
-            result = dataclasses.replace(result, intensity_mm=result.intensity_mm * c.intensity_gain)
-        self._record("gesture", begin)
-        return contacts, result
-
-    def _on_gel(self, rest_px: np.ndarray, current: np.ndarray, valid: np.ndarray):
-        """The positions the contact step reads: ``(rest, current, motion)``, both (N, 2) float64
-        px undistorted by the camera model (docs/method.md, "Camera model"), ``current`` without
-        the gel's motion in its mount (``motion``, a ``GelMotion`` or None; "Gel motion")."""
-        centre = self.sensor.gel_center_px
-        rim = self._of_rest("rim", rest_px, lambda rest: rim_markers(rest, centre))
-        motion = estimate_gel_motion(rest_px, current, valid, rim, centre)
-        on_gel = self._of_rest("undistorted", rest_px, self.sensor.undistort)
-        return on_gel, self.sensor.undistort(current if motion is None else motion.remove(current)), motion
-
-    @staticmethod
-    def _type_centres(contacts: Contacts) -> np.ndarray | None:
-        """The centres the type is read about (docs/method.md, "Gesture"): the bump fit's fingers
-        where they all lie inside their maxima (``contacts_bump.maxima_pushed_out``), else None
-        (about the maxima; so too, in :meth:`_fit`, below the episode vote's ``PROVISIONAL_MM``)."""
-        if contacts.points_px is contacts.peaks_px or not maxima_pushed_out(contacts.peaks_px, contacts.points_px):
-            return None
-        return contacts.points_px
-
-    def type_centres_of(self, contacts: Contacts) -> np.ndarray:
-        """(K, 2) px: the centres the window just fitted (``contacts``, its :class:`Contacts`) read
-        its type about: the fitted fingers or the maxima (:meth:`_type_centres`)."""
-        return contacts.peaks_px if self._type_read_about is None else self._type_read_about
-
-    def _learned_type(self, result: GestureResult, contacts: Contacts, rest_px, current, valid) -> GestureResult:
-        """A window the rule calls a gesture gets the type of the learned classifier
-        (``learned.py``, the settings' parameters; docs/method.md, "Gesture", "Adaptation"), its
-        contact motion read about the centres the rule read the type about (:meth:`type_centres_of`)."""
-        if result.gesture is GestureType.NONE:
-            return result
-        c = self.config
-        features = gesture_features(
-            result, self.type_centres_of(contacts), rest_px, current, valid, self.sensor, c.r_px, c.origin_radius_px
-        )
-        return dataclasses.replace(result, gesture=learned_gesture(features, c.classifier))
 
     def _image_neighbours(self, rest_px: np.ndarray) -> np.ndarray:
         """(N, K) int64 each marker's neighbours on the gel at rest in the image (``rest_neighbours``
