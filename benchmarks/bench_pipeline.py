@@ -31,7 +31,7 @@ from neurotouch_hid.core.sensor import find_sensor_file
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 from neurotouch_hid.pipeline.track import track_recording
 from neurotouch_hid.sources.recording import RecordingReader
-from neurotouch_hid.sources.simulator import write_dataset
+from neurotouch_hid.sources.sim_dataset import write_dataset
 from neurotouch_hid.views.console import make_console
 
 

@@ -19,7 +19,9 @@ from pathlib import Path
 
 import dv_processing as dv
 
-from neurotouch_hid.sources.simulator import SIM_GESTURES, USERS, GelSimulator, write_dataset
+from neurotouch_hid.sources.hands import SIM_GESTURES, USERS
+from neurotouch_hid.sources.sim_dataset import write_dataset
+from neurotouch_hid.sources.simulator import GelSimulator
 
 
 def _count_events(folder: Path) -> tuple[int, float, int]:

@@ -1,7 +1,7 @@
 """Event-blob tracker: accuracy against the simulator's truth, throughput, and a 12 M events/s
 stress stream, side by side with dv-processing's MeanShiftTracker (docs/performance.md, "Tracker").
 
-1. Simulated recordings (``neurotouch_hid.sources.simulator.write_dataset``, read back through
+1. Simulated recordings (``neurotouch_hid.sources.sim_dataset.write_dataset``, read back through
    ``RecordingReader``): the markers are detected on the first APS frame, tracked in 10 ms
    windows, and each tracker's position is compared, at every window end, with the true position
    of the SAME marker (blob i is matched to true marker j once, at rest, by nearest neighbour; the
@@ -36,7 +36,7 @@ from neurotouch_hid.pipeline.tracker import BlobTracker, TrackerConfig
 from neurotouch_hid.sources import EVENT_DTYPE
 from neurotouch_hid.sources.dv import store_from_events
 from neurotouch_hid.sources.recording import RecordingReader
-from neurotouch_hid.sources.simulator import write_dataset
+from neurotouch_hid.sources.sim_dataset import write_dataset
 from neurotouch_hid.views.console import make_console
 
 WINDOW_US = 10_000

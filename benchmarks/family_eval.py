@@ -63,8 +63,9 @@ from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
 from neurotouch_hid.evaluation.metrics import Observations, align, evaluate
 from neurotouch_hid.evaluation.runner import evaluate_dataset, pipeline_config
 from neurotouch_hid.pipeline.episode import EpisodeVote
+from neurotouch_hid.sources.hands import USERS
 from neurotouch_hid.sources.physics import PHYSICS
-from neurotouch_hid.sources.simulator import USERS, write_dataset
+from neurotouch_hid.sources.sim_dataset import write_dataset
 from neurotouch_hid.views.console import command_app, make_console
 
 #: The press each family's creep is calibrated on: a tuning user (5-9, never a test user) and an

@@ -51,7 +51,7 @@ from neurotouch_hid.evaluation.runner import pipeline_config
 from neurotouch_hid.views.console import command_app, make_console
 
 #: Seeds of the tuning and test sets: the ``paper`` preset simulates its tuning users (5-9) for
-#: an odd seed and its test users (0-4) for an even seed (``simulator.preset_users``).
+#: an odd seed and its test users (0-4) for an even seed (``sim_dataset.preset_users``).
 TUNING_SEED = 1
 TEST_SEED = 2
 
@@ -199,7 +199,7 @@ def replay(dataset: Path, snapshots: Path, names: list[str], settings: list[str]
 
 def simulate(out: Path, seed: int, minutes: Optional[float]) -> Path:
     """The simulated dataset (paper preset) of a seed, reused when already written."""
-    from neurotouch_hid.sources.simulator import write_dataset
+    from neurotouch_hid.sources.sim_dataset import write_dataset
 
     if not (out / "sensor.yaml").exists():
         write_dataset(out, preset="paper", seed=seed, minutes=minutes)
@@ -218,7 +218,7 @@ def main(
     jobs: int = typer.Option(2, "--jobs", help="parallel processes"),
 ) -> None:
     """Simulate the tuning set, tune the resting threshold, grid-search the per-window stages."""
-    from neurotouch_hid.sources.simulator import preset_users
+    from neurotouch_hid.sources.sim_dataset import preset_users
 
     thresholds = numbers(chamfer, "--chamfer", finite=True)  # a usage error before the simulation
     users = preset_users("paper", TUNING_SEED)

@@ -8,7 +8,7 @@ DIR is a ``family_eval.py --sessions`` working folder made with ``--seed SEED`` 
 game sessions under ``DIR/FAMILY``, ``uUSER_sessionK.*``). Each session's gestures are drawn again
 from the simulator with that seed (:class:`GelSimulator`, as ``simulate --preset sessions``), and
 each finger's displacement is the simulator's truth at the gel point under its centre, every 1 ms
-(``simulator.deform``, the labels' own intensity: their mean over the fingers; the script stops
+(``gel.deform``, the labels' own intensity: their mean over the fingers; the script stops
 with a usage error when that mean differs from a labelled frame's intensity by more than 0.05 mm
 + 1 %, i.e. when the seed is not the folder's).
 
@@ -44,8 +44,10 @@ from neurotouch_hid.core.dataset import list_sequences, read_labels
 from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
+from neurotouch_hid.sources.gel import deform
+from neurotouch_hid.sources.hands import SESSION_STREAM, SIM_GESTURES, USERS
 from neurotouch_hid.sources.physics import PHYSICS
-from neurotouch_hid.sources.simulator import SESSION_STREAM, SIM_GESTURES, USERS, GelSimulator, deform
+from neurotouch_hid.sources.simulator import GelSimulator
 from neurotouch_hid.views.console import command_app
 
 app = command_app()

@@ -293,7 +293,7 @@ def sim_push_recording(sim_quick_dataset) -> Path:
 def sim_rest_dataset(tmp_path_factory) -> Path:
     """A dataset of one 0.6 s simulated sequence ``u0_push`` (the gel rests until the push would
     start at 0.6 s) with the simulator's own sensor.yaml."""
-    from neurotouch_hid.sources.simulator import write_dataset
+    from neurotouch_hid.sources.sim_dataset import write_dataset
 
     return write_dataset(tmp_path_factory.mktemp("rest"), users=[0], gestures=["push"], minutes=0.01, progress=False)
 

@@ -36,7 +36,7 @@ from neurotouch_hid.enrolment.model import (
 from neurotouch_hid.pipeline.config import EpisodeConfig, PipelineConfig
 from neurotouch_hid.pipeline.episode import FIRST_FINGER_US
 from neurotouch_hid.pipeline.learned import CLASSES, Classifier, learned_gesture
-from neurotouch_hid.sources.simulator import write_dataset
+from neurotouch_hid.sources.sim_dataset import write_dataset
 
 TWISTS = {"twist_cw": "twist_ccw", "twist_ccw": "twist_cw"}
 

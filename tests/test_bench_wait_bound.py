@@ -61,7 +61,7 @@ def test_a_second_finger_never_seen_is_missed_above_the_dead_zone(wb):
 
 
 def test_sessions_drawn_with_another_seed_are_refused(wb, tmp_path, capsys):
-    from neurotouch_hid.sources.simulator import write_dataset
+    from neurotouch_hid.sources.sim_dataset import write_dataset
 
     write_dataset(tmp_path / "default", preset="sessions", seed=1, users=[5], progress=False)
     drawn = wb.session_gestures(tmp_path / "default", "u5_session0", "default", 1)

@@ -191,8 +191,9 @@ def test_a_person_at_the_camera_is_guided_by_prompts_alone(tmp_path):
 
     from neurotouch_hid.calibration.guide import LiveCamera
     from neurotouch_hid.service.warmup import compile_pipeline
+    from neurotouch_hid.sources.hands import guided_gesture
     from neurotouch_hid.sources.recording import RecordingWriter
-    from neurotouch_hid.sources.simulator import GelSimulator, guided_gesture
+    from neurotouch_hid.sources.simulator import GelSimulator
 
     camera = SensorGeometry(mirror=False, rotation_deg=90.0)
     sim = GelSimulator(camera, script=())

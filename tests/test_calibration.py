@@ -19,7 +19,9 @@ from neurotouch_hid.core.errors import DatasetError, SensorError
 from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.core.sensor import SensorGeometry, default_sensor, find_sensor_file, user_sensor_path
 from neurotouch_hid.sources import Frame
-from neurotouch_hid.sources.simulator import START_US, USERS, GelSimulator, gesture_script, write_dataset
+from neurotouch_hid.sources.hands import USERS, gesture_script
+from neurotouch_hid.sources.sim_dataset import write_dataset
+from neurotouch_hid.sources.simulator import START_US, GelSimulator
 
 #: Not the default geometry: centre ~10 px off, 2.3 px/mm, the 30 mm radius at that scale.
 SHIFTED = SensorGeometry(px_per_mm=2.3, gel_center_px=(183.0, 121.0), gel_radius_px=69.0)

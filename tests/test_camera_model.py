@@ -11,16 +11,16 @@ import pytest
 from neurotouch_hid.core.camera_model import DOME_SPHERE_MM, MARKER_SPACING_MM, fit_camera_model, grid_orientation
 from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.gesture import estimate_gesture
-from neurotouch_hid.sources import simulator
+from neurotouch_hid.sources import gel as simulated_gel
+from neurotouch_hid.sources.gel import Gel
 from neurotouch_hid.sources.physics import PHYSICS, DomeCamera
-from neurotouch_hid.sources.simulator import Gel
 
 SENSOR = SensorGeometry()
 
 
 def test_the_gel_constants_are_the_simulators_and_the_trackers():
-    assert DOME_SPHERE_MM == simulator.DOME_SPHERE_MM
-    assert MARKER_SPACING_MM == simulator.MARKER_PITCH_MM
+    assert DOME_SPHERE_MM == simulated_gel.DOME_SPHERE_MM
+    assert MARKER_SPACING_MM == simulated_gel.MARKER_PITCH_MM
 
 
 def gel(family: str, sensor: SensorGeometry = SENSOR) -> Gel:

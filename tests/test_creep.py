@@ -27,7 +27,7 @@ from neurotouch_hid.pipeline.creep import (
 )
 from neurotouch_hid.pipeline.creep import at_search_edge as creep_at_search_edge
 from neurotouch_hid.sources.physics import sls_deformation
-from neurotouch_hid.sources.simulator import write_dataset
+from neurotouch_hid.sources.sim_dataset import write_dataset
 
 STEP_US = 10_000  # a window
 

@@ -255,7 +255,8 @@ def test_the_simulation_writes_and_reads_back_when_each_lagging_gesture_s_last_f
 
 
 def test_the_simulator_says_when_the_gel_under_a_lagging_finger_has_moved_03_mm():
-    from neurotouch_hid.sources.simulator import PRESSED_MM, GelSimulator, deform
+    from neurotouch_hid.sources.gel import deform
+    from neurotouch_hid.sources.simulator import PRESSED_MM, GelSimulator
 
     pinch = dataclasses.replace(uneven_pinch(), lags_us=(0, 150_000))  # the second finger starts 150 ms late
     sim = GelSimulator(script=[pinch])

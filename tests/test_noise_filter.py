@@ -18,8 +18,9 @@ from neurotouch_hid.pipeline.noise import EventNoiseFilter
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
 from neurotouch_hid.sources.dv import events_from_store, store_from_events
+from neurotouch_hid.sources.gel import SimGesture
 from neurotouch_hid.sources.recording import RecordingReader, read_info, split_batches
-from neurotouch_hid.sources.simulator import START_US, GelSimulator, SimGesture
+from neurotouch_hid.sources.simulator import START_US, GelSimulator
 
 SENSOR = SensorGeometry()
 W, H = SENSOR.width, SENSOR.height

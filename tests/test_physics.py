@@ -20,6 +20,8 @@ from typer.testing import CliRunner
 from neurotouch_hid.cli import app
 from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.core.sensor import SensorGeometry
+from neurotouch_hid.sources.gel import deform
+from neurotouch_hid.sources.hands import USERS, draw_gesture, session_gesture
 from neurotouch_hid.sources.physics import (
     MIX_FAMILIES,
     PASTERNAK_LAMBDA,
@@ -30,7 +32,7 @@ from neurotouch_hid.sources.physics import (
     mix_families,
     pasternak_falloff,
 )
-from neurotouch_hid.sources.simulator import START_US, USERS, GelSimulator, deform, draw_gesture, session_gesture
+from neurotouch_hid.sources.simulator import START_US, GelSimulator
 
 SENSOR = SensorGeometry()
 

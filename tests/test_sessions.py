@@ -16,8 +16,9 @@ from typer.testing import CliRunner
 from neurotouch_hid.cli import app
 from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.core.sensor import SensorGeometry
+from neurotouch_hid.sources.gel import SimGesture
+from neurotouch_hid.sources.hands import MAX_SPEED_MM_S, USERS, gesture_script
 from neurotouch_hid.sources.physics import PHYSICS
-from neurotouch_hid.sources.simulator import MAX_SPEED_MM_S, USERS, SimGesture, gesture_script
 
 
 def session(family: str, user: int, n: int = 60) -> list[SimGesture]:

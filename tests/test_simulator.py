@@ -1,4 +1,4 @@
-"""The simulated NeuroTouch gel (sources/simulator.py, sources/esim.py).
+"""The simulated NeuroTouch gel (sources/simulator.py, gel.py, hands.py, sim_dataset.py, esim.py).
 
 The quick dataset is written once per session through the CLI and read back with csv, PyYAML,
 numpy and dv-processing directly (not with our own readers), against docs/dataset.md.
@@ -19,20 +19,11 @@ from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
 from neurotouch_hid.sources.esim import EventCamera, time_ordered
+from neurotouch_hid.sources.gel import SimGesture, deform
+from neurotouch_hid.sources.hands import SIM_GESTURES, USERS, draw_gesture, guided_gesture
 from neurotouch_hid.sources.physics import PHYSICS
-from neurotouch_hid.sources.simulator import (
-    SIM_GESTURES,
-    START_US,
-    USERS,
-    GelSimulator,
-    SimGesture,
-    SimulatedSource,
-    deform,
-    draw_gesture,
-    guided_gesture,
-    preset_users,
-    write_dataset,
-)
+from neurotouch_hid.sources.sim_dataset import preset_users, write_dataset
+from neurotouch_hid.sources.simulator import START_US, GelSimulator, SimulatedSource
 
 # docs/dataset.md, written out here from the spec (not taken from the code under test)
 DATASET_COLUMNS = [

@@ -289,7 +289,9 @@ def held_large_twist():
     on the first APS frame, and the attack's and hold's end (us)."""
     from neurotouch_hid.core.estimate import GestureType
     from neurotouch_hid.pipeline.markers import detect_markers
-    from neurotouch_hid.sources.simulator import USERS, GelSimulator, SimGesture
+    from neurotouch_hid.sources.gel import SimGesture
+    from neurotouch_hid.sources.hands import USERS
+    from neurotouch_hid.sources.simulator import GelSimulator
 
     twist = SimGesture(
         gesture=GestureType.TWIST_CW,

@@ -135,7 +135,7 @@ class GuidedSource(Protocol):
 
 class SimulatedHand:
     """The simulated gel, seen by a camera mounted with ``camera``'s mirror and rotation, and a
-    hand that performs each guided gesture when asked (:func:`~neurotouch_hid.sources.simulator.guided_gesture`).
+    hand that performs each guided gesture when asked (:func:`~neurotouch_hid.sources.hands.guided_gesture`).
 
     Args:
         camera: the simulated camera's geometry (the mirror and rotation a calibration must find).
@@ -168,7 +168,7 @@ class SimulatedHand:
 
     def perform(self, step: Step) -> None:
         """Start ``step`` SIM_REACTION_US after the simulator's time (or the last gesture's settling)."""
-        from neurotouch_hid.sources.simulator import guided_gesture
+        from neurotouch_hid.sources.hands import guided_gesture
 
         start = max(self._sim.t_us, self._free_us) + SIM_REACTION_US
         gesture = guided_gesture(step.gesture, start, step.direction)

@@ -1,7 +1,7 @@
 """Recordings and datasets: ``info``, ``record``, ``simulate``, ``track``, ``eval`` and ``view``.
 
 Each command parses its options, calls one function of the stage it drives
-(sources/recording.py, sources/simulator.py, track.py, evaluation/, view.py) and prints.
+(sources/recording.py, sources/simulator.py, sources/sim_dataset.py, track.py, evaluation/, view.py) and prints.
 """
 
 from __future__ import annotations
@@ -163,7 +163,7 @@ def record(
     )
 
 
-# --- the simulated gel (sources/simulator.py) ----------------------------------------------
+# --- the simulated gel (sources/sim_dataset.py) --------------------------------------------
 @app.command()
 def simulate(
     out: Path = typer.Option(..., "--out", help="dataset folder to write (docs/dataset.md)"),
@@ -203,7 +203,7 @@ def simulate(
     """Simulate the NeuroTouch gel and write a labelled dataset (docs/dataset.md).
 
     OUT is written whole at the end: a dataset there is refused unless --force, then replaced."""
-    from neurotouch_hid.sources.simulator import write_dataset
+    from neurotouch_hid.sources.sim_dataset import write_dataset
 
     no_stdout("--out", out, "a dataset is a folder")
     user_ids = None

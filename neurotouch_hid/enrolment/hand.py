@@ -3,7 +3,7 @@
 A person starts a prompted gesture a few hundred milliseconds after its cue
 (:data:`REACTION_S`), holds it longer or shorter than asked (:data:`HOLD_FACTOR`), never before
 the previous gesture has left the gel, and misses a prompt now and then (``miss_rate``). The
-gesture itself is the simulator's (:func:`~neurotouch_hid.sources.simulator.prompted_gesture`:
+gesture itself is the simulator's (:func:`~neurotouch_hid.sources.hands.prompted_gesture`:
 the user's fingers, strength and speed, a push towards the asked direction, a tap or a hold), on
 the simulated gel of a physics family. :func:`simulate_enrolment` writes the recording of a whole
 plan with the simulator's own labels (the ground truth that ``enrol --from`` is measured against).
@@ -18,15 +18,11 @@ import numpy as np
 
 from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.enrolment.plan import DIRECTIONS, Plan, Prompt
+from neurotouch_hid.sources.gel import SimGesture
+from neurotouch_hid.sources.hands import USERS, prompted_gesture
 from neurotouch_hid.sources.physics import physics_family
-from neurotouch_hid.sources.simulator import (
-    START_US,
-    USERS,
-    GelSimulator,
-    SimGesture,
-    prompted_gesture,
-    write_sequence,
-)
+from neurotouch_hid.sources.sim_dataset import write_sequence
+from neurotouch_hid.sources.simulator import START_US, GelSimulator
 
 #: How late a person starts after the cue (s, uniform).
 REACTION_S = (0.15, 0.6)
@@ -127,7 +123,7 @@ def simulate_enrolment(
     """The simulated hand performs ``plan`` (cues from the first frame, :data:`START_US`), and the
     gel is recorded until the plan's end and ``tail_s`` more (s), then on until it rests; writes
     ``NAME.aedat4``, the simulator's own labels ``NAME.labels.csv`` and ``NAME.markers.npz``
-    (:func:`~neurotouch_hid.sources.simulator.write_sequence`) and ``sensor.yaml`` into
+    (:func:`~neurotouch_hid.sources.sim_dataset.write_sequence`) and ``sensor.yaml`` into
     ``out_dir`` (created). Returns what was done for each prompt, in the plan's order.
 
     Raises:

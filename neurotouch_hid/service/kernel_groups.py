@@ -80,7 +80,7 @@ PIPELINE = KernelGroup(
 SIMULATOR = KernelGroup(
     "simulator",
     "neurotouch_hid.sources.simulator",
-    ("neurotouch_hid.sources.esim", "neurotouch_hid.sources.simulator"),
+    ("neurotouch_hid.sources.esim", "neurotouch_hid.sources.gel", "neurotouch_hid.sources.simulator"),
     "neurotouch_hid.service.kernel_groups:simulate_briefly",
     waits=True,  # ~3 s of CPU to compile, while interpreted it gives ~0.1 s of gel a second
 )

@@ -138,7 +138,7 @@ from neurotouch_hid.core.sensor import DOME_SPHERE_MM, SensorGeometry
 
 #: Distance of the ``camera`` family's pinhole below the dome's base plane (mm).
 CAMERA_MM = 60.0
-#: Falloff kinds of the finger drag (simulator._finger_field).
+#: Falloff kinds of the finger drag (gel._finger_field).
 FALLOFF_GAUSSIAN, FALLOFF_POWERLAW, FALLOFF_STICKSLIP, FALLOFF_PASTERNAK = 0, 1, 2, 3
 #: The ``pasternak`` family's foundation length lambda, in finger footprints s (module docstring).
 PASTERNAK_LAMBDA = 1.25
