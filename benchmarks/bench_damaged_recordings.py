@@ -35,7 +35,8 @@ import numpy as np
 from neurotouch_hid.core.errors import RecordingError
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
 from neurotouch_hid.sources.dv import events_from_store
-from neurotouch_hid.sources.recording import RecordingReader, RecordingWriter
+from neurotouch_hid.sources.recording import RecordingReader
+from neurotouch_hid.sources.recording_writer import RecordingWriter
 from neurotouch_hid.sources.simulator import SimulatedSource
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))

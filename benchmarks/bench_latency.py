@@ -47,7 +47,9 @@ from neurotouch_hid.engine.mode import RunMode, RunOptions
 from neurotouch_hid.mapping.profile import load_profile
 from neurotouch_hid.service.warmup import compile_pipeline
 from neurotouch_hid.sources import Frame
-from neurotouch_hid.sources.recording import RecordingReader, RecordingWriter, merge_stream
+from neurotouch_hid.sources.batches import merge_stream
+from neurotouch_hid.sources.recording import RecordingReader
+from neurotouch_hid.sources.recording_writer import RecordingWriter
 from neurotouch_hid.sources.simulator import SimulatedSource
 from neurotouch_hid.views.jsonl import StateJsonlWriter
 

@@ -43,9 +43,9 @@ from rich.table import Table
 from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.noise import NOISE_FILTERS, EventNoiseFilter
 from neurotouch_hid.pipeline.tracker import BlobTracker
+from neurotouch_hid.sources.batches import split_batches
 from neurotouch_hid.sources.dv import events_from_store, store_from_events
 from neurotouch_hid.sources.hands import SIM_GESTURES, USERS
-from neurotouch_hid.sources.recording import split_batches
 from neurotouch_hid.sources.simulator import GelSimulator
 from neurotouch_hid.views.console import make_console
 

@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
-from neurotouch_hid.sources.recording import RecordingReader, read_info, write_recording
+from neurotouch_hid.sources.recording import RecordingReader, read_info
+from neurotouch_hid.sources.recording_writer import write_recording
 
 
 def synthetic(n_events: int, duration_us: int, seed: int = 0) -> tuple[np.ndarray, list[Frame]]:

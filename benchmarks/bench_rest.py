@@ -83,7 +83,7 @@ STEADY_AFTER_S = 12.0
 def make_rest_recording(folder: Path, seconds: float = RECORDING_S, seed: int = 0) -> Path:
     """A resting gel (noise events, 25 APS frames a second) as AEDAT4 with its sensor.yaml beside it."""
     from neurotouch_hid.core.sensor import SensorGeometry
-    from neurotouch_hid.sources.recording import RecordingWriter
+    from neurotouch_hid.sources.recording_writer import RecordingWriter
     from neurotouch_hid.sources.simulator import GelSimulator
 
     path = folder / f"rest-{seconds:g}s-seed{seed}.aedat4"
@@ -176,7 +176,7 @@ def rest_stream(seconds: float, seed: int = 0, batch_us=1000):
     """The simulated gel at rest, as ``SimulatedSource.stream`` yields a gel: per APS frame
     period the frame, then its events in 1 ms batches (or as a ``BatchCut`` says)."""
     from neurotouch_hid.core.sensor import SensorGeometry
-    from neurotouch_hid.sources.recording import split_batches
+    from neurotouch_hid.sources.batches import split_batches
     from neurotouch_hid.sources.simulator import GelSimulator
 
     sim = GelSimulator(SensorGeometry(), seed=seed, script=())
@@ -194,7 +194,7 @@ def run_sim(seconds: float) -> None:
     from neurotouch_hid.engine.mode import RunMode, RunOptions
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.service.warmup import PIPELINE_OF, SIMULATOR, Warmup
-    from neurotouch_hid.sources.recording import BatchCut, CuttingStream, read_ahead
+    from neurotouch_hid.sources.batches import BatchCut, CuttingStream, read_ahead
     from neurotouch_hid.views.jsonl import StateJsonlWriter
 
     Warmup([SIMULATOR, *PIPELINE_OF["default"]], say=lambda line: None, interpreted=False).start()

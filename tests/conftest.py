@@ -194,7 +194,7 @@ def street_scene(seconds: float = 2.5, seed: int = 0, t0_us: int = 1_700_000_000
 def sim_street_recording(tmp_path_factory) -> KnownRecording:
     """:func:`street_scene` written as an AEDAT4 recording (LZ4, like the camera's): what the
     street recording's tests also run on where it is missing."""
-    from neurotouch_hid.sources.recording import write_recording
+    from neurotouch_hid.sources.recording_writer import write_recording
 
     events, frames = street_scene()
     path = tmp_path_factory.mktemp("street") / "street.aedat4"
@@ -222,7 +222,7 @@ def sim_gel_chunks() -> list:
 
 def write_chunks(path: Path, chunks: list) -> Path:
     """Chunks of the simulated gel written as an AEDAT4 recording (each frame, then its events)."""
-    from neurotouch_hid.sources.recording import RecordingWriter
+    from neurotouch_hid.sources.recording_writer import RecordingWriter
 
     with RecordingWriter(path) as writer:
         for chunk in chunks:

@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 
 from neurotouch_hid.sources import EVENT_DTYPE
-from neurotouch_hid.sources.recording import AEDAT4_MAGIC, RecordingWriter
+from neurotouch_hid.sources.recording_checks import AEDAT4_MAGIC
+from neurotouch_hid.sources.recording_writer import RecordingWriter
 
 #: YAML's "billion laughs": 9 levels of 9 aliases, 9^9 strings once expanded (under 1 KB of text).
 ALIAS_BOMB = 'a: &a ["lol","lol","lol","lol","lol","lol","lol","lol","lol"]\n' + "".join(

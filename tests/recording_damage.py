@@ -6,7 +6,7 @@ from __future__ import annotations
 import random
 import struct
 
-from neurotouch_hid.sources.recording import AEDAT4_MAGIC
+from neurotouch_hid.sources.recording_checks import AEDAT4_MAGIC
 
 
 def packets(data: bytes) -> list[tuple[int, int]]:

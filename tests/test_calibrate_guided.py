@@ -192,7 +192,7 @@ def test_a_person_at_the_camera_is_guided_by_prompts_alone(tmp_path):
     from neurotouch_hid.calibration.guide import LiveCamera
     from neurotouch_hid.service.warmup import compile_pipeline
     from neurotouch_hid.sources.hands import guided_gesture
-    from neurotouch_hid.sources.recording import RecordingWriter
+    from neurotouch_hid.sources.recording_writer import RecordingWriter
     from neurotouch_hid.sources.simulator import GelSimulator
 
     camera = SensorGeometry(mirror=False, rotation_deg=90.0)
@@ -223,7 +223,7 @@ def test_a_person_at_the_camera_is_guided_by_prompts_alone(tmp_path):
 def test_a_recording_on_a_terminal_is_calibrated_without_a_question_it_cannot_answer(tmp_path):
     """On a terminal, a recording (which cannot be pushed) used to be met with "Rotation from the
     mirrored image to your view"; now it takes the defaults and says how to measure them."""
-    from neurotouch_hid.sources.recording import RecordingWriter
+    from neurotouch_hid.sources.recording_writer import RecordingWriter
     from neurotouch_hid.sources.simulator import GelSimulator
 
     sim = GelSimulator(SensorGeometry(), script=())

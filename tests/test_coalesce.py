@@ -14,7 +14,8 @@ from neurotouch_hid.engine.mode import RunMode, RunOptions
 from neurotouch_hid.mapping.profile import load_profile
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 from neurotouch_hid.sources import Frame, join_events
-from neurotouch_hid.sources.recording import RecordingReader, merge_stream
+from neurotouch_hid.sources.batches import merge_stream
+from neurotouch_hid.sources.recording import RecordingReader
 
 WINDOW_US = 1_000
 GROUP = 4  # batches joined, as a queue behind the pipeline hands them on (1 ms each: ~4 windows)

@@ -26,7 +26,8 @@ from recording_damage import damage
 from neurotouch_hid.core.errors import ProfileError, RecordingError
 from neurotouch_hid.mapping.profile import load_profile, shipped_profiles_dir
 from neurotouch_hid.sources import Frame
-from neurotouch_hid.sources.recording import RecordingReader, RecordingWriter
+from neurotouch_hid.sources.recording import RecordingReader
+from neurotouch_hid.sources.recording_writer import RecordingWriter
 from neurotouch_hid.sources.simulator import SimulatedSource
 
 TIME_LIMIT_S = 120  # a hang, not a slow machine: reading these files takes a few seconds

@@ -161,7 +161,8 @@ def test_no_timestamp_is_sent_twice_in_a_row():
 
 def _recording(path: Path) -> Path:
     """Events at 0, 100, ..., 9900 us (x = t / 100, so each says when it was recorded), no frames."""
-    from neurotouch_hid.sources.recording import EVENT_DTYPE, RecordingWriter
+    from neurotouch_hid.sources import EVENT_DTYPE
+    from neurotouch_hid.sources.recording_writer import RecordingWriter
 
     events = np.zeros(100, EVENT_DTYPE)
     events["timestamp"] = 1_000_000 + 100 * np.arange(100)

@@ -140,7 +140,7 @@ def test_a_bomb_spread_over_many_small_packets_meets_the_file_budget():
     from hostile_inputs import zstd_rle_bomb
 
     from neurotouch_hid.sources.packet_bounds import COMPRESSION_ZSTD, inflated_bound
-    from neurotouch_hid.sources.recording import MAX_INFLATE_RATIO, MAX_PACKET_BYTES, MIN_INFLATE_BUDGET
+    from neurotouch_hid.sources.recording_checks import MAX_INFLATE_RATIO, MAX_PACKET_BYTES, MIN_INFLATE_BUDGET
 
     payload = zstd_rle_bomb(32 << 20)
     bound = inflated_bound(payload, COMPRESSION_ZSTD)
@@ -660,7 +660,7 @@ def test_track_never_writes_over_its_recording_a_link_or_what_a_failure_would_lo
     one line, and every file is as it was."""
     from hostile_inputs import small_events
 
-    from neurotouch_hid.sources.recording import RecordingWriter
+    from neurotouch_hid.sources.recording_writer import RecordingWriter
 
     recording = tmp_path / "rec.aedat4"
     recording.write_bytes(sim_gel_short_recording.read_bytes())

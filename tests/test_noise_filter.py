@@ -17,9 +17,10 @@ from neurotouch_hid.evaluation.runner import pipeline_config
 from neurotouch_hid.pipeline.noise import EventNoiseFilter
 from neurotouch_hid.pipeline.pipeline import GesturePipeline, PipelineConfig
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
+from neurotouch_hid.sources.batches import split_batches
 from neurotouch_hid.sources.dv import events_from_store, store_from_events
 from neurotouch_hid.sources.gel import SimGesture
-from neurotouch_hid.sources.recording import RecordingReader, read_info, split_batches
+from neurotouch_hid.sources.recording import RecordingReader, read_info
 from neurotouch_hid.sources.simulator import START_US, GelSimulator
 
 SENSOR = SensorGeometry()

@@ -503,7 +503,7 @@ def test_a_years_gap_in_a_recording_costs_no_more_than_its_data(tmp_path, sim_ge
     from neurotouch_hid.core.dataset import LabelRow, read_predictions, write_labels
     from neurotouch_hid.core.estimate import GestureType
     from neurotouch_hid.sources import Frame
-    from neurotouch_hid.sources.recording import RecordingWriter
+    from neurotouch_hid.sources.recording_writer import RecordingWriter
     from neurotouch_hid.sources.simulator import SimulatedSource
 
     ds = tmp_path / "ds"

@@ -11,10 +11,10 @@ from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
 from neurotouch_hid.pipeline.pipeline import GesturePipeline
+from neurotouch_hid.sources.batches import split_batches
 from neurotouch_hid.sources.gel import SimGesture
 from neurotouch_hid.sources.hands import USERS
 from neurotouch_hid.sources.physics import PHYSICS
-from neurotouch_hid.sources.recording import split_batches
 from neurotouch_hid.sources.simulator import START_US, GelSimulator
 
 SENSOR = SensorGeometry()

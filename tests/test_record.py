@@ -19,7 +19,8 @@ from helpers import CLI, run_cli, wait_until
 from neurotouch_hid.core.errors import DeviceError, RecordingError
 from neurotouch_hid.sources import Frame
 from neurotouch_hid.sources.davis import DavisConfig, DavisSource
-from neurotouch_hid.sources.recording import RecordingReader, read_info, record_stream
+from neurotouch_hid.sources.recording import RecordingReader, read_info
+from neurotouch_hid.sources.recording_writer import record_stream
 from neurotouch_hid.sources.simulator import SimulatedSource
 
 ENV = dict(os.environ, COLUMNS="200")

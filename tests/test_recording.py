@@ -19,14 +19,9 @@ from hypothesis import strategies as st
 
 from neurotouch_hid.core.errors import RecordingError
 from neurotouch_hid.sources import EVENT_DTYPE, Frame
-from neurotouch_hid.sources.recording import (
-    RecordingReader,
-    RecordingWriter,
-    merge_stream,
-    read_info,
-    split_batches,
-    write_recording,
-)
+from neurotouch_hid.sources.batches import merge_stream, split_batches
+from neurotouch_hid.sources.recording import RecordingReader, read_info
+from neurotouch_hid.sources.recording_writer import RecordingWriter, write_recording
 
 REPO = Path(__file__).parents[1]
 
@@ -173,12 +168,12 @@ def test_a_stop_raised_between_two_packets_of_a_flush_leaves_a_file_that_closes(
     close wrote the first packet again, which dv-processing refused ("out-of-order timestamp"),
     so the command exited 2 with that error instead of dying by the signal. The packets written
     before the stop are not pending any more: the close writes only what was not written."""
-    from neurotouch_hid.sources import recording
+    from neurotouch_hid.sources import recording_writer
 
-    events, _ = synthetic(n=3 * recording.PACKET_EVENTS)
+    events, _ = synthetic(n=3 * recording_writer.PACKET_EVENTS)
     path = tmp_path / "stopped.aedat4"
     writes = []
-    real = recording.store_from_events
+    real = recording_writer.store_from_events
 
     def stopped_at_the_second(packet):
         writes.append(len(packet))
@@ -186,12 +181,12 @@ def test_a_stop_raised_between_two_packets_of_a_flush_leaves_a_file_that_closes(
             raise KeyboardInterrupt  # the signal's exception, between the first packet and the second
         return real(packet)
 
-    monkeypatch.setattr(recording, "store_from_events", stopped_at_the_second)
+    monkeypatch.setattr(recording_writer, "store_from_events", stopped_at_the_second)
     with pytest.raises(KeyboardInterrupt), RecordingWriter(path, frames=False) as writer:
         writer.write_events(events)
     with RecordingReader(path) as reader:  # no damaged packet: RecordingError otherwise
         read, _ = reader.read_all()
-    first = recording.PACKET_EVENTS
+    first = recording_writer.PACKET_EVENTS
     assert np.array_equal(read[:first], events[:first])  # the packet written before the stop, once
     # then what no write had begun (the stop came before the second packet's write: it is lost)
     assert np.array_equal(read[first:], events[2 * first :])
@@ -385,7 +380,7 @@ def test_a_batch_cut_follows_a_rest_s_windows_and_a_stream_cuts_again_at_the_bas
     """``BatchCut``: 1 ms batches, then while a rest's 10 ms windows (ending at 12 345 us) last one
     batch a window, cut 1 ms after each window end; back at 1 ms, what was cut longer is cut
     again at the 1 ms boundaries."""
-    from neurotouch_hid.sources.recording import BatchCut, CuttingStream, split_batches
+    from neurotouch_hid.sources.batches import BatchCut, CuttingStream, split_batches
 
     events = np.zeros(60, EVENT_DTYPE)
     events["timestamp"] = np.arange(60) * 500  # 0 .. 29.5 ms
@@ -409,7 +404,7 @@ def test_read_ahead_reads_in_bursts_only_while_the_gel_rests_and_keeps_every_ite
     """``read_ahead``: one item a read outside a rest; while the cut says the gel rests, the next
     items at once up to the span (us) or the bytes; the same items in the same order; an error
     met in a burst raised after the items read before it."""
-    from neurotouch_hid.sources.recording import BatchCut, read_ahead
+    from neurotouch_hid.sources.batches import BatchCut, read_ahead
 
     def batch(t_us: int, n: int = 4) -> np.ndarray:
         events = np.zeros(n, EVENT_DTYPE)

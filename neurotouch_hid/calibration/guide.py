@@ -160,7 +160,7 @@ class SimulatedHand:
 
     def stream(self) -> Iterator[StreamItem]:
         """Endless: each frame period's APS frame, then its events in 1 ms EVENT_DTYPE batches."""
-        from neurotouch_hid.sources.recording import split_batches
+        from neurotouch_hid.sources.batches import split_batches
 
         for chunk in self._sim.run():
             yield chunk.frame

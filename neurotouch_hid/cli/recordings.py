@@ -1,7 +1,8 @@
 """Recordings and datasets: ``info``, ``record``, ``simulate``, ``track``, ``eval`` and ``view``.
 
 Each command parses its options, calls one function of the stage it drives
-(sources/recording.py, sources/simulator.py, sources/sim_dataset.py, track.py, evaluation/, view.py) and prints.
+(sources/recording.py, sources/recording_writer.py, sources/simulator.py, sources/sim_dataset.py, track.py,
+evaluation/, view.py) and prints.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from neurotouch_hid.core.tables import print_table
 app = typer.Typer()
 
 
-# --- recordings (sources/recording.py) ------------------------------------------------------
+# --- recordings (sources/recording*.py) -----------------------------------------------------
 @app.command()
 def info(
     recording: Path = typer.Argument(..., help="AEDAT4 recording"),
@@ -97,7 +98,7 @@ def record(
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from neurotouch_hid.core.errors import DeviceError
-    from neurotouch_hid.sources.recording import record_stream
+    from neurotouch_hid.sources.recording_writer import record_stream
 
     if source not in tuple(SourceKind):
         raise NeurotouchError(f"--source {source!r}: expected davis or sim (to replay a recording, copy the file)")

@@ -33,7 +33,7 @@ if TYPE_CHECKING:
     from neurotouch_hid.mapping.profile import Profile
     from neurotouch_hid.pipeline.resting import RestingResult
     from neurotouch_hid.sources import PollPause
-    from neurotouch_hid.sources.recording import BatchCut
+    from neurotouch_hid.sources.batches import BatchCut
 
 #: One item of a source's stream: an event batch (``EVENT_DTYPE`` array) or an APS
 #: :class:`~neurotouch_hid.sources.Frame`, a live camera's
@@ -53,7 +53,7 @@ class SourceStream(Protocol):
         poll_pause: a live source's pause between polls that bring nothing
             (:class:`~neurotouch_hid.sources.PollPause`, whose ``decide`` the engine sets), or None.
         batch_cut: where the source cuts its event batches
-            (:class:`~neurotouch_hid.sources.recording.BatchCut`, which the engine moves to the
+            (:class:`~neurotouch_hid.sources.batches.BatchCut`, which the engine moves to the
             resting windows' ends), or None.
     """
 

@@ -2,7 +2,7 @@
 
 The session runs on the driver's one road (:class:`~neurotouch_hid.engine.engine.Engine`): the
 source's stream, written to the recording as it passes (AEDAT4, through a temporary name renamed
-at the end: :func:`~neurotouch_hid.sources.recording.recorded`), goes through the gesture
+at the end: :func:`~neurotouch_hid.sources.recording_writer.recorded`), goes through the gesture
 pipeline, and each window's record is published to the session's subscribers: the
 :class:`Judge` and the views (:class:`~neurotouch_hid.enrolment.prompt_view.PromptView`). They
 share the session's :class:`~neurotouch_hid.enrolment.plan.Script`: the plan's prompts and
@@ -101,7 +101,7 @@ class SimulatedHandSource:
         """The simulated gel's frames and event batches (1000 events at most); once an item has
         been taken, each prompt of ``script`` cued by its end (:attr:`Script.start_us`, set as
         the first event batch passes, plus the cue) is performed, as a person starts on a cue."""
-        from neurotouch_hid.sources.recording import split_batches
+        from neurotouch_hid.sources.batches import split_batches
 
         cued = 0
         for chunk in self.hand.simulator.run():
@@ -291,7 +291,7 @@ def run_session(
     from neurotouch_hid.engine.mode import RunMode, RunOptions
     from neurotouch_hid.mapping.profile import Profile
     from neurotouch_hid.pipeline.pipeline import GesturePipeline
-    from neurotouch_hid.sources.recording import RecordingWriter, recorded
+    from neurotouch_hid.sources.recording_writer import RecordingWriter, recorded
 
     stop = stop or threading.Event()
     target = out_dir if isinstance(out_dir, DatasetOut) else DatasetOut(out_dir)

@@ -17,7 +17,7 @@ import numpy as np
 
 if TYPE_CHECKING:
     from neurotouch_hid.core.dataset import LabelRow
-    from neurotouch_hid.sources.recording import BatchCut
+    from neurotouch_hid.sources.batches import BatchCut
 
 #: dv-processing's ``EventStore.numpy()`` fields: timestamp us (int64), x, y px (int16),
 #: polarity (int8, 1 = ON brighter, 0 = OFF darker). dv-processing pads each record to 16 bytes;
@@ -131,12 +131,12 @@ class PollPause:
 class WrappedStream:
     """A source's stream (:class:`~neurotouch_hid.core.stages.SourceStream`): the items of ``items``,
     as they come, closed with :meth:`close`, and the hooks its consumer may set, None where the
-    source has none (:class:`PausingStream`'s poll pause, ``recording.CuttingStream``'s batch
+    source has none (:class:`PausingStream`'s poll pause, ``batches.CuttingStream``'s batch
     cut)."""
 
     #: a live source's pause between polls that bring nothing (:class:`PollPause`), or None
     poll_pause: PollPause | None = None
-    #: where a source cuts its event batches (``recording.BatchCut``), or None
+    #: where a source cuts its event batches (``batches.BatchCut``), or None
     batch_cut: BatchCut | None = None
 
     def __init__(self, items: Iterator[StreamItem]) -> None:

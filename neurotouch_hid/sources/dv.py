@@ -3,7 +3,7 @@
 dv-processing (import ``dv_processing``) is the live camera's driver (libcaer inside) and the
 AEDAT4 writer; its event container is the ``EventStore``, ours a numpy array of
 :data:`~neurotouch_hid.sources.EVENT_DTYPE`. This module converts between the two and turns the
-library's C++ exceptions into one line, for the recording writer (``recording.py``), the live
+library's C++ exceptions into one line, for the recording writer (``recording_writer.py``), the live
 camera (``davis.py``), discovery (``discovery.py``) and the noise filter (``pipeline/noise.py``).
 """
 

@@ -20,8 +20,8 @@ from neurotouch_hid.sources import Performed, StreamItem
 
 if TYPE_CHECKING:
     from neurotouch_hid.core.sensor import SensorGeometry
+    from neurotouch_hid.sources.batches import BatchCut
     from neurotouch_hid.sources.davis import DavisConfig
-    from neurotouch_hid.sources.recording import BatchCut
     from neurotouch_hid.sources.simulator import SimulatedSource
 
 #: What an opened source yields (``stages.SourceStream``).
@@ -110,14 +110,15 @@ def open_source(
         from neurotouch_hid.sources.simulator import SimulatedSource
 
         sim = SimulatedSource(seed=seed) if sensor is None else SimulatedSource(SensorGeometry.load(sensor), seed=seed)
-        from neurotouch_hid.sources.recording import BatchCut, CuttingStream, read_ahead
+        from neurotouch_hid.sources.batches import BatchCut, CuttingStream, read_ahead
 
         cut = BatchCut(batch_us)
         stream = simulated_items(sim, seconds, cut, labelled=labelled, guard=guard, finish=finish)
         stream = read_ahead(stream, cut)  # at rest, frame periods simulated in bursts
         return OpenedSource(CuttingStream(stream, cut), sim.sensor, False, labelled=labelled)
     from neurotouch_hid.core.errors import RecordingError
-    from neurotouch_hid.sources.recording import BatchCut, CuttingStream, RecordingReader, read_ahead
+    from neurotouch_hid.sources.batches import BatchCut, CuttingStream, read_ahead
+    from neurotouch_hid.sources.recording import RecordingReader
 
     path = Path(spec)
     if not path.is_file():
@@ -148,14 +149,14 @@ def simulated_items(
 ) -> Iterator[StreamItem | Performed]:
     """The simulated gel's stream (as ``SimulatedSource.stream``): per frame period, the label of
     what the hand performs (when ``labelled``), the APS frame, then its events in ``batch_us``
-    batches (or as a :class:`~neurotouch_hid.sources.recording.BatchCut` says); each period
+    batches (or as a :class:`~neurotouch_hid.sources.batches.BatchCut` says); each period
     simulated inside ``guard()`` when given.
 
     ``finish`` (the demo): past ``seconds`` the hand finishes the gesture it is performing, so
     that the last frame shows the gel at rest, not a gesture cut off before it was recognised:
     the stream ends once the gel has rested for :data:`FINISHED_REST_US`, at most
     :data:`FINISH_GESTURE_S` after ``seconds``."""
-    from neurotouch_hid.sources.recording import split_batches
+    from neurotouch_hid.sources.batches import split_batches
 
     guard = guard or contextlib.nullcontext
     finish = finish and seconds is not None

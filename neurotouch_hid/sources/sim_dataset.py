@@ -1,7 +1,7 @@
 """Simulated datasets: presets, users and sequences of the simulated gel written to files.
 
 A dataset (docs/dataset.md) is ``sensor.yaml``, ``physics.json`` and per sequence an AEDAT4
-recording of the simulated camera (:class:`~neurotouch_hid.sources.recording.RecordingWriter`),
+recording of the simulated camera (:class:`~neurotouch_hid.sources.recording_writer.RecordingWriter`),
 its labels and per-gesture press times (:mod:`neurotouch_hid.core.dataset`) and its true marker
 positions (``.markers.npz``). The presets follow the paper's dataset (section "Creation of the
 Gesture Detection Dataset"): one sequence per user and gesture type, or game sessions.
@@ -21,7 +21,7 @@ from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.sources.esim import NOISE_RATE_HZ
 from neurotouch_hid.sources.hands import SESSION_STREAM, SIM_GESTURES, TEST_USERS, TUNING_USERS, USERS
 from neurotouch_hid.sources.physics import mix_families, physics_family
-from neurotouch_hid.sources.recording import RecordingWriter
+from neurotouch_hid.sources.recording_writer import RecordingWriter
 from neurotouch_hid.sources.simulator import GelSimulator
 
 #: Dataset presets: simulated seconds per sequence (``quick``, ``paper``: one sequence per user

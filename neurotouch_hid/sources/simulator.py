@@ -45,6 +45,7 @@ from neurotouch_hid.core.errors import NeurotouchError
 from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.sources import EVENT_DTYPE, Frame, StreamItem
+from neurotouch_hid.sources.batches import split_batches
 from neurotouch_hid.sources.esim import (
     CONTRAST,
     CONTRAST_SIGMA,
@@ -58,7 +59,6 @@ from neurotouch_hid.sources.esim import (
 from neurotouch_hid.sources.gel import Gel, SimGesture, deform
 from neurotouch_hid.sources.hands import SIM_GESTURES, STEADY_GESTURES, USERS, SimUser, gesture_script
 from neurotouch_hid.sources.physics import PHYSICS, Physics
-from neurotouch_hid.sources.recording import split_batches
 
 #: APS frame period and exposure (us); the DAVIS-346 frames at 25 Hz.
 FRAME_PERIOD_US = 40_000
