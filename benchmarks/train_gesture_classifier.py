@@ -43,7 +43,7 @@ from neurotouch_hid.evaluation.runner import pipeline_config  # noqa: E402
 from neurotouch_hid.pipeline.learned import CLASSES, FEATURES, gesture_features  # noqa: E402
 from neurotouch_hid.pipeline.pipeline import GesturePipeline  # noqa: E402
 from neurotouch_hid.sources.physics import PHYSICS  # noqa: E402
-from neurotouch_hid.sources.sim_dataset import write_dataset
+from neurotouch_hid.sources.sim_dataset import write_dataset  # noqa: E402
 from neurotouch_hid.views.console import command_app
 
 MODEL_FILE = Path(__file__).resolve().parents[1] / "neurotouch_hid" / "pipeline" / "gesture_model.py"
