@@ -1,4 +1,4 @@
-"""Camera discovery (sources/discovery.py) and ``neurotouch-hid devices``.
+"""Camera discovery (sources/discovery.py, sources/usb_probe.py) and ``neurotouch-hid devices``.
 
 This machine has no USB camera: the real pyusb and dv-processing scans are checked to find none,
 and ``devices`` to say so with exit code 1. The merging and diagnosis logic is checked on small
@@ -22,23 +22,16 @@ import usb.util
 from helpers import run_cli
 
 from neurotouch_hid.service.udev import RULES_INSTALL
-from neurotouch_hid.sources import discovery
-from neurotouch_hid.sources.discovery import (
-    CameraStatus,
-    Discovery,
-    DvCamera,
-    UsbAccess,
-    UsbCamera,
-    explain,
-    merge,
-)
+from neurotouch_hid.sources import discovery, usb_probe
+from neurotouch_hid.sources.discovery import CameraStatus, Discovery, DvCamera, explain, merge
+from neurotouch_hid.sources.usb_probe import UsbAccess, UsbCamera
 
 
 def usb_cam(bus=1, address=5, access=UsbAccess.OK, reason="", serial="00000123", holders=()) -> UsbCamera:
     return UsbCamera(
         bus=bus,
         address=address,
-        node=discovery.node_path(bus, address),
+        node=usb_probe.node_path(bus, address),
         port=f"{bus}-1",
         serial=serial,
         product="DAVIS346",
@@ -56,8 +49,8 @@ def dv_cam(bus=1, address=5, serial="00000123", pid=0x841A, model="DAVIS") -> Dv
 
 # --- the real scans on this machine (no camera) --------------------------------------------------
 def test_real_scans_find_no_camera_here():
-    assert discovery.find_cameras() == []  # pyusb + libusb-package's libusb
-    assert discovery.usb_cameras() == []
+    assert usb_probe.find_cameras() == []  # pyusb + libusb-package's libusb
+    assert usb_probe.usb_cameras() == []
     assert discovery.dv_cameras() == []  # dv_processing.io.camera.discover()
     found = discovery.discover()
     assert found == Discovery((), None, None, ())
@@ -259,8 +252,8 @@ def fake_usb(tmp_path, monkeypatch):
         (dev / name).write_text(value + "\n")
     node = tmp_path / "node"
     node.write_text("")
-    monkeypatch.setattr(discovery, "_SYSFS_USB", sysfs)
-    monkeypatch.setattr(discovery, "node_path", lambda bus, address: str(node))
+    monkeypatch.setattr(usb_probe, "_SYSFS_USB", sysfs)
+    monkeypatch.setattr(usb_probe, "node_path", lambda bus, address: str(node))
     state = SimpleNamespace(calls=[], claim_error=None, sysfs=dev, node=str(node))
 
     def claim(device, interface):
@@ -275,7 +268,7 @@ def fake_usb(tmp_path, monkeypatch):
 
 
 def test_probe_ok_reads_sysfs_and_claims_then_releases(fake_usb):
-    cam = discovery.probe_usb(fake_usb.device)
+    cam = usb_probe.probe_usb(fake_usb.device)
     assert cam == UsbCamera(
         bus=2,
         address=7,
@@ -291,8 +284,8 @@ def test_probe_ok_reads_sysfs_and_claims_then_releases(fake_usb):
 
 
 def test_probe_unreadable_node_is_denied_without_opening(fake_usb, monkeypatch):
-    monkeypatch.setattr(discovery.os, "access", lambda path, mode: False)
-    cam = discovery.probe_usb(fake_usb.device)
+    monkeypatch.setattr(usb_probe.os, "access", lambda path, mode: False)
+    cam = usb_probe.probe_usb(fake_usb.device)
     assert cam.access == UsbAccess.DENIED and cam.serial == "00000042"  # strings from sysfs all the same
     assert cam.reason.startswith(f"permission denied: {fake_usb.node} is -rw-") and f"uid {os.getuid()}" in cam.reason
     assert fake_usb.calls == []
@@ -300,7 +293,7 @@ def test_probe_unreadable_node_is_denied_without_opening(fake_usb, monkeypatch):
 
 def test_probe_libusb_access_error_is_denied(fake_usb):
     fake_usb.claim_error = usb.core.USBError("Access denied (insufficient permissions)", -3, errno.EACCES)
-    cam = discovery.probe_usb(fake_usb.device)
+    cam = usb_probe.probe_usb(fake_usb.device)
     assert cam.access == UsbAccess.DENIED and "Access denied" in cam.reason
     assert fake_usb.calls[-1] == ("dispose",)
 
@@ -314,7 +307,7 @@ def test_probe_busy_names_the_process_holding_the_node(fake_usb):
     )
     try:
         assert holder.stdout.readline().strip() == "1"
-        cam = discovery.probe_usb(fake_usb.device)
+        cam = usb_probe.probe_usb(fake_usb.device)
     finally:
         holder.kill()
         holder.wait()
@@ -328,14 +321,14 @@ def test_probe_busy_by_a_kernel_driver(fake_usb, tmp_path):
     (tmp_path / "drivers" / "usbtest").mkdir(parents=True)
     (fake_usb.sysfs / "2-1:1.0").mkdir()
     (fake_usb.sysfs / "2-1:1.0" / "driver").symlink_to(tmp_path / "drivers" / "usbtest")
-    cam = discovery.probe_usb(fake_usb.device)
+    cam = usb_probe.probe_usb(fake_usb.device)
     assert cam.access == UsbAccess.BUSY and cam.reason == "the kernel driver usbtest holds its interface 0"
     assert "unbind that driver" in merge([cam], []).cameras[0].fix
 
 
 def test_probe_other_libusb_error(fake_usb):
     fake_usb.claim_error = usb.core.USBError("Input/Output Error", -1, errno.EIO)
-    cam = discovery.probe_usb(fake_usb.device)
+    cam = usb_probe.probe_usb(fake_usb.device)
     assert cam.access == UsbAccess.ERROR and "Input/Output Error" in cam.reason
 
 
@@ -344,7 +337,7 @@ def test_probe_unplugged_meanwhile_is_gone(fake_usb, tmp_path):
     for f in fake_usb.sysfs.iterdir():
         f.unlink()
     fake_usb.sysfs.rmdir()
-    cam = discovery.probe_usb(fake_usb.device)
+    cam = usb_probe.probe_usb(fake_usb.device)
     assert cam.access == UsbAccess.GONE and cam.port == "2-1"  # from pyusb's port numbers
     assert cam.serial is None
 
@@ -363,7 +356,7 @@ def test_sysfs_attributes_are_read_within_a_page_and_a_bad_one_is_no_value(fake_
         (other / "busnum").write_bytes(busnum)
         (other / "devnum").write_bytes(b"7\n")
     fake_usb.device.iSerialNumber = fake_usb.device.iProduct = 0  # no strings from the device itself
-    cam = discovery.probe_usb(fake_usb.device)
+    cam = usb_probe.probe_usb(fake_usb.device)
     assert cam.port == "2-1" and cam.access == UsbAccess.OK  # found, past the two bad folders
     assert (cam.serial, cam.product, cam.manufacturer, cam.speed_mbps) == (None, None, "iniVation", None)
 

@@ -13,7 +13,8 @@ from rich.console import Console
 
 from neurotouch_hid.service import doctor
 from neurotouch_hid.service.doctor import FAIL, OK, SKIP, WARN, Check
-from neurotouch_hid.sources.discovery import DvCamera, UsbAccess, UsbCamera, discover, merge
+from neurotouch_hid.sources.discovery import DvCamera, discover, merge
+from neurotouch_hid.sources.usb_probe import UsbAccess, UsbCamera
 
 
 def test_no_camera_on_this_machine_is_a_failure_with_a_fix():

@@ -40,13 +40,8 @@ from neurotouch_hid.service.udev import (
     uinput_help,
     uinput_problem,
 )
-from neurotouch_hid.sources.discovery import (
-    CAMERA_USB_ID,
-    CameraStatus,
-    Discovery,
-    discover,
-    pip_command,
-)
+from neurotouch_hid.sources.discovery import CameraStatus, Discovery, discover
+from neurotouch_hid.sources.usb_probe import CAMERA_USB_ID, pip_command
 from neurotouch_hid.targets.protocols import names as protocol_names
 
 SERVICE_NAME = "neurotouch-hid.service"
