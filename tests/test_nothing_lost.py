@@ -226,7 +226,7 @@ def test_a_dataset_folder_is_replaced_only_on_force_and_then_whole(tmp_path):
 
 
 def test_two_writers_into_one_new_folder_one_wins_whole_the_other_says_it_lost(tmp_path):
-    from neurotouch_hid.core.dataset import DatasetOut
+    from neurotouch_hid.core.dataset_out import DatasetOut
     from neurotouch_hid.core.errors import DatasetError
 
     out = tmp_path / "enrolment"

@@ -1,6 +1,6 @@
 """A ``track`` or ``run --output jsonl`` that fails part-way never replaces an existing output:
 that file stays byte-identical, what was computed goes beside it (``NAME.partial``), and the
-command exits non-zero saying both (neurotouch_hid/core/dataset.py, ``JsonlWriter``)."""
+command exits non-zero saying both (neurotouch_hid/core/jsonl_writer.py, ``JsonlWriter``)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 from helpers import run_main
 
 from neurotouch_hid.core.controller import ControllerState
-from neurotouch_hid.core.dataset import JsonlWriter
+from neurotouch_hid.core.jsonl_writer import JsonlWriter
 from neurotouch_hid.views.jsonl import StateJsonlWriter
 
 EARLIER = b"earlier output\n"

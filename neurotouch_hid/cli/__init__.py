@@ -249,7 +249,7 @@ def main() -> None:
 
 def _say_notes(exc: BaseException) -> None:
     """The notes an interrupted command's outputs added to ``exc`` (where what was computed went,
-    :class:`~neurotouch_hid.core.dataset.JsonlWriter`), one line each on stderr."""
+    :class:`~neurotouch_hid.core.jsonl_writer.JsonlWriter`), one line each on stderr."""
     from neurotouch_hid.core.limits import printable
 
     for note in getattr(exc, "__notes__", ()):

@@ -132,7 +132,7 @@ def _session(plan, source, out, sensor, seed, serial, physics, sim_miss, sim_mis
             guide = CameraSource(config)
         compile_before(say_err, simulator=source == "sim")  # a first run: compiled in child processes, said
         GesturePipeline(geometry).compile_kernels()  # before the camera opens: nothing waits for it
-    from neurotouch_hid.core.dataset import DatasetOut
+    from neurotouch_hid.core.dataset_out import DatasetOut
 
     target = DatasetOut(out if out is not None else enrolment_folder(), force=force)  # before the session
     stop = threading.Event()
@@ -165,7 +165,7 @@ def _label(
     """``enrol --from``: label ``recording`` with ``plan`` into ``out``, say what was left out."""
     import dataclasses
 
-    from neurotouch_hid.core.dataset import DatasetOut
+    from neurotouch_hid.core.dataset_out import DatasetOut
 
     if plan_path is None or out is None:
         raise NeurotouchError("--from REC.aedat4 needs the plan it followed (--plan FILE) and --out DIR")

@@ -4,8 +4,9 @@ A dataset is a folder with ``sensor.yaml`` and, per sequence, ``SEQUENCE.aedat4`
 ``SEQUENCE.labels.csv`` (paper, section "Creation of the Gesture Detection Dataset"). A folder
 without ``sensor.yaml`` takes the user's calibration (``neurotouch-hid calibrate``) instead.
 Predictions are JSON lines, one :meth:`GestureEstimate.to_json_dict` object a line, ordered by
-time; :class:`JsonlWriter` is the shared line writer (a path or an open text stream, ``-`` =
-stdout), so other JSON-lines outputs write the same way.
+time, written by the shared line writer (:mod:`neurotouch_hid.core.jsonl_writer`: a path or an
+open text stream, ``-`` = stdout), so other JSON-lines outputs write the same way. A dataset
+folder is written whole by :mod:`neurotouch_hid.core.dataset_out`.
 
 A format module beneath every stage: the simulator writes datasets, ``track`` and ``eval`` write
 predictions, ``run`` replays them, evaluation reads all of them.
@@ -14,15 +15,10 @@ predictions, ``run`` replays them, evaluation reads all of them.
 from __future__ import annotations
 
 import csv
-import errno
 import io
 import json
 import logging
 import math
-import os
-import shutil
-import sys
-import tempfile
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,9 +26,10 @@ from typing import IO, Any, Sequence
 
 import numpy as np
 
-from neurotouch_hid.core.atomic import DISK_ERRNOS, AtomicFile, _umask, check_output, disk_error, exchange, is_stream
-from neurotouch_hid.core.errors import DatasetError, NeurotouchError
+from neurotouch_hid.core.atomic import AtomicFile
+from neurotouch_hid.core.errors import DatasetError
 from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.jsonl_writer import JsonlWriter
 from neurotouch_hid.core.limits import MAX_SENSOR_PX, printable, read_outside_lines, read_outside_text, short
 from neurotouch_hid.core.sensor import user_sensor_path
 
@@ -382,231 +379,7 @@ def labels_at(labels: Sequence[LabelRow], t_us: np.ndarray) -> list[LabelRow | N
     return out
 
 
-# --- writing a dataset folder whole ----------------------------------------------------------
-#: The files a dataset folder holds (docs/dataset.md, and what the commands write beside it: the
-#: simulator's true markers and families, an enrolment's plan): a folder holding anything else
-#: is never replaced, even with ``--force``.
-DATASET_FILES = ("sensor.yaml", "physics.json")
-DATASET_SUFFIXES = (".aedat4", ".labels.csv", ".pressed.csv", ".plan.json", ".markers.npz")
-
-
-def _held(folder: Path) -> list[str]:
-    """The names in ``folder`` (none when it is missing or not a folder)."""
-    try:
-        return sorted(os.listdir(folder))
-    except (FileNotFoundError, NotADirectoryError):
-        return []
-    except OSError as exc:
-        raise DatasetError(f"{printable(folder, 200)}: cannot read the folder: {exc.strerror or exc}") from None
-
-
-class DatasetOut:
-    """A dataset folder written whole: the files go to a new hidden folder beside ``out``
-    (``.OUT.RANDOM.part``), which :meth:`commit` puts in ``out``'s place in one step, or
-    :meth:`discard` removes. An ``out`` that holds a dataset is refused unless ``force``, and
-    then replaced whole (``renameat2`` exchange: a reader sees the old dataset or the new one);
-    a folder holding other files is never replaced. Two commands writing into one new folder
-    at once: the first to commit wins whole, the other says it lost and leaves it as it is.
-
-    Args:
-        out: the dataset folder to write (docs/dataset.md).
-        force: replace a dataset already in ``out``.
-        what: the command's option, for the messages (``--out``).
-    Raises:
-        DatasetError: ``out`` holds a dataset (and not ``force``) or other files, is a file, or
-            its parent cannot be written (full, read-only); nothing is changed then.
-    """
-
-    def __init__(self, out: str | Path, *, force: bool = False, what: str = "--out") -> None:
-        self.out = Path(out)
-        self.force = force
-        shown = printable(self.out, 200)
-        if self.out.is_symlink() or (self.out.exists() and not self.out.is_dir()):
-            raise DatasetError(f"{shown}: {what} is not a folder: give a folder for the dataset (docs/dataset.md)")
-        self._check(_held(self.out), what)
-        try:
-            self.out.parent.mkdir(parents=True, exist_ok=True)
-            self.work = Path(tempfile.mkdtemp(dir=self.out.parent, prefix=f".{self.out.name}.", suffix=".part"))
-            os.chmod(self.work, 0o777 & ~_umask())
-        except OSError as exc:
-            raise DatasetError(
-                f"{shown}: cannot write the dataset: {exc.strerror or exc}; nothing was changed"
-            ) from None
-
-    def _check(self, names: list[str], what: str) -> None:
-        shown = printable(self.out, 200)
-        other = [n for n in names if n not in DATASET_FILES and not n.endswith(DATASET_SUFFIXES)]
-        if other:
-            raise DatasetError(
-                f"{shown}: the folder holds files that are no dataset's ({printable(', '.join(other[:3]), 120)}"
-                f"{', ...' if len(other) > 3 else ''}): give another {what} folder; nothing was changed"
-            )
-        if names and not self.force:
-            raise DatasetError(
-                f"{shown}: the folder holds a dataset already ({printable(', '.join(names[:3]), 120)}"
-                f"{', ...' if len(names) > 3 else ''}): give another {what} folder, or add --force to replace it whole"
-            )
-
-    def commit(self) -> Path:
-        """Put the written folder in ``out``'s place; returns ``out``.
-
-        Raises:
-            DatasetError: another command wrote a dataset into ``out`` meanwhile (without
-                ``force``: it is kept, and what was written here is removed), or the rename
-                failed (the disk).
-        """
-        try:
-            if self.force and _held(self.out):
-                exchange(self.work, self.out)
-                shutil.rmtree(self.work, ignore_errors=True)  # the old dataset, now here
-            else:
-                os.rename(self.work, self.out)  # fails when another command put a dataset there first
-        except OSError as exc:
-            self.discard()
-            if exc.errno in (errno.ENOTEMPTY, errno.EEXIST):
-                raise DatasetError(
-                    f"{printable(self.out, 200)}: another command wrote a dataset there meanwhile: it is kept, and "
-                    "this one is not written (run it again into another folder)"
-                ) from None
-            raise DatasetError(
-                f"{printable(self.out, 200)}: cannot put the dataset in place: {exc.strerror or exc}; nothing changed"
-            ) from None
-        return self.out
-
-    def discard(self) -> None:
-        """Remove what was written (``out`` is as it was)."""
-        shutil.rmtree(self.work, ignore_errors=True)
-
-
 # --- predictions (JSON lines) ---------------------------------------------------------------
-class JsonlWriter:
-    """Writes one JSON object a line. Context manager.
-
-    A file is written as a temporary file beside it and renamed over it when the writer is
-    closed without an error (:class:`~neurotouch_hid.core.atomic.AtomicFile`): a command that fails
-    leaves what was there. With ``live``, it is renamed at its first line instead, so that another
-    process can follow it from then on, when there is no file at its name to lose (a file there
-    is replaced only at a clean end). A FIFO or a character device is written in place.
-
-    With ``keep_partial``, a writer closed by an error (:meth:`__exit__`) after lines were
-    written puts them beside the file, as ``NAME.partial`` (replacing an earlier one), and never
-    at ``NAME`` (a live file published there goes to ``NAME.partial`` too): what was at ``NAME``
-    stays byte-identical, and the error gets a note (PEP 678, printed by the CLI) saying both.
-
-    Args:
-        out: a file path, ``"-"`` for stdout, or an open text stream (not closed by
-            :meth:`close`).
-        flush: flush after every line (for live outputs read by another process).
-        live: publish the file at its first line (see above) rather than at the end.
-        inputs: the command's input files: ``out`` may not be one of them.
-        keep_partial: keep what was written before an error as ``NAME.partial`` (see above).
-        stops: the exceptions that end the writer as a stop asked for, not a failure (a live
-            run's Ctrl-C): the file is closed as at a clean end.
-    Raises:
-        DatasetError: the file cannot be opened for writing (names it and why).
-        OutputError: ``out`` is a symbolic link, a folder, or one of ``inputs``.
-    """
-
-    def __init__(
-        self,
-        out: str | Path | IO[str],
-        *,
-        flush: bool = False,
-        live: bool = False,
-        inputs: Iterable[str | Path | None] = (),
-        keep_partial: bool = False,
-        stops: tuple[type[BaseException], ...] = (),
-    ) -> None:
-        self._flush, self._live = flush, live
-        self._keep_partial, self._stops = keep_partial, stops
-        self._atomic: AtomicFile | None = None
-        #: lines written
-        self.lines = 0
-        #: where the lines written before an error went (``NAME.partial``), None when nowhere
-        self.partial: Path | None = None
-        self._had_file = False
-        if isinstance(out, (str, Path)) and str(out) == "-":
-            self._fh, self._owned = sys.stdout, False
-        elif isinstance(out, (str, Path)):
-            try:
-                self._atomic = AtomicFile(out, inputs, what="output file")
-            except OSError as exc:
-                raise DatasetError(f"{out}: cannot write JSON lines: {exc.strerror or exc}") from None
-            self._had_file = not self._atomic.published and os.path.lexists(self._atomic.path)
-            self._fh, self._owned = self._atomic.file, True
-        else:
-            self._fh, self._owned = out, False
-
-    def write_dict(self, data: dict) -> None:
-        """Write ``data`` as one compact JSON line. Raises OutputError naming the file when the
-        disk refuses it (full, read-only)."""
-        try:
-            self._fh.write(json.dumps(data, separators=(", ", ": ")) + "\n")
-            if self._flush:
-                self._fh.flush()
-        except OSError as exc:
-            if self._atomic is None or exc.errno not in DISK_ERRNOS:
-                raise
-            raise disk_error(self._atomic.path, exc) from None
-        self.lines += 1
-        if self._live and self._atomic is not None and not self._atomic.published and not self._had_file:
-            self._atomic.publish()
-
-    def close(self, keep: bool = True) -> None:
-        """Flush, and close the file if this writer opened it: renamed into place when ``keep``;
-        else, with ``keep_partial`` and lines written, moved to ``NAME.partial``
-        (:attr:`partial`), otherwise removed unless it was already published (a live file)."""
-        if self._atomic is None:
-            if self._owned:
-                self._fh.close()
-            else:
-                self._fh.flush()
-            return
-        if keep or not self._keep_partial or not self.lines:
-            self._atomic.close(keep=keep)
-            return
-        target = self._atomic.path
-        partial = target.with_name(target.name + ".partial")
-        if self._atomic.published:  # a live file with nothing before it: not left as a whole output
-            self._atomic.close(keep=True)
-            if not is_stream(target):
-                os.replace(target, partial)
-                self.partial = partial
-            return
-        tmp = self._atomic.pending()
-        try:
-            self._atomic.close(keep=False, leave=True)
-            self.lines = _count_lines(tmp)  # what reached the file (a full disk keeps less)
-            if not self.lines:
-                raise OSError("nothing reached the file")
-            check_output(partial, (), "partial output")
-            os.replace(tmp, partial)
-            self.partial = partial
-        except (OSError, NeurotouchError):
-            tmp.unlink(missing_ok=True)
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        stopped = exc_type is not None and issubclass(exc_type, self._stops)
-        self.close(keep=exc_type is None or stopped)
-        if self.partial is not None and exc is not None and self._atomic is not None:
-            kept = "is left as it was" if self._had_file else "was not written"
-            exc.add_note(
-                f"{self._atomic.path} {kept}; the {self.lines} lines written before the error are in {self.partial}"
-            )
-
-
-def _count_lines(path: Path) -> int:
-    """The complete lines of ``path`` (its newlines), read 1 MiB at a time."""
-    count = 0
-    with open(path, "rb") as fh:
-        while chunk := fh.read(1 << 20):
-            count += chunk.count(b"\n")
-    return count
-
-
 class PredictionsWriter(JsonlWriter):
     """Writes a predictions file (docs/dataset.md): one :class:`GestureEstimate` a line."""
 

@@ -37,7 +37,7 @@ from typing import Protocol
 
 import numpy as np
 
-from neurotouch_hid.core.dataset import DatasetOut
+from neurotouch_hid.core.dataset_out import DatasetOut
 from neurotouch_hid.core.errors import DatasetError, RecordingError
 from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.core.stages import Subscriber, WindowRecord
@@ -266,7 +266,7 @@ def run_session(
 ) -> SessionResult:
     """Run a guided enrolment (module docstring) and write its dataset into ``out_dir`` (created):
     ``enrolment.aedat4``, ``enrolment.labels.csv``, ``enrolment.plan.json`` (the prompts asked)
-    and ``sensor.yaml``. The folder is written whole (:class:`~neurotouch_hid.core.dataset.DatasetOut`;
+    and ``sensor.yaml``. The folder is written whole (:class:`~neurotouch_hid.core.dataset_out.DatasetOut`;
     give one to replace a dataset with ``force``): a folder that holds a dataset is refused.
 
     Args:

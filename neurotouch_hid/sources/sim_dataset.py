@@ -110,7 +110,7 @@ def save_npz(path: Path, **arrays: np.ndarray) -> None:
 
 
 def write_dataset(out_dir: str | Path, *args, force: bool = False, **kw) -> Path:
-    """:func:`write_whole_dataset` written whole (:class:`~neurotouch_hid.core.dataset.DatasetOut`):
+    """:func:`write_whole_dataset` written whole (:class:`~neurotouch_hid.core.dataset_out.DatasetOut`):
     into a new folder beside ``out_dir``, put in its place at the end; a dataset already in
     ``out_dir`` is refused unless ``force`` (then replaced whole), any other file there always.
 
@@ -118,7 +118,7 @@ def write_dataset(out_dir: str | Path, *args, force: bool = False, **kw) -> Path
         DatasetError: ``out_dir`` holds a dataset or other files, or cannot be written (nothing
             changed); and what :func:`write_whole_dataset` raises (nothing changed either).
     """
-    from neurotouch_hid.core.dataset import DatasetOut
+    from neurotouch_hid.core.dataset_out import DatasetOut
 
     target = DatasetOut(out_dir, force=force)
     try:

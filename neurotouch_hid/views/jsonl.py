@@ -1,6 +1,6 @@
 """JSON lines of controller states (``neurotouch-hid run --output jsonl``).
 
-Written with the line writer of the predictions files (:class:`neurotouch_hid.core.dataset.JsonlWriter`).
+Written with the line writer of the predictions files (:class:`neurotouch_hid.core.jsonl_writer.JsonlWriter`).
 """
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
 from neurotouch_hid.core.controller import ControllerState
-from neurotouch_hid.core.dataset import JsonlWriter
 from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+from neurotouch_hid.core.jsonl_writer import JsonlWriter
 
 if TYPE_CHECKING:
     from neurotouch_hid.core.stages import WindowRecord
@@ -34,7 +34,7 @@ class StateJsonlWriter(JsonlWriter):
     flushed as written (another process reads them live). A file is written beside its name and
     renamed over it at the first line when nothing is there, else at the run's end (Ctrl-C and
     SIGTERM end it too); a run that fails part-way leaves what was there byte-identical and its
-    lines in ``NAME.partial``, and says both (:class:`~neurotouch_hid.core.dataset.JsonlWriter`); a
+    lines in ``NAME.partial``, and says both (:class:`~neurotouch_hid.core.jsonl_writer.JsonlWriter`); a
     FIFO is written in place.
 
     Args:
