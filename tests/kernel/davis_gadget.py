@@ -569,6 +569,8 @@ class DavisDevice:
                 self.stream.encoder.reset(0)
             self._queue(np.asarray([SP_TS_RESET], np.uint16))
             self._flush(time.monotonic(), force=True)  # the host waits for it (time synchronisation)
+            # device time = (time.monotonic() - clock0) x 1e6 us: a guest check reads the events' age
+            log(f"timestamp reset: device time 0 at monotonic {self.clock0:.6f} s")
         elif (module, param) == (USB, USB_EARLY_PACKET_DELAY):
             log(f"USB early packet delay {value / USB_CLOCK_MHZ:g} us")
         elif (module, param) == (USB, 0):
