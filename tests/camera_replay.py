@@ -6,7 +6,9 @@ the camera's methods. :class:`ReplayWorld` offers the same calls, answering them
 recording (the real DAVIS-346 street recording, a simulated street or gel) played in time, as a
 camera watching that scene would: a camera opened at time w delivers what the scene shows from w
 on, in packets of at least :data:`PACKET_US` as time passes (a DAVIS sends a USB packet every few
-ms), with the recording's own (Unix-time) timestamps.
+ms), held at least the USB early packet delay and the data commit interval the source set
+(dv-processing's :data:`OPEN_TIME_INTERVAL_US` until then), with the recording's own (Unix-time)
+timestamps.
 
 Time is the wall clock, or a :class:`ManualClock` the test controls: it moves only when the code
 under test sleeps (``DavisSource(clock=clock.monotonic, sleep=clock.sleep)``), so that a loaded
@@ -41,6 +43,8 @@ from neurotouch_hid.sources.recording import RecordingReader
 
 #: The shortest span of events one ``getNextEventBatch`` hands out (us).
 PACKET_US = 2_000
+#: The data commit interval (us) dv-processing 2.0.4 opens a DAVIS with (``getTimeInterval``).
+OPEN_TIME_INTERVAL_US = 10_000
 
 
 class ManualClock:
@@ -94,6 +98,8 @@ class ReplayWorld:
         settings: the DAVIS settings the source applied, as (method name, value) pairs.
         early_packet_delays: (seconds from the start, us) of every USB early packet delay the
             source set: a camera holds events that long at least (:data:`PACKET_US` otherwise).
+        time_intervals: (seconds from the start, us) of every data commit interval the source
+            set (``setTimeInterval``): a camera holds events that long at least too.
     """
 
     recording: Path
@@ -103,6 +109,7 @@ class ReplayWorld:
     searches: list[float] = field(default_factory=list)
     settings: list[tuple[str, object]] = field(default_factory=list)
     early_packet_delays: list[tuple[float, int]] = field(default_factory=list)
+    time_intervals: list[tuple[float, int]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         with RecordingReader(self.recording) as reader:
@@ -163,7 +170,9 @@ class ReplayCamera:
         start = world.t_us(opened_s)
         self._event_at = int(np.searchsorted(world.event_ts, start, side="right"))
         self._frame_at = int(np.searchsorted(world.frame_ts, start, side="right"))
-        self._held_us = PACKET_US  # events are handed out once the oldest waited this long
+        self._delay_us = 0  # the early packet delay the source set (none yet)
+        self._interval_us = OPEN_TIME_INTERVAL_US  # the data commit interval
+        self._held_us = max(PACKET_US, self._interval_us)  # handed out once the oldest waited this long
 
     def getCameraName(self) -> str:
         return f"DAVIS346_{self._world.serial}"
@@ -225,4 +234,16 @@ class ReplayCamera:
         us = int(delay / datetime.timedelta(microseconds=1))
         self._world.settings.append(("setUSBEarlyPacketDelay", delay))
         self._world.early_packet_delays.append((self._world.now_s(), us))
-        self._held_us = max(PACKET_US, us)
+        self._delay_us = us
+        self._held_us = max(PACKET_US, self._delay_us, self._interval_us)
+
+    # the data commit interval (dv_processing.io.camera.CameraInputBase)
+    def setTimeInterval(self, interval: datetime.timedelta) -> None:
+        us = int(interval / datetime.timedelta(microseconds=1))
+        self._world.settings.append(("setTimeInterval", interval))
+        self._world.time_intervals.append((self._world.now_s(), us))
+        self._interval_us = us
+        self._held_us = max(PACKET_US, self._delay_us, self._interval_us)
+
+    def getTimeInterval(self) -> datetime.timedelta:
+        return datetime.timedelta(microseconds=self._interval_us)

@@ -113,6 +113,7 @@ def test_frame_interval_and_exposure_are_set(street):
     world = ReplayWorld(street)
     DavisSource(DavisConfig(frame_interval_us=20_000, exposure_us=3_000), backend=world).close()
     assert world.settings == [
+        ("setTimeInterval", datetime.timedelta(microseconds=1_000)),
         ("setFrameInterval", datetime.timedelta(microseconds=20_000)),
         ("setAutoExposure", False),
         ("setExposureDuration", datetime.timedelta(microseconds=3_000)),
@@ -517,3 +518,17 @@ def test_when_the_rest_ends_polls_no_longer_wait_for_a_transfer(sim_gel_recordin
     after = [w for t, w in waits if t >= 0.52]
     assert after and max(after) <= 0.001, max(after)
     assert (0.5 <= world.early_packet_delays[-1][0] < 0.52) and world.early_packet_delays[-1][1] == 1000
+
+
+def test_the_data_commit_interval_is_1_ms_outside_rest_and_a_window_at_rest(sim_gel_recording):
+    """dv-processing opens a DAVIS with a 10 ms data commit interval: events then reach the
+    source's polls up to 10 ms after their USB transfer. The source sets 1 ms on open, a resting
+    window's 10 ms while the gel rests (one batch a window, as before), and 1 ms again at the first
+    poll after the rest ends; the camera then hands its events on within ~1 ms of the delay."""
+    world, _, came = _polls_at_rest(sim_gel_recording[0], resting_until_s=0.5)
+    (opened, first), (rested, at_rest), (woke, after) = world.time_intervals
+    assert (first, at_rest, after) == (1_000, 10_000, 1_000), world.time_intervals
+    assert opened == rested == 0.0 and 0.5 <= woke < 0.52, world.time_intervals
+    # out of rest, every event reaches the source within the packet (2 ms) and a poll of it
+    late_ms = [(t - (batch["timestamp"][0] - world.t0_us) / 1e6) * 1e3 for t, batch in came if t >= 0.53]
+    assert late_ms and max(late_ms) <= 2 + 1.5, max(late_ms)

@@ -14,7 +14,7 @@ import subprocess
 import numpy as np
 import pytest
 from camera_replay import Fault, ManualClock, ReplayWorld
-from helpers import CLI, run_cli, wait_until
+from helpers import CLI, run_cli, run_main, wait_until
 
 from neurotouch_hid.core.errors import DeviceError, RecordingError
 from neurotouch_hid.sources import Frame
@@ -96,6 +96,21 @@ def test_a_lost_camera_ends_the_recording_but_keeps_the_file_whole(any_street, t
     info = read_info(out)
     assert (info.n_events, info.n_frames) == seen[-1] and info.n_frames >= 10
     assert info.camera_name == "DAVIS346_00000499"
+
+
+def test_record_keeps_the_driver_s_10_ms_commit_interval(any_street, tmp_path, monkeypatch, capsys):
+    """``record --source davis`` waits for nobody: the camera keeps a 10 ms data commit interval,
+    whose batches fill dv-processing's queue with ten times the camera time of ``run``'s 1 ms
+    (a writer that falls behind loses nothing for longer), and the file holds what it read."""
+    import dv_processing as dv
+
+    world = ReplayWorld(any_street.path)
+    monkeypatch.setattr(dv.io, "camera", world)
+    out = tmp_path / "street.aedat4"
+    done = run_main(monkeypatch, capsys, ["record", "--source", "davis", "--seconds", "0.5", str(out)])
+    assert done.returncode == 0, done.stderr
+    assert [us for _, us in world.time_intervals] == [10_000], world.time_intervals
+    assert read_info(out).n_events > 0
 
 
 @pytest.mark.parametrize(

@@ -110,9 +110,14 @@ def record(
         raise NeurotouchError("--fast needs --seconds: how much of the simulated gel to record")
     with contextlib.ExitStack() as stack:
         if source == SourceKind.DAVIS:
-            from neurotouch_hid.sources.davis import DavisSource
+            from dataclasses import replace
 
-            camera = stack.enter_context(DavisSource(davis_config(serial, exposure_us, 1.0)))
+            from neurotouch_hid.sources.davis import REST_COMMIT_INTERVAL_US, DavisSource
+
+            # a recording waits for nobody: the longest commit interval, whose batches fill the
+            # driver's queue with the most camera time for a writer that falls behind
+            config = replace(davis_config(serial, exposure_us, 1.0), commit_interval_us=REST_COMMIT_INTERVAL_US)
+            camera = stack.enter_context(DavisSource(config))
             stream, name = camera.stream(seconds=seconds, batch_us=10_000), camera.camera_name
         else:
             from neurotouch_hid.sources.simulator import SimulatedSource

@@ -19,15 +19,24 @@ alive through faults:
 * **A consumer slower than the camera**: one poll takes everything queued, up to 64 event packets
   and 8 APS frames, each frame placed before the events at or after its timestamp
   (:func:`in_time_order`): the frames do not fall behind the events.
+* **Events as soon as they reach the host**: dv-processing opens a DAVIS with a 10 ms data commit
+  interval (``getTimeInterval``; libcaer's packet container interval: the events a USB transfer
+  brings reach the queue this source polls only once an event passes the interval), so events
+  waited up to 10 ms on the host, about 5 ms on average, before the source saw them. The source
+  sets it to :data:`COMMIT_INTERVAL_US` (1 ms, the early packet delay's) when it opens the camera
+  (``DavisConfig.commit_interval_us``: ``record``, for which latency does not count, keeps 10 ms,
+  whose batches fill the driver's queue with ten times the camera time).
 * **A resting gel**: while the stream's consumer says the gel rests
   (:attr:`~neurotouch_hid.sources.PollPause.resting`), the camera's USB early packet delay (how
-  long data that does not fill a USB transfer waits in the camera's FX3) is the resting windows'
-  length, at most :data:`REST_EARLY_PACKET_DELAY_US`, instead of :data:`EARLY_PACKET_DELAY_US`:
-  a resting gel's noise events come in one short transfer a window, not one a millisecond, and
-  the host's reader wakes as often. Meanwhile a poll that brings nothing waits for the camera's
+  long data that does not fill a USB transfer waits in the camera's FX3) and dv-processing's data
+  commit interval are the resting windows' length, at most :data:`REST_EARLY_PACKET_DELAY_US` and
+  :data:`REST_COMMIT_INTERVAL_US`, instead of :data:`EARLY_PACKET_DELAY_US` and
+  :data:`COMMIT_INTERVAL_US`: a resting gel's noise events come in one short transfer a window,
+  not one a millisecond, the host's reader wakes as often, and its queue gets one batch a window.
+  Meanwhile a poll that brings nothing waits for the camera's
   next transfer (the last one's arrival + that delay), not only for the window's end: polls
-  before it would find nothing. At the first window that does not rest the delay is set back,
-  from the source's thread at its next poll (what the camera held then goes at once).
+  before it would find nothing. At the first window that does not rest both are set back, from
+  the source's thread at its next poll (what the camera held then goes at once).
 
 The capture interface
 ---------------------
@@ -40,8 +49,9 @@ replay of AEDAT4 recordings (tests/camera_replay.py) instead of a camera:
 * a *camera* with ``getCameraName()``, ``getEventResolution()`` ((width, height) or None),
   ``isFrameStreamAvailable()``, ``isRunning()``, ``getNextEventBatch()`` (None or an event store
   with ``len()`` and ``numpy()``), ``getNextFrame()`` (None or a frame with ``timestamp`` (us) and
-  ``image`` (uint8)) and, on a DAVIS, ``setFrameInterval``, ``setExposureDuration``,
-  ``setAutoExposure`` and ``setUSBEarlyPacketDelay`` (dv-processing ``io.camera.DAVIS``,
+  ``image`` (uint8)), ``setTimeInterval`` (the data commit interval; dv-processing
+  ``io.camera.CameraInputBase``) and, on a DAVIS, ``setFrameInterval``, ``setExposureDuration``,
+  ``setAutoExposure`` and ``setUSBEarlyPacketDelay`` (dv-processing ``io.camera.DAVIS``; all
   durations as ``datetime.timedelta``).
 """
 
@@ -76,6 +86,13 @@ EARLY_PACKET_DELAY_US = 1000
 #: wait in the camera at most this long; on the families' game sessions that moves no family's
 #: dead-zone latency median or p90 (docs/performance.md, "At rest").
 REST_EARLY_PACKET_DELAY_US = 10_000
+#: dv-processing's data commit interval (us) outside rest, set when the camera is opened (it opens
+#: a DAVIS with 10 ms): events reach the source's polls at most this long after the USB transfer
+#: that brought them, as the early packet delay lets a transfer wait in the camera.
+COMMIT_INTERVAL_US = 1000
+#: The longest data commit interval (us) while the gel rests: one 10 ms window, dv-processing's own
+#: default, so that a resting gel's data reach the host's queue as before, one batch a window.
+REST_COMMIT_INTERVAL_US = 10_000
 #: While the gel rests, a poll that brings nothing waits at least until the camera's next transfer
 #: is due: the last data's arrival + the early packet delay in force + this much (s). The FX3 sends
 #: a short transfer once its oldest data waited the delay, and that wait starts with the first event
@@ -134,6 +151,12 @@ class DavisConfig:
             events even at rest, so silence means a fault.
         retry_initial_s, retry_max_s: back-off between attempts to open the camera again (s):
             the first wait, doubled after each failure up to the maximum.
+        commit_interval_us: dv-processing's data commit interval outside rest (us): events wait
+            on the host at most about this long after the USB transfer that brought them. The
+            driver's queue holds a number of batches (about 256 in the test kernel), so a longer
+            interval holds more camera time for a reader that falls behind: 1 ms (the default,
+            :data:`COMMIT_INTERVAL_US`) about 0.3 s, 10 ms about 2.5 s (``record``'s, for which
+            latency does not count; docs/performance.md, "Runtime latency").
     """
 
     serial: str | None = None
@@ -142,8 +165,14 @@ class DavisConfig:
     stall_timeout_s: float = 1.0
     retry_initial_s: float = 0.25
     retry_max_s: float = 4.0
+    commit_interval_us: int = COMMIT_INTERVAL_US
 
     def __post_init__(self) -> None:
+        if not COMMIT_INTERVAL_US <= self.commit_interval_us <= REST_COMMIT_INTERVAL_US:
+            raise ValueError(
+                f"data commit interval must be {COMMIT_INTERVAL_US}-{REST_COMMIT_INTERVAL_US} us, "
+                f"got {self.commit_interval_us} us"
+            )
         if self.frame_interval_us <= 0:
             raise ValueError(f"frame interval must be positive, got {self.frame_interval_us} us")
         if self.exposure_us is not None and not 0 < self.exposure_us <= self.frame_interval_us:
@@ -157,6 +186,23 @@ class DavisConfig:
             raise ValueError(
                 f"retry back-off needs 0 < initial <= maximum, got {self.retry_initial_s} s and {self.retry_max_s} s"
             )
+
+
+def _set_us(camera: Any, setter: str, value_us: int) -> None:
+    """``camera.SETTER(timedelta(value_us))`` when the camera has that setter (a DAVIS has them
+    all; the capture interface's other cameras may lack one). Raises what dv-processing raises."""
+    method = getattr(camera, setter, None)
+    if method is not None:
+        method(datetime.timedelta(microseconds=value_us))
+
+
+def _try_set_us(camera: Any, setter: str, value_us: int) -> None:
+    """:func:`_set_us`, a failure left for the next poll to find (an unplug shows there; until then
+    the camera sends as it did)."""
+    try:
+        _set_us(camera, setter, value_us)
+    except DV_ERRORS:
+        pass
 
 
 def backoff_delays(initial_s: float, maximum_s: float) -> Iterator[float]:
@@ -252,6 +298,7 @@ class DavisSource:
         self._clock, self._sleep = clock, sleep
         self._camera: Any = None
         self._early_packet_delay_us = EARLY_PACKET_DELAY_US  # as the open camera has it
+        self._commit_interval_us = self.config.commit_interval_us  # likewise
         self.camera_name: str | None = None
         self.has_frames = False
         if not wait:
@@ -301,16 +348,20 @@ class DavisSource:
             self._configure(camera)
             self._camera = camera
             self._early_packet_delay_us = EARLY_PACKET_DELAY_US
+            self._commit_interval_us = self.config.commit_interval_us
             self.camera_name = camera.getCameraName()
             self.has_frames = bool(camera.isFrameStreamAvailable())
             return None
         return problems
 
     def _configure(self, camera: Any) -> None:
-        """APS frame interval and exposure (dv-processing ``io.camera.DAVIS`` setters)."""
+        """The data commit interval (``config.commit_interval_us``), APS frame interval and
+        exposure (dv-processing ``io.camera.DAVIS`` setters). Raises what dv-processing raises
+        (the camera is then not used)."""
+        cfg = self.config
+        _set_us(camera, "setTimeInterval", cfg.commit_interval_us)
         if not hasattr(camera, "setFrameInterval"):
             return
-        cfg = self.config
         camera.setFrameInterval(datetime.timedelta(microseconds=cfg.frame_interval_us))
         if cfg.exposure_us is None:
             camera.setAutoExposure(True)
@@ -319,26 +370,27 @@ class DavisSource:
             camera.setExposureDuration(datetime.timedelta(microseconds=cfg.exposure_us))
 
     def _follow_rest(self, pause: PollPause) -> None:
-        """The open camera's USB early packet delay as the gel rests or not (module docstring):
-        the resting windows' length, at most :data:`REST_EARLY_PACKET_DELAY_US`, while ``pause``
-        says the gel rests, else :data:`EARLY_PACKET_DELAY_US`. A camera that refuses is left as
-        it is (it then sends as before)."""
+        """The open camera's USB early packet delay and data commit interval as the gel rests or
+        not (module docstring): the resting windows' length, at most
+        :data:`REST_EARLY_PACKET_DELAY_US` and :data:`REST_COMMIT_INTERVAL_US`, while ``pause``
+        says the gel rests, else :data:`EARLY_PACKET_DELAY_US` and ``config.commit_interval_us``.
+        A camera that refuses is left as it is (it then sends and commits as before)."""
         window_us = pause.resting_window_us()
-        want = (
-            EARLY_PACKET_DELAY_US
-            if window_us is None
-            else max(EARLY_PACKET_DELAY_US, min(window_us, REST_EARLY_PACKET_DELAY_US))
-        )
         camera = self._camera
-        if want == self._early_packet_delay_us or camera is None:
+        if camera is None:
             return
-        self._early_packet_delay_us = want
-        setter = getattr(camera, "setUSBEarlyPacketDelay", None)  # a DAVIS's; the capture interface's others lack it
-        if setter is not None:
-            try:
-                setter(datetime.timedelta(microseconds=want))
-            except DV_ERRORS:
-                pass  # an unplug shows at the next poll; until then the camera sends as it did
+        commit = self.config.commit_interval_us
+        if window_us is None:
+            delay = EARLY_PACKET_DELAY_US
+        else:
+            delay = max(EARLY_PACKET_DELAY_US, min(window_us, REST_EARLY_PACKET_DELAY_US))
+            commit = max(commit, min(window_us, REST_COMMIT_INTERVAL_US))
+        if delay != self._early_packet_delay_us:
+            self._early_packet_delay_us = delay
+            _try_set_us(camera, "setUSBEarlyPacketDelay", delay)
+        if commit != self._commit_interval_us:
+            self._commit_interval_us = commit
+            _try_set_us(camera, "setTimeInterval", commit)
 
     def _poll_wait(self, pause: PollPause, last_data: float, now: float) -> float:
         """How long (s) a poll that brought nothing waits: ``pause()`` (its consumer's decision,
