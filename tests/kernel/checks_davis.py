@@ -6,8 +6,9 @@ through libusb as it would open the real camera. The gadget is started once, the
 set runs against it, each with its own verdict (a failing part does not hide the others), and
 finally SIGTERM, which must unplug it. Two sets, two guest checks:
 
-- :data:`PARTS` (here, in every test run): the USB descriptors, ``neurotouch-hid devices`` and
-  ``record --source davis``;
+- :data:`PARTS` (here, in every test run): the USB descriptors, ``neurotouch-hid devices``,
+  ``record --source davis`` and the product's DavisSource read directly: the data commit interval
+  dv-processing reports and the events' age when they reach the source (event_age.py);
 - :data:`PIPELINE_PARTS` (checks_davis_pipeline.py, the slow tier, ``pytest -m slow``):
   ``calibrate --source davis``, ``run --source davis --output jsonl``, the same stream as a
   recording through ``run --source FILE`` (the live camera rests as a recording does: context
@@ -795,12 +796,22 @@ def _at_rest(camera: EmulatedCamera) -> dict:
     return result
 
 
+def _event_age(camera: EmulatedCamera) -> dict:
+    """DavisSource in this process on the camera (event_age.through_davis_source, a few seconds):
+    the data commit interval dv-processing reports and the event batches' age and span, touched
+    and at rest. Asserted on by tests/test_davis_kernel.py."""
+    import event_age
+
+    return event_age.through_davis_source(camera.log, CAMERA_SERIAL)
+
+
 #: The parts of the default test run: the camera's USB path, no gesture pipeline (one Python
 #: start each, about a minute under emulation).
 PARTS = {
     "descriptors": _descriptors,
     "devices": _devices,
     "record": _record,
+    "event_age": _event_age,
 }
 #: The parts that run the gesture pipeline on the camera (numba's code under emulation: about 5
 #: minutes on an idle host, 8 to 17 on a loaded one): the slow tier, checks_davis_pipeline.py.
