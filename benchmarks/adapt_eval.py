@@ -79,7 +79,8 @@ def family(out: Path, fam: str, users: list[int], seed: int, enrol_seed: int, la
     ``labels`` ``simulator``: adapt on the simulator's own labels of the enrolment instead."""
     from neurotouch_hid.core.dataset import list_sequences
     from neurotouch_hid.core.sensor import SensorGeometry
-    from neurotouch_hid.enrolment.adapt import adapt, fitted_info, record_datasets, summary
+    from neurotouch_hid.enrolment.adapt import adapt, fitted_info, summary
+    from neurotouch_hid.enrolment.adapt_record import record_datasets
     from neurotouch_hid.enrolment.model import Model, apply_model
     from neurotouch_hid.evaluation.metrics import Observations, evaluate
     from neurotouch_hid.evaluation.runner import run_sequence

@@ -1,4 +1,4 @@
-"""Adaptation (``enrolment/adapt.py``, ``enrolment/model.py``; docs/method.md, "Adaptation"): the
+"""Adaptation (``enrolment/adapt*.py``, ``enrolment/model.py``; docs/method.md, "Adaptation"): the
 model file, what ``adapt`` fits and keeps, and ``--model`` on the commands that run the pipeline."""
 
 from __future__ import annotations
@@ -15,16 +15,9 @@ from helpers import run_cli
 
 from neurotouch_hid.core.estimate import GestureType
 from neurotouch_hid.core.sensor import SensorGeometry
-from neurotouch_hid.enrolment.adapt import (
-    Record,
-    _felt_wrong,
-    _fit_first_finger,
-    adapt,
-    held_out_prompts,
-    record_datasets,
-    replay,
-    summary,
-)
+from neurotouch_hid.enrolment.adapt import adapt, summary
+from neurotouch_hid.enrolment.adapt_fit import _felt_wrong, _fit_first_finger, replay
+from neurotouch_hid.enrolment.adapt_record import Record, held_out_prompts, record_datasets
 from neurotouch_hid.enrolment.model import (
     Model,
     ModelError,

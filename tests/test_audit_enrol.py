@@ -88,7 +88,8 @@ def test_adapt_on_too_few_gestures_replaces_no_model_where_out_says(small, tmp_p
 def test_adapt_says_which_gesture_types_the_enrolment_lacks(small):
     """A hand that could not perform some gesture types (left out of the enrolment): the summary
     names them, since nothing it changed was checked on them."""
-    from neurotouch_hid.enrolment.adapt import adapt, record_datasets, summary
+    from neurotouch_hid.enrolment.adapt import adapt, summary
+    from neurotouch_hid.enrolment.adapt_record import record_datasets
 
     adaptation = adapt(record_datasets([small]))
     assert adaptation.missing == ("zoom", "twist_ccw")

@@ -155,7 +155,7 @@ def test_adapt_refuses_labels_the_shipped_recogniser_contradicts_wholesale(
     given before they were checked): adapt writes no model and says why; the same recording
     labelled right passes the check."""
     from neurotouch_hid.core.dataset import write_labels
-    from neurotouch_hid.enrolment.adapt import contradiction, record_datasets
+    from neurotouch_hid.enrolment.adapt_record import contradiction, record_datasets
     from neurotouch_hid.enrolment.label import label_frames, write_dataset
 
     folder, _ = recorded

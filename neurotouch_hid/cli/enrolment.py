@@ -300,14 +300,8 @@ def adapt(
     your model. Labels that the shipped recogniser reads as other types for most gestures are
     refused (they follow a plan the recording did not). --reset goes back to the shipped one."""
     from neurotouch_hid.enrolment.adapt import adapt as fit
-    from neurotouch_hid.enrolment.adapt import (
-        check_output,
-        contradiction,
-        fitted_info,
-        record_datasets,
-        simulated_sequences,
-        summary,
-    )
+    from neurotouch_hid.enrolment.adapt import check_output, fitted_info, simulated_sequences, summary
+    from neurotouch_hid.enrolment.adapt_record import contradiction, record_datasets
     from neurotouch_hid.enrolment.model import Model, reset_user_model, user_model_path
 
     if reset:

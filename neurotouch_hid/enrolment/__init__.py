@@ -13,5 +13,6 @@ One module per stage:
   shows, a subscriber to the run;
 - ``adapt.py``: the recogniser fitted to the gel and hand from enrolment datasets, checked on
   held-out prompts (``neurotouch-hid adapt``), written as ``model.py``'s model file, which ``run``,
-  ``track``, ``eval`` and ``profile test`` apply (docs/method.md, "Adaptation").
+  ``track``, ``eval`` and ``profile test`` apply (docs/method.md, "Adaptation"); the pipeline's
+  records of the enrolments in ``adapt_record.py``, their replay and the fits in ``adapt_fit.py``.
 """

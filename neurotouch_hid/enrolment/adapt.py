@@ -7,22 +7,24 @@
    resting distance (``pipeline/resting.py``). The episode vote only reads each window's type,
    intensity, contact count and time, in order, so what the pipeline would answer with other
    values of what is fitted is replayed from these records without running it again
-   (:func:`replay`; the vote is ``pipeline/episode.py``'s own).
+   (:func:`~neurotouch_hid.enrolment.adapt_fit.replay`; the vote is ``pipeline/episode.py``'s own;
+   the records are :mod:`neurotouch_hid.enrolment.adapt_record`'s).
 2. **Hold out by prompt.** The labelled gestures of each type are numbered in time; every third,
-   from the second on (:data:`HOLD_EVERY`), is held out, with the rest before it: the fit never
-   sees a window of a held-out gesture.
+   from the second on (:data:`~neurotouch_hid.enrolment.adapt_record.HOLD_EVERY`), is held out,
+   with the rest before it: the fit never sees a window of a held-out gesture.
 3. **Fit** on the other gestures, each fitted value with the shipped one as its prior:
 
    - the learned type: the multinomial logistic regression refitted from the shipped weights,
-     L2-regularised toward them (:func:`fit_classifier`; the strength picked by a 3-fold
-     cross-validation by gesture within the fitted part);
+     L2-regularised toward them (:func:`~neurotouch_hid.enrolment.adapt_fit.fit_classifier`; the
+     strength picked by a 3-fold cross-validation by gesture within the fitted part);
    - the minimum intensity (the contact threshold, ``gesture.min_intensity_mm``), from the shipped
      value up (:data:`MIN_INTENSITY_STEPS`), scored on the windows outside a collar about each
      change of the labelled type (:data:`THRESHOLD_COLLAR_US`);
    - how long one contact alone keeps an episode undecided (``episode.first_finger_us``, the hand's
      lag between its first and second finger), from the shipped value down
-     (:data:`FIRST_FINGER_STEPS_US`), the fitted part's best accuracy among the values that show no
-     more windows of another type above the dead zone (:data:`DEADZONE_MM`) than the shipped one;
+     (:data:`~neurotouch_hid.enrolment.adapt_fit.FIRST_FINGER_STEPS_US`), the fitted part's best
+     accuracy among the values that show no more windows of another type above the dead zone
+     (:data:`~neurotouch_hid.enrolment.adapt_fit.DEADZONE_MM`) than the shipped one;
    - the resting threshold (``resting.centroid_threshold_mm2``), the frames' best resting F1;
    - the intensity scale (``gesture.intensity_gain``), least squares against the labels.
 
@@ -38,35 +40,31 @@
 from __future__ import annotations
 
 import math
-from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
 
 from neurotouch_hid.core.errors import DatasetError, NeurotouchError
-from neurotouch_hid.core.estimate import GestureType
-from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
-from neurotouch_hid.evaluation.metrics import outside_collar
+from neurotouch_hid.enrolment.adapt_fit import (
+    _accuracy,
+    _felt_wrong,
+    _fit_first_finger,
+    _mae,
+    _resting_f1,
+    _rows,
+    fit_classifier,
+    pick_strength,
+    replay,
+)
+from neurotouch_hid.enrolment.adapt_record import Record, held_out_prompts
 from neurotouch_hid.pipeline.episode import FIRST_FINGER_US
-from neurotouch_hid.pipeline.learned import CLASSES, FEATURES, Classifier
+from neurotouch_hid.pipeline.learned import CLASSES
 
-#: Every HOLD_EVERY-th labelled gesture of each type, from the second on, is held out.
-HOLD_EVERY = 3
-#: Regularisation strengths toward the shipped weights tried by the cross-validation (per window,
-#: on the standardised features; larger: closer to the shipped model).
-PRIOR_STRENGTHS = (0.001, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0)
 #: Minimum intensities tried (multiples of the shipped one; only up: a lower one would need the
 #: windows the shipped threshold skipped).
 MIN_INTENSITY_STEPS = (1.0, 1.25, 1.5, 2.0, 2.5)
-#: How long one contact alone keeps an episode undecided, tried (us; only down from the shipped
-#: FIRST_FINGER_US: a longer wait only delays every answer). A hand whose fingers land together
-#: needs no wait; one whose second finger lags needs the shipped one.
-FIRST_FINGER_STEPS_US = (0, 30_000, 45_000, 60_000, 75_000, FIRST_FINGER_US)
-#: A window of another type (not ``none``) at or above this intensity (mm) is felt wrong: the
-#: ``default`` profile's dead zone (docs/dataset.md, "Per-gesture metrics").
-DEADZONE_MM = DEFAULT_DEADZONE_MM
 #: Resting thresholds tried (multiples of the shipped one), at most the near-rest threshold.
 RESTING_STEPS = (0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 5.0)
 #: Fewest held-out gestures (all types together) for a check; fewer: the shipped model is kept.
@@ -87,453 +85,6 @@ THRESHOLD_COLLAR_US = 40_000
 #: The intensity scale is kept only when it lowers the held-out intensity MAE by more than this share
 #: of it: a scale within a few thousandths of 1 changes nothing a profile can feel.
 MIN_MAE_GAIN = 0.05
-
-
-@dataclass
-class Record:
-    """One sequence as the shipped pipeline saw it, with its labels at each window and frame.
-
-    Attributes (W windows, F frames):
-        name: the sequence (``DATASET/NAME``).
-        t_us: (W,) int64 window ends (us).
-        gesture: (W,) int8, the type before the vote: -1 ``none``, else an index into
-            :data:`~neurotouch_hid.pipeline.learned.CLASSES`.
-        intensity_mm: (W,) float64 intensity before the vote (0 for ``none``).
-        n_contacts: (W,) int16.
-        features: (W, 9) float64 learned-type features (NaN where ``gesture`` is -1).
-        answered: (W,) int8, what the pipeline answered (after the vote; -1 ``none``).
-        label: (W,) int8 labelled type (-1 ``none``, -2 no label yet).
-        label_intensity_mm: (W,) float64.
-        prompt: (W,) int64 the labelled gesture each window belongs to (rest belongs to the
-            gesture after it), unique over all records once offset.
-        frame_t_us, frame_distance_mm2: (F,) the resting detector's frames and distances (mm^2
-            per reference marker).
-        frame_resting: (F,) bool, labelled resting; frame_prompt (F,) as ``prompt``.
-        prompt_type: prompt id -> labelled type index (CLASSES) of that gesture.
-        counter_mm: (W,) float64 how far the gel moves against a lone contact's drag (mm,
-            ``pipeline/counter_drag.py``; inf where the window has not one contact), None: not
-            recorded (read as inf).
-    """
-
-    name: str
-    t_us: np.ndarray
-    gesture: np.ndarray
-    intensity_mm: np.ndarray
-    n_contacts: np.ndarray
-    features: np.ndarray
-    answered: np.ndarray
-    label: np.ndarray
-    label_intensity_mm: np.ndarray
-    prompt: np.ndarray
-    frame_t_us: np.ndarray
-    frame_distance_mm2: np.ndarray
-    frame_resting: np.ndarray
-    frame_prompt: np.ndarray
-    prompt_type: dict[int, int] = field(default_factory=dict)
-    counter_mm: np.ndarray | None = None
-
-
-def _type_index(gesture: GestureType) -> int:
-    return -1 if gesture is GestureType.NONE else CLASSES.index(gesture)
-
-
-def _recorder(sensor, config):
-    """The shipped pipeline, keeping what :class:`Record` needs of every window and frame."""
-    from neurotouch_hid.pipeline.learned import gesture_features
-    from neurotouch_hid.pipeline.pipeline import GesturePipeline
-
-    class Recorder(GesturePipeline):
-        def __init__(self) -> None:
-            super().__init__(sensor, config)
-            self.rows: list[tuple] = []
-            self.frames: list[tuple[int, float]] = []
-            self._features: np.ndarray | None = None
-
-        def _learned_type(self, result, contacts, rest_px, current, valid):
-            self._features = None
-            if result.gesture is not GestureType.NONE:
-                c = self.config
-                self._features = gesture_features(
-                    result,
-                    self.type_centres_of(contacts),
-                    rest_px,
-                    current,
-                    valid,
-                    self.sensor,
-                    c.r_px,
-                    c.origin_radius_px,
-                )
-            return super()._learned_type(result, contacts, rest_px, current, valid)
-
-        def _vote(self, gesture, intensity_mm, n_contacts, t_us):
-            one = n_contacts == 1 and gesture is not GestureType.NONE
-            counter = self._counter_drag() if one else math.inf  # as the vote reads it, for the replay
-            answer = super()._vote(gesture, intensity_mm, n_contacts, t_us)
-            feats = self._features if gesture is not GestureType.NONE else None
-            self.rows.append((t_us, _type_index(gesture), intensity_mm, n_contacts, feats, counter))
-            return answer
-
-        def _apply_resting(self, result, t_us):
-            self.frames.append((int(t_us), float(result.distance) / self.sensor.px_per_mm**2))
-            super()._apply_resting(result, t_us)
-
-    return Recorder()
-
-
-def record_sequence(dataset: str | Path, name: str, config=None) -> Record:
-    """Run the pipeline (``config``, a PipelineConfig; None: the shipped one) over one labelled
-    sequence (docs/dataset.md) and keep its :class:`Record` (prompt ids local to the sequence, from 0).
-
-    Raises:
-        DatasetError, RecordingError, SensorError: bad labels, recording or geometry.
-    """
-    from neurotouch_hid.core.dataset import dataset_sensor_file, labels_at, read_labels
-    from neurotouch_hid.core.sensor import SensorGeometry
-    from neurotouch_hid.pipeline.config import PipelineConfig
-    from neurotouch_hid.sources.recording import RecordingReader
-
-    dataset = Path(dataset)
-    sensor = SensorGeometry.load(dataset_sensor_file(dataset))
-    labels = read_labels(dataset / f"{name}.labels.csv")
-    pipeline = _recorder(sensor, config or PipelineConfig())
-    answered = []
-    with RecordingReader(dataset / f"{name}.aedat4") as reader:
-        for estimate in pipeline.run(reader.stream()):
-            answered.append(_type_index(estimate.gesture))
-    rows = pipeline.rows
-    if len(rows) != len(answered):  # every window votes once: a recorder out of step is a bug
-        raise RuntimeError(f"{name}: {len(rows)} votes for {len(answered)} windows")
-    t_us = np.array([r[0] for r in rows], dtype=np.int64)
-    features = np.full((len(rows), len(FEATURES)), np.nan)
-    for i, r in enumerate(rows):
-        if r[4] is not None:
-            features[i] = r[4]
-    # the labelled gestures in time: a new one where the type changes from the row before
-    label_t = np.array([row.t_us for row in labels], dtype=np.int64)
-    row_prompt = np.zeros(len(labels), dtype=np.int64)
-    prompt_type: dict[int, int] = {}
-    current, previous = -1, None
-    for i, row in enumerate(labels):
-        if row.gesture is not GestureType.NONE and row.gesture is not previous:
-            current += 1
-            prompt_type[current] = _type_index(row.gesture)
-        previous = row.gesture if row.gesture is not GestureType.NONE else None
-        row_prompt[i] = current if row.gesture is not GestureType.NONE else current + 1  # rest: the next one
-
-    def prompts_at(times: np.ndarray) -> np.ndarray:
-        at = np.searchsorted(label_t, times, side="right") - 1
-        return np.where(at >= 0, row_prompt[np.clip(at, 0, None)], 0)
-
-    at = labels_at(labels, t_us)
-    frames = np.array(pipeline.frames, dtype=np.float64).reshape(-1, 2)
-    frame_t = frames[:, 0].astype(np.int64)
-    frame_labels = labels_at(labels, frame_t)
-    keep = np.array([lab is not None for lab in frame_labels], dtype=bool)
-    return Record(
-        name=f"{dataset}/{name}",
-        t_us=t_us,
-        gesture=np.array([r[1] for r in rows], dtype=np.int8),
-        intensity_mm=np.array([r[2] for r in rows], dtype=np.float64),
-        n_contacts=np.array([r[3] for r in rows], dtype=np.int16),
-        counter_mm=np.array([r[5] for r in rows], dtype=np.float64),
-        features=features,
-        answered=np.array(answered, dtype=np.int8),
-        label=np.array([-2 if lab is None else _type_index(lab.gesture) for lab in at], dtype=np.int8),
-        label_intensity_mm=np.array([0.0 if lab is None else lab.intensity_mm for lab in at]),
-        prompt=prompts_at(t_us),
-        frame_t_us=frame_t[keep],
-        frame_distance_mm2=frames[keep, 1],
-        frame_resting=np.array([lab.resting for lab in frame_labels if lab is not None], dtype=bool),
-        frame_prompt=prompts_at(frame_t[keep]),
-        prompt_type=prompt_type,
-    )
-
-
-def record_datasets(
-    datasets: Sequence[str | Path],
-    jobs: int = 1,
-    on_sequence: Callable[[str], None] | None = None,
-    config=None,
-) -> list[Record]:
-    """:func:`record_sequence` over every sequence of the datasets (``jobs`` processes; ``config``
-    as there), prompt ids made unique over all of them (the same ids for the same datasets).
-    Raises what :func:`record_sequence` and ``dataset.list_sequences`` raise."""
-    import multiprocessing
-
-    from neurotouch_hid.core.dataset import list_sequences
-
-    work = [(Path(d), n) for d in datasets for n in list_sequences(d)]
-    if jobs <= 1 or len(work) == 1:
-        records = []
-        for d, n in work:
-            records.append(record_sequence(d, n, config))
-            if on_sequence is not None:
-                on_sequence(f"{d}/{n}")
-    else:
-        with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = [pool.submit(record_sequence, d, n, config) for d, n in work]
-            records = []
-            for f, (d, n) in zip(futures, work):
-                records.append(f.result())
-                if on_sequence is not None:
-                    on_sequence(f"{d}/{n}")
-    offset = 0
-    for r in records:
-        r.prompt = r.prompt + offset
-        r.frame_prompt = r.frame_prompt + offset
-        r.prompt_type = {k + offset: v for k, v in r.prompt_type.items()}
-        offset = max(r.prompt.max(initial=offset), r.frame_prompt.max(initial=offset)) + 1
-    return records
-
-
-#: ``adapt`` refuses labels when the shipped recogniser reads more than this share of the
-#: labelled gestures it reads at all as one other type each (:func:`contradiction`).
-CONTRADICTED_SHARE = 0.5
-#: ... and at least this many gestures (fewer tell nothing).
-MIN_CONTRADICTED = 3
-
-
-def read_as(records: Sequence[Record]) -> list[tuple[int, int]]:
-    """(labelled type, the type the shipped pipeline answered most over that gesture's labelled
-    windows) for each labelled gesture it answered a gesture for at all (CLASSES indices)."""
-    pairs: list[tuple[int, int]] = []
-    for r in records:
-        for prompt, kind in sorted(r.prompt_type.items()):
-            answers = r.answered[(r.prompt == prompt) & (r.label == kind) & (r.answered >= 0)]
-            if len(answers):
-                pairs.append((kind, int(np.bincount(answers.astype(np.int64)).argmax())))
-    return pairs
-
-
-def contradiction(records: Sequence[Record]) -> str | None:
-    """Why the labels look wrong, or None: the shipped recogniser, which reads most gestures of
-    most hands right, reads more than :data:`CONTRADICTED_SHARE` of the labelled gestures it
-    answers at all (at least :data:`MIN_CONTRADICTED` of them) as another type: labels made
-    from a plan the recording did not follow, not a hand to adapt to. Names the commonest
-    confusions."""
-    pairs = read_as(records)
-    wrong = [(k, a) for k, a in pairs if k != a]
-    if len(wrong) < MIN_CONTRADICTED or len(wrong) <= CONTRADICTED_SHARE * len(pairs):
-        return None
-    counts: dict[tuple[int, int], int] = {}
-    for pair in wrong:
-        counts[pair] = counts.get(pair, 0) + 1
-    common = sorted(counts.items(), key=lambda item: -item[1])[:3]
-    named = "; ".join(f"{n} labelled {CLASSES[k].value} read as {CLASSES[a].value}" for (k, a), n in common)
-    return (
-        f"the shipped recogniser reads {len(wrong)} of the {len(pairs)} labelled gestures it reads at all as "
-        f"another type ({named}): the labels, not the hand, look wrong (a recording labelled with a plan it did "
-        "not follow?); no model is fitted to them"
-    )
-
-
-def held_out_prompts(records: Sequence[Record]) -> set[int]:
-    """The prompt ids held out: per labelled type, in time, every :data:`HOLD_EVERY`-th from
-    the second on (the rest before a gesture goes with it)."""
-    held, seen = set(), {}
-    for r in records:
-        for prompt, kind in sorted(r.prompt_type.items()):
-            k = seen.get(kind, 0)
-            seen[kind] = k + 1
-            if k % HOLD_EVERY == 1:
-                held.add(prompt)
-    return held
-
-
-# --- the replay ---------------------------------------------------------------------------
-def replay(
-    record: Record,
-    classifier: Classifier | None = None,
-    min_intensity_mm: float = 0.0,
-    gain: float = 1.0,
-    first_finger_us: int = FIRST_FINGER_US,
-) -> np.ndarray:
-    """(W,) int8 what the pipeline answers (-1 ``none``, else a CLASSES index) with another
-    learned type (None: the shipped one), a minimum intensity at least the shipped one (mm), an
-    intensity gain, the episode vote's ``first_finger_us`` (us): the recorded windows through the
-    episode vote (``pipeline/episode.py``)."""
-    from neurotouch_hid.pipeline.episode import EpisodeVote
-
-    classifier = classifier or Classifier.shipped()
-    kinds = np.asarray(record.gesture, dtype=np.int64).copy()
-    gesture = kinds >= 0
-    if gesture.any():
-        kinds[gesture] = np.argmax(classifier.logits(record.features[gesture]), axis=1)
-    kinds[record.intensity_mm < min_intensity_mm] = -1
-    vote = EpisodeVote(first_finger_us=first_finger_us)
-    types = (*CLASSES, GestureType.NONE)  # index -1: none
-    out = np.empty(len(kinds), dtype=np.int8)
-    counter = record.counter_mm if record.counter_mm is not None else np.full(len(kinds), math.inf)
-    for i, (t, k, intensity, n, c) in enumerate(
-        zip(
-            record.t_us.tolist(),
-            kinds.tolist(),
-            record.intensity_mm.tolist(),
-            record.n_contacts.tolist(),
-            counter.tolist(),
-        )
-    ):
-        if k < 0:
-            answer = vote.update(GestureType.NONE, 0.0, 0, t)
-        else:
-            answer = vote.update(types[k], intensity * gain, n, t, c)
-        out[i] = _type_index(answer)
-    return out
-
-
-def _accuracy(
-    records: Sequence[Record], answers: Sequence[np.ndarray], prompts: set[int], collar_us: int = 0
-) -> tuple[float, int]:
-    """(gesture type accuracy, windows) over the labelled windows of ``prompts``; with ``collar_us``
-    > 0, only those more than that (us) from every change of the labelled type
-    (:func:`~neurotouch_hid.evaluation.metrics.outside_collar`)."""
-    right = total = 0
-    for r, a in zip(records, answers):
-        m = (r.label >= -1) & np.isin(r.prompt, list(prompts))
-        if collar_us > 0:
-            m &= outside_collar(r.t_us, r.label, r.t_us, collar_us)
-        right += int(np.sum(a[m] == r.label[m]))
-        total += int(m.sum())
-    return (right / total if total else float("nan")), total
-
-
-def _felt_wrong(records: Sequence[Record], answers: Sequence[np.ndarray], prompts: set[int]) -> int:
-    """Windows of ``prompts`` labelled a gesture and answered another one (not ``none``) at an
-    intensity at least :data:`DEADZONE_MM`: what a player would feel as the wrong gesture."""
-    wrong = 0
-    for r, a in zip(records, answers):
-        m = (r.label >= 0) & (a >= 0) & (a != r.label) & (r.intensity_mm >= DEADZONE_MM)
-        wrong += int(np.sum(m & np.isin(r.prompt, list(prompts))))
-    return wrong
-
-
-# --- the fits -----------------------------------------------------------------------------
-def _rows(records: Sequence[Record], prompts: set[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(features (n, 9), labelled class (n,), prompt (n,)) of the windows of ``prompts`` the rule
-    and the labels both call a gesture: what the learned type is fitted on."""
-    x, y, p = [], [], []
-    for r in records:
-        m = (r.gesture >= 0) & (r.label >= 0) & np.isin(r.prompt, list(prompts))
-        x.append(r.features[m])
-        y.append(r.label[m].astype(np.int64))
-        p.append(r.prompt[m])
-    return np.concatenate(x), np.concatenate(y), np.concatenate(p)
-
-
-def fit_classifier(
-    x: np.ndarray, y: np.ndarray, strength: float, prior: Classifier | None = None, steps: int = 30
-) -> Classifier:
-    """The multinomial logistic regression fitted to (n, 9) features and (n,) class indices by
-    Newton's method, the shipped model (``prior``) as its prior: it minimises the mean
-    cross-entropy plus ``strength`` / 2 times the squared distance of the weights and intercepts
-    to the prior's, on the prior's standardisation (kept). NumPy only."""
-    prior = prior or Classifier.shipped()
-    k, d = len(CLASSES), len(FEATURES)
-    z = np.hstack([(x - prior.mean) / prior.scale, np.ones((len(x), 1))])  # (n, d + 1)
-    theta0 = np.hstack([prior.weights, prior.intercept[:, None]])  # (k, d + 1)
-    theta = theta0.copy()
-    onehot = np.eye(k)[y]
-    n = max(len(x), 1)
-
-    def loss(th: np.ndarray) -> float:
-        logits = z @ th.T
-        logits -= logits.max(axis=1, keepdims=True)
-        logp = logits - np.log(np.exp(logits).sum(axis=1, keepdims=True))
-        return -float(np.sum(onehot * logp)) / n + 0.5 * strength * float(np.sum((th - theta0) ** 2))
-
-    current = loss(theta)
-    for _ in range(steps):
-        logits = z @ theta.T
-        logits -= logits.max(axis=1, keepdims=True)
-        p = np.exp(logits)
-        p /= p.sum(axis=1, keepdims=True)
-        grad = ((p - onehot).T @ z) / n + strength * (theta - theta0)  # (k, d + 1)
-        hess = np.empty((k, d + 1, k, d + 1))
-        for a in range(k):
-            for b in range(a, k):
-                w = p[:, a] * ((a == b) - p[:, b])
-                block = (z * w[:, None]).T @ z / n
-                hess[a, :, b, :] = block
-                hess[b, :, a, :] = block.T
-        m = k * (d + 1)
-        h = hess.reshape(m, m) + strength * np.eye(m)
-        step = np.linalg.solve(h, grad.reshape(m)).reshape(k, d + 1)
-        t = 1.0
-        while t > 1e-4:  # backtracking: Newton's step may overshoot on separable data
-            candidate = theta - t * step
-            value = loss(candidate)
-            if value <= current:
-                break
-            t *= 0.5
-        else:
-            break
-        done = current - value < 1e-10
-        theta, current = candidate, value
-        if done:
-            break
-    return Classifier(prior.mean.copy(), prior.scale.copy(), theta[:, :d].copy(), theta[:, d].copy())
-
-
-def pick_strength(x: np.ndarray, y: np.ndarray, prompts: np.ndarray) -> float:
-    """The prior strength (:data:`PRIOR_STRENGTHS`) with the most right windows over a 3-fold
-    cross-validation by gesture, stratified by type (each type's gestures, in time, dealt to the
-    folds in turn); ties go to the stronger prior."""
-    fold_of: dict[int, int] = {}
-    dealt: dict[int, int] = {}
-    for prompt in np.unique(prompts).tolist():
-        kind = int(np.bincount(y[prompts == prompt]).argmax())
-        fold_of[prompt] = dealt.get(kind, 0) % 3
-        dealt[kind] = dealt.get(kind, 0) + 1
-    folds = np.array([fold_of[p] for p in prompts.tolist()], dtype=np.int64)
-    best, best_score = PRIOR_STRENGTHS[-1], -1
-    for strength in sorted(PRIOR_STRENGTHS, reverse=True):
-        right = 0
-        for fold in range(3):
-            test = folds == fold
-            if test.all() or not test.any():
-                continue
-            model = fit_classifier(x[~test], y[~test], strength)
-            right += int(np.sum(np.argmax(model.logits(x[test]), axis=1) == y[test]))
-        if right > best_score:
-            best, best_score = strength, right
-    return best
-
-
-def _fit_first_finger(
-    records: Sequence[Record], classifier: Classifier | None, min_intensity_mm: float, prompts: set[int]
-) -> int:
-    """The first finger's wait (us, of :data:`FIRST_FINGER_STEPS_US`) with the best gesture type
-    accuracy over the windows of ``prompts`` among those with no more windows felt wrong there
-    (:func:`_felt_wrong`) than the shipped wait; ties go to the longer wait."""
-    scores = []
-    for wait in FIRST_FINGER_STEPS_US:
-        answers = [replay(r, classifier, min_intensity_mm, first_finger_us=wait) for r in records]
-        scores.append((wait, _accuracy(records, answers, prompts)[0], _felt_wrong(records, answers, prompts)))
-    shipped_felt = next(felt for wait, _, felt in scores if wait == FIRST_FINGER_US)
-    allowed = [(accuracy, wait) for wait, accuracy, felt in scores if felt <= shipped_felt]
-    return max(allowed)[1]
-
-
-def _resting_f1(records: Sequence[Record], prompts: set[int], threshold: float) -> float:
-    tp = fp = fn = 0
-    for r in records:
-        m = np.isin(r.frame_prompt, list(prompts))
-        said = r.frame_distance_mm2[m] <= threshold
-        truth = r.frame_resting[m]
-        tp += int(np.sum(said & truth))
-        fp += int(np.sum(said & ~truth))
-        fn += int(np.sum(~said & truth))
-    return 2 * tp / (2 * tp + fp + fn) if tp else 0.0
-
-
-def _mae(records: Sequence[Record], prompts: set[int], gain: float) -> tuple[float, int]:
-    """Intensity MAE (mm) over windows of ``prompts`` labelled and read as a gesture, and their count."""
-    err, n = 0.0, 0
-    for r in records:
-        m = (r.label >= 0) & (r.gesture >= 0) & np.isin(r.prompt, list(prompts))
-        err += float(np.sum(np.abs(r.intensity_mm[m] * gain - r.label_intensity_mm[m])))
-        n += int(m.sum())
-    return (err / n if n else float("nan")), n
 
 
 # --- adapt --------------------------------------------------------------------------------
