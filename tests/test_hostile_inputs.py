@@ -1071,8 +1071,9 @@ def test_relative_counts_per_step_stay_within_an_event():
     """2000 wheel mappings at the highest speed sum to more hi-res counts in a step than an
     event's signed 32 bits hold (python-evdev raised OverflowError): the step is clamped."""
     from neurotouch_hid.core.estimate import GestureEstimate, GestureType
-    from neurotouch_hid.mapping.mapper import MAX_REL_COUNTS_PER_STEP, Mapper
+    from neurotouch_hid.mapping.mapper import Mapper
     from neurotouch_hid.mapping.profile import parse_profile
+    from neurotouch_hid.mapping.rel_motion import MAX_REL_COUNTS_PER_STEP
 
     text = "mappings:\n" + "".join(
         f"  w{i}: {{input: intensity, output: {'REL_WHEEL' if i % 2 else 'REL_X'}, speed: 100000}}\n"

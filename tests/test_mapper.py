@@ -10,7 +10,8 @@ import pytest
 from neurotouch_hid.core.controller import AXES
 from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 from neurotouch_hid.mapping.filters import OneEuroFilter, response
-from neurotouch_hid.mapping.mapper import Mapper, gesture_inputs
+from neurotouch_hid.mapping.inputs import gesture_inputs
+from neurotouch_hid.mapping.mapper import Mapper
 from neurotouch_hid.mapping.profile import Profile, load_profile, shipped_profiles_dir
 from neurotouch_hid.mapping.replay import replay, summarise, tuned_saturations
 

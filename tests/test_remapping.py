@@ -11,8 +11,10 @@ import pytest
 from neurotouch_hid.core.controller import AXES
 from neurotouch_hid.core.errors import ProfileError
 from neurotouch_hid.core.estimate import GestureEstimate, GestureType
-from neurotouch_hid.mapping.mapper import HI_RES_PER_DETENT, Activator, Mapper, RelMotion
+from neurotouch_hid.mapping.activator import Activator
+from neurotouch_hid.mapping.mapper import Mapper
 from neurotouch_hid.mapping.profile import Profile, load_profile, parse_profile
+from neurotouch_hid.mapping.rel_motion import HI_RES_PER_DETENT, RelMotion
 
 G = GestureType
 MS = 1000  # us

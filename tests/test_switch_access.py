@@ -9,7 +9,7 @@ import pytest
 
 from neurotouch_hid.core.errors import ProfileError
 from neurotouch_hid.core.estimate import GestureEstimate, GestureType
-from neurotouch_hid.mapping.mapper import Activator
+from neurotouch_hid.mapping.activator import Activator
 from neurotouch_hid.mapping.profile import MAX_TAP_MS, load_profile, parse_profile
 from neurotouch_hid.mapping.replay import pressed, replay
 

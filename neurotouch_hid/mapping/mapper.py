@@ -17,7 +17,9 @@ import numpy as np
 
 from neurotouch_hid.core.controller import AXES, BUTTONS, MOUSE_REL, TRIGGERS, ControllerState
 from neurotouch_hid.core.estimate import GestureEstimate, GestureType
+from neurotouch_hid.mapping.activator import Activator
 from neurotouch_hid.mapping.filters import OneEuroFilter, response
+from neurotouch_hid.mapping.inputs import TYPE_INPUTS, felt_level, gesture_inputs
 from neurotouch_hid.mapping.profile import (
     ANALOG_AXES,
     BASE_LAYER,
@@ -25,93 +27,19 @@ from neurotouch_hid.mapping.profile import (
     STICKS,
     AxisMapping,
     ButtonMapping,
-    LayerSwitch,
     OneEuroSmoothing,
     PointerMapping,
     Profile,
     RelMapping,
     StickMapping,
-    TouchClick,
 )
+from neurotouch_hid.mapping.rel_motion import RelMotion, Wheel
 from neurotouch_hid.mapping.touchpad import TouchTracker
-
-_ZERO2 = np.zeros(2)
-
-
-def gesture_inputs(estimate: GestureEstimate) -> dict[str, np.ndarray | float]:
-    """Every input quantity of the profile schema for one estimate (mm, user frame).
-
-    The inputs of no one type (``intensity``, ``contact``, ``contact_x``, ``contact_y``) also
-    follow a window whose type is not decided yet (``none`` with an intensity above 0 and not
-    resting: the pipeline waits for a second finger; docs/method.md, "Episode vote"), so an output
-    mapped from them neither waits for the type nor drops back while it is decided.
-
-    Returns:
-        name -> float, or (2,) float64 for ``push`` and ``contact``. All zero when the gel rests
-        or the window is ``none`` without intensity; the typed inputs are zero while ``none``;
-        non-finite estimate values count as 0.
-    """
-    gesture = estimate.gesture
-    moving = not estimate.resting and math.isfinite(estimate.intensity_mm) and estimate.intensity_mm > 0
-    active = moving and gesture != GestureType.NONE
-    any_intensity = float(estimate.intensity_mm) if moving else 0.0
-    intensity = any_intensity if active else 0.0
-    push = _ZERO2
-    if gesture == GestureType.PUSH and intensity > 0:
-        dx, dy = float(estimate.translation_mm[0]), float(estimate.translation_mm[1])
-        norm = float(np.hypot(dx, dy)) if math.isfinite(dx) and math.isfinite(dy) else 0.0
-        if norm > 0:
-            push = np.array((dx / norm * intensity, dy / norm * intensity))
-    contact = _ZERO2
-    if moving and estimate.n_contacts > 0 and len(estimate.contacts_mm) > 0:
-        cx, cy = float(estimate.contacts_mm[0][0]), float(estimate.contacts_mm[0][1])
-        contact = np.array((cx, cy)) if math.isfinite(cx) and math.isfinite(cy) else _ZERO2
-    twist = {GestureType.TWIST_CCW: intensity, GestureType.TWIST_CW: -intensity}.get(gesture, 0.0)
-    pinch = intensity if gesture == GestureType.PINCH else 0.0
-    zoom = intensity if gesture == GestureType.ZOOM else 0.0
-    return {
-        "push": push,
-        "contact": contact,
-        "intensity": any_intensity,
-        "push_intensity": intensity if gesture == GestureType.PUSH else 0.0,
-        "push_x": float(push[0]),
-        "push_y": float(push[1]),
-        "push_up": max(float(push[1]), 0.0),
-        "push_down": max(-float(push[1]), 0.0),
-        "push_left": max(-float(push[0]), 0.0),
-        "push_right": max(float(push[0]), 0.0),
-        "twist": twist,
-        "twist_ccw": max(twist, 0.0),
-        "twist_cw": max(-twist, 0.0),
-        "pinch": pinch,
-        "zoom": zoom,
-        "pinch_zoom": zoom - pinch,
-        "contact_x": float(contact[0]),
-        "contact_y": float(contact[1]),
-    }
-
-
-#: Inputs that belong to one gesture type (zero under any other): a type change hands them over.
-#: ``intensity`` and ``contact*`` go on through a change.
-TYPE_INPUTS = frozenset(
-    ("push", "push_intensity", "push_x", "push_y", "push_up", "push_down", "push_left", "push_right")
-    + ("twist", "twist_ccw", "twist_cw", "pinch", "zoom", "pinch_zoom")
-)
 
 #: The evdev axes whose up is negative (the kernel's gamepad.rst and REL_Y's convention): a
 #: positive scalar mapped onto one of them (``push_y``, ``contact_y``, ``pinch_zoom``...) moves
 #: it up, as a stick mapping's user +y does.
 UP_IS_NEGATIVE = frozenset(("ABS_Y", "ABS_RY", "REL_Y"))
-
-#: Longest camera-time step (us) the pointer and wheels integrate over: a gap in the data (a
-#: dropped batch, a pause) must not turn into one long jump.
-MAX_MOTION_STEP_US = 100_000
-#: Most counts a relative axis moves in one step (pointer px, or hi-res wheel units): a mouse
-#: reports a few hundred at most; an event holds a signed 32-bit value, which a profile summing
-#: many fast mappings would pass (python-evdev raises OverflowError).
-MAX_REL_COUNTS_PER_STEP = 10_000
-#: Hi-res wheel units per detent (the kernel's REL_WHEEL_HI_RES convention).
-HI_RES_PER_DETENT = 120
 
 
 def _filter_for(smoothing: OneEuroSmoothing | None) -> OneEuroFilter | None:
@@ -127,190 +55,6 @@ def _to_axis(name: str, value: float) -> int:
     if low == neutral:  # a trigger: only the positive side
         return int(round(max(value, 0.0) * high))
     return int(round(value * (high if value >= 0 else -low)))
-
-
-class Activator:
-    """A button-like output's hysteresis and activator, on the camera clock.
-
-    The input is *held* from reaching ``press_mm`` (>=) until it falls below ``release_mm`` (<).
-    ``update(value_mm, t_us) -> bool`` is the output's state at ``t_us`` (int us, camera clock,
-    never decreasing) for the modes of :class:`~neurotouch_hid.mapping.profile.ButtonMapping`:
-    ``hold``, ``tap`` (down from ``dwell_ms`` after the hold began for at most ``tap_ms``, once
-    per hold), ``toggle``, ``long_press`` (down from ``dwell_ms`` after the hold began),
-    ``double_press`` (a second hold that starts within ``double_press_ms`` of the first one's
-    start is down while held), ``turbo`` (while held: down for the first half of each
-    ``1 / turbo_hz`` period, up for the second).
-    """
-
-    def __init__(
-        self,
-        mode: str = "hold",
-        press_mm: float = 2.0,
-        release_mm: float = 1.0,
-        *,
-        dwell_ms: float = 500.0,
-        double_press_ms: float = 400.0,
-        turbo_hz: float = 10.0,
-        tap_ms: float = 100.0,
-    ) -> None:
-        self.mode = mode
-        self.press_mm, self.release_mm = press_mm, release_mm
-        self.dwell_us = int(round(dwell_ms * 1000))
-        self.double_us = int(round(double_press_ms * 1000))
-        self.half_period_us = 1e6 / (2.0 * turbo_hz)
-        self.tap_us = int(round(tap_ms * 1000))
-        self._tap_from_us: int | None = None  # tap: when this hold's keystroke went down
-        self.held = False
-        self._since_us = 0  # start of the current hold
-        self._first_us: int | None = None  # start of a press that may be the first of a double
-        self._double = False  # the current hold is a double press's second
-        self._toggled = False
-        self._suspended = False  # released by a type change: the next press goes on with this hold
-
-    def carry(self, source: "Activator") -> None:
-        """Go on with the hold ``source`` (another mapping's activator of the same output) began,
-        when a gesture's type changed under it: held with no press, so a toggle does not flip and
-        the output shows no release-and-press. The hold keeps its timing: a long press's dwell
-        and turbo's phase count from where ``source``'s hold began, a tap's keystroke goes on for
-        what is left of it (or, given, is not given again), a double press's second press stays
-        the second."""
-        if self.held:
-            return
-        self.held, self._since_us = True, source._since_us
-        self._first_us, self._double = source._first_us, source._double
-        if source.mode == "tap":
-            self._tap_from_us = source._tap_from_us
-        else:  # the hold's output was down already: no new keystroke
-            self._tap_from_us = source._since_us - self.tap_us
-
-    def suspend(self) -> None:
-        """The input is gone because the gesture's type changed: if the type comes back within
-        the gesture, that is this hold going on, not a new press (:meth:`settle` ends it)."""
-        self._suspended = self.held
-
-    def settle(self) -> None:
-        """The gesture is over: the next press is a new one."""
-        self._suspended = False
-
-    @classmethod
-    def of(cls, mapping: ButtonMapping | LayerSwitch | TouchClick) -> "Activator":
-        """The activator a mapping (or a layer switch, or the touchpad's click) describes."""
-        if isinstance(mapping, LayerSwitch):
-            return cls(mapping.mode, mapping.press_mm, mapping.release_mm)
-        if isinstance(mapping, TouchClick):
-            return cls(mapping.mode, mapping.press_mm, mapping.release_mm, dwell_ms=mapping.dwell)
-        return cls(
-            mapping.mode,
-            mapping.press_mm,
-            mapping.release_mm,
-            dwell_ms=mapping.dwell,
-            double_press_ms=mapping.double_press_ms,
-            turbo_hz=mapping.turbo_hz,
-            tap_ms=mapping.tap_ms,
-        )
-
-    def update(self, value_mm: float, t_us: int) -> bool:
-        """The output's state for the input ``value_mm`` (mm) at ``t_us`` (us, camera clock)."""
-        t_us = int(t_us)
-        was, resumed = self.held, False
-        if not self.held and (value_mm >= self.press_mm or (self._suspended and value_mm >= self.release_mm)):
-            self.held, resumed = True, self._suspended
-            self._since_us = self._since_us if resumed else t_us
-            self._suspended = False
-        elif self.held and value_mm < self.release_mm:
-            self.held = False
-        pressed, released = self.held and not was and not resumed, was and not self.held
-        mode = self.mode
-        if mode == "hold":
-            return self.held
-        if mode == "tap":
-            if pressed:
-                self._tap_from_us = None
-            if self.held and self._tap_from_us is None and t_us - self._since_us >= self.dwell_us:
-                self._tap_from_us = t_us
-            return self.held and self._tap_from_us is not None and t_us - self._tap_from_us < self.tap_us
-        if mode == "toggle":
-            if pressed:
-                self._toggled = not self._toggled
-            return self._toggled
-        if mode == "long_press":
-            return self.held and t_us - self._since_us >= self.dwell_us
-        if mode == "turbo":
-            return self.held and int((t_us - self._since_us) // self.half_period_us) % 2 == 0
-        # double_press
-        if pressed:
-            if self._first_us is not None and t_us - self._first_us <= self.double_us:
-                self._double, self._first_us = True, None
-            else:
-                self._first_us = t_us
-        if released:
-            self._double = False
-        return self.held and self._double
-
-
-class RelMotion:
-    """Velocity -> integer relative counts on the camera clock, keeping the fraction left over.
-
-    ``step(velocity, t_us)``: ``velocity`` in counts per second (pointer px/s, or wheel hi-res
-    1/120 detents per second); returns the whole counts moved since the previous step (the step
-    is capped at :data:`MAX_MOTION_STEP_US`, the counts at :data:`MAX_REL_COUNTS_PER_STEP`; the
-    first step moves nothing). A zero velocity
-    drops the remainder, so a stopped pointer never creeps.
-    """
-
-    def __init__(self) -> None:
-        self._t_us: int | None = None
-        self._rest = 0.0
-
-    def step(self, velocity: float, t_us: int) -> int:
-        t_us = int(t_us)
-        dt_us = 0 if self._t_us is None else min(max(t_us - self._t_us, 0), MAX_MOTION_STEP_US)
-        self._t_us = t_us
-        if velocity == 0 or not math.isfinite(velocity):
-            self._rest = 0.0
-            return 0
-        total = self._rest + velocity * dt_us * 1e-6
-        counts = int(max(-MAX_REL_COUNTS_PER_STEP, min(MAX_REL_COUNTS_PER_STEP, total)))  # towards zero
-        self._rest = max(-1.0, min(1.0, total - counts))  # what is clamped away is not owed later
-        return counts
-
-
-class _Wheel:
-    """One wheel: hi-res counts (1/120 detent) and the legacy detents they make, counted as the
-    kernel's HID input driver counts them for a hi-res wheel (``hidinput_handle_scroll`` in
-    drivers/hid/hid-input.c): the hi-res units accumulate, each whole 120 of them (towards zero)
-    is a detent, the remainder is kept, through a pause and a turn back alike."""
-
-    def __init__(self) -> None:
-        self.motion = RelMotion()
-        self._accumulated = 0  # hi-res units not yet reported as a detent (|x| < 120)
-
-    def step(self, detents_per_s: float, t_us: int) -> tuple[int, int]:
-        """(hi-res units, whole detents) moved since the previous step."""
-        hi = self.motion.step(detents_per_s * HI_RES_PER_DETENT, t_us)
-        if hi == 0:
-            return 0, 0
-        self._accumulated += hi
-        detents = int(self._accumulated / HI_RES_PER_DETENT)  # towards zero, as C's division
-        self._accumulated -= detents * HI_RES_PER_DETENT
-        return hi, detents
-
-
-def felt_level(profile: Profile) -> float:
-    """The lowest input (mm) at which an output of one gesture type (:data:`TYPE_INPUTS`) can be
-    on in ``profile``: the dead zone of an axis, stick, pointer or wheel, the ``release_mm`` of a
-    button or layer switch (a held one stays held down to it); ``inf`` when no mapping or switch
-    takes a typed input."""
-    levels = [
-        m.release_mm if isinstance(m, ButtonMapping) else m.deadzone_mm
-        for m in profile.mappings.values()
-        if m.input in TYPE_INPUTS
-    ]
-    levels += [s.release_mm for s in profile.layers.values() if s.input in TYPE_INPUTS]
-    click = profile.touchpad.click if profile.touchpad is not None else None
-    if click is not None and click.input in TYPE_INPUTS:
-        levels.append(click.release_mm)
-    return min(levels, default=math.inf)
 
 
 class Mapper:
@@ -414,7 +158,7 @@ class Mapper:
         self._filters = {name: _filter_for(m.smoothing) for name, m in mappings.items()}
         self._activators = {name: Activator.of(m) for name, m in mappings.items() if isinstance(m, ButtonMapping)}
         self._pointer = {"REL_X": RelMotion(), "REL_Y": RelMotion()}
-        self._wheels = {"REL_WHEEL": _Wheel(), "REL_HWHEEL": _Wheel()}
+        self._wheels = {"REL_WHEEL": Wheel(), "REL_HWHEEL": Wheel()}
         self._kind: GestureType | None = None  # the gesture's type (None at rest)
 
     def _hand_over(self, estimate: GestureEstimate, inputs: dict, layer: str) -> None:

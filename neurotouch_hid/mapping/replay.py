@@ -13,7 +13,8 @@ import numpy as np
 
 from neurotouch_hid.core.controller import AXES, TRIGGERS, ControllerState
 from neurotouch_hid.core.estimate import GestureEstimate
-from neurotouch_hid.mapping.mapper import Mapper, gesture_inputs
+from neurotouch_hid.mapping.inputs import gesture_inputs
+from neurotouch_hid.mapping.mapper import Mapper
 from neurotouch_hid.mapping.profile import (
     DIGITAL_OUTPUTS,
     DPAD,
