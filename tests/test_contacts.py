@@ -6,15 +6,15 @@ import numpy as np
 import pytest
 
 from neurotouch_hid.core.sensor import SensorGeometry
-from neurotouch_hid.pipeline import contacts as contacts_module
+from neurotouch_hid.pipeline import contacts_held
 from neurotouch_hid.pipeline.contacts import (
-    HELD_PEAK_SHARE,
     _maxima,
     detect_contacts,
     local_maxima,
     outlier_candidates,
 )
 from neurotouch_hid.pipeline.contacts_bump import maxima_pushed_out
+from neurotouch_hid.pipeline.contacts_held import HELD_PEAK_SHARE
 from neurotouch_hid.pipeline.contacts_plateau import _valid_table, rest_neighbours
 from neurotouch_hid.pipeline.contacts_refine import refine_peak
 from neurotouch_hid.pipeline.paper import paper_contacts
@@ -883,7 +883,7 @@ def _held_reference(held, idx, magnitudes, now):
     found = idx[at] == held[0]
     levels[at[found]] = held[1][found]
     again = (held[0][:, None] == now[0][None, :]).any(axis=1)
-    still = (idx[at] == held[0]) & (magnitudes[at] >= contacts_module.HELD_PEAK_SHARE * held[1]) & ~again
+    still = (idx[at] == held[0]) & (magnitudes[at] >= contacts_held.HELD_PEAK_SHARE * held[1]) & ~again
     return levels, (np.concatenate([now[0], held[0][still]]), np.concatenate([now[1], held[1][still]]))
 
 
@@ -900,8 +900,8 @@ def test_the_held_peaks_kernels_match_numpy():
         now = (rng.choice(idx, rng.integers(0, min(4, len(idx)) + 1), replace=False), rng.uniform(0, 9, 0))
         now = (now[0].astype(np.int64), rng.uniform(0.0, 9.0, len(now[0])))
         levels, still = _held_reference(held, idx, magnitudes, now)
-        got = contacts_module._still_held(held, idx, magnitudes, now)
-        np.testing.assert_array_equal(contacts_module._held_levels(held, idx), levels)
+        got = contacts_held._still_held(held, idx, magnitudes, now)
+        np.testing.assert_array_equal(contacts_held._held_levels(held, idx), levels)
         np.testing.assert_array_equal(got[0], still[0])
         np.testing.assert_array_equal(got[1], still[1])
         assert got[0].dtype == np.int64 and got[1].dtype == np.float64

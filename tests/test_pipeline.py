@@ -937,11 +937,11 @@ def _numba_signatures() -> dict[str, int]:
     """Compiled signatures per numba function of the pipeline's modules."""
     import numba
 
-    from neurotouch_hid.pipeline import contacts, gesture, learned, noise, resting, tracker
+    from neurotouch_hid.pipeline import contacts, contacts_held, gesture, learned, noise, resting, tracker
 
     return {
         f"{m.__name__}.{name}": len(f.signatures)
-        for m in (contacts, gesture, learned, noise, resting, tracker)
+        for m in (contacts, contacts_held, gesture, learned, noise, resting, tracker)
         for name, f in vars(m).items()
         if isinstance(f, numba.core.registry.CPUDispatcher)
     }

@@ -48,7 +48,7 @@ from neurotouch_hid.core.errors import SensorError
 from neurotouch_hid.core.estimate import GestureEstimate, GestureType, MarkerPositions
 from neurotouch_hid.core.sensor import SensorGeometry
 from neurotouch_hid.pipeline.config import MIN_WINDOW_US, PipelineConfig, PixelSettings, scaled_to_sensor
-from neurotouch_hid.pipeline.contacts import compile_held_kernels
+from neurotouch_hid.pipeline.contacts_held import compile_held_kernels
 from neurotouch_hid.pipeline.contacts_plateau import rest_neighbours
 from neurotouch_hid.pipeline.creep import TAIL_PRESS_MARKERS, TAIL_PRESS_SHARE, CreepFilter, TailWatch
 from neurotouch_hid.pipeline.creep import amplitude as creep_amplitude
