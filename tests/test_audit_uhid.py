@@ -20,14 +20,8 @@ from neurotouch_hid.engine.engine import Engine, RunParts
 from neurotouch_hid.engine.mode import RunMode, RunOptions
 from neurotouch_hid.targets import TargetOutputs
 from neurotouch_hid.targets.reports.hid import HID_JOYSTICK
-from neurotouch_hid.targets.uhid import (
-    HID_DEFAULT,
-    UHID_GET_REPORT,
-    UHID_GET_REPORT_REPLY,
-    UHID_INPUT_REPORT,
-    UHID_START,
-    UhidDevice,
-)
+from neurotouch_hid.targets.uhid import HID_DEFAULT, UhidDevice
+from neurotouch_hid.targets.uhid_events import UHID_GET_REPORT, UHID_GET_REPORT_REPLY, UHID_INPUT_REPORT, UHID_START
 
 
 class FakeUhid:

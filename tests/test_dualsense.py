@@ -274,14 +274,8 @@ def test_the_uhid_device_answers_the_feature_reports_hid_playstation_reads_as_it
 
     from neurotouch_hid.mapping.profile import DeviceSpec
     from neurotouch_hid.targets.protocols import PROTOCOLS
-    from neurotouch_hid.targets.uhid import (
-        UHID_EVENT_SIZE,
-        UHID_FEATURE_REPORT,
-        UHID_GET_REPORT,
-        UHID_START,
-        UhidDevice,
-        uhid_identity,
-    )
+    from neurotouch_hid.targets.uhid import UhidDevice, uhid_identity
+    from neurotouch_hid.targets.uhid_events import UHID_EVENT_SIZE, UHID_FEATURE_REPORT, UHID_GET_REPORT, UHID_START
 
     ours, kernel = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
     ours.setblocking(False)

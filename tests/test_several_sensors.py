@@ -157,8 +157,9 @@ def test_outputs_carry_the_camera_identity():
     from neurotouch_hid.mapping.profile import load_profile
     from neurotouch_hid.targets.gadget import configfs
     from neurotouch_hid.targets.identity import identity_for
-    from neurotouch_hid.targets.uhid import _CREATE2, create2_event, hid_identity
-    from neurotouch_hid.targets.uhid import PHYS as UHID_PHYS
+    from neurotouch_hid.targets.uhid import hid_identity
+    from neurotouch_hid.targets.uhid_events import _CREATE2, create2_event
+    from neurotouch_hid.targets.uhid_events import PHYS as UHID_PHYS
     from neurotouch_hid.targets.uinput.gamepad import PHYS, GamepadIdentity
 
     camera = identity_for("00000499")

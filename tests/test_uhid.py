@@ -20,8 +20,8 @@ from neurotouch_hid.engine.driver import OPENERS, DriverOptions, run_driver
 from neurotouch_hid.mapping.profile import DeviceSpec, load_profile
 from neurotouch_hid.service.udev import RULES_FILE, UHID_RULE
 from neurotouch_hid.targets.reports.hid import HID_JOYSTICK
-from neurotouch_hid.targets.uhid import (
-    HID_DEFAULT,
+from neurotouch_hid.targets.uhid import HID_DEFAULT, UhidDevice, hid_identity
+from neurotouch_hid.targets.uhid_events import (
     UHID_CREATE2,
     UHID_DESTROY,
     UHID_EVENT_SIZE,
@@ -31,9 +31,7 @@ from neurotouch_hid.targets.uhid import (
     UHID_OUTPUT,
     UHID_SET_REPORT,
     UHID_START,
-    UhidDevice,
     create2_event,
-    hid_identity,
     parse_event,
     read_event,
 )

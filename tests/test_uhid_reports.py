@@ -18,8 +18,8 @@ import pytest
 from neurotouch_hid.core.controller import ControllerState, Feedback
 from neurotouch_hid.targets.identity import identity_for
 from neurotouch_hid.targets.reports.hid import DESCRIPTOR
-from neurotouch_hid.targets.uhid import (
-    HID_DEFAULT,
+from neurotouch_hid.targets.uhid import HID_DEFAULT, UhidDevice
+from neurotouch_hid.targets.uhid_events import (
     UHID_EVENT_SIZE,
     UHID_FEATURE_REPORT,
     UHID_GET_REPORT,
@@ -32,7 +32,6 @@ from neurotouch_hid.targets.uhid import (
     UHID_SET_REPORT,
     UHID_SET_REPORT_REPLY,
     UHID_START,
-    UhidDevice,
 )
 
 CAMERA = identity_for("00000499")

@@ -87,7 +87,7 @@ QUIET_PRINTK = "4 4 1 7"
 
 def _uhid_hidraw() -> str | None:
     """The hidraw node of the run's UHID joystick (its HID device's uevent names the phys)."""
-    from neurotouch_hid.targets.uhid import PHYS
+    from neurotouch_hid.targets.uhid_events import PHYS
 
     for hid in Path("/sys/bus/hid/devices").glob("*"):
         try:

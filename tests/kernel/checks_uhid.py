@@ -35,7 +35,8 @@ from checks_runtime import PadWatcher, ProbeLines, _write
 from outputlib import PROFILE, HidrawReader, InProcessRun, held_state, hid_driver, push_right
 
 from neurotouch_hid.targets.reports.hid import HID_JOYSTICK
-from neurotouch_hid.targets.uhid import HID_DEFAULT, PHYS
+from neurotouch_hid.targets.uhid import HID_DEFAULT
+from neurotouch_hid.targets.uhid_events import PHYS
 
 TIMEOUT_S = 300
 IDS = (HID_DEFAULT.vendor, HID_DEFAULT.product)
