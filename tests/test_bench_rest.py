@@ -15,18 +15,20 @@ def bench_rest():
 
 @pytest.fixture
 def short_parts(bench_rest, monkeypatch):
-    monkeypatch.setattr(bench_rest, "FLOOR_PART_S", 0.2)
-    return bench_rest
+    """rest_work.py, where bench_rest.py's ``--floor`` is measured, with short parts."""
+    rest_work = load_benchmark("rest_work")
+    monkeypatch.setattr(rest_work, "FLOOR_PART_S", 0.2)
+    return rest_work
 
 
-def test_the_floor_runs_every_part_on_a_resting_gel(short_parts, tmp_path):
-    recording = short_parts.make_rest_recording(tmp_path, 3.0)
+def test_the_floor_runs_every_part_on_a_resting_gel(bench_rest, short_parts, tmp_path):
+    recording = bench_rest.make_rest_recording(tmp_path, 3.0)
     floor = short_parts.measure_floor(recording)
     assert list(floor) == list(short_parts.FLOOR_PARTS)  # each part ran (the CPU it took is the benchmark's)
 
 
-def test_the_floor_refuses_a_recording_too_short_for_its_parts(short_parts, tmp_path):
-    recording = short_parts.make_rest_recording(tmp_path, 2.0)
+def test_the_floor_refuses_a_recording_too_short_for_its_parts(bench_rest, short_parts, tmp_path):
+    recording = bench_rest.make_rest_recording(tmp_path, 2.0)
     with pytest.raises(RuntimeError, match="shorter than --floor's warm-up and parts"):
         short_parts.measure_floor(recording)
 
