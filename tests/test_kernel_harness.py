@@ -347,3 +347,38 @@ def test_a_touchpad_stroke_is_whole_only_from_its_touch_to_its_lift_with_no_even
     assert _stroke(merged) is None
     assert _stroke(first + merged + [("id", 3), ("x", 610), ("x", 700), ("id", -1)]) == [610, 700]
     assert _stroke([("id", 4), ("x", 610)]) is None
+    stalled = [("id", 2), ("x", 600), ("x", 1343), ("stalled", 1100), ("x", 733), ("x", 1354), ("id", -1)]
+    assert _stroke(first + stalled) == [560, 900]  # a host that missed the lift: not whole
+
+
+def test_the_touchpad_watcher_marks_a_pause_of_the_kernels_reports_longer_than_a_lift(monkeypatch):
+    """Two strokes read as one in CI (host load ~10): the starved emulated host never read the
+    lift between them. The watcher marks every pause of the Touchpad's reports of STALL_S or more
+    (the kernel's own report times), in every slot, so that such a stroke is not taken as whole."""
+    monkeypatch.syspath_prepend(str(Path(__file__).parent / "kernel"))
+    import checks_dualsense
+    from checks_gadget_ffs import _stroke
+
+    X, ID = checks_dualsense.ABS_MT_POSITION_X, checks_dualsense.ABS_MT_TRACKING_ID
+    sent = [([(3, ID, 1)], 10.0), ([(3, X, 560)], 10.04), ([(3, X, 600)], 10.08)]
+    sent += [([(3, X, 733)], 11.2), ([(3, X, 760)], 11.24), ([(3, ID, -1)], 11.28)]
+
+    class Reader:  # guestlib.EventReader as the watcher reads it: reports and their kernel times
+        def __init__(self, path):
+            self.axes, self.reports, self.report_times, self.gone = {}, [], [], False
+
+        def pump(self, timeout_s, until):
+            for report, t in sent:
+                self.reports.append(report)
+                self.report_times.append(t)
+            self.gone = True
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(checks_dualsense.guestlib, "EventReader", Reader)
+    watcher = checks_dualsense.TouchWatcher("/dev/input/event-test")
+    watcher.thread.join(5)
+    assert watcher.slots[0] == [("id", 1), ("x", 560), ("x", 600), ("stalled", 1120), ("x", 733), ("x", 760), ("id", -1)]
+    assert ("stalled", 1120) in watcher.slots[1]
+    assert _stroke(watcher.slots[0]) is None

@@ -111,11 +111,20 @@ def touches(rest_s: float = REST_S, hold_s: float = 240.0) -> list[GestureEstima
     return out
 
 
+#: A pause of the Touchpad's reports this long (s) is marked ("stalled"): shorter than the lift
+#: between two strokes of checks_gadget_ffs.strokes (0.48 s), so a host that missed a whole lift
+#: shows it. Reports come every 40 ms while a finger moves; between strokes the pause is marked too,
+#: outside any stroke.
+STALL_S = 0.4
+
+
 class TouchWatcher:
     """Reads the Touchpad's event node in a thread: per slot, its events in order, each
     ``(code name, value)`` with ``id`` for ABS_MT_TRACKING_ID, ``x``/``y`` for the positions and
     ``("dropped", 0)`` in every slot where the kernel dropped events because this reader fell behind
-    (:class:`guestlib.EventReader`); ``clicks``: BTN_LEFT's values."""
+    (:class:`guestlib.EventReader`), ``("stalled", ms)`` in every slot where the kernel's reports
+    stopped for :data:`STALL_S` or longer (a starved emulated host: what was meant meanwhile, a lift
+    among it, may never have reached the host); ``clicks``: BTN_LEFT's values."""
 
     def __init__(self, path: str) -> None:
         self.reader = guestlib.EventReader(path)
@@ -125,6 +134,7 @@ class TouchWatcher:
         self.times: list[float] = []  # when each report was read (monotonic s)
         self._stop = threading.Event()
         self._seen = 0
+        self._last_t: float | None = None  # the last report's kernel time (s)
         self.thread = threading.Thread(target=self._loop, daemon=True)
         self.thread.start()
 
@@ -133,8 +143,13 @@ class TouchWatcher:
         while not self._stop.is_set() and not self.reader.gone:
             self.reader.pump(timeout_s=0.2, until=lambda r: len(r.reports) > self._seen or self._stop.is_set())
             now = time.monotonic()
-            for report in self.reader.reports[self._seen :]:
+            for k, report in enumerate(self.reader.reports[self._seen :], start=self._seen):
                 self.times.append(now)
+                t_kernel = self.reader.report_times[k]
+                if self._last_t is not None and t_kernel - self._last_t >= STALL_S:
+                    for events in self.slots.values():
+                        events.append(("stalled", round((t_kernel - self._last_t) * 1000)))
+                self._last_t = t_kernel
                 for etype, code, value in report:
                     if etype == 0 and code == guestlib.SYN_DROPPED:
                         for events in self.slots.values():

@@ -240,11 +240,13 @@ def strokes(seconds: float = 200.0) -> list:
 def _stroke(slot: list) -> list[int] | None:
     """The x positions of the last whole stroke in ``slot``'s events (``(name, value)``: a
     tracking id >= 0, its moves, the id -1), None before one was seen whole. A stroke with a
-    ``("dropped", 0)`` inside (the kernel dropped events because the reader fell behind) is not
+    ``("dropped", 0)`` inside (the kernel dropped events because the reader fell behind) or a
+    ``("stalled", ms)`` (the host's reports stopped longer than a lift: a starved emulated guest, seen
+    in CI at host load ~10 as two strokes read as one, the lift between them never read) is not
     whole: its lift or its next touch may be among the lost events."""
     start, last = None, None
     for i, (name, value) in enumerate(slot):
-        if name == "dropped":
+        if name in ("dropped", "stalled"):
             start = None
         elif name == "id" and value >= 0 and start is None:
             start = i

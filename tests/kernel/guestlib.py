@@ -285,7 +285,8 @@ class EventReader:
     """Reads an event node like a game: tracks key and axis state from the events themselves.
 
     ``keys``: set of codes pressed; ``axes``: code -> last value; ``reports``: list of reports,
-    each a list of (type, code, value) up to its SYN_REPORT; ``gone``: the device disappeared;
+    each a list of (type, code, value) up to its SYN_REPORT, ``report_times`` the kernel's time of
+    each (s, the SYN_REPORT's ``input_event`` time); ``gone``: the device disappeared;
     ``dropped``: how many times the kernel dropped events because this reader fell behind
     (SYN_DROPPED). After a drop the reader does what Documentation/input/event-codes.rst asks of a
     client: it ignores the events up to and including the next SYN_REPORT, reads the keys' and
@@ -300,6 +301,7 @@ class EventReader:
         self.keys: set[int] = set(self.device.active_keys())
         self.axes: dict[int, int] = {code: info.value for code, info in self.device.capabilities().get(3, [])}
         self.reports: list[list[tuple[int, int, int]]] = []
+        self.report_times: list[float] = []  # each report's SYN_REPORT time, the kernel's (s)
         self._pending: list[tuple[int, int, int]] = []
         self.gone = False
         self.dropped = 0
@@ -326,6 +328,7 @@ class EventReader:
                     self._dropping, self._pending = True, []
                     continue
                 if ev.type == 0 and ev.code == 0:  # SYN_REPORT
+                    self.report_times.append(ev.timestamp())
                     if self._dropping:
                         self._dropping = False
                         self._resync()
