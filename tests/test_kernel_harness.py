@@ -379,6 +379,14 @@ def test_the_touchpad_watcher_marks_a_pause_of_the_kernels_reports_longer_than_a
     monkeypatch.setattr(checks_dualsense.guestlib, "EventReader", Reader)
     watcher = checks_dualsense.TouchWatcher("/dev/input/event-test")
     watcher.thread.join(5)
-    assert watcher.slots[0] == [("id", 1), ("x", 560), ("x", 600), ("stalled", 1120), ("x", 733), ("x", 760), ("id", -1)]
+    assert watcher.slots[0] == [
+        ("id", 1),
+        ("x", 560),
+        ("x", 600),
+        ("stalled", 1120),
+        ("x", 733),
+        ("x", 760),
+        ("id", -1),
+    ]
     assert ("stalled", 1120) in watcher.slots[1]
     assert _stroke(watcher.slots[0]) is None
