@@ -17,6 +17,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent / "kernel"))
 from davis_gadget import (  # noqa: E402
     CHUNK_BYTES,
     HEIGHT,
+    MAX_BACKLOG_BYTES,
     USB,
     USB_CLOCK_MHZ,
     USB_EARLY_PACKET_DELAY,
@@ -259,3 +260,17 @@ def test_short_data_waits_the_early_packet_delay_the_host_wrote_and_full_transfe
     device.backlog.clear()
     device._queue(np.zeros(CHUNK_BYTES // 2 + 5, np.uint16))  # a transfer and 10 bytes
     assert [len(chunk) for chunk in device.backlog] == [CHUNK_BYTES] and len(device.pending) == 10
+
+
+def test_the_stats_line_says_the_events_queued_and_the_bytes_dropped(tmp_path):
+    """The log line a guest measurement compares with what the host received: the events the
+    stream queued (those sent while DVS runs, as decoded), its frames, and the bytes dropped
+    because the host did not read them."""
+    device = DavisDevice(Replay(_recording(tmp_path / "r.aedat4"), loop=True), verbose=False)
+    device.stream = Stream(device.replay, t_dev0=0)
+    events, _ = decode(np.concatenate(device.stream.until(25_000, dvs=True, aps=True)))
+    device.stream.until(35_000, dvs=False, aps=True)  # DVS stopped: nothing queued, nothing counted
+    assert len(events) == 233 == device.stream.events_sent  # 100 a lap of 10.9 ms: two laps and 33
+    device.backlog_bytes = MAX_BACKLOG_BYTES  # the host stopped reading
+    device._queue(np.zeros(10, np.uint16))
+    assert device.stats().endswith("; queued 233 events, 0 frames; dropped 20 bytes")

@@ -361,6 +361,8 @@ class Stream:
         self.mark_pos = 0
         self.done = False
         self.following: list[Replay] = []  # played in turn once the current one is done
+        self.events_sent = 0  # DVS events and APS frames queued so far (the stats line says them)
+        self.frames_sent = 0
 
     def cue(self, t_rel: int, replays: list[Replay]) -> None:
         """Leave the current replay at ``t_rel`` (us after the stream start; what is due before
@@ -388,6 +390,7 @@ class Stream:
                     s = slice(self.event_pos, stop)
                     if dvs:
                         out.append(self.encoder.events(r.t[s] + base + self.t_dev0, r.x[s], r.y[s], r.p[s]))
+                        self.events_sent += stop - self.event_pos
                     self.event_pos = stop
                     continue
                 t_mark, kind, index = r.marks[self.mark_pos]
@@ -397,6 +400,7 @@ class Stream:
                     out.append(
                         self.encoder.frame_start(t_dev) if kind == 0 else self.encoder.frame_end(t_dev, r.images[index])
                     )
+                    self.frames_sent += kind
             if limit < r.period:
                 break
             if not r.loop:
@@ -659,8 +663,13 @@ class DavisDevice:
 
     def stats(self) -> str:
         """The data endpoint's counts so far, as logged once a second while a stream runs (the
-        guest checks read the transfers a second from them)."""
-        return f"sent {self.transfers} transfers ({self.short_transfers} short), {self.sent_bytes} bytes"
+        guest checks read the transfers a second from them); the events and frames queued in this
+        stream, and the bytes dropped because the host did not read them."""
+        events, frames = (self.stream.events_sent, self.stream.frames_sent) if self.stream else (0, 0)
+        return (
+            f"sent {self.transfers} transfers ({self.short_transfers} short), {self.sent_bytes} bytes; "
+            f"queued {events} events, {frames} frames; dropped {self.dropped_bytes} bytes"
+        )
 
     def pump(self, submit: bool = True) -> None:
         """Queue what is due now; submit queued data while transfers are free."""
