@@ -231,7 +231,7 @@ def simulator_alone(seconds: float = 10.0) -> float:
 
 #: The steps ``--parts`` wraps: (module, class or None, attribute, name printed).
 PARTS = (
-    ("neurotouch_hid.sources.recording", "CuttingStream", "__next__", "reader: next item"),
+    ("neurotouch_hid.sources.batches", "CuttingStream", "__next__", "reader: next item"),
     ("neurotouch_hid.engine.rest", "RestHandover", "release", "source: the held items handed on"),
     ("neurotouch_hid.engine.engine", "Engine", "_hand_on", "source: one item handed on"),
     ("neurotouch_hid.engine.engine", "Engine", "_handle", "an item handled"),
