@@ -37,3 +37,14 @@ def test_the_floor_refuses_a_gel_that_does_not_rest(short_parts, tmp_path):
     recording = load_benchmark("bench_latency").make_recording(tmp_path, 4.0)  # gestures from the start
     with pytest.raises(RuntimeError, match="does not rest"):
         short_parts.measure_floor(recording)
+
+
+def test_every_step_parts_wraps_is_where_the_code_keeps_it(bench_rest):
+    """``--parts`` wraps each step by its module and name: a step moved by a split stops it at its
+    first wrap, so each must resolve to a callable."""
+    import importlib
+
+    for module, cls, attr, _name in bench_rest.PARTS:
+        owner = importlib.import_module(module)
+        owner = owner if cls is None else getattr(owner, cls)
+        assert callable(getattr(owner, attr)), (module, cls, attr)
