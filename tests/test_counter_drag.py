@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_pipeline import SENSOR
+from pipeline_helpers import SENSOR
 from test_type_commitment import _bump, _run
 
 from neurotouch_hid.core.estimate import GestureType

@@ -1,6 +1,6 @@
 """The gel's rigid motion read off the rim markers (``gel_motion.py``): its numba kernels against
 straightforward NumPy references written here (random rims, NaN rows, lost markers, too few
-markers, a still rim). The behaviour on whole gestures is tested in test_pipeline.py."""
+markers, a still rim). The behaviour on whole gestures is tested in test_pipeline_gel_motion.py."""
 
 from __future__ import annotations
 

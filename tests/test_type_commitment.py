@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from test_pipeline import SENSOR, _WindowByWindow, events_at, gel_image
+from pipeline_helpers import SENSOR, _WindowByWindow, events_at, gel_image
 
 from neurotouch_hid.core.estimate import GestureEstimate, GestureType
 from neurotouch_hid.evaluation.felt import DEFAULT_DEADZONE_MM
