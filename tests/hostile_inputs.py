@@ -1,4 +1,4 @@
-"""Inputs crafted to break the driver (tests/test_hostile_inputs.py, benchmarks/fuzz_inputs.py):
+"""Inputs crafted to break the driver (tests/test_hostile_*.py, benchmarks/fuzz_inputs.py):
 decompression bombs in AEDAT4 recordings and bombs in YAML."""
 
 from __future__ import annotations

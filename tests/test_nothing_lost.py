@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from test_hostile_inputs import ROOT, assert_refused, cli
+from hostile_helpers import ROOT, assert_refused, cli
 
 PROFILE = [sys.executable, "-m", "neurotouch_hid.cli", "profile"]
 
