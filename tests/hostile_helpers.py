@@ -1,5 +1,5 @@
 """How the tests of inputs crafted to break the driver run it (tests/test_hostile_*.py,
-test_nothing_lost.py, docs/limits.md): commands run in child processes, measured with ``wait4``
+test_nothing_lost_*.py, docs/limits.md): commands run in child processes, measured with ``wait4``
 (their peak memory) and guarded by an address-space limit, so that a bound that does not hold fails
 the test without taking the machine's memory; a refusal is exit 2, one short message, no traceback."""
 
