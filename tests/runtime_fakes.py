@@ -1,5 +1,5 @@
 """Small fakes for the runtime's stages (unit tests of the runtime: tests/test_runtime_*.py,
-tests/test_control.py, tests/test_copilot.py, tests/test_first_run_messages.py; acceptance runs the
+tests/test_control.py, tests/test_copilot_runtime.py, tests/test_first_run_messages.py; acceptance runs the
 real stages), and waits on what a runtime did."""
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ whose read end is its descriptor, so ``select`` wakes on it); :class:`FakeInputD
 for python-evdev's ``InputDevice`` (a node opened read-only writes through python-evdev's own
 ``write``, which raises ``EvdevError`` on such a descriptor); the ioctls of device.py (EVIOCSFF,
 EVIOCRMFF) are recorded. /dev/input and /sys/class/input are folders of plain files, as in
-tests/test_copilot.py. The real kernel's devices are checked in tests/kernel/checks_copilot.py.
+tests/test_copilot_controls.py. The real kernel's devices are checked in tests/kernel/checks_copilot.py.
 """
 
 from __future__ import annotations

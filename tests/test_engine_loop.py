@@ -9,9 +9,9 @@ import threading
 import time
 
 import pytest
+from copilot_helpers import SHORT_FORM
 from helpers import wait_until
 from runtime_fakes import EstimatesThrough
-from test_copilot import SHORT_FORM
 from test_targets import PipeTarget
 
 from neurotouch_hid.core.estimate import GestureEstimate, GestureType
