@@ -138,6 +138,50 @@ def test_a_profile_switch_releases_the_old_merge_and_starts_the_new_ones():
     assert made[2].events == ["start", "stop"]
 
 
+def test_a_profile_switched_while_the_run_starts_its_merge_shows_the_new_profiles_devices():
+    """A switch that comes while the run is starting the merged devices waits for it: the run does
+    not note the devices it started after the switch released them (the status said a released
+    helper's pad was merged)."""
+    asked, switching = threading.Event(), threading.Event()
+
+    class SlowStatus(ScriptedMerge):
+        def status(self):  # what the devices are now, told a while later
+            now = super().status()
+            if not asked.is_set():
+                asked.set()
+                switching.wait(30)
+                threading.Event().wait(0.3)  # the switch, unhindered, is over by then
+            return now
+
+    made: list[ScriptedMerge | None] = []
+
+    def merge_for(profile):
+        made.append(SlowStatus() if profile.copilot else None)
+        return made[-1]
+
+    gate, begun = threading.Event(), threading.Event()
+
+    def source():  # read from the source's thread, which starts after the merged devices
+        begun.set()
+        yield GestureEstimate(t_us=10_000)
+        gate.wait(30)
+
+    options = RunOptions(mode=RunMode.FAST, merge_for=merge_for)
+    rt = Engine(RunParts(source(), EstimatesThrough()), parse_profile(SHORT_FORM, "p.yaml"), [Written()], options)
+    thread = threading.Thread(target=rt.run)
+    thread.start()
+    try:
+        assert asked.wait(30)
+        switching.set()
+        rt.switch_profile(parse_profile("mappings: {}\n", "q.yaml"))
+        assert made[0].events == ["start", "stop"] and made[1] is None
+        assert begun.wait(30)  # the run's own note of its merged devices is behind it
+        assert rt.stats.merged == () and rt.stats.missing == ()
+    finally:
+        gate.set()
+        thread.join(30)
+
+
 @pytest.mark.parametrize("camera", ["waiting", "lost"])
 def test_the_helpers_pad_drives_the_pad_while_the_gels_camera_is_missing(camera):
     """No camera yet, or the camera lost after a window: the helper's pad is merged (grabbed, so

@@ -135,7 +135,7 @@ class Engine:
         self._errors: list[BaseException] = []
         self._limit_us: int | None = None
         self._clock = options.pacer or Pacer()  # the first item read anchors pacing, limits and latencies
-        self._ran = False
+        self._ran = self._merging = False  # run; its merged devices started (a switch starts its own)
         self._first_us: int | None = None  # the first item's end (us), for ``stats.stream_us``
         self._compile = CompileWatch(parts.compile_progress)
         merge = options.merge
@@ -164,15 +164,10 @@ class Engine:
             span_waits=mode.waits,
         )
         self._frames = DropOldestQueue(DEFAULT_FRAME_QUEUE, drop_oldest=mode.realtime, on_drop=self._count_resting_drop)
-        pause = self._source.poll_pause if mode is RunMode.LIVE else None
-        self._pause = pause  # a live source's polls that bring nothing wait as the rest decides
-        self.rest = RestHandover(
-            self._clock,
-            self._stop,
-            self._hand_on,
-            paced=mode.paced,
-            default_pause_s=pause.default_s if pause is not None else 0.0,
-        )
+        # a live source's polls that bring nothing wait as the rest decides
+        self._pause = pause = self._source.poll_pause if mode is RunMode.LIVE else None
+        default_s = pause.default_s if pause is not None else 0.0
+        self.rest = RestHandover(self._clock, self._stop, self._hand_on, paced=mode.paced, default_pause_s=default_s)
 
     @property
     def profile(self) -> Profile:
@@ -303,10 +298,12 @@ class Engine:
                     early.quiet()
                     if early.requested.is_set():
                         self.stop()
-                if self._merge is not None:
-                    self._merge.start(self.publisher.merged_input)
-                    merged, missing = self._merge.status()
-                    self.stats.note(merged=merged, missing=missing)
+                with self._switching:  # a profile switched meanwhile waits: it replaces this merge after
+                    self._merging = True
+                    if self._merge is not None:
+                        self._merge.start(self.publisher.merged_input)
+                        merged, missing = self._merge.status()
+                        self.stats.note(merged=merged, missing=missing)
                 for t in threads:
                     t.start()
                 worker = threads[1]
@@ -590,7 +587,7 @@ class Engine:
         if old is not None:
             old.stop()
         new = merge_for(profile)
-        if new is not None and self._ran:
+        if new is not None and self._merging:
             new.start(self.publisher.merged_input)
         self._merge = new
         self.publisher.set_merge(new)
