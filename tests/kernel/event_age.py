@@ -44,12 +44,18 @@ def us(delta: datetime.timedelta) -> int:
 
 class TimedCamera:
     """A dv-processing camera whose every non-empty event batch is noted with its arrival: the
-    rows (time.monotonic() s, lowest and highest timestamp us, events) in :attr:`batches`. All
-    other calls go to the camera as they are."""
+    rows (time.monotonic() s, lowest and highest timestamp us, events) in :attr:`batches`; and
+    each data commit interval set, (time.monotonic() s, us) in :attr:`intervals`. All other calls
+    go to the camera as they are."""
 
     def __init__(self, camera: Any) -> None:
         self._camera = camera
         self.batches: list[tuple[float, int, int, int]] = []
+        self.intervals: list[tuple[float, int]] = []
+
+    def setTimeInterval(self, interval):  # noqa: N802 - dv-processing's name
+        self.intervals.append((time.monotonic(), us(interval)))
+        return self._camera.setTimeInterval(interval)
 
     def getNextEventBatch(self):  # noqa: N802 - dv-processing's name
         store = self._camera.getNextEventBatch()
@@ -104,10 +110,13 @@ def ages(batches: list[tuple[float, int, int, int]], offset_us: int, clock0: flo
 #: The event-age part's stream (s): the first SETTLE_S not counted (the stream's start), then
 #: TOUCH_S as a touched gel's (the consumer says nothing of a rest), then REST_S resting.
 SETTLE_S, TOUCH_S, REST_S = 0.5, 2.0, 1.5
-#: The resting batches are those whose events the camera stamped this long (s) after the consumer
-#: said the gel rests: the source switches at its next poll, and what the camera held then is
-#: committed as it was (in CI at host load ~10 the guest read 1 ms batches 0.46-0.66 s old after the
-#: switch: picked by their arrival, the "resting" ones were that backlog).
+#: The resting batches are those the resting stream read whose events the camera stamped this long
+#: (s) after the source set the resting commit interval (what the host parses from then on is
+#: committed at it; what it had parsed before, at 1 ms): not after the consumer said the gel rests,
+#: as the source switches at its next poll, which a busy guest delays (in CI at host load ~10 the
+#: guest read 1 ms batches 0.46-0.66 s old after the switch: picked by their arrival, the "resting"
+#: ones were that backlog; picked by their stamps after the consumer's word, a CI run counted 342
+#: batches of 0.9 ms at p50).
 REST_MARGIN_S = 0.1
 #: The resting windows' length the part's consumer says (us): the default 10 ms windows.
 REST_WINDOW_US = 10_000
@@ -144,6 +153,7 @@ def through_davis_source(log: Any, serial: str) -> dict:
         stream.poll_pause.resting = lambda: REST_WINDOW_US if time.monotonic() >= rest_from else None
         for _ in stream:
             pass
+        read_at_rest = len(camera.batches)  # the next stream's first poll reads at 1 ms again
         at_rest = {
             "time_interval_us": us(camera.getTimeInterval()),
             "early_packet_delay_us": us(camera.getUSBEarlyPacketDelay()),
@@ -155,11 +165,17 @@ def through_davis_source(log: Any, serial: str) -> dict:
     touched = [b for b in camera.batches if t0 + SETTLE_S <= b[0] < rest_from]
     # at rest: the events the camera stamped after the switch (+ REST_MARGIN_S), by their device time,
     # not by when they came: a lagging guest still reads the batches committed before it for a while
-    rest_us = (rest_from + REST_MARGIN_S - clock0) * 1e6 + offset_us
-    resting = [b for b in camera.batches if b[1] >= rest_us]
+    switched = next((t for t, value in camera.intervals if t >= rest_from and value == REST_WINDOW_US), rest_from)
+    rest_us = (switched + REST_MARGIN_S - clock0) * 1e6 + offset_us
+    resting = [b for b in camera.batches[:read_at_rest] if b[1] >= rest_us]
     return {
         "opened_time_interval_us": opened_us,
         "touched": {**ages(touched, offset_us, clock0), **spans(touched)},
-        "at_rest": {**at_rest, **ages(resting, offset_us, clock0), **spans(resting)},
+        "at_rest": {
+            **at_rest,
+            "switched_after_s": round(switched - rest_from, 3),
+            **ages(resting, offset_us, clock0),
+            **spans(resting),
+        },
         "after_rest_time_interval_us": after_us,
     }
