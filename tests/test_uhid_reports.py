@@ -297,7 +297,9 @@ def test_no_call_sleeps_longer_than_the_loop_may_wait_whatever_the_flood(clocked
     start_s = clock.now
     _flood(clocked, events)
     assert 0 < clock.longest <= MAX_REST_S <= 0.01  # what the loop's other fds may wait, at most
-    assert clock.thread_time() <= HOST_CPU_SHARE * (clock.now - start_s) + 64 * clock.cpu_per_event  # bound kept
+    # bound kept (the last batch, 64 events, not repaid yet; at equality when the flood ends on a full
+    # batch, which float sums of the sleeps miss by 1e-13)
+    assert clock.thread_time() <= HOST_CPU_SHARE * (clock.now - start_s) + 64 * clock.cpu_per_event + 1e-9
 
 
 def test_a_host_at_a_games_pace_is_never_made_to_wait(clocked):
