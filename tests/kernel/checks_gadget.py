@@ -548,7 +548,11 @@ def check_usb_switch_access_keyboard() -> dict:
         deadline = time.monotonic() + 400.0
         while not typed(watcher) and run.alive() and time.monotonic() < deadline:
             watcher.pump(timeout_s=1.0, until=typed, max_s=400.0)
+        seen["alive"] = run.alive()
         seen["pressed"] = typed(watcher)
+        seen["reports"] = [
+            sorted({(t, c, v) for t, c, v in report if t == ecodes.EV_KEY}) for report in watcher.reports
+        ][:8]
         run.stop(watcher)
         seen["released"] = ecodes.KEY_SPACE not in watcher.keys
 
@@ -561,7 +565,10 @@ def check_usb_switch_access_keyboard() -> dict:
     props = seen["props"]
     assert run.returned, f"the run did not return after SIGTERM: {run.said[-5:]}"
     assert props.get("ID_INPUT_KEYBOARD") == "1", f"udev: {props}"
-    assert seen["pressed"], "the push never arrived as KEY_SPACE"
+    assert seen["pressed"], (
+        f"the push never arrived as KEY_SPACE: the keyboard's first reports {seen.get('reports')}; "
+        f"the run alive to the end: {seen.get('alive')}, said {run.said[-5:]}"
+    )
     assert seen["released"], "KEY_SPACE still down after SIGTERM"
     assert kept, "the run removed the gadget that gadget setup made"
     assert remove[0] == 0 and not configfs.gadget_dir().exists(), f"gadget remove: {remove}"
